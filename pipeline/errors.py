@@ -1,0 +1,14 @@
+"""The one error type the CLI turns into a one-line message and a non-zero exit code."""
+
+from __future__ import annotations
+
+
+class InputError(Exception):
+    """Bad input: names the file, the topic (if any) and the problem in one line."""
+
+    def __init__(self, path: object, problem: str, topic: str | None = None) -> None:
+        self.path = str(path)
+        self.topic = topic
+        self.problem = problem
+        where = f"{self.path}" + (f" [{topic}]" if topic else "")
+        super().__init__(f"{where}: {problem}")

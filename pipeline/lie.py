@@ -1,0 +1,177 @@
+"""SO(3)/SE(3) helpers shared by every observer, the simulator and the evaluation.
+
+Conventions (spec §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
+``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. All functions are numba-compiled
+so the observer kernels can call them; they also work from plain Python on NumPy arrays.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+SMALL_ANGLE = 1e-8
+
+
+@njit(cache=True)
+def skew(w):
+    """``[w]x`` such that ``skew(w) @ z == cross(w, z)``."""
+    out = np.zeros((3, 3))
+    out[0, 1] = -w[2]
+    out[0, 2] = w[1]
+    out[1, 0] = w[2]
+    out[1, 2] = -w[0]
+    out[2, 0] = -w[1]
+    out[2, 1] = w[0]
+    return out
+
+
+@njit(cache=True)
+def vex(m):
+    """Inverse of :func:`skew` applied to the anti-symmetric part of ``m``."""
+    out = np.empty(3)
+    out[0] = 0.5 * (m[2, 1] - m[1, 2])
+    out[1] = 0.5 * (m[0, 2] - m[2, 0])
+    out[2] = 0.5 * (m[1, 0] - m[0, 1])
+    return out
+
+
+@njit(cache=True)
+def so3_exp(w):
+    """Rodrigues' formula with the small-angle branch of spec §1.2."""
+    theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    k = skew(w)
+    k2 = k @ k
+    if theta < SMALL_ANGLE:
+        return np.eye(3) + k + 0.5 * k2
+    return np.eye(3) + (np.sin(theta) / theta) * k + ((1.0 - np.cos(theta)) / (theta * theta)) * k2
+
+
+@njit(cache=True)
+def so3_left_jacobian(w):
+    """Left Jacobian ``J(w)`` of SO(3); translation part of the SE(3) exponential."""
+    theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    k = skew(w)
+    k2 = k @ k
+    if theta < SMALL_ANGLE:
+        return np.eye(3) + 0.5 * k + (1.0 / 6.0) * k2
+    t2 = theta * theta
+    return np.eye(3) + ((1.0 - np.cos(theta)) / t2) * k + ((theta - np.sin(theta)) / (t2 * theta)) * k2
+
+
+@njit(cache=True)
+def se3_exp(w, v):
+    """Closed-form SE(3) exponential of the twist ``[w; v]``: returns ``(R, p)``."""
+    return so3_exp(w), so3_left_jacobian(w) @ v
+
+
+@njit(cache=True)
+def so3_log(r):
+    """Rotation vector of ``r`` (inverse of :func:`so3_exp`), robust near 0 and pi."""
+    c = 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)
+    c = min(1.0, max(-1.0, c))
+    theta = np.arccos(c)
+    if theta < 1e-6:
+        return vex(r)
+    if np.pi - theta < 1e-4:
+        # Near pi the antisymmetric part vanishes; use the symmetric part for the axis.
+        b = 0.5 * (r + r.T) - c * np.eye(3)
+        i = 0
+        if b[1, 1] > b[i, i]:
+            i = 1
+        if b[2, 2] > b[i, i]:
+            i = 2
+        axis = b[:, i] / np.sqrt(max(b[i, i], 1e-300))
+        axis = axis / np.linalg.norm(axis)
+        s = vex(r)
+        if axis[0] * s[0] + axis[1] * s[1] + axis[2] * s[2] < 0.0:
+            axis = -axis
+        return theta * axis
+    return (theta / np.sin(theta)) * vex(r)
+
+
+@njit(cache=True)
+def rotation_angle(r):
+    """Rotation angle in [0, pi] (spec §1.2)."""
+    c = 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)
+    return np.arccos(min(1.0, max(-1.0, c)))
+
+
+@njit(cache=True)
+def project_so3(r):
+    """Nearest rotation (polar decomposition by SVD); removes accumulated round-off."""
+    u, _, vt = np.linalg.svd(r)
+    d = np.linalg.det(u @ vt)
+    fix = np.eye(3)
+    fix[2, 2] = d
+    return u @ fix @ vt
+
+
+@njit(cache=True)
+def quat_to_rot(q):
+    """``(x, y, z, w)`` quaternion (normalised here) to a rotation matrix."""
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    x, y, z, w = q[0] / n, q[1] / n, q[2] / n, q[3] / n
+    out = np.empty((3, 3))
+    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    out[0, 1] = 2.0 * (x * y - z * w)
+    out[0, 2] = 2.0 * (x * z + y * w)
+    out[1, 0] = 2.0 * (x * y + z * w)
+    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    out[1, 2] = 2.0 * (y * z - x * w)
+    out[2, 0] = 2.0 * (x * z - y * w)
+    out[2, 1] = 2.0 * (y * z + x * w)
+    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return out
+
+
+@njit(cache=True)
+def rot_to_quat(r):
+    """Rotation matrix to a unit ``(x, y, z, w)`` quaternion with ``w >= 0`` (Shepperd's method)."""
+    q = np.empty(4)
+    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    if tr > 0.0:
+        s = 2.0 * np.sqrt(tr + 1.0)
+        q[3] = 0.25 * s
+        q[0] = (r[2, 1] - r[1, 2]) / s
+        q[1] = (r[0, 2] - r[2, 0]) / s
+        q[2] = (r[1, 0] - r[0, 1]) / s
+    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        q[3] = (r[2, 1] - r[1, 2]) / s
+        q[0] = 0.25 * s
+        q[1] = (r[0, 1] + r[1, 0]) / s
+        q[2] = (r[0, 2] + r[2, 0]) / s
+    elif r[1, 1] > r[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        q[3] = (r[0, 2] - r[2, 0]) / s
+        q[0] = (r[0, 1] + r[1, 0]) / s
+        q[1] = 0.25 * s
+        q[2] = (r[1, 2] + r[2, 1]) / s
+    else:
+        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        q[3] = (r[1, 0] - r[0, 1]) / s
+        q[0] = (r[0, 2] + r[2, 0]) / s
+        q[1] = (r[1, 2] + r[2, 1]) / s
+        q[2] = 0.25 * s
+    if q[3] < 0.0:
+        q = -q
+    return q / np.linalg.norm(q)
+
+
+@njit(cache=True)
+def quats_to_rots(q):
+    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array."""
+    out = np.empty((q.shape[0], 3, 3))
+    for k in range(q.shape[0]):
+        out[k] = quat_to_rot(q[k])
+    return out
+
+
+@njit(cache=True)
+def rots_to_quats(r):
+    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array."""
+    out = np.empty((r.shape[0], 4))
+    for k in range(r.shape[0]):
+        out[k] = rot_to_quat(r[k])
+    return out
