@@ -14,6 +14,34 @@ SMALL_ANGLE = 1e-8
 
 
 @njit(cache=True)
+def mat3_mul(a, b):
+    """3x3 product without BLAS (numba's ``@`` needs scipy; loops are faster at this size)."""
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
+    return out
+
+
+@njit(cache=True)
+def mat3_vec(a, v):
+    """``a @ v`` for a 3x3 matrix and a 3-vector."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = a[i, 0] * v[0] + a[i, 1] * v[1] + a[i, 2] * v[2]
+    return out
+
+
+@njit(cache=True)
+def mat3t_vec(a, v):
+    """``a.T @ v`` for a 3x3 matrix and a 3-vector."""
+    out = np.empty(3)
+    for i in range(3):
+        out[i] = a[0, i] * v[0] + a[1, i] * v[1] + a[2, i] * v[2]
+    return out
+
+
+@njit(cache=True)
 def skew(w):
     """``[w]x`` such that ``skew(w) @ z == cross(w, z)``."""
     out = np.zeros((3, 3))
@@ -41,7 +69,7 @@ def so3_exp(w):
     """Rodrigues' formula with the small-angle branch of spec §1.2."""
     theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     k = skew(w)
-    k2 = k @ k
+    k2 = mat3_mul(k, k)
     if theta < SMALL_ANGLE:
         return np.eye(3) + k + 0.5 * k2
     return np.eye(3) + (np.sin(theta) / theta) * k + ((1.0 - np.cos(theta)) / (theta * theta)) * k2
@@ -52,7 +80,7 @@ def so3_left_jacobian(w):
     """Left Jacobian ``J(w)`` of SO(3); translation part of the SE(3) exponential."""
     theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     k = skew(w)
-    k2 = k @ k
+    k2 = mat3_mul(k, k)
     if theta < SMALL_ANGLE:
         return np.eye(3) + 0.5 * k + (1.0 / 6.0) * k2
     t2 = theta * theta
@@ -62,7 +90,7 @@ def so3_left_jacobian(w):
 @njit(cache=True)
 def se3_exp(w, v):
     """Closed-form SE(3) exponential of the twist ``[w; v]``: returns ``(R, p)``."""
-    return so3_exp(w), so3_left_jacobian(w) @ v
+    return so3_exp(w), mat3_vec(so3_left_jacobian(w), v)
 
 
 @njit(cache=True)
@@ -82,7 +110,7 @@ def so3_log(r):
         if b[2, 2] > b[i, i]:
             i = 2
         axis = b[:, i] / np.sqrt(max(b[i, i], 1e-300))
-        axis = axis / np.linalg.norm(axis)
+        axis = axis / np.sqrt(axis[0] ** 2 + axis[1] ** 2 + axis[2] ** 2)
         s = vex(r)
         if axis[0] * s[0] + axis[1] * s[1] + axis[2] * s[2] < 0.0:
             axis = -axis
@@ -97,14 +125,9 @@ def rotation_angle(r):
     return np.arccos(min(1.0, max(-1.0, c)))
 
 
-@njit(cache=True)
 def project_so3(r):
-    """Nearest rotation (polar decomposition by SVD); removes accumulated round-off."""
-    u, _, vt = np.linalg.svd(r)
-    d = np.linalg.det(u @ vt)
-    fix = np.eye(3)
-    fix[2, 2] = d
-    return u @ fix @ vt
+    """Re-orthonormalise a rotation that drifted by round-off (through its quaternion; exact to O(drift))."""
+    return quat_to_rot(rot_to_quat(r))
 
 
 @njit(cache=True)
@@ -156,7 +179,7 @@ def rot_to_quat(r):
         q[2] = 0.25 * s
     if q[3] < 0.0:
         q = -q
-    return q / np.linalg.norm(q)
+    return q / np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
 
 
 @njit(cache=True)
