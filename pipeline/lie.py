@@ -125,6 +125,7 @@ def rotation_angle(r):
     return np.arccos(min(1.0, max(-1.0, c)))
 
 
+@njit(cache=True)
 def project_so3(r):
     """Re-orthonormalise a rotation that drifted by round-off (through its quaternion; exact to O(drift))."""
     return quat_to_rot(rot_to_quat(r))
