@@ -1,1 +1,18 @@
-"""observers"""
+"""Observer registry: one entry per algorithm of spec/observers.md, selectable by name."""
+
+from __future__ import annotations
+
+from pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverResult, ObserverSpec
+from pipeline.observers.fast_adaptation import SPEC as FAST_ADAPTATION
+
+OBSERVERS: dict[str, ObserverSpec] = {s.name: s for s in (FAST_ADAPTATION,)}
+
+
+def get_observer(name: str) -> ObserverSpec:
+    try:
+        return OBSERVERS[name]
+    except KeyError:
+        raise GainError(f"unknown observer '{name}' (available: {', '.join(OBSERVERS)})") from None
+
+
+__all__ = ["OBSERVERS", "GainError", "GainSpec", "ObserverOptions", "ObserverResult", "ObserverSpec", "get_observer"]

@@ -1,0 +1,110 @@
+"""``slamobs`` command line: composes the pipeline; heavy modules are imported inside the commands."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+
+class _Group(click.Group):
+    """Turns the pipeline's input errors into one line on stderr and exit code 2 (no traceback)."""
+
+    def invoke(self, ctx):
+        from pipeline.errors import InputError
+
+        try:
+            return super().invoke(ctx)
+        except InputError as err:
+            click.echo(f"error: {err}", err=True)
+            sys.exit(2)
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="slamobs")
+def main() -> None:
+    """Run geometric nonlinear SLAM observers over MCAP files and ROS1/ROS2 bags.
+
+    Outputs pose, landmark map and velocity-bias histories as Parquet, plus an error report
+    against ground truth when the log has it.
+    """
+
+
+@main.command()
+@click.argument("log", type=click.Path(path_type=Path))
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
+@click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@click.option("--force", is_flag=True, help="replace an existing output directory")
+@click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
+def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None, force: bool, quiet: bool) -> None:
+    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
+    from dataclasses import replace
+
+    from pipeline.config import load_config
+    from pipeline.observers import GainError
+    from pipeline.run import run_log
+
+    config = load_config(config_path)
+    if observer:
+        config = replace(config, observer=observer)
+    say = (lambda _m: None) if quiet else (lambda m: click.echo(m, err=True))
+    try:
+        summary = run_log(log, out_dir, config, force=force, progress=say)
+    except GainError as err:
+        raise click.UsageError(str(err)) from None
+    except FileExistsError as err:
+        raise click.ClickException(str(err)) from None
+    if quiet:
+        return
+    _print_summary(summary)
+
+
+def _print_summary(summary) -> None:
+    m = summary.metadata
+    c = m["counts"]
+    click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
+    click.echo(f"input        {m['input']['path']}")
+    click.echo(f"             {c['velocity_samples']} velocity samples, {c['detection_frames']} detection frames, "
+               f"{c['landmarks']} landmarks, {c['internal_steps']} internal steps")
+    t = summary.timings
+    click.echo("time         " + ", ".join(f"{k[:-2]} {v:.2f} s" for k, v in t.items()))
+    for note in summary.notes:
+        click.echo(f"note         {note}")
+    r = summary.report
+    if r:
+        ape_t = r["ape_translation_m"]
+        ape_r = r["ape_rotation_deg"]
+        click.echo(f"APE (SE(3)-aligned)  translation rmse {ape_t['rmse']:.4f} m, max {ape_t['max']:.4f} m; "
+                   f"rotation rmse {ape_r['rmse']:.3f} deg")
+        lm = r.get("landmarks") or {}
+        if lm.get("summary"):
+            click.echo(f"landmark map error   rmse {lm['summary']['rmse']:.4f} m over {lm['summary']['n']} landmarks")
+        b = r.get("bias_error") or {}
+        if b:
+            click.echo(f"final bias error     gyro {b['gyro_norm']:.4g} rad/s, velocity {b['velocity_norm']:.4g} m/s")
+    click.echo(f"wrote        {summary.out_dir}/")
+
+
+@main.command()
+def observers() -> None:
+    """List the observers and their gains (defaults in brackets)."""
+    from pipeline.observers import OBSERVERS
+
+    for spec in OBSERVERS.values():
+        click.echo(f"{spec.name}  (algorithm {spec.algorithm}) {spec.summary}")
+        click.echo(f"    paper: {spec.paper}")
+        for g in spec.gains:
+            click.echo(f"    {g.name:<8} [{g.default:g}]  {g.description}")
+
+
+def _add_optional_commands() -> None:
+    from cli.info_cmd import info
+    from cli.simulate_cmd import simulate
+
+    main.add_command(info)
+    main.add_command(simulate)
+
+
+_add_optional_commands()

@@ -1,0 +1,38 @@
+"""Arrow schemas of the Parquet outputs and the JSON Schema of the run configuration.
+
+The JSON files beside this module are the single source of truth; users can read them without Python.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cache
+from pathlib import Path
+
+HERE = Path(__file__).parent
+TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
+
+
+@cache
+def table_spec(name: str) -> dict:
+    """The JSON description of output table ``name``."""
+    return json.loads((HERE / f"{name}.json").read_text())
+
+
+def arrow_schema(name: str):
+    """``pyarrow.Schema`` of output table ``name``, with units and descriptions as field metadata."""
+    import pyarrow as pa
+
+    spec = table_spec(name)
+    fields = [
+        pa.field(f["name"], getattr(pa, f["type"])(), nullable=False,
+                 metadata={"unit": f["unit"], "description": f["description"]})
+        for f in spec["fields"]
+    ]
+    return pa.schema(fields, metadata={"description": spec["description"]})
+
+
+@cache
+def config_schema() -> dict:
+    """JSON Schema of ``run.yaml``."""
+    return json.loads((HERE / "config.json").read_text())

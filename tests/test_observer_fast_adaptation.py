@@ -1,0 +1,127 @@
+"""Algorithm A against the paper scenario (spec §2.5/§2.6) and its invariants."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.lie import rotation_angle, se3_exp
+from pipeline.observers.fast_adaptation import run_kernel
+
+OMEGA = np.array([0.0, 0.0, 0.3])
+VEL = np.array([2.5, 0.0, 0.0])
+B_OM = np.array([0.09, -0.15, -0.1])
+B_V = np.array([0.09, 0.06, -0.07])
+LANDMARKS = np.array([[7, 7, 0], [-7, 7, 0], [7, -7, 0], [-7, -7, 0.0]])
+PAPER_GAINS = dict(k_p=1.0, k_w=2.0, alpha=0.1, gamma=30.0)
+
+# spec §2.6: max_i |e_i| of the continuous-time solution
+REFERENCE = {0.0: 11.58, 0.1: 4.0, 0.5: 1.83, 1.0: 1.22, 2.0: 0.756, 3.0: 0.532, 5.0: 0.297, 10.0: 0.082,
+             20.0: 6.7e-3, 30.0: 5.5e-4}
+
+
+def paper_scenario(duration=30.0, dt=0.01, landmarks=LANDMARKS):
+    t = np.arange(0.0, duration + 1e-9, dt)
+    rs = np.empty((t.size, 3, 3))
+    ps = np.empty((t.size, 3))
+    for k, tk in enumerate(t):
+        r, p = se3_exp(OMEGA * tk, VEL * tk)
+        rs[k] = r
+        ps[k] = p + np.array([0.0, 0.0, 6.0])
+    n = landmarks.shape[0]
+    y = np.einsum("kji,kmj->kmi", rs, landmarks[None] - ps[:, None]).reshape(-1, 3)
+    return dict(t=t, rs=rs, ps=ps, y=y, offsets=np.arange(0, n * t.size + 1, n, dtype=np.int64),
+                idx=np.tile(np.arange(n), t.size).astype(np.int64))
+
+
+def run(sc, gains=PAPER_GAINS, lm0=None, init=True, r0=np.eye(3)):
+    n = sc["idx"].max() + 1
+    lm = np.zeros((n, 3)) if lm0 is None else lm0.copy()
+    lm_init = np.full(n, init)
+    size = sc["t"].size
+    out = run_kernel(sc["t"], np.tile(OMEGA + B_OM, (size, 1)), np.tile(VEL + B_V, (size, 1)),
+                     sc["t"], sc["offsets"], sc["idx"], sc["y"], lm, lm_init, r0, np.zeros(3), np.zeros(3),
+                     np.zeros(3), gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma"], 3, 0.5, 1)
+    return out, lm
+
+
+@pytest.fixture(scope="module")
+def paper_run():
+    sc = paper_scenario()
+    out, lm = run(sc)
+    return sc, out, lm
+
+
+def test_reproduces_spec_reference_table(paper_run):
+    sc, (out_k, out_r, out_p, out_b, trk, innov, steps), _ = paper_run
+    e_max = np.linalg.norm(innov.reshape(sc["t"].size, 4, 3), axis=2).max(axis=1)
+    for t, ref in REFERENCE.items():
+        got = e_max[int(round(t / 0.01))]
+        tol = 0.10 if t <= 10 else 0.25  # spec: ±10 % for t <= 10 s; the tail is integrator-sensitive
+        assert got == pytest.approx(ref, rel=tol), f"max|e| at {t} s"
+    # substeps per 10 ms sample in the range the spec measured (216-661)
+    assert 216 * 0.8 <= steps / sc["t"].size <= 661 * 1.2
+
+
+def test_biases_converge_as_in_spec(paper_run):
+    sc, (out_k, out_r, out_p, out_b, *_), _ = paper_run
+    k = lambda t: int(round(t / 0.01))  # noqa: E731
+    assert np.linalg.norm(out_b[k(0.5), :3] - B_OM) < 1e-3
+    assert np.linalg.norm(out_b[k(1.0), :3] - B_OM) < 1e-6
+    assert np.linalg.norm(out_b[k(1.0), 3:] - B_V) < 1e-4
+    assert np.abs(out_b[k(2.0):] - np.r_[B_OM, B_V]).max() < 1e-3
+
+
+def test_rotation_stays_on_so3_and_errors_settle_to_constants(paper_run):
+    sc, (out_k, out_r, out_p, *_), lm = paper_run
+    gram = np.einsum("kji,kjl->kil", out_r, out_r) - np.eye(3)
+    assert np.abs(gram).max() < 1e-9
+    assert np.allclose(np.linalg.det(out_r), 1.0, atol=1e-9)
+    # R̃ = R̂ Rᵀ converges to a small constant (spec: ≈ 0.09-0.10 deg), P̃ = P̂ - R̃P to a constant.
+    r_err = np.einsum("kij,klj->kil", out_r, sc["rs"])
+    ang = np.degrees([rotation_angle(r) for r in r_err])
+    assert ang[-1] < 0.5
+    assert abs(ang[-1] - ang[-500]) < 0.01
+    p_err = out_p - np.einsum("kij,kj->ki", r_err, sc["ps"])
+    assert np.linalg.norm(p_err[-1] - p_err[-500]) < 1e-3
+    assert 0.5 < np.linalg.norm(p_err[-1]) < 1.2  # the unobservable constant (spec ≈ 0.81-0.83 m)
+
+
+def test_first_sighting_initialisation_gives_zero_innovation():
+    sc = paper_scenario(duration=1.0)
+    (out_k, out_r, out_p, out_b, trk, innov, _), lm = run(sc, init=False)
+    assert np.abs(innov[:4]).max() == 0.0
+    # Initialised at P̂ + R̂ y with P̂ = 0, R̂ = I: the body-frame measurement itself.
+    assert np.allclose(trk[:4], sc["y"][:4])
+    # Everything stays consistent afterwards: innovations remain small (only the bias drives them).
+    assert np.linalg.norm(innov, axis=1).max() < 0.5
+
+
+def _drop_landmark_after(sc, index, t_last):
+    keep = np.ones(sc["idx"].size, bool)
+    keep[(sc["idx"] == index) & (np.repeat(sc["t"], 4) > t_last)] = False
+    counts = np.add.reduceat(keep.astype(np.int64), np.arange(0, keep.size, 4))
+    return dict(sc, y=sc["y"][keep], idx=sc["idx"][keep], offsets=np.r_[0, np.cumsum(counts)].astype(np.int64))
+
+
+def test_landmarks_out_of_view_keep_their_estimate():
+    # Landmark index 3 is visible only during the first second; its estimate must not move afterwards,
+    # whether the run stops at 2 s or at 4 s, while the visible ones keep being corrected.
+    _, lm_short = run(_drop_landmark_after(paper_scenario(duration=2.0), 3, 1.0), init=False)
+    _, lm_long = run(_drop_landmark_after(paper_scenario(duration=4.0), 3, 1.0), init=False)
+    assert np.array_equal(lm_short[3], lm_long[3])
+    assert not np.array_equal(lm_short[0], lm_long[0])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_noise_free_innovations_vanish_from_random_start(seed):
+    rng = np.random.default_rng(seed)
+    landmarks = rng.uniform(-10, 10, size=(6, 3)) * np.array([1, 1, 0.3])
+    sc = paper_scenario(duration=20.0, landmarks=landmarks)
+    from pipeline.lie import so3_exp
+
+    r0 = so3_exp(rng.normal(size=3) * 0.5)
+    (_, out_r, _, out_b, _, innov, _), _ = run(sc, lm0=rng.normal(size=(6, 3)), r0=r0)
+    e = np.linalg.norm(innov.reshape(sc["t"].size, 6, 3), axis=2).max(axis=1)
+    assert e[-1] < 1e-2 * e[0]
+    assert np.all(np.isfinite(out_b))
