@@ -7,6 +7,8 @@ so the observer kernels can call them; they also work from plain Python on NumPy
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -91,6 +93,43 @@ def so3_left_jacobian(w):
 def se3_exp(w, v):
     """Closed-form SE(3) exponential of the twist ``[w; v]``: returns ``(R, p)``."""
     return so3_exp(w), mat3_vec(so3_left_jacobian(w), v)
+
+
+@njit(cache=True)
+def se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
+    """:func:`se3_exp` written into ``r_out``/``p_out`` without temporaries (for the hot loops).
+
+    ``R = I + a K + b K²``, ``p = v + b (w x v) + c w x (w x v)`` with ``K = [w]x``,
+    ``a = sin θ/θ``, ``b = (1 − cos θ)/θ²``, ``c = (θ − sin θ)/θ³``.
+    """
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    theta = math.sqrt(t2)
+    if theta < SMALL_ANGLE:
+        a, b, c = 1.0, 0.5, 1.0 / 6.0
+    else:
+        st = math.sin(theta)
+        a = st / theta
+        b = (1.0 - math.cos(theta)) / t2
+        c = (theta - st) / (t2 * theta)
+    # K² = w wᵀ − θ² I
+    r_out[0, 0] = 1.0 + b * (w0 * w0 - t2)
+    r_out[1, 1] = 1.0 + b * (w1 * w1 - t2)
+    r_out[2, 2] = 1.0 + b * (w2 * w2 - t2)
+    r_out[0, 1] = -a * w2 + b * w0 * w1
+    r_out[1, 0] = a * w2 + b * w0 * w1
+    r_out[0, 2] = a * w1 + b * w0 * w2
+    r_out[2, 0] = -a * w1 + b * w0 * w2
+    r_out[1, 2] = -a * w0 + b * w1 * w2
+    r_out[2, 1] = a * w0 + b * w1 * w2
+    x0 = w1 * v2 - w2 * v1
+    x1 = w2 * v0 - w0 * v2
+    x2 = w0 * v1 - w1 * v0
+    xx0 = w1 * x2 - w2 * x1
+    xx1 = w2 * x0 - w0 * x2
+    xx2 = w0 * x1 - w1 * x0
+    p_out[0] = v0 + b * x0 + c * xx0
+    p_out[1] = v1 + b * x1 + c * xx1
+    p_out[2] = v2 + b * x2 + c * xx2
 
 
 @njit(cache=True)

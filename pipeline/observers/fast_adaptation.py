@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from pipeline.observers.base import GainSpec, ObserverResult, ObserverSpec
-from pipeline.lie import mat3_mul, mat3_vec, mat3t_vec, project_so3, se3_exp
+from pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
 STEP_RATIO = 0.5
@@ -63,79 +63,86 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
                k_p, k_w, alpha, gamma, min_landmarks_bias, counter):
     """Advance the state over ``dt`` seconds in place; ``y`` (visible measurements) is predicted in place.
 
+    Written with scalars (no temporaries) because it runs hundreds of times per sample.
     Returns the number of sub-steps taken.
     """
     m = _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma)
     h = dt / m
     g_bias = gamma if nvis >= min_landmarks_bias else 0.0
-    w_om = np.empty(3)
-    w_v = np.empty(3)
+    kwa = k_w / alpha
+    gba = h * g_bias / alpha
+    om_odo = np.empty(3)
+    v_odo = np.empty(3)
+    d_r = np.empty((3, 3))
+    d_p = np.empty(3)
+    r_new = np.empty((3, 3))
     for _ in range(m):
         # Steps 2-4 and 6-7 of spec §2.3 with the state at the start of the sub-step.
-        w_om[:] = 0.0
-        w_v[:] = 0.0
+        r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
+        r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
+        r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
+        w0 = w1 = w2 = 0.0
+        u0 = u1 = u2 = 0.0
         for j in range(nvis):
             i = vis_idx[j]
-            ry = mat3_vec(r_hat, y[j])
-            e = np.empty(3)
-            e[0] = lm[i, 0] - ry[0] - p_hat[0]
-            e[1] = lm[i, 1] - ry[1] - p_hat[1]
-            e[2] = lm[i, 2] - ry[2] - p_hat[2]
-            rte = mat3t_vec(r_hat, e)
-            # [y]x R̂ᵀe = y x (R̂ᵀe)
-            c0 = y[j, 1] * rte[2] - y[j, 2] * rte[1]
-            c1 = y[j, 2] * rte[0] - y[j, 0] * rte[2]
-            c2 = y[j, 0] * rte[1] - y[j, 1] * rte[0]
-            w_om[0] += c0
-            w_om[1] += c1
-            w_om[2] += c2
-            w_v[0] += rte[0]
-            w_v[1] += rte[1]
-            w_v[2] += rte[2]
-            psi = k_p * (1.0 + e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) / 4.0
-            step = h * psi
+            y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
+            e0 = lm[i, 0] - (r00 * y0 + r01 * y1 + r02 * y2) - p_hat[0]
+            e1 = lm[i, 1] - (r10 * y0 + r11 * y1 + r12 * y2) - p_hat[1]
+            e2 = lm[i, 2] - (r20 * y0 + r21 * y1 + r22 * y2) - p_hat[2]
+            # R̂ᵀe and [y]x R̂ᵀe = y x (R̂ᵀe)
+            q0 = r00 * e0 + r10 * e1 + r20 * e2
+            q1 = r01 * e0 + r11 * e1 + r21 * e2
+            q2 = r02 * e0 + r12 * e1 + r22 * e2
+            w0 += y1 * q2 - y2 * q1
+            w1 += y2 * q0 - y0 * q2
+            w2 += y0 * q1 - y1 * q0
+            u0 += q0
+            u1 += q1
+            u2 += q2
+            step = h * k_p * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0  # h ψ(e_i), closed form
             if step > 1.0:  # never move past the measured point (spec §2.4)
                 step = 1.0
-            lm[i, 0] -= step * e[0]
-            lm[i, 1] -= step * e[1]
-            lm[i, 2] -= step * e[2]
-        # W = -k_w/α Σ(...); corrected twist = measured - bias - W = measured - bias + k_w/α Σ(...)
-        om_c = np.empty(3)
-        v_c = np.empty(3)
-        for a in range(3):
-            om_c[a] = omega_m[a] - b_om[a] + (k_w / alpha) * w_om[a]
-            v_c[a] = vel_m[a] - b_v[a] + (k_w / alpha) * w_v[a]
-        # Measurement prediction uses the bias-corrected odometry, not the corrected twist (spec §2.4).
-        om_odo = np.empty(3)
-        v_odo = np.empty(3)
-        for a in range(3):
-            om_odo[a] = h * (omega_m[a] - b_om[a])
-            v_odo[a] = h * (vel_m[a] - b_v[a])
-        # Step 7 (biases, with Δt): b ← b − h Γ/α Σ(...)
-        for a in range(3):
-            b_om[a] -= h * (g_bias / alpha) * w_om[a]
-            b_v[a] -= h * (g_bias / alpha) * w_v[a]
+            lm[i, 0] -= step * e0
+            lm[i, 1] -= step * e1
+            lm[i, 2] -= step * e2
+        # Corrected twist = measured − bias − W with W = −(k_w/α) Σ(...); prediction uses odometry only.
+        om_odo[0] = omega_m[0] - b_om[0]
+        om_odo[1] = omega_m[1] - b_om[1]
+        om_odo[2] = omega_m[2] - b_om[2]
+        v_odo[0] = vel_m[0] - b_v[0]
+        v_odo[1] = vel_m[1] - b_v[1]
+        v_odo[2] = vel_m[2] - b_v[2]
+        # Step 7 (biases, with the Δt the paper's b̂_V update omits): b ← b − h Γ/α Σ(...)
+        b_om[0] -= gba * w0
+        b_om[1] -= gba * w1
+        b_om[2] -= gba * w2
+        b_v[0] -= gba * u0
+        b_v[1] -= gba * u1
+        b_v[2] -= gba * u2
         # Step 5: T̂ ← T̂ exp(h [ω; v]∧)
+        se3_exp_into(h * (om_odo[0] + kwa * w0), h * (om_odo[1] + kwa * w1), h * (om_odo[2] + kwa * w2),
+                     h * (v_odo[0] + kwa * u0), h * (v_odo[1] + kwa * u1), h * (v_odo[2] + kwa * u2), d_r, d_p)
+        p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2]
+        p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2]
+        p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2]
         for a in range(3):
-            om_c[a] *= h
-            v_c[a] *= h
-        d_r, d_p = se3_exp(om_c, v_c)
-        dp_i = mat3_vec(r_hat, d_p)
-        p_hat[0] += dp_i[0]
-        p_hat[1] += dp_i[1]
-        p_hat[2] += dp_i[2]
-        r_hat[:, :] = mat3_mul(r_hat, d_r)
+            for b in range(3):
+                r_new[a, b] = r_hat[a, 0] * d_r[0, b] + r_hat[a, 1] * d_r[1, b] + r_hat[a, 2] * d_r[2, b]
+        r_hat[:, :] = r_new
         counter[0] += 1
         if counter[0] % REORTHO_EVERY == 0:
             r_hat[:, :] = project_so3(r_hat)
         if nvis > 0:
-            o_r, o_p = se3_exp(om_odo, v_odo)
+            # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
+            se3_exp_into(h * om_odo[0], h * om_odo[1], h * om_odo[2], h * v_odo[0], h * v_odo[1], h * v_odo[2],
+                         d_r, d_p)
             for j in range(nvis):
-                d = np.empty(3)
-                d[0] = y[j, 0] - o_p[0]
-                d[1] = y[j, 1] - o_p[1]
-                d[2] = y[j, 2] - o_p[2]
-                y[j, :] = mat3t_vec(o_r, d)
+                d0 = y[j, 0] - d_p[0]
+                d1 = y[j, 1] - d_p[1]
+                d2 = y[j, 2] - d_p[2]
+                y[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
+                y[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
+                y[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
     return m
 
 

@@ -1,0 +1,70 @@
+"""Lie-group helpers: identities of spec §1.2 and agreement between the allocation-free and plain forms."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import lie
+
+
+def expm(a, terms=40):
+    """Matrix exponential by its series (small test matrices only)."""
+    out = np.eye(a.shape[0])
+    term = np.eye(a.shape[0])
+    for k in range(1, terms):
+        term = term @ a / k
+        out = out + term
+    return out
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-10, 1e-3, 0.5, 2.0, 3.1])
+def test_se3_exp_matches_matrix_exponential(scale):
+    rng = np.random.default_rng(int(scale * 1000))
+    w = rng.normal(size=3)
+    w = w / np.linalg.norm(w) * scale
+    v = rng.normal(size=3)
+    a = np.zeros((4, 4))
+    a[:3, :3] = lie.skew(w)
+    a[:3, 3] = v
+    ref = expm(a)
+    r, p = lie.se3_exp(w, v)
+    assert np.allclose(r, ref[:3, :3], atol=1e-12)
+    assert np.allclose(p, ref[:3, 3], atol=1e-12)
+    r2, p2 = np.empty((3, 3)), np.empty(3)
+    lie.se3_exp_into(*w, *v, r2, p2)
+    assert np.allclose(r2, r, atol=1e-14) and np.allclose(p2, p, atol=1e-14)
+
+
+def test_log_inverts_exp_including_near_pi():
+    rng = np.random.default_rng(3)
+    for angle in [1e-9, 1e-3, 1.0, np.pi - 1e-3, np.pi - 1e-7]:
+        axis = rng.normal(size=3)
+        w = axis / np.linalg.norm(axis) * angle
+        assert np.allclose(lie.so3_log(lie.so3_exp(w)), w, atol=1e-6)
+        assert lie.rotation_angle(lie.so3_exp(w)) == pytest.approx(angle, abs=1e-6)
+
+
+def test_quaternion_round_trip_and_sign():
+    rng = np.random.default_rng(4)
+    q = rng.normal(size=(50, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    rots = lie.quats_to_rots(q)
+    back = lie.rots_to_quats(rots)
+    assert np.all(back[:, 3] >= 0)
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", back, q)), 1.0)
+    assert np.allclose(np.einsum("kji,kjl->kil", rots, rots), np.eye(3), atol=1e-12)
+
+
+def test_skew_vex_and_identities():
+    rng = np.random.default_rng(5)
+    x, y = rng.normal(size=3), rng.normal(size=3)
+    r = lie.so3_exp(rng.normal(size=3))
+    assert np.allclose(lie.skew(x) @ y, np.cross(x, y))
+    assert np.allclose(lie.vex(lie.skew(x)), x)
+    assert np.allclose(lie.skew(r @ x), r @ lie.skew(x) @ r.T)
+    assert np.trace(lie.skew(x) @ lie.skew(y)) == pytest.approx(-2 * x @ y)
+    drift = r + 1e-7 * rng.normal(size=(3, 3))
+    fixed = lie.project_so3(drift)
+    assert np.allclose(fixed.T @ fixed, np.eye(3), atol=1e-12)
+    assert np.abs(fixed - r).max() < 1e-6
