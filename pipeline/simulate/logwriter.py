@@ -1,0 +1,352 @@
+"""Write a :class:`SimLog` as a ROS1 bag, a rosbag2 (sqlite3) directory or a bare ROS2 MCAP file.
+
+Every container embeds the full message definitions (including the custom ``fiducial_msgs`` types), so
+the readers decode them with rosbags alone, without a ROS install. Files appear atomically: the log is
+written under a hidden temporary directory next to the target and renamed into place at the end.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import numpy as np
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag1 import Writer as Bag1Writer
+from rosbags.rosbag2 import Writer as Bag2Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+from pipeline.simulate.sensors import (
+    FRAME_BODY,
+    FRAME_CAMERA,
+    FRAME_IMU,
+    FRAME_ODOM,
+    FRAME_WORLD,
+    TOPIC_DETECTIONS,
+    TOPIC_IMU,
+    TOPIC_MAG,
+    TOPIC_MOCAP,
+    TOPIC_ODOM,
+    TOPIC_TF_STATIC,
+    TOPIC_TRUTH,
+    SimLog,
+)
+
+CONTAINERS = ("bag", "mcap", "ros2")
+
+FIDUCIAL_TRANSFORM_MSG = """\
+int32 fiducial_id
+geometry_msgs/Transform transform
+float64 image_error
+float64 object_error
+float64 fiducial_area
+"""
+
+FIDUCIAL_TRANSFORM_ARRAY_MSG = """\
+std_msgs/Header header
+int32 image_seq
+fiducial_msgs/FiducialTransform[] transforms
+"""
+
+TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms\n"  # missing from rosbags' ROS1 store
+
+# Topic -> message type, in the order ties in record time are broken (latched topics first).
+TOPIC_TYPES: dict[str, str] = {
+    TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
+    TOPIC_TRUTH: "std_msgs/msg/String",
+    TOPIC_IMU: "sensor_msgs/msg/Imu",
+    TOPIC_ODOM: "nav_msgs/msg/Odometry",
+    TOPIC_MAG: "sensor_msgs/msg/MagneticField",
+    TOPIC_DETECTIONS: "fiducial_msgs/msg/FiducialTransformArray",
+    TOPIC_MOCAP: "geometry_msgs/msg/PoseStamped",
+}
+LATCHED = frozenset({TOPIC_TF_STATIC, TOPIC_TRUTH})
+
+# ROS2 "latched" QoS (transient local, keep last 1), as ros2 bag records /tf_static.
+_LATCHED_QOS = Qos(
+    QosHistory.KEEP_LAST,
+    1,
+    QosReliability.RELIABLE,
+    QosDurability.TRANSIENT_LOCAL,
+    QosTime(0, 0),
+    QosTime(0, 0),
+    QosLiveliness.AUTOMATIC,
+    QosTime(0, 0),
+    False,
+)
+_LATCHED_QOS_YAML = (
+    "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n"
+    "  deadline:\n    sec: 0\n    nsec: 0\n  lifespan:\n    sec: 0\n    nsec: 0\n"
+    "  liveliness: 1\n  liveliness_lease_duration:\n    sec: 0\n    nsec: 0\n"
+    "  avoid_ros_namespace_conventions: false"
+)
+
+
+def make_typestore(ros1: bool) -> Typestore:
+    """ROS1 Noetic or ROS2 Jazzy typestore with the fiducial (and, for ROS1, tf2) types registered."""
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_JAZZY)
+    types = {}
+    types.update(get_types_from_msg(FIDUCIAL_TRANSFORM_MSG, "fiducial_msgs/msg/FiducialTransform"))
+    types.update(get_types_from_msg(FIDUCIAL_TRANSFORM_ARRAY_MSG, "fiducial_msgs/msg/FiducialTransformArray"))
+    if "tf2_msgs/msg/TFMessage" not in ts.fielddefs:
+        types.update(get_types_from_msg(TF_MESSAGE_MSG, "tf2_msgs/msg/TFMessage"))
+    ts.register(types)
+    return ts
+
+
+def infer_container(path: str | Path) -> str:
+    """``.bag`` -> ROS1 bag, ``.mcap`` -> MCAP, anything else -> rosbag2 directory."""
+    suffix = Path(path).suffix.lower()
+    return {".bag": "bag", ".mcap": "mcap"}.get(suffix, "ros2")
+
+
+class _Builder:
+    """Makes the rosbags message objects of one :class:`SimLog` for one typestore."""
+
+    def __init__(self, sim: SimLog, ts: Typestore, ros1: bool) -> None:
+        self.sim, self.ts, self.ros1 = sim, ts, ros1
+        t = ts.types
+        self.Time, self.Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
+        self.Vector3, self.Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
+        self.Point, self.Pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Pose"]
+        self.Transform = t["geometry_msgs/msg/Transform"]
+        self.cov9_imu = self._cov(9, [sim.noise.gyro**2] * 3)
+        self.cov9_acc = self._cov(9, [sim.noise.accel**2] * 3)
+        self.cov9_mag = self._cov(9, [sim.noise.mag**2] * 3)
+        self.cov36_twist = self._cov(36, [sim.noise.odom_linear**2] * 3 + [sim.noise.odom_angular**2] * 3)
+        self.orient_cov = np.zeros(9)
+        self.orient_cov[0] = -1.0  # REP 145: no orientation estimate
+
+    @staticmethod
+    def _cov(size: int, diag: list[float]) -> np.ndarray:
+        n = int(round(size**0.5))
+        out = np.zeros((n, n))
+        out[np.diag_indices(n)] = diag
+        return out.ravel()
+
+    def header(self, stamp_ns: int, frame_id: str, seq: int) -> object:
+        stamp = self.Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+        if self.ros1:
+            return self.Header(seq=seq, stamp=stamp, frame_id=frame_id)
+        return self.Header(stamp=stamp, frame_id=frame_id)
+
+    def vec(self, v: np.ndarray) -> object:
+        return self.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    def quat(self, q: np.ndarray) -> object:
+        return self.Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))
+
+    def pose(self, p: np.ndarray, q: np.ndarray) -> object:
+        return self.Pose(position=self.Point(x=float(p[0]), y=float(p[1]), z=float(p[2])), orientation=self.quat(q))
+
+    def tf_static(self, _i: int) -> object:
+        t = self.ts.types
+        items = [
+            t["geometry_msgs/msg/TransformStamped"](
+                header=self.header(self.sim.start_ns, tf.parent, 0),
+                child_frame_id=tf.child,
+                transform=self.Transform(translation=self.vec(tf.translation), rotation=self.quat(tf.quat_xyzw)),
+            )
+            for tf in self.sim.static_tf
+        ]
+        return t["tf2_msgs/msg/TFMessage"](transforms=items)
+
+    def truth(self, _i: int) -> object:
+        return self.ts.types["std_msgs/msg/String"](data=self.sim.truth_json)
+
+    def imu(self, i: int) -> object:
+        d = self.sim.imu
+        return self.ts.types["sensor_msgs/msg/Imu"](
+            header=self.header(int(d.t_ns[i]), FRAME_IMU, i),
+            orientation=self.Quaternion(x=0.0, y=0.0, z=0.0, w=0.0),
+            orientation_covariance=self.orient_cov,
+            angular_velocity=self.vec(d.gyro[i]),
+            angular_velocity_covariance=self.cov9_imu,
+            linear_acceleration=self.vec(d.accel[i]),
+            linear_acceleration_covariance=self.cov9_acc,
+        )
+
+    def odom(self, i: int) -> object:
+        d, t = self.sim.odom, self.ts.types
+        return t["nav_msgs/msg/Odometry"](
+            header=self.header(int(d.t_ns[i]), FRAME_ODOM, i),
+            child_frame_id=FRAME_BODY,
+            pose=t["geometry_msgs/msg/PoseWithCovariance"](
+                pose=self.pose(d.position[i], d.quat_xyzw[i]), covariance=np.zeros(36)
+            ),
+            twist=t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=t["geometry_msgs/msg/Twist"](linear=self.vec(d.linear[i]), angular=self.vec(d.angular[i])),
+                covariance=self.cov36_twist,
+            ),
+        )
+
+    def mag(self, i: int) -> object:
+        d = self.sim.mag
+        return self.ts.types["sensor_msgs/msg/MagneticField"](
+            header=self.header(int(d.t_ns[i]), FRAME_IMU, i),
+            magnetic_field=self.vec(d.field[i]),
+            magnetic_field_covariance=self.cov9_mag,
+        )
+
+    def detections(self, i: int) -> object:
+        d, t = self.sim.detections, self.ts.types
+        ft = t["fiducial_msgs/msg/FiducialTransform"]
+        items = [
+            ft(
+                fiducial_id=int(d.ids[k]),
+                transform=self.Transform(translation=self.vec(d.xyz[k]), rotation=self.quat(d.quat_xyzw[k])),
+                image_error=float(d.image_error[k]),
+                object_error=float(d.object_error[k]),
+                fiducial_area=float(d.area[k]),
+            )
+            for k in range(int(d.offsets[i]), int(d.offsets[i + 1]))
+        ]
+        return t["fiducial_msgs/msg/FiducialTransformArray"](
+            header=self.header(int(d.t_ns[i]), FRAME_CAMERA, i), image_seq=i, transforms=items
+        )
+
+    def mocap(self, i: int) -> object:
+        d = self.sim.mocap
+        return self.ts.types["geometry_msgs/msg/PoseStamped"](
+            header=self.header(int(d.t_ns[i]), FRAME_WORLD, i), pose=self.pose(d.position[i], d.quat_xyzw[i])
+        )
+
+    def makers(self) -> dict[str, tuple[np.ndarray, Callable[[int], object]]]:
+        """Topic -> (record times, message factory)."""
+        s = self.sim
+        one = np.array([s.start_ns], dtype=np.int64)
+        return {
+            TOPIC_TF_STATIC: (one, self.tf_static),
+            TOPIC_TRUTH: (one, self.truth),
+            TOPIC_IMU: (s.imu.rec_ns, self.imu),
+            TOPIC_ODOM: (s.odom.rec_ns, self.odom),
+            TOPIC_MAG: (s.mag.rec_ns, self.mag),
+            TOPIC_DETECTIONS: (s.detections.rec_ns, self.detections),
+            TOPIC_MOCAP: (s.mocap.rec_ns, self.mocap),
+        }
+
+
+def _build_message(factory: Callable[[int], object], index: int) -> object:
+    """One message (a module-level seam so tests can inject a failure mid-write)."""
+    return factory(index)
+
+
+def iter_messages(sim: SimLog, ts: Typestore, ros1: bool) -> Iterator[tuple[str, int, object]]:
+    """``(topic, record time ns, message)`` over all topics in record-time order (stable across topics)."""
+    makers = _Builder(sim, ts, ros1).makers()
+    topics = list(makers)
+    rec = np.concatenate([makers[tp][0] for tp in topics])
+    topic_idx = np.concatenate([np.full(len(makers[tp][0]), k) for k, tp in enumerate(topics)])
+    msg_idx = np.concatenate([np.arange(len(makers[tp][0])) for tp in topics])
+    for j in np.lexsort((msg_idx, topic_idx, rec)):
+        topic = topics[topic_idx[j]]
+        yield topic, int(rec[j]), _build_message(makers[topic][1], int(msg_idx[j]))
+
+
+def _write_bag(sim: SimLog, path: Path) -> None:
+    ts = make_typestore(ros1=True)
+    writer = Bag1Writer(path)
+    writer.set_compression(Bag1Writer.CompressionFormat.LZ4)
+    with writer:
+        conns = {
+            tp: writer.add_connection(
+                tp, typ, typestore=ts, callerid="/slamobs_simulate", latching=1 if tp in LATCHED else None
+            )
+            for tp, typ in TOPIC_TYPES.items()
+        }
+        for topic, rec, msg in iter_messages(sim, ts, ros1=True):
+            writer.write(conns[topic], rec, ts.serialize_ros1(msg, TOPIC_TYPES[topic]))
+
+
+def _write_ros2(sim: SimLog, path: Path) -> None:
+    ts = make_typestore(ros1=False)
+    with Bag2Writer(path, version=9) as writer:
+        conns = {
+            tp: writer.add_connection(
+                tp, typ, typestore=ts, offered_qos_profiles=[_LATCHED_QOS] if tp in LATCHED else []
+            )
+            for tp, typ in TOPIC_TYPES.items()
+        }
+        for topic, rec, msg in iter_messages(sim, ts, ros1=False):
+            writer.write(conns[topic], rec, ts.serialize_cdr(msg, TOPIC_TYPES[topic]))
+
+
+def _write_mcap(sim: SimLog, path: Path) -> None:
+    ts = make_typestore(ros1=False)
+    with path.open("xb") as stream:
+        writer = McapWriter(stream, compression=CompressionType.ZSTD)
+        writer.start(profile="ros2", library="slamobs-simulate")
+        channels: dict[str, int] = {}
+        for tp, typ in TOPIC_TYPES.items():
+            msgdef, _ = ts.generate_msgdef(typ, ros_version=2)
+            schema = writer.register_schema(name=typ, encoding="ros2msg", data=msgdef.encode())
+            meta = {"offered_qos_profiles": _LATCHED_QOS_YAML if tp in LATCHED else ""}
+            channels[tp] = writer.register_channel(topic=tp, message_encoding="cdr", schema_id=schema, metadata=meta)
+        seq = dict.fromkeys(channels, 0)
+        for topic, rec, msg in iter_messages(sim, ts, ros1=False):
+            data = bytes(ts.serialize_cdr(msg, TOPIC_TYPES[topic]))
+            writer.add_message(channels[topic], log_time=rec, data=data, publish_time=rec, sequence=seq[topic])
+            seq[topic] += 1
+        writer.finish()
+
+
+_WRITERS: dict[str, Callable[[SimLog, Path], None]] = {"bag": _write_bag, "mcap": _write_mcap, "ros2": _write_ros2}
+
+
+def _remove(path: Path) -> None:
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
+def write_log(sim: SimLog, path: str | Path, container: str | None = None, *, overwrite: bool = False) -> Path:
+    """Write ``sim`` to ``path`` as ``container`` ("bag", "mcap", "ros2"; inferred from the suffix if None).
+
+    Refuses to replace an existing path unless ``overwrite``. Nothing is left behind if writing fails.
+    """
+    final = Path(path)
+    container = infer_container(final) if container is None else container
+    if container not in _WRITERS:
+        raise ValueError(f"unknown container {container!r}; expected one of {', '.join(CONTAINERS)}")
+    if (final.exists() or final.is_symlink()) and not overwrite:
+        raise FileExistsError(f"{final} exists already (use overwrite)")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    tmpdir = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    try:
+        tmp = tmpdir / final.name
+        _WRITERS[container](sim, tmp)
+        if final.exists() or final.is_symlink():
+            _remove(final)
+        os.replace(tmp, final)
+    finally:
+        shutil.rmtree(tmpdir, ignore_errors=True)
+    return final
+
+
+def log_size(path: str | Path) -> int:
+    """Bytes on disk of a log file or rosbag2 directory."""
+    p = Path(path)
+    if p.is_dir():
+        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+    return p.stat().st_size
+
+
+__all__ = [
+    "CONTAINERS",
+    "FIDUCIAL_TRANSFORM_ARRAY_MSG",
+    "FIDUCIAL_TRANSFORM_MSG",
+    "LATCHED",
+    "TOPIC_TYPES",
+    "infer_container",
+    "iter_messages",
+    "log_size",
+    "make_typestore",
+    "write_log",
+]

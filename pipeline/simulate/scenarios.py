@@ -1,0 +1,279 @@
+"""True trajectories, landmark maps and camera placements of the simulated scenarios.
+
+Everything here is noise-free and analytic: a scenario is a pure function of time, so sensors can sample
+it at any rate and the kinematics (``dR/dt = R [Omega]x``, ``dP/dt = R V``) hold exactly, which is what
+the observers' convergence claims are checked against. Body frame: x forward, y left, z up; camera frame:
+ROS optical convention (z along the optical axis, x right, y down).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from pipeline.lie import mat3_mul, mat3_vec, se3_exp
+
+GRAVITY = np.array([0.0, 0.0, -9.81])  # inertial-frame gravity, m/s^2
+MAGNETIC_FIELD = np.array([0.2, 0.0, -0.45]) * 1e-4  # inertial-frame Earth field, Tesla
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """Body pose and its exact derivatives at times ``t`` (seconds from the scenario start)."""
+
+    t: np.ndarray  # (N,)
+    R: np.ndarray  # (N, 3, 3) body -> inertial
+    P: np.ndarray  # (N, 3) body origin in the inertial frame
+    omega: np.ndarray  # (N, 3) body-frame angular velocity
+    v: np.ndarray  # (N, 3) body-frame linear velocity
+    accel: np.ndarray  # (N, 3) inertial-frame acceleration d^2P/dt^2
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Camera extrinsic (camera -> body: ``y_body = R_bc y_cam + t_bc``) and field of view.
+
+    ``fov_h_deg``/``fov_v_deg``/``max_range`` of ``None`` mean unlimited (the paper's all-seeing camera).
+    """
+
+    R_bc: np.ndarray  # (3, 3)
+    t_bc: np.ndarray  # (3,)
+    fov_h_deg: float | None = None
+    fov_v_deg: float | None = None
+    min_range: float = 0.0
+    max_range: float | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A named trajectory with its landmark map, sensor biases and camera."""
+
+    name: str
+    duration: float  # default duration, s
+    trajectory: Callable[[np.ndarray], Trajectory]
+    landmark_ids: np.ndarray  # (L,) int64, not necessarily contiguous
+    landmarks: np.ndarray  # (L, 3) inertial positions
+    landmark_rots: np.ndarray  # (L, 3, 3) tag orientation (tag -> inertial), z = tag normal
+    gyro_bias: np.ndarray  # (3,) body frame, rad/s
+    velocity_bias: np.ndarray  # (3,) body frame, m/s
+    camera: Camera
+    detection_rate: float  # default fiducial detection rate, Hz
+
+    def sample(self, t: np.ndarray) -> Trajectory:
+        """True state at times ``t`` (s since start)."""
+        return self.trajectory(np.asarray(t, dtype=float))
+
+
+def rot_x(a: np.ndarray) -> np.ndarray:
+    """Stack of rotations about x by angles ``a`` (N,) -> (N, 3, 3)."""
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
+
+
+def rot_y(a: np.ndarray) -> np.ndarray:
+    """Stack of rotations about y by angles ``a`` (N,) -> (N, 3, 3)."""
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
+
+
+def rot_z(a: np.ndarray) -> np.ndarray:
+    """Stack of rotations about z by angles ``a`` (N,) -> (N, 3, 3)."""
+    c, s = np.cos(a), np.sin(a)
+    o, z = np.ones_like(a), np.zeros_like(a)
+    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+
+
+# --------------------------------------------------------------------------- circle (paper, seed 000)
+
+CIRCLE_OMEGA = np.array([0.0, 0.0, 0.3])
+CIRCLE_V = np.array([2.5, 0.0, 0.0])
+CIRCLE_P0 = np.array([0.0, 0.0, 6.0])
+
+
+def circle_trajectory(t: np.ndarray) -> Trajectory:
+    """Constant twist: R = Rz(0.3 t), a horizontal circle of radius 2.5/0.3 m at height 6 m."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    wz, speed = CIRCLE_OMEGA[2], CIRCLE_V[0]
+    psi = wz * t
+    radius = speed / wz
+    P = np.stack([radius * np.sin(psi), radius * (1.0 - np.cos(psi)), np.zeros_like(t)], -1) + CIRCLE_P0
+    accel = speed * wz * np.stack([-np.sin(psi), np.cos(psi), np.zeros_like(t)], -1)
+    n = t.shape[0]
+    return Trajectory(t, rot_z(psi), P, np.tile(CIRCLE_OMEGA, (n, 1)), np.tile(CIRCLE_V, (n, 1)), accel)
+
+
+def circle() -> Scenario:
+    """The paper scenario: four ground landmarks, camera looking straight down, sees everything."""
+    ids = np.array([1, 2, 3, 4], dtype=np.int64)
+    lms = np.array([[7.0, 7.0, 0.0], [-7.0, 7.0, 0.0], [7.0, -7.0, 0.0], [-7.0, -7.0, 0.0]])
+    # Optical axis = -z_body, image x (right) = -y_body, image y (down) = -x_body.
+    r_bc = np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    cam = Camera(R_bc=r_bc, t_bc=np.array([0.1, 0.0, -0.05]))
+    return Scenario(
+        name="circle",
+        duration=30.0,
+        trajectory=circle_trajectory,
+        landmark_ids=ids,
+        landmarks=lms,
+        landmark_rots=np.tile(np.eye(3), (4, 1, 1)),
+        gyro_bias=np.array([0.09, -0.15, -0.1]),
+        velocity_bias=np.array([0.09, 0.06, -0.07]),
+        camera=cam,
+        detection_rate=30.0,
+    )
+
+
+# --------------------------------------------------------------------------- figure 8
+
+F8_A = 10.0  # x amplitude, m (y amplitude is A/2)
+F8_W = 2.0 * np.pi / 30.0  # one figure 8 every 30 s: speed 1.4 .. 3.0 m/s
+F8_H = 4.0  # mean height, m
+F8_HZ = 0.5  # height oscillation amplitude, m
+F8_ROLL = 0.06  # rad
+F8_PITCH = 0.04  # rad
+
+# Landmark table: id, x, y, z, kind (0 = on the ground facing up, 1 = on a wall facing the path centre).
+_F8_LANDMARKS = np.array(
+    [
+        # ground, scattered around and inside both lobes
+        [10, 4.0, 0.0, 0.0, 0],
+        [11, -4.0, 0.5, 0.0, 0],
+        [15, 9.0, 4.5, 0.0, 0],
+        [17, 12.0, -2.0, 0.0, 0],
+        [18, 6.0, -6.5, 0.0, 0],
+        [21, -7.0, 6.0, 0.0, 0],
+        [22, -12.5, 1.0, 0.0, 0],
+        [23, -8.0, -5.0, 0.0, 0],
+        [26, 0.5, -3.0, 0.0, 0],
+        [27, -1.0, 3.5, 0.0, 0],
+        [31, 6.5, 2.5, 0.0, 0],
+        [33, -6.0, -1.5, 0.0, 0],
+        [34, 13.5, 3.0, 0.0, 0],
+        [36, -14.0, -3.5, 0.0, 0],
+        [37, 11.0, -7.0, 0.0, 0],
+        [38, -6.5, -8.0, 0.0, 0],
+        # walls around the arena (x = +/-17, y = +/-10)
+        [40, 17.0, -4.0, 1.5, 1],
+        [41, 17.0, 1.0, 3.0, 1],
+        [42, 17.0, 6.0, 2.0, 1],
+        [44, -17.0, 4.0, 2.5, 1],
+        [45, -17.0, -1.0, 1.0, 1],
+        [47, -17.0, -6.0, 3.5, 1],
+        [50, 8.0, 10.0, 2.0, 1],
+        [52, 0.0, 10.0, 3.0, 1],
+        [53, -9.0, 10.0, 1.5, 1],
+        [55, 9.0, -10.0, 3.0, 1],
+        [57, -1.0, -10.0, 2.0, 1],
+        [58, -8.0, -10.0, 2.5, 1],
+        [59, 14.0, -10.0, 1.0, 1],
+        # a pillar in the middle of the arena
+        [60, 0.0, 0.0, 2.0, 1],
+    ]
+)
+
+
+def _wall_rotation(p: np.ndarray) -> np.ndarray:
+    """Tag orientation on a vertical wall: normal (z) horizontal, pointing towards the arena centre."""
+    n = -np.array([p[0], p[1], 0.0])
+    if np.linalg.norm(n) < 1e-9:
+        n = np.array([1.0, 0.0, 0.0])
+    z = n / np.linalg.norm(n)
+    x = np.cross(np.array([0.0, 0.0, 1.0]), z)
+    y = np.cross(z, x)
+    return np.stack([x, y, z], -1)
+
+
+def figure8_trajectory(t: np.ndarray) -> Trajectory:
+    """Lissajous figure 8 with heading along the path plus small roll/pitch and height oscillations.
+
+    R = Rz(psi) Ry(pitch) Rx(roll); body Omega from the exact ZYX Euler-rate relation.
+    """
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    a, b, w, th = F8_A, 0.5 * F8_A, F8_W, F8_W * t
+    x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
+    y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
+    z = F8_H + F8_HZ * np.sin(3 * th)
+    zd = 3 * w * F8_HZ * np.cos(3 * th)
+    zdd = -9 * w * w * F8_HZ * np.sin(3 * th)
+
+    psi = np.arctan2(yd, xd)
+    psid = (xd * ydd - yd * xdd) / (xd * xd + yd * yd)
+    phi, phid = F8_ROLL * np.sin(2 * th), 2 * w * F8_ROLL * np.cos(2 * th)
+    the, thed = F8_PITCH * np.sin(4 * th), 4 * w * F8_PITCH * np.cos(4 * th)
+
+    R = rot_z(psi) @ rot_y(the) @ rot_x(phi)
+    omega = np.stack(
+        [
+            phid - psid * np.sin(the),
+            thed * np.cos(phi) + psid * np.cos(the) * np.sin(phi),
+            -thed * np.sin(phi) + psid * np.cos(the) * np.cos(phi),
+        ],
+        -1,
+    )
+    pdot = np.stack([xd, yd, zd], -1)
+    v = np.einsum("nji,nj->ni", R, pdot)
+    return Trajectory(t, R, np.stack([x, y, z], -1), omega, v, np.stack([xdd, ydd, zdd], -1))
+
+
+def figure8() -> Scenario:
+    """Figure 8 among ground and wall tags; forward-down camera with a limited field of view."""
+    ids = _F8_LANDMARKS[:, 0].astype(np.int64)
+    lms = _F8_LANDMARKS[:, 1:4].copy()
+    rots = np.stack([_wall_rotation(p) if k else np.eye(3) for p, k in zip(lms, _F8_LANDMARKS[:, 4])])
+    # Forward-looking optical frame (z = x_body, x = -y_body, y = -z_body) pitched 30 deg down.
+    tilt = np.deg2rad(30.0)
+    z_c = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
+    x_c = np.array([0.0, -1.0, 0.0])
+    r_bc = np.stack([x_c, np.cross(z_c, x_c), z_c], -1)
+    cam = Camera(
+        R_bc=r_bc, t_bc=np.array([0.1, 0.0, -0.05]), fov_h_deg=100.0, fov_v_deg=75.0, min_range=0.5, max_range=15.0
+    )
+    return Scenario(
+        name="figure8",
+        duration=60.0,
+        trajectory=figure8_trajectory,
+        landmark_ids=ids,
+        landmarks=lms,
+        landmark_rots=rots,
+        gyro_bias=np.array([0.02, -0.03, 0.05]),
+        velocity_bias=np.array([0.05, -0.04, 0.02]),
+        camera=cam,
+        detection_rate=20.0,
+    )
+
+
+SCENARIOS: dict[str, Callable[[], Scenario]] = {"circle": circle, "figure8": figure8}
+
+
+def get_scenario(name: str) -> Scenario:
+    """Scenario by name; ``KeyError`` listing the known names otherwise."""
+    try:
+        return SCENARIOS[name]()
+    except KeyError:
+        raise KeyError(f"unknown scenario {name!r}; known: {', '.join(sorted(SCENARIOS))}") from None
+
+
+@njit(cache=True)
+def integrate_body_twists(r0, p0, omega, v, dt):
+    """Dead-reckon ``(R, P)`` through steps ``(R, P) <- (R, P) exp(dt_k [omega_k; v_k])``.
+
+    ``omega``, ``v`` are (K, 3) per-step body twists, ``dt`` (K,) step lengths; returns the K + 1 poses.
+    Used both for wheel-odometry poses and to check the scenarios' kinematic consistency.
+    """
+    k = dt.shape[0]
+    rs = np.empty((k + 1, 3, 3))
+    ps = np.empty((k + 1, 3))
+    rs[0] = r0
+    ps[0] = p0
+    for i in range(k):
+        dr, dp = se3_exp(omega[i] * dt[i], v[i] * dt[i])
+        step = mat3_vec(rs[i], dp)
+        rs[i + 1] = mat3_mul(rs[i], dr)
+        for j in range(3):
+            ps[i + 1, j] = ps[i, j] + step[j]
+    return rs, ps

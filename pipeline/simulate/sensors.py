@@ -1,0 +1,338 @@
+"""Turn a scenario into the message arrays a robot would have recorded.
+
+Stamps are true measurement times; record times add a random 1-5 ms latency (non-decreasing per topic),
+so readers and the alignment stage get the same stamp/record split as on a real robot. Everything is
+columnar; :mod:`pipeline.simulate.logwriter` turns rows into ROS messages.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pipeline.lie import rots_to_quats, so3_exp
+from pipeline.simulate.scenarios import (
+    GRAVITY,
+    MAGNETIC_FIELD,
+    Camera,
+    Scenario,
+    get_scenario,
+    integrate_body_twists,
+)
+from pipeline.streams import DetectionStream, LogStreams, PoseStream, Transform, Vec3Stream
+
+EPOCH_NS = 1_700_000_000_000_000_000  # first stamp of every simulated log
+
+TOPIC_IMU = "/imu/data"
+TOPIC_ODOM = "/odom"
+TOPIC_MAG = "/imu/mag"
+TOPIC_DETECTIONS = "/fiducial_transforms"
+TOPIC_TF_STATIC = "/tf_static"
+TOPIC_MOCAP = "/mocap/pose"
+TOPIC_TRUTH = "/slamobs/sim_truth"
+
+FRAME_WORLD = "world"
+FRAME_BODY = "base_link"
+FRAME_IMU = "imu_link"
+FRAME_CAMERA = "camera"
+FRAME_ODOM = "odom"
+
+# Fixed per-sensor phase (s) so no two sensors share stamps: the alignment stage must interpolate.
+_PHASE = {"imu": 0.0, "odom": 0.0013, "mag": 0.0021, "detections": 0.007, "mocap": 0.0005}
+
+# Tag model for the plausible detector quality fields.
+_FOCAL_PX = 600.0
+_TAG_SIZE_M = 0.16
+
+
+@dataclass(frozen=True)
+class NoiseModel:
+    """Standard deviations of the additive white noises (all zero when simulating without noise)."""
+
+    gyro: float = 0.005  # rad/s
+    accel: float = 0.05  # m/s^2
+    odom_linear: float = 0.02  # m/s
+    odom_angular: float = 0.01  # rad/s
+    mag: float = 2e-7  # Tesla
+    detection_base: float = 0.01  # m, per component
+    detection_per_m: float = 0.002  # m per m of range, per component
+    tag_rotation: float = 0.01  # rad
+
+    @classmethod
+    def zero(cls) -> NoiseModel:
+        return cls(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class ImuData:
+    t_ns: np.ndarray  # (N,) int64 stamps
+    rec_ns: np.ndarray  # (N,) int64 record times
+    gyro: np.ndarray  # (N, 3) rad/s, imu_link frame (biased)
+    accel: np.ndarray  # (N, 3) specific force m/s^2
+
+
+@dataclass(frozen=True)
+class OdomData:
+    t_ns: np.ndarray
+    rec_ns: np.ndarray
+    linear: np.ndarray  # (N, 3) body-frame velocity (biased)
+    angular: np.ndarray  # (N, 3) body-frame angular velocity (unbiased)
+    position: np.ndarray  # (N, 3) dead-reckoned, odom frame
+    quat_xyzw: np.ndarray  # (N, 4)
+
+
+@dataclass(frozen=True)
+class MagData:
+    t_ns: np.ndarray
+    rec_ns: np.ndarray
+    field: np.ndarray  # (N, 3) Tesla, imu_link frame
+
+
+@dataclass(frozen=True)
+class DetectionData:
+    """One frame per message, CSR layout as :class:`pipeline.streams.DetectionStream`."""
+
+    t_ns: np.ndarray  # (F,)
+    rec_ns: np.ndarray  # (F,)
+    offsets: np.ndarray  # (F + 1,) int64
+    ids: np.ndarray  # (M,) int64
+    xyz: np.ndarray  # (M, 3) camera frame
+    quat_xyzw: np.ndarray  # (M, 4) tag orientation in the camera frame
+    image_error: np.ndarray  # (M,) px
+    object_error: np.ndarray  # (M,) m
+    area: np.ndarray  # (M,) px^2
+
+
+@dataclass(frozen=True)
+class PoseData:
+    t_ns: np.ndarray
+    rec_ns: np.ndarray
+    position: np.ndarray  # (N, 3) world frame
+    quat_xyzw: np.ndarray  # (N, 4)
+
+
+@dataclass(frozen=True)
+class SimLog:
+    """Everything one simulated log contains, ready for :func:`pipeline.simulate.logwriter.write_log`."""
+
+    scenario: str
+    seed: int
+    noise: NoiseModel
+    duration: float
+    start_ns: int  # stamp and record time of /tf_static and /slamobs/sim_truth
+    imu: ImuData
+    odom: OdomData
+    mag: MagData
+    detections: DetectionData
+    mocap: PoseData
+    static_tf: list[Transform]
+    truth: dict = field(default_factory=dict)  # the /slamobs/sim_truth JSON document
+
+    @property
+    def truth_json(self) -> str:
+        return json.dumps(self.truth, sort_keys=True)
+
+    def topic_counts(self) -> dict[str, int]:
+        """Messages per topic, as they will be written."""
+        return {
+            TOPIC_TF_STATIC: 1,
+            TOPIC_TRUTH: 1,
+            TOPIC_IMU: len(self.imu.t_ns),
+            TOPIC_ODOM: len(self.odom.t_ns),
+            TOPIC_MAG: len(self.mag.t_ns),
+            TOPIC_DETECTIONS: len(self.detections.t_ns),
+            TOPIC_MOCAP: len(self.mocap.t_ns),
+        }
+
+
+def body_points(R: np.ndarray, P: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
+    """Body-frame landmark positions ``R^T (p_i - P)``: (N, 3, 3), (N, 3), (L, 3) -> (N, L, 3)."""
+    return np.einsum("nji,nlj->nli", R, landmarks[None, :, :] - P[:, None, :])
+
+
+def camera_points(camera: Camera, y_body: np.ndarray) -> np.ndarray:
+    """Body-frame points into the camera frame: ``R_bc^T (y - t_bc)``."""
+    return (y_body - camera.t_bc) @ camera.R_bc
+
+
+def visibility(camera: Camera, y_cam: np.ndarray) -> np.ndarray:
+    """Which camera-frame points the camera detects (field-of-view cone and range limits)."""
+    rng = np.linalg.norm(y_cam, axis=-1)
+    vis = rng >= camera.min_range
+    if camera.max_range is not None:
+        vis &= rng <= camera.max_range
+    if camera.fov_h_deg is not None or camera.fov_v_deg is not None:
+        vis &= y_cam[..., 2] > 0.0
+    if camera.fov_h_deg is not None:
+        vis &= np.abs(np.arctan2(y_cam[..., 0], y_cam[..., 2])) <= np.deg2rad(camera.fov_h_deg) / 2
+    if camera.fov_v_deg is not None:
+        vis &= np.abs(np.arctan2(y_cam[..., 1], y_cam[..., 2])) <= np.deg2rad(camera.fov_v_deg) / 2
+    return vis
+
+
+def _stamps(duration: float, rate: float, phase: float, start_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (int64 ns) on a ``rate`` grid shifted by ``phase``, and the exact times (s) they encode."""
+    if rate <= 0:
+        raise ValueError(f"rate must be positive, got {rate}")
+    n = int(np.floor((duration - phase) * rate + 1e-9)) + 1
+    offs = np.round((phase + np.arange(max(n, 0)) / rate) * 1e9).astype(np.int64)
+    return start_ns + offs, offs.astype(float) * 1e-9
+
+
+def _record_times(rng: np.random.Generator, t_ns: np.ndarray) -> np.ndarray:
+    """Stamp + 1..5 ms latency, made non-decreasing like a recorder's queue."""
+    rec = t_ns + rng.integers(1_000_000, 5_000_001, size=t_ns.shape[0])
+    return np.maximum.accumulate(rec)
+
+
+def _white(rng: np.random.Generator, sigma: float, shape: tuple[int, ...]) -> np.ndarray:
+    """Gaussian noise; still draws when ``sigma == 0`` so noisy and clean runs share one random stream."""
+    return sigma * rng.standard_normal(shape)
+
+
+def simulate(
+    scenario: Scenario | str,
+    *,
+    duration: float | None = None,
+    seed: int = 0,
+    noise: bool | NoiseModel = True,
+    imu_rate: float = 200.0,
+    odom_rate: float = 50.0,
+    mag_rate: float = 50.0,
+    detection_rate: float | None = None,
+    mocap_rate: float = 100.0,
+    start_ns: int = EPOCH_NS,
+) -> SimLog:
+    """Generate every sensor stream of ``scenario`` (name or object) for ``duration`` seconds.
+
+    ``noise`` is ``True`` (default :class:`NoiseModel`), ``False`` (exact measurements, biases kept) or a
+    custom model. ``detection_rate`` defaults to the scenario's.
+    """
+    sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
+    duration = sc.duration if duration is None else float(duration)
+    if duration <= 0:
+        raise ValueError(f"duration must be positive, got {duration}")
+    nm = noise if isinstance(noise, NoiseModel) else (NoiseModel() if noise else NoiseModel.zero())
+    rng = np.random.default_rng(seed)
+    det_rate = sc.detection_rate if detection_rate is None else detection_rate
+
+    # IMU: biased gyro and specific force f = R^T (a - g).
+    t_ns, t = _stamps(duration, imu_rate, _PHASE["imu"], start_ns)
+    tr = sc.sample(t)
+    n = t.shape[0]
+    gyro = tr.omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
+    f_inertial = tr.accel - GRAVITY
+    accel = np.einsum("nji,nj->ni", tr.R, f_inertial) + _white(rng, nm.accel, (n, 3))
+    imu = ImuData(t_ns, _record_times(rng, t_ns), gyro, accel)
+
+    # Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist.
+    t_ns, t = _stamps(duration, odom_rate, _PHASE["odom"], start_ns)
+    tr = sc.sample(t)
+    n = t.shape[0]
+    lin = tr.v + sc.velocity_bias + _white(rng, nm.odom_linear, (n, 3))
+    ang = tr.omega + _white(rng, nm.odom_angular, (n, 3))
+    rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), ang[:-1], lin[:-1], np.diff(t))
+    odom = OdomData(t_ns, _record_times(rng, t_ns), lin, ang, ps, rots_to_quats(rs))
+
+    # Magnetometer: inertial field seen in the body frame.
+    t_ns, t = _stamps(duration, mag_rate, _PHASE["mag"], start_ns)
+    tr = sc.sample(t)
+    fld = np.einsum("nji,j->ni", tr.R, MAGNETIC_FIELD) + _white(rng, nm.mag, (t.shape[0], 3))
+    mag = MagData(t_ns, _record_times(rng, t_ns), fld)
+
+    detections = _detections(sc, rng, nm, duration, det_rate, start_ns)
+
+    # Motion capture: the true body pose, noise-free.
+    t_ns, t = _stamps(duration, mocap_rate, _PHASE["mocap"], start_ns)
+    tr = sc.sample(t)
+    mocap = PoseData(t_ns, _record_times(rng, t_ns), tr.P.copy(), rots_to_quats(np.ascontiguousarray(tr.R)))
+
+    cam_q = rots_to_quats(np.ascontiguousarray(sc.camera.R_bc[None]))[0]
+    static_tf = [
+        Transform(FRAME_BODY, FRAME_CAMERA, sc.camera.t_bc.copy(), cam_q),
+        Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+    ]
+    tr0 = sc.sample(np.zeros(1))
+    truth = {
+        "frame_id": FRAME_WORLD,
+        "scenario": sc.name,
+        "landmarks": {str(int(i)): [float(c) for c in p] for i, p in zip(sc.landmark_ids, sc.landmarks)},
+        "gyro_bias": [float(c) for c in sc.gyro_bias],
+        "velocity_bias": [float(c) for c in sc.velocity_bias],
+        "gravity": [float(c) for c in GRAVITY],
+        "magnetic_field": [float(c) for c in MAGNETIC_FIELD],
+        "odom_origin": {  # pose of the odom frame in the world frame (the true start pose)
+            "translation": [float(c) for c in tr0.P[0]],
+            "quat_xyzw": [float(c) for c in rots_to_quats(np.ascontiguousarray(tr0.R))[0]],
+        },
+        "seed": int(seed),
+        "noise": nm != NoiseModel.zero(),
+        "duration_s": duration,
+    }
+    return SimLog(sc.name, int(seed), nm, duration, start_ns, imu, odom, mag, detections, mocap, static_tf, truth)
+
+
+def _detections(
+    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, duration: float, rate: float, start_ns: int
+) -> DetectionData:
+    """Fiducial detections: visible landmarks in the camera frame with range-dependent noise."""
+    t_ns, t = _stamps(duration, rate, _PHASE["detections"], start_ns)
+    tr = sc.sample(t)
+    y_cam = camera_points(sc.camera, body_points(tr.R, tr.P, sc.landmarks))  # (F, L, 3)
+    vis = visibility(sc.camera, y_cam)
+    frame_idx, lm_idx = np.nonzero(vis)  # row-major: frames in order, landmarks in map order
+    m = frame_idx.shape[0]
+    offsets = np.zeros(t.shape[0] + 1, dtype=np.int64)
+    offsets[1:] = np.cumsum(vis.sum(axis=1))
+
+    true_xyz = y_cam[frame_idx, lm_idx]
+    rng_m = np.linalg.norm(true_xyz, axis=1)
+    sigma = nm.detection_base + nm.detection_per_m * rng_m
+    xyz = true_xyz + sigma[:, None] * rng.standard_normal((m, 3))
+
+    # Tag orientation in the camera frame: R_bc^T R^T R_tag, perturbed by a small rotation.
+    r_bt = np.einsum("mji,mjk->mik", tr.R[frame_idx], sc.landmark_rots[lm_idx])
+    r_ct = np.einsum("ji,mjk->mik", sc.camera.R_bc, r_bt)
+    rot_noise = _white(rng, nm.tag_rotation, (m, 3))
+    if nm.tag_rotation > 0 and m:
+        r_ct = np.einsum("mij,mjk->mik", r_ct, np.stack([so3_exp(w) for w in rot_noise]))
+    quats = rots_to_quats(np.ascontiguousarray(r_ct)) if m else np.zeros((0, 4))
+
+    depth = np.maximum(true_xyz[:, 2], 0.1) if m else np.zeros(0)
+    area = (_FOCAL_PX * _TAG_SIZE_M / depth) ** 2
+    jitter = np.abs(1.0 + 0.3 * rng.standard_normal(m))
+    if nm.detection_base == 0.0:
+        jitter = np.ones(m)
+    image_error = (0.05 + 0.02 * rng_m) * jitter
+    object_error = 1e-3 * rng_m * rng_m * jitter
+    ids = sc.landmark_ids[lm_idx].copy()
+    rec_ns = _record_times(rng, t_ns)
+    return DetectionData(t_ns, rec_ns, offsets, ids, xyz, quats, image_error, object_error, area)
+
+
+def expected_streams(sim: SimLog, path: str = "") -> LogStreams:
+    """What a reader should extract from a written simulated log (the natural role mapping).
+
+    Angular velocity from the IMU gyro, linear velocity from the odometry twist, truth from motion capture,
+    landmark and bias truth from ``/slamobs/sim_truth``. Meant for reader tests.
+    """
+    det, moc = sim.detections, sim.mocap
+    return LogStreams(
+        path=str(path),
+        angular_velocity=Vec3Stream(TOPIC_IMU, FRAME_IMU, sim.imu.t_ns, sim.imu.rec_ns, sim.imu.gyro),
+        linear_velocity=Vec3Stream(TOPIC_ODOM, FRAME_BODY, sim.odom.t_ns, sim.odom.rec_ns, sim.odom.linear),
+        detections=DetectionStream(
+            TOPIC_DETECTIONS, FRAME_CAMERA, det.t_ns, det.rec_ns, det.offsets, det.ids, det.xyz
+        ),
+        truth=PoseStream(TOPIC_MOCAP, FRAME_WORLD, FRAME_BODY, moc.t_ns, moc.rec_ns, moc.position, moc.quat_xyzw),
+        accel=Vec3Stream(TOPIC_IMU, FRAME_IMU, sim.imu.t_ns, sim.imu.rec_ns, sim.imu.accel),
+        magnetic=Vec3Stream(TOPIC_MAG, FRAME_IMU, sim.mag.t_ns, sim.mag.rec_ns, sim.mag.field),
+        static_tf=list(sim.static_tf),
+        landmark_truth={int(k): np.asarray(v, dtype=float) for k, v in sim.truth["landmarks"].items()},
+        bias_truth={
+            "gyro": np.asarray(sim.truth["gyro_bias"], dtype=float),
+            "velocity": np.asarray(sim.truth["velocity_bias"], dtype=float),
+        },
+    )
