@@ -74,16 +74,19 @@ def _print_summary(summary) -> None:
         click.echo(f"note         {note}")
     r = summary.report
     if r:
-        ape_t = r["ape_translation_m"]
-        ape_r = r["ape_rotation_deg"]
-        click.echo(f"APE (SE(3)-aligned)  translation rmse {ape_t['rmse']:.4f} m, max {ape_t['max']:.4f} m; "
-                   f"rotation rmse {ape_r['rmse']:.3f} deg")
+        ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
+        click.echo(f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
+                   f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, SE(3)-aligned")
         lm = r.get("landmarks") or {}
-        if lm.get("summary"):
-            click.echo(f"landmark map error   rmse {lm['summary']['rmse']:.4f} m over {lm['summary']['n']} landmarks")
-        b = r.get("bias_error") or {}
-        if b:
-            click.echo(f"final bias error     gyro {b['gyro_norm']:.4g} rad/s, velocity {b['velocity_norm']:.4g} m/s")
+        if lm.get("error_m"):
+            click.echo(f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} landmarks")
+        err = (r.get("biases") or {}).get("error_norm")
+        if err:
+            click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
+        conv = (r.get("convergence") or {}).get("t_since_start_s")
+        if conv is not None:
+            click.echo(f"converged    {conv:.2f} s after start (position error below "
+                       f"{r['convergence']['threshold_m']} m)")
     click.echo(f"wrote        {summary.out_dir}/")
 
 

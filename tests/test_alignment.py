@@ -1,0 +1,122 @@
+"""Alignment: one time base, body frame, detections in order, clear errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline.alignment import align
+from pipeline.errors import InputError
+from pipeline.frames import static_transform
+from pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
+from pipeline.streams import DetectionStream, LogStreams, Transform, Vec3Stream
+
+NS = 1_000_000_000
+
+
+def _vec(topic, frame, t_s, xyz):
+    t = (np.asarray(t_s) * NS).astype(np.int64) + 5 * NS
+    return Vec3Stream(topic, frame, t, t + 1000, np.asarray(xyz, float))
+
+
+def _streams(**kw):
+    t_om = np.arange(0, 2.0, 0.01)
+    t_v = np.arange(0, 2.0, 0.05)
+    base = dict(
+        path="mem.bag",
+        angular_velocity=_vec("/imu", "imu", t_om, np.tile([0.0, 0.0, 0.5], (t_om.size, 1))),
+        linear_velocity=_vec("/odom", "base_link", t_v, np.column_stack([t_v, np.zeros_like(t_v), np.ones_like(t_v)])),
+        detections=DetectionStream(
+            "/fid", "camera",
+            t_ns=np.array([1.5, 0.5, 1.0]) .__mul__(NS).astype(np.int64) + 5 * NS,
+            rec_ns=np.array([1.5, 0.5, 1.0]).__mul__(NS).astype(np.int64) + 5 * NS,
+            offsets=np.array([0, 2, 3, 5]),
+            ids=np.array([7, 3, 3, 9, 9]),
+            xyz=np.arange(15, dtype=float).reshape(5, 3),
+        ),
+        static_tf=[
+            Transform("base_link", "camera", np.array([0.1, 0.0, -0.2]), rot_to_quat(so3_exp(np.array([0.0, 0.3, 0.0])))),
+            Transform("base_link", "imu", np.zeros(3), rot_to_quat(so3_exp(np.array([0.0, 0.0, np.pi / 2])))),
+        ],
+    )
+    base.update(kw)
+    return LogStreams(**base)
+
+
+def test_time_base_rotation_and_interpolation():
+    s = _streams()
+    a = align(s)
+    assert a.body_frame == "base_link"
+    assert np.all(np.diff(a.vel_t_ns) > 0)
+    r_bi = so3_exp(np.array([0.0, 0.0, np.pi / 2]))
+    assert np.allclose(a.omega, (r_bi @ np.array([0.0, 0.0, 0.5]))[None])
+    # linear velocity x = t (linear), interpolated exactly onto the 100 Hz base
+    t_rel = (a.vel_t_ns - 5 * NS) * 1e-9
+    assert np.allclose(a.velocity[:, 0], t_rel, atol=1e-12)
+    assert a.vel_t_ns[-1] <= s.linear_velocity.t_ns[-1]
+
+
+def test_detections_sorted_in_body_frame_with_repeated_ids_dropped():
+    s = _streams()
+    a = align(s)
+    # frames sorted by time: 0.5 (ids 3), 1.0 (ids 9, 9 -> one), 1.5 (ids 7, 3)
+    assert list(a.det_t_ns - 5 * NS) == [int(0.5 * NS), int(1.0 * NS), int(1.5 * NS)]
+    assert list(a.det_offsets) == [0, 1, 2, 4]
+    assert list(a.det_ids) == [3, 9, 7, 3]
+    assert any("repeated ids" in n for n in a.notes)
+    r, t = static_transform(s.static_tf, "base_link", "camera")
+    assert np.allclose(a.det_y[0], r @ s.detections.xyz[2] + t)
+    assert np.allclose(a.det_y[2], r @ s.detections.xyz[0] + t)
+    assert list(a.landmark_ids) == [3, 7, 9]
+
+
+def test_lever_arm_of_odometry_frame():
+    # Odometry reported in a frame 1 m ahead of the body origin while turning at 0.5 rad/s about z:
+    # v_body = v_frame - omega x t.
+    tfs = [Transform("base_link", "odom_frame", np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))]
+    s = _streams(static_tf=_streams().static_tf + tfs)
+    s.linear_velocity = Vec3Stream("/odom", "odom_frame", s.linear_velocity.t_ns, s.linear_velocity.rec_ns,
+                                   np.tile([0.0, 0.5, 0.0], (len(s.linear_velocity), 1)))
+    s.angular_velocity = Vec3Stream("/imu", "base_link", s.angular_velocity.t_ns, s.angular_velocity.rec_ns,
+                                    s.angular_velocity.xyz)
+    a = align(s, body_frame="base_link")
+    assert np.allclose(a.velocity, 0.0, atol=1e-12)  # the point ahead moves only because the body turns
+
+
+def test_static_transform_chains_and_inverts():
+    q = rot_to_quat(so3_exp(np.array([0.1, -0.2, 0.3])))
+    tfs = [Transform("a", "b", np.array([1.0, 2, 3]), q), Transform("b", "c", np.array([0.0, 1, 0]), q)]
+    r_ac, t_ac = static_transform(tfs, "a", "c")
+    r = quat_to_rot(q)
+    assert np.allclose(r_ac, r @ r)
+    assert np.allclose(t_ac, r @ np.array([0.0, 1, 0]) + np.array([1.0, 2, 3]))
+    r_ca, t_ca = static_transform(tfs, "/c", "a")
+    assert np.allclose(r_ca @ r_ac, np.eye(3)) and np.allclose(r_ca @ t_ac + t_ca, 0)
+    assert static_transform(tfs, "a", "zzz") is None
+
+
+def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
+    s = _streams(static_tf=[])
+    with pytest.raises(InputError) as err:
+        align(s)
+    msg = str(err.value)
+    assert "mem.bag" in msg and "/imu" in msg and "imu" in msg and "\n" not in msg
+    # ... unless the user says that frame is the body frame
+    a = align(_streams(static_tf=[]), identity_frames=("imu", "camera"))
+    assert a.det_y.shape == (4, 3)
+
+
+def test_missing_roles_and_disjoint_times_are_errors():
+    with pytest.raises(InputError, match="landmark detections"):
+        align(_streams(detections=None))
+    late = _streams()
+    late.linear_velocity = Vec3Stream("/odom", "base_link", late.linear_velocity.t_ns + 100 * NS,
+                                      late.linear_velocity.rec_ns, late.linear_velocity.xyz)
+    with pytest.raises(InputError, match="do not overlap"):
+        align(late)
+
+
+def test_record_time_option_uses_record_stamps():
+    s = _streams()
+    a = align(s, time_source="record")
+    assert a.vel_t_ns[0] == s.angular_velocity.rec_ns[0]
