@@ -49,9 +49,8 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     config = load_config(config_path)
     if observer:
         config = replace(config, observer=observer)
-    say = (lambda _m: None) if quiet else (lambda m: click.echo(m, err=True))
     try:
-        summary = run_log(log, out_dir, config, force=force, progress=say)
+        summary = run_log(log, out_dir, config, force=force)
     except GainError as err:
         raise click.UsageError(str(err)) from None
     except FileExistsError as err:

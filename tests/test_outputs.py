@@ -1,0 +1,93 @@
+"""Parquet outputs: schemas, pandas round trip, metadata, compression, atomic run directories."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+import pytest
+
+from pipeline.lie import quat_to_rot, so3_exp
+from pipeline.observers import ObserverResult
+from pipeline.writers import atomic_directory, read_metadata, result_tables, write_result
+from schemas import TABLES, arrow_schema, table_spec
+
+
+def _result(k=50, m=12):
+    rng = np.random.default_rng(0)
+    ids = np.array([4, 11, 30])
+    det_ids = rng.choice(ids, size=m)
+    return ObserverResult(
+        t_ns=np.arange(k, dtype=np.int64) * 10_000_000 + 1_700_000_000 * 10**9,
+        rotation=np.stack([so3_exp(rng.normal(size=3)) for _ in range(k)]),
+        position=rng.normal(size=(k, 3)),
+        gyro_bias=rng.normal(size=(k, 3)), vel_bias=rng.normal(size=(k, 3)),
+        landmark_ids=ids, landmark_xyz=rng.normal(size=(3, 3)),
+        det_t_ns=np.sort(rng.integers(0, 10**9, size=m)).astype(np.int64), det_ids=det_ids,
+        track_xyz=rng.normal(size=(m, 3)), innovation=rng.normal(size=(m, 3)),
+    )
+
+
+def test_every_table_matches_its_schema_and_round_trips_through_pandas(tmp_path):
+    res = _result()
+    meta = {"observer": {"name": "test"}}
+    write_result(tmp_path, res, meta)
+    for name in TABLES:
+        path = tmp_path / f"{name}.parquet"
+        schema = pq.read_schema(path)
+        assert schema.names == [f["name"] for f in table_spec(name)["fields"]]
+        assert schema.remove_metadata().equals(arrow_schema(name).remove_metadata())
+        assert schema.field(0).metadata[b"unit"] is not None
+        assert read_metadata(path) == meta
+        assert pq.ParquetFile(path).metadata.row_group(0).column(0).compression == "ZSTD"
+        df = pd.read_parquet(path)
+        assert len(df) > 0 and not df.isna().any().any()
+        assert str(df.dtypes.iloc[0]) == "int64"
+
+
+def test_table_contents():
+    res = _result()
+    t = result_tables(res)
+    # quaternions encode the same rotations, unit norm, w >= 0
+    q = np.column_stack([t["poses"][c] for c in ("qx", "qy", "qz", "qw")])
+    assert np.allclose(np.linalg.norm(q, axis=1), 1.0)
+    assert np.allclose(np.stack([quat_to_rot(x) for x in q]), res.rotation, atol=1e-12)
+    lm = pd.DataFrame(t["landmarks"])
+    for _, row in lm.iterrows():
+        mine = res.det_ids == row["id"]
+        assert row["n_obs"] == mine.sum()
+        assert row["first_seen_ns"] == res.det_t_ns[mine].min()
+        assert row["last_seen_ns"] == res.det_t_ns[mine].max()
+        i = int(np.flatnonzero(res.landmark_ids == row["id"])[0])
+        assert np.allclose(row[["x", "y", "z"]].to_numpy(float), res.landmark_xyz[i])
+    assert np.allclose(t["innovations"]["e_norm"], np.linalg.norm(res.innovation, axis=1))
+
+
+def test_atomic_directory_success_failure_and_existing_output(tmp_path):
+    out = tmp_path / "run"
+    with atomic_directory(out) as tmp:
+        (tmp / "a.txt").write_text("1")
+    assert (out / "a.txt").read_text() == "1"
+    # existing output is kept without force ...
+    with pytest.raises(FileExistsError):
+        with atomic_directory(out):
+            pass
+    # ... and is not lost when a forced replacement fails half way
+    with pytest.raises(RuntimeError):
+        with atomic_directory(out, force=True) as tmp:
+            (tmp / "partial.txt").write_text("x")
+            raise RuntimeError("boom")
+    assert (out / "a.txt").read_text() == "1" and not (out / "partial.txt").exists()
+    with atomic_directory(out, force=True) as tmp:
+        (tmp / "b.txt").write_text("2")
+    assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
+    assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary or backup left behind
+
+
+def test_schema_files_are_valid_json_with_units():
+    for name in TABLES:
+        spec = json.loads((arrow_schema.__globals__["HERE"] / f"{name}.json").read_text())
+        assert spec["name"] == name
+        assert all({"name", "type", "unit", "description"} <= set(f) for f in spec["fields"])
