@@ -6,9 +6,8 @@ from pathlib import Path
 
 import click
 
-from pipeline.simulate.logwriter import CONTAINERS, infer_container, log_size, write_log
-from pipeline.simulate.scenarios import SCENARIOS
-from pipeline.simulate.sensors import simulate as run_simulation
+#: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
+CONTAINERS = ("bag", "mcap", "ros2")
 
 _RATE = click.FloatRange(min=0.0, min_open=True)
 
@@ -46,6 +45,10 @@ def simulate(
     force: bool,
 ) -> None:
     """Simulate SCENARIO (circle, figure8) and write it to OUTPUT with landmark and bias truth."""
+    from pipeline.simulate.logwriter import infer_container, log_size, write_log
+    from pipeline.simulate.scenarios import SCENARIOS
+    from pipeline.simulate.sensors import simulate as run_simulation
+
     if scenario not in SCENARIOS:
         raise click.BadParameter(
             f"unknown scenario {scenario!r}; choose from {', '.join(sorted(SCENARIOS))}", param_hint="SCENARIO"
