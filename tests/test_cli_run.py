@@ -196,3 +196,18 @@ def test_demo_sample_copy_runs_from_any_directory(tmp_path, monkeypatch):
     assert invoke("run", "c.bag", "-o", "o", "-q").exit_code == 0
     assert (tmp_path / "o" / "poses.parquet").exists()
     del log
+
+
+def test_help_imports_no_heavy_modules():
+    """`slamobs --help` stays fast: commands import numba, rosbags, pyarrow only when they run."""
+    import subprocess
+    import sys
+
+    code = ("import sys, cli.main; heavy = [m for m in ('numba', 'rosbags', 'pyarrow', 'pandas', 'matplotlib') "
+            "if m in sys.modules]; print(','.join(heavy))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == ""
+    from cli.simulate_cmd import CONTAINERS
+    from pipeline.simulate.logwriter import CONTAINERS as WRITABLE
+
+    assert set(CONTAINERS) == set(WRITABLE)
