@@ -53,7 +53,8 @@ def test_simulated_log_round_trip(tmp_path, sim, container, name):
         assert_same(g, w, ("t_ns", "rec_ns", "xyz"))
     assert (got.detections.topic, got.detections.frame_id) == ("/fiducial_transforms", "camera")
     assert_same(got.detections, want.detections, ("t_ns", "rec_ns", "offsets", "ids", "xyz"))
-    assert (got.truth.topic, got.truth.frame_id, got.truth.child_frame_id) == ("/mocap/pose", "world", "")
+    want_truth = (want.truth.topic, want.truth.frame_id, want.truth.child_frame_id)
+    assert (got.truth.topic, got.truth.frame_id, got.truth.child_frame_id) == want_truth == ("/mocap/pose", "world", "")
     assert_same(got.truth, want.truth, ("t_ns", "rec_ns", "position", "quat_xyzw"))
     assert [(t.parent, t.child) for t in got.static_tf] == [(t.parent, t.child) for t in want.static_tf]
     for g, w in zip(got.static_tf, want.static_tf, strict=True):

@@ -326,7 +326,7 @@ def expected_streams(sim: SimLog, path: str = "") -> LogStreams:
         detections=DetectionStream(
             TOPIC_DETECTIONS, FRAME_CAMERA, det.t_ns, det.rec_ns, det.offsets, det.ids, det.xyz
         ),
-        truth=PoseStream(TOPIC_MOCAP, FRAME_WORLD, FRAME_BODY, moc.t_ns, moc.rec_ns, moc.position, moc.quat_xyzw),
+        truth=PoseStream(TOPIC_MOCAP, FRAME_WORLD, "", moc.t_ns, moc.rec_ns, moc.position, moc.quat_xyzw),
         accel=Vec3Stream(TOPIC_IMU, FRAME_IMU, sim.imu.t_ns, sim.imu.rec_ns, sim.imu.accel),
         magnetic=Vec3Stream(TOPIC_MAG, FRAME_IMU, sim.mag.t_ns, sim.mag.rec_ns, sim.mag.field),
         static_tf=list(sim.static_tf),
