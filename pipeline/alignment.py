@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from pipeline.directions import ACCEL_GATE, ACCEL_TOL, DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD, DirectionSet, build_directions
 from pipeline.errors import InputError
 from pipeline.frames import static_transform
 from pipeline.streams import DetectionStream, LogStreams, Vec3Stream
@@ -34,6 +35,7 @@ class AlignedStream:
     landmark_ids: np.ndarray  # (L,) sorted unique ids
     body_frame: str
     notes: list[str] = field(default_factory=list)
+    directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
 
     def seconds(self, t_ns: np.ndarray) -> np.ndarray:
         """Times relative to ``t0_ns`` in float64 seconds (exact to well below a microsecond)."""
@@ -87,12 +89,27 @@ def _gaps(t_ns: np.ndarray, topic: str) -> list[str]:
     return [f"{topic}: {int(big.sum())} gap(s) longer than {GAP_WARN_S} s (largest {d.max():.2f} s)"]
 
 
+def _resample(streams: LogStreams, stream: Vec3Stream | None, t_base: np.ndarray, body: str,
+              time_source: str, ident: set[str]) -> np.ndarray | None:
+    """A vector stream rotated into the body frame and interpolated onto ``t_base`` (NaN outside its span)."""
+    if stream is None or len(stream) < 2:
+        return None
+    t, xyz = _sorted(_times(stream, time_source), stream.xyz)
+    r, _ = _extrinsic(streams, body, stream.frame_id, stream.topic, ident)
+    rel = (t - t[0]).astype(np.float64)
+    q = (t_base - t[0]).astype(np.float64)
+    out = np.column_stack([np.interp(q, rel, xyz[:, a], left=np.nan, right=np.nan) for a in range(3)])
+    return out @ r.T
+
+
 def align(
     streams: LogStreams,
     *,
     body_frame: str | None = None,
     time_source: str = "header",
     identity_frames: tuple[str, ...] = (),
+    gravity=DEFAULT_GRAVITY,
+    magnetic_field=DEFAULT_MAGNETIC_FIELD,
 ) -> AlignedStream:
     """Build the observer's ordered input from the decoded streams of one log."""
     om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
@@ -159,6 +176,19 @@ def align(
     if landmark_ids.size == 0:
         raise InputError(streams.path, "no landmark detections inside the velocity time span", det.topic)
 
+    t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
+    directions = build_directions(
+        t_s, omega, velocity,
+        _resample(streams, streams.accel, t_om, body, time_source, ident),
+        _resample(streams, streams.magnetic, t_om, body, time_source, ident),
+        gravity, magnetic_field,
+    )
+    if directions is not None and "gravity" in directions.names:
+        w = directions.weight[:, directions.names.index("gravity")]
+        notes.append(f"accelerometer: {100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
+                     f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
+                     f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)")
+
     return AlignedStream(
         t0_ns=int(t_om[0]),
         vel_t_ns=t_om.astype(np.int64),
@@ -171,4 +201,5 @@ def align(
         landmark_ids=landmark_ids.astype(np.int64),
         body_frame=body,
         notes=notes,
+        directions=directions,
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
 from pipeline.errors import InputError
 
 DEFAULT_OBSERVER = "fast-adaptation"
@@ -22,6 +23,8 @@ class RunConfig:
     output_rate_hz: float | None = None
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
+    gravity: tuple[float, float, float] = DEFAULT_GRAVITY
+    magnetic_field: tuple[float, float, float] = DEFAULT_MAGNETIC_FIELD
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -42,6 +45,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     frames = data.get("frames", {})
     time = data.get("time", {})
     ev = data.get("evaluation", {})
+    dirs = data.get("directions", {})
     return RunConfig(
         observer=data.get("observer", DEFAULT_OBSERVER),
         topics=dict(data.get("topics", {})),
@@ -53,6 +57,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         output_rate_hz=data.get("output", {}).get("rate_hz"),
         t_max_diff=float(ev.get("t_max_diff", 0.01)),
         convergence_threshold=float(ev.get("convergence_threshold", 0.1)),
+        gravity=tuple(dirs.get("gravity", DEFAULT_GRAVITY)),
+        magnetic_field=tuple(dirs.get("magnetic_field", DEFAULT_MAGNETIC_FIELD)),
     )
 
 

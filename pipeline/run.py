@@ -46,6 +46,14 @@ def _check_finite(res: ObserverResult, log: Path, observer: str) -> None:
                               "lower its gains or check the input rates")
 
 
+def _check_directions(spec, aligned: AlignedStream, log: Path) -> None:
+    have = aligned.directions.names if aligned.directions is not None else ()
+    if len(have) < spec.min_directions:
+        raise InputError(log, f"observer '{spec.name}' needs {spec.min_directions} inertial directions "
+                              f"(accelerometer in sensor_msgs/Imu, sensor_msgs/MagneticField); the log gives "
+                              f"{len(have)}{': ' + ', '.join(have) if have else ''}")
+
+
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
             progress: Callable[[str], None] = lambda _msg: None) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically."""
@@ -64,9 +72,11 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
 
     t = time.perf_counter()
     aligned = align(streams, body_frame=config.body_frame, time_source=config.time_source,
-                    identity_frames=config.identity_frames)
+                    identity_frames=config.identity_frames, gravity=config.gravity,
+                    magnetic_field=config.magnetic_field)
     timings["align_s"] = time.perf_counter() - t
 
+    _check_directions(spec, aligned, log)
     options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz))
     t = time.perf_counter()
     res = spec.run(aligned, gains, options)
@@ -80,6 +90,7 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
         "input": {"path": str(log.resolve()), "topics": _topics(streams), "time_source": config.time_source,
                   "body_frame": aligned.body_frame},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
+                     "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
                                  "out_every": options.out_every}},
         "counts": {"velocity_samples": int(aligned.vel_t_ns.shape[0]), "detection_frames": int(aligned.det_t_ns.shape[0]),

@@ -65,7 +65,7 @@ def write_table(path: Path, name: str, columns: dict[str, np.ndarray], metadata:
 def write_result(out_dir: Path, res: ObserverResult, metadata: dict) -> list[Path]:
     """All five tables of a run into ``out_dir``."""
     written = []
-    for name, cols in result_tables(res).items():
+    for name, cols in {**result_tables(res), **res.extra_tables}.items():
         path = out_dir / f"{name}.parquet"
         write_table(path, name, cols, metadata)
         written.append(path)

@@ -11,6 +11,8 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
+#: Tables only some observers write.
+OPTIONAL_TABLES = ("jumps",)
 
 
 @cache

@@ -47,6 +47,8 @@ class ObserverResult:
     track_xyz: np.ndarray  # (M, 3) landmark estimate at the detection time
     innovation: np.ndarray  # (M, 3) e_i at the detection time
     stats: dict = field(default_factory=dict)
+    #: Observer-specific tables (e.g. "jumps"), columns named as in ``schemas/<name>.json``.
+    extra_tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -57,6 +59,8 @@ class ObserverSpec:
     summary: str
     gains: tuple[GainSpec, ...]
     run: Callable[[AlignedStream, dict[str, float], ObserverOptions], ObserverResult]
+    #: Minimum number of inertial directions (gravity, magnetic field) the observer needs; 0 = none.
+    min_directions: int = 0
 
     def resolve_gains(self, user: dict | None) -> dict[str, float]:
         """Defaults overlaid with the user's gains, exactly as given; anything invalid is an error."""
