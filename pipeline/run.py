@@ -54,35 +54,57 @@ def _check_directions(spec, aligned: AlignedStream, log: Path) -> None:
                               f"{len(have)}{': ' + ', '.join(have) if have else ''}")
 
 
-def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
-            progress: Callable[[str], None] = lambda _msg: None) -> RunSummary:
-    """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically."""
+@dataclass
+class PreparedLog:
+    """A log read and aligned once; any number of observers can run on it."""
+
+    log: Path
+    streams: object  # LogStreams
+    aligned: AlignedStream
+    timings: dict[str, float]
+
+
+def prepare_log(log: Path, config: RunConfig) -> PreparedLog:
+    """Read the log and build the observer input (readers -> alignment)."""
     from pipeline.readers import read_log
-    from pipeline.writers import atomic_directory, result_tables, write_json, write_result
 
     log = Path(log)
     timings: dict[str, float] = {}
-    spec = get_observer(config.observer)
-    gains = spec.resolve_gains(config.gains.get(spec.name))
-
     t = time.perf_counter()
     streams = read_log(log, config.topics or None)
     timings["read_s"] = time.perf_counter() - t
-    progress(f"read {log}")
-
     t = time.perf_counter()
     aligned = align(streams, body_frame=config.body_frame, time_source=config.time_source,
                     identity_frames=config.identity_frames, gravity=config.gravity,
                     magnetic_field=config.magnetic_field)
     timings["align_s"] = time.perf_counter() - t
+    return PreparedLog(log, streams, aligned, timings)
 
+
+def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
+            progress: Callable[[str], None] = lambda _msg: None) -> RunSummary:
+    """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically."""
+    spec = get_observer(config.observer)
+    spec.resolve_gains(config.gains.get(spec.name))  # fail on bad gains before reading a large log
+    prepared = prepare_log(log, config)
+    progress(f"read {log}")
+    return run_prepared(prepared, out_dir, config, force=force)
+
+
+def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False) -> RunSummary:
+    """Observer -> writers -> evaluation on an already prepared log."""
+    from pipeline.writers import atomic_directory, result_tables, write_json, write_result
+
+    log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
+    timings = dict(prepared.timings)
+    spec = get_observer(config.observer)
+    gains = spec.resolve_gains(config.gains.get(spec.name))
     _check_directions(spec, aligned, log)
     options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz))
     t = time.perf_counter()
     res = spec.run(aligned, gains, options)
     timings["observer_s"] = time.perf_counter() - t
     _check_finite(res, log, spec.name)
-    progress(f"observer {spec.name}: {res.stats.get('substeps', 0)} internal steps")
 
     notes = list(streams.warnings) + list(aligned.notes)
     metadata = {
