@@ -90,6 +90,34 @@ def _print_summary(summary) -> None:
 
 
 @main.command()
+@click.argument("log", type=click.Path(path_type=Path))
+@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="directory to create")
+@click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@click.option("--force", is_flag=True, help="replace an existing output directory")
+def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, force: bool) -> None:
+    """Run several observers on LOG and write a side-by-side table and an overlay plot."""
+    from pipeline.compare import compare_log
+    from pipeline.config import load_config
+    from pipeline.observers import GainError
+
+    observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
+    if not observers:
+        raise click.UsageError("--observers needs at least one name")
+    try:
+        table = compare_log(log, out_dir, load_config(config_path), observers, force=force)
+    except GainError as err:
+        raise click.UsageError(str(err)) from None
+    except FileExistsError as err:
+        raise click.ClickException(str(err)) from None
+    with_values = table.astype(object).where(table.notna(), "")
+    click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
+    if (table["status"] != "ok").all():
+        sys.exit(1)
+
+
+@main.command()
 def observers() -> None:
     """List the observers and their gains (defaults in brackets)."""
     from pipeline.observers import OBSERVERS

@@ -30,6 +30,32 @@ class RunSummary:
     report: dict | None = None
     notes: list[str] = field(default_factory=list)
 
+    def headline(self) -> dict[str, float | None]:
+        """The few numbers a comparison or batch summary shows per run (None where not available)."""
+        return headline_metrics(self.report)
+
+
+def headline_metrics(report: dict | None) -> dict[str, float | None]:
+    """APE, map and final bias errors and convergence time from a report dict (None if absent)."""
+    r = report or {}
+
+    def get(*keys):
+        cur = r
+        for k in keys:
+            if not isinstance(cur, dict) or cur.get(k) is None:
+                return None
+            cur = cur[k]
+        return float(cur)
+
+    return {
+        "ape_trans_rmse_m": get("ape", "translation_m", "rmse"),
+        "ape_rot_rmse_deg": get("ape", "rotation_deg", "rmse"),
+        "landmark_rmse_m": get("landmarks", "error_m", "rmse"),
+        "gyro_bias_err": get("biases", "error_norm", "gyro"),
+        "vel_bias_err": get("biases", "error_norm", "velocity"),
+        "convergence_s": get("convergence", "t_since_start_s"),
+    }
+
 
 def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:
     if rate_hz is None or aligned.vel_t_ns.shape[0] < 2:

@@ -1,0 +1,47 @@
+"""`slamobs compare`: several observers on one log, one table, one overlay plot."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from click.testing import CliRunner
+
+from cli.main import main
+from pipeline.observers import OBSERVERS
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
+
+
+def invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+def test_compare_all_observers_side_by_side(tmp_path):
+    out = tmp_path / "cmp"
+    names = list(OBSERVERS)
+    res = invoke("compare", SAMPLE, "-o", out, "--observers", ",".join(names))
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(out / "comparison.parquet")
+    assert list(table["observer"]) == names
+    for row in table.to_dict("records"):
+        if row["status"] == "ok":
+            run = json.loads((out / row["observer"] / "run.json").read_text())
+            report = json.loads((out / row["observer"] / "report.json").read_text())
+            assert run["observer"]["name"] == row["observer"]
+            assert row["ape_trans_rmse_m"] == pytest.approx(report["ape"]["translation_m"]["rmse"])
+            assert row["ape_trans_rmse_m"] < 0.5
+        else:
+            assert row["error"]
+    assert (table["status"] == "ok").any()
+    assert (out / "overlay.png").stat().st_size > 1000
+    assert "| fast-adaptation | ok |" in (out / "comparison.md").read_text()
+
+
+def test_unknown_observer_is_a_usage_error_and_writes_nothing(tmp_path):
+    out = tmp_path / "cmp"
+    res = invoke("compare", SAMPLE, "-o", out, "--observers", "fast-adaptation,nope")
+    assert res.exit_code == 2 and "nope" in res.stderr
+    assert not out.exists()
