@@ -12,3 +12,7 @@ class InputError(Exception):
         self.problem = problem
         where = f"{self.path}" + (f" [{topic}]" if topic else "")
         super().__init__(f"{where}: {problem}")
+
+
+class GainError(ValueError):
+    """A gain or observer option is unknown, missing, not a number, or outside its admissible range."""

@@ -9,10 +9,7 @@ from typing import Callable
 import numpy as np
 
 from pipeline.alignment import AlignedStream
-
-
-class GainError(ValueError):
-    """A gain is unknown, missing, not a number, or not strictly positive."""
+from pipeline.errors import GainError
 
 
 @dataclass(frozen=True)
