@@ -119,14 +119,15 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, forc
 
 @main.command()
 def observers() -> None:
-    """List the observers and their gains (defaults in brackets)."""
+    """List the observers and their gains (defaults in brackets; set them under `gains.<observer>` in run.yaml)."""
     from pipeline.observers import OBSERVERS
 
     for spec in OBSERVERS.values():
         click.echo(f"{spec.name}  (algorithm {spec.algorithm}) {spec.summary}")
         click.echo(f"    paper: {spec.paper}")
+        width = max(len(g.name) for g in spec.gains)
         for g in spec.gains:
-            click.echo(f"    {g.name:<8} [{g.default:g}]  {g.description}")
+            click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")
 
 
 def _add_optional_commands() -> None:
