@@ -11,13 +11,19 @@ import click
 @click.command("info")
 @click.argument("log", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
-def info(log: Path, *, as_json: bool) -> None:
+@click.option(
+    "--msg-dir",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="Directory of pkg/msg/Type.msg files for message types whose definitions the log lacks.",
+)
+def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
     """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play."""
     from pipeline.errors import InputError
     from pipeline.readers import format_info, inspect_log
 
     try:
-        summary = inspect_log(log)
+        summary = inspect_log(log, msg_dir=msg_dir)
     except InputError as err:  # standalone use of the command; under `slamobs` the group does the same
         raise click.ClickException(str(err)) from None
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else format_info(summary))

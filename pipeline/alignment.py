@@ -1,8 +1,16 @@
 """Put the multi-rate streams on one time base and in the body frame: one ordered stream for an observer.
 
 Angular velocity sets the time base (usually the fastest stream); body linear velocity is interpolated
-linearly onto it. Landmark detections are moved from the camera frame into the body frame with the
-static extrinsic and their ids mapped to dense indices. Everything an observer needs is here, as arrays.
+linearly onto it. Landmark detections are moved from the camera frame into the body frame and their ids
+mapped to dense indices. Everything an observer needs is here, as arrays.
+
+Frames: the body frame is ``body_frame`` if given, else the frame of the linear velocity (the odometry child
+frame). Each sensor frame is brought into it through ``/tf_static`` when a static chain exists (one constant
+transform). Otherwise, as logs often publish fixed extrinsics on ``/tf`` (ROS1 static_transform_publisher,
+robot_state_publisher) and moving ones (gimbals, TF tag frames under a world frame) only there, the chain
+through ``/tf`` is interpolated at every sample: velocity and direction samples outside the ``/tf`` span hold
+the nearest transform (an extrinsic that drifts little), detection frames outside it are dropped (a moving
+camera must not be guessed). Which edges were used is reported in the notes.
 """
 
 from __future__ import annotations
@@ -13,7 +21,7 @@ import numpy as np
 
 from pipeline.directions import ACCEL_GATE, ACCEL_TOL, DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD, DirectionSet, build_directions
 from pipeline.errors import InputError
-from pipeline.frames import static_transform
+from pipeline.frames import TfBuffer
 from pipeline.streams import DetectionStream, LogStreams, Vec3Stream
 
 #: Velocity gaps longer than this (seconds) are reported: the observer holds the last sample across them.
@@ -50,19 +58,58 @@ def _times(stream, time_source: str) -> np.ndarray:
     return stream.rec_ns if time_source == "record" else stream.t_ns
 
 
-def _extrinsic(streams: LogStreams, body: str, frame: str, topic: str, identity_frames: set[str]):
-    """Transform ``frame`` -> body, or a one-line error saying which transform is missing."""
-    if not frame or frame.lstrip("/") in identity_frames:
-        return np.eye(3), np.zeros(3)
-    found = static_transform(streams.static_tf, body, frame)
-    if found is None:
+@dataclass(frozen=True)
+class _Extrinsic:
+    """``x_body = rot x_frame + trans``: one constant transform, or one per sample (``(N, 3, 3)``, ``(N, 3)``)."""
+
+    rot: np.ndarray
+    trans: np.ndarray
+    valid: np.ndarray | None = None  # per-sample lookups: inside the /tf span
+
+    def rotate(self, x: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        if self.rot.ndim == 2:
+            return x @ self.rot.T
+        return np.einsum("nij,nj->ni", self.rot[rows], x)
+
+    def apply(self, x: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        return self.rotate(x, rows) + (self.trans if self.trans.ndim == 1 else self.trans[rows])
+
+
+_IDENTITY = _Extrinsic(np.eye(3), np.zeros(3))
+_VARYING_RAD = 1e-3  # a /tf extrinsic turning more than this over the log is reported as time-varying
+
+
+def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t_ns: np.ndarray,
+             notes: list[str]) -> _Extrinsic:
+    """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error."""
+    frame = frame.lstrip("/")
+    if not frame or frame in ident or frame == body:
+        return _IDENTITY
+    found = tf.static_lookup(body, frame)
+    if found is not None:
+        return _Extrinsic(*found)
+    if tf.chain(body, frame) is None:
         raise InputError(
-            streams.path,
-            f"no /tf_static transform from frame '{frame}' to body frame '{body}' "
-            f"(set frames.body, or list '{frame}' in frames.assume_identity)",
+            tf.path,
+            f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
+            f"({tf.explain(body, frame)}; set frames.body, or list '{frame}' in frames.assume_identity)",
             topic,
         )
-    return found
+    res = tf.lookup(body, frame, t_ns, topic)
+    note = f"{topic}: frame '{frame}' -> body '{body}' through /tf ({', '.join(res.dynamic)}), at each sample"
+    if res.rot.shape[0] > 1:
+        cos = (np.einsum("ij,nij->n", res.rot[0], res.rot) - 1.0) / 2.0
+        turn = float(np.arccos(np.clip(cos, -1.0, 1.0)).max())
+        if turn > _VARYING_RAD:
+            note += f"; time-varying (turns up to {np.degrees(turn):.2f} deg)"
+    notes.append(note)
+    return _Extrinsic(res.rot, res.trans, res.valid)
+
+
+def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
+    """Velocity and direction samples outside the /tf span keep the nearest transform: say how many."""
+    if ext.valid is not None and (n := int(np.count_nonzero(~ext.valid))):
+        notes.append(f"{topic}: {n} samples outside the /tf span use the nearest transform")
 
 
 def _require(streams: LogStreams, name: str, what: str):
@@ -89,17 +136,18 @@ def _gaps(t_ns: np.ndarray, topic: str) -> list[str]:
     return [f"{topic}: {int(big.sum())} gap(s) longer than {GAP_WARN_S} s (largest {d.max():.2f} s)"]
 
 
-def _resample(streams: LogStreams, stream: Vec3Stream | None, t_base: np.ndarray, body: str,
-              time_source: str, ident: set[str]) -> np.ndarray | None:
-    """A vector stream rotated into the body frame and interpolated onto ``t_base`` (NaN outside its span)."""
+def _resample(tf: TfBuffer, stream: Vec3Stream | None, t_base: np.ndarray, body: str,
+              time_source: str, ident: set[str], notes: list[str]) -> np.ndarray | None:
+    """A vector stream interpolated onto ``t_base`` (NaN outside its span) and rotated into the body frame."""
     if stream is None or len(stream) < 2:
         return None
     t, xyz = _sorted(_times(stream, time_source), stream.xyz)
-    r, _ = _extrinsic(streams, body, stream.frame_id, stream.topic, ident)
     rel = (t - t[0]).astype(np.float64)
     q = (t_base - t[0]).astype(np.float64)
     out = np.column_stack([np.interp(q, rel, xyz[:, a], left=np.nan, right=np.nan) for a in range(3)])
-    return out @ r.T
+    ext = _to_body(tf, body, stream.frame_id, stream.topic, ident, t_base, notes)
+    _held(ext, stream.topic, notes)
+    return ext.rotate(out)
 
 
 def align(
@@ -118,6 +166,7 @@ def align(
     body = (body_frame or lv.frame_id or "base_link").lstrip("/")
     ident = {f.lstrip("/") for f in identity_frames}
     notes: list[str] = []
+    tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
 
     t_om, w = _sorted(_times(om, time_source), om.xyz)
     t_lv, v = _sorted(_times(lv, time_source), lv.xyz)
@@ -132,14 +181,16 @@ def align(
         notes.append(f"{int((~keep).sum())} angular-velocity samples outside the linear-velocity span dropped")
     t_om, w = t_om[keep], w[keep]
 
-    r_bi, _ = _extrinsic(streams, body, om.frame_id, om.topic, ident)
-    omega = w @ r_bi.T
+    gyro_ext = _to_body(tf, body, om.frame_id, om.topic, ident, t_om, notes)
+    _held(gyro_ext, om.topic, notes)
+    omega = gyro_ext.rotate(w)
     # Linear velocity of the body origin from the velocity of the odometry frame (lever arm t_bc).
     rel = (t_lv - lo).astype(np.float64)
     rel_q = (t_om - lo).astype(np.float64)
     v_interp = np.column_stack([np.interp(rel_q, rel, v[:, a]) for a in range(3)])
-    r_bc, t_bc = _extrinsic(streams, body, lv.frame_id, lv.topic, ident)
-    velocity = v_interp @ r_bc.T - np.cross(omega, t_bc)
+    vel_ext = _to_body(tf, body, lv.frame_id, lv.topic, ident, t_om, notes)
+    _held(vel_ext, lv.topic, notes)
+    velocity = vel_ext.rotate(v_interp) - np.cross(omega, vel_ext.trans)
     notes += _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic)
 
     # Detections: camera frame -> body frame, inside the velocity span.
@@ -148,9 +199,13 @@ def align(
     frame_of = np.repeat(np.arange(len(det)), counts)
     order = np.argsort(t_det, kind="stable")
     in_span = (t_det >= lo) & (t_det <= hi)
+    if n_out := len(det) - int(np.count_nonzero(in_span)):
+        notes.append(f"{n_out} detection frames outside the velocity span dropped")
+    cam_ext = _to_body(tf, body, det.frame_id, det.topic, ident, t_det, notes)
+    if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
+        notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
+        in_span &= cam_ext.valid
     frames = order[in_span[order]]
-    if frames.shape[0] < len(det):
-        notes.append(f"{len(det) - frames.shape[0]} detection frames outside the velocity span dropped")
     sel = np.flatnonzero(in_span[frame_of]).astype(np.int64)
     # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
     if sel.size:
@@ -161,8 +216,7 @@ def align(
             mask = np.zeros(sel.size, bool)
             mask[first] = True
             sel = sel[mask]
-    r_bc, t_bc = _extrinsic(streams, body, det.frame_id, det.topic, ident)
-    det_y = det.xyz[sel] @ r_bc.T + t_bc
+    det_y = cam_ext.apply(det.xyz[sel], frame_of[sel])
     # ``frames`` is in time order; rebuild CSR offsets in that order.
     rank = np.empty(len(det), np.int64)
     rank[frames] = np.arange(frames.size)
@@ -179,8 +233,8 @@ def align(
     t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
     directions = build_directions(
         t_s, omega, velocity,
-        _resample(streams, streams.accel, t_om, body, time_source, ident),
-        _resample(streams, streams.magnetic, t_om, body, time_source, ident),
+        _resample(tf, streams.accel, t_om, body, time_source, ident, notes),
+        _resample(tf, streams.magnetic, t_om, body, time_source, ident, notes),
         gravity, magnetic_field,
     )
     if directions is not None and "gravity" in directions.names:

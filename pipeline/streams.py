@@ -72,6 +72,25 @@ class Transform:
     quat_xyzw: np.ndarray  # (4,)
 
 
+@dataclass(frozen=True)
+class TransformSeries:
+    """One ``/tf`` edge over time: ``x_parent = R(quat_xyzw[k]) x_child + translation[k]`` at ``t_ns[k]``.
+
+    Stamps are strictly increasing (cleaned like every stream); lookups interpolate between them.
+    """
+
+    topic: str
+    parent: str
+    child: str
+    t_ns: np.ndarray  # (N,) int64
+    rec_ns: np.ndarray  # (N,) int64
+    translation: np.ndarray  # (N, 3)
+    quat_xyzw: np.ndarray  # (N, 4)
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
 @dataclass
 class LogStreams:
     """Everything the pipeline takes out of one log, by role. Missing roles are ``None``."""
@@ -84,6 +103,8 @@ class LogStreams:
     accel: Vec3Stream | None = None
     magnetic: Vec3Stream | None = None
     static_tf: list[Transform] = field(default_factory=list)
+    tf: list[TransformSeries] = field(default_factory=list)  # dynamic /tf edges
     landmark_truth: dict[int, np.ndarray] | None = None  # id -> (3,) in the truth frame
     bias_truth: dict[str, np.ndarray] | None = None  # {"gyro": (3,), "velocity": (3,)} body frame (simulated logs)
     warnings: list[str] = field(default_factory=list)
+    clocks: dict[str, str] = field(default_factory=dict)  # topic -> "record" where record time replaced the stamp

@@ -370,6 +370,11 @@ def _truncated(src: Path, dst: Path) -> Path:
     return dst
 
 
+def _head(src: Path, dst: Path, n: int = 40) -> Path:
+    dst.write_bytes(src.read_bytes()[:n])
+    return dst
+
+
 def _bad_inputs(tmp: Path, good_bag: Path) -> dict[str, tuple[Path, str]]:
     text = tmp / "notes.bag"
     text.write_text("this is not a bag\n")
@@ -388,8 +393,9 @@ def _bad_inputs(tmp: Path, good_bag: Path) -> dict[str, tuple[Path, str]]:
         "text renamed .bag": (text, "not a ROS1 bag, rosbag2 directory or MCAP file"),
         "unknown suffix": (junk, "not a ROS1 bag, rosbag2 directory or MCAP file"),
         "directory without metadata": (empty_dir, "not a ROS1 bag, rosbag2 directory or MCAP file"),
-        "truncated bag": (_truncated(good_bag, tmp / "half.bag"), "corrupt or truncated ROS1 bag"),
-        "truncated mcap": (_truncated(mcap, tmp / "half.mcap"), "corrupt or truncated MCAP file"),
+        # cut inside the file header: nothing to recover (cuts later on are recovered: test_readers_damage.py)
+        "bag cut in its header": (_head(good_bag, tmp / "head.bag"), "corrupt or truncated ROS1 bag"),
+        "mcap cut in its header": (_head(mcap, tmp / "head.mcap"), "corrupt or truncated MCAP file"),
         "truncated db3": (half_ros2, "corrupt or truncated rosbag2 directory"),
     }
 

@@ -11,24 +11,30 @@ from collections import defaultdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.streams import LogStreams
+from pipeline.errors import InputError
+from pipeline.streams import LogStreams, PoseStream
 
-from .container import Container, detect_container, open_log
+from .container import Container, damage_notes, detect_container, open_log
 from .decode import (
     VEC3_ROLES,
     Rows,
+    TfRows,
     decode_detections,
     decode_rows,
     decode_sim_truth,
-    decode_static_tf,
+    decode_tf,
     pose_stream,
+    static_transforms,
+    tag_detections,
+    transform_series,
     vec3_stream,
 )
-from .inspect import LogInfo, TopicSummary, format_info, inspect_log
-from .roles import ROLES, accepted_types, select_roles, topics_of
+from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
+from .msgdefs import complete_definitions, require_types
+from .roles import ROLES, TF_TYPES, accepted_types, select_roles, topics_of
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Callable, Mapping
 
     from .decode import Cleaning
 
@@ -46,58 +52,145 @@ __all__ = [
 ]
 
 
-def read_log(path: str | Path, topics: Mapping[str, str | None] | None = None) -> LogStreams:
+def read_log(
+    path: str | Path,
+    topics: Mapping[str, str | None] | None = None,
+    *,
+    msg_dir: str | Path | None = None,
+    tag_pattern: str | None = None,
+    truth_file: str | Path | None = None,
+    truth_format: str | None = None,
+    truth_times: str | Path | None = None,
+    clocks: str | Mapping[str, str] | None = None,
+) -> LogStreams:
     """Decode the topics of each role into streams.
 
     Args:
         path: ROS1 ``.bag``, rosbag2 directory, ``.mcap`` or ``.db3`` file.
         topics: Role -> topic overrides (``angular_velocity``, ``linear_velocity``, ``detections``,
-            ``truth``, ``accel``, ``magnetic``, ``static_tf``, ``sim_truth``); ``''`` or ``None``
-            leaves a role out.
+            ``truth``, ``accel``, ``magnetic``, ``static_tf``, ``tf``, ``sim_truth``); ``''`` or ``None``
+            leaves a role out. ``truth`` may be a TF edge ``"parent->child"`` (looked up through ``/tf`` and
+            ``/tf_static``, chains allowed).
+        msg_dir: Directory of ``pkg/msg/Type.msg`` files for types whose definitions the log lacks.
+        tag_pattern: TF tag frames as detections, e.g. ``"tag_{id}"`` (children of the camera frame).
+        truth_file: Ground truth from a TUM, EuRoC CSV or KITTI file instead of a topic.
+        truth_format: ``tum``, ``euroc`` or ``kitti`` (detected from the content by default).
+        truth_times: KITTI ``times.txt`` (KITTI poses carry no stamps).
+        clocks: ``None``/``"header"`` keeps header stamps; ``"auto"`` takes record times for the topics whose
+            stamps look unusable next to the reference stream (:func:`recommend_clocks`); a mapping
+            ``topic -> "header" | "record"`` chooses per topic. The choice is in ``LogStreams.clocks``.
 
     Raises:
-        InputError: Unreadable log, bad override, undecodable topic or invalid simulation truth.
+        InputError: Unreadable log, bad override, undecodable topic, missing message definition, invalid
+            simulation truth or truth file.
 
     """
     path = Path(path)
+    overrides = dict(topics or {})
+    if truth_file is not None:
+        overrides["truth"] = ""  # the file is the truth; no topic is read for it
     with open_log(path) as reader:
+        complete_definitions(reader, msg_dir)
         table = topics_of(reader)
-        selection = select_roles({t: m for t, (m, _) in table.items()}, topics, path)
-        streams = LogStreams(path=str(path), warnings=list(selection.warnings))
+        selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
+        streams = LogStreams(path=str(path), warnings=[*damage_notes(reader), *selection.warnings])
         rows: dict[str, Rows] = {}
+        tf_rows: dict[str, TfRows] = {}
         reports: dict[str, dict[str, list[str]]] = defaultdict(dict)  # topic -> text -> roles
 
         def note(topic: str, role: str, cleaning: Cleaning) -> None:
             if text := cleaning.text():
                 reports[topic].setdefault(text, []).append(role)
 
+        def tf_of(topic: str) -> TfRows:
+            if topic not in tf_rows:
+                tf_rows[topic] = decode_tf(reader, path, topic, table[topic][1])
+            return tf_rows[topic]
+
         for role in ROLES:
             if (topic := selection.roles.get(role)) is None:
                 continue
             meta, conns = table[topic]
+            require_types(reader, path, conns)
             if (role, meta.msgtype) in VEC3_ROLES:
                 if topic not in rows:
                     rows[topic] = decode_rows(reader, path, topic, conns)
                 stream, cleaning = vec3_stream(rows[topic], role)
                 setattr(streams, role, stream)
                 note(topic, role, cleaning)
-            elif role == "truth":
+            elif role == "truth" and selection.truth_edge is None:
                 streams.truth, cleaning = pose_stream(decode_rows(reader, path, topic, conns))
                 note(topic, role, cleaning)
             elif role == "detections":
-                streams.detections, cleaning = decode_detections(reader, path, topic, conns)
+                if meta.msgtype in TF_TYPES:
+                    streams.detections, cleaning = tag_detections(tf_of(topic), str(selection.tag_pattern), path)
+                else:
+                    streams.detections, cleaning = decode_detections(reader, path, topic, conns)
                 note(topic, role, cleaning)
             elif role == "static_tf":
-                streams.static_tf, warnings = decode_static_tf(reader, path, conns)
+                streams.static_tf, warnings = static_transforms(tf_of(topic))
+                streams.warnings += [f"{topic}: {w}" for w in warnings]
+            elif role == "tf":
+                streams.tf, warnings = transform_series(tf_of(topic))
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
             elif role == "sim_truth":
                 landmarks, bias, warnings = decode_sim_truth(reader, path, topic, conns)
                 streams.landmark_truth = landmarks or None
                 streams.bias_truth = bias or None
                 streams.warnings += warnings
+        if selection.truth_edge is not None:
+            streams.truth = _truth_from_tf(streams, selection.roles["truth"], selection.truth_edge, tf_of)
 
     for topic, texts in reports.items():
         for text, roles in texts.items():
             where = topic if len(texts) == 1 else f"{topic} ({', '.join(roles)})"
             streams.warnings.append(f"{where}: {text}")
+    if truth_file is not None:
+        streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
+    return _with_clocks(streams, clocks)
+
+
+def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None) -> LogStreams:
+    if clocks is None or clocks == "header":
+        return streams
+    if clocks == "auto":
+        chosen, warnings = recommend_clocks(streams)
+        streams.warnings += warnings
+    elif isinstance(clocks, str):
+        raise InputError(streams.path, f"unknown clock choice {clocks!r} (header, auto or a topic mapping)")
+    else:
+        chosen = dict(clocks)
+    try:
+        streams = apply_clocks(streams, chosen)
+    except ValueError as err:
+        raise InputError(streams.path, str(err)) from None
+    streams.clocks = {t: c for t, c in chosen.items() if c == "record"}
     return streams
+
+
+def _truth_from_tf(
+    streams: LogStreams,
+    topic: str,
+    edge: tuple[str, str],
+    tf_of: Callable[[str], TfRows],
+) -> PoseStream:
+    """Poses of a TF edge ``parent->child`` (a chain through ``/tf_static`` and ``/tf`` is fine)."""
+    from pipeline.frames import TfBuffer
+
+    series = streams.tf if streams.tf and streams.tf[0].topic == topic else transform_series(tf_of(topic))[0]
+    truth = TfBuffer(streams.static_tf, series, path=streams.path).pose_stream(*edge, topic)
+    if len(truth) == 0:
+        raise InputError(streams.path, f"TF edge {edge[0]}->{edge[1]} has no samples", topic)
+    return truth
+
+
+def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
+    """Ground truth from a trajectory file; it must carry stamps to be matched to the log's clock."""
+    from .trajectory_files import read_trajectory
+
+    traj = read_trajectory(source, fmt, kitti_times=times)
+    if traj.format not in ("tum", "euroc", "kitti"):
+        raise InputError(source, f"a {traj.format} trajectory is not a ground-truth file (TUM, EuRoC CSV or KITTI)")
+    if not traj.timed:
+        raise InputError(source, "KITTI poses carry no stamps: give the sequence's times.txt as truth_times")
+    return traj.stream

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import struct
 from collections import Counter
 from contextlib import contextmanager
@@ -22,13 +23,27 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pipeline.errors import InputError
-from pipeline.streams import DetectionStream, PoseStream, Transform, Vec3Stream
+from pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
 from .container import iter_raw, require_definitions
-from .roles import IMU, MAGNETIC_FIELD, ODOMETRY, POSE_STAMPED, TWIST_STAMPED
+from .roles import (
+    APRILTAG_ROS,
+    FIDUCIALS,
+    FIDUCIALS_LEGACY,
+    IMU,
+    MAGNETIC_FIELD,
+    MARKER_ARRAY,
+    ODOMETRY,
+    POSE_ARRAY,
+    POSE_COV_STAMPED,
+    POSE_STAMPED,
+    TRANSFORM_STAMPED,
+    TWIST_COV_STAMPED,
+    TWIST_STAMPED,
+)
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Collection, Iterator
+    from collections.abc import Callable, Collection, Iterable, Iterator
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -79,10 +94,26 @@ LAYOUTS: dict[str, Layout] = {
         lambda m: (*_vec(m.twist.linear), *_vec(m.twist.angular)),
     ),
     MAGNETIC_FIELD: Layout({"magnetic_field": slice(0, 3)}, 3, lambda m: _vec(m.magnetic_field)),
+    TWIST_COV_STAMPED: Layout(
+        {"linear": slice(0, 3), "angular": slice(3, 6)},
+        6,
+        lambda m: (*_vec(m.twist.twist.linear), *_vec(m.twist.twist.angular)),
+    ),
     POSE_STAMPED: Layout(
         {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
         7,
         lambda m: (*_vec(m.pose.position), *_quat(m.pose.orientation)),
+    ),
+    POSE_COV_STAMPED: Layout(
+        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
+        7,
+        lambda m: (*_vec(m.pose.pose.position), *_quat(m.pose.pose.orientation)),
+    ),
+    TRANSFORM_STAMPED: Layout(
+        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
+        7,
+        lambda m: (*_vec(m.transform.translation), *_quat(m.transform.rotation)),
+        child=lambda m: m.child_frame_id,
     ),
 }
 
@@ -90,8 +121,11 @@ LAYOUTS: dict[str, Layout] = {
 VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
     ("angular_velocity", IMU): ("angular_velocity", "frame"),
     ("angular_velocity", ODOMETRY): ("angular", "child"),
+    ("angular_velocity", TWIST_STAMPED): ("angular", "frame"),
+    ("angular_velocity", TWIST_COV_STAMPED): ("angular", "frame"),
     ("linear_velocity", ODOMETRY): ("linear", "child"),
     ("linear_velocity", TWIST_STAMPED): ("linear", "frame"),
+    ("linear_velocity", TWIST_COV_STAMPED): ("linear", "frame"),
     ("accel", IMU): ("linear_acceleration", "frame"),
     ("magnetic", MAGNETIC_FIELD): ("magnetic_field", "frame"),
 }
@@ -196,10 +230,20 @@ def _stamp(msg: Any) -> int:
 
 
 def decode_rows(reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]) -> Rows:
-    """Decode a topic of a type in ``LAYOUTS`` into preallocated columns."""
-    msgtype = next(iter(connections)).msgtype
+    """Decode a topic of a type in ``LAYOUTS`` into columns.
+
+    Types whose fields sit at computable offsets (all of ``LAYOUTS`` as defined in ROS) are decoded
+    chunk-wise from the raw bytes by :mod:`.fastdecode`; anything else (a log's own variant behind a
+    dynamic array, a row function that computes) is deserialised message by message by rosbags.
+    """
+    from .fastdecode import read_rows
+
+    conns = list(connections)
+    if (fast := read_rows(reader, path, {topic: conns}).get(topic)) is not None:
+        return fast
+    msgtype = conns[0].msgtype
     layout = LAYOUTS[msgtype]
-    size = max(sum(c.msgcount for c in connections), 16)
+    size = max(sum(c.msgcount for c in conns), 16)
     t_ns = np.empty(size, np.int64)
     rec_ns = np.empty(size, np.int64)
     values = np.empty((size, layout.width), np.float64)
@@ -208,8 +252,8 @@ def decode_rows(reader: AnyReader, path: str | Path, topic: str, connections: Co
     frames = _Frames()
     row, child_of = layout.row, layout.child
     i = 0
-    with _layout_errors(path, connections):
-        for rec, msg in _messages(reader, path, connections):
+    with _layout_errors(path, conns):
+        for rec, msg in _messages(reader, path, conns):
             if i == size:  # counts in the index were short: grow
                 size *= 2
                 t_ns, rec_ns, frame, child = (np.resize(a, size) for a in (t_ns, rec_ns, frame, child))
@@ -268,7 +312,7 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     return idx[~drop], t_ns, cleaning
 
 
-def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning) -> str:
+def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning, what: str = "frame id") -> str:
     """Most common frame id; a topic mixing frames is reported."""
     if not codes.size:
         return names[0] if names else ""
@@ -277,9 +321,9 @@ def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning) -> str:
     if np.count_nonzero(counts) > 1:
         label = [name or "<empty>" for name in names]
         seen = ", ".join(f"{label[k]} {counts[k]}" for k in np.argsort(-counts) if counts[k])
-        cleaning.extra.append(f"{np.count_nonzero(counts)} frame ids ({seen}), using {label[best]}")
+        cleaning.extra.append(f"{np.count_nonzero(counts)} {what}s ({seen}), using {label[best]}")
     elif not names[best]:
-        cleaning.extra.append("empty frame id")
+        cleaning.extra.append(f"empty {what}")
     return names[best]
 
 
@@ -296,15 +340,18 @@ def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
 
 
 def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
-    """Stamped poses out of decoded PoseStamped rows, cleaned; ``child_frame_id`` is unknown (``''``)."""
-    cols = LAYOUTS[rows.msgtype].columns
-    values = rows.values[:, : LAYOUTS[rows.msgtype].width]
+    """Stamped poses out of decoded pose rows (PoseStamped, PoseWithCovarianceStamped, TransformStamped,
+    Odometry), cleaned; ``child_frame_id`` is ``''`` for types that do not name it."""
+    layout = LAYOUTS[rows.msgtype]
+    cols = layout.columns
+    values = rows.values[:, cols["position"].start : cols["quat_xyzw"].stop]
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, values)
     frame = _dominant(rows.frame[idx], rows.frame_names, cleaning)
+    child = _dominant(rows.child[idx], rows.frame_names, cleaning, "child frame id") if layout.child else ""
     stream = PoseStream(
         rows.topic,
         frame,
-        "",
+        child,
         t_ns[idx],
         rows.rec_ns[idx],
         np.ascontiguousarray(rows.values[idx][:, cols["position"]]),
@@ -313,46 +360,113 @@ def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
     return stream, cleaning
 
 
+#: Counted remarks of a decoder: (noun, rest) -> count, rendered "3 DELETE markers skipped".
+Notes = Counter[tuple[str, str]]
+
+
+def _render(notes: Notes) -> list[str]:
+    return [f"{plural(n, noun)} {rest}" for (noun, rest), n in sorted(notes.items())]
+
+
+def _fiducials(msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
+    for det in msg.transforms:
+        yield det.fiducial_id, det.transform.translation
+
+
+def _apriltags(msg: Any, notes: Notes) -> Iterator[tuple[int, Any]]:
+    """apriltag_ros: a detection lists one id, or several for a tag bundle (whose pose is the bundle origin)."""
+    for det in msg.detections:
+        ids = det.id
+        if len(ids) == 0:
+            notes["detection", "without id skipped"] += 1
+            continue
+        if len(ids) > 1:
+            notes["bundle detection", "named by its first tag id"] += 1
+        yield int(ids[0]), det.pose.pose.pose.position
+
+
+def _pose_array(msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
+    for i, pose in enumerate(msg.poses):
+        yield i, pose.position
+
+
+#: Detection types with a header (one message = one frame, kept even when empty): message -> (id, position).
+DETECTIONS: dict[str, Callable[[Any, Notes], Iterator[tuple[int, Any]]]] = {
+    FIDUCIALS: _fiducials,
+    FIDUCIALS_LEGACY: _fiducials,
+    APRILTAG_ROS: _apriltags,
+    POSE_ARRAY: _pose_array,
+}
+
+_MARKER_ADD = 0  # visualization_msgs/Marker ADD (= MODIFY); DELETE and DELETEALL carry no detection
+
+
+class _DetectionFrames:
+    """Detection frames as they are decoded: per-frame stamp, record time, frame code, and the detections."""
+
+    def __init__(self) -> None:
+        self.t_ns: list[int] = []
+        self.rec_ns: list[int] = []
+        self.frame: list[int] = []
+        self.lengths: list[int] = []
+        self.ids: list[int] = []
+        self.xyz: list[float] = []
+
+    def add(self, t_ns: int, rec_ns: int, frame: int, items: Iterable[tuple[int, Any]]) -> None:
+        n = len(self.ids)
+        for ident, pos in items:
+            self.ids.append(int(ident))
+            self.xyz.extend(_vec(pos))
+        self.t_ns.append(t_ns)
+        self.rec_ns.append(rec_ns)
+        self.frame.append(frame)
+        self.lengths.append(len(self.ids) - n)
+
+    def stream(self, topic: str, frame_names: list[str], notes: Notes) -> tuple[DetectionStream, Cleaning]:
+        stream, cleaning = _clean_detections(
+            topic,
+            np.asarray(self.t_ns, np.int64),
+            np.asarray(self.rec_ns, np.int64),
+            np.asarray(self.lengths, np.int64),
+            np.asarray(self.ids, np.int64),
+            np.asarray(self.xyz, np.float64).reshape(-1, 3),
+            np.asarray(self.frame, np.int32),
+            frame_names,
+        )
+        cleaning.extra += _render(notes)
+        return stream, cleaning
+
+
 def decode_detections(
     reader: AnyReader,
     path: str | Path,
     topic: str,
     connections: Collection[Connection],
 ) -> tuple[DetectionStream, Cleaning]:
-    """FiducialTransformArray messages as a CSR detection stream, one message = one frame (even if empty)."""
-    nframes = max(sum(c.msgcount for c in connections), 1)
-    t_ns = np.empty(nframes, np.int64)
-    rec_ns = np.empty(nframes, np.int64)
-    lengths = np.empty(nframes, np.int64)
-    frame = np.empty(nframes, np.int32)
-    frames = _Frames()
-    ids: list[int] = []
-    xyz: list[float] = []
-    i = 0
+    """Detection messages (``DETECTIONS`` types or ``MarkerArray``) as a CSR detection stream.
+
+    A ``MarkerArray`` has no header: its ADD markers are grouped into frames by their own (stamp, frame id),
+    and arrays without ADD markers are skipped.
+    """
+    msgtype = next(iter(connections)).msgtype
+    frames, acc, notes = _Frames(), _DetectionFrames(), Notes()
     with _layout_errors(path, connections):
-        for rec, msg in _messages(reader, path, connections):
-            if i == nframes:
-                nframes *= 2
-                t_ns, rec_ns, lengths, frame = (np.resize(a, nframes) for a in (t_ns, rec_ns, lengths, frame))
-            t_ns[i] = _stamp(msg)
-            rec_ns[i] = rec
-            frame[i] = frames.code(msg.header.frame_id)
-            lengths[i] = len(msg.transforms)
-            for det in msg.transforms:
-                ids.append(det.fiducial_id)
-                xyz.extend(_vec(det.transform.translation))
-            i += 1
-    t_ns, rec_ns, lengths, frame = t_ns[:i], rec_ns[:i], lengths[:i], frame[:i]
-    return _clean_detections(
-        topic,
-        t_ns,
-        rec_ns,
-        lengths,
-        np.asarray(ids, np.int64),
-        np.asarray(xyz, np.float64).reshape(-1, 3),
-        frame,
-        frames.names(),
-    )
+        if msgtype == MARKER_ARRAY:
+            for rec, msg in _messages(reader, path, connections):
+                groups: dict[tuple[int, str], list[tuple[int, Any]]] = {}
+                for marker in msg.markers:
+                    if marker.action != _MARKER_ADD:
+                        notes["DELETE marker", "skipped"] += 1
+                        continue
+                    key = (_stamp(marker), marker.header.frame_id)
+                    groups.setdefault(key, []).append((marker.id, marker.pose.position))
+                for (stamp, frame), items in groups.items():
+                    acc.add(stamp, rec, frames.code(frame), items)
+        else:
+            items_of = DETECTIONS[msgtype]
+            for rec, msg in _messages(reader, path, connections):
+                acc.add(_stamp(msg), rec, frames.code(msg.header.frame_id), items_of(msg, notes))
+    return acc.stream(topic, frames.names(), notes)
 
 
 def _offsets(lengths: np.ndarray) -> np.ndarray:
@@ -414,37 +528,182 @@ def _clean_detections(
     return stream, cleaning
 
 
+@dataclass
+class TfRows:
+    """Every transform of a TF topic (``tf2_msgs/TFMessage`` or ROS1 ``tf/tfMessage``), in record order."""
+
+    topic: str
+    t_ns: np.ndarray  # (N,) int64 header stamps
+    rec_ns: np.ndarray  # (N,) int64
+    parent: np.ndarray  # (N,) int32 codes into frame_names
+    child: np.ndarray  # (N,) int32
+    values: np.ndarray  # (N, 7) translation xyz, quaternion xyzw
+    frame_names: list[str]
+
+
+def decode_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]) -> TfRows:
+    """Flatten the transforms of a TF topic into columns (each message may hold many edges)."""
+    frames = _Frames()
+    t_ns: list[int] = []
+    rec_ns: list[int] = []
+    parent: list[int] = []
+    child: list[int] = []
+    values: list[tuple[float, ...]] = []
+    with _layout_errors(path, connections):
+        for rec, msg in _messages(reader, path, connections):
+            for tf in msg.transforms:
+                t_ns.append(_stamp(tf))
+                rec_ns.append(rec)
+                parent.append(frames.code(tf.header.frame_id))
+                child.append(frames.code(tf.child_frame_id))
+                values.append((*_vec(tf.transform.translation), *_quat(tf.transform.rotation)))
+    return TfRows(
+        topic,
+        np.asarray(t_ns, np.int64),
+        np.asarray(rec_ns, np.int64),
+        np.asarray(parent, np.int32),
+        np.asarray(child, np.int32),
+        np.asarray(values, np.float64).reshape(-1, 7),
+        frames.names(),
+    )
+
+
+def _valid_transforms(values: np.ndarray) -> np.ndarray:
+    """Finite rows with a usable quaternion (a zero quaternion is how some publishers say 'unknown')."""
+    return np.isfinite(values).all(axis=1) & (np.linalg.norm(values[:, 3:7], axis=1) > 1e-6)
+
+
+def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str]]:
+    """``/tf_static`` transforms, the last one per (parent, child) pair winning."""
+    found: dict[tuple[str, str], Transform] = {}
+    changed: set[tuple[str, str]] = set()
+    ok = _valid_transforms(rows.values)
+    names = rows.frame_names
+    for i in np.flatnonzero(ok):
+        key = (names[rows.parent[i]], names[rows.child[i]])
+        translation, quat = rows.values[i, :3].copy(), rows.values[i, 3:].copy()
+        old = found.get(key)
+        if old is not None and not (np.array_equal(old.translation, translation) and np.array_equal(old.quat_xyzw, quat)):
+            changed.add(key)
+        found[key] = Transform(*key, translation, quat)
+    warnings = []
+    if changed:
+        pairs = ", ".join(f"{p}->{c}" for p, c in sorted(changed))
+        warnings.append(f"static transforms published with different values, using the last: {pairs}")
+    if nbad := int(ok.size - np.count_nonzero(ok)):
+        warnings.append(plural(nbad, "NaN/Inf static transform") + " dropped")
+    return list(found.values()), warnings
+
+
 def decode_static_tf(
     reader: AnyReader,
     path: str | Path,
     connections: Collection[Connection],
 ) -> tuple[list[Transform], list[str]]:
     """Transforms of the ``/tf_static`` messages, the last one per (parent, child) pair winning."""
-    found: dict[tuple[str, str], Transform] = {}
-    changed: set[tuple[str, str]] = set()
-    nonfinite = 0
-    with _layout_errors(path, connections):
-        transforms = [tf for _, msg in _messages(reader, path, connections) for tf in msg.transforms]
-        for tf in transforms:
-            parent, child = frame_name(tf.header.frame_id), frame_name(tf.child_frame_id)
-            translation = np.array(_vec(tf.transform.translation), np.float64)
-            quat = np.array(_quat(tf.transform.rotation), np.float64)
-            if not (np.isfinite(translation).all() and np.isfinite(quat).all()):
-                nonfinite += 1
-                continue
-            old = found.get((parent, child))
-            if old is not None and not (
-                np.array_equal(old.translation, translation) and np.array_equal(old.quat_xyzw, quat)
-            ):
-                changed.add((parent, child))
-            found[parent, child] = Transform(parent, child, translation, quat)
+    topic = next(iter(connections)).topic
+    return static_transforms(decode_tf(reader, path, topic, connections))
+
+
+def transform_series(rows: TfRows) -> tuple[list[TransformSeries], list[str]]:
+    """``/tf`` edges as time series, each cleaned like a stream (sorted, duplicates and invalid rows dropped).
+
+    Two different transforms of one edge at one stamp keep the first, as tf2 does (``TF_REPEATED_DATA``).
+    """
+    series: list[TransformSeries] = []
+    reports: dict[str, list[str]] = {}  # cleaning text -> edges
+    names = rows.frame_names
+    edge_key = rows.parent.astype(np.int64) * len(names) + rows.child
+    by_edge = np.argsort(edge_key, kind="stable")  # record order kept within an edge
+    bounds = np.flatnonzero(np.diff(edge_key[by_edge])) + 1
+    for sel in np.split(by_edge, bounds) if by_edge.size else ():
+        values = rows.values[sel]
+        values = np.where(_valid_transforms(values)[:, None], values, np.nan)  # invalid quaternions as NaN
+        idx, t_ns, cleaning = clean_order(rows.t_ns[sel], rows.rec_ns[sel], values)
+        t = t_ns[idx]
+        first = np.concatenate(([True], t[1:] != t[:-1])) if t.size else np.zeros(0, bool)
+        if cleaning.repeated:
+            cleaning.repeated = 0
+            cleaning.extra.append(plural(int(np.count_nonzero(~first)), "repeated stamp") + " dropped (first kept)")
+        idx = idx[first]
+        parent, child = names[rows.parent[sel[0]]], names[rows.child[sel[0]]]
+        vals = rows.values[sel][idx]
+        series.append(
+            TransformSeries(
+                rows.topic,
+                parent,
+                child,
+                t_ns[idx],
+                rows.rec_ns[sel][idx],
+                np.ascontiguousarray(vals[:, :3]),
+                np.ascontiguousarray(vals[:, 3:]),
+            ),
+        )
+        if text := cleaning.text():
+            reports.setdefault(text, []).append(f"{parent}->{child}")
     warnings = []
-    if changed:
-        pairs = ", ".join(f"{p}->{c}" for p, c in sorted(changed))
-        warnings.append(f"static transforms published with different values, using the last: {pairs}")
-    if nonfinite:
-        warnings.append(plural(nonfinite, "NaN/Inf static transform") + " dropped")
-    return list(found.values()), warnings
+    for text, edges in reports.items():
+        shown = ", ".join(edges[:4]) + (", ..." if len(edges) > 4 else "")
+        warnings.append(f"{text} ({plural(len(edges), 'edge')}: {shown})" if len(edges) > 1 else f"{edges[0]}: {text}")
+    return series, warnings
+
+
+def tag_regex(pattern: str, path: str | Path = "") -> re.Pattern[str]:
+    """``"tag_{id}"`` -> a regex matching whole frame names and capturing the integer id.
+
+    Raises:
+        InputError: The pattern does not hold ``{id}`` exactly once.
+
+    """
+    if pattern.count("{id}") != 1:
+        raise InputError(path, f"tag frame pattern {pattern!r} must contain {{id}} exactly once (e.g. 'tag_{{id}}')")
+    before, _, after = frame_name(pattern).partition("{id}")
+    return re.compile(f"^{re.escape(before)}(-?[0-9]+){re.escape(after)}$")
+
+
+def tag_detections(rows: TfRows, pattern: str, path: str | Path = "") -> tuple[DetectionStream, Cleaning]:
+    """TF tag frames (children named by ``pattern``) as detections in their parent frame (the camera).
+
+    Tag frames are grouped into detection frames by (stamp, parent): a detector may publish one TF message per
+    tag. Only the most common parent is kept; tags under other parents are dropped and counted.
+    """
+    regex = tag_regex(pattern, path)
+    tag_id = {code: int(m.group(1)) for code, name in enumerate(rows.frame_names) if (m := regex.match(name))}
+    sel = np.flatnonzero(np.isin(rows.child, list(tag_id)))
+    if sel.size == 0:
+        shown = ", ".join(sorted(set(rows.frame_names))[:8]) or "none"
+        raise InputError(path, f"no TF frame matches tag frame pattern {pattern!r} (frames: {shown})", rows.topic)
+    notes = Notes()
+    parents = np.bincount(rows.parent[sel], minlength=len(rows.frame_names))
+    parent = int(np.argmax(parents))
+    if other := int(sel.size - parents[parent]):
+        notes["tag transform", f"under another parent than {rows.frame_names[parent]} dropped"] = other
+        sel = sel[rows.parent[sel] == parent]
+    t_ns = _effective_stamps(rows.t_ns[sel], rows.rec_ns[sel], Cleaning())
+    order = np.lexsort((rows.child[sel], t_ns))  # stable: record order within a stamp and tag
+    sel, t_ns = sel[order], t_ns[order]
+    same = (t_ns[1:] == t_ns[:-1]) & (rows.child[sel][1:] == rows.child[sel][:-1])
+    same &= (rows.values[sel][1:] == rows.values[sel][:-1]).all(axis=1)
+    if ndup := int(np.count_nonzero(same)):  # a re-sent TF message: not a repeated detection
+        notes["exact duplicate", ""] = ndup
+        keep = np.concatenate(([True], ~same))
+        sel, t_ns = sel[keep], t_ns[keep]
+    starts = np.flatnonzero(np.concatenate(([True], t_ns[1:] != t_ns[:-1])))
+    lengths = np.diff(np.append(starts, sel.size)).astype(np.int64)
+    ids = np.array([tag_id[c] for c in rows.child[sel]], np.int64)
+    stream, cleaning = _clean_detections(
+        rows.topic,
+        t_ns[starts],
+        rows.rec_ns[sel][starts],
+        lengths,
+        ids,
+        np.ascontiguousarray(rows.values[sel, :3]),
+        np.full(starts.size, parent, np.int32),
+        rows.frame_names,
+    )
+    cleaning.duplicates += notes.pop(("exact duplicate", ""), 0)
+    cleaning.extra += _render(notes)
+    return stream, cleaning
 
 
 def _vector3(value: object, what: str) -> np.ndarray:

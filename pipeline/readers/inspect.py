@@ -1,27 +1,52 @@
-"""``slamobs info``: what a log holds, read from headers only, so a user can pick topics and spot bad stamps.
+"""``slamobs info``: what a log holds and how its clocks behave, so a user can pick topics and a time source.
 
-Stamps and frame ids are read straight from the serialised header bytes; messages are never fully
-deserialised, so logs with images stay quick to inspect.
+Stamps and frame ids are read straight from the serialised header bytes of every topic at once
+(:mod:`.fastdecode`, one pass over the file); messages are never fully deserialised, so logs with
+images stay quick to inspect.
+
+Clocks: each message has a header stamp (when the sensor measured) and a record time (when the
+recorder wrote it). Per topic this reports whether the header clock is zero, simulation time (before
+2000) or wall clock, the median header-minus-record offset and its spread, the offset relative to a
+reference topic (the angular-velocity topic), out-of-order, duplicate and repeated stamps, gaps and
+rate changes, and recommends a time source per topic (:func:`recommend_clocks`). A topic whose header
+clock disagrees with the reference's is measured on record time when the reference's header clock
+follows record time, and if it does not, every topic is (record time is then the only common clock).
+:func:`apply_clocks` puts the choice into decoded streams.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Any
 
-from .container import LABELS, detect_container, open_log
-from .decode import has_header, mean_rate, plural, scan_headers
+import numpy as np
+
+from pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
+
+from .container import LABELS, damage_notes, detect_container, open_log
+from .decode import frame_name, has_header, mean_rate, plural
+from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
+from .msgdefs import complete_definitions
 from .roles import ROLES, select_roles, topics_of
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
-    from rosbags.interfaces import Connection
 
 _NS = 1_000_000_000
-_EPOCH_2000_NS = 946_684_800 * _NS  # record times before this are simulation clocks, not dates
+_EPOCH_2000_NS = 946_684_800 * _NS  # stamps before this are simulation clocks, not dates
+
+#: Header clocks further apart than this (median header-minus-record, between topics) are different clocks;
+#: below it the difference is transport/processing latency.
+CLOCK_TOLERANCE_S = 0.1
+#: An interval longer than this many median periods is a gap.
+GAP_FACTOR = 5.0
+#: Block rates differing by more than this fraction start a new rate segment.
+RATE_TOLERANCE = 0.2
 
 
 @dataclass(frozen=True)
@@ -36,8 +61,18 @@ class TopicSummary:
     stamp_end_ns: int | None = None
     rate_hz: float | None = None
     out_of_order: int | None = None  # stamps earlier than the one before (in record order)
-    duplicates: int | None = None  # same stamp and byte-identical message
+    duplicates: int | None = None  # same stamp and byte-identical message (ROS1: seq ignored)
     note: str = ""
+    repeated_stamps: int | None = None  # same stamp as another message with different content
+    header_clock: str | None = None  # "wall", "sim" (before 2000) or "zero"
+    offset_s: float | None = None  # median header stamp minus record time
+    offset_spread_s: float | None = None  # 5th-95th percentile width of header minus record
+    relative_offset_s: float | None = None  # offset_s minus the reference topic's
+    clock: str | None = None  # recommended time source: "header" or "record"
+    gaps: int | None = None  # intervals longer than GAP_FACTOR median periods
+    max_gap_s: float | None = None
+    max_gap_at_s: float | None = None  # where the longest gap starts, from the first stamp
+    rate_segments: tuple[tuple[float, float], ...] = ()  # (start from the first stamp [s], rate [Hz]) if it changes
 
 
 @dataclass(frozen=True)
@@ -53,6 +88,8 @@ class LogInfo:
     topics: tuple[TopicSummary, ...]
     roles: dict[str, str]
     warnings: tuple[str, ...] = ()
+    record_clock: str | None = None  # "wall" or "sim"
+    clock_reference: str | None = None  # topic the relative offsets refer to
 
     @property
     def duration_s(self) -> float:
@@ -61,46 +98,261 @@ class LogInfo:
             return 0.0
         return (self.end_ns - self.start_ns) / _NS
 
+    @property
+    def clocks(self) -> dict[str, str]:
+        """Recommended time source per topic with a header (for :func:`apply_clocks`)."""
+        return {t.topic: t.clock for t in self.topics if t.clock is not None}
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary."""
         doc = asdict(self)
         doc["duration_s"] = self.duration_s
-        doc["topics"] = [{**asdict(t), "frame_ids": list(t.frame_ids)} for t in self.topics]
+        doc["topics"] = [
+            {**asdict(t), "frame_ids": list(t.frame_ids), "rate_segments": [list(s) for s in t.rate_segments]}
+            for t in self.topics
+        ]
         doc["warnings"] = list(self.warnings)
         return doc
 
 
-def _summary(
-    reader: AnyReader,
-    path: str | Path,
-    topic: str,
-    msgtype: str,
-    count: int,
-    conns: list[Connection],
-) -> TopicSummary:
-    if msgtype not in reader.typestore.fielddefs:
-        return TopicSummary(topic, msgtype, count, note="message definition not stored in the log")
-    if not has_header(reader, msgtype):
-        return TopicSummary(topic, msgtype, count, note="no header")
-    if not count:
+# --------------------------------------------------------------------------- clock analysis
+
+
+@dataclass(frozen=True)
+class StampStats:
+    """How the header stamps of one topic relate to its record times (in record order)."""
+
+    header_clock: str  # "wall", "sim" or "zero"
+    offset_ns: int  # median header minus record
+    spread_ns: int  # 5th-95th percentile width of header minus record
+    out_of_order: int
+    gaps: int
+    max_gap_ns: int | None
+    max_gap_at_ns: int | None  # from the first stamp
+    rate_segments: tuple[tuple[float, float], ...]
+
+
+def clock_kind(t_ns: np.ndarray) -> str:
+    """``zero`` (unset stamps), ``sim`` (a simulation clock, before 2000) or ``wall``."""
+    if not t_ns.size or not t_ns.any():
+        return "zero"
+    return "sim" if int(t_ns.max()) < _EPOCH_2000_NS else "wall"
+
+
+def _rate_segments(times: np.ndarray, period: float) -> tuple[tuple[float, float], ...]:
+    """(start, rate) of stretches with a steady rate; one entry per stretch, empty if the rate is steady.
+
+    Rates come from the median interval of blocks of samples, so jitter and single gaps do not count.
+    """
+    block = max(20, times.size // 50)
+    if times.size < 2 * block or period <= 0:
+        return ()
+    segments: list[tuple[float, float]] = []
+    for first in range(0, times.size - block + 1, block):
+        dt = np.diff(times[first : first + block])
+        dt = dt[dt > 0]
+        if not dt.size:
+            continue
+        rate = _NS / float(np.median(dt))
+        if not segments or abs(rate / segments[-1][1] - 1.0) > RATE_TOLERANCE:
+            segments.append(((int(times[first]) - int(times[0])) / _NS, rate))
+    return tuple(segments) if len(segments) > 1 else ()
+
+
+def stamp_stats(t_ns: np.ndarray, rec_ns: np.ndarray) -> StampStats:
+    """Clock kind, offset to record time, order, gaps and rate changes of one topic's stamps.
+
+    Gaps and rates use the header stamps, or the record times when the stamps are all zero.
+    """
+    kind = clock_kind(t_ns)
+    diff = t_ns - rec_ns
+    lo, mid, hi = (np.percentile(diff, q, method="nearest") for q in (5, 50, 95)) if diff.size else (0, 0, 0)
+    times = np.sort(rec_ns if kind == "zero" else t_ns)
+    steps = np.diff(times)
+    positive = steps[steps > 0]
+    period = float(np.median(positive)) if positive.size else 0.0
+    long = np.flatnonzero(steps > GAP_FACTOR * period) if period > 0 else np.zeros(0, np.int64)
+    worst = int(long[np.argmax(steps[long])]) if long.size else None
+    return StampStats(
+        kind,
+        int(mid),
+        int(hi) - int(lo),
+        int(np.count_nonzero(t_ns[1:] < t_ns[:-1])),
+        int(long.size),
+        int(steps[worst]) if worst is not None else None,
+        int(times[worst]) - int(times[0]) if worst is not None else None,
+        _rate_segments(times, period),
+    )
+
+
+def choose_clocks(offsets: Mapping[str, tuple[str, int]], reference: str | None) -> tuple[dict[str, str], list[str]]:
+    """Time source per topic from its (header clock kind, median header-minus-record ns), with warnings.
+
+    See the module docstring; ``reference`` is the topic whose clock the others must agree with.
+    """
+    clocks = {t: "record" if kind == "zero" else "header" for t, (kind, _) in offsets.items()}
+    if reference not in offsets or offsets[reference][0] == "zero":
+        return clocks, []
+    ref_kind, ref_offset = offsets[reference]
+    tol = CLOCK_TOLERANCE_S * _NS
+    odd = [
+        t
+        for t, (kind, offset) in offsets.items()
+        if kind != "zero" and (kind != ref_kind or abs(offset - ref_offset) > tol)
+    ]
+    if not odd:
+        return clocks, []
+    if abs(ref_offset) <= tol:
+        for t in odd:
+            clocks[t] = "record"
+        return clocks, [
+            f"{t}: header clock is {(offsets[t][1] - ref_offset) / _NS:+.3f} s off {reference}'s "
+            f"({offsets[t][0]} clock), use record time for it"
+            for t in odd
+        ]
+    for t in clocks:
+        clocks[t] = "record"
+    return clocks, [
+        f"header clocks disagree ({', '.join(odd)} vs {reference}) and {reference}'s is not record time "
+        f"({ref_offset / _NS:+.3f} s): use record time for every topic",
+    ]
+
+
+_TIMED_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic", "detections", "truth")
+
+
+def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:
+    """Time source per topic of decoded streams (reference: the angular-velocity topic), with warnings."""
+    found = {}
+    for role in _TIMED_ROLES:
+        stream = getattr(streams, role)
+        if stream is not None and len(stream) and stream.topic not in found:
+            stats = stamp_stats(stream.t_ns, stream.rec_ns)
+            found[stream.topic] = (stats.header_clock, stats.offset_ns)
+    reference = streams.angular_velocity.topic if streams.angular_velocity is not None else None
+    return choose_clocks(found, reference)
+
+
+def _on_record_time(stream: Any) -> Any:
+    order = np.argsort(stream.rec_ns, kind="stable")
+    if isinstance(stream, Vec3Stream):
+        return dataclasses.replace(
+            stream, t_ns=stream.rec_ns[order], rec_ns=stream.rec_ns[order], xyz=stream.xyz[order]
+        )
+    if isinstance(stream, PoseStream):
+        return dataclasses.replace(
+            stream,
+            t_ns=stream.rec_ns[order],
+            rec_ns=stream.rec_ns[order],
+            position=stream.position[order],
+            quat_xyzw=stream.quat_xyzw[order],
+        )
+    lengths = np.diff(stream.offsets)[order]
+    offsets = np.concatenate(([0], np.cumsum(lengths))).astype(np.int64)
+    gather = np.repeat(stream.offsets[:-1][order] - offsets[:-1], lengths) + np.arange(offsets[-1])
+    return dataclasses.replace(
+        stream,
+        t_ns=stream.rec_ns[order],
+        rec_ns=stream.rec_ns[order],
+        offsets=offsets,
+        ids=stream.ids[gather],
+        xyz=stream.xyz[gather],
+    )
+
+
+def apply_clocks(streams: LogStreams, clocks: Mapping[str, str]) -> LogStreams:
+    """Streams whose topic maps to ``"record"`` take their record times as measurement times (re-sorted).
+
+    Raises:
+        ValueError: A clock other than ``"header"`` or ``"record"``.
+
+    """
+    if bad := {c for c in clocks.values() if c not in {"header", "record"}}:
+        msg = f"unknown clock {sorted(bad)[0]!r} (expected header or record)"
+        raise ValueError(msg)
+    changes = {}
+    for role in _TIMED_ROLES:
+        stream = getattr(streams, role)
+        if isinstance(stream, (Vec3Stream, PoseStream, DetectionStream)) and clocks.get(stream.topic) == "record":
+            changes[role] = _on_record_time(stream)
+    return dataclasses.replace(streams, **changes) if changes else streams
+
+
+# --------------------------------------------------------------------------- inspect
+
+
+def _scan(reader: AnyReader, path: str | Path, table: Mapping[str, Any]) -> dict[str, TopicColumns]:
+    """Header columns (stamps, record times, frames, payload digests) of every headered topic, one pass."""
+    planned = {}
+    for topic, (meta, conns) in table.items():
+        if meta.count and meta.msgtype in reader.typestore.fielddefs and has_header(reader, meta.msgtype):
+            plan = make_plan(reader.typestore, meta.msgtype, (), (FRAME_ID,), cdr=reader.is2)
+            if plan is not None:
+                planned[topic] = (conns, plan)
+    return read_columns(reader, path, planned, digests=True)
+
+
+def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns | None) -> TopicSummary:
+    if cols is None or not len(cols.t_ns):
+        if note:
+            return TopicSummary(topic, msgtype, count, note=note)
         return TopicSummary(topic, msgtype, count, out_of_order=0, duplicates=0)
-    scan = scan_headers(reader, path, conns)
-    t_ns = scan.t_ns
+    t_ns, rec_ns = cols.t_ns, cols.rec_ns
+    frames = np.bincount(cols.frame, minlength=len(cols.names))
+    names: dict[str, int] = {}
+    for name, n in zip(cols.names, frames.tolist(), strict=True):
+        names[frame_name(name)] = names.get(frame_name(name), 0) + n
+    pairs = np.stack([t_ns.view(np.uint64), cols.digest]).T
+    distinct = np.unique(pairs, axis=0).shape[0]
+    stamps = np.unique(t_ns).size
+    stats = stamp_stats(t_ns, rec_ns)
     return TopicSummary(
         topic,
         msgtype,
         count,
-        frame_ids=tuple(f for f, _ in scan.frames.most_common()),
+        frame_ids=tuple(sorted((n for n in names if names[n]), key=lambda n: -names[n])),
         stamp_start_ns=int(t_ns.min()),
         stamp_end_ns=int(t_ns.max()),
         rate_hz=mean_rate(t_ns),
-        out_of_order=int((t_ns[1:] < t_ns[:-1]).sum()),
-        duplicates=scan.duplicates,
+        out_of_order=stats.out_of_order,
+        duplicates=t_ns.size - distinct,
+        note=note,
+        repeated_stamps=distinct - stamps if stats.header_clock != "zero" else None,
+        header_clock=stats.header_clock,
+        offset_s=stats.offset_ns / _NS,
+        offset_spread_s=stats.spread_ns / _NS,
+        gaps=stats.gaps,
+        max_gap_s=stats.max_gap_ns / _NS if stats.max_gap_ns is not None else None,
+        max_gap_at_s=stats.max_gap_at_ns / _NS if stats.max_gap_at_ns is not None else None,
+        rate_segments=stats.rate_segments,
     )
 
 
-def inspect_log(path: str | Path) -> LogInfo:
-    """Summarise a log: container, time span, per-topic type/count/frames/stamps, detected roles.
+def _problems(t: TopicSummary) -> list[str]:
+    problems = []
+    if t.out_of_order:
+        problems.append(plural(t.out_of_order, "out-of-order stamp"))
+    if t.duplicates:
+        problems.append(plural(t.duplicates, "exact duplicate"))
+    if t.repeated_stamps:
+        problems.append(plural(t.repeated_stamps, "repeated stamp") + " with different content")
+    if len(t.frame_ids) > 1:
+        problems.append(f"{len(t.frame_ids)} frame ids")
+    if t.header_clock == "zero":
+        problems.append("header stamps are all zero")
+    if t.gaps:
+        problems.append(plural(t.gaps, "gap") + f" (longest {t.max_gap_s:.3f} s at +{t.max_gap_at_s:.3f} s)")
+    if t.rate_segments:
+        steps = " -> ".join(f"{rate:.4g} Hz" + (f" at +{at:.1f} s" if at else "") for at, rate in t.rate_segments[:5])
+        problems.append(f"rate changes: {steps}" + (" ..." if len(t.rate_segments) > 5 else ""))
+    return problems
+
+
+def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
+    """Summarise a log: container, time span, per-topic type/count/frames/stamps/clocks, detected roles.
+
+    ``msg_dir`` supplies ``pkg/msg/Type.msg`` definitions the log lacks (see ``read_log``). A truncated
+    log is summarised from what could be recovered, with a warning saying so.
 
     Raises:
         InputError: The log cannot be opened or read.
@@ -108,28 +360,51 @@ def inspect_log(path: str | Path) -> LogInfo:
     """
     container = detect_container(path)
     with open_log(path) as reader:
+        complete_definitions(reader, msg_dir)
         table = topics_of(reader)
         selection = select_roles({t: m for t, (m, _) in table.items()}, None, path)
-        topics = tuple(
-            _summary(reader, path, topic, meta.msgtype, meta.count, conns)
-            for topic, (meta, conns) in sorted(table.items())
-        )
+        columns = _scan(reader, path, table)
         count = reader.message_count
         start = reader.start_time if count else None
         end = reader.end_time - 1 if count else None
-    warnings = list(selection.warnings)
-    for t in topics:
-        problems = []
-        if t.out_of_order:
-            problems.append(plural(t.out_of_order, "out-of-order stamp"))
-        if t.duplicates:
-            problems.append(plural(t.duplicates, "exact duplicate"))
-        if len(t.frame_ids) > 1:
-            problems.append(f"{len(t.frame_ids)} frame ids")
-        if t.stamp_end_ns == 0:
-            problems.append("header stamps are all zero")
-        if problems:
-            warnings.append(f"{t.topic}: " + ", ".join(problems))
+        warnings = [*damage_notes(reader), *selection.warnings]
+        notes = {}
+        for topic, (meta, _) in table.items():
+            if meta.msgtype not in reader.typestore.fielddefs:
+                notes[topic] = "message definition not stored in the log"
+            elif not has_header(reader, meta.msgtype):
+                notes[topic] = "no header"
+    summaries = {
+        topic: _summary(topic, meta.msgtype, meta.count, notes.get(topic, ""), columns.get(topic))
+        for topic, (meta, _) in sorted(table.items())
+    }
+    offsets = {
+        t: (s.header_clock, round(s.offset_s * _NS))
+        for t, s in summaries.items()
+        if s.header_clock is not None and s.offset_s is not None
+    }
+    reference = selection.roles.get("angular_velocity")
+    if reference not in offsets:
+        reference = max(offsets, key=lambda t: (summaries[t].count, t), default=None)
+    clocks, clock_warnings = choose_clocks(offsets, reference)
+    ref_offset = summaries[reference].offset_s if reference is not None else None
+    topics = tuple(
+        dataclasses.replace(
+            s,
+            clock=clocks.get(s.topic),
+            relative_offset_s=(
+                round(s.offset_s - ref_offset, 9) if s.offset_s is not None and ref_offset is not None else None
+            ),
+        )
+        for s in summaries.values()
+    )
+    record_clock = clock_kind(np.array([start], np.int64)) if start is not None else None
+    if record_clock == "wall":
+        sim = [t.topic for t in topics if t.header_clock == "sim"]
+        if sim:
+            warnings.append(f"header stamps are simulation time next to wall-clock record times: {', '.join(sim)}")
+    warnings += clock_warnings
+    warnings += [f"{t.topic}: " + ", ".join(p) for t in topics if (p := _problems(t))]
     return LogInfo(
         str(path),
         container.kind,
@@ -140,7 +415,12 @@ def inspect_log(path: str | Path) -> LogInfo:
         topics,
         selection.roles,
         tuple(warnings),
+        record_clock,
+        reference,
     )
+
+
+# --------------------------------------------------------------------------- text
 
 
 def _when(t_ns: int) -> str:
@@ -159,6 +439,10 @@ def _table(header: tuple[str, ...], rows: list[tuple[str, ...]], right: set[int]
     return lines
 
 
+def _seconds(value: float | None, sign: bool = True) -> str:
+    return "-" if value is None else (f"{value:+.3f}" if sign else f"{value:.3f}")
+
+
 def format_info(info: LogInfo) -> str:
     """Aligned plain-text report for a terminal."""
     label = LABELS[info.container] + (f" ({info.storage})" if info.storage else "")
@@ -171,6 +455,7 @@ def format_info(info: LogInfo) -> str:
     else:
         lines.append("  recorded   no messages")
     rows = []
+    clock_rows = []
     for t in info.topics:
         if t.stamp_start_ns is not None and t.stamp_end_ns is not None:
             stamps = f"{t.stamp_start_ns / _NS:.3f} +{(t.stamp_end_ns - t.stamp_start_ns) / _NS:.3f}"
@@ -189,8 +474,30 @@ def format_info(info: LogInfo) -> str:
                 stamps,
             ),
         )
+        if t.header_clock is not None:
+            gaps = f"{t.gaps} (max {t.max_gap_s:.3f})" if t.gaps else str(t.gaps)
+            rates = " -> ".join(f"{r:.4g}" for _, r in t.rate_segments[:4])
+            rates += " ..." if len(t.rate_segments) > 4 else ""
+            clock_rows.append(
+                (
+                    t.topic,
+                    t.clock or "-",
+                    t.header_clock,
+                    _seconds(t.offset_s),
+                    _seconds(t.offset_spread_s, sign=False),
+                    _seconds(t.relative_offset_s),
+                    "-" if t.repeated_stamps is None else str(t.repeated_stamps),
+                    gaps,
+                    rates or "steady",
+                ),
+            )
     header = ("topic", "type", "count", "rate Hz", "frame_id", "out-of-order", "duplicates", "stamps [s]")
     lines += ["", *_table(header, rows, right={2, 3, 5, 6})]
+    if clock_rows:
+        ref = f"; offsets vs {info.clock_reference}" if info.clock_reference else ""
+        lines += ["", f"  clocks (record time: {info.record_clock} clock{ref})"]
+        header = ("topic", "use", "header", "hdr-rec [s]", "spread [s]", "vs ref [s]", "repeated", "gaps", "rate Hz")
+        lines += _table(header, clock_rows, right={3, 4, 5, 6})
     lines += ["", "  roles"]
     roles = [(f"  {role}", info.roles[role]) for role in ROLES if role in info.roles]
     lines += _table(("", ""), roles, set())[1:] if roles else ["    none detected"]

@@ -1,7 +1,10 @@
-"""Which topic plays which role, decided from message types (and two fixed topic names).
+"""Which topic plays which role, decided from message types (and three fixed topic names).
 
 Detection is deterministic: within the preferred type the topic with the most messages wins (ties by
-name), and the losers are named in a warning so a user knows which role to override.
+name), and the losers are named in a warning so a user knows which role to override. Some types fit a role
+only when a user says so (``EXPLICIT_TYPES``): a ``PoseArray``, ``MarkerArray`` or TF tag frames are as often
+a map or a visualisation as a detection, and odometry or AMCL poses are estimates, not ground truth.
+Topics named like commanded velocities (``cmd_vel``) are never picked as measurements.
 """
 
 from __future__ import annotations
@@ -21,13 +24,30 @@ if TYPE_CHECKING:
 IMU = "sensor_msgs/msg/Imu"
 ODOMETRY = "nav_msgs/msg/Odometry"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+TWIST_COV_STAMPED = "geometry_msgs/msg/TwistWithCovarianceStamped"
 MAGNETIC_FIELD = "sensor_msgs/msg/MagneticField"
 FIDUCIALS = "fiducial_msgs/msg/FiducialTransformArray"
 FIDUCIALS_LEGACY = "fiducial_pose/msg/FiducialTransformArray"  # same layout, pre-2017 package name
+APRILTAG_ROS = "apriltag_ros/msg/AprilTagDetectionArray"  # ROS1 apriltag_ros: id list + pose per detection
+POSE_ARRAY = "geometry_msgs/msg/PoseArray"
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_COV_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 TF2 = "tf2_msgs/msg/TFMessage"
 TF1 = "tf/msg/tfMessage"  # ROS1 tf (not tf2) bags
+TF_TYPES = (TF2, TF1)
 STRING = "std_msgs/msg/String"
+
+#: Types that look like detections but carry no 3D position: named in errors instead of "unsupported".
+NO_POSE_TYPES: dict[str, str] = {
+    "apriltag_msgs/msg/ApriltagArrayStamped": "tag corners in pixels, no 3D pose",
+    "apriltag_msgs/msg/AprilTagDetectionArray": "tag corners in pixels, no 3D pose",
+    "fiducial_msgs/msg/FiducialArray": "fiducial corners in pixels, no 3D pose",
+}
+
+#: Separator of a TF edge given as a topic (``topics.truth: "map->base_link"``).
+EDGE_ARROW = "->"
 
 #: Roles in the order they are reported.
 ROLES: tuple[str, ...] = (
@@ -38,27 +58,40 @@ ROLES: tuple[str, ...] = (
     "detections",
     "truth",
     "static_tf",
+    "tf",
     "sim_truth",
 )
 
 #: Types each role accepts, as tiers in order of preference; a lower tier is used only if the one
 #: above has no topic.
 ROLE_TYPES: dict[str, tuple[tuple[str, ...], ...]] = {
-    "angular_velocity": ((IMU,), (ODOMETRY,)),
-    "linear_velocity": ((ODOMETRY,), (TWIST_STAMPED,)),
+    "angular_velocity": ((IMU,), (ODOMETRY,), (TWIST_STAMPED, TWIST_COV_STAMPED)),
+    "linear_velocity": ((ODOMETRY,), (TWIST_STAMPED, TWIST_COV_STAMPED)),
     "accel": ((IMU,),),
     "magnetic": ((MAGNETIC_FIELD,),),
-    "detections": ((FIDUCIALS,), (FIDUCIALS_LEGACY,)),
-    "truth": ((POSE_STAMPED,),),
-    "static_tf": ((TF2, TF1),),
+    "detections": ((FIDUCIALS,), (FIDUCIALS_LEGACY,), (APRILTAG_ROS,)),
+    "truth": ((POSE_STAMPED,), (TRANSFORM_STAMPED,)),
+    "static_tf": (TF_TYPES,),
+    "tf": (TF_TYPES,),
     "sim_truth": ((STRING,),),
+}
+
+#: Types a role accepts only as an explicit override (never detected). TF types as detections also need a
+#: tag frame pattern; TF truth is given as an edge ``parent->child``, not as a topic.
+EXPLICIT_TYPES: dict[str, tuple[str, ...]] = {
+    "detections": (POSE_ARRAY, MARKER_ARRAY, *TF_TYPES),
+    "truth": (POSE_COV_STAMPED, ODOMETRY),
 }
 
 #: Roles found by topic name (their types are too generic to detect by type alone).
 ROLE_TOPIC_NAMES: dict[str, str] = {
     "static_tf": "/tf_static",
+    "tf": "/tf",
     "sim_truth": "/slamobs/sim_truth",
 }
+
+#: Roles that take measurements: topics named like commands are not candidates for them.
+_MEASURED = frozenset({"angular_velocity", "linear_velocity"})
 
 
 @dataclass(frozen=True)
@@ -86,15 +119,33 @@ def topics_of(reader: AnyReader) -> dict[str, tuple[TopicMeta, list[Connection]]
 
 @dataclass
 class RoleSelection:
-    """Role -> topic, plus warnings about ambiguous choices."""
+    """Role -> topic, plus warnings about ambiguous choices.
+
+    ``truth_edge`` is ``(parent, child)`` when the truth is a TF edge (``roles["truth"]`` is then its TF topic);
+    ``tag_pattern`` is set when the detections are TF tag frames (``roles["detections"]`` is a TF topic).
+    """
 
     roles: dict[str, str] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    truth_edge: tuple[str, str] | None = None
+    tag_pattern: str | None = None
 
 
 def accepted_types(role: str) -> tuple[str, ...]:
-    """All types ``role`` accepts, most preferred first."""
-    return tuple(t for tier in ROLE_TYPES[role] for t in tier)
+    """All types ``role`` accepts, most preferred first (detected ones, then override-only ones)."""
+    return tuple(t for tier in ROLE_TYPES[role] for t in tier) + EXPLICIT_TYPES.get(role, ())
+
+
+def parse_edge(text: str) -> tuple[str, str] | None:
+    """``"map -> base_link"`` -> ``("map", "base_link")``; None if ``text`` is a topic name."""
+    if EDGE_ARROW not in text:
+        return None
+    parent, _, child = (x.strip().lstrip("/") for x in text.partition(EDGE_ARROW))
+    return (parent, child) if parent and child and EDGE_ARROW not in child else ("", "")
+
+
+def _is_command(topic: str) -> bool:
+    return "cmd_vel" in topic.rsplit("/", 1)[-1]
 
 
 def _same_name(topic: str, name: str) -> bool:
@@ -109,7 +160,10 @@ def _pick(role: str, topics: Mapping[str, TopicMeta]) -> tuple[str | None, str |
         found = [
             (topic, meta)
             for topic, meta in topics.items()
-            if meta.msgtype in tier and meta.count > 0 and (name is None or _same_name(topic, name))
+            if meta.msgtype in tier
+            and meta.count > 0
+            and (name is None or _same_name(topic, name))
+            and not (role in _MEASURED and _is_command(topic))
         ]
         if not found:
             continue
@@ -126,35 +180,66 @@ def _pick(role: str, topics: Mapping[str, TopicMeta]) -> tuple[str | None, str |
     return None, None
 
 
+def _check_override(
+    role: str,
+    topic: str,
+    topics: Mapping[str, TopicMeta],
+    path: str | Path,
+    tag_pattern: str | None,
+) -> None:
+    if topic not in topics:
+        names = sorted(topics)
+        known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
+        raise InputError(path, f"topic for role {role} is not in the log (topics: {known})", topic)
+    msgtype = topics[topic].msgtype
+    if msgtype not in accepted_types(role):
+        expected = " or ".join(accepted_types(role))
+        why = f" ({NO_POSE_TYPES[msgtype]})" if msgtype in NO_POSE_TYPES else ""
+        hint = "; a TF edge is given as 'parent->child'" if role == "truth" and msgtype in TF_TYPES else ""
+        raise InputError(
+            path, f"type {msgtype} is not supported for role {role}{why} (expected {expected}){hint}", topic
+        )
+    if role == "detections" and msgtype in TF_TYPES and not tag_pattern:
+        raise InputError(
+            path, "TF tag frames as detections need a tag frame pattern (frames.tag_pattern, e.g. 'tag_{id}')", topic
+        )
+
+
 def select_roles(
     topics: Mapping[str, TopicMeta],
     overrides: Mapping[str, str | None] | None = None,
     path: str | Path = "",
+    *,
+    tag_pattern: str | None = None,
 ) -> RoleSelection:
     """Assign topics to roles; ``overrides`` (role -> topic, ``''``/``None`` = unused) win over detection.
 
+    ``overrides["truth"]`` may be a TF edge ``"parent->child"`` (read from the ``/tf`` topic, or ``tf``'s
+    override). A ``tag_pattern`` (``"tag_{id}"``) makes TF tag frames the detections unless ``detections`` is
+    overridden with a non-TF topic: asking for tag frames is explicit, so it wins over detected types.
+
     Raises:
-        InputError: Unknown role, or an override naming a topic that is absent or of the wrong type.
+        InputError: Unknown role, an override naming a topic that is absent or of the wrong type, a malformed
+            TF edge, or a TF source without a TF topic.
 
     """
     overrides = dict(overrides or {})
     selection = RoleSelection()
+    edge = None
     for role, topic in overrides.items():
         if role not in ROLE_TYPES:
             raise InputError(path, f"unknown role {role!r} (roles: {', '.join(ROLES)})")
         if not topic:
             continue
-        if topic not in topics:
-            names = sorted(topics)
-            known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
-            raise InputError(path, f"topic for role {role} is not in the log (topics: {known})", topic)
-        if (msgtype := topics[topic].msgtype) not in accepted_types(role):
-            expected = " or ".join(accepted_types(role))
-            raise InputError(path, f"type {msgtype} is not supported for role {role} (expected {expected})", topic)
+        if role == "truth" and (edge := parse_edge(topic)) is not None:
+            if not all(edge):
+                raise InputError(path, f"truth TF edge {topic!r} is not 'parent->child'")
+            continue
+        _check_override(role, topic, topics, path, tag_pattern)
 
     for role in ROLES:
         if role in overrides:
-            if overrides[role]:
+            if overrides[role] and not (role == "truth" and edge):
                 selection.roles[role] = str(overrides[role])
             continue
         gyro = selection.roles.get("angular_velocity", "")
@@ -166,4 +251,42 @@ def select_roles(
             selection.roles[role] = topic
         if warning:
             selection.warnings.append(warning)
+
+    tf_topic = overrides.get("tf") or _pick("tf", topics)[0]
+    if edge is not None:
+        if not tf_topic:
+            raise InputError(path, f"truth TF edge {edge[0]}->{edge[1]} needs a /tf topic; the log has none")
+        selection.roles["truth"], selection.truth_edge = tf_topic, edge
+    _tag_frames(selection, overrides, topics, tf_topic, tag_pattern, path)
     return selection
+
+
+def _tag_frames(
+    selection: RoleSelection,
+    overrides: Mapping[str, str | None],
+    topics: Mapping[str, TopicMeta],
+    tf_topic: str | None,
+    tag_pattern: str | None,
+    path: str | Path,
+) -> None:
+    """Detections from TF tag frames when a pattern asks for them; a note when only pixel detections exist."""
+    chosen = selection.roles.get("detections")
+    if tag_pattern and "detections" not in overrides:
+        if not tf_topic:
+            raise InputError(path, f"tag frame pattern {tag_pattern!r} given but the log has no /tf topic")
+        if chosen:
+            selection.warnings.append(
+                f"detections: using TF tag frames {tag_pattern!r} on {tf_topic}; ignored {chosen} "
+                "(override detections to use it)"
+            )
+        selection.roles["detections"] = chosen = tf_topic
+    if chosen and topics[chosen].msgtype in TF_TYPES:
+        selection.tag_pattern = tag_pattern
+    elif tag_pattern and chosen:
+        selection.warnings.append(f"tag frame pattern {tag_pattern!r} unused: detections come from {chosen}")
+    if "detections" not in selection.roles and "detections" not in overrides:
+        for topic, meta in sorted(topics.items()):
+            if meta.msgtype in NO_POSE_TYPES:
+                selection.warnings.append(
+                    f"detections: {topic} ({meta.msgtype}) has {NO_POSE_TYPES[meta.msgtype]}: not usable"
+                )

@@ -1,0 +1,164 @@
+"""Messages per second decoding fixed-layout topics: rosbags (AnyReader + deserialize) vs. slamobs readers.
+
+    .venv/bin/python benchmarks/read_speed.py [--seconds 60] [--repeat 3] [--no-real] [LOG ...]
+
+For every log (by default a simulated figure8 of ``--seconds`` at 200 Hz IMU in all three containers,
+plus every log of ``../shared/realdata`` when present) both readers decode every topic whose type is in
+``decode.LAYOUTS`` (Imu, Odometry, TwistStamped, MagneticField, PoseStamped, ...) into the same columns:
+header stamp, record time, the layout's values and the frame ids.
+
+* rosbags: ``AnyReader`` opens the log, ``messages()`` yields every message of those topics, each is
+  deserialised and its fields copied into preallocated arrays (what slamobs did before fastdecode).
+* ours: ``open_log``, then ``fastdecode.read_rows`` for all those topics in one pass.
+* per topic: ``open_log``, then one ``decode_rows`` per topic (each pass reads the chunks again), which
+  is what ``read_log`` does unless it prefetches with ``read_rows``.
+
+"msg/s" is messages / time from the opened log to the decoded columns; "incl. open" is the speed-up
+when opening (rosbags' ROS1 index, metadata YAML, typestore; the same code for rosbag2 on both sides)
+is counted too. Each side runs once to warm up (numba kernels, rosbags' generated deserialisers), then
+``--repeat`` times alternating; the best CPU time of this process is kept, so other load on a shared
+machine counts less. "identical" compares stamps, record times, frame ids and the bits of every value.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader
+from rosbags.typesys import Stores, get_typestore
+
+from pipeline.readers.container import open_log
+from pipeline.readers.decode import LAYOUTS, decode_rows, frame_name
+from pipeline.readers.fastdecode import read_rows
+from pipeline.readers.roles import topics_of
+from pipeline.simulate import simulate, write_log
+
+REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+Columns = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]]  # topic -> t, rec, values, frames
+
+
+def _rosbags(path: Path) -> tuple[Columns, int, float, float]:
+    """Columns, message count, CPU seconds to open, CPU seconds to read."""
+    start = time.process_time()
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+        opened = time.process_time()
+        conns = [c for c in reader.connections if c.msgtype in LAYOUTS]
+        if not conns:  # messages(connections=[]) would mean "all"
+            return {}, 0, opened - start, 0.0
+        n = {t: 0 for t in {c.topic for c in conns}}
+        size = {t: max(sum(c.msgcount for c in conns if c.topic == t), 1) for t in n}
+        out = {
+            t: (np.empty(size[t], np.int64), np.empty(size[t], np.int64), np.empty((size[t], LAYOUTS[m].width)), [])
+            for t, m in {c.topic: c.msgtype for c in conns}.items()
+        }
+        for conn, rec, raw in reader.messages(connections=conns):
+            msg: Any = reader.deserialize(raw, conn.msgtype)
+            t_ns, rec_ns, values, frames = out[conn.topic]
+            i = n[conn.topic]
+            if i == t_ns.shape[0]:
+                continue  # index counts short: not expected for these logs
+            t_ns[i] = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+            rec_ns[i] = rec
+            values[i] = LAYOUTS[conn.msgtype].row(msg)
+            frames.append(frame_name(msg.header.frame_id))
+            n[conn.topic] = i + 1
+        done = time.process_time()
+    total = sum(n.values())
+    columns = {t: (a[: n[t]], b[: n[t]], v[: n[t]], f) for t, (a, b, v, f) in out.items()}
+    return columns, total, opened - start, done - opened
+
+
+def _ours(path: Path, one_pass: bool) -> tuple[Columns, int, float, float]:
+    start = time.process_time()
+    with open_log(path) as reader:
+        opened = time.process_time()
+        table = {t: conns for t, (meta, conns) in topics_of(reader).items() if meta.msgtype in LAYOUTS}
+        if one_pass:
+            rows = read_rows(reader, path, table)
+        else:
+            rows = {t: decode_rows(reader, path, t, conns) for t, conns in table.items()}
+        done = time.process_time()
+    out = {t: (r.t_ns, r.rec_ns, r.values, [r.frame_names[k] for k in r.frame]) for t, r in rows.items()}
+    return out, sum(len(r.t_ns) for r in rows.values()), opened - start, done - opened
+
+
+def _same(a: Columns, b: Columns) -> bool:
+    if a.keys() != b.keys():
+        return False
+    for topic, (t1, r1, v1, f1) in a.items():
+        t2, r2, v2, f2 = b[topic]
+        if not (np.array_equal(t1, t2) and np.array_equal(r1, r2) and f1 == f2):
+            return False
+        if v1.shape != v2.shape or not np.array_equal(v1.view(np.uint64), v2.view(np.uint64)):
+            return False
+    return True
+
+
+def _logs(args: argparse.Namespace, tmp: Path) -> list[tuple[str, Path]]:
+    logs = [(str(p), Path(p)) for p in args.logs]
+    if args.logs:
+        return logs
+    sim = simulate("figure8", duration=args.seconds, seed=1)
+    for container, name in (("bag", "figure8.bag"), ("mcap", "figure8.mcap"), ("ros2", "figure8_ros2")):
+        logs.append((f"sim {args.seconds:g} s {name}", write_log(sim, tmp / name, container)))
+    counts = REALDATA / "COUNTS.json"
+    if not args.no_real and counts.is_file():
+        for rel in sorted(json.loads(counts.read_text())):
+            logs.append((rel, REALDATA / rel))
+    return logs
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("logs", nargs="*", help="logs to read (default: simulated + real logs)")
+    parser.add_argument("--seconds", type=float, default=60.0, help="length of the simulated logs")
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--no-real", action="store_true", help="skip ../shared/realdata")
+    args = parser.parse_args()
+    header = ("file", "container", "messages", "rosbags msg/s", "ours msg/s", "speed-up", "incl. open",
+              "per topic msg/s", "identical")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="read_speed-") as tmp:
+        for name, path in _logs(args, Path(tmp)):
+            with open_log(path) as reader:
+                kind = "ros1" if not reader.is2 else path.suffix.lstrip(".")
+                if path.is_dir():
+                    storage = next(p for p in sorted(path.iterdir()) if p.suffix in {".db3", ".mcap"}).suffix[1:]
+                    kind = f"rosbag2 ({storage})"
+            want, count, _, _ = _rosbags(path)  # warm-up
+            got, _, _, _ = _ours(path, True)
+            _ours(path, False)
+            if not count:
+                continue
+            ref = one = each = (float("inf"), float("inf"))  # (read, open + read)
+            for _ in range(args.repeat):
+                for which in ("ref", "one", "each"):
+                    if which == "ref":
+                        _, _, t_open, t_read = _rosbags(path)
+                        ref = (min(ref[0], t_read), min(ref[1], t_open + t_read))
+                    else:
+                        _, _, t_open, t_read = _ours(path, which == "one")
+                        best = one if which == "one" else each
+                        best = (min(best[0], t_read), min(best[1], t_open + t_read))
+                        one, each = (best, each) if which == "one" else (one, best)
+            rows.append(
+                (name, kind, str(count), f"{count / ref[0]:,.0f}", f"{count / one[0]:,.0f}",
+                 f"{ref[0] / one[0]:.1f}x", f"{ref[1] / one[1]:.1f}x", f"{count / each[0]:,.0f}",
+                 "yes" if _same(want, got) else "NO"),
+            )
+            print(" | ".join(rows[-1]), file=sys.stderr, flush=True)
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    print()
+    for row in [header, ["-" * w for w in widths], *rows]:
+        print("  ".join(c.rjust(w) if i >= 2 else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,582 @@
+"""Vectorised decoding of fixed-layout messages straight from their serialised bytes (ROS1 and CDR).
+
+Deserialising message by message costs tens of microseconds each; here a whole chunk of messages is
+decoded with a handful of array operations. The byte layout is computed from the message definition
+stored in the log (so a log with an older variant of a type still decodes right), walking the fields
+once for all messages of a batch: ``frame_id`` and other strings make the offsets variable, so each
+message carries its own position array, and CDR alignment (relative to the end of the 4-byte
+encapsulation header) is applied to those arrays only where a string left it unknown.
+
+Which fields to read is not listed here: :func:`layout_paths` runs the row function of a
+``decode.LAYOUTS`` entry on a recording stand-in, so the layout table stays the one place naming them.
+Types whose fields cannot be reached without walking dynamic sequences fall back to rosbags.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numba import njit
+from rosbags.interfaces import Nodetype
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Collection, Mapping, Sequence
+    from pathlib import Path
+
+    from rosbags.highlevel import AnyReader
+    from rosbags.interfaces import Connection
+    from rosbags.typesys.store import Typestore
+
+    from .container import RawBatch
+    from .decode import Rows
+
+Path_ = tuple[str, ...]
+
+HEADER = "std_msgs/msg/Header"
+STAMP_SEC: Path_ = ("header", "stamp", "sec")
+STAMP_NSEC: Path_ = ("header", "stamp", "nanosec")
+FRAME_ID: Path_ = ("header", "frame_id")
+_NS = 1_000_000_000
+
+# primitive -> (size, kind of its bits: f float, i signed, u unsigned)
+_PRIMITIVES: dict[str, tuple[int, str]] = {
+    "bool": (1, "u"),
+    "byte": (1, "u"),
+    "char": (1, "u"),
+    "int8": (1, "i"),
+    "uint8": (1, "u"),
+    "int16": (2, "i"),
+    "uint16": (2, "u"),
+    "int32": (4, "i"),
+    "uint32": (4, "u"),
+    "int64": (8, "i"),
+    "uint64": (8, "u"),
+    "float32": (4, "f"),
+    "float64": (8, "f"),
+}
+_BASE, _NAME, _ARRAY = Nodetype.BASE, Nodetype.NAME, Nodetype.ARRAY
+
+
+class DecodeError(ValueError):
+    """A message does not match its definition (too short, bad string); the text names the problem."""
+
+
+class _Probe:
+    """Stands in for a message and remembers which attribute path was read."""
+
+    __slots__ = ("path",)
+
+    def __init__(self, path: Path_ = ()) -> None:
+        self.path = path
+
+    def __getattr__(self, name: str) -> _Probe:
+        return _Probe((*self.path, name))
+
+
+def layout_paths(
+    row: Callable[[Any], Any],
+    child: Callable[[Any], Any] | None = None,
+) -> tuple[list[Path_], Path_ | None] | None:
+    """Field paths a layout's row (and child frame) function reads, or None if they do more than read fields."""
+    try:
+        leaves = row(_Probe())
+        other = child(_Probe()) if child is not None else None
+    except Exception:  # arithmetic, indexing, calls: not a plain field read
+        return None
+    if isinstance(leaves, _Probe):
+        leaves = (leaves,)
+    if not isinstance(leaves, tuple) or not all(isinstance(x, _Probe) for x in leaves):
+        return None
+    if other is not None and not isinstance(other, _Probe):
+        return None
+    return [x.path for x in leaves], (other.path if other is not None else None)
+
+
+# --------------------------------------------------------------------------- plans
+
+
+@dataclass(frozen=True)
+class _Op:
+    """One step of a plan: ``align`` then read a ``leaf`` / ``string`` into ``slot``, or ``skip`` bytes."""
+
+    kind: str  # "leaf", "string" or "skip"
+    align: int  # CDR alignment before the step (1 = none)
+    size: int  # leaf or skipped bytes
+    slot: int = -1  # column (leaf) or string slot; -1 = not wanted
+
+
+@dataclass(frozen=True)
+class Plan:
+    """How to find the wanted fields of one type in one encoding (leaf 0, 1: stamp sec, nanosec)."""
+
+    msgtype: str
+    cdr: bool
+    ops: tuple[_Op, ...]
+    leaves: tuple[tuple[int, str], ...]  # per leaf: (size, kind)
+    nstrings: int
+
+    @cached_property
+    def sizes(self) -> np.ndarray:
+        """Byte size per leaf."""
+        return np.array([s for s, _ in self.leaves], np.int64)
+
+    @cached_property
+    def kinds(self) -> dict[tuple[int, str], np.ndarray]:
+        """Leaves grouped by (size, kind), converted together."""
+        groups: dict[tuple[int, str], list[int]] = {}
+        for j, leaf in enumerate(self.leaves):
+            groups.setdefault(leaf, []).append(j)
+        return {k: np.array(v, np.int64) for k, v in groups.items()}
+
+
+def _walk(
+    typestore: Typestore,
+    msgtype: str,
+    prefix: Path_,
+    cdr: bool,
+    want: dict[Path_, int],
+    strings: dict[Path_, int],
+    ops: list[_Op],
+    leaves: dict[int, tuple[int, str]],
+) -> bool:
+    """Append the ops of ``msgtype``; False at the first field that has no fixed size (sequence, wstring)."""
+    for name, (node, detail) in typestore.fielddefs[msgtype][1]:
+        path = (*prefix, name)
+        if node == _NAME:
+            if not _walk(typestore, detail, path, cdr, want, strings, ops, leaves):
+                return False
+        elif node == _BASE:
+            prim = detail[0]
+            if prim == "string":
+                ops.append(_Op("string", 4 if cdr else 1, 0, strings.get(path, -1)))
+            elif prim in _PRIMITIVES:
+                size, kind = _PRIMITIVES[prim]
+                slot = want.get(path, -1)
+                if slot >= 0:
+                    leaves[slot] = (size, kind)
+                ops.append(_Op("leaf" if slot >= 0 else "skip", size if cdr else 1, size, slot))
+            else:
+                return False
+        elif node == _ARRAY and detail[0][0] == _BASE and detail[0][1][0] in _PRIMITIVES:
+            size, _ = _PRIMITIVES[detail[0][1][0]]
+            ops.append(_Op("skip", size if cdr else 1, size * detail[1]))
+        elif node == _ARRAY and detail[0][0] == _NAME:
+            for k in range(detail[1]):
+                if not _walk(typestore, detail[0][1], (*path, str(k)), cdr, want, strings, ops, leaves):
+                    return False
+        else:
+            return False
+    return True
+
+
+def make_plan(
+    typestore: Typestore,
+    msgtype: str,
+    columns: Sequence[Path_],
+    strings: Sequence[Path_] = (FRAME_ID,),
+    *,
+    cdr: bool,
+) -> Plan | None:
+    """Plan reading the header stamp, ``columns`` (numbers) and ``strings`` of ``msgtype``.
+
+    Returns None when the type has no ``std_msgs/Header`` first, a path is missing or not a number/string,
+    or a wanted field lies behind a dynamic sequence (those types go through rosbags instead).
+    """
+    fields = typestore.fielddefs.get(msgtype)
+    if not fields or not fields[1] or fields[1][0][0] != "header" or fields[1][0][1] != (_NAME, HEADER):
+        return None
+    want = {path: k for k, path in enumerate((STAMP_SEC, STAMP_NSEC, *columns))}
+    if len(want) != len(columns) + 2:
+        return None
+    string_slots = {path: k for k, path in enumerate(strings)}
+    ops: list[_Op] = []
+    leaves: dict[int, tuple[int, str]] = {}
+    _walk(typestore, msgtype, (), cdr, want, string_slots, ops, leaves)  # may stop early: checked below
+    found_strings = {op.slot for op in ops if op.kind == "string" and op.slot >= 0}
+    if len(leaves) != len(want) or len(found_strings) != len(string_slots):
+        return None
+    merged: list[_Op] = []  # runs of unwanted fixed fields become one skip (their alignment is implied)
+    for op in ops:
+        last = merged[-1] if merged else None
+        if op.kind == "skip" and last and last.kind == "skip" and op.align <= last.align and last.size % op.align == 0:
+            merged[-1] = _Op("skip", last.align, last.size + op.size)
+        else:
+            merged.append(op)
+    return Plan(msgtype, cdr, tuple(merged), tuple(leaves[k] for k in range(len(want))), len(string_slots))
+
+
+# --------------------------------------------------------------------------- kernels
+
+
+@njit(cache=True)
+def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
+    """Words of ``sizes[j]`` bytes at ``offsets[i, j]`` (unaligned reads), normalised to little endian."""
+    n, m = offsets.shape
+    out = np.empty((n, m), np.uint64)
+    for i in range(n):
+        for j in range(m):
+            p = offsets[i, j]
+            s = sizes[j]
+            w = np.uint64(0)
+            if big:
+                for b in range(s):
+                    w = (w << np.uint64(8)) | np.uint64(data[p + b])
+            elif s == 8:  # the common case, unrolled
+                w = (
+                    np.uint64(data[p])
+                    | (np.uint64(data[p + 1]) << np.uint64(8))
+                    | (np.uint64(data[p + 2]) << np.uint64(16))
+                    | (np.uint64(data[p + 3]) << np.uint64(24))
+                    | (np.uint64(data[p + 4]) << np.uint64(32))
+                    | (np.uint64(data[p + 5]) << np.uint64(40))
+                    | (np.uint64(data[p + 6]) << np.uint64(48))
+                    | (np.uint64(data[p + 7]) << np.uint64(56))
+                )
+            else:
+                for b in range(s - 1, -1, -1):
+                    w = (w << np.uint64(8)) | np.uint64(data[p + b])
+            out[i, j] = w
+    return out
+
+
+@njit(cache=True)
+def _u32(data, offsets, big):  # pragma: no cover - compiled
+    out = np.empty(offsets.shape[0], np.int64)
+    for i in range(offsets.shape[0]):
+        p = offsets[i]
+        b0, b1, b2, b3 = np.int64(data[p]), np.int64(data[p + 1]), np.int64(data[p + 2]), np.int64(data[p + 3])
+        out[i] = (b0 << 24) | (b1 << 16) | (b2 << 8) | b3 if big else b0 | (b1 << 8) | (b2 << 16) | (b3 << 24)
+    return out
+
+
+@njit(cache=True)
+def payload_hashes(data, start, size, skip):  # pragma: no cover - compiled
+    """64-bit FNV-1a of each payload after its first ``skip`` bytes (duplicate detection without copies)."""
+    out = np.empty(start.shape[0], np.uint64)
+    prime = np.uint64(1099511628211)
+    for i in range(start.shape[0]):
+        h = np.uint64(14695981039346656037)
+        for p in range(start[i] + min(skip, size[i]), start[i] + size[i]):
+            h = (h ^ np.uint64(data[p])) * prime
+        out[i] = h
+    return out
+
+
+def _as_float(words: np.ndarray, size: int, kind: str) -> np.ndarray:
+    """Reinterpret normalised words (columns of one size and kind) as float64 (ints exact up to 2**53)."""
+    if size == 8:
+        return words.view({"f": np.float64, "i": np.int64, "u": np.uint64}[kind]).astype(np.float64, copy=False)
+    narrow = words.astype(np.dtype(f"u{size}"))
+    return narrow.view(np.dtype(f"{kind}{size}")).astype(np.float64)
+
+
+# --------------------------------------------------------------------------- decoding
+
+
+@dataclass
+class Decoded:
+    """Columns of one batch: stamps, numbers and per-string codes into batch-local name lists."""
+
+    t_ns: np.ndarray  # (n,) int64
+    values: np.ndarray  # (n, ncolumns) float64
+    strings: list[tuple[np.ndarray, list[str]]]  # per string slot: (codes (n,) int32, names)
+
+
+@njit(cache=True)
+def _string_codes(data, pos, length, most):  # pragma: no cover - compiled
+    """Per-message code of its string, distinct strings numbered by first appearance (-1: over ``most``)."""
+    n = pos.shape[0]
+    codes = np.empty(n, np.int32)
+    firsts = np.empty(most, np.int64)
+    k = 0
+    last = -1
+    for i in range(n):
+        code = -1
+        for step in range(k + 1):  # the previous message's string first, then every known one
+            c = last if step == 0 else step - 1
+            if c < 0 or (step > 0 and c == last):
+                continue
+            f = firsts[c]
+            if length[f] == length[i]:
+                same = True
+                for b in range(length[i]):
+                    if data[pos[f] + b] != data[pos[i] + b]:
+                        same = False
+                        break
+                if same:
+                    code = c
+                    break
+        if code < 0:
+            if k == most:
+                return codes, firsts[:0], -1
+            firsts[k] = i
+            code = k
+            k += 1
+        codes[i] = code
+        last = code
+    return codes, firsts[:k], k
+
+
+def _strings(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """Distinct strings (in order of first appearance) and per-message codes.
+
+    Frame ids take a handful of values, so each message is compared with the strings seen so far in
+    compiled code; a field with many distinct values is grouped with ``np.unique`` instead.
+    """
+    codes, firsts, k = _string_codes(data, pos, length, 64)
+    if k < 0:
+        keys = [data[p : p + n].tobytes() for p, n in zip(pos.tolist(), length.tolist(), strict=True)]
+        uniq, first, inverse = np.unique(np.array(keys, dtype=object), return_index=True, return_inverse=True)
+        order = np.argsort(first, kind="stable")
+        rank = np.empty(order.size, np.int64)
+        rank[order] = np.arange(order.size)
+        codes, firsts = rank[inverse.ravel()].astype(np.int32), first[order]
+    try:
+        names = [data[pos[f] : pos[f] + length[f]].tobytes().decode() for f in firsts.tolist()]
+    except UnicodeDecodeError as err:
+        raise DecodeError(f"string is not UTF-8 ({err.reason})") from None
+    return codes, names
+
+
+def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decoded:
+    """Decode messages ``rows`` (default all) of ``batch`` with ``plan``.
+
+    Raises:
+        DecodeError: A message is shorter than its layout, has an unsupported CDR encapsulation or a
+            string that is not UTF-8.
+
+    """
+    data = batch.data
+    start = batch.start if rows is None else batch.start[rows]
+    size = batch.size if rows is None else batch.size[rows]
+    n = start.shape[0]
+    t_ns = np.empty(n, np.int64)
+    values = np.empty((n, len(plan.leaves) - 2), np.float64)
+    codes = [np.empty(n, np.int32) for _ in range(plan.nstrings)]
+    names: list[list[str]] = [[] for _ in range(plan.nstrings)]
+    if not plan.cdr:
+        groups = [(slice(None), False)]
+    else:
+        if n and int(size.min()) < 4:
+            raise DecodeError("message shorter than its CDR header")
+        flag = data[start + 1]
+        if n and (np.any(data[start] != 0) or np.any(flag > 1)):
+            raise DecodeError("unsupported CDR encapsulation (only plain CDR is read)")
+        little = flag == 1
+        if little.all():
+            groups = [(slice(None), False)]
+        else:
+            groups = [(np.flatnonzero(little), False), (np.flatnonzero(~little), True)]
+    for idx, big in groups:
+        origin = start[idx] + (4 if plan.cdr else 0)
+        limit = size[idx] - (4 if plan.cdr else 0)
+        if not origin.size:
+            continue
+        offsets, strings, end = _offsets(plan, data, origin, limit, big)
+        if np.any(end > limit):
+            raise DecodeError(f"message shorter than its {plan.msgtype} layout")
+        words = _gather(data, offsets, plan.sizes, big)
+        got = np.empty(words.shape, np.float64)
+        for (width, kind), cols in plan.kinds.items():
+            got[:, cols] = _as_float(words[:, cols], width, kind)
+        t_ns[idx] = got[:, 0].astype(np.int64) * _NS + got[:, 1].astype(np.int64)
+        values[idx] = got[:, 2:]
+        for k, (pos, length) in enumerate(strings):
+            sub_codes, sub_names = _strings(data, pos, length)
+            codes[k][idx] = sub_codes + len(names[k])
+            names[k] += sub_names
+    return Decoded(t_ns, values, [(c, nm) for c, nm in zip(codes, names, strict=True)])
+
+
+def _offsets(
+    plan: Plan, data: np.ndarray, origin: np.ndarray, limit: np.ndarray, big: bool
+) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray]:
+    """Absolute byte offsets of every leaf, (position, length) of every string, and the end of the walk.
+
+    Positions are ``dynamic + static``: ``dynamic`` is a per-message array that changes only after a
+    string, ``static`` a constant; ``known`` is the alignment ``dynamic`` is known to have, so CDR
+    alignment costs an array operation only right after a string.
+    """
+    n = origin.shape[0]
+    dynamic = np.zeros(n, np.int64)
+    static = 0
+    known = 8
+    offsets = np.empty((n, len(plan.leaves)), np.int64)
+    strings: list[tuple[np.ndarray, np.ndarray]] = [(np.empty(0, np.int64), np.empty(0, np.int64))] * plan.nstrings
+    for op in plan.ops:
+        if op.align > 1:
+            if known >= op.align:
+                static = -(-static // op.align) * op.align
+            else:
+                dynamic = (dynamic + static + op.align - 1) // op.align * op.align
+                static, known = 0, op.align
+        if op.kind == "leaf":
+            offsets[:, op.slot] = origin + dynamic + static
+            static += op.size
+        elif op.kind == "skip":
+            static += op.size
+        else:
+            at = dynamic + static + 4
+            if np.any(at > limit):
+                raise DecodeError(f"message shorter than its {plan.msgtype} layout")
+            length = _u32(data, origin + at - 4, big)
+            dynamic = at + length
+            if np.any(dynamic > limit):
+                raise DecodeError(f"string runs past the end of a {plan.msgtype} message")
+            if op.slot >= 0:
+                strings[op.slot] = (origin + at, np.maximum(length - 1, 0) if plan.cdr else length)
+            static, known = 0, 1
+    return offsets, strings, dynamic + static
+
+
+# --------------------------------------------------------------------------- topics
+
+
+@dataclass
+class TopicColumns:
+    """Decoded columns of one topic in record order; ``frame``/``child`` are codes into ``names``."""
+
+    t_ns: np.ndarray  # (N,) int64 header stamps
+    rec_ns: np.ndarray  # (N,) int64
+    values: np.ndarray  # (N, width) float64
+    frame: np.ndarray  # (N,) int32
+    child: np.ndarray  # (N,) int32 (zeros when the plan reads no second string)
+    names: list[str]  # frame ids as stored
+    digest: np.ndarray | None = None  # (N,) uint64 payload hashes (ROS1: without the header seq), if asked
+
+
+class _Columns:
+    """Column buffers preallocated from the index counts, grown by doubling if the counts were short."""
+
+    def __init__(self, capacity: int, width: int, digests: bool) -> None:
+        self.n = 0
+        self.digest = np.empty(capacity, np.uint64) if digests else None
+        self.t_ns = np.empty(capacity, np.int64)
+        self.rec_ns = np.empty(capacity, np.int64)
+        self.values = np.empty((capacity, width), np.float64)
+        self.frame = np.empty(capacity, np.int32)
+        self.child = np.zeros(capacity, np.int32)
+        self.names: dict[str, int] = {}
+
+    def append(self, dec: Decoded, rec_ns: np.ndarray, digest: np.ndarray | None) -> None:
+        k = rec_ns.shape[0]
+        if self.n + k > self.t_ns.shape[0]:
+            size = max(2 * self.t_ns.shape[0], self.n + k)
+            self.t_ns, self.rec_ns, self.frame, self.child = (
+                np.resize(a, size) for a in (self.t_ns, self.rec_ns, self.frame, self.child)
+            )
+            self.values = np.resize(self.values, (size, self.values.shape[1]))
+            if self.digest is not None:
+                self.digest = np.resize(self.digest, size)
+        part = slice(self.n, self.n + k)
+        if self.digest is not None and digest is not None:
+            self.digest[part] = digest
+        self.t_ns[part] = dec.t_ns
+        self.rec_ns[part] = rec_ns
+        self.values[part] = dec.values
+        for target, (codes, names) in zip((self.frame, self.child), dec.strings, strict=False):
+            lut = np.array([self.names.setdefault(name, len(self.names)) for name in names], np.int32)
+            target[part] = lut[codes] if codes.size else codes
+        self.n += k
+
+    def done(self) -> TopicColumns:
+        n = self.n
+        digest = self.digest[:n] if self.digest is not None else None
+        cols = [self.t_ns[:n], self.rec_ns[:n], self.values[:n], self.frame[:n], self.child[:n]]
+        if n > 1 and not bool(np.all(cols[1][1:] >= cols[1][:-1])):  # file order -> record order
+            order = np.argsort(cols[1], kind="stable")
+            cols = [a[order] for a in cols]
+            digest = digest[order] if digest is not None else None
+        return TopicColumns(*cols, list(self.names), digest)
+
+
+def read_columns(
+    reader: AnyReader,
+    path: str | Path,
+    topics: Mapping[str, tuple[Sequence[Connection], Plan]],
+    *,
+    digests: bool = False,
+) -> dict[str, TopicColumns]:
+    """Decode several topics in one pass over the log (each chunk is decompressed once).
+
+    ``digests`` adds a 64-bit hash of every payload (ROS1: after the header ``seq``, which differs
+    between otherwise identical messages), for finding duplicates without keeping the bytes.
+
+    Raises:
+        InputError: Unreadable data, or a message that does not match its definition.
+
+    """
+    from pipeline.errors import InputError
+
+    from .container import iter_batches
+
+    names = list(topics)
+    conns: list[Connection] = []
+    owner: list[int] = []
+    for k, topic in enumerate(names):
+        conns += topics[topic][0]
+        owner += [k] * len(topics[topic][0])
+    owner_of = np.array(owner, np.int64)
+    out = [
+        _Columns(sum(c.msgcount for c in topics[t][0]), len(topics[t][1].leaves) - 2, digests) for t in names
+    ]
+    for batch in iter_batches(reader, path, conns):
+        which = owner_of[batch.conn]
+        for k, topic in enumerate(names):
+            rows = np.flatnonzero(which == k) if len(names) > 1 else None
+            if rows is not None and not rows.size:
+                continue
+            plan = topics[topic][1]
+            try:
+                dec = decode(plan, batch, rows)
+            except DecodeError as err:
+                raise InputError(path, f"cannot decode {plan.msgtype} message: {err}", topic) from None
+            sub = batch if rows is None else batch.take(rows)
+            digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4) if digests else None
+            out[k].append(dec, sub.rec_ns, digest)
+    return {t: cols.done() for t, cols in zip(names, out, strict=True)}
+
+
+def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
+    """The plan reading a ``decode.LAYOUTS`` type's row and frames, None if it needs rosbags."""
+    from .decode import LAYOUTS
+
+    layout = LAYOUTS.get(msgtype)
+    paths = layout_paths(layout.row, layout.child) if layout is not None else None
+    if layout is None or paths is None:
+        return None
+    strings = (FRAME_ID,) + ((paths[1],) if paths[1] is not None else ())
+    plan = make_plan(typestore, msgtype, paths[0], strings, cdr=cdr)
+    return plan if plan is not None and len(plan.leaves) - 2 == layout.width else None
+
+
+def read_rows(reader: AnyReader, path: str | Path, topics: Mapping[str, Collection[Connection]]) -> dict[str, Rows]:
+    """``decode.Rows`` of every topic of ``topics`` that has a plan, all read in one pass over the log.
+
+    Topics without a plan (see :func:`plan_for`) are left out: decode them with ``decode.decode_rows``.
+
+    Raises:
+        InputError: Missing definition, unreadable data, or a message that does not match its definition.
+
+    """
+    from .container import require_definitions
+    from .decode import Rows, _Frames
+
+    planned: dict[str, tuple[Sequence[Connection], Plan]] = {}
+    for topic, connections in topics.items():
+        conns = list(connections)
+        require_definitions(reader, path, conns)
+        if conns and (plan := plan_for(reader.typestore, conns[0].msgtype, reader.is2)) is not None:
+            planned[topic] = (conns, plan)
+    out = {}
+    for topic, cols in read_columns(reader, path, planned).items():
+        frames = _Frames()  # frame ids as tf2 names them; two stored spellings may become one
+        lut = np.array([frames.code(name) for name in cols.names] or [0], np.int32)
+        has_child = planned[topic][1].nstrings > 1
+        child = lut[cols.child] if has_child else cols.child
+        msgtype = planned[topic][1].msgtype
+        out[topic] = Rows(topic, msgtype, cols.t_ns, cols.rec_ns, cols.values, lut[cols.frame], child, frames.names())
+    return out

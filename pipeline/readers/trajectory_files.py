@@ -1,0 +1,378 @@
+"""Trajectory files and pose topics as :class:`PoseStream`: TUM, EuRoC CSV, KITTI, ``poses.parquet``, and
+``geometry_msgs/PoseStamped`` / ``nav_msgs/Odometry`` topics of a log; TUM export of a poses table.
+
+These are the inputs evo users already have, read the way evo 1.38.1 reads them (same columns, same quaternion
+order, rows kept in file order) so that errors computed on them are comparable. Stamps are parsed exactly from
+their decimal text into int64 nanoseconds (evo keeps float seconds, whose 0.24 µs resolution at 1.7e9 s can
+break exact ties differently). Every failure is an :class:`InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from decimal import Decimal, InvalidOperation
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.errors import InputError
+from pipeline.streams import PoseStream
+
+NS_PER_S = 1_000_000_000
+FORMATS = ("tum", "euroc", "kitti", "parquet", "topic")
+POSE_COLUMNS = ("t_ns", "x", "y", "z", "qx", "qy", "qz", "qw")
+_PLAIN_DECIMAL = re.compile(r"^[+-]?\d+(\.\d*)?$")
+_SEPARATOR = re.compile(r"[,\s]+")
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A loaded trajectory and how it was read.
+
+    ``timed`` is False for KITTI files without a times file: their poses carry no stamps (``t_ns`` holds the
+    row index) and are paired by index, as evo pairs ``PosePath3D`` files.
+    """
+
+    stream: PoseStream
+    format: str
+    name: str
+    timed: bool = True
+    #: (N, 3, 3) rotation matrices as written in the file (KITTI), used instead of the quaternions so that
+    #: slightly non-orthonormal matrices give the numbers evo gives
+    rotations: np.ndarray | None = None
+
+
+def stamp_ns(text: str) -> int:
+    """Seconds written in decimal (``1311868164.363181``, ``1.403715529112143517e+09``) to exact nanoseconds
+    (half-even rounding below 1 ns)."""
+    if _PLAIN_DECIMAL.match(text):
+        whole, _, frac = text.partition(".")
+        if len(frac) <= 9:
+            sign = -1 if whole.startswith("-") else 1
+            return int(whole) * NS_PER_S + sign * int(frac.ljust(9, "0") or "0")
+    try:
+        return int((Decimal(text) * NS_PER_S).to_integral_value())
+    except InvalidOperation:
+        raise ValueError(f"not a number: {text!r}") from None
+
+
+def _read_text(path: Path, what: str) -> str:
+    try:
+        return path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputError(path, "no such file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(path, f"cannot read {what} file: {err}") from None
+
+
+def _row_error(path: Path, text: str, min_fields: int, fixed: int | None, what: str) -> InputError:
+    """The first offending line of a file the fast parser rejected, named with its number."""
+    for lineno, line in enumerate(text.replace(",", " ").splitlines(), 1):
+        tok = line.split()
+        if not tok or tok[0].startswith("#"):
+            continue
+        if (fixed is not None and len(tok) != fixed) or len(tok) < min_fields:
+            want = f"{fixed}" if fixed is not None else f"at least {min_fields}"
+            return InputError(path, f"line {lineno}: {what} rows have {want} fields, this one has {len(tok)}")
+        try:
+            [float(v) for v in tok[1:min_fields]]
+        except ValueError:
+            return InputError(path, f"line {lineno}: not a number in {line.strip()[:80]!r}")
+    return InputError(path, f"unreadable {what} file")
+
+
+def _rows(path: Path, min_fields: int, fixed: int | None, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """First column as text and the next ``min_fields - 1`` columns as floats (``fixed``: exactly that many
+    fields per row). Fields are separated by spaces, tabs or commas; ``#`` starts a comment line. Parsed by
+    pandas' C tokenizer (a 100k-line file in a fraction of a second); any irregular row is named by number."""
+    import io
+
+    import pandas as pd
+
+    text = _read_text(path, what)
+    try:
+        df = pd.read_csv(io.StringIO(text.replace(",", " ")), sep=r"\s+", header=None, comment="#",
+                         dtype={0: str}, engine="c", skip_blank_lines=True)
+    except (pd.errors.ParserError, ValueError):
+        raise _row_error(path, text, min_fields, fixed, what) from None
+    except pd.errors.EmptyDataError:
+        raise InputError(path, f"no poses in {what} file") from None
+    if len(df) == 0:
+        raise InputError(path, f"no poses in {what} file")
+    ncols = df.shape[1]
+    if (fixed is not None and ncols != fixed) or ncols < min_fields:
+        raise _row_error(path, text, min_fields, fixed, what)
+    values = df.iloc[:, 1:min_fields]
+    if not all(np.issubdtype(t, np.floating) or np.issubdtype(t, np.integer) for t in values.dtypes):
+        raise _row_error(path, text, min_fields, fixed, what)
+    values = values.to_numpy(np.float64)
+    if fixed is not None and df.iloc[:, min_fields:].isna().to_numpy().any() or np.isnan(values).any():
+        raise _row_error(path, text, min_fields, fixed, what)
+    return df[0].to_numpy(dtype=str), values
+
+
+_POW10 = 10 ** np.arange(19, dtype=np.int64)
+_WIDTH = 24
+
+
+def _plain_stamps_ns(tokens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised exact parse of plain decimal stamps ``d{1,10}[.d{0,9}]`` on the bytes of the text; returns
+    the nanoseconds and which tokens were plain (the others need :func:`stamp_ns`)."""
+    width = max(1, min(_WIDTH, int(np.char.str_len(tokens).max()) if tokens.size else 1))
+    u = np.asarray(tokens).astype(f"S{width}").view(np.uint8).reshape(-1, width)
+    j = np.arange(width, dtype=np.int64)
+    digit = (u >= 48) & (u <= 57)
+    dot = u == 46
+    inside = u != 0
+    length = inside.sum(axis=1)
+    n_dot = dot.sum(axis=1)
+    dot_at = np.where(n_dot > 0, np.argmax(dot, axis=1), length)
+    plain = (((digit | dot) == inside).all(axis=1) & (n_dot <= 1) & (dot_at >= 1)
+             & ((dot_at <= 9) | ((dot_at == 10) & (u[:, 0] < 57)))  # < 9e9 s: no int64 overflow
+             & (length - dot_at - 1 <= 9))
+    rel = dot_at[:, None] - j[None, :]  # digit position relative to the dot: 1 = units, 0 = the dot
+    exp = np.where(rel > 0, rel + 8, rel + 9)  # ns per unit of the digit, as a power of ten
+    weight = np.where(digit & (exp >= 0), _POW10[np.clip(exp, 0, 18)], 0)
+    ns = ((u.astype(np.int64) - 48) * weight).sum(axis=1)
+    return ns, plain
+
+
+def _stamps(path: Path, tokens: np.ndarray) -> np.ndarray:
+    """Exact nanoseconds of decimal-second stamps: vectorised for plain decimals with up to 9 decimals, through
+    :func:`stamp_ns` for the rest (signs, exponents, more digits)."""
+    tokens = np.asarray(tokens, dtype=str)
+    out, plain = _plain_stamps_ns(tokens)
+    plain &= np.char.str_len(tokens) <= _WIDTH
+    for k in np.flatnonzero(~plain):
+        try:
+            out[k] = stamp_ns(str(tokens[k]))
+        except ValueError as err:
+            raise InputError(path, f"bad timestamp: {err}") from None
+        except OverflowError:
+            raise InputError(path, f"timestamp {tokens[k]!r} is out of range (int64 nanoseconds)") from None
+    return out
+
+
+def _stream(name: str, t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray, frame: str = "") -> PoseStream:
+    return PoseStream(name, frame, "", t_ns, t_ns.copy(), np.ascontiguousarray(position),
+                      np.ascontiguousarray(quat_xyzw))
+
+
+def load_tum(path: str | Path) -> PoseStream:
+    """TUM trajectory: ``timestamp tx ty tz qx qy qz qw`` per line (seconds), ``#`` comments."""
+    path = Path(path)
+    first, v = _rows(path, 8, 8, "TUM")
+    return _stream(str(path), _stamps(path, first), v[:, 0:3], v[:, 3:7])
+
+
+def load_euroc_csv(path: str | Path) -> PoseStream:
+    """EuRoC ``state_groundtruth_estimate0/data.csv``: ``t [ns], p xyz, q wxyz, ...`` (extra columns ignored)."""
+    path = Path(path)
+    first, v = _rows(path, 8, None, "EuRoC CSV")
+    try:
+        t_ns = first.astype(np.int64)
+    except ValueError:
+        t_ns = _stamps(path, first) // NS_PER_S  # written as float nanoseconds
+    return _stream(str(path), t_ns, v[:, 0:3], v[:, [4, 5, 6, 3]])
+
+
+def load_kitti(path: str | Path, times: str | Path | None = None) -> PoseStream:
+    """KITTI poses: the first three rows of the 4x4 pose matrix per line.
+
+    Without ``times`` (one stamp in seconds per line, KITTI ``times.txt``) the stamps are the row indices in
+    nanoseconds (0, 1, 2, ...), meaningful only for pairing by index. The rotations become quaternions (which
+    re-orthonormalises them); :func:`kitti_rotations` gives the matrices as written.
+    """
+    return _kitti(Path(path), times)[0]
+
+
+def kitti_rotations(path: str | Path) -> np.ndarray:
+    """The (N, 3, 3) rotation blocks of a KITTI pose file, as written."""
+    path = Path(path)
+    first, v = _rows(path, 12, 12, "KITTI")
+    return np.ascontiguousarray(np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)[:, :, :3])
+
+
+def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray]:
+    first, v = _rows(path, 12, 12, "KITTI")
+    try:
+        m = np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)
+    except ValueError:
+        raise InputError(path, "not a number in the first column") from None
+    from pipeline.lie import rots_to_quats
+
+    rot = np.ascontiguousarray(m[:, :, :3])
+    quat = rots_to_quats(rot)
+    if times is None:
+        t_ns = np.arange(m.shape[0], dtype=np.int64)
+    else:
+        tpath = Path(times)
+        tok, _ = _rows(tpath, 1, 1, "KITTI times")
+        t_ns = _stamps(tpath, tok)
+        if t_ns.shape[0] != m.shape[0]:
+            raise InputError(tpath, f"{t_ns.shape[0]} stamps for {m.shape[0]} poses in {path}")
+    return _stream(str(path), t_ns, m[:, :, 3], quat), rot
+
+
+def load_poses_parquet(path: str | Path) -> PoseStream:
+    """``poses.parquet`` of a run (``t_ns, x y z, qx qy qz qw``), in file order."""
+    import pyarrow.parquet as pq
+
+    path = Path(path)
+    try:
+        table = pq.read_table(path)
+    except FileNotFoundError:
+        raise InputError(path, "no such file") from None
+    except Exception as err:  # pyarrow raises several types for a bad file
+        raise InputError(path, f"cannot read Parquet: {' '.join(str(err).split())}") from None
+    missing = [c for c in POSE_COLUMNS if c not in table.column_names]
+    if missing:
+        raise InputError(path, f"not a poses table: lacks column(s) {missing}")
+    cols = {c: table.column(c).to_numpy() for c in POSE_COLUMNS}
+    pos = np.column_stack([cols["x"], cols["y"], cols["z"]]).astype(np.float64)
+    quat = np.column_stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]]).astype(np.float64)
+    return _stream(str(path), cols["t_ns"].astype(np.int64), pos, quat)
+
+
+def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header") -> PoseStream:
+    """A pose topic of a log (``geometry_msgs/PoseStamped``, ``nav_msgs/Odometry``, or any type the readers
+    decode into a position and a quaternion), with header stamps or, with ``time_source="record"``, the record
+    time; decoded and cleaned by the readers (sorted, exact duplicates dropped)."""
+    from .container import open_log
+    from .decode import LAYOUTS, decode_rows, pose_stream
+    from .roles import topics_of
+
+    log = Path(log)
+    with open_log(log) as reader:
+        table = topics_of(reader)
+        if topic not in table:
+            alt = "/" + topic.lstrip("/") if "/" + topic.lstrip("/") in table else topic.lstrip("/")
+            if alt not in table:
+                known = ", ".join(sorted(table)[:12]) or "none"
+                raise InputError(log, f"topic not in the log (topics: {known})", topic)
+            topic = alt
+        meta, conns = table[topic]
+        layout = LAYOUTS.get(meta.msgtype)
+        if layout is None or not {"position", "quat_xyzw"} <= set(layout.columns):
+            poses = sorted(t for t, lay in LAYOUTS.items() if {"position", "quat_xyzw"} <= set(lay.columns))
+            raise InputError(log, f"type {meta.msgtype} is not a trajectory (expected one of {', '.join(poses)})",
+                             topic)
+        stream, _ = pose_stream(decode_rows(reader, log, topic, conns))
+    if len(stream) == 0:
+        raise InputError(log, "no poses on topic", topic)
+    if time_source == "record":
+        stream = PoseStream(**{**stream.__dict__, "t_ns": stream.rec_ns})
+    return stream
+
+
+def _is_log(path: Path) -> bool:
+    from .container import detect_container
+
+    try:
+        detect_container(path)
+    except InputError:
+        return False
+    return True
+
+
+def detect_format(path: str | Path) -> str:
+    """``tum``, ``euroc``, ``kitti`` or ``parquet`` from the content of ``path``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(path, "no such file" if not path.exists() else "not a trajectory file")
+    with path.open("rb") as f:
+        head = f.read(4096)
+    if head.startswith(b"PAR1"):
+        return "parquet"
+    for raw in head.decode("utf-8-sig", errors="replace").splitlines():
+        line = raw.strip()
+        if not line or line.startswith("#"):
+            continue
+        tok = _SEPARATOR.split(line)
+        if "," in line and len(tok) >= 8 and tok[0].isdigit() and len(tok[0]) >= 15:
+            return "euroc"
+        if len(tok) == 8:
+            return "tum"
+        if len(tok) == 12:
+            return "kitti"
+        break
+    raise InputError(path, "unknown trajectory format (expected TUM, EuRoC CSV, KITTI or poses.parquet; "
+                           "a log needs a topic: LOG:TOPIC)")
+
+
+def split_topic_source(source: str) -> tuple[Path, str] | None:
+    """``LOG:TOPIC`` -> (log, topic) when the part before a ``:`` is an existing log, else None."""
+    if Path(source).exists():
+        return None
+    for k, ch in enumerate(source):
+        if ch == ":" and k > 0:
+            log = Path(source[:k])
+            if log.exists() and _is_log(log):
+                return log, source[k + 1:]
+    return None
+
+
+def read_trajectory(source: str | Path, fmt: str | None = None, *, kitti_times: str | Path | None = None) -> Trajectory:
+    """Load ``source``: a TUM / EuRoC CSV / KITTI file, a ``poses.parquet``, or ``LOG:TOPIC``.
+
+    ``fmt`` forces the file format (one of ``FORMATS`` minus ``topic``); by default it is detected from the
+    content.
+    """
+    source = str(source)
+    topic = split_topic_source(source) if fmt in (None, "topic") else None
+    if topic is not None:
+        return Trajectory(load_pose_topic(*topic), "topic", topic[1])
+    if fmt == "topic":
+        raise InputError(source, "not LOG:TOPIC with an existing log")
+    path = Path(source)
+    if path.is_dir() or (path.is_file() and _is_log(path)):
+        raise InputError(path, "a log holds several topics: name one as LOG:TOPIC")
+    fmt = fmt or detect_format(path)
+    if fmt not in FORMATS:
+        raise InputError(path, f"unknown format {fmt!r} (one of {', '.join(FORMATS[:-1])})")
+    if fmt == "tum":
+        return Trajectory(load_tum(path), fmt, source)
+    if fmt == "euroc":
+        return Trajectory(load_euroc_csv(path), fmt, source)
+    if fmt == "kitti":
+        stream, rot = _kitti(path, kitti_times)
+        return Trajectory(stream, fmt, source, timed=kitti_times is not None, rotations=rot)
+    return Trajectory(load_poses_parquet(path), fmt, source)
+
+
+def format_stamp(t_ns: int) -> str:
+    """Exact decimal seconds of an int nanosecond stamp (``1311868164.363181000``)."""
+    t = int(t_ns)
+    sign = "-" if t < 0 else ""
+    q, r = divmod(abs(t), NS_PER_S)
+    return f"{sign}{q}.{r:09d}"
+
+
+def tum_text(t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray) -> str:
+    """TUM lines ``t x y z qx qy qz qw``: stamps exact to the nanosecond, values with round-trip precision."""
+    lines = [
+        format_stamp(t) + " " + " ".join(repr(float(v)) for v in (*p, *q))
+        for t, p, q in zip(np.asarray(t_ns).tolist(), np.asarray(position, dtype=np.float64),
+                           np.asarray(quat_xyzw, dtype=np.float64))
+    ]
+    return "\n".join(lines) + ("\n" if lines else "")
+
+
+def write_tum(path: str | Path, stream: PoseStream) -> Path:
+    """Write ``stream`` as a TUM trajectory file (readable by evo and :func:`load_tum`)."""
+    path = Path(path)
+    path.write_text(tum_text(stream.t_ns, stream.position, stream.quat_xyzw), encoding="utf-8")
+    return path
+
+
+def poses_table_stream(poses, name: str = "poses") -> PoseStream:
+    """A poses table (DataFrame with ``t_ns, x y z, qx qy qz qw``) as a PoseStream, rows in time order."""
+    missing = [c for c in POSE_COLUMNS if c not in poses.columns]
+    if missing:
+        raise ValueError(f"poses table lacks column(s) {missing}; has {list(poses.columns)}")
+    t = poses["t_ns"].to_numpy(np.int64)
+    order = np.argsort(t, kind="stable")
+    pos = poses[["x", "y", "z"]].to_numpy(np.float64)[order]
+    quat = poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)[order]
+    return _stream(name, t[order], pos, quat)

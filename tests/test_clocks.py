@@ -1,0 +1,203 @@
+"""Header stamps vs record times: clock kinds, offsets between topics, order, duplicates, gaps, rate changes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from mcap.writer import Writer as McapWriter
+from rosbags.rosbag1 import Writer as Bag1Writer
+
+from cli.info_cmd import info
+from pipeline.readers import format_info, inspect_log, read_log
+from pipeline.readers.inspect import CLOCK_TOLERANCE_S, apply_clocks, recommend_clocks, stamp_stats
+from pipeline.simulate import make_typestore
+from pipeline.streams import DetectionStream, LogStreams
+
+NS = 1_000_000_000
+WALL = 1_700_000_000 * NS
+IMU, POSE = "sensor_msgs/msg/Imu", "geometry_msgs/msg/PoseStamped"
+
+
+def _grid(seconds: float, rate: float, start: float = 0.0) -> np.ndarray:
+    return np.round((start + np.arange(int(round(seconds * rate))) / rate) * NS).astype(np.int64)
+
+
+def _write(path, topics: dict[str, list[tuple[int, int, float]]]):
+    """A log with an Imu ``/imu`` and a PoseStamped ``/pose``: (header stamp, record time, value) each."""
+    ros1 = path.suffix == ".bag"
+    ts = make_typestore(ros1=ros1)
+    t = ts.types
+    quat = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+
+    def message(topic: str, stamp: int, value: float) -> object:
+        time = t["builtin_interfaces/msg/Time"](sec=stamp // NS, nanosec=stamp % NS)
+        extra = {"seq": 0} if ros1 else {}
+        header = t["std_msgs/msg/Header"](stamp=time, frame_id="imu" if topic == "/imu" else "world", **extra)
+        vec = t["geometry_msgs/msg/Vector3"](x=value, y=0.0, z=0.0)
+        if topic == "/imu":
+            return t[IMU](
+                header=header, orientation=quat, orientation_covariance=np.zeros(9), angular_velocity=vec,
+                angular_velocity_covariance=np.zeros(9), linear_acceleration=vec,
+                linear_acceleration_covariance=np.zeros(9),
+            )  # fmt: skip
+        point = t["geometry_msgs/msg/Point"](x=value, y=0.0, z=0.0)
+        return t[POSE](header=header, pose=t["geometry_msgs/msg/Pose"](position=point, orientation=quat))
+
+    types = {"/imu": IMU, "/pose": POSE}
+    items = sorted((rec, topic, stamp, value) for topic, msgs in topics.items() for stamp, rec, value in msgs)
+    if ros1:
+        with Bag1Writer(path) as writer:
+            conns = {tp: writer.add_connection(tp, types[tp], typestore=ts) for tp in topics}
+            for rec, topic, stamp, value in items:
+                writer.write(conns[topic], rec, ts.serialize_ros1(message(topic, stamp, value), types[topic]))
+        return path
+    with path.open("wb") as stream:
+        writer = McapWriter(stream)
+        writer.start(profile="ros2", library="test")
+        channels = {}
+        for topic in topics:
+            msgdef = ts.generate_msgdef(types[topic], ros_version=2)[0]
+            schema = writer.register_schema(types[topic], "ros2msg", msgdef.encode())
+            channels[topic] = writer.register_channel(topic, "cdr", schema)
+        for rec, topic, stamp, value in items:
+            data = bytes(ts.serialize_cdr(message(topic, stamp, value), types[topic]))
+            writer.add_message(channels[topic], log_time=rec, data=data, publish_time=rec)
+        writer.finish()
+    return path
+
+
+def _topic(summary, name):
+    return next(t for t in summary.topics if t.topic == name)
+
+
+def _steady(rate: float, seconds: float, header_offset_ns: int, latency_ns: int = 2_000_000, start: int = WALL):
+    """(stamp, record, value): stamps on a grid from ``start`` + offset, recorded ``latency`` later."""
+    grid = _grid(seconds, rate) + start
+    return [(int(g) + header_offset_ns, int(g) + latency_ns, float(k)) for k, g in enumerate(grid)]
+
+
+@pytest.mark.parametrize("suffix", [".bag", ".mcap"])
+def test_constant_offset_between_topics(tmp_path, suffix):
+    path = _write(tmp_path / f"offset{suffix}", {"/imu": _steady(100, 5, 0), "/pose": _steady(50, 5, NS // 2)})
+    summary = inspect_log(path)
+    imu, pose = _topic(summary, "/imu"), _topic(summary, "/pose")
+    assert summary.clock_reference == "/imu" and summary.record_clock == "wall"
+    assert (imu.header_clock, pose.header_clock) == ("wall", "wall")
+    assert imu.offset_s == pytest.approx(-0.002, abs=1e-9)
+    assert pose.offset_s == pytest.approx(0.498, abs=1e-9)
+    assert pose.relative_offset_s == pytest.approx(0.5, abs=1e-9) and imu.relative_offset_s == 0
+    assert imu.offset_spread_s == pytest.approx(0.0, abs=1e-9)
+    assert summary.clocks == {"/imu": "header", "/pose": "record"}
+    assert any("/pose: header clock is +0.500 s off /imu's" in w for w in summary.warnings)
+
+    streams = read_log(path)
+    assert recommend_clocks(streams)[0] == summary.clocks
+    fixed = apply_clocks(streams, summary.clocks)
+    np.testing.assert_array_equal(fixed.truth.t_ns, streams.truth.rec_ns)
+    np.testing.assert_array_equal(fixed.truth.position, streams.truth.position)
+    assert fixed.angular_velocity is streams.angular_velocity
+
+
+def test_latency_below_tolerance_is_not_an_offset(tmp_path):
+    small = int(0.5 * CLOCK_TOLERANCE_S * NS)
+    path = _write(tmp_path / "latency.bag", {"/imu": _steady(100, 3, 0), "/pose": _steady(50, 3, -small)})
+    summary = inspect_log(path)
+    assert summary.clocks == {"/imu": "header", "/pose": "header"}
+    assert not any("header clock" in w for w in summary.warnings)
+
+
+def test_sim_time_stamps_next_to_wall_clock_record_times(tmp_path):
+    sim_start = 12 * NS  # a simulator clock started 12 s ago
+    topics = {"/imu": _steady(100, 3, sim_start - WALL), "/pose": _steady(50, 3, sim_start - WALL)}
+    summary = inspect_log(_write(tmp_path / "sim.bag", topics))
+    imu = _topic(summary, "/imu")
+    assert imu.header_clock == "sim" and summary.record_clock == "wall"
+    assert imu.offset_s == pytest.approx((sim_start - WALL - 2_000_000) / NS)
+    assert summary.clocks == {"/imu": "header", "/pose": "header"}  # one simulation clock for both: fine
+    assert "header stamps are simulation time next to wall-clock record times: /imu, /pose" in summary.warnings
+
+
+def test_reference_off_record_time_means_record_time_for_all(tmp_path):
+    topics = {"/imu": _steady(100, 3, 12 * NS - WALL), "/pose": _steady(50, 3, 0)}  # only the imu is simulated
+    summary = inspect_log(_write(tmp_path / "mixed.bag", topics))
+    assert summary.clocks == {"/imu": "record", "/pose": "record"}
+    assert any("use record time for every topic" in w for w in summary.warnings)
+
+
+def test_zero_stamps_use_record_time(tmp_path):
+    imu = [(0, rec, value) for _, rec, value in _steady(100, 2, 0)]
+    summary = inspect_log(_write(tmp_path / "zero.bag", {"/imu": imu, "/pose": _steady(50, 2, 0)}))
+    assert _topic(summary, "/imu").header_clock == "zero"
+    assert _topic(summary, "/imu").repeated_stamps is None  # every stamp is 0: nothing to say
+    assert summary.clocks == {"/imu": "record", "/pose": "header"}
+    assert "/imu: header stamps are all zero" in summary.warnings
+
+
+def test_out_of_order_duplicates_and_repeated_stamps(tmp_path):
+    msgs = _steady(100, 2, 0)
+    msgs[10], msgs[11] = (msgs[11][0], msgs[10][1], msgs[11][2]), (msgs[10][0], msgs[11][1], msgs[10][2])
+    msgs[50], msgs[51] = (msgs[51][0], msgs[50][1], msgs[51][2]), (msgs[50][0], msgs[51][1], msgs[50][2])
+    msgs.append((msgs[20][0], msgs[20][1] + 1, msgs[20][2]))  # exact duplicate, recorded again
+    msgs.append((msgs[30][0], msgs[30][1] + 1, -1.0))  # same stamp, other value
+    summary = inspect_log(_write(tmp_path / "order.bag", {"/imu": msgs}))
+    imu = _topic(summary, "/imu")
+    assert (imu.out_of_order, imu.duplicates, imu.repeated_stamps) == (2, 1, 1)  # a swapped pair: one step back
+    warning = next(w for w in summary.warnings if w.startswith("/imu:"))
+    assert "2 out-of-order stamps, 1 exact duplicate, 1 repeated stamp with different content" in warning
+    streams = read_log(tmp_path / "order.bag")
+    assert np.all(np.diff(streams.angular_velocity.t_ns) >= 0)
+
+
+def test_gap(tmp_path):
+    msgs = [m for m in _steady(100, 6, 0) if not (WALL + 3 * NS <= m[0] < WALL + 4 * NS)]
+    imu = _topic(inspect_log(_write(tmp_path / "gap.bag", {"/imu": msgs})), "/imu")
+    assert imu.gaps == 1
+    assert imu.max_gap_s == pytest.approx(1.01, abs=1e-9) and imu.max_gap_at_s == pytest.approx(2.99, abs=1e-9)
+    assert imu.rate_segments == ()
+
+
+def test_rate_change(tmp_path):
+    fast = _grid(10, 200) + WALL
+    slow = _grid(10, 100, start=10) + WALL
+    msgs = [(int(s), int(s) + 2_000_000, 0.0) for s in np.concatenate([fast, slow])]
+    summary = inspect_log(_write(tmp_path / "rate.bag", {"/imu": msgs}))
+    imu = _topic(summary, "/imu")
+    assert len(imu.rate_segments) == 2
+    (t0, r0), (t1, r1) = imu.rate_segments
+    assert (t0, r0) == (0.0, pytest.approx(200.0)) and r1 == pytest.approx(100.0)
+    assert 9.5 <= t1 <= 10.5
+    assert imu.gaps == 0
+    assert any("rate changes: 200 Hz -> 100 Hz at +" in w for w in summary.warnings)
+
+
+def test_info_text_and_json(tmp_path):
+    path = _write(tmp_path / "offset.bag", {"/imu": _steady(100, 2, 0), "/pose": _steady(50, 2, NS // 2)})
+    text = format_info(inspect_log(path))
+    assert "clocks (record time: wall clock; offsets vs /imu)" in text
+    assert "hdr-rec [s]" in text and "+0.500" in text
+    result = CliRunner().invoke(info, [str(path), "--json"])
+    assert result.exit_code == 0
+    doc = json.loads(result.output)
+    pose = next(t for t in doc["topics"] if t["topic"] == "/pose")
+    assert pose["clock"] == "record" and pose["relative_offset_s"] == pytest.approx(0.5)
+    assert doc["clock_reference"] == "/imu" and doc["record_clock"] == "wall"
+
+
+def test_stamp_stats_and_apply_clocks_on_arrays():
+    t = np.array([0, 10, 20, 30], np.int64) + WALL
+    stats = stamp_stats(t, t + 5)
+    assert (stats.header_clock, stats.offset_ns, stats.spread_ns, stats.out_of_order) == ("wall", -5, 0, 0)
+    det = DetectionStream(
+        "/fiducials", "camera", t_ns=np.array([1, 2, 3]), rec_ns=np.array([30, 10, 20]),
+        offsets=np.array([0, 2, 2, 3]), ids=np.array([7, 8, 9]), xyz=np.arange(9.0).reshape(3, 3),
+    )  # fmt: skip
+    moved = apply_clocks(LogStreams("x", detections=det), {"/fiducials": "record"}).detections
+    np.testing.assert_array_equal(moved.t_ns, [10, 20, 30])
+    np.testing.assert_array_equal(moved.offsets, [0, 0, 1, 3])
+    np.testing.assert_array_equal(moved.ids, [9, 7, 8])
+    np.testing.assert_array_equal(moved.xyz[0], [6.0, 7.0, 8.0])
+    with pytest.raises(ValueError, match="unknown clock"):
+        apply_clocks(LogStreams("x"), {"/a": "gps"})

@@ -1,0 +1,385 @@
+"""Readers on every container x compression, and on damaged files: truncated, unindexed, corrupt, empty."""
+
+from __future__ import annotations
+
+import io
+import re
+import struct
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from mcap.reader import make_reader
+from mcap.records import Message
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType
+from mcap.writer import Writer as McapWriter
+from rosbags.rosbag1 import Reader as Bag1Reader
+from rosbags.rosbag1 import Writer as Bag1Writer
+from rosbags.rosbag1.reader import Header
+from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.rosbag2 import Writer as Bag2Writer
+
+from cli.info_cmd import info
+from pipeline.errors import InputError
+from pipeline.readers import inspect_log, read_log
+from pipeline.readers import container as container_module
+from pipeline.readers.container import damage_notes, open_log
+from pipeline.readers.decode import LAYOUTS
+from pipeline.readers.fastdecode import read_rows
+from pipeline.readers.roles import topics_of
+from pipeline.simulate import expected_streams, make_typestore, simulate
+from pipeline.simulate.logwriter import TOPIC_TYPES, iter_messages
+
+CHUNK = 48 * 1024  # small chunks: a 2 s log spans several
+FIDUCIALS = "fiducial_msgs/msg/FiducialTransformArray"
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return simulate("figure8", duration=2.0, seed=3)
+
+
+def _write(sim, path: Path, container: str, compression: str = "") -> Path:
+    """``sim`` as ``container`` (bag, mcap, ros2-sqlite3, ros2-mcap) with the given compression."""
+    ros1 = container == "bag"
+    ts = make_typestore(ros1=ros1)
+    if container == "bag":
+        writer = Bag1Writer(path)
+        if compression:
+            writer.set_compression(Bag1Writer.CompressionFormat[compression.upper()])
+        writer.chunk_threshold = CHUNK
+        with writer:
+            conns = {t: writer.add_connection(t, m, typestore=ts) for t, m in TOPIC_TYPES.items()}
+            for topic, rec, msg in iter_messages(sim, ts, ros1=True):
+                writer.write(conns[topic], rec, ts.serialize_ros1(msg, TOPIC_TYPES[topic]))
+    elif container == "mcap":
+        with path.open("wb") as stream:
+            kind = CompressionType[compression.upper() or "NONE"]
+            writer = McapWriter(stream, chunk_size=CHUNK, compression=kind)
+            writer.start(profile="ros2", library="test")
+            channels = {}
+            for topic, msgtype in TOPIC_TYPES.items():
+                msgdef, _ = ts.generate_msgdef(msgtype, ros_version=2)
+                schema = writer.register_schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
+                channels[topic] = writer.register_channel(topic=topic, message_encoding="cdr", schema_id=schema)
+            for topic, rec, msg in iter_messages(sim, ts, ros1=False):
+                data = bytes(ts.serialize_cdr(msg, TOPIC_TYPES[topic]))
+                writer.add_message(channels[topic], log_time=rec, data=data, publish_time=rec)
+            writer.finish()
+    else:
+        plugin = StoragePlugin.MCAP if container == "ros2-mcap" else StoragePlugin.SQLITE3
+        writer2 = Bag2Writer(path, version=9, storage_plugin=plugin)
+        if compression:
+            writer2.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
+        with writer2:
+            conns = {t: writer2.add_connection(t, m, typestore=ts) for t, m in TOPIC_TYPES.items()}
+            for topic, rec, msg in iter_messages(sim, ts, ros1=False):
+                writer2.write(conns[topic], rec, ts.serialize_cdr(msg, TOPIC_TYPES[topic]))
+    return path
+
+
+def _same_streams(got, want, prefix: bool = False) -> None:
+    """Every role equal (``prefix``: ``got`` is the first part of ``want``)."""
+    for role in ("angular_velocity", "linear_velocity", "accel", "magnetic", "truth"):
+        g, w = getattr(got, role), getattr(want, role)
+        n = len(g) if prefix else len(w)
+        assert len(g) == n, role
+        np.testing.assert_array_equal(g.t_ns, w.t_ns[:n], err_msg=role)
+        np.testing.assert_array_equal(g.rec_ns, w.rec_ns[:n], err_msg=role)
+        for name in ("xyz", "position", "quat_xyzw"):
+            if hasattr(g, name):
+                np.testing.assert_array_equal(getattr(g, name), getattr(w, name)[:n], err_msg=role)
+    g, w = got.detections, want.detections
+    n = len(g) if prefix else len(w)
+    np.testing.assert_array_equal(g.t_ns, w.t_ns[:n])
+    np.testing.assert_array_equal(g.offsets, w.offsets[: n + 1])
+    np.testing.assert_array_equal(g.xyz, w.xyz[: w.offsets[n]])
+
+
+# --------------------------------------------------------------------------- containers x compression
+
+MATRIX = [
+    ("bag", ""),
+    ("bag", "bz2"),
+    ("bag", "lz4"),
+    ("mcap", ""),
+    ("mcap", "zstd"),
+    ("mcap", "lz4"),
+    ("ros2-sqlite3", ""),
+    ("ros2-sqlite3", "file"),
+    ("ros2-sqlite3", "message"),
+    ("ros2-mcap", ""),
+    ("ros2-mcap", "storage"),
+    ("ros2-mcap", "file"),
+    ("ros2-mcap", "message"),
+]
+
+
+@pytest.mark.parametrize(("container", "compression"), MATRIX)
+def test_every_container_and_compression(tmp_path, sim, container, compression):
+    name = {"bag": "log.bag", "mcap": "log.mcap"}.get(container, "log_ros2")
+    path = _write(sim, tmp_path / name, container, compression)
+    got = read_log(path)
+    assert got.warnings == []
+    _same_streams(got, expected_streams(sim, str(path)))
+    summary = inspect_log(path)
+    assert {t.topic: t.count for t in summary.topics} == sim.topic_counts()
+    assert not any("incomplete" in w for w in summary.warnings)
+
+
+@pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("ros2-sqlite3", "")])
+def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, compression):
+    """Peak memory beyond the decoded columns is the same for a 3 s and a 12 s log (read chunk by chunk)."""
+    monkeypatch.setattr(container_module, "_SQL_BYTES", CHUNK)  # sqlite rows come in batches like chunks
+    overhead = []
+    for seconds in (3.0, 12.0):
+        name = f"{seconds:g}" + {"bag": ".bag", "mcap": ".mcap"}.get(container, "_ros2")
+        path = _write(simulate("circle", duration=seconds, seed=1), tmp_path / name, container, compression)
+        with open_log(path) as reader:
+            table = {t: c for t, (m, c) in topics_of(reader).items() if m.msgtype in LAYOUTS}
+            read_rows(reader, path, table)  # warm up (kernels, typestore classes)
+            tracemalloc.start()
+            rows = read_rows(reader, path, table)
+            peak = tracemalloc.get_traced_memory()[1]
+            tracemalloc.stop()
+        columns = sum(
+            r.t_ns.nbytes + r.rec_ns.nbytes + r.values.nbytes + r.frame.nbytes + r.child.nbytes for r in rows.values()
+        )
+        overhead.append(peak - columns)
+    assert overhead[1] < 1.25 * overhead[0] + 64 * 1024, overhead
+
+
+# --------------------------------------------------------------------------- truncation
+
+
+def _ros1_message_ends(path: Path) -> np.ndarray:
+    """File offset just past each message record of an uncompressed bag, from rosbags' index."""
+    ends = []
+    with Bag1Reader(path) as reader, path.open("rb") as fobj:
+        for entries in reader.indexes.values():
+            for entry in entries:
+                pos = reader.chunks[entry.chunk_pos].datapos + entry.offset
+                while True:  # a connection record may precede the message the index points at
+                    fobj.seek(pos)
+                    header = Header.read(fobj)
+                    (dlen,) = struct.unpack("<I", fobj.read(4))
+                    pos = fobj.tell() + dlen
+                    if header.get_uint8("op") == 2:
+                        break
+                ends.append(pos)
+    return np.sort(np.array(ends))
+
+
+def _mcap_message_ends(path: Path) -> np.ndarray:
+    """File offset just past each message record of an uncompressed MCAP, from its message indexes."""
+    ends = []
+    with path.open("rb") as fobj:
+        summary = make_reader(fobj).get_summary()
+        for chunk in summary.chunk_indexes:
+            records = chunk.chunk_start_offset + 9 + 28 + 4 + len(chunk.compression) + 8
+            for offset in chunk.message_index_offsets.values():
+                fobj.seek(offset + 9 + 2)
+                (size,) = struct.unpack("<I", fobj.read(4))
+                for _, at in struct.iter_unpack("<QQ", fobj.read(size)):
+                    fobj.seek(records + at + 1)
+                    (length,) = struct.unpack("<Q", fobj.read(8))
+                    ends.append(records + at + 9 + length)
+    return np.sort(np.array(ends))
+
+
+def _data_end(path: Path, container: str) -> int:
+    """Where the index (ROS1) or summary (MCAP) section starts."""
+    if container == "bag":
+        with Bag1Reader(path) as reader:
+            return max(reader.chunks[c.pos].datapos + reader.chunks[c.pos].datasize for c in reader.chunk_infos)
+    with path.open("rb") as fobj:
+        fobj.seek(-37 + 9, 2)
+        return struct.unpack("<Q", fobj.read(8))[0]
+
+
+def _cut(src: Path, dst: Path, at: int) -> Path:
+    dst.write_bytes(src.read_bytes()[:at])
+    return dst
+
+
+def _count(note: str) -> int:
+    match = re.search(r"recovered (\d+) complete messages", note)
+    assert match, note
+    return int(match.group(1))
+
+
+@pytest.mark.parametrize("container", ["bag", "mcap"])
+def test_truncated_uncompressed_keeps_every_complete_message(tmp_path, sim, container):
+    src = _write(sim, tmp_path / f"full.{container}", container)
+    ends = _ros1_message_ends(src) if container == "bag" else _mcap_message_ends(src)
+    data_end, size = _data_end(src, container), src.stat().st_size
+    full = read_log(src)
+    total = len(ends)
+    mid_record = int((ends[total // 3] + ends[total // 3 + 1]) // 2)  # inside one message record
+    cuts = {
+        "mid-record": mid_record,
+        "one byte short of a record": int(ends[total // 2]) - 1,
+        "right after a record": int(ends[2 * total // 3]),
+        "inside the index/summary": (data_end + size) // 2,
+        "last byte missing": size - 1,
+    }
+    for what, at in cuts.items():
+        path = _cut(src, tmp_path / f"cut.{container}", at)
+        want = int(np.count_nonzero(ends <= at))
+        with open_log(path) as reader:
+            (note,) = damage_notes(reader)
+            assert reader.message_count == want, what
+        assert _count(note) == want, (what, note)
+        assert "stopped at byte" in note and f"of {at}" in note, note
+        got = read_log(path)
+        _same_streams(got, full, prefix=True)
+        if at >= data_end:
+            assert want == total
+            _same_streams(got, full)
+
+
+@pytest.mark.parametrize(
+    ("container", "compression"), [("bag", "lz4"), ("bag", "bz2"), ("mcap", "zstd"), ("mcap", "lz4")]
+)
+def test_truncated_compressed_keeps_complete_chunks(tmp_path, sim, container, compression):
+    src = _write(sim, tmp_path / f"full.{container}", container, compression)
+    data_end, size = _data_end(src, container), src.stat().st_size
+    full = read_log(src)
+    total = sum(sim.topic_counts().values())
+    for at in (data_end // 3, data_end // 2 + 17, data_end - 5, (data_end + size) // 2):
+        path = _cut(src, tmp_path / f"cut.{container}", at)
+        if container == "mcap":  # the mcap library's non-seeking reader keeps complete chunks only
+            kept = 0
+            with pytest.raises(Exception):  # noqa: B017, PT011 - it ends with EndOfFile or struct.error
+                for record in StreamReader(io.BytesIO(path.read_bytes())).records:
+                    kept += isinstance(record, Message)
+        else:
+            kept = _complete_chunk_messages(src, at)
+        with open_log(path) as reader:
+            (note,) = damage_notes(reader)
+        assert kept <= _count(note) <= total, (at, note)
+        if at >= data_end:
+            assert _count(note) == total
+        got = read_log(path)
+        _same_streams(got, full, prefix=True)
+
+
+def _complete_chunk_messages(path: Path, at: int) -> int:
+    with Bag1Reader(path) as reader:
+        return sum(
+            sum(info.connection_counts.values())
+            for info in reader.chunk_infos
+            if reader.chunks[info.pos].datapos + reader.chunks[info.pos].datasize <= at
+        )
+
+
+def test_unindexed_bag_is_scanned(tmp_path, sim):
+    src = _write(sim, tmp_path / "full.bag", "bag", "lz4")
+    data = bytearray(src.read_bytes())
+    at = data.index(b"index_pos=") + len(b"index_pos=")
+    data[at : at + 8] = bytes(8)  # as a recorder leaves it until the bag is closed
+    path = tmp_path / "open.bag"
+    path.write_bytes(bytes(data))
+    with open_log(path) as reader:
+        (note,) = damage_notes(reader)
+    assert "not indexed" in note and f"recovered {sum(sim.topic_counts().values())} complete" in note
+    _same_streams(read_log(path), read_log(src))
+
+
+def test_truncated_log_runs_and_says_so(tmp_path, sim):
+    src = _write(sim, tmp_path / "full.mcap", "mcap", "zstd")
+    path = _cut(src, tmp_path / "crashed.mcap", src.stat().st_size // 2)
+    summary = inspect_log(path)
+    assert summary.message_count > 0 and "MCAP file is incomplete" in summary.warnings[0]
+    result = CliRunner().invoke(info, [str(path)])
+    assert result.exit_code == 0 and "recovered" in result.output and "Traceback" not in result.output
+
+
+def test_nothing_recoverable_is_an_input_error(tmp_path, sim):
+    for container in ("bag", "mcap"):
+        src = _write(sim, tmp_path / f"full.{container}", container)
+        path = _cut(src, tmp_path / f"stub.{container}", 20)  # inside the file header
+        with pytest.raises(InputError) as err:
+            read_log(path)
+        assert str(path) in str(err.value) and "\n" not in str(err.value)
+
+
+# --------------------------------------------------------------------------- corruption
+
+
+@pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("mcap", "")])
+def test_corrupt_chunk_in_indexed_file_is_an_input_error(tmp_path, sim, container, compression):
+    src = _write(sim, tmp_path / f"full.{container}", container, compression)
+    data = bytearray(src.read_bytes())
+    if container == "bag":
+        with Bag1Reader(src) as reader:
+            chunk = reader.chunks[reader.chunk_infos[1].pos]
+            middle = chunk.datapos + chunk.datasize // 2
+    else:
+        with src.open("rb") as fobj:
+            chunk = make_reader(fobj).get_summary().chunk_indexes[1]
+            middle = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[middle : middle + 1024] = bytes(1024)  # no checksum in ROS1: break the compressed stream itself
+    path = tmp_path / f"bad.{container}"
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError) as err:
+        read_log(path)
+    assert "corrupt or truncated" in str(err.value) and "\n" not in str(err.value)
+
+
+# --------------------------------------------------------------------------- unusual content
+
+
+def test_empty_topic_nan_inf_and_odd_detections(tmp_path):
+    ts = make_typestore(ros1=True)
+    t = ts.types
+    path = tmp_path / "odd.bag"
+    stamp = t["builtin_interfaces/msg/Time"]
+    vec = t["geometry_msgs/msg/Vector3"]
+    quat = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
+    zeros9 = np.zeros(9)
+    gyro = [(0.1, 0, 0), (float("nan"), 0, 0), (float("inf"), 0, 0), (0.4, -0.0, 0), (0.5, 0, float("-inf"))]
+    with Bag1Writer(path) as writer:
+        imu_conn = writer.add_connection("/imu", "sensor_msgs/msg/Imu", typestore=ts)
+        writer.add_connection("/empty", "sensor_msgs/msg/Imu", typestore=ts)
+        det_conn = writer.add_connection("/fiducial_transforms", FIDUCIALS, typestore=ts)
+        for k, g in enumerate(gyro):
+            header = t["std_msgs/msg/Header"](seq=k, stamp=stamp(sec=100, nanosec=k * 10_000_000), frame_id="imu")
+            msg = t["sensor_msgs/msg/Imu"](
+                header=header,
+                orientation=quat,
+                orientation_covariance=zeros9,
+                angular_velocity=vec(x=float(g[0]), y=float(g[1]), z=float(g[2])),
+                angular_velocity_covariance=zeros9,
+                linear_acceleration=vec(x=0.0, y=0.0, z=9.8),
+                linear_acceleration_covariance=zeros9,
+            )
+            writer.write(imu_conn, 100 * 10**9 + k * 10**7, ts.serialize_ros1(msg, "sensor_msgs/msg/Imu"))
+            dets = [] if k % 2 else [(7, 1.0), (7, 2.0), (8, float("nan"))]  # empty frames, repeated id, NaN
+            items = [
+                t["fiducial_msgs/msg/FiducialTransform"](
+                    fiducial_id=i,
+                    transform=t["geometry_msgs/msg/Transform"](translation=vec(x=x, y=0.0, z=1.0), rotation=quat),
+                    image_error=0.0,
+                    object_error=0.0,
+                    fiducial_area=0.0,
+                )
+                for i, x in dets
+            ]
+            array = t[FIDUCIALS](header=header, image_seq=k, transforms=items)
+            writer.write(det_conn, 100 * 10**9 + k * 10**7, ts.serialize_ros1(array, FIDUCIALS))
+    streams = read_log(path)
+    np.testing.assert_array_equal(streams.angular_velocity.xyz[:, 0], [0.1, 0.4])
+    assert np.signbit(streams.angular_velocity.xyz[1, 1])  # -0.0 survives the raw decoding
+    np.testing.assert_array_equal(streams.accel.xyz[:, 2], np.full(5, 9.8))
+    assert any("3 NaN/Inf samples dropped" in w for w in streams.warnings)
+    det = streams.detections
+    np.testing.assert_array_equal(det.offsets, [0, 1, 1, 2, 2, 3])
+    np.testing.assert_array_equal(det.ids, [7, 7, 7])
+    empty = read_log(path, {"angular_velocity": "/empty", "accel": ""}).angular_velocity
+    assert empty is not None and len(empty) == 0
+    summary = inspect_log(path)
+    assert next(t for t in summary.topics if t.topic == "/empty").count == 0
