@@ -36,9 +36,12 @@ def main() -> None:
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="pkg/msg/Type.msg definitions for types the log does not store")
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
-def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None, force: bool, quiet: bool) -> None:
+def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None, msg_dir: Path | None,
+        force: bool, quiet: bool) -> None:
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
@@ -49,6 +52,8 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     config = load_config(config_path)
     if observer:
         config = replace(config, observer=observer)
+    if msg_dir:
+        config = replace(config, msg_dir=str(msg_dir))
     try:
         summary = run_log(log, out_dir, config, force=force)
     except GainError as err:
@@ -130,12 +135,15 @@ def observers() -> None:
             click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")
 
 
-def _add_optional_commands() -> None:
+def _add_commands() -> None:
+    """Commands that live in their own modules (each imports only click at module level)."""
+    from cli.evaluate_cmd import evaluate
     from cli.info_cmd import info
+    from cli.report_cmd import report
     from cli.simulate_cmd import simulate
 
-    main.add_command(info)
-    main.add_command(simulate)
+    for command in (info, simulate, report, evaluate):
+        main.add_command(command)
 
 
-_add_optional_commands()
+_add_commands()

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
@@ -17,7 +17,13 @@ class RunConfig:
     topics: dict[str, str] = field(default_factory=dict)
     body_frame: str | None = None
     identity_frames: tuple[str, ...] = ()
-    time_source: str = "header"
+    time_source: str = "header"  # header | record | auto
+    topic_clocks: dict[str, str] = field(default_factory=dict)
+    msg_dir: str | None = None
+    tag_pattern: str | None = None
+    truth_file: str | None = None
+    truth_format: str | None = None
+    truth_times: str | None = None
     max_meas_age: float = 0.5
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
     output_rate_hz: float | None = None
@@ -28,6 +34,17 @@ class RunConfig:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    def reader_options(self) -> dict:
+        """Keyword arguments of :func:`pipeline.readers.read_log` that this config sets."""
+        clocks = "auto" if self.time_source == "auto" else (dict(self.topic_clocks) or None)
+        return {"msg_dir": self.msg_dir, "tag_pattern": self.tag_pattern, "truth_file": self.truth_file,
+                "truth_format": self.truth_format, "truth_times": self.truth_times, "clocks": clocks}
+
+    @property
+    def align_time_source(self) -> str:
+        """What the alignment stage reads: per-topic and automatic choices are applied by the readers."""
+        return "record" if self.time_source == "record" else "header"
 
 
 def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
@@ -52,6 +69,12 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         body_frame=frames.get("body"),
         identity_frames=tuple(frames.get("assume_identity", ())),
         time_source=time.get("source", "header"),
+        topic_clocks=dict(time.get("topics", {})),
+        msg_dir=data.get("msg_dir"),
+        tag_pattern=frames.get("tag_pattern"),
+        truth_file=ev.get("truth_file"),
+        truth_format=ev.get("truth_format"),
+        truth_times=ev.get("truth_times"),
         max_meas_age=float(time.get("max_meas_age", 0.5)),
         gains={k: dict(v) for k, v in data.get("gains", {}).items()},
         output_rate_hz=data.get("output", {}).get("rate_hz"),
@@ -77,4 +100,8 @@ def load_config(path: Path | None) -> RunConfig:
         raise InputError(path, f"not valid YAML: {str(err).splitlines()[0]}") from None
     if data is not None and not isinstance(data, dict):
         raise InputError(path, "config must be a mapping of sections (observer, topics, gains, ...)")
-    return parse_config(data, str(path))
+    config = parse_config(data, str(path))
+    # paths in the config are relative to the config file, not to the working directory
+    rel = {k: str((path.parent / v).resolve()) for k in ("msg_dir", "truth_file", "truth_times")
+           if (v := getattr(config, k)) is not None and not Path(v).is_absolute()}
+    return replace(config, **rel) if rel else config

@@ -97,10 +97,10 @@ def prepare_log(log: Path, config: RunConfig) -> PreparedLog:
     log = Path(log)
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    streams = read_log(log, config.topics or None)
+    streams = read_log(log, config.topics or None, **config.reader_options())
     timings["read_s"] = time.perf_counter() - t
     t = time.perf_counter()
-    aligned = align(streams, body_frame=config.body_frame, time_source=config.time_source,
+    aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
                     identity_frames=config.identity_frames, gravity=config.gravity,
                     magnetic_field=config.magnetic_field)
     timings["align_s"] = time.perf_counter() - t
@@ -135,7 +135,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     notes = list(streams.warnings) + list(aligned.notes)
     metadata = {
         "software": {"slamobs": pipeline.__version__, "python": platform.python_version()},
-        "input": {"path": str(log.resolve()), "topics": _topics(streams), "time_source": config.time_source,
+        "input": {"path": str(log.resolve()), "topics": _topics(streams), "time_source": config.align_time_source,
+                  "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
@@ -171,15 +172,18 @@ def _evaluate(out: Path, tables: dict, streams, config: RunConfig, notes: list[s
     """Error report against the log's ground truth; a failure to associate becomes a note, not a crash."""
     import pandas as pd
 
-    from pipeline.evaluation import build_report, write_report
+    from pipeline.evaluation import ReportOptions, build_report, write_report
 
     frames = {k: pd.DataFrame(v) for k, v in tables.items()}
     truth = streams.truth
-    if config.time_source == "record":
+    if config.align_time_source == "record":
         truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
+    # observers that measure gravity fix roll and pitch: the report adds the 4-DoF (translation + yaw) alignment
+    options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,
+                            gravity_aligned=get_observer(config.observer).min_directions > 0)
     try:
         report = build_report(frames["poses"], frames["biases"], frames["landmarks"], truth,
-                              streams.landmark_truth, streams.bias_truth, t_max_diff_s=config.t_max_diff)
+                              streams.landmark_truth, streams.bias_truth, options=options)
     except ValueError as err:
         notes.append(f"no error report: {err}")
         return None

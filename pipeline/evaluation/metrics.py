@@ -1,9 +1,9 @@
 """Error metrics with the definitions evo 1.38.1 uses, written from the mathematics.
 
 A SLAM observer without absolute references recovers the pose only up to a constant rigid transform
-(spec §1.6), so every comparison with ground truth goes: associate stamps -> rigid (Umeyama) alignment of
-the estimate onto the truth -> absolute pose error (APE). The definitions are chosen so that numbers are
-comparable with ``evo_ape`` (translation part / rotation angle in degrees, ``-a`` or no alignment).
+(spec §1.6), so every comparison with ground truth goes: associate stamps (:mod:`.sync`) -> alignment of the
+estimate onto the truth (:mod:`.align`) -> absolute or relative pose error (here). The definitions are chosen
+so that numbers are comparable with ``evo_ape`` / ``evo_rpe`` (every ``-r`` pose relation, statistics).
 """
 
 from __future__ import annotations
@@ -13,118 +13,24 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.lie import mat3_mul, rotation_angle
+from pipeline.evaluation.align import apply_alignment, umeyama
+from pipeline.evaluation.sync import NS_PER_S, associate
 
-NS_PER_S = 1_000_000_000
-
-
-def _as_stamps(t_ns: np.ndarray, name: str) -> np.ndarray:
-    t = np.asarray(t_ns)
-    if t.ndim != 1:
-        raise ValueError(f"{name}: expected a 1-D array of int64 nanosecond stamps, got shape {t.shape}")
-    if not np.issubdtype(t.dtype, np.integer):
-        raise ValueError(f"{name}: expected integer nanosecond stamps, got dtype {t.dtype}")
-    return t.astype(np.int64, copy=False)
-
-
-def _nearest(query: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Index into ``stamps`` of the nearest stamp to each query and the absolute difference (ns).
-
-    Ties go to the earlier stamp; among equal stamps the last one at or before the query is taken.
-    """
-    order = np.argsort(stamps, kind="stable")
-    s = stamps[order]
-    hi = np.searchsorted(s, query, side="right")  # first stamp strictly after the query
-    lo = hi - 1  # last stamp at or before the query
-    has_lo = lo >= 0
-    has_hi = hi < s.shape[0]
-    lo_c = np.clip(lo, 0, s.shape[0] - 1)
-    hi_c = np.clip(hi, 0, s.shape[0] - 1)
-    d_lo = np.where(has_lo, query - s[lo_c], np.iinfo(np.int64).max)
-    d_hi = np.where(has_hi, s[hi_c] - query, np.iinfo(np.int64).max)
-    take_hi = d_hi < d_lo
-    pos = np.where(take_hi, hi_c, lo_c)
-    return order[pos], np.where(take_hi, d_hi, d_lo)
-
-
-def associate(
-    t_ref_ns: np.ndarray,
-    t_est_ns: np.ndarray,
-    t_max_diff_s: float = 0.01,
-    t_offset_s: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest-timestamp association of estimate and reference stamps (evo's ``nearest_time`` sync).
-
-    ``t_offset_s`` is added to the estimate stamps. Like evo, the series with fewer stamps drives the
-    association (the estimate when both have the same length) so that none of its samples is lost: each of
-    its stamps is paired with the nearest stamp of the other series (ties to the earlier one) and the pair
-    is kept when the two are at most ``t_max_diff_s`` apart. Returns ``(idx_ref, idx_est)``, int64 arrays of
-    equal length, sorted by the driving series; the driving indices are unique, the other ones may repeat
-    if the longer series has gaps. Arithmetic is exact on integer nanoseconds; evo works on float seconds,
-    whose round-off can break an exact tie the other way (seen once in 2174 pairs of TUM fr2_desk).
-    """
-    ref = _as_stamps(t_ref_ns, "t_ref_ns")
-    est = _as_stamps(t_est_ns, "t_est_ns")
-    if t_max_diff_s < 0:
-        raise ValueError(f"t_max_diff_s must be >= 0, got {t_max_diff_s}")
-    empty = np.empty(0, dtype=np.int64)
-    if ref.shape[0] == 0 or est.shape[0] == 0:
-        return empty, empty.copy()
-    max_diff = int(round(t_max_diff_s * NS_PER_S))
-    est = est + int(round(t_offset_s * NS_PER_S))
-    if ref.shape[0] < est.shape[0]:
-        idx_est, diff = _nearest(ref, est)
-        keep = diff <= max_diff
-        return np.flatnonzero(keep).astype(np.int64), idx_est[keep].astype(np.int64)
-    idx_ref, diff = _nearest(est, ref)
-    keep = diff <= max_diff
-    return idx_ref[keep].astype(np.int64), np.flatnonzero(keep).astype(np.int64)
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991, "Least-squares estimation of
-    transformation parameters between two point patterns"), with ``s = 1`` unless ``with_scale``.
-
-    With the cross-covariance ``Σ = 1/n Σ (dst_i − μ_dst)(src_i − μ_src)ᵀ = U D Vᵀ``, the optimum is
-    ``R = U S Vᵀ`` with ``S = diag(1, 1, −1)`` when ``det U det V < 0`` (otherwise the best orthogonal
-    matrix would be a reflection), ``s = tr(D S) / σ²_src`` and ``t = μ_dst − s R μ_src``. The solution
-    is unique iff ``rank Σ ≥ 2``, i.e. the points are not all collinear.
-    """
-    x = np.asarray(src, dtype=np.float64)
-    y = np.asarray(dst, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape != y.shape:
-        raise ValueError(f"umeyama: src and dst must both be (N, 3), got {x.shape} and {y.shape}")
-    n = x.shape[0]
-    if n < 3:
-        raise ValueError(f"umeyama: need at least 3 point pairs for a unique rigid alignment, got {n}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-        raise ValueError("umeyama: input contains NaN or infinite coordinates")
-    mu_x = x.mean(axis=0)
-    mu_y = y.mean(axis=0)
-    xc = x - mu_x
-    yc = y - mu_y
-    cov = yc.T @ xc / n
-    u, d, vt = np.linalg.svd(cov)
-    if d[0] <= 0.0 or d[1] <= 1e-12 * d[0]:
-        raise ValueError(
-            f"umeyama: degenerate input ({n} points are all collinear or coincident; cross-covariance "
-            f"singular values {d.tolist()}), the rotation about the common line is undetermined"
-        )
-    s_diag = np.ones(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
-        s_diag[2] = -1.0
-    rot = (u * s_diag) @ vt
-    scale = 1.0
-    if with_scale:
-        var_x = float(np.mean(np.sum(xc * xc, axis=1)))
-        scale = float(np.sum(d * s_diag) / var_x)
-    trans = mu_y - scale * rot @ mu_x
-    return rot, trans, scale
-
-
-def apply_alignment(rot: np.ndarray, trans: np.ndarray, scale: float, points: np.ndarray) -> np.ndarray:
-    """``s R p + t`` for each row ``p`` of an ``(N, 3)`` array."""
-    return scale * np.asarray(points, dtype=np.float64) @ rot.T + trans
+__all__ = [
+    "NS_PER_S",
+    "POSE_RELATIONS",
+    "LandmarkErrors",
+    "ape_errors",
+    "ape_rotation_deg",
+    "ape_translation",
+    "apply_alignment",
+    "associate",
+    "landmark_errors",
+    "relative_angles",
+    "rpe_errors",
+    "statistics",
+    "umeyama",
+]
 
 
 def ape_translation(ref_pos: np.ndarray, est_pos: np.ndarray) -> np.ndarray:
@@ -136,33 +42,234 @@ def ape_translation(ref_pos: np.ndarray, est_pos: np.ndarray) -> np.ndarray:
     return np.linalg.norm(est - ref, axis=1)
 
 
+#: evo ``-r`` choices -> (evo's PoseRelation text used in titles, unit of the error)
+POSE_RELATIONS: dict[str, tuple[str, str]] = {
+    "trans_part": ("translation part", "m"),
+    "angle_deg": ("rotation angle in degrees", "deg"),
+    "angle_rad": ("rotation angle in radians", "rad"),
+    "full": ("full transformation", "unit-less"),
+    "rot_part": ("rotation part", "unit-less"),
+    "point_distance": ("point distance", "m"),
+}
+
+RELATION_DEFINITIONS = {
+    "trans_part": "‖t_E‖ of the error pose E: the distance of the positions, metres",
+    "angle_deg": "rotation angle of R_E in degrees, in [0, 180]",
+    "angle_rad": "rotation angle of R_E in radians, in [0, π]",
+    "full": "Frobenius norm ‖E − I₄‖ of the 4x4 error pose (unit-less, mixes metres and radians)",
+    "rot_part": "Frobenius norm ‖R_E − I₃‖ (unit-less; 2√2 sin(θ/2) for an angle θ)",
+    "point_distance": "APE: as trans_part; RPE: | ‖Δp_ref‖ − ‖Δp_est‖ |, difference of travelled straight-line "
+                      "distances, metres",
+}
+
+
+def _check_relation(relation: str) -> None:
+    if relation not in POSE_RELATIONS:
+        raise ValueError(f"pose relation must be one of {tuple(POSE_RELATIONS)}, got {relation!r}")
+
+
 @njit(cache=True)
-def _relative_angles(ref_r, est_r):
-    out = np.empty(ref_r.shape[0])
-    for k in range(ref_r.shape[0]):
-        out[k] = rotation_angle(mat3_mul(np.ascontiguousarray(ref_r[k].T), est_r[k]))
+def _orthogonal_factor(m):
+    """Orthogonal polar factor ``U Vᵀ`` of a nonsingular 3x3 matrix (the nearest rotation), by the Newton
+    iteration ``X ← (X + X⁻ᵀ) / 2`` (quadratic convergence; no LAPACK, so no SciPy under numba)."""
+    x = m.copy()
+    for _ in range(20):
+        c00 = x[1, 1] * x[2, 2] - x[1, 2] * x[2, 1]
+        c01 = x[1, 2] * x[2, 0] - x[1, 0] * x[2, 2]
+        c02 = x[1, 0] * x[2, 1] - x[1, 1] * x[2, 0]
+        c10 = x[0, 2] * x[2, 1] - x[0, 1] * x[2, 2]
+        c11 = x[0, 0] * x[2, 2] - x[0, 2] * x[2, 0]
+        c12 = x[0, 1] * x[2, 0] - x[0, 0] * x[2, 1]
+        c20 = x[0, 1] * x[1, 2] - x[0, 2] * x[1, 1]
+        c21 = x[0, 2] * x[1, 0] - x[0, 0] * x[1, 2]
+        c22 = x[0, 0] * x[1, 1] - x[0, 1] * x[1, 0]
+        det = x[0, 0] * c00 + x[0, 1] * c01 + x[0, 2] * c02
+        # X⁻ᵀ = cofactor matrix / det
+        nxt = np.empty((3, 3))
+        nxt[0, 0] = 0.5 * (x[0, 0] + c00 / det)
+        nxt[0, 1] = 0.5 * (x[0, 1] + c01 / det)
+        nxt[0, 2] = 0.5 * (x[0, 2] + c02 / det)
+        nxt[1, 0] = 0.5 * (x[1, 0] + c10 / det)
+        nxt[1, 1] = 0.5 * (x[1, 1] + c11 / det)
+        nxt[1, 2] = 0.5 * (x[1, 2] + c12 / det)
+        nxt[2, 0] = 0.5 * (x[2, 0] + c20 / det)
+        nxt[2, 1] = 0.5 * (x[2, 1] + c21 / det)
+        nxt[2, 2] = 0.5 * (x[2, 2] + c22 / det)
+        d = 0.0
+        for i in range(3):
+            for j in range(3):
+                d = max(d, abs(nxt[i, j] - x[i, j]))
+        x = nxt
+        if d < 1e-16:
+            break
+    return x
+
+
+@njit(cache=True)
+def _is_orthogonal(m):
+    """SciPy 1.17's test before it orthogonalises: m mᵀ close to I (|Δ| <= 1e-12 + 1e-5 |I|, numpy isclose)."""
+    for i in range(3):
+        for j in range(3):
+            g = m[i, 0] * m[j, 0] + m[i, 1] * m[j, 1] + m[i, 2] * m[j, 2]
+            e = 1.0 if i == j else 0.0
+            if abs(g - e) > 1e-12 + 1e-5 * e:
+                return False
+    return True
+
+
+@njit(cache=True)
+def _quat_of(m_in, q):
+    """Unit quaternion (x, y, z, w) of a rotation matrix as SciPy's ``Rotation.from_matrix`` (hence evo) computes
+    it: a matrix that is not orthogonal to 1e-12 is replaced by its orthogonal polar factor, then Markley's
+    method (the branch of the largest of the diagonal and the trace). Rotations read from files are orthonormal
+    only to their printed digits (KITTI), and this gives evo's angles for them, not just close ones."""
+    m = m_in if _is_orthogonal(m_in) else _orthogonal_factor(m_in)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    c = 0
+    best = m[0, 0]
+    if m[1, 1] > best:
+        c, best = 1, m[1, 1]
+    if m[2, 2] > best:
+        c, best = 2, m[2, 2]
+    if tr > best:
+        c = 3
+    if c == 3:
+        q[0] = m[2, 1] - m[1, 2]
+        q[1] = m[0, 2] - m[2, 0]
+        q[2] = m[1, 0] - m[0, 1]
+        q[3] = 1.0 + tr
+    else:
+        i = c
+        j = (i + 1) % 3
+        k = (j + 1) % 3
+        q[i] = 1.0 - tr + 2.0 * m[i, i]
+        q[j] = m[j, i] + m[i, j]
+        q[k] = m[k, i] + m[i, k]
+        q[3] = m[k, j] - m[j, k]
+    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    for t in range(4):
+        q[t] /= n
+
+
+@njit(cache=True)
+def quat_angle(q):
+    """Rotation angle in [0, π] of a unit quaternion: 2 atan2(‖v‖, |w|), accurate near 0 and near π."""
+    return 2.0 * np.arctan2(np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]), abs(q[3]))
+
+
+@njit(cache=True)
+def _angles(a, b):
+    """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`_quat_of`); ``arccos`` of the
+    trace would lose ~1e-8 rad at small angles."""
+    out = np.empty(a.shape[0])
+    m = np.empty((3, 3))
+    q = np.empty(4)
+    for k in range(a.shape[0]):
+        for i in range(3):
+            for j in range(3):
+                m[i, j] = a[k, 0, i] * b[k, 0, j] + a[k, 1, i] * b[k, 1, j] + a[k, 2, i] * b[k, 2, j]
+        _quat_of(m, q)
+        out[k] = quat_angle(q)
     return out
+
+
+@njit(cache=True)
+def matrix_quats(r):
+    """:func:`_quat_of` over an (N, 3, 3) array."""
+    out = np.empty((r.shape[0], 4))
+    for k in range(r.shape[0]):
+        _quat_of(r[k], out[k])
+    return out
+
+
+def _rotations(r: np.ndarray, name: str) -> np.ndarray:
+    out = np.ascontiguousarray(r, dtype=np.float64)
+    if out.ndim != 3 or out.shape[1:] != (3, 3):
+        raise ValueError(f"{name}: expected an (N, 3, 3) array, got {out.shape}")
+    return out
+
+
+def relative_angles(ref_R: np.ndarray, est_R: np.ndarray) -> np.ndarray:
+    """Per-pair rotation angle of ``R_refᵀ R_est`` in radians, in [0, π]."""
+    ref, est = _rotations(ref_R, "ref_R"), _rotations(est_R, "est_R")
+    if ref.shape != est.shape:
+        raise ValueError(f"relative_angles: shapes differ, {ref.shape} and {est.shape}")
+    return _angles(ref, est) if ref.shape[0] else np.empty(0)
 
 
 def ape_rotation_deg(ref_R: np.ndarray, est_R: np.ndarray) -> np.ndarray:
     """Per-pair angle of ``R_refᵀ R_est`` in degrees, in [0, 180] (evo APE, rotation_angle_deg)."""
-    ref = np.ascontiguousarray(ref_R, dtype=np.float64)
-    est = np.ascontiguousarray(est_R, dtype=np.float64)
-    if ref.shape != est.shape or ref.ndim != 3 or ref.shape[1:] != (3, 3):
-        raise ValueError(f"ape_rotation_deg: expected two (N, 3, 3) arrays, got {ref.shape} and {est.shape}")
-    if ref.shape[0] == 0:
-        return np.empty(0)
-    return np.degrees(_relative_angles(ref, est))
+    return np.degrees(relative_angles(ref_R, est_R))
+
+
+def _error_pose_norms(relation: str, r_a: np.ndarray, r_b: np.ndarray, t_err: np.ndarray) -> np.ndarray:
+    """Error of the pose E with ``R_E = R_aᵀ R_b`` and translation ``t_E = t_err`` under ``relation``."""
+    if relation in ("trans_part", "point_distance"):
+        return np.linalg.norm(t_err, axis=1)
+    if relation in ("angle_deg", "angle_rad"):
+        ang = relative_angles(r_a, r_b)
+        return np.degrees(ang) if relation == "angle_deg" else ang
+    # ‖R_aᵀ R_b − I‖_F = ‖R_b − R_a‖_F for orthogonal R_a; evo forms the product, and so do we
+    m = np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
+    rot_sq = np.einsum("nij,nij->n", m, m)
+    if relation == "rot_part":
+        return np.sqrt(rot_sq)
+    return np.sqrt(rot_sq + np.einsum("ni,ni->n", t_err, t_err))  # full
+
+
+def ape_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray, est_pos: np.ndarray,
+               est_R: np.ndarray) -> np.ndarray:
+    """Absolute pose error per pair (evo APE): ``E = X_est⁻¹ X_ref``, reduced by ``relation`` (one of
+    ``POSE_RELATIONS``); positions and rotations are already aligned."""
+    _check_relation(relation)
+    ref_p, est_p = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
+    if ref_p.shape != est_p.shape or ref_p.ndim != 2 or ref_p.shape[1] != 3:
+        raise ValueError(f"ape_errors: expected two (N, 3) position arrays, got {ref_p.shape} and {est_p.shape}")
+    if relation in ("trans_part", "point_distance"):
+        return np.linalg.norm(est_p - ref_p, axis=1)
+    est_r = _rotations(est_R, "est_R")
+    # t_E = R_estᵀ (t_ref − t_est), formed explicitly: rotations read from files (KITTI) are orthonormal only
+    # to their printed digits, and evo uses them as they are
+    t_err = np.einsum("nji,nj->ni", est_r, ref_p) - np.einsum("nji,nj->ni", est_r, est_p)
+    return _error_pose_norms(relation, est_r, _rotations(ref_R, "ref_R"), t_err)
+
+
+def rpe_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray | None, est_pos: np.ndarray,
+               est_R: np.ndarray | None, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Relative pose error of the pairs ``(i_k, j_k)`` (evo RPE, TUM RGB-D notation): with the relative motions
+    ``Q = Q_i⁻¹ Q_j`` (reference) and ``P = P_i⁻¹ P_j`` (estimate), ``E = Q⁻¹ P``, reduced by ``relation``
+    (``point_distance`` needs no rotations)."""
+    _check_relation(relation)
+    i = np.asarray(i, dtype=np.int64)
+    j = np.asarray(j, dtype=np.int64)
+    rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
+    if relation == "point_distance":
+        return np.abs(np.linalg.norm(rp[i] - rp[j], axis=1) - np.linalg.norm(ep[i] - ep[j], axis=1))
+    rr, er = _rotations(ref_R, "ref_R"), _rotations(est_R, "est_R")
+    q_rot = np.einsum("nji,njk->nik", rr[i], rr[j])
+    p_rot = np.einsum("nji,njk->nik", er[i], er[j])
+    q_t = np.einsum("nji,nj->ni", rr[i], rp[j]) - np.einsum("nji,nj->ni", rr[i], rp[i])
+    p_t = np.einsum("nji,nj->ni", er[i], ep[j]) - np.einsum("nji,nj->ni", er[i], ep[i])
+    # t_E = R_Qᵀ t_P − R_Qᵀ t_Q, formed explicitly (not ‖t_P − t_Q‖): file rotations are orthonormal only to
+    # their printed digits, and evo uses them as they are
+    t_err = np.einsum("nji,nj->ni", q_rot, p_t) - np.einsum("nji,nj->ni", q_rot, q_t)
+    return _error_pose_norms(relation, q_rot, p_rot, t_err)
+
+
+#: evo's statistics, in the order evo computes them
+EVO_STATS = ("rmse", "mean", "median", "std", "min", "max", "sse")
+PERCENTILES = (90, 95, 99)
 
 
 def statistics(errors: np.ndarray) -> dict[str, float | int]:
     """Summary of an error vector as evo reports it: rmse, mean, median, std (population, ddof=0),
-    min, max, sse (sum of squares) and the count n. Plain Python numbers (JSON-ready)."""
+    min, max, sse (sum of squares); plus the count n and the 90/95/99th percentiles (linear interpolation,
+    NumPy's default) as p90, p95, p99. Plain Python numbers (JSON-ready)."""
     e = np.asarray(errors, dtype=np.float64).ravel()
     if e.size == 0:
         raise ValueError("statistics: empty error vector")
     sse = float(np.dot(e, e))
-    return {
+    out: dict[str, float | int] = {
         "rmse": float(np.sqrt(sse / e.size)),
         "mean": float(np.mean(e)),
         "median": float(np.median(e)),
@@ -172,6 +279,9 @@ def statistics(errors: np.ndarray) -> dict[str, float | int]:
         "sse": sse,
         "n": int(e.size),
     }
+    for p, v in zip(PERCENTILES, np.percentile(e, PERCENTILES)):
+        out[f"p{p}"] = float(v)
+    return out
 
 
 @dataclass(frozen=True)

@@ -1,13 +1,17 @@
-"""The run's error report: estimate vs ground truth, as a JSON document, a Markdown page and PNG plots.
+"""The run's error report: estimate vs ground truth, as a JSON document, a Markdown page, plots and evo files.
 
-``build_report`` is pure (tables in, dict out); ``write_report`` is the I/O edge. The report states how every
-number was obtained (association, alignment) so that it can be reproduced with evo (see ``metrics``).
+``build_report`` is pure (tables in, dict out); ``write_report`` is the I/O edge. The trajectory numbers come
+from :mod:`.trajectory_error`, the one evo-compatible path, and the report states how every number was obtained
+(association, alignment, definitions). It also exports the estimate and the truth as TUM files and the APE as
+an evo result zip, so an evo user can reproduce the headline with ``evo_ape`` and compare with ``evo_res``.
+Beyond evo: APE under several alignments, landmark map error after the trajectory alignment and after a
+map-only alignment, bias error and stability, convergence time, clock offset estimate, KITTI-style drift.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -15,28 +19,71 @@ import numpy as np
 import pandas as pd
 
 from pipeline import __version__
-from pipeline.evaluation import metrics
-from pipeline.lie import quats_to_rots, rot_to_quat
+from pipeline.evaluation import metrics, slam_metrics
+from pipeline.evaluation.align import DESCRIPTIONS, KINDS, Alignment, fit_alignment
+from pipeline.evaluation.drift import segment_drift
+from pipeline.evaluation.sync import NS_PER_S, TimeOffset, estimate_time_offset
+from pipeline.evaluation.trajectory_error import (
+    AlignOptions,
+    ErrorResult,
+    Paired,
+    RpeOptions,
+    SyncOptions,
+    ape,
+    rpe,
+    synchronize,
+)
+from pipeline.lie import rot_to_quat
 from pipeline.streams import PoseStream
 
+SCHEMA_VERSION = 1
 CONVERGENCE_THRESHOLD_M = 0.1
-ALIGN_TYPES = ("se3", "none")
+ALIGN_TYPES = KINDS
 POSE_COLUMNS = ("t_ns", "x", "y", "z", "qx", "qy", "qz", "qw")
 GYRO_COLUMNS = ("gyro_bias_x", "gyro_bias_y", "gyro_bias_z")
 VEL_COLUMNS = ("vel_bias_x", "vel_bias_y", "vel_bias_z")
 LANDMARK_COLUMNS = ("id", "x", "y", "z")
 
+#: files ``write_report`` may write into a run directory (all of them belong to the report)
+TRUTH_TUM = "truth_tum.txt"
+ESTIMATE_TUM = "estimate_tum.txt"
+EVO_ZIP = "ape_evo.zip"
+PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png")
+REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM)
+
+_EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
+_ALIGN_LABELS = {"se3": "SE(3)", "sim3": "Sim(3)", "scale": "scale-only", "yaw": "4-DoF (yaw)", "origin": "origin",
+                 "none": "no"}
+
 
 @dataclass(frozen=True)
-class _Trajectory:
-    """Associated, aligned trajectory arrays shared by the report and its plots."""
+class ReportOptions:
+    """How the report compares the run with the truth.
 
-    t_ns: np.ndarray  # (N,) all estimate stamps, sorted
-    position: np.ndarray  # (N, 3) all estimate positions, aligned to the truth frame
-    idx_ref: np.ndarray  # (K,) into the truth stream
-    idx_est: np.ndarray  # (K,) into t_ns / position, ascending in time
-    position_error_m: np.ndarray  # (K,)
-    attitude_error_deg: np.ndarray  # (K,)
+    ``t_offset_s`` is added to the estimate stamps before association; ``"auto"`` applies the estimated clock
+    offset (it is always estimated and reported, applied only when asked). ``gravity_aligned`` marks runs whose
+    roll and pitch are observed (IMU directions): the report then adds the 4-DoF (translation + yaw) alignment.
+    """
+
+    t_max_diff_s: float = 0.01
+    align: str = "se3"
+    t_offset_s: float | str = 0.0
+    convergence_threshold_m: float = CONVERGENCE_THRESHOLD_M
+    gravity_aligned: bool = False
+    rpe_delta_m: float = 1.0
+    drift_lengths_m: tuple[float, ...] | None = None
+    bias_window_fraction: float = 0.2
+    max_time_offset_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.align not in ALIGN_TYPES:
+            raise ValueError(f"align must be one of {ALIGN_TYPES}, got {self.align!r}")
+        if not (self.t_offset_s == "auto" or isinstance(self.t_offset_s, (int, float))):
+            raise ValueError(f"t_offset_s must be seconds or 'auto', got {self.t_offset_s!r}")
+        if self.t_max_diff_s < 0 or self.convergence_threshold_m <= 0 or self.rpe_delta_m <= 0:
+            raise ValueError("t_max_diff_s must be >= 0, convergence_threshold_m and rpe_delta_m > 0")
+        if not 0 < self.bias_window_fraction <= 1:
+            raise ValueError(f"bias_window_fraction must be in (0, 1], got {self.bias_window_fraction}")
 
 
 def _require(df: pd.DataFrame, columns: tuple[str, ...], name: str) -> None:
@@ -45,74 +92,176 @@ def _require(df: pd.DataFrame, columns: tuple[str, ...], name: str) -> None:
         raise ValueError(f"{name} table lacks column(s) {missing}; has {list(df.columns)}")
 
 
-def _sorted_poses(poses: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def estimate_stream(poses: pd.DataFrame) -> PoseStream:
+    """The poses table as a PoseStream in time order."""
     _require(poses, POSE_COLUMNS, "poses")
     if len(poses) == 0:
         raise ValueError("poses table is empty: nothing to evaluate")
     order = np.argsort(poses["t_ns"].to_numpy(np.int64), kind="stable")
     t = poses["t_ns"].to_numpy(np.int64)[order]
-    pos = poses[["x", "y", "z"]].to_numpy(np.float64)[order]
-    quat = poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)[order]
-    return t, pos, quat
+    return PoseStream("estimate", "", "", t, t.copy(), poses[["x", "y", "z"]].to_numpy(np.float64)[order],
+                      poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)[order])
 
 
-def _span(t_ns: np.ndarray) -> str:
-    return f"[{t_ns.min() / 1e9:.9f}, {t_ns.max() / 1e9:.9f}] s ({t_ns.shape[0]} stamps)"
+@dataclass(frozen=True)
+class TrajectoryEvaluation:
+    """Everything the report and its plots share: pairs, alignment, APE vectors, the aligned estimate."""
+
+    estimate: PoseStream
+    truth: PoseStream
+    paired: Paired
+    alignment: Alignment
+    translation: ErrorResult  # APE trans_part (the evo result written to the zip)
+    rotation: ErrorResult  # APE angle_deg
+    time_offset: TimeOffset | None
+    applied_offset_s: float
+    sync: SyncOptions
+
+    @property
+    def est_positions_aligned(self) -> np.ndarray:
+        """All estimate positions (not only the associated ones) in the truth frame."""
+        return self.alignment.positions(self.estimate.position)
+
+    @property
+    def pair_t_est_ns(self) -> np.ndarray:
+        return self.paired.t_est_ns
 
 
-def _associate(truth: PoseStream, t_est: np.ndarray, t_max_diff_s: float) -> tuple[np.ndarray, np.ndarray]:
+def evaluate_trajectory(poses: pd.DataFrame, truth: PoseStream, options: ReportOptions, *,
+                        estimate_offset: bool = True) -> TrajectoryEvaluation:
+    """Estimate the clock offset, associate, align and compute the APE vectors."""
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
-    idx_ref, idx_est = metrics.associate(truth.t_ns, t_est, t_max_diff_s)
-    if idx_ref.size == 0:
-        raise ValueError(
-            f"no estimate stamp lies within {t_max_diff_s} s of a ground-truth stamp: estimate spans "
-            f"{_span(t_est)}, truth spans {_span(np.asarray(truth.t_ns))}. Are both on the same clock "
-            f"(header stamps vs. recording time, sim time vs. wall time)?"
-        )
-    order = np.argsort(idx_est, kind="stable")
-    return idx_ref[order], idx_est[order]
-
-
-def _trajectory(
-    poses: pd.DataFrame, truth: PoseStream, t_max_diff_s: float, rot: np.ndarray | None, trans: np.ndarray
-) -> tuple[_Trajectory, np.ndarray, np.ndarray]:
-    """Associate, fit the alignment when ``rot`` is None (SE(3) Umeyama) and compute the APE vectors."""
-    t, pos, quat = _sorted_poses(poses)
-    idx_ref, idx_est = _associate(truth, t, t_max_diff_s)
-    ref_pos = np.asarray(truth.position, dtype=np.float64)[idx_ref]
-    if rot is None:
-        rot, trans, _ = metrics.umeyama(pos[idx_est], ref_pos, with_scale=False)
-    aligned = metrics.apply_alignment(rot, trans, 1.0, pos)
-    ref_rot = quats_to_rots(np.ascontiguousarray(np.asarray(truth.quat_xyzw, dtype=np.float64)[idx_ref]))
-    est_rot = np.einsum("ij,njk->nik", rot, quats_to_rots(np.ascontiguousarray(quat[idx_est])))
-    traj = _Trajectory(
-        t_ns=t,
-        position=aligned,
-        idx_ref=idx_ref,
-        idx_est=idx_est,
-        position_error_m=metrics.ape_translation(ref_pos, aligned[idx_est]),
-        attitude_error_deg=metrics.ape_rotation_deg(ref_rot, est_rot),
-    )
-    return traj, rot, trans
-
-
-def _convergence(traj: _Trajectory, threshold_m: float) -> dict[str, Any]:
-    """First associated stamp from which the aligned position error stays below the threshold."""
-    t0 = int(traj.t_ns[0])
-    above = np.flatnonzero(traj.position_error_m >= threshold_m)
-    if above.size == 0:
-        k: int | None = 0
-    elif above[-1] == traj.position_error_m.shape[0] - 1:
-        k = None
+    est = estimate_stream(poses)
+    truth_sorted = _sorted(truth)
+    offset = None
+    if estimate_offset or options.t_offset_s == "auto":
+        offset = estimate_time_offset(truth_sorted.t_ns, truth_sorted.position, truth_sorted.quat_xyzw, est.t_ns,
+                                      est.position, est.quat_xyzw, max_offset_s=options.max_time_offset_s)
+    if options.t_offset_s == "auto":
+        applied = offset.offset_s if offset is not None else 0.0
     else:
-        k = int(above[-1]) + 1
-    t_conv = None if k is None else int(traj.t_ns[traj.idx_est[k]])
+        applied = float(options.t_offset_s)
+    sync = SyncOptions(options.t_max_diff_s, applied, "nearest")
+    paired = synchronize(truth_sorted, est, sync, ref_label="truth")
+    al_opts = AlignOptions(options.align)
+    trans = ape(truth_sorted, est, "trans_part", sync, al_opts, paired=paired, ref_name="truth",
+                est_name="estimate")
+    rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate")
+    return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
+
+
+def _sorted(stream: PoseStream) -> PoseStream:
+    t = np.asarray(stream.t_ns, dtype=np.int64)
+    if t.shape[0] < 2 or np.all(np.diff(t) >= 0):
+        return stream
+    order = np.argsort(t, kind="stable")
+    return PoseStream(stream.topic, stream.frame_id, stream.child_frame_id, t[order],
+                      np.asarray(stream.rec_ns)[order], np.asarray(stream.position)[order],
+                      np.asarray(stream.quat_xyzw)[order])
+
+
+# ---------------------------------------------------------------------------------------------- sections
+
+
+def _alignment_dict(al: Alignment) -> dict[str, Any]:
     return {
-        "threshold_m": float(threshold_m),
-        "estimate_start_ns": t0,
-        "t_ns": t_conv,
-        "t_since_start_s": None if t_conv is None else (t_conv - t0) / 1e9,
+        "type": al.kind,
+        "description": DESCRIPTIONS[al.kind],
+        "n_points": int(al.n_points),
+        "rotation_quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(al.rot, dtype=np.float64))],
+        "rotation_matrix": [[float(v) for v in row] for row in al.rot],
+        "translation_m": [float(v) for v in al.trans],
+        "scale": float(al.scale),
+    }
+
+
+def _ape_by_alignment(ev: TrajectoryEvaluation, options: ReportOptions, notes: list[str]) -> dict[str, Any]:
+    kinds = [options.align] + [k for k in ("se3", "yaw", "origin", "none") if k != options.align]
+    if not options.gravity_aligned:
+        kinds = [k for k in kinds if k != "yaw" or k == options.align]
+    out: dict[str, Any] = {}
+    p = ev.paired
+    for kind in kinds:
+        if kind == options.align:
+            al, t_err, r_err = ev.alignment, ev.translation.errors, ev.rotation.errors
+        else:
+            try:
+                al = fit_alignment(kind, p.ref_pos, p.est_pos, p.ref_rot, p.est_rot)
+            except ValueError as err:
+                notes.append(f"APE with {kind} alignment not computed: {err}")
+                continue
+            pos, rot = al.positions(p.est_pos), al.rotations(p.est_rot)
+            t_err = metrics.ape_errors("trans_part", p.ref_pos, p.ref_rot, pos, rot)
+            r_err = metrics.ape_errors("angle_deg", p.ref_pos, p.ref_rot, pos, rot)
+        out[kind] = {"translation_m": metrics.statistics(t_err), "rotation_deg": metrics.statistics(r_err),
+                     "alignment": _alignment_dict(al)}
+    return out
+
+
+def _rpe_section(ev: TrajectoryEvaluation, options: ReportOptions, notes: list[str]) -> dict[str, Any] | None:
+    opts = RpeOptions(options.rpe_delta_m, "m", 0.1, False, False)
+    al = AlignOptions(options.align)
+    try:
+        tr = rpe(ev.truth, ev.estimate, "trans_part", ev.sync, al, opts, paired=ev.paired)
+        rr = rpe(ev.truth, ev.estimate, "angle_deg", ev.sync, al, opts, paired=ev.paired)
+    except ValueError as err:
+        notes.append(f"no RPE: {err}")
+        return None
+    return {
+        "delta": float(options.rpe_delta_m),
+        "delta_unit": "m",
+        "n_pairs": int(tr.errors.shape[0]),
+        "translation_m": tr.stats,
+        "rotation_deg": rr.stats,
+        "method": (f"evo_rpe definitions: consecutive pose pairs of the aligned estimate {options.rpe_delta_m:g} m "
+                   "of travelled path apart (a pair closes when its path reaches the delta); error pose "
+                   "E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j); translation ‖t_E‖ in metres, rotation angle of R_E in degrees "
+                   f"(evo_rpe ... --delta {options.rpe_delta_m:g} --delta_unit m"
+                   f"{_EVO_ALIGN_FLAGS.get(options.align, '')}"
+                   " -r trans_part / angle_deg)"),
+    }
+
+
+def _drift_section(ev: TrajectoryEvaluation, options: ReportOptions) -> dict[str, Any] | None:
+    p = ev.paired
+    if len(p) < 3:
+        return None
+    t = p.t_est_ns
+    dt = float(np.median(np.diff(t))) / NS_PER_S if t is not None and t.shape[0] > 1 else 0.1
+    step = max(1, int(round(1.0 / dt))) if dt > 0 else 10
+    out = segment_drift(p.ref_pos, p.ref_rot, ev.translation.est_pos_aligned, ev.translation.est_rot_aligned,
+                        options.drift_lengths_m, step)
+    if out["n_segments"] == 0:
+        return None
+    out["method"] = (
+        "KITTI odometry devkit definition on the associated pairs: from every pair about 1 s apart "
+        f"(every {step} pairs), for each segment length L the first pair whose truth path distance exceeds "
+        "the start's by more than L; E = (P_i⁻¹P_j)⁻¹(Q_i⁻¹Q_j); translation_pct = mean ‖t_E‖/L × 100, "
+        "rotation_deg_per_m = mean angle(R_E)/L; lengths are KITTI's 100–800 m for paths over 1.6 km, else "
+        "10–50 % of the truth path; independent of the rigid alignment, sensitive to scale"
+    )
+    return out
+
+
+def _time_offset_section(ev: TrajectoryEvaluation, options: ReportOptions) -> dict[str, Any]:
+    off = ev.time_offset
+    return {
+        "estimated_s": None if off is None else off.offset_s,
+        "peak_correlation": None if off is None else off.peak_correlation,
+        "signal": None if off is None else off.signal,
+        "reliable": None if off is None else off.reliable,
+        "search_window_s": None if off is None else off.search_window_s,
+        "grid_step_s": None if off is None else off.grid_step_s,
+        "applied_s": float(ev.applied_offset_s),
+        "applied_from": "estimate" if options.t_offset_s == "auto" else "option",
+        "method": (
+            "Pearson cross-correlation of a motion signal that the unknown frame alignment does not change: the "
+            "angular rate magnitude |ω|, or the speed |v| when it varies clearly more (signal), of estimate and "
+            "truth, resampled on one grid as mean rates per grid step; best lag within ±search_window_s, refined "
+            "off the grid by golden-section search. Sign as evo --t_offset: t_estimate + offset is on the truth "
+            "clock. Applied to the association only when asked (t_offset auto)"
+        ),
     }
 
 
@@ -123,16 +272,30 @@ def _landmark_table(landmarks: pd.DataFrame | None) -> tuple[np.ndarray, np.ndar
     return landmarks["id"].to_numpy(np.int64), landmarks[["x", "y", "z"]].to_numpy(np.float64)
 
 
-def _landmark_section(
-    landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None, rot: np.ndarray, trans: np.ndarray
-) -> dict[str, Any]:
+def _landmark_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None,
+                      al: Alignment) -> dict[str, Any]:
     ids, xyz = _landmark_table(landmarks)
     section: dict[str, Any] = {"n_estimated": int(ids.shape[0]), "truth_available": landmark_truth is not None}
     if landmark_truth is None:
         section.update(n_truth=None, n_matched=0, error_m=None, per_landmark=[], estimated_without_truth=None,
-                       truth_never_estimated=None)
+                       truth_never_estimated=None, map_aligned=None)
         return section
-    lm = metrics.landmark_errors(ids, xyz, landmark_truth, rot, trans)
+    lm = metrics.landmark_errors(ids, xyz, landmark_truth, al.rot, al.trans, al.scale)
+    row_of = {int(i): k for k, i in enumerate(ids)}
+    raw = xyz[[row_of[int(i)] for i in lm.ids]] if lm.ids.size else np.empty((0, 3))
+    fit = slam_metrics.map_only_alignment(raw, lm.truth) if lm.ids.size else None
+    map_err = None
+    map_aligned = None
+    if fit is not None:
+        rot_m, trans_m = fit
+        map_err = np.linalg.norm(metrics.apply_alignment(rot_m, trans_m, 1.0, raw) - lm.truth, axis=1)
+        map_aligned = {
+            "error_m": metrics.statistics(map_err),
+            "alignment": _alignment_dict(Alignment("se3", rot_m, trans_m, 1.0, int(lm.ids.size))),
+            "method": ("SE(3) Umeyama fitted on the matched landmarks alone (map-only alignment); error = "
+                       "‖R_m p̂_i + t_m − p_i‖. The gap to error_m (trajectory alignment) is how far the map sits "
+                       "from where the trajectory puts it; error under this alignment is the map's shape error"),
+        }
     has_n_obs = landmarks is not None and "n_obs" in landmarks.columns
     n_obs = dict(zip(ids.tolist(), landmarks["n_obs"].tolist())) if has_n_obs else {}
     section.update(
@@ -143,14 +306,16 @@ def _landmark_section(
             {
                 "id": int(i),
                 "error_m": float(e),
+                "error_map_aligned_m": None if map_err is None else float(map_err[k]),
                 "estimate_aligned": [float(v) for v in p],
                 "truth": [float(v) for v in q],
                 "n_obs": int(n_obs[int(i)]) if int(i) in n_obs else None,
             }
-            for i, e, p, q in zip(lm.ids, lm.errors, lm.est_aligned, lm.truth)
+            for k, (i, e, p, q) in enumerate(zip(lm.ids, lm.errors, lm.est_aligned, lm.truth))
         ],
         estimated_without_truth=[int(i) for i in lm.estimated_without_truth],
         truth_never_estimated=[int(i) for i in lm.truth_never_estimated],
+        map_aligned=map_aligned,
     )
     return section
 
@@ -159,25 +324,55 @@ def _vec(v: Any) -> list[float]:
     return [float(x) for x in np.asarray(v, dtype=np.float64).reshape(3)]
 
 
-def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray] | None) -> dict[str, Any]:
+def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray] | None,
+                  window_fraction: float) -> dict[str, Any]:
     truth = None if bias_truth is None else {"gyro": _vec(bias_truth["gyro"]), "velocity": _vec(bias_truth["velocity"])}
-    section: dict[str, Any] = {"final": None, "truth": truth, "error": None, "error_norm": None}
+    section: dict[str, Any] = {"final": None, "truth": truth, "error": None, "error_norm": None, "stability": None,
+                               "window_error": None, "window_error_norm": None}
     if biases is None or len(biases) == 0:
         return section
     _require(biases, ("t_ns",) + GYRO_COLUMNS + VEL_COLUMNS, "biases")
-    t_ns = biases["t_ns"].to_numpy(np.int64)
-    k = int(np.argmax(t_ns))  # the row is read column-wise: a mixed row would turn the int64 stamp to float
-    final = {
-        "t_ns": int(t_ns[k]),
-        "gyro": _vec(biases[list(GYRO_COLUMNS)].to_numpy(np.float64)[k]),
-        "velocity": _vec(biases[list(VEL_COLUMNS)].to_numpy(np.float64)[k]),
-    }
+    order = np.argsort(biases["t_ns"].to_numpy(np.int64), kind="stable")
+    t_ns = biases["t_ns"].to_numpy(np.int64)[order]
+    gyro = biases[list(GYRO_COLUMNS)].to_numpy(np.float64)[order]
+    vel = biases[list(VEL_COLUMNS)].to_numpy(np.float64)[order]
+    final = {"t_ns": int(t_ns[-1]), "gyro": _vec(gyro[-1]), "velocity": _vec(vel[-1])}
     section["final"] = final
+    stab = {"window_fraction": float(window_fraction),
+            "gyro": slam_metrics.window_stats(t_ns, gyro, window_fraction),
+            "velocity": slam_metrics.window_stats(t_ns, vel, window_fraction)}
+    section["stability"] = stab
     if truth is not None:
         err = {k: [t - e for t, e in zip(truth[k], final[k])] for k in ("gyro", "velocity")}
         section["error"] = err
         section["error_norm"] = {k: float(np.linalg.norm(err[k])) for k in err}
+        werr = {k: [t - e for t, e in zip(truth[k], stab[k]["mean"])] for k in ("gyro", "velocity")}
+        section["window_error"] = werr
+        section["window_error_norm"] = {k: float(np.linalg.norm(werr[k])) for k in werr}
     return section
+
+
+def _convergence(ev: TrajectoryEvaluation, threshold_m: float) -> dict[str, Any]:
+    """First associated stamp from which the aligned position error stays below the threshold."""
+    t0 = int(ev.estimate.t_ns[0])
+    k = slam_metrics.convergence_index(ev.translation.errors, threshold_m)
+    t_conv = None if k is None else int(ev.pair_t_est_ns[k])
+    return {
+        "threshold_m": float(threshold_m),
+        "estimate_start_ns": t0,
+        "t_ns": t_conv,
+        "t_since_start_s": None if t_conv is None else (t_conv - t0) / 1e9,
+    }
+
+
+def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
+    flags = _EVO_ALIGN_FLAGS.get(options.align)
+    if flags is None:
+        return {"ape": None, "note": f"evo has no {options.align} alignment"}
+    off = f" --t_offset {applied_offset_s!r}" if applied_offset_s else ""
+    base = f"evo_ape tum {TRUTH_TUM} {ESTIMATE_TUM}{flags} --t_max_diff {options.t_max_diff_s!r}{off}"
+    return {"ape": base, "ape_rotation": base + " -r angle_deg",
+            "note": f"run in the run directory; {EVO_ZIP} holds the translation result (evo_res {EVO_ZIP})"}
 
 
 def build_report(
@@ -188,83 +383,102 @@ def build_report(
     landmark_truth: dict[int, np.ndarray] | None = None,
     bias_truth: dict[str, np.ndarray] | None = None,
     *,
-    t_max_diff_s: float = 0.01,
-    align: str = "se3",
+    options: ReportOptions | None = None,
+    **overrides: Any,
 ) -> dict[str, Any]:
     """Errors of one run against ground truth, JSON-ready (plain Python numbers, None for unknowns).
 
     SLAM without absolute references determines the pose only up to a constant rigid transform (spec §1.6),
     so with ``align="se3"`` the estimate is first mapped onto the truth frame by the least-squares SE(3)
-    transform of the associated positions; ``align="none"`` compares the raw estimate.
+    transform of the associated positions; ``align="none"`` compares the raw estimate. ``overrides`` are
+    :class:`ReportOptions` fields (e.g. ``t_max_diff_s``, ``align``) on top of ``options``.
     """
-    if align not in ALIGN_TYPES:
-        raise ValueError(f"align must be one of {ALIGN_TYPES}, got {align!r}")
-    fixed = (np.eye(3), np.zeros(3)) if align == "none" else (None, np.zeros(3))
-    traj, rot, trans = _trajectory(poses, truth, t_max_diff_s, *fixed)
-    n_pairs = int(traj.idx_est.shape[0])
-    n_est, n_ref = int(traj.t_ns.shape[0]), len(truth)
-    alignment_desc = (
-        "SE(3) Umeyama (least squares, no scale) fitted on the associated positions; maps the estimate onto the "
-        "truth frame: p_truth ≈ R p_est + t, R_truth ≈ R R_est (evo_ape -a)"
-        if align == "se3"
-        else "none: the estimate is compared in its own frame (evo_ape without -a)"
-    )
+    options = replace(options or ReportOptions(), **overrides)
+    notes: list[str] = []
+    ev = evaluate_trajectory(poses, truth, options)
+    p = ev.paired
+    off = ev.time_offset
+    if options.t_offset_s == "auto" and off is not None and not off.reliable:
+        edge = ", at the search limit" if off.at_window_edge else ""
+        notes.append(f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
+                     f"{off.peak_correlation:.2f}{edge})")
+    n_pairs, n_est, n_ref = len(p), len(ev.estimate), len(ev.truth)
     return {
-        "ape": {
-            "translation_m": metrics.statistics(traj.position_error_m),
-            "rotation_deg": metrics.statistics(traj.attitude_error_deg),
-        },
-        "landmarks": _landmark_section(landmarks, landmark_truth, rot, trans),
-        "biases": _bias_section(biases, bias_truth),
-        "convergence": _convergence(traj, CONVERGENCE_THRESHOLD_M),
+        "schema_version": SCHEMA_VERSION,
+        "ape": {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats},
+        "ape_by_alignment": _ape_by_alignment(ev, options, notes),
+        "rpe": _rpe_section(ev, options, notes),
+        "drift": _drift_section(ev, options),
+        "time_offset": _time_offset_section(ev, options),
+        "landmarks": _landmark_section(landmarks, landmark_truth, ev.alignment),
+        "biases": _bias_section(biases, bias_truth, options.bias_window_fraction),
+        "convergence": _convergence(ev, options.convergence_threshold_m),
         "time_span": {
-            "estimate_ns": [int(traj.t_ns[0]), int(traj.t_ns[-1])],
-            "truth_ns": [int(np.min(truth.t_ns)), int(np.max(truth.t_ns))],
+            "estimate_ns": [int(ev.estimate.t_ns[0]), int(ev.estimate.t_ns[-1])],
+            "truth_ns": [int(np.min(ev.truth.t_ns)), int(np.max(ev.truth.t_ns))],
         },
+        "truth_source": {"kind": "stream", "name": truth.topic, "n_poses": len(truth)},
+        "evo": _evo_commands(options, ev.applied_offset_s),
+        "notes": notes,
+        "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items()},
         "method": {
-            "tool": f"slamobs {__version__}, pipeline.evaluation (definitions as evo 1.38.1 evo_ape)",
+            "tool": f"slamobs {__version__}, pipeline.evaluation (definitions as evo 1.38.1 evo_ape/evo_rpe)",
             "association": {
                 "rule": (
                     "nearest timestamp: every stamp of the series with fewer samples (the estimate on a tie) "
                     "is paired with the nearest stamp of the other (earlier one on an exact tie); pairs more "
-                    "than t_max_diff_s apart are dropped (evo sync.associate_trajectories, nearest_time)"
+                    "than t_max_diff_s apart are dropped (evo sync.associate_trajectories, nearest_time); "
+                    "t_offset_s is added to the estimate stamps first"
                 ),
-                "t_max_diff_s": float(t_max_diff_s),
-                "t_offset_s": 0.0,
+                "t_max_diff_s": float(options.t_max_diff_s),
+                "t_offset_s": float(ev.applied_offset_s),
                 "driving_series": "truth" if n_ref < n_est else "estimate",
                 "n_pairs": n_pairs,
                 "n_estimate": n_est,
                 "n_truth": n_ref,
             },
-            "alignment": {
-                "type": align,
-                "description": alignment_desc,
-                "n_points": n_pairs if align == "se3" else 0,
-                "rotation_quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(rot))],
-                "rotation_matrix": [[float(v) for v in row] for row in rot],
-                "translation_m": [float(v) for v in trans],
-                "scale": 1.0,
-            },
-            "ape_translation": "per pair ‖(R p_est + t) − p_truth‖ in metres (evo APE translation_part)",
+            "alignment": _alignment_dict(ev.alignment),
+            "ape_translation": "per pair ‖(s R p_est + t) − p_truth‖ in metres (evo APE translation_part)",
             "ape_rotation": (
                 "per pair angle of R_truthᵀ (R R_est) in degrees, in [0, 180] (evo APE rotation_angle_deg)"
             ),
-            "statistics": "rmse = sqrt(sse / n), sse = Σ e², std is the population std (ddof = 0), as evo",
+            "ape_by_alignment": ("the same APE after each alignment fitted on the same pairs: what the primary "
+                                 "alignment absorbs; yaw (4-DoF) only for runs with IMU directions"),
+            "statistics": ("rmse = sqrt(sse / n), sse = Σ e², std is the population std (ddof = 0), as evo; "
+                           "p90/p95/p99 are percentiles with linear interpolation"),
             "landmarks": (
-                "final map moved by the same (R, t) as the trajectory (not re-fitted); "
-                "error = ‖R p̂_i + t − p_i‖ for ids present in both the estimate and the truth"
+                "final map moved by the same (s, R, t) as the trajectory (not re-fitted); "
+                "error = ‖s R p̂_i + t − p_i‖ for ids present in both the estimate and the truth; "
+                "map_aligned re-fits SE(3) on the landmarks alone; truth_never_estimated are true landmarks the "
+                "run never saw, estimated_without_truth are estimated ids the truth does not know"
             ),
             "biases": (
-                "last row of the bias table; biases are body-frame quantities, unaffected by the alignment; "
-                "error = truth − estimate, error_norm = its Euclidean norm"
+                "final = last row of the bias table; biases are body-frame quantities, unaffected by the "
+                "alignment; error = truth − estimate, error_norm = its Euclidean norm; stability over the last "
+                "window_fraction of the bias time span: per-axis mean, std, range and least-squares slope "
+                "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
             ),
             "convergence": (
                 f"first associated estimate stamp from which the aligned position error stays below "
-                f"{CONVERGENCE_THRESHOLD_M} m until the end; null if the last error is above it; "
+                f"{options.convergence_threshold_m} m until the end; null if the last error is above it; "
                 "t_since_start_s counts from the first estimate stamp"
             ),
         },
     }
+
+
+def report_schema() -> dict:
+    """JSON Schema of report.json (``schemas/report.json``)."""
+    from schemas import HERE
+
+    return json.loads((HERE / "report.json").read_text(encoding="utf-8"))
+
+
+def validate_report(report: dict[str, Any]) -> None:
+    """Raise ``jsonschema.ValidationError`` if ``report`` does not follow ``schemas/report.json``."""
+    import jsonschema
+
+    jsonschema.validate(report, report_schema(), cls=jsonschema.Draft202012Validator)
 
 
 # ---------------------------------------------------------------------------------------------- writing
@@ -278,23 +492,24 @@ def _fmt(v: Any, digits: int = 6) -> str:
     return str(v)
 
 
+STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max", "sse", "n", "p95")
+
+
 def _stats_table(rows: list[tuple[str, dict[str, Any] | None]]) -> list[str]:
-    keys = ("rmse", "mean", "median", "std", "min", "max", "sse", "n")
-    out = ["| quantity | " + " | ".join(keys) + " |", "|---|" + "---|" * len(keys)]
+    out = ["| quantity | " + " | ".join(STAT_KEYS) + " |", "|---|" + "---|" * len(STAT_KEYS)]
     for name, st in rows:
-        cells = [_fmt(st[k]) if st is not None else "–" for k in keys]
+        cells = [_fmt(st.get(k)) if st is not None else "–" for k in STAT_KEYS]
         out.append(f"| {name} | " + " | ".join(cells) + " |")
     return out
 
 
 def _vec_str(v: list[float] | None) -> str:
-    return "–" if v is None else "[" + ", ".join(f"{x:.6g}" for x in v) + "]"
+    return "–" if v is None else "[" + ", ".join(_fmt(x) for x in v) + "]"
 
 
-def render_markdown(report: dict[str, Any]) -> str:
-    """Human-readable version of the report (tables for APE, landmarks, biases and the method)."""
-    ape, lm, bi, conv, m = (report[k] for k in ("ape", "landmarks", "biases", "convergence", "method"))
-    lines = ["# slamobs error report", "", "## Absolute pose error (after alignment)", ""]
+def _md_trajectory(report: dict[str, Any]) -> list[str]:
+    ape, conv, m = report["ape"], report["convergence"], report["method"]
+    lines = ["## Absolute pose error (after alignment)", ""]
     lines += _stats_table([("translation [m]", ape["translation_m"]), ("rotation [deg]", ape["rotation_deg"])])
     conv_txt = (
         f"{conv['t_since_start_s']:.3f} s after the estimate start"
@@ -302,41 +517,85 @@ def render_markdown(report: dict[str, Any]) -> str:
         else "not converged (the last aligned position error is above the threshold)"
     )
     lines += ["", f"Convergence (position error stays below {conv['threshold_m']:g} m): {conv_txt}.", ""]
-    lines += ["## Landmark map error", ""]
+    if report["evo"].get("ape"):
+        lines += [f"Reproduce with evo: `{report['evo']['ape']}`.", ""]
+    by = report.get("ape_by_alignment") or {}
+    if by:
+        lines += ["### APE under each alignment (same pairs)", ""]
+        lines += _stats_table([(f"{k}: translation [m]", v["translation_m"]) for k, v in by.items()]
+                              + [(f"{k}: rotation [deg]", v["rotation_deg"]) for k, v in by.items()])
+        lines.append("")
+    rpe_s, drift, off = report.get("rpe"), report.get("drift"), report["time_offset"]
+    lines += ["## Relative error and drift", ""]
+    if rpe_s:
+        lines += [f"RPE, delta {rpe_s['delta']:g} {rpe_s['delta_unit']} ({rpe_s['n_pairs']} pairs):", ""]
+        lines += _stats_table([("translation [m]", rpe_s["translation_m"]), ("rotation [deg]", rpe_s["rotation_deg"])])
+        lines.append("")
+    if drift:
+        lines += ["| segment [m] | segments | translation [%] | rotation [deg/m] |", "|---|---|---|---|"]
+        for row in drift["per_length"]:
+            lines.append(f"| {row['length_m']:g} | {row['n_segments']} | {_fmt(row['translation_pct'], 4)} | "
+                         f"{_fmt(row['rotation_deg_per_m'], 4)} |")
+        lines += [f"| all | {drift['n_segments']} | {_fmt(drift['translation_pct'], 4)} | "
+                  f"{_fmt(drift['rotation_deg_per_m'], 4)} |", ""]
+    if not rpe_s and not drift:
+        lines += ["Path too short for RPE and drift.", ""]
+    est = "not estimated" if off["estimated_s"] is None else (
+        f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
+        f"{'reliable' if off['reliable'] else 'NOT reliable'})")
+    lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
+    del m
+    return lines
+
+
+def _md_landmarks(lm: dict[str, Any]) -> list[str]:
+    lines = ["## Landmark map error", ""]
     if not lm["truth_available"]:
-        lines += [f"{lm['n_estimated']} landmarks estimated; no landmark ground truth available.", ""]
-    else:
-        lines += [
-            f"{lm['n_matched']} of {lm['n_estimated']} estimated landmarks have ground truth "
-            f"({lm['n_truth']} true landmarks).",
-            "",
-        ]
-        lines += _stats_table([("landmark error [m]", lm["error_m"])])
-        lines += ["", "| id | error [m] | estimate (aligned) [m] | truth [m] | n_obs |", "|---|---|---|---|---|"]
-        for row in lm["per_landmark"]:
-            lines.append(
-                f"| {row['id']} | {row['error_m']:.6g} | {_vec_str(row['estimate_aligned'])} | "
-                f"{_vec_str(row['truth'])} | {_fmt(row['n_obs'])} |"
-            )
-        lines += [
-            "",
-            f"Estimated without truth: {lm['estimated_without_truth'] or 'none'}. "
-            f"True landmarks never estimated: {lm['truth_never_estimated'] or 'none'}.",
-            "",
-        ]
-    lines += ["## Biases (final estimate, body frame)", ""]
+        return lines + [f"{lm['n_estimated']} landmarks estimated; no landmark ground truth available.", ""]
+    lines += [f"{lm['n_matched']} of {lm['n_estimated']} estimated landmarks have ground truth "
+              f"({lm['n_truth']} true landmarks).", ""]
+    rows = [("after trajectory alignment [m]", lm["error_m"])]
+    if lm.get("map_aligned"):
+        rows.append(("after map-only alignment [m]", lm["map_aligned"]["error_m"]))
+    lines += _stats_table(rows)
+    lines += ["", "| id | error [m] | error, map-only alignment [m] | estimate (aligned) [m] | truth [m] | n_obs |",
+              "|---|---|---|---|---|---|"]
+    for row in lm["per_landmark"]:
+        lines.append(f"| {row['id']} | {row['error_m']:.6g} | {_fmt(row.get('error_map_aligned_m'))} | "
+                     f"{_vec_str(row['estimate_aligned'])} | {_vec_str(row['truth'])} | {_fmt(row['n_obs'])} |")
+    return lines + ["", f"Estimated without truth: {lm['estimated_without_truth'] or 'none'}. "
+                        f"True landmarks never estimated: {lm['truth_never_estimated'] or 'none'}.", ""]
+
+
+def _md_biases(bi: dict[str, Any]) -> list[str]:
+    lines = ["## Biases (body frame)", ""]
     if bi["final"] is None:
-        lines += ["No bias estimates.", ""]
-    else:
-        lines += ["| bias | estimate | truth | error (truth − estimate) | ‖error‖ |", "|---|---|---|---|---|"]
-        for key, label in (("gyro", "gyro [rad/s]"), ("velocity", "velocity [m/s]")):
-            truth = bi["truth"][key] if bi["truth"] else None
-            err = bi["error"][key] if bi["error"] else None
-            norm = bi["error_norm"][key] if bi["error_norm"] else None
-            lines.append(
-                f"| {label} | {_vec_str(bi['final'][key])} | {_vec_str(truth)} | {_vec_str(err)} | {_fmt(norm)} |"
-            )
-        lines += ["", f"Final estimate at t_ns = {bi['final']['t_ns']}.", ""]
+        return lines + ["No bias estimates.", ""]
+    lines += ["| bias | final estimate | truth | error (truth − estimate) | ‖error‖ | ‖error‖ of window mean | "
+              "drift [/s] |", "|---|---|---|---|---|---|---|"]
+    for key, label in (("gyro", "gyro [rad/s]"), ("velocity", "velocity [m/s]")):
+        truth = bi["truth"][key] if bi["truth"] else None
+        err = bi["error"][key] if bi["error"] else None
+        norm = bi["error_norm"][key] if bi["error_norm"] else None
+        wnorm = bi["window_error_norm"][key] if bi.get("window_error_norm") else None
+        drift = bi["stability"][key]["drift_norm_per_s"] if bi.get("stability") else None
+        lines.append(f"| {label} | {_vec_str(bi['final'][key])} | {_vec_str(truth)} | {_vec_str(err)} | "
+                     f"{_fmt(norm)} | {_fmt(wnorm)} | {_fmt(drift)} |")
+    st = bi.get("stability") or {}
+    frac = st.get("window_fraction")
+    return lines + ["", f"Final estimate at t_ns = {bi['final']['t_ns']}; stability window: last "
+                        f"{_fmt(frac)} of the bias time span.", ""]
+
+
+def render_markdown(report: dict[str, Any]) -> str:
+    """Human-readable version of the report (tables for APE, RPE/drift, landmarks, biases and the method)."""
+    m = report["method"]
+    lines = ["# slamobs error report", ""]
+    lines += _md_trajectory(report)
+    lines += _md_landmarks(report["landmarks"])
+    lines += _md_biases(report["biases"])
+    if report.get("notes"):
+        lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
     assoc, al = m["association"], m["alignment"]
     lines += [
         "## Method",
@@ -346,20 +605,42 @@ def render_markdown(report: dict[str, Any]) -> str:
         f"| tool | {m['tool']} |",
         f"| association | {assoc['rule']} |",
         f"| t_max_diff | {assoc['t_max_diff_s']:g} s |",
+        f"| t_offset | {assoc['t_offset_s']:g} s |",
         f"| pairs | {assoc['n_pairs']} (estimate {assoc['n_estimate']} poses, truth {assoc['n_truth']} poses, "
         f"driven by the {assoc['driving_series']}) |",
         f"| alignment | {al['description']} |",
         f"| alignment rotation (quaternion x, y, z, w) | {_vec_str(al['rotation_quat_xyzw'])} |",
         f"| alignment translation [m] | {_vec_str(al['translation_m'])} |",
+        f"| alignment scale | {al['scale']:.9g} |",
         f"| APE translation | {m['ape_translation']} |",
         f"| APE rotation | {m['ape_rotation']} |",
+        f"| APE by alignment | {m['ape_by_alignment']} |",
         f"| statistics | {m['statistics']} |",
-        f"| landmarks | {m['landmarks']} |",
-        f"| biases | {m['biases']} |",
-        f"| convergence | {m['convergence']} |",
-        "",
     ]
+    if report.get("rpe"):
+        lines.append(f"| RPE | {report['rpe']['method']} |")
+    if report.get("drift"):
+        lines.append(f"| drift | {report['drift']['method']} |")
+    lines += [
+        f"| clock offset | {report['time_offset']['method']} |",
+        f"| landmarks | {m['landmarks']} |",
+    ]
+    if report["landmarks"].get("map_aligned"):
+        lines.append(f"| map-only alignment | {report['landmarks']['map_aligned']['method']} |")
+    lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |", ""]
     return "\n".join(lines)
+
+
+def _options_of(report: dict[str, Any]) -> ReportOptions:
+    """The options a report was built with, the applied clock offset fixed (plots show the report's pairs)."""
+    opts = dict(report.get("options") or {})
+    opts["t_offset_s"] = report["method"]["association"]["t_offset_s"]
+    opts["t_max_diff_s"] = report["method"]["association"]["t_max_diff_s"]
+    opts["align"] = report["method"]["alignment"]["type"]
+    if opts.get("drift_lengths_m") is not None:
+        opts["drift_lengths_m"] = tuple(opts["drift_lengths_m"])
+    fields = set(ReportOptions.__dataclass_fields__)
+    return ReportOptions(**{k: v for k, v in opts.items() if k in fields})
 
 
 def write_report(
@@ -371,12 +652,16 @@ def write_report(
     truth: PoseStream,
     landmark_truth: dict[int, np.ndarray] | None = None,
 ) -> list[Path]:
-    """Write report.json, report.md and the PNG plots into ``out_dir``; returns the written paths.
+    """Write report.json, report.md, the PNG plots, the evo result zip and the TUM exports into ``out_dir``;
+    returns the written paths.
 
-    The plots re-use the association window and the alignment recorded in ``report["method"]`` so they show
-    exactly the numbers of the report.
+    The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
+    they show exactly the numbers of the report. The writes are plain: callers that replace an existing report
+    write into a temporary directory first (see :mod:`.run_dir`).
     """
     from pipeline.evaluation import plots
+    from pipeline.evaluation.evo_zip import save_result_zip
+    from pipeline.readers.trajectory_files import write_tum
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -388,40 +673,49 @@ def write_report(
     md_path.write_text(render_markdown(report), encoding="utf-8")
     written.append(md_path)
 
-    al = report["method"]["alignment"]
-    rot = np.asarray(al["rotation_matrix"], dtype=np.float64)
-    trans = np.asarray(al["translation_m"], dtype=np.float64)
-    traj, _, _ = _trajectory(poses, truth, report["method"]["association"]["t_max_diff_s"], rot, trans)
-    t0 = traj.t_ns[0]
+    options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
+    ev = evaluate_trajectory(poses, truth, options, estimate_offset=False)
+    written.append(save_result_zip(out / EVO_ZIP, ev.translation))
+    written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
+    written.append(write_tum(out / TRUTH_TUM, ev.truth))
 
+    al = ev.alignment
+    t0 = int(ev.estimate.t_ns[0])
     ids, xyz = _landmark_table(landmarks)
     lm_truth_ids = lm_truth_xyz = None
     if landmark_truth:
         lm_truth_ids = np.array(sorted(int(k) for k in landmark_truth), dtype=np.int64)
         lm_truth_xyz = np.array([np.asarray(landmark_truth[int(i)], dtype=np.float64).reshape(3) for i in lm_truth_ids])
+    lm_err = {row["id"]: row["error_m"] for row in report["landmarks"]["per_landmark"]}
     written.append(
         plots.plot_trajectory_top(
             out / "trajectory_top.png",
-            traj.position,
-            np.asarray(truth.position, dtype=np.float64),
+            ev.est_positions_aligned,
+            np.asarray(ev.truth.position, dtype=np.float64),
             ids,
-            metrics.apply_alignment(rot, trans, 1.0, xyz) if len(ids) else np.empty((0, 3)),
+            al.positions(xyz) if len(ids) else np.empty((0, 3)),
             lm_truth_ids,
             lm_truth_xyz,
+            pair_xyz=ev.translation.est_pos_aligned,
+            pair_error_m=ev.translation.errors,
+            lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
+            title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
         )
     )
     conv = report["convergence"]
     written.append(
         plots.plot_errors(
             out / "errors.png",
-            (traj.t_ns[traj.idx_est] - t0) / 1e9,
-            traj.position_error_m,
-            traj.attitude_error_deg,
+            (ev.pair_t_est_ns - t0) / 1e9,
+            ev.translation.errors,
+            ev.rotation.errors,
             threshold_m=conv["threshold_m"],
             convergence_t_s=conv["t_since_start_s"],
+            title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
         )
     )
     bt = report["biases"]["truth"]
+    stab = report["biases"].get("stability")
     if biases is not None and len(biases):
         b = biases.sort_values("t_ns", kind="stable")
         bt_s = (b["t_ns"].to_numpy(np.int64) - t0) / 1e9
@@ -436,7 +730,18 @@ def write_report(
             vel,
             None if bt is None else np.asarray(bt["gyro"]),
             None if bt is None else np.asarray(bt["velocity"]),
+            window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
         )
     )
+    rows = report["landmarks"]["per_landmark"]
+    if rows:
+        written.append(
+            plots.plot_landmark_errors(
+                out / "landmarks.png",
+                np.array([r["id"] for r in rows]),
+                np.array([r["error_m"] for r in rows]),
+                None if rows[0].get("error_map_aligned_m") is None
+                else np.array([r["error_map_aligned_m"] for r in rows]),
+            )
+        )
     return written
-

@@ -1,0 +1,156 @@
+"""``slamobs evaluate TRUTH EST``: APE / RPE of any two trajectories, a drop-in for common evo_ape / evo_rpe uses.
+
+Options carry evo's names (``--t_max_diff`` and ``--t-max-diff`` both work, ``-a``, ``-as``, ``-r``, ...) and
+the printed block is evo's. Heavy modules are imported inside the command (``slamobs --help`` stays fast).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
+FORMATS = ("tum", "euroc", "kitti", "parquet")
+
+
+def _fail(message: str) -> None:
+    click.echo(f"error: {message}", err=True)
+    sys.exit(2)
+
+
+def _offset(text: str) -> float | str:
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        return float(text)
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is neither seconds nor 'auto'", param_hint="--t-offset") from None
+
+
+@click.command("evaluate")
+@click.argument("truth")
+@click.argument("est")
+@click.option("--metric", type=click.Choice(["ape", "rpe"]), default="ape", show_default=True,
+              help="absolute (evo_ape) or relative (evo_rpe) pose error")
+@click.option("-r", "--pose-relation", "--pose_relation", "relation", type=click.Choice(RELATIONS),
+              default="trans_part", show_default=True, help="pose relation the error is based on (evo -r)")
+@click.option("-a", "--align", is_flag=True, help="SE(3) Umeyama alignment (with -s: Sim(3))")
+@click.option("-s", "--correct-scale", "--correct_scale", is_flag=True, help="correct the scale (Umeyama)")
+@click.option("--align-origin", "--align_origin", is_flag=True, help="align the first poses")
+@click.option("--align-yaw", "--align_yaw", is_flag=True,
+              help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)")
+@click.option("--n-to-align", "--n_to_align", type=int, default=-1, show_default=True,
+              help="fit the alignment on the first N associated poses (-1: all)")
+@click.option("--align-seconds", type=float, default=None,
+              help="fit the alignment on the associated poses of the first SECONDS only")
+@click.option("--t-max-diff", "--t_max_diff", type=float, default=0.01, show_default=True,
+              help="maximum timestamp difference for data association [s]")
+@click.option("--t-offset", "--t_offset", default="0.0", show_default=True,
+              help="seconds added to the estimate stamps for the association, or 'auto' (estimated)")
+@click.option("--sync-method", "--sync_method", type=click.Choice(["nearest_time", "interpolation"]),
+              default="nearest_time", show_default=True,
+              help="nearest stamps, or the denser trajectory interpolated at the sparser one's stamps")
+@click.option("--estimate-t-offset", is_flag=True, help="estimate the clock offset of EST and print it")
+@click.option("--delta", type=float, default=1.0, show_default=True, help="RPE: delta between pose pairs")
+@click.option("-u", "--delta-unit", "--delta_unit", type=click.Choice(["f", "m", "d", "r"]), default="f",
+              show_default=True, help="RPE: delta in frames, metres, degrees or radians")
+@click.option("-t", "--delta-tol", "--delta_tol", type=float, default=0.1, show_default=True,
+              help="RPE: relative delta tolerance for all pairs")
+@click.option("--all-pairs", "--all_pairs", is_flag=True, help="RPE: all pairs instead of consecutive pairs")
+@click.option("--pairs-from-reference", "--pairs_from_reference", is_flag=True,
+              help="RPE: choose the pairs on TRUTH instead of EST")
+@click.option("--truth-format", type=click.Choice(FORMATS), default=None, help="format of TRUTH (default: detect)")
+@click.option("--est-format", type=click.Choice(FORMATS), default=None, help="format of EST (default: detect)")
+@click.option("--save-results", "--save_results", type=click.Path(path_type=Path), default=None,
+              help=".zip with the result in evo's layout (evo_res reads it)")
+@click.option("--json", "as_json", is_flag=True, help="print the result as JSON instead of evo's text")
+@click.option("--silent", is_flag=True, help="print nothing")
+def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, correct_scale: bool, align_origin: bool,
+             align_yaw: bool, n_to_align: int, align_seconds: float | None, t_max_diff: float, t_offset: str,
+             sync_method: str, estimate_t_offset: bool, delta: float, delta_unit: str, delta_tol: float,
+             all_pairs: bool, pairs_from_reference: bool, truth_format: str | None, est_format: str | None,
+             save_results: Path | None, as_json: bool, silent: bool) -> None:
+    """Error of trajectory EST against TRUTH (APE by default; --metric rpe).
+
+    TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
+    PoseStamped / Odometry topic of a ROS bag or MCAP. KITTI files without stamps are paired by index.
+    """
+    from pipeline.errors import InputError
+
+    kind = _alignment_kind(align, correct_scale, align_origin, align_yaw)
+    offset = _offset(t_offset)
+    try:
+        out = _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
+                   estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format,
+                   est_format, save_results)
+    except InputError as err:
+        _fail(str(err))
+    except ValueError as err:
+        _fail(str(err))
+    if silent:
+        return
+    result, extra = out
+    if as_json:
+        click.echo(json.dumps(extra["json"], indent=2, sort_keys=True))
+        return
+    click.echo(result.pretty())
+    st = result.stats
+    click.echo(f"{'pairs':>10}\t{st['n']}")
+    for p in ("p90", "p95", "p99"):
+        click.echo(f"{p:>10}\t{st[p]:.6f}")
+    if extra.get("time_offset_line"):
+        click.echo(extra["time_offset_line"])
+
+
+def _alignment_kind(align: bool, scale: bool, origin: bool, yaw: bool) -> str:
+    if sum((align, origin, yaw)) > 1:
+        raise click.UsageError("-a/--align, --align-origin and --align-yaw exclude each other")
+    if scale and (origin or yaw):
+        raise click.UsageError("-s/--correct-scale combines with -a only")
+    if align:
+        return "sim3" if scale else "se3"
+    if scale:
+        return "scale"
+    return "origin" if origin else "yaw" if yaw else "none"
+
+
+def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
+         estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format, est_format,
+         save_results):
+    from pipeline.evaluation.evo_zip import save_result_zip
+    from pipeline.evaluation.sync import estimate_time_offset
+    from pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, describe, rpe
+    from pipeline.readers.trajectory_files import read_trajectory
+
+    ref = read_trajectory(truth, truth_format)
+    est_t = read_trajectory(est, est_format)
+    timed = ref.timed and est_t.timed
+    found = None
+    if timed and (estimate_t_offset or offset == "auto"):
+        r, e = ref.stream, est_t.stream
+        found = estimate_time_offset(r.t_ns, r.position, r.quat_xyzw, e.t_ns, e.position, e.quat_xyzw)
+    applied = (found.offset_s if found is not None else 0.0) if offset == "auto" else float(offset)
+    sync = SyncOptions(t_max_diff, applied, "nearest" if sync_method == "nearest_time" else "interpolation")
+    al = AlignOptions(kind, n_to_align if n_to_align >= 0 else None, align_seconds)
+    rpe_opts = RpeOptions(delta, delta_unit, delta_tol, all_pairs, pairs_from_reference) if metric == "rpe" else None
+    if metric == "ape":
+        result = ape(ref, est_t, relation, sync, al, ref_name=ref.name, est_name=est_t.name)
+    else:
+        result = rpe(ref, est_t, relation, sync, al, rpe_opts, ref_name=ref.name, est_name=est_t.name)
+    if save_results is not None:
+        save_result_zip(save_results, result)
+    offset_json = None
+    line = None
+    if found is not None:
+        offset_json = {"estimated_s": found.offset_s, "peak_correlation": found.peak_correlation,
+                       "signal": found.signal, "reliable": found.reliable, "applied_s": applied}
+        line = (f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated (peak correlation {found.peak_correlation:.2f}"
+                f"{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied")
+    elif timed is False and (estimate_t_offset or offset == "auto"):
+        line = f"{'t_offset':>10}\tnot estimated: poses without stamps are paired by index"
+    doc = {"title": result.title, "label": result.label, "ref_name": result.ref_name, "est_name": result.est_name,
+           "stats": result.stats, "method": describe(result, sync, al, rpe_opts), "time_offset": offset_json}
+    return result, {"json": doc, "time_offset_line": line}

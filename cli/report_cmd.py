@@ -1,0 +1,129 @@
+"""``slamobs report RUN_DIR``: (re)compute the error report of a finished run, optionally against another truth.
+
+Heavy modules are imported inside the command (``slamobs --help`` stays fast).
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+
+ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
+
+
+def _fail(message: str) -> None:
+    click.echo(f"error: {message}", err=True)
+    sys.exit(2)
+
+
+def _lengths(text: str | None) -> tuple[float, ...] | None:
+    if text is None:
+        return None
+    try:
+        out = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise click.BadParameter(f"{text!r}: expected comma-separated metres", param_hint="--drift-lengths") from None
+    if not out or min(out) <= 0:
+        raise click.BadParameter("segment lengths must be positive", param_hint="--drift-lengths")
+    return out
+
+
+def _previous_options(run_dir: Path) -> dict:
+    """Options of the report already in the run directory (a re-report keeps them unless told otherwise)."""
+    try:
+        return dict(json.loads((run_dir / "report.json").read_text()).get("options") or {})
+    except (OSError, ValueError):
+        return {}
+
+
+@click.command("report")
+@click.argument("run_dir", type=click.Path(path_type=Path))
+@click.option("--truth", default=None,
+              help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
+                   "file [default: the run's truth topic]")
+@click.option("--t-max-diff", "--t_max_diff", type=float, default=None, help="association tolerance [s] (0.01)")
+@click.option("--t-offset", "--t_offset", default=None,
+              help="seconds added to the estimate stamps, or 'auto' to apply the estimated clock offset (0)")
+@click.option("--align", type=click.Choice(ALIGNMENTS), default=None,
+              help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)")
+@click.option("--convergence-threshold", type=float, default=None, help="position error threshold [m] (0.1)")
+@click.option("--rpe-delta", type=float, default=None, help="RPE pair distance [m] (1)")
+@click.option("--drift-lengths", default=None, help="KITTI drift segment lengths, comma-separated metres")
+@click.option("--bias-window", type=float, default=None,
+              help="fraction of the run at its end used for bias stability (0.2)")
+@click.option("--json", "as_json", is_flag=True, help="print report.json instead of the summary")
+@click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
+def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset: str | None, align: str | None,
+           convergence_threshold: float | None, rpe_delta: float | None, drift_lengths: str | None,
+           bias_window: float | None, as_json: bool, quiet: bool) -> None:
+    """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically."""
+    from pipeline.errors import InputError
+    from pipeline.evaluation.report import ReportOptions
+    from pipeline.evaluation.run_dir import load_run, options_for_run, report_run
+
+    given = {"t_max_diff_s": t_max_diff, "align": align, "convergence_threshold_m": convergence_threshold,
+             "rpe_delta_m": rpe_delta, "drift_lengths_m": _lengths(drift_lengths), "bias_window_fraction": bias_window}
+    if t_offset is not None:
+        given["t_offset_s"] = "auto" if t_offset.strip().lower() == "auto" else _seconds(t_offset)
+    try:
+        run = load_run(run_dir)
+        base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
+        if base.get("drift_lengths_m") is not None:
+            base["drift_lengths_m"] = tuple(base["drift_lengths_m"])
+        base.pop("gravity_aligned", None)
+        options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
+        rep, written = report_run(run_dir, truth, options)
+    except (InputError, ValueError) as err:
+        _fail(str(err))
+    if quiet:
+        return
+    if as_json:
+        click.echo(json.dumps(rep, indent=2, sort_keys=True))
+        return
+    _summary(rep, written)
+
+
+def _seconds(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise click.BadParameter(f"{text!r} is neither seconds nor 'auto'", param_hint="--t-offset") from None
+
+
+def _summary(r: dict, written: list[Path]) -> None:
+    src = r.get("truth_source") or {}
+    click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")
+    ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
+    kind = r["method"]["alignment"]["type"]
+    click.echo(f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
+               f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, {kind}-aligned")
+    if r.get("rpe"):
+        click.echo(f"RPE          {r['rpe']['delta']:g} m: translation rmse {r['rpe']['translation_m']['rmse']:.4f} m, "
+                   f"rotation rmse {r['rpe']['rotation_deg']['rmse']:.3f} deg")
+    if r.get("drift"):
+        d = r["drift"]
+        click.echo(f"drift        {d['translation_pct']:.3f} % of distance, {d['rotation_deg_per_m']:.4f} deg/m "
+                   f"({d['n_segments']} segments)")
+    lm = r.get("landmarks") or {}
+    if lm.get("error_m"):
+        extra = f", map-only alignment {lm['map_aligned']['error_m']['rmse']:.4f} m" if lm.get("map_aligned") else ""
+        click.echo(f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} "
+                   f"landmarks{extra}")
+    err = (r.get("biases") or {}).get("error_norm")
+    if err:
+        click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
+    conv = (r.get("convergence") or {}).get("t_since_start_s")
+    if conv is not None:
+        click.echo(f"converged    {conv:.2f} s after start (position error below {r['convergence']['threshold_m']} m)")
+    off = r.get("time_offset") or {}
+    if off.get("estimated_s") is not None:
+        quality = "reliable" if off["reliable"] else "not reliable"
+        click.echo(f"clock offset {off['estimated_s']:.4f} s estimated ({quality}), {off['applied_s']:g} s applied")
+    for note in r.get("notes") or []:
+        click.echo(f"note         {note}")
+    if r.get("evo", {}).get("ape"):
+        click.echo(f"evo          {r['evo']['ape']}")
+    click.echo(f"wrote        {', '.join(sorted(p.name for p in written))}")

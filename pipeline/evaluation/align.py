@@ -1,0 +1,160 @@
+"""Alignment of an estimated trajectory onto the reference frame before its error is measured.
+
+(Not to be confused with :mod:`pipeline.alignment`, which puts sensor streams on one time base.) A SLAM
+estimate is defined only up to the transformations its sensors cannot observe: a rigid transform without
+absolute references (spec §1.6), a similarity for monocular vision, translation and yaw when gravity is
+observed. Each alignment here removes exactly one such group, fitted by least squares on associated
+positions, as evo 1.38.1 does for ``-a``, ``-as``, ``-s`` and ``--align_origin``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
+
+DESCRIPTIONS = {
+    "se3": "SE(3) Umeyama (least squares rotation + translation, no scale) on the associated positions (evo -a)",
+    "sim3": "Sim(3) Umeyama (least squares rotation + translation + scale) on the associated positions (evo -as)",
+    "scale": "scale only, the Umeyama Sim(3) scale applied to the estimate positions (evo -s without -a)",
+    "yaw": "4-DoF: translation + rotation about the z (gravity) axis, least squares on the associated positions; "
+           "for estimates whose roll and pitch are observed (IMU directions)",
+    "origin": "origin: the first associated estimate pose is moved onto the first reference pose (evo --align_origin)",
+    "none": "none: the estimate is compared in its own frame (evo without -a)",
+}
+
+
+@dataclass(frozen=True)
+class Alignment:
+    """``p_ref ≈ scale · rot · p_est + trans`` and ``R_ref ≈ rot · R_est``."""
+
+    kind: str
+    rot: np.ndarray  # (3, 3)
+    trans: np.ndarray  # (3,)
+    scale: float
+    n_points: int  # associated pairs the fit used (0 for "none")
+    #: the 4x4 matrix evo stores as ``alignment_transformation_sim3`` (for "scale" evo stores the whole Umeyama
+    #: fit although it applies only the scale)
+    evo_matrix: np.ndarray | None = None
+
+    def positions(self, p: np.ndarray) -> np.ndarray:
+        return apply_alignment(self.rot, self.trans, self.scale, p)
+
+    def rotations(self, r: np.ndarray) -> np.ndarray:
+        return np.matmul(self.rot, np.asarray(r, dtype=np.float64))
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """The applied transform as a 4x4 Sim(3) matrix ``[[s R, t], [0, 1]]``."""
+        m = np.eye(4)
+        m[:3, :3] = self.scale * self.rot
+        m[:3, 3] = self.trans
+        return m
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991, "Least-squares estimation of
+    transformation parameters between two point patterns"), with ``s = 1`` unless ``with_scale``.
+
+    With the cross-covariance ``Σ = 1/n Σ (dst_i − μ_dst)(src_i − μ_src)ᵀ = U D Vᵀ``, the optimum is
+    ``R = U S Vᵀ`` with ``S = diag(1, 1, −1)`` when ``det U det V < 0`` (otherwise the best orthogonal
+    matrix would be a reflection), ``s = tr(D S) / σ²_src`` and ``t = μ_dst − s R μ_src``. The solution
+    is unique iff ``rank Σ ≥ 2``, i.e. the points are not all collinear.
+    """
+    x = np.asarray(src, dtype=np.float64)
+    y = np.asarray(dst, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or x.shape != y.shape:
+        raise ValueError(f"umeyama: src and dst must both be (N, 3), got {x.shape} and {y.shape}")
+    n = x.shape[0]
+    if n < 3:
+        raise ValueError(f"umeyama: need at least 3 point pairs for a unique rigid alignment, got {n}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("umeyama: input contains NaN or infinite coordinates")
+    mu_x = x.mean(axis=0)
+    mu_y = y.mean(axis=0)
+    xc = x - mu_x
+    yc = y - mu_y
+    cov = yc.T @ xc / n
+    u, d, vt = np.linalg.svd(cov)
+    if d[0] <= 0.0 or d[1] <= 1e-12 * d[0]:
+        raise ValueError(
+            f"umeyama: degenerate input ({n} points are all collinear or coincident; cross-covariance "
+            f"singular values {d.tolist()}), the rotation about the common line is undetermined"
+        )
+    s_diag = np.ones(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
+        s_diag[2] = -1.0
+    rot = (u * s_diag) @ vt
+    scale = 1.0
+    if with_scale:
+        var_x = float(np.mean(np.sum(xc * xc, axis=1)))
+        scale = float(np.sum(d * s_diag) / var_x)
+    trans = mu_y - scale * rot @ mu_x
+    return rot, trans, scale
+
+
+def yaw_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares ``dst ≈ R_z(θ) src + t`` (rotation about z only): with centred points,
+    ``θ = atan2(Σ (x_s y_d − y_s x_d), Σ (x_s x_d + y_s y_d))`` and ``t = μ_dst − R_z μ_src``."""
+    x = np.asarray(src, dtype=np.float64)
+    y = np.asarray(dst, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or x.shape != y.shape or x.shape[0] < 2:
+        raise ValueError(f"yaw alignment: need two (N >= 2, 3) arrays, got {x.shape} and {y.shape}")
+    xc = x - x.mean(axis=0)
+    yc = y - y.mean(axis=0)
+    s = float(np.sum(xc[:, 0] * yc[:, 1] - xc[:, 1] * yc[:, 0]))
+    c = float(np.sum(xc[:, 0] * yc[:, 0] + xc[:, 1] * yc[:, 1]))
+    if abs(s) + abs(c) <= 1e-300:
+        raise ValueError("yaw alignment: the horizontal positions do not vary, the yaw is undetermined")
+    th = np.arctan2(s, c)
+    rot = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    return rot, y.mean(axis=0) - rot @ x.mean(axis=0)
+
+
+def apply_alignment(rot: np.ndarray, trans: np.ndarray, scale: float, points: np.ndarray) -> np.ndarray:
+    """``s R p + t`` for each row ``p`` of an ``(N, 3)`` array."""
+    return scale * np.asarray(points, dtype=np.float64) @ np.asarray(rot).T + trans
+
+
+def _sim3(rot: np.ndarray, trans: np.ndarray, scale: float) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = scale * rot
+    m[:3, 3] = trans
+    return m
+
+
+def fit_alignment(
+    kind: str,
+    ref_pos: np.ndarray,
+    est_pos: np.ndarray,
+    ref_rot: np.ndarray | None = None,
+    est_rot: np.ndarray | None = None,
+    n: int | None = None,
+) -> Alignment:
+    """Fit ``kind`` (one of ``KINDS``) on associated pairs; ``n`` limits the fit to the first ``n`` pairs
+    (evo ``--n_to_align``). ``origin`` needs the rotations of the first pair."""
+    if kind not in KINDS:
+        raise ValueError(f"alignment must be one of {KINDS}, got {kind!r}")
+    ref = np.asarray(ref_pos, dtype=np.float64)
+    est = np.asarray(est_pos, dtype=np.float64)
+    m = ref.shape[0] if n is None or n < 0 else min(int(n), ref.shape[0])
+    if kind == "none":
+        return Alignment(kind, np.eye(3), np.zeros(3), 1.0, 0, None)
+    if m == 0:
+        raise ValueError("alignment: no associated poses")
+    if kind == "origin":
+        if ref_rot is None or est_rot is None:
+            raise ValueError("origin alignment needs the rotations")
+        rot = np.asarray(ref_rot[0]) @ np.asarray(est_rot[0]).T
+        trans = ref[0] - rot @ est[0]
+        return Alignment(kind, rot, trans, 1.0, 1, _sim3(rot, trans, 1.0))
+    if kind == "yaw":
+        rot, trans = yaw_fit(est[:m], ref[:m])
+        return Alignment(kind, rot, trans, 1.0, m, _sim3(rot, trans, 1.0))
+    rot, trans, scale = umeyama(est[:m], ref[:m], with_scale=kind in ("sim3", "scale"))
+    evo = _sim3(rot, trans, scale)
+    if kind == "scale":
+        return Alignment(kind, np.eye(3), np.zeros(3), scale, m, evo)
+    return Alignment(kind, rot, trans, scale, m, evo)

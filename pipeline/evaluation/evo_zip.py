@@ -1,0 +1,61 @@
+"""Result archives in the layout of evo 1.38.1 ``--save_results``, so ``evo_res`` and ``evo.tools.file_interface.
+load_res_file`` read them: ``info.json`` (title, ref_name, est_name, label), ``stats.json`` (rmse, mean, median,
+std, min, max, sse), one ``<name>.npy`` per array (``error_array``, ``timestamps``, ``seconds_from_start``,
+``distances``, ``distances_from_start``, ``alignment_transformation_sim3``). The file format is written from
+that description (NumPy ``.npy`` inside a plain zip); no evo code is used.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import tempfile
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.evaluation.trajectory_error import ErrorResult
+
+
+def result_zip_bytes(result: ErrorResult) -> bytes:
+    """The archive of ``result`` as bytes."""
+    info = {"title": result.title, "ref_name": result.ref_name, "est_name": result.est_name, "label": result.label}
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w") as archive:
+        archive.writestr("info.json", json.dumps(info))
+        archive.writestr("stats.json", json.dumps(result.evo_stats))
+        for name, array in {"error_array": result.errors, **result.arrays}.items():
+            npy = io.BytesIO()
+            np.save(npy, np.asarray(array))
+            archive.writestr(f"{name}.npy", npy.getvalue())
+    return buf.getvalue()
+
+
+def save_result_zip(path: str | Path, result: ErrorResult) -> Path:
+    """Write the archive to ``path`` atomically (temporary file in the same directory, then rename)."""
+    path = Path(path)
+    data = result_zip_bytes(result)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return path
+
+
+def load_result_zip(path: str | Path) -> tuple[dict, dict, dict[str, np.ndarray]]:
+    """``(info, stats, arrays)`` of an evo-layout result archive (ours or evo's, ``.npy`` or old ``.npz`` names)."""
+    with zipfile.ZipFile(path) as archive:
+        info = json.loads(archive.read("info.json"))
+        stats = json.loads(archive.read("stats.json"))
+        arrays = {}
+        for name in archive.namelist():
+            if name.endswith((".npy", ".npz")):
+                arrays[Path(name).stem] = np.load(io.BytesIO(archive.read(name)))
+    return info, stats, arrays

@@ -1,0 +1,182 @@
+"""(Re)computing the report of a finished run directory: find the truth, build the report, replace its files.
+
+The run directory keeps the input log path, topics and time source in ``run.json``; the truth can be that
+log's truth topic (default), another topic or a TF edge of it, or a TUM / EuRoC CSV / KITTI file. Landmark and
+bias truth come from the log's simulation truth when the log is still there. Report files are written into a
+temporary directory next to them and renamed into place one by one, so a reader never sees a half-written
+file and a failure leaves the previous report untouched.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from pipeline.errors import InputError
+from pipeline.evaluation.report import REPORT_FILES, ReportOptions, build_report, write_report
+from pipeline.streams import PoseStream
+
+
+@dataclass
+class RunTables:
+    """What a run directory holds that the report needs."""
+
+    path: Path
+    meta: dict[str, Any]
+    poses: pd.DataFrame
+    biases: pd.DataFrame | None
+    landmarks: pd.DataFrame | None
+
+
+@dataclass
+class TruthInput:
+    """Ground truth for a report and where it came from."""
+
+    stream: PoseStream
+    landmark_truth: dict[int, np.ndarray] | None
+    bias_truth: dict[str, np.ndarray] | None
+    source: dict[str, Any]
+    notes: list[str] = field(default_factory=list)
+
+
+def load_run(run_dir: str | Path) -> RunTables:
+    """``run.json`` and the Parquet tables of a run directory."""
+    run_dir = Path(run_dir)
+    meta_path = run_dir / "run.json"
+    if not meta_path.is_file():
+        raise InputError(run_dir, "not a run directory (no run.json)")
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, json.JSONDecodeError) as err:
+        raise InputError(meta_path, f"unreadable run.json: {err}") from None
+    if not (run_dir / "poses.parquet").is_file():
+        raise InputError(run_dir, "run directory has no poses.parquet")
+
+    def table(name: str) -> pd.DataFrame | None:
+        path = run_dir / f"{name}.parquet"
+        return pd.read_parquet(path) if path.is_file() else None
+
+    return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"))
+
+
+def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
+    from pipeline.readers import ROLES, read_log
+
+    streams = read_log(log, {r: None for r in ROLES if r != "sim_truth"})
+    return streams.landmark_truth, streams.bias_truth
+
+
+def _topic_truth(log: Path, topic: str, time_source: str, clocks: dict[str, str]) -> PoseStream:
+    """A truth topic or TF edge of the log, through the readers (same cleaning as ``slamobs run``)."""
+    from pipeline.readers import ROLES, read_log
+
+    keep = ("truth", "static_tf", "tf") if "->" in topic else ("truth",)
+    streams = read_log(log, {**{r: None for r in ROLES if r not in keep}, "truth": topic}, clocks=clocks or None)
+    truth = streams.truth
+    if truth is None or len(truth) == 0:
+        raise InputError(log, "no truth poses", topic)
+    if time_source == "record":
+        truth = PoseStream(**{**truth.__dict__, "t_ns": truth.rec_ns})
+    return truth
+
+
+def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
+    """The truth for a run: ``source`` None -> the run's truth topic; a TF edge ``parent->child``; an existing
+    file (TUM, EuRoC CSV, KITTI with stamps); else a topic of the run's input log."""
+    from pipeline.readers.trajectory_files import read_trajectory
+
+    inp = meta.get("input") or {}
+    log = Path(inp["path"]) if inp.get("path") else None
+    time_source = inp.get("time_source", "header")
+    notes: list[str] = []
+    have_log = log is not None and log.exists()
+
+    if source is not None and Path(source).is_file() and not (have_log and Path(source).resolve() == log.resolve()):
+        traj = read_trajectory(source)
+        if traj.format == "parquet":
+            raise InputError(source, "a poses.parquet is an estimate, not a ground-truth file")
+        if not traj.timed:
+            raise InputError(source, "KITTI poses carry no stamps and cannot be matched to a run's clock")
+        stream, desc = traj.stream, {"kind": "file", "format": traj.format, "name": str(source)}
+    else:
+        topic = source if source is not None else (inp.get("topics") or {}).get("truth")
+        if topic is None:
+            raise InputError(meta.get("input", {}).get("path", "run.json"),
+                             "the run's log has no truth topic: give --truth (a topic, TF edge or trajectory file)")
+        if not have_log:
+            raise InputError(log or "run.json", "the run's input log is not there; give --truth as a trajectory file")
+        stream = _topic_truth(log, topic, time_source, inp.get("clocks") or {})
+        desc = {"kind": "tf_edge" if "->" in topic else "topic", "name": topic, "log": str(log)}
+    desc["n_poses"] = len(stream)
+    desc["time_source"] = time_source if desc["kind"] != "file" else "file stamps"
+    lm_truth = bias_truth = None
+    if have_log:
+        lm_truth, bias_truth = _sim_truth(log)
+    else:
+        notes.append(f"input log {log} not found: no landmark or bias truth")
+    return TruthInput(stream, lm_truth, bias_truth, desc, notes)
+
+
+def options_for_run(meta: dict[str, Any], **overrides: Any) -> ReportOptions:
+    """Report options for a run: 4-DoF alignment added when its observer used IMU directions."""
+    gravity = bool((meta.get("observer") or {}).get("directions"))
+    return ReportOptions(gravity_aligned=gravity, **{k: v for k, v in overrides.items() if v is not None})
+
+
+def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[Path]:
+    """Move every file of ``staged`` into ``run_dir`` with an atomic rename each; files in ``owned`` that the
+    new set lacks are removed afterwards (a stale plot must not pass for the new report's)."""
+    moved = []
+    names = {p.name for p in staged.iterdir()}
+    for p in sorted(staged.iterdir()):
+        os.replace(p, run_dir / p.name)
+        moved.append(run_dir / p.name)
+    for name in owned:
+        if name not in names and (run_dir / name).is_file():
+            (run_dir / name).unlink()
+    return moved
+
+
+def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path) -> None:
+    """run.json pointing at the new report and naming its truth, staged with the report files."""
+    meta = dict(meta)
+    meta["report"] = "report.json"
+    meta["report_truth"] = truth
+    tmp = staged / "run.json"
+    tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+
+def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOptions | None = None,
+               **overrides: Any) -> tuple[dict[str, Any], list[Path]]:
+    """Recompute the report of ``run_dir`` against ``truth`` and replace its report files atomically.
+
+    Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
+    """
+    run = load_run(run_dir)
+    ti = resolve_truth(run.meta, truth)
+    options = options or options_for_run(run.meta, **overrides)
+    try:
+        report = build_report(run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth, ti.bias_truth,
+                              options=options)
+    except ValueError as err:
+        raise InputError(run.path, f"no report: {err}") from None
+    report["truth_source"] = ti.source
+    report["notes"] = ti.notes + report["notes"]
+    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
+    try:
+        write_report(report, staged, run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth)
+        _stage_run_json(run.meta, ti.source, staged)
+        for p in staged.iterdir():
+            os.chmod(p, 0o644)
+        written = replace_files(run.path, staged, REPORT_FILES)
+    finally:
+        shutil.rmtree(staged, ignore_errors=True)
+    return report, written

@@ -1,0 +1,61 @@
+"""Errors evo has no notion of: the landmark map on its own, bias stability, convergence.
+
+Pure functions over arrays; the report (:mod:`.report`) decides what to feed them and how to describe them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from pipeline.evaluation.align import umeyama
+
+
+def map_only_alignment(est_xyz: np.ndarray, truth_xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """SE(3) Umeyama fitted on the matched landmarks themselves, or None if they cannot fix a rotation
+    (fewer than 3, or collinear). Compared with the trajectory-fitted alignment it separates the map's shape
+    error from its placement relative to the trajectory."""
+    if np.asarray(est_xyz).shape[0] < 3:
+        return None
+    try:
+        rot, trans, _ = umeyama(est_xyz, truth_xyz)
+    except ValueError:
+        return None
+    return rot, trans
+
+
+def window_stats(t_ns: np.ndarray, values: np.ndarray, fraction: float) -> dict:
+    """Behaviour of a (N, 3) history over its last ``fraction`` of time: per-axis mean, population std,
+    range (max − min) and least-squares slope per second; ``drift_norm_per_s`` is the norm of the slope."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    v = np.asarray(values, dtype=np.float64)
+    if not 0 < fraction <= 1:
+        raise ValueError(f"window fraction must be in (0, 1], got {fraction}")
+    t0 = int(t[-1] - round(fraction * (t[-1] - t[0])))
+    sel = t >= t0
+    ts = (t[sel] - t0) / 1e9
+    w = v[sel]
+    if ts.size >= 2 and np.ptp(ts) > 0:
+        tc = ts - ts.mean()
+        slope = (tc @ (w - w.mean(axis=0))) / float(tc @ tc)
+    else:
+        slope = np.full(3, np.nan)
+    return {
+        "t_start_ns": t0,
+        "duration_s": float((t[-1] - t0) / 1e9),
+        "n_samples": int(sel.sum()),
+        "mean": [float(x) for x in w.mean(axis=0)],
+        "std": [float(x) for x in w.std(axis=0)],
+        "range": [float(x) for x in np.ptp(w, axis=0)],
+        "slope_per_s": [None if not np.isfinite(x) else float(x) for x in slope],
+        "drift_norm_per_s": float(np.linalg.norm(slope)) if np.all(np.isfinite(slope)) else None,
+    }
+
+
+def convergence_index(errors: np.ndarray, threshold: float) -> int | None:
+    """First index from which ``errors`` stay below ``threshold`` to the end (None if the last is not)."""
+    above = np.flatnonzero(np.asarray(errors) >= threshold)
+    if above.size == 0:
+        return 0
+    if above[-1] == len(errors) - 1:
+        return None
+    return int(above[-1]) + 1

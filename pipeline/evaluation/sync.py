@@ -1,0 +1,312 @@
+"""Time synchronisation of an estimate with a reference: association, interpolation, time-offset estimation.
+
+Association and interpolation follow evo 1.38.1 (``sync.associate_trajectories``, ``nearest_time`` and
+``interpolation``) so that the same pairs are compared. The time-offset estimate goes beyond evo: it finds the
+clock offset that evo users otherwise guess for ``--t_offset``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+NS_PER_S = 1_000_000_000
+
+
+def _as_stamps(t_ns: np.ndarray, name: str) -> np.ndarray:
+    t = np.asarray(t_ns)
+    if t.ndim != 1:
+        raise ValueError(f"{name}: expected a 1-D array of int64 nanosecond stamps, got shape {t.shape}")
+    if not np.issubdtype(t.dtype, np.integer):
+        raise ValueError(f"{name}: expected integer nanosecond stamps, got dtype {t.dtype}")
+    return t.astype(np.int64, copy=False)
+
+
+def _nearest(query: np.ndarray, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index into ``stamps`` of the nearest stamp to each query and the absolute difference (ns).
+
+    Ties go to the earlier stamp; among equal stamps the last one at or before the query is taken.
+    """
+    order = np.argsort(stamps, kind="stable")
+    s = stamps[order]
+    hi = np.searchsorted(s, query, side="right")  # first stamp strictly after the query
+    lo = hi - 1  # last stamp at or before the query
+    has_lo = lo >= 0
+    has_hi = hi < s.shape[0]
+    lo_c = np.clip(lo, 0, s.shape[0] - 1)
+    hi_c = np.clip(hi, 0, s.shape[0] - 1)
+    d_lo = np.where(has_lo, query - s[lo_c], np.iinfo(np.int64).max)
+    d_hi = np.where(has_hi, s[hi_c] - query, np.iinfo(np.int64).max)
+    take_hi = d_hi < d_lo
+    pos = np.where(take_hi, hi_c, lo_c)
+    return order[pos], np.where(take_hi, d_hi, d_lo)
+
+
+def associate(
+    t_ref_ns: np.ndarray,
+    t_est_ns: np.ndarray,
+    t_max_diff_s: float = 0.01,
+    t_offset_s: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nearest-timestamp association of estimate and reference stamps (evo's ``nearest_time`` sync).
+
+    ``t_offset_s`` is added to the estimate stamps. Like evo, the series with fewer stamps drives the
+    association (the estimate when both have the same length) so that none of its samples is lost: each of
+    its stamps is paired with the nearest stamp of the other series (ties to the earlier one) and the pair
+    is kept when the two are at most ``t_max_diff_s`` apart. Returns ``(idx_ref, idx_est)``, int64 arrays of
+    equal length, sorted by the driving series; the driving indices are unique, the other ones may repeat
+    if the longer series has gaps. Arithmetic is exact on integer nanoseconds; evo works on float seconds,
+    whose round-off can break an exact tie the other way (seen once in 2174 pairs of TUM fr2_desk).
+    """
+    ref = _as_stamps(t_ref_ns, "t_ref_ns")
+    est = _as_stamps(t_est_ns, "t_est_ns")
+    if t_max_diff_s < 0:
+        raise ValueError(f"t_max_diff_s must be >= 0, got {t_max_diff_s}")
+    empty = np.empty(0, dtype=np.int64)
+    if ref.shape[0] == 0 or est.shape[0] == 0:
+        return empty, empty.copy()
+    max_diff = int(round(t_max_diff_s * NS_PER_S))
+    est = est + int(round(t_offset_s * NS_PER_S))
+    if ref.shape[0] < est.shape[0]:
+        idx_est, diff = _nearest(ref, est)
+        keep = diff <= max_diff
+        return np.flatnonzero(keep).astype(np.int64), idx_est[keep].astype(np.int64)
+    idx_ref, diff = _nearest(est, ref)
+    keep = diff <= max_diff
+    return idx_ref[keep].astype(np.int64), np.flatnonzero(keep).astype(np.int64)
+
+
+@njit(cache=True)
+def _slerp_rows(q0, q1, frac):
+    """Row-wise slerp of unit-normalised (w-last) quaternions along the shorter arc (evo/transformations)."""
+    out = np.empty_like(q0)
+    eps = 4.0 * 2.220446049250313e-16
+    for k in range(q0.shape[0]):
+        n0 = math.sqrt(q0[k, 0] ** 2 + q0[k, 1] ** 2 + q0[k, 2] ** 2 + q0[k, 3] ** 2)
+        n1 = math.sqrt(q1[k, 0] ** 2 + q1[k, 1] ** 2 + q1[k, 2] ** 2 + q1[k, 3] ** 2)
+        a = q0[k] / n0
+        b = q1[k] / n1
+        f = frac[k]
+        if f == 0.0:
+            out[k] = a
+            continue
+        if f == 1.0:
+            out[k] = b
+            continue
+        d = a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3]
+        if abs(abs(d) - 1.0) < eps:
+            out[k] = a
+            continue
+        if d < 0.0:
+            d = -d
+            b = -b
+        angle = math.acos(d)
+        if abs(angle) < eps:
+            out[k] = a
+            continue
+        isin = 1.0 / math.sin(angle)
+        out[k] = a * (math.sin((1.0 - f) * angle) * isin) + b * (math.sin(f * angle) * isin)
+    return out
+
+
+def interpolate_poses(
+    t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray, query_ns: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses at ``query_ns``: linear in position, slerp in rotation, between the bracketing samples.
+
+    Queries outside the stamps are clamped to the first/last pose (evo ``interpolate``, no extrapolation);
+    stamps must be ascending.
+    """
+    t = _as_stamps(t_ns, "t_ns")
+    q = _as_stamps(query_ns, "query_ns")
+    if t.shape[0] < 2:
+        raise ValueError("interpolation needs at least two poses")
+    idx = np.clip(np.searchsorted(t, q, side="left"), 1, t.shape[0] - 1)
+    dt = (t[idx] - t[idx - 1]).astype(np.float64)
+    frac = np.where(dt > 0, (q - t[idx - 1]).astype(np.float64) / np.where(dt > 0, dt, 1.0), 0.0)
+    frac = np.clip(frac, 0.0, 1.0)
+    pos = np.asarray(position, dtype=np.float64)
+    xyz = pos[idx - 1] + frac[:, None] * (pos[idx] - pos[idx - 1])
+    quat = np.ascontiguousarray(quat_xyzw, dtype=np.float64)
+    return xyz, _slerp_rows(quat[idx - 1], quat[idx], np.ascontiguousarray(frac))
+
+
+# ------------------------------------------------------------------------------------------ time offset
+
+
+@dataclass(frozen=True)
+class TimeOffset:
+    """Estimated clock offset: ``t_est + offset_s`` is on the reference clock (same sign as evo ``--t_offset``)."""
+
+    offset_s: float
+    peak_correlation: float  # normalised cross-correlation at the peak, in [-1, 1]
+    signal: str  # which frame-invariant signal was correlated
+    grid_step_s: float
+    search_window_s: float
+    at_window_edge: bool  # the best lag is on the search limit: the true offset may lie outside
+
+    @property
+    def reliable(self) -> bool:
+        return self.peak_correlation >= 0.5 and not self.at_window_edge
+
+
+@njit(cache=True)
+def _step_angles(q):
+    """Rotation angle between consecutive (x, y, z, w) quaternions: 2 atan2(|v|, |w|) of q_k⁻¹ q_{k+1}."""
+    out = np.empty(q.shape[0] - 1)
+    for k in range(q.shape[0] - 1):
+        a, b = q[k], q[k + 1]
+        na = math.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2 + a[3] ** 2)
+        nb = math.sqrt(b[0] ** 2 + b[1] ** 2 + b[2] ** 2 + b[3] ** 2)
+        # conj(a) * b, w-last
+        w = (a[3] * b[3] + a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb)
+        x = (a[3] * b[0] - a[0] * b[3] - a[1] * b[2] + a[2] * b[1]) / (na * nb)
+        y = (a[3] * b[1] + a[0] * b[2] - a[1] * b[3] - a[2] * b[0]) / (na * nb)
+        z = (a[3] * b[2] - a[0] * b[1] + a[1] * b[0] - a[2] * b[3]) / (na * nb)
+        out[k] = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
+    return out
+
+
+def _rate_on_grid(t_ns: np.ndarray, increments: np.ndarray, grid_ns: np.ndarray, step_ns: int) -> np.ndarray:
+    """Mean rate of an accumulated quantity over [g, g + step] (NaN outside the stream's span)."""
+    cum = np.concatenate([[0.0], np.cumsum(increments)])
+    t = t_ns.astype(np.float64)
+    a = np.interp(grid_ns.astype(np.float64), t, cum)
+    b = np.interp((grid_ns + step_ns).astype(np.float64), t, cum)
+    rate = (b - a) / (step_ns / NS_PER_S)
+    rate[(grid_ns < t_ns[0]) | (grid_ns + step_ns > t_ns[-1])] = np.nan
+    return rate
+
+
+def _signals(t_ns, pos, quat, grid_ns, step_ns):
+    ang = _step_angles(np.ascontiguousarray(quat, dtype=np.float64))
+    dist = np.linalg.norm(np.diff(np.asarray(pos, dtype=np.float64), axis=0), axis=1)
+    return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns)
+
+
+def _variation(x: np.ndarray) -> float:
+    """Coefficient of variation std/mean of the defined samples (0 when flat or undefined)."""
+    v = x[np.isfinite(x)]
+    if v.size < 2 or not np.mean(np.abs(v)) > 0:
+        return 0.0
+    return float(np.std(v) / np.mean(np.abs(v)))
+
+
+def _xcorr_sums(x: np.ndarray, y: np.ndarray, size: int, lags: np.ndarray) -> np.ndarray:
+    """Σ_t x[t + L] y[t] for each lag L (FFT, zero padded to ``size``)."""
+    full = np.fft.irfft(np.fft.rfft(x, size) * np.conj(np.fft.rfft(y, size)), size)
+    return full[lags % size]
+
+
+def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pearson correlation of a[t + L] with b[t] over the samples where both are defined, per lag L in
+    [-max_lag, max_lag] (NaN where the overlap is under a fifth of the shorter signal)."""
+    ma, mb = np.isfinite(a), np.isfinite(b)
+    a0, b0 = np.where(ma, a, 0.0), np.where(mb, b, 0.0)
+    fa, fb = ma.astype(np.float64), mb.astype(np.float64)
+    size = 1 << int(math.ceil(math.log2(2 * a.shape[0])))
+    lags = np.arange(-max_lag, max_lag + 1)
+    n = np.round(_xcorr_sums(fa, fb, size, lags))
+    sa, sb = _xcorr_sums(a0, fb, size, lags), _xcorr_sums(fa, b0, size, lags)
+    saa, sbb = _xcorr_sums(a0 * a0, fb, size, lags), _xcorr_sums(fa, b0 * b0, size, lags)
+    sab = _xcorr_sums(a0, b0, size, lags)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = (n * sab - sa * sb) / np.sqrt(np.maximum(n * saa - sa * sa, 0.0) * np.maximum(n * sbb - sb * sb, 0.0))
+    r[n < 0.2 * min(ma.sum(), mb.sum())] = np.nan
+    return lags, r
+
+
+def estimate_time_offset(
+    t_ref_ns: np.ndarray,
+    ref_pos: np.ndarray,
+    ref_quat_xyzw: np.ndarray,
+    t_est_ns: np.ndarray,
+    est_pos: np.ndarray,
+    est_quat_xyzw: np.ndarray,
+    *,
+    max_offset_s: float = 1.0,
+    step_s: float | None = None,
+) -> TimeOffset | None:
+    """Clock offset of the estimate by cross-correlating frame-invariant motion signals.
+
+    The angular rate magnitude ``|ω|`` of a trajectory does not change under the unknown rigid transform
+    between estimate and truth frames (nor under a constant body-frame mismatch), so it can be compared
+    before any alignment: both are resampled on one grid as mean rates over a grid step, the lag of the highest
+    Pearson correlation within ``±max_offset_s`` is found for all grid lags at once (FFT), then refined off the
+    grid by a golden-section search within one step. The speed ``|v|`` (invariant too, up to the scale, which
+    the correlation ignores) is used instead when it varies clearly more than the angular rate.
+    Returns None when the streams do not overlap enough to tell.
+    """
+    tr, te = _as_stamps(t_ref_ns, "t_ref_ns"), _as_stamps(t_est_ns, "t_est_ns")
+    if tr.shape[0] < 4 or te.shape[0] < 4 or np.any(np.diff(tr) <= 0) or np.any(np.diff(te) <= 0):
+        return None
+    if step_s is None:
+        dt = max(float(np.median(np.diff(tr))), float(np.median(np.diff(te)))) / NS_PER_S
+        step_s = min(max(dt, 1e-3), 0.05)
+    step_ns = max(int(round(step_s * NS_PER_S)), 1)
+    max_lag = max(int(math.ceil(max_offset_s / step_s)), 1)
+    start = min(tr[0], te[0]) - max_lag * step_ns
+    stop = max(tr[-1], te[-1]) + max_lag * step_ns
+    n = int((stop - start) // step_ns) + 1
+    if n > 4_000_000 or n < 8:
+        return None
+    grid = start + np.arange(n, dtype=np.int64) * step_ns
+    r_ang, r_spd = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
+    e_ang, e_spd = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
+    # the signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker
+    cv = [_variation(r_ang), _variation(r_spd)]
+    order = (0, 1) if cv[0] >= 0.5 * cv[1] else (1, 0)
+    best = None
+    for idx in order:
+        a, b = ((r_ang, e_ang), (r_spd, e_spd))[idx]
+        if cv[idx] == 0.0:
+            continue
+        lags, c = _pearson_by_lag(a, b, max_lag)
+        if np.isfinite(c).any():
+            best = (idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags)
+            break
+    if best is None:
+        return None
+    idx, k, c, lags = best
+    # c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
+    # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
+    # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
+    ref_signal = (r_ang, r_spd)[idx]
+    steps = _step_angles(np.ascontiguousarray(est_quat_xyzw, dtype=np.float64)) if idx == 0 else \
+        np.linalg.norm(np.diff(np.asarray(est_pos, dtype=np.float64), axis=0), axis=1)
+
+    def corr(tau_ns: float) -> float:
+        e = _rate_on_grid(te, steps, grid - int(round(tau_ns)), step_ns)
+        ok = np.isfinite(e) & np.isfinite(ref_signal)
+        if ok.sum() < 8 or np.std(e[ok]) == 0 or np.std(ref_signal[ok]) == 0:
+            return -1.0
+        return float(np.corrcoef(ref_signal[ok], e[ok])[0, 1])
+
+    lo, hi = (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = corr(x1), corr(x2)
+    while hi - lo > 1e-4 * NS_PER_S:  # 0.1 ms
+        if f1 >= f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - g * (hi - lo)
+            f1 = corr(x1)
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + g * (hi - lo)
+            f2 = corr(x2)
+    tau = 0.5 * (lo + hi)
+    peak = max(corr(tau), float(c[k]))
+    offset = tau / NS_PER_S
+    name = ("angular rate |ω|", "speed |v|")[idx]
+    return TimeOffset(
+        offset_s=float(offset),
+        peak_correlation=float(min(max(peak, -1.0), 1.0)),
+        signal=name,
+        grid_step_s=step_ns / NS_PER_S,
+        search_window_s=float(max_lag * step_ns / NS_PER_S),
+        at_window_edge=bool(k == 0 or k == c.shape[0] - 1),
+    )

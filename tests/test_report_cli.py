@@ -1,0 +1,264 @@
+"""`slamobs report` and `slamobs evaluate` (click command objects, through CliRunner), and evo's own CLI as the
+oracle of `evaluate`'s printed output (subprocess with SLAMOBS_EVO_PYTHON; skipped without it)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from cli.evaluate_cmd import evaluate
+from cli.report_cmd import report
+from pipeline.config import RunConfig
+from pipeline.evaluation.evo_zip import load_result_zip
+from pipeline.evaluation.report import REPORT_FILES, validate_report
+from pipeline.evaluation.run_dir import replace_files
+from pipeline.run import run_log
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
+EVO_PYTHON = os.environ.get("SLAMOBS_EVO_PYTHON")
+
+
+def invoke(cmd, *args, catch: bool = False):
+    return CliRunner().invoke(cmd, [str(a) for a in args], catch_exceptions=catch)
+
+
+@pytest.fixture(scope="module")
+def finished_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "circle"
+    run_log(SAMPLE, out, RunConfig())
+    return out
+
+
+@pytest.fixture
+def run_dir(finished_run, tmp_path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(finished_run, copy)
+    return copy
+
+
+def load(path: Path) -> dict:
+    return json.loads(path.read_text())
+
+
+# ------------------------------------------------------------------------------------------ slamobs report
+
+
+def test_report_recomputes_the_run_report(run_dir):
+    before = load(run_dir / "report.json")
+    res = invoke(report, run_dir)
+    assert res.exit_code == 0, res.output
+    after = load(run_dir / "report.json")
+    validate_report(before)
+    validate_report(after)
+    assert after["ape"] == before["ape"] and after["landmarks"] == before["landmarks"]
+    assert after["truth_source"]["kind"] == "topic" and after["truth_source"]["name"] == "/mocap/pose"
+    for name in REPORT_FILES:
+        assert (run_dir / name).is_file(), name
+    assert load(run_dir / "run.json")["report_truth"]["name"] == "/mocap/pose"
+    assert "APE          translation rmse" in res.output
+    assert "evo_ape tum truth_tum.txt estimate_tum.txt -a" in res.output
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".report-")]
+
+
+def test_report_against_a_trajectory_file(run_dir, tmp_path):
+    truth_file = shutil.copy(run_dir / "truth_tum.txt", tmp_path / "gt.txt")
+    before = load(run_dir / "report.json")
+    res = invoke(report, run_dir, "--truth", truth_file)
+    assert res.exit_code == 0, res.output
+    after = load(run_dir / "report.json")
+    assert after["truth_source"] == {"kind": "file", "format": "tum", "name": str(truth_file), "n_poses": 1500,
+                                     "time_source": "file stamps"}
+    assert after["ape"] == before["ape"]  # the exported truth is the log's truth, to the nanosecond
+    assert after["landmarks"]["error_m"] == before["landmarks"]["error_m"]  # map truth still from the log
+
+
+def test_report_options_json_and_kept_options(run_dir):
+    res = invoke(report, run_dir, "--align", "origin", "--t-offset", "auto", "--rpe-delta", "0.5",
+                 "--drift-lengths", "5,10", "--json")
+    assert res.exit_code == 0, res.output
+    rep = json.loads(res.output)
+    validate_report(rep)
+    assert rep["method"]["alignment"]["type"] == "origin"
+    assert rep["time_offset"]["applied_from"] == "estimate"
+    assert rep["rpe"]["delta"] == 0.5 and rep["drift"]["lengths_m"] == [5.0, 10.0]
+    assert "--align_origin" in rep["evo"]["ape"]
+    again = invoke(report, run_dir, "-q")  # a re-report keeps the options of the report it replaces
+    assert again.exit_code == 0 and again.output == ""
+    assert load(run_dir / "report.json")["options"] == rep["options"]
+    back = invoke(report, run_dir, "--align", "se3", "--t-offset", "0", "--json")
+    assert json.loads(back.output)["method"]["alignment"]["type"] == "se3"
+
+
+def test_tf_truth_is_clear_either_way(run_dir):
+    res = invoke(report, run_dir, "--truth", "world->base_link")
+    assert res.exit_code == 2
+    # readers without TF support say so; readers with it name what the log lacks (this log has no /tf)
+    assert "TF truth (parent->child) is not supported yet" in res.stderr or "tf" in res.stderr.lower()
+
+
+def test_report_errors_are_one_line(run_dir, tmp_path):
+    res = invoke(report, tmp_path)
+    assert res.exit_code == 2 and "not a run directory" in res.stderr
+    res = invoke(report, run_dir, "--truth", "/no/such/topic")
+    assert res.exit_code == 2 and "/no/such/topic" in res.stderr
+    res = invoke(report, run_dir, "--t-offset", "soon")
+    assert res.exit_code == 2 and "auto" in res.output
+    meta = load(run_dir / "run.json")
+    meta["input"]["path"] = str(tmp_path / "moved.bag")
+    (run_dir / "run.json").write_text(json.dumps(meta))
+    res = invoke(report, run_dir)
+    assert res.exit_code == 2 and "input log is not there" in res.stderr
+
+
+def test_failed_report_leaves_the_previous_one(run_dir, monkeypatch):
+    import pipeline.evaluation.run_dir as rd
+
+    old = {name: (run_dir / name).read_bytes() for name in REPORT_FILES + ("run.json",)}
+
+    def half_written(report_, out, *args, **kwargs):
+        (Path(out) / "report.json").write_text("{ half")
+        raise OSError("disk full")
+
+    monkeypatch.setattr(rd, "write_report", half_written)
+    res = invoke(report, run_dir, "--align", "origin", catch=True)
+    assert isinstance(res.exception, OSError)
+    assert {name: (run_dir / name).read_bytes() for name in old} == old
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".report-")]
+
+
+def test_replace_files_renames_and_drops_stale_ones(tmp_path):
+    run, staged = tmp_path / "run", tmp_path / "run" / ".staged"
+    staged.mkdir(parents=True)
+    (run / "report.json").write_text("old")
+    (run / "landmarks.png").write_text("stale")
+    (run / "poses.parquet").write_text("data")
+    (staged / "report.json").write_text("new")
+    moved = replace_files(run, staged, REPORT_FILES)
+    assert [p.name for p in moved] == ["report.json"]
+    assert (run / "report.json").read_text() == "new" and not (run / "landmarks.png").exists()
+    assert (run / "poses.parquet").read_text() == "data"
+
+
+# ------------------------------------------------------------------------------------------ slamobs evaluate
+
+
+def test_evaluate_prints_like_evo_and_matches_the_report(finished_run, tmp_path):
+    rep = load(finished_run / "report.json")
+    truth, est = finished_run / "truth_tum.txt", finished_run / "estimate_tum.txt"
+    res = invoke(evaluate, truth, est, "-a")
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    assert lines[:3] == ["APE w.r.t. translation part (m)", "(with SE(3) Umeyama alignment)", ""]
+    stats = dict(line.split("\t") for line in lines[3:10])
+    assert [k.strip() for k in stats] == ["max", "mean", "median", "min", "rmse", "sse", "std"]
+    for k, v in stats.items():
+        assert float(v) == pytest.approx(rep["ape"]["translation_m"][k.strip()], abs=5e-7)
+    assert lines[11].split("\t") == ["     pairs", str(rep["ape"]["translation_m"]["n"])]
+    # our poses.parquet is a valid estimate too, and --json carries every number with its method
+    as_json = json.loads(invoke(evaluate, truth, finished_run / "poses.parquet", "-a", "--json").output)
+    assert as_json["stats"] == rep["ape"]["translation_m"]
+    assert as_json["method"]["association"]["n_pairs"] == rep["method"]["association"]["n_pairs"]
+
+
+def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
+    truth, est = finished_run / "truth_tum.txt", finished_run / "estimate_tum.txt"
+    zip_path = tmp_path / "rpe.zip"
+    res = invoke(evaluate, truth, est, "--metric", "rpe", "--delta", "1", "--delta_unit", "m", "-as",
+                 "-r", "angle_deg", "--save_results", zip_path, "--estimate-t-offset")
+    assert res.exit_code == 0, res.output
+    assert res.output.startswith("RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using "
+                                 "consecutive pairs\n(with Sim(3) Umeyama alignment)\n")
+    assert "t_offset" in res.output and "estimated" in res.output
+    info, stats, arrays = load_result_zip(zip_path)
+    assert info["label"] == "RPE (deg)" and info["est_name"] == str(est)
+    assert set(stats) == {"rmse", "mean", "median", "std", "min", "max", "sse"}
+    assert arrays["error_array"].size == arrays["timestamps"].size > 0
+    res = invoke(evaluate, truth, est, "--align_origin", "-r", "full", "--n_to_align", "10", "--t_offset", "auto",
+                 "--sync_method", "interpolation", "--json")
+    doc = json.loads(res.output)
+    assert doc["method"]["association"]["method"] == "interpolation" and doc["time_offset"]["applied_s"] != 0.0
+
+
+def test_evaluate_usage_errors(finished_run, tmp_path):
+    truth, est = finished_run / "truth_tum.txt", finished_run / "estimate_tum.txt"
+    assert invoke(evaluate, truth, est, "-a", "--align_origin").exit_code == 2
+    assert invoke(evaluate, truth, est, "-s", "--align-yaw").exit_code == 2
+    res = invoke(evaluate, truth, tmp_path / "nope.txt")
+    assert res.exit_code == 2 and "nope.txt: no such file" in res.stderr
+    shifted = tmp_path / "late.txt"
+    shifted.write_text("".join(f"{float(line.split()[0]) + 3600:.9f} {line.split(' ', 1)[1]}\n"
+                               for line in est.read_text().splitlines()))
+    res = invoke(evaluate, truth, shifted)
+    assert res.exit_code == 2 and "same clock" in res.stderr
+    res = invoke(evaluate, truth, est, "--metric", "rpe", "--delta", "1000", "--delta_unit", "m")
+    assert res.exit_code == 2 and "no pose pair" in res.stderr
+
+
+def test_evaluate_kitti_pairs_by_index(tmp_path):
+    rng = np.random.default_rng(3)
+    rows = []
+    for k in range(20):
+        r = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+        r *= np.sign(np.linalg.det(r))
+        rows.append(np.column_stack([r, [k, 0.1 * k * k, 0.0]]).ravel())
+    np.savetxt(tmp_path / "gt.txt", rows)
+    np.savetxt(tmp_path / "est.txt", np.array(rows) + [0, 0, 0, 0.5, 0, 0, 0, 0, 0, 0, 0, 0])
+    res = invoke(evaluate, tmp_path / "gt.txt", tmp_path / "est.txt", "--json")
+    doc = json.loads(res.output)
+    assert doc["method"]["association"]["method"] == "index" and doc["stats"]["n"] == 20
+    assert doc["stats"]["max"] == pytest.approx(0.5)
+    np.savetxt(tmp_path / "short.txt", rows[:5])
+    res = invoke(evaluate, tmp_path / "gt.txt", tmp_path / "short.txt")
+    assert res.exit_code == 2 and "paired by index" in res.stderr
+
+
+# ------------------------------------------------------------------------------------------ evo CLI as the oracle
+
+CASES = [
+    ("ape", ["-a"]),
+    ("ape", ["-as", "-r", "angle_deg"]),
+    ("ape", ["--align_origin", "-r", "full", "--t_max_diff", "0.02"]),
+    ("ape", ["-s", "-r", "rot_part", "--n_to_align", "50"]),
+    ("rpe", ["--delta", "1", "--delta_unit", "m", "-a", "-r", "trans_part"]),
+    ("rpe", ["--delta", "10", "--delta_unit", "d", "-r", "angle_deg"]),
+    ("rpe", ["--delta", "20", "--all_pairs", "-r", "point_distance"]),
+]
+
+
+EVO_CLI = """
+import sys, json
+from evo.cli import entry_points
+for k, (metric, args) in enumerate(json.loads(sys.argv[1])):
+    print(f"=== case {k}", flush=True)
+    sys.argv = [f"evo_{metric}", *args]
+    try:
+        getattr(entry_points, metric)()
+    except SystemExit:
+        pass
+    sys.stdout.flush()
+"""
+
+
+@pytest.mark.skipif(not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
+                    reason="set SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 to compare with evo's CLI")
+def test_evaluate_output_equals_evo_cli(finished_run, tmp_path):
+    """The printed block (title, alignment line, sorted statistics) is evo's, character for character."""
+    truth, est = str(finished_run / "truth_tum.txt"), str(finished_run / "estimate_tum.txt")
+    env = {**os.environ, "HOME": str(tmp_path), "MPLBACKEND": "Agg"}  # evo writes its settings under $HOME
+    runs = [(metric, ["tum", truth, est, *flags]) for metric, flags in CASES]
+    out = subprocess.run([EVO_PYTHON, "-c", EVO_CLI, json.dumps(runs)], env=env, capture_output=True, text=True,
+                         timeout=300, check=True).stdout
+    blocks = out.split("=== case ")[1:]
+    assert len(blocks) == len(CASES)
+    for (metric, flags), block in zip(CASES, blocks):
+        evo_block = block[block.index(f"{metric.upper()} w.r.t."):].rstrip("\n").splitlines()
+        ours = invoke(evaluate, truth, est, "--metric", metric, *flags)
+        assert ours.exit_code == 0, ours.output
+        assert ours.output.splitlines()[:len(evo_block)] == evo_block, (metric, flags)
