@@ -137,12 +137,13 @@ def observers() -> None:
 
 def _add_commands() -> None:
     """Commands that live in their own modules (each imports only click at module level)."""
+    from cli.batch_cmd import batch
     from cli.evaluate_cmd import evaluate
     from cli.info_cmd import info
     from cli.report_cmd import report
     from cli.simulate_cmd import simulate
 
-    for command in (info, simulate, report, evaluate):
+    for command in (info, simulate, report, evaluate, batch):
         main.add_command(command)
 
 

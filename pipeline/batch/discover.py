@@ -1,0 +1,219 @@
+"""Which logs a batch covers: files, directories, globs and manifests -> one :class:`LogEntry` per log.
+
+Also the two identities of a log: its ``run_id`` (from where it is) and its content hash (from what it holds).
+"""
+
+from __future__ import annotations
+
+import csv
+import glob
+import hashlib
+import os
+import re
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from pipeline.errors import InputError
+
+LOG_SUFFIXES = (".bag", ".mcap")
+MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
+ROSBAG2_META = "metadata.yaml"
+#: Bytes read from each end of a file for the content hash; smaller files are hashed whole.
+HASH_CHUNK = 1 << 20
+HASH_VERSION = "v1"
+
+
+@dataclass(frozen=True)
+class LogEntry:
+    """One log to run, with the per-log config a manifest gave it (None: the batch's config)."""
+
+    path: Path
+    config: Path | None = None
+
+
+def is_rosbag2_dir(path: Path) -> bool:
+    return path.is_dir() and (path / ROSBAG2_META).is_file()
+
+
+def _is_glob(text: str) -> bool:
+    return any(c in text for c in "*?[")
+
+
+def _is_manifest(path: Path) -> bool:
+    if path.suffix.lower() not in MANIFEST_SUFFIXES:
+        return False
+    # a rosbag2 directory's own metadata.yaml names that log, not a list of logs
+    return not (path.name == ROSBAG2_META and "rosbag2_bagfile_information" in path.read_text(errors="replace"))
+
+
+def _walk(root: Path) -> list[Path]:
+    """Logs under ``root``: .bag/.mcap files and rosbag2 directories (not descended into).
+
+    Hidden names are skipped: they are other tools' temporary files (e.g. a log still being written).
+    """
+    found: list[Path] = []
+    for here, dirs, files in os.walk(root, followlinks=False):
+        base = Path(here)
+        descend = []
+        for d in sorted(dirs):
+            if d.startswith("."):
+                continue
+            if is_rosbag2_dir(base / d):
+                found.append(base / d)
+            else:
+                descend.append(d)
+        dirs[:] = descend
+        found.extend(base / f for f in sorted(files)
+                     if not f.startswith(".") and f.lower().endswith(LOG_SUFFIXES))
+    return sorted(found)
+
+
+def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
+    """A path given on the command line or by a glob: a log, a directory to search, or a manifest."""
+    if is_rosbag2_dir(path):
+        return [LogEntry(path, config)]
+    if path.is_dir():
+        return [LogEntry(p, config) for p in _walk(path)]
+    if path.is_file():
+        if path.name == ROSBAG2_META and not _is_manifest(path):
+            return [LogEntry(path.parent, config)]
+        if _is_manifest(path):
+            return read_manifest(path)
+        if path.suffix.lower() in LOG_SUFFIXES:
+            return [LogEntry(path, config)]
+        raise InputError(path, f"{origin}: not a log (.bag, .mcap, rosbag2 directory) or a manifest (.csv, .yaml)")
+    raise InputError(path, f"{origin}: no such file or directory")
+
+
+def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
+    """All logs named by ``inputs``, in input order, each once.
+
+    Raises:
+        InputError: A missing input, an unreadable manifest, a log listed twice with different configs,
+            or no log at all.
+
+    """
+    entries: list[LogEntry] = []
+    for item in inputs:
+        text = str(item)
+        if not Path(text).exists() and _is_glob(text):
+            matches = sorted(glob.glob(text, recursive=True))
+            if not matches:
+                raise InputError(text, "pattern matches nothing")
+            for m in map(Path, matches):
+                if is_rosbag2_dir(m.parent):
+                    m = m.parent  # a file inside a rosbag2 directory stands for that one log
+                if m.is_dir() or m.suffix.lower() in LOG_SUFFIXES + MANIFEST_SUFFIXES:
+                    entries.extend(_expand(m, None, "input"))
+        else:
+            entries.extend(_expand(Path(text), None, "input"))
+    unique = _dedupe(entries)
+    if not unique:
+        raise InputError(" ".join(map(str, inputs)), "no logs found (.bag, .mcap or rosbag2 directories)")
+    return unique
+
+
+def _dedupe(entries: Iterable[LogEntry]) -> list[LogEntry]:
+    seen: dict[Path, LogEntry] = {}
+    for e in entries:
+        key = e.path.resolve()
+        first = seen.setdefault(key, e)
+        if first.config != e.config and _resolve(first.config) != _resolve(e.config):
+            raise InputError(e.path, f"listed twice with different configs ({first.config} and {e.config})")
+    return list(seen.values())
+
+
+def _resolve(p: Path | None) -> Path | None:
+    return None if p is None else p.resolve()
+
+
+def read_manifest(path: Path) -> list[LogEntry]:
+    """Entries of a CSV (columns ``log[,config]``, header optional) or YAML manifest.
+
+    YAML: a list of paths or of ``{log: PATH, config: PATH}`` mappings, or a mapping with that list under
+    ``logs``. Relative paths are relative to the manifest. Listed logs are not checked here: a missing one
+    becomes a failed run, so one bad line does not stop the batch.
+    """
+    try:
+        rows = _csv_rows(path) if path.suffix.lower() == ".csv" else _yaml_rows(path)
+    except OSError as err:
+        raise InputError(path, f"cannot read manifest: {err.strerror}") from None
+    base = path.parent
+    out = []
+    for n, (log, cfg) in enumerate(rows, 1):
+        if not log:
+            raise InputError(path, f"manifest entry {n}: no log path")
+        out.append(LogEntry(base / log, base / cfg if cfg else None))
+    return out
+
+
+def _csv_rows(path: Path) -> list[tuple[str, str | None]]:
+    with path.open(newline="") as fh:
+        rows = [[c.strip() for c in r] for r in csv.reader(fh) if r and any(c.strip() for c in r)]
+    rows = [r for r in rows if not r[0].startswith("#")]
+    if rows and rows[0][0].lower() in ("log", "path"):
+        header = [c.lower() for c in rows[0]]
+        rows = rows[1:]
+        i_cfg = header.index("config") if "config" in header else None
+        return [(r[0], (r[i_cfg] or None) if i_cfg is not None and i_cfg < len(r) else None) for r in rows]
+    return [(r[0], (r[1] or None) if len(r) > 1 else None) for r in rows]
+
+
+def _yaml_rows(path: Path) -> list[tuple[str, str | None]]:
+    from ruamel.yaml import YAML, YAMLError
+
+    try:
+        data = YAML(typ="safe").load(path.read_text())
+    except YAMLError as err:
+        raise InputError(path, f"manifest is not valid YAML: {str(err).splitlines()[0]}") from None
+    if isinstance(data, dict) and "logs" in data:
+        data = data["logs"]
+    if not isinstance(data, list):
+        raise InputError(path, "manifest must be a list of logs (or a mapping with a 'logs' list)")
+    rows = []
+    for n, item in enumerate(data, 1):
+        if isinstance(item, str):
+            rows.append((item, None))
+        elif isinstance(item, dict) and isinstance(item.get("log", item.get("path")), str):
+            cfg = item.get("config")
+            rows.append((item.get("log", item.get("path")), str(cfg) if cfg else None))
+        else:
+            raise InputError(path, f"manifest entry {n}: expected a path or {{log: PATH, config: PATH}}")
+    return rows
+
+
+def run_id_for(path: Path) -> str:
+    """Readable, stable id: the log's name plus 8 hex digits of its absolute path (unique per location)."""
+    name = path.name
+    for suffix in LOG_SUFFIXES:
+        if name.lower().endswith(suffix):
+            name = name[: -len(suffix)]
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-")[:48] or "log"
+    digest = hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:8]
+    return f"{name}-{digest}"
+
+
+def content_hash(path: Path) -> str:
+    """Fingerprint of a log's content, independent of mtime and location, cheap for big logs.
+
+    Per file (every non-hidden file of a rosbag2 directory, by relative name): its size, and its bytes if
+    at most 2 MiB, else its first and last MiB. Bag/MCAP indexes and rosbag2 metadata sit at the ends, and
+    a recording that grows or is re-recorded changes its size, so this catches real changes; an edit only
+    in the middle of a big file that keeps its size is not seen (use ``--force``).
+    """
+    h = hashlib.sha256(HASH_VERSION.encode())
+    path = Path(path)
+    files = sorted(p for p in path.rglob("*") if p.is_file() and not any(
+        part.startswith(".") for part in p.relative_to(path).parts)) if path.is_dir() else [path]
+    for f in files:
+        size = f.stat().st_size
+        h.update(f"\0{f.relative_to(path) if path.is_dir() else ''}\0{size}\0".encode())
+        with f.open("rb") as fh:
+            if size <= 2 * HASH_CHUNK:
+                h.update(fh.read())
+            else:
+                h.update(fh.read(HASH_CHUNK))
+                fh.seek(size - HASH_CHUNK)
+                h.update(fh.read(HASH_CHUNK))
+    return f"{HASH_VERSION}:{h.hexdigest()[:32]}"
