@@ -3,6 +3,9 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-stamp
+# evo (GPL-3.0) is a test-time oracle only: it lives in its own venv and is never imported by slamobs.
+EVO_VENV  ?= .venv-evo
+EVO_STAMP := $(EVO_VENV)/.installed-stamp
 
 .PHONY: demo test clean
 
@@ -12,14 +15,19 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $(STAMP)
 
+$(EVO_STAMP):
+	$(PYTHON) -m venv $(EVO_VENV)
+	$(EVO_VENV)/bin/python -m pip install --quiet evo==1.38.1
+	touch $(EVO_STAMP)
+
 ## Set up and run the fast-adaptation observer on a shipped sample log (output in demo_out/).
 demo: $(STAMP)
 	$(BIN)/slamobs info sample_logs/figure8.mcap
 	$(BIN)/slamobs run sample_logs/figure8.mcap -o demo_out/figure8 --force
 
-## Set up and run the test suite.
-test: $(STAMP)
-	$(BIN)/python -m pytest -q
+## Set up and run the test suite (with evo as an oracle in its own venv).
+test: $(STAMP) $(EVO_STAMP)
+	SLAMOBS_EVO_PYTHON=$(abspath $(EVO_VENV))/bin/python $(BIN)/python -m pytest -q
 
 clean:
-	rm -rf $(VENV) demo_out
+	rm -rf $(VENV) $(EVO_VENV) demo_out
