@@ -44,10 +44,10 @@ def simulate(
     detection_rate: float | None,
     force: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8) and write it to OUTPUT with landmark and bias truth."""
+    """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUTPUT with landmark and bias truth."""
     from pipeline.simulate.logwriter import infer_container, log_size, write_log
     from pipeline.simulate.scenarios import SCENARIOS
-    from pipeline.simulate.sensors import simulate as run_simulation
+    from pipeline.simulate.sensors import simulation
 
     if scenario not in SCENARIOS:
         raise click.BadParameter(
@@ -56,7 +56,7 @@ def simulate(
     container = container or infer_container(output)
     if (output.exists() or output.is_symlink()) and not force:
         raise click.ClickException(f"{output} exists already (use --force to replace it)")
-    sim = run_simulation(
+    sim = simulation(  # generated and written piece by piece: any duration fits in memory
         scenario,
         duration=duration,
         seed=seed,
@@ -70,6 +70,6 @@ def simulate(
     path = write_log(sim, output, container, overwrite=force)
     counts = ", ".join(f"{topic} {n}" for topic, n in sim.topic_counts().items())
     click.echo(
-        f"wrote {path} ({container}, {log_size(path) / 1e6:.2f} MB, {sim.scenario} {sim.duration:g} s, "
+        f"wrote {path} ({container}, {log_size(path) / 1e6:.2f} MB, {sim.scenario.name} {sim.duration:g} s, "
         f"seed {seed}{', no noise' if no_noise else ''}): {counts}"
     )

@@ -19,7 +19,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.directions import ACCEL_GATE, ACCEL_TOL, DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD, DirectionSet, build_directions
+from pipeline.directions import (
+    ACCEL_GATE,
+    ACCEL_TOL,
+    DEFAULT_GRAVITY,
+    DEFAULT_MAGNETIC_FIELD,
+    DirectionSet,
+    build_directions,
+    gravity_weights,
+)
+from pipeline.blocks import interp_sorted, row_blocks
 from pipeline.errors import InputError
 from pipeline.frames import TfBuffer
 from pipeline.streams import DetectionStream, LogStreams, Vec3Stream
@@ -72,7 +81,9 @@ class _Extrinsic:
         return np.einsum("nij,nj->ni", self.rot[rows], x)
 
     def apply(self, x: np.ndarray, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
-        return self.rotate(x, rows) + (self.trans if self.trans.ndim == 1 else self.trans[rows])
+        out = self.rotate(x, rows)
+        out += self.trans if self.trans.ndim == 1 else self.trans[rows]
+        return out
 
 
 _IDENTITY = _Extrinsic(np.eye(3), np.zeros(3))
@@ -136,18 +147,33 @@ def _gaps(t_ns: np.ndarray, topic: str) -> list[str]:
     return [f"{topic}: {int(big.sum())} gap(s) longer than {GAP_WARN_S} s (largest {d.max():.2f} s)"]
 
 
-def _resample(tf: TfBuffer, stream: Vec3Stream | None, t_base: np.ndarray, body: str,
-              time_source: str, ident: set[str], notes: list[str]) -> np.ndarray | None:
+class _Resampled:
+    """A vector stream interpolated onto ``t_base`` (NaN outside its span) and rotated into the body frame,
+    for the rows asked for (its frame is checked, and noted, on creation)."""
+
+    def __init__(self, fr: _Frame, stream: Vec3Stream, t_base: np.ndarray) -> None:
+        t, self.xyz = _sorted(_times(stream, fr.time_source), stream.xyz)
+        self.t0 = t[0]
+        self.rel = (t - t[0]).astype(np.float64)
+        self.t_base = t_base
+        self.ext = fr.to_body(stream.frame_id, stream.topic, t_base)
+        _held(self.ext, stream.topic, fr.notes)
+
+    def rows(self, rows: slice = slice(None)) -> np.ndarray:
+        q = (self.t_base[rows] - self.t0).astype(np.float64)
+        interp = np.interp if rows == slice(None) else interp_sorted
+        out = np.column_stack([interp(q, self.rel, self.xyz[:, a], left=np.nan, right=np.nan) for a in range(3)])
+        return self.ext.rotate(out, rows)
+
+
+def _resampled(fr: _Frame, stream: Vec3Stream | None, t_base: np.ndarray) -> _Resampled | None:
+    return None if stream is None or len(stream) < 2 else _Resampled(fr, stream, t_base)
+
+
+def _resample(fr: _Frame, stream: Vec3Stream | None, t_base: np.ndarray) -> np.ndarray | None:
     """A vector stream interpolated onto ``t_base`` (NaN outside its span) and rotated into the body frame."""
-    if stream is None or len(stream) < 2:
-        return None
-    t, xyz = _sorted(_times(stream, time_source), stream.xyz)
-    rel = (t - t[0]).astype(np.float64)
-    q = (t_base - t[0]).astype(np.float64)
-    out = np.column_stack([np.interp(q, rel, xyz[:, a], left=np.nan, right=np.nan) for a in range(3)])
-    ext = _to_body(tf, body, stream.frame_id, stream.topic, ident, t_base, notes)
-    _held(ext, stream.topic, notes)
-    return ext.rotate(out)
+    res = _resampled(fr, stream, t_base)
+    return None if res is None else res.rows()
 
 
 def align(
@@ -158,102 +184,178 @@ def align(
     identity_frames: tuple[str, ...] = (),
     gravity=DEFAULT_GRAVITY,
     magnetic_field=DEFAULT_MAGNETIC_FIELD,
+    keep_directions: bool = True,
+    release: bool = False,
 ) -> AlignedStream:
-    """Build the observer's ordered input from the decoded streams of one log."""
+    """Build the observer's ordered input from the decoded streams of one log.
+
+    ``keep_directions=False`` leaves the direction samples out of the result (observers without IMU
+    directions; their accelerometer note is still made). ``release=True`` removes each sensor stream from
+    ``streams`` once it has been used (for a caller that reads nothing else of them), so the samples of a long
+    log are not held twice. Each part runs in its own function so its temporaries are gone before the next
+    part starts; the notes come in the order velocities, detections, directions.
+    """
     om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
     lv: Vec3Stream = _require(streams, "linear_velocity", "body linear velocity (nav_msgs/Odometry or TwistStamped)")
     det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
     body = (body_frame or lv.frame_id or "base_link").lstrip("/")
     ident = {f.lstrip("/") for f in identity_frames}
-    notes: list[str] = []
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
+    frame = _Frame(tf, body, ident, time_source, [])
+    dir_frame = _Frame(tf, body, ident, time_source, [])
 
-    t_om, w = _sorted(_times(om, time_source), om.xyz)
-    t_lv, v = _sorted(_times(lv, time_source), lv.xyz)
+    t_om, omega, velocity, (lo, hi) = _velocities(streams.path, om, lv, frame)
+    del om, lv
+    # The directions before the detections: the IMU samples can go before the detections are moved.
+    accel, magnetic = streams.accel, streams.magnetic
+    if release:
+        streams.angular_velocity = streams.linear_velocity = streams.accel = streams.magnetic = None
+    directions, w = _directions(dir_frame, t_om, omega, velocity, accel, magnetic, gravity, magnetic_field,
+                                keep_directions)
+    del accel, magnetic
+    if release:
+        streams.detections = None
+    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame)
+    del det
+    notes = frame.notes + dir_frame.notes
+    if w is not None:
+        notes.append(f"accelerometer: {100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
+                     f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
+                     f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)")
+    return AlignedStream(
+        t0_ns=int(t_om[0]),
+        vel_t_ns=t_om,
+        omega=omega,
+        velocity=velocity,
+        det_t_ns=det_t_ns,
+        det_offsets=offsets,
+        det_idx=det_idx,
+        det_y=det_y,
+        landmark_ids=landmark_ids,
+        body_frame=body,
+        notes=notes,
+        directions=directions if keep_directions else None,
+    )
+
+
+def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,
+                magnetic: Vec3Stream | None, gravity, magnetic_field, keep: bool):
+    """The direction set (``keep``) and the accelerometer weights (None without an accelerometer)."""
+    t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
+    if keep:
+        directions = build_directions(t_s, omega, velocity, _resample(fr, accel, t_om), _resample(fr, magnetic, t_om),
+                                      gravity, magnetic_field)
+        if directions is not None and "gravity" in directions.names:
+            return directions, directions.weight[:, directions.names.index("gravity")]
+        return directions, None
+    # only the accelerometer note: its weights block by block (both frames are still checked)
+    acc = _resampled(fr, accel, t_om)
+    _resampled(fr, magnetic, t_om)
+    if acc is None:
+        return None, None
+    return None, gravity_weights(t_s, omega, velocity, acc.rows, float(np.linalg.norm(gravity)))
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """Where the streams go: the body frame through ``tf``; notes collect what was done."""
+
+    tf: TfBuffer
+    body: str
+    ident: set[str]
+    time_source: str
+    notes: list[str]
+
+    def to_body(self, frame_id: str, topic: str, t_ns: np.ndarray) -> _Extrinsic:
+        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes)
+
+
+def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame):
+    """Time base (int64 ns), body angular and linear velocity on it, and the span both streams cover."""
+    notes = fr.notes
+    t_om, w = _sorted(_times(om, fr.time_source), om.xyz)
+    t_lv, v = _sorted(_times(lv, fr.time_source), lv.xyz)
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
-        raise InputError(
-            streams.path,
-            f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) do not overlap in time",
-        )
-    keep = (t_om >= lo) & (t_om <= hi)
-    if not np.all(keep):
-        notes.append(f"{int((~keep).sum())} angular-velocity samples outside the linear-velocity span dropped")
-    t_om, w = t_om[keep], w[keep]
+        raise InputError(path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) do not overlap in time")
+    first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
+    if n_out := t_om.shape[0] - int(stop - first):
+        notes.append(f"{n_out} angular-velocity samples outside the linear-velocity span dropped")
+        t_om, w = t_om[first:stop], w[first:stop]
+    t_om = t_om.astype(np.int64)  # its own array: the stream's may be shared with other roles
 
-    gyro_ext = _to_body(tf, body, om.frame_id, om.topic, ident, t_om, notes)
+    gyro_ext = fr.to_body(om.frame_id, om.topic, t_om)
     _held(gyro_ext, om.topic, notes)
-    omega = gyro_ext.rotate(w)
-    # Linear velocity of the body origin from the velocity of the odometry frame (lever arm t_bc).
-    rel = (t_lv - lo).astype(np.float64)
-    rel_q = (t_om - lo).astype(np.float64)
-    v_interp = np.column_stack([np.interp(rel_q, rel, v[:, a]) for a in range(3)])
-    vel_ext = _to_body(tf, body, lv.frame_id, lv.topic, ident, t_om, notes)
+    vel_ext = fr.to_body(lv.frame_id, lv.topic, t_om)
     _held(vel_ext, lv.topic, notes)
-    velocity = vel_ext.rotate(v_interp) - np.cross(omega, vel_ext.trans)
+    # Linear velocity of the body origin from the velocity of the odometry frame (lever arm t_bc), a block
+    # of samples at a time into the result arrays (the same per-row arithmetic as whole arrays).
+    rel = (t_lv - lo).astype(np.float64)
+    omega = np.empty((t_om.shape[0], 3))
+    velocity = np.empty((t_om.shape[0], 3))
+    for rows in row_blocks(t_om.shape[0]):
+        omega[rows] = gyro_ext.rotate(w[rows], rows)
+        rel_q = (t_om[rows] - lo).astype(np.float64)
+        v_interp = np.column_stack([interp_sorted(rel_q, rel, v[:, a]) for a in range(3)])
+        block = vel_ext.rotate(v_interp, rows)
+        block -= np.cross(omega[rows], vel_ext.trans)
+        velocity[rows] = block
     notes += _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic)
+    return t_om, omega, velocity, (lo, hi)
 
-    # Detections: camera frame -> body frame, inside the velocity span.
-    t_det = _times(det, time_source)
+
+def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
+    """Detection frames inside ``[lo, hi]`` in time order, in the body frame: stamps, CSR offsets, dense landmark
+    indices, positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved
+    (a clean log keeps its order: an hour of detections is tens of MB per copy)."""
+    notes = fr.notes
+    t_det = _times(det, fr.time_source)
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
     order = np.argsort(t_det, kind="stable")
     in_span = (t_det >= lo) & (t_det <= hi)
     if n_out := len(det) - int(np.count_nonzero(in_span)):
         notes.append(f"{n_out} detection frames outside the velocity span dropped")
-    cam_ext = _to_body(tf, body, det.frame_id, det.topic, ident, t_det, notes)
+    cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
     if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
         notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
         in_span &= cam_ext.valid
     frames = order[in_span[order]]
-    sel = np.flatnonzero(in_span[frame_of]).astype(np.int64)
+    del order
+    sel = None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)  # None: every row
     # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
-    if sel.size:
-        key = frame_of[sel] * (np.int64(1) << 32) + (det.ids[sel] & 0xFFFFFFFF)
+    n_sel = det.ids.shape[0] if sel is None else sel.size
+    if n_sel:
+        key = (frame_of if sel is None else frame_of[sel]) * (np.int64(1) << 32) + \
+            ((det.ids if sel is None else det.ids[sel]) & 0xFFFFFFFF)
         _, first = np.unique(key, return_index=True)
-        if first.size < sel.size:
-            notes.append(f"{det.topic}: {sel.size - first.size} repeated ids within a frame dropped")
-            mask = np.zeros(sel.size, bool)
+        del key
+        if first.size < n_sel:
+            notes.append(f"{det.topic}: {n_sel - first.size} repeated ids within a frame dropped")
+            mask = np.zeros(n_sel, bool)
             mask[first] = True
-            sel = sel[mask]
-    det_y = cam_ext.apply(det.xyz[sel], frame_of[sel])
-    # ``frames`` is in time order; rebuild CSR offsets in that order.
-    rank = np.empty(len(det), np.int64)
-    rank[frames] = np.arange(frames.size)
-    frame_rank = rank[frame_of[sel]]
-    order_det = np.argsort(frame_rank, kind="stable")
-    det_y = det_y[order_det]
-    ids = det.ids[sel][order_det]
-    per_frame = np.bincount(frame_rank, minlength=frames.size)
+            sel = np.flatnonzero(mask) if sel is None else sel[mask]
+        del first
+    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], frame_of if sel is None else frame_of[sel])
+    in_order = sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1))
+    if in_order:  # every detection, frames already in time order
+        del frame_of
+        ids = det.ids
+        per_frame = counts
+    else:
+        # ``frames`` is in time order; rebuild CSR offsets in that order.
+        rank = np.empty(len(det), np.int64)
+        rank[frames] = np.arange(frames.size)
+        frame_rank = rank[frame_of if sel is None else frame_of[sel]]
+        del frame_of, rank
+        order_det = np.argsort(frame_rank, kind="stable")
+        det_y = det_y[order_det]
+        ids = (det.ids if sel is None else det.ids[sel])[order_det]
+        per_frame = np.bincount(frame_rank, minlength=frames.size)
+        del frame_rank, order_det
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     if landmark_ids.size == 0:
-        raise InputError(streams.path, "no landmark detections inside the velocity time span", det.topic)
-
-    t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
-    directions = build_directions(
-        t_s, omega, velocity,
-        _resample(tf, streams.accel, t_om, body, time_source, ident, notes),
-        _resample(tf, streams.magnetic, t_om, body, time_source, ident, notes),
-        gravity, magnetic_field,
-    )
-    if directions is not None and "gravity" in directions.names:
-        w = directions.weight[:, directions.names.index("gravity")]
-        notes.append(f"accelerometer: {100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
-                     f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
-                     f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)")
-
-    return AlignedStream(
-        t0_ns=int(t_om[0]),
-        vel_t_ns=t_om.astype(np.int64),
-        omega=np.ascontiguousarray(omega),
-        velocity=np.ascontiguousarray(velocity),
-        det_t_ns=t_det[frames].astype(np.int64),
-        det_offsets=offsets,
-        det_idx=det_idx.astype(np.int64),
-        det_y=np.ascontiguousarray(det_y, dtype=np.float64),
-        landmark_ids=landmark_ids.astype(np.int64),
-        body_frame=body,
-        notes=notes,
-        directions=directions,
-    )
+        raise InputError(path, "no landmark detections inside the velocity time span", det.topic)
+    return (t_det[frames].astype(np.int64), offsets, det_idx.astype(np.int64),
+            np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))

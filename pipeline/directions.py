@@ -10,11 +10,13 @@ down-weight them rather than be pulled by them.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
+from pipeline.blocks import interp_sorted, row_blocks
 from pipeline.errors import GainError
 
 #: Default inertial references: gravity (m/s²) and a mid-latitude magnetic field (Tesla), map frame.
@@ -53,15 +55,17 @@ def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 DIFF_HALF_WIDTH = 0.1
 
 
-def body_acceleration(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray) -> np.ndarray:
-    """``dV/dt + Ω × V`` in the body frame, dV/dt by a ±0.1 s central difference."""
+def body_acceleration(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray,
+                      rows: slice = slice(None)) -> np.ndarray:
+    """``dV/dt + Ω × V`` in the body frame (at ``rows``), dV/dt by a ±0.1 s central difference."""
     if t_s.shape[0] < 3 or t_s[-1] - t_s[0] <= 2 * DIFF_HALF_WIDTH:
-        return np.cross(omega, velocity)
-    lo = np.clip(t_s - DIFF_HALF_WIDTH, t_s[0], t_s[-1])
-    hi = np.clip(t_s + DIFF_HALF_WIDTH, t_s[0], t_s[-1])
-    dv = np.column_stack([(np.interp(hi, t_s, velocity[:, a]) - np.interp(lo, t_s, velocity[:, a])) / (hi - lo)
+        return np.cross(omega[rows], velocity[rows])
+    lo = np.clip(t_s[rows] - DIFF_HALF_WIDTH, t_s[0], t_s[-1])
+    hi = np.clip(t_s[rows] + DIFF_HALF_WIDTH, t_s[0], t_s[-1])
+    interp = np.interp if rows == slice(None) else interp_sorted
+    dv = np.column_stack([(interp(hi, t_s, velocity[:, a]) - interp(lo, t_s, velocity[:, a])) / (hi - lo)
                           for a in range(3)])
-    return dv + np.cross(omega, velocity)
+    return dv + np.cross(omega[rows], velocity[rows])
 
 
 def gravity_up(f_body: np.ndarray, acc_body: np.ndarray, g: float) -> tuple[np.ndarray, np.ndarray]:
@@ -71,6 +75,16 @@ def gravity_up(f_body: np.ndarray, acc_body: np.ndarray, g: float) -> tuple[np.n
     weight = np.clip((ACCEL_GATE - err) / (ACCEL_GATE - ACCEL_TOL), 0.0, 1.0)
     weight[~np.isfinite(weight)] = 0.0
     return up, weight
+
+
+def gravity_weights(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray,
+                    accel_rows: Callable[[slice], np.ndarray], g: float) -> np.ndarray:
+    """The accelerometer trust weights of :func:`build_directions` alone, computed a block of samples at a time
+    (``accel_rows(block)`` gives the body-frame specific force there)."""
+    weight = np.empty(t_s.shape[0])
+    for rows in row_blocks(t_s.shape[0]):
+        _, weight[rows] = gravity_up(accel_rows(rows), body_acceleration(t_s, omega, velocity, rows), g)
+    return weight
 
 
 def build_directions(t_s, omega, velocity, accel, magnetic, gravity=DEFAULT_GRAVITY,

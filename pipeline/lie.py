@@ -90,6 +90,15 @@ def so3_left_jacobian(w):
 
 
 @njit(cache=True)
+def so3_exps(w):
+    """:func:`so3_exp` of every row of an ``(N, 3)`` array: ``(N, 3, 3)``."""
+    out = np.empty((w.shape[0], 3, 3))
+    for k in range(w.shape[0]):
+        out[k] = so3_exp(w[k])
+    return out
+
+
+@njit(cache=True)
 def se3_exp(w, v):
     """Closed-form SE(3) exponential of the twist ``[w; v]``: returns ``(R, p)``."""
     return so3_exp(w), mat3_vec(so3_left_jacobian(w), v)

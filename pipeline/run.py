@@ -1,6 +1,11 @@
 """One log through the whole pipeline: read -> align -> observe -> write -> evaluate.
 
 The CLI and the batch runner call :func:`run_log`; nothing here parses arguments or prints.
+
+Memory stays bounded by what the stages need at once, not by the sum of everything a long log produces:
+after alignment only the ground truth of the decoded streams is kept, the observer runs a stretch of
+``STRETCH_SAMPLES`` velocity samples at a time with each stretch written to Parquet straight away, its
+input is released when it is done (single runs), and the report reads back the columns it needs.
 """
 
 from __future__ import annotations
@@ -18,6 +23,7 @@ from pipeline.alignment import AlignedStream, align
 from pipeline.config import RunConfig
 from pipeline.errors import InputError
 from pipeline.observers import ObserverOptions, ObserverResult, get_observer
+from pipeline.streams import LogStreams
 
 
 @dataclass
@@ -64,10 +70,14 @@ def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:
     return max(1, int(round(native / rate_hz)))
 
 
-def _check_finite(res: ObserverResult, log: Path, observer: str) -> None:
+#: Velocity samples per observer stretch and Parquet row group (about 11 min at 200 Hz).
+STRETCH_SAMPLES = 131_072
+
+
+def _check_finite(res: ObserverResult, log: Path, observer: str, t0_ns: int) -> None:
     bad = ~np.isfinite(res.position).all(axis=1)
     if bad.any():
-        t = (res.t_ns[np.argmax(bad)] - res.t_ns[0]) * 1e-9
+        t = (res.t_ns[np.argmax(bad)] - t0_ns) * 1e-9
         raise InputError(log, f"observer '{observer}' diverged (non-finite state) {t:.2f} s into the log; "
                               "lower its gains or check the input rates")
 
@@ -82,16 +92,25 @@ def _check_directions(spec, aligned: AlignedStream, log: Path) -> None:
 
 @dataclass
 class PreparedLog:
-    """A log read and aligned once; any number of observers can run on it."""
+    """A log read and aligned once; any number of observers can run on it.
+
+    ``streams`` keeps what the runs need of the decoded log (truth, simulation truth, warnings, clocks), not
+    the sensor samples, which live on in ``aligned``; ``topics`` names the topic of each role.
+    """
 
     log: Path
-    streams: object  # LogStreams
-    aligned: AlignedStream
+    streams: LogStreams
+    aligned: AlignedStream | None  # None once a run that owned it has released it
     timings: dict[str, float]
+    topics: dict[str, str] = field(default_factory=dict)
 
 
-def prepare_log(log: Path, config: RunConfig) -> PreparedLog:
-    """Read the log and build the observer input (readers -> alignment)."""
+def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> PreparedLog:
+    """Read the log and build the observer input (readers -> alignment).
+
+    ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
+    IMU directions never read them; the accelerometer note is still made).
+    """
     from pipeline.readers import read_log
 
     log = Path(log)
@@ -100,11 +119,14 @@ def prepare_log(log: Path, config: RunConfig) -> PreparedLog:
     streams = read_log(log, config.topics or None, **config.reader_options())
     timings["read_s"] = time.perf_counter() - t
     t = time.perf_counter()
+    topics = _topics(streams)
     aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
                     identity_frames=config.identity_frames, gravity=config.gravity,
-                    magnetic_field=config.magnetic_field)
+                    magnetic_field=config.magnetic_field, keep_directions=directions, release=True)
     timings["align_s"] = time.perf_counter() - t
-    return PreparedLog(log, streams, aligned, timings)
+    kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
+                      bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks)
+    return PreparedLog(log, kept, aligned, timings, topics)
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
@@ -112,49 +134,71 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically."""
     spec = get_observer(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))  # fail on bad gains before reading a large log
-    prepared = prepare_log(log, config)
+    prepared = prepare_log(log, config, directions=spec.min_directions > 0)
     progress(f"read {log}")
-    return run_prepared(prepared, out_dir, config, force=force)
+    return run_prepared(prepared, out_dir, config, force=force, release=True)
 
 
-def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False) -> RunSummary:
-    """Observer -> writers -> evaluation on an already prepared log."""
-    from pipeline.writers import atomic_directory, result_tables, write_json, write_result
+def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False,
+                 release: bool = False) -> RunSummary:
+    """Observer -> writers -> evaluation on an already prepared log.
+
+    The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
+    observer is done (the caller runs nothing else on it), so the report does not share memory with it.
+    """
+    from pipeline.writers import TableWriter, atomic_directory, landmark_table, stretch_tables, write_json
 
     log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
+    if aligned is None:
+        raise ValueError("the prepared log's observer input was released by an earlier run")
     timings = dict(prepared.timings)
     spec = get_observer(config.observer)
     gains = spec.resolve_gains(config.gains.get(spec.name))
     _check_directions(spec, aligned, log)
     options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz))
-    t = time.perf_counter()
-    res = spec.run(aligned, gains, options)
-    timings["observer_s"] = time.perf_counter() - t
-    _check_finite(res, log, spec.name)
-
     notes = list(streams.warnings) + list(aligned.notes)
     metadata = {
         "software": {"slamobs": pipeline.__version__, "python": platform.python_version()},
-        "input": {"path": str(log.resolve()), "topics": _topics(streams), "time_source": config.align_time_source,
-                  "clocks": dict(streams.clocks),
+        "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
+                  "time_source": config.align_time_source, "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
                                  "out_every": options.out_every}},
         "counts": {"velocity_samples": int(aligned.vel_t_ns.shape[0]), "detection_frames": int(aligned.det_t_ns.shape[0]),
-                   "detections": int(aligned.det_idx.shape[0]), "landmarks": int(aligned.landmark_ids.shape[0]),
-                   "internal_steps": int(res.stats.get("substeps", 0))},
+                   "detections": int(aligned.det_idx.shape[0]), "landmarks": int(aligned.landmark_ids.shape[0])},
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
     }
     report = None
     with atomic_directory(out_dir, force=force) as tmp:
-        t = time.perf_counter()
-        write_result(tmp, res, metadata)
-        timings["write_s"] = time.perf_counter() - t
+        sink = TableWriter(tmp)
+        try:
+            observer_s = write_s = 0.0
+            t = time.perf_counter()
+            for part in spec.chunks(aligned, gains, options, STRETCH_SAMPLES):
+                t_run = time.perf_counter()
+                observer_s += t_run - t
+                _check_finite(part, log, spec.name, int(aligned.vel_t_ns[0]))
+                sink.write({**stretch_tables(part), **part.extra_tables})
+                t = time.perf_counter()
+                write_s += t - t_run
+            sink.write({"landmarks": landmark_table(part.landmark_ids, part.landmark_xyz,
+                                                    np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
+                                                    aligned.det_ids)})
+            metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
+            del part
+            if release:
+                prepared.aligned = aligned = None
+            sink.close(metadata)
+        except BaseException:
+            sink.abort()
+            raise
+        timings["observer_s"] = observer_s
+        timings["write_s"] = write_s + time.perf_counter() - t
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
-            report = _evaluate(tmp, result_tables(res), streams, config, notes)
+            report = _evaluate(tmp, streams, config, notes)
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
@@ -163,29 +207,32 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes)
 
 
-def _topics(streams) -> dict[str, str]:
+def _topics(streams: LogStreams) -> dict[str, str]:
     roles = ("angular_velocity", "linear_velocity", "detections", "truth", "accel", "magnetic")
     return {r: getattr(streams, r).topic for r in roles if getattr(streams, r) is not None}
 
 
-def _evaluate(out: Path, tables: dict, streams, config: RunConfig, notes: list[str]) -> dict | None:
+def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str]) -> dict | None:
     """Error report against the log's ground truth; a failure to associate becomes a note, not a crash."""
-    import pandas as pd
+    from pipeline.evaluation import ReportOptions, evaluate_tables, write_report
+    from pipeline.evaluation.report import bias_plot_rows
+    from pipeline.writers import read_frame
 
-    from pipeline.evaluation import ReportOptions, build_report, write_report
-
-    frames = {k: pd.DataFrame(v) for k, v in tables.items()}
+    frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
     truth = streams.truth
     if config.align_time_source == "record":
         truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
     # observers that measure gravity fix roll and pitch: the report adds the 4-DoF (translation + yaw) alignment
     options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,
                             gravity_aligned=get_observer(config.observer).min_directions > 0)
+    # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
+    drawn_biases = bias_plot_rows(frames["biases"])
+    landmarks = frames["landmarks"]
     try:
-        report = build_report(frames["poses"], frames["biases"], frames["landmarks"], truth,
-                              streams.landmark_truth, streams.bias_truth, options=options)
+        report, evaluation = evaluate_tables(frames, truth, streams.landmark_truth, streams.bias_truth,
+                                             options=options)
     except ValueError as err:
         notes.append(f"no error report: {err}")
         return None
-    write_report(report, out, frames["poses"], frames["biases"], frames["landmarks"], truth, streams.landmark_truth)
+    write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth, evaluation=evaluation)
     return report

@@ -1,7 +1,14 @@
-"""Parquet outputs of a run (schemas in ``schemas/``) and the atomic run directory that holds them."""
+"""Parquet outputs of a run (schemas in ``schemas/``) and the atomic run directory that holds them.
+
+Tables are written a stretch of rows at a time (:class:`TableWriter`, one row group per stretch), so a
+multi-hour run never holds its histories. Encodings suit the data: float columns are byte-stream split
+(the sign/exponent/high-mantissa bytes of a smooth series compress well, the low mantissa bytes are
+noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all zstd.
+"""
 
 from __future__ import annotations
 
+import base64
 import json
 import os
 import shutil
@@ -23,17 +30,19 @@ METADATA_KEY = b"slamobs"
 
 def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     """Columns of every output table, named as in ``schemas/``."""
+    return {**stretch_tables(res),
+            "landmarks": landmark_table(res.landmark_ids, res.landmark_xyz, res.det_t_ns, res.det_ids)}
+
+
+def stretch_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
+    """The tables with a row per sample or detection (all but ``landmarks``), of a whole run or a stretch."""
     q = rots_to_quats(np.ascontiguousarray(res.rotation)) if len(res.t_ns) else np.zeros((0, 4))
-    ids, first, last, n_obs = _landmark_summary(res)
-    order = np.searchsorted(res.landmark_ids, ids)
     return {
         "poses": {"t_ns": res.t_ns, "x": res.position[:, 0], "y": res.position[:, 1], "z": res.position[:, 2],
                   "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]},
         "biases": {"t_ns": res.t_ns,
                    **{f"gyro_bias_{a}": res.gyro_bias[:, i] for i, a in enumerate("xyz")},
                    **{f"vel_bias_{a}": res.vel_bias[:, i] for i, a in enumerate("xyz")}},
-        "landmarks": {"id": ids, **{a: res.landmark_xyz[order, i] for i, a in enumerate("xyz")},
-                      "first_seen_ns": first, "last_seen_ns": last, "n_obs": n_obs},
         "landmark_tracks": {"t_ns": res.det_t_ns, "id": res.det_ids,
                             **{a: res.track_xyz[:, i] for i, a in enumerate("xyz")}},
         "innovations": {"t_ns": res.det_t_ns, "id": res.det_ids,
@@ -42,38 +51,120 @@ def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     }
 
 
-def _landmark_summary(res: ObserverResult):
-    """First/last detection time and detection count per landmark id."""
-    ids, inv, n_obs = np.unique(res.det_ids, return_inverse=True, return_counts=True)
+def landmark_table(landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns: np.ndarray,
+                   det_ids: np.ndarray) -> dict[str, np.ndarray]:
+    """The final map: per landmark ever detected its position, first/last detection time and count."""
+    ids, inv, n_obs = np.unique(det_ids, return_inverse=True, return_counts=True)
     first = np.full(ids.shape, np.iinfo(np.int64).max, dtype=np.int64)
     last = np.full(ids.shape, np.iinfo(np.int64).min, dtype=np.int64)
-    np.minimum.at(first, inv, res.det_t_ns)
-    np.maximum.at(last, inv, res.det_t_ns)
-    return ids.astype(np.int64), first, last, n_obs.astype(np.int64)
+    np.minimum.at(first, inv, det_t_ns)
+    np.maximum.at(last, inv, det_t_ns)
+    order = np.searchsorted(landmark_ids, ids)
+    return {"id": ids.astype(np.int64), **{a: landmark_xyz[order, i] for i, a in enumerate("xyz")},
+            "first_seen_ns": first, "last_seen_ns": last, "n_obs": n_obs.astype(np.int64)}
 
 
-def write_table(path: Path, name: str, columns: dict[str, np.ndarray], metadata: dict) -> None:
-    """Write one table with its schema, run metadata in the key-value metadata, zstd-compressed."""
-    schema = arrow_schema(name)
-    arrays = [pa.array(np.asarray(columns[f.name]), type=f.type) for f in schema]
-    meta = dict(schema.metadata or {})
-    meta[METADATA_KEY] = json.dumps(metadata, sort_keys=True).encode()
-    table = pa.Table.from_arrays(arrays, schema=schema.with_metadata(meta))
-    pq.write_table(table, path, compression=COMPRESSION)
+def _encodings(schema: pa.Schema) -> dict:
+    """Writer options per column: byte-stream split floats, delta-packed ``*_ns`` times, dictionary ids."""
+    encoding, dictionary = {}, []
+    for f in schema:
+        if pa.types.is_floating(f.type):
+            encoding[f.name] = "BYTE_STREAM_SPLIT"
+        elif f.name.endswith("_ns"):
+            encoding[f.name] = "DELTA_BINARY_PACKED"
+        else:
+            dictionary.append(f.name)
+    return {"compression": COMPRESSION, "column_encoding": encoding, "use_dictionary": dictionary}
+
+
+class TableWriter:
+    """Output tables of a run written stretch by stretch into ``out_dir/<name>.parquet``.
+
+    The run metadata is known only when the run ends (e.g. the number of internal steps), so it goes into
+    the footer at :meth:`close`, together with the Arrow schema that carries it (as ``pq.write_table``
+    would have stored it). A table whose first stretch is empty is still written (schema, no rows).
+    """
+
+    def __init__(self, out_dir: Path) -> None:
+        self.out_dir = Path(out_dir)
+        self.writers: dict[str, tuple[pq.ParquetWriter, pa.Schema]] = {}
+
+    def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
+        """Append one stretch of rows to each table."""
+        for name, columns in tables.items():
+            if name not in self.writers:
+                schema = arrow_schema(name)
+                path = self.out_dir / f"{name}.parquet"
+                self.writers[name] = (pq.ParquetWriter(path, schema, store_schema=False, **_encodings(schema)),
+                                      schema)
+            writer, schema = self.writers[name]
+            # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element
+            arrays = [pa.array(np.ascontiguousarray(columns[f.name]), type=f.type) for f in schema]
+            writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
+
+    def close(self, metadata: dict) -> list[Path]:
+        """Finish every file with the run ``metadata``; returns the paths."""
+        written = []
+        for name, (writer, schema) in self.writers.items():
+            meta = dict(schema.metadata or {})
+            meta[METADATA_KEY] = json.dumps(metadata, sort_keys=True).encode()
+            final = schema.with_metadata(meta)
+            writer.add_key_value_metadata({**{k.decode(): v.decode() for k, v in meta.items()},
+                                           "ARROW:schema": base64.b64encode(final.serialize().to_pybytes()).decode()})
+            writer.close()
+            written.append(self.out_dir / f"{name}.parquet")
+        self.writers = {}
+        return written
+
+    def abort(self) -> None:
+        """Close the files without metadata (the caller discards the directory)."""
+        for writer, _ in self.writers.values():
+            writer.close()
+        self.writers = {}
 
 
 def write_result(out_dir: Path, res: ObserverResult, metadata: dict) -> list[Path]:
-    """All five tables of a run into ``out_dir``."""
-    written = []
-    for name, cols in {**result_tables(res), **res.extra_tables}.items():
-        path = out_dir / f"{name}.parquet"
-        write_table(path, name, cols, metadata)
-        written.append(path)
-    return written
+    """All five tables of a run (and the observer's extra ones) into ``out_dir``."""
+    return write_tables(out_dir, {**result_tables(res), **res.extra_tables}, metadata)
+
+
+def write_tables(out_dir: Path, tables: dict[str, dict[str, np.ndarray]], metadata: dict) -> list[Path]:
+    """Tables (``result_tables`` and extra ones) into ``out_dir`` as ``<name>.parquet``, in one stretch."""
+    sink = TableWriter(out_dir)
+    sink.write(tables)
+    return sink.close(metadata)
+
+
+def read_frame(path: Path):
+    """A table written here as a pandas DataFrame, filled one row group at a time, its float columns one 2-D
+    block: selecting ``x, y, z`` then gives a view, not a copy, and no Arrow copy of the file is held."""
+    import pandas as pd
+
+    f = pq.ParquetFile(path)
+    schema = f.schema_arrow
+    n = f.metadata.num_rows
+    floats = [x.name for x in schema if pa.types.is_floating(x.type)]
+    others = {x.name: np.empty(n, dtype=x.type.to_pandas_dtype()) for x in schema if x.name not in floats}
+    block = np.empty((n, len(floats)))
+    k = 0
+    for g in range(f.num_row_groups):
+        group = f.read_row_group(g)
+        m = group.num_rows
+        for j, name in enumerate(floats):
+            block[k : k + m, j] = group.column(name).to_numpy()
+        for name, out in others.items():
+            out[k : k + m] = group.column(name).to_numpy()
+        k += m
+        del group
+    frame = pd.DataFrame(block, columns=floats, copy=False)
+    for pos, name in enumerate(schema.names):
+        if name in others:
+            frame.insert(pos, name, others.pop(name))
+    return frame
 
 
 def read_metadata(path: Path) -> dict:
-    """Run metadata stored in a table written by :func:`write_table`."""
+    """Run metadata stored in a table written by :class:`TableWriter`."""
     meta = pq.read_schema(path).metadata or {}
     return json.loads(meta[METADATA_KEY]) if METADATA_KEY in meta else {}
 

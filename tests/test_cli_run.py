@@ -199,12 +199,13 @@ def test_demo_sample_copy_runs_from_any_directory(tmp_path, monkeypatch):
 
 
 def test_help_imports_no_heavy_modules():
-    """`slamobs --help` stays fast: commands import numba, rosbags, pyarrow only when they run."""
+    """`slamobs --help` stays fast: commands import numba, rosbags, pyarrow only when they run (and NumPy loads
+    after ``cli.main`` has set its BLAS thread count)."""
     import subprocess
     import sys
 
-    code = ("import sys, cli.main; heavy = [m for m in ('numba', 'rosbags', 'pyarrow', 'pandas', 'matplotlib') "
-            "if m in sys.modules]; print(','.join(heavy))")
+    code = ("import sys, cli.main; heavy = [m for m in ('numpy', 'numba', 'rosbags', 'pyarrow', 'pandas', "
+            "'matplotlib') if m in sys.modules]; print(','.join(heavy))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ""
     from cli.simulate_cmd import CONTAINERS

@@ -583,6 +583,28 @@ def test_stamps_are_parsed_exactly():
         stamp_ns("abc")
 
 
+def test_tum_text_is_python_repr():
+    """TUM values are formatted in compiled code from Arrow's shortest digits: the text must be exactly what
+    ``repr`` writes, for ordinary numbers, every exponent range, integers, zeros, subnormals, NaN/Inf and
+    random bit patterns; stamps exact to the nanosecond, negative ones included."""
+    from pipeline.readers.trajectory_files import tum_text
+
+    rng = np.random.default_rng(11)
+    n = 20_000
+    values = np.concatenate([
+        rng.normal(size=n), rng.normal(size=n) * 10.0 ** rng.integers(-30, 30, n),
+        rng.integers(0, 2**64, n, dtype=np.uint64).view(np.float64), np.round(rng.normal(size=n) * 1000),
+        [0.0, -0.0, np.nan, np.inf, -np.inf, 5e-324, 1.7976931348623157e308, 1e16, 1e15, 9999999999999998.0,
+         1e-4, 9.999999999999999e-05, 1e-5, 123.0, 1e22, 2.2250738585072014e-308, 0.1, 1 / 3, -2.5e-7],
+    ])
+    values = values[: values.size // 7 * 7].reshape(-1, 7)
+    t = rng.integers(-2**62, 2**62, values.shape[0])
+    want = "".join(format_stamp(s) + " " + " ".join(repr(float(v)) for v in row) + "\n"
+                   for s, row in zip(t.tolist(), values))
+    assert tum_text(t, values[:, :3], values[:, 3:]) == want
+    assert tum_text(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4))) == ""
+
+
 def test_file_formats_round_trip_and_detection(tmp_path):
     truth = make_truth(n=50)
     tum = write_tum(tmp_path / "a.txt", truth)
@@ -909,3 +931,24 @@ def test_evo_reads_our_result_zip(oracle):
         assert set(loaded["arrays"]) == set(evo[c["id"]]["evo_arrays"])
         for k, v in evo[c["id"]]["evo_arrays"].items():
             assert np.allclose(loaded["arrays"][k], v, rtol=1e-9, atol=1e-9), (c["id"], k)
+
+
+def test_plots_draw_thinned_series_with_their_extremes():
+    """A long series is drawn from the first, lowest and highest sample of each bucket (NaN ignored); a short
+    or already thinned one whole; paths and scatters from evenly spaced rows plus the largest error."""
+    from pipeline.evaluation.plots import envelope, thin
+
+    rng = np.random.default_rng(2)
+    y = rng.normal(size=(200_000, 2))
+    y[1000:1500, 0] = np.nan
+    keep = envelope(len(y), y, buckets=500)
+    edges = np.linspace(0, len(y), 501).astype(int)
+    for a, b in zip(edges[:-1], edges[1:]):
+        for c in range(2):
+            seg = y[a:b, c]
+            if np.isfinite(seg).any():
+                assert a + np.nanargmax(seg) in keep and a + np.nanargmin(seg) in keep
+    assert keep[0] == 0 and keep[-1] == len(y) - 1 and np.all(np.diff(keep) > 0)
+    assert np.array_equal(envelope(len(keep), y[keep], buckets=500), np.arange(len(keep)))  # thinned: as is
+    assert np.array_equal(envelope(100, y[:100]), np.arange(100))
+    assert thin(10, 20).tolist() == list(range(10)) and 37 in thin(1000, 5, keep=37)

@@ -81,3 +81,25 @@ def test_out_of_view_landmarks_keep_their_estimate(runs, name):
             assert step < 0.05
             checked += 1
     assert checked > 0
+
+
+@pytest.mark.parametrize("name", list(OBSERVERS))
+@pytest.mark.parametrize("out_every", [1, 3])
+def test_stretch_by_stretch_equals_one_run(runs, noise_free, name, out_every):
+    """``ObserverSpec.chunks`` (what ``slamobs run`` writes stretch by stretch) is the run itself, bit for bit:
+    stopping after any velocity sample and going on changes nothing (state, sub-step count, map, jumps)."""
+    _, aligned = noise_free
+    spec = OBSERVERS[name]
+    gains = spec.resolve_gains(None)
+    options = ObserverOptions(out_every=out_every)
+    whole = runs[name] if out_every == 1 else spec.run(aligned, gains, options)
+    parts = list(spec.chunks(aligned, gains, options, 997))
+    assert len(parts) > 3
+    for field in ("t_ns", "rotation", "position", "gyro_bias", "vel_bias", "det_t_ns", "det_ids", "track_xyz",
+                  "innovation"):
+        joined = np.concatenate([getattr(p, field) for p in parts])
+        assert np.array_equal(joined, getattr(whole, field)), field
+    assert np.array_equal(parts[-1].landmark_xyz, whole.landmark_xyz) and parts[-1].stats == whole.stats
+    for table in whole.extra_tables:
+        for column, values in whole.extra_tables[table].items():
+            assert np.array_equal(np.concatenate([p.extra_tables[table][column] for p in parts]), values)

@@ -91,3 +91,30 @@ def test_schema_files_are_valid_json_with_units():
         spec = json.loads((arrow_schema.__globals__["HERE"] / f"{name}.json").read_text())
         assert spec["name"] == name
         assert all({"name", "type", "unit", "description"} <= set(f) for f in spec["fields"])
+
+
+def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
+    """Row groups written one stretch at a time read back as the whole table; encodings suit the columns."""
+    from pipeline.writers import TableWriter, read_frame, stretch_tables
+
+    res = _result(k=300, m=90)
+    whole = stretch_tables(res)
+    sink = TableWriter(tmp_path)
+    for rows, dets in ((slice(0, 100), slice(0, 40)), (slice(100, 300), slice(40, 90))):
+        part = ObserverResult(res.t_ns[rows], res.rotation[rows], res.position[rows], res.gyro_bias[rows],
+                              res.vel_bias[rows], res.landmark_ids, res.landmark_xyz, res.det_t_ns[dets],
+                              res.det_ids[dets], res.track_xyz[dets], res.innovation[dets])
+        sink.write(stretch_tables(part))
+    meta = {"counts": {"internal_steps": 7}}
+    sink.close(meta)
+    for name, columns in whole.items():
+        path = tmp_path / f"{name}.parquet"
+        assert read_metadata(path) == meta and pq.ParquetFile(path).metadata.num_row_groups == 2
+        df = pd.read_parquet(path)
+        for column, values in columns.items():
+            assert np.array_equal(df[column].to_numpy(), values), (name, column)
+        assert read_frame(path).equals(df)
+        chunk = pq.ParquetFile(path).metadata.row_group(0)
+        encodings = {chunk.column(i).path_in_schema: chunk.column(i).encodings for i in range(chunk.num_columns)}
+        assert "DELTA_BINARY_PACKED" in encodings["t_ns"]
+        assert all("BYTE_STREAM_SPLIT" in e for c, e in encodings.items() if c not in ("t_ns", "id"))

@@ -17,7 +17,14 @@ from pipeline.evaluation.metrics import (
     statistics,
     umeyama,
 )
-from pipeline.evaluation.report import ReportOptions, build_report, render_markdown, write_report
+from pipeline.evaluation.report import (
+    ReportOptions,
+    build_report,
+    evaluate_report,
+    evaluate_tables,
+    render_markdown,
+    write_report,
+)
 
 __all__ = [
     "LandmarkErrors",
@@ -28,6 +35,8 @@ __all__ = [
     "apply_alignment",
     "associate",
     "build_report",
+    "evaluate_report",
+    "evaluate_tables",
     "landmark_errors",
     "render_markdown",
     "rpe_errors",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.evaluation.metrics import relative_angles
+from pipeline.evaluation.metrics import RotationRows, relative_angles
 from pipeline.evaluation.rpe import accumulated_distances
 
 KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
@@ -44,7 +44,7 @@ def segment_drift(
     """Mean segment errors per length and over all segments (JSON-ready); lengths with no segment are listed
     with ``n_segments = 0`` and null errors."""
     rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
-    rr, er = np.asarray(ref_rot, dtype=np.float64), np.asarray(est_rot, dtype=np.float64)
+    rr, er = (r if isinstance(r, RotationRows) else np.asarray(r, dtype=np.float64) for r in (ref_rot, est_rot))
     dist = accumulated_distances(rp)
     lengths = tuple(float(x) for x in (lengths_m or segment_lengths(float(dist[-1]) if dist.size else 0.0)))
     starts = np.arange(0, rp.shape[0], max(int(step), 1))
@@ -56,10 +56,11 @@ def segment_drift(
         if i.size == 0:
             rows.append({"length_m": length, "n_segments": 0, "translation_pct": None, "rotation_deg_per_m": None})
             continue
-        q_rot = np.einsum("nji,njk->nik", rr[i], rr[j])
-        p_rot = np.einsum("nji,njk->nik", er[i], er[j])
-        q_t = np.einsum("nji,nj->ni", rr[i], rp[j] - rp[i])
-        p_t = np.einsum("nji,nj->ni", er[i], ep[j] - ep[i])
+        rr_i, er_i = rr[i], er[i]
+        q_rot = np.einsum("nji,njk->nik", rr_i, rr[j])
+        p_rot = np.einsum("nji,njk->nik", er_i, er[j])
+        q_t = np.einsum("nji,nj->ni", rr_i, rp[j] - rp[i])
+        p_t = np.einsum("nji,nj->ni", er_i, ep[j] - ep[i])
         # E = P⁻¹ Q: R_E = R_Pᵀ R_Q, t_E = R_Pᵀ (t_Q − t_P)
         t_err = np.linalg.norm(np.einsum("nji,nj->ni", p_rot, q_t - p_t), axis=1) / length
         r_err = np.degrees(relative_angles(p_rot, q_rot)) / length

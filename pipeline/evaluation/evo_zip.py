@@ -19,28 +19,34 @@ import numpy as np
 from pipeline.evaluation.trajectory_error import ErrorResult
 
 
-def result_zip_bytes(result: ErrorResult) -> bytes:
-    """The archive of ``result`` as bytes."""
+def _write_zip(target, result: ErrorResult) -> None:
+    """The archive of ``result`` into ``target`` (a path or a binary file object), one array at a time."""
     info = {"title": result.title, "ref_name": result.ref_name, "est_name": result.est_name, "label": result.label}
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w") as archive:
+    with zipfile.ZipFile(target, "w") as archive:
         archive.writestr("info.json", json.dumps(info))
         archive.writestr("stats.json", json.dumps(result.evo_stats))
         for name, array in {"error_array": result.errors, **result.arrays}.items():
             npy = io.BytesIO()
             np.save(npy, np.asarray(array))
-            archive.writestr(f"{name}.npy", npy.getvalue())
+            archive.writestr(f"{name}.npy", npy.getbuffer())
+            del npy
+
+
+def result_zip_bytes(result: ErrorResult) -> bytes:
+    """The archive of ``result`` as bytes."""
+    buf = io.BytesIO()
+    _write_zip(buf, result)
     return buf.getvalue()
 
 
 def save_result_zip(path: str | Path, result: ErrorResult) -> Path:
-    """Write the archive to ``path`` atomically (temporary file in the same directory, then rename)."""
+    """Write the archive to ``path`` atomically (temporary file in the same directory, then rename), streamed
+    into the file rather than built in memory."""
     path = Path(path)
-    data = result_zip_bytes(result)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
     try:
         with os.fdopen(fd, "wb") as f:
-            f.write(data)
+            _write_zip(f, result)
         os.chmod(tmp, 0o644)
         os.replace(tmp, path)
     except BaseException:

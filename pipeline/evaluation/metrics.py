@@ -13,13 +13,16 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from pipeline.blocks import blockwise
 from pipeline.evaluation.align import apply_alignment, umeyama
 from pipeline.evaluation.sync import NS_PER_S, associate
+from pipeline.lie import quats_to_rots
 
 __all__ = [
     "NS_PER_S",
     "POSE_RELATIONS",
     "LandmarkErrors",
+    "RotationRows",
     "ape_errors",
     "ape_rotation_deg",
     "ape_translation",
@@ -182,6 +185,44 @@ def matrix_quats(r):
     return out
 
 
+class RotationRows:
+    """Rotation matrices of N poses, built for the rows asked for: ``left @ R_k`` with ``R_k`` from the
+    quaternions ``(x, y, z, w)`` (or the matrices as given). An hour of pairs as ``(N, 3, 3)`` is ~26 MB per
+    copy; the metrics index only the rows they need (segment ends, RPE pairs) or run block by block, with
+    the same per-row arithmetic, so the numbers are those of the full arrays.
+    """
+
+    def __init__(self, rotation: np.ndarray, left: np.ndarray | None = None, index: np.ndarray | None = None) -> None:
+        self.rotation = np.asarray(rotation, dtype=np.float64)
+        self.left = None if left is None else np.asarray(left, dtype=np.float64)
+        self.index = index  # the rows of ``rotation`` these are (pairs refer to their streams' rows)
+
+    def turned(self, left: np.ndarray) -> RotationRows:
+        """The same rows rotated: ``left @ R_k``."""
+        return RotationRows(self.rotation, left, self.index)
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return (len(self), 3, 3)
+
+    def __len__(self) -> int:
+        return int((self.rotation if self.index is None else self.index).shape[0])
+
+    def __getitem__(self, rows) -> np.ndarray:
+        r = self.rotation[rows if self.index is None else self.index[rows]]
+        single = r.ndim == (2 if self.rotation.ndim == 3 else 1)
+        if single:
+            r = r[None]
+        m = quats_to_rots(np.ascontiguousarray(r)) if r.ndim == 2 else np.ascontiguousarray(r)
+        if self.left is not None:
+            m = np.matmul(self.left, m)
+        return m[0] if single else m
+
+    def __array__(self, dtype=None, copy=None) -> np.ndarray:
+        out = self[:]
+        return out if dtype is None else out.astype(dtype, copy=False)
+
+
 def _rotations(r: np.ndarray, name: str) -> np.ndarray:
     out = np.ascontiguousarray(r, dtype=np.float64)
     if out.ndim != 3 or out.shape[1:] != (3, 3):
@@ -227,7 +268,12 @@ def ape_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray, est_pos: n
         raise ValueError(f"ape_errors: expected two (N, 3) position arrays, got {ref_p.shape} and {est_p.shape}")
     if relation in ("trans_part", "point_distance"):
         return np.linalg.norm(est_p - ref_p, axis=1)
+    if isinstance(ref_R, RotationRows) or isinstance(est_R, RotationRows):  # block by block, never all at once
+        return blockwise(lambda rp, rr, ep, er: ape_errors(relation, rp, rr, ep, er), ref_p.shape[0],
+                         ref_p, ref_R, est_p, est_R)
     est_r = _rotations(est_R, "est_R")
+    if relation in ("angle_deg", "angle_rad"):  # the rotation alone
+        return _error_pose_norms(relation, est_r, _rotations(ref_R, "ref_R"), np.empty((0, 3)))
     # t_E = R_estᵀ (t_ref − t_est), formed explicitly: rotations read from files (KITTI) are orthonormal only
     # to their printed digits, and evo uses them as they are
     t_err = np.einsum("nji,nj->ni", est_r, ref_p) - np.einsum("nji,nj->ni", est_r, est_p)
@@ -245,11 +291,15 @@ def rpe_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray | None, est
     rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
     if relation == "point_distance":
         return np.abs(np.linalg.norm(rp[i] - rp[j], axis=1) - np.linalg.norm(ep[i] - ep[j], axis=1))
-    rr, er = _rotations(ref_R, "ref_R"), _rotations(est_R, "est_R")
-    q_rot = np.einsum("nji,njk->nik", rr[i], rr[j])
-    p_rot = np.einsum("nji,njk->nik", er[i], er[j])
-    q_t = np.einsum("nji,nj->ni", rr[i], rp[j]) - np.einsum("nji,nj->ni", rr[i], rp[i])
-    p_t = np.einsum("nji,nj->ni", er[i], ep[j]) - np.einsum("nji,nj->ni", er[i], ep[i])
+    if not isinstance(ref_R, RotationRows):
+        ref_R = _rotations(ref_R, "ref_R")
+    if not isinstance(est_R, RotationRows):
+        est_R = _rotations(est_R, "est_R")
+    rr_i, rr_j, er_i, er_j = ref_R[i], ref_R[j], est_R[i], est_R[j]  # only the rows of the pairs
+    q_rot = np.einsum("nji,njk->nik", rr_i, rr_j)
+    p_rot = np.einsum("nji,njk->nik", er_i, er_j)
+    q_t = np.einsum("nji,nj->ni", rr_i, rp[j]) - np.einsum("nji,nj->ni", rr_i, rp[i])
+    p_t = np.einsum("nji,nj->ni", er_i, ep[j]) - np.einsum("nji,nj->ni", er_i, ep[i])
     # t_E = R_Qᵀ t_P − R_Qᵀ t_Q, formed explicitly (not ‖t_P − t_Q‖): file rotations are orthonormal only to
     # their printed digits, and evo uses them as they are
     t_err = np.einsum("nji,nj->ni", q_rot, p_t) - np.einsum("nji,nj->ni", q_rot, q_t)

@@ -2,6 +2,12 @@
 
 Matplotlib is imported inside the functions (importing ``pipeline.evaluation`` stays fast) and figures are
 drawn on an explicit Agg canvas, never through ``pyplot``: no screen, no global backend switch.
+
+A figure is about a thousand pixels wide, so long logs are thinned before drawing (a one-hour run has
+millions of samples, which took seconds to draw and looked the same): time series keep the first, lowest
+and highest sample of each pixel-sized bucket (:func:`envelope`, spikes stay visible), paths and
+scatters an evenly spaced subset (:func:`thin`, the largest error kept). Reports are computed from the
+full data; only the drawing is thinned.
 """
 
 from __future__ import annotations
@@ -11,8 +17,47 @@ from pathlib import Path
 import numpy as np
 
 MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable and are left out
+SERIES_BUCKETS = 2000  # time-series buckets per line (each keeps up to three samples)
+PATH_POINTS = 20_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
+SCATTER_POINTS = 5000  # markers of a scatter
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
+
+
+def envelope(n: int, columns, buckets: int = SERIES_BUCKETS) -> np.ndarray:
+    """Indices (ascending) of the first, lowest and highest sample of each of ``buckets`` runs of every
+    column (an ``(n, k)`` array or a sequence of ``n``-long columns; each line keeps its own extremes); all
+    indices when there are no more samples than that would keep (so thinned data passes unchanged)."""
+    cols = list(np.asarray(columns).T) if isinstance(columns, np.ndarray) and columns.ndim == 2 else list(columns)
+    if n <= buckets * (1 + 2 * len(cols)) + 1:
+        return np.arange(n)
+    edges = np.linspace(0, n, buckets + 1).astype(np.int64)
+    keep = [edges[:-1]]
+    for col in cols:  # fmin/fmax: NaN samples never hide a bucket's extremes
+        col = np.asarray(col, dtype=np.float64)
+        keep.append(edges[:-1] + _argreduce(np.fmin, col, edges))
+        keep.append(edges[:-1] + _argreduce(np.fmax, col, edges))
+    keep.append(np.array([n - 1]))
+    return np.unique(np.concatenate(keep))
+
+
+def _argreduce(op: np.ufunc, col: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Position within each bucket ``[edges[k], edges[k+1])`` of its minimum/maximum (first on ties, 0 when
+    the bucket is all NaN)."""
+    best = op.reduceat(col, edges[:-1])
+    owner = np.repeat(np.arange(edges.shape[0] - 1), np.diff(edges))
+    hit = np.flatnonzero(col == best[owner])
+    first = np.full(edges.shape[0] - 1, -1, np.int64)
+    first[owner[hit][::-1]] = hit[::-1]  # the last write per bucket is its first hit
+    return np.maximum(first, edges[:-1]) - edges[:-1]
+
+
+def thin(n: int, most: int, keep: int | None = None) -> np.ndarray:
+    """About ``most`` evenly spaced indices of ``n`` (first and last included, and ``keep`` if given)."""
+    if n <= most:
+        return np.arange(n)
+    idx = np.unique(np.linspace(0, n - 1, most).astype(np.int64))
+    return idx if keep is None else np.union1d(idx, [keep])
 
 
 def _figure(rows: int, cols: int = 1, size: tuple[float, float] = (9.0, 6.0)):
@@ -51,9 +96,11 @@ def plot_trajectory_top(
     """
     fig, axes = _figure(1, 1, (8.5, 8.0))
     ax = axes[0, 0]
-    ax.plot(truth_xyz[:, 0], truth_xyz[:, 1], "-", color="0.3", lw=1.5, label="truth trajectory")
+    truth_xy = truth_xyz[thin(len(truth_xyz), PATH_POINTS)]
+    ax.plot(truth_xy[:, 0], truth_xy[:, 1], "-", color="0.3", lw=1.5, label="truth trajectory")
     colored = pair_xyz is not None and pair_error_m is not None and len(pair_error_m) > 0
-    ax.plot(est_xyz[:, 0], est_xyz[:, 1], "-", color="tab:blue", lw=0.8 if colored else 1.2,
+    est_xy = est_xyz[thin(len(est_xyz), PATH_POINTS)]
+    ax.plot(est_xy[:, 0], est_xy[:, 1], "-", color="tab:blue", lw=0.8 if colored else 1.2,
             alpha=0.5 if colored else 1.0, label="estimate (aligned)")
     norm = None
     if colored:
@@ -63,8 +110,9 @@ def plot_trajectory_top(
         if lm_error_m is not None and np.isfinite(lm_error_m).any():
             finite.append(np.nanmax(lm_error_m))
         norm = Normalize(0.0, max(max(finite), 1e-12))
-        sc = ax.scatter(pair_xyz[:, 0], pair_xyz[:, 1], c=pair_error_m, cmap="viridis", norm=norm, s=4, zorder=3,
-                        label="associated estimate, colour = APE")
+        sel = thin(len(pair_error_m), SCATTER_POINTS, keep=int(np.nanargmax(pair_error_m)))
+        sc = ax.scatter(pair_xyz[sel, 0], pair_xyz[sel, 1], c=pair_error_m[sel], cmap="viridis", norm=norm, s=4,
+                        zorder=3, label="associated estimate, colour = APE")
         fig.colorbar(sc, ax=ax, shrink=0.8, label="error [m]")
     if len(est_xyz):
         ax.plot(est_xyz[0, 0], est_xyz[0, 1], "o", color="tab:blue", ms=5, label="estimate start")
@@ -85,11 +133,11 @@ def plot_trajectory_top(
         if len(lm_est_ids) <= MAX_ID_LABELS:
             for i, p in zip(lm_est_ids, lm_est_xyz):
                 ax.annotate(str(int(i)), (p[0], p[1]), xytext=(4, 4), textcoords="offset points", fontsize=7,
-                            color="tab:orange")
+                            color="tab:orange", in_layout=False)  # inside the axes: not a layout concern
     if lm_truth_ids is not None and lm_truth_xyz is not None and 0 < len(lm_truth_ids) <= MAX_ID_LABELS:
         for i, p in zip(lm_truth_ids, lm_truth_xyz):
             ax.annotate(str(int(i)), (p[0], p[1]), xytext=(4, -10), textcoords="offset points", fontsize=7,
-                        color="0.2")
+                        color="0.2", in_layout=False)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -111,10 +159,11 @@ def plot_errors(
     """Aligned position and attitude error over time, with the convergence threshold and time if known."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
-    ax_p.plot(t_s, position_error_m, color="tab:blue", lw=1.0, label="‖position error‖")
+    sel = envelope(len(t_s), [position_error_m, attitude_error_deg])
+    ax_p.plot(t_s[sel], position_error_m[sel], color="tab:blue", lw=1.0, label="‖position error‖")
     if threshold_m is not None:
         ax_p.axhline(threshold_m, color="tab:red", ls=":", lw=1.0, label=f"convergence threshold {threshold_m:g} m")
-    ax_r.plot(t_s, attitude_error_deg, color="tab:purple", lw=1.0, label="attitude error angle")
+    ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if convergence_t_s is not None:
         for ax in (ax_p, ax_r):
             ax.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0,
@@ -147,6 +196,9 @@ def plot_biases(
     """Bias estimate histories per axis; true values dashed in the same colour when known; the stability
     window of the report shaded."""
     fig, axes = _figure(2, 1, (10.0, 6.5))
+    if len(t_s):
+        sel = envelope(len(t_s), [*gyro.T, *velocity.T])
+        t_s, gyro, velocity = t_s[sel], gyro[sel], velocity[sel]
     panels = (
         (axes[0, 0], gyro, gyro_truth, "gyro bias b_Ω [rad/s]", "Gyro bias estimate"),
         (axes[1, 0], velocity, velocity_truth, "velocity bias b_V [m/s]", "Velocity bias estimate"),

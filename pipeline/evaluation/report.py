@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline import __version__
+from pipeline.blocks import row_blocks
 from pipeline.evaluation import metrics, slam_metrics
 from pipeline.evaluation.align import DESCRIPTIONS, KINDS, Alignment, fit_alignment
 from pipeline.evaluation.drift import segment_drift
@@ -97,10 +98,17 @@ def estimate_stream(poses: pd.DataFrame) -> PoseStream:
     _require(poses, POSE_COLUMNS, "poses")
     if len(poses) == 0:
         raise ValueError("poses table is empty: nothing to evaluate")
-    order = np.argsort(poses["t_ns"].to_numpy(np.int64), kind="stable")
-    t = poses["t_ns"].to_numpy(np.int64)[order]
-    return PoseStream("estimate", "", "", t, t.copy(), poses[["x", "y", "z"]].to_numpy(np.float64)[order],
-                      poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)[order])
+    rows = _time_order(poses["t_ns"].to_numpy(np.int64))
+    t = poses["t_ns"].to_numpy(np.int64)[rows]
+    return PoseStream("estimate", "", "", t, t, poses[["x", "y", "z"]].to_numpy(np.float64)[rows],
+                      poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)[rows])
+
+
+def _time_order(t_ns: np.ndarray) -> np.ndarray | slice:
+    """Rows in time order (stable): all of them as they are when already sorted (no copy), else an index."""
+    if t_ns.shape[0] < 2 or bool(np.all(t_ns[1:] >= t_ns[:-1])):
+        return slice(None)
+    return np.argsort(t_ns, kind="stable")
 
 
 @dataclass(frozen=True)
@@ -147,7 +155,8 @@ def evaluate_trajectory(poses: pd.DataFrame, truth: PoseStream, options: ReportO
     al_opts = AlignOptions(options.align)
     trans = ape(truth_sorted, est, "trans_part", sync, al_opts, paired=paired, ref_name="truth",
                 est_name="estimate")
-    rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate")
+    rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate",
+              like=trans)
     return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
 
 
@@ -180,22 +189,32 @@ def _ape_by_alignment(ev: TrajectoryEvaluation, options: ReportOptions, notes: l
     kinds = [options.align] + [k for k in ("se3", "yaw", "origin", "none") if k != options.align]
     if not options.gravity_aligned:
         kinds = [k for k in kinds if k != "yaw" or k == options.align]
-    out: dict[str, Any] = {}
     p = ev.paired
-    for kind in kinds:
-        if kind == options.align:
-            al, t_err, r_err = ev.alignment, ev.translation.errors, ev.rotation.errors
-        else:
-            try:
-                al = fit_alignment(kind, p.ref_pos, p.est_pos, p.ref_rot, p.est_rot)
-            except ValueError as err:
-                notes.append(f"APE with {kind} alignment not computed: {err}")
-                continue
-            pos, rot = al.positions(p.est_pos), al.rotations(p.est_rot)
-            t_err = metrics.ape_errors("trans_part", p.ref_pos, p.ref_rot, pos, rot)
-            r_err = metrics.ape_errors("angle_deg", p.ref_pos, p.ref_rot, pos, rot)
-        out[kind] = {"translation_m": metrics.statistics(t_err), "rotation_deg": metrics.statistics(r_err),
-                     "alignment": _alignment_dict(al)}
+    fits: dict[str, Alignment] = {}
+    for kind in kinds[1:]:
+        try:
+            fits[kind] = fit_alignment(kind, p.ref_pos, p.est_pos, p.ref_rot, p.est_rot)
+        except ValueError as err:
+            notes.append(f"APE with {kind} alignment not computed: {err}")
+    errors = _aligned_errors(fits, p)
+    errors[options.align] = (ev.translation.errors, ev.rotation.errors)
+    fits[options.align] = ev.alignment
+    return {kind: {"translation_m": metrics.statistics(errors[kind][0]),
+                   "rotation_deg": metrics.statistics(errors[kind][1]), "alignment": _alignment_dict(fits[kind])}
+            for kind in kinds if kind in fits}
+
+
+def _aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """APE (translation, rotation in degrees) after each alignment, in one pass over blocks of pairs: the
+    rotation matrices of a block serve every alignment, and no aligned estimate of all pairs is held."""
+    n = len(p)
+    out = {kind: (np.empty(n), np.empty(n)) for kind in fits}
+    for rows in row_blocks(n):
+        ref_pos, est_pos, ref_rot, est_rot = p.ref_pos[rows], p.est_pos[rows], p.ref_rot[rows], p.est_rot[rows]
+        for kind, al in fits.items():
+            pos = al.positions(est_pos)
+            out[kind][0][rows] = metrics.ape_errors("trans_part", ref_pos, None, pos, None)
+            out[kind][1][rows] = metrics.ape_errors("angle_deg", ref_pos, ref_rot, pos, np.matmul(al.rot, est_rot))
     return out
 
 
@@ -203,8 +222,8 @@ def _rpe_section(ev: TrajectoryEvaluation, options: ReportOptions, notes: list[s
     opts = RpeOptions(options.rpe_delta_m, "m", 0.1, False, False)
     al = AlignOptions(options.align)
     try:
-        tr = rpe(ev.truth, ev.estimate, "trans_part", ev.sync, al, opts, paired=ev.paired)
-        rr = rpe(ev.truth, ev.estimate, "angle_deg", ev.sync, al, opts, paired=ev.paired)
+        tr = rpe(ev.truth, ev.estimate, "trans_part", ev.sync, al, opts, paired=ev.paired, like=ev.translation)
+        rr = rpe(ev.truth, ev.estimate, "angle_deg", ev.sync, al, opts, paired=ev.paired, like=ev.translation)
     except ValueError as err:
         notes.append(f"no RPE: {err}")
         return None
@@ -324,6 +343,17 @@ def _vec(v: Any) -> list[float]:
     return [float(x) for x in np.asarray(v, dtype=np.float64).reshape(3)]
 
 
+def bias_plot_rows(biases: pd.DataFrame) -> pd.DataFrame:
+    """The rows of the bias table the bias plot draws, in time order (:func:`plots.envelope`; a table that is
+    already these rows comes back whole): all a caller must keep of a long table to draw its report."""
+    from pipeline.evaluation import plots
+
+    rows = _time_order(biases["t_ns"].to_numpy(np.int64))
+    cols = [biases[c].to_numpy(np.float64)[rows] for c in GYRO_COLUMNS + VEL_COLUMNS]
+    keep = plots.envelope(len(cols[0]), cols)
+    return biases.iloc[np.arange(len(biases))[rows][keep]].reset_index(drop=True)
+
+
 def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray] | None,
                   window_fraction: float) -> dict[str, Any]:
     truth = None if bias_truth is None else {"gyro": _vec(bias_truth["gyro"]), "velocity": _vec(bias_truth["velocity"])}
@@ -332,11 +362,11 @@ def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray]
     if biases is None or len(biases) == 0:
         return section
     _require(biases, ("t_ns",) + GYRO_COLUMNS + VEL_COLUMNS, "biases")
-    order = np.argsort(biases["t_ns"].to_numpy(np.int64), kind="stable")
+    order = _time_order(biases["t_ns"].to_numpy(np.int64))
     t_ns = biases["t_ns"].to_numpy(np.int64)[order]
-    gyro = biases[list(GYRO_COLUMNS)].to_numpy(np.float64)[order]
-    vel = biases[list(VEL_COLUMNS)].to_numpy(np.float64)[order]
-    final = {"t_ns": int(t_ns[-1]), "gyro": _vec(gyro[-1]), "velocity": _vec(vel[-1])}
+    gyro = [biases[c].to_numpy(np.float64)[order] for c in GYRO_COLUMNS]  # columns: no (N, 3) copy
+    vel = [biases[c].to_numpy(np.float64)[order] for c in VEL_COLUMNS]
+    final = {"t_ns": int(t_ns[-1]), "gyro": _vec([c[-1] for c in gyro]), "velocity": _vec([c[-1] for c in vel])}
     section["final"] = final
     stab = {"window_fraction": float(window_fraction),
             "gyro": slam_metrics.window_stats(t_ns, gyro, window_fraction),
@@ -393,9 +423,44 @@ def build_report(
     transform of the associated positions; ``align="none"`` compares the raw estimate. ``overrides`` are
     :class:`ReportOptions` fields (e.g. ``t_max_diff_s``, ``align``) on top of ``options``.
     """
+    return evaluate_report(poses, biases, landmarks, truth, landmark_truth, bias_truth, options=options,
+                           **overrides)[0]
+
+
+def evaluate_report(
+    poses: pd.DataFrame,
+    biases: pd.DataFrame | None,
+    landmarks: pd.DataFrame | None,
+    truth: PoseStream,
+    landmark_truth: dict[int, np.ndarray] | None = None,
+    bias_truth: dict[str, np.ndarray] | None = None,
+    *,
+    options: ReportOptions | None = None,
+    **overrides: Any,
+) -> tuple[dict[str, Any], TrajectoryEvaluation]:
+    """:func:`build_report` and the trajectory evaluation behind it (hand it to :func:`write_report`, which
+    otherwise associates and aligns the trajectories again: seconds on a long log)."""
+    return evaluate_tables({"poses": poses, "biases": biases, "landmarks": landmarks}, truth, landmark_truth,
+                           bias_truth, options=options, **overrides)
+
+
+def evaluate_tables(
+    tables: dict[str, pd.DataFrame | None],
+    truth: PoseStream,
+    landmark_truth: dict[int, np.ndarray] | None = None,
+    bias_truth: dict[str, np.ndarray] | None = None,
+    *,
+    options: ReportOptions | None = None,
+    **overrides: Any,
+) -> tuple[dict[str, Any], TrajectoryEvaluation]:
+    """:func:`evaluate_report` of the ``poses``, ``biases`` and ``landmarks`` tables in ``tables``, each removed
+    from the dict once it has been used: a caller that hands the dict over (keeps no other reference) has the
+    bias table of a long run freed before the trajectory is evaluated."""
     options = replace(options or ReportOptions(), **overrides)
     notes: list[str] = []
-    ev = evaluate_trajectory(poses, truth, options)
+    bias_section = _bias_section(tables.pop("biases", None), bias_truth, options.bias_window_fraction)
+    ev = evaluate_trajectory(tables.pop("poses"), truth, options)  # ``ev.estimate`` holds what is needed
+    landmarks = tables.pop("landmarks", None)
     p = ev.paired
     off = ev.time_offset
     if options.t_offset_s == "auto" and off is not None and not off.reliable:
@@ -403,7 +468,7 @@ def build_report(
         notes.append(f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
                      f"{off.peak_correlation:.2f}{edge})")
     n_pairs, n_est, n_ref = len(p), len(ev.estimate), len(ev.truth)
-    return {
+    report = {
         "schema_version": SCHEMA_VERSION,
         "ape": {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats},
         "ape_by_alignment": _ape_by_alignment(ev, options, notes),
@@ -411,7 +476,7 @@ def build_report(
         "drift": _drift_section(ev, options),
         "time_offset": _time_offset_section(ev, options),
         "landmarks": _landmark_section(landmarks, landmark_truth, ev.alignment),
-        "biases": _bias_section(biases, bias_truth, options.bias_window_fraction),
+        "biases": bias_section,
         "convergence": _convergence(ev, options.convergence_threshold_m),
         "time_span": {
             "estimate_ns": [int(ev.estimate.t_ns[0]), int(ev.estimate.t_ns[-1])],
@@ -465,6 +530,7 @@ def build_report(
             ),
         },
     }
+    return report, ev
 
 
 def report_schema() -> dict:
@@ -646,18 +712,22 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
 def write_report(
     report: dict[str, Any],
     out_dir: Path | str,
-    poses: pd.DataFrame,
+    poses: pd.DataFrame | None,
     biases: pd.DataFrame | None,
     landmarks: pd.DataFrame | None,
     truth: PoseStream,
     landmark_truth: dict[int, np.ndarray] | None = None,
+    *,
+    evaluation: TrajectoryEvaluation | None = None,
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots, the evo result zip and the TUM exports into ``out_dir``;
     returns the written paths.
 
     The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
-    they show exactly the numbers of the report. The writes are plain: callers that replace an existing report
-    write into a temporary directory first (see :mod:`.run_dir`).
+    they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
+    this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
+    ``poses``. The writes are plain: callers that
+    replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
     """
     from pipeline.evaluation import plots
     from pipeline.evaluation.evo_zip import save_result_zip
@@ -674,13 +744,16 @@ def write_report(
     written.append(md_path)
 
     options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
-    ev = evaluate_trajectory(poses, truth, options, estimate_offset=False)
+    if evaluation is None and poses is None:
+        raise ValueError("write_report needs the poses table or the report's evaluation")
+    ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
     written.append(save_result_zip(out / EVO_ZIP, ev.translation))
     written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
     written.append(write_tum(out / TRUTH_TUM, ev.truth))
 
     al = ev.alignment
     t0 = int(ev.estimate.t_ns[0])
+    path = plots.thin(len(ev.estimate), plots.PATH_POINTS)  # only what is drawn is aligned
     ids, xyz = _landmark_table(landmarks)
     lm_truth_ids = lm_truth_xyz = None
     if landmark_truth:
@@ -690,7 +763,7 @@ def write_report(
     written.append(
         plots.plot_trajectory_top(
             out / "trajectory_top.png",
-            ev.est_positions_aligned,
+            al.positions(ev.estimate.position[path]),
             np.asarray(ev.truth.position, dtype=np.float64),
             ids,
             al.positions(xyz) if len(ids) else np.empty((0, 3)),
@@ -717,9 +790,9 @@ def write_report(
     bt = report["biases"]["truth"]
     stab = report["biases"].get("stability")
     if biases is not None and len(biases):
-        b = biases.sort_values("t_ns", kind="stable")
-        bt_s = (b["t_ns"].to_numpy(np.int64) - t0) / 1e9
-        gyro, vel = b[list(GYRO_COLUMNS)].to_numpy(np.float64), b[list(VEL_COLUMNS)].to_numpy(np.float64)
+        drawn = bias_plot_rows(biases)
+        bt_s = (drawn["t_ns"].to_numpy(np.int64) - t0) / 1e9
+        gyro, vel = drawn[list(GYRO_COLUMNS)].to_numpy(np.float64), drawn[list(VEL_COLUMNS)].to_numpy(np.float64)
     else:
         bt_s, gyro, vel = np.empty(0), np.empty((0, 3)), np.empty((0, 3))
     written.append(

@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.errors import InputError
-from pipeline.evaluation.report import REPORT_FILES, ReportOptions, build_report, write_report
+from pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from pipeline.streams import PoseStream
 
 
@@ -164,15 +164,16 @@ def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOpt
     ti = resolve_truth(run.meta, truth)
     options = options or options_for_run(run.meta, **overrides)
     try:
-        report = build_report(run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth, ti.bias_truth,
-                              options=options)
+        report, evaluation = evaluate_report(run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth,
+                                             ti.bias_truth, options=options)
     except ValueError as err:
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source
     report["notes"] = ti.notes + report["notes"]
     staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
     try:
-        write_report(report, staged, run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth)
+        write_report(report, staged, run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth,
+                     evaluation=evaluation)
         _stage_run_json(run.meta, ti.source, staged)
         for p in staged.iterdir():
             os.chmod(p, 0o644)

@@ -23,17 +23,20 @@ def map_only_alignment(est_xyz: np.ndarray, truth_xyz: np.ndarray) -> tuple[np.n
     return rot, trans
 
 
-def window_stats(t_ns: np.ndarray, values: np.ndarray, fraction: float) -> dict:
-    """Behaviour of a (N, 3) history over its last ``fraction`` of time: per-axis mean, population std,
-    range (max − min) and least-squares slope per second; ``drift_norm_per_s`` is the norm of the slope."""
+def window_stats(t_ns: np.ndarray, values, fraction: float) -> dict:
+    """Behaviour of a (N, 3) history (an array or its three columns) over its last ``fraction`` of time:
+    per-axis mean, population std, range (max − min) and least-squares slope per second;
+    ``drift_norm_per_s`` is the norm of the slope. Only the window's rows are copied."""
     t = np.asarray(t_ns, dtype=np.int64)
-    v = np.asarray(values, dtype=np.float64)
     if not 0 < fraction <= 1:
         raise ValueError(f"window fraction must be in (0, 1], got {fraction}")
     t0 = int(t[-1] - round(fraction * (t[-1] - t[0])))
     sel = t >= t0
     ts = (t[sel] - t0) / 1e9
-    w = v[sel]
+    if isinstance(values, np.ndarray):
+        w = np.asarray(values, dtype=np.float64)[sel]
+    else:
+        w = np.column_stack([np.asarray(c, dtype=np.float64)[sel] for c in values])
     if ts.size >= 2 and np.ptp(ts) > 0:
         tc = ts - ts.mean()
         slope = (tc @ (w - w.mean(axis=0))) / float(tc @ tc)

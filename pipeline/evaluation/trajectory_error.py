@@ -15,9 +15,9 @@ import numpy as np
 
 from pipeline.evaluation import metrics
 from pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
+from pipeline.evaluation.metrics import RotationRows
 from pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
 from pipeline.evaluation.sync import NS_PER_S, associate, interpolate_poses
-from pipeline.lie import quats_to_rots
 from pipeline.streams import PoseStream
 
 SYNC_METHODS = ("nearest", "interpolation")
@@ -57,16 +57,17 @@ class RpeOptions:
 class Paired:
     """Poses of both trajectories at associated stamps, in the order of the driving (shorter) series.
 
-    Rotations are given as quaternions, or as matrices when the file had them (KITTI); the (N, 3, 3) arrays
-    ``ref_rot``/``est_rot`` are built on first use (a translation APE never needs them).
+    Rotations are quaternions, or matrices when the file had them (KITTI), of the pairs (interpolated ones)
+    or rows of the streams' (:class:`~.metrics.RotationRows` with an index: not copied); ``ref_rot``/``est_rot``
+    give the matrices of the rows asked for: no (N, 3, 3) array is ever held.
     """
 
     t_ref_ns: np.ndarray | None  # None when paired by index
     t_est_ns: np.ndarray | None  # on the estimate's own clock (the offset is not added), as evo keeps it
     ref_pos: np.ndarray
-    ref_rotation: np.ndarray  # (N, 4) quaternions (x, y, z, w) or (N, 3, 3) matrices
+    ref_rotation: np.ndarray | RotationRows  # (N, 4) quaternions (x, y, z, w), (N, 3, 3) matrices or stream rows
     est_pos: np.ndarray
-    est_rotation: np.ndarray
+    est_rotation: np.ndarray | RotationRows
     idx_ref: np.ndarray | None  # into the input streams; None for the interpolated side
     idx_est: np.ndarray | None
     method: str  # nearest | interpolation | index
@@ -78,17 +79,14 @@ class Paired:
         return int(self.ref_pos.shape[0])
 
     @cached_property
-    def ref_rot(self) -> np.ndarray:
-        return _as_matrices(self.ref_rotation)
+    def ref_rot(self) -> RotationRows:
+        r = self.ref_rotation
+        return r if isinstance(r, RotationRows) else RotationRows(r)
 
     @cached_property
-    def est_rot(self) -> np.ndarray:
-        return _as_matrices(self.est_rotation)
-
-
-def _as_matrices(r: np.ndarray) -> np.ndarray:
-    r = np.ascontiguousarray(r, dtype=np.float64)
-    return r if r.ndim == 3 else quats_to_rots(r)
+    def est_rot(self) -> RotationRows:
+        r = self.est_rotation
+        return r if isinstance(r, RotationRows) else RotationRows(r)
 
 
 class Source:
@@ -104,10 +102,10 @@ def _source(x) -> Source:
     return Source(x) if isinstance(x, PoseStream) else x
 
 
-def _rots(src: Source, idx: np.ndarray | None = None) -> np.ndarray:
-    """The rotations of ``src`` (at ``idx``): matrices as written if it has them, else its quaternions."""
+def _rots(src: Source, idx: np.ndarray | None = None) -> RotationRows:
+    """The rotations of ``src`` (rows ``idx``): matrices as written if it has them, else its quaternions."""
     r = np.asarray(src.rotations if src.rotations is not None else src.stream.quat_xyzw, dtype=np.float64)
-    return r if idx is None else r[idx]
+    return RotationRows(r, index=idx)
 
 
 def _span(t_ns: np.ndarray) -> str:
@@ -182,9 +180,9 @@ def align_paired(paired: Paired, opts: AlignOptions) -> tuple[Alignment, np.ndar
     return al, (paired.est_pos if al.kind == "none" else al.positions(paired.est_pos))
 
 
-def aligned_rotations(al: Alignment, paired: Paired) -> np.ndarray:
-    """The estimate's rotation matrices after the alignment ``R_a R_est``."""
-    return paired.est_rot if al.kind == "none" else al.rotations(paired.est_rot)
+def aligned_rotations(al: Alignment, paired: Paired) -> RotationRows:
+    """The estimate's rotation matrices after the alignment ``R_a R_est`` (built for the rows asked for)."""
+    return paired.est_rot if al.kind == "none" else paired.est_rot.turned(al.rot)
 
 
 def alignment_title(opts: AlignOptions, al: Alignment) -> str:
@@ -221,7 +219,7 @@ class ErrorResult:
     arrays: dict[str, np.ndarray] = field(default_factory=dict)  # evo result arrays (besides error_array)
 
     @cached_property
-    def est_rot_aligned(self) -> np.ndarray:
+    def est_rot_aligned(self) -> RotationRows:
         """The estimate rotations after the alignment (built on first use)."""
         return aligned_rotations(self.alignment, self.paired)
 
@@ -269,15 +267,22 @@ def _timing_arrays(paired: Paired, est_pos_aligned: np.ndarray, keep: np.ndarray
 
 def ape(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(),
         align: AlignOptions = AlignOptions(), *, ref_name: str = "reference", est_name: str = "estimate",
-        paired: Paired | None = None) -> ErrorResult:
-    """Absolute pose error of ``est`` against ``ref`` (evo_ape); PoseStreams or :class:`Source`-likes."""
+        paired: Paired | None = None, like: ErrorResult | None = None) -> ErrorResult:
+    """Absolute pose error of ``est`` against ``ref`` (evo_ape); PoseStreams or :class:`Source`-likes.
+
+    ``like``: an APE of the same ``paired`` under the same ``align`` (another relation of one comparison);
+    its alignment, aligned positions and evo arrays are shared instead of computed and held again.
+    """
     paired = paired or synchronize(ref, est, sync)
-    al, pos = align_paired(paired, align)
+    al, pos = (like.alignment, like.est_pos_aligned) if like is not None else align_paired(paired, align)
     name, unit = metrics.POSE_RELATIONS[relation]
     title = f"APE w.r.t. {name} ({unit})" + alignment_title(align, al)
-    arrays = _timing_arrays(paired, pos)
-    if al.evo_matrix is not None:
-        arrays["alignment_transformation_sim3"] = al.evo_matrix
+    if like is not None:
+        arrays = like.arrays
+    else:
+        arrays = _timing_arrays(paired, pos)
+        if al.evo_matrix is not None:
+            arrays["alignment_transformation_sim3"] = al.evo_matrix
     if relation in ("trans_part", "point_distance"):  # positions only: no rotation matrix is ever built
         errors = metrics.ape_translation(paired.ref_pos, pos)
     else:
@@ -288,11 +293,13 @@ def ape(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(
 
 def rpe(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(),
         align: AlignOptions = AlignOptions(), opts: RpeOptions = RpeOptions(), *,
-        ref_name: str = "reference", est_name: str = "estimate", paired: Paired | None = None) -> ErrorResult:
+        ref_name: str = "reference", est_name: str = "estimate", paired: Paired | None = None,
+        like: ErrorResult | None = None) -> ErrorResult:
     """Relative pose error of ``est`` against ``ref`` (evo_rpe); pairs from the aligned estimate unless
-    ``pairs_from_reference``."""
+    ``pairs_from_reference``. ``like``: a result of the same ``paired`` under the same ``align`` whose
+    alignment and aligned positions are shared."""
     paired = paired or synchronize(ref, est, sync)
-    al, pos = align_paired(paired, align)
+    al, pos = (like.alignment, like.est_pos_aligned) if like is not None else align_paired(paired, align)
     name, unit = metrics.POSE_RELATIONS[relation]
     delta = int(opts.delta) if opts.unit == "f" else float(opts.delta)
     title = (f"RPE w.r.t. {name} ({unit})\nfor delta = {delta} ({DELTA_UNITS[opts.unit]}) using "

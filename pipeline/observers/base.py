@@ -1,8 +1,16 @@
-"""What every observer shares: gain specifications and validation, options, and the result arrays."""
+"""What every observer shares: gain specifications and validation, options, the result arrays, and the
+stretch-by-stretch driver of the kernels.
+
+A kernel keeps its whole state in arrays (:class:`Stepper`), so a run can stop after any velocity sample
+and go on later exactly as if it had not stopped: ``ObserverSpec.chunks`` yields the outputs a stretch of
+samples at a time (a multi-hour log is written without holding its histories), ``ObserverSpec.run`` is
+the same run in one stretch.
+"""
 
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -48,6 +56,95 @@ class ObserverResult:
     extra_tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
+def max_per_frame(det_offsets: np.ndarray) -> int:
+    """Most detections in one frame (0 without frames)."""
+    return int(np.diff(det_offsets).max()) if det_offsets.shape[0] > 1 else 0
+
+
+def output_rows(n_vel: int, out_every: int, first: int, stop: int) -> int:
+    """Recorded rows among velocity samples ``first .. stop - 1`` (every ``out_every``-th, and the last)."""
+    if stop <= first:
+        return 0
+    n = (stop + out_every - 1) // out_every - (first + out_every - 1) // out_every
+    last = n_vel - 1
+    return n + int(first <= last < stop and last % out_every != 0)
+
+
+@dataclass
+class Outputs:
+    """Preallocated output rows of one stretch; kernels fill them (detection rows from ``det_base`` on)."""
+
+    k: np.ndarray  # (K,) int64 velocity-sample index of each row
+    r: np.ndarray  # (K, 3, 3)
+    p: np.ndarray  # (K, 3)
+    b: np.ndarray  # (K, 6) [b_Ω, b_V]
+    trk: np.ndarray  # (M, 3)
+    innov: np.ndarray  # (M, 3)
+    det_base: int
+
+    @classmethod
+    def empty(cls, rows: int, det_first: int, det_stop: int) -> Outputs:
+        m = det_stop - det_first
+        return cls(np.empty(rows, np.int64), np.empty((rows, 3, 3)), np.empty((rows, 3)), np.empty((rows, 6)),
+                   np.empty((m, 3)), np.empty((m, 3)), det_first)
+
+
+class Stepper:
+    """One run of an observer's kernel over an aligned stream, advanced a stretch of samples at a time.
+
+    Subclasses hold the kernel's state arrays and implement :meth:`_kernel` (run until the next event is
+    velocity sample ``iv_stop``; frames before it are processed) and optionally :meth:`_extra`.
+    """
+
+    def __init__(self, stream: AlignedStream, options: ObserverOptions) -> None:
+        self.stream, self.options = stream, options
+        self.vel_t = stream.seconds(stream.vel_t_ns)
+        self.det_t = stream.seconds(stream.det_t_ns)
+        n = stream.landmark_ids.shape[0]
+        self.lm = np.zeros((n, 3))  # the map, updated in place by the kernel
+        self.lm_init = np.zeros(n, dtype=np.bool_)
+        self.iv = 0  # next velocity sample
+        self.jf = 0  # next detection frame
+        self.stats: dict = {"substeps": 0}
+
+    @property
+    def n_vel(self) -> int:
+        return int(self.vel_t.shape[0])
+
+    @property
+    def n_max(self) -> int:
+        """Most detections in one frame: the size of the visible-landmark buffers."""
+        return max_per_frame(self.stream.det_offsets)
+
+    def _kernel(self, iv_stop: int, out: Outputs) -> int:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _extra(self) -> dict[str, dict[str, np.ndarray]]:
+        """Observer-specific table rows of the stretch just run."""
+        return {}
+
+    def advance(self, iv_stop: int) -> ObserverResult:
+        """Run up to velocity sample ``iv_stop`` (exclusive; ``n_vel`` runs to the end, trailing frames too);
+        returns that stretch's rows, the map (the live array) and the statistics as they are now."""
+        s = self.stream
+        iv_stop = min(iv_stop, self.n_vel)
+        jf_stop = (int(np.searchsorted(self.det_t, self.vel_t[iv_stop], side="left")) if iv_stop < self.n_vel
+                   else self.det_t.shape[0])
+        det_first, det_stop = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
+        out = Outputs.empty(output_rows(self.n_vel, self.options.out_every, self.iv, iv_stop), det_first, det_stop)
+        rows = self._kernel(iv_stop, out)
+        assert rows == out.k.shape[0], (rows, out.k.shape[0])
+        frames = slice(self.jf, jf_stop)
+        self.iv, self.jf = iv_stop, jf_stop
+        det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
+        return ObserverResult(
+            t_ns=s.vel_t_ns[out.k], rotation=out.r, position=out.p, gyro_bias=out.b[:, :3], vel_bias=out.b[:, 3:],
+            landmark_ids=s.landmark_ids, landmark_xyz=self.lm,
+            det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
+            innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(),
+        )
+
+
 @dataclass(frozen=True)
 class ObserverSpec:
     name: str
@@ -55,9 +152,25 @@ class ObserverSpec:
     paper: str
     summary: str
     gains: tuple[GainSpec, ...]
-    run: Callable[[AlignedStream, dict[str, float], ObserverOptions], ObserverResult]
+    #: A :class:`Stepper` of this observer on a stream (checks that the stream has what it needs).
+    start: Callable[[AlignedStream, dict[str, float], ObserverOptions], Stepper]
     #: Minimum number of inertial directions (gravity, magnetic field) the observer needs; 0 = none.
     min_directions: int = 0
+
+    def run(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions) -> ObserverResult:
+        """The whole run in one stretch."""
+        stepper = self.start(stream, gains, options)
+        return stepper.advance(stepper.n_vel)
+
+    def chunks(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions,
+               samples: int) -> Iterator[ObserverResult]:
+        """The run ``samples`` velocity samples at a time (the last stretch also runs the trailing frames);
+        each item holds its stretch's rows, the map so far and the statistics so far."""
+        stepper = self.start(stream, gains, options)
+        for stop in range(samples, stepper.n_vel + samples, samples):
+            yield stepper.advance(stop)
+        if stepper.n_vel == 0:
+            yield stepper.advance(0)
 
     def resolve_gains(self, user: dict | None) -> dict[str, float]:
         """Defaults overlaid with the user's gains, exactly as given; anything invalid is an error."""

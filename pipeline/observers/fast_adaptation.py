@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.observers.base import GainSpec, ObserverResult, ObserverSpec
+from pipeline.observers.base import GainSpec, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
 from pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
@@ -35,19 +35,20 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
 
     The rotational correction rate is ``k_w Σ(‖y‖²+1)/α`` plus the largest landmark gain ψ; the bias
     loop is an integrator whose natural frequency is ``sqrt(Γ Σ(‖y‖²+1)/α)``, kept at ``h ω_n ≤ 0.1``.
+    Scalars only: it runs once per event, and at a few landmarks an allocation costs as much as a sub-step.
     """
     if nvis == 0 or dt <= 0.0:
         return 1
     s = 0.0
     psi_max = 0.0
     for j in range(nvis):
-        yy = y[j, 0] * y[j, 0] + y[j, 1] * y[j, 1] + y[j, 2] * y[j, 2]
+        y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
+        yy = y0 * y0 + y1 * y1 + y2 * y2
         s += yy + 1.0
-        ry = mat3_vec(r_hat, y[j])
         i = vis_idx[j]
-        e0 = lm[i, 0] - ry[0] - p_hat[0]
-        e1 = lm[i, 1] - ry[1] - p_hat[1]
-        e2 = lm[i, 2] - ry[2] - p_hat[2]
+        e0 = lm[i, 0] - (r_hat[0, 0] * y0 + r_hat[0, 1] * y1 + r_hat[0, 2] * y2) - p_hat[0]
+        e1 = lm[i, 1] - (r_hat[1, 0] * y0 + r_hat[1, 1] * y1 + r_hat[1, 2] * y2) - p_hat[1]
+        e2 = lm[i, 2] - (r_hat[2, 0] * y0 + r_hat[2, 1] * y1 + r_hat[2, 2] * y2) - p_hat[2]
         psi = k_p * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0
         if psi > psi_max:
             psi_max = psi
@@ -60,10 +61,11 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
 
 @njit(cache=True)
 def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v,
-               k_p, k_w, alpha, gamma, min_landmarks_bias, counter):
+               k_p, k_w, alpha, gamma, min_landmarks_bias, counter, d_r, d_p):
     """Advance the state over ``dt`` seconds in place; ``y`` (visible measurements) is predicted in place.
 
-    Written with scalars (no temporaries) because it runs hundreds of times per sample.
+    Written with scalars and the caller's scratch ``d_r`` (3, 3) / ``d_p`` (3,) (no allocation at all)
+    because it runs hundreds of times per sample, and once per event when there are few sub-steps.
     Returns the number of sub-steps taken.
     """
     m = _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma)
@@ -71,11 +73,6 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
     g_bias = gamma if nvis >= min_landmarks_bias else 0.0
     kwa = k_w / alpha
     gba = h * g_bias / alpha
-    om_odo = np.empty(3)
-    v_odo = np.empty(3)
-    d_r = np.empty((3, 3))
-    d_p = np.empty(3)
-    r_new = np.empty((3, 3))
     for _ in range(m):
         # Steps 2-4 and 6-7 of spec §2.3 with the state at the start of the sub-step.
         r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
@@ -106,12 +103,8 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
             lm[i, 1] -= step * e1
             lm[i, 2] -= step * e2
         # Corrected twist = measured − bias − W with W = −(k_w/α) Σ(...); prediction uses odometry only.
-        om_odo[0] = omega_m[0] - b_om[0]
-        om_odo[1] = omega_m[1] - b_om[1]
-        om_odo[2] = omega_m[2] - b_om[2]
-        v_odo[0] = vel_m[0] - b_v[0]
-        v_odo[1] = vel_m[1] - b_v[1]
-        v_odo[2] = vel_m[2] - b_v[2]
+        o0, o1, o2 = omega_m[0] - b_om[0], omega_m[1] - b_om[1], omega_m[2] - b_om[2]
+        v0, v1, v2 = vel_m[0] - b_v[0], vel_m[1] - b_v[1], vel_m[2] - b_v[2]
         # Step 7 (biases, with the Δt the paper's b̂_V update omits): b ← b − h Γ/α Σ(...)
         b_om[0] -= gba * w0
         b_om[1] -= gba * w1
@@ -120,22 +113,22 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
         b_v[1] -= gba * u1
         b_v[2] -= gba * u2
         # Step 5: T̂ ← T̂ exp(h [ω; v]∧)
-        se3_exp_into(h * (om_odo[0] + kwa * w0), h * (om_odo[1] + kwa * w1), h * (om_odo[2] + kwa * w2),
-                     h * (v_odo[0] + kwa * u0), h * (v_odo[1] + kwa * u1), h * (v_odo[2] + kwa * u2), d_r, d_p)
+        se3_exp_into(h * (o0 + kwa * w0), h * (o1 + kwa * w1), h * (o2 + kwa * w2),
+                     h * (v0 + kwa * u0), h * (v1 + kwa * u1), h * (v2 + kwa * u2), d_r, d_p)
         p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2]
         p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2]
         p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2]
-        for a in range(3):
-            for b in range(3):
-                r_new[a, b] = r_hat[a, 0] * d_r[0, b] + r_hat[a, 1] * d_r[1, b] + r_hat[a, 2] * d_r[2, b]
-        r_hat[:, :] = r_new
+        for b in range(3):  # R̂ ← R̂ dR from the row scalars read above (R̂ is unchanged until here)
+            c0, c1, c2 = d_r[0, b], d_r[1, b], d_r[2, b]
+            r_hat[0, b] = r00 * c0 + r01 * c1 + r02 * c2
+            r_hat[1, b] = r10 * c0 + r11 * c1 + r12 * c2
+            r_hat[2, b] = r20 * c0 + r21 * c1 + r22 * c2
         counter[0] += 1
         if counter[0] % REORTHO_EVERY == 0:
             r_hat[:, :] = project_so3(r_hat)
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
-            se3_exp_into(h * om_odo[0], h * om_odo[1], h * om_odo[2], h * v_odo[0], h * v_odo[1], h * v_odo[2],
-                         d_r, d_p)
+            se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
             for j in range(nvis):
                 d0 = y[j, 0] - d_p[0]
                 d1 = y[j, 1] - d_p[1]
@@ -146,7 +139,98 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
     return m
 
 
+#: Kernel scalars kept between stretches: ``fs = [t, meas_t]``, ``ns = [iv, jf, nvis, started, substeps]``.
+_T, _MEAS_T = 0, 1
+_IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
+
+
 @njit(cache=True)
+def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
+             k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, iv_stop,
+             r_hat, p_hat, b_om, b_v, y, vis_idx, om_m, v_m, counter, d_r, d_p, fs, ns,
+             out_k, out_r, out_p, out_b, trk_p, innov, det_base):
+    """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
+    sample ``iv_stop`` (all events when ``iv_stop`` is the sample count); stores the state back and
+    returns the number of rows recorded (detection rows are written from ``det_base`` on)."""
+    n_vel = vel_t.shape[0]
+    n_frames = det_t.shape[0]
+    t, meas_t = fs[_T], fs[_MEAS_T]
+    iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
+    o = 0
+    while iv < n_vel or jf < n_frames:
+        is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
+        if not is_frame and iv >= iv_stop:
+            break
+        t_next = det_t[jf] if is_frame else vel_t[iv]
+        if started:
+            if t_next > t:
+                if t - meas_t > max_meas_age:
+                    nvis = 0
+                substeps += _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, r_hat, p_hat, lm,
+                                       b_om, b_v, k_p, k_w, alpha, gamma, min_landmarks_bias,
+                                       counter, d_r, d_p)
+                t = t_next
+        if is_frame:
+            a = det_offsets[jf]
+            b = det_offsets[jf + 1]
+            nvis = b - a
+            for j in range(nvis):
+                i = det_idx[a + j]
+                vis_idx[j] = i
+                for c in range(3):
+                    y[j, c] = det_y[a + j, c]
+                for c in range(3):  # R̂y, written out: no temporary per detection
+                    ry = r_hat[c, 0] * y[j, 0] + r_hat[c, 1] * y[j, 1] + r_hat[c, 2] * y[j, 2]
+                    if not lm_init[i]:
+                        lm[i, c] = p_hat[c] + ry
+                    innov[a + j - det_base, c] = lm[i, c] - ry - p_hat[c]
+                    trk_p[a + j - det_base, c] = lm[i, c]
+                lm_init[i] = True
+            meas_t = t_next
+            jf += 1
+        else:
+            for c in range(3):
+                om_m[c] = omega[iv, c]
+                v_m[c] = vel[iv, c]
+            if not started:
+                started = True
+                t = t_next
+            if iv % out_every == 0 or iv == n_vel - 1:
+                out_k[o] = iv
+                out_r[o] = r_hat
+                out_p[o] = p_hat
+                out_b[o, :3] = b_om
+                out_b[o, 3:] = b_v
+                o += 1
+            iv += 1
+    fs[_T], fs[_MEAS_T] = t, meas_t
+    ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps
+    return o
+
+
+class _State:
+    """Algorithm A's state: estimate, visible measurements, held twist, clocks and counters."""
+
+    def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray) -> None:
+        self.r_hat = np.array(r0, dtype=np.float64)
+        self.p_hat = np.array(p0, dtype=np.float64)
+        self.b_om = np.array(b_om0, dtype=np.float64)
+        self.b_v = np.array(b_v0, dtype=np.float64)
+        self.y = np.zeros((max(n_max, 1), 3))
+        self.vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
+        self.om_m = np.zeros(3)
+        self.v_m = np.zeros(3)
+        self.counter = np.zeros(1, dtype=np.int64)
+        self.d_r = np.empty((3, 3))  # scratch of _integrate
+        self.d_p = np.empty(3)
+        self.fs = np.array([0.0, -np.inf])
+        self.ns = np.zeros(5, dtype=np.int64)
+
+    def arrays(self) -> tuple:
+        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.om_m, self.v_m,
+                self.counter, self.d_r, self.d_p, self.fs, self.ns)
+
+
 def run_kernel(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
                r0, p0, b_om0, b_v0, k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age,
                out_every):
@@ -161,86 +245,12 @@ def run_kernel(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_ini
     and innovations e_i (M,3) at the frame time, and the total number of sub-steps.
     """
     n_vel = vel_t.shape[0]
-    n_frames = det_t.shape[0]
-    n_max = 0
-    for f in range(n_frames):
-        c = det_offsets[f + 1] - det_offsets[f]
-        if c > n_max:
-            n_max = c
-    y = np.zeros((max(n_max, 1), 3))
-    vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
-    nvis = 0
-    meas_t = -np.inf
-
-    r_hat = r0.copy()
-    p_hat = p0.copy()
-    b_om = b_om0.copy()
-    b_v = b_v0.copy()
-
-    n_out = (n_vel + out_every - 1) // out_every
-    if n_vel > 0 and (n_vel - 1) % out_every != 0:
-        n_out += 1
-    out_k = np.empty(n_out, dtype=np.int64)
-    out_r = np.empty((n_out, 3, 3))
-    out_p = np.empty((n_out, 3))
-    out_b = np.empty((n_out, 6))
-    n_det = det_y.shape[0]
-    trk_p = np.empty((n_det, 3))
-    innov = np.empty((n_det, 3))
-    counter = np.zeros(1, dtype=np.int64)
-    substeps = 0
-
-    iv = 0
-    jf = 0
-    started = False
-    t = 0.0
-    om_m = np.zeros(3)
-    v_m = np.zeros(3)
-    o = 0
-    while iv < n_vel or jf < n_frames:
-        is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
-        t_next = det_t[jf] if is_frame else vel_t[iv]
-        if started:
-            if t_next > t:
-                if t - meas_t > max_meas_age:
-                    nvis = 0
-                substeps += _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, r_hat, p_hat, lm,
-                                       b_om, b_v, k_p, k_w, alpha, gamma, min_landmarks_bias,
-                                       counter)
-                t = t_next
-        if is_frame:
-            a = det_offsets[jf]
-            b = det_offsets[jf + 1]
-            nvis = b - a
-            for j in range(nvis):
-                i = det_idx[a + j]
-                vis_idx[j] = i
-                y[j, :] = det_y[a + j]
-                ry = mat3_vec(r_hat, det_y[a + j])
-                if not lm_init[i]:
-                    for c in range(3):
-                        lm[i, c] = p_hat[c] + ry[c]
-                    lm_init[i] = True
-                for c in range(3):
-                    innov[a + j, c] = lm[i, c] - ry[c] - p_hat[c]
-                    trk_p[a + j, c] = lm[i, c]
-            meas_t = t_next
-            jf += 1
-        else:
-            om_m[:] = omega[iv]
-            v_m[:] = vel[iv]
-            if not started:
-                started = True
-                t = t_next
-            if iv % out_every == 0 or iv == n_vel - 1:
-                out_k[o] = iv
-                out_r[o] = r_hat
-                out_p[o] = p_hat
-                out_b[o, :3] = b_om
-                out_b[o, 3:] = b_v
-                o += 1
-            iv += 1
-    return out_k[:o], out_r[:o], out_p[:o], out_b[:o], trk_p, innov, substeps
+    state = _State(max_per_frame(det_offsets), r0, p0, b_om0, b_v0)
+    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    o = _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
+                 k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, n_vel,
+                 *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
+    return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 
 @njit(cache=True)
@@ -258,26 +268,22 @@ def innovation_norms(lm, vis_idx, y, r_hat, p_hat):
 
 
 
-def run(stream, gains: dict[str, float], options) -> ObserverResult:
-    """Run algorithm A on an aligned stream (Python side: prepare arrays, call the kernel)."""
-    n_lm = stream.landmark_ids.shape[0]
-    lm = np.zeros((n_lm, 3))
-    lm_init = np.zeros(n_lm, dtype=np.bool_)
-    out_k, out_r, out_p, out_b, trk, innov, substeps = run_kernel(
-        stream.seconds(stream.vel_t_ns), stream.omega, stream.velocity,
-        stream.seconds(stream.det_t_ns), stream.det_offsets, stream.det_idx, stream.det_y,
-        lm, lm_init, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3),
-        gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma"],
-        options.min_landmarks_bias, options.max_meas_age, options.out_every,
-    )
-    det_t = np.repeat(stream.det_t_ns, np.diff(stream.det_offsets))
-    return ObserverResult(
-        t_ns=stream.vel_t_ns[out_k], rotation=out_r, position=out_p,
-        gyro_bias=out_b[:, :3], vel_bias=out_b[:, 3:],
-        landmark_ids=stream.landmark_ids, landmark_xyz=lm,
-        det_t_ns=det_t, det_ids=stream.det_ids, track_xyz=trk, innovation=innov,
-        stats={"substeps": int(substeps)},
-    )
+class FastAdaptation(Stepper):
+    """Algorithm A on an aligned stream, a stretch of samples at a time."""
+
+    def __init__(self, stream, gains: dict[str, float], options) -> None:
+        super().__init__(stream, options)
+        self.gains = (gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma"])
+        self.state = _State(self.n_max, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
+
+    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+        s, o = self.stream, self.options
+        rows = _advance(self.vel_t, s.omega, s.velocity, self.det_t, s.det_offsets, s.det_idx, s.det_y,
+                        self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age, o.out_every,
+                        iv_stop, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov,
+                        out.det_base)
+        self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
+        return rows
 
 
 SPEC = ObserverSpec(
@@ -293,5 +299,5 @@ SPEC = ObserverSpec(
         GainSpec("k_p", 1.0, "landmark gain scale of psi(e) = k_p (1 + |e|^2) / 4 [paper: 1]"),
         GainSpec("k_w", 1.0, "pose correction gain [paper: 2]"),
     ),
-    run=run,
+    start=FastAdaptation,
 )

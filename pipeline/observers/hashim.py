@@ -39,7 +39,15 @@ from numba import njit
 
 from pipeline.directions import direction_arrays, first_attitude, load_directions
 from pipeline.lie import mat3_vec, project_so3, se3_exp_into
-from pipeline.observers.base import GainError, GainSpec, ObserverResult, ObserverSpec
+from pipeline.observers.base import (
+    GainError,
+    GainSpec,
+    ObserverSpec,
+    Outputs,
+    Stepper,
+    max_per_frame,
+    output_rows,
+)
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
 STEP_RATIO = 0.5
@@ -201,63 +209,29 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
     return m
 
 
+#: Kernel scalars kept between stretches: ``fs = [t, meas_t]``, ``ns = [iv, jf, nvis, started, substeps]``.
+_T, _MEAS_T = 0, 1
+_IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
+
+
 @njit(cache=True)
-def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
-               det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
-               k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every):
-    """Run algorithm C (B when ``k_1 = k_2 = 0`` or there are no directions) over an ordered event stream.
-
-    Arguments as :func:`pipeline.observers.fast_adaptation.run_kernel`, plus the directions on the
-    velocity time base as made by :func:`pipeline.directions.direction_arrays`: ``dir_inertial (J, 3)`` unit vectors (the
-    third one the cross product when ``make_cross``), ``dir_body (N, J0, 3)`` unit body measurements,
-    ``dir_weight (N, J0)`` the weights ``s_j`` (0 = unavailable) and ``dir_gscale (J0,)`` (``‖g‖`` for an
-    accelerometer direction, else 0; see :func:`pipeline.directions.load_directions`). ``J`` may be 0.
-    ``lm``/``lm_init`` are updated in place (final map).
-
-    Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps)`` exactly like algorithm A's kernel.
-    """
+def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
+             det_t, det_offsets, det_idx, det_y, lm, lm_init,
+             k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, iv_stop,
+             r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns,
+             out_k, out_r, out_p, out_b, trk_p, innov, det_base):
+    """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
+    sample ``iv_stop``; stores the state back and returns the number of rows recorded."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     n_dir = dir_inertial.shape[0]
-    n_max = 0
-    for f in range(n_frames):
-        c = det_offsets[f + 1] - det_offsets[f]
-        if c > n_max:
-            n_max = c
-    y = np.zeros((max(n_max, 1), 3))
-    vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
-    nvis = 0
-    meas_t = -np.inf
-    dir_b = np.zeros((n_dir, 3))
-    dir_w = np.zeros(n_dir)
-
-    r_hat = r0.copy()
-    p_hat = p0.copy()
-    b_om = b_om0.copy()
-    b_v = b_v0.copy()
-
-    n_out = (n_vel + out_every - 1) // out_every
-    if n_vel > 0 and (n_vel - 1) % out_every != 0:
-        n_out += 1
-    out_k = np.empty(n_out, dtype=np.int64)
-    out_r = np.empty((n_out, 3, 3))
-    out_p = np.empty((n_out, 3))
-    out_b = np.empty((n_out, 6))
-    n_det = det_y.shape[0]
-    trk_p = np.empty((n_det, 3))
-    innov = np.empty((n_det, 3))
-    counter = np.zeros(1, dtype=np.int64)
-    substeps = 0
-
-    iv = 0
-    jf = 0
-    started = False
-    t = 0.0
-    om_m = np.zeros(3)
-    v_m = np.zeros(3)
+    t, meas_t = fs[_T], fs[_MEAS_T]
+    iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
     o = 0
     while iv < n_vel or jf < n_frames:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
+        if not is_frame and iv >= iv_stop:
+            break
         t_next = det_t[jf] if is_frame else vel_t[iv]
         if started and t_next > t:
             if t - meas_t > max_meas_age:
@@ -280,8 +254,8 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
                         lm[i, c] = p_hat[c] + ry[c]
                     lm_init[i] = True
                 for c in range(3):
-                    innov[a + j, c] = lm[i, c] - ry[c] - p_hat[c]
-                    trk_p[a + j, c] = lm[i, c]
+                    innov[a + j - det_base, c] = lm[i, c] - ry[c] - p_hat[c]
+                    trk_p[a + j - det_base, c] = lm[i, c]
             meas_t = t_next
             jf += 1
         else:
@@ -301,7 +275,57 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
                 out_b[o, 3:] = b_v
                 o += 1
             iv += 1
-    return out_k[:o], out_r[:o], out_p[:o], out_b[:o], trk_p, innov, substeps
+    fs[_T], fs[_MEAS_T] = t, meas_t
+    ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps
+    return o
+
+
+class _State:
+    """Algorithm B/C's state: estimate, visible measurements and directions, held twist, clocks, counters."""
+
+    def __init__(self, n_max: int, n_dir: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray,
+                 b_v0: np.ndarray) -> None:
+        self.r_hat = np.array(r0, dtype=np.float64)
+        self.p_hat = np.array(p0, dtype=np.float64)
+        self.b_om = np.array(b_om0, dtype=np.float64)
+        self.b_v = np.array(b_v0, dtype=np.float64)
+        self.y = np.zeros((max(n_max, 1), 3))
+        self.vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
+        self.dir_b = np.zeros((n_dir, 3))
+        self.dir_w = np.zeros(n_dir)
+        self.om_m = np.zeros(3)
+        self.v_m = np.zeros(3)
+        self.counter = np.zeros(1, dtype=np.int64)
+        self.fs = np.array([0.0, -np.inf])
+        self.ns = np.zeros(5, dtype=np.int64)
+
+    def arrays(self) -> tuple:
+        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.dir_b, self.dir_w,
+                self.om_m, self.v_m, self.counter, self.fs, self.ns)
+
+
+def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
+               det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
+               k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every):
+    """Run algorithm C (B when ``k_1 = k_2 = 0`` or there are no directions) over an ordered event stream.
+
+    Arguments as :func:`pipeline.observers.fast_adaptation.run_kernel`, plus the directions on the
+    velocity time base as made by :func:`pipeline.directions.direction_arrays`: ``dir_inertial (J, 3)`` unit vectors (the
+    third one the cross product when ``make_cross``), ``dir_body (N, J0, 3)`` unit body measurements,
+    ``dir_weight (N, J0)`` the weights ``s_j`` (0 = unavailable) and ``dir_gscale (J0,)`` (``‖g‖`` for an
+    accelerometer direction, else 0; see :func:`pipeline.directions.load_directions`). ``J`` may be 0.
+    ``lm``/``lm_init`` are updated in place (final map).
+
+    Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps)`` exactly like algorithm A's kernel.
+    """
+    n_vel = vel_t.shape[0]
+    state = _State(max_per_frame(det_offsets), dir_inertial.shape[0], r0, p0, b_om0, b_v0)
+    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    o = _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
+                 det_t, det_offsets, det_idx, det_y, lm, lm_init,
+                 k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, n_vel,
+                 *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
+    return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 
 def check_imu_gains(gains: dict[str, float]) -> None:
@@ -312,44 +336,43 @@ def check_imu_gains(gains: dict[str, float]) -> None:
                         f"lower k_2 below {4.0 * k_1 / k_w:g} or raise k_1")
 
 
-def _run(stream, gains: dict[str, float], options, dirs=None, r0=None) -> ObserverResult:
-    n_lm = stream.landmark_ids.shape[0]
-    lm = np.zeros((n_lm, 3))
-    lm_init = np.zeros(n_lm, dtype=np.bool_)
-    n = stream.vel_t_ns.shape[0]
-    if dirs is None:
-        dirs = (np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
-    out_k, out_r, out_p, out_b, trk, innov, substeps = run_kernel(
-        stream.seconds(stream.vel_t_ns), stream.omega, stream.velocity, *dirs,
-        stream.seconds(stream.det_t_ns), stream.det_offsets, stream.det_idx, stream.det_y,
-        lm, lm_init, np.eye(3) if r0 is None else r0, np.zeros(3), np.zeros(3), np.zeros(3),
-        gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma_omega"], gains["gamma_v"],
-        gains.get("k_1", 0.0), gains.get("k_2", 0.0),
-        options.min_landmarks_bias, options.max_meas_age, options.out_every,
-    )
-    det_t = np.repeat(stream.det_t_ns, np.diff(stream.det_offsets))
-    return ObserverResult(
-        t_ns=stream.vel_t_ns[out_k], rotation=out_r, position=out_p,
-        gyro_bias=out_b[:, :3], vel_bias=out_b[:, 3:],
-        landmark_ids=stream.landmark_ids, landmark_xyz=lm,
-        det_t_ns=det_t, det_ids=stream.det_ids, track_xyz=trk, innovation=innov,
-        stats={"substeps": int(substeps)},
-    )
+class Hashim(Stepper):
+    """Algorithm B (no directions) or C on an aligned stream, a stretch of samples at a time."""
+
+    def __init__(self, stream, gains: dict[str, float], options, dirs=None, r0=None) -> None:
+        super().__init__(stream, options)
+        n = stream.vel_t_ns.shape[0]
+        if dirs is None:
+            dirs = (np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
+        self.dirs = dirs
+        self.gains = (gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma_omega"], gains["gamma_v"],
+                      gains.get("k_1", 0.0), gains.get("k_2", 0.0))
+        self.state = _State(self.n_max, dirs[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
+                            np.zeros(3), np.zeros(3))
+
+    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+        s, o = self.stream, self.options
+        rows = _advance(self.vel_t, s.omega, s.velocity, *self.dirs, self.det_t, s.det_offsets, s.det_idx,
+                        s.det_y, self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age,
+                        o.out_every, iv_stop, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk,
+                        out.innov, out.det_base)
+        self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
+        return rows
 
 
-def run(stream, gains: dict[str, float], options) -> ObserverResult:
+def start(stream, gains: dict[str, float], options) -> Hashim:
     """Algorithm B: landmarks and velocities only."""
-    return _run(stream, gains, options, None)
+    return Hashim(stream, gains, options)
 
 
-def run_imu(stream, gains: dict[str, float], options) -> ObserverResult:
+def start_imu(stream, gains: dict[str, float], options) -> Hashim:
     """Algorithm C: B plus the IMU attitude innovation from ≥ 2 inertial directions."""
     check_imu_gains(gains)
     if stream.directions is None or len(stream.directions.names) < 2:
         have = stream.directions.names if stream.directions is not None else ()
         raise ValueError(f"hashim-imu needs 2 inertial directions, the stream has {len(have)}")
     dirs = direction_arrays(stream.directions, gains)
-    return _run(stream, gains, options, dirs, first_attitude(*dirs))
+    return Hashim(stream, gains, options, dirs, first_attitude(*dirs))
 
 
 @dataclass(frozen=True)
@@ -386,7 +409,7 @@ SPEC = ObserverSpec(
     paper=_PAPER,
     summary="SE(3) pose + landmarks + velocity biases; constant landmark gain k_p (no IMU)",
     gains=_landmark_gains(gamma_omega=0.3),
-    run=run,
+    start=start,
 )
 
 SPEC_IMU = _ImuSpec(
@@ -401,6 +424,6 @@ SPEC_IMU = _ImuSpec(
         GainSpec("s_gravity", 1.0, "confidence s_j of the accelerometer gravity direction"),
         GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction"),
     ),
-    run=run_imu,
+    start=start_imu,
     min_directions=2,
 )

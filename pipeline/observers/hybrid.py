@@ -24,8 +24,8 @@ import numpy as np
 
 from pipeline.directions import direction_arrays, first_attitude
 from pipeline.lie import so3_exp
-from pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverResult, ObserverSpec
-from pipeline.observers.wang_tayebi import FLOW_GAINS, run_flow
+from pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverSpec
+from pipeline.observers.wang_tayebi import FLOW_GAINS, Flow
 
 NAME = "hybrid"
 #: Rotation angle of the candidates (Wang–Tayebi's θ_q).
@@ -133,8 +133,8 @@ def check_gains(gains: dict[str, float]) -> None:
         raise GainError(f"gain delta_fraction of observer '{NAME}' must be in (0, 1), got {frac!r}")
 
 
-def run(stream, gains: dict[str, float], options: ObserverOptions) -> ObserverResult:
-    """Run algorithm E on an aligned stream; every jump goes to ``extra_tables["jumps"]``.
+def start(stream, gains: dict[str, float], options: ObserverOptions) -> Flow:
+    """Algorithm E on an aligned stream; every jump goes to ``extra_tables["jumps"]``.
 
     R̂(0) is the Wahba attitude of the first usable direction sample (as algorithm C): a log's initial
     heading is arbitrary, and correcting it later would rotate the map built so far about the vehicle.
@@ -146,11 +146,9 @@ def run(stream, gains: dict[str, float], options: ObserverOptions) -> ObserverRe
     ref, body, trust, gscale, make_cross = direction_arrays(stream.directions, {})
     dirs = (ref, body, gains["rho"] * trust, gscale, make_cross)
     cand, gap, delta = switching_design(ref, gains["rho"], gains["delta_fraction"])
-    res, (jk, jq, jphi) = run_flow(stream, gains, options, dirs, first_attitude(*dirs), cand, delta)
-    res.extra_tables["jumps"] = {"t_ns": stream.vel_t_ns[jk], "candidate": jq.astype(np.int64),
-                                 "potential_before": jphi[:, 0], "potential_after": jphi[:, 1]}
-    res.stats.update({"jumps": int(jk.shape[0]), "synergy_gap": gap, "delta": delta})
-    return res
+    flow = Flow(stream, gains, options, dirs, first_attitude(*dirs), cand, delta, jumps=True)
+    flow.stats.update({"jumps": 0, "synergy_gap": gap, "delta": delta})
+    return flow
 
 
 @dataclass(frozen=True)
@@ -174,6 +172,6 @@ SPEC = _HybridSpec(
         GainSpec("rho", 1.0, "weight rho_j of each inertial direction (times its per-sample trust)"),
         GainSpec("delta_fraction", 0.5, "hysteresis delta as a fraction of the synergy gap Delta* (< 1)"),
     ),
-    run=run,
+    start=start,
     min_directions=2,
 )

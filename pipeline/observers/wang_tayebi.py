@@ -33,7 +33,15 @@ import numpy as np
 from numba import njit
 
 from pipeline.lie import project_so3, se3_exp_into
-from pipeline.observers.base import GainSpec, ObserverOptions, ObserverResult, ObserverSpec
+from pipeline.observers.base import (
+    GainSpec,
+    ObserverOptions,
+    ObserverSpec,
+    Outputs,
+    Stepper,
+    max_per_frame,
+    output_rows,
+)
 from pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
 from pipeline.directions import load_directions
 
@@ -263,88 +271,33 @@ def _odometry(t0, t1, iv, vel_t, omega, vel, om_m, v_m, b_pred, r_acc, p_acc):
         t = t_end
 
 
+#: Kernel scalars kept between stretches: ``fs = [t, meas_t, t_lm, rate_lm, t_dir, rate_dir]``,
+#: ``ns = [iv, jf, nvis, started, substeps]``.
+_T, _MEAS_T, _T_LM, _RATE_LM, _T_DIR, _RATE_DIR = 0, 1, 2, 3, 4, 5
+_IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
+
+
 @njit(cache=True)
-def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
-               det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
-               k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every):
-    """Run D (``dir_ref`` with 0 rows, ``cand`` with 0 rows) or E over an ordered event stream.
-
-    Times are float64 seconds. Velocity samples ``k`` carry ``Ω_m, V_m`` and the directions as made by
-    :func:`pipeline.directions.direction_arrays`: inertial ``dir_ref (J, 3)``, body ``dir_body[k]
-    (J0, 3)``, weights ``ρ_j = dir_rho[k] (J0,)``, ``dir_gscale``/``make_cross`` for the bias-corrected
-    gravity direction and the cross-product third direction (built per sample by ``load_directions``).
-    At each sample, with that sample's directions, the switching variable is evaluated and at most one
-    jump ``R_q*ᵀ`` applied when ``μ ≥ delta`` (spec §6.3 discrete step (2)). Landmarks with ``lm_init``
-    False are initialised at first sighting as ``p̂ + R̂ y`` (spec §8); only visible landmarks enter the sums.
-
-    Between two measurements of the same landmark (frames at most ``max_meas_age`` apart) the measurement
-    is the odometry prediction from the first plus the share ``s = (t − t_f)/T`` of its mismatch with the
-    second; directions likewise between velocity samples. Pure prediction (algorithm A) makes ``e_i``
-    blind to the bias estimate until the next frame: that delay, not the Euler step, is what destabilises
-    the bias loop at ``ω_n T ≳ 0.2`` (spec §5.3). With the look-ahead the flow sees the measurements the
-    continuous-time observer would, so it is stable for any gains; the estimate at ``t`` uses data up to
-    one frame after ``t``.
-
-    Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps, jump_k, jump_q, jump_phi)``: as
-    algorithm A's kernel, plus per jump the velocity-sample index, candidate and ``(Φ before, Φ after)``.
-    """
+def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
+             det_t, det_offsets, det_idx, det_y, lm, lm_init,
+             k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, iv_stop,
+             r_hat, p_hat, b_om, b_v, b_pred, r_acc, p_acc, y, y_d, vis_idx, ups, ups_d, ups_next, rho, rho_next,
+             om_m, v_m, counter, fs, ns,
+             out_k, out_r, out_p, out_b, trk_p, innov, det_base, jump_k, jump_q, jump_phi):
+    """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
+    sample ``iv_stop``; stores the state back and returns ``(rows recorded, jumps recorded)``."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     nd = dir_ref.shape[0]
-    n_max = 1
-    for f in range(n_frames):
-        c = det_offsets[f + 1] - det_offsets[f]
-        if c > n_max:
-            n_max = c
-    y = np.zeros((n_max, 3))
-    y_d = np.zeros((n_max, 3))
-    vis_idx = np.zeros(n_max, dtype=np.int64)
-    ups = np.zeros((max(nd, 1), 3))
-    ups_d = np.zeros((max(nd, 1), 3))
-    ups_next = np.zeros((max(nd, 1), 3))
-    rho = np.zeros(max(nd, 1))
-    rho_next = np.zeros(max(nd, 1))
-    nvis = 0
-    meas_t = -np.inf
-    t_lm, rate_lm = 0.0, 0.0  # look-ahead interval of the landmark measurements: start, 1/length
-    t_dir, rate_dir = 0.0, 0.0
-
-    r_hat = r0.copy()
-    p_hat = p0.copy()
-    b_om = b_om0.copy()
-    b_v = b_v0.copy()
-    b_pred = np.empty(6)
-    b_pred[:3] = b_om
-    b_pred[3:] = b_v
-    r_acc = np.empty((3, 3))
-    p_acc = np.empty(3)
-
-    n_out = (n_vel + out_every - 1) // out_every
-    if n_vel > 0 and (n_vel - 1) % out_every != 0:
-        n_out += 1
-    out_k = np.empty(n_out, dtype=np.int64)
-    out_r = np.empty((n_out, 3, 3))
-    out_p = np.empty((n_out, 3))
-    out_b = np.empty((n_out, 6))
-    n_det = det_y.shape[0]
-    trk_p = np.empty((n_det, 3))
-    innov = np.empty((n_det, 3))
-    jump_k = np.empty(n_vel, dtype=np.int64)
-    jump_q = np.empty(n_vel, dtype=np.int64)
-    jump_phi = np.empty((n_vel, 2))
+    t, meas_t = fs[_T], fs[_MEAS_T]
+    t_lm, rate_lm, t_dir, rate_dir = fs[_T_LM], fs[_RATE_LM], fs[_T_DIR], fs[_RATE_DIR]
+    iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
     n_jumps = 0
-    counter = np.zeros(1, dtype=np.int64)
-    substeps = 0
-
-    iv = 0
-    jf = 0
-    started = False
-    t = 0.0
-    om_m = np.zeros(3)
-    v_m = np.zeros(3)
     o = 0
     while iv < n_vel or jf < n_frames:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
+        if not is_frame and iv >= iv_stop:
+            break
         t_next = det_t[jf] if is_frame else vel_t[iv]
         if started and t_next > t:
             if t - meas_t > max_meas_age:
@@ -366,8 +319,8 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
                     ry = r_hat[c, 0] * y[j, 0] + r_hat[c, 1] * y[j, 1] + r_hat[c, 2] * y[j, 2]
                     if not lm_init[i]:
                         lm[i, c] = p_hat[c] + ry
-                    innov[a + j, c] = lm[i, c] - ry - p_hat[c]
-                    trk_p[a + j, c] = lm[i, c]
+                    innov[a + j - det_base, c] = lm[i, c] - ry - p_hat[c]
+                    trk_p[a + j - det_base, c] = lm[i, c]
                 lm_init[i] = True
             b_pred[:3] = b_om
             b_pred[3:] = b_v
@@ -425,45 +378,126 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
                 out_b[o, 3:] = b_v
                 o += 1
             iv += 1
-    return (out_k[:o], out_r[:o], out_p[:o], out_b[:o], trk_p, innov, substeps,
+    fs[_T], fs[_MEAS_T] = t, meas_t
+    fs[_T_LM], fs[_RATE_LM], fs[_T_DIR], fs[_RATE_DIR] = t_lm, rate_lm, t_dir, rate_dir
+    ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps
+    return o, n_jumps
+
+
+class _State:
+    """The flow's state: estimate, prediction bias, visible measurements and their look-ahead corrections,
+    directions, held twist, clocks and counters."""
+
+    def __init__(self, n_max: int, nd: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray,
+                 b_v0: np.ndarray) -> None:
+        n_max = max(n_max, 1)
+        self.r_hat = np.array(r0, dtype=np.float64)
+        self.p_hat = np.array(p0, dtype=np.float64)
+        self.b_om = np.array(b_om0, dtype=np.float64)
+        self.b_v = np.array(b_v0, dtype=np.float64)
+        self.b_pred = np.concatenate([self.b_om, self.b_v])
+        self.r_acc = np.empty((3, 3))
+        self.p_acc = np.empty(3)
+        self.y = np.zeros((n_max, 3))
+        self.y_d = np.zeros((n_max, 3))
+        self.vis_idx = np.zeros(n_max, dtype=np.int64)
+        self.ups = np.zeros((max(nd, 1), 3))
+        self.ups_d = np.zeros((max(nd, 1), 3))
+        self.ups_next = np.zeros((max(nd, 1), 3))
+        self.rho = np.zeros(max(nd, 1))
+        self.rho_next = np.zeros(max(nd, 1))
+        self.om_m = np.zeros(3)
+        self.v_m = np.zeros(3)
+        self.counter = np.zeros(1, dtype=np.int64)
+        self.fs = np.array([0.0, -np.inf, 0.0, 0.0, 0.0, 0.0])
+        self.ns = np.zeros(5, dtype=np.int64)
+
+    def arrays(self) -> tuple:
+        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.b_pred, self.r_acc, self.p_acc, self.y, self.y_d,
+                self.vis_idx, self.ups, self.ups_d, self.ups_next, self.rho, self.rho_next, self.om_m, self.v_m,
+                self.counter, self.fs, self.ns)
+
+
+def _jump_arrays(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Room for a jump at each of ``n`` velocity samples (at most one per sample)."""
+    return np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty((n, 2))
+
+
+def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
+               det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
+               k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every):
+    """Run D (``dir_ref`` with 0 rows, ``cand`` with 0 rows) or E over an ordered event stream.
+
+    Times are float64 seconds. Velocity samples ``k`` carry ``Ω_m, V_m`` and the directions as made by
+    :func:`pipeline.directions.direction_arrays`: inertial ``dir_ref (J, 3)``, body ``dir_body[k]
+    (J0, 3)``, weights ``ρ_j = dir_rho[k] (J0,)``, ``dir_gscale``/``make_cross`` for the bias-corrected
+    gravity direction and the cross-product third direction (built per sample by ``load_directions``).
+    At each sample, with that sample's directions, the switching variable is evaluated and at most one
+    jump ``R_q*ᵀ`` applied when ``μ ≥ delta`` (spec §6.3 discrete step (2)). Landmarks with ``lm_init``
+    False are initialised at first sighting as ``p̂ + R̂ y`` (spec §8); only visible landmarks enter the sums.
+
+    Between two measurements of the same landmark (frames at most ``max_meas_age`` apart) the measurement
+    is the odometry prediction from the first plus the share ``s = (t − t_f)/T`` of its mismatch with the
+    second; directions likewise between velocity samples. Pure prediction (algorithm A) makes ``e_i``
+    blind to the bias estimate until the next frame: that delay, not the Euler step, is what destabilises
+    the bias loop at ``ω_n T ≳ 0.2`` (spec §5.3). With the look-ahead the flow sees the measurements the
+    continuous-time observer would, so it is stable for any gains; the estimate at ``t`` uses data up to
+    one frame after ``t``.
+
+    Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps, jump_k, jump_q, jump_phi)``: as
+    algorithm A's kernel, plus per jump the velocity-sample index, candidate and ``(Φ before, Φ after)``.
+    """
+    n_vel = vel_t.shape[0]
+    state = _State(max_per_frame(det_offsets), dir_ref.shape[0], r0, p0, b_om0, b_v0)
+    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    jump_k, jump_q, jump_phi = _jump_arrays(n_vel)
+    o, n_jumps = _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
+                          det_t, det_offsets, det_idx, det_y, lm, lm_init,
+                          k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, n_vel,
+                          *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0, jump_k, jump_q, jump_phi)
+    return (out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS]),
             jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps])
 
 
-def run_flow(stream, gains: dict[str, float], options: ObserverOptions, directions=None, r0=None,
-             cand: np.ndarray | None = None, delta: float = np.inf):
-    """Run the shared kernel on an aligned stream; returns ``(ObserverResult, jumps)``.
+class Flow(Stepper):
+    """The D/E flow on an aligned stream, a stretch of samples at a time; the jumps of each stretch go to
+    its ``extra_tables["jumps"]`` when ``jumps`` is set (algorithm E)."""
 
-    ``directions`` is the tuple of :func:`pipeline.directions.direction_arrays` (weights already
-    scaled) or None (algorithm D); ``jumps`` is ``(sample index, candidate, Φ before/after)`` arrays.
-    """
-    n = stream.vel_t_ns.shape[0]
-    if directions is None:
-        directions = (np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
-    cand = np.zeros((0, 3, 3)) if cand is None else np.ascontiguousarray(cand, dtype=np.float64)
-    n_lm = stream.landmark_ids.shape[0]
-    lm = np.zeros((n_lm, 3))
-    lm_init = np.zeros(n_lm, dtype=np.bool_)
-    out_k, out_r, out_p, out_b, trk, innov, substeps, jk, jq, jphi = run_kernel(
-        stream.seconds(stream.vel_t_ns), stream.omega, stream.velocity, *directions,
-        stream.seconds(stream.det_t_ns), stream.det_offsets, stream.det_idx, stream.det_y,
-        lm, lm_init, np.eye(3) if r0 is None else r0, np.zeros(3), np.zeros(3), np.zeros(3),
-        gains["k_l"], gains["k_x"], gains["gamma_w"], gains["gamma_v"], cand, float(delta),
-        options.min_landmarks_bias, options.max_meas_age, options.out_every,
-    )
-    det_t = np.repeat(stream.det_t_ns, np.diff(stream.det_offsets))
-    res = ObserverResult(
-        t_ns=stream.vel_t_ns[out_k], rotation=out_r, position=out_p,
-        gyro_bias=out_b[:, :3], vel_bias=out_b[:, 3:],
-        landmark_ids=stream.landmark_ids, landmark_xyz=lm,
-        det_t_ns=det_t, det_ids=stream.det_ids, track_xyz=trk, innovation=innov,
-        stats={"substeps": int(substeps)},
-    )
-    return res, (jk, jq, jphi)
+    def __init__(self, stream, gains: dict[str, float], options: ObserverOptions, directions=None, r0=None,
+                 cand: np.ndarray | None = None, delta: float = np.inf, jumps: bool = False) -> None:
+        super().__init__(stream, options)
+        n = stream.vel_t_ns.shape[0]
+        if directions is None:
+            directions = (np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
+        self.directions = directions
+        self.cand = np.zeros((0, 3, 3)) if cand is None else np.ascontiguousarray(cand, dtype=np.float64)
+        self.delta = float(delta)
+        self.gains = (gains["k_l"], gains["k_x"], gains["gamma_w"], gains["gamma_v"])
+        self.state = _State(self.n_max, directions[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
+                            np.zeros(3), np.zeros(3))
+        self.jumps = jumps
+        self._jumps: tuple[np.ndarray, np.ndarray, np.ndarray] = _jump_arrays(0)
 
+    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+        s, o = self.stream, self.options
+        jump_k, jump_q, jump_phi = _jump_arrays(max(iv_stop - self.iv, 0))
+        rows, n_jumps = _advance(
+            self.vel_t, s.omega, s.velocity, *self.directions, self.det_t, s.det_offsets, s.det_idx, s.det_y,
+            self.lm, self.lm_init, *self.gains, self.cand, self.delta, o.min_landmarks_bias, o.max_meas_age,
+            o.out_every, iv_stop, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov,
+            out.det_base, jump_k, jump_q, jump_phi)
+        self._jumps = (jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps])
+        self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
+        if self.jumps:
+            self.stats["jumps"] = self.stats.get("jumps", 0) + n_jumps
+        return rows
 
-def run(stream, gains: dict[str, float], options: ObserverOptions) -> ObserverResult:
-    """Run algorithm D on an aligned stream."""
-    return run_flow(stream, gains, options)[0]
+    def _extra(self) -> dict[str, dict[str, np.ndarray]]:
+        if not self.jumps:
+            return {}
+        jk, jq, jphi = self._jumps
+        return {"jumps": {"t_ns": self.stream.vel_t_ns[jk], "candidate": jq.astype(np.int64),
+                          "potential_before": jphi[:, 0], "potential_after": jphi[:, 1]}}
 
 
 #: Gains of the shared flow: the spec §5.3 set, which converges on the paper scenario and is also the best
@@ -482,5 +516,5 @@ SPEC = ObserverSpec(
           "baseline of seed 001)",
     summary="smooth SLAM observer, inertial-frame innovation; attitude corrected only through the gyro bias",
     gains=FLOW_GAINS,
-    run=run,
+    start=Flow,
 )

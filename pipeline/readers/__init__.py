@@ -22,6 +22,8 @@ from .decode import (
     decode_detections,
     decode_rows,
     decode_sim_truth,
+    decode_topics,
+    detection_stream,
     decode_tf,
     pose_stream,
     static_transforms,
@@ -94,7 +96,6 @@ def read_log(
         table = topics_of(reader)
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
         streams = LogStreams(path=str(path), warnings=[*damage_notes(reader), *selection.warnings])
-        rows: dict[str, Rows] = {}
         tf_rows: dict[str, TfRows] = {}
         reports: dict[str, dict[str, list[str]]] = defaultdict(dict)  # topic -> text -> roles
 
@@ -107,25 +108,33 @@ def read_log(
                 tf_rows[topic] = decode_tf(reader, path, topic, table[topic][1])
             return tf_rows[topic]
 
-        for role in ROLES:
-            if (topic := selection.roles.get(role)) is None:
-                continue
+        chosen = [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
+        for _, topic in chosen:
+            require_types(reader, path, table[topic][1])
+        # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
+        rows, detections = decode_topics(
+            reader, path,
+            {t: table[t][1] for r, t in chosen if (r, table[t][0].msgtype) in VEC3_ROLES
+             or (r == "truth" and selection.truth_edge is None)},
+            {t: table[t][1] for r, t in chosen if r == "detections" and table[t][0].msgtype not in TF_TYPES},
+        )
+        last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
+        for k, (role, topic) in enumerate(chosen):
             meta, conns = table[topic]
-            require_types(reader, path, conns)
             if (role, meta.msgtype) in VEC3_ROLES:
-                if topic not in rows:
-                    rows[topic] = decode_rows(reader, path, topic, conns)
                 stream, cleaning = vec3_stream(rows[topic], role)
                 setattr(streams, role, stream)
                 note(topic, role, cleaning)
             elif role == "truth" and selection.truth_edge is None:
-                streams.truth, cleaning = pose_stream(decode_rows(reader, path, topic, conns))
+                streams.truth, cleaning = pose_stream(rows[topic])
                 note(topic, role, cleaning)
             elif role == "detections":
                 if meta.msgtype in TF_TYPES:
                     streams.detections, cleaning = tag_detections(tf_of(topic), str(selection.tag_pattern), path)
                 else:
-                    streams.detections, cleaning = decode_detections(reader, path, topic, conns)
+                    found = detections.pop(topic)
+                    streams.detections, cleaning = detection_stream(found) if isinstance(found, Rows) else found
+                    del found
                 note(topic, role, cleaning)
             elif role == "static_tf":
                 streams.static_tf, warnings = static_transforms(tf_of(topic))
@@ -138,6 +147,8 @@ def read_log(
                 streams.landmark_truth = landmarks or None
                 streams.bias_truth = bias or None
                 streams.warnings += warnings
+            if last_use[topic] == k:  # decoded columns no longer needed (streams keep what they share)
+                rows.pop(topic, None)
         if selection.truth_edge is not None:
             streams.truth = _truth_from_tf(streams, selection.roles["truth"], selection.truth_edge, tf_of)
 

@@ -1,12 +1,14 @@
 """Message decoding into NumPy columns, and the cleaning every stream gets before it leaves the reader.
 
-All knowledge of message layouts lives here (``LAYOUTS`` and the ``decode_*`` functions), so a faster
-(vectorised) decoder can replace this module without touching role selection or the streams. Messages
-are deserialised with the typestore rosbags builds from the definitions stored in the log, so custom
+All knowledge of message layouts lives here (``LAYOUTS``, ``ITEM_LAYOUTS`` and the ``decode_*`` functions),
+so a faster (vectorised) decoder can replace this module without touching role selection or the streams.
+Messages are deserialised with the typestore rosbags builds from the definitions stored in the log, so custom
 types such as ``fiducial_msgs`` need no ROS installation.
 
-Topics are read one at a time: rosbags merges connections by record time, which re-decompresses chunks
-over and over when chunks overlap in time (seen in real bags written topic by topic).
+The topics :mod:`.fastdecode` can read from the bytes (fixed layouts, detection arrays) are decoded together
+in one pass over the log (:func:`decode_topics`); the others are deserialised one topic at a time: rosbags
+merges connections by record time, which re-decompresses chunks over and over when chunks overlap in time
+(seen in real bags written topic by topic).
 """
 
 from __future__ import annotations
@@ -43,7 +45,7 @@ from .roles import (
 )
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Collection, Iterable, Iterator
+    from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -165,6 +167,8 @@ class Rows:
     frame: np.ndarray  # (N,) int32 codes into frame_names
     child: np.ndarray  # (N,) int32 codes into frame_names
     frame_names: list[str]
+    counts: np.ndarray | None = None  # (N,) int64 elements per message (detection arrays)
+    items: np.ndarray | None = None  # (sum(counts), width) float64: ``ItemLayout.columns`` of every element
 
 
 @dataclass
@@ -327,14 +331,26 @@ def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning, what: str
     return names[best]
 
 
+#: Rows at most this wide are shared by the streams cut from them when no cleaning was needed (an IMU row
+#: holds the gyro and the accelerometer); wider rows (odometry) are copied so unused columns can go.
+SHARE_WIDTH = 6
+
+
+def _is_identity(idx: np.ndarray, n: int) -> bool:
+    """Whether cleaning kept every row in place (nothing dropped, already in order)."""
+    return idx.shape[0] == n and (n == 0 or (int(idx[0]) == 0 and bool(np.all(np.diff(idx) == 1))))
+
+
 def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
-    """The role's 3-vector out of decoded rows, cleaned."""
+    """The role's 3-vector out of decoded rows, cleaned; a clean stream shares the decoded arrays (no copy)."""
     column, frame_from = VEC3_ROLES[role, rows.msgtype]
     xyz = rows.values[:, LAYOUTS[rows.msgtype].columns[column]]
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, xyz)
     frame = _dominant((rows.child if frame_from == "child" else rows.frame)[idx], rows.frame_names, cleaning)
     if idx.size and not xyz[idx].any():
         cleaning.extra.append("all values are zero (field not filled by the publisher?)")
+    if _is_identity(idx, xyz.shape[0]) and rows.values.shape[1] <= SHARE_WIDTH:
+        return Vec3Stream(rows.topic, frame, t_ns, rows.rec_ns, xyz), cleaning
     stream = Vec3Stream(rows.topic, frame, t_ns[idx], rows.rec_ns[idx], np.ascontiguousarray(xyz[idx]))
     return stream, cleaning
 
@@ -354,8 +370,8 @@ def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
         child,
         t_ns[idx],
         rows.rec_ns[idx],
-        np.ascontiguousarray(rows.values[idx][:, cols["position"]]),
-        np.ascontiguousarray(rows.values[idx][:, cols["quat_xyzw"]]),
+        np.ascontiguousarray(rows.values[idx, cols["position"]]),
+        np.ascontiguousarray(rows.values[idx, cols["quat_xyzw"]]),
     )
     return stream, cleaning
 
@@ -368,9 +384,37 @@ def _render(notes: Notes) -> list[str]:
     return [f"{plural(n, noun)} {rest}" for (noun, rest), n in sorted(notes.items())]
 
 
-def _fiducials(msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
-    for det in msg.transforms:
-        yield det.fiducial_id, det.transform.translation
+@dataclass(frozen=True)
+class ItemLayout:
+    """A detection array whose detections are the elements of one sequence field (fixed-layout elements)."""
+
+    items: str  # the sequence field
+    ident: tuple[str, ...] | None  # path of the id in an element; None: the element's index is the id
+    position: tuple[str, ...]  # path of the position (Point / Vector3) in an element
+
+    @property
+    def columns(self) -> tuple[tuple[str, ...], ...]:
+        """Element leaves read by the vectorised decoder: the id (if any), then x, y, z."""
+        return ((self.ident,) if self.ident else ()) + tuple((*self.position, a) for a in "xyz")
+
+    def detections(self, msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
+        """``(id, position)`` of every element of a deserialised message (the rosbags path)."""
+        for k, item in enumerate(getattr(msg, self.items)):
+            yield (k if self.ident is None else _field(item, self.ident)), _field(item, self.position)
+
+
+def _field(obj: Any, path: tuple[str, ...]) -> Any:
+    for name in path:
+        obj = getattr(obj, name)
+    return obj
+
+
+#: Detection types decoded straight from the bytes when their stored definition matches (else by rosbags).
+ITEM_LAYOUTS: dict[str, ItemLayout] = {
+    FIDUCIALS: ItemLayout("transforms", ("fiducial_id",), ("transform", "translation")),
+    FIDUCIALS_LEGACY: ItemLayout("transforms", ("fiducial_id",), ("transform", "translation")),
+    POSE_ARRAY: ItemLayout("poses", None, ("position",)),
+}
 
 
 def _apriltags(msg: Any, notes: Notes) -> Iterator[tuple[int, Any]]:
@@ -385,17 +429,10 @@ def _apriltags(msg: Any, notes: Notes) -> Iterator[tuple[int, Any]]:
         yield int(ids[0]), det.pose.pose.pose.position
 
 
-def _pose_array(msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
-    for i, pose in enumerate(msg.poses):
-        yield i, pose.position
-
-
 #: Detection types with a header (one message = one frame, kept even when empty): message -> (id, position).
 DETECTIONS: dict[str, Callable[[Any, Notes], Iterator[tuple[int, Any]]]] = {
-    FIDUCIALS: _fiducials,
-    FIDUCIALS_LEGACY: _fiducials,
+    **{msgtype: layout.detections for msgtype, layout in ITEM_LAYOUTS.items()},
     APRILTAG_ROS: _apriltags,
-    POSE_ARRAY: _pose_array,
 }
 
 _MARKER_ADD = 0  # visualization_msgs/Marker ADD (= MODIFY); DELETE and DELETEALL carry no detection
@@ -448,7 +485,12 @@ def decode_detections(
     A ``MarkerArray`` has no header: its ADD markers are grouped into frames by their own (stamp, frame id),
     and arrays without ADD markers are skipped.
     """
+    from .fastdecode import read_rows
+
     msgtype = next(iter(connections)).msgtype
+    fast = read_rows(reader, path, {topic: connections}, [topic]).get(topic) if msgtype in ITEM_LAYOUTS else None
+    if fast is not None:
+        return detection_stream(fast)
     frames, acc, notes = _Frames(), _DetectionFrames(), Notes()
     with _layout_errors(path, connections):
         if msgtype == MARKER_ARRAY:
@@ -467,6 +509,38 @@ def decode_detections(
             for rec, msg in _messages(reader, path, connections):
                 acc.add(_stamp(msg), rec, frames.code(msg.header.frame_id), items_of(msg, notes))
     return acc.stream(topic, frames.names(), notes)
+
+
+def detection_stream(rows: Rows) -> tuple[DetectionStream, Cleaning]:
+    """A detection stream out of the rows of a vectorised detection array (``ITEM_LAYOUTS``), cleaned."""
+    assert rows.counts is not None and rows.items is not None
+    layout = ITEM_LAYOUTS[rows.msgtype]
+    if layout.ident is None:  # the index within the message
+        ids = np.arange(rows.items.shape[0], dtype=np.int64) - np.repeat(_offsets(rows.counts)[:-1], rows.counts)
+    else:
+        ids = rows.items[:, 0].astype(np.int64)
+    xyz = np.ascontiguousarray(rows.items[:, -3:])
+    return _clean_detections(rows.topic, rows.t_ns, rows.rec_ns, rows.counts, ids, xyz, rows.frame,
+                             rows.frame_names)
+
+
+def decode_topics(
+    reader: AnyReader,
+    path: str | Path,
+    rows: Mapping[str, Collection[Connection]],
+    detections: Mapping[str, Collection[Connection]],
+) -> tuple[dict[str, Rows], dict[str, Rows | tuple[DetectionStream, Cleaning]]]:
+    """``decode_rows`` of ``rows`` and the detection topics, every topic that can be decoded from the bytes in
+    one pass over the log (each chunk decompressed once), the others through rosbags. A detection topic comes
+    back as rows for :func:`detection_stream` (decoded from the bytes; cleaned when the caller is ready for it)
+    or as the stream :func:`decode_detections` made."""
+    from .fastdecode import read_rows
+
+    fast = read_rows(reader, path, {**rows, **detections}, [t for t, c in detections.items()
+                                                             if next(iter(c)).msgtype in ITEM_LAYOUTS])
+    got_rows = {t: fast[t] if t in fast else decode_rows(reader, path, t, c) for t, c in rows.items()}
+    got_dets = {t: fast[t] if t in fast else decode_detections(reader, path, t, c) for t, c in detections.items()}
+    return got_rows, got_dets
 
 
 def _offsets(lengths: np.ndarray) -> np.ndarray:
@@ -489,16 +563,22 @@ def _clean_detections(
     nframes = t_ns.shape[0]
     owner = np.repeat(np.arange(nframes), lengths)
 
+    # (arrays are copied only where something is dropped or moved: an hour of detections is tens of MB)
     finite = np.isfinite(xyz).all(axis=1)
     cleaning.nonfinite = int(finite.size - np.count_nonzero(finite))
-    ids, xyz, owner = ids[finite], xyz[finite], owner[finite]
+    if cleaning.nonfinite:
+        ids, xyz, owner = ids[finite], xyz[finite], owner[finite]
+    del finite
     order = np.lexsort((ids, owner))  # stable: the first detection of an id in a frame is kept
     same = np.zeros(ids.shape[0], bool)
     same[order[1:]] = (owner[order[1:]] == owner[order[:-1]]) & (ids[order[1:]] == ids[order[:-1]])
+    del order
     if nsame := int(np.count_nonzero(same)):
         cleaning.extra.append(plural(nsame, "repeated id") + " within a frame dropped")
-    ids, xyz, owner = ids[~same], xyz[~same], owner[~same]
+        ids, xyz, owner = ids[~same], xyz[~same], owner[~same]
+    del same
     lengths = np.bincount(owner, minlength=nframes).astype(np.int64)
+    del owner
     offsets = _offsets(lengths)
 
     cleaning.out_of_order = int(np.count_nonzero(np.diff(t_ns) < 0))
@@ -512,10 +592,14 @@ def _clean_detections(
     cleaning.duplicates = int(drop.sum())
     forder = forder[~drop]
 
+    frame_id = _dominant(frame[forder], frame_names, cleaning)
+    if forder.shape[0] == nframes and bool(np.all(np.diff(forder) == 1)):  # every frame, in order: keep as is
+        stream = DetectionStream(topic, frame_id, t_ns[forder], rec_ns[forder], offsets, ids,
+                                 np.ascontiguousarray(xyz))
+        return stream, cleaning
     sel_len = lengths[forder]
     new_offsets = _offsets(sel_len)
     gather = np.repeat(offsets[:-1][forder] - new_offsets[:-1], sel_len) + np.arange(new_offsets[-1])
-    frame_id = _dominant(frame[forder], frame_names, cleaning)
     stream = DetectionStream(
         topic,
         frame_id,

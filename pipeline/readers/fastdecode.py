@@ -9,7 +9,10 @@ encapsulation header) is applied to those arrays only where a string left it unk
 
 Which fields to read is not listed here: :func:`layout_paths` runs the row function of a
 ``decode.LAYOUTS`` entry on a recording stand-in, so the layout table stays the one place naming them.
-Types whose fields cannot be reached without walking dynamic sequences fall back to rosbags.
+Detection arrays (one header, then a sequence of fixed-layout elements such as
+``fiducial_msgs/FiducialTransform``) are planned too: the prefix as above, then a compiled walk over the
+elements of every message (:class:`ItemPlan`). Types whose fields cannot be reached otherwise (a dynamic
+field before the wanted ones, strings inside elements) fall back to rosbags.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from numba import njit
 from rosbags.interfaces import Nodetype
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Collection, Mapping, Sequence
+    from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -57,7 +60,7 @@ _PRIMITIVES: dict[str, tuple[int, str]] = {
     "float32": (4, "f"),
     "float64": (8, "f"),
 }
-_BASE, _NAME, _ARRAY = Nodetype.BASE, Nodetype.NAME, Nodetype.ARRAY
+_BASE, _NAME, _ARRAY, _SEQUENCE = Nodetype.BASE, Nodetype.NAME, Nodetype.ARRAY, Nodetype.SEQUENCE
 
 
 class DecodeError(ValueError):
@@ -108,15 +111,10 @@ class _Op:
     slot: int = -1  # column (leaf) or string slot; -1 = not wanted
 
 
-@dataclass(frozen=True)
-class Plan:
-    """How to find the wanted fields of one type in one encoding (leaf 0, 1: stamp sec, nanosec)."""
+class _Leaves:
+    """Sizes and kinds of a plan's leaves, grouped for conversion (shared by messages and elements)."""
 
-    msgtype: str
-    cdr: bool
-    ops: tuple[_Op, ...]
     leaves: tuple[tuple[int, str], ...]  # per leaf: (size, kind)
-    nstrings: int
 
     @cached_property
     def sizes(self) -> np.ndarray:
@@ -132,6 +130,39 @@ class Plan:
         return {k: np.array(v, np.int64) for k, v in groups.items()}
 
 
+@dataclass(frozen=True)
+class ItemPlan(_Leaves):
+    """The fixed-layout elements of the sequence that follows a plan's prefix (one row of leaves each)."""
+
+    ops: tuple[_Op, ...]  # leaves and skips only
+    leaves: tuple[tuple[int, str], ...]
+
+    @cached_property
+    def program(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The ops as arrays for the compiled walk: is-leaf, alignment, size, slot."""
+        return (np.array([op.kind == "leaf" for op in self.ops], np.bool_),
+                np.array([op.align for op in self.ops], np.int64),
+                np.array([op.size for op in self.ops], np.int64),
+                np.array([op.slot for op in self.ops], np.int64))
+
+    @cached_property
+    def min_size(self) -> int:
+        """Bytes of one element without padding: bounds the element count a message can hold."""
+        return max(1, sum(op.size for op in self.ops))
+
+
+@dataclass(frozen=True)
+class Plan(_Leaves):
+    """How to find the wanted fields of one type in one encoding (leaf 0, 1: stamp sec, nanosec)."""
+
+    msgtype: str
+    cdr: bool
+    ops: tuple[_Op, ...]
+    leaves: tuple[tuple[int, str], ...]  # per leaf: (size, kind)
+    nstrings: int
+    items: ItemPlan | None = None  # the sequence right after ``ops``, if its elements are read
+
+
 def _walk(
     typestore: Typestore,
     msgtype: str,
@@ -141,9 +172,10 @@ def _walk(
     strings: dict[Path_, int],
     ops: list[_Op],
     leaves: dict[int, tuple[int, str]],
+    fields: Sequence[tuple[str, Any]] | None = None,
 ) -> bool:
-    """Append the ops of ``msgtype``; False at the first field that has no fixed size (sequence, wstring)."""
-    for name, (node, detail) in typestore.fielddefs[msgtype][1]:
+    """Append the ops of ``msgtype`` (or of its ``fields``); False at the first field without a fixed size."""
+    for name, (node, detail) in typestore.fielddefs[msgtype][1] if fields is None else fields:
         path = (*prefix, name)
         if node == _NAME:
             if not _walk(typestore, detail, path, cdr, want, strings, ops, leaves):
@@ -172,6 +204,37 @@ def _walk(
     return True
 
 
+def _merged(ops: list[_Op]) -> tuple[_Op, ...]:
+    """Runs of unwanted fixed fields become one skip (their alignment is implied)."""
+    merged: list[_Op] = []
+    for op in ops:
+        last = merged[-1] if merged else None
+        if op.kind == "skip" and last and last.kind == "skip" and op.align <= last.align and last.size % op.align == 0:
+            merged[-1] = _Op("skip", last.align, last.size + op.size)
+        else:
+            merged.append(op)
+    return tuple(merged)
+
+
+def _item_plan(typestore: Typestore, fields: Sequence[tuple[str, Any]], name: str, columns: Sequence[Path_],
+               cdr: bool) -> tuple[int, ItemPlan] | None:
+    """Index of the sequence field ``name`` and the plan of its elements (None unless all fixed-size)."""
+    index = next((k for k, (field, _) in enumerate(fields) if field == name), None)
+    if index is None:
+        return None
+    node, detail = fields[index][1]
+    if node != _SEQUENCE or detail[0][0] != _NAME:
+        return None
+    want = {path: k for k, path in enumerate(columns)}
+    ops: list[_Op] = []
+    leaves: dict[int, tuple[int, str]] = {}
+    if not _walk(typestore, detail[0][1], (), cdr, want, {}, ops, leaves) or len(leaves) != len(want):
+        return None
+    if any(op.kind == "string" for op in ops):
+        return None
+    return index, ItemPlan(_merged(ops), tuple(leaves[k] for k in range(len(want))))
+
+
 def make_plan(
     typestore: Typestore,
     msgtype: str,
@@ -179,8 +242,12 @@ def make_plan(
     strings: Sequence[Path_] = (FRAME_ID,),
     *,
     cdr: bool,
+    items: tuple[str, Sequence[Path_]] | None = None,
 ) -> Plan | None:
     """Plan reading the header stamp, ``columns`` (numbers) and ``strings`` of ``msgtype``.
+
+    With ``items = (field, element columns)`` the plan also reads those columns from every element of the
+    top-level sequence ``field``; everything before it must then have a fixed size.
 
     Returns None when the type has no ``std_msgs/Header`` first, a path is missing or not a number/string,
     or a wanted field lies behind a dynamic sequence (those types go through rosbags instead).
@@ -194,18 +261,20 @@ def make_plan(
     string_slots = {path: k for k, path in enumerate(strings)}
     ops: list[_Op] = []
     leaves: dict[int, tuple[int, str]] = {}
-    _walk(typestore, msgtype, (), cdr, want, string_slots, ops, leaves)  # may stop early: checked below
+    item_plan = None
+    if items is None:
+        _walk(typestore, msgtype, (), cdr, want, string_slots, ops, leaves)  # may stop early: checked below
+    else:
+        found = _item_plan(typestore, fields[1], items[0], items[1], cdr)
+        if found is None or not _walk(typestore, msgtype, (), cdr, want, string_slots, ops, leaves,
+                                      fields[1][: found[0]]):
+            return None
+        item_plan = found[1]
     found_strings = {op.slot for op in ops if op.kind == "string" and op.slot >= 0}
     if len(leaves) != len(want) or len(found_strings) != len(string_slots):
         return None
-    merged: list[_Op] = []  # runs of unwanted fixed fields become one skip (their alignment is implied)
-    for op in ops:
-        last = merged[-1] if merged else None
-        if op.kind == "skip" and last and last.kind == "skip" and op.align <= last.align and last.size % op.align == 0:
-            merged[-1] = _Op("skip", last.align, last.size + op.size)
-        else:
-            merged.append(op)
-    return Plan(msgtype, cdr, tuple(merged), tuple(leaves[k] for k in range(len(want))), len(string_slots))
+    return Plan(msgtype, cdr, _merged(ops), tuple(leaves[k] for k in range(len(want))), len(string_slots),
+                item_plan)
 
 
 # --------------------------------------------------------------------------- kernels
@@ -265,6 +334,28 @@ def payload_hashes(data, start, size, skip):  # pragma: no cover - compiled
     return out
 
 
+@njit(cache=True)
+def _item_offsets(origin, first, counts, limit, is_leaf, align, size, slot, nleaves):  # pragma: no cover - compiled
+    """Absolute offsets of every element's leaves (rows in message order); CDR alignment is relative to
+    ``origin``. Returns the offsets and the first message whose elements run past its end (-1: none)."""
+    out = np.empty((counts.sum(), nleaves), np.int64)
+    m = 0
+    for i in range(origin.shape[0]):
+        p = first[i]  # relative to origin[i]
+        for _ in range(counts[i]):
+            for k in range(is_leaf.shape[0]):
+                a = align[k]
+                if a > 1:
+                    p = (p + a - 1) // a * a
+                if is_leaf[k]:
+                    out[m, slot[k]] = origin[i] + p
+                p += size[k]
+            m += 1
+        if p > limit[i]:
+            return out, i
+    return out, -1
+
+
 def _as_float(words: np.ndarray, size: int, kind: str) -> np.ndarray:
     """Reinterpret normalised words (columns of one size and kind) as float64 (ints exact up to 2**53)."""
     if size == 8:
@@ -283,6 +374,8 @@ class Decoded:
     t_ns: np.ndarray  # (n,) int64
     values: np.ndarray  # (n, ncolumns) float64
     strings: list[tuple[np.ndarray, list[str]]]  # per string slot: (codes (n,) int32, names)
+    counts: np.ndarray | None = None  # (n,) int64 elements per message (plans with items)
+    items: np.ndarray | None = None  # (sum(counts), nitems) float64, elements in message order
 
 
 @njit(cache=True)
@@ -357,6 +450,8 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     values = np.empty((n, len(plan.leaves) - 2), np.float64)
     codes = [np.empty(n, np.int32) for _ in range(plan.nstrings)]
     names: list[list[str]] = [[] for _ in range(plan.nstrings)]
+    counts = np.zeros(n, np.int64) if plan.items is not None else None
+    item_parts: list[tuple[np.ndarray, np.ndarray]] = []  # per group: (message rows, element values)
     if not plan.cdr:
         groups = [(slice(None), False)]
     else:
@@ -378,17 +473,61 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
         offsets, strings, end = _offsets(plan, data, origin, limit, big)
         if np.any(end > limit):
             raise DecodeError(f"message shorter than its {plan.msgtype} layout")
-        words = _gather(data, offsets, plan.sizes, big)
-        got = np.empty(words.shape, np.float64)
-        for (width, kind), cols in plan.kinds.items():
-            got[:, cols] = _as_float(words[:, cols], width, kind)
+        if plan.items is not None:
+            counts[idx], values_of_group = _decode_items(plan, data, origin, limit, end, big)
+            item_parts.append((np.arange(n)[idx], values_of_group))
+        got = _convert(_gather(data, offsets, plan.sizes, big), plan)
         t_ns[idx] = got[:, 0].astype(np.int64) * _NS + got[:, 1].astype(np.int64)
         values[idx] = got[:, 2:]
         for k, (pos, length) in enumerate(strings):
             sub_codes, sub_names = _strings(data, pos, length)
             codes[k][idx] = sub_codes + len(names[k])
             names[k] += sub_names
-    return Decoded(t_ns, values, [(c, nm) for c, nm in zip(codes, names, strict=True)])
+    items = None
+    if plan.items is not None:
+        items = _in_message_order(counts, item_parts, len(plan.items.leaves))
+    return Decoded(t_ns, values, [(c, nm) for c, nm in zip(codes, names, strict=True)], counts, items)
+
+
+def _convert(words: np.ndarray, leaves: _Leaves) -> np.ndarray:
+    got = np.empty(words.shape, np.float64)
+    for (width, kind), cols in leaves.kinds.items():
+        got[:, cols] = _as_float(words[:, cols], width, kind)
+    return got
+
+
+def _decode_items(plan: Plan, data: np.ndarray, origin: np.ndarray, limit: np.ndarray, end: np.ndarray,
+                  big: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Element counts and element values of the sequence that starts at ``end`` (relative to ``origin``)."""
+    items = plan.items
+    at = (end + 3) // 4 * 4 if plan.cdr else end  # the uint32 length
+    if np.any(at + 4 > limit):
+        raise DecodeError(f"message shorter than its {plan.msgtype} layout")
+    counts = _u32(data, origin + at, big)
+    if np.any(counts * items.min_size > limit - at - 4):  # a corrupt count must not allocate gigabytes
+        raise DecodeError(f"sequence runs past the end of a {plan.msgtype} message")
+    offsets, bad = _item_offsets(origin, at + 4, counts, limit, *items.program, len(items.leaves))
+    if bad >= 0:
+        raise DecodeError(f"sequence runs past the end of a {plan.msgtype} message")
+    return counts, _convert(_gather(data, offsets, items.sizes, big), items)
+
+
+def _in_message_order(counts: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray]], width: int) -> np.ndarray:
+    """Element rows of the endianness groups merged into message order."""
+    if len(parts) == 1:
+        return parts[0][1]
+    out = np.empty((int(counts.sum()), width), np.float64)
+    first = np.concatenate(([0], np.cumsum(counts)))
+    for rows, values in parts:
+        out[_csr_rows(first[rows], counts[rows])] = values
+    return out
+
+
+def _csr_rows(starts: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Indices ``starts[k] .. starts[k] + lengths[k] - 1`` for all k, concatenated."""
+    total = int(lengths.sum())
+    shift = np.repeat(starts - np.concatenate(([0], np.cumsum(lengths)[:-1])), lengths)
+    return shift + np.arange(total)
 
 
 def _offsets(
@@ -446,12 +585,14 @@ class TopicColumns:
     child: np.ndarray  # (N,) int32 (zeros when the plan reads no second string)
     names: list[str]  # frame ids as stored
     digest: np.ndarray | None = None  # (N,) uint64 payload hashes (ROS1: without the header seq), if asked
+    counts: np.ndarray | None = None  # (N,) int64 elements per message (plans with items)
+    items: np.ndarray | None = None  # (sum(counts), nitems) float64 element values, in message order
 
 
 class _Columns:
     """Column buffers preallocated from the index counts, grown by doubling if the counts were short."""
 
-    def __init__(self, capacity: int, width: int, digests: bool) -> None:
+    def __init__(self, capacity: int, width: int, digests: bool, item_width: int | None = None) -> None:
         self.n = 0
         self.digest = np.empty(capacity, np.uint64) if digests else None
         self.t_ns = np.empty(capacity, np.int64)
@@ -460,6 +601,11 @@ class _Columns:
         self.frame = np.empty(capacity, np.int32)
         self.child = np.zeros(capacity, np.int32)
         self.names: dict[str, int] = {}
+        # plans with items: elements per message, and the elements in a buffer sized from the first batch
+        self.item_width = item_width
+        self.counts = np.zeros(capacity, np.int64) if item_width is not None else None
+        self.items: np.ndarray | None = None
+        self.m = 0
 
     def append(self, dec: Decoded, rec_ns: np.ndarray, digest: np.ndarray | None) -> None:
         k = rec_ns.shape[0]
@@ -471,6 +617,8 @@ class _Columns:
             self.values = np.resize(self.values, (size, self.values.shape[1]))
             if self.digest is not None:
                 self.digest = np.resize(self.digest, size)
+            if self.counts is not None:
+                self.counts = np.resize(self.counts, size)
         part = slice(self.n, self.n + k)
         if self.digest is not None and digest is not None:
             self.digest[part] = digest
@@ -480,17 +628,61 @@ class _Columns:
         for target, (codes, names) in zip((self.frame, self.child), dec.strings, strict=False):
             lut = np.array([self.names.setdefault(name, len(self.names)) for name in names], np.int32)
             target[part] = lut[codes] if codes.size else codes
+        if self.counts is not None and dec.counts is not None and dec.items is not None:
+            self.counts[part] = dec.counts
+            self._add_items(dec.items, k)
         self.n += k
+
+    def _add_items(self, items: np.ndarray, messages: int) -> None:
+        need = self.m + items.shape[0]
+        if self.items is None:  # as many per message as in this batch, for every message of the topic, + 10 %
+            guess = int(items.shape[0] / max(messages, 1) * self.t_ns.shape[0] * 1.1) + 16
+            self.items = np.empty((max(guess, need), items.shape[1]))
+        elif need > self.items.shape[0]:
+            grown = np.empty((max(2 * self.items.shape[0], need), self.items.shape[1]))
+            grown[: self.m] = self.items[: self.m]
+            self.items = grown
+        self.items[self.m : need] = items
+        self.m = need
 
     def done(self) -> TopicColumns:
         n = self.n
         digest = self.digest[:n] if self.digest is not None else None
         cols = [self.t_ns[:n], self.rec_ns[:n], self.values[:n], self.frame[:n], self.child[:n]]
+        counts = items = None
+        if self.counts is not None and self.item_width is not None:
+            counts = self.counts[:n]
+            items = self.items[: self.m] if self.items is not None else np.zeros((0, self.item_width))
         if n > 1 and not bool(np.all(cols[1][1:] >= cols[1][:-1])):  # file order -> record order
             order = np.argsort(cols[1], kind="stable")
             cols = [a[order] for a in cols]
             digest = digest[order] if digest is not None else None
-        return TopicColumns(*cols, list(self.names), digest)
+            if counts is not None and items is not None:
+                first = np.concatenate(([0], np.cumsum(counts)))
+                items = items[_csr_rows(first[order], counts[order])]
+                counts = counts[order]
+        return TopicColumns(*cols, list(self.names), digest, counts, items)
+
+
+#: Decode batches of at least this many bytes: a chunk is often a few hundred kB, and each decode call costs
+#: a fixed amount of Python work per topic.
+GROUP_BYTES = 16 << 20
+
+
+def _grouped(batches: Iterable[RawBatch]) -> Iterator[RawBatch]:
+    """Consecutive batches joined until they hold ``GROUP_BYTES`` (the order of the messages is kept)."""
+    from .container import _concat
+
+    group: list[RawBatch] = []
+    size = 0
+    for batch in batches:
+        group.append(batch)
+        size += int(batch.data.shape[0])
+        if size >= GROUP_BYTES:
+            yield _concat(group)
+            group, size = [], 0
+    if group:
+        yield _concat(group)
 
 
 def read_columns(
@@ -520,10 +712,12 @@ def read_columns(
         conns += topics[topic][0]
         owner += [k] * len(topics[topic][0])
     owner_of = np.array(owner, np.int64)
-    out = [
-        _Columns(sum(c.msgcount for c in topics[t][0]), len(topics[t][1].leaves) - 2, digests) for t in names
-    ]
-    for batch in iter_batches(reader, path, conns):
+    out = []
+    for t in names:
+        conns_t, plan = topics[t]
+        item_width = len(plan.items.leaves) if plan.items is not None else None
+        out.append(_Columns(sum(c.msgcount for c in conns_t), len(plan.leaves) - 2, digests, item_width))
+    for batch in _grouped(iter_batches(reader, path, conns)):
         which = owner_of[batch.conn]
         for k, topic in enumerate(names):
             rows = np.flatnonzero(which == k) if len(names) > 1 else None
@@ -553,10 +747,27 @@ def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
     return plan if plan is not None and len(plan.leaves) - 2 == layout.width else None
 
 
-def read_rows(reader: AnyReader, path: str | Path, topics: Mapping[str, Collection[Connection]]) -> dict[str, Rows]:
+def item_plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
+    """The plan reading a ``decode.ITEM_LAYOUTS`` detection array (frames and elements), None if it needs rosbags."""
+    from .decode import ITEM_LAYOUTS
+
+    layout = ITEM_LAYOUTS.get(msgtype)
+    if layout is None:
+        return None
+    return make_plan(typestore, msgtype, (), (FRAME_ID,), cdr=cdr, items=(layout.items, layout.columns))
+
+
+def read_rows(
+    reader: AnyReader,
+    path: str | Path,
+    topics: Mapping[str, Collection[Connection]],
+    items: Collection[str] = (),
+) -> dict[str, Rows]:
     """``decode.Rows`` of every topic of ``topics`` that has a plan, all read in one pass over the log.
 
-    Topics without a plan (see :func:`plan_for`) are left out: decode them with ``decode.decode_rows``.
+    Topics named in ``items`` are detection arrays (:func:`item_plan_for`): their rows carry the elements
+    (``Rows.counts``, ``Rows.items``). Topics without a plan (see :func:`plan_for`) are left out: decode
+    them with ``decode.decode_rows`` / ``decode.decode_detections``.
 
     Raises:
         InputError: Missing definition, unreadable data, or a message that does not match its definition.
@@ -569,7 +780,8 @@ def read_rows(reader: AnyReader, path: str | Path, topics: Mapping[str, Collecti
     for topic, connections in topics.items():
         conns = list(connections)
         require_definitions(reader, path, conns)
-        if conns and (plan := plan_for(reader.typestore, conns[0].msgtype, reader.is2)) is not None:
+        choose = item_plan_for if topic in items else plan_for
+        if conns and (plan := choose(reader.typestore, conns[0].msgtype, reader.is2)) is not None:
             planned[topic] = (conns, plan)
     out = {}
     for topic, cols in read_columns(reader, path, planned).items():
@@ -578,5 +790,16 @@ def read_rows(reader: AnyReader, path: str | Path, topics: Mapping[str, Collecti
         has_child = planned[topic][1].nstrings > 1
         child = lut[cols.child] if has_child else cols.child
         msgtype = planned[topic][1].msgtype
-        out[topic] = Rows(topic, msgtype, cols.t_ns, cols.rec_ns, cols.values, lut[cols.frame], child, frames.names())
+        out[topic] = Rows(topic, msgtype, cols.t_ns, cols.rec_ns, cols.values, lut[cols.frame], child, frames.names(),
+                          cols.counts, cols.items)
     return out
+
+
+def leaf_offsets(plan: Plan, payload: np.ndarray) -> np.ndarray:
+    """Byte offsets of the plan's leaves in one serialised (little-endian) message, e.g. to fill a template."""
+    origin = np.array([4 if plan.cdr else 0], np.int64)
+    limit = np.array([payload.shape[0]], np.int64) - origin
+    offsets, _, end = _offsets(plan, payload, origin, limit, False)
+    if np.any(end > limit):
+        raise DecodeError(f"message shorter than its {plan.msgtype} layout")
+    return offsets[0]

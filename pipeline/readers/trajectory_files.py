@@ -350,19 +350,22 @@ def format_stamp(t_ns: int) -> str:
 
 
 def tum_text(t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray) -> str:
-    """TUM lines ``t x y z qx qy qz qw``: stamps exact to the nanosecond, values with round-trip precision."""
-    lines = [
-        format_stamp(t) + " " + " ".join(repr(float(v)) for v in (*p, *q))
-        for t, p, q in zip(np.asarray(t_ns).tolist(), np.asarray(position, dtype=np.float64),
-                           np.asarray(quat_xyzw, dtype=np.float64))
-    ]
-    return "\n".join(lines) + ("\n" if lines else "")
+    """TUM lines ``t x y z qx qy qz qw``: stamps exact to the nanosecond (:func:`format_stamp`), values as
+    ``repr`` writes them (round-trip precision); formatted in compiled code (:mod:`.floattext`)."""
+    from .floattext import stamped_rows
+
+    return stamped_rows(np.asarray(t_ns), np.asarray(position).reshape(-1, 3),
+                        np.asarray(quat_xyzw).reshape(-1, 4)).decode()
 
 
 def write_tum(path: str | Path, stream: PoseStream) -> Path:
-    """Write ``stream`` as a TUM trajectory file (readable by evo and :func:`load_tum`)."""
+    """Write ``stream`` as a TUM trajectory file (readable by evo and :func:`load_tum`), block by block."""
+    from .floattext import iter_stamped_rows
+
     path = Path(path)
-    path.write_text(tum_text(stream.t_ns, stream.position, stream.quat_xyzw), encoding="utf-8")
+    with path.open("wb") as f:
+        for block in iter_stamped_rows(np.asarray(stream.t_ns), stream.position, stream.quat_xyzw):
+            f.write(block)
     return path
 
 

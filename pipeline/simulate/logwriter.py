@@ -22,6 +22,7 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from pipeline.readers.fastdecode import leaf_offsets, make_plan
 from pipeline.simulate.sensors import (
     FRAME_BODY,
     FRAME_CAMERA,
@@ -36,6 +37,7 @@ from pipeline.simulate.sensors import (
     TOPIC_TF_STATIC,
     TOPIC_TRUTH,
     SimLog,
+    Simulation,
 )
 
 CONTAINERS = ("bag", "mcap", "ros2")
@@ -67,6 +69,9 @@ TOPIC_TYPES: dict[str, str] = {
     TOPIC_MOCAP: "geometry_msgs/msg/PoseStamped",
 }
 LATCHED = frozenset({TOPIC_TF_STATIC, TOPIC_TRUTH})
+#: Topic -> the SimLog stream it is written from.
+TOPIC_STREAMS: dict[str, str] = {TOPIC_IMU: "imu", TOPIC_ODOM: "odom", TOPIC_MAG: "mag",
+                                 TOPIC_DETECTIONS: "detections", TOPIC_MOCAP: "mocap"}
 
 # ROS2 "latched" QoS (transient local, keep last 1), as ros2 bag records /tf_static.
 _LATCHED_QOS = Qos(
@@ -107,7 +112,7 @@ def infer_container(path: str | Path) -> str:
 
 
 class _Builder:
-    """Makes the rosbags message objects of one :class:`SimLog` for one typestore."""
+    """Makes the rosbags message objects of one :class:`SimLog` (or piece of one) for one typestore."""
 
     def __init__(self, sim: SimLog, ts: Typestore, ros1: bool) -> None:
         self.sim, self.ts, self.ros1 = sim, ts, ros1
@@ -163,7 +168,7 @@ class _Builder:
     def imu(self, i: int) -> object:
         d = self.sim.imu
         return self.ts.types["sensor_msgs/msg/Imu"](
-            header=self.header(int(d.t_ns[i]), FRAME_IMU, i),
+            header=self.header(int(d.t_ns[i]), FRAME_IMU, self.sim.first["imu"] + i),
             orientation=self.Quaternion(x=0.0, y=0.0, z=0.0, w=0.0),
             orientation_covariance=self.orient_cov,
             angular_velocity=self.vec(d.gyro[i]),
@@ -175,7 +180,7 @@ class _Builder:
     def odom(self, i: int) -> object:
         d, t = self.sim.odom, self.ts.types
         return t["nav_msgs/msg/Odometry"](
-            header=self.header(int(d.t_ns[i]), FRAME_ODOM, i),
+            header=self.header(int(d.t_ns[i]), FRAME_ODOM, self.sim.first["odom"] + i),
             child_frame_id=FRAME_BODY,
             pose=t["geometry_msgs/msg/PoseWithCovariance"](
                 pose=self.pose(d.position[i], d.quat_xyzw[i]), covariance=np.zeros(36)
@@ -189,7 +194,7 @@ class _Builder:
     def mag(self, i: int) -> object:
         d = self.sim.mag
         return self.ts.types["sensor_msgs/msg/MagneticField"](
-            header=self.header(int(d.t_ns[i]), FRAME_IMU, i),
+            header=self.header(int(d.t_ns[i]), FRAME_IMU, self.sim.first["mag"] + i),
             magnetic_field=self.vec(d.field[i]),
             magnetic_field_covariance=self.cov9_mag,
         )
@@ -207,21 +212,69 @@ class _Builder:
             )
             for k in range(int(d.offsets[i]), int(d.offsets[i + 1]))
         ]
+        seq = self.sim.first["detections"] + i
         return t["fiducial_msgs/msg/FiducialTransformArray"](
-            header=self.header(int(d.t_ns[i]), FRAME_CAMERA, i), image_seq=i, transforms=items
+            header=self.header(int(d.t_ns[i]), FRAME_CAMERA, seq), image_seq=seq, transforms=items
         )
 
     def mocap(self, i: int) -> object:
         d = self.sim.mocap
         return self.ts.types["geometry_msgs/msg/PoseStamped"](
-            header=self.header(int(d.t_ns[i]), FRAME_WORLD, i), pose=self.pose(d.position[i], d.quat_xyzw[i])
+            header=self.header(int(d.t_ns[i]), FRAME_WORLD, self.sim.first["mocap"] + i),
+            pose=self.pose(d.position[i], d.quat_xyzw[i]),
         )
 
-    def makers(self) -> dict[str, tuple[np.ndarray, Callable[[int], object]]]:
-        """Topic -> (record times, message factory)."""
+    def serialize(self, msg: object, topic: str) -> bytes:
+        msgtype = TOPIC_TYPES[topic]
+        return bytes(self.ts.serialize_ros1(msg, msgtype) if self.ros1 else self.ts.serialize_cdr(msg, msgtype))
+
+    def columns(self, topic: str) -> dict[tuple[str, ...], np.ndarray] | None:
+        """The fields that change from message to message of a fixed-layout topic, by path (None: not fixed);
+        the header stamp first, as :func:`~pipeline.readers.fastdecode.make_plan` orders its leaves."""
+        def vec(path: tuple[str, ...], values: np.ndarray, names: str = "xyz") -> dict:
+            return {(*path, a): values[:, k] for k, a in enumerate(names)}
+
+        s = self.sim
+        stream = TOPIC_STREAMS.get(topic)
+        if stream is None or topic == TOPIC_DETECTIONS:
+            return None
+        t_ns = getattr(s, stream).t_ns
+        cols = {("header", "stamp", "sec"): t_ns // 1_000_000_000, ("header", "stamp", "nanosec"): t_ns % 1_000_000_000}
+        if self.ros1:
+            cols[("header", "seq")] = s.first[stream] + np.arange(t_ns.shape[0])
+        if topic == TOPIC_IMU:
+            return {**cols, **vec(("angular_velocity",), s.imu.gyro), **vec(("linear_acceleration",), s.imu.accel)}
+        if topic == TOPIC_ODOM:
+            return {**cols, **vec(("pose", "pose", "position"), s.odom.position),
+                    **vec(("pose", "pose", "orientation"), s.odom.quat_xyzw, "xyzw"),
+                    **vec(("twist", "twist", "linear"), s.odom.linear),
+                    **vec(("twist", "twist", "angular"), s.odom.angular)}
+        if topic == TOPIC_MAG:
+            return {**cols, **vec(("magnetic_field",), s.mag.field)}
+        return {**cols, **vec(("pose", "position"), s.mocap.position),
+                **vec(("pose", "orientation"), s.mocap.quat_xyzw, "xyzw")}
+
+    def payloads(self, topic: str, make: Callable[[int], object], n: int) -> Callable[[int], bytes]:
+        """Serialised message ``i`` of ``topic``: fixed-layout topics from one template message whose changing
+        fields are overwritten in bulk (the bytes rosbags would write, without an object per message)."""
+        columns = self.columns(topic) if n else None
+        if columns is None:
+            return lambda i: self.serialize(make(i), topic)
+        template = np.frombuffer(self.serialize(make(0), topic), np.uint8)
+        plan = make_plan(self.ts, TOPIC_TYPES[topic], list(columns)[2:], (), cdr=not self.ros1)
+        assert plan is not None, topic
+        rows = np.empty((n, template.shape[0]), np.uint8)
+        rows[:] = template
+        for (size, kind), offset, values in zip(plan.leaves, leaf_offsets(plan, template), columns.values()):
+            little = np.asarray(values).astype(f"<{kind}{size}")
+            rows[:, offset : offset + size] = little.view(np.uint8).reshape(n, size)
+        return lambda i: rows[i].tobytes()
+
+    def makers(self, latched: bool = True) -> dict[str, tuple[np.ndarray, Callable[[int], bytes]]]:
+        """Topic -> (record times, serialised message factory); the latched topics only if ``latched``."""
         s = self.sim
         one = np.array([s.start_ns], dtype=np.int64)
-        return {
+        objects = {
             TOPIC_TF_STATIC: (one, self.tf_static),
             TOPIC_TRUTH: (one, self.truth),
             TOPIC_IMU: (s.imu.rec_ns, self.imu),
@@ -230,29 +283,74 @@ class _Builder:
             TOPIC_DETECTIONS: (s.detections.rec_ns, self.detections),
             TOPIC_MOCAP: (s.mocap.rec_ns, self.mocap),
         }
+        return {topic: (rec, self.payloads(topic, make, len(rec))) for topic, (rec, make) in objects.items()
+                if latched or topic not in LATCHED}
 
 
-def _build_message(factory: Callable[[int], object], index: int) -> object:
-    """One message (a module-level seam so tests can inject a failure mid-write)."""
+def _build_message(factory: Callable[[int], bytes], index: int) -> bytes:
+    """One serialised message (a module-level seam so tests can inject a failure mid-write)."""
     return factory(index)
 
 
-def iter_messages(sim: SimLog, ts: Typestore, ros1: bool) -> Iterator[tuple[str, int, object]]:
-    """``(topic, record time ns, message)`` over all topics in record-time order (stable across topics)."""
-    makers = _Builder(sim, ts, ros1).makers()
-    topics = list(makers)
-    rec = np.concatenate([makers[tp][0] for tp in topics])
-    topic_idx = np.concatenate([np.full(len(makers[tp][0]), k) for k, tp in enumerate(topics)])
-    msg_idx = np.concatenate([np.arange(len(makers[tp][0])) for tp in topics])
-    for j in np.lexsort((msg_idx, topic_idx, rec)):
-        topic = topics[topic_idx[j]]
-        yield topic, int(rec[j]), _build_message(makers[topic][1], int(msg_idx[j]))
+def _pieces(sim: SimLog | Simulation) -> Iterator[SimLog]:
+    return iter([sim]) if isinstance(sim, SimLog) else sim.pieces()
 
 
-def _write_bag(sim: SimLog, path: Path) -> None:
+def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterator[tuple[str, int, bytes]]:
+    """``(topic, record time ns, serialised message)`` over all topics in record-time order (ties: topic order,
+    then message order), piece by piece for a :class:`Simulation`.
+
+    A piece's messages are written once no later piece can precede them: record times are never before the
+    stamps, so everything recorded before the next piece's first stamp is final; the rest waits for that piece.
+    """
+    topics = list(TOPIC_TYPES)
+    factories: dict[int, dict[str, Callable[[int], bytes]]] = {}
+    waiting: list[np.ndarray] = []  # columns: record time, topic, index in the log, index in the piece, piece
+
+    def emit(cols: list[np.ndarray]) -> Iterator[tuple[str, int, bytes]]:
+        rec, topic, glob, local, piece = cols
+        for j in np.lexsort((glob, topic, rec)):
+            name = topics[topic[j]]
+            yield name, int(rec[j]), _build_message(factories[int(piece[j])][name], int(local[j]))
+
+    for p, part in enumerate(_pieces(sim)):
+        makers = _Builder(part, ts, ros1).makers(latched=p == 0)
+        factories[p] = {topic: make for topic, (_, make) in makers.items()}
+        sizes = {tp: len(rec) for tp, (rec, _) in makers.items()}
+        new = [
+            np.concatenate([rec for rec, _ in makers.values()]),
+            np.concatenate([np.full(n, topics.index(tp)) for tp, n in sizes.items()]),
+            np.concatenate([part.first.get(TOPIC_STREAMS.get(tp, ""), 0) + np.arange(n) for tp, n in sizes.items()]),
+            np.concatenate([np.arange(n) for n in sizes.values()]),
+            np.full(sum(sizes.values()), p),
+        ]
+        if waiting:
+            stamps = [getattr(part, name).t_ns[:1] for name in TOPIC_STREAMS.values()]
+            bound = min((int(t[0]) for t in stamps if t.size), default=np.iinfo(np.int64).max)
+            ready = waiting[0] < bound
+            yield from emit([c[ready] for c in waiting])
+            new = [np.concatenate([c[~ready], n]) for c, n in zip(waiting, new)]
+            for old in set(factories) - set(np.unique(new[4]).tolist()):
+                del factories[old]
+        waiting = new
+    if waiting:
+        yield from emit(waiting)
+
+
+class _Bag1Writer(Bag1Writer):
+    """rosbags' ROS1 writer, but a written chunk keeps only its message count per connection (rosbags keeps
+    every message's index entry until ``close``: gigabytes of tuples for a multi-hour log). Same bytes."""
+
+    def write_chunk(self, chunk) -> None:  # noqa: ANN001 - rosbags' WriteChunk
+        super().write_chunk(chunk)
+        if chunk.pos != -1:  # written; close() only asks len() of these
+            chunk.connections = {cid: range(len(items)) for cid, items in chunk.connections.items()}
+
+
+def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
     ts = make_typestore(ros1=True)
-    writer = Bag1Writer(path)
-    writer.set_compression(Bag1Writer.CompressionFormat.LZ4)
+    writer = _Bag1Writer(path)
+    writer.set_compression(_Bag1Writer.CompressionFormat.LZ4)
     with writer:
         conns = {
             tp: writer.add_connection(
@@ -260,11 +358,11 @@ def _write_bag(sim: SimLog, path: Path) -> None:
             )
             for tp, typ in TOPIC_TYPES.items()
         }
-        for topic, rec, msg in iter_messages(sim, ts, ros1=True):
-            writer.write(conns[topic], rec, ts.serialize_ros1(msg, TOPIC_TYPES[topic]))
+        for topic, rec, raw in iter_messages(sim, ts, ros1=True):
+            writer.write(conns[topic], rec, raw)
 
 
-def _write_ros2(sim: SimLog, path: Path) -> None:
+def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
     ts = make_typestore(ros1=False)
     with Bag2Writer(path, version=9) as writer:
         conns = {
@@ -273,11 +371,11 @@ def _write_ros2(sim: SimLog, path: Path) -> None:
             )
             for tp, typ in TOPIC_TYPES.items()
         }
-        for topic, rec, msg in iter_messages(sim, ts, ros1=False):
-            writer.write(conns[topic], rec, ts.serialize_cdr(msg, TOPIC_TYPES[topic]))
+        for topic, rec, raw in iter_messages(sim, ts, ros1=False):
+            writer.write(conns[topic], rec, raw)
 
 
-def _write_mcap(sim: SimLog, path: Path) -> None:
+def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
     ts = make_typestore(ros1=False)
     with path.open("xb") as stream:
         writer = McapWriter(stream, compression=CompressionType.ZSTD)
@@ -289,14 +387,15 @@ def _write_mcap(sim: SimLog, path: Path) -> None:
             meta = {"offered_qos_profiles": _LATCHED_QOS_YAML if tp in LATCHED else ""}
             channels[tp] = writer.register_channel(topic=tp, message_encoding="cdr", schema_id=schema, metadata=meta)
         seq = dict.fromkeys(channels, 0)
-        for topic, rec, msg in iter_messages(sim, ts, ros1=False):
-            data = bytes(ts.serialize_cdr(msg, TOPIC_TYPES[topic]))
+        for topic, rec, data in iter_messages(sim, ts, ros1=False):
             writer.add_message(channels[topic], log_time=rec, data=data, publish_time=rec, sequence=seq[topic])
             seq[topic] += 1
         writer.finish()
 
 
-_WRITERS: dict[str, Callable[[SimLog, Path], None]] = {"bag": _write_bag, "mcap": _write_mcap, "ros2": _write_ros2}
+_WRITERS: dict[str, Callable[[SimLog | Simulation, Path], None]] = {
+    "bag": _write_bag, "mcap": _write_mcap, "ros2": _write_ros2,
+}
 
 
 def _remove(path: Path) -> None:
@@ -306,8 +405,11 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
-def write_log(sim: SimLog, path: str | Path, container: str | None = None, *, overwrite: bool = False) -> Path:
+def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None = None, *,
+              overwrite: bool = False) -> Path:
     """Write ``sim`` to ``path`` as ``container`` ("bag", "mcap", "ros2"; inferred from the suffix if None).
+
+    A :class:`Simulation` is generated and written piece by piece: memory stays bounded for any duration.
 
     Refuses to replace an existing path unless ``overwrite``. Nothing is left behind if writing fails.
     """

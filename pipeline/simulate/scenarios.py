@@ -9,7 +9,7 @@ ROS optical convention (z along the optical axis, x right, y down).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numba import njit
@@ -247,7 +247,15 @@ def figure8() -> Scenario:
     )
 
 
-SCENARIOS: dict[str, Callable[[], Scenario]] = {"circle": circle, "figure8": figure8}
+def figure8_wide() -> Scenario:
+    """figure8 seen by a wider camera (120 x 90 deg, up to 18 m): about 8 of the 30 landmarks in view (4-13),
+    the load of a typical fiducial log; used by the end-to-end benchmark."""
+    sc = figure8()
+    cam = replace(sc.camera, fov_h_deg=120.0, fov_v_deg=90.0, max_range=18.0)
+    return replace(sc, name="figure8-wide", camera=cam)
+
+
+SCENARIOS: dict[str, Callable[[], Scenario]] = {"circle": circle, "figure8": figure8, "figure8-wide": figure8_wide}
 
 
 def get_scenario(name: str) -> Scenario:

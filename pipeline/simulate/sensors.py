@@ -7,12 +7,14 @@ columnar; :mod:`pipeline.simulate.logwriter` turns rows into ROS messages.
 
 from __future__ import annotations
 
+import dataclasses
 import json
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pipeline.lie import rots_to_quats, so3_exp
+from pipeline.lie import rots_to_quats, so3_exps
 from pipeline.simulate.scenarios import (
     GRAVITY,
     MAGNETIC_FIELD,
@@ -129,6 +131,8 @@ class SimLog:
     mocap: PoseData
     static_tf: list[Transform]
     truth: dict = field(default_factory=dict)  # the /slamobs/sim_truth JSON document
+    #: Index of the first sample of each stream in the whole log (a piece of a longer simulation; 0 otherwise).
+    first: dict[str, int] = field(default_factory=lambda: dict.fromkeys(STREAMS, 0))
 
     @property
     def truth_json(self) -> str:
@@ -172,18 +176,24 @@ def visibility(camera: Camera, y_cam: np.ndarray) -> np.ndarray:
     return vis
 
 
-def _stamps(duration: float, rate: float, phase: float, start_ns: int) -> tuple[np.ndarray, np.ndarray]:
-    """Stamps (int64 ns) on a ``rate`` grid shifted by ``phase``, and the exact times (s) they encode."""
+def _count(duration: float, rate: float, phase: float) -> int:
+    """Samples of a ``rate`` grid shifted by ``phase`` within ``[0, duration]``."""
     if rate <= 0:
         raise ValueError(f"rate must be positive, got {rate}")
-    n = int(np.floor((duration - phase) * rate + 1e-9)) + 1
-    offs = np.round((phase + np.arange(max(n, 0)) / rate) * 1e9).astype(np.int64)
+    return max(int(np.floor((duration - phase) * rate + 1e-9)) + 1, 0)
+
+
+def _stamps(first: int, stop: int, rate: float, phase: float, start_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Stamps (int64 ns) of grid samples ``first .. stop - 1``, and the exact times (s) they encode."""
+    offs = np.round((phase + np.arange(first, stop) / rate) * 1e9).astype(np.int64)
     return start_ns + offs, offs.astype(float) * 1e-9
 
 
-def _record_times(rng: np.random.Generator, t_ns: np.ndarray) -> np.ndarray:
-    """Stamp + 1..5 ms latency, made non-decreasing like a recorder's queue."""
+def _record_times(rng: np.random.Generator, t_ns: np.ndarray, after: int) -> np.ndarray:
+    """Stamp + 1..5 ms latency, made non-decreasing like a recorder's queue (and not before ``after``)."""
     rec = t_ns + rng.integers(1_000_000, 5_000_001, size=t_ns.shape[0])
+    if rec.size:
+        rec[0] = max(rec[0], after)
     return np.maximum.accumulate(rec)
 
 
@@ -192,7 +202,88 @@ def _white(rng: np.random.Generator, sigma: float, shape: tuple[int, ...]) -> np
     return sigma * rng.standard_normal(shape)
 
 
-def simulate(
+#: Seconds of log simulated at a time: bounds memory for logs of any length; logs up to this long are one
+#: piece, drawn from ``default_rng(seed)`` as a whole (piece k > 0 of a longer log uses ``default_rng([seed, k])``).
+PIECE_S = 300.0
+
+STREAMS = ("imu", "odom", "mag", "detections", "mocap")
+
+
+@dataclass(frozen=True)
+class _Carry:
+    """What a piece hands to the next: last record time per stream, the odometry dead-reckoning state."""
+
+    rec: dict[str, int]
+    odom: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float] | None  # R, P, angular, linear, t (s)
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """A seeded simulation, generated in pieces of ``PIECE_S`` seconds (:meth:`pieces`) so that a log of any
+    length is written without holding it in memory; :meth:`whole` is the same data in one :class:`SimLog`."""
+
+    scenario: Scenario
+    duration: float
+    seed: int
+    noise: NoiseModel
+    rates: dict[str, float]  # stream -> Hz
+    start_ns: int = EPOCH_NS
+    piece_s: float = PIECE_S
+
+    @property
+    def counts(self) -> dict[str, int]:
+        """Samples per stream over the whole log."""
+        return {k: _count(self.duration, self.rates[k], _PHASE[k]) for k in STREAMS}
+
+    def topic_counts(self) -> dict[str, int]:
+        """Messages per topic, as they will be written."""
+        c = self.counts
+        return {TOPIC_TF_STATIC: 1, TOPIC_TRUTH: 1, TOPIC_IMU: c["imu"], TOPIC_ODOM: c["odom"], TOPIC_MAG: c["mag"],
+                TOPIC_DETECTIONS: c["detections"], TOPIC_MOCAP: c["mocap"]}
+
+    def _bounds(self, stream: str) -> np.ndarray:
+        """First sample index of every piece of ``stream`` (and the total count at the end)."""
+        n = self.counts[stream]
+        pieces = max(1, int(np.ceil(self.duration / self.piece_s - 1e-9)))
+        rate, phase = self.rates[stream], _PHASE[stream]
+        cuts = [min(n, max(0, int(np.ceil((k * self.piece_s - phase) * rate - 1e-9)))) for k in range(1, pieces)]
+        return np.array([0, *cuts, n], dtype=np.int64)
+
+    def pieces(self) -> Iterator[SimLog]:
+        """The log in consecutive pieces (message indices continue across pieces: ``SimLog.first``)."""
+        bounds = {k: self._bounds(k) for k in STREAMS}
+        carry = _Carry(dict.fromkeys(STREAMS, np.iinfo(np.int64).min), None)
+        for k in range(len(bounds["imu"]) - 1):
+            rng = np.random.default_rng(self.seed if k == 0 else [self.seed, k])
+            span = {name: (int(b[k]), int(b[k + 1])) for name, b in bounds.items()}
+            piece, carry = _piece(self, rng, span, carry)
+            yield piece
+
+    def whole(self) -> SimLog:
+        """Every piece joined into one SimLog."""
+        parts = list(self.pieces())
+        if len(parts) == 1:
+            return parts[0]
+        join = lambda name: _join([getattr(p, name) for p in parts])  # noqa: E731
+        return replace(parts[0], imu=join("imu"), odom=join("odom"), mag=join("mag"),
+                       detections=_join_detections([p.detections for p in parts]), mocap=join("mocap"))
+
+
+def _join(parts: list) -> object:
+    """Stream data of consecutive pieces concatenated field by field."""
+    return type(parts[0])(*(np.concatenate([getattr(p, f.name) for p in parts])
+                            for f in dataclasses.fields(parts[0])))
+
+
+def _join_detections(parts: list[DetectionData]) -> DetectionData:
+    shifts = np.cumsum([0] + [int(p.offsets[-1]) for p in parts[:-1]])
+    offsets = np.concatenate([[0]] + [p.offsets[1:] + s for p, s in zip(parts, shifts)])
+    fields = {f.name: np.concatenate([getattr(p, f.name) for p in parts])
+              for f in dataclasses.fields(DetectionData) if f.name != "offsets"}
+    return DetectionData(**{**fields, "offsets": offsets.astype(np.int64)})
+
+
+def simulation(
     scenario: Scenario | str,
     *,
     duration: float | None = None,
@@ -204,8 +295,8 @@ def simulate(
     detection_rate: float | None = None,
     mocap_rate: float = 100.0,
     start_ns: int = EPOCH_NS,
-) -> SimLog:
-    """Generate every sensor stream of ``scenario`` (name or object) for ``duration`` seconds.
+) -> Simulation:
+    """Every sensor stream of ``scenario`` (name or object) for ``duration`` seconds, to be generated.
 
     ``noise`` is ``True`` (default :class:`NoiseModel`), ``False`` (exact measurements, biases kept) or a
     custom model. ``detection_rate`` defaults to the scenario's.
@@ -215,39 +306,65 @@ def simulate(
     if duration <= 0:
         raise ValueError(f"duration must be positive, got {duration}")
     nm = noise if isinstance(noise, NoiseModel) else (NoiseModel() if noise else NoiseModel.zero())
-    rng = np.random.default_rng(seed)
-    det_rate = sc.detection_rate if detection_rate is None else detection_rate
+    rates = {"imu": imu_rate, "odom": odom_rate, "mag": mag_rate, "mocap": mocap_rate,
+             "detections": sc.detection_rate if detection_rate is None else detection_rate}
+    for rate in rates.values():
+        if rate <= 0:
+            raise ValueError(f"rate must be positive, got {rate}")
+    return Simulation(sc, duration, int(seed), nm, rates, start_ns)
+
+
+def simulate(scenario: Scenario | str, **kwargs) -> SimLog:
+    """:func:`simulation` (same arguments) generated into one :class:`SimLog` (for logs that fit in memory)."""
+    return simulation(scenario, **kwargs).whole()
+
+
+def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int, int]],
+           carry: _Carry) -> tuple[SimLog, _Carry]:
+    """Samples ``span[stream]`` of every stream, drawn from ``rng``, continuing from ``carry``."""
+    sc, nm, start_ns = sim.scenario, sim.noise, sim.start_ns
+
+    def stamps(name: str) -> tuple[np.ndarray, np.ndarray]:
+        return _stamps(*span[name], sim.rates[name], _PHASE[name], start_ns)
 
     # IMU: biased gyro and specific force f = R^T (a - g).
-    t_ns, t = _stamps(duration, imu_rate, _PHASE["imu"], start_ns)
+    t_ns, t = stamps("imu")
     tr = sc.sample(t)
     n = t.shape[0]
     gyro = tr.omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
     f_inertial = tr.accel - GRAVITY
     accel = np.einsum("nji,nj->ni", tr.R, f_inertial) + _white(rng, nm.accel, (n, 3))
-    imu = ImuData(t_ns, _record_times(rng, t_ns), gyro, accel)
+    imu = ImuData(t_ns, _record_times(rng, t_ns, carry.rec["imu"]), gyro, accel)
 
     # Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist.
-    t_ns, t = _stamps(duration, odom_rate, _PHASE["odom"], start_ns)
+    t_ns, t = stamps("odom")
     tr = sc.sample(t)
     n = t.shape[0]
     lin = tr.v + sc.velocity_bias + _white(rng, nm.odom_linear, (n, 3))
     ang = tr.omega + _white(rng, nm.odom_angular, (n, 3))
-    rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), ang[:-1], lin[:-1], np.diff(t))
-    odom = OdomData(t_ns, _record_times(rng, t_ns), lin, ang, ps, rots_to_quats(rs))
+    if carry.odom is None:
+        rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), ang[:-1], lin[:-1], np.diff(t))
+    else:  # continue from the last sample of the previous piece
+        r0, p0, ang0, lin0, t0 = carry.odom
+        rs, ps = integrate_body_twists(r0, p0, np.vstack([ang0, ang[:-1]]), np.vstack([lin0, lin[:-1]]),
+                                       np.diff(np.concatenate([[t0], t])))
+        rs, ps = rs[1:], ps[1:]
+    odom = OdomData(t_ns, _record_times(rng, t_ns, carry.rec["odom"]), lin, ang, ps, rots_to_quats(rs))
+    odom_carry = (rs[-1].copy(), ps[-1].copy(), ang[-1:].copy(), lin[-1:].copy(), float(t[-1])) if n else carry.odom
 
     # Magnetometer: inertial field seen in the body frame.
-    t_ns, t = _stamps(duration, mag_rate, _PHASE["mag"], start_ns)
+    t_ns, t = stamps("mag")
     tr = sc.sample(t)
     fld = np.einsum("nji,j->ni", tr.R, MAGNETIC_FIELD) + _white(rng, nm.mag, (t.shape[0], 3))
-    mag = MagData(t_ns, _record_times(rng, t_ns), fld)
+    mag = MagData(t_ns, _record_times(rng, t_ns, carry.rec["mag"]), fld)
 
-    detections = _detections(sc, rng, nm, duration, det_rate, start_ns)
+    detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
 
     # Motion capture: the true body pose, noise-free.
-    t_ns, t = _stamps(duration, mocap_rate, _PHASE["mocap"], start_ns)
+    t_ns, t = stamps("mocap")
     tr = sc.sample(t)
-    mocap = PoseData(t_ns, _record_times(rng, t_ns), tr.P.copy(), rots_to_quats(np.ascontiguousarray(tr.R)))
+    mocap = PoseData(t_ns, _record_times(rng, t_ns, carry.rec["mocap"]), tr.P.copy(),
+                     rots_to_quats(np.ascontiguousarray(tr.R)))
 
     cam_q = rots_to_quats(np.ascontiguousarray(sc.camera.R_bc[None]))[0]
     static_tf = [
@@ -267,18 +384,21 @@ def simulate(
             "translation": [float(c) for c in tr0.P[0]],
             "quat_xyzw": [float(c) for c in rots_to_quats(np.ascontiguousarray(tr0.R))[0]],
         },
-        "seed": int(seed),
+        "seed": int(sim.seed),
         "noise": nm != NoiseModel.zero(),
-        "duration_s": duration,
+        "duration_s": sim.duration,
     }
-    return SimLog(sc.name, int(seed), nm, duration, start_ns, imu, odom, mag, detections, mocap, static_tf, truth)
+    piece = SimLog(sc.name, int(sim.seed), nm, sim.duration, start_ns, imu, odom, mag, detections, mocap, static_tf,
+                   truth, first={name: lo for name, (lo, _) in span.items()})
+    streams = {"imu": imu, "odom": odom, "mag": mag, "detections": detections, "mocap": mocap}
+    rec = {name: int(d.rec_ns[-1]) if d.rec_ns.size else carry.rec[name] for name, d in streams.items()}
+    return piece, _Carry(rec, odom_carry)
 
 
 def _detections(
-    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, duration: float, rate: float, start_ns: int
+    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray, rec_after: int
 ) -> DetectionData:
     """Fiducial detections: visible landmarks in the camera frame with range-dependent noise."""
-    t_ns, t = _stamps(duration, rate, _PHASE["detections"], start_ns)
     tr = sc.sample(t)
     y_cam = camera_points(sc.camera, body_points(tr.R, tr.P, sc.landmarks))  # (F, L, 3)
     vis = visibility(sc.camera, y_cam)
@@ -297,7 +417,7 @@ def _detections(
     r_ct = np.einsum("ji,mjk->mik", sc.camera.R_bc, r_bt)
     rot_noise = _white(rng, nm.tag_rotation, (m, 3))
     if nm.tag_rotation > 0 and m:
-        r_ct = np.einsum("mij,mjk->mik", r_ct, np.stack([so3_exp(w) for w in rot_noise]))
+        r_ct = np.einsum("mij,mjk->mik", r_ct, so3_exps(rot_noise))
     quats = rots_to_quats(np.ascontiguousarray(r_ct)) if m else np.zeros((0, 4))
 
     depth = np.maximum(true_xyz[:, 2], 0.1) if m else np.zeros(0)
@@ -308,7 +428,7 @@ def _detections(
     image_error = (0.05 + 0.02 * rng_m) * jitter
     object_error = 1e-3 * rng_m * rng_m * jitter
     ids = sc.landmark_ids[lm_idx].copy()
-    rec_ns = _record_times(rng, t_ns)
+    rec_ns = _record_times(rng, t_ns, rec_after)
     return DetectionData(t_ns, rec_ns, offsets, ids, xyz, quats, image_error, object_error, area)
 
 
