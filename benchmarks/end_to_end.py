@@ -33,6 +33,7 @@ SUFFIX = {"mcap": ".mcap", "bag": ".bag"}
 # Floors (issue "Speed and memory"): a one-hour log in 20 s and 1 GB; four hours in under twice the memory.
 MAX_WALL_1H_S = 20.0
 MAX_RSS_1H_MB = 1024.0
+MAX_PARQUET_1H_MB = 50.0
 
 
 def cpu_model() -> str:
@@ -144,9 +145,11 @@ def main() -> None:
     for container in args.containers:
         one, four = results.get((1.0, container)), results.get((4.0, container))
         if one:
-            ok = one["wall"] <= MAX_WALL_1H_S and one["rss"] <= MAX_RSS_1H_MB
+            ok = (one["wall"] <= MAX_WALL_1H_S and one["rss"] <= MAX_RSS_1H_MB
+                  and one["parquet_mb"] < MAX_PARQUET_1H_MB)
             print(f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}), peak {one['rss']:.0f} MB "
-                  f"(<= {MAX_RSS_1H_MB:g}), parquet {one['parquet_mb']:.1f} MB: {'ok' if ok else 'MISSED'}")
+                  f"(<= {MAX_RSS_1H_MB:g}), parquet {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
+                  f"{'ok' if ok else 'MISSED'}")
         if one and four:
             ratio = four["rss"] / one["rss"]
             print(f"{container}: 4 h peak / 1 h peak = {ratio:.2f} (< 2): {'ok' if ratio < 2 else 'MISSED'}")

@@ -9,6 +9,8 @@ from pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
 from pipeline.errors import InputError
 
 DEFAULT_OBSERVER = "fast-adaptation"
+#: Significant mantissa bits kept in float outputs (pipeline.writers.round_mantissa; 52 = float64 exactly).
+DEFAULT_FLOAT_BITS = 28
 
 
 @dataclass(frozen=True)
@@ -27,6 +29,7 @@ class RunConfig:
     max_meas_age: float = 0.5
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
     output_rate_hz: float | None = None
+    float_bits: int = DEFAULT_FLOAT_BITS
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
     gravity: tuple[float, float, float] = DEFAULT_GRAVITY
@@ -78,6 +81,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         max_meas_age=float(time.get("max_meas_age", 0.5)),
         gains={k: dict(v) for k, v in data.get("gains", {}).items()},
         output_rate_hz=data.get("output", {}).get("rate_hz"),
+        float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
         t_max_diff=float(ev.get("t_max_diff", 0.01)),
         convergence_threshold=float(ev.get("convergence_threshold", 0.1)),
         gravity=tuple(dirs.get("gravity", DEFAULT_GRAVITY)),

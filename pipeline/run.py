@@ -169,10 +169,11 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "counts": {"velocity_samples": int(aligned.vel_t_ns.shape[0]), "detection_frames": int(aligned.det_t_ns.shape[0]),
                    "detections": int(aligned.det_idx.shape[0]), "landmarks": int(aligned.landmark_ids.shape[0])},
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
+        "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits},
     }
     report = None
     with atomic_directory(out_dir, force=force) as tmp:
-        sink = TableWriter(tmp)
+        sink = TableWriter(tmp, config.float_bits)
         try:
             observer_s = write_s = 0.0
             t = time.perf_counter()

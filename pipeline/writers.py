@@ -3,7 +3,10 @@
 Tables are written a stretch of rows at a time (:class:`TableWriter`, one row group per stretch), so a
 multi-hour run never holds its histories. Encodings suit the data: float columns are byte-stream split
 (the sign/exponent/high-mantissa bytes of a smooth series compress well, the low mantissa bytes are
-noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all zstd.
+noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all zstd. Float values are
+rounded to ``float_bits`` significant mantissa bits before writing (default 28, a relative rounding of at most
+2**-29 ≈ 1.9e-9: 2 µm at 1 km): the dropped low bits are the incompressible part of a noisy estimate, and they
+are far below any observer's accuracy. ``float_bits=52`` writes every bit.
 """
 
 from __future__ import annotations
@@ -20,12 +23,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline.config import DEFAULT_FLOAT_BITS
 from pipeline.lie import rots_to_quats
 from pipeline.observers.base import ObserverResult
 from schemas import arrow_schema
 
 COMPRESSION = "zstd"
 METADATA_KEY = b"slamobs"
+FLOAT_BITS = DEFAULT_FLOAT_BITS
+_EXPONENT = np.uint64(0x7FF0_0000_0000_0000)
 
 
 def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
@@ -64,7 +70,28 @@ def landmark_table(landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns:
             "first_seen_ns": first, "last_seen_ns": last, "n_obs": n_obs.astype(np.int64)}
 
 
-def _encodings(schema: pa.Schema) -> dict:
+def round_mantissa(values: np.ndarray, bits: int) -> np.ndarray:
+    """``values`` (float64) rounded to nearest on ``bits`` significant mantissa bits (ties away from zero), as a
+    new array; NaN, ±Inf and zero are kept. Relative error at most ``2**-(bits + 1)`` for normal numbers
+    (values that would round up to Inf are truncated instead)."""
+    a = np.array(values, dtype=np.float64)  # a copy: callers' arrays are not changed
+    if bits >= 52:
+        return a
+    if not 1 <= bits:
+        raise ValueError(f"float_bits must be 1..52, got {bits}")
+    u = a.view(np.uint64)
+    finite = np.isfinite(a)
+    drop = np.uint64(52 - bits)
+    half, keep = np.uint64(1) << (drop - np.uint64(1)), ~((np.uint64(1) << drop) - np.uint64(1))
+    bits_in = u[finite]
+    rounded = (bits_in + half) & keep
+    overflow = rounded & _EXPONENT == _EXPONENT  # rounded up into Inf
+    rounded[overflow] = bits_in[overflow] & keep
+    u[finite] = rounded
+    return a
+
+
+def parquet_options(schema: pa.Schema) -> dict:
     """Writer options per column: byte-stream split floats, delta-packed ``*_ns`` times, dictionary ids."""
     encoding, dictionary = {}, []
     for f in schema:
@@ -85,8 +112,9 @@ class TableWriter:
     would have stored it). A table whose first stretch is empty is still written (schema, no rows).
     """
 
-    def __init__(self, out_dir: Path) -> None:
+    def __init__(self, out_dir: Path, float_bits: int = FLOAT_BITS) -> None:
         self.out_dir = Path(out_dir)
+        self.float_bits = float_bits
         self.writers: dict[str, tuple[pq.ParquetWriter, pa.Schema]] = {}
 
     def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
@@ -95,12 +123,17 @@ class TableWriter:
             if name not in self.writers:
                 schema = arrow_schema(name)
                 path = self.out_dir / f"{name}.parquet"
-                self.writers[name] = (pq.ParquetWriter(path, schema, store_schema=False, **_encodings(schema)),
+                self.writers[name] = (pq.ParquetWriter(path, schema, store_schema=False, **parquet_options(schema)),
                                       schema)
             writer, schema = self.writers[name]
             # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element
-            arrays = [pa.array(np.ascontiguousarray(columns[f.name]), type=f.type) for f in schema]
+            arrays = [pa.array(self._values(columns[f.name], f.type), type=f.type) for f in schema]
             writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
+
+    def _values(self, column: np.ndarray, kind: pa.DataType) -> np.ndarray:
+        if pa.types.is_float64(kind) and self.float_bits < 52:
+            return round_mantissa(column, self.float_bits)  # contiguous, as a copy
+        return np.ascontiguousarray(column)
 
     def close(self, metadata: dict) -> list[Path]:
         """Finish every file with the run ``metadata``; returns the paths."""
@@ -123,14 +156,15 @@ class TableWriter:
         self.writers = {}
 
 
-def write_result(out_dir: Path, res: ObserverResult, metadata: dict) -> list[Path]:
+def write_result(out_dir: Path, res: ObserverResult, metadata: dict, float_bits: int = FLOAT_BITS) -> list[Path]:
     """All five tables of a run (and the observer's extra ones) into ``out_dir``."""
-    return write_tables(out_dir, {**result_tables(res), **res.extra_tables}, metadata)
+    return write_tables(out_dir, {**result_tables(res), **res.extra_tables}, metadata, float_bits)
 
 
-def write_tables(out_dir: Path, tables: dict[str, dict[str, np.ndarray]], metadata: dict) -> list[Path]:
+def write_tables(out_dir: Path, tables: dict[str, dict[str, np.ndarray]], metadata: dict,
+                 float_bits: int = FLOAT_BITS) -> list[Path]:
     """Tables (``result_tables`` and extra ones) into ``out_dir`` as ``<name>.parquet``, in one stretch."""
-    sink = TableWriter(out_dir)
+    sink = TableWriter(out_dir, float_bits)
     sink.write(tables)
     return sink.close(metadata)
 

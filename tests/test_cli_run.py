@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 from click.testing import CliRunner
@@ -89,6 +90,20 @@ def test_output_rate_and_config(generated, tmp_path):
     dt = poses["t_ns"].diff().median() * 1e-9
     assert dt == pytest.approx(0.05, rel=0.05)
     assert json.loads((out / "run.json").read_text())["observer"]["gains"]["k_w"] == 2.0
+    # default output precision: low mantissa bits cleared (stated in run.json); float_bits: 52 keeps them
+    meta = json.loads((out / "run.json").read_text())
+    assert meta["output"] == {"rate_hz": 20, "float_bits": 28}
+    low = poses["x"].to_numpy().view(np.uint64) & np.uint64((1 << 24) - 1)
+    assert not low.any()
+    cfg.write_text("output:\n  rate_hz: 20\n  float_bits: 52\ngains:\n  fast-adaptation:\n    k_w: 2\n")
+    exact = tmp_path / "exact"
+    assert invoke("run", generated["mcap"], "-o", exact, "--config", cfg, "-q").exit_code == 0
+    full = pd.read_parquet(exact / "poses.parquet")["x"].to_numpy()
+    assert (full.view(np.uint64) & np.uint64((1 << 24) - 1)).any()
+    assert np.allclose(poses["x"].to_numpy(), full, rtol=2.0**-29, atol=0)
+    cfg.write_text("output:\n  float_bits: 60\n")
+    bad = tmp_path / "bad"
+    _assert_clean_failure(invoke("run", generated["mcap"], "-o", bad, "--config", cfg), bad, "output.float_bits")
 
 
 def _assert_clean_failure(res, out: Path, *needles: str):

@@ -99,7 +99,7 @@ def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
 
     res = _result(k=300, m=90)
     whole = stretch_tables(res)
-    sink = TableWriter(tmp_path)
+    sink = TableWriter(tmp_path, float_bits=52)
     for rows, dets in ((slice(0, 100), slice(0, 40)), (slice(100, 300), slice(40, 90))):
         part = ObserverResult(res.t_ns[rows], res.rotation[rows], res.position[rows], res.gyro_bias[rows],
                               res.vel_bias[rows], res.landmark_ids, res.landmark_xyz, res.det_t_ns[dets],
@@ -118,3 +118,39 @@ def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
         encodings = {chunk.column(i).path_in_schema: chunk.column(i).encodings for i in range(chunk.num_columns)}
         assert "DELTA_BINARY_PACKED" in encodings["t_ns"]
         assert all("BYTE_STREAM_SPLIT" in e for c, e in encodings.items() if c not in ("t_ns", "id"))
+
+
+def test_round_mantissa_bounds_the_relative_error_and_keeps_special_values():
+    from pipeline.writers import round_mantissa
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=100_000) * 10.0 ** rng.integers(-12, 12, size=100_000)
+    for bits in (10, 28, 40):
+        r = round_mantissa(x, bits)
+        assert np.max(np.abs(r - x) / np.abs(x)) <= 2.0 ** -(bits + 1)
+        assert np.array_equal(round_mantissa(r, bits), r)  # idempotent
+        assert np.all(r.view(np.uint64) & np.uint64((1 << (52 - bits)) - 1) == 0)  # low bits cleared
+    assert np.array_equal(round_mantissa(x, 52), x)
+    special = np.array([0.0, -0.0, np.inf, -np.inf])
+    assert np.array_equal(round_mantissa(special, 20), special)
+    big = np.array([np.finfo(float).max, -np.finfo(float).max])  # would round up to Inf: truncated instead
+    assert np.all(np.isfinite(round_mantissa(big, 20))) and np.allclose(round_mantissa(big, 20), big, rtol=2.0**-20)
+    assert np.isnan(round_mantissa(np.array([np.nan]), 20)).all()
+    assert round_mantissa(x, 28) is not x and np.array_equal(x, x)  # the input is left as it was
+
+
+def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
+    """Default output keeps FLOAT_BITS significant bits (far below estimation accuracy, much smaller files);
+    ``float_bits=52`` keeps every bit."""
+    from pipeline.writers import FLOAT_BITS, round_mantissa
+
+    res = _result(k=20_000, m=100)
+    exact, rounded = tmp_path / "exact", tmp_path / "rounded"
+    exact.mkdir(), rounded.mkdir()
+    write_result(exact, res, {}, float_bits=52)
+    write_result(rounded, res, {})
+    a, b = pd.read_parquet(exact / "poses.parquet"), pd.read_parquet(rounded / "poses.parquet")
+    assert np.array_equal(a["x"].to_numpy(), res.position[:, 0])
+    assert np.array_equal(b["x"].to_numpy(), round_mantissa(res.position[:, 0], FLOAT_BITS))
+    assert np.array_equal(a["t_ns"].to_numpy(), b["t_ns"].to_numpy())
+    assert (rounded / "poses.parquet").stat().st_size < 0.8 * (exact / "poses.parquet").stat().st_size

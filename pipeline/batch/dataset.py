@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from pipeline.errors import InputError
+from pipeline.writers import parquet_options
 from schemas import OPTIONAL_TABLES, TABLES
 
 RUNS = "runs"
@@ -78,7 +79,7 @@ def write_partitions(out: Path, run_id: str) -> list[str]:
         data = data.append_column(pa.field("run_id", RUN_ID_TYPE, nullable=False), ids)
         dest.parent.mkdir(parents=True, exist_ok=True)
         tmp = dest.parent / f".{PART}.tmp-{os.getpid()}"
-        pq.write_table(data, tmp, compression="zstd")
+        pq.write_table(data, tmp, **parquet_options(data.schema))
         os.replace(tmp, dest)
         written.append(table)
     return written
