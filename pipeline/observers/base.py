@@ -89,6 +89,27 @@ class Outputs:
                    np.empty((m, 3)), np.empty((m, 3)), det_first)
 
 
+class KernelState:
+    """The state every landmark observer's kernel keeps between stretches, as arrays it updates in place:
+    estimate (R̂, P̂, b̂_Ω, b̂_V), the visible measurements, the held twist, a sub-step counter, float clocks
+    ``fs`` and integer counters ``ns``. Observers add their own arrays and order them for their kernel."""
+
+    def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray,
+                 n_clocks: int = 2) -> None:
+        self.r_hat = np.array(r0, dtype=np.float64)
+        self.p_hat = np.array(p0, dtype=np.float64)
+        self.b_om = np.array(b_om0, dtype=np.float64)
+        self.b_v = np.array(b_v0, dtype=np.float64)
+        self.y = np.zeros((max(n_max, 1), 3))
+        self.vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
+        self.om_m = np.zeros(3)
+        self.v_m = np.zeros(3)
+        self.counter = np.zeros(1, dtype=np.int64)
+        self.fs = np.zeros(n_clocks)
+        self.fs[1] = -np.inf  # time of the last frame: none yet
+        self.ns = np.zeros(5, dtype=np.int64)
+
+
 class Stepper:
     """One run of an observer's kernel over an aligned stream, advanced a stretch of samples at a time.
 

@@ -20,7 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.observers.base import GainSpec, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
+from pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
+from pipeline.observers.frame_update import load_frame
 from pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
@@ -174,18 +175,7 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
             a = det_offsets[jf]
             b = det_offsets[jf + 1]
             nvis = b - a
-            for j in range(nvis):
-                i = det_idx[a + j]
-                vis_idx[j] = i
-                for c in range(3):
-                    y[j, c] = det_y[a + j, c]
-                for c in range(3):  # R̂y, written out: no temporary per detection
-                    ry = r_hat[c, 0] * y[j, 0] + r_hat[c, 1] * y[j, 1] + r_hat[c, 2] * y[j, 2]
-                    if not lm_init[i]:
-                        lm[i, c] = p_hat[c] + ry
-                    innov[a + j - det_base, c] = lm[i, c] - ry - p_hat[c]
-                    trk_p[a + j - det_base, c] = lm[i, c]
-                lm_init[i] = True
+            load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, a - det_base)
             meas_t = t_next
             jf += 1
         else:
@@ -208,23 +198,13 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
     return o
 
 
-class _State:
-    """Algorithm A's state: estimate, visible measurements, held twist, clocks and counters."""
+class _State(KernelState):
+    """Algorithm A's state: the common one and the scratch of :func:`_integrate`."""
 
     def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray) -> None:
-        self.r_hat = np.array(r0, dtype=np.float64)
-        self.p_hat = np.array(p0, dtype=np.float64)
-        self.b_om = np.array(b_om0, dtype=np.float64)
-        self.b_v = np.array(b_v0, dtype=np.float64)
-        self.y = np.zeros((max(n_max, 1), 3))
-        self.vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
-        self.om_m = np.zeros(3)
-        self.v_m = np.zeros(3)
-        self.counter = np.zeros(1, dtype=np.int64)
-        self.d_r = np.empty((3, 3))  # scratch of _integrate
+        super().__init__(n_max, r0, p0, b_om0, b_v0)
+        self.d_r = np.empty((3, 3))
         self.d_p = np.empty(3)
-        self.fs = np.array([0.0, -np.inf])
-        self.ns = np.zeros(5, dtype=np.int64)
 
     def arrays(self) -> tuple:
         return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.om_m, self.v_m,

@@ -38,16 +38,18 @@ import numpy as np
 from numba import njit
 
 from pipeline.directions import direction_arrays, first_attitude, load_directions
-from pipeline.lie import mat3_vec, project_so3, se3_exp_into
+from pipeline.lie import project_so3, se3_exp_into
 from pipeline.observers.base import (
     GainError,
     GainSpec,
+    KernelState,
     ObserverSpec,
     Outputs,
     Stepper,
     max_per_frame,
     output_rows,
 )
+from pipeline.observers.frame_update import load_frame
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
 STEP_RATIO = 0.5
@@ -244,18 +246,7 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
             a = det_offsets[jf]
             b = det_offsets[jf + 1]
             nvis = b - a
-            for j in range(nvis):
-                i = det_idx[a + j]
-                vis_idx[j] = i
-                y[j, :] = det_y[a + j]
-                ry = mat3_vec(r_hat, det_y[a + j])
-                if not lm_init[i]:  # first sighting: p̂ = P̂ + R̂y, so e_i = 0 (spec §8)
-                    for c in range(3):
-                        lm[i, c] = p_hat[c] + ry[c]
-                    lm_init[i] = True
-                for c in range(3):
-                    innov[a + j - det_base, c] = lm[i, c] - ry[c] - p_hat[c]
-                    trk_p[a + j - det_base, c] = lm[i, c]
+            load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, a - det_base)
             meas_t = t_next
             jf += 1
         else:
@@ -280,24 +271,14 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
     return o
 
 
-class _State:
-    """Algorithm B/C's state: estimate, visible measurements and directions, held twist, clocks, counters."""
+class _State(KernelState):
+    """Algorithm B/C's state: the common one and the latest inertial directions."""
 
     def __init__(self, n_max: int, n_dir: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray,
                  b_v0: np.ndarray) -> None:
-        self.r_hat = np.array(r0, dtype=np.float64)
-        self.p_hat = np.array(p0, dtype=np.float64)
-        self.b_om = np.array(b_om0, dtype=np.float64)
-        self.b_v = np.array(b_v0, dtype=np.float64)
-        self.y = np.zeros((max(n_max, 1), 3))
-        self.vis_idx = np.zeros(max(n_max, 1), dtype=np.int64)
+        super().__init__(n_max, r0, p0, b_om0, b_v0)
         self.dir_b = np.zeros((n_dir, 3))
         self.dir_w = np.zeros(n_dir)
-        self.om_m = np.zeros(3)
-        self.v_m = np.zeros(3)
-        self.counter = np.zeros(1, dtype=np.int64)
-        self.fs = np.array([0.0, -np.inf])
-        self.ns = np.zeros(5, dtype=np.int64)
 
     def arrays(self) -> tuple:
         return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.dir_b, self.dir_w,

@@ -35,6 +35,7 @@ from numba import njit
 from pipeline.lie import project_so3, se3_exp_into
 from pipeline.observers.base import (
     GainSpec,
+    KernelState,
     ObserverOptions,
     ObserverSpec,
     Outputs,
@@ -42,6 +43,7 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
+from pipeline.observers.frame_update import load_frame
 from pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
 from pipeline.directions import load_directions
 
@@ -310,18 +312,8 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
             a = det_offsets[jf]
             b = det_offsets[jf + 1]
             nvis = b - a
-            for j in range(nvis):
-                i = det_idx[a + j]
-                vis_idx[j] = i
-                y[j, :] = det_y[a + j]
-                y_d[j, :] = 0.0
-                for c in range(3):
-                    ry = r_hat[c, 0] * y[j, 0] + r_hat[c, 1] * y[j, 1] + r_hat[c, 2] * y[j, 2]
-                    if not lm_init[i]:
-                        lm[i, c] = p_hat[c] + ry
-                    innov[a + j - det_base, c] = lm[i, c] - ry - p_hat[c]
-                    trk_p[a + j - det_base, c] = lm[i, c]
-                lm_init[i] = True
+            load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, a - det_base)
+            y_d[:nvis, :] = 0.0
             b_pred[:3] = b_om
             b_pred[3:] = b_v
             t_lm, rate_lm = t_next, 0.0
@@ -384,33 +376,22 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
     return o, n_jumps
 
 
-class _State:
-    """The flow's state: estimate, prediction bias, visible measurements and their look-ahead corrections,
-    directions, held twist, clocks and counters."""
+class _State(KernelState):
+    """The flow's state: the common one, the prediction bias, the look-ahead corrections of the visible
+    measurements and of the directions, and the accumulated flow (four more clocks)."""
 
     def __init__(self, n_max: int, nd: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray,
                  b_v0: np.ndarray) -> None:
-        n_max = max(n_max, 1)
-        self.r_hat = np.array(r0, dtype=np.float64)
-        self.p_hat = np.array(p0, dtype=np.float64)
-        self.b_om = np.array(b_om0, dtype=np.float64)
-        self.b_v = np.array(b_v0, dtype=np.float64)
+        super().__init__(n_max, r0, p0, b_om0, b_v0, n_clocks=6)
         self.b_pred = np.concatenate([self.b_om, self.b_v])
         self.r_acc = np.empty((3, 3))
         self.p_acc = np.empty(3)
-        self.y = np.zeros((n_max, 3))
-        self.y_d = np.zeros((n_max, 3))
-        self.vis_idx = np.zeros(n_max, dtype=np.int64)
+        self.y_d = np.zeros((max(n_max, 1), 3))
         self.ups = np.zeros((max(nd, 1), 3))
         self.ups_d = np.zeros((max(nd, 1), 3))
         self.ups_next = np.zeros((max(nd, 1), 3))
         self.rho = np.zeros(max(nd, 1))
         self.rho_next = np.zeros(max(nd, 1))
-        self.om_m = np.zeros(3)
-        self.v_m = np.zeros(3)
-        self.counter = np.zeros(1, dtype=np.int64)
-        self.fs = np.array([0.0, -np.inf, 0.0, 0.0, 0.0, 0.0])
-        self.ns = np.zeros(5, dtype=np.int64)
 
     def arrays(self) -> tuple:
         return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.b_pred, self.r_acc, self.p_acc, self.y, self.y_d,
