@@ -249,3 +249,22 @@ def test_config_paths_are_relative_to_the_config_file(tmp_path):
     config = load_config(cfg)
     assert config.msg_dir == str((tmp_path / "cfg" / "msgs").resolve())
     assert config.truth_file == str((tmp_path / "cfg" / "gt" / "truth.txt").resolve())
+
+
+def test_every_compiled_kernel_is_cached_on_disk():
+    """A second run loads the kernels instead of compiling them again: every numba function of the package
+    is declared with ``cache=True`` (benchmarks/end_to_end.py measures what the first run spends compiling)."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    import pipeline
+
+    kernels = {}
+    for info in pkgutil.walk_packages(pipeline.__path__, "pipeline."):
+        module = importlib.import_module(info.name)
+        kernels.update({f"{info.name}.{k}": v for k, v in vars(module).items()
+                        if isinstance(v, CPUDispatcher) and v.__module__ == info.name})
+    assert len(kernels) > 20
+    assert not [name for name, fn in kernels.items() if type(fn._cache).__name__ == "NullCache"]
