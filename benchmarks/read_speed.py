@@ -22,12 +22,21 @@ machine counts less. "identical" compares stamps, record times, frame ids and th
 "inflate bound" is rosbags' read time over the CPU time of only reading and decompressing the chunks that
 hold those topics (ROS1 and MCAP; both readers must do at least that): the largest speed-up any reader can
 reach on that file. On bz2-compressed bags libbz2 alone takes most of the time, which caps the speed-up there.
+
+``--tf`` prints another table instead: transforms per second decoding TF topics (``tf2_msgs/TFMessage``,
+``tf/tfMessage``) with ``decode.decode_tf``, through rosbags' deserialiser (the path before tfdecode, still the
+fallback) and from the bytes (``tfdecode``), on a simulated dynamic ``/tf`` (``--seconds`` at 100 Hz, 3
+transforms per message, all three containers) and on every TF topic of ``../shared/realdata`` (the bz2 of
+tagslam test_11 is unpacked to a temporary bag). Same timing rules; "identical" compares stamps, record
+times, parent and child names and the bits of every value.
 """
 
 from __future__ import annotations
 
 import argparse
+import bz2
 import json
+import shutil
 import sys
 import tempfile
 import time
@@ -38,11 +47,13 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
+from pipeline.readers import tfdecode
 from pipeline.readers.container import _Chunked, _read_unit, _sources, open_log
-from pipeline.readers.decode import LAYOUTS, decode_rows, frame_name
+from pipeline.readers.decode import LAYOUTS, TfRows, decode_rows, decode_tf, frame_name
 from pipeline.readers.fastdecode import read_rows
-from pipeline.readers.roles import topics_of
-from pipeline.simulate import simulate, write_log
+from pipeline.readers.roles import TF_TYPES, topics_of
+from pipeline.simulate import make_typestore, simulate, write_log
+from pipeline.simulate.logwriter import write_raw_log
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 Columns = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]]  # topic -> t, rec, values, frames
@@ -135,13 +146,129 @@ def _logs(args: argparse.Namespace, tmp: Path) -> list[tuple[str, Path]]:
     return logs
 
 
+# --------------------------------------------------------------------------- TF topics (--tf)
+
+
+def _tf_sim_log(path: Path, container: str, seconds: float, rate: float = 100.0) -> Path:
+    """A dynamic /tf of ``seconds`` at ``rate`` with 3 transforms per message (and a /tf_static)."""
+    ros1 = container == "bag"
+    ts = make_typestore(ros1=ros1)
+    t = ts.types
+    rng = np.random.default_rng(0)
+    msgtype = "tf2_msgs/msg/TFMessage"
+    edges = [("odom", "base_link"), ("map", "odom"), ("base_link", "camera_link")]
+    t0 = 1_700_000_000 * 1_000_000_000
+
+    def message(stamp: int, pairs: list[tuple[str, str]]) -> bytes:
+        items = []
+        for parent, child in pairs:
+            time_ = t["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9)
+            header = t["std_msgs/msg/Header"](**({"seq": 0} if ros1 else {}), stamp=time_, frame_id=parent)
+            x, y, z, qx, qy, qz, qw = rng.normal(size=7)
+            transform = t["geometry_msgs/msg/Transform"](translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                                                         rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
+            items.append(t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform))
+        msg = t[msgtype](transforms=items)
+        return bytes(ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype))
+
+    stamps = [t0 + int(k * 1e9 / rate) for k in range(int(seconds * rate))]
+    topics = {"/tf_static": [(t0, message(t0, [("base_link", "imu"), ("base_link", "laser")]))],
+              "/tf": [(s + 200_000, message(s, edges)) for s in stamps]}
+    return write_raw_log(path, container, topics, msgtype, ts)
+
+
+def _tf_logs(args: argparse.Namespace, tmp: Path) -> list[tuple[str, Path]]:
+    logs = [(str(p), Path(p)) for p in args.logs]
+    if args.logs:
+        return logs
+    for container, name in (("bag", "tf.bag"), ("mcap", "tf.mcap"), ("ros2", "tf_ros2")):
+        logs.append((f"sim {args.seconds:g} s /tf {name}", _tf_sim_log(tmp / name, container, args.seconds)))
+    counts = REALDATA / "COUNTS.json"
+    if not args.no_real and counts.is_file():
+        for rel, doc in sorted(json.loads(counts.read_text()).items()):
+            if any(topic["type"] in TF_TYPES for topic in doc["topics"].values()):
+                logs.append((rel, REALDATA / rel))
+        packed = REALDATA / "tagslam_test" / "test_11" / "reference.bag.bz2"
+        if packed.is_file():
+            unpacked = tmp / "test_11_reference.bag"
+            with bz2.open(packed) as src, unpacked.open("wb") as dst:
+                shutil.copyfileobj(src, dst, 1 << 20)
+            logs.append(("tagslam_test/test_11/reference.bag.bz2 (unpacked)", unpacked))
+    return logs
+
+
+def _tf_decode(path: Path, fast: bool) -> tuple[dict[str, TfRows], float]:
+    """decode_tf of every TF topic (rosbags or bytes), and the CPU seconds from the opened log to the rows."""
+    real = tfdecode.tf_layout
+    if not fast:
+        tfdecode.tf_layout = lambda *args: None  # type: ignore[assignment]  # the rosbags fallback
+    try:
+        with open_log(path) as reader:
+            start = time.process_time()
+            rows = {t: decode_tf(reader, path, t, conns) for t, (meta, conns) in topics_of(reader).items()
+                    if meta.msgtype in TF_TYPES}
+            return rows, time.process_time() - start
+    finally:
+        tfdecode.tf_layout = real
+
+
+def _tf_same(a: dict[str, TfRows], b: dict[str, TfRows]) -> bool:
+    if a.keys() != b.keys():
+        return False
+    for topic, x in a.items():
+        y = b[topic]
+        if not (np.array_equal(x.t_ns, y.t_ns) and np.array_equal(x.rec_ns, y.rec_ns)):
+            return False
+        if [x.frame_names[k] for k in x.parent] != [y.frame_names[k] for k in y.parent]:
+            return False
+        if [x.frame_names[k] for k in x.child] != [y.frame_names[k] for k in y.child]:
+            return False
+        if x.values.shape != y.values.shape or not np.array_equal(x.values.view(np.uint64), y.values.view(np.uint64)):
+            return False
+    return True
+
+
+def tf_table(args: argparse.Namespace) -> None:
+    """The ``--tf`` table: transforms/s of decode_tf through rosbags and from the bytes."""
+    header = ("file", "topics", "messages", "transforms", "rosbags tf/s", "ours tf/s", "speed-up", "identical")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="read_speed_tf-") as tmp:
+        for name, path in _tf_logs(args, Path(tmp)):
+            want, _ = _tf_decode(path, False)  # warm-up
+            got, _ = _tf_decode(path, True)
+            count = sum(r.t_ns.size for r in got.values())
+            if not got:
+                continue
+            with open_log(path) as reader:
+                messages = sum(m.count for t, (m, _) in topics_of(reader).items() if t in got)
+            ref = ours = float("inf")
+            for _ in range(args.repeat):
+                ref = min(ref, _tf_decode(path, False)[1])
+                ours = min(ours, _tf_decode(path, True)[1])
+            rows.append((name, ",".join(sorted(got)), str(messages), str(count), f"{count / ref:,.0f}",
+                         f"{count / ours:,.0f}", f"{ref / ours:.1f}x", "yes" if _tf_same(want, got) else "NO"))
+            print(" | ".join(rows[-1]), file=sys.stderr, flush=True)
+    _print(header, rows)
+
+
+def _print(header: tuple[str, ...], rows: list[tuple[str, ...]]) -> None:
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    print()
+    for row in [header, ["-" * w for w in widths], *rows]:
+        print("  ".join(c.rjust(w) if i >= 2 else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("logs", nargs="*", help="logs to read (default: simulated + real logs)")
     parser.add_argument("--seconds", type=float, default=60.0, help="length of the simulated logs")
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--no-real", action="store_true", help="skip ../shared/realdata")
+    parser.add_argument("--tf", action="store_true", help="TF topics: decode_tf through rosbags vs. tfdecode")
     args = parser.parse_args()
+    if args.tf:
+        tf_table(args)
+        return
     header = ("file", "container", "messages", "rosbags msg/s", "ours msg/s", "speed-up", "incl. open",
               "per topic msg/s", "inflate bound", "identical")
     rows = []

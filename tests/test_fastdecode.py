@@ -14,8 +14,8 @@ from pipeline.readers.decode import LAYOUTS, decode_rows
 from pipeline.readers.fastdecode import FRAME_ID, DecodeError, decode, layout_paths, make_plan, read_rows
 from pipeline.readers.roles import topics_of
 from pipeline.simulate import make_typestore, simulate, write_log
+from serialization import ENCODINGS, as_buffer, deserialize, serialize
 
-ENCODINGS = ["ros1", "cdr", "cdr-big-endian"]
 #: frame ids of many lengths, empty and odd ones included (CDR pads after the string to 4 or 8 bytes)
 FRAMES = ["", "a", "ab", "abc", "abcd", "imu_link", "base_link", "/odom", "x" * 13, "camera_optical_frame_left"]
 PRIMITIVE_DTYPES = {
@@ -56,26 +56,9 @@ def _random(ts, msgtype: str, rng: np.random.Generator, strings: list[str]) -> o
 
 def _batch(payloads: list[bytes], rng: np.random.Generator) -> RawBatch:
     """Payloads at random, unaligned offsets in one buffer (as in a decompressed chunk)."""
-    parts, starts, pos = [], [], 0
-    for payload in payloads:
-        gap = bytes(rng.integers(0, 256, int(rng.integers(0, 9)), dtype=np.uint8))
-        parts += [gap, payload]
-        starts.append(pos + len(gap))
-        pos += len(gap) + len(payload)
+    data, starts, size = as_buffer(payloads, rng)
     n = len(payloads)
-    size = np.array([len(p) for p in payloads], np.int64)
-    data = np.frombuffer(b"".join(parts), np.uint8)
-    return RawBatch(data, np.zeros(n, np.int64), np.arange(n), np.array(starts), size)
-
-
-def _serialize(ts, msg: object, msgtype: str, encoding: str) -> bytes:
-    if encoding == "ros1":
-        return bytes(ts.serialize_ros1(msg, msgtype))
-    return bytes(ts.serialize_cdr(msg, msgtype, little_endian=encoding == "cdr"))
-
-
-def _deserialize(ts, raw: bytes, msgtype: str, encoding: str) -> object:
-    return ts.deserialize_ros1(raw, msgtype) if encoding == "ros1" else ts.deserialize_cdr(raw, msgtype)
+    return RawBatch(data, np.zeros(n, np.int64), np.arange(n), starts, size)
 
 
 @pytest.mark.parametrize("encoding", ENCODINGS)
@@ -94,11 +77,11 @@ def test_identical_to_rosbags(msgtype, encoding):
     for frame in FRAMES:
         for child in FRAMES[::3]:
             msgs.append(_random(ts, msgtype, rng, [frame, child]))
-    raws = [_serialize(ts, m, msgtype, encoding) for m in msgs]
+    raws = [serialize(ts, m, msgtype, encoding) for m in msgs]
     got = decode(plan, _batch(raws, rng))
 
     for i, raw in enumerate(raws):
-        want = _deserialize(ts, raw, msgtype, encoding)
+        want = deserialize(ts, raw, msgtype, encoding)
         stamp = want.header.stamp.sec * 1_000_000_000 + want.header.stamp.nanosec
         assert got.t_ns[i] == stamp
         row = np.array(layout.row(want), np.float64)
@@ -115,7 +98,7 @@ def test_mixed_endianness_in_one_batch():
     rng = np.random.default_rng(5)
     msgtype = "sensor_msgs/msg/MagneticField"
     msgs = [_random(ts, msgtype, rng, [f]) for f in FRAMES]
-    raws = [_serialize(ts, m, msgtype, "cdr" if i % 2 else "cdr-big-endian") for i, m in enumerate(msgs)]
+    raws = [serialize(ts, m, msgtype, "cdr" if i % 2 else "cdr-big-endian") for i, m in enumerate(msgs)]
     plan = make_plan(ts, msgtype, [("magnetic_field", c) for c in "xyz"], cdr=True)
     got = decode(plan, _batch(raws, rng))
     for i, m in enumerate(msgs):
@@ -129,7 +112,7 @@ def test_frame_ids_numbered_by_first_appearance():
     rng = np.random.default_rng(1)
     msgtype = "geometry_msgs/msg/PoseStamped"
     frames = ["b", "a", "b", "ccc", "a", "dd", "b"]
-    raws = [_serialize(ts, _random(ts, msgtype, rng, [f]), msgtype, "ros1") for f in frames]
+    raws = [serialize(ts, _random(ts, msgtype, rng, [f]), msgtype, "ros1") for f in frames]
     plan = make_plan(ts, msgtype, [("pose", "position", "x")], cdr=False)
     codes, names = decode(plan, _batch(raws, rng)).strings[0]
     assert names == ["b", "a", "ccc", "dd"]
@@ -156,7 +139,7 @@ def test_bad_payloads_raise(encoding):
     msgtype = "sensor_msgs/msg/Imu"
     layout = LAYOUTS[msgtype]
     plan = make_plan(ts, msgtype, layout_paths(layout.row)[0], cdr=encoding == "cdr")
-    good = _serialize(ts, _random(ts, msgtype, rng, ["imu"]), msgtype, encoding)
+    good = serialize(ts, _random(ts, msgtype, rng, ["imu"]), msgtype, encoding)
     with pytest.raises(DecodeError, match="shorter"):
         decode(plan, _batch([good, good[: len(good) // 2]], rng))
     with pytest.raises(DecodeError, match="string|shorter"):  # frame_id length field pointing past the end
@@ -207,7 +190,7 @@ def test_undecodable_message_is_one_line_input_error(tmp_path):
     path = tmp_path / "short.bag"
     rng = np.random.default_rng(3)
     msgtype = "sensor_msgs/msg/MagneticField"
-    raw = _serialize(ts, _random(ts, msgtype, rng, ["mag"]), msgtype, "ros1")
+    raw = serialize(ts, _random(ts, msgtype, rng, ["mag"]), msgtype, "ros1")
     with Writer(path) as writer:
         conn = writer.add_connection("/mag", msgtype, typestore=ts)
         writer.write(conn, 1, raw)
@@ -248,12 +231,12 @@ def test_detection_arrays_identical_to_rosbags(msgtype, encoding):
     plan = item_plan_for(ts, msgtype, cdr=encoding != "ros1")
     assert plan is not None and plan.items is not None
     msgs = [_detection_message(ts, msgtype, rng, frame, n) for frame in FRAMES for n in range(6)]
-    raws = [_serialize(ts, m, msgtype, encoding) for m in msgs]
+    raws = [serialize(ts, m, msgtype, encoding) for m in msgs]
     got = decode(plan, _batch(raws, rng))
     assert got.counts.tolist() == [len(getattr(m, layout.items)) for m in msgs]
     want = []
     for raw in raws:
-        for k, (ident, pos) in enumerate(layout.detections(_deserialize(ts, raw, msgtype, encoding), None)):
+        for k, (ident, pos) in enumerate(layout.detections(deserialize(ts, raw, msgtype, encoding), None)):
             want.append([float(ident), pos.x, pos.y, pos.z] if layout.ident else [pos.x, pos.y, pos.z])
     np.testing.assert_array_equal(got.items.view(np.uint64), np.array(want, np.float64).reshape(-1, got.items.shape[1])
                                   .view(np.uint64))
@@ -269,11 +252,11 @@ def test_detection_arrays_mixed_endianness_and_bad_counts():
 
     plan = item_plan_for(ts, msgtype, cdr=True)
     msgs = [_detection_message(ts, msgtype, rng, f, i % 4) for i, f in enumerate(FRAMES)]
-    raws = [_serialize(ts, m, msgtype, "cdr" if i % 2 else "cdr-big-endian") for i, m in enumerate(msgs)]
+    raws = [serialize(ts, m, msgtype, "cdr" if i % 2 else "cdr-big-endian") for i, m in enumerate(msgs)]
     got = decode(plan, _batch(raws, rng))
     ids = [t.fiducial_id for m in msgs for t in m.transforms]
     assert got.items[:, 0].astype(int).tolist() == ids  # elements back in message order
-    bad = bytearray(_serialize(ts, msgs[3], msgtype, "cdr"))
+    bad = bytearray(serialize(ts, msgs[3], msgtype, "cdr"))
     count_at = 4 + 8 + 4 + 4 * ((len(FRAMES[3]) + 1 + 3) // 4) + 4  # CDR: stamp, frame id, image_seq, then the count
     bad[count_at : count_at + 4] = (10**8).to_bytes(4, "little")
     with pytest.raises(DecodeError, match="sequence"):

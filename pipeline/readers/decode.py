@@ -626,7 +626,15 @@ class TfRows:
 
 
 def decode_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]) -> TfRows:
-    """Flatten the transforms of a TF topic into columns (each message may hold many edges)."""
+    """Flatten the transforms of a TF topic into columns (each message may hold many edges).
+
+    The standard TF layouts are decoded batch-wise from the raw bytes by :mod:`.tfdecode`; a log whose stored
+    definition differs is deserialised message by message by rosbags.
+    """
+    from .tfdecode import read_tf
+
+    if (fast := read_tf(reader, path, topic, connections)) is not None:
+        return fast
     frames = _Frames()
     t_ns: list[int] = []
     rec_ns: list[int] = []

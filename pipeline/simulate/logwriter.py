@@ -18,6 +18,7 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag1 import Writer as Bag1Writer
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
@@ -396,6 +397,37 @@ def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
 _WRITERS: dict[str, Callable[[SimLog | Simulation, Path], None]] = {
     "bag": _write_bag, "mcap": _write_mcap, "ros2": _write_ros2,
 }
+
+
+def write_raw_log(path: Path, container: str, topics: dict[str, list[tuple[int, bytes]]], msgtype: str,
+                  ts: Typestore, *, chunk_threshold: int | None = None) -> Path:
+    """Already serialised messages of one type, ``topic -> [(record ns, payload)]``, as a ROS1 bag (lz4 chunks
+    of ``chunk_threshold`` bytes), a rosbag2 sqlite3 directory or a bare MCAP: hand-made logs for tests and
+    benchmarks (payloads in the container's encoding: ROS1 or CDR, either byte order)."""
+    path = Path(path)
+    if container == "bag":
+        writer = Bag1Writer(path)
+        writer.set_compression(Bag1Writer.CompressionFormat.LZ4)
+        if chunk_threshold is not None:
+            writer.chunk_threshold = chunk_threshold
+        with writer:
+            for topic, msgs in topics.items():
+                conn = writer.add_connection(topic, msgtype, typestore=ts)
+                for rec, raw in msgs:
+                    writer.write(conn, rec, raw)
+        return path
+    plugin = StoragePlugin.SQLITE3 if container == "ros2" else StoragePlugin.MCAP
+    bagdir = path if container == "ros2" else path.with_name(path.name + ".dir")
+    with Bag2Writer(bagdir, version=9, storage_plugin=plugin) as writer:
+        for topic, msgs in topics.items():
+            conn = writer.add_connection(topic, msgtype, typestore=ts)
+            for rec, raw in msgs:
+                writer.write(conn, rec, raw)
+    if bagdir != path:  # the rosbag2 writer makes a directory; keep only its MCAP file
+        (inner,) = bagdir.glob("*.mcap")
+        inner.rename(path)
+        shutil.rmtree(bagdir)
+    return path
 
 
 def _remove(path: Path) -> None:
