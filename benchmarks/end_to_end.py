@@ -90,7 +90,8 @@ def run(log: Path, out: Path, env: dict[str, str] | None = None) -> dict:
         raise SystemExit(rc)
     meta = json.loads((out / "run.json").read_text())
     return {"wall": wall, "rss": rss, "timings": meta["timings_s"], "parquet_mb": size_mb(out, "*.parquet"),
-            "out_mb": size_mb(out), "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9}
+            "out_mb": size_mb(out), "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9,
+            "compiled": meta.get("compiled", {})}
 
 
 def short_log(cache: Path) -> Path:
@@ -100,14 +101,15 @@ def short_log(cache: Path) -> Path:
     return log
 
 
-def compile_times(cache: Path) -> tuple[float, float]:
-    """Wall seconds of a short run with an empty numba cache directory, then of the same run again."""
+def compile_times(cache: Path) -> tuple[float, float, dict]:
+    """Wall seconds of a short run with an empty numba cache directory, then of the same run again, and what
+    the first run's run.json says it compiled."""
     log = short_log(cache)
     with tempfile.TemporaryDirectory(prefix="slamobs-numba-") as numba_dir:
         env = {**os.environ, "NUMBA_CACHE_DIR": numba_dir}
-        first = run(log, cache / "runs" / "compile", env)["wall"]
+        first = run(log, cache / "runs" / "compile", env)
         second = run(log, cache / "runs" / "compile", env)["wall"]
-    return first, second
+    return first["wall"], second, first["compiled"]
 
 
 def main() -> None:
@@ -125,9 +127,9 @@ def main() -> None:
           f"scenario {SCENARIO}: IMU 200 Hz, odometry 50 Hz, magnetometer 50 Hz, detections 20 Hz "
           f"(30 landmarks, ~8 in view), mocap 100 Hz; observer fast-adaptation, every sample written")
     if not args.no_compile:
-        first, second = compile_times(args.cache)
-        print(f"# numba: 60 s log with an empty cache {first:.1f} s, again (cached) {second:.1f} s -> "
-              f"first-run compilation ~{first - second:.1f} s")
+        first, second, compiled = compile_times(args.cache)
+        print(f"# numba: 60 s log with an empty cache {first:.1f} s, again (cached) {second:.1f} s; the first run "
+              f"compiled {compiled.get('functions', 0)} functions in {compiled.get('seconds', 0.0):.1f} s")
     run(short_log(args.cache), args.cache / "runs" / "warmup")  # the project's numba cache is filled
     head = (f"{'log':<22} {'container':<9} {'duration':>8} {'messages':>10} {'wall s':>7} {'x real':>7} "
             + " ".join(f"{s[:-2]:>8}" for s in STAGES) + f" {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7}")

@@ -20,6 +20,7 @@ import numpy as np
 
 import pipeline
 from pipeline.alignment import AlignedStream, align
+from pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from pipeline.config import RunConfig
 from pipeline.errors import InputError
 from pipeline.observers import ObserverOptions, ObserverResult, get_observer
@@ -103,6 +104,8 @@ class PreparedLog:
     aligned: AlignedStream | None  # None once a run that owned it has released it
     timings: dict[str, float]
     topics: dict[str, str] = field(default_factory=dict)
+    #: numba compilation not yet reported by a run (kernels compiled while reading, then by each run)
+    compiled_from: CompileMark | None = None
 
 
 def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> PreparedLog:
@@ -114,6 +117,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> Pre
     from pipeline.readers import read_log
 
     log = Path(log)
+    mark = compile_mark()
     timings: dict[str, float] = {}
     t = time.perf_counter()
     streams = read_log(log, config.topics or None, **config.reader_options())
@@ -126,7 +130,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> Pre
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
                       bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks)
-    return PreparedLog(log, kept, aligned, timings, topics)
+    return PreparedLog(log, kept, aligned, timings, topics, mark)
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
@@ -203,6 +207,12 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
+        compiled = compiled_since(prepared.compiled_from or compile_mark())
+        prepared.compiled_from = compile_mark()
+        if compiled.functions:
+            notes.append(f"first run: compiled {compiled.functions} numeric functions in {compiled.seconds:.1f} s "
+                         "(included in the times above; cached on disk, later runs load them)")
+        metadata["compiled"] = {"functions": compiled.functions, "seconds": round(compiled.seconds, 3)}
         write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
                                       "report": "report.json" if report else None})
     return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes)

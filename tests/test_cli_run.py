@@ -268,3 +268,31 @@ def test_every_compiled_kernel_is_cached_on_disk():
                         if isinstance(v, CPUDispatcher) and v.__module__ == info.name})
     assert len(kernels) > 20
     assert not [name for name, fn in kernels.items() if type(fn._cache).__name__ == "NullCache"]
+
+
+def test_compile_clock_counts_compilations_not_cache_loads():
+    """Runs report what they compiled (run.json ``compiled``, and a note on first runs)."""
+    from numba import njit
+
+    from pipeline.compile_clock import compile_mark, compiled_since
+
+    @njit  # no cache: compiled on the first call in this process
+    def twice(x):
+        return 2.0 * x
+
+    mark = compile_mark()
+    assert twice(1.5) == 3.0
+    first = compiled_since(mark)
+    assert first.functions >= 1 and first.seconds > 0.0
+    mark = compile_mark()
+    assert twice(2.5) == 5.0  # same signature: nothing compiled
+    assert compiled_since(mark).functions == 0
+
+
+def test_run_json_states_compilation(generated, tmp_path):
+    out = tmp_path / "out"
+    assert invoke("run", generated["bag"], "-o", out, "-q").exit_code == 0
+    meta = json.loads((out / "run.json").read_text())
+    compiled = meta["compiled"]
+    assert compiled["functions"] >= 0 and compiled["seconds"] >= 0.0
+    assert any("first run: compiled" in n for n in meta["notes"]) == (compiled["functions"] > 0)
