@@ -75,9 +75,13 @@ def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:
     fig = Figure(figsize=(8.0, 8.0), layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    ax.plot(truth.position[:, 0], truth.position[:, 1], "-", color="0.2", lw=2.0, label="truth")
+    from pipeline.evaluation.plots import PATH_POINTS, thin
+
+    truth_xy = truth.position[thin(len(truth.position), PATH_POINTS)]
+    ax.plot(truth_xy[:, 0], truth_xy[:, 1], "-", color="0.2", lw=2.0, label="truth")
     for name, s in summaries.items():
         poses = pd.read_parquet(Path(s.out_dir) / "poses.parquet", columns=["x", "y", "z"]).to_numpy()
+        poses = poses[thin(len(poses), PATH_POINTS)]  # a figure's worth of vertices (long logs: millions)
         align = ((s.report or {}).get("method") or {}).get("alignment") or {}
         rot = np.asarray(align.get("rotation_matrix", np.eye(3)))
         trans = np.asarray(align.get("translation_m", np.zeros(3)))
@@ -90,6 +94,6 @@ def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:
     ax.set_ylabel("y [m]")
     ax.set_title("Top view: SE(3)-aligned estimates vs truth")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    fig.legend(loc="outside lower center", ncols=3, fontsize=8)  # below the axes: never over the data
     fig.savefig(path, dpi=110)
     return path

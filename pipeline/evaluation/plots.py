@@ -143,7 +143,7 @@ def plot_trajectory_top(
     ax.set_ylabel("y [m]")
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="best", fontsize=8)
+    fig.legend(loc="outside lower center", ncols=3, fontsize=8)  # below the axes: never over the data
     return _save(fig, path)
 
 
