@@ -59,15 +59,36 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
         config = replace(config, observer=observer)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
+    status = _StatusLine() if not quiet and sys.stderr.isatty() else None
     try:
-        summary = run_log(log, out_dir, config, force=force)
+        summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
     except GainError as err:
         raise click.UsageError(str(err)) from None
     except FileExistsError as err:
         raise click.ClickException(str(err)) from None
+    finally:
+        if status:
+            status.clear()
     if quiet:
         return
     _print_summary(summary)
+
+
+class _StatusLine:
+    """What a run is doing and since when, as one self-overwriting line on a terminal's stderr (long logs and
+    first runs, which compile the numeric kernels, take a while)."""
+
+    def __init__(self) -> None:
+        import time
+
+        self._clock = time.perf_counter
+        self._start = self._clock()
+
+    def __call__(self, message: str) -> None:
+        click.echo(f"\r\x1b[K[{self._clock() - self._start:6.1f} s] {message}", nl=False, err=True)
+
+    def clear(self) -> None:
+        click.echo("\r\x1b[K", nl=False, err=True)
 
 
 def _print_summary(summary) -> None:

@@ -108,7 +108,14 @@ class PreparedLog:
     compiled_from: CompileMark | None = None
 
 
-def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> PreparedLog:
+Progress = Callable[[str], None]
+
+
+def _silent(_message: str) -> None:
+    pass
+
+
+def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = _silent) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
@@ -120,9 +127,11 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> Pre
     mark = compile_mark()
     timings: dict[str, float] = {}
     t = time.perf_counter()
+    progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options())
     timings["read_s"] = time.perf_counter() - t
     t = time.perf_counter()
+    progress("aligning the streams")
     topics = _topics(streams)
     aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
                     identity_frames=config.identity_frames, gravity=config.gravity,
@@ -134,17 +143,17 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True) -> Pre
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
-            progress: Callable[[str], None] = lambda _msg: None) -> RunSummary:
-    """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically."""
+            progress: Progress = _silent) -> RunSummary:
+    """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
+    ``progress`` receives a short line at each stage (and each observer stretch)."""
     spec = get_observer(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))  # fail on bad gains before reading a large log
-    prepared = prepare_log(log, config, directions=spec.min_directions > 0)
-    progress(f"read {log}")
-    return run_prepared(prepared, out_dir, config, force=force, release=True)
+    prepared = prepare_log(log, config, directions=spec.min_directions > 0, progress=progress)
+    return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress)
 
 
 def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False,
-                 release: bool = False) -> RunSummary:
+                 release: bool = False, progress: Progress = _silent) -> RunSummary:
     """Observer -> writers -> evaluation on an already prepared log.
 
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
@@ -181,13 +190,16 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         try:
             observer_s = write_s = 0.0
             t = time.perf_counter()
-            for part in spec.chunks(aligned, gains, options, STRETCH_SAMPLES):
+            n_vel = int(aligned.vel_t_ns.shape[0])
+            progress(f"{spec.name}: 0 of {n_vel} samples")
+            for done, part in enumerate(spec.chunks(aligned, gains, options, STRETCH_SAMPLES), 1):
                 t_run = time.perf_counter()
                 observer_s += t_run - t
                 _check_finite(part, log, spec.name, int(aligned.vel_t_ns[0]))
                 sink.write({**stretch_tables(part), **part.extra_tables})
                 t = time.perf_counter()
                 write_s += t - t_run
+                progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
             sink.write({"landmarks": landmark_table(part.landmark_ids, part.landmark_xyz,
                                                     np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
                                                     aligned.det_ids)})
@@ -203,6 +215,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         timings["write_s"] = write_s + time.perf_counter() - t
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
+            progress("error report")
             report = _evaluate(tmp, streams, config, notes)
             timings["report_s"] = time.perf_counter() - t
         else:

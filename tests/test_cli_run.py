@@ -296,3 +296,18 @@ def test_run_json_states_compilation(generated, tmp_path):
     compiled = meta["compiled"]
     assert compiled["functions"] >= 0 and compiled["seconds"] >= 0.0
     assert any("first run: compiled" in n for n in meta["notes"]) == (compiled["functions"] > 0)
+
+
+def test_run_reports_progress_stage_by_stage(generated, tmp_path):
+    """``run_log`` tells its caller each stage (the CLI shows it as a status line on a terminal)."""
+    from pipeline.config import RunConfig
+    from pipeline.run import run_log
+
+    seen: list[str] = []
+    run_log(generated["mcap"], tmp_path / "out", RunConfig(), progress=seen.append)
+    assert seen[0].startswith("reading ") and seen[1] == "aligning the streams"
+    samples = [m for m in seen if m.startswith("fast-adaptation: ")]
+    total = int(samples[0].rsplit(" of ", 1)[1].split()[0])
+    assert samples[0] == f"fast-adaptation: 0 of {total} samples"
+    assert samples[-1] == f"fast-adaptation: {total} of {total} samples"
+    assert seen[-1] == "error report"
