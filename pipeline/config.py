@@ -23,6 +23,7 @@ class RunConfig:
     topic_clocks: dict[str, str] = field(default_factory=dict)
     msg_dir: str | None = None
     tag_pattern: str | None = None
+    marker_ns: str | None = None
     truth_file: str | None = None
     truth_format: str | None = None
     truth_times: str | None = None
@@ -41,7 +42,8 @@ class RunConfig:
     def reader_options(self) -> dict:
         """Keyword arguments of :func:`pipeline.readers.read_log` that this config sets."""
         clocks = "auto" if self.time_source == "auto" else (dict(self.topic_clocks) or None)
-        return {"msg_dir": self.msg_dir, "tag_pattern": self.tag_pattern, "truth_file": self.truth_file,
+        return {"msg_dir": self.msg_dir, "tag_pattern": self.tag_pattern, "marker_ns": self.marker_ns,
+                "truth_file": self.truth_file,
                 "truth_format": self.truth_format, "truth_times": self.truth_times, "clocks": clocks}
 
     @property
@@ -75,6 +77,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         topic_clocks=dict(time.get("topics", {})),
         msg_dir=data.get("msg_dir"),
         tag_pattern=frames.get("tag_pattern"),
+        marker_ns=frames.get("marker_namespace"),
         truth_file=ev.get("truth_file"),
         truth_format=ev.get("truth_format"),
         truth_times=ev.get("truth_times"),

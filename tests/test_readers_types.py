@@ -560,3 +560,29 @@ def test_real_nav2_odometry_and_amcl_truth():
     assert res.valid.sum() >= 130
     err = np.linalg.norm(res.trans[res.valid] - amcl.position[res.valid], axis=1)
     assert np.median(err) < 0.1
+
+
+@pytest.mark.parametrize("container", ["bag", "mcap"])
+def test_marker_namespaces(container, tmp_path):
+    """Marker ids are unique per namespace: two namespaces on one topic are reported, and
+    ``marker_ns`` (config ``frames.marker_namespace``) keeps one."""
+    m = Msgs(ros1=container == "bag")
+    for k in range(K):
+        t = stamp(k)
+        markers = [make(m.ts, "visualization_msgs/msg/Marker", header=m.header(t, "camera"), ns=ns, id=i, action=0,
+                        pose=m.pose([z, k, i])) for ns, z in (("tags", 1.0), ("labels", 9.0)) for i in (5, 6)]
+        m.add("/markers", "visualization_msgs/msg/MarkerArray",
+              make(m.ts, "visualization_msgs/msg/MarkerArray", markers=markers), t + MS)
+    log = m.write(tmp_path / f"ns.{container}", container)
+
+    mixed = read_log(log, {"detections": "/markers"})
+    assert any("markers of 2 namespaces ('labels', 'tags')" in w and "frames.marker_namespace" in w
+               for w in mixed.warnings)
+    tags = read_log(log, {"detections": "/markers"}, marker_ns="tags")
+    np.testing.assert_array_equal(tags.detections.ids, np.tile([5, 6], K))
+    np.testing.assert_allclose(tags.detections.xyz[:, 0], 1.0)
+    assert f"/markers: {2 * K} markers of another namespace than 'tags' skipped" in tags.warnings
+    assert not any("namespaces" in w for w in tags.warnings)
+    none = read_log(log, {"detections": "/markers"}, marker_ns="nope")
+    assert len(none.detections) == 0
+    assert any("no marker of namespace 'nope' (namespaces: 'labels', 'tags')" in w for w in none.warnings)

@@ -60,6 +60,7 @@ def read_log(
     *,
     msg_dir: str | Path | None = None,
     tag_pattern: str | None = None,
+    marker_ns: str | None = None,
     truth_file: str | Path | None = None,
     truth_format: str | None = None,
     truth_times: str | Path | None = None,
@@ -75,6 +76,7 @@ def read_log(
             ``/tf_static``, chains allowed).
         msg_dir: Directory of ``pkg/msg/Type.msg`` files for types whose definitions the log lacks.
         tag_pattern: TF tag frames as detections, e.g. ``"tag_{id}"`` (children of the camera frame).
+        marker_ns: Detections from a ``MarkerArray``: only the markers of this namespace.
         truth_file: Ground truth from a TUM, EuRoC CSV or KITTI file instead of a topic.
         truth_format: ``tum``, ``euroc`` or ``kitti`` (detected from the content by default).
         truth_times: KITTI ``times.txt`` (KITTI poses carry no stamps).
@@ -117,6 +119,7 @@ def read_log(
             {t: table[t][1] for r, t in chosen if (r, table[t][0].msgtype) in VEC3_ROLES
              or (r == "truth" and selection.truth_edge is None)},
             {t: table[t][1] for r, t in chosen if r == "detections" and table[t][0].msgtype not in TF_TYPES},
+            marker_ns,
         )
         last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
         for k, (role, topic) in enumerate(chosen):

@@ -479,11 +479,13 @@ def decode_detections(
     path: str | Path,
     topic: str,
     connections: Collection[Connection],
+    marker_ns: str | None = None,
 ) -> tuple[DetectionStream, Cleaning]:
     """Detection messages (``DETECTIONS`` types or ``MarkerArray``) as a CSR detection stream.
 
     A ``MarkerArray`` has no header: its ADD markers are grouped into frames by their own (stamp, frame id),
-    and arrays without ADD markers are skipped.
+    and arrays without ADD markers are skipped. Marker ids are unique only within a namespace: ``marker_ns``
+    keeps the markers of one namespace; without it, several namespaces on the topic are reported.
     """
     from .fastdecode import read_rows
 
@@ -492,6 +494,7 @@ def decode_detections(
     if fast is not None:
         return detection_stream(fast)
     frames, acc, notes = _Frames(), _DetectionFrames(), Notes()
+    namespaces: set[str] = set()
     with _layout_errors(path, connections):
         if msgtype == MARKER_ARRAY:
             for rec, msg in _messages(reader, path, connections):
@@ -499,6 +502,10 @@ def decode_detections(
                 for marker in msg.markers:
                     if marker.action != _MARKER_ADD:
                         notes["DELETE marker", "skipped"] += 1
+                        continue
+                    namespaces.add(marker.ns)
+                    if marker_ns is not None and marker.ns != marker_ns:
+                        notes["marker", f"of another namespace than {marker_ns!r} skipped"] += 1
                         continue
                     key = (_stamp(marker), marker.header.frame_id)
                     groups.setdefault(key, []).append((marker.id, marker.pose.position))
@@ -508,7 +515,15 @@ def decode_detections(
             items_of = DETECTIONS[msgtype]
             for rec, msg in _messages(reader, path, connections):
                 acc.add(_stamp(msg), rec, frames.code(msg.header.frame_id), items_of(msg, notes))
-    return acc.stream(topic, frames.names(), notes)
+    stream, cleaning = acc.stream(topic, frames.names(), notes)
+    if marker_ns is None and len(namespaces) > 1:
+        names = ", ".join(repr(n) for n in sorted(namespaces))
+        cleaning.extra.append(f"markers of {len(namespaces)} namespaces ({names}) taken together although ids are "
+                              "unique only within one; choose one with frames.marker_namespace")
+    elif marker_ns is not None and marker_ns not in namespaces:
+        names = ", ".join(repr(n) for n in sorted(namespaces)) or "none"
+        cleaning.extra.append(f"no marker of namespace {marker_ns!r} (namespaces: {names})")
+    return stream, cleaning
 
 
 def detection_stream(rows: Rows) -> tuple[DetectionStream, Cleaning]:
@@ -529,6 +544,7 @@ def decode_topics(
     path: str | Path,
     rows: Mapping[str, Collection[Connection]],
     detections: Mapping[str, Collection[Connection]],
+    marker_ns: str | None = None,
 ) -> tuple[dict[str, Rows], dict[str, Rows | tuple[DetectionStream, Cleaning]]]:
     """``decode_rows`` of ``rows`` and the detection topics, every topic that can be decoded from the bytes in
     one pass over the log (each chunk decompressed once), the others through rosbags. A detection topic comes
@@ -539,7 +555,8 @@ def decode_topics(
     fast = read_rows(reader, path, {**rows, **detections}, [t for t, c in detections.items()
                                                              if next(iter(c)).msgtype in ITEM_LAYOUTS])
     got_rows = {t: fast[t] if t in fast else decode_rows(reader, path, t, c) for t, c in rows.items()}
-    got_dets = {t: fast[t] if t in fast else decode_detections(reader, path, t, c) for t, c in detections.items()}
+    got_dets = {t: fast[t] if t in fast else decode_detections(reader, path, t, c, marker_ns)
+                for t, c in detections.items()}
     return got_rows, got_dets
 
 
