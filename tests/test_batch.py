@@ -67,7 +67,8 @@ def _copy(out: Path, tmp_path: Path) -> Path:
 
 
 def _fake_tree(root: Path) -> None:
-    for f in ("x/one.bag", "x/y/two.mcap", "x/notes.txt", "x/.hidden/three.mcap", "x/docs/readme.txt"):
+    for f in ("x/one.bag", "x/y/two.mcap", "x/notes.txt", "x/.hidden/three.mcap", "x/docs/readme.txt",
+              "x/crashed/rec_0.db3"):  # a rosbag2 recording that never wrote its metadata.yaml
         (root / f).parent.mkdir(parents=True, exist_ok=True)
         (root / f).write_bytes(b"data")
     ros2 = root / "x" / "y" / "r2"
@@ -80,7 +81,7 @@ def test_discover_directories_globs_and_rosbag2(tmp_path):
     _fake_tree(tmp_path)
     x = tmp_path / "x"
     found = [e.path for e in discover([x])]
-    assert found == sorted([x / "one.bag", x / "y" / "r2", x / "y" / "two.mcap"])
+    assert found == sorted([x / "one.bag", x / "crashed" / "rec_0.db3", x / "y" / "r2", x / "y" / "two.mcap"])
     # a glob reaching into the rosbag2 directory stands for that directory; duplicates collapse
     globbed = [e.path for e in discover([f"{x}/**/*.mcap", x / "one.bag", x / "y" / "r2"])]
     assert globbed == [x / "y" / "r2", x / "y" / "two.mcap", x / "one.bag"]

@@ -384,3 +384,21 @@ def test_empty_topic_nan_inf_and_odd_detections(tmp_path):
     assert empty is not None and len(empty) == 0
     summary = inspect_log(path)
     assert next(t for t in summary.topics if t.topic == "/empty").count == 0
+
+
+@pytest.mark.parametrize("container", ["ros2-sqlite3", "ros2-mcap"])
+def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
+    """A recording that crashed leaves its storage file but no metadata.yaml: the file is read, and the run
+    says how; with several storage files it is a one-line error naming the directory."""
+    path = _write(sim, tmp_path / "crashed", container)
+    (path / "metadata.yaml").unlink()
+    (storage,) = [p for p in path.iterdir() if p.suffix in {".db3", ".mcap"}]
+    got = read_log(path)
+    assert got.warnings[0] == f"crashed has no metadata.yaml (recording not closed?): read {storage.name} directly"
+    _same_streams(got, expected_streams(sim, str(path)))
+    assert inspect_log(path).warnings[0] == got.warnings[0]
+
+    (path / f"second{storage.suffix}").write_bytes(storage.read_bytes())
+    with pytest.raises(InputError, match=r"crashed.*no metadata.yaml and 2 storage files") as err:
+        read_log(path)
+    assert "\n" not in str(err.value)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from pipeline.errors import InputError
 
-LOG_SUFFIXES = (".bag", ".mcap")
+LOG_SUFFIXES = (".bag", ".mcap", ".db3")  # a bare .db3: rosbag2 storage without metadata.yaml (crash)
 MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
 ROSBAG2_META = "metadata.yaml"
 #: Bytes read from each end of a file for the content hash; smaller files are hashed whole.
@@ -48,7 +48,8 @@ def _is_manifest(path: Path) -> bool:
 
 
 def _walk(root: Path) -> list[Path]:
-    """Logs under ``root``: .bag/.mcap files and rosbag2 directories (not descended into).
+    """Logs under ``root``: .bag/.mcap/.db3 files and rosbag2 directories (not descended into, so their storage
+    files are not counted again; a directory without metadata.yaml is walked and its storage file found).
 
     Hidden names are skipped: they are other tools' temporary files (e.g. a log still being written).
     """
@@ -82,7 +83,8 @@ def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
             return read_manifest(path)
         if path.suffix.lower() in LOG_SUFFIXES:
             return [LogEntry(path, config)]
-        raise InputError(path, f"{origin}: not a log (.bag, .mcap, rosbag2 directory) or a manifest (.csv, .yaml)")
+        raise InputError(path, f"{origin}: not a log (.bag, .mcap, .db3, rosbag2 directory) or a manifest "
+                               "(.csv, .yaml)")
     raise InputError(path, f"{origin}: no such file or directory")
 
 

@@ -28,7 +28,7 @@ import struct
 import tempfile
 import zlib
 from contextlib import contextmanager, suppress
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from io import BytesIO
 from pathlib import Path
 from typing import TYPE_CHECKING, BinaryIO, Literal
@@ -95,6 +95,7 @@ class Container:
     path: Path
     kind: Kind
     storage: str = ""
+    note: str = ""  # how the path was interpreted, when it needed interpreting (a warning of the run)
 
     @property
     def label(self) -> str:
@@ -119,9 +120,14 @@ def detect_container(path: str | Path) -> Container:
         raise InputError(path, "no such file")
     if path.is_dir():
         meta = path / "metadata.yaml"
-        if not meta.is_file():
-            inner = sorted(x.name for x in path.iterdir() if x.suffix in {".db3", ".mcap"})
-            hint = f" (directory has no metadata.yaml; open {inner[0]} directly)" if inner else ""
+        if not meta.is_file():  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none
+            inner = sorted(x for x in path.iterdir() if x.suffix in {".db3", ".mcap"} and x.is_file())
+            if len(inner) == 1:
+                found = detect_container(inner[0])
+                return replace(found, note=f"{path.name} has no metadata.yaml (recording not closed?): "
+                                           f"read {inner[0].name} directly")
+            hint = (f" (directory has no metadata.yaml and {len(inner)} storage files: open one of them directly)"
+                    if inner else "")
             raise InputError(path, _NOT_A_LOG + hint)
         try:
             text = meta.read_text(errors="replace")
@@ -1073,9 +1079,12 @@ def iter_raw(
             yield conns[int(batch.conn[i])], int(batch.rec_ns[i]), batch.payload(i)
 
 
+_NOTES = "_slamobs_notes"  # attribute of an opened reader: how its path was interpreted
+
+
 def damage_notes(reader: AnyReader) -> list[str]:
     """What was recovered from truncated or unindexed files (empty for intact logs)."""
-    notes = []
+    notes = list(getattr(reader, _NOTES, ()))
     for sub in reader.readers:
         storage = sub.storage if isinstance(sub, Reader2) else sub
         inner = storage.storages if isinstance(storage, DirectoryReader) else [storage]
@@ -1140,6 +1149,8 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
             reader.open()
         except Exception as err:  # any reader failure means a bad file
             raise _explain(container, err) from None
+        if container.note:
+            setattr(reader, _NOTES, [container.note])
         try:
             yield reader
         except (Ros1ReaderError, Ros2ReaderError, SerdeError, DamagedError) as err:
