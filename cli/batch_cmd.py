@@ -11,17 +11,14 @@ from pathlib import Path
 
 import click
 
+from cli.errors import exit_input_error
+
 
 def _cores() -> int:
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not on Linux
         return os.cpu_count() or 1
-
-
-def _fail(message: str) -> None:
-    click.echo(f"error: {message}", err=True)
-    sys.exit(2)
 
 
 def _jsonable(row: dict) -> dict:
@@ -132,7 +129,7 @@ def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_p
     from pipeline.observers import GainError
 
     if executor == "local" and scheduler:
-        _fail("--scheduler runs on Dask; it cannot be combined with --executor local")
+        exit_input_error("--scheduler runs on Dask; it cannot be combined with --executor local")
     try:
         config = load_config(config_path)
         if observer:
@@ -147,7 +144,7 @@ def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_p
                  if options.executor == "dask" else f"{options.jobs} local worker processes")
         result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
     except (InputError, GainError, DaskMissing) as err:
-        _fail(str(err))
+        exit_input_error(str(err))
     except KeyboardInterrupt:
         click.echo("\ninterrupted: finished runs are recorded; run the same command again to resume", err=True)
         sys.exit(130)

@@ -7,18 +7,14 @@ the printed block is evo's. Heavy modules are imported inside the command (``sla
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import click
 
+from cli.errors import exit_input_error
+
 RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
 FORMATS = ("tum", "euroc", "kitti", "parquet")
-
-
-def _fail(message: str) -> None:
-    click.echo(f"error: {message}", err=True)
-    sys.exit(2)
 
 
 def _offset(text: str) -> float | str:
@@ -87,9 +83,9 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
                    estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format,
                    est_format, save_results)
     except InputError as err:
-        _fail(str(err))
+        exit_input_error(str(err))
     except ValueError as err:
-        _fail(str(err))
+        exit_input_error(str(err))
     if silent:
         return
     result, extra = out

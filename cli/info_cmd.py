@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from cli.errors import exit_input_error
+
 
 @click.command("info")
 @click.argument("log", type=click.Path(path_type=Path))
@@ -24,6 +26,6 @@ def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
 
     try:
         summary = inspect_log(log, msg_dir=msg_dir)
-    except InputError as err:  # standalone use of the command; under `slamobs` the group does the same
-        raise click.ClickException(str(err)) from None
+    except InputError as err:  # as under the `slamobs` group, also when the command is used on its own
+        exit_input_error(err)
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else format_info(summary))

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from cli.errors import exit_input_error
+
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
 # threads only add synchronisation (30x slower on a 2-core machine); results do not depend on the count.
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
@@ -22,8 +24,7 @@ class _Group(click.Group):
         try:
             return super().invoke(ctx)
         except InputError as err:
-            click.echo(f"error: {err}", err=True)
-            sys.exit(2)
+            exit_input_error(err)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})

@@ -6,17 +6,13 @@ Heavy modules are imported inside the command (``slamobs --help`` stays fast).
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import click
 
+from cli.errors import exit_input_error
+
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
-
-
-def _fail(message: str) -> None:
-    click.echo(f"error: {message}", err=True)
-    sys.exit(2)
 
 
 def _lengths(text: str | None) -> tuple[float, ...] | None:
@@ -77,7 +73,7 @@ def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset:
         options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
         rep, written = report_run(run_dir, truth, options)
     except (InputError, ValueError) as err:
-        _fail(str(err))
+        exit_input_error(str(err))
     if quiet:
         return
     if as_json:

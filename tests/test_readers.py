@@ -448,6 +448,6 @@ def test_invalid_sim_truth_json(tmp_path):
 def test_info_command_errors_in_one_line(tmp_path, good_bag):
     for path, _ in _bad_inputs(tmp_path, good_bag).values():
         result = CliRunner().invoke(info, [str(path)])
-        assert result.exit_code == 1
-        assert result.output.startswith("Error: ") and result.output.count("\n") == 1, result.output
+        assert result.exit_code == 2
+        assert result.output.startswith("error: ") and result.output.count("\n") == 1, result.output
         assert "Traceback" not in result.output

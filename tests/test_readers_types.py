@@ -475,7 +475,7 @@ def test_bad_msg_dir(tmp_path, zoo_bag):
     with pytest.raises(InputError, match=r"Broken.msg: cannot parse message definition my_msgs/msg/Broken"):
         read_log(zoo_bag, msg_dir=tmp_path / "bad")
     result = CliRunner().invoke(info, [str(zoo_bag), "--msg-dir", str(tmp_path / "nope")])
-    assert result.exit_code == 1 and result.output.count("\n") == 1 and "not found" in result.output
+    assert result.exit_code == 2 and result.output.count("\n") == 1 and "not found" in result.output
 
 
 # --------------------------------------------------------------------------- real logs
