@@ -33,6 +33,7 @@ class RunConfig:
     float_bits: int = DEFAULT_FLOAT_BITS
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
+    plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
     gravity: tuple[float, float, float] = DEFAULT_GRAVITY
     magnetic_field: tuple[float, float, float] = DEFAULT_MAGNETIC_FIELD
 
@@ -87,6 +88,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
         t_max_diff=float(ev.get("t_max_diff", 0.01)),
         convergence_threshold=float(ev.get("convergence_threshold", 0.1)),
+        plots=bool(ev.get("plots", True)),
         gravity=tuple(dirs.get("gravity", DEFAULT_GRAVITY)),
         magnetic_field=tuple(dirs.get("magnetic_field", DEFAULT_MAGNETIC_FIELD)),
     )

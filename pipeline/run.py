@@ -258,5 +258,6 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     except ValueError as err:
         notes.append(f"no error report: {err}")
         return None
-    write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth, evaluation=evaluation)
+    write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth, evaluation=evaluation,
+                 plots=config.plots)
     return report

@@ -311,3 +311,18 @@ def test_run_reports_progress_stage_by_stage(generated, tmp_path):
     assert samples[0] == f"fast-adaptation: 0 of {total} samples"
     assert samples[-1] == f"fast-adaptation: {total} of {total} samples"
     assert seen[-1] == "error report"
+
+
+def test_report_without_plots(generated, tmp_path):
+    """``evaluation.plots: false`` (batch jobs over many short logs) writes every report file but the figures;
+    ``slamobs report`` draws them later with the same numbers."""
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n")
+    out = tmp_path / "out"
+    assert invoke("run", generated["mcap"], "-o", out, "--config", cfg, "-q").exit_code == 0
+    assert not list(out.glob("*.png"))
+    assert {"report.json", "report.md", "ape_evo.zip", "estimate_tum.txt"} <= {p.name for p in out.iterdir()}
+    before = json.loads((out / "report.json").read_text())["ape"]
+    assert invoke("report", out).exit_code == 0
+    assert {"trajectory_top.png", "errors.png", "biases.png"} <= {p.name for p in out.glob("*.png")}
+    assert json.loads((out / "report.json").read_text())["ape"] == before

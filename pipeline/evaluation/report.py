@@ -719,9 +719,10 @@ def write_report(
     landmark_truth: dict[int, np.ndarray] | None = None,
     *,
     evaluation: TrajectoryEvaluation | None = None,
+    plots: bool = True,
 ) -> list[Path]:
-    """Write report.json, report.md, the PNG plots, the evo result zip and the TUM exports into ``out_dir``;
-    returns the written paths.
+    """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
+    time on short logs), the evo result zip and the TUM exports into ``out_dir``; returns the written paths.
 
     The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
@@ -729,7 +730,6 @@ def write_report(
     ``poses``. The writes are plain: callers that
     replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
     """
-    from pipeline.evaluation import plots
     from pipeline.evaluation.evo_zip import save_result_zip
     from pipeline.readers.trajectory_files import write_tum
 
@@ -750,7 +750,17 @@ def write_report(
     written.append(save_result_zip(out / EVO_ZIP, ev.translation))
     written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
     written.append(write_tum(out / TRUTH_TUM, ev.truth))
+    if plots:
+        written += _write_plots(report, out, ev, biases, landmarks, landmark_truth)
+    return written
 
+
+def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
+                 landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None) -> list[Path]:
+    """The report's PNG figures, drawn from the same evaluation as its numbers."""
+    from pipeline.evaluation import plots
+
+    written = []
     al = ev.alignment
     t0 = int(ev.estimate.t_ns[0])
     path = plots.thin(len(ev.estimate), plots.PATH_POINTS)  # only what is drawn is aligned
