@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
-from pipeline.observers.frame_update import load_frame
+from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_measurements, record_row
 from pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
@@ -79,30 +79,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
         r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
         r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
         r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
-        w0 = w1 = w2 = 0.0
-        u0 = u1 = u2 = 0.0
-        for j in range(nvis):
-            i = vis_idx[j]
-            y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
-            e0 = lm[i, 0] - (r00 * y0 + r01 * y1 + r02 * y2) - p_hat[0]
-            e1 = lm[i, 1] - (r10 * y0 + r11 * y1 + r12 * y2) - p_hat[1]
-            e2 = lm[i, 2] - (r20 * y0 + r21 * y1 + r22 * y2) - p_hat[2]
-            # R̂ᵀe and [y]x R̂ᵀe = y x (R̂ᵀe)
-            q0 = r00 * e0 + r10 * e1 + r20 * e2
-            q1 = r01 * e0 + r11 * e1 + r21 * e2
-            q2 = r02 * e0 + r12 * e1 + r22 * e2
-            w0 += y1 * q2 - y2 * q1
-            w1 += y2 * q0 - y0 * q2
-            w2 += y0 * q1 - y1 * q0
-            u0 += q0
-            u1 += q1
-            u2 += q2
-            step = h * k_p * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0  # h ψ(e_i), closed form
-            if step > 1.0:  # never move past the measured point (spec §2.4)
-                step = 1.0
-            lm[i, 0] -= step * e0
-            lm[i, 1] -= step * e1
-            lm[i, 2] -= step * e2
+        w0, w1, w2, u0, u1, u2 = landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, h * k_p, True)
         # Corrected twist = measured − bias − W with W = −(k_w/α) Σ(...); prediction uses odometry only.
         o0, o1, o2 = omega_m[0] - b_om[0], omega_m[1] - b_om[1], omega_m[2] - b_om[2]
         v0, v1, v2 = vel_m[0] - b_v[0], vel_m[1] - b_v[1], vel_m[2] - b_v[2]
@@ -130,13 +107,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
             se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
-            for j in range(nvis):
-                d0 = y[j, 0] - d_p[0]
-                d1 = y[j, 1] - d_p[1]
-                d2 = y[j, 2] - d_p[2]
-                y[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
-                y[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
-                y[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
+            predict_measurements(y, nvis, d_r, d_p)
     return m
 
 
@@ -186,11 +157,7 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
                 started = True
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
-                out_k[o] = iv
-                out_r[o] = r_hat
-                out_p[o] = p_hat
-                out_b[o, :3] = b_om
-                out_b[o, 3:] = b_v
+                record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t

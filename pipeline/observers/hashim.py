@@ -49,7 +49,7 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from pipeline.observers.frame_update import load_frame
+from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_measurements, record_row
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
 STEP_RATIO = 0.5
@@ -105,26 +105,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
         r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
         r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
         # Landmark innovations a_L = Σ[y]x R̂ᵀe/α, c_L = Σ R̂ᵀe/α and the landmark step (visible only).
-        a0 = a1 = a2 = 0.0
-        c0 = c1 = c2 = 0.0
-        for j in range(nvis):
-            i = vis_idx[j]
-            y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
-            e0 = lm[i, 0] - (r00 * y0 + r01 * y1 + r02 * y2) - p_hat[0]
-            e1 = lm[i, 1] - (r10 * y0 + r11 * y1 + r12 * y2) - p_hat[1]
-            e2 = lm[i, 2] - (r20 * y0 + r21 * y1 + r22 * y2) - p_hat[2]
-            q0 = r00 * e0 + r10 * e1 + r20 * e2
-            q1 = r01 * e0 + r11 * e1 + r21 * e2
-            q2 = r02 * e0 + r12 * e1 + r22 * e2
-            a0 += y1 * q2 - y2 * q1
-            a1 += y2 * q0 - y0 * q2
-            a2 += y0 * q1 - y1 * q0
-            c0 += q0
-            c1 += q1
-            c2 += q2
-            lm[i, 0] -= hkp * e0
-            lm[i, 1] -= hkp * e1
-            lm[i, 2] -= hkp * e2
+        a0, a1, a2, c0, c1, c2 = landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, False)
         a0 /= alpha
         a1 /= alpha
         a2 /= alpha
@@ -195,13 +176,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
             # y ← dRᵀ(y − dp), υ ← dRᵀυ.
             se3_exp_into(h * om_odo[0], h * om_odo[1], h * om_odo[2], h * v_odo[0], h * v_odo[1], h * v_odo[2],
                          d_r, d_p)
-            for j in range(nvis):
-                d0 = y[j, 0] - d_p[0]
-                d1 = y[j, 1] - d_p[1]
-                d2 = y[j, 2] - d_p[2]
-                y[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
-                y[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
-                y[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
+            predict_measurements(y, nvis, d_r, d_p)
             if imu:
                 for j in range(n_dir):
                     d0, d1, d2 = dir_b[j, 0], dir_b[j, 1], dir_b[j, 2]
@@ -259,11 +234,7 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
                 started = True
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
-                out_k[o] = iv
-                out_r[o] = r_hat
-                out_p[o] = p_hat
-                out_b[o, :3] = b_om
-                out_b[o, 3:] = b_v
+                record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t

@@ -43,7 +43,7 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from pipeline.observers.frame_update import load_frame
+from pipeline.observers.shared_steps import load_frame, record_row
 from pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
 from pipeline.directions import load_directions
 
@@ -363,11 +363,7 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
                     jump_phi[n_jumps, 1] = phi_q
                     n_jumps += 1
             if iv % out_every == 0 or iv == n_vel - 1:
-                out_k[o] = iv
-                out_r[o] = r_hat
-                out_p[o] = p_hat
-                out_b[o, :3] = b_om
-                out_b[o, 3:] = b_v
+                record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t

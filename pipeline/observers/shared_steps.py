@@ -1,0 +1,94 @@
+"""Compiled steps the landmark observers' kernels share (spec §8 for the frame handling).
+
+- :func:`load_frame`: a frame replaces the visible set: its landmark indices and body-frame measurements
+  become the observer's ``vis_idx``/``y``; a landmark seen for the first time is placed at ``P̂ + R̂y`` so that
+  its innovation starts at zero; every detection's innovation ``p̂_i − R̂y_i − P̂`` and the landmark estimate
+  it was compared with are recorded.
+- :func:`landmark_sums`: the sums ``Σ[y]x R̂ᵀe`` and ``Σ R̂ᵀe`` over the visible landmarks and their landmark
+  step (algorithms A and B; A's gain ψ(e) adapts, B's is constant).
+- :func:`predict_measurements`: the held measurements carried over a sub-step of the odometry.
+- :func:`record_row`: one output row of the estimate.
+
+All are written with scalars (no temporaries): they run once per sub-step or event.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+
+@njit(cache=True)
+def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, row):
+    """Take detections ``a .. a + nvis - 1`` as the visible set; their output rows start at ``row``."""
+    for j in range(nvis):
+        i = det_idx[a + j]
+        vis_idx[j] = i
+        for c in range(3):
+            y[j, c] = det_y[a + j, c]
+        for c in range(3):  # R̂y, written out: no temporary per detection
+            ry = r_hat[c, 0] * y[j, 0] + r_hat[c, 1] * y[j, 1] + r_hat[c, 2] * y[j, 2]
+            if not lm_init[i]:
+                lm[i, c] = p_hat[c] + ry
+            innov[row + j, c] = lm[i, c] - ry - p_hat[c]
+            trk_p[row + j, c] = lm[i, c]
+        lm_init[i] = True
+
+
+@njit(cache=True)
+def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
+    """``(Σ[y_i]x R̂ᵀe_i, Σ R̂ᵀe_i)`` as six scalars over the visible landmarks, with ``e_i = p̂_i − R̂y_i − P̂``
+    at the state given, and each landmark stepped ``p̂_i ← p̂_i − g e_i`` in place: ``g = hkp`` (B), or
+    with ``adaptive`` the closed-form ``h ψ(e_i) = hkp (1 + ‖e_i‖²)/4`` capped at 1, never past the measured
+    point (A, spec §2.4)."""
+    r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
+    r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
+    r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
+    w0 = w1 = w2 = 0.0
+    u0 = u1 = u2 = 0.0
+    for j in range(nvis):
+        i = vis_idx[j]
+        y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
+        e0 = lm[i, 0] - (r00 * y0 + r01 * y1 + r02 * y2) - p_hat[0]
+        e1 = lm[i, 1] - (r10 * y0 + r11 * y1 + r12 * y2) - p_hat[1]
+        e2 = lm[i, 2] - (r20 * y0 + r21 * y1 + r22 * y2) - p_hat[2]
+        # R̂ᵀe and [y]x R̂ᵀe = y x (R̂ᵀe)
+        q0 = r00 * e0 + r10 * e1 + r20 * e2
+        q1 = r01 * e0 + r11 * e1 + r21 * e2
+        q2 = r02 * e0 + r12 * e1 + r22 * e2
+        w0 += y1 * q2 - y2 * q1
+        w1 += y2 * q0 - y0 * q2
+        w2 += y0 * q1 - y1 * q0
+        u0 += q0
+        u1 += q1
+        u2 += q2
+        step = hkp
+        if adaptive:
+            step = hkp * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0
+            if step > 1.0:
+                step = 1.0
+        lm[i, 0] -= step * e0
+        lm[i, 1] -= step * e1
+        lm[i, 2] -= step * e2
+    return w0, w1, w2, u0, u1, u2
+
+
+@njit(cache=True)
+def predict_measurements(y, nvis, d_r, d_p):
+    """``y_j ← dRᵀ(y_j − dp)`` for the visible measurements: the body moved by ``(dR, dp)`` over the sub-step."""
+    for j in range(nvis):
+        d0 = y[j, 0] - d_p[0]
+        d1 = y[j, 1] - d_p[1]
+        d2 = y[j, 2] - d_p[2]
+        y[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
+        y[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
+        y[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
+
+
+@njit(cache=True)
+def record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
+    """Row ``o`` of the outputs: velocity sample ``iv``, R̂, P̂ and the biases ``[b̂_Ω, b̂_V]``."""
+    out_k[o] = iv
+    out_r[o] = r_hat
+    out_p[o] = p_hat
+    out_b[o, :3] = b_om
+    out_b[o, 3:] = b_v
