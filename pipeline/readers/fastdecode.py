@@ -379,54 +379,66 @@ class Decoded:
 
 
 @njit(cache=True)
-def _string_codes(data, pos, length, most):  # pragma: no cover - compiled
-    """Per-message code of its string, distinct strings numbered by first appearance (-1: over ``most``)."""
+def _dedup(data, pos, length):  # pragma: no cover - compiled
+    """Per-string code, distinct strings numbered by first appearance, and the first string of every code.
+
+    An open-addressing table keyed by a 64-bit FNV-1a hash; a hit is confirmed byte for byte, so two strings
+    with one hash stay apart."""
     n = pos.shape[0]
     codes = np.empty(n, np.int32)
-    firsts = np.empty(most, np.int64)
+    firsts = np.empty(n, np.int64)
+    hashes = np.empty(n, np.uint64)
+    cap = 64
+    table = np.full(cap, -1, np.int64)
     k = 0
-    last = -1
+    prime = np.uint64(1099511628211)
     for i in range(n):
+        h = (np.uint64(14695981039346656037) ^ np.uint64(length[i])) * prime
+        for q in range(pos[i], pos[i] + length[i]):
+            h = (h ^ np.uint64(data[q])) * prime
+        slot = np.int64(h & np.uint64(cap - 1))
         code = -1
-        for step in range(k + 1):  # the previous message's string first, then every known one
-            c = last if step == 0 else step - 1
-            if c < 0 or (step > 0 and c == last):
-                continue
+        while table[slot] >= 0:
+            c = table[slot]
             f = firsts[c]
-            if length[f] == length[i]:
+            if hashes[c] == h and length[f] == length[i]:
                 same = True
-                for b in range(length[i]):
-                    if data[pos[f] + b] != data[pos[i] + b]:
+                for q in range(length[i]):
+                    if data[pos[f] + q] != data[pos[i] + q]:
                         same = False
                         break
                 if same:
                     code = c
                     break
+            slot = (slot + 1) & (cap - 1)
         if code < 0:
-            if k == most:
-                return codes, firsts[:0], -1
-            firsts[k] = i
             code = k
+            firsts[k] = i
+            hashes[k] = h
+            table[slot] = k
             k += 1
+            if 2 * k > cap:  # keep the table at most half full
+                cap *= 2
+                table = np.full(cap, -1, np.int64)
+                for c in range(k):
+                    slot = np.int64(hashes[c] & np.uint64(cap - 1))
+                    while table[slot] >= 0:
+                        slot = (slot + 1) & (cap - 1)
+                    table[slot] = c
         codes[i] = code
-        last = code
-    return codes, firsts[:k], k
+    return codes, firsts[:k]
 
 
 def _strings(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Distinct strings (in order of first appearance) and per-message codes.
+    """Per-string codes and the distinct strings in order of first appearance, coded in compiled code
+    (:func:`_dedup`) however many distinct values a field has (a frame id takes a handful, tag frames
+    hundreds).
 
-    Frame ids take a handful of values, so each message is compared with the strings seen so far in
-    compiled code; a field with many distinct values is grouped with ``np.unique`` instead.
+    Raises:
+        DecodeError: A string is not UTF-8.
+
     """
-    codes, firsts, k = _string_codes(data, pos, length, 64)
-    if k < 0:
-        keys = [data[p : p + n].tobytes() for p, n in zip(pos.tolist(), length.tolist(), strict=True)]
-        uniq, first, inverse = np.unique(np.array(keys, dtype=object), return_index=True, return_inverse=True)
-        order = np.argsort(first, kind="stable")
-        rank = np.empty(order.size, np.int64)
-        rank[order] = np.arange(order.size)
-        codes, firsts = rank[inverse.ravel()].astype(np.int32), first[order]
+    codes, firsts = _dedup(data, pos, length)
     try:
         names = [data[pos[f] : pos[f] + length[f]].tobytes().decode() for f in firsts.tolist()]
     except UnicodeDecodeError as err:

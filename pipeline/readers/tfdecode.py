@@ -6,7 +6,7 @@ element plans do not apply. Here a compiled walker steps through every element o
 (ROS1: little endian, header ``seq`` before the stamp, strings without terminator; CDR: either byte order per
 message, alignment relative to the end of the encapsulation header, strings with a NUL) and returns flat
 columns: stamps, (position, length) of both strings and the bits of the seven doubles. Identical strings get
-one code in compiled code (:func:`frame_strings`: a hash table confirmed byte for byte, so hundreds of tag
+one code in compiled code (:func:`.fastdecode._strings`: a hash table confirmed byte for byte, so hundreds of tag
 frames cost no Python object per string), then the distinct names go through ``decode._Frames``.
 
 The walker is written for the standard layout only: :func:`tf_layout` checks the definition stored in the
@@ -22,7 +22,7 @@ import numpy as np
 from numba import njit
 from rosbags.interfaces import Nodetype
 
-from .fastdecode import FRAME_ID, STAMP_NSEC, STAMP_SEC, DecodeError, _grouped, _merged, _Op, _walk
+from .fastdecode import FRAME_ID, STAMP_NSEC, STAMP_SEC, DecodeError, _grouped, _merged, _Op, _strings, _walk
 
 if TYPE_CHECKING:
     from collections.abc import Collection
@@ -189,73 +189,6 @@ def _tf_walk(data, start, size, cdr, big, counts, total):  # pragma: no cover - 
     return sec, nsec, pos, length, words, 0, -1
 
 
-@njit(cache=True)
-def _dedup(data, pos, length):  # pragma: no cover - compiled
-    """Per-string code, distinct strings numbered by first appearance, and the first string of every code.
-
-    An open-addressing table keyed by a 64-bit FNV-1a hash; a hit is confirmed byte for byte, so two strings
-    with one hash stay apart."""
-    n = pos.shape[0]
-    codes = np.empty(n, np.int32)
-    firsts = np.empty(n, np.int64)
-    hashes = np.empty(n, np.uint64)
-    cap = 64
-    table = np.full(cap, -1, np.int64)
-    k = 0
-    prime = np.uint64(1099511628211)
-    for i in range(n):
-        h = (np.uint64(14695981039346656037) ^ np.uint64(length[i])) * prime
-        for q in range(pos[i], pos[i] + length[i]):
-            h = (h ^ np.uint64(data[q])) * prime
-        slot = np.int64(h & np.uint64(cap - 1))
-        code = -1
-        while table[slot] >= 0:
-            c = table[slot]
-            f = firsts[c]
-            if hashes[c] == h and length[f] == length[i]:
-                same = True
-                for q in range(length[i]):
-                    if data[pos[f] + q] != data[pos[i] + q]:
-                        same = False
-                        break
-                if same:
-                    code = c
-                    break
-            slot = (slot + 1) & (cap - 1)
-        if code < 0:
-            code = k
-            firsts[k] = i
-            hashes[k] = h
-            table[slot] = k
-            k += 1
-            if 2 * k > cap:  # keep the table at most half full
-                cap *= 2
-                table = np.full(cap, -1, np.int64)
-                for c in range(k):
-                    slot = np.int64(hashes[c] & np.uint64(cap - 1))
-                    while table[slot] >= 0:
-                        slot = (slot + 1) & (cap - 1)
-                    table[slot] = c
-        codes[i] = code
-    return codes, firsts[:k]
-
-
-def frame_strings(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """Per-string codes and the distinct strings in order of first appearance (as :func:`.fastdecode._strings`,
-    without its Python fallback for fields with many distinct values: a log may hold hundreds of tag frames).
-
-    Raises:
-        DecodeError: A string is not UTF-8.
-
-    """
-    codes, firsts = _dedup(data, pos, length)
-    try:
-        names = [data[pos[f] : pos[f] + length[f]].tobytes().decode() for f in firsts.tolist()]
-    except UnicodeDecodeError as err:
-        raise DecodeError(f"string is not UTF-8 ({err.reason})") from None
-    return codes, names
-
-
 def _error(code: int, msgtype: str) -> DecodeError:
     return DecodeError({
         _SHORT_CDR: "message shorter than its CDR header",
@@ -299,7 +232,7 @@ def decode_batch(layout: TfLayout, data: np.ndarray, start: np.ndarray, size: np
     sec, nsec, pos, length, words, code, _ = _tf_walk(data, start, size, layout.cdr, big, counts, int(counts.sum()))
     if code:
         raise _error(code, layout.msgtype)
-    codes, names = frame_strings(data, pos, length)  # parent before child: the order rosbags reads them
+    codes, names = _strings(data, pos, length)  # parent before child: the order rosbags reads them
     return TfBatch(counts, _stamps(sec, nsec, layout.signed), words.view(np.float64), codes[0::2], codes[1::2],
                    names)
 
