@@ -21,7 +21,7 @@ import numpy as np
 from numba import njit
 
 from pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
-from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_measurements, record_row
+from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
 from pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
@@ -107,7 +107,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
             se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
-            predict_measurements(y, nvis, d_r, d_p)
+            predict_points(y, nvis, d_r, d_p)
     return m
 
 

@@ -49,7 +49,7 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_measurements, record_row
+from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
 STEP_RATIO = 0.5
@@ -100,6 +100,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
     d_r = np.empty((3, 3))
     d_p = np.empty(3)
     r_new = np.empty((3, 3))
+    zero = np.zeros(3)
     for _ in range(m):
         r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
         r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
@@ -176,13 +177,9 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
             # y ← dRᵀ(y − dp), υ ← dRᵀυ.
             se3_exp_into(h * om_odo[0], h * om_odo[1], h * om_odo[2], h * v_odo[0], h * v_odo[1], h * v_odo[2],
                          d_r, d_p)
-            predict_measurements(y, nvis, d_r, d_p)
+            predict_points(y, nvis, d_r, d_p)
             if imu:
-                for j in range(n_dir):
-                    d0, d1, d2 = dir_b[j, 0], dir_b[j, 1], dir_b[j, 2]
-                    dir_b[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
-                    dir_b[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
-                    dir_b[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
+                predict_points(dir_b, n_dir, d_r, zero)  # directions: rotation only
     return m
 
 

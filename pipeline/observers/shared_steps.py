@@ -6,7 +6,7 @@
   it was compared with are recorded.
 - :func:`landmark_sums`: the sums ``Σ[y]x R̂ᵀe`` and ``Σ R̂ᵀe`` over the visible landmarks and their landmark
   step (algorithms A and B; A's gain ψ(e) adapts, B's is constant).
-- :func:`predict_measurements`: the held measurements carried over a sub-step of the odometry.
+- :func:`predict_points`: held body-frame measurements (or directions) carried over a sub-step of odometry.
 - :func:`record_row`: one output row of the estimate.
 
 All are written with scalars (no temporaries): they run once per sub-step or event.
@@ -73,15 +73,16 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
 
 
 @njit(cache=True)
-def predict_measurements(y, nvis, d_r, d_p):
-    """``y_j ← dRᵀ(y_j − dp)`` for the visible measurements: the body moved by ``(dR, dp)`` over the sub-step."""
-    for j in range(nvis):
-        d0 = y[j, 0] - d_p[0]
-        d1 = y[j, 1] - d_p[1]
-        d2 = y[j, 2] - d_p[2]
-        y[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
-        y[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
-        y[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
+def predict_points(x, n, d_r, d_p):
+    """``x_j ← dRᵀ(x_j − dp)`` for rows ``0 .. n - 1``: body-frame points after the body moved by ``(dR, dp)``
+    over a sub-step (directions: ``dp = 0``)."""
+    for j in range(n):
+        d0 = x[j, 0] - d_p[0]
+        d1 = x[j, 1] - d_p[1]
+        d2 = x[j, 2] - d_p[2]
+        x[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
+        x[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
+        x[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
 
 
 @njit(cache=True)

@@ -43,7 +43,7 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from pipeline.observers.shared_steps import load_frame, record_row
+from pipeline.observers.shared_steps import load_frame, predict_points, record_row
 from pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
 from pipeline.directions import load_directions
 
@@ -225,21 +225,9 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
         # Predict the base measurements over the sub-step with the frozen-bias odometry.
         se3_exp_into(h * (omega_m[0] - b_pred[0]), h * (omega_m[1] - b_pred[1]), h * (omega_m[2] - b_pred[2]),
                      h * (vel_m[0] - b_pred[3]), h * (vel_m[1] - b_pred[4]), h * (vel_m[2] - b_pred[5]), d_r, d_p)
-        _predict(d_r, d_p, y, nvis)
-        _predict(d_r, zero, ups, nd)
+        predict_points(y, nvis, d_r, d_p)
+        predict_points(ups, nd, d_r, zero)
     return m
-
-
-@njit(cache=True)
-def _predict(d_r, d_p, x, n):
-    """Body-frame points (or directions with ``d_p = 0``) after the body moved by ``(d_r, d_p)``."""
-    for j in range(n):
-        d0 = x[j, 0] - d_p[0]
-        d1 = x[j, 1] - d_p[1]
-        d2 = x[j, 2] - d_p[2]
-        x[j, 0] = d_r[0, 0] * d0 + d_r[1, 0] * d1 + d_r[2, 0] * d2
-        x[j, 1] = d_r[0, 1] * d0 + d_r[1, 1] * d1 + d_r[2, 1] * d2
-        x[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
 
 
 @njit(cache=True)
