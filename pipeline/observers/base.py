@@ -177,6 +177,9 @@ class ObserverSpec:
     start: Callable[[AlignedStream, dict[str, float], ObserverOptions], Stepper]
     #: Minimum number of inertial directions (gravity, magnetic field) the observer needs; 0 = none.
     min_directions: int = 0
+    #: Conditions that couple several gains (raises GainError), checked with the per-gain rules before any
+    #: log is read.
+    check_gains: Callable[[dict[str, float]], None] | None = None
 
     def run(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions) -> ObserverResult:
         """The whole run in one stretch."""
@@ -208,4 +211,6 @@ class ObserverSpec:
             if not math.isfinite(value) or value <= 0:
                 raise GainError(f"gain {name} of observer '{self.name}' must be finite and > 0, got {value!r}")
             out[name] = float(value)
+        if self.check_gains is not None:
+            self.check_gains(out)
         return out

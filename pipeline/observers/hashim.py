@@ -32,7 +32,6 @@ gyro-bias loop (gain ∝ range²) wants a different rate than the velocity-bias 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -324,16 +323,6 @@ def start_imu(stream, gains: dict[str, float], options) -> Hashim:
     return Hashim(stream, gains, options, dirs, first_attitude(*dirs))
 
 
-@dataclass(frozen=True)
-class _ImuSpec(ObserverSpec):
-    """Adds C's gain coupling constraint to the per-gain checks, so it fails before any log is read."""
-
-    def resolve_gains(self, user: dict | None) -> dict[str, float]:
-        gains = super().resolve_gains(user)
-        check_imu_gains(gains)
-        return gains
-
-
 _PAPER = "Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group (seed 002)"
 
 
@@ -361,7 +350,7 @@ SPEC = ObserverSpec(
     start=start,
 )
 
-SPEC_IMU = _ImuSpec(
+SPEC_IMU = ObserverSpec(
     name="hashim-imu",
     algorithm="C",
     paper=_PAPER,
@@ -374,5 +363,6 @@ SPEC_IMU = _ImuSpec(
         GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction"),
     ),
     start=start_imu,
+    check_gains=check_imu_gains,
     min_directions=2,
 )

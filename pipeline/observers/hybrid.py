@@ -18,7 +18,6 @@ at least δ.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -151,17 +150,7 @@ def start(stream, gains: dict[str, float], options: ObserverOptions) -> Flow:
     return flow
 
 
-@dataclass(frozen=True)
-class _HybridSpec(ObserverSpec):
-    """Adds the ``delta_fraction < 1`` check to the per-gain checks, so it fails before any log is read."""
-
-    def resolve_gains(self, user: dict | None) -> dict[str, float]:
-        gains = super().resolve_gains(user)
-        check_gains(gains)
-        return gains
-
-
-SPEC = _HybridSpec(
+SPEC = ObserverSpec(
     name=NAME,
     algorithm="E",
     paper="Hashemi & Mattila, A Global Asymptotic Convergent Observer for SLAM (seed 001; switching after "
@@ -174,4 +163,5 @@ SPEC = _HybridSpec(
     ),
     start=start,
     min_directions=2,
+    check_gains=check_gains,
 )
