@@ -61,9 +61,9 @@ print(json.dumps({"memory_s": t_mem, "files_s": t_files, "stats": {k: float(v) f
 
 
 def make_files(n: int, out: Path) -> tuple[Path, Path]:
-    from pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
-    from pipeline.readers.trajectory_files import write_tum
-    from pipeline.streams import PoseStream
+    from slamobs.pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
+    from slamobs.pipeline.readers.trajectory_files import write_tum
+    from slamobs.pipeline.streams import PoseStream
 
     rng = np.random.default_rng(0)
     t0 = 1_700_000_000 * 1_000_000_000
@@ -87,8 +87,8 @@ def make_files(n: int, out: Path) -> tuple[Path, Path]:
 
 
 def time_slamobs(ref_path: Path, est_path: Path, repeat: int) -> dict:
-    from pipeline.evaluation.trajectory_error import AlignOptions, SyncOptions, ape
-    from pipeline.readers.trajectory_files import read_trajectory
+    from slamobs.pipeline.evaluation.trajectory_error import AlignOptions, SyncOptions, ape
+    from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
     def from_files():
         return ape(read_trajectory(ref_path), read_trajectory(est_path), "trans_part", SyncOptions(0.01),

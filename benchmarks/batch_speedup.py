@@ -18,8 +18,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from pipeline.batch import BatchOptions, discover, run_batch
-from pipeline.simulate import simulate, write_log
+from slamobs.pipeline.batch import BatchOptions, discover, run_batch
+from slamobs.pipeline.simulate import simulate, write_log
 
 
 def make_logs(root: Path, n: int, duration: float) -> list[Path]:

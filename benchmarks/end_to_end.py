@@ -74,7 +74,7 @@ def make_log(cache: Path, hours: float, container: str) -> Path:
 
 
 def message_count(hours: float) -> int:
-    from pipeline.simulate import simulation
+    from slamobs.pipeline.simulate import simulation
 
     return sum(simulation(SCENARIO, duration=hours * 3600).topic_counts().values())
 

@@ -20,9 +20,9 @@ import time
 
 import numpy as np
 
-from pipeline.alignment import AlignedStream
-from pipeline.lie import se3_exp
-from pipeline.observers import OBSERVERS, ObserverOptions
+from slamobs.pipeline.alignment import AlignedStream
+from slamobs.pipeline.lie import se3_exp
+from slamobs.pipeline.observers import OBSERVERS, ObserverOptions
 
 
 def synthetic_stream(n_landmarks: int, seconds: float, rate: float = 200.0, det_rate: float = 20.0,
@@ -39,7 +39,7 @@ def synthetic_stream(n_landmarks: int, seconds: float, rate: float = 200.0, det_
         y[k] = (landmarks - p) @ r
     ns = (t * 1e9).astype(np.int64)
     n_dir = 2
-    from pipeline.directions import DirectionSet
+    from slamobs.pipeline.directions import DirectionSet
 
     dirs = DirectionSet(("gravity", "magnetic"), np.array([[0, 0, 1.0], [0.4, 0, -0.9]]) /
                         np.linalg.norm([[0, 0, 1.0], [0.4, 0, -0.9]], axis=1, keepdims=True),

@@ -47,13 +47,13 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from pipeline.readers import tfdecode
-from pipeline.readers.container import _Chunked, _read_unit, _sources, open_log
-from pipeline.readers.decode import LAYOUTS, TfRows, decode_rows, decode_tf, frame_name
-from pipeline.readers.fastdecode import read_rows
-from pipeline.readers.roles import TF_TYPES, topics_of
-from pipeline.simulate import make_typestore, simulate, write_log
-from pipeline.simulate.logwriter import write_raw_log
+from slamobs.pipeline.readers import tfdecode
+from slamobs.pipeline.readers.container import _Chunked, _read_unit, _sources, open_log
+from slamobs.pipeline.readers.decode import LAYOUTS, TfRows, decode_rows, decode_tf, frame_name
+from slamobs.pipeline.readers.fastdecode import read_rows
+from slamobs.pipeline.readers.roles import TF_TYPES, topics_of
+from slamobs.pipeline.simulate import make_typestore, simulate, write_log
+from slamobs.pipeline.simulate.logwriter import write_raw_log
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 Columns = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]]  # topic -> t, rec, values, frames

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from cli.errors import exit_input_error
+from slamobs.cli.errors import exit_input_error
 
 
 def _cores() -> int:
@@ -123,10 +123,10 @@ def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_p
     """
     from dataclasses import replace
 
-    from pipeline.batch import BatchOptions, DaskMissing, check_config, discover, run_batch
-    from pipeline.config import load_config
-    from pipeline.errors import InputError
-    from pipeline.observers import GainError
+    from slamobs.pipeline.batch import BatchOptions, DaskMissing, check_config, discover, run_batch
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.observers import GainError
 
     if executor == "local" and scheduler:
         exit_input_error("--scheduler runs on Dask; it cannot be combined with --executor local")

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import click
 
-from cli.errors import exit_input_error
+from slamobs.cli.errors import exit_input_error
 
 RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
 FORMATS = ("tum", "euroc", "kitti", "parquet")
@@ -74,7 +74,7 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
     PoseStamped / Odometry topic of a ROS bag or MCAP. KITTI files without stamps are paired by index.
     """
-    from pipeline.errors import InputError
+    from slamobs.pipeline.errors import InputError
 
     kind = _alignment_kind(align, correct_scale, align_origin, align_yaw)
     offset = _offset(t_offset)
@@ -116,10 +116,10 @@ def _alignment_kind(align: bool, scale: bool, origin: bool, yaw: bool) -> str:
 def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
          estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format, est_format,
          save_results):
-    from pipeline.evaluation.evo_zip import save_result_zip
-    from pipeline.evaluation.sync import estimate_time_offset
-    from pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, describe, rpe
-    from pipeline.readers.trajectory_files import read_trajectory
+    from slamobs.pipeline.evaluation.evo_zip import save_result_zip
+    from slamobs.pipeline.evaluation.sync import estimate_time_offset
+    from slamobs.pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, describe, rpe
+    from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
     ref = read_trajectory(truth, truth_format)
     est_t = read_trajectory(est, est_format)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from cli.errors import exit_input_error
+from slamobs.cli.errors import exit_input_error
 
 
 @click.command("info")
@@ -21,8 +21,8 @@ from cli.errors import exit_input_error
 )
 def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
     """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play."""
-    from pipeline.errors import InputError
-    from pipeline.readers import format_info, inspect_log
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.readers import format_info, inspect_log
 
     try:
         summary = inspect_log(log, msg_dir=msg_dir)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from cli.errors import exit_input_error
+from slamobs.cli.errors import exit_input_error
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
 # threads only add synchronisation (30x slower on a 2-core machine); results do not depend on the count.
@@ -19,7 +19,7 @@ class _Group(click.Group):
     """Turns the pipeline's input errors into one line on stderr and exit code 2 (no traceback)."""
 
     def invoke(self, ctx):
-        from pipeline.errors import InputError
+        from slamobs.pipeline.errors import InputError
 
         try:
             return super().invoke(ctx)
@@ -28,7 +28,7 @@ class _Group(click.Group):
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="slamobs")
+@click.version_option(package_name="slamobs", prog_name="slamobs")
 def main() -> None:
     """Run geometric nonlinear SLAM observers over MCAP files and ROS1/ROS2 bags.
 
@@ -51,9 +51,9 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
-    from pipeline.config import load_config
-    from pipeline.observers import GainError
-    from pipeline.run import run_log
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.observers import GainError
+    from slamobs.pipeline.run import run_log
 
     config = load_config(config_path)
     if observer:
@@ -129,9 +129,9 @@ def _print_summary(summary) -> None:
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, force: bool) -> None:
     """Run several observers on LOG and write a side-by-side table and an overlay plot."""
-    from pipeline.compare import compare_log
-    from pipeline.config import load_config
-    from pipeline.observers import GainError
+    from slamobs.pipeline.compare import compare_log
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.observers import GainError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
@@ -152,7 +152,7 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, forc
 @main.command()
 def observers() -> None:
     """List the observers and their gains (defaults in brackets; set them under `gains.<observer>` in run.yaml)."""
-    from pipeline.observers import OBSERVERS
+    from slamobs.pipeline.observers import OBSERVERS
 
     for spec in OBSERVERS.values():
         click.echo(f"{spec.name}  (algorithm {spec.algorithm}) {spec.summary}")
@@ -164,11 +164,11 @@ def observers() -> None:
 
 def _add_commands() -> None:
     """Commands that live in their own modules (each imports only click at module level)."""
-    from cli.batch_cmd import batch
-    from cli.evaluate_cmd import evaluate
-    from cli.info_cmd import info
-    from cli.report_cmd import report
-    from cli.simulate_cmd import simulate
+    from slamobs.cli.batch_cmd import batch
+    from slamobs.cli.evaluate_cmd import evaluate
+    from slamobs.cli.info_cmd import info
+    from slamobs.cli.report_cmd import report
+    from slamobs.cli.simulate_cmd import simulate
 
     for command in (info, simulate, report, evaluate, batch):
         main.add_command(command)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import click
 
-from cli.errors import exit_input_error
+from slamobs.cli.errors import exit_input_error
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 
@@ -56,9 +56,9 @@ def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset:
            convergence_threshold: float | None, rpe_delta: float | None, drift_lengths: str | None,
            bias_window: float | None, as_json: bool, quiet: bool) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically."""
-    from pipeline.errors import InputError
-    from pipeline.evaluation.report import ReportOptions
-    from pipeline.evaluation.run_dir import load_run, options_for_run, report_run
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.evaluation.report import ReportOptions
+    from slamobs.pipeline.evaluation.run_dir import load_run, options_for_run, report_run
 
     given = {"t_max_diff_s": t_max_diff, "align": align, "convergence_threshold_m": convergence_threshold,
              "rpe_delta_m": rpe_delta, "drift_lengths_m": _lengths(drift_lengths), "bias_window_fraction": bias_window}

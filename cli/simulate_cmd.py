@@ -45,9 +45,9 @@ def simulate(
     force: bool,
 ) -> None:
     """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUTPUT with landmark and bias truth."""
-    from pipeline.simulate.logwriter import infer_container, log_size, write_log
-    from pipeline.simulate.scenarios import SCENARIOS
-    from pipeline.simulate.sensors import simulation
+    from slamobs.pipeline.simulate.logwriter import infer_container, log_size, write_log
+    from slamobs.pipeline.simulate.scenarios import SCENARIOS
+    from slamobs.pipeline.simulate.sensors import simulation
 
     if scenario not in SCENARIOS:
         raise click.BadParameter(

@@ -1,3 +1,1 @@
-"""slamobs pipeline: readers -> alignment -> observers -> writers -> evaluation."""
-
-__version__ = "0.1.0"
+"""The data path of slamobs: readers -> alignment -> observers -> writers -> evaluation."""

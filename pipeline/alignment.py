@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.directions import (
+from slamobs.pipeline.directions import (
     ACCEL_GATE,
     ACCEL_TOL,
     DEFAULT_GRAVITY,
@@ -28,10 +28,10 @@ from pipeline.directions import (
     build_directions,
     gravity_weights,
 )
-from pipeline.blocks import interp_sorted, row_blocks
-from pipeline.errors import InputError
-from pipeline.frames import TfBuffer
-from pipeline.streams import DetectionStream, LogStreams, Vec3Stream
+from slamobs.pipeline.blocks import interp_sorted, row_blocks
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.frames import TfBuffer
+from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
 
 #: Velocity gaps longer than this (seconds) are reported: the observer holds the last sample across them.
 GAP_WARN_S = 0.5

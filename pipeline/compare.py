@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.config import RunConfig
-from pipeline.errors import InputError
-from pipeline.observers import get_observer
-from pipeline.run import RunSummary, prepare_log, run_prepared
+from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.observers import get_observer
+from slamobs.pipeline.run import RunSummary, prepare_log, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
            "vel_bias_err", "convergence_s", "run_time_s", "error")
@@ -25,7 +25,7 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     """
     import pandas as pd
 
-    from pipeline.writers import atomic_directory, write_json
+    from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
         get_observer(name).resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
@@ -75,7 +75,7 @@ def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:
     fig = Figure(figsize=(8.0, 8.0), layout="constrained")
     FigureCanvasAgg(fig)
     ax = fig.subplots()
-    from pipeline.evaluation.plots import PATH_POINTS, thin
+    from slamobs.pipeline.evaluation.plots import PATH_POINTS, thin
 
     truth_xy = truth.position[thin(len(truth.position), PATH_POINTS)]
     ax.plot(truth_xy[:, 0], truth_xy[:, 1], "-", color="0.2", lw=2.0, label="truth")

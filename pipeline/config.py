@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
-from pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
-from pipeline.errors import InputError
+from slamobs.pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
+from slamobs.pipeline.errors import InputError
 
 DEFAULT_OBSERVER = "fast-adaptation"
 #: Significant mantissa bits kept in float outputs (pipeline.writers.round_mantissa; 52 = float64 exactly).
@@ -57,7 +57,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     """Validate a config mapping (as loaded from YAML) and build a :class:`RunConfig`."""
     import jsonschema
 
-    from schemas import config_schema
+    from slamobs.schemas import config_schema
 
     data = data or {}
     try:

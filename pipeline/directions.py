@@ -16,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.blocks import interp_sorted, row_blocks
-from pipeline.errors import GainError
+from slamobs.pipeline.blocks import interp_sorted, row_blocks
+from slamobs.pipeline.errors import GainError
 
 #: Default inertial references: gravity (m/s²) and a mid-latitude magnetic field (Tesla), map frame.
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)

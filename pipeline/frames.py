@@ -18,9 +18,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numba import njit
 
-from pipeline.errors import InputError
-from pipeline.lie import mat3_mul, quat_to_rot, quats_to_rots, rots_to_quats, so3_exp, so3_log
-from pipeline.streams import PoseStream, Transform, TransformSeries
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.lie import mat3_mul, quat_to_rot, quats_to_rots, rots_to_quats, so3_exp, so3_log
+from slamobs.pipeline.streams import PoseStream, Transform, TransformSeries
 
 if TYPE_CHECKING:
     from collections.abc import Iterable

@@ -18,13 +18,13 @@ from typing import Callable
 
 import numpy as np
 
-import pipeline
-from pipeline.alignment import AlignedStream, align
-from pipeline.compile_clock import CompileMark, compile_mark, compiled_since
-from pipeline.config import RunConfig
-from pipeline.errors import InputError
-from pipeline.observers import ObserverOptions, ObserverResult, get_observer
-from pipeline.streams import LogStreams
+import slamobs
+from slamobs.pipeline.alignment import AlignedStream, align
+from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
+from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.observers import ObserverOptions, ObserverResult, get_observer
+from slamobs.pipeline.streams import LogStreams
 
 
 @dataclass
@@ -121,7 +121,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
     IMU directions never read them; the accelerometer note is still made).
     """
-    from pipeline.readers import read_log
+    from slamobs.pipeline.readers import read_log
 
     log = Path(log)
     mark = compile_mark()
@@ -159,7 +159,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
     observer is done (the caller runs nothing else on it), so the report does not share memory with it.
     """
-    from pipeline.writers import TableWriter, atomic_directory, landmark_table, stretch_tables, write_json
+    from slamobs.pipeline.writers import TableWriter, atomic_directory, landmark_table, stretch_tables, write_json
 
     log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
     if aligned is None:
@@ -171,7 +171,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz))
     notes = list(streams.warnings) + list(aligned.notes)
     metadata = {
-        "software": {"slamobs": pipeline.__version__, "python": platform.python_version()},
+        "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
         "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
                   "time_source": config.align_time_source, "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame},
@@ -238,9 +238,9 @@ def _topics(streams: LogStreams) -> dict[str, str]:
 
 def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str]) -> dict | None:
     """Error report against the log's ground truth; a failure to associate becomes a note, not a crash."""
-    from pipeline.evaluation import ReportOptions, evaluate_tables, write_report
-    from pipeline.evaluation.report import bias_plot_rows
-    from pipeline.writers import read_frame
+    from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
+    from slamobs.pipeline.evaluation.report import bias_plot_rows
+    from slamobs.pipeline.writers import read_frame
 
     frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
     truth = streams.truth

@@ -23,10 +23,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.config import DEFAULT_FLOAT_BITS
-from pipeline.lie import rots_to_quats
-from pipeline.observers.base import ObserverResult
-from schemas import arrow_schema
+from slamobs.pipeline.config import DEFAULT_FLOAT_BITS
+from slamobs.pipeline.lie import rots_to_quats
+from slamobs.pipeline.observers.base import ObserverResult
+from slamobs.schemas import arrow_schema
 
 COMPRESSION = "zstd"
 METADATA_KEY = b"slamobs"

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.alignment import align
-from pipeline.errors import InputError
-from pipeline.frames import static_transform
-from pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
-from pipeline.streams import DetectionStream, LogStreams, Transform, Vec3Stream
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.frames import static_transform
+from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
+from slamobs.pipeline.streams import DetectionStream, LogStreams, Transform, Vec3Stream
 
 NS = 1_000_000_000
 

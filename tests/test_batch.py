@@ -12,13 +12,13 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from cli.batch_cmd import batch
-from pipeline.batch import BatchOptions, LogEntry, content_hash, discover, run_batch, run_id_for
-from pipeline.batch.dataset import SUMMARY_SCHEMA, partition_file, read_summary
-from pipeline.batch.executor import Task, failed_row, local_results
-from pipeline.batch.runner import _plan, _still_valid
-from pipeline.config import RunConfig, load_config
-from pipeline.errors import InputError
+from slamobs.cli.batch_cmd import batch
+from slamobs.pipeline.batch import BatchOptions, LogEntry, content_hash, discover, run_batch, run_id_for
+from slamobs.pipeline.batch.dataset import SUMMARY_SCHEMA, partition_file, read_summary
+from slamobs.pipeline.batch.executor import Task, failed_row, local_results
+from slamobs.pipeline.batch.runner import _plan, _still_valid
+from slamobs.pipeline.config import RunConfig, load_config
+from slamobs.pipeline.errors import InputError
 
 # pandas, the simulator and duckdb/polars are imported inside the tests: the crash test's worker processes
 # import this module and should start fast
@@ -35,7 +35,7 @@ def invoke(*args, **kwargs):
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     """Three short simulated logs (one per container, nested) and a corrupt one in another directory."""
-    from pipeline.simulate import simulate, write_log
+    from slamobs.pipeline.simulate import simulate, write_log
 
     base = tmp_path_factory.mktemp("batch_logs")
     good = {
@@ -174,7 +174,7 @@ def test_local_batch_runs_good_logs_and_reports_the_corrupt_one(done, logs):
 
 
 def test_summary_has_every_headline_metric():
-    from pipeline.run import headline_metrics
+    from slamobs.pipeline.run import headline_metrics
 
     assert set(headline_metrics(None)) <= set(SUMMARY_SCHEMA.names)
 
@@ -318,7 +318,7 @@ def test_bad_arguments_exit_2_with_one_line(logs, tmp_path, args, message):
 
 
 def test_dask_missing_is_one_line(logs, tmp_path, monkeypatch):
-    monkeypatch.setattr("pipeline.batch.runner.dask_available", lambda: False)
+    monkeypatch.setattr("slamobs.pipeline.batch.runner.dask_available", lambda: False)
     res = invoke(logs["circle"], "-o", tmp_path / "OUT", "--executor", "dask")
     assert res.exit_code == 2 and res.output.strip() == (
         "error: --executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")")
@@ -350,7 +350,7 @@ def test_dask_local_cluster(logs, tmp_path):
 
 
 def test_a_worker_with_another_version_fails_the_run_clearly(tmp_path):
-    from pipeline.batch.executor import run_task
+    from slamobs.pipeline.batch.executor import run_task
 
     task = replace(Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()), version="0.0.1")
     row = run_task(task)
@@ -360,13 +360,13 @@ def test_a_worker_with_another_version_fails_the_run_clearly(tmp_path):
 def test_worker_warnings_go_to_the_summary_not_stderr(monkeypatch, tmp_path, capfd):
     import warnings
 
-    from pipeline.batch.executor import run_task
+    from slamobs.pipeline.batch.executor import run_task
 
     def noisy_run_log(*_args, **_kwargs):
         warnings.warn("overflow encountered", RuntimeWarning, stacklevel=1)
         raise ValueError("diverged")
 
-    monkeypatch.setattr("pipeline.run.run_log", noisy_run_log)
+    monkeypatch.setattr("slamobs.pipeline.run.run_log", noisy_run_log)
     task = Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig())
     row = run_task(task)
     assert row["status"] == "failed" and row["error"] == f"{tmp_path / 'x.mcap'}: ValueError: diverged"

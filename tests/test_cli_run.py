@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from cli.main import main
-from pipeline.simulate import simulate, write_log
+from slamobs.cli.main import main
+from slamobs.pipeline.simulate import simulate, write_log
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "sample_logs"
@@ -185,7 +185,7 @@ def test_existing_output_is_kept_without_force(generated, tmp_path):
 
 
 def test_failure_during_report_leaves_nothing(generated, tmp_path, monkeypatch):
-    import pipeline.evaluation as ev
+    import slamobs.pipeline.evaluation as ev
 
     def boom(*a, **k):
         raise OSError("disk full")
@@ -219,12 +219,12 @@ def test_help_imports_no_heavy_modules():
     import subprocess
     import sys
 
-    code = ("import sys, cli.main; heavy = [m for m in ('numpy', 'numba', 'rosbags', 'pyarrow', 'pandas', "
+    code = ("import sys, slamobs.cli.main; heavy = [m for m in ('numpy', 'numba', 'rosbags', 'pyarrow', 'pandas', "
             "'matplotlib') if m in sys.modules]; print(','.join(heavy))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ""
-    from cli.simulate_cmd import CONTAINERS
-    from pipeline.simulate.logwriter import CONTAINERS as WRITABLE
+    from slamobs.cli.simulate_cmd import CONTAINERS
+    from slamobs.pipeline.simulate.logwriter import CONTAINERS as WRITABLE
 
     assert set(CONTAINERS) == set(WRITABLE)
 
@@ -241,7 +241,7 @@ def test_per_topic_clock_choice_is_applied_and_recorded(generated, tmp_path):
 
 
 def test_config_paths_are_relative_to_the_config_file(tmp_path):
-    from pipeline.config import load_config
+    from slamobs.pipeline.config import load_config
 
     (tmp_path / "cfg").mkdir()
     cfg = tmp_path / "cfg" / "run.yaml"
@@ -259,10 +259,10 @@ def test_every_compiled_kernel_is_cached_on_disk():
 
     from numba.core.registry import CPUDispatcher
 
-    import pipeline
+    import slamobs.pipeline as pipeline
 
     kernels = {}
-    for info in pkgutil.walk_packages(pipeline.__path__, "pipeline."):
+    for info in pkgutil.walk_packages(pipeline.__path__, "slamobs.pipeline."):
         module = importlib.import_module(info.name)
         kernels.update({f"{info.name}.{k}": v for k, v in vars(module).items()
                         if isinstance(v, CPUDispatcher) and v.__module__ == info.name})
@@ -274,7 +274,7 @@ def test_compile_clock_counts_compilations_not_cache_loads():
     """Runs report what they compiled (run.json ``compiled``, and a note on first runs)."""
     from numba import njit
 
-    from pipeline.compile_clock import compile_mark, compiled_since
+    from slamobs.pipeline.compile_clock import compile_mark, compiled_since
 
     @njit  # no cache: compiled on the first call in this process
     def twice(x):
@@ -300,8 +300,8 @@ def test_run_json_states_compilation(generated, tmp_path):
 
 def test_run_reports_progress_stage_by_stage(generated, tmp_path):
     """``run_log`` tells its caller each stage (the CLI shows it as a status line on a terminal)."""
-    from pipeline.config import RunConfig
-    from pipeline.run import run_log
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.run import run_log
 
     seen: list[str] = []
     run_log(generated["mcap"], tmp_path / "out", RunConfig(), progress=seen.append)

@@ -10,11 +10,11 @@ from click.testing import CliRunner
 from mcap.writer import Writer as McapWriter
 from rosbags.rosbag1 import Writer as Bag1Writer
 
-from cli.info_cmd import info
-from pipeline.readers import format_info, inspect_log, read_log
-from pipeline.readers.inspect import CLOCK_TOLERANCE_S, apply_clocks, recommend_clocks, stamp_stats
-from pipeline.simulate import make_typestore
-from pipeline.streams import DetectionStream, LogStreams
+from slamobs.cli.info_cmd import info
+from slamobs.pipeline.readers import format_info, inspect_log, read_log
+from slamobs.pipeline.readers.inspect import CLOCK_TOLERANCE_S, apply_clocks, recommend_clocks, stamp_stats
+from slamobs.pipeline.simulate import make_typestore
+from slamobs.pipeline.streams import DetectionStream, LogStreams
 
 NS = 1_000_000_000
 WALL = 1_700_000_000 * NS

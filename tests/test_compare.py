@@ -9,8 +9,8 @@ import pandas as pd
 import pytest
 from click.testing import CliRunner
 
-from cli.main import main
-from pipeline.observers import OBSERVERS
+from slamobs.cli.main import main
+from slamobs.pipeline.observers import OBSERVERS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
 

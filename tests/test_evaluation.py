@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from pipeline.errors import InputError
-from pipeline.evaluation import (
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.evaluation import (
     ReportOptions,
     ape_errors,
     ape_rotation_deg,
@@ -32,15 +32,15 @@ from pipeline.evaluation import (
     umeyama,
     write_report,
 )
-from pipeline.evaluation.align import fit_alignment, yaw_fit
-from pipeline.evaluation.drift import segment_drift, segment_lengths
-from pipeline.evaluation.evo_zip import load_result_zip, save_result_zip
-from pipeline.evaluation.report import REPORT_FILES, validate_report
-from pipeline.evaluation.rpe import pairs_by_angle, pairs_by_frames, pairs_by_path, rpe_pairs
-from pipeline.evaluation.sync import estimate_time_offset, interpolate_poses
-from pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, rpe, synchronize
-from pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
-from pipeline.readers.trajectory_files import (
+from slamobs.pipeline.evaluation.align import fit_alignment, yaw_fit
+from slamobs.pipeline.evaluation.drift import segment_drift, segment_lengths
+from slamobs.pipeline.evaluation.evo_zip import load_result_zip, save_result_zip
+from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
+from slamobs.pipeline.evaluation.rpe import pairs_by_angle, pairs_by_frames, pairs_by_path, rpe_pairs
+from slamobs.pipeline.evaluation.sync import estimate_time_offset, interpolate_poses
+from slamobs.pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, rpe, synchronize
+from slamobs.pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
+from slamobs.pipeline.readers.trajectory_files import (
     detect_format,
     format_stamp,
     load_euroc_csv,
@@ -52,7 +52,7 @@ from pipeline.readers.trajectory_files import (
     stamp_ns,
     write_tum,
 )
-from pipeline.streams import PoseStream
+from slamobs.pipeline.streams import PoseStream
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 EVO_DATA = SHARED / "realdata" / "evo"
@@ -587,7 +587,7 @@ def test_tum_text_is_python_repr():
     """TUM values are formatted in compiled code from Arrow's shortest digits: the text must be exactly what
     ``repr`` writes, for ordinary numbers, every exponent range, integers, zeros, subnormals, NaN/Inf and
     random bit patterns; stamps exact to the nanosecond, negative ones included."""
-    from pipeline.readers.trajectory_files import tum_text
+    from slamobs.pipeline.readers.trajectory_files import tum_text
 
     rng = np.random.default_rng(11)
     n = 20_000
@@ -936,7 +936,7 @@ def test_evo_reads_our_result_zip(oracle):
 def test_plots_draw_thinned_series_with_their_extremes():
     """A long series is drawn from the first, lowest and highest sample of each bucket (NaN ignored); a short
     or already thinned one whole; paths and scatters from evenly spaced rows plus the largest error."""
-    from pipeline.evaluation.plots import envelope, thin
+    from slamobs.pipeline.evaluation.plots import envelope, thin
 
     rng = np.random.default_rng(2)
     y = rng.normal(size=(200_000, 2))

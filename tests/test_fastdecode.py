@@ -7,13 +7,13 @@ import pytest
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import get_types_from_msg
 
-from pipeline.errors import InputError
-from pipeline.readers import fastdecode
-from pipeline.readers.container import RawBatch, open_log
-from pipeline.readers.decode import LAYOUTS, decode_rows
-from pipeline.readers.fastdecode import FRAME_ID, DecodeError, decode, layout_paths, make_plan, read_rows
-from pipeline.readers.roles import topics_of
-from pipeline.simulate import make_typestore, simulate, write_log
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import fastdecode
+from slamobs.pipeline.readers.container import RawBatch, open_log
+from slamobs.pipeline.readers.decode import LAYOUTS, decode_rows
+from slamobs.pipeline.readers.fastdecode import FRAME_ID, DecodeError, decode, layout_paths, make_plan, read_rows
+from slamobs.pipeline.readers.roles import topics_of
+from slamobs.pipeline.simulate import make_typestore, simulate, write_log
 from serialization import ENCODINGS, as_buffer, deserialize, serialize
 
 #: frame ids of many lengths, empty and odd ones included (CDR pads after the string to 4 or 8 bytes)
@@ -207,7 +207,7 @@ def test_undecodable_message_is_one_line_input_error(tmp_path):
 
 def _detection_message(ts, msgtype: str, rng: np.random.Generator, frame: str, n: int) -> object:
     """A detection array of ``n`` elements with random numbers (special floats included)."""
-    from pipeline.readers.decode import ITEM_LAYOUTS
+    from slamobs.pipeline.readers.decode import ITEM_LAYOUTS
 
     layout = ITEM_LAYOUTS[msgtype]
     fields = dict(ts.fielddefs[msgtype][1])
@@ -222,8 +222,8 @@ def _detection_message(ts, msgtype: str, rng: np.random.Generator, frame: str, n
 def test_detection_arrays_identical_to_rosbags(msgtype, encoding):
     """Every element's id and position, for frame ids of every length (CDR alignment of the sequence moves with
     it) and 0..5 elements per message."""
-    from pipeline.readers.decode import ITEM_LAYOUTS
-    from pipeline.readers.fastdecode import item_plan_for
+    from slamobs.pipeline.readers.decode import ITEM_LAYOUTS
+    from slamobs.pipeline.readers.fastdecode import item_plan_for
 
     ts = make_typestore(ros1=encoding == "ros1")
     rng = np.random.default_rng(abs(hash((msgtype, encoding))) % 2**32)
@@ -248,7 +248,7 @@ def test_detection_arrays_mixed_endianness_and_bad_counts():
     ts = make_typestore(ros1=False)
     rng = np.random.default_rng(8)
     msgtype = "fiducial_msgs/msg/FiducialTransformArray"
-    from pipeline.readers.fastdecode import item_plan_for
+    from slamobs.pipeline.readers.fastdecode import item_plan_for
 
     plan = item_plan_for(ts, msgtype, cdr=True)
     msgs = [_detection_message(ts, msgtype, rng, f, i % 4) for i, f in enumerate(FRAMES)]
@@ -265,7 +265,7 @@ def test_detection_arrays_mixed_endianness_and_bad_counts():
 
 def test_fast_detections_equal_rosbags_detections(logs, monkeypatch):
     """read_log's detection stream decoded from the bytes equals the one from rosbags' deserialiser."""
-    from pipeline.readers import read_log
+    from slamobs.pipeline.readers import read_log
 
     for path in logs:
         fast = read_log(path).detections

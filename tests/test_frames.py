@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.alignment import align
-from pipeline.errors import InputError
-from pipeline.frames import TfBuffer, static_transform
-from pipeline.lie import quat_to_rot, rot_to_quat, so3_exp, so3_log
-from pipeline.streams import DetectionStream, LogStreams, Transform, TransformSeries, Vec3Stream
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.frames import TfBuffer, static_transform
+from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp, so3_log
+from slamobs.pipeline.streams import DetectionStream, LogStreams, Transform, TransformSeries, Vec3Stream
 
 NS = 1_000_000_000
 T0 = 5 * NS

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline import lie
+from slamobs.pipeline import lie
 
 
 def expm(a, terms=40):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.lie import rotation_angle, se3_exp
-from pipeline.observers.fast_adaptation import run_kernel
+from slamobs.pipeline.lie import rotation_angle, se3_exp
+from slamobs.pipeline.observers.fast_adaptation import run_kernel
 
 OMEGA = np.array([0.0, 0.0, 0.3])
 VEL = np.array([2.5, 0.0, 0.0])
@@ -118,7 +118,7 @@ def test_noise_free_innovations_vanish_from_random_start(seed):
     rng = np.random.default_rng(seed)
     landmarks = rng.uniform(-10, 10, size=(6, 3)) * np.array([1, 1, 0.3])
     sc = paper_scenario(duration=20.0, landmarks=landmarks)
-    from pipeline.lie import so3_exp
+    from slamobs.pipeline.lie import so3_exp
 
     r0 = so3_exp(rng.normal(size=3) * 0.5)
     (_, out_r, _, out_b, _, innov, _), _ = run(sc, lm0=rng.normal(size=(6, 3)), r0=r0)

@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import main
-from pipeline.directions import DirectionSet, body_acceleration, gravity_up
-from pipeline.lie import quat_to_rot, rotation_angle, se3_exp, so3_exp
-from pipeline.observers import GainError, get_observer
-from pipeline.directions import direction_arrays, initial_attitude, load_directions
-from pipeline.observers.hashim import run_kernel
+from slamobs.cli.main import main
+from slamobs.pipeline.directions import DirectionSet, body_acceleration, gravity_up
+from slamobs.pipeline.lie import quat_to_rot, rotation_angle, se3_exp, so3_exp
+from slamobs.pipeline.observers import GainError, get_observer
+from slamobs.pipeline.directions import direction_arrays, initial_attitude, load_directions
+from slamobs.pipeline.observers.hashim import run_kernel
 
 OMEGA = np.array([0.0, 0.0, 0.3])
 VEL = np.array([2.5, 0.0, 0.0])
@@ -358,7 +358,7 @@ def test_cli_run_on_every_sample_log(tmp_path, log, observer):
     assert report["biases"]["error_norm"]["velocity"] < vel
     if att is not None:  # C estimates the absolute attitude (B only up to the unobservable R_c)
         assert run_meta["observer"]["directions"] == ["gravity", "magnetic"]
-        from pipeline.readers import read_log
+        from slamobs.pipeline.readers import read_log
 
         truth = read_log(SAMPLES / log).truth
         poses = pd.read_parquet(out / "poses.parquet")

@@ -9,14 +9,14 @@ import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner
 
-from cli.main import main
-from pipeline.directions import DirectionSet
-from pipeline.lie import rotation_angle, so3_exp
-from pipeline.observers import GainError, get_observer
-from pipeline.directions import direction_arrays
-from pipeline.observers.hybrid import candidates, switching_design, synergy_gap
-from pipeline.observers.wang_tayebi import best_jump, direction_potential, rotate_estimate, run_kernel
-from schemas import arrow_schema
+from slamobs.cli.main import main
+from slamobs.pipeline.directions import DirectionSet
+from slamobs.pipeline.lie import rotation_angle, so3_exp
+from slamobs.pipeline.observers import GainError, get_observer
+from slamobs.pipeline.directions import direction_arrays
+from slamobs.pipeline.observers.hybrid import candidates, switching_design, synergy_gap
+from slamobs.pipeline.observers.wang_tayebi import best_jump, direction_potential, rotate_estimate, run_kernel
+from slamobs.schemas import arrow_schema
 # E builds on D: the seed-000 scenario and D's Lyapunov terms come from D's tests (tests/ is on sys.path).
 from test_observer_wang_tayebi import B_OM, B_V, OMEGA, SAMPLES, SPEC_GAINS, VEL, e_max, lyapunov, paper_scenario
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pipeline.alignment import align
-from pipeline.observers import OBSERVERS, ObserverOptions
-from pipeline.simulate import expected_streams, simulate
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.observers import OBSERVERS, ObserverOptions
+from slamobs.pipeline.simulate import expected_streams, simulate
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import main
-from pipeline.lie import se3_exp, so3_exp
-from pipeline.observers.wang_tayebi import run_kernel
+from slamobs.cli.main import main
+from slamobs.pipeline.lie import se3_exp, so3_exp
+from slamobs.pipeline.observers.wang_tayebi import run_kernel
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 OMEGA = np.array([0.0, 0.0, 0.3])

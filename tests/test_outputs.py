@@ -9,10 +9,10 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from pipeline.lie import quat_to_rot, so3_exp
-from pipeline.observers import ObserverResult
-from pipeline.writers import atomic_directory, read_metadata, result_tables, write_result
-from schemas import TABLES, arrow_schema, table_spec
+from slamobs.pipeline.lie import quat_to_rot, so3_exp
+from slamobs.pipeline.observers import ObserverResult
+from slamobs.pipeline.writers import atomic_directory, read_metadata, result_tables, write_result
+from slamobs.schemas import TABLES, arrow_schema, table_spec
 
 
 def _result(k=50, m=12):
@@ -95,7 +95,7 @@ def test_schema_files_are_valid_json_with_units():
 
 def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
     """Row groups written one stretch at a time read back as the whole table; encodings suit the columns."""
-    from pipeline.writers import TableWriter, read_frame, stretch_tables
+    from slamobs.pipeline.writers import TableWriter, read_frame, stretch_tables
 
     res = _result(k=300, m=90)
     whole = stretch_tables(res)
@@ -121,7 +121,7 @@ def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
 
 
 def test_round_mantissa_bounds_the_relative_error_and_keeps_special_values():
-    from pipeline.writers import round_mantissa
+    from slamobs.pipeline.writers import round_mantissa
 
     rng = np.random.default_rng(3)
     x = rng.normal(size=100_000) * 10.0 ** rng.integers(-12, 12, size=100_000)
@@ -142,7 +142,7 @@ def test_round_mantissa_bounds_the_relative_error_and_keeps_special_values():
 def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
     """Default output keeps FLOAT_BITS significant bits (far below estimation accuracy, much smaller files);
     ``float_bits=52`` keeps every bit."""
-    from pipeline.writers import FLOAT_BITS, round_mantissa
+    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
 
     res = _result(k=20_000, m=100)
     exact, rounded = tmp_path / "exact", tmp_path / "rounded"

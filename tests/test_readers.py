@@ -14,10 +14,10 @@ from rosbags.rosbag1 import Writer as Bag1Writer
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 
-from cli.info_cmd import info
-from pipeline.errors import InputError
-from pipeline.readers import detect_container, format_info, inspect_log, open_log, read_log
-from pipeline.simulate import expected_streams, make_typestore, simulate, write_log
+from slamobs.cli.info_cmd import info
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import detect_container, format_info, inspect_log, open_log, read_log
+from slamobs.pipeline.simulate import expected_streams, make_typestore, simulate, write_log
 
 SAMPLE_DIR = Path(__file__).resolve().parents[1] / "sample_logs"
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"

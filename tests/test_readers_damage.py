@@ -22,17 +22,17 @@ from rosbags.rosbag1.reader import Header
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 
-from cli.info_cmd import info
-from pipeline.errors import InputError
-from pipeline.readers import inspect_log, read_log
-from pipeline.readers import container as container_module
-from pipeline.readers.container import damage_notes, open_log
-from pipeline.readers.decode import LAYOUTS
-from pipeline.readers import fastdecode
-from pipeline.readers.fastdecode import read_rows
-from pipeline.readers.roles import topics_of
-from pipeline.simulate import expected_streams, make_typestore, simulate
-from pipeline.simulate.logwriter import TOPIC_TYPES, iter_messages
+from slamobs.cli.info_cmd import info
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import inspect_log, read_log
+from slamobs.pipeline.readers import container as container_module
+from slamobs.pipeline.readers.container import damage_notes, open_log
+from slamobs.pipeline.readers.decode import LAYOUTS
+from slamobs.pipeline.readers import fastdecode
+from slamobs.pipeline.readers.fastdecode import read_rows
+from slamobs.pipeline.readers.roles import topics_of
+from slamobs.pipeline.simulate import expected_streams, make_typestore, simulate
+from slamobs.pipeline.simulate.logwriter import TOPIC_TYPES, iter_messages
 
 CHUNK = 48 * 1024  # small chunks: a 2 s log spans several
 FIDUCIALS = "fiducial_msgs/msg/FiducialTransformArray"

@@ -18,15 +18,15 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import get_types_from_msg
 
-from cli.info_cmd import info
-from pipeline.alignment import align
-from pipeline.errors import InputError
-from pipeline.frames import TfBuffer
-from pipeline.lie import quat_to_rot, quats_to_rots, rot_to_quat, so3_exp, so3_log
-from pipeline.readers import inspect_log, read_log
-from pipeline.readers.roles import TopicMeta, select_roles
-from pipeline.simulate import make_typestore
-from pipeline.simulate.logwriter import FIDUCIAL_TRANSFORM_ARRAY_MSG, FIDUCIAL_TRANSFORM_MSG
+from slamobs.cli.info_cmd import info
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.frames import TfBuffer
+from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rot_to_quat, so3_exp, so3_log
+from slamobs.pipeline.readers import inspect_log, read_log
+from slamobs.pipeline.readers.roles import TopicMeta, select_roles
+from slamobs.pipeline.simulate import make_typestore
+from slamobs.pipeline.simulate.logwriter import FIDUCIAL_TRANSFORM_ARRAY_MSG, FIDUCIAL_TRANSFORM_MSG
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 MS = 1_000_000

@@ -13,13 +13,13 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.evaluate_cmd import evaluate
-from cli.report_cmd import report
-from pipeline.config import RunConfig
-from pipeline.evaluation.evo_zip import load_result_zip
-from pipeline.evaluation.report import REPORT_FILES, validate_report
-from pipeline.evaluation.run_dir import replace_files
-from pipeline.run import run_log
+from slamobs.cli.evaluate_cmd import evaluate
+from slamobs.cli.report_cmd import report
+from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.evaluation.evo_zip import load_result_zip
+from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
+from slamobs.pipeline.evaluation.run_dir import replace_files
+from slamobs.pipeline.run import run_log
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
 EVO_PYTHON = os.environ.get("SLAMOBS_EVO_PYTHON")
@@ -118,7 +118,7 @@ def test_report_errors_are_one_line(run_dir, tmp_path):
 
 
 def test_failed_report_leaves_the_previous_one(run_dir, monkeypatch):
-    import pipeline.evaluation.run_dir as rd
+    import slamobs.pipeline.evaluation.run_dir as rd
 
     old = {name: (run_dir / name).read_bytes() for name in REPORT_FILES + ("run.json",)}
 

@@ -10,12 +10,12 @@ import pytest
 from click.testing import CliRunner
 from rosbags.highlevel import AnyReader
 
-from cli.simulate_cmd import simulate as simulate_cmd
-from pipeline.lie import quat_to_rot, quats_to_rots
-from pipeline.simulate import logwriter
-from pipeline.simulate.logwriter import TOPIC_TYPES, write_log
-from pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, get_scenario, integrate_body_twists
-from pipeline.simulate.sensors import (
+from slamobs.cli.simulate_cmd import simulate as simulate_cmd
+from slamobs.pipeline.lie import quat_to_rot, quats_to_rots
+from slamobs.pipeline.simulate import logwriter
+from slamobs.pipeline.simulate.logwriter import TOPIC_TYPES, write_log
+from slamobs.pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, get_scenario, integrate_body_twists
+from slamobs.pipeline.simulate.sensors import (
     TOPIC_DETECTIONS,
     TOPIC_IMU,
     TOPIC_MAG,
@@ -307,7 +307,7 @@ def test_sample_logs_match_the_simulator(name):
 
 
 def test_expected_streams_mirror_the_log():
-    from pipeline.simulate import expected_streams
+    from slamobs.pipeline.simulate import expected_streams
 
     sim = simulate("figure8", duration=2.0)
     streams = expected_streams(sim, "x.mcap")
@@ -325,7 +325,7 @@ def test_pieces_join_into_a_continuous_log():
     back, dead-reckoned odometry that goes on where the previous piece stopped, message indices that continue."""
     from dataclasses import replace
 
-    from pipeline.simulate.sensors import STREAMS, simulation
+    from slamobs.pipeline.simulate.sensors import STREAMS, simulation
 
     one = simulation("figure8", duration=5.0, seed=4)
     pieces = replace(one, piece_s=2.0)
@@ -350,7 +350,7 @@ def test_pieces_join_into_a_continuous_log():
 
 def test_short_logs_are_one_piece():
     """Logs up to PIECE_S are generated in one piece from ``default_rng(seed)``: sample logs stay as they are."""
-    from pipeline.simulate.sensors import PIECE_S, simulation
+    from slamobs.pipeline.simulate.sensors import PIECE_S, simulation
 
     sim = simulation("circle", duration=PIECE_S)
     assert len(list(sim.pieces())) == 1
@@ -361,7 +361,7 @@ def test_short_logs_are_one_piece():
 def test_serialised_messages_are_rosbags_bytes(ros1):
     """The fixed-layout messages are written from a template with their fields overwritten in bulk: every
     message must be byte-for-byte what rosbags serialises from the message object."""
-    from pipeline.simulate.logwriter import _Builder, make_typestore
+    from slamobs.pipeline.simulate.logwriter import _Builder, make_typestore
 
     sim = simulate("figure8", duration=2.0, seed=9)
     ts = make_typestore(ros1=ros1)
@@ -379,7 +379,7 @@ def test_long_log_is_written_piece_by_piece(tmp_path):
     """Writing a Simulation (pieces) gives the log of its joined SimLog, messages in record-time order."""
     from dataclasses import replace
 
-    from pipeline.simulate.sensors import simulation
+    from slamobs.pipeline.simulate.sensors import simulation
 
     sim = replace(simulation("circle", duration=3.0, seed=2, imu_rate=50.0), piece_s=1.0)
     streamed = write_log(sim, tmp_path / "s.mcap")

@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 from rosbags.typesys import get_types_from_msg
 
-from pipeline.errors import InputError
-from pipeline.readers import decode, read_log, tfdecode
-from pipeline.readers.container import open_log
-from pipeline.readers.decode import decode_tf, frame_name
-from pipeline.readers.fastdecode import DecodeError
-from pipeline.readers.roles import TF1, TF2, TF_TYPES, topics_of
-from pipeline.readers.tfdecode import decode_batch, tf_layout
-from pipeline.simulate import make_typestore
-from pipeline.simulate.logwriter import write_raw_log
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import decode, read_log, tfdecode
+from slamobs.pipeline.readers.container import open_log
+from slamobs.pipeline.readers.decode import decode_tf, frame_name
+from slamobs.pipeline.readers.fastdecode import DecodeError
+from slamobs.pipeline.readers.roles import TF1, TF2, TF_TYPES, topics_of
+from slamobs.pipeline.readers.tfdecode import decode_batch, tf_layout
+from slamobs.pipeline.simulate import make_typestore
+from slamobs.pipeline.simulate.logwriter import write_raw_log
 from serialization import ENCODINGS, as_buffer, deserialize, serialize
 
 REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"

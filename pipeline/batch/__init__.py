@@ -4,8 +4,8 @@
 Dask), ``dataset`` owns the output layout (partitioned tables, per-run directories, ``summary.parquet``).
 """
 
-from pipeline.batch.discover import LogEntry, content_hash, discover, read_manifest, run_id_for
-from pipeline.batch.runner import BatchOptions, BatchResult, DaskMissing, Progress, check_config, run_batch
+from slamobs.pipeline.batch.discover import LogEntry, content_hash, discover, read_manifest, run_id_for
+from slamobs.pipeline.batch.runner import BatchOptions, BatchResult, DaskMissing, Progress, check_config, run_batch
 
 __all__ = [
     "BatchOptions",

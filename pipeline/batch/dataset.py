@@ -24,9 +24,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.errors import InputError
-from pipeline.writers import parquet_options
-from schemas import OPTIONAL_TABLES, TABLES
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.writers import parquet_options
+from slamobs.schemas import OPTIONAL_TABLES, TABLES
 
 RUNS = "runs"
 SUMMARY = "summary.parquet"

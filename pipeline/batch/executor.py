@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 
-from pipeline.config import RunConfig
+from slamobs.pipeline.config import RunConfig
 
 EXECUTORS = ("local", "dask")
 _DIED = "worker process died (crash or out of memory) while running this log"
@@ -47,14 +47,14 @@ class Task:
     @classmethod
     def make(cls, run_id: str, log: str, out: str, config: RunConfig, config_file: str | None = None,
              content_hash: str | None = None, config_hash: str = "") -> Task:
-        import pipeline
+        import slamobs
 
-        return cls(run_id, log, out, config.to_dict(), config_file, content_hash, config_hash, pipeline.__version__)
+        return cls(run_id, log, out, config.to_dict(), config_file, content_hash, config_hash, slamobs.__version__)
 
 
 def one_line(err: BaseException, where: str | None = None) -> str:
     """An exception as one summary line naming the file (InputError texts already do)."""
-    from pipeline.errors import InputError
+    from slamobs.pipeline.errors import InputError
 
     text = " ".join(str(err).split())
     if not isinstance(err, InputError):
@@ -64,11 +64,11 @@ def one_line(err: BaseException, where: str | None = None) -> str:
 
 
 def base_row(task: Task) -> dict:
-    import pipeline
+    import slamobs
 
     return {"run_id": task.run_id, "log": task.log, "config_file": task.config_file,
             "content_hash": task.content_hash, "observer": task.config.get("observer"), "config_hash": task.config_hash,
-            "slamobs_version": pipeline.__version__, "finished_at": datetime.now(UTC),
+            "slamobs_version": slamobs.__version__, "finished_at": datetime.now(UTC),
             "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
 
@@ -77,17 +77,17 @@ def failed_row(task: Task, error: str) -> dict:
 
 
 def _check_version(task: Task) -> None:
-    import pipeline
+    import slamobs
 
-    if task.version and task.version != pipeline.__version__:
-        raise RuntimeError(f"worker runs slamobs {pipeline.__version__}, the batch {task.version}: "
+    if task.version and task.version != slamobs.__version__:
+        raise RuntimeError(f"worker runs slamobs {slamobs.__version__}, the batch {task.version}: "
                            "install the same version on every worker")
 
 
 def run_task(task: Task) -> dict:
     """Run one log (worker side): run directory via ``run_log``, then its partitions; returns the row."""
-    from pipeline.batch.dataset import remove_run, run_dir, write_partitions
-    from pipeline.run import run_log
+    from slamobs.pipeline.batch.dataset import remove_run, run_dir, write_partitions
+    from slamobs.pipeline.run import run_log
 
     t0 = time.perf_counter()
     out = Path(task.out)
@@ -165,7 +165,7 @@ def dask_results(tasks: Sequence[Task], jobs: int, scheduler: str | None = None)
 
     from distributed import Client, LocalCluster, as_completed
 
-    from pipeline.errors import InputError
+    from slamobs.pipeline.errors import InputError
 
     cluster = None
     if scheduler:

@@ -16,11 +16,11 @@ from contextlib import closing
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from pipeline.batch.dataset import batch_lock, cleanup_stale, read_summary, remove_run, run_complete, write_summary
-from pipeline.batch.discover import LogEntry, content_hash, run_id_for
-from pipeline.batch.executor import EXECUTORS, Task, dask_available, dask_results, failed_row, local_results, one_line
-from pipeline.config import RunConfig, load_config
-from pipeline.errors import InputError
+from slamobs.pipeline.batch.dataset import batch_lock, cleanup_stale, read_summary, remove_run, run_complete, write_summary
+from slamobs.pipeline.batch.discover import LogEntry, content_hash, run_id_for
+from slamobs.pipeline.batch.executor import EXECUTORS, Task, dask_available, dask_results, failed_row, local_results, one_line
+from slamobs.pipeline.config import RunConfig, load_config
+from slamobs.pipeline.errors import InputError
 
 DASK_MISSING = "--executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")"
 
@@ -90,7 +90,7 @@ def config_hash(config: RunConfig) -> str:
 
 def check_config(config: RunConfig) -> None:
     """Fail early on an unknown observer or bad gains (GainError), before any log is touched."""
-    from pipeline.observers import get_observer
+    from slamobs.pipeline.observers import get_observer
 
     spec = get_observer(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))

@@ -5,7 +5,7 @@
 adds what evo does not measure (map, biases, convergence, drift) and writes the run's report files.
 """
 
-from pipeline.evaluation.metrics import (
+from slamobs.pipeline.evaluation.metrics import (
     LandmarkErrors,
     ape_errors,
     ape_rotation_deg,
@@ -17,7 +17,7 @@ from pipeline.evaluation.metrics import (
     statistics,
     umeyama,
 )
-from pipeline.evaluation.report import (
+from slamobs.pipeline.evaluation.report import (
     ReportOptions,
     build_report,
     evaluate_report,

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.evaluation.metrics import RotationRows, relative_angles
-from pipeline.evaluation.rpe import accumulated_distances
+from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles
+from slamobs.pipeline.evaluation.rpe import accumulated_distances
 
 KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 SHORT_PATH_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.evaluation.trajectory_error import ErrorResult
+from slamobs.pipeline.evaluation.trajectory_error import ErrorResult
 
 
 def _write_zip(target, result: ErrorResult) -> None:

@@ -13,10 +13,10 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from pipeline.blocks import blockwise
-from pipeline.evaluation.align import apply_alignment, umeyama
-from pipeline.evaluation.sync import NS_PER_S, associate
-from pipeline.lie import quats_to_rots
+from slamobs.pipeline.blocks import blockwise
+from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
+from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
+from slamobs.pipeline.lie import quats_to_rots
 
 __all__ = [
     "NS_PER_S",

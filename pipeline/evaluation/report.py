@@ -18,13 +18,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline import __version__
-from pipeline.blocks import row_blocks
-from pipeline.evaluation import metrics, slam_metrics
-from pipeline.evaluation.align import DESCRIPTIONS, KINDS, Alignment, fit_alignment
-from pipeline.evaluation.drift import segment_drift
-from pipeline.evaluation.sync import NS_PER_S, TimeOffset, estimate_time_offset
-from pipeline.evaluation.trajectory_error import (
+from slamobs import __version__
+from slamobs.pipeline.blocks import row_blocks
+from slamobs.pipeline.evaluation import metrics, slam_metrics
+from slamobs.pipeline.evaluation.align import DESCRIPTIONS, KINDS, Alignment, fit_alignment
+from slamobs.pipeline.evaluation.drift import segment_drift
+from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, estimate_time_offset
+from slamobs.pipeline.evaluation.trajectory_error import (
     AlignOptions,
     ErrorResult,
     Paired,
@@ -34,8 +34,8 @@ from pipeline.evaluation.trajectory_error import (
     rpe,
     synchronize,
 )
-from pipeline.lie import rot_to_quat
-from pipeline.streams import PoseStream
+from slamobs.pipeline.lie import rot_to_quat
+from slamobs.pipeline.streams import PoseStream
 
 SCHEMA_VERSION = 1
 CONVERGENCE_THRESHOLD_M = 0.1
@@ -346,7 +346,7 @@ def _vec(v: Any) -> list[float]:
 def bias_plot_rows(biases: pd.DataFrame) -> pd.DataFrame:
     """The rows of the bias table the bias plot draws, in time order (:func:`plots.envelope`; a table that is
     already these rows comes back whole): all a caller must keep of a long table to draw its report."""
-    from pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation import plots
 
     rows = _time_order(biases["t_ns"].to_numpy(np.int64))
     cols = [biases[c].to_numpy(np.float64)[rows] for c in GYRO_COLUMNS + VEL_COLUMNS]
@@ -535,7 +535,7 @@ def evaluate_tables(
 
 def report_schema() -> dict:
     """JSON Schema of report.json (``schemas/report.json``)."""
-    from schemas import HERE
+    from slamobs.schemas import HERE
 
     return json.loads((HERE / "report.json").read_text(encoding="utf-8"))
 
@@ -730,8 +730,8 @@ def write_report(
     ``poses``. The writes are plain: callers that
     replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
     """
-    from pipeline.evaluation.evo_zip import save_result_zip
-    from pipeline.readers.trajectory_files import write_tum
+    from slamobs.pipeline.evaluation.evo_zip import save_result_zip
+    from slamobs.pipeline.readers.trajectory_files import write_tum
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -758,7 +758,7 @@ def write_report(
 def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
                  landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None) -> list[Path]:
     """The report's PNG figures, drawn from the same evaluation as its numbers."""
-    from pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation import plots
 
     written = []
     al = ev.alignment

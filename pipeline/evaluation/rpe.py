@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.evaluation.metrics import matrix_quats, relative_angles
+from slamobs.pipeline.evaluation.metrics import matrix_quats, relative_angles
 
 DELTA_UNITS = {"f": "frames", "m": "m", "d": "deg", "r": "rad"}
 

@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.errors import InputError
-from pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
-from pipeline.streams import PoseStream
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
+from slamobs.pipeline.streams import PoseStream
 
 
 @dataclass
@@ -68,7 +68,7 @@ def load_run(run_dir: str | Path) -> RunTables:
 
 
 def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
-    from pipeline.readers import ROLES, read_log
+    from slamobs.pipeline.readers import ROLES, read_log
 
     streams = read_log(log, {r: None for r in ROLES if r != "sim_truth"})
     return streams.landmark_truth, streams.bias_truth
@@ -76,7 +76,7 @@ def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
 
 def _topic_truth(log: Path, topic: str, time_source: str, clocks: dict[str, str]) -> PoseStream:
     """A truth topic or TF edge of the log, through the readers (same cleaning as ``slamobs run``)."""
-    from pipeline.readers import ROLES, read_log
+    from slamobs.pipeline.readers import ROLES, read_log
 
     keep = ("truth", "static_tf", "tf") if "->" in topic else ("truth",)
     streams = read_log(log, {**{r: None for r in ROLES if r not in keep}, "truth": topic}, clocks=clocks or None)
@@ -91,7 +91,7 @@ def _topic_truth(log: Path, topic: str, time_source: str, clocks: dict[str, str]
 def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     """The truth for a run: ``source`` None -> the run's truth topic; a TF edge ``parent->child``; an existing
     file (TUM, EuRoC CSV, KITTI with stamps); else a topic of the run's input log."""
-    from pipeline.readers.trajectory_files import read_trajectory
+    from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
     inp = meta.get("input") or {}
     log = Path(inp["path"]) if inp.get("path") else None

@@ -13,12 +13,12 @@ from functools import cached_property
 
 import numpy as np
 
-from pipeline.evaluation import metrics
-from pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
-from pipeline.evaluation.metrics import RotationRows
-from pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
-from pipeline.evaluation.sync import NS_PER_S, associate, interpolate_poses
-from pipeline.streams import PoseStream
+from slamobs.pipeline.evaluation import metrics
+from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
+from slamobs.pipeline.evaluation.metrics import RotationRows
+from slamobs.pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
+from slamobs.pipeline.evaluation.sync import NS_PER_S, associate, interpolate_poses
+from slamobs.pipeline.streams import PoseStream
 
 SYNC_METHODS = ("nearest", "interpolation")
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverResult, ObserverSpec
-from pipeline.observers.fast_adaptation import SPEC as FAST_ADAPTATION
-from pipeline.observers.hashim import SPEC as HASHIM, SPEC_IMU as HASHIM_IMU
-from pipeline.observers.wang_tayebi import SPEC as WANG_TAYEBI
-from pipeline.observers.hybrid import SPEC as HYBRID
+from slamobs.pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverResult, ObserverSpec
+from slamobs.pipeline.observers.fast_adaptation import SPEC as FAST_ADAPTATION
+from slamobs.pipeline.observers.hashim import SPEC as HASHIM, SPEC_IMU as HASHIM_IMU
+from slamobs.pipeline.observers.wang_tayebi import SPEC as WANG_TAYEBI
+from slamobs.pipeline.observers.hybrid import SPEC as HYBRID
 
 OBSERVERS: dict[str, ObserverSpec] = {s.name: s for s in (FAST_ADAPTATION, HASHIM, HASHIM_IMU, WANG_TAYEBI, HYBRID)}
 

@@ -16,8 +16,8 @@ from typing import Callable
 
 import numpy as np
 
-from pipeline.alignment import AlignedStream
-from pipeline.errors import GainError
+from slamobs.pipeline.alignment import AlignedStream
+from slamobs.pipeline.errors import GainError
 
 
 @dataclass(frozen=True)

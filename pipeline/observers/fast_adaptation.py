@@ -20,9 +20,9 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
-from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
-from pipeline.lie import mat3_vec, project_so3, se3_exp_into
+from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
+from slamobs.pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
+from slamobs.pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
 STEP_RATIO = 0.5

@@ -36,9 +36,9 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.directions import direction_arrays, first_attitude, load_directions
-from pipeline.lie import project_so3, se3_exp_into
-from pipeline.observers.base import (
+from slamobs.pipeline.directions import direction_arrays, first_attitude, load_directions
+from slamobs.pipeline.lie import project_so3, se3_exp_into
+from slamobs.pipeline.observers.base import (
     GainError,
     GainSpec,
     KernelState,
@@ -48,7 +48,7 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
+from slamobs.pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
 STEP_RATIO = 0.5

@@ -21,10 +21,10 @@ import math
 
 import numpy as np
 
-from pipeline.directions import direction_arrays, first_attitude
-from pipeline.lie import so3_exp
-from pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverSpec
-from pipeline.observers.wang_tayebi import FLOW_GAINS, Flow
+from slamobs.pipeline.directions import direction_arrays, first_attitude
+from slamobs.pipeline.lie import so3_exp
+from slamobs.pipeline.observers.base import GainError, GainSpec, ObserverOptions, ObserverSpec
+from slamobs.pipeline.observers.wang_tayebi import FLOW_GAINS, Flow
 
 NAME = "hybrid"
 #: Rotation angle of the candidates (Wang–Tayebi's θ_q).

@@ -32,8 +32,8 @@ import math
 import numpy as np
 from numba import njit
 
-from pipeline.lie import project_so3, se3_exp_into
-from pipeline.observers.base import (
+from slamobs.pipeline.lie import project_so3, se3_exp_into
+from slamobs.pipeline.observers.base import (
     GainSpec,
     KernelState,
     ObserverOptions,
@@ -43,9 +43,9 @@ from pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from pipeline.observers.shared_steps import load_frame, predict_points, record_row
-from pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
-from pipeline.directions import load_directions
+from slamobs.pipeline.observers.shared_steps import load_frame, predict_points, record_row
+from slamobs.pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
+from slamobs.pipeline.directions import load_directions
 
 #: Bias loop: keep ``h ω_n`` at or below ``STEP_RATIO / BIAS_RATE_FACTOR = 0.1``.
 BIAS_RATE_FACTOR = 5.0

@@ -11,8 +11,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.errors import InputError
-from pipeline.streams import LogStreams, PoseStream
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.streams import LogStreams, PoseStream
 
 from .container import Container, damage_notes, detect_container, open_log
 from .decode import (
@@ -189,7 +189,7 @@ def _truth_from_tf(
     tf_of: Callable[[str], TfRows],
 ) -> PoseStream:
     """Poses of a TF edge ``parent->child`` (a chain through ``/tf_static`` and ``/tf`` is fine)."""
-    from pipeline.frames import TfBuffer
+    from slamobs.pipeline.frames import TfBuffer
 
     series = streams.tf if streams.tf and streams.tf[0].topic == topic else transform_series(tf_of(topic))[0]
     truth = TfBuffer(streams.static_tf, series, path=streams.path).pose_stream(*edge, topic)

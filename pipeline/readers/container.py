@@ -53,7 +53,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
-from pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Sequence

@@ -24,8 +24,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
 from .container import iter_raw, require_definitions
 from .roles import (

@@ -713,7 +713,7 @@ def read_columns(
         InputError: Unreadable data, or a message that does not match its definition.
 
     """
-    from pipeline.errors import InputError
+    from slamobs.pipeline.errors import InputError
 
     from .container import iter_batches
 

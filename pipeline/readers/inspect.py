@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
+from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import frame_name, has_header, mean_rate, plural

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError
 
 if TYPE_CHECKING:
     from collections.abc import Collection

@@ -12,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

@@ -274,7 +274,7 @@ def read_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collec
         InputError: Missing definition, unreadable data, or a message that does not match its definition.
 
     """
-    from pipeline.errors import InputError
+    from slamobs.pipeline.errors import InputError
 
     from .container import iter_batches, require_definitions
     from .decode import TfRows, _Frames

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.errors import InputError
-from pipeline.streams import PoseStream
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.streams import PoseStream
 
 NS_PER_S = 1_000_000_000
 FORMATS = ("tum", "euroc", "kitti", "parquet", "topic")
@@ -200,7 +200,7 @@ def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray
         m = np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)
     except ValueError:
         raise InputError(path, "not a number in the first column") from None
-    from pipeline.lie import rots_to_quats
+    from slamobs.pipeline.lie import rots_to_quats
 
     rot = np.ascontiguousarray(m[:, :, :3])
     quat = rots_to_quats(rot)

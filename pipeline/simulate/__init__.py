@@ -7,9 +7,9 @@ Typical use::
     write_log(simulation("figure8-wide", duration=4 * 3600), "out/long.mcap")  # generated piece by piece
 """
 
-from pipeline.simulate.logwriter import infer_container, make_typestore, write_log
-from pipeline.simulate.scenarios import SCENARIOS, Scenario, Trajectory, get_scenario
-from pipeline.simulate.sensors import NoiseModel, SimLog, Simulation, expected_streams, simulate, simulation
+from slamobs.pipeline.simulate.logwriter import infer_container, make_typestore, write_log
+from slamobs.pipeline.simulate.scenarios import SCENARIOS, Scenario, Trajectory, get_scenario
+from slamobs.pipeline.simulate.sensors import NoiseModel, SimLog, Simulation, expected_streams, simulate, simulation
 
 __all__ = [
     "SCENARIOS",

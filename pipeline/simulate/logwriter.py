@@ -23,8 +23,8 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from pipeline.readers.fastdecode import leaf_offsets, make_plan
-from pipeline.simulate.sensors import (
+from slamobs.pipeline.readers.fastdecode import leaf_offsets, make_plan
+from slamobs.pipeline.simulate.sensors import (
     FRAME_BODY,
     FRAME_CAMERA,
     FRAME_IMU,

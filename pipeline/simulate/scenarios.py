@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
-from pipeline.lie import mat3_mul, mat3_vec, se3_exp
+from slamobs.pipeline.lie import mat3_mul, mat3_vec, se3_exp
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # inertial-frame gravity, m/s^2
 MAGNETIC_FIELD = np.array([0.2, 0.0, -0.45]) * 1e-4  # inertial-frame Earth field, Tesla

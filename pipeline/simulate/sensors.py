@@ -14,8 +14,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pipeline.lie import rots_to_quats, so3_exps
-from pipeline.simulate.scenarios import (
+from slamobs.pipeline.lie import rots_to_quats, so3_exps
+from slamobs.pipeline.simulate.scenarios import (
     GRAVITY,
     MAGNETIC_FIELD,
     Camera,
@@ -23,7 +23,7 @@ from pipeline.simulate.scenarios import (
     get_scenario,
     integrate_body_twists,
 )
-from pipeline.streams import DetectionStream, LogStreams, PoseStream, Transform, Vec3Stream
+from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Transform, Vec3Stream
 
 EPOCH_NS = 1_700_000_000_000_000_000  # first stamp of every simulated log
 
