@@ -157,7 +157,9 @@ def observers() -> None:
     for spec in OBSERVERS.values():
         click.echo(f"{spec.name}  (algorithm {spec.algorithm}) {spec.summary}")
         click.echo(f"    paper: {spec.paper}")
-        width = max(len(g.name) for g in spec.gains)
+        if not spec.gains:
+            click.echo("    no gains (noise levels under `noise:`, the smoother's settings under `batch:` in run.yaml)")
+        width = max((len(g.name) for g in spec.gains), default=0)
         for g in spec.gains:
             click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")
 

@@ -28,7 +28,9 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
-        get_observer(name).resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
+        spec = get_observer(name)
+        spec.resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
+        spec.directions_needed(replace(config, observer=name))  # and bad estimator settings
     prepared = prepare_log(log, config)
     rows, summaries = [], {}
     with atomic_directory(out_dir, force=force) as tmp:

@@ -36,6 +36,10 @@ class RunConfig:
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
     gravity: tuple[float, float, float] = DEFAULT_GRAVITY
     magnetic_field: tuple[float, float, float] = DEFAULT_MAGNETIC_FIELD
+    #: reference estimators (batch, riekf): noise levels (pipeline.noise) and the smoother's settings
+    #: (pipeline.smoother.settings), as given in run.yaml; unset keys take their documented defaults
+    noise: dict = field(default_factory=dict)
+    batch: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -91,6 +95,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         plots=bool(ev.get("plots", True)),
         gravity=tuple(dirs.get("gravity", DEFAULT_GRAVITY)),
         magnetic_field=tuple(dirs.get("magnetic_field", DEFAULT_MAGNETIC_FIELD)),
+        noise=dict(data.get("noise", {})),
+        batch=dict(data.get("batch", {})),
     )
 
 

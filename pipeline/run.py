@@ -83,10 +83,10 @@ def _check_finite(res: ObserverResult, log: Path, observer: str, t0_ns: int) -> 
                               "lower its gains or check the input rates")
 
 
-def _check_directions(spec, aligned: AlignedStream, log: Path) -> None:
+def _check_directions(spec, aligned: AlignedStream, log: Path, needed: int) -> None:
     have = aligned.directions.names if aligned.directions is not None else ()
-    if len(have) < spec.min_directions:
-        raise InputError(log, f"observer '{spec.name}' needs {spec.min_directions} inertial directions "
+    if len(have) < needed:
+        raise InputError(log, f"observer '{spec.name}' needs {needed} inertial directions "
                               f"(accelerometer in sensor_msgs/Imu, sensor_msgs/MagneticField); the log gives "
                               f"{len(have)}{': ' + ', '.join(have) if have else ''}")
 
@@ -148,7 +148,7 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     ``progress`` receives a short line at each stage (and each observer stretch)."""
     spec = get_observer(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))  # fail on bad gains before reading a large log
-    prepared = prepare_log(log, config, directions=spec.min_directions > 0, progress=progress)
+    prepared = prepare_log(log, config, directions=spec.directions_needed(config) > 0, progress=progress)
     return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress)
 
 
@@ -167,8 +167,9 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     timings = dict(prepared.timings)
     spec = get_observer(config.observer)
     gains = spec.resolve_gains(config.gains.get(spec.name))
-    _check_directions(spec, aligned, log)
-    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz))
+    _check_directions(spec, aligned, log, spec.directions_needed(config))
+    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz),
+                              context={"config": config, "log": log, "topics": dict(prepared.topics)})
     notes = list(streams.warnings) + list(aligned.notes)
     metadata = {
         "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
@@ -204,6 +205,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                                                     np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
                                                     aligned.det_ids)})
             metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
+            metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
+            stage_timings = part.stats.get("timings_s", {})
             del part
             if release:
                 prepared.aligned = aligned = None
@@ -212,6 +215,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             sink.abort()
             raise
         timings["observer_s"] = observer_s
+        timings.update(stage_timings)  # parts of observer_s (batch: seed_s, smoother_s)
         timings["write_s"] = write_s + time.perf_counter() - t
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()

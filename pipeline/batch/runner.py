@@ -94,6 +94,7 @@ def check_config(config: RunConfig) -> None:
 
     spec = get_observer(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))
+    spec.directions_needed(config)  # checks the reference estimators' settings
 
 
 def _plan(entries: Sequence[LogEntry], options: BatchOptions) -> list[Task | dict]:

@@ -34,6 +34,9 @@ class ObserverOptions:
     max_meas_age: float = 0.5  # seconds a landmark frame stays valid before landmarks count as unseen
     min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (spec §8)
     out_every: int = 1  # record pose/bias every n-th velocity sample
+    #: What the reference estimators (batch, riekf) read besides the stream: ``config`` (the RunConfig),
+    #: ``log`` (its path) and ``topics`` (role -> topic). The observers ignore it.
+    context: dict = field(default_factory=dict, compare=False)
 
 
 @dataclass
@@ -180,6 +183,16 @@ class ObserverSpec:
     #: Conditions that couple several gains (raises GainError), checked with the per-gain rules before any
     #: log is read.
     check_gains: Callable[[dict[str, float]], None] | None = None
+    #: Estimators configured beyond their gains (the reference estimators): checks the run's configuration
+    #: before any log is read (raises GainError, or InputError for a missing optional dependency) and returns
+    #: the number of inertial directions the run needs (e.g. batch seeded by an observer that uses them).
+    check_config: Callable[[object], int] | None = None
+
+    def directions_needed(self, config) -> int:
+        """Inertial directions a run of this estimator with ``config`` needs (checking the config first)."""
+        if self.check_config is not None:
+            return max(self.min_directions, self.check_config(config))
+        return self.min_directions
 
     def run(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions) -> ObserverResult:
         """The whole run in one stretch."""

@@ -1,0 +1,538 @@
+"""``riekf``: right-invariant EKF SLAM with velocity biases (Barrau & Bonnabel, "An EKF-SLAM algorithm with
+consistency properties", 2015), the Kalman-filter baseline the observers are compared with.
+
+State ``X = (R, P, p_1..p_n) ∈ SE_{1+n}(3)`` and biases ``b = (b_Ω, b_V)``. Error ``η = X̂ X⁻¹ = exp(ξ)`` (the
+right-invariant error: in the notation of spec §1.5 it is Hashim's left error ``R̃ = R̂Rᵀ, P̃ = P̂ − R̃P,
+p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is that of ``(ξ_R, ξ_P, b̃_Ω, b̃_V, ξ_1..ξ_n)``.
+
+* Propagation (velocity samples, zero-order hold): ``X̂ ← X̂ exp(Δt [Ω_m − b̂_Ω; V_m − b̂_V])``. The error obeys
+  ``ξ̇ = Ad_X̂ (b̃ + n)`` (``Ad_X̂`` maps a body twist ``(δω, δv)`` to ``(R̂δω, R̂δv + [P̂]×R̂δω, [p̂_i]×R̂δω)``): no
+  state-dependent term in the group block, which is what makes the filter consistent. The transition over
+  any interval is ``I + Σ F_k`` exactly (each ``F_k`` maps biases to the group, so their products vanish), and
+  the process noise only enters the group rows: both are accumulated as a few 3×3 running sums per velocity
+  sample and applied to the covariance once per detection frame (``O(6 D²)`` for ``D`` state dimensions).
+* Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
+  ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
+  correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
+* New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
+  (independent of the attitude error in these coordinates), so its rows copy ``P̂``'s and its own block is
+  ``Σ_PP + N``. Landmarks out of view stay in the state with their estimate and covariance; as in every
+  EKF, an update moves them only through their correlation with what was measured.
+
+Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
+covariances, else defaults). The start pose defines the map frame (the problem's gauge, spec §1.6): its
+covariance is zero; the biases start at zero with the prior standard deviations ``noise.gyro_bias`` and
+``noise.velocity_bias`` (an unknown start, not a guess), and drift as slow random walks.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from slamobs.pipeline.lie import project_so3, se3_exp_into
+from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.shared_steps import record_row
+
+#: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
+GATE_CHI2 = 21.1
+#: Longest propagation step of the covariance sums (s); longer gaps are cut (the mean step is exact anyway).
+MAX_STEP_S = 0.01
+#: Re-orthonormalise R̂ every this many propagation steps (spec §7.3).
+REORTHO_EVERY = 1000
+#: Fixed part of the error state: ξ_R, ξ_P, b̃_Ω, b̃_V; landmark slots follow in order of first sighting.
+N_FIXED = 12
+#: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
+_SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
+_T, _MEAS_T, _ACC_DT = 0, 1, 2
+_IV, _JF, _NSEEN, _STARTED, _STEPS, _GATED, _UPDATES, _SKIPPED = 0, 1, 2, 3, 4, 5, 6, 7
+
+
+@njit(cache=True)
+def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
+    """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
+    ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
+    ``Σ ([P̂]×M[P̂]×ᵀ + R̂ Q_V R̂ᵀ) h`` with ``M = R̂ Q_Ω R̂ᵀ`` (the process noise)."""
+    m = np.empty((3, 3))
+    mv = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            sw = 0.0
+            sv = 0.0
+            for c in range(3):
+                sw += r_hat[a, c] * q_om[c] * r_hat[b, c]
+                sv += r_hat[a, c] * q_v[c] * r_hat[b, c]
+            m[a, b] = sw
+            mv[a, b] = sv
+    px, py, pz = p_hat[0], p_hat[1], p_hat[2]
+    # [P̂]× X for a 3x3 X, row by row: row0 = py X[2] − pz X[1], row1 = pz X[0] − px X[2], row2 = px X[1] − py X[0]
+    pm = np.empty((3, 3))
+    for b in range(3):
+        acc[_SR, 0, b] += h * r_hat[0, b]
+        acc[_SR, 1, b] += h * r_hat[1, b]
+        acc[_SR, 2, b] += h * r_hat[2, b]
+        acc[_SPR, 0, b] += h * (py * r_hat[2, b] - pz * r_hat[1, b])
+        acc[_SPR, 1, b] += h * (pz * r_hat[0, b] - px * r_hat[2, b])
+        acc[_SPR, 2, b] += h * (px * r_hat[1, b] - py * r_hat[0, b])
+        pm[0, b] = py * m[2, b] - pz * m[1, b]
+        pm[1, b] = pz * m[0, b] - px * m[2, b]
+        pm[2, b] = px * m[1, b] - py * m[0, b]
+    for a in range(3):
+        for b in range(3):
+            acc[_QRR, a, b] += h * m[a, b]
+            acc[_QPR, a, b] += h * pm[a, b]
+    # [P̂]× M [P̂]×ᵀ = pm [P̂]×ᵀ: (pm [P̂]×ᵀ)[a, b] = Σ_c pm[a, c] [P̂]×[b, c]
+    for a in range(3):
+        c0 = pm[a, 2] * py - pm[a, 1] * pz
+        c1 = pm[a, 0] * pz - pm[a, 2] * px
+        c2 = pm[a, 1] * px - pm[a, 0] * py
+        acc[_QPP, a, 0] += h * (c0 + mv[a, 0])
+        acc[_QPP, a, 1] += h * (c1 + mv[a, 1])
+        acc[_QPP, a, 2] += h * (c2 + mv[a, 2])
+
+
+@njit(cache=True)
+def _cross_mat(p, x, out):
+    """``out = [p]× x`` for a 3x3 ``x``."""
+    for b in range(3):
+        out[0, b] = p[1] * x[2, b] - p[2] * x[1, b]
+        out[1, b] = p[2] * x[0, b] - p[0] * x[2, b]
+        out[2, b] = p[0] * x[1, b] - p[1] * x[0, b]
+
+
+@njit(cache=True)
+def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
+    """Apply the accumulated transition ``Φ = I + F`` and noise to the covariance (first ``d`` dimensions):
+    ``Σ ← Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``; ``f`` (D, 6) and ``g`` (D, 6) are scratch."""
+    if acc_dt <= 0.0:
+        return
+    # bias random walk over the interval (applied at its start: the transition then carries it)
+    for c in range(3):
+        cov[6 + c, 6 + c] += q_bw * q_bw * acc_dt
+        cov[9 + c, 9 + c] += q_bv * q_bv * acc_dt
+    n = (d - N_FIXED) // 3
+    sr = acc[_SR]
+    f[:d, :] = 0.0
+    for a in range(3):
+        for b in range(3):
+            f[a, b] = sr[a, b]  # ξ_R <- b̃_Ω
+            f[3 + a, b] = acc[_SPR, a, b]  # ξ_P <- b̃_Ω
+            f[3 + a, 3 + b] = sr[a, b]  # ξ_P <- b̃_V
+    tmp = np.empty((3, 3))
+    for s in range(n):
+        _cross_mat(lm[slot_lm[s]], sr, tmp)
+        for a in range(3):
+            for b in range(3):
+                f[N_FIXED + 3 * s + a, b] = tmp[a, b]  # ξ_s <- b̃_Ω
+    # the bias rows Σ_b as they are before the update, and g = F Σ_bb (D, 6)
+    pb = cov[6:12, :d].copy()
+    for i in range(d):
+        for c in range(6):
+            v = 0.0
+            for e in range(6):
+                v += f[i, e] * pb[e, 6 + c]
+            g[i, c] = v
+    # Σ += F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ, symmetric: compute the upper triangle and mirror
+    for i in range(d):
+        for j in range(i, d):
+            v = 0.0
+            for e in range(6):
+                v += f[i, e] * pb[e, j] + pb[e, i] * f[j, e] + g[i, e] * f[j, e]
+            cov[i, j] += v
+            if j != i:
+                cov[j, i] = cov[i, j]
+    # process noise Q: (R, P) block, landmark rows [p̂_s]× QRR, [p̂_s]× QPRᵀ, and [p̂_s]× QRR [p̂_u]×ᵀ
+    qrr, qpr, qpp = acc[_QRR], acc[_QPR], acc[_QPP]
+    for a in range(3):
+        for b in range(3):
+            cov[a, b] += qrr[a, b]
+            cov[3 + a, 3 + b] += qpp[a, b]
+            cov[3 + a, b] += qpr[a, b]
+            cov[b, 3 + a] += qpr[a, b]
+    qprt = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            qprt[a, b] = qpr[b, a]
+    arr = np.empty((n, 3, 3))  # [p̂_s]× QRR
+    apr = np.empty((3, 3))
+    for s in range(n):
+        p = lm[slot_lm[s]]
+        _cross_mat(p, qrr, arr[s])
+        _cross_mat(p, qprt, apr)
+        r0 = N_FIXED + 3 * s
+        for a in range(3):
+            for b in range(3):
+                cov[r0 + a, b] += arr[s, a, b]
+                cov[b, r0 + a] += arr[s, a, b]
+                cov[r0 + a, 3 + b] += apr[a, b]
+                cov[3 + b, r0 + a] += apr[a, b]
+    for s in range(n):
+        r0 = N_FIXED + 3 * s
+        for u in range(s, n):
+            q = lm[slot_lm[u]]
+            c0 = N_FIXED + 3 * u
+            for a in range(3):
+                # (arr_s [q]×ᵀ)[a, b] = Σ_c arr_s[a, c] [q]×[b, c]
+                x0 = arr[s, a, 2] * q[1] - arr[s, a, 1] * q[2]
+                x1 = arr[s, a, 0] * q[2] - arr[s, a, 2] * q[0]
+                x2 = arr[s, a, 1] * q[0] - arr[s, a, 0] * q[1]
+                cov[r0 + a, c0] += x0
+                cov[r0 + a, c0 + 1] += x1
+                cov[r0 + a, c0 + 2] += x2
+                if u != s:
+                    cov[c0, r0 + a] += x0
+                    cov[c0 + 1, r0 + a] += x1
+                    cov[c0 + 2, r0 + a] += x2
+    acc[:, :, :] = 0.0
+
+
+@njit(cache=True)
+def _cholesky(s, m):
+    """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
+    for j in range(m):
+        v = s[j, j]
+        for k in range(j):
+            v -= s[j, k] * s[j, k]
+        if not v > 0.0:
+            return False
+        v = math.sqrt(v)
+        s[j, j] = v
+        for i in range(j + 1, m):
+            w = s[i, j]
+            for k in range(j):
+                w -= s[i, k] * s[j, k]
+            s[i, j] = w / v
+    return True
+
+
+@njit(cache=True)
+def _gate(cov, z, sl, sigma2):
+    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I``."""
+    s = np.empty((3, 3))
+    for a in range(3):
+        for b in range(3):
+            s[a, b] = cov[3 + a, 3 + b] - cov[3 + a, sl + b] - cov[sl + a, 3 + b] + cov[sl + a, sl + b]
+        s[a, a] += sigma2
+    if not _cholesky(s, 3):
+        return np.inf
+    w0 = z[0] / s[0, 0]
+    w1 = (z[1] - s[1, 0] * w0) / s[1, 1]
+    w2 = (z[2] - s[2, 0] * w0 - s[2, 1] * w1) / s[2, 2]
+    return w0 * w0 + w1 * w1 + w2 * w2
+
+
+@njit(cache=True)
+def _left_jacobian_apply(w0, w1, w2, v0, v1, v2):
+    """``J(w) v`` (left Jacobian of SO(3), spec §1.2) as three scalars."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    theta = math.sqrt(t2)
+    if theta < 1e-8:
+        cb, cc = 0.5, 1.0 / 6.0
+    else:
+        cb = (1.0 - math.cos(theta)) / t2
+        cc = (theta - math.sin(theta)) / (t2 * theta)
+    x0 = w1 * v2 - w2 * v1
+    x1 = w2 * v0 - w0 * v2
+    x2 = w0 * v1 - w1 * v0
+    return (v0 + cb * x0 + cc * (w1 * x2 - w2 * x1), v1 + cb * x1 + cc * (w2 * x0 - w0 * x2),
+            v2 + cb * x2 + cc * (w0 * x1 - w1 * x0))
+
+
+@njit(cache=True)
+def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
+    """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (spec §1.3 exponential, applied on the left) and ``b̂ ← b̂ + b̃̂``."""
+    a = np.empty((3, 3))
+    unused = np.empty(3)
+    w0, w1, w2 = -xi[0], -xi[1], -xi[2]
+    se3_exp_into(w0, w1, w2, 0.0, 0.0, 0.0, a, unused)
+    r_new = np.empty((3, 3))
+    for r in range(3):
+        for c in range(3):
+            r_new[r, c] = a[r, 0] * r_hat[0, c] + a[r, 1] * r_hat[1, c] + a[r, 2] * r_hat[2, c]
+    r_hat[:, :] = r_new
+    t0, t1, t2 = _left_jacobian_apply(w0, w1, w2, -xi[3], -xi[4], -xi[5])
+    q0 = a[0, 0] * p_hat[0] + a[0, 1] * p_hat[1] + a[0, 2] * p_hat[2] + t0
+    q1 = a[1, 0] * p_hat[0] + a[1, 1] * p_hat[1] + a[1, 2] * p_hat[2] + t1
+    q2 = a[2, 0] * p_hat[0] + a[2, 1] * p_hat[1] + a[2, 2] * p_hat[2] + t2
+    p_hat[0], p_hat[1], p_hat[2] = q0, q1, q2
+    for c in range(3):
+        b_om[c] += xi[6 + c]
+        b_v[c] += xi[9 + c]
+    for s in range((d - N_FIXED) // 3):
+        i = slot_lm[s]
+        o = N_FIXED + 3 * s
+        t0, t1, t2 = _left_jacobian_apply(w0, w1, w2, -xi[o], -xi[o + 1], -xi[o + 2])
+        q0 = a[0, 0] * lm[i, 0] + a[0, 1] * lm[i, 1] + a[0, 2] * lm[i, 2] + t0
+        q1 = a[1, 0] * lm[i, 0] + a[1, 1] * lm[i, 1] + a[1, 2] * lm[i, 2] + t1
+        q2 = a[2, 0] * lm[i, 0] + a[2, 1] * lm[i, 1] + a[2, 2] * lm[i, 2] + t2
+        lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
+
+
+@njit(cache=True)
+def _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+            sel, z, pht, smat, innov, trk_p, row, ns, gate):
+    """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
+    state, new ones are augmented. Returns the new state dimension."""
+    m = 0
+    for j in range(nd):
+        i = det_idx[a0 + j]
+        y = det_y[a0 + j]
+        e = np.empty(3)
+        for c in range(3):
+            e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
+        if slot_of[i] < 0:
+            continue  # new: recorded after augmentation
+        for c in range(3):
+            innov[row + j, c] = e[c]
+            trk_p[row + j, c] = lm[i, c]
+        zi = -e
+        if _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j]) > gate:
+            ns[_GATED] += 1
+            continue
+        sel[m] = j
+        for c in range(3):
+            z[3 * m + c] = zi[c]
+        m += 1
+    if m > 0:
+        k3 = 3 * m
+        # PHᵀ (d × 3m): column block q = Σ[:, P] − Σ[:, slot of q]
+        for q in range(m):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            for r in range(d):
+                for c in range(3):
+                    pht[r, 3 * q + c] = cov[r, 3 + c] - cov[r, sl + c]
+        # S = H PHᵀ + σ² I
+        for q in range(m):
+            sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            s2 = det_sigma2[a0 + sel[q]]
+            for c in range(3):
+                for k in range(k3):
+                    smat[3 * q + c, k] = pht[3 + c, k] - pht[sl + c, k]
+                smat[3 * q + c, 3 * q + c] += s2
+        for r in range(k3):  # symmetrise the round-off
+            for c in range(r + 1, k3):
+                v = 0.5 * (smat[r, c] + smat[c, r])
+                smat[r, c] = v
+                smat[c, r] = v
+        if not _cholesky(smat, k3):
+            ns[_SKIPPED] += 1
+        else:
+            # U = PHᵀ L⁻ᵀ (rows solved forward, in place), w = L⁻¹ z; ξ̂ = U w; Σ ← Σ − U Uᵀ
+            for r in range(d):
+                for c in range(k3):
+                    v = pht[r, c]
+                    for k in range(c):
+                        v -= pht[r, k] * smat[c, k]
+                    pht[r, c] = v / smat[c, c]
+            w = np.empty(k3)
+            for c in range(k3):
+                v = z[c]
+                for k in range(c):
+                    v -= smat[c, k] * w[k]
+                w[c] = v / smat[c, c]
+            xi = np.zeros(d)
+            for r in range(d):
+                v = 0.0
+                for c in range(k3):
+                    v += pht[r, c] * w[c]
+                xi[r] = v
+            for r in range(d):
+                for c in range(r, d):
+                    v = 0.0
+                    for k in range(k3):
+                        v += pht[r, k] * pht[c, k]
+                    cov[r, c] -= v
+                    if c != r:
+                        cov[c, r] = cov[r, c]
+            _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+            ns[_UPDATES] += 1
+    # augmentation with the corrected pose
+    for j in range(nd):
+        i = det_idx[a0 + j]
+        if slot_of[i] >= 0:
+            continue
+        y = det_y[a0 + j]
+        for c in range(3):
+            lm[i, c] = p_hat[c] + r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]
+            innov[row + j, c] = 0.0
+            trk_p[row + j, c] = lm[i, c]
+        s = (d - N_FIXED) // 3
+        slot_of[i] = s
+        slot_lm[s] = i
+        o = d
+        for c in range(3):
+            for k in range(d):
+                cov[o + c, k] = cov[3 + c, k]
+                cov[k, o + c] = cov[k, 3 + c]
+        for a in range(3):
+            for c in range(3):
+                cov[o + a, o + c] = cov[3 + a, 3 + c]
+            cov[o + a, o + a] += det_sigma2[a0 + j]
+        d += 3
+    return d
+
+
+@njit(cache=True)
+def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, lm, q_om, q_v, q_bw, q_bv,
+             gate, out_every, iv_stop, r_hat, p_hat, b_om, b_v, om_m, v_m, counter, fs, ns, cov, slot_of, slot_lm,
+             acc, f, g, sel, z, pht, smat, out_k, out_r, out_p, out_b, trk_p, innov, det_base, cov_out):
+    """The event loop from the state in the arrays until the next event is velocity sample ``iv_stop`` (all
+    events when it is the sample count); returns the number of rows recorded. ``cov_out`` (rows, 12, 12) receives
+    the pose-and-bias covariance at each recorded row when it has rows (tests), else nothing."""
+    n_vel = vel_t.shape[0]
+    n_frames = det_t.shape[0]
+    t, acc_dt = fs[_T], fs[_ACC_DT]
+    iv, jf, started, steps = ns[_IV], ns[_JF], ns[_STARTED] != 0, ns[_STEPS]
+    d = N_FIXED + 3 * ns[_NSEEN]
+    d_r = np.empty((3, 3))
+    d_p = np.empty(3)
+    o = 0
+    want_cov = cov_out.shape[0] > 0
+    while iv < n_vel or jf < n_frames:
+        is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
+        if not is_frame and iv >= iv_stop:
+            break
+        t_next = det_t[jf] if is_frame else vel_t[iv]
+        if started and t_next > t:
+            dt = t_next - t
+            m = max(1, int(math.ceil(dt / MAX_STEP_S)))
+            h = dt / m
+            o0, o1, o2 = om_m[0] - b_om[0], om_m[1] - b_om[1], om_m[2] - b_om[2]
+            v0, v1, v2 = v_m[0] - b_v[0], v_m[1] - b_v[1], v_m[2] - b_v[2]
+            for _ in range(m):
+                _accumulate(h, r_hat, p_hat, q_om, q_v, acc)
+                se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
+                for c in range(3):
+                    p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
+                for r in range(3):  # R̂ ← R̂ dR, row by row from the row's old values
+                    x0, x1, x2 = r_hat[r, 0], r_hat[r, 1], r_hat[r, 2]
+                    for c in range(3):
+                        r_hat[r, c] = x0 * d_r[0, c] + x1 * d_r[1, c] + x2 * d_r[2, c]
+                counter[0] += 1
+                if counter[0] % REORTHO_EVERY == 0:
+                    r_hat[:, :] = project_so3(r_hat)
+            acc_dt += dt
+            steps += m
+            t = t_next
+        if is_frame:
+            _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+            acc_dt = 0.0
+            a0 = det_offsets[jf]
+            nd = det_offsets[jf + 1] - a0
+            d = _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+                        sel, z, pht, smat, innov, trk_p, a0 - det_base, ns, gate)
+            fs[_MEAS_T] = t_next
+            jf += 1
+        else:
+            for c in range(3):
+                om_m[c] = omega[iv, c]
+                v_m[c] = vel[iv, c]
+            if not started:
+                started = True
+                t = t_next
+            if iv % out_every == 0 or iv == n_vel - 1:
+                record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                if want_cov:
+                    _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+                    acc_dt = 0.0
+                    cov_out[o] = cov[:N_FIXED, :N_FIXED]
+                o += 1
+            iv += 1
+    if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
+        _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+        acc_dt = 0.0
+    fs[_T], fs[_ACC_DT] = t, acc_dt
+    ns[_IV], ns[_JF], ns[_NSEEN], ns[_STARTED], ns[_STEPS] = iv, jf, (d - N_FIXED) // 3, 1 if started else 0, steps
+    return o
+
+
+class _State(KernelState):
+    """The filter's state: the common estimate arrays, the covariance over every landmark slot the stream
+    can need, the running sums and the update scratch."""
+
+    def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=3)
+        self.ns = np.zeros(8, dtype=np.int64)
+        dim = N_FIXED + 3 * n_landmarks
+        self.cov = np.zeros((dim, dim))
+        for c in range(6):
+            self.cov[6 + c, 6 + c] = sigma_bias[c] ** 2
+        self.slot_of = np.full(n_landmarks, -1, dtype=np.int64)
+        self.slot_lm = np.zeros(max(n_landmarks, 1), dtype=np.int64)
+        self.acc = np.zeros((5, 3, 3))
+        self.f = np.zeros((dim, 6))
+        self.g = np.zeros((dim, 6))
+        k3 = 3 * max(n_max, 1)
+        self.sel = np.zeros(max(n_max, 1), dtype=np.int64)
+        self.z = np.zeros(k3)
+        self.pht = np.zeros((dim, k3))
+        self.smat = np.zeros((k3, k3))
+
+    def arrays(self) -> tuple:
+        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.om_m, self.v_m, self.counter, self.fs, self.ns,
+                self.cov, self.slot_of, self.slot_lm, self.acc, self.f, self.g, self.sel, self.z, self.pht,
+                self.smat)
+
+
+#: Largest state the filter builds (dimensions): its covariance is dense, (12 + 3n)² doubles.
+MAX_DIM = 6012
+
+
+def detection_variances(det_y: np.ndarray, detection: float, per_m: float) -> np.ndarray:
+    """Per-axis variance of each detection: ``(detection + per_m * range)²``."""
+    return (detection + per_m * np.linalg.norm(det_y, axis=1)) ** 2
+
+
+class RiEKF(Stepper):
+    """The filter on an aligned stream, a stretch of samples at a time."""
+
+    def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
+        from slamobs.pipeline.errors import InputError
+        from slamobs.pipeline.noise import resolve_noise
+
+        super().__init__(stream, options)
+        ctx = options.context or {}
+        config = ctx.get("config")
+        self.noise = noise if noise is not None else resolve_noise(
+            getattr(config, "noise", None), ctx.get("log"), ctx.get("topics"))
+        n_lm = int(stream.landmark_ids.shape[0])
+        if N_FIXED + 3 * n_lm > MAX_DIM:
+            raise InputError(ctx.get("log", "<stream>"), f"riekf keeps every landmark in a dense covariance; "
+                             f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}")
+        nz = self.noise
+        sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
+        self.state = _State(n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0,
+                            sigma_b)
+        self.det_sigma2 = detection_variances(stream.det_y, nz.detection, nz.detection_per_m)
+        self.params = (nz.gyro ** 2, nz.velocity ** 2, float(nz.gyro_bias_walk), float(nz.velocity_bias_walk),
+                       GATE_CHI2)
+        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
+        self.stats.update({"noise": self.noise.as_dict()})
+
+    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+        s, o = self.stream, self.options
+        cov_out = self.cov_rows if self.cov_rows is not None else np.zeros((0, N_FIXED, N_FIXED))
+        rows = _advance(self.vel_t, s.omega, s.velocity, self.det_t, s.det_offsets, s.det_idx, s.det_y,
+                        self.det_sigma2, self.lm, *self.params, o.out_every, iv_stop, *self.state.arrays(),
+                        out.k, out.r, out.p, out.b, out.trk, out.innov, out.det_base, cov_out)
+        ns = self.state.ns
+        self.stats["substeps"] = int(ns[_STEPS])
+        bias_sd = np.sqrt(np.clip(np.diag(self.state.cov)[6:12], 0.0, None))
+        self.stats["metadata"] = {"filter": {
+            "updates": int(ns[_UPDATES]), "gated_detections": int(ns[_GATED]), "skipped_frames": int(ns[_SKIPPED]),
+            "landmarks_in_state": int(ns[_NSEEN]), "gate_chi2": GATE_CHI2,
+            "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
+            "noise": self.noise.as_dict()}}
+        return rows
+
+
+SPEC = ObserverSpec(
+    name="riekf",
+    algorithm="RI-EKF",
+    paper="Barrau & Bonnabel: An EKF-SLAM algorithm with consistency properties (2015); state on SE_{1+n}(3) + biases",
+    summary="right-invariant EKF SLAM with gyro and velocity biases; noise from the `noise` section of run.yaml",
+    gains=(),
+    start=RiEKF,
+)
