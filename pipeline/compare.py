@@ -15,6 +15,9 @@ from slamobs.pipeline.run import RunSummary, prepare_log, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
            "vel_bias_err", "convergence_s", "run_time_s", "error")
+#: Added after the APE when the batch smoother is compared: each estimator's APE over the smoother's.
+VS_BATCH = "ape_vs_batch"
+LABELS = {VS_BATCH: "APE / batch APE"}
 
 
 def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str], *, force: bool = False):
@@ -45,7 +48,15 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
             summaries[name] = summary
             rows.append({"observer": name, "status": "ok", "error": "", **summary.headline(),
                          "run_time_s": summary.timings.get("observer_s", float("nan"))})
-        table = pd.DataFrame(rows).reindex(columns=list(COLUMNS))
+        columns = list(COLUMNS)
+        if "batch" in observers:
+            columns.insert(columns.index("ape_trans_rmse_m") + 1, VS_BATCH)
+            ref = next((r.get("ape_trans_rmse_m") for r in rows if r["observer"] == "batch" and r["status"] == "ok"),
+                       None)
+            for r in rows:
+                ape = r.get("ape_trans_rmse_m")
+                r[VS_BATCH] = ape / ref if ape is not None and ref else None
+        table = pd.DataFrame(rows).reindex(columns=columns)
         table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
         (tmp / "comparison.md").write_text(_markdown(table, log))
         write_json(tmp / "comparison.json", {"log": str(Path(log).resolve()), "rows": table.to_dict("records")})
@@ -55,17 +66,20 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
 
 
 def _markdown(table, log: Path) -> str:
-    head = "| " + " | ".join(COLUMNS) + " |\n|" + "---|" * len(COLUMNS) + "\n"
+    columns = list(table.columns)
+    head = "| " + " | ".join(LABELS.get(c, c) for c in columns) + " |\n|" + "---|" * len(columns) + "\n"
     body = ""
     for row in table.to_dict("records"):
         cells = []
-        for c in COLUMNS:
+        for c in columns:
             v = row.get(c)
             cells.append("" if v is None or (isinstance(v, float) and np.isnan(v)) else
                          (f"{v:.4g}" if isinstance(v, float) else str(v)))
         body += "| " + " | ".join(cells) + " |\n"
+    vs = (" APE / batch APE is each estimator's APE over the batch smoother's on the same inputs."
+          if VS_BATCH in columns else "")
     return (f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
-            f"truth; bias errors are final-sample norms; run time is the observer stage.\n\n{head}{body}")
+            f"truth; bias errors are final-sample norms; run time is the observer stage.{vs}\n\n{head}{body}")
 
 
 def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:

@@ -5,7 +5,8 @@ State ``X = (R, P, p_1..p_n) ∈ SE_{1+n}(3)`` and biases ``b = (b_Ω, b_V)``. E
 right-invariant error: in the notation of spec §1.5 it is Hashim's left error ``R̃ = R̂Rᵀ, P̃ = P̂ − R̃P,
 p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is that of ``(ξ_R, ξ_P, b̃_Ω, b̃_V, ξ_1..ξ_n)``.
 
-* Propagation (velocity samples, zero-order hold): ``X̂ ← X̂ exp(Δt [Ω_m − b̂_Ω; V_m − b̂_V])``. The error obeys
+* Propagation (velocity samples, linear between samples: :func:`pipeline.smoother.preintegration.twist_at`):
+  ``X̂ ← X̂ exp(Δt [Ω_m − b̂_Ω; V_m − b̂_V])`` at the mid-point of each step. The error obeys
   ``ξ̇ = Ad_X̂ (b̃ + n)`` (``Ad_X̂`` maps a body twist ``(δω, δv)`` to ``(R̂δω, R̂δv + [P̂]×R̂δω, [p̂_i]×R̂δω)``): no
   state-dependent term in the group block, which is what makes the filter consistent. The transition over
   any interval is ``I + Σ F_k`` exactly (each ``F_k`` maps biases to the group, so their products vanish), and
@@ -35,6 +36,7 @@ from numba import njit
 from slamobs.pipeline.lie import project_so3, se3_exp_into
 from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row
+from slamobs.pipeline.smoother.preintegration import twist_at
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -388,6 +390,7 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, 
     d = N_FIXED + 3 * ns[_NSEEN]
     d_r = np.empty((3, 3))
     d_p = np.empty(3)
+    bias = np.empty(6)
     o = 0
     want_cov = cov_out.shape[0] > 0
     while iv < n_vel or jf < n_frames:
@@ -399,9 +402,9 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, 
             dt = t_next - t
             m = max(1, int(math.ceil(dt / MAX_STEP_S)))
             h = dt / m
-            o0, o1, o2 = om_m[0] - b_om[0], om_m[1] - b_om[1], om_m[2] - b_om[2]
-            v0, v1, v2 = v_m[0] - b_v[0], v_m[1] - b_v[1], v_m[2] - b_v[2]
-            for _ in range(m):
+            bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
+            for step in range(m):
+                o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
                 _accumulate(h, r_hat, p_hat, q_om, q_v, acc)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):

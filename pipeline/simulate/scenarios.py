@@ -255,7 +255,60 @@ def figure8_wide() -> Scenario:
     return replace(sc, name="figure8-wide", camera=cam)
 
 
-SCENARIOS: dict[str, Callable[[], Scenario]] = {"circle": circle, "figure8": figure8, "figure8-wide": figure8_wide}
+# --------------------------------------------------------------------------- loop60: a long loop, a narrow camera
+
+LOOP_RADIUS = 18.0  # m
+LOOP_SPEED = 1.3  # m/s: one lap in 87 s, two in the default 3 minutes
+LOOP_HEIGHT = 1.5  # m
+
+
+def loop_trajectory(t: np.ndarray) -> Trajectory:
+    """Constant twist (a horizontal circle of radius 18 m at 1.5 m, counter-clockwise from the origin)."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    wz = LOOP_SPEED / LOOP_RADIUS
+    psi = wz * t
+    P = np.stack([LOOP_RADIUS * np.sin(psi), LOOP_RADIUS * (1.0 - np.cos(psi)), np.full_like(t, LOOP_HEIGHT)], -1)
+    accel = LOOP_SPEED * wz * np.stack([-np.sin(psi), np.cos(psi), np.zeros_like(t)], -1)
+    n = t.shape[0]
+    return Trajectory(t, rot_z(psi), P, np.tile([0.0, 0.0, wz], (n, 1)), np.tile([LOOP_SPEED, 0.0, 0.0], (n, 1)),
+                      accel)
+
+
+def loop60() -> Scenario:
+    """Three minutes (two laps) of an 18 m loop among 60 tags on posts 1.5-4 m inside and outside the path, seen by a
+    forward camera (turned 15 deg into the turn) with a 50 x 40 deg field of view up to 15 m: a few tags at a
+    time (1-13, mean 5; fewer than three in a fifth of the frames), each for a few seconds per lap, revisited on
+    the second lap."""
+    rng = np.random.default_rng(60)
+    centre = np.array([0.0, LOOP_RADIUS])
+    ang = np.sort(rng.uniform(0.0, 2.0 * np.pi, 60))
+    side = np.where(np.arange(60) % 2 == 0, 1.0, -1.0)
+    radius = LOOP_RADIUS + side * rng.uniform(1.5, 4.0, 60)
+    lms = np.stack([centre[0] + radius * np.sin(ang), centre[1] - radius * np.cos(ang), rng.uniform(0.5, 2.5, 60)], -1)
+    rots = np.stack([_wall_rotation(p - np.array([centre[0], centre[1], 0.0])) for p in lms])
+    # optical frame looking forward, turned 15 deg towards the inside of the loop: z = optical axis, y = -z_body
+    yaw = np.deg2rad(15.0)
+    z_c = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    x_c = np.array([np.sin(yaw), -np.cos(yaw), 0.0])
+    r_bc = np.stack([x_c, np.cross(z_c, x_c), z_c], -1)
+    cam = Camera(R_bc=r_bc, t_bc=np.array([0.2, 0.0, 0.1]), fov_h_deg=50.0, fov_v_deg=40.0, min_range=0.5,
+                 max_range=15.0)
+    return Scenario(
+        name="loop60",
+        duration=180.0,
+        trajectory=loop_trajectory,
+        landmark_ids=np.arange(100, 160, dtype=np.int64),
+        landmarks=lms,
+        landmark_rots=rots,
+        gyro_bias=np.array([0.02, -0.03, 0.05]),
+        velocity_bias=np.array([0.05, -0.04, 0.02]),
+        camera=cam,
+        detection_rate=20.0,
+    )
+
+
+SCENARIOS: dict[str, Callable[[], Scenario]] = {"circle": circle, "figure8": figure8, "figure8-wide": figure8_wide,
+                                                "loop60": loop60}
 
 
 def get_scenario(name: str) -> Scenario:

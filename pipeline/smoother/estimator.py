@@ -1,0 +1,169 @@
+"""``batch``: the factor-graph smoother behind the observers' interface (registry entry, same tables).
+
+The first stretch asked for runs everything: the seed (an observer, or dead reckoning), the preintegration of
+the odometry between keyframes, the GTSAM solve, and the trajectory at every velocity sample; stretches then
+hand out their rows. The tables mean what they mean for the observers: ``poses``/``biases`` at the velocity
+samples (the bias of each sample's segment), the final map, and per detection the landmark estimate and the
+innovation ``p̂ − R̂y − P̂`` at the detection's keyframe, both from the smoothed solution.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.observers.base import ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings, batch_settings
+
+GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam]'"
+
+
+def require_gtsam() -> None:
+    try:
+        import gtsam  # noqa: F401
+    except ImportError:
+        raise InputError("observer 'batch'", GTSAM_MISSING) from None
+
+
+def check_config(config) -> int:
+    """Settings valid and GTSAM importable, before any log is read; the directions the seed needs."""
+    from slamobs.pipeline.observers import get_observer
+
+    settings = batch_settings(getattr(config, "batch", None))
+    require_gtsam()
+    if settings.seed == DEAD_RECKONING:
+        return 0
+    seed = get_observer(settings.seed)
+    seed.resolve_gains(config.gains.get(seed.name))
+    return seed.directions_needed(config)
+
+
+class BatchSmoother(Stepper):
+    """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
+
+    def __init__(self, stream, gains: dict[str, float], options, settings: BatchSettings | None = None,
+                 noise=None, seed=None, fixed_bias: np.ndarray | None = None) -> None:
+        from slamobs.pipeline.noise import resolve_noise
+
+        super().__init__(stream, options)
+        ctx = options.context or {}
+        self.config = ctx.get("config")
+        self.where = str(ctx.get("log", "<stream>"))
+        self.settings = settings if settings is not None else batch_settings(getattr(self.config, "batch", None))
+        self.noise = noise if noise is not None else resolve_noise(
+            getattr(self.config, "noise", None), ctx.get("log"), ctx.get("topics"))
+        self.seed_override = seed
+        self.fixed_bias = fixed_bias
+        self.result = None  # filled by the first stretch
+
+    # ------------------------------------------------------------------ the whole solve
+    def solve(self, progress=None) -> dict:
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.preintegration import keyframe_times, preintegrate, whitening
+        from slamobs.pipeline.smoother.seed import dead_reckoning_seed, observer_seed
+
+        require_gtsam()
+        s, st, nz = self.stream, self.settings, self.noise
+        vel_t, det_t = self.vel_t, self.det_t
+        if vel_t.shape[0] < 2:
+            raise InputError(self.where, "the batch smoother needs at least two velocity samples")
+        kf_t = keyframe_times(vel_t, det_t, st.keyframe_dt)
+        kf_of_frame = np.searchsorted(kf_t, det_t)
+        kf_of_det = np.repeat(kf_of_frame, np.diff(s.det_offsets))
+        k = kf_t.shape[0]
+        # seed
+        if self.seed_override is not None:
+            seed = self.seed_override
+        elif st.seed == DEAD_RECKONING:
+            seed = dead_reckoning_seed(s, kf_t, kf_of_det)
+        else:
+            from slamobs.pipeline.observers import get_observer
+
+            spec = get_observer(st.seed)
+            gains = spec.resolve_gains((self.config.gains if self.config is not None else {}).get(spec.name))
+            try:
+                seed = observer_seed(st.seed, s, gains, self.options, kf_t)
+            except InputError as err:
+                raise InputError(self.where, err.problem) from None
+        t0 = time.perf_counter()
+        # bias segments
+        if st.bias == "random-walk":
+            n_seg = max(1, int(np.ceil((vel_t[-1] - vel_t[0]) / st.segment_s - 1e-9)))
+            seg_of_t = lambda t: np.minimum((t - vel_t[0]) // st.segment_s, n_seg - 1).astype(np.int64)  # noqa: E731
+            walk = np.sqrt(st.segment_s) * np.r_[np.full(3, nz.gyro_bias_walk), np.full(3, nz.velocity_bias_walk)]
+            walk = np.maximum(walk, 1e-12)
+        else:
+            n_seg = 1
+            seg_of_t = lambda t: np.zeros(np.shape(t), np.int64)  # noqa: E731
+            walk = None
+        b_bar = seed.bias.copy() if self.fixed_bias is None else np.asarray(self.fixed_bias, float)
+        data = np.zeros((k - 1, 75))
+        cov = np.zeros((k - 1, 6, 6))
+        preintegrate(vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro ** 2, nz.velocity ** 2, data, cov)
+        data[:, 39:75] = whitening(cov).reshape(-1, 36)
+        if self.fixed_bias is None:
+            prior_mean, prior = np.zeros(6), np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
+        else:  # the reference of the tests: biases known
+            prior_mean, prior = b_bar, np.full(6, 1e-9)
+        problem = g.Problem(data=data, b_bar=b_bar, seg_of=seg_of_t(kf_t[:-1]), kf_of_det=kf_of_det,
+                            det_idx=s.det_idx, det_y=s.det_y,
+                            det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
+                            bias_prior_sigma=prior, bias_prior_mean=prior_mean, walk_sigma=walk, huber=st.huber,
+                            anchor=k - 1)
+        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(b_bar, (n_seg, 1)))
+        sol = g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
+                      progress=progress)
+        stats = g.residual_statistics(problem, sol)
+        t_solve = time.perf_counter() - t0
+        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "seg_of_t": seg_of_t, "solution": sol, "seed": seed}
+        sd = np.sqrt(np.clip(np.einsum("sii->si", sol.bias_cov), 0.0, None))
+        summary = {"seed": seed.name, "bias_model": st.bias, **sol.summary, "residuals": stats,
+                   "bias": {"estimate": sol.bias.tolist(), "sigma": sd.tolist()},
+                   "settings": {"huber": st.huber, "keyframe_dt": st.keyframe_dt, "segment_s": st.segment_s,
+                                "max_iterations": st.max_iterations, "relative_tolerance": st.relative_tolerance}}
+        self.stats["substeps"] = int(k)
+        self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": nz.as_dict()}
+        self.stats["timings_s"] = {"seed_s": seed.seconds, "smoother_s": t_solve}
+        return summary
+
+    # ------------------------------------------------------------------ stretches
+    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+        from slamobs.pipeline.smoother.preintegration import sample_poses
+
+        if self.result is None:
+            self.solve()
+        res, s = self.result, self.stream
+        sol = res["solution"]
+        n_vel = self.n_vel
+        every = self.options.out_every
+        rows = np.arange(self.iv, iv_stop)
+        rows = rows[(rows % every == 0) | (rows == n_vel - 1)]
+        bias_rows = sol.bias[res["seg_of_t"](self.vel_t)]
+        sample_poses(self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r, out.p)
+        out.k[:] = rows
+        out.b[:] = bias_rows[rows]
+        # detections of the frames in this stretch: estimates from the solution at their keyframes
+        jf_stop = (int(np.searchsorted(self.det_t, self.vel_t[iv_stop], side="left")) if iv_stop < n_vel
+                   else self.det_t.shape[0])
+        a, b = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
+        if b > a:
+            kf = res["kf_of_det"][a:b]
+            lm = sol.landmarks[s.det_idx[a:b]]
+            out.trk[:] = lm
+            out.innov[:] = lm - np.einsum("mij,mj->mi", sol.rot[kf], s.det_y[a:b]) - sol.pos[kf]
+        self.lm[:] = sol.landmarks
+        return rows.shape[0]
+
+
+SPEC = ObserverSpec(
+    name="batch",
+    algorithm="smoother",
+    paper="factor-graph smoother (GTSAM, Levenberg-Marquardt) over preintegrated odometry and landmark factors",
+    summary="reference solution: keyframe poses, landmarks and biases by least squares, seeded by an observer "
+            "(batch.seed)",
+    gains=(),
+    start=BatchSmoother,
+    check_config=check_config,
+)

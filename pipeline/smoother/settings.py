@@ -1,0 +1,38 @@
+"""The ``batch`` section of ``run.yaml``: how the smoother is seeded and what it assumes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from slamobs.pipeline.errors import GainError
+
+DEAD_RECKONING = "dead-reckoning"
+BIAS_MODELS = ("constant", "random-walk")
+
+
+@dataclass(frozen=True)
+class BatchSettings:
+    #: observer whose trajectory, map and final biases start the smoother, or "dead-reckoning"
+    seed: str = "fast-adaptation"
+    #: one bias for the whole log, or one per segment of ``segment_s`` seconds joined by a random walk
+    bias: str = "constant"
+    segment_s: float = 60.0
+    #: Huber threshold of the landmark factors (in standard deviations)
+    huber: float = 3.0
+    #: longest time between keyframes (every detection frame is one; fillers keep gaps below this)
+    keyframe_dt: float = 0.2
+    max_iterations: int = 50
+    relative_tolerance: float = 1e-5
+
+
+def batch_settings(section: dict | None) -> BatchSettings:
+    """Settings from the config section (validated by the schema); the seed must name an observer."""
+    from slamobs.pipeline.observers import OBSERVERS
+
+    settings = BatchSettings(**{k: v for k, v in (section or {}).items() if v is not None})
+    if settings.seed != DEAD_RECKONING and (settings.seed not in OBSERVERS or settings.seed == "batch"):
+        names = [n for n in OBSERVERS if n != "batch"] + [DEAD_RECKONING]
+        raise GainError(f"batch.seed '{settings.seed}' is not an observer (choose from {', '.join(names)})")
+    if settings.bias not in BIAS_MODELS:
+        raise GainError(f"batch.bias must be one of {', '.join(BIAS_MODELS)}, got {settings.bias!r}")
+    return settings
