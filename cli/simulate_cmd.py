@@ -44,7 +44,7 @@ def simulate(
     detection_rate: float | None,
     force: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUTPUT with landmark and bias truth."""
+    """Simulate SCENARIO (circle, figure8, figure8-wide, loop60) and write it to OUTPUT with landmark and bias truth."""
     from slamobs.pipeline.simulate.logwriter import infer_container, log_size, write_log
     from slamobs.pipeline.simulate.scenarios import SCENARIOS
     from slamobs.pipeline.simulate.sensors import simulation

@@ -11,7 +11,7 @@ import pytest
 
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.evaluation.align import umeyama
-from slamobs.pipeline.lie import rotation_angle, so3_exp
+from slamobs.pipeline.lie import rotation_angle, se3_exp, so3_exp, so3_log
 from slamobs.pipeline.observers import ObserverOptions, get_observer
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from slamobs.pipeline.smoother.estimator import BatchSmoother
@@ -39,8 +39,6 @@ AXIS_170 = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)  # as tests/test_observer_h
 
 def retract(t, xi):
     """GTSAM's Pose3 retraction to first order and beyond: ``T Exp([θ; ρ])``."""
-    from slamobs.pipeline.lie import se3_exp
-
     d_r, d_p = se3_exp(xi[:3], xi[3:])
     out = np.eye(4)
     out[:3, :3] = t[:3, :3] @ d_r
@@ -75,11 +73,10 @@ def test_preintegration_is_the_dead_reckoned_relative_motion_and_its_bias_jacobi
         db = np.zeros(6)
         db[c] = eps
         other = np.zeros((3, 75))
-        preintegrate(vel_t, omega, vel, kf_t, b_bar + db, np.full(3, 1e-6), np.full(3, 1e-4), other, np.zeros((3, 6, 6)))
+        preintegrate(vel_t, omega, vel, kf_t, b_bar + db, np.full(3, 1e-6), np.full(3, 1e-4), other,
+                     np.zeros((3, 6, 6)))
         for j in range(3):
             d_r0, d_r1 = data[j, :9].reshape(3, 3), other[j, :9].reshape(3, 3)
-            from slamobs.pipeline.lie import so3_log
-
             num_r = so3_log(d_r0.T @ d_r1) / eps
             num_p = (other[j, D_P:D_P + 3] - data[j, D_P:D_P + 3]) / eps
             j_r = data[j, D_JR:D_JR + 9].reshape(3, 3)

@@ -134,8 +134,8 @@ def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
     """Relative motion over every keyframe interval ``[kf_t[j], kf_t[j+1]]`` at the bias ``b_bar`` (6,).
 
     Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it: :func:`twist_at`). ``q_om``,
-    ``q_v`` (3,) are noise densities squared (per axis). Fills ``data`` (K−1, 75) in the layout of the ``D_*`` offsets (``W`` left empty) and
-    ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
+    ``q_v`` (3,) are noise densities squared (per axis). Fills ``data`` (K−1, 75) in the layout of the ``D_*``
+    offsets (``W`` left empty) and ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
     """
     n = vel_t.shape[0]
     s = 0
