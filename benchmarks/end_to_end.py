@@ -107,7 +107,7 @@ def run(log: Path, out: Path, env: dict[str, str] | None = None, observer: str |
     return {"wall": wall, "rss": rss, "cpu": _child.cpu, "timings": meta["timings_s"],
             "parquet_mb": size_mb(out, "*.parquet"), "out_mb": size_mb(out),
             "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9, "compiled": meta.get("compiled", {}),
-            "smoother_cpu": (meta["observer"].get("smoother") or {}).get("cpu_s")}
+            "smoother_cpu": meta["timings_s"].get("smoother_cpu_s")}
 
 
 def short_log(cache: Path) -> Path:

@@ -206,7 +206,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                                                     aligned.det_ids)})
             metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
             metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
-            stage_timings = part.stats.get("timings_s", {})
+            stage_timings = dict(part.timings)
             del part
             if release:
                 prepared.aligned = aligned = None

@@ -55,6 +55,9 @@ class ObserverResult:
     track_xyz: np.ndarray  # (M, 3) landmark estimate at the detection time
     innovation: np.ndarray  # (M, 3) e_i at the detection time
     stats: dict = field(default_factory=dict)
+    #: Wall and CPU seconds of an estimator's own stages so far (batch: seed_s, smoother_s, smoother_cpu_s);
+    #: measurements, unlike ``stats``, which a run reproduces exactly.
+    timings: dict = field(default_factory=dict)
     #: Observer-specific tables (e.g. "jumps"), columns named as in ``schemas/<name>.json``.
     extra_tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
@@ -130,6 +133,7 @@ class Stepper:
         self.iv = 0  # next velocity sample
         self.jf = 0  # next detection frame
         self.stats: dict = {"substeps": 0}
+        self.timings: dict[str, float] = {}
 
     @property
     def n_vel(self) -> int:
@@ -165,7 +169,7 @@ class Stepper:
             t_ns=s.vel_t_ns[out.k], rotation=out.r, position=out.p, gyro_bias=out.b[:, :3], vel_bias=out.b[:, 3:],
             landmark_ids=s.landmark_ids, landmark_xyz=self.lm,
             det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
-            innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(),
+            innovation=out.innov, stats=dict(self.stats), timings=dict(self.timings), extra_tables=self._extra(),
         )
 
 

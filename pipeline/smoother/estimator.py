@@ -40,6 +40,19 @@ def check_config(config) -> int:
     return seed.directions_needed(config)
 
 
+class _Segments:
+    """Bias segments: ``segment_s`` seconds each from ``t0`` (the last one runs to the end), or one for the log."""
+
+    def __init__(self, t0: float, t1: float, segment_s: float | None) -> None:
+        self.t0, self.segment_s = t0, segment_s
+        self.n = 1 if segment_s is None else max(1, int(np.ceil((t1 - t0) / segment_s - 1e-9)))
+
+    def of(self, t: np.ndarray) -> np.ndarray:
+        if self.n == 1:
+            return np.zeros(np.shape(t), np.int64)
+        return np.minimum((np.asarray(t) - self.t0) // self.segment_s, self.n - 1).astype(np.int64)
+
+
 class BatchSmoother(Stepper):
     """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
 
@@ -61,7 +74,7 @@ class BatchSmoother(Stepper):
     # ------------------------------------------------------------------ the whole solve
     def solve(self, progress=None) -> dict:
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.preintegration import keyframe_times, preintegrate, whitening
+        from slamobs.pipeline.smoother.preintegration import D_END, D_W, keyframe_times, preintegrate, whitening
         from slamobs.pipeline.smoother.seed import dead_reckoning_seed, observer_seed
 
         require_gtsam()
@@ -88,45 +101,41 @@ class BatchSmoother(Stepper):
             except InputError as err:
                 raise InputError(self.where, err.problem) from None
         t0, c0 = time.perf_counter(), time.process_time()
-        # bias segments
-        if st.bias == "random-walk":
-            n_seg = max(1, int(np.ceil((vel_t[-1] - vel_t[0]) / st.segment_s - 1e-9)))
-            seg_of_t = lambda t: np.minimum((t - vel_t[0]) // st.segment_s, n_seg - 1).astype(np.int64)  # noqa: E731
+        segments = _Segments(vel_t[0], vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+        walk = None
+        if segments.n > 1:
             walk = np.sqrt(st.segment_s) * np.r_[np.full(3, nz.gyro_bias_walk), np.full(3, nz.velocity_bias_walk)]
             walk = np.maximum(walk, 1e-12)
-        else:
-            n_seg = 1
-            seg_of_t = lambda t: np.zeros(np.shape(t), np.int64)  # noqa: E731
-            walk = None
         b_bar = seed.bias.copy() if self.fixed_bias is None else np.asarray(self.fixed_bias, float)
-        data = np.zeros((k - 1, 75))
+        data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
         preintegrate(vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro ** 2, nz.velocity ** 2, data, cov)
-        data[:, 39:75] = whitening(cov).reshape(-1, 36)
+        data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
         if self.fixed_bias is None:
             prior_mean, prior = np.zeros(6), np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
         else:  # the reference of the tests: biases known
             prior_mean, prior = b_bar, np.full(6, 1e-9)
-        problem = g.Problem(data=data, b_bar=b_bar, seg_of=seg_of_t(kf_t[:-1]), kf_of_det=kf_of_det,
+        problem = g.Problem(data=data, b_bar=b_bar, seg_of=segments.of(kf_t[:-1]), kf_of_det=kf_of_det,
                             det_idx=s.det_idx, det_y=s.det_y,
                             det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
                             bias_prior_sigma=prior, bias_prior_mean=prior_mean, walk_sigma=walk, huber=st.huber,
                             anchor=k - 1)
-        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(b_bar, (n_seg, 1)))
+        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(b_bar, (segments.n, 1)))
         sol = g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
                       progress=progress)
         stats = g.residual_statistics(problem, sol)
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
-        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "seg_of_t": seg_of_t, "solution": sol, "seed": seed}
+        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "segments": segments, "solution": sol, "seed": seed}
         sd = np.sqrt(np.clip(np.einsum("sii->si", sol.bias_cov), 0.0, None))
-        summary = {"seed": seed.name, "bias_model": st.bias, **sol.summary, "cpu_s": round(c_solve, 3),
-                   "residuals": stats,
+        seconds = sol.summary.pop("seconds")
+        summary = {"seed": seed.name, "bias_model": st.bias, **sol.summary, "residuals": stats,
                    "bias": {"estimate": sol.bias.tolist(), "sigma": sd.tolist()},
                    "settings": {"huber": st.huber, "keyframe_dt": st.keyframe_dt, "segment_s": st.segment_s,
                                 "max_iterations": st.max_iterations, "relative_tolerance": st.relative_tolerance}}
         self.stats["substeps"] = int(k)
         self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": nz.as_dict()}
-        self.stats["timings_s"] = {"seed_s": seed.seconds, "smoother_s": t_solve}
+        self.timings.update({"seed_s": seed.seconds, "smoother_s": t_solve, "smoother_cpu_s": c_solve,
+                             **{f"smoother_{k}_s": v for k, v in seconds.items()}})
         return summary
 
     # ------------------------------------------------------------------ stretches
@@ -141,7 +150,7 @@ class BatchSmoother(Stepper):
         every = self.options.out_every
         rows = np.arange(self.iv, iv_stop)
         rows = rows[(rows % every == 0) | (rows == n_vel - 1)]
-        bias_rows = sol.bias[res["seg_of_t"](self.vel_t)]
+        bias_rows = sol.bias[res["segments"].of(self.vel_t)]
         sample_poses(self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r, out.p)
         out.k[:] = rows
         out.b[:] = bias_rows[rows]
