@@ -92,6 +92,13 @@ class BulkMessages:
         return out
 
 
+def _payloads(rows: np.ndarray) -> list[bytes]:
+    """The rows of an ``(n, size)`` byte array as ``bytes`` objects, sliced from one copy."""
+    size = rows.shape[1]
+    data = rows.tobytes()
+    return [data[k : k + size] for k in range(0, len(data), size)]
+
+
 def _get(obj, path: tuple):
     for key in path:
         obj = obj[key] if isinstance(key, int) else getattr(obj, key)
@@ -315,8 +322,9 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
     seq: dict[int, int] = {}
 
     def add(chan: int, t_ns: int, data: bytes) -> None:
-        writer.add_message(chan, log_time=t_ns, data=data, publish_time=t_ns, sequence=seq.get(chan, 0))
-        seq[chan] = seq.get(chan, 0) + 1
+        n = seq.get(chan, 0)
+        writer.add_message(chan, log_time=t_ns, data=data, publish_time=t_ns, sequence=n)
+        seq[chan] = n + 1
 
     poses = _read(run_dir, "poses")
     t_pose = poses["t_ns"].to_numpy(np.int64)
@@ -386,7 +394,7 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
             tf_cols = {**_stamp_columns(t, item),
                        **{item + ("transform", "translation", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
                        **{item + ("transform", "rotation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
-            out_d += [list(msgs.pose.rows(cols)), list(msgs.tf.rows(tf_cols))]
+            out_d += [_payloads(msgs.pose.rows(cols)), _payloads(msgs.tf.rows(tf_cols))]
         if rows_b.size:
             t = t_b[rows_b]
             for ch, prefix in ((ch_gyro, "gyro_bias_"), (ch_vel, "vel_bias_")):
@@ -394,13 +402,13 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
                         **{("vector", a): biases[prefix + a].to_numpy(np.float64)[rows_b] for a in "xyz"}}
                 out_t.append(t)
                 out_c.append(np.full(t.shape, ch))
-                out_d.append(list(msgs.vec_body.rows(cols)))
+                out_d.append(_payloads(msgs.vec_body.rows(cols)))
         if rows_i.size:
             t = t_i[rows_i]
             cols = {**_stamp_columns(t), **{("vector", a): innov["e" + a].to_numpy(np.float64)[rows_i] for a in "xyz"}}
             out_t.append(t)
             out_c.append(np.array([inn_chan[int(i)] for i in innov["id"].to_numpy(np.int64)[rows_i]]))
-            out_d.append(list(msgs.vec_map.rows(cols)))
+            out_d.append(_payloads(msgs.vec_map.rows(cols)))
         if rows_u.size:
             t = t_u[rows_u]
             out_t.append(t)
@@ -411,8 +419,9 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
         t_all = np.concatenate(out_t)
         c_all = np.concatenate(out_c)
         d_all = [d for part in out_d for d in part]
-        for j in np.lexsort((c_all, t_all)):
-            add(int(c_all[j]), int(t_all[j]), d_all[j] if isinstance(d_all[j], bytes) else d_all[j].tobytes())
+        order = np.lexsort((c_all, t_all))
+        for t, c, k in zip(t_all[order].tolist(), c_all[order].tolist(), order.tolist()):  # plain ints: fast
+            add(c, t, d_all[k])
     if landmarks is not None and len(landmarks):
         t_end = max([t_end] + [int(t[-1]) for t in (t_i, t_u) if t.size])  # after every other message
         add(ch_map, t_end, msgs.markers(t_end, landmarks["id"].to_numpy(np.int64),

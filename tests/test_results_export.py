@@ -29,7 +29,7 @@ def invoke(*args):
 def run_dir(tmp_path_factory) -> Path:
     """A run with ``output.mcap: true`` in its config and nothing else asked for."""
     out = tmp_path_factory.mktemp("runs") / "figure8"
-    run_log(SAMPLE, out, parse_config({"output": {"mcap": True}}))
+    run_log(SAMPLE, out, parse_config({"output": {"mcap": True}, "evaluation": {"plots": False}}))
     return out
 
 

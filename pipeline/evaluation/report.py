@@ -586,7 +586,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     )
     lines += ["", f"Convergence (position error stays below {conv['threshold_m']:g} m): {conv_txt}.", ""]
     if report["evo"].get("ape"):
-        lines += [f"Reproduce with evo: `{report['evo']['ape']}`.", ""]
+        lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]
     by = report.get("ape_by_alignment") or {}
     if by:
         lines += ["### APE under each alignment (same pairs)", ""]
