@@ -16,10 +16,14 @@ class StatusLine:
     """What a command is doing and since when, as one self-overwriting line on a terminal's stderr (long logs
     and first runs take a while); ``compiling`` adds the compile notice to the line."""
 
+    #: Seconds between two redraws for the compile notice alone (numba reports every function it compiles).
+    REDRAW_S = 0.25
+
     def __init__(self) -> None:
         self._start = time.perf_counter()
         self._message = ""
         self._compile = ""
+        self._drawn = 0.0
 
     def __call__(self, message: str) -> None:
         self._message = message
@@ -27,12 +31,16 @@ class StatusLine:
 
     def compiling(self, seconds: float, active: bool = True) -> None:
         """Show (``active``) or drop the compile notice with the seconds compiled so far."""
-        self._compile = f"{COMPILING}: {seconds:.0f} s ..." if active else ""
-        self._show()
+        text = f"{COMPILING}: {seconds:.0f} s ..." if active else ""
+        if text != self._compile and (time.perf_counter() - self._drawn >= self.REDRAW_S or not text or
+                                      not self._compile):
+            self._compile = text
+            self._show()
 
     def _show(self) -> None:
         text = " | ".join(t for t in (self._message, self._compile) if t)
-        click.echo(f"\r\x1b[K[{time.perf_counter() - self._start:6.1f} s] {text}", nl=False, err=True)
+        self._drawn = time.perf_counter()
+        click.echo(f"\r\x1b[K[{self._drawn - self._start:6.1f} s] {text}", nl=False, err=True)
 
     def clear(self) -> None:
         click.echo("\r\x1b[K", nl=False, err=True)
