@@ -1,6 +1,6 @@
 """``slamobs run`` end to end on long simulated logs: wall time, time per stage, peak memory, output size.
 
-    .venv/bin/python benchmarks/end_to_end.py [--hours 1 4] [--containers mcap bag] [--cache DIR]
+    .venv/bin/python benchmarks/end_to_end.py [--hours 1 4] [--containers mcap bag] [--cache DIR] [--exports]
                                               [--observer NAME ...]
 
 Logs are the ``figure8-wide`` scenario (30 landmarks, about 8 in view) at IMU 200 Hz, odometry 50 Hz,
@@ -9,13 +9,15 @@ magnetometer 50 Hz, detections 20 Hz and motion capture 100 Hz, generated once i
 piece. Each log is run by ``slamobs run`` in its own process; its peak RSS is that process's ``ru_maxrss``.
 Stages are the ``timings_s`` of the run's ``run.json``. Before the table, a short log is run twice with an
 empty numba cache directory: the difference is what the first run spends compiling (later runs load the
-kernels from the cache). The floors of the issue are checked at the end.
+kernels from the cache). The floors of the issue are checked at the end, among them that a default run
+directory is at most twice its Parquet tables. ``--exports`` runs the first log once more with every optional
+export (``--export tum,evo,mcap``) and prints the size of each group of files per hour of log.
 
 ``--observer`` runs other estimators (several: one row each). For ``batch`` the table adds the smoother's own
-stages (``seed`` = the seed observer, ``smoother`` = preintegration, GTSAM solve and bias covariance) and the
-smoother's CPU seconds, the measure that does not depend on what else the machine runs; the floors are the
-reference estimators' (batch: smoother stage <= 60 s on one core, i.e. CPU seconds, peak <= 2 GB; riekf:
->= 50x real time).
+stages (``seed`` = the seed observer, ``smoother`` = preintegration, GTSAM solve and bias covariance); ``cpu s``
+is the run's CPU seconds, the measure that does not depend on what else the machine runs. The floors of the
+reference estimators: batch's smoother stage <= 60 s on one core (its CPU seconds) and peak <= 2 GB, riekf at
+>= 50x real time.
 """
 
 from __future__ import annotations
@@ -47,6 +49,12 @@ MAX_PARQUET_1H_MB = 50.0
 MAX_SMOOTHER_1H_S = 60.0
 MAX_RSS_BATCH_MB = 2048.0
 MIN_RIEKF_REALTIME = 50.0
+# Issue "small run directories": a default run directory is at most twice its Parquet tables.
+MAX_OUT_PER_PARQUET = 2.0
+#: File groups of a run directory, for the export sizes.
+GROUPS = {"Parquet tables": ("*.parquet",), "report + figures": ("report.*", "*.png", "run.json"),
+          "tum (estimate_tum.txt, truth_tum.txt)": ("*_tum.txt",), "evo (ape_evo.zip)": ("*.zip",),
+          "mcap (results.mcap)": ("*.mcap",)}
 
 
 def cpu_model() -> str:
@@ -97,10 +105,9 @@ def size_mb(path: Path, pattern: str = "*") -> float:
     return sum(f.stat().st_size for f in path.glob(pattern) if f.is_file()) / 1e6
 
 
-def run(log: Path, out: Path, env: dict[str, str] | None = None, observer: str | None = None) -> dict:
+def run(log: Path, out: Path, env: dict[str, str] | None = None, extra: tuple[str, ...] = ()) -> dict:
     """``slamobs run`` on ``log`` in a child process; its numbers and those of its run directory."""
-    wall, rss, rc = _child([str(SLAMOBS), "run", str(log), "-o", str(out), "--force", "-q",
-                            *(["--observer", observer] if observer else [])], env)
+    wall, rss, rc = _child([str(SLAMOBS), "run", str(log), "-o", str(out), "--force", "-q", *extra], env)
     if rc:
         raise SystemExit(rc)
     meta = json.loads((out / "run.json").read_text())
@@ -108,6 +115,19 @@ def run(log: Path, out: Path, env: dict[str, str] | None = None, observer: str |
             "parquet_mb": size_mb(out, "*.parquet"), "out_mb": size_mb(out),
             "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9, "compiled": meta.get("compiled", {}),
             "smoother_cpu": meta["timings_s"].get("smoother_cpu_s")}
+
+
+def export_sizes(log: Path, hours: float, out: Path) -> None:
+    """The first log with every export: MB per hour of log of each group of files, and the export time."""
+    r = run(log, out, extra=("--export", "tum,evo,mcap"))
+    tables = size_mb(out, "*.parquet")
+    t = r["timings"]
+    print(f"# run directory with --export tum,evo,mcap ({log.name}; export stage {t.get('export_s', 0):.1f} s, "
+          f"report {t.get('report_s', 0):.1f} s)")
+    print(f"{'files':<40} {'MB per hour':>11} {'x Parquet':>9}")
+    for name, patterns in GROUPS.items():
+        mb = sum(size_mb(out, p) for p in patterns)
+        print(f"{name:<40} {mb / hours:>11.1f} {mb / tables:>9.2f}")
 
 
 def short_log(cache: Path) -> Path:
@@ -135,6 +155,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-bench",
                     help="where the generated logs and run directories are kept")
     ap.add_argument("--no-compile", action="store_true", help="skip the numba compile-time measurement")
+    ap.add_argument("--exports", action="store_true", help="also measure the optional exports on the first log")
     ap.add_argument("--observer", nargs="+", default=["fast-adaptation"],
                     help="estimators to run (one row each), e.g. fast-adaptation riekf batch")
     args = ap.parse_args()
@@ -149,48 +170,54 @@ def main() -> None:
         print(f"# numba: 60 s log with an empty cache {first:.1f} s, again (cached) {second:.1f} s; the first run "
               f"compiled {compiled.get('functions', 0)} functions in {compiled.get('seconds', 0.0):.1f} s")
     for observer in args.observer:  # the project's numba cache is filled
-        run(short_log(args.cache), args.cache / "runs" / "warmup", observer=observer)
+        run(short_log(args.cache), args.cache / "runs" / "warmup", extra=("--observer", observer))
     stages = STAGES + (EXTRA_STAGES if "batch" in args.observer else ())
     head = (f"{'log':<22} {'container':<9} {'observer':<15} {'duration':>8} {'messages':>10} {'wall s':>7} "
             f"{'x real':>7} " + " ".join(f"{s[:-2]:>8}" for s in stages)
-            + f" {'cpu s':>7} {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7}")
+            + f" {'cpu s':>7} {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7} {'out/pq':>6}")
     print(head)
-    results = {}
+    results, reference = {}, {}
     for observer in args.observer:
         for hours, container, log in logs:
-            r = run(log, args.cache / "runs" / f"{log.stem}-{container}-{observer}", observer=observer)
-            results[hours, container, observer] = r
+            r = run(log, args.cache / "runs" / f"{log.stem}-{container}-{observer}", extra=("--observer", observer))
+            (results if observer == "fast-adaptation" else reference)[hours, container, observer] = r
             t = r["timings"]
             print(f"{log.name:<22} {container:<9} {observer:<15} {hours:>7g}h {message_count(hours):>10,} "
                   f"{r['wall']:>7.1f} {r['span_s'] / r['wall']:>6.0f}x "
                   + " ".join(f"{t.get(s, float('nan')):>8.2f}" for s in stages)
-                  + f" {r['cpu']:>7.1f} {r['rss']:>11.0f} {r['parquet_mb']:>10.1f} {r['out_mb']:>7.1f}", flush=True)
+                  + f" {r['cpu']:>7.1f} {r['rss']:>11.0f} {r['parquet_mb']:>10.1f} {r['out_mb']:>7.1f}"
+                  + f" {r['out_mb'] / r['parquet_mb']:>6.2f}", flush=True)
+    results = {(h, c): r for (h, c, _), r in results.items()}
+    if args.exports and logs:
+        hours, container, log = logs[0]
+        export_sizes(log, hours, args.cache / "runs" / "exports")
 
     print("# floors")
     for container in args.containers:
-        one = results.get((1.0, container, "batch"))
+        one = reference.get((1.0, container, "batch"))
         if one:
-            # one core: the stage's CPU seconds (its wall time on an idle core; on a shared machine wall time
-            # also counts the other processes)
             stage, cpu = one["timings"]["smoother_s"], one["smoother_cpu"]
             ok = cpu <= MAX_SMOOTHER_1H_S and one["rss"] <= MAX_RSS_BATCH_MB
             print(f"{container}: batch, 1 h smoother stage {cpu:.1f} CPU s ({stage:.1f} s wall) "
                   f"(<= {MAX_SMOOTHER_1H_S:g}), peak {one['rss']:.0f} MB (<= {MAX_RSS_BATCH_MB:g}): "
                   f"{'ok' if ok else 'MISSED'}")
-        one = results.get((1.0, container, "riekf"))
+        one = reference.get((1.0, container, "riekf"))
         if one:
             speed = one["span_s"] / one["timings"]["observer_s"]
             print(f"{container}: riekf, 1 h filter stage {one['timings']['observer_s']:.1f} s = {speed:.0f}x real "
                   f"time (>= {MIN_RIEKF_REALTIME:g}x): {'ok' if speed >= MIN_RIEKF_REALTIME else 'MISSED'}")
-        if "fast-adaptation" not in args.observer:
-            continue
-        one, four = results.get((1.0, container, "fast-adaptation")), results.get((4.0, container, "fast-adaptation"))
+        one, four = results.get((1.0, container)), results.get((4.0, container))
         if one:
             ok = (one["wall"] <= MAX_WALL_1H_S and one["rss"] <= MAX_RSS_1H_MB
                   and one["parquet_mb"] < MAX_PARQUET_1H_MB)
             print(f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}), peak {one['rss']:.0f} MB "
                   f"(<= {MAX_RSS_1H_MB:g}), parquet {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
                   f"{'ok' if ok else 'MISSED'}")
+        for (hours, c), r in results.items():
+            if c == container:
+                ratio = r["out_mb"] / r["parquet_mb"]
+                print(f"{container} {hours:g} h: run directory {r['out_mb']:.1f} MB = {ratio:.2f} x its Parquet "
+                      f"tables (<= {MAX_OUT_PER_PARQUET:g}): {'ok' if ratio <= MAX_OUT_PER_PARQUET else 'MISSED'}")
         if one and four:
             ratio = four["rss"] / one["rss"]
             print(f"{container}: 4 h peak / 1 h peak = {ratio:.2f} (< 2): {'ok' if ratio < 2 else 'MISSED'}")
