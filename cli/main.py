@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.errors import exit_input_error
+from slamobs.cli.errors import handled
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
 # threads only add synchronisation (30x slower on a 2-core machine); results do not depend on the count.
@@ -16,15 +16,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 class _Group(click.Group):
-    """Turns the pipeline's input errors into one line on stderr and exit code 2 (no traceback)."""
+    """Every command ends the same way when it cannot finish (:mod:`cli.errors`): one ``error:`` line and exit
+    code 2, or exit 130/143 after SIGINT/SIGTERM; never a traceback or click's usage text."""
 
     def invoke(self, ctx):
-        from slamobs.pipeline.errors import InputError
-
-        try:
+        with handled():
             return super().invoke(ctx)
-        except InputError as err:
-            exit_input_error(err)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -51,22 +48,15 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
-    from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.observers import GainError
+    from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.run import run_log
 
-    config = load_config(config_path)
-    if observer:
-        config = replace(config, observer=observer)
+    config = with_observer(load_config(config_path), observer)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     status = _StatusLine() if not quiet and sys.stderr.isatty() else None
     try:
         summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
-    except GainError as err:
-        raise click.UsageError(str(err)) from None
-    except FileExistsError as err:
-        raise click.ClickException(str(err)) from None
     finally:
         if status:
             status.clear()
@@ -130,18 +120,16 @@ def _print_summary(summary) -> None:
 def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, force: bool) -> None:
     """Run several observers on LOG and write a side-by-side table and an overlay plot."""
     from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.observers import GainError
+    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.errors import InputError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
-        raise click.UsageError("--observers needs at least one name")
-    try:
-        table = compare_log(log, out_dir, load_config(config_path), observers, force=force)
-    except GainError as err:
-        raise click.UsageError(str(err)) from None
-    except FileExistsError as err:
-        raise click.ClickException(str(err)) from None
+        raise InputError("--observers", "needs at least one observer name")
+    config = load_config(config_path)
+    for name in observers:
+        with_observer(config, name, "--observers")
+    table = compare_log(log, out_dir, config, observers, force=force)
     with_values = table.astype(object).where(table.notna(), "")
     click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
     click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
@@ -160,6 +148,14 @@ def observers() -> None:
         width = max(len(g.name) for g in spec.gains)
         for g in spec.gains:
             click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")
+
+
+def entry() -> None:
+    """The ``slamobs`` console script: :func:`main`, ending at once after an interruption."""
+    from slamobs.cli import errors
+
+    errors.EXIT_AT_ONCE = True
+    main()
 
 
 def _add_commands() -> None:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import bz2
 import re
+import stat
 import struct
 import tempfile
 import zlib
@@ -115,13 +116,21 @@ def detect_container(path: str | Path) -> Container:
         InputError: The path is missing, unreadable or not a ROS log.
 
     """
+    from slamobs.pipeline.paths import check_input
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(path, "no such file")
-    if path.is_dir():
+    st = check_input(path, "ROS log")  # never open a FIFO or a device: the read would block or never end
+    if stat.S_ISDIR(st.st_mode):
+        try:
+            entries = sorted(path.iterdir())
+        except OSError as err:
+            raise InputError(path, f"cannot list the directory: {_one_line(err.strerror or err)}") from None
+        for entry in entries:  # what rosbags would open in it must be openable
+            if entry.name == "metadata.yaml" or entry.suffix in {".db3", ".mcap", ".zstd"}:
+                check_input(entry, "storage file of a rosbag2 directory", directory_ok=False)
         meta = path / "metadata.yaml"
         if not meta.is_file():  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none
-            inner = sorted(x for x in path.iterdir() if x.suffix in {".db3", ".mcap"} and x.is_file())
+            inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
             if len(inner) == 1:
                 found = detect_container(inner[0])
                 return replace(found, note=f"{path.name} has no metadata.yaml (recording not closed?): "
