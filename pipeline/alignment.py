@@ -391,8 +391,7 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
             where = ", ".join(f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)"
                               for k in starts[:5]) + (", ..." if starts.size > 5 else "")
             notes.append(f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
-                         f"has {starts.size + 1} segments; the observer holds its state across each gap (no "
-                         "integration over it) and picks up the landmarks again after it")
+                         f"has {starts.size + 1} segments; nothing is integrated across a gap")
     return t_om, omega, velocity, (lo, hi), starts
 
 

@@ -101,6 +101,18 @@ def _cap_note(spec, stats: dict, t0_ns: int) -> list[str]:
             "approximate (gains too stiff for the input rates, or an implausible measurement; see limits)"]
 
 
+def _segment_note(spec, stats: dict) -> list[str]:
+    """How the observer went on after each gap between segments."""
+    moved, held = stats.get("relocalised", 0), stats.get("held", 0)
+    if not moved + held:
+        return []
+    text = (f"observer '{spec.name}' after the gaps: pose re-anchored to the map at {moved} of {moved + held} (by "
+            "the first frame within time.max_meas_age seeing 3 or more mapped landmarks)")
+    if held:
+        text += f", held at {held} (the landmarks correct it from there)"
+    return [text]
+
+
 def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
     """Every path a run reads: an output must never replace or hold one of them."""
     return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times) if p]
@@ -255,7 +267,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                                                     aligned.det_ids)})
             metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
             metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
-            notes += _cap_note(spec, part.stats, t0_ns)
+            notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
             del part
             if release:
                 prepared.aligned = aligned = None
@@ -329,8 +341,9 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
                                              options=options)
         if len(segments) > 1:
             report.setdefault("notes", []).append(
-                f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap); the observer "
-                "held its state across each gap: errors just after a gap include the motion during it")
+                f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
+                "integrated across a gap and the pose was re-anchored to the map after it where a frame allowed "
+                "(run.json notes say where); errors just after a gap show how well that worked")
             report["segments"] = segments
         write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth,
                      evaluation=evaluation, plots=config.plots)

@@ -10,9 +10,11 @@ Every kernel call does a bounded amount of work (``WORK_PER_CALL``; each interva
 ``shared_steps.MAX_SUBSTEPS`` sub-steps) and returns to Python, which then handles Ctrl-C and SIGTERM
 (compiled code never runs Python's signal handlers) and stops a diverged run early.
 
-Segments (``AlignedStream.segment_starts``, velocity gaps longer than ``limits.max_gap``): the state is
-held across a gap, not integrated with the twist held from before it; the clock jumps to the first sample
-after the gap and the landmarks count as unseen until the next frame.
+Segments (``AlignedStream.segment_starts``, velocity gaps longer than ``limits.max_gap``): nothing is
+integrated across a gap (the twist held from before it says nothing about the motion during it); the clock
+jumps to the first sample after the gap and the landmarks count as unseen until the next frame. The map and
+the biases are kept. The pose is re-anchored to the map (:meth:`Stepper._relocalise`) by the first frame
+within ``max_meas_age`` after the gap that sees at least three mapped landmarks; without one it is held.
 """
 
 from __future__ import annotations
@@ -213,7 +215,9 @@ class Stepper:
         while True:
             nxt = int(starts[self._segment]) if self._segment < starts.shape[0] else self.n_vel
             if ns[_IV] == nxt < self.n_vel and ns[_JF] >= self._frames_before(nxt):
-                self.state.restart(float(self.vel_t[nxt]))  # a segment starts: hold the state across the gap
+                self.state.restart(float(self.vel_t[nxt]))  # a segment starts: nothing integrated across the gap
+                key = "relocalised" if self._relocalise(nxt) else "held"
+                self.stats[key] = self.stats.get(key, 0) + 1
                 self._segment += 1
                 continue
             stop = min(iv_stop, nxt)
@@ -236,6 +240,40 @@ class Stepper:
             det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
             innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(),
         )
+
+    def _relocalise(self, iv: int) -> bool:
+        """Re-anchor the pose to the map at segment start ``iv``: the least-squares rigid fit of the first
+        frame within ``max_meas_age`` that sees three or more mapped landmarks (not all on a line), carried
+        back to the segment start with the bias-corrected odometry. False when no frame qualifies."""
+        from slamobs.pipeline.evaluation.align import umeyama
+        from slamobs.pipeline.lie import se3_exp
+
+        s, st = self.stream, self.state
+        t_b = self.vel_t[iv]
+        jf = int(st.ns[_JF])
+        while jf < self.det_t.shape[0] and self.det_t[jf] - t_b <= self.options.max_meas_age:
+            a, b = int(s.det_offsets[jf]), int(s.det_offsets[jf + 1])
+            idx = s.det_idx[a:b]
+            known = self.lm_init[idx]
+            if np.count_nonzero(known) >= 3:
+                try:
+                    r_f, p_f, _ = umeyama(s.det_y[a:b][known], self.lm[idx[known]])
+                except ValueError:  # collinear
+                    jf += 1
+                    continue
+                # body motion from t_b to the frame, then the pose at t_b = T_f T_bf⁻¹
+                r_bf, p_bf = np.eye(3), np.zeros(3)
+                k = iv
+                while k < self.n_vel and self.vel_t[k] < self.det_t[jf]:
+                    dt = min(self.vel_t[k + 1] if k + 1 < self.n_vel else np.inf, self.det_t[jf]) - self.vel_t[k]
+                    d_r, d_p = se3_exp(dt * (s.omega[k] - st.b_om), dt * (s.velocity[k] - st.b_v))
+                    p_bf, r_bf = p_bf + r_bf @ d_p, r_bf @ d_r
+                    k += 1
+                st.r_hat[:, :] = r_f @ r_bf.T
+                st.p_hat[:] = p_f - st.r_hat @ p_bf
+                return True
+            jf += 1
+        return False
 
     def _check_state(self) -> None:
         st = self.state
