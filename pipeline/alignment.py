@@ -220,6 +220,7 @@ def align(
     body = (body_frame or lv.frame_id or "base_link").lstrip("/")
     ident = {f.lstrip("/") for f in identity_frames}
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
+    _check_frames(streams, tf, body_frame, ident)
     frame = _Frame(tf, body, ident, time_source, [])
     dir_frame = _Frame(tf, body, ident, time_source, [])
 
@@ -257,6 +258,22 @@ def align(
         directions=directions if keep_directions else None,
         segment_starts=starts,
     )
+
+
+def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str]) -> None:
+    """The frames the config names exist in the log: ``frames.body`` as a stream frame or in TF,
+    ``frames.assume_identity`` as the frame of a sensor stream (the only frames it applies to)."""
+    sensors = {s.frame_id.lstrip("/") for s in (streams.angular_velocity, streams.linear_velocity, streams.detections,
+                                                streams.accel, streams.magnetic) if s is not None and s.frame_id}
+    if body_frame:
+        body = body_frame.lstrip("/")
+        if body not in sensors | tf.frames:
+            known = ", ".join(sorted(sensors | tf.frames)[:12]) or "none"
+            raise InputError(streams.path, f"frames.body names '{body}', which is not a frame of the log (its frames: "
+                                           f"{known})")
+    if unused := sorted(ident - sensors):
+        raise InputError(streams.path, f"frames.assume_identity names {', '.join(repr(f) for f in unused)}, which no "
+                                       f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})")
 
 
 def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,

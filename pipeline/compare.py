@@ -11,7 +11,7 @@ import numpy as np
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers import get_observer
-from slamobs.pipeline.run import RunSummary, prepare_log, run_prepared
+from slamobs.pipeline.run import RunSummary, prepare_log, run_inputs, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
            "vel_bias_err", "convergence_s", "run_time_s", "error")
@@ -25,13 +25,16 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     """
     import pandas as pd
 
+    from slamobs.pipeline.paths import check_output
     from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
         get_observer(name).resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
+    inputs = run_inputs(Path(log), config)
+    check_output(out_dir, inputs, force=force)  # before reading the log: nothing touched
     prepared = prepare_log(log, config)
     rows, summaries = [], {}
-    with atomic_directory(out_dir, force=force) as tmp:
+    with atomic_directory(out_dir, force=force, inputs=inputs) as tmp:
         for name in observers:
             t = time.perf_counter()
             try:
