@@ -340,10 +340,14 @@ def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> No
     if t.shape[0] == 1:
         raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
     if t[0] == t[-1]:
-        zero = " (all zero)" if t[0] == 0 else f" ({t[0] * 1e-9:.3f} s)"
-        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time{zero} on its "
-                               f"{_clock(stream)}: the stamps do not advance; time.source: record uses the record "
-                               "times")
+        when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
+        clock = _clock(stream)
+        if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
+            hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
+        else:
+            hint = "its record times do not advance either: the log carries no usable time for it"
+        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; "
+                               f"{hint}")
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):

@@ -376,8 +376,13 @@ def test_degenerate_stamps_name_the_real_cause(sim):
     s = expected_streams(sim, "mem.bag")
     om = s.angular_velocity
     same = replace(s, angular_velocity=replace(om, t_ns=np.full_like(om.t_ns, om.t_ns[0])))
-    with pytest.raises(InputError, match=r"all \d+ samples have the same time .* do not advance"):
+    with pytest.raises(InputError, match=r"all \d+ samples have the same time .* header stamps; its record times "
+                                         r"advance: set time.source: record"):
         align(same)
+    # all-zero header stamps are replaced by record times (reader); all-zero record times too: no usable time
+    zeros = np.zeros_like(om.t_ns)
+    with pytest.raises(InputError, match=r"same time \(zero\) on its record time; its record times do not advance"):
+        align(replace(s, angular_velocity=replace(om, t_ns=zeros, rec_ns=zeros)))
     one = replace(s, angular_velocity=replace(om, t_ns=om.t_ns[:1], rec_ns=om.rec_ns[:1], xyz=om.xyz[:1]))
     with pytest.raises(InputError, match="has a single sample"):
         align(one)
@@ -399,3 +404,24 @@ def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
 def test_config_limits_are_parsed_and_switchable():
     cfg = parse_config({"limits": {"max_range": None, "max_gap": 60}})
     assert cfg.limits["max_range"] is None and cfg.limits["max_gap"] == 60.0 and cfg.limits["min_range"] == 0.05
+
+
+@pytest.mark.parametrize("name", ["fast-adaptation", "hashim", "hashim-imu", "wang-tayebi", "hybrid"])
+def test_kernel_work_budget_does_not_change_the_result(sim, monkeypatch, name):
+    """The kernels stop after a bounded amount of work (so signals are handled) and resume exactly where they
+    stopped: a tiny budget (many calls, stops before frames and samples alike) gives identical outputs."""
+    from slamobs.pipeline.observers import ObserverOptions, get_observer
+    from slamobs.pipeline.observers import base
+
+    spec = get_observer(name)
+    stream = align(expected_streams(sim, "mem.bag"))
+    gains = spec.resolve_gains({})
+    whole = spec.run(stream, gains, ObserverOptions())
+    monkeypatch.setattr(base, "WORK_PER_CALL", 37)
+    parts = spec.run(stream, gains, ObserverOptions())
+    for field in ("t_ns", "rotation", "position", "gyro_bias", "vel_bias", "landmark_xyz", "track_xyz", "innovation"):
+        np.testing.assert_array_equal(getattr(parts, field), getattr(whole, field), err_msg=field)
+    assert parts.stats["substeps"] == whole.stats["substeps"]
+    for table, columns in whole.extra_tables.items():
+        for col, values in columns.items():
+            np.testing.assert_array_equal(parts.extra_tables[table][col], values, err_msg=f"{table}.{col}")

@@ -166,6 +166,8 @@ def _explain(container: Container, err: BaseException) -> InputError:
     if not reason:
         reason = "index and data disagree" if isinstance(err, AssertionError) else type(err).__name__
     reason = re.sub(r"\('(.*)',\)", r"\1", reason)  # rosbags nests args tuples in some messages
+    if len(reason) > 300:  # e.g. a whole message definition quoted by the parser
+        reason = reason[:297] + "..."
     if isinstance(err, PermissionError):
         return InputError(container.path, "permission denied")
     if "Profile is not ros2" in reason:
@@ -262,6 +264,7 @@ class _Unit:
     partial: bool = False  # cut off: decompress what is there and keep the complete records
     indexed: bool = False  # found through the file's index / summary: a damaged one is skipped, counted
     messages: int = -1  # messages in it according to the index (-1: unknown)
+    recovered: bool = False  # found by a scan, which reported where its records end
 
 
 class DamagedError(Exception):
@@ -483,15 +486,22 @@ class _Chunked:
         """
         wanted = set(ids.ids.tolist())
         units = [u for u in self.units if not u.conns or u.conns & wanted]
+        read = 0
         if not ordered:
             for unit in units:
                 if (batch := self._load_or_skip(unit, ids)) is not None:
+                    read += 1
                     yield batch
-            return
-        for group in _clusters(units):
-            loaded = [b for u in group if (b := self._load_or_skip(u, ids)) is not None]
-            if loaded:
-                yield _concat(loaded).in_record_order()
+        else:
+            for group in _clusters(units):
+                loaded = [b for u in group if (b := self._load_or_skip(u, ids)) is not None]
+                if loaded:
+                    read += len(loaded)
+                    yield _concat(loaded).in_record_order()
+        if units and not read:
+            why = self.lost[min(self.lost)][2] if getattr(self, "lost", None) else "damaged"
+            msg = f"every chunk holding the topics read is damaged ({why})"
+            raise DamagedError(msg)
 
     def _load_or_skip(self, unit: _Unit, ids: _Ids) -> RawBatch | None:
         if not unit.indexed:
@@ -530,6 +540,8 @@ class _Chunked:
         data = _read_unit(self.bio, unit)
         recs = _records(self.walk, data)
         if recs.status == _BAD or (recs.status == _CUT and not unit.partial):
+            if unit.recovered:  # the scan kept the complete records before the damage and said so
+                return _batch(data, recs, self.message_op, ids)
             if not unit.indexed:
                 msg = f"records of the chunk at byte {unit.pos} are damaged"
                 raise DamagedError(msg)
@@ -703,16 +715,13 @@ class Ros1Bag(_Chunked, Reader1):
             data_pos = pos + 8 + hlen
             cut = data_pos + dlen > size or (op == RecordType.CHUNK and dlen == 0)  # 0: never finalised
             if op == RecordType.CHUNK:
-                unit = _Unit(
-                    data_pos,
-                    size - data_pos if cut else dlen,
-                    header.get_string("compression"),
-                    header.get_uint32("size"),
-                    0,
-                    0,
-                    frozenset(),
-                    partial=cut,
-                )
+                try:
+                    compression, raw_size = header.get_string("compression"), header.get_uint32("size")
+                except Ros1ReaderError:
+                    where = "at a damaged chunk header"
+                    break
+                unit = _Unit(data_pos, size - data_pos if cut else dlen, compression, raw_size, 0, 0, frozenset(),
+                             partial=cut)
                 try:
                     data = _read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError) as err:
@@ -731,7 +740,7 @@ class Ros1Bag(_Chunked, Reader1):
                     t = recs.t_ns[msgs]
                     self.units.append(
                         _Unit(unit.pos, unit.size, unit.compression, unit.raw_size, int(t.min()), int(t.max()),
-                              frozenset(ids.tolist()), partial=cut),
+                              frozenset(ids.tolist()), partial=cut, recovered=True),
                     )
                     self.chunk_infos.append(
                         Ros1ChunkInfo(pos, int(t.min()), int(t.max()) + 1, dict(zip(ids.tolist(), counts.tolist()))),
@@ -914,7 +923,8 @@ class McapStorage(_Chunked, McapReader):
                     t = recs.t_ns[msgs]
                     lo, hi = int(t.min()), int(t.max())
                     self.units.append(
-                        _Unit(data_pos, avail, compression, raw_size, lo, hi, frozenset(ids.tolist()), pos + 33, cut),
+                        _Unit(data_pos, avail, compression, raw_size, lo, hi, frozenset(ids.tolist()), pos + 33, cut,
+                              recovered=True),
                     )
                     count += int(msgs.sum())
                     first = lo if first is None else min(first, lo)
