@@ -196,7 +196,7 @@ def _resolved_spec(config: RunConfig):
         spec = get_observer(config.observer)
         spec.resolve_gains(config.gains.get(spec.name))
     except GainError as err:
-        raise InputError(config.source or "--observer", str(err)) from None
+        raise InputError(config.source or "<config>", str(err)) from None
     return spec
 
 
