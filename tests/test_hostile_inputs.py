@@ -292,6 +292,27 @@ def test_output_os_errors_are_one_line_and_leave_nothing(logs, tmp_path, quick, 
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 
+def test_a_real_write_error_is_one_line(logs, tmp_path, quick):
+    """A file size limit (``RLIMIT_FSIZE``) makes the Parquet writer itself fail with EFBIG, as a full disk would."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    def small_files():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of being killed
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+    out = tmp_path / "out"
+    proc = subprocess.run([str(Path(sys.executable).with_name("slamobs")), "run", str(logs["bag"]), "-o", str(out),
+                           "--config", str(quick), "-q"], capture_output=True, text=True, preexec_fn=small_files,
+                          timeout=600)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and len(err.splitlines()) == 1, (proc.returncode, err)
+    assert err.startswith(f"error: {out}: cannot write the output: ") and "too large" in err.lower(), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 def test_bad_truth_keeps_the_observer_output(sim, tmp_path, quick, monkeypatch):
     q = sim.mocap.quat_xyzw.copy()
     q[::50] = 0.0
