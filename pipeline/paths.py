@@ -29,7 +29,7 @@ _KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character de
 
 def _stat_error(path: Path, err: OSError) -> InputError:
     if err.errno == errno.ELOOP:
-        return InputError(path, "symbolic link loop (the link points back to itself)")
+        return InputError(path, "symbolic link loop (following the links never reaches a file)")
     if err.errno == errno.ENOENT:
         if path.is_symlink():
             return InputError(path, f"dangling symbolic link (to {os.readlink(path)}, which does not exist)")
