@@ -11,7 +11,7 @@ import numpy as np
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers import get_observer
-from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_prepared
+from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_inputs, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
            "vel_bias_err", "convergence_s", "run_time_s", "error")
@@ -30,16 +30,19 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     """
     import pandas as pd
 
+    from slamobs.pipeline.paths import check_output
     from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
         spec = get_observer(name)
         spec.resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
         spec.directions_needed(replace(config, observer=name))  # and bad estimator settings
+    inputs = run_inputs(Path(log), config)
+    check_output(out_dir, inputs, force=force)  # before reading the log: nothing touched
     on_observer(f"reading {log}")
     prepared = prepare_log(log, config, progress=progress)
     rows, summaries = [], {}
-    with atomic_directory(out_dir, force=force) as tmp:
+    with atomic_directory(out_dir, force=force, inputs=inputs) as tmp:
         for k, name in enumerate(observers, 1):
             t = time.perf_counter()
             step = f"observer {k} of {len(observers)}"

@@ -180,10 +180,16 @@ def test_existing_output_is_kept_without_force(generated, tmp_path):
     out.mkdir()
     (out / "keep.txt").write_text("precious")
     res = invoke("run", generated["bag"], "-o", out)
-    assert res.exit_code != 0 and "--force" in res.stderr
+    assert res.exit_code == 2 and res.stderr.startswith("error: ") and "--force" in res.stderr
     assert (out / "keep.txt").read_text() == "precious"
+    # --force replaces earlier runs only, never a directory of someone's files
+    res = invoke("run", generated["bag"], "-o", out, "--force")
+    assert res.exit_code == 2 and "not a slamobs output" in res.stderr and len(res.stderr.splitlines()) == 1
+    assert (out / "keep.txt").read_text() == "precious"
+    (out / "keep.txt").unlink()
+    (out / "run.json").write_text("{}")  # an earlier run
     assert invoke("run", generated["bag"], "-o", out, "--force", "-q").exit_code == 0
-    assert not (out / "keep.txt").exists() and (out / "poses.parquet").exists()
+    assert (out / "poses.parquet").exists() and json.loads((out / "run.json").read_text())["observer"]
 
 
 def test_failure_during_report_leaves_nothing(generated, tmp_path, monkeypatch):
@@ -194,8 +200,8 @@ def test_failure_during_report_leaves_nothing(generated, tmp_path, monkeypatch):
 
     monkeypatch.setattr(ev, "write_report", boom)
     out = tmp_path / "out"
-    with pytest.raises(OSError):
-        invoke("run", generated["bag"], "-o", out)
+    res = invoke("run", generated["bag"], "-o", out)
+    assert res.exit_code == 2 and res.stderr.strip() == f"error: {out}: cannot write the output: disk full"
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir()] == []
 

@@ -139,6 +139,7 @@ class TrajectoryEvaluation:
 def evaluate_trajectory(poses: pd.DataFrame, truth: PoseStream, options: ReportOptions, *,
                         estimate_offset: bool = True) -> TrajectoryEvaluation:
     """Estimate the clock offset, associate, align and compute the APE vectors."""
+    truth, _ = valid_truth(truth)
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
     est = estimate_stream(poses)
@@ -159,6 +160,19 @@ def evaluate_trajectory(poses: pd.DataFrame, truth: PoseStream, options: ReportO
     rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate",
               like=trans)
     return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
+
+
+def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
+    """``truth`` without poses that are no rotation (a zero or non-finite quaternion, a non-finite position),
+    and how many were dropped."""
+    q = np.asarray(truth.quat_xyzw, dtype=np.float64)
+    ok = np.isfinite(q).all(axis=1) & np.isfinite(np.asarray(truth.position)).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= np.linalg.norm(np.where(ok[:, None], q, 0.0), axis=1) > 1e-6
+    if ok.all():
+        return truth, 0
+    return PoseStream(truth.topic, truth.frame_id, truth.child_frame_id, np.asarray(truth.t_ns)[ok],
+                      np.asarray(truth.rec_ns)[ok], np.asarray(truth.position)[ok], q[ok]), int((~ok).sum())
 
 
 def _sorted(stream: PoseStream) -> PoseStream:
@@ -460,6 +474,9 @@ def evaluate_tables(
     bias table of a long run freed before the trajectory is evaluated."""
     options = replace(options or ReportOptions(), **overrides)
     notes: list[str] = []
+    truth, invalid = valid_truth(truth)
+    if invalid:
+        notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
     bias_section = _bias_section(tables.pop("biases", None), bias_truth, options.bias_window_fraction)
     ev = evaluate_trajectory(tables.pop("poses"), truth, options)  # ``ev.estimate`` holds what is needed
     landmarks = tables.pop("landmarks", None)

@@ -48,7 +48,14 @@ from slamobs.pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from slamobs.pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
+from slamobs.pipeline.observers.shared_steps import (
+    count_capped,
+    landmark_sums,
+    load_frame,
+    predict_points,
+    record_row,
+    substep_count,
+)
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
 STEP_RATIO = 0.5
@@ -76,7 +83,7 @@ def _substeps(dt, y, nvis, dir_w, k_p, k_w, alpha, gamma_max, k_1, k_2):
     lam_bias = 5.0 * math.sqrt(gamma_max * (s / alpha + k_2 * sw))
     if lam_bias > lam:
         lam = lam_bias
-    return max(1, int(math.ceil(dt * lam / STEP_RATIO)))
+    return substep_count(dt, lam, STEP_RATIO)
 
 
 @njit(cache=True)
@@ -191,27 +198,34 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
              det_t, det_offsets, det_idx, det_y, lm, lm_init,
              k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, iv_stop,
-             r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns,
+             budget, r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns,
              out_k, out_r, out_p, out_b, trk_p, innov, det_base):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
-    sample ``iv_stop``; stores the state back and returns the number of rows recorded."""
+    sample ``iv_stop`` or ``budget`` work units are spent; stores the state back and returns the number of
+    rows recorded."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     n_dir = dir_inertial.shape[0]
     t, meas_t = fs[_T], fs[_MEAS_T]
     iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
     o = 0
-    while iv < n_vel or jf < n_frames:
+    work = 0
+    corotated = lm.shape[0] if k_1 > 0.0 and n_dir > 0 else 0  # landmarks each IMU sub-step rotates
+    while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
             break
         t_next = det_t[jf] if is_frame else vel_t[iv]
+        work += 1
         if started and t_next > t:
             if t - meas_t > max_meas_age:
                 nvis = 0
-            substeps += _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, dir_inertial, dir_b, dir_w,
-                                   r_hat, p_hat, lm, lm_init, b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v,
-                                   k_1, k_2, min_landmarks_bias, counter)
+            m = _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, dir_inertial, dir_b, dir_w,
+                           r_hat, p_hat, lm, lm_init, b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v,
+                           k_1, k_2, min_landmarks_bias, counter)
+            substeps += m
+            work += m * (nvis + 1 + corotated)
+            count_capped(m, iv, ns)
             t = t_next
         if is_frame:
             a = det_offsets[jf]
@@ -272,7 +286,7 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     o = _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
                  det_t, det_offsets, det_idx, det_y, lm, lm_init,
                  k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, n_vel,
-                 *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
+                 np.iinfo(np.int64).max, *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 
@@ -298,11 +312,11 @@ class Hashim(Stepper):
         self.state = _State(self.n_max, dirs[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
                             np.zeros(3), np.zeros(3))
 
-    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+    def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
         rows = _advance(self.vel_t, s.omega, s.velocity, *self.dirs, self.det_t, s.det_offsets, s.det_idx,
                         s.det_y, self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age,
-                        o.out_every, iv_stop, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk,
+                        o.out_every, iv_stop, budget, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk,
                         out.innov, out.det_base)
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows

@@ -15,6 +15,8 @@ p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is 
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
   correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
+* Gaps (new segments, ``limits.max_gap``): nothing is integrated across them (as for the observers); the pose
+  is re-anchored to the map where a frame allows it and gets the covariance of a fresh start (``GAP_SIGMA``).
 * New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
   (independent of the attitude error in these coordinates), so its rows copy ``P̂``'s and its own block is
   ``Σ_PP + N``. Landmarks out of view stay in the state with their estimate and covariance; as in every
@@ -49,7 +51,12 @@ N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
 _T, _MEAS_T, _ACC_DT = 0, 1, 2
-_IV, _JF, _NSEEN, _STARTED, _STEPS, _GATED, _UPDATES, _SKIPPED = 0, 1, 2, 3, 4, 5, 6, 7
+#: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
+#: steps, and the sub-step cap's two, never hit here), then the filter's own.
+_IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
+_NSEEN, _GATED, _UPDATES, _SKIPPED = 7, 8, 9, 10
+#: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
+_FRAME_WORK_SCALE = 1000
 
 
 @njit(cache=True)
@@ -378,11 +385,12 @@ def _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v,
 
 @njit(cache=True)
 def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, lm, q_om, q_v, q_bw, q_bv,
-             gate, out_every, iv_stop, r_hat, p_hat, b_om, b_v, om_m, v_m, counter, fs, ns, cov, slot_of, slot_lm,
-             acc, f, g, sel, z, pht, smat, out_k, out_r, out_p, out_b, trk_p, innov, det_base, cov_out):
+             gate, out_every, iv_stop, budget, r_hat, p_hat, b_om, b_v, om_m, v_m, counter, fs, ns, cov, slot_of,
+             slot_lm, acc, f, g, sel, z, pht, smat, out_k, out_r, out_p, out_b, trk_p, innov, det_base, cov_out):
     """The event loop from the state in the arrays until the next event is velocity sample ``iv_stop`` (all
-    events when it is the sample count); returns the number of rows recorded. ``cov_out`` (rows, 12, 12) receives
-    the pose-and-bias covariance at each recorded row when it has rows (tests), else nothing."""
+    events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
+    ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
+    (tests), else nothing."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     t, acc_dt = fs[_T], fs[_ACC_DT]
@@ -393,10 +401,12 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, 
     bias = np.empty(6)
     o = 0
     want_cov = cov_out.shape[0] > 0
-    while iv < n_vel or jf < n_frames:
+    work = 0
+    while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
             break
+        work += 1
         t_next = det_t[jf] if is_frame else vel_t[iv]
         if started and t_next > t:
             dt = t_next - t
@@ -418,12 +428,14 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, 
                     r_hat[:, :] = project_so3(r_hat)
             acc_dt += dt
             steps += m
+            work += m
             t = t_next
         if is_frame:
             _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
             acc_dt = 0.0
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
+            work += d * d * (3 * nd + 6) // _FRAME_WORK_SCALE
             d = _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
                         sel, z, pht, smat, innov, trk_p, a0 - det_base, ns, gate)
             fs[_MEAS_T] = t_next
@@ -457,7 +469,7 @@ class _State(KernelState):
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
         super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=3)
-        self.ns = np.zeros(8, dtype=np.int64)
+        self.ns = np.concatenate([self.ns, np.zeros(4, dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
         self.cov = np.zeros((dim, dim))
         for c in range(6):
@@ -479,6 +491,8 @@ class _State(KernelState):
                 self.smat)
 
 
+#: Pose standard deviations (rad, m) after a gap: re-anchored to the map (True) or held from before it (False).
+GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 #: Largest state the filter builds (dimensions): its covariance is dense, (12 + 3n)² doubles.
 MAX_DIM = 6012
 
@@ -514,11 +528,33 @@ class RiEKF(Stepper):
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
 
-    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+    def _relocalise(self, iv: int) -> bool:
+        """After a gap (a new segment): the pose re-anchored to the map as the observers do it, and its
+        covariance replaced by that of a fresh start (``GAP_SIGMA``, uncorrelated with map and biases), larger
+        when no frame allowed the re-anchoring and the pose is held from before the gap."""
+        st = self.state
+        d = N_FIXED + 3 * int(st.ns[_NSEEN])
+        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *self.params[2:4], st.f, st.g)
+        st.fs[_ACC_DT] = 0.0
+        self.lm_init[:] = st.slot_of >= 0
+        moved = super()._relocalise(iv)
+        rot, pos = GAP_SIGMA[moved]
+        bias = st.cov[6:12, 6:12].copy()
+        st.cov[:6, :d] = 0.0
+        st.cov[:d, :6] = 0.0
+        st.cov[6:12, 6:12] = bias
+        st.cov[:3, :3] = rot ** 2 * np.eye(3)
+        st.cov[3:6, 3:6] = pos ** 2 * np.eye(3)
+        return moved
+
+    def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
-        cov_out = self.cov_rows if self.cov_rows is not None else np.zeros((0, N_FIXED, N_FIXED))
+        if self.cov_rows is not None:  # the rows of this call: those not yet written
+            cov_out = self.cov_rows[self.cov_rows.shape[0] - out.k.shape[0]:]
+        else:
+            cov_out = np.zeros((0, N_FIXED, N_FIXED))
         rows = _advance(self.vel_t, s.omega, s.velocity, self.det_t, s.det_offsets, s.det_idx, s.det_y,
-                        self.det_sigma2, self.lm, *self.params, o.out_every, iv_stop, *self.state.arrays(),
+                        self.det_sigma2, self.lm, *self.params, o.out_every, iv_stop, budget, *self.state.arrays(),
                         out.k, out.r, out.p, out.b, out.trk, out.innov, out.det_base, cov_out)
         ns = self.state.ns
         self.stats["substeps"] = int(ns[_STEPS])

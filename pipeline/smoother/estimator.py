@@ -14,10 +14,14 @@ import time
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.observers.base import ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings, batch_settings
 
 GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam]'"
+#: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
+#: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
+GAP_SIGMA = (1.0, 100.0)
+_IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
 
 
 def require_gtsam() -> None:
@@ -70,6 +74,8 @@ class BatchSmoother(Stepper):
         self.seed_override = seed
         self.fixed_bias = fixed_bias
         self.result = None  # filled by the first stretch
+        # the shared state the stretch driver reads: its clocks, and the last pose written
+        self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
     # ------------------------------------------------------------------ the whole solve
     def solve(self, progress=None) -> dict:
@@ -82,7 +88,9 @@ class BatchSmoother(Stepper):
         vel_t, det_t = self.vel_t, self.det_t
         if vel_t.shape[0] < 2:
             raise InputError(self.where, "the batch smoother needs at least two velocity samples")
-        kf_t = keyframe_times(vel_t, det_t, st.keyframe_dt)
+        starts = s.segment_starts
+        gaps = np.stack([vel_t[starts - 1], vel_t[starts]], axis=-1) if starts.size else None
+        kf_t = keyframe_times(vel_t, det_t, st.keyframe_dt, gaps)
         kf_of_frame = np.searchsorted(kf_t, det_t)
         kf_of_det = np.repeat(kf_of_frame, np.diff(s.det_offsets))
         k = kf_t.shape[0]
@@ -110,6 +118,9 @@ class BatchSmoother(Stepper):
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
         preintegrate(vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro ** 2, nz.velocity ** 2, data, cov)
+        for lo, hi in (gaps if gaps is not None else ()):  # intervals across a gap: (almost) no constraint
+            across = (kf_t[:-1] < hi) & (kf_t[1:] > lo)
+            cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
         if self.fixed_bias is None:
             prior_mean, prior = np.zeros(6), np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
@@ -139,32 +150,44 @@ class BatchSmoother(Stepper):
         return summary
 
     # ------------------------------------------------------------------ stretches
-    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+    def _relocalise(self, iv: int) -> bool:
+        """A new segment: nothing to do here, the keyframes after the gap are fit to the map by the solve (the
+        relative motion across the gap is left almost unconstrained, ``GAP_SIGMA``)."""
+        return True
+
+    def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
+        """Everything from the state's next sample to ``iv_stop`` at once (the solve, on the first call, is
+        Python and GTSAM calls of at most seconds each: signals are handled between them)."""
         from slamobs.pipeline.smoother.preintegration import sample_poses
 
         if self.result is None:
             self.solve()
-        res, s = self.result, self.stream
+        res, s, ns = self.result, self.stream, self.state.ns
         sol = res["solution"]
         n_vel = self.n_vel
         every = self.options.out_every
-        rows = np.arange(self.iv, iv_stop)
+        rows = np.arange(int(ns[_IV]), iv_stop)
         rows = rows[(rows % every == 0) | (rows == n_vel - 1)]
+        n = rows.shape[0]
         bias_rows = sol.bias[res["segments"].of(self.vel_t)]
-        sample_poses(self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r, out.p)
-        out.k[:] = rows
-        out.b[:] = bias_rows[rows]
-        # detections of the frames in this stretch: estimates from the solution at their keyframes
-        jf_stop = (int(np.searchsorted(self.det_t, self.vel_t[iv_stop], side="left")) if iv_stop < n_vel
-                   else self.det_t.shape[0])
-        a, b = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
+        sample_poses(self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r[:n],
+                     out.p[:n])
+        out.k[:n] = rows
+        out.b[:n] = bias_rows[rows]
+        # detections of the frames up to iv_stop: estimates from the solution at their keyframes
+        jf_stop = self._frames_before(iv_stop)
+        a, b = int(s.det_offsets[int(ns[_JF])]), int(s.det_offsets[jf_stop])
         if b > a:
             kf = res["kf_of_det"][a:b]
             lm = sol.landmarks[s.det_idx[a:b]]
-            out.trk[:] = lm
-            out.innov[:] = lm - np.einsum("mij,mj->mi", sol.rot[kf], s.det_y[a:b]) - sol.pos[kf]
+            out.trk[a - out.det_base:b - out.det_base] = lm
+            out.innov[a - out.det_base:b - out.det_base] = (lm - np.einsum("mij,mj->mi", sol.rot[kf], s.det_y[a:b])
+                                                            - sol.pos[kf])
         self.lm[:] = sol.landmarks
-        return rows.shape[0]
+        if n:
+            self.state.r_hat[:], self.state.p_hat[:] = out.r[n - 1], out.p[n - 1]
+        ns[_IV], ns[_JF] = iv_stop, jf_stop
+        return n
 
 
 SPEC = ObserverSpec(

@@ -47,12 +47,16 @@ def twist_at(vel_t, omega, vel, s, tau, bias):
             g * vel[s, 1] + f * vel[s1, 1] - bias[4], g * vel[s, 2] + f * vel[s1, 2] - bias[5])
 
 
-def keyframe_times(vel_t: np.ndarray, det_t: np.ndarray, max_dt: float) -> np.ndarray:
+def keyframe_times(vel_t: np.ndarray, det_t: np.ndarray, max_dt: float,
+                   gaps_between: np.ndarray | None = None) -> np.ndarray:
     """Every detection frame time, the first and last velocity sample, and evenly spaced fillers so that no two
-    keyframes are more than ``max_dt`` apart (seconds, sorted, unique)."""
+    keyframes are more than ``max_dt`` apart (seconds, sorted, unique), except across the gaps between segments
+    (``gaps_between``: (G, 2) start and end times), which one keyframe interval spans."""
     base = np.unique(np.concatenate([[vel_t[0]], det_t[(det_t >= vel_t[0]) & (det_t <= vel_t[-1])], [vel_t[-1]]]))
     gaps = np.diff(base)
     pieces = np.maximum(1, np.ceil(gaps / max_dt - 1e-9).astype(np.int64))
+    for lo, hi in (gaps_between if gaps_between is not None else ()):
+        pieces[(base[:-1] <= lo) & (base[1:] >= hi)] = 1
     if np.all(pieces == 1):
         return base
     extra = [base[i] + gaps[i] * np.arange(1, pieces[i]) / pieces[i] for i in np.flatnonzero(pieces > 1)]

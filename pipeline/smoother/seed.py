@@ -63,10 +63,16 @@ def observer_seed(name: str, stream: AlignedStream, gains: dict, options, kf_t: 
     s_of_kf = np.searchsorted(vel_t, kf_t, side="right") - 1  # the sample each keyframe falls in
     k = kf_t.shape[0]
     rot, pos, bias = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6))
+    from slamobs.pipeline.observers.base import ObserverDiverged
+
     part = None
     first = 0
     for stop in range(STRETCH, stepper.n_vel + STRETCH, STRETCH):
-        part = stepper.advance(stop)
+        try:
+            part = stepper.advance(stop)
+        except ObserverDiverged:
+            part = None
+            break
         n = part.t_ns.shape[0]
         sel = np.flatnonzero((s_of_kf >= first) & (s_of_kf < first + n))
         rows = s_of_kf[sel] - first
