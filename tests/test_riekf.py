@@ -15,7 +15,7 @@ from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian, so3_log
 from slamobs.pipeline.noise import DEFAULTS, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
-from slamobs.pipeline.observers.riekf import N_FIXED, RiEKF, _accumulate, _flush, _update
+from slamobs.pipeline.observers.riekf import _SKIPPED, N_FIXED, RiEKF, _accumulate, _flush, _update
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
@@ -107,7 +107,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
     cov_exp[:d, d:] = c_new[:, 3:6]
     cov_exp[d:, d:] = c_new[3:6, 3:6] + sigma2[1] * np.eye(3)
     # the kernel
-    ns = np.zeros(8, dtype=np.int64)
+    ns = np.zeros(_SKIPPED + 1, dtype=np.int64)  # the kernel's integer state, all slots
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
     d_out = _update(0, 3, det_idx, det_y, sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
                     np.zeros(3, np.int64), np.zeros(9), np.zeros((cov.shape[0], 9)), np.zeros((9, 9)),
