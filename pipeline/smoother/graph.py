@@ -76,9 +76,10 @@ class Solution:
     summary: dict = field(default_factory=dict)
 
 
-def _keys(problem: Problem, n_lm: int):
+def _keys(problem: Problem, guess: Guess):
+    """Keyframe count, landmark keys and bias keys (one per segment)."""
     k = problem.data.shape[0] + 1
-    n_seg = int(problem.seg_of.max()) + 1 if problem.seg_of.size else 1
+    n_lm, n_seg = guess.landmarks.shape[0], guess.bias.shape[0]
     return k, np.arange(k, k + n_lm), np.arange(k + n_lm, k + n_lm + n_seg)
 
 
@@ -86,7 +87,7 @@ def build(problem: Problem, guess: Guess):
     """GTSAM's part of the graph (every factor but the relative motion) and the initial values."""
     import gtsam
 
-    k, lm_keys, bias_keys = _keys(problem, guess.landmarks.shape[0])
+    k, lm_keys, bias_keys = _keys(problem, guess)
     graph = gtsam.NonlinearFactorGraph()
     values = gtsam.Values()
     for i in range(k):
@@ -213,7 +214,7 @@ def solve(problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_
 
     t0 = time.perf_counter()
     k = problem.data.shape[0] + 1
-    _, lm_keys, bias_keys = _keys(problem, guess.landmarks.shape[0])
+    _, lm_keys, bias_keys = _keys(problem, guess)
     graph, values = build(problem, guess)
     motion = _Motion(problem, bias_keys)
     t_build = time.perf_counter() - t0
