@@ -78,4 +78,8 @@ def load_run(run_dir: str | Path) -> RunData:
 
     report_path = run_dir / "report.json"
     tables = {p.stem: pd.read_parquet(p) for p in sorted(run_dir.glob("*.parquet"))}
+    if not tables:  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
+        from slamobs.pipeline.batch.dataset import run_tables
+
+        tables = {k: v.to_pandas() for k, v in (run_tables(run_dir) or {}).items()}
     return RunData(run_dir, read_json(meta_path), read_json(report_path) if report_path.is_file() else None, tables)

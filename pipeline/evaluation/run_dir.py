@@ -57,10 +57,15 @@ def load_run(run_dir: str | Path) -> RunTables:
         meta = json.loads(meta_path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise InputError(meta_path, f"unreadable run.json: {err}") from None
-    if not (run_dir / "poses.parquet").is_file():
+    from slamobs.pipeline.batch.dataset import run_tables
+
+    in_dataset = run_tables(run_dir)  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
+    if in_dataset is None and not (run_dir / "poses.parquet").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
 
     def table(name: str) -> pd.DataFrame | None:
+        if in_dataset is not None:
+            return in_dataset[name].to_pandas() if name in in_dataset else None
         path = run_dir / f"{name}.parquet"
         return pd.read_parquet(path) if path.is_file() else None
 

@@ -1,0 +1,180 @@
+"""Local worker processes: ``jobs`` spawned processes, one log each at a time, none outliving the batch.
+
+Each worker is bound to the batch process (:mod:`lifeline`: parent-death signal and watchdog), ignores
+SIGINT (a Ctrl-C on the terminal reaches the whole process group; the batch decides what it means) and
+talks to the batch over its own pipe, so the batch knows which log each worker runs. That makes the
+three ways a run can go wrong exact and cheap:
+
+- a log that hangs (a run longer than ``timeout``) has its worker killed and is reported as timed out;
+- a worker that dies (crash, OOM kill, someone's ``kill``) fails only its own log: the log is tried once
+  more in a fresh process, then reported with the signal that ended the worker;
+- on any exit of the batch (end, Ctrl-C, SIGTERM, an error) every worker is killed before control returns.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from multiprocessing.connection import wait
+
+from slamobs.pipeline.batch.executor import EnvironmentMismatch, InfrastructureError, Task, failed_row, one_line, run_task
+
+#: How many times a log is run again after its worker process died under it.
+RETRIES_AFTER_DEATH = 1
+
+
+def _worker_main(conn, parent_pid: int, run: Callable[[Task], dict]) -> None:
+    from slamobs.pipeline.batch.lifeline import bind_to_parent
+
+    bind_to_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    while True:
+        try:
+            task = conn.recv()
+        except (EOFError, OSError):
+            return
+        if task is None:
+            return
+        try:
+            result = ("row", run(task))
+        except EnvironmentMismatch as err:
+            result = ("mismatch", str(err))
+        except Exception as err:  # noqa: BLE001 - run_task does not raise; a test's run function might
+            result = ("row", failed_row(task, one_line(err, task.log)))
+        conn.send(result)
+
+
+def _ended(exitcode: int | None) -> str:
+    if exitcode is not None and exitcode < 0:
+        try:
+            return f"killed by {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"killed by signal {-exitcode}"
+    return f"exit status {exitcode}"
+
+
+@dataclass
+class _Slot:
+    proc: multiprocessing.Process
+    conn: object
+    task: Task | None = None
+    deaths: int = 0
+    started: float = 0.0
+
+
+class LocalPool:
+    """Run tasks on ``jobs`` local worker processes; see the module doc.
+
+    ``run`` is the worker function (a picklable top-level function; tests pass ones that crash or hang);
+    ``timeout`` is seconds per log (None: no limit).
+    """
+
+    def __init__(self, jobs: int, run: Callable[[Task], dict] = run_task, timeout: float | None = None) -> None:
+        self.jobs = max(1, jobs)
+        self.run = run
+        self.timeout = timeout
+        self.ctx = multiprocessing.get_context("spawn")  # numba and threads do not survive fork well
+        self.slots: list[_Slot] = []
+
+    def _start(self) -> _Slot:
+        # started from the batch's main thread: the parent-death signal is tied to the thread that forks
+        ours, theirs = self.ctx.Pipe(duplex=True)
+        proc = self.ctx.Process(target=_worker_main, args=(theirs, os.getpid(), self.run), daemon=True,
+                                name="slamobs-batch-worker")
+        proc.start()
+        theirs.close()
+        slot = _Slot(proc, ours)
+        self.slots.append(slot)
+        return slot
+
+    def _discard(self, slot: _Slot) -> None:
+        if slot.proc.is_alive():
+            slot.proc.kill()
+        slot.proc.join(5)
+        slot.conn.close()
+        self.slots.remove(slot)
+
+    def pids(self) -> list[int]:
+        return [s.proc.pid for s in self.slots if s.proc.pid]
+
+    def results(self, tasks: Sequence[Task]) -> Iterator[tuple[Task, dict]]:
+        """(task, row) in completion order; every worker is gone when this generator ends or is closed."""
+        queue: deque[tuple[Task, int]] = deque((t, 0) for t in tasks)
+        try:
+            while queue or any(s.task for s in self.slots):
+                self._dispatch(queue)
+                busy = [s for s in self.slots if s.task is not None]
+                ready = set(wait([s.conn for s in busy] + [s.proc.sentinel for s in busy], timeout=self._poll(busy)))
+                now = time.monotonic()
+                for slot in busy:
+                    task = slot.task
+                    if slot.conn in ready or slot.proc.sentinel in ready:
+                        got = self._receive(slot)
+                        if got is not None:
+                            slot.task = None
+                            yield task, got
+                            continue
+                        slot.proc.join(1)
+                        ended = _ended(slot.proc.exitcode)
+                        self._discard(slot)
+                        if slot.deaths < RETRIES_AFTER_DEATH:
+                            queue.appendleft((task, slot.deaths + 1))
+                        else:
+                            yield task, failed_row(task, f"{task.log}: worker process died twice while running this "
+                                                         f"log ({ended}): crash or out of memory")
+                    elif self.timeout and now - slot.started > self.timeout:
+                        self._discard(slot)
+                        yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (worker killed; "
+                                                     "raise --timeout for longer logs)")
+            for slot in list(self.slots):  # done: let idle workers exit on their own
+                try:
+                    slot.conn.send(None)
+                except OSError:
+                    pass
+            for slot in list(self.slots):
+                slot.proc.join(2)
+        finally:
+            for slot in list(self.slots):
+                self._discard(slot)
+
+    def _poll(self, busy: list[_Slot]) -> float:
+        if not self.timeout or not busy:
+            return 1.0
+        left = min(s.started + self.timeout for s in busy) - time.monotonic()
+        return min(1.0, max(0.01, left))
+
+    def _dispatch(self, queue: deque[tuple[Task, int]]) -> None:
+        while queue:
+            idle = next((s for s in self.slots if s.task is None), None)
+            if idle is not None and not idle.proc.is_alive():
+                self._discard(idle)
+                continue
+            if idle is None:
+                if len(self.slots) >= self.jobs:
+                    return
+                idle = self._start()
+            task, deaths = queue.popleft()
+            try:
+                idle.conn.send(task)
+            except OSError:  # the idle worker died in between: a new one takes the task
+                queue.appendleft((task, deaths))
+                self._discard(idle)
+                continue
+            idle.task, idle.deaths, idle.started = task, deaths, time.monotonic()
+
+    def _receive(self, slot: _Slot) -> dict | None:
+        try:
+            if not slot.conn.poll():
+                return None
+            kind, value = slot.conn.recv()
+        except (EOFError, OSError):
+            return None
+        if kind == "mismatch":
+            raise InfrastructureError(f"local worker: {value}")
+        return value
