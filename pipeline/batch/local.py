@@ -16,6 +16,7 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator, Sequence
@@ -26,6 +27,8 @@ from slamobs.pipeline.batch.executor import EnvironmentMismatch, InfrastructureE
 
 #: How many times a log is run again after its worker process died under it.
 RETRIES_AFTER_DEATH = 1
+#: Seconds a new worker may take to start (imports) before its first log's timeout starts counting.
+STARTUP_S = 300.0
 
 
 def _worker_main(conn, parent_pid: int, run: Callable[[Task], dict]) -> None:
@@ -41,6 +44,7 @@ def _worker_main(conn, parent_pid: int, run: Callable[[Task], dict]) -> None:
             return
         if task is None:
             return
+        conn.send(("started", None))  # the timeout counts from here, not from the worker's start-up
         try:
             result = ("row", run(task))
         except EnvironmentMismatch as err:
@@ -65,7 +69,8 @@ class _Slot:
     conn: object
     task: Task | None = None
     deaths: int = 0
-    started: float = 0.0
+    started: float = 0.0  # when the worker took the task (it says so), else when it was sent
+    running: bool = False
 
 
 class LocalPool:
@@ -87,7 +92,15 @@ class LocalPool:
         ours, theirs = self.ctx.Pipe(duplex=True)
         proc = self.ctx.Process(target=_worker_main, args=(theirs, os.getpid(), self.run), daemon=True,
                                 name="slamobs-batch-worker")
-        proc.start()
+        # an ignored SIGINT survives exec: the worker ignores Ctrl-C from its first instruction (a terminal
+        # sends it to the whole process group; the batch decides what it means and stops its workers)
+        main = threading.current_thread() is threading.main_thread()
+        old = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            proc.start()
+        finally:
+            if main:
+                signal.signal(signal.SIGINT, old)
         theirs.close()
         slot = _Slot(proc, ours)
         self.slots.append(slot)
@@ -120,6 +133,8 @@ class LocalPool:
                             slot.task = None
                             yield task, got
                             continue
+                        if slot.proc.is_alive():  # it only said it started
+                            continue
                         slot.proc.join(1)
                         ended = _ended(slot.proc.exitcode)
                         self._discard(slot)
@@ -128,7 +143,8 @@ class LocalPool:
                         else:
                             yield task, failed_row(task, f"{task.log}: worker process died twice while running this "
                                                          f"log ({ended}): crash or out of memory")
-                    elif self.timeout and now - slot.started > self.timeout:
+                    elif self.timeout and now - slot.started > (self.timeout if slot.running else
+                                                                 max(self.timeout, STARTUP_S)):
                         self._discard(slot)
                         yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (worker killed; "
                                                      "raise --timeout for longer logs)")
@@ -146,7 +162,8 @@ class LocalPool:
     def _poll(self, busy: list[_Slot]) -> float:
         if not self.timeout or not busy:
             return 1.0
-        left = min(s.started + self.timeout for s in busy) - time.monotonic()
+        left = min(s.started + (self.timeout if s.running else max(self.timeout, STARTUP_S)) for s in busy)
+        left -= time.monotonic()
         return min(1.0, max(0.01, left))
 
     def _dispatch(self, queue: deque[tuple[Task, int]]) -> None:
@@ -166,15 +183,19 @@ class LocalPool:
                 queue.appendleft((task, deaths))
                 self._discard(idle)
                 continue
-            idle.task, idle.deaths, idle.started = task, deaths, time.monotonic()
+            idle.task, idle.deaths, idle.started, idle.running = task, deaths, time.monotonic(), False
 
     def _receive(self, slot: _Slot) -> dict | None:
+        """The row the worker sent, or None (nothing yet, or the worker is gone)."""
         try:
-            if not slot.conn.poll():
-                return None
-            kind, value = slot.conn.recv()
+            while slot.conn.poll():
+                kind, value = slot.conn.recv()
+                if kind == "started":
+                    slot.started, slot.running = time.monotonic(), True
+                elif kind == "mismatch":
+                    raise InfrastructureError(f"local worker: {value}")
+                else:
+                    return value
         except (EOFError, OSError):
-            return None
-        if kind == "mismatch":
-            raise InfrastructureError(f"local worker: {value}")
-        return value
+            pass
+        return None

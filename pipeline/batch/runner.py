@@ -345,14 +345,24 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
             if ledger.appended or not (out / SUMMARY).is_file():
                 ledger.compact()
             rows: dict[int, dict] = dict(plan.rows)
-            progress = Progress(total=len(plan.order), to_run=len(plan.tasks))
-            on_start(progress)
-            for pos in sorted(plan.rows):
-                progress.add(plan.rows[pos], dispatched=False)
-                on_row(plan.rows[pos], progress)
-            progress.started = time.perf_counter()
-            if plan.tasks:
-                _execute(plan, options, use_dask, run, ledger, rows, progress, on_row)
+            pool = None
+            if plan.tasks:  # a Dask cluster is checked before the batch says it starts
+                pool = (DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers) if use_dask
+                        else LocalPool(options.jobs, run, options.timeout))
+            try:
+                if use_dask and pool is not None:
+                    pool.connect()
+                progress = Progress(total=len(plan.order), to_run=len(plan.tasks))
+                on_start(progress)
+                for pos in sorted(plan.rows):
+                    progress.add(plan.rows[pos], dispatched=False)
+                    on_row(plan.rows[pos], progress)
+                progress.started = time.perf_counter()
+                if pool is not None:
+                    _execute(plan, pool, options, use_dask, ledger, rows, progress, on_row)
+            finally:
+                if use_dask and pool is not None:
+                    pool.close()
             compaction = compact_dataset(out) if options.compact else []
         finally:
             ledger.compact()
@@ -376,23 +386,19 @@ def _commit(out: Path, task: Task, row: dict) -> dict:
                 "total_s": row.get("total_s")}
 
 
-def _execute(plan: _Plan, options: BatchOptions, use_dask: bool, run: Callable[[Task], dict], ledger: Ledger,
+def _execute(plan: _Plan, pool: LocalPool | DaskPool, options: BatchOptions, use_dask: bool, ledger: Ledger,
              rows: dict[int, dict], progress: Progress, on_row: Callable[[dict, Progress], None]) -> None:
-    """Run the plan's tasks, committing and recording each as it finishes."""
+    """Run the plan's tasks on ``pool``, committing and recording each as it finishes."""
     out = Path(options.out)
     position = {}
     for i, rid in enumerate(plan.order):
         if i not in plan.rows:
             position.setdefault(rid, i)
     staging = _Staging(out)
-    pool = (DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers) if use_dask
-            else LocalPool(options.jobs, run, options.timeout))
     tasks = [replace(t, staged=str(staging.dir / t.run_id), lease=str(staging.lease) if use_dask else None)
              for t in plan.tasks]
     results = None
     try:
-        if use_dask:
-            pool.connect()
         results = pool.results(tasks)
         refreshed = time.monotonic()
         for task, row in results:
@@ -410,8 +416,6 @@ def _execute(plan: _Plan, options: BatchOptions, use_dask: bool, run: Callable[[
     finally:
         if results is not None:
             results.close()  # kills the local workers
-        if use_dask:
-            pool.close()
         staging.close()
 
 
