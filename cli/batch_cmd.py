@@ -154,7 +154,15 @@ def _timeout(value: float) -> float | None:
     return None if value <= 0 else value
 
 
-@batch.command("run")
+class _RunCommand(click.Command):
+    """``run`` is implied: its usage reads ``slamobs batch [OPTIONS] INPUTS...``."""
+
+    def format_usage(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        path = ctx.command_path.rsplit(" ", 1)[0] if ctx.command_path.endswith(" run") else ctx.command_path
+        formatter.write_usage(path, " ".join(self.collect_usage_pieces(ctx)))
+
+
+@batch.command("run", cls=_RunCommand)
 @click.argument("inputs", nargs=-1, required=True)
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False),
               help="dataset directory (created; reused to resume)")
@@ -248,7 +256,7 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
 
 
 @batch.command("compact")
-@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path, file_okay=False, exists=True))
+@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
 @click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
 def compact(out_dir: Path, quiet: bool) -> None:
     """Merge the per-run partitions of the batch dataset OUT into a few large files per table.

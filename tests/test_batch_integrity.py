@@ -128,6 +128,13 @@ def test_moved_log_is_neither_rerun_nor_duplicated_and_hashes_are_cached(tmp_pat
     assert [r["status"] for r in again.rows] == ["skipped"] and len(hashed) == 1
     assert set(assert_consistent(out)) == set(before)
 
+    # a new recording where the moved one was: a new run; the moved one stays, recorded at its new place
+    a.write_bytes(b"new recording" * 10)
+    again = batch([a, moved], out)
+    assert [r["status"] for r in again.rows] == ["ok", "skipped"] and again.rows[1]["run_id"] == rid
+    rows = assert_consistent(out)
+    assert len(rows) == 4 and rows[rid]["log"] == str(moved) and rows[again.rows[0]["run_id"]]["log"] == str(a)
+
 
 def test_changed_log_replaces_its_run_and_prune_drops_runs_of_gone_logs(tmp_path):
     a, b, c = make_logs(tmp_path / "in", ["a.mcap", "b.mcap", "c.mcap"])

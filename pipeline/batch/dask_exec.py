@@ -38,18 +38,26 @@ def dask_available() -> bool:
     return importlib.util.find_spec("distributed") is not None
 
 
-def _check_workers(client, where: str, version: str, code: str) -> int:
-    """Every worker's answer to :func:`probe.probe`; raises on the first that cannot run this batch."""
+def _check_workers(client, where: str, version: str, code: str, within: float) -> int:
+    """Every worker's answer to :func:`probe.probe` (within ``within`` seconds); raises on the first that cannot
+    run this batch."""
+    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import TimeoutError as Late
+
     import cloudpickle
 
     from slamobs.pipeline.batch import probe
 
     cloudpickle.register_pickle_by_value(probe)
+    pool = ThreadPoolExecutor(max_workers=1)
     try:
-        answers = client.run(probe.probe, on_error="return")
+        answers = pool.submit(client.run, probe.probe, on_error="return").result(timeout=within)
+    except Late:
+        raise InfrastructureError(f"{where}: the Dask workers did not answer within {within:g} s") from None
     except Exception as err:  # noqa: BLE001 - e.g. the scheduler went away meanwhile
         raise InfrastructureError(f"{where}: cannot ask the Dask workers for their environment ({one_line(err)})") from None
     finally:
+        pool.shutdown(wait=False)
         cloudpickle.unregister_pickle_by_value(probe)
     if not answers:
         raise InfrastructureError(f"{where}: no Dask workers")
@@ -96,7 +104,7 @@ class DaskPool:
         except TimeoutError:
             raise InfrastructureError(f"{self.where}: no Dask workers after {self.wait_workers:g} s "
                                       "(--wait-workers)") from None
-        return _check_workers(self.client, self.where, slamobs.__version__, code_hash())
+        return _check_workers(self.client, self.where, slamobs.__version__, code_hash(), max(self.wait_workers, 10.0))
 
     def close(self) -> None:
         if self.client is not None:

@@ -208,6 +208,7 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
     plan = _Plan()
     first: dict[str, str] = {}
     current: dict[str, str] = {}  # log path -> its content hash now
+    moved: list[tuple[dict, str, Task]] = []
     for pos, p in enumerate(planned):
         if p.task is None:
             plan.order.append(p.row["run_id"])
@@ -228,9 +229,8 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
         prev = ledger.rows.get(rid)
         status = prev.get("status") if prev else None
         if status == "ok" and not options.force:
-            if prev["log"] != p.log and not os.path.exists(prev["log"]):
-                prev = {**prev, "log": p.log, "config_file": task.config_file}  # the log was moved
-                plan.records.append(prev)
+            if prev["log"] != p.log:
+                moved.append((prev, p.log, task))
             plan.rows[pos] = {**prev, "status": "skipped", "error": None, "log": p.log, "config_file": task.config_file}
         elif status == "failed" and options.skip_failed and not options.force:
             plan.rows[pos] = {**prev, "status": "skipped", "log": p.log,
@@ -239,9 +239,14 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
             plan.tasks.append(task)
             if prev is not None:
                 plan.drop.add(rid)
-    # a log whose content changed replaces its earlier runs (their input is gone)
+    # a moved log: the record follows it when its recorded path no longer holds that content
+    for prev, log, task in moved:
+        if not os.path.exists(prev["log"]) or current.get(prev["log"], prev["content_hash"]) != prev["content_hash"]:
+            plan.records.append({**prev, "log": log, "config_file": task.config_file})
+    # a log whose content changed replaces its earlier runs (their input is gone), unless they are this batch's
     for rid, row in ledger.rows.items():
-        if row.get("log") in current and row.get("content_hash") not in (None, current[row["log"]]):
+        if (rid not in first and row.get("log") in current
+                and row.get("content_hash") not in (None, current[row["log"]])):
             plan.drop.add(rid)
     return plan
 
@@ -425,7 +430,8 @@ def compact_batch(out: Path) -> tuple[Reconciled, list[TableCompaction]]:
     out = Path(out)
     check_layout(out)
     if not (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
-        raise InputError(out, "not a batch output directory (no summary.parquet)")
+        raise InputError(out, "not a batch output directory (no summary.parquet)" if out.is_dir()
+                         else "no such directory")
     with batch_lock(out):
         ledger = Ledger(out)
         try:
