@@ -171,9 +171,20 @@ def main() -> None:
         led.compact()
         t_summary = time.perf_counter() - t
         led.close()
+        from slamobs.pipeline.batch import compact as compact_mod
+
+        apply, t_delete = compact_mod._apply, []
+
+        def timed_apply(o):
+            t0 = time.perf_counter()
+            apply(o)
+            t_delete.append(time.perf_counter() - t0)
+
+        compact_mod._apply = timed_apply
         t = time.perf_counter()
         report = compact_dataset(out, DatasetIndex.scan(out))
         t_compact = time.perf_counter() - t
+        compact_mod._apply = apply
         files_after = count_files(out)
         q_after = queries(out)
 
@@ -199,7 +210,8 @@ def main() -> None:
               + " / ".join(f"{old[k]:.0f} ms" for k in sorted(old)) + " |")
         print(f"| summary.parquet from the records, once at the end ({n} rows) | {t_summary * 1e3:.0f} ms |")
         rows_total = sum(t.rows for t in report if t.table == "poses")
-        print(f"| compaction ({n} runs x {len(report)} tables, {rows_total / 1e6:.1f} M pose rows) | {t_compact:.1f} s |")
+        print(f"| compaction ({n} runs x {len(report)} tables, {rows_total / 1e6:.1f} M pose rows): merge / switch "
+              f"(renames, deleting the per-run files) | {t_compact - sum(t_delete):.1f} s / {sum(t_delete):.1f} s |")
         print(f"| files in OUT before / after compaction | {files_before} / {files_after} |")
         for k in ("duckdb", "pandas", "polars"):
             print(f"| {k}: group poses by run_id, per-run partitions / compacted | "

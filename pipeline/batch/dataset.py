@@ -183,7 +183,7 @@ def _rewrite_without(path: Path, drop: set[str]) -> None:
     """Rewrite a compacted file without the rows of ``drop`` (atomically; deleted when nothing is left)."""
     import pyarrow.compute as pc
 
-    table = pq.read_table(path)
+    table = pq.ParquetFile(path).read()
     keep = pc.invert(pc.is_in(table["run_id"].cast(pa.string()), value_set=pa.array(sorted(drop), pa.string())))
     table = table.filter(keep)
     remaining = [r for r in compacted_run_ids(path) if r not in drop]

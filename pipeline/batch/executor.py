@@ -60,12 +60,15 @@ class Task:
     lease: str | None = None  # Dask: the batch's lease file (see LEASE_STALE_S)
 
     @classmethod
-    def make(cls, run_id: str, log: str, out: str, config: RunConfig, **kwargs) -> Task:
+    def make(cls, run_id: str, log: str, out: str, config: RunConfig | dict, **kwargs) -> Task:
+        """A task at this installation's version and code; ``config`` may be given as ``RunConfig.to_dict()``
+        (a batch converts each config once)."""
         import slamobs
 
         from slamobs.pipeline.batch.identity import code_hash
 
-        return cls(run_id, log, out, config.to_dict(), version=slamobs.__version__, code=code_hash(), **kwargs)
+        config = config if isinstance(config, dict) else config.to_dict()
+        return cls(run_id, log, out, config, version=slamobs.__version__, code=code_hash(), **kwargs)
 
 
 def one_line(err: BaseException, where: str | None = None) -> str:

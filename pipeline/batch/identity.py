@@ -125,8 +125,13 @@ class HashCache:
             self.entries = {}
         self.dirty = False
 
-    def content_hash(self, log: Path) -> str:
+    def lookup(self, log: Path) -> tuple[str, str | None]:
+        """(cache key, content hash or None when the log must be read); raises InputError like content_hash."""
         key = stat_key(log)
+        return key, self.entries.get(key)
+
+    def content_hash(self, log: Path, key: str | None = None) -> str:
+        key = key or stat_key(log)
         found = self.entries.get(key)
         if found is None:
             found = self.entries[key] = content_hash(log)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from datetime import datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
 import pyarrow as pa
@@ -45,6 +45,7 @@ SUMMARY_SCHEMA = pa.schema([
     ("ape_trans_rmse_m", _F), ("ape_rot_rmse_deg", _F), ("landmark_rmse_m", _F),
     ("gyro_bias_err", _F), ("vel_bias_err", _F), ("convergence_s", _F),
 ])
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 #: Statuses stored in the summary; "skipped" exists only in a batch's own output (the run it skipped is
 #: recorded with the outcome it had when it ran).
 STORED_STATUSES = ("ok", "failed")
@@ -86,14 +87,18 @@ def _record_files(out: Path) -> list[tuple[int, Path]]:
 
 def _read_summary_file(path: Path) -> tuple[dict[str, dict], int]:
     try:
-        table = pq.read_table(path)
+        table = pq.ParquetFile(path).read()  # not pq.read_table: that imports pyarrow.dataset and pandas (1-2 s)
     except (pa.ArrowException, OSError) as err:
         raise InputError(path, f"unreadable batch summary ({err}); move it away to start afresh") from None
     meta = table.schema.metadata or {}
     if GEN_KEY not in meta or "warning_count" not in table.schema.names:
         raise InputError(path.parent, "written by an older slamobs batch (run ids from log paths); write this "
                                       "batch to a new directory")
-    rows = table.to_pylist()
+    # timestamps converted here: pyarrow's to_pylist would import pandas for the time zone (1-2 s per batch)
+    micros = table["finished_at"].cast(pa.int64()).to_pylist()
+    rows = table.drop_columns(["finished_at"]).to_pylist()
+    for row, us in zip(rows, micros):
+        row["finished_at"] = None if us is None else _EPOCH + timedelta(microseconds=us)
     return {r["run_id"]: r for r in rows}, int(meta[GEN_KEY])
 
 
@@ -143,11 +148,13 @@ class Ledger:
         meta_dir(self.out).mkdir(parents=True, exist_ok=True)
         path = self.out / SUMMARY
         self.rows, self.gen = _read_summary_file(path) if path.is_file() else ({}, 0)
+        self.pending = 0  # bytes of records not yet in summary.parquet (from a batch that did not end cleanly)
         for g, f in _record_files(self.out):
             if g < self.gen:
                 f.unlink(missing_ok=True)  # already in the summary (a compaction was cut short)
                 continue
             good = _apply(self.rows, f, strict_tail=True)
+            self.pending += good
             if good < f.stat().st_size:
                 os.truncate(f, good)
             self.gen = max(self.gen, g)
@@ -178,8 +185,18 @@ class Ledger:
         """Write every row into ``summary.parquet`` (atomically) and start a new records generation."""
         self.close()
         path = self.out / SUMMARY
-        cols = {f.name: [r.get(f.name) for r in self.rows.values()] for f in SUMMARY_SCHEMA}
-        table = pa.table(cols, schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
+        if not self.appended and not self.pending and path.is_file():
+            return path  # already current
+        rows = list(self.rows.values())
+        arrays = []
+        for f in SUMMARY_SCHEMA:
+            values = [r.get(f.name) for r in rows]
+            if f.name == "finished_at":  # as integers: pyarrow would import pandas for the time zone
+                micros = [None if v is None else (v - _EPOCH) // timedelta(microseconds=1) for v in values]
+                arrays.append(pa.array(micros, pa.int64()).cast(f.type))
+            else:
+                arrays.append(pa.array(values, f.type))
+        table = pa.Table.from_arrays(arrays, schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
         tmp = path.parent / f".{SUMMARY}.tmp-{os.getpid()}"
         pq.write_table(table, tmp, compression="zstd")
         os.replace(tmp, path)
@@ -187,7 +204,7 @@ class Ledger:
             if g <= self.gen:
                 f.unlink(missing_ok=True)
         self.gen += 1
-        self.appended = 0
+        self.appended = self.pending = 0
         return path
 
     def close(self) -> None:

@@ -174,25 +174,45 @@ def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCac
                 configs[key] = one_line(err, str(entry.config))
         return configs[key]
 
-    def identify(entry: LogEntry, cfg: RunConfig | str) -> _Planned:
+    derived: dict[int, tuple[dict, str]] = {}  # per config object: its dict and hash, computed once
+
+    def identify(entry: LogEntry, cfg: RunConfig | str, chash: str | InputError) -> _Planned:
         log = os.path.realpath(entry.path)
         path_id = run_id_for(Path(log), path_key(Path(log)))
         cfg_file = os.path.realpath(entry.config) if entry.config else None
-        stub = Task.make(path_id, log, out, cfg if isinstance(cfg, RunConfig) else options.config, config_file=cfg_file)
+        known = cfg if isinstance(cfg, RunConfig) else options.config
+        if id(known) not in derived:
+            derived[id(known)] = (known.to_dict(), config_hash(known))
+        cfg_dict, cfg_hash = derived[id(known)]
+        stub = Task.make(path_id, log, out, cfg_dict, config_file=cfg_file)
         if isinstance(cfg, str):
-            return _Planned(log, row=failed_row(replace(stub, config_hash=""), cfg), path_id=path_id)
-        try:
-            chash = cache.content_hash(Path(log))
-        except InputError as err:
-            return _Planned(log, row=failed_row(stub, str(InputError(entry.path, err.problem))), path_id=path_id)
-        cfg_hash = config_hash(cfg)
+            return _Planned(log, row=failed_row(stub, cfg), path_id=path_id)
+        if isinstance(chash, InputError):
+            return _Planned(log, row=failed_row(stub, str(InputError(entry.path, chash.problem))), path_id=path_id)
         key = run_key(chash, cfg_hash)
         rid = by_key.get(key) or run_id_for(Path(log), key)
         return _Planned(log, task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash), path_id=path_id)
 
+    def lookup(entry: LogEntry) -> tuple[str | None, str | InputError | None]:
+        try:
+            return cache.lookup(Path(os.path.realpath(entry.path)))
+        except InputError as err:
+            return None, err
+
     cfgs = [config_for(e) for e in entries]
-    with ThreadPoolExecutor(max_workers=8) as pool:
-        return list(pool.map(identify, entries, cfgs))
+    found = [lookup(e) for e in entries]  # a stat per file: cheap, and all an up-to-date batch needs
+    todo = [i for i, (key, h) in enumerate(found) if key is not None and h is None]
+
+    def read(i: int) -> str | InputError:
+        try:
+            return cache.content_hash(Path(os.path.realpath(entries[i].path)), found[i][0])
+        except InputError as err:
+            return err
+
+    with ThreadPoolExecutor(max_workers=8) as pool:  # reading is I/O: overlapped
+        for i, h in zip(todo, pool.map(read, todo)):
+            found[i] = (found[i][0], h)
+    return [identify(e, c, h) for e, c, (_, h) in zip(entries, cfgs, found)]
 
 
 @dataclass
