@@ -35,7 +35,8 @@ TABLES = ("poses", "biases")
 def fake_pipeline(log: Path, out_dir: Path, config):
     """Worker-side stand-in for the observer pipeline: ``poses`` and ``biases`` with a row count and values
     that depend on the log's bytes; logs named ``bad*`` fail, ``salvaged*`` ones carry a reader warning."""
-    from slamobs.pipeline.run import RunSummary
+    from types import SimpleNamespace
+
     from slamobs.pipeline.writers import atomic_directory, write_json, write_tables
     from slamobs.schemas import arrow_schema
 
@@ -52,7 +53,8 @@ def fake_pipeline(log: Path, out_dir: Path, config):
         write_tables(tmp, tables, meta)
         write_json(tmp / "run.json", meta)
     warnings = [f"{log}: incomplete (truncated): recovered {n} messages"] if Path(log).name.startswith("salvaged") else []
-    return RunSummary(out_dir, meta, {"read_s": 0.001}), warnings
+    summary = SimpleNamespace(metadata=meta, timings={"read_s": 0.001}, headline=dict)  # a RunSummary's fields
+    return summary, warnings
 
 
 FAKE = partial(run_task, pipeline=fake_pipeline)
@@ -375,3 +377,41 @@ def test_fifo_and_symlink_loop_are_one_line_failures_never_a_hang(tmp_path):
         done = subprocess.run([*cmd, str(tmp_path / "in" / name)], capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and done.stderr.strip().splitlines() == [
             f"error: {tmp_path / 'in' / name}: input: {problem}" + (", not a log file or directory" if name == "pipe.mcap" else "")]
+
+
+def test_a_dask_task_whose_batch_is_gone_ends_its_worker_process(tmp_path):
+    """The lease watchdog of a Dask task (in a child process: it ends the process it runs in)."""
+    lease = tmp_path / "LEASE"
+    lease.touch()
+    code = ("import sys, time, threading; import slamobs.pipeline.batch.executor as ex; "
+            "ex.LEASE_STALE_S, ex.LEASE_POLL_S = 1.0, 0.1; "
+            f"ex._watch_lease(__import__('pathlib').Path({str(lease)!r}), threading.Event()); "
+            "print('watching', flush=True); time.sleep(120)")
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "watching"
+        for _ in range(10):  # a live batch touches its lease: the task carries on
+            os.utime(lease)
+            time.sleep(0.2)
+        assert child.poll() is None
+        assert child.wait(timeout=60) == 70  # untouched for a second: the worker process ends (ORPHANED)
+    finally:
+        child.kill()
+
+
+def sleepy_pipeline(log: Path, out_dir: Path, config):
+    if "slow" in Path(log).name:
+        time.sleep(600)
+    return fake_pipeline(log, out_dir, config)
+
+
+def test_dask_timeout_fails_the_log_and_restarts_its_worker(tmp_path):
+    pytest.importorskip("distributed")
+    make_logs(tmp_path / "in", ["fine.mcap", "slow.mcap"])
+    out = tmp_path / "OUT"
+    res = run_batch(discover([tmp_path / "in"]), BatchOptions(out=out, jobs=1, executor="dask", timeout=6.0),
+                    run=partial(run_task, pipeline=sleepy_pipeline))
+    rows = {Path(r["log"]).name: r for r in res.rows}
+    assert rows["fine.mcap"]["status"] == "ok", rows
+    assert rows["slow.mcap"]["status"] == "failed" and "timed out after 6 s (Dask worker tcp://" in rows["slow.mcap"]["error"]
+    assert_consistent(out)

@@ -78,8 +78,9 @@ class DaskPool:
     """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
 
     def __init__(self, jobs: int, scheduler: str | None = None, timeout: float | None = None,
-                 wait_workers: float = 60.0) -> None:
+                 wait_workers: float = 60.0, run=run_task) -> None:
         self.jobs, self.scheduler, self.timeout, self.wait_workers = max(1, jobs), scheduler, timeout, wait_workers
+        self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
 
@@ -134,7 +135,7 @@ class DaskPool:
         client = self.client
         pending = {}
         for task in tasks:
-            fut = client.submit(run_task, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}")
+            fut = client.submit(self.run, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}")
             pending[fut.key] = (fut, task)
         started: dict[str, tuple[float, str]] = {}
         ours_cancelled: set[str] = set()

@@ -328,7 +328,7 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
     """Run every log of ``entries`` into ``options.out``; ``on_row`` sees each row once it is recorded.
 
     ``on_start`` sees the plan (``total`` logs, ``to_run`` of them not up to date) before anything runs.
-    ``run`` is the local workers' function (tests pass ones that crash or hang).
+    ``run`` is the workers' task function (tests pass ones that crash or hang).
 
     Raises:
         InputError: Another batch holds ``out``, or ``out`` has the older layout.
@@ -372,8 +372,8 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
             rows: dict[int, dict] = dict(plan.rows)
             pool = None
             if plan.tasks:  # a Dask cluster is checked before the batch says it starts
-                pool = (DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers) if use_dask
-                        else LocalPool(options.jobs, run, options.timeout))
+                pool = (DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers, run)
+                        if use_dask else LocalPool(options.jobs, run, options.timeout))
             try:
                 if use_dask and pool is not None:
                     pool.connect()
