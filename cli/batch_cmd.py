@@ -170,7 +170,8 @@ class _RunCommand(click.Command):
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
               help="run.yaml for logs without a per-log config in a manifest")
 @click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
-              help="pkg/msg/Type.msg definitions for types the logs do not store (every log)")
+              help="pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log "
+                   "config that names msg_dir)")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="parallel worker processes (default: all cores)")
 @click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
@@ -225,10 +226,10 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
         if observer:
             config = replace(config, observer=observer)
         if msg_dir:
-            config = replace(config, msg_dir=str(msg_dir))
+            config = replace(config, msg_dir=str(msg_dir.resolve()))
         check_config(config)
         entries = discover(inputs)
-        options = BatchOptions(out=out_dir, config=config, observer=observer, msg_dir=str(msg_dir) if msg_dir else None,
+        options = BatchOptions(out=out_dir, config=config, observer=observer, msg_dir=str(msg_dir.resolve()) if msg_dir else None,
                                force=force, skip_failed=skip_failed, prune=prune, compact=not no_compact,
                                executor=executor or ("dask" if scheduler else "local"), jobs=jobs or _cores(),
                                scheduler=scheduler, timeout=_timeout(timeout), wait_workers=wait_workers)

@@ -60,7 +60,7 @@ class BatchOptions:
     out: Path
     config: RunConfig = field(default_factory=RunConfig)
     observer: str | None = None  # overrides the observer of every config, per-log ones included
-    msg_dir: str | None = None  # likewise for msg_dir
+    msg_dir: str | None = None  # for every config that does not name one
     force: bool = False
     skip_failed: bool = False  # do not retry a log that failed with the same content and config
     prune: bool = False  # drop runs whose log is gone (not at its recorded path with the same content)
@@ -149,7 +149,7 @@ class _Planned:
 def _overrides(cfg: RunConfig, options: BatchOptions) -> RunConfig:
     if options.observer:
         cfg = replace(cfg, observer=options.observer)
-    if options.msg_dir:
+    if options.msg_dir and not cfg.msg_dir:  # a per-log config naming its own msg_dir keeps it
         cfg = replace(cfg, msg_dir=options.msg_dir)
     return cfg
 
