@@ -205,6 +205,12 @@ def test_dataset_reads_in_pandas_duckdb_and_polars(done):
     run = slamobs.load_run(out / "runs" / rid)
     assert len(run.poses) == per_run[rid] and "run_id" not in run.poses
     assert run.poses["t_ns"].tolist() == poses[poses["run_id"] == rid]["t_ns"].tolist()
+    from slamobs.cli.main import main  # and the commands that read a run directory work on it
+
+    res = CliRunner().invoke(main, ["report", str(out / "runs" / rid), "-q"])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(main, ["export", str(out / "runs" / rid), "--mcap", str(out.parent / "r.mcap"), "-q"])
+    assert res.exit_code == 0 and (out.parent / "r.mcap").stat().st_size > 0, res.output
     rows = duckdb.sql(f"SELECT run_id, count(*) FROM read_parquet('{out}/poses/**/*.parquet') GROUP BY run_id")
     assert dict(rows.fetchall()) == per_run
     pl_counts = pl.read_parquet(out / "poses").group_by("run_id").len().rows()
