@@ -415,3 +415,21 @@ def test_dask_timeout_fails_the_log_and_restarts_its_worker(tmp_path):
     assert rows["fine.mcap"]["status"] == "ok", rows
     assert rows["slow.mcap"]["status"] == "failed" and "timed out after 6 s (Dask worker tcp://" in rows["slow.mcap"]["error"]
     assert_consistent(out)
+
+
+class _DiesWhenUnpickled:
+    """Pickled into a worker's start-up arguments: the worker process dies before it can take a log."""
+
+    def __reduce__(self):
+        return (os._exit, (3,))
+
+
+def test_workers_that_die_while_starting_are_an_infrastructure_error(tmp_path):
+    from slamobs.pipeline.batch.executor import InfrastructureError
+    from slamobs.pipeline.batch.local import STARTUP_FAILURES, LocalPool
+
+    tasks = [Task.make("a-0", str(tmp_path / "a"), str(tmp_path), RunConfig())]
+    pool = LocalPool(1, run=partial(run_task, pipeline=_DiesWhenUnpickled()))
+    with pytest.raises(InfrastructureError, match=f"die while starting \\(exit status 3, {STARTUP_FAILURES} times"):
+        list(pool.results(tasks))
+    assert pool.pids() == []

@@ -181,11 +181,12 @@ class Ledger:
             self._append({"op": "drop", "run_id": run_id})
             del self.rows[run_id]
 
-    def compact(self) -> Path:
-        """Write every row into ``summary.parquet`` (atomically) and start a new records generation."""
+    def compact(self, force: bool = False) -> Path:
+        """Write every row into ``summary.parquet`` (atomically) and start a new records generation; nothing
+        to do when the summary is current, unless ``force``."""
         self.close()
         path = self.out / SUMMARY
-        if not self.appended and not self.pending and path.is_file():
+        if not force and not self.appended and not self.pending and path.is_file():
             return path  # already current
         rows = list(self.rows.values())
         arrays = []

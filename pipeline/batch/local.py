@@ -7,7 +7,8 @@ three ways a run can go wrong exact and cheap:
 
 - a log that hangs (a run longer than ``timeout``) has its worker killed and is reported as timed out;
 - a worker that dies (crash, OOM kill, someone's ``kill``) fails only its own log: the log is tried once
-  more in a fresh process, then reported with the signal that ended the worker;
+  more in a fresh process, then reported with the signal that ended the worker; workers that die before
+  they take a log (a broken installation) stop the batch as an infrastructure problem;
 - on any exit of the batch (end, Ctrl-C, SIGTERM, an error) every worker is killed before control returns.
 """
 
@@ -29,6 +30,8 @@ from slamobs.pipeline.batch.executor import EnvironmentMismatch, InfrastructureE
 RETRIES_AFTER_DEATH = 1
 #: Seconds a new worker may take to start (imports) before its first log's timeout starts counting.
 STARTUP_S = 300.0
+#: Workers dying before they take a log, in a row, that make the batch give up (exit 3): e.g. a broken install.
+STARTUP_FAILURES = 3
 
 
 def _worker_main(conn, parent_pid: int, run: Callable[[Task], dict]) -> None:
@@ -119,6 +122,7 @@ class LocalPool:
     def results(self, tasks: Sequence[Task]) -> Iterator[tuple[Task, dict]]:
         """(task, row) in completion order; every worker is gone when this generator ends or is closed."""
         queue: deque[tuple[Task, int]] = deque((t, 0) for t in tasks)
+        failed_starts = 0
         try:
             while queue or any(s.task for s in self.slots):
                 self._dispatch(queue)
@@ -129,6 +133,8 @@ class LocalPool:
                     task = slot.task
                     if slot.conn in ready or slot.proc.sentinel in ready:
                         got = self._receive(slot)
+                        if slot.running:
+                            failed_starts = 0
                         if got is not None:
                             slot.task = None
                             yield task, got
@@ -138,7 +144,13 @@ class LocalPool:
                         slot.proc.join(1)
                         ended = _ended(slot.proc.exitcode)
                         self._discard(slot)
-                        if slot.deaths < RETRIES_AFTER_DEATH:
+                        if not slot.running:  # died before taking the log: not the log's doing
+                            failed_starts += 1
+                            if failed_starts >= STARTUP_FAILURES:
+                                raise InfrastructureError(f"local worker processes die while starting ({ended}, "
+                                                          f"{failed_starts} times in a row)")
+                            queue.appendleft((task, slot.deaths))
+                        elif slot.deaths < RETRIES_AFTER_DEATH:
                             queue.appendleft((task, slot.deaths + 1))
                         else:
                             yield task, failed_row(task, f"{task.log}: worker process died twice while running this "
