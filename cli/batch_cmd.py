@@ -206,7 +206,7 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
       1    some logs failed (bad log, timeout, a worker died twice on it)
       2    bad arguments or config, nothing found, OUT locked by another batch
       3    infrastructure: Dask scheduler unreachable or lost, no workers, a worker
-           without slamobs or with another version
+           without slamobs or with another version, workers dying at start-up
       130  interrupted (SIGINT), 143 terminated (SIGTERM), 129 hangup (SIGHUP):
            workers stopped, finished runs kept; run the same command to resume
     """

@@ -8,7 +8,6 @@ compaction, which are the same whatever the observer computes. One test salvages
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import signal
