@@ -188,16 +188,8 @@ class Ledger:
         path = self.out / SUMMARY
         if not force and not self.appended and not self.pending and path.is_file():
             return path  # already current
-        rows = list(self.rows.values())
-        arrays = []
-        for f in SUMMARY_SCHEMA:
-            values = [r.get(f.name) for r in rows]
-            if f.name == "finished_at":  # as integers: pyarrow would import pandas for the time zone
-                micros = [None if v is None else (v - _EPOCH) // timedelta(microseconds=1) for v in values]
-                arrays.append(pa.array(micros, pa.int64()).cast(f.type))
-            else:
-                arrays.append(pa.array(values, f.type))
-        table = pa.Table.from_arrays(arrays, schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
+        table = pa.Table.from_pylist(list(self.rows.values()),
+                                     schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
         tmp = path.parent / f".{SUMMARY}.tmp-{os.getpid()}"
         pq.write_table(table, tmp, compression="zstd")
         os.replace(tmp, path)
