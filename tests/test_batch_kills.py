@@ -49,7 +49,7 @@ def _batch_args(logs, out: Path, *extra) -> list:
 
 
 def _rerun_and_check(logs, out: Path) -> None:
-    done = subprocess.run([*CLI, *map(str, _batch_args(logs, out, "-j", 2))], capture_output=True, text=True,
+    done = subprocess.run([*CLI, *map(str, _batch_args(logs, out, "-j", 1))], capture_output=True, text=True,
                           timeout=300)
     assert done.returncode == 0, done.stderr
     rows = assert_consistent(out)

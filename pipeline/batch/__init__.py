@@ -6,36 +6,27 @@ layout and its consistency, ``ledger`` the run records and ``summary.parquet``, 
 per-run partitions.
 """
 
-from slamobs.pipeline.batch.compact import compact_dataset
-from slamobs.pipeline.batch.discover import LogEntry, discover, read_manifest
-from slamobs.pipeline.batch.executor import InfrastructureError
-from slamobs.pipeline.batch.identity import content_hash, run_id_for, run_key
-from slamobs.pipeline.batch.ledger import read_summary
-from slamobs.pipeline.batch.runner import (
-    BatchOptions,
-    BatchResult,
-    DaskMissing,
-    Progress,
-    check_config,
-    compact_batch,
-    run_batch,
-)
+import importlib
 
-__all__ = [
-    "BatchOptions",
-    "BatchResult",
-    "DaskMissing",
-    "InfrastructureError",
-    "LogEntry",
-    "Progress",
-    "check_config",
-    "compact_batch",
-    "compact_dataset",
-    "content_hash",
-    "discover",
-    "read_manifest",
-    "read_summary",
-    "run_batch",
-    "run_id_for",
-    "run_key",
-]
+# eager (and light): the function ``discover`` shadows its submodule of the same name
+from slamobs.pipeline.batch.discover import LogEntry, discover, read_manifest
+
+#: Public names and the submodule that holds each (imported on first use: a worker process importing one
+#: submodule does not pay for all of them).
+_WHERE = {
+    "compact_dataset": "compact",
+    "InfrastructureError": "executor", "content_hash": "identity", "run_id_for": "identity", "run_key": "identity",
+    "read_summary": "ledger", "BatchOptions": "runner", "BatchResult": "runner", "DaskMissing": "runner",
+    "Progress": "runner", "check_config": "runner", "compact_batch": "runner", "run_batch": "runner",
+}
+__all__ = sorted([*_WHERE, "LogEntry", "discover", "read_manifest"])
+
+
+def __getattr__(name: str):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"{__name__}.{_WHERE[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_WHERE))

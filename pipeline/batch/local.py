@@ -24,7 +24,8 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 
-from slamobs.pipeline.batch.executor import EnvironmentMismatch, InfrastructureError, Task, failed_row, one_line, run_task
+from slamobs.pipeline.batch.executor import InfrastructureError, Task, failed_row, run_task
+from slamobs.pipeline.batch.lifeline import BindOnArrival, worker_main
 
 #: How many times a log is run again after its worker process died under it.
 RETRIES_AFTER_DEATH = 1
@@ -32,29 +33,6 @@ RETRIES_AFTER_DEATH = 1
 STARTUP_S = 300.0
 #: Workers dying before they take a log, in a row, that make the batch give up (exit 3): e.g. a broken install.
 STARTUP_FAILURES = 3
-
-
-def _worker_main(conn, parent_pid: int, run: Callable[[Task], dict]) -> None:
-    from slamobs.pipeline.batch.lifeline import bind_to_parent
-
-    bind_to_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    while True:
-        try:
-            task = conn.recv()
-        except (EOFError, OSError):
-            return
-        if task is None:
-            return
-        conn.send(("started", None))  # the timeout counts from here, not from the worker's start-up
-        try:
-            result = ("row", run(task))
-        except EnvironmentMismatch as err:
-            result = ("mismatch", str(err))
-        except Exception as err:  # noqa: BLE001 - run_task does not raise; a test's run function might
-            result = ("row", failed_row(task, one_line(err, task.log)))
-        conn.send(result)
 
 
 def _ended(exitcode: int | None) -> str:
@@ -93,7 +71,7 @@ class LocalPool:
     def _start(self) -> _Slot:
         # started from the batch's main thread: the parent-death signal is tied to the thread that forks
         ours, theirs = self.ctx.Pipe(duplex=True)
-        proc = self.ctx.Process(target=_worker_main, args=(theirs, os.getpid(), self.run), daemon=True,
+        proc = self.ctx.Process(target=worker_main, args=(BindOnArrival(os.getpid()), theirs, self.run), daemon=True,
                                 name="slamobs-batch-worker")
         # an ignored SIGINT survives exec: the worker ignores Ctrl-C from its first instruction (a terminal
         # sends it to the whole process group; the batch decides what it means and stops its workers)
