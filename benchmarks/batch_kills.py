@@ -108,8 +108,10 @@ def one_case(scenario: str, logs: Path, cfg: Path, work: Path, rng: random.Rando
     try:
         rows = assert_consistent(out)
         result["consistent"] = rerun.returncode == 0 and all(r["status"] == "ok" for r in rows.values())
-    except AssertionError:
+    except Exception:  # noqa: BLE001 - any failure to check is a failed case, shown below
         result["consistent"] = False
+    if not result["consistent"]:
+        print(f"  {scenario}: re-run exit {rerun.returncode}: {rerun.stderr.strip().splitlines()[-1:]}", flush=True)
     return result
 
 
