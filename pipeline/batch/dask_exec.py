@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import logging
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -183,6 +184,12 @@ class DaskPool:
             for fut, _ in pending.values():
                 fut.cancel()
 
+    def _restart(self, worker: str) -> None:
+        try:
+            self.client.restart_workers([worker], timeout=30, raise_for_error=False)
+        except Exception:  # noqa: BLE001 - a worker without nanny cannot be restarted; it cannot commit either
+            pass
+
     def _timeouts(self, pending, started, ours_cancelled, now) -> Iterator[tuple[Task, dict]]:
         """Fail the logs that have run longer than ``timeout`` and restart their workers."""
         try:
@@ -201,9 +208,6 @@ class DaskPool:
                 del started[key]
                 ours_cancelled.add(key)
                 fut.cancel()
-                try:
-                    self.client.restart_workers([worker], timeout=30, raise_for_error=False)
-                except Exception:  # noqa: BLE001 - a worker without nanny cannot be restarted; it cannot commit
-                    pass
+                threading.Thread(target=self._restart, args=(worker,), daemon=True).start()  # the batch goes on
                 yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (Dask worker {worker} "
                                              "restarted; raise --timeout for longer logs)")
