@@ -29,6 +29,14 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
 @click.option("--mag-rate", type=_RATE, default=50.0, show_default=True, help="Magnetometer rate, Hz.")
 @click.option("--mocap-rate", type=_RATE, default=100.0, show_default=True, help="Ground-truth pose rate, Hz.")
 @click.option("--detection-rate", type=_RATE, default=None, help="Fiducial detection rate, Hz (default: scenario's).")
+@click.option("--landmarks", type=click.IntRange(min=3), default=None,
+              help="Landmark count (loop: rebuilt with N tags; others: an evenly spaced subset of the map).")
+@click.option("--fov", type=click.FloatRange(0.0, 180.0, min_open=True, max_open=True), default=None,
+              help="Camera horizontal field of view, deg (the vertical one scales with it).")
+@click.option("--detections-until", type=click.FloatRange(min=0.0), default=None,
+              help="Seconds after which no landmark is detected (they leave view for good).")
+@click.option("--imu-rpy", type=float, nargs=3, default=None, metavar="ROLL PITCH YAW",
+              help="IMU mounting, deg (imu_link -> body, published on /tf_static), e.g. 180 0 0 upside down.")
 @click.option("--force", is_flag=True, help="Replace OUTPUT if it exists.")
 def simulate(
     scenario: str,
@@ -42,22 +50,32 @@ def simulate(
     mag_rate: float,
     mocap_rate: float,
     detection_rate: float | None,
+    landmarks: int | None,
+    fov: float | None,
+    detections_until: float | None,
+    imu_rpy: tuple[float, float, float] | None,
     force: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUTPUT with landmark and bias truth."""
+    """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop) and write it
+    to OUTPUT with landmark and bias truth."""
     from slamobs.pipeline.simulate.logwriter import infer_container, log_size, write_log
-    from slamobs.pipeline.simulate.scenarios import SCENARIOS
+    from slamobs.pipeline.simulate.scenarios import SCENARIOS, customize, get_scenario
     from slamobs.pipeline.simulate.sensors import simulation
 
     if scenario not in SCENARIOS:
         raise click.BadParameter(
             f"unknown scenario {scenario!r}; choose from {', '.join(sorted(SCENARIOS))}", param_hint="SCENARIO"
         )
+    try:
+        rig = customize(get_scenario(scenario), landmarks=landmarks, fov_deg=fov, detections_until=detections_until,
+                        imu_rpy_deg=imu_rpy or None)
+    except ValueError as err:
+        raise click.BadParameter(str(err)) from None
     container = container or infer_container(output)
     if (output.exists() or output.is_symlink()) and not force:
         raise click.ClickException(f"{output} exists already (use --force to replace it)")
     sim = simulation(  # generated and written piece by piece: any duration fits in memory
-        scenario,
+        rig,
         duration=duration,
         seed=seed,
         noise=not no_noise,
