@@ -31,6 +31,8 @@ class RunConfig:
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
     output_rate_hz: float | None = None
     float_bits: int = DEFAULT_FLOAT_BITS
+    #: ``start`` | ``gravity`` | ``truth`` | an initial pose (pipeline.output_frame); None = the observer's default
+    output_frame: str | dict | None = None
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
@@ -65,6 +67,9 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     except jsonschema.ValidationError as err:
         where = ".".join(str(p) for p in err.absolute_path) or "top level"
         raise InputError(source, f"invalid config at {where}: {err.message}") from None
+    frame = data.get("output", {}).get("frame")
+    if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
+        raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
     frames = data.get("frames", {})
     time = data.get("time", {})
     ev = data.get("evaluation", {})
@@ -85,6 +90,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         max_meas_age=float(time.get("max_meas_age", 0.5)),
         gains={k: dict(v) for k, v in data.get("gains", {}).items()},
         output_rate_hz=data.get("output", {}).get("rate_hz"),
+        output_frame=data.get("output", {}).get("frame"),
         float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
         t_max_diff=float(ev.get("t_max_diff", 0.01)),
         convergence_threshold=float(ev.get("convergence_threshold", 0.1)),

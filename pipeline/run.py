@@ -148,7 +148,9 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     ``progress`` receives a short line at each stage (and each observer stretch)."""
     spec = get_observer(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))  # fail on bad gains before reading a large log
-    prepared = prepare_log(log, config, directions=spec.min_directions > 0, progress=progress)
+    # the gravity output frame of an observer without directions comes from the accelerometer
+    directions = spec.min_directions > 0 or config.output_frame == "gravity"
+    prepared = prepare_log(log, config, directions=directions, progress=progress)
     return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress)
 
 
@@ -159,6 +161,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
     observer is done (the caller runs nothing else on it), so the report does not share memory with it.
     """
+    from slamobs.pipeline import output_frame
     from slamobs.pipeline.writers import TableWriter, atomic_directory, landmark_table, stretch_tables, write_json
 
     log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
@@ -184,6 +187,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
         "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits},
     }
+    frame_choice = output_frame.parse_frame(config.output_frame)
+    frame = None
     report = None
     with atomic_directory(out_dir, force=force) as tmp:
         sink = TableWriter(tmp, config.float_bits)
@@ -196,6 +201,12 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                 t_run = time.perf_counter()
                 observer_s += t_run - t
                 _check_finite(part, log, spec.name, int(aligned.vel_t_ns[0]))
+                if frame is None:  # fixed from the first stretch, before anything is written
+                    frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
+                                                 truth=_truth(streams, config), t_max_diff=config.t_max_diff,
+                                                 uses_directions=spec.min_directions > 0, notes=notes)
+                    metadata["output"]["frame"] = frame.describe()
+                part = frame.apply(part)
                 sink.write({**stretch_tables(part), **part.extra_tables})
                 t = time.perf_counter()
                 write_s += t - t_run
@@ -216,7 +227,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
             progress("error report")
-            report = _evaluate(tmp, streams, config, notes)
+            report = _evaluate(tmp, streams, config, notes, metadata)
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
@@ -236,19 +247,27 @@ def _topics(streams: LogStreams) -> dict[str, str]:
     return {r: getattr(streams, r).topic for r in roles if getattr(streams, r) is not None}
 
 
-def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str]) -> dict | None:
+def _truth(streams: LogStreams, config: RunConfig):
+    """The ground truth on the clock the run used (None without truth)."""
+    truth = streams.truth
+    if truth is not None and config.align_time_source == "record":
+        truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
+    return truth
+
+
+def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str], metadata: dict) -> dict | None:
     """Error report against the log's ground truth; a failure to associate becomes a note, not a crash."""
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.report import bias_plot_rows
+    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.writers import read_frame
 
     frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
-    truth = streams.truth
-    if config.align_time_source == "record":
-        truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
-    # observers that measure gravity fix roll and pitch: the report adds the 4-DoF (translation + yaw) alignment
+    truth = _truth(streams, config)
+    # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the 4-DoF
+    # (translation + yaw) alignment
     options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,
-                            gravity_aligned=get_observer(config.observer).min_directions > 0)
+                            gravity_aligned=gravity_aligned(metadata))
     # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
     drawn_biases = bias_plot_rows(frames["biases"])
     landmarks = frames["landmarks"]
@@ -259,5 +278,5 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
         notes.append(f"no error report: {err}")
         return None
     write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth, evaluation=evaluation,
-                 plots=config.plots)
+                 plots=config.plots, metadata=metadata)
     return report

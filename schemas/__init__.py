@@ -11,8 +11,8 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
-#: Tables only some observers write.
-OPTIONAL_TABLES = ("jumps",)
+#: Tables only some runs write: the hybrid's jumps; the estimate aligned into the truth's frame (runs with truth).
+OPTIONAL_TABLES = ("jumps", "poses_aligned", "landmarks_aligned")
 
 
 @cache

@@ -34,7 +34,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     rpe,
     synchronize,
 )
-from slamobs.pipeline.lie import rot_to_quat
+from slamobs.pipeline.lie import quats_to_rots, rot_to_quat, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
 SCHEMA_VERSION = 1
@@ -50,7 +50,9 @@ TRUTH_TUM = "truth_tum.txt"
 ESTIMATE_TUM = "estimate_tum.txt"
 EVO_ZIP = "ape_evo.zip"
 PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png")
-REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM)
+#: the estimate moved into the truth's frame by the report's alignment (schemas/poses_aligned.json, ...)
+ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
+REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
 
 _EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
 _ALIGN_LABELS = {"se3": "SE(3)", "sim3": "Sim(3)", "scale": "scale-only", "yaw": "4-DoF (yaw)", "origin": "origin",
@@ -720,6 +722,7 @@ def write_report(
     *,
     evaluation: TrajectoryEvaluation | None = None,
     plots: bool = True,
+    metadata: dict[str, Any] | None = None,
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
     time on short logs), the evo result zip and the TUM exports into ``out_dir``; returns the written paths.
@@ -750,9 +753,39 @@ def write_report(
     written.append(save_result_zip(out / EVO_ZIP, ev.translation))
     written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
     written.append(write_tum(out / TRUTH_TUM, ev.truth))
+    written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
     if plots:
         written += _write_plots(report, out, ev, biases, landmarks, landmark_truth)
     return written
+
+
+def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: pd.DataFrame | None,
+                         metadata: dict[str, Any]) -> list[Path]:
+    """``poses_aligned.parquet`` and ``landmarks_aligned.parquet``: every pose and the map moved by the report's
+    alignment into the truth's frame (a stretch of poses at a time), with the run metadata and the alignment."""
+    from slamobs.pipeline.writers import FLOAT_BITS, TableWriter
+
+    al = ev.alignment
+    meta = {**metadata, "aligned": {"frame": "ground truth", "alignment": report["method"]["alignment"],
+                                    "truth_source": report.get("truth_source")}}
+    bits = int((metadata.get("output") or {}).get("float_bits", FLOAT_BITS))
+    sink = TableWriter(out, bits)
+    try:
+        est = ev.estimate
+        for rows in row_blocks(len(est)):
+            pos = al.positions(np.asarray(est.position[rows], dtype=np.float64))
+            rot = al.rotations(quats_to_rots(np.ascontiguousarray(est.quat_xyzw[rows], dtype=np.float64)))
+            q = rots_to_quats(np.ascontiguousarray(rot))
+            sink.write({"poses_aligned": {"t_ns": np.asarray(est.t_ns[rows]), "x": pos[:, 0], "y": pos[:, 1],
+                                          "z": pos[:, 2], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]}})
+        if landmarks is not None:
+            xyz = al.positions(landmarks[["x", "y", "z"]].to_numpy(np.float64))
+            sink.write({"landmarks_aligned": {**{c: landmarks[c].to_numpy() for c in landmarks.columns},
+                                              "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}})
+        return sink.close(meta)
+    except BaseException:
+        sink.abort()
+        raise
 
 
 def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
