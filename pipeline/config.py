@@ -19,6 +19,8 @@ class RunConfig:
     topics: dict[str, str] = field(default_factory=dict)
     body_frame: str | None = None
     identity_frames: tuple[str, ...] = ()
+    #: frames whose TF transform is replaced by the identity anyway (a warning in run.json)
+    override_identity: tuple[str, ...] = ()
     time_source: str = "header"  # header | record | auto
     topic_clocks: dict[str, str] = field(default_factory=dict)
     msg_dir: str | None = None
@@ -79,6 +81,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         topics=dict(data.get("topics", {})),
         body_frame=frames.get("body"),
         identity_frames=tuple(frames.get("assume_identity", ())),
+        override_identity=tuple(frames.get("override_identity", ())),
         time_source=time.get("source", "header"),
         topic_clocks=dict(time.get("topics", {})),
         msg_dir=data.get("msg_dir"),

@@ -134,7 +134,8 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     progress("aligning the streams")
     topics = _topics(streams)
     aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
-                    identity_frames=config.identity_frames, gravity=config.gravity,
+                    identity_frames=config.identity_frames, override_identity=config.override_identity,
+                    gravity=config.gravity,
                     magnetic_field=config.magnetic_field, keep_directions=directions, release=True)
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
