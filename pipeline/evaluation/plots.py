@@ -156,18 +156,17 @@ def plot_errors(
     convergence_t_s: float | None = None,
     title: str = "Absolute pose error after SE(3) alignment",
 ) -> Path:
-    """Aligned position and attitude error over time, with the convergence threshold and time if known."""
+    """Aligned position and attitude error over time; on the position panel (the convergence figure is about the
+    position error only) the convergence band ``threshold_m`` and the convergence time if known."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m, attitude_error_deg])
     ax_p.plot(t_s[sel], position_error_m[sel], color="tab:blue", lw=1.0, label="‖position error‖")
     if threshold_m is not None:
-        ax_p.axhline(threshold_m, color="tab:red", ls=":", lw=1.0, label=f"convergence threshold {threshold_m:g} m")
+        ax_p.axhline(threshold_m, color="tab:red", ls=":", lw=1.0, label=f"convergence band {threshold_m:.3g} m")
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if convergence_t_s is not None:
-        for ax in (ax_p, ax_r):
-            ax.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0,
-                       label=f"converged at {convergence_t_s:.2f} s")
+        ax_p.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0, label=f"converged at {convergence_t_s:.2f} s")
     ax_p.set_title(title)
     ax_p.set_ylabel("position error [m]")
     ax_r.set_ylabel("attitude error [deg]")

@@ -385,16 +385,29 @@ def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray]
 
 
 def _convergence(ev: TrajectoryEvaluation, threshold_m: float) -> dict[str, Any]:
-    """First associated stamp from which the aligned position error stays below the threshold."""
+    """First associated stamp from which the aligned position error stays within the convergence band."""
     t0 = int(ev.estimate.t_ns[0])
-    k = slam_metrics.convergence_index(ev.translation.errors, threshold_m)
+    errors = ev.translation.errors
+    band, steady = slam_metrics.convergence_band(ev.pair_t_est_ns, errors, threshold_m)
+    k = slam_metrics.convergence_index(errors, np.nextafter(band, np.inf))  # "within": error <= band
     t_conv = None if k is None else int(ev.pair_t_est_ns[k])
     return {
         "threshold_m": float(threshold_m),
+        "steady_error_m": steady,
+        "band_m": band,
+        "tail_fraction": slam_metrics.TAIL_FRACTION,
+        "band_factor": slam_metrics.BAND_FACTOR,
         "estimate_start_ns": t0,
         "t_ns": t_conv,
         "t_since_start_s": None if t_conv is None else (t_conv - t0) / 1e9,
     }
+
+
+def convergence_definition(conv: dict[str, Any]) -> str:
+    """The convergence figure's definition, with its numbers (report.md, method, CLI)."""
+    return (f"first time after which the aligned position error stays within max(threshold "
+            f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_error_m']:.4g} m, the median error over "
+            f"the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
 
 
 def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
@@ -526,9 +539,11 @@ def evaluate_tables(
                 "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
             ),
             "convergence": (
-                f"first associated estimate stamp from which the aligned position error stays below "
-                f"{options.convergence_threshold_m} m until the end; null if the last error is above it; "
-                "t_since_start_s counts from the first estimate stamp"
+                "first associated estimate stamp after which the aligned position error stays within band_m = "
+                "max(threshold_m, band_factor × steady_error_m) to the end, steady_error_m being the median error "
+                "over the last tail_fraction of the log's time span: the time the observer reaches its own steady "
+                "level, whatever the threshold; null if the last error is above the band; t_since_start_s counts "
+                "from the first estimate stamp"
             ),
         },
     }
@@ -582,9 +597,9 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     conv_txt = (
         f"{conv['t_since_start_s']:.3f} s after the estimate start"
         if conv["t_ns"] is not None
-        else "not converged (the last aligned position error is above the threshold)"
+        else "not converged (the last aligned position error is above the band)"
     )
-    lines += ["", f"Convergence (position error stays below {conv['threshold_m']:g} m): {conv_txt}.", ""]
+    lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
     if report["evo"].get("ape"):
         lines += [f"Reproduce with evo: `{report['evo']['ape']}`.", ""]
     by = report.get("ape_by_alignment") or {}
@@ -825,7 +840,7 @@ def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, bi
             (ev.pair_t_est_ns - t0) / 1e9,
             ev.translation.errors,
             ev.rotation.errors,
-            threshold_m=conv["threshold_m"],
+            threshold_m=conv["band_m"],
             convergence_t_s=conv["t_since_start_s"],
             title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
         )

@@ -54,6 +54,22 @@ def window_stats(t_ns: np.ndarray, values, fraction: float) -> dict:
     }
 
 
+#: Convergence band: ``max(threshold, BAND_FACTOR × median error over the last TAIL_FRACTION of the log)``.
+TAIL_FRACTION = 0.2
+BAND_FACTOR = 1.5
+
+
+def convergence_band(t_ns: np.ndarray, errors: np.ndarray, threshold: float) -> tuple[float, float]:
+    """``(band, steady)``: the observer's steady error (median over the last ``TAIL_FRACTION`` of the time span)
+    and the band the error must stay in, ``max(threshold, BAND_FACTOR × steady)``: convergence then measures
+    when the observer reaches its own steady level, not when a fixed threshold happens to be crossed."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    e = np.asarray(errors, dtype=np.float64)
+    tail = t >= t[-1] - round(TAIL_FRACTION * (t[-1] - t[0]))
+    steady = float(np.median(e[tail]))
+    return max(float(threshold), BAND_FACTOR * steady), steady
+
+
 def convergence_index(errors: np.ndarray, threshold: float) -> int | None:
     """First index from which ``errors`` stay below ``threshold`` to the end (None if the last is not)."""
     above = np.flatnonzero(np.asarray(errors) >= threshold)
