@@ -327,9 +327,9 @@ def _forward_camera(tilt_deg: float, fov_h_deg: float, fov_v_deg: float, max_ran
 
 
 def loop(n_landmarks: int = LOOP_LANDMARKS) -> Scenario:
-    """Two 90 s laps of a 24 m x 14 m weaving ellipse past ``n_landmarks`` tags set 1.5-5 m outside the path
-    (heights 0-3 m, fixed layout), seen by a forward camera with a 50 deg field of view: 3-10 landmarks in
-    view at a time (about 6), each seen once per lap."""
+    """Two 90 s laps of a weaving ellipse (semi-axes 24 m and 14 m) past ``n_landmarks`` tags set 1.5-5 m
+    outside the path (heights 0-3 m, fixed layout), seen by a forward camera with a 50 deg field of view: 3-10
+    landmarks in view at a time (about 6), each seen once per lap."""
     if n_landmarks < 3:
         raise ValueError(f"the loop needs at least 3 landmarks, got {n_landmarks}")
     rng = np.random.default_rng(20240612)  # the layout is part of the scenario, not of the noise seed
