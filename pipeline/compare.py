@@ -65,9 +65,9 @@ def _markdown(table, log: Path) -> str:
         body += "| " + " | ".join(cells) + " |\n"
     return (f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
             f"truth; bias errors are final-sample norms; convergence_s is the first time after which the aligned "
-            f"position error stays within convergence_band_m = max(threshold, 1.5 × the observer's median error over "
-            f"the last 20 % of the log), so each observer is measured against its own steady level; run time is the "
-            f"observer stage.\n\n{head}{body}")
+            f"position error's level (running median over 5 % of the log) stays within convergence_band_m = "
+            f"max(threshold, 1.5 × the observer's highest level over the last 20 % of the log), so each observer is "
+            f"measured against its own steady level; run time is the observer stage.\n\n{head}{body}")
 
 
 def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:

@@ -35,7 +35,7 @@ def test_compare_all_observers_side_by_side(tmp_path):
             assert row["ape_trans_rmse_m"] < 0.5
             conv = report["convergence"]
             assert row["convergence_s"] == conv["t_since_start_s"] and row["convergence_band_m"] == conv["band_m"]
-            assert conv["band_m"] >= max(conv["threshold_m"], 1.5 * conv["steady_error_m"]) - 1e-12
+            assert conv["band_m"] == pytest.approx(max(conv["threshold_m"], 1.5 * conv["steady_level_m"]))
         else:
             assert row["error"]
     assert (table["status"] == "ok").any()

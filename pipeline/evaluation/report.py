@@ -385,29 +385,30 @@ def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray]
 
 
 def _convergence(ev: TrajectoryEvaluation, threshold_m: float) -> dict[str, Any]:
-    """First associated stamp from which the aligned position error stays within the convergence band."""
+    """When the aligned position error reaches the observer's own steady level (:func:`slam_metrics.convergence`)."""
     t0 = int(ev.estimate.t_ns[0])
-    errors = ev.translation.errors
-    band, steady = slam_metrics.convergence_band(ev.pair_t_est_ns, errors, threshold_m)
-    k = slam_metrics.convergence_index(errors, np.nextafter(band, np.inf))  # "within": error <= band
-    t_conv = None if k is None else int(ev.pair_t_est_ns[k])
+    c = slam_metrics.convergence(ev.pair_t_est_ns, ev.translation.errors, threshold_m)
     return {
         "threshold_m": float(threshold_m),
-        "steady_error_m": steady,
-        "band_m": band,
+        "window_s": c["window_s"],
+        "steady_error_m": c["steady_error"],
+        "steady_level_m": c["steady_level"],
+        "band_m": c["band"],
+        "window_fraction": slam_metrics.WINDOW_FRACTION,
         "tail_fraction": slam_metrics.TAIL_FRACTION,
         "band_factor": slam_metrics.BAND_FACTOR,
         "estimate_start_ns": t0,
-        "t_ns": t_conv,
-        "t_since_start_s": None if t_conv is None else (t_conv - t0) / 1e9,
+        "t_ns": c["t_ns"],
+        "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
     }
 
 
 def convergence_definition(conv: dict[str, Any]) -> str:
-    """The convergence figure's definition, with its numbers (report.md, method, CLI)."""
-    return (f"first time after which the aligned position error stays within max(threshold "
-            f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_error_m']:.4g} m, the median error over "
-            f"the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
+    """The convergence figure's definition, with its numbers (report.md)."""
+    return (f"first time after which the error level (median aligned position error over a {conv['window_s']:.3g} s "
+            f"window, {100 * conv['window_fraction']:g} % of the log) stays within max(threshold "
+            f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_level_m']:.4g} m, the highest level "
+            f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
 
 
 def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
@@ -539,11 +540,14 @@ def evaluate_tables(
                 "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
             ),
             "convergence": (
-                "first associated estimate stamp after which the aligned position error stays within band_m = "
-                "max(threshold_m, band_factor × steady_error_m) to the end, steady_error_m being the median error "
-                "over the last tail_fraction of the log's time span: the time the observer reaches its own steady "
-                "level, whatever the threshold; null if the last error is above the band; t_since_start_s counts "
-                "from the first estimate stamp"
+                "the error level is the running median of the aligned position error over a centred window of "
+                "window_fraction of the log's time span (window_s; evaluated at up to 2000 evenly spaced stamps, over "
+                "an even stride of at most 2001 errors of the window); "
+                "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
+                "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
+                "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
+                "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
+                "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
             ),
         },
     }
@@ -834,15 +838,17 @@ def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, bi
         )
     )
     conv = report["convergence"]
+    level_t, level = slam_metrics.error_level(ev.pair_t_est_ns, ev.translation.errors)
     written.append(
         plots.plot_errors(
             out / "errors.png",
             (ev.pair_t_est_ns - t0) / 1e9,
             ev.translation.errors,
             ev.rotation.errors,
-            threshold_m=conv["band_m"],
+            band_m=conv["band_m"],
             convergence_t_s=conv["t_since_start_s"],
             title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
+            level=((level_t - t0) / 1e9, level),
         )
     )
     bt = report["biases"]["truth"]
