@@ -6,6 +6,9 @@ from pathlib import Path
 
 import click
 
+from slamobs.cli.options import AliasedOption, quiet_option
+from slamobs.cli.progress import compile_notice
+
 #: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
 CONTAINERS = ("bag", "mcap", "ros2")
 
@@ -14,7 +17,8 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
 
 @click.command("simulate")
 @click.argument("scenario")
-@click.option("-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Log to write.")
+@click.option("-o", "--out", "--output", "output", required=True, type=click.Path(path_type=Path), cls=AliasedOption,
+              hidden_aliases=("--output",), help="Log to write.")
 @click.option(
     "--container",
     type=click.Choice(CONTAINERS),
@@ -37,7 +41,8 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
               help="Seconds after which no landmark is detected (they leave view for good).")
 @click.option("--imu-rpy", type=float, nargs=3, default=None, metavar="ROLL PITCH YAW",
               help="IMU mounting, deg (imu_link -> body, published on /tf_static), e.g. 180 0 0 upside down.")
-@click.option("--force", is_flag=True, help="Replace OUTPUT if it exists.")
+@click.option("--force", is_flag=True, help="Replace OUT if it exists.")
+@quiet_option("Print nothing but errors.")
 def simulate(
     scenario: str,
     output: Path,
@@ -55,9 +60,10 @@ def simulate(
     detections_until: float | None,
     imu_rpy: tuple[float, float, float] | None,
     force: bool,
+    quiet: bool,
 ) -> None:
     """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop) and write it
-    to OUTPUT with landmark and bias truth."""
+    to OUT with landmark and bias truth."""
     from slamobs.pipeline.simulate.logwriter import infer_container, log_size, write_log
     from slamobs.pipeline.simulate.scenarios import SCENARIOS, customize, get_scenario
     from slamobs.pipeline.simulate.sensors import simulation
@@ -85,7 +91,10 @@ def simulate(
         detection_rate=detection_rate,
         mocap_rate=mocap_rate,
     )
-    path = write_log(sim, output, container, overwrite=force)
+    with compile_notice(quiet=quiet):
+        path = write_log(sim, output, container, overwrite=force)
+    if quiet:
+        return
     counts = ", ".join(f"{topic} {n}" for topic, n in sim.topic_counts().items())
     click.echo(
         f"wrote {path} ({container}, {log_size(path) / 1e6:.2f} MB, {sim.scenario.name} {sim.duration:g} s, "

@@ -11,6 +11,12 @@ robot_state_publisher) and moving ones (gimbals, TF tag frames under a world fra
 through ``/tf`` is interpolated at every sample: velocity and direction samples outside the ``/tf`` span hold
 the nearest transform (an extrinsic that drifts little), detection frames outside it are dropped (a moving
 camera must not be guessed). Which edges were used is reported in the notes.
+
+Plausibility gates (``limits``, see ``config.DEFAULT_LIMITS``) drop what no sensor produces: angular rates and
+speeds beyond a limit, detections nearer or farther from the body origin than a limit; each is counted in the
+notes. Gaps in the velocity streams longer than ``max_gap`` split the run into segments
+(``AlignedStream.segment_starts``): the observer holds its state across a gap rather than integrating the last
+twist over it, time-base samples inside a linear-velocity gap and detection frames inside a gap are dropped.
 """
 
 from __future__ import annotations
@@ -26,12 +32,15 @@ from slamobs.pipeline.directions import (
     DEFAULT_MAGNETIC_FIELD,
     DirectionSet,
     build_directions,
-    gravity_weights,
 )
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
+from slamobs.pipeline.config import DEFAULT_LIMITS
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
+
+#: Start of the note on the accelerometer's down-weighted samples (only runs that use the accelerometer keep it).
+ACCEL_NOTE = "accelerometer: "
 
 #: Velocity gaps longer than this (seconds) are reported: the observer holds the last sample across them.
 GAP_WARN_S = 0.5
@@ -53,6 +62,15 @@ class AlignedStream:
     body_frame: str
     notes: list[str] = field(default_factory=list)
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
+    #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
+    segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def segments(self) -> list[dict]:
+        """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
+        n = self.vel_t_ns.shape[0]
+        bounds = [0, *self.segment_starts.tolist(), n]
+        return [{"start_ns": int(self.vel_t_ns[a]), "end_ns": int(self.vel_t_ns[b - 1]), "samples": b - a}
+                for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
     def seconds(self, t_ns: np.ndarray) -> np.ndarray:
         """Times relative to ``t0_ns`` in float64 seconds (exact to well below a microsecond)."""
@@ -219,15 +237,18 @@ def align(
     magnetic_field=DEFAULT_MAGNETIC_FIELD,
     keep_directions: bool = True,
     release: bool = False,
+    limits: dict[str, float | None] | None = None,
 ) -> AlignedStream:
     """Build the observer's ordered input from the decoded streams of one log.
 
     ``keep_directions=False`` leaves the direction samples out of the result (observers without IMU
-    directions; their accelerometer note is still made). ``release=True`` removes each sensor stream from
+    directions, which get no accelerometer note). ``release=True`` removes each sensor stream from
     ``streams`` once it has been used (for a caller that reads nothing else of them), so the samples of a long
     log are not held twice. Each part runs in its own function so its temporaries are gone before the next
-    part starts; the notes come in the order velocities, detections, directions.
+    part starts; the notes come in the order velocities, detections, directions. ``limits`` are the
+    plausibility gates and ``max_gap`` (default ``config.DEFAULT_LIMITS``; a None entry switches one off).
     """
+    lim = {**DEFAULT_LIMITS, **(limits or {})}
     om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
     lv: Vec3Stream = _require(streams, "linear_velocity", "body linear velocity (nav_msgs/Odometry or TwistStamped)")
     det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
@@ -235,10 +256,11 @@ def align(
     ident = {f.lstrip("/") for f in identity_frames}
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
+    _check_frames(streams, tf, body_frame, ident, override)
     frame = _Frame(tf, body, ident, time_source, [], override)
     dir_frame = _Frame(tf, body, ident, time_source, [], override)
 
-    t_om, omega, velocity, (lo, hi) = _velocities(streams.path, om, lv, frame)
+    t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -249,11 +271,12 @@ def align(
     del accel, magnetic
     if release:
         streams.detections = None
-    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame)
+    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame, lim,
+                                                                  _gap_spans(t_om, starts))
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
     if w is not None:
-        notes.append(f"accelerometer: {100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
+        notes.append(f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
                      f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
                      f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)")
     return AlignedStream(
@@ -269,25 +292,43 @@ def align(
         body_frame=body,
         notes=notes,
         directions=directions if keep_directions else None,
+        segment_starts=starts,
     )
+
+
+def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str],
+                  override: frozenset[str] = frozenset()) -> None:
+    """The frames the config names exist in the log: ``frames.body`` as a stream frame or in TF,
+    ``frames.assume_identity`` and ``frames.override_identity`` as the frame of a sensor stream (the only
+    frames they apply to)."""
+    sensors = {s.frame_id.lstrip("/") for s in (streams.angular_velocity, streams.linear_velocity, streams.detections,
+                                                streams.accel, streams.magnetic) if s is not None and s.frame_id}
+    if body_frame:
+        body = body_frame.lstrip("/")
+        if body not in sensors | tf.frames:
+            known = ", ".join(sorted(sensors | tf.frames)[:12]) or "none"
+            raise InputError(streams.path, f"frames.body names '{body}', which is not a frame of the log (its frames: "
+                                           f"{known})")
+    for option, names in (("assume_identity", ident), ("override_identity", override)):
+        if unused := sorted(set(names) - sensors):
+            raise InputError(streams.path, f"frames.{option} names {', '.join(repr(f) for f in unused)}, which no "
+                                           f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})")
 
 
 def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,
                 magnetic: Vec3Stream | None, gravity, magnetic_field, keep: bool):
     """The direction set (``keep``) and the accelerometer weights (None without an accelerometer)."""
-    t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
     if keep:
+        t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
         directions = build_directions(t_s, omega, velocity, _resample(fr, accel, t_om), _resample(fr, magnetic, t_om),
                                       gravity, magnetic_field)
         if directions is not None and "gravity" in directions.names:
             return directions, directions.weight[:, directions.names.index("gravity")]
         return directions, None
-    # only the accelerometer note: its weights block by block (both frames are still checked)
-    acc = _resampled(fr, accel, t_om)
+    # an observer without directions gets no accelerometer note (both frames are still checked)
+    _resampled(fr, accel, t_om)
     _resampled(fr, magnetic, t_om)
-    if acc is None:
-        return None, None
-    return None, gravity_weights(t_s, omega, velocity, acc.rows, float(np.linalg.norm(gravity)))
+    return None, None
 
 
 @dataclass(frozen=True)
@@ -305,19 +346,85 @@ class _Frame:
         return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override)
 
 
-def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame):
-    """Time base (int64 ns), body angular and linear velocity on it, and the span both streams cover."""
+def _clock(stream) -> str:
+    """Which clock a stream's times are on, for messages (all-zero header stamps are replaced by record times)."""
+    return "record time" if stream.t_ns is stream.rec_ns or np.array_equal(stream.t_ns, stream.rec_ns) else "header stamps"
+
+
+def _span(t: np.ndarray) -> str:
+    return f"{t[0] * 1e-9:.3f} .. {t[-1] * 1e-9:.3f} s"
+
+
+def _gate_norm(t: np.ndarray, x: np.ndarray, limit: float | None, what: str, key: str, unit: str, topic: str,
+               notes: list[str]):
+    """Samples whose magnitude exceeds ``limit`` dropped (and counted)."""
+    if limit is None or not t.shape[0]:
+        return t, x
+    norm = np.linalg.norm(x, axis=1)
+    bad = norm > limit
+    if n := int(np.count_nonzero(bad)):
+        notes.append(f"{topic}: {n} {what} samples above limits.{key} {limit:g} {unit} dropped "
+                     f"(largest {norm.max():.3g} {unit})")
+        t, x = t[~bad], x[~bad]
+    return t, x
+
+
+def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> None:
+    """A time base needs two distinct stamps: say why a stream has none (no samples, one, all equal)."""
+    name = f"{what} ({stream.topic})"
+    if t.shape[0] == 0:
+        raise InputError(path, f"{name}: all {n_read} samples are above limits.{key}: not a plausible sensor "
+                               f"stream (raise or switch off limits.{key} if it is)")
+    if t.shape[0] == 1:
+        raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
+    if t[0] == t[-1]:
+        when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
+        clock = _clock(stream)
+        if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
+            hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
+        else:
+            hint = "its record times do not advance either: the log carries no usable time for it"
+        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; "
+                               f"{hint}")
+
+
+def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
+    """Time base (int64 ns), body angular and linear velocity on it, the span both streams cover and the first
+    sample of each segment after the first (velocity gaps longer than ``lim["max_gap"]``)."""
     notes = fr.notes
     t_om, w = _sorted(_times(om, fr.time_source), om.xyz)
     t_lv, v = _sorted(_times(lv, fr.time_source), lv.xyz)
+    n_om, n_lv = t_om.shape[0], t_lv.shape[0]
+    t_om, w = _gate_norm(t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s",
+                         om.topic, notes)
+    t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
+    _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
+    _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
-        raise InputError(path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) do not overlap in time")
+        raise InputError(path, f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
+                               f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time"
+                               + ("; the two clocks differ: try time.source: auto or record"
+                                  if _clock(om) != _clock(lv) else ""))
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
         notes.append(f"{n_out} angular-velocity samples outside the linear-velocity span dropped")
         t_om, w = t_om[first:stop], w[first:stop]
+    max_gap = lim["max_gap"]
+    if max_gap is not None and t_lv.shape[0] > 1:
+        # time-base samples inside a linear-velocity gap would get a velocity interpolated over it: dropped
+        gap = np.flatnonzero(np.diff(t_lv) > max_gap * 1e9)
+        if gap.size:
+            k = np.searchsorted(t_lv, t_om, side="right") - 1
+            inside = np.isin(k, gap) & (t_om > t_lv[np.clip(k, 0, None)])
+            if n_in := int(np.count_nonzero(inside)):
+                notes.append(f"{n_in} angular-velocity samples inside {lv.topic} gaps longer than limits.max_gap "
+                             f"{max_gap:g} s dropped")
+                t_om, w = t_om[~inside], w[~inside]
     t_om = t_om.astype(np.int64)  # its own array: the stream's may be shared with other roles
+    if t_om.shape[0] < 2:
+        raise InputError(path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) share fewer than "
+                               "two samples in time")
 
     gyro_ext = fr.to_body(om.frame_id, om.topic, t_om)
     _held(gyro_ext, om.topic, notes)
@@ -336,14 +443,32 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame):
         block -= np.cross(omega[rows], vel_ext.trans)
         velocity[rows] = block
     notes += _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic)
-    return t_om, omega, velocity, (lo, hi)
+    starts = np.zeros(0, np.int64)
+    if max_gap is not None:
+        starts = (np.flatnonzero(np.diff(t_om) > max_gap * 1e9) + 1).astype(np.int64)
+        if starts.size:
+            where = ", ".join(f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)"
+                              for k in starts[:5]) + (", ..." if starts.size > 5 else "")
+            notes.append(f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
+                         f"has {starts.size + 1} segments; nothing is integrated across a gap")
+    return t_om, omega, velocity, (lo, hi), starts
 
 
-def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
-    """Detection frames inside ``[lo, hi]`` in time order, in the body frame: stamps, CSR offsets, dense landmark
-    indices, positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved
-    (a clean log keeps its order: an hour of detections is tens of MB per copy)."""
+def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(G, 2) open time intervals between segments: from the last sample before a gap to the first after it."""
+    return np.column_stack([t_om[starts - 1], t_om[starts]]) if starts.size else np.zeros((0, 2), np.int64)
+
+
+def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: dict | None = None,
+                gaps: np.ndarray | None = None):
+    """Detection frames inside ``[lo, hi]`` and outside the velocity ``gaps`` in time order, in the body frame,
+    without detections outside the range gates of ``lim``: stamps, CSR offsets, dense landmark indices,
+    positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved (a clean log
+    keeps its order: an hour of detections is tens of MB per copy)."""
     notes = fr.notes
+    lim = {**DEFAULT_LIMITS, **(lim or {})}
+    if det.ids.shape[0] == 0:
+        raise InputError(path, f"the {len(det)} detection messages hold no detections", det.topic)
     t_det = _times(det, fr.time_source)
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
@@ -351,6 +476,13 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
     in_span = (t_det >= lo) & (t_det <= hi)
     if n_out := len(det) - int(np.count_nonzero(in_span)):
         notes.append(f"{n_out} detection frames outside the velocity span dropped")
+    if gaps is not None and gaps.shape[0]:
+        k = np.searchsorted(gaps[:, 0], t_det, side="left") - 1  # the gap starting before each frame
+        in_gap = (k >= 0) & (t_det < gaps[np.clip(k, 0, None), 1])
+        in_gap &= t_det > gaps[np.clip(k, 0, None), 0]
+        if n_gap := int(np.count_nonzero(in_span & in_gap)):
+            notes.append(f"{det.topic}: {n_gap} detection frames inside velocity gaps (between segments) dropped")
+            in_span &= ~in_gap
     cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
     if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
         notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
@@ -372,6 +504,9 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
             sel = np.flatnonzero(mask) if sel is None else sel[mask]
         del first
     det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], frame_of if sel is None else frame_of[sel])
+    # range for the gates: from the sensor when it is fixed on the body, else (frames moving relative to the
+    # body, e.g. TF tag frames under a world frame) from the body origin
+    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if cam_ext.rot.ndim == 2 else None
     in_order = sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1))
     if in_order:  # every detection, frames already in time order
         del frame_of
@@ -385,12 +520,43 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
         del frame_of, rank
         order_det = np.argsort(frame_rank, kind="stable")
         det_y = det_y[order_det]
+        rng = rng[order_det] if rng is not None else None
         ids = (det.ids if sel is None else det.ids[sel])[order_det]
         per_frame = np.bincount(frame_rank, minlength=frames.size)
         del frame_rank, order_det
+    t_frames = t_det[frames]
+    det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
+                                                  else rng, ids, per_frame, t_frames, lim, notes)
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     if landmark_ids.size == 0:
-        raise InputError(path, "no landmark detections inside the velocity time span", det.topic)
-    return (t_det[frames].astype(np.int64), offsets, det_idx.astype(np.int64),
+        raise InputError(path, "no landmark detections inside the velocity time span (of "
+                               f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)
+    return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
             np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+
+
+def _range_gate(topic: str, det_y: np.ndarray, dist: np.ndarray, ids: np.ndarray, per_frame: np.ndarray,
+                t_frames: np.ndarray, lim: dict, notes: list[str]):
+    """Detections whose range ``dist`` is below or above the range limits dropped (and counted); a frame left
+    empty by it is dropped too (the previous frame stays valid, as if this one had not come)."""
+    lo, hi = lim["min_range"], lim["max_range"]
+    if (lo is None and hi is None) or not det_y.shape[0]:
+        return det_y, ids, per_frame, t_frames
+    near = dist < lo if lo is not None else np.zeros(dist.shape, bool)
+    far = dist > hi if hi is not None else np.zeros(dist.shape, bool)
+    bad = near | far
+    if not bad.any():
+        return det_y, ids, per_frame, t_frames
+    parts = []
+    if n := int(np.count_nonzero(near)):
+        parts.append(f"{n} closer than limits.min_range {lo:g} m (nearest {dist[near].min():.3g} m)")
+    if n := int(np.count_nonzero(far)):
+        parts.append(f"{n} farther than limits.max_range {hi:g} m (farthest {dist[far].max():.3g} m)")
+    owner = np.repeat(np.arange(per_frame.shape[0]), per_frame)
+    kept = np.bincount(owner[~bad], minlength=per_frame.shape[0])
+    emptied = (kept == 0) & (per_frame > 0)
+    extra = f"; {int(emptied.sum())} frames left empty dropped" if emptied.any() else ""
+    notes.append(f"{topic}: detections dropped by the range gate: {', '.join(parts)}{extra}")
+    keep_frame = ~emptied
+    return det_y[~bad], ids[~bad], kept[keep_frame], t_frames[keep_frame]

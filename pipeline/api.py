@@ -7,7 +7,7 @@ the same functions.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,12 +27,11 @@ def run_log(log: str | Path, out: str | Path, *, observer: str | None = None, co
     ``config`` is a ``run.yaml`` path or the same mapping as a dict; ``observer`` overrides its observer.
     Returns the run summary (metadata, timings, report dict, notes).
     """
-    from slamobs.pipeline.config import load_config, parse_config
+    from slamobs.pipeline.config import load_config, parse_config, with_observer
     from slamobs.pipeline.run import run_log as _run_log
 
     cfg = parse_config(config) if isinstance(config, dict) else load_config(Path(config) if config else None)
-    if observer:
-        cfg = replace(cfg, observer=observer)
+    cfg = with_observer(cfg, observer, "observer")
     return _run_log(Path(log), Path(out), cfg, force=force)
 
 

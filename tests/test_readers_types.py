@@ -583,6 +583,6 @@ def test_marker_namespaces(container, tmp_path):
     np.testing.assert_allclose(tags.detections.xyz[:, 0], 1.0)
     assert f"/markers: {2 * K} markers of another namespace than 'tags' skipped" in tags.warnings
     assert not any("namespaces" in w for w in tags.warnings)
-    none = read_log(log, {"detections": "/markers"}, marker_ns="nope")
-    assert len(none.detections) == 0
-    assert any("no marker of namespace 'nope' (namespaces: 'labels', 'tags')" in w for w in none.warnings)
+    with pytest.raises(InputError, match=r"frames.marker_namespace 'nope' names no namespace of its markers "
+                                         r"\(namespaces: 'labels', 'tags'\)"):
+        read_log(log, {"detections": "/markers"}, marker_ns="nope")

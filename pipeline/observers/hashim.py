@@ -60,6 +60,7 @@ from slamobs.pipeline.observers.base import (
 )
 from slamobs.pipeline.observers.shared_steps import (
     FRAME_SETTLE,
+    count_capped,
     frame_rows,
     frame_sample,
     landmark_sums,
@@ -67,6 +68,7 @@ from slamobs.pipeline.observers.shared_steps import (
     predict_points,
     record_row,
     record_row_framed,
+    substep_count,
     turn_frame,
 )
 
@@ -96,7 +98,7 @@ def _substeps(dt, y, nvis, dir_w, k_p, k_w, alpha, gamma_max, k_1, k_2):
     lam_bias = 5.0 * math.sqrt(gamma_max * (s / alpha + k_2 * sw))
     if lam_bias > lam:
         lam = lam_bias
-    return max(1, int(math.ceil(dt * lam / STEP_RATIO)))
+    return substep_count(dt, lam, STEP_RATIO)
 
 
 @njit(cache=True)
@@ -218,28 +220,35 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
              det_t, det_offsets, det_idx, det_y, lm, lm_init,
              k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, iv_stop,
-             r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns, f_r, f_p, f_sum, f_stat,
-             map_frame, settle_s, out_k, out_r, out_p, out_b, trk_p, innov, det_base):
+             budget, r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns, f_r, f_p, f_sum,
+             f_stat, map_frame, settle_s, out_k, out_r, out_p, out_b, trk_p, innov, det_base):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
-    sample ``iv_stop``; stores the state back and returns the number of rows recorded. With ``map_frame``
-    the rows, tracks and innovations are written in the map frame (``F⁻¹`` of the working frame)."""
+    sample ``iv_stop`` or ``budget`` work units are spent; stores the state back and returns the number of
+    rows recorded. With ``map_frame`` the rows, tracks and innovations are written in the map frame (``F⁻¹``
+    of the working frame)."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     n_dir = dir_inertial.shape[0]
     t, meas_t = fs[_T], fs[_MEAS_T]
     iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
     o = 0
-    while iv < n_vel or jf < n_frames:
+    work = 0
+    corotated = lm.shape[0] if k_1 > 0.0 and n_dir > 0 else 0  # landmarks each IMU sub-step rotates
+    while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
             break
         t_next = det_t[jf] if is_frame else vel_t[iv]
+        work += 1
         if started and t_next > t:
             if t - meas_t > max_meas_age:
                 nvis = 0
-            substeps += _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, dir_inertial, dir_b, dir_w,
-                                   r_hat, p_hat, lm, lm_init, b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v,
-                                   k_1, k_2, min_landmarks_bias, counter, f_r, f_p, f_stat)
+            m = _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, dir_inertial, dir_b, dir_w,
+                           r_hat, p_hat, lm, lm_init, b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v,
+                           k_1, k_2, min_landmarks_bias, counter, f_r, f_p, f_stat)
+            substeps += m
+            work += m * (nvis + 1 + corotated)
+            count_capped(m, iv, ns)
             t = t_next
         if is_frame:
             a = det_offsets[jf]
@@ -309,7 +318,8 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     o = _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
                  det_t, det_offsets, det_idx, det_y, lm, lm_init,
                  k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, n_vel,
-                 *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
+                 np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b, out.trk,
+                 out.innov, 0)
     if map_frame:
         lm[:] = (lm - state.f_p) @ state.f_r
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
@@ -340,12 +350,12 @@ class Hashim(Stepper):
         self.keeps_map_frame = k_1 > 0.0 and dirs[0].shape[0] > 0
         self.settle_s = FRAME_SETTLE / k_1 if self.keeps_map_frame else np.inf
 
-    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+    def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
         rows = _advance(self.vel_t, s.omega, s.velocity, *self.dirs, self.det_t, s.det_offsets, s.det_idx,
                         s.det_y, self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age,
-                        o.out_every, iv_stop, *self.state.arrays(), True, self.settle_s, out.k, out.r, out.p, out.b, out.trk,
-                        out.innov, out.det_base)
+                        o.out_every, iv_stop, budget, *self.state.arrays(), True, self.settle_s, out.k, out.r, out.p,
+                        out.b, out.trk, out.innov, out.det_base)
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows
 
@@ -365,22 +375,23 @@ def start_imu(stream, gains: dict[str, float], options) -> Hashim:
     return Hashim(stream, gains, options, dirs, first_attitude(*dirs))
 
 
-_PAPER = "Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group (seed 002)"
+_PAPER = ("Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group "
+          "using IMU and Feature Measurements (arXiv 2101.01648)")
 
 
 def _landmark_gains(gamma_omega: float) -> tuple[GainSpec, ...]:
     return (
-        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [spec 100 Hz set: 1, paper-A: 0.1]"),
+        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [100 Hz reference set: 1, paper: 0.1]"),
         GainSpec("gamma_omega", gamma_omega, "gyro-bias adaptation gain; Gamma = diag(gamma_omega I, gamma_v I) "
-                                             "[spec 100 Hz set: 0.3]"),
-        GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [spec 100 Hz set: 0.3]"),
-        GainSpec("k_p", 1.0, "constant landmark gain [spec: 1]"),
-        GainSpec("k_w", 1.0, "pose correction gain [spec 100 Hz set: 0.02, paper-A: 2]"),
+                                             "[100 Hz reference set: 0.3]"),
+        GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [100 Hz reference set: 0.3]"),
+        GainSpec("k_p", 1.0, "constant landmark gain [reference: 1]"),
+        GainSpec("k_w", 1.0, "pose correction gain [100 Hz reference set: 0.02, paper: 2]"),
     )
 
 
 # Defaults tuned on the noisy sample logs (sample_logs/README.md) and checked on unseen simulator seeds; the
-# spec's sets (100 Hz: alpha 1, k_w 0.02, gamma 0.3, k_p 1; paper-A: alpha 0.1, k_w 2, gamma 30) also run,
+# reference sets (100 Hz: alpha 1, k_w 0.02, gamma 0.3, k_p 1; the paper's: alpha 0.1, k_w 2, gamma 30) also run,
 # sub-stepped. C needs a faster gyro-bias loop than B: until b̂_Ω is right, the IMU keeps rotating the
 # map about the vehicle, which moves the unobservable translation offset P_c.
 SPEC = ObserverSpec(
@@ -399,8 +410,8 @@ SPEC_IMU = ObserverSpec(
     summary="algorithm B + IMU attitude innovation from gravity/magnetic directions, map co-rotation; "
             "needs k_w*k_2 < 4*k_1",
     gains=_landmark_gains(gamma_omega=1.0) + (
-        GainSpec("k_1", 1.0, "IMU attitude gain [spec prototype: 1]"),
-        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [spec: k_1/k_w]"),
+        GainSpec("k_1", 1.0, "IMU attitude gain [reference: 1]"),
+        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [reference: k_1/k_w]"),
         GainSpec("s_gravity", 1.0, "confidence s_j of the accelerometer gravity direction"),
         GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction"),
     ),

@@ -8,21 +8,51 @@
   step (algorithms A and B; A's gain ψ(e) adapts, B's is constant).
 - :func:`predict_points`: held body-frame measurements (or directions) carried over a sub-step of odometry.
 - :func:`record_row`: one output row of the estimate.
-- :func:`turn_frame`, :func:`record_row_framed`, :func:`frame_rows`, :func:`frame_sample`: the map frame of the observers whose law
-  turns the whole estimate rigidly (algorithms C and E: IMU co-rotation, jumps). Such a turn re-frames the
+- :func:`turn_frame`, :func:`record_row_framed`, :func:`frame_rows`, :func:`frame_sample`: the map frame of the
+  observers whose law turns the whole estimate rigidly (algorithms C and E: IMU co-rotation, jumps). Such a turn re-frames the
   estimate without adding information about it; the kernel keeps it in ``F`` (map frame -> working frame)
   and writes poses, tracks and innovations in the map frame, where a landmark stays where it was last seen.
+- :func:`substep_count` / :func:`count_capped`: the sub-steps of one interval, at most ``MAX_SUBSTEPS``, and
+  the count of intervals that hit that cap.
 
 All are written with scalars (no temporaries): they run once per sub-step or event.
 """
 
 from __future__ import annotations
 
+import math
+
 from numba import njit
 
+#: Most sub-steps one interval between two events is cut into. Logs need a few to a few hundred; an interval
+#: that asks for more (gains far too stiff for the sample rate, an absurd innovation) is integrated with this
+#: many and counted (``ns[CAPPED]``, the first at velocity sample ``ns[CAP_IV]``), so the run reports it
+#: instead of spinning for hours.
+MAX_SUBSTEPS = 10_000
+#: Slots of a kernel's integer state ``ns`` (see ``base.KernelState``) after its own five.
+CAPPED, CAP_IV = 5, 6
 #: Time constants of an observer's attitude loop after which its map frame's orientation enters the mean
 #: (:func:`frame_sample`): the start from the first direction sample is over by then.
 FRAME_SETTLE = 5.0
+
+
+@njit(cache=True)
+def substep_count(dt, lam, step_ratio):
+    """Sub-steps for an interval ``dt`` at loop rate ``lam``: ``ceil(dt lam / step_ratio)``, 1 to ``MAX_SUBSTEPS``
+    (a NaN or infinite rate gets the cap)."""
+    x = dt * lam / step_ratio
+    if not x < MAX_SUBSTEPS:
+        return MAX_SUBSTEPS
+    return max(1, int(math.ceil(x)))
+
+
+@njit(cache=True)
+def count_capped(m, iv, ns):
+    """Count an interval integrated with ``m`` sub-steps if that was the cap (``iv``: the next velocity sample)."""
+    if m >= MAX_SUBSTEPS:
+        ns[CAPPED] += 1
+        if ns[CAP_IV] < 0:
+            ns[CAP_IV] = iv
 
 
 @njit(cache=True)

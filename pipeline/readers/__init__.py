@@ -8,6 +8,7 @@ every repair in ``LogStreams.warnings``. Every failure is an :class:`~pipeline.e
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -36,9 +37,12 @@ from .msgdefs import complete_definitions, require_types
 from .roles import ROLES, TF_TYPES, accepted_types, select_roles, topics_of
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Mapping
+    from collections.abc import Callable
 
     from .decode import Cleaning
+
+#: Roles the observers cannot run without: a stream of them that held only NaN/Inf values is an error.
+REQUIRED_ROLES = ("angular_velocity", "linear_velocity", "detections")
 
 __all__ = [
     "ROLES",
@@ -96,14 +100,22 @@ def read_log(
     with open_log(path) as reader:
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
+        if isinstance(clocks, Mapping) and (missing := [t for t in clocks if t not in table]):
+            raise InputError(path, f"time.topics names {', '.join(missing)}, which the log does not have "
+                                   f"(topics: {', '.join(sorted(table))})")
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
-        streams = LogStreams(path=str(path), warnings=[*damage_notes(reader), *selection.warnings])
+        streams = LogStreams(path=str(path), warnings=list(selection.warnings))
         tf_rows: dict[str, TfRows] = {}
         reports: dict[str, dict[str, list[str]]] = defaultdict(dict)  # topic -> text -> roles
 
         def note(topic: str, role: str, cleaning: Cleaning) -> None:
             if text := cleaning.text():
                 reports[topic].setdefault(text, []).append(role)
+            stream = getattr(streams, role, None)
+            left = (stream.ids.shape[0] if role == "detections" else len(stream)) if stream is not None else 0
+            if cleaning.nonfinite and not left and role in REQUIRED_ROLES:
+                what = "detections" if role == "detections" else "samples"
+                raise InputError(path, f"all {cleaning.nonfinite} {what} are NaN or Inf ({role})", topic)
 
         def tf_of(topic: str) -> TfRows:
             if topic not in tf_rows:
@@ -154,6 +166,8 @@ def read_log(
                 rows.pop(topic, None)
         if selection.truth_edge is not None:
             streams.truth = _truth_from_tf(streams, selection.roles["truth"], selection.truth_edge, tf_of)
+        # damage found while decoding (a chunk skipped by its index) is known only now
+        streams.warnings[:0] = damage_notes(reader)
 
     for topic, texts in reports.items():
         for text, roles in texts.items():
@@ -178,7 +192,8 @@ def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None) ->
         streams = apply_clocks(streams, chosen)
     except ValueError as err:
         raise InputError(streams.path, str(err)) from None
-    streams.clocks = {t: c for t, c in chosen.items() if c == "record"}
+    used = {s.topic for role in ROLES if (s := getattr(streams, role, None)) is not None and hasattr(s, "t_ns")}
+    streams.clocks = {t: c for t, c in chosen.items() if c == "record" and t in used}  # what was applied
     return streams
 
 

@@ -361,7 +361,14 @@ def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
     layout = LAYOUTS[rows.msgtype]
     cols = layout.columns
     values = rows.values[:, cols["position"].start : cols["quat_xyzw"].stop]
+    quat = rows.values[:, cols["quat_xyzw"]]
+    zero = np.isfinite(quat).all(axis=1) & (np.abs(quat).max(axis=1, initial=0.0) < 1e-6)
+    if nzero := int(np.count_nonzero(zero)):  # no rotation at all: dropped like NaN, counted apart
+        values = np.where(zero[:, None], np.nan, values)
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, values)
+    if nzero:
+        cleaning.nonfinite -= nzero
+        cleaning.extra.append(plural(nzero, "zero quaternion") + " dropped")
     frame = _dominant(rows.frame[idx], rows.frame_names, cleaning)
     child = _dominant(rows.child[idx], rows.frame_names, cleaning, "child frame id") if layout.child else ""
     stream = PoseStream(
@@ -522,7 +529,8 @@ def decode_detections(
                               "unique only within one; choose one with frames.marker_namespace")
     elif marker_ns is not None and marker_ns not in namespaces:
         names = ", ".join(repr(n) for n in sorted(namespaces)) or "none"
-        cleaning.extra.append(f"no marker of namespace {marker_ns!r} (namespaces: {names})")
+        raise InputError(path, f"frames.marker_namespace {marker_ns!r} names no namespace of its markers "
+                               f"(namespaces: {names})", topic)
     return stream, cleaning
 
 
