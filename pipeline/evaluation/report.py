@@ -787,8 +787,6 @@ def write_report(
     md_path.write_text(render_markdown(report), encoding="utf-8")
     written.append(md_path)
 
-    if not plots and not {"evo", "tum"} & set(exports):
-        return written
     options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
     if evaluation is None and poses is None:
         raise ValueError("write_report needs the poses table or the report's evaluation")
