@@ -14,7 +14,7 @@ from slamobs.pipeline.alignment import align
 from slamobs.pipeline.api import run_log
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rotation_angle, so3_exp
-from slamobs.pipeline.observers import ObserverResult
+from slamobs.pipeline.observers import OBSERVERS, ObserverOptions, ObserverResult
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate, write_log
 from slamobs.pipeline.simulate.sensors import EPOCH_NS
 from slamobs.pipeline.writers import read_metadata
@@ -145,3 +145,22 @@ def test_bad_initial_pose_is_a_config_error(log, tmp_path):
     with pytest.raises(InputError, match="zero quaternion"):
         run(log, tmp_path / "bad", "hashim", {"position": [0, 0, 0], "orientation_xyzw": [0, 0, 0, 0]})
     assert not (tmp_path / "bad").exists()
+
+
+@pytest.mark.parametrize("name", [n for n, s in OBSERVERS.items() if not s.min_directions])
+def test_observers_without_directions_do_not_depend_on_their_initial_frame(name):
+    """Why ``output.frame: truth`` may move their output instead of initialising them at the truth pose: started
+    at any pose, their estimate is the identity start's estimate moved rigidly by that pose."""
+    sim = simulate("figure8", duration=8.0, seed=5, imu_rate=100.0)
+    aligned = align(expected_streams(sim))
+    spec = OBSERVERS[name]
+    gains = spec.resolve_gains(None)
+    r0, p0 = so3_exp(np.array([0.3, -1.1, 2.0])), np.array([4.0, -2.0, 1.5])
+    plain = spec.run(aligned, gains, ObserverOptions())
+    moved = spec.start(aligned, gains, ObserverOptions())
+    moved.state.r_hat[:], moved.state.p_hat[:] = r0, p0
+    res = moved.advance(moved.n_vel)
+    np.testing.assert_allclose(res.position, plain.position @ r0.T + p0, atol=1e-6)
+    np.testing.assert_allclose(res.rotation, np.einsum("ij,kjl->kil", r0, plain.rotation), atol=1e-8)
+    np.testing.assert_allclose(res.landmark_xyz, plain.landmark_xyz @ r0.T + p0, atol=1e-6)
+    np.testing.assert_allclose(res.gyro_bias, plain.gyro_bias, atol=1e-8)
