@@ -8,6 +8,8 @@
   step (algorithms A and B; A's gain ψ(e) adapts, B's is constant).
 - :func:`predict_points`: held body-frame measurements (or directions) carried over a sub-step of odometry.
 - :func:`record_row`: one output row of the estimate.
+- :func:`landmark_weight`: how much of its landmark step a landmark takes: 1, or, when a known map gives ``lm``
+  a fourth column, that column (0 for a landmark fixed by the map, which is then never updated).
 
 All are written with scalars (no temporaries): they run once per sub-step or event.
 """
@@ -32,6 +34,14 @@ def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, i
             innov[row + j, c] = lm[i, c] - ry - p_hat[c]
             trk_p[row + j, c] = lm[i, c]
         lm_init[i] = True
+
+
+@njit(cache=True)
+def landmark_weight(lm, i):
+    """Update weight of landmark ``i``: the fourth column of ``lm`` if it has one (known map), else 1."""
+    if lm.shape[1] > 3:
+        return lm[i, 3]
+    return 1.0
 
 
 @njit(cache=True)
@@ -66,6 +76,7 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
             step = hkp * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0
             if step > 1.0:
                 step = 1.0
+        step *= landmark_weight(lm, i)
         lm[i, 0] -= step * e0
         lm[i, 1] -= step * e1
         lm[i, 2] -= step * e2

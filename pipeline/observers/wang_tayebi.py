@@ -43,7 +43,7 @@ from slamobs.pipeline.observers.base import (
     max_per_frame,
     output_rows,
 )
-from slamobs.pipeline.observers.shared_steps import load_frame, predict_points, record_row
+from slamobs.pipeline.observers.shared_steps import landmark_weight, load_frame, predict_points, record_row
 from slamobs.pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
 from slamobs.pipeline.directions import load_directions
 
@@ -175,7 +175,7 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
             s0 += e0
             s1 += e1
             s2 += e2
-            step = h * k_x * k_l
+            step = h * k_x * k_l * landmark_weight(lm, i)
             lm[i, 0] -= step * e0
             lm[i, 1] -= step * e1
             lm[i, 2] -= step * e2

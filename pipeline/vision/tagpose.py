@@ -1,0 +1,122 @@
+"""Square tags from their four corner pixels: OpenCV's ``solvePnP`` with ``SOLVEPNP_IPPE_SQUARE``.
+
+Corners come in OpenCV's marker order (top-left, top-right, bottom-right, bottom-left of the tag seen from
+the front); the tag frame is OpenCV's (x right, y up, z out of the tag face, origin at the centre), which is
+also TagSLAM's. The corners are undistorted to the ideal pinhole camera first, so reprojection errors are in
+pixels. IPPE returns the two poses a planar square allows; the better one is kept and the pair says how
+trustworthy it is:
+
+* ``reprojection_px``: RMS distance of the projected model corners to the measured ones (best pose);
+* ``ambiguity``: best over second-best reprojection error (near 1: both poses explain the corners, the
+  orientation is a coin toss);
+* ``centre_spread``: distance between the two poses' centres over the range: the landmark point of an
+  ambiguous pose is still good when the two centres agree (they do, nearly, for all but close tags);
+* ``view_angle_deg``: angle between the line of sight and the tag plane (0 = grazing).
+
+A detection is rejected for a reprojection error above ``max_reprojection_px``, a view angle below
+``min_view_angle_deg``, or an ambiguous pose (``ambiguity > max_ambiguity``) whose two centres disagree by more
+than ``max_centre_spread`` of the range.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Rejection reasons, in the order they are tested (``status`` of a detection; 0 = kept).
+REASONS = ("ok", "no PnP solution", "reprojection error", "grazing view", "ambiguous pose")
+OK, NO_SOLUTION, REPROJECTION, GRAZING, AMBIGUOUS = range(5)
+
+
+@dataclass(frozen=True)
+class TagQuality:
+    """Limits a tag pose must meet to become a landmark measurement."""
+
+    max_reprojection_px: float = 2.0
+    min_view_angle_deg: float = 12.0  # TagSLAM's minimum_viewing_angle
+    max_ambiguity: float = 0.6
+    max_centre_spread: float = 0.01  # of the range
+
+    def describe(self, reason: int) -> str:
+        return {
+            NO_SOLUTION: "no PnP solution",
+            REPROJECTION: f"reprojection error above {self.max_reprojection_px:g} px",
+            GRAZING: f"view angle below {self.min_view_angle_deg:g} deg",
+            AMBIGUOUS: (f"ambiguous pose (error ratio above {self.max_ambiguity:g}) with centres "
+                        f"{100 * self.max_centre_spread:g} % of the range apart"),
+        }[reason]
+
+
+@dataclass(frozen=True)
+class TagPoses:
+    """Per detection: centre and orientation in the camera frame, quality and the verdict."""
+
+    xyz: np.ndarray  # (M, 3) tag centre, camera frame
+    quat_xyzw: np.ndarray  # (M, 4) tag -> camera rotation
+    reprojection_px: np.ndarray  # (M,)
+    ambiguity: np.ndarray  # (M,)
+    view_angle_deg: np.ndarray  # (M,)
+    status: np.ndarray  # (M,) int8, index into REASONS
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.status == OK
+
+
+def model_corners(size: float) -> np.ndarray:
+    """The tag's corners in its own frame, in the order ``SOLVEPNP_IPPE_SQUARE`` requires."""
+    h = 0.5 * size
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+def solve_tags(ideal_px: np.ndarray, sizes: np.ndarray, k: np.ndarray, quality: TagQuality) -> TagPoses:
+    """Poses of square tags from undistorted corners ``ideal_px`` (M, 4, 2) seen by the pinhole camera ``k``
+    (sizes (M,) in metres: the black square's edge)."""
+    from slamobs.pipeline.lie import rots_to_quats
+    from slamobs.pipeline.vision import opencv
+
+    cv2 = opencv()
+    m = ideal_px.shape[0]
+    xyz = np.full((m, 3), np.nan)
+    rots = np.tile(np.eye(3), (m, 1, 1))
+    reproj = np.full(m, np.inf)
+    ambiguity = np.ones(m)
+    spread = np.zeros(m)
+    status = np.zeros(m, np.int8)
+    kk = np.ascontiguousarray(k, dtype=np.float64)
+    for j in range(m):
+        obj = model_corners(float(sizes[j]))
+        try:
+            n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None,
+                                                        flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        except cv2.error:
+            n = 0
+        if not n:
+            status[j] = NO_SOLUTION
+            continue
+        errs = np.asarray(errs, dtype=np.float64).ravel()
+        order = np.argsort(errs)
+        best = order[0]
+        t = np.asarray(tvecs[best], dtype=np.float64).ravel()
+        if not (np.isfinite(t).all() and t[2] > 0):
+            status[j] = NO_SOLUTION
+            continue
+        xyz[j] = t
+        rots[j] = cv2.Rodrigues(np.asarray(rvecs[best], dtype=np.float64))[0]
+        reproj[j] = errs[best]
+        if n > 1:
+            other = order[1]
+            ambiguity[j] = errs[best] / errs[other] if errs[other] > 0 else 1.0
+            spread[j] = np.linalg.norm(np.asarray(tvecs[other]).ravel() - t) / np.linalg.norm(t)
+    rng = np.linalg.norm(xyz, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # angle between the line of sight and the tag plane: 90 deg minus the angle to the tag normal
+        cos_normal = np.abs(np.einsum("mi,mi->m", rots[:, :, 2], xyz)) / rng
+        view = np.degrees(np.arcsin(np.clip(cos_normal, 0.0, 1.0)))
+    solved = status == OK
+    status[solved & ~(reproj <= quality.max_reprojection_px)] = REPROJECTION
+    status[(status == OK) & ~(view >= quality.min_view_angle_deg)] = GRAZING
+    status[(status == OK) & (ambiguity > quality.max_ambiguity) & (spread > quality.max_centre_spread)] = AMBIGUOUS
+    quats = rots_to_quats(np.ascontiguousarray(rots)) if m else np.zeros((0, 4))
+    return TagPoses(xyz, quats, reproj, ambiguity, np.where(np.isfinite(view), view, 0.0), status)
