@@ -46,6 +46,8 @@ class RunConfig:
     tag_max_reprojection_px: float = 2.0
     tag_min_view_angle_deg: float = 12.0
     tag_max_ambiguity: float = 0.6
+    tag_max_range_m: float | None = None
+    tag_min_side_px: float = 15.0
     tag_ignore: tuple[int, ...] = ()
     tag_sync_s: float | None = None
     # a known map, and landmark truth from a file
@@ -71,7 +73,8 @@ class RunConfig:
         from slamobs.pipeline.vision.landmarks import TagOptions
         from slamobs.pipeline.vision.tagpose import TagQuality
 
-        quality = TagQuality(self.tag_max_reprojection_px, self.tag_min_view_angle_deg, self.tag_max_ambiguity)
+        quality = TagQuality(self.tag_max_reprojection_px, self.tag_min_view_angle_deg, self.tag_max_ambiguity,
+                             max_range_m=self.tag_max_range_m, min_side_px=self.tag_min_side_px)
         return TagOptions(self.tag_size, {int(k): float(v) for k, v in self.tag_sizes.items()}, quality,
                           frozenset(int(i) for i in self.tag_ignore), self.tag_sync_s)
 
@@ -135,6 +138,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         tag_max_reprojection_px=float(tags.get("max_reprojection_px", 2.0)),
         tag_min_view_angle_deg=float(tags.get("min_view_angle_deg", 12.0)),
         tag_max_ambiguity=float(tags.get("max_ambiguity", 0.6)),
+        tag_max_range_m=tags.get("max_range_m"),
+        tag_min_side_px=float(tags.get("min_side_px", 15.0)),
         tag_ignore=tuple(int(i) for i in tags.get("ignore", ())),
         tag_sync_s=tags.get("sync_s"),
         map_file=known.get("file"),

@@ -14,8 +14,9 @@ trustworthy it is:
 * ``view_angle_deg``: angle between the line of sight and the tag plane (0 = grazing).
 
 A detection is rejected for a reprojection error above ``max_reprojection_px``, a view angle below
-``min_view_angle_deg``, or an ambiguous pose (``ambiguity > max_ambiguity``) whose two centres disagree by more
-than ``max_centre_spread`` of the range.
+``min_view_angle_deg``, an ambiguous pose (``ambiguity > max_ambiguity``) whose two centres disagree by more
+than ``max_centre_spread`` of the range, or a range above ``max_range_m`` (if set: the range error of a PnP
+grows with the square of the range).
 """
 
 from __future__ import annotations
@@ -25,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 
 #: Rejection reasons, in the order they are tested (``status`` of a detection; 0 = kept).
-REASONS = ("ok", "no PnP solution", "reprojection error", "grazing view", "ambiguous pose")
-OK, NO_SOLUTION, REPROJECTION, GRAZING, AMBIGUOUS = range(5)
+REASONS = ("ok", "no PnP solution", "reprojection error", "grazing view", "ambiguous pose", "too far", "too small")
+OK, NO_SOLUTION, REPROJECTION, GRAZING, AMBIGUOUS, TOO_FAR, TOO_SMALL = range(7)
 
 
 @dataclass(frozen=True)
@@ -37,15 +38,22 @@ class TagQuality:
     min_view_angle_deg: float = 12.0  # TagSLAM's minimum_viewing_angle
     max_ambiguity: float = 0.6
     max_centre_spread: float = 0.01  # of the range
+    max_range_m: float | None = None  # farther tags are dropped (their range error grows with its square)
+    min_side_px: float = 15.0  # shortest side in the (undistorted) image
 
     def describe(self, reason: int) -> str:
-        return {
-            NO_SOLUTION: "no PnP solution",
-            REPROJECTION: f"reprojection error above {self.max_reprojection_px:g} px",
-            GRAZING: f"view angle below {self.min_view_angle_deg:g} deg",
-            AMBIGUOUS: (f"ambiguous pose (error ratio above {self.max_ambiguity:g}) with centres "
-                        f"{100 * self.max_centre_spread:g} % of the range apart"),
-        }[reason]
+        if reason == NO_SOLUTION:
+            return "no PnP solution"
+        if reason == REPROJECTION:
+            return f"reprojection error above {self.max_reprojection_px:g} px"
+        if reason == GRAZING:
+            return f"view angle below {self.min_view_angle_deg:g} deg"
+        if reason == AMBIGUOUS:
+            return (f"ambiguous pose (error ratio above {self.max_ambiguity:g}) with centres "
+                    f"{100 * self.max_centre_spread:g} % of the range apart")
+        if reason == TOO_FAR:
+            return f"farther than {self.max_range_m:g} m"
+        return f"shortest side below {self.min_side_px:g} px"
 
 
 @dataclass(frozen=True)
@@ -118,5 +126,10 @@ def solve_tags(ideal_px: np.ndarray, sizes: np.ndarray, k: np.ndarray, quality: 
     status[solved & ~(reproj <= quality.max_reprojection_px)] = REPROJECTION
     status[(status == OK) & ~(view >= quality.min_view_angle_deg)] = GRAZING
     status[(status == OK) & (ambiguity > quality.max_ambiguity) & (spread > quality.max_centre_spread)] = AMBIGUOUS
+    if quality.max_range_m is not None:
+        status[(status == OK) & (rng > quality.max_range_m)] = TOO_FAR
+    if quality.min_side_px > 0 and m:
+        side = np.linalg.norm(ideal_px - np.roll(ideal_px, -1, axis=1), axis=2).min(axis=1)
+        status[(status == OK) & (side < quality.min_side_px)] = TOO_SMALL
     quats = rots_to_quats(np.ascontiguousarray(rots)) if m else np.zeros((0, 4))
     return TagPoses(xyz, quats, reproj, ambiguity, np.where(np.isfinite(view), view, 0.0), status)
