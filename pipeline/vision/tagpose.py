@@ -78,6 +78,15 @@ def model_corners(size: float) -> np.ndarray:
     return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
 
 
+def _reprojection(k: np.ndarray, rot: np.ndarray, trans: np.ndarray, obj: np.ndarray, px: np.ndarray) -> float:
+    """RMS pixel distance of the model corners projected by the pinhole ``k`` at pose ``(rot, trans)``."""
+    cam = obj @ rot.T + trans
+    if np.any(cam[:, 2] <= 0):
+        return np.inf
+    proj = (cam @ k.T)[:, :2] / cam[:, 2:3]
+    return float(np.sqrt(np.mean(np.sum((proj - px) ** 2, axis=1))))
+
+
 def solve_tags(ideal_px: np.ndarray, sizes: np.ndarray, k: np.ndarray, quality: TagQuality) -> TagPoses:
     """Poses of square tags from undistorted corners ``ideal_px`` (M, 4, 2) seen by the pinhole camera ``k``
     (sizes (M,) in metres: the black square's edge)."""
@@ -96,27 +105,44 @@ def solve_tags(ideal_px: np.ndarray, sizes: np.ndarray, k: np.ndarray, quality: 
     for j in range(m):
         obj = model_corners(float(sizes[j]))
         try:
-            n, rvecs, tvecs, errs = cv2.solvePnPGeneric(obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None,
-                                                        flags=cv2.SOLVEPNP_IPPE_SQUARE)
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None,
+                                                     flags=cv2.SOLVEPNP_IPPE_SQUARE)
         except cv2.error:
             n = 0
         if not n:
             status[j] = NO_SOLUTION
             continue
-        errs = np.asarray(errs, dtype=np.float64).ravel()
+        # reprojection errors computed here: solvePnPGeneric's own are wrong for some views (OpenCV 5.0 reports
+        # 50 px for an exact tag seen at 20 deg)
+        sol_r = [cv2.Rodrigues(np.asarray(rv, dtype=np.float64))[0] for rv in rvecs[:n]]
+        sol_t = [np.asarray(tv, dtype=np.float64).ravel() for tv in tvecs[:n]]
+        errs = np.array([_reprojection(kk, r, t, obj, ideal_px[j]) for r, t in zip(sol_r, sol_t)])
         order = np.argsort(errs)
         best = order[0]
-        t = np.asarray(tvecs[best], dtype=np.float64).ravel()
-        if not (np.isfinite(t).all() and t[2] > 0):
+        if errs[best] > 0.25 * quality.max_reprojection_px:
+            # IPPE's decomposition fails on exactly symmetric views (a tag turned only about its own y axis gives
+            # 60+ px in OpenCV 5.0): the iterative solver (homography start, Levenberg-Marquardt) is the fallback,
+            # kept if it fits better
+            ok, rv, tv = cv2.solvePnP(obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None,
+                                      flags=cv2.SOLVEPNP_ITERATIVE)
+            if ok:
+                r_lm, t_lm = cv2.Rodrigues(rv)[0], np.asarray(tv, dtype=np.float64).ravel()
+                e_lm = _reprojection(kk, r_lm, t_lm, obj, ideal_px[j])
+                if e_lm < errs[best]:
+                    sol_r[best], sol_t[best], errs[best] = r_lm, t_lm, e_lm
+                    order = np.argsort(errs)
+                    best = order[0]
+        t = sol_t[best]
+        if not (np.isfinite(t).all() and t[2] > 0 and np.isfinite(errs[best])):
             status[j] = NO_SOLUTION
             continue
         xyz[j] = t
-        rots[j] = cv2.Rodrigues(np.asarray(rvecs[best], dtype=np.float64))[0]
+        rots[j] = sol_r[best]
         reproj[j] = errs[best]
         if n > 1:
             other = order[1]
             ambiguity[j] = errs[best] / errs[other] if errs[other] > 0 else 1.0
-            spread[j] = np.linalg.norm(np.asarray(tvecs[other]).ravel() - t) / np.linalg.norm(t)
+            spread[j] = np.linalg.norm(sol_t[other] - t) / np.linalg.norm(t)
     rng = np.linalg.norm(xyz, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
         # angle between the line of sight and the tag plane: 90 deg minus the angle to the tag normal
