@@ -15,7 +15,7 @@ from types import ModuleType
 from slamobs.pipeline.errors import InputError
 
 #: The ArucoDetector API (OpenCV >= 4.7) is used; older versions are refused with the same message.
-MIN_OPENCV = (4, 7)
+MIN_OPENCV = (4, 8)
 EXTRA_HINT = "install it with: pip install 'slamobs[vision]'"
 
 

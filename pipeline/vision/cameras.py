@@ -71,10 +71,11 @@ class CameraModel:
         pts = np.ascontiguousarray(px, dtype=np.float64).reshape(-1, 1, 2)
         if pts.shape[0] == 0 or self.model == "none":
             return pts.reshape(-1, 2).copy()
-        if self.model == "equidistant":
-            out = cv2.fisheye.undistortPoints(pts, self.k, self.dist, R=np.eye(3), P=self.k, criteria=_CRITERIA)
-        else:
-            out = cv2.undistortPoints(pts, self.k, self.dist, R=np.eye(3), P=self.k, criteria=_CRITERIA)
+        fn = cv2.fisheye.undistortPoints if self.model == "equidistant" else cv2.undistortPoints
+        try:
+            out = fn(pts, self.k, self.dist, R=np.eye(3), P=self.k, criteria=_CRITERIA)
+        except TypeError:  # OpenCV builds without the criteria argument: their default iterations
+            out = fn(pts, self.k, self.dist, R=np.eye(3), P=self.k)
         return out.reshape(-1, 2)
 
     def project(self, xyz: np.ndarray) -> np.ndarray:
