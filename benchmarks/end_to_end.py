@@ -1,6 +1,6 @@
 """``slamobs run`` end to end on long simulated logs: wall time, time per stage, peak memory, output size.
 
-    .venv/bin/python benchmarks/end_to_end.py [--hours 1 4] [--containers mcap bag] [--cache DIR]
+    .venv/bin/python benchmarks/end_to_end.py [--hours 1 4] [--containers mcap bag] [--cache DIR] [--exports]
 
 Logs are the ``figure8-wide`` scenario (30 landmarks, about 8 in view) at IMU 200 Hz, odometry 50 Hz,
 magnetometer 50 Hz, detections 20 Hz and motion capture 100 Hz, generated once into a cache directory
@@ -8,7 +8,9 @@ magnetometer 50 Hz, detections 20 Hz and motion capture 100 Hz, generated once i
 piece. Each log is run by ``slamobs run`` in its own process; its peak RSS is that process's ``ru_maxrss``.
 Stages are the ``timings_s`` of the run's ``run.json``. Before the table, a short log is run twice with an
 empty numba cache directory: the difference is what the first run spends compiling (later runs load the
-kernels from the cache). The floors of the issue are checked at the end.
+kernels from the cache). The floors of the issue are checked at the end, among them that a default run
+directory is at most twice its Parquet tables. ``--exports`` runs the first log once more with every optional
+export (``--export tum,evo,mcap``) and prints the size of each group of files per hour of log.
 """
 
 from __future__ import annotations
@@ -34,6 +36,12 @@ SUFFIX = {"mcap": ".mcap", "bag": ".bag"}
 MAX_WALL_1H_S = 20.0
 MAX_RSS_1H_MB = 1024.0
 MAX_PARQUET_1H_MB = 50.0
+# Issue "small run directories": a default run directory is at most twice its Parquet tables.
+MAX_OUT_PER_PARQUET = 2.0
+#: File groups of a run directory, for the export sizes.
+GROUPS = {"Parquet tables": ("*.parquet",), "report + figures": ("report.*", "*.png", "run.json"),
+          "tum (estimate_tum.txt, truth_tum.txt)": ("*_tum.txt",), "evo (ape_evo.zip)": ("*.zip",),
+          "mcap (results.mcap)": ("*.mcap",)}
 
 
 def cpu_model() -> str:
@@ -83,15 +91,28 @@ def size_mb(path: Path, pattern: str = "*") -> float:
     return sum(f.stat().st_size for f in path.glob(pattern) if f.is_file()) / 1e6
 
 
-def run(log: Path, out: Path, env: dict[str, str] | None = None) -> dict:
+def run(log: Path, out: Path, env: dict[str, str] | None = None, extra: tuple[str, ...] = ()) -> dict:
     """``slamobs run`` on ``log`` in a child process; its numbers and those of its run directory."""
-    wall, rss, rc = _child([str(SLAMOBS), "run", str(log), "-o", str(out), "--force", "-q"], env)
+    wall, rss, rc = _child([str(SLAMOBS), "run", str(log), "-o", str(out), "--force", "-q", *extra], env)
     if rc:
         raise SystemExit(rc)
     meta = json.loads((out / "run.json").read_text())
     return {"wall": wall, "rss": rss, "timings": meta["timings_s"], "parquet_mb": size_mb(out, "*.parquet"),
             "out_mb": size_mb(out), "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9,
             "compiled": meta.get("compiled", {})}
+
+
+def export_sizes(log: Path, hours: float, out: Path) -> None:
+    """The first log with every export: MB per hour of log of each group of files, and the export time."""
+    r = run(log, out, extra=("--export", "tum,evo,mcap"))
+    tables = size_mb(out, "*.parquet")
+    t = r["timings"]
+    print(f"# run directory with --export tum,evo,mcap ({log.name}; export stage {t.get('export_s', 0):.1f} s, "
+          f"report {t.get('report_s', 0):.1f} s)")
+    print(f"{'files':<40} {'MB per hour':>11} {'x Parquet':>9}")
+    for name, patterns in GROUPS.items():
+        mb = sum(size_mb(out, p) for p in patterns)
+        print(f"{name:<40} {mb / hours:>11.1f} {mb / tables:>9.2f}")
 
 
 def short_log(cache: Path) -> Path:
@@ -119,6 +140,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-bench",
                     help="where the generated logs and run directories are kept")
     ap.add_argument("--no-compile", action="store_true", help="skip the numba compile-time measurement")
+    ap.add_argument("--exports", action="store_true", help="also measure the optional exports on the first log")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [(h, c, make_log(args.cache, h, c)) for h in args.hours for c in args.containers]
@@ -132,7 +154,8 @@ def main() -> None:
               f"compiled {compiled.get('functions', 0)} functions in {compiled.get('seconds', 0.0):.1f} s")
     run(short_log(args.cache), args.cache / "runs" / "warmup")  # the project's numba cache is filled
     head = (f"{'log':<22} {'container':<9} {'duration':>8} {'messages':>10} {'wall s':>7} {'x real':>7} "
-            + " ".join(f"{s[:-2]:>8}" for s in STAGES) + f" {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7}")
+            + " ".join(f"{s[:-2]:>8}" for s in STAGES) + f" {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7}"
+            + f" {'out/pq':>6}")
     print(head)
     results = {}
     for hours, container, log in logs:
@@ -141,7 +164,11 @@ def main() -> None:
         t = r["timings"]
         print(f"{log.name:<22} {container:<9} {hours:>7g}h {message_count(hours):>10,} {r['wall']:>7.1f} "
               f"{r['span_s'] / r['wall']:>6.0f}x " + " ".join(f"{t.get(s, float('nan')):>8.2f}" for s in STAGES)
-              + f" {r['rss']:>11.0f} {r['parquet_mb']:>10.1f} {r['out_mb']:>7.1f}", flush=True)
+              + f" {r['rss']:>11.0f} {r['parquet_mb']:>10.1f} {r['out_mb']:>7.1f}"
+              + f" {r['out_mb'] / r['parquet_mb']:>6.2f}", flush=True)
+    if args.exports and logs:
+        hours, container, log = logs[0]
+        export_sizes(log, hours, args.cache / "runs" / "exports")
 
     print("# floors")
     for container in args.containers:
@@ -152,6 +179,11 @@ def main() -> None:
             print(f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}), peak {one['rss']:.0f} MB "
                   f"(<= {MAX_RSS_1H_MB:g}), parquet {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
                   f"{'ok' if ok else 'MISSED'}")
+        for (hours, c), r in results.items():
+            if c == container:
+                ratio = r["out_mb"] / r["parquet_mb"]
+                print(f"{container} {hours:g} h: run directory {r['out_mb']:.1f} MB = {ratio:.2f} x its Parquet "
+                      f"tables (<= {MAX_OUT_PER_PARQUET:g}): {'ok' if ratio <= MAX_OUT_PER_PARQUET else 'MISSED'}")
         if one and four:
             ratio = four["rss"] / one["rss"]
             print(f"{container}: 4 h peak / 1 h peak = {ratio:.2f} (< 2): {'ok' if ratio < 2 else 'MISSED'}")

@@ -101,6 +101,9 @@ class _Reporter:
 @click.option("--observer", default=None, help="observer for every log (overrides configs)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
               help="run.yaml for logs without a per-log config in a manifest")
+@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log "
+                   "config that names msg_dir)")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
               help="parallel worker processes (default: all cores)")
 @click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
@@ -111,7 +114,7 @@ class _Reporter:
 @click.option("-q", "--quiet", is_flag=True, help="print only the final line")
 @click.option("--json", "as_json", is_flag=True, help="one JSON object per finished run, then a final one")
 def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_path: Path | None,
-          jobs: int | None, executor: str | None, scheduler: str | None, force: bool, quiet: bool,
+          msg_dir: Path | None, jobs: int | None, executor: str | None, scheduler: str | None, force: bool, quiet: bool,
           as_json: bool) -> None:
     """Run an observer on many logs into one dataset under OUT.
 
@@ -134,6 +137,8 @@ def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_p
         config = load_config(config_path)
         if observer:
             config = replace(config, observer=observer)
+        if msg_dir:
+            config = replace(config, msg_dir=str(msg_dir.resolve()))
         check_config(config)
         entries = discover(inputs)
         options = BatchOptions(out=out_dir, config=config, observer=observer, force=force,

@@ -12,6 +12,8 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.options import quiet_option
+from slamobs.cli.progress import compile_notice
 
 RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
 FORMATS = ("tum", "euroc", "kitti", "parquet")
@@ -40,7 +42,7 @@ def _offset(text: str) -> float | str:
               help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)")
 @click.option("--n-to-align", "--n_to_align", type=int, default=-1, show_default=True,
               help="fit the alignment on the first N associated poses (-1: all)")
-@click.option("--align-seconds", type=float, default=None,
+@click.option("--align-seconds", "--align_seconds", type=float, default=None,
               help="fit the alignment on the associated poses of the first SECONDS only")
 @click.option("--t-max-diff", "--t_max_diff", type=float, default=0.01, show_default=True,
               help="maximum timestamp difference for data association [s]")
@@ -63,12 +65,12 @@ def _offset(text: str) -> float | str:
 @click.option("--save-results", "--save_results", type=click.Path(path_type=Path), default=None,
               help=".zip with the result in evo's layout (evo_res reads it)")
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON instead of evo's text")
-@click.option("--silent", is_flag=True, help="print nothing")
+@quiet_option("print nothing but errors")
 def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, correct_scale: bool, align_origin: bool,
              align_yaw: bool, n_to_align: int, align_seconds: float | None, t_max_diff: float, t_offset: str,
              sync_method: str, estimate_t_offset: bool, delta: float, delta_unit: str, delta_tol: float,
              all_pairs: bool, pairs_from_reference: bool, truth_format: str | None, est_format: str | None,
-             save_results: Path | None, as_json: bool, silent: bool) -> None:
+             save_results: Path | None, as_json: bool, quiet: bool) -> None:
     """Error of trajectory EST against TRUTH (APE by default; --metric rpe).
 
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
@@ -79,14 +81,15 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
     kind = _alignment_kind(align, correct_scale, align_origin, align_yaw)
     offset = _offset(t_offset)
     try:
-        out = _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
-                   estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format,
-                   est_format, save_results)
+        with compile_notice(quiet=quiet):
+            out = _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
+                       estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference,
+                       truth_format, est_format, save_results)
     except InputError as err:
         exit_input_error(str(err))
     except ValueError as err:
         exit_input_error(str(err))
-    if silent:
+    if quiet:
         return
     result, extra = out
     if as_json:

@@ -9,6 +9,8 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.options import export_option, quiet_option
+from slamobs.cli.progress import compile_notice, status_line
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
 # threads only add synchronisation (30x slower on a 2-core machine); results do not depend on the count.
@@ -45,9 +47,10 @@ def main() -> None:
 @click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
               help="pkg/msg/Type.msg definitions for types the log does not store")
 @click.option("--force", is_flag=True, help="replace an existing output directory")
-@click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
+@export_option()
+@quiet_option()
 def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None, msg_dir: Path | None,
-        force: bool, quiet: bool) -> None:
+        force: bool, export: tuple[str, ...] | None, quiet: bool) -> None:
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
@@ -60,9 +63,12 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
         config = replace(config, observer=observer)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
-    status = _StatusLine() if not quiet and sys.stderr.isatty() else None
+    if export is not None:
+        config = replace(config, export=export)
+    status = status_line(quiet)
     try:
-        summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
+        with compile_notice(status, quiet=quiet):
+            summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
     except GainError as err:
         raise click.UsageError(str(err)) from None
     except FileExistsError as err:
@@ -73,23 +79,6 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     if quiet:
         return
     _print_summary(summary)
-
-
-class _StatusLine:
-    """What a run is doing and since when, as one self-overwriting line on a terminal's stderr (long logs and
-    first runs, which compile the numeric kernels, take a while)."""
-
-    def __init__(self) -> None:
-        import time
-
-        self._clock = time.perf_counter
-        self._start = self._clock()
-
-    def __call__(self, message: str) -> None:
-        click.echo(f"\r\x1b[K[{self._clock() - self._start:6.1f} s] {message}", nl=False, err=True)
-
-    def clear(self) -> None:
-        click.echo("\r\x1b[K", nl=False, err=True)
 
 
 def _print_summary(summary) -> None:
@@ -126,9 +115,16 @@ def _print_summary(summary) -> None:
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+              help="pkg/msg/Type.msg definitions for types the log does not store")
 @click.option("--force", is_flag=True, help="replace an existing output directory")
-def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, force: bool) -> None:
+@export_option()
+@quiet_option()
+def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_dir: Path | None, force: bool,
+            export: tuple[str, ...] | None, quiet: bool) -> None:
     """Run several observers on LOG and write a side-by-side table and an overlay plot."""
+    from dataclasses import replace
+
     from slamobs.pipeline.compare import compare_log
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.observers import GainError
@@ -136,15 +132,30 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, forc
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise click.UsageError("--observers needs at least one name")
+    config = load_config(config_path)
+    if msg_dir:
+        config = replace(config, msg_dir=str(msg_dir))
+    if export is not None:
+        config = replace(config, export=export)
+    status = status_line(quiet)
+    # on a terminal every stage on the status line; otherwise a line as each observer starts
+    lines = {"progress": status} if status else {} if quiet else {
+        "on_observer": lambda m: click.echo(f"compare: {m}", err=True)}
     try:
-        table = compare_log(log, out_dir, load_config(config_path), observers, force=force)
+        with compile_notice(status, quiet=quiet):
+            table = compare_log(log, out_dir, config, observers, force=force, **lines)
     except GainError as err:
         raise click.UsageError(str(err)) from None
     except FileExistsError as err:
         raise click.ClickException(str(err)) from None
-    with_values = table.astype(object).where(table.notna(), "")
-    click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-    click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
+    finally:
+        if status:
+            status.clear()
+    if not quiet:
+        with_values = table.astype(object).where(table.notna(), "")
+        click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per "
+                   "observer)")
     if (table["status"] != "ok").all():
         sys.exit(1)
 
@@ -160,17 +171,21 @@ def observers() -> None:
         width = max(len(g.name) for g in spec.gains)
         for g in spec.gains:
             click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")
+    click.echo("Defaults in the first brackets; 'paper' is the paper's simulation value, 'reference' the value of "
+               "the noise-free 100 Hz reference runs that check each observer against its paper. Equations, "
+               "integration scheme and the reasons for the defaults: docs/observers.md in the slamobs repository.")
 
 
 def _add_commands() -> None:
     """Commands that live in their own modules (each imports only click at module level)."""
     from slamobs.cli.batch_cmd import batch
     from slamobs.cli.evaluate_cmd import evaluate
+    from slamobs.cli.export_cmd import export
     from slamobs.cli.info_cmd import info
     from slamobs.cli.report_cmd import report
     from slamobs.cli.simulate_cmd import simulate
 
-    for command in (info, simulate, report, evaluate, batch):
+    for command in (info, simulate, report, evaluate, export, batch):
         main.add_command(command)
 
 

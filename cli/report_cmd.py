@@ -11,8 +11,13 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.options import export_option, quiet_option
+from slamobs.cli.progress import compile_notice
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
+#: How the summary names each alignment (one spelling in every command: "SE(3)-aligned").
+ALIGNED = {"se3": "SE(3)-aligned", "sim3": "Sim(3)-aligned", "scale": "scale-aligned",
+           "yaw": "4-DoF (yaw)-aligned", "origin": "origin-aligned", "none": "not aligned"}
 
 
 def _lengths(text: str | None) -> tuple[float, ...] | None:
@@ -50,11 +55,12 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option("--drift-lengths", default=None, help="KITTI drift segment lengths, comma-separated metres")
 @click.option("--bias-window", type=float, default=None,
               help="fraction of the run at its end used for bias stability (0.2)")
+@export_option(("tum", "evo"), default="what the run wrote")
 @click.option("--json", "as_json", is_flag=True, help="print report.json instead of the summary")
-@click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
+@quiet_option()
 def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset: str | None, align: str | None,
            convergence_threshold: float | None, rpe_delta: float | None, drift_lengths: str | None,
-           bias_window: float | None, as_json: bool, quiet: bool) -> None:
+           bias_window: float | None, export: tuple[str, ...] | None, as_json: bool, quiet: bool) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically."""
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.report import ReportOptions
@@ -71,7 +77,8 @@ def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset:
             base["drift_lengths_m"] = tuple(base["drift_lengths_m"])
         base.pop("gravity_aligned", None)
         options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
-        rep, written = report_run(run_dir, truth, options)
+        with compile_notice(quiet=quiet):
+            rep, written = report_run(run_dir, truth, options, exports=export)
     except (InputError, ValueError) as err:
         exit_input_error(str(err))
     if quiet:
@@ -95,7 +102,7 @@ def _summary(r: dict, written: list[Path]) -> None:
     ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
     kind = r["method"]["alignment"]["type"]
     click.echo(f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
-               f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, {kind}-aligned")
+               f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, {ALIGNED[kind]}")
     if r.get("rpe"):
         click.echo(f"RPE          {r['rpe']['delta']:g} m: translation rmse {r['rpe']['translation_m']['rmse']:.4f} m, "
                    f"rotation rmse {r['rpe']['rotation_deg']['rmse']:.3f} deg")
@@ -120,6 +127,6 @@ def _summary(r: dict, written: list[Path]) -> None:
         click.echo(f"clock offset {off['estimated_s']:.4f} s estimated ({quality}), {off['applied_s']:g} s applied")
     for note in r.get("notes") or []:
         click.echo(f"note         {note}")
-    if r.get("evo", {}).get("ape"):
+    if r.get("evo", {}).get("ape") and any(p.name == "estimate_tum.txt" for p in written):
         click.echo(f"evo          {r['evo']['ape']}")
     click.echo(f"wrote        {', '.join(sorted(p.name for p in written))}")

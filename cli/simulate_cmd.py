@@ -6,6 +6,9 @@ from pathlib import Path
 
 import click
 
+from slamobs.cli.options import AliasedOption, quiet_option
+from slamobs.cli.progress import compile_notice
+
 #: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
 CONTAINERS = ("bag", "mcap", "ros2")
 
@@ -14,7 +17,8 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
 
 @click.command("simulate")
 @click.argument("scenario")
-@click.option("-o", "--output", "output", required=True, type=click.Path(path_type=Path), help="Log to write.")
+@click.option("-o", "--out", "--output", "output", required=True, type=click.Path(path_type=Path), cls=AliasedOption,
+              hidden_aliases=("--output",), help="Log to write.")
 @click.option(
     "--container",
     type=click.Choice(CONTAINERS),
@@ -46,7 +50,8 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
 @click.option("--blur", type=click.FloatRange(0.0), default=0.0, show_default=True, help="Image blur sigma, px.")
 @click.option("--pixel-noise", type=click.FloatRange(0.0), default=0.3, show_default=True,
               help="Corner noise, px (corners).")
-@click.option("--force", is_flag=True, help="Replace OUTPUT if it exists.")
+@click.option("--force", is_flag=True, help="Replace OUT if it exists.")
+@quiet_option("Print nothing but errors.")
 def simulate(
     scenario: str,
     output: Path,
@@ -70,8 +75,9 @@ def simulate(
     blur: float,
     pixel_noise: float,
     force: bool,
+    quiet: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUTPUT with landmark and bias truth.
+    """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUT with landmark and bias truth.
 
     With --camera corners or images the camera reports tags as a real one does (tag corners, or images rendered
     from the true camera pose; needs the vision extra: pip install 'slamobs[vision]'), with CameraInfo.
@@ -101,7 +107,10 @@ def simulate(
         mocap_rate=mocap_rate,
         camera=camera,
     )
-    path = write_log(sim, output, container, overwrite=force)
+    with compile_notice(quiet=quiet):
+        path = write_log(sim, output, container, overwrite=force)
+    if quiet:
+        return
     counts = ", ".join(f"{topic} {n}" for topic, n in sim.topic_counts().items())
     click.echo(
         f"wrote {path} ({container}, {log_size(path) / 1e6:.2f} MB, {sim.scenario.name} {sim.duration:g} s, "

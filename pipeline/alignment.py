@@ -26,12 +26,14 @@ from slamobs.pipeline.directions import (
     DEFAULT_MAGNETIC_FIELD,
     DirectionSet,
     build_directions,
-    gravity_weights,
 )
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
+
+#: Start of the note on the accelerometer's down-weighted samples (only runs that use the accelerometer keep it).
+ACCEL_NOTE = "accelerometer: "
 
 #: Velocity gaps longer than this (seconds) are reported: the observer holds the last sample across them.
 GAP_WARN_S = 0.5
@@ -196,7 +198,7 @@ def align(
     """Build the observer's ordered input from the decoded streams of one log.
 
     ``keep_directions=False`` leaves the direction samples out of the result (observers without IMU
-    directions; their accelerometer note is still made). ``release=True`` removes each sensor stream from
+    directions, which get no accelerometer note). ``release=True`` removes each sensor stream from
     ``streams`` once it has been used (for a caller that reads nothing else of them), so the samples of a long
     log are not held twice. Each part runs in its own function so its temporaries are gone before the next
     part starts; the notes come in the order velocities, detections, directions.
@@ -225,7 +227,7 @@ def align(
     del det
     notes = frame.notes + dir_frame.notes
     if w is not None:
-        notes.append(f"accelerometer: {100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
+        notes.append(f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
                      f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
                      f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)")
     return AlignedStream(
@@ -247,19 +249,17 @@ def align(
 def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,
                 magnetic: Vec3Stream | None, gravity, magnetic_field, keep: bool):
     """The direction set (``keep``) and the accelerometer weights (None without an accelerometer)."""
-    t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
     if keep:
+        t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
         directions = build_directions(t_s, omega, velocity, _resample(fr, accel, t_om), _resample(fr, magnetic, t_om),
                                       gravity, magnetic_field)
         if directions is not None and "gravity" in directions.names:
             return directions, directions.weight[:, directions.names.index("gravity")]
         return directions, None
-    # only the accelerometer note: its weights block by block (both frames are still checked)
-    acc = _resampled(fr, accel, t_om)
+    # an observer without directions gets no accelerometer note (both frames are still checked)
+    _resampled(fr, accel, t_om)
     _resampled(fr, magnetic, t_om)
-    if acc is None:
-        return None, None
-    return None, gravity_weights(t_s, omega, velocity, acc.rows, float(np.linalg.norm(gravity)))
+    return None, None
 
 
 @dataclass(frozen=True)

@@ -11,17 +11,19 @@ import numpy as np
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers import get_observer
-from slamobs.pipeline.run import RunSummary, prepare_log, run_prepared
+from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
            "vel_bias_err", "convergence_s", "run_time_s", "error")
 
 
-def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str], *, force: bool = False):
+def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str], *, force: bool = False,
+                progress: Progress = _silent, on_observer: Progress = _silent):
     """Run every observer in ``observers`` on ``log``; write ``OUT/<observer>/``, the table and an overlay plot.
 
     An observer that cannot run on this log (e.g. it needs IMU directions the log lacks) gets a row with
     status "failed" and its one-line reason; the others still run. Returns the table as a DataFrame.
+    ``progress`` gets every stage line of the runs, ``on_observer`` one line as each observer starts.
     """
     import pandas as pd
 
@@ -29,13 +31,17 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
 
     for name in observers:
         get_observer(name).resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
-    prepared = prepare_log(log, config)
+    on_observer(f"reading {log}")
+    prepared = prepare_log(log, config, progress=progress)
     rows, summaries = [], {}
     with atomic_directory(out_dir, force=force) as tmp:
-        for name in observers:
+        for k, name in enumerate(observers, 1):
             t = time.perf_counter()
+            step = f"observer {k} of {len(observers)}"
+            on_observer(f"{step}: {name}")
             try:
-                summary = run_prepared(prepared, tmp / name, replace(config, observer=name))
+                summary = run_prepared(prepared, tmp / name, replace(config, observer=name),
+                                       progress=lambda m, step=step: progress(f"{step}: {m}"))
             except InputError as err:
                 rows.append({"observer": name, "status": "failed", "error": err.problem,
                              "run_time_s": time.perf_counter() - t})

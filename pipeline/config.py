@@ -11,6 +11,10 @@ from slamobs.pipeline.errors import InputError
 DEFAULT_OBSERVER = "fast-adaptation"
 #: Significant mantissa bits kept in float outputs (pipeline.writers.round_mantissa; 52 = float64 exactly).
 DEFAULT_FLOAT_BITS = 28
+#: Optional extra files of a run directory (``output.export``, ``--export``): the TUM trajectories of estimate
+#: and truth, the evo APE result zip, the results MCAP for Foxglove. None by default: the Parquet tables and
+#: the report hold the results, the extras only repeat them in other formats.
+EXPORTS = ("tum", "evo", "mcap")
 
 
 @dataclass(frozen=True)
@@ -31,6 +35,7 @@ class RunConfig:
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
     output_rate_hz: float | None = None
     float_bits: int = DEFAULT_FLOAT_BITS
+    export: tuple[str, ...] = ()  # subset of EXPORTS, in that order
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
@@ -124,6 +129,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         gains={k: dict(v) for k, v in data.get("gains", {}).items()},
         output_rate_hz=data.get("output", {}).get("rate_hz"),
         float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
+        export=export_kinds(list(data.get("output", {}).get("export", []))
+                            + (["mcap"] if data.get("output", {}).get("mcap") else [])),
         t_max_diff=float(ev.get("t_max_diff", 0.01)),
         convergence_threshold=float(ev.get("convergence_threshold", 0.1)),
         plots=bool(ev.get("plots", True)),
@@ -146,6 +153,15 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         map_mode=str(known.get("mode", "fixed")),
         map_truth=ev.get("map_truth"),
     )
+
+
+def export_kinds(kinds) -> tuple[str, ...]:
+    """``kinds`` (names of EXPORTS; "none" means none) without repeats, in the order of EXPORTS."""
+    wanted = set(kinds) - {"none"}
+    unknown = wanted - set(EXPORTS)
+    if unknown:
+        raise ValueError(f"unknown export(s) {', '.join(sorted(unknown))} (choose from {', '.join(EXPORTS)})")
+    return tuple(k for k in EXPORTS if k in wanted)
 
 
 def load_config(path: Path | None) -> RunConfig:

@@ -10,13 +10,12 @@ down-weight them rather than be pulled by them.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
-from slamobs.pipeline.blocks import interp_sorted, row_blocks
+from slamobs.pipeline.blocks import interp_sorted
 from slamobs.pipeline.errors import GainError
 
 #: Default inertial references: gravity (m/s²) and a mid-latitude magnetic field (Tesla), map frame.
@@ -75,16 +74,6 @@ def gravity_up(f_body: np.ndarray, acc_body: np.ndarray, g: float) -> tuple[np.n
     weight = np.clip((ACCEL_GATE - err) / (ACCEL_GATE - ACCEL_TOL), 0.0, 1.0)
     weight[~np.isfinite(weight)] = 0.0
     return up, weight
-
-
-def gravity_weights(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray,
-                    accel_rows: Callable[[slice], np.ndarray], g: float) -> np.ndarray:
-    """The accelerometer trust weights of :func:`build_directions` alone, computed a block of samples at a time
-    (``accel_rows(block)`` gives the body-frame specific force there)."""
-    weight = np.empty(t_s.shape[0])
-    for rows in row_blocks(t_s.shape[0]):
-        _, weight[rows] = gravity_up(accel_rows(rows), body_acceleration(t_s, omega, velocity, rows), g)
-    return weight
 
 
 def build_directions(t_s, omega, velocity, accel, magnetic, gravity=DEFAULT_GRAVITY,

@@ -19,7 +19,7 @@ from typing import Callable
 import numpy as np
 
 import slamobs
-from slamobs.pipeline.alignment import AlignedStream, align
+from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
@@ -124,7 +124,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
-    IMU directions never read them; the accelerometer note is still made).
+    IMU directions never read them, nor get the accelerometer note).
     """
     from slamobs.pipeline.readers import read_log
 
@@ -206,7 +206,9 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     gains = spec.resolve_gains(config.gains.get(spec.name))
     check_map_mode(spec, config, log)
     _check_directions(spec, aligned, log)
-    notes = list(streams.warnings) + list(aligned.notes) + list(prepared.notes)
+    # a log read once for several observers (compare) has the accelerometer note: only its users keep it
+    notes = list(streams.warnings) + [n for n in aligned.notes if spec.min_directions or not n.startswith(ACCEL_NOTE)]
+    notes += list(prepared.notes)
     start = None
     if prepared.known_map is not None:
         from slamobs.pipeline.known_map import map_start
@@ -222,7 +224,9 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
         "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
                   "time_source": config.align_time_source, "clocks": dict(streams.clocks),
-                  "body_frame": aligned.body_frame, "derived": dict(streams.derived),
+                  "body_frame": aligned.body_frame,
+                  "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
+                  "derived": dict(streams.derived),
                   "cameras": dict(tags.cameras) if tags is not None else {},
                   "map": ({"file": prepared.known_map.source, "mode": prepared.known_map.mode}
                           if prepared.known_map is not None else None)},
@@ -233,7 +237,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "counts": {"velocity_samples": int(aligned.vel_t_ns.shape[0]), "detection_frames": int(aligned.det_t_ns.shape[0]),
                    "detections": int(aligned.det_idx.shape[0]), "landmarks": int(aligned.landmark_ids.shape[0])},
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
-        "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits},
+        "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits, "export": list(config.export)},
     }
     report = None
     with atomic_directory(out_dir, force=force) as tmp:
@@ -275,6 +279,13 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             notes.append("no ground truth in the log: no error report")
             if streams.landmark_truth:
                 metadata["map_error"] = _map_error(tmp, streams.landmark_truth)
+        if "mcap" in config.export:
+            from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
+
+            t = time.perf_counter()
+            progress("results MCAP")
+            write_results_mcap(tmp, tmp / RESULTS_MCAP, meta=metadata, report=report)
+            timings["export_s"] = time.perf_counter() - t
         compiled = compiled_since(prepared.compiled_from or compile_mark())
         prepared.compiled_from = compile_mark()
         if compiled.functions:
@@ -331,5 +342,5 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
         notes.append(f"no error report: {err}")
         return None
     write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth, evaluation=evaluation,
-                 plots=config.plots)
+                 plots=config.plots, exports=config.export)
     return report

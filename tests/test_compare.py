@@ -24,6 +24,9 @@ def test_compare_all_observers_side_by_side(tmp_path):
     names = list(OBSERVERS)
     res = invoke("compare", SAMPLE, "-o", out, "--observers", ",".join(names))
     assert res.exit_code == 0, res.output
+    # without a terminal a line as each observer starts (on a terminal: a status line with every stage)
+    assert [line for line in res.stderr.splitlines() if line.startswith("compare: ")][1:] == [
+        f"compare: observer {k} of {len(names)}: {name}" for k, name in enumerate(names, 1)]
     table = pd.read_parquet(out / "comparison.parquet")
     assert list(table["observer"]) == names
     for row in table.to_dict("records"):
@@ -31,6 +34,9 @@ def test_compare_all_observers_side_by_side(tmp_path):
             run = json.loads((out / row["observer"] / "run.json").read_text())
             report = json.loads((out / row["observer"] / "report.json").read_text())
             assert run["observer"]["name"] == row["observer"]
+            # the accelerometer note only for observers that use the accelerometer
+            uses_accel = OBSERVERS[row["observer"]].min_directions > 0
+            assert any(n.startswith("accelerometer: ") for n in run["notes"]) == uses_accel, row["observer"]
             assert row["ape_trans_rmse_m"] == pytest.approx(report["ape"]["translation_m"]["rmse"])
             assert row["ape_trans_rmse_m"] < 0.5
         else:

@@ -336,7 +336,7 @@ def test_bad_align_option():
 def test_write_report_files(tmp_path):
     poses, biases, landmarks, truth, lm_truth, bias_truth = synthetic_run(0.01, 0.02)
     rep = checked(build_report(poses, biases, landmarks, truth, lm_truth, bias_truth))
-    paths = write_report(rep, tmp_path / "out", poses, biases, landmarks, truth, lm_truth)
+    paths = write_report(rep, tmp_path / "out", poses, biases, landmarks, truth, lm_truth, exports=("tum", "evo"))
     assert sorted(p.name for p in paths) == sorted(REPORT_FILES)
     for p in paths:
         assert p.is_file() and p.stat().st_size > 0
@@ -370,8 +370,9 @@ def test_write_report_without_map_biases_or_truth_extras(tmp_path):
     rep = checked(build_report(poses, None, None, truth))
     assert rep["landmarks"]["truth_available"] is False and rep["biases"]["final"] is None
     assert rep["landmarks"]["map_aligned"] is None and rep["biases"]["stability"] is None
-    paths = write_report(rep, tmp_path, poses, None, None, truth)
-    assert sorted(p.name for p in paths) == sorted(set(REPORT_FILES) - {"landmarks.png"})
+    paths = write_report(rep, tmp_path, poses, None, None, truth)  # no exports asked: report and figures only
+    assert sorted(p.name for p in paths) == sorted(set(REPORT_FILES) - {"landmarks.png", "ape_evo.zip",
+                                                                        "estimate_tum.txt", "truth_tum.txt"})
     assert all(p.is_file() for p in paths)
     assert "no landmark ground truth" in (tmp_path / "report.md").read_text()
 

@@ -32,7 +32,7 @@ def invoke(cmd, *args, catch: bool = False):
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("runs") / "circle"
-    run_log(SAMPLE, out, RunConfig())
+    run_log(SAMPLE, out, RunConfig(export=("tum", "evo")))
     return out
 
 
@@ -62,7 +62,7 @@ def test_report_recomputes_the_run_report(run_dir):
     for name in REPORT_FILES:
         assert (run_dir / name).is_file(), name
     assert load(run_dir / "run.json")["report_truth"]["name"] == "/mocap/pose"
-    assert "APE          translation rmse" in res.output
+    assert "APE          translation rmse" in res.output and "pairs, SE(3)-aligned" in res.output
     assert "evo_ape tum truth_tum.txt estimate_tum.txt -a" in res.output
     assert not [p for p in run_dir.iterdir() if p.name.startswith(".report-")]
 
@@ -83,7 +83,7 @@ def test_report_options_json_and_kept_options(run_dir):
     res = invoke(report, run_dir, "--align", "origin", "--t-offset", "auto", "--rpe-delta", "0.5",
                  "--drift-lengths", "5,10", "--json")
     assert res.exit_code == 0, res.output
-    rep = json.loads(res.output)
+    rep = json.loads(res.stdout)
     validate_report(rep)
     assert rep["method"]["alignment"]["type"] == "origin"
     assert rep["time_offset"]["applied_from"] == "estimate"
@@ -93,7 +93,7 @@ def test_report_options_json_and_kept_options(run_dir):
     assert again.exit_code == 0 and again.output == ""
     assert load(run_dir / "report.json")["options"] == rep["options"]
     back = invoke(report, run_dir, "--align", "se3", "--t-offset", "0", "--json")
-    assert json.loads(back.output)["method"]["alignment"]["type"] == "se3"
+    assert json.loads(back.stdout)["method"]["alignment"]["type"] == "se3"
 
 
 def test_tf_truth_is_clear_either_way(run_dir):
@@ -154,7 +154,7 @@ def test_evaluate_prints_like_evo_and_matches_the_report(finished_run, tmp_path)
     truth, est = finished_run / "truth_tum.txt", finished_run / "estimate_tum.txt"
     res = invoke(evaluate, truth, est, "-a")
     assert res.exit_code == 0, res.output
-    lines = res.output.splitlines()
+    lines = res.stdout.splitlines()
     assert lines[:3] == ["APE w.r.t. translation part (m)", "(with SE(3) Umeyama alignment)", ""]
     stats = dict(line.split("\t") for line in lines[3:10])
     assert [k.strip() for k in stats] == ["max", "mean", "median", "min", "rmse", "sse", "std"]
@@ -162,7 +162,7 @@ def test_evaluate_prints_like_evo_and_matches_the_report(finished_run, tmp_path)
         assert float(v) == pytest.approx(rep["ape"]["translation_m"][k.strip()], abs=5e-7)
     assert lines[11].split("\t") == ["     pairs", str(rep["ape"]["translation_m"]["n"])]
     # our poses.parquet is a valid estimate too, and --json carries every number with its method
-    as_json = json.loads(invoke(evaluate, truth, finished_run / "poses.parquet", "-a", "--json").output)
+    as_json = json.loads(invoke(evaluate, truth, finished_run / "poses.parquet", "-a", "--json").stdout)
     assert as_json["stats"] == rep["ape"]["translation_m"]
     assert as_json["method"]["association"]["n_pairs"] == rep["method"]["association"]["n_pairs"]
 
@@ -173,7 +173,7 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     res = invoke(evaluate, truth, est, "--metric", "rpe", "--delta", "1", "--delta_unit", "m", "-as",
                  "-r", "angle_deg", "--save_results", zip_path, "--estimate-t-offset")
     assert res.exit_code == 0, res.output
-    assert res.output.startswith("RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using "
+    assert res.stdout.startswith("RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using "
                                  "consecutive pairs\n(with Sim(3) Umeyama alignment)\n")
     assert "t_offset" in res.output and "estimated" in res.output
     info, stats, arrays = load_result_zip(zip_path)
@@ -182,7 +182,7 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     assert arrays["error_array"].size == arrays["timestamps"].size > 0
     res = invoke(evaluate, truth, est, "--align_origin", "-r", "full", "--n_to_align", "10", "--t_offset", "auto",
                  "--sync_method", "interpolation", "--json")
-    doc = json.loads(res.output)
+    doc = json.loads(res.stdout)
     assert doc["method"]["association"]["method"] == "interpolation" and doc["time_offset"]["applied_s"] != 0.0
 
 
@@ -211,7 +211,7 @@ def test_evaluate_kitti_pairs_by_index(tmp_path):
     np.savetxt(tmp_path / "gt.txt", rows)
     np.savetxt(tmp_path / "est.txt", np.array(rows) + [0, 0, 0, 0.5, 0, 0, 0, 0, 0, 0, 0, 0])
     res = invoke(evaluate, tmp_path / "gt.txt", tmp_path / "est.txt", "--json")
-    doc = json.loads(res.output)
+    doc = json.loads(res.stdout)
     assert doc["method"]["association"]["method"] == "index" and doc["stats"]["n"] == 20
     assert doc["stats"]["max"] == pytest.approx(0.5)
     np.savetxt(tmp_path / "short.txt", rows[:5])
@@ -261,4 +261,4 @@ def test_evaluate_output_equals_evo_cli(finished_run, tmp_path):
         evo_block = block[block.index(f"{metric.upper()} w.r.t."):].rstrip("\n").splitlines()
         ours = invoke(evaluate, truth, est, "--metric", metric, *flags)
         assert ours.exit_code == 0, ours.output
-        assert ours.output.splitlines()[:len(evo_block)] == evo_block, (metric, flags)
+        assert ours.stdout.splitlines()[:len(evo_block)] == evo_block, (metric, flags)

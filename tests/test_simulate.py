@@ -272,7 +272,7 @@ def test_cli(tmp_path):
         simulate_cmd, ["figure8", "-o", str(out), "--duration", "2", "--seed", "5", "--imu-rate", "50", "--no-noise"]
     )
     assert res.exit_code == 0, res.output
-    assert len(res.output.strip().splitlines()) == 1 and "/imu/data 101" in res.output and "ros2" in res.output
+    assert len(res.stdout.strip().splitlines()) == 1 and "/imu/data 101" in res.stdout and "ros2" in res.stdout
     assert (out / "metadata.yaml").is_file() and (out / "run.db3").is_file()
 
     mcap = tmp_path / "c.mcap"

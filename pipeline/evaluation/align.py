@@ -2,8 +2,8 @@
 
 (Not to be confused with :mod:`pipeline.alignment`, which puts sensor streams on one time base.) A SLAM
 estimate is defined only up to the transformations its sensors cannot observe: a rigid transform without
-absolute references (spec §1.6), a similarity for monocular vision, translation and yaw when gravity is
-observed. Each alignment here removes exactly one such group, fitted by least squares on associated
+absolute references (docs/observers.md §1.1), a similarity for monocular vision, translation and yaw when
+gravity is observed. Each alignment here removes exactly one such group, fitted by least squares on associated
 positions, as evo 1.38.1 does for ``-a``, ``-as``, ``-s`` and ``--align_origin``.
 """
 

@@ -1,9 +1,10 @@
 """Error metrics with the definitions evo 1.38.1 uses, written from the mathematics.
 
 A SLAM observer without absolute references recovers the pose only up to a constant rigid transform
-(spec §1.6), so every comparison with ground truth goes: associate stamps (:mod:`.sync`) -> alignment of the
-estimate onto the truth (:mod:`.align`) -> absolute or relative pose error (here). The definitions are chosen
-so that numbers are comparable with ``evo_ape`` / ``evo_rpe`` (every ``-r`` pose relation, statistics).
+(docs/observers.md §1.1), so every comparison with ground truth goes: associate stamps (:mod:`.sync`) ->
+alignment of the estimate onto the truth (:mod:`.align`) -> absolute or relative pose error (here). The
+definitions are chosen so that numbers are comparable with ``evo_ape`` / ``evo_rpe`` (every ``-r`` pose
+relation, statistics).
 """
 
 from __future__ import annotations

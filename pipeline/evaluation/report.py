@@ -2,8 +2,9 @@
 
 ``build_report`` is pure (tables in, dict out); ``write_report`` is the I/O edge. The trajectory numbers come
 from :mod:`.trajectory_error`, the one evo-compatible path, and the report states how every number was obtained
-(association, alignment, definitions). It also exports the estimate and the truth as TUM files and the APE as
-an evo result zip, so an evo user can reproduce the headline with ``evo_ape`` and compare with ``evo_res``.
+(association, alignment, definitions). On request (``exports``) it also writes the estimate and the truth as TUM
+files and the APE as an evo result zip, so an evo user can reproduce the headline with ``evo_ape`` and compare
+with ``evo_res``.
 Beyond evo: APE under several alignments, landmark map error after the trajectory alignment and after a
 map-only alignment, bias error and stability, convergence time, clock offset estimate, KITTI-style drift.
 """
@@ -423,7 +424,8 @@ def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, 
     off = f" --t_offset {applied_offset_s!r}" if applied_offset_s else ""
     base = f"evo_ape tum {TRUTH_TUM} {ESTIMATE_TUM}{flags} --t_max_diff {options.t_max_diff_s!r}{off}"
     return {"ape": base, "ape_rotation": base + " -r angle_deg",
-            "note": f"run in the run directory; {EVO_ZIP} holds the translation result (evo_res {EVO_ZIP})"}
+            "note": f"run in the run directory; the TUM files are written with --export tum, {EVO_ZIP} (the "
+                    f"translation result, evo_res {EVO_ZIP}) with --export evo"}
 
 
 def build_report(
@@ -439,9 +441,9 @@ def build_report(
 ) -> dict[str, Any]:
     """Errors of one run against ground truth, JSON-ready (plain Python numbers, None for unknowns).
 
-    SLAM without absolute references determines the pose only up to a constant rigid transform (spec §1.6),
-    so with ``align="se3"`` the estimate is first mapped onto the truth frame by the least-squares SE(3)
-    transform of the associated positions; ``align="none"`` compares the raw estimate. ``overrides`` are
+    SLAM without absolute references determines the pose only up to a constant rigid transform
+    (docs/observers.md §1.1), so with ``align="se3"`` the estimate is first mapped onto the truth frame by the
+    least-squares SE(3) transform of the associated positions; ``align="none"`` compares the raw estimate. ``overrides`` are
     :class:`ReportOptions` fields (e.g. ``t_max_diff_s``, ``align``) on top of ``options``.
     """
     return evaluate_report(poses, biases, landmarks, truth, landmark_truth, bias_truth, options=options,
@@ -605,7 +607,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     )
     lines += ["", f"Convergence (position error stays below {conv['threshold_m']:g} m): {conv_txt}.", ""]
     if report["evo"].get("ape"):
-        lines += [f"Reproduce with evo: `{report['evo']['ape']}`.", ""]
+        lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]
     by = report.get("ape_by_alignment") or {}
     if by:
         lines += ["### APE under each alignment (same pairs)", ""]
@@ -741,9 +743,11 @@ def write_report(
     *,
     evaluation: TrajectoryEvaluation | None = None,
     plots: bool = True,
+    exports: tuple[str, ...] = (),
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
-    time on short logs), the evo result zip and the TUM exports into ``out_dir``; returns the written paths.
+    time on short logs) and, as ``exports`` asks, the TUM files ("tum") and the evo result zip ("evo") into
+    ``out_dir``; returns the written paths.
 
     The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
@@ -764,13 +768,17 @@ def write_report(
     md_path.write_text(render_markdown(report), encoding="utf-8")
     written.append(md_path)
 
+    if not plots and not {"evo", "tum"} & set(exports):
+        return written
     options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
     if evaluation is None and poses is None:
         raise ValueError("write_report needs the poses table or the report's evaluation")
     ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
-    written.append(save_result_zip(out / EVO_ZIP, ev.translation))
-    written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
-    written.append(write_tum(out / TRUTH_TUM, ev.truth))
+    if "evo" in exports:
+        written.append(save_result_zip(out / EVO_ZIP, ev.translation))
+    if "tum" in exports:
+        written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
+        written.append(write_tum(out / TRUTH_TUM, ev.truth))
     if plots:
         written += _write_plots(report, out, ev, biases, landmarks, landmark_truth)
     return written

@@ -24,6 +24,9 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
 
+#: The exports a report writes (``mcap`` is written by ``slamobs export`` or a run).
+REPORT_EXPORTS = ("tum", "evo")
+
 
 @dataclass
 class RunTables:
@@ -145,22 +148,29 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
     return moved
 
 
-def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path) -> None:
-    """run.json pointing at the new report and naming its truth, staged with the report files."""
+def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path, exports: tuple[str, ...]) -> None:
+    """run.json pointing at the new report and naming its truth and exports, staged with the report files."""
     meta = dict(meta)
     meta["report"] = "report.json"
     meta["report_truth"] = truth
+    output = dict(meta.get("output") or {})
+    output["export"] = [k for k in output.get("export", []) if k not in REPORT_EXPORTS] + list(exports)
+    meta["output"] = output
     tmp = staged / "run.json"
     tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
 
 def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOptions | None = None,
-               **overrides: Any) -> tuple[dict[str, Any], list[Path]]:
+               exports: tuple[str, ...] | None = None, **overrides: Any) -> tuple[dict[str, Any], list[Path]]:
     """Recompute the report of ``run_dir`` against ``truth`` and replace its report files atomically.
 
+    ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
     Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
     """
     run = load_run(run_dir)
+    if exports is None:
+        exports = tuple(k for k in (run.meta.get("output") or {}).get("export", []) if k in REPORT_EXPORTS)
+    exports = tuple(k for k in exports if k in REPORT_EXPORTS)
     ti = resolve_truth(run.meta, truth)
     options = options or options_for_run(run.meta, **overrides)
     try:
@@ -173,8 +183,8 @@ def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOpt
     staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
     try:
         write_report(report, staged, run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth,
-                     evaluation=evaluation)
-        _stage_run_json(run.meta, ti.source, staged)
+                     evaluation=evaluation, exports=exports)
+        _stage_run_json(run.meta, ti.source, staged, exports)
         for p in staged.iterdir():
             os.chmod(p, 0o644)
         written = replace_files(run.path, staged, REPORT_FILES)

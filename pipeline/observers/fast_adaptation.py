@@ -236,7 +236,7 @@ class FastAdaptation(Stepper):
 SPEC = ObserverSpec(
     name="fast-adaptation",
     algorithm="A",
-    paper="Drayton, Jaiyeola, Hoque, Maurer, Hashim: Fast Adaptation Nonlinear Observer for SLAM (seed 000)",
+    paper="Drayton, Jaiyeola, Hoque, Maurer, Hashim: Fast Adaptation Nonlinear Observer for SLAM",
     summary="SE(3) pose + landmarks + velocity biases; landmark gain psi(e) = k_p (1 + |e|^2) / 4",
     # Defaults for noisy logs; the paper's simulation gains (alpha 0.1, gamma 30, k_p 1, k_w 2) are far
     # stiffer and amplify measurement noise into the bias estimates (std ~0.05 rad/s on the samples).

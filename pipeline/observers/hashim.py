@@ -323,22 +323,23 @@ def start_imu(stream, gains: dict[str, float], options) -> Hashim:
     return Hashim(stream, gains, options, dirs, first_attitude(*dirs))
 
 
-_PAPER = "Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group (seed 002)"
+_PAPER = ("Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group "
+          "using IMU and Feature Measurements (arXiv 2101.01648)")
 
 
 def _landmark_gains(gamma_omega: float) -> tuple[GainSpec, ...]:
     return (
-        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [spec 100 Hz set: 1, paper-A: 0.1]"),
+        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [100 Hz reference set: 1, paper: 0.1]"),
         GainSpec("gamma_omega", gamma_omega, "gyro-bias adaptation gain; Gamma = diag(gamma_omega I, gamma_v I) "
-                                             "[spec 100 Hz set: 0.3]"),
-        GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [spec 100 Hz set: 0.3]"),
-        GainSpec("k_p", 1.0, "constant landmark gain [spec: 1]"),
-        GainSpec("k_w", 1.0, "pose correction gain [spec 100 Hz set: 0.02, paper-A: 2]"),
+                                             "[100 Hz reference set: 0.3]"),
+        GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [100 Hz reference set: 0.3]"),
+        GainSpec("k_p", 1.0, "constant landmark gain [reference: 1]"),
+        GainSpec("k_w", 1.0, "pose correction gain [100 Hz reference set: 0.02, paper: 2]"),
     )
 
 
 # Defaults tuned on the noisy sample logs (sample_logs/README.md) and checked on unseen simulator seeds; the
-# spec's sets (100 Hz: alpha 1, k_w 0.02, gamma 0.3, k_p 1; paper-A: alpha 0.1, k_w 2, gamma 30) also run,
+# reference sets (100 Hz: alpha 1, k_w 0.02, gamma 0.3, k_p 1; the paper's: alpha 0.1, k_w 2, gamma 30) also run,
 # sub-stepped. C needs a faster gyro-bias loop than B: until b̂_Ω is right, the IMU keeps rotating the
 # map about the vehicle, which moves the unobservable translation offset P_c.
 SPEC = ObserverSpec(
@@ -357,8 +358,8 @@ SPEC_IMU = ObserverSpec(
     summary="algorithm B + IMU attitude innovation from gravity/magnetic directions, map co-rotation; "
             "needs k_w*k_2 < 4*k_1",
     gains=_landmark_gains(gamma_omega=1.0) + (
-        GainSpec("k_1", 1.0, "IMU attitude gain [spec prototype: 1]"),
-        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [spec: k_1/k_w]"),
+        GainSpec("k_1", 1.0, "IMU attitude gain [reference: 1]"),
+        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [reference: k_1/k_w]"),
         GainSpec("s_gravity", 1.0, "confidence s_j of the accelerometer gravity direction"),
         GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction"),
     ),

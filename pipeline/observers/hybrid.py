@@ -153,8 +153,8 @@ def start(stream, gains: dict[str, float], options: ObserverOptions) -> Flow:
 SPEC = ObserverSpec(
     name=NAME,
     algorithm="E",
-    paper="Hashemi & Mattila, A Global Asymptotic Convergent Observer for SLAM (seed 001; switching after "
-          "Wang & Tayebi, IEEE TAC 2019)",
+    paper="Hashemi, Mattila: A Global Asymptotic Convergent Observer for SLAM (arXiv 2205.01953; switching "
+          "after Wang, Tayebi, IEEE TAC 2019)",
     summary="D + inertial attitude innovation from gravity and magnetic field (map co-rotates) + synergistic "
             "jumps about the eigen-axes of A_v",
     gains=FLOW_GAINS + (

@@ -468,17 +468,17 @@ class Flow(Stepper):
 #: Gains of the shared flow: the spec §5.3 set, which converges on the paper scenario and is also the best
 #: of those tried on the noisy sample logs (larger gamma_w stays stable but puts more noise in the biases).
 FLOW_GAINS = (
-    GainSpec("k_l", 1.0, "landmark innovation weight k_i (all landmarks) [spec §5.3: 1]"),
-    GainSpec("k_x", 1.0, "inertial correction gain k_X [spec §5.3: 1]"),
-    GainSpec("gamma_w", 0.05, "gyro-bias adaptation gain gamma_omega [spec §5.3: 0.05]"),
-    GainSpec("gamma_v", 0.5, "velocity-bias adaptation gain gamma_v [spec §5.3: 0.5]"),
+    GainSpec("k_l", 1.0, "landmark innovation weight k_i (all landmarks) [reference: 1]"),
+    GainSpec("k_x", 1.0, "inertial correction gain k_X [reference: 1]"),
+    GainSpec("gamma_w", 0.05, "gyro-bias adaptation gain gamma_omega [reference: 0.05]"),
+    GainSpec("gamma_v", 0.5, "velocity-bias adaptation gain gamma_v [reference: 0.5]"),
 )
 
 SPEC = ObserverSpec(
     name="wang-tayebi",
     algorithm="D",
-    paper="Wang & Tayebi, Geometric nonlinear observer design for SLAM on a matrix Lie group (CDC 2018; "
-          "baseline of seed 001)",
+    paper="Wang, Tayebi: Geometric Nonlinear Observer Design for SLAM on a Matrix Lie Group (CDC 2018; the "
+          "smooth baseline of Hashemi, Mattila: A Global Asymptotic Convergent Observer for SLAM)",
     summary="smooth SLAM observer, inertial-frame innovation; attitude corrected only through the gyro bias",
     gains=FLOW_GAINS,
     start=Flow,

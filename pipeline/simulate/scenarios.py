@@ -88,7 +88,7 @@ def rot_z(a: np.ndarray) -> np.ndarray:
     return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
 
 
-# --------------------------------------------------------------------------- circle (paper, seed 000)
+# ------------------------------------------------- circle (the fast-adaptation paper's simulation scenario)
 
 CIRCLE_OMEGA = np.array([0.0, 0.0, 0.3])
 CIRCLE_V = np.array([2.5, 0.0, 0.0])

@@ -1,0 +1,58 @@
+"""Option spellings shared by the commands: one documented name per option, old spellings kept working.
+
+Every command writes to ``-o/--out`` and is silenced by ``-q/--quiet``; names that earlier versions used
+(``simulate --output``, ``evaluate --silent``) stay accepted as hidden aliases so scripts do not break, but
+``--help`` shows only the current spelling.
+"""
+
+from __future__ import annotations
+
+import click
+
+
+class AliasedOption(click.Option):
+    """A click option whose ``hidden_aliases`` parse like its other names but are left out of ``--help``."""
+
+    def __init__(self, *args, hidden_aliases: tuple[str, ...] = (), **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.hidden_aliases = tuple(hidden_aliases)
+
+    def get_help_record(self, ctx: click.Context):
+        shown = self.opts
+        self.opts = [o for o in shown if o not in self.hidden_aliases]
+        try:
+            return super().get_help_record(ctx)
+        finally:
+            self.opts = shown
+
+
+def quiet_option(help: str = "print nothing but errors"):
+    """``-q/--quiet`` (``--silent`` too, hidden: evaluate's former name)."""
+    return click.option("-q", "--quiet", "--silent", "quiet", is_flag=True, cls=AliasedOption,
+                        hidden_aliases=("--silent",), help=help)
+
+
+def _kinds(allowed: tuple[str, ...]):
+    def parse(ctx: click.Context, param: click.Parameter, value: str | None) -> tuple[str, ...] | None:
+        if value is None:
+            return None
+        from slamobs.pipeline.config import export_kinds
+
+        kinds = [k.strip().lower() for k in value.split(",") if k.strip()]
+        bad = sorted(set(kinds) - set(allowed) - {"none"})
+        if bad or not kinds:
+            raise click.BadParameter(f"{value!r}: expected a comma-separated list of {', '.join(allowed)} "
+                                     "(or none)", ctx, param)
+        return export_kinds(kinds)
+
+    return parse
+
+
+def export_option(allowed: tuple[str, ...] = ("tum", "evo", "mcap"),
+                  default: str = "output.export of the config, else none"):
+    """``--export tum,evo,...``: the optional extra files of a run directory (replaces ``output.export``)."""
+    described = {"tum": "tum (estimate_tum.txt, truth_tum.txt)", "evo": "evo (ape_evo.zip for evo_res)",
+                 "mcap": "mcap (results.mcap for Foxglove)"}
+    return click.option("--export", "export", default=None, metavar="LIST", callback=_kinds(allowed),
+                        help="extra files, comma-separated: " + ", ".join(described[k] for k in allowed)
+                             + f"; none writes none [default: {default}]")

@@ -1,0 +1,80 @@
+"""What a command shows on stderr while it works: a self-overwriting status line on a terminal, and the notice
+that numba is compiling the numeric kernels (first run only), with or without a terminal."""
+
+from __future__ import annotations
+
+import sys
+import time
+from contextlib import contextmanager
+
+import click
+
+COMPILING = "compiling numeric kernels, first run only"
+
+
+class StatusLine:
+    """What a command is doing and since when, as one self-overwriting line on a terminal's stderr (long logs
+    and first runs take a while); ``compiling`` adds the compile notice to the line."""
+
+    #: Seconds between two redraws for the compile notice alone (numba reports every function it compiles).
+    REDRAW_S = 0.25
+
+    def __init__(self) -> None:
+        self._start = time.perf_counter()
+        self._message = ""
+        self._compile = ""
+        self._drawn = 0.0
+
+    def __call__(self, message: str) -> None:
+        self._message = message
+        self._show()
+
+    def compiling(self, seconds: float, active: bool = True) -> None:
+        """Show (``active``) or drop the compile notice with the seconds compiled so far."""
+        text = f"{COMPILING}: {seconds:.0f} s ..." if active else ""
+        if text != self._compile and (time.perf_counter() - self._drawn >= self.REDRAW_S or not text or
+                                      not self._compile):
+            self._compile = text
+            self._show()
+
+    def _show(self) -> None:
+        text = " | ".join(t for t in (self._message, self._compile) if t)
+        self._drawn = time.perf_counter()
+        click.echo(f"\r\x1b[K[{self._drawn - self._start:6.1f} s] {text}", nl=False, err=True)
+
+    def clear(self) -> None:
+        click.echo("\r\x1b[K", nl=False, err=True)
+
+
+def status_line(quiet: bool) -> StatusLine | None:
+    """A status line when stderr is a terminal and the command is not quiet, else None."""
+    return StatusLine() if not quiet and sys.stderr.isatty() else None
+
+
+@contextmanager
+def compile_notice(status: StatusLine | None = None, *, quiet: bool = False):
+    """Say on stderr when numba starts compiling inside the block: on ``status`` (or a terminal line of its
+    own) with the seconds so far, else one plain line; nothing when ``quiet``."""
+    if quiet:
+        yield
+        return
+    from slamobs.pipeline.compile_clock import compile_watch
+
+    own = status is None and sys.stderr.isatty()
+    line = StatusLine() if own else status
+    said = False
+
+    def on_compile(seconds: float, active: bool) -> None:
+        nonlocal said
+        if line is not None:
+            line.compiling(seconds, active)
+        elif not said:
+            click.echo(f"{COMPILING} ...", err=True)
+        said = True
+
+    try:
+        with compile_watch(on_compile):
+            yield
+    finally:
+        if own and said:
+            line.clear()

@@ -1,0 +1,441 @@
+"""A run's results as an MCAP file with ROS 2 messages, to open beside the log in Foxglove (or play with ros2 bag).
+
+Topics (message definitions embedded, CDR encoding, profile ``ros2``):
+
+* ``/slamobs/pose`` (geometry_msgs/PoseStamped) and ``/tf`` (tf2_msgs/TFMessage): the estimated body pose in
+  the observer's map frame, rows of ``poses.parquet`` at up to ``rate_hz`` per second (default 50: a viewer
+  shows no difference, and writing every row of a 200 Hz hour takes the MCAP library half a minute);
+* ``/slamobs/path`` (nav_msgs/Path): the whole trajectory, thinned, once at the first stamp (latched);
+* ``/slamobs/landmarks`` (visualization_msgs/MarkerArray): the map as estimated so far (from
+  ``landmark_tracks.parquet``) about once a second, and the final map (``landmarks.parquet``) at the end;
+* ``/slamobs/gyro_bias``, ``/slamobs/velocity_bias`` (geometry_msgs/Vector3Stamped, body frame);
+* ``/slamobs/innovation/landmark_<id>`` (geometry_msgs/Vector3Stamped, map frame): ``e_i`` per detection;
+* ``/tf_static``: when the run has a report and the truth's frame is known, the report's SE(3) alignment as
+  the transform from the truth frame to the map frame, so the estimate lies on the log's ground truth.
+
+Frames are prefixed (``slamobs/map``, ``slamobs/<body frame>``) so they never clash with the log's own TF
+tree. High-rate topics are serialised in bulk: one message is serialised by rosbags as a template and the
+changing fields are written into copies of its bytes (every message of such a topic has the same layout).
+The file is written under a temporary name next to the target and renamed into place when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from slamobs.pipeline.errors import InputError
+
+RESULTS_MCAP = "results.mcap"
+MAP_FRAME = "slamobs/map"
+FRAME_PREFIX = "slamobs/"
+TOPIC_POSE = "/slamobs/pose"
+TOPIC_TF = "/tf"
+TOPIC_TF_STATIC = "/tf_static"
+TOPIC_PATH = "/slamobs/path"
+TOPIC_LANDMARKS = "/slamobs/landmarks"
+TOPIC_GYRO_BIAS = "/slamobs/gyro_bias"
+TOPIC_VEL_BIAS = "/slamobs/velocity_bias"
+TOPIC_INNOVATION = "/slamobs/innovation/landmark_{id}"
+#: Poses in the path message (the path is a picture of the trajectory; the pose topic has every row).
+PATH_POINTS = 5000
+#: Seconds between two map messages at most (the map of a long run is sent at most MAX_MAP_MESSAGES times).
+MAP_PERIOD_S = 1.0
+MAX_MAP_MESSAGES = 600
+#: Pose, TF and bias messages per second at most (None or 0: every table row).
+DEFAULT_RATE_HZ = 50.0
+#: Rows serialised and written per block (bounded memory on long runs).
+BLOCK_ROWS = 65_536
+
+_POSE_TYPE = "geometry_msgs/msg/PoseStamped"
+_TF_TYPE = "tf2_msgs/msg/TFMessage"
+_VEC_TYPE = "geometry_msgs/msg/Vector3Stamped"
+_PATH_TYPE = "nav_msgs/msg/Path"
+_MARKERS_TYPE = "visualization_msgs/msg/MarkerArray"
+_NS = 1_000_000_000
+_STAMP = (("header", "stamp", "sec"), ("header", "stamp", "nanosec"))
+
+
+class BulkMessages:
+    """Serialised copies of one template message with some numeric fields replaced, without a message
+    object per row. The byte offset of each field is found by serialising the template twice, the second
+    time with that field's bits inverted: the bytes that differ are the field's."""
+
+    def __init__(self, typestore, msgtype: str, template, fields: dict[tuple, str]) -> None:
+        self.template = np.frombuffer(bytes(typestore.serialize_cdr(template, msgtype)), np.uint8)
+        self.fields: dict[tuple, tuple[int, str]] = {}
+        for path, dtype in fields.items():
+            value = _get(template, path)
+            flipped = (np.array([value], dtype).view(np.uint8) ^ 0xFF).view(dtype)[0].item()
+            _set(template, path, flipped)
+            other = np.frombuffer(bytes(typestore.serialize_cdr(template, msgtype)), np.uint8)
+            _set(template, path, value)
+            size = np.dtype(dtype).itemsize
+            diff = np.flatnonzero(other != self.template)
+            if other.shape != self.template.shape or diff.size != size or diff[-1] - diff[0] != size - 1:
+                raise ValueError(f"{msgtype}: field {'.'.join(map(str, path))} has no fixed place")
+            self.fields[path] = (int(diff[0]), dtype)
+
+    def rows(self, columns: dict[tuple, np.ndarray]) -> np.ndarray:
+        """``(n, size)`` bytes, row ``k`` the template with every field ``path`` set to ``columns[path][k]``."""
+        n = len(next(iter(columns.values())))
+        out = np.empty((n, self.template.shape[0]), np.uint8)
+        out[:] = self.template
+        for path, values in columns.items():
+            offset, dtype = self.fields[path]
+            size = np.dtype(dtype).itemsize
+            out[:, offset : offset + size] = np.ascontiguousarray(values, dtype=dtype).view(np.uint8).reshape(n, size)
+        return out
+
+
+def _payloads(rows: np.ndarray) -> list[bytes]:
+    """The rows of an ``(n, size)`` byte array as ``bytes`` objects, sliced from one copy."""
+    size = rows.shape[1]
+    data = rows.tobytes()
+    return [data[k : k + size] for k in range(0, len(data), size)]
+
+
+def _get(obj, path: tuple):
+    for key in path:
+        obj = obj[key] if isinstance(key, int) else getattr(obj, key)
+    return obj
+
+
+def _set(obj, path: tuple, value) -> None:
+    obj = _get(obj, path[:-1])
+    if isinstance(path[-1], int):
+        obj[path[-1]] = value
+    else:
+        setattr(obj, path[-1], value)
+
+
+def _stamp_fields(prefix: tuple = ()) -> dict[tuple, str]:
+    return {prefix + _STAMP[0]: "<i4", prefix + _STAMP[1]: "<u4"}
+
+
+def _stamp_columns(t_ns: np.ndarray, prefix: tuple = ()) -> dict[tuple, np.ndarray]:
+    return {prefix + _STAMP[0]: t_ns // _NS, prefix + _STAMP[1]: t_ns % _NS}
+
+
+def _vec_fields(prefix: tuple, names: str = "xyz") -> dict[tuple, str]:
+    return {prefix + (a,): "<f8" for a in names}
+
+
+class _Messages:
+    """The rosbags message objects and bulk serialisers of the results file."""
+
+    def __init__(self, body_frame: str) -> None:
+        from rosbags.typesys import Stores, get_typestore
+
+        self.ts = ts = get_typestore(Stores.ROS2_JAZZY)
+        t = ts.types
+        self.t = t
+        self.body_frame = body_frame
+        pose = self.pose_stamped(0, MAP_FRAME, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+        self.pose = BulkMessages(ts, _POSE_TYPE, pose, {**_stamp_fields(), **_vec_fields(("pose", "position")),
+                                                        **_vec_fields(("pose", "orientation"), "xyzw")})
+        tf = t[_TF_TYPE](transforms=[self.transform(0, MAP_FRAME, body_frame, np.zeros(3), np.array([0, 0, 0, 1.0]))])
+        item = ("transforms", 0)
+        self.tf = BulkMessages(ts, _TF_TYPE, tf, {**_stamp_fields(item),
+                                                  **_vec_fields(item + ("transform", "translation")),
+                                                  **_vec_fields(item + ("transform", "rotation"), "xyzw")})
+        self.vec_body = BulkMessages(ts, _VEC_TYPE, self.vector(0, body_frame, np.zeros(3)),
+                                     {**_stamp_fields(), **_vec_fields(("vector",))})
+        self.vec_map = BulkMessages(ts, _VEC_TYPE, self.vector(0, MAP_FRAME, np.zeros(3)),
+                                    {**_stamp_fields(), **_vec_fields(("vector",))})
+
+    def header(self, t_ns: int, frame: str):
+        t = self.t
+        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=int(t_ns // _NS),
+                                                                               nanosec=int(t_ns % _NS)),
+                                        frame_id=frame)
+
+    def pose_msg(self, p: np.ndarray, q: np.ndarray):
+        t = self.t
+        return t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]),
+                                                                                 z=float(p[2])),
+                                           orientation=t["geometry_msgs/msg/Quaternion"](
+                                               x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+
+    def pose_stamped(self, t_ns: int, frame: str, p: np.ndarray, q: np.ndarray):
+        return self.t[_POSE_TYPE](header=self.header(t_ns, frame), pose=self.pose_msg(p, q))
+
+    def transform(self, t_ns: int, parent: str, child: str, p: np.ndarray, q: np.ndarray):
+        t = self.t
+        return t["geometry_msgs/msg/TransformStamped"](
+            header=self.header(t_ns, parent), child_frame_id=child,
+            transform=t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+                rotation=t["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]),
+                                                           w=float(q[3]))))
+
+    def vector(self, t_ns: int, frame: str, v: np.ndarray):
+        t = self.t
+        return t[_VEC_TYPE](header=self.header(t_ns, frame),
+                            vector=t["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2])))
+
+    def serialize(self, msg, msgtype: str) -> bytes:
+        return bytes(self.ts.serialize_cdr(msg, msgtype))
+
+    def path(self, stamp_ns: int, t_ns: np.ndarray, xyz: np.ndarray, quat: np.ndarray) -> bytes:
+        poses = [self.pose_stamped(int(t), MAP_FRAME, p, q) for t, p, q in zip(t_ns, xyz, quat)]
+        msg = self.t[_PATH_TYPE](header=self.header(stamp_ns, MAP_FRAME), poses=poses)
+        return self.serialize(msg, _PATH_TYPE)
+
+    def markers(self, t_ns: int, ids: np.ndarray, xyz: np.ndarray, final: bool) -> bytes:
+        """The map as one sphere list (green while estimating, blue for the final map) and an id label each."""
+        t = self.t
+        marker_t = t["visualization_msgs/msg/Marker"]
+        point = t["geometry_msgs/msg/Point"]
+        color = t["std_msgs/msg/ColorRGBA"]
+        vec3 = t["geometry_msgs/msg/Vector3"]
+        duration = t["builtin_interfaces/msg/Duration"](sec=0, nanosec=0)  # 0: forever
+        rgba = color(r=0.1, g=0.4, b=1.0, a=1.0) if final else color(r=0.1, g=0.8, b=0.2, a=1.0)
+        white = color(r=1.0, g=1.0, b=1.0, a=1.0)
+        ident = self.pose_msg(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
+
+        def marker(ns, mid, kind, pose, scale, col, points=(), text=""):
+            return marker_t(header=self.header(t_ns, MAP_FRAME), ns=ns, id=mid, type=kind, action=0, pose=pose,
+                            scale=scale, color=col, lifetime=duration, frame_locked=False, points=list(points),
+                            colors=[], texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](
+                                header=self.header(0, ""), format="", data=np.zeros(0, np.uint8)),
+                            uv_coordinates=[], text=text, mesh_resource="",
+                            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+                            mesh_use_embedded_materials=False)
+
+        spheres = marker("landmarks", 0, 7, ident, vec3(x=0.2, y=0.2, z=0.2), rgba,  # 7: SPHERE_LIST
+                         points=[point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in xyz])
+        labels = [marker("landmark_ids", int(i), 9, self.pose_msg(p + np.array([0.0, 0.0, 0.25]),  # 9: TEXT
+                                                                  np.array([0.0, 0.0, 0.0, 1.0])),
+                         vec3(x=0.0, y=0.0, z=0.2), white, text=str(int(i)))
+                  for i, p in zip(ids, xyz)]
+        return self.serialize(t[_MARKERS_TYPE](markers=[spheres, *labels]), _MARKERS_TYPE)
+
+
+def _latched_qos() -> str:
+    from slamobs.pipeline.simulate.logwriter import _LATCHED_QOS_YAML
+
+    return _LATCHED_QOS_YAML
+
+
+def _read(run_dir: Path, name: str):
+    from slamobs.pipeline.writers import read_frame
+
+    path = run_dir / f"{name}.parquet"
+    return read_frame(path) if path.is_file() else None
+
+
+def _every(t_ns: np.ndarray, rate_hz: float | None) -> np.ndarray:
+    """Rows kept for at most ``rate_hz`` messages per second (the median spacing decides; the last row too)."""
+    n = t_ns.shape[0]
+    if not rate_hz or n < 2:
+        return np.arange(n)
+    step = max(1, int(round(1e9 / rate_hz / max(float(np.median(np.diff(t_ns))), 1.0))))
+    keep = np.arange(0, n, step)
+    return keep if keep[-1] == n - 1 else np.append(keep, n - 1)
+
+
+def _map_updates(tracks, t_end: int) -> list[tuple[int, np.ndarray, np.ndarray]]:
+    """``(t_ns, ids, xyz)``: each landmark's latest estimate at about every MAP_PERIOD_S (only when the map
+    changed), from the per-detection tracks."""
+    if tracks is None or len(tracks) == 0:
+        return []
+    t = tracks["t_ns"].to_numpy(np.int64)
+    order = np.argsort(t, kind="stable")
+    t = t[order]
+    ids, idx = np.unique(tracks["id"].to_numpy(np.int64)[order], return_inverse=True)
+    xyz = tracks[["x", "y", "z"]].to_numpy(np.float64)[order]
+    latest = np.zeros((ids.shape[0], 3))
+    seen = np.zeros(ids.shape[0], bool)
+    period = max(int(MAP_PERIOD_S * _NS), (int(t_end) - int(t[0])) // MAX_MAP_MESSAGES + 1)
+    marks = np.arange(int(t[0]) + period, max(int(t_end), int(t[-1])) + period, period)
+    ends = np.searchsorted(t, marks, side="right")
+    out, done = [], 0
+    for mark, end in zip(marks, ends):
+        if end == done:
+            continue
+        part, last = np.unique(idx[done:end][::-1], return_index=True)  # latest row of each landmark
+        latest[part] = xyz[end - 1 - last]
+        seen[part] = True
+        out.append((int(min(mark, max(t_end, t[end - 1]))), ids[seen], latest[seen].copy()))
+        done = end
+    return out
+
+
+def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | None = None, report: dict | None = None,
+                       rate_hz: float | None = DEFAULT_RATE_HZ, force: bool = True) -> Path:
+    """Write the results of the run directory ``run_dir`` to the MCAP file ``out`` (atomically).
+
+    ``meta`` and ``report`` default to the run's ``run.json`` and ``report.json``; ``rate_hz`` caps the pose,
+    TF and bias messages per second (None or 0: one per table row). An existing ``out`` is replaced only with
+    ``force``.
+    """
+    run_dir, out = Path(run_dir), Path(out)
+    if meta is None:
+        if not (run_dir / "run.json").is_file():
+            raise InputError(run_dir, "not a run directory (no run.json)")
+        meta = json.loads((run_dir / "run.json").read_text())
+    if report is None and (run_dir / "report.json").is_file():
+        report = json.loads((run_dir / "report.json").read_text())
+    if not (run_dir / "poses.parquet").is_file():
+        raise InputError(run_dir, "run directory has no poses.parquet")
+    if out.exists() and not force:
+        raise InputError(out, "exists already (use --force to replace it)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    tmp = Path(tmp_name)
+    try:
+        with os.fdopen(fd, "wb") as stream:
+            _write(stream, run_dir, meta, report, rate_hz)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; the results file is ordinary output
+        os.replace(tmp, out)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return out
+
+
+def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: float | None) -> None:
+    from mcap.writer import CompressionType, Writer
+
+    import slamobs
+
+    body = FRAME_PREFIX + str((meta.get("input") or {}).get("body_frame") or "base_link").lstrip("/")
+    msgs = _Messages(body)
+    writer = Writer(stream, compression=CompressionType.ZSTD)
+    writer.start(profile="ros2", library=f"slamobs {slamobs.__version__}")
+    schemas: dict[str, int] = {}
+
+    def channel(topic: str, msgtype: str, latched: bool = False) -> int:
+        if msgtype not in schemas:
+            msgdef, _ = msgs.ts.generate_msgdef(msgtype, ros_version=2)
+            schemas[msgtype] = writer.register_schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
+        return writer.register_channel(topic=topic, message_encoding="cdr", schema_id=schemas[msgtype],
+                                       metadata={"offered_qos_profiles": _latched_qos() if latched else ""})
+
+    seq: dict[int, int] = {}
+
+    def add(chan: int, t_ns: int, data: bytes) -> None:
+        n = seq.get(chan, 0)
+        writer.add_message(chan, log_time=t_ns, data=data, publish_time=t_ns, sequence=n)
+        seq[chan] = n + 1
+
+    poses = _read(run_dir, "poses")
+    t_pose = poses["t_ns"].to_numpy(np.int64)
+    keep = _every(t_pose, rate_hz)
+    t0, t_end = (int(t_pose[0]), int(t_pose[-1])) if len(t_pose) else (0, 0)
+    ch_pose, ch_tf = channel(TOPIC_POSE, _POSE_TYPE), channel(TOPIC_TF, _TF_TYPE)
+
+    innov = _read(run_dir, "innovations")
+    t_i = innov["t_ns"].to_numpy(np.int64) if innov is not None else np.zeros(0, np.int64)
+    t0 = min(t0, int(t_i[0])) if t_i.size else t0  # detections may come before the first velocity sample
+
+    # latched: the alignment onto the truth frame, the path
+    static = _alignment_transform(msgs, meta, report, t0, body)
+    if static is not None:
+        add(channel(TOPIC_TF_STATIC, _TF_TYPE, latched=True), t0, static)
+    if len(t_pose):
+        rows = np.unique(np.linspace(0, len(t_pose) - 1, min(PATH_POINTS, len(t_pose))).astype(np.int64))
+        add(channel(TOPIC_PATH, _PATH_TYPE, latched=True), t0,
+            msgs.path(t0, t_pose[rows], poses[["x", "y", "z"]].to_numpy()[rows],
+                      poses[["qx", "qy", "qz", "qw"]].to_numpy()[rows]))
+
+    # per-row topics, written block by block in time order with the detection-rate ones
+    streams: list[tuple[np.ndarray, np.ndarray, BulkMessages | None, np.ndarray | None]] = []  # t, chan, bulk, rows
+    xyz_p, quat_p = poses[["x", "y", "z"]].to_numpy(np.float64), poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)
+    del poses
+    biases = _read(run_dir, "biases")
+    ch_gyro = channel(TOPIC_GYRO_BIAS, _VEC_TYPE) if biases is not None else None
+    ch_vel = channel(TOPIC_VEL_BIAS, _VEC_TYPE) if biases is not None else None
+    inn_chan = {}
+    if innov is not None and len(innov):
+        for i in np.unique(innov["id"].to_numpy(np.int64)):
+            inn_chan[int(i)] = channel(TOPIC_INNOVATION.format(id=int(i)), _VEC_TYPE)
+    ch_map = channel(TOPIC_LANDMARKS, _MARKERS_TYPE)
+    updates = _map_updates(_read(run_dir, "landmark_tracks"), t_end)
+    landmarks = _read(run_dir, "landmarks")
+
+    t_b = biases["t_ns"].to_numpy(np.int64) if biases is not None else np.zeros(0, np.int64)
+    keep_b = _every(t_b, rate_hz)
+    t_u = np.array([u[0] for u in updates], np.int64)
+    # blocks of pose rows; every other topic's messages up to the block's last stamp go with it
+    bounds = [int(t_pose[keep[min(k + BLOCK_ROWS, len(keep)) - 1]]) for k in range(0, len(keep), BLOCK_ROWS)]
+    bounds[-1:] = [np.iinfo(np.int64).max]  # the last block takes everything left
+    pos = {"p": 0, "b": 0, "i": 0, "u": 0}
+    for bound in bounds:
+        items: list[tuple[np.ndarray, np.ndarray, list]] = []  # (times, order key, payload getters)
+        sp = pos["p"] + int(np.searchsorted(t_pose[keep[pos["p"]:]], bound, side="right"))
+        rows = keep[pos["p"]:sp]
+        pos["p"] = sp
+        sb = pos["b"] + int(np.searchsorted(t_b[keep_b[pos["b"]:]], bound, side="right"))
+        rows_b = keep_b[pos["b"]:sb]
+        pos["b"] = sb
+        si = pos["i"] + int(np.searchsorted(t_i[pos["i"]:], bound, side="right")) if innov is not None else 0
+        rows_i = np.arange(pos["i"], si)
+        pos["i"] = si
+        su = pos["u"] + int(np.searchsorted(t_u[pos["u"]:], bound, side="right"))
+        rows_u = np.arange(pos["u"], su)
+        pos["u"] = su
+
+        out_t, out_c, out_d = [], [], []
+        if rows.size:
+            t = t_pose[rows]
+            cols = {**_stamp_columns(t), **{("pose", "position", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
+                    **{("pose", "orientation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
+            out_t += [t, t]
+            out_c += [np.full(t.shape, ch_pose), np.full(t.shape, ch_tf)]
+            item = ("transforms", 0)
+            tf_cols = {**_stamp_columns(t, item),
+                       **{item + ("transform", "translation", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
+                       **{item + ("transform", "rotation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
+            out_d += [_payloads(msgs.pose.rows(cols)), _payloads(msgs.tf.rows(tf_cols))]
+        if rows_b.size:
+            t = t_b[rows_b]
+            for ch, prefix in ((ch_gyro, "gyro_bias_"), (ch_vel, "vel_bias_")):
+                cols = {**_stamp_columns(t),
+                        **{("vector", a): biases[prefix + a].to_numpy(np.float64)[rows_b] for a in "xyz"}}
+                out_t.append(t)
+                out_c.append(np.full(t.shape, ch))
+                out_d.append(_payloads(msgs.vec_body.rows(cols)))
+        if rows_i.size:
+            t = t_i[rows_i]
+            cols = {**_stamp_columns(t), **{("vector", a): innov["e" + a].to_numpy(np.float64)[rows_i] for a in "xyz"}}
+            out_t.append(t)
+            out_c.append(np.array([inn_chan[int(i)] for i in innov["id"].to_numpy(np.int64)[rows_i]]))
+            out_d.append(_payloads(msgs.vec_map.rows(cols)))
+        if rows_u.size:
+            t = t_u[rows_u]
+            out_t.append(t)
+            out_c.append(np.full(t.shape, ch_map))
+            out_d.append([msgs.markers(*updates[k], final=False) for k in rows_u])
+        if not out_t:
+            continue
+        t_all = np.concatenate(out_t)
+        c_all = np.concatenate(out_c)
+        d_all = [d for part in out_d for d in part]
+        order = np.lexsort((c_all, t_all))
+        for t, c, k in zip(t_all[order].tolist(), c_all[order].tolist(), order.tolist()):  # plain ints: fast
+            add(c, t, d_all[k])
+    if landmarks is not None and len(landmarks):
+        t_end = max([t_end] + [int(t[-1]) for t in (t_i, t_u) if t.size])  # after every other message
+        add(ch_map, t_end, msgs.markers(t_end, landmarks["id"].to_numpy(np.int64),
+                                        landmarks[["x", "y", "z"]].to_numpy(np.float64), final=True))
+    writer.finish()
+
+
+def _alignment_transform(msgs: _Messages, meta: dict, report: dict | None, t0: int, body: str) -> bytes | None:
+    """The report's alignment (estimate -> truth frame) as a static transform truth frame -> map frame, when it
+    is rigid (scale 1) and the truth's frame is known."""
+    truth_frame = (meta.get("input") or {}).get("truth_frame")
+    al = ((report or {}).get("method") or {}).get("alignment")
+    if not truth_frame or not al or abs(float(al.get("scale", 1.0)) - 1.0) > 1e-12:
+        return None
+    q = np.asarray(al["rotation_quat_xyzw"], float)
+    tf = msgs.transform(t0, truth_frame.lstrip("/"), MAP_FRAME, np.asarray(al["translation_m"], float), q)
+    return msgs.serialize(msgs.t[_TF_TYPE](transforms=[tf]), _TF_TYPE)

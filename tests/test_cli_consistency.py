@@ -1,0 +1,116 @@
+"""One way to spell things across the commands: -o/--out, -q/--quiet, underscore aliases, --msg-dir, no
+internal names in what a user reads, and the compile notice on stderr."""
+
+from __future__ import annotations
+
+import re
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from slamobs.cli.main import main
+
+COMMANDS = ("run", "compare", "report", "evaluate", "export", "simulate", "batch", "info", "observers")
+INTERNAL = re.compile(r"spec/|spec §|§|seed \d{3}|paper-[A-Z]|100 Hz set|shared/")
+
+
+def invoke(*args, **kwargs):
+    return CliRunner().invoke(main, [str(a) for a in args], **kwargs)
+
+
+def help_text(command: str) -> str:
+    res = invoke(command, "--help")
+    assert res.exit_code == 0, res.output
+    return res.output
+
+
+def test_help_spells_options_one_way_and_names_nothing_internal():
+    texts = {c: help_text(c) for c in COMMANDS}
+    for c in ("run", "compare", "simulate", "batch"):
+        assert "-o, --out" in texts[c], c
+    for c in ("run", "compare", "report", "evaluate", "export", "simulate", "batch"):
+        assert "-q, --quiet" in texts[c], c
+    for c in ("run", "compare", "batch", "info"):
+        assert "--msg-dir" in texts[c], c
+    assert "--align-seconds, --align_seconds" in texts["evaluate"]
+    everything = "\n".join(texts.values()) + invoke("--help").output + invoke("observers").output
+    assert "--silent" not in everything and "--output" not in everything  # old spellings hidden
+    assert not INTERNAL.findall(everything)
+    assert "se3-aligned" not in everything.lower()
+
+
+def test_old_spellings_still_work(tmp_path):
+    out = tmp_path / "short.mcap"
+    res = invoke("simulate", "circle", "--output", out, "--duration", "1", "--quiet")
+    assert res.exit_code == 0 and res.output == "" and out.is_file()
+    t = np.arange(50) * 0.1
+    rows = np.column_stack([t, np.cos(t), np.sin(t), np.zeros((50, 4)), np.ones(50)])  # t x y z qx qy qz qw
+    np.savetxt(tmp_path / "a.txt", rows, fmt="%.9f")
+    np.savetxt(tmp_path / "b.txt", rows + [0, 1, 0, 0, 0, 0, 0, 0], fmt="%.9f")
+    loud = invoke("evaluate", tmp_path / "a.txt", tmp_path / "b.txt", "-a", "--align_seconds", "2")
+    assert loud.exit_code == 0 and "rmse" in loud.output
+    for flag in ("--silent", "-q"):
+        res = invoke("evaluate", tmp_path / "a.txt", tmp_path / "b.txt", "-a", flag)
+        assert res.exit_code == 0 and res.output == ""
+
+
+def test_batch_hands_msg_dir_to_the_runs(tmp_path, monkeypatch):
+    import slamobs.pipeline.batch as batch
+
+    seen = {}
+
+    def fake_run_batch(entries, options, **kwargs):
+        seen["msg_dir"] = options.config.msg_dir
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(batch, "run_batch", fake_run_batch)
+    log = tmp_path / "a.mcap"
+    log.write_bytes(b"")
+    msgs = tmp_path / "msgs"
+    msgs.mkdir()
+    res = invoke("batch", log, "-o", tmp_path / "out", "--msg-dir", msgs)
+    assert res.exit_code == 130 and seen["msg_dir"] == str(msgs.resolve())
+
+
+def test_compile_notice_with_and_without_a_terminal(capsys):
+    from numba import njit
+
+    from slamobs.cli.progress import COMPILING, compile_notice
+
+    def fresh():  # a kernel nobody has compiled: this process compiles it now
+        @njit(cache=False)
+        def twice(x):
+            return 2.0 * x
+
+        return twice
+
+    with compile_notice():
+        assert fresh()(2.0) == 4.0
+    assert capsys.readouterr().err == f"{COMPILING} ...\n"  # stderr is no terminal here: one plain line
+
+    class Line:
+        def __init__(self):
+            self.calls = []
+
+        def compiling(self, seconds, active):
+            self.calls.append((seconds, active))
+
+    line = Line()
+    with compile_notice(line):
+        fresh()(1.0)
+    assert line.calls and line.calls[0][1] is True and line.calls[-1][1] is False
+    assert all(s >= 0 for s, _ in line.calls) and capsys.readouterr().err == ""
+    with compile_notice(quiet=True):
+        fresh()(1.0)
+    with compile_notice():
+        pass  # nothing compiled: nothing said
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("kinds", ["tum,evo,mcap", "none"])
+def test_export_option_parses_lists(kinds, tmp_path):
+    res = invoke("run", tmp_path / "missing.mcap", "-o", tmp_path / "out", "--export", kinds)
+    assert res.exit_code == 2 and "missing.mcap" in res.stderr  # parsed: the log is the problem
+    res = invoke("run", tmp_path / "missing.mcap", "-o", tmp_path / "out", "--export", "tum,ply")
+    assert res.exit_code == 2 and "ply" in res.output
