@@ -355,3 +355,59 @@ def test_image_containers_agree(camera_logs):
     shown, found = pairs(cam.t_ns, cam.offsets, cam.ids), pairs(a[0].t_ns, a[0].offsets, a[0].ids)
     assert {i for _, i in found} <= set(get_scenario("figure8").landmark_ids.tolist())
     assert len(found & shown) >= 0.8 * len(shown)
+
+
+def test_foxglove_images_with_a_ros_camera_file(tmp_path):
+    """Foxglove's CompressedImage (ros2msg schema in MCAP) has no header: stamp and frame are its own fields. Its
+    camera comes from a ROS camera_info YAML whose camera_name is the image's frame id."""
+    from rosbags.typesys import get_types_from_msg
+
+    from slamobs.pipeline.simulate import make_typestore
+    from slamobs.pipeline.simulate.logwriter import write_raw_log
+    from slamobs.pipeline.vision import opencv
+
+    cv2 = opencv()
+    ts = make_typestore(ros1=False)
+    ts.register(get_types_from_msg("builtin_interfaces/Time timestamp\nstring frame_id\nuint8[] data\nstring format\n",
+                                   "foxglove_msgs/msg/CompressedImage"))
+    cam = CameraSim(output="images", distortion="none")
+    where = np.array([0.3, -0.2, 4.0])
+    img = TagRenderer(cam, where[None], FACING[None], np.array([7])).render(np.eye(3), np.zeros(3),
+                                                                           np.random.default_rng(0))
+    jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].ravel()
+    types = ts.types
+    msgs = []
+    for k in range(3):
+        ns = 1_700_000_000_000_000_000 + k * 100_000_000
+        msg = types["foxglove_msgs/msg/CompressedImage"](
+            timestamp=types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="front",
+            data=jpeg, format="jpeg")
+        msgs.append((ns, bytes(ts.serialize_cdr(msg, "foxglove_msgs/msg/CompressedImage"))))
+    log = write_raw_log(tmp_path / "fox.mcap", "mcap", {"/front/image": msgs}, "foxglove_msgs/msg/CompressedImage", ts)
+    k = cam.k
+    (tmp_path / "front.yaml").write_text(
+        f"camera_name: front\nimage_width: {cam.width}\nimage_height: {cam.height}\n"
+        f"camera_matrix: {{rows: 3, cols: 3, data: [{k[0, 0]}, 0, {k[0, 2]}, 0, {k[1, 1]}, {k[1, 2]}, 0, 0, 1]}}\n"
+        "distortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+    streams = read_log(log)
+    (corners,) = streams.tag_corners
+    assert corners.frame_id == "front" and corners.ids.tolist() == [7, 7, 7]
+    assert corners.t_ns.tolist() == [m[0] for m in msgs]
+    tags = tag_landmarks(streams, TagOptions(size=cam.tag_size), camera_files=[tmp_path / "front.yaml"],
+                         identity_frames=("front",))
+    np.testing.assert_allclose(tags.detections.xyz, np.tile(where, (3, 1)), atol=0.02)
+
+
+def test_camera_sample_log_runs_with_its_config(tmp_path):
+    from click.testing import CliRunner
+
+    from slamobs.cli.main import main
+
+    samples = Path(__file__).resolve().parents[1] / "sample_logs"
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["run", str(samples / "figure8_camera.mcap"), "-o", str(out), "--config",
+                                    str(samples / "figure8_camera.yaml"), "-q"], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["ape"]["translation_m"]["rmse"] < 0.6
+    assert len(pd.read_parquet(out / "tag_detections.parquet")) > 100

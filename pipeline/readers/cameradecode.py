@@ -94,7 +94,7 @@ def to_opencv_order(corners: np.ndarray, order: tuple[int, ...]) -> tuple[np.nda
     return out, int(np.count_nonzero(mirrored))
 
 
-class _Frames2:
+class _CornerFrames:
     """Detection frames as they are decoded (corner rows)."""
 
     def __init__(self) -> None:
@@ -126,7 +126,7 @@ def decode_corners(reader: AnyReader, path: str | Path, topic: str,
     """A tag corner topic (``CORNER_LAYOUTS``) as a corner stream in OpenCV's corner order, cleaned."""
     msgtype = next(iter(connections)).msgtype
     layout = CORNER_LAYOUTS[msgtype]
-    frames, acc = _Frames(), _Frames2()
+    frames, acc = _Frames(), _CornerFrames()
     mirrored = 0
     with _layout_errors(path, connections):
         for rec, msg in _messages(reader, path, connections):
@@ -186,14 +186,14 @@ class _Camera:
     period_ns: int
     last_ns: int | None = None
     frames: _Frames | None = None
-    acc: _Frames2 | None = None
+    acc: _CornerFrames | None = None
     size: tuple[int, int] | None = None
     skipped: int = 0
     bad: Counter | None = None
     depth: bool = False
 
     def __post_init__(self) -> None:
-        self.frames, self.acc, self.bad = _Frames(), _Frames2(), Counter()
+        self.frames, self.acc, self.bad = _Frames(), _CornerFrames(), Counter()
 
 
 def detect_in_images(

@@ -10,9 +10,9 @@ Corners: OpenCV's sub-pixel refinement looks for saddle points and pulls the cor
 inwards (a range error of 1-3 %); its AprilTag refinement is exact but runs AprilTag's quad detector over the
 whole image (about ten times slower). So the detector runs without refinement, and :func:`refine_corners` fits
 each side of every tag instead: along the coarse side it finds the steepest point of the intensity profile
-across the edge (sub-pixel, parabola through the gradient peak), fits a line to those points, and intersects
+across the edge (sub-pixel), fits a line to those points, and intersects
 adjacent lines (only falls from bright to dark going inwards count, so the edges of the data cells next to
-the border are not taken for it). Unbiased for blur that is the same on both sides of an edge, and cheap (one
+the border are not taken for it; the edge point is the centroid of the gradient within 1.5 px of its peak). Unbiased for blur that is the same on both sides of an edge, and cheap (one
 ``cv2.remap`` for all tags of an image).
 
 Speed and settings: OpenCV's defaults otherwise (``benchmarks/tag_detection.py`` measures frames per second at
@@ -127,15 +127,19 @@ def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
     # OpenCV's order runs clockwise in the image, so ``normal`` points into the tag: across the outer edge the
     # profile falls from the white margin to the black border (the edges inside the tag rise or fall both ways)
     grad = np.maximum(-np.diff(prof, axis=-1), 0.0)  # between samples j and j + 1
-    j = np.clip(np.argmax(grad, axis=-1), 1, grad.shape[-1] - 2)
-    g0 = np.take_along_axis(grad, (j - 1)[..., None], -1)[..., 0]
-    g1 = np.take_along_axis(grad, j[..., None], -1)[..., 0]
-    g2 = np.take_along_axis(grad, (j + 1)[..., None], -1)[..., 0]
-    den = g0 - 2.0 * g1 + g2
-    frac = np.where(den < 0, 0.5 * (g0 - g2) / np.where(den < 0, den, -1.0), 0.0)
-    d = offs[0] + (j + 0.5 + np.clip(frac, -0.5, 0.5)) * EDGE_STEP_PX  # edge offset along the normal
+    # the edge: centroid of the gradient within 1.5 px of its peak (a parabola through the peak is biased by
+    # up to half a pixel on sharp edges, whose bilinearly sampled gradient is two flat steps 2 px wide)
+    n_g = grad.shape[-1]
+    j = np.argmax(grad, axis=-1)
+    half = int(round(1.5 / EDGE_STEP_PX))
+    win = np.arange(-half, half + 1)
+    idx = np.clip(j[..., None] + win, 0, n_g - 1)
+    g = np.take_along_axis(grad, idx, -1) * ((j[..., None] + win >= 0) & (j[..., None] + win < n_g))
+    pos = offs[0] + (idx + 0.5) * EDGE_STEP_PX
+    g1 = g.sum(axis=-1)
+    d = (g * pos).sum(axis=-1) / np.maximum(g1, 1e-12)  # edge offset along the normal
     edge = base + d[..., None] * normal[:, :, None, :]  # (K, 4, m, 2)
-    w = g1 / np.maximum(g1.max(axis=-1, keepdims=True), 1e-9)
+    w = g1 / np.maximum(g1.max(axis=-1, keepdims=True), 1e-9)  # edge strength, relative to the side's strongest
     w = np.where(w > 0.3, w, 0.0)  # weak gradients: another edge, or none
     # weighted total-least-squares line per side: centroid and direction
     ws = np.maximum(w.sum(axis=-1, keepdims=True), 1e-9)
