@@ -17,7 +17,7 @@ from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.lie import quat_to_rot, so3_exp
 from slamobs.pipeline.readers import read_log
-from slamobs.pipeline.readers.cameradecode import to_opencv_order, winding
+from slamobs.pipeline.readers.cameradecode import to_opencv_order
 from slamobs.pipeline.run import run_log
 from slamobs.pipeline.simulate import simulation, write_log
 from slamobs.pipeline.simulate.camera import CameraSim, TagRenderer, tag_views
@@ -26,7 +26,8 @@ from slamobs.pipeline.streams import CornerStream, LogStreams, Transform, Vec3St
 from slamobs.pipeline.vision.cameras import CameraModel, read_camera_files
 from slamobs.pipeline.vision.detector import TagDetector, family_constant
 from slamobs.pipeline.vision.landmarks import TagOptions, tag_landmarks
-from slamobs.pipeline.vision.tagpose import AMBIGUOUS, GRAZING, OK, REPROJECTION, TOO_SMALL, TagQuality, solve_tags
+from slamobs.pipeline.vision.tagpose import (AMBIGUOUS, GRAZING, OK, REPROJECTION, TOO_SMALL, TagQuality, solve_tags,
+                                             winding)
 
 FACING = np.diag([1.0, -1.0, -1.0])  # tag x right, y up, z towards a camera looking along +z
 
@@ -330,12 +331,12 @@ def test_corner_and_image_logs_end_to_end(camera_logs, tmp_path):
         summary = run_log(camera_logs[kind], tmp_path / kind, cfg)
         out = tmp_path / kind
         table = pd.read_parquet(out / "tag_detections.parquet")
-        assert (table["status"] == "ok").mean() > 0.8 and set(table["camera"]) == {table["camera"].iloc[0]}
+        assert (table["status"] == "ok").mean() > 0.6 and set(table["camera"]) == {table["camera"].iloc[0]}
         assert summary.metadata["input"]["cameras"]  # which model, from where
         results[kind] = _truth_map_error(out)
     ape_c, map_c = results["corners"]
     ape_i, map_i = results["images"]
-    # 20 s from a cold start: the observer has converged to decimetres; dead reckoning alone drifts metres
+    # 20 s from a cold start (a 320x240 camera for the images): the observer is within decimetres
     assert ape_c < 0.5 and map_c < 0.5 and ape_i < 0.8 and map_i < 0.8
 
 

@@ -22,13 +22,14 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import CornerStream
+from slamobs.pipeline.vision.tagpose import winding
 
 from .container import iter_raw, require_definitions
 from .decode import Cleaning, _Frames, _layout_errors, _messages, clean_frames, plural
 from .roles import IMAGE
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Collection, Iterator, Mapping
+    from collections.abc import Callable, Collection, Mapping
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -77,12 +78,6 @@ def _stamp(msg: Any) -> int:
 
 def _frame(msg: Any) -> str:
     return str(msg.header.frame_id if hasattr(msg, "header") else msg.frame_id)
-
-
-def winding(corners: np.ndarray) -> np.ndarray:
-    """Twice the signed area of each quadrilateral (M, 4, 2): positive for OpenCV's order in image coordinates."""
-    x, y = corners[..., 0], corners[..., 1]
-    return np.sum(x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y, axis=-1)
 
 
 def to_opencv_order(corners: np.ndarray, order: tuple[int, ...]) -> tuple[np.ndarray, int]:

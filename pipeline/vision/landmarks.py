@@ -30,8 +30,8 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import CornerStream, DetectionStream, LogStreams, Transform
-from slamobs.pipeline.vision.cameras import CameraFiles, CameraModel, RigTransform, read_camera_files
-from slamobs.pipeline.vision.tagpose import OK, REASONS, TagQuality, solve_tags
+from slamobs.pipeline.vision.cameras import CameraFiles, CameraModel, read_camera_files
+from slamobs.pipeline.vision.tagpose import REASONS, TagQuality, solve_tags, winding
 
 
 @dataclass(frozen=True)
@@ -137,8 +137,6 @@ def _sizes(ids: np.ndarray, options: TagOptions, topic: str, path: str) -> np.nd
 
 
 def _area(corners: np.ndarray) -> np.ndarray:
-    from slamobs.pipeline.readers.cameradecode import winding
-
     return 0.5 * np.abs(winding(corners))
 
 

@@ -72,6 +72,12 @@ class TagPoses:
         return self.status == OK
 
 
+def winding(corners: np.ndarray) -> np.ndarray:
+    """Twice the signed area of each quadrilateral (M, 4, 2): positive for OpenCV's order in image coordinates."""
+    x, y = corners[..., 0], corners[..., 1]
+    return np.sum(x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y, axis=-1)
+
+
 def model_corners(size: float) -> np.ndarray:
     """The tag's corners in its own frame, in the order ``SOLVEPNP_IPPE_SQUARE`` requires."""
     h = 0.5 * size
