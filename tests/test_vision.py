@@ -412,3 +412,33 @@ def test_camera_sample_log_runs_with_its_config(tmp_path):
     report = json.loads((out / "report.json").read_text())
     assert report["ape"]["translation_m"]["rmse"] < 0.6
     assert len(pd.read_parquet(out / "tag_detections.parquet")) > 100
+
+
+def test_raw_image_encodings_and_a_raw_image_bag(tmp_path):
+    from slamobs.pipeline.vision import opencv
+    from slamobs.pipeline.vision.detector import ImageError, is_depth, raw_to_gray
+
+    cv2 = opencv()
+    gray = np.random.default_rng(2).integers(0, 256, (6, 8)).astype(np.uint8)
+    bgr = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
+    padded = np.zeros((6, 10), np.uint8)  # rows padded to a step of 10 bytes
+    padded[:, :8] = gray
+    cases = {"mono8": (padded, 10), "bgr8": (bgr, 24), "rgb8": (bgr[..., ::-1].copy(), 24),
+             "bgra8": (cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA), 32)}
+    for encoding, (data, step) in cases.items():
+        np.testing.assert_array_equal(raw_to_gray(6, 8, encoding, step, False, data.tobytes()), gray)
+    mono16 = (gray.astype(np.uint16) * 257).astype(">u2")
+    np.testing.assert_allclose(raw_to_gray(6, 8, "mono16", 16, True, mono16.tobytes()), gray, atol=1)
+    with pytest.raises(ImageError, match="too short"):
+        raw_to_gray(6, 8, "mono8", 8, False, gray.tobytes()[:-1])
+    with pytest.raises(ImageError, match="'32SC4' is not supported"):
+        raw_to_gray(6, 8, "32SC4", 128, False, bytes(6 * 128))
+    assert is_depth("16UC1", "/camera/depth/image_raw") and not is_depth("mono16", "/ir/image")
+    # raw mono8 sensor_msgs/Image in a ROS1 bag
+    sim = simulation("figure8", duration=1.0, detection_rate=5.0,
+                     camera=CameraSim(output="images", width=320, height=240, fov_h_deg=60.0, tag_size=0.8,
+                                      jpeg_quality=None))
+    (stream,) = read_log(write_log(sim, tmp_path / "raw.bag")).tag_corners
+    cam = sim.whole().camera
+    assert stream.topic == "/camera/image_raw" and len(stream) == 5
+    assert set(stream.ids.tolist()) >= set(cam.ids.tolist())
