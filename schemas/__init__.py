@@ -11,8 +11,8 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
-#: Tables only some observers write.
-OPTIONAL_TABLES = ("jumps",)
+#: Tables only some runs write (hybrid observer; tag corner and image logs).
+OPTIONAL_TABLES = ("jumps", "tag_detections")
 
 
 @cache

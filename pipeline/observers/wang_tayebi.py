@@ -45,6 +45,7 @@ from slamobs.pipeline.observers.base import (
 )
 from slamobs.pipeline.observers.shared_steps import (
     count_capped,
+    landmark_weight,
     load_frame,
     predict_points,
     record_row,
@@ -181,7 +182,7 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
             s0 += e0
             s1 += e1
             s2 += e2
-            step = h * k_x * k_l
+            step = h * k_x * k_l * landmark_weight(lm, i)
             lm[i, 0] -= step * e0
             lm[i, 1] -= step * e1
             lm[i, 2] -= step * e2
