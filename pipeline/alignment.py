@@ -226,6 +226,12 @@ def _resample(fr: _Frame, stream: Vec3Stream | None, t_base: np.ndarray) -> np.n
     return None if res is None else res.rows()
 
 
+def body_frame_name(linear_velocity: Vec3Stream | None, body_frame: str | None = None) -> str:
+    """The body frame: ``body_frame`` if given, else the frame of the linear velocity (odometry child frame)."""
+    frame = body_frame or (linear_velocity.frame_id if linear_velocity is not None else "") or "base_link"
+    return frame.lstrip("/")
+
+
 def align(
     streams: LogStreams,
     *,
@@ -252,7 +258,7 @@ def align(
     om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
     lv: Vec3Stream = _require(streams, "linear_velocity", "body linear velocity (nav_msgs/Odometry or TwistStamped)")
     det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
-    body = (body_frame or lv.frame_id or "base_link").lstrip("/")
+    body = body_frame_name(lv, body_frame)
     ident = {f.lstrip("/") for f in identity_frames}
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
@@ -459,6 +465,30 @@ def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return np.column_stack([t_om[starts - 1], t_om[starts]]) if starts.size else np.zeros((0, 2), np.int64)
 
 
+def _camera_rows(fr: _Frame, det: DetectionStream, t_det: np.ndarray,
+                 frame_of: np.ndarray) -> tuple[_Extrinsic, np.ndarray | None]:
+    """Camera -> body transform of every detection row of a several-camera stream, and which rows have one (a
+    camera on /tf outside its span: None when every row does)."""
+    m = det.ids.shape[0]
+    rot, trans, ok = np.empty((m, 3, 3)), np.empty((m, 3)), np.ones(m, bool)
+    camera_of = np.asarray(det.camera_of)
+    dynamic = False
+    for c, frame in enumerate(det.cameras):
+        rows = np.flatnonzero(camera_of == c)
+        ext = fr.to_body(frame, det.topic, t_det)
+        if ext.rot.ndim == 2:
+            rot[rows], trans[rows] = ext.rot, ext.trans
+            continue
+        f = frame_of[rows]
+        rot[rows], trans[rows] = ext.rot[f], ext.trans[f]
+        if ext.valid is not None:
+            ok[rows] = ext.valid[f]
+            dynamic = True
+    if dynamic and (n_tf := int(np.count_nonzero(~ok))):
+        fr.notes.append(f"{det.topic}: {n_tf} detections outside the /tf span of their camera dropped")
+    return _Extrinsic(rot, trans), (ok if dynamic else None)
+
+
 def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: dict | None = None,
                 gaps: np.ndarray | None = None):
     """Detection frames inside ``[lo, hi]`` and outside the velocity ``gaps`` in time order, in the body frame,
@@ -483,13 +513,22 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
         if n_gap := int(np.count_nonzero(in_span & in_gap)):
             notes.append(f"{det.topic}: {n_gap} detection frames inside velocity gaps (between segments) dropped")
             in_span &= ~in_gap
-    cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
-    if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
-        notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
-        in_span &= cam_ext.valid
+    if det.cameras:  # several cameras: one transform per detection row
+        cam_ext, row_ok = _camera_rows(fr, det, t_det, frame_of)
+        keep_rows = in_span[frame_of] if row_ok is None else in_span[frame_of] & row_ok
+        row_of = np.arange(det.ids.shape[0])  # rows of the per-row transforms
+    else:
+        cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
+        if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
+            notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
+            in_span &= cam_ext.valid
+        keep_rows, row_of = None, frame_of
     frames = order[in_span[order]]
     del order
-    sel = None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)  # None: every row
+    if keep_rows is None:
+        sel = None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)  # None: every row
+    else:
+        sel = None if bool(keep_rows.all()) else np.flatnonzero(keep_rows).astype(np.int64)
     # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
     n_sel = det.ids.shape[0] if sel is None else sel.size
     if n_sel:
@@ -503,10 +542,12 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
             mask[first] = True
             sel = np.flatnonzero(mask) if sel is None else sel[mask]
         del first
-    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], frame_of if sel is None else frame_of[sel])
-    # range for the gates: from the sensor when it is fixed on the body, else (frames moving relative to the
-    # body, e.g. TF tag frames under a world frame) from the body origin
-    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if cam_ext.rot.ndim == 2 else None
+    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], row_of if sel is None else row_of[sel])
+    del row_of
+    # range for the gates: from the sensor when it is fixed on the body (one static camera, or the cameras of a
+    # rig), else (frames moving relative to the body, e.g. TF tag frames under a world frame) from the body origin
+    fixed_sensor = bool(det.cameras) or cam_ext.rot.ndim == 2
+    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if fixed_sensor else None
     in_order = sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1))
     if in_order:  # every detection, frames already in time order
         del frame_of

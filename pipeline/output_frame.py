@@ -5,6 +5,7 @@ a choice. Every choice here is a single rigid transform ``x_out = R x_map + t`` 
 innovation and landmark of the run, so the written map and trajectory stay exactly as consistent as the
 observer made them:
 
+- ``map``: the observer's map frame itself; with a known map (``map:``) that map's frame, and then the default.
 - ``start``: the first pose is the identity.
 - ``gravity``: z up (against the configured gravity), origin at the first position. Observers that use IMU
   directions give it themselves: the mean orientation of their map frame in their inertial frame
@@ -30,7 +31,7 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp, so3_log
 from slamobs.pipeline.observers.base import ObserverResult
 
-NAMES = ("start", "gravity", "truth")
+NAMES = ("map", "start", "gravity", "truth")
 #: Velocity samples with ‖V_m‖ and ‖Ω_m‖ below these count as at rest for the accelerometer's "up".
 REST_SPEED = 0.05  # m/s
 REST_RATE = 0.05  # rad/s
@@ -38,9 +39,10 @@ REST_RATE = 0.05  # rad/s
 MIN_REST_SAMPLES = 20
 
 
-def default_frame(uses_directions: bool) -> str:
-    """``gravity`` for observers that estimate it (IMU directions), ``start`` for the others."""
-    return "gravity" if uses_directions else "start"
+def default_frame(uses_directions: bool, known_map: bool = False) -> str:
+    """``map`` with a known map (its frame is what the user gave), else ``gravity`` for observers that estimate it
+    (IMU directions) and ``start`` for the others."""
+    return "map" if known_map else ("gravity" if uses_directions else "start")
 
 
 def parse_frame(value) -> str | dict:
@@ -141,11 +143,14 @@ def _truth_pose(part: ObserverResult, truth, t_max_diff: float):
 
 
 def resolve(choice, first: ObserverResult, *, aligned, log, gravity, truth=None, t_max_diff: float = 0.01,
-            uses_directions: bool = False, notes: list[str] | None = None) -> OutputFrame:
+            uses_directions: bool = False, known_map: bool = False, notes: list[str] | None = None) -> OutputFrame:
     """The output frame for ``choice`` (None = the observer's default) from the run's first stretch."""
     notes = notes if notes is not None else []
     if choice is None:
-        choice = default_frame(uses_directions)
+        choice = default_frame(uses_directions, known_map)
+    if choice == "map":
+        return OutputFrame("map", np.eye(3), np.zeros(3), "the observer's map frame as it is"
+                           + (" (the known map's frame)" if known_map else ""))
     if not len(first.t_ns):
         return OutputFrame(choice if isinstance(choice, str) else "pose", np.eye(3), np.zeros(3), "no poses")
     rot0, pos0 = first.rotation[0], first.position[0]
@@ -159,11 +164,11 @@ def resolve(choice, first: ObserverResult, *, aligned, log, gravity, truth=None,
             r, t = _first_pose_at(first.rotation[k], first.position[k], r_true, p_true)
             return OutputFrame("truth", r, t, f"the estimate pose at t_ns {int(first.t_ns[k])} is put on the truth "
                                               f"pose interpolated there (truth samples within {t_max_diff:g} s)")
-        fallback = default_frame(uses_directions)
+        fallback = default_frame(uses_directions, known_map)
         notes.append(f"output.frame truth: no ground-truth pose within {t_max_diff:g} s of the first stretch's "
                      f"estimate; written in the {fallback} frame instead")
         return resolve(fallback, first, aligned=aligned, log=log, gravity=gravity, uses_directions=uses_directions,
-                       notes=notes)
+                       known_map=known_map, notes=notes)
     if choice == "start":
         r, t = _first_pose_at(rot0, pos0, np.eye(3), np.zeros(3))
         return OutputFrame("start", r, t, "the first pose is the identity")

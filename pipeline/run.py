@@ -115,7 +115,8 @@ def _segment_note(spec, stats: dict) -> list[str]:
 
 def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
     """Every path a run reads: an output must never replace or hold one of them."""
-    return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times) if p]
+    return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times, config.map_file,
+                        config.map_truth, *config.cameras) if p]
 
 
 def _check_directions(spec, aligned: AlignedStream, log: Path) -> None:
@@ -141,6 +142,11 @@ class PreparedLog:
     topics: dict[str, str] = field(default_factory=dict)
     #: numba compilation not yet reported by a run (kernels compiled while reading, then by each run)
     compiled_from: CompileMark | None = None
+    #: tag corners / images made landmarks (pipeline.vision.landmarks.TagLandmarks), None otherwise
+    tags: object | None = None
+    #: a known map (pipeline.known_map.KnownMap), None otherwise
+    known_map: object | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 Progress = Callable[[str], None]
@@ -158,13 +164,37 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     """
     from slamobs.pipeline.readers import read_log
 
+    from slamobs.pipeline.known_map import read_map, restrict_to_map
+
     log = Path(log)
     mark = compile_mark()
     timings: dict[str, float] = {}
+    notes: list[str] = []
+    # map files are checked before a long log is read
+    known = read_map(config.map_file, config.map_mode) if config.map_file else None
+    map_truth = read_map(config.map_truth).positions() if config.map_truth else None
     t = time.perf_counter()
     progress(f"reading {log}")
-    streams = read_log(log, config.topics or None, **config.reader_options())
+    streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
+    tags = None
+    if streams.tag_corners:
+        from slamobs.pipeline.vision.landmarks import tag_landmarks
+
+        t = time.perf_counter()
+        progress("tag poses")
+        tags = tag_landmarks(streams, config.tag_options(), camera_files=config.cameras,
+                             identity_frames=config.identity_frames, body_frame=config.body_frame)
+        streams.detections = tags.detections
+        streams.static_tf = [*streams.static_tf, *tags.transforms]
+        streams.tag_corners = []
+        timings["tags_s"] = time.perf_counter() - t
+    elif config.cameras:
+        notes.append("cameras: files given but the log's detections are not tag corners or images: not used")
+    if map_truth is not None:
+        if streams.landmark_truth:
+            notes.append(f"landmark truth from {config.map_truth} (evaluation.map_truth) replaces the log's")
+        streams.landmark_truth = map_truth
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
@@ -172,10 +202,17 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
                     identity_frames=config.identity_frames, override_identity=config.override_identity,
                     gravity=config.gravity, magnetic_field=config.magnetic_field, keep_directions=directions,
                     release=True, limits=config.limits)
+    if known is not None and known.fixed:
+        aligned, note = restrict_to_map(aligned, known)
+        if note:
+            notes.append(note)
+        if aligned.landmark_ids.size == 0:
+            raise InputError(log, f"no detection of a landmark of the fixed map {config.map_file}")
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
-                      bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks)
-    return PreparedLog(log, kept, aligned, timings, topics, mark)
+                      bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks,
+                      derived=streams.derived)
+    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes)
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
@@ -186,6 +223,7 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
 
     spec = _resolved_spec(config)  # fail on bad gains before reading a large log
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
+    check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
     directions = spec.min_directions > 0 or config.output_frame == "gravity"
     prepared = prepare_log(log, config, directions=directions, progress=progress)
@@ -225,16 +263,32 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     timings = dict(prepared.timings)
     spec = _resolved_spec(config)
     gains = spec.resolve_gains(config.gains.get(spec.name))
+    check_map_mode(spec, config, log)
     _check_directions(spec, aligned, log)
-    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz))
     # a log read once for several observers (compare) has the accelerometer note: only its users keep it
     notes = list(streams.warnings) + [n for n in aligned.notes if spec.min_directions or not n.startswith(ACCEL_NOTE)]
+    notes += list(prepared.notes)
+    start = None
+    if prepared.known_map is not None:
+        from slamobs.pipeline.known_map import map_start
+
+        start = map_start(aligned, prepared.known_map)
+        notes.append(start.note)
+    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz),
+                              known_map=start)
+    tags = prepared.tags
+    if tags is not None:
+        notes += tags.notes
     metadata = {
         "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
         "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
                   "time_source": config.align_time_source, "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame,
-                  "truth_frame": streams.truth.frame_id if streams.truth is not None else None},
+                  "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
+                  "derived": dict(streams.derived),
+                  "cameras": dict(tags.cameras) if tags is not None else {},
+                  "map": ({"file": prepared.known_map.source, "mode": prepared.known_map.mode}
+                          if prepared.known_map is not None else None)},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
@@ -256,6 +310,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         sink = TableWriter(tmp, config.float_bits)
         try:
+            if tags is not None:
+                sink.write({"tag_detections": tags.table})
             observer_s = write_s = 0.0
             t = time.perf_counter()
             n_vel = int(aligned.vel_t_ns.shape[0])
@@ -268,7 +324,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                 if frame is None:  # fixed from the first stretch, before anything is written
                     frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
                                                  truth=_truth(streams, config), t_max_diff=config.t_max_diff,
-                                                 uses_directions=spec.min_directions > 0, notes=notes)
+                                                 uses_directions=spec.min_directions > 0,
+                                                 known_map=prepared.known_map is not None, notes=notes)
                     metadata["output"]["frame"] = frame.describe()
                 part = frame.apply(part)
                 sink.write({**stretch_tables(part), **part.extra_tables})
@@ -298,6 +355,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
+            if streams.landmark_truth:
+                metadata["map_error"] = _map_error(tmp, streams.landmark_truth)
         if "mcap" in config.export:
             from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
 
@@ -314,6 +373,23 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
                                       "report": "report.json" if report else None, "report_error": report_error})
     return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes)
+
+
+def check_map_mode(spec, config: RunConfig, log: Path) -> None:
+    """A fixed map is an absolute frame: observers that rotate the whole map with their inertial-direction
+    correction cannot keep it fixed (pipeline.known_map)."""
+    if config.map_file and config.map_mode == "fixed" and spec.min_directions > 0:
+        raise InputError(log, f"map mode 'fixed' does not work with observer '{spec.name}': it rotates the whole map "
+                              "about the vehicle with its inertial-direction correction; use map.mode: prior, or an "
+                              "observer without directions (fast-adaptation, hashim, wang-tayebi)")
+
+
+def _map_error(out: Path, landmark_truth: dict) -> dict | None:
+    """Map error against landmark truth after a map-only SE(3) alignment, for runs without trajectory truth."""
+    from slamobs.pipeline.evaluation.report import map_only_section
+    from slamobs.pipeline.writers import read_frame
+
+    return map_only_section(read_frame(out / "landmarks.parquet"), landmark_truth)
 
 
 def _topics(streams: LogStreams) -> dict[str, str]:

@@ -13,6 +13,7 @@ from rosbags.highlevel import AnyReader
 from slamobs.cli.simulate_cmd import simulate as simulate_cmd
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots
 from slamobs.pipeline.simulate import logwriter
+from slamobs.pipeline.simulate.camera import CameraSim
 from slamobs.pipeline.simulate.logwriter import TOPIC_TYPES, write_log
 from slamobs.pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, customize, get_scenario, integrate_body_twists
 from slamobs.pipeline.simulate.sensors import (
@@ -33,6 +34,9 @@ SAMPLES = {
     "circle.bag": dict(scenario="circle", imu_rate=100.0, odom_rate=25.0, mag_rate=25.0, mocap_rate=50.0),
     "circle_ros2": dict(scenario="circle", imu_rate=100.0, odom_rate=25.0, mag_rate=25.0, mocap_rate=50.0),
     "figure8.mcap": dict(scenario="figure8", imu_rate=100.0, mocap_rate=50.0),
+    "figure8_camera.mcap": dict(scenario="figure8", duration=15.0, imu_rate=100.0, mocap_rate=50.0,
+                                detection_rate=10.0, camera=CameraSim("images", 320, 240, 60.0, tag_size=0.8,
+                                                                      jpeg_quality=75)),
 }
 
 

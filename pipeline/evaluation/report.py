@@ -356,6 +356,27 @@ def _landmark_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, 
     return section
 
 
+def map_only_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:
+    """Map error of a run without trajectory truth: the landmarks after a map-only SE(3) alignment (needs three
+    matched landmarks not on one line; None otherwise). Same numbers as the report's ``map_aligned``."""
+    identity = Alignment("none", np.eye(3), np.zeros(3), 1.0, 0)
+    section = _landmark_section(landmarks, landmark_truth, identity)
+    if section["map_aligned"] is None:
+        return None
+    return {
+        "n_estimated": section["n_estimated"],
+        "n_truth": section["n_truth"],
+        "n_matched": section["n_matched"],
+        "error_m": section["map_aligned"]["error_m"],
+        "alignment": section["map_aligned"]["alignment"],
+        "method": section["map_aligned"]["method"],
+        "per_landmark": [{"id": row["id"], "error_m": row["error_map_aligned_m"], "n_obs": row["n_obs"]}
+                         for row in section["per_landmark"]],
+        "estimated_without_truth": section["estimated_without_truth"],
+        "truth_never_estimated": section["truth_never_estimated"],
+    }
+
+
 def _vec(v: Any) -> list[float]:
     return [float(x) for x in np.asarray(v, dtype=np.float64).reshape(3)]
 

@@ -62,6 +62,8 @@ class ObserverOptions:
     max_meas_age: float = 0.5  # seconds a landmark frame stays valid before landmarks count as unseen
     min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (spec §8)
     out_every: int = 1  # record pose/bias every n-th velocity sample
+    #: A known map (:class:`pipeline.known_map.MapStart`): initial landmarks, which are fixed, start pose.
+    known_map: object | None = None
 
 
 @dataclass
@@ -186,6 +188,12 @@ class Stepper:
         n = stream.landmark_ids.shape[0]
         self.lm = np.zeros((n, 3))  # the map, updated in place by the kernel
         self.lm_init = np.zeros(n, dtype=np.bool_)
+        self.start_pose = None
+        if (known := options.known_map) is not None:
+            # x, y, z and each landmark's update weight (shared_steps.landmark_weight: 0 = fixed by the map)
+            self.lm = np.array(known.lm, dtype=np.float64)
+            self.lm_init = np.array(known.lm_init, dtype=np.bool_)
+            self.start_pose = known.pose
         self.iv = 0  # next velocity sample
         self.jf = 0  # next detection frame
         self._segment = 0  # segment starts passed so far
@@ -218,10 +226,10 @@ class Stepper:
     def map_xyz(self) -> np.ndarray:
         """The map as written, in the frame of the written poses: the kernel's map moved by ``F⁻¹`` for the
         observers that keep a map frame (:class:`KernelState`), the live map itself for the others."""
-        state = getattr(self, "state", None)
+        state, xyz = getattr(self, "state", None), self.lm[:, :3]  # a known map adds a weight column
         if state is None or (np.array_equal(state.f_r, np.eye(3)) and not state.f_p.any()):
-            return self.lm
-        return (self.lm - state.f_p) @ state.f_r
+            return xyz
+        return (xyz - state.f_p) @ state.f_r
 
     def _frames_before(self, iv: int) -> int:
         """Detection frames processed before velocity sample ``iv`` (all of them at the end)."""
@@ -242,6 +250,9 @@ class Stepper:
         jf_stop = self._frames_before(iv_stop)
         det_first, det_stop = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
         out = Outputs.empty(output_rows(self.n_vel, self.options.out_every, self.iv, iv_stop), det_first, det_stop)
+        if self.iv == 0 and self.start_pose is not None:  # a known map fixes the frame: start where it says
+            self.state.r_hat[:], self.state.p_hat[:] = self.start_pose
+            self.start_pose = None
         starts = s.segment_starts
         ns = self.state.ns
         rows = 0

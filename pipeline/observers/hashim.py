@@ -321,7 +321,7 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
                  np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b, out.trk,
                  out.innov, 0)
     if map_frame:
-        lm[:] = (lm - state.f_p) @ state.f_r
+        lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 

@@ -14,6 +14,8 @@
   and writes poses, tracks and innovations in the map frame, where a landmark stays where it was last seen.
 - :func:`substep_count` / :func:`count_capped`: the sub-steps of one interval, at most ``MAX_SUBSTEPS``, and
   the count of intervals that hit that cap.
+- :func:`landmark_weight`: how much of its landmark step a landmark takes: 1, or, when a known map gives ``lm``
+  a fourth column, that column (0 for a landmark fixed by the map, which is then never updated).
 
 All are written with scalars (no temporaries): they run once per sub-step or event.
 """
@@ -73,6 +75,14 @@ def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, i
 
 
 @njit(cache=True)
+def landmark_weight(lm, i):
+    """Update weight of landmark ``i``: the fourth column of ``lm`` if it has one (known map), else 1."""
+    if lm.shape[1] > 3:
+        return lm[i, 3]
+    return 1.0
+
+
+@njit(cache=True)
 def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     """``(Σ[y_i]x R̂ᵀe_i, Σ R̂ᵀe_i)`` as six scalars over the visible landmarks, with ``e_i = p̂_i − R̂y_i − P̂``
     at the state given, and each landmark stepped ``p̂_i ← p̂_i − g e_i`` in place: ``g = hkp`` (B), or
@@ -104,6 +114,7 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
             step = hkp * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0
             if step > 1.0:
                 step = 1.0
+        step *= landmark_weight(lm, i)
         lm[i, 0] -= step * e0
         lm[i, 1] -= step * e1
         lm[i, 2] -= step * e2

@@ -52,6 +52,7 @@ from slamobs.pipeline.observers.shared_steps import (
     count_capped,
     frame_rows,
     frame_sample,
+    landmark_weight,
     load_frame,
     predict_points,
     record_row,
@@ -196,7 +197,7 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
             s0 += e0
             s1 += e1
             s2 += e2
-            step = h * k_x * k_l
+            step = h * k_x * k_l * landmark_weight(lm, i)
             lm[i, 0] -= step * e0
             lm[i, 1] -= step * e1
             lm[i, 2] -= step * e2
@@ -472,7 +473,7 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
                           np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b,
                           out.trk, out.innov, 0, jump_k, jump_q, jump_phi)
     if map_frame:
-        lm[:] = (lm - state.f_p) @ state.f_r
+        lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
     return (out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS]),
             jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps])
 
