@@ -1,8 +1,20 @@
-"""How every command reports bad input: one line ``error: FILE [TOPIC]: problem`` on stderr, exit code 2."""
+"""How every command ends when it cannot finish: one line on stderr and a documented exit code.
+
+- bad input, a bad option value or an output that cannot or must not be written: ``error: FILE: problem``,
+  exit code 2 (nothing is written; an existing output is unchanged);
+- Ctrl-C (SIGINT) or SIGTERM: ``interrupted``, the run is abandoned cleanly (its temporary output removed),
+  exit code 130 or 143 (128 + the signal number, as a shell reports a process killed by it).
+
+The command group applies this to every command (:func:`handled`), so commands contain no error plumbing.
+"""
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
+import threading
+from contextlib import contextmanager, suppress
 from typing import NoReturn
 
 import click
@@ -11,6 +23,75 @@ import click
 INPUT_ERROR_EXIT = 2
 
 
+class Interrupted(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so every ``finally`` and cleanup runs."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
 def exit_input_error(err: Exception | str) -> NoReturn:
-    click.echo(f"error: {err}", err=True)
+    click.echo(f"error: {' '.join(str(err).split())}", err=True)
     sys.exit(INPUT_ERROR_EXIT)
+
+
+#: Set by the console script (``cli.main.entry``): after an interruption the process ends at once. By then
+#: every ``with`` block has unwound (temporary outputs removed, files closed); the interpreter's teardown
+#: (over a second with numba and pyarrow loaded) would only delay the exit the user asked for.
+EXIT_AT_ONCE = False
+
+
+def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
+    signum = getattr(err, "signum", signal.SIGINT)
+    name = signal.Signals(signum).name
+    click.echo(f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged",
+               err=True)
+    code = 128 + int(signum)
+    if EXIT_AT_ONCE:
+        for stream in (sys.stdout, sys.stderr):
+            with suppress(Exception):
+                stream.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
+def os_error_line(err: OSError) -> str:
+    """An OS error as ``FILE: problem`` (the file it concerns, if known)."""
+    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    return f"{err.filename}: {text}" if err.filename else text
+
+
+@contextmanager
+def sigterm_interrupts():
+    """While the block runs, SIGTERM raises :class:`Interrupted` (only the main thread can handle signals)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def raise_interrupted(signum, _frame):
+        raise Interrupted(signum)
+
+    previous = signal.signal(signal.SIGTERM, raise_interrupted)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+@contextmanager
+def handled():
+    """Run a command: input, gain and OS errors become one line and exit code 2, SIGINT/SIGTERM exit 130/143."""
+    from slamobs.pipeline.errors import GainError, InputError
+
+    try:
+        with sigterm_interrupts():
+            yield
+    except (InputError, GainError) as err:
+        exit_input_error(err)
+    except BrokenPipeError:
+        sys.exit(128 + signal.SIGPIPE)  # the reader of our output went away: nothing to report to
+    except OSError as err:
+        exit_input_error(os_error_line(err))
+    except KeyboardInterrupt as err:
+        exit_interrupted(err)

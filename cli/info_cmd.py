@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.errors import exit_input_error
+from slamobs.cli.errors import handled
 
 
 @click.command("info")
@@ -21,11 +21,8 @@ from slamobs.cli.errors import exit_input_error
 )
 def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
     """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play."""
-    from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.readers import format_info, inspect_log
 
-    try:
+    with handled():  # as under the `slamobs` group, also when the command is used on its own
         summary = inspect_log(log, msg_dir=msg_dir)
-    except InputError as err:  # as under the `slamobs` group, also when the command is used on its own
-        exit_input_error(err)
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else format_info(summary))

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.errors import exit_input_error
+from slamobs.cli.errors import handled
 from slamobs.cli.options import export_option, quiet_option
 from slamobs.cli.progress import compile_notice, status_line
 
@@ -18,15 +18,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 class _Group(click.Group):
-    """Turns the pipeline's input errors into one line on stderr and exit code 2 (no traceback)."""
+    """Every command ends the same way when it cannot finish (:mod:`cli.errors`): one ``error:`` line and exit
+    code 2, or exit 130/143 after SIGINT/SIGTERM; never a traceback or click's usage text."""
 
     def invoke(self, ctx):
-        from slamobs.pipeline.errors import InputError
-
-        try:
+        with handled():
             return super().invoke(ctx)
-        except InputError as err:
-            exit_input_error(err)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -54,13 +51,10 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
-    from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.observers import GainError
+    from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.run import run_log
 
-    config = load_config(config_path)
-    if observer:
-        config = replace(config, observer=observer)
+    config = with_observer(load_config(config_path), observer)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -69,10 +63,6 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     try:
         with compile_notice(status, quiet=quiet):
             summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
-    except GainError as err:
-        raise click.UsageError(str(err)) from None
-    except FileExistsError as err:
-        raise click.ClickException(str(err)) from None
     finally:
         if status:
             status.clear()
@@ -105,8 +95,8 @@ def _print_summary(summary) -> None:
             click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
         conv = (r.get("convergence") or {}).get("t_since_start_s")
         if conv is not None:
-            click.echo(f"converged    {conv:.2f} s after start (position error below "
-                       f"{r['convergence']['threshold_m']} m)")
+            click.echo(f"converged    {conv:.2f} s after start (position error within "
+                       f"{r['convergence']['band_m']:.3g} m from then on)")
     click.echo(f"wrote        {summary.out_dir}/")
 
 
@@ -126,13 +116,15 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
     from dataclasses import replace
 
     from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.observers import GainError
+    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.errors import InputError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
-        raise click.UsageError("--observers needs at least one name")
+        raise InputError("--observers", "needs at least one observer name")
     config = load_config(config_path)
+    for name in observers:
+        with_observer(config, name, "--observers")
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -144,10 +136,6 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
     try:
         with compile_notice(status, quiet=quiet):
             table = compare_log(log, out_dir, config, observers, force=force, **lines)
-    except GainError as err:
-        raise click.UsageError(str(err)) from None
-    except FileExistsError as err:
-        raise click.ClickException(str(err)) from None
     finally:
         if status:
             status.clear()
@@ -174,6 +162,14 @@ def observers() -> None:
     click.echo("Defaults in the first brackets; 'paper' is the paper's simulation value, 'reference' the value of "
                "the noise-free 100 Hz reference runs that check each observer against its paper. Equations, "
                "integration scheme and the reasons for the defaults: docs/observers.md in the slamobs repository.")
+
+
+def entry() -> None:
+    """The ``slamobs`` console script: :func:`main`, ending at once after an interruption."""
+    from slamobs.cli import errors
+
+    errors.EXIT_AT_ONCE = True
+    main()
 
 
 def _add_commands() -> None:

@@ -11,6 +11,12 @@ robot_state_publisher) and moving ones (gimbals, TF tag frames under a world fra
 through ``/tf`` is interpolated at every sample: velocity and direction samples outside the ``/tf`` span hold
 the nearest transform (an extrinsic that drifts little), detection frames outside it are dropped (a moving
 camera must not be guessed). Which edges were used is reported in the notes.
+
+Plausibility gates (``limits``, see ``config.DEFAULT_LIMITS``) drop what no sensor produces: angular rates and
+speeds beyond a limit, detections nearer or farther from the body origin than a limit; each is counted in the
+notes. Gaps in the velocity streams longer than ``max_gap`` split the run into segments
+(``AlignedStream.segment_starts``): the observer holds its state across a gap rather than integrating the last
+twist over it, time-base samples inside a linear-velocity gap and detection frames inside a gap are dropped.
 """
 
 from __future__ import annotations
@@ -28,6 +34,7 @@ from slamobs.pipeline.directions import (
     build_directions,
 )
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
+from slamobs.pipeline.config import DEFAULT_LIMITS
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
@@ -55,6 +62,15 @@ class AlignedStream:
     body_frame: str
     notes: list[str] = field(default_factory=list)
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
+    #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
+    segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def segments(self) -> list[dict]:
+        """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
+        n = self.vel_t_ns.shape[0]
+        bounds = [0, *self.segment_starts.tolist(), n]
+        return [{"start_ns": int(self.vel_t_ns[a]), "end_ns": int(self.vel_t_ns[b - 1]), "samples": b - a}
+                for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
 
     def seconds(self, t_ns: np.ndarray) -> np.ndarray:
         """Times relative to ``t0_ns`` in float64 seconds (exact to well below a microsecond)."""
@@ -93,21 +109,38 @@ _VARYING_RAD = 1e-3  # a /tf extrinsic turning more than this over the log is re
 
 
 def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t_ns: np.ndarray,
-             notes: list[str]) -> _Extrinsic:
-    """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error."""
+             notes: list[str], override: frozenset[str] = frozenset()) -> _Extrinsic:
+    """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error.
+
+    ``ident`` (``frames.assume_identity``) stands in only for frames TF does not know: a transform the log
+    has is used, with a warning when the frame is listed. ``override`` (``frames.override_identity``) replaces
+    even a known transform by the identity, with a warning naming what was replaced.
+    """
     frame = frame.lstrip("/")
-    if not frame or frame in ident or frame == body:
+    if not frame or frame == body:
         return _IDENTITY
-    found = tf.static_lookup(body, frame)
-    if found is not None:
-        return _Extrinsic(*found)
-    if tf.chain(body, frame) is None:
+    known = tf.chain(body, frame) is not None
+    if frame in override:
+        if known:
+            _note_once(notes, f"warning: frames.override_identity: frame '{frame}' taken as body '{body}', replacing "
+                              f"its TF transform ({_describe(tf, body, frame)})")
+        return _IDENTITY
+    if not known:
+        if frame in ident:
+            return _IDENTITY
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
             f"({tf.explain(body, frame)}; set frames.body, or list '{frame}' in frames.assume_identity)",
             topic,
         )
+    if frame in ident:
+        _note_once(notes, f"warning: frames.assume_identity lists '{frame}', but TF transforms it to body '{body}' "
+                          f"({_describe(tf, body, frame)}): TF's transform is used (frames.override_identity "
+                          "replaces it)")
+    found = tf.static_lookup(body, frame)
+    if found is not None:
+        return _Extrinsic(*found)
     res = tf.lookup(body, frame, t_ns, topic)
     note = f"{topic}: frame '{frame}' -> body '{body}' through /tf ({', '.join(res.dynamic)}), at each sample"
     if res.rot.shape[0] > 1:
@@ -117,6 +150,21 @@ def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t
             note += f"; time-varying (turns up to {np.degrees(turn):.2f} deg)"
     notes.append(note)
     return _Extrinsic(res.rot, res.trans, res.valid)
+
+
+def _describe(tf: TfBuffer, body: str, frame: str) -> str:
+    """A transform TF has, in a few words: its rotation angle and offset, or that it is time-stamped."""
+    found = tf.static_lookup(body, frame)
+    if found is None:
+        return "time-stamped, on /tf"
+    rot, trans = found
+    angle = np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)))
+    return f"/tf_static: turned {angle:.1f} deg, offset {np.linalg.norm(trans):.3f} m"
+
+
+def _note_once(notes: list[str], note: str) -> None:
+    if note not in notes:
+        notes.append(note)
 
 
 def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
@@ -178,16 +226,24 @@ def _resample(fr: _Frame, stream: Vec3Stream | None, t_base: np.ndarray) -> np.n
     return None if res is None else res.rows()
 
 
+def body_frame_name(linear_velocity: Vec3Stream | None, body_frame: str | None = None) -> str:
+    """The body frame: ``body_frame`` if given, else the frame of the linear velocity (odometry child frame)."""
+    frame = body_frame or (linear_velocity.frame_id if linear_velocity is not None else "") or "base_link"
+    return frame.lstrip("/")
+
+
 def align(
     streams: LogStreams,
     *,
     body_frame: str | None = None,
     time_source: str = "header",
     identity_frames: tuple[str, ...] = (),
+    override_identity: tuple[str, ...] = (),
     gravity=DEFAULT_GRAVITY,
     magnetic_field=DEFAULT_MAGNETIC_FIELD,
     keep_directions: bool = True,
     release: bool = False,
+    limits: dict[str, float | None] | None = None,
 ) -> AlignedStream:
     """Build the observer's ordered input from the decoded streams of one log.
 
@@ -195,18 +251,22 @@ def align(
     directions, which get no accelerometer note). ``release=True`` removes each sensor stream from
     ``streams`` once it has been used (for a caller that reads nothing else of them), so the samples of a long
     log are not held twice. Each part runs in its own function so its temporaries are gone before the next
-    part starts; the notes come in the order velocities, detections, directions.
+    part starts; the notes come in the order velocities, detections, directions. ``limits`` are the
+    plausibility gates and ``max_gap`` (default ``config.DEFAULT_LIMITS``; a None entry switches one off).
     """
+    lim = {**DEFAULT_LIMITS, **(limits or {})}
     om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
     lv: Vec3Stream = _require(streams, "linear_velocity", "body linear velocity (nav_msgs/Odometry or TwistStamped)")
     det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
-    body = (body_frame or lv.frame_id or "base_link").lstrip("/")
+    body = body_frame_name(lv, body_frame)
     ident = {f.lstrip("/") for f in identity_frames}
+    override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
-    frame = _Frame(tf, body, ident, time_source, [])
-    dir_frame = _Frame(tf, body, ident, time_source, [])
+    _check_frames(streams, tf, body_frame, ident, override)
+    frame = _Frame(tf, body, ident, time_source, [], override)
+    dir_frame = _Frame(tf, body, ident, time_source, [], override)
 
-    t_om, omega, velocity, (lo, hi) = _velocities(streams.path, om, lv, frame)
+    t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -217,9 +277,10 @@ def align(
     del accel, magnetic
     if release:
         streams.detections = None
-    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame)
+    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame, lim,
+                                                                  _gap_spans(t_om, starts))
     del det
-    notes = frame.notes + dir_frame.notes
+    notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
     if w is not None:
         notes.append(f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
                      f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
@@ -237,7 +298,27 @@ def align(
         body_frame=body,
         notes=notes,
         directions=directions if keep_directions else None,
+        segment_starts=starts,
     )
+
+
+def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str],
+                  override: frozenset[str] = frozenset()) -> None:
+    """The frames the config names exist in the log: ``frames.body`` as a stream frame or in TF,
+    ``frames.assume_identity`` and ``frames.override_identity`` as the frame of a sensor stream (the only
+    frames they apply to)."""
+    sensors = {s.frame_id.lstrip("/") for s in (streams.angular_velocity, streams.linear_velocity, streams.detections,
+                                                streams.accel, streams.magnetic) if s is not None and s.frame_id}
+    if body_frame:
+        body = body_frame.lstrip("/")
+        if body not in sensors | tf.frames:
+            known = ", ".join(sorted(sensors | tf.frames)[:12]) or "none"
+            raise InputError(streams.path, f"frames.body names '{body}', which is not a frame of the log (its frames: "
+                                           f"{known})")
+    for option, names in (("assume_identity", ident), ("override_identity", override)):
+        if unused := sorted(set(names) - sensors):
+            raise InputError(streams.path, f"frames.{option} names {', '.join(repr(f) for f in unused)}, which no "
+                                           f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})")
 
 
 def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,
@@ -265,24 +346,91 @@ class _Frame:
     ident: set[str]
     time_source: str
     notes: list[str]
+    override: frozenset[str] = frozenset()
 
     def to_body(self, frame_id: str, topic: str, t_ns: np.ndarray) -> _Extrinsic:
-        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes)
+        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override)
 
 
-def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame):
-    """Time base (int64 ns), body angular and linear velocity on it, and the span both streams cover."""
+def _clock(stream) -> str:
+    """Which clock a stream's times are on, for messages (all-zero header stamps are replaced by record times)."""
+    return "record time" if stream.t_ns is stream.rec_ns or np.array_equal(stream.t_ns, stream.rec_ns) else "header stamps"
+
+
+def _span(t: np.ndarray) -> str:
+    return f"{t[0] * 1e-9:.3f} .. {t[-1] * 1e-9:.3f} s"
+
+
+def _gate_norm(t: np.ndarray, x: np.ndarray, limit: float | None, what: str, key: str, unit: str, topic: str,
+               notes: list[str]):
+    """Samples whose magnitude exceeds ``limit`` dropped (and counted)."""
+    if limit is None or not t.shape[0]:
+        return t, x
+    norm = np.linalg.norm(x, axis=1)
+    bad = norm > limit
+    if n := int(np.count_nonzero(bad)):
+        notes.append(f"{topic}: {n} {what} samples above limits.{key} {limit:g} {unit} dropped "
+                     f"(largest {norm.max():.3g} {unit})")
+        t, x = t[~bad], x[~bad]
+    return t, x
+
+
+def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> None:
+    """A time base needs two distinct stamps: say why a stream has none (no samples, one, all equal)."""
+    name = f"{what} ({stream.topic})"
+    if t.shape[0] == 0:
+        raise InputError(path, f"{name}: all {n_read} samples are above limits.{key}: not a plausible sensor "
+                               f"stream (raise or switch off limits.{key} if it is)")
+    if t.shape[0] == 1:
+        raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
+    if t[0] == t[-1]:
+        when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
+        clock = _clock(stream)
+        if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
+            hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
+        else:
+            hint = "its record times do not advance either: the log carries no usable time for it"
+        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; "
+                               f"{hint}")
+
+
+def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
+    """Time base (int64 ns), body angular and linear velocity on it, the span both streams cover and the first
+    sample of each segment after the first (velocity gaps longer than ``lim["max_gap"]``)."""
     notes = fr.notes
     t_om, w = _sorted(_times(om, fr.time_source), om.xyz)
     t_lv, v = _sorted(_times(lv, fr.time_source), lv.xyz)
+    n_om, n_lv = t_om.shape[0], t_lv.shape[0]
+    t_om, w = _gate_norm(t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s",
+                         om.topic, notes)
+    t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
+    _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
+    _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
-        raise InputError(path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) do not overlap in time")
+        raise InputError(path, f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
+                               f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time"
+                               + ("; the two clocks differ: try time.source: auto or record"
+                                  if _clock(om) != _clock(lv) else ""))
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
         notes.append(f"{n_out} angular-velocity samples outside the linear-velocity span dropped")
         t_om, w = t_om[first:stop], w[first:stop]
+    max_gap = lim["max_gap"]
+    if max_gap is not None and t_lv.shape[0] > 1:
+        # time-base samples inside a linear-velocity gap would get a velocity interpolated over it: dropped
+        gap = np.flatnonzero(np.diff(t_lv) > max_gap * 1e9)
+        if gap.size:
+            k = np.searchsorted(t_lv, t_om, side="right") - 1
+            inside = np.isin(k, gap) & (t_om > t_lv[np.clip(k, 0, None)])
+            if n_in := int(np.count_nonzero(inside)):
+                notes.append(f"{n_in} angular-velocity samples inside {lv.topic} gaps longer than limits.max_gap "
+                             f"{max_gap:g} s dropped")
+                t_om, w = t_om[~inside], w[~inside]
     t_om = t_om.astype(np.int64)  # its own array: the stream's may be shared with other roles
+    if t_om.shape[0] < 2:
+        raise InputError(path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) share fewer than "
+                               "two samples in time")
 
     gyro_ext = fr.to_body(om.frame_id, om.topic, t_om)
     _held(gyro_ext, om.topic, notes)
@@ -301,14 +449,56 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame):
         block -= np.cross(omega[rows], vel_ext.trans)
         velocity[rows] = block
     notes += _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic)
-    return t_om, omega, velocity, (lo, hi)
+    starts = np.zeros(0, np.int64)
+    if max_gap is not None:
+        starts = (np.flatnonzero(np.diff(t_om) > max_gap * 1e9) + 1).astype(np.int64)
+        if starts.size:
+            where = ", ".join(f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)"
+                              for k in starts[:5]) + (", ..." if starts.size > 5 else "")
+            notes.append(f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
+                         f"has {starts.size + 1} segments; nothing is integrated across a gap")
+    return t_om, omega, velocity, (lo, hi), starts
 
 
-def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
-    """Detection frames inside ``[lo, hi]`` in time order, in the body frame: stamps, CSR offsets, dense landmark
-    indices, positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved
-    (a clean log keeps its order: an hour of detections is tens of MB per copy)."""
+def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """(G, 2) open time intervals between segments: from the last sample before a gap to the first after it."""
+    return np.column_stack([t_om[starts - 1], t_om[starts]]) if starts.size else np.zeros((0, 2), np.int64)
+
+
+def _camera_rows(fr: _Frame, det: DetectionStream, t_det: np.ndarray,
+                 frame_of: np.ndarray) -> tuple[_Extrinsic, np.ndarray | None]:
+    """Camera -> body transform of every detection row of a several-camera stream, and which rows have one (a
+    camera on /tf outside its span: None when every row does)."""
+    m = det.ids.shape[0]
+    rot, trans, ok = np.empty((m, 3, 3)), np.empty((m, 3)), np.ones(m, bool)
+    camera_of = np.asarray(det.camera_of)
+    dynamic = False
+    for c, frame in enumerate(det.cameras):
+        rows = np.flatnonzero(camera_of == c)
+        ext = fr.to_body(frame, det.topic, t_det)
+        if ext.rot.ndim == 2:
+            rot[rows], trans[rows] = ext.rot, ext.trans
+            continue
+        f = frame_of[rows]
+        rot[rows], trans[rows] = ext.rot[f], ext.trans[f]
+        if ext.valid is not None:
+            ok[rows] = ext.valid[f]
+            dynamic = True
+    if dynamic and (n_tf := int(np.count_nonzero(~ok))):
+        fr.notes.append(f"{det.topic}: {n_tf} detections outside the /tf span of their camera dropped")
+    return _Extrinsic(rot, trans), (ok if dynamic else None)
+
+
+def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: dict | None = None,
+                gaps: np.ndarray | None = None):
+    """Detection frames inside ``[lo, hi]`` and outside the velocity ``gaps`` in time order, in the body frame,
+    without detections outside the range gates of ``lim``: stamps, CSR offsets, dense landmark indices,
+    positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved (a clean log
+    keeps its order: an hour of detections is tens of MB per copy)."""
     notes = fr.notes
+    lim = {**DEFAULT_LIMITS, **(lim or {})}
+    if det.ids.shape[0] == 0:
+        raise InputError(path, f"the {len(det)} detection messages hold no detections", det.topic)
     t_det = _times(det, fr.time_source)
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
@@ -316,13 +506,29 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
     in_span = (t_det >= lo) & (t_det <= hi)
     if n_out := len(det) - int(np.count_nonzero(in_span)):
         notes.append(f"{n_out} detection frames outside the velocity span dropped")
-    cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
-    if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
-        notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
-        in_span &= cam_ext.valid
+    if gaps is not None and gaps.shape[0]:
+        k = np.searchsorted(gaps[:, 0], t_det, side="left") - 1  # the gap starting before each frame
+        in_gap = (k >= 0) & (t_det < gaps[np.clip(k, 0, None), 1])
+        in_gap &= t_det > gaps[np.clip(k, 0, None), 0]
+        if n_gap := int(np.count_nonzero(in_span & in_gap)):
+            notes.append(f"{det.topic}: {n_gap} detection frames inside velocity gaps (between segments) dropped")
+            in_span &= ~in_gap
+    if det.cameras:  # several cameras: one transform per detection row
+        cam_ext, row_ok = _camera_rows(fr, det, t_det, frame_of)
+        keep_rows = in_span[frame_of] if row_ok is None else in_span[frame_of] & row_ok
+        row_of = np.arange(det.ids.shape[0])  # rows of the per-row transforms
+    else:
+        cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
+        if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
+            notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
+            in_span &= cam_ext.valid
+        keep_rows, row_of = None, frame_of
     frames = order[in_span[order]]
     del order
-    sel = None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)  # None: every row
+    if keep_rows is None:
+        sel = None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)  # None: every row
+    else:
+        sel = None if bool(keep_rows.all()) else np.flatnonzero(keep_rows).astype(np.int64)
     # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
     n_sel = det.ids.shape[0] if sel is None else sel.size
     if n_sel:
@@ -336,7 +542,12 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
             mask[first] = True
             sel = np.flatnonzero(mask) if sel is None else sel[mask]
         del first
-    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], frame_of if sel is None else frame_of[sel])
+    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], row_of if sel is None else row_of[sel])
+    del row_of
+    # range for the gates: from the sensor when it is fixed on the body (one static camera, or the cameras of a
+    # rig), else (frames moving relative to the body, e.g. TF tag frames under a world frame) from the body origin
+    fixed_sensor = bool(det.cameras) or cam_ext.rot.ndim == 2
+    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if fixed_sensor else None
     in_order = sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1))
     if in_order:  # every detection, frames already in time order
         del frame_of
@@ -350,12 +561,43 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame):
         del frame_of, rank
         order_det = np.argsort(frame_rank, kind="stable")
         det_y = det_y[order_det]
+        rng = rng[order_det] if rng is not None else None
         ids = (det.ids if sel is None else det.ids[sel])[order_det]
         per_frame = np.bincount(frame_rank, minlength=frames.size)
         del frame_rank, order_det
+    t_frames = t_det[frames]
+    det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
+                                                  else rng, ids, per_frame, t_frames, lim, notes)
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     if landmark_ids.size == 0:
-        raise InputError(path, "no landmark detections inside the velocity time span", det.topic)
-    return (t_det[frames].astype(np.int64), offsets, det_idx.astype(np.int64),
+        raise InputError(path, "no landmark detections inside the velocity time span (of "
+                               f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)
+    return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
             np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+
+
+def _range_gate(topic: str, det_y: np.ndarray, dist: np.ndarray, ids: np.ndarray, per_frame: np.ndarray,
+                t_frames: np.ndarray, lim: dict, notes: list[str]):
+    """Detections whose range ``dist`` is below or above the range limits dropped (and counted); a frame left
+    empty by it is dropped too (the previous frame stays valid, as if this one had not come)."""
+    lo, hi = lim["min_range"], lim["max_range"]
+    if (lo is None and hi is None) or not det_y.shape[0]:
+        return det_y, ids, per_frame, t_frames
+    near = dist < lo if lo is not None else np.zeros(dist.shape, bool)
+    far = dist > hi if hi is not None else np.zeros(dist.shape, bool)
+    bad = near | far
+    if not bad.any():
+        return det_y, ids, per_frame, t_frames
+    parts = []
+    if n := int(np.count_nonzero(near)):
+        parts.append(f"{n} closer than limits.min_range {lo:g} m (nearest {dist[near].min():.3g} m)")
+    if n := int(np.count_nonzero(far)):
+        parts.append(f"{n} farther than limits.max_range {hi:g} m (farthest {dist[far].max():.3g} m)")
+    owner = np.repeat(np.arange(per_frame.shape[0]), per_frame)
+    kept = np.bincount(owner[~bad], minlength=per_frame.shape[0])
+    emptied = (kept == 0) & (per_frame > 0)
+    extra = f"; {int(emptied.sum())} frames left empty dropped" if emptied.any() else ""
+    notes.append(f"{topic}: detections dropped by the range gate: {', '.join(parts)}{extra}")
+    keep_frame = ~emptied
+    return det_y[~bad], ids[~bad], kept[keep_frame], t_frames[keep_frame]

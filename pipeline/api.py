@@ -7,7 +7,7 @@ the same functions.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,12 +27,11 @@ def run_log(log: str | Path, out: str | Path, *, observer: str | None = None, co
     ``config`` is a ``run.yaml`` path or the same mapping as a dict; ``observer`` overrides its observer.
     Returns the run summary (metadata, timings, report dict, notes).
     """
-    from slamobs.pipeline.config import load_config, parse_config
+    from slamobs.pipeline.config import load_config, parse_config, with_observer
     from slamobs.pipeline.run import run_log as _run_log
 
     cfg = parse_config(config) if isinstance(config, dict) else load_config(Path(config) if config else None)
-    if observer:
-        cfg = replace(cfg, observer=observer)
+    cfg = with_observer(cfg, observer, "observer")
     return _run_log(Path(log), Path(out), cfg, force=force)
 
 
@@ -77,9 +76,10 @@ def load_run(run_dir: str | Path) -> RunData:
             raise InputError(p, f"unreadable JSON: {err}") from None
 
     report_path = run_dir / "report.json"
-    tables = {p.stem: pd.read_parquet(p) for p in sorted(run_dir.glob("*.parquet"))}
-    if not tables:  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
-        from slamobs.pipeline.batch.dataset import run_tables
+    from slamobs.pipeline.batch.dataset import run_tables
 
-        tables = {k: v.to_pandas() for k, v in (run_tables(run_dir) or {}).items()}
+    # a batch run directory (OUT/runs/<id>) keeps its tables in the dataset; files in the directory (e.g. the
+    # aligned tables a later `slamobs report` wrote) take precedence
+    tables = {k: v.to_pandas() for k, v in (run_tables(run_dir) or {}).items()}
+    tables.update({p.stem: pd.read_parquet(p) for p in sorted(run_dir.glob("*.parquet"))})
     return RunData(run_dir, read_json(meta_path), read_json(report_path) if report_path.is_file() else None, tables)

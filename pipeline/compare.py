@@ -11,10 +11,10 @@ import numpy as np
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers import get_observer
-from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_prepared
+from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_inputs, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
-           "vel_bias_err", "convergence_s", "run_time_s", "error")
+           "vel_bias_err", "convergence_s", "convergence_band_m", "run_time_s", "error")
 
 
 def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str], *, force: bool = False,
@@ -27,14 +27,17 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     """
     import pandas as pd
 
+    from slamobs.pipeline.paths import check_output
     from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
         get_observer(name).resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
+    inputs = run_inputs(Path(log), config)
+    check_output(out_dir, inputs, force=force)  # before reading the log: nothing touched
     on_observer(f"reading {log}")
     prepared = prepare_log(log, config, progress=progress)
     rows, summaries = [], {}
-    with atomic_directory(out_dir, force=force) as tmp:
+    with atomic_directory(out_dir, force=force, inputs=inputs) as tmp:
         for k, name in enumerate(observers, 1):
             t = time.perf_counter()
             step = f"observer {k} of {len(observers)}"
@@ -47,8 +50,9 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
                              "run_time_s": time.perf_counter() - t})
                 continue
             summaries[name] = summary
+            band = ((summary.report or {}).get("convergence") or {}).get("band_m")
             rows.append({"observer": name, "status": "ok", "error": "", **summary.headline(),
-                         "run_time_s": summary.timings.get("observer_s", float("nan"))})
+                         "convergence_band_m": band, "run_time_s": summary.timings.get("observer_s", float("nan"))})
         table = pd.DataFrame(rows).reindex(columns=list(COLUMNS))
         table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
         (tmp / "comparison.md").write_text(_markdown(table, log))
@@ -69,7 +73,10 @@ def _markdown(table, log: Path) -> str:
                          (f"{v:.4g}" if isinstance(v, float) else str(v)))
         body += "| " + " | ".join(cells) + " |\n"
     return (f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
-            f"truth; bias errors are final-sample norms; run time is the observer stage.\n\n{head}{body}")
+            f"truth; bias errors are final-sample norms; convergence_s is the first time after which the aligned "
+            f"position error's level (running median over 5 % of the log) stays within convergence_band_m = "
+            f"max(threshold, 1.5 × the observer's highest level over the last 20 % of the log), so each observer is "
+            f"measured against its own steady level; run time is the observer stage.\n\n{head}{body}")
 
 
 def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:

@@ -1,4 +1,4 @@
-"""The one error type the CLI turns into a one-line message and a non-zero exit code."""
+"""The error types the CLI turns into a one-line message and a non-zero exit code."""
 
 from __future__ import annotations
 
@@ -12,6 +12,12 @@ class InputError(Exception):
         self.problem = problem
         where = f"{self.path}" + (f" [{topic}]" if topic else "")
         super().__init__(f"{where}: {problem}")
+
+
+class OutputError(InputError):
+    """The output cannot or must not be written (disk full, read-only or forbidden place, an ``-o`` that would
+    replace an input): one line naming the output path. A subclass of InputError so every caller that turns
+    input errors into one line handles it too."""
 
 
 class GainError(ValueError):

@@ -12,11 +12,15 @@ are far below any observer's accuracy. ``float_bits=52`` writes every bit.
 from __future__ import annotations
 
 import base64
+import ctypes
+import errno
 import json
 import os
 import shutil
+import socket
+import sys
 import tempfile
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +28,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.config import DEFAULT_FLOAT_BITS
+from slamobs.pipeline.errors import OutputError
 from slamobs.pipeline.lie import rots_to_quats
 from slamobs.pipeline.observers.base import ObserverResult
 from slamobs.schemas import arrow_schema
@@ -215,30 +220,166 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
-@contextmanager
-def atomic_directory(final: Path, *, force: bool = False):
-    """Yield a temporary sibling directory that becomes ``final`` only if the block succeeds.
+#: Inside a run's temporary directory (``.OUT.tmp-XXXX``, next to OUT): the owner marker, the output being
+#: written (it becomes OUT), the previous OUT while it is swapped out, and the flag set once the output is complete.
+OWNER, NEW, OLD, COMPLETE = "slamobs-owner.json", "run", "old", "complete"
 
-    An existing non-empty ``final`` is kept unless ``force``; with ``force`` it is replaced only after
-    the new output is complete, so a failure never loses the previous run.
-    """
-    final = Path(final)
-    if final.exists() and not force and (not final.is_dir() or any(final.iterdir())):
-        raise FileExistsError(f"{final}: output exists (use --force to replace it)")
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
-    umask = os.umask(0)
-    os.umask(umask)
-    os.chmod(tmp, 0o777 & ~umask)  # mkdtemp makes it private; a run directory is ordinary output
+
+def _start_time(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot, Linux ``/proc``), to tell a reused pid apart."""
     try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[19].decode()
+    except (OSError, IndexError):
+        return None
+
+
+def _owner() -> dict:
+    return {"pid": os.getpid(), "host": socket.gethostname(), "start": _start_time(os.getpid())}
+
+
+def _alive(owner: dict) -> bool:
+    """Whether the run that made a temporary directory may still be writing it (other hosts: assume so)."""
+    if owner.get("host") != socket.gethostname():
+        return True
+    pid = int(owner.get("pid", -1))
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # another user's live process
+    start = owner.get("start")
+    return start is None or _start_time(pid) in (None, start)
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where that is unavailable."""
+    if _RENAMEAT2 is None:
+        return False
+    if _RENAMEAT2(-100, os.fsencode(a), -100, os.fsencode(b), 2) == 0:  # AT_FDCWD, RENAME_EXCHANGE
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):  # e.g. a file system without exchange
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+def _renameat2():
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    return fn
+
+
+_RENAMEAT2 = _renameat2()
+
+
+def _publish(container: Path, final: Path) -> None:
+    """Put the complete output ``container/run`` under ``final``; a previous ``final`` ends in the container.
+
+    Where the system can exchange two directories atomically, ``final`` holds the old or the new run at every
+    instant. Elsewhere the old run is first moved into the container; a run killed between the two renames
+    leaves the new run flagged complete there, and the next run on this parent finishes the swap
+    (:func:`remove_stale_temporaries`).
+    """
+    (container / COMPLETE).touch()
+    new = container / NEW
+    if os.path.lexists(final):
+        if _exchange(new, final):
+            return
+        os.rename(final, container / OLD)
+    os.rename(new, final)
+
+
+def _finish(container: Path, owner: dict) -> None:
+    """Recover what a killed run left in ``container`` (finish or undo its swap), then remove it; a failing
+    rename raises and keeps the container (never delete the only copy of a run)."""
+    final = container.parent / str(owner.get("final", ""))
+    if owner.get("final") and not os.path.lexists(final):
+        if (container / COMPLETE).exists() and (container / NEW).is_dir():
+            os.rename(container / NEW, final)
+        elif (container / OLD).exists():
+            os.rename(container / OLD, final)
+    shutil.rmtree(container, ignore_errors=True)
+
+
+def remove_stale_temporaries(parent: Path) -> list[str]:
+    """Remove the temporary directories that killed runs left in ``parent``, finishing or undoing an interrupted
+    ``--force`` swap first; returns their names.
+
+    Only directories named ``.NAME.tmp-*`` that hold an owner marker written by slamobs are touched, and only
+    when their owner is no longer running on this host: a live run's directory (batch workers share a parent)
+    and anything a user made are left alone.
+    """
+    removed = []
+    try:
+        entries = [e for e in os.scandir(parent) if e.name.startswith(".") and ".tmp-" in e.name]
+    except OSError:
+        return removed
+    for entry in entries:
+        try:
+            if not entry.is_dir(follow_symlinks=False):
+                continue
+            owner = json.loads((Path(entry.path) / OWNER).read_text())
+            if not isinstance(owner, dict) or _alive(owner):
+                continue
+            _finish(Path(entry.path), owner)
+        except (OSError, ValueError):
+            continue  # no marker (not ours), unreadable, or another run cleaned it meanwhile
+        removed.append(entry.name)
+    return removed
+
+
+@contextmanager
+def atomic_directory(final: Path, *, force: bool = False, inputs=()):
+    """Yield a temporary directory that becomes ``final`` only if the block succeeds.
+
+    ``final`` is checked first (:func:`pipeline.paths.check_output`: never an input, its container or the
+    working directory; an existing non-empty ``final`` only with ``force``, and then only an earlier slamobs
+    output). The output is written inside a hidden sibling ``.NAME.tmp-XXXX`` marked with its owner; with
+    ``force`` the previous output is replaced only once the new one is complete, so a failure or a kill at
+    any point leaves the old or the new run under ``final`` (see :func:`_publish`). Temporary directories of
+    killed runs in the same parent are removed first. OS errors (disk full, read-only, permission) become an
+    :class:`OutputError` naming ``final``.
+    """
+    from slamobs.pipeline.paths import check_output
+
+    final = Path(final)
+    check_output(final, inputs, force=force)
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        remove_stale_temporaries(final.parent)
+        container = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
+    except OSError as err:
+        raise OutputError(final, f"cannot create the output: {_reason(err)}") from None
+    try:
+        write_json(container / OWNER, {**_owner(), "final": final.name})
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(container, 0o777 & ~umask)  # mkdtemp makes it private; a run directory is ordinary output
+        tmp = container / NEW
+        tmp.mkdir()
         yield tmp
+        _publish(container, final)
+    except OSError as err:
+        with suppress(OSError):  # a failed restore keeps the container: the next run retries it
+            _finish(container, {"final": final.name})
+        raise OutputError(final, f"cannot write the output: {_reason(err)}") from None
     except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
+        with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
+            _finish(container, {"final": final.name})
         raise
-    old = None
-    if final.exists():
-        old = final.parent / f".{final.name}.old-{os.getpid()}"
-        os.replace(final, old)
-    os.replace(tmp, final)
-    if old is not None:
-        shutil.rmtree(old, ignore_errors=True) if old.is_dir() else old.unlink()
+    shutil.rmtree(container, ignore_errors=True)
+
+
+def _reason(err: OSError) -> str:
+    """An OS error in a few words, with the file it concerns when that is not the output itself."""
+    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    return f"{text} ({err.filename})" if err.filename else text

@@ -322,7 +322,7 @@ def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_p
     rows = {Path(r["log"]).name: r for r in read_summary(tmp_path / "OUT").values()}
     assert {r["status"] for r in rows.values()} == {"failed"} and len(rows) == 3
     assert rows["not_there.mcap"]["error"].endswith("not_there.mcap: no such file or directory")
-    assert rows["circle.mcap"]["error"].startswith(f"{tmp_path / 'bad_gains.yaml'}: GainError")
+    assert rows["circle.mcap"]["error"].startswith(f"{tmp_path / 'bad_gains.yaml'}: gains.fast-adaptation: gain k_p")
     assert rows["circle.mcap"]["config_file"] == str(tmp_path / "bad_gains.yaml")
 
 

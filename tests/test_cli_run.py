@@ -93,7 +93,9 @@ def test_output_rate_and_config(generated, tmp_path):
     assert json.loads((out / "run.json").read_text())["observer"]["gains"]["k_w"] == 2.0
     # default output precision: low mantissa bits cleared (stated in run.json); float_bits: 52 keeps them
     meta = json.loads((out / "run.json").read_text())
-    assert meta["output"] == {"rate_hz": 20, "float_bits": 28, "export": []}
+    assert {k: meta["output"][k] for k in ("rate_hz", "float_bits", "export")} == {"rate_hz": 20, "float_bits": 28,
+                                                                                 "export": []}
+    assert meta["output"]["frame"]["name"] == "start"  # fast-adaptation's default output frame
     low = poses["x"].to_numpy().view(np.uint64) & np.uint64((1 << 24) - 1)
     assert not low.any()
     cfg.write_text("output:\n  rate_hz: 20\n  float_bits: 52\ngains:\n  fast-adaptation:\n    k_w: 2\n")
@@ -180,10 +182,16 @@ def test_existing_output_is_kept_without_force(generated, tmp_path):
     out.mkdir()
     (out / "keep.txt").write_text("precious")
     res = invoke("run", generated["bag"], "-o", out)
-    assert res.exit_code != 0 and "--force" in res.stderr
+    assert res.exit_code == 2 and res.stderr.startswith("error: ") and "--force" in res.stderr
     assert (out / "keep.txt").read_text() == "precious"
+    # --force replaces earlier runs only, never a directory of someone's files
+    res = invoke("run", generated["bag"], "-o", out, "--force")
+    assert res.exit_code == 2 and "not a slamobs output" in res.stderr and len(res.stderr.splitlines()) == 1
+    assert (out / "keep.txt").read_text() == "precious"
+    (out / "keep.txt").unlink()
+    (out / "run.json").write_text("{}")  # an earlier run
     assert invoke("run", generated["bag"], "-o", out, "--force", "-q").exit_code == 0
-    assert not (out / "keep.txt").exists() and (out / "poses.parquet").exists()
+    assert (out / "poses.parquet").exists() and json.loads((out / "run.json").read_text())["observer"]
 
 
 def test_failure_during_report_leaves_nothing(generated, tmp_path, monkeypatch):
@@ -194,8 +202,8 @@ def test_failure_during_report_leaves_nothing(generated, tmp_path, monkeypatch):
 
     monkeypatch.setattr(ev, "write_report", boom)
     out = tmp_path / "out"
-    with pytest.raises(OSError):
-        invoke("run", generated["bag"], "-o", out)
+    res = invoke("run", generated["bag"], "-o", out)
+    assert res.exit_code == 2 and res.stderr.strip() == f"error: {out}: cannot write the output: disk full"
     assert not out.exists()
     assert [p.name for p in tmp_path.iterdir()] == []
 

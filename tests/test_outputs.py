@@ -11,6 +11,7 @@ import pytest
 
 from slamobs.pipeline.lie import quat_to_rot, so3_exp
 from slamobs.pipeline.observers import ObserverResult
+from slamobs.pipeline.errors import OutputError
 from slamobs.pipeline.writers import atomic_directory, read_metadata, result_tables, write_result
 from slamobs.schemas import TABLES, arrow_schema, table_spec
 
@@ -68,10 +69,10 @@ def test_table_contents():
 def test_atomic_directory_success_failure_and_existing_output(tmp_path):
     out = tmp_path / "run"
     with atomic_directory(out) as tmp:
-        (tmp / "a.txt").write_text("1")
-    assert (out / "a.txt").read_text() == "1"
+        (tmp / "run.json").write_text("1")
+    assert (out / "run.json").read_text() == "1"
     # existing output is kept without force ...
-    with pytest.raises(FileExistsError):
+    with pytest.raises(OutputError, match="use --force"):
         with atomic_directory(out):
             pass
     # ... and is not lost when a forced replacement fails half way
@@ -79,11 +80,19 @@ def test_atomic_directory_success_failure_and_existing_output(tmp_path):
         with atomic_directory(out, force=True) as tmp:
             (tmp / "partial.txt").write_text("x")
             raise RuntimeError("boom")
-    assert (out / "a.txt").read_text() == "1" and not (out / "partial.txt").exists()
+    assert (out / "run.json").read_text() == "1" and not (out / "partial.txt").exists()
     with atomic_directory(out, force=True) as tmp:
-        (tmp / "b.txt").write_text("2")
-    assert sorted(p.name for p in out.iterdir()) == ["b.txt"]
+        (tmp / "run.json").write_text("2")
+    assert sorted(p.name for p in out.iterdir()) == ["run.json"] and (out / "run.json").read_text() == "2"
     assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary or backup left behind
+    # --force replaces only what slamobs wrote: a directory of the user's files is refused, untouched
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "thesis.tex").write_text("precious")
+    with pytest.raises(OutputError, match="not a slamobs output"):
+        with atomic_directory(mine, force=True):
+            pass
+    assert (mine / "thesis.tex").read_text() == "precious"
 
 
 def test_schema_files_are_valid_json_with_units():

@@ -125,16 +125,11 @@ def _watch_lease(lease: Path, done: threading.Event) -> None:
 
 
 def _run(log: Path, out_dir: Path, config: RunConfig):
-    """:func:`pipeline.run.run_log`, composed from its two stages so the reader's warnings (salvaged log,
-    dropped samples, clock problems) can be counted apart from the run's routine notes."""
-    from slamobs.pipeline.observers import get_observer
-    from slamobs.pipeline.run import prepare_log, run_prepared
+    """:func:`pipeline.run.run_log` into ``out_dir``; returns its summary and the input warnings it counted."""
+    from slamobs.pipeline.run import run_log
 
-    spec = get_observer(config.observer)
-    spec.resolve_gains(config.gains.get(spec.name))  # fail on bad gains before reading a large log
-    prepared = prepare_log(log, config, directions=spec.min_directions > 0)
-    data_warnings = list(prepared.streams.warnings)
-    return run_prepared(prepared, out_dir, config, release=True), data_warnings
+    summary = run_log(log, out_dir, config)
+    return summary, list(summary.input_warnings)
 
 
 def _worker_name() -> str:

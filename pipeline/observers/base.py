@@ -1,10 +1,20 @@
 """What every observer shares: gain specifications and validation, options, the result arrays, and the
 stretch-by-stretch driver of the kernels.
 
-A kernel keeps its whole state in arrays (:class:`Stepper`), so a run can stop after any velocity sample
-and go on later exactly as if it had not stopped: ``ObserverSpec.chunks`` yields the outputs a stretch of
+A kernel keeps its whole state in arrays (:class:`Stepper`), so a run can stop before any event and go
+on later exactly as if it had not stopped: ``ObserverSpec.chunks`` yields the outputs a stretch of
 samples at a time (a multi-hour log is written without holding its histories), ``ObserverSpec.run`` is
 the same run in one stretch.
+
+Every kernel call does a bounded amount of work (``WORK_PER_CALL``; each interval at most
+``shared_steps.MAX_SUBSTEPS`` sub-steps) and returns to Python, which then handles Ctrl-C and SIGTERM
+(compiled code never runs Python's signal handlers) and stops a diverged run early.
+
+Segments (``AlignedStream.segment_starts``, velocity gaps longer than ``limits.max_gap``): nothing is
+integrated across a gap (the twist held from before it says nothing about the motion during it); the clock
+jumps to the first sample after the gap and the landmarks count as unseen until the next frame. The map and
+the biases are kept. The pose is re-anchored to the map (:meth:`Stepper._relocalise`) by the first frame
+within ``max_meas_age`` after the gap that sees at least three mapped landmarks; without one it is held.
 """
 
 from __future__ import annotations
@@ -18,6 +28,24 @@ import numpy as np
 
 from slamobs.pipeline.alignment import AlignedStream
 from slamobs.pipeline.errors import GainError
+from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED
+
+#: Work units (sub-steps times the landmarks each one touches, plus one per event) a kernel does per call
+#: before it returns to Python: a few tens of milliseconds, so a signal is handled well within a second.
+WORK_PER_CALL = 250_000
+#: Integer state slots every kernel shares (``KernelState.ns``).
+_IV, _JF, _NVIS = 0, 1, 2
+_T, _MEAS_T = 0, 1
+
+
+class ObserverDiverged(ValueError):
+    """The estimate became non-finite; ``t_ns`` is the time of the velocity sample reached, ``stats`` the
+    run's statistics so far."""
+
+    def __init__(self, t_ns: int, stats: dict) -> None:
+        super().__init__(f"non-finite state at t_ns={t_ns}")
+        self.t_ns = t_ns
+        self.stats = stats
 
 
 @dataclass(frozen=True)
@@ -34,6 +62,8 @@ class ObserverOptions:
     max_meas_age: float = 0.5  # seconds a landmark frame stays valid before landmarks count as unseen
     min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (spec §8)
     out_every: int = 1  # record pose/bias every n-th velocity sample
+    #: A known map (:class:`pipeline.known_map.MapStart`): initial landmarks, which are fixed, start pose.
+    known_map: object | None = None
 
 
 @dataclass
@@ -54,6 +84,10 @@ class ObserverResult:
     stats: dict = field(default_factory=dict)
     #: Observer-specific tables (e.g. "jumps"), columns named as in ``schemas/<name>.json``.
     extra_tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    #: Observers whose law turns the whole estimate (C, E) write everything in their map frame; this is its
+    #: pose in their working (inertial) frame: ``rotation``/``translation`` now and ``mean_rotation`` (see
+    #: :meth:`KernelState.frame_mean`), ``estimated_s`` seconds of estimation. None for the others.
+    map_frame: dict | None = None
 
 
 def max_per_frame(det_offsets: np.ndarray) -> int:
@@ -88,11 +122,17 @@ class Outputs:
         return cls(np.empty(rows, np.int64), np.empty((rows, 3, 3)), np.empty((rows, 3)), np.empty((rows, 6)),
                    np.empty((m, 3)), np.empty((m, 3)), det_first)
 
+    def rows_from(self, o: int) -> Outputs:
+        """The same outputs from row ``o`` on (views; detection rows keep their places)."""
+        return Outputs(self.k[o:], self.r[o:], self.p[o:], self.b[o:], self.trk, self.innov, self.det_base)
+
 
 class KernelState:
     """The state every landmark observer's kernel keeps between stretches, as arrays it updates in place:
     estimate (R̂, P̂, b̂_Ω, b̂_V), the visible measurements, the held twist, a sub-step counter, float clocks
-    ``fs`` and integer counters ``ns``. Observers add their own arrays and order them for their kernel."""
+    ``fs`` (``[t, meas_t, ...]``), integer counters ``ns`` (``[iv, jf, nvis, started, substeps]``, then the
+    sub-step cap count and the first capped sample, see ``shared_steps.count_capped``) and the map frame
+    ``(f_r, f_p)``. Observers add their own arrays and order them for their kernel."""
 
     def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray,
                  n_clocks: int = 2) -> None:
@@ -107,15 +147,39 @@ class KernelState:
         self.counter = np.zeros(1, dtype=np.int64)
         self.fs = np.zeros(n_clocks)
         self.fs[1] = -np.inf  # time of the last frame: none yet
-        self.ns = np.zeros(5, dtype=np.int64)
+        self.ns = np.zeros(7, dtype=np.int64)
+        self.ns[CAP_IV] = -1
+        # map frame -> working frame (x_work = f_r x_map + f_p): moved only by laws that turn the whole
+        # estimate (shared_steps.turn_frame); the identity for the others
+        self.f_r = np.eye(3)
+        self.f_p = np.zeros(3)
+        # its orientation summed over the velocity samples once it has settled (``shared_steps.frame_sample``)
+        self.f_sum = np.zeros((3, 3))
+        self.f_stat = np.zeros(2)  # [seconds the frame has been estimated, samples summed]
+
+    def restart(self, t: float) -> None:
+        """Start a new segment at time ``t``: no integration up to it, no landmark visible until the next frame."""
+        self.fs[_T] = t
+        self.fs[_MEAS_T] = -np.inf
+        self.ns[_NVIS] = 0
+
+    def frame_mean(self) -> np.ndarray:
+        """Mean orientation of the map frame in the working frame over the samples summed so far (chordal
+        mean, projected onto SO(3)); the current one before any is summed."""
+        from slamobs.pipeline.lie import nearest_rotation
+
+        return nearest_rotation(self.f_sum) if self.f_stat[1] > 0 else self.f_r.copy()
 
 
 class Stepper:
     """One run of an observer's kernel over an aligned stream, advanced a stretch of samples at a time.
 
-    Subclasses hold the kernel's state arrays and implement :meth:`_kernel` (run until the next event is
-    velocity sample ``iv_stop``; frames before it are processed) and optionally :meth:`_extra`.
+    Subclasses hold the kernel's state arrays in ``state`` (a :class:`KernelState`) and implement
+    :meth:`_kernel` (run until the next event is velocity sample ``iv_stop``, frames before it included, or
+    until ``budget`` work units are spent) and optionally :meth:`_extra`.
     """
+
+    state: KernelState
 
     def __init__(self, stream: AlignedStream, options: ObserverOptions) -> None:
         self.stream, self.options = stream, options
@@ -124,8 +188,15 @@ class Stepper:
         n = stream.landmark_ids.shape[0]
         self.lm = np.zeros((n, 3))  # the map, updated in place by the kernel
         self.lm_init = np.zeros(n, dtype=np.bool_)
+        self.start_pose = None
+        if (known := options.known_map) is not None:
+            # x, y, z and each landmark's update weight (shared_steps.landmark_weight: 0 = fixed by the map)
+            self.lm = np.array(known.lm, dtype=np.float64)
+            self.lm_init = np.array(known.lm_init, dtype=np.bool_)
+            self.start_pose = known.pose
         self.iv = 0  # next velocity sample
         self.jf = 0  # next detection frame
+        self._segment = 0  # segment starts passed so far
         self.stats: dict = {"substeps": 0}
 
     @property
@@ -137,33 +208,123 @@ class Stepper:
         """Most detections in one frame: the size of the visible-landmark buffers."""
         return max_per_frame(self.stream.det_offsets)
 
-    def _kernel(self, iv_stop: int, out: Outputs) -> int:  # pragma: no cover - abstract
+    def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:  # pragma: no cover - abstract
+        """Run the kernel from its state; returns the rows written to ``out`` (from its first row)."""
         raise NotImplementedError
 
     def _extra(self) -> dict[str, dict[str, np.ndarray]]:
         """Observer-specific table rows of the stretch just run."""
         return {}
 
+    def _frame(self) -> dict | None:
+        state = getattr(self, "state", None)
+        if state is None or not getattr(self, "keeps_map_frame", False):
+            return None
+        return {"rotation": state.f_r.copy(), "translation": state.f_p.copy(), "mean_rotation": state.frame_mean(),
+                "estimated_s": float(state.f_stat[0]), "samples": int(state.f_stat[1])}
+
+    def map_xyz(self) -> np.ndarray:
+        """The map as written, in the frame of the written poses: the kernel's map moved by ``F⁻¹`` for the
+        observers that keep a map frame (:class:`KernelState`), the live map itself for the others."""
+        state, xyz = getattr(self, "state", None), self.lm[:, :3]  # a known map adds a weight column
+        if state is None or (np.array_equal(state.f_r, np.eye(3)) and not state.f_p.any()):
+            return xyz
+        return (xyz - state.f_p) @ state.f_r
+
+    def _frames_before(self, iv: int) -> int:
+        """Detection frames processed before velocity sample ``iv`` (all of them at the end)."""
+        return int(np.searchsorted(self.det_t, self.vel_t[iv], side="left")) if iv < self.n_vel else self.det_t.shape[0]
+
     def advance(self, iv_stop: int) -> ObserverResult:
         """Run up to velocity sample ``iv_stop`` (exclusive; ``n_vel`` runs to the end, trailing frames too);
-        returns that stretch's rows, the map (the live array) and the statistics as they are now."""
+        returns that stretch's rows, the map (the live array) and the statistics as they are now.
+
+        The kernel is called as often as its work budget needs, and restarted at every segment start.
+
+        Raises:
+            ObserverDiverged: The estimate became non-finite.
+
+        """
         s = self.stream
         iv_stop = min(iv_stop, self.n_vel)
-        jf_stop = (int(np.searchsorted(self.det_t, self.vel_t[iv_stop], side="left")) if iv_stop < self.n_vel
-                   else self.det_t.shape[0])
+        jf_stop = self._frames_before(iv_stop)
         det_first, det_stop = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
         out = Outputs.empty(output_rows(self.n_vel, self.options.out_every, self.iv, iv_stop), det_first, det_stop)
-        rows = self._kernel(iv_stop, out)
+        if self.iv == 0 and self.start_pose is not None:  # a known map fixes the frame: start where it says
+            self.state.r_hat[:], self.state.p_hat[:] = self.start_pose
+            self.start_pose = None
+        starts = s.segment_starts
+        ns = self.state.ns
+        rows = 0
+        while True:
+            nxt = int(starts[self._segment]) if self._segment < starts.shape[0] else self.n_vel
+            if ns[_IV] == nxt < self.n_vel and ns[_JF] >= self._frames_before(nxt):
+                self.state.restart(float(self.vel_t[nxt]))  # a segment starts: nothing integrated across the gap
+                key = "relocalised" if self._relocalise(nxt) else "held"
+                self.stats[key] = self.stats.get(key, 0) + 1
+                self._segment += 1
+                continue
+            stop = min(iv_stop, nxt)
+            target = jf_stop if stop == iv_stop else self._frames_before(stop)
+            while ns[_IV] < stop or ns[_JF] < target:
+                rows += self._kernel(stop, out.rows_from(rows), WORK_PER_CALL)
+                self._check_state()
+            if stop == iv_stop:
+                break
         assert rows == out.k.shape[0], (rows, out.k.shape[0])
+        self.stats["capped_intervals"] = int(ns[CAPPED])
+        if ns[CAP_IV] >= 0:
+            self.stats["first_capped_ns"] = int(s.vel_t_ns[min(int(ns[CAP_IV]), self.n_vel - 1)])
         frames = slice(self.jf, jf_stop)
         self.iv, self.jf = iv_stop, jf_stop
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
         return ObserverResult(
             t_ns=s.vel_t_ns[out.k], rotation=out.r, position=out.p, gyro_bias=out.b[:, :3], vel_bias=out.b[:, 3:],
-            landmark_ids=s.landmark_ids, landmark_xyz=self.lm,
+            landmark_ids=s.landmark_ids, landmark_xyz=self.map_xyz(),
             det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
-            innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(),
+            innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(), map_frame=self._frame(),
         )
+
+    def _relocalise(self, iv: int) -> bool:
+        """Re-anchor the pose to the map at segment start ``iv``: the least-squares rigid fit of the first
+        frame within ``max_meas_age`` that sees three or more mapped landmarks (not all on a line), carried
+        back to the segment start with the bias-corrected odometry. False when no frame qualifies."""
+        from slamobs.pipeline.evaluation.align import umeyama
+        from slamobs.pipeline.lie import se3_exp
+
+        s, st = self.stream, self.state
+        t_b = self.vel_t[iv]
+        jf = int(st.ns[_JF])
+        while jf < self.det_t.shape[0] and self.det_t[jf] - t_b <= self.options.max_meas_age:
+            a, b = int(s.det_offsets[jf]), int(s.det_offsets[jf + 1])
+            idx = s.det_idx[a:b]
+            known = self.lm_init[idx]
+            if np.count_nonzero(known) >= 3:
+                try:
+                    r_f, p_f, _ = umeyama(s.det_y[a:b][known], self.lm[idx[known]])
+                except ValueError:  # collinear
+                    jf += 1
+                    continue
+                # body motion from t_b to the frame, then the pose at t_b = T_f T_bf⁻¹
+                r_bf, p_bf = np.eye(3), np.zeros(3)
+                k = iv
+                while k < self.n_vel and self.vel_t[k] < self.det_t[jf]:
+                    dt = min(self.vel_t[k + 1] if k + 1 < self.n_vel else np.inf, self.det_t[jf]) - self.vel_t[k]
+                    d_r, d_p = se3_exp(dt * (s.omega[k] - st.b_om), dt * (s.velocity[k] - st.b_v))
+                    p_bf, r_bf = p_bf + r_bf @ d_p, r_bf @ d_r
+                    k += 1
+                st.r_hat[:, :] = r_f @ r_bf.T
+                st.p_hat[:] = p_f - st.r_hat @ p_bf
+                return True
+            jf += 1
+        return False
+
+    def _check_state(self) -> None:
+        st = self.state
+        if not (np.isfinite(st.r_hat).all() and np.isfinite(st.p_hat).all()):
+            iv = min(int(st.ns[_IV]), self.n_vel - 1)
+            raise ObserverDiverged(int(self.stream.vel_t_ns[max(iv, 0)]), {**self.stats,
+                                                                           "capped_intervals": int(st.ns[CAPPED])})
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,14 @@ import numpy as np
 from numba import njit
 
 from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
-from slamobs.pipeline.observers.shared_steps import landmark_sums, load_frame, predict_points, record_row
+from slamobs.pipeline.observers.shared_steps import (
+    count_capped,
+    landmark_sums,
+    load_frame,
+    predict_points,
+    record_row,
+    substep_count,
+)
 from slamobs.pipeline.lie import mat3_vec, project_so3, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
@@ -57,7 +64,7 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     lam_bias = 5.0 * math.sqrt(gamma * s / alpha)
     if lam_bias > lam:
         lam = lam_bias
-    return max(1, int(math.ceil(dt * lam / STEP_RATIO)))
+    return substep_count(dt, lam, STEP_RATIO)
 
 
 @njit(cache=True)
@@ -118,29 +125,34 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 @njit(cache=True)
 def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
-             k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, iv_stop,
+             k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, iv_stop, budget,
              r_hat, p_hat, b_om, b_v, y, vis_idx, om_m, v_m, counter, d_r, d_p, fs, ns,
              out_k, out_r, out_p, out_b, trk_p, innov, det_base):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
-    sample ``iv_stop`` (all events when ``iv_stop`` is the sample count); stores the state back and
-    returns the number of rows recorded (detection rows are written from ``det_base`` on)."""
+    sample ``iv_stop`` (all events when ``iv_stop`` is the sample count) or ``budget`` work units are spent;
+    stores the state back and returns the number of rows recorded (detection rows are written from
+    ``det_base`` on)."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     t, meas_t = fs[_T], fs[_MEAS_T]
     iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
     o = 0
-    while iv < n_vel or jf < n_frames:
+    work = 0
+    while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
             break
         t_next = det_t[jf] if is_frame else vel_t[iv]
+        work += 1
         if started:
             if t_next > t:
                 if t - meas_t > max_meas_age:
                     nvis = 0
-                substeps += _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, r_hat, p_hat, lm,
-                                       b_om, b_v, k_p, k_w, alpha, gamma, min_landmarks_bias,
-                                       counter, d_r, d_p)
+                m = _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, r_hat, p_hat, lm,
+                               b_om, b_v, k_p, k_w, alpha, gamma, min_landmarks_bias, counter, d_r, d_p)
+                substeps += m
+                work += m * (nvis + 1)
+                count_capped(m, iv, ns)
                 t = t_next
         if is_frame:
             a = det_offsets[jf]
@@ -195,7 +207,7 @@ def run_kernel(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_ini
     state = _State(max_per_frame(det_offsets), r0, p0, b_om0, b_v0)
     out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
     o = _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
-                 k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, n_vel,
+                 k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, n_vel, np.iinfo(np.int64).max,
                  *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
@@ -223,11 +235,11 @@ class FastAdaptation(Stepper):
         self.gains = (gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma"])
         self.state = _State(self.n_max, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
-    def _kernel(self, iv_stop: int, out: Outputs) -> int:
+    def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
         rows = _advance(self.vel_t, s.omega, s.velocity, self.det_t, s.det_offsets, s.det_idx, s.det_y,
                         self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age, o.out_every,
-                        iv_stop, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov,
+                        iv_stop, budget, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov,
                         out.det_base)
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import bz2
 import re
+import stat
 import struct
 import tempfile
 import zlib
@@ -115,13 +116,21 @@ def detect_container(path: str | Path) -> Container:
         InputError: The path is missing, unreadable or not a ROS log.
 
     """
+    from slamobs.pipeline.paths import check_input
+
     path = Path(path)
-    if not path.exists():
-        raise InputError(path, "no such file")
-    if path.is_dir():
+    st = check_input(path, "ROS log")  # never open a FIFO or a device: the read would block or never end
+    if stat.S_ISDIR(st.st_mode):
+        try:
+            entries = sorted(path.iterdir())
+        except OSError as err:
+            raise InputError(path, f"cannot list the directory: {_one_line(err.strerror or err)}") from None
+        for entry in entries:  # what rosbags would open in it must be openable
+            if entry.name == "metadata.yaml" or entry.suffix in {".db3", ".mcap", ".zstd"}:
+                check_input(entry, "storage file of a rosbag2 directory", directory_ok=False)
         meta = path / "metadata.yaml"
         if not meta.is_file():  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none
-            inner = sorted(x for x in path.iterdir() if x.suffix in {".db3", ".mcap"} and x.is_file())
+            inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
             if len(inner) == 1:
                 found = detect_container(inner[0])
                 return replace(found, note=f"{path.name} has no metadata.yaml (recording not closed?): "
@@ -157,6 +166,8 @@ def _explain(container: Container, err: BaseException) -> InputError:
     if not reason:
         reason = "index and data disagree" if isinstance(err, AssertionError) else type(err).__name__
     reason = re.sub(r"\('(.*)',\)", r"\1", reason)  # rosbags nests args tuples in some messages
+    if len(reason) > 300:  # e.g. a whole message definition quoted by the parser
+        reason = reason[:297] + "..."
     if isinstance(err, PermissionError):
         return InputError(container.path, "permission denied")
     if "Profile is not ros2" in reason:
@@ -251,6 +262,9 @@ class _Unit:
     conns: frozenset[int]  # connection/channel ids in it (empty: unknown, always read)
     crc_at: int = -1  # MCAP: file offset of the uncompressed CRC32 (-1: none)
     partial: bool = False  # cut off: decompress what is there and keep the complete records
+    indexed: bool = False  # found through the file's index / summary: a damaged one is skipped, counted
+    messages: int = -1  # messages in it according to the index (-1: unknown)
+    recovered: bool = False  # found by a scan, which reported where its records end
 
 
 class DamagedError(Exception):
@@ -447,14 +461,23 @@ def _clusters(units: Iterable[_Unit]) -> Iterator[list[_Unit]]:
         yield group
 
 
+#: What reading a damaged chunk raises (decompressors, checksums, record walks).
+_CHUNK_ERRORS = (DamagedError, RuntimeError, OSError, ValueError, EOFError, struct.error, zstandard.ZstdError)
+
+
 class _Chunked:
-    """What the ROS1 and MCAP readers share: units, loading them, the damage report."""
+    """What the ROS1 and MCAP readers share: units, loading them, the damage report.
+
+    A damaged chunk that the file's index (ROS1) or summary (MCAP) knows is skipped and counted: the index
+    says where the next chunk starts and how many messages the damaged one held (:meth:`damage_texts`).
+    """
 
     units: list[_Unit]
     damage: str | None
     bio: BinaryIO | None
     message_op: int
     walk: Callable[..., tuple[int, int, int]]
+    label: str
 
     def batches(self, ids: _Ids, ordered: bool) -> Iterator[RawBatch]:
         """Requested messages chunk by chunk; ``ordered``: in record-time order across chunks.
@@ -463,21 +486,68 @@ class _Chunked:
         """
         wanted = set(ids.ids.tolist())
         units = [u for u in self.units if not u.conns or u.conns & wanted]
+        read = 0
         if not ordered:
             for unit in units:
-                yield self.load(unit, ids)
-            return
-        for group in _clusters(units):
-            yield _concat([self.load(u, ids) for u in group]).in_record_order()
+                if (batch := self._load_or_skip(unit, ids)) is not None:
+                    read += 1
+                    yield batch
+        else:
+            for group in _clusters(units):
+                loaded = [b for u in group if (b := self._load_or_skip(u, ids)) is not None]
+                if loaded:
+                    read += len(loaded)
+                    yield _concat(loaded).in_record_order()
+        if units and not read:
+            why = self.lost[min(self.lost)][2] if getattr(self, "lost", None) else "damaged"
+            msg = f"every chunk holding the topics read is damaged ({why})"
+            raise DamagedError(msg)
+
+    def _load_or_skip(self, unit: _Unit, ids: _Ids) -> RawBatch | None:
+        if not unit.indexed:
+            return self.load(unit, ids)
+        try:
+            return self.load(unit, ids)
+        except _CHUNK_ERRORS as err:
+            self.lose(unit.pos, unit.messages, unit.start_ns, _one_line(err).rstrip(".") or type(err).__name__)
+            return None
+
+    def lose(self, pos: int, messages: int, start_ns: int, why: str) -> None:
+        """Record a chunk (at file offset ``pos``) whose messages could not be read."""
+        if not hasattr(self, "lost"):
+            self.lost: dict[int, tuple[int, int, str]] = {}
+        self.lost.setdefault(pos, (messages, start_ns, why))
+
+    def damage_texts(self) -> list[str]:
+        """The recovery note and one note about the chunks skipped by their index, if any."""
+        texts = [self.damage] if getattr(self, "damage", None) else []
+        lost = getattr(self, "lost", {})
+        if lost:
+            known = [m for m, _, _ in lost.values() if m >= 0]
+            count = f"{sum(known)} messages lost" + (" (and an unknown number)" if len(known) < len(lost) else "")
+            first = min(lost)
+            t0 = min((u.start_ns for u in self.units), default=lost[first][1])
+            at = ", ".join(f"byte {p} (record time +{(lost[p][1] - t0) / _NS:.3f} s)" for p in sorted(lost)[:3])
+            more = ", ..." if len(lost) > 3 else ""
+            texts.append(f"{self.label} has {len(lost)} damaged chunk(s) at {at}{more}: skipped with the help of the "
+                         f"index, reading went on with the next intact chunk; {count} ({lost[first][2]})")
+        return texts
 
     def load(self, unit: _Unit, ids: _Ids) -> RawBatch:
-        """Decompress and scan one unit."""
+        """Decompress and scan one unit (damaged records at its end: the complete ones before them are kept
+        and the rest counted lost when the index says how many it held)."""
         assert self.bio
         data = _read_unit(self.bio, unit)
         recs = _records(self.walk, data)
         if recs.status == _BAD or (recs.status == _CUT and not unit.partial):
-            msg = f"records of the chunk at byte {unit.pos} are damaged"
-            raise DamagedError(msg)
+            if unit.recovered:  # the scan kept the complete records before the damage and said so
+                return _batch(data, recs, self.message_op, ids)
+            if not unit.indexed:
+                msg = f"records of the chunk at byte {unit.pos} are damaged"
+                raise DamagedError(msg)
+            found = int(np.count_nonzero(recs.op == self.message_op))
+            self.lose(unit.pos, unit.messages - found if unit.messages >= 0 else -1, unit.start_ns,
+                      f"damaged records inside the chunk at byte {unit.pos}")
         return _batch(data, recs, self.message_op, ids)
 
 
@@ -516,10 +586,12 @@ def _ros1_connection(fields: bytes, data: bytes, owner: object) -> Connection:
 class Ros1Bag(_Chunked, Reader1):
     """rosbags' ROS1 reader, opened from connection and chunk records only (no per-message index).
 
-    A bag without a usable index (not closed, truncated, index damaged) is scanned chunk by chunk.
+    A bag without a usable index (not closed, truncated, index damaged) is scanned chunk by chunk; with a
+    usable index a damaged chunk is skipped and counted.
     """
 
     message_op = MSGDATA_ROS1
+    label = "ROS1 bag"
     walk = staticmethod(_ros1_walk)
 
     def __init__(self, path: str | Path) -> None:
@@ -574,7 +646,7 @@ class Ros1Bag(_Chunked, Reader1):
             try:
                 self._read_index(index_pos, conn_count, chunk_count, size)
             except (Ros1ReaderError, struct.error, UnicodeDecodeError, ValueError, KeyError) as err:
-                self.connections, self.chunk_infos, self.units = [], [], []
+                self.connections, self.chunk_infos, self.units, self.lost = [], [], [], {}
                 self._recover(data_start, size, f"index unreadable: {_one_line(err).rstrip('.')}")
 
     def _read_index(self, index_pos: int, conn_count: int, chunk_count: int, size: int) -> None:
@@ -584,23 +656,28 @@ class Ros1Bag(_Chunked, Reader1):
         self.connections = [self.read_connection() for _ in range(conn_count)]
         self.chunk_infos = [self.read_chunk_info() for _ in range(chunk_count)]
         for info in self.chunk_infos:
-            bio.seek(info.pos)
-            header = Header.read(bio, RecordType.CHUNK)
-            (datasize,) = struct.unpack("<I", bio.read(4))
-            if bio.tell() + datasize > size:
-                msg = "chunk beyond the end of the file"
-                raise Ros1ReaderError(msg)
-            self.units.append(
-                _Unit(
-                    bio.tell(),
-                    datasize,
-                    header.get_string("compression"),
-                    header.get_uint32("size"),
-                    info.start_time,
-                    info.end_time - 1,
-                    frozenset(info.connection_counts),
-                ),
-            )
+            messages = sum(info.connection_counts.values())
+            try:
+                bio.seek(info.pos)
+                header = Header.read(bio, RecordType.CHUNK)
+                (datasize,) = struct.unpack("<I", bio.read(4))
+                compression = header.get_string("compression")
+                if compression not in {"none", "bz2", "lz4"}:
+                    msg = f"unknown chunk compression {compression[:20]!r}"
+                    raise Ros1ReaderError(msg)
+                if bio.tell() + datasize > size:
+                    msg = "chunk beyond the end of the file"
+                    raise Ros1ReaderError(msg)
+                unit = _Unit(bio.tell(), datasize, compression, header.get_uint32("size"), info.start_time,
+                             info.end_time - 1, frozenset(info.connection_counts), indexed=True, messages=messages)
+            except (Ros1ReaderError, struct.error, UnicodeDecodeError, ValueError, KeyError, OSError) as err:
+                # a damaged chunk header: the index knows where the next chunk starts
+                self.lose(info.pos, messages, info.start_time, f"chunk header: {_one_line(err).rstrip('.')}")
+                continue
+            self.units.append(unit)
+        if self.chunk_infos and not self.units:
+            msg = "no chunk the index names is readable"
+            raise Ros1ReaderError(msg)
         self._set_counts()
 
     def _set_counts(self) -> None:
@@ -638,16 +715,13 @@ class Ros1Bag(_Chunked, Reader1):
             data_pos = pos + 8 + hlen
             cut = data_pos + dlen > size or (op == RecordType.CHUNK and dlen == 0)  # 0: never finalised
             if op == RecordType.CHUNK:
-                unit = _Unit(
-                    data_pos,
-                    size - data_pos if cut else dlen,
-                    header.get_string("compression"),
-                    header.get_uint32("size"),
-                    0,
-                    0,
-                    frozenset(),
-                    partial=cut,
-                )
+                try:
+                    compression, raw_size = header.get_string("compression"), header.get_uint32("size")
+                except Ros1ReaderError:
+                    where = "at a damaged chunk header"
+                    break
+                unit = _Unit(data_pos, size - data_pos if cut else dlen, compression, raw_size, 0, 0, frozenset(),
+                             partial=cut)
                 try:
                     data = _read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError) as err:
@@ -666,7 +740,7 @@ class Ros1Bag(_Chunked, Reader1):
                     t = recs.t_ns[msgs]
                     self.units.append(
                         _Unit(unit.pos, unit.size, unit.compression, unit.raw_size, int(t.min()), int(t.max()),
-                              frozenset(ids.tolist()), partial=cut),
+                              frozenset(ids.tolist()), partial=cut, recovered=True),
                     )
                     self.chunk_infos.append(
                         Ros1ChunkInfo(pos, int(t.min()), int(t.max()) + 1, dict(zip(ids.tolist(), counts.tolist()))),
@@ -732,9 +806,11 @@ def _sized(bio: BinaryIO, width: int) -> bytes:
 
 
 class McapStorage(_Chunked, McapReader):
-    """rosbags' MCAP reader with chunk-wise reading, and a scan when the summary is missing or damaged."""
+    """rosbags' MCAP reader with chunk-wise reading, and a scan when the summary is missing or damaged; with a
+    usable summary a damaged chunk is skipped and counted."""
 
     message_op = MESSAGE_MCAP
+    label = "MCAP file"
     walk = staticmethod(_mcap_walk)
 
     def __init__(self, path: Path) -> None:
@@ -765,6 +841,8 @@ class McapStorage(_Chunked, McapReader):
                     c.message_end_time,
                     frozenset(c.channel_count),
                     crc_at=c.chunk_start_offset + 33,
+                    indexed=True,
+                    messages=sum(c.channel_count.values()) if c.channel_count else -1,
                 )
                 for c in self.chunks
             ]
@@ -845,7 +923,8 @@ class McapStorage(_Chunked, McapReader):
                     t = recs.t_ns[msgs]
                     lo, hi = int(t.min()), int(t.max())
                     self.units.append(
-                        _Unit(data_pos, avail, compression, raw_size, lo, hi, frozenset(ids.tolist()), pos + 33, cut),
+                        _Unit(data_pos, avail, compression, raw_size, lo, hi, frozenset(ids.tolist()), pos + 33, cut,
+                              recovered=True),
                     )
                     count += int(msgs.sum())
                     first = lo if first is None else min(first, lo)
@@ -1088,7 +1167,7 @@ def damage_notes(reader: AnyReader) -> list[str]:
     for sub in reader.readers:
         storage = sub.storage if isinstance(sub, Reader2) else sub
         inner = storage.storages if isinstance(storage, DirectoryReader) else [storage]
-        notes += [s.damage for s in inner if getattr(s, "damage", None)]
+        notes += [text for s in inner if isinstance(s, _Chunked) for text in s.damage_texts()]
     return notes
 
 

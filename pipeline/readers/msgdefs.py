@@ -42,6 +42,8 @@ def complete_definitions(reader: AnyReader, msg_dir: str | Path | None = None) -
 
 
 def _read_msg_dir(typestore: Typestore, msg_dir: str | Path) -> dict[str, object]:
+    from slamobs.pipeline.paths import check_input
+
     root = Path(msg_dir)
     if not root.is_dir():
         raise InputError(root, "message definition directory not found" if not root.exists() else "not a directory")
@@ -52,6 +54,7 @@ def _read_msg_dir(typestore: Typestore, msg_dir: str | Path) -> dict[str, object
         name = f"{file.parent.parent.name}/msg/{file.stem}"
         if name in typestore.fielddefs or name in added:
             continue
+        check_input(file, "message definition", directory_ok=False)
         try:
             added.update(get_types_from_msg(file.read_text(encoding="utf-8"), name))
         except OSError as err:

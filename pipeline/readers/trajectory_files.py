@@ -58,6 +58,9 @@ def stamp_ns(text: str) -> int:
 
 
 def _read_text(path: Path, what: str) -> str:
+    from slamobs.pipeline.paths import check_input
+
+    check_input(path, f"{what} file", directory_ok=False)
     try:
         return path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:

@@ -1,0 +1,448 @@
+"""The hostile-input catalogue of issue 16, one test per case: a run never destroys its input, never hangs, never
+uses a setting it did not understand, and says what is wrong in one line.
+
+Signals, SIGKILL and the container fuzz are in ``test_interrupts.py`` and ``test_fuzz_containers.py``.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import threading
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from slamobs.cli.main import main
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.config import parse_config
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import read_log
+from slamobs.pipeline.simulate import expected_streams, simulate, write_log
+from slamobs.pipeline.simulate.sensors import TOPIC_DETECTIONS, TOPIC_IMU
+
+NS = 1_000_000_000
+
+
+def invoke(*args):
+    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+
+
+def one_line_error(res, *needles: str) -> str:
+    """Exit code 2 and exactly one ``error:`` line on stderr naming every needle; never a traceback or usage text."""
+    err = res.stderr.strip()
+    assert res.exit_code == 2, (res.exit_code, res.output, res.stderr)
+    assert len(err.splitlines()) == 1 and err.startswith("error: "), err
+    assert "Traceback" not in res.output + res.stderr and "Usage:" not in res.output + res.stderr
+    for needle in needles:
+        assert needle in err, (needle, err)
+    return err
+
+
+def snapshot(root: Path) -> dict[str, str]:
+    """Every path under ``root`` (hidden ones too) with a digest of its content."""
+    out = {}
+    for p in sorted(root.rglob("*")):
+        out[str(p.relative_to(root))] = hashlib.sha256(p.read_bytes()).hexdigest() if p.is_file() else "dir"
+    return out
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return simulate("figure8", duration=6.0, seed=16, imu_rate=100.0)
+
+
+@pytest.fixture(scope="module")
+def logs(sim, tmp_path_factory):
+    base = tmp_path_factory.mktemp("hostile")
+    return {"bag": write_log(sim, base / "data" / "f8.bag"), "ros2": write_log(sim, base / "data" / "f8_ros2", "ros2")}
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> Path:
+    cfg = tmp_path_factory.mktemp("cfg") / "quick.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n")
+    return cfg
+
+
+def _write(sim, path: Path, **changes) -> Path:
+    return write_log(replace(sim, **changes), path)
+
+
+# --------------------------------------------------------------------------- the output never destroys an input
+
+
+@pytest.mark.parametrize("case", ["the log", "the rosbag2 directory", "the directory above the log",
+                                  "inside the rosbag2 directory", "the config file"])
+def test_output_never_replaces_or_holds_an_input(logs, tmp_path, quick, case):
+    data = tmp_path / "data"
+    data.mkdir()
+    bag = data / "f8.bag"
+    bag.write_bytes(logs["bag"].read_bytes())
+    ros2 = data / "f8_ros2"
+    ros2.mkdir()
+    for f in logs["ros2"].iterdir():
+        (ros2 / f.name).write_bytes(f.read_bytes())
+    (data / "notes.txt").write_text("unrelated, precious")
+    cfg = data / "run.yaml"
+    cfg.write_text(quick.read_text())
+    log, out = {"the log": (bag, bag), "the rosbag2 directory": (ros2, ros2), "the directory above the log": (bag, data),
+                "inside the rosbag2 directory": (ros2, ros2 / "out"), "the config file": (bag, cfg)}[case]
+    before = snapshot(tmp_path)
+    one_line_error(invoke("run", log, "-o", out, "--force", "--config", cfg), str(out))
+    assert snapshot(tmp_path) == before
+    if case == "the log":
+        one_line_error(invoke("compare", log, "-o", out, "--force", "--observers", "hashim"), "input")
+        assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("out", [".", ""])
+def test_output_is_never_the_working_directory(logs, tmp_path, monkeypatch, out):
+    (tmp_path / "mine.txt").write_text("precious")
+    (tmp_path / "run.json").write_text("{}")  # even one that looks like an earlier run
+    monkeypatch.chdir(tmp_path)
+    before = snapshot(tmp_path)
+    one_line_error(invoke("run", logs["bag"], "-o", out, "--force"), "working directory")
+    assert snapshot(tmp_path) == before
+
+
+# --------------------------------------------------------------------------- settings it did not understand
+
+BAD_CONFIGS = {
+    "gains:\n  fast_adaptation: {k_p: 50}\n": ("gains.fast_adaptation", "did you mean 'fast-adaptation'"),
+    "gains:\n  hashim: {k_zz: 1}\n": ("gains.hashim", "k_zz"),
+    "gains:\n  fast-adaptation: {k_w: -1}\n": ("gains.fast-adaptation", "k_w"),
+    "observer: fast\n": ("observer: unknown observer 'fast'",),
+    "directions:\n  gravity: [0, 0, 0]\n": ("directions.gravity", "magnitude 0"),
+    "directions:\n  magnetic_field: [20, 0, -45]\n": ("directions.magnetic_field", "Tesla"),
+    "directions:\n  magnetic_field: [0, 0, -4.0e-5]\n": ("parallel",),
+    "limits:\n  max_range: -1\n": ("limits.max_range",),
+}
+
+
+@pytest.mark.parametrize("text", list(BAD_CONFIGS))
+def test_config_that_names_nothing_or_is_implausible_is_one_line(logs, tmp_path, text):
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(text)
+    out = tmp_path / "out"
+    with _no_warnings():
+        res = invoke("run", logs["bag"], "-o", out, "--config", cfg)
+    one_line_error(res, str(cfg), *BAD_CONFIGS[text])
+    assert not out.exists()
+
+
+class _no_warnings:  # noqa: N801 - a context manager read as a phrase
+    """Fails the block if it emits any Python warning (a zero gravity once gave a numpy RuntimeWarning)."""
+
+    def __enter__(self):
+        import warnings
+
+        self._ctx = warnings.catch_warnings(record=True)
+        self.caught = self._ctx.__enter__()
+        warnings.simplefilter("always")
+        return self
+
+    def __exit__(self, *exc):
+        self._ctx.__exit__(*exc)
+        assert not [w for w in self.caught if issubclass(w.category, RuntimeWarning)], self.caught
+        return False
+
+
+def test_observer_option_and_non_utf8_config_are_one_line(logs, tmp_path):
+    out = tmp_path / "out"
+    one_line_error(invoke("run", logs["bag"], "-o", out, "--observer", "hashim_imu"), "--observer",
+                   "did you mean 'hashim-imu'")
+    cfg = tmp_path / "latin1.yaml"
+    cfg.write_bytes("observer: hashim\n# Grüße\n".encode("latin-1"))
+    one_line_error(invoke("run", logs["bag"], "-o", out, "--config", cfg), str(cfg), "not UTF-8")
+    assert not out.exists()
+
+
+def test_time_topics_and_frames_are_checked_against_the_log(sim, logs):
+    with pytest.raises(InputError, match=r"time.topics names /no/such/topic"):
+        read_log(logs["bag"], clocks={"/no/such/topic": "record"})
+    # a topic of the log that no role reads is not recorded as applied
+    streams = read_log(logs["bag"], clocks={TOPIC_IMU: "record", "/slamobs/sim_truth": "record"})
+    assert streams.clocks == {TOPIC_IMU: "record"}
+    base = expected_streams(sim, "mem.bag")
+    with pytest.raises(InputError, match="frames.body names 'base_lnik'"):
+        align(base, body_frame="base_lnik")
+    with pytest.raises(InputError, match="frames.assume_identity names 'camera_optical'"):
+        align(expected_streams(sim, "mem.bag"), identity_frames=("camera_optical",))
+
+
+# --------------------------------------------------------------------------- plausibility gates
+
+
+def _inject(sim):
+    """Distance 0 and 10 km detections, a 1e6 rad/s gyro burst and a 1 km/s odometry burst."""
+    s = expected_streams(sim, "mem.bag")
+    xyz = s.detections.xyz.copy()
+    xyz[40] = 0.0
+    xyz[80] = [1e4, 0.0, 0.0]
+    gyro = s.angular_velocity.xyz.copy()
+    gyro[200:205] = 1e6
+    vel = s.linear_velocity.xyz.copy()
+    vel[30] = [1e3, 0.0, 0.0]
+    return replace(s, detections=replace(s.detections, xyz=xyz),
+                   angular_velocity=replace(s.angular_velocity, xyz=gyro),
+                   linear_velocity=replace(s.linear_velocity, xyz=vel))
+
+
+def test_plausibility_gates_drop_and_count(sim):
+    clean = align(expected_streams(sim, "mem.bag"))
+    assert not [n for n in clean.notes if "limits." in n]  # the defaults drop nothing of a plausible log
+    gated = align(_inject(sim))
+    notes = " | ".join(gated.notes)
+    assert "5 angular-velocity samples above limits.max_angular_rate" in notes
+    assert "1 linear-velocity samples above limits.max_speed" in notes
+    assert "1 closer than limits.min_range" in notes and "1 farther than limits.max_range" in notes
+    assert np.abs(gated.omega).max() < 100 and np.linalg.norm(gated.velocity, axis=1).max() < 300
+    assert gated.vel_t_ns.shape[0] == clean.vel_t_ns.shape[0] - 5
+    assert gated.det_idx.shape[0] == clean.det_idx.shape[0] - 2
+    off = align(_inject(sim), limits=dict.fromkeys(("min_range", "max_range", "max_angular_rate", "max_speed")))
+    assert off.vel_t_ns.shape[0] == clean.vel_t_ns.shape[0] and off.det_idx.shape[0] == clean.det_idx.shape[0]
+
+
+def test_gated_run_stays_close_to_the_clean_run(sim, logs, tmp_path, quick):
+    s = _inject(sim)
+    det, imu = sim.detections, sim.imu
+    bad = _write(sim, tmp_path / "bad.bag", detections=replace(det, xyz=s.detections.xyz),
+                 imu=replace(imu, gyro=s.angular_velocity.xyz))
+    apes = []
+    for log, out in ((logs["bag"], tmp_path / "clean"), (bad, tmp_path / "gated")):
+        res = invoke("run", log, "-o", out, "--config", quick, "-q")
+        assert res.exit_code == 0, res.stderr
+        apes.append(json.loads((out / "report.json").read_text())["ape"]["translation_m"]["rmse"])
+    notes = " ".join(json.loads((tmp_path / "gated" / "run.json").read_text())["notes"])
+    assert "limits.max_angular_rate" in notes and "limits.min_range" in notes and "limits.max_range" in notes
+    assert apes[1] < 1.2 * apes[0] + 0.01, apes
+
+
+# --------------------------------------------------------------------------- hangs and tracebacks
+
+
+def test_absurd_detection_is_bounded_and_reported(sim, tmp_path):
+    """A detection at 1e9 m with the range gate off: sub-steps are capped, the run ends and says so."""
+    short = simulate("circle", duration=3.0, seed=2)
+    xyz = short.detections.xyz.copy()
+    xyz[short.detections.offsets[-4]] = [1e9, 0.0, 0.0]  # a landmark seen before, near the end: few intervals left
+    log = _write(short, tmp_path / "far.bag", detections=replace(short.detections, xyz=xyz))
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("evaluation:\n  plots: false\nlimits:\n  max_range: null\n")
+    res = invoke("run", log, "-o", tmp_path / "out", "--config", cfg, "-q")
+    if res.exit_code == 0:
+        meta = json.loads((tmp_path / "out" / "run.json").read_text())
+        assert meta["counts"]["capped_intervals"] > 0
+        assert any("sub-steps" in n for n in meta["notes"])
+    else:
+        one_line_error(res, "diverged", "sub-steps")
+
+
+def test_fifo_symlink_loop_and_device_are_one_line(tmp_path):
+    fifo = tmp_path / "live.mcap"
+    os.mkfifo(fifo)
+    # a regression would block in open(); the watchdog then opens the other end so the test fails instead of hanging
+    watchdog = threading.Timer(30.0, lambda: open(fifo, "wb").close())  # noqa: SIM115
+    watchdog.daemon = True
+    watchdog.start()
+    try:
+        one_line_error(invoke("run", fifo, "-o", tmp_path / "out"), str(fifo), "FIFO")
+        one_line_error(invoke("info", fifo), str(fifo), "FIFO")
+        ros2 = tmp_path / "rec"
+        ros2.mkdir()
+        os.mkfifo(ros2 / "rec_0.mcap")
+        one_line_error(invoke("info", ros2), "rec_0.mcap", "FIFO")
+    finally:
+        watchdog.cancel()
+    loop = tmp_path / "loop.bag"
+    loop.symlink_to(loop)
+    one_line_error(invoke("run", loop, "-o", tmp_path / "out"), "symbolic link loop")
+    one_line_error(invoke("info", loop), "symbolic link loop")
+    one_line_error(invoke("info", "/dev/null"), "character device")
+    assert not (tmp_path / "out").exists()
+
+
+def test_output_os_errors_are_one_line_and_leave_nothing(logs, tmp_path, quick, monkeypatch):
+    a_file = tmp_path / "file"
+    a_file.write_text("x")
+    one_line_error(invoke("run", logs["bag"], "-o", a_file / "out", "--config", quick), str(a_file / "out"),
+                   "cannot create the output")
+    import tempfile
+
+    def read_only(*_a, **_k):
+        raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+
+    with monkeypatch.context() as m:
+        m.setattr(tempfile, "mkdtemp", read_only)
+        one_line_error(invoke("run", logs["bag"], "-o", tmp_path / "ro", "--config", quick), "Read-only file system")
+    import pyarrow.parquet as pq
+
+    def disk_full(*_a, **_k):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", disk_full)
+    one_line_error(invoke("run", logs["bag"], "-o", tmp_path / "full", "--config", quick), str(tmp_path / "full"),
+                   "No space left on device")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
+
+
+def test_a_real_write_error_is_one_line(logs, tmp_path, quick):
+    """A file size limit (``RLIMIT_FSIZE``) makes the Parquet writer itself fail with EFBIG, as a full disk would."""
+    import resource
+    import signal
+    import subprocess
+    import sys
+
+    def small_files():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of being killed
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+    out = tmp_path / "out"
+    proc = subprocess.run([str(Path(sys.executable).with_name("slamobs")), "run", str(logs["bag"]), "-o", str(out),
+                           "--config", str(quick), "-q"], capture_output=True, text=True, preexec_fn=small_files,
+                          timeout=600)
+    err = proc.stderr.strip()
+    assert proc.returncode == 2 and len(err.splitlines()) == 1, (proc.returncode, err)
+    assert err.startswith(f"error: {out}: cannot write the output: ") and "too large" in err.lower(), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_bad_truth_keeps_the_observer_output(sim, tmp_path, quick, monkeypatch):
+    q = sim.mocap.quat_xyzw.copy()
+    q[::50] = 0.0
+    log = _write(sim, tmp_path / "zq.bag", mocap=replace(sim.mocap, quat_xyzw=q))
+    out = tmp_path / "out"
+    res = invoke("run", log, "-o", out, "--config", quick, "-q")
+    assert res.exit_code == 0, res.stderr
+    meta = json.loads((out / "run.json").read_text())
+    assert any("zero quaternion" in n for n in meta["notes"]) and meta["report_error"] is None
+    # whatever else breaks the report: the observer output stands and run.json says why there is no report
+    import slamobs.pipeline.evaluation as evaluation
+
+    def broken(*_a, **_k):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(evaluation, "evaluate_tables", broken)
+    out2 = tmp_path / "out2"
+    res = invoke("run", log, "-o", out2, "--config", quick)
+    assert res.exit_code == 0 and "no error report: ZeroDivisionError" in res.output
+    meta = json.loads((out2 / "run.json").read_text())
+    assert meta["report_error"] == "ZeroDivisionError: division by zero" and meta["report"] is None
+    assert (out2 / "poses.parquet").stat().st_size > 0 and not (out2 / "report.json").exists()
+
+
+# --------------------------------------------------------------------------- leftovers of killed runs
+
+
+def test_next_run_removes_only_the_temporaries_of_dead_runs(logs, tmp_path, quick):
+    dead = _dead_pid()
+    host = __import__("socket").gethostname()
+
+    def container(name: str, owner: dict | None) -> Path:
+        d = tmp_path / name
+        (d / "run").mkdir(parents=True)
+        (d / "run" / "poses.parquet").write_bytes(b"x" * 1000)
+        if owner is not None:
+            (d / "slamobs-owner.json").write_text(json.dumps(owner))
+        return d
+
+    stale = container(".out.tmp-dead1", {"pid": dead, "host": host, "final": "out"})
+    live = container(".other.tmp-live1", {"pid": os.getpid(), "host": host, "final": "other"})
+    users = container(".notes.tmp-mine", None)
+    res = invoke("run", logs["bag"], "-o", tmp_path / "out", "--config", quick)
+    assert res.exit_code == 0, res.stderr
+    assert not stale.exists() and live.exists() and users.exists()
+    assert "removed 1 temporary directory of killed runs" in res.output
+
+
+def _dead_pid() -> int:
+    import subprocess
+
+    proc = subprocess.Popen(["true"])
+    proc.wait()
+    return proc.pid
+
+
+# --------------------------------------------------------------------------- messages that name the real cause
+
+
+def test_one_hour_gap_splits_the_run_into_segments(sim, tmp_path, quick):
+    cut = sim.imu.t_ns[0] + 3 * NS
+
+    def shifted(x):
+        return replace(x, t_ns=np.where(x.t_ns > cut, x.t_ns + 3600 * NS, x.t_ns),
+                       rec_ns=np.where(x.rec_ns > cut, x.rec_ns + 3600 * NS, x.rec_ns))
+
+    log = _write(sim, tmp_path / "gap.bag", imu=shifted(sim.imu), odom=shifted(sim.odom), mag=shifted(sim.mag),
+                 detections=shifted(sim.detections), mocap=shifted(sim.mocap))
+    out = tmp_path / "out"
+    res = invoke("run", log, "-o", out, "--config", quick)
+    assert res.exit_code == 0, res.stderr
+    assert "diverged" not in res.output + res.stderr
+    meta = json.loads((out / "run.json").read_text())
+    seg = meta["segments"]
+    assert len(seg) == 2 and seg[1]["start_ns"] - seg[0]["end_ns"] > 3599 * NS
+    assert any("2 segments" in n for n in meta["notes"]) and any("re-anchored" in n for n in meta["notes"])
+    report = json.loads((out / "report.json").read_text())
+    assert report["segments"] == seg and report["ape"]["translation_m"]["rmse"] < 0.2
+
+
+def test_degenerate_stamps_name_the_real_cause(sim):
+    s = expected_streams(sim, "mem.bag")
+    om = s.angular_velocity
+    same = replace(s, angular_velocity=replace(om, t_ns=np.full_like(om.t_ns, om.t_ns[0])))
+    with pytest.raises(InputError, match=r"all \d+ samples have the same time .* header stamps; its record times "
+                                         r"advance: set time.source: record"):
+        align(same)
+    # all-zero header stamps are replaced by record times (reader); all-zero record times too: no usable time
+    zeros = np.zeros_like(om.t_ns)
+    with pytest.raises(InputError, match=r"same time \(zero\) on its record time; its record times do not advance"):
+        align(replace(s, angular_velocity=replace(om, t_ns=zeros, rec_ns=zeros)))
+    one = replace(s, angular_velocity=replace(om, t_ns=om.t_ns[:1], rec_ns=om.rec_ns[:1], xyz=om.xyz[:1]))
+    with pytest.raises(InputError, match="has a single sample"):
+        align(one)
+    # header stamps all zero: the reader falls back to record time, here on another clock than the odometry's
+    zero = replace(s, angular_velocity=replace(om, t_ns=om.rec_ns + 1000 * NS, rec_ns=om.rec_ns + 1000 * NS))
+    with pytest.raises(InputError, match=r"record time\) and linear velocity .*header stamps\) do not overlap.*"
+                                         r"time.source"):
+        align(zero)
+
+
+def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
+    det = sim.detections
+    log = _write(sim, tmp_path / "nan.bag", detections=replace(det, xyz=np.full_like(det.xyz, np.nan)))
+    with pytest.raises(InputError, match=rf"all {det.xyz.shape[0]} detections are NaN or Inf") as err:
+        read_log(log)
+    assert err.value.topic == TOPIC_DETECTIONS
+
+
+def test_config_limits_are_parsed_and_switchable():
+    cfg = parse_config({"limits": {"max_range": None, "max_gap": 60}})
+    assert cfg.limits["max_range"] is None and cfg.limits["max_gap"] == 60.0 and cfg.limits["min_range"] == 0.05
+
+
+@pytest.mark.parametrize("name", ["fast-adaptation", "hashim", "hashim-imu", "wang-tayebi", "hybrid"])
+def test_kernel_work_budget_does_not_change_the_result(sim, monkeypatch, name):
+    """The kernels stop after a bounded amount of work (so signals are handled) and resume exactly where they
+    stopped: a tiny budget (many calls, stops before frames and samples alike) gives identical outputs."""
+    from slamobs.pipeline.observers import ObserverOptions, get_observer
+    from slamobs.pipeline.observers import base
+
+    spec = get_observer(name)
+    stream = align(expected_streams(sim, "mem.bag"))
+    gains = spec.resolve_gains({})
+    whole = spec.run(stream, gains, ObserverOptions())
+    monkeypatch.setattr(base, "WORK_PER_CALL", 37)
+    parts = spec.run(stream, gains, ObserverOptions())
+    for field in ("t_ns", "rotation", "position", "gyro_bias", "vel_bias", "landmark_xyz", "track_xyz", "innovation"):
+        np.testing.assert_array_equal(getattr(parts, field), getattr(whole, field), err_msg=field)
+    assert parts.stats["substeps"] == whole.stats["substeps"]
+    for table, columns in whole.extra_tables.items():
+        for col, values in columns.items():
+            np.testing.assert_array_equal(parts.extra_tables[table][col], values, err_msg=f"{table}.{col}")

@@ -1,0 +1,145 @@
+"""Real signals: Ctrl-C and SIGTERM stop a run whose observer would spin for a long time (an absurd detection,
+an absurd gain), and a SIGKILL at any point of a ``--force`` replacement leaves the old or the new run.
+
+How fast a run stops is measured by ``benchmarks/interrupt_latency.py`` (no timed assertions here; the
+timeouts below only turn a hang into a failure).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline import writers
+from slamobs.pipeline.simulate import simulate, write_log
+
+SLAMOBS = Path(sys.executable).with_name("slamobs")
+HANG = 120.0  # seconds after which a process that has not stopped counts as hung
+
+
+def _start(log: Path, out: Path, cfg: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([str(SLAMOBS), "run", str(log), "-o", str(out), "--config", str(cfg), "-q", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_observer(proc: subprocess.Popen, parent: Path, name: str) -> None:
+    """Until the run writes its temporary output (the observer stage has begun)."""
+    deadline = time.monotonic() + HANG
+    while not any(p.name.startswith(f".{name}.tmp-") for p in parent.iterdir()):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the run never reached the observer stage"
+        time.sleep(0.02)
+
+
+@pytest.fixture(scope="module")
+def long_log(tmp_path_factory):
+    sim = simulate("figure8", duration=20.0, seed=4, imu_rate=200.0)
+    base = tmp_path_factory.mktemp("sig")
+    det = sim.detections
+    xyz = det.xyz.copy()
+    first = det.ids[0]
+    later = np.flatnonzero(det.ids == first)[1]  # the second sighting of the first landmark, early in the log
+    xyz[later] = [1e9, 0.0, 0.0]
+    return {"plain": write_log(sim, base / "plain.bag"),
+            "far": write_log(replace(sim, detections=replace(det, xyz=xyz)), base / "far.bag")}
+
+
+@pytest.mark.parametrize(("case", "signum"), [("far", signal.SIGINT), ("stiff", signal.SIGTERM)])
+def test_signal_stops_a_spinning_observer(long_log, tmp_path, case, signum):
+    cfg = tmp_path / "run.yaml"
+    if case == "far":  # a detection at 1e9 m with the range gate off
+        log, text = long_log["far"], "limits:\n  max_range: null\n"
+    else:  # a gain of 1e12
+        log, text = long_log["plain"], "gains:\n  fast-adaptation: {k_w: 1.0e12}\n"
+    cfg.write_text(text + "evaluation:\n  plots: false\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "run.json").write_text('{"earlier": true}')  # an earlier run that --force would replace
+    proc = _start(log, out, cfg, "--force")
+    _wait_for_observer(proc, tmp_path, "out")
+    time.sleep(0.5)  # well inside the stiff part of the run
+    proc.send_signal(signum)
+    try:
+        _, err = proc.communicate(timeout=HANG)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("the run ignored the signal")
+    assert proc.returncode == 128 + signum, err
+    assert err.strip().splitlines() == [f"interrupted ({signal.Signals(signum).name}): stopped; nothing was written "
+                                        "and an existing output is unchanged"]
+    assert json.loads((out / "run.json").read_text()) == {"earlier": True}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "run.yaml"]
+
+
+# --------------------------------------------------------------------------- SIGKILL during a --force swap
+
+FS_OPS = ("rename", "replace", "rmtree", "exchange", "touch")
+
+
+def _killed_at(step: int, parent: Path, exchange: bool) -> bool:
+    """Replace ``parent/out`` (old run) by a new one in a forked child that SIGKILLs itself at file system
+    operation number ``step``; True if it was killed (False: it finished before that step)."""
+    pid = os.fork()
+    if pid == 0:  # the child: only file system calls, then a real SIGKILL
+        try:
+            count = [0]
+
+            def counted(fn):
+                def call(*a, **k):
+                    count[0] += 1
+                    if count[0] == step:
+                        os.kill(os.getpid(), signal.SIGKILL)
+                    return fn(*a, **k)
+                return call
+
+            os.rename, os.replace, shutil.rmtree = counted(os.rename), counted(os.replace), counted(shutil.rmtree)
+            writers._exchange = counted(writers._exchange if exchange else lambda a, b: False)
+            Path.touch = counted(Path.touch)
+            with writers.atomic_directory(parent / "out", force=True) as tmp:
+                (tmp / "run.json").write_text('"new"')
+                (tmp / "poses.parquet").write_bytes(b"n" * 4096)
+        finally:
+            os._exit(0)
+    _, status = os.waitpid(pid, 0)
+    return os.WIFSIGNALED(status)
+
+
+@pytest.mark.parametrize("exchange", [True, False], ids=["renameat2-exchange", "two-renames"])
+def test_sigkill_at_any_point_of_a_force_swap_leaves_old_or_new(tmp_path, exchange):
+    """After a SIGKILL at each file system operation of the swap, ``out`` holds the complete old or new run, and
+    the next run on the same parent finishes the swap or cleans up (no hidden directory stays)."""
+    if exchange and writers._RENAMEAT2 is None:
+        pytest.skip("no renameat2 on this system")
+    seen = set()
+    for step in range(1, 30):
+        parent = tmp_path / f"s{step}"
+        (parent / "out").mkdir(parents=True)
+        (parent / "out" / "run.json").write_text('"old"')
+        (parent / "out" / "poses.parquet").write_bytes(b"o" * 4096)
+        killed = _killed_at(step, parent, exchange)
+        state = None
+        if exchange:  # the name holds a complete run at every instant
+            state = json.loads((parent / "out" / "run.json").read_text())
+            assert state in ("old", "new") and (parent / "out" / "poses.parquet").stat().st_size == 4096, step
+        writers.remove_stale_temporaries(parent)  # what the next run on this parent does first
+        assert sorted(p.name for p in parent.iterdir()) == ["out"], (step, list(parent.iterdir()))
+        final = json.loads((parent / "out" / "run.json").read_text())
+        assert final in ("old", "new") and (parent / "out" / "poses.parquet").stat().st_size == 4096, step
+        assert state in (None, final), (step, state, final)
+        seen.add(final)
+        if not killed:
+            assert final == "new"
+            break
+    else:
+        pytest.fail("the swap never completed")
+    assert seen == {"old", "new"}
