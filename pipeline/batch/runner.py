@@ -123,8 +123,10 @@ class BatchResult:
 
 
 def config_hash(config: RunConfig) -> str:
-    """Digest of the effective configuration (after defaults and the --observer override)."""
-    text = json.dumps(config.to_dict(), sort_keys=True, default=list)
+    """Digest of the effective configuration (after defaults and the --observer override); where the config
+    was read from is not part of it. Files a config names (map_file, truth_file, msg_dir) count by path."""
+    values = {k: v for k, v in config.to_dict().items() if k != "source"}
+    text = json.dumps(values, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
