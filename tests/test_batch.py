@@ -166,7 +166,8 @@ def test_local_batch_runs_good_logs_and_reports_the_corrupt_one(done, logs):
     assert (ok["velocity_samples"] > 900).all() and (ok["landmarks"] >= 4).all()
     assert (ok["ape_trans_rmse_m"] < 0.1).all() and (ok["landmark_rmse_m"] < 0.3).all()
     assert ok[["ape_rot_rmse_deg", "gyro_bias_err", "vel_bias_err", "convergence_s"]].notna().all().all()
-    assert (ok["warning_count"] == 0).all() and (ok["tables"] == ",".join(TABLES)).all()
+    assert (ok["warning_count"] == 0).all()
+    assert all(set(TABLES) <= set(t.split(",")) for t in ok["tables"])  # and the aligned tables (truth)
     for rid in ok["run_id"]:
         run = json.loads((out / "runs" / rid / "run.json").read_text())
         assert run["observer"]["name"] == "fast-adaptation"
