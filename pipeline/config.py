@@ -36,6 +36,8 @@ class RunConfig:
     topics: dict[str, str] = field(default_factory=dict)
     body_frame: str | None = None
     identity_frames: tuple[str, ...] = ()
+    #: frames whose TF transform is replaced by the identity anyway (a warning in run.json)
+    override_identity: tuple[str, ...] = ()
     time_source: str = "header"  # header | record | auto
     topic_clocks: dict[str, str] = field(default_factory=dict)
     msg_dir: str | None = None
@@ -48,6 +50,8 @@ class RunConfig:
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
     output_rate_hz: float | None = None
     float_bits: int = DEFAULT_FLOAT_BITS
+    #: ``start`` | ``gravity`` | ``truth`` | an initial pose (pipeline.output_frame); None = the observer's default
+    output_frame: str | dict | None = None
     export: tuple[str, ...] = ()  # subset of EXPORTS, in that order
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
@@ -59,6 +63,24 @@ class RunConfig:
     max_angular_rate: float | None = DEFAULT_LIMITS["max_angular_rate"]
     max_speed: float | None = DEFAULT_LIMITS["max_speed"]
     max_gap: float | None = DEFAULT_LIMITS["max_gap"]
+    # tag corners and camera images (``cameras`` and ``tags`` sections)
+    cameras: tuple[str, ...] = ()
+    tag_size: float | None = None
+    tag_sizes: dict[int, float] = field(default_factory=dict)
+    tag_family: str = "36h11"
+    tag_detector: dict[str, float] = field(default_factory=dict)
+    tag_max_rate_hz: float | None = None
+    tag_max_reprojection_px: float = 2.0
+    tag_min_view_angle_deg: float = 12.0
+    tag_max_ambiguity: float = 0.6
+    tag_max_range_m: float | None = None
+    tag_min_side_px: float = 15.0
+    tag_ignore: tuple[int, ...] = ()
+    tag_sync_s: float | None = None
+    # a known map, and landmark truth from a file
+    map_file: str | None = None
+    map_mode: str = "fixed"  # fixed | prior
+    map_truth: str | None = None
     #: reference estimators (batch, riekf): noise levels (pipeline.noise) and the smoother's settings
     #: (pipeline.smoother.settings), as given in run.yaml; unset keys take their documented defaults
     noise: dict = field(default_factory=dict)
@@ -80,9 +102,22 @@ class RunConfig:
     def reader_options(self) -> dict:
         """Keyword arguments of :func:`pipeline.readers.read_log` that this config sets."""
         clocks = "auto" if self.time_source == "auto" else (dict(self.topic_clocks) or None)
+        from slamobs.pipeline.readers import ImageSearch
+
         return {"msg_dir": self.msg_dir, "tag_pattern": self.tag_pattern, "marker_ns": self.marker_ns,
                 "truth_file": self.truth_file,
-                "truth_format": self.truth_format, "truth_times": self.truth_times, "clocks": clocks}
+                "truth_format": self.truth_format, "truth_times": self.truth_times, "clocks": clocks,
+                "images": ImageSearch(self.tag_family, dict(self.tag_detector) or None, self.tag_max_rate_hz)}
+
+    def tag_options(self):
+        """What :func:`pipeline.vision.landmarks.tag_landmarks` needs of this config."""
+        from slamobs.pipeline.vision.landmarks import TagOptions
+        from slamobs.pipeline.vision.tagpose import TagQuality
+
+        quality = TagQuality(self.tag_max_reprojection_px, self.tag_min_view_angle_deg, self.tag_max_ambiguity,
+                             max_range_m=self.tag_max_range_m, min_side_px=self.tag_min_side_px)
+        return TagOptions(self.tag_size, {int(k): float(v) for k, v in self.tag_sizes.items()}, quality,
+                          frozenset(int(i) for i in self.tag_ignore), self.tag_sync_s)
 
     @property
     def align_time_source(self) -> str:
@@ -107,16 +142,27 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     except jsonschema.ValidationError as err:
         where = ".".join(str(p) for p in err.absolute_path) or "top level"
         raise InputError(source, f"invalid config at {where}: {err.message}") from None
+    frame = data.get("output", {}).get("frame")
+    if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
+        raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
     frames = data.get("frames", {})
     time = data.get("time", {})
     ev = data.get("evaluation", {})
     dirs = data.get("directions", {})
     limits = {**DEFAULT_LIMITS, **data.get("limits", {})}
+    tags = data.get("tags", {})
+    known = data.get("map") or {}
+    known = {"file": known} if isinstance(known, str) else known
+    cameras = data.get("cameras", ())
+    for key in tags.get("sizes", {}):
+        if not str(key).lstrip("-").isdigit():
+            raise InputError(source, f"invalid config at tags.sizes: key {key!r} is not a tag id")
     config = RunConfig(
         observer=data.get("observer", DEFAULT_OBSERVER),
         topics=dict(data.get("topics", {})),
         body_frame=frames.get("body"),
         identity_frames=tuple(frames.get("assume_identity", ())),
+        override_identity=tuple(frames.get("override_identity", ())),
         time_source=time.get("source", "header"),
         topic_clocks=dict(time.get("topics", {})),
         msg_dir=data.get("msg_dir"),
@@ -128,6 +174,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         max_meas_age=float(time.get("max_meas_age", 0.5)),
         gains={k: dict(v) for k, v in data.get("gains", {}).items()},
         output_rate_hz=data.get("output", {}).get("rate_hz"),
+        output_frame=data.get("output", {}).get("frame"),
         float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
         export=export_kinds(list(data.get("output", {}).get("export", []))
                             + (["mcap"] if data.get("output", {}).get("mcap") else [])),
@@ -137,6 +184,22 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         gravity=tuple(float(x) for x in dirs.get("gravity", DEFAULT_GRAVITY)),
         magnetic_field=tuple(float(x) for x in dirs.get("magnetic_field", DEFAULT_MAGNETIC_FIELD)),
         **{k: (None if v is None else float(v)) for k, v in limits.items()},
+        cameras=(cameras,) if isinstance(cameras, str) else tuple(cameras),
+        tag_size=tags.get("size"),
+        tag_sizes={int(k): float(v) for k, v in tags.get("sizes", {}).items()},
+        tag_family=str(tags.get("family", "36h11")),
+        tag_detector=dict(tags.get("detector", {})),
+        tag_max_rate_hz=tags.get("max_rate_hz"),
+        tag_max_reprojection_px=float(tags.get("max_reprojection_px", 2.0)),
+        tag_min_view_angle_deg=float(tags.get("min_view_angle_deg", 12.0)),
+        tag_max_ambiguity=float(tags.get("max_ambiguity", 0.6)),
+        tag_max_range_m=tags.get("max_range_m"),
+        tag_min_side_px=float(tags.get("min_side_px", 15.0)),
+        tag_ignore=tuple(int(i) for i in tags.get("ignore", ())),
+        tag_sync_s=tags.get("sync_s"),
+        map_file=known.get("file"),
+        map_mode=str(known.get("mode", "fixed")),
+        map_truth=ev.get("map_truth"),
         noise=dict(data.get("noise", {})),
         batch=dict(data.get("batch", {})),
         source=None if source == "<config>" else source,
@@ -250,6 +313,11 @@ def load_config(path: Path | None) -> RunConfig:
         raise InputError(path, "config must be a mapping of sections (observer, topics, gains, ...)")
     config = parse_config(data, str(path))
     # paths in the config are relative to the config file, not to the working directory
-    rel = {k: str((path.parent / v).resolve()) for k in ("msg_dir", "truth_file", "truth_times")
-           if (v := getattr(config, k)) is not None and not Path(v).is_absolute()}
+    def resolve(v: str) -> str:
+        return v if Path(v).is_absolute() else str((path.parent / v).resolve())
+
+    rel = {k: resolve(v) for k in ("msg_dir", "truth_file", "truth_times", "map_file", "map_truth")
+           if (v := getattr(config, k)) is not None}
+    if config.cameras:
+        rel["cameras"] = tuple(resolve(v) for v in config.cameras)
     return replace(config, **rel) if rel else config

@@ -38,6 +38,10 @@ class RunSummary:
     timings: dict[str, float]
     report: dict | None = None
     notes: list[str] = field(default_factory=list)
+    #: the notes that say the input was damaged or implausible: the readers' repairs (salvaged file, NaN/Inf or
+    #: duplicate samples dropped, clock problems) and what the plausibility gates dropped (notes naming a
+    #: ``limits.*`` setting); a batch counts them as the run's warnings
+    input_warnings: list[str] = field(default_factory=list)
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
@@ -115,7 +119,8 @@ def _segment_note(spec, stats: dict) -> list[str]:
 
 def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
     """Every path a run reads: an output must never replace or hold one of them."""
-    return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times) if p]
+    return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times, config.map_file,
+                        config.map_truth, *config.cameras) if p]
 
 
 def _check_directions(spec, aligned: AlignedStream, log: Path, needed: int) -> None:
@@ -141,6 +146,11 @@ class PreparedLog:
     topics: dict[str, str] = field(default_factory=dict)
     #: numba compilation not yet reported by a run (kernels compiled while reading, then by each run)
     compiled_from: CompileMark | None = None
+    #: tag corners / images made landmarks (pipeline.vision.landmarks.TagLandmarks), None otherwise
+    tags: object | None = None
+    #: a known map (pipeline.known_map.KnownMap), None otherwise
+    known_map: object | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 Progress = Callable[[str], None]
@@ -158,24 +168,55 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     """
     from slamobs.pipeline.readers import read_log
 
+    from slamobs.pipeline.known_map import read_map, restrict_to_map
+
     log = Path(log)
     mark = compile_mark()
     timings: dict[str, float] = {}
+    notes: list[str] = []
+    # map files are checked before a long log is read
+    known = read_map(config.map_file, config.map_mode) if config.map_file else None
+    map_truth = read_map(config.map_truth).positions() if config.map_truth else None
     t = time.perf_counter()
     progress(f"reading {log}")
-    streams = read_log(log, config.topics or None, **config.reader_options())
+    streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
+    tags = None
+    if streams.tag_corners:
+        from slamobs.pipeline.vision.landmarks import tag_landmarks
+
+        t = time.perf_counter()
+        progress("tag poses")
+        tags = tag_landmarks(streams, config.tag_options(), camera_files=config.cameras,
+                             identity_frames=config.identity_frames, body_frame=config.body_frame)
+        streams.detections = tags.detections
+        streams.static_tf = [*streams.static_tf, *tags.transforms]
+        streams.tag_corners = []
+        timings["tags_s"] = time.perf_counter() - t
+    elif config.cameras:
+        notes.append("cameras: files given but the log's detections are not tag corners or images: not used")
+    if map_truth is not None:
+        if streams.landmark_truth:
+            notes.append(f"landmark truth from {config.map_truth} (evaluation.map_truth) replaces the log's")
+        streams.landmark_truth = map_truth
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
     aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
-                    identity_frames=config.identity_frames, gravity=config.gravity,
-                    magnetic_field=config.magnetic_field, keep_directions=directions, release=True,
-                    limits=config.limits)
+                    identity_frames=config.identity_frames, override_identity=config.override_identity,
+                    gravity=config.gravity, magnetic_field=config.magnetic_field, keep_directions=directions,
+                    release=True, limits=config.limits)
+    if known is not None and known.fixed:
+        aligned, note = restrict_to_map(aligned, known)
+        if note:
+            notes.append(note)
+        if aligned.landmark_ids.size == 0:
+            raise InputError(log, f"no detection of a landmark of the fixed map {config.map_file}")
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
-                      bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks)
-    return PreparedLog(log, kept, aligned, timings, topics, mark)
+                      bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks,
+                      derived=streams.derived)
+    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes)
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
@@ -186,7 +227,10 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
 
     spec = _resolved_spec(config)  # fail on bad gains (and estimator settings) before reading a large log
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
-    prepared = prepare_log(log, config, directions=spec.directions_needed(config) > 0, progress=progress)
+    check_map_mode(spec, config, log)
+    # the gravity output frame of an observer without directions comes from the accelerometer
+    directions = spec.directions_needed(config) > 0 or config.output_frame == "gravity"
+    prepared = prepare_log(log, config, directions=directions, progress=progress)
     return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress)
 
 
@@ -209,6 +253,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
     observer is done (the caller runs nothing else on it), so the report does not share memory with it.
     """
+    from slamobs.pipeline import output_frame
     from slamobs.pipeline.writers import (
         TableWriter,
         atomic_directory,
@@ -224,18 +269,34 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     timings = dict(prepared.timings)
     spec = _resolved_spec(config)
     gains = spec.resolve_gains(config.gains.get(spec.name))
-    needed = spec.directions_needed(config)
+    check_map_mode(spec, config, log)
+    needed = spec.directions_needed(config)  # batch: those of its seed
     _check_directions(spec, aligned, log, needed)
-    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz),
-                              context={"config": config, "log": log, "topics": dict(prepared.topics)})
     # a log read once for several observers (compare) has the accelerometer note: only its users keep it
     notes = list(streams.warnings) + [n for n in aligned.notes if needed or not n.startswith(ACCEL_NOTE)]
+    notes += list(prepared.notes)
+    input_warnings = list(streams.warnings) + [n for n in aligned.notes if "limits." in n]
+    start = None
+    if prepared.known_map is not None:
+        from slamobs.pipeline.known_map import map_start
+
+        start = map_start(aligned, prepared.known_map)
+        notes.append(start.note)
+    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz),
+                              known_map=start, context={"config": config, "log": log, "topics": dict(prepared.topics)})
+    tags = prepared.tags
+    if tags is not None:
+        notes += tags.notes
     metadata = {
         "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
         "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
                   "time_source": config.align_time_source, "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame,
-                  "truth_frame": streams.truth.frame_id if streams.truth is not None else None},
+                  "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
+                  "derived": dict(streams.derived),
+                  "cameras": dict(tags.cameras) if tags is not None else {},
+                  "map": ({"file": prepared.known_map.source, "mode": prepared.known_map.mode}
+                          if prepared.known_map is not None else None)},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
@@ -247,6 +308,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "limits": config.limits,
         "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits, "export": list(config.export)},
     }
+    frame_choice = output_frame.parse_frame(config.output_frame)
+    frame = None
     report = None
     t0_ns = int(aligned.vel_t_ns[0])
     if stale := remove_stale_temporaries(Path(out_dir).parent):
@@ -255,6 +318,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         sink = TableWriter(tmp, config.float_bits)
         try:
+            if tags is not None:
+                sink.write({"tag_detections": tags.table})
             observer_s = write_s = 0.0
             t = time.perf_counter()
             n_vel = int(aligned.vel_t_ns.shape[0])
@@ -264,6 +329,13 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                 t_run = time.perf_counter()
                 observer_s += t_run - t
                 _check_finite(part, log, spec.name, t0_ns)
+                if frame is None:  # fixed from the first stretch, before anything is written
+                    frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
+                                                 truth=_truth(streams, config), t_max_diff=config.t_max_diff,
+                                                 uses_directions=spec.min_directions > 0,
+                                                 known_map=prepared.known_map is not None, notes=notes)
+                    metadata["output"]["frame"] = frame.describe()
+                part = frame.apply(part)
                 sink.write({**stretch_tables(part), **part.extra_tables})
                 t = time.perf_counter()
                 write_s += t - t_run
@@ -274,6 +346,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
             metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
             notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
+            notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
             metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
             stage_timings = dict(part.timings)
             del part
@@ -290,10 +363,12 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
             progress("error report")
-            report, report_error = _evaluate(tmp, streams, config, notes, metadata["segments"])
+            report, report_error = _evaluate(tmp, streams, config, notes, metadata)
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
+            if streams.landmark_truth:
+                metadata["map_error"] = _map_error(tmp, streams.landmark_truth)
         if "mcap" in config.export:
             from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
 
@@ -309,7 +384,28 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         metadata["compiled"] = {"functions": compiled.functions, "seconds": round(compiled.seconds, 3)}
         write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
                                       "report": "report.json" if report else None, "report_error": report_error})
-    return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes)
+    return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes,
+                      input_warnings=input_warnings)
+
+
+def check_map_mode(spec, config: RunConfig, log: Path) -> None:
+    """A fixed map is an absolute frame: observers that rotate the whole map with their inertial-direction
+    correction cannot keep it fixed (pipeline.known_map); the reference estimators take no known map."""
+    if config.map_file and not spec.takes_known_map:
+        raise InputError(log, f"observer '{spec.name}' does not take a known map (map.file); run it without the map "
+                              "section, or use an observer (fast-adaptation, hashim, wang-tayebi, hashim-imu, hybrid)")
+    if config.map_file and config.map_mode == "fixed" and spec.min_directions > 0:
+        raise InputError(log, f"map mode 'fixed' does not work with observer '{spec.name}': it rotates the whole map "
+                              "about the vehicle with its inertial-direction correction; use map.mode: prior, or an "
+                              "observer without directions (fast-adaptation, hashim, wang-tayebi)")
+
+
+def _map_error(out: Path, landmark_truth: dict) -> dict | None:
+    """Map error against landmark truth after a map-only SE(3) alignment, for runs without trajectory truth."""
+    from slamobs.pipeline.evaluation.report import map_only_section
+    from slamobs.pipeline.writers import read_frame
+
+    return map_only_section(read_frame(out / "landmarks.parquet"), landmark_truth)
 
 
 def _topics(streams: LogStreams) -> dict[str, str]:
@@ -325,8 +421,16 @@ def _diverging_as_error(parts, log: Path, observer: str, t0_ns: int):
         raise _diverged(log, observer, (err.t_ns - t0_ns) * 1e-9, err.stats) from None
 
 
+def _truth(streams: LogStreams, config: RunConfig):
+    """The ground truth on the clock the run used (None without truth)."""
+    truth = streams.truth
+    if truth is not None and config.align_time_source == "record":
+        truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
+    return truth
+
+
 def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str],
-              segments: list[dict]) -> tuple[dict | None, str | None]:
+              metadata: dict) -> tuple[dict | None, str | None]:
     """Error report against the log's ground truth, and the reason when there is none.
 
     The observer's outputs are already complete: a report that cannot be made (truth that cannot be associated,
@@ -335,16 +439,17 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     """
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.report import REPORT_FILES, bias_plot_rows
+    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.writers import read_frame
 
+    segments = metadata["segments"]
     try:
         frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
-        truth = streams.truth
-        if config.align_time_source == "record":
-            truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
-        # observers that measure gravity fix roll and pitch: the report adds the 4-DoF (translation + yaw) alignment
+        truth = _truth(streams, config)
+        # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
+        # 4-DoF (translation + yaw) alignment
         options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,
-                                gravity_aligned=get_observer(config.observer).min_directions > 0)
+                                gravity_aligned=gravity_aligned(metadata))
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
@@ -357,7 +462,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
                 "(run.json notes say where); errors just after a gap show how well that worked")
             report["segments"] = segments
         write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth,
-                     evaluation=evaluation, plots=config.plots, exports=config.export)
+                     evaluation=evaluation, plots=config.plots, exports=config.export, metadata=metadata)
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands

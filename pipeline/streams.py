@@ -47,7 +47,8 @@ class DetectionStream:
     """Landmark detections grouped in frames (one message = one frame), CSR layout.
 
     Detections of frame ``f`` are ``ids[offsets[f]:offsets[f+1]]`` and ``xyz[...]``, positions of the
-    landmarks in ``frame_id`` (the camera frame).
+    landmarks in ``frame_id`` (the camera frame). Several cameras feed one stream through ``camera_of``:
+    detection ``m`` is then in frame ``cameras[camera_of[m]]`` (``frame_id`` is the first).
     """
 
     topic: str
@@ -57,6 +58,30 @@ class DetectionStream:
     offsets: np.ndarray  # (F + 1,) int64
     ids: np.ndarray  # (M,) int64
     xyz: np.ndarray  # (M, 3)
+    cameras: tuple[str, ...] = ()  # frame ids of several cameras; empty: every detection is in ``frame_id``
+    camera_of: np.ndarray | None = None  # (M,) int index into ``cameras``
+
+    def __len__(self) -> int:
+        return int(self.t_ns.shape[0])
+
+
+@dataclass(frozen=True)
+class CornerStream:
+    """Tag detections as corner pixels of one camera, one frame per message (or image), CSR layout.
+
+    ``corners[m]`` holds the four corners of detection ``m`` in OpenCV's marker order (top-left, top-right,
+    bottom-right, bottom-left of the tag seen from the front), pixels of the raw (distorted) image.
+    ``source`` says where they come from: ``"corners"`` (a detector's messages) or ``"images"`` (found here).
+    """
+
+    topic: str
+    frame_id: str
+    t_ns: np.ndarray  # (F,) int64
+    rec_ns: np.ndarray  # (F,) int64
+    offsets: np.ndarray  # (F + 1,) int64
+    ids: np.ndarray  # (M,) int64
+    corners: np.ndarray  # (M, 4, 2) px
+    source: str = "corners"
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])
@@ -108,3 +133,10 @@ class LogStreams:
     bias_truth: dict[str, np.ndarray] | None = None  # {"gyro": (3,), "velocity": (3,)} body frame (simulated logs)
     warnings: list[str] = field(default_factory=list)
     clocks: dict[str, str] = field(default_factory=dict)  # topic -> "record" where record time replaced the stamp
+    #: Tag corners per camera topic (corner messages, or tags found in images), made landmarks by
+    #: :mod:`pipeline.vision.landmarks` into ``detections``.
+    tag_corners: list[CornerStream] = field(default_factory=list)
+    #: Camera models of the ``camera_info`` topics (:class:`pipeline.vision.cameras.CameraModel`).
+    camera_info: list = field(default_factory=list)
+    #: Roles whose values were derived rather than read, and how (e.g. angular velocity from orientations).
+    derived: dict[str, str] = field(default_factory=dict)

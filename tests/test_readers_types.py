@@ -317,6 +317,9 @@ def test_apriltag_ros_detections(zoo_bag):
     assert sel.roles["detections"] == "/tags"
 
 
+FIDUCIALS_TYPE = "fiducial_msgs/msg/FiducialTransformArray"
+
+
 def test_tag_pattern_and_explicit_only_types(zoo_log):
     s = read_log(zoo_log, tag_pattern="tag_{id}")
     assert s.detections.topic == "/tf"
@@ -333,10 +336,15 @@ def test_tag_pattern_and_explicit_only_types(zoo_log):
                          "/m": TopicMeta("visualization_msgs/msg/MarkerArray", 9), "/tf": TopicMeta(
                              "tf2_msgs/msg/TFMessage", 9)})
     assert "detections" not in only.roles
-    pixels = select_roles({"/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 9)})
-    assert "detections" not in pixels.roles and "no 3D pose: not usable" in pixels.warnings[0]
-    with pytest.raises(InputError, match=r"ApriltagArrayStamped is not supported for role detections \(tag corners"):
-        select_roles({"/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 9)}, {"detections": "/tags"})
+    # Tag corners (no 3D pose) come after every 3D type, and all their topics are the cameras of one rig.
+    corners = {"/left/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 9),
+               "/right/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 5)}
+    pixels = select_roles(corners)
+    assert pixels.multi["detections"] == ["/left/tags", "/right/tags"] and not pixels.warnings
+    assert "detections" not in select_roles({**corners, "/f": TopicMeta(FIDUCIALS_TYPE, 1)}).multi
+    assert select_roles(corners, {"detections": ["/right/tags"]}).multi["detections"] == ["/right/tags"]
+    with pytest.raises(InputError, match=r"several topics for role detections only work for tag corners"):
+        select_roles({**corners, "/f": TopicMeta(FIDUCIALS_TYPE, 1)}, {"detections": ["/f", "/left/tags"]})
 
 
 # --------------------------------------------------------------------------- ground truth

@@ -18,7 +18,7 @@ from slamobs.schemas import arrow_schema
 pytest.importorskip("gtsam")
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
-LOGS = ["circle.bag", "circle_ros2", "figure8.mcap"]
+LOGS = ["circle.bag", "circle_ros2", "figure8.mcap", "figure8_camera.mcap"]
 
 
 def invoke(*args):
@@ -28,7 +28,8 @@ def invoke(*args):
 @pytest.fixture(scope="module")
 def config(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("cfg") / "run.yaml"
-    path.write_text("evaluation: {plots: false}\n")
+    # the camera log's tag size (sample_logs/figure8_camera.yaml); the other logs have no camera
+    path.write_text("evaluation: {plots: false}\ntags: {size: 0.8}\n")
     return path
 
 
@@ -38,7 +39,9 @@ def check_batch_run(run_dir: Path) -> dict:
     smoother = run["observer"]["smoother"]
     assert smoother["iterations"] >= 1 and smoother["final_error"] < smoother["initial_error"]
     assert set(smoother["residuals"]) == {"relative_motion", "landmark", "bias_prior"}
-    assert smoother["residuals"]["landmark"]["error_m"]["n"] == run["counts"]["detections"]
+    landmark = smoother["residuals"]["landmark"]  # statistics of the detections that passed the gate
+    assert landmark["error_m"]["n"] + landmark["gated"] == run["counts"]["detections"]
+    assert landmark["gated"] <= 0.05 * run["counts"]["detections"]  # outliers only
     assert {"seed_s", "smoother_s", "observer_s"} <= set(run["timings_s"])
     assert run["timings_s"]["seed_s"] + run["timings_s"]["smoother_s"] <= run["timings_s"]["observer_s"] + 1e-6
     return run
@@ -56,8 +59,10 @@ def test_compare_run_and_report_on_every_sample_log(tmp_path, log, config):
     ratio = table["ape_trans_rmse_m"] / table.loc["batch", "ape_trans_rmse_m"]
     assert np.allclose(table["ape_vs_batch"], ratio)
     assert "APE / batch APE" in (out / "comparison.md").read_text()
-    # the smoother is the reference: on these logs it is the most accurate of the three
-    assert table["ape_trans_rmse_m"].idxmin() == "batch"
+    if log != "figure8_camera.mcap":  # the smoother is the reference: on these logs the most accurate of the three
+        assert table["ape_trans_rmse_m"].idxmin() == "batch"
+    # (the camera log's 267 tag poses from 320x240 JPEGs have a range bias the noise model does not know: there
+    # riekf's per-frame gate serves it better, README)
     run = check_batch_run(out / "batch")
     sd = np.array(run["observer"]["smoother"]["bias"]["sigma"][0])
     est = np.array(run["observer"]["smoother"]["bias"]["estimate"][0])

@@ -136,11 +136,11 @@ class Log:
         self.truth = self.sc.sample(self.kf_t + (s.t0_ns - self.sim.start_ns) * 1e-9)
         self.true_bias = np.r_[self.sc.gyro_bias, self.sc.velocity_bias]
 
-    def smoother(self, seed=None, fixed_bias=None) -> tuple[dict, object]:
-        run = BatchSmoother(self.stream, {}, ObserverOptions(), settings=self.settings, seed=seed,
-                            fixed_bias=fixed_bias)
-        summary = run.solve()
-        return summary, run.result["solution"]
+    def smoother(self, seed=None, fixed_bias=None, run=False) -> tuple:
+        smoother = BatchSmoother(self.stream, {}, ObserverOptions(), settings=self.settings, seed=seed,
+                                 fixed_bias=fixed_bias)
+        summary = smoother.solve()
+        return (summary, smoother.result["solution"]) + ((smoother,) if run else ())
 
     def ape(self, pos: np.ndarray) -> float:
         r, t, _ = umeyama(pos, self.truth.P)
@@ -155,8 +155,8 @@ class Log:
 
 @pytest.fixture(scope="module")
 def loop():
-    """100 s of loop60 (a 50° camera: 1-13 tags in view, often fewer than three) with the paper's biases."""
-    return Log("loop60", 100.0, seed=4)
+    """100 s of the loop scenario (a 50° camera: 3-10 tags in view, each once per lap) with the paper's biases."""
+    return Log("loop", 100.0, seed=4)
 
 
 @pytest.fixture(scope="module")
@@ -165,10 +165,10 @@ def loop_reference(loop):
     return loop.smoother(fixed_bias=loop.true_bias)
 
 
-@pytest.mark.parametrize("which", ["figure8", "loop60"])
+@pytest.mark.parametrize("which", ["figure8", "loop"])
 def test_batch_reaches_the_reference_and_its_biases_are_within_3_sigma(which, loop, loop_reference):
-    log = loop if which == "loop60" else Log("figure8", 60.0, seed=2)
-    ref_summary, ref = loop_reference if which == "loop60" else log.smoother(fixed_bias=log.true_bias)
+    log = loop if which == "loop" else Log("figure8", 60.0, seed=2)
+    ref_summary, ref = loop_reference if which == "loop" else log.smoother(fixed_bias=log.true_bias)
     summary, sol = log.smoother()
     assert summary["seed"] == "fast-adaptation" and summary["converged"]
     assert log.ape(sol.pos) <= 1.2 * log.ape(ref.pos)
@@ -178,27 +178,28 @@ def test_batch_reaches_the_reference_and_its_biases_are_within_3_sigma(which, lo
 
 
 def started_at(name: str, log: Log, r0: np.ndarray):
-    """Observer ``name`` on the log, its attitude set to ``r0`` before the first sample."""
+    """Observer ``name`` on the log, its attitude set to ``r0`` before the first sample: its seed, and the run."""
     spec = get_observer(name)
     stepper = spec.start(log.stream, spec.resolve_gains({}), ObserverOptions())
     stepper.state.r_hat[:] = r0
-    return observer_seed(name, log.stream, {}, ObserverOptions(), log.kf_t, stepper=stepper)
+    return observer_seed(name, log.stream, {}, ObserverOptions(), log.kf_t, stepper=stepper), stepper
 
 
 def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_reckoning_does_not(loop, loop_reference):
-    """Spec §4.3/§6.3's 170° initial attitude error on loop60 with the paper's biases: the observers with inertial
-    directions converge in attitude (the hybrid one by a jump, within seconds); for riekf and hashim the start
-    attitude only fixes the map frame. The smoother started from each of them reaches the same optimum as the
-    smoother given the true biases; started from dead reckoning (the same 170° start, odometry integrated
-    without bias correction) it stops in another minimum, metres away."""
+    """Spec §4.3/§6.3's 170° initial attitude error on the loop with the paper's biases: hybrid's IMU directions
+    bring its working-frame attitude back (its map frame, in which it writes, turns with it); for riekf and
+    hashim the start attitude only fixes the map frame. The smoother started from each of them reaches the same
+    optimum as the smoother given the true biases; started from dead reckoning (the same 170° start, odometry
+    integrated without bias correction) it stops in another minimum, metres away."""
     r170 = so3_exp(np.radians(170.0) * AXIS_170) @ loop.truth.R[0]
     ref_summary, ref = loop_reference
-    seeds = {name: started_at(name, loop, r170) for name in ("riekf", "hashim", "hybrid")}
-    hyb = loop.attitude_error_deg(seeds["hybrid"].rot)
-    assert hyb[0] < 150.0 and hyb[loop.at(5.0)] < 5.0  # jumped at once, converged in 5 s
+    runs = {name: started_at(name, loop, r170) for name in ("riekf", "hashim", "hybrid")}
+    seeds = {name: seed for name, (seed, _) in runs.items()}
+    hybrid = runs["hybrid"][1].state
+    assert loop.attitude_error_deg(hybrid.f_r @ seeds["hybrid"].rot)[-1] < 5.0  # the working frame: corrected
     for name in ("riekf", "hashim"):  # no absolute reference: the 170° stay (the map frame), the shape is right
         err = loop.attitude_error_deg(seeds[name].rot)
-        assert abs(err[-1] - 170.0) < 10.0 and loop.ape(seeds[name].pos) < 1.0
+        assert abs(err[-1] - 170.0) < 10.0 and loop.ape(seeds[name].pos) < 1.0, name
     finals = {}
     for name, seed in seeds.items():
         summary, sol = loop.smoother(seed=seed)
@@ -211,9 +212,11 @@ def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_recko
     dead_reckon(vel_t, loop.stream.omega, loop.stream.velocity, loop.kf_t, np.zeros(6), r170, np.zeros(3), dr.rot,
                 dr.pos)
     dr.landmarks = first_sightings(loop.stream, loop.kf_of_det, dr.rot, dr.pos)
-    summary, sol = loop.smoother(seed=dr)
+    summary, sol, run = loop.smoother(seed=dr, run=True)
     assert summary["converged"]  # stopped: no step decreases the error
     assert summary["final_error"] > 5 * best and loop.ape(sol.pos) > 1.0
+    # most detections fail the gate there: nothing was dropped, the run warns instead
+    assert summary["residuals"]["landmark"]["gated"] == 0 and "local minimum" in run.stats["notes"][0]
 
 
 def test_both_reference_estimators_go_on_after_a_gap():

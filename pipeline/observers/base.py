@@ -65,6 +65,8 @@ class ObserverOptions:
     #: What the reference estimators (batch, riekf) read besides the stream: ``config`` (the RunConfig),
     #: ``log`` (its path) and ``topics`` (role -> topic). The observers ignore it.
     context: dict = field(default_factory=dict, compare=False)
+    #: A known map (:class:`pipeline.known_map.MapStart`): initial landmarks, which are fixed, start pose.
+    known_map: object | None = None
 
 
 @dataclass
@@ -88,6 +90,10 @@ class ObserverResult:
     timings: dict = field(default_factory=dict)
     #: Observer-specific tables (e.g. "jumps"), columns named as in ``schemas/<name>.json``.
     extra_tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    #: Observers whose law turns the whole estimate (C, E) write everything in their map frame; this is its
+    #: pose in their working (inertial) frame: ``rotation``/``translation`` now and ``mean_rotation`` (see
+    #: :meth:`KernelState.frame_mean`), ``estimated_s`` seconds of estimation. None for the others.
+    map_frame: dict | None = None
 
 
 def max_per_frame(det_offsets: np.ndarray) -> int:
@@ -130,9 +136,9 @@ class Outputs:
 class KernelState:
     """The state every landmark observer's kernel keeps between stretches, as arrays it updates in place:
     estimate (R̂, P̂, b̂_Ω, b̂_V), the visible measurements, the held twist, a sub-step counter, float clocks
-    ``fs`` (``[t, meas_t, ...]``) and integer counters ``ns`` (``[iv, jf, nvis, started, substeps]``, then the
-    sub-step cap count and the first capped sample, see ``shared_steps.count_capped``). Observers add their
-    own arrays and order them for their kernel."""
+    ``fs`` (``[t, meas_t, ...]``), integer counters ``ns`` (``[iv, jf, nvis, started, substeps]``, then the
+    sub-step cap count and the first capped sample, see ``shared_steps.count_capped``) and the map frame
+    ``(f_r, f_p)``. Observers add their own arrays and order them for their kernel."""
 
     def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray,
                  n_clocks: int = 2) -> None:
@@ -149,12 +155,26 @@ class KernelState:
         self.fs[1] = -np.inf  # time of the last frame: none yet
         self.ns = np.zeros(7, dtype=np.int64)
         self.ns[CAP_IV] = -1
+        # map frame -> working frame (x_work = f_r x_map + f_p): moved only by laws that turn the whole
+        # estimate (shared_steps.turn_frame); the identity for the others
+        self.f_r = np.eye(3)
+        self.f_p = np.zeros(3)
+        # its orientation summed over the velocity samples once it has settled (``shared_steps.frame_sample``)
+        self.f_sum = np.zeros((3, 3))
+        self.f_stat = np.zeros(2)  # [seconds the frame has been estimated, samples summed]
 
     def restart(self, t: float) -> None:
         """Start a new segment at time ``t``: no integration up to it, no landmark visible until the next frame."""
         self.fs[_T] = t
         self.fs[_MEAS_T] = -np.inf
         self.ns[_NVIS] = 0
+
+    def frame_mean(self) -> np.ndarray:
+        """Mean orientation of the map frame in the working frame over the samples summed so far (chordal
+        mean, projected onto SO(3)); the current one before any is summed."""
+        from slamobs.pipeline.lie import nearest_rotation
+
+        return nearest_rotation(self.f_sum) if self.f_stat[1] > 0 else self.f_r.copy()
 
 
 class Stepper:
@@ -174,6 +194,12 @@ class Stepper:
         n = stream.landmark_ids.shape[0]
         self.lm = np.zeros((n, 3))  # the map, updated in place by the kernel
         self.lm_init = np.zeros(n, dtype=np.bool_)
+        self.start_pose = None
+        if (known := options.known_map) is not None:
+            # x, y, z and each landmark's update weight (shared_steps.landmark_weight: 0 = fixed by the map)
+            self.lm = np.array(known.lm, dtype=np.float64)
+            self.lm_init = np.array(known.lm_init, dtype=np.bool_)
+            self.start_pose = known.pose
         self.iv = 0  # next velocity sample
         self.jf = 0  # next detection frame
         self._segment = 0  # segment starts passed so far
@@ -197,6 +223,21 @@ class Stepper:
         """Observer-specific table rows of the stretch just run."""
         return {}
 
+    def _frame(self) -> dict | None:
+        state = getattr(self, "state", None)
+        if state is None or not getattr(self, "keeps_map_frame", False):
+            return None
+        return {"rotation": state.f_r.copy(), "translation": state.f_p.copy(), "mean_rotation": state.frame_mean(),
+                "estimated_s": float(state.f_stat[0]), "samples": int(state.f_stat[1])}
+
+    def map_xyz(self) -> np.ndarray:
+        """The map as written, in the frame of the written poses: the kernel's map moved by ``F⁻¹`` for the
+        observers that keep a map frame (:class:`KernelState`), the live map itself for the others."""
+        state, xyz = getattr(self, "state", None), self.lm[:, :3]  # a known map adds a weight column
+        if state is None or (np.array_equal(state.f_r, np.eye(3)) and not state.f_p.any()):
+            return xyz
+        return (xyz - state.f_p) @ state.f_r
+
     def _frames_before(self, iv: int) -> int:
         """Detection frames processed before velocity sample ``iv`` (all of them at the end)."""
         return int(np.searchsorted(self.det_t, self.vel_t[iv], side="left")) if iv < self.n_vel else self.det_t.shape[0]
@@ -216,6 +257,9 @@ class Stepper:
         jf_stop = self._frames_before(iv_stop)
         det_first, det_stop = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
         out = Outputs.empty(output_rows(self.n_vel, self.options.out_every, self.iv, iv_stop), det_first, det_stop)
+        if self.iv == 0 and self.start_pose is not None:  # a known map fixes the frame: start where it says
+            self.state.r_hat[:], self.state.p_hat[:] = self.start_pose
+            self.start_pose = None
         starts = s.segment_starts
         ns = self.state.ns
         rows = 0
@@ -243,9 +287,10 @@ class Stepper:
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
         return ObserverResult(
             t_ns=s.vel_t_ns[out.k], rotation=out.r, position=out.p, gyro_bias=out.b[:, :3], vel_bias=out.b[:, 3:],
-            landmark_ids=s.landmark_ids, landmark_xyz=self.lm,
+            landmark_ids=s.landmark_ids, landmark_xyz=self.map_xyz(),
             det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
             innovation=out.innov, stats=dict(self.stats), timings=dict(self.timings), extra_tables=self._extra(),
+            map_frame=self._frame(),
         )
 
     def _relocalise(self, iv: int) -> bool:
@@ -308,6 +353,8 @@ class ObserverSpec:
     #: before any log is read (raises GainError, or InputError for a missing optional dependency) and returns
     #: the number of inertial directions the run needs (e.g. batch seeded by an observer that uses them).
     check_config: Callable[[object], int] | None = None
+    #: Whether the estimator starts from a known map (``options.known_map``); the reference estimators do not.
+    takes_known_map: bool = True
 
     def directions_needed(self, config) -> int:
         """Inertial directions a run of this estimator with ``config`` needs (checking the config first)."""

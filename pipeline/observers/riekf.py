@@ -574,4 +574,5 @@ SPEC = ObserverSpec(
     summary="right-invariant EKF SLAM with gyro and velocity biases; noise from the `noise` section of run.yaml",
     gains=(),
     start=RiEKF,
+    takes_known_map=False,
 )

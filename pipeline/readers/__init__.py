@@ -9,12 +9,16 @@ from __future__ import annotations
 
 from collections import defaultdict
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.streams import LogStreams, PoseStream
+import numpy as np
 
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.streams import LogStreams, PoseStream, Vec3Stream
+
+from .cameradecode import decode_camera_info, decode_corners, detect_in_images
 from .container import Container, damage_notes, detect_container, open_log
 from .decode import (
     VEC3_ROLES,
@@ -34,7 +38,7 @@ from .decode import (
 )
 from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
 from .msgdefs import complete_definitions, require_types
-from .roles import ROLES, TF_TYPES, accepted_types, select_roles, topics_of
+from .roles import IMAGE_TYPES, ODOMETRY, ROLES, TAG_CORNER_TYPES, TF_TYPES, accepted_types, select_roles, topics_of
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -69,6 +73,8 @@ def read_log(
     truth_format: str | None = None,
     truth_times: str | Path | None = None,
     clocks: str | Mapping[str, str] | None = None,
+    images: ImageSearch | None = None,
+    progress: Callable[[str], None] | None = None,
 ) -> LogStreams:
     """Decode the topics of each role into streams.
 
@@ -87,6 +93,10 @@ def read_log(
         clocks: ``None``/``"header"`` keeps header stamps; ``"auto"`` takes record times for the topics whose
             stamps look unusable next to the reference stream (:func:`recommend_clocks`); a mapping
             ``topic -> "header" | "record"`` chooses per topic. The choice is in ``LogStreams.clocks``.
+        images: How camera images are searched for tags (family, detector settings, frame rate); tags found
+            in images and tag corner messages land in ``LogStreams.tag_corners`` (made landmarks later, by
+            :mod:`pipeline.vision.landmarks`), ``camera_info`` topics in ``LogStreams.camera_info``.
+        progress: Receives a line about once a second while images are searched.
 
     Raises:
         InputError: Unreadable log, bad override, undecodable topic, missing message definition, invalid
@@ -122,15 +132,17 @@ def read_log(
                 tf_rows[topic] = decode_tf(reader, path, topic, table[topic][1])
             return tf_rows[topic]
 
+        multi = {t for topics_ in selection.multi.values() for t in topics_}
         chosen = [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
-        for _, topic in chosen:
+        for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
         rows, detections = decode_topics(
             reader, path,
             {t: table[t][1] for r, t in chosen if (r, table[t][0].msgtype) in VEC3_ROLES
              or (r == "truth" and selection.truth_edge is None)},
-            {t: table[t][1] for r, t in chosen if r == "detections" and table[t][0].msgtype not in TF_TYPES},
+            {t: table[t][1] for r, t in chosen if r == "detections" and table[t][0].msgtype not in TF_TYPES
+             and t not in multi},
             marker_ns,
         )
         last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
@@ -138,11 +150,20 @@ def read_log(
             meta, conns = table[topic]
             if (role, meta.msgtype) in VEC3_ROLES:
                 stream, cleaning = vec3_stream(rows[topic], role)
+                if meta.msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
+                    stream, cleaning = _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
                 setattr(streams, role, stream)
                 note(topic, role, cleaning)
             elif role == "truth" and selection.truth_edge is None:
                 streams.truth, cleaning = pose_stream(rows[topic])
                 note(topic, role, cleaning)
+            elif role == "detections" and topic in multi:
+                _camera_topics(reader, path, table, selection.multi["detections"], streams, note, images, progress)
+            elif role == "camera_info":
+                for info_topic in selection.multi["camera_info"]:
+                    model, warnings = decode_camera_info(reader, path, info_topic, table[info_topic][1])
+                    streams.camera_info.append(model)
+                    streams.warnings += warnings
             elif role == "detections":
                 if meta.msgtype in TF_TYPES:
                     streams.detections, cleaning = tag_detections(tf_of(topic), str(selection.tag_pattern), path)
@@ -176,6 +197,66 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+@dataclass(frozen=True)
+class ImageSearch:
+    """How camera images are searched for tags (``tags`` section of the config)."""
+
+    family: str = "36h11"
+    detector: dict | None = None  # cv2.aruco.DetectorParameters fields
+    max_rate_hz: float | None = None  # images per second and camera
+
+
+def _camera_topics(reader, path: Path, table, topics: list[str], streams: LogStreams, note, images: ImageSearch | None,
+                   progress: Callable[[str], None] | None) -> None:
+    """Tag corner topics decoded, image topics searched for tags: one corner stream per camera topic."""
+    corner_topics = [t for t in topics if table[t][0].msgtype in TAG_CORNER_TYPES]
+    image_topics = [t for t in topics if table[t][0].msgtype in IMAGE_TYPES]
+    for topic in corner_topics:
+        stream, cleaning = decode_corners(reader, path, topic, table[topic][1])
+        streams.tag_corners.append(stream)
+        note(topic, "detections", cleaning)
+    if image_topics:
+        from slamobs.pipeline.vision.detector import TagDetector
+
+        search = images or ImageSearch()
+        detector = TagDetector(search.family, search.detector, path)
+        found = detect_in_images(reader, path, {t: table[t][1] for t in image_topics}, detector,
+                                 max_rate_hz=search.max_rate_hz, progress=progress)
+        for topic, result in found.items():
+            if result is None:
+                streams.warnings.append(f"{topic}: depth images, not searched for tags")
+                continue
+            streams.tag_corners.append(result[0])
+            note(topic, "detections", result[1])
+
+
+def _odometry_twist(rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleaning,
+                    derived: dict[str, str]) -> tuple[Vec3Stream, Cleaning]:
+    """An odometry twist checked against the odometry's poses: a zero angular velocity is differentiated from the
+    orientations, a linear velocity given in the parent frame is rotated into the child frame (both recorded in
+    ``derived``)."""
+    from .odometry import SMOOTH_S, angular_from_poses, rotate_into_child, twist_in_parent
+
+    poses, _ = pose_stream(rows)
+    if len(poses) != len(stream) or not np.array_equal(poses.t_ns, stream.t_ns):
+        return stream, cleaning  # cleaning kept different rows (NaN twists): leave the twist as it is
+    if role == "angular_velocity" and len(stream) > 1 and not stream.xyz.any():
+        derived[role] = (f"differentiated from the orientations of {rows.topic} (twist.angular is all zero), "
+                         f"smoothed over {SMOOTH_S:g} s")
+        cleaning.extra = [x for x in cleaning.extra if not x.startswith("all values are zero")]
+        cleaning.extra.append("twist.angular is all zero: angular velocity differentiated from the orientations")
+        return angular_from_poses(poses, stream.frame_id), cleaning
+    if role == "linear_velocity":
+        parent, fit_parent, fit_child = twist_in_parent(poses, stream)
+        if parent:
+            derived[role] = (f"twist.linear of {rows.topic} is in the parent frame '{poses.frame_id}' (misfit to the "
+                             f"position derivative {fit_parent:.3f} m/s there, {fit_child:.3f} m/s in the child frame): "
+                             f"rotated into '{stream.frame_id}' with the orientations")
+            cleaning.extra.append(f"twist.linear is in the parent frame '{poses.frame_id}': rotated into the child frame")
+            return rotate_into_child(poses, stream), cleaning
+    return stream, cleaning
 
 
 def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None) -> LogStreams:

@@ -583,16 +583,34 @@ def _clean_detections(
     frame_names: list[str],
 ) -> tuple[DetectionStream, Cleaning]:
     """Drop NaN detections and repeated ids within a frame, sort frames by stamp, drop duplicate frames."""
+    t_ns, rec_ns, offsets, ids, xyz, frame_id, cleaning = clean_frames(t_ns, rec_ns, lengths, ids, xyz, frame,
+                                                                       frame_names)
+    return DetectionStream(topic, frame_id, t_ns, rec_ns, offsets, ids, xyz), cleaning
+
+
+def clean_frames(
+    t_ns: np.ndarray,
+    rec_ns: np.ndarray,
+    lengths: np.ndarray,
+    ids: np.ndarray,
+    values: np.ndarray,
+    frame: np.ndarray,
+    frame_names: list[str],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, str, Cleaning]:
+    """Detection frames (CSR: ``lengths`` per frame, ``ids`` and ``values`` rows per detection) cleaned: NaN
+    detections and repeated ids within a frame dropped, frames sorted by stamp, duplicate frames dropped.
+    Returns stamps, record times, offsets, ids, values, the dominant frame id and what was done."""
     cleaning = Cleaning()
     t_ns = _effective_stamps(t_ns, rec_ns, cleaning)
     nframes = t_ns.shape[0]
     owner = np.repeat(np.arange(nframes), lengths)
+    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
 
     # (arrays are copied only where something is dropped or moved: an hour of detections is tens of MB)
-    finite = np.isfinite(xyz).all(axis=1)
+    finite = np.isfinite(flat).all(axis=1)
     cleaning.nonfinite = int(finite.size - np.count_nonzero(finite))
     if cleaning.nonfinite:
-        ids, xyz, owner = ids[finite], xyz[finite], owner[finite]
+        ids, values, flat, owner = ids[finite], values[finite], flat[finite], owner[finite]
     del finite
     order = np.lexsort((ids, owner))  # stable: the first detection of an id in a frame is kept
     same = np.zeros(ids.shape[0], bool)
@@ -600,7 +618,7 @@ def _clean_detections(
     del order
     if nsame := int(np.count_nonzero(same)):
         cleaning.extra.append(plural(nsame, "repeated id") + " within a frame dropped")
-        ids, xyz, owner = ids[~same], xyz[~same], owner[~same]
+        ids, values, flat, owner = ids[~same], values[~same], flat[~same], owner[~same]
     del same
     lengths = np.bincount(owner, minlength=nframes).astype(np.int64)
     del owner
@@ -611,7 +629,7 @@ def _clean_detections(
 
     def key(i: int) -> bytes:
         f = forder[i]
-        return ids[offsets[f] : offsets[f + 1]].tobytes() + xyz[offsets[f] : offsets[f + 1]].tobytes()
+        return ids[offsets[f] : offsets[f + 1]].tobytes() + flat[offsets[f] : offsets[f + 1]].tobytes()
 
     drop, cleaning.repeated = _duplicate_mask(t_ns[forder], key)
     cleaning.duplicates = int(drop.sum())
@@ -619,22 +637,12 @@ def _clean_detections(
 
     frame_id = _dominant(frame[forder], frame_names, cleaning)
     if forder.shape[0] == nframes and bool(np.all(np.diff(forder) == 1)):  # every frame, in order: keep as is
-        stream = DetectionStream(topic, frame_id, t_ns[forder], rec_ns[forder], offsets, ids,
-                                 np.ascontiguousarray(xyz))
-        return stream, cleaning
+        return t_ns[forder], rec_ns[forder], offsets, ids, np.ascontiguousarray(values), frame_id, cleaning
     sel_len = lengths[forder]
     new_offsets = _offsets(sel_len)
     gather = np.repeat(offsets[:-1][forder] - new_offsets[:-1], sel_len) + np.arange(new_offsets[-1])
-    stream = DetectionStream(
-        topic,
-        frame_id,
-        t_ns[forder],
-        rec_ns[forder],
-        new_offsets,
-        ids[gather],
-        np.ascontiguousarray(xyz[gather]),
-    )
-    return stream, cleaning
+    return (t_ns[forder], rec_ns[forder], new_offsets, ids[gather], np.ascontiguousarray(values[gather]), frame_id,
+            cleaning)
 
 
 @dataclass

@@ -413,7 +413,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         end,
         count,
         topics,
-        selection.roles,
+        {**selection.roles, **{r: ", ".join(t) for r, t in selection.multi.items()}},
         tuple(warnings),
         record_clock,
         reference,

@@ -5,6 +5,11 @@ name), and the losers are named in a warning so a user knows which role to overr
 only when a user says so (``EXPLICIT_TYPES``): a ``PoseArray``, ``MarkerArray`` or TF tag frames are as often
 a map or a visualisation as a detection, and odometry or AMCL poses are estimates, not ground truth.
 Topics named like commanded velocities (``cmd_vel``) are never picked as measurements.
+
+Detections without a 3D pose, tag corners in pixels and camera images (the last two tiers), are the cameras
+of a rig: every topic of the chosen tier is used (``RoleSelection.multi``), each with its camera model from
+the ``camera_info`` topics (also all of them) or the config. Of an image topic also recorded compressed
+(``X`` and ``X/compressed``) only ``X`` is searched, and topics named like depth images are left out.
 """
 
 from __future__ import annotations
@@ -38,13 +43,19 @@ TF2 = "tf2_msgs/msg/TFMessage"
 TF1 = "tf/msg/tfMessage"  # ROS1 tf (not tf2) bags
 TF_TYPES = (TF2, TF1)
 STRING = "std_msgs/msg/String"
-
-#: Types that look like detections but carry no 3D position: named in errors instead of "unsupported".
-NO_POSE_TYPES: dict[str, str] = {
-    "apriltag_msgs/msg/ApriltagArrayStamped": "tag corners in pixels, no 3D pose",
-    "apriltag_msgs/msg/AprilTagDetectionArray": "tag corners in pixels, no 3D pose",
-    "fiducial_msgs/msg/FiducialArray": "fiducial corners in pixels, no 3D pose",
-}
+#: Tag corners in pixels (no 3D pose): a PnP with the camera model and the tag size makes them landmarks.
+TAG_CORNER_TYPES = (
+    "apriltag_msgs/msg/ApriltagArrayStamped",  # ROS1 apriltag_ros (KumarRobotics / TagSLAM's detector)
+    "apriltag_detector_msgs/msg/ApriltagArrayStamped",  # berndpfrommer/apriltag_detector (ROS1 and ROS2)
+    "apriltag_msgs/msg/AprilTagDetectionArray",  # ROS2 christianrauch/apriltag_ros
+    "fiducial_msgs/msg/FiducialArray",  # UbiquityRobotics aruco_detect
+    "fiducial_pose/msg/FiducialArray",  # same, pre-2017 package name
+)
+IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
+FOXGLOVE_IMAGE = "foxglove_msgs/msg/CompressedImage"
+IMAGE_TYPES = (IMAGE, COMPRESSED_IMAGE, FOXGLOVE_IMAGE)
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 
 #: Separator of a TF edge given as a topic (``topics.truth: "map->base_link"``).
 EDGE_ARROW = "->"
@@ -60,6 +71,7 @@ ROLES: tuple[str, ...] = (
     "static_tf",
     "tf",
     "sim_truth",
+    "camera_info",
 )
 
 #: Types each role accepts, as tiers in order of preference; a lower tier is used only if the one
@@ -69,12 +81,17 @@ ROLE_TYPES: dict[str, tuple[tuple[str, ...], ...]] = {
     "linear_velocity": ((ODOMETRY,), (TWIST_STAMPED, TWIST_COV_STAMPED)),
     "accel": ((IMU,),),
     "magnetic": ((MAGNETIC_FIELD,),),
-    "detections": ((FIDUCIALS,), (FIDUCIALS_LEGACY,), (APRILTAG_ROS,)),
+    "detections": ((FIDUCIALS,), (FIDUCIALS_LEGACY,), (APRILTAG_ROS,), TAG_CORNER_TYPES, IMAGE_TYPES),
     "truth": ((POSE_STAMPED,), (TRANSFORM_STAMPED,)),
     "static_tf": (TF_TYPES,),
     "tf": (TF_TYPES,),
     "sim_truth": ((STRING,),),
+    "camera_info": ((CAMERA_INFO,),),
 }
+
+#: Tiers whose topics are all used together (the cameras of a rig), and roles that always take every topic.
+MULTI_TIERS = (TAG_CORNER_TYPES, IMAGE_TYPES)
+MULTI_ROLES = frozenset({"camera_info"})
 
 #: Types a role accepts only as an explicit override (never detected). TF types as detections also need a
 #: tag frame pattern; TF truth is given as an edge ``parent->child``, not as a topic.
@@ -126,6 +143,9 @@ class RoleSelection:
     """
 
     roles: dict[str, str] = field(default_factory=dict)
+    #: Roles played by several topics together (tag corners or images of several cameras, camera_info):
+    #: every topic; ``roles`` holds the first.
+    multi: dict[str, list[str]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     truth_edge: tuple[str, str] | None = None
     tag_pattern: str | None = None
@@ -151,6 +171,42 @@ def _is_command(topic: str) -> bool:
 def _same_name(topic: str, name: str) -> bool:
     """Compare topic names ignoring the leading slash (ROS1 bags may omit it)."""
     return topic.lstrip("/") == name.lstrip("/")
+
+
+def is_multi(msgtype: str) -> bool:
+    """Whether topics of this type play their role together (cameras of a rig)."""
+    return any(msgtype in tier for tier in MULTI_TIERS) or msgtype == CAMERA_INFO
+
+
+def _cameras(found: list[str], topics: Mapping[str, TopicMeta]) -> tuple[list[str], list[str]]:
+    """Image topics worth searching (not depth, not the compressed copy of a raw topic) and what was left out."""
+    keep, dropped = [], []
+    for topic in found:
+        parent = topic.rsplit("/", 1)[0]
+        if "depth" in topic.lower():
+            dropped.append(f"{topic} (depth)")
+        elif topics[topic].msgtype != IMAGE and parent in found and topics[parent].msgtype == IMAGE:
+            dropped.append(f"{topic} (compressed copy of {parent})")
+        else:
+            keep.append(topic)
+    return keep, dropped
+
+
+def _pick_all(role: str, topics: Mapping[str, TopicMeta]) -> tuple[list[str], str | None]:
+    """Every topic of the first tier of ``role`` that has one, when that tier is played together."""
+    for tier in ROLE_TYPES[role]:
+        found = sorted(t for t, m in topics.items() if m.msgtype in tier and m.count > 0)
+        if not found:
+            continue
+        if tier not in MULTI_TIERS and role not in MULTI_ROLES:
+            return [], None
+        warning = None
+        if tier is IMAGE_TYPES:
+            found, dropped = _cameras(found, topics)
+            if dropped:
+                warning = f"{role}: image topics not searched: {', '.join(dropped)}"
+        return found, warning
+    return [], None
 
 
 def _pick(role: str, topics: Mapping[str, TopicMeta]) -> tuple[str | None, str | None]:
@@ -194,11 +250,8 @@ def _check_override(
     msgtype = topics[topic].msgtype
     if msgtype not in accepted_types(role):
         expected = " or ".join(accepted_types(role))
-        why = f" ({NO_POSE_TYPES[msgtype]})" if msgtype in NO_POSE_TYPES else ""
         hint = "; a TF edge is given as 'parent->child'" if role == "truth" and msgtype in TF_TYPES else ""
-        raise InputError(
-            path, f"type {msgtype} is not supported for role {role}{why} (expected {expected}){hint}", topic
-        )
+        raise InputError(path, f"type {msgtype} is not supported for role {role} (expected {expected}){hint}", topic)
     if role == "detections" and msgtype in TF_TYPES and not tag_pattern:
         raise InputError(
             path, "TF tag frames as detections need a tag frame pattern (frames.tag_pattern, e.g. 'tag_{id}')", topic
@@ -231,22 +284,35 @@ def select_roles(
             raise InputError(path, f"unknown role {role!r} (roles: {', '.join(ROLES)})")
         if not topic:
             continue
-        if role == "truth" and (edge := parse_edge(topic)) is not None:
+        if role == "truth" and isinstance(topic, str) and (edge := parse_edge(topic)) is not None:
             if not all(edge):
                 raise InputError(path, f"truth TF edge {topic!r} is not 'parent->child'")
             continue
-        _check_override(role, topic, topics, path, tag_pattern)
+        names = _names(topic)
+        for name in names:
+            _check_override(role, name, topics, path, tag_pattern)
+        if len(names) > 1 and not all(role in MULTI_ROLES or is_multi(topics[n].msgtype) for n in names):
+            raise InputError(path, f"several topics for role {role} only work for tag corners, camera images and "
+                                   f"camera_info (got {', '.join(names)})")
 
     for role in ROLES:
         if role in overrides:
             if overrides[role] and not (role == "truth" and edge):
-                selection.roles[role] = str(overrides[role])
+                names = _names(overrides[role])
+                selection.roles[role] = names[0]
+                if role in MULTI_ROLES or is_multi(topics[names[0]].msgtype):
+                    selection.multi[role] = names
             continue
         gyro = selection.roles.get("angular_velocity", "")
         if role == "accel" and gyro in topics and topics[gyro].msgtype == IMU:
             selection.roles[role] = gyro  # same Imu as the gyro: one clock, one frame
             continue
         topic, warning = _pick(role, topics)
+        if topic is not None and (role in MULTI_ROLES or is_multi(topics[topic].msgtype)):
+            found, warning = _pick_all(role, topics)
+            if found:
+                selection.multi[role] = found
+            topic = found[0] if found else None
         if topic is not None:
             selection.roles[role] = topic
         if warning:
@@ -261,6 +327,11 @@ def select_roles(
     return selection
 
 
+def _names(value: str | list[str] | tuple[str, ...]) -> list[str]:
+    """An override as a list of topics (``detections`` and ``camera_info`` may name several)."""
+    return [str(v) for v in value] if isinstance(value, (list, tuple)) else [str(value)]
+
+
 def _tag_frames(
     selection: RoleSelection,
     overrides: Mapping[str, str | None],
@@ -269,7 +340,7 @@ def _tag_frames(
     tag_pattern: str | None,
     path: str | Path,
 ) -> None:
-    """Detections from TF tag frames when a pattern asks for them; a note when only pixel detections exist."""
+    """Detections from TF tag frames when a pattern asks for them."""
     chosen = selection.roles.get("detections")
     if tag_pattern and "detections" not in overrides:
         if not tf_topic:
@@ -280,13 +351,8 @@ def _tag_frames(
                 "(override detections to use it)"
             )
         selection.roles["detections"] = chosen = tf_topic
+        selection.multi.pop("detections", None)
     if chosen and topics[chosen].msgtype in TF_TYPES:
         selection.tag_pattern = tag_pattern
     elif tag_pattern and chosen:
         selection.warnings.append(f"tag frame pattern {tag_pattern!r} unused: detections come from {chosen}")
-    if "detections" not in selection.roles and "detections" not in overrides:
-        for topic, meta in sorted(topics.items()):
-            if meta.msgtype in NO_POSE_TYPES:
-                selection.warnings.append(
-                    f"detections: {topic} ({meta.msgtype}) has {NO_POSE_TYPES[meta.msgtype]}: not usable"
-                )

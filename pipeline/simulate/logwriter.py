@@ -11,6 +11,7 @@ import os
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -33,12 +34,16 @@ from slamobs.pipeline.simulate.sensors import (
     TOPIC_DETECTIONS,
     TOPIC_IMU,
     TOPIC_MAG,
+    TOPIC_CAMERA_INFO,
     TOPIC_MOCAP,
     TOPIC_ODOM,
     TOPIC_TF_STATIC,
     TOPIC_TRUTH,
+    CameraSim,
     SimLog,
     Simulation,
+    camera_topic,
+    camera_topics,
 )
 
 CONTAINERS = ("bag", "mcap", "ros2")
@@ -59,6 +64,21 @@ fiducial_msgs/FiducialTransform[] transforms
 
 TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms\n"  # missing from rosbags' ROS1 store
 
+# apriltag_msgs (ROS1 apriltag_ros of KumarRobotics, TagSLAM's detector): corners in pixels, no pose
+APRILTAG_MSG = """\
+int32 id
+string family
+int32 hamming
+int32 border
+int32 bits
+geometry_msgs/Point center
+geometry_msgs/Point[4] corners
+"""
+APRILTAG_ARRAY_MSG = """\
+std_msgs/Header header
+apriltag_msgs/Apriltag[] apriltags
+"""
+
 # Topic -> message type, in the order ties in record time are broken (latched topics first).
 TOPIC_TYPES: dict[str, str] = {
     TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
@@ -70,9 +90,26 @@ TOPIC_TYPES: dict[str, str] = {
     TOPIC_MOCAP: "geometry_msgs/msg/PoseStamped",
 }
 LATCHED = frozenset({TOPIC_TF_STATIC, TOPIC_TRUTH})
-#: Topic -> the SimLog stream it is written from.
+#: Topic -> the SimLog stream it is written from (camera topics: the detection stamps).
 TOPIC_STREAMS: dict[str, str] = {TOPIC_IMU: "imu", TOPIC_ODOM: "odom", TOPIC_MAG: "mag",
                                  TOPIC_DETECTIONS: "detections", TOPIC_MOCAP: "mocap"}
+#: Message types of the simulated camera's topics.
+CAMERA_TYPES = {"corners": "apriltag_msgs/msg/ApriltagArrayStamped", "raw": "sensor_msgs/msg/Image",
+                "jpeg": "sensor_msgs/msg/CompressedImage", "info": "sensor_msgs/msg/CameraInfo"}
+
+
+def topic_types(cam: CameraSim) -> dict[str, str]:
+    """Topic -> message type of a simulated log, in tie-breaking order (the camera's topics replace the
+    fiducial detections when it reports corners or images)."""
+    if cam.output == "fiducials":
+        return dict(TOPIC_TYPES)
+    kind = "corners" if cam.output == "corners" else ("raw" if cam.jpeg_quality is None else "jpeg")
+    types = {camera_topic(cam): CAMERA_TYPES[kind], TOPIC_CAMERA_INFO: CAMERA_TYPES["info"]}
+    return {tp: types.get(tp, TOPIC_TYPES.get(tp)) for tp in camera_topics(dict.fromkeys(TOPIC_TYPES, 0), cam)}
+
+
+def _stream_of(topic: str) -> str:
+    return TOPIC_STREAMS.get(topic, "detections" if topic.startswith("/camera/") else "")
 
 # ROS2 "latched" QoS (transient local, keep last 1), as ros2 bag records /tf_static.
 _LATCHED_QOS = Qos(
@@ -102,6 +139,8 @@ def make_typestore(ros1: bool) -> Typestore:
     types.update(get_types_from_msg(FIDUCIAL_TRANSFORM_ARRAY_MSG, "fiducial_msgs/msg/FiducialTransformArray"))
     if "tf2_msgs/msg/TFMessage" not in ts.fielddefs:
         types.update(get_types_from_msg(TF_MESSAGE_MSG, "tf2_msgs/msg/TFMessage"))
+    types.update(get_types_from_msg(APRILTAG_MSG, "apriltag_msgs/msg/Apriltag"))
+    types.update(get_types_from_msg(APRILTAG_ARRAY_MSG, "apriltag_msgs/msg/ApriltagArrayStamped"))
     ts.register(types)
     return ts
 
@@ -117,6 +156,7 @@ class _Builder:
 
     def __init__(self, sim: SimLog, ts: Typestore, ros1: bool) -> None:
         self.sim, self.ts, self.ros1 = sim, ts, ros1
+        self.types = topic_types(sim.camera_sim)
         t = ts.types
         self.Time, self.Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
         self.Vector3, self.Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
@@ -218,6 +258,57 @@ class _Builder:
             header=self.header(int(d.t_ns[i]), FRAME_CAMERA, seq), image_seq=seq, transforms=items
         )
 
+    def tags(self, i: int) -> object:
+        """Tag corners of camera frame ``i`` in the AprilTag order (bottom-left first, counter-clockwise)."""
+        c, t = self.sim.camera, self.ts.types
+        tag, point = t["apriltag_msgs/msg/Apriltag"], self.Point
+        items = []
+        for k in range(int(c.offsets[i]), int(c.offsets[i + 1])):
+            px = c.corners[k][[3, 2, 1, 0]]
+            centre = px.mean(axis=0)
+            items.append(tag(id=int(c.ids[k]), family=self.sim.camera_sim.family, hamming=0, border=1,
+                             bits=6, center=point(x=float(centre[0]), y=float(centre[1]), z=0.0),
+                             corners=[point(x=float(x), y=float(y), z=0.0) for x, y in px]))
+        seq = self.sim.first["detections"] + i
+        return t["apriltag_msgs/msg/ApriltagArrayStamped"](header=self.header(int(c.t_ns[i]), FRAME_CAMERA, seq),
+                                                          apriltags=items)
+
+    def camera_info(self, i: int) -> object:
+        cam, t = self.sim.camera_sim, self.ts.types
+        k = cam.k
+        roi = t["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        p = np.column_stack([k, np.zeros(3)]).ravel()
+        fields = {"d": cam.ros_coeffs.astype(np.float64), "k": k.ravel(), "r": np.eye(3).ravel(), "p": p}
+        if self.ros1:
+            fields = {key.upper(): v for key, v in fields.items()}
+        seq = self.sim.first["detections"] + i
+        return t["sensor_msgs/msg/CameraInfo"](
+            header=self.header(int(self.sim.camera.t_ns[i]), FRAME_CAMERA, seq), height=cam.height, width=cam.width,
+            distortion_model=cam.ros_distortion, binning_x=0, binning_y=0, roi=roi, **fields)
+
+    def image(self, i: int) -> object:
+        """Camera frame ``i`` rendered (noise drawn from a generator of the seed and the frame: reproducible)."""
+        c, cam, t = self.sim.camera, self.sim.camera_sim, self.ts.types
+        seq = self.sim.first["detections"] + i
+        gray = self.renderer.render(c.r_wc[i], c.t_wc[i], np.random.default_rng([self.sim.seed, 11, seq]))
+        header = self.header(int(c.t_ns[i]), FRAME_CAMERA, seq)
+        if cam.jpeg_quality is None:
+            return t["sensor_msgs/msg/Image"](header=header, height=gray.shape[0], width=gray.shape[1],
+                                              encoding="mono8", is_bigendian=0, step=gray.shape[1],
+                                              data=np.ascontiguousarray(gray).ravel())
+        cv2 = self.renderer._cv2
+        ok, buf = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, int(cam.jpeg_quality)])
+        assert ok
+        return t["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=buf.ravel())
+
+    @cached_property
+    def renderer(self):
+        from slamobs.pipeline.simulate.camera import TagRenderer
+        from slamobs.pipeline.simulate.scenarios import get_scenario
+
+        sc = get_scenario(self.sim.scenario)
+        return TagRenderer(self.sim.camera_sim, sc.landmarks, sc.landmark_rots, sc.landmark_ids)
+
     def mocap(self, i: int) -> object:
         d = self.sim.mocap
         return self.ts.types["geometry_msgs/msg/PoseStamped"](
@@ -226,7 +317,7 @@ class _Builder:
         )
 
     def serialize(self, msg: object, topic: str) -> bytes:
-        msgtype = TOPIC_TYPES[topic]
+        msgtype = self.types[topic]
         return bytes(self.ts.serialize_ros1(msg, msgtype) if self.ros1 else self.ts.serialize_cdr(msg, msgtype))
 
     def columns(self, topic: str) -> dict[tuple[str, ...], np.ndarray] | None:
@@ -262,7 +353,7 @@ class _Builder:
         if columns is None:
             return lambda i: self.serialize(make(i), topic)
         template = np.frombuffer(self.serialize(make(0), topic), np.uint8)
-        plan = make_plan(self.ts, TOPIC_TYPES[topic], list(columns)[2:], (), cdr=not self.ros1)
+        plan = make_plan(self.ts, self.types[topic], list(columns)[2:], (), cdr=not self.ros1)
         assert plan is not None, topic
         rows = np.empty((n, template.shape[0]), np.uint8)
         rows[:] = template
@@ -284,8 +375,17 @@ class _Builder:
             TOPIC_DETECTIONS: (s.detections.rec_ns, self.detections),
             TOPIC_MOCAP: (s.mocap.rec_ns, self.mocap),
         }
-        return {topic: (rec, self.payloads(topic, make, len(rec))) for topic, (rec, make) in objects.items()
-                if latched or topic not in LATCHED}
+        if s.camera is not None:
+            del objects[TOPIC_DETECTIONS]
+            cam = s.camera_sim
+            objects[camera_topic(cam)] = (s.camera.rec_ns, self.tags if cam.output == "corners" else self.image)
+            objects[TOPIC_CAMERA_INFO] = (s.camera.rec_ns, self.camera_info)
+        out = {}
+        for topic in self.types:
+            if latched or topic not in LATCHED:
+                rec, make = objects[topic]
+                out[topic] = (rec, self.payloads(topic, make, len(rec)))
+        return out
 
 
 def _build_message(factory: Callable[[int], bytes], index: int) -> bytes:
@@ -304,7 +404,7 @@ def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterat
     A piece's messages are written once no later piece can precede them: record times are never before the
     stamps, so everything recorded before the next piece's first stamp is final; the rest waits for that piece.
     """
-    topics = list(TOPIC_TYPES)
+    topics = list(topic_types(sim.camera_sim if isinstance(sim, SimLog) else sim.camera))
     factories: dict[int, dict[str, Callable[[int], bytes]]] = {}
     waiting: list[np.ndarray] = []  # columns: record time, topic, index in the log, index in the piece, piece
 
@@ -321,7 +421,7 @@ def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterat
         new = [
             np.concatenate([rec for rec, _ in makers.values()]),
             np.concatenate([np.full(n, topics.index(tp)) for tp, n in sizes.items()]),
-            np.concatenate([part.first.get(TOPIC_STREAMS.get(tp, ""), 0) + np.arange(n) for tp, n in sizes.items()]),
+            np.concatenate([part.first.get(_stream_of(tp), 0) + np.arange(n) for tp, n in sizes.items()]),
             np.concatenate([np.arange(n) for n in sizes.values()]),
             np.full(sum(sizes.values()), p),
         ]
@@ -348,6 +448,10 @@ class _Bag1Writer(Bag1Writer):
             chunk.connections = {cid: range(len(items)) for cid, items in chunk.connections.items()}
 
 
+def _types_of(sim: SimLog | Simulation) -> dict[str, str]:
+    return topic_types(sim.camera_sim if isinstance(sim, SimLog) else sim.camera)
+
+
 def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
     ts = make_typestore(ros1=True)
     writer = _Bag1Writer(path)
@@ -357,7 +461,7 @@ def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
             tp: writer.add_connection(
                 tp, typ, typestore=ts, callerid="/slamobs_simulate", latching=1 if tp in LATCHED else None
             )
-            for tp, typ in TOPIC_TYPES.items()
+            for tp, typ in _types_of(sim).items()
         }
         for topic, rec, raw in iter_messages(sim, ts, ros1=True):
             writer.write(conns[topic], rec, raw)
@@ -370,7 +474,7 @@ def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
             tp: writer.add_connection(
                 tp, typ, typestore=ts, offered_qos_profiles=[_LATCHED_QOS] if tp in LATCHED else []
             )
-            for tp, typ in TOPIC_TYPES.items()
+            for tp, typ in _types_of(sim).items()
         }
         for topic, rec, raw in iter_messages(sim, ts, ros1=False):
             writer.write(conns[topic], rec, raw)
@@ -382,7 +486,7 @@ def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
         writer = McapWriter(stream, compression=CompressionType.ZSTD)
         writer.start(profile="ros2", library="slamobs-simulate")
         channels: dict[str, int] = {}
-        for tp, typ in TOPIC_TYPES.items():
+        for tp, typ in _types_of(sim).items():
             msgdef, _ = ts.generate_msgdef(typ, ros_version=2)
             schema = writer.register_schema(name=typ, encoding="ros2msg", data=msgdef.encode())
             meta = {"offered_qos_profiles": _LATCHED_QOS_YAML if tp in LATCHED else ""}

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from slamobs.pipeline.lie import rots_to_quats, so3_exps
+from slamobs.pipeline.simulate.camera import CameraSim, tag_views
 from slamobs.pipeline.simulate.scenarios import (
     GRAVITY,
     MAGNETIC_FIELD,
@@ -34,6 +35,10 @@ TOPIC_DETECTIONS = "/fiducial_transforms"
 TOPIC_TF_STATIC = "/tf_static"
 TOPIC_MOCAP = "/mocap/pose"
 TOPIC_TRUTH = "/slamobs/sim_truth"
+TOPIC_TAGS = "/camera/tags"  # tag corners (camera output "corners")
+TOPIC_IMAGE = "/camera/image_raw"  # raw images (camera output "images" without JPEG)
+TOPIC_IMAGE_JPEG = "/camera/image_raw/compressed"
+TOPIC_CAMERA_INFO = "/camera/camera_info"
 
 FRAME_WORLD = "world"
 FRAME_BODY = "base_link"
@@ -108,6 +113,20 @@ class DetectionData:
 
 
 @dataclass(frozen=True)
+class CameraData:
+    """The simulated camera's frames (on the detection stamps): its pose, and the tags it sees with their corner
+    pixels (noisy for the ``corners`` output, true for ``images``, which are rendered when written)."""
+
+    t_ns: np.ndarray  # (F,)
+    rec_ns: np.ndarray  # (F,)
+    r_wc: np.ndarray  # (F, 3, 3) camera -> world
+    t_wc: np.ndarray  # (F, 3)
+    offsets: np.ndarray  # (F + 1,)
+    ids: np.ndarray  # (M,)
+    corners: np.ndarray  # (M, 4, 2) px, OpenCV order
+
+
+@dataclass(frozen=True)
 class PoseData:
     t_ns: np.ndarray
     rec_ns: np.ndarray
@@ -131,6 +150,8 @@ class SimLog:
     mocap: PoseData
     static_tf: list[Transform]
     truth: dict = field(default_factory=dict)  # the /slamobs/sim_truth JSON document
+    camera: CameraData | None = None  # tag corners / images instead of fiducial poses
+    camera_sim: CameraSim = CameraSim()
     #: Index of the first sample of each stream in the whole log (a piece of a longer simulation; 0 otherwise).
     first: dict[str, int] = field(default_factory=lambda: dict.fromkeys(STREAMS, 0))
 
@@ -140,7 +161,7 @@ class SimLog:
 
     def topic_counts(self) -> dict[str, int]:
         """Messages per topic, as they will be written."""
-        return {
+        counts = {
             TOPIC_TF_STATIC: 1,
             TOPIC_TRUTH: 1,
             TOPIC_IMU: len(self.imu.t_ns),
@@ -149,6 +170,7 @@ class SimLog:
             TOPIC_DETECTIONS: len(self.detections.t_ns),
             TOPIC_MOCAP: len(self.mocap.t_ns),
         }
+        return camera_topics(counts, self.camera_sim)
 
 
 def body_points(R: np.ndarray, P: np.ndarray, landmarks: np.ndarray) -> np.ndarray:
@@ -229,6 +251,7 @@ class Simulation:
     rates: dict[str, float]  # stream -> Hz
     start_ns: int = EPOCH_NS
     piece_s: float = PIECE_S
+    camera: CameraSim = CameraSim()
 
     @property
     def counts(self) -> dict[str, int]:
@@ -238,8 +261,9 @@ class Simulation:
     def topic_counts(self) -> dict[str, int]:
         """Messages per topic, as they will be written."""
         c = self.counts
-        return {TOPIC_TF_STATIC: 1, TOPIC_TRUTH: 1, TOPIC_IMU: c["imu"], TOPIC_ODOM: c["odom"], TOPIC_MAG: c["mag"],
-                TOPIC_DETECTIONS: c["detections"], TOPIC_MOCAP: c["mocap"]}
+        return camera_topics({TOPIC_TF_STATIC: 1, TOPIC_TRUTH: 1, TOPIC_IMU: c["imu"], TOPIC_ODOM: c["odom"],
+                              TOPIC_MAG: c["mag"], TOPIC_DETECTIONS: c["detections"], TOPIC_MOCAP: c["mocap"]},
+                             self.camera)
 
     def _bounds(self, stream: str) -> np.ndarray:
         """First sample index of every piece of ``stream`` (and the total count at the end)."""
@@ -265,8 +289,9 @@ class Simulation:
         if len(parts) == 1:
             return parts[0]
         join = lambda name: _join([getattr(p, name) for p in parts])  # noqa: E731
+        camera = _join_camera([p.camera for p in parts]) if parts[0].camera is not None else None
         return replace(parts[0], imu=join("imu"), odom=join("odom"), mag=join("mag"),
-                       detections=_join_detections([p.detections for p in parts]), mocap=join("mocap"))
+                       detections=_join_detections([p.detections for p in parts]), mocap=join("mocap"), camera=camera)
 
 
 def _join(parts: list) -> object:
@@ -275,12 +300,41 @@ def _join(parts: list) -> object:
                             for f in dataclasses.fields(parts[0])))
 
 
+def camera_topics(counts: dict[str, int], cam: CameraSim) -> dict[str, int]:
+    """Per-topic message counts with the detection topic replaced by the camera's topics (corners or images)."""
+    if cam.output == "fiducials":
+        return counts
+    n = counts.pop(TOPIC_DETECTIONS)
+    out = {}
+    for topic, count in counts.items():
+        out[topic] = count
+        if topic == TOPIC_MAG:  # camera topics where the detections were, in the same order every time
+            out[camera_topic(cam)] = n
+            out[TOPIC_CAMERA_INFO] = n
+    return out
+
+
+def camera_topic(cam: CameraSim) -> str:
+    """The topic the simulated camera reports tags on."""
+    if cam.output == "corners":
+        return TOPIC_TAGS
+    return TOPIC_IMAGE if cam.jpeg_quality is None else TOPIC_IMAGE_JPEG
+
+
 def _join_detections(parts: list[DetectionData]) -> DetectionData:
     shifts = np.cumsum([0] + [int(p.offsets[-1]) for p in parts[:-1]])
     offsets = np.concatenate([[0]] + [p.offsets[1:] + s for p, s in zip(parts, shifts)])
     fields = {f.name: np.concatenate([getattr(p, f.name) for p in parts])
               for f in dataclasses.fields(DetectionData) if f.name != "offsets"}
     return DetectionData(**{**fields, "offsets": offsets.astype(np.int64)})
+
+
+def _join_camera(parts: list[CameraData]) -> CameraData:
+    shifts = np.cumsum([0] + [int(p.offsets[-1]) for p in parts[:-1]])
+    offsets = np.concatenate([[0]] + [p.offsets[1:] + s for p, s in zip(parts, shifts)])
+    fields = {f.name: np.concatenate([getattr(p, f.name) for p in parts])
+              for f in dataclasses.fields(CameraData) if f.name != "offsets"}
+    return CameraData(**{**fields, "offsets": offsets.astype(np.int64)})
 
 
 def simulation(
@@ -295,11 +349,14 @@ def simulation(
     detection_rate: float | None = None,
     mocap_rate: float = 100.0,
     start_ns: int = EPOCH_NS,
+    camera: CameraSim | None = None,
 ) -> Simulation:
     """Every sensor stream of ``scenario`` (name or object) for ``duration`` seconds, to be generated.
 
     ``noise`` is ``True`` (default :class:`NoiseModel`), ``False`` (exact measurements, biases kept) or a
-    custom model. ``detection_rate`` defaults to the scenario's.
+    custom model. ``detection_rate`` defaults to the scenario's. ``camera`` makes the camera report tag corners
+    or images (with CameraInfo) instead of fiducial poses (:mod:`pipeline.simulate.camera`); without noise the
+    corners are exact and the images clean (no pixel noise, blur or JPEG).
     """
     sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
     duration = sc.duration if duration is None else float(duration)
@@ -311,7 +368,10 @@ def simulation(
     for rate in rates.values():
         if rate <= 0:
             raise ValueError(f"rate must be positive, got {rate}")
-    return Simulation(sc, duration, int(seed), nm, rates, start_ns)
+    cam = camera or CameraSim()
+    if nm == NoiseModel.zero() and cam.output != "fiducials":
+        cam = replace(cam, pixel_noise=0.0, image_noise=0.0, blur=0.0, jpeg_quality=None)
+    return Simulation(sc, duration, int(seed), nm, rates, start_ns, camera=cam)
 
 
 def simulate(scenario: Scenario | str, **kwargs) -> SimLog:
@@ -334,6 +394,8 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     gyro = tr.omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
     f_inertial = tr.accel - GRAVITY
     accel = np.einsum("nji,nj->ni", tr.R, f_inertial) + _white(rng, nm.accel, (n, 3))
+    if sc.imu_rotation is not None:  # body-frame quantities seen from the turned imu_link: R_biᵀ x
+        gyro, accel = gyro @ sc.imu_rotation, accel @ sc.imu_rotation
     imu = ImuData(t_ns, _record_times(rng, t_ns, carry.rec["imu"]), gyro, accel)
 
     # Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist.
@@ -356,9 +418,12 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     t_ns, t = stamps("mag")
     tr = sc.sample(t)
     fld = np.einsum("nji,j->ni", tr.R, MAGNETIC_FIELD) + _white(rng, nm.mag, (t.shape[0], 3))
+    if sc.imu_rotation is not None:
+        fld = fld @ sc.imu_rotation
     mag = MagData(t_ns, _record_times(rng, t_ns, carry.rec["mag"]), fld)
 
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
+    camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
 
     # Motion capture: the true body pose, noise-free.
     t_ns, t = stamps("mocap")
@@ -369,7 +434,8 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     cam_q = rots_to_quats(np.ascontiguousarray(sc.camera.R_bc[None]))[0]
     static_tf = [
         Transform(FRAME_BODY, FRAME_CAMERA, sc.camera.t_bc.copy(), cam_q),
-        Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+        Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]) if sc.imu_rotation is None
+                  else rots_to_quats(np.ascontiguousarray(sc.imu_rotation[None], dtype=np.float64))[0]),
     ]
     tr0 = sc.sample(np.zeros(1))
     truth = {
@@ -388,8 +454,11 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
         "noise": nm != NoiseModel.zero(),
         "duration_s": sim.duration,
     }
+    if camera is not None:
+        truth["tag_size"] = sim.camera.tag_size
+        truth["tag_family"] = sim.camera.family
     piece = SimLog(sc.name, int(sim.seed), nm, sim.duration, start_ns, imu, odom, mag, detections, mocap, static_tf,
-                   truth, first={name: lo for name, (lo, _) in span.items()})
+                   truth, first={name: lo for name, (lo, _) in span.items()}, camera=camera, camera_sim=sim.camera)
     streams = {"imu": imu, "odom": odom, "mag": mag, "detections": detections, "mocap": mocap}
     rec = {name: int(d.rec_ns[-1]) if d.rec_ns.size else carry.rec[name] for name, d in streams.items()}
     return piece, _Carry(rec, odom_carry)
@@ -402,6 +471,8 @@ def _detections(
     tr = sc.sample(t)
     y_cam = camera_points(sc.camera, body_points(tr.R, tr.P, sc.landmarks))  # (F, L, 3)
     vis = visibility(sc.camera, y_cam)
+    if sc.detections_until is not None:  # the landmarks have left view: empty detection messages
+        vis &= (t <= sc.detections_until)[:, None]
     frame_idx, lm_idx = np.nonzero(vis)  # row-major: frames in order, landmarks in map order
     m = frame_idx.shape[0]
     offsets = np.zeros(t.shape[0] + 1, dtype=np.int64)
@@ -430,6 +501,26 @@ def _detections(
     ids = sc.landmark_ids[lm_idx].copy()
     rec_ns = _record_times(rng, t_ns, rec_after)
     return DetectionData(t_ns, rec_ns, offsets, ids, xyz, quats, image_error, object_error, area)
+
+
+def _camera(sim: Simulation, det: DetectionData) -> CameraData:
+    """The camera frames on the detection stamps: pose, visible tags and their corners (noisy for ``corners``).
+
+    Corner noise is drawn from a generator of its own (seeded by the seed and the first frame), so the other
+    streams are the same whatever the camera reports.
+    """
+    sc, cam = sim.scenario, sim.camera
+    t = (det.t_ns - sim.start_ns).astype(np.float64) * 1e-9
+    tr = sc.sample(t)
+    r_wc = np.einsum("fij,jk->fik", tr.R, sc.camera.R_bc)
+    t_wc = tr.P + np.einsum("fij,j->fi", tr.R, sc.camera.t_bc)
+    views = tag_views(cam, r_wc, t_wc, sc.landmarks, sc.landmark_rots, sc.camera.max_range)
+    corners = views.corners
+    if cam.output == "corners" and cam.pixel_noise > 0 and corners.size:
+        first = int(np.round(t[0] * 1e3)) if t.size else 0
+        noise = np.random.default_rng([sim.seed, 7, first]).normal(0.0, cam.pixel_noise, corners.shape)
+        corners = corners + noise
+    return CameraData(det.t_ns, det.rec_ns, r_wc, t_wc, views.offsets, sc.landmark_ids[views.lm_idx].copy(), corners)
 
 
 def expected_streams(sim: SimLog, path: str = "") -> LogStreams:

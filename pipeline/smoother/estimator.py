@@ -10,6 +10,7 @@ innovation ``p̂ − R̂y − P̂`` at the detection's keyframe, both from the s
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -21,6 +22,8 @@ GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
 #: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
 GAP_SIGMA = (1.0, 100.0)
+#: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
+MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
 
 
@@ -134,20 +137,51 @@ class BatchSmoother(Stepper):
         guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(b_bar, (segments.n, 1)))
         sol = g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
                       progress=progress)
+        kept = self._gate(problem, sol, st.gate_chi2)
+        n_det = int(problem.det_idx.shape[0])
+        notes = []
+        if kept is not None and n_det - kept.size > MAX_GATED * n_det:  # not outliers: a wrong minimum
+            notes.append(f"warning: batch: {n_det - kept.size} of {n_det} detections fail the χ² gate at the "
+                         f"smoother's solution: it probably stopped in a local minimum far from the optimum (seed "
+                         f"'{seed.name}'); every detection was kept; try another batch.seed")
+            kept = None
+        if kept is not None:  # outliers the Huber kernel still listens to: solved again without them
+            first = sol.summary
+            problem = replace(problem, kf_of_det=problem.kf_of_det[kept], det_idx=problem.det_idx[kept],
+                              det_y=problem.det_y[kept], det_sigma=problem.det_sigma[kept])
+            sol = g.solve(problem, g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias),
+                          max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
+                          progress=progress)
+            sol.summary = g.merge_summaries(first, sol.summary)
+        gated = n_det - int(problem.det_idx.shape[0])
         stats = g.residual_statistics(problem, sol)
+        stats["landmark"]["gated"] = gated
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
         self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "segments": segments, "solution": sol, "seed": seed}
         sd = np.sqrt(np.clip(np.einsum("sii->si", sol.bias_cov), 0.0, None))
         seconds = sol.summary.pop("seconds")
         summary = {"seed": seed.name, "bias_model": st.bias, **sol.summary, "residuals": stats,
                    "bias": {"estimate": sol.bias.tolist(), "sigma": sd.tolist()},
-                   "settings": {"huber": st.huber, "keyframe_dt": st.keyframe_dt, "segment_s": st.segment_s,
+                   "settings": {"huber": st.huber, "gate_chi2": st.gate_chi2, "keyframe_dt": st.keyframe_dt, "segment_s": st.segment_s,
                                 "max_iterations": st.max_iterations, "relative_tolerance": st.relative_tolerance}}
         self.stats["substeps"] = int(k)
         self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": nz.as_dict()}
+        self.stats["notes"] = notes
         self.timings.update({"seed_s": seed.seconds, "smoother_s": t_solve, "smoother_cpu_s": c_solve,
                              **{f"smoother_{k}_s": v for k, v in seconds.items()}})
         return summary
+
+    @staticmethod
+    def _gate(problem, sol, gate_chi2: float | None) -> np.ndarray | None:
+        """Detections whose whitened residual at the solution passes the χ² gate (riekf's test, 3 degrees of
+        freedom), or None when all do (or there is no gate)."""
+        if gate_chi2 is None:
+            return None
+        kf = problem.kf_of_det
+        pred = np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf])
+        d2 = np.sum((pred - problem.det_y) ** 2, axis=1) / np.maximum(problem.det_sigma, 1e-12) ** 2
+        kept = d2 <= gate_chi2
+        return None if kept.all() else np.flatnonzero(kept)
 
     # ------------------------------------------------------------------ stretches
     def _relocalise(self, iv: int) -> bool:
@@ -199,4 +233,5 @@ SPEC = ObserverSpec(
     gains=(),
     start=BatchSmoother,
     check_config=check_config,
+    takes_known_map=False,
 )

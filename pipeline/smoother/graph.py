@@ -295,6 +295,18 @@ def solve(problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_
     return Solution(rot, pos, lms, bias, bias_cov, summary)
 
 
+def merge_summaries(first: dict, second: dict) -> dict:
+    """The summary of a solve continued by a second one (after gating): counts added, errors joined."""
+    out = dict(second)
+    out["iterations"] = first["iterations"] + second["iterations"]
+    out["linear_solves"] = first["linear_solves"] + second["linear_solves"]
+    out["initial_error"] = first["initial_error"]
+    out["error_per_iteration"] = first["error_per_iteration"] + second["error_per_iteration"]
+    out["error_before_gating"] = first["final_error"]
+    out["seconds"] = {k: round(first["seconds"][k] + second["seconds"][k], 3) for k in second["seconds"]}
+    return out
+
+
 def residual_statistics(problem: Problem, sol: Solution) -> dict:
     """Per factor type: residual sizes at the solution (metric and whitened), and how many detections the
     Huber kernel down-weights."""

@@ -19,6 +19,9 @@ class BatchSettings:
     segment_s: float = 60.0
     #: Huber threshold of the landmark factors (in standard deviations)
     huber: float = 3.0
+    #: χ² gate (3 degrees of freedom) on the whitened landmark residual at the solution: detections beyond it
+    #: are dropped and the problem solved again from the solution (None: keep every detection)
+    gate_chi2: float | None = 21.1
     #: longest time between keyframes (every detection frame is one; fillers keep gaps below this)
     keyframe_dt: float = 0.2
     max_iterations: int = 50

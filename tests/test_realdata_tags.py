@@ -1,0 +1,110 @@
+"""Real tag logs (``../shared/realdata``; skipped when absent): TagSLAM's corner logs with their calibration files,
+and a Raspberry Pi camera image with the fiducial transforms the robot computed from it."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+pytest.importorskip("cv2")
+
+from slamobs.pipeline.config import parse_config
+from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.frames import TfBuffer
+from slamobs.pipeline.lie import quat_to_rot
+from slamobs.pipeline.readers import ImageSearch, read_log
+from slamobs.pipeline.run import run_log
+from slamobs.pipeline.vision.landmarks import TagOptions, tag_landmarks
+from slamobs.pipeline.vision.tagpose import TagQuality
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+TAGSLAM = REAL / "tagslam_test"
+UBIQUITY = REAL / "fiducials_ubiquity"
+pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/realdata is not available")
+
+
+def _run(test: str, out: Path, **extra) -> dict:
+    d = TAGSLAM / test
+    cfg = {"cameras": [str(d / f) for f in ("cameras.yaml", "camera_poses.yaml", "tagslam.yaml")],
+           "evaluation": {"plots": False}, **extra}
+    run_log(d / "tag_detections.bag", out, parse_config(cfg))
+    return json.loads((out / "run.json").read_text())
+
+
+def _reference_map(test: str) -> dict[int, np.ndarray]:
+    """Tag positions TagSLAM estimated (its reference.bag: map -> body -> tag_N on /tf), last values."""
+    s = read_log(TAGSLAM / test / "reference.bag", {"tf": "/tf"})
+    tf = TfBuffer(s.static_tf, s.tf)
+    return {int(e.child[4:]): tf.lookup("map", e.child, e.t_ns[-1:]).trans[0]
+            for e in s.tf if e.child.startswith("tag_")}
+
+
+def test_test11_map_against_the_survey(tmp_path):
+    """225 s of stereo corners with VIO odometry: the map against TagSLAM's 82-tag survey after a rigid
+    alignment. The VIO twist has no angular part and its linear part is in the world frame; the rig extrinsics
+    come from the TagSLAM files. Bias adaptation is slowed (gamma 0.01): the VIO rates carry no gyro bias and
+    its 3 m drift fed to a fast bias loop spoils the map."""
+    meta = _run("test_11", tmp_path / "o", tags={"size": 0.15},
+                gains={"fast-adaptation": {"gamma": 0.01}},
+                evaluation={"plots": False, "map_truth": str(TAGSLAM / "test_11" / "tagslam.yaml")})
+    assert set(meta["input"]["derived"]) == {"angular_velocity", "linear_velocity"}
+    assert any("extrinsic rig -> odom from tagslam.yaml rig.T_body_odom" in n for n in meta["notes"])
+    err = meta["map_error"]
+    assert err["n_matched"] >= 19 and err["error_m"]["rmse"] < 0.35 and err["error_m"]["median"] < 0.2
+
+
+def test_test21_map_against_tagslam(tmp_path):
+    """Four cameras (fisheye and ToF), per-id tag sizes; only the camera with a known pose in the rig is used. The
+    map agrees with the tag positions TagSLAM optimised (not independent truth, but a second opinion)."""
+    sizes = {i: 0.1 for i in range(100, 109)}
+    meta = _run("test_21", tmp_path / "o", tags={"size": 0.16, "sizes": sizes})
+    dropped = [n for n in meta["notes"] if "its detections dropped" in n]
+    assert len(dropped) == 3 and meta["input"]["cameras"]
+    est = pd.read_parquet(tmp_path / "o" / "landmarks.parquet").set_index("id")
+    ref = _reference_map("test_21")
+    ids = [i for i in est.index if i in ref]
+    a, b = est.loc[ids, ["x", "y", "z"]].to_numpy(), np.array([ref[i] for i in ids])
+    rot, trans, _ = umeyama(a, b)
+    err = np.linalg.norm(a @ rot.T + trans - b, axis=1)
+    assert len(ids) >= 20 and np.sqrt(np.mean(err**2)) < 0.05
+
+
+def test_test22_tag_distance_against_tagslam(tmp_path):
+    """A fisheye camera walking away from and back to two large tags: their distance as TagSLAM has it."""
+    _run("test_22", tmp_path / "o", tags={"size": 0.42})
+    est = pd.read_parquet(tmp_path / "o" / "landmarks.parquet").set_index("id")
+    ref = _reference_map("test_22")
+    assert sorted(est.index) == sorted(ref) == [2, 3]
+    d_est = np.linalg.norm(est.loc[2, ["x", "y", "z"]].to_numpy() - est.loc[3, ["x", "y", "z"]].to_numpy())
+    assert abs(d_est - np.linalg.norm(ref[2] - ref[3])) < 0.03
+
+
+def test_ubiquity_image_against_the_robots_fiducial_transforms():
+    """aruco_images.bag holds one JPEG and CameraInfo; aruco_transforms.bag the FiducialTransformArray the robot's
+    aruco_detect computed from that very image (same stamp, image_seq = image header seq). Every marker is found,
+    centres within 3 cm (<1 % of the range) and, where the pose is not ambiguous, orientations within 2 deg."""
+    s = read_log(UBIQUITY / "aruco_images.bag", images=ImageSearch(family="5x5_1000"))  # aruco_detect's default
+    tags = tag_landmarks(s, TagOptions(size=0.14, quality=TagQuality(min_side_px=0)))  # fiducial_len 0.14 m
+    robot = read_log(UBIQUITY / "aruco_transforms.bag").detections
+    assert robot.t_ns[0] == s.tag_corners[0].t_ns[0]
+    table = pd.DataFrame(tags.table).set_index("id")
+    assert sorted(table.index) == sorted(robot.ids.tolist()) and (table["status"] == "ok").all()
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([UBIQUITY / "aruco_transforms.bag"]) as reader:
+        (conn, _, raw), = list(reader.messages())
+        msg = reader.deserialize(raw, conn.msgtype)
+    for tr in msg.transforms:
+        row = table.loc[tr.fiducial_id]
+        theirs = np.array([tr.transform.translation.x, tr.transform.translation.y, tr.transform.translation.z])
+        ours = row[["x", "y", "z"]].to_numpy(float)
+        assert np.linalg.norm(ours - theirs) < min(0.03, 0.01 * np.linalg.norm(theirs))
+        if row["ambiguity"] < 0.7:
+            q = tr.transform.rotation
+            rel = quat_to_rot(row[["qx", "qy", "qz", "qw"]].to_numpy(float)).T @ quat_to_rot(
+                np.array([q.x, q.y, q.z, q.w]))
+            assert np.degrees(np.arccos(np.clip((np.trace(rel) - 1) / 2, -1, 1))) < 2.0
