@@ -123,3 +123,16 @@ def test_missing_gtsam_is_one_line_naming_the_extra(tmp_path, monkeypatch):
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "slamobs[gtsam]" in lines[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("observer", ["riekf", "batch"])
+def test_a_known_map_is_refused_in_one_line(tmp_path, observer):
+    (tmp_path / "map.csv").write_text("id,x,y,z\n10,4,0,0\n11,-4,0.5,0\n12,0,4,0\n")
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("map: map.csv\n")
+    out = tmp_path / "out"
+    res = CliRunner().invoke(main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", observer,
+                                    "--config", str(cfg)])
+    lines = res.stderr.strip().splitlines()
+    assert res.exit_code == 2 and len(lines) == 1 and "does not take a known map" in lines[0]
+    assert not out.exists()
