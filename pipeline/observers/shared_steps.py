@@ -31,7 +31,7 @@ MAX_SUBSTEPS = 10_000
 CAPPED, CAP_IV = 5, 6
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def substep_count(dt, lam, step_ratio):
     """Sub-steps for an interval ``dt`` at loop rate ``lam``: ``ceil(dt lam / step_ratio)``, 1 to ``MAX_SUBSTEPS``
     (a NaN or infinite rate gets the cap)."""
@@ -41,7 +41,7 @@ def substep_count(dt, lam, step_ratio):
     return max(1, int(math.ceil(x)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def count_capped(m, iv, ns):
     """Count an interval integrated with ``m`` sub-steps if that was the cap (``iv``: the next velocity sample)."""
     if m >= MAX_SUBSTEPS:
@@ -50,7 +50,7 @@ def count_capped(m, iv, ns):
             ns[CAP_IV] = iv
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, row):
     """Take detections ``a .. a + nvis - 1`` as the visible set; their output rows start at ``row``."""
     for j in range(nvis):
@@ -67,7 +67,7 @@ def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, i
         lm_init[i] = True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def landmark_weight(lm, i):
     """Update weight of landmark ``i``: the fourth column of ``lm`` if it has one (known map), else 1."""
     if lm.shape[1] > 3:
@@ -75,7 +75,7 @@ def landmark_weight(lm, i):
     return 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     """``(Σ[y_i]x R̂ᵀe_i, Σ R̂ᵀe_i)`` as six scalars over the visible landmarks, with ``e_i = p̂_i − R̂y_i − P̂``
     at the state given, and each landmark stepped ``p̂_i ← p̂_i − g e_i`` in place: ``g = hkp`` (B), or
@@ -114,7 +114,7 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     return w0, w1, w2, u0, u1, u2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict_points(x, n, d_r, d_p):
     """``x_j ← dRᵀ(x_j − dp)`` for rows ``0 .. n - 1``: body-frame points after the body moved by ``(dR, dp)``
     over a sub-step (directions: ``dp = 0``)."""
@@ -127,11 +127,13 @@ def predict_points(x, n, d_r, d_p):
         x[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
     """Row ``o`` of the outputs: velocity sample ``iv``, R̂, P̂ and the biases ``[b̂_Ω, b̂_V]``."""
     out_k[o] = iv
-    out_r[o] = r_hat
-    out_p[o] = p_hat
-    out_b[o, :3] = b_om
-    out_b[o, 3:] = b_v
+    for a in range(3):  # element by element: a slice assignment compiles numba's shape checks and messages
+        for b in range(3):
+            out_r[o, a, b] = r_hat[a, b]
+        out_p[o, a] = p_hat[a]
+        out_b[o, a] = b_om[a]
+        out_b[o, 3 + a] = b_v[a]

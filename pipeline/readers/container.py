@@ -195,6 +195,14 @@ class RawBatch:
     start: np.ndarray  # (n,) int64
     size: np.ndarray  # (n,) int64
 
+    def __post_init__(self) -> None:
+        # The buffer is read only, wherever it came from (bytes, a joined group): the compiled decoders are then
+        # compiled for one array type, not once per writability.
+        if self.data.flags.writeable:
+            view = self.data.view()
+            view.flags.writeable = False
+            object.__setattr__(self, "data", view)
+
     def __len__(self) -> int:
         return int(self.conn.shape[0])
 
