@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.lie import mat3_mul, quats_to_rots, rots_to_quats, so3_exp, so3_log

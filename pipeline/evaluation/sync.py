@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 NS_PER_S = 1_000_000_000
 

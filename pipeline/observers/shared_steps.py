@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 #: Most sub-steps one interval between two events is cut into. Logs need a few to a few hundred; an interval
 #: that asks for more (gains far too stiff for the sample rate, an absurd innovation) is integrated with this

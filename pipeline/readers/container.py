@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, BinaryIO, Literal
 import lz4.frame
 import numpy as np
 import zstandard
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection, ConnectionExtRosbag1, ConnectionExtRosbag2, MessageDefinition
 from rosbags.interfaces import MessageDefinitionFormat as Fmt

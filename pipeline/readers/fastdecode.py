@@ -22,7 +22,7 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 from rosbags.interfaces import Nodetype
 
 if TYPE_CHECKING:
