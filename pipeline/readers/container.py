@@ -1216,6 +1216,15 @@ def _use_own_readers(reader: AnyReader) -> None:
             sub.storage.STORAGE_PLUGINS = {**DirectoryReader.STORAGE_PLUGINS, "mcap": McapStorage}
 
 
+class _FallbackTypes:
+    """The typestore rosbags falls back to for a bag that stores no message definitions, built only if one does
+    (rosbags reads nothing but its ``fielddefs``; building the ROS 2 store imports its predecessors, ~0.1 s)."""
+
+    @property
+    def fielddefs(self):
+        return get_typestore(_FALLBACK_STORE).fielddefs
+
+
 @contextmanager
 def open_log(path: str | Path) -> Iterator[AnyReader]:
     """Open a ROS1 bag, rosbag2 directory, MCAP or db3 file as an opened rosbags ``AnyReader``.
@@ -1231,7 +1240,7 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
     container = detect_container(path)
     with _rosbags_path(container) as rpath:
         try:
-            reader = AnyReader([rpath], default_typestore=get_typestore(_FALLBACK_STORE))
+            reader = AnyReader([rpath], default_typestore=_FallbackTypes())  # type: ignore[arg-type]
             _use_own_readers(reader)
             reader.open()
         except Exception as err:  # any reader failure means a bad file
