@@ -1,10 +1,12 @@
-"""``slamobs batch``: many logs in parallel (local processes or Dask) into one partitioned dataset."""
+"""``slamobs batch``: many logs in parallel (local processes or Dask) into one partitioned dataset;
+``slamobs batch compact OUT`` merges a dataset's per-run partitions."""
 
 from __future__ import annotations
 
 import json
 import math
 import os
+import signal
 import sys
 from datetime import datetime
 from pathlib import Path
@@ -12,6 +14,24 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
+
+#: Exit codes (documented in --help and the README).
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INFRA = 0, 1, 2, 3
+EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
+
+
+class Stopped(KeyboardInterrupt):
+    """SIGINT, SIGTERM or SIGHUP: the batch stops the same way for each (workers killed, runs so far kept)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _on_signal(signum, _frame) -> None:
+    for sig in EXIT_SIGNAL:  # a second signal must not cut the clean-up short (SIGKILL still can)
+        signal.signal(sig, signal.SIG_IGN)
+    raise Stopped(signum)
 
 
 def _cores() -> int:
@@ -39,8 +59,15 @@ def _duration(s: float | None) -> str:
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
 def _row_line(row: dict, progress) -> str:
-    head = f"[{progress.done}/{progress.total}] {row['status']:<7} {row['run_id']}"
+    status = row["status"]
+    if status == "ok" and row.get("warning_count"):
+        status = f"ok ({_plural(row['warning_count'], 'warning')})"
+    head = f"[{progress.done}/{progress.total}] {status:<7} {row['run_id']}"
     if row["status"] == "failed":
         return f"{head}  {row['error']}"
     ape = row.get("ape_trans_rmse_m")
@@ -74,27 +101,68 @@ class _Reporter:
         if not self.live:
             click.echo(_row_line(row, progress), err=True)
             return
-        if row["status"] == "failed":
+        if row["status"] == "failed" or row.get("warning_count"):
             click.echo("\r\x1b[K" + _row_line(row, progress), err=True)
         click.echo(f"\r\x1b[K[{progress.done}/{progress.total}] {progress.ok} ok, {progress.failed} failed, "
                    f"{progress.skipped} skipped  ETA {_duration(progress.eta_s())}  last {row['run_id']}",
                    nl=False, err=True)
 
-    def finish(self, result, out: Path) -> None:
+    def clear(self) -> None:
         if self.live:
             click.echo("\r\x1b[K", nl=False, err=True)
+
+    def finish(self, result, out: Path) -> None:
+        self.clear()
         counts = {s: result.count(s) for s in ("ok", "skipped", "failed")}
         summary = out / "summary.parquet"
+        fixed = result.reconciled
         if self.as_json:
-            click.echo(json.dumps({"event": "done", "logs": len(result.rows), **counts,
+            click.echo(json.dumps({"event": "done", "logs": len(result.rows), **counts, "warned": result.warned,
+                                   "pruned": len(result.pruned), "adopted": len(fixed.adopted),
+                                   "removed": len(fixed.removed) + len(fixed.dropped),
                                    "elapsed_s": round(result.elapsed_s, 3), "summary": str(summary),
                                    "exit_code": result.exit_code}))
-        else:
-            click.echo(f"batch: {len(result.rows)} logs, {counts['ok']} ok, {counts['skipped']} skipped, "
-                       f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}")
+            return
+        if not self.quiet:
+            if fixed.adopted or fixed.removed or fixed.dropped:
+                click.echo(f"batch: settled an interrupted batch: {len(fixed.adopted)} finished runs adopted, "
+                           f"{len(fixed.removed)} partial runs removed, {len(fixed.dropped)} runs with missing files "
+                           "dropped", err=True)
+            if result.pruned:
+                click.echo(f"batch: pruned {_plural(len(result.pruned), 'run')} whose logs are gone", err=True)
+        warned = f" ({result.warned} with warnings)" if result.warned else ""
+        click.echo(f"batch: {len(result.rows)} logs, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
+                   f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}")
 
 
-@click.command("batch")
+class _BatchGroup(click.Group):
+    """``slamobs batch INPUTS...`` runs a batch (the ``run`` subcommand is implied); ``slamobs batch compact
+    OUT`` compacts. A log literally named ``compact`` is given as ``./compact``."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        if not args or args[0] not in self.commands:
+            args = ["run", *args]
+        return super().parse_args(ctx, args)
+
+
+@click.group("batch", cls=_BatchGroup)
+def batch() -> None:
+    """Run an observer on many logs into one dataset (see `slamobs batch --help`)."""
+
+
+def _timeout(value: float) -> float | None:
+    return None if value <= 0 else value
+
+
+class _RunCommand(click.Command):
+    """``run`` is implied: its usage reads ``slamobs batch [OPTIONS] INPUTS...``."""
+
+    def format_usage(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        path = ctx.command_path.rsplit(" ", 1)[0] if ctx.command_path.endswith(" run") else ctx.command_path
+        formatter.write_usage(path, " ".join(self.collect_usage_pieces(ctx)))
+
+
+@batch.command("run", cls=_RunCommand)
 @click.argument("inputs", nargs=-1, required=True)
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False),
               help="dataset directory (created; reused to resume)")
@@ -110,29 +178,49 @@ class _Reporter:
               help="local processes (default) or Dask (a local cluster unless --scheduler)")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)")
+@click.option("--timeout", type=float, default=3600.0, show_default=True, metavar="SECONDS",
+              help="per log: a run taking longer is killed and fails (0: no limit)")
+@click.option("--wait-workers", type=click.FloatRange(min=0), default=60.0, show_default=True, metavar="SECONDS",
+              help="Dask: give up (exit 3) when no worker is there for this long")
 @click.option("--force", is_flag=True, help="re-run logs whose results are up to date")
+@click.option("--skip-failed", is_flag=True, help="do not retry logs that failed with the same content and config")
+@click.option("--prune", is_flag=True,
+              help="drop runs whose logs are gone (no longer at their recorded path with the same content)")
+@click.option("--no-compact", is_flag=True, help="leave the per-run partitions (compact later: slamobs batch compact)")
 @click.option("-q", "--quiet", is_flag=True, help="print only the final line")
 @click.option("--json", "as_json", is_flag=True, help="one JSON object per finished run, then a final one")
-def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_path: Path | None,
-          msg_dir: Path | None, jobs: int | None, executor: str | None, scheduler: str | None, force: bool, quiet: bool,
-          as_json: bool) -> None:
+def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_path: Path | None, msg_dir: Path | None,
+        jobs: int | None, executor: str | None, scheduler: str | None, timeout: float, wait_workers: float,
+        force: bool, skip_failed: bool, prune: bool, no_compact: bool, quiet: bool, as_json: bool) -> None:
     """Run an observer on many logs into one dataset under OUT.
 
     INPUTS are logs (.bag, .mcap, rosbag2 directories), directories searched recursively, glob patterns,
-    or manifests (.csv / .yaml: log path and optional per-log config). Finished runs with unchanged log and
-    config are skipped, so re-running the same command resumes an interrupted batch.
+    or manifests (.csv / .yaml: log path and optional per-log config). A run is identified by the log's
+    content and the config: finished runs are skipped (also after the log was moved), so re-running the
+    same command resumes an interrupted batch. `slamobs batch compact OUT` merges the per-run files (done
+    at the end of every batch unless --no-compact).
 
-    Exit code: 0 all runs ok or skipped, 1 some failed, 2 none succeeded or bad arguments.
+    \b
+    Exit codes:
+      0    every log ok or skipped
+      1    some logs failed (bad log, timeout, a worker died twice on it)
+      2    bad arguments or config, nothing found, OUT locked by another batch
+      3    infrastructure: Dask scheduler unreachable or lost, no workers, a worker
+           without slamobs or with another version, workers dying at start-up
+      130  interrupted (SIGINT), 143 terminated (SIGTERM), 129 hangup (SIGHUP):
+           workers stopped, finished runs kept; run the same command to resume
     """
     from dataclasses import replace
 
-    from slamobs.pipeline.batch import BatchOptions, DaskMissing, check_config, discover, run_batch
+    from slamobs.pipeline.batch import BatchOptions, DaskMissing, InfrastructureError, check_config, discover, run_batch
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.observers import GainError
 
     if executor == "local" and scheduler:
         exit_input_error("--scheduler runs on Dask; it cannot be combined with --executor local")
+    handlers = {sig: signal.signal(sig, _on_signal) for sig in EXIT_SIGNAL}
+    reporter = _Reporter(quiet, as_json)
     try:
         config = load_config(config_path)
         if observer:
@@ -141,17 +229,55 @@ def batch(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_p
             config = replace(config, msg_dir=str(msg_dir.resolve()))
         check_config(config)
         entries = discover(inputs)
-        options = BatchOptions(out=out_dir, config=config, observer=observer, force=force,
-                               executor=executor or ("dask" if scheduler else "local"),
-                               jobs=jobs or _cores(), scheduler=scheduler)
-        reporter = _Reporter(quiet, as_json)
+        options = BatchOptions(out=out_dir, config=config, observer=observer, msg_dir=str(msg_dir.resolve()) if msg_dir else None,
+                               force=force, skip_failed=skip_failed, prune=prune, compact=not no_compact,
+                               executor=executor or ("dask" if scheduler else "local"), jobs=jobs or _cores(),
+                               scheduler=scheduler, timeout=_timeout(timeout), wait_workers=wait_workers)
         where = (f"Dask at {scheduler}" if scheduler else f"a local Dask cluster of {options.jobs} workers"
                  if options.executor == "dask" else f"{options.jobs} local worker processes")
         result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
     except (InputError, GainError, DaskMissing) as err:
+        reporter.clear()
         exit_input_error(str(err))
-    except KeyboardInterrupt:
-        click.echo("\ninterrupted: finished runs are recorded; run the same command again to resume", err=True)
-        sys.exit(130)
+    except InfrastructureError as err:
+        reporter.clear()
+        click.echo(f"error: {err}", err=True)
+        sys.exit(EXIT_INFRA)
+    except KeyboardInterrupt as err:
+        reporter.clear()
+        signum = err.signum if isinstance(err, Stopped) else signal.SIGINT
+        click.echo(f"\n{signal.Signals(signum).name}: batch stopped, its workers killed; finished runs are recorded; "
+                   "run the same command again to resume", err=True)
+        sys.exit(EXIT_SIGNAL[signum])
+    finally:
+        for sig, old in handlers.items():
+            signal.signal(sig, old)
     reporter.finish(result, out_dir)
     sys.exit(result.exit_code)
+
+
+@batch.command("compact")
+@click.argument("out_dir", metavar="OUT", type=click.Path(path_type=Path))
+@click.option("-q", "--quiet", is_flag=True, help="print nothing but errors")
+def compact(out_dir: Path, quiet: bool) -> None:
+    """Merge the per-run partitions of the batch dataset OUT into a few large files per table.
+
+    Same columns (run_id included), same readers; a batch does this at its end unless --no-compact.
+    Exit code 2 when OUT is not a batch dataset or another batch is writing to it.
+    """
+    from slamobs.pipeline.batch import compact_batch
+    from slamobs.pipeline.errors import InputError
+
+    try:
+        fixed, report = compact_batch(out_dir)
+    except InputError as err:
+        exit_input_error(str(err))
+    if quiet:
+        return
+    if fixed.adopted or fixed.removed or fixed.dropped:
+        click.echo(f"settled an interrupted batch: {len(fixed.adopted)} runs adopted, {len(fixed.removed)} partial "
+                   "runs removed", err=True)
+    if not report:
+        click.echo(f"{out_dir}: nothing to compact")
+    for t in report:
+        click.echo(f"{t.table}: {t.files_before} files -> {t.files_after} ({_plural(t.runs, 'run')}, {t.rows} rows)")

@@ -95,8 +95,8 @@ def _print_summary(summary) -> None:
             click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
         conv = (r.get("convergence") or {}).get("t_since_start_s")
         if conv is not None:
-            click.echo(f"converged    {conv:.2f} s after start (position error below "
-                       f"{r['convergence']['threshold_m']} m)")
+            click.echo(f"converged    {conv:.2f} s after start (position error within "
+                       f"{r['convergence']['band_m']:.3g} m from then on)")
     click.echo(f"wrote        {summary.out_dir}/")
 
 

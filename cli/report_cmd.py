@@ -120,7 +120,8 @@ def _summary(r: dict, written: list[Path]) -> None:
         click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
     conv = (r.get("convergence") or {}).get("t_since_start_s")
     if conv is not None:
-        click.echo(f"converged    {conv:.2f} s after start (position error below {r['convergence']['threshold_m']} m)")
+        click.echo(f"converged    {conv:.2f} s after start (position error within {r['convergence']['band_m']:.3g} m "
+                   "from then on)")
     off = r.get("time_offset") or {}
     if off.get("estimated_s") is not None:
         quality = "reliable" if off["reliable"] else "not reliable"

@@ -13,6 +13,8 @@ from slamobs.cli.progress import compile_notice
 CONTAINERS = ("bag", "mcap", "ros2")
 
 _RATE = click.FloatRange(min=0.0, min_open=True)
+#: Horizontal field of view of the simulated image camera (--camera corners|images) when --fov is not given, deg.
+IMAGE_FOV_DEG = 70.0
 
 
 @click.command("simulate")
@@ -37,8 +39,9 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
               show_default=True, help="What the camera reports: 3D fiducial poses, tag corners in pixels "
               "(apriltag_msgs) or rendered images (sensor_msgs), the last two with CameraInfo.")
 @click.option("--image-size", default="640x480", show_default=True, help="Camera image size WxH (corners, images).")
-@click.option("--fov", type=click.FloatRange(10.0, 170.0), default=70.0, show_default=True,
-              help="Horizontal field of view, deg (corners, images).")
+@click.option("--fov", type=click.FloatRange(10.0, 170.0), default=None,
+              help="Horizontal field of view, deg: the scenario camera's (fiducials; default the scenario's, the "
+                   "vertical one scales with it) and the image camera's (corners, images; default 70).")
 @click.option("--distortion", type=click.Choice(("none", "radtan", "equidistant")), default="radtan",
               show_default=True, help="Lens distortion (corners, images).")
 @click.option("--tag-size", type=_RATE, default=0.5, show_default=True, help="Tag size (black square), m.")
@@ -50,6 +53,12 @@ _RATE = click.FloatRange(min=0.0, min_open=True)
 @click.option("--blur", type=click.FloatRange(0.0), default=0.0, show_default=True, help="Image blur sigma, px.")
 @click.option("--pixel-noise", type=click.FloatRange(0.0), default=0.3, show_default=True,
               help="Corner noise, px (corners).")
+@click.option("--landmarks", type=click.IntRange(min=3), default=None,
+              help="Landmark count (loop: rebuilt with N tags; others: an evenly spaced subset of the map).")
+@click.option("--detections-until", type=click.FloatRange(min=0.0), default=None,
+              help="Seconds after which no landmark is detected (they leave view for good).")
+@click.option("--imu-rpy", type=float, nargs=3, default=None, metavar="ROLL PITCH YAW",
+              help="IMU mounting, deg (imu_link -> body, published on /tf_static), e.g. 180 0 0 upside down.")
 @click.option("--force", is_flag=True, help="Replace OUT if it exists.")
 @quiet_option("Print nothing but errors.")
 def simulate(
@@ -66,7 +75,7 @@ def simulate(
     detection_rate: float | None,
     camera_output: str,
     image_size: str,
-    fov: float,
+    fov: float | None,
     distortion: str,
     tag_size: float,
     tag_family: str,
@@ -74,29 +83,38 @@ def simulate(
     image_noise: float,
     blur: float,
     pixel_noise: float,
+    landmarks: int | None,
+    detections_until: float | None,
+    imu_rpy: tuple[float, float, float] | None,
     force: bool,
     quiet: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8, figure8-wide) and write it to OUT with landmark and bias truth.
+    """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop) and write it
+    to OUT with landmark and bias truth.
 
     With --camera corners or images the camera reports tags as a real one does (tag corners, or images rendered
     from the true camera pose; needs the vision extra: pip install 'slamobs[vision]'), with CameraInfo.
     """
     from slamobs.pipeline.simulate.logwriter import infer_container, log_size, write_log
-    from slamobs.pipeline.simulate.scenarios import SCENARIOS
+    from slamobs.pipeline.simulate.scenarios import SCENARIOS, customize, get_scenario
     from slamobs.pipeline.simulate.sensors import simulation
 
     if scenario not in SCENARIOS:
         raise click.BadParameter(
             f"unknown scenario {scenario!r}; choose from {', '.join(sorted(SCENARIOS))}", param_hint="SCENARIO"
         )
+    try:
+        rig = customize(get_scenario(scenario), landmarks=landmarks, fov_deg=fov, detections_until=detections_until,
+                        imu_rpy_deg=imu_rpy or None)
+    except ValueError as err:
+        raise click.BadParameter(str(err)) from None
     container = container or infer_container(output)
     if (output.exists() or output.is_symlink()) and not force:
         raise click.ClickException(f"{output} exists already (use --force to replace it)")
-    camera = _camera(camera_output, image_size, fov, distortion, tag_size, tag_family, jpeg_quality, image_noise,
-                     blur, pixel_noise)
+    camera = _camera(camera_output, image_size, IMAGE_FOV_DEG if fov is None else fov, distortion, tag_size,
+                     tag_family, jpeg_quality, image_noise, blur, pixel_noise)
     sim = simulation(  # generated and written piece by piece: any duration fits in memory
-        scenario,
+        rig,
         duration=duration,
         seed=seed,
         noise=not no_noise,

@@ -109,21 +109,38 @@ _VARYING_RAD = 1e-3  # a /tf extrinsic turning more than this over the log is re
 
 
 def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t_ns: np.ndarray,
-             notes: list[str]) -> _Extrinsic:
-    """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error."""
+             notes: list[str], override: frozenset[str] = frozenset()) -> _Extrinsic:
+    """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error.
+
+    ``ident`` (``frames.assume_identity``) stands in only for frames TF does not know: a transform the log
+    has is used, with a warning when the frame is listed. ``override`` (``frames.override_identity``) replaces
+    even a known transform by the identity, with a warning naming what was replaced.
+    """
     frame = frame.lstrip("/")
-    if not frame or frame in ident or frame == body:
+    if not frame or frame == body:
         return _IDENTITY
-    found = tf.static_lookup(body, frame)
-    if found is not None:
-        return _Extrinsic(*found)
-    if tf.chain(body, frame) is None:
+    known = tf.chain(body, frame) is not None
+    if frame in override:
+        if known:
+            _note_once(notes, f"warning: frames.override_identity: frame '{frame}' taken as body '{body}', replacing "
+                              f"its TF transform ({_describe(tf, body, frame)})")
+        return _IDENTITY
+    if not known:
+        if frame in ident:
+            return _IDENTITY
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
             f"({tf.explain(body, frame)}; set frames.body, or list '{frame}' in frames.assume_identity)",
             topic,
         )
+    if frame in ident:
+        _note_once(notes, f"warning: frames.assume_identity lists '{frame}', but TF transforms it to body '{body}' "
+                          f"({_describe(tf, body, frame)}): TF's transform is used (frames.override_identity "
+                          "replaces it)")
+    found = tf.static_lookup(body, frame)
+    if found is not None:
+        return _Extrinsic(*found)
     res = tf.lookup(body, frame, t_ns, topic)
     note = f"{topic}: frame '{frame}' -> body '{body}' through /tf ({', '.join(res.dynamic)}), at each sample"
     if res.rot.shape[0] > 1:
@@ -133,6 +150,21 @@ def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t
             note += f"; time-varying (turns up to {np.degrees(turn):.2f} deg)"
     notes.append(note)
     return _Extrinsic(res.rot, res.trans, res.valid)
+
+
+def _describe(tf: TfBuffer, body: str, frame: str) -> str:
+    """A transform TF has, in a few words: its rotation angle and offset, or that it is time-stamped."""
+    found = tf.static_lookup(body, frame)
+    if found is None:
+        return "time-stamped, on /tf"
+    rot, trans = found
+    angle = np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)))
+    return f"/tf_static: turned {angle:.1f} deg, offset {np.linalg.norm(trans):.3f} m"
+
+
+def _note_once(notes: list[str], note: str) -> None:
+    if note not in notes:
+        notes.append(note)
 
 
 def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
@@ -206,6 +238,7 @@ def align(
     body_frame: str | None = None,
     time_source: str = "header",
     identity_frames: tuple[str, ...] = (),
+    override_identity: tuple[str, ...] = (),
     gravity=DEFAULT_GRAVITY,
     magnetic_field=DEFAULT_MAGNETIC_FIELD,
     keep_directions: bool = True,
@@ -227,10 +260,11 @@ def align(
     det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
     body = body_frame_name(lv, body_frame)
     ident = {f.lstrip("/") for f in identity_frames}
+    override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
-    _check_frames(streams, tf, body_frame, ident)
-    frame = _Frame(tf, body, ident, time_source, [])
-    dir_frame = _Frame(tf, body, ident, time_source, [])
+    _check_frames(streams, tf, body_frame, ident, override)
+    frame = _Frame(tf, body, ident, time_source, [], override)
+    dir_frame = _Frame(tf, body, ident, time_source, [], override)
 
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim)
     del om, lv
@@ -246,7 +280,7 @@ def align(
     det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame, lim,
                                                                   _gap_spans(t_om, starts))
     del det
-    notes = frame.notes + dir_frame.notes
+    notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
     if w is not None:
         notes.append(f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
                      f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
@@ -268,9 +302,11 @@ def align(
     )
 
 
-def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str]) -> None:
+def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str],
+                  override: frozenset[str] = frozenset()) -> None:
     """The frames the config names exist in the log: ``frames.body`` as a stream frame or in TF,
-    ``frames.assume_identity`` as the frame of a sensor stream (the only frames it applies to)."""
+    ``frames.assume_identity`` and ``frames.override_identity`` as the frame of a sensor stream (the only
+    frames they apply to)."""
     sensors = {s.frame_id.lstrip("/") for s in (streams.angular_velocity, streams.linear_velocity, streams.detections,
                                                 streams.accel, streams.magnetic) if s is not None and s.frame_id}
     if body_frame:
@@ -279,9 +315,10 @@ def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ide
             known = ", ".join(sorted(sensors | tf.frames)[:12]) or "none"
             raise InputError(streams.path, f"frames.body names '{body}', which is not a frame of the log (its frames: "
                                            f"{known})")
-    if unused := sorted(ident - sensors):
-        raise InputError(streams.path, f"frames.assume_identity names {', '.join(repr(f) for f in unused)}, which no "
-                                       f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})")
+    for option, names in (("assume_identity", ident), ("override_identity", override)):
+        if unused := sorted(set(names) - sensors):
+            raise InputError(streams.path, f"frames.{option} names {', '.join(repr(f) for f in unused)}, which no "
+                                           f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})")
 
 
 def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,
@@ -309,9 +346,10 @@ class _Frame:
     ident: set[str]
     time_source: str
     notes: list[str]
+    override: frozenset[str] = frozenset()
 
     def to_body(self, frame_id: str, topic: str, t_ns: np.ndarray) -> _Extrinsic:
-        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes)
+        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override)
 
 
 def _clock(stream) -> str:

@@ -76,5 +76,10 @@ def load_run(run_dir: str | Path) -> RunData:
             raise InputError(p, f"unreadable JSON: {err}") from None
 
     report_path = run_dir / "report.json"
-    tables = {p.stem: pd.read_parquet(p) for p in sorted(run_dir.glob("*.parquet"))}
+    from slamobs.pipeline.batch.dataset import run_tables
+
+    # a batch run directory (OUT/runs/<id>) keeps its tables in the dataset; files in the directory (e.g. the
+    # aligned tables a later `slamobs report` wrote) take precedence
+    tables = {k: v.to_pandas() for k, v in (run_tables(run_dir) or {}).items()}
+    tables.update({p.stem: pd.read_parquet(p) for p in sorted(run_dir.glob("*.parquet"))})
     return RunData(run_dir, read_json(meta_path), read_json(report_path) if report_path.is_file() else None, tables)

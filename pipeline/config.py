@@ -36,6 +36,8 @@ class RunConfig:
     topics: dict[str, str] = field(default_factory=dict)
     body_frame: str | None = None
     identity_frames: tuple[str, ...] = ()
+    #: frames whose TF transform is replaced by the identity anyway (a warning in run.json)
+    override_identity: tuple[str, ...] = ()
     time_source: str = "header"  # header | record | auto
     topic_clocks: dict[str, str] = field(default_factory=dict)
     msg_dir: str | None = None
@@ -48,6 +50,8 @@ class RunConfig:
     gains: dict[str, dict[str, float]] = field(default_factory=dict)
     output_rate_hz: float | None = None
     float_bits: int = DEFAULT_FLOAT_BITS
+    #: ``start`` | ``gravity`` | ``truth`` | an initial pose (pipeline.output_frame); None = the observer's default
+    output_frame: str | dict | None = None
     export: tuple[str, ...] = ()  # subset of EXPORTS, in that order
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
@@ -134,6 +138,9 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     except jsonschema.ValidationError as err:
         where = ".".join(str(p) for p in err.absolute_path) or "top level"
         raise InputError(source, f"invalid config at {where}: {err.message}") from None
+    frame = data.get("output", {}).get("frame")
+    if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
+        raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
     frames = data.get("frames", {})
     time = data.get("time", {})
     ev = data.get("evaluation", {})
@@ -151,6 +158,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         topics=dict(data.get("topics", {})),
         body_frame=frames.get("body"),
         identity_frames=tuple(frames.get("assume_identity", ())),
+        override_identity=tuple(frames.get("override_identity", ())),
         time_source=time.get("source", "header"),
         topic_clocks=dict(time.get("topics", {})),
         msg_dir=data.get("msg_dir"),
@@ -162,6 +170,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         max_meas_age=float(time.get("max_meas_age", 0.5)),
         gains={k: dict(v) for k, v in data.get("gains", {}).items()},
         output_rate_hz=data.get("output", {}).get("rate_hz"),
+        output_frame=data.get("output", {}).get("frame"),
         float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
         export=export_kinds(list(data.get("output", {}).get("export", []))
                             + (["mcap"] if data.get("output", {}).get("mcap") else [])),

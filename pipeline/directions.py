@@ -17,6 +17,7 @@ from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.blocks import interp_sorted
 from slamobs.pipeline.errors import GainError
+from slamobs.pipeline.lie import nearest_rotation
 
 #: Default inertial references: gravity (m/s²) and a mid-latitude magnetic field (Tesla), map frame.
 DEFAULT_GRAVITY = (0.0, 0.0, -9.81)
@@ -143,10 +144,7 @@ def initial_attitude(inertial: np.ndarray, body: np.ndarray, weight: np.ndarray)
     Algorithm 2 of the paper allows R̂(0) from an attitude-determination method; starting there avoids
     a long co-rotation transient of the map on real logs (the initial yaw of a log is arbitrary).
     """
-    b = (inertial * weight[:, None]).T @ body  # Σ w υ_I υ_Bᵀ, maximise tr(Rᵀ b)
-    u, _, vt = np.linalg.svd(b)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return u @ np.diag([1.0, 1.0, d]) @ vt
+    return nearest_rotation((inertial * weight[:, None]).T @ body)  # Σ w υ_I υ_Bᵀ, maximise tr(Rᵀ b)
 
 
 @njit(cache=True)

@@ -191,6 +191,14 @@ def project_so3_into(r):
     _rot_of_quat(x, y, z, w, r)
 
 
+def nearest_rotation(m: np.ndarray) -> np.ndarray:
+    """The rotation closest to ``m`` in the Frobenius norm (polar factor by SVD, reflection excluded): of a sum of
+    rotations, their chordal mean."""
+    u, _, vt = np.linalg.svd(np.asarray(m, dtype=np.float64))
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    return u @ np.diag([1.0, 1.0, d]) @ vt
+
+
 @njit(cache=True)
 def quat_to_rot(q):
     """``(x, y, z, w)`` quaternion (normalised here) to a rotation matrix."""

@@ -226,7 +226,12 @@ def _read(run_dir: Path, name: str):
     from slamobs.pipeline.writers import read_frame
 
     path = run_dir / f"{name}.parquet"
-    return read_frame(path) if path.is_file() else None
+    if path.is_file():
+        return read_frame(path)
+    from slamobs.pipeline.batch.dataset import run_tables  # a batch run directory: tables are in the dataset
+
+    found = (run_tables(run_dir) or {}).get(name)
+    return None if found is None else found.to_pandas()
 
 
 def _every(t_ns: np.ndarray, rate_hz: float | None) -> np.ndarray:
@@ -281,7 +286,7 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
         meta = json.loads((run_dir / "run.json").read_text())
     if report is None and (run_dir / "report.json").is_file():
         report = json.loads((run_dir / "report.json").read_text())
-    if not (run_dir / "poses.parquet").is_file():
+    if not (run_dir / "poses.parquet").is_file() and not (run_dir / "batch.json").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
     if out.exists() and not force:
         raise InputError(out, "exists already (use --force to replace it)")

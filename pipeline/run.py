@@ -38,6 +38,10 @@ class RunSummary:
     timings: dict[str, float]
     report: dict | None = None
     notes: list[str] = field(default_factory=list)
+    #: the notes that say the input was damaged or implausible: the readers' repairs (salvaged file, NaN/Inf or
+    #: duplicate samples dropped, clock problems) and what the plausibility gates dropped (notes naming a
+    #: ``limits.*`` setting); a batch counts them as the run's warnings
+    input_warnings: list[str] = field(default_factory=list)
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
@@ -199,9 +203,9 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     progress("aligning the streams")
     topics = _topics(streams)
     aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
-                    identity_frames=config.identity_frames, gravity=config.gravity,
-                    magnetic_field=config.magnetic_field, keep_directions=directions, release=True,
-                    limits=config.limits)
+                    identity_frames=config.identity_frames, override_identity=config.override_identity,
+                    gravity=config.gravity, magnetic_field=config.magnetic_field, keep_directions=directions,
+                    release=True, limits=config.limits)
     if known is not None and known.fixed:
         aligned, note = restrict_to_map(aligned, known)
         if note:
@@ -224,7 +228,9 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     spec = _resolved_spec(config)  # fail on bad gains before reading a large log
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
     check_map_mode(spec, config, log)
-    prepared = prepare_log(log, config, directions=spec.min_directions > 0, progress=progress)
+    # the gravity output frame of an observer without directions comes from the accelerometer
+    directions = spec.min_directions > 0 or config.output_frame == "gravity"
+    prepared = prepare_log(log, config, directions=directions, progress=progress)
     return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress)
 
 
@@ -245,6 +251,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
     observer is done (the caller runs nothing else on it), so the report does not share memory with it.
     """
+    from slamobs.pipeline import output_frame
     from slamobs.pipeline.writers import (
         TableWriter,
         atomic_directory,
@@ -265,6 +272,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     # a log read once for several observers (compare) has the accelerometer note: only its users keep it
     notes = list(streams.warnings) + [n for n in aligned.notes if spec.min_directions or not n.startswith(ACCEL_NOTE)]
     notes += list(prepared.notes)
+    input_warnings = list(streams.warnings) + [n for n in aligned.notes if "limits." in n]
     start = None
     if prepared.known_map is not None:
         from slamobs.pipeline.known_map import map_start
@@ -297,6 +305,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "limits": config.limits,
         "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits, "export": list(config.export)},
     }
+    frame_choice = output_frame.parse_frame(config.output_frame)
+    frame = None
     report = None
     t0_ns = int(aligned.vel_t_ns[0])
     if stale := remove_stale_temporaries(Path(out_dir).parent):
@@ -316,6 +326,13 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                 t_run = time.perf_counter()
                 observer_s += t_run - t
                 _check_finite(part, log, spec.name, t0_ns)
+                if frame is None:  # fixed from the first stretch, before anything is written
+                    frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
+                                                 truth=_truth(streams, config), t_max_diff=config.t_max_diff,
+                                                 uses_directions=spec.min_directions > 0,
+                                                 known_map=prepared.known_map is not None, notes=notes)
+                    metadata["output"]["frame"] = frame.describe()
+                part = frame.apply(part)
                 sink.write({**stretch_tables(part), **part.extra_tables})
                 t = time.perf_counter()
                 write_s += t - t_run
@@ -339,7 +356,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
             progress("error report")
-            report, report_error = _evaluate(tmp, streams, config, notes, metadata["segments"])
+            report, report_error = _evaluate(tmp, streams, config, notes, metadata)
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
@@ -363,7 +380,8 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         metadata["compiled"] = {"functions": compiled.functions, "seconds": round(compiled.seconds, 3)}
         write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
                                       "report": "report.json" if report else None, "report_error": report_error})
-    return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes)
+    return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes,
+                      input_warnings=input_warnings)
 
 
 def check_map_mode(spec, config: RunConfig, log: Path) -> None:
@@ -396,8 +414,16 @@ def _diverging_as_error(parts, log: Path, observer: str, t0_ns: int):
         raise _diverged(log, observer, (err.t_ns - t0_ns) * 1e-9, err.stats) from None
 
 
+def _truth(streams: LogStreams, config: RunConfig):
+    """The ground truth on the clock the run used (None without truth)."""
+    truth = streams.truth
+    if truth is not None and config.align_time_source == "record":
+        truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
+    return truth
+
+
 def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str],
-              segments: list[dict]) -> tuple[dict | None, str | None]:
+              metadata: dict) -> tuple[dict | None, str | None]:
     """Error report against the log's ground truth, and the reason when there is none.
 
     The observer's outputs are already complete: a report that cannot be made (truth that cannot be associated,
@@ -406,16 +432,17 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     """
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.report import REPORT_FILES, bias_plot_rows
+    from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.writers import read_frame
 
+    segments = metadata["segments"]
     try:
         frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
-        truth = streams.truth
-        if config.align_time_source == "record":
-            truth = type(truth)(**{**truth.__dict__, "t_ns": truth.rec_ns})
-        # observers that measure gravity fix roll and pitch: the report adds the 4-DoF (translation + yaw) alignment
+        truth = _truth(streams, config)
+        # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
+        # 4-DoF (translation + yaw) alignment
         options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,
-                                gravity_aligned=get_observer(config.observer).min_directions > 0)
+                                gravity_aligned=gravity_aligned(metadata))
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
@@ -428,7 +455,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
                 "(run.json notes say where); errors just after a gap show how well that worked")
             report["segments"] = segments
         write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth,
-                     evaluation=evaluation, plots=config.plots, exports=config.export)
+                     evaluation=evaluation, plots=config.plots, exports=config.export, metadata=metadata)
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands

@@ -11,8 +11,9 @@ from pathlib import Path
 
 HERE = Path(__file__).parent
 TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
-#: Tables only some runs write (hybrid observer; tag corner and image logs).
-OPTIONAL_TABLES = ("jumps", "tag_detections")
+#: Tables only some runs write: the hybrid's jumps; tag corner and image logs' detections; the estimate aligned
+#: into the truth's frame (runs with truth).
+OPTIONAL_TABLES = ("jumps", "tag_detections", "poses_aligned", "landmarks_aligned")
 
 
 @cache

@@ -120,3 +120,32 @@ def test_record_time_option_uses_record_stamps():
     s = _streams()
     a = align(s, time_source="record")
     assert a.vel_t_ns[0] == s.angular_velocity.rec_ns[0]
+
+
+def test_assume_identity_applies_only_where_tf_has_no_transform(tmp_path):
+    """Issue 12 item 2, on a simulated log whose IMU is mounted upside down with its own /tf_static entry."""
+    import json
+
+    from slamobs.pipeline.api import run_log
+    from slamobs.pipeline.simulate import expected_streams, simulate, write_log
+
+    sim = simulate("figure8-imu-flipped", duration=12.0, seed=1, imu_rate=100.0)
+    ref = align(expected_streams(sim))
+    listed = align(expected_streams(sim), identity_frames=("imu_link",))
+    assert np.array_equal(listed.omega, ref.omega) and np.array_equal(listed.directions.body, ref.directions.body)
+    warn = [n for n in listed.notes if n.startswith("warning: frames.assume_identity lists 'imu_link'")]
+    assert len(warn) == 1 and "turned 180.0 deg" in warn[0]
+    forced = align(expected_streams(sim), override_identity=("imu_link",))
+    np.testing.assert_allclose(forced.omega[:, 1:], -ref.omega[:, 1:])  # the 180° turn about x is gone
+    assert any(n.startswith("warning: frames.override_identity: frame 'imu_link'") for n in forced.notes)
+    # the same through `slamobs run`: the warning lands in run.json, the estimate is the one TF gives
+    log = write_log(sim, tmp_path / "flipped.mcap")
+    ape = {}
+    for name, frames in (("tf", {}), ("listed", {"assume_identity": ["imu_link"]}),
+                         ("forced", {"override_identity": ["imu_link"]})):
+        summary = run_log(log, tmp_path / name, config={"observer": "hashim", "frames": frames,
+                                                         "evaluation": {"plots": False}})
+        ape[name] = summary.report["ape"]["translation_m"]["rmse"]
+        notes = json.loads((tmp_path / name / "run.json").read_text())["notes"]
+        assert any(n.startswith("warning: frames.") for n in notes) == (name != "tf")
+    assert ape["listed"] == ape["tf"] and ape["forced"] > 2 * ape["tf"]

@@ -14,10 +14,10 @@ from click.testing import CliRunner
 
 from slamobs.cli.batch_cmd import batch
 from slamobs.pipeline.batch import BatchOptions, LogEntry, content_hash, discover, run_batch, run_id_for
-from slamobs.pipeline.batch.dataset import SUMMARY_SCHEMA, partition_file, read_summary
-from slamobs.pipeline.batch.executor import Task, failed_row, local_results
-from slamobs.pipeline.batch.runner import _plan, _still_valid
-from slamobs.pipeline.config import RunConfig, load_config
+from slamobs.pipeline.batch.executor import Task
+from slamobs.pipeline.batch.ledger import SUMMARY_SCHEMA, read_summary
+from slamobs.pipeline.batch.runner import config_hash
+from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 
 # pandas, the simulator and duckdb/polars are imported inside the tests: the crash test's worker processes
@@ -116,11 +116,13 @@ def test_discover_errors(tmp_path, make, problem):
         discover(make(tmp_path))
 
 
-def test_run_id_is_readable_stable_and_unique_per_location(tmp_path):
-    a, b = tmp_path / "a" / "flight 1.mcap", tmp_path / "b" / "flight 1.mcap"
-    assert run_id_for(a) == run_id_for(a)
-    assert run_id_for(a).startswith("flight_1-") and run_id_for(a) != run_id_for(b)
-    assert run_id_for(tmp_path / "f8_ros2").startswith("f8_ros2-")
+def test_run_id_is_readable_and_from_content_and_config():
+    from slamobs.pipeline.batch import run_key
+
+    key = run_key("v1:abc", config_hash(RunConfig()))
+    assert run_id_for(Path("/a/flight 1.mcap"), key) == f"flight_1-{key}"
+    assert run_id_for(Path("/elsewhere/f8_ros2"), key) == f"f8_ros2-{key}"
+    assert run_key("v1:abc", config_hash(RunConfig(observer="hashim"))) != key != run_key("v1:abd", config_hash(RunConfig()))
 
 
 def test_content_hash_ignores_mtime_and_location_but_sees_changes(tmp_path):
@@ -164,13 +166,16 @@ def test_local_batch_runs_good_logs_and_reports_the_corrupt_one(done, logs):
     assert (ok["velocity_samples"] > 900).all() and (ok["landmarks"] >= 4).all()
     assert (ok["ape_trans_rmse_m"] < 0.1).all() and (ok["landmark_rmse_m"] < 0.3).all()
     assert ok[["ape_rot_rmse_deg", "gyro_bias_err", "vel_bias_err", "convergence_s"]].notna().all().all()
+    assert (ok["warning_count"] == 0).all()
+    assert all(set(TABLES) <= set(t.split(",")) for t in ok["tables"])  # and the aligned tables (truth)
     for rid in ok["run_id"]:
         run = json.loads((out / "runs" / rid / "run.json").read_text())
         assert run["observer"]["name"] == "fast-adaptation"
         assert (out / "runs" / rid / "report.json").is_file()
-        for t in TABLES:
-            assert partition_file(out, t, rid).is_file()
-    assert not list(out.rglob(".*tmp*"))
+        assert not list((out / "runs" / rid).glob("*.parquet"))  # one copy of each table: in the dataset
+    for t in TABLES:  # compacted at the end: one file per table, every ok run in it
+        assert [p.name for p in (out / t).iterdir()] == ["compacted-000001-0000.parquet"]
+    assert not list(out.rglob(".*tmp*")) and not list((out / "_slamobs" / "staging").iterdir())
 
 
 def test_summary_has_every_headline_metric():
@@ -184,17 +189,30 @@ def test_dataset_reads_in_pandas_duckdb_and_polars(done):
     import pandas as pd
     import polars as pl
 
+    import slamobs
+
     _, out = done
     ok = pd.read_parquet(out / "summary.parquet").query("status == 'ok'")
-    per_run = {rid: len(pd.read_parquet(out / "runs" / rid / "poses.parquet")) for rid in ok["run_id"]}
+    per_run = {rid: json.loads((out / "runs" / rid / "batch.json").read_text())["tables"]["poses"]
+               for rid in ok["run_id"]}
     for table in TABLES:
         df = pd.read_parquet(out / table)
         assert set(df["run_id"].astype(str)) == set(per_run)
     poses = pd.read_parquet(out / "poses")
     assert poses.groupby("run_id", observed=True).size().to_dict() == per_run
-    inside = pd.read_parquet(partition_file(out, "poses", ok["run_id"].iloc[0]))  # the column is in the file
-    assert set(inside["run_id"].astype(str)) == {ok["run_id"].iloc[0]}
-    rows = duckdb.sql(f"SELECT run_id, count(*) FROM read_parquet('{out}/poses/*/*.parquet') GROUP BY run_id")
+    assert not poses.duplicated(["run_id", "t_ns"]).any()
+    # a batch run directory loads like any run directory: its tables come from the dataset
+    rid = ok["run_id"].iloc[0]
+    run = slamobs.load_run(out / "runs" / rid)
+    assert len(run.poses) == per_run[rid] and "run_id" not in run.poses
+    assert run.poses["t_ns"].tolist() == poses[poses["run_id"] == rid]["t_ns"].tolist()
+    from slamobs.cli.main import main  # and the commands that read a run directory work on it
+
+    res = CliRunner().invoke(main, ["report", str(out / "runs" / rid), "-q"])
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(main, ["export", str(out / "runs" / rid), "--mcap", str(out.parent / "r.mcap"), "-q"])
+    assert res.exit_code == 0 and (out.parent / "r.mcap").stat().st_size > 0, res.output
+    rows = duckdb.sql(f"SELECT run_id, count(*) FROM read_parquet('{out}/poses/**/*.parquet') GROUP BY run_id")
     assert dict(rows.fetchall()) == per_run
     pl_counts = pl.read_parquet(out / "poses").group_by("run_id").len().rows()
     assert {str(k): v for k, v in pl_counts} == per_run
@@ -202,6 +220,11 @@ def test_dataset_reads_in_pandas_duckdb_and_polars(done):
 
 
 # --- re-runs: skip, --force, changed config, --json -------------------------------------------------------
+
+
+def _rid(out: Path, log: Path) -> str:
+    (rid,) = [r for r, row in read_summary(out).items() if row["log"] == str(log.resolve())]
+    return rid
 
 
 def test_rerun_skips_finished_runs_and_force_reruns(done, logs, tmp_path):
@@ -214,28 +237,27 @@ def test_rerun_skips_finished_runs_and_force_reruns(done, logs, tmp_path):
     assert [r["status"] for r in runs] == ["skipped"] * 3 and all(r["event"] == "run" for r in runs)
     assert [r["done"] for r in runs] == [1, 2, 3] and all(r["total"] == 3 for r in runs)
     assert final == {**final, "event": "done", "ok": 0, "skipped": 3, "failed": 0, "exit_code": 0}
-    after = read_summary(out)
-    for rid, row in after.items():
-        if row["status"] == "skipped":  # results and their provenance carried over unchanged
-            assert row["finished_at"] == before[rid]["finished_at"]
-            assert row["ape_trans_rmse_m"] == before[rid]["ape_trans_rmse_m"]
+    assert read_summary(out) == before  # nothing re-recorded: results and provenance unchanged
 
+    rid = _rid(out, logs["circle"])
     res = invoke(logs["circle"], "-o", out, "--force", "--quiet")
     lines = res.output.strip().splitlines()
     assert res.exit_code == 0 and len(lines) == 1 and lines[0].startswith("batch: 1 logs, 1 ok, 0 skipped, 0 failed")
-    rid = run_id_for(logs["circle"])
     assert read_summary(out)[rid]["finished_at"] > before[rid]["finished_at"]
     assert len(read_summary(out)) == 4  # rows of logs outside this invocation are kept
 
-    # a changed config (or log content) is not "done": the plan sends that log to the workers again
+    # another config is another run (side by side), not "done"
     cfg = tmp_path / "rate.yaml"
     cfg.write_text("output:\n  rate_hz: 10\n")
-    (task,) = _plan(discover([logs["circle"]]), BatchOptions(out=out, config=load_config(cfg)))
-    assert task.run_id == rid and task.content_hash == read_summary(out)[rid]["content_hash"]
-    assert not _still_valid(read_summary(out)[rid], task, out)
-    (same,) = _plan(discover([logs["circle"]]), BatchOptions(out=out))
-    assert _still_valid(read_summary(out)[rid], same, out)
-    assert not _still_valid(read_summary(out)[rid], replace(same, content_hash="v1:other"), out)
+    res = invoke(logs["circle"], "-o", out, "--config", cfg, "--json")
+    (row,) = [json.loads(x) for x in res.stdout.strip().splitlines()[:-1]]
+    assert row["status"] == "ok" and row["run_id"] != rid
+    assert row["content_hash"] == before[rid]["content_hash"] and row["config_hash"] != before[rid]["config_hash"]
+    import pandas as pd
+
+    poses = pd.read_parquet(out / "poses")
+    assert set(poses["run_id"].astype(str)) == {r for r, x in read_summary(out).items() if x["status"] == "ok"}
+    assert not poses.duplicated(["run_id", "t_ns"]).any()
 
 
 # --- interruption and resume ------------------------------------------------------------------------------
@@ -258,17 +280,13 @@ def test_interrupted_batch_resumes_where_it_stopped(logs, tmp_path):
 
     with pytest.raises(Interrupt):
         run_batch(entries, BatchOptions(out=out, jobs=1), on_row=stop_after_first)
-    summary = read_summary(out)
-    assert list(summary) == seen and summary[seen[0]]["status"] == "ok"  # consistent: just the recorded run
-    # what a killed batch leaves behind: a half-written run directory and a partition temp file
-    (out / "runs" / ".ghost-00000000.tmp-abcd").mkdir()
-    (out / "runs" / ".ghost-00000000.tmp-abcd" / "poses.parquet").write_bytes(b"partial")
-    stale_part = out / "poses" / f"run_id={seen[0]}" / ".part-0.parquet.tmp-999"
-    stale_part.write_bytes(b"partial")
+    summary = pd.read_parquet(out / "summary.parquet")  # written on the way out
+    assert list(summary["run_id"]) == seen and list(summary["status"]) == ["ok"]
+    assert set(pd.read_parquet(out / "poses")["run_id"].astype(str)) == set(seen)
+    assert not list((out / "_slamobs" / "staging").iterdir())  # the abandoned run left nothing
 
     result = run_batch(entries, BatchOptions(out=out, jobs=1))
     assert [r["status"] for r in result.rows] == ["skipped", "ok"] and result.exit_code == 0
-    assert not (out / "runs" / ".ghost-00000000.tmp-abcd").exists() and not stale_part.exists()
     assert len(pd.read_parquet(out / "poses")["run_id"].unique()) == 2
 
 
@@ -277,27 +295,30 @@ def test_interrupted_batch_resumes_where_it_stopped(logs, tmp_path):
 
 def crash_on_circle(task: Task) -> dict:
     """Worker function for the crash test: dies like a segfault/OOM kill on one log."""
+    from slamobs.pipeline.batch.executor import base_row
+
     if "circle" in task.run_id:
         os._exit(1)
-    return {**failed_row(task, "not run"), "status": "ok"}
+    return {**base_row(task), "status": "ok"}
 
 
-def test_a_log_that_kills_its_worker_fails_alone(logs, tmp_path):
-    tasks = [Task.make(run_id_for(p), str(p), str(tmp_path), RunConfig())
-             for p in (logs["f8"], logs["circle"], logs["ros2"])]
-    rows = {r["run_id"]: r for r in local_results(tasks, 2, run=crash_on_circle)}
+def test_a_log_that_kills_its_worker_fails_alone(tmp_path):
+    from slamobs.pipeline.batch.local import LocalPool
+
+    tasks = [Task.make(f"{name}-0", str(tmp_path / name), str(tmp_path), RunConfig()) for name in ("f8", "circle", "r2")]
+    rows = {r["run_id"]: r for _, r in LocalPool(2, run=crash_on_circle).results(tasks)}
     assert len(rows) == 3
-    assert rows[run_id_for(logs["circle"])]["status"] == "failed"
-    assert "worker process died" in rows[run_id_for(logs["circle"])]["error"]
-    assert rows[run_id_for(logs["f8"])]["status"] == rows[run_id_for(logs["ros2"])]["status"] == "ok"
+    assert rows["circle-0"]["status"] == "failed"
+    assert "worker process died twice while running this log (exit status 1)" in rows["circle-0"]["error"]
+    assert rows["f8-0"]["status"] == rows["r2-0"]["status"] == "ok"
 
 
-def test_exit_code_2_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_path):
+def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_path):
     manifest = tmp_path / "list.csv"
     (tmp_path / "bad_gains.yaml").write_text("gains:\n  fast-adaptation: {k_p: -1}\n")
     manifest.write_text(f"log,config\nnot_there.mcap,\n{logs['circle']},bad_gains.yaml\n")
     res = invoke(logs["bad"], manifest, "-o", tmp_path / "OUT", "-q", "-j", 1)
-    assert res.exit_code == 2
+    assert res.exit_code == 1
     assert res.output.strip().splitlines() == [res.stdout.strip()]
     rows = {Path(r["log"]).name: r for r in read_summary(tmp_path / "OUT").values()}
     assert {r["status"] for r in rows.values()} == {"failed"} and len(rows) == 3
@@ -327,12 +348,12 @@ def test_dask_missing_is_one_line(logs, tmp_path, monkeypatch):
 # --- Dask ---------------------------------------------------------------------------------------------------
 
 
-def test_unreachable_scheduler_is_one_line(logs, tmp_path):
+def test_unreachable_scheduler_is_one_line_and_exit_3(logs, tmp_path):
     dask = pytest.importorskip("dask")
     pytest.importorskip("distributed")
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
-        res = invoke(logs["circle"], "-o", tmp_path / "OUT", "--scheduler", "tcp://127.0.0.1:1")
-    assert res.exit_code == 2 and "Traceback" not in res.output
+        res = invoke(logs["circle"], "-o", tmp_path / "OUT", "--scheduler", "tcp://127.0.0.1:1", "--wait-workers", 1)
+    assert res.exit_code == 3 and "Traceback" not in res.output
     assert res.output.strip().splitlines()[-1].startswith("error: tcp://127.0.0.1:1: cannot reach the Dask scheduler")
 
 
@@ -347,28 +368,33 @@ def test_dask_local_cluster(logs, tmp_path):
     assert list(summary["status"]) == ["ok", "ok"]
     assert (summary["ape_trans_rmse_m"] < 0.1).all()
     assert sorted(pd.read_parquet(out / "poses")["run_id"].astype(str).unique()) == sorted(summary["run_id"])
+    assert (summary["worker"].str.startswith("tcp://")).all()  # ran on the Dask workers
 
 
-def test_a_worker_with_another_version_fails_the_run_clearly(tmp_path):
-    from slamobs.pipeline.batch.executor import run_task
+def test_a_worker_with_other_slamobs_code_refuses_the_task(tmp_path):
+    from slamobs.pipeline.batch.executor import EnvironmentMismatch, run_task
 
-    task = replace(Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()), version="0.0.1")
-    row = run_task(task)
-    assert row["status"] == "failed" and "the batch 0.0.1: install the same version" in row["error"]
+    task = Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig())
+    with pytest.raises(EnvironmentMismatch, match="the batch 0.0.1 .*install the same version"):
+        run_task(replace(task, version="0.0.1"))
+    with pytest.raises(EnvironmentMismatch, match="code 0123"):
+        run_task(replace(task, code="0123"))
 
 
-def test_worker_warnings_go_to_the_summary_not_stderr(monkeypatch, tmp_path, capfd):
+def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
     import warnings
 
     from slamobs.pipeline.batch.executor import run_task
 
-    def noisy_run_log(*_args, **_kwargs):
+    def noisy_pipeline(log, out_dir, config):
         warnings.warn("overflow encountered", RuntimeWarning, stacklevel=1)
         raise ValueError("diverged")
 
-    monkeypatch.setattr("slamobs.pipeline.run.run_log", noisy_run_log)
-    task = Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig())
-    row = run_task(task)
+    (tmp_path / "stage").mkdir()
+    task = replace(Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()),
+                   staged=str(tmp_path / "stage" / "x"))
+    row = run_task(task, pipeline=noisy_pipeline)
     assert row["status"] == "failed" and row["error"] == f"{tmp_path / 'x.mcap'}: ValueError: diverged"
-    assert row["warnings"].startswith("RuntimeWarning: overflow encountered")
+    assert row["warnings"].startswith("RuntimeWarning: overflow encountered") and row["warning_count"] == 1
     assert capfd.readouterr().err == ""
+    assert not (tmp_path / "stage" / "x").exists()

@@ -93,7 +93,9 @@ def test_output_rate_and_config(generated, tmp_path):
     assert json.loads((out / "run.json").read_text())["observer"]["gains"]["k_w"] == 2.0
     # default output precision: low mantissa bits cleared (stated in run.json); float_bits: 52 keeps them
     meta = json.loads((out / "run.json").read_text())
-    assert meta["output"] == {"rate_hz": 20, "float_bits": 28, "export": []}
+    assert {k: meta["output"][k] for k in ("rate_hz", "float_bits", "export")} == {"rate_hz": 20, "float_bits": 28,
+                                                                                 "export": []}
+    assert meta["output"]["frame"]["name"] == "start"  # fast-adaptation's default output frame
     low = poses["x"].to_numpy().view(np.uint64) & np.uint64((1 << 24) - 1)
     assert not low.any()
     cfg.write_text("output:\n  rate_hz: 20\n  float_bits: 52\ngains:\n  fast-adaptation:\n    k_w: 2\n")

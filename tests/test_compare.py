@@ -39,11 +39,15 @@ def test_compare_all_observers_side_by_side(tmp_path):
             assert any(n.startswith("accelerometer: ") for n in run["notes"]) == uses_accel, row["observer"]
             assert row["ape_trans_rmse_m"] == pytest.approx(report["ape"]["translation_m"]["rmse"])
             assert row["ape_trans_rmse_m"] < 0.5
+            conv = report["convergence"]
+            assert row["convergence_s"] == conv["t_since_start_s"] and row["convergence_band_m"] == conv["band_m"]
+            assert conv["band_m"] == pytest.approx(max(conv["threshold_m"], 1.5 * conv["steady_level_m"]))
         else:
             assert row["error"]
     assert (table["status"] == "ok").any()
     assert (out / "overlay.png").stat().st_size > 1000
-    assert "| fast-adaptation | ok |" in (out / "comparison.md").read_text()
+    md = (out / "comparison.md").read_text()
+    assert "| fast-adaptation | ok |" in md and "convergence_band_m" in md and "last 20 % of the log" in md
 
 
 def test_unknown_observer_is_a_usage_error_and_writes_nothing(tmp_path):

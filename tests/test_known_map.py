@@ -78,6 +78,7 @@ def test_fixed_map_localises_and_prior_map_is_updated(log, tmp_path):
     np.testing.assert_array_equal(lms[["x", "y", "z"]].to_numpy(), map_xyz[[row[i] for i in lms.index]])
     assert any("not in the map dropped" in n for n in meta["notes"])
     assert any("start pose fitted" in n for n in meta["notes"]) and meta["input"]["map"]["mode"] == "fixed"
+    assert meta["output"]["frame"]["name"] == "map"  # a known map's frame is the default output frame
     # the estimate lives in the map's frame: the trajectory is where the map says, no alignment needed
     poses = pd.read_parquet(tmp_path / "fixed" / "poses.parquet")
     truth = SC.sample((poses["t_ns"].to_numpy() - poses["t_ns"].iloc[0]) * 1e-9)

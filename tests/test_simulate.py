@@ -15,7 +15,7 @@ from slamobs.pipeline.lie import quat_to_rot, quats_to_rots
 from slamobs.pipeline.simulate import logwriter
 from slamobs.pipeline.simulate.camera import CameraSim
 from slamobs.pipeline.simulate.logwriter import TOPIC_TYPES, write_log
-from slamobs.pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, get_scenario, integrate_body_twists
+from slamobs.pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, customize, get_scenario, integrate_body_twists
 from slamobs.pipeline.simulate.sensors import (
     TOPIC_DETECTIONS,
     TOPIC_IMU,
@@ -51,7 +51,7 @@ def vec(v) -> list[float]:
 # --------------------------------------------------------------------------- scenarios
 
 
-@pytest.mark.parametrize("name", ["circle", "figure8"])
+@pytest.mark.parametrize("name", ["circle", "figure8", "loop"])
 def test_twists_integrate_to_the_sampled_poses(name):
     sc = get_scenario(name)
     dt, t_end = 1e-3, 20.0
@@ -401,3 +401,47 @@ def test_figure8_wide_sees_about_eight_landmarks():
     counts = np.diff(sim.detections.offsets)
     assert 7.0 <= counts.mean() <= 9.0 and counts.min() >= 3
     assert get_scenario("figure8-wide").landmark_ids.size == 30
+
+
+# --------------------------------------------------------------------------- rig options and issue-12 scenarios
+
+
+def test_loop_passes_sixty_landmarks_with_a_narrow_camera():
+    sc = get_scenario("loop")
+    assert sc.landmark_ids.size == 60 and sc.camera.fov_h_deg == 50.0 and sc.duration == 180.0
+    sim = simulate("loop", duration=90.0, noise=False, imu_rate=50.0, odom_rate=10.0, mag_rate=10.0,
+                   mocap_rate=10.0)
+    counts = np.diff(sim.detections.offsets)
+    assert 3 <= counts.min() and counts.max() <= 12 and 4.0 < counts.mean() < 9.0
+    assert np.unique(sim.detections.ids).size == 60  # every landmark is seen on a lap
+
+
+def test_rig_options():
+    sc = customize(get_scenario("loop"), landmarks=12, fov_deg=80.0, detections_until=5.0, imu_rpy_deg=(180, 0, 0))
+    assert sc.landmark_ids.size == 12 and sc.camera.fov_h_deg == 80.0 and sc.camera.fov_v_deg == 64.0
+    assert np.allclose(sc.imu_rotation, np.diag([1.0, -1.0, -1.0]), atol=1e-12)
+    sub = customize(get_scenario("figure8"), landmarks=10)
+    assert sub.landmark_ids.size == 10 and set(sub.landmark_ids) <= set(get_scenario("figure8").landmark_ids)
+    with pytest.raises(ValueError, match="choose 3 to 30"):
+        customize(get_scenario("figure8"), landmarks=31)
+    sim = simulate(sc, duration=8.0, noise=False, imu_rate=50.0)
+    t = (sim.detections.t_ns - sim.start_ns) * 1e-9
+    counts = np.diff(sim.detections.offsets)
+    assert counts[t <= 5.0].min() > 0 and counts[t > 5.0].sum() == 0 and (t > 7.0).any()  # empty messages go on
+    imu_tf = next(tf for tf in sim.static_tf if tf.child == "imu_link")
+    assert np.allclose(quat_to_rot(imu_tf.quat_xyzw), sc.imu_rotation, atol=1e-12)
+
+
+def test_blind_figure8_loses_its_landmarks_after_40_s():
+    sc = get_scenario("figure8-blind")
+    assert sc.duration == 90.0 and sc.detections_until == 40.0
+
+
+def test_cli_rig_options(tmp_path):
+    out = tmp_path / "rig.mcap"
+    args = ["loop", "-o", str(out), "--duration", "2", "--imu-rate", "20", "--landmarks", "20", "--fov", "70",
+            "--detections-until", "1", "--imu-rpy", "180", "0", "0"]
+    res = CliRunner().invoke(simulate_cmd, args)
+    assert res.exit_code == 0, res.output
+    res = CliRunner().invoke(simulate_cmd, ["figure8", "-o", str(tmp_path / "x.mcap"), "--landmarks", "99"])
+    assert res.exit_code == 2 and "choose 3 to 30" in res.output

@@ -1,55 +1,58 @@
-"""The batch output directory: Hive-partitioned tables, per-run directories and ``summary.parquet``.
+"""The batch output directory and how a run enters and leaves it.
 
 Layout of ``OUT/``::
 
-    runs/<run_id>/                     the run directory exactly as ``run_log`` writes it
-    <table>/run_id=<run_id>/part-0.parquet   its tables with a ``run_id`` column (poses, biases, ...)
-    summary.parquet                    one row per log
+    <table>/run_id=<id>/part-0.parquet     a run's rows of that table (poses, biases, ...), with a run_id column
+    <table>/compacted-<gen>-<n>.parquet    many runs' rows, merged by :mod:`compact` (same columns)
+    runs/<id>/                             run.json, report.json/.md, plots, batch.json (no tables: one copy)
+    summary.parquet                        one row per run (:mod:`ledger`)
+    _slamobs/                              lock, run records, hash cache, staging area of running logs
 
-Every file appears by rename, so a reader never sees half a file. ``run_id`` is stored inside the files as
-a dictionary-encoded string: that is the type pyarrow gives a Hive partition key, so the file column and the
-directory key merge when ``pd.read_parquet(OUT / "poses")`` reads the whole dataset.
+**One commit per run.** A worker writes everything of a run into its own staging directory
+(``_slamobs/staging/<batch>/<run_id>/``) and never touches the dataset; the batch process, which holds the
+lock, commits it: each table file renamed into its partition, then the run directory renamed into
+``runs/`` (last, so its presence means the tables are in), then one record appended to the ledger. A run
+that fails, times out or is abandoned leaves only its staging directory, which is deleted.
+
+**Reconciled at start.** Whatever a killed batch left is settled before anything runs (:func:`reconcile`):
+staging directories are deleted, a run directory whose tables are all in place but whose record is
+missing is adopted (its ``batch.json`` holds the summary row), anything partial is deleted, and a recorded
+run whose files are gone is dropped from the record (and runs again).
+
+``run_id`` is stored inside the files as a dictionary-encoded string: that is the type pyarrow gives a
+Hive partition key, so the file column and the directory key merge when ``pd.read_parquet(OUT / "poses")``
+reads the dataset, and fresh partitions and compacted files read as one table.
 """
 
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 import shutil
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.writers import parquet_options
 from slamobs.schemas import OPTIONAL_TABLES, TABLES
 
 RUNS = "runs"
-SUMMARY = "summary.parquet"
 PART = "part-0.parquet"
-LOCK = ".batch.lock"
+COMPACTED = "compacted-"
+LOCK = "lock"
+STAGING = "staging"
+RUN_META = "batch.json"  # in runs/<id>/: run_id, its tables and row counts, and its summary row
+RUN_IDS_KEY = "slamobs.run_ids"  # footer key of a compacted file: the run_ids it holds (JSON list)
 ALL_TABLES = TABLES + OPTIONAL_TABLES
 RUN_ID_TYPE = pa.dictionary(pa.int32(), pa.string())
-
-_F, _I, _S = pa.float64(), pa.int64(), pa.string()
-#: Columns of ``summary.parquet`` (units in the names; null where a run did not get that far).
-SUMMARY_SCHEMA = pa.schema([
-    ("run_id", _S), ("log", _S), ("config_file", _S), ("content_hash", _S), ("observer", _S),
-    ("config_hash", _S), ("status", _S), ("error", _S), ("warnings", _S),
-    ("finished_at", pa.timestamp("us", tz="UTC")), ("worker", _S), ("slamobs_version", _S),
-    ("total_s", _F), ("read_s", _F), ("align_s", _F), ("observer_s", _F), ("write_s", _F), ("report_s", _F),
-    ("dataset_s", _F),
-    ("velocity_samples", _I), ("detection_frames", _I), ("detections", _I), ("landmarks", _I),
-    ("internal_steps", _I),
-    # pipeline.run.headline_metrics: gyro_bias_err in rad/s, vel_bias_err in m/s (final error norms)
-    ("ape_trans_rmse_m", _F), ("ape_rot_rmse_deg", _F), ("landmark_rmse_m", _F),
-    ("gyro_bias_err", _F), ("vel_bias_err", _F), ("convergence_s", _F),
-])
-STATUSES = ("ok", "failed", "skipped")
 
 
 def run_dir(out: Path, run_id: str) -> Path:
@@ -60,92 +63,227 @@ def partition_file(out: Path, table: str, run_id: str) -> Path:
     return Path(out) / table / f"run_id={run_id}" / PART
 
 
-def write_partitions(out: Path, run_id: str) -> list[str]:
-    """Copy the tables of ``runs/<run_id>/`` into the partitioned datasets, adding the ``run_id`` column.
+def staging_root(out: Path) -> Path:
+    return meta_dir(out) / STAGING
 
-    Partitions of this run_id for tables the run did not write (e.g. an earlier observer's ``jumps``) are
-    removed, so the dataset always shows one run per run_id.
-    """
-    src = run_dir(out, run_id)
-    written = []
+
+def _rmtree(p: Path) -> None:
+    shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
+
+
+# --- worker side: a finished run directory -> staged dataset files -----------------------------------------
+
+
+def with_run_id(table: pa.Table, run_id: str) -> pa.Table:
+    ids = pa.DictionaryArray.from_arrays(np.zeros(len(table), np.int32), pa.array([run_id], pa.string()))
+    return table.append_column(pa.field("run_id", RUN_ID_TYPE, nullable=False), ids)
+
+
+def stage_tables(staged: Path, run_id: str) -> dict[str, int]:
+    """Move the tables of ``staged/run/`` to ``staged/<table>.parquet`` with a run_id column, row group by row
+    group (bounded memory); returns rows per table. The run directory keeps run.json and the report."""
+    rows = {}
     for table in ALL_TABLES:
-        dest = partition_file(out, table, run_id)
-        path = src / f"{table}.parquet"
-        if not path.is_file():
-            _remove_partition(dest)
+        src = staged / "run" / f"{table}.parquet"
+        if not src.is_file():
             continue
-        data = pq.read_table(path)
-        ids = pa.DictionaryArray.from_arrays(np.zeros(len(data), np.int32), pa.array([run_id], _S))
-        data = data.append_column(pa.field("run_id", RUN_ID_TYPE, nullable=False), ids)
+        f = pq.ParquetFile(src)
+        schema = with_run_id(f.schema_arrow.empty_table(), run_id).schema
+        with pq.ParquetWriter(staged / f"{table}.parquet", schema, **parquet_options(schema)) as writer:
+            for g in range(f.num_row_groups):
+                writer.write_table(with_run_id(f.read_row_group(g), run_id))
+        rows[table] = f.metadata.num_rows
+        f.close()
+        src.unlink()
+    return rows
+
+
+def write_run_meta(staged: Path, run_id: str, tables: dict[str, int], row: dict) -> None:
+    from slamobs.pipeline.batch.ledger import _encode
+
+    tmp = staged / "run" / f".{RUN_META}.tmp"
+    tmp.write_text(json.dumps({"run_id": run_id, "tables": tables, "row": _encode(row)}, indent=1) + "\n")
+    os.replace(tmp, staged / "run" / RUN_META)
+
+
+# --- batch side: commit, index, removal, reconciliation ---------------------------------------------------
+
+
+def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> None:
+    """Move a staged run into the dataset: table files first, the run directory last (see module doc).
+    The caller appends the record; until then :func:`reconcile` would adopt the run from its batch.json."""
+    for table in tables:
+        dest = partition_file(out, table, run_id)
         dest.parent.mkdir(parents=True, exist_ok=True)
-        tmp = dest.parent / f".{PART}.tmp-{os.getpid()}"
-        pq.write_table(data, tmp, **parquet_options(data.schema))
-        os.replace(tmp, dest)
-        written.append(table)
-    return written
+        os.replace(staged / f"{table}.parquet", dest)
+    final = run_dir(out, run_id)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if final.exists():
+        _rmtree(final)
+    os.replace(staged / "run", final)
 
 
-def _remove_partition(dest: Path) -> None:
-    if dest.parent.exists():
-        shutil.rmtree(dest.parent, ignore_errors=True)
-
-
-def remove_run(out: Path, run_id: str) -> None:
-    """Drop every file of ``run_id``: the dataset holds only runs the summary reports as done."""
-    for table in ALL_TABLES:
-        _remove_partition(partition_file(out, table, run_id))
-    shutil.rmtree(run_dir(out, run_id), ignore_errors=True)
-
-
-def run_complete(out: Path, run_id: str) -> bool:
-    """The run directory is there and each of its tables has its partition."""
-    src = run_dir(out, run_id)
-    if not (src / "run.json").is_file():
-        return False
-    return all(partition_file(out, p.stem, run_id).is_file() for p in src.glob("*.parquet"))
-
-
-def read_summary(out: Path) -> dict[str, dict]:
-    """Rows of ``summary.parquet`` by run_id ({} if there is none yet)."""
-    path = Path(out) / SUMMARY
-    if not path.is_file():
-        return {}
+def read_run_meta(path: Path) -> dict | None:
     try:
-        rows = pq.read_table(path).to_pylist()
-    except (pa.ArrowException, OSError) as err:
-        raise InputError(path, f"unreadable batch summary ({err}); move it away to start afresh") from None
-    return {r["run_id"]: r for r in rows}
+        meta = json.loads((path / RUN_META).read_text())
+        return meta if isinstance(meta, dict) and isinstance(meta.get("tables"), dict) else None
+    except (OSError, ValueError):
+        return None
 
 
-def write_summary(out: Path, rows: Mapping[str, dict]) -> Path:
-    """Replace ``summary.parquet`` atomically (a reader sees the old or the new file, never a mix)."""
-    path = Path(out) / SUMMARY
-    cols = {f.name: [r.get(f.name) for r in rows.values()] for f in SUMMARY_SCHEMA}
-    table = pa.table(cols, schema=SUMMARY_SCHEMA)
-    tmp = path.parent / f".{SUMMARY}.tmp-{os.getpid()}"
-    pq.write_table(table, tmp, compression="zstd")
+def compacted_run_ids(path: Path) -> list[str]:
+    meta = pq.read_metadata(path).metadata or {}
+    return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
+
+
+@dataclass
+class DatasetIndex:
+    """Which run_ids have files where: run directories, fresh partitions, compacted files."""
+
+    out: Path
+    runs: set[str] = field(default_factory=set)
+    fresh: dict[str, set[str]] = field(default_factory=dict)  # table -> run_ids with a partition
+    compacted: dict[str, dict[str, set[str]]] = field(default_factory=dict)  # table -> file name -> run_ids
+
+    @classmethod
+    def scan(cls, out: Path) -> DatasetIndex:
+        out = Path(out)
+        index = cls(out)
+        if (out / RUNS).is_dir():
+            index.runs = {e.name for e in os.scandir(out / RUNS) if e.is_dir() and not e.name.startswith(".")}
+        for table in ALL_TABLES:
+            base = out / table
+            if not base.is_dir():
+                continue
+            fresh, files = set(), {}
+            for e in os.scandir(base):
+                if e.name.startswith("run_id=") and e.is_dir():
+                    fresh.add(e.name[len("run_id="):])
+                elif e.name.startswith(COMPACTED) and e.name.endswith(".parquet"):
+                    files[e.name] = set(compacted_run_ids(Path(e.path)))
+            index.fresh[table], index.compacted[table] = fresh, files
+        return index
+
+    def has(self, table: str, run_id: str) -> bool:
+        if run_id in self.fresh.get(table, ()):
+            return (partition_file(self.out, table, run_id)).is_file()
+        return any(run_id in ids for ids in self.compacted.get(table, {}).values())
+
+    def all_ids(self) -> set[str]:
+        ids = set(self.runs)
+        for table in self.fresh.values():
+            ids |= table
+        for files in self.compacted.values():
+            for found in files.values():
+                ids |= found
+        return ids
+
+
+def _rewrite_without(path: Path, drop: set[str]) -> None:
+    """Rewrite a compacted file without the rows of ``drop`` (atomically; deleted when nothing is left)."""
+    import pyarrow.compute as pc
+
+    table = pq.ParquetFile(path).read()
+    keep = pc.invert(pc.is_in(table["run_id"].cast(pa.string()), value_set=pa.array(sorted(drop), pa.string())))
+    table = table.filter(keep)
+    remaining = [r for r in compacted_run_ids(path) if r not in drop]
+    if not remaining:
+        path.unlink()
+        return
+    tmp = path.with_name(f".{path.name}.tmp")
+    with pq.ParquetWriter(tmp, table.schema, **parquet_options(table.schema)) as writer:
+        writer.write_table(table.unify_dictionaries().combine_chunks(), row_group_size=1 << 20)
+        writer.add_key_value_metadata({RUN_IDS_KEY: json.dumps(remaining)})
     os.replace(tmp, path)
-    return path
 
 
-def cleanup_stale(out: Path) -> int:
-    """Remove what an interrupted batch left half-written: temporary run dirs and partition files."""
-    out = Path(out)
-    stale = [p for p in (out / RUNS).glob(".*.tmp-*")] + list((out / RUNS).glob(".*.old-*"))
-    stale += list(out.glob(f".{SUMMARY}.tmp-*"))
+def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
+    """Delete every file of ``run_ids``: partitions, rows in compacted files, run directories."""
+    if not run_ids:
+        return
+    out = index.out
+    for table, fresh in index.fresh.items():
+        for rid in fresh & run_ids:
+            _rmtree(partition_file(out, table, rid).parent)
+        fresh -= run_ids
+    for table, files in index.compacted.items():
+        for name, ids in list(files.items()):
+            if ids & run_ids:
+                _rewrite_without(out / table / name, run_ids)
+                ids -= run_ids
+                if not ids:
+                    del files[name]
+    for rid in index.runs & run_ids:
+        _rmtree(run_dir(out, rid))
+    index.runs -= run_ids
+
+
+def drop_runs(index: DatasetIndex, ledger: Ledger, run_ids: Iterable[str]) -> None:
+    """Take runs out of the dataset: files first, then the record (a kill between leaves a record whose files
+    are gone, which :func:`reconcile` drops)."""
+    run_ids = set(run_ids)
+    remove_files(index, run_ids)
+    for rid in sorted(run_ids):
+        ledger.drop(rid)
+
+
+def _stale_files(out: Path) -> list[Path]:
+    """Temporary files of killed writers (never part of the dataset)."""
+    stale = list(staging_root(out).glob("*")) + list(out.glob(f".{SUMMARY}.tmp-*"))
+    stale += list(meta_dir(out).glob(".*.tmp-*")) + list((out / RUNS).glob(".*"))
     for table in ALL_TABLES:
-        stale += list((out / table).glob(f"run_id=*/.{PART}.tmp-*"))
+        stale += list((out / table).glob(".*")) + list((out / table).glob("run_id=*/.*"))
+    return stale
+
+
+@dataclass
+class Reconciled:
+    adopted: list[str] = field(default_factory=list)
+    removed: list[str] = field(default_factory=list)  # partial runs whose files were deleted
+    dropped: list[str] = field(default_factory=list)  # recorded runs whose files were gone
+    stale_files: int = 0
+
+
+def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
+    """Make disk and record agree (see module doc); returns the index of what is now in the dataset."""
+    from slamobs.pipeline.batch.compact import finish_compaction
+
+    out = Path(out)
+    result = Reconciled()
+    finish_compaction(out)
+    stale = _stale_files(out)
     for p in stale:
-        shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
-    return len(stale)
+        _rmtree(p)
+    result.stale_files = len(stale)
+    index = DatasetIndex.scan(out)
+    ok = {rid for rid, row in ledger.rows.items() if row.get("status") == "ok"}
+    for rid in sorted(ok):
+        tables = [t for t in (ledger.rows[rid].get("tables") or "").split(",") if t]
+        if not (rid in index.runs and all(index.has(t, rid) for t in tables)):
+            result.dropped.append(rid)
+    drop_runs(index, ledger, result.dropped)
+    ok -= set(result.dropped)
+    for rid in sorted(index.runs - ok):
+        meta = read_run_meta(run_dir(out, rid))
+        if meta and meta.get("run_id") == rid and all(index.has(t, rid) for t in meta["tables"]) and meta.get("row"):
+            ledger.put(meta["row"])
+            ok.add(rid)
+            result.adopted.append(rid)
+    result.removed = sorted(index.all_ids() - ok)
+    remove_files(index, set(result.removed))
+    # failed (or unknown) records never keep files; a recorded failure has none by construction
+    return index, result
 
 
 @contextmanager
 def batch_lock(out: Path) -> Iterator[None]:
-    """One batch at a time per output directory (cleanup of stale files must not hit a live batch)."""
+    """One batch at a time per output directory (reconciliation must not hit a live batch)."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    with open(out / LOCK, "a+") as fh:
+    try:
+        meta_dir(out).mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(out, f"cannot create the output directory: {err.strerror}") from None
+    with open(meta_dir(out) / LOCK, "a+") as fh:
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -154,3 +292,37 @@ def batch_lock(out: Path) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def check_layout(out: Path) -> None:
+    """Refuse an output directory of the older layout (path-based run ids, tables in runs/): mixing would
+    duplicate every run."""
+    out = Path(out)
+    if (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
+        raise InputError(out, "written by an older slamobs batch (run ids from log paths); write this batch to a "
+                              "new directory")
+
+
+# --- reading one run back (slamobs report / load_run on runs/<id>) ----------------------------------------
+
+
+def run_tables(path: Path) -> dict[str, pa.Table] | None:
+    """The tables of the batch run directory ``path`` (``OUT/runs/<id>``) read back from the dataset, without
+    the run_id column; None if ``path`` is not a batch run directory."""
+    meta = read_run_meta(Path(path))
+    if meta is None:
+        return None
+    out, rid = Path(path).resolve().parent.parent, meta["run_id"]
+    found = {}
+    for table in meta["tables"]:
+        part = partition_file(out, table, rid)
+        if part.is_file():
+            data = pq.read_table(part)
+        else:
+            pieces = [pq.read_table(f, filters=[("run_id", "=", rid)])
+                      for f in sorted((out / table).glob(f"{COMPACTED}*.parquet")) if rid in compacted_run_ids(f)]
+            if not pieces:
+                raise InputError(path, f"table {table} of run {rid} is missing from the dataset {out / table}")
+            data = pa.concat_tables(pieces)
+        found[table] = data.drop_columns(["run_id"]).replace_schema_metadata(None)
+    return found

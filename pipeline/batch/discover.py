@@ -1,15 +1,15 @@
 """Which logs a batch covers: files, directories, globs and manifests -> one :class:`LogEntry` per log.
 
-Also the two identities of a log: its ``run_id`` (from where it is) and its content hash (from what it holds).
+What a log *is* (its content hash and run_id) is :mod:`identity`'s business; here only where logs are.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import glob
-import hashlib
 import os
-import re
+import stat
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,9 +19,6 @@ from slamobs.pipeline.errors import InputError
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")  # a bare .db3: rosbag2 storage without metadata.yaml (crash)
 MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
 ROSBAG2_META = "metadata.yaml"
-#: Bytes read from each end of a file for the content hash; smaller files are hashed whole.
-HASH_CHUNK = 1 << 20
-HASH_VERSION = "v1"
 
 
 @dataclass(frozen=True)
@@ -70,8 +67,40 @@ def _walk(root: Path) -> list[Path]:
     return sorted(found)
 
 
+def file_kind(mode: int) -> str:
+    """What a non-regular, non-directory file is, for error messages."""
+    for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_openable(path: Path) -> os.stat_result:
+    """``stat`` of a path that may be opened: a regular file or a directory, else one-line InputError.
+
+    FIFOs and devices are refused before anything opens them (reading a FIFO blocks forever), and a
+    symbolic link loop is named as such instead of "no such file".
+    """
+    try:
+        st = os.stat(path)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise InputError(path, "symbolic link loop") from None
+        if err.errno == errno.ENOENT:
+            raise InputError(path, "no such file or directory") from None
+        raise InputError(path, f"cannot read: {err.strerror}") from None
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        raise InputError(path, f"{file_kind(st.st_mode)}, not a log file or directory")
+    return st
+
+
 def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
     """A path given on the command line or by a glob: a log, a directory to search, or a manifest."""
+    try:
+        check_openable(path)
+    except InputError as err:
+        raise InputError(path, f"{origin}: {err.problem}") from None
     if is_rosbag2_dir(path):
         return [LogEntry(path, config)]
     if path.is_dir():
@@ -83,9 +112,7 @@ def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
             return read_manifest(path)
         if path.suffix.lower() in LOG_SUFFIXES:
             return [LogEntry(path, config)]
-        raise InputError(path, f"{origin}: not a log (.bag, .mcap, .db3, rosbag2 directory) or a manifest "
-                               "(.csv, .yaml)")
-    raise InputError(path, f"{origin}: no such file or directory")
+    raise InputError(path, f"{origin}: not a log (.bag, .mcap, .db3, rosbag2 directory) or a manifest (.csv, .yaml)")
 
 
 def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
@@ -117,17 +144,17 @@ def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
 
 
 def _dedupe(entries: Iterable[LogEntry]) -> list[LogEntry]:
-    seen: dict[Path, LogEntry] = {}
+    seen: dict[str, LogEntry] = {}
     for e in entries:
-        key = e.path.resolve()
+        key = os.path.realpath(e.path)  # never raises (Path.resolve does on a symbolic link loop)
         first = seen.setdefault(key, e)
         if first.config != e.config and _resolve(first.config) != _resolve(e.config):
             raise InputError(e.path, f"listed twice with different configs ({first.config} and {e.config})")
     return list(seen.values())
 
 
-def _resolve(p: Path | None) -> Path | None:
-    return None if p is None else p.resolve()
+def _resolve(p: Path | None) -> str | None:
+    return None if p is None else os.path.realpath(p)
 
 
 def read_manifest(path: Path) -> list[LogEntry]:
@@ -185,37 +212,3 @@ def _yaml_rows(path: Path) -> list[tuple[str, str | None]]:
     return rows
 
 
-def run_id_for(path: Path) -> str:
-    """Readable, stable id: the log's name plus 8 hex digits of its absolute path (unique per location)."""
-    name = path.name
-    for suffix in LOG_SUFFIXES:
-        if name.lower().endswith(suffix):
-            name = name[: -len(suffix)]
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._-")[:48] or "log"
-    digest = hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:8]
-    return f"{name}-{digest}"
-
-
-def content_hash(path: Path) -> str:
-    """Fingerprint of a log's content, independent of mtime and location, cheap for big logs.
-
-    Per file (every non-hidden file of a rosbag2 directory, by relative name): its size, and its bytes if
-    at most 2 MiB, else its first and last MiB. Bag/MCAP indexes and rosbag2 metadata sit at the ends, and
-    a recording that grows or is re-recorded changes its size, so this catches real changes; an edit only
-    in the middle of a big file that keeps its size is not seen (use ``--force``).
-    """
-    h = hashlib.sha256(HASH_VERSION.encode())
-    path = Path(path)
-    files = sorted(p for p in path.rglob("*") if p.is_file() and not any(
-        part.startswith(".") for part in p.relative_to(path).parts)) if path.is_dir() else [path]
-    for f in files:
-        size = f.stat().st_size
-        h.update(f"\0{f.relative_to(path) if path.is_dir() else ''}\0{size}\0".encode())
-        with f.open("rb") as fh:
-            if size <= 2 * HASH_CHUNK:
-                h.update(fh.read())
-            else:
-                h.update(fh.read(HASH_CHUNK))
-                fh.seek(size - HASH_CHUNK)
-                h.update(fh.read(HASH_CHUNK))
-    return f"{HASH_VERSION}:{h.hexdigest()[:32]}"

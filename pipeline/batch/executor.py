@@ -1,22 +1,22 @@
-"""Where the runs execute: local worker processes or a Dask cluster, one log per worker at a time.
+"""What runs in a worker: one log -> a staged run (run directory and dataset tables) and its summary row.
 
-A task is self-contained and picklable; :func:`run_task` runs in the worker, writes that run's files under
-``OUT`` (so on a cluster ``OUT`` and the logs must be on a file system every worker sees at the same path)
-and returns the run's summary row. A task never raises: a failure is a row with ``status == "failed"``.
+A task is self-contained and picklable. :func:`run_task` writes only inside the task's staging directory
+(``OUT/_slamobs/staging/<batch>/<run_id>/``; on a cluster ``OUT`` and the logs must be on a file system
+every worker sees at the same path) and returns the row; the batch process commits it
+(:func:`dataset.commit_run`). A worker whose batch is gone therefore cannot change the dataset, whatever
+it does. A task never raises for a bad log: that is a row with ``status == "failed"``; it raises
+:class:`EnvironmentMismatch` when the worker runs other slamobs code than the batch.
 """
 
 from __future__ import annotations
 
-import importlib.util
-import multiprocessing
+import json
 import os
 import socket
+import sys
+import threading
 import time
 import warnings
-from collections import deque
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -24,7 +24,19 @@ from pathlib import Path
 from slamobs.pipeline.config import RunConfig
 
 EXECUTORS = ("local", "dask")
-_DIED = "worker process died (crash or out of memory) while running this log"
+#: A Dask task gives up (ends its worker process) when its batch's lease file has not been touched for this
+#: long: the batch process is gone, nothing the task produces can be committed.
+LEASE_STALE_S = 60.0
+LEASE_POLL_S = 2.0
+STARTED = "started.json"
+
+
+class EnvironmentMismatch(RuntimeError):
+    """The worker runs another slamobs version or code than the batch (an infrastructure problem)."""
+
+
+class InfrastructureError(RuntimeError):
+    """The batch cannot go on: scheduler lost, no usable workers, worker environment mismatch (exit 3)."""
 
 
 @dataclass(frozen=True)
@@ -32,24 +44,31 @@ class Task:
     """One log to run, with everything the worker needs and the identities recorded in the summary.
 
     Plain data only (the config as a dict, not a RunConfig): a worker with another slamobs version then
-    fails that run with a clear error instead of unpickling a mismatched object.
+    fails with a clear error instead of unpickling a mismatched object.
     """
 
     run_id: str
     log: str
     out: str
     config: dict
-    config_file: str | None
-    content_hash: str | None
-    config_hash: str
+    config_file: str | None = None
+    content_hash: str | None = None
+    config_hash: str = ""
+    staged: str = ""  # this run's staging directory (its parent is created by the batch)
     version: str = ""
+    code: str = ""  # identity.code_hash() of the batch
+    lease: str | None = None  # Dask: the batch's lease file (see LEASE_STALE_S)
 
     @classmethod
-    def make(cls, run_id: str, log: str, out: str, config: RunConfig, config_file: str | None = None,
-             content_hash: str | None = None, config_hash: str = "") -> Task:
+    def make(cls, run_id: str, log: str, out: str, config: RunConfig | dict, **kwargs) -> Task:
+        """A task at this installation's version and code; ``config`` may be given as ``RunConfig.to_dict()``
+        (a batch converts each config once)."""
         import slamobs
 
-        return cls(run_id, log, out, config.to_dict(), config_file, content_hash, config_hash, slamobs.__version__)
+        from slamobs.pipeline.batch.identity import code_hash
+
+        config = config if isinstance(config, dict) else config.to_dict()
+        return cls(run_id, log, out, config, version=slamobs.__version__, code=code_hash(), **kwargs)
 
 
 def one_line(err: BaseException, where: str | None = None) -> str:
@@ -69,128 +88,107 @@ def base_row(task: Task) -> dict:
     return {"run_id": task.run_id, "log": task.log, "config_file": task.config_file,
             "content_hash": task.content_hash, "observer": task.config.get("observer"), "config_hash": task.config_hash,
             "slamobs_version": slamobs.__version__, "finished_at": datetime.now(UTC),
-            "worker": f"{socket.gethostname()}:{os.getpid()}"}
+            "worker": _worker_name(), "warning_count": 0}
 
 
 def failed_row(task: Task, error: str) -> dict:
     return {**base_row(task), "status": "failed", "error": error}
 
 
-def _check_version(task: Task) -> None:
+def check_environment(version: str, code: str) -> None:
     import slamobs
 
-    if task.version and task.version != slamobs.__version__:
-        raise RuntimeError(f"worker runs slamobs {slamobs.__version__}, the batch {task.version}: "
-                           "install the same version on every worker")
+    from slamobs.pipeline.batch.identity import code_hash
+
+    if (version and version != slamobs.__version__) or (code and code != code_hash()):
+        raise EnvironmentMismatch(f"{socket.gethostname()} runs slamobs {slamobs.__version__} (code {code_hash()}), "
+                                  f"the batch {version} (code {code}): install the same version on every worker")
 
 
-def run_task(task: Task) -> dict:
-    """Run one log (worker side): run directory via ``run_log``, then its partitions; returns the row."""
-    from slamobs.pipeline.batch.dataset import remove_run, run_dir, write_partitions
+def _watch_lease(lease: Path, done: threading.Event) -> None:
+    """End this worker process once the batch's lease goes stale (the batch process died)."""
+    from slamobs.pipeline.batch.lifeline import ORPHANED
+
+    def loop() -> None:
+        last, changed = None, time.monotonic()
+        while not done.wait(LEASE_POLL_S):
+            try:
+                mtime = lease.stat().st_mtime_ns
+            except OSError:
+                os._exit(ORPHANED)
+            if mtime != last:
+                last, changed = mtime, time.monotonic()
+            elif time.monotonic() - changed > LEASE_STALE_S:
+                os._exit(ORPHANED)
+
+    threading.Thread(target=loop, name="slamobs-lease", daemon=True).start()
+
+
+def _run(log: Path, out_dir: Path, config: RunConfig):
+    """:func:`pipeline.run.run_log` into ``out_dir``; returns its summary and the input warnings it counted."""
     from slamobs.pipeline.run import run_log
 
+    summary = run_log(log, out_dir, config)
+    return summary, list(summary.input_warnings)
+
+
+def _worker_name() -> str:
+    """The Dask worker's address inside a Dask task, else host:pid."""
+    if "distributed" in sys.modules:  # never imported just to ask
+        try:
+            return sys.modules["distributed"].get_worker().address
+        except (AttributeError, ValueError):
+            pass
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def run_task(task: Task, pipeline=_run) -> dict:
+    """Run one log (worker side) into its staging directory; returns the summary row.
+
+    ``pipeline(log, run_dir, config) -> (RunSummary, warnings)`` writes the run directory (tests pass a fast
+    stand-in through ``functools.partial``; the staging and commit contract stays this function's).
+
+    An ok row carries ``tables`` (comma-separated); ``runs/<id>/batch.json`` in the staged run directory
+    repeats the row, so a run whose commit was cut short can be adopted by the next batch.
+    """
+    from slamobs.pipeline.batch.dataset import _rmtree, stage_tables, write_run_meta
+
+    check_environment(task.version, task.code)
     t0 = time.perf_counter()
-    out = Path(task.out)
-    # warnings go into the summary row: worker stderr would interleave with the batch's progress output
+    staged = Path(task.staged)
+    done = threading.Event()
+    if task.lease:
+        _watch_lease(Path(task.lease), done)
+    data_warnings: list[str] = []
+    tables: dict[str, int] = {}
     with warnings.catch_warnings(record=True) as caught:
+        # warnings go into the summary row: worker stderr would interleave with the batch's progress output
         warnings.simplefilter("default")
         try:
-            _check_version(task)
-            summary = run_log(Path(task.log), run_dir(out, task.run_id), RunConfig(**task.config), force=True)
+            if staged.exists():  # a Dask retry after a worker died on this task
+                _rmtree(staged)
+            staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
+            (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
+            summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig(**task.config))
             t = time.perf_counter()
-            write_partitions(out, task.run_id)
+            tables = stage_tables(staged, task.run_id)
             row = {**base_row(task), "status": "ok", "error": None, "dataset_s": time.perf_counter() - t,
                    **summary.timings, **summary.metadata["counts"], **summary.headline()}
         except Exception as err:  # noqa: BLE001 - one failing log must never stop the batch
-            remove_run(out, task.run_id)
+            _rmtree(staged)
             row = failed_row(task, one_line(err, task.log))
-    texts = list(dict.fromkeys(f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})"
-                               for w in caught))
-    row["warnings"] = "; ".join(texts)[:500] or None
-    row["total_s"] = time.perf_counter() - t0
-    return row
-
-
-def local_results(tasks: Sequence[Task], jobs: int, run: Callable[[Task], dict] = run_task) -> Iterator[dict]:
-    """Rows of ``tasks`` run in ``jobs`` spawned worker processes, in completion order.
-
-    ``run`` is the worker function (a picklable top-level function; tests pass one that crashes).
-
-    At most ``jobs`` tasks are in flight, so when a worker dies (which breaks the whole pool) the suspects
-    are exactly those; they are retried one at a time in a fresh single-worker pool, so a log that kills
-    its worker fails alone and the rest of the batch carries on.
-    """
-    todo: deque[Task] = deque(tasks)
-    suspects: deque[Task] = deque()
-    ctx = multiprocessing.get_context("spawn")  # numba and threads do not survive fork well
-    while todo or suspects:
-        isolated = bool(suspects)
-        source, width = (suspects, 1) if isolated else (todo, max(1, jobs))
-        pool = ProcessPoolExecutor(max_workers=width, mp_context=ctx)
-        inflight: dict[Future, Task] = {}
-        broken = False
-        try:
-            while inflight or (source and not broken):
-                while source and not broken and len(inflight) < width:
-                    task = source.popleft()
-                    inflight[pool.submit(run, task)] = task
-                done, _ = wait(inflight, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    task = inflight.pop(fut)
-                    try:
-                        yield fut.result()
-                    except BrokenProcessPool:
-                        broken = True
-                        if isolated:
-                            yield failed_row(task, f"{task.log}: {_DIED}")
-                        else:
-                            suspects.append(task)
-                    except Exception as err:  # noqa: BLE001 - e.g. a task that cannot be pickled
-                        yield failed_row(task, one_line(err, task.log))
         finally:
-            # on an interruption: drop queued work, let running logs finish so no writer outlives the batch
-            pool.shutdown(wait=True, cancel_futures=True)
-
-
-def dask_available() -> bool:
-    return importlib.util.find_spec("distributed") is not None
-
-
-def dask_results(tasks: Sequence[Task], jobs: int, scheduler: str | None = None) -> Iterator[dict]:
-    """Rows of ``tasks`` run on Dask: the cluster at ``scheduler``, else a local cluster of ``jobs`` processes.
-
-    Start remote workers with ``--nthreads 1`` to keep one log per worker process at a time.
-    """
-    import logging
-
-    from distributed import Client, LocalCluster, as_completed
-
-    from slamobs.pipeline.errors import InputError
-
-    cluster = None
-    if scheduler:
+            done.set()
+    texts = data_warnings + list(dict.fromkeys(
+        f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught))
+    row["warning_count"] = len(texts)
+    row["warnings"] = "; ".join(" ".join(t.split()) for t in texts)[:1000] or None
+    row["total_s"] = time.perf_counter() - t0
+    if row["status"] == "ok":
+        row["tables"] = ",".join(tables)
         try:
-            client = Client(scheduler)
-        except (OSError, TimeoutError, ValueError) as err:
-            raise InputError(scheduler, f"cannot reach the Dask scheduler ({one_line(err)})") from None
-    else:
-        cluster = LocalCluster(n_workers=max(1, jobs), processes=True, threads_per_worker=1,
-                               dashboard_address=None, silence_logs=logging.ERROR)
-        client = Client(cluster)
-    by_key: dict[str, tuple] = {}
-    try:
-        for task in tasks:
-            fut = client.submit(run_task, task, pure=False, key=f"slamobs-{task.run_id}-{os.urandom(4).hex()}")
-            by_key[fut.key] = (fut, task)
-        for fut in as_completed([f for f, _ in by_key.values()]):
-            task = by_key[fut.key][1]
-            try:
-                yield fut.result()
-            except Exception as err:  # noqa: BLE001 - e.g. KilledWorker after a worker died on this log
-                yield failed_row(task, one_line(err, task.log))
-    finally:
-        for fut, _ in by_key.values():
-            fut.cancel()
-        client.close()
-        if cluster is not None:
-            cluster.close()
+            write_run_meta(staged, task.run_id, tables, row)
+        except OSError as err:  # e.g. the staging area was removed under an orphaned task
+            _rmtree(staged)
+            row = {**failed_row(task, one_line(err, task.log)), "total_s": row["total_s"]}
+    return row

@@ -1,7 +1,10 @@
-"""A batch: plan (hash, skip what is done), dispatch to an executor, record each finished run in the summary.
+"""A batch: settle what a previous batch left, plan (identify, skip what is done), run, commit, compact.
 
-Only the parent process touches ``summary.parquet``; it is rewritten atomically after every finished run,
-so an interrupted batch leaves a summary that matches the files on disk, and the next batch resumes from it.
+Only this process changes the dataset: workers stage their runs, and each finished run is committed here
+(:func:`dataset.commit_run`, with SIGINT/SIGTERM held back for the few renames) and recorded with one
+appended line (:class:`ledger.Ledger`). ``summary.parquet`` is rewritten every ``REFRESH_S`` seconds and at
+the end, whatever way the batch ends; the per-run partitions are compacted at the end of a batch that ran
+to completion.
 """
 
 from __future__ import annotations
@@ -9,20 +12,43 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import signal
+import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import closing
+from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from slamobs.pipeline.batch.dataset import batch_lock, cleanup_stale, read_summary, remove_run, run_complete, write_summary
-from slamobs.pipeline.batch.discover import LogEntry, content_hash, run_id_for
-from slamobs.pipeline.batch.executor import EXECUTORS, Task, dask_available, dask_results, failed_row, local_results, one_line
+from slamobs.pipeline.batch.compact import TableCompaction, compact_dataset
+from slamobs.pipeline.batch.dask_exec import DaskPool, dask_available
+from slamobs.pipeline.batch.dataset import (
+    Reconciled,
+    _rmtree,
+    batch_lock,
+    check_layout,
+    commit_run,
+    drop_runs,
+    partition_file,
+    reconcile,
+    run_dir,
+    staging_root,
+)
+from slamobs.pipeline.batch.discover import LogEntry
+from slamobs.pipeline.batch.executor import EXECUTORS, Task, base_row, failed_row, one_line, run_task
+from slamobs.pipeline.batch.identity import HashCache, path_key, run_id_for, run_key
+from slamobs.pipeline.batch.ledger import REFRESH_S, SUMMARY, Ledger, meta_dir
+from slamobs.pipeline.batch.local import LocalPool
 from slamobs.pipeline.config import RunConfig, load_config
 from slamobs.pipeline.errors import InputError
 
 DASK_MISSING = "--executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")"
+#: Default seconds one log may run before its worker is killed (a 4 h log takes ~1 min on one core).
+DEFAULT_TIMEOUT_S = 3600.0
+#: Default seconds a Dask batch waits for a worker (at start, and when all workers are gone).
+DEFAULT_WAIT_WORKERS_S = 60.0
+LEASE_TOUCH_S = 5.0
 
 
 class DaskMissing(RuntimeError):
@@ -34,10 +60,16 @@ class BatchOptions:
     out: Path
     config: RunConfig = field(default_factory=RunConfig)
     observer: str | None = None  # overrides the observer of every config, per-log ones included
+    msg_dir: str | None = None  # for every config that does not name one
     force: bool = False
+    skip_failed: bool = False  # do not retry a log that failed with the same content and config
+    prune: bool = False  # drop runs whose log is gone (not at its recorded path with the same content)
+    compact: bool = True
     executor: str = "local"
     jobs: int = field(default_factory=lambda: os.cpu_count() or 1)
     scheduler: str | None = None  # a Dask scheduler address implies the Dask executor
+    timeout: float | None = DEFAULT_TIMEOUT_S  # per log; None: no limit
+    wait_workers: float = DEFAULT_WAIT_WORKERS_S
 
 
 @dataclass
@@ -49,6 +81,7 @@ class Progress:
     ok: int = 0
     failed: int = 0
     skipped: int = 0
+    warned: int = 0  # ok runs with warnings (salvaged log, dropped samples, ...)
     ran: int = 0
     started: float = field(default_factory=time.perf_counter)
 
@@ -58,6 +91,7 @@ class Progress:
 
     def add(self, row: dict, dispatched: bool) -> None:
         setattr(self, row["status"], getattr(self, row["status"]) + 1)
+        self.warned += row["status"] == "ok" and bool(row.get("warning_count"))
         self.ran += dispatched
 
     def eta_s(self) -> float | None:
@@ -71,20 +105,28 @@ class BatchResult:
     rows: list[dict]  # this batch's logs, in input order
     elapsed_s: float
     summary_path: Path
+    pruned: list[str] = field(default_factory=list)
+    reconciled: Reconciled = field(default_factory=Reconciled)
+    compaction: list[TableCompaction] = field(default_factory=list)
 
     def count(self, status: str) -> int:
         return sum(r["status"] == status for r in self.rows)
 
     @property
+    def warned(self) -> int:
+        return sum(r["status"] == "ok" and bool(r.get("warning_count")) for r in self.rows)
+
+    @property
     def exit_code(self) -> int:
-        """0: every log ok or skipped; 1: some failed; 2: none succeeded."""
-        failed = self.count("failed")
-        return 0 if not failed else (1 if failed < len(self.rows) else 2)
+        """0: every log ok or skipped; 1: some failed (infrastructure problems raise instead: exit 3)."""
+        return 1 if self.count("failed") else 0
 
 
 def config_hash(config: RunConfig) -> str:
-    """Digest of the effective configuration (after defaults and the --observer override)."""
-    text = json.dumps(config.to_dict(), sort_keys=True, default=list)
+    """Digest of the effective configuration (after defaults and the --observer override); where the config
+    was read from is not part of it. Files a config names (map_file, truth_file, msg_dir) count by path."""
+    values = {k: v for k, v in config.to_dict().items() if k != "source"}
+    text = json.dumps(values, sort_keys=True, default=list)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -96,65 +138,204 @@ def check_config(config: RunConfig) -> None:
     spec.resolve_gains(config.gains.get(spec.name))
 
 
-def _plan(entries: Sequence[LogEntry], options: BatchOptions) -> list[Task | dict]:
-    """A task per log, or its failed row when it cannot even start (missing log, bad per-log config)."""
-    configs: dict[Path, RunConfig | str] = {}
+@dataclass
+class _Planned:
+    """One log of the batch, identified: a task to run, or a row to report at once."""
+
+    log: str
+    task: Task | None = None
+    row: dict | None = None
+    path_id: str = ""
+
+
+def _overrides(cfg: RunConfig, options: BatchOptions) -> RunConfig:
+    if options.observer:
+        cfg = replace(cfg, observer=options.observer)
+    if options.msg_dir and not cfg.msg_dir:  # a per-log config naming its own msg_dir keeps it
+        cfg = replace(cfg, msg_dir=options.msg_dir)
+    return cfg
+
+
+def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCache,
+              by_key: dict[str, str]) -> list[_Planned]:
+    """Config, content hash and run_id of every log (hashing overlapped: it is I/O, and cached)."""
+    configs: dict[str, RunConfig | str] = {}
     out = str(Path(options.out).resolve())
+    default = _overrides(options.config, options)
 
     def config_for(entry: LogEntry) -> RunConfig | str:
         if entry.config is None:
-            return replace(options.config, observer=options.observer) if options.observer else options.config
-        if entry.config not in configs:
+            return default
+        key = os.path.realpath(entry.config)
+        if key not in configs:
             try:
-                cfg = load_config(entry.config)
-                if options.observer:
-                    cfg = replace(cfg, observer=options.observer)
+                cfg = _overrides(load_config(entry.config), options)
                 check_config(cfg)
-                configs[entry.config] = cfg
+                configs[key] = cfg
             except Exception as err:  # noqa: BLE001 - a bad per-log config fails that log only
-                configs[entry.config] = one_line(err, str(entry.config))
-        return configs[entry.config]
+                configs[key] = one_line(err, str(entry.config))
+        return configs[key]
 
-    def prepare(entry: LogEntry, cfg: RunConfig | str) -> Task | dict:
-        log = entry.path.resolve()
-        task = Task.make(run_id_for(log), str(log), out, cfg if isinstance(cfg, RunConfig) else options.config,
-                         config_file=str(entry.config.resolve()) if entry.config else None,
-                         config_hash=config_hash(cfg) if isinstance(cfg, RunConfig) else "")
+    derived: dict[int, tuple[dict, str]] = {}  # per config object: its dict and hash, computed once
+
+    def identify(entry: LogEntry, cfg: RunConfig | str, chash: str | InputError) -> _Planned:
+        log = os.path.realpath(entry.path)
+        path_id = run_id_for(Path(log), path_key(Path(log)))
+        cfg_file = os.path.realpath(entry.config) if entry.config else None
+        known = cfg if isinstance(cfg, RunConfig) else options.config
+        if id(known) not in derived:
+            derived[id(known)] = (known.to_dict(), config_hash(known))
+        cfg_dict, cfg_hash = derived[id(known)]
+        stub = Task.make(path_id, log, out, cfg_dict, config_file=cfg_file)
         if isinstance(cfg, str):
-            return failed_row(task, cfg)
-        if not log.exists():
-            return failed_row(task, str(InputError(entry.path, "no such file or directory")))
+            return _Planned(log, row=failed_row(stub, cfg), path_id=path_id)
+        if isinstance(chash, InputError):
+            return _Planned(log, row=failed_row(stub, str(InputError(entry.path, chash.problem))), path_id=path_id)
+        key = run_key(chash, cfg_hash)
+        rid = by_key.get(key) or run_id_for(Path(log), key)
+        return _Planned(log, task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash), path_id=path_id)
+
+    def lookup(entry: LogEntry) -> tuple[str | None, str | InputError | None]:
         try:
-            return replace(task, content_hash=content_hash(log))
-        except OSError as err:
-            return failed_row(task, str(InputError(entry.path, f"cannot read: {err.strerror}")))
+            return cache.lookup(Path(os.path.realpath(entry.path)))
+        except InputError as err:
+            return None, err
 
     cfgs = [config_for(e) for e in entries]
-    with ThreadPoolExecutor(max_workers=8) as pool:  # hashing is I/O: overlap it
-        items = list(pool.map(prepare, entries, cfgs))
-    ids: dict[str, str] = {}
-    for item in items:
-        rid, log = (item.run_id, item.log) if isinstance(item, Task) else (item["run_id"], item["log"])
-        if ids.setdefault(rid, log) != log:
-            raise InputError(log, f"run_id {rid} collides with {ids[rid]}; rename one of the logs")
-    return items
+    found = [lookup(e) for e in entries]  # a stat per file: cheap, and all an up-to-date batch needs
+    todo = [i for i, (key, h) in enumerate(found) if key is not None and h is None]
+
+    def read(i: int) -> str | InputError:
+        try:
+            return cache.content_hash(Path(os.path.realpath(entries[i].path)), found[i][0])
+        except InputError as err:
+            return err
+
+    with ThreadPoolExecutor(max_workers=8) as pool:  # reading is I/O: overlapped
+        for i, h in zip(todo, pool.map(read, todo)):
+            found[i] = (found[i][0], h)
+    return [identify(e, c, h) for e, c, (_, h) in zip(entries, cfgs, found)]
 
 
-def _still_valid(prev: dict | None, task: Task, out: Path) -> bool:
-    return (prev is not None and prev["status"] in ("ok", "skipped") and prev["content_hash"] == task.content_hash
-            and prev["config_hash"] == task.config_hash and run_complete(out, task.run_id))
+@dataclass
+class _Plan:
+    tasks: list[Task] = field(default_factory=list)
+    rows: dict[int, dict] = field(default_factory=dict)  # position -> row reported at once (failed / skipped)
+    order: list[str] = field(default_factory=list)  # run_id per position
+    drop: set[str] = field(default_factory=set)  # recorded runs to take out before running
+    records: list[dict] = field(default_factory=list)  # rows to record before running (failures, moved logs)
+
+
+def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _Plan:
+    plan = _Plan()
+    first: dict[str, str] = {}
+    current: dict[str, str] = {}  # log path -> its content hash now
+    moved: list[tuple[dict, str, Task]] = []
+    for pos, p in enumerate(planned):
+        if p.task is None:
+            plan.order.append(p.row["run_id"])
+            plan.rows[pos] = p.row
+            plan.records.append(p.row)
+            continue
+        task = p.task
+        rid = task.run_id
+        plan.order.append(rid)
+        current[p.log] = task.content_hash
+        if p.path_id in ledger.rows and p.path_id != rid:
+            plan.drop.add(p.path_id)  # an earlier failure of this path before it could be hashed
+        if rid in first:
+            plan.rows[pos] = {**base_row(task), "status": "skipped", "error": None,
+                              "warnings": f"same content and config as {first[rid]}"}
+            continue
+        first[rid] = p.log
+        prev = ledger.rows.get(rid)
+        status = prev.get("status") if prev else None
+        if status == "ok" and not options.force:
+            if prev["log"] != p.log:
+                moved.append((prev, p.log, task))
+            plan.rows[pos] = {**prev, "status": "skipped", "error": None, "log": p.log, "config_file": task.config_file}
+        elif status == "failed" and options.skip_failed and not options.force:
+            plan.rows[pos] = {**prev, "status": "skipped", "log": p.log,
+                              "error": f"not retried (--skip-failed): {prev.get('error')}"}
+        else:
+            plan.tasks.append(task)
+            if prev is not None:
+                plan.drop.add(rid)
+    # a moved log: the record follows it when its recorded path no longer holds that content
+    for prev, log, task in moved:
+        if not os.path.exists(prev["log"]) or current.get(prev["log"], prev["content_hash"]) != prev["content_hash"]:
+            plan.records.append({**prev, "log": log, "config_file": task.config_file})
+    # a log whose content changed replaces its earlier runs (their input is gone), unless they are this batch's
+    for rid, row in ledger.rows.items():
+        if (rid not in first and row.get("log") in current
+                and row.get("content_hash") not in (None, current[row["log"]])):
+            plan.drop.add(rid)
+    return plan
+
+
+def _gone(row: dict, cache: HashCache) -> bool:
+    """The run's log is no longer at its recorded path with its recorded content."""
+    log = row.get("log")
+    if not log or not os.path.exists(log):
+        return True
+    if row.get("content_hash") is None:
+        return False
+    try:
+        return cache.content_hash(Path(log)) != row["content_hash"]
+    except InputError:
+        return True
+
+
+@contextmanager
+def signals_deferred():
+    """Hold SIGINT/SIGTERM/SIGHUP back (delivered on exit) while the dataset is being changed."""
+    sigs = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+class _Staging:
+    """This batch's staging directory and its lease: a file touched every few seconds while the batch lives
+    (Dask tasks whose batch is gone see it go stale and stop)."""
+
+    def __init__(self, out: Path) -> None:
+        token = f"{time.strftime('%Y%m%dT%H%M%S')}-{os.getpid()}-{os.urandom(3).hex()}"
+        self.dir = staging_root(out) / token
+        self.dir.mkdir(parents=True)
+        self.lease = self.dir / "LEASE"
+        self.lease.touch()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._touch, name="slamobs-lease-touch", daemon=True)
+        self._thread.start()
+
+    def _touch(self) -> None:
+        while not self._stop.wait(LEASE_TOUCH_S):
+            try:
+                os.utime(self.lease)
+            except OSError:
+                return
+
+    def close(self) -> None:
+        self._stop.set()
+        _rmtree(self.dir)
 
 
 def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
               on_row: Callable[[dict, Progress], None] = lambda _row, _p: None,
-              on_start: Callable[[Progress], None] = lambda _p: None) -> BatchResult:
+              on_start: Callable[[Progress], None] = lambda _p: None,
+              run: Callable[[Task], dict] = run_task) -> BatchResult:
     """Run every log of ``entries`` into ``options.out``; ``on_row`` sees each row once it is recorded.
 
     ``on_start`` sees the plan (``total`` logs, ``to_run`` of them not up to date) before anything runs.
+    ``run`` is the workers' task function (tests pass ones that crash or hang).
 
     Raises:
-        InputError: Another batch holds ``out``, or two logs map to one run_id.
+        InputError: Another batch holds ``out``, or ``out`` has the older layout.
         DaskMissing: The Dask executor without ``distributed`` installed.
+        InfrastructureError: Scheduler lost, no usable workers, worker environment mismatch.
 
     """
     if options.executor not in EXECUTORS:
@@ -164,39 +345,120 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
         raise DaskMissing(DASK_MISSING)
     t0 = time.perf_counter()
     out = Path(options.out)
+    check_layout(out)
     with batch_lock(out):
-        cleanup_stale(out)
-        summary = read_summary(out)
-        items = _plan(entries, options)
-        order = [i.run_id if isinstance(i, Task) else i["run_id"] for i in items]
-        rows: dict[str, dict] = {}
-        immediate, tasks = [], []
-        for item in items:
-            if isinstance(item, dict):
-                immediate.append(item)
-            elif not options.force and _still_valid(prev := summary.get(item.run_id), item, out):
-                immediate.append({**prev, "status": "skipped", "error": None, "log": item.log,
-                                  "config_file": item.config_file})
-            else:
-                tasks.append(item)
-        progress = Progress(total=len(items), to_run=len(tasks))
-        on_start(progress)
-        for row in immediate:
-            if row["status"] == "failed":
-                remove_run(out, row["run_id"])
-            summary[row["run_id"]] = rows[row["run_id"]] = row
-        write_summary(out, summary)
-        for row in immediate:
-            progress.add(row, dispatched=False)
+        ledger = Ledger(out)
+        try:
+            index, fixed = reconcile(out, ledger)
+            cache = HashCache(meta_dir(out) / "hashes.json")
+            try:
+                by_key = {}
+                for rid, row in ledger.rows.items():
+                    if row.get("content_hash") and row.get("config_hash"):
+                        by_key[run_key(row["content_hash"], row["config_hash"])] = rid
+                plan = _decide(_identify(entries, options, cache, by_key), options, ledger)
+                pruned = []
+                if options.prune:
+                    mentioned = set(plan.order)
+                    pruned = sorted(rid for rid, row in ledger.rows.items()
+                                    if rid not in mentioned and rid not in plan.drop and _gone(row, cache))
+                    plan.drop |= set(pruned)
+            finally:
+                cache.save()
+            with signals_deferred():
+                drop_runs(index, ledger, plan.drop)
+                for row in plan.records:
+                    ledger.put(row)
+            if ledger.appended or not (out / SUMMARY).is_file():
+                ledger.compact()
+            rows: dict[int, dict] = dict(plan.rows)
+            pool = None
+            if plan.tasks:  # a Dask cluster is checked before the batch says it starts
+                pool = (DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers, run)
+                        if use_dask else LocalPool(options.jobs, run, options.timeout))
+            try:
+                if use_dask and pool is not None:
+                    pool.connect()
+                progress = Progress(total=len(plan.order), to_run=len(plan.tasks))
+                on_start(progress)
+                for pos in sorted(plan.rows):
+                    progress.add(plan.rows[pos], dispatched=False)
+                    on_row(plan.rows[pos], progress)
+                progress.started = time.perf_counter()
+                if pool is not None:
+                    _execute(plan, pool, options, use_dask, ledger, rows, progress, on_row)
+            finally:
+                if use_dask and pool is not None:
+                    pool.close()
+            compaction = compact_dataset(out) if options.compact else []
+        finally:
+            ledger.compact()
+            ledger.close()
+    ordered = [rows[i] for i in range(len(plan.order)) if i in rows]
+    return BatchResult(rows=ordered, elapsed_s=time.perf_counter() - t0,
+                       summary_path=out / SUMMARY, pruned=pruned, reconciled=fixed, compaction=compaction)
+
+
+def _commit(out: Path, task: Task, row: dict) -> dict:
+    """Commit a staged run; on a file system error (disk full, permissions) the run fails and leaves nothing."""
+    tables = [t for t in row["tables"].split(",") if t]
+    try:
+        commit_run(out, Path(task.staged), task.run_id, tables)
+        return row
+    except OSError as err:
+        for table in tables:
+            _rmtree(partition_file(out, table, task.run_id).parent)
+        _rmtree(run_dir(out, task.run_id))
+        return {**failed_row(task, f"{out}: cannot add the run to the dataset: {err.strerror or err}"),
+                "total_s": row.get("total_s")}
+
+
+def _execute(plan: _Plan, pool: LocalPool | DaskPool, options: BatchOptions, use_dask: bool, ledger: Ledger,
+             rows: dict[int, dict], progress: Progress, on_row: Callable[[dict, Progress], None]) -> None:
+    """Run the plan's tasks on ``pool``, committing and recording each as it finishes."""
+    out = Path(options.out)
+    position = {}
+    for i, rid in enumerate(plan.order):
+        if i not in plan.rows:
+            position.setdefault(rid, i)
+    staging = _Staging(out)
+    tasks = [replace(t, staged=str(staging.dir / t.run_id), lease=str(staging.lease) if use_dask else None)
+             for t in plan.tasks]
+    results = None
+    try:
+        results = pool.results(tasks)
+        refreshed = time.monotonic()
+        for task, row in results:
+            with signals_deferred():
+                if row["status"] == "ok":
+                    row = _commit(out, task, row)
+                ledger.put(row)
+            _rmtree(Path(task.staged))
+            rows[position[task.run_id]] = row
+            progress.add(row, dispatched=True)
             on_row(row, progress)
-        progress.started = time.perf_counter()
-        results = (dask_results(tasks, options.jobs, options.scheduler) if use_dask and tasks
-                   else local_results(tasks, options.jobs))
-        with closing(results):
-            for row in results:
-                summary[row["run_id"]] = rows[row["run_id"]] = row
-                write_summary(out, summary)
-                progress.add(row, dispatched=True)
-                on_row(row, progress)
-    return BatchResult(rows=[rows[r] for r in order], elapsed_s=time.perf_counter() - t0,
-                       summary_path=out / "summary.parquet")
+            if time.monotonic() - refreshed > REFRESH_S:
+                ledger.compact()
+                refreshed = time.monotonic()
+    finally:
+        if results is not None:
+            results.close()  # kills the local workers
+        staging.close()
+
+
+def compact_batch(out: Path) -> tuple[Reconciled, list[TableCompaction]]:
+    """``slamobs batch compact OUT``: settle what an interrupted batch left, merge the partitions, rewrite the
+    summary. Raises InputError when another batch holds ``out`` or it is not a batch directory."""
+    out = Path(out)
+    check_layout(out)
+    if not (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
+        raise InputError(out, "not a batch output directory (no summary.parquet)" if out.is_dir()
+                         else "no such directory")
+    with batch_lock(out):
+        ledger = Ledger(out)
+        try:
+            _, fixed = reconcile(out, ledger)
+            return fixed, compact_dataset(out)
+        finally:
+            ledger.compact()
+            ledger.close()

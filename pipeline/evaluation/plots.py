@@ -160,23 +160,25 @@ def plot_errors(
     t_s: np.ndarray,
     position_error_m: np.ndarray,
     attitude_error_deg: np.ndarray,
-    threshold_m: float | None = None,
+    band_m: float | None = None,
     convergence_t_s: float | None = None,
     title: str = "Absolute pose error after SE(3) alignment",
+    level: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> Path:
-    """Aligned position and attitude error over time, with the convergence threshold and time if known."""
+    """Aligned position and attitude error over time; on the position panel only (the convergence figure is about
+    the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m])
     ax_p.plot(t_s[sel], position_error_m[sel], color="tab:blue", lw=1.0, label="‖position error‖")
-    if threshold_m is not None:
-        ax_p.axhline(threshold_m, color="tab:red", ls=":", lw=1.0, label=f"convergence threshold {threshold_m:g} m")
+    if level is not None:
+        ax_p.plot(level[0], level[1], color="tab:orange", lw=1.5, label="error level (running median)")
+    if band_m is not None:
+        ax_p.axhline(band_m, color="tab:red", ls=":", lw=1.0, label=f"convergence band {band_m:.3g} m")
     sel = envelope(len(t_s), [attitude_error_deg])
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if convergence_t_s is not None:
-        for ax in (ax_p, ax_r):
-            ax.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0,
-                       label=f"converged at {convergence_t_s:.2f} s")
+        ax_p.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0, label=f"converged at {convergence_t_s:.2f} s")
     ax_p.set_title(title)
     ax_p.set_ylabel("position error [m]")
     ax_r.set_ylabel("attitude error [deg]")
@@ -184,8 +186,8 @@ def plot_errors(
     for ax, y in ((ax_p, position_error_m), (ax_r, attitude_error_deg)):
         # errors are >= 0; a near-constant error must not be drawn on the frame edge or read as "1e-12 + ..."
         top = float(np.max(y)) * 1.1 if len(y) and np.max(y) > 0 else 1.0
-        if threshold_m is not None and ax is ax_p:
-            top = max(top, 1.1 * threshold_m)
+        if band_m is not None and ax is ax_p:
+            top = max(top, 1.1 * band_m)
         ax.set_ylim(0.0, top)
         ax.ticklabel_format(axis="y", useOffset=False)
         ax.grid(True, alpha=0.3)

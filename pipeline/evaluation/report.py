@@ -35,7 +35,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     rpe,
     synchronize,
 )
-from slamobs.pipeline.lie import rots_to_quats
+from slamobs.pipeline.lie import quats_to_rots, rot_to_quat, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
 SCHEMA_VERSION = 1
@@ -51,7 +51,9 @@ TRUTH_TUM = "truth_tum.txt"
 ESTIMATE_TUM = "estimate_tum.txt"
 EVO_ZIP = "ape_evo.zip"
 PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png")
-REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM)
+#: the estimate moved into the truth's frame by the report's alignment (schemas/poses_aligned.json, ...)
+ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
+REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
 
 _EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
 _ALIGN_LABELS = {"se3": "SE(3)", "sim3": "Sim(3)", "scale": "scale-only", "yaw": "4-DoF (yaw)", "origin": "origin",
@@ -419,16 +421,30 @@ def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray]
 
 
 def _convergence(ev: TrajectoryEvaluation, threshold_m: float) -> dict[str, Any]:
-    """First associated stamp from which the aligned position error stays below the threshold."""
+    """When the aligned position error reaches the observer's own steady level (:func:`slam_metrics.convergence`)."""
     t0 = int(ev.estimate.t_ns[0])
-    k = slam_metrics.convergence_index(ev.translation.errors, threshold_m)
-    t_conv = None if k is None else int(ev.pair_t_est_ns[k])
+    c = slam_metrics.convergence(ev.pair_t_est_ns, ev.translation.errors, threshold_m)
     return {
         "threshold_m": float(threshold_m),
+        "window_s": c["window_s"],
+        "steady_error_m": c["steady_error"],
+        "steady_level_m": c["steady_level"],
+        "band_m": c["band"],
+        "window_fraction": slam_metrics.WINDOW_FRACTION,
+        "tail_fraction": slam_metrics.TAIL_FRACTION,
+        "band_factor": slam_metrics.BAND_FACTOR,
         "estimate_start_ns": t0,
-        "t_ns": t_conv,
-        "t_since_start_s": None if t_conv is None else (t_conv - t0) / 1e9,
+        "t_ns": c["t_ns"],
+        "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
     }
+
+
+def convergence_definition(conv: dict[str, Any]) -> str:
+    """The convergence figure's definition, with its numbers (report.md)."""
+    return (f"first time after which the error level (median aligned position error over a {conv['window_s']:.3g} s "
+            f"window, {100 * conv['window_fraction']:g} % of the log) stays within max(threshold "
+            f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_level_m']:.4g} m, the highest level "
+            f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
 
 
 def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
@@ -564,9 +580,14 @@ def evaluate_tables(
                 "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
             ),
             "convergence": (
-                f"first associated estimate stamp from which the aligned position error stays below "
-                f"{options.convergence_threshold_m} m until the end; null if the last error is above it; "
-                "t_since_start_s counts from the first estimate stamp"
+                "the error level is the running median of the aligned position error over a centred window of "
+                "window_fraction of the log's time span (window_s; evaluated at up to 2000 evenly spaced stamps, over "
+                "an even stride of at most 2001 errors of the window); "
+                "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
+                "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
+                "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
+                "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
+                "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
             ),
         },
     }
@@ -620,9 +641,9 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     conv_txt = (
         f"{conv['t_since_start_s']:.3f} s after the estimate start"
         if conv["t_ns"] is not None
-        else "not converged (the last aligned position error is above the threshold)"
+        else "not converged (the last aligned position error is above the band)"
     )
-    lines += ["", f"Convergence (position error stays below {conv['threshold_m']:g} m): {conv_txt}.", ""]
+    lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
     if report["evo"].get("ape"):
         lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]
     by = report.get("ape_by_alignment") or {}
@@ -760,11 +781,13 @@ def write_report(
     *,
     evaluation: TrajectoryEvaluation | None = None,
     plots: bool = True,
+    metadata: dict[str, Any] | None = None,
     exports: tuple[str, ...] = (),
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
-    time on short logs) and, as ``exports`` asks, the TUM files ("tum") and the evo result zip ("evo") into
-    ``out_dir``; returns the written paths.
+    time on short logs), the estimate aligned into the truth's frame (``poses_aligned.parquet``,
+    ``landmarks_aligned.parquet``, with the run ``metadata``) and, as ``exports`` asks, the TUM files ("tum")
+    and the evo result zip ("evo") into ``out_dir``; returns the written paths.
 
     The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
@@ -785,8 +808,6 @@ def write_report(
     md_path.write_text(render_markdown(report), encoding="utf-8")
     written.append(md_path)
 
-    if not plots and not {"evo", "tum"} & set(exports):
-        return written
     options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
     if evaluation is None and poses is None:
         raise ValueError("write_report needs the poses table or the report's evaluation")
@@ -796,9 +817,39 @@ def write_report(
     if "tum" in exports:
         written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
+    written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
     if plots:
         written += _write_plots(report, out, ev, biases, landmarks, landmark_truth)
     return written
+
+
+def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: pd.DataFrame | None,
+                         metadata: dict[str, Any]) -> list[Path]:
+    """``poses_aligned.parquet`` and ``landmarks_aligned.parquet``: every pose and the map moved by the report's
+    alignment into the truth's frame (a stretch of poses at a time), with the run metadata and the alignment."""
+    from slamobs.pipeline.writers import FLOAT_BITS, TableWriter
+
+    al = ev.alignment
+    meta = {**metadata, "aligned": {"frame": "ground truth", "alignment": report["method"]["alignment"],
+                                    "truth_source": report.get("truth_source")}}
+    bits = int((metadata.get("output") or {}).get("float_bits", FLOAT_BITS))
+    sink = TableWriter(out, bits)
+    try:
+        est = ev.estimate
+        for rows in row_blocks(len(est)):
+            pos = al.positions(np.asarray(est.position[rows], dtype=np.float64))
+            rot = al.rotations(quats_to_rots(np.ascontiguousarray(est.quat_xyzw[rows], dtype=np.float64)))
+            q = rots_to_quats(np.ascontiguousarray(rot))
+            sink.write({"poses_aligned": {"t_ns": np.asarray(est.t_ns[rows]), "x": pos[:, 0], "y": pos[:, 1],
+                                          "z": pos[:, 2], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]}})
+        if landmarks is not None:
+            xyz = al.positions(landmarks[["x", "y", "z"]].to_numpy(np.float64))
+            sink.write({"landmarks_aligned": {**{c: landmarks[c].to_numpy() for c in landmarks.columns},
+                                              "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}})
+        return sink.close(meta)
+    except BaseException:
+        sink.abort()
+        raise
 
 
 def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
@@ -832,15 +883,17 @@ def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, bi
         )
     )
     conv = report["convergence"]
+    level_t, level = slam_metrics.error_level(ev.pair_t_est_ns, ev.translation.errors)
     written.append(
         plots.plot_errors(
             out / "errors.png",
             (ev.pair_t_est_ns - t0) / 1e9,
             ev.translation.errors,
             ev.rotation.errors,
-            threshold_m=conv["threshold_m"],
+            band_m=conv["band_m"],
             convergence_t_s=conv["t_since_start_s"],
             title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
+            level=((level_t - t0) / 1e9, level),
         )
     )
     bt = report["biases"]["truth"]

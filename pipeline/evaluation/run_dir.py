@@ -60,10 +60,15 @@ def load_run(run_dir: str | Path) -> RunTables:
         meta = json.loads(meta_path.read_text())
     except (OSError, json.JSONDecodeError) as err:
         raise InputError(meta_path, f"unreadable run.json: {err}") from None
-    if not (run_dir / "poses.parquet").is_file():
+    from slamobs.pipeline.batch.dataset import run_tables
+
+    in_dataset = run_tables(run_dir)  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
+    if in_dataset is None and not (run_dir / "poses.parquet").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
 
     def table(name: str) -> pd.DataFrame | None:
+        if in_dataset is not None:
+            return in_dataset[name].to_pandas() if name in in_dataset else None
         path = run_dir / f"{name}.parquet"
         return pd.read_parquet(path) if path.is_file() else None
 
@@ -128,10 +133,17 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     return TruthInput(stream, lm_truth, bias_truth, desc, notes)
 
 
+def gravity_aligned(meta: dict[str, Any]) -> bool:
+    """Whether a run's poses have observed roll and pitch: an observer with IMU directions, written in the gravity
+    frame (``output.frame``; runs from before output frames existed were in the observer's inertial frame)."""
+    uses = bool((meta.get("observer") or {}).get("directions"))
+    frame = ((meta.get("output") or {}).get("frame") or {}).get("name", "gravity")
+    return uses and frame == "gravity"
+
+
 def options_for_run(meta: dict[str, Any], **overrides: Any) -> ReportOptions:
-    """Report options for a run: 4-DoF alignment added when its observer used IMU directions."""
-    gravity = bool((meta.get("observer") or {}).get("directions"))
-    return ReportOptions(gravity_aligned=gravity, **{k: v for k, v in overrides.items() if v is not None})
+    """Report options for a run: 4-DoF alignment added when its poses are gravity-aligned by IMU directions."""
+    return ReportOptions(gravity_aligned=gravity_aligned(meta), **{k: v for k, v in overrides.items() if v is not None})
 
 
 def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[Path]:
@@ -183,7 +195,7 @@ def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOpt
     staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
     try:
         write_report(report, staged, run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth,
-                     evaluation=evaluation, exports=exports)
+                     evaluation=evaluation, exports=exports, metadata=run.meta)
         _stage_run_json(run.meta, ti.source, staged, exports)
         for p in staged.iterdir():
             os.chmod(p, 0o644)

@@ -54,6 +54,53 @@ def window_stats(t_ns: np.ndarray, values, fraction: float) -> dict:
     }
 
 
+#: Convergence (see :func:`convergence`): the error level is the running median over WINDOW_FRACTION of the log,
+#: the steady part the last TAIL_FRACTION, the band BAND_FACTOR times the highest steady level.
+WINDOW_FRACTION = 0.05
+TAIL_FRACTION = 0.2
+BAND_FACTOR = 1.5
+#: The level is evaluated at this many evenly spaced times at most, each median over at most WINDOW_SAMPLES
+#: evenly strided errors of its window (a long log's pairs are not all needed for a level).
+LEVEL_POINTS = 2000
+WINDOW_SAMPLES = 2001
+
+
+def error_level(t_ns: np.ndarray, errors: np.ndarray, window_fraction: float = WINDOW_FRACTION,
+                points: int = LEVEL_POINTS) -> tuple[np.ndarray, np.ndarray]:
+    """``(t, level)``: the median of ``errors`` over a centred window of ``window_fraction`` of the time span, at
+    every stamp (at most ``points`` evenly spaced ones; over long windows the median of an even stride of it):
+    the error's level with single outliers removed."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    e = np.asarray(errors, dtype=np.float64)
+    half = 0.5 * window_fraction * float(t[-1] - t[0])
+    grid = t if t.shape[0] <= points else t[np.linspace(0, t.shape[0] - 1, points).round().astype(np.int64)]
+    lo = np.searchsorted(t, grid - half, side="left")
+    hi = np.searchsorted(t, grid + half, side="right")
+    step = np.maximum(1, (hi - lo) // WINDOW_SAMPLES)
+    return grid, np.array([np.median(e[a:b:k]) for a, b, k in zip(lo, hi, step)])
+
+
+def convergence(t_ns: np.ndarray, errors: np.ndarray, threshold: float) -> dict:
+    """When the error reaches the observer's own steady level and stays there.
+
+    The level is the running median (:func:`error_level`); the steady level is its highest value over the last
+    ``TAIL_FRACTION`` of the time span, and the band ``max(threshold, BAND_FACTOR × steady level)``: a fixed
+    threshold alone would report the last time noise crossed it, and an observer whose error varies along the
+    path would never have "converged". Returns the band, the steady median error and level, the window in
+    seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
+    level is above it).
+    """
+    t = np.asarray(t_ns, dtype=np.int64)
+    e = np.asarray(errors, dtype=np.float64)
+    grid, level = error_level(t, e)
+    cut = t[-1] - round(TAIL_FRACTION * (t[-1] - t[0]))
+    steady_level = float(np.max(level[grid >= cut]))
+    band = max(float(threshold), BAND_FACTOR * steady_level)
+    k = convergence_index(level, np.nextafter(band, np.inf))  # "within": level <= band
+    return {"band": band, "steady_error": float(np.median(e[t >= cut])), "steady_level": steady_level,
+            "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9, "t_ns": None if k is None else int(grid[k])}
+
+
 def convergence_index(errors: np.ndarray, threshold: float) -> int | None:
     """First index from which ``errors`` stay below ``threshold`` to the end (None if the last is not)."""
     above = np.flatnonzero(np.asarray(errors) >= threshold)

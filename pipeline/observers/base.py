@@ -84,6 +84,10 @@ class ObserverResult:
     stats: dict = field(default_factory=dict)
     #: Observer-specific tables (e.g. "jumps"), columns named as in ``schemas/<name>.json``.
     extra_tables: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    #: Observers whose law turns the whole estimate (C, E) write everything in their map frame; this is its
+    #: pose in their working (inertial) frame: ``rotation``/``translation`` now and ``mean_rotation`` (see
+    #: :meth:`KernelState.frame_mean`), ``estimated_s`` seconds of estimation. None for the others.
+    map_frame: dict | None = None
 
 
 def max_per_frame(det_offsets: np.ndarray) -> int:
@@ -126,9 +130,9 @@ class Outputs:
 class KernelState:
     """The state every landmark observer's kernel keeps between stretches, as arrays it updates in place:
     estimate (R̂, P̂, b̂_Ω, b̂_V), the visible measurements, the held twist, a sub-step counter, float clocks
-    ``fs`` (``[t, meas_t, ...]``) and integer counters ``ns`` (``[iv, jf, nvis, started, substeps]``, then the
-    sub-step cap count and the first capped sample, see ``shared_steps.count_capped``). Observers add their
-    own arrays and order them for their kernel."""
+    ``fs`` (``[t, meas_t, ...]``), integer counters ``ns`` (``[iv, jf, nvis, started, substeps]``, then the
+    sub-step cap count and the first capped sample, see ``shared_steps.count_capped``) and the map frame
+    ``(f_r, f_p)``. Observers add their own arrays and order them for their kernel."""
 
     def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray,
                  n_clocks: int = 2) -> None:
@@ -145,12 +149,26 @@ class KernelState:
         self.fs[1] = -np.inf  # time of the last frame: none yet
         self.ns = np.zeros(7, dtype=np.int64)
         self.ns[CAP_IV] = -1
+        # map frame -> working frame (x_work = f_r x_map + f_p): moved only by laws that turn the whole
+        # estimate (shared_steps.turn_frame); the identity for the others
+        self.f_r = np.eye(3)
+        self.f_p = np.zeros(3)
+        # its orientation summed over the velocity samples once it has settled (``shared_steps.frame_sample``)
+        self.f_sum = np.zeros((3, 3))
+        self.f_stat = np.zeros(2)  # [seconds the frame has been estimated, samples summed]
 
     def restart(self, t: float) -> None:
         """Start a new segment at time ``t``: no integration up to it, no landmark visible until the next frame."""
         self.fs[_T] = t
         self.fs[_MEAS_T] = -np.inf
         self.ns[_NVIS] = 0
+
+    def frame_mean(self) -> np.ndarray:
+        """Mean orientation of the map frame in the working frame over the samples summed so far (chordal
+        mean, projected onto SO(3)); the current one before any is summed."""
+        from slamobs.pipeline.lie import nearest_rotation
+
+        return nearest_rotation(self.f_sum) if self.f_stat[1] > 0 else self.f_r.copy()
 
 
 class Stepper:
@@ -197,6 +215,21 @@ class Stepper:
     def _extra(self) -> dict[str, dict[str, np.ndarray]]:
         """Observer-specific table rows of the stretch just run."""
         return {}
+
+    def _frame(self) -> dict | None:
+        state = getattr(self, "state", None)
+        if state is None or not getattr(self, "keeps_map_frame", False):
+            return None
+        return {"rotation": state.f_r.copy(), "translation": state.f_p.copy(), "mean_rotation": state.frame_mean(),
+                "estimated_s": float(state.f_stat[0]), "samples": int(state.f_stat[1])}
+
+    def map_xyz(self) -> np.ndarray:
+        """The map as written, in the frame of the written poses: the kernel's map moved by ``F⁻¹`` for the
+        observers that keep a map frame (:class:`KernelState`), the live map itself for the others."""
+        state, xyz = getattr(self, "state", None), self.lm[:, :3]  # a known map adds a weight column
+        if state is None or (np.array_equal(state.f_r, np.eye(3)) and not state.f_p.any()):
+            return xyz
+        return (xyz - state.f_p) @ state.f_r
 
     def _frames_before(self, iv: int) -> int:
         """Detection frames processed before velocity sample ``iv`` (all of them at the end)."""
@@ -247,9 +280,9 @@ class Stepper:
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
         return ObserverResult(
             t_ns=s.vel_t_ns[out.k], rotation=out.r, position=out.p, gyro_bias=out.b[:, :3], vel_bias=out.b[:, 3:],
-            landmark_ids=s.landmark_ids, landmark_xyz=self.lm[:, :3],
+            landmark_ids=s.landmark_ids, landmark_xyz=self.map_xyz(),
             det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
-            innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(),
+            innovation=out.innov, stats=dict(self.stats), extra_tables=self._extra(), map_frame=self._frame(),
         )
 
     def _relocalise(self, iv: int) -> bool:

@@ -21,7 +21,17 @@ bias; predicting them costs one 3×3 product per direction and sub-step.
 
 Only visible landmarks enter the sums; invisible ones are frozen except for the rigid co-rotation, which
 moves the whole map (spec §8). Bias adaptation (including the IMU term) is frozen below
-``min_landmarks_bias`` visible landmarks; the IMU attitude correction keeps running.
+``min_landmarks_bias`` visible landmarks; the IMU attitude correction keeps running, but then turns the
+vehicle alone: with nothing tying the vehicle to the map, the attitude error the IMU sees is the vehicle's
+own dead-reckoning drift, and turning the unseen map with it moved the map by the drift times its distance
+(12° of gyro-bias drift turned a figure 8's map over a 50 s outage).
+
+The co-rotation turns the whole estimate about the moving vehicle at every IMU correction, noise included:
+it re-frames the estimate and adds nothing about the map, but as the pivot moves it shifts the map against the
+poses already written (0.5 m on a 3-minute loop). The kernel therefore keeps the map frame ``F`` (what the
+turns did to it, :mod:`pipeline.observers.shared_steps`) and writes poses, tracks, innovations and the map in
+that frame, where a landmark stays where it was last seen; the mean orientation of ``F`` is the observer's
+estimate of gravity and north in it (``output.frame: gravity``).
 
 On logs, C starts from the attitude of the first usable direction sample (Algorithm 2 allows an
 attitude-determination start) and re-compensates the accelerometer's gravity direction with the bias
@@ -49,12 +59,17 @@ from slamobs.pipeline.observers.base import (
     output_rows,
 )
 from slamobs.pipeline.observers.shared_steps import (
+    FRAME_SETTLE,
     count_capped,
+    frame_rows,
+    frame_sample,
     landmark_sums,
     load_frame,
     predict_points,
     record_row,
+    record_row_framed,
     substep_count,
+    turn_frame,
 )
 
 #: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
@@ -88,8 +103,9 @@ def _substeps(dt, y, nvis, dir_w, k_p, k_w, alpha, gamma_max, k_1, k_2):
 
 @njit(cache=True)
 def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat, p_hat, lm, lm_init,
-               b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, counter):
-    """Advance the state over ``dt`` in place; ``y`` and ``dir_b`` are predicted forward in place.
+               b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, counter, f_r, f_p, f_stat):
+    """Advance the state over ``dt`` in place; ``y`` and ``dir_b`` are predicted forward in place, and the
+    map frame ``(f_r, f_p)`` follows the co-rotations.
 
     Scalar code (no temporaries): it runs many times per sample. Returns the number of sub-steps.
     """
@@ -158,7 +174,9 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
                 r_new[a, b] = r_hat[a, 0] * d_r[0, b] + r_hat[a, 1] * d_r[1, b] + r_hat[a, 2] * d_r[2, b]
         r_hat[:, :] = r_new
         if imu:
-            # Rigid rotation of vehicle attitude and whole map about P̂ by exp(h[ω_A]x), ω_A = −k_1 R̂σ_R.
+            # IMU attitude correction exp(h[ω_A]x), ω_A = −k_1 R̂σ_R. While the vehicle is tied to the map (bias
+            # adaptation on) it turns the vehicle and the whole map rigidly about P̂ (spec §4.2); otherwise it
+            # is the vehicle's own dead-reckoning drift, and the map, which nothing has moved, stays.
             wa0 = -k_1 * (r00 * s0 + r01 * s1 + r02 * s2)
             wa1 = -k_1 * (r10 * s0 + r11 * s1 + r12 * s2)
             wa2 = -k_1 * (r20 * s0 + r21 * s1 + r22 * s2)
@@ -167,17 +185,21 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
                 for b in range(3):
                     r_new[a, b] = d_r[a, 0] * r_hat[0, b] + d_r[a, 1] * r_hat[1, b] + d_r[a, 2] * r_hat[2, b]
             r_hat[:, :] = r_new
-            for i in range(lm.shape[0]):
-                if lm_init[i]:
-                    x0 = lm[i, 0] - p_hat[0]
-                    x1 = lm[i, 1] - p_hat[1]
-                    x2 = lm[i, 2] - p_hat[2]
-                    lm[i, 0] = p_hat[0] + d_r[0, 0] * x0 + d_r[0, 1] * x1 + d_r[0, 2] * x2
-                    lm[i, 1] = p_hat[1] + d_r[1, 0] * x0 + d_r[1, 1] * x1 + d_r[1, 2] * x2
-                    lm[i, 2] = p_hat[2] + d_r[2, 0] * x0 + d_r[2, 1] * x1 + d_r[2, 2] * x2
+            if adapt:
+                for i in range(lm.shape[0]):
+                    if lm_init[i]:
+                        x0 = lm[i, 0] - p_hat[0]
+                        x1 = lm[i, 1] - p_hat[1]
+                        x2 = lm[i, 2] - p_hat[2]
+                        lm[i, 0] = p_hat[0] + d_r[0, 0] * x0 + d_r[0, 1] * x1 + d_r[0, 2] * x2
+                        lm[i, 1] = p_hat[1] + d_r[1, 0] * x0 + d_r[1, 1] * x1 + d_r[1, 2] * x2
+                        lm[i, 2] = p_hat[2] + d_r[2, 0] * x0 + d_r[2, 1] * x1 + d_r[2, 2] * x2
+                turn_frame(d_r, p_hat, f_r, f_p)
+                f_stat[0] += h
         counter[0] += 1
         if counter[0] % REORTHO_EVERY == 0:
             r_hat[:, :] = project_so3(r_hat)
+            f_r[:, :] = project_so3(f_r)
         if nvis > 0 or imu:
             # Predict the held measurements over the sub-step with the bias-corrected odometry:
             # y ← dRᵀ(y − dp), υ ← dRᵀυ.
@@ -198,11 +220,12 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
              det_t, det_offsets, det_idx, det_y, lm, lm_init,
              k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, iv_stop,
-             budget, r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns,
-             out_k, out_r, out_p, out_b, trk_p, innov, det_base):
+             budget, r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns, f_r, f_p, f_sum,
+             f_stat, map_frame, settle_s, out_k, out_r, out_p, out_b, trk_p, innov, det_base):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
     sample ``iv_stop`` or ``budget`` work units are spent; stores the state back and returns the number of
-    rows recorded."""
+    rows recorded. With ``map_frame`` the rows, tracks and innovations are written in the map frame (``F⁻¹``
+    of the working frame)."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     n_dir = dir_inertial.shape[0]
@@ -222,7 +245,7 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
                 nvis = 0
             m = _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, dir_inertial, dir_b, dir_w,
                            r_hat, p_hat, lm, lm_init, b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v,
-                           k_1, k_2, min_landmarks_bias, counter)
+                           k_1, k_2, min_landmarks_bias, counter, f_r, f_p, f_stat)
             substeps += m
             work += m * (nvis + 1 + corotated)
             count_capped(m, iv, ns)
@@ -232,6 +255,8 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
             b = det_offsets[jf + 1]
             nvis = b - a
             load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, a - det_base)
+            if map_frame:
+                frame_rows(f_r, f_p, trk_p, innov, a - det_base, nvis)
             meas_t = t_next
             jf += 1
         else:
@@ -243,8 +268,12 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
             if not started:
                 started = True
                 t = t_next
+            frame_sample(f_r, f_sum, f_stat, settle_s)
             if iv % out_every == 0 or iv == n_vel - 1:
-                record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                if map_frame:
+                    record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                else:
+                    record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t
@@ -263,12 +292,13 @@ class _State(KernelState):
 
     def arrays(self) -> tuple:
         return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.dir_b, self.dir_w,
-                self.om_m, self.v_m, self.counter, self.fs, self.ns)
+                self.om_m, self.v_m, self.counter, self.fs, self.ns, self.f_r, self.f_p, self.f_sum, self.f_stat)
 
 
 def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
                det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
-               k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every):
+               k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every,
+               map_frame=False):
     """Run algorithm C (B when ``k_1 = k_2 = 0`` or there are no directions) over an ordered event stream.
 
     Arguments as :func:`pipeline.observers.fast_adaptation.run_kernel`, plus the directions on the
@@ -276,7 +306,9 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     third one the cross product when ``make_cross``), ``dir_body (N, J0, 3)`` unit body measurements,
     ``dir_weight (N, J0)`` the weights ``s_j`` (0 = unavailable) and ``dir_gscale (J0,)`` (``‖g‖`` for an
     accelerometer direction, else 0; see :func:`pipeline.directions.load_directions`). ``J`` may be 0.
-    ``lm``/``lm_init`` are updated in place (final map).
+    ``lm``/``lm_init`` are updated in place (final map). Everything is in the working (inertial) frame, the
+    map as co-rotated (the spec's state); with ``map_frame`` the outputs and, on return, ``lm`` are in the map
+    frame instead, as :class:`Hashim` writes them.
 
     Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps)`` exactly like algorithm A's kernel.
     """
@@ -286,7 +318,10 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     o = _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
                  det_t, det_offsets, det_idx, det_y, lm, lm_init,
                  k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, n_vel,
-                 np.iinfo(np.int64).max, *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
+                 np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b, out.trk,
+                 out.innov, 0)
+    if map_frame:
+        lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 
@@ -311,13 +346,16 @@ class Hashim(Stepper):
                       gains.get("k_1", 0.0), gains.get("k_2", 0.0))
         self.state = _State(self.n_max, dirs[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
                             np.zeros(3), np.zeros(3))
+        k_1 = self.gains[5]
+        self.keeps_map_frame = k_1 > 0.0 and dirs[0].shape[0] > 0
+        self.settle_s = FRAME_SETTLE / k_1 if self.keeps_map_frame else np.inf
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
         rows = _advance(self.vel_t, s.omega, s.velocity, *self.dirs, self.det_t, s.det_offsets, s.det_idx,
                         s.det_y, self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age,
-                        o.out_every, iv_stop, budget, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk,
-                        out.innov, out.det_base)
+                        o.out_every, iv_stop, budget, *self.state.arrays(), True, self.settle_s, out.k, out.r, out.p,
+                        out.b, out.trk, out.innov, out.det_base)
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows
 

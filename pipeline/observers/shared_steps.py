@@ -8,6 +8,10 @@
   step (algorithms A and B; A's gain ψ(e) adapts, B's is constant).
 - :func:`predict_points`: held body-frame measurements (or directions) carried over a sub-step of odometry.
 - :func:`record_row`: one output row of the estimate.
+- :func:`turn_frame`, :func:`record_row_framed`, :func:`frame_rows`, :func:`frame_sample`: the map frame of the
+  observers whose law turns the whole estimate rigidly (algorithms C and E: IMU co-rotation, jumps). Such a turn re-frames the
+  estimate without adding information about it; the kernel keeps it in ``F`` (map frame -> working frame)
+  and writes poses, tracks and innovations in the map frame, where a landmark stays where it was last seen.
 - :func:`substep_count` / :func:`count_capped`: the sub-steps of one interval, at most ``MAX_SUBSTEPS``, and
   the count of intervals that hit that cap.
 - :func:`landmark_weight`: how much of its landmark step a landmark takes: 1, or, when a known map gives ``lm``
@@ -29,6 +33,9 @@ from slamobs.pipeline.kernel_cache import njit
 MAX_SUBSTEPS = 10_000
 #: Slots of a kernel's integer state ``ns`` (see ``base.KernelState``) after its own five.
 CAPPED, CAP_IV = 5, 6
+#: Time constants of an observer's attitude loop after which its map frame's orientation enters the mean
+#: (:func:`frame_sample`): the start from the first direction sample is over by then.
+FRAME_SETTLE = 5.0
 
 
 @njit(cache=True, inline="always")
@@ -137,3 +144,51 @@ def record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
         out_p[o, a] = p_hat[a]
         out_b[o, a] = b_om[a]
         out_b[o, 3 + a] = b_v[a]
+
+
+@njit(cache=True, inline="always")
+def turn_frame(rot, pivot, f_r, f_p):
+    """The whole estimate turned by ``x ↦ pivot + rot (x − pivot)``: the map frame follows, ``F ← turn ∘ F``."""
+    d0, d1, d2 = f_p[0] - pivot[0], f_p[1] - pivot[1], f_p[2] - pivot[2]
+    for a in range(3):
+        f_p[a] = pivot[a] + rot[a, 0] * d0 + rot[a, 1] * d1 + rot[a, 2] * d2
+    for b in range(3):
+        c0, c1, c2 = f_r[0, b], f_r[1, b], f_r[2, b]
+        for a in range(3):
+            f_r[a, b] = rot[a, 0] * c0 + rot[a, 1] * c1 + rot[a, 2] * c2
+
+
+@njit(cache=True, inline="always")
+def record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
+    """:func:`record_row` of the estimate in the map frame: ``F⁻¹ T̂ = (F_Rᵀ R̂, F_Rᵀ (P̂ − F_p))``."""
+    out_k[o] = iv
+    for a in range(3):
+        out_p[o, a] = (f_r[0, a] * (p_hat[0] - f_p[0]) + f_r[1, a] * (p_hat[1] - f_p[1])
+                       + f_r[2, a] * (p_hat[2] - f_p[2]))
+        for b in range(3):
+            out_r[o, a, b] = f_r[0, a] * r_hat[0, b] + f_r[1, a] * r_hat[1, b] + f_r[2, a] * r_hat[2, b]
+        out_b[o, a] = b_om[a]
+        out_b[o, 3 + a] = b_v[a]
+
+
+@njit(cache=True, inline="always")
+def frame_rows(f_r, f_p, trk_p, innov, row, n):
+    """Rows ``row .. row + n − 1`` of the tracks (points) and innovations (vectors) into the map frame."""
+    for j in range(row, row + n):
+        x0, x1, x2 = trk_p[j, 0] - f_p[0], trk_p[j, 1] - f_p[1], trk_p[j, 2] - f_p[2]
+        e0, e1, e2 = innov[j, 0], innov[j, 1], innov[j, 2]
+        for a in range(3):
+            trk_p[j, a] = f_r[0, a] * x0 + f_r[1, a] * x1 + f_r[2, a] * x2
+            innov[j, a] = f_r[0, a] * e0 + f_r[1, a] * e1 + f_r[2, a] * e2
+
+
+@njit(cache=True, inline="always")
+def frame_sample(f_r, f_sum, f_stat, settle_s):
+    """Add the map frame's orientation to the running sum once it has been estimated for ``settle_s`` seconds
+    (``f_stat[0]``, advanced by the kernel while it turns the frame): the first seconds are the transient
+    from the initial attitude."""
+    if f_stat[0] >= settle_s:
+        for a in range(3):
+            for b in range(3):
+                f_sum[a, b] += f_r[a, b]
+        f_stat[1] += 1.0

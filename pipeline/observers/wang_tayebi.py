@@ -22,7 +22,11 @@ Rigid rotations of the estimate (co-rotation and jumps) pivot about the vehicle 
 than the map origin (spec §6.3 writes the origin): ``R̂``, ``e_i``, the biases and the Lyapunov function
 evolve identically (the two differ by a translation of the whole estimate, which nothing measures), but
 with the vehicle as pivot the observer does not depend on where the inertial origin is, and a jump does
-not move the vehicle position estimate.
+not move the vehicle position estimate. They re-frame the estimate without adding information about it, so
+the kernel keeps the map frame they define and writes everything in it, as algorithm C's
+(:mod:`pipeline.observers.hashim`); the direction innovation turns the map with the vehicle only while bias
+adaptation is on (enough landmarks tie the vehicle to the map), and the vehicle alone otherwise (its own
+dead-reckoning drift). D never turns its estimate: its map frame is its working frame.
 """
 
 from __future__ import annotations
@@ -44,12 +48,17 @@ from slamobs.pipeline.observers.base import (
     output_rows,
 )
 from slamobs.pipeline.observers.shared_steps import (
+    FRAME_SETTLE,
     count_capped,
+    frame_rows,
+    frame_sample,
     landmark_weight,
     load_frame,
     predict_points,
     record_row,
+    record_row_framed,
     substep_count,
+    turn_frame,
 )
 from slamobs.pipeline.observers.fast_adaptation import REORTHO_EVERY, STEP_RATIO
 from slamobs.pipeline.directions import load_directions
@@ -85,16 +94,18 @@ def _substeps(dt, y, nvis, rho, nd, k_l, k_x, g_w, g_v):
 
 
 @njit(cache=True)
-def rotate_estimate(rot, r_hat, p_hat, lm):
-    """Rotate the whole estimate rigidly about the vehicle: ``R̂ ← rot R̂``, ``p̂_i ← p̂ + rot(p̂_i − p̂)``.
-
-    Applied to every landmark, seen or not, so the map stays rigid (spec §8); ``e_i`` only rotates.
+def rotate_estimate(rot, r_hat, p_hat, lm, whole_map=True):
+    """Rotate the estimate rigidly about the vehicle: ``R̂ ← rot R̂`` and, with ``whole_map``,
+    ``p̂_i ← p̂ + rot(p̂_i − p̂)`` for every landmark, seen or not, so the map stays rigid (spec §8); ``e_i``
+    only rotates.
     """
     r_new = np.empty((3, 3))
     for a in range(3):
         for b in range(3):
             r_new[a, b] = rot[a, 0] * r_hat[0, b] + rot[a, 1] * r_hat[1, b] + rot[a, 2] * r_hat[2, b]
     r_hat[:, :] = r_new
+    if not whole_map:
+        return
     for i in range(lm.shape[0]):
         d0 = lm[i, 0] - p_hat[0]
         d1 = lm[i, 1] - p_hat[1]
@@ -136,8 +147,12 @@ def best_jump(r_hat, ups, rho, ref, nd, cand):
 
 @njit(cache=True)
 def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_idx, ups, ups_d, rho, ref, nd,
-          r_hat, p_hat, lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter):
+          r_hat, p_hat, lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter, f_r, f_p, f_stat):
     """Flow the state over ``dt`` in place (spec §5.1 / §6.3 flow map); returns the sub-step count.
+
+    The direction innovation turns the vehicle and the whole map (the map frame ``(f_r, f_p)`` follows) while
+    bias adaptation is on, i.e. while enough landmarks tie the vehicle to the map; otherwise it corrects the
+    vehicle's own drift and turns the vehicle alone.
 
     The measurements used are ``y + s y_d`` and ``ups + s ups_d``: the base ``y``/``ups`` is predicted in
     place with the odometry corrected by the bias ``b_pred`` frozen at the last frame, and ``s`` runs
@@ -225,10 +240,14 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
         r_hat[:, :] = r_new
         if nd > 0:
             se3_exp_into(h * k_x * c0, h * k_x * c1, h * k_x * c2, 0.0, 0.0, 0.0, r_c, zero)
-            rotate_estimate(r_c, r_hat, p_hat, lm)
+            rotate_estimate(r_c, r_hat, p_hat, lm, adapt)
+            if adapt:
+                turn_frame(r_c, p_hat, f_r, f_p)
+                f_stat[0] += h
         counter[0] += 1
         if counter[0] % REORTHO_EVERY == 0:
             r_hat[:, :] = project_so3(r_hat)
+            f_r[:, :] = project_so3(f_r)
         # Predict the base measurements over the sub-step with the frozen-bias odometry.
         se3_exp_into(h * (omega_m[0] - b_pred[0]), h * (omega_m[1] - b_pred[1]), h * (omega_m[2] - b_pred[2]),
                      h * (vel_m[0] - b_pred[3]), h * (vel_m[1] - b_pred[4]), h * (vel_m[2] - b_pred[5]), d_r, d_p)
@@ -279,11 +298,12 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
              det_t, det_offsets, det_idx, det_y, lm, lm_init,
              k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, iv_stop,
              budget, r_hat, p_hat, b_om, b_v, b_pred, r_acc, p_acc, y, y_d, vis_idx, ups, ups_d, ups_next, rho, rho_next,
-             om_m, v_m, counter, fs, ns,
+             om_m, v_m, counter, fs, ns, f_r, f_p, f_sum, f_stat, map_frame, settle_s,
              out_k, out_r, out_p, out_b, trk_p, innov, det_base, jump_k, jump_q, jump_phi):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
     sample ``iv_stop`` or ``budget`` work units are spent; stores the state back and returns ``(rows
-    recorded, jumps recorded)``."""
+    recorded, jumps recorded)``. With ``map_frame`` the rows, tracks and innovations are written in the map
+    frame."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     nd = dir_ref.shape[0]
@@ -305,7 +325,8 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
                 nvis = 0
             n_sub = _flow(t_next - t, (t - t_lm) * rate_lm, rate_lm, (t - t_dir) * rate_dir, rate_dir,
                           om_m, v_m, y, y_d, nvis, vis_idx, ups, ups_d, rho, dir_ref, nd, r_hat, p_hat,
-                          lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter)
+                          lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter,
+                          f_r, f_p, f_stat)
             substeps += n_sub
             work += n_sub * (nvis + 1 + corotated)
             count_capped(n_sub, iv, ns)
@@ -315,6 +336,8 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
             b = det_offsets[jf + 1]
             nvis = b - a
             load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, a - det_base)
+            if map_frame:
+                frame_rows(f_r, f_p, trk_p, innov, a - det_base, nvis)
             y_d[:nvis, :] = 0.0
             b_pred[:3] = b_om
             b_pred[3:] = b_v
@@ -355,17 +378,23 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
             if not started:
                 started = True
                 t = t_next
+            frame_sample(f_r, f_sum, f_stat, settle_s)
             if cand.shape[0] > 0:
                 q, phi, phi_q = best_jump(r_hat, ups, rho, dir_ref, nd, cand)
                 if q >= 0 and phi - phi_q >= delta:
-                    rotate_estimate(cand[q].T.copy(), r_hat, p_hat, lm)
+                    turn = cand[q].T.copy()
+                    rotate_estimate(turn, r_hat, p_hat, lm, True)
+                    turn_frame(turn, p_hat, f_r, f_p)
                     jump_k[n_jumps] = iv
                     jump_q[n_jumps] = q
                     jump_phi[n_jumps, 0] = phi
                     jump_phi[n_jumps, 1] = phi_q
                     n_jumps += 1
             if iv % out_every == 0 or iv == n_vel - 1:
-                record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                if map_frame:
+                    record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                else:
+                    record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t
@@ -399,7 +428,7 @@ class _State(KernelState):
     def arrays(self) -> tuple:
         return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.b_pred, self.r_acc, self.p_acc, self.y, self.y_d,
                 self.vis_idx, self.ups, self.ups_d, self.ups_next, self.rho, self.rho_next, self.om_m, self.v_m,
-                self.counter, self.fs, self.ns)
+                self.counter, self.fs, self.ns, self.f_r, self.f_p, self.f_sum, self.f_stat)
 
 
 def _jump_arrays(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -409,7 +438,7 @@ def _jump_arrays(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
                det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
-               k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every):
+               k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, map_frame=False):
     """Run D (``dir_ref`` with 0 rows, ``cand`` with 0 rows) or E over an ordered event stream.
 
     Times are float64 seconds. Velocity samples ``k`` carry ``Ω_m, V_m`` and the directions as made by
@@ -428,6 +457,9 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
     continuous-time observer would, so it is stable for any gains; the estimate at ``t`` uses data up to
     one frame after ``t``.
 
+    Outputs and ``lm`` are in the working (inertial) frame, the map as turned by the law; with ``map_frame``
+    in the map frame, as :class:`Flow` writes them (:mod:`pipeline.observers.shared_steps`).
+
     Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps, jump_k, jump_q, jump_phi)``: as
     algorithm A's kernel, plus per jump the velocity-sample index, candidate and ``(Φ before, Φ after)``.
     """
@@ -438,7 +470,10 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
     o, n_jumps = _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
                           det_t, det_offsets, det_idx, det_y, lm, lm_init,
                           k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, n_vel,
-                          np.iinfo(np.int64).max, *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0, jump_k, jump_q, jump_phi)
+                          np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b,
+                          out.trk, out.innov, 0, jump_k, jump_q, jump_phi)
+    if map_frame:
+        lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
     return (out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS]),
             jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps])
 
@@ -459,6 +494,10 @@ class Flow(Stepper):
         self.gains = (gains["k_l"], gains["k_x"], gains["gamma_w"], gains["gamma_v"])
         self.state = _State(self.n_max, directions[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
                             np.zeros(3), np.zeros(3))
+        # the direction loop's rate is k_X Σρ / 2 (see _substeps); its settling time as algorithm C's
+        rate = 0.5 * gains["k_x"] * float(np.max(directions[2].sum(axis=1), initial=0.0))
+        self.keeps_map_frame = directions[0].shape[0] > 0 and rate > 0.0
+        self.settle_s = FRAME_SETTLE / rate if self.keeps_map_frame else np.inf
         self.jumps = jumps
         self._jumps: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # per kernel call of a stretch
 
@@ -468,7 +507,8 @@ class Flow(Stepper):
         rows, n_jumps = _advance(
             self.vel_t, s.omega, s.velocity, *self.directions, self.det_t, s.det_offsets, s.det_idx, s.det_y,
             self.lm, self.lm_init, *self.gains, self.cand, self.delta, o.min_landmarks_bias, o.max_meas_age,
-            o.out_every, iv_stop, budget, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov,
+            o.out_every, iv_stop, budget, *self.state.arrays(), True, self.settle_s, out.k, out.r, out.p, out.b,
+            out.trk, out.innov,
             out.det_base, jump_k, jump_q, jump_phi)
         self._jumps.append((jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps]))
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])

@@ -61,6 +61,10 @@ class Scenario:
     velocity_bias: np.ndarray  # (3,) body frame, m/s
     camera: Camera
     detection_rate: float  # default fiducial detection rate, Hz
+    #: Seconds after which the camera detects nothing (landmarks leave view for good); None = never.
+    detections_until: float | None = None
+    #: IMU mounting (imu_link -> body rotation, published on /tf_static); None = aligned with the body.
+    imu_rotation: np.ndarray | None = None
 
     def sample(self, t: np.ndarray) -> Trajectory:
         """True state at times ``t`` (s since start)."""
@@ -200,11 +204,18 @@ def figure8_trajectory(t: np.ndarray) -> Trajectory:
     z = F8_H + F8_HZ * np.sin(3 * th)
     zd = 3 * w * F8_HZ * np.cos(3 * th)
     zdd = -9 * w * w * F8_HZ * np.sin(3 * th)
-
-    psi = np.arctan2(yd, xd)
-    psid = (xd * ydd - yd * xdd) / (xd * xd + yd * yd)
     phi, phid = F8_ROLL * np.sin(2 * th), 2 * w * F8_ROLL * np.cos(2 * th)
     the, thed = F8_PITCH * np.sin(4 * th), 4 * w * F8_PITCH * np.cos(4 * th)
+    return _heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed))
+
+
+def _heading_along_path(t, xs, ys, zs, roll, pitch) -> Trajectory:
+    """A path given by positions and their first two derivatives, yaw along the horizontal velocity and the
+    given roll and pitch (angle, rate): R = Rz(psi) Ry(pitch) Rx(roll), Omega from the exact ZYX Euler rates."""
+    (x, xd, xdd), (y, yd, ydd), (z, zd, zdd) = xs, ys, zs
+    (phi, phid), (the, thed) = roll, pitch
+    psi = np.arctan2(yd, xd)
+    psid = (xd * ydd - yd * xdd) / (xd * xd + yd * yd)
 
     R = rot_z(psi) @ rot_y(the) @ rot_x(phi)
     omega = np.stack(
@@ -255,7 +266,104 @@ def figure8_wide() -> Scenario:
     return replace(sc, name="figure8-wide", camera=cam)
 
 
-SCENARIOS: dict[str, Callable[[], Scenario]] = {"circle": circle, "figure8": figure8, "figure8-wide": figure8_wide}
+def figure8_blind() -> Scenario:
+    """figure8 for 90 s whose landmarks leave view after 40 s: 50 s of dead reckoning (IMU directions still
+    there) with a map that is no longer observed."""
+    return replace(figure8(), name="figure8-blind", duration=90.0, detections_until=40.0)
+
+
+#: An IMU mounted upside down: imu_link is the body frame turned 180 deg about x (published on /tf_static).
+IMU_FLIPPED = np.diag([1.0, -1.0, -1.0])
+
+
+def figure8_imu_flipped() -> Scenario:
+    """figure8 with the IMU mounted upside down (its own /tf_static entry): gyro, accelerometer and
+    magnetometer are measured in the turned imu_link frame."""
+    return replace(figure8(), name="figure8-imu-flipped", imu_rotation=IMU_FLIPPED)
+
+
+# --------------------------------------------------------------------------- loop
+
+LOOP_PERIOD = 90.0  # s per lap: two laps in the default 3 minutes
+LOOP_A = 24.0  # m, x semi-axis
+LOOP_B = 14.0  # m, y semi-axis
+LOOP_WIGGLE = 2.0  # m, lateral weave (three per lap) so the turn rate varies
+LOOP_H = 2.0  # m, mean height
+LOOP_HZ = 0.3  # m, height oscillation
+LOOP_ROLL = 0.05  # rad
+LOOP_PITCH = 0.03  # rad
+LOOP_LANDMARKS = 60
+LOOP_FOV_DEG = 50.0
+
+
+def loop_trajectory(t: np.ndarray) -> Trajectory:
+    """An ellipse with a lateral weave, heading along the path, small roll/pitch and height oscillations."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    w = 2.0 * np.pi / LOOP_PERIOD
+    th = w * t
+    a, b, c = LOOP_A, LOOP_B, LOOP_WIGGLE
+    x = a * np.sin(th) + c * np.sin(3 * th)
+    xd = a * w * np.cos(th) + 3 * c * w * np.cos(3 * th)
+    xdd = -a * w * w * np.sin(th) - 9 * c * w * w * np.sin(3 * th)
+    y = b * (1.0 - np.cos(th))
+    yd = b * w * np.sin(th)
+    ydd = b * w * w * np.cos(th)
+    z = LOOP_H + LOOP_HZ * np.sin(5 * th)
+    zd = 5 * w * LOOP_HZ * np.cos(5 * th)
+    zdd = -25 * w * w * LOOP_HZ * np.sin(5 * th)
+    roll = (LOOP_ROLL * np.sin(4 * th), 4 * w * LOOP_ROLL * np.cos(4 * th))
+    pitch = (LOOP_PITCH * np.sin(7 * th), 7 * w * LOOP_PITCH * np.cos(7 * th))
+    return _heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), roll, pitch)
+
+
+def _forward_camera(tilt_deg: float, fov_h_deg: float, fov_v_deg: float, max_range: float) -> Camera:
+    """Forward-looking optical frame (z = x_body, x = -y_body, y = -z_body) pitched ``tilt_deg`` down."""
+    tilt = np.deg2rad(tilt_deg)
+    z_c = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
+    x_c = np.array([0.0, -1.0, 0.0])
+    r_bc = np.stack([x_c, np.cross(z_c, x_c), z_c], -1)
+    return Camera(R_bc=r_bc, t_bc=np.array([0.1, 0.0, -0.05]), fov_h_deg=fov_h_deg, fov_v_deg=fov_v_deg,
+                  min_range=0.5, max_range=max_range)
+
+
+def loop(n_landmarks: int = LOOP_LANDMARKS) -> Scenario:
+    """Two 90 s laps of a weaving ellipse (semi-axes 24 m and 14 m) past ``n_landmarks`` tags set 1.5-5 m
+    outside the path (heights 0-3 m, fixed layout), seen by a forward camera with a 50 deg field of view: 3-10
+    landmarks in view at a time (about 6), each seen once per lap."""
+    if n_landmarks < 3:
+        raise ValueError(f"the loop needs at least 3 landmarks, got {n_landmarks}")
+    rng = np.random.default_rng(20240612)  # the layout is part of the scenario, not of the noise seed
+    th = 2.0 * np.pi * (np.arange(n_landmarks) + rng.uniform(-0.3, 0.3, n_landmarks)) / n_landmarks
+    path = loop_trajectory(th / (2.0 * np.pi / LOOP_PERIOD))
+    vel = np.einsum("nij,nj->ni", path.R, path.v)[:, :2]  # horizontal path direction
+    vel /= np.linalg.norm(vel, axis=1, keepdims=True)
+    normal = np.column_stack([-vel[:, 1], vel[:, 0], np.zeros(n_landmarks)])  # to the left of the path
+    side = -rng.uniform(1.5, 5.0, n_landmarks)  # outside the loop: a narrow camera loses the inside of a turn
+    lms = path.P + side[:, None] * normal
+    lms[:, 2] = rng.uniform(0.0, 3.0, n_landmarks)
+    cam = _forward_camera(10.0, LOOP_FOV_DEG, 0.8 * LOOP_FOV_DEG, 20.0)
+    return Scenario(
+        name="loop",
+        duration=2.0 * LOOP_PERIOD,
+        trajectory=loop_trajectory,
+        landmark_ids=np.arange(100, 100 + n_landmarks, dtype=np.int64),
+        landmarks=lms,
+        landmark_rots=np.tile(np.eye(3), (n_landmarks, 1, 1)),
+        gyro_bias=np.array([0.015, -0.02, 0.03]),
+        velocity_bias=np.array([0.04, -0.03, 0.02]),
+        camera=cam,
+        detection_rate=20.0,
+    )
+
+
+SCENARIOS: dict[str, Callable[[], Scenario]] = {
+    "circle": circle,
+    "figure8": figure8,
+    "figure8-wide": figure8_wide,
+    "figure8-blind": figure8_blind,
+    "figure8-imu-flipped": figure8_imu_flipped,
+    "loop": loop,
+}
 
 
 def get_scenario(name: str) -> Scenario:
@@ -264,6 +372,43 @@ def get_scenario(name: str) -> Scenario:
         return SCENARIOS[name]()
     except KeyError:
         raise KeyError(f"unknown scenario {name!r}; known: {', '.join(sorted(SCENARIOS))}") from None
+
+
+def customize(sc: Scenario, *, landmarks: int | None = None, fov_deg: float | None = None,
+              detections_until: float | None = None, imu_rpy_deg: tuple[float, float, float] | None = None
+              ) -> Scenario:
+    """``sc`` with some of its rig changed (each option left at None keeps the scenario's value).
+
+    ``landmarks``: the loop is rebuilt with that many tags; other scenarios keep an evenly spaced subset of
+    their map. ``fov_deg``: horizontal field of view, the vertical one scaled in proportion (an unlimited
+    camera gets a vertical field of view of 0.75 times it). ``detections_until``: nothing is detected after
+    that many seconds. ``imu_rpy_deg``: IMU mounting as roll, pitch, yaw (imu_link -> body,
+    R = Rz(yaw) Ry(pitch) Rx(roll)), published on /tf_static.
+    """
+    if landmarks is not None:
+        if sc.name.startswith("loop"):
+            sc = replace(loop(landmarks), name=sc.name, duration=sc.duration, camera=sc.camera,
+                         detections_until=sc.detections_until, imu_rotation=sc.imu_rotation)
+        else:
+            n = sc.landmark_ids.shape[0]
+            if not 3 <= landmarks <= n:
+                raise ValueError(f"scenario {sc.name!r} has {n} landmarks; choose 3 to {n}")
+            keep = np.unique(np.round(np.linspace(0, n - 1, landmarks)).astype(int))
+            sc = replace(sc, landmark_ids=sc.landmark_ids[keep], landmarks=sc.landmarks[keep],
+                         landmark_rots=sc.landmark_rots[keep])
+    if fov_deg is not None:
+        if not 0.0 < fov_deg < 180.0:
+            raise ValueError(f"field of view must be in (0, 180) deg, got {fov_deg}")
+        cam = sc.camera
+        ratio = cam.fov_v_deg / cam.fov_h_deg if cam.fov_h_deg and cam.fov_v_deg else 0.75
+        sc = replace(sc, camera=replace(cam, fov_h_deg=float(fov_deg), fov_v_deg=float(fov_deg) * ratio))
+    if detections_until is not None:
+        sc = replace(sc, detections_until=float(detections_until))
+    if imu_rpy_deg is not None:
+        r, p, y = np.deg2rad(np.asarray(imu_rpy_deg, dtype=float))
+        rot = (rot_z(np.array([y])) @ rot_y(np.array([p])) @ rot_x(np.array([r])))[0]
+        sc = replace(sc, imu_rotation=rot)
+    return sc
 
 
 @njit(cache=True)

@@ -394,6 +394,8 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     gyro = tr.omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
     f_inertial = tr.accel - GRAVITY
     accel = np.einsum("nji,nj->ni", tr.R, f_inertial) + _white(rng, nm.accel, (n, 3))
+    if sc.imu_rotation is not None:  # body-frame quantities seen from the turned imu_link: R_biᵀ x
+        gyro, accel = gyro @ sc.imu_rotation, accel @ sc.imu_rotation
     imu = ImuData(t_ns, _record_times(rng, t_ns, carry.rec["imu"]), gyro, accel)
 
     # Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist.
@@ -416,6 +418,8 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     t_ns, t = stamps("mag")
     tr = sc.sample(t)
     fld = np.einsum("nji,j->ni", tr.R, MAGNETIC_FIELD) + _white(rng, nm.mag, (t.shape[0], 3))
+    if sc.imu_rotation is not None:
+        fld = fld @ sc.imu_rotation
     mag = MagData(t_ns, _record_times(rng, t_ns, carry.rec["mag"]), fld)
 
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
@@ -430,7 +434,8 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     cam_q = rots_to_quats(np.ascontiguousarray(sc.camera.R_bc[None]))[0]
     static_tf = [
         Transform(FRAME_BODY, FRAME_CAMERA, sc.camera.t_bc.copy(), cam_q),
-        Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0])),
+        Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]) if sc.imu_rotation is None
+                  else rots_to_quats(np.ascontiguousarray(sc.imu_rotation[None], dtype=np.float64))[0]),
     ]
     tr0 = sc.sample(np.zeros(1))
     truth = {
@@ -466,6 +471,8 @@ def _detections(
     tr = sc.sample(t)
     y_cam = camera_points(sc.camera, body_points(tr.R, tr.P, sc.landmarks))  # (F, L, 3)
     vis = visibility(sc.camera, y_cam)
+    if sc.detections_until is not None:  # the landmarks have left view: empty detection messages
+        vis &= (t <= sc.detections_until)[:, None]
     frame_idx, lm_idx = np.nonzero(vis)  # row-major: frames in order, landmarks in map order
     m = frame_idx.shape[0]
     offsets = np.zeros(t.shape[0] + 1, dtype=np.int64)

@@ -1,0 +1,213 @@
+"""Runs on Dask: an existing cluster (``--scheduler``) or a local one, with the failure modes of a real cluster
+turned into clear outcomes instead of waits.
+
+- Before anything is submitted: at least one worker within ``wait_workers`` seconds, and every worker
+  imports slamobs at the batch's version and code hash (:mod:`probe`); otherwise
+  :class:`InfrastructureError` naming the worker (exit 3).
+- While running: a lost scheduler, or no worker for ``wait_workers`` seconds, is an InfrastructureError;
+  a log whose workers keep dying is failed once Dask gives up (``KilledWorker``); a log running longer
+  than ``timeout`` is failed and its worker restarted through its nanny.
+- Tasks only write into their staging directory and watch the batch's lease (:mod:`executor`): a task
+  whose batch died cannot commit anything and ends its worker process within a minute.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+from slamobs.pipeline.batch.executor import (
+    STARTED,
+    EnvironmentMismatch,
+    InfrastructureError,
+    Task,
+    failed_row,
+    one_line,
+    run_task,
+)
+
+POLL_S = 1.0
+
+
+def dask_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("distributed") is not None
+
+
+def _check_workers(client, where: str, version: str, code: str, within: float) -> int:
+    """Every worker's answer to :func:`probe.probe` (within ``within`` seconds); raises on the first that cannot
+    run this batch."""
+    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import TimeoutError as Late
+
+    import cloudpickle
+
+    from slamobs.pipeline.batch import probe
+
+    cloudpickle.register_pickle_by_value(probe)
+    pool = ThreadPoolExecutor(max_workers=1)
+    try:
+        answers = pool.submit(client.run, probe.probe, on_error="return").result(timeout=within)
+    except Late:
+        raise InfrastructureError(f"{where}: the Dask workers did not answer within {within:g} s") from None
+    except Exception as err:  # noqa: BLE001 - e.g. the scheduler went away meanwhile
+        raise InfrastructureError(f"{where}: cannot ask the Dask workers for their environment ({one_line(err)})") from None
+    finally:
+        pool.shutdown(wait=False)
+        cloudpickle.unregister_pickle_by_value(probe)
+    if not answers:
+        raise InfrastructureError(f"{where}: no Dask workers")
+    for addr, ans in sorted(answers.items()):
+        if not isinstance(ans, dict):
+            raise InfrastructureError(f"Dask worker {addr}: cannot run the environment check ({one_line(ans)})")
+        if not ans["ok"]:
+            raise InfrastructureError(f"Dask worker {addr} ({ans['host']}, {ans['python']}): cannot import slamobs "
+                                      f"({ans['error']}); install slamobs {version} on every worker")
+        if ans["version"] != version or ans["code"] != code:
+            raise InfrastructureError(f"Dask worker {addr} ({ans['host']}): runs slamobs {ans['version']} "
+                                      f"(code {ans['code']}), the batch {version} (code {code}); install the same "
+                                      "version on every worker")
+    return len(answers)
+
+
+class DaskPool:
+    """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
+
+    def __init__(self, jobs: int, scheduler: str | None = None, timeout: float | None = None,
+                 wait_workers: float = 60.0, run=run_task) -> None:
+        self.jobs, self.scheduler, self.timeout, self.wait_workers = max(1, jobs), scheduler, timeout, wait_workers
+        self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
+        self.where = scheduler or "local Dask cluster"
+        self.client = self.cluster = None
+
+    def connect(self) -> int:
+        """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
+        import slamobs
+        from distributed import Client, LocalCluster
+
+        from slamobs.pipeline.batch.identity import code_hash
+
+        if self.scheduler:
+            try:
+                self.client = Client(self.scheduler, timeout=f"{max(1.0, min(self.wait_workers, 30.0))}s")
+            except (OSError, TimeoutError, ValueError) as err:
+                raise InfrastructureError(f"{self.scheduler}: cannot reach the Dask scheduler ({one_line(err)})") from None
+        else:
+            self.cluster = LocalCluster(n_workers=self.jobs, processes=True, threads_per_worker=1,
+                                        dashboard_address=None, silence_logs=logging.ERROR)
+            self.client = Client(self.cluster)
+        try:
+            self.client.wait_for_workers(1, timeout=self.wait_workers)
+        except TimeoutError:
+            raise InfrastructureError(f"{self.where}: no Dask workers after {self.wait_workers:g} s "
+                                      "(--wait-workers)") from None
+        return _check_workers(self.client, self.where, slamobs.__version__, code_hash(), max(self.wait_workers, 10.0))
+
+    def close(self) -> None:
+        if self.client is not None:
+            try:
+                self.client.close(timeout=5)
+            except Exception:  # noqa: BLE001 - closing after a lost scheduler may fail; nothing to keep
+                pass
+        if self.cluster is not None:
+            try:
+                self.cluster.close(timeout=10)
+            except Exception:  # noqa: BLE001
+                pass
+        self.client = self.cluster = None
+
+    def _workers(self) -> int:
+        try:
+            return len(self.client.scheduler_info().get("workers", {}))
+        except Exception:  # noqa: BLE001
+            return 0
+
+    def results(self, tasks: Sequence[Task]) -> Iterator[tuple[Task, dict]]:
+        """(task, row) in completion order; raises InfrastructureError as described in the module doc."""
+        from distributed import KilledWorker, wait
+
+        if self.client is None:
+            self.connect()
+        client = self.client
+        pending = {}
+        for task in tasks:
+            fut = client.submit(self.run, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}")
+            pending[fut.key] = (fut, task)
+        started: dict[str, tuple[float, str]] = {}
+        ours_cancelled: set[str] = set()
+        no_workers_since: float | None = None
+        try:
+            while pending:
+                try:
+                    done, _ = wait([f for f, _ in pending.values()], timeout=POLL_S, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done = ()
+                except Exception:  # noqa: BLE001 - e.g. FuturesCancelledError when the scheduler is lost
+                    done = [f for f, _ in pending.values() if f.done()]
+                if client.status not in ("running", "connecting"):
+                    raise InfrastructureError(f"{self.where}: lost the Dask scheduler ({client.status})")
+                for fut in done:
+                    task = pending.pop(fut.key)[1]
+                    started.pop(fut.key, None)
+                    if fut.status == "finished":
+                        yield task, fut.result()
+                    elif fut.status == "cancelled" and fut.key not in ours_cancelled:
+                        raise InfrastructureError(f"{self.where}: lost the Dask scheduler (tasks cancelled)")
+                    elif fut.status == "error":
+                        err = fut.exception()
+                        if isinstance(err, EnvironmentMismatch):
+                            raise InfrastructureError(f"Dask worker: {err}")
+                        if isinstance(err, ImportError):
+                            raise InfrastructureError(f"a Dask worker cannot import slamobs ({one_line(err)}); "
+                                                      "install it on every worker")
+                        if isinstance(err, KilledWorker):
+                            yield task, failed_row(task, f"{task.log}: Dask workers died while running this log, "
+                                                         "every retry (crash or out of memory)")
+                        else:
+                            yield task, failed_row(task, one_line(err, task.log))
+                now = time.monotonic()
+                if self._workers() == 0:
+                    no_workers_since = no_workers_since or now
+                    if now - no_workers_since > self.wait_workers:
+                        raise InfrastructureError(f"{self.where}: no Dask workers for {self.wait_workers:g} s "
+                                                  "(--wait-workers)")
+                else:
+                    no_workers_since = None
+                if self.timeout:
+                    yield from self._timeouts(pending, started, ours_cancelled, now)
+        finally:
+            for fut, _ in pending.values():
+                fut.cancel()
+
+    def _restart(self, worker: str) -> None:
+        try:
+            self.client.restart_workers([worker], timeout=30, raise_for_error=False)
+        except Exception:  # noqa: BLE001 - a worker without nanny cannot be restarted; it cannot commit either
+            pass
+
+    def _timeouts(self, pending, started, ours_cancelled, now) -> Iterator[tuple[Task, dict]]:
+        """Fail the logs that have run longer than ``timeout`` and restart their workers."""
+        try:
+            processing = {k for keys in self.client.processing().values() for k in keys}
+        except Exception:  # noqa: BLE001
+            return
+        for key in processing & set(pending) - set(started):
+            marker = Path(pending[key][1].staged) / STARTED
+            try:
+                started[key] = (now, json.loads(marker.read_text())["worker"])
+            except (OSError, ValueError, KeyError):
+                continue
+        for key, (since, worker) in list(started.items()):
+            if key in pending and now - since > self.timeout:
+                fut, task = pending.pop(key)
+                del started[key]
+                ours_cancelled.add(key)
+                fut.cancel()
+                threading.Thread(target=self._restart, args=(worker,), daemon=True).start()  # the batch goes on
+                yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (Dask worker {worker} "
+                                             "restarted; raise --timeout for longer logs)")

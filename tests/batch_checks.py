@@ -1,0 +1,83 @@
+"""Checks shared by the batch tests: dataset consistency and the processes a batch leaves alive."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+#: The slamobs command as a fresh interpreter runs it (as a cron job would).
+CLI = [sys.executable, "-c", "from slamobs.cli.main import main; main()"]
+
+
+def assert_consistent(out: Path) -> dict[str, dict]:
+    """The dataset holds exactly the summary's ok runs, each (run_id, t_ns) once, each with its run
+    directory, and nothing staged; returns the summary rows by run_id."""
+    import pandas as pd
+
+    from slamobs.pipeline.batch.ledger import read_summary
+
+    rows = read_summary(out)
+    summary = pd.read_parquet(out / "summary.parquet")
+    assert sorted(summary["run_id"]) == sorted(rows)  # the file is current once a batch has ended
+    ok = {rid for rid, row in rows.items() if row["status"] == "ok"}
+    ids: set[str] = set()
+    if (out / "poses").is_dir():
+        poses = pd.read_parquet(out / "poses", columns=["run_id", "t_ns"])
+        assert not poses.duplicated(["run_id", "t_ns"]).any()
+        ids = set(poses["run_id"].astype(str))
+    assert ids == ok
+    runs = {p.name for p in (out / "runs").iterdir()} if (out / "runs").exists() else set()
+    assert runs == ok
+    staging = out / "_slamobs" / "staging"
+    assert not staging.exists() or not list(staging.iterdir())
+    return rows
+
+
+def group_alive(pgid: int) -> list[int]:
+    """Live (not zombie) processes of process group ``pgid``."""
+    alive = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            alive.append(int(entry))
+    return alive
+
+
+def children(pid: int) -> list[int]:
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid and fields[0] != "Z":
+                found.append(int(entry))
+    return found
+
+
+def wait_gone(pgid: int, within: float = 20.0) -> list[int]:
+    """Processes of ``pgid`` still alive after waiting up to ``within`` seconds for them to end (a bound,
+    not a speed requirement: they are expected to be gone at once)."""
+    end = time.monotonic() + within
+    while (alive := group_alive(pgid)) and time.monotonic() < end:
+        time.sleep(0.1)
+    return alive
+
+
+def wait_for(predicate, within: float, step: float = 0.1) -> bool:
+    end = time.monotonic() + within
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(step)
+    return predicate()

@@ -1,0 +1,200 @@
+"""Kill tests with real processes: the batch CLI (as cron or systemd runs it), its workers, a real Dask scheduler
+and real Dask workers. After every kill: no process of the batch is alive, and once the same command has run
+again the dataset holds exactly the summary's ok runs, each (run_id, t_ns) once.
+
+The kill points are random with a fixed seed; ``benchmarks/batch_kills.py`` runs a larger matrix.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from batch_checks import CLI, assert_consistent, children, wait_for, wait_gone
+
+N_LOGS = 4
+EXPECTED_EXIT = {signal.SIGKILL: -9, signal.SIGTERM: 143, signal.SIGINT: 130}
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    base = tmp_path_factory.mktemp("kill_logs")
+    for i in range(N_LOGS):
+        write_log(simulate(("circle", "figure8")[i % 2], duration=3.0, seed=40 + i), base / f"k{i}.mcap")
+    cfg = base / "run.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n")
+    return base, cfg
+
+
+def _start(args: list, tmp_path: Path, name: str) -> tuple[subprocess.Popen, Path]:
+    err = tmp_path / f"{name}.err"
+    with open(err, "w") as fh:
+        proc = subprocess.Popen([*CLI, *map(str, args)], stdout=subprocess.DEVNULL, stderr=fh, start_new_session=True)
+    return proc, err
+
+
+def _batch_args(logs, out: Path, *extra) -> list:
+    base, cfg = logs
+    return ["batch", base, "-o", out, "--config", cfg, *extra]
+
+
+def _rerun_and_check(logs, out: Path) -> None:
+    done = subprocess.run([*CLI, *map(str, _batch_args(logs, out, "-j", 1))], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = assert_consistent(out)
+    assert sorted(r["status"] for r in rows.values()) == ["ok"] * N_LOGS
+
+
+@pytest.mark.parametrize("target,sig,seed", [
+    ("parent", signal.SIGKILL, 1),
+    ("parent", signal.SIGTERM, 2),
+    ("parent", signal.SIGINT, 3),  # sent to the process group, as a terminal's Ctrl-C is
+    ("worker", signal.SIGKILL, 4),
+], ids=["parent-SIGKILL", "parent-SIGTERM", "group-SIGINT", "worker-SIGKILL"])
+def test_killed_batch_leaves_no_process_and_resumes_consistently(logs, tmp_path, target, sig, seed):
+    rng = random.Random(seed)
+    out = tmp_path / "OUT"
+    proc, err = _start(_batch_args(logs, out, "-j", 2), tmp_path, "batch")
+    try:
+        assert wait_for(lambda: "to run on" in err.read_text() or proc.poll() is not None, 120), err.read_text()
+        if target == "worker":
+            assert wait_for(lambda: children(proc.pid), 60)
+            time.sleep(rng.uniform(0.0, 2.0))
+            victims = children(proc.pid)
+            if victims:
+                os.kill(rng.choice(victims), sig)
+            code = proc.wait(timeout=300)
+            assert code == 0, err.read_text()  # the log of the killed worker was run again
+        else:
+            time.sleep(rng.uniform(0.0, 4.0))
+            os.killpg(proc.pid, sig) if sig == signal.SIGINT else os.kill(proc.pid, sig)
+            code = proc.wait(timeout=120)
+            assert code in (EXPECTED_EXIT[sig], 0), err.read_text()  # 0: the batch ended before the signal
+            if code > 0:
+                assert f"{signal.Signals(sig).name}: batch stopped" in err.read_text()
+                assert "Traceback" not in err.read_text()
+        assert wait_gone(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    _rerun_and_check(logs, out)
+    if target == "worker":
+        _moved_logs_are_not_run_again(logs, out, tmp_path)
+
+
+def _moved_logs_are_not_run_again(logs, out: Path, tmp_path: Path) -> None:
+    base, cfg = logs
+    before = assert_consistent(out)
+    moved = tmp_path / "moved"
+    moved.mkdir()
+    for p in base.glob("*.mcap"):
+        os.link(p, moved / p.name.replace("k", "flight_"))  # same content, new place and name
+    done = subprocess.run([*CLI, *map(str, ["batch", moved, "-o", out, "--config", cfg, "--json"])],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    events = [json.loads(x) for x in done.stdout.splitlines()]
+    assert [e["status"] for e in events[:-1]] == ["skipped"] * N_LOGS
+    assert set(assert_consistent(out)) == set(before)
+
+
+# --- Dask: real scheduler and worker processes --------------------------------------------------------------
+
+DASK = Path(sys.executable).with_name("dask")
+# A worker environment without slamobs, made without a second venv: `import slamobs` fails in that process.
+NO_SLAMOBS = '''
+import sys
+class _NoSlamobs:
+    def find_spec(self, name, path=None, target=None):
+        if name == "slamobs" or name.startswith("slamobs."):
+            raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+        return None
+sys.meta_path.insert(0, _NoSlamobs())
+'''
+
+
+def _spawn(args: list, log: Path, env: dict | None = None) -> subprocess.Popen:
+    with open(log, "w") as fh:
+        return subprocess.Popen([str(a) for a in args], stdout=fh, stderr=subprocess.STDOUT, start_new_session=True,
+                                env={**os.environ, **(env or {})})
+
+
+def _stop(*procs: subprocess.Popen) -> None:
+    for p in procs:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+
+
+@pytest.fixture
+def scheduler(tmp_path):
+    pytest.importorskip("distributed")
+    if not DASK.is_file():
+        pytest.skip("no dask command next to the interpreter")
+    info = tmp_path / "scheduler.json"
+    proc = _spawn([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", info,
+                   "--dashboard-address", ":0"], tmp_path / "scheduler.log")
+    try:
+        assert wait_for(info.is_file, 60), (tmp_path / "scheduler.log").read_text()
+        time.sleep(0.2)
+        yield proc, json.loads(info.read_text())["address"]
+    finally:
+        _stop(proc)
+
+
+def _worker(address: str, tmp_path: Path, name: str, env: dict | None = None) -> subprocess.Popen:
+    return _spawn([DASK, "worker", address, "--nthreads", "1", "--no-dashboard", "--name", name,
+                   "--local-directory", tmp_path / name], tmp_path / f"{name}.log", env)
+
+
+def test_dask_without_usable_workers_exits_3_with_one_line(logs, tmp_path, scheduler):
+    _, address = scheduler
+    args = [*CLI, *map(str, _batch_args(logs, tmp_path / "OUT", "--scheduler", address))]
+    done = subprocess.run([*args, "--wait-workers", "2"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 3 and done.stderr.strip().splitlines()[-1] == (
+        f"error: {address}: no Dask workers after 2 s (--wait-workers)")
+
+    site = tmp_path / "no_slamobs"
+    site.mkdir()
+    (site / "sitecustomize.py").write_text(NO_SLAMOBS)
+    worker = _worker(address, tmp_path, "bare", {"PYTHONPATH": str(site)})
+    try:
+        t0 = time.monotonic()
+        done = subprocess.run(args, capture_output=True, text=True, timeout=60)  # never waits forever
+        lines = done.stderr.strip().splitlines()
+        assert done.returncode == 3, done.stderr
+        assert len(lines) == 1 and lines[0].startswith("error: Dask worker tcp://127.0.0.1:")
+        assert "cannot import slamobs (ModuleNotFoundError: No module named 'slamobs')" in lines[0]
+        assert time.monotonic() - t0 < 60
+    finally:
+        _stop(worker)
+    rows = assert_consistent(tmp_path / "OUT")
+    assert rows == {}  # nothing was run, nothing recorded
+
+
+def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, scheduler):
+    sched, address = scheduler
+    worker = _worker(address, tmp_path, "w1")
+    out = tmp_path / "OUT"
+    try:
+        proc, err = _start(_batch_args(logs, out, "--scheduler", address, "--wait-workers", "30"), tmp_path, "batch")
+        records = lambda: sum(len(p.read_bytes().splitlines()) for p in (out / "_slamobs").glob("records-*.jsonl"))  # noqa: E731
+        assert wait_for(lambda: records() >= 1 or proc.poll() is not None, 180), err.read_text()
+        sched.kill()
+        code = proc.wait(timeout=120)
+        assert code == 3, err.read_text()
+        assert "lost the Dask scheduler" in err.read_text().strip().splitlines()[-1]
+        assert wait_gone(proc.pid) == []
+    finally:
+        _stop(worker)
+    _rerun_and_check(logs, out)
