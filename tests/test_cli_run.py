@@ -237,7 +237,8 @@ def test_console_script_skips_the_teardown_only_when_nothing_is_left_running():
     bad = subprocess.run([sys.executable, "-c", code.format(extra=""), "run", "no-such.mcap", "-o", "x"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "teardown" not in bad.stdout and bad.stderr.startswith("error: ")
-    waiting = "threading.Thread(target=time.sleep, args=(1.0,)).start(); "
+    # a thread alive until the main thread has finished, however long the command takes on a loaded machine
+    waiting = "threading.Thread(target=lambda: (threading.main_thread().join(), time.sleep(0.1))).start(); "
     busy = subprocess.run([sys.executable, "-c", code.format(extra=waiting), "observers"], capture_output=True,
                           text=True)
     assert busy.returncode == 0 and busy.stdout.rstrip().endswith("teardown")
