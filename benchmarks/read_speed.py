@@ -47,7 +47,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from slamobs.pipeline.readers import tfdecode
+from slamobs.pipeline.readers import decode, tfdecode
 from slamobs.pipeline.readers.container import _Chunked, _read_unit, _sources, open_log
 from slamobs.pipeline.readers.decode import LAYOUTS, TfRows, decode_rows, decode_tf, frame_name
 from slamobs.pipeline.readers.fastdecode import read_rows
@@ -199,7 +199,8 @@ def _tf_logs(args: argparse.Namespace, tmp: Path) -> list[tuple[str, Path]]:
 
 def _tf_decode(path: Path, fast: bool) -> tuple[dict[str, TfRows], float]:
     """decode_tf of every TF topic (rosbags or bytes), and the CPU seconds from the opened log to the rows."""
-    real = tfdecode.tf_layout
+    real, fast_from = tfdecode.tf_layout, decode.TF_FAST_MESSAGES
+    decode.TF_FAST_MESSAGES = 0  # every TF topic through the path measured, however small
     if not fast:
         tfdecode.tf_layout = lambda *args: None  # type: ignore[assignment]  # the rosbags fallback
     try:
@@ -209,7 +210,7 @@ def _tf_decode(path: Path, fast: bool) -> tuple[dict[str, TfRows], float]:
                     if meta.msgtype in TF_TYPES}
             return rows, time.process_time() - start
     finally:
-        tfdecode.tf_layout = real
+        tfdecode.tf_layout, decode.TF_FAST_MESSAGES = real, fast_from
 
 
 def _tf_same(a: dict[str, TfRows], b: dict[str, TfRows]) -> bool:

@@ -36,9 +36,10 @@ def exit_input_error(err: Exception | str) -> NoReturn:
     sys.exit(INPUT_ERROR_EXIT)
 
 
-#: Set by the console script (``cli.main.entry``): after an interruption the process ends at once. By then
-#: every ``with`` block has unwound (temporary outputs removed, files closed); the interpreter's teardown
-#: (over a second with numba and pyarrow loaded) would only delay the exit the user asked for.
+#: Set by the console script (``cli.main.entry``): when a command has finished or was interrupted the process
+#: ends at once. By then every ``with`` block has unwound (outputs complete and renamed, or temporary outputs
+#: removed; files closed); the interpreter's teardown (up to a second with numba, pyarrow and matplotlib
+#: loaded) would only delay the exit.
 EXIT_AT_ONCE = False
 
 
@@ -49,11 +50,41 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
                err=True)
     code = 128 + int(signum)
     if EXIT_AT_ONCE:
-        for stream in (sys.stdout, sys.stderr):
-            with suppress(Exception):
-                stream.flush()
-        os._exit(code)
+        _end_now(code)
     sys.exit(code)
+
+
+def exit_at_once(code: object) -> None:
+    """After a command has finished: with :data:`EXIT_AT_ONCE`, end the process now with the exit status
+    ``sys.exit(code)`` gives; return (and let the caller exit normally) otherwise, or while a thread or child
+    process that the interpreter's shutdown would wait for is still running."""
+    if not EXIT_AT_ONCE or _still_running():
+        return
+    if code is None:
+        status = 0
+    elif isinstance(code, int):
+        status = code
+    else:  # sys.exit("message") prints it and exits with 1
+        with suppress(Exception):
+            print(code, file=sys.stderr)
+        status = 1
+    _end_now(status)
+
+
+def _end_now(status: int) -> NoReturn:
+    """Flush stdout and stderr and end the process without the interpreter's teardown."""
+    for stream in (sys.stdout, sys.stderr):
+        with suppress(Exception):
+            stream.flush()
+    os._exit(status & 0xFF)
+
+
+def _still_running() -> bool:
+    """A non-daemon thread or a multiprocessing child is alive (the interpreter's shutdown waits for them)."""
+    if any(t.is_alive() and not t.daemon for t in threading.enumerate() if t is not threading.main_thread()):
+        return True
+    mp = sys.modules.get("multiprocessing")
+    return bool(mp is not None and mp.active_children())
 
 
 def os_error_line(err: OSError) -> str:

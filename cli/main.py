@@ -167,11 +167,17 @@ def observers() -> None:
 
 
 def entry() -> None:
-    """The ``slamobs`` console script: :func:`main`, ending at once after an interruption."""
+    """The ``slamobs`` console script: :func:`main`, ending at once when it is done or interrupted (every output
+    is complete and closed by then; the interpreter's teardown with numba, pyarrow and matplotlib loaded takes
+    up to a second and would only delay the exit)."""
     from slamobs.cli import errors
 
     errors.EXIT_AT_ONCE = True
-    main()
+    try:
+        main()
+    except SystemExit as done:
+        errors.exit_at_once(done.code)
+        raise
 
 
 def _add_commands() -> None:

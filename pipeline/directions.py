@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.blocks import interp_sorted
 from slamobs.pipeline.errors import GainError

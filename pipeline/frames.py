@@ -16,10 +16,10 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.lie import mat3_mul, quat_to_rot, quats_to_rots, rots_to_quats, so3_exp, so3_log
+from slamobs.pipeline.lie import mat3_mul, quats_to_rots, rots_to_quats, so3_exp, so3_log
 from slamobs.pipeline.streams import PoseStream, Transform, TransformSeries
 
 if TYPE_CHECKING:
@@ -106,7 +106,7 @@ class TfBuffer:
         self.notes: list[str] = []
         self._edges: dict[tuple[str, str], _Edge] = {}
         for tf in static:
-            rot = quat_to_rot(np.asarray(tf.quat_xyzw, dtype=np.float64))
+            rot = quats_to_rots(np.asarray(tf.quat_xyzw, dtype=np.float64)[None])[0]
             trans = np.asarray(tf.translation, dtype=np.float64)
             key = (_strip(tf.parent), _strip(tf.child))
             self._edges[key] = _Edge(*key, rot[None], trans[None])

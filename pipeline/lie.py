@@ -1,8 +1,10 @@
 """SO(3)/SE(3) helpers shared by every observer, the simulator and the evaluation.
 
 Conventions (spec §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
-``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. All functions are numba-compiled
-so the observer kernels can call them; they also work from plain Python on NumPy arrays.
+``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. The per-pose functions are
+numba-compiled so the observer kernels can call them (they also work from plain Python on NumPy arrays); the
+ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) are NumPy with the same arithmetic
+per row, so code that only calls them from Python compiles and loads no kernel.
 """
 
 from __future__ import annotations
@@ -10,7 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 SMALL_ANGLE = 1e-8
 
@@ -176,7 +178,17 @@ def rotation_angle(r):
 @njit(cache=True)
 def project_so3(r):
     """Re-orthonormalise a rotation that drifted by round-off (through its quaternion; exact to O(drift))."""
-    return quat_to_rot(rot_to_quat(r))
+    out = np.empty((3, 3))
+    x, y, z, w = _quat_of_rot(r)
+    _rot_of_quat(x, y, z, w, out)
+    return out
+
+
+@njit(cache=True)
+def project_so3_into(r):
+    """:func:`project_so3` in place (for the observer kernels: no temporary, no array assignment)."""
+    x, y, z, w = _quat_of_rot(r)
+    _rot_of_quat(x, y, z, w, r)
 
 
 def nearest_rotation(m: np.ndarray) -> np.ndarray:
@@ -190,9 +202,16 @@ def nearest_rotation(m: np.ndarray) -> np.ndarray:
 @njit(cache=True)
 def quat_to_rot(q):
     """``(x, y, z, w)`` quaternion (normalised here) to a rotation matrix."""
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    x, y, z, w = q[0] / n, q[1] / n, q[2] / n, q[3] / n
     out = np.empty((3, 3))
+    _rot_of_quat(q[0], q[1], q[2], q[3], out)
+    return out
+
+
+@njit(cache=True)
+def _rot_of_quat(qx, qy, qz, qw, out):
+    """:func:`quat_to_rot` of the four scalars, written into ``out``."""
+    n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    x, y, z, w = qx / n, qy / n, qz / n, qw / n
     out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
     out[0, 1] = 2.0 * (x * y - z * w)
     out[0, 2] = 2.0 * (x * z + y * w)
@@ -202,56 +221,101 @@ def quat_to_rot(q):
     out[2, 0] = 2.0 * (x * z - y * w)
     out[2, 1] = 2.0 * (y * z + x * w)
     out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
-    return out
 
 
 @njit(cache=True)
 def rot_to_quat(r):
     """Rotation matrix to a unit ``(x, y, z, w)`` quaternion with ``w >= 0`` (Shepperd's method)."""
     q = np.empty(4)
+    q[0], q[1], q[2], q[3] = _quat_of_rot(r)
+    return q
+
+
+@njit(cache=True)
+def _quat_of_rot(r):
+    """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it)."""
     tr = r[0, 0] + r[1, 1] + r[2, 2]
     if tr > 0.0:
         s = 2.0 * np.sqrt(tr + 1.0)
-        q[3] = 0.25 * s
-        q[0] = (r[2, 1] - r[1, 2]) / s
-        q[1] = (r[0, 2] - r[2, 0]) / s
-        q[2] = (r[1, 0] - r[0, 1]) / s
+        w = 0.25 * s
+        x = (r[2, 1] - r[1, 2]) / s
+        y = (r[0, 2] - r[2, 0]) / s
+        z = (r[1, 0] - r[0, 1]) / s
     elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
         s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        q[3] = (r[2, 1] - r[1, 2]) / s
-        q[0] = 0.25 * s
-        q[1] = (r[0, 1] + r[1, 0]) / s
-        q[2] = (r[0, 2] + r[2, 0]) / s
+        w = (r[2, 1] - r[1, 2]) / s
+        x = 0.25 * s
+        y = (r[0, 1] + r[1, 0]) / s
+        z = (r[0, 2] + r[2, 0]) / s
     elif r[1, 1] > r[2, 2]:
         s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        q[3] = (r[0, 2] - r[2, 0]) / s
-        q[0] = (r[0, 1] + r[1, 0]) / s
-        q[1] = 0.25 * s
-        q[2] = (r[1, 2] + r[2, 1]) / s
+        w = (r[0, 2] - r[2, 0]) / s
+        x = (r[0, 1] + r[1, 0]) / s
+        y = 0.25 * s
+        z = (r[1, 2] + r[2, 1]) / s
     else:
         s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        q[3] = (r[1, 0] - r[0, 1]) / s
-        q[0] = (r[0, 2] + r[2, 0]) / s
-        q[1] = (r[1, 2] + r[2, 1]) / s
-        q[2] = 0.25 * s
-    if q[3] < 0.0:
-        q = -q
-    return q / np.sqrt(q[0] ** 2 + q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
+        w = (r[1, 0] - r[0, 1]) / s
+        x = (r[0, 2] + r[2, 0]) / s
+        y = (r[1, 2] + r[2, 1]) / s
+        z = 0.25 * s
+    if w < 0.0:
+        x, y, z, w = -x, -y, -z, -w
+    n = np.sqrt(x ** 2 + y ** 2 + z ** 2 + w ** 2)
+    return x / n, y / n, z / n, w / n
 
 
-@njit(cache=True)
 def quats_to_rots(q):
-    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array."""
+    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array (NumPy, the same arithmetic row by row: called
+    from Python only, it needs no compiled kernel); a zero quaternion gives NaN."""
+    q = np.asarray(q, dtype=np.float64)
+    n = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x, y, z, w = q[:, 0] / n, q[:, 1] / n, q[:, 2] / n, q[:, 3] / n
     out = np.empty((q.shape[0], 3, 3))
-    for k in range(q.shape[0]):
-        out[k] = quat_to_rot(q[k])
+    out[:, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    out[:, 0, 1] = 2.0 * (x * y - z * w)
+    out[:, 0, 2] = 2.0 * (x * z + y * w)
+    out[:, 1, 0] = 2.0 * (x * y + z * w)
+    out[:, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    out[:, 1, 2] = 2.0 * (y * z - x * w)
+    out[:, 2, 0] = 2.0 * (x * z - y * w)
+    out[:, 2, 1] = 2.0 * (y * z + x * w)
+    out[:, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
     return out
 
 
-@njit(cache=True)
 def rots_to_quats(r):
-    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array."""
-    out = np.empty((r.shape[0], 4))
-    for k in range(r.shape[0]):
-        out[k] = rot_to_quat(r[k])
-    return out
+    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array (NumPy: each row takes the branch of
+    Shepperd's method and the arithmetic that :func:`rot_to_quat` takes)."""
+    r = np.asarray(r, dtype=np.float64)
+    q = np.empty((r.shape[0], 4))
+    with np.errstate(divide="ignore", invalid="ignore"):  # NaN rows stay NaN
+        _shepperd(r, q)
+        return q / np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])[:, None]
+
+
+def _shepperd(r: np.ndarray, q: np.ndarray) -> None:
+    """Unnormalised quaternions of :func:`rots_to_quats` into ``q``, ``w >= 0``."""
+    tr = r[:, 0, 0] + r[:, 1, 1] + r[:, 2, 2]
+    b0 = tr > 0.0
+    b1 = ~b0 & (r[:, 0, 0] > r[:, 1, 1]) & (r[:, 0, 0] > r[:, 2, 2])
+    b2 = ~b0 & ~b1 & (r[:, 1, 1] > r[:, 2, 2])
+    b3 = ~(b0 | b1 | b2)
+    m = r[b0]
+    s = 2.0 * np.sqrt(tr[b0] + 1.0)
+    q[b0] = np.column_stack([(m[:, 2, 1] - m[:, 1, 2]) / s, (m[:, 0, 2] - m[:, 2, 0]) / s,
+                             (m[:, 1, 0] - m[:, 0, 1]) / s, 0.25 * s])
+    m = r[b1]
+    s = 2.0 * np.sqrt(1.0 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2])
+    q[b1] = np.column_stack([0.25 * s, (m[:, 0, 1] + m[:, 1, 0]) / s, (m[:, 0, 2] + m[:, 2, 0]) / s,
+                             (m[:, 2, 1] - m[:, 1, 2]) / s])
+    m = r[b2]
+    s = 2.0 * np.sqrt(1.0 + m[:, 1, 1] - m[:, 0, 0] - m[:, 2, 2])
+    q[b2] = np.column_stack([(m[:, 0, 1] + m[:, 1, 0]) / s, 0.25 * s, (m[:, 1, 2] + m[:, 2, 1]) / s,
+                             (m[:, 0, 2] - m[:, 2, 0]) / s])
+    m = r[b3]
+    s = 2.0 * np.sqrt(1.0 + m[:, 2, 2] - m[:, 0, 0] - m[:, 1, 1])
+    q[b3] = np.column_stack([(m[:, 0, 2] + m[:, 2, 0]) / s, (m[:, 1, 2] + m[:, 2, 1]) / s, 0.25 * s,
+                             (m[:, 1, 0] - m[:, 0, 1]) / s])
+    q[q[:, 3] < 0.0] *= -1.0

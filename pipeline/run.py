@@ -381,6 +381,9 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         if compiled.functions:
             notes.append(f"first run: compiled {compiled.functions} numeric functions in {compiled.seconds:.1f} s "
                          "(included in the times above; cached on disk, later runs load them)")
+            from slamobs.pipeline.kernel_cache import prune
+
+            prune()  # kernels of sources that changed since: a compiling run has time for it
         metadata["compiled"] = {"functions": compiled.functions, "seconds": round(compiled.seconds, 3)}
         write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
                                       "report": "report.json" if report else None, "report_error": report_error})

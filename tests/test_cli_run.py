@@ -223,6 +223,27 @@ def test_demo_sample_copy_runs_from_any_directory(tmp_path, monkeypatch):
     del log
 
 
+def test_console_script_skips_the_teardown_only_when_nothing_is_left_running():
+    """The console script ends with os._exit once a command is done (output flushed, exit status kept), unless a
+    thread the interpreter's shutdown would wait for is still alive."""
+    import subprocess
+    import sys
+
+    code = ("import atexit, sys, threading, time; atexit.register(print, 'teardown'); {extra}"
+            "from slamobs.cli.main import entry; sys.argv = ['slamobs'] + sys.argv[1:]; entry()")
+    done = subprocess.run([sys.executable, "-c", code.format(extra=""), "observers"], capture_output=True, text=True)
+    assert done.returncode == 0 and "fast-adaptation" in done.stdout and "teardown" not in done.stdout
+    assert done.stdout.rstrip().endswith("slamobs repository.")  # everything flushed
+    bad = subprocess.run([sys.executable, "-c", code.format(extra=""), "run", "no-such.mcap", "-o", "x"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "teardown" not in bad.stdout and bad.stderr.startswith("error: ")
+    # a thread alive until the main thread has finished, however long the command takes on a loaded machine
+    waiting = "threading.Thread(target=lambda: (threading.main_thread().join(), time.sleep(0.1))).start(); "
+    busy = subprocess.run([sys.executable, "-c", code.format(extra=waiting), "observers"], capture_output=True,
+                          text=True)
+    assert busy.returncode == 0 and busy.stdout.rstrip().endswith("teardown")
+
+
 def test_help_imports_no_heavy_modules():
     """`slamobs --help` stays fast: commands import numba, rosbags, pyarrow only when they run (and NumPy loads
     after ``cli.main`` has set its BLAS thread count)."""

@@ -184,6 +184,13 @@ def test_bad_payloads_raise(encoding):
 # --------------------------------------------------------------------------- through the readers
 
 
+@pytest.fixture(autouse=True)
+def every_topic_walked(monkeypatch):
+    """The logs here are small: the fast path is taken for topics of any size (by default only from
+    ``decode.TF_FAST_MESSAGES`` messages on, see test_small_tf_topics_are_read_by_rosbags)."""
+    monkeypatch.setattr(decode, "TF_FAST_MESSAGES", 0)
+
+
 def write_tf_log(path: Path, container: str, topics: dict[str, list[tuple[int, bytes]]], msgtype: str, ts) -> Path:
     """Serialised TF messages ``topic -> [(record ns, payload)]``; ROS1 bags in several chunks that overlap in
     record time."""
@@ -253,6 +260,21 @@ def test_fast_tf_equals_rosbags(tf_log, monkeypatch):
             assert_identical(got, want, f"{tf_log} {topic}")
             assert got.t_ns.size == {"/tf": 26 * (0 + 1 + 2 + 3 + 4) + 100, "/robot_tf": 900, "/tf_static": 2}[topic]
     assert all("/" not in name[:1] for name in got.frame_names)
+
+
+def test_small_tf_topics_are_read_by_rosbags(tf_log, monkeypatch):
+    """Below ``TF_FAST_MESSAGES`` messages the compiled walker is not used (nor compiled): same rows."""
+    monkeypatch.setattr(decode, "TF_FAST_MESSAGES", 301)
+    calls = []
+    real = tfdecode.read_tf
+    monkeypatch.setattr(tfdecode, "read_tf", lambda *args: calls.append(args[2]) or real(*args))
+    with open_log(tf_log) as reader:
+        table = topics_of(reader)
+        small = decode_tf(reader, tf_log, "/robot_tf", table["/robot_tf"][1])  # 300 messages
+        assert calls == []
+        monkeypatch.setattr(decode, "TF_FAST_MESSAGES", 0)
+        assert_identical(small, decode_tf(reader, tf_log, "/robot_tf", table["/robot_tf"][1]), "/robot_tf")
+    assert calls == ["/robot_tf"]
 
 
 @pytest.mark.filterwarnings("ignore:.*encountered in multiply:RuntimeWarning")  # NaN/Inf transforms

@@ -12,7 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from slamobs.pipeline.blocks import blockwise
 from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
@@ -72,118 +71,93 @@ def _check_relation(relation: str) -> None:
         raise ValueError(f"pose relation must be one of {tuple(POSE_RELATIONS)}, got {relation!r}")
 
 
-@njit(cache=True)
-def _orthogonal_factor(m):
-    """Orthogonal polar factor ``U Vᵀ`` of a nonsingular 3x3 matrix (the nearest rotation), by the Newton
-    iteration ``X ← (X + X⁻ᵀ) / 2`` (quadratic convergence; no LAPACK, so no SciPy under numba)."""
+def _orthogonal_factor(m: np.ndarray) -> np.ndarray:
+    """Orthogonal polar factors ``U Vᵀ`` of nonsingular 3x3 matrices ``(N, 3, 3)`` (the nearest rotations), by
+    the Newton iteration ``X ← (X + X⁻ᵀ) / 2`` (quadratic convergence), each row until it moves by less than
+    1e-16 or 20 times."""
     x = m.copy()
+    active = np.arange(x.shape[0])
     for _ in range(20):
-        c00 = x[1, 1] * x[2, 2] - x[1, 2] * x[2, 1]
-        c01 = x[1, 2] * x[2, 0] - x[1, 0] * x[2, 2]
-        c02 = x[1, 0] * x[2, 1] - x[1, 1] * x[2, 0]
-        c10 = x[0, 2] * x[2, 1] - x[0, 1] * x[2, 2]
-        c11 = x[0, 0] * x[2, 2] - x[0, 2] * x[2, 0]
-        c12 = x[0, 1] * x[2, 0] - x[0, 0] * x[2, 1]
-        c20 = x[0, 1] * x[1, 2] - x[0, 2] * x[1, 1]
-        c21 = x[0, 2] * x[1, 0] - x[0, 0] * x[1, 2]
-        c22 = x[0, 0] * x[1, 1] - x[0, 1] * x[1, 0]
-        det = x[0, 0] * c00 + x[0, 1] * c01 + x[0, 2] * c02
-        # X⁻ᵀ = cofactor matrix / det
-        nxt = np.empty((3, 3))
-        nxt[0, 0] = 0.5 * (x[0, 0] + c00 / det)
-        nxt[0, 1] = 0.5 * (x[0, 1] + c01 / det)
-        nxt[0, 2] = 0.5 * (x[0, 2] + c02 / det)
-        nxt[1, 0] = 0.5 * (x[1, 0] + c10 / det)
-        nxt[1, 1] = 0.5 * (x[1, 1] + c11 / det)
-        nxt[1, 2] = 0.5 * (x[1, 2] + c12 / det)
-        nxt[2, 0] = 0.5 * (x[2, 0] + c20 / det)
-        nxt[2, 1] = 0.5 * (x[2, 1] + c21 / det)
-        nxt[2, 2] = 0.5 * (x[2, 2] + c22 / det)
-        d = 0.0
-        for i in range(3):
-            for j in range(3):
-                d = max(d, abs(nxt[i, j] - x[i, j]))
-        x = nxt
-        if d < 1e-16:
+        if not active.size:
             break
+        a = x[active]
+        c = np.empty_like(a)  # cofactor matrix: X⁻ᵀ = cofactors / det
+        c[:, 0, 0] = a[:, 1, 1] * a[:, 2, 2] - a[:, 1, 2] * a[:, 2, 1]
+        c[:, 0, 1] = a[:, 1, 2] * a[:, 2, 0] - a[:, 1, 0] * a[:, 2, 2]
+        c[:, 0, 2] = a[:, 1, 0] * a[:, 2, 1] - a[:, 1, 1] * a[:, 2, 0]
+        c[:, 1, 0] = a[:, 0, 2] * a[:, 2, 1] - a[:, 0, 1] * a[:, 2, 2]
+        c[:, 1, 1] = a[:, 0, 0] * a[:, 2, 2] - a[:, 0, 2] * a[:, 2, 0]
+        c[:, 1, 2] = a[:, 0, 1] * a[:, 2, 0] - a[:, 0, 0] * a[:, 2, 1]
+        c[:, 2, 0] = a[:, 0, 1] * a[:, 1, 2] - a[:, 0, 2] * a[:, 1, 1]
+        c[:, 2, 1] = a[:, 0, 2] * a[:, 1, 0] - a[:, 0, 0] * a[:, 1, 2]
+        c[:, 2, 2] = a[:, 0, 0] * a[:, 1, 1] - a[:, 0, 1] * a[:, 1, 0]
+        det = a[:, 0, 0] * c[:, 0, 0] + a[:, 0, 1] * c[:, 0, 1] + a[:, 0, 2] * c[:, 0, 2]
+        nxt = 0.5 * (a + c / det[:, None, None])
+        moved = np.abs(nxt - a).max(axis=(1, 2))
+        x[active] = nxt
+        active = active[~(moved < 1e-16)]
     return x
 
 
-@njit(cache=True)
-def _is_orthogonal(m):
-    """SciPy 1.17's test before it orthogonalises: m mᵀ close to I (|Δ| <= 1e-12 + 1e-5 |I|, numpy isclose)."""
+def _is_orthogonal(m: np.ndarray) -> np.ndarray:
+    """Per row, SciPy 1.17's test before it orthogonalises: m mᵀ close to I (|Δ| <= 1e-12 + 1e-5 |I|, numpy
+    isclose)."""
+    ok = np.ones(m.shape[0], dtype=bool)
     for i in range(3):
         for j in range(3):
-            g = m[i, 0] * m[j, 0] + m[i, 1] * m[j, 1] + m[i, 2] * m[j, 2]
+            g = m[:, i, 0] * m[:, j, 0] + m[:, i, 1] * m[:, j, 1] + m[:, i, 2] * m[:, j, 2]
             e = 1.0 if i == j else 0.0
-            if abs(g - e) > 1e-12 + 1e-5 * e:
-                return False
-    return True
+            ok &= ~(np.abs(g - e) > 1e-12 + 1e-5 * e)
+    return ok
 
 
-@njit(cache=True)
-def _quat_of(m_in, q):
-    """Unit quaternion (x, y, z, w) of a rotation matrix as SciPy's ``Rotation.from_matrix`` (hence evo) computes
-    it: a matrix that is not orthogonal to 1e-12 is replaced by its orthogonal polar factor, then Markley's
-    method (the branch of the largest of the diagonal and the trace). Rotations read from files are orthonormal
-    only to their printed digits (KITTI), and this gives evo's angles for them, not just close ones."""
-    m = m_in if _is_orthogonal(m_in) else _orthogonal_factor(m_in)
-    tr = m[0, 0] + m[1, 1] + m[2, 2]
-    c = 0
-    best = m[0, 0]
-    if m[1, 1] > best:
-        c, best = 1, m[1, 1]
-    if m[2, 2] > best:
-        c, best = 2, m[2, 2]
-    if tr > best:
-        c = 3
-    if c == 3:
-        q[0] = m[2, 1] - m[1, 2]
-        q[1] = m[0, 2] - m[2, 0]
-        q[2] = m[1, 0] - m[0, 1]
-        q[3] = 1.0 + tr
-    else:
-        i = c
-        j = (i + 1) % 3
-        k = (j + 1) % 3
-        q[i] = 1.0 - tr + 2.0 * m[i, i]
-        q[j] = m[j, i] + m[i, j]
-        q[k] = m[k, i] + m[i, k]
-        q[3] = m[k, j] - m[j, k]
-    n = np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    for t in range(4):
-        q[t] /= n
+def matrix_quats(r: np.ndarray) -> np.ndarray:
+    """Unit quaternions (x, y, z, w) of rotation matrices ``(N, 3, 3)`` as SciPy's ``Rotation.from_matrix`` (hence
+    evo) computes them: a matrix that is not orthogonal to 1e-12 is replaced by its orthogonal polar factor, then
+    Markley's method (the branch of the largest of the diagonal and the trace). Rotations read from files are
+    orthonormal only to their printed digits (KITTI), and this gives evo's angles for them, not just close ones."""
+    m = np.asarray(r, dtype=np.float64)
+    bad = ~_is_orthogonal(m)
+    if bad.any():
+        m = m.copy()
+        m[bad] = _orthogonal_factor(m[bad])
+    n = m.shape[0]
+    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    c = np.zeros(n, dtype=np.int64)  # argmax of (m00, m11, m22, tr), first on ties
+    best = m[:, 0, 0].copy()
+    for k in (1, 2):
+        up = m[:, k, k] > best
+        c[up], best[up] = k, m[up, k, k]
+    c[tr > best] = 3
+    q = np.empty((n, 4))
+    rows = c == 3
+    q[rows, 0] = m[rows, 2, 1] - m[rows, 1, 2]
+    q[rows, 1] = m[rows, 0, 2] - m[rows, 2, 0]
+    q[rows, 2] = m[rows, 1, 0] - m[rows, 0, 1]
+    q[rows, 3] = 1.0 + tr[rows]
+    for i in range(3):
+        rows = np.flatnonzero(c == i)
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[rows, i] = 1.0 - tr[rows] + 2.0 * m[rows, i, i]
+        q[rows, j] = m[rows, j, i] + m[rows, i, j]
+        q[rows, k] = m[rows, k, i] + m[rows, i, k]
+        q[rows, 3] = m[rows, k, j] - m[rows, j, k]
+    return q / np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])[:, None]
 
 
-@njit(cache=True)
-def quat_angle(q):
-    """Rotation angle in [0, π] of a unit quaternion: 2 atan2(‖v‖, |w|), accurate near 0 and near π."""
-    return 2.0 * np.arctan2(np.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]), abs(q[3]))
+def quat_angles(q: np.ndarray) -> np.ndarray:
+    """Rotation angles in [0, π] of unit quaternions ``(N, 4)``: 2 atan2(‖v‖, |w|), accurate near 0 and near π."""
+    return 2.0 * np.arctan2(np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]), np.abs(q[:, 3]))
 
 
-@njit(cache=True)
-def _angles(a, b):
-    """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`_quat_of`); ``arccos`` of the
-    trace would lose ~1e-8 rad at small angles."""
-    out = np.empty(a.shape[0])
-    m = np.empty((3, 3))
-    q = np.empty(4)
-    for k in range(a.shape[0]):
-        for i in range(3):
-            for j in range(3):
-                m[i, j] = a[k, 0, i] * b[k, 0, j] + a[k, 1, i] * b[k, 1, j] + a[k, 2, i] * b[k, 2, j]
-        _quat_of(m, q)
-        out[k] = quat_angle(q)
-    return out
-
-
-@njit(cache=True)
-def matrix_quats(r):
-    """:func:`_quat_of` over an (N, 3, 3) array."""
-    out = np.empty((r.shape[0], 4))
-    for k in range(r.shape[0]):
-        _quat_of(r[k], out[k])
-    return out
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`matrix_quats`); ``arccos`` of
+    the trace would lose ~1e-8 rad at small angles."""
+    m = np.empty((a.shape[0], 3, 3))
+    for i in range(3):
+        for j in range(3):
+            m[:, i, j] = a[:, 0, i] * b[:, 0, j] + a[:, 1, i] * b[:, 1, j] + a[:, 2, i] * b[:, 2, j]
+    return quat_angles(matrix_quats(m))
 
 
 class RotationRows:

@@ -195,7 +195,7 @@ def _alignment_dict(al: Alignment) -> dict[str, Any]:
         "type": al.kind,
         "description": DESCRIPTIONS[al.kind],
         "n_points": int(al.n_points),
-        "rotation_quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(al.rot, dtype=np.float64))],
+        "rotation_quat_xyzw": [float(v) for v in rots_to_quats(np.asarray(al.rot, dtype=np.float64)[None])[0]],
         "rotation_matrix": [[float(v) for v in row] for row in al.rot],
         "translation_m": [float(v) for v in al.trans],
         "scale": float(al.scale),

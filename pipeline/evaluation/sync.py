@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 NS_PER_S = 1_000_000_000
 
@@ -153,21 +153,20 @@ class TimeOffset:
         return self.peak_correlation >= 0.5 and not self.at_window_edge
 
 
-@njit(cache=True)
-def _step_angles(q):
+def _step_angles(q: np.ndarray) -> np.ndarray:
     """Rotation angle between consecutive (x, y, z, w) quaternions: 2 atan2(|v|, |w|) of q_k⁻¹ q_{k+1}."""
-    out = np.empty(q.shape[0] - 1)
-    for k in range(q.shape[0] - 1):
-        a, b = q[k], q[k + 1]
-        na = math.sqrt(a[0] ** 2 + a[1] ** 2 + a[2] ** 2 + a[3] ** 2)
-        nb = math.sqrt(b[0] ** 2 + b[1] ** 2 + b[2] ** 2 + b[3] ** 2)
-        # conj(a) * b, w-last
-        w = (a[3] * b[3] + a[0] * b[0] + a[1] * b[1] + a[2] * b[2]) / (na * nb)
-        x = (a[3] * b[0] - a[0] * b[3] - a[1] * b[2] + a[2] * b[1]) / (na * nb)
-        y = (a[3] * b[1] + a[0] * b[2] - a[1] * b[3] - a[2] * b[0]) / (na * nb)
-        z = (a[3] * b[2] - a[0] * b[1] + a[1] * b[0] - a[2] * b[3]) / (na * nb)
-        out[k] = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), abs(w))
-    return out
+    q = np.asarray(q, dtype=np.float64)
+    a, b = q[:-1], q[1:]
+    norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
+    nn = norm[:-1] * norm[1:]
+    a0, a1, a2, a3 = a[:, 0], a[:, 1], a[:, 2], a[:, 3]
+    b0, b1, b2, b3 = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+    # conj(a) * b, w-last
+    w = (a3 * b3 + a0 * b0 + a1 * b1 + a2 * b2) / nn
+    x = (a3 * b0 - a0 * b3 - a1 * b2 + a2 * b1) / nn
+    y = (a3 * b1 + a0 * b2 - a1 * b3 - a2 * b0) / nn
+    z = (a3 * b2 - a0 * b1 + a1 * b0 - a2 * b3) / nn
+    return 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), np.abs(w))
 
 
 def _rate_on_grid(t_ns: np.ndarray, increments: np.ndarray, grid_ns: np.ndarray, step_ns: int,
@@ -195,7 +194,7 @@ def _step_lengths(pos: np.ndarray) -> np.ndarray:
 
 
 def _signals(t_ns, pos, quat, grid_ns, step_ns):
-    ang = _step_angles(np.asarray(quat, dtype=np.float64))
+    ang = _step_angles(quat)
     dist = _step_lengths(pos)
     return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns)
 
@@ -300,7 +299,7 @@ def estimate_time_offset(
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
     ref_signal = (r_ang, r_spd)[idx]
-    steps = _step_angles(np.asarray(est_quat_xyzw, dtype=np.float64)) if idx == 0 else _step_lengths(est_pos)
+    steps = _step_angles(est_quat_xyzw) if idx == 0 else _step_lengths(est_pos)
 
     accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
     ref_defined = np.isfinite(ref_signal)

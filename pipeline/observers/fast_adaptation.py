@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
 from slamobs.pipeline.observers.shared_steps import (
@@ -29,7 +29,7 @@ from slamobs.pipeline.observers.shared_steps import (
     record_row,
     substep_count,
 )
-from slamobs.pipeline.lie import mat3_vec, project_so3, se3_exp_into
+from slamobs.pipeline.lie import mat3_vec, project_so3_into, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
 STEP_RATIO = 0.5
@@ -110,7 +110,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
             r_hat[2, b] = r20 * c0 + r21 * c1 + r22 * c2
         counter[0] += 1
         if counter[0] % REORTHO_EVERY == 0:
-            r_hat[:, :] = project_so3(r_hat)
+            project_so3_into(r_hat)
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
             se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
@@ -136,7 +136,7 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
     n_frames = det_t.shape[0]
     t, meas_t = fs[_T], fs[_MEAS_T]
     iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
-    o = 0
+    o = np.int64(0)  # not the literal 0: callees would compile for it too
     work = 0
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])

@@ -44,7 +44,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.directions import direction_arrays, first_attitude, load_directions
 from slamobs.pipeline.lie import project_so3, se3_exp_into

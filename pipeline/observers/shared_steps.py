@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 #: Most sub-steps one interval between two events is cut into. Logs need a few to a few hundred; an interval
 #: that asks for more (gains far too stiff for the sample rate, an absurd innovation) is integrated with this
@@ -38,7 +38,7 @@ CAPPED, CAP_IV = 5, 6
 FRAME_SETTLE = 5.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def substep_count(dt, lam, step_ratio):
     """Sub-steps for an interval ``dt`` at loop rate ``lam``: ``ceil(dt lam / step_ratio)``, 1 to ``MAX_SUBSTEPS``
     (a NaN or infinite rate gets the cap)."""
@@ -48,7 +48,7 @@ def substep_count(dt, lam, step_ratio):
     return max(1, int(math.ceil(x)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def count_capped(m, iv, ns):
     """Count an interval integrated with ``m`` sub-steps if that was the cap (``iv``: the next velocity sample)."""
     if m >= MAX_SUBSTEPS:
@@ -57,7 +57,7 @@ def count_capped(m, iv, ns):
             ns[CAP_IV] = iv
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, row):
     """Take detections ``a .. a + nvis - 1`` as the visible set; their output rows start at ``row``."""
     for j in range(nvis):
@@ -74,7 +74,7 @@ def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, i
         lm_init[i] = True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def landmark_weight(lm, i):
     """Update weight of landmark ``i``: the fourth column of ``lm`` if it has one (known map), else 1."""
     if lm.shape[1] > 3:
@@ -82,7 +82,7 @@ def landmark_weight(lm, i):
     return 1.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     """``(Σ[y_i]x R̂ᵀe_i, Σ R̂ᵀe_i)`` as six scalars over the visible landmarks, with ``e_i = p̂_i − R̂y_i − P̂``
     at the state given, and each landmark stepped ``p̂_i ← p̂_i − g e_i`` in place: ``g = hkp`` (B), or
@@ -121,7 +121,7 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     return w0, w1, w2, u0, u1, u2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def predict_points(x, n, d_r, d_p):
     """``x_j ← dRᵀ(x_j − dp)`` for rows ``0 .. n - 1``: body-frame points after the body moved by ``(dR, dp)``
     over a sub-step (directions: ``dp = 0``)."""
@@ -134,17 +134,19 @@ def predict_points(x, n, d_r, d_p):
         x[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
     """Row ``o`` of the outputs: velocity sample ``iv``, R̂, P̂ and the biases ``[b̂_Ω, b̂_V]``."""
     out_k[o] = iv
-    out_r[o] = r_hat
-    out_p[o] = p_hat
-    out_b[o, :3] = b_om
-    out_b[o, 3:] = b_v
+    for a in range(3):  # element by element: a slice assignment compiles numba's shape checks and messages
+        for b in range(3):
+            out_r[o, a, b] = r_hat[a, b]
+        out_p[o, a] = p_hat[a]
+        out_b[o, a] = b_om[a]
+        out_b[o, 3 + a] = b_v[a]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def turn_frame(rot, pivot, f_r, f_p):
     """The whole estimate turned by ``x ↦ pivot + rot (x − pivot)``: the map frame follows, ``F ← turn ∘ F``."""
     d0, d1, d2 = f_p[0] - pivot[0], f_p[1] - pivot[1], f_p[2] - pivot[2]
@@ -156,7 +158,7 @@ def turn_frame(rot, pivot, f_r, f_p):
             f_r[a, b] = rot[a, 0] * c0 + rot[a, 1] * c1 + rot[a, 2] * c2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
     """:func:`record_row` of the estimate in the map frame: ``F⁻¹ T̂ = (F_Rᵀ R̂, F_Rᵀ (P̂ − F_p))``."""
     out_k[o] = iv
@@ -165,11 +167,11 @@ def record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, ou
                        + f_r[2, a] * (p_hat[2] - f_p[2]))
         for b in range(3):
             out_r[o, a, b] = f_r[0, a] * r_hat[0, b] + f_r[1, a] * r_hat[1, b] + f_r[2, a] * r_hat[2, b]
-    out_b[o, :3] = b_om
-    out_b[o, 3:] = b_v
+        out_b[o, a] = b_om[a]
+        out_b[o, 3 + a] = b_v[a]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def frame_rows(f_r, f_p, trk_p, innov, row, n):
     """Rows ``row .. row + n − 1`` of the tracks (points) and innovations (vectors) into the map frame."""
     for j in range(row, row + n):
@@ -180,7 +182,7 @@ def frame_rows(f_r, f_p, trk_p, innov, row, n):
             innov[j, a] = f_r[0, a] * e0 + f_r[1, a] * e1 + f_r[2, a] * e2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def frame_sample(f_r, f_sum, f_stat, settle_s):
     """Add the map frame's orientation to the running sum once it has been estimated for ``settle_s`` seconds
     (``f_stat[0]``, advanced by the kernel while it turns the frame): the first seconds are the transient

@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, BinaryIO, Literal
 import lz4.frame
 import numpy as np
 import zstandard
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 from rosbags.highlevel import AnyReader
 from rosbags.interfaces import Connection, ConnectionExtRosbag1, ConnectionExtRosbag2, MessageDefinition
 from rosbags.interfaces import MessageDefinitionFormat as Fmt
@@ -194,6 +194,14 @@ class RawBatch:
     rec_ns: np.ndarray  # (n,) int64
     start: np.ndarray  # (n,) int64
     size: np.ndarray  # (n,) int64
+
+    def __post_init__(self) -> None:
+        # The buffer is read only, wherever it came from (bytes, a joined group): the compiled decoders are then
+        # compiled for one array type, not once per writability.
+        if self.data.flags.writeable:
+            view = self.data.view()
+            view.flags.writeable = False
+            object.__setattr__(self, "data", view)
 
     def __len__(self) -> int:
         return int(self.conn.shape[0])
@@ -1208,6 +1216,15 @@ def _use_own_readers(reader: AnyReader) -> None:
             sub.storage.STORAGE_PLUGINS = {**DirectoryReader.STORAGE_PLUGINS, "mcap": McapStorage}
 
 
+class _FallbackTypes:
+    """The typestore rosbags falls back to for a bag that stores no message definitions, built only if one does
+    (rosbags reads nothing but its ``fielddefs``; building the ROS 2 store imports its predecessors, ~0.1 s)."""
+
+    @property
+    def fielddefs(self):
+        return get_typestore(_FALLBACK_STORE).fielddefs
+
+
 @contextmanager
 def open_log(path: str | Path) -> Iterator[AnyReader]:
     """Open a ROS1 bag, rosbag2 directory, MCAP or db3 file as an opened rosbags ``AnyReader``.
@@ -1223,7 +1240,7 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
     container = detect_container(path)
     with _rosbags_path(container) as rpath:
         try:
-            reader = AnyReader([rpath], default_typestore=get_typestore(_FALLBACK_STORE))
+            reader = AnyReader([rpath], default_typestore=_FallbackTypes())  # type: ignore[arg-type]
             _use_own_readers(reader)
             reader.open()
         except Exception as err:  # any reader failure means a bad file

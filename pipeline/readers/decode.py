@@ -658,16 +658,23 @@ class TfRows:
     frame_names: list[str]
 
 
+#: TF topics with at least this many messages are decoded by :mod:`.tfdecode` (rosbags takes ~40 µs a message).
+TF_FAST_MESSAGES = 1000
+
+
 def decode_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]) -> TfRows:
     """Flatten the transforms of a TF topic into columns (each message may hold many edges).
 
     The standard TF layouts are decoded batch-wise from the raw bytes by :mod:`.tfdecode`; a log whose stored
-    definition differs is deserialised message by message by rosbags.
+    definition differs, and a topic of fewer than ``TF_FAST_MESSAGES`` messages (``/tf_static``, a few tag
+    frames: rosbags reads them in milliseconds, and their compiled decoder need not be loaded or compiled),
+    are deserialised message by message by rosbags (the same values and frame numbering).
     """
-    from .tfdecode import read_tf
+    if sum(c.msgcount for c in connections) >= TF_FAST_MESSAGES:
+        from .tfdecode import read_tf
 
-    if (fast := read_tf(reader, path, topic, connections)) is not None:
-        return fast
+        if (fast := read_tf(reader, path, topic, connections)) is not None:
+            return fast
     frames = _Frames()
     t_ns: list[int] = []
     rec_ns: list[int] = []

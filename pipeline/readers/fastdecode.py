@@ -22,7 +22,7 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 from rosbags.interfaces import Nodetype
 
 if TYPE_CHECKING:
@@ -311,14 +311,10 @@ def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
-def _u32(data, offsets, big):  # pragma: no cover - compiled
-    out = np.empty(offsets.shape[0], np.int64)
-    for i in range(offsets.shape[0]):
-        p = offsets[i]
-        b0, b1, b2, b3 = np.int64(data[p]), np.int64(data[p + 1]), np.int64(data[p + 2]), np.int64(data[p + 3])
-        out[i] = (b0 << 24) | (b1 << 16) | (b2 << 8) | b3 if big else b0 | (b1 << 8) | (b2 << 16) | (b3 << 24)
-    return out
+def _u32(data: np.ndarray, offsets: np.ndarray, big: bool) -> np.ndarray:
+    """The uint32 at each of ``offsets`` (unaligned) as int64."""
+    words = np.ascontiguousarray(data[offsets[:, None] + np.arange(4)]).view(">u4" if big else "<u4")
+    return words.reshape(-1).astype(np.int64)
 
 
 @njit(cache=True)

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 BLOCK_ROWS = 65_536
 _NS = 1_000_000_000

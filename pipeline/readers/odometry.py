@@ -14,7 +14,7 @@ Both are reported (``LogStreams.derived``, written to ``run.json``).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import mat3_mul, quats_to_rots, so3_log
 from slamobs.pipeline.streams import PoseStream, Vec3Stream

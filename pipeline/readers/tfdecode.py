@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 from rosbags.interfaces import Nodetype
 
 from .fastdecode import FRAME_ID, STAMP_NSEC, STAMP_SEC, DecodeError, _grouped, _merged, _Op, _strings, _walk

@@ -12,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from numba import njit
+from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import mat3_mul, mat3_vec, se3_exp
 

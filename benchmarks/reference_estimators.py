@@ -1,0 +1,64 @@
+"""The reference estimators on the one-hour benchmark log: riekf's filter stage against real time, batch's
+smoother stage (CPU seconds: one core) and peak memory, beside fast-adaptation.
+
+    .venv/bin/python benchmarks/reference_estimators.py [--hours 1] [--container mcap] [--cache DIR]
+
+The log is ``benchmarks/end_to_end.py``'s (figure8-wide, generated once into the cache); each estimator runs in
+its own ``slamobs run`` process after a warm-up on a short log (numba cache filled). Floors (issue 11): batch's
+smoother stage <= 60 s on one core and peak RSS <= 2 GB; riekf at >= 50x real time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from end_to_end import SUFFIX, cpu_model, load, make_log, run  # noqa: E402
+
+MAX_SMOOTHER_S = 60.0
+MAX_RSS_BATCH_MB = 2048.0
+MIN_RIEKF_REALTIME = 50.0
+OBSERVERS = ("fast-adaptation", "riekf", "batch")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--hours", type=float, default=1.0)
+    ap.add_argument("--container", default="mcap", choices=sorted(SUFFIX))
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-bench")
+    args = ap.parse_args()
+    args.cache.mkdir(parents=True, exist_ok=True)
+    short, log = make_log(args.cache, 60.0, args.container), make_log(args.cache, args.hours * 3600, args.container)
+    for name in OBSERVERS:
+        run(short, args.cache / "runs" / "warmup", extra=("--observer", name))
+    print(f"# {log.name}, {cpu_model()}, {load()}")
+    print("| estimator | wall s | CPU s | estimator stage s | x real time | µs per velocity sample | seed s | "
+          "smoother s (CPU s) | peak RSS MB |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    res = {}
+    for name in OBSERVERS:
+        r = res[name] = run(log, args.cache / "runs" / f"{log.stem}-{name}", extra=("--observer", name))
+        t = r["timings"]
+        n = json.loads((args.cache / "runs" / f"{log.stem}-{name}" / "run.json").read_text())["counts"][
+            "velocity_samples"]
+        smoother = (f"{t['smoother_s']:.1f} ({t['smoother_cpu_s']:.1f})" if "smoother_s" in t else "")
+        print(f"| {name} | {r['wall']:.1f} | {r['cpu']:.1f} | {t['observer_s']:.1f} | "
+              f"{r['span_s'] / t['observer_s']:.0f}x | {1e6 * t['observer_s'] / n:.1f} | "
+              f"{t.get('seed_s', float('nan')):.1f} | {smoother} | {r['rss']:.0f} |")
+    print(f"# {load()}")
+    b, f = res["batch"], res["riekf"]
+    cpu = b["timings"]["smoother_cpu_s"]
+    ok = cpu <= MAX_SMOOTHER_S and b["rss"] <= MAX_RSS_BATCH_MB
+    print(f"batch: smoother stage {cpu:.1f} CPU s (<= {MAX_SMOOTHER_S:g}), peak {b['rss']:.0f} MB "
+          f"(<= {MAX_RSS_BATCH_MB:g}): {'ok' if ok else 'MISSED'}")
+    speed = f["span_s"] / f["timings"]["observer_s"]
+    print(f"riekf: filter stage {f['timings']['observer_s']:.1f} s = {speed:.0f}x real time "
+          f"(>= {MIN_RIEKF_REALTIME:g}x): {'ok' if speed >= MIN_RIEKF_REALTIME else 'MISSED'}")
+
+
+if __name__ == "__main__":
+    main()

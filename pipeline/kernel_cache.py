@@ -1,0 +1,195 @@
+"""Where the compiled numeric kernels are kept, and when they are stale; kernel modules take ``njit`` from here.
+
+numba caches a ``cache=True`` function under a stamp of its own source file only. But a kernel's compiled code
+also holds the code of the functions it calls (numba inlines and links them in) and the constants it reads, and
+those often live in other modules: after an edit there (say ``shared_steps.landmark_sums``), numba went on
+loading the old kernel. Here a kernel's stamp is a hash of its module's source and of every slamobs module that
+module imports, transitively (everything its code can reach), and the hash is part of its cache file names: an
+edit anywhere a kernel can reach compiles it again, and no two versions of the sources read each other's files.
+
+Compiled kernels so depend on the sources alone, not on where they are installed, so they are kept once per
+user rather than next to each installed copy, and a second install location of the same sources (another
+virtual environment, a second checkout) loads what the first one compiled. The directory is
+``$NUMBA_CACHE_DIR/slamobs`` when numba's cache directory is set, else the user cache directory
+(``~/.cache/slamobs`` on Linux), with one subdirectory per numba version (numba checks its version when it reads
+an index and would otherwise overwrite the other version's); where it cannot be written, the ``__pycache__``
+next to the sources, numba's own place, with the same stamps. What numba keys an entry by (argument types, the
+CPU name and features, the Python version in the file name) keeps kernels for different machines sharing a home
+directory apart.
+
+The locator is installed when this module is imported, so every kernel module imports ``njit`` from here: it is
+then in place before the first kernel is decorated.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import time
+from functools import lru_cache
+from pathlib import Path
+
+import numba
+from numba import njit
+from numba.core import caching
+
+__all__ = ["cache_root", "install", "njit", "prune", "source_stamp"]
+
+#: Cache files not written for this many days are removed when a run has compiled something (kernels of
+#: sources that changed, or of other versions; one still in use is compiled again, at most once per period).
+MAX_AGE_DAYS = 30
+
+#: The directory of the ``slamobs`` package (``pipeline/`` is in it), installed or a checkout.
+PACKAGE_ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = "slamobs"
+
+# `from X import a, b` / `from X import (a,\n b)` / `import X, Y`, anywhere in a module (lazy imports included)
+_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+([\w.]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)|import[ \t]+([\w., \t]+))",
+                     re.MULTILINE)
+
+
+@lru_cache(maxsize=None)
+def _module_file(name: str, root: str, package: str) -> str | None:
+    """Source file of module ``name`` of ``package`` rooted at ``root`` (None for other modules)."""
+    first, _, rest = name.partition(".")
+    if first != package:
+        return None
+    base = os.path.join(root, *rest.split(".")) if rest else root
+    for candidate in (os.path.join(base, "__init__.py"), base + ".py"):
+        if os.path.isfile(candidate):
+            return candidate
+    return None
+
+
+def _imports(path: str, source: str, root: str, package: str) -> set[str]:
+    """Source files of the ``package`` modules that the module at ``path`` imports (submodules named in a
+    ``from X import`` list included)."""
+    rel = os.path.relpath(path, root)[: -len(".py")].split(os.sep)
+    name = ".".join((package, *rel))
+    here = name[: -len(".__init__")] if rel[-1] == "__init__" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for frm, names, plain in _IMPORT.findall(source):
+        if frm:
+            if frm.startswith("."):
+                dots = len(frm) - len(frm.lstrip("."))
+                base = here.rsplit(".", dots - 1)[0] if dots > 1 else here
+                frm = f"{base}.{frm[dots:]}" if frm[dots:] else base
+            targets = [frm, *(f"{frm}.{n.split()[0]}" for n in names.strip("()").split(",") if n.strip())]
+        else:
+            targets = [n.split()[0] for n in plain.split(",") if n.strip()]
+        for target in targets:
+            if (file := _module_file(target, root, package)) is not None:
+                found.add(file)
+    return found
+
+
+@lru_cache(maxsize=None)
+def _read(path: str, root: str, package: str) -> tuple[bytes, frozenset[str]]:
+    """A module's source hash and the package modules it imports (each file read once per process)."""
+    with open(path, "rb") as f:
+        data = f.read()
+    return hashlib.sha256(data).digest(), frozenset(_imports(path, data.decode("utf-8"), root, package))
+
+
+def source_stamp(path: str | Path, root: str | Path = PACKAGE_ROOT, package: str = PACKAGE) -> str:
+    """Hash of the module at ``path`` and of every ``package`` module it imports, directly or not."""
+    return _stamp(os.path.realpath(path), os.path.realpath(root), package)
+
+
+@lru_cache(maxsize=None)
+def _stamp(path: str, root: str, package: str) -> str:
+    seen: set[str] = set()
+    todo = [path]
+    while todo:
+        file = todo.pop()
+        if file not in seen:
+            seen.add(file)
+            todo += _read(file, root, package)[1]
+    digest = hashlib.sha256()
+    for file in sorted(seen):
+        rel = os.path.relpath(file, root).replace(os.sep, "/")
+        digest.update(rel.encode() + b"\0" + _read(file, root, package)[0])
+    return digest.hexdigest()[:16]
+
+
+def cache_root() -> Path:
+    """The per-user directory of the compiled kernels of this numba version."""
+    if numba.config.CACHE_DIR:
+        base = Path(numba.config.CACHE_DIR) / PACKAGE
+    else:
+        try:
+            from numba.misc.appdirs import AppDirs
+
+            base = Path(AppDirs(appname=PACKAGE, appauthor=False).user_cache_dir)
+        except ImportError:  # pragma: no cover - numba without its vendored appdirs
+            base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / PACKAGE
+    return base / f"kernels-numba{numba.__version__}"
+
+
+_WRITABLE: dict[str, bool] = {}
+
+
+class KernelLocator(caching._CacheLocator):
+    """numba cache locator of the package's kernels: files under :func:`cache_root` laid out like the package,
+    stamped and named with :func:`source_stamp` (other functions are left to numba's own locators)."""
+
+    def __init__(self, py_func, path: Path, cache_path: Path) -> None:
+        self._lineno = py_func.__code__.co_firstlineno
+        self._stamp = source_stamp(path)
+        self._cache_path = str(cache_path)
+
+    def get_cache_path(self) -> str:
+        return self._cache_path
+
+    def get_source_stamp(self) -> str:
+        return self._stamp
+
+    def get_disambiguator(self) -> str:
+        return f"{self._lineno}-{self._stamp}"
+
+    @classmethod
+    def from_function(cls, py_func, py_file):
+        path = Path(py_file).resolve()
+        try:
+            rel = path.relative_to(PACKAGE_ROOT)
+        except ValueError:
+            return None
+        for where in (cache_root() / rel.parent, path.parent / "__pycache__"):
+            self = cls(py_func, path, where)
+            if (ok := _WRITABLE.get(self._cache_path)) is None:
+                try:
+                    self.ensure_cache_path()
+                    ok = True
+                except OSError:
+                    ok = False
+                _WRITABLE[self._cache_path] = ok
+            if ok:
+                return self
+        return None
+
+
+def prune(max_age_days: float = MAX_AGE_DAYS, root: Path | None = None) -> int:
+    """Remove the cache files older than ``max_age_days``; returns how many. A kernel whose files go while
+    another process uses them is compiled again there (numba treats a missing file as a cache miss)."""
+    root = cache_root() if root is None else root
+    limit = time.time() - max_age_days * 86400.0
+    removed = 0
+    for file in root.rglob("*.nb[ci]"):
+        try:
+            if file.stat().st_mtime < limit:
+                file.unlink()
+                removed += 1
+        except OSError:  # gone already, or not ours to remove
+            pass
+    return removed
+
+
+def install() -> None:
+    """Put :class:`KernelLocator` first among numba's cache locators (once)."""
+    impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
+    if KernelLocator not in impl._locator_classes:
+        impl._locator_classes = [KernelLocator, *impl._locator_classes]
+
+
+install()

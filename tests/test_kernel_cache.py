@@ -1,0 +1,96 @@
+"""The compiled-kernel cache: stamps that cover every module a kernel can reach, one place per user."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import time
+from pathlib import Path
+
+from slamobs.pipeline import kernel_cache
+from slamobs.pipeline.kernel_cache import KernelLocator, cache_root, prune, source_stamp
+
+
+def write(root: Path, rel: str, text: str) -> Path:
+    path = root / rel
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+def test_stamp_covers_the_modules_imported_directly_or_not(tmp_path):
+    write(tmp_path, "__init__.py", "")
+    a = write(tmp_path, "a.py", "from pkg.b import f\nfrom . import c\n\ndef k():\n    return f() + c.X\n")
+    b = write(tmp_path, "b.py", "from .sub.d import (\n    g,\n)\n\ndef f():\n    return g()\n")
+    write(tmp_path, "c.py", "X = 1\n")
+    write(tmp_path, "sub/__init__.py", "")
+    d = write(tmp_path, "sub/d.py", "def g():\n    return 2\n")
+    e = write(tmp_path, "e.py", "import pkg.a\n")
+
+    def stamps():
+        kernel_cache._stamp.cache_clear()
+        kernel_cache._read.cache_clear()
+        return {p.name: source_stamp(p, tmp_path, "pkg") for p in (a, b, d, e)}
+
+    before = stamps()
+    d.write_text("def g():\n    return 3\n")  # two imports away from a
+    after = stamps()
+    assert after["a.py"] != before["a.py"] and after["b.py"] != before["b.py"] and after["d.py"] != before["d.py"]
+    write(tmp_path, "c.py", "X = 5\n")  # a constant read through `from . import c`
+    again = stamps()
+    assert again["a.py"] != after["a.py"] and again["b.py"] == after["b.py"]
+    e.write_text("import pkg.a  # imports a, a does not import it\n")
+    assert stamps()["a.py"] == again["a.py"]
+
+
+def test_a_kernel_is_stale_when_a_function_it_calls_from_another_module_changes(tmp_path):
+    """The regression: fast_adaptation's cached kernels kept shared_steps.landmark_sums' old code."""
+    root = tmp_path / "slamobs"
+    shutil.copytree(kernel_cache.PACKAGE_ROOT / "pipeline", root / "pipeline",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(kernel_cache.PACKAGE_ROOT / "__init__.py", root / "__init__.py")
+    kernel = root / "pipeline" / "observers" / "fast_adaptation.py"
+    before = source_stamp(kernel, root)
+    shared = root / "pipeline" / "observers" / "shared_steps.py"
+    text = shared.read_text()
+    assert "step = hkp\n" in text
+    shared.write_text(text.replace("step = hkp\n", "step = 0.5 * hkp\n"))
+    kernel_cache._read.cache_clear()
+    kernel_cache._stamp.cache_clear()
+    assert source_stamp(kernel, root) != before
+
+
+def test_package_kernels_are_cached_by_content_not_by_location():
+    from slamobs.pipeline.observers import fast_adaptation
+
+    locator = fast_adaptation._integrate._cache._impl.locator
+    assert isinstance(locator, KernelLocator)
+    stamp = source_stamp(fast_adaptation.__file__)
+    assert locator.get_source_stamp() == stamp and locator.get_disambiguator().endswith(f"-{stamp}")
+    # under the per-user root, laid out like the package: nothing of the install location in the path
+    assert Path(locator.get_cache_path()) in (cache_root() / "pipeline" / "observers",
+                                              Path(fast_adaptation.__file__).parent / "__pycache__")
+    assert str(kernel_cache.PACKAGE_ROOT) not in str(cache_root())
+
+
+def test_prune_removes_only_old_cache_files(tmp_path):
+    old = write(tmp_path, "pipeline/lie.f-1-aa.py311.nbi", "")
+    old_data = write(tmp_path, "pipeline/lie.f-1-aa.py311.1.nbc", "")
+    new = write(tmp_path, "pipeline/lie.f-1-bb.py311.nbi", "")
+    other = write(tmp_path, "notes.txt", "")
+    month = time.time() - 31 * 86400
+    for path in (old, old_data, other):
+        os.utime(path, (month, month))
+    assert prune(30, tmp_path) == 2
+    assert not old.exists() and not old_data.exists() and new.exists() and other.exists()
+
+
+def test_kernel_modules_take_njit_from_kernel_cache():
+    """A kernel decorated with numba's own njit could be decorated before the locator is installed."""
+    pattern = re.compile(r"^\s*from numba import .*\bnjit\b|\bnumba\.n?jit\b", re.MULTILINE)
+    offenders = [p.relative_to(kernel_cache.PACKAGE_ROOT).as_posix()
+                 for p in sorted((kernel_cache.PACKAGE_ROOT / "pipeline").rglob("*.py"))
+                 if p.name != "kernel_cache.py" and pattern.search(p.read_text())]
+    assert offenders == [], "import njit from slamobs.pipeline.kernel_cache"
+    assert "from slamobs.pipeline.kernel_cache import njit" in (kernel_cache.PACKAGE_ROOT / "pipeline" / "lie.py").read_text()
