@@ -76,8 +76,12 @@ def test_compare_run_and_report_on_every_sample_log(tmp_path, log, config):
             assert np.isfinite(got.select_dtypes("number").to_numpy()).all()
     riekf = json.loads((out / "riekf" / "run.json").read_text())["observer"]["filter"]
     assert riekf["landmarks_in_state"] == run["counts"]["landmarks"] and riekf["updates"] > 0
-    res = invoke("report", out / "batch")
-    assert res.exit_code == 0, res.output
+    for name in ("riekf", "batch"):
+        before = json.loads((out / name / "report.json").read_text())["ape"]["translation_m"]["rmse"]
+        res = invoke("report", out / name)
+        assert res.exit_code == 0, res.output
+        after = json.loads((out / name / "report.json").read_text())["ape"]["translation_m"]["rmse"]
+        assert after == pytest.approx(before) and after == pytest.approx(table.loc[name, "ape_trans_rmse_m"])
 
 
 def test_run_command_with_random_walk_biases(tmp_path):
