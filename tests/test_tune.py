@@ -59,6 +59,7 @@ def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(lo
     import pandas as pd
 
     from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.tune.study import TuneOptions, run_tune
 
     out = tmp_path / "tune"
@@ -83,6 +84,10 @@ def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(lo
 
     again = run_tune(logs[:2], replace(options, trials=26))  # the same command with more trials: only the new ones
     assert again.ran == 2 and len(pd.read_parquet(out / "trials.parquet")) == 26 * 2
+    with pytest.raises(InputError, match="another observer"):  # OUT holds this tune: never mixed with another
+        run_tune(logs[:2], replace(options, observer="hashim"))
+    with pytest.raises(InputError, match="another set of logs"):
+        run_tune(logs[1:], options)
 
 
 def _tune_args(logs, out: Path, *extra) -> list[str]:

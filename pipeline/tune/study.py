@@ -111,10 +111,10 @@ def _setup(spec, logs: list[Path], hashes: list[str], options: TuneOptions) -> d
 
 
 def _check_same(out: Path, had: dict, now: dict) -> None:
-    for key, what in (("observer", "observer"), ("objective", "objective"), ("content_hashes", "logs"),
+    for key, what in (("observer", "observer"), ("objective", "objective"), ("content_hashes", "set of logs"),
                       ("config_hash", "config"), ("space", "search space")):
         if had.get(key) != now.get(key):
-            raise InputError(out, f"holds a tune with another {what} ({key}); re-run its own command to continue it, "
+            raise InputError(out, f"holds a tune of another {what}; re-run its own command to continue it, "
                                   "or use another -o (or --force to start over)")
 
 
@@ -124,15 +124,17 @@ def _prepare_out(out: Path, inputs: list, force: bool) -> bool:
 
     resume = (out / JOURNAL).is_file()
     check_output(out, inputs, force=resume or force)
-    if force:
-        for name in OWN_FILES:
-            (out / name).unlink(missing_ok=True)
-        resume = False
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(out, f"cannot create the output directory: {err.strerror or err}") from None
     return resume
+
+
+def _start_over(out: Path) -> None:
+    """--force: the previous tune's files go (under the lock: never under a running tune)."""
+    for name in OWN_FILES:
+        (out / name).unlink(missing_ok=True)
 
 
 def run_tune(logs: Sequence[Path], options: TuneOptions,
@@ -176,6 +178,9 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
     setup = _setup(spec, paths, hashes, options)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     with _exclusive(out):
+        if options.force:
+            _start_over(out)
+            resume = False
         study = optuna.create_study(study_name=STUDY, storage=_storage(out), direction="minimize",
                                     load_if_exists=True,
                                     sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True,
