@@ -215,7 +215,7 @@ def render_markdown(s: dict) -> str:
         lines += [val["method"] + ".", "",
                   "| held-out log | defaults | chosen on the other logs | change | chosen trial |", "|---|---:|---:|---:|---:|"]
         for r in val["rows"]:
-            change = "-" if r["improvement"] is None else f"{-100 * r['improvement']:+.0f} %"
+            change = "-" if r["improvement"] is None else f"{-100 * r['improvement'] + 0.0:+.0f} %"
             lines.append(f"| {Path(r['log']).name} | {_fmt(r['default'])} | {_fmt(r['held_out'])} | {change} | "
                          f"{r['chosen_trial']} |")
         lines += ["", f"Gains chosen without a log beat the defaults on it for {val['held_out_better_than_default']} "

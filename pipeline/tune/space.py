@@ -4,8 +4,6 @@ conditions (``ObserverSpec.check_gains``) by construction and no trial is spent 
 
 from __future__ import annotations
 
-import math
-
 from slamobs.pipeline.observers import ObserverSpec
 
 #: Prefix of the parameter of a gain searched as a fraction of its limit.
@@ -57,7 +55,3 @@ def describe(spec: ObserverSpec) -> list[dict]:
     return [{"gain": g.name, "low": g.search[0], "high": g.search[1], "log": True,
              "of_limit": g.limit is not None, "default": g.default} for g in spec.gains]
 
-
-def log_width(spec: ObserverSpec) -> float:
-    """Decades spanned by the space (for messages)."""
-    return sum(math.log10(g.search[1] / g.search[0]) for g in spec.gains)
