@@ -123,7 +123,9 @@ def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
                         config.map_truth, *config.cameras) if p]
 
 
-def _check_directions(spec, aligned: AlignedStream, log: Path, needed: int) -> None:
+def _check_directions(spec, aligned: AlignedStream, log: Path, needed: int | None = None) -> None:
+    """The log gives the inertial directions the estimator needs (``needed``; default: the observer's own)."""
+    needed = spec.min_directions if needed is None else needed
     have = aligned.directions.names if aligned.directions is not None else ()
     if len(have) < needed:
         raise InputError(log, f"observer '{spec.name}' needs {needed} inertial directions "
