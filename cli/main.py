@@ -52,6 +52,7 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     from dataclasses import replace
 
     from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
     config = with_observer(load_config(config_path), observer)
@@ -62,7 +63,8 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     status = status_line(quiet)
     try:
         with compile_notice(status, quiet=quiet):
-            summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
+            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(2, free_cores()),
+                              **({"progress": status} if status else {}))
     finally:
         if status:
             status.clear()

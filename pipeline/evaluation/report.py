@@ -783,6 +783,7 @@ def write_report(
     plots: bool = True,
     metadata: dict[str, Any] | None = None,
     exports: tuple[str, ...] = (),
+    plot_workers=None,
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
     time on short logs), the estimate aligned into the truth's frame (``poses_aligned.parquet``,
@@ -817,9 +818,16 @@ def write_report(
     if "tum" in exports:
         written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
+    jobs = plot_jobs(report, ev, biases, landmarks, landmark_truth) if plots else []
+    if jobs and plot_workers is not None:
+        plot_workers.submit(jobs)  # drawn by the helper processes while the aligned tables are written
     written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
-    if plots:
-        written += _write_plots(report, out, ev, biases, landmarks, landmark_truth)
+    if jobs and plot_workers is not None:
+        written += plot_workers.collect(out)
+    elif jobs:
+        from slamobs.pipeline.evaluation.plot_worker import draw
+
+        written += draw(jobs, lambda name: out / name)
     return written
 
 
@@ -852,12 +860,12 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
         raise
 
 
-def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
-                 landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None) -> list[Path]:
-    """The report's PNG figures, drawn from the same evaluation as its numbers."""
+def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
+              landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None) -> list:
+    """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
     from slamobs.pipeline.evaluation import plots
 
-    written = []
+    jobs = []
     al = ev.alignment
     t0 = int(ev.estimate.t_ns[0])
     path = plots.thin(len(ev.estimate), plots.PATH_POINTS)  # only what is drawn is aligned
@@ -867,35 +875,29 @@ def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, bi
         lm_truth_ids = np.array(sorted(int(k) for k in landmark_truth), dtype=np.int64)
         lm_truth_xyz = np.array([np.asarray(landmark_truth[int(i)], dtype=np.float64).reshape(3) for i in lm_truth_ids])
     lm_err = {row["id"]: row["error_m"] for row in report["landmarks"]["per_landmark"]}
-    written.append(
-        plots.plot_trajectory_top(
-            out / "trajectory_top.png",
-            al.positions(ev.estimate.position[path]),
-            np.asarray(ev.truth.position, dtype=np.float64),
-            ids,
-            al.positions(xyz) if len(ids) else np.empty((0, 3)),
-            lm_truth_ids,
-            lm_truth_xyz,
-            pair_xyz=ev.translation.est_pos_aligned,
-            pair_error_m=ev.translation.errors,
-            lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
-            title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
-        )
-    )
+    jobs.append(("plot_trajectory_top", "trajectory_top.png", dict(
+        est_xyz=al.positions(ev.estimate.position[path]),
+        truth_xyz=np.asarray(ev.truth.position, dtype=np.float64),
+        lm_est_ids=ids,
+        lm_est_xyz=al.positions(xyz) if len(ids) else np.empty((0, 3)),
+        lm_truth_ids=lm_truth_ids,
+        lm_truth_xyz=lm_truth_xyz,
+        pair_xyz=ev.translation.est_pos_aligned,
+        pair_error_m=ev.translation.errors,
+        lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
+        title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
+    )))
     conv = report["convergence"]
     level_t, level = slam_metrics.error_level(ev.pair_t_est_ns, ev.translation.errors)
-    written.append(
-        plots.plot_errors(
-            out / "errors.png",
-            (ev.pair_t_est_ns - t0) / 1e9,
-            ev.translation.errors,
-            ev.rotation.errors,
-            band_m=conv["band_m"],
-            convergence_t_s=conv["t_since_start_s"],
-            title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
-            level=((level_t - t0) / 1e9, level),
-        )
-    )
+    jobs.append(("plot_errors", "errors.png", dict(
+        t_s=(ev.pair_t_est_ns - t0) / 1e9,
+        position_error_m=ev.translation.errors,
+        attitude_error_deg=ev.rotation.errors,
+        band_m=conv["band_m"],
+        convergence_t_s=conv["t_since_start_s"],
+        title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
+        level=((level_t - t0) / 1e9, level),
+    )))
     bt = report["biases"]["truth"]
     stab = report["biases"].get("stability")
     if biases is not None and len(biases):
@@ -904,26 +906,20 @@ def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, bi
         gyro, vel = drawn[list(GYRO_COLUMNS)].to_numpy(np.float64), drawn[list(VEL_COLUMNS)].to_numpy(np.float64)
     else:
         bt_s, gyro, vel = np.empty(0), np.empty((0, 3)), np.empty((0, 3))
-    written.append(
-        plots.plot_biases(
-            out / "biases.png",
-            bt_s,
-            gyro,
-            vel,
-            None if bt is None else np.asarray(bt["gyro"]),
-            None if bt is None else np.asarray(bt["velocity"]),
-            window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
-        )
-    )
+    jobs.append(("plot_biases", "biases.png", dict(
+        t_s=bt_s,
+        gyro=gyro,
+        velocity=vel,
+        gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
+        velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
+        window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
+    )))
     rows = report["landmarks"]["per_landmark"]
     if rows:
-        written.append(
-            plots.plot_landmark_errors(
-                out / "landmarks.png",
-                np.array([r["id"] for r in rows]),
-                np.array([r["error_m"] for r in rows]),
-                None if rows[0].get("error_map_aligned_m") is None
-                else np.array([r["error_map_aligned_m"] for r in rows]),
-            )
-        )
-    return written
+        jobs.append(("plot_landmark_errors", "landmarks.png", dict(
+            ids=np.array([r["id"] for r in rows]),
+            error_traj_m=np.array([r["error_m"] for r in rows]),
+            error_map_m=None if rows[0].get("error_map_aligned_m") is None
+            else np.array([r["error_map_aligned_m"] for r in rows]),
+        )))
+    return jobs
