@@ -63,7 +63,7 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     status = status_line(quiet)
     try:
         with compile_notice(status, quiet=quiet):
-            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(2, free_cores()),
+            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, free_cores()),
                               **({"progress": status} if status else {}))
     finally:
         if status:
