@@ -163,3 +163,18 @@ def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
     assert np.array_equal(b["x"].to_numpy(), round_mantissa(res.position[:, 0], FLOAT_BITS))
     assert np.array_equal(a["t_ns"].to_numpy(), b["t_ns"].to_numpy())
     assert (rounded / "poses.parquet").stat().st_size < 0.8 * (exact / "poses.parquet").stat().st_size
+
+
+def test_writing_tables_does_not_import_pandas(tmp_path):
+    """pyarrow's ``pa.array`` imports pandas (~0.8 s) on first use; a run without truth never needs it."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from slamobs.pipeline.writers import TableWriter; "
+            "w = TableWriter(sys.argv[1]); t = np.arange(5, dtype=np.int64); x = np.linspace(0, 1, 5); "
+            "w.write({'biases': {'t_ns': t, **{c: x for c in ('gyro_bias_x', 'gyro_bias_y', 'gyro_bias_z', 'vel_bias_x', 'vel_bias_y', 'vel_bias_z')}}}); "
+            "w.close({}); print('pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    table = pq.read_table(tmp_path / "biases.parquet")
+    assert table.column("t_ns").to_pylist() == list(range(5)) and table.num_rows == 5
