@@ -793,7 +793,8 @@ def write_report(
     The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
     this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
-    ``poses``. The writes are plain: callers that
+    ``poses``. With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by
+    those helper processes while the aligned tables are written. The writes are plain: callers that
     replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
     """
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
