@@ -20,8 +20,8 @@ from pathlib import Path
 
 from slamobs.pipeline.errors import InputError, OutputError
 
-#: Files that mark a directory as slamobs output (``run`` and ``compare``), the only kind ``--force`` replaces.
-OUTPUT_MARKERS = ("run.json", "comparison.json")
+#: Files that mark a directory as slamobs output (``run``, ``compare``, ``tune``), the only kind ``--force`` replaces.
+OUTPUT_MARKERS = ("run.json", "comparison.json", "tune.journal")
 
 _KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
           (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))

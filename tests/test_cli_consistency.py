@@ -11,7 +11,7 @@ from click.testing import CliRunner
 
 from slamobs.cli.main import main
 
-COMMANDS = ("run", "compare", "report", "evaluate", "export", "simulate", "batch", "info", "observers")
+COMMANDS = ("run", "compare", "report", "evaluate", "export", "simulate", "batch", "tune", "info", "observers")
 INTERNAL = re.compile(r"spec/|spec §|§|seed \d{3}|paper-[A-Z]|100 Hz set|shared/")
 
 
@@ -27,9 +27,9 @@ def help_text(command: str) -> str:
 
 def test_help_spells_options_one_way_and_names_nothing_internal():
     texts = {c: help_text(c) for c in COMMANDS}
-    for c in ("run", "compare", "simulate", "batch"):
+    for c in ("run", "compare", "simulate", "batch", "tune"):
         assert "-o, --out" in texts[c], c
-    for c in ("run", "compare", "report", "evaluate", "export", "simulate", "batch"):
+    for c in ("run", "compare", "report", "evaluate", "export", "simulate", "batch", "tune"):
         assert "-q, --quiet" in texts[c], c
     for c in ("run", "compare", "batch", "info"):
         assert "--msg-dir" in texts[c], c

@@ -58,13 +58,17 @@ class LocalPool:
     """Run tasks on ``jobs`` local worker processes; see the module doc.
 
     ``run`` is the worker function (a picklable top-level function; tests pass ones that crash or hang);
-    ``timeout`` is seconds per log (None: no limit).
+    ``timeout`` is seconds per log (None: no limit). With ``keep_workers`` idle workers outlive a finished
+    :meth:`results` for the next call (a tune's rounds reuse the logs each worker holds) until :meth:`close`;
+    a worker still running a task when ``results`` ends early is killed either way.
     """
 
-    def __init__(self, jobs: int, run: Callable[[Task], dict] = run_task, timeout: float | None = None) -> None:
+    def __init__(self, jobs: int, run: Callable[[Task], dict] = run_task, timeout: float | None = None,
+                 keep_workers: bool = False) -> None:
         self.jobs = max(1, jobs)
         self.run = run
         self.timeout = timeout
+        self.keep_workers = keep_workers
         self.ctx = multiprocessing.get_context("spawn")  # numba and threads do not survive fork well
         self.slots: list[_Slot] = []
 
@@ -138,16 +142,25 @@ class LocalPool:
                         self._discard(slot)
                         yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (worker killed; "
                                                      "raise --timeout for longer logs)")
-            for slot in list(self.slots):  # done: let idle workers exit on their own
+            if not self.keep_workers:
+                self.close(gently=True)
+        finally:
+            for slot in list(self.slots):
+                if not self.keep_workers or slot.task is not None or not slot.proc.is_alive():
+                    self._discard(slot)
+
+    def close(self, gently: bool = False) -> None:
+        """End every worker (``gently``: idle ones are told to exit and given two seconds first)."""
+        if gently:
+            for slot in list(self.slots):
                 try:
                     slot.conn.send(None)
                 except OSError:
                     pass
             for slot in list(self.slots):
                 slot.proc.join(2)
-        finally:
-            for slot in list(self.slots):
-                self._discard(slot)
+        for slot in list(self.slots):
+            self._discard(slot)
 
     def _poll(self, busy: list[_Slot]) -> float:
         if not self.timeout or not busy:

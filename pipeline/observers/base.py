@@ -50,9 +50,17 @@ class ObserverDiverged(ValueError):
 
 @dataclass(frozen=True)
 class GainSpec:
+    """One gain: any finite value > 0 is valid, ``limit`` (a stability condition coupling it to other gains) may
+    bound it from above; ``search`` is where ``slamobs tune`` looks (log-uniform), as a fraction of ``limit`` for
+    gains that have one. The range spans the papers', the reference runs' and the default values with room on
+    both sides, but stops where the sub-stepped kernels get expensive without a gain in accuracy."""
+
     name: str
     default: float
     description: str
+    search: tuple[float, float] = (0.01, 100.0)
+    #: The gain must stay strictly below ``limit(gains)`` (None: only > 0); ``check_gains`` enforces it.
+    limit: Callable[[dict[str, float]], float] | None = None
 
 
 @dataclass(frozen=True)

@@ -253,10 +253,10 @@ SPEC = ObserverSpec(
     # Defaults for noisy logs; the paper's simulation gains (alpha 0.1, gamma 30, k_p 1, k_w 2) are far
     # stiffer and amplify measurement noise into the bias estimates (std ~0.05 rad/s on the samples).
     gains=(
-        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [paper: 0.1]"),
-        GainSpec("gamma", 1.0, "bias adaptation gain Gamma (times identity) [paper: 30]"),
-        GainSpec("k_p", 1.0, "landmark gain scale of psi(e) = k_p (1 + |e|^2) / 4 [paper: 1]"),
-        GainSpec("k_w", 1.0, "pose correction gain [paper: 2]"),
+        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [paper: 0.1]", (0.05, 10.0)),
+        GainSpec("gamma", 1.0, "bias adaptation gain Gamma (times identity) [paper: 30]", (0.01, 50.0)),
+        GainSpec("k_p", 1.0, "landmark gain scale of psi(e) = k_p (1 + |e|^2) / 4 [paper: 1]", (0.1, 10.0)),
+        GainSpec("k_w", 1.0, "pose correction gain [paper: 2]", (0.01, 10.0)),
     ),
     start=FastAdaptation,
 )

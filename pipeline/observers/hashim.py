@@ -325,10 +325,15 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 
+def k_2_limit(gains: dict[str, float]) -> float:
+    """The Lyapunov derivative of spec §4.2 is negative only when ``k_w k_2 < 4 k_1``: k_2's upper bound."""
+    return 4.0 * gains["k_1"] / gains["k_w"]
+
+
 def check_imu_gains(gains: dict[str, float]) -> None:
-    """The Lyapunov derivative of spec §4.2 is negative only when ``k_w k_2 < 4 k_1``."""
+    """``k_2 < k_2_limit`` (spec §4.2)."""
     k_w, k_1, k_2 = gains["k_w"], gains["k_1"], gains["k_2"]
-    if not k_w * k_2 < 4.0 * k_1:
+    if not k_2 < k_2_limit(gains):
         raise GainError(f"hashim-imu gains violate k_w*k_2 < 4*k_1 (k_w={k_w:g}, k_2={k_2:g}, k_1={k_1:g}): "
                         f"lower k_2 below {4.0 * k_1 / k_w:g} or raise k_1")
 
@@ -381,12 +386,13 @@ _PAPER = ("Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and 
 
 def _landmark_gains(gamma_omega: float) -> tuple[GainSpec, ...]:
     return (
-        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [100 Hz reference set: 1, paper: 0.1]"),
+        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [100 Hz reference set: 1, paper: 0.1]",
+                 (0.05, 10.0)),
         GainSpec("gamma_omega", gamma_omega, "gyro-bias adaptation gain; Gamma = diag(gamma_omega I, gamma_v I) "
-                                             "[100 Hz reference set: 0.3]"),
-        GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [100 Hz reference set: 0.3]"),
-        GainSpec("k_p", 1.0, "constant landmark gain [reference: 1]"),
-        GainSpec("k_w", 1.0, "pose correction gain [100 Hz reference set: 0.02, paper: 2]"),
+                                             "[100 Hz reference set: 0.3]", (0.01, 50.0)),
+        GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [100 Hz reference set: 0.3]", (0.01, 50.0)),
+        GainSpec("k_p", 1.0, "constant landmark gain [reference: 1]", (0.1, 10.0)),
+        GainSpec("k_w", 1.0, "pose correction gain [100 Hz reference set: 0.02, paper: 2]", (0.005, 10.0)),
     )
 
 
@@ -410,10 +416,11 @@ SPEC_IMU = ObserverSpec(
     summary="algorithm B + IMU attitude innovation from gravity/magnetic directions, map co-rotation; "
             "needs k_w*k_2 < 4*k_1",
     gains=_landmark_gains(gamma_omega=1.0) + (
-        GainSpec("k_1", 1.0, "IMU attitude gain [reference: 1]"),
-        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [reference: k_1/k_w]"),
-        GainSpec("s_gravity", 1.0, "confidence s_j of the accelerometer gravity direction"),
-        GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction"),
+        GainSpec("k_1", 1.0, "IMU attitude gain [reference: 1]", (0.1, 10.0)),
+        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [reference: k_1/k_w]",
+                 (0.01, 0.95), limit=k_2_limit),
+        GainSpec("s_gravity", 1.0, "confidence s_j of the accelerometer gravity direction", (0.1, 10.0)),
+        GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction", (0.1, 10.0)),
     ),
     start=start_imu,
     check_gains=check_imu_gains,

@@ -128,7 +128,7 @@ def switching_design(ref: np.ndarray, rho: float, delta_fraction: float) -> tupl
 def check_gains(gains: dict[str, float]) -> None:
     """δ must lie inside the gap: ``0 < delta_fraction < 1``."""
     frac = gains["delta_fraction"]
-    if not 0.0 < frac < 1.0:
+    if not 0.0 < frac < 1.0:  # the GainSpec's limit
         raise GainError(f"gain delta_fraction of observer '{NAME}' must be in (0, 1), got {frac!r}")
 
 
@@ -158,8 +158,9 @@ SPEC = ObserverSpec(
     summary="D + inertial attitude innovation from gravity and magnetic field (map co-rotates) + synergistic "
             "jumps about the eigen-axes of A_v",
     gains=FLOW_GAINS + (
-        GainSpec("rho", 1.0, "weight rho_j of each inertial direction (times its per-sample trust)"),
-        GainSpec("delta_fraction", 0.5, "hysteresis delta as a fraction of the synergy gap Delta* (< 1)"),
+        GainSpec("rho", 1.0, "weight rho_j of each inertial direction (times its per-sample trust)", (0.1, 10.0)),
+        GainSpec("delta_fraction", 0.5, "hysteresis delta as a fraction of the synergy gap Delta* (< 1)",
+                 (0.05, 0.95), limit=lambda _gains: 1.0),
     ),
     start=start,
     min_directions=2,

@@ -528,10 +528,10 @@ class Flow(Stepper):
 #: Gains of the shared flow: the spec §5.3 set, which converges on the paper scenario and is also the best
 #: of those tried on the noisy sample logs (larger gamma_w stays stable but puts more noise in the biases).
 FLOW_GAINS = (
-    GainSpec("k_l", 1.0, "landmark innovation weight k_i (all landmarks) [reference: 1]"),
-    GainSpec("k_x", 1.0, "inertial correction gain k_X [reference: 1]"),
-    GainSpec("gamma_w", 0.05, "gyro-bias adaptation gain gamma_omega [reference: 0.05]"),
-    GainSpec("gamma_v", 0.5, "velocity-bias adaptation gain gamma_v [reference: 0.5]"),
+    GainSpec("k_l", 1.0, "landmark innovation weight k_i (all landmarks) [reference: 1]", (0.1, 10.0)),
+    GainSpec("k_x", 1.0, "inertial correction gain k_X [reference: 1]", (0.1, 10.0)),
+    GainSpec("gamma_w", 0.05, "gyro-bias adaptation gain gamma_omega [reference: 0.05]", (0.001, 2.0)),
+    GainSpec("gamma_v", 0.5, "velocity-bias adaptation gain gamma_v [reference: 0.5]", (0.01, 10.0)),
 )
 
 SPEC = ObserverSpec(

@@ -1,0 +1,295 @@
+"""A tune: Optuna's TPE sampler over an observer's gains, every trial scored on every log by the batch pools.
+
+State lives in ``OUT/tune.journal`` (Optuna's append-only journal storage): a killed tune, re-run with the same
+command, continues where it stopped (trials that were running are run again with the same gains); ``--trials`` is
+the total. Trials run in rounds of as many trials as there are workers, each trial on every log, through the
+batch package's pools (:class:`LocalPool` with its workers kept across rounds, or :class:`DaskPool`), so each
+worker reads each log once (:mod:`worker`). The first trial is the observer's defaults: the baseline the report
+compares with. The result files are rewritten at the end (:mod:`results`), each atomically.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import math
+import os
+from collections.abc import Callable, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.tune import space
+from slamobs.pipeline.tune.worker import OBJECTIVES
+
+JOURNAL = "tune.journal"
+LOCK = ".tune.lock"
+STUDY = "slamobs-tune"
+#: The tune's own files in OUT (what --force removes).
+OWN_FILES = (JOURNAL, "gains.yaml", "trials.parquet", "objective.png", "tune.json", "tune.md")
+
+
+#: Rounds in a row whose every trial failed (workers dying, timeouts) after which the tune gives up.
+MAX_FAILED_ROUNDS = 3
+
+
+class TuneFailed(RuntimeError):
+    """A log cannot be tuned on (no truth, unreadable, observer cannot run on it): one line naming the log."""
+
+
+@dataclass(frozen=True)
+class TuneOptions:
+    out: Path
+    observer: str
+    config: RunConfig = field(default_factory=RunConfig)
+    trials: int = 50
+    objective: str = "ape"  # a key of worker.OBJECTIVES
+    jobs: int = 1
+    scheduler: str | None = None  # a Dask scheduler address: the trials run there
+    seed: int = 0
+    force: bool = False  # start afresh: the previous study in OUT is removed
+    timeout: float | None = 3600.0  # seconds per (trial, log) on local workers
+    wait_workers: float = 60.0
+
+
+@dataclass
+class TuneResult:
+    out: Path
+    ran: int  # trials run by this call
+    summary: dict  # tune.json
+
+
+class _NoLock:
+    """Optuna's journal lock, not needed: one tune per OUT holds :data:`LOCK` (a flock the kernel releases when
+    the process dies, unlike Optuna's lock files, which a killed tune would leave behind)."""
+
+    def acquire(self) -> bool:
+        return True
+
+    def release(self) -> None:
+        pass
+
+
+@contextmanager
+def _exclusive(out: Path):
+    with open(out / LOCK, "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(out, "another tune is writing to this directory") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _repair_journal(path: Path) -> None:
+    """Cut a last line a kill left half-written (Optuna skips it when reading, but would append after it)."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+    with open(path, "rb+") as fh:
+        data = fh.read()
+        if not data.endswith(b"\n"):
+            fh.truncate(data.rfind(b"\n") + 1)
+
+
+def _storage(out: Path):
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    _repair_journal(out / JOURNAL)
+    return JournalStorage(JournalFileBackend(str(out / JOURNAL), lock_obj=_NoLock()))
+
+
+def _setup(spec, logs: list[Path], hashes: list[str], options: TuneOptions) -> dict:
+    from slamobs.pipeline.batch.runner import config_hash
+
+    return {"observer": spec.name, "objective": options.objective, "logs": [str(p) for p in logs],
+            "content_hashes": hashes, "config_hash": config_hash(replace(options.config, gains={})),
+            "space": space.describe(spec)}
+
+
+def _check_same(out: Path, had: dict, now: dict) -> None:
+    for key, what in (("observer", "observer"), ("objective", "objective"), ("content_hashes", "set of logs"),
+                      ("config_hash", "config"), ("space", "search space")):
+        if had.get(key) != now.get(key):
+            raise InputError(out, f"holds a tune of another {what}; re-run its own command to continue it, "
+                                  "or use another -o (or --force to start over)")
+
+
+def _prepare_out(out: Path, inputs: list, force: bool) -> bool:
+    """Check OUT; True when it holds a tune to continue."""
+    from slamobs.pipeline.paths import check_output
+
+    resume = (out / JOURNAL).is_file()
+    check_output(out, inputs, force=resume or force)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(out, f"cannot create the output directory: {err.strerror or err}") from None
+    return resume
+
+
+def _start_over(out: Path) -> None:
+    """--force: the previous tune's files go (under the lock: never under a running tune)."""
+    for name in OWN_FILES:
+        (out / name).unlink(missing_ok=True)
+
+
+def run_tune(logs: Sequence[Path], options: TuneOptions,
+             on_round: Callable[[int, int, float | None], None] = lambda _done, _total, _best: None,
+             run=None) -> TuneResult:
+    """Tune ``options.observer``'s gains on ``logs`` into ``options.out`` (see the module doc).
+
+    ``on_round(done, total, best)`` is called after every round. ``run`` replaces the workers' task function
+    (tests). Raises InputError (bad logs, OUT, options), TuneFailed (a log cannot be tuned on) and the batch's
+    InfrastructureError (Dask problems).
+    """
+    import optuna
+
+    from slamobs.pipeline.batch.identity import content_hash
+    from slamobs.pipeline.config import with_observer
+    from slamobs.pipeline.observers import get_observer
+    from slamobs.pipeline.paths import check_input
+    from slamobs.pipeline.run import _resolved_spec, run_inputs
+    from slamobs.pipeline.tune import results
+    from slamobs.pipeline.tune.worker import run_trial_log
+
+    if options.objective not in OBJECTIVES:
+        raise InputError("--objective", f"unknown objective {options.objective!r} (choose from {', '.join(OBJECTIVES)})")
+    if options.trials < 1:
+        raise InputError("--trials", "needs at least 1 trial")
+    config = with_observer(options.config, options.observer)
+    spec = _resolved_spec(config)
+    spec = get_observer(spec.name)
+    if not logs:
+        raise InputError("LOGS", "no log given")
+    paths = []
+    for log in logs:
+        check_input(log, "log")
+        paths.append(Path(os.path.realpath(log)))
+    if len(set(paths)) != len(paths):
+        raise InputError(logs[0], "a log is given twice")
+    out = Path(options.out)
+    inputs = [p for log in paths for p in run_inputs(log, config)]
+    resume = _prepare_out(out, inputs, options.force)
+    hashes = [content_hash(p) for p in paths]
+    setup = _setup(spec, paths, hashes, options)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    with _exclusive(out):
+        if options.force:
+            _start_over(out)
+            resume = False
+        study = optuna.create_study(study_name=STUDY, storage=_storage(out), direction="minimize",
+                                    load_if_exists=True,
+                                    sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True,
+                                                                       constant_liar=True))
+        if resume and "setup" in study.user_attrs:
+            _check_same(out, study.user_attrs["setup"], setup)
+        else:
+            with _deferred():
+                study.set_user_attr("setup", setup)
+                study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
+        _requeue_interrupted(study)
+        ran = _optimise(study, spec, config, paths, options, on_round, run or run_trial_log)
+        summary = results.write_results(out, study, spec, setup, options)
+    return TuneResult(out, ran, summary)
+
+
+@contextmanager
+def _deferred():
+    from slamobs.pipeline.batch.runner import signals_deferred
+
+    with signals_deferred():  # a journal line is written whole
+        yield
+
+
+def _requeue_interrupted(study) -> None:
+    """Trials a killed tune left running: failed in the journal, their gains queued to run again."""
+    import optuna
+
+    for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
+        with _deferred():
+            study.enqueue_trial(t.params, user_attrs={k: v for k, v in t.user_attrs.items() if k == "default"})
+            study.tell(t.number, state=optuna.trial.TrialState.FAIL)
+
+
+def _complete(study) -> int:
+    import optuna
+
+    return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
+
+
+def _optimise(study, spec, config: RunConfig, logs: list[Path], options: TuneOptions, on_round, run) -> int:
+    import optuna
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool, dask_available
+    from slamobs.pipeline.batch.executor import Task
+    from slamobs.pipeline.batch.local import LocalPool
+    from slamobs.pipeline.batch.runner import DASK_MISSING
+    from slamobs.pipeline.tune.worker import objective_value
+
+    if _complete(study) >= options.trials:
+        return 0
+    if options.scheduler:
+        if not dask_available():
+            raise InputError("--scheduler", DASK_MISSING)
+        pool = DaskPool(options.jobs, options.scheduler, None, options.wait_workers, run)
+    else:
+        pool = LocalPool(options.jobs, run, options.timeout, keep_workers=True)
+    distributions = space.distributions(spec)
+    base = Task.make("", str(logs[0]), str(options.out), replace(config, gains={}))
+    ran = failed_rounds = 0
+    try:
+        slots = pool.connect() if options.scheduler else options.jobs
+        while (done := _complete(study)) < options.trials:
+            with _deferred():
+                trials = [study.ask(distributions) for _ in range(min(slots, options.trials - done))]
+            tasks, gains = [], {}
+            for trial in trials:
+                gains[trial.number] = space.gains_of(spec, trial.params)
+                cfg = {**base.config, "gains": {spec.name: gains[trial.number]}}
+                tasks += [replace(base, run_id=f"trial{trial.number}-log{i}", log=str(log), config=cfg)
+                          for i, log in enumerate(logs)]
+            rows: dict[int, list[dict]] = {t.number: [None] * len(logs) for t in trials}
+            for task, row in pool.results(tasks):
+                number, index = (int(x) for x in task.run_id[len("trial"):].split("-log"))
+                if row.get("fatal"):
+                    raise TuneFailed(row["error"])
+                if row["status"] == "ok" and options.objective != "ape" and row.get(OBJECTIVES[options.objective]) is None:
+                    raise TuneFailed(f"{task.log}: has no {'landmark truth' if options.objective == 'landmarks' else 'rotation truth'}"
+                                     f": --objective {options.objective} needs it")
+                rows[number][index] = {k: row.get(k) for k in _ROW_KEYS}
+            values = {t.number: objective_value(rows[t.number], options.objective) for t in trials}
+            failed_rounds = failed_rounds + 1 if all(math.isnan(v) for v in values.values()) else 0
+            for trial in trials:
+                value = values[trial.number]
+                with _deferred():
+                    trial.set_user_attr("gains", gains[trial.number])
+                    trial.set_user_attr("logs", rows[trial.number])
+                    if math.isnan(value):
+                        study.tell(trial, state=optuna.trial.TrialState.FAIL)
+                    else:
+                        study.tell(trial, value)
+                ran += 1
+            if failed_rounds >= MAX_FAILED_ROUNDS:
+                why = next(r["error"] for rs in rows.values() for r in rs if r["status"] == "failed")
+                raise TuneFailed(f"{MAX_FAILED_ROUNDS} rounds in a row failed, last: {why}")
+            on_round(_complete(study), options.trials, _best_value(study))
+    finally:
+        pool.close()
+    return ran
+
+
+_ROW_KEYS = ("status", "error", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "read_s", "observer_s",
+             "total_s", "worker", "capped_intervals")
+
+
+def _best_value(study) -> float | None:
+    try:
+        return float(study.best_value)
+    except ValueError:
+        return None
+
+

@@ -1,0 +1,145 @@
+"""What a batch worker does for a tune: score one gain set on one log, in memory (nothing is written).
+
+A tune runs the same few logs hundreds of times with different gains, so each worker process keeps the logs it
+has read and aligned (:data:`_PREPARED`, keyed by the log's identity and the config that shapes its reading):
+every log is read once per worker process, not once per trial (``benchmarks/tune_read_once.py`` measures it).
+The task is the batch's own :class:`~slamobs.pipeline.batch.executor.Task` (plain data, checked against the
+worker's slamobs version and code), run by the batch pools (local processes or Dask).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+from slamobs.pipeline.batch.executor import Task, base_row, check_environment, one_line
+
+#: Logs a worker process keeps prepared (least recently used dropped first).
+CACHE_LOGS = 32
+_PREPARED: OrderedDict = OrderedDict()
+#: What a tune can minimise: the run's headline metric it reads (``RunSummary.headline`` names).
+OBJECTIVES = {"ape": "ape_trans_rmse_m", "rotation": "ape_rot_rmse_deg", "landmarks": "landmark_rmse_m"}
+
+
+def _reading_key(log: str, config: dict, directions: bool) -> str:
+    st = os.stat(log)
+    shaping = {k: v for k, v in config.items() if k not in ("observer", "gains", "export", "plots", "output_frame")}
+    return json.dumps([os.path.realpath(log), st.st_size, st.st_mtime_ns, directions, shaping], sort_keys=True,
+                      default=list)
+
+
+def prepared_log(log: str, config, directions: bool):
+    """The log read and aligned, from this process's cache; (PreparedLog, read seconds or 0.0 when cached)."""
+    from slamobs.pipeline.run import prepare_log
+
+    key = _reading_key(log, config.to_dict(), directions)
+    if key in _PREPARED:
+        _PREPARED.move_to_end(key)
+        return _PREPARED[key], 0.0
+    t = time.perf_counter()
+    prepared = prepare_log(Path(log), config, directions=directions)
+    if prepared.streams.truth is None or not len(prepared.streams.truth):
+        from slamobs.pipeline.errors import InputError
+
+        raise InputError(log, "no ground truth (a truth topic, evaluation.truth_file or a TF edge in topics.truth): "
+                              "tuning needs logs with truth")
+    _PREPARED[key] = prepared
+    while len(_PREPARED) > CACHE_LOGS:
+        _PREPARED.popitem(last=False)
+    return prepared, time.perf_counter() - t
+
+
+def score(prepared, config) -> dict[str, float | None]:
+    """Run ``config``'s observer on a prepared log and measure it as the run's report does (APE after the SE(3)
+    alignment, map error after the same alignment), without writing anything.
+
+    Raises:
+        ObserverDiverged: the estimate became non-finite.
+        InputError: the observer cannot run on this log (e.g. it needs IMU directions the log lacks).
+
+    """
+    import numpy as np
+    import pandas as pd
+
+    from slamobs.pipeline.evaluation.metrics import landmark_errors
+    from slamobs.pipeline.evaluation.report import ReportOptions, evaluate_trajectory
+    from slamobs.pipeline.observers import ObserverOptions
+    from slamobs.pipeline.observers.base import ObserverDiverged
+    from slamobs.pipeline.run import _check_directions, _resolved_spec, _truth, check_map_mode
+    from slamobs.pipeline.writers import stretch_tables
+
+    spec = _resolved_spec(config)
+    gains = spec.resolve_gains(config.gains.get(spec.name))
+    check_map_mode(spec, config, prepared.log)
+    _check_directions(spec, prepared.aligned, prepared.log)
+    start = None
+    if prepared.known_map is not None:
+        from slamobs.pipeline.known_map import map_start
+
+        start = map_start(prepared.aligned, prepared.known_map)
+    res = spec.run(prepared.aligned, gains, ObserverOptions(max_meas_age=config.max_meas_age, known_map=start))
+    if not np.isfinite(res.position).all():
+        raise ObserverDiverged(int(res.t_ns[np.argmax(~np.isfinite(res.position).all(axis=1))]), res.stats)
+    poses = pd.DataFrame(stretch_tables(res)["poses"])
+    ev = evaluate_trajectory(poses, _truth(prepared.streams, config), ReportOptions(t_max_diff_s=config.t_max_diff),
+                             estimate_offset=False)
+    lm_rmse = None
+    if prepared.streams.landmark_truth:
+        al = ev.alignment
+        lm = landmark_errors(res.landmark_ids, res.landmark_xyz, prepared.streams.landmark_truth, al.rot, al.trans,
+                             al.scale)
+        lm_rmse = float(np.sqrt(np.mean(lm.errors ** 2))) if lm.errors.size else None
+    return {"ape_trans_rmse_m": float(ev.translation.stats["rmse"]),
+            "ape_rot_rmse_deg": float(ev.rotation.stats["rmse"]), "landmark_rmse_m": lm_rmse,
+            "substeps": int(res.stats.get("substeps", 0)), "capped_intervals": int(res.stats.get("capped_intervals", 0))}
+
+
+def run_trial_log(task: Task) -> dict:
+    """One (trial, log) pair: the row the tune records. Never raises for the log or the gains: a diverged
+    observer is ``status == "diverged"`` (the gains are bad), a log that cannot be tuned on is ``"failed"``
+    with ``fatal`` set (the tune stops with its one-line error)."""
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.errors import GainError, InputError
+    from slamobs.pipeline.observers.base import ObserverDiverged
+
+    check_environment(task.version, task.code)
+    t0 = time.perf_counter()
+    row = {**base_row(task), "status": "ok", "error": None, "fatal": False, "read_s": 0.0}
+    config = RunConfig(**task.config)
+    try:
+        from slamobs.pipeline.observers import get_observer
+
+        directions = get_observer(config.observer).min_directions > 0
+        prepared, row["read_s"] = prepared_log(task.log, config, directions)
+        t = time.perf_counter()
+        row.update(score(prepared, config))
+        row["observer_s"] = time.perf_counter() - t
+    except ObserverDiverged as err:
+        row.update(status="diverged", error=f"{task.log}: observer diverged (non-finite state) at t_ns={err.t_ns}")
+    except (InputError, GainError, OSError, ValueError) as err:
+        row.update(status="failed", error=one_line(err, task.log), fatal=True)
+    except Exception as err:  # noqa: BLE001 - reported as the trial's failure, the tune decides
+        row.update(status="failed", error=one_line(err, task.log))
+    row["total_s"] = time.perf_counter() - t0
+    return row
+
+
+def objective_value(rows: list[dict], objective: str) -> float:
+    """The median of the objective's metric over a trial's logs; infinite when any log diverged or lacks it (the
+    gains are unusable there), NaN when a log failed for another reason."""
+    import numpy as np
+
+    key = OBJECTIVES[objective]
+    values = []
+    for row in rows:
+        if row["status"] == "diverged":
+            return math.inf
+        if row["status"] != "ok":
+            return math.nan
+        v = row.get(key)
+        values.append(math.inf if v is None or not math.isfinite(v) else float(v))
+    return float(np.median(values)) if values else math.nan

@@ -1,0 +1,164 @@
+"""``slamobs tune``: the search space keeps every observer's stability conditions, tuned gains beat the defaults
+on a log the tune never saw, a tune resumes, runs on a real Dask cluster, and a killed tune leaves no process and
+no half-written file."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import signal
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from batch_checks import CLI, wait_for, wait_gone
+
+pytest.importorskip("optuna")
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    base = tmp_path_factory.mktemp("tune_logs")
+    return [write_log(simulate("figure8", duration=10.0, seed=70 + i), base / f"f{i}.mcap") for i in range(3)]
+
+
+def test_search_space_stays_within_each_observers_conditions():
+    from slamobs.pipeline.observers import OBSERVERS
+    from slamobs.pipeline.tune import space
+
+    rng = random.Random(5)
+    for spec in OBSERVERS.values():
+        defaults = spec.resolve_gains(None)
+        assert space.in_range(spec, space.params_of(spec, defaults)), spec.name  # trial 0 is a point of the space
+        assert space.gains_of(spec, space.params_of(spec, defaults)) == pytest.approx(defaults)
+        dists = space.distributions(spec)
+        for _ in range(200):  # the corners of the space too
+            params = {k: math.exp(rng.choice([math.log(d.low), math.log(d.high), rng.uniform(math.log(d.low),
+                                                                                               math.log(d.high))]))
+                      for k, d in dists.items()}
+            spec.resolve_gains(space.gains_of(spec, params))  # raises GainError on a broken condition
+
+
+def _score(log: Path, gains: dict | None) -> float:
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.tune.worker import prepared_log, score
+
+    config = RunConfig(observer="fast-adaptation", gains={"fast-adaptation": gains} if gains else {})
+    prepared, _ = prepared_log(str(log), config, directions=False)
+    return score(prepared, config)["ape_trans_rmse_m"]
+
+
+def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(logs, tmp_path):
+    import pandas as pd
+
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.tune.study import TuneOptions, run_tune
+
+    out = tmp_path / "tune"
+    options = TuneOptions(out=out, observer="fast-adaptation", trials=24, jobs=2, seed=1)
+    result = run_tune(logs[:2], options)
+    assert result.ran == 24
+    summary = json.loads((out / "tune.json").read_text())
+    assert summary["defaults"]["trial"] == 0 and summary["best"]["objective"] <= summary["defaults"]["objective"]
+    trials = pd.read_parquet(out / "trials.parquet")
+    assert len(trials) == 24 * 2 and set(trials["status"]) <= {"ok", "diverged"}
+    # each worker read each log once, not once per trial
+    reads = trials[trials["read_s"] > 0].groupby("worker")["log_index"]
+    assert (reads.count() == reads.nunique()).all() and reads.count().sum() <= 2 * 2
+    assert (out / "objective.png").stat().st_size > 0
+    assert [r["log"] for r in summary["validation"]["rows"]] == [str(p) for p in logs[:2]]
+
+    tuned = load_config(out / "gains.yaml")  # usable with --config
+    assert tuned.observer == "fast-adaptation"
+    held_back = logs[2]
+    default_ape, tuned_ape = _score(held_back, None), _score(held_back, tuned.gains["fast-adaptation"])
+    assert tuned_ape < default_ape, (tuned_ape, default_ape)
+
+    again = run_tune(logs[:2], replace(options, trials=26))  # the same command with more trials: only the new ones
+    assert again.ran == 2 and len(pd.read_parquet(out / "trials.parquet")) == 26 * 2
+    with pytest.raises(InputError, match="another observer"):  # OUT holds this tune: never mixed with another
+        run_tune(logs[:2], replace(options, observer="hashim"))
+    with pytest.raises(InputError, match="another set of logs"):
+        run_tune(logs[1:], options)
+
+
+def _tune_args(logs, out: Path, *extra) -> list[str]:
+    return [*CLI, "tune", *map(str, logs[:2]), "--observer", "fast-adaptation", "-o", str(out), *map(str, extra)]
+
+
+def _complete_trials(out: Path) -> int:
+    import optuna
+
+    from slamobs.pipeline.tune.study import STUDY, _storage
+
+    study = optuna.load_study(study_name=STUDY, storage=_storage(out))
+    return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
+
+
+def test_killed_tune_leaves_no_process_nor_partial_file_and_resumes(logs, tmp_path):
+    out = tmp_path / "tune"
+    err = tmp_path / "tune.err"
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        with open(err, "w") as fh:
+            proc = subprocess.Popen(_tune_args(logs, out, "--trials", 400, "-j", 2), stdout=subprocess.DEVNULL,
+                                    stderr=fh, start_new_session=True)
+        try:
+            assert wait_for(lambda: "tune: " in err.read_text() and "trials, best" in err.read_text()
+                            or proc.poll() is not None, 180), err.read_text()
+            os.kill(proc.pid, sig)
+            code = proc.wait(timeout=60)
+            assert code == (143 if sig == signal.SIGTERM else -9), err.read_text()
+            if sig == signal.SIGTERM:
+                assert "SIGTERM: tune stopped" in err.read_text() and "Traceback" not in err.read_text()
+            assert wait_gone(proc.pid) == []
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        assert not [p.name for p in out.iterdir() if ".tmp-" in p.name]
+        assert not (out / "gains.yaml").exists()  # results only once a tune has finished
+    done_before = _complete_trials(out)
+    assert done_before >= 2
+    total = done_before + 4
+    done = subprocess.run(_tune_args(logs, out, "--trials", total, "-j", 2), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "4 trials run now" in done.stdout, done.stdout
+    summary = json.loads((out / "tune.json").read_text())
+    assert summary["trials"]["complete"] == total and summary["defaults"]["trial"] == 0
+
+
+def test_tune_on_a_dask_cluster(logs, tmp_path, scheduler):
+    import pandas as pd
+
+    from slamobs.pipeline.tune.study import TuneOptions, run_tune
+
+    _, address = scheduler
+    worker = _worker(address, tmp_path, "w1")
+    try:
+        result = run_tune(logs[:2], TuneOptions(out=tmp_path / "tune", observer="fast-adaptation", trials=3,
+                                                scheduler=address, wait_workers=60))
+    finally:
+        _stop(worker)
+    assert result.ran == 3
+    trials = pd.read_parquet(tmp_path / "tune" / "trials.parquet")
+    assert len(trials) == 6 and trials["worker"].str.startswith("tcp://127.0.0.1:").all()
+    assert (trials["read_s"] > 0).sum() == 2  # one worker: each log read once
+
+
+def test_a_log_without_truth_is_a_one_line_error(logs, tmp_path):
+    cfg = tmp_path / "no_truth.yaml"
+    cfg.write_text("topics:\n  truth: ''\n")  # the truth role switched off: nothing to tune against
+    done = subprocess.run(_tune_args(logs, tmp_path / "t", "--trials", 2, "-j", 1, "--config", cfg),
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith(f"error: {logs[0]}: no ground truth")
+    assert not (tmp_path / "t" / "gains.yaml").exists()
+
+
+from test_batch_kills import _stop, _worker, scheduler  # noqa: E402,F401 - real Dask processes, as the batch tests
