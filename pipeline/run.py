@@ -410,9 +410,9 @@ def check_map_mode(spec, config: RunConfig, log: Path) -> None:
 def _map_error(out: Path, landmark_truth: dict) -> dict | None:
     """Map error against landmark truth after a map-only SE(3) alignment, for runs without trajectory truth."""
     from slamobs.pipeline.evaluation.report import map_only_section
-    from slamobs.pipeline.writers import read_frame
+    from slamobs.pipeline.writers import read_columns
 
-    return map_only_section(read_frame(out / "landmarks.parquet"), landmark_truth)
+    return map_only_section(read_columns(out / "landmarks.parquet"), landmark_truth)
 
 
 def _topics(streams: LogStreams) -> dict[str, str]:
@@ -447,11 +447,11 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.report import REPORT_FILES, bias_plot_rows
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.writers import read_frame
+    from slamobs.pipeline.writers import read_columns
 
     segments = metadata["segments"]
     try:
-        frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
+        frames = {k: read_columns(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
         truth = _truth(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
