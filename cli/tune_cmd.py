@@ -27,19 +27,24 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
               help="run.yaml for every log (topics, frames, ...); its gains for the observer are ignored")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None, help="local worker processes (default: all cores)")
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="run the trials on this Dask scheduler instead")
+@click.option("--holdout", "holdout", multiple=True, type=click.Path(path_type=Path), metavar="LOG",
+              help="a log with truth the sampler never sees: defaults and tuned gains are compared on it at the end "
+                   "(repeatable)")
 @click.option("--seed", type=int, default=0, show_default=True, help="sampler seed")
 @click.option("--force", is_flag=True, help="discard the tune in OUT and start over")
 @click.option("--wait-workers", type=click.FloatRange(min=0), default=60.0, show_default=True, metavar="SECONDS",
               help="Dask: give up (exit 3) when no worker is there for this long")
 @click.option("-q", "--quiet", is_flag=True, help="print only the final lines")
 def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, objective: str, config_path: Path | None,
-         jobs: int | None, scheduler: str | None, seed: int, force: bool, wait_workers: float, quiet: bool) -> None:
+         jobs: int | None, scheduler: str | None, holdout: tuple[Path, ...], seed: int, force: bool,
+         wait_workers: float, quiet: bool) -> None:
     """Search OBSERVER's gains on LOGS (with ground truth) and write OUT.
 
     Optuna's TPE sampler searches every gain log-uniformly within its range and the observer's stability
     conditions; the objective is the median over the logs. Trial 0 runs the defaults. OUT gets gains.yaml (use
-    it with --config), trials.parquet, objective.png, tune.md/tune.json with leave-one-log-out validation, and
-    tune.journal (the state: the same command continues an interrupted tune).
+    it with --config), trials.parquet, objective.png, tune.md/tune.json with leave-one-log-out validation and the
+    --holdout logs' comparison (the honest check that the gains transfer), and tune.journal (the state: the
+    same command continues an interrupted tune).
 
     \b
     Exit codes:
@@ -68,7 +73,7 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
     try:
         options = TuneOptions(out=out_dir, observer=observer, config=load_config(config_path), trials=trials,
                               objective=objective, jobs=jobs or _cores(), scheduler=scheduler, seed=seed, force=force,
-                              wait_workers=wait_workers)
+                              wait_workers=wait_workers, holdout=holdout)
         if not quiet:
             where = f"Dask at {scheduler}" if scheduler else f"{options.jobs} local worker processes"
             click.echo(f"tune: {observer} on {len(logs)} logs, {trials} trials, on {where}", err=True)
@@ -98,5 +103,10 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
     if val.get("rows"):
         click.echo(f"validation   leave-one-log-out: gains chosen without a log beat the defaults on it for "
                    f"{val['held_out_better_than_default']} of {val['logs']} logs (tune.md)")
+    held = s.get("holdout")
+    if held:
+        click.echo(f"holdout      tuned gains beat the defaults on {held['tuned_better']} of {held['logs']} logs the "
+                   f"tune never saw (median {held['median_defaults']:.4g} -> {held['median_tuned']:.4g} {unit})"
+                   + ("" if 2 * held["tuned_better"] > held["logs"] else ": they do not transfer, keep the defaults"))
     click.echo(f"wrote        {out_dir}/ (gains.yaml, trials.parquet, objective.png, tune.md, tune.json); "
                f"{result.ran} trials run now")

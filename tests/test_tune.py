@@ -81,8 +81,17 @@ def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(lo
     default_ape, tuned_ape = _score(held_back, None), _score(held_back, tuned.gains["fast-adaptation"])
     assert tuned_ape < default_ape, (tuned_ape, default_ape)
 
-    again = run_tune(logs[:2], replace(options, trials=26))  # the same command with more trials: only the new ones
+    # the same command with more trials runs only the new ones; a holdout log is scored as a run would score it
+    again = run_tune(logs[:2], replace(options, trials=26, holdout=(held_back,)))
     assert again.ran == 2 and len(pd.read_parquet(out / "trials.parquet")) == 26 * 2
+    held = again.summary["holdout"]
+    final = load_config(out / "gains.yaml").gains["fast-adaptation"]
+    assert held["rows"][0]["defaults"] == pytest.approx(default_ape, rel=1e-9)
+    assert held["rows"][0]["tuned"] == pytest.approx(_score(held_back, final), rel=1e-9)
+    assert held["tuned_better"] == int(held["rows"][0]["tuned"] < default_ape)
+    assert "## Holdout logs" in (out / "tune.md").read_text()
+    with pytest.raises(InputError, match="both a tuning log and a --holdout log"):
+        run_tune(logs[:2], replace(options, trials=26, holdout=(logs[0],)))
     with pytest.raises(InputError, match="another observer"):  # OUT holds this tune: never mixed with another
         run_tune(logs[:2], replace(options, observer="hashim"))
     with pytest.raises(InputError, match="another set of logs"):

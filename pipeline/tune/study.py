@@ -51,6 +51,7 @@ class TuneOptions:
     force: bool = False  # start afresh: the previous study in OUT is removed
     timeout: float | None = 3600.0  # seconds per (trial, log) on local workers
     wait_workers: float = 60.0
+    holdout: tuple[Path, ...] = ()  # logs the sampler never sees: defaults and best gains scored on them at the end
 
 
 @dataclass
@@ -171,8 +172,14 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
         paths.append(Path(os.path.realpath(log)))
     if len(set(paths)) != len(paths):
         raise InputError(logs[0], "a log is given twice")
+    holdout = []
+    for log in options.holdout:
+        check_input(log, "log")
+        holdout.append(Path(os.path.realpath(log)))
+        if holdout[-1] in paths:
+            raise InputError(log, "is both a tuning log and a --holdout log")
     out = Path(options.out)
-    inputs = [p for log in paths for p in run_inputs(log, config)]
+    inputs = [p for log in paths + holdout for p in run_inputs(log, config)]
     resume = _prepare_out(out, inputs, options.force)
     hashes = [content_hash(p) for p in paths]
     setup = _setup(spec, paths, hashes, options)
@@ -192,8 +199,8 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
                 study.set_user_attr("setup", setup)
                 study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
         _requeue_interrupted(study)
-        ran = _optimise(study, spec, config, paths, options, on_round, run or run_trial_log)
-        summary = results.write_results(out, study, spec, setup, options)
+        ran, held = _optimise(study, spec, config, paths, holdout, options, on_round, run or run_trial_log)
+        summary = results.write_results(out, study, spec, setup, options, held)
     return TuneResult(out, ran, summary)
 
 
@@ -221,7 +228,10 @@ def _complete(study) -> int:
     return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
 
 
-def _optimise(study, spec, config: RunConfig, logs: list[Path], options: TuneOptions, on_round, run) -> int:
+def _optimise(study, spec, config: RunConfig, logs: list[Path], holdout: list[Path], options: TuneOptions, on_round,
+              run) -> tuple[int, list[dict]]:
+    """Run trials until ``options.trials`` are complete, then score the defaults and the best gains on the
+    ``holdout`` logs; (trials run, one row per holdout log)."""
     import optuna
 
     from slamobs.pipeline.batch.dask_exec import DaskPool, dask_available
@@ -230,8 +240,8 @@ def _optimise(study, spec, config: RunConfig, logs: list[Path], options: TuneOpt
     from slamobs.pipeline.batch.runner import DASK_MISSING
     from slamobs.pipeline.tune.worker import objective_value
 
-    if _complete(study) >= options.trials:
-        return 0
+    if _complete(study) >= options.trials and not holdout:
+        return 0, []
     if options.scheduler:
         if not dask_available():
             raise InputError("--scheduler", DASK_MISSING)
@@ -277,9 +287,33 @@ def _optimise(study, spec, config: RunConfig, logs: list[Path], options: TuneOpt
                 why = next(r["error"] for rs in rows.values() for r in rs if r["status"] == "failed")
                 raise TuneFailed(f"{MAX_FAILED_ROUNDS} rounds in a row failed, last: {why}")
             on_round(_complete(study), options.trials, _best_value(study))
+        held = _score_holdout(study, spec, base, holdout, options, pool)
     finally:
         pool.close()
-    return ran
+    return ran, held
+
+
+def _score_holdout(study, spec, base, holdout: list[Path], options: TuneOptions, pool) -> list[dict]:
+    """The defaults and the best trial's gains on each holdout log: whether the tuned gains transfer to logs
+    the sampler never saw (what a user's logs without truth are)."""
+    import optuna
+
+    complete = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
+    finite = [t for t in complete if math.isfinite(t.value)]
+    if not holdout or not finite:
+        return []
+    best = min(finite, key=lambda t: (t.value, t.number))
+    variants = {"defaults": spec.resolve_gains(None), "tuned": best.user_attrs["gains"]}
+    tasks = [replace(base, run_id=f"{name}-log{i}", log=str(log),
+                     config={**base.config, "gains": {spec.name: gains}})
+             for name, gains in variants.items() for i, log in enumerate(holdout)]
+    rows = [{"log": str(log), "best_trial": best.number} for log in holdout]
+    for task, row in pool.results(tasks):
+        name, index = task.run_id.split("-log")
+        if row.get("fatal"):
+            raise TuneFailed(row["error"])
+        rows[int(index)][name] = {k: row.get(k) for k in _ROW_KEYS}
+    return rows
 
 
 _ROW_KEYS = ("status", "error", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "read_s", "observer_s",
