@@ -41,3 +41,37 @@ def test_unused_helpers_are_stopped():
         procs = list(workers.procs)
         assert procs[0].poll() is None
     assert procs[0].returncode is not None and workers.procs == []
+
+
+def test_helper_dies_with_a_killed_run():
+    """SIGKILL of the run while its helper draws (stdin already closed) takes the helper along at once."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    parent = subprocess.Popen(
+        [sys.executable, "-c", "import sys, time\nimport numpy as np\n"
+         "from slamobs.pipeline.evaluation import plot_worker\n"
+         "t = np.linspace(0.0, 90.0, 20000)\n"
+         "job = ('plot_errors', 'e.png', dict(t_s=t, position_error_m=np.sin(t) ** 2, attitude_error_deg=np.cos(t) ** 2,"
+         " band_m=0.5, convergence_t_s=1.0))\n"
+         "w = plot_worker.PlotWorkers(1)\nw.submit([job] * 60)\n"  # ~20 s of drawing
+         "print(w.procs[0].pid, flush=True)\ntime.sleep(60)\n"],
+        stdout=subprocess.PIPE, text=True)
+    helper = int(parent.stdout.readline())
+    time.sleep(0.5)
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait()
+    deadline = time.monotonic() + 3.0  # far less than the figures would take
+    while time.monotonic() < deadline:
+        try:
+            with open(f"/proc/{helper}/stat") as fh:
+                if fh.read().split(") ")[1].startswith("Z"):  # a zombie has ended; only its reaping is left
+                    break
+        except FileNotFoundError:
+            break
+        time.sleep(0.05)
+    else:
+        raise AssertionError(f"figure helper {helper} still running after its run was killed")

@@ -6,8 +6,10 @@ free core while it reads, runs the observer and evaluates, then hands each one i
 gets back the PNG bytes (written by the run itself: a helper never touches the run directory). The PNGs are
 byte-identical to figures drawn in the run's own process: same code, same arguments, same interpreter.
 
-A helper reads its jobs from stdin and ends when stdin closes (also when the run is killed), ignores SIGINT
-(the run decides what Ctrl-C means) and is killed by :meth:`PlotWorkers.close` if it still runs.
+A helper reads its jobs from stdin and ends when stdin closes, ignores SIGINT (the run decides what Ctrl-C
+means), is killed by :meth:`PlotWorkers.close` if it still runs, and is bound to its run as a batch worker is
+(:func:`~slamobs.pipeline.batch.lifeline.bind_to_parent`): a run killed by SIGKILL takes it along at once,
+even in the middle of a figure.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ class PlotWorkers:
         self.shares: list[list[int]] = []
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "agg"}
         for _ in range(count):
-            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__], stdin=subprocess.PIPE,
+            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid())], stdin=subprocess.PIPE,
                                                stdout=subprocess.PIPE, env=env))
 
     def submit(self, jobs: list[Job]) -> None:
@@ -119,6 +121,9 @@ def _main() -> None:
     import io
     import signal
 
+    from slamobs.pipeline.batch.lifeline import bind_to_parent
+
+    bind_to_parent(int(sys.argv[1]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     from slamobs.pipeline.evaluation.plots import warm_up
 
