@@ -95,10 +95,11 @@ def _print_summary(summary) -> None:
         err = (r.get("biases") or {}).get("error_norm")
         if err:
             click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-        conv = (r.get("convergence") or {}).get("t_since_start_s")
+        from slamobs.pipeline.evaluation.report import convergence_line
+
+        conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
-            click.echo(f"converged    {conv:.2f} s after start (position error within "
-                       f"{r['convergence']['band_m']:.3g} m from then on)")
+            click.echo(f"converged    {conv}")
     click.echo(f"wrote        {summary.out_dir}/")
 
 

@@ -476,6 +476,15 @@ def convergence_definition(conv: dict[str, Any]) -> str:
             f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
 
 
+def convergence_line(conv: dict[str, Any]) -> str | None:
+    """The convergence figure for a one-line summary: what stays within the band is the error *level* (a running
+    median), not every error, which may still exceed the band now and then."""
+    if conv.get("t_since_start_s") is None:
+        return None
+    return (f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
+            f"within {conv['band_m']:.3g} m from then on)")
+
+
 def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
     flags = _EVO_ALIGN_FLAGS.get(options.align)
     if flags is None:
