@@ -52,6 +52,7 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     from dataclasses import replace
 
     from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
     config = with_observer(load_config(config_path), observer)
@@ -62,7 +63,8 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     status = status_line(quiet)
     try:
         with compile_notice(status, quiet=quiet):
-            summary = run_log(log, out_dir, config, force=force, **({"progress": status} if status else {}))
+            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, free_cores()),
+                              **({"progress": status} if status else {}))
     finally:
         if status:
             status.clear()
@@ -93,10 +95,11 @@ def _print_summary(summary) -> None:
         err = (r.get("biases") or {}).get("error_norm")
         if err:
             click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-        conv = (r.get("convergence") or {}).get("t_since_start_s")
+        from slamobs.pipeline.evaluation.report import convergence_line
+
+        conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
-            click.echo(f"converged    {conv:.2f} s after start (position error within "
-                       f"{r['convergence']['band_m']:.3g} m from then on)")
+            click.echo(f"converged    {conv}")
     click.echo(f"wrote        {summary.out_dir}/")
 
 

@@ -118,10 +118,11 @@ def _summary(r: dict, written: list[Path]) -> None:
     err = (r.get("biases") or {}).get("error_norm")
     if err:
         click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-    conv = (r.get("convergence") or {}).get("t_since_start_s")
+    from slamobs.pipeline.evaluation.report import convergence_line
+
+    conv = convergence_line(r.get("convergence") or {})
     if conv is not None:
-        click.echo(f"converged    {conv:.2f} s after start (position error within {r['convergence']['band_m']:.3g} m "
-                   "from then on)")
+        click.echo(f"converged    {conv}")
     off = r.get("time_offset") or {}
     if off.get("estimated_s") is not None:
         quality = "reliable" if off["reliable"] else "not reliable"

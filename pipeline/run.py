@@ -222,9 +222,11 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
-            progress: Progress = _silent) -> RunSummary:
+            progress: Progress = _silent, plot_helpers: int = 0) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
-    ``progress`` receives a short line at each stage (and each observer stretch)."""
+    ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
+    report's figures are drawn by that many helper processes started now, which import matplotlib while the
+    log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``)."""
     from slamobs.pipeline.paths import check_output
 
     spec = _resolved_spec(config)  # fail on bad gains (and estimator settings) before reading a large log
@@ -232,8 +234,20 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
     directions = spec.directions_needed(config) > 0 or config.output_frame == "gravity"
-    prepared = prepare_log(log, config, directions=directions, progress=progress)
-    return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress)
+    workers = None
+    if plot_helpers > 0 and config.plots:
+        from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
+
+        workers = PlotWorkers(plot_helpers)
+    try:
+        prepared = prepare_log(log, config, directions=directions, progress=progress)
+        if workers is not None and (prepared.streams.truth is None or not len(prepared.streams.truth)):
+            workers.close()  # no report, no figures
+        return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress,
+                            plot_workers=workers)
+    finally:
+        if workers is not None:
+            workers.close()
 
 
 def _resolved_spec(config: RunConfig):
@@ -249,7 +263,7 @@ def _resolved_spec(config: RunConfig):
 
 
 def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False,
-                 release: bool = False, progress: Progress = _silent) -> RunSummary:
+                 release: bool = False, progress: Progress = _silent, plot_workers=None) -> RunSummary:
     """Observer -> writers -> evaluation on an already prepared log.
 
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
@@ -365,7 +379,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
             progress("error report")
-            report, report_error = _evaluate(tmp, streams, config, notes, metadata)
+            report, report_error = _evaluate(tmp, streams, config, notes, metadata, plot_workers)
             timings["report_s"] = time.perf_counter() - t
         else:
             notes.append("no ground truth in the log: no error report")
@@ -408,9 +422,9 @@ def check_map_mode(spec, config: RunConfig, log: Path) -> None:
 def _map_error(out: Path, landmark_truth: dict) -> dict | None:
     """Map error against landmark truth after a map-only SE(3) alignment, for runs without trajectory truth."""
     from slamobs.pipeline.evaluation.report import map_only_section
-    from slamobs.pipeline.writers import read_frame
+    from slamobs.pipeline.writers import read_columns
 
-    return map_only_section(read_frame(out / "landmarks.parquet"), landmark_truth)
+    return map_only_section(read_columns(out / "landmarks.parquet"), landmark_truth)
 
 
 def _topics(streams: LogStreams) -> dict[str, str]:
@@ -435,7 +449,7 @@ def _truth(streams: LogStreams, config: RunConfig):
 
 
 def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str],
-              metadata: dict) -> tuple[dict | None, str | None]:
+              metadata: dict, plot_workers=None) -> tuple[dict | None, str | None]:
     """Error report against the log's ground truth, and the reason when there is none.
 
     The observer's outputs are already complete: a report that cannot be made (truth that cannot be associated,
@@ -445,11 +459,11 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.report import REPORT_FILES, bias_plot_rows
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.writers import read_frame
+    from slamobs.pipeline.writers import read_columns
 
     segments = metadata["segments"]
     try:
-        frames = {k: read_frame(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
+        frames = {k: read_columns(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
         truth = _truth(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
@@ -467,7 +481,8 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
                 "(run.json notes say where); errors just after a gap show how well that worked")
             report["segments"] = segments
         write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth,
-                     evaluation=evaluation, plots=config.plots, exports=config.export, metadata=metadata)
+                     evaluation=evaluation, plots=config.plots, exports=config.export, metadata=metadata,
+                     plot_workers=plot_workers)
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands

@@ -132,7 +132,7 @@ class TableWriter:
                                       schema)
             writer, schema = self.writers[name]
             # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element
-            arrays = [pa.array(self._values(columns[f.name], f.type), type=f.type) for f in schema]
+            arrays = [_arrow_array(self._values(columns[f.name], f.type), f.type) for f in schema]
             writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
 
     def _values(self, column: np.ndarray, kind: pa.DataType) -> np.ndarray:
@@ -159,6 +159,21 @@ class TableWriter:
         for writer, _ in self.writers.values():
             writer.close()
         self.writers = {}
+
+
+#: NumPy dtypes whose contiguous arrays become Arrow arrays over the same memory (:func:`_arrow_array`)
+_PLAIN = {"double": np.dtype(np.float64), "int64": np.dtype(np.int64)}
+
+
+def _arrow_array(values: np.ndarray, kind: pa.DataType) -> pa.Array:
+    """``pa.array(values, type=kind)`` without its pandas check: ``pa.array`` imports pandas (~0.8 s) the first
+    time it is given a NumPy array, which a run without truth never needs otherwise. A contiguous column of the
+    table's own dtype is wrapped as it is (no nulls; NaN stays NaN, as ``pa.array`` keeps it); anything else
+    goes through ``pa.array``."""
+    dtype = _PLAIN.get(str(kind))
+    if dtype is not None and values.dtype == dtype and values.ndim == 1 and values.flags.c_contiguous:
+        return pa.Array.from_buffers(kind, values.shape[0], [None, pa.py_buffer(values)])
+    return pa.array(values, type=kind)
 
 
 def write_result(out_dir: Path, res: ObserverResult, metadata: dict, float_bits: int = FLOAT_BITS) -> list[Path]:
@@ -200,6 +215,33 @@ def read_frame(path: Path):
         if name in others:
             frame.insert(pos, name, others.pop(name))
     return frame
+
+
+def read_columns(path: Path) -> dict[str, np.ndarray]:
+    """A table written here as its columns (NumPy arrays, in file order), without pandas: pyarrow's
+    ``to_numpy`` imports pandas (~0.8 s), which a run's own report does not need. Same values as
+    :func:`read_frame` (columns here have no nulls; one with nulls would go through ``to_numpy``)."""
+    f = pq.ParquetFile(path)
+    n = f.metadata.num_rows
+    out = {x.name: np.empty(n, dtype=_PLAIN.get(str(x.type), np.dtype(object))) for x in f.schema_arrow}
+    k = 0
+    for g in range(f.num_row_groups):
+        group = f.read_row_group(g)
+        m = group.num_rows
+        for name, column in out.items():
+            at = k
+            for chunk in group.column(name).chunks:
+                column[at : at + len(chunk)] = _chunk_values(chunk, column.dtype)
+                at += len(chunk)
+        k += m
+        del group
+    return out
+
+
+def _chunk_values(chunk: pa.Array, dtype: np.dtype) -> np.ndarray:
+    if chunk.null_count == 0 and dtype != np.dtype(object):  # the values buffer as it is (offset respected)
+        return np.frombuffer(chunk.buffers()[1], dtype=dtype, count=len(chunk), offset=chunk.offset * dtype.itemsize)
+    return chunk.to_numpy(zero_copy_only=False)
 
 
 def read_metadata(path: Path) -> dict:

@@ -163,3 +163,41 @@ def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
     assert np.array_equal(b["x"].to_numpy(), round_mantissa(res.position[:, 0], FLOAT_BITS))
     assert np.array_equal(a["t_ns"].to_numpy(), b["t_ns"].to_numpy())
     assert (rounded / "poses.parquet").stat().st_size < 0.8 * (exact / "poses.parquet").stat().st_size
+
+
+def test_writing_tables_does_not_import_pandas(tmp_path):
+    """pyarrow's ``pa.array`` and ``to_numpy`` import pandas (~0.8 s) on first use; a run never needs it (its
+    report reads the tables back as NumPy columns)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from slamobs.pipeline.writers import TableWriter; "
+            "w = TableWriter(sys.argv[1]); t = np.arange(5, dtype=np.int64); x = np.linspace(0, 1, 5); "
+            "w.write({'biases': {'t_ns': t, **{c: x for c in ('gyro_bias_x', 'gyro_bias_y', 'gyro_bias_z', 'vel_bias_x', 'vel_bias_y', 'vel_bias_z')}}}); "
+            "w.close({}); from slamobs.pipeline.writers import read_columns; "
+            "import slamobs.pipeline.evaluation.report, slamobs.pipeline.evaluation.run_dir, slamobs.pipeline.run; "
+            "c = read_columns(sys.argv[1] + '/biases.parquet'); assert c['t_ns'].tolist() == list(range(5)); "
+            "print('pandas' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+    table = pq.read_table(tmp_path / "biases.parquet")
+    assert table.column("t_ns").to_pylist() == list(range(5)) and table.num_rows == 5
+
+
+def test_read_columns_equals_read_frame(tmp_path):
+    from slamobs.pipeline.writers import TableWriter, read_columns, read_frame
+
+    rng = np.random.default_rng(1)
+    sink = TableWriter(tmp_path)
+    for k in range(3):  # three row groups
+        t = np.arange(k * 4, k * 4 + 4, dtype=np.int64)
+        sink.write({"landmarks": {"id": t, "x": rng.normal(size=4), "y": rng.normal(size=4),
+                                  "z": np.full(4, np.nan), **{c.name: np.zeros(4, dtype=c.type.to_pandas_dtype())
+                                                               for c in arrow_schema("landmarks")
+                                                               if c.name not in ("id", "x", "y", "z")}}})
+    sink.close({})
+    frame, cols = read_frame(tmp_path / "landmarks.parquet"), read_columns(tmp_path / "landmarks.parquet")
+    assert list(cols) == list(frame.columns) and len(cols["x"]) == len(frame) == 12
+    for name in cols:
+        assert cols[name].dtype == frame[name].to_numpy().dtype
+        np.testing.assert_array_equal(cols[name], frame[name].to_numpy())

@@ -64,6 +64,9 @@ def test_report_recomputes_the_run_report(run_dir):
     assert load(run_dir / "run.json")["report_truth"]["name"] == "/mocap/pose"
     assert "APE          translation rmse" in res.output and "pairs, SE(3)-aligned" in res.output
     assert "evo_ape tum truth_tum.txt estimate_tum.txt -a" in res.output
+    conv = after["convergence"]  # the summary says that the error's level (a running median) stays in the band
+    assert (f"median position error over {conv['window_s']:.3g} s within {conv['band_m']:.3g} m from then on"
+            in res.output)
     assert not [p for p in run_dir.iterdir() if p.name.startswith(".report-")]
 
 

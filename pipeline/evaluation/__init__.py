@@ -5,26 +5,25 @@
 adds what evo does not measure (map, biases, convergence, drift) and writes the run's report files.
 """
 
-from slamobs.pipeline.evaluation.metrics import (
-    LandmarkErrors,
-    ape_errors,
-    ape_rotation_deg,
-    ape_translation,
-    apply_alignment,
-    associate,
-    landmark_errors,
-    rpe_errors,
-    statistics,
-    umeyama,
-)
-from slamobs.pipeline.evaluation.report import (
-    ReportOptions,
-    build_report,
-    evaluate_report,
-    evaluate_tables,
-    render_markdown,
-    write_report,
-)
+# Loaded on first use (PEP 562): a module of this package (``plots`` in a figure helper process) is imported
+# without the report and pandas.
+_FROM = {
+    **dict.fromkeys(("LandmarkErrors", "ape_errors", "ape_rotation_deg", "ape_translation", "apply_alignment",
+                     "associate", "landmark_errors", "rpe_errors", "statistics", "umeyama"), "metrics"),
+    **dict.fromkeys(("ReportOptions", "build_report", "evaluate_report", "evaluate_tables", "render_markdown",
+                     "write_report"), "report"),
+}
+
+
+def __getattr__(name: str):
+    if name in _FROM:
+        import importlib
+
+        value = getattr(importlib.import_module(f"{__name__}.{_FROM[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "LandmarkErrors",

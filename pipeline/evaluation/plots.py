@@ -78,10 +78,22 @@ def _figure(rows: int, cols: int = 1, size: tuple[float, float] = (9.0, 6.0), *,
     return fig, axes
 
 
-def _save(fig, path: Path) -> Path:
-    path = Path(path)
-    fig.savefig(path, dpi=110)
+def _save(fig, path):
+    """Save as PNG into ``path``, a file name or a binary file object (a figure helper process's buffer)."""
+    if isinstance(path, (str, Path)):
+        path = Path(path)
+    fig.savefig(path, dpi=110, format="png")
     return path
+
+
+def warm_up() -> None:
+    """Import matplotlib and draw one small text figure (loads the font and the Agg renderer), so a figure
+    helper process is ready before the run needs its figures."""
+    import io
+
+    fig, axes = _figure(1, 1, (2.0, 2.0))
+    axes[0, 0].set_title("0")
+    fig.savefig(io.BytesIO(), dpi=20, format="png")
 
 
 def plot_trajectory_top(

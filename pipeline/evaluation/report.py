@@ -14,10 +14,9 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, Mapping, Union
 
 import numpy as np
-import pandas as pd
 
 from slamobs import __version__
 from slamobs.pipeline.blocks import row_blocks
@@ -37,6 +36,13 @@ from slamobs.pipeline.evaluation.trajectory_error import (
 )
 from slamobs.pipeline.lie import quats_to_rots, rot_to_quat, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: A run table: a pandas DataFrame, or its columns as NumPy arrays (what a run reads back without pandas,
+#: :func:`slamobs.pipeline.writers.read_columns`; importing pandas is ~0.8 s of a short run).
+Table = Union["pd.DataFrame", Mapping[str, np.ndarray]]
 
 SCHEMA_VERSION = 1
 CONVERGENCE_THRESHOLD_M = 0.1
@@ -90,21 +96,41 @@ class ReportOptions:
             raise ValueError(f"bias_window_fraction must be in (0, 1], got {self.bias_window_fraction}")
 
 
-def _require(df: pd.DataFrame, columns: tuple[str, ...], name: str) -> None:
-    missing = [c for c in columns if c not in df.columns]
+def _names(table: Table) -> list[str]:
+    return list(table.columns) if hasattr(table, "columns") else list(table)
+
+
+def _col(table: Table, name: str, dtype=None) -> np.ndarray:
+    column = table[name]
+    return column.to_numpy(dtype) if hasattr(column, "to_numpy") else np.asarray(column, dtype=dtype)
+
+
+def _cols(table: Table, names: list[str], dtype) -> np.ndarray:
+    """Columns ``names`` as one ``(N, k)`` array (as ``DataFrame[names].to_numpy(dtype)``)."""
+    if hasattr(table, "columns"):
+        return table[list(names)].to_numpy(dtype)
+    return np.stack([np.asarray(table[c], dtype=dtype) for c in names], axis=1)
+
+
+def _nrows(table: Table) -> int:
+    return len(table) if hasattr(table, "columns") else (len(next(iter(table.values()))) if len(table) else 0)
+
+
+def _require(df: Table, columns: tuple[str, ...], name: str) -> None:
+    missing = [c for c in columns if c not in _names(df)]
     if missing:
-        raise ValueError(f"{name} table lacks column(s) {missing}; has {list(df.columns)}")
+        raise ValueError(f"{name} table lacks column(s) {missing}; has {_names(df)}")
 
 
-def estimate_stream(poses: pd.DataFrame) -> PoseStream:
+def estimate_stream(poses: Table) -> PoseStream:
     """The poses table as a PoseStream in time order."""
     _require(poses, POSE_COLUMNS, "poses")
-    if len(poses) == 0:
+    if _nrows(poses) == 0:
         raise ValueError("poses table is empty: nothing to evaluate")
-    rows = _time_order(poses["t_ns"].to_numpy(np.int64))
-    t = poses["t_ns"].to_numpy(np.int64)[rows]
-    return PoseStream("estimate", "", "", t, t, poses[["x", "y", "z"]].to_numpy(np.float64)[rows],
-                      poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)[rows])
+    rows = _time_order(_col(poses, "t_ns", np.int64))
+    t = _col(poses, "t_ns", np.int64)[rows]
+    return PoseStream("estimate", "", "", t, t, _cols(poses, ["x", "y", "z"], np.float64)[rows],
+                      _cols(poses, ["qx", "qy", "qz", "qw"], np.float64)[rows])
 
 
 def _time_order(t_ns: np.ndarray) -> np.ndarray | slice:
@@ -138,7 +164,7 @@ class TrajectoryEvaluation:
         return self.paired.t_est_ns
 
 
-def evaluate_trajectory(poses: pd.DataFrame, truth: PoseStream, options: ReportOptions, *,
+def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions, *,
                         estimate_offset: bool = True) -> TrajectoryEvaluation:
     """Estimate the clock offset, associate, align and compute the APE vectors."""
     truth, _ = valid_truth(truth)
@@ -301,14 +327,14 @@ def _time_offset_section(ev: TrajectoryEvaluation, options: ReportOptions) -> di
     }
 
 
-def _landmark_table(landmarks: pd.DataFrame | None) -> tuple[np.ndarray, np.ndarray]:
+def _landmark_table(landmarks: Table | None) -> tuple[np.ndarray, np.ndarray]:
     if landmarks is None:
         return np.empty(0, dtype=np.int64), np.empty((0, 3))
     _require(landmarks, LANDMARK_COLUMNS, "landmarks")
-    return landmarks["id"].to_numpy(np.int64), landmarks[["x", "y", "z"]].to_numpy(np.float64)
+    return _col(landmarks, "id", np.int64), _cols(landmarks, ["x", "y", "z"], np.float64)
 
 
-def _landmark_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None,
+def _landmark_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None,
                       al: Alignment) -> dict[str, Any]:
     ids, xyz = _landmark_table(landmarks)
     section: dict[str, Any] = {"n_estimated": int(ids.shape[0]), "truth_available": landmark_truth is not None}
@@ -332,8 +358,8 @@ def _landmark_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, 
                        "‖R_m p̂_i + t_m − p_i‖. The gap to error_m (trajectory alignment) is how far the map sits "
                        "from where the trajectory puts it; error under this alignment is the map's shape error"),
         }
-    has_n_obs = landmarks is not None and "n_obs" in landmarks.columns
-    n_obs = dict(zip(ids.tolist(), landmarks["n_obs"].tolist())) if has_n_obs else {}
+    has_n_obs = landmarks is not None and "n_obs" in _names(landmarks)
+    n_obs = dict(zip(ids.tolist(), _col(landmarks, "n_obs").tolist())) if has_n_obs else {}
     section.update(
         n_truth=len(landmark_truth),
         n_matched=int(lm.ids.shape[0]),
@@ -356,7 +382,7 @@ def _landmark_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, 
     return section
 
 
-def map_only_section(landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:
+def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:
     """Map error of a run without trajectory truth: the landmarks after a map-only SE(3) alignment (needs three
     matched landmarks not on one line; None otherwise). Same numbers as the report's ``map_aligned``."""
     identity = Alignment("none", np.eye(3), np.zeros(3), 1.0, 0)
@@ -381,29 +407,32 @@ def _vec(v: Any) -> list[float]:
     return [float(x) for x in np.asarray(v, dtype=np.float64).reshape(3)]
 
 
-def bias_plot_rows(biases: pd.DataFrame) -> pd.DataFrame:
+def bias_plot_rows(biases: Table) -> Table:
     """The rows of the bias table the bias plot draws, in time order (:func:`plots.envelope`; a table that is
     already these rows comes back whole): all a caller must keep of a long table to draw its report."""
     from slamobs.pipeline.evaluation import plots
 
-    rows = _time_order(biases["t_ns"].to_numpy(np.int64))
-    cols = [biases[c].to_numpy(np.float64)[rows] for c in GYRO_COLUMNS + VEL_COLUMNS]
+    rows = _time_order(_col(biases, "t_ns", np.int64))
+    cols = [_col(biases, c, np.float64)[rows] for c in GYRO_COLUMNS + VEL_COLUMNS]
     keep = plots.envelope(len(cols[0]), cols)
-    return biases.iloc[np.arange(len(biases))[rows][keep]].reset_index(drop=True)
+    take = np.arange(_nrows(biases))[rows][keep]
+    if hasattr(biases, "columns"):
+        return biases.iloc[take].reset_index(drop=True)
+    return {c: np.asarray(v)[take] for c, v in biases.items()}
 
 
-def _bias_section(biases: pd.DataFrame | None, bias_truth: dict[str, np.ndarray] | None,
+def _bias_section(biases: Table | None, bias_truth: dict[str, np.ndarray] | None,
                   window_fraction: float) -> dict[str, Any]:
     truth = None if bias_truth is None else {"gyro": _vec(bias_truth["gyro"]), "velocity": _vec(bias_truth["velocity"])}
     section: dict[str, Any] = {"final": None, "truth": truth, "error": None, "error_norm": None, "stability": None,
                                "window_error": None, "window_error_norm": None}
-    if biases is None or len(biases) == 0:
+    if biases is None or _nrows(biases) == 0:
         return section
     _require(biases, ("t_ns",) + GYRO_COLUMNS + VEL_COLUMNS, "biases")
-    order = _time_order(biases["t_ns"].to_numpy(np.int64))
-    t_ns = biases["t_ns"].to_numpy(np.int64)[order]
-    gyro = [biases[c].to_numpy(np.float64)[order] for c in GYRO_COLUMNS]  # columns: no (N, 3) copy
-    vel = [biases[c].to_numpy(np.float64)[order] for c in VEL_COLUMNS]
+    order = _time_order(_col(biases, "t_ns", np.int64))
+    t_ns = _col(biases, "t_ns", np.int64)[order]
+    gyro = [_col(biases, c, np.float64)[order] for c in GYRO_COLUMNS]  # columns: no (N, 3) copy
+    vel = [_col(biases, c, np.float64)[order] for c in VEL_COLUMNS]
     final = {"t_ns": int(t_ns[-1]), "gyro": _vec([c[-1] for c in gyro]), "velocity": _vec([c[-1] for c in vel])}
     section["final"] = final
     stab = {"window_fraction": float(window_fraction),
@@ -447,6 +476,15 @@ def convergence_definition(conv: dict[str, Any]) -> str:
             f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
 
 
+def convergence_line(conv: dict[str, Any]) -> str | None:
+    """The convergence figure for a one-line summary: what stays within the band is the error *level* (a running
+    median), not every error, which may still exceed the band now and then."""
+    if conv.get("t_since_start_s") is None:
+        return None
+    return (f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
+            f"within {conv['band_m']:.3g} m from then on)")
+
+
 def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, str | None]:
     flags = _EVO_ALIGN_FLAGS.get(options.align)
     if flags is None:
@@ -459,9 +497,9 @@ def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, 
 
 
 def build_report(
-    poses: pd.DataFrame,
-    biases: pd.DataFrame | None,
-    landmarks: pd.DataFrame | None,
+    poses: Table,
+    biases: Table | None,
+    landmarks: Table | None,
     truth: PoseStream,
     landmark_truth: dict[int, np.ndarray] | None = None,
     bias_truth: dict[str, np.ndarray] | None = None,
@@ -481,9 +519,9 @@ def build_report(
 
 
 def evaluate_report(
-    poses: pd.DataFrame,
-    biases: pd.DataFrame | None,
-    landmarks: pd.DataFrame | None,
+    poses: Table,
+    biases: Table | None,
+    landmarks: Table | None,
     truth: PoseStream,
     landmark_truth: dict[int, np.ndarray] | None = None,
     bias_truth: dict[str, np.ndarray] | None = None,
@@ -498,7 +536,7 @@ def evaluate_report(
 
 
 def evaluate_tables(
-    tables: dict[str, pd.DataFrame | None],
+    tables: dict[str, Table | None],
     truth: PoseStream,
     landmark_truth: dict[int, np.ndarray] | None = None,
     bias_truth: dict[str, np.ndarray] | None = None,
@@ -773,9 +811,9 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
 def write_report(
     report: dict[str, Any],
     out_dir: Path | str,
-    poses: pd.DataFrame | None,
-    biases: pd.DataFrame | None,
-    landmarks: pd.DataFrame | None,
+    poses: Table | None,
+    biases: Table | None,
+    landmarks: Table | None,
     truth: PoseStream,
     landmark_truth: dict[int, np.ndarray] | None = None,
     *,
@@ -783,6 +821,7 @@ def write_report(
     plots: bool = True,
     metadata: dict[str, Any] | None = None,
     exports: tuple[str, ...] = (),
+    plot_workers=None,
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
     time on short logs), the estimate aligned into the truth's frame (``poses_aligned.parquet``,
@@ -792,7 +831,8 @@ def write_report(
     The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
     this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
-    ``poses``. The writes are plain: callers that
+    ``poses``. With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by
+    those helper processes while the aligned tables are written. The writes are plain: callers that
     replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
     """
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
@@ -817,13 +857,20 @@ def write_report(
     if "tum" in exports:
         written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
+    jobs = plot_jobs(report, ev, biases, landmarks, landmark_truth) if plots else []
+    if jobs and plot_workers is not None:
+        plot_workers.submit(jobs)  # drawn by the helper processes while the aligned tables are written
     written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
-    if plots:
-        written += _write_plots(report, out, ev, biases, landmarks, landmark_truth)
+    if jobs and plot_workers is not None:
+        written += plot_workers.collect(out)
+    elif jobs:
+        from slamobs.pipeline.evaluation.plot_worker import draw
+
+        written += draw(jobs, lambda name: out / name)
     return written
 
 
-def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: pd.DataFrame | None,
+def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
                          metadata: dict[str, Any]) -> list[Path]:
     """``poses_aligned.parquet`` and ``landmarks_aligned.parquet``: every pose and the map moved by the report's
     alignment into the truth's frame (a stretch of poses at a time), with the run metadata and the alignment."""
@@ -843,8 +890,8 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
             sink.write({"poses_aligned": {"t_ns": np.asarray(est.t_ns[rows]), "x": pos[:, 0], "y": pos[:, 1],
                                           "z": pos[:, 2], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]}})
         if landmarks is not None:
-            xyz = al.positions(landmarks[["x", "y", "z"]].to_numpy(np.float64))
-            sink.write({"landmarks_aligned": {**{c: landmarks[c].to_numpy() for c in landmarks.columns},
+            xyz = al.positions(_cols(landmarks, ["x", "y", "z"], np.float64))
+            sink.write({"landmarks_aligned": {**{c: _col(landmarks, c) for c in _names(landmarks)},
                                               "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}})
         return sink.close(meta)
     except BaseException:
@@ -852,12 +899,12 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
         raise
 
 
-def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, biases: pd.DataFrame | None,
-                 landmarks: pd.DataFrame | None, landmark_truth: dict[int, np.ndarray] | None) -> list[Path]:
-    """The report's PNG figures, drawn from the same evaluation as its numbers."""
+def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | None,
+              landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None) -> list:
+    """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
     from slamobs.pipeline.evaluation import plots
 
-    written = []
+    jobs = []
     al = ev.alignment
     t0 = int(ev.estimate.t_ns[0])
     path = plots.thin(len(ev.estimate), plots.PATH_POINTS)  # only what is drawn is aligned
@@ -867,63 +914,51 @@ def _write_plots(report: dict[str, Any], out: Path, ev: TrajectoryEvaluation, bi
         lm_truth_ids = np.array(sorted(int(k) for k in landmark_truth), dtype=np.int64)
         lm_truth_xyz = np.array([np.asarray(landmark_truth[int(i)], dtype=np.float64).reshape(3) for i in lm_truth_ids])
     lm_err = {row["id"]: row["error_m"] for row in report["landmarks"]["per_landmark"]}
-    written.append(
-        plots.plot_trajectory_top(
-            out / "trajectory_top.png",
-            al.positions(ev.estimate.position[path]),
-            np.asarray(ev.truth.position, dtype=np.float64),
-            ids,
-            al.positions(xyz) if len(ids) else np.empty((0, 3)),
-            lm_truth_ids,
-            lm_truth_xyz,
-            pair_xyz=ev.translation.est_pos_aligned,
-            pair_error_m=ev.translation.errors,
-            lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
-            title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
-        )
-    )
+    jobs.append(("plot_trajectory_top", "trajectory_top.png", dict(
+        est_xyz=al.positions(ev.estimate.position[path]),
+        truth_xyz=np.asarray(ev.truth.position, dtype=np.float64),
+        lm_est_ids=ids,
+        lm_est_xyz=al.positions(xyz) if len(ids) else np.empty((0, 3)),
+        lm_truth_ids=lm_truth_ids,
+        lm_truth_xyz=lm_truth_xyz,
+        pair_xyz=ev.translation.est_pos_aligned,
+        pair_error_m=ev.translation.errors,
+        lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
+        title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
+    )))
     conv = report["convergence"]
     level_t, level = slam_metrics.error_level(ev.pair_t_est_ns, ev.translation.errors)
-    written.append(
-        plots.plot_errors(
-            out / "errors.png",
-            (ev.pair_t_est_ns - t0) / 1e9,
-            ev.translation.errors,
-            ev.rotation.errors,
-            band_m=conv["band_m"],
-            convergence_t_s=conv["t_since_start_s"],
-            title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
-            level=((level_t - t0) / 1e9, level),
-        )
-    )
+    jobs.append(("plot_errors", "errors.png", dict(
+        t_s=(ev.pair_t_est_ns - t0) / 1e9,
+        position_error_m=ev.translation.errors,
+        attitude_error_deg=ev.rotation.errors,
+        band_m=conv["band_m"],
+        convergence_t_s=conv["t_since_start_s"],
+        title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
+        level=((level_t - t0) / 1e9, level),
+    )))
     bt = report["biases"]["truth"]
     stab = report["biases"].get("stability")
-    if biases is not None and len(biases):
+    if biases is not None and _nrows(biases):
         drawn = bias_plot_rows(biases)
-        bt_s = (drawn["t_ns"].to_numpy(np.int64) - t0) / 1e9
-        gyro, vel = drawn[list(GYRO_COLUMNS)].to_numpy(np.float64), drawn[list(VEL_COLUMNS)].to_numpy(np.float64)
+        bt_s = (_col(drawn, "t_ns", np.int64) - t0) / 1e9
+        gyro, vel = _cols(drawn, list(GYRO_COLUMNS), np.float64), _cols(drawn, list(VEL_COLUMNS), np.float64)
     else:
         bt_s, gyro, vel = np.empty(0), np.empty((0, 3)), np.empty((0, 3))
-    written.append(
-        plots.plot_biases(
-            out / "biases.png",
-            bt_s,
-            gyro,
-            vel,
-            None if bt is None else np.asarray(bt["gyro"]),
-            None if bt is None else np.asarray(bt["velocity"]),
-            window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
-        )
-    )
+    jobs.append(("plot_biases", "biases.png", dict(
+        t_s=bt_s,
+        gyro=gyro,
+        velocity=vel,
+        gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
+        velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
+        window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
+    )))
     rows = report["landmarks"]["per_landmark"]
     if rows:
-        written.append(
-            plots.plot_landmark_errors(
-                out / "landmarks.png",
-                np.array([r["id"] for r in rows]),
-                np.array([r["error_m"] for r in rows]),
-                None if rows[0].get("error_map_aligned_m") is None
-                else np.array([r["error_map_aligned_m"] for r in rows]),
-            )
-        )
-    return written
+        jobs.append(("plot_landmark_errors", "landmarks.png", dict(
+            ids=np.array([r["id"] for r in rows]),
+            error_traj_m=np.array([r["error_m"] for r in rows]),
+            error_map_m=None if rows[0].get("error_map_aligned_m") is None
+            else np.array([r["error_map_aligned_m"] for r in rows]),
+        )))
+    return jobs

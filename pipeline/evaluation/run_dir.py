@@ -15,14 +15,16 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 #: The exports a report writes (``mcap`` is written by ``slamobs export`` or a run).
 REPORT_EXPORTS = ("tum", "evo")
@@ -70,6 +72,8 @@ def load_run(run_dir: str | Path) -> RunTables:
         if in_dataset is not None:
             return in_dataset[name].to_pandas() if name in in_dataset else None
         path = run_dir / f"{name}.parquet"
+        import pandas as pd
+
         return pd.read_parquet(path) if path.is_file() else None
 
     return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"))

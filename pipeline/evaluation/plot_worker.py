@@ -1,0 +1,141 @@
+"""The report's figures drawn in helper processes that import matplotlib while the run reads and computes.
+
+On a short log matplotlib's import (0.5-1 s) and the four figures (0.3-0.5 s each) are most of the run; they
+need no result but the report's, so a run started with :class:`PlotWorkers` has them import matplotlib on a
+free core while it reads, runs the observer and evaluates, then hands each one its figures' arguments and
+gets back the PNG bytes (written by the run itself: a helper never touches the run directory). The PNGs are
+byte-identical to figures drawn in the run's own process: same code, same arguments, same interpreter.
+
+A helper reads its jobs from stdin and ends when stdin closes, ignores SIGINT (the run decides what Ctrl-C
+means), is killed by :meth:`PlotWorkers.close` if it still runs, and is bound to its run as a batch worker is
+(:func:`~slamobs.pipeline.batch.lifeline.bind_to_parent`): a run killed by SIGKILL takes it along at once,
+even in the middle of a figure.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+#: A figure to draw: the name of a ``plots`` function, the file name it goes to, its keyword arguments.
+Job = tuple[str, str, dict[str, Any]]
+
+
+def free_cores() -> int:
+    """CPUs this process may use that nothing else keeps busy: the CPUs of its affinity less the one-minute load
+    average (at least 1, this process), rounded. 0 on one core or on a loaded machine, where a helper only adds
+    its own imports (90 s log on 2 cores: 0.8 s slower at load 2.6-5, 0.3-0.8 s faster at load 1.6-2)."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cpus = os.cpu_count() or 1
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = float(cpus)
+    return max(0, round(cpus - max(load, 1.0)))
+
+
+class PlotWorkers:
+    """Up to ``count`` helper processes, started at once; :meth:`draw` shares the figures out among them."""
+
+    def __init__(self, count: int) -> None:
+        self.procs: list[subprocess.Popen] = []
+        self.jobs: list[Job] = []
+        self.shares: list[list[int]] = []
+        env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "agg"}
+        for _ in range(count):
+            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid())], stdin=subprocess.PIPE,
+                                               stdout=subprocess.PIPE, env=env))
+
+    def submit(self, jobs: list[Job]) -> None:
+        """Hand ``jobs`` out (in turn, the costliest first) and return while the helpers draw."""
+        self.jobs = jobs
+        self.shares = [list(range(i, len(jobs), len(self.procs))) for i in range(len(self.procs))]
+        for proc, share in zip(self.procs, self.shares):
+            with proc.stdin:
+                pickle.dump([jobs[k] for k in share], proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+
+    def collect(self, out: Path) -> list[Path]:
+        """Wait for the submitted figures and write each PNG into ``out``; their paths in the order of the jobs.
+        The helpers are done afterwards."""
+        procs, self.procs = self.procs, []
+        try:
+            images: dict[int, bytes] = {}
+            for proc, share in zip(procs, self.shares):
+                data = proc.stdout.read()
+                if proc.wait() != 0 or not data:
+                    raise RuntimeError(f"the figure helper process ended with status {proc.returncode}")
+                images.update(zip(share, pickle.loads(data)))
+        finally:
+            _stop(procs)
+        paths = []
+        for k, (_, name, _) in enumerate(self.jobs):
+            path = Path(out) / name
+            path.write_bytes(images[k])
+            paths.append(path)
+        return paths
+
+    def close(self) -> None:
+        """Stop helpers that were not used (no truth, or the run failed)."""
+        procs, self.procs = self.procs, []
+        _stop(procs)
+
+    def __enter__(self) -> PlotWorkers:
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self.close()
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    for proc in procs:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
+        for stream in (proc.stdin, proc.stdout):
+            if stream is not None and not stream.closed:
+                try:
+                    stream.close()
+                except OSError:  # a pipe whose reader was killed
+                    pass
+
+
+def draw(jobs: list[Job], target=None) -> list[Any]:
+    """Draw ``jobs`` in this process: each into ``target(name)`` (a path or a file object); the targets."""
+    from slamobs.pipeline.evaluation import plots
+
+    done = []
+    for func, name, kwargs in jobs:
+        dest = target(name)
+        getattr(plots, func)(dest, **kwargs)
+        done.append(dest)
+    return done
+
+
+def _main() -> None:
+    import io
+    import signal
+
+    from slamobs.pipeline.batch.lifeline import bind_to_parent
+
+    bind_to_parent(int(sys.argv[1]))
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from slamobs.pipeline.evaluation.plots import warm_up
+
+    warm_up()
+    try:
+        jobs = pickle.load(sys.stdin.buffer)
+    except EOFError:  # the run needed no figures
+        return
+    buffers = draw(jobs, lambda _name: io.BytesIO())
+    sys.stdout.buffer.write(pickle.dumps([b.getvalue() for b in buffers], protocol=pickle.HIGHEST_PROTOCOL))
+    sys.stdout.buffer.flush()
+
+
+if __name__ == "__main__":
+    _main()
