@@ -13,9 +13,11 @@ what slamobs wrote (a directory holding ``run.json`` or ``comparison.json``, or 
 from __future__ import annotations
 
 import errno
+import fcntl
 import os
 import stat
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from slamobs.pipeline.errors import InputError, OutputError
@@ -112,3 +114,18 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
     if not any(name in entries for name in OUTPUT_MARKERS):
         raise OutputError(out, f"exists and is not a slamobs output (no {' or '.join(OUTPUT_MARKERS)}): "
                                "--force replaces only earlier runs; remove it yourself or choose another -o")
+
+
+@contextmanager
+def exclusive(lock_file: Path, out: Path, holder: str) -> Iterator[None]:
+    """Hold ``lock_file`` exclusively (a flock: the kernel releases it when the process dies, so a killed batch or
+    tune never leaves a stale lock); one line naming ``out`` when ``holder`` (e.g. "another batch") has it."""
+    with open(lock_file, "a+") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(out, f"{holder} is writing to this directory") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)

@@ -26,7 +26,6 @@ reads the dataset, and fresh partitions and compacted files read as one table.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import os
 import shutil
@@ -41,6 +40,7 @@ import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import exclusive
 from slamobs.pipeline.writers import parquet_options
 from slamobs.schemas import OPTIONAL_TABLES, TABLES
 
@@ -283,15 +283,8 @@ def batch_lock(out: Path) -> Iterator[None]:
         meta_dir(out).mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(out, f"cannot create the output directory: {err.strerror}") from None
-    with open(meta_dir(out) / LOCK, "a+") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InputError(out, "another batch is writing to this directory") from None
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+    with exclusive(meta_dir(out) / LOCK, out, "another batch"):
+        yield
 
 
 def check_layout(out: Path) -> None:

@@ -10,7 +10,6 @@ compares with. The result files are rewritten at the end (:mod:`results`), each 
 
 from __future__ import annotations
 
-import fcntl
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -72,17 +71,10 @@ class _NoLock:
         pass
 
 
-@contextmanager
 def _exclusive(out: Path):
-    with open(out / LOCK, "a+") as fh:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InputError(out, "another tune is writing to this directory") from None
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
+    from slamobs.pipeline.paths import exclusive
+
+    return exclusive(out / LOCK, out, "another tune")
 
 
 def _repair_journal(path: Path) -> None:
