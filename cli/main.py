@@ -26,7 +26,13 @@ class _Group(click.Group):
             return super().invoke(ctx)
 
 
-@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
+def _dashes(token: str) -> str:
+    """Option names (and choices, commands) in either spelling: ``--msg_dir`` is ``--msg-dir``, as evo's tools
+    spell them; click applies this to both the declared and the given name, never to paths or numbers."""
+    return token.replace("_", "-")
+
+
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"], "token_normalize_func": _dashes})
 @click.version_option(package_name="slamobs", prog_name="slamobs")
 def main() -> None:
     """Run geometric nonlinear SLAM observers over MCAP files and ROS1/ROS2 bags.
