@@ -27,9 +27,15 @@ SLAMOBS = Path(sys.executable).with_name("slamobs")
 HANG = 120.0  # seconds after which a process that has not stopped counts as hung
 
 
+def _default_sigint() -> None:
+    # as from a shell: a test process (a pytest-xdist worker) may ignore SIGINT, and an ignored SIGINT is
+    # inherited through exec (Python then keeps it ignored, as a background job started by a script should)
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(log: Path, out: Path, cfg: Path, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([str(SLAMOBS), "run", str(log), "-o", str(out), "--config", str(cfg), "-q", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
 
 
 def _wait_for_observer(proc: subprocess.Popen, parent: Path, name: str) -> None:
