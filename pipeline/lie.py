@@ -92,6 +92,69 @@ def so3_left_jacobian(w):
 
 
 @njit(cache=True)
+def skew_into(v0, v1, v2, out):
+    """``out = [v]×`` (allocation-free :func:`skew` for kernels)."""
+    out[0, 0] = 0.0
+    out[0, 1] = -v2
+    out[0, 2] = v1
+    out[1, 0] = v2
+    out[1, 1] = 0.0
+    out[1, 2] = -v0
+    out[2, 0] = -v1
+    out[2, 1] = v0
+    out[2, 2] = 0.0
+
+
+@njit(cache=True)
+def so3_jacobians_into(w0, w1, w2, jl, jr):
+    """Left and right Jacobians of SO(3) at ``w`` (``J_r(w) = J_l(−w)``)."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    theta = math.sqrt(t2)
+    if theta < SMALL_ANGLE:
+        b, c = 0.5, 1.0 / 6.0
+    else:
+        b = (1.0 - math.cos(theta)) / t2
+        c = (theta - math.sin(theta)) / (t2 * theta)
+    w = (w0, w1, w2)
+    for i in range(3):
+        for j in range(3):
+            k2 = w[i] * w[j] - (t2 if i == j else 0.0)  # [w]×² = w wᵀ − θ² I
+            eye = 1.0 if i == j else 0.0
+            jl[i, j] = eye + c * k2
+            jr[i, j] = eye + c * k2
+    # the [w]× term: +b for the left, −b for the right Jacobian
+    jl[0, 1] -= b * w2
+    jl[0, 2] += b * w1
+    jl[1, 0] += b * w2
+    jl[1, 2] -= b * w0
+    jl[2, 0] -= b * w1
+    jl[2, 1] += b * w0
+    jr[0, 1] += b * w2
+    jr[0, 2] -= b * w1
+    jr[1, 0] -= b * w2
+    jr[1, 2] += b * w0
+    jr[2, 0] += b * w1
+    jr[2, 1] -= b * w0
+
+
+@njit(cache=True)
+def so3_left_jacobian_apply(w0, w1, w2, v0, v1, v2):
+    """``J(w) v`` (:func:`so3_left_jacobian` applied, allocation-free) as three scalars."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    theta = math.sqrt(t2)
+    if theta < SMALL_ANGLE:
+        cb, cc = 0.5, 1.0 / 6.0
+    else:
+        cb = (1.0 - math.cos(theta)) / t2
+        cc = (theta - math.sin(theta)) / (t2 * theta)
+    x0 = w1 * v2 - w2 * v1
+    x1 = w2 * v0 - w0 * v2
+    x2 = w0 * v1 - w1 * v0
+    return (v0 + cb * x0 + cc * (w1 * x2 - w2 * x1), v1 + cb * x1 + cc * (w2 * x0 - w0 * x2),
+            v2 + cb * x2 + cc * (w0 * x1 - w1 * x0))
+
+
+@njit(cache=True)
 def so3_exps(w):
     """:func:`so3_exp` of every row of an ``(N, 3)`` array: ``(N, 3, 3)``."""
     out = np.empty((w.shape[0], 3, 3))

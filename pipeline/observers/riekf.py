@@ -35,7 +35,7 @@ import math
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.lie import project_so3, se3_exp_into
+from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row
 from slamobs.pipeline.smoother.preintegration import twist_at
@@ -233,23 +233,6 @@ def _gate(cov, z, sl, sigma2):
 
 
 @njit(cache=True)
-def _left_jacobian_apply(w0, w1, w2, v0, v1, v2):
-    """``J(w) v`` (left Jacobian of SO(3), spec §1.2) as three scalars."""
-    t2 = w0 * w0 + w1 * w1 + w2 * w2
-    theta = math.sqrt(t2)
-    if theta < 1e-8:
-        cb, cc = 0.5, 1.0 / 6.0
-    else:
-        cb = (1.0 - math.cos(theta)) / t2
-        cc = (theta - math.sin(theta)) / (t2 * theta)
-    x0 = w1 * v2 - w2 * v1
-    x1 = w2 * v0 - w0 * v2
-    x2 = w0 * v1 - w1 * v0
-    return (v0 + cb * x0 + cc * (w1 * x2 - w2 * x1), v1 + cb * x1 + cc * (w2 * x0 - w0 * x2),
-            v2 + cb * x2 + cc * (w0 * x1 - w1 * x0))
-
-
-@njit(cache=True)
 def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (spec §1.3 exponential, applied on the left) and ``b̂ ← b̂ + b̃̂``."""
     a = np.empty((3, 3))
@@ -261,7 +244,7 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         for c in range(3):
             r_new[r, c] = a[r, 0] * r_hat[0, c] + a[r, 1] * r_hat[1, c] + a[r, 2] * r_hat[2, c]
     r_hat[:, :] = r_new
-    t0, t1, t2 = _left_jacobian_apply(w0, w1, w2, -xi[3], -xi[4], -xi[5])
+    t0, t1, t2 = so3_left_jacobian_apply(w0, w1, w2, -xi[3], -xi[4], -xi[5])
     q0 = a[0, 0] * p_hat[0] + a[0, 1] * p_hat[1] + a[0, 2] * p_hat[2] + t0
     q1 = a[1, 0] * p_hat[0] + a[1, 1] * p_hat[1] + a[1, 2] * p_hat[2] + t1
     q2 = a[2, 0] * p_hat[0] + a[2, 1] * p_hat[1] + a[2, 2] * p_hat[2] + t2
@@ -272,7 +255,7 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     for s in range((d - N_FIXED) // 3):
         i = slot_lm[s]
         o = N_FIXED + 3 * s
-        t0, t1, t2 = _left_jacobian_apply(w0, w1, w2, -xi[o], -xi[o + 1], -xi[o + 2])
+        t0, t1, t2 = so3_left_jacobian_apply(w0, w1, w2, -xi[o], -xi[o + 1], -xi[o + 2])
         q0 = a[0, 0] * lm[i, 0] + a[0, 1] * lm[i, 1] + a[0, 2] * lm[i, 2] + t0
         q1 = a[1, 0] * lm[i, 0] + a[1, 1] * lm[i, 1] + a[1, 2] * lm[i, 2] + t1
         q2 = a[2, 0] * lm[i, 0] + a[2, 1] * lm[i, 1] + a[2, 2] * lm[i, 2] + t2

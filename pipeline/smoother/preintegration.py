@@ -23,7 +23,7 @@ import math
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.lie import se3_exp_into, so3_log
+from slamobs.pipeline.lie import se3_exp_into, skew_into, so3_jacobians_into, so3_log
 
 #: Row layout of the per-interval data array: ΔR (9, row-major), Δp (3), J_R (9), J_pΩ (9), J_pV (9), W (36).
 D_R, D_P, D_JR, D_JPW, D_JPV, D_W, D_END = 0, 9, 12, 21, 30, 39, 75
@@ -61,51 +61,6 @@ def keyframe_times(vel_t: np.ndarray, det_t: np.ndarray, max_dt: float,
         return base
     extra = [base[i] + gaps[i] * np.arange(1, pieces[i]) / pieces[i] for i in np.flatnonzero(pieces > 1)]
     return np.unique(np.concatenate([base, *extra]))
-
-
-@njit(cache=True)
-def _skew_into(v0, v1, v2, out):
-    out[0, 0] = 0.0
-    out[0, 1] = -v2
-    out[0, 2] = v1
-    out[1, 0] = v2
-    out[1, 1] = 0.0
-    out[1, 2] = -v0
-    out[2, 0] = -v1
-    out[2, 1] = v0
-    out[2, 2] = 0.0
-
-
-@njit(cache=True)
-def _jacobians(w0, w1, w2, jl, jr):
-    """Left and right Jacobians of SO(3) at ``w`` (``J_r(w) = J_l(−w)``)."""
-    t2 = w0 * w0 + w1 * w1 + w2 * w2
-    theta = math.sqrt(t2)
-    if theta < 1e-8:
-        b, c = 0.5, 1.0 / 6.0
-    else:
-        b = (1.0 - math.cos(theta)) / t2
-        c = (theta - math.sin(theta)) / (t2 * theta)
-    w = (w0, w1, w2)
-    for i in range(3):
-        for j in range(3):
-            k2 = w[i] * w[j] - (t2 if i == j else 0.0)  # [w]×² = w wᵀ − θ² I
-            eye = 1.0 if i == j else 0.0
-            jl[i, j] = eye + c * k2
-            jr[i, j] = eye + c * k2
-    # the [w]× term: +b for the left, −b for the right Jacobian
-    jl[0, 1] -= b * w2
-    jl[0, 2] += b * w1
-    jl[1, 0] += b * w2
-    jl[1, 2] -= b * w0
-    jl[2, 0] -= b * w1
-    jl[2, 1] += b * w0
-    jr[0, 1] += b * w2
-    jr[0, 2] -= b * w1
-    jr[1, 0] -= b * w2
-    jr[1, 2] += b * w0
-    jr[2, 0] += b * w1
-    jr[2, 1] -= b * w0
 
 
 @njit(cache=True)
@@ -170,11 +125,11 @@ def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
             if h > 0.0:
                 w0, w1, w2, v0, v1, v2 = twist_at(vel_t, omega, vel, s, t + 0.5 * h, b_bar)
                 se3_exp_into(h * w0, h * w1, h * w2, h * v0, h * v1, h * v2, d_r, d_p)
-                _jacobians(h * w0, h * w1, h * w2, jl, jr)
+                so3_jacobians_into(h * w0, h * w1, h * w2, jl, jr)
                 # transition A = [[dRᵀ, 0], [−ΔR[dp]×, I]] and noise maps (rotation noise, velocity noise)
-                _skew_into(d_p[0], d_p[1], d_p[2], sk)
+                skew_into(d_p[0], d_p[1], d_p[2], sk)
                 rdp = _mm(rr, sk)
-                _skew_into(v0, v1, v2, sk)
+                skew_into(v0, v1, v2, sk)
                 rv = _mm(rr, sk)
                 rjl = _mm(rr, jl)
                 a[:, :] = 0.0
@@ -307,7 +262,7 @@ def motion_residual(data, j, b_bar, ti, tj, b, out_r, out_h, want_h):
     hi = -_mm(jinv, rirj.T.copy())  # −J_r⁻¹ R_jᵀ R_i
     jl = np.empty((3, 3))
     jr_phi = np.empty((3, 3))
-    _jacobians(phi[0], phi[1], phi[2], jl, jr_phi)
+    so3_jacobians_into(phi[0], phi[1], phi[2], jl, jr_phi)
     exp_r = np.empty((3, 3))
     se3_exp_into(r_rot[0], r_rot[1], r_rot[2], 0.0, 0.0, 0.0, exp_r, unused)
     hb = -_mm(_mm(_mm(jinv, exp_r.T.copy()), jr_phi), j_r)  # −J_r⁻¹(r) Exp(r)ᵀ J_r(J_R δb) J_R
@@ -318,7 +273,7 @@ def motion_residual(data, j, b_bar, ti, tj, b, out_r, out_h, want_h):
             h[2, p, q] = hb[p, q]
     # position rows: ∂/∂θ_i = [R_iᵀ(P_j − P_i)]×, ∂/∂ρ_i = −I, ∂/∂ρ_j = R_iᵀR_j, ∂/∂b = (−J_pΩ, −J_pV)
     sk = np.empty((3, 3))
-    _skew_into(rel[0], rel[1], rel[2], sk)
+    skew_into(rel[0], rel[1], rel[2], sk)
     for p in range(3):
         for q in range(3):
             h[0, 3 + p, q] = sk[p, q]
