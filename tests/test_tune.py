@@ -170,4 +170,34 @@ def test_a_log_without_truth_is_a_one_line_error(logs, tmp_path):
     assert not (tmp_path / "t" / "gains.yaml").exists()
 
 
+def test_a_holdout_log_that_cannot_be_scored_keeps_the_tunes_results(logs, tmp_path):
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    no_truth = tmp_path / "no_truth.mcap"  # logs[2] without its motion-capture topic
+    with open(logs[2], "rb") as src, open(no_truth, "wb") as dst:
+        writer, ids = Writer(dst), {}
+        writer.start(profile="ros2")
+        for schema, channel, message in make_reader(src).iter_messages():
+            if channel.topic == "/mocap/pose":
+                continue
+            if channel.id not in ids:
+                sid = writer.register_schema(schema.name, schema.encoding, schema.data) if schema else 0
+                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid,
+                                                          channel.metadata)
+            writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time)
+        writer.finish()
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not a log")
+    done = subprocess.run(_tune_args(logs, tmp_path / "j", "--trials", 2, "--holdout", junk), capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith(f"error: {junk}: not a ")
+    assert not (tmp_path / "j").exists()  # refused before any trial
+    done = subprocess.run(_tune_args(logs, tmp_path / "t", "--trials", 2, "-j", 1, "--holdout", no_truth),
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines()[-1].startswith(f"error: {no_truth}: no ground truth")
+    assert (tmp_path / "t" / "gains.yaml").is_file() and (tmp_path / "t" / "tune.md").is_file()  # trials kept
+
+
 from test_batch_kills import _stop, _worker, scheduler  # noqa: E402,F401 - real Dask processes, as the batch tests

@@ -145,6 +145,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
     from slamobs.pipeline.config import with_observer
     from slamobs.pipeline.observers import get_observer
     from slamobs.pipeline.paths import check_input
+    from slamobs.pipeline.readers.container import detect_container
     from slamobs.pipeline.run import _resolved_spec, run_inputs
     from slamobs.pipeline.tune import results
     from slamobs.pipeline.tune.worker import run_trial_log
@@ -167,6 +168,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
     holdout = []
     for log in options.holdout:
         check_input(log, "log")
+        detect_container(log)  # not a log at all: said now, not after the trials
         holdout.append(Path(os.path.realpath(log)))
         if holdout[-1] in paths:
             raise InputError(log, "is both a tuning log and a --holdout log")
@@ -191,8 +193,11 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
                 study.set_user_attr("setup", setup)
                 study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
         _requeue_interrupted(study)
-        ran, held = _optimise(study, spec, config, paths, holdout, options, on_round, run or run_trial_log)
+        ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round,
+                                           run or run_trial_log)
         summary = results.write_results(out, study, spec, setup, options, held)
+    if held_failed:  # the tune's own results are written; the holdout log is what failed
+        raise TuneFailed(held_failed)
     return TuneResult(out, ran, summary)
 
 
@@ -221,9 +226,9 @@ def _complete(study) -> int:
 
 
 def _optimise(study, spec, config: RunConfig, logs: list[Path], holdout: list[Path], options: TuneOptions, on_round,
-              run) -> tuple[int, list[dict]]:
+              run) -> tuple[int, list[dict], str | None]:
     """Run trials until ``options.trials`` are complete, then score the defaults and the best gains on the
-    ``holdout`` logs; (trials run, one row per holdout log)."""
+    ``holdout`` logs; (trials run, one row per holdout log, why a holdout log could not be scored)."""
     import optuna
 
     from slamobs.pipeline.batch.dask_exec import DaskPool, dask_available
@@ -233,7 +238,7 @@ def _optimise(study, spec, config: RunConfig, logs: list[Path], holdout: list[Pa
     from slamobs.pipeline.tune.worker import objective_value
 
     if _complete(study) >= options.trials and not holdout:
-        return 0, []
+        return 0, [], None
     if options.scheduler:
         if not dask_available():
             raise InputError("--scheduler", DASK_MISSING)
@@ -279,10 +284,13 @@ def _optimise(study, spec, config: RunConfig, logs: list[Path], holdout: list[Pa
                 why = next(r["error"] for rs in rows.values() for r in rs if r["status"] == "failed")
                 raise TuneFailed(f"{MAX_FAILED_ROUNDS} rounds in a row failed, last: {why}")
             on_round(_complete(study), options.trials, _best_value(study))
-        held = _score_holdout(study, spec, base, holdout, options, pool)
+        try:
+            held, held_failed = _score_holdout(study, spec, base, holdout, options, pool), None
+        except TuneFailed as err:
+            held, held_failed = [], str(err)
     finally:
         pool.close()
-    return ran, held
+    return ran, held, held_failed
 
 
 def _score_holdout(study, spec, base, holdout: list[Path], options: TuneOptions, pool) -> list[dict]:
