@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import platform
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Callable
 
@@ -271,6 +272,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     """
     from slamobs.pipeline import output_frame
     from slamobs.pipeline.writers import (
+        BackgroundWrites,
         TableWriter,
         atomic_directory,
         landmark_table,
@@ -333,17 +335,17 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                      f"next to the output ({', '.join(stale[:3])}{', ...' if len(stale) > 3 else ''})")
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         sink = TableWriter(tmp, config.float_bits)
+        writes = None
         try:
             if tags is not None:
                 sink.write({"tag_detections": tags.table})
-            observer_s = write_s = 0.0
+            observer_s = 0.0
             t = time.perf_counter()
             n_vel = int(aligned.vel_t_ns.shape[0])
             progress(f"{spec.name}: 0 of {n_vel} samples")
             parts = spec.chunks(aligned, gains, options, STRETCH_SAMPLES)
             for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
-                t_run = time.perf_counter()
-                observer_s += t_run - t
+                observer_s += time.perf_counter() - t
                 _check_finite(part, log, spec.name, t0_ns)
                 if frame is None:  # fixed from the first stretch, before anything is written
                     frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
@@ -351,11 +353,13 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                                                  uses_directions=spec.min_directions > 0,
                                                  known_map=prepared.known_map is not None, notes=notes)
                     metadata["output"]["frame"] = frame.describe()
-                part = frame.apply(part)
-                sink.write({**stretch_tables(part), **part.extra_tables})
-                t = time.perf_counter()
-                write_s += t - t_run
+                    writes = BackgroundWrites(partial(_write_stretch, sink, frame))
+                # the map as it is now: the observer moves its live map on while this stretch is written
+                writes.put(replace(part, landmark_xyz=np.array(part.landmark_xyz)))
                 progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
+                t = time.perf_counter()
+            t_end = time.perf_counter()
+            part = writes.finish()  # the last stretch, in the output frame
             sink.write({"landmarks": landmark_table(part.landmark_ids, part.landmark_xyz,
                                                     np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
                                                     aligned.det_ids)})
@@ -370,11 +374,14 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                 prepared.aligned = aligned = None
             sink.close(metadata)
         except BaseException:
+            if writes is not None:
+                writes.cancel()  # nothing writes into the output any more
             sink.abort()
             raise
         timings["observer_s"] = observer_s
         timings.update(stage_timings)  # parts of observer_s (batch: seed_s, smoother_s)
-        timings["write_s"] = write_s + time.perf_counter() - t
+        # the writer's own time (it overlaps the observer) and the landmarks and footers after the last stretch
+        timings["write_s"] = writes.busy_s + time.perf_counter() - t_end
         report_error = None
         if streams.truth is not None and len(streams.truth):
             t = time.perf_counter()
@@ -405,6 +412,15 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                                       "report": "report.json" if report else None, "report_error": report_error})
     return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes,
                       input_warnings=input_warnings)
+
+
+def _write_stretch(sink, frame, part):
+    """One stretch in the output frame into the tables (on the writer thread); the stretch as written."""
+    from slamobs.pipeline.writers import stretch_tables
+
+    part = frame.apply(part)
+    sink.write({**stretch_tables(part), **part.extra_tables})
+    return part
 
 
 def check_map_mode(spec, config: RunConfig, log: Path) -> None:
@@ -472,8 +488,10 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
+        early = plot_workers if config.plots and plot_workers is not None else None
         report, evaluation = evaluate_tables(frames, truth, streams.landmark_truth, streams.bias_truth,
-                                             options=options)
+                                             options=options, drawn_biases=drawn_biases,
+                                             figures=early.submit if early is not None else None)
         if len(segments) > 1:
             report.setdefault("notes", []).append(
                 f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "

@@ -45,6 +45,72 @@ def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
             "landmarks": landmark_table(res.landmark_ids, res.landmark_xyz, res.det_t_ns, res.det_ids)}
 
 
+class BackgroundWrites:
+    """``write(item)`` for every item handed to :meth:`put`, in order, on one thread, while the caller computes
+    the next item: the observer's stretches are written (rounded, encoded, compressed: pyarrow, without the
+    GIL) while the observer (a kernel without the GIL) runs the following stretch.
+
+    At most ``depth`` items wait. An exception of ``write`` is raised by the next :meth:`put` or by
+    :meth:`finish`; :meth:`cancel` (the caller failed or was interrupted) drops what waits and waits for the
+    item being written, so nothing writes into the output after it returns.
+    """
+
+    def __init__(self, write, depth: int = 1) -> None:
+        import queue
+        import threading
+
+        self._write = write
+        self._items: queue.Queue = queue.Queue(depth)
+        self._error: BaseException | None = None
+        self._cancelled = False
+        self.last = None  # what ``write`` returned for the last item
+        self.busy_s = 0.0  # seconds spent in ``write``
+        self._thread = threading.Thread(target=self._run, name="slamobs-writer", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        import time
+
+        while (item := self._items.get()) is not self._items:
+            if self._error is not None or self._cancelled:
+                continue  # drain: the caller will see the error or has given up
+            t = time.perf_counter()
+            try:
+                self.last = self._write(item)
+            except BaseException as err:  # noqa: BLE001 - raised in the caller's thread
+                self._error = err
+            self.busy_s += time.perf_counter() - t
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            err, self._error = self._error, None
+            self.cancel()
+            raise err
+
+    def put(self, item) -> None:
+        self._raise()
+        self._items.put(item)
+
+    def finish(self):
+        """Wait until every item is written; what ``write`` returned for the last one."""
+        self._items.put(self._items)  # the end marker
+        self._thread.join()
+        self._raise()
+        return self.last
+
+    def cancel(self) -> None:
+        if not self._thread.is_alive():
+            return
+        self._cancelled = True
+        while True:  # make room for the end marker without blocking on a full queue
+            try:
+                self._items.get_nowait()
+            except Exception:  # noqa: BLE001 - queue.Empty
+                break
+        self._items.put(self._items)
+        self._thread.join()
+
+
 def stretch_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     """The tables with a row per sample or detection (all but ``landmarks``), of a whole run or a stretch."""
     q = rots_to_quats(np.ascontiguousarray(res.rotation)) if len(res.t_ns) else np.zeros((0, 4))

@@ -2,12 +2,14 @@
 
 On a short log matplotlib's import (0.5-1 s) and the four figures (0.3-0.5 s each) are most of the run; they
 need no result but the report's, so a run started with :class:`PlotWorkers` has them import matplotlib on a
-free core while it reads, runs the observer and evaluates, then hands each one its figures' arguments and
-gets back the PNG bytes (written by the run itself: a helper never touches the run directory). The PNGs are
+free core while it reads, runs the observer and evaluates. Each figure is handed over as soon as the report
+has what it draws (the bias figure before the trajectory is even associated), and the PNG bytes come back
+at the end (written by the run itself: a helper never touches the run directory). The PNGs are
 byte-identical to figures drawn in the run's own process: same code, same arguments, same interpreter.
 
-A helper reads its jobs from stdin and ends when stdin closes, ignores SIGINT (the run decides what Ctrl-C
-means), is killed by :meth:`PlotWorkers.close` if it still runs, and is bound to its run as a batch worker is
+A helper reads batches of jobs from stdin until it closes, then writes all its PNGs to stdout (so it never
+waits for the run to read), ignores SIGINT (the run decides what Ctrl-C means), is killed by
+:meth:`PlotWorkers.close` if it still runs, and is bound to its run as a batch worker is
 (:func:`~slamobs.pipeline.batch.lifeline.bind_to_parent`): a run killed by SIGKILL takes it along at once,
 even in the middle of a figure.
 """
@@ -18,6 +20,7 @@ import os
 import pickle
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -41,24 +44,36 @@ def free_cores() -> int:
 
 
 class PlotWorkers:
-    """Up to ``count`` helper processes, started at once; :meth:`draw` shares the figures out among them."""
+    """Up to ``count`` helper processes, started at once; :meth:`submit` shares the figures out among them."""
 
     def __init__(self, count: int) -> None:
         self.procs: list[subprocess.Popen] = []
         self.jobs: list[Job] = []
-        self.shares: list[list[int]] = []
+        self.shares: list[list[int]] = [[] for _ in range(count)]
+        self._feeds: list[threading.Thread | None] = [None] * count
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "agg"}
         for _ in range(count):
             self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid())], stdin=subprocess.PIPE,
                                                stdout=subprocess.PIPE, env=env))
 
+    @property
+    def submitted(self) -> bool:
+        return bool(self.jobs)
+
     def submit(self, jobs: list[Job]) -> None:
-        """Hand ``jobs`` out (in turn, the costliest first) and return while the helpers draw."""
-        self.jobs = jobs
-        self.shares = [list(range(i, len(jobs), len(self.procs))) for i in range(len(self.procs))]
-        for proc, share in zip(self.procs, self.shares):
-            with proc.stdin:
-                pickle.dump([jobs[k] for k in share], proc.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+        """Hand ``jobs`` out (in turn, after those submitted before) and return at once: a feeder thread writes
+        them to the helper (a long log's arrays fill the pipe while the helper still draws earlier figures)."""
+        first = len(self.jobs)
+        self.jobs += jobs
+        for i, proc in enumerate(self.procs):
+            mine = [k for k in range(first, len(self.jobs)) if k % len(self.procs) == i]
+            if not mine:
+                continue
+            self.shares[i] += mine
+            data = pickle.dumps([self.jobs[k] for k in mine], protocol=pickle.HIGHEST_PROTOCOL)
+            feed = threading.Thread(target=_feed, args=(proc, data, self._feeds[i]), daemon=True)
+            feed.start()
+            self._feeds[i] = feed
 
     def collect(self, out: Path) -> list[Path]:
         """Wait for the submitted figures and write each PNG into ``out``; their paths in the order of the jobs.
@@ -66,11 +81,15 @@ class PlotWorkers:
         procs, self.procs = self.procs, []
         try:
             images: dict[int, bytes] = {}
-            for proc, share in zip(procs, self.shares):
+            for proc, share, feed in zip(procs, self.shares, self._feeds):
+                if feed is not None:
+                    feed.join()
+                proc.stdin.close()  # the helper's cue to answer
                 data = proc.stdout.read()
-                if proc.wait() != 0 or not data:
+                if proc.wait() != 0 or (share and not data):
                     raise RuntimeError(f"the figure helper process ended with status {proc.returncode}")
-                images.update(zip(share, pickle.loads(data)))
+                if share:
+                    images.update(zip(share, pickle.loads(data), strict=True))
         finally:
             _stop(procs)
         paths = []
@@ -90,6 +109,18 @@ class PlotWorkers:
 
     def __exit__(self, *_exc) -> None:
         self.close()
+
+
+def _feed(proc: subprocess.Popen, data: bytes, before: threading.Thread | None) -> None:
+    """Write one batch of jobs to a helper, after the batch before it; a helper that was stopped (the run
+    failed) is no error here: :meth:`PlotWorkers.collect` reports a helper that did not answer."""
+    if before is not None:
+        before.join()
+    try:
+        proc.stdin.write(data)
+        proc.stdin.flush()
+    except (BrokenPipeError, ValueError, OSError):  # killed helper, or its pipe closed by close()
+        pass
 
 
 def _stop(procs: list[subprocess.Popen]) -> None:
@@ -128,13 +159,16 @@ def _main() -> None:
     from slamobs.pipeline.evaluation.plots import warm_up
 
     warm_up()
-    try:
-        jobs = pickle.load(sys.stdin.buffer)
-    except EOFError:  # the run needed no figures
-        return
-    buffers = draw(jobs, lambda _name: io.BytesIO())
-    sys.stdout.buffer.write(pickle.dumps([b.getvalue() for b in buffers], protocol=pickle.HIGHEST_PROTOCOL))
-    sys.stdout.buffer.flush()
+    buffers = []
+    while True:  # batches as the run hands them over, each drawn at once
+        try:
+            jobs = pickle.load(sys.stdin.buffer)
+        except EOFError:
+            break
+        buffers += draw(jobs, lambda _name: io.BytesIO())
+    if buffers:  # none: the run needed no figures
+        sys.stdout.buffer.write(pickle.dumps([b.getvalue() for b in buffers], protocol=pickle.HIGHEST_PROTOCOL))
+        sys.stdout.buffer.flush()
 
 
 if __name__ == "__main__":

@@ -13,8 +13,9 @@ from __future__ import annotations
 
 import json
 from dataclasses import asdict, dataclass, replace
+from functools import cached_property
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping, Union
+from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
 import numpy as np
 
@@ -162,6 +163,12 @@ class TrajectoryEvaluation:
     @property
     def pair_t_est_ns(self) -> np.ndarray:
         return self.paired.t_est_ns
+
+    @cached_property
+    def error_level(self) -> tuple[np.ndarray, np.ndarray]:
+        """The running median of the position error (:func:`slam_metrics.error_level`): the convergence figure
+        and the errors plot share it."""
+        return slam_metrics.error_level(self.pair_t_est_ns, self.translation.errors)
 
 
 def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions, *,
@@ -452,7 +459,7 @@ def _bias_section(biases: Table | None, bias_truth: dict[str, np.ndarray] | None
 def _convergence(ev: TrajectoryEvaluation, threshold_m: float) -> dict[str, Any]:
     """When the aligned position error reaches the observer's own steady level (:func:`slam_metrics.convergence`)."""
     t0 = int(ev.estimate.t_ns[0])
-    c = slam_metrics.convergence(ev.pair_t_est_ns, ev.translation.errors, threshold_m)
+    c = slam_metrics.convergence(ev.pair_t_est_ns, ev.translation.errors, threshold_m, ev.error_level)
     return {
         "threshold_m": float(threshold_m),
         "window_s": c["window_s"],
@@ -542,19 +549,34 @@ def evaluate_tables(
     bias_truth: dict[str, np.ndarray] | None = None,
     *,
     options: ReportOptions | None = None,
+    figures: Callable[[list], None] | None = None,
+    drawn_biases: Table | None = None,
     **overrides: Any,
 ) -> tuple[dict[str, Any], TrajectoryEvaluation]:
     """:func:`evaluate_report` of the ``poses``, ``biases`` and ``landmarks`` tables in ``tables``, each removed
     from the dict once it has been used: a caller that hands the dict over (keeps no other reference) has the
-    bias table of a long run freed before the trajectory is evaluated."""
+    bias table of a long run freed before the trajectory is evaluated.
+
+    ``figures`` (e.g. :meth:`.plot_worker.PlotWorkers.submit`) is handed the report's figure jobs as soon as
+    their sections are known (the bias figure, drawn from ``drawn_biases``, first), so that helper processes
+    draw them while the rest of the report is computed."""
     options = replace(options or ReportOptions(), **overrides)
     notes: list[str] = []
     truth, invalid = valid_truth(truth)
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
     bias_section = _bias_section(tables.pop("biases", None), bias_truth, options.bias_window_fraction)
-    ev = evaluate_trajectory(tables.pop("poses"), truth, options)  # ``ev.estimate`` holds what is needed
+    poses = tables.pop("poses")
+    if figures is not None and _nrows(poses):  # the estimate's first stamp is the figures' time origin
+        figures([bias_plot_job(bias_section, drawn_biases, int(np.min(_col(poses, "t_ns", np.int64))))])
+    ev = evaluate_trajectory(poses, truth, options)  # ``ev.estimate`` holds what is needed
+    del poses
     landmarks = tables.pop("landmarks", None)
+    landmark_section = _landmark_section(landmarks, landmark_truth, ev.alignment)
+    convergence = _convergence(ev, options.convergence_threshold_m)
+    if figures is not None:
+        figures(trajectory_plot_jobs({"landmarks": landmark_section, "convergence": convergence}, ev, landmarks,
+                                     landmark_truth))
     p = ev.paired
     off = ev.time_offset
     if options.t_offset_s == "auto" and off is not None and not off.reliable:
@@ -569,9 +591,9 @@ def evaluate_tables(
         "rpe": _rpe_section(ev, options, notes),
         "drift": _drift_section(ev, options),
         "time_offset": _time_offset_section(ev, options),
-        "landmarks": _landmark_section(landmarks, landmark_truth, ev.alignment),
+        "landmarks": landmark_section,
         "biases": bias_section,
-        "convergence": _convergence(ev, options.convergence_threshold_m),
+        "convergence": convergence,
         "time_span": {
             "estimate_ns": [int(ev.estimate.t_ns[0]), int(ev.estimate.t_ns[-1])],
             "truth_ns": [int(np.min(ev.truth.t_ns)), int(np.max(ev.truth.t_ns))],
@@ -857,11 +879,12 @@ def write_report(
     if "tum" in exports:
         written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
-    jobs = plot_jobs(report, ev, biases, landmarks, landmark_truth) if plots else []
+    submitted = plot_workers is not None and plot_workers.submitted  # by evaluate_tables, as it went
+    jobs = plot_jobs(report, ev, biases, landmarks, landmark_truth) if plots and not submitted else []
     if jobs and plot_workers is not None:
         plot_workers.submit(jobs)  # drawn by the helper processes while the aligned tables are written
     written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
-    if jobs and plot_workers is not None:
+    if plot_workers is not None and plot_workers.submitted:
         written += plot_workers.collect(out)
     elif jobs:
         from slamobs.pipeline.evaluation.plot_worker import draw
@@ -902,6 +925,14 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
 def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | None,
               landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None) -> list:
     """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
+    trajectory, errors, *rest = trajectory_plot_jobs(report, ev, landmarks, landmark_truth)
+    return [trajectory, errors, bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])), *rest]
+
+
+def trajectory_plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
+                         landmark_truth: dict[int, np.ndarray] | None) -> list:
+    """The top view, the error and the landmark figures: they need the alignment, the APE, the landmark and the
+    convergence sections, nothing computed after them."""
     from slamobs.pipeline.evaluation import plots
 
     jobs = []
@@ -927,7 +958,7 @@ def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | 
         title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
     )))
     conv = report["convergence"]
-    level_t, level = slam_metrics.error_level(ev.pair_t_est_ns, ev.translation.errors)
+    level_t, level = ev.error_level
     jobs.append(("plot_errors", "errors.png", dict(
         t_s=(ev.pair_t_est_ns - t0) / 1e9,
         position_error_m=ev.translation.errors,
@@ -936,22 +967,6 @@ def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | 
         convergence_t_s=conv["t_since_start_s"],
         title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
         level=((level_t - t0) / 1e9, level),
-    )))
-    bt = report["biases"]["truth"]
-    stab = report["biases"].get("stability")
-    if biases is not None and _nrows(biases):
-        drawn = bias_plot_rows(biases)
-        bt_s = (_col(drawn, "t_ns", np.int64) - t0) / 1e9
-        gyro, vel = _cols(drawn, list(GYRO_COLUMNS), np.float64), _cols(drawn, list(VEL_COLUMNS), np.float64)
-    else:
-        bt_s, gyro, vel = np.empty(0), np.empty((0, 3)), np.empty((0, 3))
-    jobs.append(("plot_biases", "biases.png", dict(
-        t_s=bt_s,
-        gyro=gyro,
-        velocity=vel,
-        gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
-        velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
-        window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
     )))
     rows = report["landmarks"]["per_landmark"]
     if rows:
@@ -962,3 +977,24 @@ def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | 
             else np.array([r["error_map_aligned_m"] for r in rows]),
         )))
     return jobs
+
+
+def bias_plot_job(section: dict[str, Any], biases: Table | None, t0: int):
+    """The bias figure: it needs the bias section and the estimate's first stamp ``t0`` (its time axis) only, so
+    it can be drawn while the trajectory is still being evaluated."""
+    bt = section["truth"]
+    stab = section.get("stability")
+    if biases is not None and _nrows(biases):
+        drawn = bias_plot_rows(biases)
+        bt_s = (_col(drawn, "t_ns", np.int64) - t0) / 1e9
+        gyro, vel = _cols(drawn, list(GYRO_COLUMNS), np.float64), _cols(drawn, list(VEL_COLUMNS), np.float64)
+    else:
+        bt_s, gyro, vel = np.empty(0), np.empty((0, 3)), np.empty((0, 3))
+    return ("plot_biases", "biases.png", dict(
+        t_s=bt_s,
+        gyro=gyro,
+        velocity=vel,
+        gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
+        velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
+        window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
+    ))

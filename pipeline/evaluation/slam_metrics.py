@@ -77,10 +77,22 @@ def error_level(t_ns: np.ndarray, errors: np.ndarray, window_fraction: float = W
     lo = np.searchsorted(t, grid - half, side="left")
     hi = np.searchsorted(t, grid + half, side="right")
     step = np.maximum(1, (hi - lo) // WINDOW_SAMPLES)
-    return grid, np.array([np.median(e[a:b:k]) for a, b, k in zip(lo, hi, step)])
+    return grid, _strided_medians(e, lo, step, (hi - lo + step - 1) // step)
 
 
-def convergence(t_ns: np.ndarray, errors: np.ndarray, threshold: float) -> dict:
+def _strided_medians(e: np.ndarray, lo: np.ndarray, step: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``median(e[lo_k : lo_k + count_k * step_k : step_k])`` for every k; windows of one length share one
+    ``np.median`` over the rows of a gathered matrix (the same numbers as one call per window, 2000 calls
+    took 0.2 s on a long log)."""
+    out = np.empty(lo.shape[0])
+    for n in np.unique(count):
+        rows = np.flatnonzero(count == n)
+        out[rows] = np.median(e[lo[rows, None] + step[rows, None] * np.arange(n)], axis=1)
+    return out
+
+
+def convergence(t_ns: np.ndarray, errors: np.ndarray, threshold: float,
+                level: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """When the error reaches the observer's own steady level and stays there.
 
     The level is the running median (:func:`error_level`); the steady level is its highest value over the last
@@ -88,11 +100,11 @@ def convergence(t_ns: np.ndarray, errors: np.ndarray, threshold: float) -> dict:
     threshold alone would report the last time noise crossed it, and an observer whose error varies along the
     path would never have "converged". Returns the band, the steady median error and level, the window in
     seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
-    level is above it).
+    level is above it). ``level`` is :func:`error_level` of these errors when already computed.
     """
     t = np.asarray(t_ns, dtype=np.int64)
     e = np.asarray(errors, dtype=np.float64)
-    grid, level = error_level(t, e)
+    grid, level = error_level(t, e) if level is None else level
     cut = t[-1] - round(TAIL_FRACTION * (t[-1] - t[0]))
     steady_level = float(np.max(level[grid >= cut]))
     band = max(float(threshold), BAND_FACTOR * steady_level)

@@ -172,11 +172,14 @@ def _step_angles(q: np.ndarray) -> np.ndarray:
 def _rate_on_grid(t_ns: np.ndarray, increments: np.ndarray, grid_ns: np.ndarray, step_ns: int,
                   accumulated: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Mean rate of an accumulated quantity over [g, g + step] (NaN outside the stream's span);
-    ``accumulated`` is :func:`_accumulate` of the stream when sampled repeatedly."""
+    ``accumulated`` is :func:`_accumulate` of the stream when sampled repeatedly. ``grid_ns`` is evenly spaced
+    by ``step_ns``: the end of one interval is the start of the next, so the sum is interpolated once per edge."""
     t, cum = accumulated if accumulated is not None else _accumulate(t_ns, increments)
-    a = np.interp(grid_ns.astype(np.float64), t, cum)
-    b = np.interp((grid_ns + step_ns).astype(np.float64), t, cum)
-    rate = (b - a) / (step_ns / NS_PER_S)
+    edges = np.empty(grid_ns.shape[0] + 1, np.int64)
+    edges[:-1] = grid_ns
+    edges[-1] = grid_ns[-1] + step_ns if grid_ns.shape[0] else 0
+    at = np.interp(edges.astype(np.float64), t, cum)
+    rate = (at[1:] - at[:-1]) / (step_ns / NS_PER_S)
     rate[(grid_ns < t_ns[0]) | (grid_ns + step_ns > t_ns[-1])] = np.nan
     return rate
 
@@ -194,9 +197,10 @@ def _step_lengths(pos: np.ndarray) -> np.ndarray:
 
 
 def _signals(t_ns, pos, quat, grid_ns, step_ns):
+    """Angular rate and speed on the grid, and the step angles and lengths they came from."""
     ang = _step_angles(quat)
     dist = _step_lengths(pos)
-    return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns)
+    return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns), (ang, dist)
 
 
 def _variation(x: np.ndarray) -> float:
@@ -216,10 +220,11 @@ def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndar
     """Pearson correlation of a[t + L] with b[t] over the samples where both are defined, per lag L in
     [-max_lag, max_lag] (NaN where the overlap is under a fifth of the shorter signal).
 
-    The six lagged sums share their transforms: each input is transformed once (12 FFTs, not 18)."""
+    The six lagged sums share their transforms: each input is transformed once (12 FFTs, not 18), zero padded
+    to the power of two that holds the signal and the longest lag (no product wraps around)."""
     ma, mb = np.isfinite(a), np.isfinite(b)
     a0, b0 = np.where(ma, a, 0.0), np.where(mb, b, 0.0)
-    size = 1 << int(math.ceil(math.log2(2 * a.shape[0])))
+    size = 1 << int(math.ceil(math.log2(max(a.shape[0], b.shape[0]) + max_lag + 1)))
     lags = np.arange(-max_lag, max_lag + 1)
 
     def spectrum(x: np.ndarray, conj: bool = False) -> np.ndarray:
@@ -278,8 +283,8 @@ def estimate_time_offset(
     if n > 4_000_000 or n < 8:
         return None
     grid = start + np.arange(n, dtype=np.int64) * step_ns
-    r_ang, r_spd = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
-    e_ang, e_spd = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
+    r_ang, r_spd, _ = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
+    e_ang, e_spd, e_steps = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
     # the signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker
     cv = [_variation(r_ang), _variation(r_spd)]
     order = (0, 1) if cv[0] >= 0.5 * cv[1] else (1, 0)
@@ -299,7 +304,7 @@ def estimate_time_offset(
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
     ref_signal = (r_ang, r_spd)[idx]
-    steps = _step_angles(est_quat_xyzw) if idx == 0 else _step_lengths(est_pos)
+    steps = e_steps[idx]
 
     accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
     ref_defined = np.isfinite(ref_signal)

@@ -123,7 +123,7 @@ _T, _MEAS_T = 0, 1
 _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
              k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, iv_stop, budget,
              r_hat, p_hat, b_om, b_v, y, vis_idx, om_m, v_m, counter, d_r, d_p, fs, ns,

@@ -366,7 +366,7 @@ def _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v,
     return d
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, lm, q_om, q_v, q_bw, q_bv,
              gate, out_every, iv_stop, budget, r_hat, p_hat, b_om, b_v, om_m, v_m, counter, fs, ns, cov, slot_of,
              slot_lm, acc, f, g, sel, z, pht, smat, out_k, out_r, out_p, out_b, trk_p, innov, det_base, cov_out):

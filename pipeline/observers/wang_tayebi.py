@@ -293,7 +293,7 @@ _T, _MEAS_T, _T_LM, _RATE_LM, _T_DIR, _RATE_DIR = 0, 1, 2, 3, 4, 5
 _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
              det_t, det_offsets, det_idx, det_y, lm, lm_init,
              k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, iv_stop,

@@ -334,7 +334,7 @@ def _u32(buf, p):  # pragma: no cover - compiled
     return np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16) | (np.int64(buf[p + 3]) << 24)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover - compiled
     """Walk ROS1 records (header length, ``name=value`` fields, data length, data); count or fill."""
     end = buf.shape[0]
@@ -387,7 +387,7 @@ def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover
     return n, pos, _CLEAN
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover - compiled
     """Walk MCAP records (opcode, uint64 length, body); messages get channel, log time and payload."""
     end = buf.shape[0]
@@ -473,6 +473,69 @@ def _clusters(units: Iterable[_Unit]) -> Iterator[list[_Unit]]:
 _CHUNK_ERRORS = (DamagedError, RuntimeError, OSError, ValueError, EOFError, struct.error, zstandard.ZstdError)
 
 
+#: Bytes of decompressed chunks read ahead of the decoding (by one loading thread). The decoder takes 16 MB
+#: at a time (:data:`.fastdecode.GROUP_BYTES`): the thread keeps about two such groups ready.
+PREFETCH_BYTES = 32 << 20
+
+
+def _prefetched(load: Callable[[_Unit], RawBatch | None], units: Sequence[_Unit]) -> Iterator[RawBatch | None]:
+    """``load(unit)`` of every unit, in order, computed by one thread ahead of the caller.
+
+    Reading, decompressing and checking a chunk (file I/O, zstd/lz4/bz2, CRC32 and the record walk all run
+    without the GIL) overlap the decoding of the chunks before. The thread is the only one that touches the
+    file while this runs; an exception it meets is raised here, at its unit; closing the generator (or an
+    exception of the caller) stops the thread and waits for it.
+    """
+    if len(units) < 2:  # nothing to overlap
+        for unit in units:
+            yield load(unit)
+        return
+    import collections
+    import threading
+
+    ready: collections.deque = collections.deque()
+    room = threading.Condition()
+    held = [0]  # bytes loaded and not yet taken
+    stop = False
+
+    def work() -> None:
+        for unit in units:
+            try:
+                item = (True, load(unit))
+            except BaseException as err:  # noqa: BLE001 - handed to the caller, raised there
+                item = (False, err)
+            size = int(item[1].data.nbytes) if item[0] and item[1] is not None else 0
+            with room:
+                while held[0] > PREFETCH_BYTES and not stop:
+                    room.wait()
+                if stop:
+                    return
+                held[0] += size
+                ready.append((item, size))
+                room.notify_all()
+            if not item[0]:
+                return
+
+    thread = threading.Thread(target=work, name="slamobs-chunk-reader", daemon=True)
+    thread.start()
+    try:
+        for _ in units:
+            with room:
+                while not ready:
+                    room.wait()
+                (ok, value), size = ready.popleft()
+                held[0] -= size
+                room.notify_all()
+            if not ok:
+                raise value
+            yield value
+    finally:
+        with room:
+            stop = True
+            room.notify_all()
+        thread.join()
+
+
 class _Chunked:
     """What the ROS1 and MCAP readers share: units, loading them, the damage report.
 
@@ -495,17 +558,21 @@ class _Chunked:
         wanted = set(ids.ids.tolist())
         units = [u for u in self.units if not u.conns or u.conns & wanted]
         read = 0
-        if not ordered:
-            for unit in units:
-                if (batch := self._load_or_skip(unit, ids)) is not None:
-                    read += 1
-                    yield batch
-        else:
-            for group in _clusters(units):
-                loaded = [b for u in group if (b := self._load_or_skip(u, ids)) is not None]
-                if loaded:
-                    read += len(loaded)
-                    yield _concat(loaded).in_record_order()
+        loads = _prefetched(lambda unit: self._load_or_skip(unit, ids), units)
+        try:
+            if not ordered:
+                for batch in loads:
+                    if batch is not None:
+                        read += 1
+                        yield batch
+            else:
+                for group in _clusters(units):
+                    loaded = [b for _ in group if (b := next(loads)) is not None]
+                    if loaded:
+                        read += len(loaded)
+                        yield _concat(loaded).in_record_order()
+        finally:
+            loads.close()  # the loading thread is stopped and done before the file may be closed
         if units and not read:
             why = self.lost[min(self.lost)][2] if getattr(self, "lost", None) else "damaged"
             msg = f"every chunk holding the topics read is damaged ({why})"

@@ -280,7 +280,7 @@ def make_plan(
 # --------------------------------------------------------------------------- kernels
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
     """Words of ``sizes[j]`` bytes at ``offsets[i, j]`` (unaligned reads), normalised to little endian."""
     n, m = offsets.shape
@@ -317,7 +317,7 @@ def _u32(data: np.ndarray, offsets: np.ndarray, big: bool) -> np.ndarray:
     return words.reshape(-1).astype(np.int64)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def payload_hashes(data, start, size, skip):  # pragma: no cover - compiled
     """64-bit FNV-1a of each payload after its first ``skip`` bytes (duplicate detection without copies)."""
     out = np.empty(start.shape[0], np.uint64)
@@ -330,7 +330,7 @@ def payload_hashes(data, start, size, skip):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _item_offsets(origin, first, counts, limit, is_leaf, align, size, slot, nleaves):  # pragma: no cover - compiled
     """Absolute offsets of every element's leaves (rows in message order); CDR alignment is relative to
     ``origin``. Returns the offsets and the first message whose elements run past its end (-1: none)."""
@@ -374,7 +374,7 @@ class Decoded:
     items: np.ndarray | None = None  # (sum(counts), nitems) float64, elements in message order
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _dedup(data, pos, length):  # pragma: no cover - compiled
     """Per-string code, distinct strings numbered by first appearance, and the first string of every code.
 
