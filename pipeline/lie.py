@@ -349,36 +349,15 @@ def quats_to_rots(q):
 
 
 def rots_to_quats(r):
-    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array (NumPy: each row takes the branch of
-    Shepperd's method and the arithmetic that :func:`rot_to_quat` takes)."""
-    r = np.asarray(r, dtype=np.float64)
+    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array: the same compiled arithmetic row by row
+    (NaN rows give NaN)."""
+    r = np.ascontiguousarray(r, dtype=np.float64)
     q = np.empty((r.shape[0], 4))
-    with np.errstate(divide="ignore", invalid="ignore"):  # NaN rows stay NaN
-        _shepperd(r, q)
-        return q / np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])[:, None]
+    _rots_to_quats_into(r, q)
+    return q
 
 
-def _shepperd(r: np.ndarray, q: np.ndarray) -> None:
-    """Unnormalised quaternions of :func:`rots_to_quats` into ``q``, ``w >= 0``."""
-    tr = r[:, 0, 0] + r[:, 1, 1] + r[:, 2, 2]
-    b0 = tr > 0.0
-    b1 = ~b0 & (r[:, 0, 0] > r[:, 1, 1]) & (r[:, 0, 0] > r[:, 2, 2])
-    b2 = ~b0 & ~b1 & (r[:, 1, 1] > r[:, 2, 2])
-    b3 = ~(b0 | b1 | b2)
-    m = r[b0]
-    s = 2.0 * np.sqrt(tr[b0] + 1.0)
-    q[b0] = np.column_stack([(m[:, 2, 1] - m[:, 1, 2]) / s, (m[:, 0, 2] - m[:, 2, 0]) / s,
-                             (m[:, 1, 0] - m[:, 0, 1]) / s, 0.25 * s])
-    m = r[b1]
-    s = 2.0 * np.sqrt(1.0 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2])
-    q[b1] = np.column_stack([0.25 * s, (m[:, 0, 1] + m[:, 1, 0]) / s, (m[:, 0, 2] + m[:, 2, 0]) / s,
-                             (m[:, 2, 1] - m[:, 1, 2]) / s])
-    m = r[b2]
-    s = 2.0 * np.sqrt(1.0 + m[:, 1, 1] - m[:, 0, 0] - m[:, 2, 2])
-    q[b2] = np.column_stack([(m[:, 0, 1] + m[:, 1, 0]) / s, 0.25 * s, (m[:, 1, 2] + m[:, 2, 1]) / s,
-                             (m[:, 0, 2] - m[:, 2, 0]) / s])
-    m = r[b3]
-    s = 2.0 * np.sqrt(1.0 + m[:, 2, 2] - m[:, 0, 0] - m[:, 1, 1])
-    q[b3] = np.column_stack([(m[:, 0, 2] + m[:, 2, 0]) / s, (m[:, 1, 2] + m[:, 2, 1]) / s, 0.25 * s,
-                             (m[:, 1, 0] - m[:, 0, 1]) / s])
-    q[q[:, 3] < 0.0] *= -1.0
+@njit(cache=True, nogil=True)
+def _rots_to_quats_into(r, q):
+    for n in range(r.shape[0]):
+        q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])

@@ -56,6 +56,21 @@ def test_quaternion_round_trip_and_sign():
     assert np.allclose(np.einsum("kji,kjl->kil", rots, rots), np.eye(3), atol=1e-12)
 
 
+def test_rots_to_quats_is_rot_to_quat_row_by_row():
+    """Every branch of Shepperd's method (trace, then the largest diagonal entry), scaled and NaN matrices: the
+    array version gives exactly the scalar one's numbers."""
+    rng = np.random.default_rng(6)
+    q = rng.normal(size=(400, 4))
+    rots = lie.quats_to_rots(q / np.linalg.norm(q, axis=1, keepdims=True))
+    rots[:4] = [np.eye(3), np.diag([1.0, -1.0, -1.0]), np.diag([-1.0, 1.0, -1.0]), np.diag([-1.0, -1.0, 1.0])]
+    rots[4] *= 1.01
+    rots[5] = np.nan
+    got = lie.rots_to_quats(rots[::-1][::-1])  # a strided view, as callers may pass
+    want = np.array([lie.rot_to_quat(np.ascontiguousarray(r)) for r in rots])
+    assert np.array_equal(got, want, equal_nan=True)
+    assert np.isnan(got[5]).all() and got[1].tolist() == [1.0, 0.0, 0.0, 0.0]
+
+
 def test_skew_vex_and_identities():
     rng = np.random.default_rng(5)
     x, y = rng.normal(size=3), rng.normal(size=3)

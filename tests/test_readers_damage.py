@@ -150,7 +150,10 @@ def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, 
             r.t_ns.nbytes + r.rec_ns.nbytes + r.values.nbytes + r.frame.nbytes + r.child.nbytes for r in rows.values()
         )
         overhead.append(peak - columns)
-    assert overhead[1] < 1.25 * overhead[0] + 64 * 1024, overhead
+    # the loading thread may hold PREFETCH_GROUPS decoding groups and the chunk in hand ahead of the decoder: a
+    # constant, whichever log it reads ahead of (the short one may end before it is reached)
+    ahead = (container_module.PREFETCH_GROUPS + 1) * CHUNK
+    assert overhead[1] < 1.25 * overhead[0] + 64 * 1024 + ahead, overhead
 
 
 # --------------------------------------------------------------------------- truncation

@@ -16,6 +16,7 @@ import numpy as np
 from slamobs.pipeline.blocks import blockwise
 from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
+from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import quats_to_rots
 
 __all__ = [
@@ -152,12 +153,66 @@ def quat_angles(q: np.ndarray) -> np.ndarray:
 
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`matrix_quats`); ``arccos`` of
-    the trace would lose ~1e-8 rad at small angles."""
+    the trace would lose ~1e-8 rad at small angles. The products that are orthogonal to 1e-12 (all but
+    rotations read from files with few digits) take :func:`_relative_quats`, the others :func:`matrix_quats`;
+    the numbers are the same, bit for bit."""
+    a, b = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
+    q = np.empty((a.shape[0], 4))
+    bad = np.zeros(a.shape[0], dtype=np.bool_)
+    _relative_quats(a, b, q, bad)
+    if bad.any():
+        q[bad] = matrix_quats(_products(a[bad], b[bad]))
+    return quat_angles(q)
+
+
+def _products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a_kᵀ b_k`` per row."""
     m = np.empty((a.shape[0], 3, 3))
     for i in range(3):
         for j in range(3):
             m[:, i, j] = a[:, 0, i] * b[:, 0, j] + a[:, 1, i] * b[:, 1, j] + a[:, 2, i] * b[:, 2, j]
-    return quat_angles(matrix_quats(m))
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _relative_quats(a, b, q, bad):  # pragma: no cover - compiled
+    """:func:`matrix_quats` of ``a_kᵀ b_k`` (the same operations in the same order, one row at a time: on an
+    hour of pairs the array version took 0.8 s of a report) into ``q``; rows whose product is not orthogonal
+    to 1e-12 (:func:`_is_orthogonal`) are only marked in ``bad``."""
+    m = np.empty((3, 3))
+    t = np.empty(4)
+    for n in range(a.shape[0]):
+        for i in range(3):
+            for j in range(3):
+                m[i, j] = a[n, 0, i] * b[n, 0, j] + a[n, 1, i] * b[n, 1, j] + a[n, 2, i] * b[n, 2, j]
+        for i in range(3):
+            for j in range(3):
+                g = m[i, 0] * m[j, 0] + m[i, 1] * m[j, 1] + m[i, 2] * m[j, 2]
+                e = 1.0 if i == j else 0.0
+                if abs(g - e) > 1e-12 + 1e-5 * e:
+                    bad[n] = True
+        if bad[n]:
+            continue
+        tr = m[0, 0] + m[1, 1] + m[2, 2]
+        c = 0  # argmax of (m00, m11, m22, tr), first on ties
+        best = m[0, 0]
+        for k in (1, 2):
+            if m[k, k] > best:
+                c, best = k, m[k, k]
+        if tr > best:
+            t[0] = m[2, 1] - m[1, 2]
+            t[1] = m[0, 2] - m[2, 0]
+            t[2] = m[1, 0] - m[0, 1]
+            t[3] = 1.0 + tr
+        else:
+            i, j, k = c, (c + 1) % 3, (c + 2) % 3
+            t[i] = 1.0 - tr + 2.0 * m[i, i]
+            t[j] = m[j, i] + m[i, j]
+            t[k] = m[k, i] + m[i, k]
+            t[3] = m[k, j] - m[j, k]
+        norm = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
+        for k in range(4):
+            q[n, k] = t[k] / norm
 
 
 class RotationRows:

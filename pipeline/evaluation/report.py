@@ -151,9 +151,14 @@ class TrajectoryEvaluation:
     alignment: Alignment
     translation: ErrorResult  # APE trans_part (the evo result written to the zip)
     rotation: ErrorResult  # APE angle_deg
-    time_offset: TimeOffset | None
+    offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
+
+    @property
+    def time_offset(self) -> TimeOffset | None:
+        """The estimated clock offset (waits for it when it is computed beside the rest)."""
+        return self.offset.result() if isinstance(self.offset, _Pending) else self.offset
 
     @property
     def est_positions_aligned(self) -> np.ndarray:
@@ -180,12 +185,14 @@ def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions,
     est = estimate_stream(poses)
     truth_sorted = _sorted(truth)
     offset = None
-    if estimate_offset or options.t_offset_s == "auto":
-        offset = estimate_time_offset(truth_sorted.t_ns, truth_sorted.position, truth_sorted.quat_xyzw, est.t_ns,
-                                      est.position, est.quat_xyzw, max_offset_s=options.max_time_offset_s)
-    if options.t_offset_s == "auto":
+    search = (truth_sorted.t_ns, truth_sorted.position, truth_sorted.quat_xyzw, est.t_ns, est.position,
+              est.quat_xyzw)
+    if options.t_offset_s == "auto":  # the association needs it
+        offset = estimate_time_offset(*search, max_offset_s=options.max_time_offset_s)
         applied = offset.offset_s if offset is not None else 0.0
     else:
+        if estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
+            offset = _Pending(estimate_time_offset, *search, max_offset_s=options.max_time_offset_s)
         applied = float(options.t_offset_s)
     sync = SyncOptions(options.t_max_diff_s, applied, "nearest")
     paired = synchronize(truth_sorted, est, sync, ref_label="truth")
@@ -195,6 +202,31 @@ def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions,
     rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate",
               like=trans)
     return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
+
+
+class _Pending:
+    """``func(*args, **kwargs)`` computed on a thread of its own; :meth:`result` waits for it (and raises what
+    it raised). The thread is a daemon: a run stopped meanwhile does not wait for it to end."""
+
+    def __init__(self, func, *args, **kwargs) -> None:
+        import threading
+
+        self._value = self._error = None
+        self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, func, args, kwargs) -> None:
+        try:
+            self._value = func(*args, **kwargs)
+        except BaseException as err:  # noqa: BLE001 - raised by result()
+            self._error = err
+
+    def result(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._value
 
 
 def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
@@ -573,13 +605,14 @@ def evaluate_tables(
     del poses
     landmarks = tables.pop("landmarks", None)
     landmark_section = _landmark_section(landmarks, landmark_truth, ev.alignment)
+    if figures is not None:  # the top view first: it needs no more than the landmark errors
+        figures([top_view_job(landmark_section, ev, landmarks, landmark_truth)])
     convergence = _convergence(ev, options.convergence_threshold_m)
     if figures is not None:
-        figures(trajectory_plot_jobs({"landmarks": landmark_section, "convergence": convergence}, ev, landmarks,
-                                     landmark_truth))
+        figures(error_plot_jobs(landmark_section, convergence, ev))
     p = ev.paired
-    off = ev.time_offset
-    if options.t_offset_s == "auto" and off is not None and not off.reliable:
+    off = ev.time_offset if options.t_offset_s == "auto" else None  # else still being searched for
+    if off is not None and not off.reliable:
         edge = ", at the search limit" if off.at_window_edge else ""
         notes.append(f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
                      f"{off.peak_correlation:.2f}{edge})")
@@ -925,27 +958,25 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
 def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | None,
               landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None) -> list:
     """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
-    trajectory, errors, *rest = trajectory_plot_jobs(report, ev, landmarks, landmark_truth)
-    return [trajectory, errors, bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])), *rest]
+    errors, *rest = error_plot_jobs(report["landmarks"], report["convergence"], ev)
+    return [top_view_job(report["landmarks"], ev, landmarks, landmark_truth), errors,
+            bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])), *rest]
 
 
-def trajectory_plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
-                         landmark_truth: dict[int, np.ndarray] | None) -> list:
-    """The top view, the error and the landmark figures: they need the alignment, the APE, the landmark and the
-    convergence sections, nothing computed after them."""
+def top_view_job(landmark_section: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
+                 landmark_truth: dict[int, np.ndarray] | None):
+    """The top view: it needs the alignment, the APE and the landmark errors only."""
     from slamobs.pipeline.evaluation import plots
 
-    jobs = []
     al = ev.alignment
-    t0 = int(ev.estimate.t_ns[0])
     path = plots.thin(len(ev.estimate), plots.PATH_POINTS)  # only what is drawn is aligned
     ids, xyz = _landmark_table(landmarks)
     lm_truth_ids = lm_truth_xyz = None
     if landmark_truth:
         lm_truth_ids = np.array(sorted(int(k) for k in landmark_truth), dtype=np.int64)
         lm_truth_xyz = np.array([np.asarray(landmark_truth[int(i)], dtype=np.float64).reshape(3) for i in lm_truth_ids])
-    lm_err = {row["id"]: row["error_m"] for row in report["landmarks"]["per_landmark"]}
-    jobs.append(("plot_trajectory_top", "trajectory_top.png", dict(
+    lm_err = {row["id"]: row["error_m"] for row in landmark_section["per_landmark"]}
+    return ("plot_trajectory_top", "trajectory_top.png", dict(
         est_xyz=al.positions(ev.estimate.position[path]),
         truth_xyz=np.asarray(ev.truth.position, dtype=np.float64),
         lm_est_ids=ids,
@@ -956,19 +987,24 @@ def trajectory_plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, landm
         pair_error_m=ev.translation.errors,
         lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
         title=f"Top view (x-y): estimate after {_ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
-    )))
-    conv = report["convergence"]
+    ))
+
+
+def error_plot_jobs(landmark_section: dict[str, Any], convergence: dict[str, Any],
+                    ev: TrajectoryEvaluation) -> list:
+    """The error figure (it needs the convergence section) and, with landmark truth, the landmark figure."""
+    t0 = int(ev.estimate.t_ns[0])
     level_t, level = ev.error_level
-    jobs.append(("plot_errors", "errors.png", dict(
+    jobs = [("plot_errors", "errors.png", dict(
         t_s=(ev.pair_t_est_ns - t0) / 1e9,
         position_error_m=ev.translation.errors,
         attitude_error_deg=ev.rotation.errors,
-        band_m=conv["band_m"],
-        convergence_t_s=conv["t_since_start_s"],
-        title=f"Absolute pose error after {_ALIGN_LABELS[al.kind]} alignment",
+        band_m=convergence["band_m"],
+        convergence_t_s=convergence["t_since_start_s"],
+        title=f"Absolute pose error after {_ALIGN_LABELS[ev.alignment.kind]} alignment",
         level=((level_t - t0) / 1e9, level),
-    )))
-    rows = report["landmarks"]["per_landmark"]
+    ))]
+    rows = landmark_section["per_landmark"]
     if rows:
         jobs.append(("plot_landmark_errors", "landmarks.png", dict(
             ids=np.array([r["id"] for r in rows]),

@@ -473,9 +473,9 @@ def _clusters(units: Iterable[_Unit]) -> Iterator[list[_Unit]]:
 _CHUNK_ERRORS = (DamagedError, RuntimeError, OSError, ValueError, EOFError, struct.error, zstandard.ZstdError)
 
 
-#: Bytes of decompressed chunks read ahead of the decoding (by one loading thread). The decoder takes 16 MB
-#: at a time (:data:`.fastdecode.GROUP_BYTES`): the thread keeps about two such groups ready.
-PREFETCH_BYTES = 32 << 20
+#: Decompressed chunks read ahead of the decoding (by one loading thread), in decoding groups: the decoder
+#: takes :data:`.fastdecode.GROUP_BYTES` (16 MB) at a time, the thread keeps about two groups ready.
+PREFETCH_GROUPS = 2
 
 
 def _prefetched(load: Callable[[_Unit], RawBatch | None], units: Sequence[_Unit]) -> Iterator[RawBatch | None]:
@@ -493,6 +493,9 @@ def _prefetched(load: Callable[[_Unit], RawBatch | None], units: Sequence[_Unit]
     import collections
     import threading
 
+    from .fastdecode import GROUP_BYTES
+
+    budget = PREFETCH_GROUPS * GROUP_BYTES
     ready: collections.deque = collections.deque()
     room = threading.Condition()
     held = [0]  # bytes loaded and not yet taken
@@ -506,7 +509,7 @@ def _prefetched(load: Callable[[_Unit], RawBatch | None], units: Sequence[_Unit]
                 item = (False, err)
             size = int(item[1].data.nbytes) if item[0] and item[1] is not None else 0
             with room:
-                while held[0] > PREFETCH_BYTES and not stop:
+                while held[0] > budget and not stop:
                     room.wait()
                 if stop:
                     return

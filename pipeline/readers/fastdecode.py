@@ -17,6 +17,7 @@ field before the wanted ones, strings inside elements) fall back to rosbags.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -379,7 +380,8 @@ def _dedup(data, pos, length):  # pragma: no cover - compiled
     """Per-string code, distinct strings numbered by first appearance, and the first string of every code.
 
     An open-addressing table keyed by a 64-bit FNV-1a hash; a hit is confirmed byte for byte, so two strings
-    with one hash stay apart."""
+    with one hash stay apart. A string equal to the one before it (a topic's frame id, message after message)
+    takes its code without hashing."""
     n = pos.shape[0]
     codes = np.empty(n, np.int32)
     firsts = np.empty(n, np.int64)
@@ -389,6 +391,15 @@ def _dedup(data, pos, length):  # pragma: no cover - compiled
     k = 0
     prime = np.uint64(1099511628211)
     for i in range(n):
+        if i > 0 and length[i] == length[i - 1]:
+            same = True
+            for q in range(length[i]):
+                if data[pos[i - 1] + q] != data[pos[i] + q]:
+                    same = False
+                    break
+            if same:
+                codes[i] = codes[i - 1]
+                continue
         h = (np.uint64(14695981039346656037) ^ np.uint64(length[i])) * prime
         for q in range(pos[i], pos[i] + length[i]):
             h = (h ^ np.uint64(data[q])) * prime
@@ -725,20 +736,48 @@ def read_columns(
         conns_t, plan = topics[t]
         item_width = len(plan.items.leaves) if plan.items is not None else None
         out.append(_Columns(sum(c.msgcount for c in conns_t), len(plan.leaves) - 2, digests, item_width))
-    for batch in _grouped(iter_batches(reader, path, conns)):
-        which = owner_of[batch.conn]
-        for k, topic in enumerate(names):
-            rows = np.flatnonzero(which == k) if len(names) > 1 else None
-            if rows is not None and not rows.size:
-                continue
-            plan = topics[topic][1]
+
+    def decode_topic(k: int, batch: RawBatch, rows: np.ndarray | None) -> None:
+        plan = topics[names[k]][1]
+        try:
+            dec = decode(plan, batch, rows)
+        except DecodeError as err:
+            raise InputError(path, f"cannot decode {plan.msgtype} message: {err}", names[k]) from None
+        sub = batch if rows is None else batch.take(rows)
+        digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4) if digests else None
+        out[k].append(dec, sub.rec_ns, digest)
+
+    def run_lane(batch: RawBatch, todo: list[tuple[int, np.ndarray]]) -> tuple[int, InputError] | None:
+        for k, rows in todo:
             try:
-                dec = decode(plan, batch, rows)
-            except DecodeError as err:
-                raise InputError(path, f"cannot decode {plan.msgtype} message: {err}", topic) from None
-            sub = batch if rows is None else batch.take(rows)
-            digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4) if digests else None
-            out[k].append(dec, sub.rec_ns, digest)
+                decode_topic(k, batch, rows)
+            except InputError as err:
+                return k, err
+        return None
+
+    # Several topics are decoded on two threads (the kernels run without the GIL): the topics of each group
+    # are dealt to the caller's thread and one helper by message count, the helper's first.
+    helper = ThreadPoolExecutor(1, thread_name_prefix="slamobs-decode") if len(names) > 1 else None
+    try:
+        for batch in _grouped(iter_batches(reader, path, conns)):
+            if helper is None:
+                decode_topic(0, batch, None)
+                continue
+            which = owner_of[batch.conn]
+            parts = [(k, rows) for k in range(len(names)) if (rows := np.flatnonzero(which == k)).size]
+            lanes: list[list[tuple[int, np.ndarray]]] = [[], []]
+            load = [0, 0]
+            for k, rows in sorted(parts, key=lambda part: -part[1].size):
+                lane = 0 if load[0] <= load[1] else 1
+                lanes[lane].append((k, rows))
+                load[lane] += rows.size
+            there = helper.submit(run_lane, batch, lanes[0])
+            failures = [f for f in (run_lane(batch, lanes[1]), there.result()) if f is not None]
+            if failures:  # the first topic's error, as one thread would have met it
+                raise min(failures, key=lambda f: f[0])[1]
+    finally:
+        if helper is not None:
+            helper.shutdown(wait=True, cancel_futures=True)
     return {t: cols.done() for t, cols in zip(names, out, strict=True)}
 
 
