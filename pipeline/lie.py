@@ -270,9 +270,9 @@ def quat_to_rot(q):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _rot_of_quat(qx, qy, qz, qw, out):
-    """:func:`quat_to_rot` of the four scalars, written into ``out``."""
+    """:func:`quat_to_rot` of the four scalars, written into ``out`` (a zero quaternion gives NaN)."""
     n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     x, y, z, w = qx / n, qy / n, qz / n, qw / n
     out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
@@ -294,7 +294,7 @@ def rot_to_quat(r):
     return q
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _quat_of_rot(r):
     """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it)."""
     tr = r[0, 0] + r[1, 1] + r[2, 2]
@@ -329,23 +329,18 @@ def _quat_of_rot(r):
 
 
 def quats_to_rots(q):
-    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array (NumPy, the same arithmetic row by row: called
-    from Python only, it needs no compiled kernel); a zero quaternion gives NaN."""
-    q = np.asarray(q, dtype=np.float64)
-    n = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x, y, z, w = q[:, 0] / n, q[:, 1] / n, q[:, 2] / n, q[:, 3] / n
+    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array: the same compiled arithmetic row by row; a zero
+    quaternion gives NaN."""
+    q = np.ascontiguousarray(q, dtype=np.float64)
     out = np.empty((q.shape[0], 3, 3))
-    out[:, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    out[:, 0, 1] = 2.0 * (x * y - z * w)
-    out[:, 0, 2] = 2.0 * (x * z + y * w)
-    out[:, 1, 0] = 2.0 * (x * y + z * w)
-    out[:, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    out[:, 1, 2] = 2.0 * (y * z - x * w)
-    out[:, 2, 0] = 2.0 * (x * z - y * w)
-    out[:, 2, 1] = 2.0 * (y * z + x * w)
-    out[:, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    _quats_to_rots_into(q, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _quats_to_rots_into(q, out):
+    for n in range(q.shape[0]):
+        _rot_of_quat(q[n, 0], q[n, 1], q[n, 2], q[n, 3], out[n])
 
 
 def rots_to_quats(r):

@@ -71,6 +71,16 @@ def test_rots_to_quats_is_rot_to_quat_row_by_row():
     assert np.isnan(got[5]).all() and got[1].tolist() == [1.0, 0.0, 0.0, 0.0]
 
 
+def test_quats_to_rots_is_quat_to_rot_row_by_row():
+    rng = np.random.default_rng(7)
+    q = rng.normal(size=(300, 4)) * rng.uniform(0.1, 10.0, size=(300, 1))  # not normalised
+    q[3] = 0.0
+    q[4] = np.nan
+    got = lie.quats_to_rots(q[:, [0, 1, 2, 3]])  # a copy with its own strides
+    assert np.array_equal(got[5:], np.array([lie.quat_to_rot(row) for row in q[5:]]))
+    assert np.isnan(got[3]).all() and np.isnan(got[4]).all()  # a zero quaternion is no rotation: NaN
+
+
 def test_skew_vex_and_identities():
     rng = np.random.default_rng(5)
     x, y = rng.normal(size=3), rng.normal(size=3)

@@ -605,11 +605,12 @@ def evaluate_tables(
     del poses
     landmarks = tables.pop("landmarks", None)
     landmark_section = _landmark_section(landmarks, landmark_truth, ev.alignment)
-    if figures is not None:  # the top view first: it needs no more than the landmark errors
-        figures([top_view_job(landmark_section, ev, landmarks, landmark_truth)])
+    if figures is not None:  # the top view and the landmark errors need no more than the landmark section
+        figures([top_view_job(landmark_section, ev, landmarks, landmark_truth),
+                 *landmark_plot_jobs(landmark_section)])
     convergence = _convergence(ev, options.convergence_threshold_m)
     if figures is not None:
-        figures(error_plot_jobs(landmark_section, convergence, ev))
+        figures([error_plot_job(convergence, ev)])
     p = ev.paired
     off = ev.time_offset if options.t_offset_s == "auto" else None  # else still being searched for
     if off is not None and not off.reliable:
@@ -958,9 +959,8 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
 def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | None,
               landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None) -> list:
     """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
-    errors, *rest = error_plot_jobs(report["landmarks"], report["convergence"], ev)
-    return [top_view_job(report["landmarks"], ev, landmarks, landmark_truth), errors,
-            bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])), *rest]
+    return [top_view_job(report["landmarks"], ev, landmarks, landmark_truth), error_plot_job(report["convergence"], ev),
+            bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])), *landmark_plot_jobs(report["landmarks"])]
 
 
 def top_view_job(landmark_section: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
@@ -990,12 +990,11 @@ def top_view_job(landmark_section: dict[str, Any], ev: TrajectoryEvaluation, lan
     ))
 
 
-def error_plot_jobs(landmark_section: dict[str, Any], convergence: dict[str, Any],
-                    ev: TrajectoryEvaluation) -> list:
-    """The error figure (it needs the convergence section) and, with landmark truth, the landmark figure."""
+def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
+    """The error figure: it needs the convergence section."""
     t0 = int(ev.estimate.t_ns[0])
     level_t, level = ev.error_level
-    jobs = [("plot_errors", "errors.png", dict(
+    return ("plot_errors", "errors.png", dict(
         t_s=(ev.pair_t_est_ns - t0) / 1e9,
         position_error_m=ev.translation.errors,
         attitude_error_deg=ev.rotation.errors,
@@ -1003,16 +1002,20 @@ def error_plot_jobs(landmark_section: dict[str, Any], convergence: dict[str, Any
         convergence_t_s=convergence["t_since_start_s"],
         title=f"Absolute pose error after {_ALIGN_LABELS[ev.alignment.kind]} alignment",
         level=((level_t - t0) / 1e9, level),
-    ))]
+    ))
+
+
+def landmark_plot_jobs(landmark_section: dict[str, Any]) -> list:
+    """The landmark error figure when the map has truth (none otherwise)."""
     rows = landmark_section["per_landmark"]
-    if rows:
-        jobs.append(("plot_landmark_errors", "landmarks.png", dict(
-            ids=np.array([r["id"] for r in rows]),
-            error_traj_m=np.array([r["error_m"] for r in rows]),
-            error_map_m=None if rows[0].get("error_map_aligned_m") is None
-            else np.array([r["error_map_aligned_m"] for r in rows]),
-        )))
-    return jobs
+    if not rows:
+        return []
+    return [("plot_landmark_errors", "landmarks.png", dict(
+        ids=np.array([r["id"] for r in rows]),
+        error_traj_m=np.array([r["error_m"] for r in rows]),
+        error_map_m=None if rows[0].get("error_map_aligned_m") is None
+        else np.array([r["error_map_aligned_m"] for r in rows]),
+    ))]
 
 
 def bias_plot_job(section: dict[str, Any], biases: Table | None, t0: int):

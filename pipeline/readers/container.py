@@ -509,7 +509,7 @@ def _prefetched(load: Callable[[_Unit], RawBatch | None], units: Sequence[_Unit]
                 item = (False, err)
             size = int(item[1].data.nbytes) if item[0] and item[1] is not None else 0
             with room:
-                while held[0] > budget and not stop:
+                while held[0] and held[0] + size > budget and not stop:  # one unit always fits
                     room.wait()
                 if stop:
                     return
