@@ -489,6 +489,18 @@ def test_time_offset_estimate_both_signs():
     assert got.signal == "angular rate |ω|" and got.offset_s == pytest.approx(0.061, abs=0.002)
 
 
+def test_time_offset_of_a_constant_rate_circle_is_no_estimate():
+    """A circle flown at constant speed and turn rate carries no clock information: both signals are constant,
+    their correlation is round-off over round-off (it came out as inf, an arbitrary lag reported as a reliable
+    offset of -0.99 s on circle.bag, where the truth is 0)."""
+    t = np.arange(6000, dtype=np.int64) * 10_000_000 + T0_NS
+    s = (t - T0_NS) / 1e9
+    yaw = 0.5 * s
+    pos = np.column_stack([4.0 * np.cos(yaw), 4.0 * np.sin(yaw), np.full_like(s, 1.5)])
+    q = rots_to_quats(np.array([so3_exp(np.array([0.0, 0.0, a])) for a in yaw]))
+    assert estimate_time_offset(t, pos, q, t[::2] + 120_000_000, pos[::2], q[::2]) is None
+
+
 def test_drift_of_a_scaled_estimate():
     truth = make_truth(n=3000)
     rots = quats_to_rots(truth.quat_xyzw)

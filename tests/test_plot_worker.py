@@ -75,3 +75,14 @@ def test_helper_dies_with_a_killed_run():
         time.sleep(0.05)
     else:
         raise AssertionError(f"figure helper {helper} still running after its run was killed")
+
+
+def test_free_cores_counts_what_runs_now():
+    """Runnable threads right now (the fourth field of /proc/loadavg, this process one of them), not the load
+    average, which still counts runs that ended a minute ago."""
+    import os
+
+    cpus = len(os.sched_getaffinity(0))
+    assert plot_worker.free_cores("1.90 1.50 1.20 1/80 999") == cpus - 1  # busy a minute ago, idle now
+    assert plot_worker.free_cores(f"0.10 0.10 0.10 {cpus + 1}/80 999") == 0  # as many others as cores: none
+    assert plot_worker.free_cores("0.00 0.00 0.00 0/80 999") == cpus - 1

@@ -28,14 +28,23 @@ from typing import Any
 Job = tuple[str, str, dict[str, Any]]
 
 
-def free_cores() -> int:
-    """CPUs this process may use that nothing else keeps busy: the CPUs of its affinity less the one-minute load
-    average (at least 1, this process), rounded. 0 on one core or on a loaded machine, where a helper only adds
-    its own imports (90 s log on 2 cores: 0.8 s slower at load 2.6-5, 0.3-0.8 s faster at load 1.6-2)."""
+def free_cores(loadavg: str | None = None) -> int:
+    """CPUs this process may use that nothing else keeps busy right now: the CPUs of its affinity less this
+    process and the other runnable threads (``/proc/loadavg``, or ``loadavg`` as its text), at least 0; where
+    that is not known, less the one-minute load average. 0 on one core or on a loaded machine, where a helper
+    only adds its own imports (90 s log on 2 cores: 0.8 s slower at load 2.6-5, 0.3-0.8 s faster at load
+    1.6-2). Not the load average alone: it still counts runs that have ended in the last minutes (back-to-back
+    runs, a benchmark) and left the machine idle."""
     try:
         cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
         cpus = os.cpu_count() or 1
+    try:
+        text = loadavg if loadavg is not None else Path("/proc/loadavg").read_text()
+        others = int(text.split()[3].split("/")[0]) - 1  # runnable now, this process (its reading thread) one
+        return max(0, cpus - 1 - max(others, 0))
+    except (OSError, IndexError, ValueError):
+        pass
     try:
         load = os.getloadavg()[0]
     except OSError:

@@ -216,9 +216,14 @@ def _xcorr(spectrum_x: np.ndarray, conj_spectrum_y: np.ndarray, size: int, lags:
     return np.fft.irfft(spectrum_x * conj_spectrum_y, size)[lags % size]
 
 
+#: Relative variance below which a signal counts as constant over an overlap (its mean square times this).
+FLAT = 1e-9
+
+
 def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
     """Pearson correlation of a[t + L] with b[t] over the samples where both are defined, per lag L in
-    [-max_lag, max_lag] (NaN where the overlap is under a fifth of the shorter signal).
+    [-max_lag, max_lag] (NaN where the overlap is under a fifth of the shorter signal or either signal is
+    constant over it).
 
     The six lagged sums share their transforms: each input is transformed once (12 FFTs, not 18), zero padded
     to the power of two that holds the signal and the longest lag (no product wraps around)."""
@@ -242,9 +247,13 @@ def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndar
     sab = _xcorr(a0_f, b0_f, size, lags)
     del a0_f, b0_f
     sbb = _xcorr(fa, spectrum(b0 * b0, conj=True), size, lags)
+    var_a, var_b = n * saa - sa * sa, n * sbb - sb * sb  # n² times the variances over the overlap
     with np.errstate(invalid="ignore", divide="ignore"):
-        r = (n * sab - sa * sb) / np.sqrt(np.maximum(n * saa - sa * sa, 0.0) * np.maximum(n * sbb - sb * sb, 0.0))
-    r[n < 0.2 * min(ma.sum(), mb.sum())] = np.nan
+        r = (n * sab - sa * sb) / np.sqrt(np.maximum(var_a, 0.0) * np.maximum(var_b, 0.0))
+    # a signal that does not vary over the overlap (a constant-rate circle) has no correlation, only round-off
+    # divided by round-off (it was ±inf and claimed a clock offset at an arbitrary lag)
+    flat = (var_a <= FLAT * n * saa) | (var_b <= FLAT * n * sbb)
+    r[flat | (n < 0.2 * min(ma.sum(), mb.sum()))] = np.nan
     return lags, r
 
 
