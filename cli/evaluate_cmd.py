@@ -150,6 +150,11 @@ def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_di
                 f"{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied")
     elif timed is False and (estimate_t_offset or offset == "auto"):
         line = f"{'t_offset':>10}\tnot estimated: poses without stamps are paired by index"
+    elif estimate_t_offset or offset == "auto":
+        offset_json = {"estimated_s": None, "peak_correlation": None, "signal": None, "reliable": False,
+                       "applied_s": applied}
+        line = (f"{'t_offset':>10}\tnot estimated: the motion carries no clock information (turn rate and speed "
+                f"constant) or the trajectories overlap too little; {applied:.6f} s applied")
     doc = {"title": result.title, "label": result.label, "ref_name": result.ref_name, "est_name": result.est_name,
            "stats": result.stats, "method": describe(result, sync, al, rpe_opts), "time_offset": offset_json}
     return result, {"json": doc, "time_offset_line": line}

@@ -178,7 +178,8 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     assert res.exit_code == 0, res.output
     assert res.stdout.startswith("RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using "
                                  "consecutive pairs\n(with Sim(3) Umeyama alignment)\n")
-    assert "t_offset" in res.output and "estimated" in res.output
+    # circle.bag turns at a constant rate and speed: no clock information, and the output says so
+    assert "t_offset\tnot estimated: the motion carries no clock information" in res.output
     info, stats, arrays = load_result_zip(zip_path)
     assert info["label"] == "RPE (deg)" and info["est_name"] == str(est)
     assert set(stats) == {"rmse", "mean", "median", "std", "min", "max", "sse"}
@@ -186,7 +187,20 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     res = invoke(evaluate, truth, est, "--align_origin", "-r", "full", "--n_to_align", "10", "--t_offset", "auto",
                  "--sync_method", "interpolation", "--json")
     doc = json.loads(res.stdout)
-    assert doc["method"]["association"]["method"] == "interpolation" and doc["time_offset"]["applied_s"] != 0.0
+    assert doc["method"]["association"]["method"] == "interpolation"
+    assert doc["time_offset"] == {"estimated_s": None, "peak_correlation": None, "signal": None, "reliable": False,
+                                  "applied_s": 0.0}
+    # a turn rate that varies pins the offset, and auto applies it: the estimate's clock 0.25 s behind
+    t = np.arange(6000) / 100.0
+    yaw = np.sin(0.7 * t) + 0.3 * np.sin(2.1 * t)
+    rows = np.column_stack([t, t, np.zeros_like(t), np.zeros_like(t), np.zeros_like(t), np.zeros_like(t),
+                            np.sin(yaw / 2), np.cos(yaw / 2)])
+    np.savetxt(tmp_path / "truth.txt", rows, fmt="%.9f")
+    rows[:, 0] -= 0.25
+    np.savetxt(tmp_path / "late.txt", rows[::2], fmt="%.9f")
+    doc = json.loads(invoke(evaluate, tmp_path / "truth.txt", tmp_path / "late.txt", "--t_offset", "auto",
+                            "--json").stdout)
+    assert doc["time_offset"]["reliable"] and doc["time_offset"]["applied_s"] == pytest.approx(0.25, abs=0.002)
 
 
 def test_evaluate_usage_errors(finished_run, tmp_path):
