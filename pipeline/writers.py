@@ -16,10 +16,13 @@ import ctypes
 import errno
 import json
 import os
+import queue
 import shutil
 import socket
 import sys
 import tempfile
+import threading
+import time
 from contextlib import contextmanager, suppress
 from pathlib import Path
 
@@ -56,9 +59,6 @@ class BackgroundWrites:
     """
 
     def __init__(self, write, depth: int = 1) -> None:
-        import queue
-        import threading
-
         self._write = write
         self._items: queue.Queue = queue.Queue(depth)
         self._error: BaseException | None = None
@@ -69,8 +69,6 @@ class BackgroundWrites:
         self._thread.start()
 
     def _run(self) -> None:
-        import time
-
         while (item := self._items.get()) is not self._items:
             if self._error is not None or self._cancelled:
                 continue  # drain: the caller will see the error or has given up
@@ -82,10 +80,9 @@ class BackgroundWrites:
             self.busy_s += time.perf_counter() - t
 
     def _raise(self) -> None:
-        if self._error is not None:
-            err, self._error = self._error, None
+        if self._error is not None:  # kept set: the thread drains what still waits instead of writing it
             self.cancel()
-            raise err
+            raise self._error
 
     def put(self, item) -> None:
         self._raise()
@@ -105,7 +102,7 @@ class BackgroundWrites:
         while True:  # make room for the end marker without blocking on a full queue
             try:
                 self._items.get_nowait()
-            except Exception:  # noqa: BLE001 - queue.Empty
+            except queue.Empty:
                 break
         self._items.put(self._items)
         self._thread.join()

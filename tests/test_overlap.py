@@ -86,9 +86,12 @@ def test_background_writes_keep_order_and_return_the_last():
 
 
 def test_background_write_error_surfaces_in_the_caller():
+    written = []
+
     def write(item):
         if item == 2:
             raise OSError("disk full")
+        written.append(item)
         return item
 
     writes = BackgroundWrites(write)
@@ -98,6 +101,7 @@ def test_background_write_error_surfaces_in_the_caller():
             time.sleep(0.005)
         writes.finish()
     assert not writes._thread.is_alive()
+    assert written == [0, 1]  # nothing written after the failed item
 
 
 def test_background_writes_cancelled_write_nothing_more():
