@@ -120,20 +120,27 @@ def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_di
          estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format, est_format,
          save_results):
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
-    from slamobs.pipeline.evaluation.sync import estimate_time_offset
-    from slamobs.pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, describe, rpe
+    from slamobs.pipeline.evaluation.trajectory_error import (
+        AlignOptions,
+        RpeOptions,
+        SyncOptions,
+        ape,
+        checked_time_offset,
+        describe,
+        rpe,
+    )
     from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
     ref = read_trajectory(truth, truth_format)
     est_t = read_trajectory(est, est_format)
     timed = ref.timed and est_t.timed
+    method = "nearest" if sync_method == "nearest_time" else "interpolation"
+    al = AlignOptions(kind, n_to_align if n_to_align >= 0 else None, align_seconds)
     found = None
     if timed and (estimate_t_offset or offset == "auto"):
-        r, e = ref.stream, est_t.stream
-        found = estimate_time_offset(r.t_ns, r.position, r.quat_xyzw, e.t_ns, e.position, e.quat_xyzw)
+        found = checked_time_offset(ref.stream, est_t.stream, SyncOptions(t_max_diff, 0.0, method), al)
     applied = (found.offset_s if found is not None else 0.0) if offset == "auto" else float(offset)
-    sync = SyncOptions(t_max_diff, applied, "nearest" if sync_method == "nearest_time" else "interpolation")
-    al = AlignOptions(kind, n_to_align if n_to_align >= 0 else None, align_seconds)
+    sync = SyncOptions(t_max_diff, applied, method)
     rpe_opts = RpeOptions(delta, delta_unit, delta_tol, all_pairs, pairs_from_reference) if metric == "rpe" else None
     if metric == "ape":
         result = ape(ref, est_t, relation, sync, al, ref_name=ref.name, est_name=est_t.name)
@@ -145,14 +152,15 @@ def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_di
     line = None
     if found is not None:
         offset_json = {"estimated_s": found.offset_s, "peak_correlation": found.peak_correlation,
-                       "signal": found.signal, "reliable": found.reliable, "applied_s": applied}
+                       "signal": found.signal, "reliable": found.reliable, "ape_rmse_with_m": found.rmse_with_m,
+                       "ape_rmse_without_m": found.rmse_without_m, "applied_s": applied}
         line = (f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated (peak correlation {found.peak_correlation:.2f}"
                 f"{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied")
     elif timed is False and (estimate_t_offset or offset == "auto"):
         line = f"{'t_offset':>10}\tnot estimated: poses without stamps are paired by index"
     elif estimate_t_offset or offset == "auto":
         offset_json = {"estimated_s": None, "peak_correlation": None, "signal": None, "reliable": False,
-                       "applied_s": applied}
+                       "ape_rmse_with_m": None, "ape_rmse_without_m": None, "applied_s": applied}
         line = (f"{'t_offset':>10}\tnot estimated: the motion carries no clock information (turn rate and speed "
                 f"constant) or the trajectories overlap too little; {applied:.6f} s applied")
     doc = {"title": result.title, "label": result.label, "ref_name": result.ref_name, "est_name": result.est_name,

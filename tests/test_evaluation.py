@@ -489,6 +489,31 @@ def test_time_offset_estimate_both_signs():
     assert got.signal == "angular rate |ω|" and got.offset_s == pytest.approx(0.061, abs=0.002)
 
 
+def test_a_clock_offset_the_trajectories_contradict_is_not_reliable(monkeypatch):
+    """The correlation peak is checked against the trajectories: the true offset lowers the aligned APE and stays
+    reliable; a wrong peak (an observer's correction plateau put riekf's at -0.86 s on a simulated loop, correlation
+    0.88) raises it and is not reliable, however high its correlation."""
+    from dataclasses import replace as changed
+
+    from slamobs.pipeline.evaluation import trajectory_error as te
+    from slamobs.pipeline.streams import PoseStream
+
+    truth = make_truth(n=4000)
+    est_t = np.sort(truth.t_ns[::4] - 85_000_000)
+    pos, q = interpolate_poses(truth.t_ns, truth.position @ ROT_C.T, rots_to_quats(
+        np.einsum("ij,njk->nik", ROT_C, quats_to_rots(truth.quat_xyzw))), est_t + 85_000_000)
+    est = PoseStream("est", "", "", est_t, est_t, pos, q)
+    sync, align = te.SyncOptions(0.01, 0.0, "nearest"), te.AlignOptions("se3")
+    right = te.checked_time_offset(truth, est, sync, align)
+    assert right.offset_s == pytest.approx(0.085, abs=0.002) and right.reliable
+    assert right.rmse_with_m < right.rmse_without_m
+    search = te.estimate_time_offset
+    monkeypatch.setattr(te, "estimate_time_offset", lambda *a, **k: changed(search(*a, **k), offset_s=-0.5))
+    wrong = te.checked_time_offset(truth, est, sync, align)
+    assert wrong.peak_correlation >= 0.5 and not wrong.at_window_edge  # the correlation alone would pass it
+    assert wrong.rmse_with_m > wrong.rmse_without_m and not wrong.reliable
+
+
 def test_time_offset_of_a_constant_rate_circle_is_no_estimate():
     """A circle flown at constant speed and turn rate carries no clock information: both signals are constant,
     their correlation is round-off over round-off (it came out as inf, an arbitrary lag reported as a reliable

@@ -189,7 +189,7 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     doc = json.loads(res.stdout)
     assert doc["method"]["association"]["method"] == "interpolation"
     assert doc["time_offset"] == {"estimated_s": None, "peak_correlation": None, "signal": None, "reliable": False,
-                                  "applied_s": 0.0}
+                                  "ape_rmse_with_m": None, "ape_rmse_without_m": None, "applied_s": 0.0}
     # a turn rate that varies pins the offset, and auto applies it: the estimate's clock 0.25 s behind
     t = np.arange(6000) / 100.0
     yaw = np.sin(0.7 * t) + 0.3 * np.sin(2.1 * t)

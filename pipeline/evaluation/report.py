@@ -24,7 +24,7 @@ from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, KINDS, Alignment, fit_alignment
 from slamobs.pipeline.evaluation.drift import segment_drift
-from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, estimate_time_offset
+from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset
 from slamobs.pipeline.evaluation.trajectory_error import (
     AlignOptions,
     ErrorResult,
@@ -32,6 +32,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     RpeOptions,
     SyncOptions,
     ape,
+    checked_time_offset,
     rpe,
     synchronize,
 )
@@ -185,13 +186,12 @@ def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions,
     est = estimate_stream(poses)
     truth_sorted = _sorted(truth)
     offset = None
-    search = (truth_sorted.t_ns, truth_sorted.position, truth_sorted.quat_xyzw, est.t_ns, est.position,
-              est.quat_xyzw)
+    search = (truth_sorted, est, SyncOptions(options.t_max_diff_s, 0.0, "nearest"), AlignOptions(options.align))
     beside = len(est) + len(truth_sorted) <= OFFSET_BESIDE_SAMPLES
     if options.t_offset_s == "auto" or (estimate_offset and not beside):  # first: needed, or too big to overlap
-        offset = estimate_time_offset(*search, max_offset_s=options.max_time_offset_s)
+        offset = checked_time_offset(*search, max_offset_s=options.max_time_offset_s)
     elif estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
-        offset = _Pending(estimate_time_offset, *search, max_offset_s=options.max_time_offset_s)
+        offset = _Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s)
     if options.t_offset_s == "auto":
         applied = offset.offset_s if offset is not None else 0.0
     else:
@@ -360,6 +360,8 @@ def _time_offset_section(ev: TrajectoryEvaluation, options: ReportOptions) -> di
         "peak_correlation": None if off is None else off.peak_correlation,
         "signal": None if off is None else off.signal,
         "reliable": None if off is None else off.reliable,
+        "ape_rmse_with_m": None if off is None else off.rmse_with_m,
+        "ape_rmse_without_m": None if off is None else off.rmse_without_m,
         "search_window_s": None if off is None else off.search_window_s,
         "grid_step_s": None if off is None else off.grid_step_s,
         "applied_s": float(ev.applied_offset_s),
@@ -369,7 +371,10 @@ def _time_offset_section(ev: TrajectoryEvaluation, options: ReportOptions) -> di
             "angular rate magnitude |ω|, or the speed |v| when it varies clearly more (signal), of estimate and "
             "truth, resampled on one grid as mean rates per grid step; best lag within ±search_window_s, refined "
             "off the grid by golden-section search. Sign as evo --t_offset: t_estimate + offset is on the truth "
-            "clock. Applied to the association only when asked (t_offset auto)"
+            "clock. Reliable: peak correlation >= 0.5, not on the window edge, and an offset more than one grid "
+            "step from zero must not make the translation APE rmse larger (ape_rmse_with_m, with it applied; "
+            "ape_rmse_without_m, without; same association and alignment). Applied to the association only when "
+            "asked (t_offset auto)"
         ),
     }
 

@@ -8,7 +8,7 @@ seconds), then the metric on the aligned estimate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -17,7 +17,7 @@ from slamobs.pipeline.evaluation import metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
 from slamobs.pipeline.evaluation.metrics import RotationRows
 from slamobs.pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
-from slamobs.pipeline.evaluation.sync import NS_PER_S, associate, interpolate_poses
+from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, associate, estimate_time_offset, interpolate_poses
 from slamobs.pipeline.streams import PoseStream
 
 SYNC_METHODS = ("nearest", "interpolation")
@@ -353,3 +353,22 @@ def describe(result: ErrorResult, sync: SyncOptions, align: AlignOptions, rpe_op
                       "pairs_from": "reference" if rpe_opts.pairs_from_reference else "aligned estimate",
                       "n_pairs": int(result.errors.shape[0])}
     return out
+
+
+def checked_time_offset(ref: PoseStream, est: PoseStream, sync: SyncOptions, align: AlignOptions,
+                        max_offset_s: float = 1.0) -> TimeOffset | None:
+    """:func:`~.sync.estimate_time_offset` of two time-sorted pose streams, checked against the trajectories:
+    the translation APE rmse (association rule ``sync``, alignment ``align``) with the offset applied and
+    without it, so that a correlation peak which makes the error larger is not called reliable."""
+    off = estimate_time_offset(ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw,
+                               max_offset_s=max_offset_s)
+    if off is None:
+        return None
+
+    def rmse(offset_s: float) -> float | None:
+        try:
+            return float(ape(ref, est, "trans_part", replace(sync, t_offset_s=offset_s), align).stats["rmse"])
+        except ValueError:  # too few pairs at that offset
+            return None
+
+    return replace(off, checked=True, rmse_with_m=rmse(off.offset_s), rmse_without_m=rmse(0.0))
