@@ -6,7 +6,9 @@ multi-hour run never holds its histories. Encodings suit the data: float columns
 noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all zstd. Float values are
 rounded to ``float_bits`` significant mantissa bits before writing (default 28, a relative rounding of at most
 2**-29 ≈ 1.9e-9: 2 µm at 1 km): the dropped low bits are the incompressible part of a noisy estimate, and they
-are far below any observer's accuracy. ``float_bits=52`` writes every bit.
+are far below any observer's accuracy. A length (a column in metres) keeps more bits where it is far from the
+origin, so that its rounding step is never coarser than 2**-20 m (about 1 µm): a pose in a UTM or ECEF truth
+frame (4,690 km) would otherwise be stored in steps of 1.6 cm. ``float_bits=52`` writes every bit.
 """
 
 from __future__ import annotations
@@ -40,6 +42,9 @@ COMPRESSION = "zstd"
 METADATA_KEY = b"slamobs"
 FLOAT_BITS = DEFAULT_FLOAT_BITS
 _EXPONENT = np.uint64(0x7FF0_0000_0000_0000)
+#: Coarsest rounding step of a length, as a power of two in metres (2**-20 m ≈ 0.95 µm): below 512 m from the
+#: origin ``float_bits`` (28) is finer than that already, farther out a value keeps the bits it needs.
+LENGTH_STEP_EXP = -20
 
 
 def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
@@ -138,10 +143,12 @@ def landmark_table(landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns:
             "first_seen_ns": first, "last_seen_ns": last, "n_obs": n_obs.astype(np.int64)}
 
 
-def round_mantissa(values: np.ndarray, bits: int) -> np.ndarray:
+def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> np.ndarray:
     """``values`` (float64) rounded to nearest on ``bits`` significant mantissa bits (ties away from zero), as a
     new array; NaN, ±Inf and zero are kept. Relative error at most ``2**-(bits + 1)`` for normal numbers
-    (values that would round up to Inf are truncated instead)."""
+    (values that would round up to Inf are truncated instead). With ``finest``, a value whose step at ``bits``
+    would be coarser than ``2**finest`` keeps the bits that make it that fine (absolute error at most
+    ``2**(finest - 1)``)."""
     a = np.array(values, dtype=np.float64)  # a copy: callers' arrays are not changed
     if bits >= 52:
         return a
@@ -149,12 +156,21 @@ def round_mantissa(values: np.ndarray, bits: int) -> np.ndarray:
         raise ValueError(f"float_bits must be 1..52, got {bits}")
     u = a.view(np.uint64)
     finite = np.isfinite(a)
-    drop = np.uint64(52 - bits)
-    half, keep = np.uint64(1) << (drop - np.uint64(1)), ~((np.uint64(1) << drop) - np.uint64(1))
     bits_in = u[finite]
+    if finest is not None and bits_in.size and int(np.max(bits_in & _EXPONENT) >> np.uint64(52)) - 1023 - finest <= bits:
+        finest = None  # every value's step is fine enough at ``bits`` (a local frame): one shift for all
+    if finest is None:
+        drop = np.uint64(52 - bits)
+        half, keep = np.uint64(1) << (drop - np.uint64(1)), ~((np.uint64(1) << drop) - np.uint64(1))
+    else:  # per value: the step of a value in [2**e, 2**(e+1)) kept on b bits is 2**(e - b)
+        e = ((bits_in & _EXPONENT) >> np.uint64(52)).astype(np.int64) - 1023
+        drop = (52 - np.clip(e - finest, bits, 52)).astype(np.uint64)
+        one = np.uint64(1)
+        half = np.where(drop > 0, one << (np.maximum(drop, one) - one), np.uint64(0))
+        keep = ~((one << drop) - one)
     rounded = (bits_in + half) & keep
     overflow = rounded & _EXPONENT == _EXPONENT  # rounded up into Inf
-    rounded[overflow] = bits_in[overflow] & keep
+    rounded[overflow] = bits_in[overflow] & (keep[overflow] if np.ndim(keep) else keep)
     u[finite] = rounded
     return a
 
@@ -195,12 +211,13 @@ class TableWriter:
                                       schema)
             writer, schema = self.writers[name]
             # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element
-            arrays = [_arrow_array(self._values(columns[f.name], f.type), f.type) for f in schema]
+            arrays = [_arrow_array(self._values(columns[f.name], f), f.type) for f in schema]
             writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
 
-    def _values(self, column: np.ndarray, kind: pa.DataType) -> np.ndarray:
-        if pa.types.is_float64(kind) and self.float_bits < 52:
-            return round_mantissa(column, self.float_bits)  # contiguous, as a copy
+    def _values(self, column: np.ndarray, field: pa.Field) -> np.ndarray:
+        if pa.types.is_float64(field.type) and self.float_bits < 52:
+            finest = LENGTH_STEP_EXP if (field.metadata or {}).get(b"unit") == b"m" else None
+            return round_mantissa(column, self.float_bits, finest)  # contiguous, as a copy
         return np.ascontiguousarray(column)
 
     def close(self, metadata: dict) -> list[Path]:

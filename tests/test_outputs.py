@@ -148,6 +148,42 @@ def test_round_mantissa_bounds_the_relative_error_and_keeps_special_values():
     assert round_mantissa(x, 28) is not x and np.array_equal(x, x)  # the input is left as it was
 
 
+def test_round_mantissa_keeps_a_fine_enough_step_far_from_the_origin():
+    """``finest``: a value whose step at ``bits`` would be coarser than ``2**finest`` keeps more bits (an absolute
+    error of at most ``2**(finest - 1)``); nearer values are rounded exactly as without it."""
+    from slamobs.pipeline.writers import round_mantissa
+
+    rng = np.random.default_rng(5)
+    near = rng.normal(size=50_000) * 100.0  # |x| < 512 m: 28 bits are finer than 2**-20 m already
+    far = np.concatenate([4.69e6 + rng.normal(size=50_000) * 50.0, -6.4e6 + rng.normal(size=1000)])
+    x = np.concatenate([near, far, [0.0, -0.0, np.inf, -np.inf, np.nan, np.finfo(float).max]])
+    r = round_mantissa(x, 28, -20)
+    ok = np.isfinite(x)
+    assert np.all(np.abs(r[ok] - x[ok]) <= np.maximum(2.0**-21, np.abs(x[ok]) * 2.0**-29))
+    assert np.max(np.abs(r[near.size:near.size + far.size] - far)) <= 2.0**-21  # 1.6 cm steps without it
+    assert np.max(np.abs(round_mantissa(far, 28) - far)) > 1e-3
+    assert np.array_equal(r[:near.size], round_mantissa(near, 28))
+    assert np.array_equal(round_mantissa(near, 28, -20), round_mantissa(near, 28))  # the one-shift path
+    assert np.array_equal(round_mantissa(r, 28, -20), r, equal_nan=True)  # idempotent
+    assert np.array_equal(r[-6:-2], x[-6:-2]) and np.isnan(r[-2]) and np.isfinite(r[-1])
+
+
+def test_positions_in_a_far_away_frame_keep_micrometres(tmp_path):
+    """A pose in a UTM-like truth frame (4,690 km from the origin) is stored to 1 µm (in 1.6 cm steps before);
+    columns that are not lengths (quaternions) keep the plain ``float_bits`` rounding."""
+    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
+
+    res = _result(k=5000, m=40)
+    res.position[:] = res.position * 30.0 + np.array([330_000.0, 4_690_000.0, 20.0])
+    write_result(tmp_path, res, {})
+    poses = pd.read_parquet(tmp_path / "poses.parquet")
+    assert np.max(np.abs(poses[["x", "y", "z"]].to_numpy() - res.position)) <= 2.0**-21
+    assert np.array_equal(poses["z"].to_numpy(), round_mantissa(res.position[:, 2], FLOAT_BITS))  # near: as before
+    assert not np.array_equal(poses["y"].to_numpy(), round_mantissa(res.position[:, 1], FLOAT_BITS))
+    q = poses[["qx", "qy", "qz", "qw"]].to_numpy()
+    assert np.array_equal(q, round_mantissa(q, FLOAT_BITS))
+
+
 def test_float_columns_are_stored_with_the_configured_precision(tmp_path):
     """Default output keeps FLOAT_BITS significant bits (far below estimation accuracy, much smaller files);
     ``float_bits=52`` keeps every bit."""
