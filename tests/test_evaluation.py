@@ -736,6 +736,18 @@ def test_file_errors_are_clear(tmp_path):
         read_trajectory(tmp_path / "short.txt", "tum")
     with pytest.raises(InputError, match="no such file"):
         read_trajectory(tmp_path / "missing.txt")
+    poses = pd.DataFrame({"t_ns": [1, 2], "x": ["a", "b"], **{c: [0.0, 0.0] for c in ("y", "z", "qx", "qy", "qz")},
+                          "qw": [1.0, 1.0]})
+    poses.to_parquet(tmp_path / "poses.parquet")
+    with pytest.raises(InputError, match="column x holds .*, not numbers"):
+        read_trajectory(tmp_path / "poses.parquet")
+    poses.assign(x=0.0, t_ns=[0.5, 1.5]).to_parquet(tmp_path / "poses.parquet")  # seconds, not nanoseconds
+    with pytest.raises(InputError, match="column t_ns holds double, not integer nanoseconds"):
+        read_trajectory(tmp_path / "poses.parquet")
+    for word in ("np.float64(2.5)", "nan?", "True"):  # a text field (a string column in pandas 3), a boolean one
+        (tmp_path / "text.txt").write_text(f"1 2 3 4 0 0 0 1\n2 {word} 3 4 0 0 0 1\n3 2 3 4 0 0 0 1\n")
+        with pytest.raises(InputError, match="line 2: not a number"):
+            read_trajectory(tmp_path / "text.txt", "tum")
     bag = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
     with pytest.raises(InputError, match="LOG:TOPIC"):
         read_trajectory(bag)

@@ -107,7 +107,8 @@ def _rows(path: Path, min_fields: int, fixed: int | None, what: str) -> tuple[np
     if (fixed is not None and ncols != fixed) or ncols < min_fields:
         raise _row_error(path, text, min_fields, fixed, what)
     values = df.iloc[:, 1:min_fields]
-    if not all(np.issubdtype(t, np.floating) or np.issubdtype(t, np.integer) for t in values.dtypes):
+    # a column with text (pandas >= 3: a string dtype that NumPy cannot interpret) or true/false is not numbers
+    if not all(pd.api.types.is_numeric_dtype(t) and not pd.api.types.is_bool_dtype(t) for t in values.dtypes):
         raise _row_error(path, text, min_fields, fixed, what)
     values = values.to_numpy(np.float64)
     if fixed is not None and df.iloc[:, min_fields:].isna().to_numpy().any() or np.isnan(values).any():
@@ -232,6 +233,13 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
     missing = [c for c in POSE_COLUMNS if c not in table.column_names]
     if missing:
         raise InputError(path, f"not a poses table: lacks column(s) {missing}")
+    import pyarrow as pa
+
+    for c in POSE_COLUMNS:
+        kind = table.schema.field(c).type
+        if not (pa.types.is_integer(kind) or (c != "t_ns" and pa.types.is_floating(kind))):
+            want = "integer nanoseconds" if c == "t_ns" else "numbers"
+            raise InputError(path, f"not a poses table: column {c} holds {kind}, not {want}")
     cols = {c: table.column(c).to_numpy() for c in POSE_COLUMNS}
     pos = np.column_stack([cols["x"], cols["y"], cols["z"]]).astype(np.float64)
     quat = np.column_stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]]).astype(np.float64)
