@@ -776,10 +776,23 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
         lines += ["Path too short for RPE and drift.", ""]
     est = "not estimated" if off["estimated_s"] is None else (
         f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
-        f"{'reliable' if off['reliable'] else 'NOT reliable'})")
+        f"{'reliable' if off['reliable'] else 'NOT reliable' + _offset_doubts(off)})")
     lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     del m
     return lines
+
+
+def _offset_doubts(off: dict[str, Any]) -> str:
+    """Why a clock offset of the report's ``time_offset`` section is not reliable, as ``": reason; reason"``."""
+    why = []
+    if off["peak_correlation"] < 0.5:
+        why.append("correlation below 0.5")
+    if abs(off["estimated_s"]) >= off["search_window_s"] - off["grid_step_s"]:
+        why.append("at the search limit")
+    with_m, without_m = off.get("ape_rmse_with_m"), off.get("ape_rmse_without_m")
+    if with_m is not None and without_m is not None and with_m > without_m:
+        why.append(f"applied, it raises the APE rmse from {without_m:.4g} to {with_m:.4g} m")
+    return ": " + "; ".join(why) if why else ""
 
 
 def _md_landmarks(lm: dict[str, Any]) -> list[str]:
