@@ -81,6 +81,10 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
     kind = _alignment_kind(align, correct_scale, align_origin, align_yaw)
     offset = _offset(t_offset)
     try:
+        if save_results is not None:
+            from slamobs.pipeline.paths import check_output_file
+
+            check_output_file(save_results, (truth, est))
         with compile_notice(quiet=quiet):
             out = _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
                        estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference,

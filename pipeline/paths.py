@@ -116,6 +116,28 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
                                "--force replaces only earlier runs; remove it yourself or choose another -o")
 
 
+def check_output_file(out: str | Path, inputs: Iterable[str | Path | None]) -> None:
+    """Refuse an output file that is one of ``inputs`` (a file the command reads) or lies inside an input
+    directory: writing it would destroy what the command was given (``evaluate --save-results`` onto the
+    truth file, ``export --mcap`` onto the run's own table). ``LOG:TOPIC`` inputs count as their log.
+
+    Raises:
+        OutputError: The output is an input or inside an input directory.
+
+    """
+    target = _resolved(out)
+    for item in inputs:
+        if item is None or not str(item):
+            continue
+        path = Path(item)
+        if not os.path.lexists(path) and ":" in str(item):  # LOG:TOPIC
+            path = Path(str(item).rsplit(":", 1)[0])
+        src = _resolved(path)
+        if target == src or (path.is_dir() and _within(target, src)):
+            where = "is" if target == src else "lies inside"
+            raise OutputError(out, f"the output {where} the input {item}: it would be destroyed; choose another path")
+
+
 @contextmanager
 def exclusive(lock_file: Path, out: Path, holder: str) -> Iterator[None]:
     """Hold ``lock_file`` exclusively (a flock: the kernel releases it when the process dies, so a killed batch or

@@ -170,6 +170,18 @@ def test_evaluate_prints_like_evo_and_matches_the_report(finished_run, tmp_path)
     assert as_json["method"]["association"]["n_pairs"] == rep["method"]["association"]["n_pairs"]
 
 
+def test_evaluate_never_saves_results_over_its_inputs(finished_run, tmp_path):
+    """``--save-results`` onto the truth or estimate file would replace it with a zip (it did, exit 0)."""
+    for i in (0, 1):
+        truth, est = tmp_path / "truth.txt", tmp_path / "est.txt"
+        shutil.copy(finished_run / "truth_tum.txt", truth)
+        shutil.copy(finished_run / "estimate_tum.txt", est)
+        target = (truth, est)[i]
+        before = target.read_bytes()
+        res = invoke(evaluate, truth, est, "-a", "--save-results", target)
+        assert res.exit_code == 2 and "is the input" in res.output and target.read_bytes() == before
+
+
 def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     truth, est = finished_run / "truth_tum.txt", finished_run / "estimate_tum.txt"
     zip_path = tmp_path / "rpe.zip"

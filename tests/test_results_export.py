@@ -151,6 +151,14 @@ def test_export_command_every_row_atomic_and_no_overwrite(run_dir, tmp_path, mon
     assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["res.mcap"]
     res = CliRunner().invoke(main, ["export", str(tmp_path), "--mcap", str(tmp_path / "x.mcap")])
     assert res.exit_code == 2 and "no run.json" in res.stderr
+    monkeypatch.undo()
+    copy = tmp_path / "run"
+    shutil.copytree(run_dir, copy)
+    table = (copy / "poses.parquet").read_bytes()  # a file of the run is an input, --force or not
+    res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(copy / "poses.parquet"), "--force"])
+    assert res.exit_code == 2 and "is the input" in res.stderr and (copy / "poses.parquet").read_bytes() == table
+    res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(copy / "results.mcap"), "--force", "-q"])
+    assert res.exit_code == 0, res.output  # a results MCAP beside the tables, as `--export mcap` writes it
 
 
 def test_report_writes_tum_and_evo_on_request(run_dir, tmp_path):
