@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import difflib
+import math
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -125,6 +126,18 @@ class RunConfig:
         return "record" if self.time_source == "record" else "header"
 
 
+def _non_finite(data, where: tuple[str, ...] = ()) -> tuple[tuple[str, ...], float] | None:
+    """Where the first NaN or infinite number of a loaded config is, and the number."""
+    if isinstance(data, float) and not math.isfinite(data):
+        return where, data
+    items = data.items() if isinstance(data, dict) else enumerate(data) if isinstance(data, list) else ()
+    for key, value in items:
+        found = _non_finite(value, (*where, str(key)))
+        if found is not None:
+            return found
+    return None
+
+
 def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     """Validate a config mapping (as loaded from YAML) and build a :class:`RunConfig`.
 
@@ -137,6 +150,11 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     from slamobs.schemas import config_schema
 
     data = data or {}
+    bad = _non_finite(data)
+    if bad is not None:  # YAML's .nan passes every bound of the schema, .inf the upper ones
+        where, value = bad
+        hint = " (null switches the gate off)" if where[:1] == ("limits",) else ""
+        raise InputError(source, f"invalid config at {'.'.join(where)}: {value} is not a finite number{hint}")
     try:
         jsonschema.validate(data, config_schema())
     except jsonschema.ValidationError as err:
