@@ -14,6 +14,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.options import Finite
 
 #: Exit codes (documented in --help and the README).
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INFRA = 0, 1, 2, 3
@@ -178,9 +179,9 @@ class _RunCommand(click.Command):
               help="local processes (default) or Dask (a local cluster unless --scheduler)")
 @click.option("--scheduler", default=None, metavar="ADDRESS",
               help="Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)")
-@click.option("--timeout", type=float, default=3600.0, show_default=True, metavar="SECONDS",
+@click.option("--timeout", type=Finite(min=0), default=3600.0, show_default=True, metavar="SECONDS",
               help="per log: a run taking longer is killed and fails (0: no limit)")
-@click.option("--wait-workers", type=click.FloatRange(min=0), default=60.0, show_default=True, metavar="SECONDS",
+@click.option("--wait-workers", type=Finite(min=0), default=60.0, show_default=True, metavar="SECONDS",
               help="Dask: give up (exit 3) when no worker is there for this long")
 @click.option("--force", is_flag=True, help="re-run logs whose results are up to date")
 @click.option("--skip-failed", is_flag=True, help="do not retry logs that failed with the same content and config")

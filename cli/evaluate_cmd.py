@@ -12,20 +12,11 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import quiet_option
+from slamobs.cli.options import Finite, Seconds, offset_seconds, quiet_option
 from slamobs.cli.progress import compile_notice
 
 RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
 FORMATS = ("tum", "euroc", "kitti", "parquet")
-
-
-def _offset(text: str) -> float | str:
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        return float(text)
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is neither seconds nor 'auto'", param_hint="--t-offset") from None
 
 
 @click.command("evaluate")
@@ -42,9 +33,9 @@ def _offset(text: str) -> float | str:
               help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)")
 @click.option("--n-to-align", "--n_to_align", type=int, default=-1, show_default=True,
               help="fit the alignment on the first N associated poses (-1: all)")
-@click.option("--align-seconds", "--align_seconds", type=float, default=None,
+@click.option("--align-seconds", "--align_seconds", type=Seconds(), default=None,
               help="fit the alignment on the associated poses of the first SECONDS only")
-@click.option("--t-max-diff", "--t_max_diff", type=float, default=0.01, show_default=True,
+@click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=0.01, show_default=True,
               help="maximum timestamp difference for data association [s]")
 @click.option("--t-offset", "--t_offset", default="0.0", show_default=True,
               help="seconds added to the estimate stamps for the association, or 'auto' (estimated)")
@@ -52,10 +43,10 @@ def _offset(text: str) -> float | str:
               default="nearest_time", show_default=True,
               help="nearest stamps, or the denser trajectory interpolated at the sparser one's stamps")
 @click.option("--estimate-t-offset", is_flag=True, help="estimate the clock offset of EST and print it")
-@click.option("--delta", type=float, default=1.0, show_default=True, help="RPE: delta between pose pairs")
+@click.option("--delta", type=Finite(), default=1.0, show_default=True, help="RPE: delta between pose pairs")
 @click.option("-u", "--delta-unit", "--delta_unit", type=click.Choice(["f", "m", "d", "r"]), default="f",
               show_default=True, help="RPE: delta in frames, metres, degrees or radians")
-@click.option("-t", "--delta-tol", "--delta_tol", type=float, default=0.1, show_default=True,
+@click.option("-t", "--delta-tol", "--delta_tol", type=Finite(), default=0.1, show_default=True,
               help="RPE: relative delta tolerance for all pairs")
 @click.option("--all-pairs", "--all_pairs", is_flag=True, help="RPE: all pairs instead of consecutive pairs")
 @click.option("--pairs-from-reference", "--pairs_from_reference", is_flag=True,
@@ -79,7 +70,7 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
     from slamobs.pipeline.errors import InputError
 
     kind = _alignment_kind(align, correct_scale, align_origin, align_yaw)
-    offset = _offset(t_offset)
+    offset = offset_seconds(t_offset)
     try:
         if save_results is not None:
             from slamobs.pipeline.paths import check_output_file

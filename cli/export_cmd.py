@@ -7,11 +7,11 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import quiet_option
+from slamobs.cli.options import Finite, quiet_option
 
 DEFAULT_RATE_HZ = 50.0  # pipeline.results_mcap.DEFAULT_RATE_HZ, literal so `slamobs --help` imports no numpy
 
-_RATE = click.FloatRange(min=0.0)
+_RATE = Finite(min=0.0)
 
 
 @click.command("export")

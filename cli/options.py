@@ -7,7 +7,56 @@ Every command writes to ``-o/--out`` and is silenced by ``-q/--quiet``; names th
 
 from __future__ import annotations
 
+import math
+
 import click
+
+
+class Finite(click.FloatRange):
+    """A number option within the bounds given, and never NaN or ±inf: click's FloatRange lets NaN through (every
+    comparison with it is false), and a NaN rate or tolerance failed deep inside a command with a traceback."""
+
+    name = "float"
+
+    def convert(self, value, param, ctx):
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+#: Largest time option in seconds: times become int64 nanoseconds (9.2e9 s), and 1e9 s is 31 years.
+MAX_SECONDS = 1e9
+
+
+class Seconds(Finite):
+    """A time option in seconds, within ±:data:`MAX_SECONDS` (1e300 s overflowed the nanoseconds: a traceback)."""
+
+    name = "seconds"
+
+    def convert(self, value, param, ctx):
+        seconds = super().convert(value, param, ctx)
+        if abs(seconds) > MAX_SECONDS:
+            self.fail(f"{value!r} s is more than {MAX_SECONDS:g} s", param, ctx)
+        return seconds
+
+
+#: Seeds of NumPy's and Optuna's generators: a negative one was a traceback (and left tune.journal behind).
+SEED = click.IntRange(0, 2**32 - 1)
+
+
+def offset_seconds(text: str) -> float | str:
+    """``--t-offset``: seconds (finite) or ``auto``."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not abs(seconds) <= MAX_SECONDS:  # NaN too
+        raise click.BadParameter(f"{text!r} is neither seconds (at most {MAX_SECONDS:g} in size) nor 'auto'",
+                                 param_hint="--t-offset")
+    return seconds
 
 
 class AliasedOption(click.Option):

@@ -6,12 +6,13 @@ Heavy modules are imported inside the command (``slamobs --help`` stays fast).
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import export_option, quiet_option
+from slamobs.cli.options import Finite, Seconds, export_option, offset_seconds, quiet_option
 from slamobs.cli.progress import compile_notice
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
@@ -25,6 +26,8 @@ def _lengths(text: str | None) -> tuple[float, ...] | None:
         return None
     try:
         out = tuple(float(x) for x in text.split(",") if x.strip())
+        if not all(math.isfinite(x) for x in out):
+            raise ValueError(text)
     except ValueError:
         raise click.BadParameter(f"{text!r}: expected comma-separated metres", param_hint="--drift-lengths") from None
     if not out or min(out) <= 0:
@@ -45,15 +48,15 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option("--truth", default=None,
               help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
                    "file [default: the run's truth topic]")
-@click.option("--t-max-diff", "--t_max_diff", type=float, default=None, help="association tolerance [s] (0.01)")
+@click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
 @click.option("--t-offset", "--t_offset", default=None,
               help="seconds added to the estimate stamps, or 'auto' to apply the estimated clock offset (0)")
 @click.option("--align", type=click.Choice(ALIGNMENTS), default=None,
               help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)")
-@click.option("--convergence-threshold", type=float, default=None, help="position error threshold [m] (0.1)")
-@click.option("--rpe-delta", type=float, default=None, help="RPE pair distance [m] (1)")
+@click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m] (0.1)")
+@click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m] (1)")
 @click.option("--drift-lengths", default=None, help="KITTI drift segment lengths, comma-separated metres")
-@click.option("--bias-window", type=float, default=None,
+@click.option("--bias-window", type=Finite(), default=None,
               help="fraction of the run at its end used for bias stability (0.2)")
 @export_option(("tum", "evo"), default="what the run wrote")
 @click.option("--json", "as_json", is_flag=True, help="print report.json instead of the summary")
@@ -69,7 +72,7 @@ def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset:
     given = {"t_max_diff_s": t_max_diff, "align": align, "convergence_threshold_m": convergence_threshold,
              "rpe_delta_m": rpe_delta, "drift_lengths_m": _lengths(drift_lengths), "bias_window_fraction": bias_window}
     if t_offset is not None:
-        given["t_offset_s"] = "auto" if t_offset.strip().lower() == "auto" else _seconds(t_offset)
+        given["t_offset_s"] = offset_seconds(t_offset)
     try:
         run = load_run(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
@@ -87,13 +90,6 @@ def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset:
         click.echo(json.dumps(rep, indent=2, sort_keys=True))
         return
     _summary(rep, written)
-
-
-def _seconds(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise click.BadParameter(f"{text!r} is neither seconds nor 'auto'", param_hint="--t-offset") from None
 
 
 def _summary(r: dict, written: list[Path]) -> None:

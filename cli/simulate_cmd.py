@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.options import AliasedOption, quiet_option
+from slamobs.cli.options import SEED, AliasedOption, Finite, quiet_option
 from slamobs.cli.progress import compile_notice
 
 #: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
 CONTAINERS = ("bag", "mcap", "ros2")
 
-_RATE = click.FloatRange(min=0.0, min_open=True)
+_RATE = Finite(min=0.0, min_open=True)
 #: Horizontal field of view of the simulated image camera (--camera corners|images) when --fov is not given, deg.
 IMAGE_FOV_DEG = 70.0
 
@@ -28,7 +28,7 @@ IMAGE_FOV_DEG = 70.0
     help="bag (ROS1), mcap (bare ROS2 MCAP) or ros2 (rosbag2 sqlite3 directory). Default: from the suffix.",
 )
 @click.option("--duration", type=_RATE, default=None, help="Seconds (default: the scenario's).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Noise and latency seed.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Noise and latency seed.")
 @click.option("--no-noise", is_flag=True, help="Exact measurements (biases and latencies are kept).")
 @click.option("--imu-rate", type=_RATE, default=200.0, show_default=True, help="IMU rate, Hz.")
 @click.option("--odom-rate", type=_RATE, default=50.0, show_default=True, help="Wheel odometry rate, Hz.")
@@ -39,7 +39,7 @@ IMAGE_FOV_DEG = 70.0
               show_default=True, help="What the camera reports: 3D fiducial poses, tag corners in pixels "
               "(apriltag_msgs) or rendered images (sensor_msgs), the last two with CameraInfo.")
 @click.option("--image-size", default="640x480", show_default=True, help="Camera image size WxH (corners, images).")
-@click.option("--fov", type=click.FloatRange(10.0, 170.0), default=None,
+@click.option("--fov", type=Finite(10.0, 170.0), default=None,
               help="Horizontal field of view, deg: the scenario camera's (fiducials; default the scenario's, the "
                    "vertical one scales with it) and the image camera's (corners, images; default 70).")
 @click.option("--distortion", type=click.Choice(("none", "radtan", "equidistant")), default="radtan",
@@ -48,16 +48,16 @@ IMAGE_FOV_DEG = 70.0
 @click.option("--tag-family", default="36h11", show_default=True, help="Tag family of rendered images.")
 @click.option("--jpeg-quality", type=click.IntRange(0, 100), default=90, show_default=True,
               help="JPEG quality of images (sensor_msgs/CompressedImage); 0 writes raw mono8 sensor_msgs/Image.")
-@click.option("--image-noise", type=click.FloatRange(0.0), default=2.0, show_default=True,
+@click.option("--image-noise", type=Finite(0.0), default=2.0, show_default=True,
               help="Pixel noise of images, grey levels.")
-@click.option("--blur", type=click.FloatRange(0.0), default=0.0, show_default=True, help="Image blur sigma, px.")
-@click.option("--pixel-noise", type=click.FloatRange(0.0), default=0.3, show_default=True,
+@click.option("--blur", type=Finite(0.0), default=0.0, show_default=True, help="Image blur sigma, px.")
+@click.option("--pixel-noise", type=Finite(0.0), default=0.3, show_default=True,
               help="Corner noise, px (corners).")
 @click.option("--landmarks", type=click.IntRange(min=3), default=None,
               help="Landmark count (loop: rebuilt with N tags; others: an evenly spaced subset of the map).")
-@click.option("--detections-until", type=click.FloatRange(min=0.0), default=None,
+@click.option("--detections-until", type=Finite(min=0.0), default=None,
               help="Seconds after which no landmark is detected (they leave view for good).")
-@click.option("--imu-rpy", type=float, nargs=3, default=None, metavar="ROLL PITCH YAW",
+@click.option("--imu-rpy", type=Finite(), nargs=3, default=None, metavar="ROLL PITCH YAW",
               help="IMU mounting, deg (imu_link -> body, published on /tf_static), e.g. 180 0 0 upside down.")
 @click.option("--force", is_flag=True, help="Replace OUT if it exists.")
 @quiet_option("Print nothing but errors.")
@@ -110,7 +110,9 @@ def simulate(
         raise click.BadParameter(str(err)) from None
     container = container or infer_container(output)
     if (output.exists() or output.is_symlink()) and not force:
-        raise click.ClickException(f"{output} exists already (use --force to replace it)")
+        from slamobs.pipeline.errors import OutputError
+
+        raise OutputError(output, "exists already (use --force to replace it)")
     camera = _camera(camera_output, image_size, IMAGE_FOV_DEG if fov is None else fov, distortion, tag_size,
                      tag_family, jpeg_quality, image_noise, blur, pixel_noise)
     sim = simulation(  # generated and written piece by piece: any duration fits in memory

@@ -10,6 +10,7 @@ import click
 
 from slamobs.cli.batch_cmd import EXIT_INFRA, EXIT_SIGNAL, Stopped, _cores, _on_signal
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.options import SEED, Finite
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
 
@@ -30,9 +31,9 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
 @click.option("--holdout", "holdout", multiple=True, type=click.Path(path_type=Path), metavar="LOG",
               help="a log with truth the sampler never sees: defaults and tuned gains are compared on it at the end "
                    "(repeatable)")
-@click.option("--seed", type=int, default=0, show_default=True, help="sampler seed")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="sampler seed")
 @click.option("--force", is_flag=True, help="discard the tune in OUT and start over")
-@click.option("--wait-workers", type=click.FloatRange(min=0), default=60.0, show_default=True, metavar="SECONDS",
+@click.option("--wait-workers", type=Finite(min=0), default=60.0, show_default=True, metavar="SECONDS",
               help="Dask: give up (exit 3) when no worker is there for this long")
 @click.option("-q", "--quiet", is_flag=True, help="print only the final lines")
 def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, objective: str, config_path: Path | None,

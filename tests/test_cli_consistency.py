@@ -124,3 +124,32 @@ def test_export_option_parses_lists(kinds, tmp_path):
     assert res.exit_code == 2 and "missing.mcap" in res.stderr  # parsed: the log is the problem
     res = invoke("run", tmp_path / "missing.mcap", "-o", tmp_path / "out", "--export", "tum,ply")
     assert res.exit_code == 2 and "ply" in res.output
+
+
+BAD_NUMBERS = [  # each was a traceback (OverflowError, ValueError) or went through to a wrong result
+    ("evaluate", "{a}", "{a}", "--t-max-diff", "inf"),
+    ("evaluate", "{a}", "{a}", "--t-offset", "1e300"),
+    ("evaluate", "{a}", "{a}", "--delta", "nan"),
+    ("report", "{d}", "--t-offset", "nan"),
+    ("report", "{d}", "--rpe-delta", "nan"),
+    ("report", "{d}", "--drift-lengths", "5,nan"),
+    ("simulate", "circle", "-o", "{d}/s.mcap", "--duration", "nan"),
+    ("simulate", "circle", "-o", "{d}/s.mcap", "--imu-rpy", "inf", "0", "0"),
+    ("simulate", "circle", "-o", "{d}/s.mcap", "--seed", "-1"),
+    ("tune", "{a}", "--observer", "hashim", "-o", "{d}/t", "--seed", "-1"),
+    ("export", "{d}", "--mcap", "{d}/x.mcap", "--rate", "nan"),
+    ("batch", "{a}", "-o", "{d}/b", "--jobs", "0"),
+]
+
+
+@pytest.mark.parametrize("args", BAD_NUMBERS, ids=lambda a: " ".join(a[:1] + a[-2:]))
+def test_a_bad_option_value_is_one_line_and_nothing_is_written(tmp_path, args):
+    """NaN, infinite, overflowing or negative option values: one ``error:`` line naming the option, exit 2 (click's
+    own four lines of usage text included), and nothing written (tune left tune.journal for a bad seed)."""
+    (tmp_path / "a.txt").write_text("0 0 0 0 0 0 0 1\n1 1 0 0 0 0 0 1\n")
+    res = CliRunner().invoke(main, [a.format(a=tmp_path / "a.txt", d=tmp_path) for a in args])
+    lines = res.stderr.strip().splitlines()
+    assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith("error: "), res.stderr
+    option = [a for a in args if a.startswith("--")][-1]
+    assert option in lines[0] and "Usage:" not in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
