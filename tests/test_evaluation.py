@@ -1085,3 +1085,111 @@ def test_error_plot_marks_convergence_on_the_position_panel_only(tmp_path, monke
     labels = lambda ax: [line.get_label() for line in ax.get_lines()]  # noqa: E731
     assert {"converged at 2.10 s", "convergence band 0.12 m", "error level (running median)"} <= set(labels(pos))
     assert labels(att) == ["attitude error angle"]
+
+
+# ------------------------------------------------------------------------------------------ trajectory file checks
+
+
+def _kitti_text(n: int = 6, fmt: str = "%.9g") -> tuple[str, str]:
+    """A KITTI pose file of ``n`` turning poses (rotations written with ``fmt``) and its increasing times."""
+    truth = make_truth(n=n)
+    m = np.concatenate([quats_to_rots(truth.quat_xyzw), truth.position[:, :, None]], axis=2).reshape(-1, 12)
+    poses = "".join(" ".join(fmt % v for v in row) + "\n" for row in m)
+    return poses, "".join(f"{0.1 * k:.6f}\n" for k in range(n))
+
+
+def test_trajectory_files_reject_numbers_that_are_not_finite(tmp_path):
+    """inf / nan in any format is named with its line (or row), not turned into an inf / nan error."""
+    good = "1 0 0 0 0 0 0 1\n"
+    for word in ("inf", "nan", "-Infinity", "1e999"):
+        (tmp_path / "a.txt").write_text(f"# t x y z qx qy qz qw\n{good}\n2 1 {word} 0 0 0 0 1\n{good}")
+        with pytest.raises(InputError, match=r"a\.txt: line 4: not a finite number in '2 1 "):
+            read_trajectory(tmp_path / "a.txt")
+    (tmp_path / "data.csv").write_text("#timestamp, p_x\n1403715273262142976,0,0,0,1,0,0,0\n"
+                                       "1403715273267142912,0,0,0,nan,0,0,0,5\n")
+    with pytest.raises(InputError, match="data.csv: line 3: not a finite number"):
+        read_trajectory(tmp_path / "data.csv")
+    poses, _ = _kitti_text()
+    for bad in ("nan", "inf"):
+        for col in (0, 3):
+            lines = poses.splitlines()
+            tok = lines[2].split()
+            tok[col] = bad
+            lines[2] = " ".join(tok)
+            (tmp_path / "k.txt").write_text("\n".join(lines) + "\n")
+            with pytest.raises(InputError, match="k.txt: line 3: not a finite number"):
+                read_trajectory(tmp_path / "k.txt")
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    cols = {"t_ns": pa.array([1, 2, 3]), **{c: pa.array([0.0, 0.0, 0.0]) for c in ("x", "y", "z", "qx", "qy", "qz")}}
+    for col, values, problem in (("y", [0.0, np.nan, 0.0], r"row 1 \(from 0\): not a finite number in column y"),
+                                 ("qw", [1.0, 1.0, -np.inf], r"row 2 \(from 0\): not a finite number in column qw"),
+                                 ("x", [0.0, None, 0.0], r"row 1 \(from 0\): no value in column x")):
+        pq.write_table(pa.table({**cols, "qw": pa.array([1.0, 1.0, 1.0]), col: pa.array(values)}),
+                       tmp_path / "poses.parquet")
+        with pytest.raises(InputError, match=problem):
+            read_trajectory(tmp_path / "poses.parquet")
+
+
+def test_trajectory_files_reject_zero_quaternions(tmp_path):
+    """A quaternion of four zeros is no rotation: named with its line, not a NaN rotation error."""
+    (tmp_path / "a.txt").write_text("1 0 0 0 0 0 0 1\n\n2 0 0 0 0 0 0 0\n3 0 0 0 0 0 0 1\n")
+    with pytest.raises(InputError, match="a.txt: line 3: zero quaternion: no rotation"):
+        read_trajectory(tmp_path / "a.txt")
+    (tmp_path / "data.csv").write_text("#timestamp, p_x\n1403715273262142976,0,0,0,0,0,0,0\n")
+    with pytest.raises(InputError, match="data.csv: line 2: zero quaternion"):
+        read_trajectory(tmp_path / "data.csv")
+    pd.DataFrame({"t_ns": [1, 2], "x": 0.0, "y": 0.0, "z": 0.0, "qx": 0.0, "qy": 0.0, "qz": 0.0,
+                  "qw": [1.0, 0.0]}).to_parquet(tmp_path / "poses.parquet")
+    with pytest.raises(InputError, match=r"row 1 \(from 0\): zero quaternion"):
+        read_trajectory(tmp_path / "poses.parquet")
+    (tmp_path / "ok.txt").write_text("1 0 0 0 0 0 0 2\n2 0 0 0 0 0 1e-3 0\n")  # not unit: normalised, as evo
+    assert len(read_trajectory(tmp_path / "ok.txt").stream) == 2
+
+
+def test_kitti_times_must_increase(tmp_path):
+    """KITTI rows are consecutive frames: times that go back or repeat belong to other poses."""
+    poses, times = _kitti_text()
+    (tmp_path / "k.txt").write_text(poses)
+    t = times.splitlines()
+    (tmp_path / "times.txt").write_text("\n".join(t[::-1]) + "\n")
+    with pytest.raises(InputError, match=r"times.txt: times decrease at line 2 \(0.400000 after 0.500000\)"):
+        read_trajectory(tmp_path / "k.txt", kitti_times=tmp_path / "times.txt")
+    (tmp_path / "times.txt").write_text("# s\n" + "\n".join(t[:3] + [t[2]] + t[4:]) + "\n")
+    with pytest.raises(InputError, match="times.txt: time repeats at line 5"):
+        read_trajectory(tmp_path / "k.txt", kitti_times=tmp_path / "times.txt")
+    (tmp_path / "times.txt").write_text(times)
+    assert read_trajectory(tmp_path / "k.txt", kitti_times=tmp_path / "times.txt").timed
+
+
+def test_kitti_rotation_blocks_must_be_rotations(tmp_path):
+    """A scaled, zero or mirrored block is refused; rotations written with 6 digits pass, kept as written."""
+    poses, _ = _kitti_text(fmt="%.6g")
+    (tmp_path / "k.txt").write_text(poses)
+    traj = read_trajectory(tmp_path / "k.txt")
+    assert np.array_equal(traj.rotations.reshape(-1, 9)[:, :3],
+                          np.loadtxt(tmp_path / "k.txt")[:, :3])  # as written: not re-orthonormalised
+    for change, problem in ((lambda m: 2.0 * m, r"max \|RᵀR − I\| = 3, det = 8"),
+                            (lambda m: 0.0 * m, r"max \|RᵀR − I\| = 1, det = 0"),
+                            (lambda m: -m, r"max \|RᵀR − I\| = .*, det = -1")):
+        m = np.loadtxt(tmp_path / "k.txt").reshape(-1, 3, 4)
+        m[3, :, :3] = change(m[3, :, :3])
+        np.savetxt(tmp_path / "bad.txt", m.reshape(-1, 12), fmt="%.9g")
+        with pytest.raises(InputError, match=f"bad.txt: line 4: not a rotation matrix \\({problem}"):
+            read_trajectory(tmp_path / "bad.txt")
+
+
+@pytest.mark.skipif(not (EVO_DATA / "KITTI_00_gt.txt").is_file(), reason="no KITTI_00 files in shared/realdata")
+def test_real_kitti_files_pass_the_rotation_check():
+    times = EVO_DATA / "KITTI_00_gt_times.txt"
+    for name in ("KITTI_00_gt.txt", "KITTI_00_ORB.txt", "KITTI_00_SPTAM.txt"):
+        if (EVO_DATA / name).is_file():
+            traj = read_trajectory(EVO_DATA / name, kitti_times=times if times.is_file() else None)
+            assert len(traj.stream) == 4541
+
+
+def test_folder_is_neither_a_trajectory_nor_a_log(tmp_path):
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="empty: a folder that is neither a trajectory file nor a log"):
+        read_trajectory(tmp_path / "empty")

@@ -24,6 +24,8 @@ FORMATS = ("tum", "euroc", "kitti", "parquet", "topic")
 POSE_COLUMNS = ("t_ns", "x", "y", "z", "qx", "qy", "qz", "qw")
 _PLAIN_DECIMAL = re.compile(r"^[+-]?\d+(\.\d*)?$")
 _SEPARATOR = re.compile(r"[,\s]+")
+#: largest |RᵀR − I| entry of a KITTI rotation: real files, written with 6-9 significant digits, stay below 1e-6
+ROTATION_TOLERANCE = 1e-4
 
 
 @dataclass(frozen=True)
@@ -69,26 +71,43 @@ def _read_text(path: Path, what: str) -> str:
         raise InputError(path, f"cannot read {what} file: {err}") from None
 
 
-def _row_error(path: Path, text: str, min_fields: int, fixed: int | None, what: str) -> InputError:
-    """The first offending line of a file the fast parser rejected, named with its number."""
+def _data_lines(text: str):
+    """(line number, fields) of the rows of a file, as :func:`_rows` reads them (blank and ``#`` lines skipped)."""
     for lineno, line in enumerate(text.replace(",", " ").splitlines(), 1):
         tok = line.split()
-        if not tok or tok[0].startswith("#"):
-            continue
+        if tok and not tok[0].startswith("#"):
+            yield lineno, tok
+
+
+def _line_of(text: str, row: int) -> int:
+    """The line number of row ``row`` (from 0) of :func:`_rows`, for naming it in an error."""
+    return next(lineno for k, (lineno, _) in enumerate(_data_lines(text)) if k == row)
+
+
+def _row_error(path: Path, text: str, min_fields: int, fixed: int | None, what: str,
+               numeric_from: int = 1) -> InputError:
+    """The first offending line of a file the fast parser rejected, named with its number; ``numeric_from``: the
+    first field that must be a number (a stamp before it is parsed by :func:`_stamps`)."""
+    for lineno, tok in _data_lines(text):
         if (fixed is not None and len(tok) != fixed) or len(tok) < min_fields:
             want = f"{fixed}" if fixed is not None else f"at least {min_fields}"
             return InputError(path, f"line {lineno}: {what} rows have {want} fields, this one has {len(tok)}")
         try:
-            [float(v) for v in tok[1:min_fields]]
+            numbers = [float(v) for v in tok[numeric_from:min_fields]]
         except ValueError:
-            return InputError(path, f"line {lineno}: not a number in {line.strip()[:80]!r}")
+            return InputError(path, f"line {lineno}: not a number in {' '.join(tok)[:80]!r}")
+        if not np.isfinite(numbers).all():  # inf / nan would make every error statistic inf / nan
+            return InputError(path, f"line {lineno}: not a finite number in {' '.join(tok)[:80]!r}")
     return InputError(path, f"unreadable {what} file")
 
 
-def _rows(path: Path, min_fields: int, fixed: int | None, what: str) -> tuple[np.ndarray, np.ndarray]:
+def _rows(path: Path, min_fields: int, fixed: int | None, what: str,
+          numeric_from: int = 1) -> tuple[np.ndarray, np.ndarray, str]:
     """First column as text and the next ``min_fields - 1`` columns as floats (``fixed``: exactly that many
-    fields per row). Fields are separated by spaces, tabs or commas; ``#`` starts a comment line. Parsed by
-    pandas' C tokenizer (a 100k-line file in a fraction of a second); any irregular row is named by number."""
+    fields per row), and the text (for :func:`_line_of`). Fields are separated by spaces, tabs or commas; ``#``
+    starts a comment line. Parsed by pandas' C tokenizer (a 100k-line file in a fraction of a second); any
+    irregular row, or a number that is not finite, is named by its line. ``numeric_from=0``: the first column
+    must be a finite number too (KITTI)."""
     import io
 
     import pandas as pd
@@ -111,9 +130,29 @@ def _rows(path: Path, min_fields: int, fixed: int | None, what: str) -> tuple[np
     if not all(pd.api.types.is_numeric_dtype(t) and not pd.api.types.is_bool_dtype(t) for t in values.dtypes):
         raise _row_error(path, text, min_fields, fixed, what)
     values = values.to_numpy(np.float64)
-    if fixed is not None and df.iloc[:, min_fields:].isna().to_numpy().any() or np.isnan(values).any():
-        raise _row_error(path, text, min_fields, fixed, what)
-    return df[0].to_numpy(dtype=str), values
+    if fixed is not None and df.iloc[:, min_fields:].isna().to_numpy().any() or not np.isfinite(values).all():
+        raise _row_error(path, text, min_fields, fixed, what, numeric_from)
+    tokens = df[0].to_numpy(dtype=str)
+    if numeric_from == 0:
+        try:
+            ok = np.isfinite(tokens.astype(np.float64)).all()
+        except ValueError:
+            ok = False
+        if not ok:
+            raise _row_error(path, text, min_fields, fixed, what, numeric_from)
+    return tokens, values, text
+
+
+def _check_quats(path: Path, quat_xyzw: np.ndarray, where) -> None:
+    """Every quaternion can be normalised: a zero one (all four 0, a placeholder for "no rotation") would make
+    the rotation errors NaN. ``where(k)`` names row ``k`` (``line 3``)."""
+    n2 = np.einsum("ij,ij->i", quat_xyzw, quat_xyzw)
+    bad = np.flatnonzero(~((n2 > 0) & np.isfinite(n2)))
+    if bad.size:
+        k = int(bad[0])
+        problem = ("zero quaternion: no rotation" if n2[k] == 0 else
+                   f"quaternion {quat_xyzw[k].tolist()} cannot be normalised")
+        raise InputError(path, f"{where(k)}: {problem}")
 
 
 _POW10 = 10 ** np.arange(19, dtype=np.int64)
@@ -166,14 +205,16 @@ def _stream(name: str, t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.nda
 def load_tum(path: str | Path) -> PoseStream:
     """TUM trajectory: ``timestamp tx ty tz qx qy qz qw`` per line (seconds), ``#`` comments."""
     path = Path(path)
-    first, v = _rows(path, 8, 8, "TUM")
+    first, v, text = _rows(path, 8, 8, "TUM")
+    _check_quats(path, v[:, 3:7], lambda k: f"line {_line_of(text, k)}")
     return _stream(str(path), _stamps(path, first), v[:, 0:3], v[:, 3:7])
 
 
 def load_euroc_csv(path: str | Path) -> PoseStream:
     """EuRoC ``state_groundtruth_estimate0/data.csv``: ``t [ns], p xyz, q wxyz, ...`` (extra columns ignored)."""
     path = Path(path)
-    first, v = _rows(path, 8, None, "EuRoC CSV")
+    first, v, text = _rows(path, 8, None, "EuRoC CSV")
+    _check_quats(path, v[:, 3:7], lambda k: f"line {_line_of(text, k)}")
     try:
         t_ns = first.astype(np.int64)
     except ValueError:
@@ -185,8 +226,11 @@ def load_kitti(path: str | Path, times: str | Path | None = None) -> PoseStream:
     """KITTI poses: the first three rows of the 4x4 pose matrix per line.
 
     Without ``times`` (one stamp in seconds per line, KITTI ``times.txt``) the stamps are the row indices in
-    nanoseconds (0, 1, 2, ...), meaningful only for pairing by index. The rotations become quaternions (which
-    re-orthonormalises them); :func:`kitti_rotations` gives the matrices as written.
+    nanoseconds (0, 1, 2, ...), meaningful only for pairing by index. With them, the times must increase: the
+    rows are consecutive frames, so a time that repeats or goes back means the times belong to other poses (or
+    were written with too few digits). Each rotation block must be a rotation to ``ROTATION_TOLERANCE`` (as
+    written, a few digits, not exactly orthonormal); it becomes a quaternion (which re-orthonormalises it);
+    :func:`kitti_rotations` gives the matrices as written.
     """
     return _kitti(Path(path), times)[0]
 
@@ -194,28 +238,38 @@ def load_kitti(path: str | Path, times: str | Path | None = None) -> PoseStream:
 def kitti_rotations(path: str | Path) -> np.ndarray:
     """The (N, 3, 3) rotation blocks of a KITTI pose file, as written."""
     path = Path(path)
-    first, v = _rows(path, 12, 12, "KITTI")
+    first, v, _ = _rows(path, 12, 12, "KITTI", numeric_from=0)
     return np.ascontiguousarray(np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)[:, :, :3])
 
 
 def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray]:
-    first, v = _rows(path, 12, 12, "KITTI")
-    try:
-        m = np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)
-    except ValueError:
-        raise InputError(path, "not a number in the first column") from None
+    first, v, text = _rows(path, 12, 12, "KITTI", numeric_from=0)
+    m = np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)
     from slamobs.pipeline.lie import rots_to_quats
 
     rot = np.ascontiguousarray(m[:, :, :3])
+    off = np.abs(np.einsum("nji,njk->nik", rot, rot) - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(rot)
+    bad = np.flatnonzero(~((off <= ROTATION_TOLERANCE) & (det > 0)))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(path, f"line {_line_of(text, k)}: not a rotation matrix "
+                               f"(max |RᵀR − I| = {off[k]:.3g}, det = {det[k]:.3g})")
     quat = rots_to_quats(rot)
     if times is None:
         t_ns = np.arange(m.shape[0], dtype=np.int64)
     else:
         tpath = Path(times)
-        tok, _ = _rows(tpath, 1, 1, "KITTI times")
+        tok, _, ttext = _rows(tpath, 1, 1, "KITTI times")
         t_ns = _stamps(tpath, tok)
         if t_ns.shape[0] != m.shape[0]:
             raise InputError(tpath, f"{t_ns.shape[0]} stamps for {m.shape[0]} poses in {path}")
+        step = np.diff(t_ns)
+        if (step <= 0).any():
+            k = int(np.argmax(step <= 0)) + 1
+            how = "times decrease" if step[k - 1] < 0 else "time repeats"
+            raise InputError(tpath, f"{how} at line {_line_of(ttext, k)} ({tok[k]} after {tok[k - 1]}): "
+                                    f"KITTI rows are consecutive frames")
     return _stream(str(path), t_ns, m[:, :, 3], quat), rot
 
 
@@ -240,9 +294,17 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
         if not (pa.types.is_integer(kind) or (c != "t_ns" and pa.types.is_floating(kind))):
             want = "integer nanoseconds" if c == "t_ns" else "numbers"
             raise InputError(path, f"not a poses table: column {c} holds {kind}, not {want}")
+        if table.column(c).null_count:
+            k = table.column(c).is_null().to_pylist().index(True)
+            raise InputError(path, f"row {k} (from 0): no value in column {c}")
     cols = {c: table.column(c).to_numpy() for c in POSE_COLUMNS}
     pos = np.column_stack([cols["x"], cols["y"], cols["z"]]).astype(np.float64)
     quat = np.column_stack([cols["qx"], cols["qy"], cols["qz"], cols["qw"]]).astype(np.float64)
+    finite = np.isfinite(np.column_stack([pos, quat]))
+    if not finite.all():
+        k, j = (int(i[0]) for i in np.nonzero(~finite))
+        raise InputError(path, f"row {k} (from 0): not a finite number in column {POSE_COLUMNS[1 + j]}")
+    _check_quats(path, quat, lambda k: f"row {k} (from 0)")
     return _stream(str(path), cols["t_ns"].astype(np.int64), pos, quat)
 
 
@@ -337,6 +399,14 @@ def read_trajectory(source: str | Path, fmt: str | None = None, *, kitti_times: 
     if fmt == "topic":
         raise InputError(source, "not LOG:TOPIC with an existing log")
     path = Path(source)
+    if path.is_dir():
+        from .container import detect_container
+
+        try:
+            detect_container(path)
+        except InputError as err:  # say why it is not a log either (e.g. a rosbag2 folder without metadata.yaml)
+            why = err.problem if err.path == str(path) else str(err)
+            raise InputError(path, f"a folder that is neither a trajectory file nor a log: {why}") from None
     if path.is_dir() or (path.is_file() and _is_log(path)):
         raise InputError(path, "a log holds several topics: name one as LOG:TOPIC")
     fmt = fmt or detect_format(path)
