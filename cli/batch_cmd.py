@@ -170,7 +170,7 @@ class _RunCommand(click.Command):
 @click.option("--observer", default=None, help="observer for every log (overrides configs)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
               help="run.yaml for logs without a per-log config in a manifest")
-@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
+@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False, exists=True), default=None,
               help="pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log "
                    "config that names msg_dir)")
 @click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
