@@ -547,7 +547,28 @@ class RiEKF(Stepper):
             "landmarks_in_state": int(ns[_NSEEN]), "gate_chi2": GATE_CHI2,
             "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
             "noise": self.noise.as_dict()}}
+        self.stats["notes"] = _unused_note(int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]),
+                                           int(s.det_idx.shape[0]))
         return rows
+
+
+#: Share of the detections rejected by the gate above which the run says so (a few are outliers; most, a noise model
+#: that does not fit the log).
+GATED_NOTE_SHARE = 0.5
+
+
+def _unused_note(skipped: int, frames: int, gated: int, detections: int) -> list[str]:
+    """Say when the filter left much of the log unused: frames whose innovation covariance was not positive
+    definite, or detections gated as outliers (noise.gyro 1e6 left 896 of 898 frames unused, and the run
+    reported a 14 m map error without a word on why)."""
+    notes = []
+    if skipped:
+        notes.append(f"riekf: {skipped} of {frames} detection frames not used: their innovation covariance was not "
+                     "positive definite (the noise settings are far from this log's; see run.json observer.filter)")
+    if detections and gated > GATED_NOTE_SHARE * detections:
+        notes.append(f"riekf: {gated} of {detections} detections rejected by the chi-square gate ({GATE_CHI2}): "
+                     "noise.detection is too small for these detections, or the estimate is lost")
+    return notes
 
 
 SPEC = ObserverSpec(
