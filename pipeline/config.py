@@ -175,6 +175,10 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     for key in tags.get("sizes", {}):
         if not str(key).lstrip("-").isdigit():
             raise InputError(source, f"invalid config at tags.sizes: key {key!r} is not a tag id")
+    if tags.get("detector"):  # OpenCV's own limits, named with the config (not only at the log's first image)
+        from slamobs.pipeline.vision.detector import check_detector_settings
+
+        check_detector_settings(str(tags.get("family", "36h11")), tags.get("detector"), source)
     config = RunConfig(
         observer=data.get("observer", DEFAULT_OBSERVER),
         topics=dict(data.get("topics", {})),

@@ -83,12 +83,49 @@ def _parquet(path: Path) -> tuple[np.ndarray, np.ndarray]:
         table = pq.read_table(path, columns=["id", "x", "y", "z"])
     except (pa.ArrowException, OSError, KeyError) as err:
         raise InputError(path, f"not a landmarks table (id, x, y, z): {' '.join(str(err).split())[:160]}") from None
-    return table["id"].to_numpy().astype(np.int64), np.column_stack([table[a].to_numpy() for a in "xyz"])
+    try:
+        ids = [_landmark_id(i) for i in table["id"].to_pylist()]
+        xyz = np.column_stack([np.asarray(table[a].to_pylist(), dtype=np.float64) for a in "xyz"])
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(path, "landmarks table: ids must be integers and x, y, z numbers") from None
+    return np.asarray(ids, np.int64).reshape(-1), xyz.reshape(-1, 3)
+
+
+def _text(path: Path, errors: str = "strict") -> str:
+    """The file as text; UTF-8 with or without a byte order mark (spreadsheets write one)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise InputError(path, f"cannot read map file: {err.strerror or err}") from None
+    try:
+        return raw.decode("utf-8-sig", errors=errors)
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
+                               "save the map as UTF-8") from None
+
+
+def _landmark_id(value: object) -> int:
+    """A landmark id: an integer (``7``, ``7.0``) within int64; ValueError saying what is wrong otherwise."""
+    if isinstance(value, str):
+        try:
+            value = int(value.strip())
+        except ValueError:
+            try:
+                value = float(value)
+            except ValueError:
+                raise ValueError("not an integer") from None
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError("not an integer")
+    if not -2**63 <= value < 2**63:
+        raise ValueError("out of range (64-bit integers)")
+    return value
 
 
 def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
     ids, rows = [], []
-    for n, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+    for n, line in enumerate(_text(path, "replace").splitlines(), 1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
@@ -100,13 +137,14 @@ def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
         try:
             if len(parts) != 4:
                 raise ValueError
-            ident = int(float(parts[0]))
-            if ident != float(parts[0]):
-                raise ValueError
-            rows.append([float(p) for p in parts[1:]])
-            ids.append(ident)
+            row = [float(p) for p in parts]
         except ValueError:
             raise InputError(path, f"line {n}: expected 'id,x,y,z', got {text[:60]!r}") from None
+        try:
+            ids.append(_landmark_id(parts[0]))
+        except ValueError as err:
+            raise InputError(path, f"line {n}: landmark id {parts[0][:30]} is {err}") from None
+        rows.append(row[1:])
     return np.asarray(ids, np.int64), np.asarray(rows, np.float64).reshape(-1, 3)
 
 
@@ -116,7 +154,7 @@ def _tagslam(path: Path) -> tuple[np.ndarray, np.ndarray]:
     from slamobs.pipeline.lie import so3_exp
 
     try:
-        doc = YAML(typ="safe").load(path.read_text())
+        doc = YAML(typ="safe").load(_text(path))
     except YAMLError as err:
         raise InputError(path, f"not valid YAML: {str(err).splitlines()[0]}") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("bodies"), list):
@@ -128,21 +166,29 @@ def _tagslam(path: Path) -> tuple[np.ndarray, np.ndarray]:
             r = node.get("rotation", node.get("rotvec", {"x": 0, "y": 0, "z": 0}))
             t = np.array([float(p[a]) for a in "xyz"])
             rv = np.array([float(r[a]) for a in "xyz"])
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise InputError(path, f"{what}: pose needs position and rotation x, y, z") from None
         return so3_exp(rv), t
 
     ids, xyz = [], []
     for entry in doc["bodies"]:
+        if entry is not None and not isinstance(entry, dict):
+            raise InputError(path, f"bodies: expected {{name: body}} entries, got {entry!r:.60}")
         for name, body in (entry or {}).items():
             if not isinstance(body, dict) or not body.get("is_static"):
                 continue
             rot_b, t_b = pose(body["pose"], f"body {name}") if isinstance(body.get("pose"), dict) else \
                 (np.eye(3), np.zeros(3))
-            for tag in body.get("tags") or []:
+            tags = body.get("tags") or []
+            if not isinstance(tags, list):
+                raise InputError(path, f"body {name}: tags must be a list of {{id, size, pose}}, got {tags!r:.60}")
+            for tag in tags:
                 if isinstance(tag, dict) and isinstance(tag.get("pose"), dict):
                     _, t_t = pose(tag["pose"], f"tag {tag.get('id')}")
-                    ids.append(int(tag["id"]))
+                    try:
+                        ids.append(_landmark_id(tag.get("id")))
+                    except ValueError as err:
+                        raise InputError(path, f"body {name}: tag id {tag.get('id')!r:.30} is {err}") from None
                     xyz.append(rot_b @ t_t + t_b)
     return np.asarray(ids, np.int64), np.asarray(xyz, np.float64).reshape(-1, 3)
 

@@ -172,6 +172,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     from slamobs.pipeline.readers import read_log
 
     from slamobs.pipeline.known_map import read_map, restrict_to_map
+    from slamobs.pipeline.vision.cameras import check_camera_files
 
     log = Path(log)
     mark = compile_mark()
@@ -180,6 +181,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     # map files are checked before a long log is read
     known = read_map(config.map_file, config.map_mode) if config.map_file else None
     map_truth = read_map(config.map_truth).positions() if config.map_truth else None
+    check_camera_files(config.cameras)  # a camera file given is read even where the log has no camera topics
     t = time.perf_counter()
     progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)

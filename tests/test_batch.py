@@ -398,3 +398,26 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
     assert row["warnings"].startswith("RuntimeWarning: overflow encountered") and row["warning_count"] == 1
     assert capfd.readouterr().err == ""
     assert not (tmp_path / "stage" / "x").exists()
+
+
+def test_manifest_not_utf8_is_one_line(tmp_path):
+    manifest = tmp_path / "m.csv"
+    manifest.write_bytes(b"log,config\n\xff\xfe,ok.yaml\n")
+    with pytest.raises(InputError, match=r"manifest is not UTF-8 text \(byte 0xff at offset 11\)") as err:
+        discover([manifest])
+    assert err.value.path == str(manifest) and "\n" not in str(err.value)
+    res = invoke(manifest, "-o", tmp_path / "OUT", "-j", 1)
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert res.output.strip().splitlines() == [f"error: {err.value}"]
+
+
+def test_manifest_saved_by_excel_with_bom_and_crlf(tmp_path):
+    _fake_tree(tmp_path)
+    (tmp_path / "x" / "cfg.yaml").write_text("observer: fast-adaptation\n")
+    csv = tmp_path / "x" / "excel.csv"
+    csv.write_bytes(b"\xef\xbb\xbflog,config\r\none.bag,cfg.yaml\r\ny/two.mcap,\r\n")
+    assert discover([csv]) == [LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml"),
+                               LogEntry(tmp_path / "x" / "y" / "two.mcap", None)]
+    yml = tmp_path / "x" / "excel.yaml"
+    yml.write_bytes(b"\xef\xbb\xbf- y/r2\r\n")
+    assert discover([yml]) == [LogEntry(tmp_path / "x" / "y" / "r2", None)]

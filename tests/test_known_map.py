@@ -158,3 +158,34 @@ def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path):
     assert np.percentile(np.linalg.norm(s.angular_velocity.xyz[inner] - tr.omega[inner], axis=1), 95) < 0.01
     # a proper body-frame twist is left alone
     assert "linear_velocity" not in read_log(write_log(simulate("circle", duration=2.0), tmp_path / "c.bag")).derived
+
+
+TAG = "{{id: {}, size: 0.2, pose: {{position: {{x: 7, y: 7, z: 0}}, rotation: {{x: 0, y: 0, z: 0}}}}}}"
+
+
+@pytest.mark.parametrize(("name", "text", "problem"), [
+    ("m.csv", "id,x,y,z\n99999999999999999999,7,7,0\n2,-7,7,0\n",
+     "line 2: landmark id 99999999999999999999 is out of range (64-bit integers)"),
+    ("m.csv", "id,x,y,z\n1.5,7,7,0\n", "line 2: landmark id 1.5 is not an integer"),
+    ("t.yaml", "bodies:\n - world:\n     is_static: true\n     tags:\n       - " + TAG.format("one") + "\n",
+     "body world: tag id 'one' is not an integer"),
+    ("t.yaml", "bodies:\n - world:\n     is_static: true\n     tags:\n       - " + TAG.format("1e30") + "\n",
+     "body world: tag id 1e+30 is out of range (64-bit integers)"),
+    ("t.yaml", "bodies:\n - world:\n     is_static: true\n     tags: 5\n",
+     "body world: tags must be a list of {id, size, pose}, got 5"),
+    ("t.yaml", "bodies: [world]\n", "bodies: expected {name: body} entries, got 'world'"),
+    ("t.yaml", b"bodies: [\xff]\n", "not UTF-8 text (byte 0xff at offset 9): save the map as UTF-8"),
+])
+def test_bad_map_ids_and_structure_are_one_line(tmp_path, name, text, problem):
+    path = tmp_path / name
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(InputError) as err:
+        read_map(path)
+    assert str(err.value) == f"{path}: {problem}"
+
+
+def test_map_csv_with_a_byte_order_mark(tmp_path):
+    path = tmp_path / "m.csv"
+    path.write_bytes(b"\xef\xbb\xbfid,x,y,z\r\n1,7,7,0\r\n2,-7,7,0\r\n")
+    m = read_map(path)
+    assert m.ids.tolist() == [1, 2] and m.xyz.tolist() == [[7, 7, 0], [-7, 7, 0]]

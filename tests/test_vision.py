@@ -442,3 +442,88 @@ def test_raw_image_encodings_and_a_raw_image_bag(tmp_path):
     cam = sim.whole().camera
     assert stream.topic == "/camera/image_raw" and len(stream) == 5
     assert set(stream.ids.tolist()) >= set(cam.ids.tolist())
+
+
+@pytest.mark.parametrize(("settings", "problem"), [
+    ({"adaptiveThreshWinSizeMin": -5}, "OpenCV rejects the settings {'adaptiveThreshWinSizeMin': -5}: "
+                                       "params.adaptiveThreshWinSizeMin >= 3"),
+    ({"perspectiveRemovePixelPerCell": 0}, "OpenCV rejects the settings"),  # only seen once a tag is found
+    ({"minMarkerPerimeterRate": float("nan")}, "minMarkerPerimeterRate = nan: must be finite"),
+    ({"adaptiveThreshWinSizeMin": float("inf")}, "adaptiveThreshWinSizeMin = inf: must be finite"),
+    ({"adaptiveThreshWinSizeMin": 3.5}, "adaptiveThreshWinSizeMin = 3.5: must be an integer"),
+    ({"detectInvertedMarker": "false"}, "detectInvertedMarker = 'false': must be true or false"),
+    ({"cornerRefinementMethod": 7}, "cornerRefinementMethod = 7: must be 0 (none), 1 (subpix)"),
+    ({"readDetectorParameters": 1}, "'readDetectorParameters' is not a cv2.aruco.DetectorParameters field"),
+])
+def test_detector_settings_opencv_rejects_are_one_line(settings, problem):
+    with pytest.raises(InputError) as err:
+        TagDetector("36h11", settings, path="run.yaml")
+    assert str(err.value).startswith("run.yaml: tags.detector: ") and problem in str(err.value)
+    assert "\n" not in str(err.value)
+    TagDetector("36h11", {"adaptiveThreshWinSizeMin": 5, "adaptiveThreshConstant": 7})  # valid ones still work
+
+
+ROS_INFO = ("camera_name: camera\ncamera_matrix: {rows: 3, cols: 3, data: [457, 0, 319.5, 0, 457, 239.5, 0, 0, 1]}\n"
+            "distortion_model: plumb_bob\n")
+
+
+def test_ros_camera_file_with_plain_lists(tmp_path):
+    path = tmp_path / "cam.yaml"
+    path.write_text("camera_name: camera\ncamera_matrix: [457, 0, 319.5, 0, 457, 239.5, 0, 0, 1]\n"
+                    "distortion_model: plumb_bob\ndistortion_coefficients: [0.1, 0, 0, 0, 0]\nimage_width: 640\n"
+                    "image_height: 480\n")
+    (model,) = read_camera_files([path]).models
+    assert model.model == "radtan" and model.dist.tolist() == [0.1, 0, 0, 0, 0] and model.size == (640, 480)
+    assert model.k[0, 0] == 457.0
+
+
+@pytest.mark.parametrize(("text", "problem"), [
+    (ROS_INFO + "distortion_coefficients: [0, 0, 0, 0, 0]\nimage_width: big\n",
+     "image_width must be a whole number of pixels, got 'big'"),
+    (ROS_INFO + "distortion_coefficients: [0, 0, 0, 0, 0]\nimage_height: .inf\n",
+     "image_height must be a whole number of pixels, got inf"),
+    (ROS_INFO + "distortion_coefficients: [a, b]\n", "distortion_coefficients.data must be a list of numbers"),
+    ("cam0: {intrinsics: [500, 500, 1, 1], resolution: [640.5, 480]}",
+     "cam0.resolution must be a whole number of pixels, got 640.5"),
+    ("bodies: 5\n", "bodies must be a list of {name: body} entries"),
+    (b"\xff\xfe\x00", "not UTF-8 text (byte 0xff at offset 0): save the camera file as UTF-8"),
+])
+def test_bad_camera_file_values_are_one_line(tmp_path, text, problem):
+    path = tmp_path / "cam.yaml"
+    path.write_bytes(text if isinstance(text, bytes) else text.encode())
+    with pytest.raises(InputError) as err:
+        read_camera_files([path])
+    assert str(err.value) == f"{path}: {problem}"
+
+
+def test_missing_camera_file_is_an_error_even_when_unused(tmp_path):
+    from slamobs.pipeline.vision.cameras import check_camera_files
+
+    check_camera_files(())
+    with pytest.raises(InputError) as err:
+        check_camera_files([tmp_path / "nonexistent.yaml"])
+    assert str(err.value) == f"{tmp_path / 'nonexistent.yaml'}: camera file not found"
+
+
+def test_detector_settings_checked_with_the_config_path():
+    from slamobs.pipeline.vision.detector import check_detector_settings
+
+    check_detector_settings("36h11", None, "run.yaml")
+    check_detector_settings("36h11", {"adaptiveThreshWinSizeMin": 5}, "run.yaml")
+    with pytest.raises(InputError, match=r"^run.yaml: tags.detector: OpenCV rejects the settings .*>= 3"):
+        check_detector_settings("36h11", {"adaptiveThreshWinSizeMin": -5}, "run.yaml")
+
+
+def test_missing_camera_file_fails_a_run_without_camera_topics(tmp_path):
+    """A ``cameras:`` file that does not exist was dropped without a word on a log without camera topics."""
+    from click.testing import CliRunner
+
+    from slamobs.cli.main import main
+
+    cfg = tmp_path / "cm.yaml"
+    cfg.write_text(f"cameras: {tmp_path / 'nonexistent.yaml'}\n")
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
+    res = CliRunner().invoke(main, ["run", str(log), "-o", str(tmp_path / "out"), "--config", str(cfg), "-q"])
+    assert res.exit_code == 2 and "Traceback" not in res.output
+    assert res.output.strip() == f"error: {tmp_path / 'nonexistent.yaml'}: camera file not found"
+    assert not (tmp_path / "out").exists()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import errno
 import glob
+import io
 import os
 import stat
 from collections.abc import Iterable, Sequence
@@ -177,9 +178,23 @@ def read_manifest(path: Path) -> list[LogEntry]:
     return out
 
 
+def _text(path: Path) -> str:
+    """A manifest's text: UTF-8, with or without the byte order mark Excel writes."""
+    raw = path.read_bytes()
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"manifest is not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
+                               "save it as UTF-8") from None
+
+
 def _csv_rows(path: Path) -> list[tuple[str, str | None]]:
-    with path.open(newline="") as fh:
-        rows = [[c.strip() for c in r] for r in csv.reader(fh) if r and any(c.strip() for c in r)]
+    # newline="" keeps quoted line breaks to the csv module, which also takes CRLF line ends
+    reader = csv.reader(io.StringIO(_text(path), newline=""))
+    try:
+        rows = [[c.strip() for c in r] for r in reader if r and any(c.strip() for c in r)]
+    except csv.Error as err:
+        raise InputError(path, f"manifest is not valid CSV: line {reader.line_num}: {err}") from None
     rows = [r for r in rows if not r[0].startswith("#")]
     if rows and rows[0][0].lower() in ("log", "path"):
         header = [c.lower() for c in rows[0]]
@@ -193,7 +208,7 @@ def _yaml_rows(path: Path) -> list[tuple[str, str | None]]:
     from ruamel.yaml import YAML, YAMLError
 
     try:
-        data = YAML(typ="safe").load(path.read_text())
+        data = YAML(typ="safe").load(_text(path))
     except YAMLError as err:
         raise InputError(path, f"manifest is not valid YAML: {str(err).splitlines()[0]}") from None
     if isinstance(data, dict) and "logs" in data:

@@ -193,9 +193,18 @@ def _load_yaml(path: Path) -> Any:
     from ruamel.yaml import YAML, YAMLError
 
     if not path.is_file():
-        raise InputError(path, "camera file not found")
+        raise InputError(path, "a directory, not a camera file" if path.is_dir() else "camera file not found")
     try:
-        return YAML(typ="safe").load(path.read_text())
+        raw = path.read_bytes()
+    except OSError as err:
+        raise InputError(path, f"cannot read camera file: {err.strerror or err}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
+                               "save the camera file as UTF-8") from None
+    try:
+        return YAML(typ="safe").load(text)
     except YAMLError as err:
         raise InputError(path, f"not valid YAML: {str(err).splitlines()[0]}") from None
 
@@ -203,11 +212,22 @@ def _load_yaml(path: Path) -> Any:
 def _numbers(value: Any, n: int | None, what: str, path: Path) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=np.float64).ravel()
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise InputError(path, f"{what} must be a list of numbers") from None
     if (n is not None and arr.shape[0] != n) or not np.isfinite(arr).all():
         raise InputError(path, f"{what} must be {n} finite numbers" if n else f"{what} must be finite numbers")
     return arr
+
+
+def _count(value: Any, what: str, path: Path) -> int:
+    """A pixel count (``image_width``); 0 when not given."""
+    if value is None:
+        return 0
+    value = value.item() if isinstance(value, np.generic) else value
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or \
+            value != int(value) or value < 0:
+        raise InputError(path, f"{what} must be a whole number of pixels, got {value!r}")
+    return int(value)
 
 
 def _vec3(node: Any, what: str, path: Path) -> np.ndarray:
@@ -228,11 +248,11 @@ def _invert(t4: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _kalibr(doc: dict, path: Path, out: CameraFiles) -> None:
-    names = sorted(doc, key=lambda n: (len(n), n))
+    names = sorted(doc, key=lambda n: (len(str(n)), str(n)))
     rig = next((str(doc[n]["rig_body"]) for n in names if isinstance(doc[n], dict) and doc[n].get("rig_body")), "")
     previous = None
-    for name in names:
-        cam = doc[name]
+    for key in names:
+        cam, name = doc[key], str(key)
         if not isinstance(cam, dict) or "intrinsics" not in cam:
             continue
         where = f"{name}"
@@ -243,7 +263,8 @@ def _kalibr(doc: dict, path: Path, out: CameraFiles) -> None:
         dist = _numbers(cam.get("distortion_coeffs", []), None, f"{where}.distortion_coeffs", path)
         model = distortion_model(cam.get("distortion_model", "none"), dist, where, path)
         res = cam.get("resolution")
-        size = tuple(int(v) for v in _numbers(res, 2, f"{where}.resolution", path)) if res is not None else None
+        size = tuple(_count(v, f"{where}.resolution", path) for v in _numbers(res, 2, f"{where}.resolution", path)) \
+            if res is not None else None
         topics = tuple(str(cam[key]) for key in ("rostopic", "tagtopic") if cam.get(key))
         out.models.append(CameraModel(name, _k_matrix(fx, fy, cx, cy, where, path), dist if model != "none"
                                       else np.zeros(0), model, size, f"{path.name} ({name})", topics))
@@ -261,20 +282,21 @@ def _kalibr(doc: dict, path: Path, out: CameraFiles) -> None:
 
 
 def _ros_yaml(doc: dict, path: Path, out: CameraFiles) -> None:
-    def matrix(key: str, n: int) -> np.ndarray:
-        node = doc.get(key) or {}
-        return _numbers(node.get("data") if isinstance(node, dict) else node, n, f"{key}.data", path)
+    def matrix(key: str, n: int | None) -> np.ndarray:
+        # {rows, cols, data} as camera_calibration writes it, or the plain list of numbers people type
+        node = doc.get(key)
+        node = node.get("data") if isinstance(node, dict) else node
+        return _numbers([] if node is None and n is None else node, n, f"{key}.data", path)
 
     name = str(doc.get("camera_name") or path.stem)
     kk = matrix("camera_matrix", 9).reshape(3, 3)
-    dist = _numbers((doc.get("distortion_coefficients") or {}).get("data", []), None,
-                    "distortion_coefficients.data", path)
+    dist = matrix("distortion_coefficients", None)
     model = distortion_model(doc.get("distortion_model", "plumb_bob"), dist, name, path)
     rect = None
     if doc.get("projection_matrix"):
         pp = matrix("projection_matrix", 12).reshape(3, 4)
         rect = pp[:, :3].copy() if pp[0, 0] > 0 and pp[1, 1] > 0 else None
-    width, height = int(doc.get("image_width") or 0), int(doc.get("image_height") or 0)
+    width, height = (_count(doc.get(key), key, path) for key in ("image_width", "image_height"))
     out.models.append(CameraModel(name, _k_matrix(kk[0, 0], kk[1, 1], kk[0, 2], kk[1, 2], name, path),
                                   dist if model != "none" else np.zeros(0), model,
                                   (width, height) if width and height else None, path.name, (), name.lstrip("/"),
@@ -290,7 +312,7 @@ def _pose(node: Any, what: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _camera_poses(doc: dict, path: Path, out: CameraFiles, rig: str) -> None:
-    for name, cam in sorted(doc.items()):
+    for name, cam in sorted(doc.items(), key=lambda item: str(item[0])):
         if isinstance(cam, dict) and "pose" in cam:
             rot, trans = _pose(cam["pose"], f"{name}.pose", path)
             out.transforms.append(RigTransform(("frame", rig or "rig"), ("camera", str(name)), rot, trans,
@@ -299,7 +321,10 @@ def _camera_poses(doc: dict, path: Path, out: CameraFiles, rig: str) -> None:
 
 def _tagslam_bodies(doc: dict, path: Path, out: CameraFiles) -> None:
     found = False
-    for entry in doc.get("bodies") or []:
+    bodies = doc.get("bodies") or []
+    if not isinstance(bodies, list) or not all(isinstance(e, dict) or e is None for e in bodies):
+        raise InputError(path, "bodies must be a list of {name: body} entries")
+    for entry in bodies:
         for name, body in (entry or {}).items():
             if not isinstance(body, dict) or body.get("is_static") or "T_body_odom" not in body:
                 continue
@@ -345,3 +370,10 @@ def read_camera_files(paths: list[str | Path]) -> CameraFiles:
                                    "YAML (camera_matrix), a TagSLAM camera_poses.yaml (camN.pose) or a tagslam.yaml "
                                    "(bodies)")
     return out
+
+
+def check_camera_files(paths: list[str | Path] | tuple[str | Path, ...]) -> None:
+    """Read the ``cameras:`` files before a long log is, and on logs that do not use them: a camera file that
+    is missing or unreadable is an error, never a setting silently dropped."""
+    if paths:
+        read_camera_files(list(paths))

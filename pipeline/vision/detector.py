@@ -22,6 +22,7 @@ Speed and settings: OpenCV's defaults otherwise (``benchmarks/tag_detection.py``
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -82,25 +83,76 @@ class TagDetector:
         dictionary = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary_name))
         params = cv2.aruco.DetectorParameters()
         for name, value in {**DEFAULT_PARAMETERS, **(self.parameters or {})}.items():
-            if not hasattr(params, name) or name.startswith("_"):
+            name = str(name)
+            current = getattr(params, name, None) if not name.startswith("_") else None
+            if not isinstance(current, (bool, int, float)):
                 raise InputError(self.path, f"tags.detector: {name!r} is not a cv2.aruco.DetectorParameters field")
-            current = getattr(params, name)
             try:
-                setattr(params, name, type(current)(value) if isinstance(current, (bool, int, float)) else value)
-            except (TypeError, ValueError, cv2.error) as err:
-                raise InputError(self.path, f"tags.detector: {name} = {value!r}: {err}") from None
+                setattr(params, name, _setting(name, current, value))
+            except (TypeError, ValueError, OverflowError, cv2.error) as err:
+                raise InputError(self.path, f"tags.detector: {name} = {value!r}: {_one_line(err)}") from None
+        self._error = cv2.error
         self._detector = cv2.aruco.ArucoDetector(dictionary, params)
         self.refine = params.cornerRefinementMethod == 0
+        if self.parameters:  # OpenCV checks its settings only when it searches: try them on one drawn tag now
+            tag = cv2.aruco.generateImageMarker(dictionary, 0, 48)
+            self.detect(cv2.copyMakeBorder(tag, 16, 16, 16, 16, cv2.BORDER_CONSTANT, value=255))
 
     def detect(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Tag ids (K,) and corners (K, 4, 2) in OpenCV's marker order, in pixels of ``gray`` (centres at integers)."""
-        corners, ids, _ = self._detector.detectMarkers(gray)
+        try:
+            corners, ids, _ = self._detector.detectMarkers(gray)
+        except self._error as err:  # settings OpenCV rejects (images are valid 8-bit grey by now)
+            raise InputError(self.path, f"tags.detector: OpenCV rejects the settings {self.parameters}: "
+                                        f"{_one_line(err)}") from None
         if ids is None or len(ids) == 0:
             return np.zeros(0, np.int64), np.zeros((0, 4, 2))
         corners = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
         if self.refine:
             corners = refine_corners(gray, corners)
         return np.asarray(ids, dtype=np.int64).ravel(), corners
+
+
+def check_detector_settings(family: str, settings: dict | None, path: object) -> None:
+    """The ``tags`` family and ``detector`` settings of a config, checked when the config is read so the error
+    names the config file (a run would otherwise refuse them only when it meets the first image). Without
+    OpenCV nothing is checked here: a log with images then gets the missing-extra error."""
+    if not settings:
+        return
+    try:
+        import cv2  # noqa: F401
+    except ImportError:
+        return
+    TagDetector(family, settings, path)
+
+
+#: cv2.aruco.CORNER_REFINE_NONE, _SUBPIX, _CONTOUR, _APRILTAG: OpenCV silently ignores other values.
+_REFINE_METHODS = (0, 1, 2, 3)
+
+
+def _setting(name: str, current: bool | int | float, value: Any) -> bool | int | float:
+    """A ``tags.detector`` value as the type of the field; ValueError for what a cast would silently change
+    (``"false"`` as True, 3.7 as 3) or OpenCV would only reject when it searches (NaN, infinity)."""
+    if isinstance(current, bool):
+        if not isinstance(value, bool):
+            raise ValueError("must be true or false")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError("must be a number")
+    if not math.isfinite(value):
+        raise ValueError("must be finite")
+    if isinstance(current, int):
+        if value != int(value):
+            raise ValueError("must be an integer")
+        if name == "cornerRefinementMethod" and value not in _REFINE_METHODS:
+            raise ValueError("must be 0 (none), 1 (subpix), 2 (contour) or 3 (apriltag)")
+        return int(value)
+    return float(value)
+
+
+def _one_line(err: Exception) -> str:
+    """An OpenCV error's condition (``cv2.error.err``) or any error's text, on one line."""
+    return " ".join(str(getattr(err, "err", None) or err).split())
 
 
 def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
