@@ -168,6 +168,9 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     ev = data.get("evaluation", {})
     dirs = data.get("directions", {})
     limits = {**DEFAULT_LIMITS, **data.get("limits", {})}
+    lo, hi = limits.get("min_range"), limits.get("max_range")
+    if lo is not None and hi is not None and lo >= hi:  # every detection would be dropped
+        raise InputError(source, f"invalid config at limits: min_range {lo:g} m is not below max_range {hi:g} m")
     tags = data.get("tags", {})
     known = data.get("map") or {}
     known = {"file": known} if isinstance(known, str) else known

@@ -288,8 +288,14 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
         report = json.loads((run_dir / "report.json").read_text())
     if not (run_dir / "poses.parquet").is_file() and not (run_dir / "batch.json").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
+    from slamobs.pipeline.errors import OutputError
     from slamobs.pipeline.paths import check_output_file
 
+    if not str(out).strip() or out.name in ("", ".", ".."):
+        raise OutputError(f"--mcap {str(out)!r}", "name an .mcap file to write")
+    parent = next((p for p in out.parents if os.path.lexists(p)), None)
+    if parent is not None and not parent.is_dir():
+        raise OutputError(out, f"{parent} is a file, not a directory")
     check_output_file(out, [p for p in run_dir.iterdir() if p.suffix != ".mcap"])  # the files read, not a results MCAP
     if out.exists() and not force:
         raise InputError(out, "exists already (use --force to replace it)")

@@ -126,6 +126,7 @@ BAD_CONFIGS = {
     # detection (APE 7.4 m instead of 0.01 m, exit 0)
     "limits:\n  max_gap: .nan\n": ("limits.max_gap: nan is not a finite number", "null switches the gate off"),
     "noise:\n  gyro: .nan\n": ("noise.gyro: nan is not a finite number",),
+    "limits:\n  min_range: 10\n  max_range: 1\n": ("limits: min_range 10 m is not below max_range 1 m",),
     "output:\n  rate_hz: .inf\n": ("output.rate_hz: inf is not a finite number",),
     "output:\n  frame: {position: [1, 2, .nan], orientation_xyzw: [0, 0, 0, 1]}\n": ("output.frame.position.2",),
 }
