@@ -110,9 +110,10 @@ def simulate(
         raise click.BadParameter(str(err)) from None
     container = container or infer_container(output)
     if (output.exists() or output.is_symlink()) and not force:
+        from slamobs.cli.errors import exit_input_error
         from slamobs.pipeline.errors import OutputError
 
-        raise OutputError(output, "exists already (use --force to replace it)")
+        exit_input_error(OutputError(output, "exists already (use --force to replace it)"))
     camera = _camera(camera_output, image_size, IMAGE_FOV_DEG if fov is None else fov, distortion, tag_size,
                      tag_family, jpeg_quality, image_noise, blur, pixel_noise)
     sim = simulation(  # generated and written piece by piece: any duration fits in memory

@@ -6,7 +6,6 @@ the same functions.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -64,16 +63,12 @@ def load_run(run_dir: str | Path) -> RunData:
     """Every Parquet table of a run directory as a pandas DataFrame, with run.json and report.json."""
     import pandas as pd
 
+    from slamobs.pipeline.evaluation.run_dir import read_json
+
     run_dir = Path(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
         raise InputError(run_dir, "not a run directory (no run.json)")
-
-    def read_json(p: Path) -> dict:
-        try:
-            return json.loads(p.read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-            raise InputError(p, f"unreadable JSON: {err}") from None
 
     report_path = run_dir / "report.json"
     from slamobs.pipeline.batch.dataset import run_tables

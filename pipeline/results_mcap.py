@@ -21,7 +21,6 @@ The file is written under a temporary name next to the target and renamed into p
 
 from __future__ import annotations
 
-import json
 import os
 import tempfile
 from pathlib import Path
@@ -227,7 +226,10 @@ def _read(run_dir: Path, name: str):
 
     path = run_dir / f"{name}.parquet"
     if path.is_file():
-        return read_frame(path)
+        try:
+            return read_frame(path)
+        except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
+            raise InputError(path, f"unreadable table: {' '.join(str(err).split())}") from None
     from slamobs.pipeline.batch.dataset import run_tables  # a batch run directory: tables are in the dataset
 
     found = (run_tables(run_dir) or {}).get(name)
@@ -279,13 +281,15 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
     TF and bias messages per second (None or 0: one per table row). An existing ``out`` is replaced only with
     ``force``.
     """
+    from slamobs.pipeline.evaluation.run_dir import read_json
+
     run_dir, out = Path(run_dir), Path(out)
     if meta is None:
         if not (run_dir / "run.json").is_file():
             raise InputError(run_dir, "not a run directory (no run.json)")
-        meta = json.loads((run_dir / "run.json").read_text())
+        meta = read_json(run_dir / "run.json")
     if report is None and (run_dir / "report.json").is_file():
-        report = json.loads((run_dir / "report.json").read_text())
+        report = read_json(run_dir / "report.json")
     if not (run_dir / "poses.parquet").is_file() and not (run_dir / "batch.json").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
     from slamobs.pipeline.errors import OutputError

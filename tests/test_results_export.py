@@ -176,3 +176,18 @@ def test_report_writes_tum_and_evo_on_request(run_dir, tmp_path):
     assert not EXPORT_FILES & {p.name for p in copy.iterdir()}
     res = CliRunner().invoke(main, ["report", str(copy), "--export", "tum,pdf"])
     assert res.exit_code == 2 and "pdf" in res.output
+
+
+def test_export_of_a_damaged_run_is_one_line_naming_the_file(run_dir, tmp_path):
+    """A run.json or report.json that is not UTF-8 and a damaged table are named (the line said only "'utf-8'
+    codec can't decode byte 0xff" or "Parquet file size is 5 bytes")."""
+    for name, data, why in (("run.json", b"\xff\xfe{}", "unreadable run.json"),
+                            ("report.json", b"\xff\xfe", "unreadable report.json"),
+                            ("poses.parquet", b"junk\n", "unreadable table")):
+        copy = tmp_path / name
+        shutil.copytree(run_dir, copy)
+        (copy / name).write_bytes(data)
+        res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(tmp_path / f"{name}.mcap")])
+        lines = res.stderr.strip().splitlines()
+        assert res.exit_code == 2 and len(lines) == 1 and lines[0].startswith(f"error: {copy / name}: {why}"), lines
+        assert not (tmp_path / f"{name}.mcap").exists()

@@ -279,7 +279,7 @@ def test_cli(tmp_path):
     args = ["circle", "-o", str(mcap), "--duration", "1", "--detection-rate", "25"]
     assert runner.invoke(simulate_cmd, args).exit_code == 0
     res = runner.invoke(simulate_cmd, args)
-    assert res.exit_code != 0 and "exists" in res.output
+    assert res.exit_code == 2 and res.output.strip() == f"error: {mcap}: exists already (use --force to replace it)"
     res = runner.invoke(simulate_cmd, [*args, "--force", "--container", "mcap"])
     assert res.exit_code == 0 and "(mcap," in res.output
     with AnyReader([mcap]) as reader:

@@ -52,16 +52,22 @@ class TruthInput:
     notes: list[str] = field(default_factory=list)
 
 
+def read_json(path: Path) -> dict:
+    """A JSON file of a run directory (``run.json``, ``report.json``); damaged, unreadable or not UTF-8 is one
+    line naming it."""
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise InputError(path, f"unreadable {Path(path).name}: {' '.join(str(err).split())}") from None
+
+
 def load_run(run_dir: str | Path) -> RunTables:
     """``run.json`` and the Parquet tables of a run directory."""
     run_dir = Path(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
         raise InputError(run_dir, "not a run directory (no run.json)")
-    try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError) as err:
-        raise InputError(meta_path, f"unreadable run.json: {err}") from None
+    meta = read_json(meta_path)
     from slamobs.pipeline.batch.dataset import run_tables
 
     in_dataset = run_tables(run_dir)  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
