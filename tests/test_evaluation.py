@@ -1193,3 +1193,11 @@ def test_folder_is_neither_a_trajectory_nor_a_log(tmp_path):
     (tmp_path / "empty").mkdir()
     with pytest.raises(InputError, match="empty: a folder that is neither a trajectory file nor a log"):
         read_trajectory(tmp_path / "empty")
+
+
+def test_bad_stamp_is_named_as_written(tmp_path):
+    """A stamp that is not a number is quoted whole with its row ('n' was quoted for 'nan', np.str_('inf') for inf)."""
+    for word, why in (("nan", "bad timestamp 'nan'"), ("1e30", "timestamp '1e30' is out of range")):
+        (tmp_path / "t.txt").write_text(f"1 0 0 0 0 0 0 1\n{word} 0 0 0 0 0 0 1\n")
+        with pytest.raises(InputError, match=f"row 2: {why}"):
+            read_trajectory(tmp_path / "t.txt", "tum")

@@ -132,7 +132,7 @@ def _rows(path: Path, min_fields: int, fixed: int | None, what: str,
     values = values.to_numpy(np.float64)
     if fixed is not None and df.iloc[:, min_fields:].isna().to_numpy().any() or not np.isfinite(values).all():
         raise _row_error(path, text, min_fields, fixed, what, numeric_from)
-    tokens = df[0].to_numpy(dtype=str)
+    tokens = df[0].to_numpy(dtype=object).astype(str)  # not to_numpy(str): a NaN cell made it one character wide
     if numeric_from == 0:
         try:
             ok = np.isfinite(tokens.astype(np.float64)).all()
@@ -188,12 +188,13 @@ def _stamps(path: Path, tokens: np.ndarray) -> np.ndarray:
     out, plain = _plain_stamps_ns(tokens)
     plain &= np.char.str_len(tokens) <= _WIDTH
     for k in np.flatnonzero(~plain):
+        token = str(tokens[k])
         try:
-            out[k] = stamp_ns(str(tokens[k]))
+            out[k] = stamp_ns(token)
         except ValueError as err:
-            raise InputError(path, f"bad timestamp: {err}") from None
+            raise InputError(path, f"row {k + 1}: bad timestamp {token!r}: {err}") from None
         except OverflowError:
-            raise InputError(path, f"timestamp {tokens[k]!r} is out of range (int64 nanoseconds)") from None
+            raise InputError(path, f"row {k + 1}: timestamp {token!r} is out of range (int64 nanoseconds)") from None
     return out
 
 
