@@ -468,6 +468,15 @@ def test_clock_offset_is_estimated_always_and_applied_on_request():
     assert fixed["method"]["association"]["t_offset_s"] == fixed["time_offset"]["estimated_s"]
     assert fixed["ape"]["translation_m"]["rmse"] < 0.5 * plain["ape"]["translation_m"]["rmse"]
     assert "--t_offset" in fixed["evo"]["ape"]
+    # beside the report, the search leaves the APE without the offset to the report's own (not computed twice):
+    # the same number as the search computes on its own, and the same as the report's primary APE
+    from slamobs.pipeline.evaluation import trajectory_error as te
+    from slamobs.pipeline.evaluation.report import _sorted, estimate_stream
+
+    search = (_sorted(truth), estimate_stream(poses), te.SyncOptions(0.01, 0.0, "nearest"), te.AlignOptions("se3"))
+    alone, left = te.checked_time_offset(*search), te.checked_time_offset(*search, without=False)
+    assert left.rmse_without_m is None and left.rmse_with_m == alone.rmse_with_m
+    assert plain["time_offset"]["ape_rmse_without_m"] == alone.rmse_without_m == plain["ape"]["translation_m"]["rmse"]
 
 
 def test_time_offset_estimate_both_signs():

@@ -156,10 +156,17 @@ class TrajectoryEvaluation:
     applied_offset_s: float
     sync: SyncOptions
 
-    @property
+    @cached_property
     def time_offset(self) -> TimeOffset | None:
-        """The estimated clock offset (waits for it when it is computed beside the rest)."""
-        return self.offset.result() if isinstance(self.offset, _Pending) else self.offset
+        """The estimated clock offset (waits for it when it is computed beside the rest). Searched beside the
+        rest, its APE without the offset is this evaluation's own (same pairs rule and alignment, no offset
+        applied): it is filled in here rather than computed twice."""
+        if not isinstance(self.offset, _Pending):
+            return self.offset
+        off = self.offset.result()
+        if off is not None and off.checked and off.rmse_without_m is None:
+            off = replace(off, rmse_without_m=float(self.translation.stats["rmse"]))
+        return off
 
     @property
     def est_positions_aligned(self) -> np.ndarray:
@@ -191,7 +198,7 @@ def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions,
     if options.t_offset_s == "auto" or (estimate_offset and not beside):  # first: needed, or too big to overlap
         offset = checked_time_offset(*search, max_offset_s=options.max_time_offset_s)
     elif estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
-        offset = _Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s)
+        offset = _Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
     if options.t_offset_s == "auto":
         applied = offset.offset_s if offset is not None else 0.0
     else:

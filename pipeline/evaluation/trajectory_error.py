@@ -356,10 +356,11 @@ def describe(result: ErrorResult, sync: SyncOptions, align: AlignOptions, rpe_op
 
 
 def checked_time_offset(ref: PoseStream, est: PoseStream, sync: SyncOptions, align: AlignOptions,
-                        max_offset_s: float = 1.0) -> TimeOffset | None:
+                        max_offset_s: float = 1.0, *, without: bool = True) -> TimeOffset | None:
     """:func:`~.sync.estimate_time_offset` of two time-sorted pose streams, checked against the trajectories:
     the translation APE rmse (association rule ``sync``, alignment ``align``) with the offset applied and
-    without it, so that a correlation peak which makes the error larger is not called reliable."""
+    without it, so that a correlation peak which makes the error larger is not called reliable. ``without=False``
+    leaves ``rmse_without_m`` None for a caller that computes that APE anyway and fills it in (the report)."""
     off = estimate_time_offset(ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw,
                                max_offset_s=max_offset_s)
     if off is None:
@@ -371,4 +372,4 @@ def checked_time_offset(ref: PoseStream, est: PoseStream, sync: SyncOptions, ali
         except ValueError:  # too few pairs at that offset
             return None
 
-    return replace(off, checked=True, rmse_with_m=rmse(off.offset_s), rmse_without_m=rmse(0.0))
+    return replace(off, checked=True, rmse_with_m=rmse(off.offset_s), rmse_without_m=rmse(0.0) if without else None)
