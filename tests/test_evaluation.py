@@ -1210,3 +1210,16 @@ def test_bad_stamp_is_named_as_written(tmp_path):
         (tmp_path / "t.txt").write_text(f"1 0 0 0 0 0 0 1\n{word} 0 0 0 0 0 0 1\n")
         with pytest.raises(InputError, match=f"row 2: {why}"):
             read_trajectory(tmp_path / "t.txt", "tum")
+
+
+def test_a_map_in_the_wrong_place_is_named_in_the_notes():
+    """Landmark truth in another frame than the trajectory truth (a UTM truth file beside the log's landmark truth)
+    gave landmark errors of 4,700 km with no word why; a map in its place raises no note."""
+    poses, biases, landmarks, truth, lm_truth, bias_truth = synthetic_run(0.01, 0.02)
+    rep = checked(build_report(poses, biases, landmarks, truth, lm_truth, bias_truth))
+    assert not [n for n in rep["notes"] if n.startswith("landmark map:")]
+    far = {i: p + np.array([330_000.0, 4_690_000.0, 0.0]) for i, p in lm_truth.items()}
+    rep = checked(build_report(poses, biases, landmarks, truth, far, bias_truth))
+    (note,) = [n for n in rep["notes"] if n.startswith("landmark map:")]
+    assert "its shape fits the landmark truth, its place does not" in note
+    assert rep["landmarks"]["error_m"]["rmse"] > 4e6 and rep["landmarks"]["map_aligned"]["error_m"]["rmse"] < 0.1

@@ -393,6 +393,28 @@ def _landmark_table(landmarks: Table | None) -> tuple[np.ndarray, np.ndarray]:
     return _col(landmarks, "id", np.int64), _cols(landmarks, ["x", "y", "z"], np.float64)
 
 
+#: A map whose error after the trajectory's alignment is this many times its error after an alignment of its own (and
+#: over MAP_PLACE_MIN_M) is named in the notes: its shape matches the landmark truth, its place does not.
+MAP_PLACE_FACTOR = 10.0
+MAP_PLACE_MIN_M = 1.0
+
+
+def _map_place_note(section: dict[str, Any]) -> list[str]:
+    """Say when the map's shape fits the landmark truth but its place does not: the landmark truth in another frame
+    than the trajectory truth (a UTM truth file beside the log's landmark truth gave landmark errors of 4,700 km and
+    no word why), or a map that disagrees with its own trajectory."""
+    mine = (section.get("map_aligned") or {}).get("error_m") or {}
+    placed = section.get("error_m") or {}
+    if mine.get("rmse") is None or placed.get("rmse") is None:
+        return []
+    if placed["rmse"] <= max(MAP_PLACE_MIN_M, MAP_PLACE_FACTOR * mine["rmse"]):
+        return []
+    return [f"landmark map: {placed['rmse']:.4g} m from its truth after the trajectory's alignment, "
+            f"{mine['rmse']:.4g} m after an alignment of its own: its shape fits the landmark truth, its place "
+            "does not (the landmark truth in another frame than the trajectory truth, or a map that disagrees "
+            "with its trajectory)"]
+
+
 def _landmark_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None,
                       al: Alignment) -> dict[str, Any]:
     ids, xyz = _landmark_table(landmarks)
@@ -625,6 +647,7 @@ def evaluate_tables(
     del poses
     landmarks = tables.pop("landmarks", None)
     landmark_section = _landmark_section(landmarks, landmark_truth, ev.alignment)
+    notes += _map_place_note(landmark_section)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
         figures([top_view_job(landmark_section, ev, landmarks, landmark_truth),
                  *landmark_plot_jobs(landmark_section)])
