@@ -316,7 +316,11 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                   "derived": dict(streams.derived),
                   "cameras": dict(tags.cameras) if tags is not None else {},
                   "map": ({"file": prepared.known_map.source, "mode": prepared.known_map.mode}
-                          if prepared.known_map is not None else None)},
+                          if prepared.known_map is not None else None),
+                  # the truth read from a file (evaluation.truth_file): `slamobs report` reads it again from here
+                  "truth_file": ({"path": str(Path(config.truth_file).resolve()), "format": config.truth_format,
+                                  "times": str(Path(config.truth_times).resolve()) if config.truth_times else None}
+                                 if config.truth_file else None)},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,

@@ -82,6 +82,23 @@ def test_report_against_a_trajectory_file(run_dir, tmp_path):
     assert after["landmarks"]["error_m"] == before["landmarks"]["error_m"]  # map truth still from the log
 
 
+def test_report_of_a_run_whose_truth_was_a_file(finished_run, tmp_path):
+    """A run with ``evaluation.truth_file`` is reported again from that file: `slamobs report RUN` took the file's
+    path for a topic of the log ("topic for role truth is not in the log")."""
+    from slamobs.pipeline.config import parse_config
+
+    truth_file = shutil.copy(finished_run / "truth_tum.txt", tmp_path / "gt.txt")
+    out = tmp_path / "run"
+    run_log(SAMPLE, out, parse_config({"evaluation": {"truth_file": str(truth_file), "plots": False}}))
+    assert load(out / "run.json")["input"]["truth_file"] == {"path": str(truth_file), "format": None, "times": None}
+    before = load(out / "report.json")
+    res = invoke(report, out, "-q")
+    assert res.exit_code == 0, res.output
+    after = load(out / "report.json")
+    assert after["truth_source"]["kind"] == "file" and after["truth_source"]["name"] == str(truth_file)
+    assert after["ape"] == before["ape"]
+
+
 def test_report_options_json_and_kept_options(run_dir):
     res = invoke(report, run_dir, "--align", "origin", "--t-offset", "auto", "--rpe-delta", "0.5",
                  "--drift-lengths", "5,10", "--json")

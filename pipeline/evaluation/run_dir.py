@@ -117,7 +117,16 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     notes: list[str] = []
     have_log = log is not None and log.exists()
 
-    if source is not None and Path(source).is_file() and not (have_log and Path(source).resolve() == log.resolve()):
+    given = inp.get("truth_file") if source is None else None  # the run's truth was a file: read it again
+    if given is None and source is None and Path((inp.get("topics") or {}).get("truth") or "\0").is_file():
+        given = {"path": inp["topics"]["truth"]}  # a run from before run.json named its truth file
+    if given is not None:
+        source = given["path"]
+        traj = read_trajectory(source, given.get("format"), kitti_times=given.get("times"))
+        if not traj.timed:
+            raise InputError(source, "KITTI poses carry no stamps and cannot be matched to a run's clock")
+        stream, desc = traj.stream, {"kind": "file", "format": traj.format, "name": str(source)}
+    elif source is not None and Path(source).is_file() and not (have_log and Path(source).resolve() == log.resolve()):
         traj = read_trajectory(source)
         if traj.format == "parquet":
             raise InputError(source, "a poses.parquet is an estimate, not a ground-truth file")
