@@ -498,6 +498,9 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
         report, evaluation = evaluate_tables(frames, truth, streams.landmark_truth, streams.bias_truth,
                                              options=options, drawn_biases=drawn_biases,
                                              figures=early.submit if early is not None else None)
+        # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
+        clock = streams.clocks.get(truth.topic, config.align_time_source)
+        report["truth_source"]["time_source"] = "file stamps" if config.truth_file else clock
         if len(segments) > 1:
             report.setdefault("notes", []).append(
                 f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "

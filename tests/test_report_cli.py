@@ -57,6 +57,7 @@ def test_report_recomputes_the_run_report(run_dir):
     after = load(run_dir / "report.json")
     validate_report(before)
     validate_report(after)
+    assert before["truth_source"]["time_source"] == "header"  # the run's own report names the truth's clock too
     assert after["ape"] == before["ape"] and after["landmarks"] == before["landmarks"]
     assert after["truth_source"]["kind"] == "topic" and after["truth_source"]["name"] == "/mocap/pose"
     for name in REPORT_FILES:
@@ -92,6 +93,7 @@ def test_report_of_a_run_whose_truth_was_a_file(finished_run, tmp_path):
     run_log(SAMPLE, out, parse_config({"evaluation": {"truth_file": str(truth_file), "plots": False}}))
     assert load(out / "run.json")["input"]["truth_file"] == {"path": str(truth_file), "format": None, "times": None}
     before = load(out / "report.json")
+    assert before["truth_source"]["time_source"] == "file stamps"  # as docs/outputs.md lists it
     res = invoke(report, out, "-q")
     assert res.exit_code == 0, res.output
     after = load(out / "report.json")
