@@ -534,6 +534,15 @@ def test_report_says_why_a_clock_offset_is_not_reliable():
     weak = {**off, "peak_correlation": 0.3, "estimated_s": -0.995, "ape_rmse_with_m": None}
     assert _offset_doubts(weak) == ": correlation below 0.5; at the search limit"
     assert _offset_doubts({**off, "ape_rmse_with_m": 0.02}) == ""
+    # a reliable one says what it is: where the estimate fits best, a clock offset or the estimate's lag alike
+    from slamobs.pipeline.evaluation.report import render_markdown
+
+    truth = make_truth(n=3000)
+    poses = moved(truth, ROT_C, P_C, noise_m=0.002).iloc[::3].reset_index(drop=True)
+    poses["t_ns"] = poses["t_ns"] - 47_000_000
+    md = render_markdown(build_report(poses, None, None, truth))
+    (line,) = [x for x in md.splitlines() if x.startswith("Clock offset of the estimate")]
+    assert "reliable: the estimate matches the truth best when shifted" in line and "lagging" in line
 
 
 def test_time_offset_of_a_constant_rate_circle_is_no_estimate():

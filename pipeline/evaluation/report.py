@@ -380,8 +380,10 @@ def _time_offset_section(ev: TrajectoryEvaluation, options: ReportOptions) -> di
             "off the grid by golden-section search. Sign as evo --t_offset: t_estimate + offset is on the truth "
             "clock. Reliable: peak correlation >= 0.5, not on the window edge, and an offset more than one grid "
             "step from zero must not make the translation APE rmse larger (ape_rmse_with_m, with it applied; "
-            "ape_rmse_without_m, without; same association and alignment). Applied to the association only when "
-            "asked (t_offset auto)"
+            "ape_rmse_without_m, without; same association and alignment). A lag of the estimate behind the "
+            "motion (an observer's filtering delay) shows as the same offset: a reliable offset is where the estimate "
+            "matches the truth best, not proof that the clocks differ. Applied to the association only when asked "
+            "(t_offset auto)"
         ),
     }
 
@@ -806,10 +808,15 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
         lines += ["Path too short for RPE and drift.", ""]
     est = "not estimated" if off["estimated_s"] is None else (
         f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
-        f"{'reliable' if off['reliable'] else 'NOT reliable' + _offset_doubts(off)})")
+        f"{'reliable' + LAG_CAVEAT if off['reliable'] else 'NOT reliable' + _offset_doubts(off)})")
     lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     del m
     return lines
+
+
+#: What a reliable offset is and is not: the estimate's lag behind the truth (a filter's delay) looks the same.
+LAG_CAVEAT = (": the estimate matches the truth best when shifted by this much, from the clocks or from the "
+              "estimate lagging behind the motion; the trajectories cannot tell the two apart")
 
 
 def _offset_doubts(off: dict[str, Any]) -> str:
