@@ -118,6 +118,33 @@ def _segment_note(spec, stats: dict) -> list[str]:
     return [text]
 
 
+#: Share of a run without a landmark in view above which the run says so (and at least BLIND_NOTE_MIN_S seconds).
+BLIND_NOTE_SHARE = 0.2
+BLIND_NOTE_MIN_S = 5.0
+
+
+def blind_note(vel_t_ns: np.ndarray, det_t_ns: np.ndarray, det_offsets: np.ndarray, max_meas_age: float) -> list[str]:
+    """Say when no landmark is in view for much of the run: the observer then dead-reckons on odometry and IMU and
+    its error grows (detections ending 5 s into a 40 s log gave an APE of 0.41 m against 0.06 m, and nothing said
+    why). A frame keeps its landmarks in view for ``max_meas_age`` seconds, as the observers hold them."""
+    if vel_t_ns.shape[0] < 2:
+        return []
+    t0, t1 = int(vel_t_ns[0]), int(vel_t_ns[-1])
+    seen = det_t_ns[np.diff(det_offsets) > 0]
+    seen = seen[(seen <= t1)]
+    age = int(round(max_meas_age * 1e9))
+    starts = np.concatenate(([t0], np.minimum(seen + age, t1)))  # each blind stretch starts where cover ends
+    ends = np.concatenate((np.maximum(seen, t0), [t1]))
+    gaps = np.maximum(ends - starts, 0)
+    blind, span = float(gaps.sum()) * 1e-9, (t1 - t0) * 1e-9
+    if blind <= max(BLIND_NOTE_SHARE * span, BLIND_NOTE_MIN_S):
+        return []
+    k = int(np.argmax(gaps))
+    return [f"no landmark in view for {blind:.1f} s of the {span:.1f} s run (longest {gaps[k] * 1e-9:.1f} s, from "
+            f"{(starts[k] - t0) * 1e-9:.1f} s to {(ends[k] - t0) * 1e-9:.1f} s after the start): the observer "
+            "dead-reckons on odometry and IMU there, and its error grows"]
+
+
 def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
     """Every path a run reads: an output must never replace or hold one of them."""
     return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times, config.map_file,
@@ -372,6 +399,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
             metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
             notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
+            notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
             notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
             metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
             stage_timings = dict(part.timings)
