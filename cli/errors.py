@@ -54,6 +54,20 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
     sys.exit(code)
 
 
+def end_signals_at_once() -> None:
+    """After a command has finished: SIGTERM or SIGINT end the process at once with 143/130. The command's own
+    handling is over by then (its outputs complete and renamed); left at the default, a SIGTERM in the
+    interpreter's teardown killed the process by the signal (a batch stopped just as it finished exited -15, not
+    143) and a SIGINT printed a traceback."""
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        with suppress(ValueError, OSError):  # not the main thread
+            signal.signal(signum, _end_by_signal)
+
+
+def _end_by_signal(signum: int, _frame) -> None:
+    _end_now(128 + signum)
+
+
 def exit_at_once(code: object) -> None:
     """After a command has finished: with :data:`EXIT_AT_ONCE`, end the process now with the exit status
     ``sys.exit(code)`` gives; return (and let the caller exit normally) otherwise, or while a thread or child

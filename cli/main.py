@@ -207,6 +207,7 @@ def entry() -> None:
     try:
         main()
     except SystemExit as done:
+        errors.end_signals_at_once()
         errors.exit_at_once(done.code)
         raise
 

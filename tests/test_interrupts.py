@@ -149,3 +149,17 @@ def test_sigkill_at_any_point_of_a_force_swap_leaves_old_or_new(tmp_path, exchan
     else:
         pytest.fail("the swap never completed")
     assert seen == {"old", "new"}
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_after_the_command_ends_the_process_with_its_code(sig):
+    """Once a command is done (outputs complete), a SIGTERM or SIGINT during the exit gives 143/130 at once: left at
+    the default, a batch stopped just as it finished was killed by the signal (-15) and a SIGINT printed a
+    traceback from the interpreter's teardown."""
+    code = ("import os, signal, time\n"
+            "from slamobs.cli import errors\n"
+            "errors.end_signals_at_once()\n"
+            f"os.kill(os.getpid(), {int(sig)})\n"
+            "time.sleep(30)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 128 + int(sig) and "Traceback" not in proc.stderr
