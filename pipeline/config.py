@@ -317,19 +317,11 @@ def load_config(path: Path | None) -> RunConfig:
         return RunConfig()
     from ruamel.yaml import YAML, YAMLError
 
-    from slamobs.pipeline.paths import check_input
+    from slamobs.pipeline.paths import check_input, read_text
 
     path = Path(path)
     check_input(path, "config file (YAML)", directory_ok=False)
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise InputError(path, f"cannot read: {err.strerror or err}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as err:
-        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
-                               "save the config as UTF-8") from None
+    text = read_text(path, "config")
     try:
         data = YAML(typ="safe").load(text)
     except YAMLError as err:

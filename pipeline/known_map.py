@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import read_text
 
 MODES = ("fixed", "prior")
 #: A pose fit needs mapped landmarks spread this much (m, second principal extent) in one frame.
@@ -91,19 +92,6 @@ def _parquet(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(ids, np.int64).reshape(-1), xyz.reshape(-1, 3)
 
 
-def _text(path: Path, errors: str = "strict") -> str:
-    """The file as text; UTF-8 with or without a byte order mark (spreadsheets write one)."""
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise InputError(path, f"cannot read map file: {err.strerror or err}") from None
-    try:
-        return raw.decode("utf-8-sig", errors=errors)
-    except UnicodeDecodeError as err:
-        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
-                               "save the map as UTF-8") from None
-
-
 def _landmark_id(value: object) -> int:
     """A landmark id: an integer (``7``, ``7.0``) within int64; ValueError saying what is wrong otherwise."""
     if isinstance(value, str):
@@ -125,7 +113,7 @@ def _landmark_id(value: object) -> int:
 
 def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
     ids, rows = [], []
-    for n, line in enumerate(_text(path, "replace").splitlines(), 1):
+    for n, line in enumerate(read_text(path, "map", "replace").splitlines(), 1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
@@ -154,7 +142,7 @@ def _tagslam(path: Path) -> tuple[np.ndarray, np.ndarray]:
     from slamobs.pipeline.lie import so3_exp
 
     try:
-        doc = YAML(typ="safe").load(_text(path))
+        doc = YAML(typ="safe").load(read_text(path, "map"))
     except YAMLError as err:
         raise InputError(path, f"not valid YAML: {str(err).splitlines()[0]}") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("bodies"), list):

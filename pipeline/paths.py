@@ -116,6 +116,21 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
                                "--force replaces only earlier runs; remove it yourself or choose another -o")
 
 
+def read_text(path: str | Path, what: str, errors: str = "strict") -> str:
+    """A user's text file (config, camera file, map, manifest) as UTF-8, with or without the byte order mark that
+    spreadsheets and Windows editors write; unreadable or not UTF-8 is one line naming it and the ``what``.
+    ``errors="replace"`` keeps undecodable bytes for a parser that names the offending line itself."""
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as err:
+        raise InputError(path, f"cannot read the {what}: {err.strerror or err}") from None
+    try:
+        return raw.decode("utf-8-sig", errors=errors)
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): save the {what} "
+                               "as UTF-8") from None
+
+
 def check_output_file(out: str | Path, inputs: Iterable[str | Path | None]) -> None:
     """Refuse an output file that is one of ``inputs`` (a file the command reads) or lies inside an input
     directory: writing it would destroy what the command was given (``evaluate --save-results`` onto the

@@ -403,7 +403,8 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
 def test_manifest_not_utf8_is_one_line(tmp_path):
     manifest = tmp_path / "m.csv"
     manifest.write_bytes(b"log,config\n\xff\xfe,ok.yaml\n")
-    with pytest.raises(InputError, match=r"manifest is not UTF-8 text \(byte 0xff at offset 11\)") as err:
+    with pytest.raises(InputError, match=r"not UTF-8 text \(byte 0xff at offset 11\): save the manifest as UTF-8") \
+            as err:
         discover([manifest])
     assert err.value.path == str(manifest) and "\n" not in str(err.value)
     res = invoke(manifest, "-o", tmp_path / "OUT", "-j", 1)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import read_text
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")  # a bare .db3: rosbag2 storage without metadata.yaml (crash)
 MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
@@ -178,19 +179,9 @@ def read_manifest(path: Path) -> list[LogEntry]:
     return out
 
 
-def _text(path: Path) -> str:
-    """A manifest's text: UTF-8, with or without the byte order mark Excel writes."""
-    raw = path.read_bytes()
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        raise InputError(path, f"manifest is not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
-                               "save it as UTF-8") from None
-
-
 def _csv_rows(path: Path) -> list[tuple[str, str | None]]:
     # newline="" keeps quoted line breaks to the csv module, which also takes CRLF line ends
-    reader = csv.reader(io.StringIO(_text(path), newline=""))
+    reader = csv.reader(io.StringIO(read_text(path, "manifest"), newline=""))
     try:
         rows = [[c.strip() for c in r] for r in reader if r and any(c.strip() for c in r)]
     except csv.Error as err:
@@ -208,7 +199,7 @@ def _yaml_rows(path: Path) -> list[tuple[str, str | None]]:
     from ruamel.yaml import YAML, YAMLError
 
     try:
-        data = YAML(typ="safe").load(_text(path))
+        data = YAML(typ="safe").load(read_text(path, "manifest"))
     except YAMLError as err:
         raise InputError(path, f"manifest is not valid YAML: {str(err).splitlines()[0]}") from None
     if isinstance(data, dict) and "logs" in data:

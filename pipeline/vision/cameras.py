@@ -194,15 +194,9 @@ def _load_yaml(path: Path) -> Any:
 
     if not path.is_file():
         raise InputError(path, "a directory, not a camera file" if path.is_dir() else "camera file not found")
-    try:
-        raw = path.read_bytes()
-    except OSError as err:
-        raise InputError(path, f"cannot read camera file: {err.strerror or err}") from None
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError as err:
-        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): "
-                               "save the camera file as UTF-8") from None
+    from slamobs.pipeline.paths import read_text
+
+    text = read_text(path, "camera file")
     try:
         return YAML(typ="safe").load(text)
     except YAMLError as err:
