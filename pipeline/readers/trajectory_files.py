@@ -60,15 +60,10 @@ def stamp_ns(text: str) -> int:
 
 
 def _read_text(path: Path, what: str) -> str:
-    from slamobs.pipeline.paths import check_input
+    from slamobs.pipeline.paths import check_input, read_text
 
     check_input(path, f"{what} file", directory_ok=False)
-    try:
-        return path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputError(path, "no such file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise InputError(path, f"cannot read {what} file: {err}") from None
+    return read_text(path, f"{what} file")
 
 
 def _data_lines(text: str):
