@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
+
 import numpy as np
+import pytest
 
 from slamobs.pipeline.evaluation import plot_worker
 
@@ -36,6 +43,31 @@ def test_helpers_draw_the_same_png_bytes(tmp_path):
     assert all(p.poll() is not None for p in procs) and workers.procs == []
 
 
+def test_batches_drawn_side_by_side_come_back_in_order(tmp_path):
+    """One helper, a batch per submit: each batch is drawn by its own forked child, the PNGs return in the
+    order of the jobs."""
+    jobs = _jobs() + _jobs()[::-1]
+    drawn_here = plot_worker.draw(jobs, lambda name: tmp_path / f"here-{name}")
+    workers = plot_worker.PlotWorkers(1)
+    for job in jobs:
+        workers.submit([(job[0], f"{len(workers.jobs)}-{job[1]}", job[2])])
+    drawn_there = workers.collect(tmp_path)
+    assert [p.name for p in drawn_there] == [f"{k}-{j[1]}" for k, j in enumerate(jobs)]
+    assert [p.read_bytes() for p in drawn_there] == [p.read_bytes() for p in drawn_here]
+
+
+def test_a_failed_figure_fails_the_collect(tmp_path, capfd):
+    bad = ("plot_errors", "bad.png", dict(t_s=np.arange(3.0), position_error_m=np.arange(2.0),
+                                          attitude_error_deg=np.arange(3.0)))
+    workers = plot_worker.PlotWorkers(1)
+    workers.submit(_jobs()[:1])
+    workers.submit([bad])
+    with pytest.raises(RuntimeError, match="figure helper"):
+        workers.collect(tmp_path)
+    assert "Traceback" in capfd.readouterr().err  # the child said why
+    assert not (tmp_path / "errors.png").exists()
+
+
 def test_unused_helpers_are_stopped():
     with plot_worker.PlotWorkers(1) as workers:
         procs = list(workers.procs)
@@ -43,14 +75,31 @@ def test_unused_helpers_are_stopped():
     assert procs[0].returncode is not None and workers.procs == []
 
 
-def test_helper_dies_with_a_killed_run():
-    """SIGKILL of the run while its helper draws (stdin already closed) takes the helper along at once."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
+def _children(pid: int) -> list[int]:
+    out = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    if int(fh.read().rsplit(") ", 1)[1].split()[1]) == pid:
+                        out.append(int(entry))
+            except (FileNotFoundError, ProcessLookupError, IndexError):
+                pass
+    return out
 
+
+def _ended(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(") ", 1)[1].startswith("Z")  # a zombie has ended; only its reaping is left
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_helper_dies_with_a_killed_run():
+    """SIGKILL of the run while its helper's child draws (stdin already closed) takes the helper and the
+    drawing child along at once."""
     parent = subprocess.Popen(
         [sys.executable, "-c", "import sys, time\nimport numpy as np\n"
          "from slamobs.pipeline.evaluation import plot_worker\n"
@@ -61,26 +110,21 @@ def test_helper_dies_with_a_killed_run():
          "print(w.procs[0].pid, flush=True)\ntime.sleep(60)\n"],
         stdout=subprocess.PIPE, text=True)
     helper = int(parent.stdout.readline())
-    time.sleep(0.5)
+    deadline = time.monotonic() + 10.0
+    while not (drawing := _children(helper)) and time.monotonic() < deadline:  # forked once warm
+        time.sleep(0.05)
+    assert drawing, "the helper forked no child to draw"
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
     deadline = time.monotonic() + 3.0  # far less than the figures would take
-    while time.monotonic() < deadline:
-        try:
-            with open(f"/proc/{helper}/stat") as fh:
-                if fh.read().split(") ")[1].startswith("Z"):  # a zombie has ended; only its reaping is left
-                    break
-        except FileNotFoundError:
-            break
+    while not all(_ended(p) for p in [helper, *drawing]):
+        assert time.monotonic() < deadline, f"figure helper {helper} or its child {drawing} runs on after its run was killed"
         time.sleep(0.05)
-    else:
-        raise AssertionError(f"figure helper {helper} still running after its run was killed")
 
 
 def test_free_cores_counts_what_runs_now():
     """Runnable threads right now (the fourth field of /proc/loadavg, this process one of them), not the load
     average, which still counts runs that ended a minute ago."""
-    import os
 
     cpus = len(os.sched_getaffinity(0))
     assert plot_worker.free_cores("1.90 1.50 1.20 1/80 999") == cpus - 1  # busy a minute ago, idle now

@@ -11,7 +11,8 @@ A helper reads batches of jobs from stdin until it closes, then writes all its P
 waits for the run to read), ignores SIGINT (the run decides what Ctrl-C means), is killed by
 :meth:`PlotWorkers.close` if it still runs, and is bound to its run as a batch worker is
 (:func:`~slamobs.pipeline.batch.lifeline.bind_to_parent`): a run killed by SIGKILL takes it along at once,
-even in the middle of a figure.
+even in the middle of a figure. Each batch is drawn by a child forked from the warm helper and bound to the
+helper the same way, so batches are drawn side by side on free cores (:class:`_Batches`).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import pickle
 import subprocess
 import sys
 import threading
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -158,7 +160,6 @@ def draw(jobs: list[Job], target=None) -> list[Any]:
 
 
 def _main() -> None:
-    import io
     import signal
 
     from slamobs.pipeline.batch.lifeline import bind_to_parent
@@ -168,16 +169,101 @@ def _main() -> None:
     from slamobs.pipeline.evaluation.plots import warm_up
 
     warm_up()
-    buffers = []
+    batches = _Batches()
     while True:  # batches as the run hands them over, each drawn at once
         try:
             jobs = pickle.load(sys.stdin.buffer)
         except EOFError:
             break
-        buffers += draw(jobs, lambda _name: io.BytesIO())
-    if buffers:  # none: the run needed no figures
-        sys.stdout.buffer.write(pickle.dumps([b.getvalue() for b in buffers], protocol=pickle.HIGHEST_PROTOCOL))
-        sys.stdout.buffer.flush()
+        batches.start(jobs)
+    images = batches.images()
+    if images:  # none: the run needed no figures
+        sys.stdout.buffer.write(pickle.dumps(images, protocol=pickle.HIGHEST_PROTOCOL))
+    sys.stdout.flush()
+    os._exit(0)  # matplotlib's teardown is ~0.1 s the run would wait for; nothing is left to clean up
+
+
+class _Batches:
+    """A helper's batches, each drawn by a child forked from the warm helper (matplotlib already imported, so
+    a child costs a few milliseconds), up to one per CPU at once: the figures of a short log are drawn side by
+    side instead of one after another (90 s log: 0.6-0.8 s of drawing). A child binds itself to the helper as
+    the helper is bound to its run, and leaves its PNG bytes in an unlinked in-memory file (it never waits
+    for a reader). Where ``os.fork`` is missing, the helper draws each batch itself."""
+
+    def __init__(self) -> None:
+        self.slots = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+        self.children: list[tuple[int, Any]] = []  # (pid, file) per batch, in order
+        self.drawn: list[list[bytes]] = []  # batches drawn here (no fork)
+        self.status: dict[int, int] = {}  # exit status of reaped children
+        self.running: set[int] = set()
+
+    def start(self, jobs: list[Job]) -> None:
+        if not hasattr(os, "fork"):
+            self.drawn.append(_pngs(jobs))
+            return
+        while len(self.running) >= self.slots:
+            self._reap(*os.wait())
+        out, helper = _scratch_file(), os.getpid()
+        with warnings.catch_warnings():  # Python >= 3.12 warns of fork() beside threads: the lifeline's
+            warnings.simplefilter("ignore", DeprecationWarning)  # watchdog only sleeps, it holds no lock
+            pid = os.fork()
+        if pid == 0:
+            _child(jobs, out, helper)
+        self.running.add(pid)
+        self.children.append((pid, out))
+
+    def _reap(self, pid: int, status: int) -> None:
+        self.running.discard(pid)
+        self.status[pid] = os.waitstatus_to_exitcode(status)
+
+    def images(self) -> list[bytes]:
+        """The PNG bytes of every batch, in order; exits with status 1 when a child failed (it printed why)."""
+        if self.drawn:
+            return [png for batch in self.drawn for png in batch]
+        images = []
+        for pid, out in self.children:
+            if pid not in self.status:
+                self._reap(*os.waitpid(pid, 0))
+            if self.status[pid] != 0:
+                sys.stderr.flush()
+                os._exit(1)
+            out.seek(0)
+            images += pickle.load(out)
+        return images
+
+
+def _pngs(jobs: list[Job]) -> list[bytes]:
+    import io
+
+    return [buffer.getvalue() for buffer in draw(jobs, lambda _name: io.BytesIO())]
+
+
+def _scratch_file():
+    """An unlinked file for one child's PNGs: in memory where Linux offers it."""
+    if hasattr(os, "memfd_create"):
+        return open(os.memfd_create("slamobs-figures"), "w+b")
+    import tempfile
+
+    return tempfile.TemporaryFile()
+
+
+def _child(jobs: list[Job], out, helper: int) -> None:
+    """A forked child of ``helper``: draw ``jobs`` into ``out`` and end (never returns)."""
+    status = 1
+    try:
+        from slamobs.pipeline.batch.lifeline import bind_to_parent
+
+        bind_to_parent(helper)
+        pickle.dump(_pngs(jobs), out, protocol=pickle.HIGHEST_PROTOCOL)
+        out.flush()
+        status = 0
+    except BaseException:  # noqa: BLE001 - a child must never return into the helper's loop
+        import traceback
+
+        traceback.print_exc()
+        sys.stderr.flush()
+    finally:
+        os._exit(status)
 
 
 if __name__ == "__main__":
