@@ -23,14 +23,6 @@ import click
 INPUT_ERROR_EXIT = 2
 
 
-class Interrupted(KeyboardInterrupt):
-    """SIGTERM, raised like Ctrl-C's KeyboardInterrupt so every ``finally`` and cleanup runs."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
 def exit_input_error(err: Exception | str) -> NoReturn:
     click.echo(f"error: {' '.join(str(err).split())}", err=True)
     sys.exit(INPUT_ERROR_EXIT)
@@ -108,30 +100,19 @@ def os_error_line(err: OSError) -> str:
 
 
 @contextmanager
-def sigterm_interrupts():
-    """While the block runs, SIGTERM raises :class:`Interrupted` (only the main thread can handle signals)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def raise_interrupted(signum, _frame):
-        raise Interrupted(signum)
-
-    previous = signal.signal(signal.SIGTERM, raise_interrupted)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-@contextmanager
 def handled():
     """Run a command: input, gain and OS errors become one line and exit code 2, SIGINT/SIGTERM exit 130/143."""
-    from slamobs.pipeline.errors import GainError, InputError
+    from slamobs.pipeline.errors import GainError, InputError, interruption
+    from slamobs.pipeline.interrupts import raise_when_safe
 
     try:
-        with sigterm_interrupts():
-            yield
+        try:
+            with raise_when_safe():
+                yield
+        except Exception as err:
+            if (stop := interruption(err)) is not None:  # an error raised by the signal's unwinding
+                raise stop from None
+            raise
     except (InputError, GainError) as err:
         exit_input_error(err)
     except BrokenPipeError:

@@ -23,7 +23,7 @@ import slamobs
 from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import GainError, InputError
+from slamobs.pipeline.errors import GainError, InputError, interruption
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, get_observer
 from slamobs.pipeline.observers.base import ObserverDiverged
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
@@ -299,7 +299,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
     observer is done (the caller runs nothing else on it), so the report does not share memory with it.
     """
-    from slamobs.pipeline import output_frame
+    from slamobs.pipeline import interrupts, output_frame
     from slamobs.pipeline.writers import (
         BackgroundWrites,
         TableWriter,
@@ -379,6 +379,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
             parts = spec.chunks(aligned, gains, options, STRETCH_SAMPLES)
             for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
                 observer_s += time.perf_counter() - t
+                interrupts.check()
                 _check_finite(part, log, spec.name, t0_ns)
                 if frame is None:  # fixed from the first stretch, before anything is written
                     frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
@@ -541,6 +542,8 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands
+        if (stop := interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a report that cannot be made
+            raise stop from None
         for name in REPORT_FILES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)
         reason = " ".join(str(err).split()) or type(err).__name__

@@ -471,6 +471,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     killed runs in the same parent are removed first. OS errors (disk full, read-only, permission) become an
     :class:`OutputError` naming ``final``.
     """
+    from slamobs.pipeline import interrupts
     from slamobs.pipeline.paths import check_output
 
     final = Path(final)
@@ -489,6 +490,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         tmp = container / NEW
         tmp.mkdir()
         yield tmp
+        interrupts.check()  # a Ctrl-C/SIGTERM that Python dropped (raised in a finalizer) never publishes
         _publish(container, final)
     except OSError as err:
         with suppress(OSError):  # a failed restore keeps the container: the next run retries it

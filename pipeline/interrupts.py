@@ -1,0 +1,95 @@
+"""Ctrl-C and SIGTERM as an exception raised only where unwinding is safe.
+
+Python raises a signal's exception wherever the main thread is. Inside numba's or llvmlite's compiler locks,
+a thread start or a queue's condition, that leaves a lock held or a thread nobody stops: a SIGTERM while a
+cached kernel loaded hung a run forever (a reading thread waited for llvmlite's lock), crashed it (a writer
+thread outlived its tables) or was swallowed as a ``SystemError`` of a compiled call. So the CLI's handler
+(:func:`raise_when_safe`) records the request and raises :class:`Interrupted` at once only when no frame of
+the main thread's stack is in such code; otherwise it looks again every :data:`RETRY_S` seconds. The pipeline
+also calls :func:`check` between stretches and before an output is published, so a request is never lost
+(an exception raised inside a finalizer is printed and dropped by Python).
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+
+RETRY_S = 0.02
+#: Top-level modules a signal's exception must not unwind through: compiler and thread-pool locks, thread
+#: starts and joins, queue conditions, imports, finalizers and child-process starts.
+UNSAFE_MODULES = frozenset({"numba", "llvmlite", "concurrent", "threading", "queue", "weakref", "subprocess",
+                            "importlib", "_frozen_importlib", "_frozen_importlib_external"})
+
+#: The signal number of a pending Ctrl-C/SIGTERM, None when there is none.
+requested: int | None = None
+_raised = False
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM, raised like Ctrl-C's KeyboardInterrupt so every ``finally`` and cleanup runs."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def check() -> None:
+    """Raise :class:`Interrupted` if a Ctrl-C or SIGTERM is pending (a safe point of the main thread)."""
+    global _raised
+    if requested is not None and threading.current_thread() is threading.main_thread():
+        _raised = True
+        raise Interrupted(requested)
+
+
+def _unsafe(frame) -> bool:
+    """Some frame of the stack from ``frame`` down is in :data:`UNSAFE_MODULES` or a finalizer."""
+    while frame is not None:
+        module = frame.f_globals.get("__name__") or ""
+        if module.partition(".")[0] in UNSAFE_MODULES or frame.f_code.co_name == "__del__":
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _on_signal(signum: int, frame) -> None:
+    global requested
+    if requested is None:
+        requested = signum
+    _raise_if_safe(frame)
+
+
+def _on_retry(_signum: int, frame) -> None:
+    if requested is not None:
+        _raise_if_safe(frame)
+
+
+def _raise_if_safe(frame) -> None:
+    global _raised
+    if _raised:  # the clean-up of the first signal runs; a second one must not cut it short
+        return
+    if _unsafe(frame):
+        signal.setitimer(signal.ITIMER_REAL, RETRY_S)
+        return
+    _raised = True
+    raise Interrupted(requested)
+
+
+@contextmanager
+def raise_when_safe():
+    """While the block runs (main thread only), SIGINT and SIGTERM raise :class:`Interrupted` at the first safe
+    point; after it the previous handlers are back and nothing is pending."""
+    global requested, _raised
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous[signal.SIGALRM] = signal.signal(signal.SIGALRM, _on_retry)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        requested, _raised = None, False
