@@ -7,7 +7,8 @@ thread outlived its tables) or was swallowed as a ``SystemError`` of a compiled 
 (:func:`raise_when_safe`) records the request and raises :class:`Interrupted` at once only when no frame of
 the main thread's stack is in such code; otherwise it looks again every :data:`RETRY_S` seconds. The pipeline
 also calls :func:`check` between stretches and before an output is published, so a request is never lost
-(an exception raised inside a finalizer is printed and dropped by Python).
+(an exception raised inside a finalizer is printed and dropped by Python). The price is latency where the
+main thread stays long in such code: a kernel's first compilation (a SIGTERM waited 0.4-2.5 s for it).
 """
 
 from __future__ import annotations
