@@ -216,6 +216,7 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
     from slamobs.pipeline.batch import BatchOptions, DaskMissing, InfrastructureError, check_config, discover, run_batch
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.errors import InputError, interruption
+    from slamobs.pipeline.interrupts import take_pending
     from slamobs.pipeline.observers import GainError
 
     if executor == "local" and scheduler:
@@ -223,6 +224,8 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
     handlers = {sig: signal.signal(sig, _on_signal) for sig in EXIT_SIGNAL}
     reporter = _Reporter(quiet, as_json)
     try:
+        if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
+            _on_signal(pending, None)
         config = load_config(config_path)
         if observer:
             config = replace(config, observer=observer)

@@ -38,8 +38,13 @@ EXIT_AT_ONCE = False
 def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
     signum = getattr(err, "signum", signal.SIGINT)
     name = signal.Signals(signum).name
-    click.echo(f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged",
-               err=True)
+    from slamobs.pipeline.interrupts import published
+
+    if published:  # the signal came after the output was complete (while the command printed its summary)
+        click.echo(f"\ninterrupted ({name}) after the output was complete: {', '.join(published)}", err=True)
+    else:
+        click.echo(f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged",
+                   err=True)
     code = 128 + int(signum)
     if EXIT_AT_ONCE:
         _end_now(code)
@@ -47,13 +52,15 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
 
 
 def end_signals_at_once() -> None:
-    """After a command has finished: SIGTERM or SIGINT end the process at once with 143/130. The command's own
-    handling is over by then (its outputs complete and renamed); left at the default, a SIGTERM in the
-    interpreter's teardown killed the process by the signal (a batch stopped just as it finished exited -15, not
-    143) and a SIGINT printed a traceback."""
+    """Outside a command's own handling (before it starts and after it has finished): SIGTERM or SIGINT end the
+    process at once with 143/130 (a SIGINT inherited as ignored stays ignored). Nothing is being written then
+    (outputs complete and renamed, or not begun); left at the default, a SIGTERM in the interpreter's teardown
+    killed the process by the signal (a batch stopped just as it finished exited -15, not 143), a SIGINT printed
+    a traceback, and a SIGTERM in the moment between the command's handlers and these did the same."""
     for signum in (signal.SIGTERM, signal.SIGINT):
         with suppress(ValueError, OSError):  # not the main thread
-            signal.signal(signum, _end_by_signal)
+            if signal.getsignal(signum) is not signal.SIG_IGN:
+                signal.signal(signum, _end_by_signal)
 
 
 def _end_by_signal(signum: int, _frame) -> None:

@@ -204,6 +204,7 @@ def entry() -> None:
     from slamobs.cli import errors
 
     errors.EXIT_AT_ONCE = True
+    errors.end_signals_at_once()  # until the command's handlers take over, and again when they are put back
     try:
         main()
     except SystemExit as done:

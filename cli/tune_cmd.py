@@ -62,6 +62,7 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
     from slamobs.pipeline.batch.executor import InfrastructureError
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.errors import GainError, InputError
+    from slamobs.pipeline.interrupts import take_pending
     from slamobs.pipeline.tune.study import TuneFailed, TuneOptions, run_tune
 
     handlers = {sig: signal.signal(sig, _on_signal) for sig in EXIT_SIGNAL}
@@ -72,6 +73,8 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
                        f"{'-' if best is None else f'{best:.4g}'}", err=True)
 
     try:
+        if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
+            _on_signal(pending, None)
         options = TuneOptions(out=out_dir, observer=observer, config=load_config(config_path), trials=trials,
                               objective=objective, jobs=jobs or _cores(), scheduler=scheduler, seed=seed, force=force,
                               wait_workers=wait_workers, holdout=holdout)

@@ -21,11 +21,15 @@ RETRY_S = 0.02
 #: Top-level modules a signal's exception must not unwind through: compiler and thread-pool locks, thread
 #: starts and joins, queue conditions, imports, finalizers and child-process starts.
 UNSAFE_MODULES = frozenset({"numba", "llvmlite", "concurrent", "threading", "queue", "weakref", "subprocess",
-                            "importlib", "_frozen_importlib", "_frozen_importlib_external"})
+                            "multiprocessing", "tempfile", "shutil", "importlib", "_frozen_importlib",
+                            "_frozen_importlib_external"})
 
 #: The signal number of a pending Ctrl-C/SIGTERM, None when there is none.
 requested: int | None = None
 _raised = False
+_critical = 0  # depth of :func:`critical` blocks
+#: Outputs published under their final names since the command began (its interrupted message names them).
+published: list[str] = []
 
 
 class Interrupted(KeyboardInterrupt):
@@ -44,8 +48,22 @@ def check() -> None:
         raise Interrupted(requested)
 
 
+@contextmanager
+def critical():
+    """A block a signal must not cut in two (several renames that make one output): raised after it."""
+    global _critical
+    _critical += 1
+    try:
+        yield
+    finally:
+        _critical -= 1
+
+
 def _unsafe(frame) -> bool:
-    """Some frame of the stack from ``frame`` down is in :data:`UNSAFE_MODULES` or a finalizer."""
+    """In a :func:`critical` block, or some frame of the stack from ``frame`` down is in :data:`UNSAFE_MODULES`
+    or a finalizer."""
+    if _critical:
+        return True
     while frame is not None:
         module = frame.f_globals.get("__name__") or ""
         if module.partition(".")[0] in UNSAFE_MODULES or frame.f_code.co_name == "__del__":
@@ -62,8 +80,25 @@ def _on_signal(signum: int, frame) -> None:
 
 
 def _on_retry(_signum: int, frame) -> None:
-    if requested is not None:
+    if requested is not None and signal.getsignal(signal.SIGTERM) is _on_signal:  # not handed over
         _raise_if_safe(frame)
+
+
+def take_pending() -> int | None:
+    """For a command that handles SIGINT and SIGTERM itself from now on (batch, tune): stop looking for a safe
+    point and return the signal that arrived before its handlers were installed, if one did (it raises it its own
+    way)."""
+    global _raised
+    signal.setitimer(signal.ITIMER_REAL, 0)
+    if requested is not None and not _raised:
+        _raised = True
+        return requested
+    return None
+
+
+def note_published(path) -> None:
+    """Record that ``path`` now holds a complete output under its final name."""
+    published.append(str(path))
 
 
 def _raise_if_safe(frame) -> None:
@@ -79,16 +114,23 @@ def _raise_if_safe(frame) -> None:
 
 @contextmanager
 def raise_when_safe():
-    """While the block runs (main thread only), SIGINT and SIGTERM raise :class:`Interrupted` at the first safe
-    point; after it the previous handlers are back and nothing is pending."""
+    """While the block runs (main thread only), SIGTERM and SIGINT (unless inherited as ignored, as in a
+    background job) raise :class:`Interrupted` at the first safe point; a request still pending when the block
+    ends (the command finished in code where raising was unsafe) is raised then. Afterwards the previous handlers
+    are back and nothing is pending."""
     global requested, _raised
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    published.clear()
+    signals = [signal.SIGTERM] + ([signal.SIGINT] if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN else [])
+    previous = {sig: signal.signal(sig, _on_signal) for sig in signals}
     previous[signal.SIGALRM] = signal.signal(signal.SIGALRM, _on_retry)
     try:
         yield
+        if requested is not None and not _raised:
+            _raised = True
+            raise Interrupted(requested)
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         for sig, handler in previous.items():

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError
 
 RESULTS_MCAP = "results.mcap"
@@ -312,7 +313,9 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; the results file is ordinary output
+        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
         os.replace(tmp, out)
+        interrupts.note_published(out)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise

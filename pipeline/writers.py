@@ -479,11 +479,16 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(final.parent)
-        container = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
+        with interrupts.critical():  # a signal in between left a directory without its owner: never removed
+            container = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
+            try:
+                write_json(container / OWNER, {**_owner(), "final": final.name})
+            except OSError:
+                shutil.rmtree(container, ignore_errors=True)
+                raise
     except OSError as err:
         raise OutputError(final, f"cannot create the output: {_reason(err)}") from None
     try:
-        write_json(container / OWNER, {**_owner(), "final": final.name})
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(container, 0o777 & ~umask)  # mkdtemp makes it private; a run directory is ordinary output
@@ -492,6 +497,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         yield tmp
         interrupts.check()  # a Ctrl-C/SIGTERM that Python dropped (raised in a finalizer) never publishes
         _publish(container, final)
+        interrupts.note_published(final)
     except OSError as err:
         with suppress(OSError):  # a failed restore keeps the container: the next run retries it
             _finish(container, {"final": final.name})

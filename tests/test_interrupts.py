@@ -311,3 +311,75 @@ def _alive(pid: int) -> bool:
             return not fh.read().rsplit(") ", 1)[1].startswith("Z")
     except FileNotFoundError:
         return False
+
+
+def test_a_signal_still_pending_when_the_command_ends_is_raised():
+    """A signal that came while the command's last steps ran in unsafe code was dropped with the block (evaluate
+    exited 0 after a SIGTERM): it is raised when the block ends."""
+    from slamobs.pipeline.interrupts import Interrupted, raise_when_safe
+
+    with pytest.raises(Interrupted), raise_when_safe():
+        _busy_in("numba.core.fake")()  # the retry timer always finds it in unsafe code
+
+
+def test_a_command_with_its_own_handlers_takes_over_a_pending_signal():
+    """batch and tune install their own handlers: a signal that arrived before is handed to them, and the
+    shared retry raises nothing of its own any more (it did: batch reported SIGINT/130 for a SIGTERM)."""
+    from slamobs.pipeline import interrupts
+
+    caught = []
+    with interrupts.raise_when_safe():
+        _busy_in("numba.core.fake")()
+        old = signal.signal(signal.SIGTERM, lambda *_: caught.append("own"))
+        try:
+            assert interrupts.take_pending() == signal.SIGTERM
+            time.sleep(5 * interrupts.RETRY_S)  # a retry would raise here
+            assert interrupts.take_pending() is None
+        finally:
+            signal.signal(signal.SIGTERM, old)
+
+
+def test_an_ignored_sigint_stays_ignored():
+    """A background job inherits SIGINT ignored; the command must not start answering it."""
+    from slamobs.pipeline.interrupts import raise_when_safe
+
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with raise_when_safe():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, old)
+
+
+def test_no_gap_between_the_commands_handlers_and_the_end_handlers():
+    """The console entry installs the end handlers before the command: when the command's handlers are put back,
+    a SIGTERM still ends with 143 (in that moment it killed the process by the signal, -15)."""
+    from slamobs.cli import errors
+    from slamobs.pipeline.interrupts import raise_when_safe
+
+    old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        errors.end_signals_at_once()
+        with raise_when_safe():
+            pass
+        assert signal.getsignal(signal.SIGTERM) is errors._end_by_signal
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def test_the_message_after_a_complete_output_says_so(capsys):
+    from slamobs.cli import errors
+    from slamobs.pipeline import interrupts
+
+    interrupts.published[:] = ["/data/run1"]
+    try:
+        with pytest.raises(SystemExit) as done:
+            errors.exit_interrupted(interrupts.Interrupted(signal.SIGTERM))
+    finally:
+        interrupts.published.clear()
+    assert done.value.code == 143
+    err = capsys.readouterr().err.strip()
+    assert err == "interrupted (SIGTERM) after the output was complete: /data/run1"

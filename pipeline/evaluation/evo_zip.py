@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from slamobs.pipeline import interrupts
 from slamobs.pipeline.evaluation.trajectory_error import ErrorResult
 
 
@@ -48,7 +49,9 @@ def save_result_zip(path: str | Path, result: ErrorResult) -> Path:
         with os.fdopen(fd, "wb") as f:
             _write_zip(f, result)
         os.chmod(tmp, 0o644)
+        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
         os.replace(tmp, path)
+        interrupts.note_published(path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise

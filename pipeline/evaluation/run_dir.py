@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
@@ -170,12 +171,15 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
     new set lacks are removed afterwards (a stale plot must not pass for the new report's)."""
     moved = []
     names = {p.name for p in staged.iterdir()}
-    for p in sorted(staged.iterdir()):
-        os.replace(p, run_dir / p.name)
-        moved.append(run_dir / p.name)
-    for name in owned:
-        if name not in names and (run_dir / name).is_file():
-            (run_dir / name).unlink()
+    interrupts.check()  # a pending Ctrl-C/SIGTERM replaces nothing
+    with interrupts.critical():  # one arriving now waits until the set is whole
+        for p in sorted(staged.iterdir()):
+            os.replace(p, run_dir / p.name)
+            moved.append(run_dir / p.name)
+        for name in owned:
+            if name not in names and (run_dir / name).is_file():
+                (run_dir / name).unlink()
+    interrupts.note_published(run_dir)
     return moved
 
 

@@ -24,6 +24,7 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from slamobs.pipeline import interrupts
 from slamobs.pipeline.readers.fastdecode import leaf_offsets, make_plan
 from slamobs.pipeline.simulate.sensors import (
     FRAME_BODY,
@@ -560,9 +561,11 @@ def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None 
     try:
         tmp = tmpdir / final.name
         _WRITERS[container](sim, tmp)
+        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
         if final.exists() or final.is_symlink():
             _remove(final)
         os.replace(tmp, final)
+        interrupts.note_published(final)
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
     return final
