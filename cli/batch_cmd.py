@@ -215,8 +215,8 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
 
     from slamobs.pipeline.batch import BatchOptions, DaskMissing, InfrastructureError, check_config, discover, run_batch
     from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.errors import InputError, interruption
-    from slamobs.pipeline.interrupts import take_pending
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.interrupts import as_interruption, take_pending
     from slamobs.pipeline.observers import GainError
 
     if executor == "local" and scheduler:
@@ -239,12 +239,8 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
                                scheduler=scheduler, timeout=_timeout(timeout), wait_workers=wait_workers)
         where = (f"Dask at {scheduler}" if scheduler else f"a local Dask cluster of {options.jobs} workers"
                  if options.executor == "dask" else f"{options.jobs} local worker processes")
-        try:
+        with as_interruption():
             result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
-        except Exception as err:
-            if (stop := interruption(err)) is not None:  # an error raised by the signal's unwinding
-                raise stop from None
-            raise
     except (InputError, GainError, DaskMissing) as err:
         reporter.clear()
         exit_input_error(str(err))

@@ -109,17 +109,12 @@ def os_error_line(err: OSError) -> str:
 @contextmanager
 def handled():
     """Run a command: input, gain and OS errors become one line and exit code 2, SIGINT/SIGTERM exit 130/143."""
-    from slamobs.pipeline.errors import GainError, InputError, interruption
-    from slamobs.pipeline.interrupts import raise_when_safe
+    from slamobs.pipeline.errors import GainError, InputError
+    from slamobs.pipeline.interrupts import as_interruption, raise_when_safe
 
     try:
-        try:
-            with raise_when_safe():
-                yield
-        except Exception as err:
-            if (stop := interruption(err)) is not None:  # an error raised by the signal's unwinding
-                raise stop from None
-            raise
+        with as_interruption(), raise_when_safe():
+            yield
     except (InputError, GainError) as err:
         exit_input_error(err)
     except BrokenPipeError:

@@ -204,11 +204,10 @@ def entry() -> None:
     from slamobs.cli import errors
 
     errors.EXIT_AT_ONCE = True
-    errors.end_signals_at_once()  # until the command's handlers take over, and again when they are put back
+    errors.end_signals_at_once()  # until the command's handlers take over, and again when they put these back
     try:
         main()
     except SystemExit as done:
-        errors.end_signals_at_once()
         errors.exit_at_once(done.code)
         raise
 

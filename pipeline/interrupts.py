@@ -48,6 +48,34 @@ def check() -> None:
         raise Interrupted(requested)
 
 
+def interruption(err: BaseException) -> KeyboardInterrupt | None:
+    """The Ctrl-C or SIGTERM (a KeyboardInterrupt) that ``err`` was raised while handling, if any.
+
+    A signal raises its KeyboardInterrupt wherever the main thread is; raised inside a compiled function's
+    call it comes back as a ``SystemError`` ("returned a result with an exception set"), and a writer closed
+    half way through a table raises its own error on the way out. Such an error is the interruption, not a
+    bad input or a failed report: callers that turn errors into messages or notes check this first."""
+    seen = set()
+    while err is not None and id(err) not in seen:
+        if isinstance(err, KeyboardInterrupt):
+            return err
+        seen.add(id(err))
+        err = err.__cause__ or err.__context__
+    return None
+
+
+@contextmanager
+def as_interruption():
+    """An error raised by a signal's unwinding (see :func:`interruption`) leaves the block as that signal's
+    KeyboardInterrupt, so callers that turn errors into messages, notes or failed rows never see it."""
+    try:
+        yield
+    except Exception as err:
+        if (stop := interruption(err)) is not None:
+            raise stop from None
+        raise
+
+
 @contextmanager
 def critical():
     """A block a signal must not cut in two (several renames that make one output): raised after it."""

@@ -23,7 +23,7 @@ import slamobs
 from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import GainError, InputError, interruption
+from slamobs.pipeline.errors import GainError, InputError
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, get_observer
 from slamobs.pipeline.observers.base import ObserverDiverged
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
@@ -507,6 +507,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     or bad truth such as zero quaternions) becomes a note and ``report_error`` in run.json and the run still
     succeeds; only a failure to write (disk full) fails the run.
     """
+    from slamobs.pipeline import interrupts
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.report import REPORT_FILES, bias_plot_rows
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
@@ -542,7 +543,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands
-        if (stop := interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a report that cannot be made
+        if (stop := interrupts.interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a bad truth
             raise stop from None
         for name in REPORT_FILES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)

@@ -1,4 +1,4 @@
-"""Checks shared by the batch tests: dataset consistency and the processes a batch leaves alive."""
+"""Checks shared by the batch, kill and helper tests: dataset consistency and the processes a job leaves alive."""
 
 from __future__ import annotations
 
@@ -66,6 +66,25 @@ def children(pid: int) -> list[int]:
             if int(fields[1]) == pid and fields[0] != "Z":
                 found.append(int(entry))
     return found
+
+
+def descendants(pid: int) -> list[int]:
+    """Live children of ``pid``, their children, and so on."""
+    found, todo = [], [pid]
+    while todo:
+        kids = children(todo.pop())
+        found += kids
+        todo += kids
+    return found
+
+
+def alive(pid: int) -> bool:
+    """``pid`` runs (exists and is not a zombie, which has ended and only waits to be reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
 
 
 def wait_gone(pgid: int, within: float = 20.0) -> list[int]:

@@ -26,7 +26,7 @@ from slamobs.pipeline.batch.executor import Task, base_row, run_task
 from slamobs.pipeline.batch.ledger import Ledger, read_summary
 from slamobs.pipeline.config import RunConfig
 
-from batch_checks import assert_consistent
+from batch_checks import alive, assert_consistent
 
 TABLES = ("poses", "biases")
 
@@ -313,14 +313,6 @@ def nap(task: Task) -> dict:
     return {**base_row(task), "status": "ok", "worker_pid": os.getpid()}
 
 
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except FileNotFoundError:
-        return False
-
-
 def test_a_hanging_log_is_killed_at_its_timeout_and_fails_alone(tmp_path):
     from slamobs.pipeline.batch.local import LocalPool
 
@@ -333,7 +325,7 @@ def test_a_hanging_log_is_killed_at_its_timeout_and_fails_alone(tmp_path):
         pids = pool.pids()
     assert rows["a-0"]["status"] == rows["b-0"]["status"] == "ok"
     assert rows["slow-0"]["status"] == "failed" and "timed out after 2 s (worker killed" in rows["slow-0"]["error"]
-    assert pool.pids() == [] and not any(_alive(p) for p in pids)
+    assert pool.pids() == [] and not any(alive(p) for p in pids)
 
 
 def test_a_worker_killed_from_outside_is_replaced_and_its_log_retried(tmp_path):
@@ -354,7 +346,7 @@ def test_a_worker_killed_from_outside_is_replaced_and_its_log_retried(tmp_path):
     rows = [row for _, row in pool.results(tasks)]
     assert sorted(r["run_id"] for r in rows) == ["t0-0", "t1-0", "t2-0"]
     assert {r["status"] for r in rows} == {"ok"} and killed and killed[0] not in {r["worker_pid"] for r in rows}
-    assert not _alive(killed[0])
+    assert not alive(killed[0])
 
 
 def test_fifo_and_symlink_loop_are_one_line_failures_never_a_hang(tmp_path):

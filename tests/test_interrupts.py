@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from batch_checks import alive, descendants
 
 from slamobs.pipeline import writers
 from slamobs.pipeline.simulate import simulate, write_log
@@ -246,23 +247,6 @@ def test_an_error_raised_by_the_signals_unwinding_is_the_interruption(tmp_path, 
     assert not (tmp_path / "cli").exists()
 
 
-def _descendants(pid: int) -> list[int]:
-    found, todo = [], [pid]
-    while todo:
-        parent = todo.pop()
-        for entry in os.listdir("/proc"):
-            if entry.isdigit():
-                try:
-                    with open(f"/proc/{entry}/stat") as fh:
-                        fields = fh.read().rsplit(") ", 1)[1].split()
-                except (FileNotFoundError, ProcessLookupError):
-                    continue
-                if int(fields[1]) == parent and fields[0] != "Z":
-                    found.append(int(entry))
-                    todo.append(int(entry))
-    return found
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_sigterm_at_any_moment_of_a_run_stops_it_cleanly(tmp_path):
     """SIGTERM at moments spread over a whole run (imports, reading, kernels loading, observer, writer thread,
@@ -283,7 +267,7 @@ def test_sigterm_at_any_moment_of_a_run_stops_it_cleanly(tmp_path):
         out = tmp_path / f"out{k}"
         proc = _start(log, out, cfg)
         time.sleep(whole * (0.15 + 0.07 * k))
-        helpers = _descendants(proc.pid)
+        helpers = descendants(proc.pid)
         proc.send_signal(signal.SIGTERM)
         try:
             _, err = proc.communicate(timeout=HANG)
@@ -298,19 +282,11 @@ def test_sigterm_at_any_moment_of_a_run_stops_it_cleanly(tmp_path):
             assert err.strip().splitlines()[-1].startswith("interrupted (SIGTERM)"), err
             assert not out.exists()
         deadline = time.monotonic() + 5.0
-        while (alive := [p for p in helpers if _alive(p)]) and time.monotonic() < deadline:
+        while (left := [p for p in helpers if alive(p)]) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not alive, f"run {k}: processes {alive} outlived it"
+        assert not left, f"run {k}: processes {left} outlived it"
     assert 143 in outcomes
     assert not [p for p in tmp_path.iterdir() if ".tmp-" in p.name]
-
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return not fh.read().rsplit(") ", 1)[1].startswith("Z")
-    except FileNotFoundError:
-        return False
 
 
 def test_a_signal_still_pending_when_the_command_ends_is_raised():

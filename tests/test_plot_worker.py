@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+from batch_checks import alive, children
 
 from slamobs.pipeline.evaluation import plot_worker
 
@@ -75,27 +76,6 @@ def test_unused_helpers_are_stopped():
     assert procs[0].returncode is not None and workers.procs == []
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as fh:
-                    if int(fh.read().rsplit(") ", 1)[1].split()[1]) == pid:
-                        out.append(int(entry))
-            except (FileNotFoundError, ProcessLookupError, IndexError):
-                pass
-    return out
-
-
-def _ended(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(") ", 1)[1].startswith("Z")  # a zombie has ended; only its reaping is left
-    except FileNotFoundError:
-        return True
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_helper_dies_with_a_killed_run():
     """SIGKILL of the run while its helper's child draws (stdin already closed) takes the helper and the
@@ -111,13 +91,13 @@ def test_helper_dies_with_a_killed_run():
         stdout=subprocess.PIPE, text=True)
     helper = int(parent.stdout.readline())
     deadline = time.monotonic() + 10.0
-    while not (drawing := _children(helper)) and time.monotonic() < deadline:  # forked once warm
+    while not (drawing := children(helper)) and time.monotonic() < deadline:  # forked once warm
         time.sleep(0.05)
     assert drawing, "the helper forked no child to draw"
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
     deadline = time.monotonic() + 3.0  # far less than the figures would take
-    while not all(_ended(p) for p in [helper, *drawing]):
+    while any(alive(p) for p in [helper, *drawing]):
         assert time.monotonic() < deadline, f"figure helper {helper} or its child {drawing} runs on after its run was killed"
         time.sleep(0.05)
 
