@@ -23,3 +23,11 @@ class OutputError(InputError):
 class GainError(ValueError):
     """A gain or observer option is unknown, missing, not a number, or outside its admissible range."""
 
+
+
+class ResourceError(OutputError):
+    """The machine, not the input, stopped the work: out of memory, threads, file descriptors or disk space.
+
+    One line naming the file being read or written and what ran out. A batch records it as a failure of the
+    machine, retried by the next batch, never as a bad log that ``--skip-failed`` would skip.
+    """
