@@ -10,7 +10,7 @@ import numpy as np
 
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.observers import get_observer
+from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_inputs, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
@@ -34,7 +34,7 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
-        spec = get_observer(name)
+        spec = get_estimator(name)
         spec.resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
         spec.directions_needed(replace(config, observer=name))  # and bad estimator settings
     inputs = run_inputs(Path(log), config)

@@ -19,12 +19,13 @@ from typing import Callable
 
 import numpy as np
 
-import slamobs
+from slamobs.pipeline.version import __version__
 from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError
-from slamobs.pipeline.observers import ObserverOptions, ObserverResult, get_observer
+from slamobs.pipeline.observers import ObserverOptions, ObserverResult
+from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.observers.base import ObserverDiverged
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.streams import LogStreams
@@ -284,7 +285,7 @@ def _resolved_spec(config: RunConfig):
     """The observer and its gains (and a reference estimator's settings), a bad one named with the config it
     came from."""
     try:
-        spec = get_observer(config.observer)
+        spec = get_estimator(config.observer)
         spec.resolve_gains(config.gains.get(spec.name))
         spec.directions_needed(config)
     except GainError as err:
@@ -335,7 +336,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     if tags is not None:
         notes += tags.notes
     metadata = {
-        "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
+        "software": {"slamobs": __version__, "python": platform.python_version()},
         "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
                   "time_source": config.align_time_source, "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame,

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from slamobs.cli.main import main
-from slamobs.pipeline.observers import OBSERVERS
+from slamobs.pipeline.estimators import ESTIMATORS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
 
@@ -21,7 +21,7 @@ def invoke(*args):
 
 def test_compare_all_observers_side_by_side(tmp_path):
     out = tmp_path / "cmp"
-    names = list(OBSERVERS)
+    names = list(ESTIMATORS)
     res = invoke("compare", SAMPLE, "-o", out, "--observers", ",".join(names))
     assert res.exit_code == 0, res.output
     # without a terminal a line as each observer starts (on a terminal: a status line with every stage)
@@ -35,7 +35,7 @@ def test_compare_all_observers_side_by_side(tmp_path):
             report = json.loads((out / row["observer"] / "report.json").read_text())
             assert run["observer"]["name"] == row["observer"]
             # the accelerometer note only for observers that use the accelerometer
-            uses_accel = OBSERVERS[row["observer"]].min_directions > 0
+            uses_accel = ESTIMATORS[row["observer"]].min_directions > 0
             assert any(n.startswith("accelerometer: ") for n in run["notes"]) == uses_accel, row["observer"]
             assert row["ape_trans_rmse_m"] == pytest.approx(report["ape"]["translation_m"]["rmse"])
             assert row["ape_trans_rmse_m"] < 0.5

@@ -12,7 +12,8 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.evaluation.align import umeyama
 from slamobs.pipeline.lie import rotation_angle, se3_exp, so3_exp, so3_log
-from slamobs.pipeline.observers import ObserverOptions, get_observer
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.preintegration import (
@@ -179,7 +180,7 @@ def test_batch_reaches_the_reference_and_its_biases_are_within_3_sigma(which, lo
 
 def started_at(name: str, log: Log, r0: np.ndarray):
     """Observer ``name`` on the log, its attitude set to ``r0`` before the first sample: its seed, and the run."""
-    spec = get_observer(name)
+    spec = get_estimator(name)
     stepper = spec.start(log.stream, spec.resolve_gains({}), ObserverOptions())
     stepper.state.r_hat[:] = r0
     return observer_seed(name, log.stream, {}, ObserverOptions(), log.kf_t, stepper=stepper), stepper
@@ -237,7 +238,7 @@ def test_both_reference_estimators_go_on_after_a_gap():
     assert stream.segment_starts.size == 1
     truth_t = streams.truth.t_ns
     for name in ("riekf", "batch"):
-        res = get_observer(name).run(stream, {}, ObserverOptions())
+        res = get_estimator(name).run(stream, {}, ObserverOptions())
         truth = streams.truth.position[np.clip(np.searchsorted(truth_t, res.t_ns), 0, truth_t.size - 1)]
         r, t, _ = umeyama(res.position, truth)
         err = np.linalg.norm(res.position @ r.T + t - truth, axis=1)

@@ -132,9 +132,9 @@ def config_hash(config: RunConfig) -> str:
 
 def check_config(config: RunConfig) -> None:
     """Fail early on an unknown observer or bad gains (GainError), before any log is touched."""
-    from slamobs.pipeline.observers import get_observer
+    from slamobs.pipeline.estimators import get_estimator
 
-    spec = get_observer(config.observer)
+    spec = get_estimator(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))
     spec.directions_needed(config)  # checks the reference estimators' settings
 

@@ -143,7 +143,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
 
     from slamobs.pipeline.batch.identity import content_hash
     from slamobs.pipeline.config import with_observer
-    from slamobs.pipeline.observers import get_observer
+    from slamobs.pipeline.estimators import get_estimator
     from slamobs.pipeline.paths import check_input
     from slamobs.pipeline.readers.container import detect_container
     from slamobs.pipeline.run import _resolved_spec, run_inputs
@@ -156,7 +156,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
         raise InputError("--trials", "needs at least 1 trial")
     config = with_observer(options.config, options.observer)
     spec = _resolved_spec(config)
-    spec = get_observer(spec.name)
+    spec = get_estimator(spec.name)
     if not logs:
         raise InputError("LOGS", "no log given")
     paths = []

@@ -111,9 +111,9 @@ def run_trial_log(task: Task) -> dict:
     row = {**base_row(task), "status": "ok", "error": None, "fatal": False, "read_s": 0.0}
     config = RunConfig(**task.config)
     try:
-        from slamobs.pipeline.observers import get_observer
+        from slamobs.pipeline.estimators import get_estimator
 
-        directions = get_observer(config.observer).min_directions > 0
+        directions = get_estimator(config.observer).min_directions > 0
         prepared, row["read_s"] = prepared_log(task.log, config, directions)
         t = time.perf_counter()
         row.update(score(prepared, config))
