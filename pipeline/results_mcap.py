@@ -325,12 +325,12 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
 def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: float | None) -> None:
     from mcap.writer import CompressionType, Writer
 
-    import slamobs
+    from slamobs.pipeline.version import __version__
 
     body = FRAME_PREFIX + str((meta.get("input") or {}).get("body_frame") or "base_link").lstrip("/")
     msgs = _Messages(body)
     writer = Writer(stream, compression=CompressionType.ZSTD)
-    writer.start(profile="ros2", library=f"slamobs {slamobs.__version__}")
+    writer.start(profile="ros2", library=f"slamobs {__version__}")
     schemas: dict[str, int] = {}
 
     def channel(topic: str, msgtype: str, latched: bool = False) -> int:
