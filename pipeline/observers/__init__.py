@@ -1,4 +1,4 @@
-"""Observer registry: one entry per algorithm of spec/observers.md, selectable by name."""
+"""Observer registry: one entry per algorithm of docs/observers.md, selectable by name."""
 
 from __future__ import annotations
 

@@ -68,7 +68,7 @@ class ObserverOptions:
     """Run options that are not gains (they never change the observer's law)."""
 
     max_meas_age: float = 0.5  # seconds a landmark frame stays valid before landmarks count as unseen
-    min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (spec §8)
+    min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (docs/observers.md §3.2)
     out_every: int = 1  # record pose/bias every n-th velocity sample
     #: What the reference estimators (batch, riekf) read besides the stream: ``config`` (the RunConfig),
     #: ``log`` (its path) and ``topics`` (role -> topic). The observers ignore it.
