@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from slamobs.pipeline.alignment import AlignedStream
-from slamobs.pipeline.errors import GainError
+from slamobs.pipeline.errors import BadInput, GainError
 from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED
 
 #: Work units (sub-steps times the landmarks each one touches, plus one per event) a kernel does per call
@@ -38,7 +38,7 @@ _IV, _JF, _NVIS = 0, 1, 2
 _T, _MEAS_T = 0, 1
 
 
-class ObserverDiverged(ValueError):
+class ObserverDiverged(BadInput, ValueError):
     """The estimate became non-finite; ``t_ns`` is the time of the velocity sample reached, ``stats`` the
     run's statistics so far."""
 
