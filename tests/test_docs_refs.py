@@ -60,3 +60,17 @@ def test_no_references_to_documents_outside_the_repository():
             if FOREIGN.search(line):
                 found.append(f"{path.relative_to(ROOT).as_posix()}:{i}: {line.strip()}")
     assert not found, "references to documents outside the repository:\n" + "\n".join(found)
+
+
+def test_readme_module_map_lists_exactly_the_modules():
+    """The README's module map names every module of the package once, and no module that does not exist."""
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    start = text.index("### Module map")
+    end = text.find("\n#", start + 1)
+    rows = re.findall(r"^\| `([^`]+\.py)` \|", text[start:end if end > 0 else None], re.M)
+    twice = [r for r, c in Counter(rows).items() if c > 1]
+    tree = {p.relative_to(ROOT).as_posix() for p in _files(".py")
+            if p.relative_to(ROOT).parts[0] in ("pipeline", "cli", "schemas") or p == ROOT / "__init__.py"}
+    assert not twice, f"listed more than once: {twice}"
+    assert not tree - set(rows), f"modules missing from the README's module map: {sorted(tree - set(rows))}"
+    assert not set(rows) - tree, f"the README's module map lists modules that do not exist: {sorted(set(rows) - tree)}"
