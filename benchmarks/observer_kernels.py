@@ -4,7 +4,7 @@
 
 For 4, 30 and 300 visible landmarks, runs the numba kernel of each observer over a synthetic stream
 (all landmarks visible at 20 Hz, velocity at 200 Hz) and counts its internal (sub-)steps per second; the
-NumPy column runs the same fast-adaptation sub-step (spec §2.3 + measurement prediction) vectorised
+NumPy column runs the same fast-adaptation sub-step (docs/observers.md §4 + §6.1) vectorised
 over landmarks with NumPy, in the same process. Compilation happens before timing; each rate is the best
 of ``--repeat`` runs (a shared machine only ever slows a run down). "us/event" is the time per velocity
 sample or landmark frame: with the default gains there are only ~5 sub-steps per event at 4 landmarks, so

@@ -6,12 +6,16 @@ from __future__ import annotations
 import os
 import signal
 
+from slamobs.cli.errors import EXIT_CODES
+from slamobs.pipeline.errors import BadInput, InfrastructureFailure, Interruption
+
 #: Exit codes (documented in --help and the README).
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INFRA = 0, 1, 2, 3
+EXIT_OK, EXIT_FAILED = 0, 1
+EXIT_USAGE, EXIT_INFRA = EXIT_CODES[BadInput], EXIT_CODES[InfrastructureFailure]  # 2, 3
 EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
 
 
-class Stopped(KeyboardInterrupt):
+class Stopped(Interruption):
     """SIGINT, SIGTERM or SIGHUP: the batch stops the same way for each (workers killed, runs so far kept)."""
 
     def __init__(self, signum: int) -> None:

@@ -1,6 +1,6 @@
 """SO(3)/SE(3) helpers shared by every observer, the simulator and the evaluation.
 
-Conventions (spec §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
+Conventions (docs/observers.md §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
 ``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. The per-pose functions are
 numba-compiled so the observer kernels can call them (they also work from plain Python on NumPy arrays); the
 ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) are NumPy with the same arithmetic
@@ -70,7 +70,7 @@ def vex(m):
 
 @njit(cache=True)
 def so3_exp(w):
-    """Rodrigues' formula with the small-angle branch of spec §1.2."""
+    """Rodrigues' formula with the small-angle branch of docs/observers.md §1."""
     theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     k = skew(w)
     k2 = mat3_mul(k, k)
@@ -233,7 +233,7 @@ def so3_log(r):
 
 @njit(cache=True)
 def rotation_angle(r):
-    """Rotation angle in [0, pi] (spec §1.2)."""
+    """Rotation angle in [0, pi] (docs/observers.md §1)."""
     c = 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)
     return np.arccos(min(1.0, max(-1.0, c)))
 

@@ -1,4 +1,4 @@
-"""Properties every registered observer must have, through the public interface (spec §1.6, §7, §8).
+"""Properties every registered observer must have, through the public interface (docs/observers.md §1.1, §3, §6).
 
 Runs each observer with its default gains on a noise-free simulated figure-8 (30 landmarks, limited field
 of view: landmarks come and go, first sightings all along) and on the same log with noise.
@@ -68,7 +68,7 @@ def test_biases_converge_under_excitation(runs, noise_free, name):
 def test_out_of_view_landmarks_keep_their_estimate(runs, name):
     """The written map entry of a landmark equals its estimate after its last sighting (frozen since): the
     observers whose law turns the whole map (IMU co-rotation, jumps) write it in their map frame, which those
-    turns do not move (spec §8)."""
+    turns do not move (docs/observers.md §3.2)."""
     res = runs[name]
     # last detection of each landmark; those not seen in the last 2 s must not have moved since then
     t_end = res.det_t_ns.max()

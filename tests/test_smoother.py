@@ -1,6 +1,6 @@
 """The batch smoother: preintegration and residual Jacobians against finite differences, accuracy against the
-same smoother given the true biases, bias estimates against their marginal σ, and the 170° start of spec
-§4.3/§6.3 through every seed."""
+same smoother given the true biases, bias estimates against their marginal σ, and the 170° start of
+docs/observers.md §12.3 through every seed."""
 
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ from slamobs.pipeline.smoother.settings import BatchSettings
 
 pytest.importorskip("gtsam")
 
-PAPER_GYRO_BIAS = np.array([0.09, -0.15, -0.1])  # spec §2.5
+PAPER_GYRO_BIAS = np.array([0.09, -0.15, -0.1])  # docs/observers.md §12.1
 PAPER_VEL_BIAS = np.array([0.09, 0.06, -0.07])
 AXIS_170 = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)  # as tests/test_observer_hashim.py
 
@@ -121,7 +121,7 @@ def test_keyframes_at_every_frame_and_never_further_apart_than_asked():
 # ----------------------------------------------------------------------------------- simulated logs
 
 def paper_bias_log(name: str, duration: float, seed: int):
-    """A noisy simulated log of scenario ``name`` with the biases of the paper scenario (spec §2.5)."""
+    """A noisy simulated log of scenario ``name`` with the biases of the circle (docs/observers.md §12.1)."""
     sc = replace(get_scenario(name), gyro_bias=PAPER_GYRO_BIAS, velocity_bias=PAPER_VEL_BIAS)
     sim = simulate(sc, duration=duration, seed=seed)
     return sc, sim, align(expected_streams(sim))
@@ -187,7 +187,7 @@ def started_at(name: str, log: Log, r0: np.ndarray):
 
 
 def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_reckoning_does_not(loop, loop_reference):
-    """Spec §4.3/§6.3's 170° initial attitude error on the loop with the paper's biases: hybrid's IMU directions
+    """The 170° start of docs/observers.md §12.3 on the loop with the paper's biases: hybrid's IMU directions
     bring its working-frame attitude back (its map frame, in which it writes, turns with it); for riekf and
     hashim the start attitude only fixes the map frame. The smoother started from each of them reaches the same
     optimum as the smoother given the true biases; started from dead reckoning (the same 170° start, odometry

@@ -22,6 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.errors import InfrastructureFailure
 
 EXECUTORS = ("local", "dask")
 #: A Dask task gives up (ends its worker process) when its batch's lease file has not been touched for this
@@ -31,11 +32,11 @@ LEASE_POLL_S = 2.0
 STARTED = "started.json"
 
 
-class EnvironmentMismatch(RuntimeError):
+class EnvironmentMismatch(InfrastructureFailure, RuntimeError):
     """The worker runs another slamobs version or code than the batch (an infrastructure problem)."""
 
 
-class InfrastructureError(RuntimeError):
+class InfrastructureError(InfrastructureFailure, RuntimeError):
     """The batch cannot go on: scheduler lost, no usable workers, worker environment mismatch (exit 3)."""
 
 

@@ -1,5 +1,5 @@
-"""Observer registry: one entry per observer algorithm, selectable by name (the reference smoother `batch` is
-added beside them in `pipeline/estimators.py`)."""
+"""Observer registry: one entry per observer algorithm of docs/observers.md, selectable by name (the reference
+smoother `batch` is added beside them in `pipeline/estimators.py`)."""
 
 from __future__ import annotations
 

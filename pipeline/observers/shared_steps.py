@@ -1,4 +1,4 @@
-"""Compiled steps the landmark observers' kernels share (spec §8 for the frame handling).
+"""Compiled steps the landmark observers' kernels share (docs/observers.md §3.2 for the frame handling).
 
 - :func:`load_frame`: a frame replaces the visible set: its landmark indices and body-frame measurements
   become the observer's ``vis_idx``/``y``; a landmark seen for the first time is placed at ``P̂ + R̂y`` so that
@@ -87,7 +87,7 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     """``(Σ[y_i]x R̂ᵀe_i, Σ R̂ᵀe_i)`` as six scalars over the visible landmarks, with ``e_i = p̂_i − R̂y_i − P̂``
     at the state given, and each landmark stepped ``p̂_i ← p̂_i − g e_i`` in place: ``g = hkp`` (B), or
     with ``adaptive`` the closed-form ``h ψ(e_i) = hkp (1 + ‖e_i‖²)/4`` capped at 1, never past the measured
-    point (A, spec §2.4)."""
+    point (A, docs/observers.md §4)."""
     r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
     r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
     r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]

@@ -54,7 +54,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import BadInput, InputError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
@@ -275,7 +275,7 @@ class _Unit:
     recovered: bool = False  # found by a scan, which reported where its records end
 
 
-class DamagedError(Exception):
+class DamagedError(BadInput):
     """Bytes of a log that cannot be read (bad compression, checksum, records); becomes an InputError."""
 
 

@@ -1,7 +1,9 @@
 """Message decoding into NumPy columns, and the cleaning every stream gets before it leaves the reader.
 
-All knowledge of message layouts lives here (``LAYOUTS``, ``ITEM_LAYOUTS`` and the ``decode_*`` functions),
-so a faster (vectorised) decoder can replace this module without touching role selection or the streams.
+The layouts of the stream messages and detection arrays live here (``LAYOUTS``, ``ITEM_LAYOUTS`` and the
+``decode_*`` functions), and :mod:`.fastdecode` reads its vectorised plans from the same tables; the layouts of
+tag corner messages are in :mod:`.cameradecode` (``CORNER_LAYOUTS``), the covariance fields the reference
+estimators weight by in :mod:`.covariance`, and the TF walker in :mod:`.tfdecode`.
 Messages are deserialised with the typestore rosbags builds from the definitions stored in the log, so custom
 types such as ``fiducial_msgs`` need no ROS installation.
 

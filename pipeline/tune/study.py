@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import BadInput, InputError
 from slamobs.pipeline.tune import space
 from slamobs.pipeline.tune.worker import OBJECTIVES
 
@@ -33,7 +33,7 @@ OWN_FILES = (JOURNAL, "gains.yaml", "trials.parquet", "objective.png", "tune.jso
 MAX_FAILED_ROUNDS = 3
 
 
-class TuneFailed(RuntimeError):
+class TuneFailed(BadInput, RuntimeError):
     """A log cannot be tuned on (no truth, unreadable, observer cannot run on it): one line naming the log."""
 
 
