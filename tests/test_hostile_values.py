@@ -1,0 +1,75 @@
+"""Hostile values (issue 28), part of the hostile-input catalogue of ``test_hostile_inputs.py``: YAML alias bombs
+and cycles, 64-bit record times and ids, odd JSON and edited tables are one line naming the file, never a
+traceback, a hang or a silently wrapped number."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+from test_hostile_inputs import invoke, one_line_error
+
+from slamobs.pipeline.simulate import simulate, write_log
+
+NS = 1_000_000_000
+TWO63 = 2**63
+
+#: Nine lines, each alias nine times the one before: 9^9 (387 million) strings once expanded.
+BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(f"{k}: &{k} [{', '.join([f'*{p}'] * 9)}]\n"
+                                                      for p, k in zip("abcdefgh", "bcdefghi"))
+YAML_CASES = {"bomb": (BOMB, "alias bomb"), "cycle": ("a: &a [*a]\n", "*a refers to a value that contains it"),
+              "deep": ("[" * 20000 + "]" * 20000 + "\n", "nested too deeply")}
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return simulate("figure8", duration=3.0, seed=28, imu_rate=100.0)
+
+
+@pytest.fixture(scope="module")
+def mcap_log(sim, tmp_path_factory) -> Path:
+    return write_log(sim, tmp_path_factory.mktemp("values") / "f8.mcap")
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory) -> Path:
+    cfg = tmp_path_factory.mktemp("cfg") / "quick.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n")
+    return cfg
+
+
+# --------------------------------------------------------------------------- YAML
+
+
+@pytest.mark.parametrize("case", list(YAML_CASES))
+def test_yaml_bomb_cycle_and_depth_are_one_line_in_run_and_batch(mcap_log, tmp_path, case):
+    text, needle = YAML_CASES[case]
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text(text)
+    start = time.process_time()
+    one_line_error(invoke("run", mcap_log, "-o", tmp_path / "out", "--config", cfg), str(cfg), needle)
+    assert time.process_time() - start < 30  # a guard against the minutes of the bomb, not a speed test
+    res = invoke("batch", mcap_log, "-o", tmp_path / "batch", "--config", cfg)
+    assert "Traceback" not in res.output + res.stderr and "RecursionError" not in res.output + res.stderr
+    assert res.exit_code == 2 and needle in res.output + res.stderr, (res.exit_code, res.output, res.stderr)
+
+
+@pytest.mark.parametrize("what", ["manifest", "map", "camera file"])
+def test_every_yaml_file_is_read_with_the_alias_budget(tmp_path, what):
+    from slamobs.pipeline.batch.discover import read_manifest
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.known_map import read_map
+    from slamobs.pipeline.vision.cameras import read_camera_files
+
+    path = tmp_path / ("logs.yaml" if what == "manifest" else "tagslam.yaml" if what == "map" else "cams.yaml")
+    path.write_text(BOMB)
+    read = {"manifest": read_manifest, "map": read_map, "camera file": lambda p: read_camera_files([p])}
+    with pytest.raises(InputError, match=f"aliases expand the {what} by 4.9e\\+08 values"):
+        read[what](path)
+    from slamobs.pipeline.config import load_config
+
+    cfg = tmp_path / "run.yaml"  # aliases within the budget still work
+    cfg.write_text("limits: {max_range: &r 50.0, max_gap: *r}\n")
+    assert load_config(cfg).limits["max_gap"] == 50.0
