@@ -5,6 +5,7 @@ traceback, a hang or a silently wrapped number."""
 from __future__ import annotations
 
 import json
+import sqlite3
 import time
 from pathlib import Path
 
@@ -73,3 +74,47 @@ def test_every_yaml_file_is_read_with_the_alias_budget(tmp_path, what):
     cfg = tmp_path / "run.yaml"  # aliases within the budget still work
     cfg.write_text("limits: {max_range: &r 50.0, max_gap: *r}\n")
     assert load_config(cfg).limits["max_gap"] == 50.0
+
+
+# --------------------------------------------------------------------------- 64-bit record times
+
+
+def _shifted_mcap(src: Path, dst: Path, shift: int) -> Path:
+    """``src`` rewritten with the MCAP writer, every log and publish time moved by ``shift`` (uint64 on disk)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with src.open("rb") as fin, dst.open("wb") as fout:
+        writer = Writer(fout)
+        writer.start(profile="ros2", library="slamobs-tests")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, msg in make_reader(fin).iter_messages():
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            writer.add_message(channels[channel.id], log_time=msg.log_time + shift, data=msg.data,
+                               publish_time=msg.publish_time + shift, sequence=msg.sequence)
+        writer.finish()
+    return dst
+
+
+def test_record_times_past_2_63_are_one_line_in_info_and_run(mcap_log, tmp_path, quick):
+    log = _shifted_mcap(mcap_log, tmp_path / "year2262.mcap", TWO63)
+    one_line_error(invoke("info", log), str(log), "outside 0 to 2^63 ns")
+    rec = tmp_path / "rec.yaml"
+    rec.write_text(quick.read_text() + "time:\n  source: record\n")
+    for cfg in (quick, rec):  # with record times the run used to go on with negative t_ns
+        one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", cfg), str(log), "outside 0 to 2^63 ns")
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_wrapped_record_time_the_summary_does_not_show_names_the_topic(sim, tmp_path, quick):
+    """rosbag2 (sqlite3) stores int64 record times: a negative one is refused per message, naming its topic."""
+    log = write_log(sim, tmp_path / "neg", "ros2")
+    (db,) = log.glob("*.db3")
+    with sqlite3.connect(db) as con:
+        con.execute("UPDATE messages SET timestamp = timestamp - ? WHERE id % 7 = 0", (TWO63 - 1,))
+    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), "outside 0 to 2^63 ns")
