@@ -118,3 +118,116 @@ def test_a_wrapped_record_time_the_summary_does_not_show_names_the_topic(sim, tm
     with sqlite3.connect(db) as con:
         con.execute("UPDATE messages SET timestamp = timestamp - ? WHERE id % 7 = 0", (TWO63 - 1,))
     one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), "outside 0 to 2^63 ns")
+
+
+# --------------------------------------------------------------------------- 64-bit ids
+
+
+def _tf_tags_mcap(src: Path, dst: Path, id_shift: int) -> Path:
+    """``src`` with its fiducial detections written as TF tag frames ``tag_<id + id_shift>`` on /tf."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+    from slamobs.pipeline.simulate.sensors import TOPIC_DETECTIONS
+
+    ts = make_typestore(ros1=False)
+    tf_type, stamped = "tf2_msgs/msg/TFMessage", ts.types["geometry_msgs/msg/TransformStamped"]
+    with src.open("rb") as fin, dst.open("wb") as fout:
+        writer = Writer(fout)
+        writer.start(profile="ros2", library="slamobs-tests")
+        msgdef, _ = ts.generate_msgdef(tf_type, ros_version=2)
+        tf_channel = writer.register_channel("/tf", "cdr", writer.register_schema(tf_type, "ros2msg", msgdef.encode()))
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, msg in make_reader(fin).iter_messages():
+            if channel.topic == TOPIC_DETECTIONS:
+                arr = ts.deserialize_cdr(msg.data, schema.name)
+                tags = [stamped(header=arr.header, child_frame_id=f"tag_{f.fiducial_id + id_shift}",
+                                transform=f.transform) for f in arr.transforms]
+                data = bytes(ts.serialize_cdr(ts.types[tf_type](transforms=tags), tf_type))
+                writer.add_message(tf_channel, log_time=msg.log_time, publish_time=msg.publish_time, data=data)
+                continue
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas[schema.id], channel.metadata)
+            writer.add_message(channels[channel.id], log_time=msg.log_time, data=msg.data,
+                               publish_time=msg.publish_time, sequence=msg.sequence)
+        writer.finish()
+    return dst
+
+
+@pytest.fixture(scope="module")
+def tags_config(tmp_path_factory) -> Path:
+    cfg = tmp_path_factory.mktemp("cfg") / "tags.yaml"
+    cfg.write_text('evaluation:\n  plots: false\nframes:\n  tag_pattern: "tag_{id}"\noutput:\n  export: [mcap]\n')
+    return cfg
+
+
+def _final_map_labels(results: Path) -> tuple[list[str], list[int]]:
+    from test_results_export import _messages
+
+    final = [m for _, m in _messages(results)["/slamobs/landmarks"]][-1].markers[1:]
+    return [m.text for m in final], [m.id for m in final]
+
+
+def test_tag_ids_beyond_int32_are_exported_with_their_labels(mcap_log, tmp_path, tags_config):
+    """A visualization_msgs/Marker id is an int32: TF tag ids past it were a struct.error traceback in
+    ``run --export mcap`` and ``export``; the labels now keep the ids, the markers a rank each."""
+    import pandas as pd
+
+    log = _tf_tags_mcap(mcap_log, tmp_path / "tags3e9.mcap", 3_000_000_000)
+    out = tmp_path / "out"
+    res = invoke("run", log, "-o", out, "--config", tags_config, "-q")
+    assert res.exit_code == 0, res.stderr
+    ids = pd.read_parquet(out / "landmarks.parquet")["id"].tolist()
+    assert min(ids) > 3_000_000_000
+    texts, marker_ids = _final_map_labels(out / "results.mcap")
+    assert texts == [str(i) for i in ids] and len(set(marker_ids)) == len(ids) and max(marker_ids) < 2**31
+    res = invoke("export", out, "--mcap", tmp_path / "again.mcap")
+    assert res.exit_code == 0, res.stderr
+    assert _final_map_labels(tmp_path / "again.mcap") == (texts, marker_ids)
+
+
+def test_tag_id_beyond_int64_is_one_line(mcap_log, tmp_path, tags_config):
+    log = _tf_tags_mcap(mcap_log, tmp_path / "tags2e63.mcap", TWO63)
+    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", tags_config), str(log), "[/tf]",
+                   "outside the 64-bit integers", "tag_pattern")
+
+
+# --------------------------------------------------------------------------- odd run directories
+
+
+@pytest.fixture(scope="module")
+def run_dir(mcap_log, quick, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("runs") / "f8"
+    res = invoke("run", mcap_log, "-o", out, "--config", quick, "-q")
+    assert res.exit_code == 0, res.stderr
+    return out
+
+
+@pytest.mark.parametrize(("text", "needle"), [("[]", "the file is a JSON array"),
+                                              ('{"input": [1]}', "'input' is a JSON array")])
+def test_run_json_of_another_shape_is_one_line(run_dir, tmp_path, text, needle):
+    import shutil
+
+    odd = tmp_path / "run"
+    shutil.copytree(run_dir, odd)
+    (odd / "run.json").write_text(text)
+    for args in (("report", odd), ("export", odd, "--mcap", tmp_path / "r.mcap")):
+        one_line_error(invoke(*args), str(odd / "run.json"), needle)
+
+
+def test_export_of_a_table_without_a_column_is_one_line(run_dir, tmp_path):
+    import shutil
+
+    import pyarrow.parquet as pq
+
+    odd = tmp_path / "run"
+    shutil.copytree(run_dir, odd)
+    table = odd / "poses.parquet"
+    pq.write_table(pq.read_table(table).drop(["qw"]), table)
+    one_line_error(invoke("export", odd, "--mcap", tmp_path / "r.mcap"), str(table), "no column qw")
+    assert not (tmp_path / "r.mcap").exists()
