@@ -4,13 +4,14 @@ traceback, a hang or a silently wrapped number."""
 
 from __future__ import annotations
 
-import json
 import sqlite3
 import time
+from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
 import pytest
-from test_hostile_inputs import invoke, one_line_error
+from test_hostile_inputs import _no_warnings, invoke, one_line_error
 
 from slamobs.pipeline.simulate import simulate, write_log
 
@@ -231,3 +232,24 @@ def test_export_of_a_table_without_a_column_is_one_line(run_dir, tmp_path):
     pq.write_table(pq.read_table(table).drop(["qw"]), table)
     one_line_error(invoke("export", odd, "--mcap", tmp_path / "r.mcap"), str(table), "no column qw")
     assert not (tmp_path / "r.mcap").exists()
+
+
+# --------------------------------------------------------------------------- messages that name the real cause
+
+
+def test_detections_all_dropped_by_the_range_gate_say_so(sim, tmp_path, quick):
+    """Every detection at range 0: the run said 'no landmark detections inside the velocity time span'."""
+    det = sim.detections
+    log = write_log(replace(sim, detections=replace(det, xyz=np.zeros_like(det.xyz))), tmp_path / "zero.mcap")
+    n = det.xyz.shape[0]
+    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), "[/fiducial_transforms]",
+                   f"all {n} detections inside the velocity time span were dropped by the range gate",
+                   f"{n} closer than limits.min_range 0.05 m", "null switches a gate off")
+
+
+def test_identical_odometry_stamps_are_one_line_without_warnings(sim, tmp_path, quick):
+    odom = sim.odom
+    log = write_log(replace(sim, odom=replace(odom, t_ns=np.full_like(odom.t_ns, odom.t_ns[0]))), tmp_path / "s.mcap")
+    with _no_warnings():
+        res = invoke("run", log, "-o", tmp_path / "out", "--config", quick)
+    one_line_error(res, str(log), "all", "samples have the same time", "set time.source: record")
