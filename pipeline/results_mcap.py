@@ -113,6 +113,19 @@ def _set(obj, path: tuple, value) -> None:
         setattr(obj, path[-1], value)
 
 
+#: A ROS 2 stamp (builtin_interfaces/Time) holds int32 seconds: 1901-12-13 to 2038-01-19.
+_STAMP_NS = (-(2**31) * _NS, 2**31 * _NS)
+
+
+def check_stamps(lo_ns: int, hi_ns: int, path: str | Path, hint: str = "") -> None:
+    """One line naming ``path`` when stamps from ``lo_ns`` to ``hi_ns`` do not fit a ROS 2 stamp (a serialiser
+    error otherwise, or a stamp wrapped silently by the bulk writer)."""
+    if lo_ns < _STAMP_NS[0] or hi_ns >= _STAMP_NS[1]:
+        bad = hi_ns if hi_ns >= _STAMP_NS[1] else lo_ns
+        raise InputError(path, f"stamp {bad / _NS:.0f} s is outside the int32 seconds of a ROS 2 message stamp "
+                               f"(1901-12-13 to 2038-01-19): the results cannot be written as MCAP{hint}")
+
+
 def _stamp_fields(prefix: tuple = ()) -> dict[tuple, str]:
     return {prefix + _STAMP[0]: "<i4", prefix + _STAMP[1]: "<u4"}
 
@@ -264,6 +277,9 @@ def _read(run_dir: Path, name: str):
     if missing:
         raise InputError(path, f"the {name} table has no column {', '.join(missing)} (see schemas/{name}.json): "
                                "edited or written by another program; run slamobs run again")
+    if "t_ns" in frame.columns and len(frame):
+        t_ns = frame["t_ns"].to_numpy(np.int64)
+        check_stamps(int(t_ns.min()), int(t_ns.max()), path)
     return frame
 
 

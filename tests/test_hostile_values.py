@@ -253,3 +253,27 @@ def test_identical_odometry_stamps_are_one_line_without_warnings(sim, tmp_path, 
     with _no_warnings():
         res = invoke("run", log, "-o", tmp_path / "out", "--config", quick)
     one_line_error(res, str(log), "all", "samples have the same time", "set time.source: record")
+
+
+def test_stamps_after_2038_are_one_line_before_the_run_and_in_export(mcap_log, run_dir, tmp_path, tags_config):
+    """A ROS 2 stamp holds int32 seconds: the results MCAP of stamps after 2038-01-19 was a struct.error
+    traceback (export) after the whole run (run --export mcap)."""
+    import shutil
+
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    log = _shifted_mcap(mcap_log, tmp_path / "y2065.mcap", 2_000_000_000 * NS)
+    cfg = tmp_path / "rec.yaml"
+    cfg.write_text("evaluation:\n  plots: false\ntime:\n  source: record\noutput:\n  export: [mcap]\n")
+    res = invoke("run", log, "-o", tmp_path / "out", "--config", cfg)
+    one_line_error(res, str(log), "outside the int32 seconds of a ROS 2 message stamp", "output.export")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rec.yaml", "y2065.mcap"]
+    odd = tmp_path / "run"
+    shutil.copytree(run_dir, odd)
+    table = odd / "poses.parquet"
+    poses = pq.read_table(table)
+    shifted = pc.add(poses["t_ns"], pa.scalar(2_000_000_000 * NS, pa.int64()))
+    pq.write_table(poses.set_column(poses.schema.get_field_index("t_ns"), "t_ns", shifted), table)
+    one_line_error(invoke("export", odd, "--mcap", tmp_path / "r.mcap"), str(table), "int32 seconds")
