@@ -572,10 +572,17 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
         per_frame = np.bincount(frame_rank, minlength=frames.size)
         del frame_rank, order_det
     t_frames = t_det[frames]
+    n_gated = ids.shape[0]
     det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
                                                   else rng, ids, per_frame, t_frames, lim, notes)
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
+    if landmark_ids.size == 0 and n_gated:  # the gate, not the time span, took them all: say so and what to do
+        gate = notes[-1].partition(": detections dropped by the range gate: ")[2].partition(";")[0]
+        raise InputError(path, f"all {n_gated} detections inside the velocity time span were dropped by the range "
+                               f"gate ({gate}): if those ranges are real, change limits.min_range / "
+                               "limits.max_range (null switches a gate off); a range of 0 is a detection without "
+                               "a position", det.topic)
     if landmark_ids.size == 0:
         raise InputError(path, "no landmark detections inside the velocity time span (of "
                                f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)

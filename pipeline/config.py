@@ -310,17 +310,11 @@ def load_config(path: Path | None) -> RunConfig:
     """Read ``run.yaml`` (or defaults when ``path`` is None)."""
     if path is None:
         return RunConfig()
-    from ruamel.yaml import YAML, YAMLError
-
-    from slamobs.pipeline.paths import check_input, read_text
+    from slamobs.pipeline.paths import check_input, read_yaml
 
     path = Path(path)
     check_input(path, "config file (YAML)", directory_ok=False)
-    text = read_text(path, "config")
-    try:
-        data = YAML(typ="safe").load(text)
-    except YAMLError as err:
-        raise InputError(path, f"not valid YAML: {' '.join(str(err).split())[:300]}") from None
+    data = read_yaml(path, "config")
     if data is not None and not isinstance(data, dict):
         raise InputError(path, "config must be a mapping of sections (observer, topics, gains, ...)")
     config = parse_config(data, str(path))

@@ -314,6 +314,13 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
     if aligned is None:
         raise ValueError("the prepared log's observer input was released by an earlier run")
+    if "mcap" in config.export:  # its stamps are checked before the work, not after it
+        from slamobs.pipeline.results_mcap import check_stamps
+
+        times = [t for t in (aligned.vel_t_ns, aligned.det_t_ns) if t.size]
+        if times:
+            check_stamps(min(int(t.min()) for t in times), max(int(t.max()) for t in times), log,
+                         " (leave mcap out of output.export)")
     timings = dict(prepared.timings)
     spec = _resolved_spec(config)
     gains = spec.resolve_gains(config.gains.get(spec.name))

@@ -803,6 +803,9 @@ def tag_detections(rows: TfRows, pattern: str, path: str | Path = "") -> tuple[D
     """
     regex = tag_regex(pattern, path)
     tag_id = {code: int(m.group(1)) for code, name in enumerate(rows.frame_names) if (m := regex.match(name))}
+    if huge := [rows.frame_names[c] for c, i in tag_id.items() if not -(2**63) <= i < 2**63]:
+        raise InputError(path, f"TF tag frame {huge[0][:60]!r} has an id outside the 64-bit integers that landmark ids "
+                               f"are ({len(huge)} such frame(s)): not a tag id; narrow frames.tag_pattern", rows.topic)
     sel = np.flatnonzero(np.isin(rows.child, list(tag_id)))
     if sel.size == 0:
         shown = ", ".join(sorted(set(rows.frame_names))[:8]) or "none"
