@@ -29,6 +29,7 @@ import numpy as np
 
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import temporary_prefix
 
 RESULTS_MCAP = "results.mcap"
 MAP_FRAME = "slamobs/map"
@@ -305,7 +306,7 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
     if out.exists() and not force:
         raise InputError(out, "exists already (use --force to replace it)")
     out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
+    fd, tmp_name = tempfile.mkstemp(prefix=temporary_prefix(out, "."), suffix=".tmp", dir=out.parent)
     tmp = Path(tmp_name)
     try:
         with os.fdopen(fd, "wb") as stream:

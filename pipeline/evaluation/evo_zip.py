@@ -18,6 +18,7 @@ import numpy as np
 
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.evaluation.trajectory_error import ErrorResult
+from slamobs.pipeline.paths import temporary_prefix
 
 
 def _write_zip(target, result: ErrorResult) -> None:
@@ -44,7 +45,7 @@ def save_result_zip(path: str | Path, result: ErrorResult) -> Path:
     """Write the archive to ``path`` atomically (temporary file in the same directory, then rename), streamed
     into the file rather than built in memory."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
+    fd, tmp = tempfile.mkstemp(prefix=temporary_prefix(path, "."), dir=path.parent or ".")
     try:
         with os.fdopen(fd, "wb") as f:
             _write_zip(f, result)

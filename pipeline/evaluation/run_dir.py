@@ -23,6 +23,7 @@ from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
+from slamobs.pipeline.writers import update_manifest
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -176,9 +177,10 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
         for p in sorted(staged.iterdir()):
             os.replace(p, run_dir / p.name)
             moved.append(run_dir / p.name)
-        for name in owned:
-            if name not in names and (run_dir / name).is_file():
-                (run_dir / name).unlink()
+        removed = [name for name in owned if name not in names and (run_dir / name).is_file()]
+        for name in removed:
+            (run_dir / name).unlink()
+        update_manifest(run_dir, moved, removed)  # these files are still the run's (a later --force replaces them)
     interrupts.note_published(run_dir)
     return moved
 

@@ -25,6 +25,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from slamobs.pipeline import interrupts
+from slamobs.pipeline.paths import temporary_prefix
 from slamobs.pipeline.readers.fastdecode import leaf_offsets, make_plan
 from slamobs.pipeline.simulate.sensors import (
     FRAME_BODY,
@@ -557,7 +558,7 @@ def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None 
     if (final.exists() or final.is_symlink()) and not overwrite:
         raise FileExistsError(f"{final} exists already (use overwrite)")
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
+    tmpdir = Path(tempfile.mkdtemp(prefix=temporary_prefix(final, "."), suffix=".tmp", dir=final.parent))
     try:
         tmp = tmpdir / final.name
         _WRITERS[container](sim, tmp)
