@@ -214,12 +214,26 @@ def check_name(out: str | Path) -> None:
         raise OutputError(out, f"the name is longer than {NAME_MAX} bytes: choose a shorter one")
 
 
+def check_utf8(path: str | Path) -> None:
+    """Refuse a path with a byte that is not UTF-8 in one line: pyarrow opens only paths that encode as UTF-8 (it
+    raised ``UnicodeEncodeError`` naming no file)."""
+    raw = os.fsencode(path)
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"the path holds a byte that is not UTF-8 (0x{raw[err.start]:02x}), which the Parquet "
+                               "library cannot open: rename it") from None
+
+
 def temporary_prefix(final: str | Path, tag: str = ".tmp-") -> str:
     """``.NAME<tag>``, the prefix of a hidden temporary next to ``final`` (``tempfile`` adds 8 characters, a
     suffix may add a few more): ``NAME`` is shortened to fit :data:`NAME_MAX` bytes whatever the length of
-    ``final``'s name (the owner marker, not the name, says which output a temporary directory belongs to)."""
+    ``final``'s name (the owner marker, not the name, says which output a temporary directory belongs to). It is
+    UTF-8 even where ``final``'s name is not (a byte that is not UTF-8 becomes U+FFFD): pyarrow opens only paths
+    that encode as UTF-8, and the tables are written inside the temporary."""
     room = NAME_MAX - len(os.fsencode(tag)) - 1 - 8 - 8
-    return "." + os.fsdecode(os.fsencode(Path(final).name)[:room]) + tag
+    text = os.fsencode(Path(final).name).decode("utf-8", "replace").encode()[:room].decode("utf-8", "ignore")
+    return "." + text + tag
 
 
 def read_text(path: str | Path, what: str, errors: str = "strict") -> str:

@@ -33,11 +33,19 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.config import DEFAULT_FLOAT_BITS
-from slamobs.pipeline.errors import OutputError
+from slamobs.pipeline.errors import OutputError, output_error
 from slamobs.pipeline.lie import rots_to_quats
 from slamobs.pipeline.observers.base import ObserverResult
-from slamobs.pipeline.paths import MANIFEST, WRITER, check_output, foreign_entry, identity, read_manifest, \
-    temporary_prefix
+from slamobs.pipeline.paths import (
+    MANIFEST,
+    WRITER,
+    check_name,
+    check_output,
+    foreign_entry,
+    identity,
+    read_manifest,
+    temporary_prefix,
+)
 from slamobs.schemas import arrow_schema
 
 COMPRESSION = "zstd"
@@ -460,7 +468,13 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
     if swapped:  # the other output goes back; ours is discarded with the temporary
         _exchange(new, final)
     else:
-        place(aside, final)
+        try:
+            place(aside, final)
+        except OSError:
+            err = OutputError(final, f"{problem}; it could not be put back (something else is there now) and is "
+                                     f"kept as {aside}; nothing was published")
+            err.kept = aside  # the caller must not remove it
+            raise err from None
     raise OutputError(final, f"{problem}: it was left as it is and nothing was published")
 
 
@@ -601,7 +615,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
                 shutil.rmtree(container, ignore_errors=True)
                 raise
     except OSError as err:
-        raise OutputError(final, f"cannot create the output: {_reason(err)}") from None
+        raise output_error(final, err, "cannot create the output") from None
     try:
         umask = os.umask(0)
         os.umask(umask)
@@ -617,15 +631,51 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     except OSError as err:
         with suppress(OSError):  # a failed restore keeps the container: the next run retries it
             _finish(container, {"final": final.name})
-        raise OutputError(final, f"cannot write the output: {_reason(err)}") from None
-    except BaseException:
-        with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
-            _finish(container, {"final": final.name})
+        raise output_error(final, err) from None
+    except BaseException as err:
+        if getattr(err, "kept", None) is None:  # else the container holds what could not be put back
+            with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
+                _finish(container, {"final": final.name})
         raise
     shutil.rmtree(container, ignore_errors=True)
 
 
-def _reason(err: OSError) -> str:
-    """An OS error in a few words, with the file it concerns when that is not the output itself."""
-    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
-    return f"{text} ({err.filename})" if err.filename else text
+@contextmanager
+def atomic_file(final: Path, *, why_kept=lambda _path: "exists already"):
+    """Yield a temporary path (in a hidden directory beside ``final``) that becomes ``final`` only if the block
+    succeeds; nothing half written is ever under ``final``.
+
+    What is at ``final`` now is replaced only when ``why_kept(final)`` returns None (slamobs wrote it and the
+    command may replace it); its reason otherwise is the one-line refusal, before anything is written. At the
+    swap only that same entry is replaced, and something that appeared meanwhile is kept (:func:`publish`). OS
+    errors (a full disk) are one line naming ``final`` (:func:`pipeline.errors.output_error`).
+    """
+    from slamobs.pipeline import interrupts
+
+    final = Path(final)
+    check_name(final)
+    expected = identity(final)
+    if expected is not None and (why := why_kept(final)) is not None:
+        raise OutputError(final, why)
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        with interrupts.critical():  # a signal in between would leave it behind
+            container = Path(tempfile.mkdtemp(prefix=temporary_prefix(final, "."), suffix=".tmp", dir=final.parent))
+    except OSError as err:
+        raise output_error(final, err, "cannot create the output") from None
+    kept = None
+    try:
+        yield container / final.name
+        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
+        with interrupts.critical():
+            publish(container / final.name, final, expected, aside=container / ".previous",
+                    owned=lambda p: None if (why := why_kept(p)) is None else (p.name, why))
+        interrupts.note_published(final)
+    except OSError as err:
+        raise output_error(final, err) from None
+    except OutputError as err:
+        kept = getattr(err, "kept", None)
+        raise
+    finally:
+        if kept is None:  # our new output, or the replaced one (checked to be slamobs's)
+            shutil.rmtree(container, ignore_errors=True)

@@ -221,3 +221,28 @@ def test_a_name_of_any_valid_length_gets_its_temporary(log, cfg, tmp_path):
     assert (tmp_path / name / "poses.parquet").is_file() and [p.name for p in tmp_path.iterdir()] == [name]
     code, err = _cli("run", log, "-o", tmp_path / ("r" * (NAME_MAX + 1)), "--config", cfg, "-q")
     _one_line(code, err, f"longer than {NAME_MAX} bytes")
+
+
+def test_an_out_name_that_is_not_utf8(log, cfg, tmp_path):
+    """The report: a byte that is not UTF-8 in OUT's name gave a UnicodeEncodeError traceback (pyarrow opens only
+    UTF-8 paths). The run now writes it (its temporary has a UTF-8 name); report, which reads it with pyarrow, says
+    so in one line."""
+    out = Path(os.fsdecode(bytes(tmp_path) + b"/bad\xffname"))
+    code, err = _cli("run", log, "-o", out, "--config", cfg, "-q")
+    assert code == 0, err
+    assert (out / "poses.parquet").is_file() and os.listdir(tmp_path) == [out.name]
+    code, err = _cli("report", out)
+    _one_line(code, err, "not UTF-8 (0xff)")
+
+
+def test_report_refuses_a_run_missing_a_table(earlier, tmp_path):
+    """The report: with landmarks.parquet deleted, `report` exited 0, dropped the map section and deleted
+    landmarks_aligned.parquet (and landmarks.png) without a word."""
+    run = tmp_path / "run"
+    _copy_run(earlier, run)
+    (run / "landmarks.parquet").unlink()
+    before = _tree(run)
+    assert "landmarks_aligned.parquet" in before
+    code, err = _cli("report", run)
+    _one_line(code, err, str(run / "landmarks.parquet"), "missing")
+    assert _tree(run) == before

@@ -21,6 +21,7 @@ import numpy as np
 
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import check_utf8
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import update_manifest
@@ -28,6 +29,8 @@ from slamobs.pipeline.writers import update_manifest
 if TYPE_CHECKING:
     import pandas as pd
 
+#: The tables of a run directory a report reads (every run writes them).
+RUN_TABLES = ("poses", "biases", "landmarks")
 #: The exports a report writes (``mcap`` is written by ``slamobs export`` or a run).
 REPORT_EXPORTS = ("tum", "evo")
 
@@ -66,6 +69,7 @@ def read_json(path: Path) -> dict:
 def load_run(run_dir: str | Path) -> RunTables:
     """``run.json`` and the Parquet tables of a run directory."""
     run_dir = Path(run_dir)
+    check_utf8(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
         raise InputError(run_dir, "not a run directory (no run.json)")
@@ -75,6 +79,10 @@ def load_run(run_dir: str | Path) -> RunTables:
     in_dataset = run_tables(run_dir)  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
     if in_dataset is None and not (run_dir / "poses.parquet").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
+    for name in RUN_TABLES if in_dataset is None else ():
+        if not (run_dir / f"{name}.parquet").is_file():  # a report without it would drop its section and files
+            raise InputError(run_dir / f"{name}.parquet", "missing: every run writes this table; the report needs "
+                                                          "it (run the log again)")
 
     def table(name: str) -> pd.DataFrame | None:
         if in_dataset is not None:
