@@ -246,3 +246,69 @@ def test_report_refuses_a_run_missing_a_table(earlier, tmp_path):
     code, err = _cli("report", run)
     _one_line(code, err, str(run / "landmarks.parquet"), "missing")
     assert _tree(run) == before
+
+
+@pytest.fixture
+def full_disk(tmp_path):
+    """A directory on a file system with no space left (a small tmpfs filled up); skipped where it cannot be
+    mounted (not root, or no mount in this container)."""
+    where = tmp_path / "full"
+    where.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(where)],
+                                           capture_output=True, timeout=30).returncode != 0:
+        pytest.skip("cannot mount a small tmpfs here")
+    try:
+        with pytest.raises(OSError, match="No space left"):  # noqa: PT012 - until the file system is full
+            with open(where / ".filler", "wb", buffering=0) as f:
+                while True:
+                    f.write(b"\0" * 4096)
+        yield where
+    finally:
+        subprocess.run(["umount", str(where)], capture_output=True, timeout=30)
+
+
+def test_a_full_disk_names_the_file(log, earlier, tmp_path, full_disk):
+    """export / evaluate / simulate on a full disk said 'No space left on device' without the file."""
+    cases = {"export": ("export", earlier, "--mcap", full_disk / "r.mcap"),
+             "evaluate": ("evaluate", f"{log}:/mocap/pose", earlier / "poses.parquet", "-q", "--save-results",
+                          full_disk / "ape.zip"),
+             "simulate": ("simulate", "circle", "--duration", "1", "-q", "-o", full_disk / "s.mcap")}
+    for args in cases.values():
+        code, err = _cli(*args)
+        _one_line(code, err, str(args[-1]), "No space left on device")
+        assert os.listdir(full_disk) == [".filler"], args
+
+
+def test_single_file_outputs_replace_only_what_slamobs_wrote(log, earlier, tmp_path):
+    """export --force, evaluate --save-results and simulate --force replaced (or deleted) whatever was at the
+    path; now only a file of their own kind that slamobs wrote."""
+    from mcap.writer import Writer
+
+    user = tmp_path / "user.mcap"  # a log recorded by ROS, not slamobs's
+    with open(user, "wb") as f:
+        recorder = Writer(f)
+        recorder.start(profile="ros2", library="rosbag2_storage_mcap")
+        recorder.finish()
+    recorded = user.read_bytes()
+    code, err = _cli("export", earlier, "--mcap", user, "--force")
+    _one_line(code, err, str(user), "not a results MCAP slamobs wrote")
+    code, err = _cli("simulate", "circle", "--duration", "1", "-q", "-o", user, "--force")
+    _one_line(code, err, str(user), "not a log slamobs simulate wrote")
+    assert user.read_bytes() == recorded
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("x")
+    code, err = _cli("simulate", "circle", "--duration", "1", "-q", "-o", mine, "--force")
+    _one_line(code, err, str(mine), "not a log slamobs simulate wrote")
+    assert os.listdir(mine) == ["notes.txt"]
+    archive = tmp_path / "ape.zip"
+    archive.write_text("mine")
+    truth = f"{log}:/mocap/pose"
+    code, err = _cli("evaluate", truth, earlier / "poses.parquet", "-q", "--save-results", archive)
+    _one_line(code, err, str(archive), "not a result archive slamobs wrote")
+    assert archive.read_text() == "mine"
+    archive.unlink()
+    for _ in range(2):  # its own archive and results MCAP are replaced
+        assert _cli("evaluate", truth, earlier / "poses.parquet", "-q", "--save-results", archive)[0] == 0
+        assert _cli("export", earlier, "--mcap", tmp_path / "r.mcap", "--force")[0] == 0
+    assert sorted(os.listdir(tmp_path)) == ["ape.zip", "mine", "r.mcap", "user.mcap"]
