@@ -155,14 +155,15 @@ def foreign_entry(directory: str | Path) -> tuple[str, str] | None:
     return None
 
 
-def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False
-                 ) -> tuple[int, int] | None:
+def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False,
+                 in_place: bool = False) -> tuple[int, int] | None:
     """Refuse an output directory that would destroy an input or a user's files (nothing is touched); returns the
     :func:`identity` of what is there (an empty directory, or with ``force`` one slamobs wrote), None when nothing
     is: publishing replaces exactly that, or nothing.
 
     ``inputs`` are every path the run reads (log, config, msg directory, truth file); ``None`` entries are
-    skipped. Without ``force`` an existing non-empty output is an error as well.
+    skipped. Without ``force`` an existing non-empty output is an error as well. ``in_place``: the command adds
+    to its own earlier output there (a tune resumed), replacing nothing, so its contents are not examined.
 
     Raises:
         OutputError: The output is the working directory (or above it), an input, holds an input, lies
@@ -196,7 +197,7 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
     except OSError as err:
         raise OutputError(out, f"cannot read the existing output: {err.strerror or err}") from None
     seen = identity(out)
-    if not entries:
+    if not entries or in_place:
         return seen
     if not force:
         raise OutputError(out, "output exists (use --force to replace it)")
