@@ -111,48 +111,55 @@ def read_manifest(directory: str | Path) -> dict | None:
     return doc
 
 
-def _entries(directory: Path) -> Iterator[tuple[str, os.stat_result]]:
-    """Every entry under ``directory`` (relative ``/`` path, its own ``lstat``), parents before children; links
-    are not followed."""
-    for root, dirs, files in os.walk(directory):
-        base = os.path.relpath(root, directory)
-        for name in sorted(dirs) + sorted(files):
-            rel = name if base == "." else f"{base}/{name}"
-            yield rel, os.lstat(os.path.join(root, name))
-
-
 def foreign_entry(directory: str | Path) -> tuple[str, str] | None:
     """The first entry of ``directory`` slamobs did not write, as ``(relative path, why)``; None when slamobs wrote
     every entry (or it is empty), so replacing the directory deletes nothing of the user's.
 
-    With a manifest an entry is ours when the manifest lists it with the same kind and size; without one (a
-    directory from an older version), when every file has a name slamobs writes and every subdirectory (a compare's
-    runs) is such a directory itself.
+    With a manifest an entry is ours when the manifest lists it with the same kind and size (a subdirectory with
+    its own manifest, a compare's run that was re-reported, answers for itself); without one (a directory from an
+    older version), when every file has a name slamobs writes and every subdirectory is a run directory of such
+    files (an older compare's). Links are never followed.
     """
-    directory = Path(directory)
-    manifest = read_manifest(directory) if os.path.lexists(directory / MANIFEST) else None
-    if os.path.lexists(directory / MANIFEST) and manifest is None:
-        return MANIFEST, "not a slamobs manifest"
     try:
-        for rel, st in _entries(directory):
-            if manifest is not None:
-                if rel == MANIFEST:
-                    continue
-                if stat.S_ISDIR(st.st_mode):
-                    if rel not in manifest.get("directories", []):
-                        return rel, "not written by slamobs"
-                elif not stat.S_ISREG(st.st_mode) or rel not in manifest["files"]:
-                    return rel, "not written by slamobs"
-                elif manifest["files"][rel] != st.st_size:
-                    return rel, "changed since slamobs wrote it"
-            elif stat.S_ISDIR(st.st_mode):  # an older compare's run directories, nothing deeper
-                if "/" in rel or not os.path.isfile(directory / rel / "run.json"):
-                    return rel, "not written by slamobs"
-            elif not stat.S_ISREG(st.st_mode) or rel.rsplit("/", 1)[-1] not in LEGACY_NAMES:
-                return rel, "not written by slamobs"
+        return _foreign(Path(directory), "", None, "")
     except OSError as err:
-        return err.filename or ".", f"cannot be read ({err.strerror or err})"
+        return os.path.basename(err.filename or "."), f"unreadable ({err.strerror or err})"
+
+
+def _foreign(root: Path, rel: str, doc: dict | None, within: str) -> tuple[str, str] | None:
+    """:func:`foreign_entry` of ``root/rel``, governed by the manifest ``doc`` in which it is ``within``."""
+    here = root / rel if rel else root
+    if os.path.lexists(here / MANIFEST):
+        doc, within = read_manifest(here), ""
+        if doc is None:
+            return _join(rel, MANIFEST), "not a slamobs manifest"
+    for name in sorted(os.listdir(here)):
+        path, key = _join(rel, name), _join(within, name)
+        st = os.lstat(here / name)
+        if doc is not None:
+            if key == MANIFEST:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                if key not in doc.get("directories", []):
+                    return path, "not written by slamobs"
+                if found := _foreign(root, path, doc, key):
+                    return found
+            elif not stat.S_ISREG(st.st_mode) or key not in doc["files"]:
+                return path, "not written by slamobs"
+            elif doc["files"][key] != st.st_size:
+                return path, "changed since slamobs wrote it"
+        elif stat.S_ISDIR(st.st_mode):  # an older compare's run directories, nothing deeper
+            if rel or not os.path.isfile(here / name / "run.json"):
+                return path, "not written by slamobs"
+            if found := _foreign(root, path, None, ""):
+                return found
+        elif not stat.S_ISREG(st.st_mode) or name not in LEGACY_NAMES:
+            return path, "not written by slamobs"
     return None
+
+
+def _join(base: str, name: str) -> str:
+    return f"{base}/{name}" if base else name
 
 
 def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False,

@@ -460,7 +460,7 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
     if identity(old) != expected:
         problem = "was replaced while this command was writing its output (another run, or a user)"
     elif (found := owned(old)) is not None:
-        problem = f"gained {found[0]} ({found[1]}) while this command was writing its output"
+        problem = f"changed while this command was writing its output ({found[0]} is {found[1]})"
     if problem is None:
         if not swapped:
             place(new, final)
@@ -499,7 +499,6 @@ def write_manifest(directory: Path) -> None:
 def update_manifest(directory: Path, written=(), removed=()) -> None:
     """Record files a later command (``report``, ``export``) wrote into, or removed from, an output directory
     with a manifest (their sizes as they are now); a directory without one is left without."""
-
     doc = read_manifest(directory)
     if doc is None:
         return

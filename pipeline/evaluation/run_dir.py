@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from slamobs.pipeline import interrupts
-from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import check_utf8
+from slamobs.pipeline.errors import InputError, OutputError
+from slamobs.pipeline.paths import check_utf8, read_manifest
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import update_manifest
@@ -180,6 +180,7 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
     new set lacks are removed afterwards (a stale plot must not pass for the new report's)."""
     moved = []
     names = {p.name for p in staged.iterdir()}
+    _check_own(run_dir, sorted(names | set(owned)))
     interrupts.check()  # a pending Ctrl-C/SIGTERM replaces nothing
     with interrupts.critical():  # one arriving now waits until the set is whole
         for p in sorted(staged.iterdir()):
@@ -191,6 +192,21 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
         update_manifest(run_dir, moved, removed)  # these files are still the run's (a later --force replaces them)
     interrupts.note_published(run_dir)
     return moved
+
+
+def _check_own(run_dir: Path, names: list[str]) -> None:
+    """Refuse (before anything is replaced) when a file the report would replace or remove is not the one slamobs
+    wrote: in a run directory with a manifest, listed there with its size (an edited report.md is the user's)."""
+    doc = read_manifest(run_dir)
+    if doc is None:
+        return
+    for name in names:
+        path = run_dir / name
+        if os.path.lexists(path):
+            size = os.lstat(path).st_size if path.is_file() and not path.is_symlink() else None
+            if doc["files"].get(name) != size:
+                raise OutputError(path, "not written by slamobs, or changed since: the report replaces only its own "
+                                        "files; move it away and report again")
 
 
 def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path, exports: tuple[str, ...]) -> None:
