@@ -2,8 +2,9 @@
 
 - bad input, a bad option value, an output that cannot or must not be written, or a machine that ran out of
   something: ``error: FILE: problem``, exit code 2 (nothing is written; an existing output is unchanged);
-- Ctrl-C (SIGINT) or SIGTERM: ``interrupted``, the run is abandoned cleanly (its temporary output removed),
-  exit code 130 or 143 (128 + the signal number, as a shell reports a process killed by it).
+- Ctrl-C (SIGINT), SIGTERM or SIGHUP (a closed terminal): ``interrupted``, the run is abandoned cleanly (its
+  temporary output removed), exit code 130, 143 or 129 (128 + the signal number, as a shell reports a process
+  killed by it).
 
 :data:`EXIT_CODES` maps each kind of error (``pipeline/errors.py``) to its code. The command group applies
 this to every command (:func:`handled`), so commands contain no error plumbing.
@@ -81,12 +82,12 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
 
 
 def end_signals_at_once() -> None:
-    """Outside a command's own handling (before it starts and after it has finished): SIGTERM or SIGINT end the
-    process at once with 143/130 (a SIGINT inherited as ignored stays ignored). Nothing is being written then
+    """Outside a command's own handling (before it starts and after it has finished): SIGTERM, SIGINT or SIGHUP end
+    the process at once with 143/130/129 (one inherited as ignored stays ignored). Nothing is being written then
     (outputs complete and renamed, or not begun); left at the default, a SIGTERM in the interpreter's teardown
     killed the process by the signal (a batch stopped just as it finished exited -15, not 143), a SIGINT printed
     a traceback, and a SIGTERM in the moment between the command's handlers and these did the same."""
-    for signum in (signal.SIGTERM, signal.SIGINT):
+    for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         with suppress(ValueError, OSError):  # not the main thread
             if signal.getsignal(signum) is not signal.SIG_IGN:
                 signal.signal(signum, _end_by_signal)

@@ -76,6 +76,11 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
             from slamobs.pipeline.paths import check_output_file
 
             check_output_file(save_results, (truth, est))
+            from slamobs.pipeline.errors import OutputError
+            from slamobs.pipeline.evaluation.evo_zip import why_kept
+
+            if save_results.exists() and (why := why_kept(save_results)) is not None:  # refused before the work
+                raise OutputError(save_results, why)
         with compile_notice(quiet=quiet):
             out = _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
                        estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference,

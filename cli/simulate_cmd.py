@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import click
@@ -95,7 +96,7 @@ def simulate(
     With --camera corners or images the camera reports tags as a real one does (tag corners, or images rendered
     from the true camera pose; needs the vision extra: pip install 'slamobs[vision]'), with CameraInfo.
     """
-    from slamobs.pipeline.simulate.logwriter import infer_container, log_size, write_log
+    from slamobs.pipeline.simulate.logwriter import infer_container, log_size, why_kept, write_log
     from slamobs.pipeline.simulate.scenarios import SCENARIOS, customize, get_scenario
     from slamobs.pipeline.simulate.sensors import simulation
 
@@ -109,11 +110,11 @@ def simulate(
     except ValueError as err:
         raise click.BadParameter(str(err)) from None
     container = container or infer_container(output)
-    if (output.exists() or output.is_symlink()) and not force:
+    if os.path.lexists(output) and (why := why_kept(output, overwrite=force)) is not None:  # before the work
         from slamobs.cli.errors import exit_input_error
         from slamobs.pipeline.errors import OutputError
 
-        exit_input_error(OutputError(output, "exists already (use --force to replace it)"))
+        exit_input_error(OutputError(output, why))
     camera = _camera(camera_output, image_size, IMAGE_FOV_DEG if fov is None else fov, distortion, tag_size,
                      tag_family, jpeg_quality, image_noise, blur, pixel_noise)
     sim = simulation(  # generated and written piece by piece: any duration fits in memory

@@ -21,6 +21,8 @@ class's kind is the first kind in its MRO (:func:`kind_of`).
 
 from __future__ import annotations
 
+import errno
+
 
 class SlamobsError(BaseException):
     """Root of every error slamobs raises on purpose; catch a kind below, or this for all of them."""
@@ -93,3 +95,18 @@ class ResourceError(ResourceFailure, OutputError):
     One line naming the file being read or written and what ran out. A batch records it as a failure of the
     machine, retried by the next batch, never as a bad log that ``--skip-failed`` would skip.
     """
+
+
+#: ``errno`` values of a machine that ran out of something (disk space or quota, descriptors, memory).
+RESOURCE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EMFILE, errno.ENFILE, errno.ENOMEM})
+
+
+def output_error(path: object, err: OSError, doing: str = "cannot write the output") -> OutputError:
+    """An OS error while writing ``path`` as one line naming it: a :class:`ResourceError` when the machine ran out
+    of something (a full disk said only "No space left on device", without the file), else an :class:`OutputError`;
+    the file it concerns is added when that is not ``path`` itself."""
+    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    if err.filename and str(err.filename) != str(path):
+        text = f"{text} ({err.filename})"
+    kind = ResourceError if err.errno in RESOURCE_ERRNOS else OutputError
+    return kind(path, f"{doing}: {text}")

@@ -1,4 +1,4 @@
-"""Ctrl-C and SIGTERM as an exception raised only where unwinding is safe.
+"""Ctrl-C, SIGTERM and SIGHUP as an exception raised only where unwinding is safe.
 
 Python raises a signal's exception wherever the main thread is. Inside numba's or llvmlite's compiler locks,
 a thread start or a queue's condition, that leaves a lock held or a thread nobody stops: a SIGTERM while a
@@ -26,7 +26,10 @@ UNSAFE_MODULES = frozenset({"numba", "llvmlite", "concurrent", "threading", "que
                             "multiprocessing", "tempfile", "shutil", "importlib", "_frozen_importlib",
                             "_frozen_importlib_external"})
 
-#: The signal number of a pending Ctrl-C/SIGTERM, None when there is none.
+#: Handled like SIGTERM unless inherited as ignored (a background job's SIGINT, ``nohup``'s SIGHUP): a closed
+#: terminal's SIGHUP killed a run at once (exit 129, no message) and left its temporary output behind.
+HANGUP_LIKE = (signal.SIGINT, signal.SIGHUP)
+#: The signal number of a pending Ctrl-C/SIGTERM/SIGHUP, None when there is none.
 requested: int | None = None
 _raised = False
 _critical = 0  # depth of :func:`critical` blocks
@@ -144,8 +147,8 @@ def _raise_if_safe(frame) -> None:
 
 @contextmanager
 def raise_when_safe():
-    """While the block runs (main thread only), SIGTERM and SIGINT (unless inherited as ignored, as in a
-    background job) raise :class:`Interrupted` at the first safe point; a request still pending when the block
+    """While the block runs (main thread only), SIGTERM, SIGINT and SIGHUP (the last two unless inherited as
+    ignored, as in a background job or under ``nohup``) raise :class:`Interrupted` at the first safe point; a request still pending when the block
     ends (the command finished in code where raising was unsafe) is raised then. Afterwards the previous handlers
     are back and nothing is pending."""
     global requested, _raised
@@ -153,7 +156,7 @@ def raise_when_safe():
         yield
         return
     published.clear()
-    signals = [signal.SIGTERM] + ([signal.SIGINT] if signal.getsignal(signal.SIGINT) is not signal.SIG_IGN else [])
+    signals = [signal.SIGTERM] + [sig for sig in HANGUP_LIKE if signal.getsignal(sig) is not signal.SIG_IGN]
     previous = {sig: signal.signal(sig, _on_signal) for sig in signals}
     previous[signal.SIGALRM] = signal.signal(signal.SIGALRM, _on_retry)
     try:

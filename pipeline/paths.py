@@ -6,8 +6,10 @@ one-line error before anything opens them; a symbolic link loop or a dangling li
 
 An output directory never replaces or holds an input, never lies inside an input directory (a rosbag2
 directory, a msg directory), is never the working directory or one above it, and ``--force`` replaces only
-what slamobs wrote (a directory holding ``run.json`` or ``comparison.json``, or an empty one): a mistyped
-``-o`` must not delete a user's files.
+what slamobs wrote: a mistyped ``-o`` must not delete a user's files. Every output directory holds a manifest
+(:data:`MANIFEST`: the writer, its version and each file with its size); a directory replaces only when every
+entry is in its manifest, unchanged, and a directory from before manifests only when every entry is a name
+slamobs writes (:func:`foreign_entry`). Whatever slamobs did not write is the user's.
 """
 
 from __future__ import annotations
@@ -23,8 +25,21 @@ from typing import Any
 
 from slamobs.pipeline.errors import InputError, OutputError
 
-#: Files that mark a directory as slamobs output (``run``, ``compare``, ``tune``), the only kind ``--force`` replaces.
-OUTPUT_MARKERS = ("run.json", "comparison.json", "tune.journal")
+#: The manifest in every output directory slamobs writes: ``{"writer": "slamobs", "version", "files": {path: size},
+#: "directories": [path]}`` (paths relative to the directory, ``/``-separated; the manifest does not list itself).
+MANIFEST = "slamobs-output.json"
+WRITER = "slamobs"
+#: Longest file name (bytes) most Linux file systems take: a hidden temporary name must fit it too.
+NAME_MAX = 255
+#: What slamobs wrote into output directories before they had a manifest (``run``, ``report``, ``export``,
+#: ``compare``, ``tune``): such a directory is replaced only when it holds nothing else.
+LEGACY_NAMES = frozenset({
+    "run.json", "report.json", "report.md", "results.mcap", "trajectory_top.png", "errors.png", "biases.png",
+    "landmarks.png", "ape_evo.zip", "estimate_tum.txt", "truth_tum.txt",
+    *(f"{t}.parquet" for t in ("poses", "biases", "landmarks", "landmark_tracks", "innovations", "jumps",
+                               "tag_detections", "poses_aligned", "landmarks_aligned")),
+    "comparison.json", "comparison.md", "comparison.parquet", "overlay.png",
+    "tune.journal", ".tune.lock", "gains.yaml", "trials.parquet", "objective.png", "tune.json", "tune.md"})
 
 _KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
           (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
@@ -72,20 +87,101 @@ def _within(inner: Path, outer: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
-def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False) -> None:
-    """Refuse an output directory that would destroy an input or a user's files (nothing is touched).
+def identity(path: str | Path) -> tuple[int, int] | None:
+    """``(device, inode)`` of ``path`` itself (a link is not followed), None when nothing is there: what an
+    output check saw, compared again when the output is published (:func:`pipeline.writers.publish`)."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def read_manifest(directory: str | Path) -> dict | None:
+    """The manifest of an output directory slamobs wrote (``files`` and ``directories``), None when there is
+    none, it is damaged or another program wrote it."""
+    import json
+
+    try:
+        doc = json.loads(Path(directory, MANIFEST).read_bytes())
+    except (OSError, ValueError):
+        return None
+    if not (isinstance(doc, dict) and doc.get("writer") == WRITER and isinstance(doc.get("files"), dict)
+            and isinstance(doc.get("directories", []), list)):
+        return None
+    return doc
+
+
+def foreign_entry(directory: str | Path) -> tuple[str, str] | None:
+    """The first entry of ``directory`` slamobs did not write, as ``(relative path, why)``; None when slamobs wrote
+    every entry (or it is empty), so replacing the directory deletes nothing of the user's.
+
+    With a manifest an entry is ours when the manifest lists it with the same kind and size (a subdirectory with
+    its own manifest, a compare's run that was re-reported, answers for itself); without one (a directory from an
+    older version), when every file has a name slamobs writes and every subdirectory is a run directory of such
+    files (an older compare's). Links are never followed.
+    """
+    try:
+        return _foreign(Path(directory), "", None, "")
+    except OSError as err:
+        return os.path.basename(err.filename or "."), f"unreadable ({err.strerror or err})"
+
+
+def _foreign(root: Path, rel: str, doc: dict | None, within: str) -> tuple[str, str] | None:
+    """:func:`foreign_entry` of ``root/rel``, governed by the manifest ``doc`` in which it is ``within``."""
+    here = root / rel if rel else root
+    if os.path.lexists(here / MANIFEST):
+        doc, within = read_manifest(here), ""
+        if doc is None:
+            return _join(rel, MANIFEST), "not a slamobs manifest"
+    for name in sorted(os.listdir(here)):
+        path, key = _join(rel, name), _join(within, name)
+        st = os.lstat(here / name)
+        if doc is not None:
+            if key == MANIFEST:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                if key not in doc.get("directories", []):
+                    return path, "not written by slamobs"
+                if found := _foreign(root, path, doc, key):
+                    return found
+            elif not stat.S_ISREG(st.st_mode) or key not in doc["files"]:
+                return path, "not written by slamobs"
+            elif doc["files"][key] != st.st_size:
+                return path, "changed since slamobs wrote it"
+        elif stat.S_ISDIR(st.st_mode):  # an older compare's run directories, nothing deeper
+            if rel or not os.path.isfile(here / name / "run.json"):
+                return path, "not written by slamobs"
+            if found := _foreign(root, path, None, ""):
+                return found
+        elif not stat.S_ISREG(st.st_mode) or name not in LEGACY_NAMES:
+            return path, "not written by slamobs"
+    return None
+
+
+def _join(base: str, name: str) -> str:
+    return f"{base}/{name}" if base else name
+
+
+def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False,
+                 in_place: bool = False) -> tuple[int, int] | None:
+    """Refuse an output directory that would destroy an input or a user's files (nothing is touched); returns the
+    :func:`identity` of what is there (an empty directory, or with ``force`` one slamobs wrote), None when nothing
+    is: publishing replaces exactly that, or nothing.
 
     ``inputs`` are every path the run reads (log, config, msg directory, truth file); ``None`` entries are
-    skipped. Without ``force`` an existing non-empty output is an error as well.
+    skipped. Without ``force`` an existing non-empty output is an error as well. ``in_place``: the command adds
+    to its own earlier output there (a tune resumed), replacing nothing, so its contents are not examined.
 
     Raises:
         OutputError: The output is the working directory (or above it), an input, holds an input, lies
-            inside an input directory, exists as a file, or (``force``) is a directory slamobs did not write.
+            inside an input directory, exists as a file, or (``force``) holds a file slamobs did not write.
 
     """
     raw = str(out)
     if not raw.strip():
         raise OutputError("-o ''", "the output path is empty: name a new directory")
+    check_name(out)
     target = _resolved(out)
     cwd = _resolved(os.getcwd())
     if _within(cwd, target):
@@ -101,20 +197,52 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
         if Path(item).is_dir() and _within(target, src):
             raise OutputError(out, f"the output lies inside the input directory {item}; choose another -o")
     if not os.path.lexists(out):
-        return
-    if not Path(out).is_dir():
+        return None
+    if not Path(out).is_dir() or Path(out).is_symlink():
         raise OutputError(out, "exists and is not a directory; choose another -o")
     try:
         entries = os.listdir(out)
     except OSError as err:
         raise OutputError(out, f"cannot read the existing output: {err.strerror or err}") from None
-    if not entries:
-        return
+    seen = identity(out)
+    if not entries or in_place:
+        return seen
     if not force:
         raise OutputError(out, "output exists (use --force to replace it)")
-    if not any(name in entries for name in OUTPUT_MARKERS):
-        raise OutputError(out, f"exists and is not a slamobs output (no {' or '.join(OUTPUT_MARKERS)}): "
-                               "--force replaces only earlier runs; remove it yourself or choose another -o")
+    found = foreign_entry(out)
+    if found is not None:
+        raise OutputError(out, f"is not a slamobs output: {os.path.join(out, found[0])} is {found[1]}; --force "
+                               "replaces only what slamobs wrote: move it away yourself or choose another -o")
+    return seen
+
+
+def check_name(out: str | Path) -> None:
+    """Refuse an output name a hidden temporary beside it could not be made for (too long for the file system
+    even alone), in one line instead of an OS error later."""
+    if len(os.fsencode(Path(out).name)) > NAME_MAX:
+        raise OutputError(out, f"the name is longer than {NAME_MAX} bytes: choose a shorter one")
+
+
+def check_utf8(path: str | Path) -> None:
+    """Refuse a path with a byte that is not UTF-8 in one line: pyarrow opens only paths that encode as UTF-8 (it
+    raised ``UnicodeEncodeError`` naming no file)."""
+    raw = os.fsencode(path)
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise InputError(path, f"the path holds a byte that is not UTF-8 (0x{raw[err.start]:02x}), which the Parquet "
+                               "library cannot open: rename it") from None
+
+
+def temporary_prefix(final: str | Path, tag: str = ".tmp-") -> str:
+    """``.NAME<tag>``, the prefix of a hidden temporary next to ``final`` (``tempfile`` adds 8 characters, a
+    suffix may add a few more): ``NAME`` is shortened to fit :data:`NAME_MAX` bytes whatever the length of
+    ``final``'s name (the owner marker, not the name, says which output a temporary directory belongs to). It is
+    UTF-8 even where ``final``'s name is not (a byte that is not UTF-8 becomes U+FFFD): pyarrow opens only paths
+    that encode as UTF-8, and the tables are written inside the temporary."""
+    room = NAME_MAX - len(os.fsencode(tag)) - 1 - 8 - 8
+    text = os.fsencode(Path(final).name).decode("utf-8", "replace").encode()[:room].decode("utf-8", "ignore")
+    return "." + text + tag
 
 
 def read_text(path: str | Path, what: str, errors: str = "strict") -> str:

@@ -22,13 +22,15 @@ The file is written under a temporary name next to the target and renamed into p
 from __future__ import annotations
 
 import os
-import tempfile
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import check_utf8
+from slamobs.pipeline.readers.container import mcap_library
+from slamobs.pipeline.writers import atomic_file, update_manifest
 
 RESULTS_MCAP = "results.mcap"
 MAP_FRAME = "slamobs/map"
@@ -331,6 +333,7 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
     from slamobs.pipeline.evaluation.run_dir import read_json
 
     run_dir, out = Path(run_dir), Path(out)
+    check_utf8(run_dir)
     if meta is None:
         if not (run_dir / "run.json").is_file():
             raise InputError(run_dir, "not a run directory (no run.json)")
@@ -348,24 +351,33 @@ def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | Non
     if parent is not None and not parent.is_dir():
         raise OutputError(out, f"{parent} is a file, not a directory")
     check_output_file(out, [p for p in run_dir.iterdir() if p.suffix != ".mcap"])  # the files read, not a results MCAP
-    if out.exists() and not force:
-        raise InputError(out, "exists already (use --force to replace it)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent)
-    tmp = Path(tmp_name)
-    try:
-        with os.fdopen(fd, "wb") as stream:
+    why_kept = partial(_why_kept, force=force)
+    if os.path.lexists(out) and (why := why_kept(out)) is not None:
+        raise OutputError(out, why)
+    with atomic_file(out, why_kept=why_kept) as tmp:
+        with open(tmp, "wb") as stream:
             _write(stream, run_dir, meta, report, rate_hz)
         umask = os.umask(0)
         os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes it private; the results file is ordinary output
-        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
-        os.replace(tmp, out)
-        interrupts.note_published(out)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        os.chmod(tmp, 0o666 & ~umask)  # the results file is ordinary output
+    update_manifest(out.parent, written=[out])  # exported into a run directory: still slamobs's
     return out
+
+
+def _why_kept(path: Path, *, force: bool) -> str | None:
+    """Why ``path`` must not be replaced: without ``force`` anything; with it anything but a results MCAP slamobs
+    wrote (a recorded log, say, is the user's)."""
+    if not force:
+        return "exists already (use --force to replace it)"
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        head = b""
+    if mcap_library(head).startswith("slamobs "):
+        return None
+    return ("exists and is not a results MCAP slamobs wrote: --force replaces only those; it is kept, remove it "
+            "or choose another --mcap")
 
 
 def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: float | None) -> None:

@@ -33,9 +33,19 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.config import DEFAULT_FLOAT_BITS
-from slamobs.pipeline.errors import OutputError
+from slamobs.pipeline.errors import OutputError, output_error
 from slamobs.pipeline.lie import rots_to_quats
 from slamobs.pipeline.observers.base import ObserverResult
+from slamobs.pipeline.paths import (
+    MANIFEST,
+    WRITER,
+    check_name,
+    check_output,
+    foreign_entry,
+    identity,
+    read_manifest,
+    temporary_prefix,
+)
 from slamobs.schemas import arrow_schema
 
 COMPRESSION = "zstd"
@@ -377,16 +387,129 @@ def _alive(owner: dict) -> bool:
     return start is None or _start_time(pid) in (None, start)
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where that is unavailable."""
+#: ``renameat2`` flags: fail if the target exists / swap the two paths.
+RENAME_NOREPLACE, RENAME_EXCHANGE = 1, 2
+
+
+def _renameat2_call(a: Path, b: Path, flags: int) -> bool:
+    """``renameat2(a, b, flags)``; False where the system or the file system lacks it (an OSError otherwise)."""
     if _RENAMEAT2 is None:
         return False
-    if _RENAMEAT2(-100, os.fsencode(a), -100, os.fsencode(b), 2) == 0:  # AT_FDCWD, RENAME_EXCHANGE
+    if _RENAMEAT2(-100, os.fsencode(a), -100, os.fsencode(b), flags) == 0:  # AT_FDCWD
         return True
     err = ctypes.get_errno()
-    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):  # e.g. a file system without exchange
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):  # e.g. a file system without the flag
         return False
     raise OSError(err, os.strerror(err), str(b))
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where that is unavailable."""
+    return _renameat2_call(a, b, RENAME_EXCHANGE)
+
+
+def place(new: Path, final: Path) -> None:
+    """Rename ``new`` to ``final`` only if nothing is there at that moment (``RENAME_NOREPLACE``; elsewhere a
+    directory is renamed, which the system refuses onto anything but an empty directory, and a file is linked
+    then unlinked). Raises FileExistsError when something is."""
+    try:
+        if _renameat2_call(new, final, RENAME_NOREPLACE):
+            return
+    except OSError as err:
+        if err.errno == errno.EEXIST:
+            raise FileExistsError(errno.EEXIST, "exists", str(final)) from None
+        raise
+    if os.path.isdir(new) and not os.path.islink(new):
+        try:
+            os.rename(new, final)
+        except OSError as err:
+            if err.errno in (errno.ENOTEMPTY, errno.EEXIST, errno.ENOTDIR, errno.EISDIR):
+                raise FileExistsError(errno.EEXIST, "exists", str(final)) from None
+            raise
+        return
+    os.link(new, final)  # FileExistsError when something is there
+    os.unlink(new)
+
+
+def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: Path,
+            owned=lambda _old: None) -> Path | None:
+    """Put the complete output ``new`` (a file or directory) under ``final``, replacing only what the output
+    check saw there: nothing (``expected`` None: the rename fails if something appeared meanwhile) or the entry
+    of :func:`pipeline.paths.identity` ``expected`` that ``owned(path)`` still finds without a foreign entry
+    (None when slamobs wrote all of it; else ``(name, why)``). The previous output is swapped out in one step
+    (``RENAME_EXCHANGE``; elsewhere moved to ``aside`` first) and checked again where it landed: anything else
+    goes back under ``final`` and nothing is published. Returns where the previous output now is (the caller
+    removes it), or None.
+
+    Raises:
+        OutputError: Something appeared at ``final``, replaced what was checked, or was added to it.
+    """
+    if expected is None:
+        try:
+            place(new, final)
+        except FileExistsError:
+            raise OutputError(final, "appeared while this command was writing its output (another run, or a "
+                                     "user's file): it was left as it is and nothing was published") from None
+        return None
+    if _exchange(new, final):
+        old, swapped = new, True
+    else:
+        os.rename(final, aside)
+        old, swapped = aside, False
+    problem = None
+    if identity(old) != expected:
+        problem = "was replaced while this command was writing its output (another run, or a user)"
+    elif (found := owned(old)) is not None:
+        problem = f"changed while this command was writing its output ({found[0]} is {found[1]})"
+    if problem is None:
+        if not swapped:
+            place(new, final)
+        return old
+    if swapped:  # the other output goes back; ours is discarded with the temporary
+        _exchange(new, final)
+    else:
+        try:
+            place(aside, final)
+        except OSError:
+            err = OutputError(final, f"{problem}; it could not be put back (something else is there now) and is "
+                                     f"kept as {aside}; nothing was published")
+            err.kept = aside  # the caller must not remove it
+            raise err from None
+    raise OutputError(final, f"{problem}: it was left as it is and nothing was published")
+
+
+def write_manifest(directory: Path) -> None:
+    """The manifest (:data:`pipeline.paths.MANIFEST`) of an output directory: every file below it with its size
+    and every subdirectory, so a later ``--force`` replaces it only while it holds nothing else."""
+    import slamobs
+
+    files, dirs = {}, []
+    for root, subdirs, names in os.walk(directory):
+        base = os.path.relpath(root, directory)
+        for name in subdirs:
+            dirs.append(name if base == "." else f"{base}/{name}")
+        for name in names:
+            rel = name if base == "." else f"{base}/{name}"
+            if rel != MANIFEST:
+                files[rel] = os.lstat(os.path.join(root, name)).st_size
+    write_json(Path(directory) / MANIFEST, {"writer": WRITER, "version": slamobs.__version__,
+                                            "files": dict(sorted(files.items())), "directories": sorted(dirs)})
+
+
+def update_manifest(directory: Path, written=(), removed=()) -> None:
+    """Record files a later command (``report``, ``export``) wrote into, or removed from, an output directory
+    with a manifest (their sizes as they are now); a directory without one is left without."""
+    doc = read_manifest(directory)
+    if doc is None:
+        return
+    for name in removed:
+        doc["files"].pop(name, None)
+    for p in written:
+        doc["files"][Path(p).name] = os.lstat(p).st_size
+    doc["files"] = dict(sorted(doc["files"].items()))
+    tmp = Path(directory) / f".{MANIFEST}.tmp"
+    write_json(tmp, doc)
+    os.replace(tmp, Path(directory) / MANIFEST)
 
 
 def _renameat2():
@@ -403,32 +526,37 @@ def _renameat2():
 _RENAMEAT2 = _renameat2()
 
 
-def _publish(container: Path, final: Path) -> None:
-    """Put the complete output ``container/run`` under ``final``; a previous ``final`` ends in the container.
+def _publish(container: Path, final: Path, expected: tuple[int, int] | None, force: bool) -> None:
+    """Put the complete output ``container/run`` under ``final`` (:func:`publish`) and remove what it replaced:
+    an earlier output (``force``, checked to hold nothing slamobs did not write) or an empty directory.
 
-    Where the system can exchange two directories atomically, ``final`` holds the old or the new run at every
-    instant. Elsewhere the old run is first moved into the container; a run killed between the two renames
-    leaves the new run flagged complete there, and the next run on this parent finishes the swap
-    (:func:`remove_stale_temporaries`).
+    ``final`` holds the old or the new output at every instant where the system can exchange two directories;
+    elsewhere a run killed between the two renames leaves the new output flagged complete in the container and
+    the old one beside it, and the next run on this parent finishes the swap (:func:`remove_stale_temporaries`).
     """
+
     (container / COMPLETE).touch()
-    new = container / NEW
-    if os.path.lexists(final):
-        if _exchange(new, final):
-            return
-        os.rename(final, container / OLD)
-    os.rename(new, final)
+    owned = foreign_entry if force else _any_entry
+    old = publish(container / NEW, final, expected, aside=container / OLD, owned=owned)
+    if old is not None and not force:
+        os.rmdir(old)  # it was empty: never more than that
+
+
+def _any_entry(directory: Path) -> tuple[str, str] | None:
+    """The first entry of a directory that was empty when checked (without ``--force`` only an empty one goes)."""
+    name = next(iter(sorted(os.listdir(directory))), None)
+    return None if name is None else (name, "not written by slamobs")
 
 
 def _finish(container: Path, owner: dict) -> None:
     """Recover what a killed run left in ``container`` (finish or undo its swap), then remove it; a failing
-    rename raises and keeps the container (never delete the only copy of a run)."""
+    rename raises and keeps the container (never delete the only copy of a run, nor what is not ours)."""
     final = container.parent / str(owner.get("final", ""))
     if owner.get("final") and not os.path.lexists(final):
         if (container / COMPLETE).exists() and (container / NEW).is_dir():
-            os.rename(container / NEW, final)
+            place(container / NEW, final)
         elif (container / OLD).exists():
-            os.rename(container / OLD, final)
+            place(container / OLD, final)
     shutil.rmtree(container, ignore_errors=True)
 
 
@@ -472,22 +600,21 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     :class:`OutputError` naming ``final``.
     """
     from slamobs.pipeline import interrupts
-    from slamobs.pipeline.paths import check_output
 
     final = Path(final)
-    check_output(final, inputs, force=force)
+    expected = check_output(final, inputs, force=force)
     try:
         final.parent.mkdir(parents=True, exist_ok=True)
         remove_stale_temporaries(final.parent)
         with interrupts.critical():  # a signal in between left a directory without its owner: never removed
-            container = Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
+            container = Path(tempfile.mkdtemp(prefix=temporary_prefix(final), dir=final.parent))
             try:
                 write_json(container / OWNER, {**_owner(), "final": final.name})
             except OSError:
                 shutil.rmtree(container, ignore_errors=True)
                 raise
     except OSError as err:
-        raise OutputError(final, f"cannot create the output: {_reason(err)}") from None
+        raise output_error(final, err, "cannot create the output") from None
     try:
         umask = os.umask(0)
         os.umask(umask)
@@ -495,21 +622,59 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         tmp = container / NEW
         tmp.mkdir()
         yield tmp
+        write_manifest(tmp)
         interrupts.check()  # a Ctrl-C/SIGTERM that Python dropped (raised in a finalizer) never publishes
-        _publish(container, final)
+        with interrupts.critical():  # a swap and its check (and a swap back) are one step
+            _publish(container, final, expected, force)
         interrupts.note_published(final)
     except OSError as err:
         with suppress(OSError):  # a failed restore keeps the container: the next run retries it
             _finish(container, {"final": final.name})
-        raise OutputError(final, f"cannot write the output: {_reason(err)}") from None
-    except BaseException:
-        with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
-            _finish(container, {"final": final.name})
+        raise output_error(final, err) from None
+    except BaseException as err:
+        if getattr(err, "kept", None) is None:  # else the container holds what could not be put back
+            with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
+                _finish(container, {"final": final.name})
         raise
     shutil.rmtree(container, ignore_errors=True)
 
 
-def _reason(err: OSError) -> str:
-    """An OS error in a few words, with the file it concerns when that is not the output itself."""
-    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
-    return f"{text} ({err.filename})" if err.filename else text
+@contextmanager
+def atomic_file(final: Path, *, why_kept=lambda _path: "exists already"):
+    """Yield a temporary path (in a hidden directory beside ``final``) that becomes ``final`` only if the block
+    succeeds; nothing half written is ever under ``final``.
+
+    What is at ``final`` now is replaced only when ``why_kept(final)`` returns None (slamobs wrote it and the
+    command may replace it); its reason otherwise is the one-line refusal, before anything is written. At the
+    swap only that same entry is replaced, and something that appeared meanwhile is kept (:func:`publish`). OS
+    errors (a full disk) are one line naming ``final`` (:func:`pipeline.errors.output_error`).
+    """
+    from slamobs.pipeline import interrupts
+
+    final = Path(final)
+    check_name(final)
+    expected = identity(final)
+    if expected is not None and (why := why_kept(final)) is not None:
+        raise OutputError(final, why)
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        with interrupts.critical():  # a signal in between would leave it behind
+            container = Path(tempfile.mkdtemp(prefix=temporary_prefix(final, "."), suffix=".tmp", dir=final.parent))
+    except OSError as err:
+        raise output_error(final, err, "cannot create the output") from None
+    kept = None
+    try:
+        yield container / final.name
+        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
+        with interrupts.critical():
+            publish(container / final.name, final, expected, aside=container / ".previous",
+                    owned=lambda p: None if (why := why_kept(p)) is None else (p.name, why))
+        interrupts.note_published(final)
+    except OSError as err:
+        raise output_error(final, err) from None
+    except OutputError as err:
+        kept = getattr(err, "kept", None)
+        raise
+    finally:
+        if kept is None:  # our new output, or the replaced one (checked to be slamobs's)
+            shutil.rmtree(container, ignore_errors=True)

@@ -12,6 +12,7 @@ import pytest
 from slamobs.pipeline.lie import quat_to_rot, so3_exp
 from slamobs.pipeline.observers import ObserverResult
 from slamobs.pipeline.errors import OutputError
+from slamobs.pipeline.paths import MANIFEST
 from slamobs.pipeline.writers import atomic_directory, read_metadata, result_tables, write_result
 from slamobs.schemas import TABLES, arrow_schema, table_spec
 
@@ -83,7 +84,7 @@ def test_atomic_directory_success_failure_and_existing_output(tmp_path):
     assert (out / "run.json").read_text() == "1" and not (out / "partial.txt").exists()
     with atomic_directory(out, force=True) as tmp:
         (tmp / "run.json").write_text("2")
-    assert sorted(p.name for p in out.iterdir()) == ["run.json"] and (out / "run.json").read_text() == "2"
+    assert sorted(p.name for p in out.iterdir()) == ["run.json", MANIFEST] and (out / "run.json").read_text() == "2"
     assert [p.name for p in tmp_path.iterdir()] == ["run"]  # no temporary or backup left behind
     # --force replaces only what slamobs wrote: a directory of the user's files is refused, untouched
     mine = tmp_path / "mine"
@@ -93,6 +94,12 @@ def test_atomic_directory_success_failure_and_existing_output(tmp_path):
         with atomic_directory(mine, force=True):
             pass
     assert (mine / "thesis.tex").read_text() == "precious"
+    # ... and one of its own changed since: a manifest lists every file slamobs wrote with its size
+    assert json.loads((out / MANIFEST).read_text())["files"] == {"run.json": 1}
+    (out / "run.json").write_text("22")
+    with pytest.raises(OutputError, match="run.json is changed since slamobs wrote it"):
+        with atomic_directory(out, force=True):
+            pass
 
 
 def test_schema_files_are_valid_json_with_units():

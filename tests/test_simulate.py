@@ -11,6 +11,7 @@ from click.testing import CliRunner
 from rosbags.highlevel import AnyReader
 
 from slamobs.cli.simulate_cmd import simulate as simulate_cmd
+from slamobs.pipeline.errors import OutputError, ResourceError
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots
 from slamobs.pipeline.simulate import logwriter
 from slamobs.pipeline.simulate.camera import CameraSim
@@ -245,18 +246,39 @@ def test_failed_write_leaves_nothing(tmp_path, monkeypatch, container, name):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_existing_output_is_kept_unless_overwrite(tmp_path):
+@pytest.mark.parametrize("name", ["a.mcap", "a.bag", "a_ros2"])
+def test_existing_output_is_kept_unless_overwrite_and_ours(tmp_path, name):
+    """``overwrite`` replaces only a log written here (issue 28: `simulate --force` deleted whatever was there)."""
     sim = simulate("circle", duration=1.0)
-    target = tmp_path / "a.mcap"
+    target = tmp_path / name
     target.write_text("precious")
-    with pytest.raises(FileExistsError):
-        write_log(sim, target)
-    assert target.read_text() == "precious"
+    for overwrite in (False, True):
+        with pytest.raises(OutputError, match="exists already" if not overwrite else "not a log slamobs simulate"):
+            write_log(sim, target, overwrite=overwrite)
+        assert target.read_text() == "precious"
+    target.unlink()
+    write_log(sim, target)
     write_log(sim, target, overwrite=True)
     with AnyReader([target]) as reader:
         assert reader.message_count == sum(sim.topic_counts().values())
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
     with pytest.raises(ValueError, match="container"):
         write_log(sim, tmp_path / "b.bag", "zip")
+
+
+def test_a_full_disk_is_one_line_naming_the_log(tmp_path, monkeypatch):
+    """A full disk said "No space left on device" without the file (issue 28); now a ResourceError naming it."""
+    import errno
+
+    def full(*_args, **_kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(logwriter, "_write_mcap", full)
+    monkeypatch.setitem(logwriter._WRITERS, "mcap", full)
+    target = tmp_path / "a.mcap"
+    with pytest.raises(ResourceError, match="No space left on device") as err:
+        write_log(simulate("circle", duration=1.0), target)
+    assert err.value.path == str(target) and list(tmp_path.iterdir()) == []
 
 
 # --------------------------------------------------------------------------- CLI

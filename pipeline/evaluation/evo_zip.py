@@ -10,20 +10,20 @@ from __future__ import annotations
 import io
 import json
 import os
-import tempfile
 import zipfile
 from pathlib import Path
 
 import numpy as np
 
-from slamobs.pipeline import interrupts
 from slamobs.pipeline.evaluation.trajectory_error import ErrorResult
+from slamobs.pipeline.writers import atomic_file
 
 
 def _write_zip(target, result: ErrorResult) -> None:
     """The archive of ``result`` into ``target`` (a path or a binary file object), one array at a time."""
     info = {"title": result.title, "ref_name": result.ref_name, "est_name": result.est_name, "label": result.label}
     with zipfile.ZipFile(target, "w") as archive:
+        archive.comment = COMMENT
         archive.writestr("info.json", json.dumps(info))
         archive.writestr("stats.json", json.dumps(result.evo_stats))
         for name, array in {"error_array": result.errors, **result.arrays}.items():
@@ -40,22 +40,32 @@ def result_zip_bytes(result: ErrorResult) -> bytes:
     return buf.getvalue()
 
 
+#: The zip comment of an archive slamobs wrote: only such an archive is replaced by a later ``--save-results``.
+COMMENT = b"written by slamobs"
+
+
 def save_result_zip(path: str | Path, result: ErrorResult) -> Path:
-    """Write the archive to ``path`` atomically (temporary file in the same directory, then rename), streamed
-    into the file rather than built in memory."""
+    """Write the archive to ``path`` atomically (:func:`pipeline.writers.atomic_file`), streamed into the file
+    rather than built in memory. An existing ``path`` is replaced only when it is an archive slamobs wrote."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "wb") as f:
+    with atomic_file(path, why_kept=why_kept) as tmp:
+        with open(tmp, "wb") as f:
             _write_zip(f, result)
-        os.chmod(tmp, 0o644)
-        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
-        os.replace(tmp, path)
-        interrupts.note_published(path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)
     return path
+
+
+def why_kept(path: Path) -> str | None:
+    """Why ``path`` must not be replaced: anything but an archive slamobs wrote (evo's own included) is the user's."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            if archive.comment == COMMENT:
+                return None
+    except (OSError, zipfile.BadZipFile):
+        pass
+    return "exists and is not a result archive slamobs wrote: it is kept; remove it or choose another --save-results"
 
 
 def load_result_zip(path: str | Path) -> tuple[dict, dict, dict[str, np.ndarray]]:

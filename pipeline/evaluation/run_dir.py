@@ -20,13 +20,17 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from slamobs.pipeline import interrupts
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, OutputError
+from slamobs.pipeline.paths import check_utf8, read_manifest
 from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
 from slamobs.pipeline.streams import PoseStream
+from slamobs.pipeline.writers import update_manifest
 
 if TYPE_CHECKING:
     import pandas as pd
 
+#: The tables of a run directory a report reads (every run writes them).
+RUN_TABLES = ("poses", "biases", "landmarks")
 #: The exports a report writes (``mcap`` is written by ``slamobs export`` or a run).
 REPORT_EXPORTS = ("tum", "evo")
 
@@ -82,6 +86,7 @@ def _json_kind(value: Any) -> str:
 def load_run(run_dir: str | Path) -> RunTables:
     """``run.json`` and the Parquet tables of a run directory."""
     run_dir = Path(run_dir)
+    check_utf8(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
         raise InputError(run_dir, "not a run directory (no run.json)")
@@ -91,6 +96,10 @@ def load_run(run_dir: str | Path) -> RunTables:
     in_dataset = run_tables(run_dir)  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
     if in_dataset is None and not (run_dir / "poses.parquet").is_file():
         raise InputError(run_dir, "run directory has no poses.parquet")
+    for name in RUN_TABLES if in_dataset is None else ():
+        if not (run_dir / f"{name}.parquet").is_file():  # a report without it would drop its section and files
+            raise InputError(run_dir / f"{name}.parquet", "missing: every run writes this table; the report needs "
+                                                          "it (run the log again)")
 
     def table(name: str) -> pd.DataFrame | None:
         if in_dataset is not None:
@@ -188,16 +197,33 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
     new set lacks are removed afterwards (a stale plot must not pass for the new report's)."""
     moved = []
     names = {p.name for p in staged.iterdir()}
+    _check_own(run_dir, sorted(names | set(owned)))
     interrupts.check()  # a pending Ctrl-C/SIGTERM replaces nothing
     with interrupts.critical():  # one arriving now waits until the set is whole
         for p in sorted(staged.iterdir()):
             os.replace(p, run_dir / p.name)
             moved.append(run_dir / p.name)
-        for name in owned:
-            if name not in names and (run_dir / name).is_file():
-                (run_dir / name).unlink()
+        removed = [name for name in owned if name not in names and (run_dir / name).is_file()]
+        for name in removed:
+            (run_dir / name).unlink()
+        update_manifest(run_dir, moved, removed)  # these files are still the run's (a later --force replaces them)
     interrupts.note_published(run_dir)
     return moved
+
+
+def _check_own(run_dir: Path, names: list[str]) -> None:
+    """Refuse (before anything is replaced) when a file the report would replace or remove is not the one slamobs
+    wrote: in a run directory with a manifest, listed there with its size (an edited report.md is the user's)."""
+    doc = read_manifest(run_dir)
+    if doc is None:
+        return
+    for name in names:
+        path = run_dir / name
+        if os.path.lexists(path):
+            size = os.lstat(path).st_size if path.is_file() and not path.is_symlink() else None
+            if doc["files"].get(name) != size:
+                raise OutputError(path, "not written by slamobs, or changed since: the report replaces only its own "
+                                        "files; move it away and report again")
 
 
 def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path, exports: tuple[str, ...]) -> None:

@@ -109,6 +109,22 @@ def _one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
+def mcap_library(head: bytes) -> str:
+    """The ``library`` of an MCAP file's header record (the program that wrote it) from the file's first bytes; ""
+    when they are not an MCAP file's."""
+    magic = b"\x89MCAP0\r\n"
+    try:
+        if not head.startswith(magic) or head[8] != 0x01:
+            return ""
+        at = 8 + 1 + 8
+        profile = int.from_bytes(head[at : at + 4], "little")
+        at += 4 + profile
+        size = int.from_bytes(head[at : at + 4], "little")
+        return head[at + 4 : at + 4 + size].decode("utf-8", "replace")
+    except IndexError:
+        return ""
+
+
 def detect_container(path: str | Path) -> Container:
     """Recognise the container of ``path`` from its content.
 

@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Iterator
-from functools import cached_property
+from functools import cached_property, partial
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +23,6 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
-from slamobs.pipeline import interrupts
 from slamobs.pipeline.readers.fastdecode import leaf_offsets, make_plan
 from slamobs.pipeline.simulate.sensors import (
     FRAME_BODY,
@@ -471,6 +469,7 @@ def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
 def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
     ts = make_typestore(ros1=False)
     with Bag2Writer(path, version=9) as writer:
+        writer.set_custom_data(*WRITER_ROS2)
         conns = {
             tp: writer.add_connection(
                 tp, typ, typestore=ts, offered_qos_profiles=[_LATCHED_QOS] if tp in LATCHED else []
@@ -485,7 +484,7 @@ def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
     ts = make_typestore(ros1=False)
     with path.open("xb") as stream:
         writer = McapWriter(stream, compression=CompressionType.ZSTD)
-        writer.start(profile="ros2", library="slamobs-simulate")
+        writer.start(profile="ros2", library=WRITER_MCAP)
         channels: dict[str, int] = {}
         for tp, typ in _types_of(sim).items():
             msgdef, _ = ts.generate_msgdef(typ, ros_version=2)
@@ -535,11 +534,47 @@ def write_raw_log(path: Path, container: str, topics: dict[str, list[tuple[int, 
     return path
 
 
-def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path)
-    elif path.exists() or path.is_symlink():
-        path.unlink()
+#: How a simulated log names its writer: the MCAP header's library, every ROS1 connection's caller id, the rosbag2
+#: metadata's custom data. ``--force`` replaces only a log that carries it (anything else is the user's).
+WRITER_MCAP, WRITER_CALLERID, WRITER_ROS2 = "slamobs-simulate", "/slamobs_simulate", ("writer", "slamobs-simulate")
+
+
+def why_kept(path: Path, *, overwrite: bool) -> str | None:
+    """Why the existing ``path`` must not be replaced by a new log: anything without ``overwrite``, and anything
+    but a log ``slamobs simulate`` wrote with it."""
+    if not overwrite:
+        return "exists already (use --force to replace it)"
+    if _simulated(Path(path)):
+        return None
+    return ("exists and is not a log slamobs simulate wrote: --force replaces only those; it is kept, remove it or "
+            "choose another -o")
+
+
+def _simulated(path: Path) -> bool:
+    """Whether ``path`` is a log this module wrote (see :data:`WRITER_MCAP`), holding nothing else."""
+    from slamobs.pipeline.readers.container import mcap_library
+
+    try:
+        if path.is_symlink():
+            return False
+        if path.is_dir():
+            import yaml
+
+            meta = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+            files = {"metadata.yaml", *meta.get("relative_file_paths", [])}
+            key, value = WRITER_ROS2
+            return (meta.get("custom_data") or {}).get(key) == value and set(os.listdir(path)) <= files
+        with open(path, "rb") as f:
+            head = f.read(4096)
+        if head.startswith(b"#ROSBAG V2.0"):
+            from rosbags.rosbag1 import Reader
+
+            with Reader(path) as reader:
+                ids = {c.ext.callerid for c in reader.connections}
+            return ids == {WRITER_CALLERID}
+        return mcap_library(head) == WRITER_MCAP
+    except Exception:  # noqa: BLE001 - unreadable, damaged or foreign: not ours
+        return False
 
 
 def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None = None, *,
@@ -548,26 +583,17 @@ def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None 
 
     A :class:`Simulation` is generated and written piece by piece: memory stays bounded for any duration.
 
-    Refuses to replace an existing path unless ``overwrite``. Nothing is left behind if writing fails.
+    Refuses to replace an existing path unless ``overwrite``, and then replaces only a log written here
+    (:func:`why_kept`). Nothing is left behind if writing fails; a full disk is one line naming ``path``.
     """
+    from slamobs.pipeline.writers import atomic_file
+
     final = Path(path)
     container = infer_container(final) if container is None else container
     if container not in _WRITERS:
         raise ValueError(f"unknown container {container!r}; expected one of {', '.join(CONTAINERS)}")
-    if (final.exists() or final.is_symlink()) and not overwrite:
-        raise FileExistsError(f"{final} exists already (use overwrite)")
-    final.parent.mkdir(parents=True, exist_ok=True)
-    tmpdir = Path(tempfile.mkdtemp(prefix=f".{final.name}.", suffix=".tmp", dir=final.parent))
-    try:
-        tmp = tmpdir / final.name
+    with atomic_file(final, why_kept=partial(why_kept, overwrite=overwrite)) as tmp:
         _WRITERS[container](sim, tmp)
-        interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
-        if final.exists() or final.is_symlink():
-            _remove(final)
-        os.replace(tmp, final)
-        interrupts.note_published(final)
-    finally:
-        shutil.rmtree(tmpdir, ignore_errors=True)
     return final
 
 

@@ -116,7 +116,7 @@ def _prepare_out(out: Path, inputs: list, force: bool) -> bool:
     from slamobs.pipeline.paths import check_output
 
     resume = (out / JOURNAL).is_file()
-    check_output(out, inputs, force=resume or force)
+    check_output(out, inputs, force=force, in_place=resume and not force)  # --force: only a tune's own files
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as err:
