@@ -217,9 +217,9 @@ class _Messages:
 
 
 def _latched_qos() -> str:
-    from slamobs.pipeline.simulate.logwriter import _LATCHED_QOS_YAML
+    from slamobs.pipeline.simulate.logwriter import LATCHED_QOS_YAML
 
-    return _LATCHED_QOS_YAML
+    return LATCHED_QOS_YAML
 
 
 def _read(run_dir: Path, name: str):
