@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.run import prepare_log, run_prepared
 from slamobs.pipeline.simulate import get_scenario, simulation, write_log

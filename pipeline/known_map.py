@@ -224,8 +224,7 @@ def map_start(aligned, known: KnownMap) -> MapStart:
 
 
 def _start_pose(aligned, xyz: np.ndarray, mapped: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
-    from slamobs.pipeline.evaluation.align import umeyama
-    from slamobs.pipeline.simulate.scenarios import integrate_body_twists
+    from slamobs.pipeline.lie import integrate_body_twists, umeyama
 
     offsets, idx = aligned.det_offsets, aligned.det_idx
     for f in range(aligned.det_t_ns.shape[0]):

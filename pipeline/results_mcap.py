@@ -242,9 +242,9 @@ def _marker_ids(ids: np.ndarray, known: np.ndarray) -> np.ndarray:
 
 
 def _latched_qos() -> str:
-    from slamobs.pipeline.simulate.logwriter import _LATCHED_QOS_YAML
+    from slamobs.pipeline.simulate.logwriter import LATCHED_QOS_YAML
 
-    return _LATCHED_QOS_YAML
+    return LATCHED_QOS_YAML
 
 
 #: The columns of each table this module reads (schemas/<table>.json describes them all).

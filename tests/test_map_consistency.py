@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.evaluation.metrics import landmark_errors
 from slamobs.pipeline.evaluation.slam_metrics import map_only_alignment
 from slamobs.pipeline.observers import ObserverOptions

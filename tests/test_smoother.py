@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.lie import rotation_angle, se3_exp, so3_exp, so3_log
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.estimators import get_estimator

@@ -305,8 +305,7 @@ class Stepper:
         """Re-anchor the pose to the map at segment start ``iv``: the least-squares rigid fit of the first
         frame within ``max_meas_age`` that sees three or more mapped landmarks (not all on a line), carried
         back to the segment start with the bias-corrected odometry. False when no frame qualifies."""
-        from slamobs.pipeline.evaluation.align import umeyama
-        from slamobs.pipeline.lie import se3_exp
+        from slamobs.pipeline.lie import se3_exp, umeyama
 
         s, st = self.stream, self.state
         t_b = self.vel_t[iv]

@@ -6,7 +6,7 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
 ``R̃ = R̂Rᵀ, P̃ = P̂ − R̃P, p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is that of
 ``(ξ_R, ξ_P, b̃_Ω, b̃_V, ξ_1..ξ_n)``.
 
-* Propagation (velocity samples, linear between samples: :func:`pipeline.smoother.preintegration.twist_at`):
+* Propagation (velocity samples, linear between samples: :func:`pipeline.observers.shared_steps.twist_at`):
   ``X̂ ← X̂ exp(Δt [Ω_m − b̂_Ω; V_m − b̂_V])`` at the mid-point of each step. The error obeys
   ``ξ̇ = Ad_X̂ (b̃ + n)`` (``Ad_X̂`` maps a body twist ``(δω, δv)`` to ``(R̂δω, R̂δv + [P̂]×R̂δω, [p̂_i]×R̂δω)``): no
   state-dependent term in the group block, which is what makes the filter consistent. The transition over
@@ -38,8 +38,7 @@ from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper
-from slamobs.pipeline.observers.shared_steps import record_row
-from slamobs.pipeline.smoother.preintegration import twist_at
+from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1

@@ -143,10 +143,9 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
 
     from slamobs.pipeline.batch.identity import content_hash
     from slamobs.pipeline.config import with_observer
-    from slamobs.pipeline.estimators import get_estimator
     from slamobs.pipeline.paths import check_input
     from slamobs.pipeline.readers.container import detect_container
-    from slamobs.pipeline.run import _resolved_spec, run_inputs
+    from slamobs.pipeline.run import resolve_estimator, run_inputs
     from slamobs.pipeline.tune import results
     from slamobs.pipeline.tune.worker import run_trial_log
 
@@ -155,8 +154,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
     if options.trials < 1:
         raise InputError("--trials", "needs at least 1 trial")
     config = with_observer(options.config, options.observer)
-    spec = _resolved_spec(config)
-    spec = get_estimator(spec.name)
+    spec = resolve_estimator(config)
     if not logs:
         raise InputError("LOGS", "no log given")
     paths = []
