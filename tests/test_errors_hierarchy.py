@@ -34,6 +34,7 @@ EXPECTED = {
     ("pipeline.errors", "GainError"): BadConfig,
     ("pipeline.errors", "ResourceError"): ResourceFailure,
     ("pipeline.readers.container", "DamagedError"): BadInput,
+    ("pipeline.readers.container", "TimeRangeError"): BadInput,
     ("pipeline.readers.fastdecode", "DecodeError"): BadInput,
     ("pipeline.vision.detector", "ImageError"): BadInput,
     ("pipeline.observers.base", "ObserverDiverged"): BadInput,

@@ -302,7 +302,7 @@ class DamagedError(BadInput):
 _TIME_RANGE = "outside 0 to 2^63 ns (1970 to 2262; a uint64 time at or past 2^63 would be read as negative)"
 
 
-class TimeRangeError(Exception):
+class TimeRangeError(BadInput):
     """Record times an int64 nanosecond count cannot hold; becomes a one-line InputError naming the log."""
 
 
