@@ -74,3 +74,24 @@ def test_readme_module_map_lists_exactly_the_modules():
     assert not twice, f"listed more than once: {twice}"
     assert not tree - set(rows), f"modules missing from the README's module map: {sorted(tree - set(rows))}"
     assert not set(rows) - tree, f"the README's module map lists modules that do not exist: {sorted(set(rows) - tree)}"
+
+
+#: A repository path named in prose: a top-level folder of the repository, then a file or folder name.
+PATH_REF = re.compile(r"(?<![\w./-])((?:pipeline|cli|schemas|tests|benchmarks|docs|sample_logs|\.ci)/[\w./-]*\w)")
+
+
+def test_named_files_exist():
+    """Files the code, the docs and pyproject.toml name exist (tests are left out: they name files they make)."""
+    missing = []
+    for path in _files(".py", ".md", ".toml"):
+        rel = path.relative_to(ROOT)
+        if rel.parts[0] == "tests":
+            continue
+        for i, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), 1):
+            for m in PATH_REF.finditer(line):
+                ref = m.group(1)
+                if re.search(r"[A-Z]{4}|_x\.|_$|\*|\{", ref):  # placeholders: benchmarks/NAME.py, tests/test_x.py
+                    continue
+                if not any(p.exists() for p in (ROOT / ref, path.parent / ref, ROOT / "pipeline" / ref)):
+                    missing.append(f"{rel.as_posix()}:{i}: {ref}")
+    assert not missing, "files named that do not exist:\n" + "\n".join(missing)
