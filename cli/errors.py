@@ -49,7 +49,7 @@ EXIT_CODES: dict[type[SlamobsError], int] = {
 
 def exit_code(err: SlamobsError) -> int:
     """The exit code :data:`EXIT_CODES` gives the kind of ``err``."""
-    code = EXIT_CODES[kind_of(err)]
+    code = EXIT_CODES.get(kind_of(err), INPUT_ERROR_EXIT)  # the root itself: as bad input
     return code + int(getattr(err, "signum", signal.SIGINT)) if isinstance(err, Interruption) else code
 
 
