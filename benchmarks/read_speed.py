@@ -4,7 +4,7 @@
 
 For every log (by default a simulated figure8 of ``--seconds`` at 200 Hz IMU in all three containers,
 plus every log of ``../shared/realdata`` when present) both readers decode every topic whose type is in
-``decode.LAYOUTS`` (Imu, Odometry, TwistStamped, MagneticField, PoseStamped, ...) into the same columns:
+``rows.LAYOUTS`` (Imu, Odometry, TwistStamped, MagneticField, PoseStamped, ...) into the same columns:
 header stamp, record time, the layout's values and the frame ids.
 
 * rosbags: ``AnyReader`` opens the log, ``messages()`` yields every message of those topics, each is
@@ -48,8 +48,10 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from slamobs.pipeline.readers import decode, tfdecode
-from slamobs.pipeline.readers.container import _Chunked, _read_unit, _sources, open_log
-from slamobs.pipeline.readers.decode import LAYOUTS, TfRows, decode_rows, decode_tf, frame_name
+from slamobs.pipeline.readers.chunks import Chunked, read_unit
+from slamobs.pipeline.readers.container import open_log, storages
+from slamobs.pipeline.readers.decode import decode_rows, decode_tf
+from slamobs.pipeline.readers.rows import LAYOUTS, TfRows, frame_name
 from slamobs.pipeline.readers.fastdecode import read_rows
 from slamobs.pipeline.readers.roles import TF_TYPES, topics_of
 from slamobs.pipeline.simulate import make_typestore, simulate, write_log
@@ -109,14 +111,14 @@ def _inflate_only(path: Path) -> float | None:
     with open_log(path) as reader:
         conns = [c for conns in (v for _, v in topics_of(reader).values()) for c in conns if c.msgtype in LAYOUTS]
         units = []
-        for storage, ids, _ in _sources(reader, conns):
-            if not isinstance(storage, _Chunked):
+        for storage, ids, _ in storages(reader, conns):
+            if not isinstance(storage, Chunked):
                 return None
             wanted = set(ids.ids.tolist())
             units += [(storage, u) for u in storage.units if not u.conns or u.conns & wanted]
         start = time.process_time()
         for storage, unit in units:
-            _read_unit(storage.bio, unit)
+            read_unit(storage.bio, unit)
         return time.process_time() - start
 
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.paths import check_utf8
-from slamobs.pipeline.readers.container import mcap_library
+from slamobs.pipeline.readers.mcap import mcap_library
 from slamobs.pipeline.writers import atomic_file, update_manifest
 
 RESULTS_MCAP = "results.mcap"

@@ -9,8 +9,10 @@ from rosbags.typesys import get_types_from_msg
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import fastdecode
-from slamobs.pipeline.readers.container import RawBatch, open_log
-from slamobs.pipeline.readers.decode import LAYOUTS, decode_rows
+from slamobs.pipeline.readers.container import open_log
+from slamobs.pipeline.readers.decode import decode_rows
+from slamobs.pipeline.readers.rows import LAYOUTS
+from slamobs.pipeline.readers.storage import RawBatch
 from slamobs.pipeline.readers.fastdecode import FRAME_ID, DecodeError, decode, layout_paths, make_plan, read_rows
 from slamobs.pipeline.readers.roles import topics_of
 from slamobs.pipeline.simulate import make_typestore, simulate, write_log
@@ -207,7 +209,7 @@ def test_undecodable_message_is_one_line_input_error(tmp_path):
 
 def _detection_message(ts, msgtype: str, rng: np.random.Generator, frame: str, n: int) -> object:
     """A detection array of ``n`` elements with random numbers (special floats included)."""
-    from slamobs.pipeline.readers.decode import ITEM_LAYOUTS
+    from slamobs.pipeline.readers.rows import ITEM_LAYOUTS
 
     layout = ITEM_LAYOUTS[msgtype]
     fields = dict(ts.fielddefs[msgtype][1])
@@ -222,7 +224,7 @@ def _detection_message(ts, msgtype: str, rng: np.random.Generator, frame: str, n
 def test_detection_arrays_identical_to_rosbags(msgtype, encoding):
     """Every element's id and position, for frame ids of every length (CDR alignment of the sequence moves with
     it) and 0..5 elements per message."""
-    from slamobs.pipeline.readers.decode import ITEM_LAYOUTS
+    from slamobs.pipeline.readers.rows import ITEM_LAYOUTS
     from slamobs.pipeline.readers.fastdecode import item_plan_for
 
     ts = make_typestore(ros1=encoding == "ros1")

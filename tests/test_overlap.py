@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from slamobs.pipeline.readers import container, fastdecode
+from slamobs.pipeline.readers import chunks, storage
 from slamobs.pipeline.writers import BackgroundWrites
 
 
@@ -28,20 +28,20 @@ def _batch(k: int, size: int = 1000):
 
 
 def test_prefetch_keeps_order_and_bounds_what_it_holds(monkeypatch):
-    monkeypatch.setattr(fastdecode, "GROUP_BYTES", 4000)  # ahead: PREFETCH_GROUPS groups of 4000 bytes
+    monkeypatch.setattr(storage, "GROUP_BYTES", 4000)  # ahead: PREFETCH_GROUPS groups of 4000 bytes
     loaded = []
 
     def load(unit):
         loaded.append(unit.k)
         return _batch(unit.k)
 
-    it = container._prefetched(load, [_unit(k) for k in range(50)])
+    it = chunks.prefetched(load, [_unit(k) for k in range(50)])
     first = next(it)
     time.sleep(0.2)  # the loader runs ahead as far as it may
     ahead = len(loaded) - 1
     assert first.k == 0
     # the budget plus the unit it loaded before it saw the budget was used
-    assert ahead <= container.PREFETCH_GROUPS * 4000 // 1000 + 1, ahead
+    assert ahead <= chunks.PREFETCH_GROUPS * 4000 // 1000 + 1, ahead
     assert [b.k for b in it] == list(range(1, 50))
     assert not _threads("slamobs-chunk-reader")
 
@@ -49,12 +49,12 @@ def test_prefetch_keeps_order_and_bounds_what_it_holds(monkeypatch):
 def test_prefetch_raises_a_load_error_at_its_unit_and_stops():
     def load(unit):
         if unit.k == 3:
-            raise container.DamagedError("chunk 3 is damaged")
+            raise storage.DamagedError("chunk 3 is damaged")
         return _batch(unit.k)
 
     got = []
-    with pytest.raises(container.DamagedError, match="chunk 3"):
-        for b in container._prefetched(load, [_unit(k) for k in range(10)]):
+    with pytest.raises(storage.DamagedError, match="chunk 3"):
+        for b in chunks.prefetched(load, [_unit(k) for k in range(10)]):
             got.append(b.k)
     assert got == [0, 1, 2]
     assert not _threads("slamobs-chunk-reader")
@@ -68,7 +68,7 @@ def test_prefetch_closed_early_waits_for_its_thread():
         time.sleep(0.01)
         return _batch(unit.k, 10)
 
-    it = container._prefetched(load, [_unit(k) for k in range(10_000)])
+    it = chunks.prefetched(load, [_unit(k) for k in range(10_000)])
     assert next(it).k == 0
     started.wait(5)
     it.close()  # the caller stops (an error while decoding, Ctrl-C): nothing may read the file afterwards

@@ -25,10 +25,9 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from slamobs.cli.info_cmd import info
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import inspect_log, read_log
-from slamobs.pipeline.readers import container as container_module
+from slamobs.pipeline.readers import chunks, rosbag2_sqlite, storage
 from slamobs.pipeline.readers.container import damage_notes, open_log
-from slamobs.pipeline.readers.decode import LAYOUTS
-from slamobs.pipeline.readers import fastdecode
+from slamobs.pipeline.readers.rows import LAYOUTS
 from slamobs.pipeline.readers.fastdecode import read_rows
 from slamobs.pipeline.readers.roles import topics_of
 from slamobs.pipeline.simulate import expected_streams, make_typestore, simulate
@@ -133,8 +132,8 @@ def test_every_container_and_compression(tmp_path, sim, container, compression):
 @pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("ros2-sqlite3", "")])
 def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, compression):
     """Peak memory beyond the decoded columns is the same for a 3 s and a 12 s log (read chunk by chunk)."""
-    monkeypatch.setattr(container_module, "_SQL_BYTES", CHUNK)  # sqlite rows come in batches like chunks
-    monkeypatch.setattr(fastdecode, "GROUP_BYTES", CHUNK)  # chunks are decoded in groups of (16 MB) bytes
+    monkeypatch.setattr(rosbag2_sqlite, "SQL_BYTES", CHUNK)  # sqlite rows come in batches like chunks
+    monkeypatch.setattr(storage, "GROUP_BYTES", CHUNK)  # chunks are decoded in groups of (16 MB) bytes
     overhead = []
     for seconds in (3.0, 12.0):
         name = f"{seconds:g}" + {"bag": ".bag", "mcap": ".mcap"}.get(container, "_ros2")
@@ -152,7 +151,7 @@ def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, 
         overhead.append(peak - columns)
     # the loading thread may hold PREFETCH_GROUPS decoding groups and the chunk in hand ahead of the decoder: a
     # constant, whichever log it reads ahead of (the short one may end before it is reached)
-    ahead = (container_module.PREFETCH_GROUPS + 1) * CHUNK
+    ahead = (chunks.PREFETCH_GROUPS + 1) * CHUNK
     assert overhead[1] < 1.25 * overhead[0] + 64 * 1024 + ahead, overhead
 
 

@@ -11,7 +11,8 @@ from rosbags.typesys import get_types_from_msg
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import decode, read_log, tfdecode
 from slamobs.pipeline.readers.container import open_log
-from slamobs.pipeline.readers.decode import decode_tf, frame_name
+from slamobs.pipeline.readers.decode import decode_tf
+from slamobs.pipeline.readers.rows import TfRows, frame_name
 from slamobs.pipeline.readers.fastdecode import DecodeError
 from slamobs.pipeline.readers.roles import TF1, TF2, TF_TYPES, topics_of
 from slamobs.pipeline.readers.tfdecode import decode_batch, tf_layout
@@ -197,13 +198,13 @@ def write_tf_log(path: Path, container: str, topics: dict[str, list[tuple[int, b
     return write_raw_log(path, container, topics, msgtype, ts, chunk_threshold=16 << 10)
 
 
-def fallback(reader, path, topic, conns, monkeypatch) -> decode.TfRows:
+def fallback(reader, path, topic, conns, monkeypatch) -> TfRows:
     with monkeypatch.context() as patch:
         patch.setattr(tfdecode, "tf_layout", lambda *args: None)
         return decode_tf(reader, path, topic, conns)
 
 
-def assert_identical(got: decode.TfRows, want: decode.TfRows, where: str) -> None:
+def assert_identical(got: TfRows, want: TfRows, where: str) -> None:
     for name in ("t_ns", "rec_ns"):
         np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=f"{where} {name}")
     assert got.values.shape == want.values.shape and got.values.dtype == want.values.dtype == np.float64, where

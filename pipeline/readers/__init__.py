@@ -22,8 +22,6 @@ from .cameradecode import decode_camera_info, decode_corners, detect_in_images
 from .container import Container, damage_notes, detect_container, open_log
 from .decode import (
     VEC3_ROLES,
-    Rows,
-    TfRows,
     decode_detections,
     decode_rows,
     decode_sim_truth,
@@ -39,6 +37,7 @@ from .decode import (
 from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
 from .msgdefs import complete_definitions, require_types
 from .roles import IMAGE_TYPES, ODOMETRY, ROLES, TAG_CORNER_TYPES, TF_TYPES, accepted_types, select_roles, topics_of
+from .rows import Rows, TfRows
 
 if TYPE_CHECKING:
     from collections.abc import Callable

@@ -25,8 +25,9 @@ from slamobs.pipeline.streams import CornerStream
 from slamobs.pipeline.vision.tagpose import winding
 
 from .container import iter_raw, require_definitions
-from .decode import Cleaning, _Frames, _layout_errors, _messages, clean_frames, plural
+from .decode import Cleaning, clean_frames, decoded_messages, layout_errors, plural
 from .roles import IMAGE
+from .rows import Frames
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Mapping
@@ -108,7 +109,7 @@ class _CornerFrames:
         self.ids.extend(int(i) for i in ids)
         self.corners.append(np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2))
 
-    def stream(self, topic: str, frames: _Frames, source: str) -> tuple[CornerStream, Cleaning]:
+    def stream(self, topic: str, frames: Frames, source: str) -> tuple[CornerStream, Cleaning]:
         corners = np.concatenate(self.corners) if self.corners else np.zeros((0, 4, 2))
         t, rec, offsets, ids, corners, frame_id, cleaning = clean_frames(
             np.asarray(self.t_ns, np.int64), np.asarray(self.rec_ns, np.int64), np.asarray(self.lengths, np.int64),
@@ -121,10 +122,10 @@ def decode_corners(reader: AnyReader, path: str | Path, topic: str,
     """A tag corner topic (``CORNER_LAYOUTS``) as a corner stream in OpenCV's corner order, cleaned."""
     msgtype = next(iter(connections)).msgtype
     layout = CORNER_LAYOUTS[msgtype]
-    frames, acc = _Frames(), _CornerFrames()
+    frames, acc = Frames(), _CornerFrames()
     mirrored = 0
-    with _layout_errors(path, connections):
-        for rec, msg in _messages(reader, path, connections):
+    with layout_errors(path, connections):
+        for rec, msg in decoded_messages(reader, path, connections):
             items = getattr(msg, layout.items)
             ids = np.array([int(getattr(it, layout.ident)) for it in items], np.int64)
             corners = np.array([layout.corners(it) for it in items], np.float64).reshape(-1, 4, 2)
@@ -143,8 +144,8 @@ def decode_camera_info(reader: AnyReader, path: str | Path, topic: str,
     from slamobs.pipeline.vision.cameras import from_camera_info
 
     last_error: InputError | None = None
-    with _layout_errors(path, connections):
-        for k, (_, msg) in enumerate(_messages(reader, path, connections)):
+    with layout_errors(path, connections):
+        for k, (_, msg) in enumerate(decoded_messages(reader, path, connections)):
             try:
                 return from_camera_info(msg, topic, path), ([f"{topic}: first {k} messages uncalibrated, skipped"]
                                                             if k else [])
@@ -180,7 +181,7 @@ class _Camera:
     msgtype: str
     period_ns: int
     last_ns: int | None = None
-    frames: _Frames | None = None
+    frames: Frames | None = None
     acc: _CornerFrames | None = None
     size: tuple[int, int] | None = None
     skipped: int = 0
@@ -188,7 +189,7 @@ class _Camera:
     depth: bool = False
 
     def __post_init__(self) -> None:
-        self.frames, self.acc, self.bad = _Frames(), _CornerFrames(), Counter()
+        self.frames, self.acc, self.bad = Frames(), _CornerFrames(), Counter()
 
 
 def detect_in_images(

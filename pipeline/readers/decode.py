@@ -1,7 +1,7 @@
 """Message decoding into NumPy columns, and the cleaning every stream gets before it leaves the reader.
 
-The layouts of the stream messages and detection arrays live here (``LAYOUTS``, ``ITEM_LAYOUTS`` and the
-``decode_*`` functions), and :mod:`.fastdecode` reads its vectorised plans from the same tables; the layouts of
+The layouts of the stream messages and detection arrays (``LAYOUTS``, ``ITEM_LAYOUTS``) are in :mod:`.rows`, where
+:mod:`.fastdecode` reads its vectorised plans from too, and the ``decode_*`` functions here; the layouts of
 tag corner messages are in :mod:`.cameradecode` (``CORNER_LAYOUTS``), the covariance fields the reference
 estimators weight by in :mod:`.covariance`, and the TF walker in :mod:`.tfdecode`.
 Messages are deserialised with the typestore rosbags builds from the definitions stored in the log, so custom
@@ -29,22 +29,10 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
+from . import fastdecode, tfdecode
 from .container import iter_raw, require_definitions
-from .roles import (
-    APRILTAG_ROS,
-    FIDUCIALS,
-    FIDUCIALS_LEGACY,
-    IMU,
-    MAGNETIC_FIELD,
-    MARKER_ARRAY,
-    ODOMETRY,
-    POSE_ARRAY,
-    POSE_COV_STAMPED,
-    POSE_STAMPED,
-    TRANSFORM_STAMPED,
-    TWIST_COV_STAMPED,
-    TWIST_STAMPED,
-)
+from .roles import APRILTAG_ROS, IMU, MAGNETIC_FIELD, MARKER_ARRAY, ODOMETRY, TWIST_COV_STAMPED, TWIST_STAMPED
+from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Notes, Rows, TfRows, frame_name, quat, vec
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
@@ -56,70 +44,6 @@ if TYPE_CHECKING:
 HEADER = "std_msgs/msg/Header"
 _NS = 1_000_000_000
 
-
-@dataclass(frozen=True)
-class Layout:
-    """How one message type becomes a row of float64 columns (named slices of the row)."""
-
-    columns: dict[str, slice]
-    width: int
-    row: Callable[[Any], tuple[float, ...]]
-    child: Callable[[Any], str] | None = None
-
-
-def _vec(v: Any) -> tuple[float, float, float]:
-    return (v.x, v.y, v.z)
-
-
-def _quat(q: Any) -> tuple[float, float, float, float]:
-    return (q.x, q.y, q.z, q.w)
-
-
-LAYOUTS: dict[str, Layout] = {
-    IMU: Layout(
-        {"angular_velocity": slice(0, 3), "linear_acceleration": slice(3, 6)},
-        6,
-        lambda m: (*_vec(m.angular_velocity), *_vec(m.linear_acceleration)),
-    ),
-    ODOMETRY: Layout(
-        {"linear": slice(0, 3), "angular": slice(3, 6), "position": slice(6, 9), "quat_xyzw": slice(9, 13)},
-        13,
-        lambda m: (
-            *_vec(m.twist.twist.linear),
-            *_vec(m.twist.twist.angular),
-            *_vec(m.pose.pose.position),
-            *_quat(m.pose.pose.orientation),
-        ),
-        child=lambda m: m.child_frame_id,
-    ),
-    TWIST_STAMPED: Layout(
-        {"linear": slice(0, 3), "angular": slice(3, 6)},
-        6,
-        lambda m: (*_vec(m.twist.linear), *_vec(m.twist.angular)),
-    ),
-    MAGNETIC_FIELD: Layout({"magnetic_field": slice(0, 3)}, 3, lambda m: _vec(m.magnetic_field)),
-    TWIST_COV_STAMPED: Layout(
-        {"linear": slice(0, 3), "angular": slice(3, 6)},
-        6,
-        lambda m: (*_vec(m.twist.twist.linear), *_vec(m.twist.twist.angular)),
-    ),
-    POSE_STAMPED: Layout(
-        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
-        7,
-        lambda m: (*_vec(m.pose.position), *_quat(m.pose.orientation)),
-    ),
-    POSE_COV_STAMPED: Layout(
-        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
-        7,
-        lambda m: (*_vec(m.pose.pose.position), *_quat(m.pose.pose.orientation)),
-    ),
-    TRANSFORM_STAMPED: Layout(
-        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
-        7,
-        lambda m: (*_vec(m.transform.translation), *_quat(m.transform.rotation)),
-        child=lambda m: m.child_frame_id,
-    ),
-}
 
 #: (role, type) -> (column of the layout, where the frame comes from: header ``frame`` or ``child``).
 VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
@@ -134,43 +58,9 @@ VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
     ("magnetic", MAGNETIC_FIELD): ("magnetic_field", "frame"),
 }
 
-def frame_name(frame: str) -> str:
-    """tf2 convention: frame ids carry no leading slash (ROS1 tf1 bags often have one)."""
-    return frame.lstrip("/")
-
-
 def plural(n: int, noun: str) -> str:
     """``1 stamp``, ``3 stamps``: counts in warnings."""
     return f"{n} {noun}" + ("s" if n != 1 else "")
-
-
-class _Frames:
-    """Per-message frame ids as small integer codes (strings never leave this module)."""
-
-    def __init__(self) -> None:
-        self.codes: dict[str, int] = {}
-
-    def code(self, frame: str) -> int:
-        return self.codes.setdefault(frame_name(frame), len(self.codes))
-
-    def names(self) -> list[str]:
-        return list(self.codes)
-
-
-@dataclass
-class Rows:
-    """Decoded columns of one topic, in record order."""
-
-    topic: str
-    msgtype: str
-    t_ns: np.ndarray  # (N,) int64 header stamps
-    rec_ns: np.ndarray  # (N,) int64
-    values: np.ndarray  # (N, width) float64
-    frame: np.ndarray  # (N,) int32 codes into frame_names
-    child: np.ndarray  # (N,) int32 codes into frame_names
-    frame_names: list[str]
-    counts: np.ndarray | None = None  # (N,) int64 elements per message (detection arrays)
-    items: np.ndarray | None = None  # (sum(counts), width) float64: ``ItemLayout.columns`` of every element
 
 
 @dataclass
@@ -208,7 +98,7 @@ def _deserialize(reader: AnyReader, path: str | Path, raw: bytes, conn: Connecti
         raise InputError(path, f"cannot decode {conn.msgtype} message: {reason}", conn.topic) from None
 
 
-def _messages(
+def decoded_messages(
     reader: AnyReader,
     path: str | Path,
     connections: Collection[Connection],
@@ -220,7 +110,7 @@ def _messages(
 
 
 @contextmanager
-def _layout_errors(path: str | Path, connections: Collection[Connection]) -> Iterator[None]:
+def layout_errors(path: str | Path, connections: Collection[Connection]) -> Iterator[None]:
     """A type whose stored definition lacks the fields we read (same name, other layout) is bad input."""
     try:
         yield
@@ -242,10 +132,8 @@ def decode_rows(reader: AnyReader, path: str | Path, topic: str, connections: Co
     chunk-wise from the raw bytes by :mod:`.fastdecode`; anything else (a log's own variant behind a
     dynamic array, a row function that computes) is deserialised message by message by rosbags.
     """
-    from .fastdecode import read_rows
-
     conns = list(connections)
-    if (fast := read_rows(reader, path, {topic: conns}).get(topic)) is not None:
+    if (fast := fastdecode.read_rows(reader, path, {topic: conns}).get(topic)) is not None:
         return fast
     msgtype = conns[0].msgtype
     layout = LAYOUTS[msgtype]
@@ -255,11 +143,11 @@ def decode_rows(reader: AnyReader, path: str | Path, topic: str, connections: Co
     values = np.empty((size, layout.width), np.float64)
     frame = np.empty(size, np.int32)
     child = np.zeros(size, np.int32)
-    frames = _Frames()
+    frames = Frames()
     row, child_of = layout.row, layout.child
     i = 0
-    with _layout_errors(path, conns):
-        for rec, msg in _messages(reader, path, conns):
+    with layout_errors(path, conns):
+        for rec, msg in decoded_messages(reader, path, conns):
             if i == size:  # counts in the index were short: grow
                 size *= 2
                 t_ns, rec_ns, frame, child = (np.resize(a, size) for a in (t_ns, rec_ns, frame, child))
@@ -385,45 +273,8 @@ def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
     return stream, cleaning
 
 
-#: Counted remarks of a decoder: (noun, rest) -> count, rendered "3 DELETE markers skipped".
-Notes = Counter[tuple[str, str]]
-
-
 def _render(notes: Notes) -> list[str]:
     return [f"{plural(n, noun)} {rest}" for (noun, rest), n in sorted(notes.items())]
-
-
-@dataclass(frozen=True)
-class ItemLayout:
-    """A detection array whose detections are the elements of one sequence field (fixed-layout elements)."""
-
-    items: str  # the sequence field
-    ident: tuple[str, ...] | None  # path of the id in an element; None: the element's index is the id
-    position: tuple[str, ...]  # path of the position (Point / Vector3) in an element
-
-    @property
-    def columns(self) -> tuple[tuple[str, ...], ...]:
-        """Element leaves read by the vectorised decoder: the id (if any), then x, y, z."""
-        return ((self.ident,) if self.ident else ()) + tuple((*self.position, a) for a in "xyz")
-
-    def detections(self, msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
-        """``(id, position)`` of every element of a deserialised message (the rosbags path)."""
-        for k, item in enumerate(getattr(msg, self.items)):
-            yield (k if self.ident is None else _field(item, self.ident)), _field(item, self.position)
-
-
-def _field(obj: Any, path: tuple[str, ...]) -> Any:
-    for name in path:
-        obj = getattr(obj, name)
-    return obj
-
-
-#: Detection types decoded straight from the bytes when their stored definition matches (else by rosbags).
-ITEM_LAYOUTS: dict[str, ItemLayout] = {
-    FIDUCIALS: ItemLayout("transforms", ("fiducial_id",), ("transform", "translation")),
-    FIDUCIALS_LEGACY: ItemLayout("transforms", ("fiducial_id",), ("transform", "translation")),
-    POSE_ARRAY: ItemLayout("poses", None, ("position",)),
-}
 
 
 def _apriltags(msg: Any, notes: Notes) -> Iterator[tuple[int, Any]]:
@@ -462,7 +313,7 @@ class _DetectionFrames:
         n = len(self.ids)
         for ident, pos in items:
             self.ids.append(int(ident))
-            self.xyz.extend(_vec(pos))
+            self.xyz.extend(vec(pos))
         self.t_ns.append(t_ns)
         self.rec_ns.append(rec_ns)
         self.frame.append(frame)
@@ -496,17 +347,16 @@ def decode_detections(
     and arrays without ADD markers are skipped. Marker ids are unique only within a namespace: ``marker_ns``
     keeps the markers of one namespace; without it, several namespaces on the topic are reported.
     """
-    from .fastdecode import read_rows
-
     msgtype = next(iter(connections)).msgtype
-    fast = read_rows(reader, path, {topic: connections}, [topic]).get(topic) if msgtype in ITEM_LAYOUTS else None
+    fast = (fastdecode.read_rows(reader, path, {topic: connections}, [topic]).get(topic) if msgtype in ITEM_LAYOUTS
+            else None)
     if fast is not None:
         return detection_stream(fast)
-    frames, acc, notes = _Frames(), _DetectionFrames(), Notes()
+    frames, acc, notes = Frames(), _DetectionFrames(), Notes()
     namespaces: set[str] = set()
-    with _layout_errors(path, connections):
+    with layout_errors(path, connections):
         if msgtype == MARKER_ARRAY:
-            for rec, msg in _messages(reader, path, connections):
+            for rec, msg in decoded_messages(reader, path, connections):
                 groups: dict[tuple[int, str], list[tuple[int, Any]]] = {}
                 for marker in msg.markers:
                     if marker.action != _MARKER_ADD:
@@ -522,7 +372,7 @@ def decode_detections(
                     acc.add(stamp, rec, frames.code(frame), items)
         else:
             items_of = DETECTIONS[msgtype]
-            for rec, msg in _messages(reader, path, connections):
+            for rec, msg in decoded_messages(reader, path, connections):
                 acc.add(_stamp(msg), rec, frames.code(msg.header.frame_id), items_of(msg, notes))
     stream, cleaning = acc.stream(topic, frames.names(), notes)
     if marker_ns is None and len(namespaces) > 1:
@@ -560,9 +410,7 @@ def decode_topics(
     one pass over the log (each chunk decompressed once), the others through rosbags. A detection topic comes
     back as rows for :func:`detection_stream` (decoded from the bytes; cleaned when the caller is ready for it)
     or as the stream :func:`decode_detections` made."""
-    from .fastdecode import read_rows
-
-    fast = read_rows(reader, path, {**rows, **detections}, [t for t, c in detections.items()
+    fast = fastdecode.read_rows(reader, path, {**rows, **detections}, [t for t, c in detections.items()
                                                              if next(iter(c)).msgtype in ITEM_LAYOUTS])
     got_rows = {t: fast[t] if t in fast else decode_rows(reader, path, t, c) for t, c in rows.items()}
     got_dets = {t: fast[t] if t in fast else decode_detections(reader, path, t, c, marker_ns)
@@ -647,19 +495,6 @@ def clean_frames(
             cleaning)
 
 
-@dataclass
-class TfRows:
-    """Every transform of a TF topic (``tf2_msgs/TFMessage`` or ROS1 ``tf/tfMessage``), in record order."""
-
-    topic: str
-    t_ns: np.ndarray  # (N,) int64 header stamps
-    rec_ns: np.ndarray  # (N,) int64
-    parent: np.ndarray  # (N,) int32 codes into frame_names
-    child: np.ndarray  # (N,) int32
-    values: np.ndarray  # (N, 7) translation xyz, quaternion xyzw
-    frame_names: list[str]
-
-
 #: TF topics with at least this many messages are decoded by :mod:`.tfdecode` (rosbags takes ~40 µs a message).
 TF_FAST_MESSAGES = 1000
 
@@ -673,24 +508,22 @@ def decode_tf(reader: AnyReader, path: str | Path, topic: str, connections: Coll
     are deserialised message by message by rosbags (the same values and frame numbering).
     """
     if sum(c.msgcount for c in connections) >= TF_FAST_MESSAGES:
-        from .tfdecode import read_tf
-
-        if (fast := read_tf(reader, path, topic, connections)) is not None:
+        if (fast := tfdecode.read_tf(reader, path, topic, connections)) is not None:
             return fast
-    frames = _Frames()
+    frames = Frames()
     t_ns: list[int] = []
     rec_ns: list[int] = []
     parent: list[int] = []
     child: list[int] = []
     values: list[tuple[float, ...]] = []
-    with _layout_errors(path, connections):
-        for rec, msg in _messages(reader, path, connections):
+    with layout_errors(path, connections):
+        for rec, msg in decoded_messages(reader, path, connections):
             for tf in msg.transforms:
                 t_ns.append(_stamp(tf))
                 rec_ns.append(rec)
                 parent.append(frames.code(tf.header.frame_id))
                 child.append(frames.code(tf.child_frame_id))
-                values.append((*_vec(tf.transform.translation), *_quat(tf.transform.rotation)))
+                values.append((*vec(tf.transform.translation), *quat(tf.transform.rotation)))
     return TfRows(
         topic,
         np.asarray(t_ns, np.int64),
@@ -858,8 +691,8 @@ def decode_sim_truth(
     connections: Collection[Connection],
 ) -> tuple[dict[int, np.ndarray], dict[str, np.ndarray], list[str]]:
     """Landmark and bias truth of a simulated log (JSON in a ``std_msgs/String``); the last message wins."""
-    with _layout_errors(path, connections):
-        texts = [str(msg.data) for _, msg in _messages(reader, path, connections)]
+    with layout_errors(path, connections):
+        texts = [str(msg.data) for _, msg in decoded_messages(reader, path, connections)]
     if not texts:
         return {}, {}, []
     warnings = [f"{topic}: {len(texts)} messages, using the last"] if len(texts) > 1 else []

@@ -8,7 +8,7 @@ message carries its own position array, and CDR alignment (relative to the end o
 encapsulation header) is applied to those arrays only where a string left it unknown.
 
 Which fields to read is not listed here: :func:`layout_paths` runs the row function of a
-``decode.LAYOUTS`` entry on a recording stand-in, so the layout table stays the one place naming them.
+``rows.LAYOUTS`` entry on a recording stand-in, so the layout table stays the one place naming them.
 Detection arrays (one header, then a sequence of fixed-layout elements such as
 ``fiducial_msgs/FiducialTransform``) are planned too: the prefix as above, then a compiled walk over the
 elements of every message (:class:`ItemPlan`). Types whose fields cannot be reached otherwise (a dynamic
@@ -26,7 +26,11 @@ import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 from rosbags.interfaces import Nodetype
 
-from slamobs.pipeline.errors import BadInput
+from slamobs.pipeline.errors import BadInput, InputError
+
+from .container import iter_batches, require_definitions
+from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Rows
+from .storage import grouped
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
@@ -36,8 +40,7 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    from .container import RawBatch
-    from .decode import Rows
+    from .storage import RawBatch
 
 Path_ = tuple[str, ...]
 
@@ -105,7 +108,7 @@ def layout_paths(
 
 
 @dataclass(frozen=True)
-class _Op:
+class Op:
     """One step of a plan: ``align`` then read a ``leaf`` / ``string`` into ``slot``, or ``skip`` bytes."""
 
     kind: str  # "leaf", "string" or "skip"
@@ -137,7 +140,7 @@ class _Leaves:
 class ItemPlan(_Leaves):
     """The fixed-layout elements of the sequence that follows a plan's prefix (one row of leaves each)."""
 
-    ops: tuple[_Op, ...]  # leaves and skips only
+    ops: tuple[Op, ...]  # leaves and skips only
     leaves: tuple[tuple[int, str], ...]
 
     @cached_property
@@ -160,20 +163,20 @@ class Plan(_Leaves):
 
     msgtype: str
     cdr: bool
-    ops: tuple[_Op, ...]
+    ops: tuple[Op, ...]
     leaves: tuple[tuple[int, str], ...]  # per leaf: (size, kind)
     nstrings: int
     items: ItemPlan | None = None  # the sequence right after ``ops``, if its elements are read
 
 
-def _walk(
+def walk_fields(
     typestore: Typestore,
     msgtype: str,
     prefix: Path_,
     cdr: bool,
     want: dict[Path_, int],
     strings: dict[Path_, int],
-    ops: list[_Op],
+    ops: list[Op],
     leaves: dict[int, tuple[int, str]],
     fields: Sequence[tuple[str, Any]] | None = None,
 ) -> bool:
@@ -181,39 +184,39 @@ def _walk(
     for name, (node, detail) in typestore.fielddefs[msgtype][1] if fields is None else fields:
         path = (*prefix, name)
         if node == _NAME:
-            if not _walk(typestore, detail, path, cdr, want, strings, ops, leaves):
+            if not walk_fields(typestore, detail, path, cdr, want, strings, ops, leaves):
                 return False
         elif node == _BASE:
             prim = detail[0]
             if prim == "string":
-                ops.append(_Op("string", 4 if cdr else 1, 0, strings.get(path, -1)))
+                ops.append(Op("string", 4 if cdr else 1, 0, strings.get(path, -1)))
             elif prim in _PRIMITIVES:
                 size, kind = _PRIMITIVES[prim]
                 slot = want.get(path, -1)
                 if slot >= 0:
                     leaves[slot] = (size, kind)
-                ops.append(_Op("leaf" if slot >= 0 else "skip", size if cdr else 1, size, slot))
+                ops.append(Op("leaf" if slot >= 0 else "skip", size if cdr else 1, size, slot))
             else:
                 return False
         elif node == _ARRAY and detail[0][0] == _BASE and detail[0][1][0] in _PRIMITIVES:
             size, _ = _PRIMITIVES[detail[0][1][0]]
-            ops.append(_Op("skip", size if cdr else 1, size * detail[1]))
+            ops.append(Op("skip", size if cdr else 1, size * detail[1]))
         elif node == _ARRAY and detail[0][0] == _NAME:
             for k in range(detail[1]):
-                if not _walk(typestore, detail[0][1], (*path, str(k)), cdr, want, strings, ops, leaves):
+                if not walk_fields(typestore, detail[0][1], (*path, str(k)), cdr, want, strings, ops, leaves):
                     return False
         else:
             return False
     return True
 
 
-def _merged(ops: list[_Op]) -> tuple[_Op, ...]:
+def merged_ops(ops: list[Op]) -> tuple[Op, ...]:
     """Runs of unwanted fixed fields become one skip (their alignment is implied)."""
-    merged: list[_Op] = []
+    merged: list[Op] = []
     for op in ops:
         last = merged[-1] if merged else None
         if op.kind == "skip" and last and last.kind == "skip" and op.align <= last.align and last.size % op.align == 0:
-            merged[-1] = _Op("skip", last.align, last.size + op.size)
+            merged[-1] = Op("skip", last.align, last.size + op.size)
         else:
             merged.append(op)
     return tuple(merged)
@@ -229,13 +232,13 @@ def _item_plan(typestore: Typestore, fields: Sequence[tuple[str, Any]], name: st
     if node != _SEQUENCE or detail[0][0] != _NAME:
         return None
     want = {path: k for k, path in enumerate(columns)}
-    ops: list[_Op] = []
+    ops: list[Op] = []
     leaves: dict[int, tuple[int, str]] = {}
-    if not _walk(typestore, detail[0][1], (), cdr, want, {}, ops, leaves) or len(leaves) != len(want):
+    if not walk_fields(typestore, detail[0][1], (), cdr, want, {}, ops, leaves) or len(leaves) != len(want):
         return None
     if any(op.kind == "string" for op in ops):
         return None
-    return index, ItemPlan(_merged(ops), tuple(leaves[k] for k in range(len(want))))
+    return index, ItemPlan(merged_ops(ops), tuple(leaves[k] for k in range(len(want))))
 
 
 def make_plan(
@@ -262,21 +265,21 @@ def make_plan(
     if len(want) != len(columns) + 2:
         return None
     string_slots = {path: k for k, path in enumerate(strings)}
-    ops: list[_Op] = []
+    ops: list[Op] = []
     leaves: dict[int, tuple[int, str]] = {}
     item_plan = None
     if items is None:
-        _walk(typestore, msgtype, (), cdr, want, string_slots, ops, leaves)  # may stop early: checked below
+        walk_fields(typestore, msgtype, (), cdr, want, string_slots, ops, leaves)  # may stop early: checked below
     else:
         found = _item_plan(typestore, fields[1], items[0], items[1], cdr)
-        if found is None or not _walk(typestore, msgtype, (), cdr, want, string_slots, ops, leaves,
+        if found is None or not walk_fields(typestore, msgtype, (), cdr, want, string_slots, ops, leaves,
                                       fields[1][: found[0]]):
             return None
         item_plan = found[1]
     found_strings = {op.slot for op in ops if op.kind == "string" and op.slot >= 0}
     if len(leaves) != len(want) or len(found_strings) != len(string_slots):
         return None
-    return Plan(msgtype, cdr, _merged(ops), tuple(leaves[k] for k in range(len(want))), len(string_slots),
+    return Plan(msgtype, cdr, merged_ops(ops), tuple(leaves[k] for k in range(len(want))), len(string_slots),
                 item_plan)
 
 
@@ -438,7 +441,7 @@ def _dedup(data, pos, length):  # pragma: no cover - compiled
     return codes, firsts[:k]
 
 
-def _strings(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
+def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """Per-string codes and the distinct strings in order of first appearance, coded in compiled code
     (:func:`_dedup`) however many distinct values a field has (a frame id takes a handful, tag frames
     hundreds).
@@ -501,7 +504,7 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
         t_ns[idx] = got[:, 0].astype(np.int64) * _NS + got[:, 1].astype(np.int64)
         values[idx] = got[:, 2:]
         for k, (pos, length) in enumerate(strings):
-            sub_codes, sub_names = _strings(data, pos, length)
+            sub_codes, sub_names = string_codes(data, pos, length)
             codes[k][idx] = sub_codes + len(names[k])
             names[k] += sub_names
     items = None
@@ -685,27 +688,6 @@ class _Columns:
         return TopicColumns(*cols, list(self.names), digest, counts, items)
 
 
-#: Decode batches of at least this many bytes: a chunk is often a few hundred kB, and each decode call costs
-#: a fixed amount of Python work per topic.
-GROUP_BYTES = 16 << 20
-
-
-def _grouped(batches: Iterable[RawBatch]) -> Iterator[RawBatch]:
-    """Consecutive batches joined until they hold ``GROUP_BYTES`` (the order of the messages is kept)."""
-    from .container import _concat
-
-    group: list[RawBatch] = []
-    size = 0
-    for batch in batches:
-        group.append(batch)
-        size += int(batch.data.shape[0])
-        if size >= GROUP_BYTES:
-            yield _concat(group)
-            group, size = [], 0
-    if group:
-        yield _concat(group)
-
-
 def read_columns(
     reader: AnyReader,
     path: str | Path,
@@ -722,10 +704,6 @@ def read_columns(
         InputError: Unreadable data, or a message that does not match its definition.
 
     """
-    from slamobs.pipeline.errors import InputError
-
-    from .container import iter_batches
-
     names = list(topics)
     conns: list[Connection] = []
     owner: list[int] = []
@@ -761,7 +739,7 @@ def read_columns(
     # are dealt to the caller's thread and one helper by message count, the helper's first.
     helper = ThreadPoolExecutor(1, thread_name_prefix="slamobs-decode") if len(names) > 1 else None
     try:
-        for batch in _grouped(iter_batches(reader, path, conns)):
+        for batch in grouped(iter_batches(reader, path, conns)):
             if helper is None:
                 decode_topic(0, batch, None)
                 continue
@@ -784,9 +762,7 @@ def read_columns(
 
 
 def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
-    """The plan reading a ``decode.LAYOUTS`` type's row and frames, None if it needs rosbags."""
-    from .decode import LAYOUTS
-
+    """The plan reading a ``rows.LAYOUTS`` type's row and frames, None if it needs rosbags."""
     layout = LAYOUTS.get(msgtype)
     paths = layout_paths(layout.row, layout.child) if layout is not None else None
     if layout is None or paths is None:
@@ -797,9 +773,7 @@ def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
 
 
 def item_plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
-    """The plan reading a ``decode.ITEM_LAYOUTS`` detection array (frames and elements), None if it needs rosbags."""
-    from .decode import ITEM_LAYOUTS
-
+    """The plan reading a ``rows.ITEM_LAYOUTS`` detection array (frames and elements), None if it needs rosbags."""
     layout = ITEM_LAYOUTS.get(msgtype)
     if layout is None:
         return None
@@ -812,7 +786,7 @@ def read_rows(
     topics: Mapping[str, Collection[Connection]],
     items: Collection[str] = (),
 ) -> dict[str, Rows]:
-    """``decode.Rows`` of every topic of ``topics`` that has a plan, all read in one pass over the log.
+    """``rows.Rows`` of every topic of ``topics`` that has a plan, all read in one pass over the log.
 
     Topics named in ``items`` are detection arrays (:func:`item_plan_for`): their rows carry the elements
     (``Rows.counts``, ``Rows.items``). Topics without a plan (see :func:`plan_for`) are left out: decode
@@ -822,9 +796,6 @@ def read_rows(
         InputError: Missing definition, unreadable data, or a message that does not match its definition.
 
     """
-    from .container import require_definitions
-    from .decode import Rows, _Frames
-
     planned: dict[str, tuple[Sequence[Connection], Plan]] = {}
     for topic, connections in topics.items():
         conns = list(connections)
@@ -834,7 +805,7 @@ def read_rows(
             planned[topic] = (conns, plan)
     out = {}
     for topic, cols in read_columns(reader, path, planned).items():
-        frames = _Frames()  # frame ids as tf2 names them; two stored spellings may become one
+        frames = Frames()  # frame ids as tf2 names them; two stored spellings may become one
         lut = np.array([frames.code(name) for name in cols.names] or [0], np.int32)
         has_child = planned[topic][1].nstrings > 1
         child = lut[cols.child] if has_child else cols.child

@@ -26,10 +26,11 @@ import numpy as np
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import frame_name, has_header, mean_rate, plural
+from .decode import has_header, mean_rate, plural
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ROLES, select_roles, topics_of
+from .rows import frame_name
 
 if TYPE_CHECKING:
     from collections.abc import Mapping

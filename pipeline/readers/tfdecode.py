@@ -6,8 +6,8 @@ element plans do not apply. Here a compiled walker steps through every element o
 (ROS1: little endian, header ``seq`` before the stamp, strings without terminator; CDR: either byte order per
 message, alignment relative to the end of the encapsulation header, strings with a NUL) and returns flat
 columns: stamps, (position, length) of both strings and the bits of the seven doubles. Identical strings get
-one code in compiled code (:func:`.fastdecode._strings`: a hash table confirmed byte for byte, so hundreds of tag
-frames cost no Python object per string), then the distinct names go through ``decode._Frames``.
+one code in compiled code (:func:`.fastdecode.string_codes`: a hash table confirmed byte for byte, so hundreds of
+tag frames cost no Python object per string), then the distinct names go through :class:`.rows.Frames`.
 
 The walker is written for the standard layout only: :func:`tf_layout` checks the definition stored in the
 log against it (through fastdecode's plan walk), and a log with another layout is decoded by rosbags.
@@ -22,7 +22,12 @@ import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 from rosbags.interfaces import Nodetype
 
-from .fastdecode import FRAME_ID, STAMP_NSEC, STAMP_SEC, DecodeError, _grouped, _merged, _Op, _strings, _walk
+from slamobs.pipeline.errors import InputError
+
+from .container import iter_batches, require_definitions
+from .fastdecode import FRAME_ID, STAMP_NSEC, STAMP_SEC, DecodeError, Op, merged_ops, string_codes, walk_fields
+from .rows import Frames, TfRows
+from .storage import grouped
 
 if TYPE_CHECKING:
     from collections.abc import Collection
@@ -32,8 +37,6 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
     from rosbags.typesys.store import Typestore
 
-    from .decode import TfRows
-
 TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 CHILD_FRAME_ID = ("child_frame_id",)
 VALUES = tuple(("transform", part, axis) for part, axes in (("translation", "xyz"), ("rotation", "xyzw"))
@@ -41,14 +44,14 @@ VALUES = tuple(("transform", part, axis) for part, axes in (("translation", "xyz
 _NS = 1_000_000_000
 
 
-def _standard_ops(cdr: bool) -> tuple[_Op, ...]:
+def _standard_ops(cdr: bool) -> tuple[Op, ...]:
     """The merged plan ops of a standard ``TransformStamped`` (what the walker below hard-codes)."""
     if cdr:  # stamp, frame_id, child_frame_id, 7 doubles (8-aligned)
-        head = (_Op("leaf", 4, 4, 0), _Op("leaf", 4, 4, 1), _Op("string", 4, 0, 0), _Op("string", 4, 0, 1))
-        return head + tuple(_Op("leaf", 8, 8, k) for k in range(2, 9))
-    head = (_Op("skip", 1, 4), _Op("leaf", 1, 4, 0), _Op("leaf", 1, 4, 1), _Op("string", 1, 0, 0),
-            _Op("string", 1, 0, 1))  # seq first
-    return head + tuple(_Op("leaf", 1, 8, k) for k in range(2, 9))
+        head = (Op("leaf", 4, 4, 0), Op("leaf", 4, 4, 1), Op("string", 4, 0, 0), Op("string", 4, 0, 1))
+        return head + tuple(Op("leaf", 8, 8, k) for k in range(2, 9))
+    head = (Op("skip", 1, 4), Op("leaf", 1, 4, 0), Op("leaf", 1, 4, 1), Op("string", 1, 0, 0),
+            Op("string", 1, 0, 1))  # seq first
+    return head + tuple(Op("leaf", 1, 8, k) for k in range(2, 9))
 
 
 @dataclass(frozen=True)
@@ -71,13 +74,13 @@ def tf_layout(typestore: Typestore, msgtype: str, cdr: bool) -> TfLayout | None:
     if TRANSFORM_STAMPED not in typestore.fielddefs:
         return None
     want = {path: k for k, path in enumerate((STAMP_SEC, STAMP_NSEC, *VALUES))}
-    ops: list[_Op] = []
+    ops: list[Op] = []
     leaves: dict[int, tuple[int, str]] = {}
     try:
-        walked = _walk(typestore, TRANSFORM_STAMPED, (), cdr, want, {FRAME_ID: 0, CHILD_FRAME_ID: 1}, ops, leaves)
+        walked = walk_fields(typestore, TRANSFORM_STAMPED, (), cdr, want, {FRAME_ID: 0, CHILD_FRAME_ID: 1}, ops, leaves)
     except KeyError:  # a nested type without a definition
         return None
-    if not walked or _merged(ops) != _standard_ops(cdr):
+    if not walked or merged_ops(ops) != _standard_ops(cdr):
         return None
     if any(leaves[k] != (8, "f") for k in range(2, 9)) or any(leaves[k][0] != 4 for k in (0, 1)):
         return None
@@ -232,7 +235,7 @@ def decode_batch(layout: TfLayout, data: np.ndarray, start: np.ndarray, size: np
     sec, nsec, pos, length, words, code, _ = _tf_walk(data, start, size, layout.cdr, big, counts, int(counts.sum()))
     if code:
         raise _error(code, layout.msgtype)
-    codes, names = _strings(data, pos, length)  # parent before child: the order rosbags reads them
+    codes, names = string_codes(data, pos, length)  # parent before child: the order rosbags reads them
     return TfBatch(counts, _stamps(sec, nsec, layout.signed), words.view(np.float64), codes[0::2], codes[1::2],
                    names)
 
@@ -264,7 +267,7 @@ class _Parts:
 
 
 def read_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]) -> TfRows | None:
-    """``decode.TfRows`` of a TF topic decoded from the bytes, batch by batch; None if its stored definition
+    """``rows.TfRows`` of a TF topic decoded from the bytes, batch by batch; None if its stored definition
     is not the standard TF layout (decode it with rosbags then).
 
     Rows come in record order (ties in file order) and frame codes are numbered by first appearance in that
@@ -274,11 +277,6 @@ def read_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collec
         InputError: Missing definition, unreadable data, or a message that does not match its definition.
 
     """
-    from slamobs.pipeline.errors import InputError
-
-    from .container import iter_batches, require_definitions
-    from .decode import TfRows, _Frames
-
     conns = list(connections)
     require_definitions(reader, path, conns)
     if not conns or len({c.msgtype for c in conns}) != 1:
@@ -287,7 +285,7 @@ def read_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collec
     if layout is None:
         return None
     parts = _Parts()
-    for batch in _grouped(iter_batches(reader, path, conns)):
+    for batch in grouped(iter_batches(reader, path, conns)):
         try:
             got = decode_batch(layout, batch.data, batch.start, batch.size)
         except DecodeError as err:
@@ -302,7 +300,7 @@ def read_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collec
         seen[0::2], seen[1::2] = parent, child
         raw, first = np.unique(seen, return_index=True)
         appearance = raw[np.argsort(first)].tolist()
-    frames = _Frames()
+    frames = Frames()
     lut = np.zeros(max(len(names), 1), np.int32)
     for k in appearance:
         lut[k] = frames.code(names[k])

@@ -309,7 +309,8 @@ def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header")
     decode into a position and a quaternion), with header stamps or, with ``time_source="record"``, the record
     time; decoded and cleaned by the readers (sorted, exact duplicates dropped)."""
     from .container import open_log
-    from .decode import LAYOUTS, decode_rows, pose_stream
+    from .decode import decode_rows, pose_stream
+    from .rows import LAYOUTS
     from .roles import topics_of
 
     log = Path(log)

@@ -553,7 +553,7 @@ def why_kept(path: Path, *, overwrite: bool) -> str | None:
 
 def _simulated(path: Path) -> bool:
     """Whether ``path`` is a log this module wrote (see :data:`WRITER_MCAP`), holding nothing else."""
-    from slamobs.pipeline.readers.container import mcap_library
+    from slamobs.pipeline.readers.mcap import mcap_library
 
     try:
         if path.is_symlink():

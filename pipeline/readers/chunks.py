@@ -1,0 +1,331 @@
+"""What the chunked formats (:mod:`.ros1`, :mod:`.mcap`) share: chunks as units, reading them ahead of the
+decoding, the compiled record walk's results, and the damage report.
+
+Chunks are read whole (one buffer, offset arrays: :class:`.storage.RawBatch`) rather than message by message,
+so :mod:`.fastdecode` can decode them with array operations. A damaged chunk that the file's index (ROS1) or
+summary (MCAP) knows is skipped and counted; a file without a usable index is scanned by its format's reader,
+which keeps every complete message (also from the readable part of a cut-off chunk).
+"""
+
+from __future__ import annotations
+
+import bz2
+import collections
+import struct
+import threading
+import zlib
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, BinaryIO
+
+import lz4.frame
+import numpy as np
+import zstandard
+from slamobs.pipeline.kernel_cache import njit
+
+from . import storage
+from .storage import ConnIds, DamagedError, RawBatch, concat, one_line
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterable, Iterator, Sequence
+
+    from rosbags.interfaces import Connection
+
+_NS = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class Unit:
+    """A chunk (or the readable part of a cut-off one): where its bytes are and what it holds."""
+
+    pos: int  # file offset of the (compressed) records
+    size: int  # bytes available there
+    compression: str  # ROS1: none, bz2, lz4; MCAP: "", zstd, lz4
+    raw_size: int  # declared uncompressed size (checked unless partial)
+    start_ns: int  # record time span, inclusive
+    end_ns: int
+    conns: frozenset[int]  # connection/channel ids in it (empty: unknown, always read)
+    crc_at: int = -1  # MCAP: file offset of the uncompressed CRC32 (-1: none)
+    partial: bool = False  # cut off: decompress what is there and keep the complete records
+    indexed: bool = False  # found through the file's index / summary: a damaged one is skipped, counted
+    messages: int = -1  # messages in it according to the index (-1: unknown)
+    recovered: bool = False  # found by a scan, which reported where its records end
+
+
+def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> bytes:
+    """Decompress chunk records; a partial chunk yields whatever complete blocks it holds."""
+    if compression in {"", "none"}:
+        return blob
+    if partial:
+        try:
+            if compression == "zstd":
+                return zstandard.ZstdDecompressor().decompressobj().decompress(blob)
+            if compression == "lz4":
+                return lz4.frame.LZ4FrameDecompressor().decompress(blob)
+            if compression == "bz2":
+                return bz2.BZ2Decompressor().decompress(blob)
+        except (RuntimeError, OSError, ValueError, zstandard.ZstdError):
+            return b""
+    if compression == "zstd":
+        raw = zstandard.ZstdDecompressor().decompress(blob, max_output_size=raw_size)
+    elif compression == "lz4":
+        raw = lz4.frame.decompress(blob)
+    elif compression == "bz2":
+        raw = bz2.decompress(blob)
+    else:
+        msg = f"unsupported chunk compression {compression!r}"
+        raise DamagedError(msg)
+    if len(raw) != raw_size:
+        msg = f"chunk decompressed to {len(raw)} bytes instead of {raw_size}"
+        raise DamagedError(msg)
+    return raw
+
+
+def read_unit(bio: BinaryIO, unit: Unit) -> np.ndarray:
+    """The unit's records, decompressed and checked against the stored CRC32 (MCAP)."""
+    bio.seek(unit.pos)
+    blob = bio.read(unit.size)
+    if len(blob) != unit.size:
+        msg = f"chunk at byte {unit.pos} is cut off"
+        raise DamagedError(msg)
+    raw = _inflate(blob, unit.compression, unit.raw_size, unit.partial)
+    if unit.crc_at >= 0 and not unit.partial:
+        bio.seek(unit.crc_at)
+        (crc,) = struct.unpack("<I", bio.read(4))
+        if crc and zlib.crc32(raw) != crc:
+            msg = f"chunk at byte {unit.pos} fails its checksum"
+            raise DamagedError(msg)
+    return np.frombuffer(raw, np.uint8)
+
+
+# Scanner status codes.
+CLEAN, CUT, BAD = 0, 1, 2
+
+
+@njit(cache=True)
+def u32(buf, p):  # pragma: no cover - compiled
+    return np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16) | (np.int64(buf[p + 3]) << 24)
+
+
+@dataclass(frozen=True)
+class Records:
+    """Records found in a buffer, and where and how the walk ended."""
+
+    op: np.ndarray
+    conn: np.ndarray
+    t_ns: np.ndarray
+    hpos: np.ndarray
+    dpos: np.ndarray
+    dlen: np.ndarray
+    stop: int
+    status: int
+
+
+def records(walk: Callable[..., tuple[int, int, int]], buf: np.ndarray) -> Records:
+    """Count, then fill (two passes keep the scratch arrays exactly as long as the record count)."""
+    none = np.empty(0, np.int64)
+    n, _, _ = walk(buf, False, none, none, none, none, none, none)
+    arrays = [np.empty(n, np.int64) for _ in range(6)]
+    n, stop, status = walk(buf, True, *arrays)
+    return Records(*arrays, stop=int(stop), status=int(status))
+
+
+def message_batch(data: np.ndarray, recs: Records, message_op: int, ids: ConnIds) -> RawBatch:
+    """The requested messages among ``recs``."""
+    index = ids.lookup(recs.conn)
+    keep = (recs.op == message_op) & (index >= 0)
+    return RawBatch(data, index[keep], recs.t_ns[keep], recs.dpos[keep], recs.dlen[keep])
+
+
+def _clusters(units: Iterable[Unit]) -> Iterator[list[Unit]]:
+    """Consecutive units whose time spans overlap (their messages must be merged to be in order)."""
+    group: list[Unit] = []
+    end = 0
+    for unit in units:
+        if group and unit.start_ns < end:
+            group.append(unit)
+            end = max(end, unit.end_ns)
+            continue
+        if group:
+            yield group
+        group, end = [unit], unit.end_ns
+    if group:
+        yield group
+
+
+#: What reading a damaged chunk raises (decompressors, checksums, record walks).
+_CHUNK_ERRORS = (DamagedError, RuntimeError, OSError, ValueError, EOFError, struct.error, zstandard.ZstdError)
+
+
+#: Decompressed chunks read ahead of the decoding (by one loading thread), in decoding groups: the decoder
+#: takes :data:`.storage.GROUP_BYTES` (16 MB) at a time, the thread keeps about two groups ready.
+PREFETCH_GROUPS = 2
+
+
+def prefetched(load: Callable[[Unit], RawBatch | None], units: Sequence[Unit]) -> Iterator[RawBatch | None]:
+    """``load(unit)`` of every unit, in order, computed by one thread ahead of the caller.
+
+    Reading, decompressing and checking a chunk (file I/O, zstd/lz4/bz2, CRC32 and the record walk all run
+    without the GIL) overlap the decoding of the chunks before. The thread is the only one that touches the
+    file while this runs; an exception it meets is raised here, at its unit; closing the generator (or an
+    exception of the caller) stops the thread and waits for it.
+    """
+    if len(units) < 2:  # nothing to overlap
+        for unit in units:
+            yield load(unit)
+        return
+    budget = PREFETCH_GROUPS * storage.GROUP_BYTES  # read when called: a test may set smaller groups
+    ready: collections.deque = collections.deque()
+    room = threading.Condition()
+    held = [0]  # bytes loaded and not yet taken
+    stop = False
+
+    def work() -> None:
+        for unit in units:
+            try:
+                item = (True, load(unit))
+            except BaseException as err:  # noqa: BLE001 - handed to the caller, raised there
+                item = (False, err)
+            size = int(item[1].data.nbytes) if item[0] and item[1] is not None else 0
+            with room:
+                while held[0] and held[0] + size > budget and not stop:  # one unit always fits
+                    room.wait()
+                if stop:
+                    return
+                held[0] += size
+                ready.append((item, size))
+                room.notify_all()
+            if not item[0]:
+                return
+
+    thread = threading.Thread(target=work, name="slamobs-chunk-reader", daemon=True)
+    thread.start()
+    try:
+        for _ in units:
+            with room:
+                while not ready:
+                    room.wait()
+                (ok, value), size = ready.popleft()
+                held[0] -= size
+                room.notify_all()
+            if not ok:
+                raise value
+            yield value
+    finally:
+        with room:
+            stop = True
+            room.notify_all()
+        thread.join()
+
+
+class Chunked:
+    """What the ROS1 and MCAP readers share: units, loading them, the damage report.
+
+    A damaged chunk that the file's index (ROS1) or summary (MCAP) knows is skipped and counted: the index
+    says where the next chunk starts and how many messages the damaged one held (:meth:`damage_texts`).
+    """
+
+    units: list[Unit]
+    damage: str | None
+    bio: BinaryIO | None
+    message_op: int
+    walk: Callable[..., tuple[int, int, int]]
+    label: str
+
+    def batches(self, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
+        """Requested messages chunk by chunk; ``ordered``: in record-time order across chunks.
+
+        Chunks without a requested connection (per the index) are not read at all.
+        """
+        wanted = set(ids.ids.tolist())
+        units = [u for u in self.units if not u.conns or u.conns & wanted]
+        read = 0
+        loads = prefetched(lambda unit: self._load_or_skip(unit, ids), units)
+        try:
+            if not ordered:
+                for batch in loads:
+                    if batch is not None:
+                        read += 1
+                        yield batch
+            else:
+                for group in _clusters(units):
+                    loaded = [b for _ in group if (b := next(loads)) is not None]
+                    if loaded:
+                        read += len(loaded)
+                        yield concat(loaded).in_record_order()
+        finally:
+            loads.close()  # the loading thread is stopped and done before the file may be closed
+        if units and not read:
+            why = self.lost[min(self.lost)][2] if getattr(self, "lost", None) else "damaged"
+            msg = f"every chunk holding the topics read is damaged ({why})"
+            raise DamagedError(msg)
+
+    def _load_or_skip(self, unit: Unit, ids: ConnIds) -> RawBatch | None:
+        if not unit.indexed:
+            return self.load(unit, ids)
+        try:
+            return self.load(unit, ids)
+        except _CHUNK_ERRORS as err:
+            self.lose(unit.pos, unit.messages, unit.start_ns, one_line(err).rstrip(".") or type(err).__name__)
+            return None
+
+    def lose(self, pos: int, messages: int, start_ns: int, why: str) -> None:
+        """Record a chunk (at file offset ``pos``) whose messages could not be read."""
+        if not hasattr(self, "lost"):
+            self.lost: dict[int, tuple[int, int, str]] = {}
+        self.lost.setdefault(pos, (messages, start_ns, why))
+
+    def damage_texts(self) -> list[str]:
+        """The recovery note and one note about the chunks skipped by their index, if any."""
+        texts = [self.damage] if getattr(self, "damage", None) else []
+        lost = getattr(self, "lost", {})
+        if lost:
+            known = [m for m, _, _ in lost.values() if m >= 0]
+            count = f"{sum(known)} messages lost" + (" (and an unknown number)" if len(known) < len(lost) else "")
+            first = min(lost)
+            t0 = min((u.start_ns for u in self.units), default=lost[first][1])
+            at = ", ".join(f"byte {p} (record time +{(lost[p][1] - t0) / _NS:.3f} s)" for p in sorted(lost)[:3])
+            more = ", ..." if len(lost) > 3 else ""
+            texts.append(f"{self.label} has {len(lost)} damaged chunk(s) at {at}{more}: skipped with the help of the "
+                         f"index, reading went on with the next intact chunk; {count} ({lost[first][2]})")
+        return texts
+
+    def load(self, unit: Unit, ids: ConnIds) -> RawBatch:
+        """Decompress and scan one unit (damaged records at its end: the complete ones before them are kept
+        and the rest counted lost when the index says how many it held)."""
+        assert self.bio
+        data = read_unit(self.bio, unit)
+        recs = records(self.walk, data)
+        if recs.status == BAD or (recs.status == CUT and not unit.partial):
+            if unit.recovered:  # the scan kept the complete records before the damage and said so
+                return message_batch(data, recs, self.message_op, ids)
+            if not unit.indexed:
+                msg = f"records of the chunk at byte {unit.pos} are damaged"
+                raise DamagedError(msg)
+            found = int(np.count_nonzero(recs.op == self.message_op))
+            self.lose(unit.pos, unit.messages - found if unit.messages >= 0 else -1, unit.start_ns,
+                      f"damaged records inside the chunk at byte {unit.pos}")
+        return message_batch(data, recs, self.message_op, ids)
+
+
+def damage_note(label: str, why: str, count: int, span: tuple[int, int] | None, stop: int, size: int,
+                where: str) -> str:
+    """The one-line note about a recovered file: what was wrong, what was kept, where reading stopped."""
+    until = f" up to record time +{(span[1] - span[0]) / _NS:.3f} s" if span is not None else ""
+    return (
+        f"{label} is incomplete ({why}): recovered {count} complete messages{until} by scanning; "
+        f"reading stopped at byte {stop} of {size} ({where})"
+    )
+
+
+def ordered_messages(
+    source: Chunked,
+    connections: list[Connection],
+    start: int | None,
+    stop: int | None,
+) -> Iterator[tuple[Connection, int, bytes]]:
+    ids = ConnIds({c.id: i for i, c in enumerate(connections)})
+    for batch in source.batches(ids, ordered=True):
+        for i in range(len(batch)):
+            t = int(batch.rec_ns[i])
+            if (start is None or t >= start) and (stop is None or t < stop):
+                yield connections[int(batch.conn[i])], t, batch.payload(i)

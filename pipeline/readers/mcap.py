@@ -1,0 +1,302 @@
+"""MCAP files (profile ros2; bare or a rosbag2 directory's storage): rosbags' reader, read chunk-wise.
+
+With a usable summary the chunks it lists are read whole (:mod:`.chunks`) and a damaged one is skipped and
+counted; a file whose summary is missing or damaged (a crashed recording) is scanned record by record instead,
+and every complete message is kept.
+"""
+
+from __future__ import annotations
+
+import struct
+from contextlib import suppress
+from io import BytesIO
+from typing import TYPE_CHECKING, BinaryIO
+
+import numpy as np
+import zstandard
+from rosbags.interfaces import Connection, ConnectionExtRosbag2
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
+from rosbags.rosbag2.storage_mcap import Channel, McapReader, Schema, Statistics, get_msgdef, get_qos
+from slamobs.pipeline.kernel_cache import njit
+
+from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
+from .storage import TIME_RANGE, DamagedError, TimeRangeError, one_line
+
+if TYPE_CHECKING:
+    from collections.abc import Collection, Iterator
+    from pathlib import Path
+
+#: What an MCAP file starts with.
+MAGIC = b"\x89MCAP0\r\n"
+#: Opcode of a message record.
+MESSAGE_MCAP = 5
+
+
+def mcap_library(head: bytes) -> str:
+    """The ``library`` of an MCAP file's header record (the program that wrote it) from the file's first bytes; ""
+    when they are not an MCAP file's."""
+    try:
+        if not head.startswith(MAGIC) or head[8] != 0x01:
+            return ""
+        at = 8 + 1 + 8
+        profile = int.from_bytes(head[at : at + 4], "little")
+        at += 4 + profile
+        size = int.from_bytes(head[at : at + 4], "little")
+        return head[at + 4 : at + 4 + size].decode("utf-8", "replace")
+    except IndexError:
+        return ""
+
+
+@njit(cache=True, nogil=True)
+def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover - compiled
+    """Walk MCAP records (opcode, uint64 length, body); messages get channel, log time and payload."""
+    end = buf.shape[0]
+    pos = 0
+    n = 0
+    while pos < end:
+        if pos + 9 > end:
+            return n, pos, CUT
+        length = u32(buf, pos + 1) | (u32(buf, pos + 5) << 32)
+        if length < 0 or length > end - pos - 9:
+            return n, pos, CUT
+        rop = np.int64(buf[pos])
+        if rop == 5 and length < 22:
+            return n, pos, BAD
+        if fill:
+            op[n] = rop
+            hpos[n] = pos
+            if rop == 5:
+                conn[n] = np.int64(buf[pos + 9]) | (np.int64(buf[pos + 10]) << 8)
+                t_ns[n] = u32(buf, pos + 15) | (u32(buf, pos + 19) << 32)
+                dpos[n] = pos + 31
+                dlen[n] = length - 22
+            else:
+                conn[n] = -1
+                t_ns[n] = -1
+                dpos[n] = pos + 9
+                dlen[n] = length
+        n += 1
+        pos += 9 + length
+    return n, pos, CLEAN
+
+
+def _schema(body: bytes) -> Schema:
+    bio = BytesIO(body)
+    (key,) = struct.unpack("<H", bio.read(2))
+    name, encoding, data = (_sized(bio, 4) for _ in range(3))
+    return Schema(key, name.decode(), encoding.decode(), data.decode())
+
+
+def _sized(bio: BinaryIO, width: int) -> bytes:
+    raw = bio.read(width)
+    if len(raw) != width:
+        msg = "record too short"
+        raise Ros2ReaderError(msg)
+    size = int.from_bytes(raw, "little")
+    data = bio.read(size)
+    if len(data) != size:
+        msg = "record too short"
+        raise Ros2ReaderError(msg)
+    return data
+
+
+class McapStorage(Chunked, McapReader):
+    """rosbags' MCAP reader with chunk-wise reading, and a scan when the summary is missing or damaged; with a
+    usable summary a damaged chunk is skipped and counted."""
+
+    message_op = MESSAGE_MCAP
+    label = "MCAP file"
+    walk = staticmethod(_mcap_walk)
+
+    def __init__(self, path: Path) -> None:
+        super().__init__(path)
+        self.units: list[Unit] = []
+        self.damage: str | None = None
+
+    def _open(self) -> None:
+        try:
+            super()._open()
+        except (Ros2ReaderError, struct.error, TypeError, ValueError, AssertionError, OSError, KeyError) as err:
+            if not self.data_start:  # bad magic, header or profile: not ours to repair
+                raise
+            assert self.bio
+            size = self.bio.seek(0, 2)
+            self.schemas, self.channels, self.connections, self.chunks = {}, {}, [], []
+            self.statistics = None
+            self._scan(size, f"summary unreadable: {one_line(err).rstrip('.')}")
+            self._check_times()
+            return
+        if self.chunks:
+            self.units = [
+                Unit(
+                    c.chunk_start_offset + 49 + len(c.compression),
+                    c.compressed_size,
+                    c.compression,
+                    c.uncompressed_size,
+                    c.message_start_time,
+                    c.message_end_time,
+                    frozenset(c.channel_count),
+                    crc_at=c.chunk_start_offset + 33,
+                    indexed=True,
+                    messages=sum(c.channel_count.values()) if c.channel_count else -1,
+                )
+                for c in self.chunks
+            ]
+        else:
+            self._scan(self.data_end, None)
+        self._check_times()
+
+    def _check_times(self) -> None:
+        """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
+        meta = self.metadata
+        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= 2**63:
+            lo, hi = meta.start_time, meta.end_time - 1
+            msg = (f"record (log) times {lo} to {hi} ns are {TIME_RANGE}: the MCAP file's times are corrupt "
+                   "(repair or re-record the log)")
+            raise TimeRangeError(msg)
+
+    def _add_schema_or_channel(self, op: int, body: bytes) -> None:
+        if op == 0x03:
+            schema = _schema(body)
+            self.schemas.setdefault(schema.id, schema)
+            return
+        bio = BytesIO(body)
+        key, schema_id = struct.unpack("<HH", bio.read(4))
+        topic, encoding, metadata = _sized(bio, 4).decode(), _sized(bio, 4).decode(), _sized(bio, 4)
+        if key in self.channels:
+            return
+        schema = self.schemas.get(schema_id)
+        self.channels[key] = Channel(key, schema.name if schema else "__schemaless__", topic, encoding, metadata)
+        self.connections.append(
+            Connection(
+                key,
+                topic,
+                self.channels[key].schema,
+                get_msgdef(schema),
+                "",
+                0,
+                ConnectionExtRosbag2(encoding, get_qos(metadata)),
+                self,
+            ),
+        )
+
+    def _scan(self, size: int, why: str | None) -> None:
+        """Walk the data section record by record; chunks are decompressed and walked with the kernel."""
+        bio = self.bio
+        assert bio
+        pos = self.data_start
+        counts: dict[int, int] = {}
+        count, first, last, nchunks, where = 0, None, None, 0, "end of file"
+        run: list[int] = []  # top-level messages (unchunked files): [start, end, t0, t1, channel ids...]
+        while pos < size:
+            bio.seek(pos)
+            head = bio.read(9)
+            if len(head) < 9:
+                where = "inside a record header"
+                break
+            op, length = struct.unpack("<BQ", head)
+            cut = pos + 9 + length > size
+            if op == 0x06:
+                fixed = bio.read(28)
+                comp_len = bio.read(4)
+                if len(fixed) < 28 or len(comp_len) < 4:
+                    where = "inside a chunk header"
+                    break
+                t0, t1, raw_size, _ = struct.unpack("<QQQI", fixed)
+                compression = bio.read(int.from_bytes(comp_len, "little")).decode(errors="replace")
+                packed = bio.read(8)
+                if len(packed) < 8:
+                    where = "inside a chunk header"
+                    break
+                data_pos = bio.tell()
+                avail = min(int.from_bytes(packed, "little"), size - data_pos)
+                unit = Unit(data_pos, avail, compression, raw_size, t0, t1, frozenset(), pos + 33, partial=cut)
+                try:
+                    data = read_unit(bio, unit)
+                except (DamagedError, RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
+                    where = f"unreadable chunk: {one_line(err).rstrip('.')}"
+                    break
+                recs = records(_mcap_walk, data)
+                for k in np.flatnonzero((recs.op == 0x03) | (recs.op == 0x04)):
+                    d0 = int(recs.dpos[k])
+                    with suppress(Ros2ReaderError, struct.error, UnicodeDecodeError):
+                        self._add_schema_or_channel(int(recs.op[k]), data[d0 : d0 + int(recs.dlen[k])].tobytes())
+                msgs = recs.op == MESSAGE_MCAP
+                if msgs.any():
+                    ids, found = np.unique(recs.conn[msgs], return_counts=True)
+                    for cid, c in zip(ids.tolist(), found.tolist(), strict=True):
+                        counts[cid] = counts.get(cid, 0) + c
+                    t = recs.t_ns[msgs]
+                    lo, hi = int(t.min()), int(t.max())
+                    self.units.append(
+                        Unit(data_pos, avail, compression, raw_size, lo, hi, frozenset(ids.tolist()), pos + 33, cut,
+                              recovered=True),
+                    )
+                    count += int(msgs.sum())
+                    first = lo if first is None else min(first, lo)
+                    last = hi if last is None else max(last, hi)
+                    nchunks += 1
+                if cut or recs.status != CLEAN:
+                    pos = size if cut else pos
+                    where = "inside a chunk" if cut else "at damaged records inside a chunk"
+                    break
+            elif cut:
+                where = "inside a record"
+                break
+            elif op == MESSAGE_MCAP:
+                body = bio.read(22)
+                channel, _, log_time, _ = struct.unpack("<HIQQ", body)
+                if run and run[1] == pos:
+                    run[1] = pos + 9 + length
+                    run[2], run[3] = min(run[2], log_time), max(run[3], log_time)
+                else:
+                    self._flush_run(run)
+                    run = [pos, pos + 9 + length, log_time, log_time]
+                run.append(channel)
+                counts[channel] = counts.get(channel, 0) + 1
+                count += 1
+                first = log_time if first is None else min(first, log_time)
+                last = log_time if last is None else max(last, log_time)
+            elif op in {0x03, 0x04}:
+                with suppress(Ros2ReaderError, struct.error, UnicodeDecodeError):
+                    self._add_schema_or_channel(op, bio.read(length))
+            elif op in {0x0F, 0x02}:  # data end, footer: the data section is complete
+                where = "end of the data section"
+                break
+            pos += 9 + length
+        self._flush_run(run)
+        self.statistics = Statistics(
+            count, len(self.schemas), len(self.channels), 0, 0, nchunks,
+            first if first is not None else 2**63 - 1, last if last is not None else 0, counts,
+        )
+        self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in self.connections]
+        self.metadata = self.metadata._replace(
+            duration=last - first + 1 if count else 0,
+            start_time=first if count else 2**63 - 1,
+            end_time=last + 1 if count else 0,
+            message_count=count,
+        )
+        if why is not None and not count:
+            msg = f"{why}, and no complete message before byte {min(pos, size)} ({where})"
+            raise Ros2ReaderError(msg)
+        if why is not None:
+            span = (first, last) if first is not None and last is not None else None
+            self.damage = damage_note("MCAP file", why, count, span, min(pos, size), size, where)
+
+    def _flush_run(self, run: list[int]) -> None:
+        if run:
+            self.units.append(Unit(run[0], run[1] - run[0], "", run[1] - run[0], run[2], run[3], frozenset(run[4:])))
+
+    def close(self) -> None:
+        """Close the file."""
+        super().close()
+        self.units = []
+
+    def messages(
+        self,
+        connections: Collection[Connection],
+        start: int | None = None,
+        stop: int | None = None,
+    ) -> Iterator[tuple[Connection, int, bytes]]:
+        """Messages in record-time order (rosbags' interface, read chunk-wise)."""
+        yield from ordered_messages(self, list(connections), start, stop)

@@ -1,0 +1,181 @@
+"""What the decoders share: the layouts of the messages read as rows, and the rows they decode into.
+
+:mod:`.decode` deserialises messages with rosbags and turns rows into cleaned streams; :mod:`.fastdecode` and
+:mod:`.tfdecode` decode the same rows straight from the bytes. ``LAYOUTS`` and ``ITEM_LAYOUTS`` are the one place
+naming the fields they read: :func:`.fastdecode.layout_paths` reads its plans off the row functions here.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .roles import (
+    FIDUCIALS,
+    FIDUCIALS_LEGACY,
+    IMU,
+    MAGNETIC_FIELD,
+    ODOMETRY,
+    POSE_ARRAY,
+    POSE_COV_STAMPED,
+    POSE_STAMPED,
+    TRANSFORM_STAMPED,
+    TWIST_COV_STAMPED,
+    TWIST_STAMPED,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable, Iterator
+
+
+def frame_name(frame: str) -> str:
+    """tf2 convention: frame ids carry no leading slash (ROS1 tf1 bags often have one)."""
+    return frame.lstrip("/")
+
+
+class Frames:
+    """Per-message frame ids as small integer codes (a decoder keeps its strings in one of these)."""
+
+    def __init__(self) -> None:
+        self.codes: dict[str, int] = {}
+
+    def code(self, frame: str) -> int:
+        return self.codes.setdefault(frame_name(frame), len(self.codes))
+
+    def names(self) -> list[str]:
+        return list(self.codes)
+
+
+@dataclass
+class Rows:
+    """Decoded columns of one topic, in record order."""
+
+    topic: str
+    msgtype: str
+    t_ns: np.ndarray  # (N,) int64 header stamps
+    rec_ns: np.ndarray  # (N,) int64
+    values: np.ndarray  # (N, width) float64
+    frame: np.ndarray  # (N,) int32 codes into frame_names
+    child: np.ndarray  # (N,) int32 codes into frame_names
+    frame_names: list[str]
+    counts: np.ndarray | None = None  # (N,) int64 elements per message (detection arrays)
+    items: np.ndarray | None = None  # (sum(counts), width) float64: ``ItemLayout.columns`` of every element
+
+
+@dataclass(frozen=True)
+class Layout:
+    """How one message type becomes a row of float64 columns (named slices of the row)."""
+
+    columns: dict[str, slice]
+    width: int
+    row: Callable[[Any], tuple[float, ...]]
+    child: Callable[[Any], str] | None = None
+
+
+def vec(v: Any) -> tuple[float, float, float]:
+    """A deserialised Point / Vector3 as a tuple."""
+    return (v.x, v.y, v.z)
+
+
+def quat(q: Any) -> tuple[float, float, float, float]:
+    """A deserialised Quaternion as (x, y, z, w)."""
+    return (q.x, q.y, q.z, q.w)
+
+
+LAYOUTS: dict[str, Layout] = {
+    IMU: Layout(
+        {"angular_velocity": slice(0, 3), "linear_acceleration": slice(3, 6)},
+        6,
+        lambda m: (*vec(m.angular_velocity), *vec(m.linear_acceleration)),
+    ),
+    ODOMETRY: Layout(
+        {"linear": slice(0, 3), "angular": slice(3, 6), "position": slice(6, 9), "quat_xyzw": slice(9, 13)},
+        13,
+        lambda m: (
+            *vec(m.twist.twist.linear),
+            *vec(m.twist.twist.angular),
+            *vec(m.pose.pose.position),
+            *quat(m.pose.pose.orientation),
+        ),
+        child=lambda m: m.child_frame_id,
+    ),
+    TWIST_STAMPED: Layout(
+        {"linear": slice(0, 3), "angular": slice(3, 6)},
+        6,
+        lambda m: (*vec(m.twist.linear), *vec(m.twist.angular)),
+    ),
+    MAGNETIC_FIELD: Layout({"magnetic_field": slice(0, 3)}, 3, lambda m: vec(m.magnetic_field)),
+    TWIST_COV_STAMPED: Layout(
+        {"linear": slice(0, 3), "angular": slice(3, 6)},
+        6,
+        lambda m: (*vec(m.twist.twist.linear), *vec(m.twist.twist.angular)),
+    ),
+    POSE_STAMPED: Layout(
+        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
+        7,
+        lambda m: (*vec(m.pose.position), *quat(m.pose.orientation)),
+    ),
+    POSE_COV_STAMPED: Layout(
+        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
+        7,
+        lambda m: (*vec(m.pose.pose.position), *quat(m.pose.pose.orientation)),
+    ),
+    TRANSFORM_STAMPED: Layout(
+        {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
+        7,
+        lambda m: (*vec(m.transform.translation), *quat(m.transform.rotation)),
+        child=lambda m: m.child_frame_id,
+    ),
+}
+
+#: Counted remarks of a decoder: (noun, rest) -> count, rendered "3 DELETE markers skipped".
+Notes = Counter[tuple[str, str]]
+
+
+@dataclass(frozen=True)
+class ItemLayout:
+    """A detection array whose detections are the elements of one sequence field (fixed-layout elements)."""
+
+    items: str  # the sequence field
+    ident: tuple[str, ...] | None  # path of the id in an element; None: the element's index is the id
+    position: tuple[str, ...]  # path of the position (Point / Vector3) in an element
+
+    @property
+    def columns(self) -> tuple[tuple[str, ...], ...]:
+        """Element leaves read by the vectorised decoder: the id (if any), then x, y, z."""
+        return ((self.ident,) if self.ident else ()) + tuple((*self.position, a) for a in "xyz")
+
+    def detections(self, msg: Any, _notes: Notes) -> Iterator[tuple[int, Any]]:
+        """``(id, position)`` of every element of a deserialised message (the rosbags path)."""
+        for k, item in enumerate(getattr(msg, self.items)):
+            yield (k if self.ident is None else _field(item, self.ident)), _field(item, self.position)
+
+
+def _field(obj: Any, path: tuple[str, ...]) -> Any:
+    for name in path:
+        obj = getattr(obj, name)
+    return obj
+
+
+#: Detection types decoded straight from the bytes when their stored definition matches (else by rosbags).
+ITEM_LAYOUTS: dict[str, ItemLayout] = {
+    FIDUCIALS: ItemLayout("transforms", ("fiducial_id",), ("transform", "translation")),
+    FIDUCIALS_LEGACY: ItemLayout("transforms", ("fiducial_id",), ("transform", "translation")),
+    POSE_ARRAY: ItemLayout("poses", None, ("position",)),
+}
+
+
+@dataclass
+class TfRows:
+    """Every transform of a TF topic (``tf2_msgs/TFMessage`` or ROS1 ``tf/tfMessage``), in record order."""
+
+    topic: str
+    t_ns: np.ndarray  # (N,) int64 header stamps
+    rec_ns: np.ndarray  # (N,) int64
+    parent: np.ndarray  # (N,) int32 codes into frame_names
+    child: np.ndarray  # (N,) int32
+    values: np.ndarray  # (N, 7) translation xyz, quaternion xyzw
+    frame_names: list[str]
