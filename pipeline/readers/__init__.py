@@ -17,6 +17,7 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import LogStreams, PoseStream, Vec3Stream
+from slamobs.pipeline.vision.detector import TagDetector
 
 from .cameradecode import decode_camera_info, decode_corners, detect_in_images
 from .container import Container, damage_notes, detect_container, open_log
@@ -217,8 +218,6 @@ def _camera_topics(reader, path: Path, table, topics: list[str], streams: LogStr
         streams.tag_corners.append(stream)
         note(topic, "detections", cleaning)
     if image_topics:
-        from slamobs.pipeline.vision.detector import TagDetector
-
         search = images or ImageSearch()
         detector = TagDetector(search.family, search.detector, path)
         found = detect_in_images(reader, path, {t: table[t][1] for t in image_topics}, detector,
@@ -236,7 +235,7 @@ def _odometry_twist(rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleanin
     """An odometry twist checked against the odometry's poses: a zero angular velocity is differentiated from the
     orientations, a linear velocity given in the parent frame is rotated into the child frame (both recorded in
     ``derived``)."""
-    from .odometry import SMOOTH_S, angular_from_poses, rotate_into_child, twist_in_parent
+    from .odometry import SMOOTH_S, angular_from_poses, rotate_into_child, twist_in_parent  # lazy: ~0.1 s of kernels
 
     poses, _ = pose_stream(rows)
     if len(poses) != len(stream) or not np.array_equal(poses.t_ns, stream.t_ns):
@@ -284,7 +283,7 @@ def _truth_from_tf(
     tf_of: Callable[[str], TfRows],
 ) -> PoseStream:
     """Poses of a TF edge ``parent->child`` (a chain through ``/tf_static`` and ``/tf`` is fine)."""
-    from slamobs.pipeline.frames import TfBuffer
+    from slamobs.pipeline.frames import TfBuffer  # lazy: TF chains (~0.1 s) serve only truth from a TF edge
 
     series = streams.tf if streams.tf and streams.tf[0].topic == topic else transform_series(tf_of(topic))[0]
     truth = TfBuffer(streams.static_tf, series, path=streams.path).pose_stream(*edge, topic)
@@ -295,7 +294,7 @@ def _truth_from_tf(
 
 def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
     """Ground truth from a trajectory file; it must carry stamps to be matched to the log's clock."""
-    from .trajectory_files import read_trajectory
+    from .trajectory_files import read_trajectory  # lazy: only truth from a file needs the file parsers
 
     traj = read_trajectory(source, fmt, kitti_times=times)
     if traj.format not in ("tum", "euroc", "kitti"):

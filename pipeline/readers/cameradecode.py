@@ -22,6 +22,8 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import CornerStream
+from slamobs.pipeline.vision.cameras import CameraModel, from_camera_info
+from slamobs.pipeline.vision.detector import TagDetector, compressed_to_gray, is_depth, raw_to_gray
 from slamobs.pipeline.vision.tagpose import winding
 
 from .container import iter_raw, require_definitions
@@ -35,9 +37,6 @@ if TYPE_CHECKING:
 
     from rosbags.highlevel import AnyReader
     from rosbags.interfaces import Connection
-
-    from slamobs.pipeline.vision.cameras import CameraModel
-    from slamobs.pipeline.vision.detector import TagDetector
 
 _NS = 1_000_000_000
 _CLOCKWISE = (0, 1, 2, 3)  # OpenCV / ArUco order
@@ -141,8 +140,6 @@ def decode_corners(reader: AnyReader, path: str | Path, topic: str,
 def decode_camera_info(reader: AnyReader, path: str | Path, topic: str,
                        connections: Collection[Connection]) -> tuple[CameraModel, list[str]]:
     """The camera model of a ``CameraInfo`` topic: its first calibrated message (the topic repeats it)."""
-    from slamobs.pipeline.vision.cameras import from_camera_info
-
     last_error: InputError | None = None
     with layout_errors(path, connections):
         for k, (_, msg) in enumerate(decoded_messages(reader, path, connections)):
@@ -161,8 +158,6 @@ def decode_camera_info(reader: AnyReader, path: str | Path, topic: str,
 
 def _image_of(msgtype: str, msg: Any, topic: str) -> np.ndarray | None:
     """Grey image of an image message; None for a depth image (nothing to search)."""
-    from slamobs.pipeline.vision.detector import compressed_to_gray, is_depth, raw_to_gray
-
     if msgtype == IMAGE:
         if is_depth(msg.encoding, topic):
             return None

@@ -16,6 +16,10 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 
+from .container import iter_raw, open_log
+from .msgdefs import complete_definitions
+from .roles import topics_of
+
 #: Messages read per topic (the median of their diagonals is used).
 SAMPLE_MESSAGES = 25
 
@@ -63,10 +67,6 @@ def stated_noise(path: str | Path, topics: dict[str, str],
     A topic whose messages cannot be read here is treated as stating nothing (the run reads it properly and
     reports any damage itself).
     """
-    from .container import iter_raw, open_log
-    from .msgdefs import complete_definitions
-    from .roles import topics_of
-
     found: dict[str, StatedNoise] = {}
     wanted = {role: topics[role] for role in roles if topics.get(role)}
     if not wanted:

@@ -33,7 +33,7 @@ from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Rows
 from .storage import grouped
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
+    from collections.abc import Callable, Collection, Mapping, Sequence
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader

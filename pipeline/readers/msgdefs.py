@@ -16,6 +16,7 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import check_input
 
 if TYPE_CHECKING:
     from collections.abc import Collection
@@ -42,8 +43,6 @@ def complete_definitions(reader: AnyReader, msg_dir: str | Path | None = None) -
 
 
 def _read_msg_dir(typestore: Typestore, msg_dir: str | Path) -> dict[str, object]:
-    from slamobs.pipeline.paths import check_input
-
     root = Path(msg_dir)
     if not root.is_dir():
         raise InputError(root, "message definition directory not found" if not root.exists() else "not a directory")

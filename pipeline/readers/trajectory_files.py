@@ -9,6 +9,7 @@ break exact ties differently). Every failure is an :class:`InputError` naming th
 
 from __future__ import annotations
 
+import io
 import re
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
@@ -17,7 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.paths import check_input, read_text
 from slamobs.pipeline.streams import PoseStream
+
+from .container import detect_container, open_log
+from .decode import decode_rows, pose_stream
+from .roles import topics_of
+from .rows import LAYOUTS
 
 NS_PER_S = 1_000_000_000
 FORMATS = ("tum", "euroc", "kitti", "parquet", "topic")
@@ -60,8 +67,6 @@ def stamp_ns(text: str) -> int:
 
 
 def _read_text(path: Path, what: str) -> str:
-    from slamobs.pipeline.paths import check_input, read_text
-
     check_input(path, f"{what} file", directory_ok=False)
     return read_text(path, f"{what} file")
 
@@ -103,9 +108,7 @@ def _rows(path: Path, min_fields: int, fixed: int | None, what: str,
     starts a comment line. Parsed by pandas' C tokenizer (a 100k-line file in a fraction of a second); any
     irregular row, or a number that is not finite, is named by its line. ``numeric_from=0``: the first column
     must be a finite number too (KITTI)."""
-    import io
-
-    import pandas as pd
+    import pandas as pd  # lazy: pandas takes a noticeable part of a second, and only text trajectories need it
 
     text = _read_text(path, what)
     try:
@@ -241,7 +244,7 @@ def kitti_rotations(path: str | Path) -> np.ndarray:
 def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray]:
     first, v, text = _rows(path, 12, 12, "KITTI", numeric_from=0)
     m = np.column_stack([first.astype(np.float64), v]).reshape(-1, 3, 4)
-    from slamobs.pipeline.lie import rots_to_quats
+    from slamobs.pipeline.lie import rots_to_quats  # lazy: compiled kernels, needed for KITTI files only
 
     rot = np.ascontiguousarray(m[:, :, :3])
     off = np.abs(np.einsum("nji,njk->nik", rot, rot) - np.eye(3)).max(axis=(1, 2))
@@ -271,7 +274,7 @@ def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray
 
 def load_poses_parquet(path: str | Path) -> PoseStream:
     """``poses.parquet`` of a run (``t_ns, x y z, qx qy qz qw``), in file order."""
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # lazy: pyarrow is slow to import, needed for Parquet trajectories only
 
     path = Path(path)
     try:
@@ -283,7 +286,7 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
     missing = [c for c in POSE_COLUMNS if c not in table.column_names]
     if missing:
         raise InputError(path, f"not a poses table: lacks column(s) {missing}")
-    import pyarrow as pa
+    import pyarrow as pa  # lazy: as pyarrow.parquet above
 
     for c in POSE_COLUMNS:
         kind = table.schema.field(c).type
@@ -308,11 +311,6 @@ def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header")
     """A pose topic of a log (``geometry_msgs/PoseStamped``, ``nav_msgs/Odometry``, or any type the readers
     decode into a position and a quaternion), with header stamps or, with ``time_source="record"``, the record
     time; decoded and cleaned by the readers (sorted, exact duplicates dropped)."""
-    from .container import open_log
-    from .decode import decode_rows, pose_stream
-    from .rows import LAYOUTS
-    from .roles import topics_of
-
     log = Path(log)
     with open_log(log) as reader:
         table = topics_of(reader)
@@ -337,8 +335,6 @@ def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header")
 
 
 def _is_log(path: Path) -> bool:
-    from .container import detect_container
-
     try:
         detect_container(path)
     except InputError:
@@ -397,8 +393,6 @@ def read_trajectory(source: str | Path, fmt: str | None = None, *, kitti_times: 
         raise InputError(source, "not LOG:TOPIC with an existing log")
     path = Path(source)
     if path.is_dir():
-        from .container import detect_container
-
         try:
             detect_container(path)
         except InputError as err:  # say why it is not a log either (e.g. a rosbag2 folder without metadata.yaml)
@@ -430,7 +424,7 @@ def format_stamp(t_ns: int) -> str:
 def tum_text(t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray) -> str:
     """TUM lines ``t x y z qx qy qz qw``: stamps exact to the nanosecond (:func:`format_stamp`), values as
     ``repr`` writes them (round-trip precision); formatted in compiled code (:mod:`.floattext`)."""
-    from .floattext import stamped_rows
+    from .floattext import stamped_rows  # lazy: compiled formatting, needed only when writing TUM
 
     return stamped_rows(np.asarray(t_ns), np.asarray(position).reshape(-1, 3),
                         np.asarray(quat_xyzw).reshape(-1, 4)).decode()
@@ -438,7 +432,7 @@ def tum_text(t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray) -> s
 
 def write_tum(path: str | Path, stream: PoseStream) -> Path:
     """Write ``stream`` as a TUM trajectory file (readable by evo and :func:`load_tum`), block by block."""
-    from .floattext import iter_stamped_rows
+    from .floattext import iter_stamped_rows  # lazy: as in tum_text
 
     path = Path(path)
     with path.open("wb") as f:
