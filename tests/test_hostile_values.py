@@ -14,6 +14,7 @@ import pytest
 from test_hostile_inputs import _no_warnings, invoke, one_line_error
 
 from slamobs.pipeline.simulate import simulate, write_log
+from slamobs.pipeline.simulate.sensors import TOPIC_TRUTH
 
 NS = 1_000_000_000
 TWO63 = 2**63
@@ -80,11 +81,15 @@ def test_every_yaml_file_is_read_with_the_alias_budget(tmp_path, what):
 # --------------------------------------------------------------------------- 64-bit record times
 
 
-def _shifted_mcap(src: Path, dst: Path, shift: int) -> Path:
-    """``src`` rewritten with the MCAP writer, every log and publish time moved by ``shift`` (uint64 on disk)."""
+def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None) -> Path:
+    """``src`` rewritten with the MCAP writer, every log and publish time moved by ``shift`` (uint64 on disk) and
+    the text of its simulation truth (a std_msgs/String) replaced by ``edit(text)``."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+
+    ts = make_typestore(ros1=False)
     with src.open("rb") as fin, dst.open("wb") as fout:
         writer = Writer(fout)
         writer.start(profile="ros2", library="slamobs-tests")
@@ -96,7 +101,11 @@ def _shifted_mcap(src: Path, dst: Path, shift: int) -> Path:
             if channel.id not in channels:
                 channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
                                                                schemas[schema.id], channel.metadata)
-            writer.add_message(channels[channel.id], log_time=msg.log_time + shift, data=msg.data,
+            data = msg.data
+            if edit is not None and channel.topic == TOPIC_TRUTH:
+                text = edit(ts.deserialize_cdr(data, schema.name).data)
+                data = bytes(ts.serialize_cdr(ts.types[schema.name](data=text), schema.name))
+            writer.add_message(channels[channel.id], log_time=msg.log_time + shift, data=data,
                                publish_time=msg.publish_time + shift, sequence=msg.sequence)
         writer.finish()
     return dst
@@ -210,7 +219,8 @@ def run_dir(mcap_log, quick, tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize(("text", "needle"), [("[]", "the file is a JSON array"),
-                                              ('{"input": [1]}', "'input' is a JSON array")])
+                                              ('{"input": [1]}', "'input' is a JSON array"),
+                                              ("[" * 100_000 + "]" * 100_000, "unreadable run.json")])
 def test_run_json_of_another_shape_is_one_line(run_dir, tmp_path, text, needle):
     import shutil
 
@@ -277,3 +287,10 @@ def test_stamps_after_2038_are_one_line_before_the_run_and_in_export(mcap_log, r
     shifted = pc.add(poses["t_ns"], pa.scalar(2_000_000_000 * NS, pa.int64()))
     pq.write_table(poses.set_column(poses.schema.get_field_index("t_ns"), "t_ns", shifted), table)
     one_line_error(invoke("export", odd, "--mcap", tmp_path / "r.mcap"), str(table), "int32 seconds")
+
+
+def test_simulation_truth_nested_too_deeply_is_one_line(mcap_log, tmp_path, quick):
+    """json's decoder recurses per level: a deep truth message was a RecursionError traceback."""
+    log = _shifted_mcap(mcap_log, tmp_path / "deep.mcap", edit=lambda _text: "[" * 100_000 + "]" * 100_000)
+    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), f"[{TOPIC_TRUTH}]",
+                   "nested too deeply")
