@@ -81,17 +81,18 @@ def test_every_yaml_file_is_read_with_the_alias_budget(tmp_path, what):
 # --------------------------------------------------------------------------- 64-bit record times
 
 
-def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None) -> Path:
+def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None, indexed: bool = True) -> Path:
     """``src`` rewritten with the MCAP writer, every log and publish time moved by ``shift`` (uint64 on disk) and
-    the text of its simulation truth (a std_msgs/String) replaced by ``edit(text)``."""
+    the text of its simulation truth (a std_msgs/String) replaced by ``edit(text)``; without ``indexed`` the
+    summary has no chunk indexes and no statistics (the reader scans the chunks)."""
     from mcap.reader import make_reader
-    from mcap.writer import Writer
+    from mcap.writer import IndexType, Writer
 
     from slamobs.pipeline.simulate.logwriter import make_typestore
 
     ts = make_typestore(ros1=False)
     with src.open("rb") as fin, dst.open("wb") as fout:
-        writer = Writer(fout)
+        writer = Writer(fout) if indexed else Writer(fout, index_types=IndexType.NONE, use_statistics=False)
         writer.start(profile="ros2", library="slamobs-tests")
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
@@ -114,6 +115,12 @@ def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None) -> Path:
 def test_record_times_past_2_63_are_one_line_in_info_and_run(mcap_log, tmp_path, quick):
     log = _shifted_mcap(mcap_log, tmp_path / "year2262.mcap", TWO63)
     one_line_error(invoke("info", log), str(log), "outside 0 to 2^63 ns")
+    scanned = _shifted_mcap(mcap_log, tmp_path / "scanned.mcap", TWO63, indexed=False)
+    from mcap.reader import make_reader
+
+    with mcap_log.open("rb") as f:
+        first = make_reader(f).get_summary().statistics.message_start_time
+    one_line_error(invoke("info", scanned), str(scanned), f"record (log) times {TWO63 + first} to")  # not wrapped
     rec = tmp_path / "rec.yaml"
     rec.write_text(quick.read_text() + "time:\n  source: record\n")
     for cfg in (quick, rec):  # with record times the run used to go on with negative t_ns

@@ -944,7 +944,7 @@ class McapStorage(_Chunked, McapReader):
         """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
         meta = self.metadata
         if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= 2**63:
-            lo, hi = meta.start_time, meta.end_time - 1
+            lo, hi = meta.start_time % 2**64, (meta.end_time - 1) % 2**64  # as stored (uint64), not as wrapped
             msg = (f"record (log) times {lo} to {hi} ns are {_TIME_RANGE}: the MCAP file's times are corrupt "
                    "(repair or re-record the log)")
             raise TimeRangeError(msg)
