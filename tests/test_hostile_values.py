@@ -301,3 +301,20 @@ def test_simulation_truth_nested_too_deeply_is_one_line(mcap_log, tmp_path, quic
     log = _shifted_mcap(mcap_log, tmp_path / "deep.mcap", edit=lambda _text: "[" * 100_000 + "]" * 100_000)
     one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), f"[{TOPIC_TRUTH}]",
                    "nested too deeply")
+
+
+def test_ids_equal_in_their_low_32_bits_are_different_landmarks(sim):
+    """Repeated ids within a frame were found on a key of the id's low 32 bits: ids 7 and 7 + 2^32 in one frame
+    were one id seen twice, and one of the two detections was dropped."""
+    from slamobs.pipeline.alignment import align
+    from slamobs.pipeline.simulate import expected_streams
+
+    s = expected_streams(sim, "mem.mcap")
+    det = s.detections
+    k = int(np.flatnonzero(np.diff(det.offsets) >= 2)[0])  # a frame with two detections
+    ids = det.ids.copy()
+    ids[det.offsets[k]: det.offsets[k] + 2] = [7, 7 + 2**32]
+    aligned = align(replace(s, detections=replace(det, ids=ids)))
+    assert not [n for n in aligned.notes if "repeated ids" in n], aligned.notes
+    assert {7, 7 + 2**32} <= set(aligned.landmark_ids.tolist())
+    assert aligned.det_idx.shape[0] == align(s).det_idx.shape[0]
