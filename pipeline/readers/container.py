@@ -282,8 +282,11 @@ class DamagedError(Exception):
 
 
 #: Record times are int64 nanoseconds here; MCAP stores uint64, so a time at or past 2^63 ns (the year 2262)
-#: would wrap to a negative time. Only a corrupt or hand-made file has one.
-_TIME_RANGE = "outside 0 to 2^63 ns (1970 to 2262; a uint64 time at or past 2^63 would be read as negative)"
+#: would wrap to a negative time, and one close below it overflows the sums of times and spans downstream. Every
+#: ROS clock stays below 2^62 ns (ROS 1's uint32 seconds end in 2106), so only a corrupt file reaches it.
+TIME_LIMIT_NS = 2**62
+_TIME_RANGE = ("outside 0 to 2^62 ns (1970 to 2116, past any ROS clock; a uint64 time at or past 2^63 would be read "
+               "as negative)")
 
 
 class TimeRangeError(Exception):
@@ -943,7 +946,7 @@ class McapStorage(_Chunked, McapReader):
     def _check_times(self) -> None:
         """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
         meta = self.metadata
-        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= 2**63:
+        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= TIME_LIMIT_NS:
             lo, hi = meta.start_time % 2**64, (meta.end_time - 1) % 2**64  # as stored (uint64), not as wrapped
             msg = (f"record (log) times {lo} to {hi} ns are {_TIME_RANGE}: the MCAP file's times are corrupt "
                    "(repair or re-record the log)")
@@ -1247,7 +1250,7 @@ def iter_batches(
 
 def _check_record_times(batch: RawBatch, path: str | Path, connections: Sequence[Connection]) -> None:
     """One line naming the topic when a message's record time wrapped (a summary may not show it)."""
-    bad = batch.rec_ns < 0
+    bad = (batch.rec_ns < 0) | (batch.rec_ns >= TIME_LIMIT_NS)
     if bad.any():
         topic = connections[int(batch.conn[np.argmax(bad)])].topic
         raise InputError(path, f"{int(bad.sum())} messages have a record (log) time {_TIME_RANGE}: the log's times "
