@@ -6,12 +6,13 @@ from __future__ import annotations
 
 import sqlite3
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_hostile_inputs import _no_warnings, invoke, one_line_error
+from test_hostile_inputs import invoke, one_line_error
 
 from slamobs.pipeline.simulate import simulate, write_log
 from slamobs.pipeline.simulate.sensors import TOPIC_TRUTH
@@ -112,6 +113,21 @@ def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None, indexed: bool
     return dst
 
 
+class _no_warnings:  # a context manager read as a phrase
+    """Fails the block if it emits a RuntimeWarning (numpy's divide-by-zero and overflow warnings)."""
+
+    def __enter__(self):
+        self._ctx = warnings.catch_warnings(record=True)
+        self.caught = self._ctx.__enter__()
+        warnings.simplefilter("always")
+        return self
+
+    def __exit__(self, *exc):
+        self._ctx.__exit__(*exc)
+        assert not [w for w in self.caught if issubclass(w.category, RuntimeWarning)], [str(w) for w in self.caught]
+        return False
+
+
 def _span(log: Path) -> tuple[int, int]:
     """First and last log time of an MCAP file, from its summary."""
     from mcap.reader import make_reader
@@ -193,9 +209,15 @@ def tags_config(tmp_path_factory) -> Path:
 
 
 def _final_map_labels(results: Path) -> tuple[list[str], list[int]]:
-    from test_results_export import _messages
+    """Text and marker id of every label of the last map message of a results MCAP."""
+    from mcap.reader import make_reader
 
-    final = [m for _, m in _messages(results)["/slamobs/landmarks"]][-1].markers[1:]
+    from slamobs.pipeline.results_mcap import TOPIC_LANDMARKS
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+
+    with results.open("rb") as f:
+        *_, (schema, _, msg) = make_reader(f).iter_messages(topics=[TOPIC_LANDMARKS])
+    final = make_typestore(ros1=False).deserialize_cdr(msg.data, schema.name).markers[1:]
     return [m.text for m in final], [m.id for m in final]
 
 
