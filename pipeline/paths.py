@@ -156,7 +156,7 @@ def read_yaml(path: str | Path, what: str) -> Any:
     except YAMLError as err:
         raise InputError(path, f"not valid YAML: {' '.join(str(err).split())[:300]}") from None
     except RecursionError:
-        raise InputError(path, f"the {what} is nested too deeply to read (thousands of levels)") from None
+        raise InputError(path, f"the {what} is nested too deeply to read (hundreds of levels)") from None
 
 
 def _children(node: Any) -> list:
