@@ -152,9 +152,7 @@ def read_yaml(path: str | Path, what: str) -> Any:
     from ruamel.yaml import YAML, YAMLError
 
     text = read_text(path, what)
-    if (depth := _flow_depth(text)) > YAML_MAX_FLOW_DEPTH:
-        raise InputError(path, f"the {what} nests [ ] or {{ }} {depth} levels deep (more than the "
-                               f"{YAML_MAX_FLOW_DEPTH} read)")
+    check_yaml_depth(text, path, what)
     yaml = YAML(typ="safe")
     try:
         node = yaml.compose(text)
@@ -166,6 +164,14 @@ def read_yaml(path: str | Path, what: str) -> Any:
         raise InputError(path, f"not valid YAML: {' '.join(str(err).split())[:300]}") from None
     except RecursionError:
         raise InputError(path, f"the {what} is nested too deeply to read (hundreds of levels)") from None
+
+
+def check_yaml_depth(text: str, path: str | Path, what: str) -> None:
+    """Refuse YAML ``text`` whose flow collections nest deeper than YAML_MAX_FLOW_DEPTH (for files a library
+    parses too, e.g. rosbags' metadata.yaml)."""
+    if (depth := _flow_depth(text)) > YAML_MAX_FLOW_DEPTH:
+        raise InputError(path, f"the {what} nests [ ] or {{ }} {depth} levels deep (more than the "
+                               f"{YAML_MAX_FLOW_DEPTH} read)")
 
 
 def _flow_depth(text: str) -> int:

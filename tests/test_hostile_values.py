@@ -351,3 +351,11 @@ def test_ids_equal_in_their_low_32_bits_are_different_landmarks(sim):
     assert not [n for n in aligned.notes if "repeated ids" in n], aligned.notes
     assert {7, 7 + 2**32} <= set(aligned.landmark_ids.tolist())
     assert aligned.det_idx.shape[0] == align(s).det_idx.shape[0]
+
+
+def test_rosbag2_metadata_nested_too_deeply_is_one_line_before_rosbags_parses_it(sim, tmp_path):
+    """rosbags parses metadata.yaml with ruamel: 3000 '[' took it 15 s before a RecursionError."""
+    log = write_log(sim, tmp_path / "deep", "ros2")
+    meta = log / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("custom_data:", "custom_data: " + "[" * 3000 + "]" * 3000 + "\n  x:", 1))
+    one_line_error(invoke("info", log), str(meta), "nests [ ] or { } 3000 levels deep")

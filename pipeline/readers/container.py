@@ -116,7 +116,7 @@ def detect_container(path: str | Path) -> Container:
         InputError: The path is missing, unreadable or not a ROS log.
 
     """
-    from slamobs.pipeline.paths import check_input
+    from slamobs.pipeline.paths import check_input, check_yaml_depth
 
     path = Path(path)
     st = check_input(path, "ROS log")  # never open a FIFO or a device: the read would block or never end
@@ -142,6 +142,7 @@ def detect_container(path: str | Path) -> Container:
             text = meta.read_text(errors="replace")
         except OSError as err:
             raise InputError(path, f"cannot read metadata.yaml: {_one_line(err.strerror)}") from None
+        check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
         match = re.search(r'storage_identifier:\s*["\']?([\w.-]+)', text)
         return Container(path, "rosbag2", match.group(1) if match else "")
     try:
