@@ -291,7 +291,7 @@ _TIME_RANGE = ("outside 0 to 2^62 ns (1970 to 2116, past any ROS clock; a uint64
 
 
 class TimeRangeError(Exception):
-    """Record times an int64 nanosecond count cannot hold; becomes a one-line InputError naming the log."""
+    """Record times outside 0 to TIME_LIMIT_NS; becomes a one-line InputError naming the log."""
 
 
 def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> bytes:
@@ -945,7 +945,7 @@ class McapStorage(_Chunked, McapReader):
         self._check_times()
 
     def _check_times(self) -> None:
-        """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
+        """Refuse a log whose summary (or scan) puts record times outside 0 to TIME_LIMIT_NS."""
         meta = self.metadata
         if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= TIME_LIMIT_NS:
             lo, hi = meta.start_time % 2**64, (meta.end_time - 1) % 2**64  # as stored (uint64), not as wrapped
@@ -1250,7 +1250,8 @@ def iter_batches(
 
 
 def _check_record_times(batch: RawBatch, path: str | Path, connections: Sequence[Connection]) -> None:
-    """One line naming the topic when a message's record time wrapped (a summary may not show it)."""
+    """One line naming the topic when a message's record time is outside 0 to TIME_LIMIT_NS (a summary may not
+    show it; rosbag2 sqlite3 files have none to check)."""
     bad = (batch.rec_ns < 0) | (batch.rec_ns >= TIME_LIMIT_NS)
     if bad.any():
         topic = connections[int(batch.conn[np.argmax(bad)])].topic
