@@ -319,7 +319,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         times = [t for t in (aligned.vel_t_ns, aligned.det_t_ns) if t.size]
         if times:
             check_stamps(min(int(t.min()) for t in times), max(int(t.max()) for t in times), log,
-                         " (leave mcap out of output.export)")
+                         " (leave mcap out of --export and output.export)")
     timings = dict(prepared.timings)
     spec = _resolved_spec(config)
     gains = spec.resolve_gains(config.gains.get(spec.name))
