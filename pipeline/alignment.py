@@ -538,10 +538,8 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
     # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
     n_sel = det.ids.shape[0] if sel is None else sel.size
     if n_sel:
-        key = (frame_of if sel is None else frame_of[sel]) * (np.int64(1) << 32) + \
-            ((det.ids if sel is None else det.ids[sel]) & 0xFFFFFFFF)
-        _, first = np.unique(key, return_index=True)
-        del key
+        # (frame, id) pairs compared whole: a key of the id's low 32 bits took ids 5 and 5 + 2^32 for one
+        first = _first_of_pairs(frame_of if sel is None else frame_of[sel], det.ids if sel is None else det.ids[sel])
         if first.size < n_sel:
             notes.append(f"{det.topic}: {n_sel - first.size} repeated ids within a frame dropped")
             mask = np.zeros(n_sel, bool)
@@ -588,6 +586,13 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
                                f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)
     return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
             np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+
+
+def _first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Indices of the first occurrence of each distinct pair ``(a[i], b[i])``, ascending."""
+    order = np.lexsort((b, a))  # stable: equal pairs keep their order, the first one leads
+    repeat = (a[order[1:]] == a[order[:-1]]) & (b[order[1:]] == b[order[:-1]])
+    return np.sort(order[np.concatenate(([True], ~repeat))])
 
 
 def _range_gate(topic: str, det_y: np.ndarray, dist: np.ndarray, ids: np.ndarray, per_frame: np.ndarray,

@@ -487,7 +487,7 @@ def check_export(prepared: PreparedLog, config: RunConfig) -> None:
         times = [t for t in (aligned.vel_t_ns, aligned.det_t_ns) if t.size]
         if times:
             check_stamps(min(int(t.min()) for t in times), max(int(t.max()) for t in times), prepared.log,
-                         " (leave mcap out of output.export)")
+                         " (leave mcap out of --export and output.export)")
 
 
 def export_run(out: Path, config: RunConfig, metadata: dict, report: dict | None, timings: dict[str, float],

@@ -132,7 +132,7 @@ def detect_container(path: str | Path) -> Container:
         InputError: The path is missing, unreadable or not a ROS log.
 
     """
-    from slamobs.pipeline.paths import check_input
+    from slamobs.pipeline.paths import check_input, check_yaml_depth
 
     path = Path(path)
     st = check_input(path, "ROS log")  # never open a FIFO or a device: the read would block or never end
@@ -158,6 +158,7 @@ def detect_container(path: str | Path) -> Container:
             text = meta.read_text(errors="replace")
         except OSError as err:
             raise InputError(path, f"cannot read metadata.yaml: {_one_line(err.strerror)}") from None
+        check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
         match = re.search(r'storage_identifier:\s*["\']?([\w.-]+)', text)
         return Container(path, "rosbag2", match.group(1) if match else "")
     try:
@@ -298,12 +299,15 @@ class DamagedError(BadInput):
 
 
 #: Record times are int64 nanoseconds here; MCAP stores uint64, so a time at or past 2^63 ns (the year 2262)
-#: would wrap to a negative time. Only a corrupt or hand-made file has one.
-_TIME_RANGE = "outside 0 to 2^63 ns (1970 to 2262; a uint64 time at or past 2^63 would be read as negative)"
+#: would wrap to a negative time, and one close below it overflows the sums of times and spans downstream. Every
+#: ROS clock stays below 2^62 ns (ROS 1's uint32 seconds end in 2106), so only a corrupt file reaches it.
+TIME_LIMIT_NS = 2**62
+_TIME_RANGE = ("outside 0 to 2^62 ns (1970 to 2116, past any ROS clock; a uint64 time at or past 2^63 would be read "
+               "as negative)")
 
 
 class TimeRangeError(BadInput):
-    """Record times an int64 nanosecond count cannot hold; becomes a one-line InputError naming the log."""
+    """Record times outside 0 to TIME_LIMIT_NS; becomes a one-line InputError naming the log."""
 
 
 def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> bytes:
@@ -957,10 +961,10 @@ class McapStorage(_Chunked, McapReader):
         self._check_times()
 
     def _check_times(self) -> None:
-        """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
+        """Refuse a log whose summary (or scan) puts record times outside 0 to TIME_LIMIT_NS."""
         meta = self.metadata
-        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= 2**63:
-            lo, hi = meta.start_time, meta.end_time - 1
+        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= TIME_LIMIT_NS:
+            lo, hi = meta.start_time % 2**64, (meta.end_time - 1) % 2**64  # as stored (uint64), not as wrapped
             msg = (f"record (log) times {lo} to {hi} ns are {_TIME_RANGE}: the MCAP file's times are corrupt "
                    "(repair or re-record the log)")
             raise TimeRangeError(msg)
@@ -1262,8 +1266,9 @@ def iter_batches(
 
 
 def _check_record_times(batch: RawBatch, path: str | Path, connections: Sequence[Connection]) -> None:
-    """One line naming the topic when a message's record time wrapped (a summary may not show it)."""
-    bad = batch.rec_ns < 0
+    """One line naming the topic when a message's record time is outside 0 to TIME_LIMIT_NS (a summary may not
+    show it; rosbag2 sqlite3 files have none to check)."""
+    bad = (batch.rec_ns < 0) | (batch.rec_ns >= TIME_LIMIT_NS)
     if bad.any():
         topic = connections[int(batch.conn[np.argmax(bad)])].topic
         raise InputError(path, f"{int(bad.sum())} messages have a record (log) time {_TIME_RANGE}: the log's times "
