@@ -451,11 +451,14 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
             raise OutputError(final, "appeared while this command was writing its output (another run, or a "
                                      "user's file): it was left as it is and nothing was published") from None
         return None
-    if _exchange(new, final):
-        old, swapped = new, True
-    else:
-        os.rename(final, aside)
-        old, swapped = aside, False
+    try:
+        if _exchange(new, final):
+            old, swapped = new, True
+        else:
+            os.rename(final, aside)
+            old, swapped = aside, False
+    except FileNotFoundError:  # the checked entry went meanwhile: nothing to replace any more
+        return publish(new, final, None, aside=aside)
     problem = None
     if identity(old) != expected:
         problem = "was replaced while this command was writing its output (another run, or a user)"

@@ -329,3 +329,51 @@ def test_report_replaces_only_its_own_files(earlier, tmp_path):
     code, err = _cli("report", run, "-q", "--export", "none")
     _one_line(code, err, str(run / "estimate_tum.txt"), "not written by slamobs")
     assert _tree(run) == before
+
+
+@pytest.mark.parametrize("renameat2", [True, False], ids=["renameat2", "plain-renames"])
+def test_publish_replaces_only_the_checked_entry(tmp_path, monkeypatch, renameat2):
+    """The publishing step on its own, with renameat2 and without it (other systems, file systems without the
+    flags): nothing is replaced but the entry checked, unchanged; what appeared or changed is put back as it was."""
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.errors import OutputError
+    from slamobs.pipeline.paths import foreign_entry, identity
+
+    if renameat2 and writers._RENAMEAT2 is None:
+        pytest.skip("no renameat2 on this system")
+    if not renameat2:
+        monkeypatch.setattr(writers, "_RENAMEAT2", None)
+
+    def new(name: str) -> Path:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "run.json").write_text(name)
+        return tmp_path / name
+
+    out, aside = tmp_path / "out", tmp_path / "aside"
+    import shutil
+
+    for kind in ("directory", "file"):  # appeared where nothing was checked: kept
+        users = out / "important.txt" if kind == "directory" else out
+        users.parent.mkdir(exist_ok=True)
+        users.write_text("user")
+        with pytest.raises(OutputError, match="appeared"):
+            writers.publish(new(f"n-{kind}"), out, None, aside=aside)
+        assert users.read_text() == "user"
+        assert (tmp_path / f"n-{kind}" / "run.json").is_file()  # ours stays with the caller
+        shutil.rmtree(out) if kind == "directory" else out.unlink()
+    earlier = new("out")
+    checked = identity(earlier)
+    (out / "thesis.tex").write_text("user")  # added after the check
+    with pytest.raises(OutputError, match="thesis.tex is not written by slamobs"):
+        writers.publish(new("n1"), out, checked, aside=aside, owned=foreign_entry)
+    assert sorted(os.listdir(out)) == ["run.json", "thesis.tex"] and not aside.exists()
+    (out / "thesis.tex").unlink()
+    os.rename(out, tmp_path / "moved")  # replaced after the check
+    new("out")
+    with pytest.raises(OutputError, match="was replaced"):
+        writers.publish(new("n2"), out, checked, aside=aside, owned=foreign_entry)
+    assert identity(out) != checked and not aside.exists()
+    shutil.rmtree(out)
+    os.rename(tmp_path / "moved", out)
+    old = writers.publish(new("n3"), out, checked, aside=aside, owned=foreign_entry)  # the checked run: replaced
+    assert (out / "run.json").read_text() == "n3" and identity(old) == checked
