@@ -9,7 +9,7 @@ loaded on first use, so ``import slamobs`` (and ``slamobs --help``) stays fast:
 - :func:`load_run` loads a run directory's tables into pandas, with its ``run.json`` and ``report.json``.
 """
 
-__version__ = "0.1.0"
+from slamobs.pipeline.version import __version__
 
 __all__ = ["__version__", "load_run", "read_log", "run_log"]
 

@@ -15,7 +15,8 @@ where stages overlap: chunks are loaded and topics decoded on two threads, the w
 the clock-offset search beside the association and a helper process draws the figures. Warm runs are repeated ``--repeat`` times and the fastest is shown, every run's wall time on a
 line below the table (the machine may be shared: the load average is printed before and after). First, the cold run: a ``--cold-seconds`` log with an empty numba
 cache directory, on one core (CPU affinity), then the same run again warm. The floors of the issues are checked
-at the end, among them that a default run directory is at most twice its Parquet tables. ``--exports`` runs the
+at the end, each on its own line ending in met or MISSED, among them that a default run directory is at most
+twice its Parquet tables. ``--exports`` runs the
 first log once more with every optional export (``--export tum,evo,mcap``) and prints the size of each group of
 files per hour of log.
 """
@@ -53,6 +54,11 @@ MAX_OUT_PER_PARQUET = 2.0
 GROUPS = {"Parquet tables": ("*.parquet",), "report + figures": ("report.*", "*.png", "run.json"),
           "tum (estimate_tum.txt, truth_tum.txt)": ("*_tum.txt",), "evo (ape_evo.zip)": ("*.zip",),
           "mcap (results.mcap)": ("*.mcap",)}
+
+
+def met(ok: bool) -> str:
+    """How a floor's line ends: ``met`` or ``MISSED``."""
+    return "met" if ok else "MISSED"
 
 
 def cpu_model() -> str:
@@ -227,27 +233,28 @@ def main() -> None:
     print("# floors")
     if cold:
         print(f"cold {args.cold_seconds:g} s log on one core in {cold['wall']:.1f} s (<= {MAX_WALL_COLD_S:g}): "
-              f"{'ok' if cold['wall'] <= MAX_WALL_COLD_S else 'MISSED'}")
+              f"{met(cold['wall'] <= MAX_WALL_COLD_S)}")
     for container in args.containers:
         one, four, short = results.get((3600.0, container)), results.get((14400.0, container)), \
             results.get((90.0, container))
         if short:
             print(f"{container}: 90 s log in {short['wall']:.2f} s (<= {MAX_WALL_90S_S:g}): "
-                  f"{'ok' if short['wall'] <= MAX_WALL_90S_S else 'MISSED'}")
-        if one:
-            ok = (one["wall"] <= MAX_WALL_1H_S and one["rss"] <= MAX_RSS_1H_MB
-                  and one["parquet_mb"] < MAX_PARQUET_1H_MB)
-            print(f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}), peak {one['rss']:.0f} MB "
-                  f"(<= {MAX_RSS_1H_MB:g}), parquet {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
-                  f"{'ok' if ok else 'MISSED'}")
+                  f"{met(short['wall'] <= MAX_WALL_90S_S)}")
+        if one:  # one line per floor: a missed Parquet size must not hide a met time, nor the reverse
+            print(f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}): "
+                  f"{met(one['wall'] <= MAX_WALL_1H_S)}")
+            print(f"{container}: 1 h peak RSS {one['rss']:.0f} MB (<= {MAX_RSS_1H_MB:g}): "
+                  f"{met(one['rss'] <= MAX_RSS_1H_MB)}")
+            print(f"{container}: 1 h Parquet tables {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
+                  f"{met(one['parquet_mb'] < MAX_PARQUET_1H_MB)}")
         for (seconds, c), r in results.items():
             if c == container:
                 ratio = r["out_mb"] / r["parquet_mb"]
                 print(f"{container} {seconds:g} s: run directory {r['out_mb']:.1f} MB = {ratio:.2f} x its Parquet "
-                      f"tables (<= {MAX_OUT_PER_PARQUET:g}): {'ok' if ratio <= MAX_OUT_PER_PARQUET else 'MISSED'}")
+                      f"tables (<= {MAX_OUT_PER_PARQUET:g}): {met(ratio <= MAX_OUT_PER_PARQUET)}")
         if one and four:
             ratio = four["rss"] / one["rss"]
-            print(f"{container}: 4 h peak / 1 h peak = {ratio:.2f} (< 2): {'ok' if ratio < 2 else 'MISSED'}")
+            print(f"{container}: 4 h peak / 1 h peak = {ratio:.2f} (< 2): {met(ratio < 2)}")
     shutil.rmtree(args.cache / "runs", ignore_errors=True)
 
 if __name__ == "__main__":

@@ -28,8 +28,8 @@ import numpy as np
 import pandas as pd
 
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.evaluation.align import umeyama
-from slamobs.pipeline.observers import OBSERVERS
+from slamobs.pipeline.lie import umeyama
+from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.run import prepare_log, run_prepared
 from slamobs.pipeline.simulate import get_scenario, simulation, write_log
 
@@ -51,7 +51,7 @@ def measure(log: Path, out: Path, observers: list[str], scenario: str, start_ns:
     rows = {}
     for name in observers:
         cfg = RunConfig(observer=name, plots=False)
-        prepared = prepare_log(log, cfg, directions=OBSERVERS[name].min_directions > 0)
+        prepared = prepare_log(log, cfg, directions=ESTIMATORS[name].min_directions > 0)
         summary = run_prepared(prepared, out / name, cfg, force=True, release=True)
         rep = summary.report
         lm = rep["landmarks"]
@@ -68,7 +68,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
-    ap.add_argument("--observers", nargs="+", default=list(OBSERVERS))
+    ap.add_argument("--observers", nargs="+", default=list(ESTIMATORS))
     args = ap.parse_args()
     print("| scenario | seed | observer | map err, trajectory alignment [m] | map err, map-only alignment [m] | "
           "ratio | APE rmse [m] | map err, alignment on the poses while landmarks were seen [m] |")

@@ -4,7 +4,7 @@
 
 For 4, 30 and 300 visible landmarks, runs the numba kernel of each observer over a synthetic stream
 (all landmarks visible at 20 Hz, velocity at 200 Hz) and counts its internal (sub-)steps per second; the
-NumPy column runs the same fast-adaptation sub-step (spec §2.3 + measurement prediction) vectorised
+NumPy column runs the same fast-adaptation sub-step (docs/observers.md §4 + §6.1) vectorised
 over landmarks with NumPy, in the same process. Compilation happens before timing; each rate is the best
 of ``--repeat`` runs (a shared machine only ever slows a run down). "us/event" is the time per velocity
 sample or landmark frame: with the default gains there are only ~5 sub-steps per event at 4 landmarks, so
@@ -22,7 +22,8 @@ import numpy as np
 
 from slamobs.pipeline.alignment import AlignedStream
 from slamobs.pipeline.lie import se3_exp
-from slamobs.pipeline.observers import OBSERVERS, ObserverOptions
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.estimators import ESTIMATORS
 
 
 def synthetic_stream(n_landmarks: int, seconds: float, rate: float = 200.0, det_rate: float = 20.0,
@@ -83,7 +84,7 @@ def numpy_steps_per_s(n_landmarks: int, steps: int, gains=dict(k_p=1.0, k_w=1.0,
 
 def kernel_steps_per_s(name: str, stream: AlignedStream, repeat: int) -> tuple[float, int, float]:
     """Best sub-steps per second over ``repeat`` runs, the sub-step count, and the best seconds per event."""
-    spec = OBSERVERS[name]
+    spec = ESTIMATORS[name]
     gains = spec.resolve_gains(None)
     res = spec.run(stream, gains, ObserverOptions())  # compile / warm
     best = float("inf")
@@ -127,7 +128,7 @@ def main() -> None:
     for n in LANDMARKS:
         stream = synthetic_stream(n, max(4.0, args.seconds * LANDMARKS[0] / n))  # about the same steps for each n
         np_rates[n] = np_rate = max(numpy_steps_per_s(n, 3000 if n < 100 else 1000) for _ in range(3))
-        for name in OBSERVERS:
+        for name in ESTIMATORS:
             rate, steps, per_event = kernel_steps_per_s(name, stream, args.repeat)
             rates[name, n] = rate
             fa = name == "fast-adaptation"
@@ -136,7 +137,7 @@ def main() -> None:
             print(f"{name:<16} {n:>9} {steps:>10} {rate:>15,.0f} {np_col} {ratio} {1e6 / rate:>8.3f} "
                   f"{1e6 * per_event:>9.3f} {1e6 / rate / n:>17.4f}")
     print("# cost per internal step fitted as a + b * landmarks (least squares over 4, 30, 300)")
-    for name in OBSERVERS:
+    for name in ESTIMATORS:
         us = np.array([1e6 / rates[name, n] for n in LANDMARKS])
         b, a = np.polyfit(np.array(LANDMARKS, float), us, 1)
         worst = float(np.max(np.abs(a + b * np.array(LANDMARKS) - us) / us))

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import sys
 from datetime import datetime
@@ -14,33 +13,8 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
 from slamobs.cli.options import Finite
-
-#: Exit codes (documented in --help and the README).
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INFRA = 0, 1, 2, 3
-EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
-
-
-class Stopped(KeyboardInterrupt):
-    """SIGINT, SIGTERM or SIGHUP: the batch stops the same way for each (workers killed, runs so far kept)."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-def _on_signal(signum, _frame) -> None:
-    for sig in EXIT_SIGNAL:  # a second signal must not cut the clean-up short (SIGKILL still can)
-        signal.signal(sig, signal.SIG_IGN)
-    raise Stopped(signum)
-
-
-def _cores() -> int:
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
-
 
 def _jsonable(row: dict) -> dict:
     def conv(v):
@@ -221,11 +195,11 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
 
     if executor == "local" and scheduler:
         exit_input_error("--scheduler runs on Dask; it cannot be combined with --executor local")
-    handlers = {sig: signal.signal(sig, _on_signal) for sig in EXIT_SIGNAL}
+    handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
     reporter = _Reporter(quiet, as_json)
     try:
         if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
-            _on_signal(pending, None)
+            on_signal(pending, None)
         config = load_config(config_path)
         if observer:
             config = replace(config, observer=observer)
@@ -235,7 +209,7 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
         entries = discover(inputs)
         options = BatchOptions(out=out_dir, config=config, observer=observer, msg_dir=str(msg_dir.resolve()) if msg_dir else None,
                                force=force, skip_failed=skip_failed, prune=prune, compact=not no_compact,
-                               executor=executor or ("dask" if scheduler else "local"), jobs=jobs or _cores(),
+                               executor=executor or ("dask" if scheduler else "local"), jobs=jobs or cores(),
                                scheduler=scheduler, timeout=_timeout(timeout), wait_workers=wait_workers)
         where = (f"Dask at {scheduler}" if scheduler else f"a local Dask cluster of {options.jobs} workers"
                  if options.executor == "dask" else f"{options.jobs} local worker processes")

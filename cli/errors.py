@@ -1,12 +1,13 @@
 """How every command ends when it cannot finish: one line on stderr and a documented exit code.
 
-- bad input, a bad option value or an output that cannot or must not be written: ``error: FILE: problem``,
-  exit code 2 (nothing is written; an existing output is unchanged);
+- bad input, a bad option value, an output that cannot or must not be written, or a machine that ran out of
+  something: ``error: FILE: problem``, exit code 2 (nothing is written; an existing output is unchanged);
 - Ctrl-C (SIGINT), SIGTERM or SIGHUP (a closed terminal): ``interrupted``, the run is abandoned cleanly (its
   temporary output removed), exit code 130, 143 or 129 (128 + the signal number, as a shell reports a process
   killed by it).
 
-The command group applies this to every command (:func:`handled`), so commands contain no error plumbing.
+:data:`EXIT_CODES` maps each kind of error (``pipeline/errors.py``) to its code. The command group applies
+this to every command (:func:`handled`), so commands contain no error plumbing.
 """
 
 from __future__ import annotations
@@ -20,13 +21,41 @@ from typing import NoReturn
 
 import click
 
+from slamobs.pipeline.errors import (
+    BadConfig,
+    BadInput,
+    BadOutput,
+    InfrastructureFailure,
+    Interruption,
+    ResourceFailure,
+    SlamobsError,
+    kind_of,
+)
+
 #: Exit code of bad input (missing or unreadable file, bad config); 1 is left to partial failures (batch).
 INPUT_ERROR_EXIT = 2
 
+#: The exit code of each kind of error; an interruption's is 128 plus its signal number (130 for SIGINT, 143
+#: for SIGTERM), what a shell reports for a process the signal killed.
+EXIT_CODES: dict[type[SlamobsError], int] = {
+    BadInput: INPUT_ERROR_EXIT,
+    BadConfig: INPUT_ERROR_EXIT,
+    BadOutput: INPUT_ERROR_EXIT,
+    ResourceFailure: INPUT_ERROR_EXIT,
+    InfrastructureFailure: 3,  # batch and tune: the batch cannot go on (scheduler lost, no usable workers)
+    Interruption: 128,
+}
 
-def exit_input_error(err: Exception | str) -> NoReturn:
+
+def exit_code(err: SlamobsError) -> int:
+    """The exit code :data:`EXIT_CODES` gives the kind of ``err``."""
+    code = EXIT_CODES.get(kind_of(err), INPUT_ERROR_EXIT)  # the root itself: as bad input
+    return code + int(getattr(err, "signum", signal.SIGINT)) if isinstance(err, Interruption) else code
+
+
+def exit_input_error(err: BaseException | str, code: int = INPUT_ERROR_EXIT) -> NoReturn:
     click.echo(f"error: {' '.join(str(err).split())}", err=True)
-    sys.exit(INPUT_ERROR_EXIT)
+    sys.exit(code)
 
 
 #: Set by the console script (``cli.main.entry``): when a command has finished or was interrupted the process
@@ -46,7 +75,7 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
     else:
         click.echo(f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged",
                    err=True)
-    code = 128 + int(signum)
+    code = EXIT_CODES[Interruption] + int(signum)
     if EXIT_AT_ONCE:
         _end_now(code)
     sys.exit(code)
@@ -109,18 +138,18 @@ def os_error_line(err: OSError) -> str:
 
 @contextmanager
 def handled():
-    """Run a command: input, gain and OS errors become one line and exit code 2, SIGINT/SIGTERM exit 130/143."""
-    from slamobs.pipeline.errors import GainError, InputError
+    """Run a command: slamobs' errors and OS errors become one line and the exit code of their kind (2 for OS
+    errors), SIGINT/SIGTERM exit 130/143."""
     from slamobs.pipeline.interrupts import as_interruption, raise_when_safe
 
     try:
         with as_interruption(), raise_when_safe():
             yield
-    except (InputError, GainError) as err:
-        exit_input_error(err)
+    except KeyboardInterrupt as err:  # Interruption, and Python's own for a SIGINT before the handlers
+        exit_interrupted(err)
+    except SlamobsError as err:
+        exit_input_error(err, exit_code(err))
     except BrokenPipeError:
         sys.exit(128 + signal.SIGPIPE)  # the reader of our output went away: nothing to report to
     except OSError as err:
         exit_input_error(os_error_line(err))
-    except KeyboardInterrupt as err:
-        exit_interrupted(err)

@@ -182,9 +182,9 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
 @main.command()
 def observers() -> None:
     """List the observers and their gains (defaults in brackets; set them under `gains.<observer>` in run.yaml)."""
-    from slamobs.pipeline.observers import OBSERVERS
+    from slamobs.pipeline.estimators import ESTIMATORS
 
-    for spec in OBSERVERS.values():
+    for spec in ESTIMATORS.values():
         click.echo(f"{spec.name}  (algorithm {spec.algorithm}) {spec.summary}")
         click.echo(f"    paper: {spec.paper}")
         if not spec.gains:

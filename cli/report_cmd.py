@@ -38,9 +38,10 @@ def _lengths(text: str | None) -> tuple[float, ...] | None:
 def _previous_options(run_dir: Path) -> dict:
     """Options of the report already in the run directory (a re-report keeps them unless told otherwise)."""
     try:
-        return dict(json.loads((run_dir / "report.json").read_text()).get("options") or {})
-    except (OSError, ValueError):
+        options = json.loads((run_dir / "report.json").read_text()).get("options")
+    except (OSError, ValueError, AttributeError, RecursionError):  # damaged or edited: the new report replaces it
         return {}
+    return dict(options) if isinstance(options, dict) else {}
 
 
 @click.command("report")

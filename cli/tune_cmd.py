@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.batch_cmd import EXIT_INFRA, EXIT_SIGNAL, Stopped, _cores, _on_signal
+from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.options import SEED, Finite
 
@@ -65,7 +65,7 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
     from slamobs.pipeline.interrupts import take_pending
     from slamobs.pipeline.tune.study import TuneFailed, TuneOptions, run_tune
 
-    handlers = {sig: signal.signal(sig, _on_signal) for sig in EXIT_SIGNAL}
+    handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
 
     def on_round(done: int, total: int, best: float | None) -> None:
         if not quiet:
@@ -74,9 +74,9 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
 
     try:
         if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
-            _on_signal(pending, None)
+            on_signal(pending, None)
         options = TuneOptions(out=out_dir, observer=observer, config=load_config(config_path), trials=trials,
-                              objective=objective, jobs=jobs or _cores(), scheduler=scheduler, seed=seed, force=force,
+                              objective=objective, jobs=jobs or cores(), scheduler=scheduler, seed=seed, force=force,
                               wait_workers=wait_workers, holdout=holdout)
         if not quiet:
             where = f"Dask at {scheduler}" if scheduler else f"{options.jobs} local worker processes"

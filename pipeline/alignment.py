@@ -12,7 +12,7 @@ through ``/tf`` is interpolated at every sample: velocity and direction samples 
 the nearest transform (an extrinsic that drifts little), detection frames outside it are dropped (a moving
 camera must not be guessed). Which edges were used is reported in the notes.
 
-Plausibility gates (``limits``, see ``config.DEFAULT_LIMITS``) drop what no sensor produces: angular rates and
+Plausibility gates (``limits``, see ``DEFAULT_LIMITS``) drop what no sensor produces: angular rates and
 speeds beyond a limit, detections nearer or farther from the body origin than a limit; each is counted in the
 notes. Gaps in the velocity streams longer than ``max_gap`` split the run into segments
 (``AlignedStream.segment_starts``): the observer holds its state across a gap rather than integrating the last
@@ -34,10 +34,16 @@ from slamobs.pipeline.directions import (
     build_directions,
 )
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
-from slamobs.pipeline.config import DEFAULT_LIMITS
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
+
+#: Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
+#: sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there)
+#: or farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s),
+#: a speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments.
+DEFAULT_LIMITS = {"min_range": 0.05, "max_range": 500.0, "max_angular_rate": 100.0, "max_speed": 300.0,
+                  "max_gap": 5.0}
 
 #: Start of the note on the accelerometer's down-weighted samples (only runs that use the accelerometer keep it).
 ACCEL_NOTE = "accelerometer: "
@@ -252,7 +258,7 @@ def align(
     ``streams`` once it has been used (for a caller that reads nothing else of them), so the samples of a long
     log are not held twice. Each part runs in its own function so its temporaries are gone before the next
     part starts; the notes come in the order velocities, detections, directions. ``limits`` are the
-    plausibility gates and ``max_gap`` (default ``config.DEFAULT_LIMITS``; a None entry switches one off).
+    plausibility gates and ``max_gap`` (default ``DEFAULT_LIMITS``; a None entry switches one off).
     """
     lim = {**DEFAULT_LIMITS, **(limits or {})}
     om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
@@ -566,10 +572,17 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
         per_frame = np.bincount(frame_rank, minlength=frames.size)
         del frame_rank, order_det
     t_frames = t_det[frames]
+    n_gated = ids.shape[0]
     det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
                                                   else rng, ids, per_frame, t_frames, lim, notes)
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
+    if landmark_ids.size == 0 and n_gated:  # the gate, not the time span, took them all: say so and what to do
+        gate = notes[-1].partition(": detections dropped by the range gate: ")[2].partition(";")[0]
+        raise InputError(path, f"all {n_gated} detections inside the velocity time span were dropped by the range "
+                               f"gate ({gate}): if those ranges are real, change limits.min_range / "
+                               "limits.max_range (null switches a gate off); a range of 0 is a detection without "
+                               "a position", det.topic)
     if landmark_ids.size == 0:
         raise InputError(path, "no landmark detections inside the velocity time span (of "
                                f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)

@@ -10,8 +10,8 @@ import numpy as np
 
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.observers import get_observer
-from slamobs.pipeline.run import Progress, RunSummary, _silent, prepare_log, run_inputs, run_prepared
+from slamobs.pipeline.estimators import get_estimator
+from slamobs.pipeline.run import Progress, RunSummary, silent, prepare_log, run_inputs, run_prepared
 
 COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
            "vel_bias_err", "convergence_s", "convergence_band_m", "run_time_s", "error")
@@ -21,7 +21,7 @@ LABELS = {VS_BATCH: "APE / batch APE"}
 
 
 def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str], *, force: bool = False,
-                progress: Progress = _silent, on_observer: Progress = _silent):
+                progress: Progress = silent, on_observer: Progress = silent):
     """Run every observer in ``observers`` on ``log``; write ``OUT/<observer>/``, the table and an overlay plot.
 
     An observer that cannot run on this log (e.g. it needs IMU directions the log lacks) gets a row with
@@ -34,7 +34,7 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
     from slamobs.pipeline.writers import atomic_directory, write_json
 
     for name in observers:
-        spec = get_observer(name)
+        spec = get_estimator(name)
         spec.resolve_gains(config.gains.get(name))  # unknown names or bad gains: fail early
         spec.directions_needed(replace(config, observer=name))  # and bad estimator settings
     inputs = run_inputs(Path(log), config)

@@ -10,15 +10,10 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.alignment import DEFAULT_LIMITS
+from slamobs.pipeline.errors import GainError, InputError
 
 DEFAULT_OBSERVER = "fast-adaptation"
-#: Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
-#: sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there)
-#: or farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s),
-#: a speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments.
-DEFAULT_LIMITS = {"min_range": 0.05, "max_range": 500.0, "max_angular_rate": 100.0, "max_speed": 300.0,
-                  "max_gap": 5.0}
 #: Plausible magnitudes of the configured inertial references: gravity in m/s^2 (the Moon 1.6, Earth 9.8),
 #: the magnetic field in Tesla (Earth 25-65 µT).
 GRAVITY_RANGE = (1.0, 25.0)
@@ -242,15 +237,15 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
             gravity or magnetic field.
 
     """
-    from slamobs.pipeline.observers import OBSERVERS, GainError, get_observer
+    from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
 
-    if config.observer not in OBSERVERS:
+    if config.observer not in ESTIMATORS:
         raise InputError(source, f"observer: {_unknown_observer(config.observer)}")
     for name, gains in config.gains.items():
-        if name not in OBSERVERS:
+        if name not in ESTIMATORS:
             raise InputError(source, f"gains.{name}: {_unknown_observer(name)}")
         try:
-            get_observer(name).resolve_gains(gains)
+            get_estimator(name).resolve_gains(gains)
         except GainError as err:
             raise InputError(source, f"gains.{name}: {err}") from None
     if config.batch:
@@ -264,20 +259,20 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
 
 
 def _unknown_observer(name: str) -> str:
-    from slamobs.pipeline.observers import OBSERVERS
+    from slamobs.pipeline.estimators import ESTIMATORS
 
-    close = difflib.get_close_matches(name.replace("_", "-"), OBSERVERS, n=1, cutoff=0.6)
+    close = difflib.get_close_matches(name.replace("_", "-"), ESTIMATORS, n=1, cutoff=0.6)
     hint = f"did you mean '{close[0]}'? " if close else ""
-    return f"unknown observer '{name}' ({hint}observers: {', '.join(OBSERVERS)})"
+    return f"unknown observer '{name}' ({hint}observers: {', '.join(ESTIMATORS)})"
 
 
 def with_observer(config: RunConfig, name: str | None, option: str = "--observer") -> RunConfig:
     """``config`` running observer ``name`` (None: unchanged); an unknown name is an error naming ``option``."""
-    from slamobs.pipeline.observers import OBSERVERS
+    from slamobs.pipeline.estimators import ESTIMATORS
 
     if not name:
         return config
-    if name not in OBSERVERS:
+    if name not in ESTIMATORS:
         raise InputError(option, _unknown_observer(name))
     return replace(config, observer=name)
 
@@ -315,17 +310,11 @@ def load_config(path: Path | None) -> RunConfig:
     """Read ``run.yaml`` (or defaults when ``path`` is None)."""
     if path is None:
         return RunConfig()
-    from ruamel.yaml import YAML, YAMLError
-
-    from slamobs.pipeline.paths import check_input, read_text
+    from slamobs.pipeline.paths import check_input, read_yaml
 
     path = Path(path)
     check_input(path, "config file (YAML)", directory_ok=False)
-    text = read_text(path, "config")
-    try:
-        data = YAML(typ="safe").load(text)
-    except YAMLError as err:
-        raise InputError(path, f"not valid YAML: {' '.join(str(err).split())[:300]}") from None
+    data = read_yaml(path, "config")
     if data is not None and not isinstance(data, dict):
         raise InputError(path, "config must be a mapping of sections (observer, topics, gains, ...)")
     config = parse_config(data, str(path))

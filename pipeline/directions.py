@@ -1,4 +1,4 @@
-"""Inertial direction measurements (spec §4.1): gravity from the accelerometer, the magnetic field.
+"""Inertial direction measurements (docs/observers.md §7): gravity from the accelerometer, the magnetic field.
 
 An accelerometer measures specific force ``f = Rᵀ(a − g)``; only when the body acceleration ``a`` is known
 does it give the direction of gravity. The body acceleration is estimated from the velocity stream
@@ -111,7 +111,7 @@ def build_directions(t_s, omega, velocity, accel, magnetic, gravity=DEFAULT_GRAV
 def direction_arrays(directions: DirectionSet, gains: dict[str, float]):
     """Kernel inputs ``(inertial (J,3), body (N,J0,3), weight (N,J0), gscale (J0,), make_cross)``.
 
-    Both sides are normalised (spec §4.1, eq. 15); the weight is the gain ``s_<name>`` (default 1) times
+    Both sides are normalised (docs/observers.md §7); the weight is the gain ``s_<name>`` (default 1) times
     the per-sample trust, and unusable samples (weight 0 or not finite) are zeroed so that no NaN reaches
     the kernel. With exactly two directions the inertial third vector is their normalised cross product
     and ``make_cross`` asks the kernel to build the body one per sample (after its gravity correction).
@@ -156,7 +156,7 @@ def load_directions(body, weight, gscale, make_cross, om_m, v_m, b_om, b_v, dir_
     that tilts "up" by 1-2°. Here the term is redone with the bias-corrected twist:
     ``up ∝ a up_m + c``, ``c = Ω_m × V_m − (Ω_m − b̂_Ω) × (V_m − b̂_V)``, where the lost length ``a`` of
     ``f − a_B,m`` follows from ``‖a up_m + c‖ = ‖g‖`` (exact when b̂ is). Then, with two directions, the
-    third is their normalised cross product (spec §4.1), weighted like the weaker of the two.
+    third is their normalised cross product (docs/observers.md §7), weighted like the weaker of the two.
     """
     n0 = body.shape[0]
     for j in range(n0):

@@ -17,6 +17,8 @@ import signal
 import threading
 from contextlib import contextmanager
 
+from slamobs.pipeline.errors import Interruption
+
 RETRY_S = 0.02
 #: Top-level modules a signal's exception must not unwind through: compiler and thread-pool locks, thread
 #: starts and joins, queue conditions, imports, finalizers and child-process starts.
@@ -35,7 +37,7 @@ _critical = 0  # depth of :func:`critical` blocks
 published: list[str] = []
 
 
-class Interrupted(KeyboardInterrupt):
+class Interrupted(Interruption):
     """Ctrl-C or SIGTERM, raised like Ctrl-C's KeyboardInterrupt so every ``finally`` and cleanup runs."""
 
     def __init__(self, signum: int) -> None:

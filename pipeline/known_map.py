@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import read_text
+from slamobs.pipeline.paths import read_text, read_yaml
 
 MODES = ("fixed", "prior")
 #: A pose fit needs mapped landmarks spread this much (m, second principal extent) in one frame.
@@ -137,14 +137,9 @@ def _csv(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _tagslam(path: Path) -> tuple[np.ndarray, np.ndarray]:
-    from ruamel.yaml import YAML, YAMLError
-
     from slamobs.pipeline.lie import so3_exp
 
-    try:
-        doc = YAML(typ="safe").load(read_text(path, "map"))
-    except YAMLError as err:
-        raise InputError(path, f"not valid YAML: {str(err).splitlines()[0]}") from None
+    doc = read_yaml(path, "map")
     if not isinstance(doc, dict) or not isinstance(doc.get("bodies"), list):
         raise InputError(path, "not a TagSLAM tagslam.yaml (no 'bodies' list)")
 
@@ -229,8 +224,7 @@ def map_start(aligned, known: KnownMap) -> MapStart:
 
 
 def _start_pose(aligned, xyz: np.ndarray, mapped: np.ndarray) -> tuple[tuple[np.ndarray, np.ndarray] | None, str]:
-    from slamobs.pipeline.evaluation.align import umeyama
-    from slamobs.pipeline.simulate.scenarios import integrate_body_twists
+    from slamobs.pipeline.lie import integrate_body_twists, umeyama
 
     offsets, idx = aligned.det_offsets, aligned.det_idx
     for f in range(aligned.det_t_ns.shape[0]):

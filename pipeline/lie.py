@@ -1,6 +1,6 @@
 """SO(3)/SE(3) helpers shared by every observer, the simulator and the evaluation.
 
-Conventions (spec §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
+Conventions (docs/observers.md §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
 ``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. The per-pose functions are
 numba-compiled so the observer kernels can call them (they also work from plain Python on NumPy arrays); the
 ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) are NumPy with the same arithmetic
@@ -70,7 +70,7 @@ def vex(m):
 
 @njit(cache=True)
 def so3_exp(w):
-    """Rodrigues' formula with the small-angle branch of spec §1.2."""
+    """Rodrigues' formula with the small-angle branch of docs/observers.md §1."""
     theta = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
     k = skew(w)
     k2 = mat3_mul(k, k)
@@ -233,7 +233,7 @@ def so3_log(r):
 
 @njit(cache=True)
 def rotation_angle(r):
-    """Rotation angle in [0, pi] (spec §1.2)."""
+    """Rotation angle in [0, pi] (docs/observers.md §1)."""
     c = 0.5 * (r[0, 0] + r[1, 1] + r[2, 2] - 1.0)
     return np.arccos(min(1.0, max(-1.0, c)))
 
@@ -356,3 +356,65 @@ def rots_to_quats(r):
 def _rots_to_quats_into(r, q):
     for n in range(r.shape[0]):
         q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])
+
+
+@njit(cache=True)
+def integrate_body_twists(r0, p0, omega, v, dt):
+    """Dead-reckon ``(R, P)`` through steps ``(R, P) <- (R, P) exp(dt_k [omega_k; v_k])``.
+
+    ``omega``, ``v`` are (K, 3) per-step body twists, ``dt`` (K,) step lengths; returns the K + 1 poses.
+    Used both for wheel-odometry poses and to check the scenarios' kinematic consistency.
+    """
+    k = dt.shape[0]
+    rs = np.empty((k + 1, 3, 3))
+    ps = np.empty((k + 1, 3))
+    rs[0] = r0
+    ps[0] = p0
+    for i in range(k):
+        dr, dp = se3_exp(omega[i] * dt[i], v[i] * dt[i])
+        step = mat3_vec(rs[i], dp)
+        rs[i + 1] = mat3_mul(rs[i], dr)
+        for j in range(3):
+            ps[i + 1, j] = ps[i, j] + step[j]
+    return rs, ps
+
+
+def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+    """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991, "Least-squares estimation of
+    transformation parameters between two point patterns"), with ``s = 1`` unless ``with_scale``.
+
+    With the cross-covariance ``Σ = 1/n Σ (dst_i − μ_dst)(src_i − μ_src)ᵀ = U D Vᵀ``, the optimum is
+    ``R = U S Vᵀ`` with ``S = diag(1, 1, −1)`` when ``det U det V < 0`` (otherwise the best orthogonal
+    matrix would be a reflection), ``s = tr(D S) / σ²_src`` and ``t = μ_dst − s R μ_src``. The solution
+    is unique iff ``rank Σ ≥ 2``, i.e. the points are not all collinear.
+    """
+    x = np.asarray(src, dtype=np.float64)
+    y = np.asarray(dst, dtype=np.float64)
+    if x.ndim != 2 or x.shape[1] != 3 or x.shape != y.shape:
+        raise ValueError(f"umeyama: src and dst must both be (N, 3), got {x.shape} and {y.shape}")
+    n = x.shape[0]
+    if n < 3:
+        raise ValueError(f"umeyama: need at least 3 point pairs for a unique rigid alignment, got {n}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+        raise ValueError("umeyama: input contains NaN or infinite coordinates")
+    mu_x = x.mean(axis=0)
+    mu_y = y.mean(axis=0)
+    xc = x - mu_x
+    yc = y - mu_y
+    cov = yc.T @ xc / n
+    u, d, vt = np.linalg.svd(cov)
+    if d[0] <= 0.0 or d[1] <= 1e-12 * d[0]:
+        raise ValueError(
+            f"umeyama: degenerate input ({n} points are all collinear or coincident; cross-covariance "
+            f"singular values {d.tolist()}), the rotation about the common line is undetermined"
+        )
+    s_diag = np.ones(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
+        s_diag[2] = -1.0
+    rot = (u * s_diag) @ vt
+    scale = 1.0
+    if with_scale:
+        var_x = float(np.mean(np.sum(xc * xc, axis=1)))
+        scale = float(np.sum(d * s_diag) / var_x)
+    trans = mu_y - scale * rot @ mu_x
+    return rot, trans, scale

@@ -1,8 +1,8 @@
 """The frame a run's tables are written in (``output.frame``): one rigid transform of the observer's map frame.
 
-Observers estimate the pose only up to what their sensors observe (spec §1.6), so the frame of their output is
-a choice. Every choice here is a single rigid transform ``x_out = R x_map + t`` applied to every pose, track,
-innovation and landmark of the run, so the written map and trajectory stay exactly as consistent as the
+Observers estimate the pose only up to what their sensors observe (docs/observers.md §1.1), so the frame of
+their output is a choice. Every choice here is a single rigid transform ``x_out = R x_map + t`` applied to every pose,
+track, innovation and landmark of the run, so the written map and trajectory stay exactly as consistent as the
 observer made them:
 
 - ``map``: the observer's map frame itself; with a known map (``map:``) that map's frame, and then the default.

@@ -21,6 +21,7 @@ import stat
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 from slamobs.pipeline.errors import InputError, OutputError
 
@@ -257,6 +258,70 @@ def read_text(path: str | Path, what: str, errors: str = "strict") -> str:
     except UnicodeDecodeError as err:
         raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): save the {what} "
                                "as UTF-8") from None
+
+
+#: Values YAML aliases (``*name``) may add to a document beyond those written out: far above what a config,
+#: manifest, map or camera file repeats, far below an alias bomb (9 lines of 9 aliases each: 387 million values).
+YAML_ALIAS_BUDGET = 100_000
+
+
+def read_yaml(path: str | Path, what: str) -> Any:
+    """A user's YAML file (config, manifest, map, camera file) as plain data (safe types only).
+
+    Aliases are counted before anything is built: an alias bomb would take minutes to walk and a cycle
+    (``a: &a [*a]``) recurses forever in whoever walks it, so both (and nesting too deep to compose) are one line.
+    """
+    from ruamel.yaml import YAML, YAMLError
+
+    text = read_text(path, what)
+    yaml = YAML(typ="safe")
+    try:
+        node = yaml.compose(text)
+        if node is None:
+            return None
+        _check_aliases(node, path, what)
+        return yaml.constructor.construct_document(node)
+    except YAMLError as err:
+        raise InputError(path, f"not valid YAML: {' '.join(str(err).split())[:300]}") from None
+    except RecursionError:
+        raise InputError(path, f"the {what} is nested too deeply to read (thousands of levels)") from None
+
+
+def _children(node: Any) -> list:
+    value = node.value
+    if not isinstance(value, list):
+        return []
+    return [part for item in value for part in (item if isinstance(item, tuple) else (item,))]
+
+
+def _check_aliases(root: Any, path: str | Path, what: str) -> None:
+    """Refuse a composed YAML graph whose aliases form a cycle or expand it beyond YAML_ALIAS_BUDGET values
+    (sizes are summed per distinct node, so the check is linear in what is written)."""
+    size: dict[int, int] = {}
+    on_path: set[int] = set()
+    stack = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            on_path.discard(key)
+            size[key] = 1 + sum(size[id(child)] for child in _children(node))
+            continue
+        if key in size:
+            continue
+        on_path.add(key)
+        stack.append((node, True))
+        for child in _children(node):
+            if id(child) in on_path:
+                name = f" *{child.anchor}" if getattr(child, "anchor", None) else ""
+                raise InputError(path, f"the YAML alias{name} refers to a value that contains it (a cycle): the "
+                                       f"{what} cannot be read; write the value out")
+            if id(child) not in size:
+                stack.append((child, False))
+    extra = size[id(root)] - len(size)
+    if extra > YAML_ALIAS_BUDGET:
+        raise InputError(path, f"YAML aliases expand the {what} by {extra:.3g} values (more than the "
+                               f"{YAML_ALIAS_BUDGET:,} allowed; an alias bomb?): write the repeated values out")
 
 
 def check_output_file(out: str | Path, inputs: Iterable[str | Path | None]) -> None:

@@ -115,6 +115,19 @@ def _set(obj, path: tuple, value) -> None:
         setattr(obj, path[-1], value)
 
 
+#: A ROS 2 stamp (builtin_interfaces/Time) holds int32 seconds: 1901-12-13 to 2038-01-19.
+_STAMP_NS = (-(2**31) * _NS, 2**31 * _NS)
+
+
+def check_stamps(lo_ns: int, hi_ns: int, path: str | Path, hint: str = "") -> None:
+    """One line naming ``path`` when stamps from ``lo_ns`` to ``hi_ns`` do not fit a ROS 2 stamp (a serialiser
+    error otherwise, or a stamp wrapped silently by the bulk writer)."""
+    if lo_ns < _STAMP_NS[0] or hi_ns >= _STAMP_NS[1]:
+        bad = hi_ns if hi_ns >= _STAMP_NS[1] else lo_ns
+        raise InputError(path, f"stamp {bad / _NS:.0f} s is outside the int32 seconds of a ROS 2 message stamp "
+                               f"(1901-12-13 to 2038-01-19): the results cannot be written as MCAP{hint}")
+
+
 def _stamp_fields(prefix: tuple = ()) -> dict[tuple, str]:
     return {prefix + _STAMP[0]: "<i4", prefix + _STAMP[1]: "<u4"}
 
@@ -188,8 +201,9 @@ class _Messages:
         msg = self.t[_PATH_TYPE](header=self.header(stamp_ns, MAP_FRAME), poses=poses)
         return self.serialize(msg, _PATH_TYPE)
 
-    def markers(self, t_ns: int, ids: np.ndarray, xyz: np.ndarray, final: bool) -> bytes:
-        """The map as one sphere list (green while estimating, blue for the final map) and an id label each."""
+    def markers(self, t_ns: int, ids: np.ndarray, xyz: np.ndarray, final: bool, known: np.ndarray) -> bytes:
+        """The map as one sphere list (green while estimating, blue for the final map) and an id label each
+        (marker ids from :func:`_marker_ids` over ``known``, every landmark id of the run)."""
         t = self.t
         marker_t = t["visualization_msgs/msg/Marker"]
         point = t["geometry_msgs/msg/Point"]
@@ -211,32 +225,64 @@ class _Messages:
 
         spheres = marker("landmarks", 0, 7, ident, vec3(x=0.2, y=0.2, z=0.2), rgba,  # 7: SPHERE_LIST
                          points=[point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in xyz])
-        labels = [marker("landmark_ids", int(i), 9, self.pose_msg(p + np.array([0.0, 0.0, 0.25]),  # 9: TEXT
+        labels = [marker("landmark_ids", int(m), 9, self.pose_msg(p + np.array([0.0, 0.0, 0.25]),  # 9: TEXT
                                                                   np.array([0.0, 0.0, 0.0, 1.0])),
                          vec3(x=0.0, y=0.0, z=0.2), white, text=str(int(i)))
-                  for i, p in zip(ids, xyz)]
+                  for i, m, p in zip(ids, _marker_ids(ids, known), xyz)]
         return self.serialize(t[_MARKERS_TYPE](markers=[spheres, *labels]), _MARKERS_TYPE)
 
 
-def _latched_qos() -> str:
-    from slamobs.pipeline.simulate.logwriter import _LATCHED_QOS_YAML
+def _marker_ids(ids: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Marker ids (int32 in visualization_msgs/Marker) of landmarks ``ids``: the ids themselves, or, when an id of
+    the run (``known``, sorted) does not fit an int32 (a TF tag frame may name any integer), every id's rank
+    among them, so each landmark keeps one label across map messages; the label's text is the id either way."""
+    if known.size == 0 or (int(known[0]) >= -(2**31) and int(known[-1]) < 2**31):
+        return ids
+    return np.searchsorted(known, ids)
 
-    return _LATCHED_QOS_YAML
+
+def _latched_qos() -> str:
+    from slamobs.pipeline.simulate.logwriter import LATCHED_QOS_YAML
+
+    return LATCHED_QOS_YAML
+
+
+#: The columns of each table this module reads (schemas/<table>.json describes them all).
+_READS = {
+    "poses": ("t_ns", "x", "y", "z", "qx", "qy", "qz", "qw"),
+    "biases": ("t_ns", *(f"{b}_bias_{a}" for b in ("gyro", "vel") for a in "xyz")),
+    "innovations": ("t_ns", "id", "ex", "ey", "ez"),
+    "landmark_tracks": ("t_ns", "id", "x", "y", "z"),
+    "landmarks": ("id", "x", "y", "z"),
+}
 
 
 def _read(run_dir: Path, name: str):
+    """Table ``name`` of the run (None when the run has none); unreadable or lacking a column read here is one
+    line naming the file."""
     from slamobs.pipeline.writers import read_frame
 
     path = run_dir / f"{name}.parquet"
     if path.is_file():
         try:
-            return read_frame(path)
+            frame = read_frame(path)
         except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
             raise InputError(path, f"unreadable table: {' '.join(str(err).split())}") from None
-    from slamobs.pipeline.batch.dataset import run_tables  # a batch run directory: tables are in the dataset
+    else:
+        from slamobs.pipeline.batch.dataset import run_tables  # a batch run directory: tables are in the dataset
 
-    found = (run_tables(run_dir) or {}).get(name)
-    return None if found is None else found.to_pandas()
+        found = (run_tables(run_dir) or {}).get(name)
+        if found is None:
+            return None
+        frame, path = found.to_pandas(), run_dir
+    missing = [c for c in _READS[name] if c not in frame.columns]
+    if missing:
+        raise InputError(path, f"the {name} table has no column {', '.join(missing)} (see schemas/{name}.json): "
+                               "edited or written by another program; run slamobs run again")
+    if "t_ns" in frame.columns and len(frame):
+        t_ns = frame["t_ns"].to_numpy(np.int64)
+        check_stamps(int(t_ns.min()), int(t_ns.max()), path)
+    return frame
 
 
 def _every(t_ns: np.ndarray, rate_hz: float | None) -> np.ndarray:
@@ -337,12 +383,12 @@ def _why_kept(path: Path, *, force: bool) -> str | None:
 def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: float | None) -> None:
     from mcap.writer import CompressionType, Writer
 
-    import slamobs
+    from slamobs.pipeline.version import __version__
 
     body = FRAME_PREFIX + str((meta.get("input") or {}).get("body_frame") or "base_link").lstrip("/")
     msgs = _Messages(body)
     writer = Writer(stream, compression=CompressionType.ZSTD)
-    writer.start(profile="ros2", library=f"slamobs {slamobs.__version__}")
+    writer.start(profile="ros2", library=f"slamobs {__version__}")
     schemas: dict[str, int] = {}
 
     def channel(topic: str, msgtype: str, latched: bool = False) -> int:
@@ -393,6 +439,8 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
     ch_map = channel(TOPIC_LANDMARKS, _MARKERS_TYPE)
     updates = _map_updates(_read(run_dir, "landmark_tracks"), t_end)
     landmarks = _read(run_dir, "landmarks")
+    known = np.unique(np.concatenate([np.zeros(0, np.int64)] + [u[1] for u in updates] +
+                                     ([landmarks["id"].to_numpy(np.int64)] if landmarks is not None else [])))
 
     t_b = biases["t_ns"].to_numpy(np.int64) if biases is not None else np.zeros(0, np.int64)
     keep_b = _every(t_b, rate_hz)
@@ -446,7 +494,7 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
             t = t_u[rows_u]
             out_t.append(t)
             out_c.append(np.full(t.shape, ch_map))
-            out_d.append([msgs.markers(*updates[k], final=False) for k in rows_u])
+            out_d.append([msgs.markers(*updates[k], final=False, known=known) for k in rows_u])
         if not out_t:
             continue
         t_all = np.concatenate(out_t)
@@ -458,7 +506,7 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
     if landmarks is not None and len(landmarks):
         t_end = max([t_end] + [int(t[-1]) for t in (t_i, t_u) if t.size])  # after every other message
         add(ch_map, t_end, msgs.markers(t_end, landmarks["id"].to_numpy(np.int64),
-                                        landmarks[["x", "y", "z"]].to_numpy(np.float64), final=True))
+                                        landmarks[["x", "y", "z"]].to_numpy(np.float64), final=True, known=known))
     writer.finish()
 
 

@@ -1,6 +1,10 @@
-"""One log through the whole pipeline: read -> align -> observe -> write -> evaluate.
+"""One log through the whole pipeline, as named steps: read -> align -> estimate -> write -> evaluate -> export.
 
-The CLI and the batch runner call :func:`run_log`; nothing here parses arguments or prints.
+:func:`run_log` is the whole run; its steps are public so that compare, tune and batch compose them instead of
+copying them: :func:`prepare_log` (read and align, once per log), :func:`resolve_estimator` (the estimator and
+its gains, checked before a long log is read), :func:`estimator_input` (what the estimator needs from a prepared
+log), :func:`run_prepared` (estimate and write, :func:`evaluate_run`, :func:`export_run`, run.json). Nothing
+here parses arguments or prints.
 
 Memory stays bounded by what the stages need at once, not by the sum of everything a long log produces:
 after alignment only the ground truth of the decoded streams is kept, the observer runs a stretch of
@@ -19,12 +23,13 @@ from typing import Callable
 
 import numpy as np
 
-import slamobs
+from slamobs.pipeline.version import __version__
 from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError
-from slamobs.pipeline.observers import ObserverOptions, ObserverResult, get_observer
+from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
+from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.observers.base import ObserverDiverged
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.streams import LogStreams
@@ -151,7 +156,7 @@ def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
                         config.map_truth, *config.cameras) if p]
 
 
-def _check_directions(spec, aligned: AlignedStream, log: Path, needed: int | None = None) -> None:
+def check_directions(spec, aligned: AlignedStream, log: Path, needed: int | None = None) -> None:
     """The log gives the inertial directions the estimator needs (``needed``; default: the observer's own)."""
     needed = spec.min_directions if needed is None else needed
     have = aligned.directions.names if aligned.directions is not None else ()
@@ -186,11 +191,11 @@ class PreparedLog:
 Progress = Callable[[str], None]
 
 
-def _silent(_message: str) -> None:
-    pass
+def silent(_message: str) -> None:
+    """The progress callback that shows nothing."""
 
 
-def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = _silent) -> PreparedLog:
+def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
@@ -252,14 +257,14 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
 
 
 def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
-            progress: Progress = _silent, plot_helpers: int = 0) -> RunSummary:
+            progress: Progress = silent, plot_helpers: int = 0) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
     ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
     report's figures are drawn by that many helper processes started now, which import matplotlib while the
     log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``)."""
     from slamobs.pipeline.paths import check_output
 
-    spec = _resolved_spec(config)  # fail on bad gains (and estimator settings) before reading a large log
+    spec = resolve_estimator(config)  # fail on bad gains (and estimator settings) before reading a large log
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
     check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
@@ -280,11 +285,11 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
             workers.close()
 
 
-def _resolved_spec(config: RunConfig):
+def resolve_estimator(config: RunConfig):
     """The observer and its gains (and a reference estimator's settings), a bad one named with the config it
     came from."""
     try:
-        spec = get_observer(config.observer)
+        spec = get_estimator(config.observer)
         spec.resolve_gains(config.gains.get(spec.name))
         spec.directions_needed(config)
     except GainError as err:
@@ -292,38 +297,30 @@ def _resolved_spec(config: RunConfig):
     return spec
 
 
-def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False,
-                 release: bool = False, progress: Progress = _silent, plot_workers=None) -> RunSummary:
-    """Observer -> writers -> evaluation on an already prepared log.
+@dataclass
+class EstimatorInput:
+    """What an estimator needs besides the aligned stream: itself, its gains, its options."""
 
-    The observer runs and is written a stretch at a time; ``release`` drops ``prepared.aligned`` once the
-    observer is done (the caller runs nothing else on it), so the report does not share memory with it.
-    """
-    from slamobs.pipeline import interrupts, output_frame
-    from slamobs.pipeline.writers import (
-        BackgroundWrites,
-        TableWriter,
-        atomic_directory,
-        landmark_table,
-        remove_stale_temporaries,
-        stretch_tables,
-        write_json,
-    )
+    spec: ObserverSpec
+    gains: dict
+    options: ObserverOptions
+    #: inertial directions it uses (batch: those of its seed)
+    directions: int
+    notes: list[str] = field(default_factory=list)
 
-    log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
+
+def estimator_input(prepared: PreparedLog, config: RunConfig) -> EstimatorInput:
+    """The estimator of ``config`` ready for ``prepared``: gains resolved, map mode and inertial directions checked,
+    a known map's starting pose found."""
+    aligned, log = prepared.aligned, prepared.log
     if aligned is None:
         raise ValueError("the prepared log's observer input was released by an earlier run")
-    timings = dict(prepared.timings)
-    spec = _resolved_spec(config)
+    spec = resolve_estimator(config)
     gains = spec.resolve_gains(config.gains.get(spec.name))
     check_map_mode(spec, config, log)
-    needed = spec.directions_needed(config)  # batch: those of its seed
-    _check_directions(spec, aligned, log, needed)
-    # a log read once for several observers (compare) has the accelerometer note: only its users keep it
-    notes = list(streams.warnings) + [n for n in aligned.notes if needed or not n.startswith(ACCEL_NOTE)]
-    notes += list(prepared.notes)
-    input_warnings = list(streams.warnings) + [n for n in aligned.notes if "limits." in n]
-    start = None
+    needed = spec.directions_needed(config)
+    check_directions(spec, aligned, log, needed)
+    start, notes = None, []
     if prepared.known_map is not None:
         from slamobs.pipeline.known_map import map_start
 
@@ -331,11 +328,15 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         notes.append(start.note)
     options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz),
                               known_map=start, context={"config": config, "log": log, "topics": dict(prepared.topics)})
-    tags = prepared.tags
-    if tags is not None:
-        notes += tags.notes
-    metadata = {
-        "software": {"slamobs": slamobs.__version__, "python": platform.python_version()},
+    return EstimatorInput(spec, gains, options, needed, notes)
+
+
+def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) -> dict:
+    """run.json's description of the run before it starts: software, input, estimator, counts, limits, output."""
+    log, streams, aligned, tags = prepared.log, prepared.streams, prepared.aligned, prepared.tags
+    spec, options = est.spec, est.options
+    return {
+        "software": {"slamobs": __version__, "python": platform.python_version()},
         "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
                   "time_source": config.align_time_source, "clocks": dict(streams.clocks),
                   "body_frame": aligned.body_frame,
@@ -348,7 +349,7 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
                   "truth_file": ({"path": str(Path(config.truth_file).resolve()), "format": config.truth_format,
                                   "times": str(Path(config.truth_times).resolve()) if config.truth_times else None}
                                  if config.truth_file else None)},
-        "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": gains,
+        "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": est.gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
                                  "out_every": options.out_every}},
@@ -359,94 +360,159 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
         "limits": config.limits,
         "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits, "export": list(config.export)},
     }
-    frame_choice = output_frame.parse_frame(config.output_frame)
-    frame = None
-    report = None
-    t0_ns = int(aligned.vel_t_ns[0])
+
+
+def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False,
+                 release: bool = False, progress: Progress = silent, plot_workers=None) -> RunSummary:
+    """Estimate -> write -> evaluate -> export on an already prepared log, into a run directory made atomically.
+
+    ``release`` drops ``prepared.aligned`` once the estimator is done (the caller runs nothing else on it), so the
+    report does not share memory with it.
+    """
+    from slamobs.pipeline.writers import atomic_directory, remove_stale_temporaries, write_json
+
+    log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
+    est = estimator_input(prepared, config)
+    check_export(prepared, config)
+    needed = est.directions
+    # a log read once for several observers (compare) has the accelerometer note: only its users keep it
+    notes = list(streams.warnings) + [n for n in aligned.notes if needed or not n.startswith(ACCEL_NOTE)]
+    notes += list(prepared.notes) + est.notes
+    input_warnings = list(streams.warnings) + [n for n in aligned.notes if "limits." in n]
+    if prepared.tags is not None:
+        notes += prepared.tags.notes
+    metadata = run_metadata(prepared, config, est)
+    timings = dict(prepared.timings)
     if stale := remove_stale_temporaries(Path(out_dir).parent):
         notes.append(f"removed {len(stale)} temporary director{'y' if len(stale) == 1 else 'ies'} of killed runs "
                      f"next to the output ({', '.join(stale[:3])}{', ...' if len(stale) > 3 else ''})")
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
-        sink = TableWriter(tmp, config.float_bits)
-        writes = None
-        try:
-            if tags is not None:
-                sink.write({"tag_detections": tags.table})
-            observer_s = 0.0
-            t = time.perf_counter()
-            n_vel = int(aligned.vel_t_ns.shape[0])
-            progress(f"{spec.name}: 0 of {n_vel} samples")
-            parts = spec.chunks(aligned, gains, options, STRETCH_SAMPLES)
-            for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
-                observer_s += time.perf_counter() - t
-                interrupts.check()
-                _check_finite(part, log, spec.name, t0_ns)
-                if frame is None:  # fixed from the first stretch, before anything is written
-                    frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
-                                                 truth=_truth(streams, config), t_max_diff=config.t_max_diff,
-                                                 uses_directions=spec.min_directions > 0,
-                                                 known_map=prepared.known_map is not None, notes=notes)
-                    metadata["output"]["frame"] = frame.describe()
-                    writes = BackgroundWrites(partial(_write_stretch, sink, frame))
-                # the map as it is now: the observer moves its live map on while this stretch is written
-                writes.put(replace(part, landmark_xyz=np.array(part.landmark_xyz)))
-                progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
-                t = time.perf_counter()
-            t_end = time.perf_counter()
-            part = writes.finish()  # the last stretch, in the output frame
-            sink.write({"landmarks": landmark_table(part.landmark_ids, part.landmark_xyz,
-                                                    np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
-                                                    aligned.det_ids)})
-            metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
-            metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
-            notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
-            notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
-            notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
-            metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
-            stage_timings = dict(part.timings)
-            del part
-            if release:
-                prepared.aligned = aligned = None
-            sink.close(metadata)
-        except BaseException:
-            if writes is not None:
-                writes.cancel()  # nothing writes into the output any more
-            sink.abort()
-            raise
-        timings["observer_s"] = observer_s
-        timings.update(stage_timings)  # parts of observer_s (batch: seed_s, smoother_s)
-        # the writer's own time (it overlaps the observer) and the landmarks and footers after the last stretch
-        timings["write_s"] = writes.busy_s + time.perf_counter() - t_end
-        report_error = None
-        if streams.truth is not None and len(streams.truth):
-            t = time.perf_counter()
-            progress("error report")
-            report, report_error = _evaluate(tmp, streams, config, notes, metadata, plot_workers)
-            timings["report_s"] = time.perf_counter() - t
-        else:
-            notes.append("no ground truth in the log: no error report")
-            if streams.landmark_truth:
-                metadata["map_error"] = _map_error(tmp, streams.landmark_truth)
-        if "mcap" in config.export:
-            from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
-
-            t = time.perf_counter()
-            progress("results MCAP")
-            write_results_mcap(tmp, tmp / RESULTS_MCAP, meta=metadata, report=report)
-            timings["export_s"] = time.perf_counter() - t
-        compiled = compiled_since(prepared.compiled_from or compile_mark())
-        prepared.compiled_from = compile_mark()
-        if compiled.functions:
-            notes.append(f"first run: compiled {compiled.functions} numeric functions in {compiled.seconds:.1f} s "
-                         "(included in the times above; cached on disk, later runs load them)")
-            from slamobs.pipeline.kernel_cache import prune
-
-            prune()  # kernels of sources that changed since: a compiling run has time for it
-        metadata["compiled"] = {"functions": compiled.functions, "seconds": round(compiled.seconds, 3)}
+        timings.update(estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress))
+        report, report_error = evaluate_run(tmp, streams, config, notes, metadata, timings, progress, plot_workers)
+        export_run(tmp, config, metadata, report, timings, progress)
+        note_compilation(prepared, notes, metadata)
         write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
                                       "report": "report.json" if report else None, "report_error": report_error})
     return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes,
                       input_warnings=input_warnings)
+
+
+def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp: Path, metadata: dict,
+             notes: list[str], *, release: bool = False, progress: Progress = silent) -> dict[str, float]:
+    """Run the estimator a stretch at a time, each stretch written to the tables in ``tmp`` while the next one is
+    computed (in the output frame fixed from the first stretch); then the map. Adds to ``metadata`` and ``notes``;
+    returns the stage timings."""
+    from slamobs.pipeline import interrupts, output_frame
+    from slamobs.pipeline.writers import BackgroundWrites, TableWriter, landmark_table
+
+    log, streams, aligned, tags = prepared.log, prepared.streams, prepared.aligned, prepared.tags
+    spec, gains, options = est.spec, est.gains, est.options
+    frame_choice = output_frame.parse_frame(config.output_frame)
+    frame = None
+    t0_ns = int(aligned.vel_t_ns[0])
+    sink = TableWriter(tmp, config.float_bits)
+    writes = None
+    try:
+        if tags is not None:
+            sink.write({"tag_detections": tags.table})
+        observer_s = 0.0
+        t = time.perf_counter()
+        n_vel = int(aligned.vel_t_ns.shape[0])
+        progress(f"{spec.name}: 0 of {n_vel} samples")
+        parts = spec.chunks(aligned, gains, options, STRETCH_SAMPLES)
+        for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
+            observer_s += time.perf_counter() - t
+            interrupts.check()
+            _check_finite(part, log, spec.name, t0_ns)
+            if frame is None:  # fixed from the first stretch, before anything is written
+                frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
+                                             truth=truth_on_run_clock(streams, config), t_max_diff=config.t_max_diff,
+                                             uses_directions=spec.min_directions > 0,
+                                             known_map=prepared.known_map is not None, notes=notes)
+                metadata["output"]["frame"] = frame.describe()
+                writes = BackgroundWrites(partial(_write_stretch, sink, frame))
+            # the map as it is now: the observer moves its live map on while this stretch is written
+            writes.put(replace(part, landmark_xyz=np.array(part.landmark_xyz)))
+            progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
+            t = time.perf_counter()
+        t_end = time.perf_counter()
+        part = writes.finish()  # the last stretch, in the output frame
+        sink.write({"landmarks": landmark_table(part.landmark_ids, part.landmark_xyz,
+                                                np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
+                                                aligned.det_ids)})
+        metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
+        metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
+        notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
+        notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
+        notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
+        metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
+        stage_timings = dict(part.timings)
+        del part
+        if release:
+            prepared.aligned = aligned = None
+        sink.close(metadata)
+    except BaseException:
+        if writes is not None:
+            writes.cancel()  # nothing writes into the output any more
+        sink.abort()
+        raise
+    # parts of observer_s (batch: seed_s, smoother_s); the writer's own time (it overlaps the observer) and the
+    # landmarks and footers after the last stretch
+    return {"observer_s": observer_s, **stage_timings, "write_s": writes.busy_s + time.perf_counter() - t_end}
+
+
+def evaluate_run(out: Path, streams: LogStreams, config: RunConfig, notes: list[str], metadata: dict,
+                 timings: dict[str, float], progress: Progress = silent,
+                 plot_workers=None) -> tuple[dict | None, str | None]:
+    """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
+    alone where the log has landmark truth only; (report, why there is none)."""
+    if streams.truth is not None and len(streams.truth):
+        t = time.perf_counter()
+        progress("error report")
+        report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers)
+        timings["report_s"] = time.perf_counter() - t
+        return report, report_error
+    notes.append("no ground truth in the log: no error report")
+    if streams.landmark_truth:
+        metadata["map_error"] = _map_error(out, streams.landmark_truth)
+    return None, None
+
+
+def check_export(prepared: PreparedLog, config: RunConfig) -> None:
+    """The log's stamps fit the export formats asked for: checked before the work, not after it."""
+    aligned = prepared.aligned
+    if "mcap" in config.export:
+        from slamobs.pipeline.results_mcap import check_stamps
+
+        times = [t for t in (aligned.vel_t_ns, aligned.det_t_ns) if t.size]
+        if times:
+            check_stamps(min(int(t.min()) for t in times), max(int(t.max()) for t in times), prepared.log,
+                         " (leave mcap out of output.export)")
+
+
+def export_run(out: Path, config: RunConfig, metadata: dict, report: dict | None, timings: dict[str, float],
+               progress: Progress = silent) -> None:
+    """The extra formats written inside the run (``output.export``): the results MCAP."""
+    if "mcap" in config.export:
+        from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
+
+        t = time.perf_counter()
+        progress("results MCAP")
+        write_results_mcap(out, out / RESULTS_MCAP, meta=metadata, report=report)
+        timings["export_s"] = time.perf_counter() - t
+
+
+def note_compilation(prepared: PreparedLog, notes: list[str], metadata: dict) -> None:
+    """Say what numba compiled since the last run on this prepared log (a first run's time is mostly that)."""
+    compiled = compiled_since(prepared.compiled_from or compile_mark())
+    prepared.compiled_from = compile_mark()
+    if compiled.functions:
+        notes.append(f"first run: compiled {compiled.functions} numeric functions in {compiled.seconds:.1f} s "
+                     "(included in the times above; cached on disk, later runs load them)")
+        from slamobs.pipeline.kernel_cache import prune
+
+        prune()  # kernels of sources that changed since: a compiling run has time for it
+    metadata["compiled"] = {"functions": compiled.functions, "seconds": round(compiled.seconds, 3)}
 
 
 def _write_stretch(sink, frame, part):
@@ -491,7 +557,7 @@ def _diverging_as_error(parts, log: Path, observer: str, t0_ns: int):
         raise _diverged(log, observer, (err.t_ns - t0_ns) * 1e-9, err.stats) from None
 
 
-def _truth(streams: LogStreams, config: RunConfig):
+def truth_on_run_clock(streams: LogStreams, config: RunConfig):
     """The ground truth on the clock the run used (None without truth)."""
     truth = streams.truth
     if truth is not None and config.align_time_source == "record":
@@ -516,7 +582,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     segments = metadata["segments"]
     try:
         frames = {k: read_columns(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
-        truth = _truth(streams, config)
+        truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
         options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,

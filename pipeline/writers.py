@@ -484,7 +484,7 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
 def write_manifest(directory: Path) -> None:
     """The manifest (:data:`pipeline.paths.MANIFEST`) of an output directory: every file below it with its size
     and every subdirectory, so a later ``--force`` replaces it only while it holds nothing else."""
-    import slamobs
+    from slamobs.pipeline.version import __version__
 
     files, dirs = {}, []
     for root, subdirs, names in os.walk(directory):
@@ -495,7 +495,7 @@ def write_manifest(directory: Path) -> None:
             rel = name if base == "." else f"{base}/{name}"
             if rel != MANIFEST:
                 files[rel] = os.lstat(os.path.join(root, name)).st_size
-    write_json(Path(directory) / MANIFEST, {"writer": WRITER, "version": slamobs.__version__,
+    write_json(Path(directory) / MANIFEST, {"writer": WRITER, "version": __version__,
                                             "files": dict(sorted(files.items())), "directories": sorted(dirs)})
 
 

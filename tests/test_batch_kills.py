@@ -2,14 +2,14 @@
 and real Dask workers. After every kill: no process of the batch is alive, and once the same command has run
 again the dataset holds exactly the summary's ok runs, each (run_id, t_ns) once.
 
-The kill points are random with a fixed seed; ``benchmarks/batch_kills.py`` runs a larger matrix.
+Each kill lands while a worker runs a log (the sign: its ``started.json``); ``benchmarks/batch_kills.py`` runs a
+larger matrix of kill points.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -18,7 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from batch_checks import CLI, assert_consistent, children, wait_for, wait_gone
+from batch_checks import CLI, alive, assert_consistent, children, wait_for, wait_gone
+from slamobs.pipeline.batch.executor import STARTED
 
 N_LOGS = 4
 EXPECTED_EXIT = {signal.SIGKILL: -9, signal.SIGTERM: 143, signal.SIGINT: 130}
@@ -56,32 +57,45 @@ def _rerun_and_check(logs, out: Path) -> None:
     assert sorted(r["status"] for r in rows.values()) == ["ok"] * N_LOGS
 
 
-@pytest.mark.parametrize("target,sig,seed", [
-    ("parent", signal.SIGKILL, 1),
-    ("parent", signal.SIGTERM, 2),
-    ("parent", signal.SIGINT, 3),  # sent to the process group, as a terminal's Ctrl-C is
-    ("worker", signal.SIGKILL, 4),
+def _started(out: Path) -> list[dict]:
+    """What the workers wrote as they began a log (``started.json`` in its staging directory): the sign that the
+    batch is running a log, with the pid of the worker running it."""
+    found = []
+    for marker in (out / "_slamobs" / "staging").glob(f"*/*/{STARTED}"):
+        try:
+            found.append(json.loads(marker.read_text()))
+        except (OSError, ValueError):  # removed as its run was committed, or not written out yet
+            pass
+    return found
+
+
+@pytest.mark.parametrize("target,sig", [
+    ("parent", signal.SIGKILL),
+    ("parent", signal.SIGTERM),
+    ("parent", signal.SIGINT),  # sent to the process group, as a terminal's Ctrl-C is
+    ("worker", signal.SIGKILL),
 ], ids=["parent-SIGKILL", "parent-SIGTERM", "group-SIGINT", "worker-SIGKILL"])
-def test_killed_batch_leaves_no_process_and_resumes_consistently(logs, tmp_path, target, sig, seed):
-    rng = random.Random(seed)
+def test_killed_batch_leaves_no_process_and_resumes_consistently(logs, tmp_path, target, sig):
+    """The signal lands while a worker runs a log (its ``started.json`` is there), never after a guessed delay:
+    the batch of 4 short logs is over in about a second, a sleep of a few seconds signalled a finished batch."""
     out = tmp_path / "OUT"
     proc, err = _start(_batch_args(logs, out, "-j", 2), tmp_path, "batch")
     try:
-        assert wait_for(lambda: "to run on" in err.read_text() or proc.poll() is not None, 120), err.read_text()
+        assert wait_for(lambda: _started(out) or proc.poll() is not None, 120, step=0.005), err.read_text()
+        started = _started(out)
+        assert started and proc.poll() is None, err.read_text()  # a log is running: the batch has not ended
         if target == "worker":
-            assert wait_for(lambda: children(proc.pid), 60)
-            time.sleep(rng.uniform(0.0, 2.0))
-            victims = children(proc.pid)
-            if victims:
-                os.kill(rng.choice(victims), sig)
+            victim = started[0]["pid"]
+            assert victim in children(proc.pid)  # a worker of this batch, running a log
+            os.kill(victim, sig)
             code = proc.wait(timeout=300)
             assert code == 0, err.read_text()  # the log of the killed worker was run again
+            assert not alive(victim)
         else:
-            time.sleep(rng.uniform(0.0, 4.0))
             os.killpg(proc.pid, sig) if sig == signal.SIGINT else os.kill(proc.pid, sig)
             code = proc.wait(timeout=120)
-            assert code in (EXPECTED_EXIT[sig], 0), err.read_text()  # 0: the batch ended before the signal
-            if code > 0:
+            assert code == EXPECTED_EXIT[sig], err.read_text()
+            if sig != signal.SIGKILL:
                 assert f"{signal.Signals(sig).name}: batch stopped" in err.read_text()
                 assert "Traceback" not in err.read_text()
         assert wait_gone(proc.pid) == []

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from slamobs.cli.main import main
-from slamobs.pipeline.observers import OBSERVERS
+from slamobs.pipeline.estimators import ESTIMATORS
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
 
@@ -19,9 +19,17 @@ def invoke(*args):
     return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
 
 
+#: APE (m) on circle.bag bounded at about twice what `slamobs compare` measured (README table: 0.010-0.029 m);
+#: measured 2026-12-03: fast-adaptation 0.0131, hashim 0.0101, hashim-imu 0.0102, wang-tayebi 0.0290,
+#: hybrid 0.0289, riekf 0.0096, batch 0.0050.
+MAX_APE_M = {"fast-adaptation": 0.025, "hashim": 0.02, "hashim-imu": 0.02, "wang-tayebi": 0.05, "hybrid": 0.05,
+             "riekf": 0.018, "batch": 0.009}
+
+
 def test_compare_all_observers_side_by_side(tmp_path):
     out = tmp_path / "cmp"
-    names = list(OBSERVERS)
+    names = list(ESTIMATORS)
+    assert set(MAX_APE_M) == set(names)  # a new observer gets its measured bound here
     res = invoke("compare", SAMPLE, "-o", out, "--observers", ",".join(names))
     assert res.exit_code == 0, res.output
     # without a terminal a line as each observer starts (on a terminal: a status line with every stage)
@@ -29,25 +37,25 @@ def test_compare_all_observers_side_by_side(tmp_path):
         f"compare: observer {k} of {len(names)}: {name}" for k, name in enumerate(names, 1)]
     table = pd.read_parquet(out / "comparison.parquet")
     assert list(table["observer"]) == names
+    # every observer runs on this log: a failed row is a broken observer, not a row to skip
+    assert {row["observer"]: (row["status"], row["error"]) for row in table.to_dict("records")} == {
+        name: ("ok", "") for name in names}
     for row in table.to_dict("records"):
-        if row["status"] == "ok":
-            run = json.loads((out / row["observer"] / "run.json").read_text())
-            report = json.loads((out / row["observer"] / "report.json").read_text())
-            assert run["observer"]["name"] == row["observer"]
-            # the accelerometer note only for observers that use the accelerometer
-            uses_accel = OBSERVERS[row["observer"]].min_directions > 0
-            assert any(n.startswith("accelerometer: ") for n in run["notes"]) == uses_accel, row["observer"]
-            assert row["ape_trans_rmse_m"] == pytest.approx(report["ape"]["translation_m"]["rmse"])
-            assert row["ape_trans_rmse_m"] < 0.5
-            conv = report["convergence"]
-            assert row["convergence_s"] == conv["t_since_start_s"] and row["convergence_band_m"] == conv["band_m"]
-            assert conv["band_m"] == pytest.approx(max(conv["threshold_m"], 1.5 * conv["steady_level_m"]))
-        else:
-            assert row["error"]
-    assert (table["status"] == "ok").any()
+        run = json.loads((out / row["observer"] / "run.json").read_text())
+        report = json.loads((out / row["observer"] / "report.json").read_text())
+        assert run["observer"]["name"] == row["observer"]
+        # the accelerometer note only for observers that use the accelerometer
+        uses_accel = ESTIMATORS[row["observer"]].min_directions > 0
+        assert any(n.startswith("accelerometer: ") for n in run["notes"]) == uses_accel, row["observer"]
+        assert row["ape_trans_rmse_m"] == pytest.approx(report["ape"]["translation_m"]["rmse"])
+        assert row["ape_trans_rmse_m"] < MAX_APE_M[row["observer"]], row["observer"]
+        conv = report["convergence"]
+        assert row["convergence_s"] == conv["t_since_start_s"] and row["convergence_band_m"] == conv["band_m"]
+        assert conv["band_m"] == pytest.approx(max(conv["threshold_m"], 1.5 * conv["steady_level_m"]))
     assert (out / "overlay.png").stat().st_size > 1000
     md = (out / "comparison.md").read_text()
-    assert "| fast-adaptation | ok |" in md and "convergence_band_m" in md and "last 20 % of the log" in md
+    assert all(f"| {name} | ok |" in md for name in names)
+    assert "convergence_band_m" in md and "last 20 % of the log" in md
 
 
 def test_unknown_observer_is_a_usage_error_and_writes_nothing(tmp_path):

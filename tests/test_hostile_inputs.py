@@ -438,10 +438,11 @@ def test_config_limits_are_parsed_and_switchable():
 def test_kernel_work_budget_does_not_change_the_result(sim, monkeypatch, name):
     """The kernels stop after a bounded amount of work (so signals are handled) and resume exactly where they
     stopped: a tiny budget (many calls, stops before frames and samples alike) gives identical outputs."""
-    from slamobs.pipeline.observers import ObserverOptions, get_observer
+    from slamobs.pipeline.observers import ObserverOptions
+    from slamobs.pipeline.estimators import get_estimator
     from slamobs.pipeline.observers import base
 
-    spec = get_observer(name)
+    spec = get_estimator(name)
     stream = align(expected_streams(sim, "mem.bag"))
     gains = spec.resolve_gains({})
     whole = spec.run(stream, gains, ObserverOptions())

@@ -1,4 +1,4 @@
-"""Lie-group helpers: identities of spec §1.2 and agreement between the allocation-free and plain forms."""
+"""Lie-group helpers: identities of docs/observers.md §1 and agreement between the allocation-free and plain forms."""
 
 from __future__ import annotations
 

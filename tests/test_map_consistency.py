@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.evaluation.metrics import landmark_errors
 from slamobs.pipeline.evaluation.slam_metrics import map_only_alignment
-from slamobs.pipeline.observers import OBSERVERS, ObserverOptions
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulation
 from slamobs.pipeline.simulate.scenarios import customize
 
@@ -54,11 +55,11 @@ def map_errors(res, sc, sim, landmark_truth) -> tuple[float, float]:
 # riekf is left out: its final map is refined through the landmark correlations by every later frame, its past
 # poses never are (a filter's trajectory is causal), so on the loop its map (7 mm) is ten times better than
 # its trajectory (APE 0.07 m) and any trajectory alignment carries that error into the map
-@pytest.mark.parametrize("name", [n for n in OBSERVERS if n != "riekf"])
+@pytest.mark.parametrize("name", [n for n in ESTIMATORS if n != "riekf"])
 def test_map_sits_where_the_trajectory_puts_it(log, name):
     label, sc, sim, streams, aligned = log
     assert aligned.directions is not None and len(aligned.directions.names) == 2
-    spec = OBSERVERS[name]
+    spec = ESTIMATORS[name]
     res = spec.run(aligned, spec.resolve_gains(None), ObserverOptions(out_every=5))
     after_traj, after_map = map_errors(res, sc, sim, streams.landmark_truth)
     assert after_traj <= 1.5 * after_map + 0.05, (

@@ -1,4 +1,4 @@
-"""Algorithm A against the paper scenario (spec §2.5/§2.6) and its invariants."""
+"""Algorithm A against the paper scenario (docs/observers.md §12.1, §12.2) and its invariants."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ B_V = np.array([0.09, 0.06, -0.07])
 LANDMARKS = np.array([[7, 7, 0], [-7, 7, 0], [7, -7, 0], [-7, -7, 0.0]])
 PAPER_GAINS = dict(k_p=1.0, k_w=2.0, alpha=0.1, gamma=30.0)
 
-# spec §2.6: max_i |e_i| of the continuous-time solution
+# docs/observers.md §12.2: max_i |e_i| of the continuous-time solution
 REFERENCE = {0.0: 11.58, 0.1: 4.0, 0.5: 1.83, 1.0: 1.22, 2.0: 0.756, 3.0: 0.532, 5.0: 0.297, 10.0: 0.082,
              20.0: 6.7e-3, 30.0: 5.5e-4}
 
@@ -59,7 +59,7 @@ def test_reproduces_spec_reference_table(paper_run):
         got = e_max[int(round(t / 0.01))]
         tol = 0.10 if t <= 10 else 0.25  # spec: ±10 % for t <= 10 s; the tail is integrator-sensitive
         assert got == pytest.approx(ref, rel=tol), f"max|e| at {t} s"
-    # substeps per 10 ms sample in the range the spec measured (216-661)
+    # substeps per 10 ms sample in the range docs/observers.md §12.2 gives (216-661)
     assert 216 * 0.8 <= steps / sc["t"].size <= 661 * 1.2
 
 
@@ -84,7 +84,7 @@ def test_rotation_stays_on_so3_and_errors_settle_to_constants(paper_run):
     assert abs(ang[-1] - ang[-500]) < 0.01
     p_err = out_p - np.einsum("kij,kj->ki", r_err, sc["ps"])
     assert np.linalg.norm(p_err[-1] - p_err[-500]) < 1e-3
-    assert 0.5 < np.linalg.norm(p_err[-1]) < 1.2  # the unobservable constant (spec ≈ 0.81-0.83 m)
+    assert 0.5 < np.linalg.norm(p_err[-1]) < 1.2  # the unobservable constant (docs/observers.md §12.2: ≈ 0.8 m)
 
 
 def test_first_sighting_initialisation_gives_zero_innovation():

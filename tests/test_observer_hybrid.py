@@ -1,4 +1,5 @@
-"""Algorithm E (hybrid observer): spec §6.3 prototype, switching design, Lyapunov function, invariants, CLI."""
+"""Algorithm E (hybrid observer): the reference run of docs/observers.md §12.5, switching design, Lyapunov
+function, invariants, CLI."""
 
 from __future__ import annotations
 
@@ -17,12 +18,12 @@ from slamobs.pipeline.directions import direction_arrays
 from slamobs.pipeline.observers.hybrid import candidates, switching_design, synergy_gap
 from slamobs.pipeline.observers.wang_tayebi import best_jump, direction_potential, rotate_estimate, run_kernel
 from slamobs.schemas import arrow_schema
-# E builds on D: the seed-000 scenario and D's Lyapunov terms come from D's tests (tests/ is on sys.path).
+# E builds on D: the circle and D's Lyapunov terms come from D's tests (tests/ is on sys.path).
 from test_observer_wang_tayebi import B_OM, B_V, OMEGA, SAMPLES, SPEC_GAINS, VEL, e_max, lyapunov, paper_scenario
 
-PROTO_DIRS = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # spec §6.3 prototype: a = e_z, e_x, no third one
+PROTO_DIRS = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # docs/observers.md §12.5: a = e_z, e_x, no third one
 PROTO_DELTA = 0.75  # the prototype's δ = Δ*/2 with Δ* = 1.5 (see test_prototype_gap_ignores_the_continuum)
-# The initial-error axis is not in the spec; [1, 2, 3]/√14 is the one that gives its Φ(0) = 2.57 at 179°:
+# The reference run names no initial-error axis; [1, 2, 3]/√14 is the one that gives its Φ(0) = 2.57 at 179°:
 # Φ = (1 − cos φ)(tr A − uᵀAu) = 1.99985 × (1 + u_y²) with u_y² = 4/14.
 AXIS = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
 GRAVITY_UP = np.array([0.0, 0.0, 1.0])
@@ -56,7 +57,8 @@ def attitude_error_deg(sc, out_r):
 
 @pytest.fixture(scope="module")
 def prototype():
-    """Spec §6.3: seed-000 trajectory, k_i = ρ = k_X = 1, γ_ω = 0.05, γ_v = 0.5, hybrid and smooth, 179° and 90°."""
+    """docs/observers.md §12.5: the circle, k_i = ρ = k_X = 1, γ_ω = 0.05, γ_v = 0.5, hybrid and smooth,
+    179° and 90°."""
     sc = paper_scenario(duration=12.0)
     dirs = kernel_dirs(sc, PROTO_DIRS)
     cand = candidates(PROTO_DIRS.T @ PROTO_DIRS, PROTO_DIRS)
@@ -78,7 +80,7 @@ def test_headline_hybrid_jumps_once_from_179_deg_and_beats_the_smooth_observer(p
     smooth, _ = runs[(179.0, np.inf)]
     jump_k, jump_q, jump_phi = out[7], out[8], out[9]
     assert list(jump_k) == [0]  # exactly one jump, at t = 0
-    # The prototype checked the jump after the first 10 ms flow step (spec §6.3 note): Φ to ±0.01.
+    # The prototype checked the jump after the first 10 ms flow step (a prototype's order): Φ to ±0.01.
     assert jump_phi[0, 0] == pytest.approx(2.57, abs=0.01)
     assert jump_phi[0, 1] == pytest.approx(1.02, abs=0.01)
     assert jump_phi[0, 0] - jump_phi[0, 1] >= PROTO_DELTA
@@ -129,7 +131,7 @@ def test_jump_decreases_lyapunov_by_at_least_delta(prototype):
     e_after = out[5][:4]
     assert np.allclose(np.linalg.norm(e_after, axis=1), np.linalg.norm(e_before, axis=1), atol=1e-9)
     phi_before = float(np.trace(PROTO_DIRS.T @ PROTO_DIRS @ (np.eye(3) - r_a(179.0))))
-    assert out[9][0, 0] == pytest.approx(phi_before, abs=1e-9)  # the kernel's Φ is the spec's
+    assert out[9][0, 0] == pytest.approx(phi_before, abs=1e-9)  # the kernel's Φ is §8.2's
     assert phi_exact(sc, out[1][:1], PROTO_DIRS)[0] == pytest.approx(out[9][0, 1], abs=1e-9)
     # The landmark part of L is unchanged and the biases do not jump: ΔL = ΔΦ ≤ −δ.
     assert out[9][0, 0] - out[9][0, 1] >= PROTO_DELTA
@@ -168,7 +170,7 @@ def test_prototype_gap_ignores_the_continuum_of_critical_points():
     a_v = PROTO_DIRS.T @ PROTO_DIRS  # diag(1, 0, 1): eigenvalue 1 repeated in the x-z plane
     cand = candidates(a_v, PROTO_DIRS)
     at_axes = sorted(_mu_at_pi(a_v, cand, u) for u in np.eye(3))
-    assert at_axes == pytest.approx([1.5, 1.5, 3.0])  # the spec's Δ* = 1.5 is the gap at the three axes only
+    assert at_axes == pytest.approx([1.5, 1.5, 3.0])  # §12.5's Δ* = 1.5 is the gap at the three axes only
     # ...but every π-rotation about an axis in the x-z plane is critical, and at 45° no candidate helps.
     assert _mu_at_pi(a_v, cand, np.array([1.0, 0.0, 1.0]) / np.sqrt(2.0)) == pytest.approx(0.0, abs=1e-12)
     assert synergy_gap(a_v, cand) == pytest.approx(0.0, abs=1e-3)

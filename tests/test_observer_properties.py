@@ -1,4 +1,4 @@
-"""Properties every registered observer must have, through the public interface (spec §1.6, §7, §8).
+"""Properties every registered observer must have, through the public interface (docs/observers.md §1.1, §3, §6).
 
 Runs each observer with its default gains on a noise-free simulated figure-8 (30 landmarks, limited field
 of view: landmarks come and go, first sightings all along) and on the same log with noise.
@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
-from slamobs.pipeline.observers import OBSERVERS, ObserverOptions
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.simulate import expected_streams, simulate
 
 
@@ -25,12 +26,12 @@ def noise_free():
 def runs(noise_free):
     _, aligned = noise_free
     out = {}
-    for name, spec in OBSERVERS.items():
+    for name, spec in ESTIMATORS.items():
         out[name] = spec.run(aligned, spec.resolve_gains(None), ObserverOptions())
     return out
 
 
-@pytest.mark.parametrize("name", list(OBSERVERS))
+@pytest.mark.parametrize("name", list(ESTIMATORS))
 def test_state_stays_finite_and_rotation_on_so3(runs, name):
     res = runs[name]
     assert np.all(np.isfinite(res.position)) and np.all(np.isfinite(res.rotation))
@@ -39,7 +40,7 @@ def test_state_stays_finite_and_rotation_on_so3(runs, name):
     assert np.allclose(np.linalg.det(res.rotation), 1.0, atol=1e-8)
 
 
-@pytest.mark.parametrize("name", list(OBSERVERS))
+@pytest.mark.parametrize("name", list(ESTIMATORS))
 def test_innovations_vanish_on_noise_free_data(runs, noise_free, name):
     res = runs[name]
     _, aligned = noise_free
@@ -52,7 +53,7 @@ def test_innovations_vanish_on_noise_free_data(runs, noise_free, name):
     assert np.percentile(e[late], 95) < 0.05
 
 
-@pytest.mark.parametrize("name", list(OBSERVERS))
+@pytest.mark.parametrize("name", list(ESTIMATORS))
 def test_biases_converge_under_excitation(runs, noise_free, name):
     streams, _ = noise_free
     res = runs[name]
@@ -63,11 +64,11 @@ def test_biases_converge_under_excitation(runs, noise_free, name):
     assert np.linalg.norm(vel - streams.bias_truth["velocity"]) < 2e-2
 
 
-@pytest.mark.parametrize("name", list(OBSERVERS))
+@pytest.mark.parametrize("name", list(ESTIMATORS))
 def test_out_of_view_landmarks_keep_their_estimate(runs, name):
     """The written map entry of a landmark equals its estimate after its last sighting (frozen since): the
     observers whose law turns the whole map (IMU co-rotation, jumps) write it in their map frame, which those
-    turns do not move (spec §8)."""
+    turns do not move (docs/observers.md §3.2)."""
     res = runs[name]
     # last detection of each landmark; those not seen in the last 2 s must not have moved since then
     t_end = res.det_t_ns.max()
@@ -82,13 +83,13 @@ def test_out_of_view_landmarks_keep_their_estimate(runs, name):
     assert checked > 0
 
 
-@pytest.mark.parametrize("name", list(OBSERVERS))
+@pytest.mark.parametrize("name", list(ESTIMATORS))
 @pytest.mark.parametrize("out_every", [1, 3])
 def test_stretch_by_stretch_equals_one_run(runs, noise_free, name, out_every):
     """``ObserverSpec.chunks`` (what ``slamobs run`` writes stretch by stretch) is the run itself, bit for bit:
     stopping after any velocity sample and going on changes nothing (state, sub-step count, map, jumps)."""
     _, aligned = noise_free
-    spec = OBSERVERS[name]
+    spec = ESTIMATORS[name]
     gains = spec.resolve_gains(None)
     options = ObserverOptions(out_every=out_every)
     whole = runs[name] if out_every == 1 else spec.run(aligned, gains, options)

@@ -1,4 +1,4 @@
-"""Algorithm D (Wang–Tayebi smooth observer) on the seed-000 scenario (spec §5.3) and its invariants."""
+"""Algorithm D (Wang–Tayebi smooth observer) on the circle (docs/observers.md §12.4) and its invariants."""
 
 from __future__ import annotations
 
@@ -19,13 +19,14 @@ VEL = np.array([2.5, 0.0, 0.0])
 B_OM = np.array([0.09, -0.15, -0.1])
 B_V = np.array([0.09, 0.06, -0.07])
 LANDMARKS = np.array([[7, 7, 0], [-7, 7, 0], [7, -7, 0], [-7, -7, 0.0]])
-SPEC_GAINS = dict(k_l=1.0, k_x=1.0, gamma_w=0.05, gamma_v=0.5)  # spec §5.3
-# spec §5.3: max_i |e_i| of the 100 Hz prototype, with the precision the spec quotes (2, 2 and 1 digits)
+SPEC_GAINS = dict(k_l=1.0, k_x=1.0, gamma_w=0.05, gamma_v=0.5)  # docs/observers.md §12.4
+# docs/observers.md §12.4: max_i |e_i| of the 100 Hz prototype, with the precision quoted there (2, 2 and 1 digits)
 REFERENCE = {5.0: (0.23, 0.05), 20.0: (2.5e-3, 0.05), 30.0: (1e-4, 0.5)}
 
 
 def paper_scenario(duration=30.0, dt=0.01, landmarks=LANDMARKS, frame=(np.eye(3), np.zeros(3))):
-    """Seed-000 circle (spec §2.5) as arrays; ``frame = (R_g, p_g)`` re-expresses it in another inertial frame."""
+    """The circle (docs/observers.md §12.1) as arrays; ``frame = (R_g, p_g)`` re-expresses it in another
+    inertial frame."""
     r_g, p_g = frame
     t = np.arange(0.0, duration + 1e-9, dt)
     rs = np.empty((t.size, 3, 3))
@@ -81,13 +82,13 @@ def test_biases_converge_and_rotation_stays_on_so3(paper_run):
     gram = np.einsum("kji,kjl->kil", out_r, out_r) - np.eye(3)
     assert np.abs(gram).max() < 1e-9
     assert np.allclose(np.linalg.det(out_r), 1.0, atol=1e-9)
-    # No direct attitude correction: the attitude error settles at a constant (unobservable, spec §1.6).
+    # No direct attitude correction: the attitude error settles at a constant (unobservable, docs/observers.md §1.1).
     r_err = np.einsum("kij,klj->kil", out_r, sc["rs"])
     assert np.abs(r_err[-1] - r_err[-500]).max() < 1e-4
 
 
 def lyapunov(sc, out, gains=SPEC_GAINS):
-    """Spec §5.1: L = ½Σk‖e_i‖² + ½‖b̃_ω‖²/γ_ω + ½‖b̃_v‖²/γ_v at every sample."""
+    """docs/observers.md §8.1: L = ½Σk‖e_i‖² + ½‖b̃_ω‖²/γ_ω + ½‖b̃_v‖²/γ_v at every sample."""
     e = out[5].reshape(sc["t"].size, -1, 3)
     b = out[3]
     return (0.5 * gains["k_l"] * np.sum(e ** 2, axis=(1, 2)) + 0.5 * np.sum((b[:, :3] - B_OM) ** 2, 1) / gains["gamma_w"]
@@ -105,7 +106,7 @@ def test_lyapunov_function_does_not_increase(paper_run):
 
 @pytest.mark.parametrize("gamma", [1.0, 30.0])
 def test_stiff_bias_gains_are_stable_at_100_hz(gamma):
-    # spec §5.3: γ = 1 diverges at ≈ 4 s with a plain 100 Hz step (ω_n Δt ≈ 0.23); γ = 30 is 5.5x stiffer.
+    # docs/observers.md §12.4: γ = 1 diverges at ≈ 4 s with a plain 100 Hz step (ω_n Δt ≈ 0.23); γ = 30 is 5.5x stiffer.
     # With sub-steps and the frame look-ahead the 100 Hz run follows a 1 kHz one.
     gains = dict(SPEC_GAINS, gamma_w=gamma, gamma_v=gamma)
     sc = paper_scenario(duration=10.0)

@@ -14,7 +14,8 @@ from slamobs.pipeline.alignment import align
 from slamobs.pipeline.api import run_log
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rotation_angle, so3_exp
-from slamobs.pipeline.observers import OBSERVERS, ObserverOptions, ObserverResult
+from slamobs.pipeline.observers import ObserverOptions, ObserverResult
+from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate, write_log
 from slamobs.pipeline.simulate.sensors import EPOCH_NS
 from slamobs.pipeline.writers import read_metadata
@@ -148,13 +149,13 @@ def test_bad_initial_pose_is_a_config_error(log, tmp_path):
 
 
 # batch has no initial state of its own: its frame is its seed's (the seed observer's row), its gauge the seed's
-@pytest.mark.parametrize("name", [n for n, s in OBSERVERS.items() if not s.min_directions and n != "batch"])
+@pytest.mark.parametrize("name", [n for n, s in ESTIMATORS.items() if not s.min_directions and n != "batch"])
 def test_observers_without_directions_do_not_depend_on_their_initial_frame(name):
     """Why ``output.frame: truth`` may move their output instead of initialising them at the truth pose: started
     at any pose, their estimate is the identity start's estimate moved rigidly by that pose."""
     sim = simulate("figure8", duration=8.0, seed=5, imu_rate=100.0)
     aligned = align(expected_streams(sim))
-    spec = OBSERVERS[name]
+    spec = ESTIMATORS[name]
     gains = spec.resolve_gains(None)
     r0, p0 = so3_exp(np.array([0.3, -1.1, 2.0])), np.array([4.0, -2.0, 1.5])
     plain = spec.run(aligned, gains, ObserverOptions())

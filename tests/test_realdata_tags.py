@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("cv2")
 
 from slamobs.pipeline.config import parse_config
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.lie import quat_to_rot
 from slamobs.pipeline.readers import ImageSearch, read_log

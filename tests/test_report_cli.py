@@ -118,11 +118,15 @@ def test_report_options_json_and_kept_options(run_dir):
     assert json.loads(back.stdout)["method"]["alignment"]["type"] == "se3"
 
 
-def test_tf_truth_is_clear_either_way(run_dir):
+def test_tf_truth_on_a_log_without_tf_names_what_the_log_lacks(run_dir):
+    """TF truth is supported: on this log (``/tf_static`` only, no ``/tf``) the one line names the log, the edge
+    and the missing topic, and the previous report stays."""
+    before = {f.name: f.read_bytes() for f in run_dir.iterdir()}
     res = invoke(report, run_dir, "--truth", "world->base_link")
     assert res.exit_code == 2
-    # readers without TF support say so; readers with it name what the log lacks (this log has no /tf)
-    assert "TF truth (parent->child) is not supported yet" in res.stderr or "tf" in res.stderr.lower()
+    assert res.stderr.splitlines() == [
+        f"error: {SAMPLE}: truth TF edge world->base_link needs a /tf topic; the log has none"]
+    assert {f.name: f.read_bytes() for f in run_dir.iterdir()} == before
 
 
 def test_report_errors_are_one_line(run_dir, tmp_path):

@@ -159,8 +159,8 @@ def test_nees_over_noisy_runs_within_95_percent_chi2_bounds():
 
 
 def test_estimates_rotate_with_the_initial_attitude():
-    """Without an absolute reference the start attitude is the map frame (spec §1.6): from 170° off, the filter
-    gives the same estimates rotated by exactly that rotation (the invariant EKF is equivariant)."""
+    """Without an absolute reference the start attitude is the map frame (docs/observers.md §1.1): from 170° off, the
+    filter gives the same estimates rotated by exactly that rotation (the invariant EKF is equivariant)."""
     sim = simulate("figure8", duration=15.0, seed=3)
     stream = align(expected_streams(sim), keep_directions=False)
     g = so3_exp(np.radians(170.0) * np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0))

@@ -16,7 +16,8 @@ from slamobs.pipeline.lie import quat_to_rot, quats_to_rots
 from slamobs.pipeline.simulate import logwriter
 from slamobs.pipeline.simulate.camera import CameraSim
 from slamobs.pipeline.simulate.logwriter import TOPIC_TYPES, write_log
-from slamobs.pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, customize, get_scenario, integrate_body_twists
+from slamobs.pipeline.lie import integrate_body_twists
+from slamobs.pipeline.simulate.scenarios import GRAVITY, MAGNETIC_FIELD, customize, get_scenario
 from slamobs.pipeline.simulate.sensors import (
     TOPIC_DETECTIONS,
     TOPIC_IMU,

@@ -1,6 +1,6 @@
 """The batch smoother: preintegration and residual Jacobians against finite differences, accuracy against the
-same smoother given the true biases, bias estimates against their marginal σ, and the 170° start of spec
-§4.3/§6.3 through every seed."""
+same smoother given the true biases, bias estimates against their marginal σ, and the 170° start of
+docs/observers.md §12.3 through every seed."""
 
 from __future__ import annotations
 
@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.lie import rotation_angle, se3_exp, so3_exp, so3_log
-from slamobs.pipeline.observers import ObserverOptions, get_observer
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.preintegration import (
@@ -32,7 +33,7 @@ from slamobs.pipeline.smoother.settings import BatchSettings
 
 pytest.importorskip("gtsam")
 
-PAPER_GYRO_BIAS = np.array([0.09, -0.15, -0.1])  # spec §2.5
+PAPER_GYRO_BIAS = np.array([0.09, -0.15, -0.1])  # docs/observers.md §12.1
 PAPER_VEL_BIAS = np.array([0.09, 0.06, -0.07])
 AXIS_170 = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)  # as tests/test_observer_hashim.py
 
@@ -120,7 +121,7 @@ def test_keyframes_at_every_frame_and_never_further_apart_than_asked():
 # ----------------------------------------------------------------------------------- simulated logs
 
 def paper_bias_log(name: str, duration: float, seed: int):
-    """A noisy simulated log of scenario ``name`` with the biases of the paper scenario (spec §2.5)."""
+    """A noisy simulated log of scenario ``name`` with the biases of the circle (docs/observers.md §12.1)."""
     sc = replace(get_scenario(name), gyro_bias=PAPER_GYRO_BIAS, velocity_bias=PAPER_VEL_BIAS)
     sim = simulate(sc, duration=duration, seed=seed)
     return sc, sim, align(expected_streams(sim))
@@ -179,14 +180,14 @@ def test_batch_reaches_the_reference_and_its_biases_are_within_3_sigma(which, lo
 
 def started_at(name: str, log: Log, r0: np.ndarray):
     """Observer ``name`` on the log, its attitude set to ``r0`` before the first sample: its seed, and the run."""
-    spec = get_observer(name)
+    spec = get_estimator(name)
     stepper = spec.start(log.stream, spec.resolve_gains({}), ObserverOptions())
     stepper.state.r_hat[:] = r0
     return observer_seed(name, log.stream, {}, ObserverOptions(), log.kf_t, stepper=stepper), stepper
 
 
 def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_reckoning_does_not(loop, loop_reference):
-    """Spec §4.3/§6.3's 170° initial attitude error on the loop with the paper's biases: hybrid's IMU directions
+    """The 170° start of docs/observers.md §12.3 on the loop with the paper's biases: hybrid's IMU directions
     bring its working-frame attitude back (its map frame, in which it writes, turns with it); for riekf and
     hashim the start attitude only fixes the map frame. The smoother started from each of them reaches the same
     optimum as the smoother given the true biases; started from dead reckoning (the same 170° start, odometry
@@ -237,7 +238,7 @@ def test_both_reference_estimators_go_on_after_a_gap():
     assert stream.segment_starts.size == 1
     truth_t = streams.truth.t_ns
     for name in ("riekf", "batch"):
-        res = get_observer(name).run(stream, {}, ObserverOptions())
+        res = get_estimator(name).run(stream, {}, ObserverOptions())
         truth = streams.truth.position[np.clip(np.searchsorted(truth_t, res.t_ns), 0, truth_t.size - 1)]
         r, t, _ = umeyama(res.position, truth)
         err = np.linalg.norm(res.position @ r.T + t - truth, axis=1)

@@ -29,11 +29,11 @@ def logs(tmp_path_factory):
 
 
 def test_search_space_stays_within_each_observers_conditions():
-    from slamobs.pipeline.observers import OBSERVERS
+    from slamobs.pipeline.estimators import ESTIMATORS
     from slamobs.pipeline.tune import space
 
     rng = random.Random(5)
-    for spec in OBSERVERS.values():
+    for spec in ESTIMATORS.values():
         defaults = spec.resolve_gains(None)
         assert space.in_range(spec, space.params_of(spec, defaults)), spec.name  # trial 0 is a point of the space
         assert space.gains_of(spec, space.params_of(spec, defaults)) == pytest.approx(defaults)

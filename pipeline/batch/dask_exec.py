@@ -87,7 +87,7 @@ class DaskPool:
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
-        import slamobs
+        from slamobs.pipeline.version import __version__
         from distributed import Client, LocalCluster
 
         from slamobs.pipeline.batch.identity import code_hash
@@ -106,7 +106,7 @@ class DaskPool:
         except TimeoutError:
             raise InfrastructureError(f"{self.where}: no Dask workers after {self.wait_workers:g} s "
                                       "(--wait-workers)") from None
-        return _check_workers(self.client, self.where, slamobs.__version__, code_hash(), max(self.wait_workers, 10.0))
+        return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
     def close(self) -> None:
         if self.client is not None:

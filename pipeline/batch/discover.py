@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import read_text
+from slamobs.pipeline.paths import read_text, read_yaml
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")  # a bare .db3: rosbag2 storage without metadata.yaml (crash)
 MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
@@ -196,12 +196,7 @@ def _csv_rows(path: Path) -> list[tuple[str, str | None]]:
 
 
 def _yaml_rows(path: Path) -> list[tuple[str, str | None]]:
-    from ruamel.yaml import YAML, YAMLError
-
-    try:
-        data = YAML(typ="safe").load(read_text(path, "manifest"))
-    except YAMLError as err:
-        raise InputError(path, f"manifest is not valid YAML: {str(err).splitlines()[0]}") from None
+    data = read_yaml(path, "manifest")
     if isinstance(data, dict) and "logs" in data:
         data = data["logs"]
     if not isinstance(data, list):

@@ -22,6 +22,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.errors import InfrastructureFailure
 
 EXECUTORS = ("local", "dask")
 #: A Dask task gives up (ends its worker process) when its batch's lease file has not been touched for this
@@ -31,11 +32,11 @@ LEASE_POLL_S = 2.0
 STARTED = "started.json"
 
 
-class EnvironmentMismatch(RuntimeError):
+class EnvironmentMismatch(InfrastructureFailure, RuntimeError):
     """The worker runs another slamobs version or code than the batch (an infrastructure problem)."""
 
 
-class InfrastructureError(RuntimeError):
+class InfrastructureError(InfrastructureFailure, RuntimeError):
     """The batch cannot go on: scheduler lost, no usable workers, worker environment mismatch (exit 3)."""
 
 
@@ -63,12 +64,12 @@ class Task:
     def make(cls, run_id: str, log: str, out: str, config: RunConfig | dict, **kwargs) -> Task:
         """A task at this installation's version and code; ``config`` may be given as ``RunConfig.to_dict()``
         (a batch converts each config once)."""
-        import slamobs
+        from slamobs.pipeline.version import __version__
 
         from slamobs.pipeline.batch.identity import code_hash
 
         config = config if isinstance(config, dict) else config.to_dict()
-        return cls(run_id, log, out, config, version=slamobs.__version__, code=code_hash(), **kwargs)
+        return cls(run_id, log, out, config, version=__version__, code=code_hash(), **kwargs)
 
 
 def one_line(err: BaseException, where: str | None = None) -> str:
@@ -83,11 +84,11 @@ def one_line(err: BaseException, where: str | None = None) -> str:
 
 
 def base_row(task: Task) -> dict:
-    import slamobs
+    from slamobs.pipeline.version import __version__
 
     return {"run_id": task.run_id, "log": task.log, "config_file": task.config_file,
             "content_hash": task.content_hash, "observer": task.config.get("observer"), "config_hash": task.config_hash,
-            "slamobs_version": slamobs.__version__, "finished_at": datetime.now(UTC),
+            "slamobs_version": __version__, "finished_at": datetime.now(UTC),
             "worker": _worker_name(), "warning_count": 0}
 
 
@@ -96,18 +97,18 @@ def failed_row(task: Task, error: str) -> dict:
 
 
 def check_environment(version: str, code: str) -> None:
-    import slamobs
+    from slamobs.pipeline.version import __version__
 
     from slamobs.pipeline.batch.identity import code_hash
 
-    if (version and version != slamobs.__version__) or (code and code != code_hash()):
-        raise EnvironmentMismatch(f"{socket.gethostname()} runs slamobs {slamobs.__version__} (code {code_hash()}), "
+    if (version and version != __version__) or (code and code != code_hash()):
+        raise EnvironmentMismatch(f"{socket.gethostname()} runs slamobs {__version__} (code {code_hash()}), "
                                   f"the batch {version} (code {code}): install the same version on every worker")
 
 
 def _watch_lease(lease: Path, done: threading.Event) -> None:
     """End this worker process once the batch's lease goes stale (the batch process died)."""
-    from slamobs.pipeline.batch.lifeline import ORPHANED
+    from slamobs.pipeline.lifetime import ORPHANED
 
     def loop() -> None:
         last, changed = None, time.monotonic()

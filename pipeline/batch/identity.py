@@ -155,9 +155,7 @@ def code_hash() -> str:
     two installations with the same version but different code (an edited checkout) differ here."""
     global _CODE_HASH
     if _CODE_HASH is None:
-        import slamobs
-
-        root = Path(slamobs.__file__).parent
+        root = Path(__file__).resolve().parents[2]  # the slamobs package: pipeline/batch/identity.py
         files = [root / "__init__.py"]
         for sub in ("pipeline", "cli", "schemas"):
             files += [p for p in (root / sub).rglob("*") if p.suffix in (".py", ".json") and p.is_file()

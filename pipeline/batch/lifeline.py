@@ -1,62 +1,8 @@
-"""Worker processes that cannot outlive their batch.
-
-A local worker asks the kernel to SIGKILL it when its parent dies (Linux ``prctl(PR_SET_PDEATHSIG)``: works
-even when the parent is SIGKILLed or OOM-killed), and runs a watchdog thread that exits when it is
-re-parented, for systems without the prctl. The watchdog cannot run while a compiled kernel holds the GIL,
-so on such systems a worker may finish its current stretch first; on Linux the signal is immediate.
-
-The binding happens while the new process unpickles its start-up arguments (:class:`BindOnArrival` comes
-first), before the heavy imports that follow, so even a worker still starting dies with its batch. This
-module therefore imports nothing heavy at its top.
-"""
+"""The loop of a local batch worker; binding it to its batch is :mod:`slamobs.pipeline.lifetime`'s job."""
 
 from __future__ import annotations
 
-import ctypes
-import os
 import signal
-import sys
-import threading
-import time
-
-PR_SET_PDEATHSIG = 1
-#: Exit status of a worker that found its batch gone.
-ORPHANED = 70
-
-
-def set_parent_death_signal(sig: int = signal.SIGKILL) -> bool:
-    """Linux: deliver ``sig`` to this process when its parent exits. False where unavailable."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        return libc.prctl(PR_SET_PDEATHSIG, int(sig), 0, 0, 0) == 0
-    except (OSError, AttributeError):
-        return False
-
-
-def watch(alive, interval: float = 0.5, name: str = "slamobs-lifeline") -> threading.Thread:
-    """A daemon thread that ends the process (``os._exit``) as soon as ``alive()`` is false."""
-
-    def loop() -> None:
-        while True:
-            time.sleep(interval)
-            if not alive():
-                os._exit(ORPHANED)
-
-    thread = threading.Thread(target=loop, name=name, daemon=True)
-    thread.start()
-    return thread
-
-
-class BindOnArrival:
-    """Pickled as the first start-up argument of a worker: unpickling it binds the new process to ``pid``."""
-
-    def __init__(self, pid: int) -> None:
-        self.pid = pid
-
-    def __reduce__(self):
-        return (bind_to_parent, (self.pid,))
 
 
 def worker_main(_bound, conn, run) -> None:
@@ -84,14 +30,3 @@ def worker_main(_bound, conn, run) -> None:
         except Exception as err:  # noqa: BLE001 - run_task does not raise; a test's run function might
             result = ("row", failed_row(task, one_line(err, task.log)))
         conn.send(result)
-
-
-def bind_to_parent(parent_pid: int) -> None:
-    """Make this (worker) process die with ``parent_pid``: parent-death signal plus watchdog thread.
-
-    Checked once right away: a parent that died before the prctl took effect would never signal.
-    """
-    set_parent_death_signal()
-    if os.getppid() != parent_pid:
-        os._exit(ORPHANED)
-    watch(lambda: os.getppid() == parent_pid)

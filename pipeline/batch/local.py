@@ -1,6 +1,6 @@
 """Local worker processes: ``jobs`` spawned processes, one log each at a time, none outliving the batch.
 
-Each worker is bound to the batch process (:mod:`lifeline`: parent-death signal and watchdog), ignores
+Each worker is bound to the batch process (:mod:`slamobs.pipeline.lifetime`: parent-death signal and watchdog), ignores
 SIGINT (a Ctrl-C on the terminal reaches the whole process group; the batch decides what it means) and
 talks to the batch over its own pipe, so the batch knows which log each worker runs. That makes the
 three ways a run can go wrong exact and cheap:
@@ -25,7 +25,8 @@ from dataclasses import dataclass
 from multiprocessing.connection import wait
 
 from slamobs.pipeline.batch.executor import InfrastructureError, Task, failed_row, run_task
-from slamobs.pipeline.batch.lifeline import BindOnArrival, worker_main
+from slamobs.pipeline.batch.lifeline import worker_main
+from slamobs.pipeline.lifetime import BindOnArrival
 
 #: How many times a log is run again after its worker process died under it.
 RETRIES_AFTER_DEATH = 1

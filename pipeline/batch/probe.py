@@ -8,10 +8,10 @@ def probe() -> dict:
     import sys
 
     try:
-        import slamobs
+        from slamobs.pipeline.version import __version__
         from slamobs.pipeline.batch.identity import code_hash
 
-        return {"ok": True, "version": slamobs.__version__, "code": code_hash(), "host": socket.gethostname(),
+        return {"ok": True, "version": __version__, "code": code_hash(), "host": socket.gethostname(),
                 "python": sys.executable}
     except Exception as err:  # noqa: BLE001 - whatever it is, it is the answer
         text = " ".join(str(err).split())

@@ -41,7 +41,7 @@ from slamobs.pipeline.batch.identity import HashCache, path_key, run_id_for, run
 from slamobs.pipeline.batch.ledger import REFRESH_S, SUMMARY, Ledger, meta_dir
 from slamobs.pipeline.batch.local import LocalPool
 from slamobs.pipeline.config import RunConfig, load_config
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import BadConfig, InputError
 
 DASK_MISSING = "--executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")"
 #: Default seconds one log may run before its worker is killed (a 4 h log takes ~1 min on one core).
@@ -51,7 +51,7 @@ DEFAULT_WAIT_WORKERS_S = 60.0
 LEASE_TOUCH_S = 5.0
 
 
-class DaskMissing(RuntimeError):
+class DaskMissing(BadConfig, RuntimeError):
     """The Dask executor was asked for but ``distributed`` is not installed."""
 
 
@@ -132,9 +132,9 @@ def config_hash(config: RunConfig) -> str:
 
 def check_config(config: RunConfig) -> None:
     """Fail early on an unknown observer or bad gains (GainError), before any log is touched."""
-    from slamobs.pipeline.observers import get_observer
+    from slamobs.pipeline.estimators import get_estimator
 
-    spec = get_observer(config.observer)
+    spec = get_estimator(config.observer)
     spec.resolve_gains(config.gains.get(spec.name))
     spec.directions_needed(config)  # checks the reference estimators' settings
 

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slamobs.pipeline.lie import umeyama
+
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 
 DESCRIPTIONS = {
@@ -52,47 +54,6 @@ class Alignment:
         m[:3, :3] = self.scale * self.rot
         m[:3, 3] = self.trans
         return m
-
-
-def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
-    """Least-squares similarity ``dst ≈ s R src + t`` (Umeyama 1991, "Least-squares estimation of
-    transformation parameters between two point patterns"), with ``s = 1`` unless ``with_scale``.
-
-    With the cross-covariance ``Σ = 1/n Σ (dst_i − μ_dst)(src_i − μ_src)ᵀ = U D Vᵀ``, the optimum is
-    ``R = U S Vᵀ`` with ``S = diag(1, 1, −1)`` when ``det U det V < 0`` (otherwise the best orthogonal
-    matrix would be a reflection), ``s = tr(D S) / σ²_src`` and ``t = μ_dst − s R μ_src``. The solution
-    is unique iff ``rank Σ ≥ 2``, i.e. the points are not all collinear.
-    """
-    x = np.asarray(src, dtype=np.float64)
-    y = np.asarray(dst, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] != 3 or x.shape != y.shape:
-        raise ValueError(f"umeyama: src and dst must both be (N, 3), got {x.shape} and {y.shape}")
-    n = x.shape[0]
-    if n < 3:
-        raise ValueError(f"umeyama: need at least 3 point pairs for a unique rigid alignment, got {n}")
-    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
-        raise ValueError("umeyama: input contains NaN or infinite coordinates")
-    mu_x = x.mean(axis=0)
-    mu_y = y.mean(axis=0)
-    xc = x - mu_x
-    yc = y - mu_y
-    cov = yc.T @ xc / n
-    u, d, vt = np.linalg.svd(cov)
-    if d[0] <= 0.0 or d[1] <= 1e-12 * d[0]:
-        raise ValueError(
-            f"umeyama: degenerate input ({n} points are all collinear or coincident; cross-covariance "
-            f"singular values {d.tolist()}), the rotation about the common line is undetermined"
-        )
-    s_diag = np.ones(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0.0:
-        s_diag[2] = -1.0
-    rot = (u * s_diag) @ vt
-    scale = 1.0
-    if with_scale:
-        var_x = float(np.mean(np.sum(xc * xc, axis=1)))
-        scale = float(np.sum(d * s_diag) / var_x)
-    trans = mu_y - scale * rot @ mu_x
-    return rot, trans, scale
 
 
 def yaw_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

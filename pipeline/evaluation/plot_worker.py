@@ -10,7 +10,7 @@ byte-identical to figures drawn in the run's own process: same code, same argume
 A helper reads batches of jobs from stdin until it closes, then writes all its PNGs to stdout (so it never
 waits for the run to read), ignores SIGINT (the run decides what Ctrl-C means), is killed by
 :meth:`PlotWorkers.close` if it still runs, and is bound to its run as a batch worker is
-(:func:`~slamobs.pipeline.batch.lifeline.bind_to_parent`): a run killed by SIGKILL takes it along at once,
+(:func:`~slamobs.pipeline.lifetime.bind_to_parent`): a run killed by SIGKILL takes it along at once,
 even in the middle of a figure. Each batch is drawn by a child forked from the warm helper and bound to the
 helper the same way, so batches are drawn side by side on free cores (:class:`_Batches`).
 """
@@ -162,7 +162,7 @@ def draw(jobs: list[Job], target=None) -> list[Any]:
 def _main() -> None:
     import signal
 
-    from slamobs.pipeline.batch.lifeline import bind_to_parent
+    from slamobs.pipeline.lifetime import bind_to_parent
 
     bind_to_parent(int(sys.argv[1]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -251,7 +251,7 @@ def _child(jobs: list[Job], out, helper: int) -> None:
     """A forked child of ``helper``: draw ``jobs`` into ``out`` and end (never returns)."""
     status = 1
     try:
-        from slamobs.pipeline.batch.lifeline import bind_to_parent
+        from slamobs.pipeline.lifetime import bind_to_parent
 
         bind_to_parent(helper)
         pickle.dump(_pngs(jobs), out, protocol=pickle.HIGHEST_PROTOCOL)

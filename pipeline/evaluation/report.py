@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any, Callable, Mapping, Union
 
 import numpy as np
 
-from slamobs import __version__
+from slamobs.pipeline.version import __version__
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, KINDS, Alignment, fit_alignment

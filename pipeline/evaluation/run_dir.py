@@ -57,13 +57,30 @@ class TruthInput:
     notes: list[str] = field(default_factory=list)
 
 
+#: Sections of a run's JSON files that its readers look into: each must be an object when present.
+_SECTIONS = ("input", "observer", "output", "counts", "options", "ape", "truth_source")
+
+
 def read_json(path: Path) -> dict:
     """A JSON file of a run directory (``run.json``, ``report.json``); damaged, unreadable or not UTF-8 is one
-    line naming it."""
+    line naming it, and so is valid JSON of another shape (``[]``, or a section that is not an object): the
+    readers look up keys in it."""
+    name = Path(path).name
     try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise InputError(path, f"unreadable {Path(path).name}: {' '.join(str(err).split())}") from None
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
+        raise InputError(path, f"unreadable {name}: {' '.join(str(err).split())}"[:300]) from None
+    bad = "the file" if not isinstance(data, dict) else next(
+        (f"'{k}'" for k in _SECTIONS if data.get(k) is not None and not isinstance(data[k], dict)), None)
+    if bad is not None:
+        value = data if bad == "the file" else data[bad.strip("'")]
+        raise InputError(path, f"not a run's {name}: {bad} is a JSON {_json_kind(value)}, not an object "
+                               "(edited or damaged; run the command that wrote it again)")
+    return data
+
+
+def _json_kind(value: Any) -> str:
+    return {list: "array", str: "string", bool: "boolean", int: "number", float: "number"}.get(type(value), "null")
 
 
 def load_run(run_dir: str | Path) -> RunTables:

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamobs.pipeline.evaluation.align import umeyama
+from slamobs.pipeline.lie import umeyama
 
 
 def map_only_alignment(est_xyz: np.ndarray, truth_xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

@@ -1,4 +1,5 @@
-"""Observer registry: one entry per algorithm of spec/observers.md, selectable by name."""
+"""Observer registry: one entry per observer algorithm of docs/observers.md, selectable by name (the reference
+smoother `batch` is added beside them in `pipeline/estimators.py`)."""
 
 from __future__ import annotations
 
@@ -8,10 +9,9 @@ from slamobs.pipeline.observers.hashim import SPEC as HASHIM, SPEC_IMU as HASHIM
 from slamobs.pipeline.observers.wang_tayebi import SPEC as WANG_TAYEBI
 from slamobs.pipeline.observers.hybrid import SPEC as HYBRID
 from slamobs.pipeline.observers.riekf import SPEC as RIEKF
-from slamobs.pipeline.smoother.estimator import SPEC as BATCH
 
 OBSERVERS: dict[str, ObserverSpec] = {s.name: s for s in (FAST_ADAPTATION, HASHIM, HASHIM_IMU, WANG_TAYEBI, HYBRID,
-                                                          RIEKF, BATCH)}
+                                                          RIEKF)}
 
 
 def get_observer(name: str) -> ObserverSpec:

@@ -27,7 +27,7 @@ from typing import Callable
 import numpy as np
 
 from slamobs.pipeline.alignment import AlignedStream
-from slamobs.pipeline.errors import GainError
+from slamobs.pipeline.errors import BadInput, GainError
 from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED
 
 #: Work units (sub-steps times the landmarks each one touches, plus one per event) a kernel does per call
@@ -38,7 +38,7 @@ _IV, _JF, _NVIS = 0, 1, 2
 _T, _MEAS_T = 0, 1
 
 
-class ObserverDiverged(ValueError):
+class ObserverDiverged(BadInput, ValueError):
     """The estimate became non-finite; ``t_ns`` is the time of the velocity sample reached, ``stats`` the
     run's statistics so far."""
 
@@ -68,7 +68,7 @@ class ObserverOptions:
     """Run options that are not gains (they never change the observer's law)."""
 
     max_meas_age: float = 0.5  # seconds a landmark frame stays valid before landmarks count as unseen
-    min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (spec §8)
+    min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (docs/observers.md §3.2)
     out_every: int = 1  # record pose/bias every n-th velocity sample
     #: What the reference estimators (batch, riekf) read besides the stream: ``config`` (the RunConfig),
     #: ``log`` (its path) and ``topics`` (role -> topic). The observers ignore it.
@@ -305,8 +305,7 @@ class Stepper:
         """Re-anchor the pose to the map at segment start ``iv``: the least-squares rigid fit of the first
         frame within ``max_meas_age`` that sees three or more mapped landmarks (not all on a line), carried
         back to the segment start with the bias-corrected odometry. False when no frame qualifies."""
-        from slamobs.pipeline.evaluation.align import umeyama
-        from slamobs.pipeline.lie import se3_exp
+        from slamobs.pipeline.lie import se3_exp, umeyama
 
         s, st = self.stream, self.state
         t_b = self.vel_t[iv]

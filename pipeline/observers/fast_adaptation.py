@@ -1,15 +1,15 @@
-"""Algorithm A: the fast-adaptation nonlinear SLAM observer (seed 000, spec §2).
+"""Algorithm A: the fast-adaptation nonlinear SLAM observer (Drayton et al., docs/observers.md §4).
 
-The continuous-time law (spec §2.2) is integrated with the spec's "sub-stepped zero-order hold with
-measurement prediction" (§2.4): each interval between events is split into ``m`` Euler steps of the
-discrete law (§2.3, with the corrected Δt in the velocity-bias update and the closed-form ψ), and between
+The continuous-time law (docs/observers.md §4) is integrated with the "sub-stepped zero-order hold with
+measurement prediction" of §6.1: each interval between events is split into ``m`` Euler steps of the
+discrete law (§4, with the corrected Δt in the velocity-bias update and the closed-form ψ), and between
 sub-steps the landmark measurements are predicted forward with the bias-corrected odometry. That keeps the
 paper's very stiff gains stable at native log rates without ever changing them.
 
 Events are velocity samples (zero-order hold of Ω_m, V_m until the next sample) and landmark frames
 (the set of visible landmarks and their body-frame positions). A frame's measurements are predicted
 forward until the next frame; after ``max_meas_age`` seconds without a frame no landmark is visible and
-the observer dead-reckons. Only visible landmarks enter the sums (spec §8); bias adaptation is frozen
+the observer dead-reckons. Only visible landmarks enter the sums (docs/observers.md §3.2); bias adaptation is frozen
 while fewer than ``min_landmarks_bias`` are visible (Assumption 1 needs three).
 """
 
@@ -31,15 +31,15 @@ from slamobs.pipeline.observers.shared_steps import (
 )
 from slamobs.pipeline.lie import mat3_vec, project_so3_into, se3_exp_into
 
-#: Largest stable ``h * lambda`` of one explicit sub-step (spec §2.4 uses 0.5).
+#: Largest stable ``h * lambda`` of one explicit sub-step (docs/observers.md §6.1 uses 0.5).
 STEP_RATIO = 0.5
-#: Re-orthonormalise R̂ every this many sub-steps (spec §7.3).
+#: Re-orthonormalise R̂ every this many sub-steps (docs/observers.md §6.1).
 REORTHO_EVERY = 1000
 
 
 @njit(cache=True)
 def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
-    """Number of sub-steps for an interval of length ``dt`` (spec §2.4 rate bound).
+    """Number of sub-steps for an interval of length ``dt`` (docs/observers.md §6.1 rate bound).
 
     The rotational correction rate is ``k_w Σ(‖y‖²+1)/α`` plus the largest landmark gain ψ; the bias
     loop is an integrator whose natural frequency is ``sqrt(Γ Σ(‖y‖²+1)/α)``, kept at ``h ω_n ≤ 0.1``.
@@ -82,7 +82,7 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
     kwa = k_w / alpha
     gba = h * g_bias / alpha
     for _ in range(m):
-        # Steps 2-4 and 6-7 of spec §2.3 with the state at the start of the sub-step.
+        # docs/observers.md §4's discrete step but the pose update, with the state at the start of the sub-step.
         r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
         r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
         r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
@@ -196,7 +196,7 @@ def run_kernel(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_ini
     """Run algorithm A over an ordered event stream.
 
     Times are float64 seconds on one base. ``lm`` (L, 3) / ``lm_init`` (L,) hold the initial map
-    (landmarks with ``lm_init`` False are initialised at first sighting as ``P̂ + R̂ y``, spec §8).
+    (landmarks with ``lm_init`` False are initialised at first sighting as ``P̂ + R̂ y``, docs/observers.md §3.2).
     Outputs are recorded after every ``out_every``-th velocity sample (and the last one).
 
     Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps)``: indices of recorded velocity

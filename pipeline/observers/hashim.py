@@ -1,18 +1,18 @@
-"""Algorithms B and C: the Hashim–Eltoukhy SLAM filter without and with IMU directions (seed 002, spec §3-§4).
+"""Algorithms B and C: the Hashim–Eltoukhy SLAM filter without and with IMU directions (docs/observers.md §5).
 
 One kernel serves both: B is C with ``k_1 = k_2 = 0`` and no directions. Per sub-step it applies
 
-* the landmark part (spec §3.1): constant landmark gain ``k_p``, body-frame pose correction
+* the landmark part (docs/observers.md §5.1): constant landmark gain ``k_p``, body-frame pose correction
   ``W_U = −k_w Σ g_i/α``, bias law ``−Γ Σ g_i/α`` with ``Γ = diag(γ_ω I₃, γ_v I₃)``;
-* the IMU part (spec §4.2): attitude innovation ``σ_R = ½ Σ_j s_j (υ̂_j × υ_j)``, a rotation of the vehicle
-  attitude *and of every landmark estimate about the vehicle* by ``ω_A = −k_1 R̂ σ_R`` (the "gain mapping":
-  it rotates each ``e_i`` without changing its norm, so the IMU and landmark corrections decouple), and the
-  gyro-bias term ``+γ_ω k_2 σ_R``.
+* the IMU part (docs/observers.md §5.2): attitude innovation ``σ_R = ½ Σ_j s_j (υ̂_j × υ_j)``, a rotation of
+  the vehicle attitude *and of every landmark estimate about the vehicle* by ``ω_A = −k_1 R̂ σ_R`` (the
+  "gain mapping": it rotates each ``e_i`` without changing its norm, so the IMU and landmark corrections
+  decouple), and the gyro-bias term ``+γ_ω k_2 σ_R``.
 
 The IMU rotation is applied as a separate rigid rotation after the SE(3) step (a first-order splitting of
-the spec's single exponential, §4.3 step 4-5) so that ``‖e_i‖`` is preserved exactly in discrete time too.
+the single exponential of the continuous law, §5.2) so that ``‖e_i‖`` is preserved exactly in discrete time too.
 
-Integration is A's sub-stepped zero-order hold with measurement prediction (spec §2.4, §3.2): the
+Integration is A's sub-stepped zero-order hold with measurement prediction (docs/observers.md §6.1): the
 interval between events is cut into steps short enough for the stiffest loop, and between sub-steps the
 landmark measurements *and the direction measurements* are predicted forward with the bias-corrected
 odometry. Direction samples are held measurements too: holding them while R̂ moves on would compare the
@@ -20,7 +20,7 @@ current estimate with a body vector that is up to ``‖Ω‖Δt`` old, a lag tha
 bias; predicting them costs one 3×3 product per direction and sub-step.
 
 Only visible landmarks enter the sums; invisible ones are frozen except for the rigid co-rotation, which
-moves the whole map (spec §8). Bias adaptation (including the IMU term) is frozen below
+moves the whole map (docs/observers.md §3.2). Bias adaptation (including the IMU term) is frozen below
 ``min_landmarks_bias`` visible landmarks; the IMU attitude correction keeps running, but then turns the
 vehicle alone: with nothing tying the vehicle to the map, the attitude error the IMU sees is the vehicle's
 own dead-reckoning drift, and turning the unseen map with it moved the map by the drift times its distance
@@ -72,15 +72,15 @@ from slamobs.pipeline.observers.shared_steps import (
     turn_frame,
 )
 
-#: Largest ``h * lambda`` of one explicit sub-step (spec §2.4).
+#: Largest ``h * lambda`` of one explicit sub-step (docs/observers.md §6.1).
 STEP_RATIO = 0.5
-#: Re-orthonormalise R̂ every this many sub-steps (spec §7.3).
+#: Re-orthonormalise R̂ every this many sub-steps (docs/observers.md §6.1).
 REORTHO_EVERY = 1000
 
 
 @njit(cache=True)
 def _substeps(dt, y, nvis, dir_w, k_p, k_w, alpha, gamma_max, k_1, k_2):
-    """Sub-steps for an interval of ``dt`` seconds (spec §2.4 bound, extended by the IMU loops).
+    """Sub-steps for an interval of ``dt`` seconds (docs/observers.md §6.1 bound, extended by the IMU loops).
 
     Rates: rotational correction ``k_w Σ(‖y‖²+1)/α``, landmark gain ``k_p``, IMU attitude gain
     ``k_1 Σ s_j`` (an upper bound of ``k_1 λ_max(M̄)/2``); the bias integrator's natural frequency
@@ -175,8 +175,9 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
         r_hat[:, :] = r_new
         if imu:
             # IMU attitude correction exp(h[ω_A]x), ω_A = −k_1 R̂σ_R. While the vehicle is tied to the map (bias
-            # adaptation on) it turns the vehicle and the whole map rigidly about P̂ (spec §4.2); otherwise it
-            # is the vehicle's own dead-reckoning drift, and the map, which nothing has moved, stays.
+            # adaptation on) it turns the vehicle and the whole map rigidly about P̂ (docs/observers.md §5.2,
+            # §5.3); otherwise it is the vehicle's own dead-reckoning drift, and the map, which nothing has
+            # moved, stays.
             wa0 = -k_1 * (r00 * s0 + r01 * s1 + r02 * s2)
             wa1 = -k_1 * (r10 * s0 + r11 * s1 + r12 * s2)
             wa2 = -k_1 * (r20 * s0 + r21 * s1 + r22 * s2)
@@ -307,7 +308,7 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     ``dir_weight (N, J0)`` the weights ``s_j`` (0 = unavailable) and ``dir_gscale (J0,)`` (``‖g‖`` for an
     accelerometer direction, else 0; see :func:`pipeline.directions.load_directions`). ``J`` may be 0.
     ``lm``/``lm_init`` are updated in place (final map). Everything is in the working (inertial) frame, the
-    map as co-rotated (the spec's state); with ``map_frame`` the outputs and, on return, ``lm`` are in the map
+    map as co-rotated (the state of the law); with ``map_frame`` the outputs and, on return, ``lm`` are in the map
     frame instead, as :class:`Hashim` writes them.
 
     Returns ``(out_k, out_r, out_p, out_b, trk_p, innov, substeps)`` exactly like algorithm A's kernel.
@@ -326,12 +327,13 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
 
 
 def k_2_limit(gains: dict[str, float]) -> float:
-    """The Lyapunov derivative of spec §4.2 is negative only when ``k_w k_2 < 4 k_1``: k_2's upper bound."""
+    """k_2's upper bound: the Lyapunov derivative of docs/observers.md §5.2 is negative only when
+    ``k_w k_2 < 4 k_1``."""
     return 4.0 * gains["k_1"] / gains["k_w"]
 
 
 def check_imu_gains(gains: dict[str, float]) -> None:
-    """``k_2 < k_2_limit`` (spec §4.2)."""
+    """``k_2 < k_2_limit`` (docs/observers.md §5.2)."""
     k_w, k_1, k_2 = gains["k_w"], gains["k_1"], gains["k_2"]
     if not k_2 < k_2_limit(gains):
         raise GainError(f"hashim-imu gains violate k_w*k_2 < 4*k_1 (k_w={k_w:g}, k_2={k_2:g}, k_1={k_1:g}): "

@@ -1,7 +1,8 @@
-"""Algorithm E: the hybrid (synergistic) SLAM observer of seed 001 as reconstructed in spec §6.3.
+"""Algorithm E: the hybrid (synergistic) SLAM observer of Hashemi & Mattila as reconstructed in
+docs/observers.md §8.2.
 
-Landmarks alone carry no attitude information (spec §6.2), so the hybrid needs at least two inertial
-directions: gravity from the accelerometer and the magnetic field (a third is their normalised cross
+Landmarks alone carry no attitude information (docs/observers.md §1.1, §8.2), so the hybrid needs at least
+two inertial directions: gravity from the accelerometer and the magnetic field (a third is their normalised cross
 product). The flow is algorithm D plus the direction innovation (:mod:`pipeline.observers.wang_tayebi`,
 one kernel for both); the direction inputs are algorithm C's (:mod:`pipeline.directions`: weights,
 cross product, gravity re-compensated with the bias estimates, initial attitude by Wahba). This module
@@ -99,7 +100,8 @@ def _grid_axes(basis: np.ndarray) -> np.ndarray:
 
 
 def synergy_gap(a_v: np.ndarray, cand: np.ndarray) -> float:
-    """Δ* (spec §6.3): min over the undesired critical points ``R_a(π, u)`` of ``Φ − min_q Φ(R_qᵀ·)``.
+    """Δ* (docs/observers.md §8.2): min over the undesired critical points ``R_a(π, u)`` of
+    ``Φ − min_q Φ(R_qᵀ·)``.
 
     The critical points are π-rotations about eigen-axes of ``A_v``; where eigenvalues repeat they form
     a continuum, evaluated on a grid of axes of that eigenspace.

@@ -2,10 +2,11 @@
 consistency properties", 2015), the Kalman-filter baseline the observers are compared with.
 
 State ``X = (R, P, p_1..p_n) ∈ SE_{1+n}(3)`` and biases ``b = (b_Ω, b_V)``. Error ``η = X̂ X⁻¹ = exp(ξ)`` (the
-right-invariant error: in the notation of spec §1.5 it is Hashim's left error ``R̃ = R̂Rᵀ, P̃ = P̂ − R̃P,
-p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is that of ``(ξ_R, ξ_P, b̃_Ω, b̃_V, ξ_1..ξ_n)``.
+right-invariant error: in the notation of docs/observers.md §1 it is the papers' left error
+``R̃ = R̂Rᵀ, P̃ = P̂ − R̃P, p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is that of
+``(ξ_R, ξ_P, b̃_Ω, b̃_V, ξ_1..ξ_n)``.
 
-* Propagation (velocity samples, linear between samples: :func:`pipeline.smoother.preintegration.twist_at`):
+* Propagation (velocity samples, linear between samples: :func:`pipeline.observers.shared_steps.twist_at`):
   ``X̂ ← X̂ exp(Δt [Ω_m − b̂_Ω; V_m − b̂_V])`` at the mid-point of each step. The error obeys
   ``ξ̇ = Ad_X̂ (b̃ + n)`` (``Ad_X̂`` maps a body twist ``(δω, δv)`` to ``(R̂δω, R̂δv + [P̂]×R̂δω, [p̂_i]×R̂δω)``): no
   state-dependent term in the group block, which is what makes the filter consistent. The transition over
@@ -23,7 +24,7 @@ p̃_i = p̂_i − R̃p_i``) and ``b̃ = b − b̂``; the filter's covariance is 
   EKF, an update moves them only through their correlation with what was measured.
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
-covariances, else defaults). The start pose defines the map frame (the problem's gauge, spec §1.6): its
+covariances, else defaults). The start pose defines the map frame (the problem's gauge, docs/observers.md §1.1): its
 covariance is zero; the biases start at zero with the prior standard deviations ``noise.gyro_bias`` and
 ``noise.velocity_bias`` (an unknown start, not a guess), and drift as slow random walks.
 """
@@ -37,14 +38,13 @@ from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper
-from slamobs.pipeline.observers.shared_steps import record_row
-from slamobs.pipeline.smoother.preintegration import twist_at
+from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
 #: Longest propagation step of the covariance sums (s); longer gaps are cut (the mean step is exact anyway).
 MAX_STEP_S = 0.01
-#: Re-orthonormalise R̂ every this many propagation steps (spec §7.3).
+#: Re-orthonormalise R̂ every this many propagation steps (as the observers, docs/observers.md §6.1).
 REORTHO_EVERY = 1000
 #: Fixed part of the error state: ξ_R, ξ_P, b̃_Ω, b̃_V; landmark slots follow in order of first sighting.
 N_FIXED = 12
@@ -234,7 +234,8 @@ def _gate(cov, z, sl, sigma2):
 
 @njit(cache=True)
 def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
-    """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (spec §1.3 exponential, applied on the left) and ``b̂ ← b̂ + b̃̂``."""
+    """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (the exponential of docs/observers.md §1, applied on the left) and
+    ``b̂ ← b̂ + b̃̂``."""
     a = np.empty((3, 3))
     unused = np.empty(3)
     w0, w1, w2 = -xi[0], -xi[1], -xi[2]

@@ -1,4 +1,4 @@
-"""Algorithm D: the Wang–Tayebi smooth SLAM observer (spec §5), and the flow it shares with E (§6.3).
+"""Algorithm D: the Wang–Tayebi smooth SLAM observer (docs/observers.md §8.1), and the flow it shares with E (§8.2).
 
 D corrects in the inertial frame: the position and the map move along the landmark innovations
 ``e_i = p̂_i − p̂ − R̂ y_i``; the attitude is corrected only through the gyro-bias estimate, a lightly
@@ -8,18 +8,18 @@ rotates the vehicle *and the whole map* (the landmark innovations only co-rotate
 untouched), and the synergistic jumps of :mod:`pipeline.observers.hybrid`. One kernel runs both:
 D is the flow with no directions and an empty candidate set.
 
-Integration is algorithm A's sub-stepped zero-order hold (spec §2.4): each interval is split so that the
-position loop, the direction loop and the bias loop (``ω_n² ≈ γ_ω Σ k‖y‖²``, spec §5.3) stay well inside
-the explicit step's stability region, and the bias laws are applied before the propagation
+Integration is algorithm A's sub-stepped zero-order hold (docs/observers.md §6.1): each interval is split so
+that the position loop, the direction loop and the bias loop (``ω_n² ≈ γ_ω Σ k‖y‖²``, docs/observers.md
+§6.2) stay well inside the explicit step's stability region, and the bias laws are applied before the propagation
 (semi-implicit Euler) so the lightly damped loop is not anti-damped. Sub-stepping alone is not enough
 here: with pure measurement prediction the innovation cannot see the bias estimate until the next frame,
-and that sampling delay destabilises the bias loop once ``ω_n T_frame ≳ 0.2`` whatever the step (the
-limit the spec attributes to Euler). So the measurement between two frames is the prediction from the
+and that sampling delay destabilises the bias loop once ``ω_n T_frame ≳ 0.2`` whatever the step (a limit
+once put down to the Euler step). So the measurement between two frames is the prediction from the
 first corrected towards the second (:func:`run_kernel`): stable for any gains, at the price of using data
 up to one frame ahead — harmless for logs.
 
 Rigid rotations of the estimate (co-rotation and jumps) pivot about the vehicle position ``p̂`` rather
-than the map origin (spec §6.3 writes the origin): ``R̂``, ``e_i``, the biases and the Lyapunov function
+than the map origin (docs/observers.md §8.2): ``R̂``, ``e_i``, the biases and the Lyapunov function
 evolve identically (the two differ by a translation of the whole estimate, which nothing measures), but
 with the vehicle as pivot the observer does not depend on where the inertial origin is, and a jump does
 not move the vehicle position estimate. They re-frame the estimate without adding information about it, so
@@ -96,8 +96,8 @@ def _substeps(dt, y, nvis, rho, nd, k_l, k_x, g_w, g_v):
 @njit(cache=True)
 def rotate_estimate(rot, r_hat, p_hat, lm, whole_map=True):
     """Rotate the estimate rigidly about the vehicle: ``R̂ ← rot R̂`` and, with ``whole_map``,
-    ``p̂_i ← p̂ + rot(p̂_i − p̂)`` for every landmark, seen or not, so the map stays rigid (spec §8); ``e_i``
-    only rotates.
+    ``p̂_i ← p̂ + rot(p̂_i − p̂)`` for every landmark, seen or not, so the map stays rigid
+    (docs/observers.md §3.2); ``e_i`` only rotates.
     """
     r_new = np.empty((3, 3))
     for a in range(3):
@@ -129,7 +129,8 @@ def direction_potential(left, r_hat, ups, rho, ref, nd):
 
 @njit(cache=True)
 def best_jump(r_hat, ups, rho, ref, nd, cand):
-    """Switching variable of spec §6.3: ``(q*, Φ(R̂), Φ(R_q*ᵀ R̂))`` with ``q* = argmin_q Φ(R_qᵀ R̂)``.
+    """Switching variable of docs/observers.md §8.2: ``(q*, Φ(R̂), Φ(R_q*ᵀ R̂))`` with
+    ``q* = argmin_q Φ(R_qᵀ R̂)``.
 
     ``μ = Φ(R̂) − Φ(R_q*ᵀ R̂)``; the caller jumps when ``μ ≥ δ``. ``q* = −1`` without candidates.
     """
@@ -148,7 +149,7 @@ def best_jump(r_hat, ups, rho, ref, nd, cand):
 @njit(cache=True)
 def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_idx, ups, ups_d, rho, ref, nd,
           r_hat, p_hat, lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter, f_r, f_p, f_stat):
-    """Flow the state over ``dt`` in place (spec §5.1 / §6.3 flow map); returns the sub-step count.
+    """Flow the state over ``dt`` in place (docs/observers.md §8.1 / §8.2 flow); returns the sub-step count.
 
     The direction innovation turns the vehicle and the whole map (the map frame ``(f_r, f_p)`` follows) while
     bias adaptation is on, i.e. while enough landmarks tie the vehicle to the map; otherwise it corrects the
@@ -446,16 +447,17 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
     (J0, 3)``, weights ``ρ_j = dir_rho[k] (J0,)``, ``dir_gscale``/``make_cross`` for the bias-corrected
     gravity direction and the cross-product third direction (built per sample by ``load_directions``).
     At each sample, with that sample's directions, the switching variable is evaluated and at most one
-    jump ``R_q*ᵀ`` applied when ``μ ≥ delta`` (spec §6.3 discrete step (2)). Landmarks with ``lm_init``
-    False are initialised at first sighting as ``p̂ + R̂ y`` (spec §8); only visible landmarks enter the sums.
+    jump ``R_q*ᵀ`` applied when ``μ ≥ delta`` (docs/observers.md §8.2). Landmarks with ``lm_init`` False are
+    initialised at first sighting as ``p̂ + R̂ y`` (docs/observers.md §3.2); only visible landmarks enter the
+    sums.
 
     Between two measurements of the same landmark (frames at most ``max_meas_age`` apart) the measurement
     is the odometry prediction from the first plus the share ``s = (t − t_f)/T`` of its mismatch with the
     second; directions likewise between velocity samples. Pure prediction (algorithm A) makes ``e_i``
     blind to the bias estimate until the next frame: that delay, not the Euler step, is what destabilises
-    the bias loop at ``ω_n T ≳ 0.2`` (spec §5.3). With the look-ahead the flow sees the measurements the
-    continuous-time observer would, so it is stable for any gains; the estimate at ``t`` uses data up to
-    one frame after ``t``.
+    the bias loop at ``ω_n T ≳ 0.2`` (docs/observers.md §6.2). With the look-ahead the flow sees the
+    measurements the continuous-time observer would, so it is stable for any gains; the estimate at ``t`` uses data
+    up to one frame after ``t``.
 
     Outputs and ``lm`` are in the working (inertial) frame, the map as turned by the law; with ``map_frame``
     in the map frame, as :class:`Flow` writes them (:mod:`pipeline.observers.shared_steps`).
@@ -525,7 +527,7 @@ class Flow(Stepper):
                           "potential_before": jphi[:, 0], "potential_after": jphi[:, 1]}}
 
 
-#: Gains of the shared flow: the spec §5.3 set, which converges on the paper scenario and is also the best
+#: Gains of the shared flow: the set of docs/observers.md §12.4, which converges on the circle and is also the best
 #: of those tried on the noisy sample logs (larger gamma_w stays stable but puts more noise in the biases).
 FLOW_GAINS = (
     GainSpec("k_l", 1.0, "landmark innovation weight k_i (all landmarks) [reference: 1]", (0.1, 10.0)),

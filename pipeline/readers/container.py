@@ -54,7 +54,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import BadInput, InputError
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
@@ -186,6 +186,8 @@ def _explain(container: Container, err: BaseException) -> InputError:
         reason = reason[:297] + "..."
     if isinstance(err, PermissionError):
         return InputError(container.path, "permission denied")
+    if isinstance(err, TimeRangeError):
+        return InputError(container.path, reason)
     if "Profile is not ros2" in reason:
         return InputError(container.path, "unsupported MCAP file: profile is not ros2")
     if "Bag version" in reason:
@@ -291,8 +293,17 @@ class _Unit:
     recovered: bool = False  # found by a scan, which reported where its records end
 
 
-class DamagedError(Exception):
+class DamagedError(BadInput):
     """Bytes of a log that cannot be read (bad compression, checksum, records); becomes an InputError."""
+
+
+#: Record times are int64 nanoseconds here; MCAP stores uint64, so a time at or past 2^63 ns (the year 2262)
+#: would wrap to a negative time. Only a corrupt or hand-made file has one.
+_TIME_RANGE = "outside 0 to 2^63 ns (1970 to 2262; a uint64 time at or past 2^63 would be read as negative)"
+
+
+class TimeRangeError(BadInput):
+    """Record times an int64 nanosecond count cannot hold; becomes a one-line InputError naming the log."""
 
 
 def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> bytes:
@@ -923,6 +934,7 @@ class McapStorage(_Chunked, McapReader):
             self.schemas, self.channels, self.connections, self.chunks = {}, {}, [], []
             self.statistics = None
             self._scan(size, f"summary unreadable: {_one_line(err).rstrip('.')}")
+            self._check_times()
             return
         if self.chunks:
             self.units = [
@@ -942,6 +954,16 @@ class McapStorage(_Chunked, McapReader):
             ]
         else:
             self._scan(self.data_end, None)
+        self._check_times()
+
+    def _check_times(self) -> None:
+        """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
+        meta = self.metadata
+        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= 2**63:
+            lo, hi = meta.start_time, meta.end_time - 1
+            msg = (f"record (log) times {lo} to {hi} ns are {_TIME_RANGE}: the MCAP file's times are corrupt "
+                   "(repair or re-record the log)")
+            raise TimeRangeError(msg)
 
     def _add_schema_or_channel(self, op: int, body: bytes) -> None:
         if op == 0x03:
@@ -1228,13 +1250,24 @@ def iter_batches(
             else:  # pragma: no cover - every storage rosbags opens is handled above
                 msg = f"unsupported storage {type(storage).__name__}"
                 raise DamagedError(msg)
-            yield from (_inflate_each(b) for b in batches) if per_message else batches
+            for batch in batches:
+                _check_record_times(batch, path, connections)
+                yield _inflate_each(batch) if per_message else batch
     except InputError:
         raise
     except GeneratorExit:
         raise
     except Exception as err:  # decompression, struct, sqlite errors alike
         raise _explain(detect_container(path), err) from None
+
+
+def _check_record_times(batch: RawBatch, path: str | Path, connections: Sequence[Connection]) -> None:
+    """One line naming the topic when a message's record time wrapped (a summary may not show it)."""
+    bad = batch.rec_ns < 0
+    if bad.any():
+        topic = connections[int(batch.conn[np.argmax(bad)])].topic
+        raise InputError(path, f"{int(bad.sum())} messages have a record (log) time {_TIME_RANGE}: the log's times "
+                               "are corrupt (repair or re-record the log)", topic)
 
 
 def iter_raw(

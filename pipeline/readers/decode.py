@@ -1,7 +1,9 @@
 """Message decoding into NumPy columns, and the cleaning every stream gets before it leaves the reader.
 
-All knowledge of message layouts lives here (``LAYOUTS``, ``ITEM_LAYOUTS`` and the ``decode_*`` functions),
-so a faster (vectorised) decoder can replace this module without touching role selection or the streams.
+The layouts of the stream messages and detection arrays live here (``LAYOUTS``, ``ITEM_LAYOUTS`` and the
+``decode_*`` functions), and :mod:`.fastdecode` reads its vectorised plans from the same tables; the layouts of
+tag corner messages are in :mod:`.cameradecode` (``CORNER_LAYOUTS``), the covariance fields the reference
+estimators weight by in :mod:`.covariance`, and the TF walker in :mod:`.tfdecode`.
 Messages are deserialised with the typestore rosbags builds from the definitions stored in the log, so custom
 types such as ``fiducial_msgs`` need no ROS installation.
 
@@ -801,6 +803,9 @@ def tag_detections(rows: TfRows, pattern: str, path: str | Path = "") -> tuple[D
     """
     regex = tag_regex(pattern, path)
     tag_id = {code: int(m.group(1)) for code, name in enumerate(rows.frame_names) if (m := regex.match(name))}
+    if huge := [rows.frame_names[c] for c, i in tag_id.items() if not -(2**63) <= i < 2**63]:
+        raise InputError(path, f"TF tag frame {huge[0][:60]!r} has an id outside the 64-bit integers that landmark ids "
+                               f"are ({len(huge)} such frame(s)): not a tag id; narrow frames.tag_pattern", rows.topic)
     sel = np.flatnonzero(np.isin(rows.child, list(tag_id)))
     if sel.size == 0:
         shown = ", ".join(sorted(set(rows.frame_names))[:8]) or "none"

@@ -26,6 +26,8 @@ import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 from rosbags.interfaces import Nodetype
 
+from slamobs.pipeline.errors import BadInput
+
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
     from pathlib import Path
@@ -64,7 +66,7 @@ _PRIMITIVES: dict[str, tuple[int, str]] = {
 _BASE, _NAME, _ARRAY, _SEQUENCE = Nodetype.BASE, Nodetype.NAME, Nodetype.ARRAY, Nodetype.SEQUENCE
 
 
-class DecodeError(ValueError):
+class DecodeError(BadInput, ValueError):
     """A message does not match its definition (too short, bad string); the text names the problem."""
 
 

@@ -72,16 +72,21 @@ def twist_in_parent(poses: PoseStream, linear: Vec3Stream) -> tuple[bool, float,
     than in the child frame; with the median misfit (m/s) of each."""
     if len(poses) < 3 or len(linear) != len(poses) or not np.array_equal(poses.t_ns, linear.t_ns):
         return False, np.nan, np.nan
-    t = poses.t_ns.astype(np.float64) * 1e-9
-    d_p = np.gradient(poses.position, t, axis=0)
-    rots = quats_to_rots(np.ascontiguousarray(poses.quat_xyzw / np.linalg.norm(poses.quat_xyzw, axis=1,
-                                                                                  keepdims=True)))
+    # a repeated stamp has no derivative (numpy warns dividing by its zero step): the first sample of each stamp
+    rows = np.flatnonzero(np.diff(poses.t_ns, prepend=np.iinfo(np.int64).min) > 0)
+    if rows.size < 3 or not bool(np.all(np.diff(poses.t_ns[rows]) > 0)):
+        return False, np.nan, np.nan
+    t = poses.t_ns[rows].astype(np.float64) * 1e-9
+    d_p = np.gradient(poses.position[rows], t, axis=0)
+    quat = poses.quat_xyzw[rows]
+    rots = quats_to_rots(np.ascontiguousarray(quat / np.linalg.norm(quat, axis=1, keepdims=True)))
     in_child = np.einsum("nji,nj->ni", rots, d_p)
     moving = np.linalg.norm(d_p, axis=1) > 1e-3
     if np.count_nonzero(moving) < 3:
         return False, np.nan, np.nan
-    parent_fit = float(np.median(np.linalg.norm(linear.xyz[moving] - d_p[moving], axis=1)))
-    child_fit = float(np.median(np.linalg.norm(linear.xyz[moving] - in_child[moving], axis=1)))
+    lin = linear.xyz[rows]
+    parent_fit = float(np.median(np.linalg.norm(lin[moving] - d_p[moving], axis=1)))
+    child_fit = float(np.median(np.linalg.norm(lin[moving] - in_child[moving], axis=1)))
     return parent_fit * FRAME_MARGIN < child_fit, parent_fit, child_fit
 
 

@@ -122,7 +122,8 @@ _LATCHED_QOS = Qos(
     QosTime(0, 0),
     False,
 )
-_LATCHED_QOS_YAML = (
+#: rosbag2's offered QoS of a latched (transient-local, depth 1) topic such as /tf_static, as its MCAP metadata
+LATCHED_QOS_YAML = (
     "- history: 1\n  depth: 1\n  reliability: 1\n  durability: 1\n"
     "  deadline:\n    sec: 0\n    nsec: 0\n  lifespan:\n    sec: 0\n    nsec: 0\n"
     "  liveliness: 1\n  liveliness_lease_duration:\n    sec: 0\n    nsec: 0\n"
@@ -489,7 +490,7 @@ def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
         for tp, typ in _types_of(sim).items():
             msgdef, _ = ts.generate_msgdef(typ, ros_version=2)
             schema = writer.register_schema(name=typ, encoding="ros2msg", data=msgdef.encode())
-            meta = {"offered_qos_profiles": _LATCHED_QOS_YAML if tp in LATCHED else ""}
+            meta = {"offered_qos_profiles": LATCHED_QOS_YAML if tp in LATCHED else ""}
             channels[tp] = writer.register_channel(topic=tp, message_encoding="cdr", schema_id=schema, metadata=meta)
         seq = dict.fromkeys(channels, 0)
         for topic, rec, data in iter_messages(sim, ts, ros1=False):

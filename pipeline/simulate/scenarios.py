@@ -12,9 +12,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
-from slamobs.pipeline.kernel_cache import njit
-
-from slamobs.pipeline.lie import mat3_mul, mat3_vec, se3_exp
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # inertial-frame gravity, m/s^2
 MAGNETIC_FIELD = np.array([0.2, 0.0, -0.45]) * 1e-4  # inertial-frame Earth field, Tesla
@@ -409,24 +406,3 @@ def customize(sc: Scenario, *, landmarks: int | None = None, fov_deg: float | No
         rot = (rot_z(np.array([y])) @ rot_y(np.array([p])) @ rot_x(np.array([r])))[0]
         sc = replace(sc, imu_rotation=rot)
     return sc
-
-
-@njit(cache=True)
-def integrate_body_twists(r0, p0, omega, v, dt):
-    """Dead-reckon ``(R, P)`` through steps ``(R, P) <- (R, P) exp(dt_k [omega_k; v_k])``.
-
-    ``omega``, ``v`` are (K, 3) per-step body twists, ``dt`` (K,) step lengths; returns the K + 1 poses.
-    Used both for wheel-odometry poses and to check the scenarios' kinematic consistency.
-    """
-    k = dt.shape[0]
-    rs = np.empty((k + 1, 3, 3))
-    ps = np.empty((k + 1, 3))
-    rs[0] = r0
-    ps[0] = p0
-    for i in range(k):
-        dr, dp = se3_exp(omega[i] * dt[i], v[i] * dt[i])
-        step = mat3_vec(rs[i], dp)
-        rs[i + 1] = mat3_mul(rs[i], dr)
-        for j in range(3):
-            ps[i + 1, j] = ps[i, j] + step[j]
-    return rs, ps

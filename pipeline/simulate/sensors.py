@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from slamobs.pipeline.lie import rots_to_quats, so3_exps
+from slamobs.pipeline.lie import integrate_body_twists, rots_to_quats, so3_exps
 from slamobs.pipeline.simulate.camera import CameraSim, tag_views
 from slamobs.pipeline.simulate.scenarios import (
     GRAVITY,
@@ -22,7 +22,6 @@ from slamobs.pipeline.simulate.scenarios import (
     Camera,
     Scenario,
     get_scenario,
-    integrate_body_twists,
 )
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Transform, Vec3Stream
 

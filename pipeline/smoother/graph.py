@@ -1,4 +1,5 @@
-"""The factor graph of the batch smoother, solved with GTSAM (imported here only).
+"""The factor graph of the batch smoother, solved with GTSAM (used here only; ``estimator.require_gtsam`` imports
+it to check that it is installed).
 
 Variables: one ``Pose3`` per keyframe (keys ``0 .. K−1``), one ``Point3`` per landmark (``K .. K+L−1``) and the
 bias ``[b_Ω; b_V]`` as a 6-vector, one per segment (``K+L ..``). Factors:
@@ -8,7 +9,7 @@ bias ``[b_Ω; b_V]`` as a 6-vector, one per segment (``K+L ..``). Factors:
   kernel on the norm of the whitened residual;
 * a prior on the biases (zero mean, the prior standard deviations of the noise settings), a random walk
   between segment biases when the bias model asks for it, and the gauge: the anchor keyframe held at the
-  seed's pose (the problem is invariant to one rigid transform, spec §1.6);
+  seed's pose (the problem is invariant to one rigid transform, docs/observers.md §1.1);
 * relative motion between consecutive keyframes, from the compiled preintegration
   (:mod:`pipeline.smoother.preintegration`): GTSAM has no preintegrated factor for body-velocity odometry.
   Its whitened residuals and analytic Jacobians are computed for all intervals in one compiled call and

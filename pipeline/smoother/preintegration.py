@@ -6,7 +6,7 @@ none for a body-velocity odometer with a velocity bias, so this one is written h
 "On-Manifold Preintegration", 2017, with the body velocity in place of the accelerometer's double integral):
 
     ΔR_ij = Π exp(h(Ω_m − b̄_Ω)),   Δp_ij = Σ ΔR_ik J(h(Ω_m − b̄_Ω)) h (V_m − b̄_V)   (the twist linear between
-    samples, :func:`twist_at`), with ∂ΔR/∂b_Ω, ∂Δp/∂b_Ω, ∂Δp/∂b_V and the covariance of (δφ, δp) from the
+    samples, :func:`~slamobs.pipeline.observers.shared_steps.twist_at`), with ∂ΔR/∂b_Ω, ∂Δp/∂b_Ω, ∂Δp/∂b_V and the covariance of (δφ, δp) from the
     white-noise densities. The residual between keyframe poses T_i, T_j and the bias b is
 
     r_R = Log((ΔR_ij Exp(J_R δb_Ω))ᵀ R_iᵀ R_j),   r_p = R_iᵀ(P_j − P_i) − (Δp_ij + J_pΩ δb_Ω + J_pV δb_V),
@@ -24,27 +24,10 @@ import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import se3_exp_into, skew_into, so3_jacobians_into, so3_log
+from slamobs.pipeline.observers.shared_steps import twist_at
 
 #: Row layout of the per-interval data array: ΔR (9, row-major), Δp (3), J_R (9), J_pΩ (9), J_pV (9), W (36).
 D_R, D_P, D_JR, D_JPW, D_JPV, D_W, D_END = 0, 9, 12, 21, 30, 39, 75
-
-
-@njit(cache=True)
-def twist_at(vel_t, omega, vel, s, tau, bias):
-    """Bias-corrected twist ``(ω, v)`` at time ``tau`` inside sample interval ``s``: linear between samples ``s``
-    and ``s + 1`` (an offline estimator knows the next sample; holding the current one instead lags the motion
-    by half a sample period, a drift of ``acceleration × period / 2`` that on a figure 8 at 200 Hz is as large
-    as the odometry noise over a few seconds), held after the last sample."""
-    f = 0.0
-    if s + 1 < vel_t.shape[0]:
-        span = vel_t[s + 1] - vel_t[s]
-        if span > 0.0:
-            f = min(1.0, max(0.0, (tau - vel_t[s]) / span))
-    g = 1.0 - f
-    s1 = min(s + 1, vel_t.shape[0] - 1)
-    return (g * omega[s, 0] + f * omega[s1, 0] - bias[0], g * omega[s, 1] + f * omega[s1, 1] - bias[1],
-            g * omega[s, 2] + f * omega[s1, 2] - bias[2], g * vel[s, 0] + f * vel[s1, 0] - bias[3],
-            g * vel[s, 1] + f * vel[s1, 1] - bias[4], g * vel[s, 2] + f * vel[s1, 2] - bias[5])
 
 
 def keyframe_times(vel_t: np.ndarray, det_t: np.ndarray, max_dt: float,
@@ -92,7 +75,7 @@ def _mmt(a, b):
 def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
     """Relative motion over every keyframe interval ``[kf_t[j], kf_t[j+1]]`` at the bias ``b_bar`` (6,).
 
-    Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it: :func:`twist_at`). ``q_om``,
+    Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it: :func:`~slamobs.pipeline.observers.shared_steps.twist_at`). ``q_om``,
     ``q_v`` (3,) are noise densities squared (per axis). Fills ``data`` (K−1, 75) in the layout of the ``D_*``
     offsets (``W`` left empty) and ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
     """
@@ -366,7 +349,7 @@ def motion_residuals(data, b_bar, rot, pos, bias, seg_of):
 
 @njit(cache=True)
 def dead_reckon(vel_t, omega, vel, kf_t, bias, r0, p0, rot, pos):
-    """Keyframe poses by integrating the bias-corrected odometry (:func:`twist_at`) from ``(r0, p0)`` at
+    """Keyframe poses by integrating the bias-corrected odometry (:func:`~slamobs.pipeline.observers.shared_steps.twist_at`) from ``(r0, p0)`` at
     ``kf_t[0]``: the dead-reckoning seed, and the motion the smoother's solution is checked against."""
     n = vel_t.shape[0]
     s = 0

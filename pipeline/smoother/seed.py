@@ -1,7 +1,7 @@
 """Initial guesses of the batch smoother: an observer's run, or dead reckoning.
 
 An observer's trajectory at the keyframes, its final map and its final biases start the smoother (the
-observers converge from almost any start, spec §2-§6, which the smoother cannot promise). Dead reckoning
+observers converge from almost any start, docs/observers.md §4-§8, which the smoother cannot promise). Dead reckoning
 (odometry integrated without bias correction from the identity, landmarks placed at their first sighting)
 is the start a smoother would have without an observer.
 """

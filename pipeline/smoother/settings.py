@@ -33,8 +33,8 @@ def batch_settings(section: dict | None) -> BatchSettings:
     from slamobs.pipeline.observers import OBSERVERS
 
     settings = BatchSettings(**{k: v for k, v in (section or {}).items() if v is not None})
-    if settings.seed != DEAD_RECKONING and (settings.seed not in OBSERVERS or settings.seed == "batch"):
-        names = [n for n in OBSERVERS if n != "batch"] + [DEAD_RECKONING]
+    if settings.seed != DEAD_RECKONING and settings.seed not in OBSERVERS:
+        names = [*OBSERVERS, DEAD_RECKONING]
         raise GainError(f"batch.seed '{settings.seed}' is not an observer (choose from {', '.join(names)})")
     if settings.bias not in BIAS_MODELS:
         raise GainError(f"batch.bias must be one of {', '.join(BIAS_MODELS)}, got {settings.bias!r}")

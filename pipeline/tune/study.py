@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import BadInput, InputError
 from slamobs.pipeline.tune import space
 from slamobs.pipeline.tune.worker import OBJECTIVES
 
@@ -33,7 +33,7 @@ OWN_FILES = (JOURNAL, "gains.yaml", "trials.parquet", "objective.png", "tune.jso
 MAX_FAILED_ROUNDS = 3
 
 
-class TuneFailed(RuntimeError):
+class TuneFailed(BadInput, RuntimeError):
     """A log cannot be tuned on (no truth, unreadable, observer cannot run on it): one line naming the log."""
 
 
@@ -143,10 +143,9 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
 
     from slamobs.pipeline.batch.identity import content_hash
     from slamobs.pipeline.config import with_observer
-    from slamobs.pipeline.observers import get_observer
     from slamobs.pipeline.paths import check_input
     from slamobs.pipeline.readers.container import detect_container
-    from slamobs.pipeline.run import _resolved_spec, run_inputs
+    from slamobs.pipeline.run import resolve_estimator, run_inputs
     from slamobs.pipeline.tune import results
     from slamobs.pipeline.tune.worker import run_trial_log
 
@@ -155,8 +154,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
     if options.trials < 1:
         raise InputError("--trials", "needs at least 1 trial")
     config = with_observer(options.config, options.observer)
-    spec = _resolved_spec(config)
-    spec = get_observer(spec.name)
+    spec = resolve_estimator(config)
     if not logs:
         raise InputError("LOGS", "no log given")
     paths = []

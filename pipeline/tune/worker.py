@@ -14,6 +14,7 @@ import math
 import os
 import time
 from collections import OrderedDict
+from dataclasses import replace
 from pathlib import Path
 
 from slamobs.pipeline.batch.executor import Task, base_row, check_environment, one_line
@@ -67,25 +68,17 @@ def score(prepared, config) -> dict[str, float | None]:
 
     from slamobs.pipeline.evaluation.metrics import landmark_errors
     from slamobs.pipeline.evaluation.report import ReportOptions, evaluate_trajectory
-    from slamobs.pipeline.observers import ObserverOptions
     from slamobs.pipeline.observers.base import ObserverDiverged
-    from slamobs.pipeline.run import _check_directions, _resolved_spec, _truth, check_map_mode
+    from slamobs.pipeline.run import estimator_input, truth_on_run_clock
     from slamobs.pipeline.writers import stretch_tables
 
-    spec = _resolved_spec(config)
-    gains = spec.resolve_gains(config.gains.get(spec.name))
-    check_map_mode(spec, config, prepared.log)
-    _check_directions(spec, prepared.aligned, prepared.log)
-    start = None
-    if prepared.known_map is not None:
-        from slamobs.pipeline.known_map import map_start
-
-        start = map_start(prepared.aligned, prepared.known_map)
-    res = spec.run(prepared.aligned, gains, ObserverOptions(max_meas_age=config.max_meas_age, known_map=start))
+    est = estimator_input(prepared, config)
+    # every sample, as the run's report sees before output.rate_hz thins the output
+    res = est.spec.run(prepared.aligned, est.gains, replace(est.options, out_every=1))
     if not np.isfinite(res.position).all():
         raise ObserverDiverged(int(res.t_ns[np.argmax(~np.isfinite(res.position).all(axis=1))]), res.stats)
     poses = pd.DataFrame(stretch_tables(res)["poses"])
-    ev = evaluate_trajectory(poses, _truth(prepared.streams, config), ReportOptions(t_max_diff_s=config.t_max_diff),
+    ev = evaluate_trajectory(poses, truth_on_run_clock(prepared.streams, config), ReportOptions(t_max_diff_s=config.t_max_diff),
                              estimate_offset=False)
     lm_rmse = None
     if prepared.streams.landmark_truth:
@@ -111,9 +104,9 @@ def run_trial_log(task: Task) -> dict:
     row = {**base_row(task), "status": "ok", "error": None, "fatal": False, "read_s": 0.0}
     config = RunConfig(**task.config)
     try:
-        from slamobs.pipeline.observers import get_observer
+        from slamobs.pipeline.estimators import get_estimator
 
-        directions = get_observer(config.observer).min_directions > 0
+        directions = get_estimator(config.observer).min_directions > 0
         prepared, row["read_s"] = prepared_log(task.log, config, directions)
         t = time.perf_counter()
         row.update(score(prepared, config))

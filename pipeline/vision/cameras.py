@@ -190,17 +190,11 @@ def from_camera_info(msg: Any, topic: str, path: str | Path = "") -> CameraModel
 
 
 def _load_yaml(path: Path) -> Any:
-    from ruamel.yaml import YAML, YAMLError
-
     if not path.is_file():
         raise InputError(path, "a directory, not a camera file" if path.is_dir() else "camera file not found")
-    from slamobs.pipeline.paths import read_text
+    from slamobs.pipeline.paths import read_yaml
 
-    text = read_text(path, "camera file")
-    try:
-        return YAML(typ="safe").load(text)
-    except YAMLError as err:
-        raise InputError(path, f"not valid YAML: {str(err).splitlines()[0]}") from None
+    return read_yaml(path, "camera file")
 
 
 def _numbers(value: Any, n: int | None, what: str, path: Path) -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import BadInput, InputError
 
 #: Tag family names -> OpenCV dictionary constants (``tags.family``; ``tag36h11``, ``DICT_4X4_50`` also work).
 FAMILIES: dict[str, str] = {
@@ -222,7 +222,7 @@ _YUV = {"yuv422": "COLOR_YUV2GRAY_UYVY", "uyvy": "COLOR_YUV2GRAY_UYVY", "yuv422_
         "yuyv": "COLOR_YUV2GRAY_YUY2"}
 
 
-class ImageError(ValueError):
+class ImageError(BadInput, ValueError):
     """An image message that cannot be searched (unknown encoding, truncated data); the text says why."""
 
 

@@ -1,0 +1,38 @@
+"""What the long commands that run many jobs (``batch``, ``tune``) share: exit codes, stopping on a signal,
+the number of cores to use."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+from slamobs.cli.errors import EXIT_CODES
+from slamobs.pipeline.errors import BadInput, InfrastructureFailure, Interruption
+
+#: Exit codes (documented in --help and the README).
+EXIT_OK, EXIT_FAILED = 0, 1
+EXIT_USAGE, EXIT_INFRA = EXIT_CODES[BadInput], EXIT_CODES[InfrastructureFailure]  # 2, 3
+EXIT_SIGNAL = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
+
+
+class Stopped(Interruption):
+    """SIGINT, SIGTERM or SIGHUP: the batch stops the same way for each (workers killed, runs so far kept)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def on_signal(signum, _frame) -> None:
+    """Signal handler of a long command: ignore further signals while it cleans up, stop with :class:`Stopped`."""
+    for sig in EXIT_SIGNAL:  # a second signal must not cut the clean-up short (SIGKILL still can)
+        signal.signal(sig, signal.SIG_IGN)
+    raise Stopped(signum)
+
+
+def cores() -> int:
+    """The cores this process may run on (its CPU affinity, not the machine's count)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
