@@ -377,3 +377,40 @@ def test_publish_replaces_only_the_checked_entry(tmp_path, monkeypatch, renameat
     os.rename(tmp_path / "moved", out)
     old = writers.publish(new("n3"), out, checked, aside=aside, owned=foreign_entry)  # the checked run: replaced
     assert (out / "run.json").read_text() == "n3" and identity(old) == checked
+
+
+def test_a_kill_between_the_swap_and_its_check_deletes_nothing_of_the_users(tmp_path):
+    """A SIGKILL right after --force's exchange, before the swapped-out directory was checked: the next run on the
+    parent finds the user's directory (put at OUT while the run worked) in the dead run's temporary and swaps it
+    back instead of deleting it with the temporary."""
+    from slamobs.pipeline import writers
+
+    if writers._RENAMEAT2 is None:
+        pytest.skip("no renameat2 on this system")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "run.json").write_text('"old"')  # an earlier run (names slamobs writes)
+    pid = os.fork()
+    if pid == 0:  # the child: a --force run killed by a real SIGKILL just after the exchange
+        try:
+            exchange = writers._exchange
+
+            def then_killed(a, b):
+                done = exchange(a, b)
+                os.kill(os.getpid(), signal.SIGKILL)
+                return done
+
+            writers._exchange = then_killed
+            with writers.atomic_directory(out, force=True) as tmp:
+                (tmp / "run.json").write_text('"new"')
+                os.rename(out, tmp_path / "earlier")  # meanwhile the user puts a directory of theirs at OUT
+                out.mkdir()
+                (out / "thesis.tex").write_text("precious")
+        finally:
+            os._exit(0)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
+    assert json.loads((out / "run.json").read_text()) == "new"  # swapped, not checked
+    assert writers.remove_stale_temporaries(tmp_path)  # what the next run on this parent does first
+    assert sorted(os.listdir(out)) == ["thesis.tex"] and (out / "thesis.tex").read_text() == "precious"
+    assert sorted(os.listdir(tmp_path)) == ["earlier", "out"]
