@@ -71,6 +71,11 @@ def _within(inner: Path, outer: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
+def inside(path: str | Path, directory: str | Path) -> bool:
+    """``path`` is ``directory`` or lies under it, symbolic links followed (a batch never reads its own OUT)."""
+    return _within(_resolved(path), _resolved(directory))
+
+
 def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False) -> None:
     """Refuse an output directory that would destroy an input or a user's files (nothing is touched).
 

@@ -33,7 +33,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.config import DEFAULT_FLOAT_BITS
-from slamobs.pipeline.errors import OutputError
+from slamobs.pipeline.errors import output_error
 from slamobs.pipeline.lie import rots_to_quats
 from slamobs.pipeline.observers.base import ObserverResult
 from slamobs.schemas import arrow_schema
@@ -469,7 +469,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     ``force`` the previous output is replaced only once the new one is complete, so a failure or a kill at
     any point leaves the old or the new run under ``final`` (see :func:`_publish`). Temporary directories of
     killed runs in the same parent are removed first. OS errors (disk full, read-only, permission) become an
-    :class:`OutputError` naming ``final``.
+    :class:`OutputError` naming ``final`` (a :class:`ResourceError` when the machine ran out or refused).
     """
     from slamobs.pipeline import interrupts
     from slamobs.pipeline.paths import check_output
@@ -487,7 +487,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
                 shutil.rmtree(container, ignore_errors=True)
                 raise
     except OSError as err:
-        raise OutputError(final, f"cannot create the output: {_reason(err)}") from None
+        raise output_error(final, f"cannot create the output: {_reason(err)}", err) from None
     try:
         umask = os.umask(0)
         os.umask(umask)
@@ -501,7 +501,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     except OSError as err:
         with suppress(OSError):  # a failed restore keeps the container: the next run retries it
             _finish(container, {"final": final.name})
-        raise OutputError(final, f"cannot write the output: {_reason(err)}") from None
+        raise output_error(final, f"cannot write the output: {_reason(err)}", err) from None
     except BaseException:
         with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
             _finish(container, {"final": final.name})

@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import os
 import re
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,6 +36,7 @@ from slamobs.pipeline.batch.dataset import (
     partition_file,
 )
 from slamobs.pipeline.batch.ledger import meta_dir
+from slamobs.pipeline.errors import output_error
 from slamobs.pipeline.writers import parquet_options
 
 FILE_ROWS = 8 << 20
@@ -71,15 +73,24 @@ class _Writer:
     def _open(self, schema: pa.Schema) -> None:
         final = self.base / f"{COMPACTED}{self.gen:06d}-{len(self.done):04d}.parquet"
         tmp = self.base / f".{final.name}.tmp"
+        self.done.append((tmp, final))  # first: a writer that fails to open may have created the file
         self.writer = pq.ParquetWriter(tmp, schema, **parquet_options(schema))
         self.schema = schema
-        self.done.append((tmp, final))
 
     def _flush_group(self) -> None:
         if self.buf:
             group = pa.concat_tables(self.buf).unify_dictionaries().combine_chunks()
             self.writer.write_table(group, row_group_size=max(1, group.num_rows))
             self.buf, self.buf_rows = [], 0
+
+    def abandon(self) -> None:
+        """After a failure (a full disk fails the close too): close quietly and delete every file written."""
+        if self.writer is not None:
+            with suppress(Exception):
+                self.writer.close()
+            self.writer = None
+        for tmp, _ in self.done:
+            tmp.unlink(missing_ok=True)
 
     def close_file(self) -> None:
         if self.writer is not None:
@@ -118,6 +129,26 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
     index = index or DatasetIndex.scan(out)
     renames: list[tuple[Path, Path]] = []
     replaced: list[Path] = []
+    try:
+        report = _write_tables(out, index, renames, replaced, file_rows, group_rows)
+        if renames:
+            try:
+                _journal(out, renames, replaced)
+            except OSError as err:
+                raise _cannot_write(meta_dir(out) / JOURNAL, err) from None
+    except BaseException:
+        for tmp, _ in renames:  # nothing is renamed before the journal is written: the dataset is unchanged
+            tmp.unlink(missing_ok=True)
+        raise
+    if renames:
+        _apply(out)
+        index.__dict__.update(DatasetIndex.scan(out).__dict__)
+    return report
+
+
+def _write_tables(out: Path, index: DatasetIndex, renames: list[tuple[Path, Path]], replaced: list[Path],
+                  file_rows: int, group_rows: int) -> list[TableCompaction]:
+    """Write the compacted files of every table under hidden names (``renames``: temporary -> final)."""
     report = []
     for table in ALL_TABLES:
         fresh = sorted(index.fresh.get(table, ()))
@@ -134,20 +165,22 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
             for path, ids in units:
                 rows += writer.add(path, ids)
             writer.close_file()
+        except OSError as err:  # named here: pyarrow's messages (disk full) do not say which file
+            writer.abandon()
+            raise _cannot_write(writer.done[-1][1] if writer.done else out / table, err) from None
         except BaseException:
-            writer.close_file()
-            for tmp, _ in writer.done:
-                tmp.unlink(missing_ok=True)
+            writer.abandon()
             raise
         renames += writer.done
         replaced += [path.parent if path.name == PART else path for path, _ in units]
         report.append(TableCompaction(table, len(fresh) + len(files), len(files) - len(small) + len(writer.done),
                                       sum(len(ids) for _, ids in units), rows))
-    if renames:
-        _journal(out, renames, replaced)
-        _apply(out)
-        index.__dict__.update(DatasetIndex.scan(out).__dict__)
     return report
+
+
+def _cannot_write(path: Path, err: OSError) -> Exception:
+    return output_error(path, f"cannot write it: {err.strerror or err}; the dataset is unchanged (its runs stay in "
+                              "their per-run files; compact later: slamobs batch compact OUT)", err)
 
 
 def _journal(out: Path, renames: list[tuple[Path, Path]], replaced: list[Path]) -> None:
@@ -155,8 +188,12 @@ def _journal(out: Path, renames: list[tuple[Path, Path]], replaced: list[Path]) 
     doc = {"renames": [[rel(a), rel(b)] for a, b in renames], "replaced": [rel(p) for p in replaced]}
     path = meta_dir(out) / JOURNAL
     tmp = path.with_name(f".{JOURNAL}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(doc))
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(doc))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _apply(out: Path) -> None:

@@ -39,7 +39,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, output_error
 from slamobs.pipeline.paths import exclusive
 from slamobs.pipeline.writers import parquet_options
 from slamobs.schemas import OPTIONAL_TABLES, TABLES
@@ -132,8 +132,16 @@ def read_run_meta(path: Path) -> dict | None:
 
 
 def compacted_run_ids(path: Path) -> list[str]:
-    meta = pq.read_metadata(path).metadata or {}
-    return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
+    """The run_ids a compacted file holds (its footer). A damaged file (truncated, overwritten) is refused in one
+    line: its rows are nowhere else (compaction deleted the per-run files), so the runs must run again."""
+    try:
+        meta = pq.read_metadata(path).metadata or {}
+        return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
+    except OSError as err:
+        raise output_error(path, f"cannot read: {err.strerror or err}", err) from None
+    except (pa.ArrowException, ValueError) as err:
+        raise InputError(path, f"damaged compacted file ({' '.join(str(err).split())[:200]}): move it out of the "
+                               "dataset and run the batch again (the runs it held are run again)") from None
 
 
 @dataclass

@@ -22,7 +22,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, output_error
 
 SUMMARY = "summary.parquet"
 META_DIR = "_slamobs"
@@ -168,7 +168,11 @@ class Ledger:
         return self._fd
 
     def _append(self, rec: dict) -> None:
-        os.write(self._file(), (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        try:
+            os.write(self._file(), (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        except OSError as err:  # a torn line is ignored by every reader, so nothing half-recorded remains
+            raise output_error(meta_dir(self.out) / RECORDS.format(gen=self.gen),
+                               f"cannot record a run: {err.strerror or err}", err) from None
         self.appended += 1
 
     def put(self, row: dict) -> None:
@@ -191,8 +195,14 @@ class Ledger:
         table = pa.Table.from_pylist(list(self.rows.values()),
                                      schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
         tmp = path.parent / f".{SUMMARY}.tmp-{os.getpid()}"
-        pq.write_table(table, tmp, compression="zstd")
-        os.replace(tmp, path)
+        try:
+            pq.write_table(table, tmp, compression="zstd")
+            os.replace(tmp, path)
+        except OSError as err:
+            tmp.unlink(missing_ok=True)
+            raise output_error(path, f"cannot rewrite the batch summary: {err.strerror or err}; every run is recorded "
+                                     "(in _slamobs): `slamobs batch compact OUT` rewrites it once there is room",
+                               err) from None
         for g, f in _record_files(self.out):
             if g <= self.gen:
                 f.unlink(missing_ok=True)
