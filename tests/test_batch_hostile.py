@@ -8,6 +8,7 @@ SIGSTOP.
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -174,3 +175,62 @@ def test_compaction_on_a_full_disk_names_its_file_and_leaves_no_temporary(tmp_pa
     res = batch([tmp_path / "in"], out)  # room again: the runs are there, compaction completes
     assert res.count("skipped") == 3 and res.compaction
     assert len(assert_consistent(out)) == 3
+
+
+def stalling_run(task, pid_file: str):
+    """Dask task function: the ``a_stop`` log makes its staging directory, says which process it runs in and
+    stalls there (the test SIGSTOPs that worker process); every other log runs normally."""
+    if Path(task.log).name != "a_stop.mcap":
+        return run_task(task, pipeline=fake_pipeline)
+    Path(task.staged).mkdir()
+    Path(pid_file).write_text(str(os.getpid()))
+    time.sleep(600)
+    raise AssertionError("unreachable: the worker was stopped, then restarted")
+
+
+DASK_BATCH = """
+import json, sys
+from functools import partial
+sys.path.insert(0, {tests!r})
+from test_batch_hostile import stalling_run
+from slamobs.pipeline.batch import BatchOptions, discover, run_batch
+res = run_batch(discover([{logs!r}]), BatchOptions(out={out!r}, jobs=2, executor="dask", timeout=10.0),
+                run=partial(stalling_run, pid_file={pid!r}))
+print(json.dumps([[r["log"], r["status"], r.get("error")] for r in res.rows]))
+"""
+
+
+def test_a_stopped_dask_worker_times_out_and_its_queued_logs_go_to_another(tmp_path):
+    """SIGSTOP on a real Dask worker process just as its run's staging directory appears: the log times out
+    after --timeout, the logs queued on that worker run on the other one (progress stayed at 2/4, for good)."""
+    pytest.importorskip("distributed")
+    from batch_checks import descendants
+
+    make_logs(tmp_path / "in", ["a_stop.mcap", "b.mcap", "c.mcap", "d.mcap"])
+    pid_file, out = tmp_path / "worker.pid", tmp_path / "OUT"
+    code = DASK_BATCH.format(tests=str(Path(__file__).parent), logs=str(tmp_path / "in"), out=str(out),
+                             pid=str(pid_file))
+    stdout, stderr = tmp_path / "stdout", tmp_path / "stderr"  # files: a full pipe would block the workers' logging
+    with open(stdout, "w") as out_fh, open(stderr, "w") as err_fh:
+        proc = subprocess.Popen([sys.executable, "-c", code], stdout=out_fh, stderr=err_fh)
+    stopped = None
+    try:
+        end = time.monotonic() + 240
+        while not pid_file.exists() and proc.poll() is None and time.monotonic() < end:
+            time.sleep(0.1)  # a sign: the stalling log's staging directory is made, its worker named
+        assert pid_file.exists(), stderr.read_text()
+        stopped = int(pid_file.read_text())
+        assert stopped in descendants(proc.pid)  # a worker process of this batch's local cluster
+        os.kill(stopped, signal.SIGSTOP)
+        proc.wait(timeout=180)  # it hung, progress at 2/4
+    finally:
+        proc.kill()
+        if stopped is not None and alive(stopped):
+            os.kill(stopped, signal.SIGKILL)
+    assert proc.returncode == 0, stderr.read_text()
+    rows = {Path(log).name: (status, error) for log, status, error in json.loads(stdout.read_text())}
+    status, error = rows.pop("a_stop.mcap")
+    assert status == "failed" and "timed out after 10 s (Dask worker tcp://" in error, error
+    assert set(rows.values()) == {("ok", None)} and len(rows) == 3
+    assert not alive(stopped)  # restarted through its nanny: the stopped process was killed
+    assert sorted(r["status"] for r in assert_consistent(out).values()) == ["failed", "ok", "ok", "ok"]

@@ -15,7 +15,6 @@ batch runs the log again and ``--skip-failed`` never skips it.
 
 from __future__ import annotations
 
-import json
 import os
 import socket
 import sys
@@ -33,7 +32,6 @@ EXECUTORS = ("local", "dask")
 #: long: the batch process is gone, nothing the task produces can be committed.
 LEASE_STALE_S = 60.0
 LEASE_POLL_S = 2.0
-STARTED = "started.json"
 #: Row key of a failure that is not the log's (see the module doc): why, one of RETRY_WHY.
 RETRY = "retry"
 RETRY_WHY = ("machine", "changed", "name")  # "name": a file name the summary cannot store (not UTF-8)
@@ -205,7 +203,6 @@ def run_task(task: Task, pipeline=_run) -> dict:
             if staged.exists():  # a Dask retry after a worker died on this task
                 _rmtree(staged)
             staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
-            (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
             changed = _changed(task, read=False)
             failure = None
             if changed is None:
