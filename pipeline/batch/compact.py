@@ -8,15 +8,14 @@ up files either. Runs whose tables differ in columns (another slamobs version) g
 
 The switch is crash-safe: the new files are written under hidden names, a journal
 (``_slamobs/compaction.json``) lists the renames and the files they replace, the renames are made, the
-replaced files deleted, the journal removed. :func:`finish_compaction` (run by every batch at start)
-completes a journal whose renames all happened, or rolls it back otherwise. Readers may see a run twice
-only during the few milliseconds between the renames and the deletions.
+replaced files deleted, the journal removed (:mod:`dataset` keeps the journal: :func:`finish_compaction`, run
+by every batch at start, completes a journal whose renames all happened, or rolls it back otherwise). Readers
+may see a run twice only during the few milliseconds between the renames and the deletions.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import re
 from contextlib import suppress
 from dataclasses import dataclass
@@ -30,10 +29,13 @@ from slamobs.pipeline.batch.dataset import (
     COMPACTED,
     PART,
     RUN_IDS_KEY,
+    JOURNAL,
     DatasetIndex,
-    _rmtree,
+    apply_journal,
     compacted_run_ids,
+    finish_compaction,
     partition_file,
+    write_journal,
 )
 from slamobs.pipeline.batch.ledger import meta_dir
 from slamobs.pipeline.errors import output_error
@@ -41,7 +43,6 @@ from slamobs.pipeline.writers import parquet_options
 
 FILE_ROWS = 8 << 20
 GROUP_ROWS = 1 << 20
-JOURNAL = "compaction.json"
 
 
 @dataclass
@@ -133,7 +134,7 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
         report = _write_tables(out, index, renames, replaced, file_rows, group_rows)
         if renames:
             try:
-                _journal(out, renames, replaced)
+                write_journal(out, renames, replaced)
             except OSError as err:
                 raise _cannot_write(meta_dir(out) / JOURNAL, err) from None
     except BaseException:
@@ -141,7 +142,7 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
             tmp.unlink(missing_ok=True)
         raise
     if renames:
-        _apply(out)
+        apply_journal(out)
         index.__dict__.update(DatasetIndex.scan(out).__dict__)
     return report
 
@@ -183,49 +184,5 @@ def _cannot_write(path: Path, err: OSError) -> Exception:
                               "their per-run files; compact later: slamobs batch compact OUT)", err)
 
 
-def _journal(out: Path, renames: list[tuple[Path, Path]], replaced: list[Path]) -> None:
-    rel = lambda p: str(Path(p).relative_to(out))  # noqa: E731
-    doc = {"renames": [[rel(a), rel(b)] for a, b in renames], "replaced": [rel(p) for p in replaced]}
-    path = meta_dir(out) / JOURNAL
-    tmp = path.with_name(f".{JOURNAL}.tmp-{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(doc))
-        os.replace(tmp, path)
-    except OSError:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def _apply(out: Path) -> None:
-    path = meta_dir(out) / JOURNAL
-    doc = json.loads(path.read_text())
-    for a, b in doc["renames"]:
-        os.replace(out / a, out / b)
-    for p in doc["replaced"]:
-        _rmtree(out / p)
-    path.unlink()
-
-
-def finish_compaction(out: Path) -> None:
-    """Complete or roll back a compaction a killed batch left half done (see module doc)."""
-    out = Path(out)
-    path = meta_dir(out) / JOURNAL
-    if not path.is_file():
-        return
-    try:
-        doc = json.loads(path.read_text())
-    except ValueError:
-        doc = None
-    if doc is None or any((out / a).exists() for a, _ in doc["renames"]):
-        # not every rename happened: the replaced files are intact, the new ones go
-        for a, b in (doc or {}).get("renames", []):
-            (out / a).unlink(missing_ok=True)
-            (out / b).unlink(missing_ok=True)
-        path.unlink()
-        return
-    for p in doc["replaced"]:
-        _rmtree(out / p)
-    path.unlink()
-
-
-__all__ = ["FILE_ROWS", "GROUP_ROWS", "TableCompaction", "compact_dataset", "compacted_run_ids", "finish_compaction"]
+__all__ = ["FILE_ROWS", "GROUP_ROWS", "JOURNAL", "TableCompaction", "compact_dataset", "compacted_run_ids",
+           "finish_compaction"]

@@ -184,7 +184,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
     An ok row carries ``tables`` (comma-separated); ``runs/<id>/batch.json`` in the staged run directory
     repeats the row, so a run whose commit was cut short can be adopted by the next batch.
     """
-    from slamobs.pipeline.batch.dataset import _rmtree, stage_tables, write_run_meta
+    from slamobs.pipeline.batch.dataset import remove_path, stage_tables, write_run_meta
     from slamobs.pipeline.errors import is_resource_failure
 
     check_environment(task.version, task.code)
@@ -201,7 +201,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
         warnings.simplefilter("default")
         try:
             if staged.exists():  # a Dask retry after a worker died on this task
-                _rmtree(staged)
+                remove_path(staged)
             staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
             changed = _changed(task, read=False)
             failure = None
@@ -220,7 +220,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
             row = {**base_row(task), "status": "ok", "error": None, "dataset_s": time.perf_counter() - t,
                    **summary.timings, **summary.metadata["counts"], **summary.headline()}
         except Exception as err:  # noqa: BLE001 - one failing log must never stop the batch
-            _rmtree(staged)
+            remove_path(staged)
             if err is changed:
                 row = retry_row(task, one_line(err), "changed")
             elif is_resource_failure(err):
@@ -239,6 +239,6 @@ def run_task(task: Task, pipeline=_run) -> dict:
         try:
             write_run_meta(staged, task.run_id, tables, row)
         except OSError as err:  # e.g. the staging area was removed under an orphaned task, or a full disk
-            _rmtree(staged)
+            remove_path(staged)
             row = {**retry_row(task, one_line(err, str(staged)), "machine"), "total_s": row["total_s"]}
     return row

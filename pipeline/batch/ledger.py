@@ -55,7 +55,8 @@ def meta_dir(out: Path) -> Path:
     return Path(out) / META_DIR
 
 
-def _encode(row: dict) -> dict:
+def encode_row(row: dict) -> dict:
+    """A summary row as JSON values (timestamps as ISO text, NumPy scalars as Python ones, non-finite as None)."""
     out = {}
     for name in SUMMARY_SCHEMA.names:
         v = row.get(name)
@@ -177,8 +178,8 @@ class Ledger:
 
     def put(self, row: dict) -> None:
         """Record ``row`` as the state of its run (one appended line)."""
-        self._append({"op": "put", "row": _encode(row)})
-        self.rows[row["run_id"]] = _decode(_encode(row))
+        self._append({"op": "put", "row": encode_row(row)})
+        self.rows[row["run_id"]] = _decode(encode_row(row))
 
     def drop(self, run_id: str) -> None:
         if run_id in self.rows:

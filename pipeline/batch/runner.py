@@ -25,13 +25,13 @@ from slamobs.pipeline.batch.compact import TableCompaction, compact_dataset
 from slamobs.pipeline.batch.dask_exec import DaskPool, dask_available
 from slamobs.pipeline.batch.dataset import (
     Reconciled,
-    _rmtree,
     batch_lock,
     check_layout,
     commit_run,
     drop_runs,
     partition_file,
     reconcile,
+    remove_path,
     run_dir,
     staging_root,
 )
@@ -346,7 +346,7 @@ class _Staging:
 
     def close(self) -> None:
         self._stop.set()
-        _rmtree(self.dir)
+        remove_path(self.dir)
 
 
 def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
@@ -435,8 +435,8 @@ def _commit(out: Path, task: Task, row: dict) -> dict:
         return row
     except OSError as err:
         for table in tables:
-            _rmtree(partition_file(out, table, task.run_id).parent)
-        _rmtree(run_dir(out, task.run_id))
+            remove_path(partition_file(out, table, task.run_id).parent)
+        remove_path(run_dir(out, task.run_id))
         return {**retry_row(task, f"{out}: cannot add the run to the dataset: {err.strerror or err}", "machine"),
                 "total_s": row.get("total_s")}
 
@@ -462,7 +462,7 @@ def _execute(plan: _Plan, pool: LocalPool | DaskPool, options: BatchOptions, use
                     row = _commit(out, task, row)
                 if not row.get(RETRY):  # not the log's failure: the next batch runs it again
                     ledger.put(row)
-            _rmtree(Path(task.staged))
+            remove_path(Path(task.staged))
             rows[position[task.run_id]] = row
             progress.add(row, dispatched=True)
             on_row(row, progress)
