@@ -356,7 +356,8 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
     """Run every log of ``entries`` into ``options.out``; ``on_row`` sees each row once it is recorded.
 
     ``on_start`` sees the plan (``total`` logs, ``to_run`` of them not up to date) before anything runs.
-    ``run`` is the workers' task function (tests pass ones that crash or hang).
+    ``run`` is the workers' task function (tests pass ones that crash or hang). Entries under ``options.out``
+    are left out: a batch's own outputs (``results.mcap`` exports) are never its logs.
 
     Raises:
         InputError: Another batch holds ``out``, or ``out`` has the older layout.
