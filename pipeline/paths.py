@@ -88,6 +88,11 @@ def _within(inner: Path, outer: Path) -> bool:
     return inner == outer or outer in inner.parents
 
 
+def inside(path: str | Path, directory: str | Path) -> bool:
+    """``path`` is ``directory`` or lies under it, symbolic links followed (a batch never reads its own OUT)."""
+    return _within(_resolved(path), _resolved(directory))
+
+
 def identity(path: str | Path) -> tuple[int, int] | None:
     """``(device, inode)`` of ``path`` itself (a link is not followed), None when nothing is there: what an
     output check saw, compared again when the output is published (:func:`pipeline.writers.publish`)."""

@@ -636,7 +636,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     ``force`` the previous output is replaced only once the new one is complete, so a failure or a kill at
     any point leaves the old or the new run under ``final`` (see :func:`_publish`). Temporary directories of
     killed runs in the same parent are removed first. OS errors (disk full, read-only, permission) become an
-    :class:`OutputError` naming ``final``.
+    :class:`OutputError` naming ``final`` (a :class:`ResourceError` when the machine ran out or refused).
     """
     from slamobs.pipeline import interrupts
 

@@ -279,13 +279,13 @@ def test_compaction_keeps_every_row_and_run_id_and_survives_a_kill(tmp_path):
     snapshot = frame()
     from slamobs.pipeline.batch import compact as compact_mod
 
-    real_apply = compact_mod._apply
-    compact_mod._apply = lambda o: (_ for _ in ()).throw(KeyboardInterrupt)  # journal written, nothing renamed
+    real_apply = compact_mod.apply_journal
+    compact_mod.apply_journal = lambda o: (_ for _ in ()).throw(KeyboardInterrupt)  # journal written, nothing renamed
     try:
         with pytest.raises(KeyboardInterrupt), batch_lock(out):
             compact_dataset(out, file_rows=150, group_rows=64)
     finally:
-        compact_mod._apply = real_apply
+        compact_mod.apply_journal = real_apply
     assert (out / "_slamobs" / JOURNAL).is_file()
     finish_compaction(out)
     assert not (out / "_slamobs" / JOURNAL).exists()

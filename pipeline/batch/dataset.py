@@ -38,8 +38,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, encode_row, meta_dir
+from slamobs.pipeline.errors import InputError, output_error
 from slamobs.pipeline.paths import exclusive
 from slamobs.pipeline.writers import parquet_options
 from slamobs.schemas import OPTIONAL_TABLES, TABLES
@@ -67,7 +67,8 @@ def staging_root(out: Path) -> Path:
     return meta_dir(out) / STAGING
 
 
-def _rmtree(p: Path) -> None:
+def remove_path(p: Path) -> None:
+    """Delete a file, a link or a directory tree, whatever is there (nothing there is fine)."""
     shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
 
 
@@ -99,10 +100,8 @@ def stage_tables(staged: Path, run_id: str) -> dict[str, int]:
 
 
 def write_run_meta(staged: Path, run_id: str, tables: dict[str, int], row: dict) -> None:
-    from slamobs.pipeline.batch.ledger import _encode
-
     tmp = staged / "run" / f".{RUN_META}.tmp"
-    tmp.write_text(json.dumps({"run_id": run_id, "tables": tables, "row": _encode(row)}, indent=1) + "\n")
+    tmp.write_text(json.dumps({"run_id": run_id, "tables": tables, "row": encode_row(row)}, indent=1) + "\n")
     os.replace(tmp, staged / "run" / RUN_META)
 
 
@@ -119,7 +118,7 @@ def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> N
     final = run_dir(out, run_id)
     final.parent.mkdir(parents=True, exist_ok=True)
     if final.exists():
-        _rmtree(final)
+        remove_path(final)
     os.replace(staged / "run", final)
 
 
@@ -132,8 +131,16 @@ def read_run_meta(path: Path) -> dict | None:
 
 
 def compacted_run_ids(path: Path) -> list[str]:
-    meta = pq.read_metadata(path).metadata or {}
-    return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
+    """The run_ids a compacted file holds (its footer). A damaged file (truncated, overwritten) is refused in one
+    line: its rows are nowhere else (compaction deleted the per-run files), so the runs must run again."""
+    try:
+        meta = pq.read_metadata(path).metadata or {}
+        return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
+    except OSError as err:
+        raise output_error(path, err, "cannot read") from None
+    except (pa.ArrowException, ValueError) as err:
+        raise InputError(path, f"damaged compacted file ({' '.join(str(err).split())[:200]}): move it out of the "
+                               "dataset and run the batch again (the runs it held are run again)") from None
 
 
 @dataclass
@@ -204,7 +211,7 @@ def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
     out = index.out
     for table, fresh in index.fresh.items():
         for rid in fresh & run_ids:
-            _rmtree(partition_file(out, table, rid).parent)
+            remove_path(partition_file(out, table, rid).parent)
         fresh -= run_ids
     for table, files in index.compacted.items():
         for name, ids in list(files.items()):
@@ -214,7 +221,7 @@ def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
                 if not ids:
                     del files[name]
     for rid in index.runs & run_ids:
-        _rmtree(run_dir(out, rid))
+        remove_path(run_dir(out, rid))
     index.runs -= run_ids
 
 
@@ -246,14 +253,12 @@ class Reconciled:
 
 def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
     """Make disk and record agree (see module doc); returns the index of what is now in the dataset."""
-    from slamobs.pipeline.batch.compact import finish_compaction
-
     out = Path(out)
     result = Reconciled()
     finish_compaction(out)
     stale = _stale_files(out)
     for p in stale:
-        _rmtree(p)
+        remove_path(p)
     result.stale_files = len(stale)
     index = DatasetIndex.scan(out)
     ok = {rid for rid, row in ledger.rows.items() if row.get("status") == "ok"}
@@ -294,6 +299,58 @@ def check_layout(out: Path) -> None:
     if (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
         raise InputError(out, "written by an older slamobs batch (run ids from log paths); write this batch to a "
                               "new directory")
+
+
+# --- switching files: the journal of a compaction (see compact) -----------------------------------------
+
+JOURNAL = "compaction.json"
+
+
+def write_journal(out: Path, renames: list[tuple[Path, Path]], replaced: list[Path]) -> None:
+    """Record a switch of files (hidden temporaries -> final names, and the files they replace) before it is made."""
+    rel = lambda p: str(Path(p).relative_to(out))  # noqa: E731
+    doc = {"renames": [[rel(a), rel(b)] for a, b in renames], "replaced": [rel(p) for p in replaced]}
+    path = meta_dir(out) / JOURNAL
+    tmp = path.with_name(f".{JOURNAL}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(doc))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def apply_journal(out: Path) -> None:
+    """Make the switch the journal records: the renames, then the deletions, then the journal goes."""
+    path = meta_dir(out) / JOURNAL
+    doc = json.loads(path.read_text())
+    for a, b in doc["renames"]:
+        os.replace(out / a, out / b)
+    for p in doc["replaced"]:
+        remove_path(out / p)
+    path.unlink()
+
+
+def finish_compaction(out: Path) -> None:
+    """Complete or roll back a compaction a killed batch left half done (see module doc)."""
+    out = Path(out)
+    path = meta_dir(out) / JOURNAL
+    if not path.is_file():
+        return
+    try:
+        doc = json.loads(path.read_text())
+    except ValueError:
+        doc = None
+    if doc is None or any((out / a).exists() for a, _ in doc["renames"]):
+        # not every rename happened: the replaced files are intact, the new ones go
+        for a, b in (doc or {}).get("renames", []):
+            (out / a).unlink(missing_ok=True)
+            (out / b).unlink(missing_ok=True)
+        path.unlink()
+        return
+    for p in doc["replaced"]:
+        remove_path(out / p)
+    path.unlink()
 
 
 # --- reading one run back (slamobs report / load_run on runs/<id>) ----------------------------------------
