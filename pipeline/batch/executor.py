@@ -170,7 +170,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
                 _rmtree(staged)
             staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
             (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
-            summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig(**task.config))
+            summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig.from_dict(task.config))
             t = time.perf_counter()
             tables = stage_tables(staged, task.run_id)
             row = {**base_row(task), "status": "ok", "error": None, "dataset_s": time.perf_counter() - t,
