@@ -21,7 +21,7 @@ twist over it, time-base samples inside a linear-velocity gap and detection fram
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -38,12 +38,25 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
 
-#: Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
-#: sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there)
-#: or farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s),
-#: a speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments.
-DEFAULT_LIMITS = {"min_range": 0.05, "max_range": 500.0, "max_angular_rate": 100.0, "max_speed": 300.0,
-                  "max_gap": 5.0}
+
+@dataclass(frozen=True)
+class Limits:
+    """Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
+    sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there) or
+    farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s), a
+    speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments."""
+
+    min_range: float | None = 0.05
+    max_range: float | None = 500.0
+    max_angular_rate: float | None = 100.0
+    max_speed: float | None = 300.0
+    max_gap: float | None = 5.0
+
+    def as_dict(self) -> dict[str, float | None]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+DEFAULT_LIMITS = Limits().as_dict()
 
 #: Start of the note on the accelerometer's down-weighted samples (only runs that use the accelerometer keep it).
 ACCEL_NOTE = "accelerometer: "

@@ -24,7 +24,7 @@ import pytest
 from slamobs.pipeline.batch import BatchOptions, discover, run_batch
 from slamobs.pipeline.batch.executor import Task, base_row, run_task
 from slamobs.pipeline.batch.ledger import Ledger, read_summary
-from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.config import EvaluationConfig, RunConfig
 
 from batch_checks import alive, assert_consistent
 
@@ -190,7 +190,7 @@ def test_truncated_real_log_is_salvaged_with_a_warning(tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(log.read_bytes()[: log.stat().st_size * 2 // 3])
     (tmp_path / "stage").mkdir()
-    task = Task.make("cut-0", str(cut), str(tmp_path), RunConfig(plots=False), staged=str(tmp_path / "stage" / "cut-0"))
+    task = Task.make("cut-0", str(cut), str(tmp_path), RunConfig(evaluation=EvaluationConfig(plots=False)), staged=str(tmp_path / "stage" / "cut-0"))
     row = run_task(task)
     assert row["status"] == "ok" and row["warning_count"] >= 1
     assert "incomplete" in row["warnings"] and "recovered" in row["warnings"]

@@ -290,7 +290,7 @@ def test_config_paths_are_relative_to_the_config_file(tmp_path):
     cfg.write_text("msg_dir: msgs\nevaluation:\n  truth_file: gt/truth.txt\n")
     config = load_config(cfg)
     assert config.msg_dir == str((tmp_path / "cfg" / "msgs").resolve())
-    assert config.truth_file == str((tmp_path / "cfg" / "gt" / "truth.txt").resolve())
+    assert config.evaluation.truth_file == str((tmp_path / "cfg" / "gt" / "truth.txt").resolve())
 
 
 def test_every_compiled_kernel_is_cached_on_disk():

@@ -434,7 +434,7 @@ def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
 
 def test_config_limits_are_parsed_and_switchable():
     cfg = parse_config({"limits": {"max_range": None, "max_gap": 60}})
-    assert cfg.limits["max_range"] is None and cfg.limits["max_gap"] == 60.0 and cfg.limits["min_range"] == 0.05
+    assert cfg.limits.max_range is None and cfg.limits.max_gap == 60.0 and cfg.limits.min_range == 0.05
 
 
 @pytest.mark.parametrize("name", ["fast-adaptation", "hashim", "hashim-imu", "wang-tayebi", "hybrid"])

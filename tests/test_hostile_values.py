@@ -78,7 +78,7 @@ def test_every_yaml_file_is_read_with_the_alias_budget(tmp_path, what):
 
     cfg = tmp_path / "run.yaml"  # aliases within the budget still work
     cfg.write_text("limits: {max_range: &r 50.0, max_gap: *r}\n")
-    assert load_config(cfg).limits["max_gap"] == 50.0
+    assert load_config(cfg).limits.max_gap == 50.0
 
 
 # --------------------------------------------------------------------------- 64-bit record times

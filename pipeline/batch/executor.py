@@ -29,6 +29,9 @@ from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InfrastructureFailure
 
 EXECUTORS = ("local", "dask")
+#: Written into a task's staging directory as its run begins (worker and pid): what an operator, or a kill test,
+#: looks for to know a log is running and where. Timeouts count from the staging directory itself.
+STARTED = "started.json"
 #: A Dask task gives up (ends its worker process) when its batch's lease file has not been touched for this
 #: long: the batch process is gone, nothing the task produces can be committed.
 LEASE_STALE_S = 60.0
@@ -204,11 +207,12 @@ def run_task(task: Task, pipeline=_run) -> dict:
             if staged.exists():  # a Dask retry after a worker died on this task
                 remove_path(staged)
             staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
+            (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
             changed = _changed(task, read=False)
             failure = None
             if changed is None:
                 try:
-                    summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig(**task.config))
+                    summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig.from_dict(task.config))
                 except Exception as err:  # noqa: BLE001 - unless the log changed meanwhile (then that is why)
                     failure = err
                 changed = _changed(task, read=True)
