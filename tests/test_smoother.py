@@ -212,8 +212,8 @@ def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_recko
     assert max(finals.values()) <= best * (1 + 1e-4)  # one optimum, whichever observer started it
     # dead reckoning as a user asks for it (`batch: {seed: dead-reckoning}`), the seed the product builds
     config = parse_config({"observer": "batch", "batch": {"seed": "dead-reckoning"}})
-    assert batch_settings(config.batch) == replace(loop.settings, seed="dead-reckoning")  # else as the others
-    run = BatchSmoother(loop.stream, {}, ObserverOptions(context={"config": config}))
+    assert config.batch == replace(loop.settings, seed="dead-reckoning")  # else as the others
+    run = BatchSmoother(loop.stream, {}, ObserverOptions(batch=config.batch))
     summary = run.solve()
     sol = run.result["solution"]
     assert summary["seed"] == "dead-reckoning" and summary["converged"]  # stopped: no step decreases the error

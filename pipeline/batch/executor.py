@@ -15,6 +15,7 @@ batch runs the log again and ``--skip-failed`` never skips it.
 
 from __future__ import annotations
 
+import json
 import os
 import socket
 import sys
