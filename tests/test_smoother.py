@@ -30,7 +30,7 @@ from slamobs.pipeline.smoother.preintegration import (
     preintegrate,
 )
 from slamobs.pipeline.smoother.seed import observer_seed
-from slamobs.pipeline.smoother.settings import BatchSettings, batch_settings
+from slamobs.pipeline.smoother.settings import BatchSettings
 
 pytest.importorskip("gtsam")
 
