@@ -212,7 +212,8 @@ def _stage(out: Path, log: Path, rid: str) -> tuple[Path, dict]:
 
 
 def test_reconcile_adopts_complete_runs_and_removes_partial_ones(tmp_path):
-    from slamobs.pipeline.batch.dataset import commit_run, partition_file, run_dir
+    from slamobs.pipeline.batch.dataset import commit_run
+    from slamobs.pipeline.stored_runs import partition_file, run_dir
 
     logs = make_logs(tmp_path / "in", [f"l{i}.mcap" for i in range(4)])
     out = tmp_path / "OUT"

@@ -26,17 +26,13 @@ import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.dataset import (
     ALL_TABLES,
-    COMPACTED,
-    PART,
-    RUN_IDS_KEY,
     JOURNAL,
     DatasetIndex,
     apply_journal,
-    compacted_run_ids,
     finish_compaction,
-    partition_file,
     write_journal,
 )
+from slamobs.pipeline.stored_runs import COMPACTED, PART, RUN_IDS_KEY, compacted_run_ids, partition_file
 from slamobs.pipeline.batch.ledger import meta_dir
 from slamobs.pipeline.errors import output_error
 from slamobs.pipeline.writers import parquet_options

@@ -39,28 +39,25 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, encode_row, meta_dir
-from slamobs.pipeline.errors import InputError, output_error
+from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.paths import exclusive
+from slamobs.pipeline.stored_runs import (
+    COMPACTED,
+    RUN_IDS_KEY,
+    RUN_META,
+    RUNS,
+    compacted_run_ids,
+    partition_file,
+    read_run_meta,
+    run_dir,
+)
 from slamobs.pipeline.writers import parquet_options
 from slamobs.schemas import OPTIONAL_TABLES, TABLES
 
-RUNS = "runs"
-PART = "part-0.parquet"
-COMPACTED = "compacted-"
 LOCK = "lock"
 STAGING = "staging"
-RUN_META = "batch.json"  # in runs/<id>/: run_id, its tables and row counts, and its summary row
-RUN_IDS_KEY = "slamobs.run_ids"  # footer key of a compacted file: the run_ids it holds (JSON list)
 ALL_TABLES = TABLES + OPTIONAL_TABLES
 RUN_ID_TYPE = pa.dictionary(pa.int32(), pa.string())
-
-
-def run_dir(out: Path, run_id: str) -> Path:
-    return Path(out) / RUNS / run_id
-
-
-def partition_file(out: Path, table: str, run_id: str) -> Path:
-    return Path(out) / table / f"run_id={run_id}" / PART
 
 
 def staging_root(out: Path) -> Path:
@@ -120,27 +117,6 @@ def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> N
     if final.exists():
         remove_path(final)
     os.replace(staged / "run", final)
-
-
-def read_run_meta(path: Path) -> dict | None:
-    try:
-        meta = json.loads((path / RUN_META).read_text())
-        return meta if isinstance(meta, dict) and isinstance(meta.get("tables"), dict) else None
-    except (OSError, ValueError):
-        return None
-
-
-def compacted_run_ids(path: Path) -> list[str]:
-    """The run_ids a compacted file holds (its footer). A damaged file (truncated, overwritten) is refused in one
-    line: its rows are nowhere else (compaction deleted the per-run files), so the runs must run again."""
-    try:
-        meta = pq.read_metadata(path).metadata or {}
-        return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
-    except OSError as err:
-        raise output_error(path, err, "cannot read") from None
-    except (pa.ArrowException, ValueError) as err:
-        raise InputError(path, f"damaged compacted file ({' '.join(str(err).split())[:200]}): move it out of the "
-                               "dataset and run the batch again (the runs it held are run again)") from None
 
 
 @dataclass
@@ -351,28 +327,3 @@ def finish_compaction(out: Path) -> None:
     for p in doc["replaced"]:
         remove_path(out / p)
     path.unlink()
-
-
-# --- reading one run back (slamobs report / load_run on runs/<id>) ----------------------------------------
-
-
-def run_tables(path: Path) -> dict[str, pa.Table] | None:
-    """The tables of the batch run directory ``path`` (``OUT/runs/<id>``) read back from the dataset, without
-    the run_id column; None if ``path`` is not a batch run directory."""
-    meta = read_run_meta(Path(path))
-    if meta is None:
-        return None
-    out, rid = Path(path).resolve().parent.parent, meta["run_id"]
-    found = {}
-    for table in meta["tables"]:
-        part = partition_file(out, table, rid)
-        if part.is_file():
-            data = pq.read_table(part)
-        else:
-            pieces = [pq.read_table(f, filters=[("run_id", "=", rid)])
-                      for f in sorted((out / table).glob(f"{COMPACTED}*.parquet")) if rid in compacted_run_ids(f)]
-            if not pieces:
-                raise InputError(path, f"table {table} of run {rid} is missing from the dataset {out / table}")
-            data = pa.concat_tables(pieces)
-        found[table] = data.drop_columns(["run_id"]).replace_schema_metadata(None)
-    return found

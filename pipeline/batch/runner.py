@@ -29,12 +29,11 @@ from slamobs.pipeline.batch.dataset import (
     check_layout,
     commit_run,
     drop_runs,
-    partition_file,
     reconcile,
     remove_path,
-    run_dir,
     staging_root,
 )
+from slamobs.pipeline.stored_runs import partition_file, run_dir
 from slamobs.pipeline.batch.discover import LogEntry, outside
 from slamobs.pipeline.batch.executor import (
     EXECUTORS,
