@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.config import EvaluationConfig, RunConfig
 from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.run import prepare_log, run_prepared
@@ -50,7 +50,7 @@ def seen_span_error(run: Path, scenario: str, start_ns: int) -> float:
 def measure(log: Path, out: Path, observers: list[str], scenario: str, start_ns: int) -> dict[str, dict]:
     rows = {}
     for name in observers:
-        cfg = RunConfig(observer=name, plots=False)
+        cfg = RunConfig(observer=name, evaluation=EvaluationConfig(plots=False))
         prepared = prepare_log(log, cfg, directions=ESTIMATORS[name].min_directions > 0)
         summary = run_prepared(prepared, out / name, cfg, force=True, release=True)
         rep = summary.report

@@ -19,7 +19,7 @@ import numpy as np
 
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.lie import so3_log
-from slamobs.pipeline.noise import resolve_noise
+from slamobs.pipeline.noise import NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
 from slamobs.pipeline.observers.riekf import RiEKF
@@ -33,8 +33,8 @@ def chi2_ppf(p: float, dof: int) -> float:
 
 
 def nees_runs(scenario: str, runs: int, duration: float, sigma_b: float = 0.05, every: int = 20):
-    noise = resolve_noise({"gyro_bias": sigma_b, "velocity_bias": sigma_b, "gyro_bias_walk": 0.0,
-                           "velocity_bias_walk": 0.0})
+    noise = resolve_noise(NoiseConfig(gyro_bias=sigma_b, velocity_bias=sigma_b, gyro_bias_walk=0.0,
+                                      velocity_bias_walk=0.0))
     rng = np.random.default_rng(2015)
     nees, seconds, samples = [], 0.0, 0
     for run in range(runs):

@@ -108,6 +108,10 @@ class _Reporter:
         warned = f" ({result.warned} with warnings)" if result.warned else ""
         click.echo(f"batch: {len(result.rows)} logs, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
                    f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}")
+        if machine := result.machine_failures:
+            click.echo(f"batch: {_plural(len(machine), 'log')} failed because of the machine, not the log (first: "
+                       f"{machine[0]['error']}); not recorded: run the same command again once that is fixed",
+                       err=True)
 
 
 class _BatchGroup(click.Group):
@@ -178,10 +182,13 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
     \b
     Exit codes:
       0    every log ok or skipped
-      1    some logs failed (bad log, timeout, a worker died twice on it)
+      1    some logs failed (bad log, timeout, a worker died twice on it, a log
+           changed while it ran)
       2    bad arguments or config, nothing found, OUT locked by another batch
       3    infrastructure: Dask scheduler unreachable or lost, no workers, a worker
-           without slamobs or with another version, workers dying at start-up
+           without slamobs or with another version, workers dying at start-up;
+           the machine failed (disk full, out of memory, permission): such logs
+           are not recorded as failed, the next batch runs them again
       130  interrupted (SIGINT), 143 terminated (SIGTERM), 129 hangup (SIGHUP):
            workers stopped, finished runs kept; run the same command to resume
     """
@@ -189,7 +196,7 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
 
     from slamobs.pipeline.batch import BatchOptions, DaskMissing, InfrastructureError, check_config, discover, run_batch
     from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.errors import InputError, ResourceError
     from slamobs.pipeline.interrupts import as_interruption, take_pending
     from slamobs.pipeline.observers import GainError
 
@@ -215,13 +222,13 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
                  if options.executor == "dask" else f"{options.jobs} local worker processes")
         with as_interruption():
             result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
+    except (InfrastructureError, ResourceError) as err:  # ResourceError before InputError: it is one
+        reporter.clear()
+        click.echo(f"error: {' '.join(str(err).split())}", err=True)
+        sys.exit(EXIT_INFRA)
     except (InputError, GainError, DaskMissing) as err:
         reporter.clear()
         exit_input_error(str(err))
-    except InfrastructureError as err:
-        reporter.clear()
-        click.echo(f"error: {err}", err=True)
-        sys.exit(EXIT_INFRA)
     except KeyboardInterrupt as err:
         reporter.clear()
         signum = err.signum if isinstance(err, Stopped) else signal.SIGINT

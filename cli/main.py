@@ -87,7 +87,7 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
-        config = replace(config, export=export)
+        config = config.with_section("output", export=export)
     status = status_line(quiet)
     try:
         with compile_notice(status, quiet=quiet):
@@ -159,7 +159,7 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
-        config = replace(config, export=export)
+        config = config.with_section("output", export=export)
     status = status_line(quiet)
     # on a terminal every stage on the status line; otherwise a line as each observer starts
     lines = {"progress": status} if status else {} if quiet else {

@@ -21,7 +21,7 @@ twist over it, time-base samples inside a linear-velocity gap and detection fram
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -38,12 +38,25 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
 
-#: Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
-#: sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there)
-#: or farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s),
-#: a speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments.
-DEFAULT_LIMITS = {"min_range": 0.05, "max_range": 500.0, "max_angular_rate": 100.0, "max_speed": 300.0,
-                  "max_gap": 5.0}
+
+@dataclass(frozen=True)
+class Limits:
+    """Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
+    sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there) or
+    farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s), a
+    speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments."""
+
+    min_range: float | None = 0.05
+    max_range: float | None = 500.0
+    max_angular_rate: float | None = 100.0
+    max_speed: float | None = 300.0
+    max_gap: float | None = 5.0
+
+    def as_dict(self) -> dict[str, float | None]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+DEFAULT_LIMITS = Limits().as_dict()
 
 #: Start of the note on the accelerometer's down-weighted samples (only runs that use the accelerometer keep it).
 ACCEL_NOTE = "accelerometer: "
@@ -538,10 +551,8 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
     # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
     n_sel = det.ids.shape[0] if sel is None else sel.size
     if n_sel:
-        key = (frame_of if sel is None else frame_of[sel]) * (np.int64(1) << 32) + \
-            ((det.ids if sel is None else det.ids[sel]) & 0xFFFFFFFF)
-        _, first = np.unique(key, return_index=True)
-        del key
+        # (frame, id) pairs compared whole: a key of the id's low 32 bits took ids 5 and 5 + 2^32 for one
+        first = _first_of_pairs(frame_of if sel is None else frame_of[sel], det.ids if sel is None else det.ids[sel])
         if first.size < n_sel:
             notes.append(f"{det.topic}: {n_sel - first.size} repeated ids within a frame dropped")
             mask = np.zeros(n_sel, bool)
@@ -588,6 +599,13 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
                                f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)
     return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
             np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+
+
+def _first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Indices of the first occurrence of each distinct pair ``(a[i], b[i])``, ascending."""
+    order = np.lexsort((b, a))  # stable: equal pairs keep their order, the first one leads
+    repeat = (a[order[1:]] == a[order[:-1]]) & (b[order[1:]] == b[order[:-1]])
+    return np.sort(order[np.concatenate(([True], ~repeat))])
 
 
 def _range_gate(topic: str, det_y: np.ndarray, dist: np.ndarray, ids: np.ndarray, per_frame: np.ndarray,

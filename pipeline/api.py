@@ -71,7 +71,7 @@ def load_run(run_dir: str | Path) -> RunData:
         raise InputError(run_dir, "not a run directory (no run.json)")
 
     report_path = run_dir / "report.json"
-    from slamobs.pipeline.batch.dataset import run_tables
+    from slamobs.pipeline.stored_runs import run_tables
 
     # a batch run directory (OUT/runs/<id>) keeps its tables in the dataset; files in the directory (e.g. the
     # aligned tables a later `slamobs report` wrote) take precedence

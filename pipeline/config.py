@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import difflib
 import math
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from slamobs.pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
-from slamobs.pipeline.alignment import DEFAULT_LIMITS
+from slamobs.pipeline.alignment import DEFAULT_LIMITS, Limits
 from slamobs.pipeline.errors import GainError, InputError
+from slamobs.pipeline.noise import NoiseConfig
+from slamobs.pipeline.smoother.settings import BatchSettings, batch_settings
 
 DEFAULT_OBSERVER = "fast-adaptation"
 #: Plausible magnitudes of the configured inertial references: gravity in m/s^2 (the Moon 1.6, Earth 9.8),
@@ -27,60 +29,122 @@ EXPORTS = ("tum", "evo", "mcap")
 
 
 @dataclass(frozen=True)
-class RunConfig:
-    observer: str = DEFAULT_OBSERVER
+class TimeConfig:
+    """``time:``: which clock each stream is put on, and how long a landmark frame stays valid."""
+
+    source: str = "header"  # header | record | auto
+    #: per-topic clock (topic -> header | record)
     topics: dict[str, str] = field(default_factory=dict)
-    body_frame: str | None = None
-    identity_frames: tuple[str, ...] = ()
+    max_meas_age: float = 0.5
+
+
+@dataclass(frozen=True)
+class FramesConfig:
+    """``frames:``: the body frame and how TF frames are read."""
+
+    body: str | None = None
+    assume_identity: tuple[str, ...] = ()
     #: frames whose TF transform is replaced by the identity anyway (a warning in run.json)
     override_identity: tuple[str, ...] = ()
-    time_source: str = "header"  # header | record | auto
-    topic_clocks: dict[str, str] = field(default_factory=dict)
-    msg_dir: str | None = None
     tag_pattern: str | None = None
-    marker_ns: str | None = None
+    marker_namespace: str | None = None
+
+
+@dataclass(frozen=True)
+class TagsConfig:
+    """``tags:``: tag corners and camera images made landmarks (pipeline.vision)."""
+
+    size: float | None = None
+    sizes: dict[int, float] = field(default_factory=dict)
+    family: str = "36h11"
+    detector: dict[str, float] = field(default_factory=dict)
+    max_rate_hz: float | None = None
+    max_reprojection_px: float = 2.0
+    min_view_angle_deg: float = 12.0
+    max_ambiguity: float = 0.6
+    max_range_m: float | None = None
+    min_side_px: float = 15.0
+    ignore: tuple[int, ...] = ()
+    sync_s: float | None = None
+
+    def options(self):
+        """What :func:`pipeline.vision.landmarks.tag_landmarks` takes."""
+        from slamobs.pipeline.vision.landmarks import TagOptions
+        from slamobs.pipeline.vision.tagpose import TagQuality
+
+        quality = TagQuality(self.max_reprojection_px, self.min_view_angle_deg, self.max_ambiguity,
+                             max_range_m=self.max_range_m, min_side_px=self.min_side_px)
+        return TagOptions(self.size, {int(k): float(v) for k, v in self.sizes.items()}, quality,
+                          frozenset(int(i) for i in self.ignore), self.sync_s)
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """``evaluation:``: where the truth comes from and how the report measures against it."""
+
     truth_file: str | None = None
     truth_format: str | None = None
     truth_times: str | None = None
-    max_meas_age: float = 0.5
-    gains: dict[str, dict[str, float]] = field(default_factory=dict)
-    output_rate_hz: float | None = None
-    float_bits: int = DEFAULT_FLOAT_BITS
-    #: ``start`` | ``gravity`` | ``truth`` | an initial pose (pipeline.output_frame); None = the observer's default
-    output_frame: str | dict | None = None
-    export: tuple[str, ...] = ()  # subset of EXPORTS, in that order
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
+    map_truth: str | None = None
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """``output:``: what the run directory holds."""
+
+    rate_hz: float | None = None
+    #: ``start`` | ``gravity`` | ``truth`` | an initial pose (pipeline.output_frame); None = the observer's default
+    frame: str | dict | None = None
+    float_bits: int = DEFAULT_FLOAT_BITS
+    export: tuple[str, ...] = ()  # subset of EXPORTS, in that order
+
+
+@dataclass(frozen=True)
+class DirectionsConfig:
+    """``directions:``: the inertial reference vectors in the map frame."""
+
     gravity: tuple[float, float, float] = DEFAULT_GRAVITY
     magnetic_field: tuple[float, float, float] = DEFAULT_MAGNETIC_FIELD
-    min_range: float | None = DEFAULT_LIMITS["min_range"]
-    max_range: float | None = DEFAULT_LIMITS["max_range"]
-    max_angular_rate: float | None = DEFAULT_LIMITS["max_angular_rate"]
-    max_speed: float | None = DEFAULT_LIMITS["max_speed"]
-    max_gap: float | None = DEFAULT_LIMITS["max_gap"]
-    # tag corners and camera images (``cameras`` and ``tags`` sections)
+
+
+@dataclass(frozen=True)
+class MapConfig:
+    """``map:``: a known map (pipeline.known_map)."""
+
+    file: str | None = None
+    mode: str = "fixed"  # fixed | prior
+
+
+#: The typed object of each section of run.yaml that is one.
+SECTIONS = {"time": TimeConfig, "frames": FramesConfig, "limits": Limits, "tags": TagsConfig,
+            "evaluation": EvaluationConfig, "output": OutputConfig, "directions": DirectionsConfig, "map": MapConfig,
+            "noise": NoiseConfig, "batch": BatchSettings}
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """A run's configuration: run.yaml's sections as typed, frozen objects, each default stated once (in its
+    section's class)."""
+
+    observer: str = DEFAULT_OBSERVER
+    topics: dict[str, str] = field(default_factory=dict)
+    msg_dir: str | None = None
     cameras: tuple[str, ...] = ()
-    tag_size: float | None = None
-    tag_sizes: dict[int, float] = field(default_factory=dict)
-    tag_family: str = "36h11"
-    tag_detector: dict[str, float] = field(default_factory=dict)
-    tag_max_rate_hz: float | None = None
-    tag_max_reprojection_px: float = 2.0
-    tag_min_view_angle_deg: float = 12.0
-    tag_max_ambiguity: float = 0.6
-    tag_max_range_m: float | None = None
-    tag_min_side_px: float = 15.0
-    tag_ignore: tuple[int, ...] = ()
-    tag_sync_s: float | None = None
-    # a known map, and landmark truth from a file
-    map_file: str | None = None
-    map_mode: str = "fixed"  # fixed | prior
-    map_truth: str | None = None
-    #: reference estimators (batch, riekf): noise levels (pipeline.noise) and the smoother's settings
-    #: (pipeline.smoother.settings), as given in run.yaml; unset keys take their documented defaults
-    noise: dict = field(default_factory=dict)
-    batch: dict = field(default_factory=dict)
+    gains: dict[str, dict[str, float]] = field(default_factory=dict)
+    time: TimeConfig = TimeConfig()
+    frames: FramesConfig = FramesConfig()
+    limits: Limits = Limits()
+    tags: TagsConfig = TagsConfig()
+    evaluation: EvaluationConfig = EvaluationConfig()
+    output: OutputConfig = OutputConfig()
+    directions: DirectionsConfig = DirectionsConfig()
+    map: MapConfig = MapConfig()
+    #: reference estimators (batch, riekf): noise levels as given (pipeline.noise) and the smoother's settings
+    noise: NoiseConfig = NoiseConfig()
+    batch: BatchSettings = BatchSettings()
     #: The file this config was read from (named in errors; not part of the effective configuration).
     source: str | None = None
 
@@ -90,35 +154,30 @@ class RunConfig:
         doc.pop("source")
         return doc
 
-    @property
-    def limits(self) -> dict[str, float | None]:
-        """The plausibility gates, as :func:`pipeline.alignment.align` takes them."""
-        return {k: getattr(self, k) for k in DEFAULT_LIMITS}
+    @classmethod
+    def from_dict(cls, doc: dict) -> RunConfig:
+        """The inverse of :meth:`to_dict`."""
+        return cls(**{k: SECTIONS[k](**v) if k in SECTIONS else v for k, v in doc.items()})
 
     def reader_options(self) -> dict:
         """Keyword arguments of :func:`pipeline.readers.read_log` that this config sets."""
-        clocks = "auto" if self.time_source == "auto" else (dict(self.topic_clocks) or None)
+        clocks = "auto" if self.time.source == "auto" else (dict(self.time.topics) or None)
         from slamobs.pipeline.readers import ImageSearch
 
-        return {"msg_dir": self.msg_dir, "tag_pattern": self.tag_pattern, "marker_ns": self.marker_ns,
-                "truth_file": self.truth_file,
-                "truth_format": self.truth_format, "truth_times": self.truth_times, "clocks": clocks,
-                "images": ImageSearch(self.tag_family, dict(self.tag_detector) or None, self.tag_max_rate_hz)}
-
-    def tag_options(self):
-        """What :func:`pipeline.vision.landmarks.tag_landmarks` needs of this config."""
-        from slamobs.pipeline.vision.landmarks import TagOptions
-        from slamobs.pipeline.vision.tagpose import TagQuality
-
-        quality = TagQuality(self.tag_max_reprojection_px, self.tag_min_view_angle_deg, self.tag_max_ambiguity,
-                             max_range_m=self.tag_max_range_m, min_side_px=self.tag_min_side_px)
-        return TagOptions(self.tag_size, {int(k): float(v) for k, v in self.tag_sizes.items()}, quality,
-                          frozenset(int(i) for i in self.tag_ignore), self.tag_sync_s)
+        ev, tags = self.evaluation, self.tags
+        return {"msg_dir": self.msg_dir, "tag_pattern": self.frames.tag_pattern,
+                "marker_ns": self.frames.marker_namespace, "truth_file": ev.truth_file,
+                "truth_format": ev.truth_format, "truth_times": ev.truth_times, "clocks": clocks,
+                "images": ImageSearch(tags.family, dict(tags.detector) or None, tags.max_rate_hz)}
 
     @property
     def align_time_source(self) -> str:
         """What the alignment stage reads: per-topic and automatic choices are applied by the readers."""
-        return "record" if self.time_source == "record" else "header"
+        return "record" if self.time.source == "record" else "header"
+
+    def with_section(self, name: str, **changes) -> RunConfig:
+        """This config with some fields of one section changed."""
+        return replace(self, **{name: replace(getattr(self, name), **changes)})
 
 
 def _non_finite(data, where: tuple[str, ...] = ()) -> tuple[tuple[str, ...], float] | None:
@@ -158,74 +217,67 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     frame = data.get("output", {}).get("frame")
     if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
         raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
-    frames = data.get("frames", {})
-    time = data.get("time", {})
-    ev = data.get("evaluation", {})
-    dirs = data.get("directions", {})
     limits = {**DEFAULT_LIMITS, **data.get("limits", {})}
     lo, hi = limits.get("min_range"), limits.get("max_range")
     if lo is not None and hi is not None and lo >= hi:  # every detection would be dropped
         raise InputError(source, f"invalid config at limits: min_range {lo:g} m is not below max_range {hi:g} m")
-    tags = data.get("tags", {})
-    known = data.get("map") or {}
-    known = {"file": known} if isinstance(known, str) else known
-    cameras = data.get("cameras", ())
+    tags = dict(data.get("tags", {}))
     for key in tags.get("sizes", {}):
         if not str(key).lstrip("-").isdigit():
             raise InputError(source, f"invalid config at tags.sizes: key {key!r} is not a tag id")
     if tags.get("detector"):  # OpenCV's own limits, named with the config (not only at the log's first image)
         from slamobs.pipeline.vision.detector import check_detector_settings
 
-        check_detector_settings(str(tags.get("family", "36h11")), tags.get("detector"), source)
+        check_detector_settings(str(tags.get("family", TagsConfig.family)), tags.get("detector"), source)
+    known = data.get("map") or {}
+    known = {"file": known} if isinstance(known, str) else known
+    cameras = data.get("cameras", ())
+    output = dict(data.get("output", {}))
+    output["export"] = export_kinds(list(output.get("export", [])) + (["mcap"] if output.pop("mcap", None) else []))
+    if "frame" in output and isinstance(output["frame"], dict):
+        output["frame"] = dict(output["frame"])
+    try:
+        batch = batch_settings(data.get("batch"))
+    except GainError as err:
+        raise InputError(source, str(err)) from None
+    time = dict(data.get("time", {}))
+    time["topics"] = dict(time.get("topics", {}))
     config = RunConfig(
         observer=data.get("observer", DEFAULT_OBSERVER),
         topics=dict(data.get("topics", {})),
-        body_frame=frames.get("body"),
-        identity_frames=tuple(frames.get("assume_identity", ())),
-        override_identity=tuple(frames.get("override_identity", ())),
-        time_source=time.get("source", "header"),
-        topic_clocks=dict(time.get("topics", {})),
         msg_dir=data.get("msg_dir"),
-        tag_pattern=frames.get("tag_pattern"),
-        marker_ns=frames.get("marker_namespace"),
-        truth_file=ev.get("truth_file"),
-        truth_format=ev.get("truth_format"),
-        truth_times=ev.get("truth_times"),
-        max_meas_age=float(time.get("max_meas_age", 0.5)),
-        gains={k: dict(v) for k, v in data.get("gains", {}).items()},
-        output_rate_hz=data.get("output", {}).get("rate_hz"),
-        output_frame=data.get("output", {}).get("frame"),
-        float_bits=int(data.get("output", {}).get("float_bits", DEFAULT_FLOAT_BITS)),
-        export=export_kinds(list(data.get("output", {}).get("export", []))
-                            + (["mcap"] if data.get("output", {}).get("mcap") else [])),
-        t_max_diff=float(ev.get("t_max_diff", 0.01)),
-        convergence_threshold=float(ev.get("convergence_threshold", 0.1)),
-        plots=bool(ev.get("plots", True)),
-        gravity=tuple(float(x) for x in dirs.get("gravity", DEFAULT_GRAVITY)),
-        magnetic_field=tuple(float(x) for x in dirs.get("magnetic_field", DEFAULT_MAGNETIC_FIELD)),
-        **{k: (None if v is None else float(v)) for k, v in limits.items()},
         cameras=(cameras,) if isinstance(cameras, str) else tuple(cameras),
-        tag_size=tags.get("size"),
-        tag_sizes={int(k): float(v) for k, v in tags.get("sizes", {}).items()},
-        tag_family=str(tags.get("family", "36h11")),
-        tag_detector=dict(tags.get("detector", {})),
-        tag_max_rate_hz=tags.get("max_rate_hz"),
-        tag_max_reprojection_px=float(tags.get("max_reprojection_px", 2.0)),
-        tag_min_view_angle_deg=float(tags.get("min_view_angle_deg", 12.0)),
-        tag_max_ambiguity=float(tags.get("max_ambiguity", 0.6)),
-        tag_max_range_m=tags.get("max_range_m"),
-        tag_min_side_px=float(tags.get("min_side_px", 15.0)),
-        tag_ignore=tuple(int(i) for i in tags.get("ignore", ())),
-        tag_sync_s=tags.get("sync_s"),
-        map_file=known.get("file"),
-        map_mode=str(known.get("mode", "fixed")),
-        map_truth=ev.get("map_truth"),
-        noise=dict(data.get("noise", {})),
-        batch=dict(data.get("batch", {})),
+        gains={k: dict(v) for k, v in data.get("gains", {}).items()},
+        time=_section(TimeConfig, time),
+        frames=_section(FramesConfig, data.get("frames", {})),
+        limits=_section(Limits, limits),
+        tags=_section(TagsConfig, {**tags, "sizes": {int(k): float(v) for k, v in tags.get("sizes", {}).items()},
+                                   "ignore": tuple(int(i) for i in tags.get("ignore", ())),
+                                   "detector": dict(tags.get("detector", {}))}),
+        evaluation=_section(EvaluationConfig, data.get("evaluation", {})),
+        output=_section(OutputConfig, output),
+        directions=_section(DirectionsConfig, data.get("directions", {})),
+        map=_section(MapConfig, known),
+        noise=NoiseConfig.from_section(data.get("noise")),
+        batch=batch,
         source=None if source == "<config>" else source,
     )
     check_config(config, source)
     return config
+
+
+def _section(cls, values: dict):
+    """A section object from its validated YAML mapping: lists become tuples, whole numbers where the field is a
+    float become floats (YAML's ``1`` for ``1.0``)."""
+    types = {f.name: str(f.type) for f in fields(cls)}
+    out = {}
+    for key, value in values.items():
+        if isinstance(value, list):
+            value = tuple(float(x) if "float" in types[key] and isinstance(x, int) else x for x in value)
+        elif isinstance(value, int) and not isinstance(value, bool) and types[key].startswith("float"):
+            value = float(value)
+        out[key] = value
+    return cls(**out)
 
 
 def check_config(config: RunConfig, source: str = "<config>") -> None:
@@ -248,13 +300,6 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
             get_estimator(name).resolve_gains(gains)
         except GainError as err:
             raise InputError(source, f"gains.{name}: {err}") from None
-    if config.batch:
-        from slamobs.pipeline.smoother.settings import batch_settings
-
-        try:
-            batch_settings(config.batch)
-        except GainError as err:
-            raise InputError(source, str(err)) from None
     _check_vectors(config, source)
 
 
@@ -278,7 +323,7 @@ def with_observer(config: RunConfig, name: str | None, option: str = "--observer
 
 
 def _check_vectors(config: RunConfig, source: str) -> None:
-    g, m = np.asarray(config.gravity, float), np.asarray(config.magnetic_field, float)
+    g, m = np.asarray(config.directions.gravity, float), np.asarray(config.directions.magnetic_field, float)
     for key, v, (lo, hi), unit, example in (
         ("gravity", g, GRAVITY_RANGE, "m/s^2", "[0, 0, -9.81]"),
         ("magnetic_field", m, MAGNETIC_RANGE, "T", "[2.0e-5, 0, -4.5e-5] (Tesla)"),
@@ -319,11 +364,11 @@ def load_config(path: Path | None) -> RunConfig:
         raise InputError(path, "config must be a mapping of sections (observer, topics, gains, ...)")
     config = parse_config(data, str(path))
     # paths in the config are relative to the config file, not to the working directory
-    def resolve(v: str) -> str:
-        return v if Path(v).is_absolute() else str((path.parent / v).resolve())
+    def resolve(v: str | None) -> str | None:
+        return v if v is None or Path(v).is_absolute() else str((path.parent / v).resolve())
 
-    rel = {k: resolve(v) for k in ("msg_dir", "truth_file", "truth_times", "map_file", "map_truth")
-           if (v := getattr(config, k)) is not None}
-    if config.cameras:
-        rel["cameras"] = tuple(resolve(v) for v in config.cameras)
-    return replace(config, **rel) if rel else config
+    ev = config.evaluation
+    return replace(config, msg_dir=resolve(config.msg_dir), cameras=tuple(resolve(v) for v in config.cameras),
+                   evaluation=replace(ev, truth_file=resolve(ev.truth_file), truth_times=resolve(ev.truth_times),
+                                      map_truth=resolve(ev.map_truth)),
+                   map=replace(config.map, file=resolve(config.map.file)))

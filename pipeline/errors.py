@@ -92,21 +92,31 @@ class GainError(BadConfig, ValueError):
 class ResourceError(ResourceFailure, OutputError):
     """The machine, not the input, stopped the work: out of memory, threads, file descriptors or disk space.
 
-    One line naming the file being read or written and what ran out. A batch records it as a failure of the
-    machine, retried by the next batch, never as a bad log that ``--skip-failed`` would skip.
+    One line naming the file being read or written and what ran out. A batch reports it as a failure of the
+    machine and does not record it, so the next batch runs the log again: never a bad log that
+    ``--skip-failed`` would skip.
     """
 
 
-#: ``errno`` values of a machine that ran out of something (disk space or quota, descriptors, memory).
-RESOURCE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EMFILE, errno.ENFILE, errno.ENOMEM})
+#: OS errors that say the machine refused or ran out (disk or quota full, read-only file system, permission,
+#: memory, file descriptors), whatever file the work was on.
+RESOURCE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOMEM,
+                             errno.EMFILE, errno.ENFILE})
 
 
-def output_error(path: object, err: OSError, doing: str = "cannot write the output") -> OutputError:
+def output_error(path: object, err: OSError, doing: str = "cannot write the output", then: str = "") -> OutputError:
     """An OS error while writing ``path`` as one line naming it: a :class:`ResourceError` when the machine ran out
-    of something (a full disk said only "No space left on device", without the file), else an :class:`OutputError`;
-    the file it concerns is added when that is not ``path`` itself."""
+    of something or refused (a full disk said only "No space left on device", without the file), else an
+    :class:`OutputError`; the file it concerns is added when that is not ``path`` itself, ``then`` (what is kept,
+    what to do) after the reason."""
     text = err.strerror or " ".join(str(err).split()) or type(err).__name__
     if err.filename and str(err.filename) != str(path):
         text = f"{text} ({err.filename})"
     kind = ResourceError if err.errno in RESOURCE_ERRNOS else OutputError
-    return kind(path, f"{doing}: {text}")
+    return kind(path, f"{doing}: {text}{then}")
+
+
+def is_resource_failure(err: BaseException) -> bool:
+    """The machine, not the input, stopped the work: a ResourceError, a MemoryError or a resource OS error."""
+    return (isinstance(err, (ResourceError, MemoryError))
+            or (isinstance(err, OSError) and err.errno in RESOURCE_ERRNOS))

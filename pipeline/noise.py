@@ -30,6 +30,29 @@ STATED = {"gyro": "angular_velocity", "velocity": "linear_velocity"}
 
 
 @dataclass(frozen=True)
+class NoiseConfig:
+    """The ``noise`` section of run.yaml as given: None = not set (the log's message covariance for ``gyro`` and
+    ``velocity`` where it states one, else the default in :data:`DEFAULTS`)."""
+
+    gyro: float | tuple[float, float, float] | None = None
+    velocity: float | tuple[float, float, float] | None = None
+    detection: float | None = None
+    detection_per_m: float | None = None
+    gyro_bias: float | None = None
+    velocity_bias: float | None = None
+    gyro_bias_walk: float | None = None
+    velocity_bias_walk: float | None = None
+
+    @classmethod
+    def from_section(cls, section: dict | None) -> NoiseConfig:
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in (section or {}).items()})
+
+    def given(self) -> dict:
+        """The keys set, with their values."""
+        return {k: v for k in DEFAULTS if (v := getattr(self, k)) is not None}
+
+
+@dataclass(frozen=True)
 class NoiseSettings:
     gyro: np.ndarray  # (3,) rad/s/sqrt(Hz)
     velocity: np.ndarray  # (3,) m/s/sqrt(Hz)
@@ -55,11 +78,11 @@ def _vec(value) -> np.ndarray:
     return np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
 
 
-def resolve_noise(section: dict | None, log: str | Path | None = None, topics: dict[str, str] | None = None
-                  ) -> NoiseSettings:
-    """The settings of a run: ``section`` (the config's ``noise``; a key set to null means "not set"), the
-    message covariances of ``log`` for the velocity densities not set there, defaults for the rest."""
-    section = {k: v for k, v in (section or {}).items() if v is not None}
+def resolve_noise(config: NoiseConfig | None = None, log: str | Path | None = None,
+                  topics: dict[str, str] | None = None) -> NoiseSettings:
+    """The settings of a run: what ``config`` (the run's ``noise`` section) sets, the message covariances of
+    ``log`` for the velocity densities not set there, defaults for the rest."""
+    section = (config or NoiseConfig()).given()
     values: dict = {}
     sources: dict[str, str] = {}
     stated = {}

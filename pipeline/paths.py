@@ -17,6 +17,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import re
 import stat
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -85,6 +86,11 @@ def _resolved(path: str | Path) -> Path:
 
 def _within(inner: Path, outer: Path) -> bool:
     return inner == outer or outer in inner.parents
+
+
+def inside(path: str | Path, directory: str | Path) -> bool:
+    """``path`` is ``directory`` or lies under it, symbolic links followed (a batch never reads its own OUT)."""
+    return _within(_resolved(path), _resolved(directory))
 
 
 def identity(path: str | Path) -> tuple[int, int] | None:
@@ -263,6 +269,11 @@ def read_text(path: str | Path, what: str, errors: str = "strict") -> str:
 #: Values YAML aliases (``*name``) may add to a document beyond those written out: far above what a config,
 #: manifest, map or camera file repeats, far below an alias bomb (9 lines of 9 aliases each: 387 million values).
 YAML_ALIAS_BUDGET = 100_000
+#: Flow collections (``[ ]``, ``{ }``) nested deeper than this are refused before parsing: ruamel's scanner takes
+#: time proportional to the depth for every token (500 levels: 1 s; a 4 kB file of '[': 15 s before it fails);
+#: a real file nests a few levels.
+YAML_MAX_FLOW_DEPTH = 64
+_FLOW = re.compile(r"\"(?:[^\"\\]|\\.)*\"|'(?:[^']|'')*'|#[^\n]*|[\[\]{}]")
 
 
 def read_yaml(path: str | Path, what: str) -> Any:
@@ -274,6 +285,7 @@ def read_yaml(path: str | Path, what: str) -> Any:
     from ruamel.yaml import YAML, YAMLError
 
     text = read_text(path, what)
+    check_yaml_depth(text, path, what)
     yaml = YAML(typ="safe")
     try:
         node = yaml.compose(text)
@@ -284,7 +296,29 @@ def read_yaml(path: str | Path, what: str) -> Any:
     except YAMLError as err:
         raise InputError(path, f"not valid YAML: {' '.join(str(err).split())[:300]}") from None
     except RecursionError:
-        raise InputError(path, f"the {what} is nested too deeply to read (thousands of levels)") from None
+        raise InputError(path, f"the {what} is nested too deeply to read (hundreds of levels)") from None
+
+
+def check_yaml_depth(text: str, path: str | Path, what: str) -> None:
+    """Refuse YAML ``text`` whose flow collections nest deeper than YAML_MAX_FLOW_DEPTH (for files a library
+    parses too, e.g. rosbags' metadata.yaml)."""
+    if (depth := _flow_depth(text)) > YAML_MAX_FLOW_DEPTH:
+        raise InputError(path, f"the {what} nests [ ] or {{ }} {depth} levels deep (more than the "
+                               f"{YAML_MAX_FLOW_DEPTH} read)")
+
+
+def _flow_depth(text: str) -> int:
+    """Deepest nesting of brackets and braces outside quoted strings and comments (a plain scalar's stray
+    bracket counts too: an overestimate by the few a real file has)."""
+    depth = deepest = 0
+    for match in _FLOW.finditer(text):
+        char = match.group()
+        if char in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif char in "]}":
+            depth = max(depth - 1, 0)
+    return deepest
 
 
 def _children(node: Any) -> list:

@@ -269,7 +269,7 @@ def _read(run_dir: Path, name: str):
         except (OSError, ValueError) as err:  # pyarrow's ArrowInvalid is a ValueError
             raise InputError(path, f"unreadable table: {' '.join(str(err).split())}") from None
     else:
-        from slamobs.pipeline.batch.dataset import run_tables  # a batch run directory: tables are in the dataset
+        from slamobs.pipeline.stored_runs import run_tables  # a batch run directory: tables are in the dataset
 
         found = (run_tables(run_dir) or {}).get(name)
         if found is None:

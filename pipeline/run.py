@@ -29,7 +29,7 @@ from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_s
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
-from slamobs.pipeline.estimators import get_estimator
+from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
 from slamobs.pipeline.observers.base import ObserverDiverged
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.streams import LogStreams
@@ -152,8 +152,8 @@ def blind_note(vel_t_ns: np.ndarray, det_t_ns: np.ndarray, det_offsets: np.ndarr
 
 def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
     """Every path a run reads: an output must never replace or hold one of them."""
-    return [p for p in (log, config.source, config.msg_dir, config.truth_file, config.truth_times, config.map_file,
-                        config.map_truth, *config.cameras) if p]
+    return [p for p in (log, config.source, config.msg_dir, config.evaluation.truth_file, config.evaluation.truth_times, config.map.file,
+                        config.evaluation.map_truth, *config.cameras) if p]
 
 
 def check_directions(spec, aligned: AlignedStream, log: Path, needed: int | None = None) -> None:
@@ -211,8 +211,8 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     timings: dict[str, float] = {}
     notes: list[str] = []
     # map files are checked before a long log is read
-    known = read_map(config.map_file, config.map_mode) if config.map_file else None
-    map_truth = read_map(config.map_truth).positions() if config.map_truth else None
+    known = read_map(config.map.file, config.map.mode) if config.map.file else None
+    map_truth = read_map(config.evaluation.map_truth).positions() if config.evaluation.map_truth else None
     check_camera_files(config.cameras)  # a camera file given is read even where the log has no camera topics
     t = time.perf_counter()
     progress(f"reading {log}")
@@ -224,8 +224,8 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
 
         t = time.perf_counter()
         progress("tag poses")
-        tags = tag_landmarks(streams, config.tag_options(), camera_files=config.cameras,
-                             identity_frames=config.identity_frames, body_frame=config.body_frame)
+        tags = tag_landmarks(streams, config.tags.options(), camera_files=config.cameras,
+                             identity_frames=config.frames.assume_identity, body_frame=config.frames.body)
         streams.detections = tags.detections
         streams.static_tf = [*streams.static_tf, *tags.transforms]
         streams.tag_corners = []
@@ -234,21 +234,21 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         notes.append("cameras: files given but the log's detections are not tag corners or images: not used")
     if map_truth is not None:
         if streams.landmark_truth:
-            notes.append(f"landmark truth from {config.map_truth} (evaluation.map_truth) replaces the log's")
+            notes.append(f"landmark truth from {config.evaluation.map_truth} (evaluation.map_truth) replaces the log's")
         streams.landmark_truth = map_truth
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
-    aligned = align(streams, body_frame=config.body_frame, time_source=config.align_time_source,
-                    identity_frames=config.identity_frames, override_identity=config.override_identity,
-                    gravity=config.gravity, magnetic_field=config.magnetic_field, keep_directions=directions,
-                    release=True, limits=config.limits)
+    aligned = align(streams, body_frame=config.frames.body, time_source=config.align_time_source,
+                    identity_frames=config.frames.assume_identity, override_identity=config.frames.override_identity,
+                    gravity=config.directions.gravity, magnetic_field=config.directions.magnetic_field, keep_directions=directions,
+                    release=True, limits=config.limits.as_dict())
     if known is not None and known.fixed:
         aligned, note = restrict_to_map(aligned, known)
         if note:
             notes.append(note)
         if aligned.landmark_ids.size == 0:
-            raise InputError(log, f"no detection of a landmark of the fixed map {config.map_file}")
+            raise InputError(log, f"no detection of a landmark of the fixed map {config.map.file}")
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
                       bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks,
@@ -268,9 +268,9 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
     check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
-    directions = spec.directions_needed(config) > 0 or config.output_frame == "gravity"
+    directions = spec.directions_needed(config) > 0 or config.output.frame == "gravity"
     workers = None
-    if plot_helpers > 0 and config.plots:
+    if plot_helpers > 0 and config.evaluation.plots:
         from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
 
         workers = PlotWorkers(plot_helpers)
@@ -326,8 +326,14 @@ def estimator_input(prepared: PreparedLog, config: RunConfig) -> EstimatorInput:
 
         start = map_start(aligned, prepared.known_map)
         notes.append(start.note)
-    options = ObserverOptions(max_meas_age=config.max_meas_age, out_every=_out_every(aligned, config.output_rate_hz),
-                              known_map=start, context={"config": config, "log": log, "topics": dict(prepared.topics)})
+    noise = None
+    if spec.uses_noise:  # the config's levels, else what the log's messages state, else the defaults
+        from slamobs.pipeline.noise import resolve_noise
+
+        noise = resolve_noise(config.noise, log, dict(prepared.topics))
+    options = ObserverOptions(max_meas_age=config.time.max_meas_age, out_every=_out_every(aligned, config.output.rate_hz),
+                              known_map=start, source=str(log), noise=noise, batch=config.batch,
+                              seed_gains=config.gains.get(config.batch.seed))
     return EstimatorInput(spec, gains, options, needed, notes)
 
 
@@ -346,9 +352,9 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
                   "map": ({"file": prepared.known_map.source, "mode": prepared.known_map.mode}
                           if prepared.known_map is not None else None),
                   # the truth read from a file (evaluation.truth_file): `slamobs report` reads it again from here
-                  "truth_file": ({"path": str(Path(config.truth_file).resolve()), "format": config.truth_format,
-                                  "times": str(Path(config.truth_times).resolve()) if config.truth_times else None}
-                                 if config.truth_file else None)},
+                  "truth_file": ({"path": str(Path(config.evaluation.truth_file).resolve()), "format": config.evaluation.truth_format,
+                                  "times": str(Path(config.evaluation.truth_times).resolve()) if config.evaluation.truth_times else None}
+                                 if config.evaluation.truth_file else None)},
         "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": est.gains,
                      "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
                      "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
@@ -357,8 +363,8 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
                    "detections": int(aligned.det_idx.shape[0]), "landmarks": int(aligned.landmark_ids.shape[0])},
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
         "segments": aligned.segments(),
-        "limits": config.limits,
-        "output": {"rate_hz": config.output_rate_hz, "float_bits": config.float_bits, "export": list(config.export)},
+        "limits": config.limits.as_dict(),
+        "output": {"rate_hz": config.output.rate_hz, "float_bits": config.output.float_bits, "export": list(config.output.export)},
     }
 
 
@@ -407,10 +413,10 @@ def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp:
 
     log, streams, aligned, tags = prepared.log, prepared.streams, prepared.aligned, prepared.tags
     spec, gains, options = est.spec, est.gains, est.options
-    frame_choice = output_frame.parse_frame(config.output_frame)
+    frame_choice = output_frame.parse_frame(config.output.frame)
     frame = None
     t0_ns = int(aligned.vel_t_ns[0])
-    sink = TableWriter(tmp, config.float_bits)
+    sink = TableWriter(tmp, config.output.float_bits)
     writes = None
     try:
         if tags is not None:
@@ -425,8 +431,8 @@ def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp:
             interrupts.check()
             _check_finite(part, log, spec.name, t0_ns)
             if frame is None:  # fixed from the first stretch, before anything is written
-                frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.gravity,
-                                             truth=truth_on_run_clock(streams, config), t_max_diff=config.t_max_diff,
+                frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.directions.gravity,
+                                             truth=truth_on_run_clock(streams, config), t_max_diff=config.evaluation.t_max_diff,
                                              uses_directions=spec.min_directions > 0,
                                              known_map=prepared.known_map is not None, notes=notes)
                 metadata["output"]["frame"] = frame.describe()
@@ -481,19 +487,19 @@ def evaluate_run(out: Path, streams: LogStreams, config: RunConfig, notes: list[
 def check_export(prepared: PreparedLog, config: RunConfig) -> None:
     """The log's stamps fit the export formats asked for: checked before the work, not after it."""
     aligned = prepared.aligned
-    if "mcap" in config.export:
+    if "mcap" in config.output.export:
         from slamobs.pipeline.results_mcap import check_stamps
 
         times = [t for t in (aligned.vel_t_ns, aligned.det_t_ns) if t.size]
         if times:
             check_stamps(min(int(t.min()) for t in times), max(int(t.max()) for t in times), prepared.log,
-                         " (leave mcap out of output.export)")
+                         " (leave mcap out of --export and output.export)")
 
 
 def export_run(out: Path, config: RunConfig, metadata: dict, report: dict | None, timings: dict[str, float],
                progress: Progress = silent) -> None:
     """The extra formats written inside the run (``output.export``): the results MCAP."""
-    if "mcap" in config.export:
+    if "mcap" in config.output.export:
         from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
 
         t = time.perf_counter()
@@ -527,13 +533,15 @@ def _write_stretch(sink, frame, part):
 def check_map_mode(spec, config: RunConfig, log: Path) -> None:
     """A fixed map is an absolute frame: observers that rotate the whole map with their inertial-direction
     correction cannot keep it fixed (pipeline.known_map); the reference estimators take no known map."""
-    if config.map_file and not spec.takes_known_map:
+    if config.map.file and not spec.takes_known_map:
+        able = ", ".join(s.name for s in ESTIMATORS.values() if s.takes_known_map)
         raise InputError(log, f"observer '{spec.name}' does not take a known map (map.file); run it without the map "
-                              "section, or use an observer (fast-adaptation, hashim, wang-tayebi, hashim-imu, hybrid)")
-    if config.map_file and config.map_mode == "fixed" and spec.min_directions > 0:
+                              f"section, or use an observer ({able})")
+    if config.map.file and config.map.mode == "fixed" and spec.min_directions > 0:
+        able = ", ".join(s.name for s in ESTIMATORS.values() if s.takes_known_map and not s.min_directions)
         raise InputError(log, f"map mode 'fixed' does not work with observer '{spec.name}': it rotates the whole map "
                               "about the vehicle with its inertial-direction correction; use map.mode: prior, or an "
-                              "observer without directions (fast-adaptation, hashim, wang-tayebi)")
+                              f"observer without directions ({able})")
 
 
 def _map_error(out: Path, landmark_truth: dict) -> dict | None:
@@ -585,18 +593,18 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
         truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
-        options = ReportOptions(t_max_diff_s=config.t_max_diff, convergence_threshold_m=config.convergence_threshold,
+        options = ReportOptions(t_max_diff_s=config.evaluation.t_max_diff, convergence_threshold_m=config.evaluation.convergence_threshold,
                                 gravity_aligned=gravity_aligned(metadata))
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
-        early = plot_workers if config.plots and plot_workers is not None else None
+        early = plot_workers if config.evaluation.plots and plot_workers is not None else None
         report, evaluation = evaluate_tables(frames, truth, streams.landmark_truth, streams.bias_truth,
                                              options=options, drawn_biases=drawn_biases,
                                              figures=early.submit if early is not None else None)
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
-        report["truth_source"]["time_source"] = "file stamps" if config.truth_file else clock
+        report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
         if len(segments) > 1:
             report.setdefault("notes", []).append(
                 f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
@@ -604,7 +612,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
                 "(run.json notes say where); errors just after a gap show how well that worked")
             report["segments"] = segments
         write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth,
-                     evaluation=evaluation, plots=config.plots, exports=config.export, metadata=metadata,
+                     evaluation=evaluation, plots=config.evaluation.plots, exports=config.output.export, metadata=metadata,
                      plot_workers=plot_workers)
     except OSError:
         raise

@@ -451,11 +451,14 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
             raise OutputError(final, "appeared while this command was writing its output (another run, or a "
                                      "user's file): it was left as it is and nothing was published") from None
         return None
-    if _exchange(new, final):
-        old, swapped = new, True
-    else:
-        os.rename(final, aside)
-        old, swapped = aside, False
+    try:
+        if _exchange(new, final):
+            old, swapped = new, True
+        else:
+            os.rename(final, aside)
+            old, swapped = aside, False
+    except FileNotFoundError:  # the checked entry went meanwhile: nothing to replace any more
+        return publish(new, final, None, aside=aside)
     problem = None
     if identity(old) != expected:
         problem = "was replaced while this command was writing its output (another run, or a user)"
@@ -534,7 +537,6 @@ def _publish(container: Path, final: Path, expected: tuple[int, int] | None, for
     elsewhere a run killed between the two renames leaves the new output flagged complete in the container and
     the old one beside it, and the next run on this parent finishes the swap (:func:`remove_stale_temporaries`).
     """
-
     (container / COMPLETE).touch()
     owned = foreign_entry if force else _any_entry
     old = publish(container / NEW, final, expected, aside=container / OLD, owned=owned)
@@ -549,15 +551,52 @@ def _any_entry(directory: Path) -> tuple[str, str] | None:
 
 
 def _finish(container: Path, owner: dict) -> None:
-    """Recover what a killed run left in ``container`` (finish or undo its swap), then remove it; a failing
-    rename raises and keeps the container (never delete the only copy of a run, nor what is not ours)."""
-    final = container.parent / str(owner.get("final", ""))
-    if owner.get("final") and not os.path.lexists(final):
-        if (container / COMPLETE).exists() and (container / NEW).is_dir():
-            place(container / NEW, final)
-        elif (container / OLD).exists():
-            place(container / OLD, final)
+    """Recover what a killed or failed run left in ``container`` (finish or undo its swap), then remove it; a
+    failing rename raises and keeps the container (never delete the only copy of a run, nor what is not ours)."""
+    if owner.get("final"):
+        _recover(container, container.parent / str(owner["final"]), owner)
     shutil.rmtree(container, ignore_errors=True)
+
+
+def _recover(container: Path, final: Path, owner: dict) -> None:
+    """Leave ``final`` holding the old or the new output and the container only what may be deleted.
+
+    The owner marker records the new output's identity (``new``), what the check saw at ``final``
+    (``expected``) and ``force``: what was swapped out is deleted only when it passes the same check now, as
+    :func:`publish` would have checked it (a SIGKILL may come between the swap and the check); anything else goes
+    back under ``final``. Markers of older versions (without ``new``) finish the swap as they did.
+    """
+    new, old = container / NEW, container / OLD
+    complete = (container / COMPLETE).exists()
+    if owner.get("new") is None:
+        if not os.path.lexists(final):
+            if complete and new.is_dir():
+                place(new, final)
+            elif os.path.lexists(old):
+                place(old, final)
+        return
+    new_id, expected = tuple(owner["new"]), owner.get("expected")
+    owned = foreign_entry if owner.get("force") else _any_entry
+
+    def checked(path: Path) -> bool:  # still the entry the run was allowed to replace, holding nothing else
+        return expected is not None and identity(path) == tuple(expected) and owned(path) is None
+
+    if os.path.lexists(new) and identity(new) != new_id:  # exchanged: ``new`` holds what was at ``final``
+        if not checked(new):
+            _exchange(new, final)  # back under its name; ours returns into the container
+            if identity(new) != new_id:
+                raise OSError(errno.EEXIST, "could not swap back", str(final))
+        return
+    if os.path.lexists(old):  # moved aside (no renameat2)
+        if not checked(old):
+            if identity(final) == new_id:
+                os.rename(final, new)
+            place(old, final)  # something else there now: raises, and the container is kept
+        elif complete and not os.path.lexists(final):
+            place(new, final)
+        return
+    if complete and not os.path.lexists(final) and identity(new) == new_id:
+        place(new, final)
 
 
 def remove_stale_temporaries(parent: Path) -> list[str]:
@@ -597,7 +636,7 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     ``force`` the previous output is replaced only once the new one is complete, so a failure or a kill at
     any point leaves the old or the new run under ``final`` (see :func:`_publish`). Temporary directories of
     killed runs in the same parent are removed first. OS errors (disk full, read-only, permission) become an
-    :class:`OutputError` naming ``final``.
+    :class:`OutputError` naming ``final`` (a :class:`ResourceError` when the machine ran out or refused).
     """
     from slamobs.pipeline import interrupts
 
@@ -608,8 +647,11 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         remove_stale_temporaries(final.parent)
         with interrupts.critical():  # a signal in between left a directory without its owner: never removed
             container = Path(tempfile.mkdtemp(prefix=temporary_prefix(final), dir=final.parent))
+            tmp = container / NEW
             try:
-                write_json(container / OWNER, {**_owner(), "final": final.name})
+                tmp.mkdir()
+                owner = {**_owner(), "final": final.name, "new": identity(tmp), "expected": expected, "force": force}
+                write_json(container / OWNER, owner)
             except OSError:
                 shutil.rmtree(container, ignore_errors=True)
                 raise
@@ -619,8 +661,6 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(container, 0o777 & ~umask)  # mkdtemp makes it private; a run directory is ordinary output
-        tmp = container / NEW
-        tmp.mkdir()
         yield tmp
         write_manifest(tmp)
         interrupts.check()  # a Ctrl-C/SIGTERM that Python dropped (raised in a finalizer) never publishes
@@ -629,12 +669,12 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         interrupts.note_published(final)
     except OSError as err:
         with suppress(OSError):  # a failed restore keeps the container: the next run retries it
-            _finish(container, {"final": final.name})
+            _finish(container, owner)
         raise output_error(final, err) from None
     except BaseException as err:
         if getattr(err, "kept", None) is None:  # else the container holds what could not be put back
             with suppress(OSError):  # interrupted mid-swap: the old or the new run goes back under ``final``
-                _finish(container, {"final": final.name})
+                _finish(container, owner)
         raise
     shutil.rmtree(container, ignore_errors=True)
 

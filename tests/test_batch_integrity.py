@@ -24,7 +24,7 @@ import pytest
 from slamobs.pipeline.batch import BatchOptions, discover, run_batch
 from slamobs.pipeline.batch.executor import Task, base_row, run_task
 from slamobs.pipeline.batch.ledger import Ledger, read_summary
-from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.config import EvaluationConfig, RunConfig
 
 from batch_checks import alive, assert_consistent
 
@@ -190,7 +190,7 @@ def test_truncated_real_log_is_salvaged_with_a_warning(tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(log.read_bytes()[: log.stat().st_size * 2 // 3])
     (tmp_path / "stage").mkdir()
-    task = Task.make("cut-0", str(cut), str(tmp_path), RunConfig(plots=False), staged=str(tmp_path / "stage" / "cut-0"))
+    task = Task.make("cut-0", str(cut), str(tmp_path), RunConfig(evaluation=EvaluationConfig(plots=False)), staged=str(tmp_path / "stage" / "cut-0"))
     row = run_task(task)
     assert row["status"] == "ok" and row["warning_count"] >= 1
     assert "incomplete" in row["warnings"] and "recovered" in row["warnings"]
@@ -212,7 +212,8 @@ def _stage(out: Path, log: Path, rid: str) -> tuple[Path, dict]:
 
 
 def test_reconcile_adopts_complete_runs_and_removes_partial_ones(tmp_path):
-    from slamobs.pipeline.batch.dataset import commit_run, partition_file, run_dir
+    from slamobs.pipeline.batch.dataset import commit_run
+    from slamobs.pipeline.stored_runs import partition_file, run_dir
 
     logs = make_logs(tmp_path / "in", [f"l{i}.mcap" for i in range(4)])
     out = tmp_path / "OUT"
@@ -279,13 +280,13 @@ def test_compaction_keeps_every_row_and_run_id_and_survives_a_kill(tmp_path):
     snapshot = frame()
     from slamobs.pipeline.batch import compact as compact_mod
 
-    real_apply = compact_mod._apply
-    compact_mod._apply = lambda o: (_ for _ in ()).throw(KeyboardInterrupt)  # journal written, nothing renamed
+    real_apply = compact_mod.apply_journal
+    compact_mod.apply_journal = lambda o: (_ for _ in ()).throw(KeyboardInterrupt)  # journal written, nothing renamed
     try:
         with pytest.raises(KeyboardInterrupt), batch_lock(out):
             compact_dataset(out, file_rows=150, group_rows=64)
     finally:
-        compact_mod._apply = real_apply
+        compact_mod.apply_journal = real_apply
     assert (out / "_slamobs" / JOURNAL).is_file()
     finish_compaction(out)
     assert not (out / "_slamobs" / JOURNAL).exists()

@@ -1,7 +1,10 @@
 """The hostile-input catalogue of issue 16, one test per case: a run never destroys its input, never hangs, never
 uses a setting it did not understand, and says what is wrong in one line.
 
-Signals, SIGKILL and the container fuzz are in ``test_interrupts.py`` and ``test_fuzz_containers.py``.
+Signals, SIGKILL and the container fuzz are in ``test_interrupts.py`` and ``test_fuzz_containers.py``; hostile
+values (issue 28: YAML alias bombs and cycles, record times past 2^63 ns, stamps past 2038 in a results MCAP,
+landmark ids past int32 and tag ids past int64, run.json of another shape, tables without a column, JSON nested
+too deeply, detections all dropped by the range gate, identical stamps) in ``test_hostile_values.py``.
 """
 
 from __future__ import annotations
@@ -431,7 +434,7 @@ def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
 
 def test_config_limits_are_parsed_and_switchable():
     cfg = parse_config({"limits": {"max_range": None, "max_gap": 60}})
-    assert cfg.limits["max_range"] is None and cfg.limits["max_gap"] == 60.0 and cfg.limits["min_range"] == 0.05
+    assert cfg.limits.max_range is None and cfg.limits.max_gap == 60.0 and cfg.limits.min_range == 0.05
 
 
 @pytest.mark.parametrize("name", ["fast-adaptation", "hashim", "hashim-imu", "wang-tayebi", "hybrid"])

@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import sqlite3
 import time
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_hostile_inputs import _no_warnings, invoke, one_line_error
+from test_hostile_inputs import invoke, one_line_error
 
 from slamobs.pipeline.simulate import simulate, write_log
+from slamobs.pipeline.simulate.sensors import TOPIC_TRUTH
 
 NS = 1_000_000_000
 TWO63 = 2**63
@@ -22,7 +24,9 @@ TWO63 = 2**63
 BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(f"{k}: &{k} [{', '.join([f'*{p}'] * 9)}]\n"
                                                       for p, k in zip("abcdefgh", "bcdefghi"))
 YAML_CASES = {"bomb": (BOMB, "alias bomb"), "cycle": ("a: &a [*a]\n", "*a refers to a value that contains it"),
-              "deep": ("[" * 20000 + "]" * 20000 + "\n", "nested too deeply")}
+              # ruamel's scanner spent 15 s on a 4 kB file of '[' before its RecursionError
+              "flow": ("[" * 2000 + "]" * 2000 + "\n", "nests [ ] or { } 2000 levels deep"),
+              "block": ("- " * 2000 + "x\n", "nested too deeply")}
 
 
 @pytest.fixture(scope="module")
@@ -74,19 +78,24 @@ def test_every_yaml_file_is_read_with_the_alias_budget(tmp_path, what):
 
     cfg = tmp_path / "run.yaml"  # aliases within the budget still work
     cfg.write_text("limits: {max_range: &r 50.0, max_gap: *r}\n")
-    assert load_config(cfg).limits["max_gap"] == 50.0
+    assert load_config(cfg).limits.max_gap == 50.0
 
 
 # --------------------------------------------------------------------------- 64-bit record times
 
 
-def _shifted_mcap(src: Path, dst: Path, shift: int) -> Path:
-    """``src`` rewritten with the MCAP writer, every log and publish time moved by ``shift`` (uint64 on disk)."""
+def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None, indexed: bool = True) -> Path:
+    """``src`` rewritten with the MCAP writer, every log and publish time moved by ``shift`` (uint64 on disk) and
+    the text of its simulation truth (a std_msgs/String) replaced by ``edit(text)``; without ``indexed`` the
+    summary has no chunk indexes and no statistics (the reader scans the chunks)."""
     from mcap.reader import make_reader
-    from mcap.writer import Writer
+    from mcap.writer import IndexType, Writer
 
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+
+    ts = make_typestore(ros1=False)
     with src.open("rb") as fin, dst.open("wb") as fout:
-        writer = Writer(fout)
+        writer = Writer(fout) if indexed else Writer(fout, index_types=IndexType.NONE, use_statistics=False)
         writer.start(profile="ros2", library="slamobs-tests")
         schemas: dict[int, int] = {}
         channels: dict[int, int] = {}
@@ -96,19 +105,53 @@ def _shifted_mcap(src: Path, dst: Path, shift: int) -> Path:
             if channel.id not in channels:
                 channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
                                                                schemas[schema.id], channel.metadata)
-            writer.add_message(channels[channel.id], log_time=msg.log_time + shift, data=msg.data,
+            data = msg.data
+            if edit is not None and channel.topic == TOPIC_TRUTH:
+                text = edit(ts.deserialize_cdr(data, schema.name).data)
+                data = bytes(ts.serialize_cdr(ts.types[schema.name](data=text), schema.name))
+            writer.add_message(channels[channel.id], log_time=msg.log_time + shift, data=data,
                                publish_time=msg.publish_time + shift, sequence=msg.sequence)
         writer.finish()
     return dst
 
 
+class _no_warnings:  # a context manager read as a phrase
+    """Fails the block if it emits a RuntimeWarning (numpy's divide-by-zero and overflow warnings)."""
+
+    def __enter__(self):
+        self._ctx = warnings.catch_warnings(record=True)
+        self.caught = self._ctx.__enter__()
+        warnings.simplefilter("always")
+        return self
+
+    def __exit__(self, *exc):
+        self._ctx.__exit__(*exc)
+        assert not [w for w in self.caught if issubclass(w.category, RuntimeWarning)], [str(w) for w in self.caught]
+        return False
+
+
+def _span(log: Path) -> tuple[int, int]:
+    """First and last log time of an MCAP file, from its summary."""
+    from mcap.reader import make_reader
+
+    with log.open("rb") as f:
+        stats = make_reader(f).get_summary().statistics
+    return stats.message_start_time, stats.message_end_time
+
+
 def test_record_times_past_2_63_are_one_line_in_info_and_run(mcap_log, tmp_path, quick):
     log = _shifted_mcap(mcap_log, tmp_path / "year2262.mcap", TWO63)
-    one_line_error(invoke("info", log), str(log), "outside 0 to 2^63 ns")
+    one_line_error(invoke("info", log), str(log), "outside 0 to 2^62 ns")
+    scanned = _shifted_mcap(mcap_log, tmp_path / "scanned.mcap", TWO63, indexed=False)
+    one_line_error(invoke("info", scanned), str(scanned), f"record (log) times {TWO63 + _span(mcap_log)[0]} to")
     rec = tmp_path / "rec.yaml"
     rec.write_text(quick.read_text() + "time:\n  source: record\n")
     for cfg in (quick, rec):  # with record times the run used to go on with negative t_ns
-        one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", cfg), str(log), "outside 0 to 2^63 ns")
+        one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", cfg), str(log), "outside 0 to 2^62 ns")
+    # just below 2^63: no wrap, but the report's sums of times overflowed (numpy RuntimeWarnings, a wrong offset)
+    edge = _shifted_mcap(mcap_log, tmp_path / "edge.mcap", TWO63 - 2 - _span(mcap_log)[1])
+    with _no_warnings():
+        one_line_error(invoke("run", edge, "-o", tmp_path / "out", "--config", rec), str(edge), "outside 0 to 2^62 ns")
     assert not (tmp_path / "out").exists()
 
 
@@ -118,7 +161,7 @@ def test_a_wrapped_record_time_the_summary_does_not_show_names_the_topic(sim, tm
     (db,) = log.glob("*.db3")
     with sqlite3.connect(db) as con:
         con.execute("UPDATE messages SET timestamp = timestamp - ? WHERE id % 7 = 0", (TWO63 - 1,))
-    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), "outside 0 to 2^63 ns")
+    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), "outside 0 to 2^62 ns")
 
 
 # --------------------------------------------------------------------------- 64-bit ids
@@ -168,9 +211,15 @@ def tags_config(tmp_path_factory) -> Path:
 
 
 def _final_map_labels(results: Path) -> tuple[list[str], list[int]]:
-    from test_results_export import _messages
+    """Text and marker id of every label of the last map message of a results MCAP."""
+    from mcap.reader import make_reader
 
-    final = [m for _, m in _messages(results)["/slamobs/landmarks"]][-1].markers[1:]
+    from slamobs.pipeline.results_mcap import TOPIC_LANDMARKS
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+
+    with results.open("rb") as f:
+        *_, (schema, _, msg) = make_reader(f).iter_messages(topics=[TOPIC_LANDMARKS])
+    final = make_typestore(ros1=False).deserialize_cdr(msg.data, schema.name).markers[1:]
     return [m.text for m in final], [m.id for m in final]
 
 
@@ -210,7 +259,8 @@ def run_dir(mcap_log, quick, tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize(("text", "needle"), [("[]", "the file is a JSON array"),
-                                              ('{"input": [1]}', "'input' is a JSON array")])
+                                              ('{"input": [1]}', "'input' is a JSON array"),
+                                              ("[" * 100_000 + "]" * 100_000, "unreadable run.json")])
 def test_run_json_of_another_shape_is_one_line(run_dir, tmp_path, text, needle):
     import shutil
 
@@ -277,3 +327,35 @@ def test_stamps_after_2038_are_one_line_before_the_run_and_in_export(mcap_log, r
     shifted = pc.add(poses["t_ns"], pa.scalar(2_000_000_000 * NS, pa.int64()))
     pq.write_table(poses.set_column(poses.schema.get_field_index("t_ns"), "t_ns", shifted), table)
     one_line_error(invoke("export", odd, "--mcap", tmp_path / "r.mcap"), str(table), "int32 seconds")
+
+
+def test_simulation_truth_nested_too_deeply_is_one_line(mcap_log, tmp_path, quick):
+    """json's decoder recurses per level: a deep truth message was a RecursionError traceback."""
+    log = _shifted_mcap(mcap_log, tmp_path / "deep.mcap", edit=lambda _text: "[" * 100_000 + "]" * 100_000)
+    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), f"[{TOPIC_TRUTH}]",
+                   "nested too deeply")
+
+
+def test_ids_equal_in_their_low_32_bits_are_different_landmarks(sim):
+    """Repeated ids within a frame were found on a key of the id's low 32 bits: ids 7 and 7 + 2^32 in one frame
+    were one id seen twice, and one of the two detections was dropped."""
+    from slamobs.pipeline.alignment import align
+    from slamobs.pipeline.simulate import expected_streams
+
+    s = expected_streams(sim, "mem.mcap")
+    det = s.detections
+    k = int(np.flatnonzero(np.diff(det.offsets) >= 2)[0])  # a frame with two detections
+    ids = det.ids.copy()
+    ids[det.offsets[k]: det.offsets[k] + 2] = [7, 7 + 2**32]
+    aligned = align(replace(s, detections=replace(det, ids=ids)))
+    assert not [n for n in aligned.notes if "repeated ids" in n], aligned.notes
+    assert {7, 7 + 2**32} <= set(aligned.landmark_ids.tolist())
+    assert aligned.det_idx.shape[0] == align(s).det_idx.shape[0]
+
+
+def test_rosbag2_metadata_nested_too_deeply_is_one_line_before_rosbags_parses_it(sim, tmp_path):
+    """rosbags parses metadata.yaml with ruamel: 3000 '[' took it 15 s before a RecursionError."""
+    log = write_log(sim, tmp_path / "deep", "ros2")
+    meta = log / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("custom_data:", "custom_data: " + "[" * 3000 + "]" * 3000 + "\n  x:", 1))
+    one_line_error(invoke("info", log), str(meta), "nests [ ] or { } 3000 levels deep")

@@ -329,3 +329,88 @@ def test_report_replaces_only_its_own_files(earlier, tmp_path):
     code, err = _cli("report", run, "-q", "--export", "none")
     _one_line(code, err, str(run / "estimate_tum.txt"), "not written by slamobs")
     assert _tree(run) == before
+
+
+@pytest.mark.parametrize("renameat2", [True, False], ids=["renameat2", "plain-renames"])
+def test_publish_replaces_only_the_checked_entry(tmp_path, monkeypatch, renameat2):
+    """The publishing step on its own, with renameat2 and without it (other systems, file systems without the
+    flags): nothing is replaced but the entry checked, unchanged; what appeared or changed is put back as it was."""
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.errors import OutputError
+    from slamobs.pipeline.paths import foreign_entry, identity
+
+    if renameat2 and writers._RENAMEAT2 is None:
+        pytest.skip("no renameat2 on this system")
+    if not renameat2:
+        monkeypatch.setattr(writers, "_RENAMEAT2", None)
+
+    def new(name: str) -> Path:
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "run.json").write_text(name)
+        return tmp_path / name
+
+    out, aside = tmp_path / "out", tmp_path / "aside"
+    import shutil
+
+    for kind in ("directory", "file"):  # appeared where nothing was checked: kept
+        users = out / "important.txt" if kind == "directory" else out
+        users.parent.mkdir(exist_ok=True)
+        users.write_text("user")
+        with pytest.raises(OutputError, match="appeared"):
+            writers.publish(new(f"n-{kind}"), out, None, aside=aside)
+        assert users.read_text() == "user"
+        assert (tmp_path / f"n-{kind}" / "run.json").is_file()  # ours stays with the caller
+        shutil.rmtree(out) if kind == "directory" else out.unlink()
+    earlier = new("out")
+    checked = identity(earlier)
+    (out / "thesis.tex").write_text("user")  # added after the check
+    with pytest.raises(OutputError, match="thesis.tex is not written by slamobs"):
+        writers.publish(new("n1"), out, checked, aside=aside, owned=foreign_entry)
+    assert sorted(os.listdir(out)) == ["run.json", "thesis.tex"] and not aside.exists()
+    (out / "thesis.tex").unlink()
+    os.rename(out, tmp_path / "moved")  # replaced after the check
+    new("out")
+    with pytest.raises(OutputError, match="was replaced"):
+        writers.publish(new("n2"), out, checked, aside=aside, owned=foreign_entry)
+    assert identity(out) != checked and not aside.exists()
+    shutil.rmtree(out)
+    os.rename(tmp_path / "moved", out)
+    old = writers.publish(new("n3"), out, checked, aside=aside, owned=foreign_entry)  # the checked run: replaced
+    assert (out / "run.json").read_text() == "n3" and identity(old) == checked
+
+
+def test_a_kill_between_the_swap_and_its_check_deletes_nothing_of_the_users(tmp_path):
+    """A SIGKILL right after --force's exchange, before the swapped-out directory was checked: the next run on the
+    parent finds the user's directory (put at OUT while the run worked) in the dead run's temporary and swaps it
+    back instead of deleting it with the temporary."""
+    from slamobs.pipeline import writers
+
+    if writers._RENAMEAT2 is None:
+        pytest.skip("no renameat2 on this system")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "run.json").write_text('"old"')  # an earlier run (names slamobs writes)
+    pid = os.fork()
+    if pid == 0:  # the child: a --force run killed by a real SIGKILL just after the exchange
+        try:
+            exchange = writers._exchange
+
+            def then_killed(a, b):
+                done = exchange(a, b)
+                os.kill(os.getpid(), signal.SIGKILL)
+                return done
+
+            writers._exchange = then_killed
+            with writers.atomic_directory(out, force=True) as tmp:
+                (tmp / "run.json").write_text('"new"')
+                os.rename(out, tmp_path / "earlier")  # meanwhile the user puts a directory of theirs at OUT
+                out.mkdir()
+                (out / "thesis.tex").write_text("precious")
+        finally:
+            os._exit(0)
+    _, status = os.waitpid(pid, 0)
+    assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGKILL
+    assert json.loads((out / "run.json").read_text()) == "new"  # swapped, not checked
+    assert writers.remove_stale_temporaries(tmp_path)  # what the next run on this parent does first
+    assert sorted(os.listdir(out)) == ["thesis.tex"] and (out / "thesis.tex").read_text() == "precious"
+    assert sorted(os.listdir(tmp_path)) == ["earlier", "out"]

@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 from slamobs.cli.evaluate_cmd import evaluate
 from slamobs.cli.report_cmd import report
-from slamobs.pipeline.config import RunConfig
+from slamobs.pipeline.config import OutputConfig, RunConfig
 from slamobs.pipeline.evaluation.evo_zip import load_result_zip
 from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
 from slamobs.pipeline.evaluation.run_dir import replace_files
@@ -32,7 +32,7 @@ def invoke(cmd, *args, catch: bool = False):
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("runs") / "circle"
-    run_log(SAMPLE, out, RunConfig(export=("tum", "evo")))
+    run_log(SAMPLE, out, RunConfig(output=OutputConfig(export=("tum", "evo"))))
     return out
 
 

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from slamobs.cli.main import main
 from slamobs.pipeline.config import parse_config
+from slamobs.pipeline.errors import OutputError
 from slamobs.pipeline.run import run_log
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "figure8.mcap"
@@ -146,7 +147,7 @@ def test_export_command_every_row_atomic_and_no_overwrite(run_dir, tmp_path, mon
         raise OSError("disk full")
 
     monkeypatch.setattr(rm, "_write", broken)
-    with pytest.raises(OSError):
+    with pytest.raises(OutputError, match="res.mcap: cannot write the output: disk full"):  # names the file
         rm.write_results_mcap(run_dir, out, force=True)
     assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["res.mcap"]
     res = CliRunner().invoke(main, ["export", str(tmp_path), "--mcap", str(tmp_path / "x.mcap")])

@@ -12,7 +12,7 @@ import pytest
 
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian, so3_log
-from slamobs.pipeline.noise import DEFAULTS, resolve_noise
+from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
 from slamobs.pipeline.observers.riekf import _SKIPPED, N_FIXED, RiEKF, _accumulate, _flush, _update
@@ -129,8 +129,8 @@ def test_nees_over_noisy_runs_within_95_percent_chi2_bounds():
     """20 noisy 20 s figure-8 runs (every landmark comes and goes), biases drawn from the filter's prior, the
     filter started at the true pose (the gauge): the run-averaged NEES of pose and biases (12 DoF) at 10 Hz."""
     runs, every, sigma_b = 20, 20, 0.05
-    noise = resolve_noise({"gyro_bias": sigma_b, "velocity_bias": sigma_b, "gyro_bias_walk": 0.0,
-                           "velocity_bias_walk": 0.0})
+    noise = resolve_noise(NoiseConfig(gyro_bias=sigma_b, velocity_bias=sigma_b, gyro_bias_walk=0.0,
+                                      velocity_bias_walk=0.0))
     rng = np.random.default_rng(2015)
     nees = []
     for run in range(runs):
@@ -176,16 +176,17 @@ def test_estimates_rotate_with_the_initial_attitude():
 
 def test_noise_from_message_covariances_config_and_defaults():
     topics = {"angular_velocity": "/imu/data", "linear_velocity": "/odom"}
-    stated = resolve_noise({}, SAMPLES / "circle.bag", topics)
+    stated = resolve_noise(NoiseConfig(), SAMPLES / "circle.bag", topics)
     # the circle log: gyro 0.005 rad/s at 100 Hz, odometry 0.02 m/s at 25 Hz (its covariance fields)
     assert np.allclose(stated.gyro, 0.005 * np.sqrt(0.01), rtol=1e-6)
     assert np.allclose(stated.velocity, 0.02 * np.sqrt(0.04), rtol=1e-6)
     assert stated.sources["gyro"].startswith("/imu/data covariance")
     assert stated.detection == DEFAULTS["detection"][0] and stated.sources["detection"] == "default"
-    given = resolve_noise({"gyro": [1e-3, 2e-3, 3e-3], "velocity": None}, SAMPLES / "circle.bag", topics)
+    given = resolve_noise(NoiseConfig.from_section({"gyro": [1e-3, 2e-3, 3e-3], "velocity": None}), SAMPLES / "circle.bag",
+                          topics)
     assert given.gyro.tolist() == [1e-3, 2e-3, 3e-3] and given.sources["gyro"] == "config"
     assert np.allclose(given.velocity, stated.velocity)
-    assert resolve_noise({}).sources["gyro"] == "default"
+    assert resolve_noise(NoiseConfig()).sources["gyro"] == "default"
 
 
 def test_noise_levels_must_be_positive(tmp_path):

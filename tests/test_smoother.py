@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.lie import rotation_angle, se3_exp, so3_exp, so3_log
 from slamobs.pipeline.observers import ObserverOptions
@@ -28,7 +29,7 @@ from slamobs.pipeline.smoother.preintegration import (
     motion_residual,
     preintegrate,
 )
-from slamobs.pipeline.smoother.seed import dead_reckoning_seed, first_sightings, observer_seed
+from slamobs.pipeline.smoother.seed import observer_seed
 from slamobs.pipeline.smoother.settings import BatchSettings
 
 pytest.importorskip("gtsam")
@@ -137,11 +138,11 @@ class Log:
         self.truth = self.sc.sample(self.kf_t + (s.t0_ns - self.sim.start_ns) * 1e-9)
         self.true_bias = np.r_[self.sc.gyro_bias, self.sc.velocity_bias]
 
-    def smoother(self, seed=None, fixed_bias=None, run=False) -> tuple:
+    def smoother(self, seed=None, fixed_bias=None) -> tuple:
         smoother = BatchSmoother(self.stream, {}, ObserverOptions(), settings=self.settings, seed=seed,
                                  fixed_bias=fixed_bias)
         summary = smoother.solve()
-        return (summary, smoother.result["solution"]) + ((smoother,) if run else ())
+        return summary, smoother.result["solution"]
 
     def ape(self, pos: np.ndarray) -> float:
         r, t, _ = umeyama(pos, self.truth.P)
@@ -190,8 +191,9 @@ def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_recko
     """The 170° start of docs/observers.md §12.3 on the loop with the paper's biases: hybrid's IMU directions
     bring its working-frame attitude back (its map frame, in which it writes, turns with it); for riekf and
     hashim the start attitude only fixes the map frame. The smoother started from each of them reaches the same
-    optimum as the smoother given the true biases; started from dead reckoning (the same 170° start, odometry
-    integrated without bias correction) it stops in another minimum, metres away."""
+    optimum as the smoother given the true biases; started from dead reckoning as a user asks for it
+    (``batch: {seed: dead-reckoning}``: odometry integrated without bias correction; its start attitude only turns
+    the whole guess) it stops in another minimum, metres away."""
     r170 = so3_exp(np.radians(170.0) * AXIS_170) @ loop.truth.R[0]
     ref_summary, ref = loop_reference
     runs = {name: started_at(name, loop, r170) for name in ("riekf", "hashim", "hybrid")}
@@ -208,13 +210,13 @@ def test_from_170_degrees_every_observer_seed_reaches_the_optimum_and_dead_recko
         assert loop.ape(sol.pos) <= 1.2 * loop.ape(ref.pos), name
     best = min(finals.values())
     assert max(finals.values()) <= best * (1 + 1e-4)  # one optimum, whichever observer started it
-    dr = dead_reckoning_seed(loop.stream, loop.kf_t, loop.kf_of_det)
-    vel_t = loop.stream.seconds(loop.stream.vel_t_ns)
-    dead_reckon(vel_t, loop.stream.omega, loop.stream.velocity, loop.kf_t, np.zeros(6), r170, np.zeros(3), dr.rot,
-                dr.pos)
-    dr.landmarks = first_sightings(loop.stream, loop.kf_of_det, dr.rot, dr.pos)
-    summary, sol, run = loop.smoother(seed=dr, run=True)
-    assert summary["converged"]  # stopped: no step decreases the error
+    # dead reckoning as a user asks for it (`batch: {seed: dead-reckoning}`), the seed the product builds
+    config = parse_config({"observer": "batch", "batch": {"seed": "dead-reckoning"}})
+    assert config.batch == replace(loop.settings, seed="dead-reckoning")  # else as the others
+    run = BatchSmoother(loop.stream, {}, ObserverOptions(batch=config.batch))
+    summary = run.solve()
+    sol = run.result["solution"]
+    assert summary["seed"] == "dead-reckoning" and summary["converged"]  # stopped: no step decreases the error
     assert summary["final_error"] > 5 * best and loop.ape(sol.pos) > 1.0
     # most detections fail the gate there: nothing was dropped, the run warns instead
     assert summary["residuals"]["landmark"]["gated"] == 0 and "local minimum" in run.stats["notes"][0]

@@ -45,13 +45,14 @@ def test_search_space_stays_within_each_observers_conditions():
             spec.resolve_gains(space.gains_of(spec, params))  # raises GainError on a broken condition
 
 
-def _score(log: Path, gains: dict | None) -> float:
-    from slamobs.pipeline.config import RunConfig
-    from slamobs.pipeline.tune.worker import prepared_log, score
-
-    config = RunConfig(observer="fast-adaptation", gains={"fast-adaptation": gains} if gains else {})
-    prepared, _ = prepared_log(str(log), config, directions=False)
-    return score(prepared, config)["ape_trans_rmse_m"]
+def _run_ape(log: Path, out: Path, config: Path | None = None) -> float:
+    """What ``slamobs run`` reports for ``log`` (translation APE), with ``config`` (e.g. a tune's gains.yaml) or the
+    defaults: the holdout's numbers are promised to be these (README, "Do the gains transfer?")."""
+    extra = ["--config", str(config)] if config is not None else []
+    done = subprocess.run([*CLI, "run", str(log), "-o", str(out), "-q", *extra], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr
+    return json.loads((out / "report.json").read_text())["ape"]["translation_m"]["rmse"]
 
 
 def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(logs, tmp_path):
@@ -66,7 +67,8 @@ def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(lo
     result = run_tune(logs[:2], options)
     assert result.ran == 24
     summary = json.loads((out / "tune.json").read_text())
-    assert summary["defaults"]["trial"] == 0 and summary["best"]["objective"] <= summary["defaults"]["objective"]
+    # trial 0 runs the defaults, so best <= defaults always holds: the search must have found better gains
+    assert summary["defaults"]["trial"] == 0 and summary["best"]["objective"] < summary["defaults"]["objective"]
     trials = pd.read_parquet(out / "trials.parquet")
     assert len(trials) == 24 * 2 and set(trials["status"]) <= {"ok", "diverged"}
     # each worker read each log once, not once per trial
@@ -75,20 +77,23 @@ def test_tuned_gains_beat_the_defaults_on_a_held_back_log_and_a_rerun_extends(lo
     assert (out / "objective.png").stat().st_size > 0
     assert [r["log"] for r in summary["validation"]["rows"]] == [str(p) for p in logs[:2]]
 
-    tuned = load_config(out / "gains.yaml")  # usable with --config
-    assert tuned.observer == "fast-adaptation"
+    assert load_config(out / "gains.yaml").observer == "fast-adaptation"
     held_back = logs[2]
-    default_ape, tuned_ape = _score(held_back, None), _score(held_back, tuned.gains["fast-adaptation"])
+    # the tuned gains beat the defaults where the tune never looked, as `slamobs run` reports them
+    default_ape = _run_ape(held_back, tmp_path / "run_defaults")
+    tuned_ape = _run_ape(held_back, tmp_path / "run_tuned", out / "gains.yaml")  # gains.yaml is a --config
     assert tuned_ape < default_ape, (tuned_ape, default_ape)
 
-    # the same command with more trials runs only the new ones; a holdout log is scored as a run would score it
+    # the same command with more trials runs only the new ones; a holdout log is scored as `slamobs run` scores it
     again = run_tune(logs[:2], replace(options, trials=26, holdout=(held_back,)))
     assert again.ran == 2 and len(pd.read_parquet(out / "trials.parquet")) == 26 * 2
     held = again.summary["holdout"]
-    final = load_config(out / "gains.yaml").gains["fast-adaptation"]
-    assert held["rows"][0]["defaults"] == pytest.approx(default_ape, rel=1e-9)
-    assert held["rows"][0]["tuned"] == pytest.approx(_score(held_back, final), rel=1e-9)
-    assert held["tuned_better"] == int(held["rows"][0]["tuned"] < default_ape)
+    final_ape = _run_ape(held_back, tmp_path / "run_final", out / "gains.yaml")
+    # equal up to the run's tables keeping 28 mantissa bits (pipeline/writers.py), which its report reads: the
+    # holdout scores the unrounded poses (measured 6.5e-9 apart, relative)
+    assert held["rows"][0]["defaults"] == pytest.approx(default_ape, rel=1e-7)
+    assert held["rows"][0]["tuned"] == pytest.approx(final_ape, rel=1e-7)
+    assert held["tuned_better"] == int(final_ape < default_ape)
     assert "## Holdout logs" in (out / "tune.md").read_text()
     with pytest.raises(InputError, match="both a tuning log and a --holdout log"):
         run_tune(logs[:2], replace(options, trials=26, holdout=(logs[0],)))

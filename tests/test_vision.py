@@ -153,9 +153,9 @@ def test_config_tags_cameras_and_map(tmp_path):
 
     c = load_config(cfg)
     assert c.cameras == (str((tmp_path / "cams/kalibr.yaml").resolve()),)
-    assert c.map_file == str((tmp_path / "maps/m.csv").resolve()) and c.map_mode == "fixed"
-    assert c.tag_options().sizes == {7: 0.1} and c.topics["detections"] == ["/a/tags", "/b/tags"]
-    assert family_constant(c.tag_family) == "DICT_APRILTAG_25h9"
+    assert c.map.file == str((tmp_path / "maps/m.csv").resolve()) and c.map.mode == "fixed"
+    assert c.tags.options().sizes == {7: 0.1} and c.topics["detections"] == ["/a/tags", "/b/tags"]
+    assert family_constant(c.tags.family) == "DICT_APRILTAG_25h9"
     with pytest.raises(InputError, match="unknown tag family 'tag99h1'"):
         family_constant("tag99h1")
     with pytest.raises(InputError, match="invalid config at map.mode"):

@@ -8,16 +8,16 @@ up files either. Runs whose tables differ in columns (another slamobs version) g
 
 The switch is crash-safe: the new files are written under hidden names, a journal
 (``_slamobs/compaction.json``) lists the renames and the files they replace, the renames are made, the
-replaced files deleted, the journal removed. :func:`finish_compaction` (run by every batch at start)
-completes a journal whose renames all happened, or rolls it back otherwise. Readers may see a run twice
-only during the few milliseconds between the renames and the deletions.
+replaced files deleted, the journal removed (:mod:`dataset` keeps the journal: :func:`finish_compaction`, run
+by every batch at start, completes a journal whose renames all happened, or rolls it back otherwise). Readers
+may see a run twice only during the few milliseconds between the renames and the deletions.
 """
 
 from __future__ import annotations
 
 import json
-import os
 import re
+from contextlib import suppress
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,20 +26,19 @@ import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.dataset import (
     ALL_TABLES,
-    COMPACTED,
-    PART,
-    RUN_IDS_KEY,
+    JOURNAL,
     DatasetIndex,
-    _rmtree,
-    compacted_run_ids,
-    partition_file,
+    apply_journal,
+    finish_compaction,
+    write_journal,
 )
+from slamobs.pipeline.stored_runs import COMPACTED, PART, RUN_IDS_KEY, compacted_run_ids, partition_file
 from slamobs.pipeline.batch.ledger import meta_dir
+from slamobs.pipeline.errors import output_error
 from slamobs.pipeline.writers import parquet_options
 
 FILE_ROWS = 8 << 20
 GROUP_ROWS = 1 << 20
-JOURNAL = "compaction.json"
 
 
 @dataclass
@@ -71,15 +70,24 @@ class _Writer:
     def _open(self, schema: pa.Schema) -> None:
         final = self.base / f"{COMPACTED}{self.gen:06d}-{len(self.done):04d}.parquet"
         tmp = self.base / f".{final.name}.tmp"
+        self.done.append((tmp, final))  # first: a writer that fails to open may have created the file
         self.writer = pq.ParquetWriter(tmp, schema, **parquet_options(schema))
         self.schema = schema
-        self.done.append((tmp, final))
 
     def _flush_group(self) -> None:
         if self.buf:
             group = pa.concat_tables(self.buf).unify_dictionaries().combine_chunks()
             self.writer.write_table(group, row_group_size=max(1, group.num_rows))
             self.buf, self.buf_rows = [], 0
+
+    def abandon(self) -> None:
+        """After a failure (a full disk fails the close too): close quietly and delete every file written."""
+        if self.writer is not None:
+            with suppress(Exception):
+                self.writer.close()
+            self.writer = None
+        for tmp, _ in self.done:
+            tmp.unlink(missing_ok=True)
 
     def close_file(self) -> None:
         if self.writer is not None:
@@ -118,6 +126,26 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
     index = index or DatasetIndex.scan(out)
     renames: list[tuple[Path, Path]] = []
     replaced: list[Path] = []
+    try:
+        report = _write_tables(out, index, renames, replaced, file_rows, group_rows)
+        if renames:
+            try:
+                write_journal(out, renames, replaced)
+            except OSError as err:
+                raise _cannot_write(meta_dir(out) / JOURNAL, err) from None
+    except BaseException:
+        for tmp, _ in renames:  # nothing is renamed before the journal is written: the dataset is unchanged
+            tmp.unlink(missing_ok=True)
+        raise
+    if renames:
+        apply_journal(out)
+        index.__dict__.update(DatasetIndex.scan(out).__dict__)
+    return report
+
+
+def _write_tables(out: Path, index: DatasetIndex, renames: list[tuple[Path, Path]], replaced: list[Path],
+                  file_rows: int, group_rows: int) -> list[TableCompaction]:
+    """Write the compacted files of every table under hidden names (``renames``: temporary -> final)."""
     report = []
     for table in ALL_TABLES:
         fresh = sorted(index.fresh.get(table, ()))
@@ -134,61 +162,23 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
             for path, ids in units:
                 rows += writer.add(path, ids)
             writer.close_file()
+        except OSError as err:  # named here: pyarrow's messages (disk full) do not say which file
+            writer.abandon()
+            raise _cannot_write(writer.done[-1][1] if writer.done else out / table, err) from None
         except BaseException:
-            writer.close_file()
-            for tmp, _ in writer.done:
-                tmp.unlink(missing_ok=True)
+            writer.abandon()
             raise
         renames += writer.done
         replaced += [path.parent if path.name == PART else path for path, _ in units]
         report.append(TableCompaction(table, len(fresh) + len(files), len(files) - len(small) + len(writer.done),
                                       sum(len(ids) for _, ids in units), rows))
-    if renames:
-        _journal(out, renames, replaced)
-        _apply(out)
-        index.__dict__.update(DatasetIndex.scan(out).__dict__)
     return report
 
 
-def _journal(out: Path, renames: list[tuple[Path, Path]], replaced: list[Path]) -> None:
-    rel = lambda p: str(Path(p).relative_to(out))  # noqa: E731
-    doc = {"renames": [[rel(a), rel(b)] for a, b in renames], "replaced": [rel(p) for p in replaced]}
-    path = meta_dir(out) / JOURNAL
-    tmp = path.with_name(f".{JOURNAL}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(doc))
-    os.replace(tmp, path)
+def _cannot_write(path: Path, err: OSError) -> Exception:
+    return output_error(path, err, "cannot write it", "; the dataset is unchanged (its runs stay in their per-run "
+                                                      "files; compact later: slamobs batch compact OUT)")
 
 
-def _apply(out: Path) -> None:
-    path = meta_dir(out) / JOURNAL
-    doc = json.loads(path.read_text())
-    for a, b in doc["renames"]:
-        os.replace(out / a, out / b)
-    for p in doc["replaced"]:
-        _rmtree(out / p)
-    path.unlink()
-
-
-def finish_compaction(out: Path) -> None:
-    """Complete or roll back a compaction a killed batch left half done (see module doc)."""
-    out = Path(out)
-    path = meta_dir(out) / JOURNAL
-    if not path.is_file():
-        return
-    try:
-        doc = json.loads(path.read_text())
-    except ValueError:
-        doc = None
-    if doc is None or any((out / a).exists() for a, _ in doc["renames"]):
-        # not every rename happened: the replaced files are intact, the new ones go
-        for a, b in (doc or {}).get("renames", []):
-            (out / a).unlink(missing_ok=True)
-            (out / b).unlink(missing_ok=True)
-        path.unlink()
-        return
-    for p in doc["replaced"]:
-        _rmtree(out / p)
-    path.unlink()
-
-
-__all__ = ["FILE_ROWS", "GROUP_ROWS", "TableCompaction", "compact_dataset", "compacted_run_ids", "finish_compaction"]
+__all__ = ["FILE_ROWS", "GROUP_ROWS", "JOURNAL", "TableCompaction", "compact_dataset", "compacted_run_ids",
+           "finish_compaction"]

@@ -6,22 +6,25 @@ turned into clear outcomes instead of waits.
   :class:`InfrastructureError` naming the worker (exit 3).
 - While running: a lost scheduler, or no worker for ``wait_workers`` seconds, is an InfrastructureError;
   a log whose workers keep dying is failed once Dask gives up (``KilledWorker``); a log running longer
-  than ``timeout`` is failed and its worker restarted through its nanny.
+  than ``timeout`` is failed and its worker restarted through its nanny. The clock starts when the task is
+  handed to a worker, whatever the worker does next: a task counts as running from the moment its staging
+  directory appears, and a worker that holds tasks without taking or finishing any for ``timeout`` seconds
+  (at least ``local.STARTUP_S``: a new worker imports first) is restarted too (stopped, hung before it
+  could start), so the logs queued on it go to other workers.
 - Tasks only write into their staging directory and watch the batch's lease (:mod:`executor`): a task
   whose batch died cannot commit anything and ends its worker process within a minute.
 """
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from slamobs.pipeline.batch.executor import (
-    STARTED,
     EnvironmentMismatch,
     InfrastructureError,
     Task,
@@ -29,6 +32,7 @@ from slamobs.pipeline.batch.executor import (
     one_line,
     run_task,
 )
+from slamobs.pipeline.batch.local import STARTUP_S
 
 POLL_S = 1.0
 
@@ -73,6 +77,23 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
                                       f"(code {ans['code']}), the batch {version} (code {code}); install the same "
                                       "version on every worker")
     return len(answers)
+
+
+@dataclass
+class _Watch:
+    """Where each pending task is and since when, for the timeouts (see the module doc)."""
+
+    handed: dict[str, tuple[str, float]] = field(default_factory=dict)  # key -> (worker, when it got the task)
+    taken: dict[str, float] = field(default_factory=dict)  # key -> when its staging directory appeared
+    alive: dict[str, float] = field(default_factory=dict)  # worker -> its last task taken or finished
+    restarted: set[str] = field(default_factory=set)  # workers being restarted (their tasks move elsewhere)
+    back: list[str] = field(default_factory=list)  # restarts that returned (appended by their threads)
+
+    def finished(self, key: str, now: float) -> None:
+        worker = self.handed.pop(key, (None, 0.0))[0]
+        self.taken.pop(key, None)
+        if worker is not None:
+            self.alive[worker] = now
 
 
 class DaskPool:
@@ -138,7 +159,7 @@ class DaskPool:
         for task in tasks:
             fut = client.submit(self.run, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}")
             pending[fut.key] = (fut, task)
-        started: dict[str, tuple[float, str]] = {}
+        watch = _Watch()
         ours_cancelled: set[str] = set()
         no_workers_since: float | None = None
         try:
@@ -153,7 +174,7 @@ class DaskPool:
                     raise InfrastructureError(f"{self.where}: lost the Dask scheduler ({client.status})")
                 for fut in done:
                     task = pending.pop(fut.key)[1]
-                    started.pop(fut.key, None)
+                    watch.finished(fut.key, time.monotonic())
                     if fut.status == "finished":
                         yield task, fut.result()
                     elif fut.status == "cancelled" and fut.key not in ours_cancelled:
@@ -179,35 +200,55 @@ class DaskPool:
                 else:
                     no_workers_since = None
                 if self.timeout:
-                    yield from self._timeouts(pending, started, ours_cancelled, now)
+                    yield from self._timeouts(pending, watch, ours_cancelled, now)
         finally:
             for fut, _ in pending.values():
                 fut.cancel()
 
-    def _restart(self, worker: str) -> None:
+    def _restart(self, worker: str, back: list[str]) -> None:
         try:
             self.client.restart_workers([worker], timeout=30, raise_for_error=False)
         except Exception:  # noqa: BLE001 - a worker without nanny cannot be restarted; it cannot commit either
             pass
+        back.append(worker)
 
-    def _timeouts(self, pending, started, ours_cancelled, now) -> Iterator[tuple[Task, dict]]:
-        """Fail the logs that have run longer than ``timeout`` and restart their workers."""
+    def _timeouts(self, pending, watch: _Watch, ours_cancelled, now) -> Iterator[tuple[Task, dict]]:
+        """Fail the logs that have run longer than ``timeout`` and restart their workers; restart a worker that
+        has held tasks for ``timeout`` without taking or finishing one (its tasks go to other workers)."""
         try:
-            processing = {k for keys in self.client.processing().values() for k in keys}
+            processing = self.client.processing()
         except Exception:  # noqa: BLE001
             return
-        for key in processing & set(pending) - set(started):
-            marker = Path(pending[key][1].staged) / STARTED
-            try:
-                started[key] = (now, json.loads(marker.read_text())["worker"])
-            except (OSError, ValueError, KeyError):
+        while watch.back:  # a worker back at the same address starts afresh
+            worker = watch.back.pop()
+            watch.restarted.discard(worker)
+            for key in [k for k, (w, _) in watch.handed.items() if w == worker]:
+                del watch.handed[key]
+                watch.taken.pop(key, None)
+        where = {k: w for w, keys in processing.items() for k in keys if k in pending}
+        for key in [k for k, (w, _) in watch.handed.items() if where.get(k) != w]:  # moved, or back in the queue
+            del watch.handed[key]
+            watch.taken.pop(key, None)
+        for key, worker in where.items():
+            watch.handed.setdefault(key, (worker, now))
+            if key not in watch.taken and Path(pending[key][1].staged).exists():
+                watch.taken[key] = watch.alive[worker] = now
+        silent = set()
+        for key, (worker, since) in list(watch.handed.items()):
+            if worker in watch.restarted:
                 continue
-        for key, (since, worker) in list(started.items()):
-            if key in pending and now - since > self.timeout:
+            if key in watch.taken:
+                if now - watch.taken[key] <= self.timeout:
+                    continue
                 fut, task = pending.pop(key)
-                del started[key]
+                watch.finished(key, now)
                 ours_cancelled.add(key)
                 fut.cancel()
-                threading.Thread(target=self._restart, args=(worker,), daemon=True).start()  # the batch goes on
+                silent.add(worker)
                 yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (Dask worker {worker} "
                                              "restarted; raise --timeout for longer logs)")
+            elif now - max(since, watch.alive.get(worker, since)) > max(self.timeout, STARTUP_S):
+                silent.add(worker)  # a new worker's imports may take a while: as long as a local one's
+        for worker in silent:
+            watch.restarted.add(worker)
+            threading.Thread(target=self._restart, args=(worker, watch.back), daemon=True).start()  # the batch goes on

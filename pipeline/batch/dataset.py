@@ -38,36 +38,34 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
+from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, encode_row, meta_dir
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.paths import exclusive
+from slamobs.pipeline.stored_runs import (
+    COMPACTED,
+    RUN_IDS_KEY,
+    RUN_META,
+    RUNS,
+    compacted_run_ids,
+    partition_file,
+    read_run_meta,
+    run_dir,
+)
 from slamobs.pipeline.writers import parquet_options
 from slamobs.schemas import OPTIONAL_TABLES, TABLES
 
-RUNS = "runs"
-PART = "part-0.parquet"
-COMPACTED = "compacted-"
 LOCK = "lock"
 STAGING = "staging"
-RUN_META = "batch.json"  # in runs/<id>/: run_id, its tables and row counts, and its summary row
-RUN_IDS_KEY = "slamobs.run_ids"  # footer key of a compacted file: the run_ids it holds (JSON list)
 ALL_TABLES = TABLES + OPTIONAL_TABLES
 RUN_ID_TYPE = pa.dictionary(pa.int32(), pa.string())
-
-
-def run_dir(out: Path, run_id: str) -> Path:
-    return Path(out) / RUNS / run_id
-
-
-def partition_file(out: Path, table: str, run_id: str) -> Path:
-    return Path(out) / table / f"run_id={run_id}" / PART
 
 
 def staging_root(out: Path) -> Path:
     return meta_dir(out) / STAGING
 
 
-def _rmtree(p: Path) -> None:
+def remove_path(p: Path) -> None:
+    """Delete a file, a link or a directory tree, whatever is there (nothing there is fine)."""
     shutil.rmtree(p, ignore_errors=True) if p.is_dir() and not p.is_symlink() else p.unlink(missing_ok=True)
 
 
@@ -99,10 +97,8 @@ def stage_tables(staged: Path, run_id: str) -> dict[str, int]:
 
 
 def write_run_meta(staged: Path, run_id: str, tables: dict[str, int], row: dict) -> None:
-    from slamobs.pipeline.batch.ledger import _encode
-
     tmp = staged / "run" / f".{RUN_META}.tmp"
-    tmp.write_text(json.dumps({"run_id": run_id, "tables": tables, "row": _encode(row)}, indent=1) + "\n")
+    tmp.write_text(json.dumps({"run_id": run_id, "tables": tables, "row": encode_row(row)}, indent=1) + "\n")
     os.replace(tmp, staged / "run" / RUN_META)
 
 
@@ -119,21 +115,8 @@ def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> N
     final = run_dir(out, run_id)
     final.parent.mkdir(parents=True, exist_ok=True)
     if final.exists():
-        _rmtree(final)
+        remove_path(final)
     os.replace(staged / "run", final)
-
-
-def read_run_meta(path: Path) -> dict | None:
-    try:
-        meta = json.loads((path / RUN_META).read_text())
-        return meta if isinstance(meta, dict) and isinstance(meta.get("tables"), dict) else None
-    except (OSError, ValueError):
-        return None
-
-
-def compacted_run_ids(path: Path) -> list[str]:
-    meta = pq.read_metadata(path).metadata or {}
-    return json.loads(meta.get(RUN_IDS_KEY.encode(), b"[]"))
 
 
 @dataclass
@@ -204,7 +187,7 @@ def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
     out = index.out
     for table, fresh in index.fresh.items():
         for rid in fresh & run_ids:
-            _rmtree(partition_file(out, table, rid).parent)
+            remove_path(partition_file(out, table, rid).parent)
         fresh -= run_ids
     for table, files in index.compacted.items():
         for name, ids in list(files.items()):
@@ -214,7 +197,7 @@ def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
                 if not ids:
                     del files[name]
     for rid in index.runs & run_ids:
-        _rmtree(run_dir(out, rid))
+        remove_path(run_dir(out, rid))
     index.runs -= run_ids
 
 
@@ -246,14 +229,12 @@ class Reconciled:
 
 def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
     """Make disk and record agree (see module doc); returns the index of what is now in the dataset."""
-    from slamobs.pipeline.batch.compact import finish_compaction
-
     out = Path(out)
     result = Reconciled()
     finish_compaction(out)
     stale = _stale_files(out)
     for p in stale:
-        _rmtree(p)
+        remove_path(p)
     result.stale_files = len(stale)
     index = DatasetIndex.scan(out)
     ok = {rid for rid, row in ledger.rows.items() if row.get("status") == "ok"}
@@ -296,26 +277,53 @@ def check_layout(out: Path) -> None:
                               "new directory")
 
 
-# --- reading one run back (slamobs report / load_run on runs/<id>) ----------------------------------------
+# --- switching files: the journal of a compaction (see compact) -----------------------------------------
+
+JOURNAL = "compaction.json"
 
 
-def run_tables(path: Path) -> dict[str, pa.Table] | None:
-    """The tables of the batch run directory ``path`` (``OUT/runs/<id>``) read back from the dataset, without
-    the run_id column; None if ``path`` is not a batch run directory."""
-    meta = read_run_meta(Path(path))
-    if meta is None:
-        return None
-    out, rid = Path(path).resolve().parent.parent, meta["run_id"]
-    found = {}
-    for table in meta["tables"]:
-        part = partition_file(out, table, rid)
-        if part.is_file():
-            data = pq.read_table(part)
-        else:
-            pieces = [pq.read_table(f, filters=[("run_id", "=", rid)])
-                      for f in sorted((out / table).glob(f"{COMPACTED}*.parquet")) if rid in compacted_run_ids(f)]
-            if not pieces:
-                raise InputError(path, f"table {table} of run {rid} is missing from the dataset {out / table}")
-            data = pa.concat_tables(pieces)
-        found[table] = data.drop_columns(["run_id"]).replace_schema_metadata(None)
-    return found
+def write_journal(out: Path, renames: list[tuple[Path, Path]], replaced: list[Path]) -> None:
+    """Record a switch of files (hidden temporaries -> final names, and the files they replace) before it is made."""
+    rel = lambda p: str(Path(p).relative_to(out))  # noqa: E731
+    doc = {"renames": [[rel(a), rel(b)] for a, b in renames], "replaced": [rel(p) for p in replaced]}
+    path = meta_dir(out) / JOURNAL
+    tmp = path.with_name(f".{JOURNAL}.tmp-{os.getpid()}")
+    try:
+        tmp.write_text(json.dumps(doc))
+        os.replace(tmp, path)
+    except OSError:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def apply_journal(out: Path) -> None:
+    """Make the switch the journal records: the renames, then the deletions, then the journal goes."""
+    path = meta_dir(out) / JOURNAL
+    doc = json.loads(path.read_text())
+    for a, b in doc["renames"]:
+        os.replace(out / a, out / b)
+    for p in doc["replaced"]:
+        remove_path(out / p)
+    path.unlink()
+
+
+def finish_compaction(out: Path) -> None:
+    """Complete or roll back a compaction a killed batch left half done (see module doc)."""
+    out = Path(out)
+    path = meta_dir(out) / JOURNAL
+    if not path.is_file():
+        return
+    try:
+        doc = json.loads(path.read_text())
+    except ValueError:
+        doc = None
+    if doc is None or any((out / a).exists() for a, _ in doc["renames"]):
+        # not every rename happened: the replaced files are intact, the new ones go
+        for a, b in (doc or {}).get("renames", []):
+            (out / a).unlink(missing_ok=True)
+            (out / b).unlink(missing_ok=True)
+        path.unlink()
+        return
+    for p in doc["replaced"]:
+        remove_path(out / p)
+    path.unlink()

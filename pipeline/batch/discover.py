@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import read_text, read_yaml
+from slamobs.pipeline.paths import inside, read_text, read_yaml
 
 LOG_SUFFIXES = (".bag", ".mcap", ".db3")  # a bare .db3: rosbag2 storage without metadata.yaml (crash)
 MANIFEST_SUFFIXES = (".csv", ".yaml", ".yml")
@@ -143,6 +143,12 @@ def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
     if not unique:
         raise InputError(" ".join(map(str, inputs)), "no logs found (.bag, .mcap or rosbag2 directories)")
     return unique
+
+
+def outside(entries: Iterable[LogEntry], directory: str | Path) -> list[LogEntry]:
+    """The entries that do not lie in ``directory``: a batch's own output (its ``results.mcap`` exports) is
+    never one of its logs, whatever the inputs name."""
+    return [e for e in entries if not inside(e.path, directory)]
 
 
 def _dedupe(entries: Iterable[LogEntry]) -> list[LogEntry]:

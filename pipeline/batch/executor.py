@@ -6,6 +6,11 @@ every worker sees at the same path) and returns the row; the batch process commi
 (:func:`dataset.commit_run`). A worker whose batch is gone therefore cannot change the dataset, whatever
 it does. A task never raises for a bad log: that is a row with ``status == "failed"``; it raises
 :class:`EnvironmentMismatch` when the worker runs other slamobs code than the batch.
+
+A failure that says nothing about the log is a failed row marked with ``retry`` (:func:`retry_row`): the
+machine ran out or refused (disk full, memory, permission), or the log changed while it ran (its result
+would be stored under the old content's run_id). The batch reports it but does not record it, so the next
+batch runs the log again and ``--skip-failed`` never skips it.
 """
 
 from __future__ import annotations
@@ -25,11 +30,16 @@ from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InfrastructureFailure
 
 EXECUTORS = ("local", "dask")
+#: Written into a task's staging directory as its run begins (worker and pid): what an operator, or a kill test,
+#: looks for to know a log is running and where. Timeouts count from the staging directory itself.
+STARTED = "started.json"
 #: A Dask task gives up (ends its worker process) when its batch's lease file has not been touched for this
 #: long: the batch process is gone, nothing the task produces can be committed.
 LEASE_STALE_S = 60.0
 LEASE_POLL_S = 2.0
-STARTED = "started.json"
+#: Row key of a failure that is not the log's (see the module doc): why, one of RETRY_WHY.
+RETRY = "retry"
+RETRY_WHY = ("machine", "changed", "name")  # "name": a file name the summary cannot store (not UTF-8)
 
 
 class EnvironmentMismatch(InfrastructureFailure, RuntimeError):
@@ -59,6 +69,7 @@ class Task:
     version: str = ""
     code: str = ""  # identity.code_hash() of the batch
     lease: str | None = None  # Dask: the batch's lease file (see LEASE_STALE_S)
+    stat_key: str | None = None  # identity.stat_key of the log when the batch hashed it (None: not checked)
 
     @classmethod
     def make(cls, run_id: str, log: str, out: str, config: RunConfig | dict, **kwargs) -> Task:
@@ -94,6 +105,32 @@ def base_row(task: Task) -> dict:
 
 def failed_row(task: Task, error: str) -> dict:
     return {**base_row(task), "status": "failed", "error": error}
+
+
+def retry_row(task: Task, error: str, why: str) -> dict:
+    """A failure that is not the log's (``why`` in RETRY_WHY): reported, never recorded (see the module doc)."""
+    return {**failed_row(task, error), RETRY: why}
+
+
+def _changed(task: Task, read: bool) -> Exception | None:
+    """Why the log is no longer the one the batch identified (its files' identity, and with ``read`` its
+    content hash), or None. Checked before and after the run: a log replaced meanwhile (``mv new log``) would
+    store another log's result under this content's run_id."""
+    from slamobs.pipeline.batch.identity import content_hash, stat_key
+    from slamobs.pipeline.errors import InputError
+
+    if not task.stat_key:
+        return None
+    log = Path(task.log)
+    try:
+        same = stat_key(log) == task.stat_key and (not read or content_hash(log) == task.content_hash)
+    except InputError as err:
+        return InputError(task.log, f"changed while the batch ran ({err.problem}); run again by the next batch")
+    if same:
+        return None
+    when = "while it ran" if read else "since the batch identified it"
+    return InputError(task.log, f"the log changed {when} (replaced or rewritten): its result is discarded and "
+                                "the next batch runs it again")
 
 
 def check_environment(version: str, code: str) -> None:
@@ -152,7 +189,8 @@ def run_task(task: Task, pipeline=_run) -> dict:
     An ok row carries ``tables`` (comma-separated); ``runs/<id>/batch.json`` in the staged run directory
     repeats the row, so a run whose commit was cut short can be adopted by the next batch.
     """
-    from slamobs.pipeline.batch.dataset import _rmtree, stage_tables, write_run_meta
+    from slamobs.pipeline.batch.dataset import remove_path, stage_tables, write_run_meta
+    from slamobs.pipeline.errors import is_resource_failure
 
     check_environment(task.version, task.code)
     t0 = time.perf_counter()
@@ -162,22 +200,39 @@ def run_task(task: Task, pipeline=_run) -> dict:
         _watch_lease(Path(task.lease), done)
     data_warnings: list[str] = []
     tables: dict[str, int] = {}
+    changed: Exception | None = None
     with warnings.catch_warnings(record=True) as caught:
         # warnings go into the summary row: worker stderr would interleave with the batch's progress output
         warnings.simplefilter("default")
         try:
             if staged.exists():  # a Dask retry after a worker died on this task
-                _rmtree(staged)
+                remove_path(staged)
             staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
             (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
-            summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig(**task.config))
+            changed = _changed(task, read=False)
+            failure = None
+            if changed is None:
+                try:
+                    summary, data_warnings = pipeline(Path(task.log), staged / "run", RunConfig.from_dict(task.config))
+                except Exception as err:  # noqa: BLE001 - unless the log changed meanwhile (then that is why)
+                    failure = err
+                changed = _changed(task, read=True)
+            if changed is not None:
+                raise changed
+            if failure is not None:
+                raise failure
             t = time.perf_counter()
             tables = stage_tables(staged, task.run_id)
             row = {**base_row(task), "status": "ok", "error": None, "dataset_s": time.perf_counter() - t,
                    **summary.timings, **summary.metadata["counts"], **summary.headline()}
         except Exception as err:  # noqa: BLE001 - one failing log must never stop the batch
-            _rmtree(staged)
-            row = failed_row(task, one_line(err, task.log))
+            remove_path(staged)
+            if err is changed:
+                row = retry_row(task, one_line(err), "changed")
+            elif is_resource_failure(err):
+                row = retry_row(task, one_line(err, task.log), "machine")
+            else:
+                row = failed_row(task, one_line(err, task.log))
         finally:
             done.set()
     texts = data_warnings + list(dict.fromkeys(
@@ -189,7 +244,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
         row["tables"] = ",".join(tables)
         try:
             write_run_meta(staged, task.run_id, tables, row)
-        except OSError as err:  # e.g. the staging area was removed under an orphaned task
-            _rmtree(staged)
-            row = {**failed_row(task, one_line(err, task.log)), "total_s": row["total_s"]}
+        except OSError as err:  # e.g. the staging area was removed under an orphaned task, or a full disk
+            remove_path(staged)
+            row = {**retry_row(task, one_line(err, str(staged)), "machine"), "total_s": row["total_s"]}
     return row

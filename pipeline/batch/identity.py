@@ -30,7 +30,7 @@ def run_key(content_hash: str, config_hash: str) -> str:
 
 def path_key(path: Path) -> str:
     """Key of a log that could not be hashed (missing, unreadable): its absolute path stands in."""
-    return "p" + hashlib.sha256(os.path.abspath(path).encode()).hexdigest()[:11]
+    return "p" + hashlib.sha256(os.fsencode(os.path.abspath(path))).hexdigest()[:11]  # any bytes a name holds
 
 
 def run_id_for(path: Path, key: str) -> str:
@@ -72,8 +72,9 @@ def stat_key(path: Path) -> str:
 
     Raises InputError like :func:`content_hash` (FIFOs, devices and link loops are refused without opening).
     """
-    parts = [f"{rel}\0{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}" for rel, _, st in _content_files(path)]
-    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:32]
+    parts = [os.fsencode(f"{rel}\0{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}")
+             for rel, _, st in _content_files(path)]
+    return hashlib.sha256(b"\n".join(parts)).hexdigest()[:32]
 
 
 def content_hash(path: Path) -> str:
@@ -97,7 +98,7 @@ def content_hash(path: Path) -> str:
             if not stat.S_ISREG(st.st_mode):
                 raise InputError(f, f"{file_kind(st.st_mode)}, not a log file")
             size = st.st_size
-            h.update(f"\0{rel}\0{size}\0".encode())
+            h.update(os.fsencode(f"\0{rel}\0{size}\0"))
             try:
                 if size <= 2 * HASH_CHUNK:
                     h.update(fh.read())

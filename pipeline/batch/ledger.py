@@ -22,7 +22,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, output_error
 
 SUMMARY = "summary.parquet"
 META_DIR = "_slamobs"
@@ -55,7 +55,8 @@ def meta_dir(out: Path) -> Path:
     return Path(out) / META_DIR
 
 
-def _encode(row: dict) -> dict:
+def encode_row(row: dict) -> dict:
+    """A summary row as JSON values (timestamps as ISO text, NumPy scalars as Python ones, non-finite as None)."""
     out = {}
     for name in SUMMARY_SCHEMA.names:
         v = row.get(name)
@@ -168,13 +169,16 @@ class Ledger:
         return self._fd
 
     def _append(self, rec: dict) -> None:
-        os.write(self._file(), (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        try:
+            os.write(self._file(), (json.dumps(rec, separators=(",", ":"), allow_nan=False) + "\n").encode())
+        except OSError as err:  # a torn line is ignored by every reader, so nothing half-recorded remains
+            raise output_error(meta_dir(self.out) / RECORDS.format(gen=self.gen), err, "cannot record a run") from None
         self.appended += 1
 
     def put(self, row: dict) -> None:
         """Record ``row`` as the state of its run (one appended line)."""
-        self._append({"op": "put", "row": _encode(row)})
-        self.rows[row["run_id"]] = _decode(_encode(row))
+        self._append({"op": "put", "row": encode_row(row)})
+        self.rows[row["run_id"]] = _decode(encode_row(row))
 
     def drop(self, run_id: str) -> None:
         if run_id in self.rows:
@@ -191,8 +195,14 @@ class Ledger:
         table = pa.Table.from_pylist(list(self.rows.values()),
                                      schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
         tmp = path.parent / f".{SUMMARY}.tmp-{os.getpid()}"
-        pq.write_table(table, tmp, compression="zstd")
-        os.replace(tmp, path)
+        try:
+            pq.write_table(table, tmp, compression="zstd")
+            os.replace(tmp, path)
+        except OSError as err:
+            tmp.unlink(missing_ok=True)
+            raise output_error(path, err, "cannot rewrite the batch summary",
+                               "; every run is recorded (in _slamobs): `slamobs batch compact OUT` rewrites it once "
+                               "there is room") from None
         for g, f in _record_files(self.out):
             if g <= self.gen:
                 f.unlink(missing_ok=True)

@@ -25,18 +25,26 @@ from slamobs.pipeline.batch.compact import TableCompaction, compact_dataset
 from slamobs.pipeline.batch.dask_exec import DaskPool, dask_available
 from slamobs.pipeline.batch.dataset import (
     Reconciled,
-    _rmtree,
     batch_lock,
     check_layout,
     commit_run,
     drop_runs,
-    partition_file,
     reconcile,
-    run_dir,
+    remove_path,
     staging_root,
 )
-from slamobs.pipeline.batch.discover import LogEntry
-from slamobs.pipeline.batch.executor import EXECUTORS, Task, base_row, failed_row, one_line, run_task
+from slamobs.pipeline.stored_runs import partition_file, run_dir
+from slamobs.pipeline.batch.discover import LogEntry, outside
+from slamobs.pipeline.batch.executor import (
+    EXECUTORS,
+    RETRY,
+    Task,
+    base_row,
+    failed_row,
+    one_line,
+    retry_row,
+    run_task,
+)
 from slamobs.pipeline.batch.identity import HashCache, path_key, run_id_for, run_key
 from slamobs.pipeline.batch.ledger import REFRESH_S, SUMMARY, Ledger, meta_dir
 from slamobs.pipeline.batch.local import LocalPool
@@ -117,9 +125,15 @@ class BatchResult:
         return sum(r["status"] == "ok" and bool(r.get("warning_count")) for r in self.rows)
 
     @property
+    def machine_failures(self) -> list[dict]:
+        """Rows that failed because of the machine (disk full, memory, permission): not recorded, run again."""
+        return [r for r in self.rows if r.get(RETRY) == "machine"]
+
+    @property
     def exit_code(self) -> int:
-        """0: every log ok or skipped; 1: some failed (infrastructure problems raise instead: exit 3)."""
-        return 1 if self.count("failed") else 0
+        """0: every log ok or skipped; 1: some failed; 3: the machine failed some (other infrastructure
+        problems raise instead)."""
+        return 3 if self.machine_failures else 1 if self.count("failed") else 0
 
 
 def config_hash(config: RunConfig) -> str:
@@ -179,7 +193,7 @@ def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCac
 
     derived: dict[int, tuple[dict, str]] = {}  # per config object: its dict and hash, computed once
 
-    def identify(entry: LogEntry, cfg: RunConfig | str, chash: str | InputError) -> _Planned:
+    def identify(entry: LogEntry, cfg: RunConfig | str, skey: str | None, chash: str | InputError) -> _Planned:
         log = os.path.realpath(entry.path)
         path_id = run_id_for(Path(log), path_key(Path(log)))
         cfg_file = os.path.realpath(entry.config) if entry.config else None
@@ -188,13 +202,22 @@ def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCac
             derived[id(known)] = (known.to_dict(), config_hash(known))
         cfg_dict, cfg_hash = derived[id(known)]
         stub = Task.make(path_id, log, out, cfg_dict, config_file=cfg_file)
+        try:
+            log.encode()
+        except UnicodeEncodeError as err:  # the summary stores names as UTF-8 text: report it, do not record it
+            shown = os.fsencode(log).decode("utf-8", "backslashreplace")
+            byte = os.fsencode(log[err.start])[0]
+            return _Planned(log, row=retry_row(replace(stub, log=shown), f"{shown}: the file name is not UTF-8 "
+                                               f"(byte 0x{byte:02x}): rename it to run this log", "name"),
+                            path_id=path_id)
         if isinstance(cfg, str):
             return _Planned(log, row=failed_row(stub, cfg), path_id=path_id)
         if isinstance(chash, InputError):
             return _Planned(log, row=failed_row(stub, str(InputError(entry.path, chash.problem))), path_id=path_id)
         key = run_key(chash, cfg_hash)
         rid = by_key.get(key) or run_id_for(Path(log), key)
-        return _Planned(log, task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash), path_id=path_id)
+        return _Planned(log, task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash, stat_key=skey),
+                        path_id=path_id)
 
     def lookup(entry: LogEntry) -> tuple[str | None, str | InputError | None]:
         try:
@@ -215,7 +238,7 @@ def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCac
     with ThreadPoolExecutor(max_workers=8) as pool:  # reading is I/O: overlapped
         for i, h in zip(todo, pool.map(read, todo)):
             found[i] = (found[i][0], h)
-    return [identify(e, c, h) for e, c, (_, h) in zip(entries, cfgs, found)]
+    return [identify(e, c, k, h) for e, c, (k, h) in zip(entries, cfgs, found)]
 
 
 @dataclass
@@ -236,7 +259,8 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
         if p.task is None:
             plan.order.append(p.row["run_id"])
             plan.rows[pos] = p.row
-            plan.records.append(p.row)
+            if not p.row.get(RETRY):
+                plan.records.append(p.row)
             continue
         task = p.task
         rid = task.run_id
@@ -321,7 +345,7 @@ class _Staging:
 
     def close(self) -> None:
         self._stop.set()
-        _rmtree(self.dir)
+        remove_path(self.dir)
 
 
 def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
@@ -331,7 +355,8 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
     """Run every log of ``entries`` into ``options.out``; ``on_row`` sees each row once it is recorded.
 
     ``on_start`` sees the plan (``total`` logs, ``to_run`` of them not up to date) before anything runs.
-    ``run`` is the workers' task function (tests pass ones that crash or hang).
+    ``run`` is the workers' task function (tests pass ones that crash or hang). Entries under ``options.out``
+    are left out: a batch's own outputs (``results.mcap`` exports) are never its logs.
 
     Raises:
         InputError: Another batch holds ``out``, or ``out`` has the older layout.
@@ -347,6 +372,7 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
     t0 = time.perf_counter()
     out = Path(options.out)
     check_layout(out)
+    entries = outside(entries, out)
     with batch_lock(out):
         ledger = Ledger(out)
         try:
@@ -391,6 +417,7 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
             finally:
                 if use_dask and pool is not None:
                     pool.close()
+            ledger.compact()  # the summary lists every stored run before compaction takes room
             compaction = compact_dataset(out) if options.compact else []
         finally:
             ledger.compact()
@@ -408,9 +435,9 @@ def _commit(out: Path, task: Task, row: dict) -> dict:
         return row
     except OSError as err:
         for table in tables:
-            _rmtree(partition_file(out, table, task.run_id).parent)
-        _rmtree(run_dir(out, task.run_id))
-        return {**failed_row(task, f"{out}: cannot add the run to the dataset: {err.strerror or err}"),
+            remove_path(partition_file(out, table, task.run_id).parent)
+        remove_path(run_dir(out, task.run_id))
+        return {**retry_row(task, f"{out}: cannot add the run to the dataset: {err.strerror or err}", "machine"),
                 "total_s": row.get("total_s")}
 
 
@@ -433,8 +460,9 @@ def _execute(plan: _Plan, pool: LocalPool | DaskPool, options: BatchOptions, use
             with signals_deferred():
                 if row["status"] == "ok":
                     row = _commit(out, task, row)
-                ledger.put(row)
-            _rmtree(Path(task.staged))
+                if not row.get(RETRY):  # not the log's failure: the next batch runs it again
+                    ledger.put(row)
+            remove_path(Path(task.staged))
             rows[position[task.run_id]] = row
             progress.add(row, dispatched=True)
             on_row(row, progress)
@@ -459,6 +487,7 @@ def compact_batch(out: Path) -> tuple[Reconciled, list[TableCompaction]]:
         ledger = Ledger(out)
         try:
             _, fixed = reconcile(out, ledger)
+            ledger.compact()
             return fixed, compact_dataset(out)
         finally:
             ledger.compact()

@@ -91,7 +91,7 @@ def load_run(run_dir: str | Path) -> RunTables:
     if not meta_path.is_file():
         raise InputError(run_dir, "not a run directory (no run.json)")
     meta = read_json(meta_path)
-    from slamobs.pipeline.batch.dataset import run_tables
+    from slamobs.pipeline.stored_runs import run_tables
 
     in_dataset = run_tables(run_dir)  # a batch run directory (OUT/runs/<id>): its tables live in the dataset
     if in_dataset is None and not (run_dir / "poses.parquet").is_file():

@@ -70,9 +70,14 @@ class ObserverOptions:
     max_meas_age: float = 0.5  # seconds a landmark frame stays valid before landmarks count as unseen
     min_landmarks_bias: int = 3  # bias adaptation frozen below this many visible landmarks (docs/observers.md §3.2)
     out_every: int = 1  # record pose/bias every n-th velocity sample
-    #: What the reference estimators (batch, riekf) read besides the stream: ``config`` (the RunConfig),
-    #: ``log`` (its path) and ``topics`` (role -> topic). The observers ignore it.
-    context: dict = field(default_factory=dict, compare=False)
+    #: The log the stream came from, named in errors.
+    source: str = "<stream>"
+    #: The reference estimators' typed settings (the observers ignore them): noise levels resolved for this log
+    #: (pipeline.noise.NoiseSettings; None: the defaults), the smoother's section (smoother.settings.BatchSettings;
+    #: None: its defaults) and the gains of its seed observer.
+    noise: object | None = field(default=None, compare=False)
+    batch: object | None = None
+    seed_gains: dict | None = None
     #: A known map (:class:`pipeline.known_map.MapStart`): initial landmarks, which are fixed, start pose.
     known_map: object | None = None
 
@@ -362,6 +367,8 @@ class ObserverSpec:
     check_config: Callable[[object], int] | None = None
     #: Whether the estimator starts from a known map (``options.known_map``); the reference estimators do not.
     takes_known_map: bool = True
+    #: Whether it weighs measurements by noise levels (``options.noise``): the reference estimators do.
+    uses_noise: bool = False
 
     def directions_needed(self, config) -> int:
         """Inertial directions a run of this estimator with ``config`` needs (checking the config first)."""

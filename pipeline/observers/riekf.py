@@ -494,13 +494,10 @@ class RiEKF(Stepper):
         from slamobs.pipeline.noise import resolve_noise
 
         super().__init__(stream, options)
-        ctx = options.context or {}
-        config = ctx.get("config")
-        self.noise = noise if noise is not None else resolve_noise(
-            getattr(config, "noise", None), ctx.get("log"), ctx.get("topics"))
+        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         n_lm = int(stream.landmark_ids.shape[0])
         if N_FIXED + 3 * n_lm > MAX_DIM:
-            raise InputError(ctx.get("log", "<stream>"), f"riekf keeps every landmark in a dense covariance; "
+            raise InputError(options.source, f"riekf keeps every landmark in a dense covariance; "
                              f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}")
         nz = self.noise
         sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
@@ -580,4 +577,5 @@ SPEC = ObserverSpec(
     gains=(),
     start=RiEKF,
     takes_known_map=False,
+    uses_noise=True,
 )

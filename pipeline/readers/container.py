@@ -37,10 +37,10 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import check_input
+from slamobs.pipeline.paths import check_input, check_yaml_depth
 
 from . import mcap, ros1, rosbag2_sqlite
-from .storage import TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined, one_line
+from .storage import TIME_LIMIT_NS, TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined, one_line
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Iterator, Sequence
@@ -135,6 +135,7 @@ def detect_container(path: str | Path) -> Container:
             text = meta.read_text(errors="replace")
         except OSError as err:
             raise InputError(path, f"cannot read metadata.yaml: {one_line(err.strerror)}") from None
+        check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
         match = re.search(r'storage_identifier:\s*["\']?([\w.-]+)', text)
         return Container(path, "rosbag2", match.group(1) if match else "")
     try:
@@ -236,8 +237,9 @@ def iter_batches(
 
 
 def _check_record_times(batch: RawBatch, path: str | Path, connections: Sequence[Connection]) -> None:
-    """One line naming the topic when a message's record time wrapped (a summary may not show it)."""
-    bad = batch.rec_ns < 0
+    """One line naming the topic when a message's record time is outside 0 to TIME_LIMIT_NS (a summary may not
+    show it; rosbag2 sqlite3 files have none to check)."""
+    bad = (batch.rec_ns < 0) | (batch.rec_ns >= TIME_LIMIT_NS)
     if bad.any():
         topic = connections[int(batch.conn[np.argmax(bad)])].topic
         raise InputError(path, f"{int(bad.sum())} messages have a record (log) time {TIME_RANGE}: the log's times "

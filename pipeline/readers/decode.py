@@ -710,6 +710,8 @@ def decode_sim_truth(
     except (ValueError, TypeError) as err:
         reason = " ".join(str(err).split())
         raise InputError(path, f"invalid simulation truth JSON: {reason}", topic) from None
+    except RecursionError:  # json's decoder recurses per level: '[' * 100000 does not end in a clean error
+        raise InputError(path, "invalid simulation truth JSON: nested too deeply", topic) from None
     return landmarks, bias, warnings
 
 

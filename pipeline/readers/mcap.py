@@ -20,7 +20,7 @@ from rosbags.rosbag2.storage_mcap import Channel, McapReader, Schema, Statistics
 from slamobs.pipeline.kernel_cache import njit
 
 from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
-from .storage import TIME_RANGE, DamagedError, TimeRangeError, one_line
+from .storage import TIME_LIMIT_NS, TIME_RANGE, DamagedError, TimeRangeError, one_line
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Iterator
@@ -147,10 +147,10 @@ class McapStorage(Chunked, McapReader):
         self._check_times()
 
     def _check_times(self) -> None:
-        """Refuse a log whose summary (or scan) puts record times outside int64 nanoseconds."""
+        """Refuse a log whose summary (or scan) puts record times outside 0 to TIME_LIMIT_NS."""
         meta = self.metadata
-        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= 2**63:
-            lo, hi = meta.start_time, meta.end_time - 1
+        if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= TIME_LIMIT_NS:
+            lo, hi = meta.start_time % 2**64, (meta.end_time - 1) % 2**64  # as stored (uint64), not as wrapped
             msg = (f"record (log) times {lo} to {hi} ns are {TIME_RANGE}: the MCAP file's times are corrupt "
                    "(repair or re-record the log)")
             raise TimeRangeError(msg)

@@ -28,12 +28,15 @@ class DamagedError(BadInput):
 
 
 #: Record times are int64 nanoseconds here; MCAP stores uint64, so a time at or past 2^63 ns (the year 2262)
-#: would wrap to a negative time. Only a corrupt or hand-made file has one.
-TIME_RANGE = "outside 0 to 2^63 ns (1970 to 2262; a uint64 time at or past 2^63 would be read as negative)"
+#: would wrap to a negative time, and one close below it overflows the sums of times and spans downstream. Every
+#: ROS clock stays below 2^62 ns (ROS 1's uint32 seconds end in 2106), so only a corrupt file reaches it.
+TIME_LIMIT_NS = 2**62
+TIME_RANGE = ("outside 0 to 2^62 ns (1970 to 2116, past any ROS clock; a uint64 time at or past 2^63 would be read "
+              "as negative)")
 
 
 class TimeRangeError(BadInput):
-    """Record times an int64 nanosecond count cannot hold; becomes a one-line InputError naming the log."""
+    """Record times outside 0 to TIME_LIMIT_NS; becomes a one-line InputError naming the log."""
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
-from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings, batch_settings
+from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam]'"
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -38,7 +38,7 @@ def check_config(config) -> int:
     """Settings valid and GTSAM importable, before any log is read; the directions the seed needs."""
     from slamobs.pipeline.observers import get_observer
 
-    settings = batch_settings(getattr(config, "batch", None))
+    settings = config.batch
     require_gtsam()
     if settings.seed == DEAD_RECKONING:
         return 0
@@ -68,12 +68,10 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.noise import resolve_noise
 
         super().__init__(stream, options)
-        ctx = options.context or {}
-        self.config = ctx.get("config")
-        self.where = str(ctx.get("log", "<stream>"))
-        self.settings = settings if settings is not None else batch_settings(getattr(self.config, "batch", None))
-        self.noise = noise if noise is not None else resolve_noise(
-            getattr(self.config, "noise", None), ctx.get("log"), ctx.get("topics"))
+        self.where = options.source
+        self.settings = settings if settings is not None else options.batch if options.batch is not None \
+            else BatchSettings()
+        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         self.seed_override = seed
         self.fixed_bias = fixed_bias
         self.result = None  # filled by the first stretch
@@ -106,7 +104,7 @@ class BatchSmoother(Stepper):
             from slamobs.pipeline.observers import get_observer
 
             spec = get_observer(st.seed)
-            gains = spec.resolve_gains((self.config.gains if self.config is not None else {}).get(spec.name))
+            gains = spec.resolve_gains(self.options.seed_gains)
             try:
                 seed = observer_seed(st.seed, s, gains, self.options, kf_t)
             except InputError as err:
@@ -233,5 +231,6 @@ SPEC = ObserverSpec(
     gains=(),
     start=BatchSmoother,
     check_config=check_config,
+    uses_noise=True,
     takes_known_map=False,
 )

@@ -28,7 +28,9 @@ OBJECTIVES = {"ape": "ape_trans_rmse_m", "rotation": "ape_rot_rmse_deg", "landma
 
 def _reading_key(log: str, config: dict, directions: bool) -> str:
     st = os.stat(log)
-    shaping = {k: v for k, v in config.items() if k not in ("observer", "gains", "export", "plots", "output_frame")}
+    # what shapes the prepared log: not the estimator, its settings, the outputs or whether figures are drawn
+    shaping = {k: v for k, v in config.items() if k not in ("observer", "gains", "output", "noise", "batch")}
+    shaping["evaluation"] = {k: v for k, v in shaping.get("evaluation", {}).items() if k != "plots"}
     return json.dumps([os.path.realpath(log), st.st_size, st.st_mtime_ns, directions, shaping], sort_keys=True,
                       default=list)
 
@@ -78,7 +80,7 @@ def score(prepared, config) -> dict[str, float | None]:
     if not np.isfinite(res.position).all():
         raise ObserverDiverged(int(res.t_ns[np.argmax(~np.isfinite(res.position).all(axis=1))]), res.stats)
     poses = pd.DataFrame(stretch_tables(res)["poses"])
-    ev = evaluate_trajectory(poses, truth_on_run_clock(prepared.streams, config), ReportOptions(t_max_diff_s=config.t_max_diff),
+    ev = evaluate_trajectory(poses, truth_on_run_clock(prepared.streams, config), ReportOptions(t_max_diff_s=config.evaluation.t_max_diff),
                              estimate_offset=False)
     lm_rmse = None
     if prepared.streams.landmark_truth:
@@ -102,7 +104,7 @@ def run_trial_log(task: Task) -> dict:
     check_environment(task.version, task.code)
     t0 = time.perf_counter()
     row = {**base_row(task), "status": "ok", "error": None, "fatal": False, "read_s": 0.0}
-    config = RunConfig(**task.config)
+    config = RunConfig.from_dict(task.config)
     try:
         from slamobs.pipeline.estimators import get_estimator
 
