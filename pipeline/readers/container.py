@@ -21,7 +21,7 @@ import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 import zstandard
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-Kind = Literal["ros1", "rosbag2", "mcap", "db3"]
+Kind = str  # "rosbag2" (a directory) or the kind of one of FORMATS: "ros1", "mcap", "db3"
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ FORMATS: tuple[Format, ...] = (
 _READERS = tuple(f.reader for f in FORMATS)
 
 #: Human readable container names, used in messages.
-LABELS: dict[str, str] = {"ros1": "ROS1 bag", "rosbag2": "rosbag2 directory"} | {f.kind: f.label for f in FORMATS}
+LABELS: dict[str, str] = {"rosbag2": "rosbag2 directory"} | {f.kind: f.label for f in FORMATS}
 
 _WRAPPERS: tuple[tuple[bytes, str], ...] = (
     (b"BZh", "bzip2"),
