@@ -30,6 +30,7 @@ from slamobs.pipeline.errors import (
     ResourceFailure,
     SlamobsError,
     kind_of,
+    one_line,
 )
 
 #: Exit code of bad input (missing or unreadable file, bad config); 1 is left to partial failures (batch).
@@ -132,7 +133,7 @@ def _still_running() -> bool:
 
 def os_error_line(err: OSError) -> str:
     """An OS error as ``FILE: problem`` (the file it concerns, if known)."""
-    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    text = err.strerror or one_line(err) or type(err).__name__
     return f"{err.filename}: {text}" if err.filename else text
 
 

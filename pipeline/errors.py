@@ -109,7 +109,7 @@ def output_error(path: object, err: OSError, doing: str = "cannot write the outp
     of something or refused (a full disk said only "No space left on device", without the file), else an
     :class:`OutputError`; the file it concerns is added when that is not ``path`` itself, ``then`` (what is kept,
     what to do) after the reason."""
-    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    text = err.strerror or one_line(err) or type(err).__name__
     if err.filename and str(err.filename) != str(path):
         text = f"{text} ({err.filename})"
     kind = ResourceError if err.errno in RESOURCE_ERRNOS else OutputError
@@ -120,3 +120,8 @@ def is_resource_failure(err: BaseException) -> bool:
     """The machine, not the input, stopped the work: a ResourceError, a MemoryError or a resource OS error."""
     return (isinstance(err, (ResourceError, MemoryError))
             or (isinstance(err, OSError) and err.errno in RESOURCE_ERRNOS))
+
+
+def one_line(text: object) -> str:
+    """Any text (an exception's too) on one line: every run of whitespace, newlines included, becomes one space."""
+    return " ".join(str(text).split())

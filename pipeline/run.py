@@ -27,7 +27,7 @@ from slamobs.pipeline.version import __version__
 from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import GainError, InputError
+from slamobs.pipeline.errors import GainError, InputError, one_line
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
 from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
 from slamobs.pipeline.observers.base import ObserverDiverged
@@ -621,7 +621,7 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
             raise stop from None
         for name in REPORT_FILES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)
-        reason = " ".join(str(err).split()) or type(err).__name__
+        reason = one_line(err) or type(err).__name__
         if not isinstance(err, ValueError):
             reason = f"{type(err).__name__}: {reason}"
         notes.append(f"no error report: {reason}")
