@@ -20,10 +20,11 @@ from typing import TYPE_CHECKING, BinaryIO
 import lz4.frame
 import numpy as np
 import zstandard
+from slamobs.pipeline.errors import one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from . import storage
-from .storage import ConnIds, DamagedError, RawBatch, concat, one_line
+from .storage import ConnIds, DamagedError, RawBatch, concat
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Sequence

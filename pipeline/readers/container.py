@@ -36,11 +36,11 @@ from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.paths import check_input, check_yaml_depth
 
 from . import mcap, ros1, rosbag2_sqlite
-from .storage import TIME_LIMIT_NS, TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined, one_line
+from .storage import TIME_LIMIT_NS, TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Iterator, Sequence

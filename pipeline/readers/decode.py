@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
 from . import fastdecode, tfdecode
@@ -94,7 +94,7 @@ def _deserialize(reader: AnyReader, path: str | Path, raw: bytes, conn: Connecti
     try:
         return reader.deserialize(raw, conn.msgtype)
     except Exception as err:  # rosbags raises struct/index errors on bad payloads too
-        reason = " ".join(str(err).split()) or type(err).__name__
+        reason = one_line(err) or type(err).__name__
         raise InputError(path, f"cannot decode {conn.msgtype} message: {reason}", conn.topic) from None
 
 
@@ -116,7 +116,7 @@ def layout_errors(path: str | Path, connections: Collection[Connection]) -> Iter
         yield
     except (AttributeError, TypeError, ValueError) as err:
         conn = next(iter(connections))
-        reason = " ".join(str(err).split())
+        reason = one_line(err)
         raise InputError(path, f"unexpected {conn.msgtype} layout: {reason}", conn.topic) from None
 
 
@@ -708,7 +708,7 @@ def decode_sim_truth(
             if key in doc
         }
     except (ValueError, TypeError) as err:
-        reason = " ".join(str(err).split())
+        reason = one_line(err)
         raise InputError(path, f"invalid simulation truth JSON: {reason}", topic) from None
     except RecursionError:  # json's decoder recurses per level: '[' * 100000 does not end in a clean error
         raise InputError(path, "invalid simulation truth JSON: nested too deeply", topic) from None

@@ -17,10 +17,11 @@ import zstandard
 from rosbags.interfaces import Connection, ConnectionExtRosbag2
 from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.rosbag2.storage_mcap import Channel, McapReader, Schema, Statistics, get_msgdef, get_qos
+from slamobs.pipeline.errors import one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
-from .storage import TIME_LIMIT_NS, TIME_RANGE, DamagedError, TimeRangeError, one_line
+from .storage import TIME_LIMIT_NS, TIME_RANGE, DamagedError, TimeRangeError
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Iterator

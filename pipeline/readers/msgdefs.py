@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.paths import check_input
 
 if TYPE_CHECKING:
@@ -59,7 +59,7 @@ def _read_msg_dir(typestore: Typestore, msg_dir: str | Path) -> dict[str, object
         except OSError as err:
             raise InputError(file, f"cannot read message definition: {err.strerror}") from None
         except Exception as err:  # rosbags raises its parser's errors for bad syntax
-            reason = " ".join(str(err).split())[:200] or type(err).__name__
+            reason = one_line(err)[:200] or type(err).__name__
             raise InputError(file, f"cannot parse message definition {name}: {reason}") from None
     return added
 

@@ -21,10 +21,11 @@ from rosbags.rosbag1 import ReaderError as Ros1ReaderError
 from rosbags.rosbag1.reader import ChunkInfo as Ros1ChunkInfo
 from rosbags.rosbag1.reader import Header, RecordType, normalize
 from rosbags.typesys.msg import normalize_msgtype
+from slamobs.pipeline.errors import one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
-from .storage import DamagedError, one_line
+from .storage import DamagedError
 
 if TYPE_CHECKING:
     from collections.abc import Collection, Iterator

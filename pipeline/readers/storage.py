@@ -18,11 +18,6 @@ if TYPE_CHECKING:
     from collections.abc import Iterable, Iterator, Sequence
 
 
-def one_line(text: object) -> str:
-    """Collapse an exception text to one line for the CLI."""
-    return " ".join(str(text).split())
-
-
 class DamagedError(BadInput):
     """Bytes of a log that cannot be read (bad compression, checksum, records); becomes an InputError."""
 

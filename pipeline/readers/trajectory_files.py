@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.paths import check_input, read_text
 from slamobs.pipeline.streams import PoseStream
 
@@ -282,7 +282,7 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except Exception as err:  # pyarrow raises several types for a bad file
-        raise InputError(path, f"cannot read Parquet: {' '.join(str(err).split())}") from None
+        raise InputError(path, f"cannot read Parquet: {one_line(err)}") from None
     missing = [c for c in POSE_COLUMNS if c not in table.column_names]
     if missing:
         raise InputError(path, f"not a poses table: lacks column(s) {missing}")
