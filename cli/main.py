@@ -79,6 +79,10 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
+    from slamobs.cli.errors import working_on
+    from slamobs.pipeline.paths import run_memory_mb
+
+    working_on(log, "a run of this log", run_memory_mb(log))
     from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log

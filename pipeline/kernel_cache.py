@@ -26,7 +26,6 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import sys
 import time
 from functools import lru_cache
 from pathlib import Path
@@ -34,6 +33,8 @@ from pathlib import Path
 import numba
 from numba import njit
 from numba.core import caching
+
+from slamobs.pipeline import native  # noqa: F401 - BLAS and numba's array functions start here, not in a thread
 
 __all__ = ["cache_root", "install", "njit", "prune", "source_stamp"]
 
@@ -193,24 +194,4 @@ def install() -> None:
         impl._locator_classes = [KernelLocator, *impl._locator_classes]
 
 
-def load_array_functions_without_blas() -> None:
-    """Load numba's array functions (``numba.np.arraymath``) now, in this thread, without SciPy's BLAS.
-
-    numba imports ``scipy.linalg.cython_blas`` (when SciPy is installed) as it loads its array functions, on the
-    first kernel compiled or loaded: in a run, on the thread that reads the log's chunks. That loads SciPy's own
-    OpenBLAS, whose start-up allocates a 32 MB buffer and, when a memory limit (``ulimit -v``) refuses it,
-    retries for ever with the GIL held: the run spun at 100 % CPU, deaf to SIGTERM. No kernel here calls BLAS
-    (np.dot, np.linalg), so numba is told there is none (it then compiles every kernel as before); a SciPy
-    imported by someone else afterwards loads as usual."""
-    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
-        return
-    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # `import scipy.linalg...` raises ImportError
-    try:
-        import numba.np.arraymath  # noqa: F401
-    finally:
-        if sys.modules.get("scipy.linalg", 0) is None:
-            del sys.modules["scipy.linalg"]
-
-
 install()
-load_array_functions_without_blas()

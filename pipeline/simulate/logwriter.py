@@ -25,6 +25,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from slamobs.pipeline import interrupts
+from slamobs.pipeline.paths import log_size
 from slamobs.pipeline.readers.fastdecode import leaf_offsets, make_plan
 from slamobs.pipeline.simulate.sensors import (
     FRAME_BODY,
@@ -569,14 +570,6 @@ def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None 
     finally:
         shutil.rmtree(tmpdir, ignore_errors=True)
     return final
-
-
-def log_size(path: str | Path) -> int:
-    """Bytes on disk of a log file or rosbag2 directory."""
-    p = Path(path)
-    if p.is_dir():
-        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
-    return p.stat().st_size
 
 
 __all__ = [

@@ -1,0 +1,62 @@
+"""Native libraries started up front, on the main thread, while memory is there (imported by every kernel module).
+
+Under an address-space limit (``ulimit -v``) two start-ups could not be turned into an error message: OpenBLAS
+allocates a 32 MB buffer at the first matrix product and, when that fails, NumPy's copy prints "OpenBLAS error"
+and ends the process (exit 1) while SciPy's retries for ever with the GIL held (a run spun at 100 % CPU, deaf to
+SIGTERM). Here the buffer is taken at once, after checking that the limit leaves room for it (a MemoryError
+otherwise, which the CLI reports in one line), and numba never loads SciPy's BLAS at all.
+"""
+
+from __future__ import annotations
+
+import sys
+
+#: What OpenBLAS's first matrix product maps (its buffer, 32 MB, and the code it pages in), with some margin.
+BLAS_START_MB = 48
+
+
+def _headroom_mb() -> float | None:
+    """Address space left under ``ulimit -v`` (MB), None when unlimited or unknown."""
+    try:
+        import resource
+
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft == resource.RLIM_INFINITY:
+            return None
+        with open("/proc/self/status") as status:
+            size_kb = next(int(line.split()[1]) for line in status if line.startswith("VmSize:"))
+    except (ImportError, OSError, StopIteration, ValueError):
+        return None
+    return (soft / 1024 - size_kb) / 1024
+
+
+def start_blas() -> None:
+    """Take OpenBLAS's buffer now (one tiny product), or raise MemoryError when the limit leaves no room."""
+    room = _headroom_mb()
+    if room is not None and room < BLAS_START_MB:
+        raise MemoryError(f"{room:.0f} MB of address space left for OpenBLAS's start-up (needs {BLAS_START_MB} MB)")
+    import numpy as np
+
+    one = np.ones((2, 2))
+    one @ one
+
+
+def load_array_functions_without_blas() -> None:
+    """Load numba's array functions (``numba.np.arraymath``) now, in this thread, without SciPy's BLAS.
+
+    numba imports ``scipy.linalg.cython_blas`` (when SciPy is installed) as it loads its array functions, on the
+    first kernel compiled or loaded: in a run, on the thread that reads the log's chunks. That started SciPy's
+    OpenBLAS (see above). No kernel here calls BLAS (np.dot, np.linalg), so numba is told there is none (it then
+    compiles every kernel as before); a SciPy imported by someone else afterwards loads as usual."""
+    if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # `import scipy.linalg...` raises ImportError
+    try:
+        import numba.np.arraymath  # noqa: F401
+    finally:
+        if sys.modules.get("scipy.linalg", 0) is None:
+            del sys.modules["scipy.linalg"]
+
+
+start_blas()
+load_array_functions_without_blas()
