@@ -102,7 +102,8 @@ def resource_error(err: BaseException, path: object, what: str, needs_mb: int | 
     else:
         files = _soft_limit("NOFILE")
         limit = f" (ulimit -n {files})" if files is not None else ""
-        path = getattr(err, "filename", None) or path
+        opening = getattr(err, "filename", None)
+        path = opening or path
         raise_to = f": raise the limit, e.g. ulimit -n {max(4 * files, 1024)}" if files is not None else ""
-        problem = f"too many open files{limit} when opening it for {what}{raise_to}"
+        problem = f"too many open files{limit} {'when opening it ' if opening else ''}for {what}{raise_to}"
     return ResourceError(path, problem)

@@ -58,5 +58,39 @@ def load_array_functions_without_blas() -> None:
             del sys.modules["scipy.linalg"]
 
 
+#: Address space LLVM may take to compile a kernel (first runs only): out of memory it aborts the process
+#: ("LLVM ERROR: out of memory", SIGABRT) instead of raising.
+COMPILE_MB = 128
+
+
+class _CompileGuard:
+    """A ``numba:compile`` listener: an outermost compilation starts only with :data:`COMPILE_MB` to spare under
+    ``ulimit -v``, else it raises MemoryError (numba releases its locks on the way out)."""
+
+    def __init__(self) -> None:
+        self.depth = 0
+
+    def on_start(self, _ev) -> None:
+        self.depth += 1
+        room = _headroom_mb() if self.depth == 1 else None
+        if room is not None and room < COMPILE_MB:
+            self.depth -= 1
+            raise MemoryError(f"{room:.0f} MB of address space left to compile a kernel (needs {COMPILE_MB} MB)")
+
+    def on_end(self, _ev) -> None:
+        self.depth = max(0, self.depth - 1)
+
+
+def guard_compilation() -> None:
+    """Check the room before every numba compilation in this process (once)."""
+    from numba.core import event
+
+    class Guard(_CompileGuard, event.Listener):
+        pass
+
+    event.register("numba:compile", Guard())
+
+
 start_blas()
 load_array_functions_without_blas()
+guard_compilation()
