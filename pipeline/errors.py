@@ -86,13 +86,15 @@ def resource_error(err: BaseException, path: object, what: str, needs_mb: int | 
     kind = machine_failure(err)
     if kind is None:
         return None
-    if isinstance(err, ResourceError):
+    if isinstance(err, ResourceError):  # said deeper down; a caller that knows the whole need adds it
+        if needs_mb and getattr(err, "needs_mb", 0) is None:
+            return resource_error(MemoryError(), err.path, err.what, needs_mb)
         return err
     memory = _soft_limit("AS")
     allowed = f"the limit (ulimit -v) is {memory >> 20} MB" if memory is not None else "the machine's memory ran out"
     if kind == "memory":
-        needs = f"needs about {needs_mb} MB" if needs_mb else "needs more"
-        problem = f"not enough memory for {what}; {needs} ({allowed})"
+        needs = f"; needs about {needs_mb} MB" if needs_mb else ""
+        problem = f"not enough memory for {what}{needs} ({allowed})"
     elif kind == "thread":
         procs = _soft_limit("NPROC")
         why = (f"the memory limit (ulimit -v {memory >> 10}) leaves no room for its stack" if memory is not None
@@ -106,4 +108,6 @@ def resource_error(err: BaseException, path: object, what: str, needs_mb: int | 
         path = opening or path
         raise_to = f": raise the limit, e.g. ulimit -n {max(4 * files, 1024)}" if files is not None else ""
         problem = f"too many open files{limit} {'when opening it ' if opening else ''}for {what}{raise_to}"
-    return ResourceError(path, problem)
+    machine = ResourceError(path, problem)
+    machine.what, machine.needs_mb = what, (needs_mb if kind == "memory" else 0)
+    return machine
