@@ -44,26 +44,34 @@ def machine_failure(err: BaseException) -> str | None:
     """What ran out when ``err`` is a failure of the machine rather than of the input: ``"memory"``, ``"thread"``
     or ``"descriptors"`` (None otherwise). Under ``ulimit -v`` a read or an import fails with whatever its library
     raises (MemoryError, an ImportError naming a shared object, a decompressor's error); the exceptions it was
-    raised while handling are looked at too (llvmlite's own ImportError hides the failed ``dlopen``)."""
+    raised while handling are looked at too (llvmlite's own ImportError hides the failed ``dlopen``; a writer's
+    "cannot write the output" hides the EMFILE)."""
+    found = _failure(err)
+    return found[0] if found else None
+
+
+def _failure(err: BaseException | None) -> tuple[str, BaseException] | None:
+    """(what ran out, the exception of the chain that says so)."""
     import errno
 
     seen: set[int] = set()
     while err is not None and id(err) not in seen:
         seen.add(id(err))
         if isinstance(err, ResourceError):
-            return "memory" if "memory" in err.problem else "thread" if "thread" in err.problem else "descriptors"
+            kind = "memory" if "memory" in err.problem else "thread" if "thread" in err.problem else "descriptors"
+            return kind, err
         if isinstance(err, MemoryError):
-            return "memory"
+            return "memory", err
         if isinstance(err, OSError) and err.errno in (errno.EMFILE, errno.ENFILE):
-            return "descriptors"
+            return "descriptors", err
         if isinstance(err, OSError) and err.errno == errno.ENOMEM:
-            return "memory"
+            return "memory", err
         if not isinstance(err, InputError):
             text = str(err).lower()
             if isinstance(err, RuntimeError) and any(t in text for t in _THREAD_TEXTS):
-                return "thread"
+                return "thread", err
             if any(t in text for t in _MEMORY_TEXTS):
-                return "memory"
+                return "memory", err
         err = err.__cause__ or err.__context__
     return None
 
@@ -83,9 +91,10 @@ def resource_error(err: BaseException, path: object, what: str, needs_mb: int | 
     """``err`` as the one-line :class:`ResourceError` for ``path`` when it is a failure of the machine
     (:func:`machine_failure`), None otherwise. ``what`` says what was being done ("reading the log"); a memory
     failure says how much the work needs (``needs_mb``, when known) against the address-space limit."""
-    kind = machine_failure(err)
-    if kind is None:
+    found = _failure(err)
+    if found is None:
         return None
+    kind, err = found
     if isinstance(err, ResourceError):  # said deeper down; a caller that knows the whole need adds it
         if needs_mb and getattr(err, "needs_mb", 0) is None:
             return resource_error(MemoryError(), err.path, err.what, needs_mb)
