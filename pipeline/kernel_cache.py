@@ -34,7 +34,7 @@ import numba
 from numba import njit
 from numba.core import caching
 
-from slamobs.pipeline import native  # noqa: F401 - BLAS and numba's array functions start here, not in a thread
+from slamobs.pipeline import native
 
 __all__ = ["cache_root", "install", "njit", "prune", "source_stamp"]
 
@@ -195,3 +195,4 @@ def install() -> None:
 
 
 install()
+native.start()  # BLAS and numba's array functions start here, on the importing (main) thread, not on a reader's

@@ -1,4 +1,4 @@
-"""Native libraries started up front, on the main thread, while memory is there (imported by every kernel module).
+"""Native libraries started up front, on the main thread, while memory is there (before any kernel is loaded).
 
 Under an address-space limit (``ulimit -v``) two start-ups could not be turned into an error message: OpenBLAS
 allocates a 32 MB buffer at the first matrix product and, when that fails, NumPy's copy prints "OpenBLAS error"
@@ -59,8 +59,9 @@ def load_array_functions_without_blas() -> None:
             del sys.modules["scipy.linalg"]
 
 
-#: Address space LLVM may take to compile a kernel (first runs only): out of memory it aborts the process
-#: ("LLVM ERROR: out of memory", SIGABRT) instead of raising.
+#: Address space LLVM may take to compile a kernel or load a compiled one from the cache: out of memory it aborts
+#: the process ("LLVM ERROR: out of memory" or "std::bad_alloc", SIGABRT) instead of raising (seen in 2 of 4 runs
+#: of the sample log under ``ulimit -v 400000``, where the loads found 100 MB to spare).
 COMPILE_MB = 128
 
 
@@ -73,25 +74,45 @@ class _CompileGuard:
 
     def on_start(self, _ev) -> None:
         self.depth += 1
-        room = _headroom_mb() if self.depth == 1 else None
-        if room is not None and room < COMPILE_MB:
-            self.depth -= 1
-            raise MemoryError(f"{room:.0f} MB of address space left to compile a kernel (needs {COMPILE_MB} MB)")
+        if self.depth == 1:
+            try:
+                _check_room("compile a kernel")
+            except MemoryError:
+                self.depth -= 1
+                raise
 
     def on_end(self, _ev) -> None:
         self.depth = max(0, self.depth - 1)
 
 
+def _check_room(what: str) -> None:
+    room = _headroom_mb()
+    if room is not None and room < COMPILE_MB:
+        raise MemoryError(f"{room:.0f} MB of address space left to {what} (needs {COMPILE_MB} MB)")
+
+
 def guard_compilation() -> None:
-    """Check the room before every numba compilation in this process (once)."""
-    from numba.core import event
+    """Check the room before every numba compilation and cache load in this process (once)."""
+    from numba.core import caching, event
 
     class Guard(_CompileGuard, event.Listener):
         pass
 
     event.register("numba:compile", Guard())
+    load = caching.Cache.load_overload
+    if getattr(load, "_slamobs_guarded", False):
+        return
+
+    def guarded_load(self, sig, target_context):
+        _check_room("load a compiled kernel")
+        return load(self, sig, target_context)
+
+    guarded_load._slamobs_guarded = True
+    caching.Cache.load_overload = guarded_load
 
 
-start_blas()
-load_array_functions_without_blas()
-guard_compilation()
+def start() -> None:
+    """All of the above: what a process that runs kernels does first (:mod:`.kernel_cache` calls it)."""
+    start_blas()
+    load_array_functions_without_blas()
+    guard_compilation()

@@ -186,7 +186,9 @@ def _serve() -> None:
 
     bind_to_parent(int(sys.argv[1]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    import slamobs.pipeline.native  # noqa: F401 - OpenBLAS's start-up under a memory limit: a MemoryError, not exit 1
+    from slamobs.pipeline.native import start_blas
+
+    start_blas()  # OpenBLAS's start-up under a memory limit: a MemoryError here, not "OpenBLAS error" and exit 1
     from slamobs.pipeline.evaluation.plots import warm_up
 
     warm_up()
