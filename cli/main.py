@@ -17,6 +17,23 @@ from slamobs.cli.progress import compile_notice, status_line
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+def _allocators_for_a_memory_limit() -> None:
+    """Under an address-space limit (``ulimit -v``) pyarrow allocates with malloc, not mimalloc (set before pyarrow
+    loads): mimalloc reserves address space ahead (1 GB unlimited; under ``ulimit -v 600000`` 186 MB for a
+    1000-element array, malloc 58 MB), which the limit counts as used. Without a limit nothing changes."""
+    try:
+        import resource
+
+        limited = resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY
+    except (ImportError, OSError, ValueError):
+        return
+    if limited:
+        os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
+
+
+_allocators_for_a_memory_limit()
+
+
 class _Group(click.Group):
     """Every command ends the same way when it cannot finish (:mod:`cli.errors`): one ``error:`` line and exit
     code 2, or exit 130/143 after SIGINT/SIGTERM; never a traceback or click's usage text."""

@@ -35,9 +35,7 @@ def start_blas() -> None:
     """Take OpenBLAS's buffer now (one tiny product), or raise MemoryError when the limit leaves no room."""
     import numpy as np  # out of memory, its import fails with an ImportError (a library it cannot map)
 
-    room = _headroom_mb()
-    if room is not None and room < BLAS_START_MB:
-        raise MemoryError(f"{room:.0f} MB of address space left for OpenBLAS's start-up (needs {BLAS_START_MB} MB)")
+    check_room("start OpenBLAS", BLAS_START_MB)
     one = np.ones((2, 2))
     one @ one
 
@@ -76,7 +74,7 @@ class _CompileGuard:
         self.depth += 1
         if self.depth == 1:
             try:
-                _check_room("compile a kernel")
+                check_room("compile a kernel")
             except MemoryError:
                 self.depth -= 1
                 raise
@@ -85,10 +83,12 @@ class _CompileGuard:
         self.depth = max(0, self.depth - 1)
 
 
-def _check_room(what: str) -> None:
+def check_room(what: str, needs_mb: float = COMPILE_MB) -> None:
+    """Raise MemoryError when ``ulimit -v`` leaves less than ``needs_mb`` for ``what`` (a native library that
+    aborts the process when its own allocation fails: LLVM, OpenBLAS)."""
     room = _headroom_mb()
-    if room is not None and room < COMPILE_MB:
-        raise MemoryError(f"{room:.0f} MB of address space left to {what} (needs {COMPILE_MB} MB)")
+    if room is not None and room < needs_mb:
+        raise MemoryError(f"{room:.0f} MB of address space left to {what} (needs {needs_mb:g} MB)")
 
 
 def guard_compilation() -> None:
@@ -104,7 +104,7 @@ def guard_compilation() -> None:
         return
 
     def guarded_load(self, sig, target_context):
-        _check_room("load a compiled kernel")
+        check_room("load a compiled kernel")
         return load(self, sig, target_context)
 
     guarded_load._slamobs_guarded = True

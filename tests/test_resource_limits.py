@@ -208,3 +208,35 @@ def test_the_figure_helper_out_of_memory_fails_the_run(tmp_path, monkeypatch):
         assert workers.jobs and not list(tmp_path.iterdir())
     finally:
         workers.close()
+
+
+def test_compiling_or_loading_a_kernel_without_room_is_a_memory_error(tmp_path):
+    """LLVM out of memory aborts the process ('LLVM ERROR: out of memory', 'std::bad_alloc'); with less than
+    native.COMPILE_MB (128 MB) of address space to spare a compilation or a cache load raises MemoryError instead, and works again
+    once there is room."""
+    code = textwrap.dedent("""\
+        import resource
+        from slamobs.pipeline import kernel_cache
+        from numba import njit
+
+        def size():
+            with open("/proc/self/status") as status:
+                return next(int(line.split()[1]) for line in status if line.startswith("VmSize:")) * 1024
+
+        @njit
+        def add(x):
+            return x + 1
+
+        resource.setrlimit(resource.RLIMIT_AS, (size() + 96 * 2**20, resource.RLIM_INFINITY))
+        try:
+            add(1)
+        except MemoryError as err:
+            print("MemoryError:", err)
+        resource.setrlimit(resource.RLIMIT_AS, (resource.RLIM_INFINITY, resource.RLIM_INFINITY))
+        print(add(1))
+        """)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    first, second = proc.stdout.splitlines()
+    assert first.startswith("MemoryError: ") and first.endswith("left to compile a kernel (needs 128 MB)"), first
+    assert second == "2"
