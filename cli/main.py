@@ -18,17 +18,27 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
 def _allocators_for_a_memory_limit() -> None:
-    """Under an address-space limit (``ulimit -v``) pyarrow allocates with malloc, not mimalloc (set before pyarrow
-    loads): mimalloc reserves address space ahead (1 GB unlimited; under ``ulimit -v 600000`` 186 MB for a
-    1000-element array, malloc 58 MB), which the limit counts as used. Without a limit nothing changes."""
+    """Under an address-space limit (``ulimit -v``), which counts address space reserved ahead as used, allocators
+    reserve less (before any thread starts and before pyarrow loads); without a limit nothing changes. pyarrow
+    allocates with malloc, not mimalloc (under ``ulimit -v 600000`` mimalloc reserved 186 MB for a 1000-element
+    array, malloc 58 MB); glibc's malloc keeps one arena instead of one per thread (each reserves 64 MB): the sample
+    log's run then passes under ``ulimit -v 700000`` instead of needing 1000000."""
     try:
         import resource
 
         limited = resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY
     except (ImportError, OSError, ValueError):
         return
-    if limited:
-        os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
+    if not limited:
+        return
+    os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
+    if "MALLOC_ARENA_MAX" not in os.environ:  # set by the user: glibc has read it already
+        try:
+            import ctypes
+
+            ctypes.CDLL(None).mallopt(-8, 1)  # M_ARENA_MAX (glibc); elsewhere there is no such symbol
+        except (OSError, AttributeError):
+            pass
 
 
 _allocators_for_a_memory_limit()
