@@ -1,10 +1,12 @@
 """Native libraries started up front, on the main thread, while memory is there (before any kernel is loaded).
 
-Under an address-space limit (``ulimit -v``) two start-ups could not be turned into an error message: OpenBLAS
-allocates a 32 MB buffer at the first matrix product and, when that fails, NumPy's copy prints "OpenBLAS error"
-and ends the process (exit 1) while SciPy's retries for ever with the GIL held (a run spun at 100 % CPU, deaf to
-SIGTERM). Here the buffer is taken at once, after checking that the limit leaves room for it (a MemoryError
-otherwise, which the CLI reports in one line), and numba never loads SciPy's BLAS at all.
+Under an address-space limit (``ulimit -v``) some native libraries cannot be turned into an error message when
+their own allocation fails. OpenBLAS allocates a 32 MB buffer at the first matrix product: NumPy's copy then
+prints "OpenBLAS error" and ends the process (exit 1), SciPy's retries for ever with the GIL held (a run spun at
+100 % CPU, deaf to SIGTERM). LLVM, compiling a kernel or loading a compiled one, aborts (SIGABRT). Here the BLAS
+buffer is taken at once, numba never loads SciPy's BLAS, and a compilation or cache load starts only with room to
+spare: a MemoryError otherwise, which the run and the CLI report in one line. The room is checked against the
+limit and the process's mapped size (``/proc/self/status``), so without a limit nothing is checked.
 """
 
 from __future__ import annotations
@@ -95,13 +97,14 @@ def guard_compilation() -> None:
     """Check the room before every numba compilation and cache load in this process (once)."""
     from numba.core import caching, event
 
+    load = caching.Cache.load_overload
+    if getattr(load, "_slamobs_guarded", False):
+        return
+
     class Guard(_CompileGuard, event.Listener):
         pass
 
     event.register("numba:compile", Guard())
-    load = caching.Cache.load_overload
-    if getattr(load, "_slamobs_guarded", False):
-        return
 
     def guarded_load(self, sig, target_context):
         check_room("load a compiled kernel")

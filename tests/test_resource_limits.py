@@ -224,8 +224,8 @@ def test_the_figure_helper_out_of_memory_fails_the_run(tmp_path, monkeypatch):
 
 def test_compiling_or_loading_a_kernel_without_room_is_a_memory_error(tmp_path):
     """LLVM out of memory aborts the process ('LLVM ERROR: out of memory', 'std::bad_alloc'); with less than
-    native.COMPILE_MB (128 MB) of address space to spare a compilation or a cache load raises MemoryError instead, and works again
-    once there is room."""
+    native.COMPILE_MB (128 MB) of address space to spare a compilation or a cache load raises MemoryError instead,
+    and works again once there is room."""
     code = textwrap.dedent("""\
         import resource
         from slamobs.pipeline import kernel_cache
