@@ -33,10 +33,11 @@ def _allocators_for_a_memory_limit() -> None:
         return
     os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
     if "MALLOC_ARENA_MAX" not in os.environ:  # set by the user: glibc has read it already
+        os.environ["MALLOC_ARENA_MAX"] = "1"  # for the processes this one starts (batch workers, figure helper)
         try:
             import ctypes
 
-            ctypes.CDLL(None).mallopt(-8, 1)  # M_ARENA_MAX (glibc); elsewhere there is no such symbol
+            ctypes.CDLL(None).mallopt(-8, 1)  # M_ARENA_MAX, for this process (glibc; elsewhere no such symbol)
         except (OSError, AttributeError):
             pass
 
