@@ -136,6 +136,8 @@ def handled():
     from slamobs.pipeline.errors import GainError, InputError
     from slamobs.pipeline.interrupts import as_interruption, raise_when_safe
 
+    global _subject
+    _subject = None  # until the command names its file, if it has one
     try:
         with as_interruption(), raise_when_safe():
             yield

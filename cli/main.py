@@ -178,6 +178,9 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
     """Run several observers on LOG and write a side-by-side table and an overlay plot."""
     from dataclasses import replace
 
+    from slamobs.cli.errors import working_on
+
+    working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
     from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.errors import InputError
