@@ -177,10 +177,10 @@ def log_size(path: str | Path) -> int:
 
 
 #: Address space (``ulimit -v``) a run needs: a base (interpreter, numba and LLVM, pyarrow, the threads' stacks
-#: and malloc arenas, pyarrow's allocator, matplotlib) and an amount per MB of log, from the smallest limits under
-#: which runs succeeded (16 MB steps): sample_logs/figure8.mcap (1.9 MB) 988 MB, a simulated 600 s figure8 (26 MB)
-#: 1112 MB. A guide for the message of a run that ran out, not a check.
-RUN_BASE_MB, RUN_MB_PER_LOG_MB = 980, 5.0
+#: and malloc arena, pyarrow, matplotlib) and an amount per MB of log, from the smallest limits under which runs
+#: through the CLI succeeded (16-20 MB steps): sample_logs/figure8.mcap (1.9 MB) 670-684 MB, a simulated 600 s
+#: figure8 (26 MB) 702-722 MB. A guide for the message of a run that ran out, not a check.
+RUN_BASE_MB, RUN_MB_PER_LOG_MB = 660, 2.0
 
 
 def run_memory_mb(log: str | Path) -> int | None:
