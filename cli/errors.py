@@ -136,10 +136,13 @@ def handled():
     from slamobs.pipeline.errors import GainError, InputError
     from slamobs.pipeline.interrupts import as_interruption, raise_when_safe
 
+    from slamobs.pipeline.native import check_numpy_room
+
     global _subject
     _subject = None  # until the command names its file, if it has one
     try:
         with as_interruption(), raise_when_safe():
+            check_numpy_room()  # NumPy's OpenBLAS would end the process ("OpenBLAS error", exit 1) if it cannot start
             yield
     except (InputError, GainError) as err:
         exit_input_error(err)

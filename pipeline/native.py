@@ -18,6 +18,17 @@ import sys
 BLAS_START_MB = 56
 
 
+#: What importing NumPy maps (84 MB: its libraries) and its OpenBLAS's start-up then takes (up to 43 MB): OpenBLAS
+#: ends the process with "OpenBLAS error" when that fails, already inside ``import numpy`` under ``ulimit -v 90000``.
+NUMPY_START_MB = 136
+
+
+def check_numpy_room() -> None:
+    """Before NumPy is first imported: raise MemoryError when the limit leaves no room for it to start."""
+    if "numpy" not in sys.modules:
+        check_room("load NumPy and start its OpenBLAS", NUMPY_START_MB)
+
+
 def _headroom_mb() -> float | None:
     """Address space left under ``ulimit -v`` (MB), None when unlimited or unknown."""
     try:

@@ -66,6 +66,15 @@ def test_address_space_too_small_to_start_is_one_line(tmp_path):
     assert not out.exists()
 
 
+def test_address_space_too_small_for_numpy_is_one_line(tmp_path):
+    """At 100 MB NumPy's import maps its libraries but its OpenBLAS cannot start: it printed "OpenBLAS error:
+    Memory allocation still failed after 10 retries, giving up." and ended the process with exit code 1."""
+    out = tmp_path / "out"
+    proc = run_cli(["run", str(SAMPLE), "-o", str(out), "-q"], limited(AS=100 * MB))
+    one_line(proc, "error: slamobs run: not enough memory for this command (the limit (ulimit -v) is 100 MB)")
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("limit_mb", [300, 400, 450])
 def test_run_under_an_address_space_limit_ends_in_one_line(tmp_path, limit_mb):
     """Limits a run of the sample log needs more than (it passes from about 650 MB): wherever it runs out (imports,
