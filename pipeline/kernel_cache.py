@@ -34,6 +34,8 @@ import numba
 from numba import njit
 from numba.core import caching
 
+from slamobs.pipeline import native
+
 __all__ = ["cache_root", "install", "njit", "prune", "source_stamp"]
 
 #: Cache files not written for this many days are removed when a run has compiled something (kernels of
@@ -212,3 +214,4 @@ def install() -> None:
 
 
 install()
+native.start()  # BLAS and numba's array functions start here, on the importing (main) thread, not on a reader's
