@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, BinaryIO
 import lz4.frame
 import numpy as np
 import zstandard
-from slamobs.pipeline.errors import one_line
+from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from . import storage
@@ -64,7 +64,9 @@ def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> byt
                 return lz4.frame.LZ4FrameDecompressor().decompress(blob)
             if compression == "bz2":
                 return bz2.BZ2Decompressor().decompress(blob)
-        except (RuntimeError, OSError, ValueError, zstandard.ZstdError):
+        except (RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
+            if machine_failure(err):
+                raise
             return b""
     if compression == "zstd":
         raw = zstandard.ZstdDecompressor().decompress(blob, max_output_size=raw_size)
@@ -266,6 +268,8 @@ class Chunked:
         try:
             return self.load(unit, ids)
         except _CHUNK_ERRORS as err:
+            if machine_failure(err):  # e.g. zstd's "Allocation error": the chunk is fine, the memory is not
+                raise
             self.lose(unit.pos, unit.messages, unit.start_ns, one_line(err).rstrip(".") or type(err).__name__)
             return None
 

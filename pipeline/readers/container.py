@@ -36,7 +36,7 @@ from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
-from slamobs.pipeline.errors import InputError, one_line
+from slamobs.pipeline.errors import InputError, one_line, resource_error
 from slamobs.pipeline.paths import check_input, check_yaml_depth
 
 from . import mcap, ros1, rosbag2_sqlite
@@ -155,7 +155,10 @@ def detect_container(path: str | Path) -> Container:
 
 
 def _explain(container: Container, err: BaseException) -> InputError:
-    """Turn a reader exception into the one-line InputError for this container."""
+    """Turn a reader exception into the one-line InputError for this container: out of memory, threads or
+    descriptors is the machine's failure (:class:`~slamobs.pipeline.errors.ResourceError`), never a corrupt log."""
+    if (machine := resource_error(err, container.path, f"reading the {container.label}")) is not None:
+        return machine
     reason = one_line(err.args[0] if len(err.args) == 1 else err)
     if not reason:
         reason = "index and data disagree" if isinstance(err, AssertionError) else type(err).__name__

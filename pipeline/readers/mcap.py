@@ -17,7 +17,7 @@ import zstandard
 from rosbags.interfaces import Connection, ConnectionExtRosbag2
 from rosbags.rosbag2 import ReaderError as Ros2ReaderError
 from rosbags.rosbag2.storage_mcap import Channel, McapReader, Schema, Statistics, get_msgdef, get_qos
-from slamobs.pipeline.errors import one_line
+from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
@@ -215,6 +215,8 @@ class McapStorage(Chunked, McapReader):
                 try:
                     data = read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
+                    if machine_failure(err):
+                        raise
                     where = f"unreadable chunk: {one_line(err).rstrip('.')}"
                     break
                 recs = records(_mcap_walk, data)

@@ -21,7 +21,7 @@ from rosbags.rosbag1 import ReaderError as Ros1ReaderError
 from rosbags.rosbag1.reader import ChunkInfo as Ros1ChunkInfo
 from rosbags.rosbag1.reader import Header, RecordType, normalize
 from rosbags.typesys.msg import normalize_msgtype
-from slamobs.pipeline.errors import one_line
+from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
@@ -252,6 +252,8 @@ class Ros1Bag(Chunked, Reader1):
                 try:
                     data = read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError) as err:
+                    if machine_failure(err):
+                        raise
                     where = f"unreadable chunk: {one_line(err).rstrip('.')}"
                     break
                 recs = records(_ros1_walk, data)

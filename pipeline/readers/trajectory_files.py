@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError, one_line
+from slamobs.pipeline.errors import InputError, one_line, resource_error
 from slamobs.pipeline.paths import check_input, read_text
 from slamobs.pipeline.streams import PoseStream
 
@@ -282,6 +282,8 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except Exception as err:  # pyarrow raises several types for a bad file
+        if (machine := resource_error(err, path, "reading the trajectory")) is not None:
+            raise machine from None
         raise InputError(path, f"cannot read Parquet: {one_line(err)}") from None
     missing = [c for c in POSE_COLUMNS if c not in table.column_names]
     if missing:
