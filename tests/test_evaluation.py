@@ -54,10 +54,10 @@ from slamobs.pipeline.readers.trajectory_files import (
     write_tum,
 )
 from slamobs.pipeline.streams import PoseStream
+from realdata import REALDATA
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-EVO_DATA = SHARED / "realdata" / "evo"
-RPG_DATA = SHARED / "realdata" / "rpg_traj_eval"
+EVO_DATA = REALDATA / "evo"
+RPG_DATA = REALDATA / "rpg_traj_eval"
 HAVE_EVO_DATA = (EVO_DATA / "REFERENCE_NUMBERS.md").is_file()
 EVO_PYTHON = os.environ.get("SLAMOBS_EVO_PYTHON")
 needs_evo = pytest.mark.skipif(not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
