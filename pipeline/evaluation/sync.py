@@ -294,6 +294,32 @@ def estimate_time_offset(
     tr, te = _as_stamps(t_ref_ns, "t_ref_ns"), _as_stamps(t_est_ns, "t_est_ns")
     if tr.shape[0] < 4 or te.shape[0] < 4 or np.any(np.diff(tr) <= 0) or np.any(np.diff(te) <= 0):
         return None
+    on_grid = _offset_grid(tr, te, max_offset_s, step_s)
+    if on_grid is None:
+        return None
+    grid, step_ns, max_lag = on_grid
+    r_ang, r_spd, _ = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
+    e_ang, e_spd, e_steps = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
+    best = _best_lag((r_ang, r_spd), (e_ang, e_spd), max_lag)
+    if best is None:
+        return None
+    idx, k, c, lags = best
+    tau, peak = _refine_lag((r_ang, r_spd)[idx], te, e_steps[idx], grid, step_ns, lags[k], float(c[k]))
+    return TimeOffset(
+        offset_s=float(tau / NS_PER_S),
+        peak_correlation=float(min(max(peak, -1.0), 1.0)),
+        signal=("angular rate |ω|", "speed |v|")[idx],
+        grid_step_s=step_ns / NS_PER_S,
+        search_window_s=float(max_lag * step_ns / NS_PER_S),
+        at_window_edge=bool(k == 0 or k == c.shape[0] - 1),
+    )
+
+
+def _offset_grid(tr: np.ndarray, te: np.ndarray, max_offset_s: float,
+                 step_s: float | None) -> tuple[np.ndarray, int, int] | None:
+    """The common time grid of the search (``grid``, ``step_ns``, ``max_lag`` in steps): both streams and the
+    whole search window, the step the coarser stream's median spacing within [1 ms, 50 ms] unless given;
+    None when it would be too long or too short to tell."""
     if step_s is None:
         dt = max(float(np.median(np.diff(tr))), float(np.median(np.diff(te)))) / NS_PER_S
         step_s = min(max(dt, 1e-3), 0.05)
@@ -304,30 +330,32 @@ def estimate_time_offset(
     n = int((stop - start) // step_ns) + 1
     if n > 4_000_000 or n < 8:
         return None
-    grid = start + np.arange(n, dtype=np.int64) * step_ns
-    r_ang, r_spd, _ = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
-    e_ang, e_spd, e_steps = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
+    return start + np.arange(n, dtype=np.int64) * step_ns, step_ns, max_lag
+
+
+def _best_lag(ref: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray], max_lag: int):
+    """The grid lag of the highest correlation ``(signal index, lag index, correlations, lags)`` of the
+    angular rate (0) or the speed (1), or None when neither signal varies."""
     # the signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker
-    cv = [_variation(r_ang), _variation(r_spd)]
+    cv = [_variation(ref[0]), _variation(ref[1])]
     order = (0, 1) if cv[0] >= 0.5 * cv[1] else (1, 0)
-    best = None
     for idx in order:
-        a, b = ((r_ang, e_ang), (r_spd, e_spd))[idx]
         if cv[idx] == 0.0:
             continue
-        lags, c = _pearson_by_lag(a, b, max_lag)
+        lags, c = _pearson_by_lag(ref[idx], est[idx], max_lag)
         if np.isfinite(c).any():
-            best = (idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags)
-            break
-    if best is None:
-        return None
-    idx, k, c, lags = best
-    # c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
-    # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
-    # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
-    ref_signal = (r_ang, r_spd)[idx]
-    steps = e_steps[idx]
+            return idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags
+    return None
 
+
+def _refine_lag(ref_signal: np.ndarray, te: np.ndarray, steps, grid: np.ndarray, step_ns: int, lag,
+                peak_on_grid: float) -> tuple[float, float]:
+    """The offset in ns off the grid and its correlation, by golden-section search within one grid step of
+    ``lag``.
+
+    c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
+    clock. The search maximises the correlation of the reference signal with the estimate's signal sampled at
+    grid − τ."""
     accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
     ref_defined = np.isfinite(ref_signal)
 
@@ -338,7 +366,7 @@ def estimate_time_offset(
             return -1.0
         return float(np.corrcoef(ref_signal[ok], e[ok])[0, 1])
 
-    lo, hi = (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns
+    lo, hi = (lag - 1) * step_ns, (lag + 1) * step_ns
     g = (math.sqrt(5.0) - 1.0) / 2.0
     x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
     f1, f2 = corr(x1), corr(x2)
@@ -352,14 +380,4 @@ def estimate_time_offset(
             x2 = lo + g * (hi - lo)
             f2 = corr(x2)
     tau = 0.5 * (lo + hi)
-    peak = max(corr(tau), float(c[k]))
-    offset = tau / NS_PER_S
-    name = ("angular rate |ω|", "speed |v|")[idx]
-    return TimeOffset(
-        offset_s=float(offset),
-        peak_correlation=float(min(max(peak, -1.0), 1.0)),
-        signal=name,
-        grid_step_s=step_ns / NS_PER_S,
-        search_window_s=float(max_lag * step_ns / NS_PER_S),
-        at_window_edge=bool(k == 0 or k == c.shape[0] - 1),
-    )
+    return tau, max(corr(tau), peak_on_grid)
