@@ -194,6 +194,10 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
     """
     from dataclasses import replace
 
+    from slamobs.cli.errors import working_on
+
+    working_on(out_dir, "the batch")  # a lack of memory, threads or descriptors is reported against OUT
+
     from slamobs.pipeline.batch import BatchOptions, DaskMissing, InfrastructureError, check_config, discover, run_batch
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.errors import InputError, ResourceError

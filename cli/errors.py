@@ -1,7 +1,10 @@
 """How every command ends when it cannot finish: one line on stderr and a documented exit code.
 
-- bad input, a bad option value, an output that cannot or must not be written, or a machine that ran out of
-  something: ``error: FILE: problem``, exit code 2 (nothing is written; an existing output is unchanged);
+- bad input, a bad option value, an output that cannot or must not be written: ``error: FILE: problem``,
+  exit code 2 (nothing is written; an existing output is unchanged);
+- out of memory, threads, file descriptors or disk (``ulimit -v``, ``-n``, a full disk): ``error: FILE: not enough
+  memory for ...`` (or ``cannot start a thread``, ``too many open files``, ``No space left on device``), exit code
+  2 as well, never a traceback or a hang;
 - Ctrl-C (SIGINT), SIGTERM or SIGHUP (a closed terminal): ``interrupted``, the run is abandoned cleanly (its
   temporary output removed), exit code 130, 143 or 129 (128 + the signal number, as a shell reports a process
   killed by it).
@@ -30,6 +33,7 @@ from slamobs.pipeline.errors import (
     ResourceFailure,
     SlamobsError,
     kind_of,
+    one_line,
 )
 
 #: Exit code of bad input (missing or unreadable file, bad config); 1 is left to partial failures (batch).
@@ -132,18 +136,44 @@ def _still_running() -> bool:
 
 def os_error_line(err: OSError) -> str:
     """An OS error as ``FILE: problem`` (the file it concerns, if known)."""
-    text = err.strerror or " ".join(str(err).split()) or type(err).__name__
+    text = err.strerror or one_line(err) or type(err).__name__
     return f"{err.filename}: {text}" if err.filename else text
+
+
+#: What the running command works on, for a lack of memory or threads that no deeper layer put in its words
+#: (an import of the pipeline failing under ``ulimit -v``): (file, what is being done, MB it needs or None).
+_subject: tuple[object, str, int | None] | None = None
+
+
+def working_on(path: object, what: str, needs_mb: int | None = None) -> None:
+    """Name the file a command works on (and the memory it needs) for the message of a lack of resources."""
+    global _subject
+    _subject = (path, what, needs_mb)
+
+
+def _resource_line(err: Exception):
+    """``err`` as a ResourceError naming the command's file (or ``slamobs COMMAND``), None if it is no such error."""
+    from slamobs.pipeline.errors import resource_error
+
+    if _subject is not None:
+        return resource_error(err, *_subject)
+    words = [w for w in sys.argv[1:2] if not w.startswith("-")]
+    return resource_error(err, " ".join(["slamobs", *words]), "this command")
 
 
 @contextmanager
 def handled():
-    """Run a command: slamobs' errors and OS errors become one line and the exit code of their kind (2 for OS
-    errors), SIGINT/SIGTERM exit 130/143."""
+    """Run a command: slamobs' errors, OS errors and a lack of memory, threads or descriptors anywhere become one
+    line and the exit code of their kind (2 for OS errors and the machine's), SIGINT/SIGTERM exit 130/143."""
     from slamobs.pipeline.interrupts import as_interruption, raise_when_safe
 
+    from slamobs.pipeline.native import check_numpy_room
+
+    global _subject
+    _subject = None  # until the command names its file, if it has one
     try:
         with as_interruption(), raise_when_safe():
+            check_numpy_room()  # NumPy's OpenBLAS would end the process ("OpenBLAS error", exit 1) if it cannot start
             yield
     except KeyboardInterrupt as err:  # Interruption, and Python's own for a SIGINT before the handlers
         exit_interrupted(err)
@@ -151,5 +181,10 @@ def handled():
         exit_input_error(err, exit_code(err))
     except BrokenPipeError:
         sys.exit(128 + signal.SIGPIPE)  # the reader of our output went away: nothing to report to
-    except OSError as err:
-        exit_input_error(os_error_line(err))
+    except Exception as err:
+        # out of memory, threads or descriptors wherever it happened (an import, a library's thread start)
+        if (machine := _resource_line(err)) is not None:
+            exit_input_error(machine)
+        if isinstance(err, OSError):
+            exit_input_error(os_error_line(err))
+        raise

@@ -17,6 +17,34 @@ from slamobs.cli.progress import compile_notice, status_line
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
+def _allocators_for_a_memory_limit() -> None:
+    """Under an address-space limit (``ulimit -v``), which counts address space reserved ahead as used, allocators
+    reserve less (before any thread starts and before pyarrow loads); without a limit nothing changes. pyarrow
+    allocates with malloc, not mimalloc (under ``ulimit -v 600000`` mimalloc reserved 186 MB for a 1000-element
+    array, malloc 58 MB); glibc's malloc keeps one arena instead of one per thread (each reserves 64 MB): the sample
+    log's run then passes under ``ulimit -v 700000`` instead of needing 1000000."""
+    try:
+        import resource
+
+        limited = resource.getrlimit(resource.RLIMIT_AS)[0] != resource.RLIM_INFINITY
+    except (ImportError, OSError, ValueError):
+        return
+    if not limited:
+        return
+    os.environ.setdefault("ARROW_DEFAULT_MEMORY_POOL", "system")
+    if "MALLOC_ARENA_MAX" not in os.environ:  # set by the user: glibc has read it already
+        os.environ["MALLOC_ARENA_MAX"] = "1"  # for the processes this one starts (batch workers, figure helper)
+        try:
+            import ctypes
+
+            ctypes.CDLL(None).mallopt(-8, 1)  # M_ARENA_MAX, for this process (glibc; elsewhere no such symbol)
+        except (OSError, AttributeError):
+            pass
+
+
+_allocators_for_a_memory_limit()
+
+
 class _Group(click.Group):
     """Every command ends the same way when it cannot finish (:mod:`cli.errors`): one ``error:`` line and exit
     code 2, or exit 130/143 after SIGINT/SIGTERM; never a traceback or click's usage text."""
@@ -79,6 +107,10 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
+    from slamobs.cli.errors import working_on
+    from slamobs.pipeline.paths import run_memory_mb
+
+    working_on(log, "a run of this log", run_memory_mb(log))
     from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
@@ -146,6 +178,9 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
     """Run several observers on LOG and write a side-by-side table and an overlay plot."""
     from dataclasses import replace
 
+    from slamobs.cli.errors import working_on
+
+    working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
     from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.errors import InputError

@@ -34,6 +34,8 @@ import numba
 from numba import njit
 from numba.core import caching
 
+from slamobs.pipeline import native
+
 __all__ = ["cache_root", "install", "njit", "prune", "source_stamp"]
 
 #: Cache files not written for this many days are removed when a run has compiled something (kernels of
@@ -185,11 +187,31 @@ def prune(max_age_days: float = MAX_AGE_DAYS, root: Path | None = None) -> int:
     return removed
 
 
+def _save_or_skip(save):
+    """numba's ``Cache.save_overload`` for our kernels, where a cache file that cannot be written (disk full, a
+    file-size or quota limit, a read-only cache) only means compiling again next time: numba raises it, and a
+    run reading a good log then failed with the write error (the reader took it for a damaged chunk)."""
+
+    def save_overload(self, sig, data):
+        try:
+            return save(self, sig, data)
+        except OSError:
+            if not isinstance(getattr(self._impl, "locator", None), KernelLocator):
+                raise
+
+    save_overload.slamobs_skips_unwritable = True
+    return save_overload
+
+
 def install() -> None:
-    """Put :class:`KernelLocator` first among numba's cache locators (once)."""
+    """Put :class:`KernelLocator` first among numba's cache locators, and let its cache writes fail quietly
+    (once)."""
     impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
     if KernelLocator not in impl._locator_classes:
         impl._locator_classes = [KernelLocator, *impl._locator_classes]
+    if not getattr(caching.Cache.save_overload, "slamobs_skips_unwritable", False):
+        caching.Cache.save_overload = _save_or_skip(caching.Cache.save_overload)
 
 
 install()
+native.start()  # BLAS and numba's array functions start here, on the importing (main) thread, not on a reader's

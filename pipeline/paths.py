@@ -393,3 +393,28 @@ def exclusive(lock_file: Path, out: Path, holder: str) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def log_size(path: str | Path) -> int:
+    """Bytes on disk of a log file or rosbag2 directory."""
+    p = Path(path)
+    if p.is_dir():
+        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
+    return p.stat().st_size
+
+
+#: Address space (``ulimit -v``) a run needs: a base (interpreter, numba and LLVM, pyarrow, the threads' stacks
+#: and malloc arena, pyarrow, matplotlib) and an amount per MB of log, from the smallest limits under which runs
+#: through the CLI succeeded (16-20 MB steps): sample_logs/figure8.mcap (1.9 MB) 670-684 MB, a simulated 600 s
+#: figure8 (26 MB) 702-722 MB. A guide for the message of a run that ran out, not a check.
+RUN_BASE_MB, RUN_MB_PER_LOG_MB = 660, 2.0
+
+
+def run_memory_mb(log: str | Path) -> int | None:
+    """About how much address space a run of ``log`` needs, in MB (rounded up to 50), None when its size is
+    unknown."""
+    try:
+        size_mb = log_size(log) / 2**20
+    except OSError:
+        return None
+    return int(-(-(RUN_BASE_MB + RUN_MB_PER_LOG_MB * size_mb) // 50) * 50)

@@ -27,7 +27,7 @@ from slamobs.pipeline.version import __version__
 from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import GainError, InputError
+from slamobs.pipeline.errors import GainError, InputError, machine_failure, one_line, resource_error
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
 from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
 from slamobs.pipeline.observers.base import ObserverDiverged
@@ -262,7 +262,7 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
     ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
     report's figures are drawn by that many helper processes started now, which import matplotlib while the
     log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``)."""
-    from slamobs.pipeline.paths import check_output
+    from slamobs.pipeline.paths import check_output, run_memory_mb
 
     spec = resolve_estimator(config)  # fail on bad gains (and estimator settings) before reading a large log
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
@@ -280,6 +280,10 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
             workers.close()  # no report, no figures
         return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress,
                             plot_workers=workers)
+    except Exception as err:
+        if (machine := resource_error(err, log, "a run of this log", run_memory_mb(log))) is not None:
+            raise machine from None
+        raise
     finally:
         if workers is not None:
             workers.close()
@@ -620,9 +624,11 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands
         if (stop := interrupts.interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a bad truth
             raise stop from None
+        if machine_failure(err):  # out of memory or threads: the run fails, never a run without its report
+            raise
         for name in REPORT_FILES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)
-        reason = " ".join(str(err).split()) or type(err).__name__
+        reason = one_line(err) or type(err).__name__
         if not isinstance(err, ValueError):
             reason = f"{type(err).__name__}: {reason}"
         notes.append(f"no error report: {reason}")

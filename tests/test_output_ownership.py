@@ -360,7 +360,10 @@ def test_publish_replaces_only_the_checked_entry(tmp_path, monkeypatch, renameat
             writers.publish(new(f"n-{kind}"), out, None, aside=aside)
         assert users.read_text() == "user"
         assert (tmp_path / f"n-{kind}" / "run.json").is_file()  # ours stays with the caller
-        shutil.rmtree(out) if kind == "directory" else out.unlink()
+        if kind == "directory":
+            shutil.rmtree(out)
+        else:
+            out.unlink()
     earlier = new("out")
     checked = identity(earlier)
     (out / "thesis.tex").write_text("user")  # added after the check

@@ -29,7 +29,7 @@ from slamobs.pipeline.batch.executor import (
     InfrastructureError,
     Task,
     failed_row,
-    one_line,
+    failure_text,
     run_task,
 )
 from slamobs.pipeline.batch.local import STARTUP_S
@@ -60,7 +60,7 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
     except Late:
         raise InfrastructureError(f"{where}: the Dask workers did not answer within {within:g} s") from None
     except Exception as err:  # noqa: BLE001 - e.g. the scheduler went away meanwhile
-        raise InfrastructureError(f"{where}: cannot ask the Dask workers for their environment ({one_line(err)})") from None
+        raise InfrastructureError(f"{where}: cannot ask the Dask workers for their environment ({failure_text(err)})") from None
     finally:
         pool.shutdown(wait=False)
         cloudpickle.unregister_pickle_by_value(probe)
@@ -68,7 +68,7 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
         raise InfrastructureError(f"{where}: no Dask workers")
     for addr, ans in sorted(answers.items()):
         if not isinstance(ans, dict):
-            raise InfrastructureError(f"Dask worker {addr}: cannot run the environment check ({one_line(ans)})")
+            raise InfrastructureError(f"Dask worker {addr}: cannot run the environment check ({failure_text(ans)})")
         if not ans["ok"]:
             raise InfrastructureError(f"Dask worker {addr} ({ans['host']}, {ans['python']}): cannot import slamobs "
                                       f"({ans['error']}); install slamobs {version} on every worker")
@@ -117,7 +117,7 @@ class DaskPool:
             try:
                 self.client = Client(self.scheduler, timeout=f"{max(1.0, min(self.wait_workers, 30.0))}s")
             except (OSError, TimeoutError, ValueError) as err:
-                raise InfrastructureError(f"{self.scheduler}: cannot reach the Dask scheduler ({one_line(err)})") from None
+                raise InfrastructureError(f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})") from None
         else:
             self.cluster = LocalCluster(n_workers=self.jobs, processes=True, threads_per_worker=1,
                                         dashboard_address=None, silence_logs=logging.ERROR)
@@ -184,13 +184,13 @@ class DaskPool:
                         if isinstance(err, EnvironmentMismatch):
                             raise InfrastructureError(f"Dask worker: {err}")
                         if isinstance(err, ImportError):
-                            raise InfrastructureError(f"a Dask worker cannot import slamobs ({one_line(err)}); "
+                            raise InfrastructureError(f"a Dask worker cannot import slamobs ({failure_text(err)}); "
                                                       "install it on every worker")
                         if isinstance(err, KilledWorker):
                             yield task, failed_row(task, f"{task.log}: Dask workers died while running this log, "
                                                          "every retry (crash or out of memory)")
                         else:
-                            yield task, failed_row(task, one_line(err, task.log))
+                            yield task, failed_row(task, failure_text(err, task.log))
                 now = time.monotonic()
                 if self._workers() == 0:
                     no_workers_since = no_workers_since or now

@@ -27,7 +27,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import InfrastructureFailure
+from slamobs.pipeline.errors import InfrastructureFailure, one_line
 
 EXECUTORS = ("local", "dask")
 #: Written into a task's staging directory as its run begins (worker and pid): what an operator, or a kill test,
@@ -83,11 +83,11 @@ class Task:
         return cls(run_id, log, out, config, version=__version__, code=code_hash(), **kwargs)
 
 
-def one_line(err: BaseException, where: str | None = None) -> str:
-    """An exception as one summary line naming the file (InputError texts already do)."""
+def failure_text(err: BaseException, where: str | None = None) -> str:
+    """A failed run's error for its summary row: one line naming the file (InputError texts already do)."""
     from slamobs.pipeline.errors import InputError
 
-    text = " ".join(str(err).split())
+    text = one_line(err)
     if not isinstance(err, InputError):
         text = f"{type(err).__name__}: {text}" if text else type(err).__name__
         text = f"{where}: {text}" if where else text
@@ -228,17 +228,17 @@ def run_task(task: Task, pipeline=_run) -> dict:
         except Exception as err:  # noqa: BLE001 - one failing log must never stop the batch
             remove_path(staged)
             if err is changed:
-                row = retry_row(task, one_line(err), "changed")
+                row = retry_row(task, failure_text(err), "changed")
             elif is_resource_failure(err):
-                row = retry_row(task, one_line(err, task.log), "machine")
+                row = retry_row(task, failure_text(err, task.log), "machine")
             else:
-                row = failed_row(task, one_line(err, task.log))
+                row = failed_row(task, failure_text(err, task.log))
         finally:
             done.set()
     texts = data_warnings + list(dict.fromkeys(
         f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught))
     row["warning_count"] = len(texts)
-    row["warnings"] = "; ".join(" ".join(t.split()) for t in texts)[:1000] or None
+    row["warnings"] = "; ".join(one_line(t) for t in texts)[:1000] or None
     row["total_s"] = time.perf_counter() - t0
     if row["status"] == "ok":
         row["tables"] = ",".join(tables)
@@ -246,5 +246,5 @@ def run_task(task: Task, pipeline=_run) -> dict:
             write_run_meta(staged, task.run_id, tables, row)
         except OSError as err:  # e.g. the staging area was removed under an orphaned task, or a full disk
             remove_path(staged)
-            row = {**retry_row(task, one_line(err, str(staged)), "machine"), "total_s": row["total_s"]}
+            row = {**retry_row(task, failure_text(err, str(staged)), "machine"), "total_s": row["total_s"]}
     return row

@@ -13,7 +13,7 @@ def worker_main(_bound, conn, run) -> None:
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    from slamobs.pipeline.batch.executor import EnvironmentMismatch, failed_row, one_line
+    from slamobs.pipeline.batch.executor import EnvironmentMismatch, failed_row, failure_text
 
     while True:
         try:
@@ -28,5 +28,5 @@ def worker_main(_bound, conn, run) -> None:
         except EnvironmentMismatch as err:
             result = ("mismatch", str(err))
         except Exception as err:  # noqa: BLE001 - run_task does not raise; a test's run function might
-            result = ("row", failed_row(task, one_line(err, task.log)))
+            result = ("row", failed_row(task, failure_text(err, task.log)))
         conn.send(result)

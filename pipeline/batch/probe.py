@@ -14,6 +14,6 @@ def probe() -> dict:
         return {"ok": True, "version": __version__, "code": code_hash(), "host": socket.gethostname(),
                 "python": sys.executable}
     except Exception as err:  # noqa: BLE001 - whatever it is, it is the answer
-        text = " ".join(str(err).split())
+        text = " ".join(str(err).split())  # errors.one_line, without importing slamobs, which may be what failed
         return {"ok": False, "error": f"{type(err).__name__}: {text}", "host": socket.gethostname(),
                 "python": sys.executable}

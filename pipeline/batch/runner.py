@@ -41,7 +41,7 @@ from slamobs.pipeline.batch.executor import (
     Task,
     base_row,
     failed_row,
-    one_line,
+    failure_text,
     retry_row,
     run_task,
 )
@@ -188,7 +188,7 @@ def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCac
                 check_config(cfg)
                 configs[key] = cfg
             except Exception as err:  # noqa: BLE001 - a bad per-log config fails that log only
-                configs[key] = one_line(err, str(entry.config))
+                configs[key] = failure_text(err, str(entry.config))
         return configs[key]
 
     derived: dict[int, tuple[dict, str]] = {}  # per config object: its dict and hash, computed once

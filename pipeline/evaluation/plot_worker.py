@@ -29,6 +29,10 @@ from typing import Any
 #: A figure to draw: the name of a ``plots`` function, the file name it goes to, its keyword arguments.
 Job = tuple[str, str, dict[str, Any]]
 
+#: Exit status of a helper (or one of its children) that ran out of memory or threads (it prints nothing): the
+#: run fails with one line saying so, instead of a traceback and a report without figures.
+OUT_OF_MEMORY = 3
+
 
 def free_cores(loadavg: str | None = None) -> int:
     """CPUs this process may use that nothing else keeps busy right now: the CPUs of its affinity less this
@@ -97,7 +101,11 @@ class PlotWorkers:
                     feed.join()
                 proc.stdin.close()  # the helper's cue to answer
                 data = proc.stdout.read()
-                if proc.wait() != 0 or (share and not data):
+                if proc.wait() == OUT_OF_MEMORY:
+                    from slamobs.pipeline.errors import resource_error
+
+                    raise resource_error(MemoryError(), out, "drawing the report's figures")
+                if proc.returncode != 0 or (share and not data):
                     raise RuntimeError(f"the figure helper process ended with status {proc.returncode}")
                 if share:
                     images.update(zip(share, pickle.loads(data), strict=True))
@@ -160,12 +168,27 @@ def draw(jobs: list[Job], target=None) -> list[Any]:
 
 
 def _main() -> None:
+    """The helper: out of memory or threads it ends with :data:`OUT_OF_MEMORY` (and no traceback)."""
+    try:
+        _serve()
+    except Exception as err:
+        from slamobs.pipeline.errors import machine_failure
+
+        if machine_failure(err):
+            os._exit(OUT_OF_MEMORY)
+        raise
+
+
+def _serve() -> None:
     import signal
 
     from slamobs.pipeline.lifetime import bind_to_parent
 
     bind_to_parent(int(sys.argv[1]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    from slamobs.pipeline.native import start_blas
+
+    start_blas()  # OpenBLAS's start-up under a memory limit: a MemoryError here, not "OpenBLAS error" and exit 1
     from slamobs.pipeline.evaluation.plots import warm_up
 
     warm_up()
@@ -226,7 +249,7 @@ class _Batches:
                 self._reap(*os.waitpid(pid, 0))
             if self.status[pid] != 0:
                 sys.stderr.flush()
-                os._exit(1)
+                os._exit(self.status[pid] if self.status[pid] == OUT_OF_MEMORY else 1)
             out.seek(0)
             images += pickle.load(out)
         return images
@@ -257,11 +280,16 @@ def _child(jobs: list[Job], out, helper: int) -> None:
         pickle.dump(_pngs(jobs), out, protocol=pickle.HIGHEST_PROTOCOL)
         out.flush()
         status = 0
-    except BaseException:  # noqa: BLE001 - a child must never return into the helper's loop
-        import traceback
+    except BaseException as err:  # noqa: BLE001 - a child must never return into the helper's loop
+        from slamobs.pipeline.errors import machine_failure
 
-        traceback.print_exc()
-        sys.stderr.flush()
+        if machine_failure(err):
+            status = OUT_OF_MEMORY
+        else:
+            import traceback
+
+            traceback.print_exc()
+            sys.stderr.flush()
     finally:
         os._exit(status)
 

@@ -160,6 +160,10 @@ class _Pending:
     def __init__(self, func, *args, **kwargs) -> None:
         import threading
 
+        from slamobs.pipeline.native import BLAS_START_MB, check_room
+
+        # matrix products on two threads at once take a second OpenBLAS buffer, whose failure ends the process
+        check_room("compute beside the report (a second OpenBLAS buffer)", BLAS_START_MB)
         self._value = self._error = None
         self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report",
                                         daemon=True)

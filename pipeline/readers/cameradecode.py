@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, machine_failure
 from slamobs.pipeline.streams import CornerStream
 from slamobs.pipeline.vision.tagpose import winding
 
@@ -221,6 +221,8 @@ def detect_in_images(
         try:
             msg = reader.deserialize(raw, conn.msgtype)
         except Exception as err:  # rosbags raises struct/index errors on bad payloads
+            if machine_failure(err):
+                raise
             cam.bad[f"undecodable message ({type(err).__name__})"] += 1
             continue
         t_ns = _stamp(msg)

@@ -54,7 +54,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 from rosbags.typesys.msg import normalize_msgtype
 
-from slamobs.pipeline.errors import BadInput, InputError
+from slamobs.pipeline.errors import BadInput, InputError, machine_failure, resource_error
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
@@ -178,7 +178,10 @@ def detect_container(path: str | Path) -> Container:
 
 
 def _explain(container: Container, err: BaseException) -> InputError:
-    """Turn a reader exception into the one-line InputError for this container."""
+    """Turn a reader exception into the one-line InputError for this container: out of memory, threads or
+    descriptors is the machine's failure (:class:`~slamobs.pipeline.errors.ResourceError`), never a corrupt log."""
+    if (machine := resource_error(err, container.path, f"reading the {container.label}")) is not None:
+        return machine
     reason = _one_line(err.args[0] if len(err.args) == 1 else err)
     if not reason:
         reason = "index and data disagree" if isinstance(err, AssertionError) else type(err).__name__
@@ -322,7 +325,9 @@ def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> byt
                 return lz4.frame.LZ4FrameDecompressor().decompress(blob)
             if compression == "bz2":
                 return bz2.BZ2Decompressor().decompress(blob)
-        except (RuntimeError, OSError, ValueError, zstandard.ZstdError):
+        except (RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
+            if machine_failure(err):
+                raise
             return b""
     if compression == "zstd":
         raw = zstandard.ZstdDecompressor().decompress(blob, max_output_size=raw_size)
@@ -618,6 +623,8 @@ class _Chunked:
         try:
             return self.load(unit, ids)
         except _CHUNK_ERRORS as err:
+            if machine_failure(err):  # e.g. zstd's "Allocation error": the chunk is fine, the memory is not
+                raise
             self.lose(unit.pos, unit.messages, unit.start_ns, _one_line(err).rstrip(".") or type(err).__name__)
             return None
 
@@ -834,6 +841,8 @@ class Ros1Bag(_Chunked, Reader1):
                 try:
                     data = _read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError) as err:
+                    if machine_failure(err):
+                        raise
                     where = f"unreadable chunk: {_one_line(err).rstrip('.')}"
                     break
                 recs = _records(_ros1_walk, data)
@@ -1028,6 +1037,8 @@ class McapStorage(_Chunked, McapReader):
                 try:
                     data = _read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
+                    if machine_failure(err):
+                        raise
                     where = f"unreadable chunk: {_one_line(err).rstrip('.')}"
                     break
                 recs = _records(_mcap_walk, data)

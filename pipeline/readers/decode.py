@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, resource_error
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
 from .container import iter_raw, require_definitions
@@ -204,6 +204,8 @@ def _deserialize(reader: AnyReader, path: str | Path, raw: bytes, conn: Connecti
     try:
         return reader.deserialize(raw, conn.msgtype)
     except Exception as err:  # rosbags raises struct/index errors on bad payloads too
+        if (machine := resource_error(err, path, "decoding the log")) is not None:
+            raise machine from None
         reason = " ".join(str(err).split()) or type(err).__name__
         raise InputError(path, f"cannot decode {conn.msgtype} message: {reason}", conn.topic) from None
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, resource_error
 from slamobs.pipeline.streams import PoseStream
 
 NS_PER_S = 1_000_000_000
@@ -279,6 +279,8 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
     except FileNotFoundError:
         raise InputError(path, "no such file") from None
     except Exception as err:  # pyarrow raises several types for a bad file
+        if (machine := resource_error(err, path, "reading the trajectory")) is not None:
+            raise machine from None
         raise InputError(path, f"cannot read Parquet: {' '.join(str(err).split())}") from None
     missing = [c for c in POSE_COLUMNS if c not in table.column_names]
     if missing:

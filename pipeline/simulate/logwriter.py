@@ -23,6 +23,7 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
+from slamobs.pipeline.paths import log_size
 from slamobs.pipeline.readers.fastdecode import leaf_offsets, make_plan
 from slamobs.pipeline.simulate.sensors import (
     FRAME_BODY,
@@ -596,14 +597,6 @@ def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None 
     with atomic_file(final, why_kept=partial(why_kept, overwrite=overwrite)) as tmp:
         _WRITERS[container](sim, tmp)
     return final
-
-
-def log_size(path: str | Path) -> int:
-    """Bytes on disk of a log file or rosbag2 directory."""
-    p = Path(path)
-    if p.is_dir():
-        return sum(f.stat().st_size for f in p.rglob("*") if f.is_file())
-    return p.stat().st_size
 
 
 __all__ = [

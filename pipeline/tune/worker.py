@@ -17,7 +17,7 @@ from collections import OrderedDict
 from dataclasses import replace
 from pathlib import Path
 
-from slamobs.pipeline.batch.executor import Task, base_row, check_environment, one_line
+from slamobs.pipeline.batch.executor import Task, base_row, check_environment, failure_text
 
 #: Logs a worker process keeps prepared (least recently used dropped first).
 CACHE_LOGS = 32
@@ -116,9 +116,9 @@ def run_trial_log(task: Task) -> dict:
     except ObserverDiverged as err:
         row.update(status="diverged", error=f"{task.log}: observer diverged (non-finite state) at t_ns={err.t_ns}")
     except (InputError, GainError, OSError, ValueError) as err:
-        row.update(status="failed", error=one_line(err, task.log), fatal=True)
+        row.update(status="failed", error=failure_text(err, task.log), fatal=True)
     except Exception as err:  # noqa: BLE001 - reported as the trial's failure, the tune decides
-        row.update(status="failed", error=one_line(err, task.log))
+        row.update(status="failed", error=failure_text(err, task.log))
     row["total_s"] = time.perf_counter() - t0
     return row
 

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import BadInput, InputError
+from slamobs.pipeline.errors import BadInput, InputError, one_line
 
 #: Tag family names -> OpenCV dictionary constants (``tags.family``; ``tag36h11``, ``DICT_4X4_50`` also work).
 FAMILIES: dict[str, str] = {
@@ -90,7 +90,7 @@ class TagDetector:
             try:
                 setattr(params, name, _setting(name, current, value))
             except (TypeError, ValueError, OverflowError, cv2.error) as err:
-                raise InputError(self.path, f"tags.detector: {name} = {value!r}: {_one_line(err)}") from None
+                raise InputError(self.path, f"tags.detector: {name} = {value!r}: {_condition(err)}") from None
         self._error = cv2.error
         self._detector = cv2.aruco.ArucoDetector(dictionary, params)
         self.refine = params.cornerRefinementMethod == 0
@@ -104,7 +104,7 @@ class TagDetector:
             corners, ids, _ = self._detector.detectMarkers(gray)
         except self._error as err:  # settings OpenCV rejects (images are valid 8-bit grey by now)
             raise InputError(self.path, f"tags.detector: OpenCV rejects the settings {self.parameters}: "
-                                        f"{_one_line(err)}") from None
+                                        f"{_condition(err)}") from None
         if ids is None or len(ids) == 0:
             return np.zeros(0, np.int64), np.zeros((0, 4, 2))
         corners = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
@@ -150,9 +150,9 @@ def _setting(name: str, current: bool | int | float, value: Any) -> bool | int |
     return float(value)
 
 
-def _one_line(err: Exception) -> str:
+def _condition(err: Exception) -> str:
     """An OpenCV error's condition (``cv2.error.err``) or any error's text, on one line."""
-    return " ".join(str(getattr(err, "err", None) or err).split())
+    return one_line(getattr(err, "err", None) or err)
 
 
 def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
