@@ -140,14 +140,14 @@ def test_config_that_names_nothing_or_is_implausible_is_one_line(logs, tmp_path,
     cfg = tmp_path / "run.yaml"
     cfg.write_text(text)
     out = tmp_path / "out"
-    with _no_warnings():
+    with no_runtime_warnings():
         res = invoke("run", logs["bag"], "-o", out, "--config", cfg)
     one_line_error(res, str(cfg), *BAD_CONFIGS[text])
     assert not out.exists()
 
 
-class _no_warnings:  # noqa: N801 - a context manager read as a phrase
-    """Fails the block if it emits any Python warning (a zero gravity once gave a numpy RuntimeWarning)."""
+class no_runtime_warnings:  # noqa: N801 - a context manager read as a phrase
+    """Fails the block if it emits a RuntimeWarning (a zero gravity once gave numpy's; divide-by-zero, overflow)."""
 
     def __enter__(self):
         import warnings
