@@ -19,21 +19,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from slamobs.cli.main import main
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import read_log
 from slamobs.pipeline.simulate import expected_streams, simulate, write_log
 from slamobs.pipeline.simulate.sensors import TOPIC_DETECTIONS, TOPIC_IMU
+from cli_checks import invoke
 
 NS = 1_000_000_000
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
 
 
 def one_line_error(res, *needles: str) -> str:
