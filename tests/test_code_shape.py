@@ -23,8 +23,6 @@ ALLOWED = {
     "pipeline/readers/__init__.py::read_log": "the readers are being split by another developer (issue 24)",
     "pipeline/readers/container.py::McapStorage._scan": "the readers are being split by another developer (issue 24)",
     "pipeline/readers/container.py::Ros1Bag._recover": "the readers are being split by another developer (issue 24)",
-    "pipeline/evaluation/report.py::evaluate_tables": "the report is being split by another developer (issue 24)",
-    "pipeline/results_mcap.py::_write": "results_mcap is being split by another developer (issue 24)",
 }
 
 
