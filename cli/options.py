@@ -18,6 +18,10 @@ class Finite(click.FloatRange):
 
     name = "float"
 
+    def _describe_range(self) -> str:
+        """Nothing for an unbounded number (click printed ``[x<=None]`` in the help)."""
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
     def convert(self, value, param, ctx):
         number = super().convert(value, param, ctx)
         if not math.isfinite(number):
