@@ -29,6 +29,18 @@ class Finite(click.FloatRange):
         return number
 
 
+class Spelled(click.Choice):
+    """Choices spelled with dashes, as the help shows them (the CLI turns ``_`` into ``-``), that also take evo's
+    underscores (``trans_part``) when the command runs outside the ``slamobs`` group; the command gets the
+    underscore spelling its code uses."""
+
+    def __init__(self, choices) -> None:
+        super().__init__([c.replace("_", "-") for c in choices])
+
+    def convert(self, value, param, ctx):
+        return super().convert(str(value).replace("_", "-"), param, ctx).replace("-", "_")
+
+
 #: Largest time option in seconds: times become int64 nanoseconds (9.2e9 s), and 1e9 s is 31 years.
 MAX_SECONDS = 1e9
 
