@@ -36,6 +36,7 @@ from __future__ import annotations
 import argparse
 import bz2
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -57,7 +58,7 @@ from slamobs.pipeline.readers.roles import TF_TYPES, topics_of
 from slamobs.pipeline.simulate import make_typestore, simulate, write_log
 from slamobs.pipeline.simulate.logwriter import write_raw_log
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REALDATA = Path(os.environ.get("SLAMOBS_REALDATA") or Path(__file__).resolve().parents[2] / "shared" / "realdata")
 Columns = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]]  # topic -> t, rec, values, frames
 
 

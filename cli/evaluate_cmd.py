@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import Finite, Seconds, offset_seconds, quiet_option
+from slamobs.cli.options import Finite, Seconds, Spelled, offset_seconds, quiet_option
 from slamobs.cli.progress import compile_notice
 
 RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
@@ -24,8 +24,8 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
 @click.argument("est")
 @click.option("--metric", type=click.Choice(["ape", "rpe"]), default="ape", show_default=True,
               help="absolute (evo_ape) or relative (evo_rpe) pose error")
-@click.option("-r", "--pose-relation", "--pose_relation", "relation", type=click.Choice(RELATIONS),
-              default="trans_part", show_default=True, help="pose relation the error is based on (evo -r)")
+@click.option("-r", "--pose-relation", "--pose_relation", "relation", type=Spelled(RELATIONS),
+              default="trans-part", show_default=True, help="pose relation the error is based on (evo -r)")
 @click.option("-a", "--align", is_flag=True, help="SE(3) Umeyama alignment (with -s: Sim(3))")
 @click.option("-s", "--correct-scale", "--correct_scale", is_flag=True, help="correct the scale (Umeyama)")
 @click.option("--align-origin", "--align_origin", is_flag=True, help="align the first poses")
@@ -39,8 +39,8 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
               help="maximum timestamp difference for data association [s]")
 @click.option("--t-offset", "--t_offset", default="0.0", show_default=True,
               help="seconds added to the estimate stamps for the association, or 'auto' (estimated)")
-@click.option("--sync-method", "--sync_method", type=click.Choice(["nearest_time", "interpolation"]),
-              default="nearest_time", show_default=True,
+@click.option("--sync-method", "--sync_method", type=Spelled(["nearest_time", "interpolation"]),
+              default="nearest-time", show_default=True,
               help="nearest stamps, or the denser trajectory interpolated at the sparser one's stamps")
 @click.option("--estimate-t-offset", is_flag=True, help="estimate the clock offset of EST and print it")
 @click.option("--delta", type=Finite(), default=1.0, show_default=True, help="RPE: delta between pose pairs")

@@ -155,7 +155,7 @@ def _print_summary(summary) -> None:
         err = (r.get("biases") or {}).get("error_norm")
         if err:
             click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-        from slamobs.pipeline.evaluation.report import convergence_line
+        from slamobs.pipeline.evaluation.markdown import convergence_line
 
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:

@@ -18,11 +18,27 @@ class Finite(click.FloatRange):
 
     name = "float"
 
+    def _describe_range(self) -> str:
+        """Nothing for an unbounded number (click printed ``[x<=None]`` in the help)."""
+        return "" if self.min is None and self.max is None else super()._describe_range()
+
     def convert(self, value, param, ctx):
         number = super().convert(value, param, ctx)
         if not math.isfinite(number):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return number
+
+
+class Spelled(click.Choice):
+    """Choices spelled with dashes, as the help shows them (the CLI turns ``_`` into ``-``), that also take evo's
+    underscores (``trans_part``) when the command runs outside the ``slamobs`` group; the command gets the
+    underscore spelling its code uses."""
+
+    def __init__(self, choices) -> None:
+        super().__init__([c.replace("_", "-") for c in choices])
+
+    def convert(self, value, param, ctx):
+        return super().convert(str(value).replace("_", "-"), param, ctx).replace("-", "_")
 
 
 #: Largest time option in seconds: times become int64 nanoseconds (9.2e9 s), and 1e9 s is 31 years.

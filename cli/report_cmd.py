@@ -67,7 +67,7 @@ def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset:
            bias_window: float | None, export: tuple[str, ...] | None, as_json: bool, quiet: bool) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically."""
     from slamobs.pipeline.errors import InputError
-    from slamobs.pipeline.evaluation.report import ReportOptions
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
     from slamobs.pipeline.evaluation.run_dir import load_run, options_for_run, report_run
 
     given = {"t_max_diff_s": t_max_diff, "align": align, "convergence_threshold_m": convergence_threshold,
@@ -115,7 +115,7 @@ def _summary(r: dict, written: list[Path]) -> None:
     err = (r.get("biases") or {}).get("error_norm")
     if err:
         click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-    from slamobs.pipeline.evaluation.report import convergence_line
+    from slamobs.pipeline.evaluation.markdown import convergence_line
 
     conv = convergence_line(r.get("convergence") or {})
     if conv is not None:

@@ -521,7 +521,39 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
     t_det = _times(det, fr.time_source)
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
-    order = np.argsort(t_det, kind="stable")
+    in_span = _frames_in_span(det, t_det, lo, hi, gaps, notes)
+    cam_ext, in_span, keep_rows, row_of = _camera_to_body(fr, det, t_det, frame_of, in_span, notes)
+    frames = np.argsort(t_det, kind="stable")
+    frames = frames[in_span[frames]]
+    sel = _unique_rows(det, frame_of, _kept_rows(in_span, frame_of, keep_rows), notes)
+    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], row_of if sel is None else row_of[sel])
+    del row_of
+    # range for the gates: from the sensor when it is fixed on the body (one static camera, or the cameras of a
+    # rig), else (frames moving relative to the body, e.g. TF tag frames under a world frame) from the body origin
+    fixed_sensor = bool(det.cameras) or cam_ext.rot.ndim == 2
+    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if fixed_sensor else None
+    if sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1)):
+        del frame_of  # every detection, frames already in time order
+        ids, per_frame = det.ids, counts
+    else:
+        frame_rank = _rank_in(frames, len(det))[frame_of if sel is None else frame_of[sel]]
+        del frame_of
+        det_y, rng, ids, per_frame = _in_frame_order(frame_rank, frames.size, det_y, rng,
+                                                      det.ids if sel is None else det.ids[sel])
+        del frame_rank
+    t_frames = t_det[frames]
+    n_gated = ids.shape[0]
+    det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
+                                                  else rng, ids, per_frame, t_frames, lim, notes)
+    offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
+    landmark_ids, det_idx = _landmark_index(path, det, ids, n_gated, counts, notes)
+    return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
+            np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+
+
+def _frames_in_span(det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None,
+                    notes: list[str]) -> np.ndarray:
+    """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted)."""
     in_span = (t_det >= lo) & (t_det <= hi)
     if n_out := len(det) - int(np.count_nonzero(in_span)):
         notes.append(f"{n_out} detection frames outside the velocity span dropped")
@@ -532,61 +564,65 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
         if n_gap := int(np.count_nonzero(in_span & in_gap)):
             notes.append(f"{det.topic}: {n_gap} detection frames inside velocity gaps (between segments) dropped")
             in_span &= ~in_gap
+    return in_span
+
+
+def _camera_to_body(fr: _Frame, det: DetectionStream, t_det: np.ndarray, frame_of: np.ndarray, in_span: np.ndarray,
+                    notes: list[str]):
+    """The camera-to-body transform, the frames still kept, the rows kept (None: by frame) and each row's
+    transform index: frames or rows without a transform are dropped (and noted)."""
     if det.cameras:  # several cameras: one transform per detection row
         cam_ext, row_ok = _camera_rows(fr, det, t_det, frame_of)
         keep_rows = in_span[frame_of] if row_ok is None else in_span[frame_of] & row_ok
-        row_of = np.arange(det.ids.shape[0])  # rows of the per-row transforms
-    else:
-        cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
-        if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
-            notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
-            in_span &= cam_ext.valid
-        keep_rows, row_of = None, frame_of
-    frames = order[in_span[order]]
-    del order
+        return cam_ext, in_span, keep_rows, np.arange(det.ids.shape[0])  # rows of the per-row transforms
+    cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
+    if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
+        notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
+        in_span &= cam_ext.valid
+    return cam_ext, in_span, None, frame_of
+
+
+def _kept_rows(in_span: np.ndarray, frame_of: np.ndarray, keep_rows: np.ndarray | None) -> np.ndarray | None:
+    """Indices of the detection rows kept, None when every row is (no copy for a clean log)."""
     if keep_rows is None:
-        sel = None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)  # None: every row
-    else:
-        sel = None if bool(keep_rows.all()) else np.flatnonzero(keep_rows).astype(np.int64)
-    # One detection per id and frame: repeated ids in one frame are ambiguous; keep the first.
+        return None if bool(in_span.all()) else np.flatnonzero(in_span[frame_of]).astype(np.int64)
+    return None if bool(keep_rows.all()) else np.flatnonzero(keep_rows).astype(np.int64)
+
+
+def _unique_rows(det: DetectionStream, frame_of: np.ndarray, sel: np.ndarray | None,
+                 notes: list[str]) -> np.ndarray | None:
+    """``sel`` without repeated ids within a frame: they are ambiguous, the first one is kept (and noted)."""
     n_sel = det.ids.shape[0] if sel is None else sel.size
-    if n_sel:
-        # (frame, id) pairs compared whole: a key of the id's low 32 bits took ids 5 and 5 + 2^32 for one
-        first = _first_of_pairs(frame_of if sel is None else frame_of[sel], det.ids if sel is None else det.ids[sel])
-        if first.size < n_sel:
-            notes.append(f"{det.topic}: {n_sel - first.size} repeated ids within a frame dropped")
-            mask = np.zeros(n_sel, bool)
-            mask[first] = True
-            sel = np.flatnonzero(mask) if sel is None else sel[mask]
-        del first
-    det_y = cam_ext.apply(det.xyz if sel is None else det.xyz[sel], row_of if sel is None else row_of[sel])
-    del row_of
-    # range for the gates: from the sensor when it is fixed on the body (one static camera, or the cameras of a
-    # rig), else (frames moving relative to the body, e.g. TF tag frames under a world frame) from the body origin
-    fixed_sensor = bool(det.cameras) or cam_ext.rot.ndim == 2
-    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if fixed_sensor else None
-    in_order = sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1))
-    if in_order:  # every detection, frames already in time order
-        del frame_of
-        ids = det.ids
-        per_frame = counts
-    else:
-        # ``frames`` is in time order; rebuild CSR offsets in that order.
-        rank = np.empty(len(det), np.int64)
-        rank[frames] = np.arange(frames.size)
-        frame_rank = rank[frame_of if sel is None else frame_of[sel]]
-        del frame_of, rank
-        order_det = np.argsort(frame_rank, kind="stable")
-        det_y = det_y[order_det]
-        rng = rng[order_det] if rng is not None else None
-        ids = (det.ids if sel is None else det.ids[sel])[order_det]
-        per_frame = np.bincount(frame_rank, minlength=frames.size)
-        del frame_rank, order_det
-    t_frames = t_det[frames]
-    n_gated = ids.shape[0]
-    det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
-                                                  else rng, ids, per_frame, t_frames, lim, notes)
-    offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
+    if not n_sel:
+        return sel
+    # (frame, id) pairs compared whole: a key of the id's low 32 bits took ids 5 and 5 + 2^32 for one
+    first = _first_of_pairs(frame_of if sel is None else frame_of[sel], det.ids if sel is None else det.ids[sel])
+    if first.size < n_sel:
+        notes.append(f"{det.topic}: {n_sel - first.size} repeated ids within a frame dropped")
+        mask = np.zeros(n_sel, bool)
+        mask[first] = True
+        sel = np.flatnonzero(mask) if sel is None else sel[mask]
+    return sel
+
+
+def _rank_in(frames: np.ndarray, n: int) -> np.ndarray:
+    """Position of each of ``n`` frames in the time-ordered ``frames`` (garbage for frames not in it)."""
+    rank = np.empty(n, np.int64)
+    rank[frames] = np.arange(frames.size)
+    return rank
+
+
+def _in_frame_order(frame_rank: np.ndarray, n_frames: int, det_y: np.ndarray, rng: np.ndarray | None,
+                    ids: np.ndarray):
+    """Rows sorted by their frame's rank (stable) and the rows per frame: the CSR layout in time order."""
+    order_det = np.argsort(frame_rank, kind="stable")
+    return (det_y[order_det], rng[order_det] if rng is not None else None, ids[order_det],
+            np.bincount(frame_rank, minlength=n_frames))
+
+
+def _landmark_index(path, det: DetectionStream, ids: np.ndarray, n_gated: int, counts: np.ndarray,
+                    notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The sorted landmark ids and each detection's index into them; an error naming the cause if none is left."""
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     if landmark_ids.size == 0 and n_gated:  # the gate, not the time span, took them all: say so and what to do
         gate = notes[-1].partition(": detections dropped by the range gate: ")[2].partition(";")[0]
@@ -597,8 +633,7 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
     if landmark_ids.size == 0:
         raise InputError(path, "no landmark detections inside the velocity time span (of "
                                f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)
-    return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
-            np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+    return landmark_ids, det_idx
 
 
 def _first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:

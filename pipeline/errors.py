@@ -153,6 +153,9 @@ def _failure(err: BaseException | None) -> tuple[str, BaseException] | None:
         seen.add(id(err))
         if isinstance(err, ResourceError):
             kind = "memory" if "memory" in err.problem else "thread" if "thread" in err.problem else "descriptors"
+            deeper = _failure(err.__cause__ or err.__context__)  # a writer's line hides which file could not open
+            if kind == "descriptors" and deeper is not None and isinstance(deeper[1], OSError):
+                return deeper
             return kind, err
         if isinstance(err, MemoryError):
             return "memory", err

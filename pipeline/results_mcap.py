@@ -22,8 +22,10 @@ The file is written under a temporary name next to the target and renamed into p
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -380,134 +382,191 @@ def _why_kept(path: Path, *, force: bool) -> str | None:
             "or choose another --mcap")
 
 
+class _Out:
+    """The MCAP writer: each message type's schema registered once, channels, per-channel sequence numbers."""
+
+    def __init__(self, stream, msgs: _Messages) -> None:
+        from mcap.writer import CompressionType, Writer
+
+        from slamobs.pipeline.version import __version__
+
+        self.msgs = msgs
+        self.writer = Writer(stream, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library=f"slamobs {__version__}")
+        self.schemas: dict[str, int] = {}
+        self.seq: dict[int, int] = {}
+
+    def channel(self, topic: str, msgtype: str, latched: bool = False) -> int:
+        if msgtype not in self.schemas:
+            msgdef, _ = self.msgs.ts.generate_msgdef(msgtype, ros_version=2)
+            self.schemas[msgtype] = self.writer.register_schema(name=msgtype, encoding="ros2msg",
+                                                                data=msgdef.encode())
+        return self.writer.register_channel(topic=topic, message_encoding="cdr", schema_id=self.schemas[msgtype],
+                                            metadata={"offered_qos_profiles": _latched_qos() if latched else ""})
+
+    def add(self, chan: int, t_ns: int, data: bytes) -> None:
+        n = self.seq.get(chan, 0)
+        self.writer.add_message(chan, log_time=t_ns, data=data, publish_time=t_ns, sequence=n)
+        self.seq[chan] = n + 1
+
+
+@dataclass
+class _Topics:
+    """The per-row topics of a run: each table's stamps (and rows kept at the rate), its values and channels."""
+
+    t_pose: np.ndarray
+    keep: np.ndarray
+    xyz: np.ndarray
+    quat: np.ndarray
+    ch_pose: int
+    ch_tf: int
+    innov: Any
+    t_i: np.ndarray
+    biases: Any = None
+    t_b: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    keep_b: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    ch_gyro: int | None = None
+    ch_vel: int | None = None
+    inn_chan: dict[int, int] = field(default_factory=dict)
+    updates: list = field(default_factory=list)
+    t_u: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    ch_map: int = 0
+    known: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+
 def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: float | None) -> None:
-    from mcap.writer import CompressionType, Writer
-
-    from slamobs.pipeline.version import __version__
-
+    """The results MCAP: the latched alignment and path first, then every per-row topic block by block in
+    time order, the final map last (channels registered in this order: their ids are part of the file)."""
     body = FRAME_PREFIX + str((meta.get("input") or {}).get("body_frame") or "base_link").lstrip("/")
-    msgs = _Messages(body)
-    writer = Writer(stream, compression=CompressionType.ZSTD)
-    writer.start(profile="ros2", library=f"slamobs {__version__}")
-    schemas: dict[str, int] = {}
-
-    def channel(topic: str, msgtype: str, latched: bool = False) -> int:
-        if msgtype not in schemas:
-            msgdef, _ = msgs.ts.generate_msgdef(msgtype, ros_version=2)
-            schemas[msgtype] = writer.register_schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
-        return writer.register_channel(topic=topic, message_encoding="cdr", schema_id=schemas[msgtype],
-                                       metadata={"offered_qos_profiles": _latched_qos() if latched else ""})
-
-    seq: dict[int, int] = {}
-
-    def add(chan: int, t_ns: int, data: bytes) -> None:
-        n = seq.get(chan, 0)
-        writer.add_message(chan, log_time=t_ns, data=data, publish_time=t_ns, sequence=n)
-        seq[chan] = n + 1
-
+    out = _Out(stream, _Messages(body))
     poses = _read(run_dir, "poses")
     t_pose = poses["t_ns"].to_numpy(np.int64)
-    keep = _every(t_pose, rate_hz)
     t0, t_end = (int(t_pose[0]), int(t_pose[-1])) if len(t_pose) else (0, 0)
-    ch_pose, ch_tf = channel(TOPIC_POSE, _POSE_TYPE), channel(TOPIC_TF, _TF_TYPE)
-
+    ch_pose, ch_tf = out.channel(TOPIC_POSE, _POSE_TYPE), out.channel(TOPIC_TF, _TF_TYPE)
     innov = _read(run_dir, "innovations")
     t_i = innov["t_ns"].to_numpy(np.int64) if innov is not None else np.zeros(0, np.int64)
     t0 = min(t0, int(t_i[0])) if t_i.size else t0  # detections may come before the first velocity sample
+    _write_latched(out, meta, report, poses, t0, body)
+    topics = _Topics(t_pose, _every(t_pose, rate_hz), poses[["x", "y", "z"]].to_numpy(np.float64),
+                     poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64), ch_pose, ch_tf, innov, t_i)
+    del poses
+    landmarks = _add_other_topics(out, topics, run_dir, t_end, rate_hz)
+    for block in _blocks(topics):
+        _write_block(out, *_block_messages(out.msgs, topics, *block))
+    if landmarks is not None and len(landmarks):
+        t_end = max([t_end] + [int(t[-1]) for t in (t_i, topics.t_u) if t.size])  # after every other message
+        out.add(topics.ch_map, t_end, out.msgs.markers(t_end, landmarks["id"].to_numpy(np.int64),
+                                                       landmarks[["x", "y", "z"]].to_numpy(np.float64), final=True,
+                                                       known=topics.known))
+    out.writer.finish()
 
-    # latched: the alignment onto the truth frame, the path
-    static = _alignment_transform(msgs, meta, report, t0, body)
+
+def _write_latched(out: _Out, meta: dict, report: dict | None, poses, t0: int, body: str) -> None:
+    """The latched messages: the alignment onto the truth frame, the (thinned) path."""
+    static = _alignment_transform(out.msgs, meta, report, t0, body)
     if static is not None:
-        add(channel(TOPIC_TF_STATIC, _TF_TYPE, latched=True), t0, static)
+        out.add(out.channel(TOPIC_TF_STATIC, _TF_TYPE, latched=True), t0, static)
+    t_pose = poses["t_ns"].to_numpy(np.int64)
     if len(t_pose):
         rows = np.unique(np.linspace(0, len(t_pose) - 1, min(PATH_POINTS, len(t_pose))).astype(np.int64))
-        add(channel(TOPIC_PATH, _PATH_TYPE, latched=True), t0,
-            msgs.path(t0, t_pose[rows], poses[["x", "y", "z"]].to_numpy()[rows],
-                      poses[["qx", "qy", "qz", "qw"]].to_numpy()[rows]))
+        out.add(out.channel(TOPIC_PATH, _PATH_TYPE, latched=True), t0,
+                out.msgs.path(t0, t_pose[rows], poses[["x", "y", "z"]].to_numpy()[rows],
+                              poses[["qx", "qy", "qz", "qw"]].to_numpy()[rows]))
 
-    # per-row topics, written block by block in time order with the detection-rate ones
-    streams: list[tuple[np.ndarray, np.ndarray, BulkMessages | None, np.ndarray | None]] = []  # t, chan, bulk, rows
-    xyz_p, quat_p = poses[["x", "y", "z"]].to_numpy(np.float64), poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64)
-    del poses
+
+def _add_other_topics(out: _Out, topics: _Topics, run_dir: Path, t_end: int, rate_hz: float | None):
+    """Read the biases, the map's tracks and the final map into ``topics`` and register their channels; returns
+    the final map (landmarks table, or None)."""
     biases = _read(run_dir, "biases")
-    ch_gyro = channel(TOPIC_GYRO_BIAS, _VEC_TYPE) if biases is not None else None
-    ch_vel = channel(TOPIC_VEL_BIAS, _VEC_TYPE) if biases is not None else None
-    inn_chan = {}
+    topics.biases = biases
+    topics.ch_gyro = out.channel(TOPIC_GYRO_BIAS, _VEC_TYPE) if biases is not None else None
+    topics.ch_vel = out.channel(TOPIC_VEL_BIAS, _VEC_TYPE) if biases is not None else None
+    innov = topics.innov
     if innov is not None and len(innov):
         for i in np.unique(innov["id"].to_numpy(np.int64)):
-            inn_chan[int(i)] = channel(TOPIC_INNOVATION.format(id=int(i)), _VEC_TYPE)
-    ch_map = channel(TOPIC_LANDMARKS, _MARKERS_TYPE)
-    updates = _map_updates(_read(run_dir, "landmark_tracks"), t_end)
+            topics.inn_chan[int(i)] = out.channel(TOPIC_INNOVATION.format(id=int(i)), _VEC_TYPE)
+    topics.ch_map = out.channel(TOPIC_LANDMARKS, _MARKERS_TYPE)
+    topics.updates = _map_updates(_read(run_dir, "landmark_tracks"), t_end)
     landmarks = _read(run_dir, "landmarks")
-    known = np.unique(np.concatenate([np.zeros(0, np.int64)] + [u[1] for u in updates] +
-                                     ([landmarks["id"].to_numpy(np.int64)] if landmarks is not None else [])))
+    topics.known = np.unique(np.concatenate([np.zeros(0, np.int64)] + [u[1] for u in topics.updates] +
+                                            ([landmarks["id"].to_numpy(np.int64)] if landmarks is not None else [])))
+    topics.t_b = biases["t_ns"].to_numpy(np.int64) if biases is not None else np.zeros(0, np.int64)
+    topics.keep_b = _every(topics.t_b, rate_hz)
+    topics.t_u = np.array([u[0] for u in topics.updates], np.int64)
+    return landmarks
 
-    t_b = biases["t_ns"].to_numpy(np.int64) if biases is not None else np.zeros(0, np.int64)
-    keep_b = _every(t_b, rate_hz)
-    t_u = np.array([u[0] for u in updates], np.int64)
-    # blocks of pose rows; every other topic's messages up to the block's last stamp go with it
+
+def _blocks(topics: _Topics):
+    """Per block of pose rows, the rows of each topic up to the block's last stamp ``(poses, biases,
+    innovations, map updates)``; the last block takes everything left."""
+    t_pose, keep, t_b, keep_b, t_i, t_u = topics.t_pose, topics.keep, topics.t_b, topics.keep_b, topics.t_i, topics.t_u
     bounds = [int(t_pose[keep[min(k + BLOCK_ROWS, len(keep)) - 1]]) for k in range(0, len(keep), BLOCK_ROWS)]
-    bounds[-1:] = [np.iinfo(np.int64).max]  # the last block takes everything left
+    bounds[-1:] = [np.iinfo(np.int64).max]
     pos = {"p": 0, "b": 0, "i": 0, "u": 0}
     for bound in bounds:
-        items: list[tuple[np.ndarray, np.ndarray, list]] = []  # (times, order key, payload getters)
         sp = pos["p"] + int(np.searchsorted(t_pose[keep[pos["p"]:]], bound, side="right"))
         rows = keep[pos["p"]:sp]
         pos["p"] = sp
         sb = pos["b"] + int(np.searchsorted(t_b[keep_b[pos["b"]:]], bound, side="right"))
         rows_b = keep_b[pos["b"]:sb]
         pos["b"] = sb
-        si = pos["i"] + int(np.searchsorted(t_i[pos["i"]:], bound, side="right")) if innov is not None else 0
+        si = pos["i"] + int(np.searchsorted(t_i[pos["i"]:], bound, side="right")) if topics.innov is not None else 0
         rows_i = np.arange(pos["i"], si)
         pos["i"] = si
         su = pos["u"] + int(np.searchsorted(t_u[pos["u"]:], bound, side="right"))
         rows_u = np.arange(pos["u"], su)
         pos["u"] = su
+        yield rows, rows_b, rows_i, rows_u
 
-        out_t, out_c, out_d = [], [], []
-        if rows.size:
-            t = t_pose[rows]
-            cols = {**_stamp_columns(t), **{("pose", "position", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
-                    **{("pose", "orientation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
-            out_t += [t, t]
-            out_c += [np.full(t.shape, ch_pose), np.full(t.shape, ch_tf)]
-            item = ("transforms", 0)
-            tf_cols = {**_stamp_columns(t, item),
-                       **{item + ("transform", "translation", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
-                       **{item + ("transform", "rotation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
-            out_d += [_payloads(msgs.pose.rows(cols)), _payloads(msgs.tf.rows(tf_cols))]
-        if rows_b.size:
-            t = t_b[rows_b]
-            for ch, prefix in ((ch_gyro, "gyro_bias_"), (ch_vel, "vel_bias_")):
-                cols = {**_stamp_columns(t),
-                        **{("vector", a): biases[prefix + a].to_numpy(np.float64)[rows_b] for a in "xyz"}}
-                out_t.append(t)
-                out_c.append(np.full(t.shape, ch))
-                out_d.append(_payloads(msgs.vec_body.rows(cols)))
-        if rows_i.size:
-            t = t_i[rows_i]
-            cols = {**_stamp_columns(t), **{("vector", a): innov["e" + a].to_numpy(np.float64)[rows_i] for a in "xyz"}}
+
+def _block_messages(msgs: _Messages, topics: _Topics, rows: np.ndarray, rows_b: np.ndarray, rows_i: np.ndarray,
+                    rows_u: np.ndarray) -> tuple[list, list, list]:
+    """One block's messages of every per-row topic: their stamps, channels and payloads (lists of parts)."""
+    out_t, out_c, out_d = [], [], []
+    if rows.size:
+        t = topics.t_pose[rows]
+        xyz_p, quat_p = topics.xyz, topics.quat
+        cols = {**_stamp_columns(t), **{("pose", "position", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
+                **{("pose", "orientation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
+        out_t += [t, t]
+        out_c += [np.full(t.shape, topics.ch_pose), np.full(t.shape, topics.ch_tf)]
+        item = ("transforms", 0)
+        tf_cols = {**_stamp_columns(t, item),
+                   **{item + ("transform", "translation", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
+                   **{item + ("transform", "rotation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
+        out_d += [_payloads(msgs.pose.rows(cols)), _payloads(msgs.tf.rows(tf_cols))]
+    if rows_b.size:
+        t = topics.t_b[rows_b]
+        for ch, prefix in ((topics.ch_gyro, "gyro_bias_"), (topics.ch_vel, "vel_bias_")):
+            cols = {**_stamp_columns(t),
+                    **{("vector", a): topics.biases[prefix + a].to_numpy(np.float64)[rows_b] for a in "xyz"}}
             out_t.append(t)
-            out_c.append(np.array([inn_chan[int(i)] for i in innov["id"].to_numpy(np.int64)[rows_i]]))
-            out_d.append(_payloads(msgs.vec_map.rows(cols)))
-        if rows_u.size:
-            t = t_u[rows_u]
-            out_t.append(t)
-            out_c.append(np.full(t.shape, ch_map))
-            out_d.append([msgs.markers(*updates[k], final=False, known=known) for k in rows_u])
-        if not out_t:
-            continue
-        t_all = np.concatenate(out_t)
-        c_all = np.concatenate(out_c)
-        d_all = [d for part in out_d for d in part]
-        order = np.lexsort((c_all, t_all))
-        for t, c, k in zip(t_all[order].tolist(), c_all[order].tolist(), order.tolist()):  # plain ints: fast
-            add(c, t, d_all[k])
-    if landmarks is not None and len(landmarks):
-        t_end = max([t_end] + [int(t[-1]) for t in (t_i, t_u) if t.size])  # after every other message
-        add(ch_map, t_end, msgs.markers(t_end, landmarks["id"].to_numpy(np.int64),
-                                        landmarks[["x", "y", "z"]].to_numpy(np.float64), final=True, known=known))
-    writer.finish()
+            out_c.append(np.full(t.shape, ch))
+            out_d.append(_payloads(msgs.vec_body.rows(cols)))
+    if rows_i.size:
+        t, innov = topics.t_i[rows_i], topics.innov
+        cols = {**_stamp_columns(t), **{("vector", a): innov["e" + a].to_numpy(np.float64)[rows_i] for a in "xyz"}}
+        out_t.append(t)
+        out_c.append(np.array([topics.inn_chan[int(i)] for i in innov["id"].to_numpy(np.int64)[rows_i]]))
+        out_d.append(_payloads(msgs.vec_map.rows(cols)))
+    if rows_u.size:
+        t = topics.t_u[rows_u]
+        out_t.append(t)
+        out_c.append(np.full(t.shape, topics.ch_map))
+        out_d.append([msgs.markers(*topics.updates[k], final=False, known=topics.known) for k in rows_u])
+    return out_t, out_c, out_d
+
+
+def _write_block(out: _Out, out_t: list, out_c: list, out_d: list) -> None:
+    """A block's messages in time order (channel order on a tie)."""
+    if not out_t:
+        return
+    t_all = np.concatenate(out_t)
+    c_all = np.concatenate(out_c)
+    d_all = [d for part in out_d for d in part]
+    order = np.lexsort((c_all, t_all))
+    for t, c, k in zip(t_all[order].tolist(), c_all[order].tolist(), order.tolist()):  # plain ints: fast
+        out.add(c, t, d_all[k])
 
 
 def _alignment_transform(msgs: _Messages, meta: dict, report: dict | None, t0: int, body: str) -> bytes | None:

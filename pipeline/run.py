@@ -550,7 +550,7 @@ def check_map_mode(spec, config: RunConfig, log: Path) -> None:
 
 def _map_error(out: Path, landmark_truth: dict) -> dict | None:
     """Map error against landmark truth after a map-only SE(3) alignment, for runs without trajectory truth."""
-    from slamobs.pipeline.evaluation.report import map_only_section
+    from slamobs.pipeline.evaluation.sections import map_only_section
     from slamobs.pipeline.writers import read_columns
 
     return map_only_section(read_columns(out / "landmarks.parquet"), landmark_truth)
@@ -587,7 +587,8 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
     """
     from slamobs.pipeline import interrupts
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
-    from slamobs.pipeline.evaluation.report import REPORT_FILES, bias_plot_rows
+    from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
+    from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.writers import read_columns
 

@@ -11,19 +11,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
-from slamobs.cli.main import main
 from slamobs.cli.progress import COMPILING
 from slamobs.pipeline.simulate import simulate, write_log
+from cli_checks import SAMPLES, invoke
 
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLES = ROOT / "sample_logs"
 TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.fixture(scope="module")

@@ -3,20 +3,14 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pandas as pd
 import pytest
-from click.testing import CliRunner
 
-from slamobs.cli.main import main
 from slamobs.pipeline.estimators import ESTIMATORS
+from cli_checks import SAMPLES, invoke
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "circle.bag"
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
+SAMPLE = SAMPLES / "circle.bag"
 
 
 #: APE (m) on circle.bag bounded at about twice what `slamobs compare` measured (README table: 0.010-0.029 m);

@@ -36,7 +36,8 @@ from slamobs.pipeline.evaluation.align import fit_alignment, yaw_fit
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_lengths
 from slamobs.pipeline.evaluation.evo_zip import load_result_zip, save_result_zip
 from slamobs.pipeline.evaluation import slam_metrics
-from slamobs.pipeline.evaluation.report import REPORT_FILES, render_markdown, validate_report
+from slamobs.pipeline.evaluation.markdown import render_markdown
+from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
 from slamobs.pipeline.evaluation.rpe import pairs_by_angle, pairs_by_frames, pairs_by_path, rpe_pairs
 from slamobs.pipeline.evaluation.sync import estimate_time_offset, interpolate_poses
 from slamobs.pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, rpe, synchronize
@@ -54,10 +55,10 @@ from slamobs.pipeline.readers.trajectory_files import (
     write_tum,
 )
 from slamobs.pipeline.streams import PoseStream
+from realdata import REALDATA
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
-EVO_DATA = SHARED / "realdata" / "evo"
-RPG_DATA = SHARED / "realdata" / "rpg_traj_eval"
+EVO_DATA = REALDATA / "evo"
+RPG_DATA = REALDATA / "rpg_traj_eval"
 HAVE_EVO_DATA = (EVO_DATA / "REFERENCE_NUMBERS.md").is_file()
 EVO_PYTHON = os.environ.get("SLAMOBS_EVO_PYTHON")
 needs_evo = pytest.mark.skipif(not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
@@ -471,9 +472,10 @@ def test_clock_offset_is_estimated_always_and_applied_on_request():
     # beside the report, the search leaves the APE without the offset to the report's own (not computed twice):
     # the same number as the search computes on its own, and the same as the report's primary APE
     from slamobs.pipeline.evaluation import trajectory_error as te
-    from slamobs.pipeline.evaluation.report import _sorted, estimate_stream
+    from slamobs.pipeline.evaluation.trajectory_evaluation import estimate_stream, sorted_stream
 
-    search = (_sorted(truth), estimate_stream(poses), te.SyncOptions(0.01, 0.0, "nearest"), te.AlignOptions("se3"))
+    search = (sorted_stream(truth), estimate_stream(poses), te.SyncOptions(0.01, 0.0, "nearest"),
+              te.AlignOptions("se3"))
     alone, left = te.checked_time_offset(*search), te.checked_time_offset(*search, without=False)
     assert left.rmse_without_m is None and left.rmse_with_m == alone.rmse_with_m
     assert plain["time_offset"]["ape_rmse_without_m"] == alone.rmse_without_m == plain["ape"]["translation_m"]["rmse"]
@@ -526,16 +528,15 @@ def test_a_clock_offset_the_trajectories_contradict_is_not_reliable(monkeypatch)
 def test_report_says_why_a_clock_offset_is_not_reliable():
     """report.md names the reason next to "NOT reliable" (a 22 ms offset on a simulated log with none raised the APE
     from 0.029 to 0.047 m, and the line said only "NOT reliable")."""
-    from slamobs.pipeline.evaluation.report import _offset_doubts
+    from slamobs.pipeline.evaluation.markdown import offset_doubts
 
     off = {"estimated_s": 0.0225, "peak_correlation": 0.93, "search_window_s": 1.0, "grid_step_s": 0.01,
            "ape_rmse_with_m": 0.0465, "ape_rmse_without_m": 0.0294}
-    assert _offset_doubts(off) == ": applied, it raises the APE rmse from 0.0294 to 0.0465 m"
+    assert offset_doubts(off) == ": applied, it raises the APE rmse from 0.0294 to 0.0465 m"
     weak = {**off, "peak_correlation": 0.3, "estimated_s": -0.995, "ape_rmse_with_m": None}
-    assert _offset_doubts(weak) == ": correlation below 0.5; at the search limit"
-    assert _offset_doubts({**off, "ape_rmse_with_m": 0.02}) == ""
+    assert offset_doubts(weak) == ": correlation below 0.5; at the search limit"
+    assert offset_doubts({**off, "ape_rmse_with_m": 0.02}) == ""
     # a reliable one says what it is: where the estimate fits best, a clock offset or the estimate's lag alike
-    from slamobs.pipeline.evaluation.report import render_markdown
 
     truth = make_truth(n=3000)
     poses = moved(truth, ROT_C, P_C, noise_m=0.002).iloc[::3].reset_index(drop=True)

@@ -19,21 +19,16 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
-from slamobs.cli.main import main
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import read_log
 from slamobs.pipeline.simulate import expected_streams, simulate, write_log
 from slamobs.pipeline.simulate.sensors import TOPIC_DETECTIONS, TOPIC_IMU
+from cli_checks import invoke
 
 NS = 1_000_000_000
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
 
 
 def one_line_error(res, *needles: str) -> str:
@@ -140,14 +135,14 @@ def test_config_that_names_nothing_or_is_implausible_is_one_line(logs, tmp_path,
     cfg = tmp_path / "run.yaml"
     cfg.write_text(text)
     out = tmp_path / "out"
-    with _no_warnings():
+    with no_runtime_warnings():
         res = invoke("run", logs["bag"], "-o", out, "--config", cfg)
     one_line_error(res, str(cfg), *BAD_CONFIGS[text])
     assert not out.exists()
 
 
-class _no_warnings:  # noqa: N801 - a context manager read as a phrase
-    """Fails the block if it emits any Python warning (a zero gravity once gave a numpy RuntimeWarning)."""
+class no_runtime_warnings:  # noqa: N801 - a context manager read as a phrase
+    """Fails the block if it emits a RuntimeWarning (a zero gravity once gave numpy's; divide-by-zero, overflow)."""
 
     def __enter__(self):
         import warnings

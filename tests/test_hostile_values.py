@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import sqlite3
 import time
-import warnings
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
-from test_hostile_inputs import invoke, one_line_error
+from test_hostile_inputs import invoke, no_runtime_warnings, one_line_error
 
 from slamobs.pipeline.simulate import simulate, write_log
 from slamobs.pipeline.simulate.sensors import TOPIC_TRUTH
@@ -115,21 +114,6 @@ def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None, indexed: bool
     return dst
 
 
-class _no_warnings:  # a context manager read as a phrase
-    """Fails the block if it emits a RuntimeWarning (numpy's divide-by-zero and overflow warnings)."""
-
-    def __enter__(self):
-        self._ctx = warnings.catch_warnings(record=True)
-        self.caught = self._ctx.__enter__()
-        warnings.simplefilter("always")
-        return self
-
-    def __exit__(self, *exc):
-        self._ctx.__exit__(*exc)
-        assert not [w for w in self.caught if issubclass(w.category, RuntimeWarning)], [str(w) for w in self.caught]
-        return False
-
-
 def _span(log: Path) -> tuple[int, int]:
     """First and last log time of an MCAP file, from its summary."""
     from mcap.reader import make_reader
@@ -150,7 +134,7 @@ def test_record_times_past_2_63_are_one_line_in_info_and_run(mcap_log, tmp_path,
         one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", cfg), str(log), "outside 0 to 2^62 ns")
     # just below 2^63: no wrap, but the report's sums of times overflowed (numpy RuntimeWarnings, a wrong offset)
     edge = _shifted_mcap(mcap_log, tmp_path / "edge.mcap", TWO63 - 2 - _span(mcap_log)[1])
-    with _no_warnings():
+    with no_runtime_warnings():
         one_line_error(invoke("run", edge, "-o", tmp_path / "out", "--config", rec), str(edge), "outside 0 to 2^62 ns")
     assert not (tmp_path / "out").exists()
 
@@ -300,7 +284,7 @@ def test_detections_all_dropped_by_the_range_gate_say_so(sim, tmp_path, quick):
 def test_identical_odometry_stamps_are_one_line_without_warnings(sim, tmp_path, quick):
     odom = sim.odom
     log = write_log(replace(sim, odom=replace(odom, t_ns=np.full_like(odom.t_ns, odom.t_ns[0]))), tmp_path / "s.mcap")
-    with _no_warnings():
+    with no_runtime_warnings():
         res = invoke("run", log, "-o", tmp_path / "out", "--config", quick)
     one_line_error(res, str(log), "all", "samples have the same time", "set time.source: record")
 

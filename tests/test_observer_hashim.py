@@ -7,7 +7,6 @@ observer started at P̂ = 0, p̂_i = 0. Direction measurements are computed here
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +18,7 @@ from slamobs.pipeline.lie import quat_to_rot, rotation_angle, se3_exp, so3_exp
 from slamobs.pipeline.observers import GainError, get_observer
 from slamobs.pipeline.directions import direction_arrays, initial_attitude, load_directions
 from slamobs.pipeline.observers.hashim import run_kernel
+from cli_checks import SAMPLES
 
 OMEGA = np.array([0.0, 0.0, 0.3])
 VEL = np.array([2.5, 0.0, 0.0])
@@ -32,7 +32,6 @@ GAINS_C = dict(GAINS_B, k_1=1.0, k_2=1.0)
 #: §12.3 names no axis for its 170° initial attitude error; this one reproduces every number there
 #: (angles at 1/5/10 s, the no-IMU 167° and the final ‖P̃‖ ≈ 12.9 m). Other axes converge at other speeds.
 AXIS_170 = np.array([1.0, 2.0, 3.0]) / np.sqrt(14.0)
-SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 
 
 def scenario(duration=20.0, dt=0.01, landmarks=LANDMARKS, q=np.eye(3), visible_until=None):

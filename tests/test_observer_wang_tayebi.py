@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +11,8 @@ from click.testing import CliRunner
 from slamobs.cli.main import main
 from slamobs.pipeline.lie import se3_exp, so3_exp
 from slamobs.pipeline.observers.wang_tayebi import run_kernel
+from cli_checks import SAMPLES
 
-SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 OMEGA = np.array([0.0, 0.0, 0.3])
 VEL = np.array([2.5, 0.0, 0.0])
 B_OM = np.array([0.09, -0.15, -0.1])

@@ -18,9 +18,9 @@ from slamobs.cli.info_cmd import info
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import detect_container, format_info, inspect_log, open_log, read_log
 from slamobs.pipeline.simulate import expected_streams, make_typestore, simulate, write_log
+from realdata import REALDATA
 
 SAMPLE_DIR = Path(__file__).resolve().parents[1] / "sample_logs"
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 COUNTS = json.loads((REALDATA / "COUNTS.json").read_text()) if (REALDATA / "COUNTS.json").is_file() else {}
 VEC3_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic")
 MS = 1_000_000

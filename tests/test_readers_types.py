@@ -27,8 +27,8 @@ from slamobs.pipeline.readers import inspect_log, read_log
 from slamobs.pipeline.readers.roles import TopicMeta, select_roles
 from slamobs.pipeline.simulate import make_typestore
 from slamobs.pipeline.simulate.logwriter import FIDUCIAL_TRANSFORM_ARRAY_MSG, FIDUCIAL_TRANSFORM_MSG
+from realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 MS = 1_000_000
 T0 = 1_700_000_000 * 1_000_000_000
 K = 4  # messages per topic

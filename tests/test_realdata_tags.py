@@ -20,8 +20,9 @@ from slamobs.pipeline.readers import ImageSearch, read_log
 from slamobs.pipeline.run import run_log
 from slamobs.pipeline.vision.landmarks import TagOptions, tag_landmarks
 from slamobs.pipeline.vision.tagpose import TagQuality
+from realdata import REALDATA
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "realdata"
+REAL = REALDATA
 TAGSLAM = REAL / "tagslam_test"
 UBIQUITY = REAL / "fiducials_ubiquity"
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/realdata is not available")

@@ -14,15 +14,11 @@ from click.testing import CliRunner
 
 from slamobs.cli.main import main
 from slamobs.schemas import arrow_schema
+from cli_checks import SAMPLES, invoke
 
 pytest.importorskip("gtsam")
 
-SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 LOGS = ["circle.bag", "circle_ros2", "figure8.mcap", "figure8_camera.mcap"]
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.fixture(scope="module")

@@ -16,14 +16,11 @@ from slamobs.cli.main import main
 from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.errors import OutputError
 from slamobs.pipeline.run import run_log
+from cli_checks import SAMPLES, invoke
 
-SAMPLE = Path(__file__).resolve().parents[1] / "sample_logs" / "figure8.mcap"
+SAMPLE = SAMPLES / "figure8.mcap"
 TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
 EXPORT_FILES = {"estimate_tum.txt", "truth_tum.txt", "ape_evo.zip"}
-
-
-def invoke(*args):
-    return CliRunner().invoke(main, [str(a) for a in args], catch_exceptions=False)
 
 
 @pytest.fixture(scope="module")

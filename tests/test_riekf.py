@@ -4,7 +4,6 @@ noisy runs), invariance to the initial attitude, noise settings."""
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 from statistics import NormalDist
 
 import numpy as np
@@ -17,8 +16,8 @@ from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
 from slamobs.pipeline.observers.riekf import _SKIPPED, N_FIXED, RiEKF, _accumulate, _flush, _update
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
+from cli_checks import SAMPLES
 
-SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
 
 
 def spd(rng, d):

@@ -19,8 +19,8 @@ from slamobs.pipeline.readers.tfdecode import decode_batch, tf_layout
 from slamobs.pipeline.simulate import make_typestore
 from slamobs.pipeline.simulate.logwriter import write_raw_log
 from serialization import ENCODINGS, as_buffer, deserialize, serialize
+from realdata import REALDATA
 
-REALDATA = Path(__file__).resolve().parents[2] / "shared" / "realdata"
 #: frame ids of every length 0..25 (ROS1 has no padding; CDR pads after each string to 4, before the doubles to 8)
 #: (some with a leading slash, as tf1 wrote them: "/" alone becomes the empty frame name)
 ALPHABET = "abcdefghijklmnopqrstuvwxyz"

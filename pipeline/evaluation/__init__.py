@@ -1,8 +1,10 @@
 """Error report of a run against ground truth, and evo-compatible trajectory metrics.
 
 ``sync`` (association, interpolation, clock offset) -> ``align`` (SE(3)/Sim(3)/scale/yaw/origin) ->
-``metrics`` and ``rpe`` (APE/RPE definitions of evo 1.38.1) are composed by ``trajectory_error``; ``report``
-adds what evo does not measure (map, biases, convergence, drift) and writes the run's report files.
+``metrics`` and ``rpe`` (APE/RPE definitions of evo 1.38.1) are composed by ``trajectory_error``;
+``trajectory_evaluation`` pairs and aligns a run's estimate once, ``sections`` computes each report section on
+it (with what evo does not measure: map, biases, convergence, drift), ``markdown`` renders the report,
+``figure_jobs`` plans its figures and ``report`` composes them and writes the run's report files.
 """
 
 # Loaded on first use (PEP 562): a module of this package (``plots`` in a figure helper process) is imported
@@ -10,8 +12,9 @@ adds what evo does not measure (map, biases, convergence, drift) and writes the 
 _FROM = {
     **dict.fromkeys(("LandmarkErrors", "ape_errors", "ape_rotation_deg", "ape_translation", "apply_alignment",
                      "associate", "landmark_errors", "rpe_errors", "statistics", "umeyama"), "metrics"),
-    **dict.fromkeys(("ReportOptions", "build_report", "evaluate_report", "evaluate_tables", "render_markdown",
-                     "write_report"), "report"),
+    **dict.fromkeys(("build_report", "evaluate_report", "evaluate_tables", "write_report"), "report"),
+    "ReportOptions": "trajectory_evaluation",
+    "render_markdown": "markdown",
 }
 
 

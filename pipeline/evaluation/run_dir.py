@@ -22,7 +22,8 @@ import numpy as np
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.errors import InputError, OutputError
 from slamobs.pipeline.paths import check_utf8, read_manifest
-from slamobs.pipeline.evaluation.report import REPORT_FILES, ReportOptions, evaluate_report, write_report
+from slamobs.pipeline.evaluation.report import REPORT_FILES, evaluate_report, write_report
+from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import update_manifest
 

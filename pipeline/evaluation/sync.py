@@ -294,64 +294,21 @@ def estimate_time_offset(
     tr, te = _as_stamps(t_ref_ns, "t_ref_ns"), _as_stamps(t_est_ns, "t_est_ns")
     if tr.shape[0] < 4 or te.shape[0] < 4 or np.any(np.diff(tr) <= 0) or np.any(np.diff(te) <= 0):
         return None
-    if step_s is None:
-        dt = max(float(np.median(np.diff(tr))), float(np.median(np.diff(te)))) / NS_PER_S
-        step_s = min(max(dt, 1e-3), 0.05)
-    step_ns = max(int(round(step_s * NS_PER_S)), 1)
-    max_lag = max(int(math.ceil(max_offset_s / step_s)), 1)
-    start = min(tr[0], te[0]) - max_lag * step_ns
-    stop = max(tr[-1], te[-1]) + max_lag * step_ns
-    n = int((stop - start) // step_ns) + 1
-    if n > 4_000_000 or n < 8:
+    found = _search_grid(tr, te, max_offset_s, step_s)
+    if found is None:
         return None
-    grid = start + np.arange(n, dtype=np.int64) * step_ns
+    grid, step_ns, max_lag = found
     r_ang, r_spd, _ = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
     e_ang, e_spd, e_steps = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
-    # the signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker
-    cv = [_variation(r_ang), _variation(r_spd)]
-    order = (0, 1) if cv[0] >= 0.5 * cv[1] else (1, 0)
-    best = None
-    for idx in order:
-        a, b = ((r_ang, e_ang), (r_spd, e_spd))[idx]
-        if cv[idx] == 0.0:
-            continue
-        lags, c = _pearson_by_lag(a, b, max_lag)
-        if np.isfinite(c).any():
-            best = (idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags)
-            break
+    best = _best_grid_lag((r_ang, r_spd), (e_ang, e_spd), max_lag)
     if best is None:
         return None
     idx, k, c, lags = best
     # c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
-    ref_signal = (r_ang, r_spd)[idx]
-    steps = e_steps[idx]
-
-    accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
-    ref_defined = np.isfinite(ref_signal)
-
-    def corr(tau_ns: float) -> float:
-        e = _rate_on_grid(te, steps, grid - int(round(tau_ns)), step_ns, accumulated)
-        ok = np.isfinite(e) & ref_defined
-        if ok.sum() < 8 or np.std(e[ok]) == 0 or np.std(ref_signal[ok]) == 0:
-            return -1.0
-        return float(np.corrcoef(ref_signal[ok], e[ok])[0, 1])
-
-    lo, hi = (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns
-    g = (math.sqrt(5.0) - 1.0) / 2.0
-    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
-    f1, f2 = corr(x1), corr(x2)
-    while hi - lo > 1e-4 * NS_PER_S:  # 0.1 ms
-        if f1 >= f2:
-            hi, x2, f2 = x2, x1, f1
-            x1 = hi - g * (hi - lo)
-            f1 = corr(x1)
-        else:
-            lo, x1, f1 = x1, x2, f2
-            x2 = lo + g * (hi - lo)
-            f2 = corr(x2)
-    tau = 0.5 * (lo + hi)
+    corr = _offset_correlation((r_ang, r_spd)[idx], te, e_steps[idx], grid, step_ns)
+    tau = _golden_section_max(corr, (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns, 1e-4 * NS_PER_S)  # 0.1 ms
     peak = max(corr(tau), float(c[k]))
     offset = tau / NS_PER_S
     name = ("angular rate |ω|", "speed |v|")[idx]
@@ -363,3 +320,70 @@ def estimate_time_offset(
         search_window_s=float(max_lag * step_ns / NS_PER_S),
         at_window_edge=bool(k == 0 or k == c.shape[0] - 1),
     )
+
+
+def _search_grid(tr: np.ndarray, te: np.ndarray, max_offset_s: float,
+                 step_s: float | None) -> tuple[np.ndarray, int, int] | None:
+    """The common resampling grid (stamps, step in ns, lags within ``±max_offset_s``); None when too short or huge.
+
+    The default step follows the slower stream (within 1-50 ms) so that each grid step holds a sample.
+    """
+    if step_s is None:
+        dt = max(float(np.median(np.diff(tr))), float(np.median(np.diff(te)))) / NS_PER_S
+        step_s = min(max(dt, 1e-3), 0.05)
+    step_ns = max(int(round(step_s * NS_PER_S)), 1)
+    max_lag = max(int(math.ceil(max_offset_s / step_s)), 1)
+    start = min(tr[0], te[0]) - max_lag * step_ns
+    stop = max(tr[-1], te[-1]) + max_lag * step_ns
+    n = int((stop - start) // step_ns) + 1
+    if n > 4_000_000 or n < 8:
+        return None
+    return start + np.arange(n, dtype=np.int64) * step_ns, step_ns, max_lag
+
+
+def _best_grid_lag(ref: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray], max_lag: int):
+    """(signal index, peak index, correlation by lag, lags) of the signal that pins the lag; None if none does.
+
+    The signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker.
+    """
+    cv = [_variation(ref[0]), _variation(ref[1])]
+    order = (0, 1) if cv[0] >= 0.5 * cv[1] else (1, 0)
+    for idx in order:
+        if cv[idx] == 0.0:
+            continue
+        lags, c = _pearson_by_lag(ref[idx], est[idx], max_lag)
+        if np.isfinite(c).any():
+            return idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags
+    return None
+
+
+def _offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarray, grid: np.ndarray, step_ns: int):
+    """Correlation of ``ref_signal`` with the estimate's rate sampled at ``grid − τ``, as a function of τ (ns)."""
+    accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
+    ref_defined = np.isfinite(ref_signal)
+
+    def corr(tau_ns: float) -> float:
+        e = _rate_on_grid(te, steps, grid - int(round(tau_ns)), step_ns, accumulated)
+        ok = np.isfinite(e) & ref_defined
+        if ok.sum() < 8 or np.std(e[ok]) == 0 or np.std(ref_signal[ok]) == 0:
+            return -1.0
+        return float(np.corrcoef(ref_signal[ok], e[ok])[0, 1])
+
+    return corr
+
+
+def _golden_section_max(f, lo: float, hi: float, tol: float) -> float:
+    """Middle of the bracket left by golden-section search for the maximum of ``f`` on ``[lo, hi]``, to ``tol``."""
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    x1, x2 = hi - g * (hi - lo), lo + g * (hi - lo)
+    f1, f2 = f(x1), f(x2)
+    while hi - lo > tol:
+        if f1 >= f2:
+            hi, x2, f2 = x2, x1, f1
+            x1 = hi - g * (hi - lo)
+            f1 = f(x1)
+        else:
+            lo, x1, f1 = x1, x2, f2
+            x2 = lo + g * (hi - lo)
+            f2 = f(x2)
+    return 0.5 * (lo + hi)

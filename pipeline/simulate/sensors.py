@@ -386,8 +386,24 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     def stamps(name: str) -> tuple[np.ndarray, np.ndarray]:
         return _stamps(*span[name], sim.rates[name], _PHASE[name], start_ns)
 
-    # IMU: biased gyro and specific force f = R^T (a - g).
-    t_ns, t = stamps("imu")
+    # one generator: the streams draw in this order (imu, odom, mag, detections, mocap), or the noise changes
+    imu = _imu(sc, rng, nm, *stamps("imu"), carry.rec["imu"])
+    odom, odom_carry = _odom(sc, rng, nm, *stamps("odom"), carry)
+    mag = _mag(sc, rng, nm, *stamps("mag"), carry.rec["mag"])
+    detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
+    camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
+    mocap = _mocap(sc, rng, *stamps("mocap"), carry.rec["mocap"])
+    piece = SimLog(sc.name, int(sim.seed), nm, sim.duration, start_ns, imu, odom, mag, detections, mocap,
+                   _static_tf(sc), _truth(sim, camera is not None),
+                   first={name: lo for name, (lo, _) in span.items()}, camera=camera, camera_sim=sim.camera)
+    streams = {"imu": imu, "odom": odom, "mag": mag, "detections": detections, "mocap": mocap}
+    rec = {name: int(d.rec_ns[-1]) if d.rec_ns.size else carry.rec[name] for name, d in streams.items()}
+    return piece, _Carry(rec, odom_carry)
+
+
+def _imu(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray,
+         rec_after: int) -> ImuData:
+    """IMU: biased gyro and specific force f = R^T (a - g), in the imu_link frame."""
     tr = sc.sample(t)
     n = t.shape[0]
     gyro = tr.omega + sc.gyro_bias + _white(rng, nm.gyro, (n, 3))
@@ -395,10 +411,13 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     accel = np.einsum("nji,nj->ni", tr.R, f_inertial) + _white(rng, nm.accel, (n, 3))
     if sc.imu_rotation is not None:  # body-frame quantities seen from the turned imu_link: R_biᵀ x
         gyro, accel = gyro @ sc.imu_rotation, accel @ sc.imu_rotation
-    imu = ImuData(t_ns, _record_times(rng, t_ns, carry.rec["imu"]), gyro, accel)
+    return ImuData(t_ns, _record_times(rng, t_ns, rec_after), gyro, accel)
 
-    # Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist.
-    t_ns, t = stamps("odom")
+
+def _odom(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray,
+          carry: _Carry) -> tuple[OdomData, tuple | None]:
+    """Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist (continuing
+    from the previous piece's last sample); the data and the dead-reckoning state for the next piece."""
     tr = sc.sample(t)
     n = t.shape[0]
     lin = tr.v + sc.velocity_bias + _white(rng, nm.odom_linear, (n, 3))
@@ -412,30 +431,38 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
         rs, ps = rs[1:], ps[1:]
     odom = OdomData(t_ns, _record_times(rng, t_ns, carry.rec["odom"]), lin, ang, ps, rots_to_quats(rs))
     odom_carry = (rs[-1].copy(), ps[-1].copy(), ang[-1:].copy(), lin[-1:].copy(), float(t[-1])) if n else carry.odom
+    return odom, odom_carry
 
-    # Magnetometer: inertial field seen in the body frame.
-    t_ns, t = stamps("mag")
+
+def _mag(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray,
+         rec_after: int) -> MagData:
+    """Magnetometer: the inertial field seen in the body frame (the imu_link's when it is turned)."""
     tr = sc.sample(t)
     fld = np.einsum("nji,j->ni", tr.R, MAGNETIC_FIELD) + _white(rng, nm.mag, (t.shape[0], 3))
     if sc.imu_rotation is not None:
         fld = fld @ sc.imu_rotation
-    mag = MagData(t_ns, _record_times(rng, t_ns, carry.rec["mag"]), fld)
+    return MagData(t_ns, _record_times(rng, t_ns, rec_after), fld)
 
-    detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
-    camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
 
-    # Motion capture: the true body pose, noise-free.
-    t_ns, t = stamps("mocap")
+def _mocap(sc: Scenario, rng: np.random.Generator, t_ns: np.ndarray, t: np.ndarray, rec_after: int) -> PoseData:
+    """Motion capture: the true body pose, noise-free (only the record times draw from ``rng``)."""
     tr = sc.sample(t)
-    mocap = PoseData(t_ns, _record_times(rng, t_ns, carry.rec["mocap"]), tr.P.copy(),
-                     rots_to_quats(np.ascontiguousarray(tr.R)))
+    return PoseData(t_ns, _record_times(rng, t_ns, rec_after), tr.P.copy(), rots_to_quats(np.ascontiguousarray(tr.R)))
 
+
+def _static_tf(sc: Scenario) -> list[Transform]:
+    """The fixed extrinsics: body to camera, body to imu_link (identity unless the scenario turns the IMU)."""
     cam_q = rots_to_quats(np.ascontiguousarray(sc.camera.R_bc[None]))[0]
-    static_tf = [
+    return [
         Transform(FRAME_BODY, FRAME_CAMERA, sc.camera.t_bc.copy(), cam_q),
         Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]) if sc.imu_rotation is None
                   else rots_to_quats(np.ascontiguousarray(sc.imu_rotation[None], dtype=np.float64))[0]),
     ]
+
+
+def _truth(sim: Simulation, with_camera: bool) -> dict:
+    """The ground truth written into the log (landmarks, biases, fields, odom origin, seed, tag geometry)."""
+    sc = sim.scenario
     tr0 = sc.sample(np.zeros(1))
     truth = {
         "frame_id": FRAME_WORLD,
@@ -450,17 +477,13 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
             "quat_xyzw": [float(c) for c in rots_to_quats(np.ascontiguousarray(tr0.R))[0]],
         },
         "seed": int(sim.seed),
-        "noise": nm != NoiseModel.zero(),
+        "noise": sim.noise != NoiseModel.zero(),
         "duration_s": sim.duration,
     }
-    if camera is not None:
+    if with_camera:
         truth["tag_size"] = sim.camera.tag_size
         truth["tag_family"] = sim.camera.family
-    piece = SimLog(sc.name, int(sim.seed), nm, sim.duration, start_ns, imu, odom, mag, detections, mocap, static_tf,
-                   truth, first={name: lo for name, (lo, _) in span.items()}, camera=camera, camera_sim=sim.camera)
-    streams = {"imu": imu, "odom": odom, "mag": mag, "detections": detections, "mocap": mocap}
-    rec = {name: int(d.rec_ns[-1]) if d.rec_ns.size else carry.rec[name] for name, d in streams.items()}
-    return piece, _Carry(rec, odom_carry)
+    return truth
 
 
 def _detections(

@@ -80,37 +80,70 @@ class BatchSmoother(Stepper):
 
     # ------------------------------------------------------------------ the whole solve
     def solve(self, progress=None) -> dict:
+        """Seed, preintegrate, solve, gate the outliers and solve again; the summary (also kept in ``stats``)."""
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.preintegration import D_END, D_W, keyframe_times, preintegrate, whitening
-        from slamobs.pipeline.smoother.seed import dead_reckoning_seed, observer_seed
 
         require_gtsam()
-        s, st, nz = self.stream, self.settings, self.noise
-        vel_t, det_t = self.vel_t, self.det_t
-        if vel_t.shape[0] < 2:
+        if self.vel_t.shape[0] < 2:
             raise InputError(self.where, "the batch smoother needs at least two velocity samples")
+        kf_t, kf_of_det, gaps = self._keyframes()
+        seed = self._seed(kf_t, kf_of_det)
+        t0, c0 = time.perf_counter(), time.process_time()
+        st = self.settings
+        segments = _Segments(self.vel_t[0], self.vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+        problem = self._problem(kf_t, kf_of_det, gaps, seed, segments)
+        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(problem.b_bar, (segments.n, 1)))
+        n_det = int(problem.det_idx.shape[0])
+        problem, sol, notes = self._solve_gated(problem, guess, seed.name, progress)
+        stats = g.residual_statistics(problem, sol)
+        stats["landmark"]["gated"] = n_det - int(problem.det_idx.shape[0])
+        t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
+        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "segments": segments, "solution": sol, "seed": seed}
+        summary, seconds = self._summary(sol, seed.name, stats)
+        self.stats["substeps"] = int(kf_t.shape[0])
+        self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": self.noise.as_dict()}
+        self.stats["notes"] = notes
+        self.timings.update({"seed_s": seed.seconds, "smoother_s": t_solve, "smoother_cpu_s": c_solve,
+                             **{f"smoother_{k}_s": v for k, v in seconds.items()}})
+        return summary
+
+    def _keyframes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Keyframe times, each detection's keyframe, and the velocity gaps between segments (None: no gap)."""
+        from slamobs.pipeline.smoother.preintegration import keyframe_times
+
+        s, vel_t = self.stream, self.vel_t
         starts = s.segment_starts
         gaps = np.stack([vel_t[starts - 1], vel_t[starts]], axis=-1) if starts.size else None
-        kf_t = keyframe_times(vel_t, det_t, st.keyframe_dt, gaps)
-        kf_of_frame = np.searchsorted(kf_t, det_t)
-        kf_of_det = np.repeat(kf_of_frame, np.diff(s.det_offsets))
-        k = kf_t.shape[0]
-        # seed
-        if self.seed_override is not None:
-            seed = self.seed_override
-        elif st.seed == DEAD_RECKONING:
-            seed = dead_reckoning_seed(s, kf_t, kf_of_det)
-        else:
-            from slamobs.pipeline.observers import get_observer
+        kf_t = keyframe_times(vel_t, self.det_t, self.settings.keyframe_dt, gaps)
+        kf_of_det = np.repeat(np.searchsorted(kf_t, self.det_t), np.diff(s.det_offsets))
+        return kf_t, kf_of_det, gaps
 
-            spec = get_observer(st.seed)
-            gains = spec.resolve_gains(self.options.seed_gains)
-            try:
-                seed = observer_seed(st.seed, s, gains, self.options, kf_t)
-            except InputError as err:
-                raise InputError(self.where, err.problem) from None
-        t0, c0 = time.perf_counter(), time.process_time()
-        segments = _Segments(vel_t[0], vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+    def _seed(self, kf_t: np.ndarray, kf_of_det: np.ndarray):
+        """The initial guess: the tests' prepared one, dead reckoning, or the configured observer's trajectory."""
+        from slamobs.pipeline.smoother.seed import dead_reckoning_seed, observer_seed
+
+        st = self.settings
+        if self.seed_override is not None:
+            return self.seed_override
+        if st.seed == DEAD_RECKONING:
+            return dead_reckoning_seed(self.stream, kf_t, kf_of_det)
+        from slamobs.pipeline.observers import get_observer
+
+        spec = get_observer(st.seed)
+        gains = spec.resolve_gains(self.options.seed_gains)
+        try:
+            return observer_seed(st.seed, self.stream, gains, self.options, kf_t)
+        except InputError as err:
+            raise InputError(self.where, err.problem) from None
+
+    def _problem(self, kf_t: np.ndarray, kf_of_det: np.ndarray, gaps: np.ndarray | None, seed, segments: _Segments):
+        """The factor graph's data: the odometry preintegrated between keyframes about the seed's (or the fixed)
+        bias, intervals across a gap left (almost) unconstrained, the detections, the bias priors and walk."""
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.preintegration import D_END, D_W, preintegrate, whitening
+
+        s, st, nz = self.stream, self.settings, self.noise
+        k = kf_t.shape[0]
         walk = None
         if segments.n > 1:
             walk = np.sqrt(st.segment_s) * np.r_[np.full(3, nz.gyro_bias_walk), np.full(3, nz.velocity_bias_walk)]
@@ -118,7 +151,7 @@ class BatchSmoother(Stepper):
         b_bar = seed.bias.copy() if self.fixed_bias is None else np.asarray(self.fixed_bias, float)
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
-        preintegrate(vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro ** 2, nz.velocity ** 2, data, cov)
+        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro ** 2, nz.velocity ** 2, data, cov)
         for lo, hi in (gaps if gaps is not None else ()):  # intervals across a gap: (almost) no constraint
             across = (kf_t[:-1] < hi) & (kf_t[1:] > lo)
             cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
@@ -127,12 +160,18 @@ class BatchSmoother(Stepper):
             prior_mean, prior = np.zeros(6), np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
         else:  # the reference of the tests: biases known
             prior_mean, prior = b_bar, np.full(6, 1e-9)
-        problem = g.Problem(data=data, b_bar=b_bar, seg_of=segments.of(kf_t[:-1]), kf_of_det=kf_of_det,
-                            det_idx=s.det_idx, det_y=s.det_y,
-                            det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
-                            bias_prior_sigma=prior, bias_prior_mean=prior_mean, walk_sigma=walk, huber=st.huber,
-                            anchor=k - 1)
-        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(b_bar, (segments.n, 1)))
+        return g.Problem(data=data, b_bar=b_bar, seg_of=segments.of(kf_t[:-1]), kf_of_det=kf_of_det,
+                         det_idx=s.det_idx, det_y=s.det_y,
+                         det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
+                         bias_prior_sigma=prior, bias_prior_mean=prior_mean, walk_sigma=walk, huber=st.huber,
+                         anchor=k - 1)
+
+    def _solve_gated(self, problem, guess, seed_name: str, progress):
+        """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
+        without the outliers the Huber kernel still listens to. The problem solved last, its solution, notes."""
+        from slamobs.pipeline.smoother import graph as g
+
+        st = self.settings
         sol = g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
                       progress=progress)
         kept = self._gate(problem, sol, st.gate_chi2)
@@ -141,7 +180,7 @@ class BatchSmoother(Stepper):
         if kept is not None and n_det - kept.size > MAX_GATED * n_det:  # not outliers: a wrong minimum
             notes.append(f"warning: batch: {n_det - kept.size} of {n_det} detections fail the χ² gate at the "
                          f"smoother's solution: it probably stopped in a local minimum far from the optimum (seed "
-                         f"'{seed.name}'); every detection was kept; try another batch.seed")
+                         f"'{seed_name}'); every detection was kept; try another batch.seed")
             kept = None
         if kept is not None:  # outliers the Huber kernel still listens to: solved again without them
             first = sol.summary
@@ -151,23 +190,19 @@ class BatchSmoother(Stepper):
                           max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
                           progress=progress)
             sol.summary = g.merge_summaries(first, sol.summary)
-        gated = n_det - int(problem.det_idx.shape[0])
-        stats = g.residual_statistics(problem, sol)
-        stats["landmark"]["gated"] = gated
-        t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
-        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "segments": segments, "solution": sol, "seed": seed}
+        return problem, sol, notes
+
+    def _summary(self, sol, seed_name: str, residuals: dict) -> tuple[dict, dict]:
+        """The smoother's summary for the run's metadata, and the solver's seconds per stage (taken out of it)."""
+        st = self.settings
         sd = np.sqrt(np.clip(np.einsum("sii->si", sol.bias_cov), 0.0, None))
         seconds = sol.summary.pop("seconds")
-        summary = {"seed": seed.name, "bias_model": st.bias, **sol.summary, "residuals": stats,
+        summary = {"seed": seed_name, "bias_model": st.bias, **sol.summary, "residuals": residuals,
                    "bias": {"estimate": sol.bias.tolist(), "sigma": sd.tolist()},
-                   "settings": {"huber": st.huber, "gate_chi2": st.gate_chi2, "keyframe_dt": st.keyframe_dt, "segment_s": st.segment_s,
-                                "max_iterations": st.max_iterations, "relative_tolerance": st.relative_tolerance}}
-        self.stats["substeps"] = int(k)
-        self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": nz.as_dict()}
-        self.stats["notes"] = notes
-        self.timings.update({"seed_s": seed.seconds, "smoother_s": t_solve, "smoother_cpu_s": c_solve,
-                             **{f"smoother_{k}_s": v for k, v in seconds.items()}})
-        return summary
+                   "settings": {"huber": st.huber, "gate_chi2": st.gate_chi2, "keyframe_dt": st.keyframe_dt,
+                                "segment_s": st.segment_s, "max_iterations": st.max_iterations,
+                                "relative_tolerance": st.relative_tolerance}}
+        return summary, seconds
 
     @staticmethod
     def _gate(problem, sol, gate_chi2: float | None) -> np.ndarray | None:

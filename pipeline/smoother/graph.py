@@ -208,66 +208,89 @@ def _damping(graph, keys_dims: list[tuple[int, int]], sqrt_lam: float) -> None:
                                              gtsam.noiseModel.Unit.Create(dim)))
 
 
+class _Steps:
+    """One Levenberg–Marquardt problem: GTSAM's factors plus the compiled relative-motion factors, one
+    elimination order, and the variables the motion factors do not damp."""
+
+    def __init__(self, graph, motion: _Motion, order, k: int, lm_keys: np.ndarray, bias_keys: np.ndarray) -> None:
+        self.graph, self.motion, self.order, self.k, self.bias_keys = graph, motion, order, k, bias_keys
+        self.others = [(k - 1, 6), *((int(key), 3) for key in lm_keys), *((int(key), 6) for key in bias_keys)]
+
+    def error(self, values, arrays) -> float:
+        """The total error: GTSAM's factors and the relative-motion factors."""
+        return self.graph.error(values) + self.motion.error(*arrays)
+
+    def step(self, values, arrays, error: float, lam: float, lam_max: float = 1e10):
+        """The first damped step (``λ`` raised tenfold until one is found) that lowers ``error``: the new values,
+        arrays, error and (bias marginal, its ``λ``), or None; the ``λ`` reached and the linear solves made."""
+        import gtsam
+
+        base = self.graph.linearize(values)
+        trials = 0
+        while lam <= lam_max:
+            trials += 1
+            lin = gtsam.GaussianFactorGraph()
+            lin.push_back(base)
+            self.motion.linearize(*arrays, np.sqrt(lam), lin)
+            _damping(lin, self.others, np.sqrt(lam))
+            tree = lin.eliminateMultifrontal(self.order)
+            del lin
+            delta = tree.optimize()
+            step_cov = (self._marginals(tree), lam)
+            del tree
+            new_values = values.retract(delta)
+            del delta
+            new_arrays = _arrays(new_values, self.k, self.bias_keys)
+            new_error = self.error(new_values, new_arrays)
+            if np.isfinite(new_error) and new_error < error:
+                return (new_values, new_arrays, new_error, step_cov), lam, trials
+            del new_values, new_arrays
+            lam *= 10.0
+        return None, lam, trials
+
+    def bias_covariance(self, values, arrays) -> np.ndarray:
+        """The biases' marginal covariance from an undamped factorization at ``values``."""
+        lin = self.graph.linearize(values)
+        self.motion.linearize(*arrays, 0.0, lin)
+        tree = lin.eliminateMultifrontal(self.order)
+        del lin
+        return self._marginals(tree)
+
+    def _marginals(self, tree) -> np.ndarray:
+        """The biases' marginal covariances (segments × 6 × 6) from an eliminated Bayes tree."""
+        return np.array([tree.marginalCovariance(int(key)) for key in self.bias_keys]).reshape(-1, 6, 6)
+
+
 def solve(problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_tolerance: float = 1e-5,
           progress=None) -> Solution:
     """Levenberg–Marquardt from ``guess``; the solution, the biases' marginal covariance and a summary."""
-    import gtsam
-
     t0 = time.perf_counter()
     k = problem.data.shape[0] + 1
     _, lm_keys, bias_keys = _keys(problem, guess)
     graph, values = build(problem, guess)
     motion = _Motion(problem, bias_keys)
     t_build = time.perf_counter() - t0
-    order = ordering(k, lm_keys, bias_keys)
-    others = [(k - 1, 6), *((int(key), 3) for key in lm_keys), *((int(key), 6) for key in bias_keys)]
-
-    def total_error(vals, arrays) -> float:
-        return graph.error(vals) + motion.error(*arrays)
-
+    lm = _Steps(graph, motion, ordering(k, lm_keys, bias_keys), k, lm_keys, bias_keys)
     arrays = _arrays(values, k, bias_keys)
-    error = total_error(values, arrays)
-    errors = [error]
-    lam, lam_max = 1e-5, 1e10
+    errors = [lm.error(values, arrays)]
+    lam = 1e-5
     iterations, converged, trials = 0, False, 0
     bias_cov, cov_lam = None, np.inf
     while iterations < max_iterations:
-        base = graph.linearize(values)
-        accepted = False
-        while lam <= lam_max:
-            trials += 1
-            lin = gtsam.GaussianFactorGraph()
-            lin.push_back(base)
-            motion.linearize(*arrays, np.sqrt(lam), lin)
-            _damping(lin, others, np.sqrt(lam))
-            tree = lin.eliminateMultifrontal(order)
-            del lin
-            delta = tree.optimize()
-            step_cov = (np.array([tree.marginalCovariance(int(key)) for key in bias_keys]).reshape(-1, 6, 6), lam)
-            del tree
-            new_values = values.retract(delta)
-            del delta
-            new_arrays = _arrays(new_values, k, bias_keys)
-            new_error = total_error(new_values, new_arrays)
-            if np.isfinite(new_error) and new_error < error:
-                accepted = True
-                break
-            del new_values, new_arrays
-            lam *= 10.0
-        del base
-        if not accepted:
+        step, lam, n = lm.step(values, arrays, errors[-1], lam)
+        trials += n
+        if step is None:
             converged = True  # no step decreases the error any more: a (local) minimum
             break
         # the marginal at the last point linearized (one small step before the solution)
-        bias_cov, cov_lam = step_cov
+        values, arrays, error, (bias_cov, cov_lam) = step
+        del step
         iterations += 1
-        decrease = error - new_error
-        values, arrays, error = new_values, new_arrays, new_error
         errors.append(error)
         lam = max(lam / 10.0, 1e-12)
         if progress is not None:
             progress(f"batch: iteration {iterations}, error {error:.6g}")
-        if decrease <= relative_tolerance * errors[-2]:
+        if errors[-2] - error <= relative_tolerance * errors[-2]:
             converged = True
             break
     t_solve = time.perf_counter() - t0 - t_build
@@ -275,12 +298,7 @@ def solve(problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_
     lms = np.array([values.atVector(int(key)) for key in lm_keys]).reshape(-1, 3)
     t = time.perf_counter()
     if bias_cov is None or cov_lam > 1e-3:  # no undamped factorization near the solution: one more
-        lin = graph.linearize(values)
-        motion.linearize(*arrays, 0.0, lin)
-        tree = lin.eliminateMultifrontal(order)
-        del lin
-        bias_cov = np.array([tree.marginalCovariance(int(key)) for key in bias_keys]).reshape(-1, 6, 6)
-        del tree
+        bias_cov = lm.bias_covariance(values, arrays)
     t_marg = time.perf_counter() - t
     summary = {
         "iterations": iterations,

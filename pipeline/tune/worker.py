@@ -69,7 +69,7 @@ def score(prepared, config) -> dict[str, float | None]:
     import pandas as pd
 
     from slamobs.pipeline.evaluation.metrics import landmark_errors
-    from slamobs.pipeline.evaluation.report import ReportOptions, evaluate_trajectory
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
     from slamobs.pipeline.observers.base import ObserverDiverged
     from slamobs.pipeline.run import estimator_input, truth_on_run_clock
     from slamobs.pipeline.writers import stretch_tables

@@ -165,25 +165,65 @@ def tag_landmarks(streams: LogStreams, options: TagOptions, *, camera_files: lis
         InputError: No camera model or no extrinsic for any camera, no tag size, or no detection left.
 
     """
-    from slamobs.pipeline.alignment import body_frame_name
-    from slamobs.pipeline.frames import TfBuffer
-
     path = streams.path
     notes: list[str] = []
-    corner_streams = list(streams.tag_corners)
     files = read_camera_files(list(camera_files)) if camera_files else CameraFiles()
     notes += files.notes
+    models, corner_streams = _with_intrinsics(streams, files, notes)
+    kept, added = _with_extrinsics(streams, corner_streams, models, files, identity_frames, body_frame, notes)
+    rows = []  # per camera: frame stamps, record times, offsets, ids, xyz, quat, quality, status, area
+    cameras_meta = {}
+    reject = np.zeros(len(REASONS), np.int64)
+    ignored = unsized = 0
+    for c, s in enumerate(kept):
+        model = models[s.topic]
+        row, n_ignored, n_unsized = _camera_poses(c, s, model, options, path)
+        rows.append(row)
+        reject += np.bincount(row[4].status, minlength=len(REASONS))  # row[4]: the tag poses
+        ignored, unsized = ignored + n_ignored, unsized + n_unsized
+        cameras_meta[s.topic] = f"{model.describe()}; frame '{s.frame_id}'"
+        notes.append(f"{s.topic}: camera {model.describe()}")
+    notes += _pose_notes(reject, ignored, unsized, options)
+    table = _table(rows)
+    stream, merge_notes = _merge(rows, options.sync_s)
+    notes += merge_notes
+    return TagLandmarks(stream, table, added, notes, cameras_meta)
+
+
+def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str]):
+    """The camera model of each corner stream and the streams that have one (the others noted as dropped).
+
+    Raises:
+        InputError: No stream has a camera model.
+
+    """
+    corner_streams = list(streams.tag_corners)
     models = _match_models(corner_streams, streams.camera_info, files, notes)
     missing = [s.topic for s in corner_streams if s.topic not in models]
     if missing and len(missing) == len(corner_streams):
         have = ", ".join(m.source for m in streams.camera_info) or "no CameraInfo topic"
-        raise InputError(path, f"no camera intrinsics for {', '.join(missing)} (the log has {have}); name a Kalibr or "
-                               "ROS camera_info YAML file in the config (cameras: FILE)", missing[0])
+        raise InputError(streams.path, f"no camera intrinsics for {', '.join(missing)} (the log has {have}); name a "
+                                       "Kalibr or ROS camera_info YAML file in the config (cameras: FILE)", missing[0])
     for topic in missing:
         notes.append(f"{topic}: no camera intrinsics (CameraInfo or cameras: file), its detections dropped")
-    corner_streams = [s for s in corner_streams if s.topic in models]
+    return models, [s for s in corner_streams if s.topic in models]
 
-    # extrinsics: TF, else the files' rig transforms, else frames.assume_identity
+
+def _with_extrinsics(streams: LogStreams, corner_streams: list[CornerStream], models: dict[str, CameraModel],
+                     files: CameraFiles, identity_frames: tuple[str, ...], body_frame: str | None, notes: list[str]):
+    """The corner streams with a camera-to-body transform and the rig transforms added from the camera files.
+
+    Extrinsics come from TF, else the files' rig transforms, else ``frames.assume_identity``; with one camera
+    the stream is kept regardless (the alignment stage reports the missing transform).
+
+    Raises:
+        InputError: No camera has a transform to the body frame.
+
+    """
+    from slamobs.pipeline.alignment import body_frame_name
+    from slamobs.pipeline.frames import TfBuffer
+
+    path = streams.path
     camera_frames = {m.name: s.frame_id.lstrip("/") for s in corner_streams
                      if (m := models[s.topic]) in files.models}
     imu = streams.angular_velocity.frame_id if streams.angular_velocity is not None and \
@@ -208,44 +248,42 @@ def tag_landmarks(streams: LogStreams, options: TagOptions, *, camera_files: lis
         raise InputError(path, f"no camera has a transform to the body frame '{body}'; list the camera frames in "
                                "frames.assume_identity or give the extrinsics (TF, Kalibr chain, TagSLAM camera "
                                "poses)")
+    return kept, added
 
-    rows = []  # per camera: frame stamps, record times, offsets, ids, xyz, quat, quality, status, area
-    cameras_meta = {}
-    reject = np.zeros(len(REASONS), np.int64)
-    ignored = unsized = 0
-    for c, s in enumerate(kept):
-        model = models[s.topic]
-        keep = np.ones(s.ids.shape[0], bool)
-        if options.ignore:
-            drop = np.isin(s.ids, list(options.ignore))
-            ignored += int(np.count_nonzero(drop))
-            keep &= ~drop
-        sizes = _sizes(s.ids, options, s.topic, path)
-        no_size = ~np.isfinite(sizes) & keep
-        unsized += int(np.count_nonzero(no_size))
-        keep &= ~no_size
-        ideal = model.undistort(s.corners.reshape(-1, 2)).reshape(-1, 4, 2)
-        poses = solve_tags(ideal[keep], sizes[keep], model.k, options.quality)
-        reject += np.bincount(poses.status, minlength=len(REASONS))
-        frame_of = np.repeat(np.arange(len(s)), np.diff(s.offsets))[keep]
-        rows.append((c, s, frame_of, s.ids[keep], poses, _area(s.corners[keep])))
-        cameras_meta[s.topic] = f"{model.describe()}; frame '{s.frame_id}'"
-        notes.append(f"{s.topic}: camera {model.describe()}")
 
+def _camera_poses(c: int, s: CornerStream, model: CameraModel, options: TagOptions,
+                  path: str) -> tuple[tuple, int, int]:
+    """Camera ``c``'s row for ``_table``/``_merge`` (its tag poses) and the counts of ignored and unsized
+    detections, which are left out before solving."""
+    keep = np.ones(s.ids.shape[0], bool)
+    ignored = 0
+    if options.ignore:
+        drop = np.isin(s.ids, list(options.ignore))
+        ignored = int(np.count_nonzero(drop))
+        keep &= ~drop
+    sizes = _sizes(s.ids, options, s.topic, path)
+    no_size = ~np.isfinite(sizes) & keep
+    unsized = int(np.count_nonzero(no_size))
+    keep &= ~no_size
+    ideal = model.undistort(s.corners.reshape(-1, 2)).reshape(-1, 4, 2)
+    poses = solve_tags(ideal[keep], sizes[keep], model.k, options.quality)
+    frame_of = np.repeat(np.arange(len(s)), np.diff(s.offsets))[keep]
+    return (c, s, frame_of, s.ids[keep], poses, _area(s.corners[keep])), ignored, unsized
+
+
+def _pose_notes(reject: np.ndarray, ignored: int, unsized: int, options: TagOptions) -> list[str]:
+    """What the tag-pose stage kept and why it dropped the rest, counted over every camera."""
     total = int(reject.sum())
     text = f"tag poses: {total - int(reject[1:].sum())} of {total} detections kept"
     if reject[1:].any():
         text += "; rejected: " + ", ".join(f"{options.quality.describe(r)} {int(reject[r])}"
                                            for r in range(1, len(REASONS)) if reject[r])
-    notes.append(text)
+    notes = [text]
     if ignored:
         notes.append(f"{ignored} detections of ignored tags (tags.ignore) dropped")
     if unsized:
         notes.append(f"{unsized} detections of tags without a size (tags.sizes, no tags.size) dropped")
-    table = _table(rows)
-    stream, merge_notes = _merge(rows, options.sync_s)
-    notes += merge_notes
-    return TagLandmarks(stream, table, added, notes, cameras_meta)
+    return notes
 
 
 def _table(rows) -> dict[str, np.ndarray]:

@@ -1,0 +1,203 @@
+"""report.md: the report's JSON document rendered as Markdown tables, one function per section.
+
+Rendering reads the finished ``report.json`` dict only (a report read back from a run directory renders the
+same page), so nothing here computes a number.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def convergence_definition(conv: dict[str, Any]) -> str:
+    """The convergence figure's definition, with its numbers (report.md)."""
+    return (f"first time after which the error level (median aligned position error over a {conv['window_s']:.3g} s "
+            f"window, {100 * conv['window_fraction']:g} % of the log) stays within max(threshold "
+            f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_level_m']:.4g} m, the highest level "
+            f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
+
+
+def convergence_line(conv: dict[str, Any]) -> str | None:
+    """The convergence figure for a one-line summary: what stays within the band is the error *level* (a running
+    median), not every error, which may still exceed the band now and then."""
+    if conv.get("t_since_start_s") is None:
+        return None
+    return (f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
+            f"within {conv['band_m']:.3g} m from then on)")
+
+
+def _fmt(v: Any, digits: int = 6) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+STAT_KEYS = ("rmse", "mean", "median", "std", "min", "max", "sse", "n", "p95")
+
+
+def _stats_table(rows: list[tuple[str, dict[str, Any] | None]]) -> list[str]:
+    out = ["| quantity | " + " | ".join(STAT_KEYS) + " |", "|---|" + "---|" * len(STAT_KEYS)]
+    for name, st in rows:
+        cells = [_fmt(st.get(k)) if st is not None else "–" for k in STAT_KEYS]
+        out.append(f"| {name} | " + " | ".join(cells) + " |")
+    return out
+
+
+def _vec_str(v: list[float] | None) -> str:
+    return "–" if v is None else "[" + ", ".join(_fmt(x) for x in v) + "]"
+
+
+def _md_trajectory(report: dict[str, Any]) -> list[str]:
+    ape, conv = report["ape"], report["convergence"]
+    lines = ["## Absolute pose error (after alignment)", ""]
+    lines += _stats_table([("translation [m]", ape["translation_m"]), ("rotation [deg]", ape["rotation_deg"])])
+    conv_txt = (
+        f"{conv['t_since_start_s']:.3f} s after the estimate start"
+        if conv["t_ns"] is not None
+        else "not converged (the last aligned position error is above the band)"
+    )
+    lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
+    if report["evo"].get("ape"):
+        lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]
+    by = report.get("ape_by_alignment") or {}
+    if by:
+        lines += ["### APE under each alignment (same pairs)", ""]
+        lines += _stats_table([(f"{k}: translation [m]", v["translation_m"]) for k, v in by.items()]
+                              + [(f"{k}: rotation [deg]", v["rotation_deg"]) for k, v in by.items()])
+        lines.append("")
+    return lines + _md_relative(report)
+
+
+def _md_relative(report: dict[str, Any]) -> list[str]:
+    """RPE, drift and the clock offset."""
+    rpe_s, drift, off = report.get("rpe"), report.get("drift"), report["time_offset"]
+    lines = ["## Relative error and drift", ""]
+    if rpe_s:
+        lines += [f"RPE, delta {rpe_s['delta']:g} {rpe_s['delta_unit']} ({rpe_s['n_pairs']} pairs):", ""]
+        lines += _stats_table([("translation [m]", rpe_s["translation_m"]), ("rotation [deg]", rpe_s["rotation_deg"])])
+        lines.append("")
+    if drift:
+        lines += ["| segment [m] | segments | translation [%] | rotation [deg/m] |", "|---|---|---|---|"]
+        for row in drift["per_length"]:
+            lines.append(f"| {row['length_m']:g} | {row['n_segments']} | {_fmt(row['translation_pct'], 4)} | "
+                         f"{_fmt(row['rotation_deg_per_m'], 4)} |")
+        lines += [f"| all | {drift['n_segments']} | {_fmt(drift['translation_pct'], 4)} | "
+                  f"{_fmt(drift['rotation_deg_per_m'], 4)} |", ""]
+    if not rpe_s and not drift:
+        lines += ["Path too short for RPE and drift.", ""]
+    est = "not estimated" if off["estimated_s"] is None else (
+        f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
+        f"{'reliable' + LAG_CAVEAT if off['reliable'] else 'NOT reliable' + offset_doubts(off)})")
+    lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
+    return lines
+
+
+#: What a reliable offset is and is not: the estimate's lag behind the truth (a filter's delay) looks the same.
+LAG_CAVEAT = (": the estimate matches the truth best when shifted by this much, from the clocks or from the "
+              "estimate lagging behind the motion; the trajectories cannot tell the two apart")
+
+
+def offset_doubts(off: dict[str, Any]) -> str:
+    """Why a clock offset of the report's ``time_offset`` section is not reliable, as ``": reason; reason"``."""
+    why = []
+    if off["peak_correlation"] < 0.5:
+        why.append("correlation below 0.5")
+    if abs(off["estimated_s"]) >= off["search_window_s"] - off["grid_step_s"]:
+        why.append("at the search limit")
+    with_m, without_m = off.get("ape_rmse_with_m"), off.get("ape_rmse_without_m")
+    if with_m is not None and without_m is not None and with_m > without_m:
+        why.append(f"applied, it raises the APE rmse from {without_m:.4g} to {with_m:.4g} m")
+    return ": " + "; ".join(why) if why else ""
+
+
+def _md_landmarks(lm: dict[str, Any]) -> list[str]:
+    lines = ["## Landmark map error", ""]
+    if not lm["truth_available"]:
+        return lines + [f"{lm['n_estimated']} landmarks estimated; no landmark ground truth available.", ""]
+    lines += [f"{lm['n_matched']} of {lm['n_estimated']} estimated landmarks have ground truth "
+              f"({lm['n_truth']} true landmarks).", ""]
+    rows = [("after trajectory alignment [m]", lm["error_m"])]
+    if lm.get("map_aligned"):
+        rows.append(("after map-only alignment [m]", lm["map_aligned"]["error_m"]))
+    lines += _stats_table(rows)
+    lines += ["", "| id | error [m] | error, map-only alignment [m] | estimate (aligned) [m] | truth [m] | n_obs |",
+              "|---|---|---|---|---|---|"]
+    for row in lm["per_landmark"]:
+        lines.append(f"| {row['id']} | {row['error_m']:.6g} | {_fmt(row.get('error_map_aligned_m'))} | "
+                     f"{_vec_str(row['estimate_aligned'])} | {_vec_str(row['truth'])} | {_fmt(row['n_obs'])} |")
+    return lines + ["", f"Estimated without truth: {lm['estimated_without_truth'] or 'none'}. "
+                        f"True landmarks never estimated: {lm['truth_never_estimated'] or 'none'}.", ""]
+
+
+def _md_biases(bi: dict[str, Any]) -> list[str]:
+    lines = ["## Biases (body frame)", ""]
+    if bi["final"] is None:
+        return lines + ["No bias estimates.", ""]
+    lines += ["| bias | final estimate | truth | error (truth − estimate) | ‖error‖ | ‖error‖ of window mean | "
+              "drift [/s] |", "|---|---|---|---|---|---|---|"]
+    for key, label in (("gyro", "gyro [rad/s]"), ("velocity", "velocity [m/s]")):
+        truth = bi["truth"][key] if bi["truth"] else None
+        err = bi["error"][key] if bi["error"] else None
+        norm = bi["error_norm"][key] if bi["error_norm"] else None
+        wnorm = bi["window_error_norm"][key] if bi.get("window_error_norm") else None
+        drift = bi["stability"][key]["drift_norm_per_s"] if bi.get("stability") else None
+        lines.append(f"| {label} | {_vec_str(bi['final'][key])} | {_vec_str(truth)} | {_vec_str(err)} | "
+                     f"{_fmt(norm)} | {_fmt(wnorm)} | {_fmt(drift)} |")
+    st = bi.get("stability") or {}
+    frac = st.get("window_fraction")
+    return lines + ["", f"Final estimate at t_ns = {bi['final']['t_ns']}; stability window: last "
+                        f"{_fmt(frac)} of the bias time span.", ""]
+
+
+
+def render_markdown(report: dict[str, Any]) -> str:
+    """Human-readable version of the report (tables for APE, RPE/drift, landmarks, biases and the method)."""
+    lines = ["# slamobs error report", ""]
+    lines += _md_trajectory(report)
+    lines += _md_landmarks(report["landmarks"])
+    lines += _md_biases(report["biases"])
+    if report.get("notes"):
+        lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
+    lines += _md_method(report)
+    return "\n".join(lines)
+
+
+def _md_method(report: dict[str, Any]) -> list[str]:
+    """How every number was obtained, one table row per definition."""
+    m = report["method"]
+    assoc, al = m["association"], m["alignment"]
+    lines = [
+        "## Method",
+        "",
+        "| item | value |",
+        "|---|---|",
+        f"| tool | {m['tool']} |",
+        f"| association | {assoc['rule']} |",
+        f"| t_max_diff | {assoc['t_max_diff_s']:g} s |",
+        f"| t_offset | {assoc['t_offset_s']:g} s |",
+        f"| pairs | {assoc['n_pairs']} (estimate {assoc['n_estimate']} poses, truth {assoc['n_truth']} poses, "
+        f"driven by the {assoc['driving_series']}) |",
+        f"| alignment | {al['description']} |",
+        f"| alignment rotation (quaternion x, y, z, w) | {_vec_str(al['rotation_quat_xyzw'])} |",
+        f"| alignment translation [m] | {_vec_str(al['translation_m'])} |",
+        f"| alignment scale | {al['scale']:.9g} |",
+        f"| APE translation | {m['ape_translation']} |",
+        f"| APE rotation | {m['ape_rotation']} |",
+        f"| APE by alignment | {m['ape_by_alignment']} |",
+        f"| statistics | {m['statistics']} |",
+    ]
+    if report.get("rpe"):
+        lines.append(f"| RPE | {report['rpe']['method']} |")
+    if report.get("drift"):
+        lines.append(f"| drift | {report['drift']['method']} |")
+    lines += [
+        f"| clock offset | {report['time_offset']['method']} |",
+        f"| landmarks | {m['landmarks']} |",
+    ]
+    if report["landmarks"].get("map_aligned"):
+        lines.append(f"| map-only alignment | {report['landmarks']['map_aligned']['method']} |")
+    lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |", ""]
+    return lines
+

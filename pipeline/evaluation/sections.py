@@ -1,0 +1,428 @@
+"""The report's sections, one class each: APE, APE under each alignment, RPE, drift, clock offset, landmark map,
+biases, convergence.
+
+Each is built with its options, computes from the data in :meth:`process_data` and gives its ``report.json``
+section in :meth:`get_statistic` (the shape of evo's ``core/metrics.py`` metric classes); :attr:`notes` are
+what it found worth saying in the report's notes, :attr:`METHOD` how its numbers are obtained. The sections
+are pure: tables and the :class:`~.trajectory_evaluation.TrajectoryEvaluation` in, JSON-ready dicts out.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from slamobs.pipeline.blocks import row_blocks
+from slamobs.pipeline.evaluation import metrics, slam_metrics
+from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
+from slamobs.pipeline.evaluation.drift import segment_drift
+from slamobs.pipeline.evaluation.sync import NS_PER_S
+from slamobs.pipeline.evaluation.tables import (
+    GYRO_COLUMNS,
+    VEL_COLUMNS,
+    Table,
+    column,
+    column_names,
+    landmark_table,
+    n_rows,
+    require_columns,
+    time_order,
+)
+from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
+from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, TrajectoryEvaluation
+from slamobs.pipeline.lie import rots_to_quats
+
+#: evo's command-line flags of each alignment slamobs shares with it
+EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
+
+
+def alignment_dict(al: Alignment) -> dict[str, Any]:
+    """An alignment as the report states it."""
+    return {
+        "type": al.kind,
+        "description": DESCRIPTIONS[al.kind],
+        "n_points": int(al.n_points),
+        "rotation_quat_xyzw": [float(v) for v in rots_to_quats(np.asarray(al.rot, dtype=np.float64)[None])[0]],
+        "rotation_matrix": [[float(v) for v in row] for row in al.rot],
+        "translation_m": [float(v) for v in al.trans],
+        "scale": float(al.scale),
+    }
+
+
+class Section:
+    """One section of the report: :meth:`process_data` computes it, :meth:`get_statistic` gives it."""
+
+    METHOD: dict[str, str] = {}  # its entries of the report's ``method``
+
+    def __init__(self) -> None:
+        self.notes: list[str] = []
+        self.result: dict[str, Any] | None = None
+
+    def get_statistic(self) -> dict[str, Any] | None:
+        return self.result
+
+
+class ApeSection(Section):
+    """The APE (translation and rotation) after the report's alignment: the evaluation computed it already."""
+
+    METHOD = {
+        "ape_translation": "per pair ‖(s R p_est + t) − p_truth‖ in metres (evo APE translation_part)",
+        "ape_rotation": "per pair angle of R_truthᵀ (R R_est) in degrees, in [0, 180] (evo APE rotation_angle_deg)",
+        "statistics": ("rmse = sqrt(sse / n), sse = Σ e², std is the population std (ddof = 0), as evo; "
+                       "p90/p95/p99 are percentiles with linear interpolation"),
+    }
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
+
+
+class ApeByAlignmentSection(Section):
+    """The same APE after each alignment fitted on the same pairs: what the report's alignment absorbs."""
+
+    METHOD = {"ape_by_alignment": ("the same APE after each alignment fitted on the same pairs: what the primary "
+                                   "alignment absorbs; yaw (4-DoF) only for runs with IMU directions")}
+
+    def __init__(self, options: ReportOptions) -> None:
+        super().__init__()
+        self.options = options
+
+    def kinds(self) -> list[str]:
+        """The report's alignment first; yaw (4-DoF) only for gravity-aligned runs (or when it is the report's)."""
+        align = self.options.align
+        kinds = [align] + [k for k in ("se3", "yaw", "origin", "none") if k != align]
+        if not self.options.gravity_aligned:
+            kinds = [k for k in kinds if k != "yaw" or k == align]
+        return kinds
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        kinds, p = self.kinds(), ev.paired
+        fits: dict[str, Alignment] = {}
+        for kind in kinds[1:]:
+            try:
+                fits[kind] = fit_alignment(kind, p.ref_pos, p.est_pos, p.ref_rot, p.est_rot)
+            except ValueError as err:
+                self.notes.append(f"APE with {kind} alignment not computed: {err}")
+        errors = aligned_errors(fits, p)
+        errors[self.options.align] = (ev.translation.errors, ev.rotation.errors)
+        fits[self.options.align] = ev.alignment
+        self.result = {kind: {"translation_m": metrics.statistics(errors[kind][0]),
+                              "rotation_deg": metrics.statistics(errors[kind][1]),
+                              "alignment": alignment_dict(fits[kind])}
+                       for kind in kinds if kind in fits}
+
+
+def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """APE (translation, rotation in degrees) after each alignment, in one pass over blocks of pairs: the
+    rotation matrices of a block serve every alignment, and no aligned estimate of all pairs is held."""
+    n = len(p)
+    out = {kind: (np.empty(n), np.empty(n)) for kind in fits}
+    for rows in row_blocks(n):
+        ref_pos, est_pos, ref_rot, est_rot = p.ref_pos[rows], p.est_pos[rows], p.ref_rot[rows], p.est_rot[rows]
+        for kind, al in fits.items():
+            pos = al.positions(est_pos)
+            out[kind][0][rows] = metrics.ape_errors("trans_part", ref_pos, None, pos, None)
+            out[kind][1][rows] = metrics.ape_errors("angle_deg", ref_pos, ref_rot, pos, np.matmul(al.rot, est_rot))
+    return out
+
+
+class RpeSection(Section):
+    """evo's RPE over pose pairs ``rpe_delta_m`` of travelled path apart (None on a path too short)."""
+
+    def __init__(self, options: ReportOptions) -> None:
+        super().__init__()
+        self.options = options
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        options = self.options
+        opts = RpeOptions(options.rpe_delta_m, "m", 0.1, False, False)
+        al = AlignOptions(options.align)
+        try:
+            tr = rpe(ev.truth, ev.estimate, "trans_part", ev.sync, al, opts, paired=ev.paired, like=ev.translation)
+            rr = rpe(ev.truth, ev.estimate, "angle_deg", ev.sync, al, opts, paired=ev.paired, like=ev.translation)
+        except ValueError as err:
+            self.notes.append(f"no RPE: {err}")
+            return
+        self.result = {
+            "delta": float(options.rpe_delta_m),
+            "delta_unit": "m",
+            "n_pairs": int(tr.errors.shape[0]),
+            "translation_m": tr.stats,
+            "rotation_deg": rr.stats,
+            "method": (f"evo_rpe definitions: consecutive pose pairs of the aligned estimate {options.rpe_delta_m:g} "
+                       "m of travelled path apart (a pair closes when its path reaches the delta); error pose "
+                       "E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j); translation ‖t_E‖ in metres, rotation angle of R_E in degrees "
+                       f"(evo_rpe ... --delta {options.rpe_delta_m:g} --delta_unit m"
+                       f"{EVO_ALIGN_FLAGS.get(options.align, '')}"
+                       " -r trans_part / angle_deg)"),
+        }
+
+
+class DriftSection(Section):
+    """KITTI-style drift per segment length on the associated pairs (None without a segment)."""
+
+    def __init__(self, options: ReportOptions) -> None:
+        super().__init__()
+        self.options = options
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        p = ev.paired
+        if len(p) < 3:
+            return
+        t = p.t_est_ns
+        dt = float(np.median(np.diff(t))) / NS_PER_S if t is not None and t.shape[0] > 1 else 0.1
+        step = max(1, int(round(1.0 / dt))) if dt > 0 else 10
+        out = segment_drift(p.ref_pos, p.ref_rot, ev.translation.est_pos_aligned, ev.translation.est_rot_aligned,
+                            self.options.drift_lengths_m, step)
+        if out["n_segments"] == 0:
+            return
+        out["method"] = (
+            "KITTI odometry devkit definition on the associated pairs: from every pair about 1 s apart "
+            f"(every {step} pairs), for each segment length L the first pair whose truth path distance exceeds "
+            "the start's by more than L; E = (P_i⁻¹P_j)⁻¹(Q_i⁻¹Q_j); translation_pct = mean ‖t_E‖/L × 100, "
+            "rotation_deg_per_m = mean angle(R_E)/L; lengths are KITTI's 100–800 m for paths over 1.6 km, else "
+            "10–50 % of the truth path; independent of the rigid alignment, sensitive to scale"
+        )
+        self.result = out
+
+
+class TimeOffsetSection(Section):
+    """The estimated clock offset between estimate and truth, and the one applied."""
+
+    def __init__(self, options: ReportOptions) -> None:
+        super().__init__()
+        self.options = options
+
+    def unreliable_note(self, ev: TrajectoryEvaluation) -> None:
+        """Note an applied (``t_offset auto``) offset that is not reliable; an offset not applied is still being
+        searched for meanwhile and is not waited for here."""
+        off = ev.time_offset if self.options.t_offset_s == "auto" else None
+        if off is not None and not off.reliable:
+            edge = ", at the search limit" if off.at_window_edge else ""
+            self.notes.append(f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
+                              f"{off.peak_correlation:.2f}{edge})")
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        off = ev.time_offset
+        self.result = {
+            "estimated_s": None if off is None else off.offset_s,
+            "peak_correlation": None if off is None else off.peak_correlation,
+            "signal": None if off is None else off.signal,
+            "reliable": None if off is None else off.reliable,
+            "ape_rmse_with_m": None if off is None else off.rmse_with_m,
+            "ape_rmse_without_m": None if off is None else off.rmse_without_m,
+            "search_window_s": None if off is None else off.search_window_s,
+            "grid_step_s": None if off is None else off.grid_step_s,
+            "applied_s": float(ev.applied_offset_s),
+            "applied_from": "estimate" if self.options.t_offset_s == "auto" else "option",
+            "method": (
+                "Pearson cross-correlation of a motion signal that the unknown frame alignment does not change: "
+                "the angular rate magnitude |ω|, or the speed |v| when it varies clearly more (signal), of estimate "
+                "and truth, resampled on one grid as mean rates per grid step; best lag within ±search_window_s, "
+                "refined off the grid by golden-section search. Sign as evo --t_offset: t_estimate + offset is on "
+                "the truth clock. Reliable: peak correlation >= 0.5, not on the window edge, and an offset more than "
+                "one grid step from zero must not make the translation APE rmse larger (ape_rmse_with_m, with it "
+                "applied; ape_rmse_without_m, without; same association and alignment). A lag of the estimate "
+                "behind the motion (an observer's filtering delay) shows as the same offset: a reliable offset is "
+                "where the estimate matches the truth best, not proof that the clocks differ. Applied to the "
+                "association only when asked (t_offset auto)"
+            ),
+        }
+
+
+#: A map whose error after the trajectory's alignment is this many times its error after an alignment of its own (and
+#: over MAP_PLACE_MIN_M) is named in the notes: its shape matches the landmark truth, its place does not.
+MAP_PLACE_FACTOR = 10.0
+MAP_PLACE_MIN_M = 1.0
+
+
+class LandmarkSection(Section):
+    """The final map's error against the landmark truth: after the trajectory's alignment, and after an SE(3)
+    alignment of the map alone (its shape error)."""
+
+    METHOD = {"landmarks": (
+        "final map moved by the same (s, R, t) as the trajectory (not re-fitted); "
+        "error = ‖s R p̂_i + t − p_i‖ for ids present in both the estimate and the truth; "
+        "map_aligned re-fits SE(3) on the landmarks alone; truth_never_estimated are true landmarks the "
+        "run never saw, estimated_without_truth are estimated ids the truth does not know"
+    )}
+    MAP_ALIGNED_METHOD = ("SE(3) Umeyama fitted on the matched landmarks alone (map-only alignment); error = "
+                          "‖R_m p̂_i + t_m − p_i‖. The gap to error_m (trajectory alignment) is how far the map sits "
+                          "from where the trajectory puts it; error under this alignment is the map's shape error")
+
+    def __init__(self, landmark_truth: dict[int, np.ndarray] | None) -> None:
+        super().__init__()
+        self.landmark_truth = landmark_truth
+
+    def process_data(self, landmarks: Table | None, al: Alignment) -> None:
+        ids, xyz = landmark_table(landmarks)
+        section: dict[str, Any] = {"n_estimated": int(ids.shape[0]), "truth_available": self.landmark_truth is not None}
+        self.result = section
+        if self.landmark_truth is None:
+            section.update(n_truth=None, n_matched=0, error_m=None, per_landmark=[], estimated_without_truth=None,
+                           truth_never_estimated=None, map_aligned=None)
+            return
+        lm = metrics.landmark_errors(ids, xyz, self.landmark_truth, al.rot, al.trans, al.scale)
+        row_of = {int(i): k for k, i in enumerate(ids)}
+        raw = xyz[[row_of[int(i)] for i in lm.ids]] if lm.ids.size else np.empty((0, 3))
+        map_err, map_aligned = self._map_only(raw, lm)
+        has_n_obs = landmarks is not None and "n_obs" in column_names(landmarks)
+        n_obs = dict(zip(ids.tolist(), column(landmarks, "n_obs").tolist())) if has_n_obs else {}
+        section.update(
+            n_truth=len(self.landmark_truth),
+            n_matched=int(lm.ids.shape[0]),
+            error_m=metrics.statistics(lm.errors) if lm.ids.size else None,
+            per_landmark=[
+                {
+                    "id": int(i),
+                    "error_m": float(e),
+                    "error_map_aligned_m": None if map_err is None else float(map_err[k]),
+                    "estimate_aligned": [float(v) for v in p],
+                    "truth": [float(v) for v in q],
+                    "n_obs": int(n_obs[int(i)]) if int(i) in n_obs else None,
+                }
+                for k, (i, e, p, q) in enumerate(zip(lm.ids, lm.errors, lm.est_aligned, lm.truth))
+            ],
+            estimated_without_truth=[int(i) for i in lm.estimated_without_truth],
+            truth_never_estimated=[int(i) for i in lm.truth_never_estimated],
+            map_aligned=map_aligned,
+        )
+        self.notes += self._map_place_note()
+
+    def _map_only(self, raw: np.ndarray, lm: metrics.LandmarkErrors) -> tuple[np.ndarray | None, dict | None]:
+        """Per-landmark error after an SE(3) alignment of the matched landmarks alone, and its section."""
+        fit = slam_metrics.map_only_alignment(raw, lm.truth) if lm.ids.size else None
+        if fit is None:
+            return None, None
+        rot_m, trans_m = fit
+        map_err = np.linalg.norm(metrics.apply_alignment(rot_m, trans_m, 1.0, raw) - lm.truth, axis=1)
+        return map_err, {
+            "error_m": metrics.statistics(map_err),
+            "alignment": alignment_dict(Alignment("se3", rot_m, trans_m, 1.0, int(lm.ids.size))),
+            "method": self.MAP_ALIGNED_METHOD,
+        }
+
+    def _map_place_note(self) -> list[str]:
+        """Say when the map's shape fits the landmark truth but its place does not: the landmark truth in another
+        frame than the trajectory truth (a UTM truth file beside the log's landmark truth gave landmark errors of
+        4,700 km and no word why), or a map that disagrees with its own trajectory."""
+        mine = (self.result.get("map_aligned") or {}).get("error_m") or {}
+        placed = self.result.get("error_m") or {}
+        if mine.get("rmse") is None or placed.get("rmse") is None:
+            return []
+        if placed["rmse"] <= max(MAP_PLACE_MIN_M, MAP_PLACE_FACTOR * mine["rmse"]):
+            return []
+        return [f"landmark map: {placed['rmse']:.4g} m from its truth after the trajectory's alignment, "
+                f"{mine['rmse']:.4g} m after an alignment of its own: its shape fits the landmark truth, its place "
+                "does not (the landmark truth in another frame than the trajectory truth, or a map that disagrees "
+                "with its trajectory)"]
+
+    def map_only(self) -> dict[str, Any] | None:
+        """The map error of a run without trajectory truth (processed with no alignment): the landmarks after a
+        map-only SE(3) alignment (needs three matched landmarks not on one line; None otherwise)."""
+        section = self.result
+        if section is None or section["map_aligned"] is None:
+            return None
+        return {
+            "n_estimated": section["n_estimated"],
+            "n_truth": section["n_truth"],
+            "n_matched": section["n_matched"],
+            "error_m": section["map_aligned"]["error_m"],
+            "alignment": section["map_aligned"]["alignment"],
+            "method": section["map_aligned"]["method"],
+            "per_landmark": [{"id": row["id"], "error_m": row["error_map_aligned_m"], "n_obs": row["n_obs"]}
+                             for row in section["per_landmark"]],
+            "estimated_without_truth": section["estimated_without_truth"],
+            "truth_never_estimated": section["truth_never_estimated"],
+        }
+
+
+def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:
+    """Map error of a run without trajectory truth: :meth:`LandmarkSection.map_only`, the same numbers as the
+    report's ``map_aligned``."""
+    section = LandmarkSection(landmark_truth)
+    section.process_data(landmarks, Alignment("none", np.eye(3), np.zeros(3), 1.0, 0))
+    return section.map_only()
+
+
+def _vec(v: Any) -> list[float]:
+    return [float(x) for x in np.asarray(v, dtype=np.float64).reshape(3)]
+
+
+class BiasSection(Section):
+    """The final bias estimates against their truth, and how still they are over the last stretch of the run."""
+
+    METHOD = {"biases": (
+        "final = last row of the bias table; biases are body-frame quantities, unaffected by the "
+        "alignment; error = truth − estimate, error_norm = its Euclidean norm; stability over the last "
+        "window_fraction of the bias time span: per-axis mean, std, range and least-squares slope "
+        "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
+    )}
+
+    def __init__(self, bias_truth: dict[str, np.ndarray] | None, window_fraction: float) -> None:
+        super().__init__()
+        self.truth = None if bias_truth is None else {"gyro": _vec(bias_truth["gyro"]),
+                                                      "velocity": _vec(bias_truth["velocity"])}
+        self.window_fraction = window_fraction
+
+    def process_data(self, biases: Table | None) -> None:
+        truth = self.truth
+        section: dict[str, Any] = {"final": None, "truth": truth, "error": None, "error_norm": None,
+                                   "stability": None, "window_error": None, "window_error_norm": None}
+        self.result = section
+        if biases is None or n_rows(biases) == 0:
+            return
+        require_columns(biases, ("t_ns",) + GYRO_COLUMNS + VEL_COLUMNS, "biases")
+        order = time_order(column(biases, "t_ns", np.int64))
+        t_ns = column(biases, "t_ns", np.int64)[order]
+        gyro = [column(biases, c, np.float64)[order] for c in GYRO_COLUMNS]  # columns: no (N, 3) copy
+        vel = [column(biases, c, np.float64)[order] for c in VEL_COLUMNS]
+        final = {"t_ns": int(t_ns[-1]), "gyro": _vec([c[-1] for c in gyro]), "velocity": _vec([c[-1] for c in vel])}
+        section["final"] = final
+        stab = {"window_fraction": float(self.window_fraction),
+                "gyro": slam_metrics.window_stats(t_ns, gyro, self.window_fraction),
+                "velocity": slam_metrics.window_stats(t_ns, vel, self.window_fraction)}
+        section["stability"] = stab
+        if truth is not None:
+            err = {k: [t - e for t, e in zip(truth[k], final[k])] for k in ("gyro", "velocity")}
+            section["error"] = err
+            section["error_norm"] = {k: float(np.linalg.norm(err[k])) for k in err}
+            werr = {k: [t - e for t, e in zip(truth[k], stab[k]["mean"])] for k in ("gyro", "velocity")}
+            section["window_error"] = werr
+            section["window_error_norm"] = {k: float(np.linalg.norm(werr[k])) for k in werr}
+
+
+class ConvergenceSection(Section):
+    """When the aligned position error reaches the observer's own steady level (:func:`slam_metrics.convergence`)."""
+
+    METHOD = {"convergence": (
+        "the error level is the running median of the aligned position error over a centred window of "
+        "window_fraction of the log's time span (window_s; evaluated at up to 2000 evenly spaced stamps, over "
+        "an even stride of at most 2001 errors of the window); "
+        "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
+        "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
+        "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
+        "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
+        "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
+    )}
+
+    def __init__(self, threshold_m: float) -> None:
+        super().__init__()
+        self.threshold_m = threshold_m
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        t0 = int(ev.estimate.t_ns[0])
+        c = slam_metrics.convergence(ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level)
+        self.result = {
+            "threshold_m": float(self.threshold_m),
+            "window_s": c["window_s"],
+            "steady_error_m": c["steady_error"],
+            "steady_level_m": c["steady_level"],
+            "band_m": c["band"],
+            "window_fraction": slam_metrics.WINDOW_FRACTION,
+            "tail_fraction": slam_metrics.TAIL_FRACTION,
+            "band_factor": slam_metrics.BAND_FACTOR,
+            "estimate_start_ns": t0,
+            "t_ns": c["t_ns"],
+            "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
+        }

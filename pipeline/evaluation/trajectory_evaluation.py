@@ -1,0 +1,205 @@
+"""The estimate against the truth, paired and aligned: what every trajectory section of the report and its
+figures share, computed once (association, alignment, APE vectors, the clock offset).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from functools import cached_property
+
+import numpy as np
+
+from slamobs.pipeline.evaluation import slam_metrics
+from slamobs.pipeline.evaluation.align import KINDS, Alignment
+from slamobs.pipeline.evaluation.sync import TimeOffset
+from slamobs.pipeline.evaluation.tables import (
+    POSE_COLUMNS,
+    Table,
+    column,
+    columns,
+    n_rows,
+    require_columns,
+    time_order,
+)
+from slamobs.pipeline.evaluation.trajectory_error import (
+    AlignOptions,
+    ErrorResult,
+    Paired,
+    SyncOptions,
+    ape,
+    checked_time_offset,
+    synchronize,
+)
+from slamobs.pipeline.streams import PoseStream
+
+CONVERGENCE_THRESHOLD_M = 0.1
+ALIGN_TYPES = KINDS
+
+@dataclass(frozen=True)
+class ReportOptions:
+    """How the report compares the run with the truth.
+
+    ``t_offset_s`` is added to the estimate stamps before association; ``"auto"`` applies the estimated clock
+    offset (it is always estimated and reported, applied only when asked). ``gravity_aligned`` marks runs whose
+    roll and pitch are observed (IMU directions): the report then adds the 4-DoF (translation + yaw) alignment.
+    """
+
+    t_max_diff_s: float = 0.01
+    align: str = "se3"
+    t_offset_s: float | str = 0.0
+    convergence_threshold_m: float = CONVERGENCE_THRESHOLD_M
+    gravity_aligned: bool = False
+    rpe_delta_m: float = 1.0
+    drift_lengths_m: tuple[float, ...] | None = None
+    bias_window_fraction: float = 0.2
+    max_time_offset_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.align not in ALIGN_TYPES:
+            raise ValueError(f"align must be one of {ALIGN_TYPES}, got {self.align!r}")
+        if not (self.t_offset_s == "auto" or isinstance(self.t_offset_s, (int, float))):
+            raise ValueError(f"t_offset_s must be seconds or 'auto', got {self.t_offset_s!r}")
+        if self.t_max_diff_s < 0 or self.convergence_threshold_m <= 0 or self.rpe_delta_m <= 0:
+            raise ValueError("t_max_diff_s must be >= 0, convergence_threshold_m and rpe_delta_m > 0")
+        if not 0 < self.bias_window_fraction <= 1:
+            raise ValueError(f"bias_window_fraction must be in (0, 1], got {self.bias_window_fraction}")
+
+
+def estimate_stream(poses: Table) -> PoseStream:
+    """The poses table as a PoseStream in time order."""
+    require_columns(poses, POSE_COLUMNS, "poses")
+    if n_rows(poses) == 0:
+        raise ValueError("poses table is empty: nothing to evaluate")
+    rows = time_order(column(poses, "t_ns", np.int64))
+    t = column(poses, "t_ns", np.int64)[rows]
+    return PoseStream("estimate", "", "", t, t, columns(poses, ["x", "y", "z"], np.float64)[rows],
+                      columns(poses, ["qx", "qy", "qz", "qw"], np.float64)[rows])
+
+
+@dataclass(frozen=True)
+class TrajectoryEvaluation:
+    """Everything the report and its plots share: pairs, alignment, APE vectors, the aligned estimate."""
+
+    estimate: PoseStream
+    truth: PoseStream
+    paired: Paired
+    alignment: Alignment
+    translation: ErrorResult  # APE trans_part (the evo result written to the zip)
+    rotation: ErrorResult  # APE angle_deg
+    offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
+    applied_offset_s: float
+    sync: SyncOptions
+
+    @cached_property
+    def time_offset(self) -> TimeOffset | None:
+        """The estimated clock offset (waits for it when it is computed beside the rest). Searched beside the
+        rest, its APE without the offset is this evaluation's own (same pairs rule and alignment, no offset
+        applied): it is filled in here rather than computed twice."""
+        if not isinstance(self.offset, _Pending):
+            return self.offset
+        off = self.offset.result()
+        if off is not None and off.checked and off.rmse_without_m is None:
+            off = replace(off, rmse_without_m=float(self.translation.stats["rmse"]))
+        return off
+
+    @property
+    def est_positions_aligned(self) -> np.ndarray:
+        """All estimate positions (not only the associated ones) in the truth frame."""
+        return self.alignment.positions(self.estimate.position)
+
+    @property
+    def pair_t_est_ns(self) -> np.ndarray:
+        return self.paired.t_est_ns
+
+    @cached_property
+    def error_level(self) -> tuple[np.ndarray, np.ndarray]:
+        """The running median of the position error (:func:`slam_metrics.error_level`): the convergence figure
+        and the errors plot share it."""
+        return slam_metrics.error_level(self.pair_t_est_ns, self.translation.errors)
+
+
+def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions, *,
+                        estimate_offset: bool = True) -> TrajectoryEvaluation:
+    """Estimate the clock offset, associate, align and compute the APE vectors."""
+    truth, _ = valid_truth(truth)
+    if len(truth) == 0:
+        raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
+    est = estimate_stream(poses)
+    truth_sorted = sorted_stream(truth)
+    offset = None
+    search = (truth_sorted, est, SyncOptions(options.t_max_diff_s, 0.0, "nearest"), AlignOptions(options.align))
+    beside = len(est) + len(truth_sorted) <= OFFSET_BESIDE_SAMPLES
+    if options.t_offset_s == "auto" or (estimate_offset and not beside):  # first: needed, or too big to overlap
+        offset = checked_time_offset(*search, max_offset_s=options.max_time_offset_s)
+    elif estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
+        offset = _Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
+    if options.t_offset_s == "auto":
+        applied = offset.offset_s if offset is not None else 0.0
+    else:
+        applied = float(options.t_offset_s)
+    sync = SyncOptions(options.t_max_diff_s, applied, "nearest")
+    paired = synchronize(truth_sorted, est, sync, ref_label="truth")
+    al_opts = AlignOptions(options.align)
+    trans = ape(truth_sorted, est, "trans_part", sync, al_opts, paired=paired, ref_name="truth",
+                est_name="estimate")
+    rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate",
+              like=trans)
+    return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
+
+
+#: The clock-offset search runs beside the association and the APE for up to this many estimate and truth
+#: samples together. It holds ~200 bytes per sample (signals on its grid, their transforms); on a longer log
+#: (four hours: 4.3 M samples, +0.6 GB) it would add that to the association's peak, so it runs first there.
+OFFSET_BESIDE_SAMPLES = 2_000_000
+
+
+class _Pending:
+    """``func(*args, **kwargs)`` computed on a thread of its own; :meth:`result` waits for it (and raises what
+    it raised). The thread is a daemon: a run stopped meanwhile does not wait for it to end."""
+
+    def __init__(self, func, *args, **kwargs) -> None:
+        import threading
+
+        from slamobs.pipeline.native import BLAS_START_MB, check_room
+
+        # matrix products on two threads at once take a second OpenBLAS buffer, whose failure ends the process
+        check_room("compute beside the report (a second OpenBLAS buffer)", BLAS_START_MB)
+        self._value = self._error = None
+        self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report",
+                                        daemon=True)
+        self._thread.start()
+
+    def _run(self, func, args, kwargs) -> None:
+        try:
+            self._value = func(*args, **kwargs)
+        except BaseException as err:  # noqa: BLE001 - raised by result()
+            self._error = err
+
+    def result(self):
+        self._thread.join()
+        if self._error is not None:
+            raise self._error
+        return self._value
+
+
+def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
+    """``truth`` without poses that are no rotation (a zero or non-finite quaternion, a non-finite position),
+    and how many were dropped."""
+    q = np.asarray(truth.quat_xyzw, dtype=np.float64)
+    ok = np.isfinite(q).all(axis=1) & np.isfinite(np.asarray(truth.position)).all(axis=1)
+    with np.errstate(invalid="ignore"):
+        ok &= np.linalg.norm(np.where(ok[:, None], q, 0.0), axis=1) > 1e-6
+    if ok.all():
+        return truth, 0
+    return PoseStream(truth.topic, truth.frame_id, truth.child_frame_id, np.asarray(truth.t_ns)[ok],
+                      np.asarray(truth.rec_ns)[ok], np.asarray(truth.position)[ok], q[ok]), int((~ok).sum())
+
+
+def sorted_stream(stream: PoseStream) -> PoseStream:
+    t = np.asarray(stream.t_ns, dtype=np.int64)
+    if t.shape[0] < 2 or np.all(np.diff(t) >= 0):
+        return stream
+    order = np.argsort(t, kind="stable")
+    return PoseStream(stream.topic, stream.frame_id, stream.child_frame_id, t[order],
+                      np.asarray(stream.rec_ns)[order], np.asarray(stream.position)[order],
+                      np.asarray(stream.quat_xyzw)[order])

@@ -1,0 +1,43 @@
+"""Help texts say what an option takes: no ``[x<=None]`` for an unbounded number, and every default shown as one
+of the choices the help lists (``trans-part``, not ``trans_part``), for every command."""
+
+from __future__ import annotations
+
+import re
+
+import click
+import pytest
+
+from cli_checks import invoke
+from slamobs.cli.main import main
+
+
+def _commands(group: click.Group, prefix: tuple[str, ...] = ()):
+    for name, cmd in sorted(group.commands.items()):
+        yield (*prefix, name), cmd
+        if isinstance(cmd, click.Group):
+            yield from _commands(cmd, (*prefix, name))
+
+
+COMMANDS = list(_commands(main))
+
+
+@pytest.mark.parametrize("path, cmd", COMMANDS, ids=[" ".join(p) for p, _ in COMMANDS])
+def test_help_shows_ranges_and_defaults_as_they_are_typed(path, cmd):
+    res = invoke(*path, "--help")
+    assert res.exit_code == 0, res.output
+    assert "None]" not in " ".join(res.output.split())
+    parent = click.Context(main, info_name="slamobs", **main.context_settings)  # dashes for underscores, as run
+    ctx = click.Context(cmd, info_name=path[-1], parent=parent)
+    checked = 0
+    for param in cmd.params:
+        record = param.get_help_record(ctx) if isinstance(param, click.Option) else None
+        if record is None or not isinstance(param.type, click.Choice):
+            continue
+        choices = re.search(r"\[([^\]]+)\]", record[0])
+        default = re.search(r"\[default: ([^;\]]+)", record[1])
+        if choices and default and "|" in choices.group(1):
+            assert default.group(1) in choices.group(1).split("|"), (path, record)
+            checked += 1
+    if path == ("evaluate",):
+        assert checked >= 3  # --metric, --pose-relation, --sync-method at least: the check must see them
