@@ -20,9 +20,9 @@ KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "cfunc"}
 
 #: "path::qualified name" -> why it may be longer for now. Remove the entry when its split lands.
 ALLOWED = {
-    "pipeline/readers/__init__.py::read_log": "the readers are being split by another developer (issue 24)",
-    "pipeline/readers/container.py::McapStorage._scan": "the readers are being split by another developer (issue 24)",
-    "pipeline/readers/container.py::Ros1Bag._recover": "the readers are being split by another developer (issue 24)",
+    "pipeline/readers/__init__.py::read_log": "read_log is still one function over the roles (issue 24, open)",
+    "pipeline/readers/mcap.py::McapStorage._scan": "the MCAP scan is still one walk over the records (issue 24, open)",
+    "pipeline/readers/ros1.py::Ros1Bag._recover": "the ROS1 recovery is still one walk over the chunks (issue 24, open)",
 }
 
 
