@@ -25,9 +25,13 @@ demo: $(STAMP)
 	$(BIN)/slamobs info sample_logs/figure8.mcap
 	$(BIN)/slamobs run sample_logs/figure8.mcap -o demo_out/figure8 --force
 
-## Set up and run the test suite (with evo as an oracle in its own venv), one pytest worker per core; a test
-## module stays on one worker (--dist loadscope), so its module fixtures are built once.
+## Set up, check the code's shape (ruff lint and format, import-linter's layers), then run the test suite (with
+## evo as an oracle in its own venv), one pytest worker per core; a test module stays on one worker
+## (--dist loadscope), so its module fixtures are built once.
 test: $(STAMP) $(EVO_STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports
 	SLAMOBS_EVO_PYTHON=$(abspath $(EVO_VENV))/bin/python $(BIN)/python -m pytest -q -n auto --dist loadscope
 
 clean:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-EVO_TIMER = r'''
+EVO_TIMER = r"""
 import json, sys, time, copy
 import numpy as np
 from evo.core import metrics, sync
@@ -57,7 +57,7 @@ ref0, est0 = fi.read_tum_trajectory_file(ref_path), fi.read_tum_trajectory_file(
 t_mem, (stats, n) = best(lambda: evaluate(ref0, est0))
 t_files, _ = best(lambda: evaluate(fi.read_tum_trajectory_file(ref_path), fi.read_tum_trajectory_file(est_path)))
 print(json.dumps({"memory_s": t_mem, "files_s": t_files, "stats": {k: float(v) for k, v in stats.items()}, "n": n}))
-'''
+"""
 
 
 def make_files(n: int, out: Path) -> tuple[Path, Path]:
@@ -81,8 +81,15 @@ def make_files(n: int, out: Path) -> tuple[Path, Path]:
     rc = so3_exp(np.array([0.2, -0.1, 1.0]))
     est_t = t + rng.integers(-2_000_000, 2_000_000, n)  # ±2 ms jitter, same rate: every pose is paired
     est_pos = pos @ rc.T + [5.0, -3.0, 1.0] + 0.05 * rng.standard_normal((n, 3))
-    est = PoseStream("est", "", "", est_t, est_t, est_pos,
-                     rots_to_quats(np.einsum("ij,njk->nik", rc, quats_to_rots(truth.quat_xyzw))))
+    est = PoseStream(
+        "est",
+        "",
+        "",
+        est_t,
+        est_t,
+        est_pos,
+        rots_to_quats(np.einsum("ij,njk->nik", rc, quats_to_rots(truth.quat_xyzw))),
+    )
     return write_tum(out / "truth.txt", truth), write_tum(out / "est.txt", est)
 
 
@@ -91,8 +98,9 @@ def time_slamobs(ref_path: Path, est_path: Path, repeat: int) -> dict:
     from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
     def from_files():
-        return ape(read_trajectory(ref_path), read_trajectory(est_path), "trans_part", SyncOptions(0.01),
-                   AlignOptions("se3"))
+        return ape(
+            read_trajectory(ref_path), read_trajectory(est_path), "trans_part", SyncOptions(0.01), AlignOptions("se3")
+        )
 
     ref, est = read_trajectory(ref_path), read_trajectory(est_path)
 
@@ -114,8 +122,13 @@ def time_slamobs(ref_path: Path, est_path: Path, repeat: int) -> dict:
 
 def time_evo(python: str, ref_path: Path, est_path: Path, repeat: int) -> dict:
     env = {**os.environ, "HOME": str(ref_path.parent), "MPLBACKEND": "Agg"}  # evo writes settings under $HOME
-    done = subprocess.run([python, "-c", EVO_TIMER, str(ref_path), str(est_path), str(repeat)], env=env,
-                          capture_output=True, text=True, check=True)
+    done = subprocess.run(
+        [python, "-c", EVO_TIMER, str(ref_path), str(est_path), str(repeat)],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return json.loads(done.stdout.strip().splitlines()[-1])
 
 
@@ -130,8 +143,10 @@ def main() -> None:
         ours = time_slamobs(ref_path, est_path, args.repeat)
         evo = time_evo(evo_python, ref_path, est_path, args.repeat) if evo_python else None
 
-    print(f"APE, SE(3) Umeyama alignment, translation part: {args.poses} poses per trajectory, {ours['n']} pairs; "
-          f"best of {args.repeat}")
+    print(
+        f"APE, SE(3) Umeyama alignment, translation part: {args.poses} poses per trajectory, {ours['n']} pairs; "
+        f"best of {args.repeat}"
+    )
     print(f"python {platform.python_version()}, {platform.machine()}, {os.cpu_count()} CPUs")
     print()
     print(f"| {'step':<20} | {'slamobs [s]':>11} | {'evo 1.38.1 [s]':>14} | {'speed-up':>8} |")
@@ -144,8 +159,10 @@ def main() -> None:
     if evo:
         diff = max(abs(ours["stats"][k] - v) for k, v in evo["stats"].items())
         print()
-        print(f"same numbers: rmse {ours['stats']['rmse']:.9f} (slamobs) vs {evo['stats']['rmse']:.9f} (evo), "
-              f"largest statistic difference {diff:.2e}; pairs {ours['n']} vs {evo['n']}")
+        print(
+            f"same numbers: rmse {ours['stats']['rmse']:.9f} (slamobs) vs {evo['stats']['rmse']:.9f} (evo), "
+            f"largest statistic difference {diff:.2e}; pairs {ours['n']} vs {evo['n']}"
+        )
     else:
         print("\nset SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 for the evo column")
     sys.stdout.flush()

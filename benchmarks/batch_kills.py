@@ -25,8 +25,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from batch_checks import CLI, assert_consistent, children, group_alive, wait_for  # noqa: E402
 
 DASK = Path(sys.executable).with_name("dask")
-SCENARIOS = ("parent-SIGKILL", "parent-SIGTERM", "group-SIGINT", "worker-SIGKILL", "worker-SIGTERM",
-             "dask-local-parent-SIGKILL", "dask-scheduler-SIGKILL")
+SCENARIOS = (
+    "parent-SIGKILL",
+    "parent-SIGTERM",
+    "group-SIGINT",
+    "worker-SIGKILL",
+    "worker-SIGTERM",
+    "dask-local-parent-SIGKILL",
+    "dask-scheduler-SIGKILL",
+)
 
 
 def make_logs(base: Path, n: int) -> Path:
@@ -53,13 +60,28 @@ def _kill_group(p: subprocess.Popen) -> None:
 def _start_scheduler(work: Path) -> tuple[subprocess.Popen, subprocess.Popen, str]:
     info = work / "scheduler.json"
     info.unlink(missing_ok=True)
-    sched = _spawn([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", info,
-                    "--dashboard-address", ":0"], work / "scheduler.log")
+    sched = _spawn(
+        [
+            DASK,
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--scheduler-file",
+            info,
+            "--dashboard-address",
+            ":0",
+        ],
+        work / "scheduler.log",
+    )
     wait_for(info.is_file, 60)
     time.sleep(0.2)
     address = json.loads(info.read_text())["address"]
-    worker = _spawn([DASK, "worker", address, "--nthreads", "1", "--no-dashboard", "--local-directory", work / "w"],
-                    work / "worker.log")
+    worker = _spawn(
+        [DASK, "worker", address, "--nthreads", "1", "--no-dashboard", "--local-directory", work / "w"],
+        work / "worker.log",
+    )
     return sched, worker, address
 
 
@@ -103,8 +125,9 @@ def one_case(scenario: str, logs: Path, cfg: Path, work: Path, rng: random.Rando
         _kill_group(proc)
         for h in helpers:
             _kill_group(h)
-    rerun = subprocess.run([*CLI, "batch", logs, "-o", out, "--config", cfg, "-j", "2"], capture_output=True,
-                           text=True, timeout=600)
+    rerun = subprocess.run(
+        [*CLI, "batch", logs, "-o", out, "--config", cfg, "-j", "2"], capture_output=True, text=True, timeout=600
+    )
     try:
         rows = assert_consistent(out)
         result["consistent"] = rerun.returncode == 0 and all(r["status"] == "ok" for r in rows.values())
@@ -129,8 +152,10 @@ def main() -> None:
         logs = make_logs(base, args.logs)
         # a first batch compiles or loads the kernels once, outside the timed cases
         subprocess.run([*CLI, "batch", logs, "-o", base / "warm", "--config", base / "run.yaml"], capture_output=True)
-        print(f"\n{args.logs} logs of 6 s, --jobs 2, kill at a uniform random 0-6 s after the batch starts running "
-              f"(seed {args.seed}), {args.repeat} times each\n")
+        print(
+            f"\n{args.logs} logs of 6 s, --jobs 2, kill at a uniform random 0-6 s after the batch starts running "
+            f"(seed {args.seed}), {args.repeat} times each\n"
+        )
         print("| scenario | runs | exit codes | last process gone after | processes left | consistent after re-run |")
         print("| --- | --- | --- | --- | --- | --- |")
         for scenario in scenarios:
@@ -141,8 +166,11 @@ def main() -> None:
                 results.append(one_case(scenario, logs, base / "run.yaml", work, rng))
             codes = ", ".join(sorted({str(r["exit"]) for r in results}))
             gone = max(r["gone_s"] or 0.0 for r in results)
-            print(f"| {scenario} | {len(results)} | {codes} | {gone:.2f} s | {sum(r['alive'] for r in results)} | "
-                  f"{sum(r['consistent'] for r in results)}/{len(results)} |", flush=True)
+            print(
+                f"| {scenario} | {len(results)} | {codes} | {gone:.2f} s | {sum(r['alive'] for r in results)} | "
+                f"{sum(r['consistent'] for r in results)}/{len(results)} |",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

@@ -126,7 +126,9 @@ def queries(out: Path) -> dict[str, float]:
 
     times = {}
     t = time.perf_counter()
-    duckdb.sql(f"SELECT run_id, count(*), avg(x) FROM read_parquet('{out}/poses/**/*.parquet') GROUP BY run_id").fetchall()
+    duckdb.sql(
+        f"SELECT run_id, count(*), avg(x) FROM read_parquet('{out}/poses/**/*.parquet') GROUP BY run_id"
+    ).fetchall()
     times["duckdb"] = time.perf_counter() - t
     t = time.perf_counter()
     pd.read_parquet(out / "poses").groupby("run_id", observed=True)["x"].mean()
@@ -200,24 +202,35 @@ def main() -> None:
 
         rows = list(Ledger(out).rows.values())
         old = {k: old_summary_rewrite_ms(rows, k, work) for k in (1_000, 10_000, 50_000)}
-        print(f"\n{n} synthetic runs, {args.rows} pose rows each ({n * args.rows / 1e6:.1f} M pose rows), "
-              f"{os.cpu_count()} cores; generating and committing them took {t_make:.0f} s\n")
+        print(
+            f"\n{n} synthetic runs, {args.rows} pose rows each ({n * args.rows / 1e6:.1f} M pose rows), "
+            f"{os.cpu_count()} cores; generating and committing them took {t_make:.0f} s\n"
+        )
         print("| step | time |")
         print("| --- | --- |")
         print(f"| per run: commit (renames of {len(TABLES)} tables + run dir) | {t_commit / n * 1e3:.2f} ms |")
         print(f"| per run: record (one appended line) | {t_record / n * 1e6:.0f} µs |")
-        print("| per run, previous design: summary.parquet rewritten at 1k / 10k / 50k rows | "
-              + " / ".join(f"{old[k]:.0f} ms" for k in sorted(old)) + " |")
+        print(
+            "| per run, previous design: summary.parquet rewritten at 1k / 10k / 50k rows | "
+            + " / ".join(f"{old[k]:.0f} ms" for k in sorted(old))
+            + " |"
+        )
         print(f"| summary.parquet from the records, once at the end ({n} rows) | {t_summary * 1e3:.0f} ms |")
         rows_total = sum(t.rows for t in report if t.table == "poses")
-        print(f"| compaction ({n} runs x {len(report)} tables, {rows_total / 1e6:.1f} M pose rows): merge / switch "
-              f"(renames, deleting the per-run files) | {t_compact - sum(t_delete):.1f} s / {sum(t_delete):.1f} s |")
+        print(
+            f"| compaction ({n} runs x {len(report)} tables, {rows_total / 1e6:.1f} M pose rows): merge / switch "
+            f"(renames, deleting the per-run files) | {t_compact - sum(t_delete):.1f} s / {sum(t_delete):.1f} s |"
+        )
         print(f"| files in OUT before / after compaction | {files_before} / {files_after} |")
         for k in ("duckdb", "pandas", "polars"):
-            print(f"| {k}: group poses by run_id, per-run partitions / compacted | "
-                  f"{q_before[k]:.2f} s / {q_after[k]:.2f} s |")
-        print(f"| up-to-date batch over {n} logs: first (hashing 64 KiB each) / again (hash cache) | "
-              f"{t_first:.1f} s / {t_again:.1f} s |")
+            print(
+                f"| {k}: group poses by run_id, per-run partitions / compacted | "
+                f"{q_before[k]:.2f} s / {q_after[k]:.2f} s |"
+            )
+        print(
+            f"| up-to-date batch over {n} logs: first (hashing 64 KiB each) / again (hash cache) | "
+            f"{t_first:.1f} s / {t_again:.1f} s |"
+        )
     finally:
         if args.dir is None:
             shutil.rmtree(work, ignore_errors=True)

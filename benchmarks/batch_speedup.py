@@ -24,8 +24,10 @@ from slamobs.pipeline.simulate import simulate, write_log
 
 def make_logs(root: Path, n: int, duration: float) -> list[Path]:
     scenarios = ("figure8", "circle")
-    return [write_log(simulate(scenarios[i % 2], duration=duration, seed=100 + i), root / f"log{i:02d}.mcap")
-            for i in range(n)]
+    return [
+        write_log(simulate(scenarios[i % 2], duration=duration, seed=100 + i), root / f"log{i:02d}.mcap")
+        for i in range(n)
+    ]
 
 
 def _own_cpu() -> tuple[float, float]:
@@ -79,22 +81,31 @@ def main() -> None:
     med = {j: [statistics.median(x[i] for x in v) for i in range(3)] for j, v in runs.items()}
     walls = {j: m[0] for j, m in med.items()}
 
-    print(f"batch speed-up: {args.logs} simulated logs of {args.duration:g} s (MCAP), fast-adaptation, "
-          f"{os.cpu_count()} cores, load average {load:.2f} when the benchmark started")
-    print(f"warm-up batch on 1 log first ({warm:.1f} s): numba kernels compiled and cached before timing; "
-          "timed batches include worker start-up")
-    print(f"median of {args.repeat} interleaved run(s) per row; 'other CPU' is what other processes on the "
-          "machine used during the batch (0 = the batch had the machine to itself)")
+    print(
+        f"batch speed-up: {args.logs} simulated logs of {args.duration:g} s (MCAP), fast-adaptation, "
+        f"{os.cpu_count()} cores, load average {load:.2f} when the benchmark started"
+    )
+    print(
+        f"warm-up batch on 1 log first ({warm:.1f} s): numba kernels compiled and cached before timing; "
+        "timed batches include worker start-up"
+    )
+    print(
+        f"median of {args.repeat} interleaved run(s) per row; 'other CPU' is what other processes on the "
+        "machine used during the batch (0 = the batch had the machine to itself)"
+    )
     print()
     print("| --jobs | wall time (s) | worker CPU (s) | other CPU (s) | logs/min | speed-up |")
     print("| ---: | ---: | ---: | ---: | ---: | ---: |")
     for jobs, (wall, cpu, other) in med.items():
-        print(f"| {jobs} | {wall:.1f} | {cpu:.1f} | {other:.1f} | {60 * args.logs / wall:.1f} | "
-              f"{walls[1] / wall:.2f}x |")
+        print(
+            f"| {jobs} | {wall:.1f} | {cpu:.1f} | {other:.1f} | {60 * args.logs / wall:.1f} | {walls[1] / wall:.2f}x |"
+        )
     print()
     quiet = max(m[2] for m in med.values()) < 0.05 * min(walls.values())
-    print(f"floor in the issue: 1.70x on 2 cores -> {'met' if walls[1] / walls[2] >= 1.7 else 'NOT met'}"
-          + ("" if quiet else " (other processes were busy meanwhile: the speed-up is understated)"))
+    print(
+        f"floor in the issue: 1.70x on 2 cores -> {'met' if walls[1] / walls[2] >= 1.7 else 'NOT met'}"
+        + ("" if quiet else " (other processes were busy meanwhile: the speed-up is understated)")
+    )
 
 
 if __name__ == "__main__":

@@ -40,19 +40,37 @@ def default_log() -> Path:
     cache.mkdir(parents=True, exist_ok=True)
     log = cache / "figure8-180s.mcap"
     if not log.exists():
-        subprocess.run([str(SLAMOBS), "simulate", "figure8", "--duration", "180", "-o", str(log)], check=True,
-                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        subprocess.run(
+            [str(SLAMOBS), "simulate", "figure8", "--duration", "180", "-o", str(log)],
+            check=True,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
     return log
 
 
 def profile(log: Path, observer: str, extra: list[str]) -> tuple[float, list[dict]]:
     """Cold wall seconds of ``slamobs run`` and its compile log."""
-    with tempfile.TemporaryDirectory(prefix="slamobs-numba-") as numba_dir, \
-            tempfile.TemporaryDirectory(prefix="slamobs-out-") as out:
+    with (
+        tempfile.TemporaryDirectory(prefix="slamobs-numba-") as numba_dir,
+        tempfile.TemporaryDirectory(prefix="slamobs-out-") as out,
+    ):
         env = {**os.environ, "NUMBA_CACHE_DIR": numba_dir}
         dump = Path(out) / "compiled.json"
-        args = [sys.executable, "-c", CHILD, "run", str(log), "-o", str(Path(out) / "run"), "-q",
-                "--observer", observer, *extra, str(dump)]
+        args = [
+            sys.executable,
+            "-c",
+            CHILD,
+            "run",
+            str(log),
+            "-o",
+            str(Path(out) / "run"),
+            "-q",
+            "--observer",
+            observer,
+            *extra,
+            str(dump),
+        ]
         start = time.perf_counter()
         proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL)
         _, status, usage = os.wait4(proc.pid, 0)
@@ -77,8 +95,10 @@ def main() -> None:
         return
     own = sum(r["seconds"] for r in rows)
     cpu = sum(r["cpu"] for r in rows)
-    print(f"# {log.name}, observer {args.observer}, empty numba cache: {wall:.1f} s wall ({cpu_all:.1f} s CPU), "
-          f"{len(rows)} compilations, {own:.1f} s compiling ({cpu:.1f} s CPU)")
+    print(
+        f"# {log.name}, observer {args.observer}, empty numba cache: {wall:.1f} s wall ({cpu_all:.1f} s CPU), "
+        f"{len(rows)} compilations, {own:.1f} s compiling ({cpu:.1f} s CPU)"
+    )
     print(f"{'CPU s':>6} {'wall s':>6} {'+callees':>8}  function (signature)")
     for r in sorted(rows, key=lambda r: -r["cpu"])[: args.top]:
         sig = r["signature"] if len(r["signature"]) < 90 else r["signature"][:87] + "..."

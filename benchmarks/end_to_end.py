@@ -12,8 +12,10 @@ are written on a thread while the observer runs (``write`` overlaps ``observer``
 time outside read, align, observer and report (interpreter start, imports, loading the cached kernels, checks
 before reading, the writes not hidden behind the observer, run.json, exit). The CPU time exceeds the wall time
 where stages overlap: chunks are loaded and topics decoded on two threads, the writes run beside the observer,
-the clock-offset search beside the association and a helper process draws the figures. Warm runs are repeated ``--repeat`` times and the fastest is shown, every run's wall time on a
-line below the table (the machine may be shared: the load average is printed before and after). First, the cold run: a ``--cold-seconds`` log with an empty numba
+the clock-offset search beside the association and a helper process draws the figures. Warm runs are repeated
+``--repeat`` times and the fastest is shown, every run's wall time on a
+line below the table (the machine may be shared: the load average is printed before and after). First, the cold run:
+a ``--cold-seconds`` log with an empty numba
 cache directory, on one core (CPU affinity), then the same run again warm. The floors of the issues are checked
 at the end, each on its own line ending in met or MISSED, among them that a default run directory is at most
 twice its Parquet tables. ``--exports`` runs the
@@ -51,9 +53,13 @@ MAX_PARQUET_1H_MB = 50.0
 # Issue "small run directories": a default run directory is at most twice its Parquet tables.
 MAX_OUT_PER_PARQUET = 2.0
 #: File groups of a run directory, for the export sizes.
-GROUPS = {"Parquet tables": ("*.parquet",), "report + figures": ("report.*", "*.png", "run.json"),
-          "tum (estimate_tum.txt, truth_tum.txt)": ("*_tum.txt",), "evo (ape_evo.zip)": ("*.zip",),
-          "mcap (results.mcap)": ("*.mcap",)}
+GROUPS = {
+    "Parquet tables": ("*.parquet",),
+    "report + figures": ("report.*", "*.png", "run.json"),
+    "tum (estimate_tum.txt, truth_tum.txt)": ("*_tum.txt",),
+    "evo (ape_evo.zip)": ("*.zip",),
+    "mcap (results.mcap)": ("*.mcap",),
+}
 
 
 def met(ok: bool) -> str:
@@ -71,14 +77,20 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine()
 
 
-def _child(args: list[str], env: dict[str, str] | None = None, cpus: set[int] | None = None
-           ) -> tuple[float, float, int, float]:
+def _child(
+    args: list[str], env: dict[str, str] | None = None, cpus: set[int] | None = None
+) -> tuple[float, float, int, float]:
     """Run a command (on the CPUs ``cpus`` if given); wall seconds, peak RSS in MB of that process, exit status,
     CPU seconds (user + system) of that process."""
     with tempfile.TemporaryFile() as err:
         start = time.perf_counter()
-        proc = subprocess.Popen(args, env=env, stdout=subprocess.DEVNULL, stderr=err,
-                                preexec_fn=(lambda: os.sched_setaffinity(0, cpus)) if cpus else None)
+        proc = subprocess.Popen(
+            args,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=err,
+            preexec_fn=(lambda: os.sched_setaffinity(0, cpus)) if cpus else None,
+        )
         _, status, usage = os.wait4(proc.pid, 0)  # this child's own rusage
         wall = time.perf_counter() - start
         proc.returncode = code = os.waitstatus_to_exitcode(status)
@@ -99,8 +111,9 @@ def make_log(cache: Path, seconds: float, container: str) -> Path:
     path = cache / log_name(seconds, container)
     if not path.exists():
         print(f"# generating {path.name} (once; cached) ...", flush=True)
-        wall, rss, rc, _ = _child([str(SLAMOBS), "simulate", SCENARIO, "-o", str(path), "--duration",
-                                   str(seconds), "--container", container])
+        wall, rss, rc, _ = _child(
+            [str(SLAMOBS), "simulate", SCENARIO, "-o", str(path), "--duration", str(seconds), "--container", container]
+        )
         if rc:
             raise SystemExit(rc)
         print(f"#   {wall:.0f} s, peak RSS {rss:.0f} MB", flush=True)
@@ -117,18 +130,26 @@ def size_mb(path: Path, pattern: str = "*") -> float:
     return sum(f.stat().st_size for f in path.glob(pattern) if f.is_file()) / 1e6
 
 
-def run(log: Path, out: Path, env: dict[str, str] | None = None, extra: tuple[str, ...] = (),
-        cpus: set[int] | None = None) -> dict:
+def run(
+    log: Path, out: Path, env: dict[str, str] | None = None, extra: tuple[str, ...] = (), cpus: set[int] | None = None
+) -> dict:
     """``slamobs run`` on ``log`` in a child process; its numbers and those of its run directory."""
     wall, rss, rc, cpu = _child([str(SLAMOBS), "run", str(log), "-o", str(out), "--force", "-q", *extra], env, cpus)
     if rc:
         raise SystemExit(rc)
     meta = json.loads((out / "run.json").read_text())
     t = meta["timings_s"]
-    return {"wall": wall, "cpu": cpu, "rss": rss, "timings": t, "parquet_mb": size_mb(out, "*.parquet"),
-            "out_mb": size_mb(out), "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9,
-            "rest": wall - sum(v for k, v in t.items() if k in STAGES and k != "write_s"),
-            "compiled": meta.get("compiled", {})}
+    return {
+        "wall": wall,
+        "cpu": cpu,
+        "rss": rss,
+        "timings": t,
+        "parquet_mb": size_mb(out, "*.parquet"),
+        "out_mb": size_mb(out),
+        "span_s": (meta["span_ns"][1] - meta["span_ns"][0]) / 1e9,
+        "rest": wall - sum(v for k, v in t.items() if k in STAGES and k != "write_s"),
+        "compiled": meta.get("compiled", {}),
+    }
 
 
 def fastest(log: Path, out: Path, repeat: int) -> dict:
@@ -142,8 +163,10 @@ def export_sizes(log: Path, seconds: float, out: Path) -> None:
     r = run(log, out, extra=("--export", "tum,evo,mcap"))
     tables = size_mb(out, "*.parquet")
     t = r["timings"]
-    print(f"# run directory with --export tum,evo,mcap ({log.name}; export stage {t.get('export_s', 0):.1f} s, "
-          f"report {t.get('report_s', 0):.1f} s)")
+    print(
+        f"# run directory with --export tum,evo,mcap ({log.name}; export stage {t.get('export_s', 0):.1f} s, "
+        f"report {t.get('report_s', 0):.1f} s)"
+    )
     print(f"{'files':<40} {'MB per hour':>11} {'x Parquet':>9}")
     for name, patterns in GROUPS.items():
         mb = sum(size_mb(out, p) for p in patterns)
@@ -165,7 +188,9 @@ def cold_run(cache: Path, seconds: float) -> tuple[dict, dict]:
 
 def load() -> str:
     """The load average and the machine's speed right now (:func:`loop_seconds`)."""
-    return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg()) + f"; {loop_seconds():.2f} s per 10 M loop adds"
+    return (
+        "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg()) + f"; {loop_seconds():.2f} s per 10 M loop adds"
+    )
 
 
 def loop_seconds() -> float:
@@ -188,8 +213,12 @@ def main() -> None:
     ap.add_argument("--containers", nargs="+", default=["mcap", "bag"], choices=sorted(SUFFIX))
     ap.add_argument("--repeat", type=int, default=3, help="warm runs per log (the fastest is shown)")
     ap.add_argument("--cold-seconds", type=float, default=180.0, help="length of the log of the cold run")
-    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-bench",
-                    help="where the generated logs and run directories are kept")
+    ap.add_argument(
+        "--cache",
+        type=Path,
+        default=Path(tempfile.gettempdir()) / "slamobs-bench",
+        help="where the generated logs and run directories are kept",
+    )
     ap.add_argument("--no-compile", action="store_true", help="skip the cold run (empty numba cache)")
     ap.add_argument("--exports", action="store_true", help="also measure the optional exports on the first log")
     args = ap.parse_args()
@@ -197,31 +226,42 @@ def main() -> None:
     durations = sorted([*args.seconds, *(h * 3600 for h in args.hours)])
     logs = [(d, c, make_log(args.cache, d, c)) for d in durations for c in args.containers]
 
-    print(f"# slamobs run end to end, {cpu_model()}, {os.cpu_count()} cores, python {platform.python_version()}; "
-          f"scenario {SCENARIO}: IMU 200 Hz, odometry 50 Hz, magnetometer 50 Hz, detections 20 Hz "
-          f"(30 landmarks, ~8 in view), mocap 100 Hz; observer fast-adaptation, every sample written; {load()}")
+    print(
+        f"# slamobs run end to end, {cpu_model()}, {os.cpu_count()} cores, python {platform.python_version()}; "
+        f"scenario {SCENARIO}: IMU 200 Hz, odometry 50 Hz, magnetometer 50 Hz, detections 20 Hz "
+        f"(30 landmarks, ~8 in view), mocap 100 Hz; observer fast-adaptation, every sample written; {load()}"
+    )
     cold = None
     if not args.no_compile:
         cold, again = cold_run(args.cache, args.cold_seconds)
-        print(f"# cold: {args.cold_seconds:g} s log, empty numba cache, one core: {cold['wall']:.1f} s wall, "
-              f"{cold['cpu']:.1f} s CPU (compiled {cold['compiled'].get('functions', 0)} functions in "
-              f"{cold['compiled'].get('seconds', 0.0):.1f} s); again with the kernels cached: {again['wall']:.1f} s "
-              f"wall, {again['cpu']:.1f} s CPU; {load()}", flush=True)
+        print(
+            f"# cold: {args.cold_seconds:g} s log, empty numba cache, one core: {cold['wall']:.1f} s wall, "
+            f"{cold['cpu']:.1f} s CPU (compiled {cold['compiled'].get('functions', 0)} functions in "
+            f"{cold['compiled'].get('seconds', 0.0):.1f} s); again with the kernels cached: {again['wall']:.1f} s "
+            f"wall, {again['cpu']:.1f} s CPU; {load()}",
+            flush=True,
+        )
     run(make_log(args.cache, min(durations or [90.0]), "mcap"), args.cache / "runs" / "warmup")  # cache filled
-    head = (f"{'log':<26} {'container':<9} {'duration':>8} {'messages':>10} {'wall s':>7} {'CPU s':>6} "
-            f"{'x real':>7} {'start+rest':>10} " + " ".join(f"{s[:-2]:>8}" for s in STAGES)
-            + f" {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7} {'out/pq':>6}")
+    head = (
+        f"{'log':<26} {'container':<9} {'duration':>8} {'messages':>10} {'wall s':>7} {'CPU s':>6} "
+        f"{'x real':>7} {'start+rest':>10} "
+        + " ".join(f"{s[:-2]:>8}" for s in STAGES)
+        + f" {'peak RSS MB':>11} {'parquet MB':>10} {'out MB':>7} {'out/pq':>6}"
+    )
     print(head)
     results = {}
     for seconds, container, log in logs:
         r = fastest(log, args.cache / "runs" / f"{log.stem}-{container}", args.repeat)
         results[seconds, container] = r
         t = r["timings"]
-        print(f"{log.name:<26} {container:<9} {seconds:>7g}s {message_count(seconds):>10,} {r['wall']:>7.2f} "
-              f"{r['cpu']:>6.2f} {r['span_s'] / r['wall']:>6.0f}x {r['rest']:>10.2f} "
-              + " ".join(f"{t.get(s, float('nan')):>8.2f}" for s in STAGES)
-              + f" {r['rss']:>11.0f} {r['parquet_mb']:>10.1f} {r['out_mb']:>7.1f}"
-              + f" {r['out_mb'] / r['parquet_mb']:>6.2f}", flush=True)
+        print(
+            f"{log.name:<26} {container:<9} {seconds:>7g}s {message_count(seconds):>10,} {r['wall']:>7.2f} "
+            f"{r['cpu']:>6.2f} {r['span_s'] / r['wall']:>6.0f}x {r['rest']:>10.2f} "
+            + " ".join(f"{t.get(s, float('nan')):>8.2f}" for s in STAGES)
+            + f" {r['rss']:>11.0f} {r['parquet_mb']:>10.1f} {r['out_mb']:>7.1f}"
+            + f" {r['out_mb'] / r['parquet_mb']:>6.2f}",
+            flush=True,
+        )
     for (seconds, container), r in results.items():  # the spread the fastest was picked from
         if len(r["walls"]) > 1:
             print(f"# {seconds:g} s {container}: warm runs {', '.join(f'{w:.2f}' for w in r['walls'])} s")
@@ -232,30 +272,45 @@ def main() -> None:
 
     print("# floors")
     if cold:
-        print(f"cold {args.cold_seconds:g} s log on one core in {cold['wall']:.1f} s (<= {MAX_WALL_COLD_S:g}): "
-              f"{met(cold['wall'] <= MAX_WALL_COLD_S)}")
+        print(
+            f"cold {args.cold_seconds:g} s log on one core in {cold['wall']:.1f} s (<= {MAX_WALL_COLD_S:g}): "
+            f"{met(cold['wall'] <= MAX_WALL_COLD_S)}"
+        )
     for container in args.containers:
-        one, four, short = results.get((3600.0, container)), results.get((14400.0, container)), \
-            results.get((90.0, container))
+        one, four, short = (
+            results.get((3600.0, container)),
+            results.get((14400.0, container)),
+            results.get((90.0, container)),
+        )
         if short:
-            print(f"{container}: 90 s log in {short['wall']:.2f} s (<= {MAX_WALL_90S_S:g}): "
-                  f"{met(short['wall'] <= MAX_WALL_90S_S)}")
+            print(
+                f"{container}: 90 s log in {short['wall']:.2f} s (<= {MAX_WALL_90S_S:g}): "
+                f"{met(short['wall'] <= MAX_WALL_90S_S)}"
+            )
         if one:  # one line per floor: a missed Parquet size must not hide a met time, nor the reverse
-            print(f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}): "
-                  f"{met(one['wall'] <= MAX_WALL_1H_S)}")
-            print(f"{container}: 1 h peak RSS {one['rss']:.0f} MB (<= {MAX_RSS_1H_MB:g}): "
-                  f"{met(one['rss'] <= MAX_RSS_1H_MB)}")
-            print(f"{container}: 1 h Parquet tables {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
-                  f"{met(one['parquet_mb'] < MAX_PARQUET_1H_MB)}")
+            print(
+                f"{container}: 1 h in {one['wall']:.1f} s (<= {MAX_WALL_1H_S:g}): {met(one['wall'] <= MAX_WALL_1H_S)}"
+            )
+            print(
+                f"{container}: 1 h peak RSS {one['rss']:.0f} MB (<= {MAX_RSS_1H_MB:g}): "
+                f"{met(one['rss'] <= MAX_RSS_1H_MB)}"
+            )
+            print(
+                f"{container}: 1 h Parquet tables {one['parquet_mb']:.1f} MB (< {MAX_PARQUET_1H_MB:g}): "
+                f"{met(one['parquet_mb'] < MAX_PARQUET_1H_MB)}"
+            )
         for (seconds, c), r in results.items():
             if c == container:
                 ratio = r["out_mb"] / r["parquet_mb"]
-                print(f"{container} {seconds:g} s: run directory {r['out_mb']:.1f} MB = {ratio:.2f} x its Parquet "
-                      f"tables (<= {MAX_OUT_PER_PARQUET:g}): {met(ratio <= MAX_OUT_PER_PARQUET)}")
+                print(
+                    f"{container} {seconds:g} s: run directory {r['out_mb']:.1f} MB = {ratio:.2f} x its Parquet "
+                    f"tables (<= {MAX_OUT_PER_PARQUET:g}): {met(ratio <= MAX_OUT_PER_PARQUET)}"
+                )
         if one and four:
             ratio = four["rss"] / one["rss"]
             print(f"{container}: 4 h peak / 1 h peak = {ratio:.2f} (< 2): {met(ratio < 2)}")
     shutil.rmtree(args.cache / "runs", ignore_errors=True)
+
 
 if __name__ == "__main__":
     main()

@@ -3,7 +3,8 @@ minutes (issue floor: within a second).
 
     .venv/bin/python benchmarks/interrupt_latency.py [--repeat 3] [--delay 0.3]
 
-Each row starts ``slamobs run`` on a generated log (600 s plain, 60 s for the spinning cases), waits until its observer stage has begun (the hidden
+Each row starts ``slamobs run`` on a generated log (600 s plain, 60 s for the spinning cases), waits until its
+observer stage has begun (the hidden
 temporary output appears), waits ``--delay`` seconds more and sends the signal; the latency is the time from
 the signal to the process's exit (exit code and message checked). Cases: a plain run, a detection at 1e9 m
 with the range gate off, and a gain of 1e12 (both hit the sub-step cap on most intervals). The machine's load
@@ -43,17 +44,22 @@ def make_logs(root: Path) -> dict[str, tuple[Path, str]]:
     # a plain run reads, runs and writes 60 s of log in well under a second: 600 s keeps it busy past --delay
     long = write_log(simulate("figure8", duration=600.0, seed=9, imu_rate=200.0), root / "long.bag")
     quiet = "evaluation:\n  plots: false\n"
-    return {"plain run (600 s log)": (long, quiet),
-            "detection at 1e9 m, gate off": (far, quiet + "limits:\n  max_range: null\n"),
-            "gain k_w = 1e12": (plain, quiet + "gains:\n  fast-adaptation: {k_w: 1.0e12}\n")}
+    return {
+        "plain run (600 s log)": (long, quiet),
+        "detection at 1e9 m, gate off": (far, quiet + "limits:\n  max_range: null\n"),
+        "gain k_w = 1e12": (plain, quiet + "gains:\n  fast-adaptation: {k_w: 1.0e12}\n"),
+    }
 
 
 def latency(root: Path, log: Path, config: str, signum: int, delay: float) -> tuple[float, int, str]:
     cfg = root / "run.yaml"
     cfg.write_text(config)
     out = root / "out"
-    proc = subprocess.Popen([str(SLAMOBS), "run", str(log), "-o", str(out), "--config", str(cfg), "-q", "--force"],
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [str(SLAMOBS), "run", str(log), "-o", str(out), "--config", str(cfg), "-q", "--force"],
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     while not any(p.name.startswith(".out.tmp-") for p in root.iterdir()):
         if proc.poll() is not None:
             raise SystemExit(f"the run ended before the signal: {proc.stderr.read()}")
@@ -77,8 +83,10 @@ def main() -> None:
         logs = make_logs(root)
         latency(root, *logs["plain run (600 s log)"], signal.SIGINT, 0.0)  # warm-up: numba kernels compiled and cached
         print(f"load average before: {os.getloadavg()[0]:.2f} (2 = both cores busy)")
-        print(f"| case | signal | exit code | latency median [s] | max [s] | max <= {MAX_LATENCY_S:g} s |\n"
-              "|---|---|---|---|---|---|")
+        print(
+            f"| case | signal | exit code | latency median [s] | max [s] | max <= {MAX_LATENCY_S:g} s |\n"
+            "|---|---|---|---|---|---|"
+        )
         for name, (log, config) in logs.items():
             for signum in (signal.SIGINT, signal.SIGTERM):
                 runs = [latency(root, log, config, signum, args.delay) for _ in range(args.repeat)]
@@ -86,9 +94,11 @@ def main() -> None:
                 assert all("interrupted" in e for _, _, e in runs), runs
                 assert codes == {128 + signum}, runs  # 130 after SIGINT, 143 after SIGTERM
                 lat = [x for x, _, _ in runs]
-                print(f"| {name} | {signal.Signals(signum).name} | {', '.join(map(str, sorted(codes)))} | "
-                      f"{statistics.median(lat):.3f} | {max(lat):.3f} | "
-                      f"{'met' if max(lat) <= MAX_LATENCY_S else 'MISSED'} |")
+                print(
+                    f"| {name} | {signal.Signals(signum).name} | {', '.join(map(str, sorted(codes)))} | "
+                    f"{statistics.median(lat):.3f} | {max(lat):.3f} | "
+                    f"{'met' if max(lat) <= MAX_LATENCY_S else 'MISSED'} |"
+                )
         print(f"load average after: {os.getloadavg()[0]:.2f}")
 
 

@@ -70,8 +70,10 @@ def main() -> None:
     ap.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
     ap.add_argument("--observers", nargs="+", default=list(ESTIMATORS))
     args = ap.parse_args()
-    print("| scenario | seed | observer | map err, trajectory alignment [m] | map err, map-only alignment [m] | "
-          "ratio | APE rmse [m] | map err, alignment on the poses while landmarks were seen [m] |")
+    print(
+        "| scenario | seed | observer | map err, trajectory alignment [m] | map err, map-only alignment [m] | "
+        "ratio | APE rmse [m] | map err, alignment on the poses while landmarks were seen [m] |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
@@ -81,8 +83,11 @@ def main() -> None:
                 log = write_log(sim, root / f"{scenario}-{seed}.mcap")
                 rows = measure(log, root / f"{scenario}-{seed}", args.observers, scenario, sim.start_ns)
                 for name, r in rows.items():
-                    print(f"| {scenario} | {seed} | {name} | {r['traj']:.3f} | {r['map']:.3f} | "
-                          f"{r['traj'] / r['map']:.1f} | {r['ape']:.3f} | {r['seen']:.3f} |", flush=True)
+                    print(
+                        f"| {scenario} | {seed} | {name} | {r['traj']:.3f} | {r['map']:.3f} | "
+                        f"{r['traj'] / r['map']:.1f} | {r['ape']:.3f} | {r['seen']:.3f} |",
+                        flush=True,
+                    )
 
 
 if __name__ == "__main__":

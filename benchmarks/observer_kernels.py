@@ -26,8 +26,9 @@ from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.estimators import ESTIMATORS
 
 
-def synthetic_stream(n_landmarks: int, seconds: float, rate: float = 200.0, det_rate: float = 20.0,
-                     seed: int = 0) -> AlignedStream:
+def synthetic_stream(
+    n_landmarks: int, seconds: float, rate: float = 200.0, det_rate: float = 20.0, seed: int = 0
+) -> AlignedStream:
     rng = np.random.default_rng(seed)
     t = np.arange(0.0, seconds, 1.0 / rate)
     omega = np.tile([0.01, -0.02, 0.3], (t.size, 1))
@@ -42,14 +43,24 @@ def synthetic_stream(n_landmarks: int, seconds: float, rate: float = 200.0, det_
     n_dir = 2
     from slamobs.pipeline.directions import DirectionSet
 
-    dirs = DirectionSet(("gravity", "magnetic"), np.array([[0, 0, 1.0], [0.4, 0, -0.9]]) /
-                        np.linalg.norm([[0, 0, 1.0], [0.4, 0, -0.9]], axis=1, keepdims=True),
-                        np.tile(np.array([[0, 0, 1.0], [0.406, 0, -0.914]]), (t.size, 1, 1)), np.ones((t.size, n_dir)))
+    dirs = DirectionSet(
+        ("gravity", "magnetic"),
+        np.array([[0, 0, 1.0], [0.4, 0, -0.9]]) / np.linalg.norm([[0, 0, 1.0], [0.4, 0, -0.9]], axis=1, keepdims=True),
+        np.tile(np.array([[0, 0, 1.0], [0.406, 0, -0.914]]), (t.size, 1, 1)),
+        np.ones((t.size, n_dir)),
+    )
     return AlignedStream(
-        t0_ns=0, vel_t_ns=ns, omega=omega, velocity=vel, det_t_ns=(td * 1e9).astype(np.int64),
+        t0_ns=0,
+        vel_t_ns=ns,
+        omega=omega,
+        velocity=vel,
+        det_t_ns=(td * 1e9).astype(np.int64),
         det_offsets=np.arange(0, n_landmarks * td.size + 1, n_landmarks, dtype=np.int64),
-        det_idx=np.tile(np.arange(n_landmarks), td.size).astype(np.int64), det_y=y.reshape(-1, 3),
-        landmark_ids=np.arange(n_landmarks, dtype=np.int64), body_frame="base_link", directions=dirs,
+        det_idx=np.tile(np.arange(n_landmarks), td.size).astype(np.int64),
+        det_y=y.reshape(-1, 3),
+        landmark_ids=np.arange(n_landmarks, dtype=np.int64),
+        body_frame="base_link",
+        directions=dirs,
     )
 
 
@@ -115,14 +126,22 @@ LANDMARKS = (4, 30, 300)
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=60.0,
-                    help="simulated seconds at 4 landmarks (shorter streams for more landmarks)")
+    ap.add_argument(
+        "--seconds",
+        type=float,
+        default=60.0,
+        help="simulated seconds at 4 landmarks (shorter streams for more landmarks)",
+    )
     ap.add_argument("--repeat", type=int, default=5, help="runs per measurement (the best counts)")
     args = ap.parse_args()
-    print(f"# observer kernels, {cpu_model()}, python {platform.python_version()}, "
-          f"one core; stream: velocity 200 Hz, detections 20 Hz, all landmarks visible, default gains")
-    print(f"{'observer':<16} {'landmarks':>9} {'steps':>10} {'kernel steps/s':>15} {'numpy steps/s':>14} "
-          f"{'speed-up':>9} {'us/step':>8} {'us/event':>9} {'us/step/landmark':>17}")
+    print(
+        f"# observer kernels, {cpu_model()}, python {platform.python_version()}, "
+        f"one core; stream: velocity 200 Hz, detections 20 Hz, all landmarks visible, default gains"
+    )
+    print(
+        f"{'observer':<16} {'landmarks':>9} {'steps':>10} {'kernel steps/s':>15} {'numpy steps/s':>14} "
+        f"{'speed-up':>9} {'us/step':>8} {'us/event':>9} {'us/step/landmark':>17}"
+    )
     rates: dict[tuple[str, int], float] = {}
     np_rates: dict[int, float] = {}
     for n in LANDMARKS:
@@ -134,8 +153,10 @@ def main() -> None:
             fa = name == "fast-adaptation"
             ratio = f"{rate / np_rate:8.0f}x" if fa else f"{'':>9}"
             np_col = f"{np_rate:>14,.0f}" if fa else f"{'':>14}"
-            print(f"{name:<16} {n:>9} {steps:>10} {rate:>15,.0f} {np_col} {ratio} {1e6 / rate:>8.3f} "
-                  f"{1e6 * per_event:>9.3f} {1e6 / rate / n:>17.4f}")
+            print(
+                f"{name:<16} {n:>9} {steps:>10} {rate:>15,.0f} {np_col} {ratio} {1e6 / rate:>8.3f} "
+                f"{1e6 * per_event:>9.3f} {1e6 / rate / n:>17.4f}"
+            )
     print("# cost per internal step fitted as a + b * landmarks (least squares over 4, 30, 300)")
     for name in ESTIMATORS:
         us = np.array([1e6 / rates[name, n] for n in LANDMARKS])
@@ -144,8 +165,10 @@ def main() -> None:
         print(f"{name:<16} a = {a:.3f} us, b = {1e3 * b:.2f} ns per landmark (fit within {100 * worst:.0f} %)")
     fa4 = rates["fast-adaptation", 4]
     ok = fa4 >= FLOOR_STEPS_PER_S and fa4 / np_rates[4] >= FLOOR_SPEEDUP
-    print(f"# floor fast-adaptation at 4 landmarks: {fa4:,.0f} steps/s (>= {FLOOR_STEPS_PER_S:,}), "
-          f"{fa4 / np_rates[4]:.0f}x NumPy (>= {FLOOR_SPEEDUP:.0f}x): {'ok' if ok else 'MISSED'}")
+    print(
+        f"# floor fast-adaptation at 4 landmarks: {fa4:,.0f} steps/s (>= {FLOOR_STEPS_PER_S:,}), "
+        f"{fa4 / np_rates[4]:.0f}x NumPy (>= {FLOOR_SPEEDUP:.0f}x): {'ok' if ok else 'MISSED'}"
+    )
 
 
 if __name__ == "__main__":

@@ -168,15 +168,21 @@ def _tf_sim_log(path: Path, container: str, seconds: float, rate: float = 100.0)
             time_ = t["builtin_interfaces/msg/Time"](sec=stamp // 10**9, nanosec=stamp % 10**9)
             header = t["std_msgs/msg/Header"](**({"seq": 0} if ros1 else {}), stamp=time_, frame_id=parent)
             x, y, z, qx, qy, qz, qw = rng.normal(size=7)
-            transform = t["geometry_msgs/msg/Transform"](translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
-                                                         rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
-            items.append(t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform))
+            transform = t["geometry_msgs/msg/Transform"](
+                translation=t["geometry_msgs/msg/Vector3"](x=x, y=y, z=z),
+                rotation=t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+            )
+            items.append(
+                t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=child, transform=transform)
+            )
         msg = t[msgtype](transforms=items)
         return bytes(ts.serialize_ros1(msg, msgtype) if ros1 else ts.serialize_cdr(msg, msgtype))
 
     stamps = [t0 + int(k * 1e9 / rate) for k in range(int(seconds * rate))]
-    topics = {"/tf_static": [(t0, message(t0, [("base_link", "imu"), ("base_link", "laser")]))],
-              "/tf": [(s + 200_000, message(s, edges)) for s in stamps]}
+    topics = {
+        "/tf_static": [(t0, message(t0, [("base_link", "imu"), ("base_link", "laser")]))],
+        "/tf": [(s + 200_000, message(s, edges)) for s in stamps],
+    }
     return write_raw_log(path, container, topics, msgtype, ts)
 
 
@@ -209,8 +215,11 @@ def _tf_decode(path: Path, fast: bool) -> tuple[dict[str, TfRows], float]:
     try:
         with open_log(path) as reader:
             start = time.process_time()
-            rows = {t: decode_tf(reader, path, t, conns) for t, (meta, conns) in topics_of(reader).items()
-                    if meta.msgtype in TF_TYPES}
+            rows = {
+                t: decode_tf(reader, path, t, conns)
+                for t, (meta, conns) in topics_of(reader).items()
+                if meta.msgtype in TF_TYPES
+            }
             return rows, time.process_time() - start
     finally:
         tfdecode.tf_layout, decode.TF_FAST_MESSAGES = real, fast_from
@@ -249,8 +258,18 @@ def tf_table(args: argparse.Namespace) -> None:
             for _ in range(args.repeat):
                 ref = min(ref, _tf_decode(path, False)[1])
                 ours = min(ours, _tf_decode(path, True)[1])
-            rows.append((name, ",".join(sorted(got)), str(messages), str(count), f"{count / ref:,.0f}",
-                         f"{count / ours:,.0f}", f"{ref / ours:.1f}x", "yes" if _tf_same(want, got) else "NO"))
+            rows.append(
+                (
+                    name,
+                    ",".join(sorted(got)),
+                    str(messages),
+                    str(count),
+                    f"{count / ref:,.0f}",
+                    f"{count / ours:,.0f}",
+                    f"{ref / ours:.1f}x",
+                    "yes" if _tf_same(want, got) else "NO",
+                )
+            )
             print(" | ".join(rows[-1]), file=sys.stderr, flush=True)
     _print(header, rows)
 
@@ -273,8 +292,18 @@ def main() -> None:
     if args.tf:
         tf_table(args)
         return
-    header = ("file", "container", "messages", "rosbags msg/s", "ours msg/s", "speed-up", "incl. open",
-              "per topic msg/s", "inflate bound", "identical")
+    header = (
+        "file",
+        "container",
+        "messages",
+        "rosbags msg/s",
+        "ours msg/s",
+        "speed-up",
+        "incl. open",
+        "per topic msg/s",
+        "inflate bound",
+        "identical",
+    )
     rows = []
     with tempfile.TemporaryDirectory(prefix="read_speed-") as tmp:
         for name, path in _logs(args, Path(tmp)):
@@ -303,10 +332,18 @@ def main() -> None:
                 t_inflate = _inflate_only(path)
                 inflate = min(inflate, t_inflate) if t_inflate is not None else None
             rows.append(
-                (name, kind, str(count), f"{count / ref[0]:,.0f}", f"{count / one[0]:,.0f}",
-                 f"{ref[0] / one[0]:.1f}x", f"{ref[1] / one[1]:.1f}x", f"{count / each[0]:,.0f}",
-                 f"{ref[0] / inflate:.1f}x" if inflate else "-",
-                 "yes" if _same(want, got) else "NO"),
+                (
+                    name,
+                    kind,
+                    str(count),
+                    f"{count / ref[0]:,.0f}",
+                    f"{count / one[0]:,.0f}",
+                    f"{ref[0] / one[0]:.1f}x",
+                    f"{ref[1] / one[1]:.1f}x",
+                    f"{count / each[0]:,.0f}",
+                    f"{ref[0] / inflate:.1f}x" if inflate else "-",
+                    "yes" if _same(want, got) else "NO",
+                ),
             )
             print(" | ".join(rows[-1]), file=sys.stderr, flush=True)
     widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]

@@ -36,28 +36,37 @@ def main() -> None:
     for name in OBSERVERS:
         run(short, args.cache / "runs" / "warmup", extra=("--observer", name))
     print(f"# {log.name}, {cpu_model()}, {load()}")
-    print("| estimator | wall s | CPU s | estimator stage s | x real time | µs per velocity sample | seed s | "
-          "smoother s (CPU s) | peak RSS MB |")
+    print(
+        "| estimator | wall s | CPU s | estimator stage s | x real time | µs per velocity sample | seed s | "
+        "smoother s (CPU s) | peak RSS MB |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     res = {}
     for name in OBSERVERS:
         r = res[name] = run(log, args.cache / "runs" / f"{log.stem}-{name}", extra=("--observer", name))
         t = r["timings"]
         n = json.loads((args.cache / "runs" / f"{log.stem}-{name}" / "run.json").read_text())["counts"][
-            "velocity_samples"]
-        smoother = (f"{t['smoother_s']:.1f} ({t['smoother_cpu_s']:.1f})" if "smoother_s" in t else "")
-        print(f"| {name} | {r['wall']:.1f} | {r['cpu']:.1f} | {t['observer_s']:.1f} | "
-              f"{r['span_s'] / t['observer_s']:.0f}x | {1e6 * t['observer_s'] / n:.1f} | "
-              f"{t.get('seed_s', float('nan')):.1f} | {smoother} | {r['rss']:.0f} |")
+            "velocity_samples"
+        ]
+        smoother = f"{t['smoother_s']:.1f} ({t['smoother_cpu_s']:.1f})" if "smoother_s" in t else ""
+        print(
+            f"| {name} | {r['wall']:.1f} | {r['cpu']:.1f} | {t['observer_s']:.1f} | "
+            f"{r['span_s'] / t['observer_s']:.0f}x | {1e6 * t['observer_s'] / n:.1f} | "
+            f"{t.get('seed_s', float('nan')):.1f} | {smoother} | {r['rss']:.0f} |"
+        )
     print(f"# {load()}")
     b, f = res["batch"], res["riekf"]
     cpu = b["timings"]["smoother_cpu_s"]
     ok = cpu <= MAX_SMOOTHER_S and b["rss"] <= MAX_RSS_BATCH_MB
-    print(f"batch: smoother stage {cpu:.1f} CPU s (<= {MAX_SMOOTHER_S:g}), peak {b['rss']:.0f} MB "
-          f"(<= {MAX_RSS_BATCH_MB:g}): {'ok' if ok else 'MISSED'}")
+    print(
+        f"batch: smoother stage {cpu:.1f} CPU s (<= {MAX_SMOOTHER_S:g}), peak {b['rss']:.0f} MB "
+        f"(<= {MAX_RSS_BATCH_MB:g}): {'ok' if ok else 'MISSED'}"
+    )
     speed = f["span_s"] / f["timings"]["observer_s"]
-    print(f"riekf: filter stage {f['timings']['observer_s']:.1f} s = {speed:.0f}x real time "
-          f"(>= {MIN_RIEKF_REALTIME:g}x): {'ok' if speed >= MIN_RIEKF_REALTIME else 'MISSED'}")
+    print(
+        f"riekf: filter stage {f['timings']['observer_s']:.1f} s = {speed:.0f}x real time "
+        f"(>= {MIN_RIEKF_REALTIME:g}x): {'ok' if speed >= MIN_RIEKF_REALTIME else 'MISSED'}"
+    )
 
 
 if __name__ == "__main__":

@@ -33,8 +33,9 @@ def chi2_ppf(p: float, dof: int) -> float:
 
 
 def nees_runs(scenario: str, runs: int, duration: float, sigma_b: float = 0.05, every: int = 20):
-    noise = resolve_noise(NoiseConfig(gyro_bias=sigma_b, velocity_bias=sigma_b, gyro_bias_walk=0.0,
-                                      velocity_bias_walk=0.0))
+    noise = resolve_noise(
+        NoiseConfig(gyro_bias=sigma_b, velocity_bias=sigma_b, gyro_bias_walk=0.0, velocity_bias_walk=0.0)
+    )
     rng = np.random.default_rng(2015)
     nees, seconds, samples = [], 0.0, 0
     for run in range(runs):
@@ -54,8 +55,9 @@ def nees_runs(scenario: str, runs: int, duration: float, sigma_b: float = 0.05, 
         row = []
         for k in range(1, res.t_ns.shape[0]):
             eta = res.rotation[k] @ truth.R[k].T
-            err = np.r_[so3_log(eta), res.position[k] - eta @ truth.P[k], b[:3] - res.gyro_bias[k],
-                        b[3:] - res.vel_bias[k]]
+            err = np.r_[
+                so3_log(eta), res.position[k] - eta @ truth.P[k], b[:3] - res.gyro_bias[k], b[3:] - res.vel_bias[k]
+            ]
             row.append(err @ np.linalg.solve(filt.cov_rows[k], err))
         nees.append(row)
     n = min(len(r) for r in nees)
@@ -70,14 +72,18 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--scenario", nargs="+", default=["figure8", "loop"])
     args = ap.parse_args()
-    print(f"| scenario | runs x s | mean NEES (12 DoF) | 95 % bounds of the run average | instants inside | "
-          f"median / max of the run average | µs per velocity sample |")
+    print(
+        "| scenario | runs x s | mean NEES (12 DoF) | 95 % bounds of the run average | instants inside | "
+        "median / max of the run average | µs per velocity sample |"
+    )
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for name in args.scenario:
         mean, lo, hi, per_sample = nees_runs(name, args.runs, args.duration)
         inside = np.mean((mean >= lo) & (mean <= hi))
-        print(f"| {name} | {args.runs} x {args.duration:g} | {mean.mean():.2f} | {lo:.2f} - {hi:.2f} | "
-              f"{100 * inside:.0f} % | {np.median(mean):.2f} / {mean.max():.2f} | {1e6 * per_sample:.1f} |")
+        print(
+            f"| {name} | {args.runs} x {args.duration:g} | {mean.mean():.2f} | {lo:.2f} - {hi:.2f} | "
+            f"{100 * inside:.0f} % | {np.median(mean):.2f} / {mean.max():.2f} | {1e6 * per_sample:.1f} |"
+        )
 
 
 if __name__ == "__main__":

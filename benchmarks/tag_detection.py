@@ -48,8 +48,10 @@ def frames(n: int, width: int, height: int):
         gray = renderer.render(r_wc[f], t_wc[f], rng)
         ok, jpeg = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, 90])
         rows = slice(int(views.offsets[f]), int(views.offsets[f + 1]))
-        truth = {int(sc.landmark_ids[i]): (c, (sc.landmarks[i] - t_wc[f]) @ r_wc[f])
-                 for i, c in zip(views.lm_idx[rows], views.corners[rows])}
+        truth = {
+            int(sc.landmark_ids[i]): (c, (sc.landmarks[i] - t_wc[f]) @ r_wc[f])
+            for i, c in zip(views.lm_idx[rows], views.corners[rows])
+        }
         out.append((jpeg.tobytes(), cv2.imdecode(jpeg, cv2.IMREAD_GRAYSCALE), truth))
     return cam, out
 
@@ -76,22 +78,28 @@ def main() -> None:
     t0 = time.perf_counter()
     cam, data = frames(args.frames, width, height)
     model = cam.model()
-    print(f"{len(data)} frames {width}x{height} rendered in {time.perf_counter() - t0:.1f} s; OpenCV {cv2.__version__}, "
-          "1 thread\n")
+    print(
+        f"{len(data)} frames {width}x{height} rendered in {time.perf_counter() - t0:.1f} s; OpenCV {cv2.__version__}, "
+        "1 thread\n"
+    )
     configs = {  # slamobs: OpenCV's detector without refinement, then refine_corners
         "slamobs (edge-fit corners)": None,
         "OpenCV sub-pixel refinement": {"cornerRefinementMethod": 1},
         "OpenCV AprilTag refinement": {"cornerRefinementMethod": 3},
     }
-    head = (f"{'detector':38s} {'jpeg fps':>9s} {'raw fps':>8s} {'found':>6s} {'corner rms':>10s} {'depth bias':>10s} "
-            f"{'err 4-6 m':>9s}")
+    head = (
+        f"{'detector':38s} {'jpeg fps':>9s} {'raw fps':>8s} {'found':>6s} {'corner rms':>10s} {'depth bias':>10s} "
+        f"{'err 4-6 m':>9s}"
+    )
     print(head)  # "corner rms" over the tags inside the image; occluded ones included
     print("-" * len(head))
     for name, params in configs.items():
         det = TagDetector("36h11", params)
         shift = 0.5 if params and params.get("cornerRefinementMethod") == 3 else 0.0
-        jpeg_s = timed(lambda: [det.detect(cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_GRAYSCALE))
-                                for j, _, _ in data], args.repeat)
+        jpeg_s = timed(
+            lambda: [det.detect(cv2.imdecode(np.frombuffer(j, np.uint8), cv2.IMREAD_GRAYSCALE)) for j, _, _ in data],
+            args.repeat,
+        )
         raw_s = timed(lambda: [det.detect(g) for _, g, _ in data], args.repeat)
         shown = found = 0
         err_c, bias, err_mid = [], [], []
@@ -111,8 +119,10 @@ def main() -> None:
                 if 4.0 <= rng_true <= 6.0:
                     err_mid.append(np.linalg.norm(pose.xyz[0] - centre))
         rms = float(np.sqrt(np.mean(np.square(err_c)))) if err_c else np.nan
-        print(f"{name:38s} {len(data) / jpeg_s:9.0f} {len(data) / raw_s:8.0f} {found / max(shown, 1):6.0%} "
-              f"{rms:10.3f} {100 * np.mean(bias):9.2f}% {1e3 * np.median(err_mid):7.1f}mm")
+        print(
+            f"{name:38s} {len(data) / jpeg_s:9.0f} {len(data) / raw_s:8.0f} {found / max(shown, 1):6.0%} "
+            f"{rms:10.3f} {100 * np.mean(bias):9.2f}% {1e3 * np.median(err_mid):7.1f}mm"
+        )
 
 
 if __name__ == "__main__":

@@ -37,21 +37,35 @@ def main() -> None:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        logs = [write_log(simulation("figure8-wide", duration=args.duration, seed=i), tmp / f"l{i}.mcap")
-                for i in range(args.logs)]
+        logs = [
+            write_log(simulation("figure8-wide", duration=args.duration, seed=i), tmp / f"l{i}.mcap")
+            for i in range(args.logs)
+        ]
         run_tune(logs[:1], TuneOptions(out=tmp / "warm", observer=args.observer, trials=2, jobs=2))  # numba cache
         rows = []
         for name, run in (("read once per worker (slamobs)", None), ("read every trial", read_every_trial)):
             t = time.perf_counter()
-            run_tune(logs, TuneOptions(out=tmp / name.split()[1], observer=args.observer, trials=args.trials, jobs=2),
-                     run=run)
+            run_tune(
+                logs,
+                TuneOptions(out=tmp / name.split()[1], observer=args.observer, trials=args.trials, jobs=2),
+                run=run,
+            )
             wall = time.perf_counter() - t
             trials = pd.read_parquet(tmp / name.split()[1] / "trials.parquet")
-            rows.append({"variant": name, "wall_s": wall, "reads": int((trials["read_s"] > 0).sum()),
-                         "read_s": trials["read_s"].sum(), "observer_s": trials["observer_s"].sum(),
-                         "trials_per_min": args.trials / wall * 60})
-        print(f"{args.logs} logs of {args.duration:g} s (figure8-wide), {args.trials} trials of {args.observer}, "
-              "2 local workers")
+            rows.append(
+                {
+                    "variant": name,
+                    "wall_s": wall,
+                    "reads": int((trials["read_s"] > 0).sum()),
+                    "read_s": trials["read_s"].sum(),
+                    "observer_s": trials["observer_s"].sum(),
+                    "trials_per_min": args.trials / wall * 60,
+                }
+            )
+        print(
+            f"{args.logs} logs of {args.duration:g} s (figure8-wide), {args.trials} trials of {args.observer}, "
+            "2 local workers"
+        )
         print(pd.DataFrame(rows).to_string(index=False, float_format=lambda v: f"{v:.2f}"))
 
 

@@ -16,6 +16,7 @@ from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
 from slamobs.cli.options import Finite
 
+
 def _jsonable(row: dict) -> dict:
     def conv(v):
         if isinstance(v, datetime):
@@ -68,8 +69,9 @@ class _Reporter:
     def __call__(self, row: dict, progress) -> None:
         if self.as_json:
             if not self.quiet:
-                click.echo(json.dumps({"event": "run", "done": progress.done, "total": progress.total,
-                                       **_jsonable(row)}))
+                click.echo(
+                    json.dumps({"event": "run", "done": progress.done, "total": progress.total, **_jsonable(row)})
+                )
             return
         if self.quiet:
             return
@@ -78,9 +80,12 @@ class _Reporter:
             return
         if row["status"] == "failed" or row.get("warning_count"):
             click.echo("\r\x1b[K" + _row_line(row, progress), err=True)
-        click.echo(f"\r\x1b[K[{progress.done}/{progress.total}] {progress.ok} ok, {progress.failed} failed, "
-                   f"{progress.skipped} skipped  ETA {_duration(progress.eta_s())}  last {row['run_id']}",
-                   nl=False, err=True)
+        click.echo(
+            f"\r\x1b[K[{progress.done}/{progress.total}] {progress.ok} ok, {progress.failed} failed, "
+            f"{progress.skipped} skipped  ETA {_duration(progress.eta_s())}  last {row['run_id']}",
+            nl=False,
+            err=True,
+        )
 
     def clear(self) -> None:
         if self.live:
@@ -92,26 +97,44 @@ class _Reporter:
         summary = out / "summary.parquet"
         fixed = result.reconciled
         if self.as_json:
-            click.echo(json.dumps({"event": "done", "logs": len(result.rows), **counts, "warned": result.warned,
-                                   "pruned": len(result.pruned), "adopted": len(fixed.adopted),
-                                   "removed": len(fixed.removed) + len(fixed.dropped),
-                                   "elapsed_s": round(result.elapsed_s, 3), "summary": str(summary),
-                                   "exit_code": result.exit_code}))
+            click.echo(
+                json.dumps(
+                    {
+                        "event": "done",
+                        "logs": len(result.rows),
+                        **counts,
+                        "warned": result.warned,
+                        "pruned": len(result.pruned),
+                        "adopted": len(fixed.adopted),
+                        "removed": len(fixed.removed) + len(fixed.dropped),
+                        "elapsed_s": round(result.elapsed_s, 3),
+                        "summary": str(summary),
+                        "exit_code": result.exit_code,
+                    }
+                )
+            )
             return
         if not self.quiet:
             if fixed.adopted or fixed.removed or fixed.dropped:
-                click.echo(f"batch: settled an interrupted batch: {len(fixed.adopted)} finished runs adopted, "
-                           f"{len(fixed.removed)} partial runs removed, {len(fixed.dropped)} runs with missing files "
-                           "dropped", err=True)
+                click.echo(
+                    f"batch: settled an interrupted batch: {len(fixed.adopted)} finished runs adopted, "
+                    f"{len(fixed.removed)} partial runs removed, {len(fixed.dropped)} runs with missing files "
+                    "dropped",
+                    err=True,
+                )
             if result.pruned:
                 click.echo(f"batch: pruned {_plural(len(result.pruned), 'run')} whose logs are gone", err=True)
         warned = f" ({result.warned} with warnings)" if result.warned else ""
-        click.echo(f"batch: {len(result.rows)} logs, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
-                   f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}")
+        click.echo(
+            f"batch: {len(result.rows)} logs, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
+            f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}"
+        )
         if machine := result.machine_failures:
-            click.echo(f"batch: {_plural(len(machine), 'log')} failed because of the machine, not the log (first: "
-                       f"{machine[0]['error']}); not recorded: run the same command again once that is fixed",
-                       err=True)
+            click.echo(
+                f"batch: {_plural(len(machine), 'log')} failed because of the machine, not the log (first: "
+                f"{machine[0]['error']}); not recorded: run the same command again once that is fixed",
+                err=True,
+            )
 
 
 class _BatchGroup(click.Group):
@@ -143,34 +166,88 @@ class _RunCommand(click.Command):
 
 @batch.command("run", cls=_RunCommand)
 @click.argument("inputs", nargs=-1, required=True)
-@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="dataset directory (created; reused to resume)")
+@click.option(
+    "-o",
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="dataset directory (created; reused to resume)",
+)
 @click.option("--observer", default=None, help="observer for every log (overrides configs)")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
-              help="run.yaml for logs without a per-log config in a manifest")
-@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False, exists=True), default=None,
-              help="pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log "
-                   "config that names msg_dir)")
-@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None,
-              help="parallel worker processes (default: all cores)")
-@click.option("--executor", type=click.Choice(["local", "dask"]), default=None,
-              help="local processes (default) or Dask (a local cluster unless --scheduler)")
-@click.option("--scheduler", default=None, metavar="ADDRESS",
-              help="Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)")
-@click.option("--timeout", type=Finite(min=0), default=3600.0, show_default=True, metavar="SECONDS",
-              help="per log: a run taking longer is killed and fails (0: no limit)")
-@click.option("--wait-workers", type=Finite(min=0), default=60.0, show_default=True, metavar="SECONDS",
-              help="Dask: give up (exit 3) when no worker is there for this long")
+@click.option(
+    "--config",
+    "config_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="run.yaml for logs without a per-log config in a manifest",
+)
+@click.option(
+    "--msg-dir",
+    type=click.Path(path_type=Path, file_okay=False, exists=True),
+    default=None,
+    help="pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log "
+    "config that names msg_dir)",
+)
+@click.option(
+    "-j", "--jobs", type=click.IntRange(min=1), default=None, help="parallel worker processes (default: all cores)"
+)
+@click.option(
+    "--executor",
+    type=click.Choice(["local", "dask"]),
+    default=None,
+    help="local processes (default) or Dask (a local cluster unless --scheduler)",
+)
+@click.option(
+    "--scheduler",
+    default=None,
+    metavar="ADDRESS",
+    help="Dask scheduler, e.g. tcp://host:8786 (implies --executor dask)",
+)
+@click.option(
+    "--timeout",
+    type=Finite(min=0),
+    default=3600.0,
+    show_default=True,
+    metavar="SECONDS",
+    help="per log: a run taking longer is killed and fails (0: no limit)",
+)
+@click.option(
+    "--wait-workers",
+    type=Finite(min=0),
+    default=60.0,
+    show_default=True,
+    metavar="SECONDS",
+    help="Dask: give up (exit 3) when no worker is there for this long",
+)
 @click.option("--force", is_flag=True, help="re-run logs whose results are up to date")
 @click.option("--skip-failed", is_flag=True, help="do not retry logs that failed with the same content and config")
-@click.option("--prune", is_flag=True,
-              help="drop runs whose logs are gone (no longer at their recorded path with the same content)")
+@click.option(
+    "--prune",
+    is_flag=True,
+    help="drop runs whose logs are gone (no longer at their recorded path with the same content)",
+)
 @click.option("--no-compact", is_flag=True, help="leave the per-run partitions (compact later: slamobs batch compact)")
 @click.option("-q", "--quiet", is_flag=True, help="print only the final line")
 @click.option("--json", "as_json", is_flag=True, help="one JSON object per finished run, then a final one")
-def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_path: Path | None, msg_dir: Path | None,
-        jobs: int | None, executor: str | None, scheduler: str | None, timeout: float, wait_workers: float,
-        force: bool, skip_failed: bool, prune: bool, no_compact: bool, quiet: bool, as_json: bool) -> None:
+def run(
+    inputs: tuple[str, ...],
+    out_dir: Path,
+    observer: str | None,
+    config_path: Path | None,
+    msg_dir: Path | None,
+    jobs: int | None,
+    executor: str | None,
+    scheduler: str | None,
+    timeout: float,
+    wait_workers: float,
+    force: bool,
+    skip_failed: bool,
+    prune: bool,
+    no_compact: bool,
+    quiet: bool,
+    as_json: bool,
+) -> None:
     """Run an observer on many logs into one dataset under OUT.
 
     INPUTS are logs (.bag, .mcap, rosbag2 directories), directories searched recursively, glob patterns,
@@ -218,12 +295,28 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
             config = replace(config, msg_dir=str(msg_dir.resolve()))
         check_config(config)
         entries = discover(inputs)
-        options = BatchOptions(out=out_dir, config=config, observer=observer, msg_dir=str(msg_dir.resolve()) if msg_dir else None,
-                               force=force, skip_failed=skip_failed, prune=prune, compact=not no_compact,
-                               executor=executor or ("dask" if scheduler else "local"), jobs=jobs or cores(),
-                               scheduler=scheduler, timeout=_timeout(timeout), wait_workers=wait_workers)
-        where = (f"Dask at {scheduler}" if scheduler else f"a local Dask cluster of {options.jobs} workers"
-                 if options.executor == "dask" else f"{options.jobs} local worker processes")
+        options = BatchOptions(
+            out=out_dir,
+            config=config,
+            observer=observer,
+            msg_dir=str(msg_dir.resolve()) if msg_dir else None,
+            force=force,
+            skip_failed=skip_failed,
+            prune=prune,
+            compact=not no_compact,
+            executor=executor or ("dask" if scheduler else "local"),
+            jobs=jobs or cores(),
+            scheduler=scheduler,
+            timeout=_timeout(timeout),
+            wait_workers=wait_workers,
+        )
+        where = (
+            f"Dask at {scheduler}"
+            if scheduler
+            else f"a local Dask cluster of {options.jobs} workers"
+            if options.executor == "dask"
+            else f"{options.jobs} local worker processes"
+        )
         with as_interruption():
             result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
     except (InfrastructureError, ResourceError) as err:  # ResourceError before InputError: it is one
@@ -236,8 +329,11 @@ def run(inputs: tuple[str, ...], out_dir: Path, observer: str | None, config_pat
     except KeyboardInterrupt as err:
         reporter.clear()
         signum = err.signum if isinstance(err, Stopped) else signal.SIGINT
-        click.echo(f"\n{signal.Signals(signum).name}: batch stopped, its workers killed; finished runs are recorded; "
-                   "run the same command again to resume", err=True)
+        click.echo(
+            f"\n{signal.Signals(signum).name}: batch stopped, its workers killed; finished runs are recorded; "
+            "run the same command again to resume",
+            err=True,
+        )
         sys.exit(EXIT_SIGNAL[signum])
     finally:
         for sig, old in handlers.items():
@@ -265,8 +361,11 @@ def compact(out_dir: Path, quiet: bool) -> None:
     if quiet:
         return
     if fixed.adopted or fixed.removed or fixed.dropped:
-        click.echo(f"settled an interrupted batch: {len(fixed.adopted)} runs adopted, {len(fixed.removed)} partial "
-                   "runs removed", err=True)
+        click.echo(
+            f"settled an interrupted batch: {len(fixed.adopted)} runs adopted, {len(fixed.removed)} partial "
+            "runs removed",
+            err=True,
+        )
     if not report:
         click.echo(f"{out_dir}: nothing to compact")
     for t in report:

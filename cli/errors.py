@@ -77,8 +77,9 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
     if published:  # the signal came after the output was complete (while the command printed its summary)
         click.echo(f"\ninterrupted ({name}) after the output was complete: {', '.join(published)}", err=True)
     else:
-        click.echo(f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged",
-                   err=True)
+        click.echo(
+            f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged", err=True
+        )
     code = EXIT_CODES[Interruption] + int(signum)
     if EXIT_AT_ONCE:
         _end_now(code)

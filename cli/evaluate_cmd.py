@@ -22,46 +22,134 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
 @click.command("evaluate")
 @click.argument("truth")
 @click.argument("est")
-@click.option("--metric", type=click.Choice(["ape", "rpe"]), default="ape", show_default=True,
-              help="absolute (evo_ape) or relative (evo_rpe) pose error")
-@click.option("-r", "--pose-relation", "--pose_relation", "relation", type=Spelled(RELATIONS),
-              default="trans-part", show_default=True, help="pose relation the error is based on (evo -r)")
+@click.option(
+    "--metric",
+    type=click.Choice(["ape", "rpe"]),
+    default="ape",
+    show_default=True,
+    help="absolute (evo_ape) or relative (evo_rpe) pose error",
+)
+@click.option(
+    "-r",
+    "--pose-relation",
+    "--pose_relation",
+    "relation",
+    type=Spelled(RELATIONS),
+    default="trans-part",
+    show_default=True,
+    help="pose relation the error is based on (evo -r)",
+)
 @click.option("-a", "--align", is_flag=True, help="SE(3) Umeyama alignment (with -s: Sim(3))")
 @click.option("-s", "--correct-scale", "--correct_scale", is_flag=True, help="correct the scale (Umeyama)")
 @click.option("--align-origin", "--align_origin", is_flag=True, help="align the first poses")
-@click.option("--align-yaw", "--align_yaw", is_flag=True,
-              help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)")
-@click.option("--n-to-align", "--n_to_align", type=int, default=-1, show_default=True,
-              help="fit the alignment on the first N associated poses (-1: all)")
-@click.option("--align-seconds", "--align_seconds", type=Seconds(), default=None,
-              help="fit the alignment on the associated poses of the first SECONDS only")
-@click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=0.01, show_default=True,
-              help="maximum timestamp difference for data association [s]")
-@click.option("--t-offset", "--t_offset", default="0.0", show_default=True,
-              help="seconds added to the estimate stamps for the association, or 'auto' (estimated)")
-@click.option("--sync-method", "--sync_method", type=Spelled(["nearest_time", "interpolation"]),
-              default="nearest-time", show_default=True,
-              help="nearest stamps, or the denser trajectory interpolated at the sparser one's stamps")
+@click.option(
+    "--align-yaw",
+    "--align_yaw",
+    is_flag=True,
+    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)",
+)
+@click.option(
+    "--n-to-align",
+    "--n_to_align",
+    type=int,
+    default=-1,
+    show_default=True,
+    help="fit the alignment on the first N associated poses (-1: all)",
+)
+@click.option(
+    "--align-seconds",
+    "--align_seconds",
+    type=Seconds(),
+    default=None,
+    help="fit the alignment on the associated poses of the first SECONDS only",
+)
+@click.option(
+    "--t-max-diff",
+    "--t_max_diff",
+    type=Seconds(),
+    default=0.01,
+    show_default=True,
+    help="maximum timestamp difference for data association [s]",
+)
+@click.option(
+    "--t-offset",
+    "--t_offset",
+    default="0.0",
+    show_default=True,
+    help="seconds added to the estimate stamps for the association, or 'auto' (estimated)",
+)
+@click.option(
+    "--sync-method",
+    "--sync_method",
+    type=Spelled(["nearest_time", "interpolation"]),
+    default="nearest-time",
+    show_default=True,
+    help="nearest stamps, or the denser trajectory interpolated at the sparser one's stamps",
+)
 @click.option("--estimate-t-offset", is_flag=True, help="estimate the clock offset of EST and print it")
 @click.option("--delta", type=Finite(), default=1.0, show_default=True, help="RPE: delta between pose pairs")
-@click.option("-u", "--delta-unit", "--delta_unit", type=click.Choice(["f", "m", "d", "r"]), default="f",
-              show_default=True, help="RPE: delta in frames, metres, degrees or radians")
-@click.option("-t", "--delta-tol", "--delta_tol", type=Finite(), default=0.1, show_default=True,
-              help="RPE: relative delta tolerance for all pairs")
+@click.option(
+    "-u",
+    "--delta-unit",
+    "--delta_unit",
+    type=click.Choice(["f", "m", "d", "r"]),
+    default="f",
+    show_default=True,
+    help="RPE: delta in frames, metres, degrees or radians",
+)
+@click.option(
+    "-t",
+    "--delta-tol",
+    "--delta_tol",
+    type=Finite(),
+    default=0.1,
+    show_default=True,
+    help="RPE: relative delta tolerance for all pairs",
+)
 @click.option("--all-pairs", "--all_pairs", is_flag=True, help="RPE: all pairs instead of consecutive pairs")
-@click.option("--pairs-from-reference", "--pairs_from_reference", is_flag=True,
-              help="RPE: choose the pairs on TRUTH instead of EST")
+@click.option(
+    "--pairs-from-reference",
+    "--pairs_from_reference",
+    is_flag=True,
+    help="RPE: choose the pairs on TRUTH instead of EST",
+)
 @click.option("--truth-format", type=click.Choice(FORMATS), default=None, help="format of TRUTH (default: detect)")
 @click.option("--est-format", type=click.Choice(FORMATS), default=None, help="format of EST (default: detect)")
-@click.option("--save-results", "--save_results", type=click.Path(path_type=Path), default=None,
-              help=".zip with the result in evo's layout (evo_res reads it)")
+@click.option(
+    "--save-results",
+    "--save_results",
+    type=click.Path(path_type=Path),
+    default=None,
+    help=".zip with the result in evo's layout (evo_res reads it)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON instead of evo's text")
 @quiet_option("print nothing but errors")
-def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, correct_scale: bool, align_origin: bool,
-             align_yaw: bool, n_to_align: int, align_seconds: float | None, t_max_diff: float, t_offset: str,
-             sync_method: str, estimate_t_offset: bool, delta: float, delta_unit: str, delta_tol: float,
-             all_pairs: bool, pairs_from_reference: bool, truth_format: str | None, est_format: str | None,
-             save_results: Path | None, as_json: bool, quiet: bool) -> None:
+def evaluate(
+    truth: str,
+    est: str,
+    metric: str,
+    relation: str,
+    align: bool,
+    correct_scale: bool,
+    align_origin: bool,
+    align_yaw: bool,
+    n_to_align: int,
+    align_seconds: float | None,
+    t_max_diff: float,
+    t_offset: str,
+    sync_method: str,
+    estimate_t_offset: bool,
+    delta: float,
+    delta_unit: str,
+    delta_tol: float,
+    all_pairs: bool,
+    pairs_from_reference: bool,
+    truth_format: str | None,
+    est_format: str | None,
+    save_results: Path | None,
+    as_json: bool,
+    quiet: bool,
+) -> None:
     """Error of trajectory EST against TRUTH (APE by default; --metric rpe).
 
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
@@ -82,9 +170,27 @@ def evaluate(truth: str, est: str, metric: str, relation: str, align: bool, corr
             if save_results.exists() and (why := why_kept(save_results)) is not None:  # refused before the work
                 raise OutputError(save_results, why)
         with compile_notice(quiet=quiet):
-            out = _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
-                       estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference,
-                       truth_format, est_format, save_results)
+            out = _run(
+                truth,
+                est,
+                metric,
+                relation,
+                kind,
+                n_to_align,
+                align_seconds,
+                t_max_diff,
+                offset,
+                sync_method,
+                estimate_t_offset,
+                delta,
+                delta_unit,
+                delta_tol,
+                all_pairs,
+                pairs_from_reference,
+                truth_format,
+                est_format,
+                save_results,
+            )
     except InputError as err:
         exit_input_error(str(err))
     except ValueError as err:
@@ -116,9 +222,27 @@ def _alignment_kind(align: bool, scale: bool, origin: bool, yaw: bool) -> str:
     return "origin" if origin else "yaw" if yaw else "none"
 
 
-def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_diff, offset, sync_method,
-         estimate_t_offset, delta, delta_unit, delta_tol, all_pairs, pairs_from_reference, truth_format, est_format,
-         save_results):
+def _run(
+    truth,
+    est,
+    metric,
+    relation,
+    kind,
+    n_to_align,
+    align_seconds,
+    t_max_diff,
+    offset,
+    sync_method,
+    estimate_t_offset,
+    delta,
+    delta_unit,
+    delta_tol,
+    all_pairs,
+    pairs_from_reference,
+    truth_format,
+    est_format,
+    save_results,
+):
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
     from slamobs.pipeline.evaluation.trajectory_error import (
         AlignOptions,
@@ -151,18 +275,42 @@ def _run(truth, est, metric, relation, kind, n_to_align, align_seconds, t_max_di
     offset_json = None
     line = None
     if found is not None:
-        offset_json = {"estimated_s": found.offset_s, "peak_correlation": found.peak_correlation,
-                       "signal": found.signal, "reliable": found.reliable, "ape_rmse_with_m": found.rmse_with_m,
-                       "ape_rmse_without_m": found.rmse_without_m, "applied_s": applied}
-        line = (f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated (peak correlation {found.peak_correlation:.2f}"
-                f"{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied")
+        offset_json = {
+            "estimated_s": found.offset_s,
+            "peak_correlation": found.peak_correlation,
+            "signal": found.signal,
+            "reliable": found.reliable,
+            "ape_rmse_with_m": found.rmse_with_m,
+            "ape_rmse_without_m": found.rmse_without_m,
+            "applied_s": applied,
+        }
+        line = (
+            f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated (peak correlation {found.peak_correlation:.2f}"
+            f"{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied"
+        )
     elif timed is False and (estimate_t_offset or offset == "auto"):
         line = f"{'t_offset':>10}\tnot estimated: poses without stamps are paired by index"
     elif estimate_t_offset or offset == "auto":
-        offset_json = {"estimated_s": None, "peak_correlation": None, "signal": None, "reliable": False,
-                       "ape_rmse_with_m": None, "ape_rmse_without_m": None, "applied_s": applied}
-        line = (f"{'t_offset':>10}\tnot estimated: the motion carries no clock information (turn rate and speed "
-                f"constant) or the trajectories overlap too little; {applied:.6f} s applied")
-    doc = {"title": result.title, "label": result.label, "ref_name": result.ref_name, "est_name": result.est_name,
-           "stats": result.stats, "method": describe(result, sync, al, rpe_opts), "time_offset": offset_json}
+        offset_json = {
+            "estimated_s": None,
+            "peak_correlation": None,
+            "signal": None,
+            "reliable": False,
+            "ape_rmse_with_m": None,
+            "ape_rmse_without_m": None,
+            "applied_s": applied,
+        }
+        line = (
+            f"{'t_offset':>10}\tnot estimated: the motion carries no clock information (turn rate and speed "
+            f"constant) or the trajectories overlap too little; {applied:.6f} s applied"
+        )
+    doc = {
+        "title": result.title,
+        "label": result.label,
+        "ref_name": result.ref_name,
+        "est_name": result.est_name,
+        "stats": result.stats,
+        "method": describe(result, sync, al, rpe_opts),
+        "time_offset": offset_json,
+    }
     return result, {"json": doc, "time_offset_line": line}

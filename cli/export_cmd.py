@@ -16,10 +16,21 @@ _RATE = Finite(min=0.0)
 
 @click.command("export")
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--mcap", "mcap_path", required=True, type=click.Path(path_type=Path, dir_okay=False),
-              help="MCAP file to write: pose, TF, path, landmark map, biases and innovations as ROS 2 messages")
-@click.option("--rate", "rate_hz", type=_RATE, default=DEFAULT_RATE_HZ, show_default=True,
-              help="at most this many pose, TF and bias messages per second; 0: one per table row")
+@click.option(
+    "--mcap",
+    "mcap_path",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="MCAP file to write: pose, TF, path, landmark map, biases and innovations as ROS 2 messages",
+)
+@click.option(
+    "--rate",
+    "rate_hz",
+    type=_RATE,
+    default=DEFAULT_RATE_HZ,
+    show_default=True,
+    help="at most this many pose, TF and bias messages per second; 0: one per table row",
+)
 @click.option("--force", is_flag=True, help="replace an existing file")
 @quiet_option()
 def export(run_dir: Path, mcap_path: Path, rate_hz: float | None, force: bool, quiet: bool) -> None:

@@ -97,13 +97,25 @@ def main() -> None:
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
-@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
-              help="pkg/msg/Type.msg definitions for types the log does not store")
+@click.option(
+    "--msg-dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=None,
+    help="pkg/msg/Type.msg definitions for types the log does not store",
+)
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @export_option()
 @quiet_option()
-def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None, msg_dir: Path | None,
-        force: bool, export: tuple[str, ...] | None, quiet: bool) -> None:
+def run(
+    log: Path,
+    out_dir: Path,
+    observer: str | None,
+    config_path: Path | None,
+    msg_dir: Path | None,
+    force: bool,
+    export: tuple[str, ...] | None,
+    quiet: bool,
+) -> None:
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
     from dataclasses import replace
 
@@ -123,8 +135,14 @@ def run(log: Path, out_dir: Path, observer: str | None, config_path: Path | None
     status = status_line(quiet)
     try:
         with compile_notice(status, quiet=quiet):
-            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, free_cores()),
-                              **({"progress": status} if status else {}))
+            summary = run_log(
+                log,
+                out_dir,
+                config,
+                force=force,
+                plot_helpers=min(1, free_cores()),
+                **({"progress": status} if status else {}),
+            )
     finally:
         if status:
             status.clear()
@@ -138,8 +156,10 @@ def _print_summary(summary) -> None:
     c = m["counts"]
     click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
     click.echo(f"input        {m['input']['path']}")
-    click.echo(f"             {c['velocity_samples']} velocity samples, {c['detection_frames']} detection frames, "
-               f"{c['landmarks']} landmarks, {c['internal_steps']} internal steps")
+    click.echo(
+        f"             {c['velocity_samples']} velocity samples, {c['detection_frames']} detection frames, "
+        f"{c['landmarks']} landmarks, {c['internal_steps']} internal steps"
+    )
     t = summary.timings
     click.echo("time         " + ", ".join(f"{k[:-2]} {v:.2f} s" for k, v in t.items()))
     for note in summary.notes:
@@ -147,8 +167,10 @@ def _print_summary(summary) -> None:
     r = summary.report
     if r:
         ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
-        click.echo(f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
-                   f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, SE(3)-aligned")
+        click.echo(
+            f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
+            f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, SE(3)-aligned"
+        )
         lm = r.get("landmarks") or {}
         if lm.get("error_m"):
             click.echo(f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} landmarks")
@@ -168,13 +190,25 @@ def _print_summary(summary) -> None:
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
-@click.option("--msg-dir", type=click.Path(path_type=Path, file_okay=False), default=None,
-              help="pkg/msg/Type.msg definitions for types the log does not store")
+@click.option(
+    "--msg-dir",
+    type=click.Path(path_type=Path, file_okay=False),
+    default=None,
+    help="pkg/msg/Type.msg definitions for types the log does not store",
+)
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @export_option()
 @quiet_option()
-def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_dir: Path | None, force: bool,
-            export: tuple[str, ...] | None, quiet: bool) -> None:
+def compare(
+    log: Path,
+    out_dir: Path,
+    names: str,
+    config_path: Path | None,
+    msg_dir: Path | None,
+    force: bool,
+    export: tuple[str, ...] | None,
+    quiet: bool,
+) -> None:
     """Run several observers on LOG and write a side-by-side table and an overlay plot."""
     from dataclasses import replace
 
@@ -197,8 +231,13 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
         config = config.with_section("output", export=export)
     status = status_line(quiet)
     # on a terminal every stage on the status line; otherwise a line as each observer starts
-    lines = {"progress": status} if status else {} if quiet else {
-        "on_observer": lambda m: click.echo(f"compare: {m}", err=True)}
+    lines = (
+        {"progress": status}
+        if status
+        else {}
+        if quiet
+        else {"on_observer": lambda m: click.echo(f"compare: {m}", err=True)}
+    )
     try:
         with compile_notice(status, quiet=quiet):
             table = compare_log(log, out_dir, config, observers, force=force, **lines)
@@ -208,8 +247,7 @@ def compare(log: Path, out_dir: Path, names: str, config_path: Path | None, msg_
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per "
-                   "observer)")
+        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
     if (table["status"] != "ok").all():
         sys.exit(1)
 
@@ -227,9 +265,11 @@ def observers() -> None:
         width = max((len(g.name) for g in spec.gains), default=0)
         for g in spec.gains:
             click.echo(f"    {g.name:<{width}}  [{g.default:g}]  {g.description}")
-    click.echo("Defaults in the first brackets; 'paper' is the paper's simulation value, 'reference' the value of "
-               "the noise-free 100 Hz reference runs that check each observer against its paper. Equations, "
-               "integration scheme and the reasons for the defaults: docs/observers.md in the slamobs repository.")
+    click.echo(
+        "Defaults in the first brackets; 'paper' is the paper's simulation value, 'reference' the value of "
+        "the noise-free 100 Hz reference runs that check each observer against its paper. Equations, "
+        "integration scheme and the reasons for the defaults: docs/observers.md in the slamobs repository."
+    )
 
 
 def entry() -> None:

@@ -70,8 +70,9 @@ def offset_seconds(text: str) -> float | str:
     except ValueError:
         seconds = math.nan
     if not abs(seconds) <= MAX_SECONDS:  # NaN too
-        raise click.BadParameter(f"{text!r} is neither seconds (at most {MAX_SECONDS:g} in size) nor 'auto'",
-                                 param_hint="--t-offset")
+        raise click.BadParameter(
+            f"{text!r} is neither seconds (at most {MAX_SECONDS:g} in size) nor 'auto'", param_hint="--t-offset"
+        )
     return seconds
 
 
@@ -93,8 +94,9 @@ class AliasedOption(click.Option):
 
 def quiet_option(help: str = "print nothing but errors"):
     """``-q/--quiet`` (``--silent`` too, hidden: evaluate's former name)."""
-    return click.option("-q", "--quiet", "--silent", "quiet", is_flag=True, cls=AliasedOption,
-                        hidden_aliases=("--silent",), help=help)
+    return click.option(
+        "-q", "--quiet", "--silent", "quiet", is_flag=True, cls=AliasedOption, hidden_aliases=("--silent",), help=help
+    )
 
 
 def _kinds(allowed: tuple[str, ...]):
@@ -106,18 +108,30 @@ def _kinds(allowed: tuple[str, ...]):
         kinds = [k.strip().lower() for k in value.split(",") if k.strip()]
         bad = sorted(set(kinds) - set(allowed) - {"none"})
         if bad or not kinds:
-            raise click.BadParameter(f"{value!r}: expected a comma-separated list of {', '.join(allowed)} "
-                                     "(or none)", ctx, param)
+            raise click.BadParameter(
+                f"{value!r}: expected a comma-separated list of {', '.join(allowed)} (or none)", ctx, param
+            )
         return export_kinds(kinds)
 
     return parse
 
 
-def export_option(allowed: tuple[str, ...] = ("tum", "evo", "mcap"),
-                  default: str = "output.export of the config, else none"):
+def export_option(
+    allowed: tuple[str, ...] = ("tum", "evo", "mcap"), default: str = "output.export of the config, else none"
+):
     """``--export tum,evo,...``: the optional extra files of a run directory (replaces ``output.export``)."""
-    described = {"tum": "tum (estimate_tum.txt, truth_tum.txt)", "evo": "evo (ape_evo.zip for evo_res)",
-                 "mcap": "mcap (results.mcap for Foxglove)"}
-    return click.option("--export", "export", default=None, metavar="LIST", callback=_kinds(allowed),
-                        help="extra files, comma-separated: " + ", ".join(described[k] for k in allowed)
-                             + f"; none writes none [default: {default}]")
+    described = {
+        "tum": "tum (estimate_tum.txt, truth_tum.txt)",
+        "evo": "evo (ape_evo.zip for evo_res)",
+        "mcap": "mcap (results.mcap for Foxglove)",
+    }
+    return click.option(
+        "--export",
+        "export",
+        default=None,
+        metavar="LIST",
+        callback=_kinds(allowed),
+        help="extra files, comma-separated: "
+        + ", ".join(described[k] for k in allowed)
+        + f"; none writes none [default: {default}]",
+    )

@@ -32,8 +32,9 @@ class StatusLine:
     def compiling(self, seconds: float, active: bool = True) -> None:
         """Show (``active``) or drop the compile notice with the seconds compiled so far."""
         text = f"{COMPILING}: {seconds:.0f} s ..." if active else ""
-        if text != self._compile and (time.perf_counter() - self._drawn >= self.REDRAW_S or not text or
-                                      not self._compile):
+        if text != self._compile and (
+            time.perf_counter() - self._drawn >= self.REDRAW_S or not text or not self._compile
+        ):
             self._compile = text
             self._show()
 

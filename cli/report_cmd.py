@@ -17,8 +17,14 @@ from slamobs.cli.progress import compile_notice
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: How the summary names each alignment (one spelling in every command: "SE(3)-aligned").
-ALIGNED = {"se3": "SE(3)-aligned", "sim3": "Sim(3)-aligned", "scale": "scale-aligned",
-           "yaw": "4-DoF (yaw)-aligned", "origin": "origin-aligned", "none": "not aligned"}
+ALIGNED = {
+    "se3": "SE(3)-aligned",
+    "sim3": "Sim(3)-aligned",
+    "scale": "scale-aligned",
+    "yaw": "4-DoF (yaw)-aligned",
+    "origin": "origin-aligned",
+    "none": "not aligned",
+}
 
 
 def _lengths(text: str | None) -> tuple[float, ...] | None:
@@ -46,32 +52,61 @@ def _previous_options(run_dir: Path) -> dict:
 
 @click.command("report")
 @click.argument("run_dir", type=click.Path(path_type=Path))
-@click.option("--truth", default=None,
-              help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
-                   "file [default: the run's truth topic]")
+@click.option(
+    "--truth",
+    default=None,
+    help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
+    "file [default: the run's truth topic]",
+)
 @click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
-@click.option("--t-offset", "--t_offset", default=None,
-              help="seconds added to the estimate stamps, or 'auto' to apply the estimated clock offset (0)")
-@click.option("--align", type=click.Choice(ALIGNMENTS), default=None,
-              help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)")
+@click.option(
+    "--t-offset",
+    "--t_offset",
+    default=None,
+    help="seconds added to the estimate stamps, or 'auto' to apply the estimated clock offset (0)",
+)
+@click.option(
+    "--align",
+    type=click.Choice(ALIGNMENTS),
+    default=None,
+    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)",
+)
 @click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m] (0.1)")
 @click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m] (1)")
 @click.option("--drift-lengths", default=None, help="KITTI drift segment lengths, comma-separated metres")
-@click.option("--bias-window", type=Finite(), default=None,
-              help="fraction of the run at its end used for bias stability (0.2)")
+@click.option(
+    "--bias-window", type=Finite(), default=None, help="fraction of the run at its end used for bias stability (0.2)"
+)
 @export_option(("tum", "evo"), default="what the run wrote")
 @click.option("--json", "as_json", is_flag=True, help="print report.json instead of the summary")
 @quiet_option()
-def report(run_dir: Path, truth: str | None, t_max_diff: float | None, t_offset: str | None, align: str | None,
-           convergence_threshold: float | None, rpe_delta: float | None, drift_lengths: str | None,
-           bias_window: float | None, export: tuple[str, ...] | None, as_json: bool, quiet: bool) -> None:
+def report(
+    run_dir: Path,
+    truth: str | None,
+    t_max_diff: float | None,
+    t_offset: str | None,
+    align: str | None,
+    convergence_threshold: float | None,
+    rpe_delta: float | None,
+    drift_lengths: str | None,
+    bias_window: float | None,
+    export: tuple[str, ...] | None,
+    as_json: bool,
+    quiet: bool,
+) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically."""
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
     from slamobs.pipeline.evaluation.run_dir import load_run, options_for_run, report_run
 
-    given = {"t_max_diff_s": t_max_diff, "align": align, "convergence_threshold_m": convergence_threshold,
-             "rpe_delta_m": rpe_delta, "drift_lengths_m": _lengths(drift_lengths), "bias_window_fraction": bias_window}
+    given = {
+        "t_max_diff_s": t_max_diff,
+        "align": align,
+        "convergence_threshold_m": convergence_threshold,
+        "rpe_delta_m": rpe_delta,
+        "drift_lengths_m": _lengths(drift_lengths),
+        "bias_window_fraction": bias_window,
+    }
     if t_offset is not None:
         given["t_offset_s"] = offset_seconds(t_offset)
     try:
@@ -98,20 +133,27 @@ def _summary(r: dict, written: list[Path]) -> None:
     click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")
     ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
     kind = r["method"]["alignment"]["type"]
-    click.echo(f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
-               f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, {ALIGNED[kind]}")
+    click.echo(
+        f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
+        f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, {ALIGNED[kind]}"
+    )
     if r.get("rpe"):
-        click.echo(f"RPE          {r['rpe']['delta']:g} m: translation rmse {r['rpe']['translation_m']['rmse']:.4f} m, "
-                   f"rotation rmse {r['rpe']['rotation_deg']['rmse']:.3f} deg")
+        click.echo(
+            f"RPE          {r['rpe']['delta']:g} m: translation rmse {r['rpe']['translation_m']['rmse']:.4f} m, "
+            f"rotation rmse {r['rpe']['rotation_deg']['rmse']:.3f} deg"
+        )
     if r.get("drift"):
         d = r["drift"]
-        click.echo(f"drift        {d['translation_pct']:.3f} % of distance, {d['rotation_deg_per_m']:.4f} deg/m "
-                   f"({d['n_segments']} segments)")
+        click.echo(
+            f"drift        {d['translation_pct']:.3f} % of distance, {d['rotation_deg_per_m']:.4f} deg/m "
+            f"({d['n_segments']} segments)"
+        )
     lm = r.get("landmarks") or {}
     if lm.get("error_m"):
         extra = f", map-only alignment {lm['map_aligned']['error_m']['rmse']:.4f} m" if lm.get("map_aligned") else ""
-        click.echo(f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} "
-                   f"landmarks{extra}")
+        click.echo(
+            f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} landmarks{extra}"
+        )
     err = (r.get("biases") or {}).get("error_norm")
     if err:
         click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")

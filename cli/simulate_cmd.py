@@ -20,8 +20,17 @@ IMAGE_FOV_DEG = 70.0
 
 @click.command("simulate")
 @click.argument("scenario")
-@click.option("-o", "--out", "--output", "output", required=True, type=click.Path(path_type=Path), cls=AliasedOption,
-              hidden_aliases=("--output",), help="Log to write.")
+@click.option(
+    "-o",
+    "--out",
+    "--output",
+    "output",
+    required=True,
+    type=click.Path(path_type=Path),
+    cls=AliasedOption,
+    hidden_aliases=("--output",),
+    help="Log to write.",
+)
 @click.option(
     "--container",
     type=click.Choice(CONTAINERS),
@@ -36,30 +45,64 @@ IMAGE_FOV_DEG = 70.0
 @click.option("--mag-rate", type=_RATE, default=50.0, show_default=True, help="Magnetometer rate, Hz.")
 @click.option("--mocap-rate", type=_RATE, default=100.0, show_default=True, help="Ground-truth pose rate, Hz.")
 @click.option("--detection-rate", type=_RATE, default=None, help="Fiducial detection rate, Hz (default: scenario's).")
-@click.option("--camera", "camera_output", type=click.Choice(("fiducials", "corners", "images")), default="fiducials",
-              show_default=True, help="What the camera reports: 3D fiducial poses, tag corners in pixels "
-              "(apriltag_msgs) or rendered images (sensor_msgs), the last two with CameraInfo.")
+@click.option(
+    "--camera",
+    "camera_output",
+    type=click.Choice(("fiducials", "corners", "images")),
+    default="fiducials",
+    show_default=True,
+    help="What the camera reports: 3D fiducial poses, tag corners in pixels "
+    "(apriltag_msgs) or rendered images (sensor_msgs), the last two with CameraInfo.",
+)
 @click.option("--image-size", default="640x480", show_default=True, help="Camera image size WxH (corners, images).")
-@click.option("--fov", type=Finite(10.0, 170.0), default=None,
-              help="Horizontal field of view, deg: the scenario camera's (fiducials; default the scenario's, the "
-                   "vertical one scales with it) and the image camera's (corners, images; default 70).")
-@click.option("--distortion", type=click.Choice(("none", "radtan", "equidistant")), default="radtan",
-              show_default=True, help="Lens distortion (corners, images).")
+@click.option(
+    "--fov",
+    type=Finite(10.0, 170.0),
+    default=None,
+    help="Horizontal field of view, deg: the scenario camera's (fiducials; default the scenario's, the "
+    "vertical one scales with it) and the image camera's (corners, images; default 70).",
+)
+@click.option(
+    "--distortion",
+    type=click.Choice(("none", "radtan", "equidistant")),
+    default="radtan",
+    show_default=True,
+    help="Lens distortion (corners, images).",
+)
 @click.option("--tag-size", type=_RATE, default=0.5, show_default=True, help="Tag size (black square), m.")
 @click.option("--tag-family", default="36h11", show_default=True, help="Tag family of rendered images.")
-@click.option("--jpeg-quality", type=click.IntRange(0, 100), default=90, show_default=True,
-              help="JPEG quality of images (sensor_msgs/CompressedImage); 0 writes raw mono8 sensor_msgs/Image.")
-@click.option("--image-noise", type=Finite(0.0), default=2.0, show_default=True,
-              help="Pixel noise of images, grey levels.")
+@click.option(
+    "--jpeg-quality",
+    type=click.IntRange(0, 100),
+    default=90,
+    show_default=True,
+    help="JPEG quality of images (sensor_msgs/CompressedImage); 0 writes raw mono8 sensor_msgs/Image.",
+)
+@click.option(
+    "--image-noise", type=Finite(0.0), default=2.0, show_default=True, help="Pixel noise of images, grey levels."
+)
 @click.option("--blur", type=Finite(0.0), default=0.0, show_default=True, help="Image blur sigma, px.")
-@click.option("--pixel-noise", type=Finite(0.0), default=0.3, show_default=True,
-              help="Corner noise, px (corners).")
-@click.option("--landmarks", type=click.IntRange(min=3), default=None,
-              help="Landmark count (loop: rebuilt with N tags; others: an evenly spaced subset of the map).")
-@click.option("--detections-until", type=Finite(min=0.0), default=None,
-              help="Seconds after which no landmark is detected (they leave view for good).")
-@click.option("--imu-rpy", type=Finite(), nargs=3, default=None, metavar="ROLL PITCH YAW",
-              help="IMU mounting, deg (imu_link -> body, published on /tf_static), e.g. 180 0 0 upside down.")
+@click.option("--pixel-noise", type=Finite(0.0), default=0.3, show_default=True, help="Corner noise, px (corners).")
+@click.option(
+    "--landmarks",
+    type=click.IntRange(min=3),
+    default=None,
+    help="Landmark count (loop: rebuilt with N tags; others: an evenly spaced subset of the map).",
+)
+@click.option(
+    "--detections-until",
+    type=Finite(min=0.0),
+    default=None,
+    help="Seconds after which no landmark is detected (they leave view for good).",
+)
+@click.option(
+    "--imu-rpy",
+    type=Finite(),
+    nargs=3,
+    default=None,
+    metavar="ROLL PITCH YAW",
+    help="IMU mounting, deg (imu_link -> body, published on /tf_static), e.g. 180 0 0 upside down.",
+)
 @click.option("--force", is_flag=True, help="Replace OUT if it exists.")
 @quiet_option("Print nothing but errors.")
 def simulate(
@@ -105,8 +148,13 @@ def simulate(
             f"unknown scenario {scenario!r}; choose from {', '.join(sorted(SCENARIOS))}", param_hint="SCENARIO"
         )
     try:
-        rig = customize(get_scenario(scenario), landmarks=landmarks, fov_deg=fov, detections_until=detections_until,
-                        imu_rpy_deg=imu_rpy or None)
+        rig = customize(
+            get_scenario(scenario),
+            landmarks=landmarks,
+            fov_deg=fov,
+            detections_until=detections_until,
+            imu_rpy_deg=imu_rpy or None,
+        )
     except ValueError as err:
         raise click.BadParameter(str(err)) from None
     container = container or infer_container(output)
@@ -115,8 +163,18 @@ def simulate(
         from slamobs.pipeline.errors import OutputError
 
         exit_input_error(OutputError(output, why))
-    camera = _camera(camera_output, image_size, IMAGE_FOV_DEG if fov is None else fov, distortion, tag_size,
-                     tag_family, jpeg_quality, image_noise, blur, pixel_noise)
+    camera = _camera(
+        camera_output,
+        image_size,
+        IMAGE_FOV_DEG if fov is None else fov,
+        distortion,
+        tag_size,
+        tag_family,
+        jpeg_quality,
+        image_noise,
+        blur,
+        pixel_noise,
+    )
     sim = simulation(  # generated and written piece by piece: any duration fits in memory
         rig,
         duration=duration,
@@ -140,8 +198,18 @@ def simulate(
     )
 
 
-def _camera(output: str, image_size: str, fov: float, distortion: str, tag_size: float, family: str,
-            jpeg_quality: int, image_noise: float, blur: float, pixel_noise: float):
+def _camera(
+    output: str,
+    image_size: str,
+    fov: float,
+    distortion: str,
+    tag_size: float,
+    family: str,
+    jpeg_quality: int,
+    image_noise: float,
+    blur: float,
+    pixel_noise: float,
+):
     from slamobs.pipeline.simulate.camera import CameraSim
 
     try:
@@ -157,7 +225,18 @@ def _camera(output: str, image_size: str, fov: float, distortion: str, tag_size:
         except InputError as err:
             raise click.BadParameter(err.problem, param_hint="--tag-family") from None
     try:
-        return CameraSim(output, width, height, fov, distortion, tag_size, family, pixel_noise, image_noise, blur,
-                         jpeg_quality or None)
+        return CameraSim(
+            output,
+            width,
+            height,
+            fov,
+            distortion,
+            tag_size,
+            family,
+            pixel_noise,
+            image_noise,
+            blur,
+            jpeg_quality or None,
+        )
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="--image-size/--fov") from None

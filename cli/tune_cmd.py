@@ -18,27 +18,73 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
 @click.command()
 @click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option("--observer", required=True, help="observer whose gains are tuned (see `slamobs observers`)")
-@click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False),
-              help="tune directory (created; the same command continues an interrupted tune in it)")
-@click.option("--trials", type=click.IntRange(min=1), default=50, show_default=True,
-              help="trials in total (a re-run with more trials extends the tune)")
-@click.option("--objective", type=click.Choice(["ape", "rotation", "landmarks"]), default="ape", show_default=True,
-              help="minimised over the logs (median): APE translation RMSE, APE rotation RMSE, map error RMSE")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
-              help="run.yaml for every log (topics, frames, ...); its gains for the observer are ignored")
-@click.option("-j", "--jobs", type=click.IntRange(min=1), default=None, help="local worker processes (default: all cores)")
+@click.option(
+    "-o",
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(path_type=Path, file_okay=False),
+    help="tune directory (created; the same command continues an interrupted tune in it)",
+)
+@click.option(
+    "--trials",
+    type=click.IntRange(min=1),
+    default=50,
+    show_default=True,
+    help="trials in total (a re-run with more trials extends the tune)",
+)
+@click.option(
+    "--objective",
+    type=click.Choice(["ape", "rotation", "landmarks"]),
+    default="ape",
+    show_default=True,
+    help="minimised over the logs (median): APE translation RMSE, APE rotation RMSE, map error RMSE",
+)
+@click.option(
+    "--config",
+    "config_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="run.yaml for every log (topics, frames, ...); its gains for the observer are ignored",
+)
+@click.option(
+    "-j", "--jobs", type=click.IntRange(min=1), default=None, help="local worker processes (default: all cores)"
+)
 @click.option("--scheduler", default=None, metavar="ADDRESS", help="run the trials on this Dask scheduler instead")
-@click.option("--holdout", "holdout", multiple=True, type=click.Path(path_type=Path), metavar="LOG",
-              help="a log with truth the sampler never sees: defaults and tuned gains are compared on it at the end "
-                   "(repeatable)")
+@click.option(
+    "--holdout",
+    "holdout",
+    multiple=True,
+    type=click.Path(path_type=Path),
+    metavar="LOG",
+    help="a log with truth the sampler never sees: defaults and tuned gains are compared on it at the end (repeatable)",
+)
 @click.option("--seed", type=SEED, default=0, show_default=True, help="sampler seed")
 @click.option("--force", is_flag=True, help="discard the tune in OUT and start over")
-@click.option("--wait-workers", type=Finite(min=0), default=60.0, show_default=True, metavar="SECONDS",
-              help="Dask: give up (exit 3) when no worker is there for this long")
+@click.option(
+    "--wait-workers",
+    type=Finite(min=0),
+    default=60.0,
+    show_default=True,
+    metavar="SECONDS",
+    help="Dask: give up (exit 3) when no worker is there for this long",
+)
 @click.option("-q", "--quiet", is_flag=True, help="print only the final lines")
-def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, objective: str, config_path: Path | None,
-         jobs: int | None, scheduler: str | None, holdout: tuple[Path, ...], seed: int, force: bool,
-         wait_workers: float, quiet: bool) -> None:
+def tune(
+    logs: tuple[Path, ...],
+    observer: str,
+    out_dir: Path,
+    trials: int,
+    objective: str,
+    config_path: Path | None,
+    jobs: int | None,
+    scheduler: str | None,
+    holdout: tuple[Path, ...],
+    seed: int,
+    force: bool,
+    wait_workers: float,
+    quiet: bool,
+) -> None:
     """Search OBSERVER's gains on LOGS (with ground truth) and write OUT.
 
     Optuna's TPE sampler searches every gain log-uniformly within its range and the observer's stability
@@ -69,15 +115,27 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
 
     def on_round(done: int, total: int, best: float | None) -> None:
         if not quiet:
-            click.echo(f"tune: {done}/{total} trials, best median {objective} "
-                       f"{'-' if best is None else f'{best:.4g}'}", err=True)
+            click.echo(
+                f"tune: {done}/{total} trials, best median {objective} {'-' if best is None else f'{best:.4g}'}",
+                err=True,
+            )
 
     try:
         if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
             on_signal(pending, None)
-        options = TuneOptions(out=out_dir, observer=observer, config=load_config(config_path), trials=trials,
-                              objective=objective, jobs=jobs or cores(), scheduler=scheduler, seed=seed, force=force,
-                              wait_workers=wait_workers, holdout=holdout)
+        options = TuneOptions(
+            out=out_dir,
+            observer=observer,
+            config=load_config(config_path),
+            trials=trials,
+            objective=objective,
+            jobs=jobs or cores(),
+            scheduler=scheduler,
+            seed=seed,
+            force=force,
+            wait_workers=wait_workers,
+            holdout=holdout,
+        )
         if not quiet:
             where = f"Dask at {scheduler}" if scheduler else f"{options.jobs} local worker processes"
             click.echo(f"tune: {observer} on {len(logs)} logs, {trials} trials, on {where}", err=True)
@@ -89,8 +147,11 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
         sys.exit(EXIT_INFRA)
     except KeyboardInterrupt as err:
         signum = err.signum if isinstance(err, Stopped) else signal.SIGINT
-        click.echo(f"\n{signal.Signals(signum).name}: tune stopped, its workers killed; finished trials are kept in "
-                   f"{out_dir}; run the same command again to continue", err=True)
+        click.echo(
+            f"\n{signal.Signals(signum).name}: tune stopped, its workers killed; finished trials are kept in "
+            f"{out_dir}; run the same command again to continue",
+            err=True,
+        )
         sys.exit(EXIT_SIGNAL[signum])
     finally:
         for sig, old in handlers.items():
@@ -99,18 +160,29 @@ def tune(logs: tuple[Path, ...], observer: str, out_dir: Path, trials: int, obje
     best, default = s["best"], s["defaults"]
     unit = s["objective"]["unit"]
     if best:
-        click.echo(f"best         trial {best['trial']}: median {s['objective']['metric']} {best['objective']:.4g} {unit}"
-                   + (f" (defaults {default['objective']:.4g} {unit})" if default and default["objective"] is not None
-                      and default["objective"] != float("inf") else ""))
+        click.echo(
+            f"best         trial {best['trial']}: median {s['objective']['metric']} {best['objective']:.4g} {unit}"
+            + (
+                f" (defaults {default['objective']:.4g} {unit})"
+                if default and default["objective"] is not None and default["objective"] != float("inf")
+                else ""
+            )
+        )
         click.echo("gains        " + ", ".join(f"{k} {v:.4g}" for k, v in best["gains"].items()))
     val = s["validation"]
     if val.get("rows"):
-        click.echo(f"validation   leave-one-log-out: gains chosen without a log beat the defaults on it for "
-                   f"{val['held_out_better_than_default']} of {val['logs']} logs (tune.md)")
+        click.echo(
+            f"validation   leave-one-log-out: gains chosen without a log beat the defaults on it for "
+            f"{val['held_out_better_than_default']} of {val['logs']} logs (tune.md)"
+        )
     held = s.get("holdout")
     if held:
-        click.echo(f"holdout      tuned gains beat the defaults on {held['tuned_better']} of {held['logs']} logs the "
-                   f"tune never saw (median {held['median_defaults']:.4g} -> {held['median_tuned']:.4g} {unit})"
-                   + ("" if 2 * held["tuned_better"] > held["logs"] else ": they do not transfer, keep the defaults"))
-    click.echo(f"wrote        {out_dir}/ (gains.yaml, trials.parquet, objective.png, tune.md, tune.json); "
-               f"{result.ran} trials run now")
+        click.echo(
+            f"holdout      tuned gains beat the defaults on {held['tuned_better']} of {held['logs']} logs the "
+            f"tune never saw (median {held['median_defaults']:.4g} -> {held['median_tuned']:.4g} {unit})"
+            + ("" if 2 * held["tuned_better"] > held["logs"] else ": they do not transfer, keep the defaults")
+        )
+    click.echo(
+        f"wrote        {out_dir}/ (gains.yaml, trials.parquet, objective.png, tune.md, tune.json); "
+        f"{result.ran} trials run now"
+    )

@@ -88,8 +88,11 @@ class AlignedStream:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
         n = self.vel_t_ns.shape[0]
         bounds = [0, *self.segment_starts.tolist(), n]
-        return [{"start_ns": int(self.vel_t_ns[a]), "end_ns": int(self.vel_t_ns[b - 1]), "samples": b - a}
-                for a, b in zip(bounds[:-1], bounds[1:]) if b > a]
+        return [
+            {"start_ns": int(self.vel_t_ns[a]), "end_ns": int(self.vel_t_ns[b - 1]), "samples": b - a}
+            for a, b in zip(bounds[:-1], bounds[1:])
+            if b > a
+        ]
 
     def seconds(self, t_ns: np.ndarray) -> np.ndarray:
         """Times relative to ``t0_ns`` in float64 seconds (exact to well below a microsecond)."""
@@ -127,8 +130,16 @@ _IDENTITY = _Extrinsic(np.eye(3), np.zeros(3))
 _VARYING_RAD = 1e-3  # a /tf extrinsic turning more than this over the log is reported as time-varying
 
 
-def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t_ns: np.ndarray,
-             notes: list[str], override: frozenset[str] = frozenset()) -> _Extrinsic:
+def _to_body(
+    tf: TfBuffer,
+    body: str,
+    frame: str,
+    topic: str,
+    ident: set[str],
+    t_ns: np.ndarray,
+    notes: list[str],
+    override: frozenset[str] = frozenset(),
+) -> _Extrinsic:
     """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error.
 
     ``ident`` (``frames.assume_identity``) stands in only for frames TF does not know: a transform the log
@@ -141,8 +152,11 @@ def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t
     known = tf.chain(body, frame) is not None
     if frame in override:
         if known:
-            _note_once(notes, f"warning: frames.override_identity: frame '{frame}' taken as body '{body}', replacing "
-                              f"its TF transform ({_describe(tf, body, frame)})")
+            _note_once(
+                notes,
+                f"warning: frames.override_identity: frame '{frame}' taken as body '{body}', replacing "
+                f"its TF transform ({_describe(tf, body, frame)})",
+            )
         return _IDENTITY
     if not known:
         if frame in ident:
@@ -154,9 +168,12 @@ def _to_body(tf: TfBuffer, body: str, frame: str, topic: str, ident: set[str], t
             topic,
         )
     if frame in ident:
-        _note_once(notes, f"warning: frames.assume_identity lists '{frame}', but TF transforms it to body '{body}' "
-                          f"({_describe(tf, body, frame)}): TF's transform is used (frames.override_identity "
-                          "replaces it)")
+        _note_once(
+            notes,
+            f"warning: frames.assume_identity lists '{frame}', but TF transforms it to body '{body}' "
+            f"({_describe(tf, body, frame)}): TF's transform is used (frames.override_identity "
+            "replaces it)",
+        )
     found = tf.static_lookup(body, frame)
     if found is not None:
         return _Extrinsic(*found)
@@ -291,19 +308,23 @@ def align(
     accel, magnetic = streams.accel, streams.magnetic
     if release:
         streams.angular_velocity = streams.linear_velocity = streams.accel = streams.magnetic = None
-    directions, w = _directions(dir_frame, t_om, omega, velocity, accel, magnetic, gravity, magnetic_field,
-                                keep_directions)
+    directions, w = _directions(
+        dir_frame, t_om, omega, velocity, accel, magnetic, gravity, magnetic_field, keep_directions
+    )
     del accel, magnetic
     if release:
         streams.detections = None
-    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(streams.path, det, lo, hi, frame, lim,
-                                                                  _gap_spans(t_om, starts))
+    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(
+        streams.path, det, lo, hi, frame, lim, _gap_spans(t_om, starts)
+    )
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
     if w is not None:
-        notes.append(f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
-                     f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
-                     f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)")
+        notes.append(
+            f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
+            f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
+            f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)"
+        )
     return AlignedStream(
         t0_ns=int(t_om[0]),
         vel_t_ns=t_om,
@@ -321,32 +342,56 @@ def align(
     )
 
 
-def _check_frames(streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str],
-                  override: frozenset[str] = frozenset()) -> None:
+def _check_frames(
+    streams: LogStreams, tf: TfBuffer, body_frame: str | None, ident: set[str], override: frozenset[str] = frozenset()
+) -> None:
     """The frames the config names exist in the log: ``frames.body`` as a stream frame or in TF,
     ``frames.assume_identity`` and ``frames.override_identity`` as the frame of a sensor stream (the only
     frames they apply to)."""
-    sensors = {s.frame_id.lstrip("/") for s in (streams.angular_velocity, streams.linear_velocity, streams.detections,
-                                                streams.accel, streams.magnetic) if s is not None and s.frame_id}
+    sensors = {
+        s.frame_id.lstrip("/")
+        for s in (
+            streams.angular_velocity,
+            streams.linear_velocity,
+            streams.detections,
+            streams.accel,
+            streams.magnetic,
+        )
+        if s is not None and s.frame_id
+    }
     if body_frame:
         body = body_frame.lstrip("/")
         if body not in sensors | tf.frames:
             known = ", ".join(sorted(sensors | tf.frames)[:12]) or "none"
-            raise InputError(streams.path, f"frames.body names '{body}', which is not a frame of the log (its frames: "
-                                           f"{known})")
+            raise InputError(
+                streams.path, f"frames.body names '{body}', which is not a frame of the log (its frames: {known})"
+            )
     for option, names in (("assume_identity", ident), ("override_identity", override)):
         if unused := sorted(set(names) - sensors):
-            raise InputError(streams.path, f"frames.{option} names {', '.join(repr(f) for f in unused)}, which no "
-                                           f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})")
+            raise InputError(
+                streams.path,
+                f"frames.{option} names {', '.join(repr(f) for f in unused)}, which no "
+                f"sensor stream of the log uses (their frames: {', '.join(sorted(sensors))})",
+            )
 
 
-def _directions(fr: _Frame, t_om: np.ndarray, omega: np.ndarray, velocity: np.ndarray, accel: Vec3Stream | None,
-                magnetic: Vec3Stream | None, gravity, magnetic_field, keep: bool):
+def _directions(
+    fr: _Frame,
+    t_om: np.ndarray,
+    omega: np.ndarray,
+    velocity: np.ndarray,
+    accel: Vec3Stream | None,
+    magnetic: Vec3Stream | None,
+    gravity,
+    magnetic_field,
+    keep: bool,
+):
     """The direction set (``keep``) and the accelerometer weights (None without an accelerometer)."""
     if keep:
         t_s = (t_om - t_om[0]).astype(np.float64) * 1e-9
-        directions = build_directions(t_s, omega, velocity, _resample(fr, accel, t_om), _resample(fr, magnetic, t_om),
-                                      gravity, magnetic_field)
+        directions = build_directions(
+            t_s, omega, velocity, _resample(fr, accel, t_om), _resample(fr, magnetic, t_om), gravity, magnetic_field
+        )
         if directions is not None and "gravity" in directions.names:
             return directions, directions.weight[:, directions.names.index("gravity")]
         return directions, None
@@ -373,23 +418,27 @@ class _Frame:
 
 def _clock(stream) -> str:
     """Which clock a stream's times are on, for messages (all-zero header stamps are replaced by record times)."""
-    return "record time" if stream.t_ns is stream.rec_ns or np.array_equal(stream.t_ns, stream.rec_ns) else "header stamps"
+    return (
+        "record time" if stream.t_ns is stream.rec_ns or np.array_equal(stream.t_ns, stream.rec_ns) else "header stamps"
+    )
 
 
 def _span(t: np.ndarray) -> str:
     return f"{t[0] * 1e-9:.3f} .. {t[-1] * 1e-9:.3f} s"
 
 
-def _gate_norm(t: np.ndarray, x: np.ndarray, limit: float | None, what: str, key: str, unit: str, topic: str,
-               notes: list[str]):
+def _gate_norm(
+    t: np.ndarray, x: np.ndarray, limit: float | None, what: str, key: str, unit: str, topic: str, notes: list[str]
+):
     """Samples whose magnitude exceeds ``limit`` dropped (and counted)."""
     if limit is None or not t.shape[0]:
         return t, x
     norm = np.linalg.norm(x, axis=1)
     bad = norm > limit
     if n := int(np.count_nonzero(bad)):
-        notes.append(f"{topic}: {n} {what} samples above limits.{key} {limit:g} {unit} dropped "
-                     f"(largest {norm.max():.3g} {unit})")
+        notes.append(
+            f"{topic}: {n} {what} samples above limits.{key} {limit:g} {unit} dropped (largest {norm.max():.3g} {unit})"
+        )
         t, x = t[~bad], x[~bad]
     return t, x
 
@@ -398,8 +447,11 @@ def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> No
     """A time base needs two distinct stamps: say why a stream has none (no samples, one, all equal)."""
     name = f"{what} ({stream.topic})"
     if t.shape[0] == 0:
-        raise InputError(path, f"{name}: all {n_read} samples are above limits.{key}: not a plausible sensor "
-                               f"stream (raise or switch off limits.{key} if it is)")
+        raise InputError(
+            path,
+            f"{name}: all {n_read} samples are above limits.{key}: not a plausible sensor "
+            f"stream (raise or switch off limits.{key} if it is)",
+        )
     if t.shape[0] == 1:
         raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
     if t[0] == t[-1]:
@@ -409,8 +461,7 @@ def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> No
             hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
         else:
             hint = "its record times do not advance either: the log carries no usable time for it"
-        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; "
-                               f"{hint}")
+        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; {hint}")
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
@@ -420,17 +471,20 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     t_om, w = _sorted(_times(om, fr.time_source), om.xyz)
     t_lv, v = _sorted(_times(lv, fr.time_source), lv.xyz)
     n_om, n_lv = t_om.shape[0], t_lv.shape[0]
-    t_om, w = _gate_norm(t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s",
-                         om.topic, notes)
+    t_om, w = _gate_norm(
+        t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s", om.topic, notes
+    )
     t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
     _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
     _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
-        raise InputError(path, f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
-                               f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time"
-                               + ("; the two clocks differ: try time.source: auto or record"
-                                  if _clock(om) != _clock(lv) else ""))
+        raise InputError(
+            path,
+            f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
+            f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time"
+            + ("; the two clocks differ: try time.source: auto or record" if _clock(om) != _clock(lv) else ""),
+        )
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
         notes.append(f"{n_out} angular-velocity samples outside the linear-velocity span dropped")
@@ -443,13 +497,16 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
             k = np.searchsorted(t_lv, t_om, side="right") - 1
             inside = np.isin(k, gap) & (t_om > t_lv[np.clip(k, 0, None)])
             if n_in := int(np.count_nonzero(inside)):
-                notes.append(f"{n_in} angular-velocity samples inside {lv.topic} gaps longer than limits.max_gap "
-                             f"{max_gap:g} s dropped")
+                notes.append(
+                    f"{n_in} angular-velocity samples inside {lv.topic} gaps longer than limits.max_gap "
+                    f"{max_gap:g} s dropped"
+                )
                 t_om, w = t_om[~inside], w[~inside]
     t_om = t_om.astype(np.int64)  # its own array: the stream's may be shared with other roles
     if t_om.shape[0] < 2:
-        raise InputError(path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) share fewer than "
-                               "two samples in time")
+        raise InputError(
+            path, f"angular velocity ({om.topic}) and linear velocity ({lv.topic}) share fewer than two samples in time"
+        )
 
     gyro_ext = fr.to_body(om.frame_id, om.topic, t_om)
     _held(gyro_ext, om.topic, notes)
@@ -472,10 +529,13 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     if max_gap is not None:
         starts = (np.flatnonzero(np.diff(t_om) > max_gap * 1e9) + 1).astype(np.int64)
         if starts.size:
-            where = ", ".join(f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)"
-                              for k in starts[:5]) + (", ..." if starts.size > 5 else "")
-            notes.append(f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
-                         f"has {starts.size + 1} segments; nothing is integrated across a gap")
+            where = ", ".join(
+                f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)" for k in starts[:5]
+            ) + (", ..." if starts.size > 5 else "")
+            notes.append(
+                f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
+                f"has {starts.size + 1} segments; nothing is integrated across a gap"
+            )
     return t_om, omega, velocity, (lo, hi), starts
 
 
@@ -484,8 +544,9 @@ def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return np.column_stack([t_om[starts - 1], t_om[starts]]) if starts.size else np.zeros((0, 2), np.int64)
 
 
-def _camera_rows(fr: _Frame, det: DetectionStream, t_det: np.ndarray,
-                 frame_of: np.ndarray) -> tuple[_Extrinsic, np.ndarray | None]:
+def _camera_rows(
+    fr: _Frame, det: DetectionStream, t_det: np.ndarray, frame_of: np.ndarray
+) -> tuple[_Extrinsic, np.ndarray | None]:
     """Camera -> body transform of every detection row of a several-camera stream, and which rows have one (a
     camera on /tf outside its span: None when every row does)."""
     m = det.ids.shape[0]
@@ -508,8 +569,9 @@ def _camera_rows(fr: _Frame, det: DetectionStream, t_det: np.ndarray,
     return _Extrinsic(rot, trans), (ok if dynamic else None)
 
 
-def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: dict | None = None,
-                gaps: np.ndarray | None = None):
+def _detections(
+    path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: dict | None = None, gaps: np.ndarray | None = None
+):
     """Detection frames inside ``[lo, hi]`` and outside the velocity ``gaps`` in time order, in the body frame,
     without detections outside the range gates of ``lim``: stamps, CSR offsets, dense landmark indices,
     positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved (a clean log
@@ -538,21 +600,29 @@ def _detections(path, det: DetectionStream, lo: int, hi: int, fr: _Frame, lim: d
     else:
         frame_rank = _rank_in(frames, len(det))[frame_of if sel is None else frame_of[sel]]
         del frame_of
-        det_y, rng, ids, per_frame = _in_frame_order(frame_rank, frames.size, det_y, rng,
-                                                      det.ids if sel is None else det.ids[sel])
+        det_y, rng, ids, per_frame = _in_frame_order(
+            frame_rank, frames.size, det_y, rng, det.ids if sel is None else det.ids[sel]
+        )
         del frame_rank
     t_frames = t_det[frames]
     n_gated = ids.shape[0]
-    det_y, ids, per_frame, t_frames = _range_gate(det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None
-                                                  else rng, ids, per_frame, t_frames, lim, notes)
+    det_y, ids, per_frame, t_frames = _range_gate(
+        det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None else rng, ids, per_frame, t_frames, lim, notes
+    )
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = _landmark_index(path, det, ids, n_gated, counts, notes)
-    return (t_frames.astype(np.int64), offsets, det_idx.astype(np.int64),
-            np.ascontiguousarray(det_y, dtype=np.float64), landmark_ids.astype(np.int64))
+    return (
+        t_frames.astype(np.int64),
+        offsets,
+        det_idx.astype(np.int64),
+        np.ascontiguousarray(det_y, dtype=np.float64),
+        landmark_ids.astype(np.int64),
+    )
 
 
-def _frames_in_span(det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None,
-                    notes: list[str]) -> np.ndarray:
+def _frames_in_span(
+    det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None, notes: list[str]
+) -> np.ndarray:
     """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted)."""
     in_span = (t_det >= lo) & (t_det <= hi)
     if n_out := len(det) - int(np.count_nonzero(in_span)):
@@ -567,8 +637,9 @@ def _frames_in_span(det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, g
     return in_span
 
 
-def _camera_to_body(fr: _Frame, det: DetectionStream, t_det: np.ndarray, frame_of: np.ndarray, in_span: np.ndarray,
-                    notes: list[str]):
+def _camera_to_body(
+    fr: _Frame, det: DetectionStream, t_det: np.ndarray, frame_of: np.ndarray, in_span: np.ndarray, notes: list[str]
+):
     """The camera-to-body transform, the frames still kept, the rows kept (None: by frame) and each row's
     transform index: frames or rows without a transform are dropped (and noted)."""
     if det.cameras:  # several cameras: one transform per detection row
@@ -589,8 +660,9 @@ def _kept_rows(in_span: np.ndarray, frame_of: np.ndarray, keep_rows: np.ndarray 
     return None if bool(keep_rows.all()) else np.flatnonzero(keep_rows).astype(np.int64)
 
 
-def _unique_rows(det: DetectionStream, frame_of: np.ndarray, sel: np.ndarray | None,
-                 notes: list[str]) -> np.ndarray | None:
+def _unique_rows(
+    det: DetectionStream, frame_of: np.ndarray, sel: np.ndarray | None, notes: list[str]
+) -> np.ndarray | None:
     """``sel`` without repeated ids within a frame: they are ambiguous, the first one is kept (and noted)."""
     n_sel = det.ids.shape[0] if sel is None else sel.size
     if not n_sel:
@@ -612,27 +684,39 @@ def _rank_in(frames: np.ndarray, n: int) -> np.ndarray:
     return rank
 
 
-def _in_frame_order(frame_rank: np.ndarray, n_frames: int, det_y: np.ndarray, rng: np.ndarray | None,
-                    ids: np.ndarray):
+def _in_frame_order(frame_rank: np.ndarray, n_frames: int, det_y: np.ndarray, rng: np.ndarray | None, ids: np.ndarray):
     """Rows sorted by their frame's rank (stable) and the rows per frame: the CSR layout in time order."""
     order_det = np.argsort(frame_rank, kind="stable")
-    return (det_y[order_det], rng[order_det] if rng is not None else None, ids[order_det],
-            np.bincount(frame_rank, minlength=n_frames))
+    return (
+        det_y[order_det],
+        rng[order_det] if rng is not None else None,
+        ids[order_det],
+        np.bincount(frame_rank, minlength=n_frames),
+    )
 
 
-def _landmark_index(path, det: DetectionStream, ids: np.ndarray, n_gated: int, counts: np.ndarray,
-                    notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+def _landmark_index(
+    path, det: DetectionStream, ids: np.ndarray, n_gated: int, counts: np.ndarray, notes: list[str]
+) -> tuple[np.ndarray, np.ndarray]:
     """The sorted landmark ids and each detection's index into them; an error naming the cause if none is left."""
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     if landmark_ids.size == 0 and n_gated:  # the gate, not the time span, took them all: say so and what to do
         gate = notes[-1].partition(": detections dropped by the range gate: ")[2].partition(";")[0]
-        raise InputError(path, f"all {n_gated} detections inside the velocity time span were dropped by the range "
-                               f"gate ({gate}): if those ranges are real, change limits.min_range / "
-                               "limits.max_range (null switches a gate off); a range of 0 is a detection without "
-                               "a position", det.topic)
+        raise InputError(
+            path,
+            f"all {n_gated} detections inside the velocity time span were dropped by the range "
+            f"gate ({gate}): if those ranges are real, change limits.min_range / "
+            "limits.max_range (null switches a gate off); a range of 0 is a detection without "
+            "a position",
+            det.topic,
+        )
     if landmark_ids.size == 0:
-        raise InputError(path, "no landmark detections inside the velocity time span (of "
-                               f"{int(counts.sum())} detections in {len(det)} frames)", det.topic)
+        raise InputError(
+            path,
+            "no landmark detections inside the velocity time span (of "
+            f"{int(counts.sum())} detections in {len(det)} frames)",
+            det.topic,
+        )
     return landmark_ids, det_idx
 
 
@@ -643,8 +727,16 @@ def _first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sort(order[np.concatenate(([True], ~repeat))])
 
 
-def _range_gate(topic: str, det_y: np.ndarray, dist: np.ndarray, ids: np.ndarray, per_frame: np.ndarray,
-                t_frames: np.ndarray, lim: dict, notes: list[str]):
+def _range_gate(
+    topic: str,
+    det_y: np.ndarray,
+    dist: np.ndarray,
+    ids: np.ndarray,
+    per_frame: np.ndarray,
+    t_frames: np.ndarray,
+    lim: dict,
+    notes: list[str],
+):
     """Detections whose range ``dist`` is below or above the range limits dropped (and counted); a frame left
     empty by it is dropped too (the previous frame stays valid, as if this one had not come)."""
     lo, hi = lim["min_range"], lim["max_range"]

@@ -19,8 +19,14 @@ if TYPE_CHECKING:
     from slamobs.pipeline.streams import LogStreams
 
 
-def run_log(log: str | Path, out: str | Path, *, observer: str | None = None, config: str | Path | dict | None = None,
-            force: bool = False) -> RunSummary:
+def run_log(
+    log: str | Path,
+    out: str | Path,
+    *,
+    observer: str | None = None,
+    config: str | Path | dict | None = None,
+    force: bool = False,
+) -> RunSummary:
     """Run an observer on ``log`` and write the run directory ``out`` (atomically), as ``slamobs run`` does.
 
     ``config`` is a ``run.yaml`` path or the same mapping as a dict; ``observer`` overrides its observer.

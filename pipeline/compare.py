@@ -13,15 +13,34 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.run import Progress, RunSummary, silent, prepare_log, run_inputs, run_prepared
 
-COLUMNS = ("observer", "status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "gyro_bias_err",
-           "vel_bias_err", "convergence_s", "convergence_band_m", "run_time_s", "error")
+COLUMNS = (
+    "observer",
+    "status",
+    "ape_trans_rmse_m",
+    "ape_rot_rmse_deg",
+    "landmark_rmse_m",
+    "gyro_bias_err",
+    "vel_bias_err",
+    "convergence_s",
+    "convergence_band_m",
+    "run_time_s",
+    "error",
+)
 #: Added after the APE when the batch smoother is compared: each estimator's APE over the smoother's.
 VS_BATCH = "ape_vs_batch"
 LABELS = {VS_BATCH: "APE / batch APE"}
 
 
-def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str], *, force: bool = False,
-                progress: Progress = silent, on_observer: Progress = silent):
+def compare_log(
+    log: Path,
+    out_dir: Path,
+    config: RunConfig,
+    observers: list[str],
+    *,
+    force: bool = False,
+    progress: Progress = silent,
+    on_observer: Progress = silent,
+):
     """Run every observer in ``observers`` on ``log``; write ``OUT/<observer>/``, the table and an overlay plot.
 
     An observer that cannot run on this log (e.g. it needs IMU directions the log lacks) gets a row with
@@ -48,21 +67,35 @@ def compare_log(log: Path, out_dir: Path, config: RunConfig, observers: list[str
             step = f"observer {k} of {len(observers)}"
             on_observer(f"{step}: {name}")
             try:
-                summary = run_prepared(prepared, tmp / name, replace(config, observer=name),
-                                       progress=lambda m, step=step: progress(f"{step}: {m}"))
+                summary = run_prepared(
+                    prepared,
+                    tmp / name,
+                    replace(config, observer=name),
+                    progress=lambda m, step=step: progress(f"{step}: {m}"),
+                )
             except InputError as err:
-                rows.append({"observer": name, "status": "failed", "error": err.problem,
-                             "run_time_s": time.perf_counter() - t})
+                rows.append(
+                    {"observer": name, "status": "failed", "error": err.problem, "run_time_s": time.perf_counter() - t}
+                )
                 continue
             summaries[name] = summary
             band = ((summary.report or {}).get("convergence") or {}).get("band_m")
-            rows.append({"observer": name, "status": "ok", "error": "", **summary.headline(),
-                         "convergence_band_m": band, "run_time_s": summary.timings.get("observer_s", float("nan"))})
+            rows.append(
+                {
+                    "observer": name,
+                    "status": "ok",
+                    "error": "",
+                    **summary.headline(),
+                    "convergence_band_m": band,
+                    "run_time_s": summary.timings.get("observer_s", float("nan")),
+                }
+            )
         columns = list(COLUMNS)
         if "batch" in observers:
             columns.insert(columns.index("ape_trans_rmse_m") + 1, VS_BATCH)
-            ref = next((r.get("ape_trans_rmse_m") for r in rows if r["observer"] == "batch" and r["status"] == "ok"),
-                       None)
+            ref = next(
+                (r.get("ape_trans_rmse_m") for r in rows if r["observer"] == "batch" and r["status"] == "ok"), None
+            )
             for r in rows:
                 ape = r.get("ape_trans_rmse_m")
                 r[VS_BATCH] = ape / ref if ape is not None and ref else None
@@ -83,16 +116,24 @@ def _markdown(table, log: Path) -> str:
         cells = []
         for c in columns:
             v = row.get(c)
-            cells.append("" if v is None or (isinstance(v, float) and np.isnan(v)) else
-                         (f"{v:.4g}" if isinstance(v, float) else str(v)))
+            cells.append(
+                ""
+                if v is None or (isinstance(v, float) and np.isnan(v))
+                else (f"{v:.4g}" if isinstance(v, float) else str(v))
+            )
         body += "| " + " | ".join(cells) + " |\n"
-    vs = (" APE / batch APE is each estimator's APE over the batch smoother's on the same inputs."
-          if VS_BATCH in columns else "")
-    return (f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
-            f"truth; bias errors are final-sample norms; convergence_s is the first time after which the aligned "
-            f"position error's level (running median over 5 % of the log) stays within convergence_band_m = "
-            f"max(threshold, 1.5 × the observer's highest level over the last 20 % of the log), so each observer is "
-            f"measured against its own steady level; run time is the observer stage.{vs}\n\n{head}{body}")
+    vs = (
+        " APE / batch APE is each estimator's APE over the batch smoother's on the same inputs."
+        if VS_BATCH in columns
+        else ""
+    )
+    return (
+        f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
+        f"truth; bias errors are final-sample norms; convergence_s is the first time after which the aligned "
+        f"position error's level (running median over 5 % of the log) stays within convergence_band_m = "
+        f"max(threshold, 1.5 × the observer's highest level over the last 20 % of the log), so each observer is "
+        f"measured against its own steady level; run time is the observer stage.{vs}\n\n{head}{body}"
+    )
 
 
 def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:

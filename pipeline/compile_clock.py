@@ -70,8 +70,9 @@ class _Clock(event.Listener):
             if self.stack:
                 self.stack[-1][1] += total
                 self.stack[-1][3] += cpu
-            self.log.append(Compiled(_name(ev.data), _signature(ev.data), total - nested, total, cpu - cpu_nested,
-                                     self.depth))
+            self.log.append(
+                Compiled(_name(ev.data), _signature(ev.data), total - nested, total, cpu - cpu_nested, self.depth)
+            )
         self._tell()
 
     def now(self) -> float:

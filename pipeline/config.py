@@ -72,10 +72,20 @@ class TagsConfig:
         from slamobs.pipeline.vision.landmarks import TagOptions
         from slamobs.pipeline.vision.tagpose import TagQuality
 
-        quality = TagQuality(self.max_reprojection_px, self.min_view_angle_deg, self.max_ambiguity,
-                             max_range_m=self.max_range_m, min_side_px=self.min_side_px)
-        return TagOptions(self.size, {int(k): float(v) for k, v in self.sizes.items()}, quality,
-                          frozenset(int(i) for i in self.ignore), self.sync_s)
+        quality = TagQuality(
+            self.max_reprojection_px,
+            self.min_view_angle_deg,
+            self.max_ambiguity,
+            max_range_m=self.max_range_m,
+            min_side_px=self.min_side_px,
+        )
+        return TagOptions(
+            self.size,
+            {int(k): float(v) for k, v in self.sizes.items()},
+            quality,
+            frozenset(int(i) for i in self.ignore),
+            self.sync_s,
+        )
 
 
 @dataclass(frozen=True)
@@ -119,9 +129,18 @@ class MapConfig:
 
 
 #: The typed object of each section of run.yaml that is one.
-SECTIONS = {"time": TimeConfig, "frames": FramesConfig, "limits": Limits, "tags": TagsConfig,
-            "evaluation": EvaluationConfig, "output": OutputConfig, "directions": DirectionsConfig, "map": MapConfig,
-            "noise": NoiseConfig, "batch": BatchSettings}
+SECTIONS = {
+    "time": TimeConfig,
+    "frames": FramesConfig,
+    "limits": Limits,
+    "tags": TagsConfig,
+    "evaluation": EvaluationConfig,
+    "output": OutputConfig,
+    "directions": DirectionsConfig,
+    "map": MapConfig,
+    "noise": NoiseConfig,
+    "batch": BatchSettings,
+}
 
 
 @dataclass(frozen=True)
@@ -165,10 +184,16 @@ class RunConfig:
         from slamobs.pipeline.readers import ImageSearch
 
         ev, tags = self.evaluation, self.tags
-        return {"msg_dir": self.msg_dir, "tag_pattern": self.frames.tag_pattern,
-                "marker_ns": self.frames.marker_namespace, "truth_file": ev.truth_file,
-                "truth_format": ev.truth_format, "truth_times": ev.truth_times, "clocks": clocks,
-                "images": ImageSearch(tags.family, dict(tags.detector) or None, tags.max_rate_hz)}
+        return {
+            "msg_dir": self.msg_dir,
+            "tag_pattern": self.frames.tag_pattern,
+            "marker_ns": self.frames.marker_namespace,
+            "truth_file": ev.truth_file,
+            "truth_format": ev.truth_format,
+            "truth_times": ev.truth_times,
+            "clocks": clocks,
+            "images": ImageSearch(tags.family, dict(tags.detector) or None, tags.max_rate_hz),
+        }
 
     @property
     def align_time_source(self) -> str:
@@ -251,9 +276,15 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
         time=_section(TimeConfig, time),
         frames=_section(FramesConfig, data.get("frames", {})),
         limits=_section(Limits, limits),
-        tags=_section(TagsConfig, {**tags, "sizes": {int(k): float(v) for k, v in tags.get("sizes", {}).items()},
-                                   "ignore": tuple(int(i) for i in tags.get("ignore", ())),
-                                   "detector": dict(tags.get("detector", {}))}),
+        tags=_section(
+            TagsConfig,
+            {
+                **tags,
+                "sizes": {int(k): float(v) for k, v in tags.get("sizes", {}).items()},
+                "ignore": tuple(int(i) for i in tags.get("ignore", ())),
+                "detector": dict(tags.get("detector", {})),
+            },
+        ),
         evaluation=_section(EvaluationConfig, data.get("evaluation", {})),
         output=_section(OutputConfig, output),
         directions=_section(DirectionsConfig, data.get("directions", {})),
@@ -330,12 +361,16 @@ def _check_vectors(config: RunConfig, source: str) -> None:
     ):
         norm = float(np.linalg.norm(v)) if np.isfinite(v).all() else float("nan")
         if not lo <= norm <= hi:
-            raise InputError(source, f"directions.{key} {list(map(float, v))} has magnitude {norm:.4g} {unit}, "
-                                     f"physically implausible (expected {lo:g} to {hi:g} {unit}, e.g. {example})")
+            raise InputError(
+                source,
+                f"directions.{key} {list(map(float, v))} has magnitude {norm:.4g} {unit}, "
+                f"physically implausible (expected {lo:g} to {hi:g} {unit}, e.g. {example})",
+            )
     sin = float(np.linalg.norm(np.cross(g, m))) / (np.linalg.norm(g) * np.linalg.norm(m))
     if sin < MIN_DIRECTION_SIN:
-        raise InputError(source, "directions.gravity and directions.magnetic_field are parallel: together they "
-                                 "give no heading")
+        raise InputError(
+            source, "directions.gravity and directions.magnetic_field are parallel: together they give no heading"
+        )
 
 
 #: Gravity and the magnetic field closer than ~1.1 deg to parallel (or anti-parallel) give no heading.
@@ -363,12 +398,18 @@ def load_config(path: Path | None) -> RunConfig:
     if data is not None and not isinstance(data, dict):
         raise InputError(path, "config must be a mapping of sections (observer, topics, gains, ...)")
     config = parse_config(data, str(path))
+
     # paths in the config are relative to the config file, not to the working directory
     def resolve(v: str | None) -> str | None:
         return v if v is None or Path(v).is_absolute() else str((path.parent / v).resolve())
 
     ev = config.evaluation
-    return replace(config, msg_dir=resolve(config.msg_dir), cameras=tuple(resolve(v) for v in config.cameras),
-                   evaluation=replace(ev, truth_file=resolve(ev.truth_file), truth_times=resolve(ev.truth_times),
-                                      map_truth=resolve(ev.map_truth)),
-                   map=replace(config.map, file=resolve(config.map.file)))
+    return replace(
+        config,
+        msg_dir=resolve(config.msg_dir),
+        cameras=tuple(resolve(v) for v in config.cameras),
+        evaluation=replace(
+            ev, truth_file=resolve(ev.truth_file), truth_times=resolve(ev.truth_times), map_truth=resolve(ev.map_truth)
+        ),
+        map=replace(config.map, file=resolve(config.map.file)),
+    )

@@ -55,16 +55,18 @@ def _unit(v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 DIFF_HALF_WIDTH = 0.1
 
 
-def body_acceleration(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray,
-                      rows: slice = slice(None)) -> np.ndarray:
+def body_acceleration(
+    t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, rows: slice = slice(None)
+) -> np.ndarray:
     """``dV/dt + Ω × V`` in the body frame (at ``rows``), dV/dt by a ±0.1 s central difference."""
     if t_s.shape[0] < 3 or t_s[-1] - t_s[0] <= 2 * DIFF_HALF_WIDTH:
         return np.cross(omega[rows], velocity[rows])
     lo = np.clip(t_s[rows] - DIFF_HALF_WIDTH, t_s[0], t_s[-1])
     hi = np.clip(t_s[rows] + DIFF_HALF_WIDTH, t_s[0], t_s[-1])
     interp = np.interp if rows == slice(None) else interp_sorted
-    dv = np.column_stack([(interp(hi, t_s, velocity[:, a]) - interp(lo, t_s, velocity[:, a])) / (hi - lo)
-                          for a in range(3)])
+    dv = np.column_stack(
+        [(interp(hi, t_s, velocity[:, a]) - interp(lo, t_s, velocity[:, a])) / (hi - lo) for a in range(3)]
+    )
     return dv + np.cross(omega[rows], velocity[rows])
 
 
@@ -77,8 +79,9 @@ def gravity_up(f_body: np.ndarray, acc_body: np.ndarray, g: float) -> tuple[np.n
     return up, weight
 
 
-def build_directions(t_s, omega, velocity, accel, magnetic, gravity=DEFAULT_GRAVITY,
-                     magnetic_field=DEFAULT_MAGNETIC_FIELD) -> DirectionSet | None:
+def build_directions(
+    t_s, omega, velocity, accel, magnetic, gravity=DEFAULT_GRAVITY, magnetic_field=DEFAULT_MAGNETIC_FIELD
+) -> DirectionSet | None:
     """Direction measurements available on the velocity time base (accel/magnetic may be None)."""
     names, inertial, body, weight = [], [], [], []
     if accel is not None:
@@ -98,14 +101,17 @@ def build_directions(t_s, omega, velocity, accel, magnetic, gravity=DEFAULT_GRAV
         weight.append(ok.astype(float))
     if not names:
         return None
-    return DirectionSet(tuple(names), np.array(inertial), np.stack(body, axis=1), np.stack(weight, axis=1),
-                        float(np.linalg.norm(gravity)))
+    return DirectionSet(
+        tuple(names),
+        np.array(inertial),
+        np.stack(body, axis=1),
+        np.stack(weight, axis=1),
+        float(np.linalg.norm(gravity)),
+    )
 
 
 # Observer-side preparation (shared by algorithms C and E): kernel arrays, per-sample loading with the
 # bias-corrected gravity compensation and the cross-product third vector, and the initial attitude.
-
-
 
 
 def direction_arrays(directions: DirectionSet, gains: dict[str, float]):
@@ -131,11 +137,17 @@ def direction_arrays(directions: DirectionSet, gains: dict[str, float]):
     if make_cross:
         ci = np.cross(inertial[0], inertial[1])
         if np.linalg.norm(ci) < MIN_CROSS:
-            raise GainError(f"inertial directions {', '.join(directions.names)} are collinear: attitude is not "
-                            "observable from them")
+            raise GainError(
+                f"inertial directions {', '.join(directions.names)} are collinear: attitude is not observable from them"
+            )
         inertial = np.vstack([inertial, ci / np.linalg.norm(ci)])
-    return (np.ascontiguousarray(inertial), np.ascontiguousarray(body), np.ascontiguousarray(weight), gscale,
-            make_cross)
+    return (
+        np.ascontiguousarray(inertial),
+        np.ascontiguousarray(body),
+        np.ascontiguousarray(weight),
+        gscale,
+        make_cross,
+    )
 
 
 def initial_attitude(inertial: np.ndarray, body: np.ndarray, weight: np.ndarray) -> np.ndarray:

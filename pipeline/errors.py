@@ -56,8 +56,14 @@ class Interruption(SlamobsError, KeyboardInterrupt):
 
 
 #: The kinds (an error's kind is the first of these in its class's MRO).
-KINDS: tuple[type[SlamobsError], ...] = (BadInput, BadConfig, BadOutput, ResourceFailure, InfrastructureFailure,
-                                         Interruption)
+KINDS: tuple[type[SlamobsError], ...] = (
+    BadInput,
+    BadConfig,
+    BadOutput,
+    ResourceFailure,
+    InfrastructureFailure,
+    Interruption,
+)
 
 
 def kind_of(err: BaseException) -> type[SlamobsError] | None:
@@ -100,8 +106,9 @@ class ResourceError(ResourceFailure, OutputError):
 
 #: OS errors that say the machine refused or ran out (disk or quota full, read-only file system, permission,
 #: memory, file descriptors), whatever file the work was on.
-RESOURCE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOMEM,
-                             errno.EMFILE, errno.ENFILE})
+RESOURCE_ERRNOS = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOMEM, errno.EMFILE, errno.ENFILE}
+)
 
 
 def output_error(path: object, err: OSError, doing: str = "cannot write the output", then: str = "") -> OutputError:
@@ -118,8 +125,7 @@ def output_error(path: object, err: OSError, doing: str = "cannot write the outp
 
 def is_resource_failure(err: BaseException) -> bool:
     """The machine, not the input, stopped the work: a ResourceError, a MemoryError or a resource OS error."""
-    return (isinstance(err, (ResourceError, MemoryError))
-            or (isinstance(err, OSError) and err.errno in RESOURCE_ERRNOS))
+    return isinstance(err, (ResourceError, MemoryError)) or (isinstance(err, OSError) and err.errno in RESOURCE_ERRNOS)
 
 
 def one_line(text: object) -> str:
@@ -129,8 +135,14 @@ def one_line(text: object) -> str:
 
 #: Texts of exceptions that are a failure of the machine without saying so by their type: a shared library that
 #: could not be mapped (an ImportError or OSError), a decompressor's or allocator's own out-of-memory error.
-_MEMORY_TEXTS = ("failed to map segment", "cannot allocate memory", "allocation error", "not enough memory",
-                 "out of memory", "memory allocation failed")
+_MEMORY_TEXTS = (
+    "failed to map segment",
+    "cannot allocate memory",
+    "allocation error",
+    "not enough memory",
+    "out of memory",
+    "memory allocation failed",
+)
 _THREAD_TEXTS = ("can't start new thread", "cannot start new thread")
 
 
@@ -203,9 +215,13 @@ def resource_error(err: BaseException, path: object, what: str, needs_mb: int | 
         problem = f"not enough memory for {what}{needs} ({allowed})"
     elif kind == "thread":
         procs = _soft_limit("NPROC")
-        why = (f"the memory limit (ulimit -v {memory >> 10}) leaves no room for its stack" if memory is not None
-               else f"the process and thread limit (ulimit -u {procs}) is reached" if procs is not None
-               else "the system refused it")
+        why = (
+            f"the memory limit (ulimit -v {memory >> 10}) leaves no room for its stack"
+            if memory is not None
+            else f"the process and thread limit (ulimit -u {procs}) is reached"
+            if procs is not None
+            else "the system refused it"
+        )
         problem = f"cannot start a thread for {what}: {why}"
     else:
         files = _soft_limit("NOFILE")

@@ -258,8 +258,7 @@ class TfBuffer:
         """
         stamped = [edge for edge, _ in self._require_chain(parent, child, topic) if not edge.static]
         if not stamped:
-            raise InputError(self.path, f"TF edge {_strip(parent)}->{_strip(child)} is static: not a trajectory",
-                             topic)
+            raise InputError(self.path, f"TF edge {_strip(parent)}->{_strip(child)} is static: not a trajectory", topic)
         densest = max(stamped, key=lambda e: (e.t_ns.shape[0], e.parent, e.child))
         res = self.lookup(parent, child, densest.t_ns, topic)
         keep = res.valid

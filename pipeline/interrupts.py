@@ -22,9 +22,23 @@ from slamobs.pipeline.errors import Interruption
 RETRY_S = 0.02
 #: Top-level modules a signal's exception must not unwind through: compiler and thread-pool locks, thread
 #: starts and joins, queue conditions, imports, finalizers and child-process starts.
-UNSAFE_MODULES = frozenset({"numba", "llvmlite", "concurrent", "threading", "queue", "weakref", "subprocess",
-                            "multiprocessing", "tempfile", "shutil", "importlib", "_frozen_importlib",
-                            "_frozen_importlib_external"})
+UNSAFE_MODULES = frozenset(
+    {
+        "numba",
+        "llvmlite",
+        "concurrent",
+        "threading",
+        "queue",
+        "weakref",
+        "subprocess",
+        "multiprocessing",
+        "tempfile",
+        "shutil",
+        "importlib",
+        "_frozen_importlib",
+        "_frozen_importlib_external",
+    }
+)
 
 #: Handled like SIGTERM unless inherited as ignored (a background job's SIGINT, ``nohup``'s SIGHUP): a closed
 #: terminal's SIGHUP killed a run at once (exit 129, no message) and left its temporary output behind.
@@ -148,7 +162,8 @@ def _raise_if_safe(frame) -> None:
 @contextmanager
 def raise_when_safe():
     """While the block runs (main thread only), SIGTERM, SIGINT and SIGHUP (the last two unless inherited as
-    ignored, as in a background job or under ``nohup``) raise :class:`Interrupted` at the first safe point; a request still pending when the block
+    ignored, as in a background job or under ``nohup``) raise :class:`Interrupted` at the first safe point; a request
+    still pending when the block
     ends (the command finished in code where raising was unsafe) is raised then. Afterwards the previous handlers
     are back and nothing is pending."""
     global requested, _raised

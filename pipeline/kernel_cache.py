@@ -47,8 +47,9 @@ PACKAGE_ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "slamobs"
 
 # `from X import a, b` / `from X import (a,\n b)` / `import X, Y`, anywhere in a module (lazy imports included)
-_IMPORT = re.compile(r"^[ \t]*(?:from[ \t]+([\w.]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)|import[ \t]+([\w., \t]+))",
-                     re.MULTILINE)
+_IMPORT = re.compile(
+    r"^[ \t]*(?:from[ \t]+([\w.]+)[ \t]+import[ \t]+(\([^)]*\)|[^\n#]*)|import[ \t]+([\w., \t]+))", re.MULTILINE
+)
 
 
 @lru_cache(maxsize=None)

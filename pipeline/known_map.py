@@ -106,7 +106,7 @@ def _landmark_id(value: object) -> int:
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int):
         raise ValueError("not an integer")
-    if not -2**63 <= value < 2**63:
+    if not -(2**63) <= value < 2**63:
         raise ValueError("out of range (64-bit integers)")
     return value
 
@@ -160,8 +160,9 @@ def _tagslam(path: Path) -> tuple[np.ndarray, np.ndarray]:
         for name, body in (entry or {}).items():
             if not isinstance(body, dict) or not body.get("is_static"):
                 continue
-            rot_b, t_b = pose(body["pose"], f"body {name}") if isinstance(body.get("pose"), dict) else \
-                (np.eye(3), np.zeros(3))
+            rot_b, t_b = (
+                pose(body["pose"], f"body {name}") if isinstance(body.get("pose"), dict) else (np.eye(3), np.zeros(3))
+            )
             tags = body.get("tags") or []
             if not isinstance(tags, list):
                 raise InputError(path, f"body {name}: tags must be a list of {{id, size, pose}}, got {tags!r:.60}")
@@ -186,15 +187,21 @@ def restrict_to_map(aligned, known: KnownMap):
     if not dropped:
         return aligned, None
     unknown = sorted({int(i) for i in aligned.det_ids[~keep]})
-    counts = np.bincount(np.repeat(np.arange(aligned.det_t_ns.shape[0]), np.diff(aligned.det_offsets))[keep],
-                         minlength=aligned.det_t_ns.shape[0])
+    counts = np.bincount(
+        np.repeat(np.arange(aligned.det_t_ns.shape[0]), np.diff(aligned.det_offsets))[keep],
+        minlength=aligned.det_t_ns.shape[0],
+    )
     ids = aligned.det_ids[keep]
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     shown = ", ".join(map(str, unknown[:10])) + (f", ... ({len(unknown)} ids)" if len(unknown) > 10 else "")
     note = f"map (fixed): {dropped} detections of {len(unknown)} tags not in the map dropped ({shown})"
-    return replace(aligned, det_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-                   det_idx=det_idx.astype(np.int64), det_y=np.ascontiguousarray(aligned.det_y[keep]),
-                   landmark_ids=landmark_ids.astype(np.int64)), note
+    return replace(
+        aligned,
+        det_offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+        det_idx=det_idx.astype(np.int64),
+        det_y=np.ascontiguousarray(aligned.det_y[keep]),
+        landmark_ids=landmark_ids.astype(np.int64),
+    ), note
 
 
 @dataclass(frozen=True)
@@ -218,8 +225,10 @@ def map_start(aligned, known: KnownMap) -> MapStart:
     if known.fixed:
         lm[mapped, 3] = 0.0
     pose, how = _start_pose(aligned, lm[:, :3], mapped)
-    note = (f"map ({known.mode}) {Path(known.source).name}: {int(mapped.sum())} of its {known.ids.size} landmarks "
-            f"detected; {how}")
+    note = (
+        f"map ({known.mode}) {Path(known.source).name}: {int(mapped.sum())} of its {known.ids.size} landmarks "
+        f"detected; {how}"
+    )
     return MapStart(lm, mapped.copy(), pose, note)
 
 
@@ -246,12 +255,17 @@ def _start_pose(aligned, xyz: np.ndarray, mapped: np.ndarray) -> tuple[tuple[np.
         k = int(np.searchsorted(aligned.vel_t_ns, t_f, side="right"))
         t = aligned.seconds(np.append(aligned.vel_t_ns[:k], t_f))
         dt = np.diff(t)
-        rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), np.ascontiguousarray(aligned.omega[: dt.size]),
-                                       np.ascontiguousarray(aligned.velocity[: dt.size]), dt)
+        rs, ps = integrate_body_twists(
+            np.eye(3),
+            np.zeros(3),
+            np.ascontiguousarray(aligned.omega[: dt.size]),
+            np.ascontiguousarray(aligned.velocity[: dt.size]),
+            dt,
+        )
         rot0 = rot_f @ rs[-1].T
         p0 = p_f - rot0 @ ps[-1]
         at = (t_f - aligned.vel_t_ns[0]) * 1e-9
-        return (rot0, p0), (f"start pose fitted to {rows.size} mapped landmarks at +{at:.2f} s and carried back with "
-                            "the odometry")
+        return (rot0, p0), (
+            f"start pose fitted to {rows.size} mapped landmarks at +{at:.2f} s and carried back with the odometry"
+        )
     return None, "no frame sees 3 mapped landmarks apart: the observer starts at the map origin"
-

@@ -150,8 +150,11 @@ def so3_left_jacobian_apply(w0, w1, w2, v0, v1, v2):
     x0 = w1 * v2 - w2 * v1
     x1 = w2 * v0 - w0 * v2
     x2 = w0 * v1 - w1 * v0
-    return (v0 + cb * x0 + cc * (w1 * x2 - w2 * x1), v1 + cb * x1 + cc * (w2 * x0 - w0 * x2),
-            v2 + cb * x2 + cc * (w0 * x1 - w1 * x0))
+    return (
+        v0 + cb * x0 + cc * (w1 * x2 - w2 * x1),
+        v1 + cb * x1 + cc * (w2 * x0 - w0 * x2),
+        v2 + cb * x2 + cc * (w0 * x1 - w1 * x0),
+    )
 
 
 @njit(cache=True)
@@ -324,7 +327,7 @@ def _quat_of_rot(r):
         z = 0.25 * s
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
-    n = np.sqrt(x ** 2 + y ** 2 + z ** 2 + w ** 2)
+    n = np.sqrt(x**2 + y**2 + z**2 + w**2)
     return x / n, y / n, z / n, w / n
 
 

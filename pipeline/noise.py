@@ -66,8 +66,10 @@ class NoiseSettings:
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from."""
-        out = {k: (getattr(self, k).tolist() if isinstance(getattr(self, k), np.ndarray) else getattr(self, k))
-               for k in DEFAULTS}
+        out = {
+            k: (getattr(self, k).tolist() if isinstance(getattr(self, k), np.ndarray) else getattr(self, k))
+            for k in DEFAULTS
+        }
         return {**out, "sources": dict(self.sources)}
 
     def detection_sigma(self, ranges: np.ndarray) -> np.ndarray:
@@ -78,8 +80,9 @@ def _vec(value) -> np.ndarray:
     return np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
 
 
-def resolve_noise(config: NoiseConfig | None = None, log: str | Path | None = None,
-                  topics: dict[str, str] | None = None) -> NoiseSettings:
+def resolve_noise(
+    config: NoiseConfig | None = None, log: str | Path | None = None, topics: dict[str, str] | None = None
+) -> NoiseSettings:
     """The settings of a run: what ``config`` (the run's ``noise`` section) sets, the message covariances of
     ``log`` for the velocity densities not set there, defaults for the rest."""
     section = (config or NoiseConfig()).given()
@@ -99,5 +102,9 @@ def resolve_noise(config: NoiseConfig | None = None, log: str | Path | None = No
             sources[key] = f"{found.topic} covariance ({1.0 / found.period_s:.4g} Hz)"
         else:
             values[key], sources[key] = default, "default"
-    return NoiseSettings(gyro=_vec(values["gyro"]), velocity=_vec(values["velocity"]),
-                         **{k: float(values[k]) for k in DEFAULTS if k not in ("gyro", "velocity")}, sources=sources)
+    return NoiseSettings(
+        gyro=_vec(values["gyro"]),
+        velocity=_vec(values["velocity"]),
+        **{k: float(values[k]) for k in DEFAULTS if k not in ("gyro", "velocity")},
+        sources=sources,
+    )

@@ -67,15 +67,25 @@ class OutputFrame:
     def apply(self, part: ObserverResult) -> ObserverResult:
         """The stretch (and its map) in this frame; biases are body-frame and stay."""
         r, t = self.rot, self.trans
-        return replace(part, rotation=np.einsum("ij,kjl->kil", r, part.rotation), position=part.position @ r.T + t,
-                       track_xyz=part.track_xyz @ r.T + t, innovation=part.innovation @ r.T,
-                       landmark_xyz=part.landmark_xyz @ r.T + t)
+        return replace(
+            part,
+            rotation=np.einsum("ij,kjl->kil", r, part.rotation),
+            position=part.position @ r.T + t,
+            track_xyz=part.track_xyz @ r.T + t,
+            innovation=part.innovation @ r.T,
+            landmark_xyz=part.landmark_xyz @ r.T + t,
+        )
 
     def describe(self) -> dict:
         """For run.json and the Parquet metadata."""
-        return {"name": self.name, "method": self.method,
-                "from_map_frame": {"rotation_quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(self.rot))],
-                                   "translation_m": [float(v) for v in self.trans]}}
+        return {
+            "name": self.name,
+            "method": self.method,
+            "from_map_frame": {
+                "rotation_quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(self.rot))],
+                "translation_m": [float(v) for v in self.trans],
+            },
+        }
 
 
 def _first_pose_at(rot0: np.ndarray, pos0: np.ndarray, target_rot: np.ndarray, target_pos: np.ndarray):
@@ -98,13 +108,19 @@ def _accelerometer_up(part: ObserverResult, aligned, log) -> tuple[np.ndarray, s
     """Mean accelerometer "up" in the estimate's frame over the stretch's rows."""
     dirs = aligned.directions
     if dirs is None or "gravity" not in dirs.names:
-        raise InputError(log, "output.frame gravity needs an accelerometer (sensor_msgs/Imu) for this observer; "
-                              "choose output.frame start")
+        raise InputError(
+            log,
+            "output.frame gravity needs an accelerometer (sensor_msgs/Imu) for this observer; "
+            "choose output.frame start",
+        )
     j = dirs.names.index("gravity")
     k = np.searchsorted(aligned.vel_t_ns, part.t_ns)
     up_b, w = dirs.body[k, j], dirs.weight[k, j].copy()
-    rest = ((np.linalg.norm(aligned.velocity[k], axis=1) < REST_SPEED)
-            & (np.linalg.norm(aligned.omega[k], axis=1) < REST_RATE) & (w > 0))
+    rest = (
+        (np.linalg.norm(aligned.velocity[k], axis=1) < REST_SPEED)
+        & (np.linalg.norm(aligned.omega[k], axis=1) < REST_RATE)
+        & (w > 0)
+    )
     if rest.sum() >= MIN_REST_SAMPLES:
         w = np.where(rest, 1.0, 0.0)
         how = f"{int(rest.sum())} samples at rest"
@@ -142,15 +158,30 @@ def _truth_pose(part: ObserverResult, truth, t_max_diff: float):
     return k, r_a @ so3_exp(s * so3_log(np.ascontiguousarray(r_a.T @ r_b))), pos
 
 
-def resolve(choice, first: ObserverResult, *, aligned, log, gravity, truth=None, t_max_diff: float = 0.01,
-            uses_directions: bool = False, known_map: bool = False, notes: list[str] | None = None) -> OutputFrame:
+def resolve(
+    choice,
+    first: ObserverResult,
+    *,
+    aligned,
+    log,
+    gravity,
+    truth=None,
+    t_max_diff: float = 0.01,
+    uses_directions: bool = False,
+    known_map: bool = False,
+    notes: list[str] | None = None,
+) -> OutputFrame:
     """The output frame for ``choice`` (None = the observer's default) from the run's first stretch."""
     notes = notes if notes is not None else []
     if choice is None:
         choice = default_frame(uses_directions, known_map)
     if choice == "map":
-        return OutputFrame("map", np.eye(3), np.zeros(3), "the observer's map frame as it is"
-                           + (" (the known map's frame)" if known_map else ""))
+        return OutputFrame(
+            "map",
+            np.eye(3),
+            np.zeros(3),
+            "the observer's map frame as it is" + (" (the known map's frame)" if known_map else ""),
+        )
     if not len(first.t_ns):
         return OutputFrame(choice if isinstance(choice, str) else "pose", np.eye(3), np.zeros(3), "no poses")
     rot0, pos0 = first.rotation[0], first.position[0]
@@ -162,13 +193,28 @@ def resolve(choice, first: ObserverResult, *, aligned, log, gravity, truth=None,
         if found is not None:
             k, r_true, p_true = found
             r, t = _first_pose_at(first.rotation[k], first.position[k], r_true, p_true)
-            return OutputFrame("truth", r, t, f"the estimate pose at t_ns {int(first.t_ns[k])} is put on the truth "
-                                              f"pose interpolated there (truth samples within {t_max_diff:g} s)")
+            return OutputFrame(
+                "truth",
+                r,
+                t,
+                f"the estimate pose at t_ns {int(first.t_ns[k])} is put on the truth "
+                f"pose interpolated there (truth samples within {t_max_diff:g} s)",
+            )
         fallback = default_frame(uses_directions, known_map)
-        notes.append(f"output.frame truth: no ground-truth pose within {t_max_diff:g} s of the first stretch's "
-                     f"estimate; written in the {fallback} frame instead")
-        return resolve(fallback, first, aligned=aligned, log=log, gravity=gravity, uses_directions=uses_directions,
-                       known_map=known_map, notes=notes)
+        notes.append(
+            f"output.frame truth: no ground-truth pose within {t_max_diff:g} s of the first stretch's "
+            f"estimate; written in the {fallback} frame instead"
+        )
+        return resolve(
+            fallback,
+            first,
+            aligned=aligned,
+            log=log,
+            gravity=gravity,
+            uses_directions=uses_directions,
+            known_map=known_map,
+            notes=notes,
+        )
     if choice == "start":
         r, t = _first_pose_at(rot0, pos0, np.eye(3), np.zeros(3))
         return OutputFrame("start", r, t, "the first pose is the identity")
@@ -178,9 +224,11 @@ def resolve(choice, first: ObserverResult, *, aligned, log, gravity, truth=None,
     to_z = _onto_z(-g / np.linalg.norm(g))  # the configured "up" of the inertial frame onto +z
     if first.map_frame is not None:
         r = to_z @ first.map_frame["mean_rotation"]
-        method = (f"the observer's own estimate: mean orientation of its map frame in its inertial frame (gravity "
-                  f"and magnetic references) over {first.map_frame['samples']} samples after "
-                  f"{first.map_frame['estimated_s']:.1f} s of estimation")
+        method = (
+            f"the observer's own estimate: mean orientation of its map frame in its inertial frame (gravity "
+            f"and magnetic references) over {first.map_frame['samples']} samples after "
+            f"{first.map_frame['estimated_s']:.1f} s of estimation"
+        )
     else:
         up, how = _accelerometer_up(first, aligned, log)
         r = _onto_z(up)

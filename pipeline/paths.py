@@ -34,16 +34,53 @@ WRITER = "slamobs"
 NAME_MAX = 255
 #: What slamobs wrote into output directories before they had a manifest (``run``, ``report``, ``export``,
 #: ``compare``, ``tune``): such a directory is replaced only when it holds nothing else.
-LEGACY_NAMES = frozenset({
-    "run.json", "report.json", "report.md", "results.mcap", "trajectory_top.png", "errors.png", "biases.png",
-    "landmarks.png", "ape_evo.zip", "estimate_tum.txt", "truth_tum.txt",
-    *(f"{t}.parquet" for t in ("poses", "biases", "landmarks", "landmark_tracks", "innovations", "jumps",
-                               "tag_detections", "poses_aligned", "landmarks_aligned")),
-    "comparison.json", "comparison.md", "comparison.parquet", "overlay.png",
-    "tune.journal", ".tune.lock", "gains.yaml", "trials.parquet", "objective.png", "tune.json", "tune.md"})
+LEGACY_NAMES = frozenset(
+    {
+        "run.json",
+        "report.json",
+        "report.md",
+        "results.mcap",
+        "trajectory_top.png",
+        "errors.png",
+        "biases.png",
+        "landmarks.png",
+        "ape_evo.zip",
+        "estimate_tum.txt",
+        "truth_tum.txt",
+        *(
+            f"{t}.parquet"
+            for t in (
+                "poses",
+                "biases",
+                "landmarks",
+                "landmark_tracks",
+                "innovations",
+                "jumps",
+                "tag_detections",
+                "poses_aligned",
+                "landmarks_aligned",
+            )
+        ),
+        "comparison.json",
+        "comparison.md",
+        "comparison.parquet",
+        "overlay.png",
+        "tune.journal",
+        ".tune.lock",
+        "gains.yaml",
+        "trials.parquet",
+        "objective.png",
+        "tune.json",
+        "tune.md",
+    }
+)
 
-_KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
-          (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+_KINDS = (
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
 
 
 def _stat_error(path: Path, err: OSError) -> InputError:
@@ -112,8 +149,12 @@ def read_manifest(directory: str | Path) -> dict | None:
         doc = json.loads(Path(directory, MANIFEST).read_bytes())
     except (OSError, ValueError):
         return None
-    if not (isinstance(doc, dict) and doc.get("writer") == WRITER and isinstance(doc.get("files"), dict)
-            and isinstance(doc.get("directories", []), list)):
+    if not (
+        isinstance(doc, dict)
+        and doc.get("writer") == WRITER
+        and isinstance(doc.get("files"), dict)
+        and isinstance(doc.get("directories", []), list)
+    ):
         return None
     return doc
 
@@ -169,8 +210,9 @@ def _join(base: str, name: str) -> str:
     return f"{base}/{name}" if base else name
 
 
-def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False,
-                 in_place: bool = False) -> tuple[int, int] | None:
+def check_output(
+    out: str | Path, inputs: Iterable[str | Path | None] = (), *, force: bool = False, in_place: bool = False
+) -> tuple[int, int] | None:
     """Refuse an output directory that would destroy an input or a user's files (nothing is touched); returns the
     :func:`identity` of what is there (an empty directory, or with ``force`` one slamobs wrote), None when nothing
     is: publishing replaces exactly that, or nothing.
@@ -191,8 +233,9 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
     target = _resolved(out)
     cwd = _resolved(os.getcwd())
     if _within(cwd, target):
-        raise OutputError(out, "the output would replace the working directory (or a directory above it): "
-                               "name a new directory")
+        raise OutputError(
+            out, "the output would replace the working directory (or a directory above it): name a new directory"
+        )
     for item in inputs:
         if item is None or not str(item):
             continue
@@ -217,8 +260,11 @@ def check_output(out: str | Path, inputs: Iterable[str | Path | None] = (), *, f
         raise OutputError(out, "output exists (use --force to replace it)")
     found = foreign_entry(out)
     if found is not None:
-        raise OutputError(out, f"is not a slamobs output: {os.path.join(out, found[0])} is {found[1]}; --force "
-                               "replaces only what slamobs wrote: move it away yourself or choose another -o")
+        raise OutputError(
+            out,
+            f"is not a slamobs output: {os.path.join(out, found[0])} is {found[1]}; --force "
+            "replaces only what slamobs wrote: move it away yourself or choose another -o",
+        )
     return seen
 
 
@@ -236,8 +282,11 @@ def check_utf8(path: str | Path) -> None:
     try:
         raw.decode("utf-8")
     except UnicodeDecodeError as err:
-        raise InputError(path, f"the path holds a byte that is not UTF-8 (0x{raw[err.start]:02x}), which the Parquet "
-                               "library cannot open: rename it") from None
+        raise InputError(
+            path,
+            f"the path holds a byte that is not UTF-8 (0x{raw[err.start]:02x}), which the Parquet "
+            "library cannot open: rename it",
+        ) from None
 
 
 def temporary_prefix(final: str | Path, tag: str = ".tmp-") -> str:
@@ -262,8 +311,9 @@ def read_text(path: str | Path, what: str, errors: str = "strict") -> str:
     try:
         return raw.decode("utf-8-sig", errors=errors)
     except UnicodeDecodeError as err:
-        raise InputError(path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): save the {what} "
-                               "as UTF-8") from None
+        raise InputError(
+            path, f"not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start}): save the {what} as UTF-8"
+        ) from None
 
 
 #: Values YAML aliases (``*name``) may add to a document beyond those written out: far above what a config,
@@ -303,8 +353,9 @@ def check_yaml_depth(text: str, path: str | Path, what: str) -> None:
     """Refuse YAML ``text`` whose flow collections nest deeper than YAML_MAX_FLOW_DEPTH (for files a library
     parses too, e.g. rosbags' metadata.yaml)."""
     if (depth := _flow_depth(text)) > YAML_MAX_FLOW_DEPTH:
-        raise InputError(path, f"the {what} nests [ ] or {{ }} {depth} levels deep (more than the "
-                               f"{YAML_MAX_FLOW_DEPTH} read)")
+        raise InputError(
+            path, f"the {what} nests [ ] or {{ }} {depth} levels deep (more than the {YAML_MAX_FLOW_DEPTH} read)"
+        )
 
 
 def _flow_depth(text: str) -> int:
@@ -348,14 +399,20 @@ def _check_aliases(root: Any, path: str | Path, what: str) -> None:
         for child in _children(node):
             if id(child) in on_path:
                 name = f" *{child.anchor}" if getattr(child, "anchor", None) else ""
-                raise InputError(path, f"the YAML alias{name} refers to a value that contains it (a cycle): the "
-                                       f"{what} cannot be read; write the value out")
+                raise InputError(
+                    path,
+                    f"the YAML alias{name} refers to a value that contains it (a cycle): the "
+                    f"{what} cannot be read; write the value out",
+                )
             if id(child) not in size:
                 stack.append((child, False))
     extra = size[id(root)] - len(size)
     if extra > YAML_ALIAS_BUDGET:
-        raise InputError(path, f"YAML aliases expand the {what} by {extra:.3g} values (more than the "
-                               f"{YAML_ALIAS_BUDGET:,} allowed; an alias bomb?): write the repeated values out")
+        raise InputError(
+            path,
+            f"YAML aliases expand the {what} by {extra:.3g} values (more than the "
+            f"{YAML_ALIAS_BUDGET:,} allowed; an alias bomb?): write the repeated values out",
+        )
 
 
 def check_output_file(out: str | Path, inputs: Iterable[str | Path | None]) -> None:

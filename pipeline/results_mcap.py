@@ -126,8 +126,11 @@ def check_stamps(lo_ns: int, hi_ns: int, path: str | Path, hint: str = "") -> No
     error otherwise, or a stamp wrapped silently by the bulk writer)."""
     if lo_ns < _STAMP_NS[0] or hi_ns >= _STAMP_NS[1]:
         bad = hi_ns if hi_ns >= _STAMP_NS[1] else lo_ns
-        raise InputError(path, f"stamp {bad / _NS:.0f} s is outside the int32 seconds of a ROS 2 message stamp "
-                               f"(1901-12-13 to 2038-01-19): the results cannot be written as MCAP{hint}")
+        raise InputError(
+            path,
+            f"stamp {bad / _NS:.0f} s is outside the int32 seconds of a ROS 2 message stamp "
+            f"(1901-12-13 to 2038-01-19): the results cannot be written as MCAP{hint}",
+        )
 
 
 def _stamp_fields(prefix: tuple = ()) -> dict[tuple, str]:
@@ -153,30 +156,43 @@ class _Messages:
         self.t = t
         self.body_frame = body_frame
         pose = self.pose_stamped(0, MAP_FRAME, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
-        self.pose = BulkMessages(ts, _POSE_TYPE, pose, {**_stamp_fields(), **_vec_fields(("pose", "position")),
-                                                        **_vec_fields(("pose", "orientation"), "xyzw")})
+        self.pose = BulkMessages(
+            ts,
+            _POSE_TYPE,
+            pose,
+            {**_stamp_fields(), **_vec_fields(("pose", "position")), **_vec_fields(("pose", "orientation"), "xyzw")},
+        )
         tf = t[_TF_TYPE](transforms=[self.transform(0, MAP_FRAME, body_frame, np.zeros(3), np.array([0, 0, 0, 1.0]))])
         item = ("transforms", 0)
-        self.tf = BulkMessages(ts, _TF_TYPE, tf, {**_stamp_fields(item),
-                                                  **_vec_fields(item + ("transform", "translation")),
-                                                  **_vec_fields(item + ("transform", "rotation"), "xyzw")})
-        self.vec_body = BulkMessages(ts, _VEC_TYPE, self.vector(0, body_frame, np.zeros(3)),
-                                     {**_stamp_fields(), **_vec_fields(("vector",))})
-        self.vec_map = BulkMessages(ts, _VEC_TYPE, self.vector(0, MAP_FRAME, np.zeros(3)),
-                                    {**_stamp_fields(), **_vec_fields(("vector",))})
+        self.tf = BulkMessages(
+            ts,
+            _TF_TYPE,
+            tf,
+            {
+                **_stamp_fields(item),
+                **_vec_fields(item + ("transform", "translation")),
+                **_vec_fields(item + ("transform", "rotation"), "xyzw"),
+            },
+        )
+        self.vec_body = BulkMessages(
+            ts, _VEC_TYPE, self.vector(0, body_frame, np.zeros(3)), {**_stamp_fields(), **_vec_fields(("vector",))}
+        )
+        self.vec_map = BulkMessages(
+            ts, _VEC_TYPE, self.vector(0, MAP_FRAME, np.zeros(3)), {**_stamp_fields(), **_vec_fields(("vector",))}
+        )
 
     def header(self, t_ns: int, frame: str):
         t = self.t
-        return t["std_msgs/msg/Header"](stamp=t["builtin_interfaces/msg/Time"](sec=int(t_ns // _NS),
-                                                                               nanosec=int(t_ns % _NS)),
-                                        frame_id=frame)
+        return t["std_msgs/msg/Header"](
+            stamp=t["builtin_interfaces/msg/Time"](sec=int(t_ns // _NS), nanosec=int(t_ns % _NS)), frame_id=frame
+        )
 
     def pose_msg(self, p: np.ndarray, q: np.ndarray):
         t = self.t
-        return t["geometry_msgs/msg/Pose"](position=t["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]),
-                                                                                 z=float(p[2])),
-                                           orientation=t["geometry_msgs/msg/Quaternion"](
-                                               x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+        return t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+        )
 
     def pose_stamped(self, t_ns: int, frame: str, p: np.ndarray, q: np.ndarray):
         return self.t[_POSE_TYPE](header=self.header(t_ns, frame), pose=self.pose_msg(p, q))
@@ -184,16 +200,20 @@ class _Messages:
     def transform(self, t_ns: int, parent: str, child: str, p: np.ndarray, q: np.ndarray):
         t = self.t
         return t["geometry_msgs/msg/TransformStamped"](
-            header=self.header(t_ns, parent), child_frame_id=child,
+            header=self.header(t_ns, parent),
+            child_frame_id=child,
             transform=t["geometry_msgs/msg/Transform"](
                 translation=t["geometry_msgs/msg/Vector3"](x=float(p[0]), y=float(p[1]), z=float(p[2])),
-                rotation=t["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]),
-                                                           w=float(q[3]))))
+                rotation=t["geometry_msgs/msg/Quaternion"](x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])),
+            ),
+        )
 
     def vector(self, t_ns: int, frame: str, v: np.ndarray):
         t = self.t
-        return t[_VEC_TYPE](header=self.header(t_ns, frame),
-                            vector=t["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2])))
+        return t[_VEC_TYPE](
+            header=self.header(t_ns, frame),
+            vector=t["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2])),
+        )
 
     def serialize(self, msg, msgtype: str) -> bytes:
         return bytes(self.ts.serialize_cdr(msg, msgtype))
@@ -217,20 +237,54 @@ class _Messages:
         ident = self.pose_msg(np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))
 
         def marker(ns, mid, kind, pose, scale, col, points=(), text=""):
-            return marker_t(header=self.header(t_ns, MAP_FRAME), ns=ns, id=mid, type=kind, action=0, pose=pose,
-                            scale=scale, color=col, lifetime=duration, frame_locked=False, points=list(points),
-                            colors=[], texture_resource="", texture=t["sensor_msgs/msg/CompressedImage"](
-                                header=self.header(0, ""), format="", data=np.zeros(0, np.uint8)),
-                            uv_coordinates=[], text=text, mesh_resource="",
-                            mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
-                            mesh_use_embedded_materials=False)
+            return marker_t(
+                header=self.header(t_ns, MAP_FRAME),
+                ns=ns,
+                id=mid,
+                type=kind,
+                action=0,
+                pose=pose,
+                scale=scale,
+                color=col,
+                lifetime=duration,
+                frame_locked=False,
+                points=list(points),
+                colors=[],
+                texture_resource="",
+                texture=t["sensor_msgs/msg/CompressedImage"](
+                    header=self.header(0, ""), format="", data=np.zeros(0, np.uint8)
+                ),
+                uv_coordinates=[],
+                text=text,
+                mesh_resource="",
+                mesh_file=t["visualization_msgs/msg/MeshFile"](filename="", data=np.zeros(0, np.uint8)),
+                mesh_use_embedded_materials=False,
+            )
 
-        spheres = marker("landmarks", 0, 7, ident, vec3(x=0.2, y=0.2, z=0.2), rgba,  # 7: SPHERE_LIST
-                         points=[point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in xyz])
-        labels = [marker("landmark_ids", int(m), 9, self.pose_msg(p + np.array([0.0, 0.0, 0.25]),  # 9: TEXT
-                                                                  np.array([0.0, 0.0, 0.0, 1.0])),
-                         vec3(x=0.0, y=0.0, z=0.2), white, text=str(int(i)))
-                  for i, m, p in zip(ids, _marker_ids(ids, known), xyz)]
+        spheres = marker(
+            "landmarks",
+            0,
+            7,
+            ident,
+            vec3(x=0.2, y=0.2, z=0.2),
+            rgba,  # 7: SPHERE_LIST
+            points=[point(x=float(p[0]), y=float(p[1]), z=float(p[2])) for p in xyz],
+        )
+        labels = [
+            marker(
+                "landmark_ids",
+                int(m),
+                9,
+                self.pose_msg(
+                    p + np.array([0.0, 0.0, 0.25]),  # 9: TEXT
+                    np.array([0.0, 0.0, 0.0, 1.0]),
+                ),
+                vec3(x=0.0, y=0.0, z=0.2),
+                white,
+                text=str(int(i)),
+            )
+            for i, m, p in zip(ids, _marker_ids(ids, known), xyz)
+        ]
         return self.serialize(t[_MARKERS_TYPE](markers=[spheres, *labels]), _MARKERS_TYPE)
 
 
@@ -279,8 +333,11 @@ def _read(run_dir: Path, name: str):
         frame, path = found.to_pandas(), run_dir
     missing = [c for c in _READS[name] if c not in frame.columns]
     if missing:
-        raise InputError(path, f"the {name} table has no column {', '.join(missing)} (see schemas/{name}.json): "
-                               "edited or written by another program; run slamobs run again")
+        raise InputError(
+            path,
+            f"the {name} table has no column {', '.join(missing)} (see schemas/{name}.json): "
+            "edited or written by another program; run slamobs run again",
+        )
     if "t_ns" in frame.columns and len(frame):
         t_ns = frame["t_ns"].to_numpy(np.int64)
         check_stamps(int(t_ns.min()), int(t_ns.max()), path)
@@ -324,8 +381,15 @@ def _map_updates(tracks, t_end: int) -> list[tuple[int, np.ndarray, np.ndarray]]
     return out
 
 
-def write_results_mcap(run_dir: str | Path, out: str | Path, *, meta: dict | None = None, report: dict | None = None,
-                       rate_hz: float | None = DEFAULT_RATE_HZ, force: bool = True) -> Path:
+def write_results_mcap(
+    run_dir: str | Path,
+    out: str | Path,
+    *,
+    meta: dict | None = None,
+    report: dict | None = None,
+    rate_hz: float | None = DEFAULT_RATE_HZ,
+    force: bool = True,
+) -> Path:
     """Write the results of the run directory ``run_dir`` to the MCAP file ``out`` (atomically).
 
     ``meta`` and ``report`` default to the run's ``run.json`` and ``report.json``; ``rate_hz`` caps the pose,
@@ -378,8 +442,10 @@ def _why_kept(path: Path, *, force: bool) -> str | None:
         head = b""
     if mcap_library(head).startswith("slamobs "):
         return None
-    return ("exists and is not a results MCAP slamobs wrote: --force replaces only those; it is kept, remove it "
-            "or choose another --mcap")
+    return (
+        "exists and is not a results MCAP slamobs wrote: --force replaces only those; it is kept, remove it "
+        "or choose another --mcap"
+    )
 
 
 class _Out:
@@ -399,10 +465,13 @@ class _Out:
     def channel(self, topic: str, msgtype: str, latched: bool = False) -> int:
         if msgtype not in self.schemas:
             msgdef, _ = self.msgs.ts.generate_msgdef(msgtype, ros_version=2)
-            self.schemas[msgtype] = self.writer.register_schema(name=msgtype, encoding="ros2msg",
-                                                                data=msgdef.encode())
-        return self.writer.register_channel(topic=topic, message_encoding="cdr", schema_id=self.schemas[msgtype],
-                                            metadata={"offered_qos_profiles": _latched_qos() if latched else ""})
+            self.schemas[msgtype] = self.writer.register_schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
+        return self.writer.register_channel(
+            topic=topic,
+            message_encoding="cdr",
+            schema_id=self.schemas[msgtype],
+            metadata={"offered_qos_profiles": _latched_qos() if latched else ""},
+        )
 
     def add(self, chan: int, t_ns: int, data: bytes) -> None:
         n = self.seq.get(chan, 0)
@@ -447,17 +516,33 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
     t_i = innov["t_ns"].to_numpy(np.int64) if innov is not None else np.zeros(0, np.int64)
     t0 = min(t0, int(t_i[0])) if t_i.size else t0  # detections may come before the first velocity sample
     _write_latched(out, meta, report, poses, t0, body)
-    topics = _Topics(t_pose, _every(t_pose, rate_hz), poses[["x", "y", "z"]].to_numpy(np.float64),
-                     poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64), ch_pose, ch_tf, innov, t_i)
+    topics = _Topics(
+        t_pose,
+        _every(t_pose, rate_hz),
+        poses[["x", "y", "z"]].to_numpy(np.float64),
+        poses[["qx", "qy", "qz", "qw"]].to_numpy(np.float64),
+        ch_pose,
+        ch_tf,
+        innov,
+        t_i,
+    )
     del poses
     landmarks = _add_other_topics(out, topics, run_dir, t_end, rate_hz)
     for block in _blocks(topics):
         _write_block(out, *_block_messages(out.msgs, topics, *block))
     if landmarks is not None and len(landmarks):
         t_end = max([t_end] + [int(t[-1]) for t in (t_i, topics.t_u) if t.size])  # after every other message
-        out.add(topics.ch_map, t_end, out.msgs.markers(t_end, landmarks["id"].to_numpy(np.int64),
-                                                       landmarks[["x", "y", "z"]].to_numpy(np.float64), final=True,
-                                                       known=topics.known))
+        out.add(
+            topics.ch_map,
+            t_end,
+            out.msgs.markers(
+                t_end,
+                landmarks["id"].to_numpy(np.int64),
+                landmarks[["x", "y", "z"]].to_numpy(np.float64),
+                final=True,
+                known=topics.known,
+            ),
+        )
     out.writer.finish()
 
 
@@ -469,9 +554,16 @@ def _write_latched(out: _Out, meta: dict, report: dict | None, poses, t0: int, b
     t_pose = poses["t_ns"].to_numpy(np.int64)
     if len(t_pose):
         rows = np.unique(np.linspace(0, len(t_pose) - 1, min(PATH_POINTS, len(t_pose))).astype(np.int64))
-        out.add(out.channel(TOPIC_PATH, _PATH_TYPE, latched=True), t0,
-                out.msgs.path(t0, t_pose[rows], poses[["x", "y", "z"]].to_numpy()[rows],
-                              poses[["qx", "qy", "qz", "qw"]].to_numpy()[rows]))
+        out.add(
+            out.channel(TOPIC_PATH, _PATH_TYPE, latched=True),
+            t0,
+            out.msgs.path(
+                t0,
+                t_pose[rows],
+                poses[["x", "y", "z"]].to_numpy()[rows],
+                poses[["qx", "qy", "qz", "qw"]].to_numpy()[rows],
+            ),
+        )
 
 
 def _add_other_topics(out: _Out, topics: _Topics, run_dir: Path, t_end: int, rate_hz: float | None):
@@ -488,8 +580,13 @@ def _add_other_topics(out: _Out, topics: _Topics, run_dir: Path, t_end: int, rat
     topics.ch_map = out.channel(TOPIC_LANDMARKS, _MARKERS_TYPE)
     topics.updates = _map_updates(_read(run_dir, "landmark_tracks"), t_end)
     landmarks = _read(run_dir, "landmarks")
-    topics.known = np.unique(np.concatenate([np.zeros(0, np.int64)] + [u[1] for u in topics.updates] +
-                                            ([landmarks["id"].to_numpy(np.int64)] if landmarks is not None else [])))
+    topics.known = np.unique(
+        np.concatenate(
+            [np.zeros(0, np.int64)]
+            + [u[1] for u in topics.updates]
+            + ([landmarks["id"].to_numpy(np.int64)] if landmarks is not None else [])
+        )
+    )
     topics.t_b = biases["t_ns"].to_numpy(np.int64) if biases is not None else np.zeros(0, np.int64)
     topics.keep_b = _every(topics.t_b, rate_hz)
     topics.t_u = np.array([u[0] for u in topics.updates], np.int64)
@@ -504,42 +601,50 @@ def _blocks(topics: _Topics):
     bounds[-1:] = [np.iinfo(np.int64).max]
     pos = {"p": 0, "b": 0, "i": 0, "u": 0}
     for bound in bounds:
-        sp = pos["p"] + int(np.searchsorted(t_pose[keep[pos["p"]:]], bound, side="right"))
-        rows = keep[pos["p"]:sp]
+        sp = pos["p"] + int(np.searchsorted(t_pose[keep[pos["p"] :]], bound, side="right"))
+        rows = keep[pos["p"] : sp]
         pos["p"] = sp
-        sb = pos["b"] + int(np.searchsorted(t_b[keep_b[pos["b"]:]], bound, side="right"))
-        rows_b = keep_b[pos["b"]:sb]
+        sb = pos["b"] + int(np.searchsorted(t_b[keep_b[pos["b"] :]], bound, side="right"))
+        rows_b = keep_b[pos["b"] : sb]
         pos["b"] = sb
-        si = pos["i"] + int(np.searchsorted(t_i[pos["i"]:], bound, side="right")) if topics.innov is not None else 0
+        si = pos["i"] + int(np.searchsorted(t_i[pos["i"] :], bound, side="right")) if topics.innov is not None else 0
         rows_i = np.arange(pos["i"], si)
         pos["i"] = si
-        su = pos["u"] + int(np.searchsorted(t_u[pos["u"]:], bound, side="right"))
+        su = pos["u"] + int(np.searchsorted(t_u[pos["u"] :], bound, side="right"))
         rows_u = np.arange(pos["u"], su)
         pos["u"] = su
         yield rows, rows_b, rows_i, rows_u
 
 
-def _block_messages(msgs: _Messages, topics: _Topics, rows: np.ndarray, rows_b: np.ndarray, rows_i: np.ndarray,
-                    rows_u: np.ndarray) -> tuple[list, list, list]:
+def _block_messages(
+    msgs: _Messages, topics: _Topics, rows: np.ndarray, rows_b: np.ndarray, rows_i: np.ndarray, rows_u: np.ndarray
+) -> tuple[list, list, list]:
     """One block's messages of every per-row topic: their stamps, channels and payloads (lists of parts)."""
     out_t, out_c, out_d = [], [], []
     if rows.size:
         t = topics.t_pose[rows]
         xyz_p, quat_p = topics.xyz, topics.quat
-        cols = {**_stamp_columns(t), **{("pose", "position", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
-                **{("pose", "orientation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
+        cols = {
+            **_stamp_columns(t),
+            **{("pose", "position", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
+            **{("pose", "orientation", a): quat_p[rows, k] for k, a in enumerate("xyzw")},
+        }
         out_t += [t, t]
         out_c += [np.full(t.shape, topics.ch_pose), np.full(t.shape, topics.ch_tf)]
         item = ("transforms", 0)
-        tf_cols = {**_stamp_columns(t, item),
-                   **{item + ("transform", "translation", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
-                   **{item + ("transform", "rotation", a): quat_p[rows, k] for k, a in enumerate("xyzw")}}
+        tf_cols = {
+            **_stamp_columns(t, item),
+            **{item + ("transform", "translation", a): xyz_p[rows, k] for k, a in enumerate("xyz")},
+            **{item + ("transform", "rotation", a): quat_p[rows, k] for k, a in enumerate("xyzw")},
+        }
         out_d += [_payloads(msgs.pose.rows(cols)), _payloads(msgs.tf.rows(tf_cols))]
     if rows_b.size:
         t = topics.t_b[rows_b]
         for ch, prefix in ((topics.ch_gyro, "gyro_bias_"), (topics.ch_vel, "vel_bias_")):
-            cols = {**_stamp_columns(t),
-                    **{("vector", a): topics.biases[prefix + a].to_numpy(np.float64)[rows_b] for a in "xyz"}}
+            cols = {
+                **_stamp_columns(t),
+                **{("vector", a): topics.biases[prefix + a].to_numpy(np.float64)[rows_b] for a in "xyz"},
+            }
             out_t.append(t)
             out_c.append(np.full(t.shape, ch))
             out_d.append(_payloads(msgs.vec_body.rows(cols)))

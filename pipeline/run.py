@@ -89,8 +89,12 @@ STRETCH_SAMPLES = 131_072
 
 def _diverged(log: Path, observer: str, t_s: float, stats: dict) -> InputError:
     capped = stats.get("capped_intervals", 0)
-    why = (f"; {capped} intervals needed more than {MAX_SUBSTEPS} sub-steps: its gains are too stiff for the "
-           "input rates, lower them" if capped else "; lower its gains or check the input rates")
+    why = (
+        f"; {capped} intervals needed more than {MAX_SUBSTEPS} sub-steps: its gains are too stiff for the "
+        "input rates, lower them"
+        if capped
+        else "; lower its gains or check the input rates"
+    )
     return InputError(log, f"observer '{observer}' diverged (non-finite state) {t_s:.2f} s into the log{why}")
 
 
@@ -106,9 +110,11 @@ def _cap_note(spec, stats: dict, t0_ns: int) -> list[str]:
     if not n:
         return []
     t = (stats["first_capped_ns"] - t0_ns) * 1e-9
-    return [f"observer '{spec.name}': {n} intervals between events needed more than {MAX_SUBSTEPS} sub-steps "
-            f"(first {t:.2f} s into the log) and were integrated with {MAX_SUBSTEPS}: the estimate there is "
-            "approximate (gains too stiff for the input rates, or an implausible measurement; see limits)"]
+    return [
+        f"observer '{spec.name}': {n} intervals between events needed more than {MAX_SUBSTEPS} sub-steps "
+        f"(first {t:.2f} s into the log) and were integrated with {MAX_SUBSTEPS}: the estimate there is "
+        "approximate (gains too stiff for the input rates, or an implausible measurement; see limits)"
+    ]
 
 
 def _segment_note(spec, stats: dict) -> list[str]:
@@ -116,8 +122,10 @@ def _segment_note(spec, stats: dict) -> list[str]:
     moved, held = stats.get("relocalised", 0), stats.get("held", 0)
     if not moved + held:
         return []
-    text = (f"observer '{spec.name}' after the gaps: pose re-anchored to the map at {moved} of {moved + held} (by "
-            "the first frame within time.max_meas_age seeing 3 or more mapped landmarks)")
+    text = (
+        f"observer '{spec.name}' after the gaps: pose re-anchored to the map at {moved} of {moved + held} (by "
+        "the first frame within time.max_meas_age seeing 3 or more mapped landmarks)"
+    )
     if held:
         text += f", held at {held} (the landmarks correct it from there)"
     return [text]
@@ -145,15 +153,29 @@ def blind_note(vel_t_ns: np.ndarray, det_t_ns: np.ndarray, det_offsets: np.ndarr
     if blind <= max(BLIND_NOTE_SHARE * span, BLIND_NOTE_MIN_S):
         return []
     k = int(np.argmax(gaps))
-    return [f"no landmark in view for {blind:.1f} s of the {span:.1f} s run (longest {gaps[k] * 1e-9:.1f} s, from "
-            f"{(starts[k] - t0) * 1e-9:.1f} s to {(ends[k] - t0) * 1e-9:.1f} s after the start): the observer "
-            "dead-reckons on odometry and IMU there, and its error grows"]
+    return [
+        f"no landmark in view for {blind:.1f} s of the {span:.1f} s run (longest {gaps[k] * 1e-9:.1f} s, from "
+        f"{(starts[k] - t0) * 1e-9:.1f} s to {(ends[k] - t0) * 1e-9:.1f} s after the start): the observer "
+        "dead-reckons on odometry and IMU there, and its error grows"
+    ]
 
 
 def run_inputs(log: Path, config: RunConfig) -> list[str | Path]:
     """Every path a run reads: an output must never replace or hold one of them."""
-    return [p for p in (log, config.source, config.msg_dir, config.evaluation.truth_file, config.evaluation.truth_times, config.map.file,
-                        config.evaluation.map_truth, *config.cameras) if p]
+    return [
+        p
+        for p in (
+            log,
+            config.source,
+            config.msg_dir,
+            config.evaluation.truth_file,
+            config.evaluation.truth_times,
+            config.map.file,
+            config.evaluation.map_truth,
+            *config.cameras,
+        )
+        if p
+    ]
 
 
 def check_directions(spec, aligned: AlignedStream, log: Path, needed: int | None = None) -> None:
@@ -161,9 +183,12 @@ def check_directions(spec, aligned: AlignedStream, log: Path, needed: int | None
     needed = spec.min_directions if needed is None else needed
     have = aligned.directions.names if aligned.directions is not None else ()
     if len(have) < needed:
-        raise InputError(log, f"observer '{spec.name}' needs {needed} inertial directions "
-                              f"(accelerometer in sensor_msgs/Imu, sensor_msgs/MagneticField); the log gives "
-                              f"{len(have)}{': ' + ', '.join(have) if have else ''}")
+        raise InputError(
+            log,
+            f"observer '{spec.name}' needs {needed} inertial directions "
+            f"(accelerometer in sensor_msgs/Imu, sensor_msgs/MagneticField); the log gives "
+            f"{len(have)}{': ' + ', '.join(have) if have else ''}",
+        )
 
 
 @dataclass
@@ -224,8 +249,13 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
 
         t = time.perf_counter()
         progress("tag poses")
-        tags = tag_landmarks(streams, config.tags.options(), camera_files=config.cameras,
-                             identity_frames=config.frames.assume_identity, body_frame=config.frames.body)
+        tags = tag_landmarks(
+            streams,
+            config.tags.options(),
+            camera_files=config.cameras,
+            identity_frames=config.frames.assume_identity,
+            body_frame=config.frames.body,
+        )
         streams.detections = tags.detections
         streams.static_tf = [*streams.static_tf, *tags.transforms]
         streams.tag_corners = []
@@ -239,10 +269,18 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
-    aligned = align(streams, body_frame=config.frames.body, time_source=config.align_time_source,
-                    identity_frames=config.frames.assume_identity, override_identity=config.frames.override_identity,
-                    gravity=config.directions.gravity, magnetic_field=config.directions.magnetic_field, keep_directions=directions,
-                    release=True, limits=config.limits.as_dict())
+    aligned = align(
+        streams,
+        body_frame=config.frames.body,
+        time_source=config.align_time_source,
+        identity_frames=config.frames.assume_identity,
+        override_identity=config.frames.override_identity,
+        gravity=config.directions.gravity,
+        magnetic_field=config.directions.magnetic_field,
+        keep_directions=directions,
+        release=True,
+        limits=config.limits.as_dict(),
+    )
     if known is not None and known.fixed:
         aligned, note = restrict_to_map(aligned, known)
         if note:
@@ -250,14 +288,27 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         if aligned.landmark_ids.size == 0:
             raise InputError(log, f"no detection of a landmark of the fixed map {config.map.file}")
     timings["align_s"] = time.perf_counter() - t
-    kept = LogStreams(path=streams.path, truth=streams.truth, landmark_truth=streams.landmark_truth,
-                      bias_truth=streams.bias_truth, warnings=streams.warnings, clocks=streams.clocks,
-                      derived=streams.derived)
+    kept = LogStreams(
+        path=streams.path,
+        truth=streams.truth,
+        landmark_truth=streams.landmark_truth,
+        bias_truth=streams.bias_truth,
+        warnings=streams.warnings,
+        clocks=streams.clocks,
+        derived=streams.derived,
+    )
     return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes)
 
 
-def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
-            progress: Progress = silent, plot_helpers: int = 0) -> RunSummary:
+def run_log(
+    log: Path,
+    out_dir: Path,
+    config: RunConfig,
+    *,
+    force: bool = False,
+    progress: Progress = silent,
+    plot_helpers: int = 0,
+) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
     ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
     report's figures are drawn by that many helper processes started now, which import matplotlib while the
@@ -278,8 +329,9 @@ def run_log(log: Path, out_dir: Path, config: RunConfig, *, force: bool = False,
         prepared = prepare_log(log, config, directions=directions, progress=progress)
         if workers is not None and (prepared.streams.truth is None or not len(prepared.streams.truth)):
             workers.close()  # no report, no figures
-        return run_prepared(prepared, out_dir, config, force=force, release=True, progress=progress,
-                            plot_workers=workers)
+        return run_prepared(
+            prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
+        )
     except Exception as err:
         if (machine := resource_error(err, log, "a run of this log", run_memory_mb(log))) is not None:
             raise machine from None
@@ -335,9 +387,15 @@ def estimator_input(prepared: PreparedLog, config: RunConfig) -> EstimatorInput:
         from slamobs.pipeline.noise import resolve_noise
 
         noise = resolve_noise(config.noise, log, dict(prepared.topics))
-    options = ObserverOptions(max_meas_age=config.time.max_meas_age, out_every=_out_every(aligned, config.output.rate_hz),
-                              known_map=start, source=str(log), noise=noise, batch=config.batch,
-                              seed_gains=config.gains.get(config.batch.seed))
+    options = ObserverOptions(
+        max_meas_age=config.time.max_meas_age,
+        out_every=_out_every(aligned, config.output.rate_hz),
+        known_map=start,
+        source=str(log),
+        noise=noise,
+        batch=config.batch,
+        seed_gains=config.gains.get(config.batch.seed),
+    )
     return EstimatorInput(spec, gains, options, needed, notes)
 
 
@@ -347,33 +405,71 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
     spec, options = est.spec, est.options
     return {
         "software": {"slamobs": __version__, "python": platform.python_version()},
-        "input": {"path": str(log.resolve()), "topics": dict(prepared.topics),
-                  "time_source": config.align_time_source, "clocks": dict(streams.clocks),
-                  "body_frame": aligned.body_frame,
-                  "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
-                  "derived": dict(streams.derived),
-                  "cameras": dict(tags.cameras) if tags is not None else {},
-                  "map": ({"file": prepared.known_map.source, "mode": prepared.known_map.mode}
-                          if prepared.known_map is not None else None),
-                  # the truth read from a file (evaluation.truth_file): `slamobs report` reads it again from here
-                  "truth_file": ({"path": str(Path(config.evaluation.truth_file).resolve()), "format": config.evaluation.truth_format,
-                                  "times": str(Path(config.evaluation.truth_times).resolve()) if config.evaluation.truth_times else None}
-                                 if config.evaluation.truth_file else None)},
-        "observer": {"name": spec.name, "algorithm": spec.algorithm, "gains": est.gains,
-                     "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
-                     "options": {"max_meas_age": options.max_meas_age, "min_landmarks_bias": options.min_landmarks_bias,
-                                 "out_every": options.out_every}},
-        "counts": {"velocity_samples": int(aligned.vel_t_ns.shape[0]), "detection_frames": int(aligned.det_t_ns.shape[0]),
-                   "detections": int(aligned.det_idx.shape[0]), "landmarks": int(aligned.landmark_ids.shape[0])},
+        "input": {
+            "path": str(log.resolve()),
+            "topics": dict(prepared.topics),
+            "time_source": config.align_time_source,
+            "clocks": dict(streams.clocks),
+            "body_frame": aligned.body_frame,
+            "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
+            "derived": dict(streams.derived),
+            "cameras": dict(tags.cameras) if tags is not None else {},
+            "map": (
+                {"file": prepared.known_map.source, "mode": prepared.known_map.mode}
+                if prepared.known_map is not None
+                else None
+            ),
+            # the truth read from a file (evaluation.truth_file): `slamobs report` reads it again from here
+            "truth_file": (
+                {
+                    "path": str(Path(config.evaluation.truth_file).resolve()),
+                    "format": config.evaluation.truth_format,
+                    "times": str(Path(config.evaluation.truth_times).resolve())
+                    if config.evaluation.truth_times
+                    else None,
+                }
+                if config.evaluation.truth_file
+                else None
+            ),
+        },
+        "observer": {
+            "name": spec.name,
+            "algorithm": spec.algorithm,
+            "gains": est.gains,
+            "directions": list(aligned.directions.names) if spec.min_directions and aligned.directions else [],
+            "options": {
+                "max_meas_age": options.max_meas_age,
+                "min_landmarks_bias": options.min_landmarks_bias,
+                "out_every": options.out_every,
+            },
+        },
+        "counts": {
+            "velocity_samples": int(aligned.vel_t_ns.shape[0]),
+            "detection_frames": int(aligned.det_t_ns.shape[0]),
+            "detections": int(aligned.det_idx.shape[0]),
+            "landmarks": int(aligned.landmark_ids.shape[0]),
+        },
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
         "segments": aligned.segments(),
         "limits": config.limits.as_dict(),
-        "output": {"rate_hz": config.output.rate_hz, "float_bits": config.output.float_bits, "export": list(config.output.export)},
+        "output": {
+            "rate_hz": config.output.rate_hz,
+            "float_bits": config.output.float_bits,
+            "export": list(config.output.export),
+        },
     }
 
 
-def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, force: bool = False,
-                 release: bool = False, progress: Progress = silent, plot_workers=None) -> RunSummary:
+def run_prepared(
+    prepared: PreparedLog,
+    out_dir: Path,
+    config: RunConfig,
+    *,
+    force: bool = False,
+    release: bool = False,
+    progress: Progress = silent,
+    plot_workers=None,
+) -> RunSummary:
     """Estimate -> write -> evaluate -> export on an already prepared log, into a run directory made atomically.
 
     ``release`` drops ``prepared.aligned`` once the estimator is done (the caller runs nothing else on it), so the
@@ -394,21 +490,46 @@ def run_prepared(prepared: PreparedLog, out_dir: Path, config: RunConfig, *, for
     metadata = run_metadata(prepared, config, est)
     timings = dict(prepared.timings)
     if stale := remove_stale_temporaries(Path(out_dir).parent):
-        notes.append(f"removed {len(stale)} temporary director{'y' if len(stale) == 1 else 'ies'} of killed runs "
-                     f"next to the output ({', '.join(stale[:3])}{', ...' if len(stale) > 3 else ''})")
+        notes.append(
+            f"removed {len(stale)} temporary director{'y' if len(stale) == 1 else 'ies'} of killed runs "
+            f"next to the output ({', '.join(stale[:3])}{', ...' if len(stale) > 3 else ''})"
+        )
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         timings.update(estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress))
         report, report_error = evaluate_run(tmp, streams, config, notes, metadata, timings, progress, plot_workers)
         export_run(tmp, config, metadata, report, timings, progress)
         note_compilation(prepared, notes, metadata)
-        write_json(tmp / "run.json", {**metadata, "timings_s": timings, "notes": notes,
-                                      "report": "report.json" if report else None, "report_error": report_error})
-    return RunSummary(out_dir=Path(out_dir), metadata=metadata, timings=timings, report=report, notes=notes,
-                      input_warnings=input_warnings)
+        write_json(
+            tmp / "run.json",
+            {
+                **metadata,
+                "timings_s": timings,
+                "notes": notes,
+                "report": "report.json" if report else None,
+                "report_error": report_error,
+            },
+        )
+    return RunSummary(
+        out_dir=Path(out_dir),
+        metadata=metadata,
+        timings=timings,
+        report=report,
+        notes=notes,
+        input_warnings=input_warnings,
+    )
 
 
-def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp: Path, metadata: dict,
-             notes: list[str], *, release: bool = False, progress: Progress = silent) -> dict[str, float]:
+def estimate(
+    prepared: PreparedLog,
+    config: RunConfig,
+    est: EstimatorInput,
+    tmp: Path,
+    metadata: dict,
+    notes: list[str],
+    *,
+    release: bool = False,
+    progress: Progress = silent,
+) -> dict[str, float]:
     """Run the estimator a stretch at a time, each stretch written to the tables in ``tmp`` while the next one is
     computed (in the output frame fixed from the first stretch); then the map. Adds to ``metadata`` and ``notes``;
     returns the stage timings."""
@@ -435,10 +556,18 @@ def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp:
             interrupts.check()
             _check_finite(part, log, spec.name, t0_ns)
             if frame is None:  # fixed from the first stretch, before anything is written
-                frame = output_frame.resolve(frame_choice, part, aligned=aligned, log=log, gravity=config.directions.gravity,
-                                             truth=truth_on_run_clock(streams, config), t_max_diff=config.evaluation.t_max_diff,
-                                             uses_directions=spec.min_directions > 0,
-                                             known_map=prepared.known_map is not None, notes=notes)
+                frame = output_frame.resolve(
+                    frame_choice,
+                    part,
+                    aligned=aligned,
+                    log=log,
+                    gravity=config.directions.gravity,
+                    truth=truth_on_run_clock(streams, config),
+                    t_max_diff=config.evaluation.t_max_diff,
+                    uses_directions=spec.min_directions > 0,
+                    known_map=prepared.known_map is not None,
+                    notes=notes,
+                )
                 metadata["output"]["frame"] = frame.describe()
                 writes = BackgroundWrites(partial(_write_stretch, sink, frame))
             # the map as it is now: the observer moves its live map on while this stretch is written
@@ -447,9 +576,16 @@ def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp:
             t = time.perf_counter()
         t_end = time.perf_counter()
         part = writes.finish()  # the last stretch, in the output frame
-        sink.write({"landmarks": landmark_table(part.landmark_ids, part.landmark_xyz,
-                                                np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
-                                                aligned.det_ids)})
+        sink.write(
+            {
+                "landmarks": landmark_table(
+                    part.landmark_ids,
+                    part.landmark_xyz,
+                    np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
+                    aligned.det_ids,
+                )
+            }
+        )
         metadata["counts"]["internal_steps"] = int(part.stats.get("substeps", 0))
         metadata["counts"]["capped_intervals"] = int(part.stats.get("capped_intervals", 0))
         notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
@@ -471,9 +607,16 @@ def estimate(prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp:
     return {"observer_s": observer_s, **stage_timings, "write_s": writes.busy_s + time.perf_counter() - t_end}
 
 
-def evaluate_run(out: Path, streams: LogStreams, config: RunConfig, notes: list[str], metadata: dict,
-                 timings: dict[str, float], progress: Progress = silent,
-                 plot_workers=None) -> tuple[dict | None, str | None]:
+def evaluate_run(
+    out: Path,
+    streams: LogStreams,
+    config: RunConfig,
+    notes: list[str],
+    metadata: dict,
+    timings: dict[str, float],
+    progress: Progress = silent,
+    plot_workers=None,
+) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
     alone where the log has landmark truth only; (report, why there is none)."""
     if streams.truth is not None and len(streams.truth):
@@ -496,12 +639,22 @@ def check_export(prepared: PreparedLog, config: RunConfig) -> None:
 
         times = [t for t in (aligned.vel_t_ns, aligned.det_t_ns) if t.size]
         if times:
-            check_stamps(min(int(t.min()) for t in times), max(int(t.max()) for t in times), prepared.log,
-                         " (leave mcap out of --export and output.export)")
+            check_stamps(
+                min(int(t.min()) for t in times),
+                max(int(t.max()) for t in times),
+                prepared.log,
+                " (leave mcap out of --export and output.export)",
+            )
 
 
-def export_run(out: Path, config: RunConfig, metadata: dict, report: dict | None, timings: dict[str, float],
-               progress: Progress = silent) -> None:
+def export_run(
+    out: Path,
+    config: RunConfig,
+    metadata: dict,
+    report: dict | None,
+    timings: dict[str, float],
+    progress: Progress = silent,
+) -> None:
     """The extra formats written inside the run (``output.export``): the results MCAP."""
     if "mcap" in config.output.export:
         from slamobs.pipeline.results_mcap import RESULTS_MCAP, write_results_mcap
@@ -517,8 +670,10 @@ def note_compilation(prepared: PreparedLog, notes: list[str], metadata: dict) ->
     compiled = compiled_since(prepared.compiled_from or compile_mark())
     prepared.compiled_from = compile_mark()
     if compiled.functions:
-        notes.append(f"first run: compiled {compiled.functions} numeric functions in {compiled.seconds:.1f} s "
-                     "(included in the times above; cached on disk, later runs load them)")
+        notes.append(
+            f"first run: compiled {compiled.functions} numeric functions in {compiled.seconds:.1f} s "
+            "(included in the times above; cached on disk, later runs load them)"
+        )
         from slamobs.pipeline.kernel_cache import prune
 
         prune()  # kernels of sources that changed since: a compiling run has time for it
@@ -539,13 +694,19 @@ def check_map_mode(spec, config: RunConfig, log: Path) -> None:
     correction cannot keep it fixed (pipeline.known_map); the reference estimators take no known map."""
     if config.map.file and not spec.takes_known_map:
         able = ", ".join(s.name for s in ESTIMATORS.values() if s.takes_known_map)
-        raise InputError(log, f"observer '{spec.name}' does not take a known map (map.file); run it without the map "
-                              f"section, or use an observer ({able})")
+        raise InputError(
+            log,
+            f"observer '{spec.name}' does not take a known map (map.file); run it without the map "
+            f"section, or use an observer ({able})",
+        )
     if config.map.file and config.map.mode == "fixed" and spec.min_directions > 0:
         able = ", ".join(s.name for s in ESTIMATORS.values() if s.takes_known_map and not s.min_directions)
-        raise InputError(log, f"map mode 'fixed' does not work with observer '{spec.name}': it rotates the whole map "
-                              "about the vehicle with its inertial-direction correction; use map.mode: prior, or an "
-                              f"observer without directions ({able})")
+        raise InputError(
+            log,
+            f"map mode 'fixed' does not work with observer '{spec.name}': it rotates the whole map "
+            "about the vehicle with its inertial-direction correction; use map.mode: prior, or an "
+            f"observer without directions ({able})",
+        )
 
 
 def _map_error(out: Path, landmark_truth: dict) -> dict | None:
@@ -577,8 +738,9 @@ def truth_on_run_clock(streams: LogStreams, config: RunConfig):
     return truth
 
 
-def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str],
-              metadata: dict, plot_workers=None) -> tuple[dict | None, str | None]:
+def _evaluate(
+    out: Path, streams: LogStreams, config: RunConfig, notes: list[str], metadata: dict, plot_workers=None
+) -> tuple[dict | None, str | None]:
     """Error report against the log's ground truth, and the reason when there is none.
 
     The observer's outputs are already complete: a report that cannot be made (truth that cannot be associated,
@@ -598,15 +760,24 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
         truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
-        options = ReportOptions(t_max_diff_s=config.evaluation.t_max_diff, convergence_threshold_m=config.evaluation.convergence_threshold,
-                                gravity_aligned=gravity_aligned(metadata))
+        options = ReportOptions(
+            t_max_diff_s=config.evaluation.t_max_diff,
+            convergence_threshold_m=config.evaluation.convergence_threshold,
+            gravity_aligned=gravity_aligned(metadata),
+        )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
         early = plot_workers if config.evaluation.plots and plot_workers is not None else None
-        report, evaluation = evaluate_tables(frames, truth, streams.landmark_truth, streams.bias_truth,
-                                             options=options, drawn_biases=drawn_biases,
-                                             figures=early.submit if early is not None else None)
+        report, evaluation = evaluate_tables(
+            frames,
+            truth,
+            streams.landmark_truth,
+            streams.bias_truth,
+            options=options,
+            drawn_biases=drawn_biases,
+            figures=early.submit if early is not None else None,
+        )
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
@@ -614,11 +785,23 @@ def _evaluate(out: Path, streams: LogStreams, config: RunConfig, notes: list[str
             report.setdefault("notes", []).append(
                 f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
                 "integrated across a gap and the pose was re-anchored to the map after it where a frame allowed "
-                "(run.json notes say where); errors just after a gap show how well that worked")
+                "(run.json notes say where); errors just after a gap show how well that worked"
+            )
             report["segments"] = segments
-        write_report(report, out, None, drawn_biases, landmarks, truth, streams.landmark_truth,
-                     evaluation=evaluation, plots=config.evaluation.plots, exports=config.output.export, metadata=metadata,
-                     plot_workers=plot_workers)
+        write_report(
+            report,
+            out,
+            None,
+            drawn_biases,
+            landmarks,
+            truth,
+            streams.landmark_truth,
+            evaluation=evaluation,
+            plots=config.evaluation.plots,
+            exports=config.output.export,
+            metadata=metadata,
+            plot_workers=plot_workers,
+        )
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands

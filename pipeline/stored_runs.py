@@ -47,8 +47,11 @@ def compacted_run_ids(path: Path) -> list[str]:
     except OSError as err:
         raise output_error(path, err, "cannot read") from None
     except (pa.ArrowException, ValueError) as err:
-        raise InputError(path, f"damaged compacted file ({' '.join(str(err).split())[:200]}): move it out of the "
-                               "dataset and run the batch again (the runs it held are run again)") from None
+        raise InputError(
+            path,
+            f"damaged compacted file ({' '.join(str(err).split())[:200]}): move it out of the "
+            "dataset and run the batch again (the runs it held are run again)",
+        ) from None
 
 
 def run_tables(path: Path) -> dict[str, pa.Table] | None:
@@ -64,8 +67,11 @@ def run_tables(path: Path) -> dict[str, pa.Table] | None:
         if part.is_file():
             data = pq.read_table(part)
         else:
-            pieces = [pq.read_table(f, filters=[("run_id", "=", rid)])
-                      for f in sorted((out / table).glob(f"{COMPACTED}*.parquet")) if rid in compacted_run_ids(f)]
+            pieces = [
+                pq.read_table(f, filters=[("run_id", "=", rid)])
+                for f in sorted((out / table).glob(f"{COMPACTED}*.parquet"))
+                if rid in compacted_run_ids(f)
+            ]
             if not pieces:
                 raise InputError(path, f"table {table} of run {rid} is missing from the dataset {out / table}")
             data = pa.concat_tables(pieces)

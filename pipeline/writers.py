@@ -59,8 +59,10 @@ LENGTH_STEP_EXP = -20
 
 def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     """Columns of every output table, named as in ``schemas/``."""
-    return {**stretch_tables(res),
-            "landmarks": landmark_table(res.landmark_ids, res.landmark_xyz, res.det_t_ns, res.det_ids)}
+    return {
+        **stretch_tables(res),
+        "landmarks": landmark_table(res.landmark_ids, res.landmark_xyz, res.det_t_ns, res.det_ids),
+    }
 
 
 class BackgroundWrites:
@@ -127,21 +129,38 @@ def stretch_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     """The tables with a row per sample or detection (all but ``landmarks``), of a whole run or a stretch."""
     q = rots_to_quats(np.ascontiguousarray(res.rotation)) if len(res.t_ns) else np.zeros((0, 4))
     return {
-        "poses": {"t_ns": res.t_ns, "x": res.position[:, 0], "y": res.position[:, 1], "z": res.position[:, 2],
-                  "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]},
-        "biases": {"t_ns": res.t_ns,
-                   **{f"gyro_bias_{a}": res.gyro_bias[:, i] for i, a in enumerate("xyz")},
-                   **{f"vel_bias_{a}": res.vel_bias[:, i] for i, a in enumerate("xyz")}},
-        "landmark_tracks": {"t_ns": res.det_t_ns, "id": res.det_ids,
-                            **{a: res.track_xyz[:, i] for i, a in enumerate("xyz")}},
-        "innovations": {"t_ns": res.det_t_ns, "id": res.det_ids,
-                        **{f"e{a}": res.innovation[:, i] for i, a in enumerate("xyz")},
-                        "e_norm": np.linalg.norm(res.innovation, axis=1)},
+        "poses": {
+            "t_ns": res.t_ns,
+            "x": res.position[:, 0],
+            "y": res.position[:, 1],
+            "z": res.position[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+        },
+        "biases": {
+            "t_ns": res.t_ns,
+            **{f"gyro_bias_{a}": res.gyro_bias[:, i] for i, a in enumerate("xyz")},
+            **{f"vel_bias_{a}": res.vel_bias[:, i] for i, a in enumerate("xyz")},
+        },
+        "landmark_tracks": {
+            "t_ns": res.det_t_ns,
+            "id": res.det_ids,
+            **{a: res.track_xyz[:, i] for i, a in enumerate("xyz")},
+        },
+        "innovations": {
+            "t_ns": res.det_t_ns,
+            "id": res.det_ids,
+            **{f"e{a}": res.innovation[:, i] for i, a in enumerate("xyz")},
+            "e_norm": np.linalg.norm(res.innovation, axis=1),
+        },
     }
 
 
-def landmark_table(landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns: np.ndarray,
-                   det_ids: np.ndarray) -> dict[str, np.ndarray]:
+def landmark_table(
+    landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns: np.ndarray, det_ids: np.ndarray
+) -> dict[str, np.ndarray]:
     """The final map: per landmark ever detected its position, first/last detection time and count."""
     ids, inv, n_obs = np.unique(det_ids, return_inverse=True, return_counts=True)
     first = np.full(ids.shape, np.iinfo(np.int64).max, dtype=np.int64)
@@ -149,8 +168,13 @@ def landmark_table(landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns:
     np.minimum.at(first, inv, det_t_ns)
     np.maximum.at(last, inv, det_t_ns)
     order = np.searchsorted(landmark_ids, ids)
-    return {"id": ids.astype(np.int64), **{a: landmark_xyz[order, i] for i, a in enumerate("xyz")},
-            "first_seen_ns": first, "last_seen_ns": last, "n_obs": n_obs.astype(np.int64)}
+    return {
+        "id": ids.astype(np.int64),
+        **{a: landmark_xyz[order, i] for i, a in enumerate("xyz")},
+        "first_seen_ns": first,
+        "last_seen_ns": last,
+        "n_obs": n_obs.astype(np.int64),
+    }
 
 
 def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> np.ndarray:
@@ -167,7 +191,11 @@ def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> 
     u = a.view(np.uint64)
     finite = np.isfinite(a)
     bits_in = u[finite]
-    if finest is not None and bits_in.size and int(np.max(bits_in & _EXPONENT) >> np.uint64(52)) - 1023 - finest <= bits:
+    if (
+        finest is not None
+        and bits_in.size
+        and int(np.max(bits_in & _EXPONENT) >> np.uint64(52)) - 1023 - finest <= bits
+    ):
         finest = None  # every value's step is fine enough at ``bits`` (a local frame): one shift for all
     if finest is None:
         drop = np.uint64(52 - bits)
@@ -217,8 +245,10 @@ class TableWriter:
             if name not in self.writers:
                 schema = arrow_schema(name)
                 path = self.out_dir / f"{name}.parquet"
-                self.writers[name] = (pq.ParquetWriter(path, schema, store_schema=False, **parquet_options(schema)),
-                                      schema)
+                self.writers[name] = (
+                    pq.ParquetWriter(path, schema, store_schema=False, **parquet_options(schema)),
+                    schema,
+                )
             writer, schema = self.writers[name]
             # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element
             arrays = [_arrow_array(self._values(columns[f.name], f), f.type) for f in schema]
@@ -237,8 +267,12 @@ class TableWriter:
             meta = dict(schema.metadata or {})
             meta[METADATA_KEY] = json.dumps(metadata, sort_keys=True).encode()
             final = schema.with_metadata(meta)
-            writer.add_key_value_metadata({**{k.decode(): v.decode() for k, v in meta.items()},
-                                           "ARROW:schema": base64.b64encode(final.serialize().to_pybytes()).decode()})
+            writer.add_key_value_metadata(
+                {
+                    **{k.decode(): v.decode() for k, v in meta.items()},
+                    "ARROW:schema": base64.b64encode(final.serialize().to_pybytes()).decode(),
+                }
+            )
             writer.close()
             written.append(self.out_dir / f"{name}.parquet")
         self.writers = {}
@@ -271,8 +305,9 @@ def write_result(out_dir: Path, res: ObserverResult, metadata: dict, float_bits:
     return write_tables(out_dir, {**result_tables(res), **res.extra_tables}, metadata, float_bits)
 
 
-def write_tables(out_dir: Path, tables: dict[str, dict[str, np.ndarray]], metadata: dict,
-                 float_bits: int = FLOAT_BITS) -> list[Path]:
+def write_tables(
+    out_dir: Path, tables: dict[str, dict[str, np.ndarray]], metadata: dict, float_bits: int = FLOAT_BITS
+) -> list[Path]:
     """Tables (``result_tables`` and extra ones) into ``out_dir`` as ``<name>.parquet``, in one stretch."""
     sink = TableWriter(out_dir, float_bits)
     sink.write(tables)
@@ -431,8 +466,9 @@ def place(new: Path, final: Path) -> None:
     os.unlink(new)
 
 
-def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: Path,
-            owned=lambda _old: None) -> Path | None:
+def publish(
+    new: Path, final: Path, expected: tuple[int, int] | None, *, aside: Path, owned=lambda _old: None
+) -> Path | None:
     """Put the complete output ``new`` (a file or directory) under ``final``, replacing only what the output
     check saw there: nothing (``expected`` None: the rename fails if something appeared meanwhile) or the entry
     of :func:`pipeline.paths.identity` ``expected`` that ``owned(path)`` still finds without a foreign entry
@@ -448,8 +484,11 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
         try:
             place(new, final)
         except FileExistsError:
-            raise OutputError(final, "appeared while this command was writing its output (another run, or a "
-                                     "user's file): it was left as it is and nothing was published") from None
+            raise OutputError(
+                final,
+                "appeared while this command was writing its output (another run, or a "
+                "user's file): it was left as it is and nothing was published",
+            ) from None
         return None
     try:
         if _exchange(new, final):
@@ -474,8 +513,11 @@ def publish(new: Path, final: Path, expected: tuple[int, int] | None, *, aside: 
         try:
             place(aside, final)
         except OSError:
-            err = OutputError(final, f"{problem}; it could not be put back (something else is there now) and is "
-                                     f"kept as {aside}; nothing was published")
+            err = OutputError(
+                final,
+                f"{problem}; it could not be put back (something else is there now) and is "
+                f"kept as {aside}; nothing was published",
+            )
             err.kept = aside  # the caller must not remove it
             raise err from None
     raise OutputError(final, f"{problem}: it was left as it is and nothing was published")
@@ -495,8 +537,10 @@ def write_manifest(directory: Path) -> None:
             rel = name if base == "." else f"{base}/{name}"
             if rel != MANIFEST:
                 files[rel] = os.lstat(os.path.join(root, name)).st_size
-    write_json(Path(directory) / MANIFEST, {"writer": WRITER, "version": __version__,
-                                            "files": dict(sorted(files.items())), "directories": sorted(dirs)})
+    write_json(
+        Path(directory) / MANIFEST,
+        {"writer": WRITER, "version": __version__, "files": dict(sorted(files.items())), "directories": sorted(dirs)},
+    )
 
 
 def update_manifest(directory: Path, written=(), removed=()) -> None:
@@ -707,8 +751,13 @@ def atomic_file(final: Path, *, why_kept=lambda _path: "exists already"):
         yield container / final.name
         interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
         with interrupts.critical():
-            publish(container / final.name, final, expected, aside=container / ".previous",
-                    owned=lambda p: None if (why := why_kept(p)) is None else (p.name, why))
+            publish(
+                container / final.name,
+                final,
+                expected,
+                aside=container / ".previous",
+                owned=lambda p: None if (why := why_kept(p)) is None else (p.name, why),
+            )
         interrupts.note_published(final)
     except OSError as err:
         raise output_error(final, err) from None

@@ -28,8 +28,12 @@ def arrow_schema(name: str):
 
     spec = table_spec(name)
     fields = [
-        pa.field(f["name"], getattr(pa, f["type"])(), nullable=False,
-                 metadata={"unit": f["unit"], "description": f["description"]})
+        pa.field(
+            f["name"],
+            getattr(pa, f["type"])(),
+            nullable=False,
+            metadata={"unit": f["unit"], "description": f["description"]},
+        )
         for f in spec["fields"]
     ]
     return pa.schema(fields, metadata={"description": spec["description"]})

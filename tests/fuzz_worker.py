@@ -33,8 +33,10 @@ def main() -> None:
         if (here / "out" / "run.json").is_file():
             notes = json.loads((here / "out" / "run.json").read_text())["notes"]
         os.chdir("/")
-        print(json.dumps({"code": res.exit_code, "stderr": res.stderr, "traceback": tb, "files": files,
-                          "notes": notes}), flush=True)
+        print(
+            json.dumps({"code": res.exit_code, "stderr": res.stderr, "traceback": tb, "files": files, "notes": notes}),
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -27,15 +27,18 @@ def _streams(**kw):
         angular_velocity=_vec("/imu", "imu", t_om, np.tile([0.0, 0.0, 0.5], (t_om.size, 1))),
         linear_velocity=_vec("/odom", "base_link", t_v, np.column_stack([t_v, np.zeros_like(t_v), np.ones_like(t_v)])),
         detections=DetectionStream(
-            "/fid", "camera",
-            t_ns=np.array([1.5, 0.5, 1.0]) .__mul__(NS).astype(np.int64) + 5 * NS,
+            "/fid",
+            "camera",
+            t_ns=np.array([1.5, 0.5, 1.0]).__mul__(NS).astype(np.int64) + 5 * NS,
             rec_ns=np.array([1.5, 0.5, 1.0]).__mul__(NS).astype(np.int64) + 5 * NS,
             offsets=np.array([0, 2, 3, 5]),
             ids=np.array([7, 3, 3, 9, 9]),
             xyz=np.arange(15, dtype=float).reshape(5, 3),
         ),
         static_tf=[
-            Transform("base_link", "camera", np.array([0.1, 0.0, -0.2]), rot_to_quat(so3_exp(np.array([0.0, 0.3, 0.0])))),
+            Transform(
+                "base_link", "camera", np.array([0.1, 0.0, -0.2]), rot_to_quat(so3_exp(np.array([0.0, 0.3, 0.0])))
+            ),
             Transform("base_link", "imu", np.zeros(3), rot_to_quat(so3_exp(np.array([0.0, 0.0, np.pi / 2])))),
         ],
     )
@@ -75,10 +78,16 @@ def test_lever_arm_of_odometry_frame():
     # v_body = v_frame - omega x t.
     tfs = [Transform("base_link", "odom_frame", np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))]
     s = _streams(static_tf=_streams().static_tf + tfs)
-    s.linear_velocity = Vec3Stream("/odom", "odom_frame", s.linear_velocity.t_ns, s.linear_velocity.rec_ns,
-                                   np.tile([0.0, 0.5, 0.0], (len(s.linear_velocity), 1)))
-    s.angular_velocity = Vec3Stream("/imu", "base_link", s.angular_velocity.t_ns, s.angular_velocity.rec_ns,
-                                    s.angular_velocity.xyz)
+    s.linear_velocity = Vec3Stream(
+        "/odom",
+        "odom_frame",
+        s.linear_velocity.t_ns,
+        s.linear_velocity.rec_ns,
+        np.tile([0.0, 0.5, 0.0], (len(s.linear_velocity), 1)),
+    )
+    s.angular_velocity = Vec3Stream(
+        "/imu", "base_link", s.angular_velocity.t_ns, s.angular_velocity.rec_ns, s.angular_velocity.xyz
+    )
     a = align(s, body_frame="base_link")
     assert np.allclose(a.velocity, 0.0, atol=1e-12)  # the point ahead moves only because the body turns
 
@@ -110,8 +119,13 @@ def test_missing_roles_and_disjoint_times_are_errors():
     with pytest.raises(InputError, match="landmark detections"):
         align(_streams(detections=None))
     late = _streams()
-    late.linear_velocity = Vec3Stream("/odom", "base_link", late.linear_velocity.t_ns + 100 * NS,
-                                      late.linear_velocity.rec_ns, late.linear_velocity.xyz)
+    late.linear_velocity = Vec3Stream(
+        "/odom",
+        "base_link",
+        late.linear_velocity.t_ns + 100 * NS,
+        late.linear_velocity.rec_ns,
+        late.linear_velocity.xyz,
+    )
     with pytest.raises(InputError, match="do not overlap"):
         align(late)
 
@@ -141,10 +155,14 @@ def test_assume_identity_applies_only_where_tf_has_no_transform(tmp_path):
     # the same through `slamobs run`: the warning lands in run.json, the estimate is the one TF gives
     log = write_log(sim, tmp_path / "flipped.mcap")
     ape = {}
-    for name, frames in (("tf", {}), ("listed", {"assume_identity": ["imu_link"]}),
-                         ("forced", {"override_identity": ["imu_link"]})):
-        summary = run_log(log, tmp_path / name, config={"observer": "hashim", "frames": frames,
-                                                         "evaluation": {"plots": False}})
+    for name, frames in (
+        ("tf", {}),
+        ("listed", {"assume_identity": ["imu_link"]}),
+        ("forced", {"override_identity": ["imu_link"]}),
+    ):
+        summary = run_log(
+            log, tmp_path / name, config={"observer": "hashim", "frames": frames, "evaluation": {"plots": False}}
+        )
         ape[name] = summary.report["ape"]["translation_m"]["rmse"]
         notes = json.loads((tmp_path / name / "run.json").read_text())["notes"]
         assert any(n.startswith("warning: frames.") for n in notes) == (name != "tf")

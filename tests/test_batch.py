@@ -67,8 +67,14 @@ def _copy(out: Path, tmp_path: Path) -> Path:
 
 
 def _fake_tree(root: Path) -> None:
-    for f in ("x/one.bag", "x/y/two.mcap", "x/notes.txt", "x/.hidden/three.mcap", "x/docs/readme.txt",
-              "x/crashed/rec_0.db3"):  # a rosbag2 recording that never wrote its metadata.yaml
+    for f in (
+        "x/one.bag",
+        "x/y/two.mcap",
+        "x/notes.txt",
+        "x/.hidden/three.mcap",
+        "x/docs/readme.txt",
+        "x/crashed/rec_0.db3",
+    ):  # a rosbag2 recording that never wrote its metadata.yaml
         (root / f).parent.mkdir(parents=True, exist_ok=True)
         (root / f).write_bytes(b"data")
     ros2 = root / "x" / "y" / "r2"
@@ -93,23 +99,30 @@ def test_discover_manifests_resolve_relative_paths(tmp_path):
     (tmp_path / "x" / "cfg.yaml").write_text("observer: fast-adaptation\n")
     csv = tmp_path / "x" / "list.csv"
     csv.write_text("log,config\none.bag,cfg.yaml\n# comment\ny/two.mcap,\n")
-    assert discover([csv]) == [LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml"),
-                               LogEntry(tmp_path / "x" / "y" / "two.mcap", None)]
+    assert discover([csv]) == [
+        LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml"),
+        LogEntry(tmp_path / "x" / "y" / "two.mcap", None),
+    ]
     yml = tmp_path / "x" / "list.yaml"
     yml.write_text("logs:\n  - y/r2\n  - {log: one.bag, config: cfg.yaml}\n")
-    assert discover([yml]) == [LogEntry(tmp_path / "x" / "y" / "r2", None),
-                               LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml")]
+    assert discover([yml]) == [
+        LogEntry(tmp_path / "x" / "y" / "r2", None),
+        LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml"),
+    ]
     headerless = tmp_path / "x" / "plain.csv"
     headerless.write_text("missing.bag\n")  # not checked here: it becomes a failed run, not a batch error
     assert discover([headerless]) == [LogEntry(tmp_path / "x" / "missing.bag", None)]
 
 
-@pytest.mark.parametrize("make,problem", [
-    (lambda d: [d / "nope.bag"], "no such file"),
-    (lambda d: [f"{d}/*.zzz"], "matches nothing"),
-    (lambda d: [d / "x" / "notes.txt"], "not a log"),
-    (lambda d: [d / "x" / "docs"], "no logs found"),
-])
+@pytest.mark.parametrize(
+    "make,problem",
+    [
+        (lambda d: [d / "nope.bag"], "no such file"),
+        (lambda d: [f"{d}/*.zzz"], "matches nothing"),
+        (lambda d: [d / "x" / "notes.txt"], "not a log"),
+        (lambda d: [d / "x" / "docs"], "no logs found"),
+    ],
+)
 def test_discover_errors(tmp_path, make, problem):
     _fake_tree(tmp_path)
     with pytest.raises(InputError, match=problem):
@@ -122,7 +135,11 @@ def test_run_id_is_readable_and_from_content_and_config():
     key = run_key("v1:abc", config_hash(RunConfig()))
     assert run_id_for(Path("/a/flight 1.mcap"), key) == f"flight_1-{key}"
     assert run_id_for(Path("/elsewhere/f8_ros2"), key) == f"f8_ros2-{key}"
-    assert run_key("v1:abc", config_hash(RunConfig(observer="hashim"))) != key != run_key("v1:abd", config_hash(RunConfig()))
+    assert (
+        run_key("v1:abc", config_hash(RunConfig(observer="hashim")))
+        != key
+        != run_key("v1:abd", config_hash(RunConfig()))
+    )
 
 
 def test_content_hash_ignores_mtime_and_location_but_sees_changes(tmp_path):
@@ -138,7 +155,7 @@ def test_content_hash_ignores_mtime_and_location_but_sees_changes(tmp_path):
     assert content_hash(a) != content_hash(b)
     # documented limit: a same-size edit in the middle of a big file is not seen (--force re-runs)
     mid = len(data) // 2
-    b.write_bytes(data[:mid] + bytes([data[mid] ^ 1]) + data[mid + 1:])
+    b.write_bytes(data[:mid] + bytes([data[mid] ^ 1]) + data[mid + 1 :])
     assert content_hash(a) == content_hash(b)
 
 
@@ -193,8 +210,9 @@ def test_dataset_reads_in_pandas_duckdb_and_polars(done):
 
     _, out = done
     ok = pd.read_parquet(out / "summary.parquet").query("status == 'ok'")
-    per_run = {rid: json.loads((out / "runs" / rid / "batch.json").read_text())["tables"]["poses"]
-               for rid in ok["run_id"]}
+    per_run = {
+        rid: json.loads((out / "runs" / rid / "batch.json").read_text())["tables"]["poses"] for rid in ok["run_id"]
+    }
     for table in TABLES:
         df = pd.read_parquet(out / table)
         assert set(df["run_id"].astype(str)) == set(per_run)
@@ -305,7 +323,9 @@ def crash_on_circle(task: Task) -> dict:
 def test_a_log_that_kills_its_worker_fails_alone(tmp_path):
     from slamobs.pipeline.batch.local import LocalPool
 
-    tasks = [Task.make(f"{name}-0", str(tmp_path / name), str(tmp_path), RunConfig()) for name in ("f8", "circle", "r2")]
+    tasks = [
+        Task.make(f"{name}-0", str(tmp_path / name), str(tmp_path), RunConfig()) for name in ("f8", "circle", "r2")
+    ]
     rows = {r["run_id"]: r for _, r in LocalPool(2, run=crash_on_circle).results(tasks)}
     assert len(rows) == 3
     assert rows["circle-0"]["status"] == "failed"
@@ -327,11 +347,14 @@ def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_p
     assert rows["circle.mcap"]["config_file"] == str(tmp_path / "bad_gains.yaml")
 
 
-@pytest.mark.parametrize("args,message", [
-    (["nowhere/*.mcap"], "matches nothing"),
-    (["{data}", "--observer", "nope"], "unknown observer"),
-    (["{data}", "--executor", "local", "--scheduler", "tcp://127.0.0.1:1"], "cannot be combined"),
-])
+@pytest.mark.parametrize(
+    "args,message",
+    [
+        (["nowhere/*.mcap"], "matches nothing"),
+        (["{data}", "--observer", "nope"], "unknown observer"),
+        (["{data}", "--executor", "local", "--scheduler", "tcp://127.0.0.1:1"], "cannot be combined"),
+    ],
+)
 def test_bad_arguments_exit_2_with_one_line(logs, tmp_path, args, message):
     res = invoke(*[a.format(data=logs["data"]) for a in args], "-o", tmp_path / "OUT")
     assert res.exit_code == 2
@@ -342,7 +365,8 @@ def test_dask_missing_is_one_line(logs, tmp_path, monkeypatch):
     monkeypatch.setattr("slamobs.pipeline.batch.runner.dask_available", lambda: False)
     res = invoke(logs["circle"], "-o", tmp_path / "OUT", "--executor", "dask")
     assert res.exit_code == 2 and res.output.strip() == (
-        "error: --executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")")
+        "error: --executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")"
+    )
 
 
 # --- Dask ---------------------------------------------------------------------------------------------------
@@ -391,8 +415,10 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
         raise ValueError("diverged")
 
     (tmp_path / "stage").mkdir()
-    task = replace(Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()),
-                   staged=str(tmp_path / "stage" / "x"))
+    task = replace(
+        Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()),
+        staged=str(tmp_path / "stage" / "x"),
+    )
     row = run_task(task, pipeline=noisy_pipeline)
     assert row["status"] == "failed" and row["error"] == f"{tmp_path / 'x.mcap'}: ValueError: diverged"
     assert row["warnings"].startswith("RuntimeWarning: overflow encountered") and row["warning_count"] == 1
@@ -403,8 +429,9 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
 def test_manifest_not_utf8_is_one_line(tmp_path):
     manifest = tmp_path / "m.csv"
     manifest.write_bytes(b"log,config\n\xff\xfe,ok.yaml\n")
-    with pytest.raises(InputError, match=r"not UTF-8 text \(byte 0xff at offset 11\): save the manifest as UTF-8") \
-            as err:
+    with pytest.raises(
+        InputError, match=r"not UTF-8 text \(byte 0xff at offset 11\): save the manifest as UTF-8"
+    ) as err:
         discover([manifest])
     assert err.value.path == str(manifest) and "\n" not in str(err.value)
     res = invoke(manifest, "-o", tmp_path / "OUT", "-j", 1)
@@ -417,8 +444,10 @@ def test_manifest_saved_by_excel_with_bom_and_crlf(tmp_path):
     (tmp_path / "x" / "cfg.yaml").write_text("observer: fast-adaptation\n")
     csv = tmp_path / "x" / "excel.csv"
     csv.write_bytes(b"\xef\xbb\xbflog,config\r\none.bag,cfg.yaml\r\ny/two.mcap,\r\n")
-    assert discover([csv]) == [LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml"),
-                               LogEntry(tmp_path / "x" / "y" / "two.mcap", None)]
+    assert discover([csv]) == [
+        LogEntry(tmp_path / "x" / "one.bag", tmp_path / "x" / "cfg.yaml"),
+        LogEntry(tmp_path / "x" / "y" / "two.mcap", None),
+    ]
     yml = tmp_path / "x" / "excel.yaml"
     yml.write_bytes(b"\xef\xbb\xbf- y/r2\r\n")
     assert discover([yml]) == [LogEntry(tmp_path / "x" / "y" / "r2", None)]

@@ -47,8 +47,9 @@ def full_disk_pipeline(log: Path, out_dir: Path, config):
 def test_a_full_disk_is_a_machine_failure_never_recorded_as_a_failed_log(tmp_path):
     make_logs(tmp_path / "in", ["a.mcap", "b.mcap", "c.mcap", "d.mcap"])
     out = tmp_path / "OUT"
-    res = run_batch(discover([tmp_path / "in"]), BatchOptions(out=out, jobs=2),
-                    run=partial(run_task, pipeline=full_disk_pipeline))
+    res = run_batch(
+        discover([tmp_path / "in"]), BatchOptions(out=out, jobs=2), run=partial(run_task, pipeline=full_disk_pipeline)
+    )
     assert [r["status"] for r in res.rows] == ["failed"] * 4
     assert all("No space left on device" in r["error"] and r["retry"] == "machine" for r in res.rows), res.rows
     assert res.exit_code == 3 and len(res.machine_failures) == 4
@@ -76,8 +77,9 @@ def test_a_log_replaced_while_it_runs_is_not_stored_under_the_old_contents_run_i
     shutil.copy2(tmp_path / "in" / "f8.mcap", original)  # an untouched copy of the original content
     shutil.copy2(tmp_path / "other" / "new.mcap", tmp_path / "in" / ".replacement")
     out = tmp_path / "OUT"
-    res = run_batch(discover([tmp_path / "in"]), BatchOptions(out=out, jobs=1),
-                    run=partial(run_task, pipeline=swapping_pipeline))
+    res = run_batch(
+        discover([tmp_path / "in"]), BatchOptions(out=out, jobs=1), run=partial(run_task, pipeline=swapping_pipeline)
+    )
     rows = {Path(r["log"]).name: r for r in res.rows}
     assert rows["keep.mcap"]["status"] == "ok"
     f8 = rows["f8.mcap"]
@@ -114,13 +116,18 @@ def test_a_file_name_that_is_not_utf8_is_one_failed_row_never_a_crash(tmp_path):
     res = batch([tmp_path / "d"], out)
     rows = {r["status"]: r for r in res.rows}
     assert rows["ok"]["log"].endswith("good.mcap")
-    assert rows["failed"]["error"] == (f"{tmp_path / 'd'}/b\\xffd.mcap: the file name is not UTF-8 (byte 0xff): "
-                                       "rename it to run this log")
+    assert rows["failed"]["error"] == (
+        f"{tmp_path / 'd'}/b\\xffd.mcap: the file name is not UTF-8 (byte 0xff): rename it to run this log"
+    )
     assert res.exit_code == 1 and list(read_summary(out)) == [rows["ok"]["run_id"]]
 
     # the command: one line for that file, the rest of the batch runs (it aborted with a traceback)
-    done = subprocess.run([*CLI, "batch", os.fsencode(tmp_path / "d"), "-o", tmp_path / "OUT2", "-j", "1"],
-                          capture_output=True, timeout=300, check=False)
+    done = subprocess.run(
+        [*CLI, "batch", os.fsencode(tmp_path / "d"), "-o", tmp_path / "OUT2", "-j", "1"],
+        capture_output=True,
+        timeout=300,
+        check=False,
+    )
     err = done.stderr.decode(errors="replace")
     assert "Traceback" not in err and done.returncode == 1, err
     assert "b\\xffd.mcap: the file name is not UTF-8" in err
@@ -139,10 +146,13 @@ def test_a_damaged_compacted_file_is_named_in_one_line_and_its_runs_run_again(tm
     assert err.value.path == str(damaged)
     for args in (["batch", "compact", out], ["batch", tmp_path / "in", "-o", out]):
         done = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=300, check=False)
-        assert done.returncode == 2 and done.stderr.splitlines() == [(
-            f"error: {damaged}: damaged compacted file (Parquet magic bytes not found in footer. Either the file is "
-            "corrupted or this is not a parquet file.): move it out of the dataset and run the batch again (the runs "
-            "it held are run again)")], done.stderr
+        assert done.returncode == 2 and done.stderr.splitlines() == [
+            (
+                f"error: {damaged}: damaged compacted file (Parquet magic bytes not found in footer. Either the "
+                "file is corrupted or this is not a parquet file.): move it out of the dataset and run the batch "
+                "again (the runs it held are run again)"
+            )
+        ], done.stderr
 
     damaged.rename(tmp_path / "damaged.parquet")  # as the message says
     res = batch([tmp_path / "in"], out)
@@ -208,8 +218,9 @@ def test_a_stopped_dask_worker_times_out_and_its_queued_logs_go_to_another(tmp_p
 
     make_logs(tmp_path / "in", ["a_stop.mcap", "b.mcap", "c.mcap", "d.mcap"])
     pid_file, out = tmp_path / "worker.pid", tmp_path / "OUT"
-    code = DASK_BATCH.format(tests=str(Path(__file__).parent), logs=str(tmp_path / "in"), out=str(out),
-                             pid=str(pid_file))
+    code = DASK_BATCH.format(
+        tests=str(Path(__file__).parent), logs=str(tmp_path / "in"), out=str(out), pid=str(pid_file)
+    )
     stdout, stderr = tmp_path / "stdout", tmp_path / "stderr"  # files: a full pipe would block the workers' logging
     with open(stdout, "w") as out_fh, open(stderr, "w") as err_fh:
         proc = subprocess.Popen([sys.executable, "-c", code], stdout=out_fh, stderr=err_fh)

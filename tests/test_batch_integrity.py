@@ -44,14 +44,22 @@ def fake_pipeline(log: Path, out_dir: Path, config):
         raise ValueError("cannot decode")
     n = 20 + data[0] % 17
     rng = np.random.default_rng(int.from_bytes(data[:4], "little"))
-    tables = {name: {f.name: (np.arange(n, dtype=np.int64) * 5_000_000 if f.name == "t_ns" else rng.normal(size=n))
-                     for f in arrow_schema(name)} for name in TABLES}
-    meta = {"counts": {"velocity_samples": n, "detection_frames": 0, "detections": 0, "landmarks": 0,
-                       "internal_steps": n}}
+    tables = {
+        name: {
+            f.name: (np.arange(n, dtype=np.int64) * 5_000_000 if f.name == "t_ns" else rng.normal(size=n))
+            for f in arrow_schema(name)
+        }
+        for name in TABLES
+    }
+    meta = {
+        "counts": {"velocity_samples": n, "detection_frames": 0, "detections": 0, "landmarks": 0, "internal_steps": n}
+    }
     with atomic_directory(out_dir) as tmp:
         write_tables(tmp, tables, meta)
         write_json(tmp / "run.json", meta)
-    warnings = [f"{log}: incomplete (truncated): recovered {n} messages"] if Path(log).name.startswith("salvaged") else []
+    warnings = (
+        [f"{log}: incomplete (truncated): recovered {n} messages"] if Path(log).name.startswith("salvaged") else []
+    )
     summary = SimpleNamespace(metadata=meta, timings={"read_s": 0.001}, headline=dict)  # a RunSummary's fields
     return summary, warnings
 
@@ -190,7 +198,13 @@ def test_truncated_real_log_is_salvaged_with_a_warning(tmp_path):
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(log.read_bytes()[: log.stat().st_size * 2 // 3])
     (tmp_path / "stage").mkdir()
-    task = Task.make("cut-0", str(cut), str(tmp_path), RunConfig(evaluation=EvaluationConfig(plots=False)), staged=str(tmp_path / "stage" / "cut-0"))
+    task = Task.make(
+        "cut-0",
+        str(cut),
+        str(tmp_path),
+        RunConfig(evaluation=EvaluationConfig(plots=False)),
+        staged=str(tmp_path / "stage" / "cut-0"),
+    )
     row = run_task(task)
     assert row["status"] == "ok" and row["warning_count"] >= 1
     assert "incomplete" in row["warnings"] and "recovered" in row["warnings"]
@@ -206,8 +220,15 @@ def _stage(out: Path, log: Path, rid: str) -> tuple[Path, dict]:
     from slamobs.pipeline.batch import content_hash
     from slamobs.pipeline.batch.runner import config_hash
 
-    task = Task.make(rid, str(log), str(out), RunConfig(), staged=str(staged), content_hash=content_hash(log),
-                     config_hash=config_hash(RunConfig()))
+    task = Task.make(
+        rid,
+        str(log),
+        str(out),
+        RunConfig(),
+        staged=str(staged),
+        content_hash=content_hash(log),
+        config_hash=config_hash(RunConfig()),
+    )
     return staged, FAKE(task)
 
 
@@ -368,17 +389,21 @@ def test_fifo_and_symlink_loop_are_one_line_failures_never_a_hang(tmp_path):
     for name, problem in (("pipe.mcap", "a FIFO"), ("loop_a.mcap", "symbolic link loop")):
         done = subprocess.run([*cmd, str(tmp_path / "in" / name)], capture_output=True, text=True, timeout=120)
         assert done.returncode == 2 and done.stderr.strip().splitlines() == [
-            f"error: {tmp_path / 'in' / name}: input: {problem}" + (", not a log file or directory" if name == "pipe.mcap" else "")]
+            f"error: {tmp_path / 'in' / name}: input: {problem}"
+            + (", not a log file or directory" if name == "pipe.mcap" else "")
+        ]
 
 
 def test_a_dask_task_whose_batch_is_gone_ends_its_worker_process(tmp_path):
     """The lease watchdog of a Dask task (in a child process: it ends the process it runs in)."""
     lease = tmp_path / "LEASE"
     lease.touch()
-    code = ("import sys, time, threading; import slamobs.pipeline.batch.executor as ex; "
-            "ex.LEASE_STALE_S, ex.LEASE_POLL_S = 1.0, 0.1; "
-            f"ex._watch_lease(__import__('pathlib').Path({str(lease)!r}), threading.Event()); "
-            "print('watching', flush=True); time.sleep(120)")
+    code = (
+        "import sys, time, threading; import slamobs.pipeline.batch.executor as ex; "
+        "ex.LEASE_STALE_S, ex.LEASE_POLL_S = 1.0, 0.1; "
+        f"ex._watch_lease(__import__('pathlib').Path({str(lease)!r}), threading.Event()); "
+        "print('watching', flush=True); time.sleep(120)"
+    )
     child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "watching"
@@ -402,8 +427,11 @@ def test_dask_timeout_fails_the_log_and_restarts_its_worker(tmp_path):
     make_logs(tmp_path / "in", ["a_slow.mcap", "b_fine.mcap"])  # submitted in this order to the one worker
     # a 10 s timeout: the fine log runs on a freshly restarted worker, which took over 3 s under load (-n 2)
     out = tmp_path / "OUT"
-    res = run_batch(discover([tmp_path / "in"]), BatchOptions(out=out, jobs=1, executor="dask", timeout=10.0),
-                    run=partial(run_task, pipeline=sleepy_pipeline))
+    res = run_batch(
+        discover([tmp_path / "in"]),
+        BatchOptions(out=out, jobs=1, executor="dask", timeout=10.0),
+        run=partial(run_task, pipeline=sleepy_pipeline),
+    )
     rows = {Path(r["log"]).name: r for r in res.rows}
     slow = rows["a_slow.mcap"]
     assert slow["status"] == "failed" and "timed out after 10 s (Dask worker tcp://" in slow["error"]

@@ -50,8 +50,9 @@ def _batch_args(logs, out: Path, *extra) -> list:
 
 
 def _rerun_and_check(logs, out: Path) -> None:
-    done = subprocess.run([*CLI, *map(str, _batch_args(logs, out, "-j", 1))], capture_output=True, text=True,
-                          timeout=300)
+    done = subprocess.run(
+        [*CLI, *map(str, _batch_args(logs, out, "-j", 1))], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     rows = assert_consistent(out)
     assert sorted(r["status"] for r in rows.values()) == ["ok"] * N_LOGS
@@ -69,12 +70,16 @@ def _started(out: Path) -> list[dict]:
     return found
 
 
-@pytest.mark.parametrize("target,sig", [
-    ("parent", signal.SIGKILL),
-    ("parent", signal.SIGTERM),
-    ("parent", signal.SIGINT),  # sent to the process group, as a terminal's Ctrl-C is
-    ("worker", signal.SIGKILL),
-], ids=["parent-SIGKILL", "parent-SIGTERM", "group-SIGINT", "worker-SIGKILL"])
+@pytest.mark.parametrize(
+    "target,sig",
+    [
+        ("parent", signal.SIGKILL),
+        ("parent", signal.SIGTERM),
+        ("parent", signal.SIGINT),  # sent to the process group, as a terminal's Ctrl-C is
+        ("worker", signal.SIGKILL),
+    ],
+    ids=["parent-SIGKILL", "parent-SIGTERM", "group-SIGINT", "worker-SIGKILL"],
+)
 def test_killed_batch_leaves_no_process_and_resumes_consistently(logs, tmp_path, target, sig):
     """The signal lands while a worker runs a log (its ``started.json`` is there), never after a guessed delay:
     the batch of 4 short logs is over in about a second, a sleep of a few seconds signalled a finished batch."""
@@ -114,8 +119,12 @@ def _moved_logs_are_not_run_again(logs, out: Path, tmp_path: Path) -> None:
     moved.mkdir()
     for p in base.glob("*.mcap"):
         os.link(p, moved / p.name.replace("k", "flight_"))  # same content, new place and name
-    done = subprocess.run([*CLI, *map(str, ["batch", moved, "-o", out, "--config", cfg, "--json"])],
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        [*CLI, *map(str, ["batch", moved, "-o", out, "--config", cfg, "--json"])],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     events = [json.loads(x) for x in done.stdout.splitlines()]
     assert [e["status"] for e in events[:-1]] == ["skipped"] * N_LOGS
@@ -126,7 +135,7 @@ def _moved_logs_are_not_run_again(logs, out: Path, tmp_path: Path) -> None:
 
 DASK = Path(sys.executable).with_name("dask")
 # A worker environment without slamobs, made without a second venv: `import slamobs` fails in that process.
-NO_SLAMOBS = '''
+NO_SLAMOBS = """
 import sys
 class _NoSlamobs:
     def find_spec(self, name, path=None, target=None):
@@ -134,13 +143,18 @@ class _NoSlamobs:
             raise ModuleNotFoundError(f"No module named {name!r}", name=name)
         return None
 sys.meta_path.insert(0, _NoSlamobs())
-'''
+"""
 
 
 def _spawn(args: list, log: Path, env: dict | None = None) -> subprocess.Popen:
     with open(log, "w") as fh:
-        return subprocess.Popen([str(a) for a in args], stdout=fh, stderr=subprocess.STDOUT, start_new_session=True,
-                                env={**os.environ, **(env or {})})
+        return subprocess.Popen(
+            [str(a) for a in args],
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env={**os.environ, **(env or {})},
+        )
 
 
 def _stop(*procs: subprocess.Popen) -> None:
@@ -156,8 +170,21 @@ def scheduler(tmp_path):
     if not DASK.is_file():
         pytest.skip("no dask command next to the interpreter")
     info = tmp_path / "scheduler.json"
-    proc = _spawn([DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", info,
-                   "--dashboard-address", ":0"], tmp_path / "scheduler.log")
+    proc = _spawn(
+        [
+            DASK,
+            "scheduler",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            "0",
+            "--scheduler-file",
+            info,
+            "--dashboard-address",
+            ":0",
+        ],
+        tmp_path / "scheduler.log",
+    )
     try:
         assert wait_for(info.is_file, 60), (tmp_path / "scheduler.log").read_text()
         time.sleep(0.2)
@@ -167,8 +194,22 @@ def scheduler(tmp_path):
 
 
 def _worker(address: str, tmp_path: Path, name: str, env: dict | None = None) -> subprocess.Popen:
-    return _spawn([DASK, "worker", address, "--nthreads", "1", "--no-dashboard", "--name", name,
-                   "--local-directory", tmp_path / name], tmp_path / f"{name}.log", env)
+    return _spawn(
+        [
+            DASK,
+            "worker",
+            address,
+            "--nthreads",
+            "1",
+            "--no-dashboard",
+            "--name",
+            name,
+            "--local-directory",
+            tmp_path / name,
+        ],
+        tmp_path / f"{name}.log",
+        env,
+    )
 
 
 def test_dask_without_usable_workers_exits_3_with_one_line(logs, tmp_path, scheduler):
@@ -176,7 +217,8 @@ def test_dask_without_usable_workers_exits_3_with_one_line(logs, tmp_path, sched
     args = [*CLI, *map(str, _batch_args(logs, tmp_path / "OUT", "--scheduler", address))]
     done = subprocess.run([*args, "--wait-workers", "2"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 3 and done.stderr.strip().splitlines()[-1] == (
-        f"error: {address}: no Dask workers after 2 s (--wait-workers)")
+        f"error: {address}: no Dask workers after 2 s (--wait-workers)"
+    )
 
     site = tmp_path / "no_slamobs"
     site.mkdir()

@@ -43,9 +43,11 @@ def test_help_spells_options_one_way_and_names_nothing_internal():
 def test_every_two_word_option_takes_the_underscore_spelling(tmp_path):
     missing = tmp_path / "missing.mcap"
     (tmp_path / "msgs").mkdir()
-    for args in (("batch", "--wait_workers", "1", "--skip_failed", "--no_compact", missing, "-o", tmp_path / "b"),
-                 ("tune", missing, "--observer", "fast-adaptation", "-o", tmp_path / "t", "--wait_workers", "1"),
-                 ("run", missing, "-o", tmp_path / "r", "--msg_dir", tmp_path / "msgs")):
+    for args in (
+        ("batch", "--wait_workers", "1", "--skip_failed", "--no_compact", missing, "-o", tmp_path / "b"),
+        ("tune", missing, "--observer", "fast-adaptation", "-o", tmp_path / "t", "--wait_workers", "1"),
+        ("run", missing, "-o", tmp_path / "r", "--msg_dir", tmp_path / "msgs"),
+    ):
         res = invoke(*args)
         assert "No such option" not in res.output and "missing.mcap" in res.output, (args, res.output)
 

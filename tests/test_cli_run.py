@@ -24,8 +24,9 @@ def generated(tmp_path_factory):
     """A short noisy figure-8 (landmarks come and go) in all three containers, unseen by any tuning."""
     base = tmp_path_factory.mktemp("logs")
     sim = simulate("figure8", duration=20.0, seed=7, imu_rate=200.0)
-    return {c: write_log(sim, base / name, c) for c, name in
-            (("bag", "f8.bag"), ("mcap", "f8.mcap"), ("ros2", "f8_ros2"))}
+    return {
+        c: write_log(sim, base / name, c) for c, name in (("bag", "f8.bag"), ("mcap", "f8.mcap"), ("ros2", "f8_ros2"))
+    }
 
 
 def _check_run(out: Path) -> dict:
@@ -62,8 +63,9 @@ def test_containers_give_identical_results(generated, tmp_path):
     pd.testing.assert_frame_equal(poses[0], poses[2])
 
 
-@pytest.mark.parametrize("log,ape_max,lm_max", [("circle.bag", 0.05, 0.05), ("circle_ros2", 0.05, 0.05),
-                                                ("figure8.mcap", 0.1, 0.1)])
+@pytest.mark.parametrize(
+    "log,ape_max,lm_max", [("circle.bag", 0.05, 0.05), ("circle_ros2", 0.05, 0.05), ("figure8.mcap", 0.1, 0.1)]
+)
 def test_run_on_every_sample_log(tmp_path, log, ape_max, lm_max):
     out = tmp_path / "out"
     res = invoke("run", SAMPLES / log, "-o", out)
@@ -88,8 +90,11 @@ def test_output_rate_and_config(generated, tmp_path):
     assert json.loads((out / "run.json").read_text())["observer"]["gains"]["k_w"] == 2.0
     # default output precision: low mantissa bits cleared (stated in run.json); float_bits: 52 keeps them
     meta = json.loads((out / "run.json").read_text())
-    assert {k: meta["output"][k] for k in ("rate_hz", "float_bits", "export")} == {"rate_hz": 20, "float_bits": 28,
-                                                                                 "export": []}
+    assert {k: meta["output"][k] for k in ("rate_hz", "float_bits", "export")} == {
+        "rate_hz": 20,
+        "float_bits": 28,
+        "export": [],
+    }
     assert meta["output"]["frame"]["name"] == "start"  # fast-adaptation's default output frame
     low = poses["x"].to_numpy().view(np.uint64) & np.uint64((1 << 24) - 1)
     assert not low.any()
@@ -156,8 +161,16 @@ def test_log_without_detections(tmp_path):
 
     sim = simulate("circle", duration=3.0, seed=1)
     d = sim.detections
-    empty = replace(d, offsets=np.zeros_like(d.offsets), ids=d.ids[:0], xyz=d.xyz[:0], quat_xyzw=d.quat_xyzw[:0],
-                    image_error=d.image_error[:0], object_error=d.object_error[:0], area=d.area[:0])
+    empty = replace(
+        d,
+        offsets=np.zeros_like(d.offsets),
+        ids=d.ids[:0],
+        xyz=d.xyz[:0],
+        quat_xyzw=d.quat_xyzw[:0],
+        image_error=d.image_error[:0],
+        object_error=d.object_error[:0],
+        area=d.area[:0],
+    )
     log = write_log(replace(sim, detections=empty), tmp_path / "nodet.bag")
     out = tmp_path / "out"
     _assert_clean_failure(invoke("run", log, "-o", out), out, "nodet.bag")
@@ -233,18 +246,22 @@ def test_console_script_skips_the_teardown_only_when_nothing_is_left_running():
     import subprocess
     import sys
 
-    code = ("import atexit, sys, threading, time; atexit.register(print, 'teardown'); {extra}"
-            "from slamobs.cli.main import entry; sys.argv = ['slamobs'] + sys.argv[1:]; entry()")
+    code = (
+        "import atexit, sys, threading, time; atexit.register(print, 'teardown'); {extra}"
+        "from slamobs.cli.main import entry; sys.argv = ['slamobs'] + sys.argv[1:]; entry()"
+    )
     done = subprocess.run([sys.executable, "-c", code.format(extra=""), "observers"], capture_output=True, text=True)
     assert done.returncode == 0 and "fast-adaptation" in done.stdout and "teardown" not in done.stdout
     assert done.stdout.rstrip().endswith("slamobs repository.")  # everything flushed
-    bad = subprocess.run([sys.executable, "-c", code.format(extra=""), "run", "no-such.mcap", "-o", "x"],
-                         capture_output=True, text=True)
+    bad = subprocess.run(
+        [sys.executable, "-c", code.format(extra=""), "run", "no-such.mcap", "-o", "x"], capture_output=True, text=True
+    )
     assert bad.returncode == 2 and "teardown" not in bad.stdout and bad.stderr.startswith("error: ")
     # a thread alive until the main thread has finished, however long the command takes on a loaded machine
     waiting = "threading.Thread(target=lambda: (threading.main_thread().join(), time.sleep(0.1))).start(); "
-    busy = subprocess.run([sys.executable, "-c", code.format(extra=waiting), "observers"], capture_output=True,
-                          text=True)
+    busy = subprocess.run(
+        [sys.executable, "-c", code.format(extra=waiting), "observers"], capture_output=True, text=True
+    )
     assert busy.returncode == 0 and busy.stdout.rstrip().endswith("teardown")
 
 
@@ -254,8 +271,10 @@ def test_help_imports_no_heavy_modules():
     import subprocess
     import sys
 
-    code = ("import sys, slamobs.cli.main; heavy = [m for m in ('numpy', 'numba', 'rosbags', 'pyarrow', 'pandas', "
-            "'matplotlib') if m in sys.modules]; print(','.join(heavy))")
+    code = (
+        "import sys, slamobs.cli.main; heavy = [m for m in ('numpy', 'numba', 'rosbags', 'pyarrow', 'pandas', "
+        "'matplotlib') if m in sys.modules]; print(','.join(heavy))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ""
     from slamobs.cli.simulate_cmd import CONTAINERS
@@ -299,8 +318,13 @@ def test_every_compiled_kernel_is_cached_on_disk():
     kernels = {}
     for info in pkgutil.walk_packages(pipeline.__path__, "slamobs.pipeline."):
         module = importlib.import_module(info.name)
-        kernels.update({f"{info.name}.{k}": v for k, v in vars(module).items()
-                        if isinstance(v, CPUDispatcher) and v.__module__ == info.name})
+        kernels.update(
+            {
+                f"{info.name}.{k}": v
+                for k, v in vars(module).items()
+                if isinstance(v, CPUDispatcher) and v.__module__ == info.name
+            }
+        )
     assert len(kernels) > 20
     assert not [name for name, fn in kernels.items() if type(fn._cache).__name__ == "NullCache"]
 
@@ -336,8 +360,13 @@ def test_run_json_states_compilation(generated, tmp_path):
     metas = []
     for k in range(2):
         out = tmp_path / f"out{k}"
-        done = subprocess.run([*CLI, "run", str(generated["bag"]), "-o", str(out), "--config", str(cfg), "-q"],
-                              env=env, capture_output=True, text=True, timeout=600)
+        done = subprocess.run(
+            [*CLI, "run", str(generated["bag"]), "-o", str(out), "--config", str(cfg), "-q"],
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
         assert done.returncode == 0, done.stderr
         metas.append(json.loads((out / "run.json").read_text()))
     first, again = metas

@@ -16,8 +16,15 @@ SAMPLE = SAMPLES / "circle.bag"
 #: APE (m) on circle.bag bounded at about twice what `slamobs compare` measured (README table: 0.010-0.029 m);
 #: measured 2026-12-03: fast-adaptation 0.0131, hashim 0.0101, hashim-imu 0.0102, wang-tayebi 0.0290,
 #: hybrid 0.0289, riekf 0.0096, batch 0.0050.
-MAX_APE_M = {"fast-adaptation": 0.025, "hashim": 0.02, "hashim-imu": 0.02, "wang-tayebi": 0.05, "hybrid": 0.05,
-             "riekf": 0.018, "batch": 0.009}
+MAX_APE_M = {
+    "fast-adaptation": 0.025,
+    "hashim": 0.02,
+    "hashim-imu": 0.02,
+    "wang-tayebi": 0.05,
+    "hybrid": 0.05,
+    "riekf": 0.018,
+    "batch": 0.009,
+}
 
 
 def test_compare_all_observers_side_by_side(tmp_path):
@@ -28,12 +35,14 @@ def test_compare_all_observers_side_by_side(tmp_path):
     assert res.exit_code == 0, res.output
     # without a terminal a line as each observer starts (on a terminal: a status line with every stage)
     assert [line for line in res.stderr.splitlines() if line.startswith("compare: ")][1:] == [
-        f"compare: observer {k} of {len(names)}: {name}" for k, name in enumerate(names, 1)]
+        f"compare: observer {k} of {len(names)}: {name}" for k, name in enumerate(names, 1)
+    ]
     table = pd.read_parquet(out / "comparison.parquet")
     assert list(table["observer"]) == names
     # every observer runs on this log: a failed row is a broken observer, not a row to skip
     assert {row["observer"]: (row["status"], row["error"]) for row in table.to_dict("records")} == {
-        name: ("ok", "") for name in names}
+        name: ("ok", "") for name in names
+    }
     for row in table.to_dict("records"):
         run = json.loads((out / row["observer"] / "run.json").read_text())
         report = json.loads((out / row["observer"] / "report.json").read_text())

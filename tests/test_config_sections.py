@@ -64,13 +64,21 @@ def test_schema_descriptions_quote_the_code_defaults():
 
 
 def test_a_full_config_round_trips_through_its_dict():
-    config = parse_config({
-        "observer": "batch", "topics": {"detections": "/tags"}, "time": {"source": "auto", "max_meas_age": 1},
-        "frames": {"body": "base_link", "assume_identity": ["imu"]}, "limits": {"max_gap": None},
-        "tags": {"size": 0.1, "sizes": {"3": 0.2}, "ignore": [4]}, "evaluation": {"plots": False},
-        "output": {"rate_hz": 20, "export": ["mcap", "tum"]}, "noise": {"gyro": [1e-3, 2e-3, 3e-3]},
-        "batch": {"seed": "riekf", "bias": "random-walk"}, "gains": {"fast-adaptation": {"k_w": 2}},
-    })
+    config = parse_config(
+        {
+            "observer": "batch",
+            "topics": {"detections": "/tags"},
+            "time": {"source": "auto", "max_meas_age": 1},
+            "frames": {"body": "base_link", "assume_identity": ["imu"]},
+            "limits": {"max_gap": None},
+            "tags": {"size": 0.1, "sizes": {"3": 0.2}, "ignore": [4]},
+            "evaluation": {"plots": False},
+            "output": {"rate_hz": 20, "export": ["mcap", "tum"]},
+            "noise": {"gyro": [1e-3, 2e-3, 3e-3]},
+            "batch": {"seed": "riekf", "bias": "random-walk"},
+            "gains": {"fast-adaptation": {"k_w": 2}},
+        }
+    )
     # a batch ships the dict to its workers (pickled) and hashes it as JSON
     assert RunConfig.from_dict(config.to_dict()) == config
     assert json.loads(json.dumps(config.to_dict(), default=list))["time"]["max_meas_age"] == 1.0

@@ -20,8 +20,11 @@ GUARDS = {"tests/test_cli_consistency.py", "tests/test_docs_refs.py"}
 
 
 def _files(*suffixes: str) -> list[Path]:
-    return sorted(p for p in ROOT.rglob("*") if p.suffix in suffixes and p.is_file()
-                  and not SKIP_DIRS.intersection(p.relative_to(ROOT).parts))
+    return sorted(
+        p
+        for p in ROOT.rglob("*")
+        if p.suffix in suffixes and p.is_file() and not SKIP_DIRS.intersection(p.relative_to(ROOT).parts)
+    )
 
 
 def _sections() -> list[str]:
@@ -45,7 +48,7 @@ def test_every_section_reference_exists_in_observers_md():
             line = text.count("\n", 0, m.start()) + 1
             if m.group(1) not in sections:
                 missing.append(f"{rel}:{line}: \N{SECTION SIGN}{m.group(1)}")
-            if path != OBSERVERS_MD and "observers.md" not in text[:m.start()]:
+            if path != OBSERVERS_MD and "observers.md" not in text[: m.start()]:
                 unanchored.append(f"{rel}:{line}")
     assert not missing, "references to sections docs/observers.md does not have:\n" + "\n".join(missing)
     assert not unanchored, "section references without docs/observers.md named before them:\n" + "\n".join(unanchored)
@@ -67,10 +70,13 @@ def test_readme_module_map_lists_exactly_the_modules():
     text = (ROOT / "README.md").read_text(encoding="utf-8")
     start = text.index("### Module map")
     end = text.find("\n#", start + 1)
-    rows = re.findall(r"^\| `([^`]+\.py)` \|", text[start:end if end > 0 else None], re.M)
+    rows = re.findall(r"^\| `([^`]+\.py)` \|", text[start : end if end > 0 else None], re.M)
     twice = [r for r, c in Counter(rows).items() if c > 1]
-    tree = {p.relative_to(ROOT).as_posix() for p in _files(".py")
-            if p.relative_to(ROOT).parts[0] in ("pipeline", "cli", "schemas") or p == ROOT / "__init__.py"}
+    tree = {
+        p.relative_to(ROOT).as_posix()
+        for p in _files(".py")
+        if p.relative_to(ROOT).parts[0] in ("pipeline", "cli", "schemas") or p == ROOT / "__init__.py"
+    }
     assert not twice, f"listed more than once: {twice}"
     assert not tree - set(rows), f"modules missing from the README's module map: {sorted(tree - set(rows))}"
     assert not set(rows) - tree, f"the README's module map lists modules that do not exist: {sorted(set(rows) - tree)}"

@@ -44,8 +44,9 @@ def test_time_source_auto_takes_record_time_for_the_topic_on_another_clock(late_
     """Measured: APE 0.092 m with ``auto`` (the same log with correct stamps: 0.091 m), 0.44 m with header stamps;
     the bound sits at about 1.5x the first and a third of the last."""
     out = tmp_path / "auto"
-    done = slamobs("run", late_truth, "-o", out, "--config", _config(tmp_path / "auto.yaml",
-                                                                       "time:\n  source: auto\n" + NO_PLOTS))
+    done = slamobs(
+        "run", late_truth, "-o", out, "--config", _config(tmp_path / "auto.yaml", "time:\n  source: auto\n" + NO_PLOTS)
+    )
     assert done.returncode == 0, done.stderr
     meta = json.loads((out / "run.json").read_text())
     assert meta["input"]["clocks"] == {"/mocap/pose": "record"}  # only the topic on the other clock

@@ -66,8 +66,9 @@ def _kind(cls: type) -> type | None:
 
 
 def test_every_project_exception_derives_from_one_kind_of_slamobs_error():
-    found = {key: cls for key, cls in _project_exceptions().items()
-             if cls is not SlamobsError and cls not in errors.KINDS}
+    found = {
+        key: cls for key, cls in _project_exceptions().items() if cls is not SlamobsError and cls not in errors.KINDS
+    }
     assert set(EXPECTED) <= set(found), f"not found: {set(EXPECTED) - set(found)}"
     outside = [f"{m}.{n}" for (m, n), cls in found.items() if not issubclass(cls, SlamobsError)]
     assert not outside, f"exceptions outside the hierarchy: {outside}"
@@ -91,15 +92,18 @@ def _exit(err: BaseException, capsys) -> tuple[int, str]:
     return stop.value.code, capsys.readouterr().err.strip()
 
 
-@pytest.mark.parametrize(("make", "code"), [
-    (lambda: InputError("log.bag", "not a log", "/imu"), 2),
-    (lambda: OutputError("out", "exists already"), 2),
-    (lambda: ResourceError("out", "no space left on device"), 2),
-    (lambda: errors.GainError("unknown gain 'k_q'"), 2),
-    (lambda: importlib.import_module("slamobs.pipeline.readers.fastdecode").DecodeError("message too short"), 2),
-    (lambda: importlib.import_module("slamobs.pipeline.batch.runner").DaskMissing("install dask"), 2),
-    (lambda: importlib.import_module("slamobs.pipeline.batch.executor").InfrastructureError("workers lost"), 3),
-])
+@pytest.mark.parametrize(
+    ("make", "code"),
+    [
+        (lambda: InputError("log.bag", "not a log", "/imu"), 2),
+        (lambda: OutputError("out", "exists already"), 2),
+        (lambda: ResourceError("out", "no space left on device"), 2),
+        (lambda: errors.GainError("unknown gain 'k_q'"), 2),
+        (lambda: importlib.import_module("slamobs.pipeline.readers.fastdecode").DecodeError("message too short"), 2),
+        (lambda: importlib.import_module("slamobs.pipeline.batch.runner").DaskMissing("install dask"), 2),
+        (lambda: importlib.import_module("slamobs.pipeline.batch.executor").InfrastructureError("workers lost"), 3),
+    ],
+)
 def test_cli_boundary_maps_each_kind_to_its_exit_code_and_one_line(make, code, capsys):
     err = make()
     assert exit_code(err) == EXIT_CODES[kind_of(err)] == code

@@ -61,8 +61,10 @@ EVO_DATA = REALDATA / "evo"
 RPG_DATA = REALDATA / "rpg_traj_eval"
 HAVE_EVO_DATA = (EVO_DATA / "REFERENCE_NUMBERS.md").is_file()
 EVO_PYTHON = os.environ.get("SLAMOBS_EVO_PYTHON")
-needs_evo = pytest.mark.skipif(not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
-                               reason="set SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 to run the evo oracle")
+needs_evo = pytest.mark.skipif(
+    not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
+    reason="set SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 to run the evo oracle",
+)
 T0_NS = 1_700_000_000_000_000_000
 
 
@@ -82,16 +84,27 @@ def make_truth(n: int = 1500, dt_ns: int = 10_000_000) -> PoseStream:
     return PoseStream("/mocap", "world", "body", t, t.copy(), pos, rots_to_quats(rots))
 
 
-def moved(truth: PoseStream, rot_c: np.ndarray, p_c: np.ndarray, noise_m: float = 0.0, seed: int = 0,
-          jitter_ns: int = 0) -> pd.DataFrame:
+def moved(
+    truth: PoseStream, rot_c: np.ndarray, p_c: np.ndarray, noise_m: float = 0.0, seed: int = 0, jitter_ns: int = 0
+) -> pd.DataFrame:
     """The truth seen in another frame: p = R_c p_true + p_c (+ noise), R = R_c R_true."""
     rng = np.random.default_rng(seed)
     pos = truth.position @ rot_c.T + p_c + noise_m * rng.standard_normal(truth.position.shape)
     rots = np.einsum("ij,njk->nik", rot_c, quats_to_rots(truth.quat_xyzw))
     q = rots_to_quats(rots)
     t = truth.t_ns + (rng.integers(-jitter_ns, jitter_ns + 1, len(truth)) if jitter_ns else 0)
-    return pd.DataFrame({"t_ns": t, "x": pos[:, 0], "y": pos[:, 1], "z": pos[:, 2],
-                         "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]})
+    return pd.DataFrame(
+        {
+            "t_ns": t,
+            "x": pos[:, 0],
+            "y": pos[:, 1],
+            "z": pos[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+        }
+    )
 
 
 def make_landmarks(n: int = 8, seed: int = 1) -> dict[int, np.ndarray]:
@@ -104,16 +117,34 @@ def landmark_table(truth_lm: dict[int, np.ndarray], rot_c, p_c, noise_m=0.0, see
     ids = list(truth_lm) + list(extra_ids)
     xyz = np.array([rot_c @ truth_lm[i] + p_c if i in truth_lm else rng.uniform(-5, 5, 3) for i in ids])
     xyz = xyz + noise_m * rng.standard_normal(xyz.shape)
-    return pd.DataFrame({"id": np.array(ids, dtype=np.int64), "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2],
-                         "first_seen_ns": T0_NS, "last_seen_ns": T0_NS + 10**9, "n_obs": 50})
+    return pd.DataFrame(
+        {
+            "id": np.array(ids, dtype=np.int64),
+            "x": xyz[:, 0],
+            "y": xyz[:, 1],
+            "z": xyz[:, 2],
+            "first_seen_ns": T0_NS,
+            "last_seen_ns": T0_NS + 10**9,
+            "n_obs": 50,
+        }
+    )
 
 
 def bias_table(t_ns: np.ndarray, gyro_final, vel_final) -> pd.DataFrame:
     decay = np.exp(-(t_ns - t_ns[0]) / 2e9)[:, None]
     g = np.asarray(gyro_final) * (1 - decay)
     v = np.asarray(vel_final) * (1 - decay)
-    return pd.DataFrame({"t_ns": t_ns, "gyro_bias_x": g[:, 0], "gyro_bias_y": g[:, 1], "gyro_bias_z": g[:, 2],
-                         "vel_bias_x": v[:, 0], "vel_bias_y": v[:, 1], "vel_bias_z": v[:, 2]})
+    return pd.DataFrame(
+        {
+            "t_ns": t_ns,
+            "gyro_bias_x": g[:, 0],
+            "gyro_bias_y": g[:, 1],
+            "gyro_bias_z": g[:, 2],
+            "vel_bias_x": v[:, 0],
+            "vel_bias_y": v[:, 1],
+            "vel_bias_z": v[:, 2],
+        }
+    )
 
 
 # ------------------------------------------------------------------------------------------ metrics
@@ -306,7 +337,7 @@ def test_report_on_noisy_estimate():
     assert [row["id"] for row in lm["per_landmark"]] == sorted(lm_truth)
     bi = rep["biases"]
     assert bi["final"]["t_ns"] == int(poses["t_ns"].max())
-    assert bi["error_norm"]["gyro"] == pytest.approx(np.linalg.norm([0, 0, -0.005]) , abs=1e-3)
+    assert bi["error_norm"]["gyro"] == pytest.approx(np.linalg.norm([0, 0, -0.005]), abs=1e-3)
     assert bi["error_norm"]["velocity"] < 1e-3
     assert rep["convergence"]["t_since_start_s"] == 0.0
     m = rep["method"]["association"]
@@ -377,8 +408,16 @@ def test_write_report_files(tmp_path):
     loaded = json.loads((out / "report.json").read_text())
     assert loaded == json.loads(json.dumps(rep))
     md = (out / "report.md").read_text()
-    for needle in ("Absolute pose error", "Landmark map error", "Biases", "Method", "| 100 |", "map-only alignment",
-                   "evo_ape tum truth_tum.txt estimate_tum.txt -a --t_max_diff 0.01", "Relative error and drift"):
+    for needle in (
+        "Absolute pose error",
+        "Landmark map error",
+        "Biases",
+        "Method",
+        "| 100 |",
+        "map-only alignment",
+        "evo_ape tum truth_tum.txt estimate_tum.txt -a --t_max_diff 0.01",
+        "Relative error and drift",
+    ):
         assert needle in md
     # the evo zip holds the report's APE, the TUM exports are the estimate and the truth, exact to the ns
     info, stats, arrays = load_result_zip(out / "ape_evo.zip")
@@ -387,8 +426,13 @@ def test_write_report_files(tmp_path):
     for k, v in stats.items():
         assert v == pytest.approx(rep["ape"]["translation_m"][k], rel=1e-12, abs=1e-15)
     assert arrays["error_array"].shape == (rep["ape"]["translation_m"]["n"],)
-    assert set(arrays) >= {"timestamps", "seconds_from_start", "distances", "distances_from_start",
-                           "alignment_transformation_sim3"}
+    assert set(arrays) >= {
+        "timestamps",
+        "seconds_from_start",
+        "distances",
+        "distances_from_start",
+        "alignment_transformation_sim3",
+    }
     est = load_tum(out / "estimate_tum.txt")
     order = np.argsort(poses["t_ns"].to_numpy(), kind="stable")
     assert np.array_equal(est.t_ns, poses["t_ns"].to_numpy()[order])
@@ -402,8 +446,10 @@ def test_write_report_without_map_biases_or_truth_extras(tmp_path):
     assert rep["landmarks"]["truth_available"] is False and rep["biases"]["final"] is None
     assert rep["landmarks"]["map_aligned"] is None and rep["biases"]["stability"] is None
     paths = write_report(rep, tmp_path, poses, None, None, truth)  # no exports asked: report and figures only
-    assert sorted(p.name for p in paths) == sorted(set(REPORT_FILES) - {"landmarks.png", "ape_evo.zip", "estimate_tum.txt",
-                                                                        "truth_tum.txt", "landmarks_aligned.parquet"})
+    assert sorted(p.name for p in paths) == sorted(
+        set(REPORT_FILES)
+        - {"landmarks.png", "ape_evo.zip", "estimate_tum.txt", "truth_tum.txt", "landmarks_aligned.parquet"}
+    )
     assert all(p.is_file() for p in paths)
     assert "no landmark ground truth" in (tmp_path / "report.md").read_text()
 
@@ -436,8 +482,11 @@ def test_bias_stability_and_window_error():
     biases = bias_table(t, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0])
     biases["gyro_bias_x"] = 0.01 + 1e-4 * s  # drifting 1e-4 rad/s per second
     biases["vel_bias_y"] = 0.05
-    rep = checked(build_report(poses, biases, landmarks, truth, lm_truth, bias_truth,
-                               options=ReportOptions(bias_window_fraction=0.25)))
+    rep = checked(
+        build_report(
+            poses, biases, landmarks, truth, lm_truth, bias_truth, options=ReportOptions(bias_window_fraction=0.25)
+        )
+    )
     st = rep["biases"]["stability"]
     assert st["gyro"]["slope_per_s"][0] == pytest.approx(1e-4, rel=1e-6)
     assert st["gyro"]["drift_norm_per_s"] == pytest.approx(1e-4, rel=1e-6)
@@ -474,8 +523,12 @@ def test_clock_offset_is_estimated_always_and_applied_on_request():
     from slamobs.pipeline.evaluation import trajectory_error as te
     from slamobs.pipeline.evaluation.trajectory_evaluation import estimate_stream, sorted_stream
 
-    search = (sorted_stream(truth), estimate_stream(poses), te.SyncOptions(0.01, 0.0, "nearest"),
-              te.AlignOptions("se3"))
+    search = (
+        sorted_stream(truth),
+        estimate_stream(poses),
+        te.SyncOptions(0.01, 0.0, "nearest"),
+        te.AlignOptions("se3"),
+    )
     alone, left = te.checked_time_offset(*search), te.checked_time_offset(*search, without=False)
     assert left.rmse_without_m is None and left.rmse_with_m == alone.rmse_with_m
     assert plain["time_offset"]["ape_rmse_without_m"] == alone.rmse_without_m == plain["ape"]["translation_m"]["rmse"]
@@ -486,8 +539,12 @@ def test_time_offset_estimate_both_signs():
     rng = np.random.default_rng(5)
     for off_ms in (-230, 85):
         est_t = truth.t_ns[::4] - off_ms * 1_000_000 + rng.integers(-500_000, 500_000, 1000)
-        pos, q = interpolate_poses(truth.t_ns, truth.position @ ROT_C.T, rots_to_quats(
-            np.einsum("ij,njk->nik", ROT_C, quats_to_rots(truth.quat_xyzw))), est_t + off_ms * 1_000_000)
+        pos, q = interpolate_poses(
+            truth.t_ns,
+            truth.position @ ROT_C.T,
+            rots_to_quats(np.einsum("ij,njk->nik", ROT_C, quats_to_rots(truth.quat_xyzw))),
+            est_t + off_ms * 1_000_000,
+        )
         got = estimate_time_offset(truth.t_ns, truth.position, truth.quat_xyzw, np.sort(est_t), pos, q)
         assert got.offset_s == pytest.approx(off_ms / 1000, abs=0.002) and got.reliable
         assert got.signal == "speed |v|"  # this truth turns at a nearly constant rate
@@ -511,8 +568,12 @@ def test_a_clock_offset_the_trajectories_contradict_is_not_reliable(monkeypatch)
 
     truth = make_truth(n=4000)
     est_t = np.sort(truth.t_ns[::4] - 85_000_000)
-    pos, q = interpolate_poses(truth.t_ns, truth.position @ ROT_C.T, rots_to_quats(
-        np.einsum("ij,njk->nik", ROT_C, quats_to_rots(truth.quat_xyzw))), est_t + 85_000_000)
+    pos, q = interpolate_poses(
+        truth.t_ns,
+        truth.position @ ROT_C.T,
+        rots_to_quats(np.einsum("ij,njk->nik", ROT_C, quats_to_rots(truth.quat_xyzw))),
+        est_t + 85_000_000,
+    )
     est = PoseStream("est", "", "", est_t, est_t, pos, q)
     sync, align = te.SyncOptions(0.01, 0.0, "nearest"), te.AlignOptions("se3")
     right = te.checked_time_offset(truth, est, sync, align)
@@ -530,8 +591,14 @@ def test_report_says_why_a_clock_offset_is_not_reliable():
     from 0.029 to 0.047 m, and the line said only "NOT reliable")."""
     from slamobs.pipeline.evaluation.markdown import offset_doubts
 
-    off = {"estimated_s": 0.0225, "peak_correlation": 0.93, "search_window_s": 1.0, "grid_step_s": 0.01,
-           "ape_rmse_with_m": 0.0465, "ape_rmse_without_m": 0.0294}
+    off = {
+        "estimated_s": 0.0225,
+        "peak_correlation": 0.93,
+        "search_window_s": 1.0,
+        "grid_step_s": 0.01,
+        "ape_rmse_with_m": 0.0465,
+        "ape_rmse_without_m": 0.0294,
+    }
     assert offset_doubts(off) == ": applied, it raises the APE rmse from 0.0294 to 0.0465 m"
     weak = {**off, "peak_correlation": 0.3, "estimated_s": -0.995, "ape_rmse_with_m": None}
     assert offset_doubts(weak) == ": correlation below 0.5; at the search limit"
@@ -602,8 +669,14 @@ def test_rotation_angle_kernel_matches_the_array_definition_bit_for_bit(monkeypa
 def test_ape_relations_hand_checked():
     ref_p, est_p = np.zeros((1, 3)), np.array([[3.0, 4.0, 0.0]])
     ref_r, est_r = np.eye(3)[None], so3_exp(np.array([0.0, 0.0, np.pi / 2]))[None]
-    want = {"trans_part": 5.0, "point_distance": 5.0, "angle_deg": 90.0, "angle_rad": np.pi / 2,
-            "rot_part": 2.0, "full": np.sqrt(4.0 + 25.0)}
+    want = {
+        "trans_part": 5.0,
+        "point_distance": 5.0,
+        "angle_deg": 90.0,
+        "angle_rad": np.pi / 2,
+        "rot_part": 2.0,
+        "full": np.sqrt(4.0 + 25.0),
+    }
     for rel, value in want.items():
         assert ape_errors(rel, ref_p, ref_r, est_p, est_r)[0] == pytest.approx(value, rel=1e-12), rel
     with pytest.raises(ValueError, match="pose relation"):
@@ -685,8 +758,9 @@ def test_alignment_kinds():
 
 def test_synchronize_interpolation_and_index_pairing():
     truth = make_truth(n=400)
-    est = PoseStream("e", "", "", truth.t_ns[::7] + 3_000_000, truth.t_ns[::7], truth.position[::7],
-                     truth.quat_xyzw[::7])
+    est = PoseStream(
+        "e", "", "", truth.t_ns[::7] + 3_000_000, truth.t_ns[::7], truth.position[::7], truth.quat_xyzw[::7]
+    )
     near = synchronize(truth, est, SyncOptions(0.01))
     assert near.method == "nearest" and near.driving == "estimate" and len(near) == len(est)
     interp = synchronize(truth, est, SyncOptions(0.01, 0.0, "interpolation"))
@@ -717,16 +791,40 @@ def test_tum_text_is_python_repr():
 
     rng = np.random.default_rng(11)
     n = 20_000
-    values = np.concatenate([
-        rng.normal(size=n), rng.normal(size=n) * 10.0 ** rng.integers(-30, 30, n),
-        rng.integers(0, 2**64, n, dtype=np.uint64).view(np.float64), np.round(rng.normal(size=n) * 1000),
-        [0.0, -0.0, np.nan, np.inf, -np.inf, 5e-324, 1.7976931348623157e308, 1e16, 1e15, 9999999999999998.0,
-         1e-4, 9.999999999999999e-05, 1e-5, 123.0, 1e22, 2.2250738585072014e-308, 0.1, 1 / 3, -2.5e-7],
-    ])
+    values = np.concatenate(
+        [
+            rng.normal(size=n),
+            rng.normal(size=n) * 10.0 ** rng.integers(-30, 30, n),
+            rng.integers(0, 2**64, n, dtype=np.uint64).view(np.float64),
+            np.round(rng.normal(size=n) * 1000),
+            [
+                0.0,
+                -0.0,
+                np.nan,
+                np.inf,
+                -np.inf,
+                5e-324,
+                1.7976931348623157e308,
+                1e16,
+                1e15,
+                9999999999999998.0,
+                1e-4,
+                9.999999999999999e-05,
+                1e-5,
+                123.0,
+                1e22,
+                2.2250738585072014e-308,
+                0.1,
+                1 / 3,
+                -2.5e-7,
+            ],
+        ]
+    )
     values = values[: values.size // 7 * 7].reshape(-1, 7)
-    t = rng.integers(-2**62, 2**62, values.shape[0])
-    want = "".join(format_stamp(s) + " " + " ".join(repr(float(v)) for v in row) + "\n"
-                   for s, row in zip(t.tolist(), values))
+    t = rng.integers(-(2**62), 2**62, values.shape[0])
+    want = "".join(
+        format_stamp(s) + " " + " ".join(repr(float(v)) for v in row) + "\n" for s, row in zip(t.tolist(), values)
+    )
     assert tum_text(t, values[:, :3], values[:, 3:]) == want
     assert tum_text(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 4))) == ""
 
@@ -738,8 +836,10 @@ def test_file_formats_round_trip_and_detection(tmp_path):
     assert np.array_equal(got.t_ns, truth.t_ns) and np.array_equal(got.position, truth.position)
     assert np.array_equal(got.quat_xyzw, truth.quat_xyzw)
     q = truth.quat_xyzw
-    rows = [f"{t},{p[0]},{p[1]},{p[2]},{qq[3]},{qq[0]},{qq[1]},{qq[2]},0,0,0" for t, p, qq in
-            zip(truth.t_ns, truth.position, q)]
+    rows = [
+        f"{t},{p[0]},{p[1]},{p[2]},{qq[3]},{qq[0]},{qq[1]},{qq[2]},0,0,0"
+        for t, p, qq in zip(truth.t_ns, truth.position, q)
+    ]
     (tmp_path / "data.csv").write_text("#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z, v...\n" + "\n".join(rows))
     eu = load_euroc_csv(tmp_path / "data.csv")
     assert np.array_equal(eu.t_ns, truth.t_ns) and np.allclose(eu.quat_xyzw, q, atol=1e-15)
@@ -751,12 +851,26 @@ def test_file_formats_round_trip_and_detection(tmp_path):
     assert k.format == "kitti" and not k.timed and k.stream.t_ns.tolist() == list(range(50))
     assert np.allclose(k.rotations, rot, atol=1e-15) and np.allclose(k.stream.position, truth.position)
     assert load_kitti(tmp_path / "k.txt", tmp_path / "times.txt").t_ns[1] == 10_000_000
-    poses = pd.DataFrame({"t_ns": truth.t_ns, "x": truth.position[:, 0], "y": truth.position[:, 1],
-                          "z": truth.position[:, 2], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]})
+    poses = pd.DataFrame(
+        {
+            "t_ns": truth.t_ns,
+            "x": truth.position[:, 0],
+            "y": truth.position[:, 1],
+            "z": truth.position[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+        }
+    )
     poses.to_parquet(tmp_path / "poses.parquet")
     assert np.array_equal(load_poses_parquet(tmp_path / "poses.parquet").position, truth.position)
-    assert [detect_format(tmp_path / n) for n in ("a.txt", "data.csv", "k.txt", "poses.parquet")] == \
-        ["tum", "euroc", "kitti", "parquet"]
+    assert [detect_format(tmp_path / n) for n in ("a.txt", "data.csv", "k.txt", "poses.parquet")] == [
+        "tum",
+        "euroc",
+        "kitti",
+        "parquet",
+    ]
 
 
 def test_file_errors_are_clear(tmp_path):
@@ -768,8 +882,9 @@ def test_file_errors_are_clear(tmp_path):
         read_trajectory(tmp_path / "short.txt", "tum")
     with pytest.raises(InputError, match="no such file"):
         read_trajectory(tmp_path / "missing.txt")
-    poses = pd.DataFrame({"t_ns": [1, 2], "x": ["a", "b"], **{c: [0.0, 0.0] for c in ("y", "z", "qx", "qy", "qz")},
-                          "qw": [1.0, 1.0]})
+    poses = pd.DataFrame(
+        {"t_ns": [1, 2], "x": ["a", "b"], **{c: [0.0, 0.0] for c in ("y", "z", "qx", "qy", "qz")}, "qw": [1.0, 1.0]}
+    )
     poses.to_parquet(tmp_path / "poses.parquet")
     with pytest.raises(InputError, match="column x holds .*, not numbers"):
         read_trajectory(tmp_path / "poses.parquet")
@@ -803,18 +918,38 @@ ROWS = {
     "KITTI_00 S-PTAM": ("ape", "kitti", EVO_DATA / "KITTI_00_gt.txt", EVO_DATA / "KITTI_00_SPTAM.txt", ["se3"]),
     "KITTI_00 ORB RPE": ("rpe", "kitti", EVO_DATA / "KITTI_00_gt.txt", EVO_DATA / "KITTI_00_ORB.txt", ["none"]),
     "KITTI_00 S-PTAM RPE": ("rpe", "kitti", EVO_DATA / "KITTI_00_gt.txt", EVO_DATA / "KITTI_00_SPTAM.txt", ["none"]),
-    "TUM fr1_xyz rgbdslam": ("ape", "tum", EVO_DATA / "freiburg1_xyz-groundtruth.txt",
-                             EVO_DATA / "freiburg1_xyz-rgbdslam.txt", ["se3"]),
-    "TUM fr2_desk ORB (monocular)": ("ape", "tum", EVO_DATA / "fr2_desk_groundtruth.txt",
-                                     EVO_DATA / "fr2_desk_ORB.txt", ["sim3"]),
+    "TUM fr1_xyz rgbdslam": (
+        "ape",
+        "tum",
+        EVO_DATA / "freiburg1_xyz-groundtruth.txt",
+        EVO_DATA / "freiburg1_xyz-rgbdslam.txt",
+        ["se3"],
+    ),
+    "TUM fr2_desk ORB (monocular)": (
+        "ape",
+        "tum",
+        EVO_DATA / "fr2_desk_groundtruth.txt",
+        EVO_DATA / "fr2_desk_ORB.txt",
+        ["sim3"],
+    ),
     "EuRoC V1_02": ("ape", "euroc", EVO_DATA / "V102_groundtruth.csv", EVO_DATA / "V102.txt", ["se3"]),
     "EuRoC V1_01 OpenVINS": ("ape", "tum", EVO_DATA / "V101_gt.txt", EVO_DATA / "V101_openvins.txt", ["se3"]),
     "ROS_example S-PTAM": ("ape", "bag", "groundtruth", "S-PTAM", ["se3"]),
     "ROS_example ORB-SLAM": ("ape", "bag", "groundtruth", "ORB-SLAM", ["sim3"]),
-    "rpg MH_04 run 0": ("ape", "tum", RPG_DATA / "MH_04" / "stamped_groundtruth.txt",
-                        RPG_DATA / "MH_04" / "stamped_traj_estimate0.txt", ["se3", "sim3"]),
-    "rpg V1_02 run 0": ("ape", "tum", RPG_DATA / "V1_02" / "stamped_groundtruth.txt",
-                        RPG_DATA / "V1_02" / "stamped_traj_estimate0.txt", ["se3", "sim3"]),
+    "rpg MH_04 run 0": (
+        "ape",
+        "tum",
+        RPG_DATA / "MH_04" / "stamped_groundtruth.txt",
+        RPG_DATA / "MH_04" / "stamped_traj_estimate0.txt",
+        ["se3", "sim3"],
+    ),
+    "rpg V1_02 run 0": (
+        "ape",
+        "tum",
+        RPG_DATA / "V1_02" / "stamped_groundtruth.txt",
+        RPG_DATA / "V1_02" / "stamped_traj_estimate0.txt",
+        ["se3", "sim3"],
+    ),
 }
 EVO_FLAGS = {"se3": "-a", "sim3": "-as", "none": ""}
 
@@ -875,8 +1010,13 @@ def test_reference_numbers_from_evo(name):
 def test_build_report_reproduces_evo_reference_row():
     """The whole report path (DataFrame in, dict out) gives the evo number for a TUM row."""
     ref, est = load_tum(EVO_DATA / "V101_gt.txt"), load_tum(EVO_DATA / "V101_openvins.txt")
-    poses = pd.DataFrame({"t_ns": est.t_ns, **{c: est.position[:, k] for k, c in enumerate("xyz")},
-                          **{c: est.quat_xyzw[:, k] for k, c in enumerate(("qx", "qy", "qz", "qw"))}})
+    poses = pd.DataFrame(
+        {
+            "t_ns": est.t_ns,
+            **{c: est.position[:, k] for k, c in enumerate("xyz")},
+            **{c: est.quat_xyzw[:, k] for k, c in enumerate(("qx", "qy", "qz", "qw"))},
+        }
+    )
     rep = checked(build_report(poses, None, None, ref))
     row = reference_rows()["EuRoC V1_01 OpenVINS"]
     for key in ("rmse", "mean", "max"):
@@ -937,9 +1077,21 @@ ORACLE = textwrap.dedent('''
     json.dump(out, open(sys.argv[2], "w"))
 ''')
 
-CASE_DEFAULTS = {"relation": "trans_part", "align": False, "correct_scale": False, "align_origin": False,
-                 "n_to_align": -1, "t_max_diff": 0.01, "t_offset": 0.0, "sync": "nearest_time", "delta": 1,
-                 "delta_unit": "f", "delta_tol": 0.1, "all_pairs": False, "pairs_from_reference": False}
+CASE_DEFAULTS = {
+    "relation": "trans_part",
+    "align": False,
+    "correct_scale": False,
+    "align_origin": False,
+    "n_to_align": -1,
+    "t_max_diff": 0.01,
+    "t_offset": 0.0,
+    "sync": "nearest_time",
+    "delta": 1,
+    "delta_unit": "f",
+    "delta_tol": 0.1,
+    "all_pairs": False,
+    "pairs_from_reference": False,
+}
 
 
 def oracle_trajectories(tmp: Path) -> tuple[Path, Path]:
@@ -969,30 +1121,73 @@ def oracle_cases(tmp: Path) -> list[dict]:
     ref, est = oracle_trajectories(tmp)
     gen = {"ref": ["tum", str(ref)], "est": ["tum", str(est)]}
     cases = [
-        *({"id": f"ape-{rel}-se3", "metric": "ape", "relation": rel, "align": True} for rel in
-          ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")),
+        *(
+            {"id": f"ape-{rel}-se3", "metric": "ape", "relation": rel, "align": True}
+            for rel in ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_distance")
+        ),
         {"id": "ape-none", "metric": "ape"},
-        {"id": "ape-sim3", "metric": "ape", "align": True, "correct_scale": True, "zip": str(tmp / "evo_ape.zip"),
-         "load": str(tmp / "ours_ape.zip")},
+        {
+            "id": "ape-sim3",
+            "metric": "ape",
+            "align": True,
+            "correct_scale": True,
+            "zip": str(tmp / "evo_ape.zip"),
+            "load": str(tmp / "ours_ape.zip"),
+        },
         {"id": "ape-scale", "metric": "ape", "correct_scale": True, "relation": "full"},
         {"id": "ape-origin", "metric": "ape", "align_origin": True, "relation": "angle_deg"},
         {"id": "ape-n-to-align", "metric": "ape", "align": True, "correct_scale": True, "n_to_align": 150},
         {"id": "ape-offset", "metric": "ape", "align": True, "correct_scale": True, "t_offset": 0.004},
-        {"id": "ape-interp", "metric": "ape", "align": True, "correct_scale": True, "t_offset": 0.004,
-         "sync": "interpolation", "relation": "full"},
+        {
+            "id": "ape-interp",
+            "metric": "ape",
+            "align": True,
+            "correct_scale": True,
+            "t_offset": 0.004,
+            "sync": "interpolation",
+            "relation": "full",
+        },
         {"id": "rpe-f", "metric": "rpe", "delta": 5, "align": True, "correct_scale": True},
         {"id": "rpe-f-all", "metric": "rpe", "delta": 3, "all_pairs": True, "relation": "angle_deg"},
-        {"id": "rpe-m", "metric": "rpe", "delta": 2.0, "delta_unit": "m", "relation": "rot_part",
-         "zip": str(tmp / "evo_rpe.zip"), "load": str(tmp / "ours_rpe.zip")},
+        {
+            "id": "rpe-m",
+            "metric": "rpe",
+            "delta": 2.0,
+            "delta_unit": "m",
+            "relation": "rot_part",
+            "zip": str(tmp / "evo_rpe.zip"),
+            "load": str(tmp / "ours_rpe.zip"),
+        },
         {"id": "rpe-m-sim3", "metric": "rpe", "delta": 2.0, "delta_unit": "m", "align": True, "correct_scale": True},
-        {"id": "rpe-m-all", "metric": "rpe", "delta": 1.0, "delta_unit": "m", "all_pairs": True,
-         "relation": "point_distance"},
+        {
+            "id": "rpe-m-all",
+            "metric": "rpe",
+            "delta": 1.0,
+            "delta_unit": "m",
+            "all_pairs": True,
+            "relation": "point_distance",
+        },
         {"id": "rpe-m-ref", "metric": "rpe", "delta": 2.0, "delta_unit": "m", "pairs_from_reference": True},
         {"id": "rpe-d", "metric": "rpe", "delta": 20.0, "delta_unit": "d", "relation": "full"},
-        {"id": "rpe-r-all", "metric": "rpe", "delta": 0.3, "delta_unit": "r", "all_pairs": True, "delta_tol": 0.05,
-         "relation": "angle_rad", "est": ["tum", str(tmp / "est_short.txt")]},
-        {"id": "rpe-interp", "metric": "rpe", "delta": 1.0, "delta_unit": "m", "sync": "interpolation",
-         "relation": "trans_part", "align": True},
+        {
+            "id": "rpe-r-all",
+            "metric": "rpe",
+            "delta": 0.3,
+            "delta_unit": "r",
+            "all_pairs": True,
+            "delta_tol": 0.05,
+            "relation": "angle_rad",
+            "est": ["tum", str(tmp / "est_short.txt")],
+        },
+        {
+            "id": "rpe-interp",
+            "metric": "rpe",
+            "delta": 1.0,
+            "delta_unit": "m",
+            "sync": "interpolation",
+            "relation": "trans_part",
+            "align": True,
+        },
     ]
     out = [{**CASE_DEFAULTS, **gen, **c} for c in cases]
     if HAVE_EVO_DATA:  # KITTI rotations are orthonormal only to their printed digits; both use them as written
@@ -1000,25 +1195,38 @@ def oracle_cases(tmp: Path) -> list[dict]:
             lines = (EVO_DATA / name).read_text().splitlines()[:600]
             (tmp / name).write_text("\n".join(lines) + "\n")
         kitti = {"ref": ["kitti", str(tmp / "KITTI_00_gt.txt")], "est": ["kitti", str(tmp / "KITTI_00_ORB.txt")]}
-        out += [{**CASE_DEFAULTS, **kitti, "id": "kitti-ape-full", "metric": "ape", "relation": "full", "align": True},
-                {**CASE_DEFAULTS, **kitti, "id": "kitti-ape-angle", "metric": "ape", "relation": "angle_deg"},
-                {**CASE_DEFAULTS, **kitti, "id": "kitti-rpe-d", "metric": "rpe", "delta": 5.0, "delta_unit": "d",
-                 "relation": "angle_rad"}]
+        out += [
+            {**CASE_DEFAULTS, **kitti, "id": "kitti-ape-full", "metric": "ape", "relation": "full", "align": True},
+            {**CASE_DEFAULTS, **kitti, "id": "kitti-ape-angle", "metric": "ape", "relation": "angle_deg"},
+            {
+                **CASE_DEFAULTS,
+                **kitti,
+                "id": "kitti-rpe-d",
+                "metric": "rpe",
+                "delta": 5.0,
+                "delta_unit": "d",
+                "relation": "angle_rad",
+            },
+        ]
     return out
 
 
 def ours(case: dict):
     ref = read_trajectory(case["ref"][1], case["ref"][0])
     est = read_trajectory(case["est"][1], case["est"][0])
-    kind = ("sim3" if case["correct_scale"] else "se3") if case["align"] else (
-        "scale" if case["correct_scale"] else "origin" if case["align_origin"] else "none")
+    kind = (
+        ("sim3" if case["correct_scale"] else "se3")
+        if case["align"]
+        else ("scale" if case["correct_scale"] else "origin" if case["align_origin"] else "none")
+    )
     method = "nearest" if case["sync"] == "nearest_time" else "interpolation"
     sync = SyncOptions(case["t_max_diff"], case["t_offset"], method)
     al = AlignOptions(kind, case["n_to_align"] if case["n_to_align"] >= 0 else None)
     if case["metric"] == "ape":
         return ape(ref, est, case["relation"], sync, al, ref_name=case["ref"][1], est_name=case["est"][1])
-    opts = RpeOptions(case["delta"], case["delta_unit"], case["delta_tol"], case["all_pairs"],
-                      case["pairs_from_reference"])
+    opts = RpeOptions(
+        case["delta"], case["delta_unit"], case["delta_tol"], case["all_pairs"], case["pairs_from_reference"]
+    )
     return rpe(ref, est, case["relation"], sync, al, opts, ref_name=case["ref"][1], est_name=case["est"][1])
 
 
@@ -1036,8 +1244,13 @@ def oracle(tmp_path_factory):
     (tmp / "cases.json").write_text(json.dumps(cases))
     (tmp / "oracle.py").write_text(ORACLE)
     env = {**os.environ, "HOME": str(tmp), "MPLBACKEND": "Agg"}  # evo writes its settings under $HOME
-    subprocess.run([EVO_PYTHON, str(tmp / "oracle.py"), str(tmp / "cases.json"), str(tmp / "evo.json")],
-                   check=True, env=env, capture_output=True, timeout=300)
+    subprocess.run(
+        [EVO_PYTHON, str(tmp / "oracle.py"), str(tmp / "cases.json"), str(tmp / "evo.json")],
+        check=True,
+        env=env,
+        capture_output=True,
+        timeout=300,
+    )
     return cases, results, json.loads((tmp / "evo.json").read_text())
 
 
@@ -1063,8 +1276,12 @@ def test_evo_reads_our_result_zip(oracle):
     cases, results, evo = oracle
     for c in (c for c in cases if c.get("load")):
         loaded, ours_res = evo[c["id"]]["loaded"], results[c["id"]]
-        assert loaded["info"] == {"title": ours_res.title, "ref_name": c["ref"][1], "est_name": c["est"][1],
-                                  "label": ours_res.label}
+        assert loaded["info"] == {
+            "title": ours_res.title,
+            "ref_name": c["ref"][1],
+            "est_name": c["est"][1],
+            "label": ours_res.label,
+        }
         assert loaded["stats"] == pytest.approx(evo[c["id"]]["stats"], rel=1e-9)
         assert set(loaded["arrays"]) == set(evo[c["id"]]["evo_arrays"])
         for k, v in evo[c["id"]]["evo_arrays"].items():
@@ -1098,8 +1315,9 @@ def test_error_plot_marks_convergence_on_the_position_panel_only(tmp_path, monke
     drawn = []
     monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or path)
     t = np.linspace(0.0, 10.0, 200)
-    plots.plot_errors(tmp_path / "e.png", t, np.exp(-t), 2.0 * np.exp(-t), band_m=0.12, convergence_t_s=2.1,
-                      level=(t, np.exp(-t)))
+    plots.plot_errors(
+        tmp_path / "e.png", t, np.exp(-t), 2.0 * np.exp(-t), band_m=0.12, convergence_t_s=2.1, level=(t, np.exp(-t))
+    )
     pos, att = drawn[0].axes[:2]
     labels = lambda ax: [line.get_label() for line in ax.get_lines()]  # noqa: E731
     assert {"converged at 2.10 s", "convergence band 0.12 m", "error level (running median)"} <= set(labels(pos))
@@ -1124,8 +1342,9 @@ def test_trajectory_files_reject_numbers_that_are_not_finite(tmp_path):
         (tmp_path / "a.txt").write_text(f"# t x y z qx qy qz qw\n{good}\n2 1 {word} 0 0 0 0 1\n{good}")
         with pytest.raises(InputError, match=r"a\.txt: line 4: not a finite number in '2 1 "):
             read_trajectory(tmp_path / "a.txt")
-    (tmp_path / "data.csv").write_text("#timestamp, p_x\n1403715273262142976,0,0,0,1,0,0,0\n"
-                                       "1403715273267142912,0,0,0,nan,0,0,0,5\n")
+    (tmp_path / "data.csv").write_text(
+        "#timestamp, p_x\n1403715273262142976,0,0,0,1,0,0,0\n1403715273267142912,0,0,0,nan,0,0,0,5\n"
+    )
     with pytest.raises(InputError, match="data.csv: line 3: not a finite number"):
         read_trajectory(tmp_path / "data.csv")
     poses, _ = _kitti_text()
@@ -1142,11 +1361,14 @@ def test_trajectory_files_reject_numbers_that_are_not_finite(tmp_path):
     import pyarrow.parquet as pq
 
     cols = {"t_ns": pa.array([1, 2, 3]), **{c: pa.array([0.0, 0.0, 0.0]) for c in ("x", "y", "z", "qx", "qy", "qz")}}
-    for col, values, problem in (("y", [0.0, np.nan, 0.0], r"row 1 \(from 0\): not a finite number in column y"),
-                                 ("qw", [1.0, 1.0, -np.inf], r"row 2 \(from 0\): not a finite number in column qw"),
-                                 ("x", [0.0, None, 0.0], r"row 1 \(from 0\): no value in column x")):
-        pq.write_table(pa.table({**cols, "qw": pa.array([1.0, 1.0, 1.0]), col: pa.array(values)}),
-                       tmp_path / "poses.parquet")
+    for col, values, problem in (
+        ("y", [0.0, np.nan, 0.0], r"row 1 \(from 0\): not a finite number in column y"),
+        ("qw", [1.0, 1.0, -np.inf], r"row 2 \(from 0\): not a finite number in column qw"),
+        ("x", [0.0, None, 0.0], r"row 1 \(from 0\): no value in column x"),
+    ):
+        pq.write_table(
+            pa.table({**cols, "qw": pa.array([1.0, 1.0, 1.0]), col: pa.array(values)}), tmp_path / "poses.parquet"
+        )
         with pytest.raises(InputError, match=problem):
             read_trajectory(tmp_path / "poses.parquet")
 
@@ -1159,8 +1381,9 @@ def test_trajectory_files_reject_zero_quaternions(tmp_path):
     (tmp_path / "data.csv").write_text("#timestamp, p_x\n1403715273262142976,0,0,0,0,0,0,0\n")
     with pytest.raises(InputError, match="data.csv: line 2: zero quaternion"):
         read_trajectory(tmp_path / "data.csv")
-    pd.DataFrame({"t_ns": [1, 2], "x": 0.0, "y": 0.0, "z": 0.0, "qx": 0.0, "qy": 0.0, "qz": 0.0,
-                  "qw": [1.0, 0.0]}).to_parquet(tmp_path / "poses.parquet")
+    pd.DataFrame(
+        {"t_ns": [1, 2], "x": 0.0, "y": 0.0, "z": 0.0, "qx": 0.0, "qy": 0.0, "qz": 0.0, "qw": [1.0, 0.0]}
+    ).to_parquet(tmp_path / "poses.parquet")
     with pytest.raises(InputError, match=r"row 1 \(from 0\): zero quaternion"):
         read_trajectory(tmp_path / "poses.parquet")
     (tmp_path / "ok.txt").write_text("1 0 0 0 0 0 0 2\n2 0 0 0 0 0 1e-3 0\n")  # not unit: normalised, as evo
@@ -1187,11 +1410,14 @@ def test_kitti_rotation_blocks_must_be_rotations(tmp_path):
     poses, _ = _kitti_text(fmt="%.6g")
     (tmp_path / "k.txt").write_text(poses)
     traj = read_trajectory(tmp_path / "k.txt")
-    assert np.array_equal(traj.rotations.reshape(-1, 9)[:, :3],
-                          np.loadtxt(tmp_path / "k.txt")[:, :3])  # as written: not re-orthonormalised
-    for change, problem in ((lambda m: 2.0 * m, r"max \|RᵀR − I\| = 3, det = 8"),
-                            (lambda m: 0.0 * m, r"max \|RᵀR − I\| = 1, det = 0"),
-                            (lambda m: -m, r"max \|RᵀR − I\| = .*, det = -1")):
+    assert np.array_equal(
+        traj.rotations.reshape(-1, 9)[:, :3], np.loadtxt(tmp_path / "k.txt")[:, :3]
+    )  # as written: not re-orthonormalised
+    for change, problem in (
+        (lambda m: 2.0 * m, r"max \|RᵀR − I\| = 3, det = 8"),
+        (lambda m: 0.0 * m, r"max \|RᵀR − I\| = 1, det = 0"),
+        (lambda m: -m, r"max \|RᵀR − I\| = .*, det = -1"),
+    ):
         m = np.loadtxt(tmp_path / "k.txt").reshape(-1, 3, 4)
         m[3, :, :3] = change(m[3, :, :3])
         np.savetxt(tmp_path / "bad.txt", m.reshape(-1, 12), fmt="%.9g")

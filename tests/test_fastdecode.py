@@ -240,8 +240,9 @@ def test_detection_arrays_identical_to_rosbags(msgtype, encoding):
     for raw in raws:
         for k, (ident, pos) in enumerate(layout.detections(deserialize(ts, raw, msgtype, encoding), None)):
             want.append([float(ident), pos.x, pos.y, pos.z] if layout.ident else [pos.x, pos.y, pos.z])
-    np.testing.assert_array_equal(got.items.view(np.uint64), np.array(want, np.float64).reshape(-1, got.items.shape[1])
-                                  .view(np.uint64))
+    np.testing.assert_array_equal(
+        got.items.view(np.uint64), np.array(want, np.float64).reshape(-1, got.items.shape[1]).view(np.uint64)
+    )
     codes, names = got.strings[0]
     assert [names[c] for c in codes] == [m.header.frame_id for m in msgs]
 

@@ -80,8 +80,9 @@ def test_dynamic_edge_interpolates_translation_and_slerps_rotation():
         np.testing.assert_allclose(res.rot[k], want, atol=1e-9)
     # Inverse lookup: body <- world is the inverse at every time.
     inv = buf.lookup("body", "world", t_q)
-    np.testing.assert_allclose(np.einsum("nij,njk->nik", inv.rot, res.rot), np.broadcast_to(np.eye(3), (4, 3, 3)),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        np.einsum("nij,njk->nik", inv.rot, res.rot), np.broadcast_to(np.eye(3), (4, 3, 3)), atol=1e-12
+    )
     np.testing.assert_allclose(np.einsum("nij,nj->ni", inv.rot, res.trans) + inv.trans, 0.0, atol=1e-12)
 
 
@@ -102,10 +103,16 @@ def test_outside_span_is_invalid_and_holds_the_nearest_sample():
 
 def test_chain_of_static_and_dynamic_edges():
     # world -> odom (/tf, moving) -> base (/tf, moving) -> camera (/tf_static)
-    odom = _series("world", "odom", [0.0, 1.0, 2.0], [[0, 0, 0], [1, 0, 0], [1, 1, 0]],
-                   [[0, 0, 0], [0, 0, 0.1], [0, 0, 0.3]])
-    base = _series("odom", "base", np.arange(0, 2.01, 0.1), np.column_stack([np.arange(21) * 0.1] + [np.zeros(21)] * 2),
-                   [[0, 0.01 * k, 0] for k in range(21)])
+    odom = _series(
+        "world", "odom", [0.0, 1.0, 2.0], [[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [0, 0, 0.1], [0, 0, 0.3]]
+    )
+    base = _series(
+        "odom",
+        "base",
+        np.arange(0, 2.01, 0.1),
+        np.column_stack([np.arange(21) * 0.1] + [np.zeros(21)] * 2),
+        [[0, 0.01 * k, 0] for k in range(21)],
+    )
     cam = Transform("base", "camera", np.array([0.2, 0.0, 0.1]), _q([0.0, 0.3, 0.0]))
     buf = TfBuffer([cam], [odom, base])
     t_q = np.array([T0 + 1_500_000_000], dtype=np.int64)
@@ -131,14 +138,19 @@ def test_static_wins_over_tf_for_the_same_pair_and_chain():
     np.testing.assert_allclose(res.trans[0], [0, 0, 1])
     # A static path is preferred to a shorter path through /tf.
     shortcut = _series("base", "cam", [0.0, 1.0], [[9.0, 0, 0], [9.0, 0, 0]], [[0, 0, 0], [0, 0, 0]])
-    via = [Transform("base", "mount", np.array([1.0, 0, 0]), _q([0, 0, 0])),
-           Transform("mount", "cam", np.array([0.0, 1, 0]), _q([0, 0, 0]))]
+    via = [
+        Transform("base", "mount", np.array([1.0, 0, 0]), _q([0, 0, 0])),
+        Transform("mount", "cam", np.array([0.0, 1, 0]), _q([0, 0, 0])),
+    ]
     np.testing.assert_allclose(TfBuffer(via, [shortcut]).lookup("base", "cam", np.array([T0])).trans[0], [1, 1, 0])
 
 
 def test_missing_edge_is_a_one_line_error_naming_both_trees():
-    buf = TfBuffer([Transform("base", "imu", np.zeros(3), _q([0, 0, 0]))],
-                   [_series("map", "odom", [0.0, 1.0], np.zeros((2, 3)), np.zeros((2, 3)))], path="log.bag")
+    buf = TfBuffer(
+        [Transform("base", "imu", np.zeros(3), _q([0, 0, 0]))],
+        [_series("map", "odom", [0.0, 1.0], np.zeros((2, 3)), np.zeros((2, 3)))],
+        path="log.bag",
+    )
     assert buf.chain("base", "odom") is None
     with pytest.raises(InputError) as err:
         buf.lookup("base", "odom", np.array([T0]), "/odom")
@@ -181,13 +193,20 @@ def _vec(topic: str, frame: str, t_s: np.ndarray, xyz: np.ndarray) -> Vec3Stream
 
 def _streams(static_tf: list[Transform], tf: list[TransformSeries]) -> LogStreams:
     t_om, t_v = np.arange(0, 2.0, 0.01), np.arange(0, 2.0, 0.05)
-    t_det = T0 + np.array([0.5, 1.0, 1.9]) .__mul__(NS).astype(np.int64)
+    t_det = T0 + np.array([0.5, 1.0, 1.9]).__mul__(NS).astype(np.int64)
     return LogStreams(
         path="mem.bag",
         angular_velocity=_vec("/imu", "imu", t_om, np.tile([0.0, 0.0, 0.5], (t_om.size, 1))),
         linear_velocity=_vec("/odom", "base_link", t_v, np.tile([1.0, 0.0, 0.0], (t_v.size, 1))),
-        detections=DetectionStream("/fid", "camera", t_det, t_det, np.array([0, 1, 2, 3]), np.array([4, 5, 6]),
-                                   np.array([[0.0, 0, 1], [0.0, 0, 2], [0.0, 0, 3]])),
+        detections=DetectionStream(
+            "/fid",
+            "camera",
+            t_det,
+            t_det,
+            np.array([0, 1, 2, 3]),
+            np.array([4, 5, 6]),
+            np.array([[0.0, 0, 1], [0.0, 0, 2], [0.0, 0, 3]]),
+        ),
         static_tf=static_tf,
         tf=tf,
     )
@@ -212,8 +231,10 @@ def test_alignment_uses_tf_when_static_is_absent():
 
 
 def test_alignment_prefers_static_and_explains_missing_frames():
-    static = [Transform("base_link", "imu", np.zeros(3), _q([0, 0, 0])),
-              Transform("base_link", "camera", np.zeros(3), _q([0, 0, 0]))]
+    static = [
+        Transform("base_link", "imu", np.zeros(3), _q([0, 0, 0])),
+        Transform("base_link", "camera", np.zeros(3), _q([0, 0, 0])),
+    ]
     bogus = _series("base_link", "imu", [0.0, 2.0], np.zeros((2, 3)), [[0, 0, 1], [0, 0, 1]])
     a = align(_streams(static, [bogus]))
     np.testing.assert_allclose(a.omega[0], [0, 0, 0.5])

@@ -46,9 +46,11 @@ def cases(tmp_path_factory):
     """(case directory, log name, mutation, container) for every case, the damaged log written in place."""
     root = tmp_path_factory.mktemp("fuzz")
     sim = simulate("figure8", duration=2.0, seed=8)
-    bases = {"bag": _write(sim, root / "base.bag", "bag", "lz4"),
-             "mcap": _write(sim, root / "base.mcap", "mcap", "zstd"),
-             "db3": write_log(sim, root / "base_ros2", "ros2")}
+    bases = {
+        "bag": _write(sim, root / "base.bag", "bag", "lz4"),
+        "mcap": _write(sim, root / "base.mcap", "mcap", "zstd"),
+        "db3": write_log(sim, root / "base_ros2", "ros2"),
+    }
     rng = random.Random(SEED)
     out = []
     for container, base in bases.items():
@@ -72,8 +74,9 @@ def cases(tmp_path_factory):
 
 class _Worker:
     def __init__(self) -> None:
-        self.proc = subprocess.Popen([sys.executable, str(WORKER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     text=True)
+        self.proc = subprocess.Popen(
+            [sys.executable, str(WORKER)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
         assert json.loads(self._line(HANG_S * 2)) == {"ready": True}
 
     def _line(self, timeout: float) -> str | None:
@@ -149,8 +152,11 @@ def test_damaged_containers_end_cleanly(cases):
         else:
             if r["notes"] is None:
                 problems.append(f"{label}: exit 0 without run.json")
-            elif "cut" in kind and container != "db3" and not any(
-                    "incomplete" in n or "damaged" in n for n in r["notes"]):
+            elif (
+                "cut" in kind
+                and container != "db3"
+                and not any("incomplete" in n or "damaged" in n for n in r["notes"])
+            ):
                 problems.append(f"{label}: a cut recording ran without saying so: {r['notes']}")
     assert sorted(p.name for p in root.iterdir()) == before_root  # nothing written next to the cases
     assert not problems, "\n".join(problems)

@@ -75,8 +75,16 @@ def _write(sim, path: Path, **changes) -> Path:
 # --------------------------------------------------------------------------- the output never destroys an input
 
 
-@pytest.mark.parametrize("case", ["the log", "the rosbag2 directory", "the directory above the log",
-                                  "inside the rosbag2 directory", "the config file"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        "the log",
+        "the rosbag2 directory",
+        "the directory above the log",
+        "inside the rosbag2 directory",
+        "the config file",
+    ],
+)
 def test_output_never_replaces_or_holds_an_input(logs, tmp_path, quick, case):
     data = tmp_path / "data"
     data.mkdir()
@@ -89,8 +97,13 @@ def test_output_never_replaces_or_holds_an_input(logs, tmp_path, quick, case):
     (data / "notes.txt").write_text("unrelated, precious")
     cfg = data / "run.yaml"
     cfg.write_text(quick.read_text())
-    log, out = {"the log": (bag, bag), "the rosbag2 directory": (ros2, ros2), "the directory above the log": (bag, data),
-                "inside the rosbag2 directory": (ros2, ros2 / "out"), "the config file": (bag, cfg)}[case]
+    log, out = {
+        "the log": (bag, bag),
+        "the rosbag2 directory": (ros2, ros2),
+        "the directory above the log": (bag, data),
+        "inside the rosbag2 directory": (ros2, ros2 / "out"),
+        "the config file": (bag, cfg),
+    }[case]
     before = snapshot(tmp_path)
     one_line_error(invoke("run", log, "-o", out, "--force", "--config", cfg), str(out))
     assert snapshot(tmp_path) == before
@@ -160,8 +173,9 @@ class no_runtime_warnings:  # noqa: N801 - a context manager read as a phrase
 
 def test_observer_option_and_non_utf8_config_are_one_line(logs, tmp_path):
     out = tmp_path / "out"
-    one_line_error(invoke("run", logs["bag"], "-o", out, "--observer", "hashim_imu"), "--observer",
-                   "did you mean 'hashim-imu'")
+    one_line_error(
+        invoke("run", logs["bag"], "-o", out, "--observer", "hashim_imu"), "--observer", "did you mean 'hashim-imu'"
+    )
     cfg = tmp_path / "latin1.yaml"
     cfg.write_bytes("observer: hashim\n# Grüße\n".encode("latin-1"))
     one_line_error(invoke("run", logs["bag"], "-o", out, "--config", cfg), str(cfg), "not UTF-8")
@@ -194,9 +208,12 @@ def _inject(sim):
     gyro[200:205] = 1e6
     vel = s.linear_velocity.xyz.copy()
     vel[30] = [1e3, 0.0, 0.0]
-    return replace(s, detections=replace(s.detections, xyz=xyz),
-                   angular_velocity=replace(s.angular_velocity, xyz=gyro),
-                   linear_velocity=replace(s.linear_velocity, xyz=vel))
+    return replace(
+        s,
+        detections=replace(s.detections, xyz=xyz),
+        angular_velocity=replace(s.angular_velocity, xyz=gyro),
+        linear_velocity=replace(s.linear_velocity, xyz=vel),
+    )
 
 
 def test_plausibility_gates_drop_and_count(sim):
@@ -217,8 +234,12 @@ def test_plausibility_gates_drop_and_count(sim):
 def test_gated_run_stays_close_to_the_clean_run(sim, logs, tmp_path, quick):
     s = _inject(sim)
     det, imu = sim.detections, sim.imu
-    bad = _write(sim, tmp_path / "bad.bag", detections=replace(det, xyz=s.detections.xyz),
-                 imu=replace(imu, gyro=s.angular_velocity.xyz))
+    bad = _write(
+        sim,
+        tmp_path / "bad.bag",
+        detections=replace(det, xyz=s.detections.xyz),
+        imu=replace(imu, gyro=s.angular_velocity.xyz),
+    )
     apes = []
     for log, out in ((logs["bag"], tmp_path / "clean"), (bad, tmp_path / "gated")):
         res = invoke("run", log, "-o", out, "--config", quick, "-q")
@@ -276,8 +297,11 @@ def test_fifo_symlink_loop_and_device_are_one_line(tmp_path):
 def test_output_os_errors_are_one_line_and_leave_nothing(logs, tmp_path, quick, monkeypatch):
     a_file = tmp_path / "file"
     a_file.write_text("x")
-    one_line_error(invoke("run", logs["bag"], "-o", a_file / "out", "--config", quick), str(a_file / "out"),
-                   "cannot create the output")
+    one_line_error(
+        invoke("run", logs["bag"], "-o", a_file / "out", "--config", quick),
+        str(a_file / "out"),
+        "cannot create the output",
+    )
     import tempfile
 
     def read_only(*_a, **_k):
@@ -292,8 +316,11 @@ def test_output_os_errors_are_one_line_and_leave_nothing(logs, tmp_path, quick, 
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(pq.ParquetWriter, "write_table", disk_full)
-    one_line_error(invoke("run", logs["bag"], "-o", tmp_path / "full", "--config", quick), str(tmp_path / "full"),
-                   "No space left on device")
+    one_line_error(
+        invoke("run", logs["bag"], "-o", tmp_path / "full", "--config", quick),
+        str(tmp_path / "full"),
+        "No space left on device",
+    )
     assert sorted(p.name for p in tmp_path.iterdir()) == ["file"]
 
 
@@ -309,9 +336,22 @@ def test_a_real_write_error_is_one_line(logs, tmp_path, quick):
         resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
 
     out = tmp_path / "out"
-    proc = subprocess.run([str(Path(sys.executable).with_name("slamobs")), "run", str(logs["bag"]), "-o", str(out),
-                           "--config", str(quick), "-q"], capture_output=True, text=True, preexec_fn=small_files,
-                          timeout=600)
+    proc = subprocess.run(
+        [
+            str(Path(sys.executable).with_name("slamobs")),
+            "run",
+            str(logs["bag"]),
+            "-o",
+            str(out),
+            "--config",
+            str(quick),
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+        preexec_fn=small_files,
+        timeout=600,
+    )
     err = proc.stderr.strip()
     assert proc.returncode == 2 and len(err.splitlines()) == 1, (proc.returncode, err)
     assert err.startswith(f"error: {out}: cannot write the output: ") and "too large" in err.lower(), err
@@ -381,11 +421,21 @@ def test_one_hour_gap_splits_the_run_into_segments(sim, tmp_path, quick):
     cut = sim.imu.t_ns[0] + 3 * NS
 
     def shifted(x):
-        return replace(x, t_ns=np.where(x.t_ns > cut, x.t_ns + 3600 * NS, x.t_ns),
-                       rec_ns=np.where(x.rec_ns > cut, x.rec_ns + 3600 * NS, x.rec_ns))
+        return replace(
+            x,
+            t_ns=np.where(x.t_ns > cut, x.t_ns + 3600 * NS, x.t_ns),
+            rec_ns=np.where(x.rec_ns > cut, x.rec_ns + 3600 * NS, x.rec_ns),
+        )
 
-    log = _write(sim, tmp_path / "gap.bag", imu=shifted(sim.imu), odom=shifted(sim.odom), mag=shifted(sim.mag),
-                 detections=shifted(sim.detections), mocap=shifted(sim.mocap))
+    log = _write(
+        sim,
+        tmp_path / "gap.bag",
+        imu=shifted(sim.imu),
+        odom=shifted(sim.odom),
+        mag=shifted(sim.mag),
+        detections=shifted(sim.detections),
+        mocap=shifted(sim.mocap),
+    )
     out = tmp_path / "out"
     res = invoke("run", log, "-o", out, "--config", quick)
     assert res.exit_code == 0, res.stderr
@@ -402,8 +452,11 @@ def test_degenerate_stamps_name_the_real_cause(sim):
     s = expected_streams(sim, "mem.bag")
     om = s.angular_velocity
     same = replace(s, angular_velocity=replace(om, t_ns=np.full_like(om.t_ns, om.t_ns[0])))
-    with pytest.raises(InputError, match=r"all \d+ samples have the same time .* header stamps; its record times "
-                                         r"advance: set time.source: record"):
+    with pytest.raises(
+        InputError,
+        match=r"all \d+ samples have the same time .* header stamps; its record times "
+        r"advance: set time.source: record",
+    ):
         align(same)
     # all-zero header stamps are replaced by record times (reader); all-zero record times too: no usable time
     zeros = np.zeros_like(om.t_ns)
@@ -414,8 +467,11 @@ def test_degenerate_stamps_name_the_real_cause(sim):
         align(one)
     # header stamps all zero: the reader falls back to record time, here on another clock than the odometry's
     zero = replace(s, angular_velocity=replace(om, t_ns=om.rec_ns + 1000 * NS, rec_ns=om.rec_ns + 1000 * NS))
-    with pytest.raises(InputError, match=r"record time\) and linear velocity .*header stamps\) do not overlap.*"
-                                         r"time.source"):
+    with pytest.raises(
+        InputError,
+        match=r"record time\) and linear velocity .*header stamps\) do not overlap.*"
+        r"time.source",
+    ):
         align(zero)
 
 

@@ -20,12 +20,16 @@ NS = 1_000_000_000
 TWO63 = 2**63
 
 #: Nine lines, each alias nine times the one before: 9^9 (387 million) strings once expanded.
-BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(f"{k}: &{k} [{', '.join([f'*{p}'] * 9)}]\n"
-                                                      for p, k in zip("abcdefgh", "bcdefghi"))
-YAML_CASES = {"bomb": (BOMB, "alias bomb"), "cycle": ("a: &a [*a]\n", "*a refers to a value that contains it"),
-              # ruamel's scanner spent 15 s on a 4 kB file of '[' before its RecursionError
-              "flow": ("[" * 2000 + "]" * 2000 + "\n", "nests [ ] or { } 2000 levels deep"),
-              "block": ("- " * 2000 + "x\n", "nested too deeply")}
+BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+    f"{k}: &{k} [{', '.join([f'*{p}'] * 9)}]\n" for p, k in zip("abcdefgh", "bcdefghi")
+)
+YAML_CASES = {
+    "bomb": (BOMB, "alias bomb"),
+    "cycle": ("a: &a [*a]\n", "*a refers to a value that contains it"),
+    # ruamel's scanner spent 15 s on a 4 kB file of '[' before its RecursionError
+    "flow": ("[" * 2000 + "]" * 2000 + "\n", "nests [ ] or { } 2000 levels deep"),
+    "block": ("- " * 2000 + "x\n", "nested too deeply"),
+}
 
 
 @pytest.fixture(scope="module")
@@ -102,14 +106,20 @@ def _shifted_mcap(src: Path, dst: Path, shift: int = 0, edit=None, indexed: bool
             if schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
             if channel.id not in channels:
-                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
-                                                               schemas[schema.id], channel.metadata)
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata
+                )
             data = msg.data
             if edit is not None and channel.topic == TOPIC_TRUTH:
                 text = edit(ts.deserialize_cdr(data, schema.name).data)
                 data = bytes(ts.serialize_cdr(ts.types[schema.name](data=text), schema.name))
-            writer.add_message(channels[channel.id], log_time=msg.log_time + shift, data=data,
-                               publish_time=msg.publish_time + shift, sequence=msg.sequence)
+            writer.add_message(
+                channels[channel.id],
+                log_time=msg.log_time + shift,
+                data=data,
+                publish_time=msg.publish_time + shift,
+                sequence=msg.sequence,
+            )
         writer.finish()
     return dst
 
@@ -171,18 +181,26 @@ def _tf_tags_mcap(src: Path, dst: Path, id_shift: int) -> Path:
         for schema, channel, msg in make_reader(fin).iter_messages():
             if channel.topic == TOPIC_DETECTIONS:
                 arr = ts.deserialize_cdr(msg.data, schema.name)
-                tags = [stamped(header=arr.header, child_frame_id=f"tag_{f.fiducial_id + id_shift}",
-                                transform=f.transform) for f in arr.transforms]
+                tags = [
+                    stamped(header=arr.header, child_frame_id=f"tag_{f.fiducial_id + id_shift}", transform=f.transform)
+                    for f in arr.transforms
+                ]
                 data = bytes(ts.serialize_cdr(ts.types[tf_type](transforms=tags), tf_type))
                 writer.add_message(tf_channel, log_time=msg.log_time, publish_time=msg.publish_time, data=data)
                 continue
             if schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
             if channel.id not in channels:
-                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
-                                                               schemas[schema.id], channel.metadata)
-            writer.add_message(channels[channel.id], log_time=msg.log_time, data=msg.data,
-                               publish_time=msg.publish_time, sequence=msg.sequence)
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata
+                )
+            writer.add_message(
+                channels[channel.id],
+                log_time=msg.log_time,
+                data=msg.data,
+                publish_time=msg.publish_time,
+                sequence=msg.sequence,
+            )
         writer.finish()
     return dst
 
@@ -227,8 +245,13 @@ def test_tag_ids_beyond_int32_are_exported_with_their_labels(mcap_log, tmp_path,
 
 def test_tag_id_beyond_int64_is_one_line(mcap_log, tmp_path, tags_config):
     log = _tf_tags_mcap(mcap_log, tmp_path / "tags2e63.mcap", TWO63)
-    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", tags_config), str(log), "[/tf]",
-                   "outside the 64-bit integers", "tag_pattern")
+    one_line_error(
+        invoke("run", log, "-o", tmp_path / "out", "--config", tags_config),
+        str(log),
+        "[/tf]",
+        "outside the 64-bit integers",
+        "tag_pattern",
+    )
 
 
 # --------------------------------------------------------------------------- odd run directories
@@ -242,9 +265,14 @@ def run_dir(mcap_log, quick, tmp_path_factory) -> Path:
     return out
 
 
-@pytest.mark.parametrize(("text", "needle"), [("[]", "the file is a JSON array"),
-                                              ('{"input": [1]}', "'input' is a JSON array"),
-                                              ("[" * 100_000 + "]" * 100_000, "unreadable run.json")])
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[]", "the file is a JSON array"),
+        ('{"input": [1]}', "'input' is a JSON array"),
+        ("[" * 100_000 + "]" * 100_000, "unreadable run.json"),
+    ],
+)
 def test_run_json_of_another_shape_is_one_line(run_dir, tmp_path, text, needle):
     import shutil
 
@@ -276,9 +304,14 @@ def test_detections_all_dropped_by_the_range_gate_say_so(sim, tmp_path, quick):
     det = sim.detections
     log = write_log(replace(sim, detections=replace(det, xyz=np.zeros_like(det.xyz))), tmp_path / "zero.mcap")
     n = det.xyz.shape[0]
-    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), "[/fiducial_transforms]",
-                   f"all {n} detections inside the velocity time span were dropped by the range gate",
-                   f"{n} closer than limits.min_range 0.05 m", "null switches a gate off")
+    one_line_error(
+        invoke("run", log, "-o", tmp_path / "out", "--config", quick),
+        str(log),
+        "[/fiducial_transforms]",
+        f"all {n} detections inside the velocity time span were dropped by the range gate",
+        f"{n} closer than limits.min_range 0.05 m",
+        "null switches a gate off",
+    )
 
 
 def test_identical_odometry_stamps_are_one_line_without_warnings(sim, tmp_path, quick):
@@ -316,8 +349,9 @@ def test_stamps_after_2038_are_one_line_before_the_run_and_in_export(mcap_log, r
 def test_simulation_truth_nested_too_deeply_is_one_line(mcap_log, tmp_path, quick):
     """json's decoder recurses per level: a deep truth message was a RecursionError traceback."""
     log = _shifted_mcap(mcap_log, tmp_path / "deep.mcap", edit=lambda _text: "[" * 100_000 + "]" * 100_000)
-    one_line_error(invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), f"[{TOPIC_TRUTH}]",
-                   "nested too deeply")
+    one_line_error(
+        invoke("run", log, "-o", tmp_path / "out", "--config", quick), str(log), f"[{TOPIC_TRUTH}]", "nested too deeply"
+    )
 
 
 def test_ids_equal_in_their_low_32_bits_are_different_landmarks(sim):
@@ -330,7 +364,7 @@ def test_ids_equal_in_their_low_32_bits_are_different_landmarks(sim):
     det = s.detections
     k = int(np.flatnonzero(np.diff(det.offsets) >= 2)[0])  # a frame with two detections
     ids = det.ids.copy()
-    ids[det.offsets[k]: det.offsets[k] + 2] = [7, 7 + 2**32]
+    ids[det.offsets[k] : det.offsets[k] + 2] = [7, 7 + 2**32]
     aligned = align(replace(s, detections=replace(det, ids=ids)))
     assert not [n for n in aligned.notes if "repeated ids" in n], aligned.notes
     assert {7, 7 + 2**32} <= set(aligned.landmark_ids.tolist())

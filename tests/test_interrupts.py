@@ -35,8 +35,13 @@ def _default_sigint() -> None:
 
 
 def _start(log: Path, out: Path, cfg: Path, *extra: str) -> subprocess.Popen:
-    return subprocess.Popen([str(SLAMOBS), "run", str(log), "-o", str(out), "--config", str(cfg), "-q", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+    return subprocess.Popen(
+        [str(SLAMOBS), "run", str(log), "-o", str(out), "--config", str(cfg), "-q", *extra],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_sigint,
+    )
 
 
 def _wait_for_observer(proc: subprocess.Popen, parent: Path, name: str) -> None:
@@ -57,8 +62,10 @@ def long_log(tmp_path_factory):
     first = det.ids[0]
     later = np.flatnonzero(det.ids == first)[1]  # the second sighting of the first landmark, early in the log
     xyz[later] = [1e9, 0.0, 0.0]
-    return {"plain": write_log(sim, base / "plain.bag"),
-            "far": write_log(replace(sim, detections=replace(det, xyz=xyz)), base / "far.bag")}
+    return {
+        "plain": write_log(sim, base / "plain.bag"),
+        "far": write_log(replace(sim, detections=replace(det, xyz=xyz)), base / "far.bag"),
+    }
 
 
 @pytest.mark.parametrize(("case", "signum"), [("far", signal.SIGINT), ("stiff", signal.SIGTERM)])
@@ -82,8 +89,9 @@ def test_signal_stops_a_spinning_observer(long_log, tmp_path, case, signum):
         proc.kill()
         pytest.fail("the run ignored the signal")
     assert proc.returncode == 128 + signum, err
-    assert err.strip().splitlines() == [f"interrupted ({signal.Signals(signum).name}): stopped; nothing was written "
-                                        "and an existing output is unchanged"]
+    assert err.strip().splitlines() == [
+        f"interrupted ({signal.Signals(signum).name}): stopped; nothing was written and an existing output is unchanged"
+    ]
     assert json.loads((out / "run.json").read_text()) == {"earlier": True}
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "run.yaml"]
 
@@ -107,6 +115,7 @@ def _killed_at(step: int, parent: Path, exchange: bool) -> bool:
                     if count[0] == step:
                         os.kill(os.getpid(), signal.SIGKILL)
                     return fn(*a, **k)
+
                 return call
 
             os.rename, os.replace, shutil.rmtree = counted(os.rename), counted(os.replace), counted(shutil.rmtree)
@@ -157,11 +166,13 @@ def test_a_signal_after_the_command_ends_the_process_with_its_code(sig):
     """Once a command is done (outputs complete), a SIGTERM or SIGINT during the exit gives 143/130 at once: left at
     the default, a batch stopped just as it finished was killed by the signal (-15) and a SIGINT printed a
     traceback from the interpreter's teardown."""
-    code = ("import os, signal, time\n"
-            "from slamobs.cli import errors\n"
-            "errors.end_signals_at_once()\n"
-            f"os.kill(os.getpid(), {int(sig)})\n"
-            "time.sleep(30)\n")
+    code = (
+        "import os, signal, time\n"
+        "from slamobs.cli import errors\n"
+        "errors.end_signals_at_once()\n"
+        f"os.kill(os.getpid(), {int(sig)})\n"
+        "time.sleep(30)\n"
+    )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 128 + int(sig) and "Traceback" not in proc.stderr
 
@@ -169,13 +180,16 @@ def test_a_signal_after_the_command_ends_the_process_with_its_code(sig):
 def _busy_in(module: str):
     """A function that signals this process and then keeps running for 0.2 s as code of ``module``."""
     ns = {"__name__": module}
-    exec("import os, signal, time\n"
-         "def busy():\n"
-         "    os.kill(os.getpid(), signal.SIGTERM)\n"
-         "    t = time.monotonic()\n"
-         "    while time.monotonic() - t < 0.2:\n"
-         "        pass\n"
-         "    return 'finished'\n", ns)
+    exec(
+        "import os, signal, time\n"
+        "def busy():\n"
+        "    os.kill(os.getpid(), signal.SIGTERM)\n"
+        "    t = time.monotonic()\n"
+        "    while time.monotonic() - t < 0.2:\n"
+        "        pass\n"
+        "    return 'finished'\n",
+        ns,
+    )
     return ns["busy"]
 
 

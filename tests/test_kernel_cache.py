@@ -47,8 +47,9 @@ def test_stamp_covers_the_modules_imported_directly_or_not(tmp_path):
 def test_a_kernel_is_stale_when_a_function_it_calls_from_another_module_changes(tmp_path):
     """The regression: fast_adaptation's cached kernels kept shared_steps.landmark_sums' old code."""
     root = tmp_path / "slamobs"
-    shutil.copytree(kernel_cache.PACKAGE_ROOT / "pipeline", root / "pipeline",
-                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(
+        kernel_cache.PACKAGE_ROOT / "pipeline", root / "pipeline", ignore=shutil.ignore_patterns("__pycache__")
+    )
     shutil.copy(kernel_cache.PACKAGE_ROOT / "__init__.py", root / "__init__.py")
     kernel = root / "pipeline" / "observers" / "fast_adaptation.py"
     before = source_stamp(kernel, root)
@@ -69,8 +70,10 @@ def test_package_kernels_are_cached_by_content_not_by_location():
     stamp = source_stamp(fast_adaptation.__file__)
     assert locator.get_source_stamp() == stamp and locator.get_disambiguator().endswith(f"-{stamp}")
     # under the per-user root, laid out like the package: nothing of the install location in the path
-    assert Path(locator.get_cache_path()) in (cache_root() / "pipeline" / "observers",
-                                              Path(fast_adaptation.__file__).parent / "__pycache__")
+    assert Path(locator.get_cache_path()) in (
+        cache_root() / "pipeline" / "observers",
+        Path(fast_adaptation.__file__).parent / "__pycache__",
+    )
     assert str(kernel_cache.PACKAGE_ROOT) not in str(cache_root())
 
 
@@ -89,8 +92,13 @@ def test_prune_removes_only_old_cache_files(tmp_path):
 def test_kernel_modules_take_njit_from_kernel_cache():
     """A kernel decorated with numba's own njit could be decorated before the locator is installed."""
     pattern = re.compile(r"^\s*from numba import .*\bnjit\b|\bnumba\.n?jit\b", re.MULTILINE)
-    offenders = [p.relative_to(kernel_cache.PACKAGE_ROOT).as_posix()
-                 for p in sorted((kernel_cache.PACKAGE_ROOT / "pipeline").rglob("*.py"))
-                 if p.name != "kernel_cache.py" and pattern.search(p.read_text())]
+    offenders = [
+        p.relative_to(kernel_cache.PACKAGE_ROOT).as_posix()
+        for p in sorted((kernel_cache.PACKAGE_ROOT / "pipeline").rglob("*.py"))
+        if p.name != "kernel_cache.py" and pattern.search(p.read_text())
+    ]
     assert offenders == [], "import njit from slamobs.pipeline.kernel_cache"
-    assert "from slamobs.pipeline.kernel_cache import njit" in (kernel_cache.PACKAGE_ROOT / "pipeline" / "lie.py").read_text()
+    assert (
+        "from slamobs.pipeline.kernel_cache import njit"
+        in (kernel_cache.PACKAGE_ROOT / "pipeline" / "lie.py").read_text()
+    )

@@ -35,11 +35,16 @@ def _write_maps(base: Path, ids: np.ndarray, xyz: np.ndarray) -> dict[str, Path]
     csv.write_text("id,x,y,z\n# surveyed\n" + "".join(f"{i},{x},{y},{z}\n" for i, (x, y, z) in zip(ids, xyz)))
     pq = base / "landmarks.parquet"
     pd.DataFrame({"id": ids, "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}).to_parquet(pq)
-    body = "\n".join(f"       - {{id: {i}, size: 0.2, pose: {{position: {{x: {x}, y: {y}, z: {z - 1.0}}}, "
-                     f"rotation: {{x: 0, y: 0, z: 0}}}}}}" for i, (x, y, z) in zip(ids, xyz))
+    body = "\n".join(
+        f"       - {{id: {i}, size: 0.2, pose: {{position: {{x: {x}, y: {y}, z: {z - 1.0}}}, "
+        f"rotation: {{x: 0, y: 0, z: 0}}}}}}"
+        for i, (x, y, z) in zip(ids, xyz)
+    )
     yml = base / "tagslam.yaml"
-    yml.write_text("bodies:\n - lab:\n     is_static: true\n     pose: {position: {x: 0, y: 0, z: 1.0}, rotation: "
-                   f"{{x: 0, y: 0, z: 0}}}}\n     tags:\n{body}\n       - {{id: 999, size: 0.1}}\n")
+    yml.write_text(
+        "bodies:\n - lab:\n     is_static: true\n     pose: {position: {x: 0, y: 0, z: 1.0}, rotation: "
+        f"{{x: 0, y: 0, z: 0}}}}\n     tags:\n{body}\n       - {{id: 999, size: 0.1}}\n"
+    )
     return {"csv": csv, "parquet": pq, "yaml": yml}
 
 
@@ -88,8 +93,11 @@ def test_fixed_map_localises_and_prior_map_is_updated(log, tmp_path):
     meta, report = _run(log, tmp_path / "prior", map={"file": str(files["parquet"]), "mode": "prior"})
     lms = pd.read_parquet(tmp_path / "prior" / "landmarks.parquet").set_index("id")
     assert set(SC.landmark_ids[~keep].tolist()) <= set(lms.index)  # new tags are mapped too
-    moved = np.linalg.norm(lms.loc[SC.landmark_ids[keep & np.isin(SC.landmark_ids, lms.index)], ["x", "y", "z"]]
-                           .to_numpy() - map_xyz[keep & np.isin(SC.landmark_ids, lms.index)], axis=1)
+    moved = np.linalg.norm(
+        lms.loc[SC.landmark_ids[keep & np.isin(SC.landmark_ids, lms.index)], ["x", "y", "z"]].to_numpy()
+        - map_xyz[keep & np.isin(SC.landmark_ids, lms.index)],
+        axis=1,
+    )
     assert moved.max() > 1e-3 and np.median(moved) < 0.2  # updated, near the map it started from
     assert report["landmarks"]["map_aligned"]["error_m"]["rmse"] < 0.2
 
@@ -106,8 +114,9 @@ def test_map_truth_without_trajectory_truth(log, tmp_path):
     files = _write_maps(tmp_path, SC.landmark_ids, SC.landmarks)
     meta, report = _run(log, tmp_path / "t", evaluation={"plots": False, "map_truth": str(files["yaml"])})
     assert report["landmarks"]["n_matched"] > 20
-    meta, _ = _run(log, tmp_path / "n", topics={"truth": ""},
-                   evaluation={"plots": False, "map_truth": str(files["yaml"])})
+    meta, _ = _run(
+        log, tmp_path / "n", topics={"truth": ""}, evaluation={"plots": False, "map_truth": str(files["yaml"])}
+    )
     assert meta["map_error"]["n_matched"] == report["landmarks"]["n_matched"]
     assert meta["map_error"]["error_m"]["rmse"] == pytest.approx(report["landmarks"]["map_aligned"]["error_m"]["rmse"])
 
@@ -138,16 +147,24 @@ def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path):
         ns = int(1_700_000_000e9 + t[k] * 1e9)
         vec = lambda a: T["geometry_msgs/msg/Vector3"](x=float(a[0]), y=float(a[1]), z=float(a[2]))  # noqa: E731
         msg = T["nav_msgs/msg/Odometry"](
-            header=T["std_msgs/msg/Header"](seq=k, stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9,
-                                                                                          nanosec=ns % 10**9),
-                                            frame_id="world"),
+            header=T["std_msgs/msg/Header"](
+                seq=k, stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="world"
+            ),
             child_frame_id="body",
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=T["geometry_msgs/msg/Pose"](
-                position=T["geometry_msgs/msg/Point"](x=float(tr.P[k, 0]), y=float(tr.P[k, 1]), z=float(tr.P[k, 2])),
-                orientation=T["geometry_msgs/msg/Quaternion"](x=q[k, 0], y=q[k, 1], z=q[k, 2], w=q[k, 3])),
-                covariance=np.zeros(36)),
-            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
-                linear=vec(v_world[k]), angular=vec(np.zeros(3))), covariance=np.zeros(36)))
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](
+                        x=float(tr.P[k, 0]), y=float(tr.P[k, 1]), z=float(tr.P[k, 2])
+                    ),
+                    orientation=T["geometry_msgs/msg/Quaternion"](x=q[k, 0], y=q[k, 1], z=q[k, 2], w=q[k, 3]),
+                ),
+                covariance=np.zeros(36),
+            ),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=vec(v_world[k]), angular=vec(np.zeros(3))),
+                covariance=np.zeros(36),
+            ),
+        )
         msgs.append((ns, bytes(ts.serialize_ros1(msg, "nav_msgs/msg/Odometry"))))
     path = write_raw_log(tmp_path / "vio.bag", "bag", {"/vio/odom": msgs}, "nav_msgs/msg/Odometry", ts)
     s = read_log(path)
@@ -163,19 +180,34 @@ def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path):
 TAG = "{{id: {}, size: 0.2, pose: {{position: {{x: 7, y: 7, z: 0}}, rotation: {{x: 0, y: 0, z: 0}}}}}}"
 
 
-@pytest.mark.parametrize(("name", "text", "problem"), [
-    ("m.csv", "id,x,y,z\n99999999999999999999,7,7,0\n2,-7,7,0\n",
-     "line 2: landmark id 99999999999999999999 is out of range (64-bit integers)"),
-    ("m.csv", "id,x,y,z\n1.5,7,7,0\n", "line 2: landmark id 1.5 is not an integer"),
-    ("t.yaml", "bodies:\n - world:\n     is_static: true\n     tags:\n       - " + TAG.format("one") + "\n",
-     "body world: tag id 'one' is not an integer"),
-    ("t.yaml", "bodies:\n - world:\n     is_static: true\n     tags:\n       - " + TAG.format("1e30") + "\n",
-     "body world: tag id 1e+30 is out of range (64-bit integers)"),
-    ("t.yaml", "bodies:\n - world:\n     is_static: true\n     tags: 5\n",
-     "body world: tags must be a list of {id, size, pose}, got 5"),
-    ("t.yaml", "bodies: [world]\n", "bodies: expected {name: body} entries, got 'world'"),
-    ("t.yaml", b"bodies: [\xff]\n", "not UTF-8 text (byte 0xff at offset 9): save the map as UTF-8"),
-])
+@pytest.mark.parametrize(
+    ("name", "text", "problem"),
+    [
+        (
+            "m.csv",
+            "id,x,y,z\n99999999999999999999,7,7,0\n2,-7,7,0\n",
+            "line 2: landmark id 99999999999999999999 is out of range (64-bit integers)",
+        ),
+        ("m.csv", "id,x,y,z\n1.5,7,7,0\n", "line 2: landmark id 1.5 is not an integer"),
+        (
+            "t.yaml",
+            "bodies:\n - world:\n     is_static: true\n     tags:\n       - " + TAG.format("one") + "\n",
+            "body world: tag id 'one' is not an integer",
+        ),
+        (
+            "t.yaml",
+            "bodies:\n - world:\n     is_static: true\n     tags:\n       - " + TAG.format("1e30") + "\n",
+            "body world: tag id 1e+30 is out of range (64-bit integers)",
+        ),
+        (
+            "t.yaml",
+            "bodies:\n - world:\n     is_static: true\n     tags: 5\n",
+            "body world: tags must be a list of {id, size, pose}, got 5",
+        ),
+        ("t.yaml", "bodies: [world]\n", "bodies: expected {name: body} entries, got 'world'"),
+        ("t.yaml", b"bodies: [\xff]\n", "not UTF-8 text (byte 0xff at offset 9): save the map as UTF-8"),
+    ],
+)
 def test_bad_map_ids_and_structure_are_one_line(tmp_path, name, text, problem):
     path = tmp_path / name
     path.write_bytes(text if isinstance(text, bytes) else text.encode())

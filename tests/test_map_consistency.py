@@ -64,7 +64,8 @@ def test_map_sits_where_the_trajectory_puts_it(log, name):
     after_traj, after_map = map_errors(res, sc, sim, streams.landmark_truth)
     assert after_traj <= 1.5 * after_map + 0.05, (
         f"{name} on {label}: map error {after_traj:.3f} m after the trajectory alignment, {after_map:.3f} m "
-        "after its own")
+        "after its own"
+    )
 
 
 def test_the_upside_down_imu_is_in_the_log_and_used():

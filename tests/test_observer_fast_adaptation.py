@@ -16,8 +16,18 @@ LANDMARKS = np.array([[7, 7, 0], [-7, 7, 0], [7, -7, 0], [-7, -7, 0.0]])
 PAPER_GAINS = dict(k_p=1.0, k_w=2.0, alpha=0.1, gamma=30.0)
 
 # docs/observers.md §12.2: max_i |e_i| of the continuous-time solution
-REFERENCE = {0.0: 11.58, 0.1: 4.0, 0.5: 1.83, 1.0: 1.22, 2.0: 0.756, 3.0: 0.532, 5.0: 0.297, 10.0: 0.082,
-             20.0: 6.7e-3, 30.0: 5.5e-4}
+REFERENCE = {
+    0.0: 11.58,
+    0.1: 4.0,
+    0.5: 1.83,
+    1.0: 1.22,
+    2.0: 0.756,
+    3.0: 0.532,
+    5.0: 0.297,
+    10.0: 0.082,
+    20.0: 6.7e-3,
+    30.0: 5.5e-4,
+}
 
 
 def paper_scenario(duration=30.0, dt=0.01, landmarks=LANDMARKS):
@@ -30,8 +40,14 @@ def paper_scenario(duration=30.0, dt=0.01, landmarks=LANDMARKS):
         ps[k] = p + np.array([0.0, 0.0, 6.0])
     n = landmarks.shape[0]
     y = np.einsum("kji,kmj->kmi", rs, landmarks[None] - ps[:, None]).reshape(-1, 3)
-    return dict(t=t, rs=rs, ps=ps, y=y, offsets=np.arange(0, n * t.size + 1, n, dtype=np.int64),
-                idx=np.tile(np.arange(n), t.size).astype(np.int64))
+    return dict(
+        t=t,
+        rs=rs,
+        ps=ps,
+        y=y,
+        offsets=np.arange(0, n * t.size + 1, n, dtype=np.int64),
+        idx=np.tile(np.arange(n), t.size).astype(np.int64),
+    )
 
 
 def run(sc, gains=PAPER_GAINS, lm0=None, init=True, r0=np.eye(3)):
@@ -39,9 +55,28 @@ def run(sc, gains=PAPER_GAINS, lm0=None, init=True, r0=np.eye(3)):
     lm = np.zeros((n, 3)) if lm0 is None else lm0.copy()
     lm_init = np.full(n, init)
     size = sc["t"].size
-    out = run_kernel(sc["t"], np.tile(OMEGA + B_OM, (size, 1)), np.tile(VEL + B_V, (size, 1)),
-                     sc["t"], sc["offsets"], sc["idx"], sc["y"], lm, lm_init, r0, np.zeros(3), np.zeros(3),
-                     np.zeros(3), gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma"], 3, 0.5, 1)
+    out = run_kernel(
+        sc["t"],
+        np.tile(OMEGA + B_OM, (size, 1)),
+        np.tile(VEL + B_V, (size, 1)),
+        sc["t"],
+        sc["offsets"],
+        sc["idx"],
+        sc["y"],
+        lm,
+        lm_init,
+        r0,
+        np.zeros(3),
+        np.zeros(3),
+        np.zeros(3),
+        gains["k_p"],
+        gains["k_w"],
+        gains["alpha"],
+        gains["gamma"],
+        3,
+        0.5,
+        1,
+    )
     return out, lm
 
 
@@ -69,7 +104,7 @@ def test_biases_converge_as_in_spec(paper_run):
     assert np.linalg.norm(out_b[k(0.5), :3] - B_OM) < 1e-3
     assert np.linalg.norm(out_b[k(1.0), :3] - B_OM) < 1e-6
     assert np.linalg.norm(out_b[k(1.0), 3:] - B_V) < 1e-4
-    assert np.abs(out_b[k(2.0):] - np.r_[B_OM, B_V]).max() < 1e-3
+    assert np.abs(out_b[k(2.0) :] - np.r_[B_OM, B_V]).max() < 1e-3
 
 
 def test_rotation_stays_on_so3_and_errors_settle_to_constants(paper_run):

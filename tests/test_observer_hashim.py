@@ -54,9 +54,16 @@ def scenario(duration=20.0, dt=0.01, landmarks=LANDMARKS, q=np.eye(3), visible_u
         keep[t > t_last, i] = False
     vi = DIRECTIONS / np.linalg.norm(DIRECTIONS, axis=1, keepdims=True) @ q.T
     body = np.einsum("kji,mj->kmi", rs, vi)
-    return dict(t=t, rs=rs, ps=ps, lms=lms, y=y[keep], idx=np.nonzero(keep)[1].astype(np.int64),
-                offsets=np.r_[0, np.cumsum(keep.sum(1))].astype(np.int64),
-                dirs=DirectionSet(("a", "b"), vi, body, np.ones(body.shape[:2])))
+    return dict(
+        t=t,
+        rs=rs,
+        ps=ps,
+        lms=lms,
+        y=y[keep],
+        idx=np.nonzero(keep)[1].astype(np.int64),
+        offsets=np.r_[0, np.cumsum(keep.sum(1))].astype(np.int64),
+        dirs=DirectionSet(("a", "b"), vi, body, np.ones(body.shape[:2])),
+    )
 
 
 def run(sc, gains, r0=np.eye(3), lm0=None, init=True, imu=True, map_frame=False):
@@ -64,12 +71,38 @@ def run(sc, gains, r0=np.eye(3), lm0=None, init=True, imu=True, map_frame=False)
     n = sc["t"].size
     n_lm = sc["lms"].shape[0]
     lm = np.zeros((n_lm, 3)) if lm0 is None else lm0.copy()
-    dirs = direction_arrays(sc["dirs"], gains) if imu else (
-        np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
-    out = run_kernel(sc["t"], np.tile(OMEGA + B_OM, (n, 1)), np.tile(VEL + B_V, (n, 1)), *dirs,
-                     sc["t"], sc["offsets"], sc["idx"], sc["y"], lm, np.full(n_lm, init), r0, np.zeros(3),
-                     np.zeros(3), np.zeros(3), gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma_omega"],
-                     gains["gamma_v"], gains.get("k_1", 0.0), gains.get("k_2", 0.0), 3, 0.5, 1, map_frame)
+    dirs = (
+        direction_arrays(sc["dirs"], gains)
+        if imu
+        else (np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
+    )
+    out = run_kernel(
+        sc["t"],
+        np.tile(OMEGA + B_OM, (n, 1)),
+        np.tile(VEL + B_V, (n, 1)),
+        *dirs,
+        sc["t"],
+        sc["offsets"],
+        sc["idx"],
+        sc["y"],
+        lm,
+        np.full(n_lm, init),
+        r0,
+        np.zeros(3),
+        np.zeros(3),
+        np.zeros(3),
+        gains["k_p"],
+        gains["k_w"],
+        gains["alpha"],
+        gains["gamma_omega"],
+        gains["gamma_v"],
+        gains.get("k_1", 0.0),
+        gains.get("k_2", 0.0),
+        3,
+        0.5,
+        1,
+        map_frame,
+    )
     return out, lm, dirs[0]
 
 
@@ -92,8 +125,7 @@ R170 = so3_exp(np.radians(170.0) * AXIS_170)
 def spec_runs():
     """docs/observers.md §12.3: B from the identity, C and C with k_1 = k_2 = 0, from a 170° attitude error)."""
     sc = scenario(duration=30.0)
-    return sc, {"B": run(sc, GAINS_B, imu=False), "C": run(sc, GAINS_C, r0=R170),
-                "C0": run(sc, GAINS_B, r0=R170)}
+    return sc, {"B": run(sc, GAINS_B, imu=False), "C": run(sc, GAINS_C, r0=R170), "C0": run(sc, GAINS_B, r0=R170)}
 
 
 def test_b_reproduces_spec_3_3(spec_runs):
@@ -120,7 +152,7 @@ def test_c_reproduces_spec_4_3(spec_runs):
     assert ang[at(1)] == pytest.approx(162.0, abs=3.0)
     assert ang[at(5)] == pytest.approx(32.6, rel=0.10)
     assert ang[at(10)] == pytest.approx(0.7, abs=0.2)
-    assert ang[at(15):].max() < 0.2
+    assert ang[at(15) :].max() < 0.2
     assert e_max(innov, sc)[at(10)] == pytest.approx(0.087, rel=0.10)
     assert np.linalg.norm(out_b[at(20), :3] - B_OM) < 1e-4
     assert np.linalg.norm(out_b[at(20), 3:] - B_V) < 1e-3
@@ -136,8 +168,8 @@ def test_headline_attitude_converges_with_imu_only(spec_runs):
     sc, runs = spec_runs
     with_imu = attitude_error_deg(runs["C"][0][1], sc)
     without = attitude_error_deg(runs["C0"][0][1], sc)
-    assert with_imu[at(10):].max() < 1.0
-    assert without[at(5):].min() > 160.0
+    assert with_imu[at(10) :].max() < 1.0
+    assert without[at(5) :].min() > 160.0
     assert without[-1] == pytest.approx(167.0, abs=3.0)
     # ... while the landmark innovations converge the same way in both (co-rotation keeps ‖e_i‖)
     assert e_max(runs["C0"][0][5], sc)[at(20)] < 5e-3
@@ -156,8 +188,11 @@ def lyapunov(sc, out, gains, inertial):
     at every sample."""
     _, out_r, _, out_b, _, innov, _ = out
     e2 = (innov.reshape(sc["t"].size, -1, 3) ** 2).sum(axis=(1, 2))
-    val = e2 / (2 * gains["alpha"]) + 0.5 * ((out_b[:, :3] - B_OM) ** 2).sum(1) / gains["gamma_omega"] \
+    val = (
+        e2 / (2 * gains["alpha"])
+        + 0.5 * ((out_b[:, :3] - B_OM) ** 2).sum(1) / gains["gamma_omega"]
         + 0.5 * ((out_b[:, 3:] - B_V) ** 2).sum(1) / gains["gamma_v"]
+    )
     if gains.get("k_2", 0.0) > 0:
         u_true = np.einsum("kji,mj->kmi", sc["rs"], inertial)
         u_hat = np.einsum("kji,mj->kmi", out_r, inertial)
@@ -170,9 +205,11 @@ PAPER_C = dict(alpha=0.1, k_w=2.0, gamma_omega=30.0, gamma_v=30.0, k_p=1.0, k_1=
 IMU_BIAS_C = dict(alpha=100.0, k_w=1.0, gamma_omega=1.0, gamma_v=1.0, k_p=1.0, k_1=1.0, k_2=3.0)
 
 
-@pytest.mark.parametrize("gains,duration,final_ratio", [(GAINS_B, 10.0, 1e-3), (GAINS_C, 10.0, 1e-3),
-                                                        (PAPER_C, 10.0, 1e-3), (IMU_BIAS_C, 20.0, 1e-2)],
-                         ids=["B-100Hz", "C-100Hz", "C-paper", "C-imu-bias"])
+@pytest.mark.parametrize(
+    "gains,duration,final_ratio",
+    [(GAINS_B, 10.0, 1e-3), (GAINS_C, 10.0, 1e-3), (PAPER_C, 10.0, 1e-3), (IMU_BIAS_C, 20.0, 1e-2)],
+    ids=["B-100Hz", "C-100Hz", "C-paper", "C-imu-bias"],
+)
 def test_lyapunov_function_does_not_increase(gains, duration, final_ratio):
     sc = scenario(duration=duration)
     out, _, inertial = run(sc, gains, r0=R170, imu="k_1" in gains)
@@ -210,8 +247,9 @@ def test_estimates_do_not_depend_on_the_inertial_frame(gains):
     assert a[6] == b[6]  # same sub-steps
     np.testing.assert_allclose(b[3], a[3], atol=1e-9)  # biases (body frame)
     np.testing.assert_allclose(np.linalg.norm(b[5], axis=1), np.linalg.norm(a[5], axis=1), atol=1e-9)
-    np.testing.assert_allclose(np.einsum("kji,kj->ki", b[1], b[2]), np.einsum("kji,kj->ki", a[1], a[2]),
-                               atol=1e-8)  # R̂ᵀP̂
+    np.testing.assert_allclose(
+        np.einsum("kji,kj->ki", b[1], b[2]), np.einsum("kji,kj->ki", a[1], a[2]), atol=1e-8
+    )  # R̂ᵀP̂
     np.testing.assert_allclose(b[1], np.einsum("ij,kjl->kil", q, a[1]), atol=1e-10)
     np.testing.assert_allclose(lm_b, lm_a @ q.T, atol=1e-8)
 
@@ -259,7 +297,7 @@ def test_bias_adaptation_frozen_below_three_landmarks_but_imu_still_corrects():
     sc = scenario(duration=4.0, visible_until={2: 1.0, 3: 1.0})
     for gains, r0 in ((GAINS_B, np.eye(3)), (GAINS_C, R170)):
         (_, out_r, _, out_b, _, _, _), _, _ = run(sc, gains, r0=r0, imu="k_1" in gains)
-        frozen = out_b[at(1.02):]
+        frozen = out_b[at(1.02) :]
         assert np.array_equal(frozen, np.broadcast_to(frozen[0], frozen.shape))
         assert not np.array_equal(out_b[at(0.5)], out_b[at(1.0)])
     ang = attitude_error_deg(out_r, sc)
@@ -287,8 +325,9 @@ def test_direction_arrays_normalise_weight_and_complete_by_cross_product():
     inertial, b, w, gscale, make_cross = direction_arrays(ds, {"s_gravity": 2.0})
     assert make_cross and gscale[0] > 9 and gscale[1] == 0
     np.testing.assert_allclose(np.linalg.norm(inertial, axis=1), 1.0)
-    np.testing.assert_allclose(inertial[2], np.cross(inertial[0], inertial[1]) / np.linalg.norm(
-        np.cross(inertial[0], inertial[1])))
+    np.testing.assert_allclose(
+        inertial[2], np.cross(inertial[0], inertial[1]) / np.linalg.norm(np.cross(inertial[0], inertial[1]))
+    )
     np.testing.assert_allclose(w, [[2, 1], [1, 1], [0, 1], [2, 0], [0, 1]])
     assert np.all(np.isfinite(b)) and np.all(b[w == 0] == 0)
     np.testing.assert_allclose(np.linalg.norm(b[w > 0], axis=1), 1.0)
@@ -317,7 +356,7 @@ def test_gravity_direction_recompensated_with_bias_estimates():
     assert tilt.min() > 1.0  # the paper's gyro bias tilts the raw "up" by > 1°
     out_b, out_w = np.zeros((1, 3)), np.zeros(1)
     for k in range(0, t.size, 50):
-        load_directions(up[k:k + 1], np.ones(1), np.array([9.81]), False, om_m[k], v_m[k], B_OM, B_V, out_b, out_w)
+        load_directions(up[k : k + 1], np.ones(1), np.array([9.81]), False, om_m[k], v_m[k], B_OM, B_V, out_b, out_w)
         assert np.degrees(np.arccos(min(1.0, out_b[0] @ true_up[k]))) < 1e-6
 
 
@@ -338,8 +377,9 @@ def test_gain_coupling_constraint_is_a_gain_error(tmp_path):
     cfg = tmp_path / "run.yaml"
     cfg.write_text("gains:\n  hashim-imu: {k_1: 0.1, k_2: 1}\n")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / "figure8.mcap"), "-o", str(out), "--observer",
-                                    "hashim-imu", "--config", str(cfg)])
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / "figure8.mcap"), "-o", str(out), "--observer", "hashim-imu", "--config", str(cfg)]
+    )
     assert res.exit_code == 2 and "k_w*k_2 < 4*k_1" in res.output
     assert not out.exists()
 
@@ -363,8 +403,9 @@ def test_cli_run_on_every_sample_log(tmp_path, log, observer):
     import pandas as pd
 
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / log), "-o", str(out), "--observer", observer],
-                             catch_exceptions=False)
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / log), "-o", str(out), "--observer", observer], catch_exceptions=False
+    )
     assert res.exit_code == 0, res.output
     run_meta = json.loads((out / "run.json").read_text())
     assert run_meta["observer"]["name"] == observer
@@ -384,6 +425,8 @@ def test_cli_run_on_every_sample_log(tmp_path, log, observer):
         k = np.clip(np.searchsorted(truth.t_ns, poses["t_ns"].to_numpy()), 0, truth.t_ns.size - 1)
         same_time = np.abs(truth.t_ns[k] - poses["t_ns"].to_numpy()) < 10**6  # mocap and IMU stamps 0.5 ms apart
         q_hat = poses[["qx", "qy", "qz", "qw"]].to_numpy(float)[same_time]
-        ang = [np.degrees(rotation_angle(quat_to_rot(q) @ quat_to_rot(truth.quat_xyzw[j]).T))
-               for q, j in zip(q_hat, k[same_time])]
+        ang = [
+            np.degrees(rotation_angle(quat_to_rot(q) @ quat_to_rot(truth.quat_xyzw[j]).T))
+            for q, j in zip(q_hat, k[same_time])
+        ]
         assert len(ang) > 100 and np.mean(ang) < att

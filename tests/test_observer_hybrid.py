@@ -18,6 +18,7 @@ from slamobs.pipeline.directions import direction_arrays
 from slamobs.pipeline.observers.hybrid import candidates, switching_design, synergy_gap
 from slamobs.pipeline.observers.wang_tayebi import best_jump, direction_potential, rotate_estimate, run_kernel
 from slamobs.schemas import arrow_schema
+
 # E builds on D: the circle and D's Lyapunov terms come from D's tests (tests/ is on sys.path).
 from test_observer_wang_tayebi import B_OM, B_V, OMEGA, SAMPLES, SPEC_GAINS, VEL, e_max, lyapunov, paper_scenario
 
@@ -44,10 +45,31 @@ def run_e(sc, dirs, r0, cand, delta, gains=SPEC_GAINS, lm0=None, p0=np.zeros(3),
     n_lm = sc["lms"].shape[0] if n_lm is None else n_lm
     lm = np.zeros((n_lm, 3)) if lm0 is None else lm0.copy()
     size = sc["t"].size
-    out = run_kernel(sc["t"], np.tile(OMEGA + B_OM, (size, 1)), np.tile(VEL + B_V, (size, 1)), *dirs,
-                     sc["t"], sc["offsets"], sc["idx"], sc["y"], lm, np.ones(n_lm, bool), r0, p0,
-                     np.zeros(3), np.zeros(3), gains["k_l"], gains["k_x"], gains["gamma_w"], gains["gamma_v"],
-                     np.ascontiguousarray(cand), delta, 3, 0.5, 1)
+    out = run_kernel(
+        sc["t"],
+        np.tile(OMEGA + B_OM, (size, 1)),
+        np.tile(VEL + B_V, (size, 1)),
+        *dirs,
+        sc["t"],
+        sc["offsets"],
+        sc["idx"],
+        sc["y"],
+        lm,
+        np.ones(n_lm, bool),
+        r0,
+        p0,
+        np.zeros(3),
+        np.zeros(3),
+        gains["k_l"],
+        gains["k_x"],
+        gains["gamma_w"],
+        gains["gamma_v"],
+        np.ascontiguousarray(cand),
+        delta,
+        3,
+        0.5,
+        1,
+    )
     return out, lm
 
 
@@ -62,8 +84,11 @@ def prototype():
     sc = paper_scenario(duration=12.0)
     dirs = kernel_dirs(sc, PROTO_DIRS)
     cand = candidates(PROTO_DIRS.T @ PROTO_DIRS, PROTO_DIRS)
-    runs = {(angle, delta): run_e(sc, dirs, r_a(angle), cand, delta)
-            for angle in (179.0, 90.0) for delta in (PROTO_DELTA, np.inf)}
+    runs = {
+        (angle, delta): run_e(sc, dirs, r_a(angle), cand, delta)
+        for angle in (179.0, 90.0)
+        for delta in (PROTO_DELTA, np.inf)
+    }
     return sc, cand, runs
 
 
@@ -78,7 +103,7 @@ def test_headline_hybrid_jumps_once_from_179_deg_and_beats_the_smooth_observer(p
     sc, _, runs = prototype
     out, _ = runs[(179.0, PROTO_DELTA)]
     smooth, _ = runs[(179.0, np.inf)]
-    jump_k, jump_q, jump_phi = out[7], out[8], out[9]
+    jump_k, jump_phi = out[7], out[9]
     assert list(jump_k) == [0]  # exactly one jump, at t = 0
     # The prototype checked the jump after the first 10 ms flow step (a prototype's order): Φ to ±0.01.
     assert jump_phi[0, 0] == pytest.approx(2.57, abs=0.01)
@@ -152,8 +177,9 @@ def test_jump_map_rotates_pose_and_every_landmark_about_the_vehicle():
     # Through the kernel, landmark 4 is never seen yet jumps with the map (one sample: no flow at all).
     sc = paper_scenario(duration=0.0)
     lm0 = rng.normal(size=(5, 3)) * 10
-    (out_k, out_r, *_, jk, jq, jphi), lm_end = run_e(sc, kernel_dirs(sc, PROTO_DIRS), r_hat, cand, PROTO_DELTA,
-                                                      lm0=lm0, p0=p_hat, n_lm=5)
+    (out_k, out_r, *_, jk, jq, jphi), lm_end = run_e(
+        sc, kernel_dirs(sc, PROTO_DIRS), r_hat, cand, PROTO_DELTA, lm0=lm0, p0=p_hat, n_lm=5
+    )
     assert list(jk) == [0]
     rq = cand[jq[0]]
     assert np.allclose(lm_end, p_hat + (lm0 - p_hat) @ rq)
@@ -236,8 +262,9 @@ def test_estimates_do_not_depend_on_the_inertial_frame():
     other = paper_scenario(duration=15.0, frame=(r_g, p_g))
     dirs2 = sample_log_dirs(other, r_g)
     cand2, _, delta2 = switching_design(dirs2[0], 1.0, 0.5)
-    (_, r2, p2, b2, _, e2, _, jk2, jq2, jphi2), lm2 = run_e(other, dirs2, r_g @ r0, cand2, delta2,
-                                                           lm0=lm0 @ r_g.T + p_g, p0=p_g)
+    (_, r2, p2, b2, _, e2, _, jk2, jq2, jphi2), lm2 = run_e(
+        other, dirs2, r_g @ r0, cand2, delta2, lm0=lm0 @ r_g.T + p_g, p0=p_g
+    )
     assert np.allclose(cand2, np.einsum("ij,qjk,lk->qil", r_g, cand, r_g))
     assert np.array_equal(jk1, jk2) and np.array_equal(jq1, jq2) and np.allclose(jphi1, jphi2)
     assert np.allclose(r2, np.einsum("ij,kjl->kil", r_g, r1), atol=1e-8)
@@ -268,18 +295,21 @@ def test_delta_fraction_outside_the_gap_is_a_gain_error(tmp_path):
     cfg = tmp_path / "run.yaml"
     cfg.write_text("gains:\n  hybrid: {delta_fraction: 1.5}\n")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", "hybrid",
-                                    "--config", str(cfg)])
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", "hybrid", "--config", str(cfg)]
+    )
     assert res.exit_code == 2 and "delta_fraction" in res.output
     assert not out.exists()
 
 
-@pytest.mark.parametrize("log,ape_max,lm_max", [("circle.bag", 0.06, 0.1), ("circle_ros2", 0.06, 0.1),
-                                                ("figure8.mcap", 0.12, 0.2)])
+@pytest.mark.parametrize(
+    "log,ape_max,lm_max", [("circle.bag", 0.06, 0.1), ("circle_ros2", 0.06, 0.1), ("figure8.mcap", 0.12, 0.2)]
+)
 def test_cli_run_on_every_sample_log(tmp_path, log, ape_max, lm_max):
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / log), "-o", str(out), "--observer", "hybrid", "-q"],
-                             catch_exceptions=False)
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / log), "-o", str(out), "--observer", "hybrid", "-q"], catch_exceptions=False
+    )
     assert res.exit_code == 0, res.output
     run = json.loads((out / "run.json").read_text())
     assert run["observer"]["name"] == "hybrid" and run["observer"]["directions"] == ["gravity", "magnetic"]

@@ -95,8 +95,17 @@ def test_stretch_by_stretch_equals_one_run(runs, noise_free, name, out_every):
     whole = runs[name] if out_every == 1 else spec.run(aligned, gains, options)
     parts = list(spec.chunks(aligned, gains, options, 997))
     assert len(parts) > 3
-    for field in ("t_ns", "rotation", "position", "gyro_bias", "vel_bias", "det_t_ns", "det_ids", "track_xyz",
-                  "innovation"):
+    for field in (
+        "t_ns",
+        "rotation",
+        "position",
+        "gyro_bias",
+        "vel_bias",
+        "det_t_ns",
+        "det_ids",
+        "track_xyz",
+        "innovation",
+    ):
         joined = np.concatenate([getattr(p, field) for p in parts])
         assert np.array_equal(joined, getattr(whole, field)), field
     assert np.array_equal(parts[-1].landmark_xyz, whole.landmark_xyz) and parts[-1].stats == whole.stats

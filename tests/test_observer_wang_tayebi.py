@@ -37,8 +37,15 @@ def paper_scenario(duration=30.0, dt=0.01, landmarks=LANDMARKS, frame=(np.eye(3)
     lms = landmarks @ r_g.T + p_g
     n = lms.shape[0]
     y = np.einsum("kji,kmj->kmi", rs, lms[None] - ps[:, None]).reshape(-1, 3)
-    return dict(t=t, rs=rs, ps=ps, lms=lms, y=y, offsets=np.arange(0, n * t.size + 1, n, dtype=np.int64),
-                idx=np.tile(np.arange(n), t.size).astype(np.int64))
+    return dict(
+        t=t,
+        rs=rs,
+        ps=ps,
+        lms=lms,
+        y=y,
+        offsets=np.arange(0, n * t.size + 1, n, dtype=np.int64),
+        idx=np.tile(np.arange(n), t.size).astype(np.int64),
+    )
 
 
 def run_d(sc, gains=SPEC_GAINS, lm0=None, init=True, r0=np.eye(3), p0=np.zeros(3)):
@@ -46,11 +53,35 @@ def run_d(sc, gains=SPEC_GAINS, lm0=None, init=True, r0=np.eye(3), p0=np.zeros(3
     n_lm = sc["lms"].shape[0]
     lm = np.zeros((n_lm, 3)) if lm0 is None else lm0.copy()
     size = sc["t"].size
-    out = run_kernel(sc["t"], np.tile(OMEGA + B_OM, (size, 1)), np.tile(VEL + B_V, (size, 1)),
-                     np.zeros((0, 3)), np.zeros((size, 0, 3)), np.zeros((size, 0)), np.zeros(0), False,
-                     sc["t"], sc["offsets"], sc["idx"], sc["y"], lm, np.full(n_lm, init), r0, p0,
-                     np.zeros(3), np.zeros(3), gains["k_l"], gains["k_x"], gains["gamma_w"], gains["gamma_v"],
-                     np.zeros((0, 3, 3)), np.inf, 3, 0.5, 1)
+    out = run_kernel(
+        sc["t"],
+        np.tile(OMEGA + B_OM, (size, 1)),
+        np.tile(VEL + B_V, (size, 1)),
+        np.zeros((0, 3)),
+        np.zeros((size, 0, 3)),
+        np.zeros((size, 0)),
+        np.zeros(0),
+        False,
+        sc["t"],
+        sc["offsets"],
+        sc["idx"],
+        sc["y"],
+        lm,
+        np.full(n_lm, init),
+        r0,
+        p0,
+        np.zeros(3),
+        np.zeros(3),
+        gains["k_l"],
+        gains["k_x"],
+        gains["gamma_w"],
+        gains["gamma_v"],
+        np.zeros((0, 3, 3)),
+        np.inf,
+        3,
+        0.5,
+        1,
+    )
     return out, lm
 
 
@@ -90,8 +121,11 @@ def lyapunov(sc, out, gains=SPEC_GAINS):
     """docs/observers.md §8.1: L = ½Σk‖e_i‖² + ½‖b̃_ω‖²/γ_ω + ½‖b̃_v‖²/γ_v at every sample."""
     e = out[5].reshape(sc["t"].size, -1, 3)
     b = out[3]
-    return (0.5 * gains["k_l"] * np.sum(e ** 2, axis=(1, 2)) + 0.5 * np.sum((b[:, :3] - B_OM) ** 2, 1) / gains["gamma_w"]
-            + 0.5 * np.sum((b[:, 3:] - B_V) ** 2, 1) / gains["gamma_v"])
+    return (
+        0.5 * gains["k_l"] * np.sum(e**2, axis=(1, 2))
+        + 0.5 * np.sum((b[:, :3] - B_OM) ** 2, 1) / gains["gamma_w"]
+        + 0.5 * np.sum((b[:, 3:] - B_V) ** 2, 1) / gains["gamma_v"]
+    )
 
 
 def test_lyapunov_function_does_not_increase(paper_run):
@@ -177,8 +211,9 @@ def test_bias_adaptation_frozen_below_three_visible_landmarks():
 @pytest.mark.parametrize("log,ape_max", [("circle.bag", 0.06), ("circle_ros2", 0.06), ("figure8.mcap", 0.08)])
 def test_cli_run_on_every_sample_log(tmp_path, log, ape_max):
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / log), "-o", str(out), "--observer", "wang-tayebi", "-q"],
-                             catch_exceptions=False)
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / log), "-o", str(out), "--observer", "wang-tayebi", "-q"], catch_exceptions=False
+    )
     assert res.exit_code == 0, res.output
     assert json.loads((out / "run.json").read_text())["observer"]["name"] == "wang-tayebi"
     assert not (out / "jumps.parquet").exists()

@@ -26,8 +26,9 @@ SECONDS = 15.0
 @pytest.fixture(scope="module")
 def log(tmp_path_factory):
     """A noisy figure 8 whose world frame is z up with the magnetic field along x (the default references)."""
-    return write_log(simulate("figure8", duration=SECONDS, seed=11, imu_rate=100.0),
-                     tmp_path_factory.mktemp("frame") / "f8.mcap")
+    return write_log(
+        simulate("figure8", duration=SECONDS, seed=11, imu_rate=100.0), tmp_path_factory.mktemp("frame") / "f8.mcap"
+    )
 
 
 def run(log, out, observer, frame=None):
@@ -86,9 +87,18 @@ def test_accelerometer_up_undoes_a_tilted_estimate_frame():
     aligned = align(expected_streams(sim))
     truth = get_scenario("figure8").sample(aligned.seconds(aligned.vel_t_ns) + (aligned.t0_ns - EPOCH_NS) * 1e-9)
     tilt = so3_exp(np.radians(20.0) * np.array([0.6, 0.8, 0.0]))
-    first = ObserverResult(aligned.vel_t_ns, np.einsum("ij,kjl->kil", tilt, truth.R), truth.P @ tilt.T,
-                           *(np.zeros((aligned.vel_t_ns.size, 3)),) * 2, np.zeros(0, np.int64), np.zeros((0, 3)),
-                           np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)))
+    first = ObserverResult(
+        aligned.vel_t_ns,
+        np.einsum("ij,kjl->kil", tilt, truth.R),
+        truth.P @ tilt.T,
+        *(np.zeros((aligned.vel_t_ns.size, 3)),) * 2,
+        np.zeros(0, np.int64),
+        np.zeros((0, 3)),
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros((0, 3)),
+        np.zeros((0, 3)),
+    )
     frame = output_frame.resolve("gravity", first, aligned=aligned, log="x", gravity=(0.0, 0.0, -9.81))
     level = frame.apply(first).rotation
     assert np.median(tilt_deg(level, truth.R)) < 0.5 < 19.0 < np.median(tilt_deg(first.rotation, truth.R))
@@ -113,8 +123,10 @@ def test_frames_are_one_rigid_transform_apart(log, tmp_path):
     out = {}
     for frame in ("start", "truth"):
         run(log, tmp_path / frame, "hashim-imu", frame)
-        out[frame] = (pd.read_parquet(tmp_path / frame / "poses.parquet"),
-                      pd.read_parquet(tmp_path / frame / "landmarks.parquet"))
+        out[frame] = (
+            pd.read_parquet(tmp_path / frame / "poses.parquet"),
+            pd.read_parquet(tmp_path / frame / "landmarks.parquet"),
+        )
     (pa, la), (pb, lb) = out["start"], out["truth"]
     r = rotations(pb)[0] @ rotations(pa)[0].T
     t = pb[["x", "y", "z"]].to_numpy()[0] - r @ pa[["x", "y", "z"]].to_numpy()[0]
@@ -129,15 +141,23 @@ def test_aligned_tables_use_the_reports_transform(log, tmp_path):
     al = report["method"]["alignment"]
     rot, trans = np.array(al["rotation_matrix"]), np.array(al["translation_m"])
     poses, aligned = pd.read_parquet(out / "poses.parquet"), pd.read_parquet(out / "poses_aligned.parquet")
-    np.testing.assert_allclose(poses[["x", "y", "z"]].to_numpy() @ rot.T + trans,
-                               aligned[["x", "y", "z"]].to_numpy(), atol=1e-6)
+    np.testing.assert_allclose(
+        poses[["x", "y", "z"]].to_numpy() @ rot.T + trans, aligned[["x", "y", "z"]].to_numpy(), atol=1e-6
+    )
     np.testing.assert_allclose(np.einsum("ij,kjl->kil", rot, rotations(poses)), rotations(aligned), atol=1e-6)
     lm, lm_al = pd.read_parquet(out / "landmarks.parquet"), pd.read_parquet(out / "landmarks_aligned.parquet")
     assert lm["id"].tolist() == lm_al["id"].tolist()
-    err = np.linalg.norm(lm_al[["x", "y", "z"]].to_numpy()
-                         - np.array([get_scenario("figure8").landmarks[list(get_scenario("figure8").landmark_ids).index(i)]
-                                     for i in lm_al["id"]]), axis=1)
-    assert np.sqrt(np.mean(err ** 2)) == pytest.approx(report["landmarks"]["error_m"]["rmse"], rel=1e-5)
+    err = np.linalg.norm(
+        lm_al[["x", "y", "z"]].to_numpy()
+        - np.array(
+            [
+                get_scenario("figure8").landmarks[list(get_scenario("figure8").landmark_ids).index(i)]
+                for i in lm_al["id"]
+            ]
+        ),
+        axis=1,
+    )
+    assert np.sqrt(np.mean(err**2)) == pytest.approx(report["landmarks"]["error_m"]["rmse"], rel=1e-5)
     meta = read_metadata(out / "poses_aligned.parquet")
     assert meta["aligned"]["alignment"]["type"] == "se3" and meta["output"]["frame"]["name"] == "start"
 

@@ -31,8 +31,13 @@ def _default_signals() -> None:
 
 
 def _start(*args: object) -> subprocess.Popen:
-    return subprocess.Popen([str(SLAMOBS), *map(str, args)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, preexec_fn=_default_signals)
+    return subprocess.Popen(
+        [str(SLAMOBS), *map(str, args)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=_default_signals,
+    )
 
 
 def _end(proc: subprocess.Popen) -> tuple[int, str]:
@@ -208,8 +213,9 @@ def test_sighup_is_handled_like_sigterm(log, cfg, tmp_path):
     proc.send_signal(signal.SIGCONT)
     code, err = _end(proc)
     assert code == 129, err
-    assert err.strip().splitlines() == ["interrupted (SIGHUP): stopped; nothing was written and an existing output "
-                                        "is unchanged"]
+    assert err.strip().splitlines() == [
+        "interrupted (SIGHUP): stopped; nothing was written and an existing output is unchanged"
+    ]
     assert list(tmp_path.iterdir()) == []
 
 
@@ -254,8 +260,13 @@ def full_disk(tmp_path):
     mounted (not root, or no mount in this container)."""
     where = tmp_path / "full"
     where.mkdir()
-    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(where)],
-                                           capture_output=True, timeout=30).returncode != 0:
+    if (
+        os.geteuid() != 0
+        or subprocess.run(
+            ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(where)], capture_output=True, timeout=30
+        ).returncode
+        != 0
+    ):
         pytest.skip("cannot mount a small tmpfs here")
     try:
         with pytest.raises(OSError, match="No space left"):  # noqa: PT012 - until the file system is full
@@ -269,10 +280,18 @@ def full_disk(tmp_path):
 
 def test_a_full_disk_names_the_file(log, earlier, tmp_path, full_disk):
     """export / evaluate / simulate on a full disk said 'No space left on device' without the file."""
-    cases = {"export": ("export", earlier, "--mcap", full_disk / "r.mcap"),
-             "evaluate": ("evaluate", f"{log}:/mocap/pose", earlier / "poses.parquet", "-q", "--save-results",
-                          full_disk / "ape.zip"),
-             "simulate": ("simulate", "circle", "--duration", "1", "-q", "-o", full_disk / "s.mcap")}
+    cases = {
+        "export": ("export", earlier, "--mcap", full_disk / "r.mcap"),
+        "evaluate": (
+            "evaluate",
+            f"{log}:/mocap/pose",
+            earlier / "poses.parquet",
+            "-q",
+            "--save-results",
+            full_disk / "ape.zip",
+        ),
+        "simulate": ("simulate", "circle", "--duration", "1", "-q", "-o", full_disk / "s.mcap"),
+    }
     for args in cases.values():
         code, err = _cli(*args)
         _one_line(code, err, str(args[-1]), "No space left on device")

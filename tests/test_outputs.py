@@ -25,10 +25,14 @@ def _result(k=50, m=12):
         t_ns=np.arange(k, dtype=np.int64) * 10_000_000 + 1_700_000_000 * 10**9,
         rotation=np.stack([so3_exp(rng.normal(size=3)) for _ in range(k)]),
         position=rng.normal(size=(k, 3)),
-        gyro_bias=rng.normal(size=(k, 3)), vel_bias=rng.normal(size=(k, 3)),
-        landmark_ids=ids, landmark_xyz=rng.normal(size=(3, 3)),
-        det_t_ns=np.sort(rng.integers(0, 10**9, size=m)).astype(np.int64), det_ids=det_ids,
-        track_xyz=rng.normal(size=(m, 3)), innovation=rng.normal(size=(m, 3)),
+        gyro_bias=rng.normal(size=(k, 3)),
+        vel_bias=rng.normal(size=(k, 3)),
+        landmark_ids=ids,
+        landmark_xyz=rng.normal(size=(3, 3)),
+        det_t_ns=np.sort(rng.integers(0, 10**9, size=m)).astype(np.int64),
+        det_ids=det_ids,
+        track_xyz=rng.normal(size=(m, 3)),
+        innovation=rng.normal(size=(m, 3)),
     )
 
 
@@ -117,9 +121,19 @@ def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
     whole = stretch_tables(res)
     sink = TableWriter(tmp_path, float_bits=52)
     for rows, dets in ((slice(0, 100), slice(0, 40)), (slice(100, 300), slice(40, 90))):
-        part = ObserverResult(res.t_ns[rows], res.rotation[rows], res.position[rows], res.gyro_bias[rows],
-                              res.vel_bias[rows], res.landmark_ids, res.landmark_xyz, res.det_t_ns[dets],
-                              res.det_ids[dets], res.track_xyz[dets], res.innovation[dets])
+        part = ObserverResult(
+            res.t_ns[rows],
+            res.rotation[rows],
+            res.position[rows],
+            res.gyro_bias[rows],
+            res.vel_bias[rows],
+            res.landmark_ids,
+            res.landmark_xyz,
+            res.det_t_ns[dets],
+            res.det_ids[dets],
+            res.track_xyz[dets],
+            res.innovation[dets],
+        )
         sink.write(stretch_tables(part))
     meta = {"counts": {"internal_steps": 7}}
     sink.close(meta)
@@ -167,9 +181,9 @@ def test_round_mantissa_keeps_a_fine_enough_step_far_from_the_origin():
     r = round_mantissa(x, 28, -20)
     ok = np.isfinite(x)
     assert np.all(np.abs(r[ok] - x[ok]) <= np.maximum(2.0**-21, np.abs(x[ok]) * 2.0**-29))
-    assert np.max(np.abs(r[near.size:near.size + far.size] - far)) <= 2.0**-21  # 1.6 cm steps without it
+    assert np.max(np.abs(r[near.size : near.size + far.size] - far)) <= 2.0**-21  # 1.6 cm steps without it
     assert np.max(np.abs(round_mantissa(far, 28) - far)) > 1e-3
-    assert np.array_equal(r[:near.size], round_mantissa(near, 28))
+    assert np.array_equal(r[: near.size], round_mantissa(near, 28))
     assert np.array_equal(round_mantissa(near, 28, -20), round_mantissa(near, 28))  # the one-shift path
     assert np.array_equal(round_mantissa(r, 28, -20), r, equal_nan=True)  # idempotent
     assert np.array_equal(r[-6:-2], x[-6:-2]) and np.isnan(r[-2]) and np.isfinite(r[-1])
@@ -214,13 +228,16 @@ def test_writing_tables_does_not_import_pandas(tmp_path):
     import subprocess
     import sys
 
-    code = ("import sys, numpy as np; from slamobs.pipeline.writers import TableWriter; "
-            "w = TableWriter(sys.argv[1]); t = np.arange(5, dtype=np.int64); x = np.linspace(0, 1, 5); "
-            "w.write({'biases': {'t_ns': t, **{c: x for c in ('gyro_bias_x', 'gyro_bias_y', 'gyro_bias_z', 'vel_bias_x', 'vel_bias_y', 'vel_bias_z')}}}); "
-            "w.close({}); from slamobs.pipeline.writers import read_columns; "
-            "import slamobs.pipeline.evaluation.report, slamobs.pipeline.evaluation.run_dir, slamobs.pipeline.run; "
-            "c = read_columns(sys.argv[1] + '/biases.parquet'); assert c['t_ns'].tolist() == list(range(5)); "
-            "print('pandas' in sys.modules)")
+    code = (
+        "import sys, numpy as np; from slamobs.pipeline.writers import TableWriter; "
+        "w = TableWriter(sys.argv[1]); t = np.arange(5, dtype=np.int64); x = np.linspace(0, 1, 5); "
+        "cols = ('gyro_bias_x', 'gyro_bias_y', 'gyro_bias_z', 'vel_bias_x', 'vel_bias_y', 'vel_bias_z'); "
+        "w.write({'biases': {'t_ns': t, **{c: x for c in cols}}}); "
+        "w.close({}); from slamobs.pipeline.writers import read_columns; "
+        "import slamobs.pipeline.evaluation.report, slamobs.pipeline.evaluation.run_dir, slamobs.pipeline.run; "
+        "c = read_columns(sys.argv[1] + '/biases.parquet'); assert c['t_ns'].tolist() == list(range(5)); "
+        "print('pandas' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
     table = pq.read_table(tmp_path / "biases.parquet")
@@ -234,10 +251,21 @@ def test_read_columns_equals_read_frame(tmp_path):
     sink = TableWriter(tmp_path)
     for k in range(3):  # three row groups
         t = np.arange(k * 4, k * 4 + 4, dtype=np.int64)
-        sink.write({"landmarks": {"id": t, "x": rng.normal(size=4), "y": rng.normal(size=4),
-                                  "z": np.full(4, np.nan), **{c.name: np.zeros(4, dtype=c.type.to_pandas_dtype())
-                                                               for c in arrow_schema("landmarks")
-                                                               if c.name not in ("id", "x", "y", "z")}}})
+        sink.write(
+            {
+                "landmarks": {
+                    "id": t,
+                    "x": rng.normal(size=4),
+                    "y": rng.normal(size=4),
+                    "z": np.full(4, np.nan),
+                    **{
+                        c.name: np.zeros(4, dtype=c.type.to_pandas_dtype())
+                        for c in arrow_schema("landmarks")
+                        if c.name not in ("id", "x", "y", "z")
+                    },
+                }
+            }
+        )
     sink.close({})
     frame, cols = read_frame(tmp_path / "landmarks.parquet"), read_columns(tmp_path / "landmarks.parquet")
     assert list(cols) == list(frame.columns) and len(cols["x"]) == len(frame) == 12

@@ -19,11 +19,22 @@ def _jobs():
     rng = np.random.default_rng(3)
     t = np.linspace(0.0, 90.0, 5000)
     return [
-        ("plot_errors", "errors.png", dict(t_s=t, position_error_m=np.abs(rng.normal(size=t.size)),
-                                           attitude_error_deg=np.abs(rng.normal(size=t.size)), band_m=0.5,
-                                           convergence_t_s=12.0)),
-        ("plot_landmark_errors", "landmarks.png", dict(ids=np.arange(7), error_traj_m=rng.random(7),
-                                                       error_map_m=rng.random(7))),
+        (
+            "plot_errors",
+            "errors.png",
+            dict(
+                t_s=t,
+                position_error_m=np.abs(rng.normal(size=t.size)),
+                attitude_error_deg=np.abs(rng.normal(size=t.size)),
+                band_m=0.5,
+                convergence_t_s=12.0,
+            ),
+        ),
+        (
+            "plot_landmark_errors",
+            "landmarks.png",
+            dict(ids=np.arange(7), error_traj_m=rng.random(7), error_map_m=rng.random(7)),
+        ),
     ]
 
 
@@ -58,8 +69,11 @@ def test_batches_drawn_side_by_side_come_back_in_order(tmp_path):
 
 
 def test_a_failed_figure_fails_the_collect(tmp_path, capfd):
-    bad = ("plot_errors", "bad.png", dict(t_s=np.arange(3.0), position_error_m=np.arange(2.0),
-                                          attitude_error_deg=np.arange(3.0)))
+    bad = (
+        "plot_errors",
+        "bad.png",
+        dict(t_s=np.arange(3.0), position_error_m=np.arange(2.0), attitude_error_deg=np.arange(3.0)),
+    )
     workers = plot_worker.PlotWorkers(1)
     workers.submit(_jobs()[:1])
     workers.submit([bad])
@@ -81,14 +95,20 @@ def test_helper_dies_with_a_killed_run():
     """SIGKILL of the run while its helper's child draws (stdin already closed) takes the helper and the
     drawing child along at once."""
     parent = subprocess.Popen(
-        [sys.executable, "-c", "import sys, time\nimport numpy as np\n"
-         "from slamobs.pipeline.evaluation import plot_worker\n"
-         "t = np.linspace(0.0, 90.0, 20000)\n"
-         "job = ('plot_errors', 'e.png', dict(t_s=t, position_error_m=np.sin(t) ** 2, attitude_error_deg=np.cos(t) ** 2,"
-         " band_m=0.5, convergence_t_s=1.0))\n"
-         "w = plot_worker.PlotWorkers(1)\nw.submit([job] * 60)\n"  # ~20 s of drawing
-         "print(w.procs[0].pid, flush=True)\ntime.sleep(60)\n"],
-        stdout=subprocess.PIPE, text=True)
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nimport numpy as np\n"
+            "from slamobs.pipeline.evaluation import plot_worker\n"
+            "t = np.linspace(0.0, 90.0, 20000)\n"
+            "job = ('plot_errors', 'e.png', dict(t_s=t, position_error_m=np.sin(t) ** 2,"
+            " attitude_error_deg=np.cos(t) ** 2, band_m=0.5, convergence_t_s=1.0))\n"
+            "w = plot_worker.PlotWorkers(1)\nw.submit([job] * 60)\n"  # ~20 s of drawing
+            "print(w.procs[0].pid, flush=True)\ntime.sleep(60)\n",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     helper = int(parent.stdout.readline())
     deadline = time.monotonic() + 10.0
     while not (drawing := children(helper)) and time.monotonic() < deadline:  # forked once warm
@@ -98,7 +118,9 @@ def test_helper_dies_with_a_killed_run():
     parent.wait()
     deadline = time.monotonic() + 3.0  # far less than the figures would take
     while any(alive(p) for p in [helper, *drawing]):
-        assert time.monotonic() < deadline, f"figure helper {helper} or its child {drawing} runs on after its run was killed"
+        assert time.monotonic() < deadline, (
+            f"figure helper {helper} or its child {drawing} runs on after its run was killed"
+        )
         time.sleep(0.05)
 
 

@@ -124,7 +124,7 @@ def _write_faulty(path: Path, container: str) -> Path:
         return t["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
 
     quat = t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0)
-    zeros9, zeros36 = np.zeros(9), np.zeros(36)
+    zeros9 = np.zeros(9)
 
     def imu(k: int, gyro_x: float, frame: str = "imu") -> object:
         return t["sensor_msgs/msg/Imu"](

@@ -328,8 +328,10 @@ def _chunk_messages(path: Path, container: str, k: int) -> int:
         return count
 
 
-@pytest.mark.parametrize(("container", "compression", "where"),
-                         [("bag", "lz4", "data"), ("bag", "", "header"), ("mcap", "zstd", "data"), ("mcap", "", "data")])
+@pytest.mark.parametrize(
+    ("container", "compression", "where"),
+    [("bag", "lz4", "data"), ("bag", "", "header"), ("mcap", "zstd", "data"), ("mcap", "", "data")],
+)
 def test_damaged_chunk_in_indexed_file_is_skipped_and_counted(tmp_path, sim, container, compression, where):
     """The index says where the next chunk starts: reading goes on after a damaged chunk (header or data), the
     damaged chunk's messages are counted as lost, every other message is read."""

@@ -38,19 +38,24 @@ def _imports() -> dict[str, list[tuple[str, str, int]]]:
 
 
 def test_no_readers_module_imports_a_private_name_of_another():
-    private = [f"{m}:{line} imports {target}.{name}" for m, edges in _imports().items()
-               for target, name, line in edges if target != m and name.startswith("_") and name != "__version__"]
+    private = [
+        f"{m}:{line} imports {target}.{name}"
+        for m, edges in _imports().items()
+        for target, name, line in edges
+        if target != m and name.startswith("_") and name != "__version__"
+    ]
     assert not private, private
 
 
 def test_readers_modules_import_each_other_without_cycles():
-    graph = {m: {t for t, _, _ in edges if t != m and t != "__init__"} for m, edges in _imports().items()
-             if m != "__init__"}
+    graph = {
+        m: {t for t, _, _ in edges if t != m and t != "__init__"} for m, edges in _imports().items() if m != "__init__"
+    }
     done: set[str] = set()
 
     def visit(node: str, path: list[str]) -> None:
         if node in path:
-            pytest.fail("import cycle: " + " -> ".join([*path[path.index(node):], node]))
+            pytest.fail("import cycle: " + " -> ".join([*path[path.index(node) :], node]))
         if node in done:
             return
         for nxt in sorted(graph.get(node, ())):

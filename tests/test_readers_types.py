@@ -47,8 +47,12 @@ def typestore(ros1: bool):
     ts = make_typestore(ros1=ros1)
     types = {}
     types.update(get_types_from_msg(FIDUCIAL_TRANSFORM_MSG, "fiducial_pose/msg/FiducialTransform"))
-    types.update(get_types_from_msg(FIDUCIAL_TRANSFORM_ARRAY_MSG.replace("fiducial_msgs", "fiducial_pose"),
-                                    "fiducial_pose/msg/FiducialTransformArray"))
+    types.update(
+        get_types_from_msg(
+            FIDUCIAL_TRANSFORM_ARRAY_MSG.replace("fiducial_msgs", "fiducial_pose"),
+            "fiducial_pose/msg/FiducialTransformArray",
+        )
+    )
     if ros1:
         types.update(get_types_from_msg(APRILTAG_DETECTION_MSG, "apriltag_ros/msg/AprilTagDetection"))
         types.update(get_types_from_msg(APRILTAG_ARRAY_MSG, "apriltag_ros/msg/AprilTagDetectionArray"))
@@ -97,15 +101,24 @@ class Msgs:
         return make(self.ts, "geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3])
 
     def pose(self, xyz, rotvec=(0.0, 0.0, 0.0)):
-        return make(self.ts, "geometry_msgs/msg/Pose", position=self.vec(xyz, "geometry_msgs/msg/Point"),
-                    orientation=self.quat(rotvec))
+        return make(
+            self.ts,
+            "geometry_msgs/msg/Pose",
+            position=self.vec(xyz, "geometry_msgs/msg/Point"),
+            orientation=self.quat(rotvec),
+        )
 
     def transform(self, xyz, rotvec=(0.0, 0.0, 0.0)):
         return make(self.ts, "geometry_msgs/msg/Transform", translation=self.vec(xyz), rotation=self.quat(rotvec))
 
     def tf(self, stamp_ns: int, parent: str, child: str, xyz, rotvec=(0.0, 0.0, 0.0)):
-        return make(self.ts, "geometry_msgs/msg/TransformStamped", header=self.header(stamp_ns, parent),
-                    child_frame_id=child, transform=self.transform(xyz, rotvec))
+        return make(
+            self.ts,
+            "geometry_msgs/msg/TransformStamped",
+            header=self.header(stamp_ns, parent),
+            child_frame_id=child,
+            transform=self.transform(xyz, rotvec),
+        )
 
     def twist(self, linear, angular):
         return make(self.ts, "geometry_msgs/msg/Twist", linear=self.vec(linear), angular=self.vec(angular))
@@ -146,66 +159,190 @@ def zoo(ros1: bool) -> Msgs:
     ts = m.ts
     for k in range(K):
         t, rec = stamp(k), stamp(k) + MS
-        m.add("/imu", "sensor_msgs/msg/Imu", make(ts, "sensor_msgs/msg/Imu", header=m.header(t, "imu"),
-              angular_velocity=m.vec([0.1 * k, 0, 0]), linear_acceleration=m.vec([0, 0, 9.8 + k])), rec)
-        m.add("/mag", "sensor_msgs/msg/MagneticField", make(ts, "sensor_msgs/msg/MagneticField",
-              header=m.header(t, "imu"), magnetic_field=m.vec([1e-5 * k, 2e-5, 3e-5])), rec)
+        m.add(
+            "/imu",
+            "sensor_msgs/msg/Imu",
+            make(
+                ts,
+                "sensor_msgs/msg/Imu",
+                header=m.header(t, "imu"),
+                angular_velocity=m.vec([0.1 * k, 0, 0]),
+                linear_acceleration=m.vec([0, 0, 9.8 + k]),
+            ),
+            rec,
+        )
+        m.add(
+            "/mag",
+            "sensor_msgs/msg/MagneticField",
+            make(
+                ts,
+                "sensor_msgs/msg/MagneticField",
+                header=m.header(t, "imu"),
+                magnetic_field=m.vec([1e-5 * k, 2e-5, 3e-5]),
+            ),
+            rec,
+        )
         odom_pose = make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=m.pose([k, 0, 0]))
         odom_twist = make(ts, "geometry_msgs/msg/TwistWithCovariance", twist=m.twist([0.5 + k, 0, 0], [0, 0, 0.2 * k]))
-        m.add("/odom", "nav_msgs/msg/Odometry", make(ts, "nav_msgs/msg/Odometry", header=m.header(t, "odom"),
-              child_frame_id="base_link", pose=odom_pose, twist=odom_twist), rec)
-        m.add("/twist", "geometry_msgs/msg/TwistStamped", make(ts, "geometry_msgs/msg/TwistStamped",
-              header=m.header(t, "base_link"), twist=m.twist([k, 1, 0], [0, 0, -k])), rec)
-        m.add("/twist_cov", "geometry_msgs/msg/TwistWithCovarianceStamped",
-              make(ts, "geometry_msgs/msg/TwistWithCovarianceStamped", header=m.header(t, "wheels"),
-                   twist=make(ts, "geometry_msgs/msg/TwistWithCovariance", twist=m.twist([2 * k, 0, 0], [0, 0.3 * k, 0]))),
-              rec)
+        m.add(
+            "/odom",
+            "nav_msgs/msg/Odometry",
+            make(
+                ts,
+                "nav_msgs/msg/Odometry",
+                header=m.header(t, "odom"),
+                child_frame_id="base_link",
+                pose=odom_pose,
+                twist=odom_twist,
+            ),
+            rec,
+        )
+        m.add(
+            "/twist",
+            "geometry_msgs/msg/TwistStamped",
+            make(
+                ts,
+                "geometry_msgs/msg/TwistStamped",
+                header=m.header(t, "base_link"),
+                twist=m.twist([k, 1, 0], [0, 0, -k]),
+            ),
+            rec,
+        )
+        m.add(
+            "/twist_cov",
+            "geometry_msgs/msg/TwistWithCovarianceStamped",
+            make(
+                ts,
+                "geometry_msgs/msg/TwistWithCovarianceStamped",
+                header=m.header(t, "wheels"),
+                twist=make(ts, "geometry_msgs/msg/TwistWithCovariance", twist=m.twist([2 * k, 0, 0], [0, 0.3 * k, 0])),
+            ),
+            rec,
+        )
         for j in range(3):  # commanded velocity: more messages than any measurement, never picked
-            m.add("/cmd_vel", "geometry_msgs/msg/TwistStamped", make(ts, "geometry_msgs/msg/TwistStamped",
-                  header=m.header(t + j, "base_link"), twist=m.twist([9, 9, 9], [9, 9, 9])), rec + j)
-        fid = [make(ts, "fiducial_msgs/msg/FiducialTransform", fiducial_id=i, transform=m.transform([k, y, y + 1]))
-               for i, y in ((1, 1.0), (2, 3.0))]
-        m.add("/fiducial_transforms", "fiducial_msgs/msg/FiducialTransformArray",
-              make(ts, "fiducial_msgs/msg/FiducialTransformArray", header=m.header(t, "camera"), transforms=fid), rec)
+            m.add(
+                "/cmd_vel",
+                "geometry_msgs/msg/TwistStamped",
+                make(
+                    ts,
+                    "geometry_msgs/msg/TwistStamped",
+                    header=m.header(t + j, "base_link"),
+                    twist=m.twist([9, 9, 9], [9, 9, 9]),
+                ),
+                rec + j,
+            )
+        fid = [
+            make(ts, "fiducial_msgs/msg/FiducialTransform", fiducial_id=i, transform=m.transform([k, y, y + 1]))
+            for i, y in ((1, 1.0), (2, 3.0))
+        ]
+        m.add(
+            "/fiducial_transforms",
+            "fiducial_msgs/msg/FiducialTransformArray",
+            make(ts, "fiducial_msgs/msg/FiducialTransformArray", header=m.header(t, "camera"), transforms=fid),
+            rec,
+        )
         legacy = [make(ts, "fiducial_pose/msg/FiducialTransform", fiducial_id=7, transform=m.transform([0, 0, k]))]
-        m.add("/fiducial_legacy", "fiducial_pose/msg/FiducialTransformArray",
-              make(ts, "fiducial_pose/msg/FiducialTransformArray", header=m.header(t, "camera"), transforms=legacy), rec)
-        m.add("/poses", "geometry_msgs/msg/PoseArray", make(ts, "geometry_msgs/msg/PoseArray",
-              header=m.header(t, "camera"), poses=[m.pose([k, 0, 1]), m.pose([k, 0, 2])]), rec)
-        markers = [make(ts, "visualization_msgs/msg/Marker", header=m.header(t, "camera"), id=i, action=0,
-                        pose=m.pose([0, k, i])) for i in (5, 6)]
+        m.add(
+            "/fiducial_legacy",
+            "fiducial_pose/msg/FiducialTransformArray",
+            make(ts, "fiducial_pose/msg/FiducialTransformArray", header=m.header(t, "camera"), transforms=legacy),
+            rec,
+        )
+        m.add(
+            "/poses",
+            "geometry_msgs/msg/PoseArray",
+            make(
+                ts,
+                "geometry_msgs/msg/PoseArray",
+                header=m.header(t, "camera"),
+                poses=[m.pose([k, 0, 1]), m.pose([k, 0, 2])],
+            ),
+            rec,
+        )
+        markers = [
+            make(
+                ts,
+                "visualization_msgs/msg/Marker",
+                header=m.header(t, "camera"),
+                id=i,
+                action=0,
+                pose=m.pose([0, k, i]),
+            )
+            for i in (5, 6)
+        ]
         markers.append(make(ts, "visualization_msgs/msg/Marker", header=m.header(t, "camera"), id=9, action=2))
-        m.add("/markers", "visualization_msgs/msg/MarkerArray", make(ts, "visualization_msgs/msg/MarkerArray",
-              markers=markers), rec)
-        m.add("/mocap", "geometry_msgs/msg/PoseStamped", make(ts, "geometry_msgs/msg/PoseStamped",
-              header=m.header(t, "world"), pose=m.pose([k, 0, 0.5])), rec)
+        m.add(
+            "/markers",
+            "visualization_msgs/msg/MarkerArray",
+            make(ts, "visualization_msgs/msg/MarkerArray", markers=markers),
+            rec,
+        )
+        m.add(
+            "/mocap",
+            "geometry_msgs/msg/PoseStamped",
+            make(ts, "geometry_msgs/msg/PoseStamped", header=m.header(t, "world"), pose=m.pose([k, 0, 0.5])),
+            rec,
+        )
         amcl = make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=m.pose([k, k, 0]))
-        m.add("/amcl", "geometry_msgs/msg/PoseWithCovarianceStamped",
-              make(ts, "geometry_msgs/msg/PoseWithCovarianceStamped", header=m.header(t, "map"), pose=amcl), rec)
-        m.add("/vicon", "geometry_msgs/msg/TransformStamped", m.tf(t, "world", "vicon/body", [k, 0, 1], [0, 0, 0.1 * k]),
-              rec)
+        m.add(
+            "/amcl",
+            "geometry_msgs/msg/PoseWithCovarianceStamped",
+            make(ts, "geometry_msgs/msg/PoseWithCovarianceStamped", header=m.header(t, "map"), pose=amcl),
+            rec,
+        )
+        m.add(
+            "/vicon",
+            "geometry_msgs/msg/TransformStamped",
+            m.tf(t, "world", "vicon/body", [k, 0, 1], [0, 0, 0.1 * k]),
+            rec,
+        )
         if ros1:
             dets = [
-                make(ts, "apriltag_ros/msg/AprilTagDetection", id=np.array([3], np.int32),
-                     pose=make(ts, "geometry_msgs/msg/PoseWithCovarianceStamped", header=m.header(t, "camera"),
-                               pose=make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=m.pose([0, 0, k + 1])))),
-                make(ts, "apriltag_ros/msg/AprilTagDetection", id=np.array([10, 11], np.int32),
-                     pose=make(ts, "geometry_msgs/msg/PoseWithCovarianceStamped",
-                               pose=make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=m.pose([1, 1, 1])))),
+                make(
+                    ts,
+                    "apriltag_ros/msg/AprilTagDetection",
+                    id=np.array([3], np.int32),
+                    pose=make(
+                        ts,
+                        "geometry_msgs/msg/PoseWithCovarianceStamped",
+                        header=m.header(t, "camera"),
+                        pose=make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=m.pose([0, 0, k + 1])),
+                    ),
+                ),
+                make(
+                    ts,
+                    "apriltag_ros/msg/AprilTagDetection",
+                    id=np.array([10, 11], np.int32),
+                    pose=make(
+                        ts,
+                        "geometry_msgs/msg/PoseWithCovarianceStamped",
+                        pose=make(ts, "geometry_msgs/msg/PoseWithCovariance", pose=m.pose([1, 1, 1])),
+                    ),
+                ),
                 make(ts, "apriltag_ros/msg/AprilTagDetection"),  # no id: skipped
             ]
-            m.add("/tag_detections", "apriltag_ros/msg/AprilTagDetectionArray",
-                  make(ts, "apriltag_ros/msg/AprilTagDetectionArray", header=m.header(t, "camera"), detections=dets),
-                  rec)
+            m.add(
+                "/tag_detections",
+                "apriltag_ros/msg/AprilTagDetectionArray",
+                make(ts, "apriltag_ros/msg/AprilTagDetectionArray", header=m.header(t, "camera"), detections=dets),
+                rec,
+            )
         tf_type = "tf/msg/tfMessage" if ros1 else "tf2_msgs/msg/TFMessage"
-        robot = [m.tf(t, "world", "odom", [0.5 * k, 0, 0], [0, 0, 0.1 * k]), m.tf(t, "odom", "base_link", [0.1 * k, 0, 0])]
+        robot = [
+            m.tf(t, "world", "odom", [0.5 * k, 0, 0], [0, 0, 0.1 * k]),
+            m.tf(t, "odom", "base_link", [0.1 * k, 0, 0]),
+        ]
         m.add("/tf", tf_type, make(ts, tf_type, transforms=robot), rec)
         for child, xyz in (("tag_3", [0, 0, 1 + k]), ("tag_12", [1, 0, 2]), ("o_tag_3", [5, 5, 5])):
             # one message per tag, as apriltag_ros broadcasts them
             m.add("/tf", tf_type, make(ts, tf_type, transforms=[m.tf(t, "/camera", child, xyz)]), rec)
         m.add("/tf", tf_type, make(ts, tf_type, transforms=[m.tf(t, "camera2", "tag_4", [0, 0, 1])]), rec)
-    m.add("/markers", "visualization_msgs/msg/MarkerArray", make(ts, "visualization_msgs/msg/MarkerArray",
-          markers=[make(ts, "visualization_msgs/msg/Marker", action=3)]), stamp(K) + MS)  # DELETEALL only
+    m.add(
+        "/markers",
+        "visualization_msgs/msg/MarkerArray",
+        make(ts, "visualization_msgs/msg/MarkerArray", markers=[make(ts, "visualization_msgs/msg/Marker", action=3)]),
+        stamp(K) + MS,
+    )  # DELETEALL only
     static = [m.tf(T0, "base_link", "camera", [0.2, 0, 0]), m.tf(T0, "base_link", "imu", [0, 0, 0.1])]
     m.add("/tf_static", "tf2_msgs/msg/TFMessage", make(ts, "tf2_msgs/msg/TFMessage", transforms=static), T0)
     return m
@@ -230,8 +367,14 @@ def test_detected_roles_and_values(zoo_log):
     s = read_log(zoo_log)
     ks = np.arange(K)
     assert inspect_log(zoo_log).roles == {
-        "angular_velocity": "/imu", "linear_velocity": "/odom", "accel": "/imu", "magnetic": "/mag",
-        "detections": "/fiducial_transforms", "truth": "/mocap", "static_tf": "/tf_static", "tf": "/tf",
+        "angular_velocity": "/imu",
+        "linear_velocity": "/odom",
+        "accel": "/imu",
+        "magnetic": "/mag",
+        "detections": "/fiducial_transforms",
+        "truth": "/mocap",
+        "static_tf": "/tf_static",
+        "tf": "/tf",
     }
     assert (s.angular_velocity.frame_id, s.accel.frame_id, s.magnetic.frame_id) == ("imu", "imu", "imu")
     np.testing.assert_allclose(s.angular_velocity.xyz[:, 0], 0.1 * ks)
@@ -243,17 +386,26 @@ def test_detected_roles_and_values(zoo_log):
     np.testing.assert_array_equal(s.detections.ids, np.tile([1, 2], K))
     assert (s.truth.topic, s.truth.frame_id, s.truth.child_frame_id) == ("/mocap", "world", "")
     np.testing.assert_array_equal(s.truth.t_ns, [stamp(k) for k in ks])
-    assert {(x.parent, x.child) for x in s.tf} == {("world", "odom"), ("odom", "base_link"), ("camera", "tag_3"),
-                                                   ("camera", "tag_12"), ("camera", "o_tag_3"), ("camera2", "tag_4")}
+    assert {(x.parent, x.child) for x in s.tf} == {
+        ("world", "odom"),
+        ("odom", "base_link"),
+        ("camera", "tag_3"),
+        ("camera", "tag_12"),
+        ("camera", "o_tag_3"),
+        ("camera2", "tag_4"),
+    }
     assert {(x.parent, x.child) for x in s.static_tf} == {("base_link", "camera"), ("base_link", "imu")}
     assert not any("cmd_vel" in w for w in s.warnings), s.warnings
 
 
-@pytest.mark.parametrize(("topic", "frame", "angular", "linear"), [
-    ("/twist", "base_link", [[0, 0, -k] for k in range(K)], [[k, 1, 0] for k in range(K)]),
-    ("/twist_cov", "wheels", [[0, 0.3 * k, 0] for k in range(K)], [[2 * k, 0, 0] for k in range(K)]),
-    ("/odom", "base_link", [[0, 0, 0.2 * k] for k in range(K)], [[0.5 + k, 0, 0] for k in range(K)]),
-])
+@pytest.mark.parametrize(
+    ("topic", "frame", "angular", "linear"),
+    [
+        ("/twist", "base_link", [[0, 0, -k] for k in range(K)], [[k, 1, 0] for k in range(K)]),
+        ("/twist_cov", "wheels", [[0, 0.3 * k, 0] for k in range(K)], [[2 * k, 0, 0] for k in range(K)]),
+        ("/odom", "base_link", [[0, 0, 0.2 * k] for k in range(K)], [[0.5 + k, 0, 0] for k in range(K)]),
+    ],
+)
 def test_velocity_types(zoo_log, topic, frame, angular, linear):
     s = read_log(zoo_log, {"angular_velocity": topic, "linear_velocity": topic})
     for stream, want in ((s.angular_velocity, angular), (s.linear_velocity, linear)):
@@ -269,12 +421,18 @@ def test_velocity_tiers_and_commands_are_not_measurements():
 
     twist, twist_cov = "geometry_msgs/msg/TwistStamped", "geometry_msgs/msg/TwistWithCovarianceStamped"
     assert roles({"/cmd_vel": (twist, 900), "/robot/cmd_vel_nav": (twist, 900), "/vel": (twist_cov, 10)}) == {
-        "angular_velocity": "/vel", "linear_velocity": "/vel"}
+        "angular_velocity": "/vel",
+        "linear_velocity": "/vel",
+    }
     assert roles({"/cmd_vel": (twist, 900)}) == {}
     assert roles({"/odom": ("nav_msgs/msg/Odometry", 5), "/vel": (twist, 50)}) == {
-        "angular_velocity": "/odom", "linear_velocity": "/odom"}
+        "angular_velocity": "/odom",
+        "linear_velocity": "/odom",
+    }
     assert roles({"/imu": ("sensor_msgs/msg/Imu", 5), "/vel": (twist, 50)}) == {
-        "angular_velocity": "/imu", "linear_velocity": "/vel"}
+        "angular_velocity": "/imu",
+        "linear_velocity": "/vel",
+    }
 
 
 def test_detection_types(zoo_log):
@@ -310,8 +468,10 @@ def test_apriltag_ros_detections(zoo_bag):
     assert det.frame_id == "camera"
     np.testing.assert_array_equal(det.ids, np.tile([3, 10], K))  # a bundle is named by its first tag id
     np.testing.assert_allclose(det.xyz, [xyz for k in range(K) for xyz in ([0, 0, k + 1], [1, 1, 1])])
-    assert f"/tag_detections: {K} bundle detections named by its first tag id, {K} detections without id skipped" \
+    assert (
+        f"/tag_detections: {K} bundle detections named by its first tag id, {K} detections without id skipped"
         in s.warnings
+    )
     # Detected by type when no fiducial topic exists, after fiducial_msgs and fiducial_pose.
     sel = select_roles({"/tags": TopicMeta("apriltag_ros/msg/AprilTagDetectionArray", 3)})
     assert sel.roles["detections"] == "/tags"
@@ -332,13 +492,19 @@ def test_tag_pattern_and_explicit_only_types(zoo_log):
     with pytest.raises(InputError, match=r"must contain \{id\} exactly once"):
         read_log(zoo_log, tag_pattern="tag_")
     # PoseArray / MarkerArray / TF are never detected by type.
-    only = select_roles({"/p": TopicMeta("geometry_msgs/msg/PoseArray", 9),
-                         "/m": TopicMeta("visualization_msgs/msg/MarkerArray", 9), "/tf": TopicMeta(
-                             "tf2_msgs/msg/TFMessage", 9)})
+    only = select_roles(
+        {
+            "/p": TopicMeta("geometry_msgs/msg/PoseArray", 9),
+            "/m": TopicMeta("visualization_msgs/msg/MarkerArray", 9),
+            "/tf": TopicMeta("tf2_msgs/msg/TFMessage", 9),
+        }
+    )
     assert "detections" not in only.roles
     # Tag corners (no 3D pose) come after every 3D type, and all their topics are the cameras of one rig.
-    corners = {"/left/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 9),
-               "/right/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 5)}
+    corners = {
+        "/left/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 9),
+        "/right/tags": TopicMeta("apriltag_msgs/msg/ApriltagArrayStamped", 5),
+    }
     pixels = select_roles(corners)
     assert pixels.multi["detections"] == ["/left/tags", "/right/tags"] and not pixels.warnings
     assert "detections" not in select_roles({**corners, "/f": TopicMeta(FIDUCIALS_TYPE, 1)}).multi
@@ -350,11 +516,14 @@ def test_tag_pattern_and_explicit_only_types(zoo_log):
 # --------------------------------------------------------------------------- ground truth
 
 
-@pytest.mark.parametrize(("topic", "frame", "child", "position"), [
-    ("/amcl", "map", "", [[k, k, 0] for k in range(K)]),
-    ("/vicon", "world", "vicon/body", [[k, 0, 1] for k in range(K)]),
-    ("/odom", "odom", "base_link", [[k, 0, 0] for k in range(K)]),
-])
+@pytest.mark.parametrize(
+    ("topic", "frame", "child", "position"),
+    [
+        ("/amcl", "map", "", [[k, k, 0] for k in range(K)]),
+        ("/vicon", "world", "vicon/body", [[k, 0, 1] for k in range(K)]),
+        ("/odom", "odom", "base_link", [[k, 0, 0] for k in range(K)]),
+    ],
+)
 def test_truth_topics(zoo_log, topic, frame, child, position):
     truth = read_log(zoo_log, {"truth": topic}).truth
     assert (truth.topic, truth.frame_id, truth.child_frame_id) == (topic, frame, child)
@@ -390,8 +559,10 @@ def test_truth_files(tmp_path, zoo_bag):
     tum = tmp_path / "gt.tum"
     tum.write_text("".join(f"{t} {k} 0 0 0 0 0 1\n" for k, t in enumerate(t_s)))
     euroc = tmp_path / "data.csv"
-    euroc.write_text("#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z\n"
-                     + "".join(f"{T0 + k * 10 * MS},{k},0,0,1,0,0,0\n" for k in range(2)))
+    euroc.write_text(
+        "#timestamp, p_x, p_y, p_z, q_w, q_x, q_y, q_z\n"
+        + "".join(f"{T0 + k * 10 * MS},{k},0,0,1,0,0,0\n" for k in range(2))
+    )
     kitti, times = tmp_path / "00.txt", tmp_path / "times.txt"
     kitti.write_text("".join(f"1 0 0 {k} 0 1 0 0 0 0 1 0\n" for k in range(2)))
     times.write_text("0.0\n0.01\n")
@@ -445,8 +616,9 @@ def _mcap_without_fiducial_schema(path: Path) -> Path:
                 data = b"" if "fiducial" in msgtype else m.ts.generate_msgdef(msgtype, ros_version=2)[0].encode()
                 schema = writer.register_schema(msgtype, "" if not data else "ros2msg", data)
                 channels[topic] = writer.register_channel(topic, "cdr", schema)
-            writer.add_message(channels[topic], log_time=rec, data=bytes(m.ts.serialize_cdr(msg, msgtype)),
-                               publish_time=rec)
+            writer.add_message(
+                channels[topic], log_time=rec, data=bytes(m.ts.serialize_cdr(msg, msgtype)), publish_time=rec
+            )
         writer.finish()
     return path
 
@@ -460,8 +632,11 @@ def test_msg_dir_supplies_missing_definitions(tmp_path, kind):
     assert "[/fiducial_transforms]: message definition for fiducial_msgs/msg/FiducialTransformArray is not" in msg
     assert "--msg-dir" in msg and "\n" not in msg
     half = _msg_dir(tmp_path / "half", with_item=False)
-    with pytest.raises(InputError, match=r"definition for fiducial_msgs/msg/FiducialTransform \(used by "
-                                         r"fiducial_msgs/msg/FiducialTransformArray\) is not stored"):
+    with pytest.raises(
+        InputError,
+        match=r"definition for fiducial_msgs/msg/FiducialTransform \(used by "
+        r"fiducial_msgs/msg/FiducialTransformArray\) is not stored",
+    ):
         read_log(log, msg_dir=half)
     full = _msg_dir(tmp_path / "full")
     s = read_log(log, msg_dir=full)
@@ -500,7 +675,11 @@ def test_real_vicon_transform_stamped_truth():
     s = read_log(_real("ethz_msf_dataset/dataset.bag"))
     truth, gyro = s.truth, s.angular_velocity
     assert (truth.topic, truth.frame_id, truth.child_frame_id, len(truth)) == (
-        "/vicon/auk/auk", "world", "vicon/auk/auk", 11161)
+        "/vicon/auk/auk",
+        "world",
+        "vicon/auk/auk",
+        11161,
+    )
     # PROVENANCE: body rates from the Vicon attitude follow the gyro axis by axis (Vicon body ~ IMU frame).
     r = quats_to_rots(truth.quat_xyzw)
     rel = np.einsum("nji,njk->nik", r[:-1], r[1:])  # R_k^T R_k+1
@@ -577,20 +756,39 @@ def test_marker_namespaces(container, tmp_path):
     m = Msgs(ros1=container == "bag")
     for k in range(K):
         t = stamp(k)
-        markers = [make(m.ts, "visualization_msgs/msg/Marker", header=m.header(t, "camera"), ns=ns, id=i, action=0,
-                        pose=m.pose([z, k, i])) for ns, z in (("tags", 1.0), ("labels", 9.0)) for i in (5, 6)]
-        m.add("/markers", "visualization_msgs/msg/MarkerArray",
-              make(m.ts, "visualization_msgs/msg/MarkerArray", markers=markers), t + MS)
+        markers = [
+            make(
+                m.ts,
+                "visualization_msgs/msg/Marker",
+                header=m.header(t, "camera"),
+                ns=ns,
+                id=i,
+                action=0,
+                pose=m.pose([z, k, i]),
+            )
+            for ns, z in (("tags", 1.0), ("labels", 9.0))
+            for i in (5, 6)
+        ]
+        m.add(
+            "/markers",
+            "visualization_msgs/msg/MarkerArray",
+            make(m.ts, "visualization_msgs/msg/MarkerArray", markers=markers),
+            t + MS,
+        )
     log = m.write(tmp_path / f"ns.{container}", container)
 
     mixed = read_log(log, {"detections": "/markers"})
-    assert any("markers of 2 namespaces ('labels', 'tags')" in w and "frames.marker_namespace" in w
-               for w in mixed.warnings)
+    assert any(
+        "markers of 2 namespaces ('labels', 'tags')" in w and "frames.marker_namespace" in w for w in mixed.warnings
+    )
     tags = read_log(log, {"detections": "/markers"}, marker_ns="tags")
     np.testing.assert_array_equal(tags.detections.ids, np.tile([5, 6], K))
     np.testing.assert_allclose(tags.detections.xyz[:, 0], 1.0)
     assert f"/markers: {2 * K} markers of another namespace than 'tags' skipped" in tags.warnings
     assert not any("namespaces" in w for w in tags.warnings)
-    with pytest.raises(InputError, match=r"frames.marker_namespace 'nope' names no namespace of its markers "
-                                         r"\(namespaces: 'labels', 'tags'\)"):
+    with pytest.raises(
+        InputError,
+        match=r"frames.marker_namespace 'nope' names no namespace of its markers "
+        r"\(namespaces: 'labels', 'tags'\)",
+    ):
         read_log(log, {"detections": "/markers"}, marker_ns="nope")

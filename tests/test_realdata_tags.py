@@ -30,8 +30,11 @@ pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="../shared/realdata is
 
 def _run(test: str, out: Path, **extra) -> dict:
     d = TAGSLAM / test
-    cfg = {"cameras": [str(d / f) for f in ("cameras.yaml", "camera_poses.yaml", "tagslam.yaml")],
-           "evaluation": {"plots": False}, **extra}
+    cfg = {
+        "cameras": [str(d / f) for f in ("cameras.yaml", "camera_poses.yaml", "tagslam.yaml")],
+        "evaluation": {"plots": False},
+        **extra,
+    }
     run_log(d / "tag_detections.bag", out, parse_config(cfg))
     return json.loads((out / "run.json").read_text())
 
@@ -40,8 +43,9 @@ def _reference_map(test: str) -> dict[int, np.ndarray]:
     """Tag positions TagSLAM estimated (its reference.bag: map -> body -> tag_N on /tf), last values."""
     s = read_log(TAGSLAM / test / "reference.bag", {"tf": "/tf"})
     tf = TfBuffer(s.static_tf, s.tf)
-    return {int(e.child[4:]): tf.lookup("map", e.child, e.t_ns[-1:]).trans[0]
-            for e in s.tf if e.child.startswith("tag_")}
+    return {
+        int(e.child[4:]): tf.lookup("map", e.child, e.t_ns[-1:]).trans[0] for e in s.tf if e.child.startswith("tag_")
+    }
 
 
 def test_test11_map_against_the_survey(tmp_path):
@@ -49,9 +53,13 @@ def test_test11_map_against_the_survey(tmp_path):
     alignment. The VIO twist has no angular part and its linear part is in the world frame; the rig extrinsics
     come from the TagSLAM files. Bias adaptation is slowed (gamma 0.01): the VIO rates carry no gyro bias and
     its 3 m drift fed to a fast bias loop spoils the map."""
-    meta = _run("test_11", tmp_path / "o", tags={"size": 0.15},
-                gains={"fast-adaptation": {"gamma": 0.01}},
-                evaluation={"plots": False, "map_truth": str(TAGSLAM / "test_11" / "tagslam.yaml")})
+    meta = _run(
+        "test_11",
+        tmp_path / "o",
+        tags={"size": 0.15},
+        gains={"fast-adaptation": {"gamma": 0.01}},
+        evaluation={"plots": False, "map_truth": str(TAGSLAM / "test_11" / "tagslam.yaml")},
+    )
     assert set(meta["input"]["derived"]) == {"angular_velocity", "linear_velocity"}
     assert any("extrinsic rig -> odom from tagslam.yaml rig.T_body_odom" in n for n in meta["notes"])
     err = meta["map_error"]
@@ -97,7 +105,7 @@ def test_ubiquity_image_against_the_robots_fiducial_transforms():
     from rosbags.highlevel import AnyReader
 
     with AnyReader([UBIQUITY / "aruco_transforms.bag"]) as reader:
-        (conn, _, raw), = list(reader.messages())
+        ((conn, _, raw),) = list(reader.messages())
         msg = reader.deserialize(raw, conn.msgtype)
     for tr in msg.transforms:
         row = table.loc[tr.fiducial_id]
@@ -107,5 +115,6 @@ def test_ubiquity_image_against_the_robots_fiducial_transforms():
         if row["ambiguity"] < 0.7:
             q = tr.transform.rotation
             rel = quat_to_rot(row[["qx", "qy", "qz", "qw"]].to_numpy(float)).T @ quat_to_rot(
-                np.array([q.x, q.y, q.z, q.w]))
+                np.array([q.x, q.y, q.z, q.w])
+            )
             assert np.degrees(np.arccos(np.clip((np.trace(rel) - 1) / 2, -1, 1))) < 2.0

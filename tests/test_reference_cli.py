@@ -46,8 +46,7 @@ def check_batch_run(run_dir: Path) -> dict:
 @pytest.mark.parametrize("log", LOGS)
 def test_compare_run_and_report_on_every_sample_log(tmp_path, log, config):
     out = tmp_path / "cmp"
-    res = invoke("compare", SAMPLES / log, "-o", out, "--observers", "fast-adaptation,riekf,batch", "--config",
-                 config)
+    res = invoke("compare", SAMPLES / log, "-o", out, "--observers", "fast-adaptation,riekf,batch", "--config", config)
     assert res.exit_code == 0, res.output
     table = pd.read_parquet(out / "comparison.parquet").set_index("observer")
     assert (table["status"] == "ok").all(), table["error"]
@@ -62,8 +61,10 @@ def test_compare_run_and_report_on_every_sample_log(tmp_path, log, config):
     run = check_batch_run(out / "batch")
     sd = np.array(run["observer"]["smoother"]["bias"]["sigma"][0])
     est = np.array(run["observer"]["smoother"]["bias"]["estimate"][0])
-    truth = np.r_[json.loads((out / "batch" / "report.json").read_text())["biases"]["truth"]["gyro"],
-                  json.loads((out / "batch" / "report.json").read_text())["biases"]["truth"]["velocity"]]
+    truth = np.r_[
+        json.loads((out / "batch" / "report.json").read_text())["biases"]["truth"]["gyro"],
+        json.loads((out / "batch" / "report.json").read_text())["biases"]["truth"]["velocity"],
+    ]
     assert np.all(np.abs(est - truth) <= 4 * sd)
     for name in ("riekf", "batch"):
         for table_name in ("poses", "biases", "landmarks", "landmark_tracks", "innovations"):
@@ -109,8 +110,9 @@ def test_bad_seed_is_a_usage_error_before_reading(tmp_path):
     cfg = tmp_path / "run.yaml"
     cfg.write_text("batch: {seed: nope}\n")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", "batch",
-                                    "--config", str(cfg)])
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", "batch", "--config", str(cfg)]
+    )
     assert res.exit_code == 2 and "batch.seed 'nope'" in res.output
     assert not out.exists()
 
@@ -131,8 +133,9 @@ def test_a_known_map_is_refused_in_one_line(tmp_path, observer):
     cfg = tmp_path / "run.yaml"
     cfg.write_text("map: map.csv\n")
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", observer,
-                                    "--config", str(cfg)])
+    res = CliRunner().invoke(
+        main, ["run", str(SAMPLES / "circle.bag"), "-o", str(out), "--observer", observer, "--config", str(cfg)]
+    )
     lines = res.stderr.strip().splitlines()
     assert res.exit_code == 2 and len(lines) == 1 and "does not take a known map" in lines[0]
     assert not out.exists()

@@ -66,8 +66,9 @@ def test_report_recomputes_the_run_report(run_dir):
     assert "APE          translation rmse" in res.output and "pairs, SE(3)-aligned" in res.output
     assert "evo_ape tum truth_tum.txt estimate_tum.txt -a" in res.output
     conv = after["convergence"]  # the summary says that the error's level (a running median) stays in the band
-    assert (f"median position error over {conv['window_s']:.3g} s within {conv['band_m']:.3g} m from then on"
-            in res.output)
+    assert (
+        f"median position error over {conv['window_s']:.3g} s within {conv['band_m']:.3g} m from then on" in res.output
+    )
     assert not [p for p in run_dir.iterdir() if p.name.startswith(".report-")]
 
 
@@ -77,8 +78,13 @@ def test_report_against_a_trajectory_file(run_dir, tmp_path):
     res = invoke(report, run_dir, "--truth", truth_file)
     assert res.exit_code == 0, res.output
     after = load(run_dir / "report.json")
-    assert after["truth_source"] == {"kind": "file", "format": "tum", "name": str(truth_file), "n_poses": 1500,
-                                     "time_source": "file stamps"}
+    assert after["truth_source"] == {
+        "kind": "file",
+        "format": "tum",
+        "name": str(truth_file),
+        "n_poses": 1500,
+        "time_source": "file stamps",
+    }
     assert after["ape"] == before["ape"]  # the exported truth is the log's truth, to the nanosecond
     assert after["landmarks"]["error_m"] == before["landmarks"]["error_m"]  # map truth still from the log
 
@@ -102,8 +108,19 @@ def test_report_of_a_run_whose_truth_was_a_file(finished_run, tmp_path):
 
 
 def test_report_options_json_and_kept_options(run_dir):
-    res = invoke(report, run_dir, "--align", "origin", "--t-offset", "auto", "--rpe-delta", "0.5",
-                 "--drift-lengths", "5,10", "--json")
+    res = invoke(
+        report,
+        run_dir,
+        "--align",
+        "origin",
+        "--t-offset",
+        "auto",
+        "--rpe-delta",
+        "0.5",
+        "--drift-lengths",
+        "5,10",
+        "--json",
+    )
     assert res.exit_code == 0, res.output
     rep = json.loads(res.stdout)
     validate_report(rep)
@@ -125,7 +142,8 @@ def test_tf_truth_on_a_log_without_tf_names_what_the_log_lacks(run_dir):
     res = invoke(report, run_dir, "--truth", "world->base_link")
     assert res.exit_code == 2
     assert res.stderr.splitlines() == [
-        f"error: {SAMPLE}: truth TF edge world->base_link needs a /tf topic; the log has none"]
+        f"error: {SAMPLE}: truth TF edge world->base_link needs a /tf topic; the log has none"
+    ]
     assert {f.name: f.read_bytes() for f in run_dir.iterdir()} == before
 
 
@@ -208,33 +226,72 @@ def test_evaluate_never_saves_results_over_its_inputs(finished_run, tmp_path):
 def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     truth, est = finished_run / "truth_tum.txt", finished_run / "estimate_tum.txt"
     zip_path = tmp_path / "rpe.zip"
-    res = invoke(evaluate, truth, est, "--metric", "rpe", "--delta", "1", "--delta_unit", "m", "-as",
-                 "-r", "angle_deg", "--save_results", zip_path, "--estimate-t-offset")
+    res = invoke(
+        evaluate,
+        truth,
+        est,
+        "--metric",
+        "rpe",
+        "--delta",
+        "1",
+        "--delta_unit",
+        "m",
+        "-as",
+        "-r",
+        "angle_deg",
+        "--save_results",
+        zip_path,
+        "--estimate-t-offset",
+    )
     assert res.exit_code == 0, res.output
-    assert res.stdout.startswith("RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using "
-                                 "consecutive pairs\n(with Sim(3) Umeyama alignment)\n")
+    assert res.stdout.startswith(
+        "RPE w.r.t. rotation angle in degrees (deg)\nfor delta = 1.0 (m) using "
+        "consecutive pairs\n(with Sim(3) Umeyama alignment)\n"
+    )
     # circle.bag turns at a constant rate and speed: no clock information, and the output says so
     assert "t_offset\tnot estimated: the motion carries no clock information" in res.output
     info, stats, arrays = load_result_zip(zip_path)
     assert info["label"] == "RPE (deg)" and info["est_name"] == str(est)
     assert set(stats) == {"rmse", "mean", "median", "std", "min", "max", "sse"}
     assert arrays["error_array"].size == arrays["timestamps"].size > 0
-    res = invoke(evaluate, truth, est, "--align_origin", "-r", "full", "--n_to_align", "10", "--t_offset", "auto",
-                 "--sync_method", "interpolation", "--json")
+    res = invoke(
+        evaluate,
+        truth,
+        est,
+        "--align_origin",
+        "-r",
+        "full",
+        "--n_to_align",
+        "10",
+        "--t_offset",
+        "auto",
+        "--sync_method",
+        "interpolation",
+        "--json",
+    )
     doc = json.loads(res.stdout)
     assert doc["method"]["association"]["method"] == "interpolation"
-    assert doc["time_offset"] == {"estimated_s": None, "peak_correlation": None, "signal": None, "reliable": False,
-                                  "ape_rmse_with_m": None, "ape_rmse_without_m": None, "applied_s": 0.0}
+    assert doc["time_offset"] == {
+        "estimated_s": None,
+        "peak_correlation": None,
+        "signal": None,
+        "reliable": False,
+        "ape_rmse_with_m": None,
+        "ape_rmse_without_m": None,
+        "applied_s": 0.0,
+    }
     # a turn rate that varies pins the offset, and auto applies it: the estimate's clock 0.25 s behind
     t = np.arange(6000) / 100.0
     yaw = np.sin(0.7 * t) + 0.3 * np.sin(2.1 * t)
-    rows = np.column_stack([t, t, np.zeros_like(t), np.zeros_like(t), np.zeros_like(t), np.zeros_like(t),
-                            np.sin(yaw / 2), np.cos(yaw / 2)])
+    rows = np.column_stack(
+        [t, t, np.zeros_like(t), np.zeros_like(t), np.zeros_like(t), np.zeros_like(t), np.sin(yaw / 2), np.cos(yaw / 2)]
+    )
     np.savetxt(tmp_path / "truth.txt", rows, fmt="%.9f")
     rows[:, 0] -= 0.25
     np.savetxt(tmp_path / "late.txt", rows[::2], fmt="%.9f")
-    doc = json.loads(invoke(evaluate, tmp_path / "truth.txt", tmp_path / "late.txt", "--t_offset", "auto",
-                            "--json").stdout)
+    doc = json.loads(
+        invoke(evaluate, tmp_path / "truth.txt", tmp_path / "late.txt", "--t_offset", "auto", "--json").stdout
+    )
     assert doc["time_offset"]["reliable"] and doc["time_offset"]["applied_s"] == pytest.approx(0.25, abs=0.002)
 
 
@@ -245,8 +302,11 @@ def test_evaluate_usage_errors(finished_run, tmp_path):
     res = invoke(evaluate, truth, tmp_path / "nope.txt")
     assert res.exit_code == 2 and "nope.txt: no such file" in res.stderr
     shifted = tmp_path / "late.txt"
-    shifted.write_text("".join(f"{float(line.split()[0]) + 3600:.9f} {line.split(' ', 1)[1]}\n"
-                               for line in est.read_text().splitlines()))
+    shifted.write_text(
+        "".join(
+            f"{float(line.split()[0]) + 3600:.9f} {line.split(' ', 1)[1]}\n" for line in est.read_text().splitlines()
+        )
+    )
     res = invoke(evaluate, truth, shifted)
     assert res.exit_code == 2 and "same clock" in res.stderr
     res = invoke(evaluate, truth, est, "--metric", "rpe", "--delta", "1000", "--delta_unit", "m")
@@ -298,19 +358,22 @@ for k, (metric, args) in enumerate(json.loads(sys.argv[1])):
 """
 
 
-@pytest.mark.skipif(not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
-                    reason="set SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 to compare with evo's CLI")
+@pytest.mark.skipif(
+    not EVO_PYTHON or not Path(EVO_PYTHON).exists(),
+    reason="set SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 to compare with evo's CLI",
+)
 def test_evaluate_output_equals_evo_cli(finished_run, tmp_path):
     """The printed block (title, alignment line, sorted statistics) is evo's, character for character."""
     truth, est = str(finished_run / "truth_tum.txt"), str(finished_run / "estimate_tum.txt")
     env = {**os.environ, "HOME": str(tmp_path), "MPLBACKEND": "Agg"}  # evo writes its settings under $HOME
     runs = [(metric, ["tum", truth, est, *flags]) for metric, flags in CASES]
-    out = subprocess.run([EVO_PYTHON, "-c", EVO_CLI, json.dumps(runs)], env=env, capture_output=True, text=True,
-                         timeout=300, check=True).stdout
+    out = subprocess.run(
+        [EVO_PYTHON, "-c", EVO_CLI, json.dumps(runs)], env=env, capture_output=True, text=True, timeout=300, check=True
+    ).stdout
     blocks = out.split("=== case ")[1:]
     assert len(blocks) == len(CASES)
     for (metric, flags), block in zip(CASES, blocks):
-        evo_block = block[block.index(f"{metric.upper()} w.r.t."):].rstrip("\n").splitlines()
+        evo_block = block[block.index(f"{metric.upper()} w.r.t.") :].rstrip("\n").splitlines()
         ours = invoke(evaluate, truth, est, "--metric", metric, *flags)
         assert ours.exit_code == 0, ours.output
-        assert ours.stdout.splitlines()[:len(evo_block)] == evo_block, (metric, flags)
+        assert ours.stdout.splitlines()[: len(evo_block)] == evo_block, (metric, flags)

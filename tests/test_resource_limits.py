@@ -42,8 +42,15 @@ def limited(**limits: int):
 
 
 def run_cli(args: list[str], preexec=None, env=None, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([*SLAMOBS, *args], capture_output=True, text=True, preexec_fn=preexec, timeout=timeout,
-                          env=env, stdin=subprocess.DEVNULL)
+    return subprocess.run(
+        [*SLAMOBS, *args],
+        capture_output=True,
+        text=True,
+        preexec_fn=preexec,
+        timeout=timeout,
+        env=env,
+        stdin=subprocess.DEVNULL,
+    )
 
 
 def one_line(proc: subprocess.CompletedProcess, *needles: str) -> str:
@@ -60,8 +67,11 @@ def test_address_space_too_small_to_start_is_one_line(tmp_path):
     an ImportError traceback of pyarrow or apsw before): one line naming the log and what a run needs."""
     out = tmp_path / "out"
     proc = run_cli(["run", str(SAMPLE), "-o", str(out), "-q"], limited(AS=250 * MB))
-    err = one_line(proc, f"error: {SAMPLE}: not enough memory for a run of this log; needs about ",
-                   "(the limit (ulimit -v) is 250 MB)")
+    err = one_line(
+        proc,
+        f"error: {SAMPLE}: not enough memory for a run of this log; needs about ",
+        "(the limit (ulimit -v) is 250 MB)",
+    )
     assert "corrupt" not in err
     assert not out.exists()
 
@@ -109,11 +119,13 @@ def test_numba_never_loads_scipys_blas(tmp_path):
     (fake / "scipy" / "linalg").mkdir(parents=True)
     marker = tmp_path / "linalg-imported"
     (fake / "scipy" / "__init__.py").write_text('__version__ = "1.17.0"\n')
-    (fake / "scipy" / "linalg" / "__init__.py").write_text(textwrap.dedent(f"""\
+    (fake / "scipy" / "linalg" / "__init__.py").write_text(
+        textwrap.dedent(f"""\
         import threading
         open({str(marker)!r}, "a").write(threading.current_thread().name + "\\n")
         raise ImportError("stand-in scipy.linalg")
-        """))
+        """)
+    )
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(fake), os.environ.get("PYTHONPATH", "")])}
     out = tmp_path / "out"
     proc = run_cli(["run", str(SAMPLE), "-o", str(out), "-q"], env=env, timeout=300)
@@ -169,8 +181,11 @@ def test_a_report_that_runs_out_fails_the_run(tmp_path, monkeypatch, failure):
     monkeypatch.setattr(evaluation, "evaluate_tables", runs_out)
     out = tmp_path / "out"
     err = assert_one_line(invoke("run", SAMPLE, "-o", out, "-q"), f"error: {SAMPLE}: ")
-    assert ("not enough memory for a run of this log; needs about " in err if isinstance(failure, MemoryError)
-            else "cannot start a thread for a run of this log" in err), err
+    assert (
+        "not enough memory for a run of this log; needs about " in err
+        if isinstance(failure, MemoryError)
+        else "cannot start a thread for a run of this log" in err
+    ), err
     assert not out.exists()
 
 
@@ -185,8 +200,9 @@ def test_a_thread_that_cannot_start_is_not_a_corrupt_log(tmp_path, monkeypatch):
 
     monkeypatch.setattr(threading.Thread, "start", refuse)
     out = tmp_path / "out"
-    err = assert_one_line(invoke("run", SAMPLE, "-o", out, "-q"),
-                          f"error: {SAMPLE}: cannot start a thread for reading the MCAP file")
+    err = assert_one_line(
+        invoke("run", SAMPLE, "-o", out, "-q"), f"error: {SAMPLE}: cannot start a thread for reading the MCAP file"
+    )
     assert "corrupt" not in err and not out.exists()
 
 
@@ -219,8 +235,11 @@ def test_the_figure_helper_out_of_memory_fails_the_run(tmp_path, monkeypatch):
 
     from slamobs.pipeline.evaluation import plot_worker
 
-    monkeypatch.setattr(plot_worker.subprocess, "Popen",
-                        functools.partial(subprocess.Popen, preexec_fn=limited(AS=200 * MB), stderr=subprocess.PIPE))
+    monkeypatch.setattr(
+        plot_worker.subprocess,
+        "Popen",
+        functools.partial(subprocess.Popen, preexec_fn=limited(AS=200 * MB), stderr=subprocess.PIPE),
+    )
     workers = plot_worker.PlotWorkers(1)
     try:
         workers.submit([("plot_biases", "biases.png", {})])

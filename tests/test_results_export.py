@@ -78,15 +78,32 @@ def test_results_mcap_matches_the_tables(run_dir):
     span_s = (poses["t_ns"].iloc[-1] - poses["t_ns"].iloc[0]) / 1e9
     assert rows[0] == 0 and rows[-1] == len(poses) - 1 and np.all(np.diff(rows) > 0)
     assert len(rows) <= 50 * span_s + 2 < len(poses)  # default cap: 50 per second of the 200 Hz rows
-    got = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z, m.pose.orientation.x,
-                     m.pose.orientation.y, m.pose.orientation.z, m.pose.orientation.w] for _, m in stamped])
+    got = np.array(
+        [
+            [
+                m.pose.position.x,
+                m.pose.position.y,
+                m.pose.position.z,
+                m.pose.orientation.x,
+                m.pose.orientation.y,
+                m.pose.orientation.z,
+                m.pose.orientation.w,
+            ]
+            for _, m in stamped
+        ]
+    )
     want = poses[["x", "y", "z", "qx", "qy", "qz", "qw"]].to_numpy()[rows]
     assert np.array_equal(got, want)
     assert all(t == _stamp(m) and m.header.frame_id == "slamobs/map" for t, m in stamped)
     tf = [m.transforms[0] for _, m in msgs["/tf"]]
     assert {(x.header.frame_id, x.child_frame_id) for x in tf} == {("slamobs/map", "slamobs/base_link")}
-    assert np.array_equal([[x.transform.translation.x, x.transform.translation.y, x.transform.translation.z,
-                            x.transform.rotation.w] for x in tf], want[:, [0, 1, 2, 6]])
+    assert np.array_equal(
+        [
+            [x.transform.translation.x, x.transform.translation.y, x.transform.translation.z, x.transform.rotation.w]
+            for x in tf
+        ],
+        want[:, [0, 1, 2, 6]],
+    )
 
     biases = pd.read_parquet(run_dir / "biases.parquet")
     for topic, prefix in (("/slamobs/gyro_bias", "gyro_bias_"), ("/slamobs/velocity_bias", "vel_bias_")):
@@ -179,9 +196,11 @@ def test_report_writes_tum_and_evo_on_request(run_dir, tmp_path):
 def test_export_of_a_damaged_run_is_one_line_naming_the_file(run_dir, tmp_path):
     """A run.json or report.json that is not UTF-8 and a damaged table are named (the line said only "'utf-8'
     codec can't decode byte 0xff" or "Parquet file size is 5 bytes")."""
-    for name, data, why in (("run.json", b"\xff\xfe{}", "unreadable run.json"),
-                            ("report.json", b"\xff\xfe", "unreadable report.json"),
-                            ("poses.parquet", b"junk\n", "unreadable table")):
+    for name, data, why in (
+        ("run.json", b"\xff\xfe{}", "unreadable run.json"),
+        ("report.json", b"\xff\xfe", "unreadable report.json"),
+        ("poses.parquet", b"junk\n", "unreadable table"),
+    ):
         copy = tmp_path / name
         shutil.copytree(run_dir, copy)
         (copy / name).write_bytes(data)

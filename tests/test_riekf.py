@@ -19,7 +19,6 @@ from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from cli_checks import SAMPLES
 
 
-
 def spd(rng, d):
     a = rng.normal(size=(d, d))
     return a @ a.T + d * np.eye(d)
@@ -50,13 +49,13 @@ def test_running_sums_and_transition_equal_the_dense_propagation():
         q[rs, 0:3], q[rs, 3:6] = ls @ acc[2], ls @ acc[3].T
         q[0:3, rs], q[3:6, rs] = q[rs, 0:3].T, q[rs, 3:6].T
         for u in range(n):
-            q[rs, 12 + 3 * u:15 + 3 * u] = ls @ acc[2] @ skew(lm[u]).T
+            q[rs, 12 + 3 * u : 15 + 3 * u] = ls @ acc[2] @ skew(lm[u]).T
     phi = np.eye(d)
     phi[:, 6:12] += f
     walk_w, walk_v, dt = 0.1, 0.2, 0.5
     expect = cov.copy()
-    expect[6:9, 6:9] += walk_w ** 2 * dt * np.eye(3)
-    expect[9:12, 9:12] += walk_v ** 2 * dt * np.eye(3)
+    expect[6:9, 6:9] += walk_w**2 * dt * np.eye(3)
+    expect[9:12, 9:12] += walk_v**2 * dt * np.eye(3)
     expect = phi @ expect @ phi.T + q
     _flush(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, np.zeros((d, 6)), np.zeros((d, 6)))
     assert np.allclose(cov, expect, rtol=1e-12, atol=1e-9)
@@ -84,9 +83,9 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
     for q, j in enumerate(known):
         i = det_idx[j]
         sl = N_FIXED + 3 * slot_of[i]
-        h[3 * q:3 * q + 3, 3:6] = np.eye(3)
-        h[3 * q:3 * q + 3, sl:sl + 3] = -np.eye(3)
-        z[3 * q:3 * q + 3] = r_hat @ det_y[j] + p_hat - lm[i]
+        h[3 * q : 3 * q + 3, 3:6] = np.eye(3)
+        h[3 * q : 3 * q + 3, sl : sl + 3] = -np.eye(3)
+        z[3 * q : 3 * q + 3] = r_hat @ det_y[j] + p_hat - lm[i]
     c = cov[:d, :d]
     s_mat = h @ c @ h.T + np.diag(np.repeat(sigma2[known], 3))
     k = c @ h.T @ np.linalg.inv(s_mat)
@@ -98,7 +97,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
     lm_exp = lm.copy()
     for i in range(3):
         o = N_FIXED + 3 * slot_of[i]
-        lm_exp[i] = a @ lm[i] - jl @ xi[o:o + 3]
+        lm_exp[i] = a @ lm[i] - jl @ xi[o : o + 3]
     lm_exp[3] = r_exp @ det_y[1] + p_exp
     cov_exp = np.zeros((d + 3, d + 3))
     cov_exp[:d, :d] = c_new
@@ -108,11 +107,33 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
     # the kernel
     ns = np.zeros(_SKIPPED + 1, dtype=np.int64)  # the kernel's integer state, all slots
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
-    d_out = _update(0, 3, det_idx, det_y, sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
-                    np.zeros(3, np.int64), np.zeros(9), np.zeros((cov.shape[0], 9)), np.zeros((9, 9)),
-                    innov, trk, 0, ns, 1e9)
+    d_out = _update(
+        0,
+        3,
+        det_idx,
+        det_y,
+        sigma2,
+        cov,
+        d,
+        r_hat,
+        p_hat,
+        b_om,
+        b_v,
+        lm,
+        slot_of,
+        slot_lm,
+        np.zeros(3, np.int64),
+        np.zeros(9),
+        np.zeros((cov.shape[0], 9)),
+        np.zeros((9, 9)),
+        innov,
+        trk,
+        0,
+        ns,
+        1e9,
+    )
     assert d_out == d + 3 and slot_of[3] == 3 and slot_lm[3] == 3
-    assert np.allclose(cov[:d + 3, :d + 3], cov_exp, atol=1e-12)
+    assert np.allclose(cov[: d + 3, : d + 3], cov_exp, atol=1e-12)
     assert np.allclose(r_hat, r_exp) and np.allclose(p_hat, p_exp) and np.allclose(lm, lm_exp)
     assert np.allclose(np.r_[b_om, b_v], b_before + xi[6:12])
     assert np.allclose(innov[[0, 2]], -z.reshape(2, 3)) and np.allclose(innov[1], 0.0)
@@ -128,8 +149,9 @@ def test_nees_over_noisy_runs_within_95_percent_chi2_bounds():
     """20 noisy 20 s figure-8 runs (every landmark comes and goes), biases drawn from the filter's prior, the
     filter started at the true pose (the gauge): the run-averaged NEES of pose and biases (12 DoF) at 10 Hz."""
     runs, every, sigma_b = 20, 20, 0.05
-    noise = resolve_noise(NoiseConfig(gyro_bias=sigma_b, velocity_bias=sigma_b, gyro_bias_walk=0.0,
-                                      velocity_bias_walk=0.0))
+    noise = resolve_noise(
+        NoiseConfig(gyro_bias=sigma_b, velocity_bias=sigma_b, gyro_bias_walk=0.0, velocity_bias_walk=0.0)
+    )
     rng = np.random.default_rng(2015)
     nees = []
     for run in range(runs):
@@ -145,8 +167,9 @@ def test_nees_over_noisy_runs_within_95_percent_chi2_bounds():
         row = []
         for k in range(1, res.t_ns.shape[0]):
             eta = res.rotation[k] @ truth.R[k].T
-            err = np.r_[so3_log(eta), res.position[k] - eta @ truth.P[k], b[:3] - res.gyro_bias[k],
-                        b[3:] - res.vel_bias[k]]
+            err = np.r_[
+                so3_log(eta), res.position[k] - eta @ truth.P[k], b[:3] - res.gyro_bias[k], b[3:] - res.vel_bias[k]
+            ]
             row.append(err @ np.linalg.solve(filt.cov_rows[k], err))
         nees.append(row)
     mean = np.mean(nees, axis=0)
@@ -181,8 +204,9 @@ def test_noise_from_message_covariances_config_and_defaults():
     assert np.allclose(stated.velocity, 0.02 * np.sqrt(0.04), rtol=1e-6)
     assert stated.sources["gyro"].startswith("/imu/data covariance")
     assert stated.detection == DEFAULTS["detection"][0] and stated.sources["detection"] == "default"
-    given = resolve_noise(NoiseConfig.from_section({"gyro": [1e-3, 2e-3, 3e-3], "velocity": None}), SAMPLES / "circle.bag",
-                          topics)
+    given = resolve_noise(
+        NoiseConfig.from_section({"gyro": [1e-3, 2e-3, 3e-3], "velocity": None}), SAMPLES / "circle.bag", topics
+    )
     assert given.gyro.tolist() == [1e-3, 2e-3, 3e-3] and given.sources["gyro"] == "config"
     assert np.allclose(given.velocity, stated.velocity)
     assert resolve_noise(NoiseConfig()).sources["gyro"] == "default"
@@ -207,8 +231,11 @@ def test_a_run_says_when_the_filter_leaves_the_log_unused(tmp_path):
 
     def riekf_notes(noise: dict) -> list[str]:
         out = tmp_path / f"run{len(noise)}{sorted(noise)}"
-        summary = run_log(SAMPLES / "circle.bag", out, parse_config({"observer": "riekf", "noise": noise,
-                                                                      "evaluation": {"plots": False}}))
+        summary = run_log(
+            SAMPLES / "circle.bag",
+            out,
+            parse_config({"observer": "riekf", "noise": noise, "evaluation": {"plots": False}}),
+        )
         return [n for n in summary.notes if n.startswith("riekf:")]
 
     assert riekf_notes({}) == []

@@ -36,9 +36,14 @@ SAMPLES = {
     "circle.bag": dict(scenario="circle", imu_rate=100.0, odom_rate=25.0, mag_rate=25.0, mocap_rate=50.0),
     "circle_ros2": dict(scenario="circle", imu_rate=100.0, odom_rate=25.0, mag_rate=25.0, mocap_rate=50.0),
     "figure8.mcap": dict(scenario="figure8", imu_rate=100.0, mocap_rate=50.0),
-    "figure8_camera.mcap": dict(scenario="figure8", duration=15.0, imu_rate=100.0, mocap_rate=50.0,
-                                detection_rate=10.0, camera=CameraSim("images", 320, 240, 60.0, tag_size=0.8,
-                                                                      jpeg_quality=75)),
+    "figure8_camera.mcap": dict(
+        scenario="figure8",
+        duration=15.0,
+        imu_rate=100.0,
+        mocap_rate=50.0,
+        detection_rate=10.0,
+        camera=CameraSim("images", 320, 240, 60.0, tag_size=0.8, jpeg_quality=75),
+    ),
 }
 
 
@@ -368,8 +373,9 @@ def test_pieces_join_into_a_continuous_log():
     assert pieces.topic_counts() == whole.topic_counts() == single.topic_counts()
     # odometry integrates the measured twist across the piece boundaries exactly as in one go
     o = whole.odom
-    rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), o.angular[:-1], o.linear[:-1],
-                                   np.diff((o.t_ns - whole.start_ns) * 1e-9))
+    rs, ps = integrate_body_twists(
+        np.eye(3), np.zeros(3), o.angular[:-1], o.linear[:-1], np.diff((o.t_ns - whole.start_ns) * 1e-9)
+    )
     assert np.array_equal(ps, o.position) and np.allclose(quats_to_rots(o.quat_xyzw), rs, atol=1e-12)
     det = whole.detections
     assert det.offsets[-1] == det.ids.size and np.all(np.diff(det.offsets) >= 0)
@@ -393,8 +399,13 @@ def test_serialised_messages_are_rosbags_bytes(ros1):
     sim = simulate("figure8", duration=2.0, seed=9)
     ts = make_typestore(ros1=ros1)
     builder = _Builder(sim, ts, ros1)
-    objects = {TOPIC_IMU: builder.imu, TOPIC_ODOM: builder.odom, TOPIC_MAG: builder.mag, TOPIC_MOCAP: builder.mocap,
-               TOPIC_DETECTIONS: builder.detections}
+    objects = {
+        TOPIC_IMU: builder.imu,
+        TOPIC_ODOM: builder.odom,
+        TOPIC_MAG: builder.mag,
+        TOPIC_MOCAP: builder.mocap,
+        TOPIC_DETECTIONS: builder.detections,
+    }
     for topic, (rec, payload) in builder.makers().items():
         if topic not in objects:
             continue
@@ -432,8 +443,7 @@ def test_figure8_wide_sees_about_eight_landmarks():
 def test_loop_passes_sixty_landmarks_with_a_narrow_camera():
     sc = get_scenario("loop")
     assert sc.landmark_ids.size == 60 and sc.camera.fov_h_deg == 50.0 and sc.duration == 180.0
-    sim = simulate("loop", duration=90.0, noise=False, imu_rate=50.0, odom_rate=10.0, mag_rate=10.0,
-                   mocap_rate=10.0)
+    sim = simulate("loop", duration=90.0, noise=False, imu_rate=50.0, odom_rate=10.0, mag_rate=10.0, mocap_rate=10.0)
     counts = np.diff(sim.detections.offsets)
     assert 3 <= counts.min() and counts.max() <= 12 and 4.0 < counts.mean() < 9.0
     assert np.unique(sim.detections.ids).size == 60  # every landmark is seen on a lap
@@ -462,8 +472,25 @@ def test_blind_figure8_loses_its_landmarks_after_40_s():
 
 def test_cli_rig_options(tmp_path):
     out = tmp_path / "rig.mcap"
-    args = ["loop", "-o", str(out), "--duration", "2", "--imu-rate", "20", "--landmarks", "20", "--fov", "70",
-            "--detections-until", "1", "--imu-rpy", "180", "0", "0"]
+    args = [
+        "loop",
+        "-o",
+        str(out),
+        "--duration",
+        "2",
+        "--imu-rate",
+        "20",
+        "--landmarks",
+        "20",
+        "--fov",
+        "70",
+        "--detections-until",
+        "1",
+        "--imu-rpy",
+        "180",
+        "0",
+        "0",
+    ]
     res = CliRunner().invoke(simulate_cmd, args)
     assert res.exit_code == 0, res.output
     res = CliRunner().invoke(simulate_cmd, ["figure8", "-o", str(tmp_path / "x.mcap"), "--landmarks", "99"])

@@ -67,22 +67,23 @@ def test_preintegration_is_the_dead_reckoned_relative_motion_and_its_bias_jacobi
     rot, pos = np.empty((4, 3, 3)), np.empty((4, 3))
     dead_reckon(vel_t, omega, vel, kf_t, b_bar, np.eye(3), np.zeros(3), rot, pos)
     for j in range(3):
-        assert np.allclose(data[j, D_R:D_R + 9].reshape(3, 3), rot[j].T @ rot[j + 1], atol=1e-12)
-        assert np.allclose(data[j, D_P:D_P + 3], rot[j].T @ (pos[j + 1] - pos[j]), atol=1e-12)
+        assert np.allclose(data[j, D_R : D_R + 9].reshape(3, 3), rot[j].T @ rot[j + 1], atol=1e-12)
+        assert np.allclose(data[j, D_P : D_P + 3], rot[j].T @ (pos[j + 1] - pos[j]), atol=1e-12)
         assert np.all(np.linalg.eigvalsh(cov[j]) > 0)
     eps = 1e-6
     for c in range(6):
         db = np.zeros(6)
         db[c] = eps
         other = np.zeros((3, 75))
-        preintegrate(vel_t, omega, vel, kf_t, b_bar + db, np.full(3, 1e-6), np.full(3, 1e-4), other,
-                     np.zeros((3, 6, 6)))
+        preintegrate(
+            vel_t, omega, vel, kf_t, b_bar + db, np.full(3, 1e-6), np.full(3, 1e-4), other, np.zeros((3, 6, 6))
+        )
         for j in range(3):
             d_r0, d_r1 = data[j, :9].reshape(3, 3), other[j, :9].reshape(3, 3)
             num_r = so3_log(d_r0.T @ d_r1) / eps
-            num_p = (other[j, D_P:D_P + 3] - data[j, D_P:D_P + 3]) / eps
-            j_r = data[j, D_JR:D_JR + 9].reshape(3, 3)
-            j_p = (data[j, D_JPW:D_JPW + 9] if c < 3 else data[j, D_JPV:D_JPV + 9]).reshape(3, 3)
+            num_p = (other[j, D_P : D_P + 3] - data[j, D_P : D_P + 3]) / eps
+            j_r = data[j, D_JR : D_JR + 9].reshape(3, 3)
+            j_p = (data[j, D_JPW : D_JPW + 9] if c < 3 else data[j, D_JPV : D_JPV + 9]).reshape(3, 3)
             # first-order Jacobians of a step of h: exact up to O(h · |ω| · h) per step
             assert np.allclose(num_r, j_r[:, c] if c < 3 else 0.0, atol=2e-4)
             assert np.allclose(num_p, j_p[:, c % 3], atol=2e-3)
@@ -91,7 +92,7 @@ def test_preintegration_is_the_dead_reckoned_relative_motion_and_its_bias_jacobi
 def test_relative_motion_jacobians_match_finite_differences():
     rng = np.random.default_rng(1)
     *_, b_bar, data, cov = random_interval(rng)
-    data[:, D_W:D_W + 36] = np.linalg.inv(np.linalg.cholesky(cov)).reshape(3, 36)
+    data[:, D_W : D_W + 36] = np.linalg.inv(np.linalg.cholesky(cov)).reshape(3, 36)
     j = 1
     ti = retract(np.eye(4), rng.normal(size=6))
     tj = retract(ti, np.r_[0.1, -0.2, 0.3, 0.5, 0.1, -0.3])
@@ -121,6 +122,7 @@ def test_keyframes_at_every_frame_and_never_further_apart_than_asked():
 
 # ----------------------------------------------------------------------------------- simulated logs
 
+
 def paper_bias_log(name: str, duration: float, seed: int):
     """A noisy simulated log of scenario ``name`` with the biases of the circle (docs/observers.md §12.1)."""
     sc = replace(get_scenario(name), gyro_bias=PAPER_GYRO_BIAS, velocity_bias=PAPER_VEL_BIAS)
@@ -139,8 +141,9 @@ class Log:
         self.true_bias = np.r_[self.sc.gyro_bias, self.sc.velocity_bias]
 
     def smoother(self, seed=None, fixed_bias=None) -> tuple:
-        smoother = BatchSmoother(self.stream, {}, ObserverOptions(), settings=self.settings, seed=seed,
-                                 fixed_bias=fixed_bias)
+        smoother = BatchSmoother(
+            self.stream, {}, ObserverOptions(), settings=self.settings, seed=seed, fixed_bias=fixed_bias
+        )
         summary = smoother.solve()
         return summary, smoother.result["solution"]
 
@@ -230,11 +233,20 @@ def test_both_reference_estimators_go_on_after_a_gap():
     cut = sim.imu.t_ns[0] + 20 * ns
 
     def shifted(x):
-        return replace(x, t_ns=np.where(x.t_ns > cut, x.t_ns + 60 * ns, x.t_ns),
-                       rec_ns=np.where(x.rec_ns > cut, x.rec_ns + 60 * ns, x.rec_ns))
+        return replace(
+            x,
+            t_ns=np.where(x.t_ns > cut, x.t_ns + 60 * ns, x.t_ns),
+            rec_ns=np.where(x.rec_ns > cut, x.rec_ns + 60 * ns, x.rec_ns),
+        )
 
-    sim = replace(sim, imu=shifted(sim.imu), odom=shifted(sim.odom), mag=shifted(sim.mag),
-                  detections=shifted(sim.detections), mocap=shifted(sim.mocap))
+    sim = replace(
+        sim,
+        imu=shifted(sim.imu),
+        odom=shifted(sim.odom),
+        mag=shifted(sim.mag),
+        detections=shifted(sim.detections),
+        mocap=shifted(sim.mocap),
+    )
     streams = expected_streams(sim)
     stream = align(streams, keep_directions=False)
     assert stream.segment_starts.size == 1

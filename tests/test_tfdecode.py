@@ -18,7 +18,7 @@ from slamobs.pipeline.readers.roles import TF1, TF2, TF_TYPES, topics_of
 from slamobs.pipeline.readers.tfdecode import decode_batch, tf_layout
 from slamobs.pipeline.simulate import make_typestore
 from slamobs.pipeline.simulate.logwriter import write_raw_log
-from serialization import ENCODINGS, as_buffer, deserialize, serialize
+from serialization import as_buffer, deserialize, serialize
 from realdata import REALDATA
 
 #: frame ids of every length 0..25 (ROS1 has no padding; CDR pads after each string to 4, before the doubles to 8)
@@ -49,16 +49,23 @@ def tf_message(ts, msgtype: str, rng: np.random.Generator, frames: list[tuple[st
     make = ts.types
     items = []
     for parent, child in frames:
-        stamp = make["builtin_interfaces/msg/Time"](sec=int(rng.integers(sec[0], sec[1], endpoint=True)),
-                                                    nanosec=int(rng.integers(0, 10**9)))
-        header = (make["std_msgs/msg/Header"](seq=int(rng.integers(0, 2**32)), stamp=stamp, frame_id=parent)
-                  if "seq" in dict(ts.fielddefs["std_msgs/msg/Header"][1])
-                  else make["std_msgs/msg/Header"](stamp=stamp, frame_id=parent))
+        stamp = make["builtin_interfaces/msg/Time"](
+            sec=int(rng.integers(sec[0], sec[1], endpoint=True)), nanosec=int(rng.integers(0, 10**9))
+        )
+        header = (
+            make["std_msgs/msg/Header"](seq=int(rng.integers(0, 2**32)), stamp=stamp, frame_id=parent)
+            if "seq" in dict(ts.fielddefs["std_msgs/msg/Header"][1])
+            else make["std_msgs/msg/Header"](stamp=stamp, frame_id=parent)
+        )
         vec = make["geometry_msgs/msg/Vector3"](x=_float(rng), y=_float(rng), z=_float(rng))
         quat = make["geometry_msgs/msg/Quaternion"](x=_float(rng), y=_float(rng), z=_float(rng), w=_float(rng))
-        items.append(make["geometry_msgs/msg/TransformStamped"](
-            header=header, child_frame_id=child, transform=make["geometry_msgs/msg/Transform"](translation=vec,
-                                                                                               rotation=quat)))
+        items.append(
+            make["geometry_msgs/msg/TransformStamped"](
+                header=header,
+                child_frame_id=child,
+                transform=make["geometry_msgs/msg/Transform"](translation=vec, rotation=quat),
+            )
+        )
     return make[msgtype](transforms=items)
 
 
@@ -134,12 +141,16 @@ def test_only_the_standard_layout_is_walked():
         ts = typestore(ros1=ros1)
         assert tf_layout(ts, TF2, cdr=not ros1) is not None
         assert tf_layout(ts, "geometry_msgs/msg/TransformStamped", cdr=not ros1) is None  # not a TF message
-        ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms\nuint8 extra\n",
-                                       "test_msgs/msg/Extra"))
+        ts.register(
+            get_types_from_msg("geometry_msgs/TransformStamped[] transforms\nuint8 extra\n", "test_msgs/msg/Extra")
+        )
         assert tf_layout(ts, "test_msgs/msg/Extra", cdr=not ros1) is None  # a field after the sequence
         ts.register(get_types_from_msg("test_msgs/Stamped[] transforms\n", "test_msgs/msg/Other"))
-        ts.register(get_types_from_msg("std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Pose transform\n",
-                                       "test_msgs/msg/Stamped"))
+        ts.register(
+            get_types_from_msg(
+                "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/Pose transform\n", "test_msgs/msg/Stamped"
+            )
+        )
         assert tf_layout(ts, "test_msgs/msg/Other", cdr=not ros1) is None  # other element type
     assert tf_layout(typestore(ros1=True), TF2, cdr=True) is None  # a ROS1 header (seq) read as CDR
 
@@ -218,8 +229,14 @@ def assert_identical(got: TfRows, want: TfRows, where: str) -> None:
     assert got.parent.dtype == got.child.dtype == np.int32 and got.t_ns.dtype == got.rec_ns.dtype == np.int64
 
 
-LOGS = [("bag", TF1, "ros1"), ("bag", TF2, "ros1"), ("ros2", TF2, "cdr"), ("mcap", TF2, "cdr"),
-        ("mcap", TF2, "cdr-big-endian"), ("ros2", TF2, "cdr-big-endian")]
+LOGS = [
+    ("bag", TF1, "ros1"),
+    ("bag", TF2, "ros1"),
+    ("ros2", TF2, "cdr"),
+    ("mcap", TF2, "cdr"),
+    ("mcap", TF2, "cdr-big-endian"),
+    ("ros2", TF2, "cdr-big-endian"),
+]
 
 
 @pytest.fixture(scope="module", params=LOGS, ids=["-".join(p).replace("/", "_") for p in LOGS])
@@ -235,10 +252,18 @@ def tf_log(request, tmp_path_factory):
         rec = T0 * ns + (i // 3) * 10_000_000 - (5_000_000 if i % 7 == 3 else 0)  # ties, and some out of order
         tf.append((rec, serialize(ts, msg, msgtype, encoding)))
     robot = [("/odom", "base_link"), ("map", "/odom"), ("base_link", "laser")]
-    dyn = [(T0 * ns + k * 10_000_000 + 1, serialize(ts, tf_message(ts, msgtype, rng, robot), msgtype, encoding))
-           for k in range(300)]
-    static = [(T0 * ns, serialize(ts, tf_message(ts, msgtype, rng, [("base_link", "imu"), ("base_link", "cam")]),
-                                  msgtype, encoding))]
+    dyn = [
+        (T0 * ns + k * 10_000_000 + 1, serialize(ts, tf_message(ts, msgtype, rng, robot), msgtype, encoding))
+        for k in range(300)
+    ]
+    static = [
+        (
+            T0 * ns,
+            serialize(
+                ts, tf_message(ts, msgtype, rng, [("base_link", "imu"), ("base_link", "cam")]), msgtype, encoding
+            ),
+        )
+    ]
     name = {"bag": "tf.bag", "ros2": "tf_ros2", "mcap": "tf.mcap"}[container]
     path = tmp_path_factory.mktemp("tf") / name
     return write_tf_log(path, container, {"/tf": tf, "/robot_tf": dyn, "/tf_static": static}, msgtype, ts)
@@ -250,8 +275,11 @@ def test_fast_tf_equals_rosbags(tf_log, monkeypatch):
     monkeypatch.setattr(tfdecode, "read_tf", lambda *args: calls.append(args[2]) or real(*args))
     with open_log(tf_log) as reader:
         table = topics_of(reader)
-        assert sorted(t for t, (meta, _) in table.items() if meta.msgtype in TF_TYPES) == ["/robot_tf", "/tf",
-                                                                                           "/tf_static"]
+        assert sorted(t for t, (meta, _) in table.items() if meta.msgtype in TF_TYPES) == [
+            "/robot_tf",
+            "/tf",
+            "/tf_static",
+        ]
         for topic in ("/tf", "/robot_tf", "/tf_static"):
             conns = table[topic][1]
             got = decode_tf(reader, tf_log, topic, conns)
@@ -301,8 +329,9 @@ def test_variant_definition_falls_back_to_rosbags(tmp_path):
     rng = np.random.default_rng(3)
     base = tf_message(ts, TF2, rng, [("/odom", "base_link")])
     msg = ts.types[TF1](transforms=base.transforms, tail=7)
-    path = write_tf_log(tmp_path / "variant.bag", "bag", {"/tf": [(T0 * 10**9, serialize(ts, msg, TF1, "ros1"))]},
-                        TF1, ts)
+    path = write_tf_log(
+        tmp_path / "variant.bag", "bag", {"/tf": [(T0 * 10**9, serialize(ts, msg, TF1, "ros1"))]}, TF1, ts
+    )
     with open_log(path) as reader:
         conns = topics_of(reader)["/tf"][1]
         assert tfdecode.read_tf(reader, path, "/tf", conns) is None

@@ -39,9 +39,12 @@ def test_search_space_stays_within_each_observers_conditions():
         assert space.gains_of(spec, space.params_of(spec, defaults)) == pytest.approx(defaults)
         dists = space.distributions(spec)
         for _ in range(200):  # the corners of the space too
-            params = {k: math.exp(rng.choice([math.log(d.low), math.log(d.high), rng.uniform(math.log(d.low),
-                                                                                               math.log(d.high))]))
-                      for k, d in dists.items()}
+            params = {
+                k: math.exp(
+                    rng.choice([math.log(d.low), math.log(d.high), rng.uniform(math.log(d.low), math.log(d.high))])
+                )
+                for k, d in dists.items()
+            }
             spec.resolve_gains(space.gains_of(spec, params))  # raises GainError on a broken condition
 
 
@@ -49,8 +52,9 @@ def _run_ape(log: Path, out: Path, config: Path | None = None) -> float:
     """What ``slamobs run`` reports for ``log`` (translation APE), with ``config`` (e.g. a tune's gains.yaml) or the
     defaults: the holdout's numbers are promised to be these (README, "Do the gains transfer?")."""
     extra = ["--config", str(config)] if config is not None else []
-    done = subprocess.run([*CLI, "run", str(log), "-o", str(out), "-q", *extra], capture_output=True, text=True,
-                          timeout=300)
+    done = subprocess.run(
+        [*CLI, "run", str(log), "-o", str(out), "-q", *extra], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     return json.loads((out / "report.json").read_text())["ape"]["translation_m"]["rmse"]
 
@@ -121,11 +125,17 @@ def test_killed_tune_leaves_no_process_nor_partial_file_and_resumes(logs, tmp_pa
     err = tmp_path / "tune.err"
     for sig in (signal.SIGTERM, signal.SIGKILL):
         with open(err, "w") as fh:
-            proc = subprocess.Popen(_tune_args(logs, out, "--trials", 400, "-j", 2), stdout=subprocess.DEVNULL,
-                                    stderr=fh, start_new_session=True)
+            proc = subprocess.Popen(
+                _tune_args(logs, out, "--trials", 400, "-j", 2),
+                stdout=subprocess.DEVNULL,
+                stderr=fh,
+                start_new_session=True,
+            )
         try:
-            assert wait_for(lambda: "tune: " in err.read_text() and "trials, best" in err.read_text()
-                            or proc.poll() is not None, 180), err.read_text()
+            assert wait_for(
+                lambda: "tune: " in err.read_text() and "trials, best" in err.read_text() or proc.poll() is not None,
+                180,
+            ), err.read_text()
             os.kill(proc.pid, sig)
             code = proc.wait(timeout=60)
             assert code == (143 if sig == signal.SIGTERM else -9), err.read_text()
@@ -140,7 +150,9 @@ def test_killed_tune_leaves_no_process_nor_partial_file_and_resumes(logs, tmp_pa
     done_before = _complete_trials(out)
     assert done_before >= 2
     total = done_before + 4
-    done = subprocess.run(_tune_args(logs, out, "--trials", total, "-j", 2), capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        _tune_args(logs, out, "--trials", total, "-j", 2), capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
     assert "4 trials run now" in done.stdout, done.stdout
     summary = json.loads((out / "tune.json").read_text())
@@ -155,8 +167,12 @@ def test_tune_on_a_dask_cluster(logs, tmp_path, scheduler):
     _, address = scheduler
     worker = _worker(address, tmp_path, "w1")
     try:
-        result = run_tune(logs[:2], TuneOptions(out=tmp_path / "tune", observer="fast-adaptation", trials=3,
-                                                scheduler=address, wait_workers=60))
+        result = run_tune(
+            logs[:2],
+            TuneOptions(
+                out=tmp_path / "tune", observer="fast-adaptation", trials=3, scheduler=address, wait_workers=60
+            ),
+        )
     finally:
         _stop(worker)
     assert result.ran == 3
@@ -168,8 +184,12 @@ def test_tune_on_a_dask_cluster(logs, tmp_path, scheduler):
 def test_a_log_without_truth_is_a_one_line_error(logs, tmp_path):
     cfg = tmp_path / "no_truth.yaml"
     cfg.write_text("topics:\n  truth: ''\n")  # the truth role switched off: nothing to tune against
-    done = subprocess.run(_tune_args(logs, tmp_path / "t", "--trials", 2, "-j", 1, "--config", cfg),
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        _tune_args(logs, tmp_path / "t", "--trials", 2, "-j", 1, "--config", cfg),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith(f"error: {logs[0]}: no ground truth")
     assert not (tmp_path / "t" / "gains.yaml").exists()
@@ -188,21 +208,27 @@ def test_a_holdout_log_that_cannot_be_scored_keeps_the_tunes_results(logs, tmp_p
                 continue
             if channel.id not in ids:
                 sid = writer.register_schema(schema.name, schema.encoding, schema.data) if schema else 0
-                ids[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid,
-                                                          channel.metadata)
+                ids[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, sid, channel.metadata
+                )
             writer.add_message(ids[channel.id], message.log_time, message.data, message.publish_time)
         writer.finish()
     junk = tmp_path / "junk.mcap"
     junk.write_bytes(b"not a log")
-    done = subprocess.run(_tune_args(logs, tmp_path / "j", "--trials", 2, "--holdout", junk), capture_output=True,
-                          text=True, timeout=300)
+    done = subprocess.run(
+        _tune_args(logs, tmp_path / "j", "--trials", 2, "--holdout", junk), capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 2 and done.stderr.strip().splitlines()[-1].startswith(f"error: {junk}: not a ")
     assert not (tmp_path / "j").exists()  # refused before any trial
-    done = subprocess.run(_tune_args(logs, tmp_path / "t", "--trials", 2, "-j", 1, "--holdout", no_truth),
-                          capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        _tune_args(logs, tmp_path / "t", "--trials", 2, "-j", 1, "--holdout", no_truth),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 2, done.stderr
     assert done.stderr.strip().splitlines()[-1].startswith(f"error: {no_truth}: no ground truth")
     assert (tmp_path / "t" / "gains.yaml").is_file() and (tmp_path / "t" / "tune.md").is_file()  # trials kept
 
 
-from test_batch_kills import _stop, _worker, scheduler  # noqa: E402,F401 - real Dask processes, as the batch tests
+from test_batch_kills import _stop, _worker, scheduler  # noqa: F401 - real Dask processes, as the batch tests

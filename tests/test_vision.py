@@ -26,8 +26,16 @@ from slamobs.pipeline.streams import CornerStream, LogStreams, Transform, Vec3St
 from slamobs.pipeline.vision.cameras import CameraModel, read_camera_files
 from slamobs.pipeline.vision.detector import TagDetector, family_constant
 from slamobs.pipeline.vision.landmarks import TagOptions, tag_landmarks
-from slamobs.pipeline.vision.tagpose import (AMBIGUOUS, GRAZING, OK, REPROJECTION, TOO_SMALL, TagQuality, solve_tags,
-                                             winding)
+from slamobs.pipeline.vision.tagpose import (
+    AMBIGUOUS,
+    GRAZING,
+    OK,
+    REPROJECTION,
+    TOO_SMALL,
+    TagQuality,
+    solve_tags,
+    winding,
+)
 
 FACING = np.diag([1.0, -1.0, -1.0])  # tag x right, y up, z towards a camera looking along +z
 
@@ -102,7 +110,10 @@ def test_camera_files(tmp_path):
     files = read_camera_files([tmp_path / n for n in ("kalibr.yaml", "info.yaml", "poses.yaml", "tagslam.yaml")])
     models = {m.name: m for m in files.models}
     assert [models["cam0"].model, models["cam1"].model, models["narrow_stereo"].model] == [
-        "equidistant", "radtan", "radtan"]
+        "equidistant",
+        "radtan",
+        "radtan",
+    ]
     assert models["cam0"].topics == ("/left/image_raw",) and models["cam1"].size == (1280, 1024)
     assert models["narrow_stereo"].k[1, 1] == 501.0 and models["narrow_stereo"].rectified().k[0, 0] == 480.0
     ends = {(t.parent, t.child): t for t in files.transforms}
@@ -123,15 +134,22 @@ def test_camera_files(tmp_path):
         np.testing.assert_allclose(model.undistort(px), ideal, atol=1e-6)
 
 
-@pytest.mark.parametrize(("text", "match"), [
-    ("cam0: {camera_model: omni, intrinsics: [1, 1, 1, 1]}", "camera model 'omni' is not supported"),
-    ("cam0: {intrinsics: [500, 500, 1, 1], distortion_model: equidistant, distortion_coeffs: [0.1, 0.2]}",
-     "equidistant distortion needs 4 coefficients, got 2"),
-    ("cam0: {intrinsics: [500, 500, 1, 1], distortion_model: fov, distortion_coeffs: [0.1]}",
-     "distortion model 'fov' is not supported"),
-    ("cam0: {intrinsics: [0, 0, 1, 1]}", "no usable focal length"),
-    ("something: else", "not a camera file"),
-])
+@pytest.mark.parametrize(
+    ("text", "match"),
+    [
+        ("cam0: {camera_model: omni, intrinsics: [1, 1, 1, 1]}", "camera model 'omni' is not supported"),
+        (
+            "cam0: {intrinsics: [500, 500, 1, 1], distortion_model: equidistant, distortion_coeffs: [0.1, 0.2]}",
+            "equidistant distortion needs 4 coefficients, got 2",
+        ),
+        (
+            "cam0: {intrinsics: [500, 500, 1, 1], distortion_model: fov, distortion_coeffs: [0.1]}",
+            "distortion model 'fov' is not supported",
+        ),
+        ("cam0: {intrinsics: [0, 0, 1, 1]}", "no usable focal length"),
+        ("something: else", "not a camera file"),
+    ],
+)
 def test_bad_camera_files(tmp_path, text, match):
     (tmp_path / "c.yaml").write_text(text)
     with pytest.raises(InputError, match=match) as err:
@@ -147,8 +165,10 @@ def test_missing_opencv_names_the_extra(monkeypatch):
 
 def test_config_tags_cameras_and_map(tmp_path):
     cfg = tmp_path / "run.yaml"
-    cfg.write_text("cameras: cams/kalibr.yaml\ntags: {size: 0.15, sizes: {7: 0.1}, family: tag25h9}\n"
-                   "map: maps/m.csv\ntopics: {detections: [/a/tags, /b/tags]}\n")
+    cfg.write_text(
+        "cameras: cams/kalibr.yaml\ntags: {size: 0.15, sizes: {7: 0.1}, family: tag25h9}\n"
+        "map: maps/m.csv\ntopics: {detections: [/a/tags, /b/tags]}\n"
+    )
     from slamobs.pipeline.config import load_config
 
     c = load_config(cfg)
@@ -203,8 +223,9 @@ def test_pnp_and_rejections():
         np.testing.assert_allclose(quat_to_rot(poses.quat_xyzw[k]), cases[name][0], atol=1e-6)
     # a tag far away and seen face-on has two poses that explain its (noisy) corners almost equally well
     noise = np.random.default_rng(1).normal(0.0, 0.5, (4, 2))
-    far = model.undistort(_project(model, 0.5, FACING @ so3_exp(np.array([0.05, 0, 0])), np.array([0, 0, 12.0]))
-                          + noise)
+    far = model.undistort(
+        _project(model, 0.5, FACING @ so3_exp(np.array([0.05, 0, 0])), np.array([0, 0, 12.0])) + noise
+    )
     strict = TagQuality(max_ambiguity=0.3, max_centre_spread=0.0, min_side_px=0)
     assert solve_tags(far[None], np.array([0.5]), model.k, strict).status[0] == AMBIGUOUS
     assert solve_tags(far[None], np.array([0.5]), model.k, TagQuality(min_side_px=0)).status[0] == OK
@@ -235,15 +256,16 @@ def test_image_detection_and_pnp_accuracy():
     assert len(errors) >= 30
     assert np.sqrt(np.mean(np.square(errors))) <= 0.02
     corner_err = np.array(corner_err)
-    assert np.sqrt(np.mean(corner_err ** 2)) < 0.15 and np.abs(corner_err.mean(axis=(0, 1))).max() < 0.03
+    assert np.sqrt(np.mean(corner_err**2)) < 0.15 and np.abs(corner_err.mean(axis=(0, 1))).max() < 0.03
     assert np.median(normal_err) < 3.0
 
 
 # --------------------------------------------------------------------------- several cameras
 
 
-def _corner_stream(topic: str, frame: str, t_ns: np.ndarray, model: CameraModel, points: list[np.ndarray],
-                   size: float) -> CornerStream:
+def _corner_stream(
+    topic: str, frame: str, t_ns: np.ndarray, model: CameraModel, points: list[np.ndarray], size: float
+) -> CornerStream:
     """Tag 5 at camera-frame ``points[f]`` in frame ``f``."""
     corners = np.array([_project(model, size, FACING, p) for p in points])
     n = len(points)
@@ -263,14 +285,20 @@ def test_several_cameras_one_stream():
     t_ns = np.arange(6, dtype=np.int64) * 100_000_000
     left = _corner_stream("/left/tags", "left", t_ns, model, [tag_left] * 6, 0.3)
     right = _corner_stream("/right/tags", "right", t_ns[:3] + 3_000_000, model, [tag_right] * 3, 0.3)
-    info = [CameraModel(f"/{f}/camera_info", model.k, model.dist, model.model, model.size, "CameraInfo", frame=f)
-            for f in ("left", "right")]
+    info = [
+        CameraModel(f"/{f}/camera_info", model.k, model.dist, model.model, model.size, "CameraInfo", frame=f)
+        for f in ("left", "right")
+    ]
     quat = np.array([0.0, np.sin(0.2), 0.0, np.cos(0.2)])
     t = np.arange(0, 700_000_000, 10_000_000, dtype=np.int64)
-    streams = LogStreams("rig.bag", angular_velocity=Vec3Stream("/imu", "left", t, t, np.zeros((t.size, 3))),
-                         linear_velocity=Vec3Stream("/odom", "left", t, t, np.zeros((t.size, 3))),
-                         static_tf=[Transform("left", "right", t_lc, quat)], tag_corners=[left, right],
-                         camera_info=info)
+    streams = LogStreams(
+        "rig.bag",
+        angular_velocity=Vec3Stream("/imu", "left", t, t, np.zeros((t.size, 3))),
+        linear_velocity=Vec3Stream("/odom", "left", t, t, np.zeros((t.size, 3))),
+        static_tf=[Transform("left", "right", t_lc, quat)],
+        tag_corners=[left, right],
+        camera_info=info,
+    )
     tags = tag_landmarks(streams, TagOptions(size=0.3))
     det = tags.detections
     assert det.cameras == ("left", "right") and len(det) == 6 and np.diff(det.offsets).tolist() == [1] * 6
@@ -288,13 +316,18 @@ def test_several_cameras_one_stream():
 def test_camera_without_extrinsic_is_dropped():
     model = CameraSim().model()
     t_ns = np.arange(3, dtype=np.int64) * 100_000_000
-    streams = LogStreams("rig.bag", linear_velocity=Vec3Stream("/odom", "base", t_ns, t_ns, np.zeros((3, 3))),
-                         tag_corners=[_corner_stream("/a/tags", "cam_a", t_ns, model, [np.array([0, 0, 2.0])] * 3,
-                                                     0.3),
-                                      _corner_stream("/b/tags", "cam_b", t_ns, model, [np.array([0, 0, 2.0])] * 3,
-                                                     0.3)],
-                         camera_info=[CameraModel("/cam/camera_info", model.k, model.dist, model.model, None, "x",
-                                                  frame=f) for f in ("cam_a", "cam_b")])
+    streams = LogStreams(
+        "rig.bag",
+        linear_velocity=Vec3Stream("/odom", "base", t_ns, t_ns, np.zeros((3, 3))),
+        tag_corners=[
+            _corner_stream("/a/tags", "cam_a", t_ns, model, [np.array([0, 0, 2.0])] * 3, 0.3),
+            _corner_stream("/b/tags", "cam_b", t_ns, model, [np.array([0, 0, 2.0])] * 3, 0.3),
+        ],
+        camera_info=[
+            CameraModel("/cam/camera_info", model.k, model.dist, model.model, None, "x", frame=f)
+            for f in ("cam_a", "cam_b")
+        ],
+    )
     tags = tag_landmarks(streams, TagOptions(size=0.3), identity_frames=("cam_a",))
     assert tags.detections.topic == "/a/tags"
     assert any("/b/tags: no transform from camera frame 'cam_b'" in n for n in tags.notes)
@@ -313,10 +346,19 @@ def camera_logs(tmp_path_factory):
     """figure8 seen as tag corners (ROS1 bag) and as 320x240 JPEG images (MCAP, rosbag2), 20 s at 10 Hz."""
     base = tmp_path_factory.mktemp("camera_logs")
     corners = simulation("figure8", duration=20.0, seed=5, detection_rate=10.0, camera=CameraSim(output="corners"))
-    images = simulation("figure8", duration=20.0, seed=5, detection_rate=10.0,
-                        camera=CameraSim(output="images", width=320, height=240, fov_h_deg=60.0, tag_size=0.8))
-    return {"corners": write_log(corners, base / "corners.bag"), "images": write_log(images, base / "images.mcap"),
-            "images_ros2": write_log(images, base / "images_ros2"), "sim": images}
+    images = simulation(
+        "figure8",
+        duration=20.0,
+        seed=5,
+        detection_rate=10.0,
+        camera=CameraSim(output="images", width=320, height=240, fov_h_deg=60.0, tag_size=0.8),
+    )
+    return {
+        "corners": write_log(corners, base / "corners.bag"),
+        "images": write_log(images, base / "images.mcap"),
+        "images_ros2": write_log(images, base / "images_ros2"),
+        "sim": images,
+    }
 
 
 def _truth_map_error(out: Path) -> tuple[float, float]:
@@ -369,33 +411,43 @@ def test_foxglove_images_with_a_ros_camera_file(tmp_path):
 
     cv2 = opencv()
     ts = make_typestore(ros1=False)
-    ts.register(get_types_from_msg("builtin_interfaces/Time timestamp\nstring frame_id\nuint8[] data\nstring format\n",
-                                   "foxglove_msgs/msg/CompressedImage"))
+    ts.register(
+        get_types_from_msg(
+            "builtin_interfaces/Time timestamp\nstring frame_id\nuint8[] data\nstring format\n",
+            "foxglove_msgs/msg/CompressedImage",
+        )
+    )
     cam = CameraSim(output="images", distortion="none")
     where = np.array([0.3, -0.2, 4.0])
-    img = TagRenderer(cam, where[None], FACING[None], np.array([7])).render(np.eye(3), np.zeros(3),
-                                                                           np.random.default_rng(0))
+    img = TagRenderer(cam, where[None], FACING[None], np.array([7])).render(
+        np.eye(3), np.zeros(3), np.random.default_rng(0)
+    )
     jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 95])[1].ravel()
     types = ts.types
     msgs = []
     for k in range(3):
         ns = 1_700_000_000_000_000_000 + k * 100_000_000
         msg = types["foxglove_msgs/msg/CompressedImage"](
-            timestamp=types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id="front",
-            data=jpeg, format="jpeg")
+            timestamp=types["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9),
+            frame_id="front",
+            data=jpeg,
+            format="jpeg",
+        )
         msgs.append((ns, bytes(ts.serialize_cdr(msg, "foxglove_msgs/msg/CompressedImage"))))
     log = write_raw_log(tmp_path / "fox.mcap", "mcap", {"/front/image": msgs}, "foxglove_msgs/msg/CompressedImage", ts)
     k = cam.k
     (tmp_path / "front.yaml").write_text(
         f"camera_name: front\nimage_width: {cam.width}\nimage_height: {cam.height}\n"
         f"camera_matrix: {{rows: 3, cols: 3, data: [{k[0, 0]}, 0, {k[0, 2]}, 0, {k[1, 1]}, {k[1, 2]}, 0, 0, 1]}}\n"
-        "distortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n")
+        "distortion_model: plumb_bob\ndistortion_coefficients: {rows: 1, cols: 5, data: [0, 0, 0, 0, 0]}\n"
+    )
     streams = read_log(log)
     (corners,) = streams.tag_corners
     assert corners.frame_id == "front" and corners.ids.tolist() == [7, 7, 7]
     assert corners.t_ns.tolist() == [m[0] for m in msgs]
-    tags = tag_landmarks(streams, TagOptions(size=cam.tag_size), camera_files=[tmp_path / "front.yaml"],
-                         identity_frames=("front",))
+    tags = tag_landmarks(
+        streams, TagOptions(size=cam.tag_size), camera_files=[tmp_path / "front.yaml"], identity_frames=("front",)
+    )
     np.testing.assert_allclose(tags.detections.xyz, np.tile(where, (3, 1)), atol=0.02)
 
 
@@ -406,8 +458,19 @@ def test_camera_sample_log_runs_with_its_config(tmp_path):
 
     samples = Path(__file__).resolve().parents[1] / "sample_logs"
     out = tmp_path / "out"
-    res = CliRunner().invoke(main, ["run", str(samples / "figure8_camera.mcap"), "-o", str(out), "--config",
-                                    str(samples / "figure8_camera.yaml"), "-q"], catch_exceptions=False)
+    res = CliRunner().invoke(
+        main,
+        [
+            "run",
+            str(samples / "figure8_camera.mcap"),
+            "-o",
+            str(out),
+            "--config",
+            str(samples / "figure8_camera.yaml"),
+            "-q",
+        ],
+        catch_exceptions=False,
+    )
     assert res.exit_code == 0, res.output
     report = json.loads((out / "report.json").read_text())
     assert report["ape"]["translation_m"]["rmse"] < 0.6
@@ -423,8 +486,12 @@ def test_raw_image_encodings_and_a_raw_image_bag(tmp_path):
     bgr = cv2.cvtColor(gray, cv2.COLOR_GRAY2BGR)
     padded = np.zeros((6, 10), np.uint8)  # rows padded to a step of 10 bytes
     padded[:, :8] = gray
-    cases = {"mono8": (padded, 10), "bgr8": (bgr, 24), "rgb8": (bgr[..., ::-1].copy(), 24),
-             "bgra8": (cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA), 32)}
+    cases = {
+        "mono8": (padded, 10),
+        "bgr8": (bgr, 24),
+        "rgb8": (bgr[..., ::-1].copy(), 24),
+        "bgra8": (cv2.cvtColor(gray, cv2.COLOR_GRAY2BGRA), 32),
+    }
     for encoding, (data, step) in cases.items():
         np.testing.assert_array_equal(raw_to_gray(6, 8, encoding, step, False, data.tobytes()), gray)
     mono16 = (gray.astype(np.uint16) * 257).astype(">u2")
@@ -435,26 +502,34 @@ def test_raw_image_encodings_and_a_raw_image_bag(tmp_path):
         raw_to_gray(6, 8, "32SC4", 128, False, bytes(6 * 128))
     assert is_depth("16UC1", "/camera/depth/image_raw") and not is_depth("mono16", "/ir/image")
     # raw mono8 sensor_msgs/Image in a ROS1 bag
-    sim = simulation("figure8", duration=1.0, detection_rate=5.0,
-                     camera=CameraSim(output="images", width=320, height=240, fov_h_deg=60.0, tag_size=0.8,
-                                      jpeg_quality=None))
+    sim = simulation(
+        "figure8",
+        duration=1.0,
+        detection_rate=5.0,
+        camera=CameraSim(output="images", width=320, height=240, fov_h_deg=60.0, tag_size=0.8, jpeg_quality=None),
+    )
     (stream,) = read_log(write_log(sim, tmp_path / "raw.bag")).tag_corners
     cam = sim.whole().camera
     assert stream.topic == "/camera/image_raw" and len(stream) == 5
     assert set(stream.ids.tolist()) >= set(cam.ids.tolist())
 
 
-@pytest.mark.parametrize(("settings", "problem"), [
-    ({"adaptiveThreshWinSizeMin": -5}, "OpenCV rejects the settings {'adaptiveThreshWinSizeMin': -5}: "
-                                       "params.adaptiveThreshWinSizeMin >= 3"),
-    ({"perspectiveRemovePixelPerCell": 0}, "OpenCV rejects the settings"),  # only seen once a tag is found
-    ({"minMarkerPerimeterRate": float("nan")}, "minMarkerPerimeterRate = nan: must be finite"),
-    ({"adaptiveThreshWinSizeMin": float("inf")}, "adaptiveThreshWinSizeMin = inf: must be finite"),
-    ({"adaptiveThreshWinSizeMin": 3.5}, "adaptiveThreshWinSizeMin = 3.5: must be an integer"),
-    ({"detectInvertedMarker": "false"}, "detectInvertedMarker = 'false': must be true or false"),
-    ({"cornerRefinementMethod": 7}, "cornerRefinementMethod = 7: must be 0 (none), 1 (subpix)"),
-    ({"readDetectorParameters": 1}, "'readDetectorParameters' is not a cv2.aruco.DetectorParameters field"),
-])
+@pytest.mark.parametrize(
+    ("settings", "problem"),
+    [
+        (
+            {"adaptiveThreshWinSizeMin": -5},
+            "OpenCV rejects the settings {'adaptiveThreshWinSizeMin': -5}: params.adaptiveThreshWinSizeMin >= 3",
+        ),
+        ({"perspectiveRemovePixelPerCell": 0}, "OpenCV rejects the settings"),  # only seen once a tag is found
+        ({"minMarkerPerimeterRate": float("nan")}, "minMarkerPerimeterRate = nan: must be finite"),
+        ({"adaptiveThreshWinSizeMin": float("inf")}, "adaptiveThreshWinSizeMin = inf: must be finite"),
+        ({"adaptiveThreshWinSizeMin": 3.5}, "adaptiveThreshWinSizeMin = 3.5: must be an integer"),
+        ({"detectInvertedMarker": "false"}, "detectInvertedMarker = 'false': must be true or false"),
+        ({"cornerRefinementMethod": 7}, "cornerRefinementMethod = 7: must be 0 (none), 1 (subpix)"),
+        ({"readDetectorParameters": 1}, "'readDetectorParameters' is not a cv2.aruco.DetectorParameters field"),
+    ],
+)
 def test_detector_settings_opencv_rejects_are_one_line(settings, problem):
     with pytest.raises(InputError) as err:
         TagDetector("36h11", settings, path="run.yaml")
@@ -463,31 +538,44 @@ def test_detector_settings_opencv_rejects_are_one_line(settings, problem):
     TagDetector("36h11", {"adaptiveThreshWinSizeMin": 5, "adaptiveThreshConstant": 7})  # valid ones still work
 
 
-ROS_INFO = ("camera_name: camera\ncamera_matrix: {rows: 3, cols: 3, data: [457, 0, 319.5, 0, 457, 239.5, 0, 0, 1]}\n"
-            "distortion_model: plumb_bob\n")
+ROS_INFO = (
+    "camera_name: camera\ncamera_matrix: {rows: 3, cols: 3, data: [457, 0, 319.5, 0, 457, 239.5, 0, 0, 1]}\n"
+    "distortion_model: plumb_bob\n"
+)
 
 
 def test_ros_camera_file_with_plain_lists(tmp_path):
     path = tmp_path / "cam.yaml"
-    path.write_text("camera_name: camera\ncamera_matrix: [457, 0, 319.5, 0, 457, 239.5, 0, 0, 1]\n"
-                    "distortion_model: plumb_bob\ndistortion_coefficients: [0.1, 0, 0, 0, 0]\nimage_width: 640\n"
-                    "image_height: 480\n")
+    path.write_text(
+        "camera_name: camera\ncamera_matrix: [457, 0, 319.5, 0, 457, 239.5, 0, 0, 1]\n"
+        "distortion_model: plumb_bob\ndistortion_coefficients: [0.1, 0, 0, 0, 0]\nimage_width: 640\n"
+        "image_height: 480\n"
+    )
     (model,) = read_camera_files([path]).models
     assert model.model == "radtan" and model.dist.tolist() == [0.1, 0, 0, 0, 0] and model.size == (640, 480)
     assert model.k[0, 0] == 457.0
 
 
-@pytest.mark.parametrize(("text", "problem"), [
-    (ROS_INFO + "distortion_coefficients: [0, 0, 0, 0, 0]\nimage_width: big\n",
-     "image_width must be a whole number of pixels, got 'big'"),
-    (ROS_INFO + "distortion_coefficients: [0, 0, 0, 0, 0]\nimage_height: .inf\n",
-     "image_height must be a whole number of pixels, got inf"),
-    (ROS_INFO + "distortion_coefficients: [a, b]\n", "distortion_coefficients.data must be a list of numbers"),
-    ("cam0: {intrinsics: [500, 500, 1, 1], resolution: [640.5, 480]}",
-     "cam0.resolution must be a whole number of pixels, got 640.5"),
-    ("bodies: 5\n", "bodies must be a list of {name: body} entries"),
-    (b"\xff\xfe\x00", "not UTF-8 text (byte 0xff at offset 0): save the camera file as UTF-8"),
-])
+@pytest.mark.parametrize(
+    ("text", "problem"),
+    [
+        (
+            ROS_INFO + "distortion_coefficients: [0, 0, 0, 0, 0]\nimage_width: big\n",
+            "image_width must be a whole number of pixels, got 'big'",
+        ),
+        (
+            ROS_INFO + "distortion_coefficients: [0, 0, 0, 0, 0]\nimage_height: .inf\n",
+            "image_height must be a whole number of pixels, got inf",
+        ),
+        (ROS_INFO + "distortion_coefficients: [a, b]\n", "distortion_coefficients.data must be a list of numbers"),
+        (
+            "cam0: {intrinsics: [500, 500, 1, 1], resolution: [640.5, 480]}",
+            "cam0.resolution must be a whole number of pixels, got 640.5",
+        ),
+        ("bodies: 5\n", "bodies must be a list of {name: body} entries"),
+        (b"\xff\xfe\x00", "not UTF-8 text (byte 0xff at offset 0): save the camera file as UTF-8"),
+    ],
+)
 def test_bad_camera_file_values_are_one_line(tmp_path, text, problem):
     path = tmp_path / "cam.yaml"
     path.write_bytes(text if isinstance(text, bytes) else text.encode())

@@ -9,15 +9,24 @@ per-run partitions.
 import importlib
 
 # eager (and light): the function ``discover`` shadows its submodule of the same name
-from slamobs.pipeline.batch.discover import LogEntry, discover, read_manifest
+from slamobs.pipeline.batch.discover import LogEntry, discover, read_manifest  # noqa: F401 - in __all__
 
 #: Public names and the submodule that holds each (imported on first use: a worker process importing one
 #: submodule does not pay for all of them).
 _WHERE = {
     "compact_dataset": "compact",
-    "InfrastructureError": "executor", "content_hash": "identity", "run_id_for": "identity", "run_key": "identity",
-    "read_summary": "ledger", "BatchOptions": "runner", "BatchResult": "runner", "DaskMissing": "runner",
-    "Progress": "runner", "check_config": "runner", "compact_batch": "runner", "run_batch": "runner",
+    "InfrastructureError": "executor",
+    "content_hash": "identity",
+    "run_id_for": "identity",
+    "run_key": "identity",
+    "read_summary": "ledger",
+    "BatchOptions": "runner",
+    "BatchResult": "runner",
+    "DaskMissing": "runner",
+    "Progress": "runner",
+    "check_config": "runner",
+    "compact_batch": "runner",
+    "run_batch": "runner",
 }
 __all__ = sorted([*_WHERE, "LogEntry", "discover", "read_manifest"])
 

@@ -100,8 +100,9 @@ class _Writer:
         f = pq.ParquetFile(path)
         schema = f.schema_arrow.remove_metadata()
         rows = f.metadata.num_rows
-        if self.writer is not None and (not schema.equals(self.schema, check_metadata=True)
-                                        or self.file_rows_now + rows > self.file_rows):
+        if self.writer is not None and (
+            not schema.equals(self.schema, check_metadata=True) or self.file_rows_now + rows > self.file_rows
+        ):
             self.close_file()
         if self.writer is None:
             self._open(schema)
@@ -116,8 +117,9 @@ class _Writer:
         return rows
 
 
-def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: int = FILE_ROWS,
-                    group_rows: int = GROUP_ROWS) -> list[TableCompaction]:
+def compact_dataset(
+    out: Path, index: DatasetIndex | None = None, *, file_rows: int = FILE_ROWS, group_rows: int = GROUP_ROWS
+) -> list[TableCompaction]:
     """Merge the fresh partitions (and small compacted files) of every table; returns what changed.
 
     The caller holds the batch lock. ``index`` (updated in place) saves a scan when the caller has one.
@@ -143,8 +145,14 @@ def compact_dataset(out: Path, index: DatasetIndex | None = None, *, file_rows: 
     return report
 
 
-def _write_tables(out: Path, index: DatasetIndex, renames: list[tuple[Path, Path]], replaced: list[Path],
-                  file_rows: int, group_rows: int) -> list[TableCompaction]:
+def _write_tables(
+    out: Path,
+    index: DatasetIndex,
+    renames: list[tuple[Path, Path]],
+    replaced: list[Path],
+    file_rows: int,
+    group_rows: int,
+) -> list[TableCompaction]:
     """Write the compacted files of every table under hidden names (``renames``: temporary -> final)."""
     report = []
     for table in ALL_TABLES:
@@ -170,15 +178,33 @@ def _write_tables(out: Path, index: DatasetIndex, renames: list[tuple[Path, Path
             raise
         renames += writer.done
         replaced += [path.parent if path.name == PART else path for path, _ in units]
-        report.append(TableCompaction(table, len(fresh) + len(files), len(files) - len(small) + len(writer.done),
-                                      sum(len(ids) for _, ids in units), rows))
+        report.append(
+            TableCompaction(
+                table,
+                len(fresh) + len(files),
+                len(files) - len(small) + len(writer.done),
+                sum(len(ids) for _, ids in units),
+                rows,
+            )
+        )
     return report
 
 
 def _cannot_write(path: Path, err: OSError) -> Exception:
-    return output_error(path, err, "cannot write it", "; the dataset is unchanged (its runs stay in their per-run "
-                                                      "files; compact later: slamobs batch compact OUT)")
+    return output_error(
+        path,
+        err,
+        "cannot write it",
+        "; the dataset is unchanged (its runs stay in their per-run files; compact later: slamobs batch compact OUT)",
+    )
 
 
-__all__ = ["FILE_ROWS", "GROUP_ROWS", "JOURNAL", "TableCompaction", "compact_dataset", "compacted_run_ids",
-           "finish_compaction"]
+__all__ = [
+    "FILE_ROWS",
+    "GROUP_ROWS",
+    "JOURNAL",
+    "TableCompaction",
+    "compact_dataset",
+    "compacted_run_ids",
+    "finish_compaction",
+]

@@ -60,7 +60,9 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
     except Late:
         raise InfrastructureError(f"{where}: the Dask workers did not answer within {within:g} s") from None
     except Exception as err:  # noqa: BLE001 - e.g. the scheduler went away meanwhile
-        raise InfrastructureError(f"{where}: cannot ask the Dask workers for their environment ({failure_text(err)})") from None
+        raise InfrastructureError(
+            f"{where}: cannot ask the Dask workers for their environment ({failure_text(err)})"
+        ) from None
     finally:
         pool.shutdown(wait=False)
         cloudpickle.unregister_pickle_by_value(probe)
@@ -70,12 +72,16 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
         if not isinstance(ans, dict):
             raise InfrastructureError(f"Dask worker {addr}: cannot run the environment check ({failure_text(ans)})")
         if not ans["ok"]:
-            raise InfrastructureError(f"Dask worker {addr} ({ans['host']}, {ans['python']}): cannot import slamobs "
-                                      f"({ans['error']}); install slamobs {version} on every worker")
+            raise InfrastructureError(
+                f"Dask worker {addr} ({ans['host']}, {ans['python']}): cannot import slamobs "
+                f"({ans['error']}); install slamobs {version} on every worker"
+            )
         if ans["version"] != version or ans["code"] != code:
-            raise InfrastructureError(f"Dask worker {addr} ({ans['host']}): runs slamobs {ans['version']} "
-                                      f"(code {ans['code']}), the batch {version} (code {code}); install the same "
-                                      "version on every worker")
+            raise InfrastructureError(
+                f"Dask worker {addr} ({ans['host']}): runs slamobs {ans['version']} "
+                f"(code {ans['code']}), the batch {version} (code {code}); install the same "
+                "version on every worker"
+            )
     return len(answers)
 
 
@@ -99,8 +105,14 @@ class _Watch:
 class DaskPool:
     """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
 
-    def __init__(self, jobs: int, scheduler: str | None = None, timeout: float | None = None,
-                 wait_workers: float = 60.0, run=run_task) -> None:
+    def __init__(
+        self,
+        jobs: int,
+        scheduler: str | None = None,
+        timeout: float | None = None,
+        wait_workers: float = 60.0,
+        run=run_task,
+    ) -> None:
         self.jobs, self.scheduler, self.timeout, self.wait_workers = max(1, jobs), scheduler, timeout, wait_workers
         self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
@@ -117,16 +129,24 @@ class DaskPool:
             try:
                 self.client = Client(self.scheduler, timeout=f"{max(1.0, min(self.wait_workers, 30.0))}s")
             except (OSError, TimeoutError, ValueError) as err:
-                raise InfrastructureError(f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})") from None
+                raise InfrastructureError(
+                    f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
+                ) from None
         else:
-            self.cluster = LocalCluster(n_workers=self.jobs, processes=True, threads_per_worker=1,
-                                        dashboard_address=None, silence_logs=logging.ERROR)
+            self.cluster = LocalCluster(
+                n_workers=self.jobs,
+                processes=True,
+                threads_per_worker=1,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            )
             self.client = Client(self.cluster)
         try:
             self.client.wait_for_workers(1, timeout=self.wait_workers)
         except TimeoutError:
-            raise InfrastructureError(f"{self.where}: no Dask workers after {self.wait_workers:g} s "
-                                      "(--wait-workers)") from None
+            raise InfrastructureError(
+                f"{self.where}: no Dask workers after {self.wait_workers:g} s (--wait-workers)"
+            ) from None
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
     def close(self) -> None:
@@ -184,19 +204,27 @@ class DaskPool:
                         if isinstance(err, EnvironmentMismatch):
                             raise InfrastructureError(f"Dask worker: {err}")
                         if isinstance(err, ImportError):
-                            raise InfrastructureError(f"a Dask worker cannot import slamobs ({failure_text(err)}); "
-                                                      "install it on every worker")
+                            raise InfrastructureError(
+                                f"a Dask worker cannot import slamobs ({failure_text(err)}); install it on every worker"
+                            )
                         if isinstance(err, KilledWorker):
-                            yield task, failed_row(task, f"{task.log}: Dask workers died while running this log, "
-                                                         "every retry (crash or out of memory)")
+                            yield (
+                                task,
+                                failed_row(
+                                    task,
+                                    f"{task.log}: Dask workers died while running this log, "
+                                    "every retry (crash or out of memory)",
+                                ),
+                            )
                         else:
                             yield task, failed_row(task, failure_text(err, task.log))
                 now = time.monotonic()
                 if self._workers() == 0:
                     no_workers_since = no_workers_since or now
                     if now - no_workers_since > self.wait_workers:
-                        raise InfrastructureError(f"{self.where}: no Dask workers for {self.wait_workers:g} s "
-                                                  "(--wait-workers)")
+                        raise InfrastructureError(
+                            f"{self.where}: no Dask workers for {self.wait_workers:g} s (--wait-workers)"
+                        )
                 else:
                     no_workers_since = None
                 if self.timeout:
@@ -245,8 +273,14 @@ class DaskPool:
                 ours_cancelled.add(key)
                 fut.cancel()
                 silent.add(worker)
-                yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (Dask worker {worker} "
-                                             "restarted; raise --timeout for longer logs)")
+                yield (
+                    task,
+                    failed_row(
+                        task,
+                        f"{task.log}: timed out after {self.timeout:g} s (Dask worker {worker} "
+                        "restarted; raise --timeout for longer logs)",
+                    ),
+                )
             elif now - max(since, watch.alive.get(worker, since)) > max(self.timeout, STARTUP_S):
                 silent.add(worker)  # a new worker's imports may take a while: as long as a local one's
         for worker in silent:

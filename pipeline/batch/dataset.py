@@ -141,7 +141,7 @@ class DatasetIndex:
             fresh, files = set(), {}
             for e in os.scandir(base):
                 if e.name.startswith("run_id=") and e.is_dir():
-                    fresh.add(e.name[len("run_id="):])
+                    fresh.add(e.name[len("run_id=") :])
                 elif e.name.startswith(COMPACTED) and e.name.endswith(".parquet"):
                     files[e.name] = set(compacted_run_ids(Path(e.path)))
             index.fresh[table], index.compacted[table] = fresh, files
@@ -273,8 +273,9 @@ def check_layout(out: Path) -> None:
     duplicate every run."""
     out = Path(out)
     if (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
-        raise InputError(out, "written by an older slamobs batch (run ids from log paths); write this batch to a "
-                              "new directory")
+        raise InputError(
+            out, "written by an older slamobs batch (run ids from log paths); write this batch to a new directory"
+        )
 
 
 # --- switching files: the journal of a compaction (see compact) -----------------------------------------

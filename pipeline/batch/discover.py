@@ -64,15 +64,18 @@ def _walk(root: Path) -> list[Path]:
             else:
                 descend.append(d)
         dirs[:] = descend
-        found.extend(base / f for f in sorted(files)
-                     if not f.startswith(".") and f.lower().endswith(LOG_SUFFIXES))
+        found.extend(base / f for f in sorted(files) if not f.startswith(".") and f.lower().endswith(LOG_SUFFIXES))
     return sorted(found)
 
 
 def file_kind(mode: int) -> str:
     """What a non-regular, non-directory file is, for error messages."""
-    for test, name in ((stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket")):
+    for test, name in (
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISCHR, "a character device"),
+        (stat.S_ISBLK, "a block device"),
+        (stat.S_ISSOCK, "a socket"),
+    ):
         if test(mode):
             return name
     return "not a regular file"
@@ -217,5 +220,3 @@ def _yaml_rows(path: Path) -> list[tuple[str, str | None]]:
         else:
             raise InputError(path, f"manifest entry {n}: expected a path or {{log: PATH, config: PATH}}")
     return rows
-
-

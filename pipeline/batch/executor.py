@@ -97,10 +97,18 @@ def failure_text(err: BaseException, where: str | None = None) -> str:
 def base_row(task: Task) -> dict:
     from slamobs.pipeline.version import __version__
 
-    return {"run_id": task.run_id, "log": task.log, "config_file": task.config_file,
-            "content_hash": task.content_hash, "observer": task.config.get("observer"), "config_hash": task.config_hash,
-            "slamobs_version": __version__, "finished_at": datetime.now(UTC),
-            "worker": _worker_name(), "warning_count": 0}
+    return {
+        "run_id": task.run_id,
+        "log": task.log,
+        "config_file": task.config_file,
+        "content_hash": task.content_hash,
+        "observer": task.config.get("observer"),
+        "config_hash": task.config_hash,
+        "slamobs_version": __version__,
+        "finished_at": datetime.now(UTC),
+        "worker": _worker_name(),
+        "warning_count": 0,
+    }
 
 
 def failed_row(task: Task, error: str) -> dict:
@@ -129,8 +137,10 @@ def _changed(task: Task, read: bool) -> Exception | None:
     if same:
         return None
     when = "while it ran" if read else "since the batch identified it"
-    return InputError(task.log, f"the log changed {when} (replaced or rewritten): its result is discarded and "
-                                "the next batch runs it again")
+    return InputError(
+        task.log,
+        f"the log changed {when} (replaced or rewritten): its result is discarded and the next batch runs it again",
+    )
 
 
 def check_environment(version: str, code: str) -> None:
@@ -139,8 +149,10 @@ def check_environment(version: str, code: str) -> None:
     from slamobs.pipeline.batch.identity import code_hash
 
     if (version and version != __version__) or (code and code != code_hash()):
-        raise EnvironmentMismatch(f"{socket.gethostname()} runs slamobs {__version__} (code {code_hash()}), "
-                                  f"the batch {version} (code {code}): install the same version on every worker")
+        raise EnvironmentMismatch(
+            f"{socket.gethostname()} runs slamobs {__version__} (code {code_hash()}), "
+            f"the batch {version} (code {code}): install the same version on every worker"
+        )
 
 
 def _watch_lease(lease: Path, done: threading.Event) -> None:
@@ -223,8 +235,15 @@ def run_task(task: Task, pipeline=_run) -> dict:
                 raise failure
             t = time.perf_counter()
             tables = stage_tables(staged, task.run_id)
-            row = {**base_row(task), "status": "ok", "error": None, "dataset_s": time.perf_counter() - t,
-                   **summary.timings, **summary.metadata["counts"], **summary.headline()}
+            row = {
+                **base_row(task),
+                "status": "ok",
+                "error": None,
+                "dataset_s": time.perf_counter() - t,
+                **summary.timings,
+                **summary.metadata["counts"],
+                **summary.headline(),
+            }
         except Exception as err:  # noqa: BLE001 - one failing log must never stop the batch
             remove_path(staged)
             if err is changed:
@@ -235,8 +254,9 @@ def run_task(task: Task, pipeline=_run) -> dict:
                 row = failed_row(task, failure_text(err, task.log))
         finally:
             done.set()
-    texts = data_warnings + list(dict.fromkeys(
-        f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught))
+    texts = data_warnings + list(
+        dict.fromkeys(f"{w.category.__name__}: {w.message} ({Path(w.filename).name}:{w.lineno})" for w in caught)
+    )
     row["warning_count"] = len(texts)
     row["warnings"] = "; ".join(one_line(t) for t in texts)[:1000] or None
     row["total_s"] = time.perf_counter() - t0

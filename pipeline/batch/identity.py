@@ -72,8 +72,10 @@ def stat_key(path: Path) -> str:
 
     Raises InputError like :func:`content_hash` (FIFOs, devices and link loops are refused without opening).
     """
-    parts = [os.fsencode(f"{rel}\0{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}")
-             for rel, _, st in _content_files(path)]
+    parts = [
+        os.fsencode(f"{rel}\0{st.st_dev}:{st.st_ino}:{st.st_size}:{st.st_mtime_ns}")
+        for rel, _, st in _content_files(path)
+    ]
     return hashlib.sha256(b"\n".join(parts)).hexdigest()[:32]
 
 
@@ -159,8 +161,11 @@ def code_hash() -> str:
         root = Path(__file__).resolve().parents[2]  # the slamobs package: pipeline/batch/identity.py
         files = [root / "__init__.py"]
         for sub in ("pipeline", "cli", "schemas"):
-            files += [p for p in (root / sub).rglob("*") if p.suffix in (".py", ".json") and p.is_file()
-                      and "__pycache__" not in p.parts]
+            files += [
+                p
+                for p in (root / sub).rglob("*")
+                if p.suffix in (".py", ".json") and p.is_file() and "__pycache__" not in p.parts
+            ]
         h = hashlib.sha256()
         for p in sorted(files):
             h.update(f"{p.relative_to(root).as_posix()}\0".encode())

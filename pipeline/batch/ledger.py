@@ -33,18 +33,43 @@ REFRESH_S = 30.0
 
 _F, _I, _S = pa.float64(), pa.int64(), pa.string()
 #: Columns of ``summary.parquet`` (units in the names; null where a run did not get that far).
-SUMMARY_SCHEMA = pa.schema([
-    ("run_id", _S), ("log", _S), ("config_file", _S), ("content_hash", _S), ("observer", _S),
-    ("config_hash", _S), ("status", _S), ("error", _S), ("warning_count", _I), ("warnings", _S), ("tables", _S),
-    ("finished_at", pa.timestamp("us", tz="UTC")), ("worker", _S), ("slamobs_version", _S),
-    ("total_s", _F), ("read_s", _F), ("align_s", _F), ("observer_s", _F), ("write_s", _F), ("report_s", _F),
-    ("dataset_s", _F),
-    ("velocity_samples", _I), ("detection_frames", _I), ("detections", _I), ("landmarks", _I),
-    ("internal_steps", _I),
-    # pipeline.run.headline_metrics: gyro_bias_err in rad/s, vel_bias_err in m/s (final error norms)
-    ("ape_trans_rmse_m", _F), ("ape_rot_rmse_deg", _F), ("landmark_rmse_m", _F),
-    ("gyro_bias_err", _F), ("vel_bias_err", _F), ("convergence_s", _F),
-])
+SUMMARY_SCHEMA = pa.schema(
+    [
+        ("run_id", _S),
+        ("log", _S),
+        ("config_file", _S),
+        ("content_hash", _S),
+        ("observer", _S),
+        ("config_hash", _S),
+        ("status", _S),
+        ("error", _S),
+        ("warning_count", _I),
+        ("warnings", _S),
+        ("tables", _S),
+        ("finished_at", pa.timestamp("us", tz="UTC")),
+        ("worker", _S),
+        ("slamobs_version", _S),
+        ("total_s", _F),
+        ("read_s", _F),
+        ("align_s", _F),
+        ("observer_s", _F),
+        ("write_s", _F),
+        ("report_s", _F),
+        ("dataset_s", _F),
+        ("velocity_samples", _I),
+        ("detection_frames", _I),
+        ("detections", _I),
+        ("landmarks", _I),
+        ("internal_steps", _I),
+        # pipeline.run.headline_metrics: gyro_bias_err in rad/s, vel_bias_err in m/s (final error norms)
+        ("ape_trans_rmse_m", _F),
+        ("ape_rot_rmse_deg", _F),
+        ("landmark_rmse_m", _F),
+        ("gyro_bias_err", _F),
+        ("vel_bias_err", _F),
+        ("convergence_s", _F),
+    ]
+)
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 #: Statuses stored in the summary; "skipped" exists only in a batch's own output (the run it skipped is
 #: recorded with the outcome it had when it ran).
@@ -93,8 +118,10 @@ def _read_summary_file(path: Path) -> tuple[dict[str, dict], int]:
         raise InputError(path, f"unreadable batch summary ({err}); move it away to start afresh") from None
     meta = table.schema.metadata or {}
     if GEN_KEY not in meta or "warning_count" not in table.schema.names:
-        raise InputError(path.parent, "written by an older slamobs batch (run ids from log paths); write this "
-                                      "batch to a new directory")
+        raise InputError(
+            path.parent,
+            "written by an older slamobs batch (run ids from log paths); write this batch to a new directory",
+        )
     # timestamps converted here: pyarrow's to_pylist would import pandas for the time zone (1-2 s per batch)
     micros = table["finished_at"].cast(pa.int64()).to_pylist()
     rows = table.drop_columns(["finished_at"]).to_pylist()
@@ -192,17 +219,21 @@ class Ledger:
         path = self.out / SUMMARY
         if not force and not self.appended and not self.pending and path.is_file():
             return path  # already current
-        table = pa.Table.from_pylist(list(self.rows.values()),
-                                     schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()}))
+        table = pa.Table.from_pylist(
+            list(self.rows.values()), schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()})
+        )
         tmp = path.parent / f".{SUMMARY}.tmp-{os.getpid()}"
         try:
             pq.write_table(table, tmp, compression="zstd")
             os.replace(tmp, path)
         except OSError as err:
             tmp.unlink(missing_ok=True)
-            raise output_error(path, err, "cannot rewrite the batch summary",
-                               "; every run is recorded (in _slamobs): `slamobs batch compact OUT` rewrites it once "
-                               "there is room") from None
+            raise output_error(
+                path,
+                err,
+                "cannot rewrite the batch summary",
+                "; every run is recorded (in _slamobs): `slamobs batch compact OUT` rewrites it once there is room",
+            ) from None
         for g, f in _record_files(self.out):
             if g <= self.gen:
                 f.unlink(missing_ok=True)

@@ -64,8 +64,13 @@ class LocalPool:
     a worker still running a task when ``results`` ends early is killed either way.
     """
 
-    def __init__(self, jobs: int, run: Callable[[Task], dict] = run_task, timeout: float | None = None,
-                 keep_workers: bool = False) -> None:
+    def __init__(
+        self,
+        jobs: int,
+        run: Callable[[Task], dict] = run_task,
+        timeout: float | None = None,
+        keep_workers: bool = False,
+    ) -> None:
         self.jobs = max(1, jobs)
         self.run = run
         self.timeout = timeout
@@ -76,8 +81,12 @@ class LocalPool:
     def _start(self) -> _Slot:
         # started from the batch's main thread: the parent-death signal is tied to the thread that forks
         ours, theirs = self.ctx.Pipe(duplex=True)
-        proc = self.ctx.Process(target=worker_main, args=(BindOnArrival(os.getpid()), theirs, self.run), daemon=True,
-                                name="slamobs-batch-worker")
+        proc = self.ctx.Process(
+            target=worker_main,
+            args=(BindOnArrival(os.getpid()), theirs, self.run),
+            daemon=True,
+            name="slamobs-batch-worker",
+        )
         # an ignored SIGINT survives exec: the worker ignores Ctrl-C from its first instruction (a terminal
         # sends it to the whole process group; the batch decides what it means and stops its workers)
         main = threading.current_thread() is threading.main_thread()
@@ -130,19 +139,34 @@ class LocalPool:
                         if not slot.running:  # died before taking the log: not the log's doing
                             failed_starts += 1
                             if failed_starts >= STARTUP_FAILURES:
-                                raise InfrastructureError(f"local worker processes die while starting ({ended}, "
-                                                          f"{failed_starts} times in a row)")
+                                raise InfrastructureError(
+                                    f"local worker processes die while starting ({ended}, "
+                                    f"{failed_starts} times in a row)"
+                                )
                             queue.appendleft((task, slot.deaths))
                         elif slot.deaths < RETRIES_AFTER_DEATH:
                             queue.appendleft((task, slot.deaths + 1))
                         else:
-                            yield task, failed_row(task, f"{task.log}: worker process died twice while running this "
-                                                         f"log ({ended}): crash or out of memory")
-                    elif self.timeout and now - slot.started > (self.timeout if slot.running else
-                                                                 max(self.timeout, STARTUP_S)):
+                            yield (
+                                task,
+                                failed_row(
+                                    task,
+                                    f"{task.log}: worker process died twice while running this "
+                                    f"log ({ended}): crash or out of memory",
+                                ),
+                            )
+                    elif self.timeout and now - slot.started > (
+                        self.timeout if slot.running else max(self.timeout, STARTUP_S)
+                    ):
                         self._discard(slot)
-                        yield task, failed_row(task, f"{task.log}: timed out after {self.timeout:g} s (worker killed; "
-                                                     "raise --timeout for longer logs)")
+                        yield (
+                            task,
+                            failed_row(
+                                task,
+                                f"{task.log}: timed out after {self.timeout:g} s (worker killed; "
+                                "raise --timeout for longer logs)",
+                            ),
+                        )
             if not self.keep_workers:
                 self.close(gently=True)
         finally:

@@ -171,8 +171,9 @@ def _overrides(cfg: RunConfig, options: BatchOptions) -> RunConfig:
     return cfg
 
 
-def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCache,
-              by_key: dict[str, str]) -> list[_Planned]:
+def _identify(
+    entries: Sequence[LogEntry], options: BatchOptions, cache: HashCache, by_key: dict[str, str]
+) -> list[_Planned]:
     """Config, content hash and run_id of every log (hashing overlapped: it is I/O, and cached)."""
     configs: dict[str, RunConfig | str] = {}
     out = str(Path(options.out).resolve())
@@ -207,17 +208,26 @@ def _identify(entries: Sequence[LogEntry], options: BatchOptions, cache: HashCac
         except UnicodeEncodeError as err:  # the summary stores names as UTF-8 text: report it, do not record it
             shown = os.fsencode(log).decode("utf-8", "backslashreplace")
             byte = os.fsencode(log[err.start])[0]
-            return _Planned(log, row=retry_row(replace(stub, log=shown), f"{shown}: the file name is not UTF-8 "
-                                               f"(byte 0x{byte:02x}): rename it to run this log", "name"),
-                            path_id=path_id)
+            return _Planned(
+                log,
+                row=retry_row(
+                    replace(stub, log=shown),
+                    f"{shown}: the file name is not UTF-8 (byte 0x{byte:02x}): rename it to run this log",
+                    "name",
+                ),
+                path_id=path_id,
+            )
         if isinstance(cfg, str):
             return _Planned(log, row=failed_row(stub, cfg), path_id=path_id)
         if isinstance(chash, InputError):
             return _Planned(log, row=failed_row(stub, str(InputError(entry.path, chash.problem))), path_id=path_id)
         key = run_key(chash, cfg_hash)
         rid = by_key.get(key) or run_id_for(Path(log), key)
-        return _Planned(log, task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash, stat_key=skey),
-                        path_id=path_id)
+        return _Planned(
+            log,
+            task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash, stat_key=skey),
+            path_id=path_id,
+        )
 
     def lookup(entry: LogEntry) -> tuple[str | None, str | InputError | None]:
         try:
@@ -269,8 +279,12 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
         if p.path_id in ledger.rows and p.path_id != rid:
             plan.drop.add(p.path_id)  # an earlier failure of this path before it could be hashed
         if rid in first:
-            plan.rows[pos] = {**base_row(task), "status": "skipped", "error": None,
-                              "warnings": f"same content and config as {first[rid]}"}
+            plan.rows[pos] = {
+                **base_row(task),
+                "status": "skipped",
+                "error": None,
+                "warnings": f"same content and config as {first[rid]}",
+            }
             continue
         first[rid] = p.log
         prev = ledger.rows.get(rid)
@@ -280,8 +294,12 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
                 moved.append((prev, p.log, task))
             plan.rows[pos] = {**prev, "status": "skipped", "error": None, "log": p.log, "config_file": task.config_file}
         elif status == "failed" and options.skip_failed and not options.force:
-            plan.rows[pos] = {**prev, "status": "skipped", "log": p.log,
-                              "error": f"not retried (--skip-failed): {prev.get('error')}"}
+            plan.rows[pos] = {
+                **prev,
+                "status": "skipped",
+                "log": p.log,
+                "error": f"not retried (--skip-failed): {prev.get('error')}",
+            }
         else:
             plan.tasks.append(task)
             if prev is not None:
@@ -292,8 +310,11 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
             plan.records.append({**prev, "log": log, "config_file": task.config_file})
     # a log whose content changed replaces its earlier runs (their input is gone), unless they are this batch's
     for rid, row in ledger.rows.items():
-        if (rid not in first and row.get("log") in current
-                and row.get("content_hash") not in (None, current[row["log"]])):
+        if (
+            rid not in first
+            and row.get("log") in current
+            and row.get("content_hash") not in (None, current[row["log"]])
+        ):
             plan.drop.add(rid)
     return plan
 
@@ -348,10 +369,13 @@ class _Staging:
         remove_path(self.dir)
 
 
-def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
-              on_row: Callable[[dict, Progress], None] = lambda _row, _p: None,
-              on_start: Callable[[Progress], None] = lambda _p: None,
-              run: Callable[[Task], dict] = run_task) -> BatchResult:
+def run_batch(
+    entries: Sequence[LogEntry],
+    options: BatchOptions,
+    on_row: Callable[[dict, Progress], None] = lambda _row, _p: None,
+    on_start: Callable[[Progress], None] = lambda _p: None,
+    run: Callable[[Task], dict] = run_task,
+) -> BatchResult:
     """Run every log of ``entries`` into ``options.out``; ``on_row`` sees each row once it is recorded.
 
     ``on_start`` sees the plan (``total`` logs, ``to_run`` of them not up to date) before anything runs.
@@ -387,8 +411,11 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
                 pruned = []
                 if options.prune:
                     mentioned = set(plan.order)
-                    pruned = sorted(rid for rid, row in ledger.rows.items()
-                                    if rid not in mentioned and rid not in plan.drop and _gone(row, cache))
+                    pruned = sorted(
+                        rid
+                        for rid, row in ledger.rows.items()
+                        if rid not in mentioned and rid not in plan.drop and _gone(row, cache)
+                    )
                     plan.drop |= set(pruned)
             finally:
                 cache.save()
@@ -401,8 +428,11 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
             rows: dict[int, dict] = dict(plan.rows)
             pool = None
             if plan.tasks:  # a Dask cluster is checked before the batch says it starts
-                pool = (DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers, run)
-                        if use_dask else LocalPool(options.jobs, run, options.timeout))
+                pool = (
+                    DaskPool(options.jobs, options.scheduler, options.timeout, options.wait_workers, run)
+                    if use_dask
+                    else LocalPool(options.jobs, run, options.timeout)
+                )
             try:
                 if use_dask and pool is not None:
                     pool.connect()
@@ -423,8 +453,14 @@ def run_batch(entries: Sequence[LogEntry], options: BatchOptions,
             ledger.compact()
             ledger.close()
     ordered = [rows[i] for i in range(len(plan.order)) if i in rows]
-    return BatchResult(rows=ordered, elapsed_s=time.perf_counter() - t0,
-                       summary_path=out / SUMMARY, pruned=pruned, reconciled=fixed, compaction=compaction)
+    return BatchResult(
+        rows=ordered,
+        elapsed_s=time.perf_counter() - t0,
+        summary_path=out / SUMMARY,
+        pruned=pruned,
+        reconciled=fixed,
+        compaction=compaction,
+    )
 
 
 def _commit(out: Path, task: Task, row: dict) -> dict:
@@ -437,12 +473,22 @@ def _commit(out: Path, task: Task, row: dict) -> dict:
         for table in tables:
             remove_path(partition_file(out, table, task.run_id).parent)
         remove_path(run_dir(out, task.run_id))
-        return {**retry_row(task, f"{out}: cannot add the run to the dataset: {err.strerror or err}", "machine"),
-                "total_s": row.get("total_s")}
+        return {
+            **retry_row(task, f"{out}: cannot add the run to the dataset: {err.strerror or err}", "machine"),
+            "total_s": row.get("total_s"),
+        }
 
 
-def _execute(plan: _Plan, pool: LocalPool | DaskPool, options: BatchOptions, use_dask: bool, ledger: Ledger,
-             rows: dict[int, dict], progress: Progress, on_row: Callable[[dict, Progress], None]) -> None:
+def _execute(
+    plan: _Plan,
+    pool: LocalPool | DaskPool,
+    options: BatchOptions,
+    use_dask: bool,
+    ledger: Ledger,
+    rows: dict[int, dict],
+    progress: Progress,
+    on_row: Callable[[dict, Progress], None],
+) -> None:
     """Run the plan's tasks on ``pool``, committing and recording each as it finishes."""
     out = Path(options.out)
     position = {}
@@ -450,8 +496,10 @@ def _execute(plan: _Plan, pool: LocalPool | DaskPool, options: BatchOptions, use
         if i not in plan.rows:
             position.setdefault(rid, i)
     staging = _Staging(out)
-    tasks = [replace(t, staged=str(staging.dir / t.run_id), lease=str(staging.lease) if use_dask else None)
-             for t in plan.tasks]
+    tasks = [
+        replace(t, staged=str(staging.dir / t.run_id), lease=str(staging.lease) if use_dask else None)
+        for t in plan.tasks
+    ]
     results = None
     try:
         results = pool.results(tasks)
@@ -481,8 +529,9 @@ def compact_batch(out: Path) -> tuple[Reconciled, list[TableCompaction]]:
     out = Path(out)
     check_layout(out)
     if not (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
-        raise InputError(out, "not a batch output directory (no summary.parquet)" if out.is_dir()
-                         else "no such directory")
+        raise InputError(
+            out, "not a batch output directory (no summary.parquet)" if out.is_dir() else "no such directory"
+        )
     with batch_lock(out):
         ledger = Ledger(out)
         try:

@@ -10,8 +10,21 @@ it (with what evo does not measure: map, biases, convergence, drift), ``markdown
 # Loaded on first use (PEP 562): a module of this package (``plots`` in a figure helper process) is imported
 # without the report and pandas.
 _FROM = {
-    **dict.fromkeys(("LandmarkErrors", "ape_errors", "ape_rotation_deg", "ape_translation", "apply_alignment",
-                     "associate", "landmark_errors", "rpe_errors", "statistics", "umeyama"), "metrics"),
+    **dict.fromkeys(
+        (
+            "LandmarkErrors",
+            "ape_errors",
+            "ape_rotation_deg",
+            "ape_translation",
+            "apply_alignment",
+            "associate",
+            "landmark_errors",
+            "rpe_errors",
+            "statistics",
+            "umeyama",
+        ),
+        "metrics",
+    ),
     **dict.fromkeys(("build_report", "evaluate_report", "evaluate_tables", "write_report"), "report"),
     "ReportOptions": "trajectory_evaluation",
     "render_markdown": "markdown",

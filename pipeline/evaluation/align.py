@@ -22,7 +22,7 @@ DESCRIPTIONS = {
     "sim3": "Sim(3) Umeyama (least squares rotation + translation + scale) on the associated positions (evo -as)",
     "scale": "scale only, the Umeyama Sim(3) scale applied to the estimate positions (evo -s without -a)",
     "yaw": "4-DoF: translation + rotation about the z (gravity) axis, least squares on the associated positions; "
-           "for estimates whose roll and pitch are observed (IMU directions)",
+    "for estimates whose roll and pitch are observed (IMU directions)",
     "origin": "origin: the first associated estimate pose is moved onto the first reference pose (evo --align_origin)",
     "none": "none: the estimate is compared in its own frame (evo without -a)",
 }

@@ -66,8 +66,14 @@ def segment_drift(
         r_err = np.degrees(relative_angles(p_rot, q_rot)) / length
         all_t.append(t_err)
         all_r.append(r_err)
-        rows.append({"length_m": length, "n_segments": int(i.size), "translation_pct": float(100 * t_err.mean()),
-                     "rotation_deg_per_m": float(r_err.mean())})
+        rows.append(
+            {
+                "length_m": length,
+                "n_segments": int(i.size),
+                "translation_pct": float(100 * t_err.mean()),
+                "rotation_deg_per_m": float(r_err.mean()),
+            }
+        )
     t_all = np.concatenate(all_t) if all_t else np.empty(0)
     r_all = np.concatenate(all_r) if all_r else np.empty(0)
     return {

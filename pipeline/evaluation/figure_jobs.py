@@ -25,19 +25,38 @@ from slamobs.pipeline.evaluation.tables import (
 if TYPE_CHECKING:
     from slamobs.pipeline.evaluation.trajectory_evaluation import TrajectoryEvaluation
 
-ALIGN_LABELS = {"se3": "SE(3)", "sim3": "Sim(3)", "scale": "scale-only", "yaw": "4-DoF (yaw)", "origin": "origin",
-                "none": "no"}
+ALIGN_LABELS = {
+    "se3": "SE(3)",
+    "sim3": "Sim(3)",
+    "scale": "scale-only",
+    "yaw": "4-DoF (yaw)",
+    "origin": "origin",
+    "none": "no",
+}
 
 
-def plot_jobs(report: dict[str, Any], ev: TrajectoryEvaluation, biases: Table | None,
-              landmarks: Table | None, landmark_truth: dict[int, np.ndarray] | None) -> list:
+def plot_jobs(
+    report: dict[str, Any],
+    ev: TrajectoryEvaluation,
+    biases: Table | None,
+    landmarks: Table | None,
+    landmark_truth: dict[int, np.ndarray] | None,
+) -> list:
     """The report's figures as ``(plots function, file name, keyword arguments)``, the costliest first."""
-    return [top_view_job(report["landmarks"], ev, landmarks, landmark_truth), error_plot_job(report["convergence"], ev),
-            bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])), *landmark_plot_jobs(report["landmarks"])]
+    return [
+        top_view_job(report["landmarks"], ev, landmarks, landmark_truth),
+        error_plot_job(report["convergence"], ev),
+        bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])),
+        *landmark_plot_jobs(report["landmarks"]),
+    ]
 
 
-def top_view_job(landmark_section: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
-                 landmark_truth: dict[int, np.ndarray] | None):
+def top_view_job(
+    landmark_section: dict[str, Any],
+    ev: TrajectoryEvaluation,
+    landmarks: Table | None,
+    landmark_truth: dict[int, np.ndarray] | None,
+):
     """The top view: it needs the alignment, the APE and the landmark errors only."""
     from slamobs.pipeline.evaluation import plots
 
@@ -49,33 +68,41 @@ def top_view_job(landmark_section: dict[str, Any], ev: TrajectoryEvaluation, lan
         lm_truth_ids = np.array(sorted(int(k) for k in landmark_truth), dtype=np.int64)
         lm_truth_xyz = np.array([np.asarray(landmark_truth[int(i)], dtype=np.float64).reshape(3) for i in lm_truth_ids])
     lm_err = {row["id"]: row["error_m"] for row in landmark_section["per_landmark"]}
-    return ("plot_trajectory_top", "trajectory_top.png", dict(
-        est_xyz=al.positions(ev.estimate.position[path]),
-        truth_xyz=np.asarray(ev.truth.position, dtype=np.float64),
-        lm_est_ids=ids,
-        lm_est_xyz=al.positions(xyz) if len(ids) else np.empty((0, 3)),
-        lm_truth_ids=lm_truth_ids,
-        lm_truth_xyz=lm_truth_xyz,
-        pair_xyz=ev.translation.est_pos_aligned,
-        pair_error_m=ev.translation.errors,
-        lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
-        title=f"Top view (x-y): estimate after {ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
-    ))
+    return (
+        "plot_trajectory_top",
+        "trajectory_top.png",
+        dict(
+            est_xyz=al.positions(ev.estimate.position[path]),
+            truth_xyz=np.asarray(ev.truth.position, dtype=np.float64),
+            lm_est_ids=ids,
+            lm_est_xyz=al.positions(xyz) if len(ids) else np.empty((0, 3)),
+            lm_truth_ids=lm_truth_ids,
+            lm_truth_xyz=lm_truth_xyz,
+            pair_xyz=ev.translation.est_pos_aligned,
+            pair_error_m=ev.translation.errors,
+            lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
+            title=f"Top view (x-y): estimate after {ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
+        ),
+    )
 
 
 def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
     """The error figure: it needs the convergence section."""
     t0 = int(ev.estimate.t_ns[0])
     level_t, level = ev.error_level
-    return ("plot_errors", "errors.png", dict(
-        t_s=(ev.pair_t_est_ns - t0) / 1e9,
-        position_error_m=ev.translation.errors,
-        attitude_error_deg=ev.rotation.errors,
-        band_m=convergence["band_m"],
-        convergence_t_s=convergence["t_since_start_s"],
-        title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment",
-        level=((level_t - t0) / 1e9, level),
-    ))
+    return (
+        "plot_errors",
+        "errors.png",
+        dict(
+            t_s=(ev.pair_t_est_ns - t0) / 1e9,
+            position_error_m=ev.translation.errors,
+            attitude_error_deg=ev.rotation.errors,
+            band_m=convergence["band_m"],
+            convergence_t_s=convergence["t_since_start_s"],
+            title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment",
+            level=((level_t - t0) / 1e9, level),
+        ),
+    )
 
 
 def landmark_plot_jobs(landmark_section: dict[str, Any]) -> list:
@@ -83,12 +110,19 @@ def landmark_plot_jobs(landmark_section: dict[str, Any]) -> list:
     rows = landmark_section["per_landmark"]
     if not rows:
         return []
-    return [("plot_landmark_errors", "landmarks.png", dict(
-        ids=np.array([r["id"] for r in rows]),
-        error_traj_m=np.array([r["error_m"] for r in rows]),
-        error_map_m=None if rows[0].get("error_map_aligned_m") is None
-        else np.array([r["error_map_aligned_m"] for r in rows]),
-    ))]
+    return [
+        (
+            "plot_landmark_errors",
+            "landmarks.png",
+            dict(
+                ids=np.array([r["id"] for r in rows]),
+                error_traj_m=np.array([r["error_m"] for r in rows]),
+                error_map_m=None
+                if rows[0].get("error_map_aligned_m") is None
+                else np.array([r["error_map_aligned_m"] for r in rows]),
+            ),
+        )
+    ]
 
 
 def bias_plot_job(section: dict[str, Any], biases: Table | None, t0: int):
@@ -102,14 +136,18 @@ def bias_plot_job(section: dict[str, Any], biases: Table | None, t0: int):
         gyro, vel = columns(drawn, list(GYRO_COLUMNS), np.float64), columns(drawn, list(VEL_COLUMNS), np.float64)
     else:
         bt_s, gyro, vel = np.empty(0), np.empty((0, 3)), np.empty((0, 3))
-    return ("plot_biases", "biases.png", dict(
-        t_s=bt_s,
-        gyro=gyro,
-        velocity=vel,
-        gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
-        velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
-        window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
-    ))
+    return (
+        "plot_biases",
+        "biases.png",
+        dict(
+            t_s=bt_s,
+            gyro=gyro,
+            velocity=vel,
+            gyro_truth=None if bt is None else np.asarray(bt["gyro"]),
+            velocity_truth=None if bt is None else np.asarray(bt["velocity"]),
+            window_start_s=None if not stab else (stab["gyro"]["t_start_ns"] - t0) / 1e9,
+        ),
+    )
 
 
 def bias_plot_rows(biases: Table) -> Table:
@@ -124,4 +162,3 @@ def bias_plot_rows(biases: Table) -> Table:
     if hasattr(biases, "columns"):
         return biases.iloc[take].reset_index(drop=True)
     return {c: np.asarray(v)[take] for c, v in biases.items()}
-

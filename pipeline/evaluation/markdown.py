@@ -11,10 +11,12 @@ from typing import Any
 
 def convergence_definition(conv: dict[str, Any]) -> str:
     """The convergence figure's definition, with its numbers (report.md)."""
-    return (f"first time after which the error level (median aligned position error over a {conv['window_s']:.3g} s "
-            f"window, {100 * conv['window_fraction']:g} % of the log) stays within max(threshold "
-            f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_level_m']:.4g} m, the highest level "
-            f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m")
+    return (
+        f"first time after which the error level (median aligned position error over a {conv['window_s']:.3g} s "
+        f"window, {100 * conv['window_fraction']:g} % of the log) stays within max(threshold "
+        f"{conv['threshold_m']:g} m, {conv['band_factor']:g} × {conv['steady_level_m']:.4g} m, the highest level "
+        f"over the last {100 * conv['tail_fraction']:g} % of the log) = {conv['band_m']:.4g} m"
+    )
 
 
 def convergence_line(conv: dict[str, Any]) -> str | None:
@@ -22,8 +24,10 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
     median), not every error, which may still exceed the band now and then."""
     if conv.get("t_since_start_s") is None:
         return None
-    return (f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
-            f"within {conv['band_m']:.3g} m from then on)")
+    return (
+        f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
+        f"within {conv['band_m']:.3g} m from then on)"
+    )
 
 
 def _fmt(v: Any, digits: int = 6) -> str:
@@ -64,8 +68,10 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     by = report.get("ape_by_alignment") or {}
     if by:
         lines += ["### APE under each alignment (same pairs)", ""]
-        lines += _stats_table([(f"{k}: translation [m]", v["translation_m"]) for k, v in by.items()]
-                              + [(f"{k}: rotation [deg]", v["rotation_deg"]) for k, v in by.items()])
+        lines += _stats_table(
+            [(f"{k}: translation [m]", v["translation_m"]) for k, v in by.items()]
+            + [(f"{k}: rotation [deg]", v["rotation_deg"]) for k, v in by.items()]
+        )
         lines.append("")
     return lines + _md_relative(report)
 
@@ -81,22 +87,34 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
     if drift:
         lines += ["| segment [m] | segments | translation [%] | rotation [deg/m] |", "|---|---|---|---|"]
         for row in drift["per_length"]:
-            lines.append(f"| {row['length_m']:g} | {row['n_segments']} | {_fmt(row['translation_pct'], 4)} | "
-                         f"{_fmt(row['rotation_deg_per_m'], 4)} |")
-        lines += [f"| all | {drift['n_segments']} | {_fmt(drift['translation_pct'], 4)} | "
-                  f"{_fmt(drift['rotation_deg_per_m'], 4)} |", ""]
+            lines.append(
+                f"| {row['length_m']:g} | {row['n_segments']} | {_fmt(row['translation_pct'], 4)} | "
+                f"{_fmt(row['rotation_deg_per_m'], 4)} |"
+            )
+        lines += [
+            f"| all | {drift['n_segments']} | {_fmt(drift['translation_pct'], 4)} | "
+            f"{_fmt(drift['rotation_deg_per_m'], 4)} |",
+            "",
+        ]
     if not rpe_s and not drift:
         lines += ["Path too short for RPE and drift.", ""]
-    est = "not estimated" if off["estimated_s"] is None else (
-        f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
-        f"{'reliable' + LAG_CAVEAT if off['reliable'] else 'NOT reliable' + offset_doubts(off)})")
+    est = (
+        "not estimated"
+        if off["estimated_s"] is None
+        else (
+            f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
+            f"{'reliable' + LAG_CAVEAT if off['reliable'] else 'NOT reliable' + offset_doubts(off)})"
+        )
+    )
     lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     return lines
 
 
 #: What a reliable offset is and is not: the estimate's lag behind the truth (a filter's delay) looks the same.
-LAG_CAVEAT = (": the estimate matches the truth best when shifted by this much, from the clocks or from the "
-              "estimate lagging behind the motion; the trajectories cannot tell the two apart")
+LAG_CAVEAT = (
+    ": the estimate matches the truth best when shifted by this much, from the clocks or from the "
+    "estimate lagging behind the motion; the trajectories cannot tell the two apart"
+)
 
 
 def offset_doubts(off: dict[str, Any]) -> str:
@@ -116,40 +134,58 @@ def _md_landmarks(lm: dict[str, Any]) -> list[str]:
     lines = ["## Landmark map error", ""]
     if not lm["truth_available"]:
         return lines + [f"{lm['n_estimated']} landmarks estimated; no landmark ground truth available.", ""]
-    lines += [f"{lm['n_matched']} of {lm['n_estimated']} estimated landmarks have ground truth "
-              f"({lm['n_truth']} true landmarks).", ""]
+    lines += [
+        f"{lm['n_matched']} of {lm['n_estimated']} estimated landmarks have ground truth "
+        f"({lm['n_truth']} true landmarks).",
+        "",
+    ]
     rows = [("after trajectory alignment [m]", lm["error_m"])]
     if lm.get("map_aligned"):
         rows.append(("after map-only alignment [m]", lm["map_aligned"]["error_m"]))
     lines += _stats_table(rows)
-    lines += ["", "| id | error [m] | error, map-only alignment [m] | estimate (aligned) [m] | truth [m] | n_obs |",
-              "|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "| id | error [m] | error, map-only alignment [m] | estimate (aligned) [m] | truth [m] | n_obs |",
+        "|---|---|---|---|---|---|",
+    ]
     for row in lm["per_landmark"]:
-        lines.append(f"| {row['id']} | {row['error_m']:.6g} | {_fmt(row.get('error_map_aligned_m'))} | "
-                     f"{_vec_str(row['estimate_aligned'])} | {_vec_str(row['truth'])} | {_fmt(row['n_obs'])} |")
-    return lines + ["", f"Estimated without truth: {lm['estimated_without_truth'] or 'none'}. "
-                        f"True landmarks never estimated: {lm['truth_never_estimated'] or 'none'}.", ""]
+        lines.append(
+            f"| {row['id']} | {row['error_m']:.6g} | {_fmt(row.get('error_map_aligned_m'))} | "
+            f"{_vec_str(row['estimate_aligned'])} | {_vec_str(row['truth'])} | {_fmt(row['n_obs'])} |"
+        )
+    return lines + [
+        "",
+        f"Estimated without truth: {lm['estimated_without_truth'] or 'none'}. "
+        f"True landmarks never estimated: {lm['truth_never_estimated'] or 'none'}.",
+        "",
+    ]
 
 
 def _md_biases(bi: dict[str, Any]) -> list[str]:
     lines = ["## Biases (body frame)", ""]
     if bi["final"] is None:
         return lines + ["No bias estimates.", ""]
-    lines += ["| bias | final estimate | truth | error (truth − estimate) | ‖error‖ | ‖error‖ of window mean | "
-              "drift [/s] |", "|---|---|---|---|---|---|---|"]
+    lines += [
+        "| bias | final estimate | truth | error (truth − estimate) | ‖error‖ | ‖error‖ of window mean | drift [/s] |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for key, label in (("gyro", "gyro [rad/s]"), ("velocity", "velocity [m/s]")):
         truth = bi["truth"][key] if bi["truth"] else None
         err = bi["error"][key] if bi["error"] else None
         norm = bi["error_norm"][key] if bi["error_norm"] else None
         wnorm = bi["window_error_norm"][key] if bi.get("window_error_norm") else None
         drift = bi["stability"][key]["drift_norm_per_s"] if bi.get("stability") else None
-        lines.append(f"| {label} | {_vec_str(bi['final'][key])} | {_vec_str(truth)} | {_vec_str(err)} | "
-                     f"{_fmt(norm)} | {_fmt(wnorm)} | {_fmt(drift)} |")
+        lines.append(
+            f"| {label} | {_vec_str(bi['final'][key])} | {_vec_str(truth)} | {_vec_str(err)} | "
+            f"{_fmt(norm)} | {_fmt(wnorm)} | {_fmt(drift)} |"
+        )
     st = bi.get("stability") or {}
     frac = st.get("window_fraction")
-    return lines + ["", f"Final estimate at t_ns = {bi['final']['t_ns']}; stability window: last "
-                        f"{_fmt(frac)} of the bias time span.", ""]
-
+    return lines + [
+        "",
+        f"Final estimate at t_ns = {bi['final']['t_ns']}; stability window: last {_fmt(frac)} of the bias time span.",
+        "",
+    ]
 
 
 def render_markdown(report: dict[str, Any]) -> str:
@@ -200,4 +236,3 @@ def _md_method(report: dict[str, Any]) -> list[str]:
         lines.append(f"| map-only alignment | {report['landmarks']['map_aligned']['method']} |")
     lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |", ""]
     return lines
-

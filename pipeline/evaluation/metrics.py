@@ -63,7 +63,7 @@ RELATION_DEFINITIONS = {
     "full": "Frobenius norm ‖E − I₄‖ of the 4x4 error pose (unit-less, mixes metres and radians)",
     "rot_part": "Frobenius norm ‖R_E − I₃‖ (unit-less; 2√2 sin(θ/2) for an angle θ)",
     "point_distance": "APE: as trans_part; RPE: | ‖Δp_ref‖ − ‖Δp_est‖ |, difference of travelled straight-line "
-                      "distances, metres",
+    "distances, metres",
 }
 
 
@@ -296,8 +296,9 @@ def _error_pose_norms(relation: str, r_a: np.ndarray, r_b: np.ndarray, t_err: np
     return np.sqrt(rot_sq + np.einsum("ni,ni->n", t_err, t_err))  # full
 
 
-def ape_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray, est_pos: np.ndarray,
-               est_R: np.ndarray) -> np.ndarray:
+def ape_errors(
+    relation: str, ref_pos: np.ndarray, ref_R: np.ndarray, est_pos: np.ndarray, est_R: np.ndarray
+) -> np.ndarray:
     """Absolute pose error per pair (evo APE): ``E = X_est⁻¹ X_ref``, reduced by ``relation`` (one of
     ``POSE_RELATIONS``); positions and rotations are already aligned."""
     _check_relation(relation)
@@ -307,8 +308,9 @@ def ape_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray, est_pos: n
     if relation in ("trans_part", "point_distance"):
         return np.linalg.norm(est_p - ref_p, axis=1)
     if isinstance(ref_R, RotationRows) or isinstance(est_R, RotationRows):  # block by block, never all at once
-        return blockwise(lambda rp, rr, ep, er: ape_errors(relation, rp, rr, ep, er), ref_p.shape[0],
-                         ref_p, ref_R, est_p, est_R)
+        return blockwise(
+            lambda rp, rr, ep, er: ape_errors(relation, rp, rr, ep, er), ref_p.shape[0], ref_p, ref_R, est_p, est_R
+        )
     est_r = _rotations(est_R, "est_R")
     if relation in ("angle_deg", "angle_rad"):  # the rotation alone
         return _error_pose_norms(relation, est_r, _rotations(ref_R, "ref_R"), np.empty((0, 3)))
@@ -318,8 +320,15 @@ def ape_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray, est_pos: n
     return _error_pose_norms(relation, est_r, _rotations(ref_R, "ref_R"), t_err)
 
 
-def rpe_errors(relation: str, ref_pos: np.ndarray, ref_R: np.ndarray | None, est_pos: np.ndarray,
-               est_R: np.ndarray | None, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+def rpe_errors(
+    relation: str,
+    ref_pos: np.ndarray,
+    ref_R: np.ndarray | None,
+    est_pos: np.ndarray,
+    est_R: np.ndarray | None,
+    i: np.ndarray,
+    j: np.ndarray,
+) -> np.ndarray:
     """Relative pose error of the pairs ``(i_k, j_k)`` (evo RPE, TUM RGB-D notation): with the relative motions
     ``Q = Q_i⁻¹ Q_j`` (reference) and ``P = P_i⁻¹ P_j`` (estimate), ``E = Q⁻¹ P``, reduced by ``relation``
     (``point_distance`` needs no rotations)."""

@@ -68,8 +68,14 @@ class PlotWorkers:
         self._feeds: list[threading.Thread | None] = [None] * count
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MPLBACKEND": "agg"}
         for _ in range(count):
-            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, str(os.getpid())], stdin=subprocess.PIPE,
-                                               stdout=subprocess.PIPE, env=env))
+            self.procs.append(
+                subprocess.Popen(
+                    [sys.executable, "-m", __name__, str(os.getpid())],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    env=env,
+                )
+            )
 
     @property
     def submitted(self) -> bool:

@@ -61,8 +61,17 @@ def thin(n: int, most: int, keep: int | None = None) -> np.ndarray:
     return idx if keep is None else np.union1d(idx, [keep])
 
 
-def _figure(rows: int, cols: int = 1, size: tuple[float, float] = (9.0, 6.0), *, left: float = 0.85,
-            right: float = 0.25, bottom: float = 0.6, top: float = 0.45, gap: float = 0.6):
+def _figure(
+    rows: int,
+    cols: int = 1,
+    size: tuple[float, float] = (9.0, 6.0),
+    *,
+    left: float = 0.85,
+    right: float = 0.25,
+    bottom: float = 0.6,
+    top: float = 0.45,
+    gap: float = 0.6,
+):
     """A figure of ``size`` inches with a grid of axes; the margins around the grid and the ``gap`` between rows
     in inches (room for tick labels, axis labels and titles at the default font)."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -73,8 +82,13 @@ def _figure(rows: int, cols: int = 1, size: tuple[float, float] = (9.0, 6.0), *,
     FigureCanvasAgg(fig)
     axes = fig.subplots(rows, cols, squeeze=False)
     row_height = (height - top - bottom - gap * (rows - 1)) / rows
-    fig.subplots_adjust(left=left / width, right=1.0 - right / width, bottom=bottom / height,
-                        top=1.0 - top / height, hspace=gap / row_height)
+    fig.subplots_adjust(
+        left=left / width,
+        right=1.0 - right / width,
+        bottom=bottom / height,
+        top=1.0 - top / height,
+        hspace=gap / row_height,
+    )
     return fig, axes
 
 
@@ -120,8 +134,15 @@ def plot_trajectory_top(
     ax.plot(truth_xy[:, 0], truth_xy[:, 1], "-", color="0.3", lw=1.5, label="truth trajectory")
     colored = pair_xyz is not None and pair_error_m is not None and len(pair_error_m) > 0
     est_xy = est_xyz[thin(len(est_xyz), PATH_POINTS)]
-    ax.plot(est_xy[:, 0], est_xy[:, 1], "-", color="tab:blue", lw=0.8 if colored else 1.2,
-            alpha=0.5 if colored else 1.0, label="estimate (aligned)")
+    ax.plot(
+        est_xy[:, 0],
+        est_xy[:, 1],
+        "-",
+        color="tab:blue",
+        lw=0.8 if colored else 1.2,
+        alpha=0.5 if colored else 1.0,
+        label="estimate (aligned)",
+    )
     norm = None
     if colored:
         from matplotlib.colors import Normalize
@@ -131,8 +152,16 @@ def plot_trajectory_top(
             finite.append(np.nanmax(lm_error_m))
         norm = Normalize(0.0, max(max(finite), 1e-12))
         sel = thin(len(pair_error_m), SCATTER_POINTS, keep=int(np.nanargmax(pair_error_m)))
-        sc = ax.scatter(pair_xyz[sel, 0], pair_xyz[sel, 1], c=pair_error_m[sel], cmap="viridis", norm=norm, s=4,
-                        zorder=3, label="associated estimate, colour = APE")
+        sc = ax.scatter(
+            pair_xyz[sel, 0],
+            pair_xyz[sel, 1],
+            c=pair_error_m[sel],
+            cmap="viridis",
+            norm=norm,
+            s=4,
+            zorder=3,
+            label="associated estimate, colour = APE",
+        )
         fig.colorbar(sc, ax=ax, shrink=0.8, label="error [m]")
     if len(est_xyz):
         ax.plot(est_xyz[0, 0], est_xyz[0, 1], "o", color="tab:blue", ms=5, label="estimate start")
@@ -141,23 +170,63 @@ def plot_trajectory_top(
     if len(lm_est_xyz):
         if norm is not None and lm_error_m is not None and np.isfinite(lm_error_m).any():
             ok = np.isfinite(lm_error_m)
-            ax.scatter(lm_est_xyz[ok, 0], lm_est_xyz[ok, 1], c=lm_error_m[ok], cmap="viridis", norm=norm, s=70,
-                       marker="o", edgecolors="tab:orange", linewidths=1.5, zorder=4,
-                       label="estimated landmarks (aligned), colour = error")
+            ax.scatter(
+                lm_est_xyz[ok, 0],
+                lm_est_xyz[ok, 1],
+                c=lm_error_m[ok],
+                cmap="viridis",
+                norm=norm,
+                s=70,
+                marker="o",
+                edgecolors="tab:orange",
+                linewidths=1.5,
+                zorder=4,
+                label="estimated landmarks (aligned), colour = error",
+            )
             if (~ok).any():
-                ax.plot(lm_est_xyz[~ok, 0], lm_est_xyz[~ok, 1], "o", mfc="none", color="tab:orange", ms=8, mew=1.5,
-                        label="estimated landmarks without truth")
+                ax.plot(
+                    lm_est_xyz[~ok, 0],
+                    lm_est_xyz[~ok, 1],
+                    "o",
+                    mfc="none",
+                    color="tab:orange",
+                    ms=8,
+                    mew=1.5,
+                    label="estimated landmarks without truth",
+                )
         else:
-            ax.plot(lm_est_xyz[:, 0], lm_est_xyz[:, 1], "o", mfc="none", color="tab:orange", ms=8, mew=1.5,
-                    label="estimated landmarks (aligned)")
+            ax.plot(
+                lm_est_xyz[:, 0],
+                lm_est_xyz[:, 1],
+                "o",
+                mfc="none",
+                color="tab:orange",
+                ms=8,
+                mew=1.5,
+                label="estimated landmarks (aligned)",
+            )
         if len(lm_est_ids) <= MAX_ID_LABELS:
             for i, p in zip(lm_est_ids, lm_est_xyz):
-                ax.annotate(str(int(i)), (p[0], p[1]), xytext=(4, 4), textcoords="offset points", fontsize=7,
-                            color="tab:orange", in_layout=False)  # inside the axes: not a layout concern
+                ax.annotate(
+                    str(int(i)),
+                    (p[0], p[1]),
+                    xytext=(4, 4),
+                    textcoords="offset points",
+                    fontsize=7,
+                    color="tab:orange",
+                    in_layout=False,
+                )  # inside the axes: not a layout concern
     if lm_truth_ids is not None and lm_truth_xyz is not None and 0 < len(lm_truth_ids) <= MAX_ID_LABELS:
         for i, p in zip(lm_truth_ids, lm_truth_xyz):
-            ax.annotate(str(int(i)), (p[0], p[1]), xytext=(4, -10), textcoords="offset points", fontsize=7,
-                        color="0.2", in_layout=False)
+            ax.annotate(
+                str(int(i)),
+                (p[0], p[1]),
+                xytext=(4, -10),
+                textcoords="offset points",
+                fontsize=7,
+                color="0.2",
+                in_layout=False,
+            )
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -251,12 +320,19 @@ def plot_landmark_errors(
 ) -> Path:
     """Error per landmark id: after the trajectory alignment and, if given, after the map-only alignment."""
     n = len(ids)
-    fig, axes = _figure(1, 1, (max(6.0, min(0.3 * n + 3.0, 18.0)), 4.5), bottom=0.85 if 20 < n <= MAX_ID_LABELS else 0.6)
+    fig, axes = _figure(
+        1, 1, (max(6.0, min(0.3 * n + 3.0, 18.0)), 4.5), bottom=0.85 if 20 < n <= MAX_ID_LABELS else 0.6
+    )
     ax = axes[0, 0]
     x = np.arange(n)
     width = 0.4 if error_map_m is not None else 0.8
-    ax.bar(x - (width / 2 if error_map_m is not None else 0.0), error_traj_m, width, color="tab:blue",
-           label="after trajectory alignment")
+    ax.bar(
+        x - (width / 2 if error_map_m is not None else 0.0),
+        error_traj_m,
+        width,
+        color="tab:blue",
+        label="after trajectory alignment",
+    )
     if error_map_m is not None:
         ax.bar(x + width / 2, error_map_m, width, color="tab:orange", label="after map-only alignment")
     if n <= MAX_ID_LABELS:

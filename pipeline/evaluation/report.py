@@ -39,7 +39,6 @@ from slamobs.pipeline.evaluation.sections import (
     DriftSection,
     LandmarkSection,
     RpeSection,
-    Section,
     TimeOffsetSection,
     alignment_dict,
 )
@@ -71,10 +70,12 @@ def _evo_commands(options: ReportOptions, applied_offset_s: float) -> dict[str, 
         return {"ape": None, "note": f"evo has no {options.align} alignment"}
     off = f" --t_offset {applied_offset_s!r}" if applied_offset_s else ""
     base = f"evo_ape tum {TRUTH_TUM} {ESTIMATE_TUM}{flags} --t_max_diff {options.t_max_diff_s!r}{off}"
-    return {"ape": base, "ape_rotation": base + " -r angle_deg",
-            "note": f"run in the run directory; the TUM files are written with --export tum, {EVO_ZIP} (the "
-                    f"translation result, evo_res {EVO_ZIP}) with --export evo"}
-
+    return {
+        "ape": base,
+        "ape_rotation": base + " -r angle_deg",
+        "note": f"run in the run directory; the TUM files are written with --export tum, {EVO_ZIP} (the "
+        f"translation result, evo_res {EVO_ZIP}) with --export evo",
+    }
 
 
 def build_report(
@@ -95,8 +96,7 @@ def build_report(
     least-squares SE(3) transform of the associated positions; ``align="none"`` compares the raw estimate.
     ``overrides`` are :class:`ReportOptions` fields (e.g. ``t_max_diff_s``, ``align``) on top of ``options``.
     """
-    return evaluate_report(poses, biases, landmarks, truth, landmark_truth, bias_truth, options=options,
-                           **overrides)[0]
+    return evaluate_report(poses, biases, landmarks, truth, landmark_truth, bias_truth, options=options, **overrides)[0]
 
 
 def evaluate_report(
@@ -112,10 +112,14 @@ def evaluate_report(
 ) -> tuple[dict[str, Any], TrajectoryEvaluation]:
     """:func:`build_report` and the trajectory evaluation behind it (hand it to :func:`write_report`, which
     otherwise associates and aligns the trajectories again: seconds on a long log)."""
-    return evaluate_tables({"poses": poses, "biases": biases, "landmarks": landmarks}, truth, landmark_truth,
-                           bias_truth, options=options, **overrides)
-
-
+    return evaluate_tables(
+        {"poses": poses, "biases": biases, "landmarks": landmarks},
+        truth,
+        landmark_truth,
+        bias_truth,
+        options=options,
+        **overrides,
+    )
 
 
 def evaluate_tables(
@@ -148,8 +152,12 @@ def evaluate_tables(
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
     landmark.process_data(landmarks, ev.alignment)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
-        figures([top_view_job(landmark.get_statistic(), ev, landmarks, landmark_truth),
-                 *landmark_plot_jobs(landmark.get_statistic())])
+        figures(
+            [
+                top_view_job(landmark.get_statistic(), ev, landmarks, landmark_truth),
+                *landmark_plot_jobs(landmark.get_statistic()),
+            ]
+        )
     convergence = ConvergenceSection(options.convergence_threshold_m)
     convergence.process_data(ev)
     if figures is not None:
@@ -157,8 +165,16 @@ def evaluate_tables(
     time_offset = TimeOffsetSection(options)
     time_offset.unreliable_note(ev)
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
-    sections = {"ape": ApeSection(), "ape_by_alignment": by_alignment, "rpe": rpe, "drift": drift,
-                "time_offset": time_offset, "landmarks": landmark, "biases": biases, "convergence": convergence}
+    sections = {
+        "ape": ApeSection(),
+        "ape_by_alignment": by_alignment,
+        "rpe": rpe,
+        "drift": drift,
+        "time_offset": time_offset,
+        "landmarks": landmark,
+        "biases": biases,
+        "convergence": convergence,
+    }
     for section in (sections["ape"], by_alignment, rpe, drift, time_offset):
         section.process_data(ev)
     notes = []
@@ -219,7 +235,6 @@ def validate_report(report: dict[str, Any]) -> None:
     import jsonschema
 
     jsonschema.validate(report, report_schema(), cls=jsonschema.Draft202012Validator)
-
 
 
 def _options_of(report: dict[str, Any]) -> ReportOptions:
@@ -297,15 +312,22 @@ def write_report(
     return written
 
 
-def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None,
-                         metadata: dict[str, Any]) -> list[Path]:
+def write_aligned_tables(
+    out: Path, report: dict[str, Any], ev: TrajectoryEvaluation, landmarks: Table | None, metadata: dict[str, Any]
+) -> list[Path]:
     """``poses_aligned.parquet`` and ``landmarks_aligned.parquet``: every pose and the map moved by the report's
     alignment into the truth's frame (a stretch of poses at a time), with the run metadata and the alignment."""
     from slamobs.pipeline.writers import FLOAT_BITS, TableWriter
 
     al = ev.alignment
-    meta = {**metadata, "aligned": {"frame": "ground truth", "alignment": report["method"]["alignment"],
-                                    "truth_source": report.get("truth_source")}}
+    meta = {
+        **metadata,
+        "aligned": {
+            "frame": "ground truth",
+            "alignment": report["method"]["alignment"],
+            "truth_source": report.get("truth_source"),
+        },
+    }
     bits = int((metadata.get("output") or {}).get("float_bits", FLOAT_BITS))
     sink = TableWriter(out, bits)
     try:
@@ -314,14 +336,33 @@ def write_aligned_tables(out: Path, report: dict[str, Any], ev: TrajectoryEvalua
             pos = al.positions(np.asarray(est.position[rows], dtype=np.float64))
             rot = al.rotations(quats_to_rots(np.ascontiguousarray(est.quat_xyzw[rows], dtype=np.float64)))
             q = rots_to_quats(np.ascontiguousarray(rot))
-            sink.write({"poses_aligned": {"t_ns": np.asarray(est.t_ns[rows]), "x": pos[:, 0], "y": pos[:, 1],
-                                          "z": pos[:, 2], "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]}})
+            sink.write(
+                {
+                    "poses_aligned": {
+                        "t_ns": np.asarray(est.t_ns[rows]),
+                        "x": pos[:, 0],
+                        "y": pos[:, 1],
+                        "z": pos[:, 2],
+                        "qx": q[:, 0],
+                        "qy": q[:, 1],
+                        "qz": q[:, 2],
+                        "qw": q[:, 3],
+                    }
+                }
+            )
         if landmarks is not None:
             xyz = al.positions(columns(landmarks, ["x", "y", "z"], np.float64))
-            sink.write({"landmarks_aligned": {**{c: column(landmarks, c) for c in column_names(landmarks)},
-                                              "x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}})
+            sink.write(
+                {
+                    "landmarks_aligned": {
+                        **{c: column(landmarks, c) for c in column_names(landmarks)},
+                        "x": xyz[:, 0],
+                        "y": xyz[:, 1],
+                        "z": xyz[:, 2],
+                    }
+                }
+            )
         return sink.close(meta)
     except BaseException:
         sink.abort()
         raise
-

@@ -144,8 +144,9 @@ def pairs_by_angle(rot: np.ndarray, delta: float, tol: float = 0.0, degrees: boo
     return ids[:-1], ids[1:]
 
 
-def rpe_pairs(pos: np.ndarray, rot: np.ndarray, delta: float, unit: str = "f", rel_tol: float = 0.1,
-              all_pairs: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def rpe_pairs(
+    pos: np.ndarray, rot: np.ndarray, delta: float, unit: str = "f", rel_tol: float = 0.1, all_pairs: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Pairs ``(i, j)`` for a delta in ``unit`` (``f`` frames, ``m`` metres, ``d`` degrees, ``r`` radians)."""
     if unit not in DELTA_UNITS:
         raise ValueError(f"delta unit must be one of {tuple(DELTA_UNITS)}, got {unit!r}")
@@ -161,6 +162,8 @@ def rpe_pairs(pos: np.ndarray, rot: np.ndarray, delta: float, unit: str = "f", r
     else:
         i, j = pairs_by_angle(rot, delta, delta * rel_tol, unit == "d", all_pairs)
     if i.shape[0] == 0:
-        raise ValueError(f"delta = {delta} ({DELTA_UNITS[unit]}) gives no pose pair among {n} poses; "
-                         "use a smaller delta or a looser tolerance")
+        raise ValueError(
+            f"delta = {delta} ({DELTA_UNITS[unit]}) gives no pose pair among {n} poses; "
+            "use a smaller delta or a looser tolerance"
+        )
     return i.astype(np.int64), j.astype(np.int64)

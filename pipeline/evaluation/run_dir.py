@@ -71,12 +71,18 @@ def read_json(path: Path) -> dict:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError) as err:
         raise InputError(path, f"unreadable {name}: {' '.join(str(err).split())}"[:300]) from None
-    bad = "the file" if not isinstance(data, dict) else next(
-        (f"'{k}'" for k in _SECTIONS if data.get(k) is not None and not isinstance(data[k], dict)), None)
+    bad = (
+        "the file"
+        if not isinstance(data, dict)
+        else next((f"'{k}'" for k in _SECTIONS if data.get(k) is not None and not isinstance(data[k], dict)), None)
+    )
     if bad is not None:
         value = data if bad == "the file" else data[bad.strip("'")]
-        raise InputError(path, f"not a run's {name}: {bad} is a JSON {_json_kind(value)}, not an object "
-                               "(edited or damaged; run the command that wrote it again)")
+        raise InputError(
+            path,
+            f"not a run's {name}: {bad} is a JSON {_json_kind(value)}, not an object "
+            "(edited or damaged; run the command that wrote it again)",
+        )
     return data
 
 
@@ -99,8 +105,10 @@ def load_run(run_dir: str | Path) -> RunTables:
         raise InputError(run_dir, "run directory has no poses.parquet")
     for name in RUN_TABLES if in_dataset is None else ():
         if not (run_dir / f"{name}.parquet").is_file():  # a report without it would drop its section and files
-            raise InputError(run_dir / f"{name}.parquet", "missing: every run writes this table; the report needs "
-                                                          "it (run the log again)")
+            raise InputError(
+                run_dir / f"{name}.parquet",
+                "missing: every run writes this table; the report needs it (run the log again)",
+            )
 
     def table(name: str) -> pd.DataFrame | None:
         if in_dataset is not None:
@@ -164,8 +172,10 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     else:
         topic = source if source is not None else (inp.get("topics") or {}).get("truth")
         if topic is None:
-            raise InputError(meta.get("input", {}).get("path", "run.json"),
-                             "the run's log has no truth topic: give --truth (a topic, TF edge or trajectory file)")
+            raise InputError(
+                meta.get("input", {}).get("path", "run.json"),
+                "the run's log has no truth topic: give --truth (a topic, TF edge or trajectory file)",
+            )
         if not have_log:
             raise InputError(log or "run.json", "the run's input log is not there; give --truth as a trajectory file")
         stream = _topic_truth(log, topic, time_source, inp.get("clocks") or {})
@@ -223,8 +233,11 @@ def _check_own(run_dir: Path, names: list[str]) -> None:
         if os.path.lexists(path):
             size = os.lstat(path).st_size if path.is_file() and not path.is_symlink() else None
             if doc["files"].get(name) != size:
-                raise OutputError(path, "not written by slamobs, or changed since: the report replaces only its own "
-                                        "files; move it away and report again")
+                raise OutputError(
+                    path,
+                    "not written by slamobs, or changed since: the report replaces only its own "
+                    "files; move it away and report again",
+                )
 
 
 def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path, exports: tuple[str, ...]) -> None:
@@ -239,8 +252,13 @@ def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path, e
     tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
 
-def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOptions | None = None,
-               exports: tuple[str, ...] | None = None, **overrides: Any) -> tuple[dict[str, Any], list[Path]]:
+def report_run(
+    run_dir: str | Path,
+    truth: str | None = None,
+    options: ReportOptions | None = None,
+    exports: tuple[str, ...] | None = None,
+    **overrides: Any,
+) -> tuple[dict[str, Any], list[Path]]:
     """Recompute the report of ``run_dir`` against ``truth`` and replace its report files atomically.
 
     ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
@@ -253,16 +271,27 @@ def report_run(run_dir: str | Path, truth: str | None = None, options: ReportOpt
     ti = resolve_truth(run.meta, truth)
     options = options or options_for_run(run.meta, **overrides)
     try:
-        report, evaluation = evaluate_report(run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth,
-                                             ti.bias_truth, options=options)
+        report, evaluation = evaluate_report(
+            run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth, ti.bias_truth, options=options
+        )
     except ValueError as err:
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source
     report["notes"] = ti.notes + report["notes"]
     staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
     try:
-        write_report(report, staged, run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth,
-                     evaluation=evaluation, exports=exports, metadata=run.meta)
+        write_report(
+            report,
+            staged,
+            run.poses,
+            run.biases,
+            run.landmarks,
+            ti.stream,
+            ti.landmark_truth,
+            evaluation=evaluation,
+            exports=exports,
+            metadata=run.meta,
+        )
         _stage_run_json(run.meta, ti.source, staged, exports)
         for p in staged.iterdir():
             os.chmod(p, 0o644)

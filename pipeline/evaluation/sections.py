@@ -69,8 +69,10 @@ class ApeSection(Section):
     METHOD = {
         "ape_translation": "per pair ‖(s R p_est + t) − p_truth‖ in metres (evo APE translation_part)",
         "ape_rotation": "per pair angle of R_truthᵀ (R R_est) in degrees, in [0, 180] (evo APE rotation_angle_deg)",
-        "statistics": ("rmse = sqrt(sse / n), sse = Σ e², std is the population std (ddof = 0), as evo; "
-                       "p90/p95/p99 are percentiles with linear interpolation"),
+        "statistics": (
+            "rmse = sqrt(sse / n), sse = Σ e², std is the population std (ddof = 0), as evo; "
+            "p90/p95/p99 are percentiles with linear interpolation"
+        ),
     }
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
@@ -80,8 +82,12 @@ class ApeSection(Section):
 class ApeByAlignmentSection(Section):
     """The same APE after each alignment fitted on the same pairs: what the report's alignment absorbs."""
 
-    METHOD = {"ape_by_alignment": ("the same APE after each alignment fitted on the same pairs: what the primary "
-                                   "alignment absorbs; yaw (4-DoF) only for runs with IMU directions")}
+    METHOD = {
+        "ape_by_alignment": (
+            "the same APE after each alignment fitted on the same pairs: what the primary "
+            "alignment absorbs; yaw (4-DoF) only for runs with IMU directions"
+        )
+    }
 
     def __init__(self, options: ReportOptions) -> None:
         super().__init__()
@@ -106,10 +112,15 @@ class ApeByAlignmentSection(Section):
         errors = aligned_errors(fits, p)
         errors[self.options.align] = (ev.translation.errors, ev.rotation.errors)
         fits[self.options.align] = ev.alignment
-        self.result = {kind: {"translation_m": metrics.statistics(errors[kind][0]),
-                              "rotation_deg": metrics.statistics(errors[kind][1]),
-                              "alignment": alignment_dict(fits[kind])}
-                       for kind in kinds if kind in fits}
+        self.result = {
+            kind: {
+                "translation_m": metrics.statistics(errors[kind][0]),
+                "rotation_deg": metrics.statistics(errors[kind][1]),
+                "alignment": alignment_dict(fits[kind]),
+            }
+            for kind in kinds
+            if kind in fits
+        }
 
 
 def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -149,12 +160,14 @@ class RpeSection(Section):
             "n_pairs": int(tr.errors.shape[0]),
             "translation_m": tr.stats,
             "rotation_deg": rr.stats,
-            "method": (f"evo_rpe definitions: consecutive pose pairs of the aligned estimate {options.rpe_delta_m:g} "
-                       "m of travelled path apart (a pair closes when its path reaches the delta); error pose "
-                       "E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j); translation ‖t_E‖ in metres, rotation angle of R_E in degrees "
-                       f"(evo_rpe ... --delta {options.rpe_delta_m:g} --delta_unit m"
-                       f"{EVO_ALIGN_FLAGS.get(options.align, '')}"
-                       " -r trans_part / angle_deg)"),
+            "method": (
+                f"evo_rpe definitions: consecutive pose pairs of the aligned estimate {options.rpe_delta_m:g} "
+                "m of travelled path apart (a pair closes when its path reaches the delta); error pose "
+                "E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j); translation ‖t_E‖ in metres, rotation angle of R_E in degrees "
+                f"(evo_rpe ... --delta {options.rpe_delta_m:g} --delta_unit m"
+                f"{EVO_ALIGN_FLAGS.get(options.align, '')}"
+                " -r trans_part / angle_deg)"
+            ),
         }
 
 
@@ -172,8 +185,14 @@ class DriftSection(Section):
         t = p.t_est_ns
         dt = float(np.median(np.diff(t))) / NS_PER_S if t is not None and t.shape[0] > 1 else 0.1
         step = max(1, int(round(1.0 / dt))) if dt > 0 else 10
-        out = segment_drift(p.ref_pos, p.ref_rot, ev.translation.est_pos_aligned, ev.translation.est_rot_aligned,
-                            self.options.drift_lengths_m, step)
+        out = segment_drift(
+            p.ref_pos,
+            p.ref_rot,
+            ev.translation.est_pos_aligned,
+            ev.translation.est_rot_aligned,
+            self.options.drift_lengths_m,
+            step,
+        )
         if out["n_segments"] == 0:
             return
         out["method"] = (
@@ -199,8 +218,10 @@ class TimeOffsetSection(Section):
         off = ev.time_offset if self.options.t_offset_s == "auto" else None
         if off is not None and not off.reliable:
             edge = ", at the search limit" if off.at_window_edge else ""
-            self.notes.append(f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
-                              f"{off.peak_correlation:.2f}{edge})")
+            self.notes.append(
+                f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
+                f"{off.peak_correlation:.2f}{edge})"
+            )
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         off = ev.time_offset
@@ -240,15 +261,19 @@ class LandmarkSection(Section):
     """The final map's error against the landmark truth: after the trajectory's alignment, and after an SE(3)
     alignment of the map alone (its shape error)."""
 
-    METHOD = {"landmarks": (
-        "final map moved by the same (s, R, t) as the trajectory (not re-fitted); "
-        "error = ‖s R p̂_i + t − p_i‖ for ids present in both the estimate and the truth; "
-        "map_aligned re-fits SE(3) on the landmarks alone; truth_never_estimated are true landmarks the "
-        "run never saw, estimated_without_truth are estimated ids the truth does not know"
-    )}
-    MAP_ALIGNED_METHOD = ("SE(3) Umeyama fitted on the matched landmarks alone (map-only alignment); error = "
-                          "‖R_m p̂_i + t_m − p_i‖. The gap to error_m (trajectory alignment) is how far the map sits "
-                          "from where the trajectory puts it; error under this alignment is the map's shape error")
+    METHOD = {
+        "landmarks": (
+            "final map moved by the same (s, R, t) as the trajectory (not re-fitted); "
+            "error = ‖s R p̂_i + t − p_i‖ for ids present in both the estimate and the truth; "
+            "map_aligned re-fits SE(3) on the landmarks alone; truth_never_estimated are true landmarks the "
+            "run never saw, estimated_without_truth are estimated ids the truth does not know"
+        )
+    }
+    MAP_ALIGNED_METHOD = (
+        "SE(3) Umeyama fitted on the matched landmarks alone (map-only alignment); error = "
+        "‖R_m p̂_i + t_m − p_i‖. The gap to error_m (trajectory alignment) is how far the map sits "
+        "from where the trajectory puts it; error under this alignment is the map's shape error"
+    )
 
     def __init__(self, landmark_truth: dict[int, np.ndarray] | None) -> None:
         super().__init__()
@@ -259,8 +284,15 @@ class LandmarkSection(Section):
         section: dict[str, Any] = {"n_estimated": int(ids.shape[0]), "truth_available": self.landmark_truth is not None}
         self.result = section
         if self.landmark_truth is None:
-            section.update(n_truth=None, n_matched=0, error_m=None, per_landmark=[], estimated_without_truth=None,
-                           truth_never_estimated=None, map_aligned=None)
+            section.update(
+                n_truth=None,
+                n_matched=0,
+                error_m=None,
+                per_landmark=[],
+                estimated_without_truth=None,
+                truth_never_estimated=None,
+                map_aligned=None,
+            )
             return
         lm = metrics.landmark_errors(ids, xyz, self.landmark_truth, al.rot, al.trans, al.scale)
         row_of = {int(i): k for k, i in enumerate(ids)}
@@ -312,10 +344,12 @@ class LandmarkSection(Section):
             return []
         if placed["rmse"] <= max(MAP_PLACE_MIN_M, MAP_PLACE_FACTOR * mine["rmse"]):
             return []
-        return [f"landmark map: {placed['rmse']:.4g} m from its truth after the trajectory's alignment, "
-                f"{mine['rmse']:.4g} m after an alignment of its own: its shape fits the landmark truth, its place "
-                "does not (the landmark truth in another frame than the trajectory truth, or a map that disagrees "
-                "with its trajectory)"]
+        return [
+            f"landmark map: {placed['rmse']:.4g} m from its truth after the trajectory's alignment, "
+            f"{mine['rmse']:.4g} m after an alignment of its own: its shape fits the landmark truth, its place "
+            "does not (the landmark truth in another frame than the trajectory truth, or a map that disagrees "
+            "with its trajectory)"
+        ]
 
     def map_only(self) -> dict[str, Any] | None:
         """The map error of a run without trajectory truth (processed with no alignment): the landmarks after a
@@ -330,8 +364,10 @@ class LandmarkSection(Section):
             "error_m": section["map_aligned"]["error_m"],
             "alignment": section["map_aligned"]["alignment"],
             "method": section["map_aligned"]["method"],
-            "per_landmark": [{"id": row["id"], "error_m": row["error_map_aligned_m"], "n_obs": row["n_obs"]}
-                             for row in section["per_landmark"]],
+            "per_landmark": [
+                {"id": row["id"], "error_m": row["error_map_aligned_m"], "n_obs": row["n_obs"]}
+                for row in section["per_landmark"]
+            ],
             "estimated_without_truth": section["estimated_without_truth"],
             "truth_never_estimated": section["truth_never_estimated"],
         }
@@ -352,23 +388,33 @@ def _vec(v: Any) -> list[float]:
 class BiasSection(Section):
     """The final bias estimates against their truth, and how still they are over the last stretch of the run."""
 
-    METHOD = {"biases": (
-        "final = last row of the bias table; biases are body-frame quantities, unaffected by the "
-        "alignment; error = truth − estimate, error_norm = its Euclidean norm; stability over the last "
-        "window_fraction of the bias time span: per-axis mean, std, range and least-squares slope "
-        "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
-    )}
+    METHOD = {
+        "biases": (
+            "final = last row of the bias table; biases are body-frame quantities, unaffected by the "
+            "alignment; error = truth − estimate, error_norm = its Euclidean norm; stability over the last "
+            "window_fraction of the bias time span: per-axis mean, std, range and least-squares slope "
+            "(drift_norm_per_s = ‖slope‖); window_error = truth − window mean"
+        )
+    }
 
     def __init__(self, bias_truth: dict[str, np.ndarray] | None, window_fraction: float) -> None:
         super().__init__()
-        self.truth = None if bias_truth is None else {"gyro": _vec(bias_truth["gyro"]),
-                                                      "velocity": _vec(bias_truth["velocity"])}
+        self.truth = (
+            None if bias_truth is None else {"gyro": _vec(bias_truth["gyro"]), "velocity": _vec(bias_truth["velocity"])}
+        )
         self.window_fraction = window_fraction
 
     def process_data(self, biases: Table | None) -> None:
         truth = self.truth
-        section: dict[str, Any] = {"final": None, "truth": truth, "error": None, "error_norm": None,
-                                   "stability": None, "window_error": None, "window_error_norm": None}
+        section: dict[str, Any] = {
+            "final": None,
+            "truth": truth,
+            "error": None,
+            "error_norm": None,
+            "stability": None,
+            "window_error": None,
+            "window_error_norm": None,
+        }
         self.result = section
         if biases is None or n_rows(biases) == 0:
             return
@@ -379,9 +425,11 @@ class BiasSection(Section):
         vel = [column(biases, c, np.float64)[order] for c in VEL_COLUMNS]
         final = {"t_ns": int(t_ns[-1]), "gyro": _vec([c[-1] for c in gyro]), "velocity": _vec([c[-1] for c in vel])}
         section["final"] = final
-        stab = {"window_fraction": float(self.window_fraction),
-                "gyro": slam_metrics.window_stats(t_ns, gyro, self.window_fraction),
-                "velocity": slam_metrics.window_stats(t_ns, vel, self.window_fraction)}
+        stab = {
+            "window_fraction": float(self.window_fraction),
+            "gyro": slam_metrics.window_stats(t_ns, gyro, self.window_fraction),
+            "velocity": slam_metrics.window_stats(t_ns, vel, self.window_fraction),
+        }
         section["stability"] = stab
         if truth is not None:
             err = {k: [t - e for t, e in zip(truth[k], final[k])] for k in ("gyro", "velocity")}
@@ -395,16 +443,18 @@ class BiasSection(Section):
 class ConvergenceSection(Section):
     """When the aligned position error reaches the observer's own steady level (:func:`slam_metrics.convergence`)."""
 
-    METHOD = {"convergence": (
-        "the error level is the running median of the aligned position error over a centred window of "
-        "window_fraction of the log's time span (window_s; evaluated at up to 2000 evenly spaced stamps, over "
-        "an even stride of at most 2001 errors of the window); "
-        "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
-        "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
-        "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
-        "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
-        "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
-    )}
+    METHOD = {
+        "convergence": (
+            "the error level is the running median of the aligned position error over a centred window of "
+            "window_fraction of the log's time span (window_s; evaluated at up to 2000 evenly spaced stamps, over "
+            "an even stride of at most 2001 errors of the window); "
+            "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
+            "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
+            "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
+            "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
+            "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
+        )
+    }
 
     def __init__(self, threshold_m: float) -> None:
         super().__init__()

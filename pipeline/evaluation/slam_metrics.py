@@ -65,8 +65,9 @@ LEVEL_POINTS = 2000
 WINDOW_SAMPLES = 2001
 
 
-def error_level(t_ns: np.ndarray, errors: np.ndarray, window_fraction: float = WINDOW_FRACTION,
-                points: int = LEVEL_POINTS) -> tuple[np.ndarray, np.ndarray]:
+def error_level(
+    t_ns: np.ndarray, errors: np.ndarray, window_fraction: float = WINDOW_FRACTION, points: int = LEVEL_POINTS
+) -> tuple[np.ndarray, np.ndarray]:
     """``(t, level)``: the median of ``errors`` over a centred window of ``window_fraction`` of the time span, at
     every stamp (at most ``points`` evenly spaced ones; over long windows the median of an even stride of it):
     the error's level with single outliers removed."""
@@ -91,8 +92,9 @@ def _strided_medians(e: np.ndarray, lo: np.ndarray, step: np.ndarray, count: np.
     return out
 
 
-def convergence(t_ns: np.ndarray, errors: np.ndarray, threshold: float,
-                level: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+def convergence(
+    t_ns: np.ndarray, errors: np.ndarray, threshold: float, level: tuple[np.ndarray, np.ndarray] | None = None
+) -> dict:
     """When the error reaches the observer's own steady level and stays there.
 
     The level is the running median (:func:`error_level`); the steady level is its highest value over the last
@@ -109,8 +111,13 @@ def convergence(t_ns: np.ndarray, errors: np.ndarray, threshold: float,
     steady_level = float(np.max(level[grid >= cut]))
     band = max(float(threshold), BAND_FACTOR * steady_level)
     k = convergence_index(level, np.nextafter(band, np.inf))  # "within": level <= band
-    return {"band": band, "steady_error": float(np.median(e[t >= cut])), "steady_level": steady_level,
-            "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9, "t_ns": None if k is None else int(grid[k])}
+    return {
+        "band": band,
+        "steady_error": float(np.median(e[t >= cut])),
+        "steady_level": steady_level,
+        "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
+        "t_ns": None if k is None else int(grid[k]),
+    }
 
 
 def convergence_index(errors: np.ndarray, threshold: float) -> int | None:

@@ -160,9 +160,14 @@ class TimeOffset:
         the search cannot tell it from zero). An observer's corrections at every detection frame put a plateau
         into its angular rate: riekf on a simulated loop peaked at -0.86 s with correlation 0.88, where the APE
         grows from 0.05 to 0.64 m."""
-        supported = (not self.checked or abs(self.offset_s) <= self.grid_step_s  # zero is within its resolution
-                     or (self.rmse_with_m is not None
-                         and (self.rmse_without_m is None or self.rmse_with_m <= self.rmse_without_m)))
+        supported = (
+            not self.checked
+            or abs(self.offset_s) <= self.grid_step_s  # zero is within its resolution
+            or (
+                self.rmse_with_m is not None
+                and (self.rmse_without_m is None or self.rmse_with_m <= self.rmse_without_m)
+            )
+        )
         return self.peak_correlation >= 0.5 and not self.at_window_edge and supported
 
 
@@ -182,8 +187,13 @@ def _step_angles(q: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), np.abs(w))
 
 
-def _rate_on_grid(t_ns: np.ndarray, increments: np.ndarray, grid_ns: np.ndarray, step_ns: int,
-                  accumulated: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+def _rate_on_grid(
+    t_ns: np.ndarray,
+    increments: np.ndarray,
+    grid_ns: np.ndarray,
+    step_ns: int,
+    accumulated: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Mean rate of an accumulated quantity over [g, g + step] (NaN outside the stream's span);
     ``accumulated`` is :func:`_accumulate` of the stream when sampled repeatedly. ``grid_ns`` is evenly spaced
     by ``step_ns``: the end of one interval is the start of the next, so the sum is interpolated once per edge."""
@@ -322,8 +332,9 @@ def estimate_time_offset(
     )
 
 
-def _search_grid(tr: np.ndarray, te: np.ndarray, max_offset_s: float,
-                 step_s: float | None) -> tuple[np.ndarray, int, int] | None:
+def _search_grid(
+    tr: np.ndarray, te: np.ndarray, max_offset_s: float, step_s: float | None
+) -> tuple[np.ndarray, int, int] | None:
     """The common resampling grid (stamps, step in ns, lags within ``±max_offset_s``); None when too short or huge.
 
     The default step follows the slower stream (within 1-50 ms) so that each grid step holds a sample.

@@ -129,11 +129,14 @@ def synchronize(reference, estimate, opts: SyncOptions = SyncOptions(), *, ref_l
     est_p = np.asarray(est.position, dtype=np.float64)
     if not (rs.timed and es.timed):
         if n_ref != n_est:
-            raise ValueError(f"poses without stamps are paired by index, but the reference has {n_ref} poses "
-                             f"and the estimate {n_est}")
+            raise ValueError(
+                f"poses without stamps are paired by index, but the reference has {n_ref} poses "
+                f"and the estimate {n_est}"
+            )
         idx = np.arange(n_ref)
-        return Paired(None, None, ref_p, _rots(rs), est_p, _rots(es), idx, idx.copy(), "index", "estimate",
-                      n_ref, n_est)
+        return Paired(
+            None, None, ref_p, _rots(rs), est_p, _rots(es), idx, idx.copy(), "index", "estimate", n_ref, n_est
+        )
     if opts.method not in SYNC_METHODS:
         raise ValueError(f"sync method must be one of {SYNC_METHODS}, got {opts.method!r}")
     idx_ref, idx_est = associate(ref.t_ns, est.t_ns, opts.t_max_diff_s, opts.t_offset_s)
@@ -147,18 +150,54 @@ def synchronize(reference, estimate, opts: SyncOptions = SyncOptions(), *, ref_l
     driving = "reference" if n_ref < n_est else "estimate"
     t_ref, t_est = np.asarray(ref.t_ns)[idx_ref], np.asarray(est.t_ns)[idx_est]
     if opts.method == "nearest":
-        return Paired(t_ref, t_est, ref_p[idx_ref], _rots(rs, idx_ref), est_p[idx_est], _rots(es, idx_est),
-                      idx_ref, idx_est, "nearest", driving, n_ref, n_est)
+        return Paired(
+            t_ref,
+            t_est,
+            ref_p[idx_ref],
+            _rots(rs, idx_ref),
+            est_p[idx_est],
+            _rots(es, idx_est),
+            idx_ref,
+            idx_est,
+            "nearest",
+            driving,
+            n_ref,
+            n_est,
+        )
     offset_ns = int(round(opts.t_offset_s * NS_PER_S))
     if driving == "reference":  # the estimate is resampled at the reference stamps, on its own clock
         t_est = t_ref - offset_ns
         pos, quat = interpolate_poses(est.t_ns, est_p, est.quat_xyzw, t_est)
-        return Paired(t_ref, t_est, ref_p[idx_ref], _rots(rs, idx_ref), pos, quat, idx_ref, None, "interpolation",
-                      driving, n_ref, n_est)
+        return Paired(
+            t_ref,
+            t_est,
+            ref_p[idx_ref],
+            _rots(rs, idx_ref),
+            pos,
+            quat,
+            idx_ref,
+            None,
+            "interpolation",
+            driving,
+            n_ref,
+            n_est,
+        )
     t_ref = t_est + offset_ns
     pos, quat = interpolate_poses(ref.t_ns, ref_p, ref.quat_xyzw, t_ref)
-    return Paired(t_ref, t_est, pos, quat, est_p[idx_est], _rots(es, idx_est), None, idx_est, "interpolation",
-                  driving, n_ref, n_est)
+    return Paired(
+        t_ref,
+        t_est,
+        pos,
+        quat,
+        est_p[idx_est],
+        _rots(es, idx_est),
+        None,
+        idx_est,
+        "interpolation",
+        driving,
+        n_ref,
+        n_est,
+    )
 
 
 def n_to_align(paired: Paired, opts: AlignOptions) -> int | None:
@@ -188,9 +227,14 @@ def aligned_rotations(al: Alignment, paired: Paired) -> RotationRows:
 def alignment_title(opts: AlignOptions, al: Alignment) -> str:
     """The alignment lines of evo's result title."""
     kind = opts.kind
-    title = {"se3": "\n(with SE(3) Umeyama alignment)", "sim3": "\n(with Sim(3) Umeyama alignment)",
-             "scale": "\n(scale corrected)", "none": "\n(not aligned)", "origin": "\n(with origin alignment)",
-             "yaw": "\n(with 4-DoF translation + yaw alignment)"}[kind]
+    title = {
+        "se3": "\n(with SE(3) Umeyama alignment)",
+        "sim3": "\n(with Sim(3) Umeyama alignment)",
+        "scale": "\n(scale corrected)",
+        "none": "\n(not aligned)",
+        "origin": "\n(with origin alignment)",
+        "yaw": "\n(with 4-DoF translation + yaw alignment)",
+    }[kind]
     if kind in ("se3", "sim3", "scale", "yaw"):
         if opts.first_s is not None:
             title += f" (aligned poses: {al.n_points}, first {opts.first_s:g} s)"
@@ -265,9 +309,18 @@ def _timing_arrays(paired: Paired, est_pos_aligned: np.ndarray, keep: np.ndarray
     return out
 
 
-def ape(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(),
-        align: AlignOptions = AlignOptions(), *, ref_name: str = "reference", est_name: str = "estimate",
-        paired: Paired | None = None, like: ErrorResult | None = None) -> ErrorResult:
+def ape(
+    ref,
+    est,
+    relation: str = "trans_part",
+    sync: SyncOptions = SyncOptions(),
+    align: AlignOptions = AlignOptions(),
+    *,
+    ref_name: str = "reference",
+    est_name: str = "estimate",
+    paired: Paired | None = None,
+    like: ErrorResult | None = None,
+) -> ErrorResult:
     """Absolute pose error of ``est`` against ``ref`` (evo_ape); PoseStreams or :class:`Source`-likes.
 
     ``like``: an APE of the same ``paired`` under the same ``align`` (another relation of one comparison);
@@ -287,14 +340,35 @@ def ape(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(
         errors = metrics.ape_translation(paired.ref_pos, pos)
     else:
         errors = metrics.ape_errors(relation, paired.ref_pos, paired.ref_rot, pos, aligned_rotations(al, paired))
-    return ErrorResult("ape", relation, unit, title, errors, metrics.statistics(errors), al, paired, pos, ref_name,
-                       est_name, arrays=arrays)
+    return ErrorResult(
+        "ape",
+        relation,
+        unit,
+        title,
+        errors,
+        metrics.statistics(errors),
+        al,
+        paired,
+        pos,
+        ref_name,
+        est_name,
+        arrays=arrays,
+    )
 
 
-def rpe(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(),
-        align: AlignOptions = AlignOptions(), opts: RpeOptions = RpeOptions(), *,
-        ref_name: str = "reference", est_name: str = "estimate", paired: Paired | None = None,
-        like: ErrorResult | None = None) -> ErrorResult:
+def rpe(
+    ref,
+    est,
+    relation: str = "trans_part",
+    sync: SyncOptions = SyncOptions(),
+    align: AlignOptions = AlignOptions(),
+    opts: RpeOptions = RpeOptions(),
+    *,
+    ref_name: str = "reference",
+    est_name: str = "estimate",
+    paired: Paired | None = None,
+    like: ErrorResult | None = None,
+) -> ErrorResult:
     """Relative pose error of ``est`` against ``ref`` (evo_rpe); pairs from the aligned estimate unless
     ``pairs_from_reference``. ``like``: a result of the same ``paired`` under the same ``align`` whose
     alignment and aligned positions are shared."""
@@ -302,13 +376,16 @@ def rpe(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(
     al, pos = (like.alignment, like.est_pos_aligned) if like is not None else align_paired(paired, align)
     name, unit = metrics.POSE_RELATIONS[relation]
     delta = int(opts.delta) if opts.unit == "f" else float(opts.delta)
-    title = (f"RPE w.r.t. {name} ({unit})\nfor delta = {delta} ({DELTA_UNITS[opts.unit]}) using "
-             f"{'all' if opts.all_pairs else 'consecutive'} pairs" + alignment_title(align, al))
+    title = (
+        f"RPE w.r.t. {name} ({unit})\nfor delta = {delta} ({DELTA_UNITS[opts.unit]}) using "
+        f"{'all' if opts.all_pairs else 'consecutive'} pairs" + alignment_title(align, al)
+    )
     angles = opts.unit in ("d", "r")
     rot = aligned_rotations(al, paired) if angles or relation != "point_distance" else None
     if opts.pairs_from_reference:
-        i, j = rpe_pairs(paired.ref_pos, paired.ref_rot if angles else None, opts.delta, opts.unit, opts.rel_tol,
-                         opts.all_pairs)
+        i, j = rpe_pairs(
+            paired.ref_pos, paired.ref_rot if angles else None, opts.delta, opts.unit, opts.rel_tol, opts.all_pairs
+        )
     else:
         i, j = rpe_pairs(pos, rot, opts.delta, opts.unit, opts.rel_tol, opts.all_pairs)
     ref_rot = None if relation == "point_distance" else paired.ref_rot
@@ -316,8 +393,22 @@ def rpe(ref, est, relation: str = "trans_part", sync: SyncOptions = SyncOptions(
     arrays = _timing_arrays(paired, pos, keep=j)
     if al.evo_matrix is not None:
         arrays["alignment_transformation_sim3"] = al.evo_matrix
-    return ErrorResult("rpe", relation, unit, title, errors, metrics.statistics(errors), al, paired, pos, ref_name,
-                       est_name, pair_i=i, pair_j=j, arrays=arrays)
+    return ErrorResult(
+        "rpe",
+        relation,
+        unit,
+        title,
+        errors,
+        metrics.statistics(errors),
+        al,
+        paired,
+        pos,
+        ref_name,
+        est_name,
+        pair_i=i,
+        pair_j=j,
+        arrays=arrays,
+    )
 
 
 def describe(result: ErrorResult, sync: SyncOptions, align: AlignOptions, rpe_opts: RpeOptions | None = None) -> dict:
@@ -348,21 +439,33 @@ def describe(result: ErrorResult, sync: SyncOptions, align: AlignOptions, rpe_op
         },
     }
     if rpe_opts is not None:
-        out["rpe"] = {"delta": float(rpe_opts.delta), "delta_unit": DELTA_UNITS[rpe_opts.unit],
-                      "rel_delta_tol": float(rpe_opts.rel_tol), "all_pairs": bool(rpe_opts.all_pairs),
-                      "pairs_from": "reference" if rpe_opts.pairs_from_reference else "aligned estimate",
-                      "n_pairs": int(result.errors.shape[0])}
+        out["rpe"] = {
+            "delta": float(rpe_opts.delta),
+            "delta_unit": DELTA_UNITS[rpe_opts.unit],
+            "rel_delta_tol": float(rpe_opts.rel_tol),
+            "all_pairs": bool(rpe_opts.all_pairs),
+            "pairs_from": "reference" if rpe_opts.pairs_from_reference else "aligned estimate",
+            "n_pairs": int(result.errors.shape[0]),
+        }
     return out
 
 
-def checked_time_offset(ref: PoseStream, est: PoseStream, sync: SyncOptions, align: AlignOptions,
-                        max_offset_s: float = 1.0, *, without: bool = True) -> TimeOffset | None:
+def checked_time_offset(
+    ref: PoseStream,
+    est: PoseStream,
+    sync: SyncOptions,
+    align: AlignOptions,
+    max_offset_s: float = 1.0,
+    *,
+    without: bool = True,
+) -> TimeOffset | None:
     """:func:`~.sync.estimate_time_offset` of two time-sorted pose streams, checked against the trajectories:
     the translation APE rmse (association rule ``sync``, alignment ``align``) with the offset applied and
     without it, so that a correlation peak which makes the error larger is not called reliable. ``without=False``
     leaves ``rmse_without_m`` None for a caller that computes that APE anyway and fills it in (the report)."""
-    off = estimate_time_offset(ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw,
-                               max_offset_s=max_offset_s)
+    off = estimate_time_offset(
+        ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw, max_offset_s=max_offset_s
+    )
     if off is None:
         return None
 

@@ -35,6 +35,7 @@ from slamobs.pipeline.streams import PoseStream
 CONVERGENCE_THRESHOLD_M = 0.1
 ALIGN_TYPES = KINDS
 
+
 @dataclass(frozen=True)
 class ReportOptions:
     """How the report compares the run with the truth.
@@ -72,8 +73,15 @@ def estimate_stream(poses: Table) -> PoseStream:
         raise ValueError("poses table is empty: nothing to evaluate")
     rows = time_order(column(poses, "t_ns", np.int64))
     t = column(poses, "t_ns", np.int64)[rows]
-    return PoseStream("estimate", "", "", t, t, columns(poses, ["x", "y", "z"], np.float64)[rows],
-                      columns(poses, ["qx", "qy", "qz", "qw"], np.float64)[rows])
+    return PoseStream(
+        "estimate",
+        "",
+        "",
+        t,
+        t,
+        columns(poses, ["x", "y", "z"], np.float64)[rows],
+        columns(poses, ["qx", "qy", "qz", "qw"], np.float64)[rows],
+    )
 
 
 @dataclass(frozen=True)
@@ -118,8 +126,9 @@ class TrajectoryEvaluation:
         return slam_metrics.error_level(self.pair_t_est_ns, self.translation.errors)
 
 
-def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions, *,
-                        estimate_offset: bool = True) -> TrajectoryEvaluation:
+def evaluate_trajectory(
+    poses: Table, truth: PoseStream, options: ReportOptions, *, estimate_offset: bool = True
+) -> TrajectoryEvaluation:
     """Estimate the clock offset, associate, align and compute the APE vectors."""
     truth, _ = valid_truth(truth)
     if len(truth) == 0:
@@ -140,10 +149,10 @@ def evaluate_trajectory(poses: Table, truth: PoseStream, options: ReportOptions,
     sync = SyncOptions(options.t_max_diff_s, applied, "nearest")
     paired = synchronize(truth_sorted, est, sync, ref_label="truth")
     al_opts = AlignOptions(options.align)
-    trans = ape(truth_sorted, est, "trans_part", sync, al_opts, paired=paired, ref_name="truth",
-                est_name="estimate")
-    rot = ape(truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate",
-              like=trans)
+    trans = ape(truth_sorted, est, "trans_part", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate")
+    rot = ape(
+        truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate", like=trans
+    )
     return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
 
 
@@ -165,8 +174,7 @@ class _Pending:
         # matrix products on two threads at once take a second OpenBLAS buffer, whose failure ends the process
         check_room("compute beside the report (a second OpenBLAS buffer)", BLAS_START_MB)
         self._value = self._error = None
-        self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report", daemon=True)
         self._thread.start()
 
     def _run(self, func, args, kwargs) -> None:
@@ -191,8 +199,15 @@ def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
         ok &= np.linalg.norm(np.where(ok[:, None], q, 0.0), axis=1) > 1e-6
     if ok.all():
         return truth, 0
-    return PoseStream(truth.topic, truth.frame_id, truth.child_frame_id, np.asarray(truth.t_ns)[ok],
-                      np.asarray(truth.rec_ns)[ok], np.asarray(truth.position)[ok], q[ok]), int((~ok).sum())
+    return PoseStream(
+        truth.topic,
+        truth.frame_id,
+        truth.child_frame_id,
+        np.asarray(truth.t_ns)[ok],
+        np.asarray(truth.rec_ns)[ok],
+        np.asarray(truth.position)[ok],
+        q[ok],
+    ), int((~ok).sum())
 
 
 def sorted_stream(stream: PoseStream) -> PoseStream:
@@ -200,6 +215,12 @@ def sorted_stream(stream: PoseStream) -> PoseStream:
     if t.shape[0] < 2 or np.all(np.diff(t) >= 0):
         return stream
     order = np.argsort(t, kind="stable")
-    return PoseStream(stream.topic, stream.frame_id, stream.child_frame_id, t[order],
-                      np.asarray(stream.rec_ns)[order], np.asarray(stream.position)[order],
-                      np.asarray(stream.quat_xyzw)[order])
+    return PoseStream(
+        stream.topic,
+        stream.frame_id,
+        stream.child_frame_id,
+        t[order],
+        np.asarray(stream.rec_ns)[order],
+        np.asarray(stream.position)[order],
+        np.asarray(stream.quat_xyzw)[order],
+    )

@@ -10,8 +10,9 @@ from slamobs.pipeline.observers.wang_tayebi import SPEC as WANG_TAYEBI
 from slamobs.pipeline.observers.hybrid import SPEC as HYBRID
 from slamobs.pipeline.observers.riekf import SPEC as RIEKF
 
-OBSERVERS: dict[str, ObserverSpec] = {s.name: s for s in (FAST_ADAPTATION, HASHIM, HASHIM_IMU, WANG_TAYEBI, HYBRID,
-                                                          RIEKF)}
+OBSERVERS: dict[str, ObserverSpec] = {
+    s.name: s for s in (FAST_ADAPTATION, HASHIM, HASHIM_IMU, WANG_TAYEBI, HYBRID, RIEKF)
+}
 
 
 def get_observer(name: str) -> ObserverSpec:

@@ -138,8 +138,15 @@ class Outputs:
     @classmethod
     def empty(cls, rows: int, det_first: int, det_stop: int) -> Outputs:
         m = det_stop - det_first
-        return cls(np.empty(rows, np.int64), np.empty((rows, 3, 3)), np.empty((rows, 3)), np.empty((rows, 6)),
-                   np.empty((m, 3)), np.empty((m, 3)), det_first)
+        return cls(
+            np.empty(rows, np.int64),
+            np.empty((rows, 3, 3)),
+            np.empty((rows, 3)),
+            np.empty((rows, 6)),
+            np.empty((m, 3)),
+            np.empty((m, 3)),
+            det_first,
+        )
 
     def rows_from(self, o: int) -> Outputs:
         """The same outputs from row ``o`` on (views; detection rows keep their places)."""
@@ -153,8 +160,9 @@ class KernelState:
     sub-step cap count and the first capped sample, see ``shared_steps.count_capped``) and the map frame
     ``(f_r, f_p)``. Observers add their own arrays and order them for their kernel."""
 
-    def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray,
-                 n_clocks: int = 2) -> None:
+    def __init__(
+        self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray, n_clocks: int = 2
+    ) -> None:
         self.r_hat = np.array(r0, dtype=np.float64)
         self.p_hat = np.array(p0, dtype=np.float64)
         self.b_om = np.array(b_om0, dtype=np.float64)
@@ -240,8 +248,13 @@ class Stepper:
         state = getattr(self, "state", None)
         if state is None or not getattr(self, "keeps_map_frame", False):
             return None
-        return {"rotation": state.f_r.copy(), "translation": state.f_p.copy(), "mean_rotation": state.frame_mean(),
-                "estimated_s": float(state.f_stat[0]), "samples": int(state.f_stat[1])}
+        return {
+            "rotation": state.f_r.copy(),
+            "translation": state.f_p.copy(),
+            "mean_rotation": state.frame_mean(),
+            "estimated_s": float(state.f_stat[0]),
+            "samples": int(state.f_stat[1]),
+        }
 
     def map_xyz(self) -> np.ndarray:
         """The map as written, in the frame of the written poses: the kernel's map moved by ``F⁻¹`` for the
@@ -299,10 +312,20 @@ class Stepper:
         self.iv, self.jf = iv_stop, jf_stop
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
         return ObserverResult(
-            t_ns=s.vel_t_ns[out.k], rotation=out.r, position=out.p, gyro_bias=out.b[:, :3], vel_bias=out.b[:, 3:],
-            landmark_ids=s.landmark_ids, landmark_xyz=self.map_xyz(),
-            det_t_ns=det_t, det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]], track_xyz=out.trk,
-            innovation=out.innov, stats=dict(self.stats), timings=dict(self.timings), extra_tables=self._extra(),
+            t_ns=s.vel_t_ns[out.k],
+            rotation=out.r,
+            position=out.p,
+            gyro_bias=out.b[:, :3],
+            vel_bias=out.b[:, 3:],
+            landmark_ids=s.landmark_ids,
+            landmark_xyz=self.map_xyz(),
+            det_t_ns=det_t,
+            det_ids=s.landmark_ids[s.det_idx[det_first:det_stop]],
+            track_xyz=out.trk,
+            innovation=out.innov,
+            stats=dict(self.stats),
+            timings=dict(self.timings),
+            extra_tables=self._extra(),
             map_frame=self._frame(),
         )
 
@@ -343,8 +366,9 @@ class Stepper:
         st = self.state
         if not (np.isfinite(st.r_hat).all() and np.isfinite(st.p_hat).all()):
             iv = min(int(st.ns[_IV]), self.n_vel - 1)
-            raise ObserverDiverged(int(self.stream.vel_t_ns[max(iv, 0)]), {**self.stats,
-                                                                           "capped_intervals": int(st.ns[CAPPED])})
+            raise ObserverDiverged(
+                int(self.stream.vel_t_ns[max(iv, 0)]), {**self.stats, "capped_intervals": int(st.ns[CAPPED])}
+            )
 
 
 @dataclass(frozen=True)
@@ -381,8 +405,9 @@ class ObserverSpec:
         stepper = self.start(stream, gains, options)
         return stepper.advance(stepper.n_vel)
 
-    def chunks(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions,
-               samples: int) -> Iterator[ObserverResult]:
+    def chunks(
+        self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions, samples: int
+    ) -> Iterator[ObserverResult]:
         """The run ``samples`` velocity samples at a time (the last stretch also runs the trailing frames);
         each item holds its stretch's rows, the map so far and the statistics so far."""
         stepper = self.start(stream, gains, options)
@@ -397,8 +422,9 @@ class ObserverSpec:
         user = dict(user or {})
         unknown = sorted(set(user) - set(known))
         if unknown:
-            raise GainError(f"unknown gain(s) {', '.join(unknown)} for observer '{self.name}' "
-                            f"(known: {', '.join(known)})")
+            raise GainError(
+                f"unknown gain(s) {', '.join(unknown)} for observer '{self.name}' (known: {', '.join(known)})"
+            )
         out = dict(known)
         for name, value in user.items():
             if value is None or isinstance(value, bool) or not isinstance(value, (int, float)):

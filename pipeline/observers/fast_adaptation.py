@@ -20,7 +20,15 @@ import math
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper, max_per_frame, output_rows
+from slamobs.pipeline.observers.base import (
+    GainSpec,
+    KernelState,
+    ObserverSpec,
+    Outputs,
+    Stepper,
+    max_per_frame,
+    output_rows,
+)
 from slamobs.pipeline.observers.shared_steps import (
     count_capped,
     landmark_sums,
@@ -68,8 +76,27 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
 
 
 @njit(cache=True)
-def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v,
-               k_p, k_w, alpha, gamma, min_landmarks_bias, counter, d_r, d_p):
+def _integrate(
+    dt,
+    omega_m,
+    vel_m,
+    y,
+    nvis,
+    vis_idx,
+    r_hat,
+    p_hat,
+    lm,
+    b_om,
+    b_v,
+    k_p,
+    k_w,
+    alpha,
+    gamma,
+    min_landmarks_bias,
+    counter,
+    d_r,
+    d_p,
+):
     """Advance the state over ``dt`` seconds in place; ``y`` (visible measurements) is predicted in place.
 
     Written with scalars and the caller's scratch ``d_r`` (3, 3) / ``d_p`` (3,) (no allocation at all)
@@ -98,8 +125,16 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, r_hat, p_hat, lm, b_om, b_v
         b_v[1] -= gba * u1
         b_v[2] -= gba * u2
         # Step 5: T̂ ← T̂ exp(h [ω; v]∧)
-        se3_exp_into(h * (o0 + kwa * w0), h * (o1 + kwa * w1), h * (o2 + kwa * w2),
-                     h * (v0 + kwa * u0), h * (v1 + kwa * u1), h * (v2 + kwa * u2), d_r, d_p)
+        se3_exp_into(
+            h * (o0 + kwa * w0),
+            h * (o1 + kwa * w1),
+            h * (o2 + kwa * w2),
+            h * (v0 + kwa * u0),
+            h * (v1 + kwa * u1),
+            h * (v2 + kwa * u2),
+            d_r,
+            d_p,
+        )
         p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2]
         p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2]
         p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2]
@@ -124,10 +159,46 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True)
-def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
-             k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, iv_stop, budget,
-             r_hat, p_hat, b_om, b_v, y, vis_idx, om_m, v_m, counter, d_r, d_p, fs, ns,
-             out_k, out_r, out_p, out_b, trk_p, innov, det_base):
+def _advance(
+    vel_t,
+    omega,
+    vel,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    lm,
+    lm_init,
+    k_p,
+    k_w,
+    alpha,
+    gamma,
+    min_landmarks_bias,
+    max_meas_age,
+    out_every,
+    iv_stop,
+    budget,
+    r_hat,
+    p_hat,
+    b_om,
+    b_v,
+    y,
+    vis_idx,
+    om_m,
+    v_m,
+    counter,
+    d_r,
+    d_p,
+    fs,
+    ns,
+    out_k,
+    out_r,
+    out_p,
+    out_b,
+    trk_p,
+    innov,
+    det_base,
+):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
     sample ``iv_stop`` (all events when ``iv_stop`` is the sample count) or ``budget`` work units are spent;
     stores the state back and returns the number of rows recorded (detection rows are written from
@@ -148,8 +219,27 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
             if t_next > t:
                 if t - meas_t > max_meas_age:
                     nvis = 0
-                m = _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, r_hat, p_hat, lm,
-                               b_om, b_v, k_p, k_w, alpha, gamma, min_landmarks_bias, counter, d_r, d_p)
+                m = _integrate(
+                    t_next - t,
+                    om_m,
+                    v_m,
+                    y,
+                    nvis,
+                    vis_idx,
+                    r_hat,
+                    p_hat,
+                    lm,
+                    b_om,
+                    b_v,
+                    k_p,
+                    k_w,
+                    alpha,
+                    gamma,
+                    min_landmarks_bias,
+                    counter,
+                    d_r,
+                    d_p,
+                )
                 substeps += m
                 work += m * (nvis + 1)
                 count_capped(m, iv, ns)
@@ -186,13 +276,45 @@ class _State(KernelState):
         self.d_p = np.empty(3)
 
     def arrays(self) -> tuple:
-        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.om_m, self.v_m,
-                self.counter, self.d_r, self.d_p, self.fs, self.ns)
+        return (
+            self.r_hat,
+            self.p_hat,
+            self.b_om,
+            self.b_v,
+            self.y,
+            self.vis_idx,
+            self.om_m,
+            self.v_m,
+            self.counter,
+            self.d_r,
+            self.d_p,
+            self.fs,
+            self.ns,
+        )
 
 
-def run_kernel(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
-               r0, p0, b_om0, b_v0, k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age,
-               out_every):
+def run_kernel(
+    vel_t,
+    omega,
+    vel,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    lm,
+    lm_init,
+    r0,
+    p0,
+    b_om0,
+    b_v0,
+    k_p,
+    k_w,
+    alpha,
+    gamma,
+    min_landmarks_bias,
+    max_meas_age,
+    out_every,
+):
     """Run algorithm A over an ordered event stream.
 
     Times are float64 seconds on one base. ``lm`` (L, 3) / ``lm_init`` (L,) hold the initial map
@@ -206,9 +328,34 @@ def run_kernel(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_ini
     n_vel = vel_t.shape[0]
     state = _State(max_per_frame(det_offsets), r0, p0, b_om0, b_v0)
     out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
-    o = _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, lm, lm_init,
-                 k_p, k_w, alpha, gamma, min_landmarks_bias, max_meas_age, out_every, n_vel, np.iinfo(np.int64).max,
-                 *state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov, 0)
+    o = _advance(
+        vel_t,
+        omega,
+        vel,
+        det_t,
+        det_offsets,
+        det_idx,
+        det_y,
+        lm,
+        lm_init,
+        k_p,
+        k_w,
+        alpha,
+        gamma,
+        min_landmarks_bias,
+        max_meas_age,
+        out_every,
+        n_vel,
+        np.iinfo(np.int64).max,
+        *state.arrays(),
+        out.k,
+        out.r,
+        out.p,
+        out.b,
+        out.trk,
+        out.innov,
+        0,
+    )
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
 
 
@@ -226,7 +373,6 @@ def innovation_norms(lm, vis_idx, y, r_hat, p_hat):
     return out
 
 
-
 class FastAdaptation(Stepper):
     """Algorithm A on an aligned stream, a stretch of samples at a time."""
 
@@ -237,10 +383,31 @@ class FastAdaptation(Stepper):
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
-        rows = _advance(self.vel_t, s.omega, s.velocity, self.det_t, s.det_offsets, s.det_idx, s.det_y,
-                        self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age, o.out_every,
-                        iv_stop, budget, *self.state.arrays(), out.k, out.r, out.p, out.b, out.trk, out.innov,
-                        out.det_base)
+        rows = _advance(
+            self.vel_t,
+            s.omega,
+            s.velocity,
+            self.det_t,
+            s.det_offsets,
+            s.det_idx,
+            s.det_y,
+            self.lm,
+            self.lm_init,
+            *self.gains,
+            o.min_landmarks_bias,
+            o.max_meas_age,
+            o.out_every,
+            iv_stop,
+            budget,
+            *self.state.arrays(),
+            out.k,
+            out.r,
+            out.p,
+            out.b,
+            out.trk,
+            out.innov,
+            out.det_base,
+        )
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows
 

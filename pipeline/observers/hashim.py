@@ -35,7 +35,8 @@ estimate of gravity and north in it (``output.frame: gravity``).
 
 On logs, C starts from the attitude of the first usable direction sample (Algorithm 2 allows an
 attitude-determination start) and re-compensates the accelerometer's gravity direction with the bias
-estimates (:func:`pipeline.directions.load_directions`). Γ is two gains, ``gamma_omega`` and ``gamma_v``: on noisy logs the
+estimates (:func:`pipeline.directions.load_directions`). Γ is two gains, ``gamma_omega`` and ``gamma_v``: on noisy
+logs the
 gyro-bias loop (gain ∝ range²) wants a different rate than the velocity-bias loop.
 """
 
@@ -102,8 +103,35 @@ def _substeps(dt, y, nvis, dir_w, k_p, k_w, alpha, gamma_max, k_1, k_2):
 
 
 @njit(cache=True)
-def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat, p_hat, lm, lm_init,
-               b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, counter, f_r, f_p, f_stat):
+def _integrate(
+    dt,
+    omega_m,
+    vel_m,
+    y,
+    nvis,
+    vis_idx,
+    dir_i,
+    dir_b,
+    dir_w,
+    r_hat,
+    p_hat,
+    lm,
+    lm_init,
+    b_om,
+    b_v,
+    k_p,
+    k_w,
+    alpha,
+    gamma_om,
+    gamma_v,
+    k_1,
+    k_2,
+    min_landmarks_bias,
+    counter,
+    f_r,
+    f_p,
+    f_stat,
+):
     """Advance the state over ``dt`` in place; ``y`` and ``dir_b`` are predicted forward in place, and the
     map frame ``(f_r, f_p)`` follows the co-rotations.
 
@@ -164,8 +192,16 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
         b_v[1] -= g_v * c1
         b_v[2] -= g_v * c2
         # Landmark part of the pose step: T̂ ← T̂ exp(h[Ω_m − b̂_Ω + k_w a_L; V_m − b̂_V + k_w c_L]∧).
-        se3_exp_into(h * (om_odo[0] + k_w * a0), h * (om_odo[1] + k_w * a1), h * (om_odo[2] + k_w * a2),
-                     h * (v_odo[0] + k_w * c0), h * (v_odo[1] + k_w * c1), h * (v_odo[2] + k_w * c2), d_r, d_p)
+        se3_exp_into(
+            h * (om_odo[0] + k_w * a0),
+            h * (om_odo[1] + k_w * a1),
+            h * (om_odo[2] + k_w * a2),
+            h * (v_odo[0] + k_w * c0),
+            h * (v_odo[1] + k_w * c1),
+            h * (v_odo[2] + k_w * c2),
+            d_r,
+            d_p,
+        )
         p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2]
         p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2]
         p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2]
@@ -204,8 +240,9 @@ def _integrate(dt, omega_m, vel_m, y, nvis, vis_idx, dir_i, dir_b, dir_w, r_hat,
         if nvis > 0 or imu:
             # Predict the held measurements over the sub-step with the bias-corrected odometry:
             # y ← dRᵀ(y − dp), υ ← dRᵀυ.
-            se3_exp_into(h * om_odo[0], h * om_odo[1], h * om_odo[2], h * v_odo[0], h * v_odo[1], h * v_odo[2],
-                         d_r, d_p)
+            se3_exp_into(
+                h * om_odo[0], h * om_odo[1], h * om_odo[2], h * v_odo[0], h * v_odo[1], h * v_odo[2], d_r, d_p
+            )
             predict_points(y, nvis, d_r, d_p)
             if imu:
                 predict_points(dir_b, n_dir, d_r, zero)  # directions: rotation only
@@ -218,11 +255,60 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True)
-def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
-             det_t, det_offsets, det_idx, det_y, lm, lm_init,
-             k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, iv_stop,
-             budget, r_hat, p_hat, b_om, b_v, y, vis_idx, dir_b, dir_w, om_m, v_m, counter, fs, ns, f_r, f_p, f_sum,
-             f_stat, map_frame, settle_s, out_k, out_r, out_p, out_b, trk_p, innov, det_base):
+def _advance(
+    vel_t,
+    omega,
+    vel,
+    dir_inertial,
+    dir_body,
+    dir_weight,
+    dir_gscale,
+    make_cross,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    lm,
+    lm_init,
+    k_p,
+    k_w,
+    alpha,
+    gamma_om,
+    gamma_v,
+    k_1,
+    k_2,
+    min_landmarks_bias,
+    max_meas_age,
+    out_every,
+    iv_stop,
+    budget,
+    r_hat,
+    p_hat,
+    b_om,
+    b_v,
+    y,
+    vis_idx,
+    dir_b,
+    dir_w,
+    om_m,
+    v_m,
+    counter,
+    fs,
+    ns,
+    f_r,
+    f_p,
+    f_sum,
+    f_stat,
+    map_frame,
+    settle_s,
+    out_k,
+    out_r,
+    out_p,
+    out_b,
+    trk_p,
+    innov,
+    det_base,
+):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
     sample ``iv_stop`` or ``budget`` work units are spent; stores the state back and returns the number of
     rows recorded. With ``map_frame`` the rows, tracks and innovations are written in the map frame (``F⁻¹``
@@ -244,9 +330,35 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
         if started and t_next > t:
             if t - meas_t > max_meas_age:
                 nvis = 0
-            m = _integrate(t_next - t, om_m, v_m, y, nvis, vis_idx, dir_inertial, dir_b, dir_w,
-                           r_hat, p_hat, lm, lm_init, b_om, b_v, k_p, k_w, alpha, gamma_om, gamma_v,
-                           k_1, k_2, min_landmarks_bias, counter, f_r, f_p, f_stat)
+            m = _integrate(
+                t_next - t,
+                om_m,
+                v_m,
+                y,
+                nvis,
+                vis_idx,
+                dir_inertial,
+                dir_b,
+                dir_w,
+                r_hat,
+                p_hat,
+                lm,
+                lm_init,
+                b_om,
+                b_v,
+                k_p,
+                k_w,
+                alpha,
+                gamma_om,
+                gamma_v,
+                k_1,
+                k_2,
+                min_landmarks_bias,
+                counter,
+                f_r,
+                f_p,
+                f_stat,
+            )
             substeps += m
             work += m * (nvis + 1 + corotated)
             count_capped(m, iv, ns)
@@ -264,8 +376,9 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
             om_m[:] = omega[iv]
             v_m[:] = vel[iv]
             if n_dir > 0:
-                load_directions(dir_body[iv], dir_weight[iv], dir_gscale, make_cross, om_m, v_m, b_om, b_v,
-                                 dir_b, dir_w)
+                load_directions(
+                    dir_body[iv], dir_weight[iv], dir_gscale, make_cross, om_m, v_m, b_om, b_v, dir_b, dir_w
+                )
             if not started:
                 started = True
                 t = t_next
@@ -285,25 +398,71 @@ def _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, 
 class _State(KernelState):
     """Algorithm B/C's state: the common one and the latest inertial directions."""
 
-    def __init__(self, n_max: int, n_dir: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray,
-                 b_v0: np.ndarray) -> None:
+    def __init__(
+        self, n_max: int, n_dir: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray
+    ) -> None:
         super().__init__(n_max, r0, p0, b_om0, b_v0)
         self.dir_b = np.zeros((n_dir, 3))
         self.dir_w = np.zeros(n_dir)
 
     def arrays(self) -> tuple:
-        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.y, self.vis_idx, self.dir_b, self.dir_w,
-                self.om_m, self.v_m, self.counter, self.fs, self.ns, self.f_r, self.f_p, self.f_sum, self.f_stat)
+        return (
+            self.r_hat,
+            self.p_hat,
+            self.b_om,
+            self.b_v,
+            self.y,
+            self.vis_idx,
+            self.dir_b,
+            self.dir_w,
+            self.om_m,
+            self.v_m,
+            self.counter,
+            self.fs,
+            self.ns,
+            self.f_r,
+            self.f_p,
+            self.f_sum,
+            self.f_stat,
+        )
 
 
-def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
-               det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
-               k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every,
-               map_frame=False):
+def run_kernel(
+    vel_t,
+    omega,
+    vel,
+    dir_inertial,
+    dir_body,
+    dir_weight,
+    dir_gscale,
+    make_cross,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    lm,
+    lm_init,
+    r0,
+    p0,
+    b_om0,
+    b_v0,
+    k_p,
+    k_w,
+    alpha,
+    gamma_om,
+    gamma_v,
+    k_1,
+    k_2,
+    min_landmarks_bias,
+    max_meas_age,
+    out_every,
+    map_frame=False,
+):
     """Run algorithm C (B when ``k_1 = k_2 = 0`` or there are no directions) over an ordered event stream.
 
     Arguments as :func:`pipeline.observers.fast_adaptation.run_kernel`, plus the directions on the
-    velocity time base as made by :func:`pipeline.directions.direction_arrays`: ``dir_inertial (J, 3)`` unit vectors (the
+    velocity time base as made by :func:`pipeline.directions.direction_arrays`: ``dir_inertial (J, 3)`` unit vectors
+    (the
     third one the cross product when ``make_cross``), ``dir_body (N, J0, 3)`` unit body measurements,
     ``dir_weight (N, J0)`` the weights ``s_j`` (0 = unavailable) and ``dir_gscale (J0,)`` (``‖g‖`` for an
     accelerometer direction, else 0; see :func:`pipeline.directions.load_directions`). ``J`` may be 0.
@@ -316,11 +475,44 @@ def run_kernel(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale
     n_vel = vel_t.shape[0]
     state = _State(max_per_frame(det_offsets), dir_inertial.shape[0], r0, p0, b_om0, b_v0)
     out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
-    o = _advance(vel_t, omega, vel, dir_inertial, dir_body, dir_weight, dir_gscale, make_cross,
-                 det_t, det_offsets, det_idx, det_y, lm, lm_init,
-                 k_p, k_w, alpha, gamma_om, gamma_v, k_1, k_2, min_landmarks_bias, max_meas_age, out_every, n_vel,
-                 np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b, out.trk,
-                 out.innov, 0)
+    o = _advance(
+        vel_t,
+        omega,
+        vel,
+        dir_inertial,
+        dir_body,
+        dir_weight,
+        dir_gscale,
+        make_cross,
+        det_t,
+        det_offsets,
+        det_idx,
+        det_y,
+        lm,
+        lm_init,
+        k_p,
+        k_w,
+        alpha,
+        gamma_om,
+        gamma_v,
+        k_1,
+        k_2,
+        min_landmarks_bias,
+        max_meas_age,
+        out_every,
+        n_vel,
+        np.iinfo(np.int64).max,
+        *state.arrays(),
+        map_frame,
+        np.inf,
+        out.k,
+        out.r,
+        out.p,
+        out.b,
+        out.trk,
+        out.innov,
+        0,
+    )
     if map_frame:
         lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
     return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
@@ -336,8 +528,10 @@ def check_imu_gains(gains: dict[str, float]) -> None:
     """``k_2 < k_2_limit`` (docs/observers.md §5.2)."""
     k_w, k_1, k_2 = gains["k_w"], gains["k_1"], gains["k_2"]
     if not k_2 < k_2_limit(gains):
-        raise GainError(f"hashim-imu gains violate k_w*k_2 < 4*k_1 (k_w={k_w:g}, k_2={k_2:g}, k_1={k_1:g}): "
-                        f"lower k_2 below {4.0 * k_1 / k_w:g} or raise k_1")
+        raise GainError(
+            f"hashim-imu gains violate k_w*k_2 < 4*k_1 (k_w={k_w:g}, k_2={k_2:g}, k_1={k_1:g}): "
+            f"lower k_2 below {4.0 * k_1 / k_w:g} or raise k_1"
+        )
 
 
 class Hashim(Stepper):
@@ -349,20 +543,52 @@ class Hashim(Stepper):
         if dirs is None:
             dirs = (np.zeros((0, 3)), np.zeros((n, 0, 3)), np.zeros((n, 0)), np.zeros(0), False)
         self.dirs = dirs
-        self.gains = (gains["k_p"], gains["k_w"], gains["alpha"], gains["gamma_omega"], gains["gamma_v"],
-                      gains.get("k_1", 0.0), gains.get("k_2", 0.0))
-        self.state = _State(self.n_max, dirs[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
-                            np.zeros(3), np.zeros(3))
+        self.gains = (
+            gains["k_p"],
+            gains["k_w"],
+            gains["alpha"],
+            gains["gamma_omega"],
+            gains["gamma_v"],
+            gains.get("k_1", 0.0),
+            gains.get("k_2", 0.0),
+        )
+        self.state = _State(
+            self.n_max, dirs[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3), np.zeros(3), np.zeros(3)
+        )
         k_1 = self.gains[5]
         self.keeps_map_frame = k_1 > 0.0 and dirs[0].shape[0] > 0
         self.settle_s = FRAME_SETTLE / k_1 if self.keeps_map_frame else np.inf
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
-        rows = _advance(self.vel_t, s.omega, s.velocity, *self.dirs, self.det_t, s.det_offsets, s.det_idx,
-                        s.det_y, self.lm, self.lm_init, *self.gains, o.min_landmarks_bias, o.max_meas_age,
-                        o.out_every, iv_stop, budget, *self.state.arrays(), True, self.settle_s, out.k, out.r, out.p,
-                        out.b, out.trk, out.innov, out.det_base)
+        rows = _advance(
+            self.vel_t,
+            s.omega,
+            s.velocity,
+            *self.dirs,
+            self.det_t,
+            s.det_offsets,
+            s.det_idx,
+            s.det_y,
+            self.lm,
+            self.lm_init,
+            *self.gains,
+            o.min_landmarks_bias,
+            o.max_meas_age,
+            o.out_every,
+            iv_stop,
+            budget,
+            *self.state.arrays(),
+            True,
+            self.settle_s,
+            out.k,
+            out.r,
+            out.p,
+            out.b,
+            out.trk,
+            out.innov,
+            out.det_base,
+        )
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows
 
@@ -382,16 +608,26 @@ def start_imu(stream, gains: dict[str, float], options) -> Hashim:
     return Hashim(stream, gains, options, dirs, first_attitude(*dirs))
 
 
-_PAPER = ("Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group "
-          "using IMU and Feature Measurements (arXiv 2101.01648)")
+_PAPER = (
+    "Hashim, Eltoukhy: Nonlinear Filter for Simultaneous Localization and Mapping on a Matrix Lie Group "
+    "using IMU and Feature Measurements (arXiv 2101.01648)"
+)
 
 
 def _landmark_gains(gamma_omega: float) -> tuple[GainSpec, ...]:
     return (
-        GainSpec("alpha", 1.0, "per-landmark weight alpha_i (enters as 1/alpha) [100 Hz reference set: 1, paper: 0.1]",
-                 (0.05, 10.0)),
-        GainSpec("gamma_omega", gamma_omega, "gyro-bias adaptation gain; Gamma = diag(gamma_omega I, gamma_v I) "
-                                             "[100 Hz reference set: 0.3]", (0.01, 50.0)),
+        GainSpec(
+            "alpha",
+            1.0,
+            "per-landmark weight alpha_i (enters as 1/alpha) [100 Hz reference set: 1, paper: 0.1]",
+            (0.05, 10.0),
+        ),
+        GainSpec(
+            "gamma_omega",
+            gamma_omega,
+            "gyro-bias adaptation gain; Gamma = diag(gamma_omega I, gamma_v I) [100 Hz reference set: 0.3]",
+            (0.01, 50.0),
+        ),
         GainSpec("gamma_v", 1.0, "velocity-bias adaptation gain [100 Hz reference set: 0.3]", (0.01, 50.0)),
         GainSpec("k_p", 1.0, "constant landmark gain [reference: 1]", (0.1, 10.0)),
         GainSpec("k_w", 1.0, "pose correction gain [100 Hz reference set: 0.02, paper: 2]", (0.005, 10.0)),
@@ -416,11 +652,17 @@ SPEC_IMU = ObserverSpec(
     algorithm="C",
     paper=_PAPER,
     summary="algorithm B + IMU attitude innovation from gravity/magnetic directions, map co-rotation; "
-            "needs k_w*k_2 < 4*k_1",
-    gains=_landmark_gains(gamma_omega=1.0) + (
+    "needs k_w*k_2 < 4*k_1",
+    gains=_landmark_gains(gamma_omega=1.0)
+    + (
         GainSpec("k_1", 1.0, "IMU attitude gain [reference: 1]", (0.1, 10.0)),
-        GainSpec("k_2", 1.0, "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [reference: k_1/k_w]",
-                 (0.01, 0.95), limit=k_2_limit),
+        GainSpec(
+            "k_2",
+            1.0,
+            "IMU share of the gyro-bias law; needs k_w*k_2 < 4*k_1 [reference: k_1/k_w]",
+            (0.01, 0.95),
+            limit=k_2_limit,
+        ),
         GainSpec("s_gravity", 1.0, "confidence s_j of the accelerometer gravity direction", (0.1, 10.0)),
         GainSpec("s_magnetic", 1.0, "confidence s_j of the magnetometer direction", (0.1, 10.0)),
     ),

@@ -121,9 +121,11 @@ def switching_design(ref: np.ndarray, rho: float, delta_fraction: float) -> tupl
     gap = synergy_gap(a_v, cand)
     if gap <= MIN_GAP * float(np.trace(a_v)):
         lam = np.linalg.eigvalsh(a_v)
-        raise GainError(f"observer '{NAME}': the inertial directions give A_v eigenvalues "
-                        f"{', '.join(f'{x:.3g}' for x in lam)} and no synergy gap (Delta* = {gap:.2g}); "
-                        "repeated eigenvalues need directions that are not orthogonal with equal weights")
+        raise GainError(
+            f"observer '{NAME}': the inertial directions give A_v eigenvalues "
+            f"{', '.join(f'{x:.3g}' for x in lam)} and no synergy gap (Delta* = {gap:.2g}); "
+            "repeated eigenvalues need directions that are not orthogonal with equal weights"
+        )
     return cand, gap, delta_fraction * gap
 
 
@@ -156,13 +158,19 @@ SPEC = ObserverSpec(
     name=NAME,
     algorithm="E",
     paper="Hashemi, Mattila: A Global Asymptotic Convergent Observer for SLAM (arXiv 2205.01953; switching "
-          "after Wang, Tayebi, IEEE TAC 2019)",
+    "after Wang, Tayebi, IEEE TAC 2019)",
     summary="D + inertial attitude innovation from gravity and magnetic field (map co-rotates) + synergistic "
-            "jumps about the eigen-axes of A_v",
-    gains=FLOW_GAINS + (
+    "jumps about the eigen-axes of A_v",
+    gains=FLOW_GAINS
+    + (
         GainSpec("rho", 1.0, "weight rho_j of each inertial direction (times its per-sample trust)", (0.1, 10.0)),
-        GainSpec("delta_fraction", 0.5, "hysteresis delta as a fraction of the synergy gap Delta* (< 1)",
-                 (0.05, 0.95), limit=lambda _gains: 1.0),
+        GainSpec(
+            "delta_fraction",
+            0.5,
+            "hysteresis delta as a fraction of the synergy gap Delta* (< 1)",
+            (0.05, 0.95),
+            limit=lambda _gains: 1.0,
+        ),
     ),
     start=start,
     min_directions=2,

@@ -37,7 +37,7 @@ import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
-from slamobs.pipeline.observers.base import GainSpec, KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
@@ -264,8 +264,31 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 
 
 @njit(cache=True)
-def _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
-            sel, z, pht, smat, innov, trk_p, row, ns, gate):
+def _update(
+    a0,
+    nd,
+    det_idx,
+    det_y,
+    det_sigma2,
+    cov,
+    d,
+    r_hat,
+    p_hat,
+    b_om,
+    b_v,
+    lm,
+    slot_of,
+    slot_lm,
+    sel,
+    z,
+    pht,
+    smat,
+    innov,
+    trk_p,
+    row,
+    ns,
+    gate,
+):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state, new ones are augmented. Returns the new state dimension."""
     m = 0
@@ -368,9 +391,52 @@ def _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v,
 
 
 @njit(cache=True, nogil=True)
-def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, lm, q_om, q_v, q_bw, q_bv,
-             gate, out_every, iv_stop, budget, r_hat, p_hat, b_om, b_v, om_m, v_m, counter, fs, ns, cov, slot_of,
-             slot_lm, acc, f, g, sel, z, pht, smat, out_k, out_r, out_p, out_b, trk_p, innov, det_base, cov_out):
+def _advance(
+    vel_t,
+    omega,
+    vel,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    det_sigma2,
+    lm,
+    q_om,
+    q_v,
+    q_bw,
+    q_bv,
+    gate,
+    out_every,
+    iv_stop,
+    budget,
+    r_hat,
+    p_hat,
+    b_om,
+    b_v,
+    om_m,
+    v_m,
+    counter,
+    fs,
+    ns,
+    cov,
+    slot_of,
+    slot_lm,
+    acc,
+    f,
+    g,
+    sel,
+    z,
+    pht,
+    smat,
+    out_k,
+    out_r,
+    out_p,
+    out_b,
+    trk_p,
+    innov,
+    det_base,
+    cov_out,
+):
     """The event loop from the state in the arrays until the next event is velocity sample ``iv_stop`` (all
     events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
     ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
@@ -420,8 +486,31 @@ def _advance(vel_t, omega, vel, det_t, det_offsets, det_idx, det_y, det_sigma2, 
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
             work += d * d * (3 * nd + 6) // _FRAME_WORK_SCALE
-            d = _update(a0, nd, det_idx, det_y, det_sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
-                        sel, z, pht, smat, innov, trk_p, a0 - det_base, ns, gate)
+            d = _update(
+                a0,
+                nd,
+                det_idx,
+                det_y,
+                det_sigma2,
+                cov,
+                d,
+                r_hat,
+                p_hat,
+                b_om,
+                b_v,
+                lm,
+                slot_of,
+                slot_lm,
+                sel,
+                z,
+                pht,
+                smat,
+                innov,
+                trk_p,
+                a0 - det_base,
+                ns,
+                gate,
+            )
             fs[_MEAS_T] = t_next
             jf += 1
         else:
@@ -470,9 +559,27 @@ class _State(KernelState):
         self.smat = np.zeros((k3, k3))
 
     def arrays(self) -> tuple:
-        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.om_m, self.v_m, self.counter, self.fs, self.ns,
-                self.cov, self.slot_of, self.slot_lm, self.acc, self.f, self.g, self.sel, self.z, self.pht,
-                self.smat)
+        return (
+            self.r_hat,
+            self.p_hat,
+            self.b_om,
+            self.b_v,
+            self.om_m,
+            self.v_m,
+            self.counter,
+            self.fs,
+            self.ns,
+            self.cov,
+            self.slot_of,
+            self.slot_lm,
+            self.acc,
+            self.f,
+            self.g,
+            self.sel,
+            self.z,
+            self.pht,
+            self.smat,
+        )
 
 
 #: Pose standard deviations (rad, m) after a gap: re-anchored to the map (True) or held from before it (False).
@@ -497,15 +604,18 @@ class RiEKF(Stepper):
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         n_lm = int(stream.landmark_ids.shape[0])
         if N_FIXED + 3 * n_lm > MAX_DIM:
-            raise InputError(options.source, f"riekf keeps every landmark in a dense covariance; "
-                             f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}")
+            raise InputError(
+                options.source,
+                f"riekf keeps every landmark in a dense covariance; "
+                f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}",
+            )
         nz = self.noise
         sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
-        self.state = _State(n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0,
-                            sigma_b)
+        self.state = _State(
+            n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
+        )
         self.det_sigma2 = detection_variances(stream.det_y, nz.detection, nz.detection_per_m)
-        self.params = (nz.gyro ** 2, nz.velocity ** 2, float(nz.gyro_bias_walk), float(nz.velocity_bias_walk),
-                       GATE_CHI2)
+        self.params = (nz.gyro**2, nz.velocity**2, float(nz.gyro_bias_walk), float(nz.velocity_bias_walk), GATE_CHI2)
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
 
@@ -524,29 +634,57 @@ class RiEKF(Stepper):
         st.cov[:6, :d] = 0.0
         st.cov[:d, :6] = 0.0
         st.cov[6:12, 6:12] = bias
-        st.cov[:3, :3] = rot ** 2 * np.eye(3)
-        st.cov[3:6, 3:6] = pos ** 2 * np.eye(3)
+        st.cov[:3, :3] = rot**2 * np.eye(3)
+        st.cov[3:6, 3:6] = pos**2 * np.eye(3)
         return moved
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         s, o = self.stream, self.options
         if self.cov_rows is not None:  # the rows of this call: those not yet written
-            cov_out = self.cov_rows[self.cov_rows.shape[0] - out.k.shape[0]:]
+            cov_out = self.cov_rows[self.cov_rows.shape[0] - out.k.shape[0] :]
         else:
             cov_out = np.zeros((0, N_FIXED, N_FIXED))
-        rows = _advance(self.vel_t, s.omega, s.velocity, self.det_t, s.det_offsets, s.det_idx, s.det_y,
-                        self.det_sigma2, self.lm, *self.params, o.out_every, iv_stop, budget, *self.state.arrays(),
-                        out.k, out.r, out.p, out.b, out.trk, out.innov, out.det_base, cov_out)
+        rows = _advance(
+            self.vel_t,
+            s.omega,
+            s.velocity,
+            self.det_t,
+            s.det_offsets,
+            s.det_idx,
+            s.det_y,
+            self.det_sigma2,
+            self.lm,
+            *self.params,
+            o.out_every,
+            iv_stop,
+            budget,
+            *self.state.arrays(),
+            out.k,
+            out.r,
+            out.p,
+            out.b,
+            out.trk,
+            out.innov,
+            out.det_base,
+            cov_out,
+        )
         ns = self.state.ns
         self.stats["substeps"] = int(ns[_STEPS])
         bias_sd = np.sqrt(np.clip(np.diag(self.state.cov)[6:12], 0.0, None))
-        self.stats["metadata"] = {"filter": {
-            "updates": int(ns[_UPDATES]), "gated_detections": int(ns[_GATED]), "skipped_frames": int(ns[_SKIPPED]),
-            "landmarks_in_state": int(ns[_NSEEN]), "gate_chi2": GATE_CHI2,
-            "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
-            "noise": self.noise.as_dict()}}
-        self.stats["notes"] = _unused_note(int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]),
-                                           int(s.det_idx.shape[0]))
+        self.stats["metadata"] = {
+            "filter": {
+                "updates": int(ns[_UPDATES]),
+                "gated_detections": int(ns[_GATED]),
+                "skipped_frames": int(ns[_SKIPPED]),
+                "landmarks_in_state": int(ns[_NSEEN]),
+                "gate_chi2": GATE_CHI2,
+                "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
+                "noise": self.noise.as_dict(),
+            }
+        }
+        self.stats["notes"] = _unused_note(
+            int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
+        )
         return rows
 
 
@@ -561,11 +699,15 @@ def _unused_note(skipped: int, frames: int, gated: int, detections: int) -> list
     reported a 14 m map error without a word on why)."""
     notes = []
     if skipped:
-        notes.append(f"riekf: {skipped} of {frames} detection frames not used: their innovation covariance was not "
-                     "positive definite (the noise settings are far from this log's; see run.json observer.filter)")
+        notes.append(
+            f"riekf: {skipped} of {frames} detection frames not used: their innovation covariance was not "
+            "positive definite (the noise settings are far from this log's; see run.json observer.filter)"
+        )
     if detections and gated > GATED_NOTE_SHARE * detections:
-        notes.append(f"riekf: {gated} of {detections} detections rejected by the chi-square gate ({GATE_CHI2}): "
-                     "noise.detection is too small for these detections, or the estimate is lost")
+        notes.append(
+            f"riekf: {gated} of {detections} detections rejected by the chi-square gate ({GATE_CHI2}): "
+            "noise.detection is too small for these detections, or the estimate is lost"
+        )
     return notes
 
 

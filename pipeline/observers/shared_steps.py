@@ -9,7 +9,8 @@
 - :func:`predict_points`: held body-frame measurements (or directions) carried over a sub-step of odometry.
 - :func:`record_row`: one output row of the estimate.
 - :func:`turn_frame`, :func:`record_row_framed`, :func:`frame_rows`, :func:`frame_sample`: the map frame of the
-  observers whose law turns the whole estimate rigidly (algorithms C and E: IMU co-rotation, jumps). Such a turn re-frames the
+  observers whose law turns the whole estimate rigidly (algorithms C and E: IMU co-rotation, jumps). Such a turn
+  re-frames the
   estimate without adding information about it; the kernel keeps it in ``F`` (map frame -> working frame)
   and writes poses, tracks and innovations in the map frame, where a landmark stays where it was last seen.
 - :func:`substep_count` / :func:`count_capped`: the sub-steps of one interval, at most ``MAX_SUBSTEPS``, and
@@ -163,8 +164,9 @@ def record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, ou
     """:func:`record_row` of the estimate in the map frame: ``F⁻¹ T̂ = (F_Rᵀ R̂, F_Rᵀ (P̂ − F_p))``."""
     out_k[o] = iv
     for a in range(3):
-        out_p[o, a] = (f_r[0, a] * (p_hat[0] - f_p[0]) + f_r[1, a] * (p_hat[1] - f_p[1])
-                       + f_r[2, a] * (p_hat[2] - f_p[2]))
+        out_p[o, a] = (
+            f_r[0, a] * (p_hat[0] - f_p[0]) + f_r[1, a] * (p_hat[1] - f_p[1]) + f_r[2, a] * (p_hat[2] - f_p[2])
+        )
         for b in range(3):
             out_r[o, a, b] = f_r[0, a] * r_hat[0, b] + f_r[1, a] * r_hat[1, b] + f_r[2, a] * r_hat[2, b]
         out_b[o, a] = b_om[a]
@@ -207,6 +209,11 @@ def twist_at(vel_t, omega, vel, s, tau, bias):
             f = min(1.0, max(0.0, (tau - vel_t[s]) / span))
     g = 1.0 - f
     s1 = min(s + 1, vel_t.shape[0] - 1)
-    return (g * omega[s, 0] + f * omega[s1, 0] - bias[0], g * omega[s, 1] + f * omega[s1, 1] - bias[1],
-            g * omega[s, 2] + f * omega[s1, 2] - bias[2], g * vel[s, 0] + f * vel[s1, 0] - bias[3],
-            g * vel[s, 1] + f * vel[s1, 1] - bias[4], g * vel[s, 2] + f * vel[s1, 2] - bias[5])
+    return (
+        g * omega[s, 0] + f * omega[s1, 0] - bias[0],
+        g * omega[s, 1] + f * omega[s1, 1] - bias[1],
+        g * omega[s, 2] + f * omega[s1, 2] - bias[2],
+        g * vel[s, 0] + f * vel[s1, 0] - bias[3],
+        g * vel[s, 1] + f * vel[s1, 1] - bias[4],
+        g * vel[s, 2] + f * vel[s1, 2] - bias[5],
+    )

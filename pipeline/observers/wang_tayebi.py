@@ -121,8 +121,12 @@ def direction_potential(left, r_hat, ups, rho, ref, nd):
     s = 0.0
     for j in range(nd):
         for a in range(3):
-            d = (left[a, 0] * ref[j, 0] + left[a, 1] * ref[j, 1] + left[a, 2] * ref[j, 2]
-                 - (r_hat[a, 0] * ups[j, 0] + r_hat[a, 1] * ups[j, 1] + r_hat[a, 2] * ups[j, 2]))
+            d = (
+                left[a, 0] * ref[j, 0]
+                + left[a, 1] * ref[j, 1]
+                + left[a, 2] * ref[j, 2]
+                - (r_hat[a, 0] * ups[j, 0] + r_hat[a, 1] * ups[j, 1] + r_hat[a, 2] * ups[j, 2])
+            )
             s += rho[j] * d * d
     return 0.5 * s
 
@@ -147,8 +151,39 @@ def best_jump(r_hat, ups, rho, ref, nd, cand):
 
 
 @njit(cache=True)
-def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_idx, ups, ups_d, rho, ref, nd,
-          r_hat, p_hat, lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter, f_r, f_p, f_stat):
+def _flow(
+    dt,
+    s_lm,
+    rate_lm,
+    s_dir,
+    rate_dir,
+    omega_m,
+    vel_m,
+    y,
+    y_d,
+    nvis,
+    vis_idx,
+    ups,
+    ups_d,
+    rho,
+    ref,
+    nd,
+    r_hat,
+    p_hat,
+    lm,
+    b_om,
+    b_v,
+    b_pred,
+    k_l,
+    k_x,
+    gamma_w,
+    gamma_v,
+    min_landmarks_bias,
+    counter,
+    f_r,
+    f_p,
+    f_stat,
+):
     """Flow the state over ``dt`` in place (docs/observers.md §8.1 / §8.2 flow); returns the sub-step count.
 
     The direction innovation turns the vehicle and the whole map (the map frame ``(f_r, f_p)`` follows) while
@@ -230,8 +265,16 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
         b_v[1] -= gv * u1
         b_v[2] -= gv * u2
         # Right propagation with the bias-corrected odometry, then the inertial corrections.
-        se3_exp_into(h * (omega_m[0] - b_om[0]), h * (omega_m[1] - b_om[1]), h * (omega_m[2] - b_om[2]),
-                     h * (vel_m[0] - b_v[0]), h * (vel_m[1] - b_v[1]), h * (vel_m[2] - b_v[2]), d_r, d_p)
+        se3_exp_into(
+            h * (omega_m[0] - b_om[0]),
+            h * (omega_m[1] - b_om[1]),
+            h * (omega_m[2] - b_om[2]),
+            h * (vel_m[0] - b_v[0]),
+            h * (vel_m[1] - b_v[1]),
+            h * (vel_m[2] - b_v[2]),
+            d_r,
+            d_p,
+        )
         p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2] + h * k_x * k_l * s0
         p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2] + h * k_x * k_l * s1
         p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2] + h * k_x * k_l * s2
@@ -250,8 +293,16 @@ def _flow(dt, s_lm, rate_lm, s_dir, rate_dir, omega_m, vel_m, y, y_d, nvis, vis_
             r_hat[:, :] = project_so3(r_hat)
             f_r[:, :] = project_so3(f_r)
         # Predict the base measurements over the sub-step with the frozen-bias odometry.
-        se3_exp_into(h * (omega_m[0] - b_pred[0]), h * (omega_m[1] - b_pred[1]), h * (omega_m[2] - b_pred[2]),
-                     h * (vel_m[0] - b_pred[3]), h * (vel_m[1] - b_pred[4]), h * (vel_m[2] - b_pred[5]), d_r, d_p)
+        se3_exp_into(
+            h * (omega_m[0] - b_pred[0]),
+            h * (omega_m[1] - b_pred[1]),
+            h * (omega_m[2] - b_pred[2]),
+            h * (vel_m[0] - b_pred[3]),
+            h * (vel_m[1] - b_pred[4]),
+            h * (vel_m[2] - b_pred[5]),
+            d_r,
+            d_p,
+        )
         predict_points(y, nvis, d_r, d_p)
         predict_points(ups, nd, d_r, zero)
     return m
@@ -295,12 +346,69 @@ _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True)
-def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
-             det_t, det_offsets, det_idx, det_y, lm, lm_init,
-             k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, iv_stop,
-             budget, r_hat, p_hat, b_om, b_v, b_pred, r_acc, p_acc, y, y_d, vis_idx, ups, ups_d, ups_next, rho, rho_next,
-             om_m, v_m, counter, fs, ns, f_r, f_p, f_sum, f_stat, map_frame, settle_s,
-             out_k, out_r, out_p, out_b, trk_p, innov, det_base, jump_k, jump_q, jump_phi):
+def _advance(
+    vel_t,
+    omega,
+    vel,
+    dir_ref,
+    dir_body,
+    dir_rho,
+    dir_gscale,
+    make_cross,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    lm,
+    lm_init,
+    k_l,
+    k_x,
+    gamma_w,
+    gamma_v,
+    cand,
+    delta,
+    min_landmarks_bias,
+    max_meas_age,
+    out_every,
+    iv_stop,
+    budget,
+    r_hat,
+    p_hat,
+    b_om,
+    b_v,
+    b_pred,
+    r_acc,
+    p_acc,
+    y,
+    y_d,
+    vis_idx,
+    ups,
+    ups_d,
+    ups_next,
+    rho,
+    rho_next,
+    om_m,
+    v_m,
+    counter,
+    fs,
+    ns,
+    f_r,
+    f_p,
+    f_sum,
+    f_stat,
+    map_frame,
+    settle_s,
+    out_k,
+    out_r,
+    out_p,
+    out_b,
+    trk_p,
+    innov,
+    det_base,
+    jump_k,
+    jump_q,
+    jump_phi,
+):
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
     sample ``iv_stop`` or ``budget`` work units are spent; stores the state back and returns ``(rows
     recorded, jumps recorded)``. With ``map_frame`` the rows, tracks and innovations are written in the map
@@ -324,10 +432,39 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
         if started and t_next > t:
             if t - meas_t > max_meas_age:
                 nvis = 0
-            n_sub = _flow(t_next - t, (t - t_lm) * rate_lm, rate_lm, (t - t_dir) * rate_dir, rate_dir,
-                          om_m, v_m, y, y_d, nvis, vis_idx, ups, ups_d, rho, dir_ref, nd, r_hat, p_hat,
-                          lm, b_om, b_v, b_pred, k_l, k_x, gamma_w, gamma_v, min_landmarks_bias, counter,
-                          f_r, f_p, f_stat)
+            n_sub = _flow(
+                t_next - t,
+                (t - t_lm) * rate_lm,
+                rate_lm,
+                (t - t_dir) * rate_dir,
+                rate_dir,
+                om_m,
+                v_m,
+                y,
+                y_d,
+                nvis,
+                vis_idx,
+                ups,
+                ups_d,
+                rho,
+                dir_ref,
+                nd,
+                r_hat,
+                p_hat,
+                lm,
+                b_om,
+                b_v,
+                b_pred,
+                k_l,
+                k_x,
+                gamma_w,
+                gamma_v,
+                min_landmarks_bias,
+                counter,
+                f_r,
+                f_p,
+                f_stat,
+            )
             substeps += n_sub
             work += n_sub * (nvis + 1 + corotated)
             count_capped(n_sub, iv, ns)
@@ -350,9 +487,11 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
                     for m in range(det_offsets[jf + 1], det_offsets[jf + 2]):
                         if det_idx[m] == vis_idx[j]:
                             for c in range(3):
-                                y_d[j, c] = det_y[m, c] - (r_acc[0, c] * (y[j, 0] - p_acc[0])
-                                                           + r_acc[1, c] * (y[j, 1] - p_acc[1])
-                                                           + r_acc[2, c] * (y[j, 2] - p_acc[2]))
+                                y_d[j, c] = det_y[m, c] - (
+                                    r_acc[0, c] * (y[j, 0] - p_acc[0])
+                                    + r_acc[1, c] * (y[j, 1] - p_acc[1])
+                                    + r_acc[2, c] * (y[j, 2] - p_acc[2])
+                                )
             meas_t = t_next
             jf += 1
         else:
@@ -364,18 +503,28 @@ def _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cro
             t_dir, rate_dir = t_next, 0.0
             ups_d[:, :] = 0.0
             if nd > 0:
-                load_directions(dir_body[iv], dir_rho[iv], dir_gscale, make_cross, om_m, v_m, b_om, b_v,
-                                 ups, rho)
+                load_directions(dir_body[iv], dir_rho[iv], dir_gscale, make_cross, om_m, v_m, b_om, b_v, ups, rho)
                 if iv + 1 < n_vel and vel_t[iv + 1] > t_next:
                     rate_dir = 1.0 / (vel_t[iv + 1] - t_next)
-                    load_directions(dir_body[iv + 1], dir_rho[iv + 1], dir_gscale, make_cross, omega[iv + 1],
-                                     vel[iv + 1], b_om, b_v, ups_next, rho_next)
+                    load_directions(
+                        dir_body[iv + 1],
+                        dir_rho[iv + 1],
+                        dir_gscale,
+                        make_cross,
+                        omega[iv + 1],
+                        vel[iv + 1],
+                        b_om,
+                        b_v,
+                        ups_next,
+                        rho_next,
+                    )
                     _odometry(t_next, vel_t[iv + 1], iv + 1, vel_t, omega, vel, om_m, v_m, b_pred, r_acc, p_acc)
                     for j in range(nd):
                         if rho[j] > 0.0 and rho_next[j] > 0.0:
                             for c in range(3):
-                                ups_d[j, c] = ups_next[j, c] - (r_acc[0, c] * ups[j, 0] + r_acc[1, c] * ups[j, 1]
-                                                                + r_acc[2, c] * ups[j, 2])
+                                ups_d[j, c] = ups_next[j, c] - (
+                                    r_acc[0, c] * ups[j, 0] + r_acc[1, c] * ups[j, 1] + r_acc[2, c] * ups[j, 2]
+                                )
             if not started:
                 started = True
                 t = t_next
@@ -408,8 +557,9 @@ class _State(KernelState):
     """The flow's state: the common one, the prediction bias, the look-ahead corrections of the visible
     measurements and of the directions, and the accumulated flow (four more clocks)."""
 
-    def __init__(self, n_max: int, nd: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray,
-                 b_v0: np.ndarray) -> None:
+    def __init__(
+        self, n_max: int, nd: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray
+    ) -> None:
         super().__init__(n_max, r0, p0, b_om0, b_v0, n_clocks=6)
         self.b_pred = np.concatenate([self.b_om, self.b_v])
         self.r_acc = np.empty((3, 3))
@@ -427,9 +577,32 @@ class _State(KernelState):
         self.fs[_RATE_LM] = self.fs[_RATE_DIR] = 0.0
 
     def arrays(self) -> tuple:
-        return (self.r_hat, self.p_hat, self.b_om, self.b_v, self.b_pred, self.r_acc, self.p_acc, self.y, self.y_d,
-                self.vis_idx, self.ups, self.ups_d, self.ups_next, self.rho, self.rho_next, self.om_m, self.v_m,
-                self.counter, self.fs, self.ns, self.f_r, self.f_p, self.f_sum, self.f_stat)
+        return (
+            self.r_hat,
+            self.p_hat,
+            self.b_om,
+            self.b_v,
+            self.b_pred,
+            self.r_acc,
+            self.p_acc,
+            self.y,
+            self.y_d,
+            self.vis_idx,
+            self.ups,
+            self.ups_d,
+            self.ups_next,
+            self.rho,
+            self.rho_next,
+            self.om_m,
+            self.v_m,
+            self.counter,
+            self.fs,
+            self.ns,
+            self.f_r,
+            self.f_p,
+            self.f_sum,
+            self.f_stat,
+        )
 
 
 def _jump_arrays(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -437,9 +610,36 @@ def _jump_arrays(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty((n, 2))
 
 
-def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
-               det_t, det_offsets, det_idx, det_y, lm, lm_init, r0, p0, b_om0, b_v0,
-               k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, map_frame=False):
+def run_kernel(
+    vel_t,
+    omega,
+    vel,
+    dir_ref,
+    dir_body,
+    dir_rho,
+    dir_gscale,
+    make_cross,
+    det_t,
+    det_offsets,
+    det_idx,
+    det_y,
+    lm,
+    lm_init,
+    r0,
+    p0,
+    b_om0,
+    b_v0,
+    k_l,
+    k_x,
+    gamma_w,
+    gamma_v,
+    cand,
+    delta,
+    min_landmarks_bias,
+    max_meas_age,
+    out_every,
+    map_frame=False,
+):
     """Run D (``dir_ref`` with 0 rows, ``cand`` with 0 rows) or E over an ordered event stream.
 
     Times are float64 seconds. Velocity samples ``k`` carry ``Ω_m, V_m`` and the directions as made by
@@ -469,23 +669,77 @@ def run_kernel(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_c
     state = _State(max_per_frame(det_offsets), dir_ref.shape[0], r0, p0, b_om0, b_v0)
     out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
     jump_k, jump_q, jump_phi = _jump_arrays(n_vel)
-    o, n_jumps = _advance(vel_t, omega, vel, dir_ref, dir_body, dir_rho, dir_gscale, make_cross,
-                          det_t, det_offsets, det_idx, det_y, lm, lm_init,
-                          k_l, k_x, gamma_w, gamma_v, cand, delta, min_landmarks_bias, max_meas_age, out_every, n_vel,
-                          np.iinfo(np.int64).max, *state.arrays(), map_frame, np.inf, out.k, out.r, out.p, out.b,
-                          out.trk, out.innov, 0, jump_k, jump_q, jump_phi)
+    o, n_jumps = _advance(
+        vel_t,
+        omega,
+        vel,
+        dir_ref,
+        dir_body,
+        dir_rho,
+        dir_gscale,
+        make_cross,
+        det_t,
+        det_offsets,
+        det_idx,
+        det_y,
+        lm,
+        lm_init,
+        k_l,
+        k_x,
+        gamma_w,
+        gamma_v,
+        cand,
+        delta,
+        min_landmarks_bias,
+        max_meas_age,
+        out_every,
+        n_vel,
+        np.iinfo(np.int64).max,
+        *state.arrays(),
+        map_frame,
+        np.inf,
+        out.k,
+        out.r,
+        out.p,
+        out.b,
+        out.trk,
+        out.innov,
+        0,
+        jump_k,
+        jump_q,
+        jump_phi,
+    )
     if map_frame:
         lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
-    return (out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS]),
-            jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps])
+    return (
+        out.k[:o],
+        out.r[:o],
+        out.p[:o],
+        out.b[:o],
+        out.trk,
+        out.innov,
+        int(state.ns[_SUBSTEPS]),
+        jump_k[:n_jumps],
+        jump_q[:n_jumps],
+        jump_phi[:n_jumps],
+    )
 
 
 class Flow(Stepper):
     """The D/E flow on an aligned stream, a stretch of samples at a time; the jumps of each stretch go to
     its ``extra_tables["jumps"]`` when ``jumps`` is set (algorithm E)."""
 
-    def __init__(self, stream, gains: dict[str, float], options: ObserverOptions, directions=None, r0=None,
-                 cand: np.ndarray | None = None, delta: float = np.inf, jumps: bool = False) -> None:
+    def __init__(
+        self,
+        stream,
+        gains: dict[str, float],
+        options: ObserverOptions,
+        directions=None,
+        r0=None,
+        cand: np.ndarray | None = None,
+        delta: float = np.inf,
+        jumps: bool = False,
+    ) -> None:
         super().__init__(stream, options)
         n = stream.vel_t_ns.shape[0]
         if directions is None:
@@ -494,8 +748,9 @@ class Flow(Stepper):
         self.cand = np.zeros((0, 3, 3)) if cand is None else np.ascontiguousarray(cand, dtype=np.float64)
         self.delta = float(delta)
         self.gains = (gains["k_l"], gains["k_x"], gains["gamma_w"], gains["gamma_v"])
-        self.state = _State(self.n_max, directions[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3),
-                            np.zeros(3), np.zeros(3))
+        self.state = _State(
+            self.n_max, directions[0].shape[0], np.eye(3) if r0 is None else r0, np.zeros(3), np.zeros(3), np.zeros(3)
+        )
         # the direction loop's rate is k_X Σρ / 2 (see _substeps); its settling time as algorithm C's
         rate = 0.5 * gains["k_x"] * float(np.max(directions[2].sum(axis=1), initial=0.0))
         self.keeps_map_frame = directions[0].shape[0] > 0 and rate > 0.0
@@ -507,11 +762,38 @@ class Flow(Stepper):
         s, o = self.stream, self.options
         jump_k, jump_q, jump_phi = _jump_arrays(max(iv_stop - int(self.state.ns[_IV]), 0))
         rows, n_jumps = _advance(
-            self.vel_t, s.omega, s.velocity, *self.directions, self.det_t, s.det_offsets, s.det_idx, s.det_y,
-            self.lm, self.lm_init, *self.gains, self.cand, self.delta, o.min_landmarks_bias, o.max_meas_age,
-            o.out_every, iv_stop, budget, *self.state.arrays(), True, self.settle_s, out.k, out.r, out.p, out.b,
-            out.trk, out.innov,
-            out.det_base, jump_k, jump_q, jump_phi)
+            self.vel_t,
+            s.omega,
+            s.velocity,
+            *self.directions,
+            self.det_t,
+            s.det_offsets,
+            s.det_idx,
+            s.det_y,
+            self.lm,
+            self.lm_init,
+            *self.gains,
+            self.cand,
+            self.delta,
+            o.min_landmarks_bias,
+            o.max_meas_age,
+            o.out_every,
+            iv_stop,
+            budget,
+            *self.state.arrays(),
+            True,
+            self.settle_s,
+            out.k,
+            out.r,
+            out.p,
+            out.b,
+            out.trk,
+            out.innov,
+            out.det_base,
+            jump_k,
+            jump_q,
+            jump_phi,
+        )
         self._jumps.append((jump_k[:n_jumps], jump_q[:n_jumps], jump_phi[:n_jumps]))
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         if self.jumps:
@@ -523,8 +805,14 @@ class Flow(Stepper):
         if not self.jumps:
             return {}
         jk, jq, jphi = (np.concatenate([p[i] for p in parts]) if parts else _jump_arrays(0)[i] for i in range(3))
-        return {"jumps": {"t_ns": self.stream.vel_t_ns[jk], "candidate": jq.astype(np.int64),
-                          "potential_before": jphi[:, 0], "potential_after": jphi[:, 1]}}
+        return {
+            "jumps": {
+                "t_ns": self.stream.vel_t_ns[jk],
+                "candidate": jq.astype(np.int64),
+                "potential_before": jphi[:, 0],
+                "potential_after": jphi[:, 1],
+            }
+        }
 
 
 #: Gains of the shared flow: the set of docs/observers.md §12.4, which converges on the circle and is also the best
@@ -540,7 +828,7 @@ SPEC = ObserverSpec(
     name="wang-tayebi",
     algorithm="D",
     paper="Wang, Tayebi: Geometric Nonlinear Observer Design for SLAM on a Matrix Lie Group (CDC 2018; the "
-          "smooth baseline of Hashemi, Mattila: A Global Asymptotic Convergent Observer for SLAM)",
+    "smooth baseline of Hashemi, Mattila: A Global Asymptotic Convergent Observer for SLAM)",
     summary="smooth SLAM observer, inertial-frame innovation; attitude corrected only through the gyro bias",
     gains=FLOW_GAINS,
     start=Flow,

@@ -23,8 +23,6 @@ from .cameradecode import decode_camera_info, decode_corners, detect_in_images
 from .container import Container, damage_notes, detect_container, open_log
 from .decode import (
     VEC3_ROLES,
-    decode_detections,
-    decode_rows,
     decode_sim_truth,
     decode_topics,
     detection_stream,
@@ -111,8 +109,11 @@ def read_log(
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
         if isinstance(clocks, Mapping) and (missing := [t for t in clocks if t not in table]):
-            raise InputError(path, f"time.topics names {', '.join(missing)}, which the log does not have "
-                                   f"(topics: {', '.join(sorted(table))})")
+            raise InputError(
+                path,
+                f"time.topics names {', '.join(missing)}, which the log does not have "
+                f"(topics: {', '.join(sorted(table))})",
+            )
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
         streams = LogStreams(path=str(path), warnings=list(selection.warnings))
         tf_rows: dict[str, TfRows] = {}
@@ -138,11 +139,18 @@ def read_log(
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
         rows, detections = decode_topics(
-            reader, path,
-            {t: table[t][1] for r, t in chosen if (r, table[t][0].msgtype) in VEC3_ROLES
-             or (r == "truth" and selection.truth_edge is None)},
-            {t: table[t][1] for r, t in chosen if r == "detections" and table[t][0].msgtype not in TF_TYPES
-             and t not in multi},
+            reader,
+            path,
+            {
+                t: table[t][1]
+                for r, t in chosen
+                if (r, table[t][0].msgtype) in VEC3_ROLES or (r == "truth" and selection.truth_edge is None)
+            },
+            {
+                t: table[t][1]
+                for r, t in chosen
+                if r == "detections" and table[t][0].msgtype not in TF_TYPES and t not in multi
+            },
             marker_ns,
         )
         last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
@@ -208,8 +216,16 @@ class ImageSearch:
     max_rate_hz: float | None = None  # images per second and camera
 
 
-def _camera_topics(reader, path: Path, table, topics: list[str], streams: LogStreams, note, images: ImageSearch | None,
-                   progress: Callable[[str], None] | None) -> None:
+def _camera_topics(
+    reader,
+    path: Path,
+    table,
+    topics: list[str],
+    streams: LogStreams,
+    note,
+    images: ImageSearch | None,
+    progress: Callable[[str], None] | None,
+) -> None:
     """Tag corner topics decoded, image topics searched for tags: one corner stream per camera topic."""
     corner_topics = [t for t in topics if table[t][0].msgtype in TAG_CORNER_TYPES]
     image_topics = [t for t in topics if table[t][0].msgtype in IMAGE_TYPES]
@@ -220,8 +236,14 @@ def _camera_topics(reader, path: Path, table, topics: list[str], streams: LogStr
     if image_topics:
         search = images or ImageSearch()
         detector = TagDetector(search.family, search.detector, path)
-        found = detect_in_images(reader, path, {t: table[t][1] for t in image_topics}, detector,
-                                 max_rate_hz=search.max_rate_hz, progress=progress)
+        found = detect_in_images(
+            reader,
+            path,
+            {t: table[t][1] for t in image_topics},
+            detector,
+            max_rate_hz=search.max_rate_hz,
+            progress=progress,
+        )
         for topic, result in found.items():
             if result is None:
                 streams.warnings.append(f"{topic}: depth images, not searched for tags")
@@ -230,8 +252,9 @@ def _camera_topics(reader, path: Path, table, topics: list[str], streams: LogStr
             note(topic, "detections", result[1])
 
 
-def _odometry_twist(rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleaning,
-                    derived: dict[str, str]) -> tuple[Vec3Stream, Cleaning]:
+def _odometry_twist(
+    rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleaning, derived: dict[str, str]
+) -> tuple[Vec3Stream, Cleaning]:
     """An odometry twist checked against the odometry's poses: a zero angular velocity is differentiated from the
     orientations, a linear velocity given in the parent frame is rotated into the child frame (both recorded in
     ``derived``)."""
@@ -241,18 +264,24 @@ def _odometry_twist(rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleanin
     if len(poses) != len(stream) or not np.array_equal(poses.t_ns, stream.t_ns):
         return stream, cleaning  # cleaning kept different rows (NaN twists): leave the twist as it is
     if role == "angular_velocity" and len(stream) > 1 and not stream.xyz.any():
-        derived[role] = (f"differentiated from the orientations of {rows.topic} (twist.angular is all zero), "
-                         f"smoothed over {SMOOTH_S:g} s")
+        derived[role] = (
+            f"differentiated from the orientations of {rows.topic} (twist.angular is all zero), "
+            f"smoothed over {SMOOTH_S:g} s"
+        )
         cleaning.extra = [x for x in cleaning.extra if not x.startswith("all values are zero")]
         cleaning.extra.append("twist.angular is all zero: angular velocity differentiated from the orientations")
         return angular_from_poses(poses, stream.frame_id), cleaning
     if role == "linear_velocity":
         parent, fit_parent, fit_child = twist_in_parent(poses, stream)
         if parent:
-            derived[role] = (f"twist.linear of {rows.topic} is in the parent frame '{poses.frame_id}' (misfit to the "
-                             f"position derivative {fit_parent:.3f} m/s there, {fit_child:.3f} m/s in the child frame): "
-                             f"rotated into '{stream.frame_id}' with the orientations")
-            cleaning.extra.append(f"twist.linear is in the parent frame '{poses.frame_id}': rotated into the child frame")
+            derived[role] = (
+                f"twist.linear of {rows.topic} is in the parent frame '{poses.frame_id}' (misfit to the "
+                f"position derivative {fit_parent:.3f} m/s there, {fit_child:.3f} m/s in the child frame): "
+                f"rotated into '{stream.frame_id}' with the orientations"
+            )
+            cleaning.extra.append(
+                f"twist.linear is in the parent frame '{poses.frame_id}': rotated into the child frame"
+            )
             return rotate_into_child(poses, stream), cleaning
     return stream, cleaning
 

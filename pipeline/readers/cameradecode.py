@@ -111,13 +111,20 @@ class _CornerFrames:
     def stream(self, topic: str, frames: Frames, source: str) -> tuple[CornerStream, Cleaning]:
         corners = np.concatenate(self.corners) if self.corners else np.zeros((0, 4, 2))
         t, rec, offsets, ids, corners, frame_id, cleaning = clean_frames(
-            np.asarray(self.t_ns, np.int64), np.asarray(self.rec_ns, np.int64), np.asarray(self.lengths, np.int64),
-            np.asarray(self.ids, np.int64), corners, np.asarray(self.frame, np.int32), frames.names())
+            np.asarray(self.t_ns, np.int64),
+            np.asarray(self.rec_ns, np.int64),
+            np.asarray(self.lengths, np.int64),
+            np.asarray(self.ids, np.int64),
+            corners,
+            np.asarray(self.frame, np.int32),
+            frames.names(),
+        )
         return CornerStream(topic, frame_id, t, rec, offsets, ids, corners, source), cleaning
 
 
-def decode_corners(reader: AnyReader, path: str | Path, topic: str,
-                   connections: Collection[Connection]) -> tuple[CornerStream, Cleaning]:
+def decode_corners(
+    reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]
+) -> tuple[CornerStream, Cleaning]:
     """A tag corner topic (``CORNER_LAYOUTS``) as a corner stream in OpenCV's corner order, cleaned."""
     msgtype = next(iter(connections)).msgtype
     layout = CORNER_LAYOUTS[msgtype]
@@ -137,15 +144,17 @@ def decode_corners(reader: AnyReader, path: str | Path, topic: str,
     return stream, cleaning
 
 
-def decode_camera_info(reader: AnyReader, path: str | Path, topic: str,
-                       connections: Collection[Connection]) -> tuple[CameraModel, list[str]]:
+def decode_camera_info(
+    reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]
+) -> tuple[CameraModel, list[str]]:
     """The camera model of a ``CameraInfo`` topic: its first calibrated message (the topic repeats it)."""
     last_error: InputError | None = None
     with layout_errors(path, connections):
         for k, (_, msg) in enumerate(decoded_messages(reader, path, connections)):
             try:
-                return from_camera_info(msg, topic, path), ([f"{topic}: first {k} messages uncalibrated, skipped"]
-                                                            if k else [])
+                return from_camera_info(msg, topic, path), (
+                    [f"{topic}: first {k} messages uncalibrated, skipped"] if k else []
+                )
             except InputError as err:
                 last_error = err
                 if k >= 50:
@@ -161,8 +170,9 @@ def _image_of(msgtype: str, msg: Any, topic: str) -> np.ndarray | None:
     if msgtype == IMAGE:
         if is_depth(msg.encoding, topic):
             return None
-        return raw_to_gray(int(msg.height), int(msg.width), str(msg.encoding), int(msg.step), bool(msg.is_bigendian),
-                           msg.data)
+        return raw_to_gray(
+            int(msg.height), int(msg.width), str(msg.encoding), int(msg.step), bool(msg.is_bigendian), msg.data
+        )
     if is_depth(str(msg.format), topic):
         return None
     return compressed_to_gray(msg.data)
@@ -241,8 +251,10 @@ def detect_in_images(
         now = time.perf_counter()
         if progress is not None and now - last >= 1.0:
             last = now
-            progress(f"tags in images: {done} of {total} messages, {searched} searched "
-                     f"({searched / (now - start):.0f} images/s)")
+            progress(
+                f"tags in images: {done} of {total} messages, {searched} searched "
+                f"({searched / (now - start):.0f} images/s)"
+            )
     out = {}
     for topic, cam in cams.items():
         if cam.depth:
@@ -254,4 +266,3 @@ def detect_in_images(
         cleaning.extra += [f"{plural(n, 'image')} not searched: {why}" for why, n in sorted(cam.bad.items())]
         out[topic] = (stream, cleaning)
     return out
-

@@ -290,8 +290,10 @@ class Chunked:
             t0 = min((u.start_ns for u in self.units), default=lost[first][1])
             at = ", ".join(f"byte {p} (record time +{(lost[p][1] - t0) / _NS:.3f} s)" for p in sorted(lost)[:3])
             more = ", ..." if len(lost) > 3 else ""
-            texts.append(f"{self.label} has {len(lost)} damaged chunk(s) at {at}{more}: skipped with the help of the "
-                         f"index, reading went on with the next intact chunk; {count} ({lost[first][2]})")
+            texts.append(
+                f"{self.label} has {len(lost)} damaged chunk(s) at {at}{more}: skipped with the help of the "
+                f"index, reading went on with the next intact chunk; {count} ({lost[first][2]})"
+            )
         return texts
 
     def load(self, unit: Unit, ids: ConnIds) -> RawBatch:
@@ -307,13 +309,18 @@ class Chunked:
                 msg = f"records of the chunk at byte {unit.pos} are damaged"
                 raise DamagedError(msg)
             found = int(np.count_nonzero(recs.op == self.message_op))
-            self.lose(unit.pos, unit.messages - found if unit.messages >= 0 else -1, unit.start_ns,
-                      f"damaged records inside the chunk at byte {unit.pos}")
+            self.lose(
+                unit.pos,
+                unit.messages - found if unit.messages >= 0 else -1,
+                unit.start_ns,
+                f"damaged records inside the chunk at byte {unit.pos}",
+            )
         return message_batch(data, recs, self.message_op, ids)
 
 
-def damage_note(label: str, why: str, count: int, span: tuple[int, int] | None, stop: int, size: int,
-                where: str) -> str:
+def damage_note(
+    label: str, why: str, count: int, span: tuple[int, int] | None, stop: int, size: int, where: str
+) -> str:
     """The one-line note about a recovered file: what was wrong, what was kept, where reading stopped."""
     until = f" up to record time +{(span[1] - span[0]) / _NS:.3f} s" if span is not None else ""
     return (

@@ -67,8 +67,15 @@ class Format:
 FORMATS: tuple[Format, ...] = (
     Format("ros1", "ROS1 bag", ros1.MAGIC, ".bag", "", Reader1, ros1.Ros1Bag),
     Format("mcap", "MCAP file", mcap.MAGIC, ".mcap", "mcap", McapReader, mcap.McapStorage),
-    Format("db3", "rosbag2 sqlite3 file", rosbag2_sqlite.MAGIC, ".db3", "sqlite3", Sqlite3Reader,
-           rosbag2_sqlite.Sqlite3Storage),
+    Format(
+        "db3",
+        "rosbag2 sqlite3 file",
+        rosbag2_sqlite.MAGIC,
+        ".db3",
+        "sqlite3",
+        Sqlite3Reader,
+        rosbag2_sqlite.Sqlite3Storage,
+    ),
 )
 
 _READERS = tuple(f.reader for f in FORMATS)
@@ -126,10 +133,15 @@ def detect_container(path: str | Path) -> Container:
             inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
             if len(inner) == 1:
                 found = detect_container(inner[0])
-                return replace(found, note=f"{path.name} has no metadata.yaml (recording not closed?): "
-                                           f"read {inner[0].name} directly")
-            hint = (f" (directory has no metadata.yaml and {len(inner)} storage files: open one of them directly)"
-                    if inner else "")
+                return replace(
+                    found,
+                    note=f"{path.name} has no metadata.yaml (recording not closed?): read {inner[0].name} directly",
+                )
+            hint = (
+                f" (directory has no metadata.yaml and {len(inner)} storage files: open one of them directly)"
+                if inner
+                else ""
+            )
             raise InputError(path, _NOT_A_LOG + hint)
         try:
             text = meta.read_text(errors="replace")
@@ -245,8 +257,12 @@ def _check_record_times(batch: RawBatch, path: str | Path, connections: Sequence
     bad = (batch.rec_ns < 0) | (batch.rec_ns >= TIME_LIMIT_NS)
     if bad.any():
         topic = connections[int(batch.conn[np.argmax(bad)])].topic
-        raise InputError(path, f"{int(bad.sum())} messages have a record (log) time {TIME_RANGE}: the log's times "
-                               "are corrupt (repair or re-record the log)", topic)
+        raise InputError(
+            path,
+            f"{int(bad.sum())} messages have a record (log) time {TIME_RANGE}: the log's times "
+            "are corrupt (repair or re-record the log)",
+            topic,
+        )
 
 
 def iter_raw(
@@ -310,8 +326,10 @@ def _use_own_readers(reader: AnyReader) -> None:
         return
     for sub in reader.readers:
         if isinstance(sub.storage, DirectoryReader):
-            sub.storage.STORAGE_PLUGINS = {**DirectoryReader.STORAGE_PLUGINS,
-                                           **{f.storage_id: f.reader for f in FORMATS if f.storage_id}}
+            sub.storage.STORAGE_PLUGINS = {
+                **DirectoryReader.STORAGE_PLUGINS,
+                **{f.storage_id: f.reader for f in FORMATS if f.storage_id},
+            }
         elif type(sub.storage) in ours:
             sub.storage = ours[type(sub.storage)](sub.storage.path)
 

@@ -60,8 +60,9 @@ def _diagonal(msg, msgtype: str, role: str) -> np.ndarray | None:
     return diag
 
 
-def stated_noise(path: str | Path, topics: dict[str, str],
-                 roles: tuple[str, ...] = ("angular_velocity", "linear_velocity")) -> dict[str, StatedNoise]:
+def stated_noise(
+    path: str | Path, topics: dict[str, str], roles: tuple[str, ...] = ("angular_velocity", "linear_velocity")
+) -> dict[str, StatedNoise]:
     """Role -> the noise stated by the first messages of that role's topic (roles without one are left out).
 
     A topic whose messages cannot be read here is treated as stating nothing (the run reads it properly and
@@ -94,8 +95,7 @@ def stated_noise(path: str | Path, topics: dict[str, str],
                 steps = steps[steps > 0]
                 if not diags or steps.size == 0:
                     continue
-                found[role] = StatedNoise(topic, np.sqrt(np.median(np.array(diags), axis=0)),
-                                          float(np.median(steps)))
+                found[role] = StatedNoise(topic, np.sqrt(np.median(np.array(diags), axis=0)), float(np.median(steps)))
     except (InputError, AttributeError, KeyError, TypeError, ValueError):
         return found
     return found

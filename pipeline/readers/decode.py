@@ -58,6 +58,7 @@ VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
     ("magnetic", MAGNETIC_FIELD): ("magnetic_field", "frame"),
 }
 
+
 def plural(n: int, noun: str) -> str:
     """``1 stamp``, ``3 stamps``: counts in warnings."""
     return f"{n} {noun}" + ("s" if n != 1 else "")
@@ -350,8 +351,11 @@ def decode_detections(
     keeps the markers of one namespace; without it, several namespaces on the topic are reported.
     """
     msgtype = next(iter(connections)).msgtype
-    fast = (fastdecode.read_rows(reader, path, {topic: connections}, [topic]).get(topic) if msgtype in ITEM_LAYOUTS
-            else None)
+    fast = (
+        fastdecode.read_rows(reader, path, {topic: connections}, [topic]).get(topic)
+        if msgtype in ITEM_LAYOUTS
+        else None
+    )
     if fast is not None:
         return detection_stream(fast)
     frames, acc, notes = Frames(), _DetectionFrames(), Notes()
@@ -379,12 +383,17 @@ def decode_detections(
     stream, cleaning = acc.stream(topic, frames.names(), notes)
     if marker_ns is None and len(namespaces) > 1:
         names = ", ".join(repr(n) for n in sorted(namespaces))
-        cleaning.extra.append(f"markers of {len(namespaces)} namespaces ({names}) taken together although ids are "
-                              "unique only within one; choose one with frames.marker_namespace")
+        cleaning.extra.append(
+            f"markers of {len(namespaces)} namespaces ({names}) taken together although ids are "
+            "unique only within one; choose one with frames.marker_namespace"
+        )
     elif marker_ns is not None and marker_ns not in namespaces:
         names = ", ".join(repr(n) for n in sorted(namespaces)) or "none"
-        raise InputError(path, f"frames.marker_namespace {marker_ns!r} names no namespace of its markers "
-                               f"(namespaces: {names})", topic)
+        raise InputError(
+            path,
+            f"frames.marker_namespace {marker_ns!r} names no namespace of its markers (namespaces: {names})",
+            topic,
+        )
     return stream, cleaning
 
 
@@ -397,8 +406,7 @@ def detection_stream(rows: Rows) -> tuple[DetectionStream, Cleaning]:
     else:
         ids = rows.items[:, 0].astype(np.int64)
     xyz = np.ascontiguousarray(rows.items[:, -3:])
-    return _clean_detections(rows.topic, rows.t_ns, rows.rec_ns, rows.counts, ids, xyz, rows.frame,
-                             rows.frame_names)
+    return _clean_detections(rows.topic, rows.t_ns, rows.rec_ns, rows.counts, ids, xyz, rows.frame, rows.frame_names)
 
 
 def decode_topics(
@@ -412,11 +420,16 @@ def decode_topics(
     one pass over the log (each chunk decompressed once), the others through rosbags. A detection topic comes
     back as rows for :func:`detection_stream` (decoded from the bytes; cleaned when the caller is ready for it)
     or as the stream :func:`decode_detections` made."""
-    fast = fastdecode.read_rows(reader, path, {**rows, **detections}, [t for t, c in detections.items()
-                                                             if next(iter(c)).msgtype in ITEM_LAYOUTS])
+    fast = fastdecode.read_rows(
+        reader,
+        path,
+        {**rows, **detections},
+        [t for t, c in detections.items() if next(iter(c)).msgtype in ITEM_LAYOUTS],
+    )
     got_rows = {t: fast[t] if t in fast else decode_rows(reader, path, t, c) for t, c in rows.items()}
-    got_dets = {t: fast[t] if t in fast else decode_detections(reader, path, t, c, marker_ns)
-                for t, c in detections.items()}
+    got_dets = {
+        t: fast[t] if t in fast else decode_detections(reader, path, t, c, marker_ns) for t, c in detections.items()
+    }
     return got_rows, got_dets
 
 
@@ -435,8 +448,9 @@ def _clean_detections(
     frame_names: list[str],
 ) -> tuple[DetectionStream, Cleaning]:
     """Drop NaN detections and repeated ids within a frame, sort frames by stamp, drop duplicate frames."""
-    t_ns, rec_ns, offsets, ids, xyz, frame_id, cleaning = clean_frames(t_ns, rec_ns, lengths, ids, xyz, frame,
-                                                                       frame_names)
+    t_ns, rec_ns, offsets, ids, xyz, frame_id, cleaning = clean_frames(
+        t_ns, rec_ns, lengths, ids, xyz, frame, frame_names
+    )
     return DetectionStream(topic, frame_id, t_ns, rec_ns, offsets, ids, xyz), cleaning
 
 
@@ -493,8 +507,15 @@ def clean_frames(
     sel_len = lengths[forder]
     new_offsets = _offsets(sel_len)
     gather = np.repeat(offsets[:-1][forder] - new_offsets[:-1], sel_len) + np.arange(new_offsets[-1])
-    return (t_ns[forder], rec_ns[forder], new_offsets, ids[gather], np.ascontiguousarray(values[gather]), frame_id,
-            cleaning)
+    return (
+        t_ns[forder],
+        rec_ns[forder],
+        new_offsets,
+        ids[gather],
+        np.ascontiguousarray(values[gather]),
+        frame_id,
+        cleaning,
+    )
 
 
 #: TF topics with at least this many messages are decoded by :mod:`.tfdecode` (rosbags takes ~40 µs a message).
@@ -552,7 +573,9 @@ def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str]]:
         key = (names[rows.parent[i]], names[rows.child[i]])
         translation, quat = rows.values[i, :3].copy(), rows.values[i, 3:].copy()
         old = found.get(key)
-        if old is not None and not (np.array_equal(old.translation, translation) and np.array_equal(old.quat_xyzw, quat)):
+        if old is not None and not (
+            np.array_equal(old.translation, translation) and np.array_equal(old.quat_xyzw, quat)
+        ):
             changed.add(key)
         found[key] = Transform(*key, translation, quat)
     warnings = []
@@ -639,8 +662,12 @@ def tag_detections(rows: TfRows, pattern: str, path: str | Path = "") -> tuple[D
     regex = tag_regex(pattern, path)
     tag_id = {code: int(m.group(1)) for code, name in enumerate(rows.frame_names) if (m := regex.match(name))}
     if huge := [rows.frame_names[c] for c, i in tag_id.items() if not -(2**63) <= i < 2**63]:
-        raise InputError(path, f"TF tag frame {huge[0][:60]!r} has an id outside the 64-bit integers that landmark ids "
-                               f"are ({len(huge)} such frame(s)): not a tag id; narrow frames.tag_pattern", rows.topic)
+        raise InputError(
+            path,
+            f"TF tag frame {huge[0][:60]!r} has an id outside the 64-bit integers that landmark ids "
+            f"are ({len(huge)} such frame(s)): not a tag id; narrow frames.tag_pattern",
+            rows.topic,
+        )
     sel = np.flatnonzero(np.isin(rows.child, list(tag_id)))
     if sel.size == 0:
         shown = ", ".join(sorted(set(rows.frame_names))[:8]) or "none"

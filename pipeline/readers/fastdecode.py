@@ -146,10 +146,12 @@ class ItemPlan(_Leaves):
     @cached_property
     def program(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The ops as arrays for the compiled walk: is-leaf, alignment, size, slot."""
-        return (np.array([op.kind == "leaf" for op in self.ops], np.bool_),
-                np.array([op.align for op in self.ops], np.int64),
-                np.array([op.size for op in self.ops], np.int64),
-                np.array([op.slot for op in self.ops], np.int64))
+        return (
+            np.array([op.kind == "leaf" for op in self.ops], np.bool_),
+            np.array([op.align for op in self.ops], np.int64),
+            np.array([op.size for op in self.ops], np.int64),
+            np.array([op.slot for op in self.ops], np.int64),
+        )
 
     @cached_property
     def min_size(self) -> int:
@@ -222,8 +224,9 @@ def merged_ops(ops: list[Op]) -> tuple[Op, ...]:
     return tuple(merged)
 
 
-def _item_plan(typestore: Typestore, fields: Sequence[tuple[str, Any]], name: str, columns: Sequence[Path_],
-               cdr: bool) -> tuple[int, ItemPlan] | None:
+def _item_plan(
+    typestore: Typestore, fields: Sequence[tuple[str, Any]], name: str, columns: Sequence[Path_], cdr: bool
+) -> tuple[int, ItemPlan] | None:
     """Index of the sequence field ``name`` and the plan of its elements (None unless all fixed-size)."""
     index = next((k for k, (field, _) in enumerate(fields) if field == name), None)
     if index is None:
@@ -272,15 +275,15 @@ def make_plan(
         walk_fields(typestore, msgtype, (), cdr, want, string_slots, ops, leaves)  # may stop early: checked below
     else:
         found = _item_plan(typestore, fields[1], items[0], items[1], cdr)
-        if found is None or not walk_fields(typestore, msgtype, (), cdr, want, string_slots, ops, leaves,
-                                      fields[1][: found[0]]):
+        if found is None or not walk_fields(
+            typestore, msgtype, (), cdr, want, string_slots, ops, leaves, fields[1][: found[0]]
+        ):
             return None
         item_plan = found[1]
     found_strings = {op.slot for op in ops if op.kind == "string" and op.slot >= 0}
     if len(leaves) != len(want) or len(found_strings) != len(string_slots):
         return None
-    return Plan(msgtype, cdr, merged_ops(ops), tuple(leaves[k] for k in range(len(want))), len(string_slots),
-                item_plan)
+    return Plan(msgtype, cdr, merged_ops(ops), tuple(leaves[k] for k in range(len(want))), len(string_slots), item_plan)
 
 
 # --------------------------------------------------------------------------- kernels
@@ -520,8 +523,9 @@ def _convert(words: np.ndarray, leaves: _Leaves) -> np.ndarray:
     return got
 
 
-def _decode_items(plan: Plan, data: np.ndarray, origin: np.ndarray, limit: np.ndarray, end: np.ndarray,
-                  big: bool) -> tuple[np.ndarray, np.ndarray]:
+def _decode_items(
+    plan: Plan, data: np.ndarray, origin: np.ndarray, limit: np.ndarray, end: np.ndarray, big: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """Element counts and element values of the sequence that starts at ``end`` (relative to ``origin``)."""
     items = plan.items
     at = (end + 3) // 4 * 4 if plan.cdr else end  # the uint32 length
@@ -810,8 +814,18 @@ def read_rows(
         has_child = planned[topic][1].nstrings > 1
         child = lut[cols.child] if has_child else cols.child
         msgtype = planned[topic][1].msgtype
-        out[topic] = Rows(topic, msgtype, cols.t_ns, cols.rec_ns, cols.values, lut[cols.frame], child, frames.names(),
-                          cols.counts, cols.items)
+        out[topic] = Rows(
+            topic,
+            msgtype,
+            cols.t_ns,
+            cols.rec_ns,
+            cols.values,
+            lut[cols.frame],
+            child,
+            frames.names(),
+            cols.counts,
+            cols.items,
+        )
     return out
 
 

@@ -44,8 +44,14 @@ def _put_repr(out, o, data, a, b, digits):  # pragma: no cover - compiled
     # The common case, checked without reading every character: a fraction ('.' among the first 18
     # characters: at most 17 digits precede it), no exponent (Arrow's is within the last five characters),
     # at least 1e-4 (not "0.0000"). Then Arrow's text is repr's text.
-    plain = not (b - start > 5 and data[start] == 48 and data[start + 2] == 48 and data[start + 3] == 48
-                 and data[start + 4] == 48 and data[start + 5] == 48)
+    plain = not (
+        b - start > 5
+        and data[start] == 48
+        and data[start + 2] == 48
+        and data[start + 3] == 48
+        and data[start + 4] == 48
+        and data[start + 5] == 48
+    )
     point = False
     for j in range(start, min(b, start + 18)):
         if data[j] == 46:
@@ -202,8 +208,10 @@ def iter_stamped_rows(t_ns: np.ndarray, *values: np.ndarray) -> Iterator[bytes]:
     """Lines ``f"{sec}.{nsec:09d}" + "".join(" " + repr(v) for v in row) + "\\n"``, a block of rows at a time;
     the row is the rows of ``values`` ((N, k) arrays) side by side, joined block by block (no full copy)."""
     t = np.asarray(t_ns, dtype=np.int64)
-    parts = [np.asarray(v, dtype=np.float64).reshape(t.shape[0], -1) if t.shape[0] else
-             np.asarray(v, dtype=np.float64) for v in values]
+    parts = [
+        np.asarray(v, dtype=np.float64).reshape(t.shape[0], -1) if t.shape[0] else np.asarray(v, dtype=np.float64)
+        for v in values
+    ]
     ncols = sum(p.shape[1] for p in parts)
     for start in range(0, t.shape[0], BLOCK_ROWS):
         block = slice(start, start + BLOCK_ROWS)

@@ -152,8 +152,10 @@ class McapStorage(Chunked, McapReader):
         meta = self.metadata
         if meta.message_count and not 0 <= meta.start_time <= meta.end_time <= TIME_LIMIT_NS:
             lo, hi = meta.start_time % 2**64, (meta.end_time - 1) % 2**64  # as stored (uint64), not as wrapped
-            msg = (f"record (log) times {lo} to {hi} ns are {TIME_RANGE}: the MCAP file's times are corrupt "
-                   "(repair or re-record the log)")
+            msg = (
+                f"record (log) times {lo} to {hi} ns are {TIME_RANGE}: the MCAP file's times are corrupt "
+                "(repair or re-record the log)"
+            )
             raise TimeRangeError(msg)
 
     def _add_schema_or_channel(self, op: int, body: bytes) -> None:
@@ -232,8 +234,18 @@ class McapStorage(Chunked, McapReader):
                     t = recs.t_ns[msgs]
                     lo, hi = int(t.min()), int(t.max())
                     self.units.append(
-                        Unit(data_pos, avail, compression, raw_size, lo, hi, frozenset(ids.tolist()), pos + 33, cut,
-                              recovered=True),
+                        Unit(
+                            data_pos,
+                            avail,
+                            compression,
+                            raw_size,
+                            lo,
+                            hi,
+                            frozenset(ids.tolist()),
+                            pos + 33,
+                            cut,
+                            recovered=True,
+                        ),
                     )
                     count += int(msgs.sum())
                     first = lo if first is None else min(first, lo)
@@ -269,8 +281,15 @@ class McapStorage(Chunked, McapReader):
             pos += 9 + length
         self._flush_run(run)
         self.statistics = Statistics(
-            count, len(self.schemas), len(self.channels), 0, 0, nchunks,
-            first if first is not None else 2**63 - 1, last if last is not None else 0, counts,
+            count,
+            len(self.schemas),
+            len(self.channels),
+            0,
+            0,
+            nchunks,
+            first if first is not None else 2**63 - 1,
+            last if last is not None else 0,
+            counts,
         )
         self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in self.connections]
         self.metadata = self.metadata._replace(

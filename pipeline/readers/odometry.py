@@ -94,5 +94,6 @@ def rotate_into_child(poses: PoseStream, linear: Vec3Stream) -> Vec3Stream:
     """``twist.linear`` given in the parent frame, expressed in the child frame with each sample's orientation."""
     q = poses.quat_xyzw / np.linalg.norm(poses.quat_xyzw, axis=1, keepdims=True)
     rots = quats_to_rots(np.ascontiguousarray(q))
-    return Vec3Stream(linear.topic, linear.frame_id, linear.t_ns, linear.rec_ns,
-                      np.einsum("nji,nj->ni", rots, linear.xyz))
+    return Vec3Stream(
+        linear.topic, linear.frame_id, linear.t_ns, linear.rec_ns, np.einsum("nji,nj->ni", rots, linear.xyz)
+    )

@@ -292,8 +292,11 @@ def select_roles(
         for name in names:
             _check_override(role, name, topics, path, tag_pattern)
         if len(names) > 1 and not all(role in MULTI_ROLES or is_multi(topics[n].msgtype) for n in names):
-            raise InputError(path, f"several topics for role {role} only work for tag corners, camera images and "
-                                   f"camera_info (got {', '.join(names)})")
+            raise InputError(
+                path,
+                f"several topics for role {role} only work for tag corners, camera images and "
+                f"camera_info (got {', '.join(names)})",
+            )
 
     for role in ROLES:
         if role in overrides:

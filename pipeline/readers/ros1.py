@@ -195,8 +195,17 @@ class Ros1Bag(Chunked, Reader1):
                 if bio.tell() + datasize > size:
                     msg = "chunk beyond the end of the file"
                     raise Ros1ReaderError(msg)
-                unit = Unit(bio.tell(), datasize, compression, header.get_uint32("size"), info.start_time,
-                             info.end_time - 1, frozenset(info.connection_counts), indexed=True, messages=messages)
+                unit = Unit(
+                    bio.tell(),
+                    datasize,
+                    compression,
+                    header.get_uint32("size"),
+                    info.start_time,
+                    info.end_time - 1,
+                    frozenset(info.connection_counts),
+                    indexed=True,
+                    messages=messages,
+                )
             except (Ros1ReaderError, struct.error, UnicodeDecodeError, ValueError, KeyError, OSError) as err:
                 # a damaged chunk header: the index knows where the next chunk starts
                 self.lose(info.pos, messages, info.start_time, f"chunk header: {one_line(err).rstrip('.')}")
@@ -247,8 +256,9 @@ class Ros1Bag(Chunked, Reader1):
                 except Ros1ReaderError:
                     where = "at a damaged chunk header"
                     break
-                unit = Unit(data_pos, size - data_pos if cut else dlen, compression, raw_size, 0, 0, frozenset(),
-                             partial=cut)
+                unit = Unit(
+                    data_pos, size - data_pos if cut else dlen, compression, raw_size, 0, 0, frozenset(), partial=cut
+                )
                 try:
                     data = read_unit(bio, unit)
                 except (DamagedError, RuntimeError, OSError, ValueError) as err:
@@ -268,8 +278,17 @@ class Ros1Bag(Chunked, Reader1):
                     ids, counts = np.unique(recs.conn[msgs], return_counts=True)
                     t = recs.t_ns[msgs]
                     self.units.append(
-                        Unit(unit.pos, unit.size, unit.compression, unit.raw_size, int(t.min()), int(t.max()),
-                              frozenset(ids.tolist()), partial=cut, recovered=True),
+                        Unit(
+                            unit.pos,
+                            unit.size,
+                            unit.compression,
+                            unit.raw_size,
+                            int(t.min()),
+                            int(t.max()),
+                            frozenset(ids.tolist()),
+                            partial=cut,
+                            recovered=True,
+                        ),
                     )
                     self.chunk_infos.append(
                         Ros1ChunkInfo(pos, int(t.min()), int(t.max()) + 1, dict(zip(ids.tolist(), counts.tolist()))),

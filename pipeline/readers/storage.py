@@ -26,8 +26,9 @@ class DamagedError(BadInput):
 #: would wrap to a negative time, and one close below it overflows the sums of times and spans downstream. Every
 #: ROS clock stays below 2^62 ns (ROS 1's uint32 seconds end in 2106), so only a corrupt file reaches it.
 TIME_LIMIT_NS = 2**62
-TIME_RANGE = ("outside 0 to 2^62 ns (1970 to 2116, past any ROS clock; a uint64 time at or past 2^63 would be read "
-              "as negative)")
+TIME_RANGE = (
+    "outside 0 to 2^62 ns (1970 to 2116, past any ROS clock; a uint64 time at or past 2^63 would be read as negative)"
+)
 
 
 class TimeRangeError(BadInput):

@@ -39,8 +39,9 @@ if TYPE_CHECKING:
 
 TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
 CHILD_FRAME_ID = ("child_frame_id",)
-VALUES = tuple(("transform", part, axis) for part, axes in (("translation", "xyz"), ("rotation", "xyzw"))
-               for axis in axes)
+VALUES = tuple(
+    ("transform", part, axis) for part, axes in (("translation", "xyz"), ("rotation", "xyzw")) for axis in axes
+)
 _NS = 1_000_000_000
 
 
@@ -49,8 +50,13 @@ def _standard_ops(cdr: bool) -> tuple[Op, ...]:
     if cdr:  # stamp, frame_id, child_frame_id, 7 doubles (8-aligned)
         head = (Op("leaf", 4, 4, 0), Op("leaf", 4, 4, 1), Op("string", 4, 0, 0), Op("string", 4, 0, 1))
         return head + tuple(Op("leaf", 8, 8, k) for k in range(2, 9))
-    head = (Op("skip", 1, 4), Op("leaf", 1, 4, 0), Op("leaf", 1, 4, 1), Op("string", 1, 0, 0),
-            Op("string", 1, 0, 1))  # seq first
+    head = (
+        Op("skip", 1, 4),
+        Op("leaf", 1, 4, 0),
+        Op("leaf", 1, 4, 1),
+        Op("string", 1, 0, 0),
+        Op("string", 1, 0, 1),
+    )  # seq first
     return head + tuple(Op("leaf", 1, 8, k) for k in range(2, 9))
 
 
@@ -109,10 +115,16 @@ def _u64(data, p, big):  # pragma: no cover - compiled
         for b in range(8):
             w = (w << np.uint64(8)) | np.uint64(data[p + b])
         return w
-    return (np.uint64(data[p]) | (np.uint64(data[p + 1]) << np.uint64(8)) | (np.uint64(data[p + 2]) << np.uint64(16))
-            | (np.uint64(data[p + 3]) << np.uint64(24)) | (np.uint64(data[p + 4]) << np.uint64(32))
-            | (np.uint64(data[p + 5]) << np.uint64(40)) | (np.uint64(data[p + 6]) << np.uint64(48))
-            | (np.uint64(data[p + 7]) << np.uint64(56)))
+    return (
+        np.uint64(data[p])
+        | (np.uint64(data[p + 1]) << np.uint64(8))
+        | (np.uint64(data[p + 2]) << np.uint64(16))
+        | (np.uint64(data[p + 3]) << np.uint64(24))
+        | (np.uint64(data[p + 4]) << np.uint64(32))
+        | (np.uint64(data[p + 5]) << np.uint64(40))
+        | (np.uint64(data[p + 6]) << np.uint64(48))
+        | (np.uint64(data[p + 7]) << np.uint64(56))
+    )
 
 
 @njit(cache=True)
@@ -193,13 +205,15 @@ def _tf_walk(data, start, size, cdr, big, counts, total):  # pragma: no cover - 
 
 
 def _error(code: int, msgtype: str) -> DecodeError:
-    return DecodeError({
-        _SHORT_CDR: "message shorter than its CDR header",
-        _ENCAPSULATION: "unsupported CDR encapsulation (only plain CDR is read)",
-        _SHORT: f"message shorter than its {msgtype} layout",
-        _STRING: f"string runs past the end of a {msgtype} message",
-        _SEQUENCE: f"sequence runs past the end of a {msgtype} message",
-    }[code])
+    return DecodeError(
+        {
+            _SHORT_CDR: "message shorter than its CDR header",
+            _ENCAPSULATION: "unsupported CDR encapsulation (only plain CDR is read)",
+            _SHORT: f"message shorter than its {msgtype} layout",
+            _STRING: f"string runs past the end of a {msgtype} message",
+            _SEQUENCE: f"sequence runs past the end of a {msgtype} message",
+        }[code]
+    )
 
 
 def _stamps(sec: np.ndarray, nsec: np.ndarray, signed: tuple[bool, bool]) -> np.ndarray:
@@ -236,8 +250,7 @@ def decode_batch(layout: TfLayout, data: np.ndarray, start: np.ndarray, size: np
     if code:
         raise _error(code, layout.msgtype)
     codes, names = string_codes(data, pos, length)  # parent before child: the order rosbags reads them
-    return TfBatch(counts, _stamps(sec, nsec, layout.signed), words.view(np.float64), codes[0::2], codes[1::2],
-                   names)
+    return TfBatch(counts, _stamps(sec, nsec, layout.signed), words.view(np.float64), codes[0::2], codes[1::2], names)
 
 
 class _Parts:

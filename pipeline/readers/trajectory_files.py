@@ -84,8 +84,9 @@ def _line_of(text: str, row: int) -> int:
     return next(lineno for k, (lineno, _) in enumerate(_data_lines(text)) if k == row)
 
 
-def _row_error(path: Path, text: str, min_fields: int, fixed: int | None, what: str,
-               numeric_from: int = 1) -> InputError:
+def _row_error(
+    path: Path, text: str, min_fields: int, fixed: int | None, what: str, numeric_from: int = 1
+) -> InputError:
     """The first offending line of a file the fast parser rejected, named with its number; ``numeric_from``: the
     first field that must be a number (a stamp before it is parsed by :func:`_stamps`)."""
     for lineno, tok in _data_lines(text):
@@ -101,8 +102,9 @@ def _row_error(path: Path, text: str, min_fields: int, fixed: int | None, what: 
     return InputError(path, f"unreadable {what} file")
 
 
-def _rows(path: Path, min_fields: int, fixed: int | None, what: str,
-          numeric_from: int = 1) -> tuple[np.ndarray, np.ndarray, str]:
+def _rows(
+    path: Path, min_fields: int, fixed: int | None, what: str, numeric_from: int = 1
+) -> tuple[np.ndarray, np.ndarray, str]:
     """First column as text and the next ``min_fields - 1`` columns as floats (``fixed``: exactly that many
     fields per row), and the text (for :func:`_line_of`). Fields are separated by spaces, tabs or commas; ``#``
     starts a comment line. Parsed by pandas' C tokenizer (a 100k-line file in a fraction of a second); any
@@ -112,8 +114,15 @@ def _rows(path: Path, min_fields: int, fixed: int | None, what: str,
 
     text = _read_text(path, what)
     try:
-        df = pd.read_csv(io.StringIO(text.replace(",", " ")), sep=r"\s+", header=None, comment="#",
-                         dtype={0: str}, engine="c", skip_blank_lines=True)
+        df = pd.read_csv(
+            io.StringIO(text.replace(",", " ")),
+            sep=r"\s+",
+            header=None,
+            comment="#",
+            dtype={0: str},
+            engine="c",
+            skip_blank_lines=True,
+        )
     except (pd.errors.ParserError, ValueError):
         raise _row_error(path, text, min_fields, fixed, what) from None
     except pd.errors.EmptyDataError:
@@ -148,8 +157,9 @@ def _check_quats(path: Path, quat_xyzw: np.ndarray, where) -> None:
     bad = np.flatnonzero(~((n2 > 0) & np.isfinite(n2)))
     if bad.size:
         k = int(bad[0])
-        problem = ("zero quaternion: no rotation" if n2[k] == 0 else
-                   f"quaternion {quat_xyzw[k].tolist()} cannot be normalised")
+        problem = (
+            "zero quaternion: no rotation" if n2[k] == 0 else f"quaternion {quat_xyzw[k].tolist()} cannot be normalised"
+        )
         raise InputError(path, f"{where(k)}: {problem}")
 
 
@@ -169,9 +179,13 @@ def _plain_stamps_ns(tokens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     length = inside.sum(axis=1)
     n_dot = dot.sum(axis=1)
     dot_at = np.where(n_dot > 0, np.argmax(dot, axis=1), length)
-    plain = (((digit | dot) == inside).all(axis=1) & (n_dot <= 1) & (dot_at >= 1)
-             & ((dot_at <= 9) | ((dot_at == 10) & (u[:, 0] < 57)))  # < 9e9 s: no int64 overflow
-             & (length - dot_at - 1 <= 9))
+    plain = (
+        ((digit | dot) == inside).all(axis=1)
+        & (n_dot <= 1)
+        & (dot_at >= 1)
+        & ((dot_at <= 9) | ((dot_at == 10) & (u[:, 0] < 57)))  # < 9e9 s: no int64 overflow
+        & (length - dot_at - 1 <= 9)
+    )
     rel = dot_at[:, None] - j[None, :]  # digit position relative to the dot: 1 = units, 0 = the dot
     exp = np.where(rel > 0, rel + 8, rel + 9)  # ns per unit of the digit, as a power of ten
     weight = np.where(digit & (exp >= 0), _POW10[np.clip(exp, 0, 18)], 0)
@@ -197,8 +211,9 @@ def _stamps(path: Path, tokens: np.ndarray) -> np.ndarray:
 
 
 def _stream(name: str, t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray, frame: str = "") -> PoseStream:
-    return PoseStream(name, frame, "", t_ns, t_ns.copy(), np.ascontiguousarray(position),
-                      np.ascontiguousarray(quat_xyzw))
+    return PoseStream(
+        name, frame, "", t_ns, t_ns.copy(), np.ascontiguousarray(position), np.ascontiguousarray(quat_xyzw)
+    )
 
 
 def load_tum(path: str | Path) -> PoseStream:
@@ -252,8 +267,9 @@ def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray
     bad = np.flatnonzero(~((off <= ROTATION_TOLERANCE) & (det > 0)))
     if bad.size:
         k = int(bad[0])
-        raise InputError(path, f"line {_line_of(text, k)}: not a rotation matrix "
-                               f"(max |RᵀR − I| = {off[k]:.3g}, det = {det[k]:.3g})")
+        raise InputError(
+            path, f"line {_line_of(text, k)}: not a rotation matrix (max |RᵀR − I| = {off[k]:.3g}, det = {det[k]:.3g})"
+        )
     quat = rots_to_quats(rot)
     if times is None:
         t_ns = np.arange(m.shape[0], dtype=np.int64)
@@ -267,8 +283,10 @@ def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray
         if (step <= 0).any():
             k = int(np.argmax(step <= 0)) + 1
             how = "times decrease" if step[k - 1] < 0 else "time repeats"
-            raise InputError(tpath, f"{how} at line {_line_of(ttext, k)} ({tok[k]} after {tok[k - 1]}): "
-                                    f"KITTI rows are consecutive frames")
+            raise InputError(
+                tpath,
+                f"{how} at line {_line_of(ttext, k)} ({tok[k]} after {tok[k - 1]}): KITTI rows are consecutive frames",
+            )
     return _stream(str(path), t_ns, m[:, :, 3], quat), rot
 
 
@@ -326,8 +344,9 @@ def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header")
         layout = LAYOUTS.get(meta.msgtype)
         if layout is None or not {"position", "quat_xyzw"} <= set(layout.columns):
             poses = sorted(t for t, lay in LAYOUTS.items() if {"position", "quat_xyzw"} <= set(lay.columns))
-            raise InputError(log, f"type {meta.msgtype} is not a trajectory (expected one of {', '.join(poses)})",
-                             topic)
+            raise InputError(
+                log, f"type {meta.msgtype} is not a trajectory (expected one of {', '.join(poses)})", topic
+            )
         stream, _ = pose_stream(decode_rows(reader, log, topic, conns))
     if len(stream) == 0:
         raise InputError(log, "no poses on topic", topic)
@@ -365,8 +384,10 @@ def detect_format(path: str | Path) -> str:
         if len(tok) == 12:
             return "kitti"
         break
-    raise InputError(path, "unknown trajectory format (expected TUM, EuRoC CSV, KITTI or poses.parquet; "
-                           "a log needs a topic: LOG:TOPIC)")
+    raise InputError(
+        path,
+        "unknown trajectory format (expected TUM, EuRoC CSV, KITTI or poses.parquet; a log needs a topic: LOG:TOPIC)",
+    )
 
 
 def split_topic_source(source: str) -> tuple[Path, str] | None:
@@ -377,7 +398,7 @@ def split_topic_source(source: str) -> tuple[Path, str] | None:
         if ch == ":" and k > 0:
             log = Path(source[:k])
             if log.exists() and _is_log(log):
-                return log, source[k + 1:]
+                return log, source[k + 1 :]
     return None
 
 
@@ -428,8 +449,9 @@ def tum_text(t_ns: np.ndarray, position: np.ndarray, quat_xyzw: np.ndarray) -> s
     ``repr`` writes them (round-trip precision); formatted in compiled code (:mod:`.floattext`)."""
     from .floattext import stamped_rows  # lazy: compiled formatting, needed only when writing TUM
 
-    return stamped_rows(np.asarray(t_ns), np.asarray(position).reshape(-1, 3),
-                        np.asarray(quat_xyzw).reshape(-1, 4)).decode()
+    return stamped_rows(
+        np.asarray(t_ns), np.asarray(position).reshape(-1, 3), np.asarray(quat_xyzw).reshape(-1, 4)
+    ).decode()
 
 
 def write_tum(path: str | Path, stream: PoseStream) -> Path:

@@ -29,8 +29,11 @@ MIN_VIEW_DEG = 20.0
 #: ... and with every side at least this long in the image (px).
 MIN_SIDE_PX = 10.0
 #: Distortion coefficients of the simulated lenses.
-DISTORTIONS = {"none": np.zeros(0), "radtan": np.array([-0.12, 0.05, 0.0005, -0.0003, 0.0]),
-               "equidistant": np.array([-0.01, 0.02, -0.01, 0.002])}
+DISTORTIONS = {
+    "none": np.zeros(0),
+    "radtan": np.array([-0.12, 0.05, 0.0005, -0.0003, 0.0]),
+    "equidistant": np.array([-0.01, 0.02, -0.01, 0.002]),
+}
 OUTPUTS = ("fiducials", "corners", "images")
 
 
@@ -67,8 +70,14 @@ class CameraSim:
         """The camera as a :class:`pipeline.vision.cameras.CameraModel` (what its CameraInfo says)."""
         from slamobs.pipeline.vision.cameras import CameraModel
 
-        return CameraModel("camera", self.k, DISTORTIONS[self.distortion].copy(), self.distortion,
-                           (self.width, self.height), "simulation")
+        return CameraModel(
+            "camera",
+            self.k,
+            DISTORTIONS[self.distortion].copy(),
+            self.distortion,
+            (self.width, self.height),
+            "simulation",
+        )
 
     @property
     def ros_distortion(self) -> str:
@@ -90,8 +99,9 @@ class TagViews:
     corners: np.ndarray  # (M, 4, 2) OpenCV order, distorted pixels, noise-free
 
 
-def tag_views(cam: CameraSim, r_wc: np.ndarray, t_wc: np.ndarray, landmarks: np.ndarray, rots: np.ndarray,
-              max_range: float | None) -> TagViews:
+def tag_views(
+    cam: CameraSim, r_wc: np.ndarray, t_wc: np.ndarray, landmarks: np.ndarray, rots: np.ndarray, max_range: float | None
+) -> TagViews:
     """Which tags each camera pose sees (module docstring) and where their corners are in the image."""
     model = cam.model()
     obj = model_corners(cam.tag_size)  # (4, 3) tag frame, OpenCV order
@@ -107,11 +117,13 @@ def tag_views(cam: CameraSim, r_wc: np.ndarray, t_wc: np.ndarray, landmarks: np.
     if max_range is not None:
         ok &= rng <= max_range
     frame_idx, lm_idx = np.nonzero(ok)
-    px = model.project(pc[frame_idx, lm_idx].reshape(-1, 3)).reshape(-1, 4, 2) if frame_idx.size else \
-        np.zeros((0, 4, 2))
+    px = (
+        model.project(pc[frame_idx, lm_idx].reshape(-1, 3)).reshape(-1, 4, 2) if frame_idx.size else np.zeros((0, 4, 2))
+    )
     side = np.linalg.norm(px - np.roll(px, -1, axis=1), axis=2).min(axis=1) if px.size else np.zeros(0)
-    inside = ((px[..., 0] >= 1) & (px[..., 0] <= cam.width - 2) & (px[..., 1] >= 1) & (px[..., 1] <= cam.height - 2)
-              ).all(axis=1) & (side >= MIN_SIDE_PX)
+    inside = (
+        (px[..., 0] >= 1) & (px[..., 0] <= cam.width - 2) & (px[..., 1] >= 1) & (px[..., 1] <= cam.height - 2)
+    ).all(axis=1) & (side >= MIN_SIDE_PX)
     frame_idx, lm_idx, px = frame_idx[inside], lm_idx[inside], px[inside]
     offsets = np.concatenate([[0], np.cumsum(np.bincount(frame_idx, minlength=f_n))]).astype(np.int64)
     return TagViews(r_wc, t_wc, offsets, lm_idx.astype(np.int64), px)
@@ -144,8 +156,10 @@ class TagRenderer:
         jj, ii = np.mgrid[0:h, 0:w].astype(np.float64)
         ideal = self.cam.model().undistort(np.stack([ii.ravel(), jj.ravel()], axis=1))
         canvas = (s * (ideal + 0.5) - 0.5).astype(np.float32)
-        return tuple(self._cv2.resize(canvas[:, a].reshape(h, w), (s * w, s * h), interpolation=self._cv2.INTER_LINEAR)
-                     for a in range(2))
+        return tuple(
+            self._cv2.resize(canvas[:, a].reshape(h, w), (s * w, s * h), interpolation=self._cv2.INTER_LINEAR)
+            for a in range(2)
+        )
 
     def render(self, r_wc: np.ndarray, t_wc: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The 8-bit grey image at camera pose ``(r_wc, t_wc)``: tags, then distortion, blur and noise."""
@@ -165,12 +179,17 @@ class TagRenderer:
             n = n_tex - 2 * margin
             size = self.cam.tag_size
             # texture pixel (x, y) -> tag plane (a, b): black square edges at x = margin - 0.5 and margin + n - 0.5
-            tex_to_tag = np.array([[size / n, 0.0, size * (0.5 - margin - 0.5 * n) / n],
-                                   [0.0, -size / n, -size * (0.5 - margin - 0.5 * n) / n],
-                                   [0.0, 0.0, 1.0]])
+            tex_to_tag = np.array(
+                [
+                    [size / n, 0.0, size * (0.5 - margin - 0.5 * n) / n],
+                    [0.0, -size / n, -size * (0.5 - margin - 0.5 * n) / n],
+                    [0.0, 0.0, 1.0],
+                ]
+            )
             h_mat = a_s @ k @ np.column_stack([r_ct[:, 0], r_ct[:, 1], t_ct]) @ tex_to_tag
-            quad = cv2.perspectiveTransform(np.array([[[0, 0], [n_tex - 1, 0], [n_tex - 1, n_tex - 1], [0, n_tex - 1]]],
-                                                     np.float64), h_mat)[0]
+            quad = cv2.perspectiveTransform(
+                np.array([[[0, 0], [n_tex - 1, 0], [n_tex - 1, n_tex - 1], [0, n_tex - 1]]], np.float64), h_mat
+            )[0]
             x0, y0 = np.floor(quad.min(axis=0)).astype(int) - 2
             x1, y1 = np.ceil(quad.max(axis=0)).astype(int) + 2
             x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, s * w), min(y1, s * h)
@@ -178,8 +197,14 @@ class TagRenderer:
                 continue
             shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, -y0], [0.0, 0.0, 1.0]])
             roi = canvas[y0:y1, x0:x1]
-            cv2.warpPerspective(tex, shift @ h_mat, (x1 - x0, y1 - y0), dst=roi, flags=cv2.INTER_LINEAR,
-                                borderMode=cv2.BORDER_TRANSPARENT)
+            cv2.warpPerspective(
+                tex,
+                shift @ h_mat,
+                (x1 - x0, y1 - y0),
+                dst=roi,
+                flags=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_TRANSPARENT,
+            )
         if (maps := self._distortion_map) is not None:
             canvas = cv2.remap(canvas, maps[0], maps[1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         img = cv2.resize(canvas, (w, h), interpolation=cv2.INTER_AREA)

@@ -91,11 +91,20 @@ TOPIC_TYPES: dict[str, str] = {
 }
 LATCHED = frozenset({TOPIC_TF_STATIC, TOPIC_TRUTH})
 #: Topic -> the SimLog stream it is written from (camera topics: the detection stamps).
-TOPIC_STREAMS: dict[str, str] = {TOPIC_IMU: "imu", TOPIC_ODOM: "odom", TOPIC_MAG: "mag",
-                                 TOPIC_DETECTIONS: "detections", TOPIC_MOCAP: "mocap"}
+TOPIC_STREAMS: dict[str, str] = {
+    TOPIC_IMU: "imu",
+    TOPIC_ODOM: "odom",
+    TOPIC_MAG: "mag",
+    TOPIC_DETECTIONS: "detections",
+    TOPIC_MOCAP: "mocap",
+}
 #: Message types of the simulated camera's topics.
-CAMERA_TYPES = {"corners": "apriltag_msgs/msg/ApriltagArrayStamped", "raw": "sensor_msgs/msg/Image",
-                "jpeg": "sensor_msgs/msg/CompressedImage", "info": "sensor_msgs/msg/CameraInfo"}
+CAMERA_TYPES = {
+    "corners": "apriltag_msgs/msg/ApriltagArrayStamped",
+    "raw": "sensor_msgs/msg/Image",
+    "jpeg": "sensor_msgs/msg/CompressedImage",
+    "info": "sensor_msgs/msg/CameraInfo",
+}
 
 
 def topic_types(cam: CameraSim) -> dict[str, str]:
@@ -110,6 +119,7 @@ def topic_types(cam: CameraSim) -> dict[str, str]:
 
 def _stream_of(topic: str) -> str:
     return TOPIC_STREAMS.get(topic, "detections" if topic.startswith("/camera/") else "")
+
 
 # ROS2 "latched" QoS (transient local, keep last 1), as ros2 bag records /tf_static.
 _LATCHED_QOS = Qos(
@@ -267,12 +277,21 @@ class _Builder:
         for k in range(int(c.offsets[i]), int(c.offsets[i + 1])):
             px = c.corners[k][[3, 2, 1, 0]]
             centre = px.mean(axis=0)
-            items.append(tag(id=int(c.ids[k]), family=self.sim.camera_sim.family, hamming=0, border=1,
-                             bits=6, center=point(x=float(centre[0]), y=float(centre[1]), z=0.0),
-                             corners=[point(x=float(x), y=float(y), z=0.0) for x, y in px]))
+            items.append(
+                tag(
+                    id=int(c.ids[k]),
+                    family=self.sim.camera_sim.family,
+                    hamming=0,
+                    border=1,
+                    bits=6,
+                    center=point(x=float(centre[0]), y=float(centre[1]), z=0.0),
+                    corners=[point(x=float(x), y=float(y), z=0.0) for x, y in px],
+                )
+            )
         seq = self.sim.first["detections"] + i
-        return t["apriltag_msgs/msg/ApriltagArrayStamped"](header=self.header(int(c.t_ns[i]), FRAME_CAMERA, seq),
-                                                          apriltags=items)
+        return t["apriltag_msgs/msg/ApriltagArrayStamped"](
+            header=self.header(int(c.t_ns[i]), FRAME_CAMERA, seq), apriltags=items
+        )
 
     def camera_info(self, i: int) -> object:
         cam, t = self.sim.camera_sim, self.ts.types
@@ -284,8 +303,15 @@ class _Builder:
             fields = {key.upper(): v for key, v in fields.items()}
         seq = self.sim.first["detections"] + i
         return t["sensor_msgs/msg/CameraInfo"](
-            header=self.header(int(self.sim.camera.t_ns[i]), FRAME_CAMERA, seq), height=cam.height, width=cam.width,
-            distortion_model=cam.ros_distortion, binning_x=0, binning_y=0, roi=roi, **fields)
+            header=self.header(int(self.sim.camera.t_ns[i]), FRAME_CAMERA, seq),
+            height=cam.height,
+            width=cam.width,
+            distortion_model=cam.ros_distortion,
+            binning_x=0,
+            binning_y=0,
+            roi=roi,
+            **fields,
+        )
 
     def image(self, i: int) -> object:
         """Camera frame ``i`` rendered (noise drawn from a generator of the seed and the frame: reproducible)."""
@@ -294,9 +320,15 @@ class _Builder:
         gray = self.renderer.render(c.r_wc[i], c.t_wc[i], np.random.default_rng([self.sim.seed, 11, seq]))
         header = self.header(int(c.t_ns[i]), FRAME_CAMERA, seq)
         if cam.jpeg_quality is None:
-            return t["sensor_msgs/msg/Image"](header=header, height=gray.shape[0], width=gray.shape[1],
-                                              encoding="mono8", is_bigendian=0, step=gray.shape[1],
-                                              data=np.ascontiguousarray(gray).ravel())
+            return t["sensor_msgs/msg/Image"](
+                header=header,
+                height=gray.shape[0],
+                width=gray.shape[1],
+                encoding="mono8",
+                is_bigendian=0,
+                step=gray.shape[1],
+                data=np.ascontiguousarray(gray).ravel(),
+            )
         cv2 = self.renderer._cv2
         ok, buf = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, int(cam.jpeg_quality)])
         assert ok
@@ -324,6 +356,7 @@ class _Builder:
     def columns(self, topic: str) -> dict[tuple[str, ...], np.ndarray] | None:
         """The fields that change from message to message of a fixed-layout topic, by path (None: not fixed);
         the header stamp first, as :func:`~pipeline.readers.fastdecode.make_plan` orders its leaves."""
+
         def vec(path: tuple[str, ...], values: np.ndarray, names: str = "xyz") -> dict:
             return {(*path, a): values[:, k] for k, a in enumerate(names)}
 
@@ -338,14 +371,20 @@ class _Builder:
         if topic == TOPIC_IMU:
             return {**cols, **vec(("angular_velocity",), s.imu.gyro), **vec(("linear_acceleration",), s.imu.accel)}
         if topic == TOPIC_ODOM:
-            return {**cols, **vec(("pose", "pose", "position"), s.odom.position),
-                    **vec(("pose", "pose", "orientation"), s.odom.quat_xyzw, "xyzw"),
-                    **vec(("twist", "twist", "linear"), s.odom.linear),
-                    **vec(("twist", "twist", "angular"), s.odom.angular)}
+            return {
+                **cols,
+                **vec(("pose", "pose", "position"), s.odom.position),
+                **vec(("pose", "pose", "orientation"), s.odom.quat_xyzw, "xyzw"),
+                **vec(("twist", "twist", "linear"), s.odom.linear),
+                **vec(("twist", "twist", "angular"), s.odom.angular),
+            }
         if topic == TOPIC_MAG:
             return {**cols, **vec(("magnetic_field",), s.mag.field)}
-        return {**cols, **vec(("pose", "position"), s.mocap.position),
-                **vec(("pose", "orientation"), s.mocap.quat_xyzw, "xyzw")}
+        return {
+            **cols,
+            **vec(("pose", "position"), s.mocap.position),
+            **vec(("pose", "orientation"), s.mocap.quat_xyzw, "xyzw"),
+        }
 
     def payloads(self, topic: str, make: Callable[[int], object], n: int) -> Callable[[int], bytes]:
         """Serialised message ``i`` of ``topic``: fixed-layout topics from one template message whose changing
@@ -501,12 +540,21 @@ def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
 
 
 _WRITERS: dict[str, Callable[[SimLog | Simulation, Path], None]] = {
-    "bag": _write_bag, "mcap": _write_mcap, "ros2": _write_ros2,
+    "bag": _write_bag,
+    "mcap": _write_mcap,
+    "ros2": _write_ros2,
 }
 
 
-def write_raw_log(path: Path, container: str, topics: dict[str, list[tuple[int, bytes]]], msgtype: str,
-                  ts: Typestore, *, chunk_threshold: int | None = None) -> Path:
+def write_raw_log(
+    path: Path,
+    container: str,
+    topics: dict[str, list[tuple[int, bytes]]],
+    msgtype: str,
+    ts: Typestore,
+    *,
+    chunk_threshold: int | None = None,
+) -> Path:
     """Already serialised messages of one type, ``topic -> [(record ns, payload)]``, as a ROS1 bag (lz4 chunks
     of ``chunk_threshold`` bytes), a rosbag2 sqlite3 directory or a bare MCAP: hand-made logs for tests and
     benchmarks (payloads in the container's encoding: ROS1 or CDR, either byte order)."""
@@ -548,8 +596,10 @@ def why_kept(path: Path, *, overwrite: bool) -> str | None:
         return "exists already (use --force to replace it)"
     if _simulated(Path(path)):
         return None
-    return ("exists and is not a log slamobs simulate wrote: --force replaces only those; it is kept, remove it or "
-            "choose another -o")
+    return (
+        "exists and is not a log slamobs simulate wrote: --force replaces only those; it is kept, remove it or "
+        "choose another -o"
+    )
 
 
 def _simulated(path: Path) -> bool:
@@ -579,8 +629,9 @@ def _simulated(path: Path) -> bool:
         return False
 
 
-def write_log(sim: SimLog | Simulation, path: str | Path, container: str | None = None, *,
-              overwrite: bool = False) -> Path:
+def write_log(
+    sim: SimLog | Simulation, path: str | Path, container: str | None = None, *, overwrite: bool = False
+) -> Path:
     """Write ``sim`` to ``path`` as ``container`` ("bag", "mcap", "ros2"; inferred from the suffix if None).
 
     A :class:`Simulation` is generated and written piece by piece: memory stays bounded for any duration.

@@ -319,8 +319,14 @@ def _forward_camera(tilt_deg: float, fov_h_deg: float, fov_v_deg: float, max_ran
     z_c = np.array([np.cos(tilt), 0.0, -np.sin(tilt)])
     x_c = np.array([0.0, -1.0, 0.0])
     r_bc = np.stack([x_c, np.cross(z_c, x_c), z_c], -1)
-    return Camera(R_bc=r_bc, t_bc=np.array([0.1, 0.0, -0.05]), fov_h_deg=fov_h_deg, fov_v_deg=fov_v_deg,
-                  min_range=0.5, max_range=max_range)
+    return Camera(
+        R_bc=r_bc,
+        t_bc=np.array([0.1, 0.0, -0.05]),
+        fov_h_deg=fov_h_deg,
+        fov_v_deg=fov_v_deg,
+        min_range=0.5,
+        max_range=max_range,
+    )
 
 
 def loop(n_landmarks: int = LOOP_LANDMARKS) -> Scenario:
@@ -371,9 +377,14 @@ def get_scenario(name: str) -> Scenario:
         raise KeyError(f"unknown scenario {name!r}; known: {', '.join(sorted(SCENARIOS))}") from None
 
 
-def customize(sc: Scenario, *, landmarks: int | None = None, fov_deg: float | None = None,
-              detections_until: float | None = None, imu_rpy_deg: tuple[float, float, float] | None = None
-              ) -> Scenario:
+def customize(
+    sc: Scenario,
+    *,
+    landmarks: int | None = None,
+    fov_deg: float | None = None,
+    detections_until: float | None = None,
+    imu_rpy_deg: tuple[float, float, float] | None = None,
+) -> Scenario:
     """``sc`` with some of its rig changed (each option left at None keeps the scenario's value).
 
     ``landmarks``: the loop is rebuilt with that many tags; other scenarios keep an evenly spaced subset of
@@ -384,15 +395,25 @@ def customize(sc: Scenario, *, landmarks: int | None = None, fov_deg: float | No
     """
     if landmarks is not None:
         if sc.name.startswith("loop"):
-            sc = replace(loop(landmarks), name=sc.name, duration=sc.duration, camera=sc.camera,
-                         detections_until=sc.detections_until, imu_rotation=sc.imu_rotation)
+            sc = replace(
+                loop(landmarks),
+                name=sc.name,
+                duration=sc.duration,
+                camera=sc.camera,
+                detections_until=sc.detections_until,
+                imu_rotation=sc.imu_rotation,
+            )
         else:
             n = sc.landmark_ids.shape[0]
             if not 3 <= landmarks <= n:
                 raise ValueError(f"scenario {sc.name!r} has {n} landmarks; choose 3 to {n}")
             keep = np.unique(np.round(np.linspace(0, n - 1, landmarks)).astype(int))
-            sc = replace(sc, landmark_ids=sc.landmark_ids[keep], landmarks=sc.landmarks[keep],
-                         landmark_rots=sc.landmark_rots[keep])
+            sc = replace(
+                sc,
+                landmark_ids=sc.landmark_ids[keep],
+                landmarks=sc.landmarks[keep],
+                landmark_rots=sc.landmark_rots[keep],
+            )
     if fov_deg is not None:
         if not 0.0 < fov_deg < 180.0:
             raise ValueError(f"field of view must be in (0, 180) deg, got {fov_deg}")

@@ -260,9 +260,18 @@ class Simulation:
     def topic_counts(self) -> dict[str, int]:
         """Messages per topic, as they will be written."""
         c = self.counts
-        return camera_topics({TOPIC_TF_STATIC: 1, TOPIC_TRUTH: 1, TOPIC_IMU: c["imu"], TOPIC_ODOM: c["odom"],
-                              TOPIC_MAG: c["mag"], TOPIC_DETECTIONS: c["detections"], TOPIC_MOCAP: c["mocap"]},
-                             self.camera)
+        return camera_topics(
+            {
+                TOPIC_TF_STATIC: 1,
+                TOPIC_TRUTH: 1,
+                TOPIC_IMU: c["imu"],
+                TOPIC_ODOM: c["odom"],
+                TOPIC_MAG: c["mag"],
+                TOPIC_DETECTIONS: c["detections"],
+                TOPIC_MOCAP: c["mocap"],
+            },
+            self.camera,
+        )
 
     def _bounds(self, stream: str) -> np.ndarray:
         """First sample index of every piece of ``stream`` (and the total count at the end)."""
@@ -289,14 +298,20 @@ class Simulation:
             return parts[0]
         join = lambda name: _join([getattr(p, name) for p in parts])  # noqa: E731
         camera = _join_camera([p.camera for p in parts]) if parts[0].camera is not None else None
-        return replace(parts[0], imu=join("imu"), odom=join("odom"), mag=join("mag"),
-                       detections=_join_detections([p.detections for p in parts]), mocap=join("mocap"), camera=camera)
+        return replace(
+            parts[0],
+            imu=join("imu"),
+            odom=join("odom"),
+            mag=join("mag"),
+            detections=_join_detections([p.detections for p in parts]),
+            mocap=join("mocap"),
+            camera=camera,
+        )
 
 
 def _join(parts: list) -> object:
     """Stream data of consecutive pieces concatenated field by field."""
-    return type(parts[0])(*(np.concatenate([getattr(p, f.name) for p in parts])
-                            for f in dataclasses.fields(parts[0])))
+    return type(parts[0])(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(parts[0])))
 
 
 def camera_topics(counts: dict[str, int], cam: CameraSim) -> dict[str, int]:
@@ -323,16 +338,22 @@ def camera_topic(cam: CameraSim) -> str:
 def _join_detections(parts: list[DetectionData]) -> DetectionData:
     shifts = np.cumsum([0] + [int(p.offsets[-1]) for p in parts[:-1]])
     offsets = np.concatenate([[0]] + [p.offsets[1:] + s for p, s in zip(parts, shifts)])
-    fields = {f.name: np.concatenate([getattr(p, f.name) for p in parts])
-              for f in dataclasses.fields(DetectionData) if f.name != "offsets"}
+    fields = {
+        f.name: np.concatenate([getattr(p, f.name) for p in parts])
+        for f in dataclasses.fields(DetectionData)
+        if f.name != "offsets"
+    }
     return DetectionData(**{**fields, "offsets": offsets.astype(np.int64)})
 
 
 def _join_camera(parts: list[CameraData]) -> CameraData:
     shifts = np.cumsum([0] + [int(p.offsets[-1]) for p in parts[:-1]])
     offsets = np.concatenate([[0]] + [p.offsets[1:] + s for p, s in zip(parts, shifts)])
-    fields = {f.name: np.concatenate([getattr(p, f.name) for p in parts])
-              for f in dataclasses.fields(CameraData) if f.name != "offsets"}
+    fields = {
+        f.name: np.concatenate([getattr(p, f.name) for p in parts])
+        for f in dataclasses.fields(CameraData)
+        if f.name != "offsets"
+    }
     return CameraData(**{**fields, "offsets": offsets.astype(np.int64)})
 
 
@@ -362,8 +383,13 @@ def simulation(
     if duration <= 0:
         raise ValueError(f"duration must be positive, got {duration}")
     nm = noise if isinstance(noise, NoiseModel) else (NoiseModel() if noise else NoiseModel.zero())
-    rates = {"imu": imu_rate, "odom": odom_rate, "mag": mag_rate, "mocap": mocap_rate,
-             "detections": sc.detection_rate if detection_rate is None else detection_rate}
+    rates = {
+        "imu": imu_rate,
+        "odom": odom_rate,
+        "mag": mag_rate,
+        "mocap": mocap_rate,
+        "detections": sc.detection_rate if detection_rate is None else detection_rate,
+    }
     for rate in rates.values():
         if rate <= 0:
             raise ValueError(f"rate must be positive, got {rate}")
@@ -378,8 +404,9 @@ def simulate(scenario: Scenario | str, **kwargs) -> SimLog:
     return simulation(scenario, **kwargs).whole()
 
 
-def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int, int]],
-           carry: _Carry) -> tuple[SimLog, _Carry]:
+def _piece(
+    sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int, int]], carry: _Carry
+) -> tuple[SimLog, _Carry]:
     """Samples ``span[stream]`` of every stream, drawn from ``rng``, continuing from ``carry``."""
     sc, nm, start_ns = sim.scenario, sim.noise, sim.start_ns
 
@@ -393,16 +420,31 @@ def _piece(sim: Simulation, rng: np.random.Generator, span: dict[str, tuple[int,
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
     camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
     mocap = _mocap(sc, rng, *stamps("mocap"), carry.rec["mocap"])
-    piece = SimLog(sc.name, int(sim.seed), nm, sim.duration, start_ns, imu, odom, mag, detections, mocap,
-                   _static_tf(sc), _truth(sim, camera is not None),
-                   first={name: lo for name, (lo, _) in span.items()}, camera=camera, camera_sim=sim.camera)
+    piece = SimLog(
+        sc.name,
+        int(sim.seed),
+        nm,
+        sim.duration,
+        start_ns,
+        imu,
+        odom,
+        mag,
+        detections,
+        mocap,
+        _static_tf(sc),
+        _truth(sim, camera is not None),
+        first={name: lo for name, (lo, _) in span.items()},
+        camera=camera,
+        camera_sim=sim.camera,
+    )
     streams = {"imu": imu, "odom": odom, "mag": mag, "detections": detections, "mocap": mocap}
     rec = {name: int(d.rec_ns[-1]) if d.rec_ns.size else carry.rec[name] for name, d in streams.items()}
     return piece, _Carry(rec, odom_carry)
 
 
-def _imu(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray,
-         rec_after: int) -> ImuData:
+def _imu(
+    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray, rec_after: int
+) -> ImuData:
     """IMU: biased gyro and specific force f = R^T (a - g), in the imu_link frame."""
     tr = sc.sample(t)
     n = t.shape[0]
@@ -414,8 +456,9 @@ def _imu(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarra
     return ImuData(t_ns, _record_times(rng, t_ns, rec_after), gyro, accel)
 
 
-def _odom(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray,
-          carry: _Carry) -> tuple[OdomData, tuple | None]:
+def _odom(
+    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray, carry: _Carry
+) -> tuple[OdomData, tuple | None]:
     """Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist (continuing
     from the previous piece's last sample); the data and the dead-reckoning state for the next piece."""
     tr = sc.sample(t)
@@ -426,16 +469,18 @@ def _odom(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarr
         rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), ang[:-1], lin[:-1], np.diff(t))
     else:  # continue from the last sample of the previous piece
         r0, p0, ang0, lin0, t0 = carry.odom
-        rs, ps = integrate_body_twists(r0, p0, np.vstack([ang0, ang[:-1]]), np.vstack([lin0, lin[:-1]]),
-                                       np.diff(np.concatenate([[t0], t])))
+        rs, ps = integrate_body_twists(
+            r0, p0, np.vstack([ang0, ang[:-1]]), np.vstack([lin0, lin[:-1]]), np.diff(np.concatenate([[t0], t]))
+        )
         rs, ps = rs[1:], ps[1:]
     odom = OdomData(t_ns, _record_times(rng, t_ns, carry.rec["odom"]), lin, ang, ps, rots_to_quats(rs))
     odom_carry = (rs[-1].copy(), ps[-1].copy(), ang[-1:].copy(), lin[-1:].copy(), float(t[-1])) if n else carry.odom
     return odom, odom_carry
 
 
-def _mag(sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray,
-         rec_after: int) -> MagData:
+def _mag(
+    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray, rec_after: int
+) -> MagData:
     """Magnetometer: the inertial field seen in the body frame (the imu_link's when it is turned)."""
     tr = sc.sample(t)
     fld = np.einsum("nji,j->ni", tr.R, MAGNETIC_FIELD) + _white(rng, nm.mag, (t.shape[0], 3))
@@ -455,8 +500,14 @@ def _static_tf(sc: Scenario) -> list[Transform]:
     cam_q = rots_to_quats(np.ascontiguousarray(sc.camera.R_bc[None]))[0]
     return [
         Transform(FRAME_BODY, FRAME_CAMERA, sc.camera.t_bc.copy(), cam_q),
-        Transform(FRAME_BODY, FRAME_IMU, np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]) if sc.imu_rotation is None
-                  else rots_to_quats(np.ascontiguousarray(sc.imu_rotation[None], dtype=np.float64))[0]),
+        Transform(
+            FRAME_BODY,
+            FRAME_IMU,
+            np.zeros(3),
+            np.array([0.0, 0.0, 0.0, 1.0])
+            if sc.imu_rotation is None
+            else rots_to_quats(np.ascontiguousarray(sc.imu_rotation[None], dtype=np.float64))[0],
+        ),
     ]
 
 
@@ -556,9 +607,7 @@ def expected_streams(sim: SimLog, path: str = "") -> LogStreams:
         path=str(path),
         angular_velocity=Vec3Stream(TOPIC_IMU, FRAME_IMU, sim.imu.t_ns, sim.imu.rec_ns, sim.imu.gyro),
         linear_velocity=Vec3Stream(TOPIC_ODOM, FRAME_BODY, sim.odom.t_ns, sim.odom.rec_ns, sim.odom.linear),
-        detections=DetectionStream(
-            TOPIC_DETECTIONS, FRAME_CAMERA, det.t_ns, det.rec_ns, det.offsets, det.ids, det.xyz
-        ),
+        detections=DetectionStream(TOPIC_DETECTIONS, FRAME_CAMERA, det.t_ns, det.rec_ns, det.offsets, det.ids, det.xyz),
         truth=PoseStream(TOPIC_MOCAP, FRAME_WORLD, "", moc.t_ns, moc.rec_ns, moc.position, moc.quat_xyzw),
         accel=Vec3Stream(TOPIC_IMU, FRAME_IMU, sim.imu.t_ns, sim.imu.rec_ns, sim.imu.accel),
         magnetic=Vec3Stream(TOPIC_MAG, FRAME_IMU, sim.mag.t_ns, sim.mag.rec_ns, sim.mag.field),

@@ -63,14 +63,23 @@ class _Segments:
 class BatchSmoother(Stepper):
     """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
 
-    def __init__(self, stream, gains: dict[str, float], options, settings: BatchSettings | None = None,
-                 noise=None, seed=None, fixed_bias: np.ndarray | None = None) -> None:
+    def __init__(
+        self,
+        stream,
+        gains: dict[str, float],
+        options,
+        settings: BatchSettings | None = None,
+        noise=None,
+        seed=None,
+        fixed_bias: np.ndarray | None = None,
+    ) -> None:
         from slamobs.pipeline.noise import resolve_noise
 
         super().__init__(stream, options)
         self.where = options.source
-        self.settings = settings if settings is not None else options.batch if options.batch is not None \
-            else BatchSettings()
+        self.settings = (
+            settings if settings is not None else options.batch if options.batch is not None else BatchSettings()
+        )
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         self.seed_override = seed
         self.fixed_bias = fixed_bias
@@ -103,8 +112,14 @@ class BatchSmoother(Stepper):
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": self.noise.as_dict()}
         self.stats["notes"] = notes
-        self.timings.update({"seed_s": seed.seconds, "smoother_s": t_solve, "smoother_cpu_s": c_solve,
-                             **{f"smoother_{k}_s": v for k, v in seconds.items()}})
+        self.timings.update(
+            {
+                "seed_s": seed.seconds,
+                "smoother_s": t_solve,
+                "smoother_cpu_s": c_solve,
+                **{f"smoother_{k}_s": v for k, v in seconds.items()},
+            }
+        )
         return summary
 
     def _keyframes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -151,8 +166,8 @@ class BatchSmoother(Stepper):
         b_bar = seed.bias.copy() if self.fixed_bias is None else np.asarray(self.fixed_bias, float)
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
-        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro ** 2, nz.velocity ** 2, data, cov)
-        for lo, hi in (gaps if gaps is not None else ()):  # intervals across a gap: (almost) no constraint
+        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro**2, nz.velocity**2, data, cov)
+        for lo, hi in gaps if gaps is not None else ():  # intervals across a gap: (almost) no constraint
             across = (kf_t[:-1] < hi) & (kf_t[1:] > lo)
             cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
@@ -160,11 +175,20 @@ class BatchSmoother(Stepper):
             prior_mean, prior = np.zeros(6), np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
         else:  # the reference of the tests: biases known
             prior_mean, prior = b_bar, np.full(6, 1e-9)
-        return g.Problem(data=data, b_bar=b_bar, seg_of=segments.of(kf_t[:-1]), kf_of_det=kf_of_det,
-                         det_idx=s.det_idx, det_y=s.det_y,
-                         det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
-                         bias_prior_sigma=prior, bias_prior_mean=prior_mean, walk_sigma=walk, huber=st.huber,
-                         anchor=k - 1)
+        return g.Problem(
+            data=data,
+            b_bar=b_bar,
+            seg_of=segments.of(kf_t[:-1]),
+            kf_of_det=kf_of_det,
+            det_idx=s.det_idx,
+            det_y=s.det_y,
+            det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
+            bias_prior_sigma=prior,
+            bias_prior_mean=prior_mean,
+            walk_sigma=walk,
+            huber=st.huber,
+            anchor=k - 1,
+        )
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
@@ -172,23 +196,39 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.smoother import graph as g
 
         st = self.settings
-        sol = g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
-                      progress=progress)
+        sol = g.solve(
+            problem,
+            guess,
+            max_iterations=st.max_iterations,
+            relative_tolerance=st.relative_tolerance,
+            progress=progress,
+        )
         kept = self._gate(problem, sol, st.gate_chi2)
         n_det = int(problem.det_idx.shape[0])
         notes = []
         if kept is not None and n_det - kept.size > MAX_GATED * n_det:  # not outliers: a wrong minimum
-            notes.append(f"warning: batch: {n_det - kept.size} of {n_det} detections fail the χ² gate at the "
-                         f"smoother's solution: it probably stopped in a local minimum far from the optimum (seed "
-                         f"'{seed_name}'); every detection was kept; try another batch.seed")
+            notes.append(
+                f"warning: batch: {n_det - kept.size} of {n_det} detections fail the χ² gate at the "
+                f"smoother's solution: it probably stopped in a local minimum far from the optimum (seed "
+                f"'{seed_name}'); every detection was kept; try another batch.seed"
+            )
             kept = None
         if kept is not None:  # outliers the Huber kernel still listens to: solved again without them
             first = sol.summary
-            problem = replace(problem, kf_of_det=problem.kf_of_det[kept], det_idx=problem.det_idx[kept],
-                              det_y=problem.det_y[kept], det_sigma=problem.det_sigma[kept])
-            sol = g.solve(problem, g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias),
-                          max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance,
-                          progress=progress)
+            problem = replace(
+                problem,
+                kf_of_det=problem.kf_of_det[kept],
+                det_idx=problem.det_idx[kept],
+                det_y=problem.det_y[kept],
+                det_sigma=problem.det_sigma[kept],
+            )
+            sol = g.solve(
+                problem,
+                g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias),
+                max_iterations=st.max_iterations,
+                relative_tolerance=st.relative_tolerance,
+                progress=progress,
+            )
             sol.summary = g.merge_summaries(first, sol.summary)
         return problem, sol, notes
 
@@ -197,11 +237,21 @@ class BatchSmoother(Stepper):
         st = self.settings
         sd = np.sqrt(np.clip(np.einsum("sii->si", sol.bias_cov), 0.0, None))
         seconds = sol.summary.pop("seconds")
-        summary = {"seed": seed_name, "bias_model": st.bias, **sol.summary, "residuals": residuals,
-                   "bias": {"estimate": sol.bias.tolist(), "sigma": sd.tolist()},
-                   "settings": {"huber": st.huber, "gate_chi2": st.gate_chi2, "keyframe_dt": st.keyframe_dt,
-                                "segment_s": st.segment_s, "max_iterations": st.max_iterations,
-                                "relative_tolerance": st.relative_tolerance}}
+        summary = {
+            "seed": seed_name,
+            "bias_model": st.bias,
+            **sol.summary,
+            "residuals": residuals,
+            "bias": {"estimate": sol.bias.tolist(), "sigma": sd.tolist()},
+            "settings": {
+                "huber": st.huber,
+                "gate_chi2": st.gate_chi2,
+                "keyframe_dt": st.keyframe_dt,
+                "segment_s": st.segment_s,
+                "max_iterations": st.max_iterations,
+                "relative_tolerance": st.relative_tolerance,
+            },
+        }
         return summary, seconds
 
     @staticmethod
@@ -237,8 +287,9 @@ class BatchSmoother(Stepper):
         rows = rows[(rows % every == 0) | (rows == n_vel - 1)]
         n = rows.shape[0]
         bias_rows = sol.bias[res["segments"].of(self.vel_t)]
-        sample_poses(self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r[:n],
-                     out.p[:n])
+        sample_poses(
+            self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r[:n], out.p[:n]
+        )
         out.k[:n] = rows
         out.b[:n] = bias_rows[rows]
         # detections of the frames up to iv_stop: estimates from the solution at their keyframes
@@ -247,9 +298,10 @@ class BatchSmoother(Stepper):
         if b > a:
             kf = res["kf_of_det"][a:b]
             lm = sol.landmarks[s.det_idx[a:b]]
-            out.trk[a - out.det_base:b - out.det_base] = lm
-            out.innov[a - out.det_base:b - out.det_base] = (lm - np.einsum("mij,mj->mi", sol.rot[kf], s.det_y[a:b])
-                                                            - sol.pos[kf])
+            out.trk[a - out.det_base : b - out.det_base] = lm
+            out.innov[a - out.det_base : b - out.det_base] = (
+                lm - np.einsum("mij,mj->mi", sol.rot[kf], s.det_y[a:b]) - sol.pos[kf]
+            )
         self.lm[:] = sol.landmarks
         if n:
             self.state.r_hat[:], self.state.p_hat[:] = out.r[n - 1], out.p[n - 1]
@@ -262,7 +314,7 @@ SPEC = ObserverSpec(
     algorithm="smoother",
     paper="factor-graph smoother (GTSAM, Levenberg-Marquardt) over preintegrated odometry and landmark factors",
     summary="reference solution: keyframe poses, landmarks and biases by least squares, seeded by an observer "
-            "(batch.seed)",
+    "(batch.seed)",
     gains=(),
     start=BatchSmoother,
     check_config=check_config,

@@ -115,18 +115,33 @@ def build(problem: Problem, guess: Guess):
             model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([sb, sb, sr])))
             models[key] = model
         y = problem.det_y[m]
-        graph.add(gtsam.BearingRangeFactor3D(int(problem.kf_of_det[m]), int(lm_keys[problem.det_idx[m]]),
-                                             gtsam.Unit3(y / ranges[m]), float(ranges[m]), model))
+        graph.add(
+            gtsam.BearingRangeFactor3D(
+                int(problem.kf_of_det[m]),
+                int(lm_keys[problem.det_idx[m]]),
+                gtsam.Unit3(y / ranges[m]),
+                float(ranges[m]),
+                model,
+            )
+        )
 
-    graph.add(gtsam.PriorFactorVector(int(bias_keys[0]), np.asarray(problem.bias_prior_mean, dtype=float),
-                                      gtsam.noiseModel.Diagonal.Sigmas(problem.bias_prior_sigma)))
+    graph.add(
+        gtsam.PriorFactorVector(
+            int(bias_keys[0]),
+            np.asarray(problem.bias_prior_mean, dtype=float),
+            gtsam.noiseModel.Diagonal.Sigmas(problem.bias_prior_sigma),
+        )
+    )
     if problem.walk_sigma is not None:
         walk = gtsam.noiseModel.Diagonal.Sigmas(problem.walk_sigma)
         for a, b in zip(bias_keys[:-1], bias_keys[1:]):
             graph.add(gtsam.BetweenFactorVector(int(a), int(b), np.zeros(6), walk))
     a = problem.anchor
-    graph.add(gtsam.PriorFactorPose3(a, gtsam.Pose3(gtsam.Rot3(guess.rot[a]), guess.pos[a]),
-                                     gtsam.noiseModel.Isotropic.Sigma(6, GAUGE_SIGMA)))
+    graph.add(
+        gtsam.PriorFactorPose3(
+            a, gtsam.Pose3(gtsam.Rot3(guess.rot[a]), guess.pos[a]), gtsam.noiseModel.Isotropic.Sigma(6, GAUGE_SIGMA)
+        )
+    )
     return graph, values
 
 
@@ -149,8 +164,13 @@ def ordering(k: int, lm_keys: np.ndarray, bias_keys: np.ndarray):
 def _stats(x: np.ndarray) -> dict:
     if x.size == 0:
         return {"n": 0}
-    return {"n": int(x.size), "rms": float(np.sqrt(np.mean(x * x))), "mean": float(np.mean(x)),
-            "p95": float(np.percentile(x, 95)), "max": float(np.max(x))}
+    return {
+        "n": int(x.size),
+        "rms": float(np.sqrt(np.mean(x * x))),
+        "mean": float(np.mean(x)),
+        "p95": float(np.percentile(x, 95)),
+        "max": float(np.max(x)),
+    }
 
 
 class _Motion:
@@ -183,8 +203,7 @@ class _Motion:
         k = p.data.shape[0]
         for a in range(0, k, self.CHUNK):  # a chunk at a time: the Jacobians of a long log are 1.7 KB each
             b = min(k, a + self.CHUNK)
-            motion_linearize(p.data[a:b], p.b_bar, rot[a:b + 1], pos[a:b + 1], bias, p.seg_of[a:b], damping,
-                             r, h)
+            motion_linearize(p.data[a:b], p.b_bar, rot[a : b + 1], pos[a : b + 1], bias, p.seg_of[a:b], damping, r, h)
             np.negative(r, out=r)  # JacobianFactor error is ‖A δ − b‖²: b = −residual
             for i in range(b - a):
                 j = a + i
@@ -195,8 +214,11 @@ def _arrays(values, k: int, bias_keys: np.ndarray):
     import gtsam
 
     poses = gtsam.utilities.extractPose3(values)
-    return (np.ascontiguousarray(poses[:, :9].reshape(-1, 3, 3)), np.ascontiguousarray(poses[:, 9:]),
-            np.array([values.atVector(int(key)) for key in bias_keys]).reshape(-1, 6))
+    return (
+        np.ascontiguousarray(poses[:, :9].reshape(-1, 3, 3)),
+        np.ascontiguousarray(poses[:, 9:]),
+        np.array([values.atVector(int(key)) for key in bias_keys]).reshape(-1, 6),
+    )
 
 
 def _damping(graph, keys_dims: list[tuple[int, int]], sqrt_lam: float) -> None:
@@ -204,8 +226,9 @@ def _damping(graph, keys_dims: list[tuple[int, int]], sqrt_lam: float) -> None:
     import gtsam
 
     for key, dim in keys_dims:
-        graph.push_back(gtsam.JacobianFactor(key, sqrt_lam * np.eye(dim), np.zeros(dim),
-                                             gtsam.noiseModel.Unit.Create(dim)))
+        graph.push_back(
+            gtsam.JacobianFactor(key, sqrt_lam * np.eye(dim), np.zeros(dim), gtsam.noiseModel.Unit.Create(dim))
+        )
 
 
 class _Steps:
@@ -261,8 +284,9 @@ class _Steps:
         return np.array([tree.marginalCovariance(int(key)) for key in self.bias_keys]).reshape(-1, 6, 6)
 
 
-def solve(problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_tolerance: float = 1e-5,
-          progress=None) -> Solution:
+def solve(
+    problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_tolerance: float = 1e-5, progress=None
+) -> Solution:
     """Levenberg–Marquardt from ``guess``; the solution, the biases' marginal covariance and a summary."""
     t0 = time.perf_counter()
     k = problem.data.shape[0] + 1
@@ -338,9 +362,15 @@ def residual_statistics(problem: Problem, sol: Solution) -> dict:
     whitened = err / np.maximum(problem.det_sigma, 1e-12)
     bias_prior = (sol.bias[0] - problem.bias_prior_mean) / problem.bias_prior_sigma
     return {
-        "relative_motion": {"rotation_deg": _stats(np.degrees(motion[:, 0])), "position_m": _stats(motion[:, 1]),
-                            "whitened": _stats(motion[:, 2])},
-        "landmark": {"error_m": _stats(err), "whitened": _stats(whitened),
-                     "huber_downweighted": int(np.count_nonzero(whitened > problem.huber))},
+        "relative_motion": {
+            "rotation_deg": _stats(np.degrees(motion[:, 0])),
+            "position_m": _stats(motion[:, 1]),
+            "whitened": _stats(motion[:, 2]),
+        },
+        "landmark": {
+            "error_m": _stats(err),
+            "whitened": _stats(whitened),
+            "huber_downweighted": int(np.count_nonzero(whitened > problem.huber)),
+        },
         "bias_prior": {"whitened": _stats(np.abs(bias_prior))},
     }

@@ -6,7 +6,8 @@ none for a body-velocity odometer with a velocity bias, so this one is written h
 "On-Manifold Preintegration", 2017, with the body velocity in place of the accelerometer's double integral):
 
     ΔR_ij = Π exp(h(Ω_m − b̄_Ω)),   Δp_ij = Σ ΔR_ik J(h(Ω_m − b̄_Ω)) h (V_m − b̄_V)   (the twist linear between
-    samples, :func:`~slamobs.pipeline.observers.shared_steps.twist_at`), with ∂ΔR/∂b_Ω, ∂Δp/∂b_Ω, ∂Δp/∂b_V and the covariance of (δφ, δp) from the
+    samples, :func:`~slamobs.pipeline.observers.shared_steps.twist_at`), with ∂ΔR/∂b_Ω, ∂Δp/∂b_Ω, ∂Δp/∂b_V and the
+    covariance of (δφ, δp) from the
     white-noise densities. The residual between keyframe poses T_i, T_j and the bias b is
 
     r_R = Log((ΔR_ij Exp(J_R δb_Ω))ᵀ R_iᵀ R_j),   r_p = R_iᵀ(P_j − P_i) − (Δp_ij + J_pΩ δb_Ω + J_pV δb_V),
@@ -30,15 +31,16 @@ from slamobs.pipeline.observers.shared_steps import twist_at
 D_R, D_P, D_JR, D_JPW, D_JPV, D_W, D_END = 0, 9, 12, 21, 30, 39, 75
 
 
-def keyframe_times(vel_t: np.ndarray, det_t: np.ndarray, max_dt: float,
-                   gaps_between: np.ndarray | None = None) -> np.ndarray:
+def keyframe_times(
+    vel_t: np.ndarray, det_t: np.ndarray, max_dt: float, gaps_between: np.ndarray | None = None
+) -> np.ndarray:
     """Every detection frame time, the first and last velocity sample, and evenly spaced fillers so that no two
     keyframes are more than ``max_dt`` apart (seconds, sorted, unique), except across the gaps between segments
     (``gaps_between``: (G, 2) start and end times), which one keyframe interval spans."""
     base = np.unique(np.concatenate([[vel_t[0]], det_t[(det_t >= vel_t[0]) & (det_t <= vel_t[-1])], [vel_t[-1]]]))
     gaps = np.diff(base)
     pieces = np.maximum(1, np.ceil(gaps / max_dt - 1e-9).astype(np.int64))
-    for lo, hi in (gaps_between if gaps_between is not None else ()):
+    for lo, hi in gaps_between if gaps_between is not None else ():
         pieces[(base[:-1] <= lo) & (base[1:] >= hi)] = 1
     if np.all(pieces == 1):
         return base
@@ -75,7 +77,8 @@ def _mmt(a, b):
 def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
     """Relative motion over every keyframe interval ``[kf_t[j], kf_t[j+1]]`` at the bias ``b_bar`` (6,).
 
-    Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it: :func:`~slamobs.pipeline.observers.shared_steps.twist_at`). ``q_om``,
+    Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it:
+    :func:`~slamobs.pipeline.observers.shared_steps.twist_at`). ``q_om``,
     ``q_v`` (3,) are noise densities squared (per axis). Fills ``data`` (K−1, 75) in the layout of the ``D_*``
     offsets (``W`` left empty) and ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
     """
@@ -190,11 +193,11 @@ def motion_residual(data, j, b_bar, ti, tj, b, out_r, out_h, want_h):
     """Whitened residual (6,) of interval ``j`` between poses ``ti``, ``tj`` (4, 4) and the bias ``b`` (6,) into
     ``out_r``, and with ``want_h`` its Jacobians into ``out_h`` (3, 6, 6): wrt ``T_i``, ``T_j``, ``b``.
     Returns the unwhitened residual ``(r_R, r_p)``."""
-    dr = data[j, D_R:D_R + 9].reshape(3, 3)
-    j_r = data[j, D_JR:D_JR + 9].reshape(3, 3)
-    j_pw = data[j, D_JPW:D_JPW + 9].reshape(3, 3)
-    j_pv = data[j, D_JPV:D_JPV + 9].reshape(3, 3)
-    w = data[j, D_W:D_W + 36].reshape(6, 6)
+    dr = data[j, D_R : D_R + 9].reshape(3, 3)
+    j_r = data[j, D_JR : D_JR + 9].reshape(3, 3)
+    j_pw = data[j, D_JPW : D_JPW + 9].reshape(3, 3)
+    j_pv = data[j, D_JPV : D_JPV + 9].reshape(3, 3)
+    w = data[j, D_W : D_W + 36].reshape(6, 6)
     dbw = np.empty(3)
     dbv = np.empty(3)
     for c in range(3):
@@ -228,8 +231,12 @@ def motion_residual(data, j, b_bar, ti, tj, b, out_r, out_h, want_h):
     r = np.empty(6)
     for c in range(3):
         r[c] = r_rot[c]
-        r[3 + c] = (rel[c] - data[j, D_P + c] - (j_pw[c, 0] * dbw[0] + j_pw[c, 1] * dbw[1] + j_pw[c, 2] * dbw[2])
-                    - (j_pv[c, 0] * dbv[0] + j_pv[c, 1] * dbv[1] + j_pv[c, 2] * dbv[2]))
+        r[3 + c] = (
+            rel[c]
+            - data[j, D_P + c]
+            - (j_pw[c, 0] * dbw[0] + j_pw[c, 1] * dbw[1] + j_pw[c, 2] * dbw[2])
+            - (j_pv[c, 0] * dbv[0] + j_pv[c, 1] * dbv[1] + j_pv[c, 2] * dbv[2])
+        )
     for p in range(6):
         x = 0.0
         for q in range(6):
@@ -349,7 +356,8 @@ def motion_residuals(data, b_bar, rot, pos, bias, seg_of):
 
 @njit(cache=True)
 def dead_reckon(vel_t, omega, vel, kf_t, bias, r0, p0, rot, pos):
-    """Keyframe poses by integrating the bias-corrected odometry (:func:`~slamobs.pipeline.observers.shared_steps.twist_at`) from ``(r0, p0)`` at
+    """Keyframe poses by integrating the bias-corrected odometry
+    (:func:`~slamobs.pipeline.observers.shared_steps.twist_at`) from ``(r0, p0)`` at
     ``kf_t[0]``: the dead-reckoning seed, and the motion the smoother's solution is checked against."""
     n = vel_t.shape[0]
     s = 0
@@ -456,8 +464,16 @@ def advance_poses(rot, pos, omega, vel, bias, dt):
     d_p = np.empty(3)
     for k in range(rot.shape[0]):
         h = dt[k]
-        se3_exp_into(h * (omega[k, 0] - bias[k, 0]), h * (omega[k, 1] - bias[k, 1]), h * (omega[k, 2] - bias[k, 2]),
-                     h * (vel[k, 0] - bias[k, 3]), h * (vel[k, 1] - bias[k, 4]), h * (vel[k, 2] - bias[k, 5]), d_r, d_p)
+        se3_exp_into(
+            h * (omega[k, 0] - bias[k, 0]),
+            h * (omega[k, 1] - bias[k, 1]),
+            h * (omega[k, 2] - bias[k, 2]),
+            h * (vel[k, 0] - bias[k, 3]),
+            h * (vel[k, 1] - bias[k, 4]),
+            h * (vel[k, 2] - bias[k, 5]),
+            d_r,
+            d_p,
+        )
         r = rot[k].copy()
         for p in range(3):
             pos[k, p] += r[p, 0] * d_p[0] + r[p, 1] * d_p[1] + r[p, 2] * d_p[2]

@@ -80,8 +80,15 @@ def observer_seed(name: str, stream: AlignedStream, gains: dict, options, kf_t: 
         bias[sel, :3], bias[sel, 3:] = part.gyro_bias[rows], part.vel_bias[rows]
         first += n
     if part is None or not (np.isfinite(pos).all() and np.isfinite(part.landmark_xyz).all()):
-        raise InputError("<stream>", f"the seed observer '{name}' diverged (non-finite state); "
-                                     "choose another batch.seed")
+        raise InputError(
+            "<stream>", f"the seed observer '{name}' diverged (non-finite state); choose another batch.seed"
+        )
     advance_poses(rot, pos, stream.omega[s_of_kf], stream.velocity[s_of_kf], bias, kf_t - vel_t[s_of_kf])
-    return Seed(name, rot, pos, np.array(part.landmark_xyz, dtype=float), np.r_[part.gyro_bias[-1], part.vel_bias[-1]],
-                time.perf_counter() - t)
+    return Seed(
+        name,
+        rot,
+        pos,
+        np.array(part.landmark_xyz, dtype=float),
+        np.r_[part.gyro_bias[-1], part.vel_bias[-1]],
+        time.perf_counter() - t,
+    )

@@ -50,11 +50,30 @@ def trial_rows(study, spec, logs: list[str]) -> list[dict]:
     for t in _trials(study):
         gains = t.user_attrs["gains"]
         for i, r in enumerate(t.user_attrs["logs"]):
-            rows.append({"trial": t.number, "state": t.state.name, "is_default": bool(t.user_attrs.get("default")),
-                         "objective": t.value if t.value is not None else math.nan, "log_index": i, "log": logs[i],
-                         **{k: r.get(k) for k in ("status", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m",
-                                                  "read_s", "observer_s", "worker", "error")},
-                         **{f"gain_{g.name}": float(gains[g.name]) for g in spec.gains}})
+            rows.append(
+                {
+                    "trial": t.number,
+                    "state": t.state.name,
+                    "is_default": bool(t.user_attrs.get("default")),
+                    "objective": t.value if t.value is not None else math.nan,
+                    "log_index": i,
+                    "log": logs[i],
+                    **{
+                        k: r.get(k)
+                        for k in (
+                            "status",
+                            "ape_trans_rmse_m",
+                            "ape_rot_rmse_deg",
+                            "landmark_rmse_m",
+                            "read_s",
+                            "observer_s",
+                            "worker",
+                            "error",
+                        )
+                    },
+                    **{f"gain_{g.name}": float(gains[g.name]) for g in spec.gains},
+                }
+            )
     return rows
 
 
@@ -65,10 +84,14 @@ def write_trials(path: Path, rows: list[dict], spec) -> None:
     from slamobs.schemas import table_spec
 
     doc = table_spec("tune_trials")
-    fields = [pa.field(f["name"], getattr(pa, f["type"])(), metadata={"unit": f["unit"], "description": f["description"]})
-              for f in doc["fields"]]
-    fields += [pa.field(f"gain_{g.name}", pa.float64(), nullable=False,
-                        metadata={"unit": "", "description": g.description}) for g in spec.gains]
+    fields = [
+        pa.field(f["name"], getattr(pa, f["type"])(), metadata={"unit": f["unit"], "description": f["description"]})
+        for f in doc["fields"]
+    ]
+    fields += [
+        pa.field(f"gain_{g.name}", pa.float64(), nullable=False, metadata={"unit": "", "description": g.description})
+        for g in spec.gains
+    ]
     schema = pa.schema(fields, metadata={"description": doc["description"]})
     table = pa.Table.from_pylist(rows, schema=schema)
     _replace(path, lambda tmp: pq.write_table(table, tmp, compression="zstd"))
@@ -96,16 +119,30 @@ def validation(complete: list, default, key: str, logs: list[str]) -> dict:
         k = int(np.argmin(train))
         held = float(values[k, i])
         base = float(_per_log(default, key)[i]) if default is not None else None
-        rows.append({"log": log, "chosen_trial": complete[k].number, "train_median": float(train[k]),
-                     "held_out": held, "default": base,
-                     "improvement": None if base is None or not math.isfinite(base) or not math.isfinite(held)
-                     else 1.0 - held / base,
-                     "gains": complete[k].user_attrs["gains"]})
+        rows.append(
+            {
+                "log": log,
+                "chosen_trial": complete[k].number,
+                "train_median": float(train[k]),
+                "held_out": held,
+                "default": base,
+                "improvement": None
+                if base is None or not math.isfinite(base) or not math.isfinite(held)
+                else 1.0 - held / base,
+                "gains": complete[k].user_attrs["gains"],
+            }
+        )
     better = sum(1 for r in rows if r["default"] is not None and r["held_out"] < r["default"])
-    return {"method": ("leave-one-log-out: for each log, the trial with the lowest median over the other logs is "
-                       "chosen among the tune's trials and measured on the held-out log; the trials were proposed "
-                       "by a sampler that saw every log"),
-            "rows": rows, "held_out_better_than_default": better, "logs": len(logs)}
+    return {
+        "method": (
+            "leave-one-log-out: for each log, the trial with the lowest median over the other logs is "
+            "chosen among the tune's trials and measured on the held-out log; the trials were proposed "
+            "by a sampler that saw every log"
+        ),
+        "rows": rows,
+        "held_out_better_than_default": better,
+        "logs": len(logs),
+    }
 
 
 def holdout_summary(rows: list[dict], key: str) -> dict:
@@ -113,15 +150,26 @@ def holdout_summary(rows: list[dict], key: str) -> dict:
     out = []
     for r in rows:
         d, t = (_value(r.get(name), key) for name in ("defaults", "tuned"))
-        out.append({"log": r["log"], "best_trial": r["best_trial"], "defaults": d, "tuned": t,
-                    "improvement": 1.0 - t / d if math.isfinite(d) and math.isfinite(t) and d > 0 else None})
+        out.append(
+            {
+                "log": r["log"],
+                "best_trial": r["best_trial"],
+                "defaults": d,
+                "tuned": t,
+                "improvement": 1.0 - t / d if math.isfinite(d) and math.isfinite(t) and d > 0 else None,
+            }
+        )
     d = np.array([r["defaults"] for r in out], dtype=float)
     t = np.array([r["tuned"] for r in out], dtype=float)
     with np.errstate(invalid="ignore"):
-        return {"method": "logs the sampler never saw, scored at the end with the defaults and the best gains",
-                "rows": out, "tuned_better": int(np.sum(t < d)), "logs": len(out),
-                "median_defaults": float(np.median(d)) if len(d) else None,
-                "median_tuned": float(np.median(t)) if len(t) else None}
+        return {
+            "method": "logs the sampler never saw, scored at the end with the defaults and the best gains",
+            "rows": out,
+            "tuned_better": int(np.sum(t < d)),
+            "logs": len(out),
+            "median_defaults": float(np.median(d)) if len(d) else None,
+            "median_tuned": float(np.median(t)) if len(t) else None,
+        }
 
 
 def _value(row: dict | None, key: str) -> float:
@@ -193,21 +241,35 @@ def write_results(out: Path, study, spec, setup: dict, options, holdout: list[di
     def trial_doc(t):
         if t is None:
             return None
-        return {"trial": t.number, "objective": t.value, "gains": t.user_attrs["gains"],
-                "per_log": dict(zip(logs, _per_log(t, key)))}
+        return {
+            "trial": t.number,
+            "objective": t.value,
+            "gains": t.user_attrs["gains"],
+            "per_log": dict(zip(logs, _per_log(t, key))),
+        }
 
-    summary = {"observer": spec.name, "objective": {"name": options.objective, "metric": key, "unit": unit,
-                                                    "statistic": "median over the logs"},
-               "trials": {"complete": len(complete), "failed": len(_trials(study)) - len(complete),
-                          "requested": options.trials},
-               "best": trial_doc(best), "defaults": trial_doc(default), "validation": val,
-               "holdout": holdout_summary(list(holdout), key) if holdout else None, "setup": setup,
-               "files": {"gains": "gains.yaml", "trials": "trials.parquet", "plot": "objective.png"}}
+    summary = {
+        "observer": spec.name,
+        "objective": {"name": options.objective, "metric": key, "unit": unit, "statistic": "median over the logs"},
+        "trials": {
+            "complete": len(complete),
+            "failed": len(_trials(study)) - len(complete),
+            "requested": options.trials,
+        },
+        "best": trial_doc(best),
+        "defaults": trial_doc(default),
+        "validation": val,
+        "holdout": holdout_summary(list(holdout), key) if holdout else None,
+        "setup": setup,
+        "files": {"gains": "gains.yaml", "trials": "trials.parquet", "plot": "objective.png"},
+    }
     if best is not None:
-        header = [f"slamobs tune: best of {len(complete)} trials on {len(logs)} logs (trial {best.number}), "
-                  f"median {key} {best.value:.4g} {unit}"
-                  + (f" (defaults {_fmt(default.value)})" if default is not None else ""),
-                  "use with: slamobs run LOG --config gains.yaml (or copy the gains section into your run.yaml)"]
+        header = [
+            f"slamobs tune: best of {len(complete)} trials on {len(logs)} logs (trial {best.number}), "
+            f"median {key} {best.value:.4g} {unit}"
+            + (f" (defaults {_fmt(default.value)})" if default is not None else ""),
+            "use with: slamobs run LOG --config gains.yaml (or copy the gains section into your run.yaml)",
+        ]
         write_gains(out / "gains.yaml", spec, best.user_attrs["gains"], header)
     if complete:
         plot_objective(out / "objective.png", complete, default, options.objective)
@@ -229,28 +291,46 @@ def _finite(o):
 
 def render_markdown(s: dict) -> str:
     o = s["objective"]
-    lines = [f"# slamobs tune: {s['observer']}", "",
-             f"Objective: median over the logs of `{o['metric']}` [{o['unit']}]; {s['trials']['complete']} complete "
-             f"trials ({s['trials']['failed']} failed) of {s['trials']['requested']} requested.", ""]
+    lines = [
+        f"# slamobs tune: {s['observer']}",
+        "",
+        f"Objective: median over the logs of `{o['metric']}` [{o['unit']}]; {s['trials']['complete']} complete "
+        f"trials ({s['trials']['failed']} failed) of {s['trials']['requested']} requested.",
+        "",
+    ]
     if s["best"] and s["defaults"]:
         lines += ["| log | defaults | best (tuned on all logs) |", "|---|---:|---:|"]
         for log in s["setup"]["logs"]:
-            lines.append(f"| {Path(log).name} | {_fmt(s['defaults']['per_log'][log])} | "
-                         f"{_fmt(s['best']['per_log'][log])} |")
+            lines.append(
+                f"| {Path(log).name} | {_fmt(s['defaults']['per_log'][log])} | {_fmt(s['best']['per_log'][log])} |"
+            )
         lines.append(f"| **median** | {_fmt(s['defaults']['objective'])} | {_fmt(s['best']['objective'])} |")
-        lines += ["", "Best gains (trial %d): %s" % (s["best"]["trial"], ", ".join(
-            f"{k} {v:.4g}" for k, v in s["best"]["gains"].items())), ""]
+        lines += [
+            "",
+            "Best gains (trial %d): %s"
+            % (s["best"]["trial"], ", ".join(f"{k} {v:.4g}" for k, v in s["best"]["gains"].items())),
+            "",
+        ]
     val = s["validation"]
     lines += ["## Leave-one-log-out validation", ""]
     if val.get("rows"):
-        lines += [val["method"] + ".", "",
-                  "| held-out log | defaults | chosen on the other logs | change | chosen trial |", "|---|---:|---:|---:|---:|"]
+        lines += [
+            val["method"] + ".",
+            "",
+            "| held-out log | defaults | chosen on the other logs | change | chosen trial |",
+            "|---|---:|---:|---:|---:|",
+        ]
         for r in val["rows"]:
             change = "-" if r["improvement"] is None else f"{-100 * r['improvement'] + 0.0:+.0f} %"
-            lines.append(f"| {Path(r['log']).name} | {_fmt(r['default'])} | {_fmt(r['held_out'])} | {change} | "
-                         f"{r['chosen_trial']} |")
-        lines += ["", f"Gains chosen without a log beat the defaults on it for {val['held_out_better_than_default']} "
-                      f"of {val['logs']} logs."]
+            lines.append(
+                f"| {Path(r['log']).name} | {_fmt(r['default'])} | {_fmt(r['held_out'])} | {change} | "
+                f"{r['chosen_trial']} |"
+            )
+        lines += [
+            "",
+            f"Gains chosen without a log beat the defaults on it for {val['held_out_better_than_default']} "
+            f"of {val['logs']} logs.",
+        ]
     else:
         lines.append(val.get("note", "no complete trials"))
     held = s.get("holdout")
@@ -260,11 +340,19 @@ def render_markdown(s: dict) -> str:
         for r in held["rows"]:
             change = "-" if r["improvement"] is None else f"{-100 * r['improvement'] + 0.0:+.0f} %"
             lines.append(f"| {Path(r['log']).name} | {_fmt(r['defaults'])} | {_fmt(r['tuned'])} | {change} |")
-        lines += [f"| **median** | {_fmt(held['median_defaults'])} | {_fmt(held['median_tuned'])} | |", "",
-                  f"The tuned gains beat the defaults on {held['tuned_better']} of {held['logs']} holdout logs."
-                  + ("" if 2 * held["tuned_better"] > held["logs"] else
-                     " They do not transfer: keep the defaults, or tune on more and longer logs.")]
+        lines += [
+            f"| **median** | {_fmt(held['median_defaults'])} | {_fmt(held['median_tuned'])} | |",
+            "",
+            f"The tuned gains beat the defaults on {held['tuned_better']} of {held['logs']} holdout logs."
+            + (
+                ""
+                if 2 * held["tuned_better"] > held["logs"]
+                else " They do not transfer: keep the defaults, or tune on more and longer logs."
+            ),
+        ]
     else:
-        lines.append("None given (`--holdout LOG`): without logs the tune never saw, nothing shows whether the "
-                     "gains transfer to your other logs.")
+        lines.append(
+            "None given (`--holdout LOG`): without logs the tune never saw, nothing shows whether the "
+            "gains transfer to your other logs."
+        )
     return "\n".join(lines) + "\n"

@@ -52,6 +52,14 @@ def in_range(spec: ObserverSpec, params: dict[str, float]) -> bool:
 
 def describe(spec: ObserverSpec) -> list[dict]:
     """The space as plain data (tune.json, and what a resumed tune must match)."""
-    return [{"gain": g.name, "low": g.search[0], "high": g.search[1], "log": True,
-             "of_limit": g.limit is not None, "default": g.default} for g in spec.gains]
-
+    return [
+        {
+            "gain": g.name,
+            "low": g.search[0],
+            "high": g.search[1],
+            "log": True,
+            "of_limit": g.limit is not None,
+            "default": g.default,
+        }
+        for g in spec.gains
+    ]

@@ -98,17 +98,30 @@ def _storage(out: Path):
 def _setup(spec, logs: list[Path], hashes: list[str], options: TuneOptions) -> dict:
     from slamobs.pipeline.batch.runner import config_hash
 
-    return {"observer": spec.name, "objective": options.objective, "logs": [str(p) for p in logs],
-            "content_hashes": hashes, "config_hash": config_hash(replace(options.config, gains={})),
-            "space": space.describe(spec)}
+    return {
+        "observer": spec.name,
+        "objective": options.objective,
+        "logs": [str(p) for p in logs],
+        "content_hashes": hashes,
+        "config_hash": config_hash(replace(options.config, gains={})),
+        "space": space.describe(spec),
+    }
 
 
 def _check_same(out: Path, had: dict, now: dict) -> None:
-    for key, what in (("observer", "observer"), ("objective", "objective"), ("content_hashes", "set of logs"),
-                      ("config_hash", "config"), ("space", "search space")):
+    for key, what in (
+        ("observer", "observer"),
+        ("objective", "objective"),
+        ("content_hashes", "set of logs"),
+        ("config_hash", "config"),
+        ("space", "search space"),
+    ):
         if had.get(key) != now.get(key):
-            raise InputError(out, f"holds a tune of another {what}; re-run its own command to continue it, "
-                                  "or use another -o (or --force to start over)")
+            raise InputError(
+                out,
+                f"holds a tune of another {what}; re-run its own command to continue it, "
+                "or use another -o (or --force to start over)",
+            )
 
 
 def _prepare_out(out: Path, inputs: list, force: bool) -> bool:
@@ -130,9 +143,12 @@ def _start_over(out: Path) -> None:
         (out / name).unlink(missing_ok=True)
 
 
-def run_tune(logs: Sequence[Path], options: TuneOptions,
-             on_round: Callable[[int, int, float | None], None] = lambda _done, _total, _best: None,
-             run=None) -> TuneResult:
+def run_tune(
+    logs: Sequence[Path],
+    options: TuneOptions,
+    on_round: Callable[[int, int, float | None], None] = lambda _done, _total, _best: None,
+    run=None,
+) -> TuneResult:
     """Tune ``options.observer``'s gains on ``logs`` into ``options.out`` (see the module doc).
 
     ``on_round(done, total, best)`` is called after every round. ``run`` replaces the workers' task function
@@ -150,7 +166,9 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
     from slamobs.pipeline.tune.worker import run_trial_log
 
     if options.objective not in OBJECTIVES:
-        raise InputError("--objective", f"unknown objective {options.objective!r} (choose from {', '.join(OBJECTIVES)})")
+        raise InputError(
+            "--objective", f"unknown objective {options.objective!r} (choose from {', '.join(OBJECTIVES)})"
+        )
     if options.trials < 1:
         raise InputError("--trials", "needs at least 1 trial")
     config = with_observer(options.config, options.observer)
@@ -180,10 +198,13 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
         if options.force:
             _start_over(out)
             resume = False
-        study = optuna.create_study(study_name=STUDY, storage=_storage(out), direction="minimize",
-                                    load_if_exists=True,
-                                    sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True,
-                                                                       constant_liar=True))
+        study = optuna.create_study(
+            study_name=STUDY,
+            storage=_storage(out),
+            direction="minimize",
+            load_if_exists=True,
+            sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True, constant_liar=True),
+        )
         if resume and "setup" in study.user_attrs:
             _check_same(out, study.user_attrs["setup"], setup)
         else:
@@ -191,8 +212,7 @@ def run_tune(logs: Sequence[Path], options: TuneOptions,
                 study.set_user_attr("setup", setup)
                 study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
         _requeue_interrupted(study)
-        ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round,
-                                           run or run_trial_log)
+        ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round, run or run_trial_log)
         summary = results.write_results(out, study, spec, setup, options, held)
     if held_failed:  # the tune's own results are written; the holdout log is what failed
         raise TuneFailed(held_failed)
@@ -223,8 +243,9 @@ def _complete(study) -> int:
     return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
 
 
-def _optimise(study, spec, config: RunConfig, logs: list[Path], holdout: list[Path], options: TuneOptions, on_round,
-              run) -> tuple[int, list[dict], str | None]:
+def _optimise(
+    study, spec, config: RunConfig, logs: list[Path], holdout: list[Path], options: TuneOptions, on_round, run
+) -> tuple[int, list[dict], str | None]:
     """Run trials until ``options.trials`` are complete, then score the defaults and the best gains on the
     ``holdout`` logs; (trials run, one row per holdout log, why a holdout log could not be scored)."""
     import optuna
@@ -255,16 +276,25 @@ def _optimise(study, spec, config: RunConfig, logs: list[Path], holdout: list[Pa
             for trial in trials:
                 gains[trial.number] = space.gains_of(spec, trial.params)
                 cfg = {**base.config, "gains": {spec.name: gains[trial.number]}}
-                tasks += [replace(base, run_id=f"trial{trial.number}-log{i}", log=str(log), config=cfg)
-                          for i, log in enumerate(logs)]
+                tasks += [
+                    replace(base, run_id=f"trial{trial.number}-log{i}", log=str(log), config=cfg)
+                    for i, log in enumerate(logs)
+                ]
             rows: dict[int, list[dict]] = {t.number: [None] * len(logs) for t in trials}
             for task, row in pool.results(tasks):
-                number, index = (int(x) for x in task.run_id[len("trial"):].split("-log"))
+                number, index = (int(x) for x in task.run_id[len("trial") :].split("-log"))
                 if row.get("fatal"):
                     raise TuneFailed(row["error"])
-                if row["status"] == "ok" and options.objective != "ape" and row.get(OBJECTIVES[options.objective]) is None:
-                    raise TuneFailed(f"{task.log}: has no {'landmark truth' if options.objective == 'landmarks' else 'rotation truth'}"
-                                     f": --objective {options.objective} needs it")
+                if (
+                    row["status"] == "ok"
+                    and options.objective != "ape"
+                    and row.get(OBJECTIVES[options.objective]) is None
+                ):
+                    raise TuneFailed(
+                        f"{task.log}: has no "
+                        f"{'landmark truth' if options.objective == 'landmarks' else 'rotation truth'}"
+                        f": --objective {options.objective} needs it"
+                    )
                 rows[number][index] = {k: row.get(k) for k in _ROW_KEYS}
             values = {t.number: objective_value(rows[t.number], options.objective) for t in trials}
             failed_rounds = failed_rounds + 1 if all(math.isnan(v) for v in values.values()) else 0
@@ -302,9 +332,11 @@ def _score_holdout(study, spec, base, holdout: list[Path], options: TuneOptions,
         return []
     best = min(finite, key=lambda t: (t.value, t.number))
     variants = {"defaults": spec.resolve_gains(None), "tuned": best.user_attrs["gains"]}
-    tasks = [replace(base, run_id=f"{name}-log{i}", log=str(log),
-                     config={**base.config, "gains": {spec.name: gains}})
-             for name, gains in variants.items() for i, log in enumerate(holdout)]
+    tasks = [
+        replace(base, run_id=f"{name}-log{i}", log=str(log), config={**base.config, "gains": {spec.name: gains}})
+        for name, gains in variants.items()
+        for i, log in enumerate(holdout)
+    ]
     rows = [{"log": str(log), "best_trial": best.number} for log in holdout]
     for task, row in pool.results(tasks):
         name, index = task.run_id.split("-log")
@@ -314,8 +346,18 @@ def _score_holdout(study, spec, base, holdout: list[Path], options: TuneOptions,
     return rows
 
 
-_ROW_KEYS = ("status", "error", "ape_trans_rmse_m", "ape_rot_rmse_deg", "landmark_rmse_m", "read_s", "observer_s",
-             "total_s", "worker", "capped_intervals")
+_ROW_KEYS = (
+    "status",
+    "error",
+    "ape_trans_rmse_m",
+    "ape_rot_rmse_deg",
+    "landmark_rmse_m",
+    "read_s",
+    "observer_s",
+    "total_s",
+    "worker",
+    "capped_intervals",
+)
 
 
 def _best_value(study) -> float | None:
@@ -323,5 +365,3 @@ def _best_value(study) -> float | None:
         return float(study.best_value)
     except ValueError:
         return None
-
-

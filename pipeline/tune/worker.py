@@ -31,8 +31,9 @@ def _reading_key(log: str, config: dict, directions: bool) -> str:
     # what shapes the prepared log: not the estimator, its settings, the outputs or whether figures are drawn
     shaping = {k: v for k, v in config.items() if k not in ("observer", "gains", "output", "noise", "batch")}
     shaping["evaluation"] = {k: v for k, v in shaping.get("evaluation", {}).items() if k != "plots"}
-    return json.dumps([os.path.realpath(log), st.st_size, st.st_mtime_ns, directions, shaping], sort_keys=True,
-                      default=list)
+    return json.dumps(
+        [os.path.realpath(log), st.st_size, st.st_mtime_ns, directions, shaping], sort_keys=True, default=list
+    )
 
 
 def prepared_log(log: str, config, directions: bool):
@@ -48,8 +49,11 @@ def prepared_log(log: str, config, directions: bool):
     if prepared.streams.truth is None or not len(prepared.streams.truth):
         from slamobs.pipeline.errors import InputError
 
-        raise InputError(log, "no ground truth (a truth topic, evaluation.truth_file or a TF edge in topics.truth): "
-                              "tuning needs logs with truth")
+        raise InputError(
+            log,
+            "no ground truth (a truth topic, evaluation.truth_file or a TF edge in topics.truth): "
+            "tuning needs logs with truth",
+        )
     _PREPARED[key] = prepared
     while len(_PREPARED) > CACHE_LOGS:
         _PREPARED.popitem(last=False)
@@ -80,17 +84,26 @@ def score(prepared, config) -> dict[str, float | None]:
     if not np.isfinite(res.position).all():
         raise ObserverDiverged(int(res.t_ns[np.argmax(~np.isfinite(res.position).all(axis=1))]), res.stats)
     poses = pd.DataFrame(stretch_tables(res)["poses"])
-    ev = evaluate_trajectory(poses, truth_on_run_clock(prepared.streams, config), ReportOptions(t_max_diff_s=config.evaluation.t_max_diff),
-                             estimate_offset=False)
+    ev = evaluate_trajectory(
+        poses,
+        truth_on_run_clock(prepared.streams, config),
+        ReportOptions(t_max_diff_s=config.evaluation.t_max_diff),
+        estimate_offset=False,
+    )
     lm_rmse = None
     if prepared.streams.landmark_truth:
         al = ev.alignment
-        lm = landmark_errors(res.landmark_ids, res.landmark_xyz, prepared.streams.landmark_truth, al.rot, al.trans,
-                             al.scale)
-        lm_rmse = float(np.sqrt(np.mean(lm.errors ** 2))) if lm.errors.size else None
-    return {"ape_trans_rmse_m": float(ev.translation.stats["rmse"]),
-            "ape_rot_rmse_deg": float(ev.rotation.stats["rmse"]), "landmark_rmse_m": lm_rmse,
-            "substeps": int(res.stats.get("substeps", 0)), "capped_intervals": int(res.stats.get("capped_intervals", 0))}
+        lm = landmark_errors(
+            res.landmark_ids, res.landmark_xyz, prepared.streams.landmark_truth, al.rot, al.trans, al.scale
+        )
+        lm_rmse = float(np.sqrt(np.mean(lm.errors**2))) if lm.errors.size else None
+    return {
+        "ape_trans_rmse_m": float(ev.translation.stats["rmse"]),
+        "ape_rot_rmse_deg": float(ev.rotation.stats["rmse"]),
+        "landmark_rmse_m": lm_rmse,
+        "substeps": int(res.stats.get("substeps", 0)),
+        "capped_intervals": int(res.stats.get("capped_intervals", 0)),
+    }
 
 
 def run_trial_log(task: Task) -> dict:

@@ -24,10 +24,14 @@ def opencv(path: str | Path = "", why: str = "tag corners and camera images") ->
     try:
         import cv2
     except ImportError:
-        raise InputError(path, f"{why} need OpenCV (opencv-python-headless), which is not installed; "
-                               f"{EXTRA_HINT}") from None
+        raise InputError(
+            path, f"{why} need OpenCV (opencv-python-headless), which is not installed; {EXTRA_HINT}"
+        ) from None
     version = tuple(int(x) for x in cv2.__version__.split(".")[:2] if x.isdigit())
     if version < MIN_OPENCV or not hasattr(cv2, "aruco"):
-        raise InputError(path, f"{why} need OpenCV >= {MIN_OPENCV[0]}.{MIN_OPENCV[1]} with the aruco module "
-                               f"(found {cv2.__version__}); {EXTRA_HINT}")
+        raise InputError(
+            path,
+            f"{why} need OpenCV >= {MIN_OPENCV[0]}.{MIN_OPENCV[1]} with the aruco module "
+            f"(found {cv2.__version__}); {EXTRA_HINT}",
+        )
     return cv2

@@ -97,8 +97,16 @@ class CameraModel:
         """The model of the rectified image (``P`` of the CameraInfo, no distortion)."""
         if self.rectified_k is None:
             return self
-        return CameraModel(self.name, self.rectified_k, np.zeros(0), "none", self.size, self.source + " (rectified)",
-                           self.topics, self.frame)
+        return CameraModel(
+            self.name,
+            self.rectified_k,
+            np.zeros(0),
+            "none",
+            self.size,
+            self.source + " (rectified)",
+            self.topics,
+            self.frame,
+        )
 
     def describe(self) -> str:
         fx, fy, cx, cy = self.k[0, 0], self.k[1, 1], self.k[0, 2], self.k[1, 2]
@@ -132,8 +140,12 @@ def distortion_model(name: str, coeffs: np.ndarray, where: str, path: str | Path
     """The implemented model for a distortion name, after checking the coefficient count."""
     model = DISTORTION_MODELS.get(str(name).strip().lower())
     if model is None:
-        raise InputError(path, f"{where}: distortion model {name!r} is not supported "
-                               "(plumb_bob/radtan, rational_polynomial, equidistant/fisheye)", topic)
+        raise InputError(
+            path,
+            f"{where}: distortion model {name!r} is not supported "
+            "(plumb_bob/radtan, rational_polynomial, equidistant/fisheye)",
+            topic,
+        )
     n = coeffs.shape[0]
     if model == "equidistant" and n != 4:
         raise InputError(path, f"{where}: equidistant distortion needs 4 coefficients, got {n}", topic)
@@ -147,8 +159,9 @@ def distortion_model(name: str, coeffs: np.ndarray, where: str, path: str | Path
 def _k_matrix(fx: float, fy: float, cx: float, cy: float, where: str, path, topic=None) -> np.ndarray:
     k = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]], dtype=np.float64)
     if not (np.isfinite(k).all() and fx > 0 and fy > 0):
-        raise InputError(path, f"{where}: camera matrix has no usable focal length (fx={fx}, fy={fy}; uncalibrated?)",
-                         topic)
+        raise InputError(
+            path, f"{where}: camera matrix has no usable focal length (fx={fx}, fy={fy}; uncalibrated?)", topic
+        )
     return k
 
 
@@ -181,9 +194,16 @@ def from_camera_info(msg: Any, topic: str, path: str | Path = "") -> CameraModel
             m[0] /= bx
             m[1] /= by
         width, height = (roi.width or width) // bx, (roi.height or height) // by
-    return CameraModel(topic, k, dist if model != "none" else np.zeros(0), model,
-                       (width, height) if width and height else None, f"CameraInfo {topic}",
-                       frame=str(msg.header.frame_id).lstrip("/"), rectified_k=rect)
+    return CameraModel(
+        topic,
+        k,
+        dist if model != "none" else np.zeros(0),
+        model,
+        (width, height) if width and height else None,
+        f"CameraInfo {topic}",
+        frame=str(msg.header.frame_id).lstrip("/"),
+        rectified_k=rect,
+    )
 
 
 # --------------------------------------------------------------------------- files
@@ -212,8 +232,13 @@ def _count(value: Any, what: str, path: Path) -> int:
     if value is None:
         return 0
     value = value.item() if isinstance(value, np.generic) else value
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or \
-            value != int(value) or value < 0:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not np.isfinite(value)
+        or value != int(value)
+        or value < 0
+    ):
         raise InputError(path, f"{what} must be a whole number of pixels, got {value!r}")
     return int(value)
 
@@ -251,20 +276,35 @@ def _kalibr(doc: dict, path: Path, out: CameraFiles) -> None:
         dist = _numbers(cam.get("distortion_coeffs", []), None, f"{where}.distortion_coeffs", path)
         model = distortion_model(cam.get("distortion_model", "none"), dist, where, path)
         res = cam.get("resolution")
-        size = tuple(_count(v, f"{where}.resolution", path) for v in _numbers(res, 2, f"{where}.resolution", path)) \
-            if res is not None else None
+        size = (
+            tuple(_count(v, f"{where}.resolution", path) for v in _numbers(res, 2, f"{where}.resolution", path))
+            if res is not None
+            else None
+        )
         topics = tuple(str(cam[key]) for key in ("rostopic", "tagtopic") if cam.get(key))
-        out.models.append(CameraModel(name, _k_matrix(fx, fy, cx, cy, where, path), dist if model != "none"
-                                      else np.zeros(0), model, size, f"{path.name} ({name})", topics))
+        out.models.append(
+            CameraModel(
+                name,
+                _k_matrix(fx, fy, cx, cy, where, path),
+                dist if model != "none" else np.zeros(0),
+                model,
+                size,
+                f"{path.name} ({name})",
+                topics,
+            )
+        )
         if "T_cn_cnm1" in cam and previous is not None:
             t4 = _numbers(cam["T_cn_cnm1"], 16, f"{where}.T_cn_cnm1", path).reshape(4, 4)
             rot, trans = _invert(t4)  # x_cnm1 = T^-1 x_cn
-            out.transforms.append(RigTransform(("camera", previous), ("camera", name), rot, trans,
-                                               f"{path.name} {name}.T_cn_cnm1"))
+            out.transforms.append(
+                RigTransform(("camera", previous), ("camera", name), rot, trans, f"{path.name} {name}.T_cn_cnm1")
+            )
         if "T_cam_imu" in cam:
             t4 = _numbers(cam["T_cam_imu"], 16, f"{where}.T_cam_imu", path).reshape(4, 4)
             rot, trans = _invert(t4)  # x_imu = T^-1 x_cam
-            out.transforms.append(RigTransform(("imu", ""), ("camera", name), rot, trans, f"{path.name} {name}.T_cam_imu"))
+            out.transforms.append(
+                RigTransform(("imu", ""), ("camera", name), rot, trans, f"{path.name} {name}.T_cam_imu")
+            )
         previous = name
     out.rig_body = out.rig_body or rig
 
@@ -285,10 +325,19 @@ def _ros_yaml(doc: dict, path: Path, out: CameraFiles) -> None:
         pp = matrix("projection_matrix", 12).reshape(3, 4)
         rect = pp[:, :3].copy() if pp[0, 0] > 0 and pp[1, 1] > 0 else None
     width, height = (_count(doc.get(key), key, path) for key in ("image_width", "image_height"))
-    out.models.append(CameraModel(name, _k_matrix(kk[0, 0], kk[1, 1], kk[0, 2], kk[1, 2], name, path),
-                                  dist if model != "none" else np.zeros(0), model,
-                                  (width, height) if width and height else None, path.name, (), name.lstrip("/"),
-                                  rectified_k=rect))
+    out.models.append(
+        CameraModel(
+            name,
+            _k_matrix(kk[0, 0], kk[1, 1], kk[0, 2], kk[1, 2], name, path),
+            dist if model != "none" else np.zeros(0),
+            model,
+            (width, height) if width and height else None,
+            path.name,
+            (),
+            name.lstrip("/"),
+            rectified_k=rect,
+        )
+    )
 
 
 def _pose(node: Any, what: str, path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -303,8 +352,9 @@ def _camera_poses(doc: dict, path: Path, out: CameraFiles, rig: str) -> None:
     for name, cam in sorted(doc.items(), key=lambda item: str(item[0])):
         if isinstance(cam, dict) and "pose" in cam:
             rot, trans = _pose(cam["pose"], f"{name}.pose", path)
-            out.transforms.append(RigTransform(("frame", rig or "rig"), ("camera", str(name)), rot, trans,
-                                               f"{path.name} {name}.pose"))
+            out.transforms.append(
+                RigTransform(("frame", rig or "rig"), ("camera", str(name)), rot, trans, f"{path.name} {name}.pose")
+            )
 
 
 def _tagslam_bodies(doc: dict, path: Path, out: CameraFiles) -> None:
@@ -321,8 +371,15 @@ def _tagslam_bodies(doc: dict, path: Path, out: CameraFiles) -> None:
                 out.notes.append(f"{path.name}: body '{name}' has T_body_odom but no odom_frame_id: not used")
                 continue
             rot, trans = _pose(body["T_body_odom"], f"{name}.T_body_odom", path)
-            out.transforms.append(RigTransform(("frame", str(name)), ("frame", str(frame).lstrip("/")), rot, trans,
-                                               f"{path.name} {name}.T_body_odom"))
+            out.transforms.append(
+                RigTransform(
+                    ("frame", str(name)),
+                    ("frame", str(frame).lstrip("/")),
+                    rot,
+                    trans,
+                    f"{path.name} {name}.T_body_odom",
+                )
+            )
             found = True
     if not found:
         out.notes.append(f"{path.name}: no dynamic body with T_body_odom and odom_frame_id (nothing used)")
@@ -336,8 +393,11 @@ def read_camera_files(paths: list[str | Path]) -> CameraFiles:
         path = Path(p)
         doc = _load_yaml(path)
         if not isinstance(doc, dict):
-            raise InputError(path, "camera file must be a YAML mapping (Kalibr camchain, ROS camera_info YAML, "
-                                   "TagSLAM camera_poses.yaml or tagslam.yaml)")
+            raise InputError(
+                path,
+                "camera file must be a YAML mapping (Kalibr camchain, ROS camera_info YAML, "
+                "TagSLAM camera_poses.yaml or tagslam.yaml)",
+            )
         docs.append((path, doc))
     for path, doc in docs:  # intrinsics first: they name the rig body the camera poses refer to
         cams = [v for v in doc.values() if isinstance(v, dict)]
@@ -354,9 +414,12 @@ def read_camera_files(paths: list[str | Path]) -> CameraFiles:
         elif cams and all("pose" in c for c in cams):
             _camera_poses(doc, path, out, out.rig_body)
         else:
-            raise InputError(path, "not a camera file: expected a Kalibr camchain (camN.intrinsics), a ROS camera_info "
-                                   "YAML (camera_matrix), a TagSLAM camera_poses.yaml (camN.pose) or a tagslam.yaml "
-                                   "(bodies)")
+            raise InputError(
+                path,
+                "not a camera file: expected a Kalibr camchain (camN.intrinsics), a ROS camera_info "
+                "YAML (camera_matrix), a TagSLAM camera_poses.yaml (camN.pose) or a tagslam.yaml "
+                "(bodies)",
+            )
     return out
 
 

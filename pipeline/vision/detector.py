@@ -12,7 +12,8 @@ whole image (about ten times slower). So the detector runs without refinement, a
 each side of every tag instead: along the coarse side it finds the steepest point of the intensity profile
 across the edge (sub-pixel), fits a line to those points, and intersects
 adjacent lines (only falls from bright to dark going inwards count, so the edges of the data cells next to
-the border are not taken for it; the edge point is the centroid of the gradient within 1.5 px of its peak). Unbiased for blur that is the same on both sides of an edge, and cheap (one
+the border are not taken for it; the edge point is the centroid of the gradient within 1.5 px of its peak). Unbiased
+for blur that is the same on both sides of an edge, and cheap (one
 ``cv2.remap`` for all tags of an image).
 
 Speed and settings: OpenCV's defaults otherwise (``benchmarks/tag_detection.py`` measures frames per second at
@@ -56,14 +57,17 @@ def family_constant(name: str, path: object = "") -> str:
     """The OpenCV dictionary constant of a tag family name (``36h11``, ``tag36h11``, ``4x4_50``, ``DICT_...``)."""
     key = str(name).strip().lower()
     for prefix in ("dict_", "apriltag_", "tag", "aruco_") if key not in FAMILIES else ():
-        if key.startswith(prefix) and key[len(prefix):] in FAMILIES:
-            key = key[len(prefix):]
+        if key.startswith(prefix) and key[len(prefix) :] in FAMILIES:
+            key = key[len(prefix) :]
             break
     if key == "original":
         key = "aruco_original"
     if key not in FAMILIES:
-        raise InputError(path, f"unknown tag family {name!r} (known: 36h11, 36h10, 25h9, 16h5, 4x4_50 ... 7x7_1000, "
-                               "aruco_original, aruco_mip_36h12)")
+        raise InputError(
+            path,
+            f"unknown tag family {name!r} (known: 36h11, 36h10, 25h9, 16h5, 4x4_50 ... 7x7_1000, "
+            "aruco_original, aruco_mip_36h12)",
+        )
     return FAMILIES[key]
 
 
@@ -103,8 +107,9 @@ class TagDetector:
         try:
             corners, ids, _ = self._detector.detectMarkers(gray)
         except self._error as err:  # settings OpenCV rejects (images are valid 8-bit grey by now)
-            raise InputError(self.path, f"tags.detector: OpenCV rejects the settings {self.parameters}: "
-                                        f"{_condition(err)}") from None
+            raise InputError(
+                self.path, f"tags.detector: OpenCV rejects the settings {self.parameters}: {_condition(err)}"
+            ) from None
         if ids is None or len(ids) == 0:
             return np.zeros(0, np.int64), np.zeros((0, 4, 2))
         corners = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
@@ -174,8 +179,13 @@ def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
     base = start[:, :, None, :] + along[None, None, :, None] * side[:, :, None, :]  # (K, 4, m, 2)
     pts = base[:, :, :, None, :] + offs[None, None, None, :, None] * normal[:, :, None, None, :]  # (K,4,m,d,2)
     flat = pts.reshape(-1, len(offs), 2).astype(np.float32)
-    prof = cv2.remap(np.ascontiguousarray(gray, dtype=np.float32), flat[..., 0], flat[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE).reshape(k, 4, m, len(offs))
+    prof = cv2.remap(
+        np.ascontiguousarray(gray, dtype=np.float32),
+        flat[..., 0],
+        flat[..., 1],
+        cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REPLICATE,
+    ).reshape(k, 4, m, len(offs))
     # OpenCV's order runs clockwise in the image, so ``normal`` points into the tag: across the outer edge the
     # profile falls from the white margin to the black border (the edges inside the tag rise or fall both ways)
     grad = np.maximum(-np.diff(prof, axis=-1), 0.0)  # between samples j and j + 1
@@ -207,19 +217,37 @@ def refine_corners(gray: np.ndarray, corners: np.ndarray) -> np.ndarray:
     q = p2 - p1
     t = (q[..., 0] * d2[..., 1] - q[..., 1] * d2[..., 0]) / np.where(np.abs(cross) > 1e-6, cross, 1.0)
     refined = p1 + t[..., None] * d1
-    ok = (np.abs(cross) > 1e-6) & (np.linalg.norm(refined - corners, axis=2) <= EDGE_REACH_PX) & \
-        (np.count_nonzero(w, axis=-1) >= 3) & (np.roll(np.count_nonzero(w, axis=-1), 1, axis=1) >= 3)
+    ok = (
+        (np.abs(cross) > 1e-6)
+        & (np.linalg.norm(refined - corners, axis=2) <= EDGE_REACH_PX)
+        & (np.count_nonzero(w, axis=-1) >= 3)
+        & (np.roll(np.count_nonzero(w, axis=-1), 1, axis=1) >= 3)
+    )
     return np.where(ok[..., None], refined, corners)
 
 
 # --------------------------------------------------------------------------- image decoding
 
-_BAYER = {"bayer_rggb8": "COLOR_BayerRG2GRAY", "bayer_bggr8": "COLOR_BayerBG2GRAY",
-          "bayer_gbrg8": "COLOR_BayerGB2GRAY", "bayer_grbg8": "COLOR_BayerGR2GRAY"}
-_COLOUR = {"rgb8": ("COLOR_RGB2GRAY", 3), "bgr8": ("COLOR_BGR2GRAY", 3), "rgba8": ("COLOR_RGBA2GRAY", 4),
-           "bgra8": ("COLOR_BGRA2GRAY", 4), "8uc3": ("COLOR_BGR2GRAY", 3), "8uc4": ("COLOR_BGRA2GRAY", 4)}
-_YUV = {"yuv422": "COLOR_YUV2GRAY_UYVY", "uyvy": "COLOR_YUV2GRAY_UYVY", "yuv422_yuy2": "COLOR_YUV2GRAY_YUY2",
-        "yuyv": "COLOR_YUV2GRAY_YUY2"}
+_BAYER = {
+    "bayer_rggb8": "COLOR_BayerRG2GRAY",
+    "bayer_bggr8": "COLOR_BayerBG2GRAY",
+    "bayer_gbrg8": "COLOR_BayerGB2GRAY",
+    "bayer_grbg8": "COLOR_BayerGR2GRAY",
+}
+_COLOUR = {
+    "rgb8": ("COLOR_RGB2GRAY", 3),
+    "bgr8": ("COLOR_BGR2GRAY", 3),
+    "rgba8": ("COLOR_RGBA2GRAY", 4),
+    "bgra8": ("COLOR_BGRA2GRAY", 4),
+    "8uc3": ("COLOR_BGR2GRAY", 3),
+    "8uc4": ("COLOR_BGRA2GRAY", 4),
+}
+_YUV = {
+    "yuv422": "COLOR_YUV2GRAY_UYVY",
+    "uyvy": "COLOR_YUV2GRAY_UYVY",
+    "yuv422_yuy2": "COLOR_YUV2GRAY_YUY2",
+    "yuyv": "COLOR_YUV2GRAY_YUY2",
+}
 
 
 class ImageError(BadInput, ValueError):
@@ -257,8 +285,9 @@ def raw_to_gray(height: int, width: int, encoding: str, step: int, big_endian: b
     if enc in _YUV:
         img = rows[:, : 2 * width].reshape(height, width, 2)
         return cv2.cvtColor(np.ascontiguousarray(img), getattr(cv2, _YUV[enc]))
-    raise ImageError(f"image encoding {encoding!r} is not supported (mono8/16, rgb8, bgr8, rgba8, bgra8, bayer_*8, "
-                     "yuv422)")
+    raise ImageError(
+        f"image encoding {encoding!r} is not supported (mono8/16, rgb8, bgr8, rgba8, bgra8, bayer_*8, yuv422)"
+    )
 
 
 def compressed_to_gray(data: Any) -> np.ndarray:

@@ -64,21 +64,29 @@ def _in_namespace(topic: str, ns: str) -> bool:
     return bool(ns) and ns != "/" and topic.startswith(ns.rstrip("/") + "/")
 
 
-def _match_models(streams: list[CornerStream], infos: list[CameraModel], files: CameraFiles,
-                  notes: list[str]) -> dict[str, CameraModel]:
+def _match_models(
+    streams: list[CornerStream], infos: list[CameraModel], files: CameraFiles, notes: list[str]
+) -> dict[str, CameraModel]:
     """Camera model of each corner stream topic (see the module docstring for the order of the rules)."""
     found: dict[str, CameraModel] = {}
     used_files: set[str] = set()
     for s in streams:
         frame = s.frame_id.lstrip("/")
-        cands = [m for m in infos if frame and m.frame == frame] or \
-                [m for m in infos if _in_namespace(s.topic, _namespace(m.name))]
+        cands = [m for m in infos if frame and m.frame == frame] or [
+            m for m in infos if _in_namespace(s.topic, _namespace(m.name))
+        ]
         if cands:
             cands.sort(key=lambda m: (not _in_namespace(s.topic, _namespace(m.name)), m.name))
             found[s.topic] = cands[0]
             continue
-        decl = [m for m in files.models if any(s.topic == t or s.topic.startswith(t.rstrip("/") + "/")
-                                               or _namespace(s.topic) == _namespace(t) for t in m.topics)]
+        decl = [
+            m
+            for m in files.models
+            if any(
+                s.topic == t or s.topic.startswith(t.rstrip("/") + "/") or _namespace(s.topic) == _namespace(t)
+                for t in m.topics
+            )
+        ]
         decl = decl or [m for m in files.models if m.frame and m.frame == frame]
         if decl:
             found[s.topic] = decl[0]
@@ -87,8 +95,10 @@ def _match_models(streams: list[CornerStream], infos: list[CameraModel], files: 
     free = [m for m in files.models if m.name not in used_files]
     if len(rest) == 1 and len(free) == 1:
         found[rest[0].topic] = free[0]
-        notes.append(f"{rest[0].topic}: the only camera without a model, paired with {free[0].source}, the only "
-                     "camera file entry left")
+        notes.append(
+            f"{rest[0].topic}: the only camera without a model, paired with {free[0].source}, the only "
+            "camera file entry left"
+        )
     for s in streams:  # tags found in rectified images: the rectified model (P, no distortion)
         model = found.get(s.topic)
         if model is not None and s.source == "images" and "rect" in s.topic:
@@ -105,8 +115,9 @@ def _frame_of_end(end: tuple[str, str], camera_frames: dict[str, str], imu_frame
     return name.lstrip("/")
 
 
-def _rig_transforms(files: CameraFiles, camera_frames: dict[str, str], imu_frame: str, tf, notes: list[str]
-                    ) -> list[Transform]:
+def _rig_transforms(
+    files: CameraFiles, camera_frames: dict[str, str], imu_frame: str, tf, notes: list[str]
+) -> list[Transform]:
     """The files' rig transforms as static transforms, where TF does not connect the two frames already."""
     from slamobs.pipeline.lie import rots_to_quats
 
@@ -131,8 +142,12 @@ def _rig_transforms(files: CameraFiles, camera_frames: dict[str, str], imu_frame
 def _sizes(ids: np.ndarray, options: TagOptions, topic: str, path: str) -> np.ndarray:
     sizes = np.array([options.sizes.get(int(i), options.size or np.nan) for i in ids], dtype=np.float64)
     if ids.size and np.isnan(sizes).all() and options.size is None:
-        raise InputError(path, "tag corners need the tag size (edge of the black square, m): set tags.size "
-                               "(or tags.sizes per id) in the config", topic)
+        raise InputError(
+            path,
+            "tag corners need the tag size (edge of the black square, m): set tags.size "
+            "(or tags.sizes per id) in the config",
+            topic,
+        )
     return sizes
 
 
@@ -157,8 +172,14 @@ def _groups(t_ns: np.ndarray, cam: np.ndarray, sync_ns: int) -> np.ndarray:
     return group
 
 
-def tag_landmarks(streams: LogStreams, options: TagOptions, *, camera_files: list[str | Path] = (),
-                  identity_frames: tuple[str, ...] = (), body_frame: str | None = None) -> TagLandmarks:
+def tag_landmarks(
+    streams: LogStreams,
+    options: TagOptions,
+    *,
+    camera_files: list[str | Path] = (),
+    identity_frames: tuple[str, ...] = (),
+    body_frame: str | None = None,
+) -> TagLandmarks:
     """The landmark detections of the tag corner streams of ``streams`` (see the module docstring).
 
     Raises:
@@ -202,15 +223,26 @@ def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str]):
     missing = [s.topic for s in corner_streams if s.topic not in models]
     if missing and len(missing) == len(corner_streams):
         have = ", ".join(m.source for m in streams.camera_info) or "no CameraInfo topic"
-        raise InputError(streams.path, f"no camera intrinsics for {', '.join(missing)} (the log has {have}); name a "
-                                       "Kalibr or ROS camera_info YAML file in the config (cameras: FILE)", missing[0])
+        raise InputError(
+            streams.path,
+            f"no camera intrinsics for {', '.join(missing)} (the log has {have}); name a "
+            "Kalibr or ROS camera_info YAML file in the config (cameras: FILE)",
+            missing[0],
+        )
     for topic in missing:
         notes.append(f"{topic}: no camera intrinsics (CameraInfo or cameras: file), its detections dropped")
     return models, [s for s in corner_streams if s.topic in models]
 
 
-def _with_extrinsics(streams: LogStreams, corner_streams: list[CornerStream], models: dict[str, CameraModel],
-                     files: CameraFiles, identity_frames: tuple[str, ...], body_frame: str | None, notes: list[str]):
+def _with_extrinsics(
+    streams: LogStreams,
+    corner_streams: list[CornerStream],
+    models: dict[str, CameraModel],
+    files: CameraFiles,
+    identity_frames: tuple[str, ...],
+    body_frame: str | None,
+    notes: list[str],
+):
     """The corner streams with a camera-to-body transform and the rig transforms added from the camera files.
 
     Extrinsics come from TF, else the files' rig transforms, else ``frames.assume_identity``; with one camera
@@ -224,10 +256,14 @@ def _with_extrinsics(streams: LogStreams, corner_streams: list[CornerStream], mo
     from slamobs.pipeline.frames import TfBuffer
 
     path = streams.path
-    camera_frames = {m.name: s.frame_id.lstrip("/") for s in corner_streams
-                     if (m := models[s.topic]) in files.models}
-    imu = streams.angular_velocity.frame_id if streams.angular_velocity is not None and \
-        streams.accel is not None and streams.accel.topic == streams.angular_velocity.topic else ""
+    camera_frames = {m.name: s.frame_id.lstrip("/") for s in corner_streams if (m := models[s.topic]) in files.models}
+    imu = (
+        streams.angular_velocity.frame_id
+        if streams.angular_velocity is not None
+        and streams.accel is not None
+        and streams.accel.topic == streams.angular_velocity.topic
+        else ""
+    )
     tf = TfBuffer(streams.static_tf, streams.tf, path=path)
     added = _rig_transforms(files, camera_frames, imu.lstrip("/"), tf, notes)
     tf = TfBuffer([*streams.static_tf, *added], streams.tf, path=path)
@@ -239,20 +275,26 @@ def _with_extrinsics(streams: LogStreams, corner_streams: list[CornerStream], mo
         if frame == body or frame in ident or tf.chain(body, frame) is not None:
             kept.append(s)
         elif len(corner_streams) > 1:
-            notes.append(f"{s.topic}: no transform from camera frame '{frame}' to body frame '{body}' "
-                         f"({tf.explain(body, frame)}), its detections dropped; list '{frame}' in "
-                         "frames.assume_identity or give the extrinsic (TF, Kalibr chain, TagSLAM camera poses)")
+            notes.append(
+                f"{s.topic}: no transform from camera frame '{frame}' to body frame '{body}' "
+                f"({tf.explain(body, frame)}), its detections dropped; list '{frame}' in "
+                "frames.assume_identity or give the extrinsic (TF, Kalibr chain, TagSLAM camera poses)"
+            )
         else:
             kept.append(s)  # one camera: the alignment stage reports the missing transform
     if not kept:
-        raise InputError(path, f"no camera has a transform to the body frame '{body}'; list the camera frames in "
-                               "frames.assume_identity or give the extrinsics (TF, Kalibr chain, TagSLAM camera "
-                               "poses)")
+        raise InputError(
+            path,
+            f"no camera has a transform to the body frame '{body}'; list the camera frames in "
+            "frames.assume_identity or give the extrinsics (TF, Kalibr chain, TagSLAM camera "
+            "poses)",
+        )
     return kept, added
 
 
-def _camera_poses(c: int, s: CornerStream, model: CameraModel, options: TagOptions,
-                  path: str) -> tuple[tuple, int, int]:
+def _camera_poses(
+    c: int, s: CornerStream, model: CameraModel, options: TagOptions, path: str
+) -> tuple[tuple, int, int]:
     """Camera ``c``'s row for ``_table``/``_merge`` (its tag poses) and the counts of ignored and unsized
     detections, which are left out before solving."""
     keep = np.ones(s.ids.shape[0], bool)
@@ -276,8 +318,9 @@ def _pose_notes(reject: np.ndarray, ignored: int, unsized: int, options: TagOpti
     total = int(reject.sum())
     text = f"tag poses: {total - int(reject[1:].sum())} of {total} detections kept"
     if reject[1:].any():
-        text += "; rejected: " + ", ".join(f"{options.quality.describe(r)} {int(reject[r])}"
-                                           for r in range(1, len(REASONS)) if reject[r])
+        text += "; rejected: " + ", ".join(
+            f"{options.quality.describe(r)} {int(reject[r])}" for r in range(1, len(REASONS)) if reject[r]
+        )
     notes = [text]
     if ignored:
         notes.append(f"{ignored} detections of ignored tags (tags.ignore) dropped")
@@ -288,9 +331,25 @@ def _pose_notes(reject: np.ndarray, ignored: int, unsized: int, options: TagOpti
 
 def _table(rows) -> dict[str, np.ndarray]:
     """The ``tag_detections`` table: every detection with its pose in the camera frame and its verdict."""
-    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("t_ns", "camera", "id", "x", "y", "z", "qx", "qy", "qz",
-                                                         "qw", "reprojection_px", "ambiguity", "view_angle_deg",
-                                                         "status")}
+    cols: dict[str, list[np.ndarray]] = {
+        k: []
+        for k in (
+            "t_ns",
+            "camera",
+            "id",
+            "x",
+            "y",
+            "z",
+            "qx",
+            "qy",
+            "qz",
+            "qw",
+            "reprojection_px",
+            "ambiguity",
+            "view_angle_deg",
+            "status",
+        )
+    }
     for _, s, frame_of, ids, poses, _ in rows:
         cols["t_ns"].append(s.t_ns[frame_of])
         cols["camera"].append(np.full(ids.shape[0], s.topic, dtype=object))
@@ -340,21 +399,31 @@ def _merge(rows, sync_s: float | None) -> tuple[DetectionStream, list[str]]:
     g_rec = np.full(n_groups, np.iinfo(np.int64).min, np.int64)
     np.maximum.at(g_rec, group, f_rec)
     if len(streams) > 1 and (merged := int(np.count_nonzero(g_count > 1))):
-        notes.append(f"{merged} frames of {len(streams)} cameras taken together (stamps within {1e3 * sync:.1f} ms; "
-                     "tags.sync_s)")
+        notes.append(
+            f"{merged} frames of {len(streams)} cameras taken together (stamps within {1e3 * sync:.1f} ms; tags.sync_s)"
+        )
     # detections: by group, then id; one sighting per id and group (the largest image area)
     det_group = group[det_frame]
     order_det = np.lexsort((-det_area, det_id, det_group))
     first = np.ones(order_det.shape[0], bool)
-    first[1:] = (det_group[order_det][1:] != det_group[order_det][:-1]) | \
-        (det_id[order_det][1:] != det_id[order_det][:-1])
+    first[1:] = (det_group[order_det][1:] != det_group[order_det][:-1]) | (
+        det_id[order_det][1:] != det_id[order_det][:-1]
+    )
     if n_dup := int(np.count_nonzero(~first)):
         notes.append(f"{n_dup} sightings of a tag by several cameras in one frame: the largest in the image kept")
     sel = order_det[first]
     counts = np.bincount(det_group[sel], minlength=n_groups)
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     multi = len(streams) > 1
-    stream = DetectionStream(topic, cams[0], g_t, g_rec, offsets, det_id[sel].astype(np.int64),
-                             np.ascontiguousarray(det_xyz[sel]), cams if multi else (),
-                             det_cam[sel].astype(np.int64) if multi else None)
+    stream = DetectionStream(
+        topic,
+        cams[0],
+        g_t,
+        g_rec,
+        offsets,
+        det_id[sel].astype(np.int64),
+        np.ascontiguousarray(det_xyz[sel]),
+        cams if multi else (),
+        det_cam[sel].astype(np.int64) if multi else None,
+    )
     return stream, notes

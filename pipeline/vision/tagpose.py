@@ -49,8 +49,10 @@ class TagQuality:
         if reason == GRAZING:
             return f"view angle below {self.min_view_angle_deg:g} deg"
         if reason == AMBIGUOUS:
-            return (f"ambiguous pose (error ratio above {self.max_ambiguity:g}) with centres "
-                    f"{100 * self.max_centre_spread:g} % of the range apart")
+            return (
+                f"ambiguous pose (error ratio above {self.max_ambiguity:g}) with centres "
+                f"{100 * self.max_centre_spread:g} % of the range apart"
+            )
         if reason == TOO_FAR:
             return f"farther than {self.max_range_m:g} m"
         return f"shortest side below {self.min_side_px:g} px"
@@ -111,8 +113,9 @@ def solve_tags(ideal_px: np.ndarray, sizes: np.ndarray, k: np.ndarray, quality: 
     for j in range(m):
         obj = model_corners(float(sizes[j]))
         try:
-            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None,
-                                                     flags=cv2.SOLVEPNP_IPPE_SQUARE)
+            n, rvecs, tvecs, _ = cv2.solvePnPGeneric(
+                obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None, flags=cv2.SOLVEPNP_IPPE_SQUARE
+            )
         except cv2.error:
             n = 0
         if not n:
@@ -129,8 +132,9 @@ def solve_tags(ideal_px: np.ndarray, sizes: np.ndarray, k: np.ndarray, quality: 
             # IPPE's decomposition fails on exactly symmetric views (a tag turned only about its own y axis gives
             # 60+ px in OpenCV 5.0): the iterative solver (homography start, Levenberg-Marquardt) is the fallback,
             # kept if it fits better
-            ok, rv, tv = cv2.solvePnP(obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None,
-                                      flags=cv2.SOLVEPNP_ITERATIVE)
+            ok, rv, tv = cv2.solvePnP(
+                obj, np.ascontiguousarray(ideal_px[j], np.float64), kk, None, flags=cv2.SOLVEPNP_ITERATIVE
+            )
             if ok:
                 r_lm, t_lm = cv2.Rodrigues(rv)[0], np.asarray(tv, dtype=np.float64).ravel()
                 e_lm = _reprojection(kk, r_lm, t_lm, obj, ideal_px[j])
