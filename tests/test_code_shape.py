@@ -25,7 +25,6 @@ KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "cfunc"}
 
 #: "path::qualified name" -> why it may be longer for now. Remove the entry when its split lands.
 ALLOWED = {
-    "pipeline/readers/__init__.py::read_log": "read_log is still one function over the roles (issue 24, open)",
     "pipeline/readers/mcap.py::McapStorage._scan": "the MCAP scan is still one walk over the records (issue 24, open)",
 }
 

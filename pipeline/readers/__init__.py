@@ -108,12 +108,7 @@ def read_log(
     with open_log(path) as reader:
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
-        if isinstance(clocks, Mapping) and (missing := [t for t in clocks if t not in table]):
-            raise InputError(
-                path,
-                f"time.topics names {', '.join(missing)}, which the log does not have "
-                f"(topics: {', '.join(sorted(table))})",
-            )
+        _check_clock_topics(path, clocks, table)
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
         streams = LogStreams(path=str(path), warnings=list(selection.warnings))
         tf_rows: dict[str, TfRows] = {}
@@ -138,21 +133,7 @@ def read_log(
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
-        rows, detections = decode_topics(
-            reader,
-            path,
-            {
-                t: table[t][1]
-                for r, t in chosen
-                if (r, table[t][0].msgtype) in VEC3_ROLES or (r == "truth" and selection.truth_edge is None)
-            },
-            {
-                t: table[t][1]
-                for r, t in chosen
-                if r == "detections" and table[t][0].msgtype not in TF_TYPES and t not in multi
-            },
-            marker_ns,
-        )
+        rows, detections = decode_topics(reader, path, *_one_pass_topics(chosen, table, selection, multi), marker_ns)
         last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
         for k, (role, topic) in enumerate(chosen):
             meta, conns = table[topic]
@@ -198,13 +179,45 @@ def read_log(
         # damage found while decoding (a chunk skipped by its index) is known only now
         streams.warnings[:0] = damage_notes(reader)
 
-    for topic, texts in reports.items():
-        for text, roles in texts.items():
-            where = topic if len(texts) == 1 else f"{topic} ({', '.join(roles)})"
-            streams.warnings.append(f"{where}: {text}")
+    streams.warnings += _cleaning_notes(reports)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+def _check_clock_topics(path: Path, clocks, table: Mapping) -> None:
+    """Every topic ``time.topics`` names is in the log."""
+    if isinstance(clocks, Mapping) and (missing := [t for t in clocks if t not in table]):
+        raise InputError(
+            path,
+            f"time.topics names {', '.join(missing)}, which the log does not have (topics: {', '.join(sorted(table))})",
+        )
+
+
+def _one_pass_topics(chosen, table, selection, multi) -> tuple[dict, dict]:
+    """The numeric topics (vector roles, truth as a topic) and the detection topics that one pass over the log
+    decodes, each with its connections."""
+    numeric = {
+        t: table[t][1]
+        for r, t in chosen
+        if (r, table[t][0].msgtype) in VEC3_ROLES or (r == "truth" and selection.truth_edge is None)
+    }
+    found = {
+        t: table[t][1]
+        for r, t in chosen
+        if r == "detections" and table[t][0].msgtype not in TF_TYPES and t not in multi
+    }
+    return numeric, found
+
+
+def _cleaning_notes(reports: Mapping[str, Mapping[str, list[str]]]) -> list[str]:
+    """One warning per topic and cleaning text; the roles are named where a topic serves several."""
+    notes = []
+    for topic, texts in reports.items():
+        for text, roles in texts.items():
+            where = topic if len(texts) == 1 else f"{topic} ({', '.join(roles)})"
+            notes.append(f"{where}: {text}")
+    return notes
 
 
 @dataclass(frozen=True)
