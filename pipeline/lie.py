@@ -421,3 +421,9 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple
         scale = float(np.sum(d * s_diag) / var_x)
     trans = mu_y - scale * rot @ mu_x
     return rot, trans, scale
+
+
+def rotate_covariance(cov: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Covariances (N, d, d) of error vectors that turn by ``r`` (d × d; a pose error ``(δθ, δp)`` turns by
+    ``diag(R, R)``): ``r Σ rᵀ`` each."""
+    return np.einsum("ij,njk,lk->nil", r, cov, r)
