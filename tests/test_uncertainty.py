@@ -1,4 +1,4 @@
-"""Uncertainty out (issue 26 §2): riekf and batch write pose and landmark covariances in the documented convention
+"""Uncertainty out (issue 26, part 2): riekf and batch write pose and landmark covariances in the documented convention
 (``R̂ = Exp(δθ) R``, ``p̂ = p + δp``, map/output frame), the observers leave those columns null, and the report
 checks the covariance against the error (NEES with χ² bounds, 3σ figures)."""
 
@@ -15,7 +15,7 @@ from slamobs.pipeline.alignment import align
 from slamobs.pipeline.evaluation.metrics import chi2_quantile, nees_bounds
 from slamobs.pipeline.evaluation.sections import nees_values
 from slamobs.pipeline.lie import rots_to_rotvecs, skew
-from slamobs.pipeline.noise import NoiseConfig, resolve_noise
+from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
 from slamobs.pipeline.observers.riekf import RiEKF
@@ -120,7 +120,7 @@ def runs(tmp_path_factory):
     base = tmp_path_factory.mktemp("uncertainty")
     log = write_log(simulate("figure8", duration=12.0, seed=5), base / "f8.mcap")
     out = {}
-    noise = {k: float(v) for k, v in resolve_noise().as_dict().items() if k in ("gyro", "velocity", "detection")}
+    noise = {k: float(DEFAULTS[k][0]) for k in ("gyro", "velocity", "detection", "detection_per_m")}
     for name in ("riekf", "batch", "fast-adaptation"):
         if name == "batch":
             pytest.importorskip("gtsam")

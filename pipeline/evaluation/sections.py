@@ -1,5 +1,5 @@
 """The report's sections, one class each: APE, APE under each alignment, RPE, drift, clock offset, landmark map,
-biases, convergence.
+biases, convergence, uncertainty (NEES of the reference estimators' covariance).
 
 Each is built with its options, computes from the data in :meth:`process_data` and gives its ``report.json``
 section in :meth:`get_statistic` (the shape of evo's ``core/metrics.py`` metric classes); :attr:`notes` are
