@@ -185,3 +185,37 @@ def test_report_has_nees_and_its_figures(runs, name):
     assert "## Uncertainty (NEES)" in (runs[name] / "report.md").read_text()
     for figure in ("uncertainty.png", "nees.png"):
         assert (runs[name] / figure).stat().st_size > 10_000
+
+
+def test_output_frame_turns_covariances_with_the_estimate(filter_runs):
+    """A rigid output frame turns the error (δθ, δp) by its rotation: the written covariance turns with it, so the
+    NEES of the turned error is the same."""
+    from slamobs.pipeline.lie import so3_exp
+    from slamobs.pipeline.output_frame import OutputFrame
+
+    res, truth, _, _ = filter_runs[1]
+    r = so3_exp(np.array([0.4, -1.1, 2.0]))
+    out = OutputFrame("test", r, np.array([3.0, -2.0, 1.0]), "test").apply(res)
+    error = np.c_[rots_to_rotvecs(np.matmul(res.rotation, np.swapaxes(truth.R, 1, 2))), res.position - truth.P][1:]
+    turned = error @ np.kron(np.eye(2), r).T
+    assert np.allclose(nees_values(turned, out.pose_cov[1:]), nees_values(error, res.pose_cov[1:]), rtol=1e-6)
+    seen = np.isfinite(res.landmark_cov).all(axis=(1, 2))
+    assert np.allclose(out.landmark_cov[seen], r @ res.landmark_cov[seen] @ r.T)
+
+
+def test_batch_covariance_between_marginal_keyframes_is_interpolated():
+    """The smoother computes marginals at one keyframe per second (and the last); rows between are linear in
+    time: exact at those keyframes, the mean half-way, positive definite throughout."""
+    from slamobs.pipeline.smoother.estimator import covariance_keyframes, interpolate_covariance
+
+    kf_t = np.arange(100) / 20.0  # 0 .. 4.95 s
+    picked = covariance_keyframes(kf_t)
+    assert np.allclose(kf_t[picked], [0.0, 1.0, 2.0, 3.0, 4.0, 4.95])
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(picked.size, 6, 6))
+    cov = a @ np.swapaxes(a, 1, 2) + 1e-3 * np.eye(6)
+    t = kf_t[picked]
+    assert np.allclose(interpolate_covariance(t, cov, t), cov)
+    assert np.allclose(interpolate_covariance(t, cov, np.array([1.5]))[0], 0.5 * (cov[1] + cov[2]))
+    rows = interpolate_covariance(t, cov, np.linspace(-1.0, 6.0, 50))
+    assert np.linalg.eigvalsh(rows)[:, 0].min() > 0.0
