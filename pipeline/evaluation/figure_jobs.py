@@ -63,7 +63,6 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
     t_s = (u.t_ns - int(ev.estimate.t_ns[0])) / 1e9
     sigma = np.sqrt(np.clip(np.einsum("nii->ni", u.cov), 0.0, None))
     keep = plots.envelope(len(t_s), np.abs(u.error) - 3.0 * sigma)
-    label = ALIGN_LABELS[ev.alignment.kind]
     nees = {}
     for part, sl in (("position", slice(3, 6)), ("attitude", slice(0, 3))):
         mid, mean, counts = nees_windows(nees_values(u.error[:, sl], u.cov[:, sl, sl]), t_s - t_s[0])
@@ -76,7 +75,7 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
                 t_s=t_s[keep],
                 error=u.error[keep],
                 sigma=sigma[keep],
-                title=f"Error and ±3σ of the estimate's covariance after {label} alignment (truth frame)",
+                title="Error and ±3σ of the estimate's covariance (truth frame, the gauge pose put on the truth)",
             ),
         ),
         (

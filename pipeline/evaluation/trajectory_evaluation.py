@@ -98,7 +98,7 @@ class TrajectoryEvaluation:
     offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
-    #: (N, 6, 6) pose covariance of each estimate row in time order (``pose_covariance``), None without one
+    #: (N, 21) pose covariance entries of each estimate row in time order (``pose_covariance``), None without one
     covariance: np.ndarray | None = None
 
     @cached_property
@@ -166,54 +166,76 @@ def evaluate_trajectory(
     )
 
 
-def pose_covariance(poses: Table) -> np.ndarray | None:
-    """The poses table's covariance columns (``cov_<a>_<b>``, written by the reference estimators) as (N, 6, 6) in
-    time order; None when it has none (the observers' are null)."""
+def _covariance_entries() -> tuple[list[tuple[int, int]], list[str]]:
+    """The 6×6 pose covariance's upper triangle: index pairs and the poses table's column names."""
     from slamobs.pipeline.writers import POSE_AXES
 
     n = len(POSE_AXES)
     pairs = [(i, j) for i in range(n) for j in range(i, n)]
-    names = [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i, j in pairs]
+    return pairs, [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i, j in pairs]
+
+
+def pose_covariance(poses: Table) -> np.ndarray | None:
+    """The poses table's covariance columns (``cov_<a>_<b>``, written by the reference estimators) as (N, 21) in
+    time order (the upper triangle: :func:`expand_covariance` makes the matrices of the rows asked for); None when
+    it has none (the observers' are null)."""
+    _, names = _covariance_entries()
     if not set(names) <= set(column_names(poses)):
         return None
-    rows = time_order(column(poses, "t_ns", np.int64))
-    values = columns(poses, names, np.float64)[rows]
-    if not np.isfinite(values).any():
-        return None
-    cov = np.empty((values.shape[0], n, n))
+    values = columns(poses, names, np.float64)[time_order(column(poses, "t_ns", np.int64))]
+    return values if np.isfinite(values).any() else None
+
+
+def expand_covariance(entries: np.ndarray) -> np.ndarray:
+    """(N, 6, 6) symmetric matrices from (N, 21) upper-triangle entries."""
+    pairs, _ = _covariance_entries()
+    cov = np.empty((entries.shape[0], 6, 6))
     for k, (i, j) in enumerate(pairs):
-        cov[:, i, j] = cov[:, j, i] = values[:, k]
+        cov[:, i, j] = cov[:, j, i] = entries[:, k]
     return cov
 
 
 @dataclass(frozen=True)
 class PairedUncertainty:
     """Per associated pair: the estimate's error ``(δθ, δp)`` (``R_est = Exp(δθ) R_truth``, ``p_est = p_truth +
-    δp``, after the report's alignment, in the truth frame) and its covariance turned into that frame."""
+    δp``, in the truth frame, the estimate moved rigidly so that its gauge pose lies on the truth) and its
+    covariance turned into that frame."""
 
     t_ns: np.ndarray  # (N,) estimate stamps of the pairs
     error: np.ndarray  # (N, 6) rad, m
     cov: np.ndarray  # (N, 6, 6)
+    gauge_t_ns: int  # the estimate row whose pose was put on the truth
 
 
 def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
-    """The errors and covariances of the pairs: the alignment ``p ← s R p + t`` turns both error parts by ``R``
-    and scales the position part by ``s``."""
+    """The errors and covariances of the pairs. An estimator's covariance is relative to its gauge, the pose it
+    holds fixed (riekf's start, batch's anchor keyframe: the estimate row with the smallest covariance inside
+    the truth's span), so the estimate is moved by the rigid transform that puts that pose on the truth
+    interpolated at its stamp (as evo's origin alignment does with the first pose): the report's least-squares
+    alignment would absorb part of the error the covariance describes. The transform turns both error parts and
+    the covariance by its rotation."""
     from slamobs.pipeline.blocks import row_blocks
-    from slamobs.pipeline.lie import rots_to_rotvecs
+    from slamobs.pipeline.evaluation.sync import interpolate_poses
+    from slamobs.pipeline.lie import quats_to_rots, rotate_covariance, rots_to_rotvecs
 
-    p, al = ev.paired, ev.alignment
-    idx = p.idx_est if p.idx_est is not None else np.searchsorted(ev.estimate.t_ns, p.t_est_ns)
+    p, est, truth = ev.paired, ev.estimate, ev.truth
+    t_on_truth = np.asarray(est.t_ns, dtype=np.int64) + int(round(ev.applied_offset_s * 1e9))
+    inside = (t_on_truth >= np.min(truth.t_ns)) & (t_on_truth <= np.max(truth.t_ns))
+    diagonal = [k for k, (i, j) in enumerate(_covariance_entries()[0]) if i == j]
+    g = int(np.nanargmin(np.where(inside, ev.covariance[:, diagonal].sum(axis=1), np.inf)))
+    ref_pos, ref_quat = interpolate_poses(truth.t_ns, truth.position, truth.quat_xyzw, t_on_truth[g : g + 1])
+    est_rot = quats_to_rots(np.asarray(est.quat_xyzw[g : g + 1], dtype=np.float64))[0]
+    rot = quats_to_rots(ref_quat)[0] @ est_rot.T
+    trans = ref_pos[0] - rot @ np.asarray(est.position[g], dtype=np.float64)
     error = np.empty((len(p), 6))
-    error[:, 3:] = ev.translation.est_pos_aligned - p.ref_pos
+    error[:, 3:] = p.est_pos @ rot.T + trans - p.ref_pos
     for rows in row_blocks(len(p)):
-        rel = np.matmul(al.rotations(p.est_rot[rows]), np.swapaxes(p.ref_rot[rows], 1, 2))
+        rel = np.matmul(np.matmul(rot, p.est_rot[rows]), np.swapaxes(p.ref_rot[rows], 1, 2))
         error[rows, :3] = rots_to_rotvecs(rel)
-    turn = np.zeros((6, 6))
-    turn[:3, :3], turn[3:, 3:] = al.rot, al.scale * al.rot
-    cov = np.einsum("ij,njk,lk->nil", turn, ev.covariance[idx], turn)
-    t_ns = ev.estimate.t_ns[idx] if p.t_est_ns is None else p.t_est_ns
-    return PairedUncertainty(np.asarray(t_ns, dtype=np.int64), error, cov)
+    idx = p.idx_est if p.idx_est is not None else np.searchsorted(est.t_ns, p.t_est_ns)
+    t_ns = np.asarray(est.t_ns[idx] if p.t_est_ns is None else p.t_est_ns, dtype=np.int64)
+    cov = rotate_covariance(expand_covariance(ev.covariance[idx]), np.kron(np.eye(2), rot))
+    return PairedUncertainty(t_ns, error, cov, int(est.t_ns[g]))
 
 
 #: The clock-offset search runs beside the association and the APE for up to this many estimate and truth
