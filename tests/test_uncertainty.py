@@ -13,7 +13,7 @@ import pytest
 
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.evaluation.metrics import chi2_quantile, nees_bounds
-from slamobs.pipeline.evaluation.sections import nees_values
+from slamobs.pipeline.evaluation.trajectory_evaluation import nees_values
 from slamobs.pipeline.lie import rots_to_rotvecs, skew
 from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions

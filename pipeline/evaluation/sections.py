@@ -30,7 +30,7 @@ from slamobs.pipeline.evaluation.tables import (
     time_order,
 )
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
-from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, TrajectoryEvaluation
+from slamobs.pipeline.evaluation.trajectory_evaluation import GAUGE_SIGMA, ReportOptions, TrajectoryEvaluation
 from slamobs.pipeline.lie import rots_to_quats
 
 #: evo's command-line flags of each alignment slamobs shares with it
@@ -482,9 +482,6 @@ class ConvergenceSection(Section):
 NEES_DOF = 3
 #: Seconds of pairs each NEES window averages (the figure's points and the share of windows within bounds).
 NEES_WINDOW_S = 1.0
-#: A covariance block whose smallest standard deviation is below this (m or rad) is the gauge (riekf's start,
-#: batch's anchor keyframe): held fixed by definition, it has no NEES.
-GAUGE_SIGMA = 1e-5
 
 
 class UncertaintySection(Section):
@@ -513,8 +510,8 @@ class UncertaintySection(Section):
             "p_est = p_truth + δp",
             "gauge_t_ns": u.gauge_t_ns,
             "window_s": NEES_WINDOW_S,
-            "position": nees_statistics(u.error[:, 3:], u.cov[:, 3:, 3:], t_s),
-            "attitude": nees_statistics(u.error[:, :3], u.cov[:, :3, :3], t_s),
+            "position": nees_statistics(u.error[:, 3:], u.cov_position, u.nees_position, t_s),
+            "attitude": nees_statistics(u.error[:, :3], u.cov_attitude, u.nees_attitude, t_s),
         }
         for part in ("position", "attitude"):
             r = self.result[part]
@@ -528,17 +525,6 @@ class UncertaintySection(Section):
                 )
 
 
-def nees_values(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
-    """``eᵀ Σ⁻¹ e`` per row (N, 3) / (N, 3, 3); NaN where Σ is the gauge (``GAUGE_SIGMA``) or not finite."""
-    ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(error).all(axis=1)
-    out = np.full(error.shape[0], np.nan)
-    if ok.any():
-        ok[ok] = np.linalg.eigvalsh(cov[ok])[:, 0] > GAUGE_SIGMA**2
-    if ok.any():
-        out[ok] = np.einsum("ni,ni->n", error[ok], np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0])
-    return out
-
-
 def nees_windows(nees: np.ndarray, t_s: np.ndarray, window_s: float = NEES_WINDOW_S):
     """Average NEES over consecutive windows of ``window_s`` seconds: window mid times, averages, counts."""
     ok = np.isfinite(nees)
@@ -549,10 +535,9 @@ def nees_windows(nees: np.ndarray, t_s: np.ndarray, window_s: float = NEES_WINDO
     return (ids + 0.5) * window_s, np.bincount(inv, weights=nees[ok]) / counts, counts
 
 
-def nees_statistics(error: np.ndarray, cov: np.ndarray, t_s: np.ndarray) -> dict[str, Any]:
+def nees_statistics(error: np.ndarray, cov: np.ndarray, nees: np.ndarray, t_s: np.ndarray) -> dict[str, Any]:
     """One part's consistency: mean and median NEES with the bounds of the run's mean, the share of instants
     and of windows within their bounds, and the share of errors within ±3σ per axis."""
-    nees = nees_values(error, cov)
     ok = np.isfinite(nees)
     n = int(ok.sum())
     sd = np.sqrt(np.clip(np.einsum("nii->ni", cov), 0.0, None))

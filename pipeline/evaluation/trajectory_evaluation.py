@@ -34,6 +34,9 @@ from slamobs.pipeline.evaluation.trajectory_error import (
 from slamobs.pipeline.streams import PoseStream
 
 CONVERGENCE_THRESHOLD_M = 0.1
+#: A covariance block with a standard deviation below this (m or rad) is the gauge (riekf's start, batch's anchor
+#: keyframe): held fixed by definition, it has no NEES.
+GAUGE_SIGMA = 1e-5
 ALIGN_TYPES = KINDS
 
 
@@ -186,13 +189,33 @@ def pose_covariance(poses: Table) -> np.ndarray | None:
     return values if np.isfinite(values).any() else None
 
 
-def expand_covariance(entries: np.ndarray) -> np.ndarray:
-    """(N, 6, 6) symmetric matrices from (N, 21) upper-triangle entries."""
-    pairs, _ = _covariance_entries()
-    cov = np.empty((entries.shape[0], 6, 6))
-    for k, (i, j) in enumerate(pairs):
-        cov[:, i, j] = cov[:, j, i] = entries[:, k]
+def expand_covariance(entries: np.ndarray, block: int | None = None) -> np.ndarray:
+    """(N, 6, 6) symmetric matrices from (N, 21) upper-triangle entries, or their diagonal 3×3 block from row and
+    column ``block`` (0: attitude, 3: position)."""
+    pairs = np.array(_covariance_entries()[0])
+    n, lo = (6, 0) if block is None else (3, block)
+    keep = np.flatnonzero((pairs >= lo).all(axis=1) & (pairs < lo + n).all(axis=1))
+    i, j = (pairs[keep] - lo).T
+    cov = np.empty((entries.shape[0], n, n))
+    cov[:, i, j] = entries[:, keep]
+    cov[:, j, i] = entries[:, keep]
     return cov
+
+
+def nees_values(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``eᵀ Σ⁻¹ e`` per row (N, d) / (N, d, d); NaN where Σ is the gauge (a standard deviation below
+    ``GAUGE_SIGMA``), not finite or singular."""
+    ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(error).all(axis=1)
+    ok &= np.einsum("nii->ni", np.where(ok[:, None, None], cov, 0.0)).min(axis=1) > GAUGE_SIGMA**2
+    out = np.full(error.shape[0], np.nan)
+    if ok.any():
+        try:
+            w = np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:  # a singular block beyond the gauge: the positive definite ones only
+            ok[ok] = np.linalg.eigvalsh(cov[ok])[:, 0] > 0.0
+            w = np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0]
+        out[ok] = np.einsum("ni,ni->n", error[ok], w)
+    return out
 
 
 @dataclass(frozen=True)
@@ -203,8 +226,11 @@ class PairedUncertainty:
 
     t_ns: np.ndarray  # (N,) estimate stamps of the pairs
     error: np.ndarray  # (N, 6) rad, m
-    cov: np.ndarray  # (N, 6, 6)
+    cov_attitude: np.ndarray  # (N, 3, 3) of δθ (the diagonal blocks only: all the report uses)
+    cov_position: np.ndarray  # (N, 3, 3) of δp
     gauge_t_ns: int  # the estimate row whose pose was put on the truth
+    nees_position: np.ndarray  # (N,) NaN at the gauge
+    nees_attitude: np.ndarray
 
 
 def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
@@ -234,8 +260,10 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
         error[rows, :3] = rots_to_rotvecs(rel)
     idx = p.idx_est if p.idx_est is not None else np.searchsorted(est.t_ns, p.t_est_ns)
     t_ns = np.asarray(est.t_ns[idx] if p.t_est_ns is None else p.t_est_ns, dtype=np.int64)
-    cov = rotate_covariance(expand_covariance(ev.covariance[idx]), np.kron(np.eye(2), rot))
-    return PairedUncertainty(t_ns, error, cov, int(est.t_ns[g]))
+    entries = ev.covariance[idx]
+    att, pos = (rotate_covariance(expand_covariance(entries, block), rot) for block in (0, 3))
+    nees_position, nees_attitude = nees_values(error[:, 3:], pos), nees_values(error[:, :3], att)
+    return PairedUncertainty(t_ns, error, att, pos, int(est.t_ns[g]), nees_position, nees_attitude)
 
 
 #: The clock-offset search runs beside the association and the APE for up to this many estimate and truth
