@@ -206,7 +206,11 @@ def test_output_frame_turns_covariances_with_the_estimate(filter_runs):
 def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     """The smoother computes marginals at one keyframe per second (and the last); rows between are linear in
     time: exact at those keyframes, the mean half-way, positive definite throughout."""
-    from slamobs.pipeline.smoother.estimator import covariance_keyframes, interpolate_covariance
+    from slamobs.pipeline.smoother.estimator import (
+        COVARIANCE_MARGINALS,
+        covariance_keyframes,
+        interpolate_covariance,
+    )
 
     kf_t = np.arange(100) / 20.0  # 0 .. 4.95 s
     picked = covariance_keyframes(kf_t)
@@ -219,3 +223,5 @@ def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     assert np.allclose(interpolate_covariance(t, cov, np.array([1.5]))[0], 0.5 * (cov[1] + cov[2]))
     rows = interpolate_covariance(t, cov, np.linspace(-1.0, 6.0, 50))
     assert np.linalg.eigvalsh(rows)[:, 0].min() > 0.0
+    hour = covariance_keyframes(np.arange(72_000) / 20.0)  # an hour at 20 Hz: the count is capped, spread evenly
+    assert hour.size <= COVARIANCE_MARGINALS + 2 and np.ptp(np.diff(hour)) <= 1
