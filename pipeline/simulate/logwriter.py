@@ -162,6 +162,11 @@ def infer_container(path: str | Path) -> str:
     return {".bag": "bag", ".mcap": "mcap"}.get(suffix, "ros2")
 
 
+def _per_axis(sigma) -> np.ndarray:
+    """One standard deviation or one per axis, as three."""
+    return np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
+
+
 class _Builder:
     """Makes the rosbags message objects of one :class:`SimLog` (or piece of one) for one typestore."""
 
@@ -173,10 +178,10 @@ class _Builder:
         self.Vector3, self.Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
         self.Point, self.Pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Pose"]
         self.Transform = t["geometry_msgs/msg/Transform"]
-        self.cov9_imu = self._cov(9, [sim.noise.gyro**2] * 3)
+        self.cov9_imu = self._cov(9, _per_axis(sim.noise.gyro) ** 2)
         self.cov9_acc = self._cov(9, [sim.noise.accel**2] * 3)
         self.cov9_mag = self._cov(9, [sim.noise.mag**2] * 3)
-        self.cov36_twist = self._cov(36, [sim.noise.odom_linear**2] * 3 + [sim.noise.odom_angular**2] * 3)
+        self.cov36_twist = self._cov(36, np.r_[_per_axis(sim.noise.odom_linear) ** 2, [sim.noise.odom_angular**2] * 3])
         self.orient_cov = np.zeros(9)
         self.orient_cov[0] = -1.0  # REP 145: no orientation estimate
 
