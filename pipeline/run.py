@@ -211,6 +211,9 @@ class PreparedLog:
     #: a known map (pipeline.known_map.KnownMap), None otherwise
     known_map: object | None = None
     notes: list[str] = field(default_factory=list)
+    #: the linear-velocity noise density of the samples as recorded (pipeline.noise_estimation.Estimate; None:
+    #: not estimated, noise.auto false or too few samples)
+    velocity_noise: object | None = None
 
 
 Progress = Callable[[str], None]
@@ -266,6 +269,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         if streams.landmark_truth:
             notes.append(f"landmark truth from {config.evaluation.map_truth} (evaluation.map_truth) replaces the log's")
         streams.landmark_truth = map_truth
+    velocity_noise = _recorded_velocity_noise(streams, config)
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
@@ -297,7 +301,30 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         clocks=streams.clocks,
         derived=streams.derived,
     )
-    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes)
+    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise)
+
+
+def _recorded_velocity_noise(streams: LogStreams, config: RunConfig):
+    """The linear-velocity noise density from the samples as recorded: the alignment interpolates them onto the
+    angular velocity's stamps, which would smooth the noise away (None when ``noise.auto`` is off)."""
+    lv = streams.linear_velocity
+    if not config.noise.auto or lv is None:
+        return None
+    from slamobs.pipeline.noise import stream_density
+
+    return stream_density(lv.t_ns, lv.xyz)
+
+
+def log_noise(prepared: PreparedLog, config: RunConfig):
+    """The noise levels of the reference estimators on ``prepared`` (``pipeline.noise.NoiseSettings``): the
+    config's keys, else plausible message covariances, else estimated from the log (``noise.auto``), else the
+    defaults."""
+    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
+
+    estimated = None
+    if config.noise.auto and prepared.aligned is not None:
+        estimated = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
+    return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
 
 
 def run_log(
@@ -383,10 +410,9 @@ def estimator_input(prepared: PreparedLog, config: RunConfig) -> EstimatorInput:
         start = map_start(aligned, prepared.known_map)
         notes.append(start.note)
     noise = None
-    if spec.uses_noise:  # the config's levels, else what the log's messages state, else the defaults
-        from slamobs.pipeline.noise import resolve_noise
-
-        noise = resolve_noise(config.noise, log, dict(prepared.topics))
+    if spec.uses_noise:  # the config's levels, else plausible covariances, else estimated, else the defaults
+        noise = log_noise(prepared, config)
+        notes += [f"noise: {line}" for line in noise.lines()] + list(noise.notes)
     options = ObserverOptions(
         max_meas_age=config.time.max_meas_age,
         out_every=_out_every(aligned, config.output.rate_hz),

@@ -588,11 +588,6 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
-def detection_variances(det_y: np.ndarray, detection: float, per_m: float) -> np.ndarray:
-    """Per-axis variance of each detection: ``(detection + per_m * range)²``."""
-    return (detection + per_m * np.linalg.norm(det_y, axis=1)) ** 2
-
-
 class RiEKF(Stepper):
     """The filter on an aligned stream, a stretch of samples at a time."""
 
@@ -614,7 +609,7 @@ class RiEKF(Stepper):
         self.state = _State(
             n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
         )
-        self.det_sigma2 = detection_variances(stream.det_y, nz.detection, nz.detection_per_m)
+        self.det_sigma2 = nz.detection_sigma(np.linalg.norm(stream.det_y, axis=1)) ** 2  # per-axis variances
         self.params = (nz.gyro**2, nz.velocity**2, float(nz.gyro_bias_walk), float(nz.velocity_bias_walk), GATE_CHI2)
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
