@@ -19,10 +19,47 @@ from slamobs.cli.errors import handled
     default=None,
     help="Directory of pkg/msg/Type.msg files for message types whose definitions the log lacks.",
 )
-def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
-    """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play."""
+@click.option(
+    "--noise",
+    is_flag=True,
+    help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs.",
+)
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml (with --noise).")
+def info(log: Path, *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
+    """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play; with
+    --noise, the noise levels learned from it."""
     from slamobs.pipeline.readers import format_info, inspect_log
 
     with handled():  # as under the `slamobs` group, also when the command is used on its own
+        if noise:
+            _noise(log, msg_dir, config_path, as_json)
+            return
         summary = inspect_log(log, msg_dir=msg_dir)
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else format_info(summary))
+
+
+def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: bool) -> None:
+    """The noise levels of the reference estimators on LOG: the config's, else plausible covariances, else
+    estimated from the samples (the detection law from the log's own static landmarks: no estimator needed)."""
+    from dataclasses import replace
+
+    from slamobs.cli.progress import compile_notice, status_line
+    from slamobs.pipeline.run import silent
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    config = load_config(config_path)
+    if msg_dir:
+        config = replace(config, msg_dir=str(msg_dir))
+    status = status_line(quiet=False)
+    with compile_notice(status):
+        prepared = prepare_log(log, config, directions=False, progress=status or silent)
+        settings = log_noise(prepared, config)
+    if status is not None:
+        status.clear()
+    if as_json:
+        click.echo(json.dumps(settings.as_dict(), indent=2))
+        return
+    click.echo(f"noise levels of {log} (batch and riekf; key: value unit (source, ± standard error: method)):")
+    for line in settings.lines() + list(settings.notes):
+        click.echo(f"  {line}")

@@ -111,12 +111,14 @@ class NoiseSettings:
 
     def lines(self) -> list[str]:
         """One line per level: value, unit, source, uncertainty and method."""
-        out = []
+        out, said = [], set()
         for k, (_, unit, _meaning) in DEFAULTS.items():
             value, se = _plain(getattr(self, k)), _plain(self.uncertainty.get(k))
             text = f"{k} = {_fmt(value)} {unit} ({self.sources.get(k, 'default')}"
             text += f", ± {_fmt(se)}" if se is not None else ""
-            text += f": {self.methods[k]})" if k in self.methods else ")"
+            method = self.methods.get(k)
+            text += ")" if method is None else ": the same fit)" if method in said else f": {method})"
+            said.add(method)
             out.append(text)
         return out
 
@@ -228,6 +230,8 @@ def resolve_noise(
         elif covariance is not None:
             values[key] = covariance.density
             sources[key] = f"{covariance.topic} covariance ({1.0 / covariance.period_s:.4g} Hz)"
+            if key in found:
+                methods[key] = f"plausible, and the samples' estimate {_fmt(_plain(found[key].value))} agrees"
         elif key in found:
             values[key], sources[key] = found[key].value, "estimated"
             methods[key], uncertainty[key] = found[key].method, found[key].uncertainty
