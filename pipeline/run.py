@@ -807,6 +807,8 @@ def _evaluate(
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
+        if noise := [n for n in notes if n.startswith("noise: ")]:  # the levels riekf and batch used, and why
+            report.setdefault("notes", []).extend(noise)
         if len(segments) > 1:
             report.setdefault("notes", []).append(
                 f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
