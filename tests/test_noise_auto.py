@@ -1,4 +1,4 @@
-"""``noise: auto`` (issue 23 §1): the noise levels learned from a log's own samples, against the truth the
+"""``noise: auto`` (issue 23, part 1): the noise levels learned from a log's own samples, against the truth the
 simulator drew them with; config keys override one key each; implausible message covariances are rejected with
 a note; riekf and batch given the estimates do as well as given the truth."""
 
