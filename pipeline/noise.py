@@ -40,8 +40,10 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
 }
 #: keys that may come from the log's message covariances, and the role whose topic states them
 STATED = {"gyro": "angular_velocity", "velocity": "linear_velocity"}
-#: a stated density this many times away from the estimated one is not believed
-STATED_MISMATCH = 10.0
+#: a stated density below this share of the estimated one is not believed (the sensor claims less noise than its
+#: samples show); above, up to ``STATED_ABOVE`` times the estimate, it is: the samples' high-frequency content is a
+#: lower bound of noise that is coloured (a VIO's or a filtered odometry's), which a driver may know better
+STATED_BELOW, STATED_ABOVE = 0.1, 100.0
 
 
 @dataclass(frozen=True)
@@ -207,9 +209,9 @@ def resolve_noise(
     estimated: LogNoise | None = None,
 ) -> NoiseSettings:
     """The settings of a run, key by key: what ``config`` (the run's ``noise`` section) sets; for the velocity
-    densities the message covariances of ``log`` where they are plausible (and, with an estimate, within
-    :data:`STATED_MISMATCH` of it); what the log's samples show (``estimated``, used when ``config.auto``);
-    else the defaults."""
+    densities the message covariances of ``log`` where they are plausible (and, with an estimate, between
+    :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it); what the log's samples show (``estimated``, used
+    when ``config.auto``); else the defaults."""
     cfg = config or NoiseConfig()
     section = cfg.given()
     found = estimated.levels() if estimated is not None and cfg.auto else {}
@@ -231,7 +233,7 @@ def resolve_noise(
             values[key] = covariance.density
             sources[key] = f"{covariance.topic} covariance ({1.0 / covariance.period_s:.4g} Hz)"
             if key in found:
-                methods[key] = f"plausible, and the samples' estimate {_fmt(_plain(found[key].value))} agrees"
+                methods[key] = f"plausible; the samples' white-noise estimate is {_fmt(_plain(found[key].value))}"
         elif key in found:
             values[key], sources[key] = found[key].value, "estimated"
             methods[key], uncertainty[key] = found[key].method, found[key].uncertainty
@@ -259,7 +261,7 @@ def _believed(key: str, stated, estimate: Estimate | None, notes: list[str]):
     if estimate is not None:
         ratio = stated.density / np.maximum(np.asarray(estimate.value, dtype=float), 1e-300)
         worst = float(ratio.flat[np.argmax(np.abs(np.log(ratio)))])
-        if not 1 / STATED_MISMATCH <= worst <= STATED_MISMATCH:
+        if not STATED_BELOW <= worst <= STATED_ABOVE:
             notes.append(
                 f"noise: {stated.topic} covariance not used for {key}: it states {worst:.3g}x the density "
                 "estimated from the samples"

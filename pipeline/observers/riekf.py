@@ -23,10 +23,11 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   ``Σ_PP + N``. Landmarks out of view stay in the state with their estimate and covariance; as in every
   EKF, an update moves them only through their correlation with what was measured.
 
-Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
-covariances, else defaults). The start pose defines the map frame (the problem's gauge, docs/observers.md §1.1): its
-covariance is zero; the biases start at zero with the prior standard deviations ``noise.gyro_bias`` and
-``noise.velocity_bias`` (an unknown start, not a guess), and drift as slow random walks.
+Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
+message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
+problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
+standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess), and drift
+as slow random walks.
 """
 
 from __future__ import annotations
