@@ -22,7 +22,7 @@ from slamobs.pipeline.noise_estimation import (
     DetectionLaw,
     Estimate,
     detection_law,
-    detection_triplets,
+    log_triplets,
     white_noise_density,
 )
 
@@ -181,7 +181,7 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     ]
     g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
-    triplets = detection_triplets(
+    triplets = log_triplets(
         vel_t,
         aligned.omega,
         aligned.velocity,

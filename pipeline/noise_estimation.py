@@ -38,6 +38,9 @@ OUTLIER_SIGMAS = 4.0
 BOOTSTRAP = 20
 #: At most this many triplets are fitted (a uniform subsample of longer logs).
 MAX_TRIPLETS = 30_000
+#: Longest run of velocity samples read at once; a longer log is read in ``WINDOWS`` evenly spaced windows of
+#: this much in all (bounded memory and time on a log of hours, and still every part of it).
+MAX_SAMPLES, WINDOWS = 400_000, 10
 #: Fewest samples (velocity) or triplets (detections) an estimate is made from.
 MIN_SAMPLES = 50
 #: The detection laws: name -> (the power of range the second coefficient multiplies, its key in noise.DEFAULTS)
@@ -101,6 +104,14 @@ def _robust_sigma(z: np.ndarray) -> np.ndarray:
     return MAD_TO_SIGMA * np.median(np.abs(z - np.median(z, axis=0)), axis=0)
 
 
+def windows(n: int) -> list[tuple[int, int]]:
+    """Index ranges read of ``n`` samples: all of them, or ``WINDOWS`` evenly spaced ones of ``MAX_SAMPLES`` in all."""
+    if n <= MAX_SAMPLES:
+        return [(0, n)]
+    size = MAX_SAMPLES // WINDOWS
+    return [(int(lo), int(lo) + size) for lo in np.linspace(0, n - size, WINDOWS)]
+
+
 def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
     """Per-axis white-noise density (units · sqrt(s)) of the samples ``x`` (N, 3) at times ``t_s`` (N,), or None
     when the stream is too short to tell."""
@@ -111,11 +122,12 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
     if t.shape[0] < MIN_SAMPLES + 6:
         return None
     period = float(np.median(np.diff(t)))
-    z5 = _prediction_residuals(t, x, 3, 3 * period)
+    parts = windows(t.shape[0])
+    z5 = np.concatenate([_prediction_residuals(t[lo:hi], x[lo:hi], 3, 3 * period) for lo, hi in parts])
     if z5.shape[0] < MIN_SAMPLES:
         return None
     sigma = _robust_sigma(z5)
-    z3 = _prediction_residuals(t, x, 2, 3 * period)
+    z3 = np.concatenate([_prediction_residuals(t[lo:hi], x[lo:hi], 2, 3 * period) for lo, hi in parts])
     leak = float(np.max(_robust_sigma(z3) / np.maximum(sigma, 1e-300)))
     blocks = np.array([_robust_sigma(b) for b in np.array_split(z5, BLOCKS)])
     se = blocks.std(axis=0, ddof=1) / np.sqrt(BLOCKS)
@@ -178,6 +190,28 @@ def detection_triplets(
         t3 - t2
     )
     return Triplets(e, c2, r, motion)
+
+
+def log_triplets(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, gyro_density, velocity_density):
+    """:func:`detection_triplets` of the whole log, or of ``windows`` of its velocity samples on a long log."""
+    parts = []
+    for lo, hi in windows(vel_t.shape[0]):
+        f0, f1 = np.searchsorted(det_t, [vel_t[lo], vel_t[hi - 1]])
+        d0, d1 = det_offsets[f0], det_offsets[f1]
+        parts.append(
+            detection_triplets(
+                vel_t[lo:hi],
+                omega[lo:hi],
+                velocity[lo:hi],
+                det_t[f0:f1],
+                det_offsets[f0 : f1 + 1] - d0,
+                det_idx[d0:d1],
+                det_y[d0:d1],
+                gyro_density,
+                velocity_density,
+            )
+        )
+    return Triplets(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("e", "c2", "r", "motion_var")))
 
 
 def _variance(theta: np.ndarray, tri: Triplets, power: int) -> tuple[np.ndarray, np.ndarray]:
