@@ -89,6 +89,17 @@ def test_config_keys_override_that_key_alone():
     assert set(off.sources.values()) == {"default"}
 
 
+def test_run_yaml_spells_auto_and_turns_it_off():
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.errors import InputError
+
+    assert parse_config({"noise": "auto"}).noise == NoiseConfig() == parse_config({}).noise
+    given = parse_config({"noise": {"auto": False, "detection_per_m2": 0.001}}).noise
+    assert given.auto is False and given.given() == {"detection_per_m2": 0.001}
+    with pytest.raises(InputError, match="noise"):
+        parse_config({"noise": "guess"})
+
+
 @pytest.mark.parametrize(
     ("diag", "why"),
     [
