@@ -43,6 +43,9 @@ MAX_TRIPLETS = 30_000
 MAX_SAMPLES, WINDOWS = 400_000, 10
 #: Fewest samples (velocity) or triplets (detections) an estimate is made from.
 MIN_SAMPLES = 50
+#: The smallest detection standard deviation at zero range a fit gives (m): a law fitted on ranges far from zero
+#: may reach zero there, and no detection is exact.
+MIN_DETECTION_M = 1e-4
 #: The detection laws: name -> (the power of range the second coefficient multiplies, its key in noise.DEFAULTS)
 LAWS = {"sigma0 + k*r": (1, "detection_per_m"), "b + a*r^2": (2, "detection_per_m2")}
 
@@ -283,7 +286,7 @@ def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
     ranges = tuple(float(q) for q in np.percentile(tri.r[inl, 1], [5, 95]))
     return DetectionLaw(
         best,
-        Estimate(float(theta[0]), float(se[0]), method, used),
+        Estimate(max(float(theta[0]), MIN_DETECTION_M), float(se[0]), method, used),
         Estimate(float(theta[1]), float(se[1]), method, used),
         power,
         ranges,
