@@ -292,12 +292,13 @@ def _add_commands() -> None:
     from slamobs.cli.batch_cmd import batch
     from slamobs.cli.evaluate_cmd import evaluate
     from slamobs.cli.export_cmd import export
+    from slamobs.cli.import_cmd import import_group
     from slamobs.cli.info_cmd import info
     from slamobs.cli.report_cmd import report
     from slamobs.cli.simulate_cmd import simulate
     from slamobs.cli.tune_cmd import tune
 
-    for command in (info, simulate, report, evaluate, export, batch, tune):
+    for command in (info, simulate, import_group, report, evaluate, export, batch, tune):
         main.add_command(command)
 
 

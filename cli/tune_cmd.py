@@ -41,6 +41,14 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
     help="minimised over the logs (median): APE translation RMSE, APE rotation RMSE, map error RMSE",
 )
 @click.option(
+    "--target",
+    type=click.Choice(["truth", "batch"]),
+    default="truth",
+    show_default=True,
+    help="what the objective is measured against: each log's ground truth, or the batch smoother's solution on "
+    "the same log (logs without truth can be tuned; --holdout logs are still checked against their truth)",
+)
+@click.option(
     "--config",
     "config_path",
     type=click.Path(path_type=Path),
@@ -76,6 +84,7 @@ def tune(
     out_dir: Path,
     trials: int,
     objective: str,
+    target: str,
     config_path: Path | None,
     jobs: int | None,
     scheduler: str | None,
@@ -85,7 +94,7 @@ def tune(
     wait_workers: float,
     quiet: bool,
 ) -> None:
-    """Search OBSERVER's gains on LOGS (with ground truth) and write OUT.
+    """Search OBSERVER's gains on LOGS (with ground truth, or any logs with --target batch) and write OUT.
 
     Optuna's TPE sampler searches every gain log-uniformly within its range and the observer's stability
     conditions; the objective is the median over the logs. Trial 0 runs the defaults. OUT gets gains.yaml (use
@@ -135,10 +144,12 @@ def tune(
             force=force,
             wait_workers=wait_workers,
             holdout=holdout,
+            target=target,
         )
         if not quiet:
             where = f"Dask at {scheduler}" if scheduler else f"{options.jobs} local worker processes"
-            click.echo(f"tune: {observer} on {len(logs)} logs, {trials} trials, on {where}", err=True)
+            against = " against the batch smoother's solution" if target == "batch" else ""
+            click.echo(f"tune: {observer} on {len(logs)} logs{against}, {trials} trials, on {where}", err=True)
         result = run_tune(list(logs), options, on_round=on_round)
     except (InputError, GainError, TuneFailed) as err:
         exit_input_error(str(err))
