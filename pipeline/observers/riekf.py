@@ -23,6 +23,17 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   ``Σ_PP + N``. Landmarks out of view stay in the state with their estimate and covariance; as in every
   EKF, an update moves them only through their correlation with what was measured.
 
+* Recovery (the filter never loses a log silently): the detections of known landmarks are counted in windows of
+  ``WINDOW``; when more than ``RECOVER_SHARE`` of a window fail the gate, the noise model does not fit the log
+  (or the estimate is lost). The filter then re-estimates one variance factor of its whole noise model from the
+  window's innovations (median Mahalanobis distance² over the χ² median, at least ``MIN_STEP``): the detection,
+  velocity and bias-walk variances and the covariance are multiplied by it (for a linear filter this keeps the
+  gain and makes the gate consistent again). A second failing window in a row also re-initialises the
+  landmarks that failed the gate (at their next detection, like a new one). The filter gives up (status
+  ``lost``, an ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the
+  factor would put the detection noise above ``MAX_SIGMA_SHARE`` of the median detection range (detections
+  that say nothing at that level). On a log where no window fails, nothing of this changes a number.
+
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
 covariances, else defaults). The start pose defines the map frame (the problem's gauge, docs/observers.md §1.1): its
 covariance is zero; the biases start at zero with the prior standard deviations ``noise.gyro_bias`` and
@@ -50,11 +61,27 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT = 0, 1, 2
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T = 0, 1, 2, 3, 4
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
 _NSEEN, _GATED, _UPDATES, _SKIPPED = 7, 8, 9, 10
+#: The recovery's slots (module docstring, "Recovery"): detections tested and gated in the current window,
+#: recoveries made, consecutive failing windows, landmarks re-initialised, and whether the filter gave up.
+_WIN_N, _WIN_GATED, _RECOVERIES, _FAILING, _REINIT, _LOST = 11, 12, 13, 14, 15, 16
+N_SLOTS = 17
+#: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
+#: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
+#: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
+#: detection range) beyond which the detections carry no information.
+WINDOW = 50
+RECOVER_SHARE = 0.5
+CHI2_MEDIAN_3 = 2.366
+MIN_STEP, MAX_STEP = 4.0, 1e4
+MAX_FAILING = 4
+MAX_SIGMA_SHARE = 0.25
+#: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
+MAX_LOG = 64
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
@@ -288,9 +315,14 @@ def _update(
     row,
     ns,
     gate,
+    scale,
+    win_d2,
+    gated_lm,
+    reinit,
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
-    state, new ones are augmented. Returns the new state dimension."""
+    state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
+    is counted in the recovery's window. Returns the new state dimension."""
     m = 0
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -303,9 +335,23 @@ def _update(
         for c in range(3):
             innov[row + j, c] = e[c]
             trk_p[row + j, c] = lm[i, c]
+        if reinit[i]:
+            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+            for c in range(3):
+                lm[i, c] = lm[i, c] - e[c]
+                trk_p[row + j, c] = lm[i, c]
+            reinit[i] = False
+            ns[_REINIT] += 1
+            continue
         zi = -e
-        if _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j]) > gate:
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+        if ns[_WIN_N] < win_d2.shape[0]:
+            win_d2[ns[_WIN_N]] = d2
+        ns[_WIN_N] += 1
+        if d2 > gate:
             ns[_GATED] += 1
+            ns[_WIN_GATED] += 1
+            gated_lm[i] = True
             continue
         sel[m] = j
         for c in range(3):
@@ -322,7 +368,7 @@ def _update(
         # S = H PHᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            s2 = det_sigma2[a0 + sel[q]]
+            s2 = det_sigma2[a0 + sel[q]] * scale
             for c in range(3):
                 for k in range(k3):
                     smat[3 * q + c, k] = pht[3 + c, k] - pht[sl + c, k]
@@ -385,9 +431,54 @@ def _update(
         for a in range(3):
             for c in range(3):
                 cov[o + a, o + c] = cov[3 + a, 3 + c]
-            cov[o + a, o + a] += det_sigma2[a0 + j]
+            cov[o + a, o + a] += det_sigma2[a0 + j] * scale
         d += 3
     return d
+
+
+@njit(cache=True)
+def _reset_landmark(cov, d, o, sigma2):
+    """Landmark slot ``o`` re-initialised from the pose, as a new one is augmented: its rows copy ``P̂``'s and its
+    own block is ``Σ_PP + σ²I`` (its mean is set by the caller from the detection)."""
+    for c in range(3):
+        for k in range(d):
+            cov[o + c, k] = cov[3 + c, k]
+            cov[k, o + c] = cov[k, 3 + c]
+    for a in range(3):
+        for c in range(3):
+            cov[o + a, o + c] = cov[3 + a, 3 + c]
+        cov[o + a, o + a] += sigma2
+
+
+@njit(cache=True)
+def _window_check(t, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale):
+    """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
+    docstring, "Recovery"), or give up; the window starts again. True when the noise factor changed."""
+    n, gated = ns[_WIN_N], ns[_WIN_GATED]
+    ns[_WIN_N], ns[_WIN_GATED] = 0, 0
+    changed = False
+    if gated <= RECOVER_SHARE * n:
+        ns[_FAILING] = 0
+    elif ns[_LOST] == 0:
+        step = min(max(np.median(win_d2[: min(n, win_d2.shape[0])]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
+        if ns[_FAILING] >= MAX_FAILING or fs[_SCALE] * step > max_scale:
+            ns[_LOST] = 1
+            fs[_LOST_T] = t
+        else:
+            ns[_FAILING] += 1
+            fs[_SCALE] *= step
+            cov[:d, :d] *= step
+            if ns[_FAILING] >= 2:  # raising the noise was not enough: the landmarks that failed start again
+                for i in range(gated_lm.shape[0]):
+                    if gated_lm[i] and slot_of[i] >= 0:
+                        reinit[i] = True
+            r = ns[_RECOVERIES]
+            if r < rec_log.shape[0]:
+                rec_log[r, 0], rec_log[r, 1], rec_log[r, 2], rec_log[r, 3] = t, step, fs[_SCALE], ns[_FAILING]
+            ns[_RECOVERIES] += 1
+            changed = True
+    gated_lm[:] = False
+    return changed
 
 
 @njit(cache=True, nogil=True)
@@ -406,6 +497,7 @@ def _advance(
     q_bw,
     q_bv,
     gate,
+    max_scale,
     out_every,
     iv_stop,
     budget,
@@ -428,6 +520,10 @@ def _advance(
     z,
     pht,
     smat,
+    win_d2,
+    gated_lm,
+    reinit,
+    rec_log,
     out_k,
     out_r,
     out_p,
@@ -440,7 +536,7 @@ def _advance(
     """The event loop from the state in the arrays until the next event is velocity sample ``iv_stop`` (all
     events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
     ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
-    (tests), else nothing."""
+    (tests), else nothing. The noise enters multiplied by the recovery's variance factor ``fs[_SCALE]``."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     t, acc_dt = fs[_T], fs[_ACC_DT]
@@ -452,6 +548,8 @@ def _advance(
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
+    scale = fs[_SCALE]
+    qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
@@ -465,7 +563,7 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
-                _accumulate(h, r_hat, p_hat, q_om, q_v, acc)
+                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):
                     p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
@@ -481,7 +579,7 @@ def _advance(
             work += m
             t = t_next
         if is_frame:
-            _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+            _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
             acc_dt = 0.0
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
@@ -510,7 +608,17 @@ def _advance(
                 a0 - det_base,
                 ns,
                 gate,
+                scale,
+                win_d2,
+                gated_lm,
+                reinit,
             )
+            if ns[_WIN_N] >= WINDOW and _window_check(
+                t_next, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale
+            ):
+                scale = fs[_SCALE]
+                qs_om, qs_v = q_om * scale, q_v * scale
+                qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
             fs[_MEAS_T] = t_next
             jf += 1
         else:
@@ -523,13 +631,13 @@ def _advance(
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 if want_cov:
-                    _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
                     acc_dt = 0.0
                     cov_out[o] = cov[:N_FIXED, :N_FIXED]
                 o += 1
             iv += 1
     if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
-        _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
         acc_dt = 0.0
     fs[_T], fs[_ACC_DT] = t, acc_dt
     ns[_IV], ns[_JF], ns[_NSEEN], ns[_STARTED], ns[_STEPS] = iv, jf, (d - N_FIXED) // 3, 1 if started else 0, steps
@@ -541,8 +649,9 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=3)
-        self.ns = np.concatenate([self.ns, np.zeros(4, dtype=np.int64)])
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=5)
+        self.fs[_SCALE] = 1.0
+        self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
         self.cov = np.zeros((dim, dim))
         for c in range(6):
@@ -557,6 +666,10 @@ class _State(KernelState):
         self.z = np.zeros(k3)
         self.pht = np.zeros((dim, k3))
         self.smat = np.zeros((k3, k3))
+        self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
+        self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
+        self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
+        self.rec_log = np.zeros((MAX_LOG, 4))
 
     def arrays(self) -> tuple:
         return (
@@ -579,6 +692,10 @@ class _State(KernelState):
             self.z,
             self.pht,
             self.smat,
+            self.win_d2,
+            self.gated_lm,
+            self.reinit,
+            self.rec_log,
         )
 
 
@@ -615,7 +732,8 @@ class RiEKF(Stepper):
             n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
         )
         self.det_sigma2 = detection_variances(stream.det_y, nz.detection, nz.detection_per_m)
-        self.params = (nz.gyro**2, nz.velocity**2, float(nz.gyro_bias_walk), float(nz.velocity_bias_walk), GATE_CHI2)
+        walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
+        self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
 
@@ -625,7 +743,8 @@ class RiEKF(Stepper):
         when no frame allowed the re-anchoring and the pose is held from before the gap."""
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
-        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *self.params[2:4], st.f, st.g)
+        walks = np.sqrt(st.fs[_SCALE]) * np.array(self.params[2:4])
+        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.f, st.g)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
         moved = super()._relocalise(iv)
@@ -680,12 +799,70 @@ class RiEKF(Stepper):
                 "gate_chi2": GATE_CHI2,
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
+                **self._recovery(),
             }
         }
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
-        )
+        ) + recovery_notes(self.stats["metadata"]["filter"])
         return rows
+
+    def _recovery(self) -> dict:
+        """The recovery's record for run.json: status (``converged``, ``recovered`` or ``lost``), each recovery
+        (log seconds, variance factor of the step and in total), landmarks re-initialised, when it gave up."""
+        ns, fs = self.state.ns, self.state.fs
+        n = int(ns[_RECOVERIES])
+        t0 = float(self.vel_t[0]) if self.vel_t.size else 0.0
+        log = [
+            {"t_s": round(float(r[0]) - t0, 3), "factor": float(r[1]), "total_factor": float(r[2])}
+            for r in self.state.rec_log[: min(n, MAX_LOG)]
+        ]
+        status = "lost" if ns[_LOST] else "recovered" if n else "converged"
+        return {
+            "status": status,
+            "recoveries": n,
+            "recovery_log": log,
+            "noise_factor": float(fs[_SCALE]),
+            "landmarks_reinitialised": int(ns[_REINIT]),
+            "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
+        }
+
+
+def max_variance_factor(det_y: np.ndarray, noise) -> float:
+    """The largest variance factor a recovery may reach: the detection noise at the median range up to
+    ``MAX_SIGMA_SHARE`` of that range (module docstring, "Recovery"); unbounded without detections."""
+    if det_y.shape[0] == 0:
+        return np.inf
+    r = float(np.median(np.linalg.norm(det_y, axis=1)))
+    sigma = float(noise.detection_sigma(np.array([r]))[0])
+    return (MAX_SIGMA_SHARE * r / sigma) ** 2 if sigma > 0 else np.inf
+
+
+def recovery_notes(filt: dict) -> list[str]:
+    """What the recovery did, for the run's notes: one line per recovery (the first few), and an ``error:``
+    line when the filter gave up (its trajectory is not to be trusted after that time)."""
+    notes = []
+    for r in filt["recovery_log"][:5]:
+        notes.append(
+            f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
+            f"multiplying the noise variances and the covariance by {r['factor']:.3g} (in total "
+            f"{r['total_factor']:.3g}, noise standard deviations x{np.sqrt(r['total_factor']):.3g})"
+        )
+    if filt["recoveries"] > 5:
+        notes.append(f"riekf: {filt['recoveries']} recoveries in all (run.json observer.filter.recovery_log)")
+    if filt["landmarks_reinitialised"]:
+        notes.append(
+            f"riekf: {filt['landmarks_reinitialised']} landmark(s) re-initialised from the pose after failing "
+            "the gate through two recoveries in a row"
+        )
+    if filt["status"] == "lost":
+        notes.append(
+            f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections keep failing the gate "
+            f"after {filt['recoveries']} recoveries (noise factor {filt['noise_factor']:.3g}); the trajectory "
+            "after that time is not an estimate (check the noise settings, the detections' frames and the time "
+            "stamps)"
+        )
+    return notes
 
 
 #: Share of the detections rejected by the gate above which the run says so (a few are outliers; most, a noise model
