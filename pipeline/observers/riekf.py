@@ -25,14 +25,15 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
 
 * Recovery (the filter never loses a log silently): the detections of known landmarks are counted in windows of
   ``WINDOW``; when more than ``RECOVER_SHARE`` of a window fail the gate, the noise model does not fit the log
-  (or the estimate is lost). The filter then re-estimates one variance factor of its whole noise model from the
-  window's innovations (median Mahalanobis distance² over the χ² median, at least ``MIN_STEP``): the detection,
-  velocity and bias-walk variances and the covariance are multiplied by it (for a linear filter this keeps the
-  gain and makes the gate consistent again). A second failing window in a row also re-initialises the
-  landmarks that failed the gate (at their next detection, like a new one). The filter gives up (status
-  ``lost``, an ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the
-  factor would put the detection noise above ``MAX_SIGMA_SHARE`` of the median detection range (detections
-  that say nothing at that level). On a log where no window fails, nothing of this changes a number.
+  (or the estimate is lost). The filter re-estimates a variance factor from the window's innovations (median
+  Mahalanobis distance² over the χ² median, at least ``MIN_STEP``) and applies it: at the first failing window
+  to the detection variances (the detections are noisier than assumed); at a second one in a row to every
+  noise variance and the covariance (for a linear filter a common factor keeps the gain and makes the gate
+  consistent again: the estimate may be lost); from a third one on the landmarks that failed the gate are
+  also re-initialised (at their next detection, like a new one). The filter gives up (status ``lost``, an
+  ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
+  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
+  On a log where no window fails, none of this changes a number.
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
 covariances, else defaults). The start pose defines the map frame (the problem's gauge, docs/observers.md §1.1): its
@@ -61,7 +62,7 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T = 0, 1, 2, 3, 4
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE = 0, 1, 2, 3, 4, 5
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -80,6 +81,12 @@ CHI2_MEDIAN_3 = 2.366
 MIN_STEP, MAX_STEP = 4.0, 1e4
 MAX_FAILING = 4
 MAX_SIGMA_SHARE = 0.25
+#: What a recovery did, by failing windows in a row (1, 2, 3 and more).
+RECOVERY_ACTIONS = {
+    1: "the detection variances",
+    2: "every noise variance and the covariance",
+    3: "every noise variance and the covariance, re-initialising the landmarks that failed,",
+}
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
@@ -453,7 +460,7 @@ def _reset_landmark(cov, d, o, sigma2):
 @njit(cache=True)
 def _window_check(t, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale):
     """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
-    docstring, "Recovery"), or give up; the window starts again. True when the noise factor changed."""
+    docstring, "Recovery"), or give up; the window starts again. True when a noise factor changed."""
     n, gated = ns[_WIN_N], ns[_WIN_GATED]
     ns[_WIN_N], ns[_WIN_GATED] = 0, 0
     changed = False
@@ -461,20 +468,24 @@ def _window_check(t, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log,
         ns[_FAILING] = 0
     elif ns[_LOST] == 0:
         step = min(max(np.median(win_d2[: min(n, win_d2.shape[0])]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
-        if ns[_FAILING] >= MAX_FAILING or fs[_SCALE] * step > max_scale:
+        if ns[_FAILING] >= MAX_FAILING or fs[_SCALE] * fs[_DSCALE] * step > max_scale:
             ns[_LOST] = 1
             fs[_LOST_T] = t
         else:
             ns[_FAILING] += 1
-            fs[_SCALE] *= step
-            cov[:d, :d] *= step
-            if ns[_FAILING] >= 2:  # raising the noise was not enough: the landmarks that failed start again
+            if ns[_FAILING] == 1:  # first: the detections are noisier than assumed
+                fs[_DSCALE] *= step
+            else:  # again: the whole noise model, and the covariance with it (the estimate may be lost)
+                fs[_SCALE] *= step
+                cov[:d, :d] *= step
+            if ns[_FAILING] >= 3:  # and again: the landmarks that failed start afresh
                 for i in range(gated_lm.shape[0]):
                     if gated_lm[i] and slot_of[i] >= 0:
                         reinit[i] = True
             r = ns[_RECOVERIES]
             if r < rec_log.shape[0]:
-                rec_log[r, 0], rec_log[r, 1], rec_log[r, 2], rec_log[r, 3] = t, step, fs[_SCALE], ns[_FAILING]
+                rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_SCALE] * fs[_DSCALE]
+                rec_log[r, 3] = min(ns[_FAILING], 3)
             ns[_RECOVERIES] += 1
             changed = True
     gated_lm[:] = False
@@ -548,7 +559,7 @@ def _advance(
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
-    scale = fs[_SCALE]
+    scale, det_scale = fs[_SCALE], fs[_SCALE] * fs[_DSCALE]
     qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
@@ -608,7 +619,7 @@ def _advance(
                 a0 - det_base,
                 ns,
                 gate,
-                scale,
+                det_scale,
                 win_d2,
                 gated_lm,
                 reinit,
@@ -616,7 +627,7 @@ def _advance(
             if ns[_WIN_N] >= WINDOW and _window_check(
                 t_next, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale
             ):
-                scale = fs[_SCALE]
+                scale, det_scale = fs[_SCALE], fs[_SCALE] * fs[_DSCALE]
                 qs_om, qs_v = q_om * scale, q_v * scale
                 qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
             fs[_MEAS_T] = t_next
@@ -649,8 +660,9 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=5)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=6)
         self.fs[_SCALE] = 1.0
+        self.fs[_DSCALE] = 1.0
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
         self.cov = np.zeros((dim, dim))
@@ -814,7 +826,12 @@ class RiEKF(Stepper):
         n = int(ns[_RECOVERIES])
         t0 = float(self.vel_t[0]) if self.vel_t.size else 0.0
         log = [
-            {"t_s": round(float(r[0]) - t0, 3), "factor": float(r[1]), "total_factor": float(r[2])}
+            {
+                "t_s": round(float(r[0]) - t0, 3),
+                "action": RECOVERY_ACTIONS[int(r[3])],
+                "factor": float(r[1]),
+                "detection_factor": float(r[2]),
+            }
             for r in self.state.rec_log[: min(n, MAX_LOG)]
         ]
         status = "lost" if ns[_LOST] else "recovered" if n else "converged"
@@ -823,6 +840,7 @@ class RiEKF(Stepper):
             "recoveries": n,
             "recovery_log": log,
             "noise_factor": float(fs[_SCALE]),
+            "detection_noise_factor": float(fs[_SCALE] * fs[_DSCALE]),
             "landmarks_reinitialised": int(ns[_REINIT]),
             "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
         }
@@ -845,8 +863,8 @@ def recovery_notes(filt: dict) -> list[str]:
     for r in filt["recovery_log"][:5]:
         notes.append(
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
-            f"multiplying the noise variances and the covariance by {r['factor']:.3g} (in total "
-            f"{r['total_factor']:.3g}, noise standard deviations x{np.sqrt(r['total_factor']):.3g})"
+            f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now x{np.sqrt(r['detection_factor']):.3g} "
+            "in standard deviation)"
         )
     if filt["recoveries"] > 5:
         notes.append(f"riekf: {filt['recoveries']} recoveries in all (run.json observer.filter.recovery_log)")
@@ -858,7 +876,7 @@ def recovery_notes(filt: dict) -> list[str]:
     if filt["status"] == "lost":
         notes.append(
             f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections keep failing the gate "
-            f"after {filt['recoveries']} recoveries (noise factor {filt['noise_factor']:.3g}); the trajectory "
+            f"after {filt['recoveries']} recoveries (detection noise factor {filt['detection_noise_factor']:.3g}); the trajectory "
             "after that time is not an estimate (check the noise settings, the detections' frames and the time "
             "stamps)"
         )
