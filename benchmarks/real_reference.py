@@ -5,8 +5,9 @@ detection time offset).
 
     .venv/bin/python benchmarks/real_reference.py [--tests test_11 test_22] [--estimators riekf batch]
 
-(test_22 has two tags: its error is that of their distance.) Prints one table row per log and estimator: landmarks matched, map error (median and RMSE, m), run time, the
-riekf status and gated share, the batch candidates' costs and the time-offset estimate.
+Prints one table row per log and estimator: landmarks matched, map error (median and RMSE, m; test_22 has two
+tags: the error of their distance), run time, riekf's status and gated detections, the batch candidates' costs
+and the time-offset estimate.
 """
 
 from __future__ import annotations
@@ -68,9 +69,11 @@ def robust_notes(meta: dict) -> str:
     obs = meta.get("observer", {})
     parts = []
     if (f := obs.get("filter")) is not None:
-        parts.append(f"status {f.get('status', '-')}, gated {f['gated_detections']}, recoveries {f.get('recoveries', '-')}")
+        status, n = f.get("status", "-"), f.get("recoveries", "-")
+        parts.append(f"status {status}, gated {f['gated_detections']}, recoveries {n}")
     if (c := obs.get("smoother", {}).get("candidates")) is not None:
-        parts.append("; ".join(f"{k}: cost {v['cost']:.4g}" for k, v in c.items()) + f" -> {obs['smoother']['seed']}")
+        costs = "; ".join(f"{k}: cost {v['cost']:.4g}" for k, v in c.items())
+        parts.append(f"{costs} -> {obs['smoother']['seed']}")
     if (o := obs.get("time_offset")) is not None:
         parts.append(f"offset {o.get('estimate_s')} s ({'applied' if o.get('applied') else 'not applied'})")
     return "; ".join(parts)

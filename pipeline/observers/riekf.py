@@ -863,8 +863,8 @@ def recovery_notes(filt: dict) -> list[str]:
     for r in filt["recovery_log"][:5]:
         notes.append(
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
-            f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now x{np.sqrt(r['detection_factor']):.3g} "
-            "in standard deviation)"
+            f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now "
+            f"x{np.sqrt(r['detection_factor']):.3g} in standard deviation)"
         )
     if filt["recoveries"] > 5:
         notes.append(f"riekf: {filt['recoveries']} recoveries in all (run.json observer.filter.recovery_log)")
@@ -876,9 +876,9 @@ def recovery_notes(filt: dict) -> list[str]:
     if filt["status"] == "lost":
         notes.append(
             f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections keep failing the gate "
-            f"after {filt['recoveries']} recoveries (detection noise factor {filt['detection_noise_factor']:.3g}); the trajectory "
-            "after that time is not an estimate (check the noise settings, the detections' frames and the time "
-            "stamps)"
+            f"after {filt['recoveries']} recoveries (detection noise factor {filt['detection_noise_factor']:.3g}); "
+            "the trajectory after that time is not an estimate (check the noise settings, the detections' "
+            "frames and the time stamps)"
         )
     return notes
 
