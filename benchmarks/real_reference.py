@@ -71,9 +71,9 @@ def robust_notes(meta: dict) -> str:
     if (f := obs.get("filter")) is not None:
         status, n = f.get("status", "-"), f.get("recoveries", "-")
         parts.append(f"status {status}, gated {f['gated_detections']}, recoveries {n}")
-    if (c := obs.get("smoother", {}).get("candidates")) is not None:
-        costs = "; ".join(f"{k}: cost {v['cost']:.4g}" for k, v in c.items())
-        parts.append(f"{costs} -> {obs['smoother']['seed']}")
+    if (c := obs.get("smoother", {}).get("robust")) is not None:
+        costs = "; ".join(f"{k}: cost {v['cost']:.4g}" for k, v in c["candidates"].items())
+        parts.append(f"{costs} -> {c['winner']}")
     if (o := obs.get("time_offset")) is not None:
         parts.append(f"offset {o.get('estimate_s')} s ({'applied' if o.get('applied') else 'not applied'})")
     return "; ".join(parts)
