@@ -123,3 +123,30 @@ def test_batch_is_never_worse_than_a_poor_fast_adaptation_seed_and_names_the_win
     (note,) = [n for n in run.stats["notes"] if n.startswith("batch: first solution doubtful")]
     assert f"kept '{robust['winner']}'" in note and "many detections fail" in note
     assert not any("local minimum" in n for n in run.stats["notes"])  # the winner passes the gate
+
+
+#: The time-offset estimate's tolerance on the figure8 log (s): about a tenth of the detection period (20 Hz).
+OFFSET_TOLERANCE_S = 0.005
+
+
+@pytest.mark.parametrize("offset", [0.1, -0.03, 0.0])
+def test_detection_time_offset_is_estimated_and_applied_only_when_reliable(offset):
+    """Detections stamped ``offset`` s late (the simulator's option): the estimate moves them back within
+    OFFSET_TOLERANCE_S, riekf applies it and says so; without an offset nothing is applied (the run unchanged)."""
+    from slamobs.pipeline.observers import time_offset
+
+    sim = simulate("figure8", seed=2, duration=20.0, detection_offset=offset)
+    stream = align(expected_streams(sim))
+    est = time_offset.estimate(stream)
+    assert abs(est["estimate_s"] + offset) < OFFSET_TOLERANCE_S
+    assert est["applied"] == (offset != 0.0)
+    if offset == 0.0:
+        assert time_offset.shifted(stream, est) is stream and time_offset.note("riekf", est) == []
+        return
+    res = RIEKF.run(stream, {}, ObserverOptions())
+    assert res.stats["metadata"]["time_offset"] == est
+    (note,) = [n for n in res.stats["notes"] if "off the velocity clock" in n]
+    assert note.startswith(f"riekf: detection stamps {est['estimate_s']:+.4f} s") and note.endswith("applied")
+    # the filter ran on the corrected stamps (its detection rows carry them)
+    shift_ns = int(round(est["estimate_s"] * 1e9))
+    assert np.array_equal(res.det_t_ns, np.repeat(stream.det_t_ns + shift_ns, np.diff(stream.det_offsets)))

@@ -51,6 +51,7 @@ from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
+from slamobs.pipeline.observers.time_offset import note as time_offset_note
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -728,7 +729,10 @@ class RiEKF(Stepper):
     def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
         from slamobs.pipeline.errors import InputError
         from slamobs.pipeline.noise import resolve_noise
+        from slamobs.pipeline.observers import time_offset
 
+        self.time_offset = time_offset.estimate(stream)
+        stream = time_offset.shifted(stream, self.time_offset)
         super().__init__(stream, options)
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         n_lm = int(stream.landmark_ids.shape[0])
@@ -812,11 +816,13 @@ class RiEKF(Stepper):
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
                 **self._recovery(),
-            }
+            },
+            "time_offset": self.time_offset,
         }
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
         ) + recovery_notes(self.stats["metadata"]["filter"])
+        self.stats["notes"] += time_offset_note("riekf", self.time_offset)
         return rows
 
     def _recovery(self) -> dict:

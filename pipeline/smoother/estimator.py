@@ -16,6 +16,7 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam]'"
@@ -74,7 +75,10 @@ class BatchSmoother(Stepper):
         fixed_bias: np.ndarray | None = None,
     ) -> None:
         from slamobs.pipeline.noise import resolve_noise
+        from slamobs.pipeline.observers import time_offset
 
+        self.time_offset = time_offset.estimate(stream)
+        stream = time_offset.shifted(stream, self.time_offset)  # the seeds run on the stamps it corrects too
         super().__init__(stream, options)
         self.where = options.source
         self.settings = (
@@ -117,8 +121,14 @@ class BatchSmoother(Stepper):
         if robust is not None:
             summary["robust"] = robust[0]
         self.stats["substeps"] = int(kf_t.shape[0])
-        self.stats["metadata"] = {"seed": chosen.seed.name, "smoother": summary, "noise": self.noise.as_dict()}
+        self.stats["metadata"] = {
+            "seed": chosen.seed.name,
+            "smoother": summary,
+            "noise": self.noise.as_dict(),
+            "time_offset": self.time_offset,
+        }
         self.stats["notes"] = ([robust[1]] if robust is not None else []) + list(chosen.notes or [])
+        self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
                 "seed_s": seed_s,
