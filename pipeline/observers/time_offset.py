@@ -161,11 +161,11 @@ def shifted(stream, offset: dict):
 
 
 def note(name: str, offset: dict) -> list[str]:
-    """The run's note on the offset: only when one was estimated away from zero (applied or not)."""
-    if offset["estimate_s"] is None or (not offset["applied"] and abs(offset["estimate_s"]) < MIN_APPLY_S):
+    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always)."""
+    if not offset["applied"]:
         return []
-    what = "applied" if offset["applied"] else f"not applied: {offset['why_not_applied']}"
     return [
-        f"{name}: detection stamps {offset['estimate_s']:+.4f} s (± {offset['sigma_s']:.2g}) off the velocity "
-        f"clock by the data ({offset['pairs']} detection pairs); {what}"
+        f"{name}: detection stamps moved by {offset['estimate_s']:+.4f} s (± {offset['sigma_s']:.2g}) onto the "
+        f"velocity clock, estimated from the data ({offset['pairs']} detection pairs; docs/observers.md, Time "
+        "offset): applied"
     ]
