@@ -1,6 +1,7 @@
-"""The reference estimators on logs that break their assumptions (issue 23 §2): riekf recovers from a noise jump
-and says so, and says so when it cannot; batch is never worse than its seed; the detection stream's time
-offset is estimated from the data. Short simulated logs (figure8), altered where the simulator has no option."""
+"""The reference estimators on logs that break their assumptions (issue 23, part 2; docs/observers.md §11):
+riekf recovers from a noise jump and says so, and says so when it cannot; batch is never worse than its seed;
+the detection stream's time offset is estimated from the data. Short simulated logs (figure8), altered where
+the simulator has no option."""
 
 from __future__ import annotations
 
