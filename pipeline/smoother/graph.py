@@ -338,6 +338,15 @@ def solve(
     return Solution(rot, pos, lms, bias, bias_cov, summary)
 
 
+def cost(problem: Problem, guess: Guess) -> float:
+    """The smoother's objective at ``guess``: every factor of ``problem`` (Huber-robust landmark factors, relative
+    motion, bias priors; the gauge prior sits at the guess's own anchor pose and adds nothing), as GTSAM sums it
+    (half the squared whitened residuals). Solutions from different seeds are compared by it."""
+    _, _, bias_keys = _keys(problem, guess)
+    graph, values = build(problem, guess)
+    return float(graph.error(values)) + _Motion(problem, bias_keys).error(guess.rot, guess.pos, guess.bias)
+
+
 def merge_summaries(first: dict, second: dict) -> dict:
     """The summary of a solve continued by a second one (after gating): counts added, errors joined."""
     out = dict(second)
