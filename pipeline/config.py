@@ -97,6 +97,7 @@ class EvaluationConfig:
     truth_times: str | None = None
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
+    align: str | None = None  # the report's alignment (align.NAMES); None = the report's default (SE(3))
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
     map_truth: str | None = None
 

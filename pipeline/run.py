@@ -763,6 +763,7 @@ def _evaluate(
         options = ReportOptions(
             t_max_diff_s=config.evaluation.t_max_diff,
             convergence_threshold_m=config.evaluation.convergence_threshold,
+            **({"align": config.evaluation.align} if config.evaluation.align else {}),
             gravity_aligned=gravity_aligned(metadata),
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
