@@ -98,6 +98,7 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
         ]
     if not rpe_s and not drift:
         lines += ["Path too short for RPE and drift.", ""]
+    lines += _md_segment_errors(report.get("segment_errors"))
     est = (
         "not estimated"
         if off["estimated_s"] is None
@@ -108,6 +109,29 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
     )
     lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     return lines
+
+
+def _md_segment_errors(seg: dict[str, Any] | None) -> list[str]:
+    """rpg's relative error per sub-trajectory length: "mean, median (min, max)" per length, rpg's table style."""
+    if not seg or not any(row["translation_pct"] for row in seg["per_length"]):
+        return []
+    lines = [
+        f"Segment errors (rpg_trajectory_evaluation; truth path {seg['path_length_m']:.4g} m, scale "
+        f"{seg['scale']:.6g}), mean, median (min, max):",
+        "",
+        "| length [m] | segments | translation [%] | rotation [deg/m] | yaw [deg] |",
+        "|---|---|---|---|---|",
+    ]
+    for row in seg["per_length"]:
+        cells = [
+            "–"
+            if row[k] is None
+            else f"{_fmt(row[k]['mean'], 3)}, {_fmt(row[k]['median'], 3)} "
+            f"({_fmt(row[k]['min'], 3)}, {_fmt(row[k]['max'], 3)})"
+            for k in ("translation_pct", "rotation_deg_per_m", "yaw_deg")
+        ]
+        lines.append(f"| {row['length_m']:g} | {row['n_segments']} | " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 #: What a reliable offset is and is not: the estimate's lag behind the truth (a filter's delay) looks the same.
