@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import export_option, quiet_option
+from slamobs.cli.options import export_option, quiet_option, window_options
 from slamobs.cli.progress import compile_notice, status_line
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -104,6 +104,7 @@ def main() -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
 @export_option()
 @quiet_option()
 def run(
@@ -113,6 +114,8 @@ def run(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -127,7 +130,7 @@ def run(
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
-    config = with_observer(load_config(config_path), observer)
+    config = with_observer(load_config(config_path), observer).with_window(start, end)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -197,6 +200,7 @@ def _print_summary(summary) -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
 @export_option()
 @quiet_option()
 def compare(
@@ -206,6 +210,8 @@ def compare(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -222,7 +228,7 @@ def compare(
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = load_config(config_path)
+    config = load_config(config_path).with_window(start, end)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
-from slamobs.pipeline.alignment import DEFAULT_LIMITS, Limits
+from slamobs.pipeline.alignment import ABSOLUTE_AFTER_S, DEFAULT_LIMITS, Limits
 from slamobs.pipeline.errors import GainError, InputError
 from slamobs.pipeline.noise import NoiseConfig
 from slamobs.pipeline.smoother.settings import BatchSettings, batch_settings
@@ -36,6 +36,10 @@ class TimeConfig:
     #: per-topic clock (topic -> header | record)
     topics: dict[str, str] = field(default_factory=dict)
     max_meas_age: float = 0.5
+    #: the part of the log the run uses (alignment.time_window: seconds from the log's start, or absolute
+    #: stamps above alignment.ABSOLUTE_AFTER_S); None: from the beginning / to the end
+    start: float | None = None
+    end: float | None = None
 
 
 @dataclass(frozen=True)
@@ -205,6 +209,11 @@ class RunConfig:
         """This config with some fields of one section changed."""
         return replace(self, **{name: replace(getattr(self, name), **changes)})
 
+    def with_window(self, start: float | None = None, end: float | None = None) -> RunConfig:
+        """This config with the time window bounds given (``--start`` / ``--end``) as ``time.start`` / ``time.end``."""
+        given = {k: v for k, v in (("start", start), ("end", end)) if v is not None}
+        return self.with_section("time", **given) if given else self
+
 
 def _non_finite(data, where: tuple[str, ...] = ()) -> tuple[tuple[str, ...], float] | None:
     """Where the first NaN or infinite number of a loaded config is, and the number."""
@@ -325,6 +334,14 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
 
     if config.observer not in ESTIMATORS:
         raise InputError(source, f"observer: {_unknown_observer(config.observer)}")
+    start, end = config.time.start, config.time.end
+    if (
+        start is not None
+        and end is not None
+        and (start > ABSOLUTE_AFTER_S) == (end > ABSOLUTE_AFTER_S)
+        and end <= start
+    ):
+        raise InputError(source, f"time window: end {end:g} is not after start {start:g}")
     for name, gains in config.gains.items():
         if name not in ESTIMATORS:
             raise InputError(source, f"gains.{name}: {_unknown_observer(name)}")

@@ -1,4 +1,4 @@
-"""rpg_trajectory_evaluation's alignments and segment errors (issue 26 §4): ``posyaw`` is the 4-DoF alignment,
+"""rpg_trajectory_evaluation's alignments and segment errors (issue 26, part 4): ``posyaw`` is the 4-DoF alignment,
 and the relative error per sub-trajectory length matches rpg's own definitions."""
 
 from __future__ import annotations

@@ -212,9 +212,20 @@ def _md_biases(bi: dict[str, Any]) -> list[str]:
     ]
 
 
+def _window_text(win: dict[str, Any]) -> str:
+    """A time window as seconds from the log's start."""
+    ends = [
+        "start" if win["start_s"] is None else f"{win['start_s']:.3f} s",
+        "end" if win["end_s"] is None else f"{win['end_s']:.3f} s",
+    ]
+    return f"{ends[0]} to {ends[1]} from the log's start"
+
+
 def render_markdown(report: dict[str, Any]) -> str:
     """Human-readable version of the report (tables for APE, RPE/drift, landmarks, biases and the method)."""
     lines = ["# slamobs error report", ""]
+    if win := report.get("time_window"):
+        lines += [f"Time window: {_window_text(win)} (the run used this part of its log; the truth was cut to it).", ""]
     lines += _md_trajectory(report)
     lines += _md_landmarks(report["landmarks"])
     lines += _md_biases(report["biases"])
