@@ -11,7 +11,7 @@ from slamobs.cli.errors import handled
 
 
 @click.command("info")
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option(
     "--msg-dir",
@@ -19,10 +19,14 @@ from slamobs.cli.errors import handled
     default=None,
     help="Directory of pkg/msg/Type.msg files for message types whose definitions the log lacks.",
 )
-def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
-    """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play."""
+def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None) -> None:
+    """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from slamobs.pipeline.readers import format_info, inspect_log
+    from slamobs.pipeline.readers.split import recording_of
 
     with handled():  # as under the `slamobs` group, also when the command is used on its own
-        summary = inspect_log(log, msg_dir=msg_dir)
+        summary = inspect_log(recording_of(logs), msg_dir=msg_dir)
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else format_info(summary))

@@ -93,7 +93,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
@@ -108,7 +108,7 @@ def main() -> None:
 @export_option()
 @quiet_option()
 def run(
-    log: Path,
+    logs: tuple[Path, ...],
     out_dir: Path,
     observer: str | None,
     config_path: Path | None,
@@ -119,12 +119,17 @@ def run(
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
-    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
+    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
+    from slamobs.pipeline.readers.split import recording_of
 
+    log = recording_of(logs)
     working_on(log, "a run of this log", run_memory_mb(log))
     from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.evaluation.plot_worker import free_cores

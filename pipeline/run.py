@@ -454,7 +454,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "landmarks": int(aligned.landmark_ids.shape[0]),
         },
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
-        "time_window": prepared.window.describe() if prepared.window is not None else None,
+        **({"time_window": prepared.window.describe()} if prepared.window is not None else {}),
         "segments": aligned.segments(),
         "limits": config.limits.as_dict(),
         "output": {

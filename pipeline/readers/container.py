@@ -40,6 +40,7 @@ from slamobs.pipeline.errors import InputError, one_line, resource_error
 from slamobs.pipeline.paths import check_input, check_yaml_depth
 
 from . import mcap, ros1, rosbag2_sqlite
+from .split import part_notes, split_parts
 from .storage import TIME_LIMIT_NS, TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined
 
 if TYPE_CHECKING:
@@ -47,7 +48,7 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-Kind = str  # "rosbag2" (a directory) or the kind of one of FORMATS: "ros1", "mcap", "db3"
+Kind = str  # "rosbag2" or "ros1-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,9 @@ FORMATS: tuple[Format, ...] = (
 _READERS = tuple(f.reader for f in FORMATS)
 
 #: Human readable container names, used in messages.
-LABELS: dict[str, str] = {"rosbag2": "rosbag2 directory"} | {f.kind: f.label for f in FORMATS}
+LABELS: dict[str, str] = {"rosbag2": "rosbag2 directory", "ros1-split": "split ROS1 recording"} | {
+    f.kind: f.label for f in FORMATS
+}
 
 _WRAPPERS: tuple[tuple[bytes, str], ...] = (
     (b"BZh", "bzip2"),
@@ -104,6 +107,7 @@ class Container:
     kind: Kind
     storage: str = ""
     note: str = ""  # how the path was interpreted, when it needed interpreting (a warning of the run)
+    parts: tuple[Path, ...] = ()  # a split ROS1 recording's bags, in order (:mod:`.split`)
 
     @property
     def label(self) -> str:
@@ -129,6 +133,8 @@ def detect_container(path: str | Path) -> Container:
             if entry.name == "metadata.yaml" or entry.suffix in {".db3", ".mcap", ".zstd"}:
                 check_input(entry, "storage file of a rosbag2 directory", directory_ok=False)
         meta = path / "metadata.yaml"
+        if not meta.is_file() and (parts := split_parts(path, entries)):
+            return Container(path, "ros1-split", f"{len(parts)} bag files", parts=parts)
         if not meta.is_file():  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none
             inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
             if len(inner) == 1:
@@ -301,8 +307,8 @@ def _rosbags_path(container: Container) -> Iterator[Path]:
     """Yield a path whose suffix makes ``AnyReader`` choose the right reader."""
     path = container.path
     want = next((f.suffix for f in FORMATS if f.kind == container.kind), None)
-    if container.kind == "rosbag2":
-        ok = path.suffix != ".bag"
+    if container.kind in ("rosbag2", "ros1-split"):  # a split recording opens its parts
+        ok = container.kind == "ros1-split" or path.suffix != ".bag"
         want = ""
     else:
         ok = path.suffix == want
@@ -358,13 +364,16 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
     container = detect_container(path)
     with _rosbags_path(container) as rpath:
         try:
-            reader = AnyReader([rpath], default_typestore=_FallbackTypes())  # type: ignore[arg-type]
+            reader = AnyReader(list(container.parts or [rpath]), default_typestore=_FallbackTypes())  # type: ignore[arg-type]
             _use_own_readers(reader)
             reader.open()
         except Exception as err:  # any reader failure means a bad file
             raise _explain(container, err) from None
-        if container.note:
-            setattr(reader, _NOTES, [container.note])
+        notes = [container.note] if container.note else []
+        if container.parts:  # how the files follow each other in time
+            notes += part_notes(container.parts, [(r.start_time, r.end_time - 1) for r in reader.readers])
+        if notes:
+            setattr(reader, _NOTES, notes)
         try:
             yield reader
         except (Ros1ReaderError, Ros2ReaderError, SerdeError, DamagedError) as err:
