@@ -141,19 +141,18 @@ def yaw_gravity(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.abs(yaw), np.hypot(pitch, roll)
 
 
-def relative_errors(ref_pos, ref_rot, est_pos, est_rot, i, j, length: float, scale: float = 1.0) -> dict:
-    """rpg's relative error of each segment ``i → j`` (arrays named as :data:`SEGMENT_ERROR_KINDS`)."""
-    rm_i, rm_j, rc_i, rc_j = ref_rot[i], ref_rot[j], est_rot[i], est_rot[j]
-    r_m = np.einsum("nji,njk->nik", rm_i, rm_j)
-    t_m = np.einsum("nji,nj->ni", rm_i, ref_pos[j] - ref_pos[i])
-    r_c = np.einsum("nji,njk->nik", rc_i, rc_j)
-    t_c = scale * np.einsum("nji,nj->ni", rc_i, est_pos[j] - est_pos[i])
-    # E = T_m⁻¹ T_c: R_E = R_mᵀ R_c, t_E = R_mᵀ (t_c − t_m); rotated into the world by R_c at the end
-    r_e = np.einsum("nji,njk->nik", r_m, r_c)
-    t_e = np.einsum("nji,nj->ni", r_m, t_c - t_m)
-    r_w = np.einsum("nij,njk,nlk->nil", rc_j, r_e, rc_j)
-    trans = np.linalg.norm(t_e, axis=1)
-    rot = np.degrees(np.arccos(np.clip((np.trace(r_e, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, scale: float = 1.0) -> dict:
+    """rpg's relative error of each segment ``i → j`` (arrays named as :data:`SEGMENT_ERROR_KINDS`), from the
+    per-pose ``turn = R_ref R_estᵀ`` (:func:`turns`).
+
+    rpg forms ``E = T_m⁻¹ T_c`` (``T_m = Q_i⁻¹ Q_j``, ``T_c = P_i⁻¹ P_j`` with its translation times ``scale``) and
+    rotates it into the world by ``R_c`` at ``j``; that rotation is ``D_jᵀ D_i`` with ``D = R_ref R_estᵀ``, the
+    norm of its translation ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖``: one product per segment instead of eight.
+    """
+    r_w = np.matmul(turn[j].transpose(0, 2, 1), turn[i])
+    moved = np.matmul(turn[i], (est_pos[j] - est_pos[i])[:, :, None])[:, :, 0]
+    trans = np.linalg.norm(scale * moved - (ref_pos[j] - ref_pos[i]), axis=1)
+    rot = np.degrees(np.arccos(np.clip((np.trace(r_w, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
     yaw, gravity = yaw_gravity(r_w)
     return dict(
         zip(
@@ -161,6 +160,14 @@ def relative_errors(ref_pos, ref_rot, est_pos, est_rot, i, j, length: float, sca
             (trans, 100.0 * trans / length, rot, rot / length, np.degrees(yaw), np.degrees(gravity)),
         )
     )
+
+
+def turns(ref_rot, est_rot) -> np.ndarray:
+    """``R_ref R_estᵀ`` of every pair (rotation matrices, or :class:`RotationRows`)."""
+    ref, est = (
+        np.asarray(r[np.arange(len(r))] if isinstance(r, RotationRows) else r, np.float64) for r in (ref_rot, est_rot)
+    )
+    return np.matmul(ref, est.transpose(0, 2, 1))
 
 
 def segment_errors(
@@ -178,14 +185,14 @@ def segment_errors(
     rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
     dist = accumulated_distances(rp)
     total = float(dist[-1]) if path_length_m is None else float(path_length_m)
-    rows, arrays = [], {}
+    rows, arrays, turn = [], {}, turns(ref_rot, est_rot)
     for length in rpg_lengths(total, fractions):
         i, j = rpg_segment_ends(dist, length, RPG_MAX_DIFF_FRACTION * length) if length > 0 else ((), ())
         row = {"length_m": length, "n_segments": len(i)}
         if len(i) < 2:  # rpg: "Too few samples! Will not compute."
             rows.append({**row, **{k: None for k in SEGMENT_ERROR_KINDS}})
             continue
-        errs = relative_errors(rp, ref_rot, ep, est_rot, i, j, length, scale)
+        errs = relative_errors(rp, ep, turn, i, j, length, scale)
         arrays[length] = errs
         rows.append({**row, **{k: statistics(v) for k, v in errs.items()}})
     return {
