@@ -25,7 +25,7 @@ def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None) -> None
     A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
     """
     from slamobs.pipeline.readers import format_info, inspect_log
-    from slamobs.pipeline.readers.split import recording_of
+    from slamobs.pipeline.readers.container import recording_of
 
     with handled():  # as under the `slamobs` group, also when the command is used on its own
         summary = inspect_log(recording_of(logs), msg_dir=msg_dir)

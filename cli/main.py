@@ -127,7 +127,7 @@ def run(
 
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
-    from slamobs.pipeline.readers.split import recording_of
+    from slamobs.pipeline.readers.container import recording_of
 
     log = recording_of(logs)
     working_on(log, "a run of this log", run_memory_mb(log))
