@@ -45,8 +45,10 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
 @click.option(
     "--align-yaw",
     "--align_yaw",
+    "--align-posyaw",
+    "align_yaw",
     is_flag=True,
-    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)",
+    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity; rpg's posyaw)",
 )
 @click.option(
     "--n-to-align",

@@ -11,7 +11,7 @@ from slamobs.cli.errors import handled
 
 
 @click.command("info")
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option(
     "--msg-dir",
@@ -25,12 +25,17 @@ from slamobs.cli.errors import handled
     help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs.",
 )
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml (with --noise).")
-def info(log: Path, *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
+def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
     """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play; with
-    --noise, the noise levels learned from it."""
+    --noise, the noise levels learned from it.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from slamobs.pipeline.readers import format_info, inspect_log
+    from slamobs.pipeline.readers.container import recording_of
 
     with handled():  # as under the `slamobs` group, also when the command is used on its own
+        log = recording_of(logs)
         if noise:
             _noise(log, msg_dir, config_path, as_json)
             return

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import export_option, quiet_option
+from slamobs.cli.options import export_option, quiet_option, window_options
 from slamobs.cli.progress import compile_notice, status_line
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -93,7 +93,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
@@ -104,30 +104,38 @@ def main() -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
 @export_option()
 @quiet_option()
 def run(
-    log: Path,
+    logs: tuple[Path, ...],
     out_dir: Path,
     observer: str | None,
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
-    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
+    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
+    from slamobs.pipeline.readers.container import recording_of
 
+    log = recording_of(logs)
     working_on(log, "a run of this log", run_memory_mb(log))
     from slamobs.pipeline.config import load_config, with_observer
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
-    config = with_observer(load_config(config_path), observer)
+    config = with_observer(load_config(config_path), observer).with_window(start, end)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -197,6 +205,7 @@ def _print_summary(summary) -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
 @export_option()
 @quiet_option()
 def compare(
@@ -206,6 +215,8 @@ def compare(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -222,7 +233,7 @@ def compare(
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = load_config(config_path)
+    config = load_config(config_path).with_window(start, end)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:

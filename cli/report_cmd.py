@@ -67,9 +67,9 @@ def _previous_options(run_dir: Path) -> dict:
 )
 @click.option(
     "--align",
-    type=click.Choice(ALIGNMENTS),
+    type=click.Choice(ALIGNMENTS + ("posyaw",)),
     default=None,
-    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)",
+    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw, rpg's posyaw)",
 )
 @click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m] (0.1)")
 @click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m] (1)")

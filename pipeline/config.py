@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
-from slamobs.pipeline.alignment import DEFAULT_LIMITS, Limits
+from slamobs.pipeline.alignment import ABSOLUTE_AFTER_S, DEFAULT_LIMITS, Limits
 from slamobs.pipeline.errors import GainError, InputError
 from slamobs.pipeline.noise import NoiseConfig
 from slamobs.pipeline.smoother.settings import BatchSettings, batch_settings
@@ -36,6 +36,10 @@ class TimeConfig:
     #: per-topic clock (topic -> header | record)
     topics: dict[str, str] = field(default_factory=dict)
     max_meas_age: float = 0.5
+    #: the part of the log the run uses (alignment.time_window: seconds from the log's start, or absolute
+    #: stamps above alignment.ABSOLUTE_AFTER_S); None: from the beginning / to the end
+    start: float | None = None
+    end: float | None = None
 
 
 @dataclass(frozen=True)
@@ -97,6 +101,7 @@ class EvaluationConfig:
     truth_times: str | None = None
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
+    align: str | None = None  # the report's alignment (align.NAMES); None = the report's default (SE(3))
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
     map_truth: str | None = None
 
@@ -203,6 +208,11 @@ class RunConfig:
     def with_section(self, name: str, **changes) -> RunConfig:
         """This config with some fields of one section changed."""
         return replace(self, **{name: replace(getattr(self, name), **changes)})
+
+    def with_window(self, start: float | None = None, end: float | None = None) -> RunConfig:
+        """This config with the time window bounds given (``--start`` / ``--end``) as ``time.start`` / ``time.end``."""
+        given = {k: v for k, v in (("start", start), ("end", end)) if v is not None}
+        return self.with_section("time", **given) if given else self
 
 
 def _non_finite(data, where: tuple[str, ...] = ()) -> tuple[tuple[str, ...], float] | None:
@@ -324,6 +334,14 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
 
     if config.observer not in ESTIMATORS:
         raise InputError(source, f"observer: {_unknown_observer(config.observer)}")
+    start, end = config.time.start, config.time.end
+    if (
+        start is not None
+        and end is not None
+        and (start > ABSOLUTE_AFTER_S) == (end > ABSOLUTE_AFTER_S)
+        and end <= start
+    ):
+        raise InputError(source, f"time window: end {end:g} is not after start {start:g}")
     for name, gains in config.gains.items():
         if name not in ESTIMATORS:
             raise InputError(source, f"gains.{name}: {_unknown_observer(name)}")

@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from slamobs.pipeline.version import __version__
-from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
+from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, TimeWindow, align, time_window, windowed
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError, machine_failure, one_line, resource_error
@@ -214,6 +214,8 @@ class PreparedLog:
     #: the linear-velocity noise density of the samples as recorded (pipeline.noise_estimation.Estimate; None:
     #: not estimated, noise.auto false or too few samples)
     velocity_noise: object | None = None
+    #: the part of the log used (time.start / time.end, alignment.TimeWindow), None: all of it
+    window: TimeWindow | None = None
 
 
 Progress = Callable[[str], None]
@@ -291,17 +293,19 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
             notes.append(note)
         if aligned.landmark_ids.size == 0:
             raise InputError(log, f"no detection of a landmark of the fixed map {config.map.file}")
+    window = time_window(config.time.start, config.time.end, aligned.t0_ns)
+    aligned = windowed(aligned, window, log)
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(
         path=streams.path,
-        truth=streams.truth,
+        truth=window_truth(streams.truth, window, config),
         landmark_truth=streams.landmark_truth,
         bias_truth=streams.bias_truth,
         warnings=streams.warnings,
         clocks=streams.clocks,
         derived=streams.derived,
     )
-    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise)
+    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
 
 
 def _recorded_velocity_noise(streams: LogStreams, config: RunConfig):
@@ -476,6 +480,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "landmarks": int(aligned.landmark_ids.shape[0]),
         },
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
+        **({"time_window": prepared.window.describe()} if prepared.window is not None else {}),
         "segments": aligned.segments(),
         "limits": config.limits.as_dict(),
         "output": {
@@ -756,6 +761,13 @@ def _diverging_as_error(parts, log: Path, observer: str, t0_ns: int):
         raise _diverged(log, observer, (err.t_ns - t0_ns) * 1e-9, err.stats) from None
 
 
+def window_truth(truth, window: TimeWindow | None, config: RunConfig):
+    """The ground truth within the run's time window, by its stamps on the run's clock (all without a window)."""
+    if truth is None or window is None:
+        return truth
+    return window.poses(truth, truth.rec_ns if config.align_time_source == "record" else truth.t_ns)
+
+
 def truth_on_run_clock(streams: LogStreams, config: RunConfig):
     """The ground truth on the clock the run used (None without truth)."""
     truth = streams.truth
@@ -789,6 +801,7 @@ def _evaluate(
         options = ReportOptions(
             t_max_diff_s=config.evaluation.t_max_diff,
             convergence_threshold_m=config.evaluation.convergence_threshold,
+            **({"align": config.evaluation.align} if config.evaluation.align else {}),
             gravity_aligned=gravity_aligned(metadata),
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
@@ -816,6 +829,8 @@ def _evaluate(
                 "(run.json notes say where); errors just after a gap show how well that worked"
             )
             report["segments"] = segments
+        if metadata.get("time_window"):
+            report["time_window"] = metadata["time_window"]
         write_report(
             report,
             out,

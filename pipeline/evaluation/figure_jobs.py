@@ -48,6 +48,7 @@ def plot_jobs(
         error_plot_job(report["convergence"], ev),
         bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])),
         *landmark_plot_jobs(report["landmarks"]),
+        *segment_plot_jobs(segment_arrays(ev)),
     ]
 
 
@@ -103,6 +104,37 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             level=((level_t - t0) / 1e9, level),
         ),
     )
+
+
+#: the box plots of the segment errors (rpg_trajectory_evaluation's relative error per sub-trajectory length)
+SEGMENT_PLOT = "segment_errors.png"
+
+
+def segment_arrays(ev: TrajectoryEvaluation) -> dict[float, dict[str, np.ndarray]]:
+    """The segment error arrays per length, as the report's segment_errors section computed them."""
+    from slamobs.pipeline.evaluation.sections import SegmentErrorsSection
+
+    section = SegmentErrorsSection()
+    section.process_data(ev)
+    return section.arrays
+
+
+def segment_plot_jobs(arrays: dict[float, dict[str, np.ndarray]]) -> list:
+    """The segment errors' box plots when some length has segments (none otherwise)."""
+    if not arrays:
+        return []
+    lengths = sorted(arrays)
+    return [
+        (
+            "plot_segment_errors",
+            SEGMENT_PLOT,
+            dict(
+                lengths_m=np.array(lengths),
+                translation_pct=[arrays[k]["translation_pct"] for k in lengths],
+                rotation_deg_per_m=[arrays[k]["rotation_deg_per_m"] for k in lengths],
+            ),
+        )
+    ]
 
 
 def landmark_plot_jobs(landmark_section: dict[str, Any]) -> list:

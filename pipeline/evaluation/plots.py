@@ -343,3 +343,31 @@ def plot_landmark_errors(
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)
+
+
+def plot_segment_errors(
+    path: Path, lengths_m: np.ndarray, translation_pct: list[np.ndarray], rotation_deg_per_m: list[np.ndarray]
+) -> Path:
+    """Box plots of the relative error per sub-trajectory length (rpg_trajectory_evaluation's figure): translation
+    in % of the length and rotation in deg/m, one box per length (whiskers 1.5 IQR, outliers not drawn)."""
+    fig, axes = _figure(2, 1, (7.5, 6.5))
+    labels = [f"{x:g}" for x in lengths_m]
+    panels = (
+        (axes[0, 0], translation_pct, "translation error [%]", "tab:blue"),
+        (axes[1, 0], rotation_deg_per_m, "rotation error [deg/m]", "tab:purple"),
+    )
+    for ax, data, ylabel, color in panels:
+        ax.boxplot(
+            [np.asarray(d, dtype=np.float64) for d in data],
+            tick_labels=labels,
+            showfliers=False,
+            patch_artist=True,
+            boxprops=dict(facecolor=color, alpha=0.35),
+            medianprops=dict(color="black"),
+        )
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(bottom=0.0)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0, 0].set_title("Relative error per sub-trajectory length (segments of the truth path)")
+    axes[1, 0].set_xlabel("sub-trajectory length [m]")
+    return _save(fig, path)

@@ -25,8 +25,10 @@ from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation.figure_jobs import (
     bias_plot_job,
     error_plot_job,
+    SEGMENT_PLOT,
     landmark_plot_jobs,
     plot_jobs,
+    segment_plot_jobs,
     top_view_job,
 )
 from slamobs.pipeline.evaluation.markdown import render_markdown
@@ -39,6 +41,7 @@ from slamobs.pipeline.evaluation.sections import (
     DriftSection,
     LandmarkSection,
     RpeSection,
+    SegmentErrorsSection,
     TimeOffsetSection,
     alignment_dict,
 )
@@ -58,7 +61,7 @@ SCHEMA_VERSION = 1
 TRUTH_TUM = "truth_tum.txt"
 ESTIMATE_TUM = "estimate_tum.txt"
 EVO_ZIP = "ape_evo.zip"
-PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png")
+PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png", SEGMENT_PLOT)
 #: the estimate moved into the truth's frame by the report's alignment (schemas/poses_aligned.json, ...)
 ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
 REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
@@ -165,18 +168,22 @@ def evaluate_tables(
     time_offset = TimeOffsetSection(options)
     time_offset.unreliable_note(ev)
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
+    segments = SegmentErrorsSection()
     sections = {
         "ape": ApeSection(),
         "ape_by_alignment": by_alignment,
         "rpe": rpe,
         "drift": drift,
+        "segment_errors": segments,
         "time_offset": time_offset,
         "landmarks": landmark,
         "biases": biases,
         "convergence": convergence,
     }
-    for section in (sections["ape"], by_alignment, rpe, drift, time_offset):
+    for section in (sections["ape"], by_alignment, rpe, drift, segments, time_offset):
         section.process_data(ev)
+    if figures is not None:
+        figures(segment_plot_jobs(segments.arrays))
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")

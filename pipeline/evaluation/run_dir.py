@@ -13,13 +13,14 @@ import json
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from slamobs.pipeline import interrupts
+from slamobs.pipeline.alignment import TimeWindow
 from slamobs.pipeline.errors import InputError, OutputError
 from slamobs.pipeline.paths import check_utf8, read_manifest
 from slamobs.pipeline.evaluation.report import REPORT_FILES, evaluate_report, write_report
@@ -269,6 +270,8 @@ def report_run(
         exports = tuple(k for k in (run.meta.get("output") or {}).get("export", []) if k in REPORT_EXPORTS)
     exports = tuple(k for k in exports if k in REPORT_EXPORTS)
     ti = resolve_truth(run.meta, truth)
+    if run.meta.get("time_window"):  # the run used part of its log: so does its truth
+        ti = replace(ti, stream=TimeWindow.described(run.meta["time_window"]).poses(ti.stream))
     options = options or options_for_run(run.meta, **overrides)
     try:
         report, evaluation = evaluate_report(
@@ -278,6 +281,8 @@ def report_run(
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source
     report["notes"] = ti.notes + report["notes"]
+    if run.meta.get("time_window"):
+        report["time_window"] = run.meta["time_window"]
     staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
     try:
         write_report(

@@ -16,7 +16,8 @@ import numpy as np
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
-from slamobs.pipeline.evaluation.drift import segment_drift
+from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
+from slamobs.pipeline.evaluation.rpe import accumulated_distances
 from slamobs.pipeline.evaluation.sync import NS_PER_S
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
@@ -203,6 +204,35 @@ class DriftSection(Section):
             "10–50 % of the truth path; independent of the rigid alignment, sensitive to scale"
         )
         self.result = out
+
+
+class SegmentErrorsSection(Section):
+    """rpg_trajectory_evaluation's relative error per sub-trajectory length (None with fewer than 3 pairs); the
+    error arrays per length stay in :attr:`arrays` for the box plots."""
+
+    METHOD = {
+        "segment_errors": (
+            "rpg_trajectory_evaluation (compute_relative_error) on the associated pairs: lengths L = 10, 20, 30, "
+            "40, 50 % of the truth path (truncated to cm); from every pair, the later pair whose truth path "
+            "distance is nearest to the start's + L, within 0.2 L; E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j) with the "
+            "estimate's relative translation times the alignment's scale (so SE(3) and 4-DoF give the same, "
+            "Sim(3) corrects the scale); translation ‖t_E‖ [m] and ‖t_E‖/L [%], rotation angle(R_E) [deg] and "
+            "per metre, yaw and gravity (roll-pitch) parts of E rotated into the world by the estimate's attitude "
+            "at j; a length with fewer than 2 segments has null errors"
+        )
+    }
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.arrays: dict[float, dict[str, np.ndarray]] = {}
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        p = ev.paired
+        if len(p) < 3:
+            return
+        path = accumulated_distances(np.asarray(ev.truth.position))[-1]  # rpg: the whole truth's path
+        out, self.arrays = segment_errors(p.ref_pos, p.ref_rot, p.est_pos, p.est_rot, path, ev.alignment.scale)
+        self.result = {**out, "alignment": ev.alignment.kind}
 
 
 class TimeOffsetSection(Section):

@@ -10,7 +10,7 @@ from functools import cached_property
 import numpy as np
 
 from slamobs.pipeline.evaluation import slam_metrics
-from slamobs.pipeline.evaluation.align import KINDS, Alignment
+from slamobs.pipeline.evaluation.align import KINDS, NAMES, Alignment, canonical
 from slamobs.pipeline.evaluation.sync import TimeOffset
 from slamobs.pipeline.evaluation.tables import (
     POSE_COLUMNS,
@@ -56,8 +56,9 @@ class ReportOptions:
     max_time_offset_s: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.align not in ALIGN_TYPES:
-            raise ValueError(f"align must be one of {ALIGN_TYPES}, got {self.align!r}")
+        if self.align not in NAMES:
+            raise ValueError(f"align must be one of {NAMES}, got {self.align!r}")
+        object.__setattr__(self, "align", canonical(self.align))  # rpg's "posyaw" is "yaw"
         if not (self.t_offset_s == "auto" or isinstance(self.t_offset_s, (int, float))):
             raise ValueError(f"t_offset_s must be seconds or 'auto', got {self.t_offset_s!r}")
         if self.t_max_diff_s < 0 or self.convergence_threshold_m <= 0 or self.rpe_delta_m <= 0:
