@@ -295,9 +295,10 @@ def _add_commands() -> None:
     from slamobs.cli.info_cmd import info
     from slamobs.cli.report_cmd import report
     from slamobs.cli.simulate_cmd import simulate
+    from slamobs.cli.stats_cmd import stats
     from slamobs.cli.tune_cmd import tune
 
-    for command in (info, simulate, report, evaluate, export, batch, tune):
+    for command in (info, simulate, report, evaluate, export, batch, tune, stats):
         main.add_command(command)
 
 
