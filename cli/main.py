@@ -297,8 +297,9 @@ def _add_commands() -> None:
     from slamobs.cli.simulate_cmd import simulate
     from slamobs.cli.stats_cmd import stats
     from slamobs.cli.tune_cmd import tune
+    from slamobs.cli.view_cmd import view
 
-    for command in (info, simulate, report, evaluate, export, batch, tune, stats):
+    for command in (info, simulate, report, evaluate, export, batch, tune, stats, view):
         main.add_command(command)
 
 
