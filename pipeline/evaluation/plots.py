@@ -21,6 +21,7 @@ MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable an
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
 SCATTER_POINTS = 3000  # markers of a scatter
+MAX_LOG_GROUPS = 24  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -376,9 +377,11 @@ def plot_distributions(
     title: str,
 ) -> Path:
     """Box (``kind="box"``) or violin plots of a metric over runs: on top one per estimator over every log,
-    below one per log with an estimator's colour each. ``values[estimator][log]`` holds the runs' values."""
+    below one per log (the first ``MAX_LOG_GROUPS``) with an estimator's colour each. ``values[estimator][log]``
+    holds the runs' values."""
     estimators = list(values)
-    logs = list(dict.fromkeys(log for per in values.values() for log in per))
+    every_log = list(dict.fromkeys(log for per in values.values() for log in per))
+    logs = every_log[:MAX_LOG_GROUPS]
     fig, axes = _figure(2, 1, (max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))), 7.0), bottom=1.0, gap=0.8)
     ax_e, ax_l = axes[0, 0], axes[1, 0]
     colors = [f"C{k % 10}" for k in range(len(estimators))]
@@ -395,7 +398,8 @@ def plot_distributions(
     ax_e.set_title(f"{title}: per estimator, all logs")
     ax_l.set_xticks(np.arange(len(logs)), logs, rotation=20, ha="right", fontsize=8)
     ax_l.set_xlim(-0.6, len(logs) - 0.4)
-    ax_l.set_title("per log")
+    shown = f"first {len(logs)} of {len(every_log)} logs" if len(logs) < len(every_log) else "per log"
+    ax_l.set_title(shown)
     ax_l.legend(loc="best", fontsize=8)
     for ax in (ax_e, ax_l):
         ax.set_ylabel(ylabel)

@@ -24,6 +24,7 @@ from slamobs.pipeline.stats.inputs import METRICS, gather_runs
 from slamobs.pipeline.stats.render import STYLES, csv_text, latex, markdown
 
 FIGURES = "figures"
+KINDS = ("box", "violin")
 
 
 @dataclass
@@ -45,20 +46,35 @@ def metric_values(runs: pd.DataFrame, metric: str) -> dict[str, dict[str, np.nda
     return values
 
 
-def write_figures(runs: pd.DataFrame, folder: Path) -> list[Path]:
-    """A box and a violin figure per metric that any run has."""
-    from slamobs.pipeline.evaluation.plots import plot_distributions
-
-    written = []
+def figure_jobs(runs: pd.DataFrame) -> list[tuple[str, str, dict]]:
+    """A box and a violin figure per metric that any run has, as jobs of ``plot_worker`` (``plots`` function,
+    file name, arguments)."""
+    jobs = []
     for metric, label in METRICS.items():
         values = metric_values(runs, metric)
-        if not values:
-            continue
-        folder.mkdir(exist_ok=True)
-        for kind in ("box", "violin"):
-            path = folder / f"{metric}_{kind}.png"
-            written.append(plot_distributions(path, values, kind, label, label.split(" [")[0]))
-    return written
+        if values:
+            args = {"values": values, "ylabel": label, "title": label.split(" [")[0]}
+            jobs += [
+                ("plot_distributions", f"{metric}_{kind}.png", {**args, "kind": kind}) for kind in ("box", "violin")
+            ]
+    return jobs
+
+
+def write_figures(runs: pd.DataFrame, folder: Path) -> list[Path]:
+    """Draw :func:`figure_jobs` into ``folder``: in helper processes on the cores nothing else uses (the report's
+    figure helpers), in this process when there are none."""
+    from slamobs.pipeline.evaluation.plot_worker import PlotWorkers, draw, free_cores
+
+    jobs = figure_jobs(runs)
+    if not jobs:
+        return []
+    folder.mkdir(exist_ok=True)
+    helpers = min(free_cores(), len(jobs))
+    if helpers <= 1:
+        return draw(jobs, lambda name: folder / name)
+    with PlotWorkers(helpers) as workers:
+        workers.submit(jobs)
+        return workers.collect(folder)
 
 
 def write_stats(

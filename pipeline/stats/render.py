@@ -12,7 +12,7 @@ import math
 
 import pandas as pd
 
-from slamobs.pipeline.stats.compute import ALL_LOGS, STATS
+from slamobs.pipeline.stats.compute import STATS
 from slamobs.pipeline.stats.inputs import METRICS
 
 STYLES = ("table", "rpg")
@@ -24,7 +24,7 @@ def number(v, fmt: str) -> str:
     """A value as text; NaN and None as the format's missing mark."""
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return MISSING[fmt]
-    return str(int(v)) if isinstance(v, (int,)) or (hasattr(v, "dtype") and v.dtype.kind in "iu") else NUMBER.format(v)
+    return NUMBER.format(v)
 
 
 def tex_escape(text: str) -> str:
@@ -33,44 +33,39 @@ def tex_escape(text: str) -> str:
     return text
 
 
-def rpg_cell(row, fmt: str) -> str:
-    """``mean, median (min, max)`` of one cell."""
-    if row["n"] == 0:
-        return MISSING[fmt]
-    mean, median, lo, hi = (number(row[s], fmt) for s in ("mean", "median", "min", "max"))
-    return f"{mean}, {median} ({lo}, {hi})"
+def cell_texts(stats: pd.DataFrame, fmt: str) -> pd.DataFrame:
+    """``stats`` with every statistic as text and an ``rpg`` column ``mean, median (min, max)`` (one pass)."""
+    texts = stats[["metric", "estimator", "log"]].copy()
+    texts["runs"] = stats["runs"].astype(int).astype(str)
+    texts["n"] = stats["n"].astype(int).astype(str)
+    for s in STATS[1:]:
+        texts[s] = [number(v, fmt) for v in stats[s].to_numpy(dtype=float).tolist()]
+    rpg = texts["mean"] + ", " + texts["median"] + " (" + texts["min"] + ", " + texts["max"] + ")"
+    texts["rpg"] = rpg.where(stats["n"].to_numpy() > 0, MISSING[fmt])
+    return texts
 
 
-def metric_grid(stats: pd.DataFrame, metric: str, fmt: str) -> tuple[list[str], list[list[str]]]:
-    """The header and rows of one metric's table in ``rpg`` layout (best mean per row marked)."""
-    part = stats[stats["metric"] == metric]
+def metric_grid(stats: pd.DataFrame, texts: pd.DataFrame, metric: str, fmt: str) -> tuple[list[str], list[list[str]]]:
+    """The header and rows of one metric's table in ``rpg`` layout: a row per log, a column per estimator, the
+    lowest mean of a row (among two or more) in bold."""
+    mine = (stats["metric"] == metric).to_numpy()
+    part, text = stats[mine], texts[mine]
+    best = part.groupby("log", sort=False)["mean"].transform("min")
+    contested = part.groupby("log", sort=False)["mean"].transform("count") > 1
+    bold = (part["mean"] == best) & contested
+    mark = (lambda t: f"**{t}**") if fmt == "md" else (lambda t: rf"\textbf{{{t}}}")
+    cells = text["rpg"].where(~bold, text["rpg"].map(mark))
+    grid = pd.DataFrame({"log": part["log"], "estimator": part["estimator"], "cell": cells})
+    logs = list(dict.fromkeys(part["log"]))
     estimators = sorted(part["estimator"].unique())
-    logs = [lg for lg in dict.fromkeys(part["log"]) if lg != ALL_LOGS] + [ALL_LOGS]
-    rows = []
-    for log in logs:
-        cells = part[part["log"] == log].set_index("estimator")
-        best = cells["mean"].min()
-        row = [log]
-        for est in estimators:
-            if est not in cells.index:
-                row.append("")
-                continue
-            text = rpg_cell(cells.loc[est], fmt)
-            if cells.loc[est, "n"] and cells.loc[est, "mean"] == best and cells["mean"].notna().sum() > 1:
-                text = f"**{text}**" if fmt == "md" else rf"\textbf{{{text}}}"
-            row.append(text)
-        rows.append(row)
-    return ["log", *estimators], rows
+    table = grid.pivot(index="log", columns="estimator", values="cell").reindex(index=logs, columns=estimators)
+    return ["log", *estimators], [[log, *row] for log, row in zip(logs, table.fillna("").to_numpy().tolist())]
 
 
-def metric_rows(stats: pd.DataFrame, metric: str, fmt: str) -> tuple[list[str], list[list[str]]]:
+def metric_rows(stats: pd.DataFrame, texts: pd.DataFrame, metric: str, fmt: str) -> tuple[list[str], list[list[str]]]:
     """The header and rows of one metric's table in ``table`` layout."""
-    part = stats[stats["metric"] == metric]
     head = ["log", "estimator", "runs", *STATS]
-    rows = [
-        [r["log"], r["estimator"], str(int(r["runs"]))] + [number(r[s], fmt) for s in STATS] for _, r in part.iterrows()
-    ]
-    return head, rows
+    return head, texts.loc[(stats["metric"] == metric).to_numpy(), head].to_numpy().tolist()
 
 
 def _layout(style: str):
@@ -87,7 +82,7 @@ def _md_table(head: list[str], rows: list[list[str]]) -> str:
 
 def markdown(stats: pd.DataFrame, rank: pd.DataFrame, style: str, sources: list[str]) -> str:
     """The whole ``stats.md``: one table per metric with values, then the ranking."""
-    layout = _layout(style)
+    layout, texts = _layout(style), cell_texts(stats, "md")
     text = "# Statistics across runs\n\nInputs: " + ", ".join(f"`{s}`" for s in sources) + "\n\n"
     text += (
         "Per estimator and log over the finished runs: n runs with the metric, mean, median, min, max and "
@@ -97,7 +92,7 @@ def markdown(stats: pd.DataFrame, rank: pd.DataFrame, style: str, sources: list[
     for metric, label in METRICS.items():
         if not (stats["metric"] == metric).any():
             continue
-        text += f"\n## {label}\n\n" + _md_table(*layout(stats, metric, "md"))
+        text += f"\n## {label}\n\n" + _md_table(*layout(stats, texts, metric, "md"))
     text += (
         "\n## Ranking\n\nOn how many logs each estimator had the lowest mean (ties count for each; "
         "`contested`: logs with at least two estimators).\n\n"
@@ -119,11 +114,11 @@ def _tex_table(caption: str, head: list[str], rows: list[list[str]]) -> str:
 
 def latex(stats: pd.DataFrame, rank: pd.DataFrame, style: str) -> str:
     """``stats.tex``: a booktabs table per metric and the ranking (needs ``\\usepackage{booktabs}``)."""
-    layout = _layout(style)
+    layout, texts = _layout(style), cell_texts(stats, "tex")
     parts = ["% slamobs stats: tables need \\usepackage{booktabs}\n"]
     for metric, label in METRICS.items():
         if (stats["metric"] == metric).any():
-            parts.append(_tex_table(label, *layout(stats, metric, "tex")))
+            parts.append(_tex_table(label, *layout(stats, texts, metric, "tex")))
     head = ["estimator", *rank.columns]
     rows = [[str(idx), *[str(int(v)) for v in rank.loc[idx]]] for idx in rank.index]
     parts.append(_tex_table("Logs on which each estimator had the lowest mean", head, rows))
