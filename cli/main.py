@@ -307,9 +307,11 @@ def _add_commands() -> None:
     from slamobs.cli.info_cmd import info
     from slamobs.cli.report_cmd import report
     from slamobs.cli.simulate_cmd import simulate
+    from slamobs.cli.stats_cmd import stats
     from slamobs.cli.tune_cmd import tune
+    from slamobs.cli.view_cmd import view
 
-    for command in (info, simulate, import_group, report, evaluate, export, batch, tune):
+    for command in (info, simulate, import_group, report, evaluate, export, batch, tune, stats, view):
         main.add_command(command)
 
 

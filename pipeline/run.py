@@ -55,7 +55,7 @@ class RunSummary:
 
 
 def headline_metrics(report: dict | None) -> dict[str, float | None]:
-    """APE, map and final bias errors and convergence time from a report dict (None if absent)."""
+    """APE, RPE, map and final bias errors and convergence time from a report dict (None if absent)."""
     r = report or {}
 
     def get(*keys):
@@ -69,6 +69,8 @@ def headline_metrics(report: dict | None) -> dict[str, float | None]:
     return {
         "ape_trans_rmse_m": get("ape", "translation_m", "rmse"),
         "ape_rot_rmse_deg": get("ape", "rotation_deg", "rmse"),
+        "rpe_trans_rmse_m": get("rpe", "translation_m", "rmse"),
+        "rpe_rot_rmse_deg": get("rpe", "rotation_deg", "rmse"),
         "landmark_rmse_m": get("landmarks", "error_m", "rmse"),
         "gyro_bias_err": get("biases", "error_norm", "gyro"),
         "vel_bias_err": get("biases", "error_norm", "velocity"),
