@@ -616,6 +616,7 @@ def estimate(
                     part.landmark_xyz,
                     np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
                     aligned.det_ids,
+                    landmark_cov=part.landmark_cov,
                 )
             }
         )

@@ -346,6 +346,54 @@ def plot_landmark_errors(
     return _save(fig, path)
 
 
+def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.ndarray, title: str = "") -> Path:
+    """Per axis the error and the ±3σ band of the estimator's covariance: attitude (δθ, degrees) on the left,
+    position (δp, m) on the right."""
+    fig, axes = _figure(3, 2, (11.0, 7.5), top=0.6)
+    parts = ((slice(0, 3), np.degrees(1.0), "deg", "δθ"), (slice(3, 6), 1.0, "m", "δp"))
+    for col, (sl, scale, unit, name) in enumerate(parts):
+        e, sd = error[:, sl] * scale, sigma[:, sl] * scale
+        for k in range(3):
+            ax = axes[k, col]
+            ax.fill_between(t_s, -3.0 * sd[:, k], 3.0 * sd[:, k], color="0.85", lw=0, label="±3σ")
+            ax.plot(t_s, e[:, k], color=COLORS[k], lw=0.8, label=f"{name} {AXES[k]}")
+            ax.set_ylabel(f"{name} {AXES[k]} [{unit}]")
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="upper right", fontsize=7)
+        axes[2, col].set_xlabel("time since estimate start [s]")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_nees(path: Path, position, attitude, mean: dict, window_s: float) -> Path:
+    """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds."""
+    from slamobs.pipeline.evaluation.metrics import nees_bounds
+
+    fig, axes = _figure(2, 1, (9.0, 6.5))
+    for ax, (t, nees, counts), part in ((axes[0, 0], position, "position"), (axes[1, 0], attitude, "attitude")):
+        if len(t):
+            bounds = {int(c): nees_bounds(3, int(c)) for c in np.unique(counts)}
+            ax.fill_between(
+                t,
+                [bounds[int(c)][0] for c in counts],
+                [bounds[int(c)][1] for c in counts],
+                color="0.85",
+                lw=0,
+                step="mid",
+                label="95 % bounds of a window's mean",
+            )
+            ax.plot(t, nees, color="tab:blue", lw=1.0, label=f"NEES, {window_s:g} s windows")
+            ax.axhline(3.0, color="k", ls=":", lw=1.0, label="expected (3)")
+            ax.set_yscale("log")
+        if mean.get(part) is not None:
+            ax.set_title(f"{part.capitalize()} NEES (3 DoF): mean {mean[part]:.3g} over the run")
+        ax.set_ylabel("NEES")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[1, 0].set_xlabel("time since estimate start [s]")
+    return _save(fig, path)
+
+
 def plot_segment_errors(
     path: Path, lengths_m: np.ndarray, translation_pct: list[np.ndarray], rotation_deg_per_m: list[np.ndarray]
 ) -> Path:

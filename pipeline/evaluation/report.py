@@ -30,6 +30,7 @@ from slamobs.pipeline.evaluation.figure_jobs import (
     plot_jobs,
     segment_plot_jobs,
     top_view_job,
+    uncertainty_plot_jobs,
 )
 from slamobs.pipeline.evaluation.markdown import render_markdown
 from slamobs.pipeline.evaluation.sections import (
@@ -43,6 +44,7 @@ from slamobs.pipeline.evaluation.sections import (
     RpeSection,
     SegmentErrorsSection,
     TimeOffsetSection,
+    UncertaintySection,
     alignment_dict,
 )
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
@@ -61,7 +63,7 @@ SCHEMA_VERSION = 1
 TRUTH_TUM = "truth_tum.txt"
 ESTIMATE_TUM = "estimate_tum.txt"
 EVO_ZIP = "ape_evo.zip"
-PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png", SEGMENT_PLOT)
+PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png", SEGMENT_PLOT, "uncertainty.png", "nees.png")
 #: the estimate moved into the truth's frame by the report's alignment (schemas/poses_aligned.json, ...)
 ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
 REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
@@ -167,6 +169,10 @@ def evaluate_tables(
         figures([error_plot_job(convergence.get_statistic(), ev)])
     time_offset = TimeOffsetSection(options)
     time_offset.unreliable_note(ev)
+    uncertainty = UncertaintySection()
+    uncertainty.process_data(ev)
+    if figures is not None:
+        figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
     segments = SegmentErrorsSection()
     sections = {
@@ -179,6 +185,7 @@ def evaluate_tables(
         "landmarks": landmark,
         "biases": biases,
         "convergence": convergence,
+        "uncertainty": uncertainty,
     }
     for section in (sections["ape"], by_alignment, rpe, drift, segments, time_offset):
         section.process_data(ev)
@@ -187,7 +194,7 @@ def evaluate_tables(
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    notes += landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes
+    notes += landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + uncertainty.notes
     report = {
         "schema_version": SCHEMA_VERSION,
         **{name: section.get_statistic() for name, section in sections.items()},
