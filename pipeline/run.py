@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 from slamobs.pipeline.version import __version__
-from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
+from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align, check_required
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError, machine_failure, one_line, resource_error
@@ -243,6 +243,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
+    check_required(streams)  # every missing input named at once, before tag poses are computed
     tags = None
     if streams.tag_corners:
         from slamobs.pipeline.vision.landmarks import tag_landmarks

@@ -35,16 +35,23 @@ from .decode import (
 )
 from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
 from .msgdefs import complete_definitions, require_types
-from .roles import IMAGE_TYPES, ODOMETRY, ROLES, TAG_CORNER_TYPES, TF_TYPES, accepted_types, select_roles, topics_of
+from .roles import (
+    IMAGE_TYPES,
+    ODOMETRY,
+    REQUIRED_ROLES,
+    ROLES,
+    TAG_CORNER_TYPES,
+    TF_TYPES,
+    accepted_types,
+    select_roles,
+    topics_of,
+)
 from .rows import Rows, TfRows
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from .decode import Cleaning
-
-#: Roles the observers cannot run without: a stream of them that held only NaN/Inf values is an error.
-REQUIRED_ROLES = ("angular_velocity", "linear_velocity", "detections")
 
 __all__ = [
     "ROLES",
