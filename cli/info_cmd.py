@@ -37,7 +37,9 @@ def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
 
 def format_readiness(ready) -> str:
     """The readiness section: each role found or missing, each estimator ready or what it lacks, the run.yaml."""
-    lines = ["  readiness"]
+    ready_names = [e.name for e in ready.estimators if e.ready]
+    verdict = f"{len(ready_names)} of {len(ready.estimators)} estimators can run" if ready_names else "cannot run"
+    lines = [f"  readiness: {verdict}"]
     width = max(len(r.role) for r in ready.roles)
     for r in ready.roles:
         if r.found:

@@ -22,6 +22,7 @@ from slamobs.pipeline.readers.roles import (
     REQUIRED_ROLES,
     ROLE_PURPOSE,
     TAG_CORNER_TYPES,
+    accepted_types,
     how_to_satisfy,
 )
 
@@ -94,12 +95,19 @@ def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
     return EstimatorStatus(name, tuple(missing))
 
 
+def _candidates(info: LogInfo, role: str) -> list[str]:
+    """Topics of this log whose type ``role`` accepts when named (never picked on their own)."""
+    types = accepted_types(role)
+    found = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and t.count]
+    return [f"this log has: {', '.join(found)}"] if found else []
+
+
 def readiness(info: LogInfo) -> Readiness:
     """Whether and how ``info``'s log can run, per estimator (see the module docstring)."""
     roles = tuple(_role_status(info, r) for r in LISTED_ROLES)
     found = {r.role for r in roles if r.found}
     estimators = tuple(_estimator_status(name, found) for name in ESTIMATORS)
-    satisfy = {r.role: how_to_satisfy(r.role) for r in roles if not r.found}
+    satisfy = {r.role: how_to_satisfy(r.role) + _candidates(info, r.role) for r in roles if not r.found}
     return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators))
 
 
