@@ -47,6 +47,7 @@ from .roles import (
     topics_of,
 )
 from .rows import Rows, TfRows
+from .trajectory_files import Trajectory, TruthSpec, parse_truth, read_trajectory
 
 if TYPE_CHECKING:
     from collections.abc import Callable
@@ -63,7 +64,9 @@ __all__ = [
     "format_info",
     "inspect_log",
     "open_log",
+    "parse_truth",
     "read_log",
+    "read_truth",
 ]
 
 
@@ -110,6 +113,10 @@ def read_log(
     """
     path = Path(path)
     overrides = dict(topics or {})
+    if isinstance(overrides.get("truth"), str) and overrides["truth"] and truth_file is None:
+        spec = parse_truth(overrides["truth"])
+        if spec.kind == "file" or spec.log is not None:  # not in this log: read like a truth file
+            truth_file = overrides["truth"]
     if truth_file is not None:
         overrides["truth"] = ""  # the file is the truth; no topic is read for it
     with open_log(path) as reader:
@@ -341,12 +348,44 @@ def _truth_from_tf(
     return truth
 
 
-def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
-    """Ground truth from a trajectory file; it must carry stamps to be matched to the log's clock."""
-    from .trajectory_files import read_trajectory  # lazy: only truth from a file needs the file parsers
+def read_truth(
+    source: str | Path,
+    log: str | Path | None = None,
+    *,
+    fmt: str | None = None,
+    times: str | Path | None = None,
+    clocks: Mapping[str, str] | None = None,
+) -> Trajectory:
+    """A truth given in the one grammar (``trajectory_files.parse_truth``): a file, ``LOG:TOPIC``,
+    ``LOG:parent->child``, or a topic or TF edge of ``log`` (the run's log; ``clocks`` its per-topic clocks).
 
-    traj = read_trajectory(source, fmt, kitti_times=times)
-    if traj.format not in ("tum", "euroc", "kitti"):
+    Raises:
+        InputError: The specification matches nothing, or what it names holds no poses.
+
+    """
+    spec = parse_truth(source) if fmt in (None, "topic") else TruthSpec("file", str(source))
+    if spec.kind == "file" or (spec.kind == "topic" and spec.log is not None):
+        return read_trajectory(source, fmt, kitti_times=times)
+    where = spec.log or log
+    if where is None:
+        raise InputError(source, f"a {'TF edge' if spec.kind == 'edge' else 'topic'} needs its log: give LOG:{source}")
+    keep = ("truth", "static_tf", "tf") if spec.kind == "edge" else ("truth",)
+    own = spec.log is None
+    streams = read_log(
+        where,
+        {**{r: None for r in ROLES if r not in keep}, "truth": spec.name},
+        clocks=(clocks or None) if own else None,
+    )
+    if streams.truth is None or len(streams.truth) == 0:
+        raise InputError(where, "no truth poses", spec.name)
+    return Trajectory(streams.truth, "tf_edge" if spec.kind == "edge" else "topic", str(source))
+
+
+def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
+    """Ground truth from a trajectory file or another log's topic; it must carry stamps to be matched to the log's
+    clock."""
+    traj = read_truth(source, fmt=fmt, times=times)
+    if traj.format not in ("tum", "euroc", "kitti", "topic", "tf_edge"):
         raise InputError(source, f"a {traj.format} trajectory is not a ground-truth file (TUM, EuRoC CSV or KITTI)")
     if not traj.timed:
         raise InputError(source, "KITTI poses carry no stamps: give the sequence's times.txt as truth_times")

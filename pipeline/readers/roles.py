@@ -61,6 +61,12 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 #: Separator of a TF edge given as a topic (``topics.truth: "map->base_link"``).
 EDGE_ARROW = "->"
 
+#: The forms a truth may be given in, everywhere one is accepted (``trajectory_files.parse_truth`` reads them).
+TRUTH_FORMS = (
+    "a truth is a topic of the log, a TF edge 'parent->child', a TUM / EuRoC CSV / KITTI file, or another "
+    "log's topic LOG:TOPIC"
+)
+
 #: Roles in the order they are reported.
 ROLES: tuple[str, ...] = (
     "angular_velocity",
@@ -132,7 +138,8 @@ TYPE_NEEDS: dict[tuple[str, str], str] = {
 
 #: Other ways to give a role than a topic of the log (config keys).
 ROLE_ALTERNATIVES: dict[str, str] = {
-    "truth": "or a TF edge 'parent->child' as topics.truth, or a TUM / EuRoC / KITTI file as evaluation.truth_file",
+    "truth": "or as topics.truth: a TF edge 'parent->child', a TUM / EuRoC CSV / KITTI file, or another log's "
+    "LOG:TOPIC",
 }
 
 
@@ -296,7 +303,8 @@ def _check_override(
     if topic not in topics:
         names = sorted(topics)
         known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
-        raise InputError(path, f"topic for role {role} is not in the log (topics: {known})", topic)
+        hint = f"; {TRUTH_FORMS}" if role == "truth" else ""
+        raise InputError(path, f"topic for role {role} is not in the log (topics: {known}){hint}", topic)
     msgtype = topics[topic].msgtype
     if msgtype not in accepted_types(role):
         expected = " or ".join(accepted_types(role))
