@@ -104,6 +104,12 @@ def main() -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def run(
@@ -113,6 +119,7 @@ def run(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -123,11 +130,11 @@ def run(
     from slamobs.pipeline.paths import run_memory_mb
 
     working_on(log, "a run of this log", run_memory_mb(log))
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
-    config = with_observer(load_config(config_path), observer)
+    config = with_truth(with_observer(load_config(config_path), observer), truth)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -197,6 +204,12 @@ def _print_summary(summary) -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def compare(
@@ -206,6 +219,7 @@ def compare(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -216,13 +230,13 @@ def compare(
 
     working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.errors import InputError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = load_config(config_path)
+    config = with_truth(load_config(config_path), truth)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:

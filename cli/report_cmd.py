@@ -55,8 +55,8 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option(
     "--truth",
     default=None,
-    help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
-    "file [default: the run's truth topic]",
+    help="a topic of the run's log, a TF edge parent->child, a TUM / EuRoC CSV / KITTI (with stamps) file, or "
+    "LOG:TOPIC of another log [default: the run's truth]",
 )
 @click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
 @click.option(

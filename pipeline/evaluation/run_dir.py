@@ -156,7 +156,7 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
         raise InputError(given["path"], "a poses.parquet is an estimate, not a ground-truth file")
     if not traj.timed:
         raise InputError(given["path"], "KITTI poses carry no stamps and cannot be matched to a run's clock")
-    stream, desc = traj.stream, _truth_description(traj, log)
+    stream, desc = traj.stream, _truth_description(traj, given["path"], log)
     own = desc["kind"] != "file" and desc["log"] == str(log)  # a topic of the run's log: on the run's clock
     if own and time_source == "record":
         stream = PoseStream(**{**stream.__dict__, "t_ns": stream.rec_ns})
@@ -180,12 +180,12 @@ def _read_truth(given: dict, log: Path | None, clocks: dict[str, str]):
     return read_truth(given["path"], log, fmt=given.get("format"), times=given.get("times"), clocks=clocks)
 
 
-def _truth_description(traj, log: Path | None) -> dict:
+def _truth_description(traj, given: str, log: Path | None) -> dict:
     """``truth_source`` of report.json: what kind of truth, its name, and the log it came from."""
     if traj.format in ("topic", "tf_edge"):
         from slamobs.pipeline.readers import parse_truth
 
-        spec = parse_truth(traj.name)
+        spec = parse_truth(given)
         kind = "tf_edge" if spec.kind == "edge" else "topic"
         return {"kind": kind, "name": spec.name, "log": str(spec.log or log)}
     return {"kind": "file", "format": traj.format, "name": str(traj.name)}
