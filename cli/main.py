@@ -159,6 +159,8 @@ def run(
 
 
 def _print_summary(summary) -> None:
+    from slamobs.cli.listing import wrote_line
+
     m = summary.metadata
     c = m["counts"]
     click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
@@ -189,7 +191,15 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
-    click.echo(f"wrote        {summary.out_dir}/")
+        for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
+            click.echo(f"note         {note}")
+    elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
+        err = m["map_error"]["error_m"]
+        click.echo(
+            f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
+            "(map-only SE(3) alignment)"
+        )
+    click.echo(f"wrote        {wrote_line(summary.out_dir)}")
 
 
 @main.command()
@@ -227,6 +237,7 @@ def compare(
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
+    from slamobs.cli.listing import wrote_line
 
     working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
@@ -261,7 +272,8 @@ def compare(
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
+        runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
+        click.echo(f"wrote {wrote_line(out_dir, ('comparison.parquet', 'comparison.md', 'overlay.png'), runs)}")
     if (table["status"] != "ok").all():
         sys.exit(1)
 

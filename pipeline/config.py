@@ -48,6 +48,8 @@ class FramesConfig:
     override_identity: tuple[str, ...] = ()
     tag_pattern: str | None = None
     marker_namespace: str | None = None
+    #: quaternion (x, y, z, w) of the truth's body frame in the estimate's: applied to the truth in evaluation only
+    truth_rotation: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -242,6 +244,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     frame = data.get("output", {}).get("frame")
     if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
         raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
+    if sum(q * q for q in data.get("frames", {}).get("truth_rotation") or (1.0,)) < 1e-18:
+        raise InputError(source, "invalid config at frames.truth_rotation: a zero quaternion is no rotation")
     limits = {**DEFAULT_LIMITS, **data.get("limits", {})}
     lo, hi = limits.get("min_range"), limits.get("max_range")
     if lo is not None and hi is not None and lo >= hi:  # every detection would be dropped

@@ -626,9 +626,12 @@ def evaluate_run(
         report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers)
         timings["report_s"] = time.perf_counter() - t
         return report, report_error
-    notes.append("no ground truth in the log: no error report")
-    if streams.landmark_truth:
-        metadata["map_error"] = _map_error(out, streams.landmark_truth)
+    if not streams.landmark_truth:
+        notes.append("no ground truth in the log: no error report")
+        return None, None
+    metadata["map_error"] = _map_error(out, streams.landmark_truth)
+    found = "" if metadata["map_error"] else " (fewer than three matched landmarks off one line: none computed)"
+    notes.append(f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}")
     return None, None
 
 
@@ -765,6 +768,7 @@ def _evaluate(
             t_max_diff_s=config.evaluation.t_max_diff,
             convergence_threshold_m=config.evaluation.convergence_threshold,
             gravity_aligned=gravity_aligned(metadata),
+            truth_rotation_xyzw=config.frames.truth_rotation,
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])

@@ -113,12 +113,7 @@ def read_log(
     """
     path = Path(path)
     overrides = dict(topics or {})
-    if isinstance(overrides.get("truth"), str) and overrides["truth"] and truth_file is None:
-        spec = parse_truth(overrides["truth"])
-        if spec.kind == "file" or spec.log is not None:  # not in this log: read like a truth file
-            truth_file = overrides["truth"]
-    if truth_file is not None:
-        overrides["truth"] = ""  # the file is the truth; no topic is read for it
+    truth_file = _outside_truth(overrides, truth_file)
     with open_log(path) as reader:
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
@@ -197,6 +192,19 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+def _outside_truth(overrides: dict, truth_file: str | Path | None) -> str | Path | None:
+    """The truth read apart from the log's topics: ``truth_file``, or ``overrides["truth"]`` naming a file or another
+    log's topic (the one truth grammar); the truth role is then left out of the log's roles."""
+    given = overrides.get("truth")
+    if truth_file is None and isinstance(given, str) and given:
+        spec = parse_truth(given)
+        if spec.kind == "file" or spec.log is not None:
+            truth_file = given
+    if truth_file is not None:
+        overrides["truth"] = ""  # the file is the truth; no topic is read for it
+    return truth_file
 
 
 def _check_clock_topics(path: Path, clocks, table: Mapping) -> None:
