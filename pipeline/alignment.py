@@ -36,7 +36,7 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
-from slamobs.pipeline.readers.roles import REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
+from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
 
 
@@ -210,8 +210,9 @@ def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
         notes.append(f"{topic}: {n} samples outside the /tf span use the nearest transform")
 
 
-def check_required(streams: LogStreams) -> None:
-    """Every role an estimator needs has samples (tag corners count as detections); else one error naming every
+def check_required(streams: LogStreams, directions: int = 0) -> None:
+    """Every role an estimator needs has samples (tag corners count as detections), and ``directions`` of the
+    direction roles (accelerometer, magnetic field) for an estimator that needs them; else one error naming every
     missing role, each with what would give it.
 
     Raises:
@@ -223,13 +224,16 @@ def check_required(streams: LogStreams) -> None:
         for role in REQUIRED_ROLES
         if not _has_samples(getattr(streams, role)) and not (role == "detections" and streams.tag_corners)
     ]
-    if missing:
+    absent = [role for role in DIRECTION_ROLES if not _has_samples(getattr(streams, role))]
+    lacking = absent[: max(0, directions - (len(DIRECTION_ROLES) - len(absent)))]
+    if missing or lacking:
+        needed = len(REQUIRED_ROLES) + (directions if lacking else 0)
+        roles = missing + lacking
         raise InputError(
             streams.path,
-            f"the log cannot run: {len(missing)} of the {len(REQUIRED_ROLES)} inputs every estimator needs "
-            f"{'is' if len(missing) == 1 else 'are'} missing ({', '.join(missing)}); `slamobs info` shows what "
-            "it has",
-            details=tuple(f"{role} ({ROLE_PURPOSE[role]}): {'; '.join(how_to_satisfy(role))}" for role in missing),
+            f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
+            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
+            details=tuple(f"{role} ({ROLE_PURPOSE[role]}): {'; '.join(how_to_satisfy(role))}" for role in roles),
         )
 
 

@@ -220,11 +220,14 @@ def silent(_message: str) -> None:
     """The progress callback that shows nothing."""
 
 
-def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent) -> PreparedLog:
+def prepare_log(
+    log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent, needs_directions: int = 0
+) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
-    IMU directions never read them, nor get the accelerometer note).
+    IMU directions never read them, nor get the accelerometer note). ``needs_directions``: how many inertial
+    directions the estimator needs, named with the other missing inputs when the log lacks them.
     """
     from slamobs.pipeline.readers import read_log
 
@@ -243,7 +246,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
-    check_required(streams)  # every missing input named at once, before tag poses are computed
+    check_required(streams, needs_directions)  # every missing input named at once, before tag poses are computed
     tags = None
     if streams.tag_corners:
         from slamobs.pipeline.vision.landmarks import tag_landmarks
@@ -320,14 +323,15 @@ def run_log(
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
     check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
-    directions = spec.directions_needed(config) > 0 or config.output.frame == "gravity"
+    needed = spec.directions_needed(config)
+    directions = needed > 0 or config.output.frame == "gravity"
     workers = None
     if plot_helpers > 0 and config.evaluation.plots:
         from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
 
         workers = PlotWorkers(plot_helpers)
     try:
-        prepared = prepare_log(log, config, directions=directions, progress=progress)
+        prepared = prepare_log(log, config, directions=directions, progress=progress, needs_directions=needed)
         if workers is not None and (prepared.streams.truth is None or not len(prepared.streams.truth)):
             workers.close()  # no report, no figures
         return run_prepared(

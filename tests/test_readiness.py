@@ -128,3 +128,13 @@ def test_real_logs_readiness(name, tmp_path):
     config = tmp_path / "run.yaml"
     config.write_text(_run_yaml(res.output))
     load_config(config)
+
+
+def test_run_names_a_missing_direction_with_the_other_inputs(logs, tmp_path):
+    needs_two = next(n for n, s in ESTIMATORS.items() if s.min_directions >= 2)
+    res = invoke("run", logs["no_mag"], "-o", tmp_path / "out", "--observer", needs_two)
+    assert res.exit_code == 2
+    lines = res.output.splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("error:"))
+    assert "1 of the 5 inputs" in lines[first] and "(magnetic)" in lines[first]
+    assert lines[first + 1].split()[0] == "magnetic" and "sensor_msgs/msg/MagneticField" in lines[first + 1]
