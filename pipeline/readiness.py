@@ -98,7 +98,8 @@ def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
 def _candidates(info: LogInfo, role: str) -> list[str]:
     """Topics of this log whose type ``role`` accepts when named (never picked on their own)."""
     types = accepted_types(role)
-    found = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and t.count]
+    used = {t for r, topics in info.roles.items() if r != role and r in LISTED_ROLES for t in topics.split(", ")}
+    found = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and t.count and t.topic not in used]
     return [f"this log has: {', '.join(found)}"] if found else []
 
 
@@ -122,12 +123,11 @@ def run_yaml(roles: tuple[RoleStatus, ...], estimators: tuple[EstimatorStatus, .
             value = json.dumps(topics[0]) if len(topics) == 1 else json.dumps(topics)
             lines.append(f"  {r.role}: {value}")
         else:
-            lines.append(f"  # {r.role}: <topic>  # missing: {ROLE_PURPOSE[r.role]}")
+            what = "<topic, 'parent->child', a trajectory file or LOG:TOPIC>" if r.role == "truth" else "<topic>"
+            lines.append(f"  # {r.role}: {what}  # missing: {ROLE_PURPOSE[r.role]}")
     detections = next(r for r in roles if r.role == "detections")
     if detections.msgtype in TAG_CORNER_TYPES or detections.msgtype in IMAGE_TYPES:
         lines += ["# tag corners and images need the tag edge (m) and family:", "# tags:", "#   size: <edge in m>"]
         if detections.msgtype in IMAGE_TYPES:
             lines.append(f"#   family: {TagsConfig.family}")
-    if not next(r for r in roles if r.role == "truth").found:
-        lines += ["# truth as a TF edge or a file:", "# evaluation:", "#   truth_file: <TUM / EuRoC / KITTI file>"]
     return "\n".join(lines) + "\n"
