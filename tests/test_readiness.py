@@ -4,6 +4,7 @@ with streams left out (and the real logs when ``$SLAMOBS_REALDATA`` has them).""
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import pytest
 
@@ -80,6 +81,8 @@ def test_missing_roles_are_named_with_every_accepted_type(logs, tmp_path):
     config = tmp_path / "run.yaml"
     config.write_text(_run_yaml(res.output))
     assert "linear_velocity" not in load_config(config).topics  # a comment, not a key
+    doc = json.loads(invoke("info", logs["no_odom_det"], "--json").output)["readiness"]
+    assert doc["ready"] == [] and set(doc["satisfy"]) == {"linear_velocity", "detections"}
 
 
 def test_run_names_every_missing_role_at_once(logs, tmp_path):
