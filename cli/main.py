@@ -105,6 +105,12 @@ def main() -> None:
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @window_options
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def run(
@@ -116,6 +122,7 @@ def run(
     force: bool,
     start: float | None,
     end: float | None,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -131,11 +138,11 @@ def run(
 
     log = recording_of(logs)
     working_on(log, "a run of this log", run_memory_mb(log))
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
-    config = with_observer(load_config(config_path), observer).with_window(start, end)
+    config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -160,6 +167,8 @@ def run(
 
 
 def _print_summary(summary) -> None:
+    from slamobs.cli.listing import wrote_line
+
     m = summary.metadata
     c = m["counts"]
     click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
@@ -190,7 +199,15 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
-    click.echo(f"wrote        {summary.out_dir}/")
+        for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
+            click.echo(f"note         {note}")
+    elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
+        err = m["map_error"]["error_m"]
+        click.echo(
+            f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
+            "(map-only SE(3) alignment)"
+        )
+    click.echo(f"wrote        {wrote_line(summary.out_dir)}")
 
 
 @main.command()
@@ -206,6 +223,12 @@ def _print_summary(summary) -> None:
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @window_options
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def compare(
@@ -217,6 +240,7 @@ def compare(
     force: bool,
     start: float | None,
     end: float | None,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -224,16 +248,17 @@ def compare(
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
+    from slamobs.cli.listing import wrote_line
 
     working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.errors import InputError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = load_config(config_path).with_window(start, end)
+    config = with_truth(load_config(config_path), truth).with_window(start, end)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:
@@ -258,7 +283,8 @@ def compare(
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
+        runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
+        click.echo(f"wrote {wrote_line(out_dir, ('comparison.parquet', 'comparison.md', 'overlay.png'), runs)}")
     if (table["status"] != "ok").all():
         sys.exit(1)
 

@@ -55,8 +55,8 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option(
     "--truth",
     default=None,
-    help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
-    "file [default: the run's truth topic]",
+    help="a topic of the run's log, a TF edge parent->child, a TUM / EuRoC CSV / KITTI (with stamps) file, or "
+    "LOG:TOPIC of another log [default: the run's truth]",
 )
 @click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
 @click.option(
@@ -112,8 +112,9 @@ def report(
     try:
         run = load_run(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
-        if base.get("drift_lengths_m") is not None:
-            base["drift_lengths_m"] = tuple(base["drift_lengths_m"])
+        for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+            if base.get(key) is not None:
+                base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
         options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
         with compile_notice(quiet=quiet):

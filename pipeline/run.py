@@ -24,7 +24,15 @@ from typing import Callable
 import numpy as np
 
 from slamobs.pipeline.version import __version__
-from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, TimeWindow, align, time_window, windowed
+from slamobs.pipeline.alignment import (
+    ACCEL_NOTE,
+    AlignedStream,
+    TimeWindow,
+    align,
+    check_required,
+    time_window,
+    windowed,
+)
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError, machine_failure, one_line, resource_error
@@ -227,11 +235,14 @@ def silent(_message: str) -> None:
     """The progress callback that shows nothing."""
 
 
-def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent) -> PreparedLog:
+def prepare_log(
+    log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent, needs_directions: int = 0
+) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
-    IMU directions never read them, nor get the accelerometer note).
+    IMU directions never read them, nor get the accelerometer note). ``needs_directions``: how many inertial
+    directions the estimator needs, named with the other missing inputs when the log lacks them.
     """
     from slamobs.pipeline.readers import read_log
 
@@ -250,6 +261,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
+    check_required(streams, needs_directions)  # every missing input named at once, before tag poses are computed
     tags = None
     if streams.tag_corners:
         from slamobs.pipeline.vision.landmarks import tag_landmarks
@@ -352,14 +364,15 @@ def run_log(
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
     check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
-    directions = spec.directions_needed(config) > 0 or config.output.frame == "gravity"
+    needed = spec.directions_needed(config)
+    directions = needed > 0 or config.output.frame == "gravity"
     workers = None
     if plot_helpers > 0 and config.evaluation.plots:
         from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
 
         workers = PlotWorkers(plot_helpers)
     try:
-        prepared = prepare_log(log, config, directions=directions, progress=progress)
+        prepared = prepare_log(log, config, directions=directions, progress=progress, needs_directions=needed)
         if workers is not None and (prepared.streams.truth is None or not len(prepared.streams.truth)):
             workers.close()  # no report, no figures
         return run_prepared(
@@ -659,9 +672,12 @@ def evaluate_run(
         report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers)
         timings["report_s"] = time.perf_counter() - t
         return report, report_error
-    notes.append("no ground truth in the log: no error report")
-    if streams.landmark_truth:
-        metadata["map_error"] = _map_error(out, streams.landmark_truth)
+    if not streams.landmark_truth:
+        notes.append("no ground truth in the log: no error report")
+        return None, None
+    metadata["map_error"] = _map_error(out, streams.landmark_truth)
+    found = "" if metadata["map_error"] else " (fewer than three matched landmarks off one line: none computed)"
+    notes.append(f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}")
     return None, None
 
 
@@ -806,6 +822,7 @@ def _evaluate(
             convergence_threshold_m=config.evaluation.convergence_threshold,
             **({"align": config.evaluation.align} if config.evaluation.align else {}),
             gravity_aligned=gravity_aligned(metadata),
+            truth_rotation_xyzw=config.frames.truth_rotation,
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])

@@ -194,7 +194,9 @@ def evaluate_tables(
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    notes += landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + uncertainty.notes
+    notes += (
+        sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + uncertainty.notes
+    )
     report = {
         "schema_version": SCHEMA_VERSION,
         **{name: section.get_statistic() for name, section in sections.items()},
@@ -205,7 +207,11 @@ def evaluate_tables(
         "truth_source": {"kind": "stream", "name": truth.topic, "n_poses": len(truth)},
         "evo": _evo_commands(options, ev.applied_offset_s),
         "notes": notes,
-        "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items()},
+        "options": {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in asdict(options).items()
+            if v is not None or k != "truth_rotation_xyzw"  # only where set: reports without it stay as they were
+        },
         "method": _method(ev, options, sections.values()),
     }
     return report, ev
@@ -257,8 +263,9 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     opts["t_offset_s"] = report["method"]["association"]["t_offset_s"]
     opts["t_max_diff_s"] = report["method"]["association"]["t_max_diff_s"]
     opts["align"] = report["method"]["alignment"]["type"]
-    if opts.get("drift_lengths_m") is not None:
-        opts["drift_lengths_m"] = tuple(opts["drift_lengths_m"])
+    for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+        if opts.get(key) is not None:
+            opts[key] = tuple(opts[key])
     fields = set(ReportOptions.__dataclass_fields__)
     return ReportOptions(**{k: v for k, v in opts.items() if k in fields})
 

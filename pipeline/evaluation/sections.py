@@ -32,7 +32,7 @@ from slamobs.pipeline.evaluation.tables import (
 )
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, TrajectoryEvaluation
-from slamobs.pipeline.lie import rots_to_quats
+from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
 
 #: evo's command-line flags of each alignment slamobs shares with it
 EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
@@ -78,6 +78,51 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
+        self.notes += truth_frame_note(ev)
+
+
+#: A rotation APE above this (deg) beside a translation APE below TRUTH_FRAME_TRANSLATION of the path length is
+#: no estimation error but a truth recorded in another body convention: the report estimates the rotation.
+TRUTH_FRAME_ROTATION_DEG = 20.0
+TRUTH_FRAME_TRANSLATION = 0.05
+
+
+def truth_body_rotation(ev: TrajectoryEvaluation) -> tuple[np.ndarray, np.ndarray]:
+    """Hand–eye on the aligned pairs: the constant X with ``R_truth_i ≈ R_est_i X`` (closed form: the rotation
+    nearest to ``Σ R_est_iᵀ R_truth_i``) and the per-pair angles (deg) it leaves."""
+    est, ref = ev.rotation.est_rot_aligned, ev.paired.ref_rot
+    n = len(ref)
+    total = np.zeros((3, 3))
+    for rows in row_blocks(n):
+        total += np.einsum("nji,njk->ik", est[rows], ref[rows])
+    x = nearest_rotation(total)
+    left = np.empty(n)
+    for rows in row_blocks(n):
+        cos = (np.einsum("njk,njk->n", np.matmul(est[rows], x), ref[rows]) - 1.0) / 2.0
+        left[rows] = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return x, left
+
+
+def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
+    """The note naming a constant rotation between the truth's body frame and the estimate's, when the rotation
+    errors are implausible next to the translation errors, with the config key that applies it."""
+    rot, trans = ev.rotation.stats.get("rmse"), ev.translation.stats.get("rmse")
+    path = float(np.linalg.norm(np.diff(ev.paired.ref_pos, axis=0), axis=1).sum()) if len(ev.paired.ref_pos) else 0.0
+    if rot is None or trans is None or rot <= TRUTH_FRAME_ROTATION_DEG or trans >= TRUTH_FRAME_TRANSLATION * path:
+        return []
+    x, left = truth_body_rotation(ev)
+    q = rots_to_quats(x[None])[0]
+    q = q if q[3] >= 0 else -q
+    angle = float(np.degrees(2.0 * np.arctan2(np.linalg.norm(q[:3]), q[3])))
+    axis = q[:3] / (np.linalg.norm(q[:3]) or 1.0)
+    after = float(np.sqrt(np.mean(left**2)))
+    return [
+        f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
+        f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): the truth's body frame looks turned against the "
+        f"estimate's by a constant {angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
+        f"rotation APE would be {after:.2f} deg rmse; to apply it (evaluation only) set frames.truth_rotation: "
+        f"[{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
+    ]
 
 
 class ApeByAlignmentSection(Section):
