@@ -182,6 +182,8 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
+    if m.get("figures"):
+        click.echo(f"figures      {', '.join(m['figures'])} (report.md shows them)")
     click.echo(f"wrote        {summary.out_dir}/")
 
 
