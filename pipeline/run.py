@@ -251,7 +251,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         progress("tag poses")
         tags = tag_landmarks(
             streams,
-            config.tags.options(),
+            recorded_tags(config, streams, notes).options(),
             camera_files=config.cameras,
             identity_frames=config.frames.assume_identity,
             body_frame=config.frames.body,
@@ -298,6 +298,20 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         derived=streams.derived,
     )
     return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes)
+
+
+def recorded_tags(config: RunConfig, streams: LogStreams, notes: list[str]):
+    """The config's ``tags`` section, with the tag size a simulated log records where the config gives none."""
+    size = streams.recorded.get("tag_size")
+    if size is None or config.tags.size is not None or config.tags.sizes:
+        return config.tags
+    default = type(config.tags).__dataclass_fields__["family"].default
+    family = streams.recorded.get("tag_family") if config.tags.family == default else None
+    notes.append(
+        f"tag size {size:g} m{f' and family {family}' if family else ''} as the simulated log records them "
+        "(tags.size and tags.family in the config override them)"
+    )
+    return replace(config.tags, size=float(size))
 
 
 def run_log(

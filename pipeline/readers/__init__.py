@@ -130,6 +130,7 @@ def read_log(
 
         multi = {t for topics_ in selection.multi.values() for t in topics_}
         chosen = [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
+        chosen.sort(key=lambda pair: pair[0] != "sim_truth")  # what the log records for reading it comes first
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
@@ -168,7 +169,7 @@ def read_log(
                 streams.tf, warnings = transform_series(tf_of(topic))
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
             elif role == "sim_truth":
-                landmarks, bias, warnings = decode_sim_truth(reader, path, topic, conns)
+                landmarks, bias, warnings, streams.recorded = decode_sim_truth(reader, path, topic, conns)
                 streams.landmark_truth = landmarks or None
                 streams.bias_truth = bias or None
                 streams.warnings += warnings
@@ -227,6 +228,8 @@ class ImageSearch:
     family: str = "36h11"
     detector: dict | None = None  # cv2.aruco.DetectorParameters fields
     max_rate_hz: float | None = None  # images per second and camera
+    #: a tag family the log records (a simulated log's) replaces ``family`` (the config did not choose one)
+    recorded_family: bool = True
 
 
 def _camera_topics(
@@ -248,7 +251,8 @@ def _camera_topics(
         note(topic, "detections", cleaning)
     if image_topics:
         search = images or ImageSearch()
-        detector = TagDetector(search.family, search.detector, path)
+        family = streams.recorded.get("tag_family") if search.recorded_family else None
+        detector = TagDetector(family or search.family, search.detector, path)
         found = detect_in_images(
             reader,
             path,
