@@ -57,8 +57,8 @@ LINE_EVERY_S = 10.0
 class Progress:
     """A command's progress, used as ``with Progress(quiet) as progress: work(progress=progress)``: on a terminal
     the status line (redrawn each second, so its clock runs while one step lasts), otherwise a plain line
-    ``[  12.0 s] what it does`` at the first message and then every ``LINE_EVERY_S`` while the command works
-    (the last message again when a step is long); nothing when ``quiet``. ``status`` is the terminal's
+    ``[  10.0 s] what it does`` every ``LINE_EVERY_S`` while the command works (the last message again when a
+    step is long; a command done sooner prints none); nothing when ``quiet``. ``status`` is the terminal's
     :class:`StatusLine` (None elsewhere), for :func:`compile_notice`."""
 
     def __init__(self, quiet: bool = False, every_s: float | None = None) -> None:
@@ -66,8 +66,7 @@ class Progress:
         self.status = status_line(quiet)
         self.every = every_s if every_s is not None else float(os.environ.get("SLAMOBS_PROGRESS_EVERY", LINE_EVERY_S))
         self.message = ""
-        self._start = time.perf_counter()
-        self._printed = -float("inf")
+        self._start = self._printed = time.perf_counter()  # a command done (or failed) sooner prints nothing
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._beat: threading.Thread | None = None
