@@ -226,7 +226,8 @@ def compare(
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
+        files = [n for n in ("comparison.parquet", "comparison.md", "overlay.png") if (out_dir / n).is_file()]
+        click.echo(f"wrote {out_dir}/ ({', '.join(files)}, one run directory per observer)")
     if (table["status"] != "ok").all():
         sys.exit(1)
 
