@@ -437,3 +437,55 @@ def plot_measurements(
     for ax in (ax_d, ax_i):
         ax.grid(True, alpha=0.3)
     return _save(fig, path)
+
+
+def plot_error_result(
+    path,
+    t_s: np.ndarray,
+    errors: np.ndarray,
+    stats: dict,
+    ref_xyz: np.ndarray,
+    est_xyz: np.ndarray,
+    error_xyz: np.ndarray,
+    *,
+    plot_mode: str = "xyz",
+    title: str = "",
+    label: str = "error",
+) -> Path:
+    """What evo_ape / evo_rpe ``-p`` shows, in one PNG: the error over time with its mean, median and RMSE and the
+    ±std band, and the reference (dashed grey) with the aligned estimate coloured by the error at ``error_xyz``
+    (the estimate positions each error belongs to) in ``plot_mode`` (evo's: two axes such as ``xy``, or ``xyz``
+    for a 3D view)."""
+    from matplotlib.colors import Normalize
+
+    fig, axes = _figure(2, 1, (9.0, 11.0), gap=0.8)
+    raw = axes[0, 0]
+    sel = envelope(len(t_s), [errors])
+    raw.plot(t_s[sel], errors[sel], color="0.35", lw=1.0, label=label)
+    for key, colour in (("rmse", "tab:blue"), ("median", "tab:green"), ("mean", "tab:red")):
+        raw.axhline(stats[key], color=colour, lw=1.2, label=key)
+    raw.axhspan(stats["mean"] - stats["std"], stats["mean"] + stats["std"], color="tab:olive", alpha=0.3, label="std")
+    raw.set_xlabel("t [s]")
+    raw.set_ylabel(label)
+    raw.set_title(title)
+    raw.grid(True, alpha=0.3)
+    raw.legend(loc="upper right", fontsize=8)
+    box = axes[1, 0].get_position()
+    axes[1, 0].remove()
+    dims = [AXES.index(c) for c in plot_mode]
+    ax = fig.add_axes(box, projection="3d" if plot_mode == "xyz" else None)
+    ref, est = ref_xyz[thin(len(ref_xyz), PATH_POINTS)], est_xyz[thin(len(est_xyz), PATH_POINTS)]
+    ax.plot(*(ref[:, d] for d in dims), "--", color="0.5", lw=1.0, label="reference")
+    norm = Normalize(float(np.min(errors)) if len(errors) else 0.0, float(np.max(errors)) if len(errors) else 1.0)
+    pick = thin(len(error_xyz), SCATTER_POINTS)
+    sc = ax.scatter(*(error_xyz[pick, d] for d in dims), c=errors[pick], cmap="jet", norm=norm, s=4)
+    ax.plot(*(est[:, d] for d in dims), "-", color="0.2", lw=0.4, alpha=0.5, label="estimate (aligned)")
+    fig.colorbar(sc, ax=ax, shrink=0.8, label=label)
+    for d, setter in zip(dims, ("set_xlabel", "set_ylabel", "set_zlabel")):
+        getattr(ax, setter)(f"{AXES[d]} [m]")
+    if plot_mode != "xyz":
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    ax.set_title(f"{label} mapped onto the trajectory ({plot_mode})")
+    ax.legend(loc="upper right", fontsize=8)
+    return _save(fig, path)
