@@ -100,9 +100,6 @@ def report(
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
     from slamobs.pipeline.evaluation.run_dir import load_run, options_for_run, report_run
 
-    if truth is None and not _summarised(run_dir, as_json, quiet):
-        return
-
     given = {
         "t_max_diff_s": t_max_diff,
         "align": align,
@@ -113,6 +110,8 @@ def report(
     }
     if t_offset is not None:
         given["t_offset_s"] = offset_seconds(t_offset)
+    if truth is None and not _summarised(run_dir, as_json, quiet):  # a run without truth: its figures
+        return
     try:
         run = load_run(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
