@@ -20,15 +20,15 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
 
 
 #: evo's first positional argument: the format of both files (``euroc``: a EuRoC truth and a TUM estimate), or
-#: ``bag``/``bag2``: topics of one log
+#: ``bag``/``bag2``/``mcap``: topics of one log
 EVO_FORMS = {"tum": ("tum", "tum"), "kitti": ("kitti", "kitti"), "euroc": ("euroc", "tum")}
-BAG_FORMS = ("bag", "bag2")
+BAG_FORMS = ("bag", "bag2", "mcap")
 #: evo's ``--plot_mode``: the axes of the trajectory panel (``xyz``: a 3D view)
 PLOT_MODES = ("xy", "xz", "yx", "yz", "zx", "zy", "xyz")
 
 
 @click.command("evaluate")
-@click.argument("inputs", nargs=-1, required=True, metavar="[tum|kitti|euroc] TRUTH EST | bag LOG TOPIC TOPIC")
+@click.argument("inputs", nargs=-1, required=True, metavar="[tum|kitti|euroc] TRUTH EST | bag|mcap LOG TOPIC TOPIC")
 @click.option(
     "--metric",
     type=click.Choice(["ape", "rpe"]),
@@ -179,7 +179,7 @@ def evaluate(
 
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
     PoseStamped / Odometry topic of a ROS bag or MCAP. KITTI files without stamps are paired by index.
-    evo's own forms work too: `evaluate tum|kitti|euroc TRUTH EST` and `evaluate bag LOG TOPIC TOPIC`.
+    evo's own forms work too: `evaluate tum|kitti|euroc TRUTH EST` and `evaluate bag|bag2|mcap LOG TOPIC TOPIC`.
     """
     from slamobs.pipeline.errors import InputError
 
@@ -262,7 +262,8 @@ def _inputs(
     if len(inputs) == 3 and inputs[0] in BAG_FORMS:  # two LOG:TOPIC specifications
         return inputs[1], inputs[2], truth_format, est_format
     raise click.UsageError(
-        f"expected TRUTH EST, {'|'.join(EVO_FORMS)} TRUTH EST, or bag LOG TOPIC TOPIC; got {len(inputs)} "
+        f"expected TRUTH EST, {'|'.join(EVO_FORMS)} TRUTH EST, or {'|'.join(BAG_FORMS)} LOG TOPIC TOPIC; got "
+        f"{len(inputs)} "
         f"argument{'s' if len(inputs) != 1 else ''}: {' '.join(inputs)}"
     )
 
