@@ -631,7 +631,7 @@ def evaluate_run(
 ) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
     alone where the log has landmark truth only; (report, why there is none). Every run draws its own figures
-    (:mod:`.evaluation.run_figures`), with the report's on top when there is truth; run.json lists them."""
+    (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them."""
     report = report_error = None
     t = time.perf_counter()
     if streams.truth is not None and len(streams.truth):
@@ -645,7 +645,7 @@ def evaluate_run(
     if report is not None:
         metadata["figures"] = list(report.get("figures") or [])
     elif config.evaluation.plots:
-        from slamobs.pipeline.evaluation.run_figures import run_tables, write_run_figures
+        from slamobs.pipeline.evaluation.figure_jobs import run_tables, write_run_figures
 
         progress("figures")
         t = time.perf_counter()
@@ -777,7 +777,7 @@ def _evaluate(
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
     from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.evaluation.run_figures import RUN_FIGURES, run_figure_jobs
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
     from slamobs.pipeline.writers import read_columns
 
     segments = metadata["segments"]

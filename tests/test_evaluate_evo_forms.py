@@ -1,4 +1,4 @@
-"""Issue 25 §6: `slamobs evaluate` as a drop-in for evo_ape / evo_rpe: evo's positional forms (`tum|kitti|euroc
+"""Issue 25, item 6: `slamobs evaluate` as a drop-in for evo_ape / evo_rpe: evo's positional forms (`tum|kitti|euroc
 TRUTH EST`, `bag|bag2|mcap LOG TOPIC TOPIC`) and its common flags give the numbers of the two-argument form, and,
 where the evo venv is there (SLAMOBS_EVO_PYTHON, see tests/test_evaluation.py), evo's own numbers; `-p` and
 `--save_plot` draw.

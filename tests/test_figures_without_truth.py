@@ -1,4 +1,4 @@
-"""Issue 25 §2 and §5: every run draws its figures, truth or not; `report` and `compare` work without truth;
+"""Issue 25, items 2 and 5: every run draws its figures, truth or not; `report` and `compare` work without truth;
 commands show progress; a simulated log carries what a run needs to read it."""
 
 from __future__ import annotations

@@ -275,7 +275,7 @@ def write_report(
     this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
     ``poses``. With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by
     those helper processes while the aligned tables are written; ``more_figures`` (the run's own,
-    :mod:`.run_figures`) are drawn with the report's, and report.json lists every figure (``figures``). The
+    :mod:`.figure_jobs`) are drawn with the report's, and report.json lists every figure (``figures``). The
     writes are plain: callers that replace an existing report write into a temporary directory first (see
     :mod:`.run_dir`).
     """

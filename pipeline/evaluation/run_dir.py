@@ -271,7 +271,7 @@ def report_run(
     ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
     Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
     """
-    from slamobs.pipeline.evaluation.run_figures import RUN_FIGURES, run_figure_jobs
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
 
     run = load_run(run_dir)
     tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
@@ -315,7 +315,7 @@ def report_run(
 def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
     """A run without truth: draw its figures and write report.md (what the run did, the figures) again, replacing
     the report files atomically as :func:`report_run` does; returns the summary and the paths written."""
-    from slamobs.pipeline.evaluation.run_figures import RUN_FIGURES, summary, write_run_figures
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, summary, write_run_figures
 
     run = load_run(run_dir)
     tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}

@@ -129,8 +129,8 @@ def read_log(
             return tf_rows[topic]
 
         multi = {t for topics_ in selection.multi.values() for t in topics_}
-        chosen = [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
-        chosen.sort(key=lambda pair: pair[0] != "sim_truth")  # what the log records for reading it comes first
+        # the roles in order, what the log records for reading it (a simulated log's tag family) first
+        chosen = sorted(_chosen_roles(selection), key=lambda pair: pair[0] != "sim_truth")
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
@@ -219,6 +219,11 @@ def _cleaning_notes(reports: Mapping[str, Mapping[str, list[str]]]) -> list[str]
             where = topic if len(texts) == 1 else f"{topic} ({', '.join(roles)})"
             notes.append(f"{where}: {text}")
     return notes
+
+
+def _chosen_roles(selection) -> list[tuple[str, str]]:
+    """``(role, topic)`` of every role the selection found a topic for, in the order of ``ROLES``."""
+    return [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
 
 
 @dataclass(frozen=True)
