@@ -10,7 +10,7 @@ import click
 
 from slamobs.cli.errors import handled
 from slamobs.cli.options import export_option, quiet_option, window_options
-from slamobs.cli.progress import compile_notice, status_line
+from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
 # threads only add synchronisation (30x slower on a 2-core machine); results do not depend on the count.
@@ -147,20 +147,8 @@ def run(
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
         config = config.with_section("output", export=export)
-    status = status_line(quiet)
-    try:
-        with compile_notice(status, quiet=quiet):
-            summary = run_log(
-                log,
-                out_dir,
-                config,
-                force=force,
-                plot_helpers=min(1, free_cores()),
-                **({"progress": status} if status else {}),
-            )
-    finally:
-        if status:
-            status.clear()
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, free_cores()), progress=progress)
     if quiet:
         return
     _print_summary(summary)
@@ -207,6 +195,8 @@ def _print_summary(summary) -> None:
             f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
             "(map-only SE(3) alignment)"
         )
+    if m.get("figures"):
+        click.echo(f"figures      {', '.join(m['figures'])} (report.md shows them)")
     click.echo(f"wrote        {wrote_line(summary.out_dir)}")
 
 
@@ -265,21 +255,10 @@ def compare(
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
         config = config.with_section("output", export=export)
-    status = status_line(quiet)
-    # on a terminal every stage on the status line; otherwise a line as each observer starts
-    lines = (
-        {"progress": status}
-        if status
-        else {}
-        if quiet
-        else {"on_observer": lambda m: click.echo(f"compare: {m}", err=True)}
-    )
-    try:
-        with compile_notice(status, quiet=quiet):
-            table = compare_log(log, out_dir, config, observers, force=force, **lines)
-    finally:
-        if status:
-            status.clear()
+    # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
+        table = compare_log(log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer)
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))

@@ -199,7 +199,12 @@ class RunConfig:
             "truth_format": ev.truth_format,
             "truth_times": ev.truth_times,
             "clocks": clocks,
-            "images": ImageSearch(tags.family, dict(tags.detector) or None, tags.max_rate_hz),
+            "images": ImageSearch(
+                tags.family,
+                dict(tags.detector) or None,
+                tags.max_rate_hz,
+                recorded_family=tags.family == TagsConfig.__dataclass_fields__["family"].default,
+            ),
         }
 
     @property

@@ -270,7 +270,7 @@ def prepare_log(
         progress("tag poses")
         tags = tag_landmarks(
             streams,
-            config.tags.options(),
+            recorded_tags(config, streams, notes).options(),
             camera_files=config.cameras,
             identity_frames=config.frames.assume_identity,
             body_frame=config.frames.body,
@@ -345,6 +345,20 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
     return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
 
 
+def recorded_tags(config: RunConfig, streams: LogStreams, notes: list[str]):
+    """The config's ``tags`` section, with the tag size a simulated log records where the config gives none."""
+    size = streams.recorded.get("tag_size")
+    if size is None or config.tags.size is not None or config.tags.sizes:
+        return config.tags
+    default = type(config.tags).__dataclass_fields__["family"].default
+    family = streams.recorded.get("tag_family") if config.tags.family == default else None
+    notes.append(
+        f"tag size {size:g} m{f' and family {family}' if family else ''} as the simulated log records them "
+        "(tags.size and tags.family in the config override them)"
+    )
+    return replace(config.tags, size=float(size))
+
+
 def run_log(
     log: Path,
     out_dir: Path,
@@ -373,8 +387,6 @@ def run_log(
         workers = PlotWorkers(plot_helpers)
     try:
         prepared = prepare_log(log, config, directions=directions, progress=progress, needs_directions=needed)
-        if workers is not None and (prepared.streams.truth is None or not len(prepared.streams.truth)):
-            workers.close()  # no report, no figures
         return run_prepared(
             prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
         )
@@ -665,20 +677,34 @@ def evaluate_run(
     plot_workers=None,
 ) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
-    alone where the log has landmark truth only; (report, why there is none)."""
+    alone where the log has landmark truth only; (report, why there is none). Every run draws its own figures
+    (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them."""
+    report = report_error = None
+    t = time.perf_counter()
     if streams.truth is not None and len(streams.truth):
-        t = time.perf_counter()
         progress("error report")
         report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers)
         timings["report_s"] = time.perf_counter() - t
-        return report, report_error
-    if not streams.landmark_truth:
-        notes.append("no ground truth in the log: no error report")
-        return None, None
-    metadata["map_error"] = _map_error(out, streams.landmark_truth)
-    found = "" if metadata["map_error"] else " (fewer than three matched landmarks off one line: none computed)"
-    notes.append(f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}")
-    return None, None
+    elif not streams.landmark_truth:
+        notes.append("no ground truth in the log: no error report (report.md and the figures show the estimate)")
+    else:
+        metadata["map_error"] = _map_error(out, streams.landmark_truth)
+        found = "" if metadata["map_error"] else " (fewer than three matched landmarks off one line: none computed)"
+        notes.append(
+            f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}"
+        )
+    if report is not None:
+        metadata["figures"] = list(report.get("figures") or [])
+    elif config.evaluation.plots:
+        from slamobs.pipeline.evaluation.figure_jobs import run_tables, write_run_figures
+
+        progress("figures")
+        t = time.perf_counter()
+        workers = plot_workers if report_error is None else None  # after a failed report: drawn here
+        written = write_run_figures(out, run_tables(out), notes, workers)
+        metadata["figures"] = [p.name for p in written if p.suffix == ".png"]
+        timings["figures_s"] = time.perf_counter() - t
+    return report, report_error
 
 
 def check_export(prepared: PreparedLog, config: RunConfig) -> None:
@@ -809,11 +835,13 @@ def _evaluate(
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
     from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
     from slamobs.pipeline.writers import read_columns
 
     segments = metadata["segments"]
     try:
         frames = {k: read_columns(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
+        own = run_figure_jobs({**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False)
         truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
@@ -828,6 +856,8 @@ def _evaluate(
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
         early = plot_workers if config.evaluation.plots and plot_workers is not None else None
+        if early is not None:
+            early.submit(own)  # drawn while the report is computed
         report, evaluation = evaluate_tables(
             frames,
             truth,
@@ -864,6 +894,7 @@ def _evaluate(
             exports=config.output.export,
             metadata=metadata,
             plot_workers=plot_workers,
+            more_figures=own,
         )
     except OSError:
         raise
@@ -872,7 +903,7 @@ def _evaluate(
             raise stop from None
         if machine_failure(err):  # out of memory or threads: the run fails, never a run without its report
             raise
-        for name in REPORT_FILES:  # a report that failed half way is removed
+        for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)
         reason = one_line(err) or type(err).__name__
         if not isinstance(err, ValueError):

@@ -245,6 +245,8 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += _md_uncertainty(report["uncertainty"])
     if report.get("notes"):
         lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
+    if report.get("figures"):
+        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in report["figures"]] + [""]
     lines += _md_method(report)
     return "\n".join(lines)
 

@@ -284,6 +284,7 @@ def write_report(
     metadata: dict[str, Any] | None = None,
     exports: tuple[str, ...] = (),
     plot_workers=None,
+    more_figures: list = (),
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
     time on short logs), the estimate aligned into the truth's frame (``poses_aligned.parquet``,
@@ -294,14 +295,24 @@ def write_report(
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
     this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
     ``poses``. With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by
-    those helper processes while the aligned tables are written. The writes are plain: callers that
-    replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
+    those helper processes while the aligned tables are written; ``more_figures`` (the run's own,
+    :mod:`.figure_jobs`) are drawn with the report's, and report.json lists every figure (``figures``). The
+    writes are plain: callers that replace an existing report write into a temporary directory first (see
+    :mod:`.run_dir`).
     """
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
     from slamobs.pipeline.readers.trajectory_files import write_tum
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
+    if evaluation is None and poses is None:
+        raise ValueError("write_report needs the poses table or the report's evaluation")
+    ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
+    submitted = plot_workers is not None and plot_workers.submitted  # by evaluate_tables, as it went
+    jobs = [*more_figures, *plot_jobs(report, ev, biases, landmarks, landmark_truth)] if plots and not submitted else []
+    if plots or submitted:  # the figures the report's directory holds, listed in the report
+        report["figures"] = [name for _, name, _ in (plot_workers.jobs if submitted else jobs)]
     written = []
     json_path = out / "report.json"
     json_path.write_text(json.dumps(report, indent=2, sort_keys=True, allow_nan=False) + "\n", encoding="utf-8")
@@ -310,17 +321,11 @@ def write_report(
     md_path.write_text(render_markdown(report), encoding="utf-8")
     written.append(md_path)
 
-    options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
-    if evaluation is None and poses is None:
-        raise ValueError("write_report needs the poses table or the report's evaluation")
-    ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
     if "evo" in exports:
         written.append(save_result_zip(out / EVO_ZIP, ev.translation))
     if "tum" in exports:
         written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
-    submitted = plot_workers is not None and plot_workers.submitted  # by evaluate_tables, as it went
-    jobs = plot_jobs(report, ev, biases, landmarks, landmark_truth) if plots and not submitted else []
     if jobs and plot_workers is not None:
         plot_workers.submit(jobs)  # drawn by the helper processes while the aligned tables are written
     written += write_aligned_tables(out, report, ev, landmarks, metadata or {})

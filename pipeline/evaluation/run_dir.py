@@ -46,6 +46,7 @@ class RunTables:
     poses: pd.DataFrame
     biases: pd.DataFrame | None
     landmarks: pd.DataFrame | None
+    innovations: pd.DataFrame | None = None
 
 
 @dataclass
@@ -119,7 +120,7 @@ def load_run(run_dir: str | Path) -> RunTables:
 
         return pd.read_parquet(path) if path.is_file() else None
 
-    return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"))
+    return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"), table("innovations"))
 
 
 def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
@@ -127,6 +128,12 @@ def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
 
     streams = read_log(log, {r: None for r in ROLES if r != "sim_truth"})
     return streams.landmark_truth, streams.bias_truth
+
+
+def has_truth(meta: dict[str, Any]) -> bool:
+    """Whether the run named a truth (a topic of its log or a trajectory file) that a report can use again."""
+    inp = meta.get("input") or {}
+    return bool(inp.get("truth_file") or (inp.get("topics") or {}).get("truth"))
 
 
 def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
@@ -266,7 +273,10 @@ def report_run(
     ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
     Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
     """
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
+
     run = load_run(run_dir)
+    tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
     if exports is None:
         exports = tuple(k for k in (run.meta.get("output") or {}).get("export", []) if k in REPORT_EXPORTS)
     exports = tuple(k for k in exports if k in REPORT_EXPORTS)
@@ -297,11 +307,34 @@ def report_run(
             evaluation=evaluation,
             exports=exports,
             metadata=run.meta,
+            more_figures=run_figure_jobs(tables, with_biases=False),
         )
-        _stage_run_json(run.meta, ti.source, staged, exports)
+        _stage_run_json({**run.meta, "figures": report.get("figures", [])}, ti.source, staged, exports)
         for p in staged.iterdir():
             os.chmod(p, 0o644)
-        written = replace_files(run.path, staged, REPORT_FILES)
+        written = replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
     finally:
         shutil.rmtree(staged, ignore_errors=True)
     return report, written
+
+
+def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
+    """A run without truth: draw its figures and write report.md (what the run did, the figures) again, replacing
+    the report files atomically as :func:`report_run` does; returns the summary and the paths written."""
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, summary, write_run_figures
+
+    run = load_run(run_dir)
+    tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
+    info = summary(tables)
+    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
+    try:
+        written = write_run_figures(staged, tables, list(run.meta.get("notes") or []))
+        info["figures"] = [p.name for p in written if p.suffix == ".png"]
+        meta = {**run.meta, "figures": info["figures"]}
+        (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+        for p in staged.iterdir():
+            os.chmod(p, 0o644)
+        written = replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
+    finally:
+        shutil.rmtree(staged, ignore_errors=True)
+    return info, written

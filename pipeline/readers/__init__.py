@@ -138,7 +138,8 @@ def read_log(
             return tf_rows[topic]
 
         multi = {t for topics_ in selection.multi.values() for t in topics_}
-        chosen = [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
+        # the roles in order, what the log records for reading it (a simulated log's tag family) first
+        chosen = sorted(_chosen_roles(selection), key=lambda pair: pair[0] != "sim_truth")
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
@@ -177,7 +178,7 @@ def read_log(
                 streams.tf, warnings = transform_series(tf_of(topic))
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
             elif role == "sim_truth":
-                landmarks, bias, warnings = decode_sim_truth(reader, path, topic, conns)
+                landmarks, bias, warnings, streams.recorded = decode_sim_truth(reader, path, topic, conns)
                 streams.landmark_truth = landmarks or None
                 streams.bias_truth = bias or None
                 streams.warnings += warnings
@@ -242,6 +243,11 @@ def _cleaning_notes(reports: Mapping[str, Mapping[str, list[str]]]) -> list[str]
     return notes
 
 
+def _chosen_roles(selection) -> list[tuple[str, str]]:
+    """``(role, topic)`` of every role the selection found a topic for, in the order of ``ROLES``."""
+    return [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
+
+
 @dataclass(frozen=True)
 class ImageSearch:
     """How camera images are searched for tags (``tags`` section of the config)."""
@@ -249,6 +255,8 @@ class ImageSearch:
     family: str = "36h11"
     detector: dict | None = None  # cv2.aruco.DetectorParameters fields
     max_rate_hz: float | None = None  # images per second and camera
+    #: a tag family the log records (a simulated log's) replaces ``family`` (the config did not choose one)
+    recorded_family: bool = True
 
 
 def _camera_topics(
@@ -270,7 +278,8 @@ def _camera_topics(
         note(topic, "detections", cleaning)
     if image_topics:
         search = images or ImageSearch()
-        detector = TagDetector(search.family, search.detector, path)
+        family = streams.recorded.get("tag_family") if search.recorded_family else None
+        detector = TagDetector(family or search.family, search.detector, path)
         found = detect_in_images(
             reader,
             path,

@@ -444,6 +444,10 @@ def fixed_rows(
     return rows
 
 
+#: messages between two progress lines of :func:`iter_messages` (an image costs milliseconds, a vector microseconds)
+PROGRESS_EVERY = 200
+
+
 def _build_message(factory: Callable[[int], bytes], index: int) -> bytes:
     """One serialised message (a module-level seam so tests can inject a failure mid-write)."""
     return factory(index)
@@ -453,9 +457,12 @@ def _pieces(sim: SimLog | Simulation) -> Iterator[SimLog]:
     return iter([sim]) if isinstance(sim, SimLog) else sim.pieces()
 
 
-def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterator[tuple[str, int, bytes]]:
+def iter_messages(
+    sim: SimLog | Simulation, ts: Typestore, ros1: bool, progress: Callable[[str], None] | None = None
+) -> Iterator[tuple[str, int, bytes]]:
     """``(topic, record time ns, serialised message)`` over all topics in record-time order (ties: topic order,
-    then message order), piece by piece for a :class:`Simulation`.
+    then message order), piece by piece for a :class:`Simulation`; ``progress`` hears how far the log is
+    written, every :data:`PROGRESS_EVERY` messages.
 
     A piece's messages are written once no later piece can precede them: record times are never before the
     stamps, so everything recorded before the next piece's first stamp is final; the rest waits for that piece.
@@ -464,11 +471,16 @@ def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterat
     factories: dict[int, dict[str, Callable[[int], bytes]]] = {}
     waiting: list[np.ndarray] = []  # columns: record time, topic, index in the log, index in the piece, piece
 
+    count = [0]
+
     def emit(cols: list[np.ndarray]) -> Iterator[tuple[str, int, bytes]]:
         rec, topic, glob, local, piece = cols
         for j in np.lexsort((glob, topic, rec)):
             name = topics[topic[j]]
             yield name, int(rec[j]), _build_message(factories[int(piece[j])][name], int(local[j]))
+            count[0] += 1
+            if progress is not None and count[0] % PROGRESS_EVERY == 0:
+                progress(f"simulate: {(int(rec[j]) - sim.start_ns) / 1e9:.1f} of {sim.duration:g} s written")
 
     for p, part in enumerate(_pieces(sim)):
         makers = _Builder(part, ts, ros1).makers(latched=p == 0)
@@ -508,7 +520,7 @@ def _types_of(sim: SimLog | Simulation) -> dict[str, str]:
     return topic_types(sim.camera_sim if isinstance(sim, SimLog) else sim.camera)
 
 
-def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
+def _write_bag(sim: SimLog | Simulation, path: Path, progress=None) -> None:
     ts = make_typestore(ros1=True)
     writer = _Bag1Writer(path)
     writer.set_compression(_Bag1Writer.CompressionFormat.LZ4)
@@ -519,11 +531,11 @@ def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
             )
             for tp, typ in _types_of(sim).items()
         }
-        for topic, rec, raw in iter_messages(sim, ts, ros1=True):
+        for topic, rec, raw in iter_messages(sim, ts, ros1=True, progress=progress):
             writer.write(conns[topic], rec, raw)
 
 
-def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
+def _write_ros2(sim: SimLog | Simulation, path: Path, progress=None) -> None:
     ts = make_typestore(ros1=False)
     with Bag2Writer(path, version=9) as writer:
         writer.set_custom_data(*WRITER_ROS2)
@@ -533,13 +545,13 @@ def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
             )
             for tp, typ in _types_of(sim).items()
         }
-        for topic, rec, raw in iter_messages(sim, ts, ros1=False):
+        for topic, rec, raw in iter_messages(sim, ts, ros1=False, progress=progress):
             writer.write(conns[topic], rec, raw)
 
 
-def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
+def _write_mcap(sim: SimLog | Simulation, path: Path, progress=None) -> None:
     ts = make_typestore(ros1=False)
-    write_mcap(path, _types_of(sim), iter_messages(sim, ts, ros1=False), ts, latched=LATCHED)
+    write_mcap(path, _types_of(sim), iter_messages(sim, ts, ros1=False, progress=progress), ts, latched=LATCHED)
 
 
 def write_mcap(
@@ -570,7 +582,7 @@ def write_mcap(
         writer.finish()
 
 
-_WRITERS: dict[str, Callable[[SimLog | Simulation, Path], None]] = {
+_WRITERS: dict[str, Callable[..., None]] = {
     "bag": _write_bag,
     "mcap": _write_mcap,
     "ros2": _write_ros2,
@@ -661,7 +673,12 @@ def _simulated(path: Path) -> bool:
 
 
 def write_log(
-    sim: SimLog | Simulation, path: str | Path, container: str | None = None, *, overwrite: bool = False
+    sim: SimLog | Simulation,
+    path: str | Path,
+    container: str | None = None,
+    *,
+    overwrite: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> Path:
     """Write ``sim`` to ``path`` as ``container`` ("bag", "mcap", "ros2"; inferred from the suffix if None).
 
@@ -677,7 +694,7 @@ def write_log(
     if container not in _WRITERS:
         raise ValueError(f"unknown container {container!r}; expected one of {', '.join(CONTAINERS)}")
     with atomic_file(final, why_kept=partial(why_kept, overwrite=overwrite)) as tmp:
-        _WRITERS[container](sim, tmp)
+        _WRITERS[container](sim, tmp, progress)
     return final
 
 
