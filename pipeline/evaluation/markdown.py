@@ -22,12 +22,24 @@ def convergence_definition(conv: dict[str, Any]) -> str:
 def convergence_line(conv: dict[str, Any]) -> str | None:
     """The convergence figure for a one-line summary: what stays within the band is the error *level* (a running
     median), not every error, which may still exceed the band now and then."""
-    if conv.get("t_since_start_s") is None:
+    if not conv:
         return None
+    if conv.get("t_since_start_s") is None:
+        return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")")
     return (
         f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
         f"within {conv['band_m']:.3g} m from then on)"
     )
+
+
+def _not_converged(conv: dict[str, Any]) -> str:
+    if conv.get("growing"):
+        tail = round(100 * conv["tail_fraction"])
+        return (
+            f"not converged (the error level keeps growing: a median of {conv['tail_level_m']:.3g} m over the last "
+            f"{tail} % of the log against {conv['earlier_level_m']:.3g} m over the {tail} % before)"
+        )
+    return "not converged (the last aligned position error is above the band)"
 
 
 def _fmt(v: Any, digits: int = 6) -> str:
@@ -60,7 +72,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     conv_txt = (
         f"{conv['t_since_start_s']:.3f} s after the estimate start"
         if conv["t_ns"] is not None
-        else "not converged (the last aligned position error is above the band)"
+        else _not_converged(conv)
     )
     lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
     if report["evo"].get("ape"):
@@ -98,6 +110,7 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
         ]
     if not rpe_s and not drift:
         lines += ["Path too short for RPE and drift.", ""]
+    lines += _md_segment_errors(report.get("segment_errors"))
     est = (
         "not estimated"
         if off["estimated_s"] is None
@@ -108,6 +121,29 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
     )
     lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     return lines
+
+
+def _md_segment_errors(seg: dict[str, Any] | None) -> list[str]:
+    """rpg's relative error per sub-trajectory length: "mean, median (min, max)" per length, rpg's table style."""
+    if not seg or not any(row["translation_pct"] for row in seg["per_length"]):
+        return []
+    lines = [
+        f"Segment errors (rpg_trajectory_evaluation; truth path {seg['path_length_m']:.4g} m, scale "
+        f"{seg['scale']:.6g}), mean, median (min, max):",
+        "",
+        "| length [m] | segments | translation [%] | rotation [deg/m] | yaw [deg] |",
+        "|---|---|---|---|---|",
+    ]
+    for row in seg["per_length"]:
+        cells = [
+            "–"
+            if row[k] is None
+            else f"{_fmt(row[k]['mean'], 3)}, {_fmt(row[k]['median'], 3)} "
+            f"({_fmt(row[k]['min'], 3)}, {_fmt(row[k]['max'], 3)})"
+            for k in ("translation_pct", "rotation_deg_per_m", "yaw_deg")
+        ]
+        lines.append(f"| {row['length_m']:g} | {row['n_segments']} | " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 #: What a reliable offset is and is not: the estimate's lag behind the truth (a filter's delay) looks the same.
@@ -188,9 +224,20 @@ def _md_biases(bi: dict[str, Any]) -> list[str]:
     ]
 
 
+def _window_text(win: dict[str, Any]) -> str:
+    """A time window as seconds from the log's start."""
+    ends = [
+        "start" if win["start_s"] is None else f"{win['start_s']:.3f} s",
+        "end" if win["end_s"] is None else f"{win['end_s']:.3f} s",
+    ]
+    return f"{ends[0]} to {ends[1]} from the log's start"
+
+
 def render_markdown(report: dict[str, Any]) -> str:
     """Human-readable version of the report (tables for APE, RPE/drift, landmarks, biases and the method)."""
     lines = ["# slamobs error report", ""]
+    if win := report.get("time_window"):
+        lines += [f"Time window: {_window_text(win)} (the run used this part of its log; the truth was cut to it).", ""]
     lines += _md_trajectory(report)
     lines += _md_landmarks(report["landmarks"])
     lines += _md_biases(report["biases"])
@@ -198,6 +245,8 @@ def render_markdown(report: dict[str, Any]) -> str:
         lines += _md_uncertainty(report["uncertainty"])
     if report.get("notes"):
         lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
+    if report.get("figures"):
+        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in report["figures"]] + [""]
     lines += _md_method(report)
     return "\n".join(lines)
 

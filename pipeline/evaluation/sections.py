@@ -16,7 +16,8 @@ import numpy as np
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
-from slamobs.pipeline.evaluation.drift import segment_drift
+from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
+from slamobs.pipeline.evaluation.rpe import accumulated_distances
 from slamobs.pipeline.evaluation.sync import NS_PER_S
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
@@ -31,7 +32,7 @@ from slamobs.pipeline.evaluation.tables import (
 )
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
 from slamobs.pipeline.evaluation.trajectory_evaluation import GAUGE_SIGMA, ReportOptions, TrajectoryEvaluation
-from slamobs.pipeline.lie import rots_to_quats
+from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
 
 #: evo's command-line flags of each alignment slamobs shares with it
 EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
@@ -77,6 +78,51 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
+        self.notes += truth_frame_note(ev)
+
+
+#: A rotation APE above this (deg) beside a translation APE below TRUTH_FRAME_TRANSLATION of the path length is
+#: no estimation error but a truth recorded in another body convention: the report estimates the rotation.
+TRUTH_FRAME_ROTATION_DEG = 20.0
+TRUTH_FRAME_TRANSLATION = 0.05
+
+
+def truth_body_rotation(ev: TrajectoryEvaluation) -> tuple[np.ndarray, np.ndarray]:
+    """Hand–eye on the aligned pairs: the constant X with ``R_truth_i ≈ R_est_i X`` (closed form: the rotation
+    nearest to ``Σ R_est_iᵀ R_truth_i``) and the per-pair angles (deg) it leaves."""
+    est, ref = ev.rotation.est_rot_aligned, ev.paired.ref_rot
+    n = len(ref)
+    total = np.zeros((3, 3))
+    for rows in row_blocks(n):
+        total += np.einsum("nji,njk->ik", est[rows], ref[rows])
+    x = nearest_rotation(total)
+    left = np.empty(n)
+    for rows in row_blocks(n):
+        cos = (np.einsum("njk,njk->n", np.matmul(est[rows], x), ref[rows]) - 1.0) / 2.0
+        left[rows] = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return x, left
+
+
+def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
+    """The note naming a constant rotation between the truth's body frame and the estimate's, when the rotation
+    errors are implausible next to the translation errors, with the config key that applies it."""
+    rot, trans = ev.rotation.stats.get("rmse"), ev.translation.stats.get("rmse")
+    path = float(np.linalg.norm(np.diff(ev.paired.ref_pos, axis=0), axis=1).sum()) if len(ev.paired.ref_pos) else 0.0
+    if rot is None or trans is None or rot <= TRUTH_FRAME_ROTATION_DEG or trans >= TRUTH_FRAME_TRANSLATION * path:
+        return []
+    x, left = truth_body_rotation(ev)
+    q = rots_to_quats(x[None])[0]
+    q = q if q[3] >= 0 else -q
+    angle = float(np.degrees(2.0 * np.arctan2(np.linalg.norm(q[:3]), q[3])))
+    axis = q[:3] / (np.linalg.norm(q[:3]) or 1.0)
+    after = float(np.sqrt(np.mean(left**2)))
+    return [
+        f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
+        f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): the truth's body frame looks turned against the "
+        f"estimate's by a constant {angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
+        f"rotation APE would be {after:.2f} deg rmse; to apply it (evaluation only) set frames.truth_rotation: "
+        f"[{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
+    ]
 
 
 class ApeByAlignmentSection(Section):
@@ -203,6 +249,35 @@ class DriftSection(Section):
             "10–50 % of the truth path; independent of the rigid alignment, sensitive to scale"
         )
         self.result = out
+
+
+class SegmentErrorsSection(Section):
+    """rpg_trajectory_evaluation's relative error per sub-trajectory length (None with fewer than 3 pairs); the
+    error arrays per length stay in :attr:`arrays` for the box plots."""
+
+    METHOD = {
+        "segment_errors": (
+            "rpg_trajectory_evaluation (compute_relative_error) on the associated pairs: lengths L = 10, 20, 30, "
+            "40, 50 % of the truth path (truncated to cm); from every pair, the later pair whose truth path "
+            "distance is nearest to the start's + L, within 0.2 L; E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j) with the "
+            "estimate's relative translation times the alignment's scale (so SE(3) and 4-DoF give the same, "
+            "Sim(3) corrects the scale); translation ‖t_E‖ [m] and ‖t_E‖/L [%], rotation angle(R_E) [deg] and "
+            "per metre, yaw and gravity (roll-pitch) parts of E rotated into the world by the estimate's attitude "
+            "at j; a length with fewer than 2 segments has null errors"
+        )
+    }
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.arrays: dict[float, dict[str, np.ndarray]] = {}
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        p = ev.paired
+        if len(p) < 3:
+            return
+        path = accumulated_distances(np.asarray(ev.truth.position))[-1]  # rpg: the whole truth's path
+        out, self.arrays = segment_errors(p.ref_pos, p.ref_rot, p.est_pos, p.est_rot, path, ev.alignment.scale)
+        self.result = {**out, "alignment": ev.alignment.kind}
 
 
 class TimeOffsetSection(Section):
@@ -451,7 +526,10 @@ class ConvergenceSection(Section):
             "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
             "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
             "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
-            "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
+            "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
+            "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
+            "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m); "
+            "steady_error_m is the "
             "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
         )
     }
@@ -472,6 +550,10 @@ class ConvergenceSection(Section):
             "window_fraction": slam_metrics.WINDOW_FRACTION,
             "tail_fraction": slam_metrics.TAIL_FRACTION,
             "band_factor": slam_metrics.BAND_FACTOR,
+            "tail_level_m": c["tail_level"],
+            "earlier_level_m": c["earlier_level"],
+            "growth_factor": slam_metrics.GROWTH_FACTOR,
+            "growing": c["growing"],
             "estimate_start_ns": t0,
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,

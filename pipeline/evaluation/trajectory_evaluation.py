@@ -10,7 +10,7 @@ from functools import cached_property
 import numpy as np
 
 from slamobs.pipeline.evaluation import slam_metrics
-from slamobs.pipeline.evaluation.align import KINDS, Alignment
+from slamobs.pipeline.evaluation.align import KINDS, NAMES, Alignment, canonical
 from slamobs.pipeline.evaluation.sync import TimeOffset
 from slamobs.pipeline.evaluation.tables import (
     POSE_COLUMNS,
@@ -31,6 +31,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     checked_time_offset,
     synchronize,
 )
+from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
 CONVERGENCE_THRESHOLD_M = 0.1
@@ -58,10 +59,14 @@ class ReportOptions:
     drift_lengths_m: tuple[float, ...] | None = None
     bias_window_fraction: float = 0.2
     max_time_offset_s: float = 1.0
+    #: X (quaternion x, y, z, w) with R_truth = R_est X: the truth's body frame in the estimate's
+    #: (``frames.truth_rotation``); the truth's rotations are turned by Xᵀ before anything is compared
+    truth_rotation_xyzw: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        if self.align not in ALIGN_TYPES:
-            raise ValueError(f"align must be one of {ALIGN_TYPES}, got {self.align!r}")
+        if self.align not in NAMES:
+            raise ValueError(f"align must be one of {NAMES}, got {self.align!r}")
+        object.__setattr__(self, "align", canonical(self.align))  # rpg's "posyaw" is "yaw"
         if not (self.t_offset_s == "auto" or isinstance(self.t_offset_s, (int, float))):
             raise ValueError(f"t_offset_s must be seconds or 'auto', got {self.t_offset_s!r}")
         if self.t_max_diff_s < 0 or self.convergence_threshold_m <= 0 or self.rpe_delta_m <= 0:
@@ -144,6 +149,8 @@ def evaluate_trajectory(
     truth, _ = valid_truth(truth)
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
+    if options.truth_rotation_xyzw is not None:
+        truth = turned_truth(truth, options.truth_rotation_xyzw)
     est = estimate_stream(poses)
     truth_sorted = sorted_stream(truth)
     offset = None
@@ -318,6 +325,14 @@ def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
         np.asarray(truth.position)[ok],
         q[ok],
     ), int((~ok).sum())
+
+
+def turned_truth(truth: PoseStream, x_xyzw) -> PoseStream:
+    """The truth in the estimate's body convention: each rotation ``R_truth`` becomes ``R_truth Xᵀ`` (positions
+    unchanged), ``X`` the quaternion of ``frames.truth_rotation``."""
+    x = quat_to_rot(np.asarray(x_xyzw, dtype=np.float64))
+    turned = np.matmul(quats_to_rots(np.ascontiguousarray(truth.quat_xyzw, dtype=np.float64)), x.T)
+    return replace(truth, quat_xyzw=rots_to_quats(np.ascontiguousarray(turned)))
 
 
 def sorted_stream(stream: PoseStream) -> PoseStream:

@@ -338,6 +338,15 @@ def solve(
     return Solution(rot, pos, lms, bias, bias_cov, summary)
 
 
+def cost(problem: Problem, guess: Guess) -> float:
+    """The smoother's objective at ``guess``: every factor of ``problem`` (Huber-robust landmark factors, relative
+    motion, bias priors; the gauge prior sits at the guess's own anchor pose and adds nothing), as GTSAM sums it
+    (half the squared whitened residuals). Solutions from different seeds are compared by it."""
+    _, _, bias_keys = _keys(problem, guess)
+    graph, values = build(problem, guess)
+    return float(graph.error(values)) + _Motion(problem, bias_keys).error(guess.rot, guess.pos, guess.bias)
+
+
 def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Marginal covariances at the solution, from one undamped factorization: of the poses at ``keyframes``
     (K', 6, 6) and of every landmark (L, 3, 3), both in the map frame. GTSAM's pose marginal is that of the body
