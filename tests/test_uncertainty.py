@@ -148,13 +148,13 @@ def test_reference_estimators_write_positive_definite_covariances(runs, name):
     poses = pq.read_table(runs[name] / "poses.parquet")
     cov = _covariances(poses, POSE_COV, 6)
     sd = np.stack([poses.column(f"sigma_{a}").to_numpy() for a in ("rx", "ry", "rz", "x", "y", "z")], axis=1)
-    assert np.allclose(sd, np.sqrt(np.einsum("nii->ni", cov)), rtol=1e-6)
+    assert np.allclose(sd, np.sqrt(np.einsum("nii->ni", cov)), rtol=3e-5)  # both stored on 16 bits (schema float_bits)
     eig = np.linalg.eigvalsh(cov)[:, 0]
     assert np.mean(eig > 0) > 0.99 and eig.min() > -1e-12  # the gauge (start or anchor) is (nearly) zero
     lms = pq.read_table(runs[name] / "landmarks.parquet")
     lcov = _covariances(lms, LM_COV, 3)
     assert np.linalg.eigvalsh(lcov)[:, 0].min() > 0.0
-    assert np.allclose(lms.column("sigma").to_numpy(), np.sqrt(np.einsum("nii->n", lcov) / 3), rtol=1e-6)
+    assert np.allclose(lms.column("sigma").to_numpy(), np.sqrt(np.einsum("nii->n", lcov) / 3), rtol=3e-5)
 
 
 def test_observers_leave_the_uncertainty_columns_null(runs):
