@@ -166,3 +166,18 @@ def test_the_config_overrides_what_the_log_records(corners_log, tmp_path):
     half = pd.read_parquet(tmp_path / "half" / "tag_detections.parquet")
     own = pd.read_parquet(corners_log.with_name("own") / "tag_detections.parquet")
     assert len(half) == len(own) and not half.equals(own)
+
+
+def test_a_figure_that_fails_is_a_note_not_a_failed_run(log, tmp_path, monkeypatch):
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.run import run_log
+
+    def broken(*_args, **_kwargs):
+        raise ValueError("no room for the map")
+
+    monkeypatch.setattr(plots, "plot_map", broken)
+    summary = run_log(log[0], tmp_path / "out", load_config(log[1]))  # figures drawn in this process
+    assert "no figures: no room for the map" in summary.notes
+    assert summary.metadata["figures"] == [] and not list((tmp_path / "out").glob("*.png"))
+    assert (tmp_path / "out" / "poses.parquet").is_file()
