@@ -52,8 +52,10 @@ PLOT_MODES = ("xy", "xz", "yx", "yz", "zx", "zy", "xyz")
 @click.option(
     "--align-yaw",
     "--align_yaw",
+    "--align-posyaw",
+    "align_yaw",
     is_flag=True,
-    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)",
+    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity; rpg's posyaw)",
 )
 @click.option(
     "--n-to-align",
@@ -178,7 +180,8 @@ def evaluate(
     """Error of trajectory EST against TRUTH (APE by default; --metric rpe).
 
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
-    PoseStamped / Odometry topic of a ROS bag or MCAP. KITTI files without stamps are paired by index.
+    PoseStamped / Odometry topic of a ROS bag or MCAP (TRUTH also LOG:parent->child, a TF edge of the log). KITTI
+    files without stamps are paired by index.
     evo's own forms work too: `evaluate tum|kitti|euroc TRUTH EST` and `evaluate bag|bag2|mcap LOG TOPIC TOPIC`.
     """
     from slamobs.pipeline.errors import InputError
@@ -350,9 +353,10 @@ def _run(
         describe,
         rpe,
     )
+    from slamobs.pipeline.readers import read_truth
     from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
-    ref = read_trajectory(truth, truth_format)
+    ref = read_truth(truth, fmt=truth_format)  # the truth grammar of every command (LOG:parent->child too)
     est_t = read_trajectory(est, est_format)
     timed = ref.timed and est_t.timed
     method = "nearest" if sync_method == "nearest_time" else "interpolation"

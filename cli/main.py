@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import export_option, quiet_option
+from slamobs.cli.options import export_option, quiet_option, window_options
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -93,7 +93,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
@@ -104,30 +104,45 @@ def main() -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def run(
-    log: Path,
+    logs: tuple[Path, ...],
     out_dir: Path,
     observer: str | None,
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
-    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
+    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
+    from slamobs.pipeline.readers.container import recording_of
 
+    log = recording_of(logs)
     working_on(log, "a run of this log", run_memory_mb(log))
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
-    config = with_observer(load_config(config_path), observer)
+    config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
@@ -140,6 +155,8 @@ def run(
 
 
 def _print_summary(summary) -> None:
+    from slamobs.cli.listing import wrote_line
+
     m = summary.metadata
     c = m["counts"]
     click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
@@ -170,9 +187,17 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
+        for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
+            click.echo(f"note         {note}")
+    elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
+        err = m["map_error"]["error_m"]
+        click.echo(
+            f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
+            "(map-only SE(3) alignment)"
+        )
     if m.get("figures"):
         click.echo(f"figures      {', '.join(m['figures'])} (report.md shows them)")
-    click.echo(f"wrote        {summary.out_dir}/")
+    click.echo(f"wrote        {wrote_line(summary.out_dir)}")
 
 
 @main.command()
@@ -187,6 +212,13 @@ def _print_summary(summary) -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def compare(
@@ -196,6 +228,9 @@ def compare(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -203,16 +238,17 @@ def compare(
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
+    from slamobs.cli.listing import wrote_line
 
     working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.errors import InputError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = load_config(config_path)
+    config = with_truth(load_config(config_path), truth).with_window(start, end)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:
@@ -226,8 +262,8 @@ def compare(
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        files = [n for n in ("comparison.parquet", "comparison.md", "overlay.png") if (out_dir / n).is_file()]
-        click.echo(f"wrote {out_dir}/ ({', '.join(files)}, one run directory per observer)")
+        runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
+        click.echo(f"wrote {wrote_line(out_dir, ('comparison.parquet', 'comparison.md', 'overlay.png'), runs)}")
     if (table["status"] != "ok").all():
         sys.exit(1)
 
@@ -272,12 +308,15 @@ def _add_commands() -> None:
     from slamobs.cli.batch_cmd import batch
     from slamobs.cli.evaluate_cmd import evaluate
     from slamobs.cli.export_cmd import export
+    from slamobs.cli.import_cmd import import_group
     from slamobs.cli.info_cmd import info
     from slamobs.cli.report_cmd import report
     from slamobs.cli.simulate_cmd import simulate
+    from slamobs.cli.stats_cmd import stats
     from slamobs.cli.tune_cmd import tune
+    from slamobs.cli.view_cmd import view
 
-    for command in (info, simulate, report, evaluate, export, batch, tune):
+    for command in (info, simulate, import_group, report, evaluate, export, batch, tune, stats, view):
         main.add_command(command)
 
 

@@ -55,8 +55,8 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option(
     "--truth",
     default=None,
-    help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
-    "file [default: the run's truth topic]",
+    help="a topic of the run's log, a TF edge parent->child, a TUM / EuRoC CSV / KITTI (with stamps) file, or "
+    "LOG:TOPIC of another log [default: the run's truth]",
 )
 @click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
 @click.option(
@@ -67,9 +67,9 @@ def _previous_options(run_dir: Path) -> dict:
 )
 @click.option(
     "--align",
-    type=click.Choice(ALIGNMENTS),
+    type=click.Choice(ALIGNMENTS + ("posyaw",)),
     default=None,
-    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)",
+    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw, rpg's posyaw)",
 )
 @click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m] (0.1)")
 @click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m] (1)")
@@ -115,8 +115,9 @@ def report(
     try:
         run = load_run(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
-        if base.get("drift_lengths_m") is not None:
-            base["drift_lengths_m"] = tuple(base["drift_lengths_m"])
+        for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+            if base.get(key) is not None:
+                base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
         options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):

@@ -52,6 +52,48 @@ def plot_jobs(
         error_plot_job(report["convergence"], ev),
         bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])),
         *landmark_plot_jobs(report["landmarks"]),
+        *segment_plot_jobs(segment_arrays(ev)),
+        *uncertainty_plot_jobs(report.get("uncertainty"), ev),
+    ]
+
+
+def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluation) -> list:
+    """The 3σ figure and the NEES figure when the estimate has a covariance (riekf, batch; none otherwise)."""
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation.sections import nees_values, nees_windows
+
+    u = ev.uncertainty
+    if section is None or u is None:
+        return []
+    t_s = (u.t_ns - int(ev.estimate.t_ns[0])) / 1e9
+    sigma = np.sqrt(np.clip(np.einsum("nii->ni", u.cov), 0.0, None))
+    keep = plots.envelope(len(t_s), np.abs(u.error) - 3.0 * sigma)
+    label = ALIGN_LABELS[ev.alignment.kind]
+    nees = {}
+    for part, sl in (("position", slice(3, 6)), ("attitude", slice(0, 3))):
+        mid, mean, counts = nees_windows(nees_values(u.error[:, sl], u.cov[:, sl, sl]), t_s - t_s[0])
+        nees[part] = (mid + t_s[0], mean, counts)
+    return [
+        (
+            "plot_sigma_bounds",
+            "uncertainty.png",
+            dict(
+                t_s=t_s[keep],
+                error=u.error[keep],
+                sigma=sigma[keep],
+                title=f"Error and ±3σ of the estimate's covariance after {label} alignment (truth frame)",
+            ),
+        ),
+        (
+            "plot_nees",
+            "nees.png",
+            dict(
+                position=nees["position"],
+                attitude=nees["attitude"],
+                mean={k: section[k]["mean"] for k in ("position", "attitude")},
+                window_s=section["window_s"],
+            ),
+        ),
     ]
 
 
@@ -107,6 +149,37 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             level=((level_t - t0) / 1e9, level),
         ),
     )
+
+
+#: the box plots of the segment errors (rpg_trajectory_evaluation's relative error per sub-trajectory length)
+SEGMENT_PLOT = "segment_errors.png"
+
+
+def segment_arrays(ev: TrajectoryEvaluation) -> dict[float, dict[str, np.ndarray]]:
+    """The segment error arrays per length, as the report's segment_errors section computed them."""
+    from slamobs.pipeline.evaluation.sections import SegmentErrorsSection
+
+    section = SegmentErrorsSection()
+    section.process_data(ev)
+    return section.arrays
+
+
+def segment_plot_jobs(arrays: dict[float, dict[str, np.ndarray]]) -> list:
+    """The segment errors' box plots when some length has segments (none otherwise)."""
+    if not arrays:
+        return []
+    lengths = sorted(arrays)
+    return [
+        (
+            "plot_segment_errors",
+            SEGMENT_PLOT,
+            dict(
+                lengths_m=np.array(lengths),
+                translation_pct=[arrays[k]["translation_pct"] for k in lengths],
+                rotation_deg_per_m=[arrays[k]["rotation_deg_per_m"] for k in lengths],
+            ),
+        )
+    ]
 
 
 def landmark_plot_jobs(landmark_section: dict[str, Any]) -> list:

@@ -21,6 +21,7 @@ MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable an
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
 SCATTER_POINTS = 3000  # markers of a scatter
+MAX_LOG_GROUPS = 24  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -342,6 +343,143 @@ def plot_landmark_errors(
     ax.set_title("Landmark map error per id")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
+    return _save(fig, path)
+
+
+def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.ndarray, title: str = "") -> Path:
+    """Per axis the error and the ±3σ band of the estimator's covariance: attitude (δθ, degrees) on the left,
+    position (δp, m) on the right."""
+    fig, axes = _figure(3, 2, (11.0, 7.5), top=0.6)
+    parts = ((slice(0, 3), np.degrees(1.0), "deg", "δθ"), (slice(3, 6), 1.0, "m", "δp"))
+    for col, (sl, scale, unit, name) in enumerate(parts):
+        e, sd = error[:, sl] * scale, sigma[:, sl] * scale
+        for k in range(3):
+            ax = axes[k, col]
+            ax.fill_between(t_s, -3.0 * sd[:, k], 3.0 * sd[:, k], color="0.85", lw=0, label="±3σ")
+            ax.plot(t_s, e[:, k], color=COLORS[k], lw=0.8, label=f"{name} {AXES[k]}")
+            ax.set_ylabel(f"{name} {AXES[k]} [{unit}]")
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="upper right", fontsize=7)
+        axes[2, col].set_xlabel("time since estimate start [s]")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_nees(path: Path, position, attitude, mean: dict, window_s: float) -> Path:
+    """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds."""
+    from slamobs.pipeline.evaluation.metrics import nees_bounds
+
+    fig, axes = _figure(2, 1, (9.0, 6.5))
+    for ax, (t, nees, counts), part in ((axes[0, 0], position, "position"), (axes[1, 0], attitude, "attitude")):
+        if len(t):
+            bounds = {int(c): nees_bounds(3, int(c)) for c in np.unique(counts)}
+            ax.fill_between(
+                t,
+                [bounds[int(c)][0] for c in counts],
+                [bounds[int(c)][1] for c in counts],
+                color="0.85",
+                lw=0,
+                step="mid",
+                label="95 % bounds of a window's mean",
+            )
+            ax.plot(t, nees, color="tab:blue", lw=1.0, label=f"NEES, {window_s:g} s windows")
+            ax.axhline(3.0, color="k", ls=":", lw=1.0, label="expected (3)")
+            ax.set_yscale("log")
+        if mean.get(part) is not None:
+            ax.set_title(f"{part.capitalize()} NEES (3 DoF): mean {mean[part]:.3g} over the run")
+        ax.set_ylabel("NEES")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[1, 0].set_xlabel("time since estimate start [s]")
+    return _save(fig, path)
+
+
+def plot_segment_errors(
+    path: Path, lengths_m: np.ndarray, translation_pct: list[np.ndarray], rotation_deg_per_m: list[np.ndarray]
+) -> Path:
+    """Box plots of the relative error per sub-trajectory length (rpg_trajectory_evaluation's figure): translation
+    in % of the length and rotation in deg/m, one box per length (whiskers 1.5 IQR, outliers not drawn)."""
+    fig, axes = _figure(2, 1, (7.5, 6.5))
+    labels = [f"{x:g}" for x in lengths_m]
+    panels = (
+        (axes[0, 0], translation_pct, "translation error [%]", "tab:blue"),
+        (axes[1, 0], rotation_deg_per_m, "rotation error [deg/m]", "tab:purple"),
+    )
+    for ax, data, ylabel, color in panels:
+        ax.boxplot(
+            [np.asarray(d, dtype=np.float64) for d in data],
+            tick_labels=labels,
+            showfliers=False,
+            patch_artist=True,
+            boxprops=dict(facecolor=color, alpha=0.35),
+            medianprops=dict(color="black"),
+        )
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(bottom=0.0)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0, 0].set_title("Relative error per sub-trajectory length (segments of the truth path)")
+    axes[1, 0].set_xlabel("sub-trajectory length [m]")
+    return _save(fig, path)
+
+
+def _distribution(ax, groups: list[np.ndarray], positions: np.ndarray, kind: str, color, width: float) -> None:
+    """One box or violin per group at ``positions``; a group of one distinct value is a marker (a violin needs
+    a spread), an empty group nothing."""
+    spread = [k for k, g in enumerate(groups) if len(g) and np.ptp(g) > 0]
+    flat = [k for k, g in enumerate(groups) if len(g) and k not in spread]
+    if kind == "violin" and spread:
+        parts = ax.violinplot([groups[k] for k in spread], positions[spread], widths=width, showmedians=True)
+        for body in parts["bodies"]:
+            body.set_facecolor(color)
+            body.set_alpha(0.5)
+        for key in ("cmedians", "cmins", "cmaxes", "cbars"):
+            parts[key].set_color(color)
+    elif kind == "box" and spread:
+        box = ax.boxplot([groups[k] for k in spread], positions=positions[spread], widths=width, patch_artist=True)
+        for patch in box["boxes"]:
+            patch.set_facecolor(color)
+            patch.set_alpha(0.5)
+        for median in box["medians"]:
+            median.set_color("0.1")
+    if flat:
+        ax.plot(positions[flat], [groups[k][0] for k in flat], "o", color=color, ms=4)
+
+
+def plot_distributions(
+    path: Path,
+    values: dict[str, dict[str, np.ndarray]],
+    kind: str,
+    ylabel: str,
+    title: str,
+) -> Path:
+    """Box (``kind="box"``) or violin plots of a metric over runs: on top one per estimator over every log,
+    below one per log (the first ``MAX_LOG_GROUPS``) with an estimator's colour each. ``values[estimator][log]``
+    holds the runs' values."""
+    estimators = list(values)
+    every_log = list(dict.fromkeys(log for per in values.values() for log in per))
+    logs = every_log[:MAX_LOG_GROUPS]
+    fig, axes = _figure(2, 1, (max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))), 7.0), bottom=1.0, gap=0.8)
+    ax_e, ax_l = axes[0, 0], axes[1, 0]
+    colors = [f"C{k % 10}" for k in range(len(estimators))]
+    width = 0.8 / max(1, len(estimators))
+    for k, est in enumerate(estimators):
+        pooled = np.concatenate([v for v in values[est].values()] or [np.empty(0)])
+        _distribution(ax_e, [pooled], np.array([float(k)]), kind, colors[k], 0.6)
+        groups = [values[est].get(log, np.empty(0)) for log in logs]
+        at = np.arange(len(logs)) + (k - (len(estimators) - 1) / 2) * width
+        _distribution(ax_l, groups, at, kind, colors[k], width * 0.9)
+        ax_l.plot([], [], "s", color=colors[k], alpha=0.6, label=est)
+    ax_e.set_xticks(np.arange(len(estimators)), estimators)
+    ax_e.set_xlim(-0.6, len(estimators) - 0.4)
+    ax_e.set_title(f"{title}: per estimator, all logs")
+    ax_l.set_xticks(np.arange(len(logs)), logs, rotation=20, ha="right", fontsize=8)
+    ax_l.set_xlim(-0.6, len(logs) - 0.4)
+    shown = f"first {len(logs)} of {len(every_log)} logs" if len(logs) < len(every_log) else "per log"
+    ax_l.set_title(shown)
+    ax_l.legend(loc="best", fontsize=8)
+    for ax in (ax_e, ax_l):
+        ax.set_ylabel(ylabel)
+        ax.grid(True, axis="y", alpha=0.3)
     return _save(fig, path)
 
 

@@ -25,9 +25,12 @@ from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation.figure_jobs import (
     bias_plot_job,
     error_plot_job,
+    SEGMENT_PLOT,
     landmark_plot_jobs,
     plot_jobs,
+    segment_plot_jobs,
     top_view_job,
+    uncertainty_plot_jobs,
 )
 from slamobs.pipeline.evaluation.markdown import render_markdown
 from slamobs.pipeline.evaluation.sections import (
@@ -39,7 +42,9 @@ from slamobs.pipeline.evaluation.sections import (
     DriftSection,
     LandmarkSection,
     RpeSection,
+    SegmentErrorsSection,
     TimeOffsetSection,
+    UncertaintySection,
     alignment_dict,
 )
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
@@ -58,7 +63,7 @@ SCHEMA_VERSION = 1
 TRUTH_TUM = "truth_tum.txt"
 ESTIMATE_TUM = "estimate_tum.txt"
 EVO_ZIP = "ape_evo.zip"
-PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png")
+PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png", SEGMENT_PLOT, "uncertainty.png", "nees.png")
 #: the estimate moved into the truth's frame by the report's alignment (schemas/poses_aligned.json, ...)
 ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
 REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
@@ -164,23 +169,34 @@ def evaluate_tables(
         figures([error_plot_job(convergence.get_statistic(), ev)])
     time_offset = TimeOffsetSection(options)
     time_offset.unreliable_note(ev)
+    uncertainty = UncertaintySection()
+    uncertainty.process_data(ev)
+    if figures is not None:
+        figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
+    segments = SegmentErrorsSection()
     sections = {
         "ape": ApeSection(),
         "ape_by_alignment": by_alignment,
         "rpe": rpe,
         "drift": drift,
+        "segment_errors": segments,
         "time_offset": time_offset,
         "landmarks": landmark,
         "biases": biases,
         "convergence": convergence,
+        "uncertainty": uncertainty,
     }
-    for section in (sections["ape"], by_alignment, rpe, drift, time_offset):
+    for section in (sections["ape"], by_alignment, rpe, drift, segments, time_offset):
         section.process_data(ev)
+    if figures is not None:
+        figures(segment_plot_jobs(segments.arrays))
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    notes += landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes
+    notes += (
+        sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + uncertainty.notes
+    )
     report = {
         "schema_version": SCHEMA_VERSION,
         **{name: section.get_statistic() for name, section in sections.items()},
@@ -191,7 +207,11 @@ def evaluate_tables(
         "truth_source": {"kind": "stream", "name": truth.topic, "n_poses": len(truth)},
         "evo": _evo_commands(options, ev.applied_offset_s),
         "notes": notes,
-        "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items()},
+        "options": {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in asdict(options).items()
+            if v is not None or k != "truth_rotation_xyzw"  # only where set: reports without it stay as they were
+        },
         "method": _method(ev, options, sections.values()),
     }
     return report, ev
@@ -243,8 +263,9 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     opts["t_offset_s"] = report["method"]["association"]["t_offset_s"]
     opts["t_max_diff_s"] = report["method"]["association"]["t_max_diff_s"]
     opts["align"] = report["method"]["alignment"]["type"]
-    if opts.get("drift_lengths_m") is not None:
-        opts["drift_lengths_m"] = tuple(opts["drift_lengths_m"])
+    for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+        if opts.get(key) is not None:
+            opts[key] = tuple(opts[key])
     fields = set(ReportOptions.__dataclass_fields__)
     return ReportOptions(**{k: v for k, v in opts.items() if k in fields})
 

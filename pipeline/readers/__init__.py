@@ -35,16 +35,24 @@ from .decode import (
 )
 from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
 from .msgdefs import complete_definitions, require_types
-from .roles import IMAGE_TYPES, ODOMETRY, ROLES, TAG_CORNER_TYPES, TF_TYPES, accepted_types, select_roles, topics_of
+from .roles import (
+    IMAGE_TYPES,
+    ODOMETRY,
+    REQUIRED_ROLES,
+    ROLES,
+    TAG_CORNER_TYPES,
+    TF_TYPES,
+    accepted_types,
+    select_roles,
+    topics_of,
+)
 from .rows import Rows, TfRows
+from .trajectory_files import Trajectory, TruthSpec, parse_truth, read_trajectory
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from .decode import Cleaning
-
-#: Roles the observers cannot run without: a stream of them that held only NaN/Inf values is an error.
-REQUIRED_ROLES = ("angular_velocity", "linear_velocity", "detections")
 
 __all__ = [
     "ROLES",
@@ -56,7 +64,9 @@ __all__ = [
     "format_info",
     "inspect_log",
     "open_log",
+    "parse_truth",
     "read_log",
+    "read_truth",
 ]
 
 
@@ -103,8 +113,7 @@ def read_log(
     """
     path = Path(path)
     overrides = dict(topics or {})
-    if truth_file is not None:
-        overrides["truth"] = ""  # the file is the truth; no topic is read for it
+    truth_file = _outside_truth(overrides, truth_file)
     with open_log(path) as reader:
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
@@ -184,6 +193,19 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+def _outside_truth(overrides: dict, truth_file: str | Path | None) -> str | Path | None:
+    """The truth read apart from the log's topics: ``truth_file``, or ``overrides["truth"]`` naming a file or another
+    log's topic (the one truth grammar); the truth role is then left out of the log's roles."""
+    given = overrides.get("truth")
+    if truth_file is None and isinstance(given, str) and given:
+        spec = parse_truth(given)
+        if spec.kind == "file" or spec.log is not None:
+            truth_file = given
+    if truth_file is not None:
+        overrides["truth"] = ""  # the file is the truth; no topic is read for it
+    return truth_file
 
 
 def _check_clock_topics(path: Path, clocks, table: Mapping) -> None:
@@ -343,12 +365,44 @@ def _truth_from_tf(
     return truth
 
 
-def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
-    """Ground truth from a trajectory file; it must carry stamps to be matched to the log's clock."""
-    from .trajectory_files import read_trajectory  # lazy: only truth from a file needs the file parsers
+def read_truth(
+    source: str | Path,
+    log: str | Path | None = None,
+    *,
+    fmt: str | None = None,
+    times: str | Path | None = None,
+    clocks: Mapping[str, str] | None = None,
+) -> Trajectory:
+    """A truth given in the one grammar (``trajectory_files.parse_truth``): a file, ``LOG:TOPIC``,
+    ``LOG:parent->child``, or a topic or TF edge of ``log`` (the run's log; ``clocks`` its per-topic clocks).
 
-    traj = read_trajectory(source, fmt, kitti_times=times)
-    if traj.format not in ("tum", "euroc", "kitti"):
+    Raises:
+        InputError: The specification matches nothing, or what it names holds no poses.
+
+    """
+    spec = parse_truth(source) if fmt in (None, "topic") else TruthSpec("file", str(source))
+    if spec.kind == "file" or (spec.kind == "topic" and spec.log is not None):
+        return read_trajectory(source, fmt, kitti_times=times)
+    where = spec.log or log
+    if where is None:
+        raise InputError(source, f"a {'TF edge' if spec.kind == 'edge' else 'topic'} needs its log: give LOG:{source}")
+    keep = ("truth", "static_tf", "tf") if spec.kind == "edge" else ("truth",)
+    own = spec.log is None
+    streams = read_log(
+        where,
+        {**{r: None for r in ROLES if r not in keep}, "truth": spec.name},
+        clocks=(clocks or None) if own else None,
+    )
+    if streams.truth is None or len(streams.truth) == 0:
+        raise InputError(where, "no truth poses", spec.name)
+    return Trajectory(streams.truth, "tf_edge" if spec.kind == "edge" else "topic", str(source))
+
+
+def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
+    """Ground truth from a trajectory file or another log's topic; it must carry stamps to be matched to the log's
+    clock."""
+    traj = read_truth(source, fmt=fmt, times=times)
+    if traj.format not in ("tum", "euroc", "kitti", "topic", "tf_edge"):
         raise InputError(source, f"a {traj.format} trajectory is not a ground-truth file (TUM, EuRoC CSV or KITTI)")
     if not traj.timed:
         raise InputError(source, "KITTI poses carry no stamps: give the sequence's times.txt as truth_times")
