@@ -12,10 +12,11 @@ Detections: a landmark is static, so its detected position carried into a common
 dead reckoning must stay put. Over three consecutive detections of one landmark the middle one minus the
 linear interpolation of its neighbours (in time) cancels the landmark's position and any drift linear in
 time (the biases); what is left is detection noise and the small odometry noise of the short dead-reckoning
-between them (known from the velocity estimates). Its variance, ``Σ c_j² σ(r_j)² + odometry``, is fitted by
-variance-component estimation (Fisher scoring of the Gaussian likelihood, outliers beyond 4 σ dropped and the
-fit repeated until stable) for two laws of σ against range r: ``σ0 + k·r`` and ``b + a·r²``; the one with
-the higher likelihood is chosen. The uncertainty is a bootstrap over the triplets.
+between them (known from the velocity estimates and the time each velocity sample is held in the interval).
+Its variance, ``Σ c_j² σ(r_j)² + odometry``, is fitted by variance-component estimation (Fisher scoring of the
+Gaussian likelihood, outliers beyond 4 σ dropped and the fit repeated until stable) for two laws of σ against
+range r: ``σ0 + k·r`` and ``b + a·r²``; the one with the higher likelihood is chosen.
+The uncertainty is a bootstrap over the triplets.
 """
 
 from __future__ import annotations
