@@ -10,7 +10,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.options import SEED, AliasedOption, Finite, quiet_option
-from slamobs.cli.progress import compile_notice
+from slamobs.cli.progress import Progress, compile_notice
 
 #: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
 CONTAINERS = ("bag", "mcap", "ros2")
@@ -210,8 +210,9 @@ def simulate(
         mocap_rate=mocap_rate,
         camera=camera,
     )
-    with compile_notice(quiet=quiet):
-        path = write_log(sim, output, container, overwrite=force)
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        progress(f"simulate: writing {output}")
+        path = write_log(sim, output, container, overwrite=force, progress=progress)
     if quiet:
         return
     counts = ", ".join(f"{topic} {n}" for topic, n in sim.topic_counts().items())

@@ -257,6 +257,8 @@ class Simulation:
     start_ns: int = EPOCH_NS
     piece_s: float = PIECE_S
     camera: CameraSim = CameraSim()
+    #: Added to the detections' stamps (and record times): a detection stream off the velocity clock.
+    detection_offset_ns: int = 0
 
     @property
     def counts(self) -> dict[str, int]:
@@ -376,13 +378,15 @@ def simulation(
     mocap_rate: float = 100.0,
     start_ns: int = EPOCH_NS,
     camera: CameraSim | None = None,
+    detection_offset: float = 0.0,
 ) -> Simulation:
     """Every sensor stream of ``scenario`` (name or object) for ``duration`` seconds, to be generated.
 
     ``noise`` is ``True`` (default :class:`NoiseModel`), ``False`` (exact measurements, biases kept) or a
     custom model. ``detection_rate`` defaults to the scenario's. ``camera`` makes the camera report tag corners
     or images (with CameraInfo) instead of fiducial poses (:mod:`pipeline.simulate.camera`); without noise the
-    corners are exact and the images clean (no pixel noise, blur or JPEG).
+    corners are exact and the images clean (no pixel noise, blur or JPEG). ``detection_offset`` (seconds) is
+    added to the detections' stamps: they are seen at the true time but stamped off the velocity clock.
     """
     sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
     duration = sc.duration if duration is None else float(duration)
@@ -402,7 +406,8 @@ def simulation(
     cam = camera or CameraSim()
     if nm == NoiseModel.zero() and cam.output != "fiducials":
         cam = replace(cam, pixel_noise=0.0, image_noise=0.0, blur=0.0, jpeg_quality=None)
-    return Simulation(sc, duration, int(seed), nm, rates, start_ns, camera=cam)
+    offset_ns = int(round(detection_offset * 1e9))
+    return Simulation(sc, duration, int(seed), nm, rates, start_ns, camera=cam, detection_offset_ns=offset_ns)
 
 
 def simulate(scenario: Scenario | str, **kwargs) -> SimLog:
@@ -425,6 +430,9 @@ def _piece(
     mag = _mag(sc, rng, nm, *stamps("mag"), carry.rec["mag"])
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
     camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
+    if sim.detection_offset_ns:
+        off = sim.detection_offset_ns
+        detections = replace(detections, t_ns=detections.t_ns + off, rec_ns=detections.rec_ns + off)
     mocap = _mocap(sc, rng, *stamps("mocap"), carry.rec["mocap"])
     piece = SimLog(
         sc.name,
