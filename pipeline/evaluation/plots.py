@@ -21,7 +21,7 @@ MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable an
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
 SCATTER_POINTS = 3000  # markers of a scatter
-MAX_LOG_GROUPS = 24  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
+MAX_LOG_GROUPS = 12  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
 

@@ -19,7 +19,6 @@ import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, meta_dir, read_summary
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.run import headline_metrics
 from slamobs.pipeline.stored_runs import run_dir
 
 #: The metrics summarised, in table order: column -> label (lower is better for every one).
@@ -101,6 +100,8 @@ def _read_json(path: Path) -> dict:
 
 def read_run_dir(path: Path) -> dict:
     """One run directory (of ``slamobs run``, ``compare`` or a batch's ``runs/<id>``) as a runs-table row."""
+    from slamobs.pipeline.run import headline_metrics  # here: a batch dataset alone never imports the run path
+
     meta = _read_json(path / RUN_JSON)
     report = _read_json(path / REPORT_JSON) if (path / REPORT_JSON).is_file() else None
     observer = meta.get("observer")
