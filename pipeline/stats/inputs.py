@@ -10,7 +10,6 @@ numbers for the same run.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pandas as pd
@@ -86,24 +85,13 @@ def read_dataset(out: Path) -> pd.DataFrame:
     return frame.reindex(columns=RUN_COLUMNS).astype({m: "float64" for m in METRICS})
 
 
-def _read_json(path: Path) -> dict:
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as err:
-        raise InputError(path, f"cannot read: {err.strerror}") from None
-    except ValueError as err:
-        raise InputError(path, f"not valid JSON ({err})") from None
-    if not isinstance(doc, dict):
-        raise InputError(path, "not a JSON object")
-    return doc
-
-
 def read_run_dir(path: Path) -> dict:
     """One run directory (of ``slamobs run``, ``compare`` or a batch's ``runs/<id>``) as a runs-table row."""
+    from slamobs.pipeline.evaluation.run_dir import read_json
     from slamobs.pipeline.run import headline_metrics  # here: a batch dataset alone never imports the run path
 
-    meta = _read_json(path / RUN_JSON)
-    report = _read_json(path / REPORT_JSON) if (path / REPORT_JSON).is_file() else None
+    meta = read_json(path / RUN_JSON)
+    report = read_json(path / REPORT_JSON) if (path / REPORT_JSON).is_file() else None
     observer = meta.get("observer")
     name = observer.get("name") if isinstance(observer, dict) else observer
     log = (meta.get("input") or {}).get("path") if isinstance(meta.get("input"), dict) else None
