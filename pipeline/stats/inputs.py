@@ -42,7 +42,7 @@ REPORT_JSON = "report.json"
 
 def gather_runs(inputs: list[Path]) -> pd.DataFrame:
     """One row per run of every input (:data:`RUN_COLUMNS`); missing metrics are NaN, never zero."""
-    frames = [read_input(Path(p)) for p in inputs]
+    frames = [f for f in (read_input(Path(p)) for p in inputs) if len(f)]
     runs = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=RUN_COLUMNS)
     if runs.empty:
         raise InputError(inputs[0] if inputs else Path("."), "no runs found in the inputs")
@@ -79,6 +79,8 @@ def read_dataset(out: Path) -> pd.DataFrame:
             table = pq.read_table(out / SUMMARY, columns=[c for c in wanted if c in schema.names])
         except (pa.ArrowException, OSError) as err:
             raise InputError(out / SUMMARY, f"unreadable batch summary ({' '.join(str(err).split())})") from None
+    if table.num_rows == 0:
+        return pd.DataFrame(columns=RUN_COLUMNS)
     frame = table.select([c for c in wanted if c in table.column_names]).to_pandas()
     frame = frame.rename(columns={"observer": "estimator", RUN_TIME_STAGE: "run_time_s"})
     frame["source"] = [str(run_dir(out.resolve(), rid)) for rid in frame["run_id"]]
