@@ -24,9 +24,7 @@ MAX_LINES = 80
 KERNEL_DECORATORS = {"njit", "jit", "vectorize", "guvectorize", "cfunc"}
 
 #: "path::qualified name" -> why it may be longer for now. Remove the entry when its split lands.
-ALLOWED = {
-    "pipeline/readers/mcap.py::McapStorage._scan": "the MCAP scan is still one walk over the records (issue 24, open)",
-}
+ALLOWED: dict[str, str] = {}
 
 
 def _is_kernel(fn: ast.FunctionDef | ast.AsyncFunctionDef) -> bool:

@@ -1,6 +1,6 @@
 """The documentation matches the tree: every section reference points at a section of docs/observers.md that
-exists, section numbers there are unique, nothing cites a document outside the repository, and the README's
-module map lists exactly the modules there are."""
+exists, section numbers there are unique, nothing cites a document outside the repository, and the module map
+of docs/development.md lists exactly the modules there are."""
 
 from __future__ import annotations
 
@@ -65,10 +65,11 @@ def test_no_references_to_documents_outside_the_repository():
     assert not found, "references to documents outside the repository:\n" + "\n".join(found)
 
 
-def test_readme_module_map_lists_exactly_the_modules():
-    """The README's module map names every module of the package once, and no module that does not exist."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    start = text.index("### Module map")
+def test_module_map_lists_exactly_the_modules():
+    """The module map (docs/development.md) names every module of the package once, and no module that does not
+    exist."""
+    text = (ROOT / "docs" / "development.md").read_text(encoding="utf-8")
+    start = text.index("## Module map")
     end = text.find("\n#", start + 1)
     rows = re.findall(r"^\| `([^`]+\.py)` \|", text[start : end if end > 0 else None], re.M)
     twice = [r for r, c in Counter(rows).items() if c > 1]
@@ -78,8 +79,8 @@ def test_readme_module_map_lists_exactly_the_modules():
         if p.relative_to(ROOT).parts[0] in ("pipeline", "cli", "schemas") or p == ROOT / "__init__.py"
     }
     assert not twice, f"listed more than once: {twice}"
-    assert not tree - set(rows), f"modules missing from the README's module map: {sorted(tree - set(rows))}"
-    assert not set(rows) - tree, f"the README's module map lists modules that do not exist: {sorted(set(rows) - tree)}"
+    assert not tree - set(rows), f"missing from the module map (docs/development.md): {sorted(tree - set(rows))}"
+    assert not set(rows) - tree, f"in the module map (docs/development.md), not the tree: {sorted(set(rows) - tree)}"
 
 
 #: A repository path named in prose: a top-level folder of the repository, then a file or folder name.

@@ -36,7 +36,7 @@ from slamobs.pipeline.evaluation.align import fit_alignment, yaw_fit
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_lengths
 from slamobs.pipeline.evaluation.evo_zip import load_result_zip, save_result_zip
 from slamobs.pipeline.evaluation import slam_metrics
-from slamobs.pipeline.evaluation.markdown import render_markdown
+from slamobs.pipeline.evaluation.markdown import convergence_line, render_markdown
 from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
 from slamobs.pipeline.evaluation.rpe import pairs_by_angle, pairs_by_frames, pairs_by_path, rpe_pairs
 from slamobs.pipeline.evaluation.sync import estimate_time_offset, interpolate_poses
@@ -380,6 +380,25 @@ def test_convergence_measures_the_observer_not_the_threshold(threshold):
     # 1 m decaying to a 0.05 m noise floor with time constant 1 s: within 1.5x the floor's level after ~3 s
     rep, _ = convergence(np.exp(-t_s) + 0.05 + rng.normal(0.0, 0.01, t_s.size))
     assert 2.0 < rep["convergence"]["t_since_start_s"] < 4.5
+
+
+def test_a_growing_error_is_not_converged():
+    """An error that drifts upward to the end was "converged" at its start under the band alone (the band is as
+    wide as its final level); it is not converged, and the report and the summary line say why. A bounded error
+    with the same final level converges."""
+    truth = make_truth()
+    t_s = (truth.t_ns - T0_NS) / 1e9
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.2 + 2.0 * (t_s / t_s[-1]) ** 2  # 0.2 m growing to 2.2 m
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["growing"] and conv["t_ns"] is None and conv["t_since_start_s"] is None
+    assert conv["tail_level_m"] > 1.5 * conv["earlier_level_m"]
+    assert convergence_line(conv).startswith("no: the error level keeps growing")
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 2.2 - 2.0 * np.exp(-t_s)  # bounded, levelling off at 2.2 m
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert not conv["growing"] and conv["t_since_start_s"] is not None
 
 
 def test_no_time_overlap_raises_with_both_spans():

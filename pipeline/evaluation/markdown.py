@@ -22,12 +22,24 @@ def convergence_definition(conv: dict[str, Any]) -> str:
 def convergence_line(conv: dict[str, Any]) -> str | None:
     """The convergence figure for a one-line summary: what stays within the band is the error *level* (a running
     median), not every error, which may still exceed the band now and then."""
-    if conv.get("t_since_start_s") is None:
+    if not conv:
         return None
+    if conv.get("t_since_start_s") is None:
+        return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")")
     return (
         f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
         f"within {conv['band_m']:.3g} m from then on)"
     )
+
+
+def _not_converged(conv: dict[str, Any]) -> str:
+    if conv.get("growing"):
+        tail = round(100 * conv["tail_fraction"])
+        return (
+            f"not converged (the error level keeps growing: a median of {conv['tail_level_m']:.3g} m over the last "
+            f"{tail} % of the log against {conv['earlier_level_m']:.3g} m over the {tail} % before)"
+        )
+    return "not converged (the last aligned position error is above the band)"
 
 
 def _fmt(v: Any, digits: int = 6) -> str:
@@ -60,7 +72,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     conv_txt = (
         f"{conv['t_since_start_s']:.3f} s after the estimate start"
         if conv["t_ns"] is not None
-        else "not converged (the last aligned position error is above the band)"
+        else _not_converged(conv)
     )
     lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
     if report["evo"].get("ape"):

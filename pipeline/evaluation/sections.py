@@ -451,7 +451,10 @@ class ConvergenceSection(Section):
             "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
             "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
             "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
-            "last crossed a fixed threshold; null if the last level is above the band; steady_error_m is the "
+            "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
+            "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
+            "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m); "
+            "steady_error_m is the "
             "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
         )
     }
@@ -472,6 +475,10 @@ class ConvergenceSection(Section):
             "window_fraction": slam_metrics.WINDOW_FRACTION,
             "tail_fraction": slam_metrics.TAIL_FRACTION,
             "band_factor": slam_metrics.BAND_FACTOR,
+            "tail_level_m": c["tail_level"],
+            "earlier_level_m": c["earlier_level"],
+            "growth_factor": slam_metrics.GROWTH_FACTOR,
+            "growing": c["growing"],
             "estimate_start_ns": t0,
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,

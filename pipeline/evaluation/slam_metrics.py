@@ -59,6 +59,8 @@ def window_stats(t_ns: np.ndarray, values, fraction: float) -> dict:
 WINDOW_FRACTION = 0.05
 TAIL_FRACTION = 0.2
 BAND_FACTOR = 1.5
+#: the error still grows when its median level over the last TAIL_FRACTION exceeds this times the stretch before
+GROWTH_FACTOR = 1.5
 #: The level is evaluated at this many evenly spaced times at most, each median over at most WINDOW_SAMPLES
 #: evenly strided errors of its window (a long log's pairs are not all needed for a level).
 LEVEL_POINTS = 2000
@@ -102,7 +104,10 @@ def convergence(
     threshold alone would report the last time noise crossed it, and an observer whose error varies along the
     path would never have "converged". Returns the band, the steady median error and level, the window in
     seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
-    level is above it). ``level`` is :func:`error_level` of these errors when already computed.
+    level is above it, or if the error still grows: its median level over the last ``TAIL_FRACTION`` above
+    ``GROWTH_FACTOR`` times that over the stretch before and above ``threshold``; a drifting estimate would
+    otherwise be "converged" at its start, inside a band as wide as its final error). ``level`` is
+    :func:`error_level` of these errors when already computed.
     """
     t = np.asarray(t_ns, dtype=np.int64)
     e = np.asarray(errors, dtype=np.float64)
@@ -111,12 +116,19 @@ def convergence(
     steady_level = float(np.max(level[grid >= cut]))
     band = max(float(threshold), BAND_FACTOR * steady_level)
     k = convergence_index(level, np.nextafter(band, np.inf))  # "within": level <= band
+    before = level[(grid >= cut - (t[-1] - cut)) & (grid < cut)]
+    earlier = float(np.median(before)) if before.size else None
+    tail_level = float(np.median(level[grid >= cut]))
+    growing = earlier is not None and tail_level > max(GROWTH_FACTOR * earlier, threshold)
     return {
         "band": band,
+        "earlier_level": earlier,
+        "tail_level": tail_level,
+        "growing": bool(growing),
         "steady_error": float(np.median(e[t >= cut])),
         "steady_level": steady_level,
         "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
-        "t_ns": None if k is None else int(grid[k]),
+        "t_ns": None if k is None or growing else int(grid[k]),
     }
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import struct
 from contextlib import suppress
+from dataclasses import dataclass, field
 from io import BytesIO
 from typing import TYPE_CHECKING, BinaryIO
 
@@ -101,6 +102,23 @@ def _sized(bio: BinaryIO, width: int) -> bytes:
     return data
 
 
+@dataclass
+class _Tally:
+    """What a scan of an MCAP file's data section has found so far."""
+
+    counts: dict[int, int] = field(default_factory=dict)  # channel id -> messages
+    count: int = 0
+    first: int = 2**63 - 1
+    last: int = 0
+    chunks: int = 0
+
+    def add(self, channels: list[int], found: list[int], lo: int, hi: int) -> None:
+        for cid, c in zip(channels, found, strict=True):
+            self.counts[cid] = self.counts.get(cid, 0) + c
+        self.count += sum(found)
+        self.first, self.last = min(self.first, lo), max(self.last, hi)
+
+
 class McapStorage(Chunked, McapReader):
     """rosbags' MCAP reader with chunk-wise reading, and a scan when the summary is missing or damaged; with a
     usable summary a damaged chunk is skipped and counted."""
@@ -188,8 +206,8 @@ class McapStorage(Chunked, McapReader):
         bio = self.bio
         assert bio
         pos = self.data_start
-        counts: dict[int, int] = {}
-        count, first, last, nchunks, where = 0, None, None, 0, "end of file"
+        tally = _Tally()
+        where = "end of file"
         run: list[int] = []  # top-level messages (unchunked files): [start, end, t0, t1, channel ids...]
         while pos < size:
             bio.seek(pos)
@@ -200,67 +218,15 @@ class McapStorage(Chunked, McapReader):
             op, length = struct.unpack("<BQ", head)
             cut = pos + 9 + length > size
             if op == 0x06:
-                fixed = bio.read(28)
-                comp_len = bio.read(4)
-                if len(fixed) < 28 or len(comp_len) < 4:
-                    where = "inside a chunk header"
-                    break
-                t0, t1, raw_size, _ = struct.unpack("<QQQI", fixed)
-                compression = bio.read(int.from_bytes(comp_len, "little")).decode(errors="replace")
-                packed = bio.read(8)
-                if len(packed) < 8:
-                    where = "inside a chunk header"
-                    break
-                data_pos = bio.tell()
-                avail = min(int.from_bytes(packed, "little"), size - data_pos)
-                unit = Unit(data_pos, avail, compression, raw_size, t0, t1, frozenset(), pos + 33, partial=cut)
-                try:
-                    data = read_unit(bio, unit)
-                except (DamagedError, RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
-                    if machine_failure(err):
-                        raise
-                    where = f"unreadable chunk: {one_line(err).rstrip('.')}"
-                    break
-                recs = records(_mcap_walk, data)
-                for k in np.flatnonzero((recs.op == 0x03) | (recs.op == 0x04)):
-                    d0 = int(recs.dpos[k])
-                    with suppress(Ros2ReaderError, struct.error, UnicodeDecodeError):
-                        self._add_schema_or_channel(int(recs.op[k]), data[d0 : d0 + int(recs.dlen[k])].tobytes())
-                msgs = recs.op == MESSAGE_MCAP
-                if msgs.any():
-                    ids, found = np.unique(recs.conn[msgs], return_counts=True)
-                    for cid, c in zip(ids.tolist(), found.tolist(), strict=True):
-                        counts[cid] = counts.get(cid, 0) + c
-                    t = recs.t_ns[msgs]
-                    lo, hi = int(t.min()), int(t.max())
-                    self.units.append(
-                        Unit(
-                            data_pos,
-                            avail,
-                            compression,
-                            raw_size,
-                            lo,
-                            hi,
-                            frozenset(ids.tolist()),
-                            pos + 33,
-                            cut,
-                            recovered=True,
-                        ),
-                    )
-                    count += int(msgs.sum())
-                    first = lo if first is None else min(first, lo)
-                    last = hi if last is None else max(last, hi)
-                    nchunks += 1
-                if cut or recs.status != CLEAN:
-                    pos = size if cut else pos
-                    where = "inside a chunk" if cut else "at damaged records inside a chunk"
+                stop = self._scan_chunk(pos, size, cut, tally)
+                if stop is not None:
+                    pos, where = (size if cut else pos), stop
                     break
             elif cut:
                 where = "inside a record"
                 break
             elif op == MESSAGE_MCAP:
-                body = bio.read(22)
-                channel, _, log_time, _ = struct.unpack("<HIQQ", body)
+                channel, _, log_time, _ = struct.unpack("<HIQQ", bio.read(22))
                 if run and run[1] == pos:
                     run[1] = pos + 9 + length
                     run[2], run[3] = min(run[2], log_time), max(run[3], log_time)
@@ -268,10 +234,7 @@ class McapStorage(Chunked, McapReader):
                     self._flush_run(run)
                     run = [pos, pos + 9 + length, log_time, log_time]
                 run.append(channel)
-                counts[channel] = counts.get(channel, 0) + 1
-                count += 1
-                first = log_time if first is None else min(first, log_time)
-                last = log_time if last is None else max(last, log_time)
+                tally.add([channel], [1], log_time, log_time)
             elif op in {0x03, 0x04}:
                 with suppress(Ros2ReaderError, struct.error, UnicodeDecodeError):
                     self._add_schema_or_channel(op, bio.read(length))
@@ -280,30 +243,70 @@ class McapStorage(Chunked, McapReader):
                 break
             pos += 9 + length
         self._flush_run(run)
+        self._scanned(tally)
+        if why is not None and not tally.count:
+            msg = f"{why}, and no complete message before byte {min(pos, size)} ({where})"
+            raise Ros2ReaderError(msg)
+        if why is not None:
+            span = (tally.first, tally.last) if tally.count else None
+            self.damage = damage_note("MCAP file", why, tally.count, span, min(pos, size), size, where)
+
+    def _scan_chunk(self, pos: int, size: int, cut: bool, tally: _Tally) -> str | None:
+        """The chunk record at ``pos`` (its op and length read): its schemas and channels kept, its messages a
+        unit; where the scan stops (a damaged or cut chunk), None to go on."""
+        bio = self.bio
+        assert bio
+        fixed = bio.read(28)
+        comp_len = bio.read(4)
+        if len(fixed) < 28 or len(comp_len) < 4:
+            return "inside a chunk header"
+        t0, t1, raw_size, _ = struct.unpack("<QQQI", fixed)
+        compression = bio.read(int.from_bytes(comp_len, "little")).decode(errors="replace")
+        packed = bio.read(8)
+        if len(packed) < 8:
+            return "inside a chunk header"
+        data_pos = bio.tell()
+        avail = min(int.from_bytes(packed, "little"), size - data_pos)
+        unit = Unit(data_pos, avail, compression, raw_size, t0, t1, frozenset(), pos + 33, partial=cut)
+        try:
+            data = read_unit(bio, unit)
+        except (DamagedError, RuntimeError, OSError, ValueError, zstandard.ZstdError) as err:
+            if machine_failure(err):
+                raise
+            return f"unreadable chunk: {one_line(err).rstrip('.')}"
+        recs = records(_mcap_walk, data)
+        for k in np.flatnonzero((recs.op == 0x03) | (recs.op == 0x04)):
+            d0 = int(recs.dpos[k])
+            with suppress(Ros2ReaderError, struct.error, UnicodeDecodeError):
+                self._add_schema_or_channel(int(recs.op[k]), data[d0 : d0 + int(recs.dlen[k])].tobytes())
+        msgs = recs.op == MESSAGE_MCAP
+        if msgs.any():
+            ids, found = np.unique(recs.conn[msgs], return_counts=True)
+            t = recs.t_ns[msgs]
+            lo, hi = int(t.min()), int(t.max())
+            channels = frozenset(ids.tolist())
+            self.units.append(
+                Unit(data_pos, avail, compression, raw_size, lo, hi, channels, pos + 33, cut, recovered=True)
+            )
+            tally.add(ids.tolist(), found.tolist(), lo, hi)
+            tally.chunks += 1
+        if cut or recs.status != CLEAN:
+            return "inside a chunk" if cut else "at damaged records inside a chunk"
+        return None
+
+    def _scanned(self, tally: _Tally) -> None:
+        """Statistics, connections and metadata as the scan found them."""
+        count, first, last = tally.count, tally.first, tally.last
         self.statistics = Statistics(
-            count,
-            len(self.schemas),
-            len(self.channels),
-            0,
-            0,
-            nchunks,
-            first if first is not None else 2**63 - 1,
-            last if last is not None else 0,
-            counts,
+            count, len(self.schemas), len(self.channels), 0, 0, tally.chunks, first, last, tally.counts
         )
-        self.connections = [c._replace(msgcount=counts.get(c.id, 0)) for c in self.connections]
+        self.connections = [c._replace(msgcount=tally.counts.get(c.id, 0)) for c in self.connections]
         self.metadata = self.metadata._replace(
             duration=last - first + 1 if count else 0,
             start_time=first if count else 2**63 - 1,
             end_time=last + 1 if count else 0,
             message_count=count,
         )
-        if why is not None and not count:
-            msg = f"{why}, and no complete message before byte {min(pos, size)} ({where})"
-            raise Ros2ReaderError(msg)
-        if why is not None:
-            span = (first, last) if first is not None and last is not None else None
-            self.damage = damage_note("MCAP file", why, count, span, min(pos, size), size, where)
 
     def _flush_run(self, run: list[int]) -> None:
         if run:
