@@ -74,7 +74,8 @@ def _truth_alignment(run_dir: Path, meta: dict, poses, notes: list[str]):
         truth = resolve_truth(meta, None)
         return evaluate_trajectory(poses, truth.stream, options_for_run(meta), estimate_offset=False)
     except (InputError, ValueError) as err:
-        notes.append(f"{run_dir}: no truth shown ({' '.join(str(err).split())})")
+        log = (meta.get("input") or {}).get("path")
+        notes.append(f"{run_dir}: no truth shown (log {log}: {' '.join(str(err).split())})")
         return None
 
 
