@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, meta_dir, read_summary
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.stored_runs import run_dir
 
 #: The metrics summarised, in table order: column -> label (lower is better for every one).
@@ -79,7 +79,7 @@ def read_dataset(out: Path) -> pd.DataFrame:
             schema = pq.read_schema(out / SUMMARY)
             table = pq.read_table(out / SUMMARY, columns=[c for c in wanted if c in schema.names])
         except (pa.ArrowException, OSError) as err:
-            raise InputError(out / SUMMARY, f"unreadable batch summary ({' '.join(str(err).split())})") from None
+            raise InputError(out / SUMMARY, f"unreadable batch summary ({one_line(err)})") from None
     if table.num_rows == 0:
         return pd.DataFrame(columns=RUN_COLUMNS)
     frame = table.select([c for c in wanted if c in table.column_names]).to_pandas()
@@ -116,7 +116,7 @@ def read_comparison(path: Path) -> pd.DataFrame:
     try:
         table = pq.read_table(path / COMPARISON, columns=["observer", "status"]).to_pylist()
     except (pa.ArrowException, OSError) as err:
-        raise InputError(path / COMPARISON, f"unreadable comparison ({' '.join(str(err).split())})") from None
+        raise InputError(path / COMPARISON, f"unreadable comparison ({one_line(err)})") from None
     rows, log = [], None
     for row in table:
         if row["status"] == "ok":
