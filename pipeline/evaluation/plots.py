@@ -458,7 +458,8 @@ def plot_distributions(
     estimators = list(values)
     every_log = list(dict.fromkeys(log for per in values.values() for log in per))
     logs = every_log[:MAX_LOG_GROUPS]
-    fig, axes = _figure(2, 1, (max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))), 7.0), bottom=1.0, gap=0.8)
+    width = min(16.0, max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))))  # half an inch a group, capped
+    fig, axes = _figure(2, 1, (width, 7.0), bottom=1.0, gap=0.8)
     ax_e, ax_l = axes[0, 0], axes[1, 0]
     colors = [f"C{k % 10}" for k in range(len(estimators))]
     width = 0.8 / max(1, len(estimators))
