@@ -36,6 +36,7 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
+from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 
@@ -209,11 +210,35 @@ def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
         notes.append(f"{topic}: {n} samples outside the /tf span use the nearest transform")
 
 
-def _require(streams: LogStreams, name: str, what: str):
-    stream = getattr(streams, name)
-    if stream is None or len(stream) == 0:
-        raise InputError(streams.path, f"no {what} found ({name}); set topics.{name} in the config")
-    return stream
+def check_required(streams: LogStreams, directions: int = 0) -> None:
+    """Every role an estimator needs has samples (tag corners count as detections), and ``directions`` of the
+    direction roles (accelerometer, magnetic field) for an estimator that needs them; else one error naming every
+    missing role, each with what would give it.
+
+    Raises:
+        InputError: One or more required roles missing; ``details`` holds one line per role.
+
+    """
+    missing = [
+        role
+        for role in REQUIRED_ROLES
+        if not _has_samples(getattr(streams, role)) and not (role == "detections" and streams.tag_corners)
+    ]
+    absent = [role for role in DIRECTION_ROLES if not _has_samples(getattr(streams, role))]
+    lacking = absent[: max(0, directions - (len(DIRECTION_ROLES) - len(absent)))]
+    if missing or lacking:
+        needed = len(REQUIRED_ROLES) + (directions if lacking else 0)
+        roles = missing + lacking
+        raise InputError(
+            streams.path,
+            f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
+            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
+            details=tuple(f"{role} ({ROLE_PURPOSE[role]}): {'; '.join(how_to_satisfy(role))}" for role in roles),
+        )
+
+
+def _has_samples(stream) -> bool:
+    return stream is not None and len(stream) > 0
 
 
 def _sorted(t: np.ndarray, *arrays: np.ndarray):
@@ -291,9 +316,10 @@ def align(
     plausibility gates and ``max_gap`` (default ``DEFAULT_LIMITS``; a None entry switches one off).
     """
     lim = {**DEFAULT_LIMITS, **(limits or {})}
-    om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
-    lv: Vec3Stream = _require(streams, "linear_velocity", "body linear velocity (nav_msgs/Odometry or TwistStamped)")
-    det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
+    check_required(streams)
+    om: Vec3Stream = streams.angular_velocity
+    lv: Vec3Stream = streams.linear_velocity
+    det: DetectionStream = streams.detections
     body = body_frame_name(lv, body_frame)
     ident = {f.lstrip("/") for f in identity_frames}
     override = frozenset(f.lstrip("/") for f in override_identity)

@@ -52,6 +52,8 @@ class FramesConfig:
     override_identity: tuple[str, ...] = ()
     tag_pattern: str | None = None
     marker_namespace: str | None = None
+    #: quaternion (x, y, z, w) of the truth's body frame in the estimate's: applied to the truth in evaluation only
+    truth_rotation: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -197,7 +199,12 @@ class RunConfig:
             "truth_format": ev.truth_format,
             "truth_times": ev.truth_times,
             "clocks": clocks,
-            "images": ImageSearch(tags.family, dict(tags.detector) or None, tags.max_rate_hz),
+            "images": ImageSearch(
+                tags.family,
+                dict(tags.detector) or None,
+                tags.max_rate_hz,
+                recorded_family=tags.family == TagsConfig.__dataclass_fields__["family"].default,
+            ),
         }
 
     @property
@@ -252,6 +259,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     frame = data.get("output", {}).get("frame")
     if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
         raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
+    if sum(q * q for q in data.get("frames", {}).get("truth_rotation") or (1.0,)) < 1e-18:
+        raise InputError(source, "invalid config at frames.truth_rotation: a zero quaternion is no rotation")
     limits = {**DEFAULT_LIMITS, **data.get("limits", {})}
     lo, hi = limits.get("min_range"), limits.get("max_range")
     if lo is not None and hi is not None and lo >= hi:  # every detection would be dropped
@@ -371,6 +380,21 @@ def with_observer(config: RunConfig, name: str | None, option: str = "--observer
     return replace(config, observer=name)
 
 
+def with_truth(config: RunConfig, truth: str | None) -> RunConfig:
+    """``config`` with its truth given in the one grammar (``readers.parse_truth``; None: unchanged): a topic or
+    TF edge of the log becomes ``topics.truth``, a trajectory file or another log's ``LOG:TOPIC``
+    ``evaluation.truth_file`` (read on its own stamps, and again by ``slamobs report``)."""
+    from slamobs.pipeline.readers import parse_truth
+
+    if not truth:
+        return config
+    spec = parse_truth(truth)
+    topics = {k: v for k, v in config.topics.items() if k != "truth"}
+    if spec.kind == "file" or spec.log is not None:
+        return replace(config, topics=topics).with_section("evaluation", truth_file=str(truth))
+    return replace(config, topics={**topics, "truth": spec.name}).with_section("evaluation", truth_file=None)
+
+
 def _check_vectors(config: RunConfig, source: str) -> None:
     g, m = np.asarray(config.directions.gravity, float), np.asarray(config.directions.magnetic_field, float)
     for key, v, (lo, hi), unit, example in (
@@ -404,6 +428,18 @@ def export_kinds(kinds) -> tuple[str, ...]:
     return tuple(k for k in EXPORTS if k in wanted)
 
 
+def _beside(truth: str | None, folder: Path) -> str | None:
+    """A truth specification whose file, or whose log in ``LOG:TOPIC``, is relative to ``folder`` (the config's),
+    made absolute; topics and TF edges as they are."""
+    if not truth:
+        return truth
+    head, sep, tail = truth.partition(":")
+    name = head if sep else truth
+    if Path(name).is_absolute() or not (folder / name).exists():
+        return truth
+    return str((folder / name).resolve()) + sep + tail
+
+
 def load_config(path: Path | None) -> RunConfig:
     """Read ``run.yaml`` (or defaults when ``path`` is None)."""
     if path is None:
@@ -422,12 +458,22 @@ def load_config(path: Path | None) -> RunConfig:
         return v if v is None or Path(v).is_absolute() else str((path.parent / v).resolve())
 
     ev = config.evaluation
-    return replace(
+    config = replace(
         config,
         msg_dir=resolve(config.msg_dir),
         cameras=tuple(resolve(v) for v in config.cameras),
         evaluation=replace(
-            ev, truth_file=resolve(ev.truth_file), truth_times=resolve(ev.truth_times), map_truth=resolve(ev.map_truth)
+            ev,
+            truth_file=_beside(ev.truth_file, path.parent) if ":" in (ev.truth_file or "") else resolve(ev.truth_file),
+            truth_times=resolve(ev.truth_times),
+            map_truth=resolve(ev.map_truth),
         ),
         map=replace(config.map, file=resolve(config.map.file)),
     )
+    truth = config.topics.get("truth")  # a truth file or LOG:TOPIC here is relative to the config file too
+    if not isinstance(truth, str) or not truth:
+        return config
+    from slamobs.pipeline.readers import parse_truth
+
+    truth = _beside(truth, path.parent)
+    return with_truth(config, truth) if parse_truth(truth).kind == "file" or ":" in truth else config

@@ -241,10 +241,38 @@ def render_markdown(report: dict[str, Any]) -> str:
     lines += _md_trajectory(report)
     lines += _md_landmarks(report["landmarks"])
     lines += _md_biases(report["biases"])
+    if report.get("uncertainty"):
+        lines += _md_uncertainty(report["uncertainty"])
     if report.get("notes"):
         lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
+    if report.get("figures"):
+        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in report["figures"]] + [""]
     lines += _md_method(report)
     return "\n".join(lines)
+
+
+def _md_uncertainty(u: dict[str, Any]) -> list[str]:
+    """The estimator's covariance against its error: NEES with its bounds, errors within 3σ."""
+    lines = [
+        "## Uncertainty (NEES)",
+        "",
+        f"Error (δθ, δp) in the {u['frame']}.",
+        "",
+        "| part | pairs | mean NEES | 95 % bounds of the mean | median | instants within χ²(3) bounds | "
+        f"{u['window_s']:g} s windows within bounds | within ±3σ (x, y, z) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for part in ("position", "attitude"):
+        r = u[part]
+        if not r["n"]:
+            lines.append(f"| {part} | 0 | | | | | | |")
+            continue
+        lines.append(
+            f"| {part} | {r['n']} | {_fmt(r['mean'], 4)} | {_fmt(r['bounds'][0], 4)} – {_fmt(r['bounds'][1], 4)} | "
+            f"{_fmt(r['median'], 4)} | {_fmt(r['share_instants_within'], 3)} | {_fmt(r['share_windows_within'], 3)} | "
+            f"{_vec_str(r['within_3sigma'])} |"
+        )
+    return lines + [""]
 
 
 def _md_method(report: dict[str, Any]) -> list[str]:
@@ -281,5 +309,8 @@ def _md_method(report: dict[str, Any]) -> list[str]:
     ]
     if report["landmarks"].get("map_aligned"):
         lines.append(f"| map-only alignment | {report['landmarks']['map_aligned']['method']} |")
-    lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |", ""]
+    lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |"]
+    if report.get("uncertainty"):
+        lines.append(f"| uncertainty | {m['uncertainty']} |")
+    lines.append("")
     return lines
