@@ -10,6 +10,7 @@ import click
 
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.listing import wrote_line
 from slamobs.cli.options import SEED, Finite
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
@@ -193,7 +194,5 @@ def tune(
             f"tune never saw (median {held['median_defaults']:.4g} -> {held['median_tuned']:.4g} {unit})"
             + ("" if 2 * held["tuned_better"] > held["logs"] else ": they do not transfer, keep the defaults")
         )
-    click.echo(
-        f"wrote        {out_dir}/ (gains.yaml, trials.parquet, objective.png, tune.md, tune.json); "
-        f"{result.ran} trials run now"
-    )
+    files = ("gains.yaml", "trials.parquet", "objective.png", "tune.md", "tune.json")
+    click.echo(f"wrote        {wrote_line(out_dir, files)}; {result.ran} trials run now")

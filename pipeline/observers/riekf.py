@@ -23,10 +23,23 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   ``Σ_PP + N``. Landmarks out of view stay in the state with their estimate and covariance; as in every
   EKF, an update moves them only through their correlation with what was measured.
 
-Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
-covariances, else defaults). The start pose defines the map frame (the problem's gauge, docs/observers.md §1.1): its
-covariance is zero; the biases start at zero with the prior standard deviations ``noise.gyro_bias`` and
-``noise.velocity_bias`` (an unknown start, not a guess), and drift as slow random walks.
+* Recovery (the filter never loses a log silently): the detections of known landmarks are counted in windows of
+  ``WINDOW``; when more than ``RECOVER_SHARE`` of a window fail the gate, the noise model does not fit the log
+  (or the estimate is lost). The filter re-estimates a variance factor from the window's innovations (median
+  Mahalanobis distance² over the χ² median, at least ``MIN_STEP``) and applies it: at the first failing window
+  to the detection variances (the detections are noisier than assumed); at a second one in a row to every
+  noise variance and the covariance (for a linear filter a common factor keeps the gain and makes the gate
+  consistent again: the estimate may be lost); from a third one on the landmarks that failed the gate are
+  also re-initialised (at their next detection, like a new one). The filter gives up (status ``lost``, an
+  ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
+  would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
+  On a log where no window fails, none of this changes a number.
+
+Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
+message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
+problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
+standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess), and drift
+as slow random walks.
 """
 
 from __future__ import annotations
@@ -36,9 +49,10 @@ import math
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
+from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
+from slamobs.pipeline.observers.time_offset import note as time_offset_note
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -50,11 +64,33 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT = 0, 1, 2
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE = 0, 1, 2, 3, 4, 5
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
 _NSEEN, _GATED, _UPDATES, _SKIPPED = 7, 8, 9, 10
+#: The recovery's slots (module docstring, "Recovery"): detections tested and gated in the current window,
+#: recoveries made, consecutive failing windows, landmarks re-initialised, and whether the filter gave up.
+_WIN_N, _WIN_GATED, _RECOVERIES, _FAILING, _REINIT, _LOST = 11, 12, 13, 14, 15, 16
+N_SLOTS = 17
+#: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
+#: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
+#: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
+#: detection range) beyond which the detections carry no information.
+WINDOW = 50
+RECOVER_SHARE = 0.5
+CHI2_MEDIAN_3 = 2.366
+MIN_STEP, MAX_STEP = 4.0, 1e4
+MAX_FAILING = 4
+MAX_SIGMA_SHARE = 0.25
+#: What a recovery did, by failing windows in a row (1, 2, 3 and more).
+RECOVERY_ACTIONS = {
+    1: "the detection variances",
+    2: "every noise variance and the covariance",
+    3: "every noise variance and the covariance, re-initialising the landmarks that failed,",
+}
+#: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
+MAX_LOG = 64
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
@@ -198,6 +234,57 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
 
 
 @njit(cache=True)
+def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
+    """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
+    copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
+    filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
+    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order."""
+    c = cov[:N_FIXED, :N_FIXED].copy()
+    for k in range(3):
+        c[6 + k, 6 + k] += q_bw * q_bw * acc_dt
+        c[9 + k, 9 + k] += q_bv * q_bv * acc_dt
+    f = np.zeros((6, 6))  # rows ξ_R, ξ_P; columns b̃_Ω, b̃_V
+    for a in range(3):
+        for b in range(3):
+            f[a, b] = acc[_SR, a, b]
+            f[3 + a, b] = acc[_SPR, a, b]
+            f[3 + a, 3 + b] = acc[_SR, a, b]
+    g = np.zeros((6, 6))  # F Σ_b,pose and F Σ_bb
+    gb = np.zeros((6, 6))
+    for i in range(6):
+        for k in range(6):
+            for e in range(6):
+                g[i, k] += f[i, e] * c[6 + e, k]
+                gb[i, k] += f[i, e] * c[6 + e, 6 + k]
+    s = c[:6, :6].copy()
+    for i in range(6):
+        for k in range(6):
+            v = g[i, k] + g[k, i]
+            for e in range(6):
+                v += gb[i, e] * f[k, e]
+            s[i, k] += v
+    for a in range(3):
+        for b in range(3):
+            s[a, b] += acc[_QRR, a, b]
+            s[3 + a, 3 + b] += acc[_QPP, a, b]
+            s[3 + a, b] += acc[_QPR, a, b]
+            s[b, 3 + a] += acc[_QPR, a, b]
+    j = np.eye(6)
+    j[3:, :3] = -skew(p_hat)
+    t = np.zeros((6, 6))
+    for i in range(6):
+        for k in range(6):
+            for e in range(6):
+                t[i, k] += j[i, e] * s[e, k]
+    for i in range(6):
+        for k in range(6):
+            v = 0.0
+            for e in range(6):
+                v += t[i, e] * j[k, e]
+            out[i, k] = v
+
+
+@njit(cache=True)
 def _cholesky(s, m):
     """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
     for j in range(m):
@@ -288,9 +375,14 @@ def _update(
     row,
     ns,
     gate,
+    scale,
+    win_d2,
+    gated_lm,
+    reinit,
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
-    state, new ones are augmented. Returns the new state dimension."""
+    state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
+    is counted in the recovery's window. Returns the new state dimension."""
     m = 0
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -303,9 +395,23 @@ def _update(
         for c in range(3):
             innov[row + j, c] = e[c]
             trk_p[row + j, c] = lm[i, c]
+        if reinit[i]:
+            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+            for c in range(3):
+                lm[i, c] = lm[i, c] - e[c]
+                trk_p[row + j, c] = lm[i, c]
+            reinit[i] = False
+            ns[_REINIT] += 1
+            continue
         zi = -e
-        if _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j]) > gate:
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+        if ns[_WIN_N] < win_d2.shape[0]:
+            win_d2[ns[_WIN_N]] = d2
+        ns[_WIN_N] += 1
+        if d2 > gate:
             ns[_GATED] += 1
+            ns[_WIN_GATED] += 1
+            gated_lm[i] = True
             continue
         sel[m] = j
         for c in range(3):
@@ -322,7 +428,7 @@ def _update(
         # S = H PHᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            s2 = det_sigma2[a0 + sel[q]]
+            s2 = det_sigma2[a0 + sel[q]] * scale
             for c in range(3):
                 for k in range(k3):
                     smat[3 * q + c, k] = pht[3 + c, k] - pht[sl + c, k]
@@ -385,9 +491,58 @@ def _update(
         for a in range(3):
             for c in range(3):
                 cov[o + a, o + c] = cov[3 + a, 3 + c]
-            cov[o + a, o + a] += det_sigma2[a0 + j]
+            cov[o + a, o + a] += det_sigma2[a0 + j] * scale
         d += 3
     return d
+
+
+@njit(cache=True)
+def _reset_landmark(cov, d, o, sigma2):
+    """Landmark slot ``o`` re-initialised from the pose, as a new one is augmented: its rows copy ``P̂``'s and its
+    own block is ``Σ_PP + σ²I`` (its mean is set by the caller from the detection)."""
+    for c in range(3):
+        for k in range(d):
+            cov[o + c, k] = cov[3 + c, k]
+            cov[k, o + c] = cov[k, 3 + c]
+    for a in range(3):
+        for c in range(3):
+            cov[o + a, o + c] = cov[3 + a, 3 + c]
+        cov[o + a, o + a] += sigma2
+
+
+@njit(cache=True)
+def _window_check(t, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale):
+    """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
+    docstring, "Recovery"), or give up; the window starts again. True when a noise factor changed."""
+    n, gated = ns[_WIN_N], ns[_WIN_GATED]
+    ns[_WIN_N], ns[_WIN_GATED] = 0, 0
+    changed = False
+    if gated <= RECOVER_SHARE * n:
+        ns[_FAILING] = 0
+    elif ns[_LOST] == 0:
+        step = min(max(np.median(win_d2[: min(n, win_d2.shape[0])]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
+        if ns[_FAILING] >= MAX_FAILING or fs[_SCALE] * fs[_DSCALE] * step > max_scale:
+            ns[_LOST] = 1
+            fs[_LOST_T] = t
+        else:
+            ns[_FAILING] += 1
+            if ns[_FAILING] == 1:  # first: the detections are noisier than assumed
+                fs[_DSCALE] *= step
+            else:  # again: the whole noise model, and the covariance with it (the estimate may be lost)
+                fs[_SCALE] *= step
+                cov[:d, :d] *= step
+            if ns[_FAILING] >= 3:  # and again: the landmarks that failed start afresh
+                for i in range(gated_lm.shape[0]):
+                    if gated_lm[i] and slot_of[i] >= 0:
+                        reinit[i] = True
+            r = ns[_RECOVERIES]
+            if r < rec_log.shape[0]:
+                rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_SCALE] * fs[_DSCALE]
+                rec_log[r, 3] = min(ns[_FAILING], 3)
+            ns[_RECOVERIES] += 1
+            changed = True
+    gated_lm[:] = False
+    return changed
 
 
 @njit(cache=True, nogil=True)
@@ -406,6 +561,7 @@ def _advance(
     q_bw,
     q_bv,
     gate,
+    max_scale,
     out_every,
     iv_stop,
     budget,
@@ -428,6 +584,10 @@ def _advance(
     z,
     pht,
     smat,
+    win_d2,
+    gated_lm,
+    reinit,
+    rec_log,
     out_k,
     out_r,
     out_p,
@@ -436,11 +596,13 @@ def _advance(
     innov,
     det_base,
     cov_out,
+    pose_out,
 ):
     """The event loop from the state in the arrays until the next event is velocity sample ``iv_stop`` (all
     events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
     ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
-    (tests), else nothing."""
+    (tests), else nothing; ``pose_out`` (rows, 6, 6) the pose covariance in the written convention
+    (:func:`_pose_covariance`). The noise enters multiplied by the recovery's variance factor ``fs[_SCALE]``."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     t, acc_dt = fs[_T], fs[_ACC_DT]
@@ -452,6 +614,8 @@ def _advance(
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
+    scale, det_scale = fs[_SCALE], fs[_SCALE] * fs[_DSCALE]
+    qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
@@ -465,7 +629,7 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
-                _accumulate(h, r_hat, p_hat, q_om, q_v, acc)
+                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):
                     p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
@@ -481,7 +645,7 @@ def _advance(
             work += m
             t = t_next
         if is_frame:
-            _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+            _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
             acc_dt = 0.0
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
@@ -510,7 +674,17 @@ def _advance(
                 a0 - det_base,
                 ns,
                 gate,
+                det_scale,
+                win_d2,
+                gated_lm,
+                reinit,
             )
+            if ns[_WIN_N] >= WINDOW and _window_check(
+                t_next, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale
+            ):
+                scale, det_scale = fs[_SCALE], fs[_SCALE] * fs[_DSCALE]
+                qs_om, qs_v = q_om * scale, q_v * scale
+                qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
             fs[_MEAS_T] = t_next
             jf += 1
         else:
@@ -522,14 +696,15 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o])
                 if want_cov:
-                    _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
                     acc_dt = 0.0
                     cov_out[o] = cov[:N_FIXED, :N_FIXED]
                 o += 1
             iv += 1
     if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
-        _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g)
+        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
         acc_dt = 0.0
     fs[_T], fs[_ACC_DT] = t, acc_dt
     ns[_IV], ns[_JF], ns[_NSEEN], ns[_STARTED], ns[_STEPS] = iv, jf, (d - N_FIXED) // 3, 1 if started else 0, steps
@@ -541,8 +716,10 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=3)
-        self.ns = np.concatenate([self.ns, np.zeros(4, dtype=np.int64)])
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=6)
+        self.fs[_SCALE] = 1.0
+        self.fs[_DSCALE] = 1.0
+        self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
         self.cov = np.zeros((dim, dim))
         for c in range(6):
@@ -557,6 +734,10 @@ class _State(KernelState):
         self.z = np.zeros(k3)
         self.pht = np.zeros((dim, k3))
         self.smat = np.zeros((k3, k3))
+        self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
+        self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
+        self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
+        self.rec_log = np.zeros((MAX_LOG, 4))
 
     def arrays(self) -> tuple:
         return (
@@ -579,6 +760,10 @@ class _State(KernelState):
             self.z,
             self.pht,
             self.smat,
+            self.win_d2,
+            self.gated_lm,
+            self.reinit,
+            self.rec_log,
         )
 
 
@@ -588,18 +773,18 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
-def detection_variances(det_y: np.ndarray, detection: float, per_m: float) -> np.ndarray:
-    """Per-axis variance of each detection: ``(detection + per_m * range)²``."""
-    return (detection + per_m * np.linalg.norm(det_y, axis=1)) ** 2
-
-
 class RiEKF(Stepper):
     """The filter on an aligned stream, a stretch of samples at a time."""
+
+    keeps_covariance = True
 
     def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
         from slamobs.pipeline.errors import InputError
         from slamobs.pipeline.noise import resolve_noise
+        from slamobs.pipeline.observers import time_offset
 
+        self.time_offset = time_offset.estimate(stream)
+        stream = time_offset.shifted(stream, self.time_offset)
         super().__init__(stream, options)
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         n_lm = int(stream.landmark_ids.shape[0])
@@ -614,8 +799,9 @@ class RiEKF(Stepper):
         self.state = _State(
             n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
         )
-        self.det_sigma2 = detection_variances(stream.det_y, nz.detection, nz.detection_per_m)
-        self.params = (nz.gyro**2, nz.velocity**2, float(nz.gyro_bias_walk), float(nz.velocity_bias_walk), GATE_CHI2)
+        self.det_sigma2 = nz.detection_sigma(np.linalg.norm(stream.det_y, axis=1)) ** 2  # per-axis variances
+        walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
+        self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
 
@@ -625,7 +811,8 @@ class RiEKF(Stepper):
         when no frame allowed the re-anchoring and the pose is held from before the gap."""
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
-        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *self.params[2:4], st.f, st.g)
+        walks = np.sqrt(st.fs[_SCALE]) * np.array(self.params[2:4])
+        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.f, st.g)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
         moved = super()._relocalise(iv)
@@ -667,6 +854,7 @@ class RiEKF(Stepper):
             out.innov,
             out.det_base,
             cov_out,
+            out.cov,
         )
         ns = self.state.ns
         self.stats["substeps"] = int(ns[_STEPS])
@@ -680,12 +868,94 @@ class RiEKF(Stepper):
                 "gate_chi2": GATE_CHI2,
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
-            }
+                **self._recovery(),
+            },
+            "time_offset": self.time_offset,
         }
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
-        )
+        ) + recovery_notes(self.stats["metadata"]["filter"])
+        self.stats["notes"] += time_offset_note("riekf", self.time_offset)
         return rows
+
+    def landmark_covariance(self) -> np.ndarray:
+        """Each landmark's position covariance in the map frame: ``δp_i = ξ_i − [p̂_i]×ξ_R`` from the filter's
+        landmark and attitude blocks (NaN for landmarks not in the state yet)."""
+        st = self.state
+        out = np.full((self.lm.shape[0], 3, 3), np.nan)
+        seen = np.flatnonzero(st.slot_of >= 0)
+        rows = N_FIXED + 3 * st.slot_of[seen][:, None] + np.arange(3)
+        idx = np.concatenate([np.broadcast_to(np.arange(3), rows.shape), rows], axis=1)  # (n, 6): ξ_R, ξ_i
+        block = st.cov[idx[:, :, None], idx[:, None, :]]
+        j = np.zeros((seen.size, 3, 6))
+        j[:, :, 3:] = np.eye(3)
+        for n, i in enumerate(seen):
+            j[n, :, :3] = -skew(self.lm[i, :3])
+        out[seen] = np.einsum("nij,njk,nlk->nil", j, block, j)
+        return out
+
+    def _recovery(self) -> dict:
+        """The recovery's record for run.json: status (``converged``, ``recovered`` or ``lost``), each recovery
+        (log seconds, variance factor of the step and in total), landmarks re-initialised, when it gave up."""
+        ns, fs = self.state.ns, self.state.fs
+        n = int(ns[_RECOVERIES])
+        t0 = float(self.vel_t[0]) if self.vel_t.size else 0.0
+        log = [
+            {
+                "t_s": round(float(r[0]) - t0, 3),
+                "action": RECOVERY_ACTIONS[int(r[3])],
+                "factor": float(r[1]),
+                "detection_factor": float(r[2]),
+            }
+            for r in self.state.rec_log[: min(n, MAX_LOG)]
+        ]
+        status = "lost" if ns[_LOST] else "recovered" if n else "converged"
+        return {
+            "status": status,
+            "recoveries": n,
+            "recovery_log": log,
+            "noise_factor": float(fs[_SCALE]),
+            "detection_noise_factor": float(fs[_SCALE] * fs[_DSCALE]),
+            "landmarks_reinitialised": int(ns[_REINIT]),
+            "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
+        }
+
+
+def max_variance_factor(det_y: np.ndarray, noise) -> float:
+    """The largest variance factor a recovery may reach: the detection noise at the median range up to
+    ``MAX_SIGMA_SHARE`` of that range (module docstring, "Recovery"); unbounded without detections."""
+    if det_y.shape[0] == 0:
+        return np.inf
+    r = float(np.median(np.linalg.norm(det_y, axis=1)))
+    sigma = float(noise.detection_sigma(np.array([r]))[0])
+    return (MAX_SIGMA_SHARE * r / sigma) ** 2 if sigma > 0 else np.inf
+
+
+def recovery_notes(filt: dict) -> list[str]:
+    """What the recovery did, for the run's notes: one line per recovery (the first few), and an ``error:``
+    line when the filter gave up (its trajectory is not to be trusted after that time)."""
+    notes = []
+    for r in filt["recovery_log"][:5]:
+        notes.append(
+            f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
+            f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now "
+            f"x{np.sqrt(r['detection_factor']):.3g} in standard deviation)"
+        )
+    if filt["recoveries"] > 5:
+        notes.append(f"riekf: {filt['recoveries']} recoveries in all (run.json observer.filter.recovery_log)")
+    if filt["landmarks_reinitialised"]:
+        notes.append(
+            f"riekf: {filt['landmarks_reinitialised']} landmark(s) re-initialised from the pose after failing "
+            "the gate through two recoveries in a row"
+        )
+    if filt["status"] == "lost":
+        notes.append(
+            f"error: riekf: lost the log at {filt['lost_at_s']:.2f} s: most detections keep failing the gate "
+            f"after {filt['recoveries']} recoveries (detection noise factor {filt['detection_noise_factor']:.3g}); "
+            "the trajectory after that time is not an estimate (check the noise settings, the detections' "
+            "frames and the time stamps)"
+        )
+    return notes
 
 
 #: Share of the detections rejected by the gate above which the run says so (a few are outliers; most, a noise model

@@ -55,16 +55,21 @@ _TAG_SIZE_M = 0.16
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Standard deviations of the additive white noises (all zero when simulating without noise)."""
+    """Standard deviations of the additive white noises (all zero when simulating without noise).
 
-    gyro: float = 0.005  # rad/s
+    ``gyro`` and ``odom_linear`` are one value or one per axis (x, y, z); a detection's standard deviation per
+    component is ``detection_base + detection_per_m * r + detection_per_m2 * r²`` at range r (the stereo / PnP
+    law grows with r²)."""
+
+    gyro: float | tuple[float, float, float] = 0.005  # rad/s
     accel: float = 0.05  # m/s^2
-    odom_linear: float = 0.02  # m/s
+    odom_linear: float | tuple[float, float, float] = 0.02  # m/s
     odom_angular: float = 0.01  # rad/s
     mag: float = 2e-7  # Tesla
     detection_base: float = 0.01  # m, per component
     detection_per_m: float = 0.002  # m per m of range, per component
     tag_rotation: float = 0.01  # rad
+    detection_per_m2: float = 0.0  # m per m² of range, per component
 
     @classmethod
     def zero(cls) -> NoiseModel:
@@ -218,9 +223,10 @@ def _record_times(rng: np.random.Generator, t_ns: np.ndarray, after: int) -> np.
     return np.maximum.accumulate(rec)
 
 
-def _white(rng: np.random.Generator, sigma: float, shape: tuple[int, ...]) -> np.ndarray:
-    """Gaussian noise; still draws when ``sigma == 0`` so noisy and clean runs share one random stream."""
-    return sigma * rng.standard_normal(shape)
+def _white(rng: np.random.Generator, sigma, shape: tuple[int, ...]) -> np.ndarray:
+    """Gaussian noise (``sigma`` one value or one per last axis); still draws when ``sigma == 0`` so noisy and
+    clean runs share one random stream."""
+    return (sigma if np.isscalar(sigma) else np.asarray(sigma, dtype=float)) * rng.standard_normal(shape)
 
 
 #: Seconds of log simulated at a time: bounds memory for logs of any length; logs up to this long are one
@@ -251,6 +257,8 @@ class Simulation:
     start_ns: int = EPOCH_NS
     piece_s: float = PIECE_S
     camera: CameraSim = CameraSim()
+    #: Added to the detections' stamps (and record times): a detection stream off the velocity clock.
+    detection_offset_ns: int = 0
 
     @property
     def counts(self) -> dict[str, int]:
@@ -370,13 +378,15 @@ def simulation(
     mocap_rate: float = 100.0,
     start_ns: int = EPOCH_NS,
     camera: CameraSim | None = None,
+    detection_offset: float = 0.0,
 ) -> Simulation:
     """Every sensor stream of ``scenario`` (name or object) for ``duration`` seconds, to be generated.
 
     ``noise`` is ``True`` (default :class:`NoiseModel`), ``False`` (exact measurements, biases kept) or a
     custom model. ``detection_rate`` defaults to the scenario's. ``camera`` makes the camera report tag corners
     or images (with CameraInfo) instead of fiducial poses (:mod:`pipeline.simulate.camera`); without noise the
-    corners are exact and the images clean (no pixel noise, blur or JPEG).
+    corners are exact and the images clean (no pixel noise, blur or JPEG). ``detection_offset`` (seconds) is
+    added to the detections' stamps: they are seen at the true time but stamped off the velocity clock.
     """
     sc = get_scenario(scenario) if isinstance(scenario, str) else scenario
     duration = sc.duration if duration is None else float(duration)
@@ -396,7 +406,8 @@ def simulation(
     cam = camera or CameraSim()
     if nm == NoiseModel.zero() and cam.output != "fiducials":
         cam = replace(cam, pixel_noise=0.0, image_noise=0.0, blur=0.0, jpeg_quality=None)
-    return Simulation(sc, duration, int(seed), nm, rates, start_ns, camera=cam)
+    offset_ns = int(round(detection_offset * 1e9))
+    return Simulation(sc, duration, int(seed), nm, rates, start_ns, camera=cam, detection_offset_ns=offset_ns)
 
 
 def simulate(scenario: Scenario | str, **kwargs) -> SimLog:
@@ -419,6 +430,9 @@ def _piece(
     mag = _mag(sc, rng, nm, *stamps("mag"), carry.rec["mag"])
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
     camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
+    if sim.detection_offset_ns:
+        off = sim.detection_offset_ns
+        detections = replace(detections, t_ns=detections.t_ns + off, rec_ns=detections.rec_ns + off)
     mocap = _mocap(sc, rng, *stamps("mocap"), carry.rec["mocap"])
     piece = SimLog(
         sc.name,
@@ -554,6 +568,8 @@ def _detections(
     true_xyz = y_cam[frame_idx, lm_idx]
     rng_m = np.linalg.norm(true_xyz, axis=1)
     sigma = nm.detection_base + nm.detection_per_m * rng_m
+    if nm.detection_per_m2:
+        sigma = sigma + nm.detection_per_m2 * rng_m * rng_m
     xyz = true_xyz + sigma[:, None] * rng.standard_normal((m, 3))
 
     # Tag orientation in the camera frame: R_bc^T R^T R_tag, perturbed by a small rotation.

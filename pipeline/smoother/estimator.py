@@ -16,12 +16,15 @@ import numpy as np
 
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam]'"
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
 #: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
 GAP_SIGMA = (1.0, 100.0)
+#: Seconds between the keyframes whose pose marginals are computed (rows between them are interpolated).
+COVARIANCE_DT = 1.0
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
 MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
@@ -60,8 +63,29 @@ class _Segments:
         return np.minimum((np.asarray(t) - self.t0) // self.segment_s, self.n - 1).astype(np.int64)
 
 
+def covariance_keyframes(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> np.ndarray:
+    """The keyframes whose marginal covariance the smoother computes: the first at or after each multiple of
+    ``every_s`` from the start, and the last (a marginal costs about 0.6 ms: every keyframe of an hour's log,
+    72,000 at 20 Hz, would cost more than the solve)."""
+    marks = kf_t[0] + every_s * np.arange(int((kf_t[-1] - kf_t[0]) // every_s) + 1)
+    return np.unique(np.r_[np.searchsorted(kf_t, marks), kf_t.shape[0] - 1])
+
+
+def interpolate_covariance(t_cov: np.ndarray, cov: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Covariances at times ``t`` linear in time between those at ``t_cov`` (held beyond the ends): between two
+    keyframes a pose is the odometry's continuation of both (a convex combination of positive definite
+    matrices stays positive definite)."""
+    j = np.clip(np.searchsorted(t_cov, t, side="right"), 1, max(t_cov.shape[0] - 1, 1))
+    if t_cov.shape[0] < 2:
+        return np.repeat(cov[:1], t.shape[0], axis=0)
+    w = np.clip((t - t_cov[j - 1]) / np.maximum(t_cov[j] - t_cov[j - 1], 1e-12), 0.0, 1.0)[:, None, None]
+    return (1.0 - w) * cov[j - 1] + w * cov[j]
+
+
 class BatchSmoother(Stepper):
     """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
+
+    keeps_covariance = True
 
     def __init__(
         self,
@@ -74,7 +98,10 @@ class BatchSmoother(Stepper):
         fixed_bias: np.ndarray | None = None,
     ) -> None:
         from slamobs.pipeline.noise import resolve_noise
+        from slamobs.pipeline.observers import time_offset
 
+        self.time_offset = time_offset.estimate(stream)
+        stream = time_offset.shifted(stream, self.time_offset)  # the seeds run on the stamps it corrects too
         super().__init__(stream, options)
         self.where = options.source
         self.settings = (
@@ -89,7 +116,10 @@ class BatchSmoother(Stepper):
 
     # ------------------------------------------------------------------ the whole solve
     def solve(self, progress=None) -> dict:
-        """Seed, preintegrate, solve, gate the outliers and solve again; the summary (also kept in ``stats``)."""
+        """Seed, preintegrate, solve, gate the outliers and solve again; when that solution is doubtful, the
+        other starts too, keeping the lowest-cost candidate (:mod:`pipeline.smoother.candidates`); the summary
+        (also kept in ``stats``)."""
+        from slamobs.pipeline.smoother import candidates as cands
         from slamobs.pipeline.smoother import graph as g
 
         require_gtsam()
@@ -100,27 +130,90 @@ class BatchSmoother(Stepper):
         t0, c0 = time.perf_counter(), time.process_time()
         st = self.settings
         segments = _Segments(self.vel_t[0], self.vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
-        problem = self._problem(kf_t, kf_of_det, gaps, seed, segments)
-        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(problem.b_bar, (segments.n, 1)))
-        n_det = int(problem.det_idx.shape[0])
-        problem, sol, notes = self._solve_gated(problem, guess, seed.name, progress)
+        full = self._problem(kf_t, kf_of_det, gaps, seed, segments)
+        first = self._candidate(full, seed, segments.n, progress)
+        chosen, robust, seed_s = first, None, seed.seconds
+        if (reason := cands.doubt(full, first)) is not None:
+            chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
+        problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
-        stats["landmark"]["gated"] = n_det - int(problem.det_idx.shape[0])
+        stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
-        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "segments": segments, "solution": sol, "seed": seed}
-        summary, seconds = self._summary(sol, seed.name, stats)
+        t1, c1 = time.perf_counter(), time.process_time()
+        cov_kf = covariance_keyframes(kf_t)
+        pose_cov, landmark_cov = g.covariances(problem, sol, cov_kf)
+        t_cov, c_cov = time.perf_counter() - t1, time.process_time() - c1
+        self.result = {
+            "kf_t": kf_t,
+            "kf_of_det": kf_of_det,
+            "segments": segments,
+            "solution": sol,
+            "seed": seed,
+            "cov_t": kf_t[cov_kf],
+            "pose_cov": pose_cov,
+            "landmark_cov": landmark_cov,
+        }
+        summary, seconds = self._summary(sol, chosen.seed.name, stats)
+        if robust is not None:
+            summary["robust"] = robust[0]
         self.stats["substeps"] = int(kf_t.shape[0])
-        self.stats["metadata"] = {"seed": seed.name, "smoother": summary, "noise": self.noise.as_dict()}
-        self.stats["notes"] = notes
+        self.stats["metadata"] = {
+            "seed": chosen.seed.name,
+            "smoother": summary,
+            "noise": self.noise.as_dict(),
+            "time_offset": self.time_offset,
+        }
+        self.stats["notes"] = ([robust[1]] if robust is not None else []) + list(chosen.notes or [])
+        self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
-                "seed_s": seed.seconds,
+                "seed_s": seed_s,
                 "smoother_s": t_solve,
                 "smoother_cpu_s": c_solve,
+                "covariance_s": t_cov,
+                "covariance_cpu_s": c_cov,
                 **{f"smoother_{k}_s": v for k, v in seconds.items()},
             }
         )
         return summary
+
+    def _candidate(self, problem, seed, n_segments: int, progress):
+        """The smoother's solution from ``seed`` (gated and solved again as :meth:`_solve_gated` does)."""
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.candidates import Candidate
+
+        guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(problem.b_bar, (n_segments, 1)))
+        solved, sol, notes = self._solve_gated(problem, guess, seed.name, progress)
+        return Candidate(seed, solved, sol, notes)
+
+    def _robust(self, reason: str, full, first, keyframes: tuple, segments: _Segments, progress):
+        """The other starts (aligned to the first seed's gauge) solved too; every candidate, the starts as
+        they are included, scored on ``full``; the best, its record and note, and the seeds' seconds."""
+        from slamobs.pipeline.smoother import candidates as cands
+        from slamobs.pipeline.smoother import graph as g
+
+        kf_t, kf_of_det, gaps = keyframes
+        found = [first, cands.Candidate(first.seed)]
+        seconds = first.seed.seconds
+        for name in cands.extra_seeds(first.seed.name, int(self.stream.landmark_ids.shape[0])):
+            try:
+                seed = self._seed(kf_t, kf_of_det, name)
+            except InputError:
+                continue  # a start that diverged is no candidate
+            seconds += seed.seconds
+            seed = cands.align_to(seed, first.seed, full.anchor)
+            problem = self._problem(kf_t, kf_of_det, gaps, seed, segments)
+            found += [self._candidate(problem, seed, segments.n, progress), cands.Candidate(seed)]
+        for c in found:  # the odometry preintegrated about each candidate's own bias: exact for a constant one
+            guess = c.guess()
+            about = replace(c.seed, bias=guess.bias.mean(axis=0))
+            c.cost = g.cost(replace(self._problem(kf_t, kf_of_det, gaps, about, segments), anchor=full.anchor), guess)
+        best = min(found, key=lambda c: c.cost)
+        if best.sol is None:  # a start as it is: its biases' covariance at it, no iteration
+            guess = best.guess()
+            best.sol = g.solve(full, replace(guess, bias=np.tile(guess.bias[0], (segments.n, 1))), max_iterations=0)
+            best.problem, best.notes = full, []
+        return best, cands.record(reason, found, best, first.seed), seconds
 
     def _keyframes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Keyframe times, each detection's keyframe, and the velocity gaps between segments (None: no gap)."""
@@ -133,21 +226,23 @@ class BatchSmoother(Stepper):
         kf_of_det = np.repeat(np.searchsorted(kf_t, self.det_t), np.diff(s.det_offsets))
         return kf_t, kf_of_det, gaps
 
-    def _seed(self, kf_t: np.ndarray, kf_of_det: np.ndarray):
-        """The initial guess: the tests' prepared one, dead reckoning, or the configured observer's trajectory."""
+    def _seed(self, kf_t: np.ndarray, kf_of_det: np.ndarray, name: str | None = None):
+        """The initial guess: the tests' prepared one, dead reckoning, or the configured observer's trajectory
+        (``name``: that start instead of the configured one)."""
         from slamobs.pipeline.smoother.seed import dead_reckoning_seed, observer_seed
 
-        st = self.settings
-        if self.seed_override is not None:
-            return self.seed_override
-        if st.seed == DEAD_RECKONING:
+        if name is None:
+            if self.seed_override is not None:
+                return self.seed_override
+            name = self.settings.seed
+        if name == DEAD_RECKONING:
             return dead_reckoning_seed(self.stream, kf_t, kf_of_det)
         from slamobs.pipeline.observers import get_observer
 
-        spec = get_observer(st.seed)
-        gains = spec.resolve_gains(self.options.seed_gains)
+        spec = get_observer(name)
+        gains = spec.resolve_gains(self.options.seed_gains if name == self.settings.seed else None)
         try:
-            return observer_seed(st.seed, self.stream, gains, self.options, kf_t)
+            return observer_seed(name, self.stream, gains, self.options, kf_t)
         except InputError as err:
             raise InputError(self.where, err.problem) from None
 
@@ -266,6 +361,10 @@ class BatchSmoother(Stepper):
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
 
+    def landmark_covariance(self) -> np.ndarray | None:
+        """The landmarks' marginal covariances at the solution (None before the solve)."""
+        return None if self.result is None else self.result["landmark_cov"]
+
     # ------------------------------------------------------------------ stretches
     def _relocalise(self, iv: int) -> bool:
         """A new segment: nothing to do here, the keyframes after the gap are fit to the map by the solve (the
@@ -292,6 +391,7 @@ class BatchSmoother(Stepper):
         )
         out.k[:n] = rows
         out.b[:n] = bias_rows[rows]
+        out.cov[:n] = interpolate_covariance(res["cov_t"], res["pose_cov"], self.vel_t[rows])
         # detections of the frames up to iv_stop: estimates from the solution at their keyframes
         jf_stop = self._frames_before(iv_stop)
         a, b = int(s.det_offsets[int(ns[_JF])]), int(s.det_offsets[jf_stop])

@@ -1,0 +1,171 @@
+"""The time offset between the detection stream and the velocity streams, estimated from the data (the reference
+estimators riekf and batch use it; docs/observers.md, "Time offset").
+
+Two detections of one landmark ``PAIR_SPAN_S`` to ``PAIR_MAX_S`` apart see the same point, and the odometry says
+how the body moved between them. With the detection stamps moved by ``δ`` onto the velocity clock, the second
+detection carried back through the odometry's motion between the two (shifted) times lands on the first at the
+true offset; a wrong one shows as the change of the body's motion between the two ends, times ``δ`` (hence
+pairs a second or more apart: over a short span a shift moves both ends alike). Each pair's residual is taken
+in the body frame of its first detection, so only its own interval enters (not the drift over the log), and
+the odometry's bias, which would otherwise pass for an offset, is fitted away at every shift (the residuals
+are linear in a small bias change; their Jacobian is computed once). The estimate minimises the trimmed mean
+of the squared residuals over a grid of shifts (``MAX_OFFSET_S`` either side, ``COARSE_S`` steps, then
+``FINE_S`` steps around the best); its standard error comes from the cost's curvature there.
+
+It is applied (the detection stamps moved by it before the estimator runs) only when it is reliable: at least
+``MIN_PAIRS`` pairs, the minimum inside the grid, more than ``MIN_SIGMAS`` standard errors and at least
+``MIN_APPLY_S`` away from zero, and the cost at zero shift at least ``MIN_GAIN`` times the minimum. Otherwise it
+is only reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from slamobs.pipeline.lie import integrate_body_twists, so3_exps
+
+PAIR_SPAN_S = 1.0
+PAIR_MAX_S = 2.0
+MAX_OFFSET_S = 0.5
+COARSE_S = 0.02
+FINE_S = 0.001
+TRIM = 0.9
+MIN_PAIRS = 30
+MAX_PAIRS = 2000
+MIN_SIGMAS = 5.0
+MIN_APPLY_S = 0.005
+MIN_GAIN = 1.2
+#: Bias step of the residuals' numerical Jacobian (rad/s, m/s).
+BIAS_STEP = 1e-4
+
+
+def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times."""
+    t = stream.seconds(stream.vel_t_ns)
+    dt = np.diff(t)
+    omega, vel = omega[:-1].copy(), vel[:-1].copy()
+    gap = stream.segment_starts - 1
+    omega[gap], vel[gap] = 0.0, 0.0
+    rot, pos = integrate_body_twists(np.eye(3), np.zeros(3), omega, vel, dt)
+    return t, rot, pos
+
+
+def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
+    """Detection indices (a, b): each detection and the first detection of the same landmark at least
+    ``PAIR_SPAN_S`` later, when that one is within ``PAIR_MAX_S``."""
+    t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))
+    order = np.lexsort((t, stream.det_idx))
+    key = stream.det_idx[order].astype(np.float64) * (2.0 * (t.max() - t.min() + PAIR_MAX_S) + 1.0) + t[order]
+    j = np.searchsorted(key, key + PAIR_SPAN_S)  # sorted by landmark, then time: the partner is the next ≥ span
+    ok = j < order.shape[0]
+    a, b = order[ok], order[j[ok]]
+    same = np.flatnonzero((stream.det_idx[a] == stream.det_idx[b]) & (t[b] - t[a] <= PAIR_MAX_S))
+    if same.shape[0] > MAX_PAIRS:  # evenly over the log: the estimate's cost stays bounded on long logs
+        same = same[np.linspace(0, same.shape[0] - 1, MAX_PAIRS).astype(np.int64)]
+    return a[same], b[same]
+
+
+class _Consistency:
+    """The pairs' cost as a function of the shift, the odometry's bias profiled out."""
+
+    def __init__(self, stream, bias: np.ndarray) -> None:
+        self.stream, self.bias = stream, bias
+        self.det_t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))
+        self.a, self.b = _pairs(stream)
+        self.y = stream.det_y
+        self.poses = self._poses(bias)
+        # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift)
+        base = self.residuals(0.0)
+        self.jac = np.empty((base.shape[0], 3, 6))
+        for c in range(6):
+            db = np.zeros(6)
+            db[c] = BIAS_STEP
+            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db)) - base) / BIAS_STEP
+        self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
+
+    def _poses(self, bias: np.ndarray):
+        s = self.stream
+        omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
+        return (*_sample_poses(s, omega, vel), omega, vel)
+
+    def _at(self, idx: np.ndarray, shift: float, poses) -> tuple[np.ndarray, np.ndarray]:
+        """Poses at the stamps of detections ``idx`` moved by ``shift``: carried on from the sample before with
+        its twist."""
+        t_s, rot_s, pos_s, omega, vel = poses
+        t = self.det_t[idx] + shift
+        k = np.clip(np.searchsorted(t_s, t, side="right") - 1, 0, t_s.shape[0] - 1)
+        h = (t - t_s[k])[:, None]
+        rot = np.einsum("kij,kjl->kil", rot_s[k], so3_exps(np.ascontiguousarray(h * omega[k])))
+        return rot, pos_s[k] + np.einsum("kij,kj->ki", rot_s[k], h * vel[k])
+
+    def residuals(self, shift: float, poses=None) -> np.ndarray:
+        """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``."""
+        poses = self.poses if poses is None else poses
+        r_a, p_a = self._at(self.a, shift, poses)
+        r_b, p_b = self._at(self.b, shift, poses)
+        world_b = p_b + np.einsum("kij,kj->ki", r_b, self.y[self.b]) - p_a
+        return self.y[self.a] - np.einsum("kji,kj->ki", r_a, world_b)
+
+    def cost(self, shift: float) -> float:
+        """Trimmed mean squared residual after the bias correction that fits the pairs best (least squares on
+        all pairs, then again on the ``TRIM`` share with the smallest residuals)."""
+        e = self.residuals(shift)
+        keep = np.arange(e.shape[0])
+        for _ in range(2):  # normal equations (6 unknowns; a small ridge keeps them regular on straight motion)
+            a = self.jtj[keep].sum(axis=0) + 1e-9 * np.eye(6)
+            db = np.linalg.solve(a, -np.einsum("kci,kc->i", self.jac[keep], e[keep]))
+            d2 = np.sum((e + self.jac @ db) ** 2, axis=1)
+            n = max(1, int(TRIM * d2.shape[0]))
+            keep = np.argpartition(d2, n - 1)[:n]
+        return float(np.mean(d2[keep]))
+
+
+def estimate(stream, bias: np.ndarray | None = None) -> dict:
+    """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
+    reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's)."""
+    c = _Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
+    n = int(c.a.shape[0])
+    out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False}
+    if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
+        return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
+    coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
+    costs = np.array([c.cost(s) for s in coarse])
+    best = float(coarse[int(np.argmin(costs))])
+    fine = best + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
+    fine_costs = np.array([c.cost(s) for s in fine])
+    j = int(np.argmin(fine_costs))
+    shift, c_min = float(fine[j]), float(fine_costs[j])
+    curv = np.polyfit(fine - shift, fine_costs, 2)[0]  # cost ≈ c_min + curv (δ − shift)²
+    sigma = float(np.sqrt(c_min / (n * curv))) if curv > 0 else np.inf
+    gain = c.cost(0.0) / max(c_min, 1e-300)
+    out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
+    why = None
+    if abs(shift) >= MAX_OFFSET_S - COARSE_S:
+        why = f"the best shift is at the edge of the search (±{MAX_OFFSET_S} s)"
+    elif not abs(shift) > MIN_SIGMAS * sigma:
+        why = f"within {MIN_SIGMAS:g} standard errors of zero"
+    elif abs(shift) < MIN_APPLY_S:
+        why = f"below {MIN_APPLY_S} s"
+    elif gain < MIN_GAIN:
+        why = f"the detections fit it only {gain:.3g}x better than no shift"
+    return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
+
+
+def shifted(stream, offset: dict):
+    """The stream with its detection stamps moved by the offset when it is applied, else the stream itself."""
+    from dataclasses import replace
+
+    if not offset["applied"]:
+        return stream
+    return replace(stream, det_t_ns=stream.det_t_ns + int(round(offset["estimate_s"] * 1e9)))
+
+
+def note(name: str, offset: dict) -> list[str]:
+    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always)."""
+    if not offset["applied"]:
+        return []
+    return [
+        f"{name}: detection stamps moved by {offset['estimate_s']:+.4f} s (± {offset['sigma_s']:.2g}) onto the "
+        f"velocity clock, estimated from the data ({offset['pairs']} detection pairs; docs/observers.md, Time "
+        "offset): applied"
+    ]

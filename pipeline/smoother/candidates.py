@@ -1,0 +1,121 @@
+"""Several starts for the batch smoother, and the rule that keeps one (docs/observers.md, batch: "Never worse
+than its seed").
+
+The smoother's first solution, from the configured seed, is doubtful when more than ``estimator.MAX_GATED`` of
+the detections fail the χ² gate at it, or when its seed explains the detections better than it does (the
+Huber-robust cost of the landmark factors alone is lower at the seed's trajectory and map than at the
+solution: the smoother gave up detection fit for odometry fit, which a wrong noise model does). Only then are
+the other starts tried (``extra_seeds``: dead reckoning, and riekf where its dense covariance is cheap), each
+moved rigidly onto the first seed's gauge (its anchor keyframe) and solved like the first. Every candidate
+(each start as it is, and each smoother solution) is scored by one criterion, evaluated identically for all:
+the smoother's own objective (:func:`pipeline.smoother.graph.cost`) over every detection, before any gating,
+with the odometry preintegrated about the candidate's own (mean) bias, so that the first-order bias correction
+of the preintegration does not favour the candidate whose bias it was computed at. The lowest wins.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from slamobs.pipeline.lie import umeyama
+from slamobs.pipeline.smoother.settings import DEAD_RECKONING
+
+CRITERION = (
+    "the smoother's robust graph cost over every detection (before gating), odometry preintegrated at each "
+    "candidate's bias"
+)
+#: riekf is tried as a start only up to this many landmarks (its covariance is dense: (12 + 3n)² per frame).
+RIEKF_SEED_MAX_LANDMARKS = 200
+
+
+@dataclass
+class Candidate:
+    """One start and what the smoother made of it (``sol`` None: the start itself, as a candidate)."""
+
+    seed: object  # seed.Seed
+    problem: object | None = None  # graph.Problem solved last (after gating)
+    sol: object | None = None  # graph.Solution
+    notes: list[str] | None = None
+    cost: float = float("nan")
+
+    @property
+    def name(self) -> str:
+        return self.seed.name if self.sol is not None else f"{self.seed.name} (unsmoothed)"
+
+    def guess(self):
+        """The candidate's trajectory, map and biases as a graph guess."""
+        from slamobs.pipeline.smoother.graph import Guess
+
+        if self.sol is not None:
+            return Guess(self.sol.rot, self.sol.pos, self.sol.landmarks, self.sol.bias)
+        return Guess(self.seed.rot, self.seed.pos, self.seed.landmarks, self.seed.bias[None, :])
+
+
+def detection_cost(problem, rot: np.ndarray, pos: np.ndarray, landmarks: np.ndarray) -> float:
+    """Huber-robust cost of the landmark factors alone (threshold ``problem.huber``, whitened residual norms)."""
+    kf = problem.kf_of_det
+    pred = np.einsum("mji,mj->mi", rot[kf], landmarks[problem.det_idx] - pos[kf])
+    r = np.linalg.norm(pred - problem.det_y, axis=1) / np.maximum(problem.det_sigma, 1e-12)
+    k = problem.huber
+    return float(np.sum(np.where(r <= k, 0.5 * r * r, k * (r - 0.5 * k))))
+
+
+def doubt(problem, first: Candidate) -> str | None:
+    """Why the first solution is doubtful (module docstring), or None. ``problem`` has every detection."""
+    if first.notes:
+        return "many detections fail the χ² gate at the solution"
+    at_seed = detection_cost(problem, first.seed.rot, first.seed.pos, first.seed.landmarks)
+    at_sol = detection_cost(problem, first.sol.rot, first.sol.pos, first.sol.landmarks)
+    if at_seed < at_sol:
+        return f"the seed explains the detections better than the solution (robust cost {at_seed:.4g} < {at_sol:.4g})"
+    return None
+
+
+def extra_seeds(configured: str, n_landmarks: int) -> list[str]:
+    """The other starts to try when the first solution is doubtful."""
+    names = [DEAD_RECKONING]
+    if n_landmarks <= RIEKF_SEED_MAX_LANDMARKS:
+        names.append("riekf")
+    return [n for n in names if n != configured]
+
+
+def align_to(seed, ref, anchor: int):
+    """``seed`` moved rigidly so that its pose at keyframe ``anchor`` is ``ref``'s (the smoother's gauge)."""
+    rot = ref.rot[anchor] @ seed.rot[anchor].T
+    trans = ref.pos[anchor] - rot @ seed.pos[anchor]
+    return replace(
+        seed,
+        rot=np.einsum("ij,kjl->kil", rot, seed.rot),
+        pos=seed.pos @ rot.T + trans,
+        landmarks=seed.landmarks @ rot.T + trans,
+    )
+
+
+def disagreement(a, b) -> float:
+    """APE between two starts: RMSE of their keyframe positions after a rigid alignment (m)."""
+    if a.pos.shape[0] < 3:
+        return float(np.sqrt(np.mean(np.sum((a.pos - b.pos) ** 2, axis=1))))
+    rot, trans, _ = umeyama(b.pos, a.pos)
+    return float(np.sqrt(np.mean(np.sum((b.pos @ rot.T + trans - a.pos) ** 2, axis=1))))
+
+
+def record(reason: str, candidates: list[Candidate], best: Candidate, first_seed) -> tuple[dict, str]:
+    """The choice for run.json (observer.smoother.candidates) and its note."""
+    table = {
+        c.name: {
+            "cost": c.cost,
+            "gate_failed": bool(c.notes),
+            "seed_ape_m": round(disagreement(first_seed, c.seed), 6),
+        }
+        for c in candidates
+    }
+    spread = max(v["seed_ape_m"] for v in table.values())
+    costs = ", ".join(f"{name} {v['cost']:.6g}" for name, v in table.items())
+    note = (
+        f"batch: first solution doubtful ({reason}); tried {len(candidates)} candidates, robust graph cost: "
+        f"{costs}; kept '{best.name}'; the starts disagreed by up to {spread:.3g} m (APE against "
+        f"'{first_seed.name}')"
+    )
+    return {"reason": reason, "criterion": CRITERION, "winner": best.name, "candidates": table}, note
