@@ -13,23 +13,17 @@ from __future__ import annotations
 import argparse
 import time
 from dataclasses import replace
-from statistics import NormalDist
 
 import numpy as np
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.evaluation.metrics import nees_bounds
 from slamobs.pipeline.lie import so3_log
 from slamobs.pipeline.noise import NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
 from slamobs.pipeline.observers.riekf import RiEKF
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
-
-
-def chi2_ppf(p: float, dof: int) -> float:
-    """Wilson–Hilferty approximation of the χ² quantile."""
-    z = NormalDist().inv_cdf(p)
-    return dof * (1.0 - 2.0 / (9 * dof) + z * np.sqrt(2.0 / (9 * dof))) ** 3
 
 
 def nees_runs(scenario: str, runs: int, duration: float, sigma_b: float = 0.05, every: int = 20):
@@ -62,7 +56,7 @@ def nees_runs(scenario: str, runs: int, duration: float, sigma_b: float = 0.05, 
         nees.append(row)
     n = min(len(r) for r in nees)
     mean = np.mean([r[:n] for r in nees], axis=0)
-    lo, hi = chi2_ppf(0.025, 12 * runs) / runs, chi2_ppf(0.975, 12 * runs) / runs
+    lo, hi = nees_bounds(12, runs)
     return mean, lo, hi, seconds / max(samples, 1)
 
 

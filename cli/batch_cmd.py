@@ -14,7 +14,7 @@ import click
 
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
-from slamobs.cli.options import Finite
+from slamobs.cli.options import Finite, window_options
 
 
 def _jsonable(row: dict) -> dict:
@@ -228,6 +228,7 @@ class _RunCommand(click.Command):
     help="drop runs whose logs are gone (no longer at their recorded path with the same content)",
 )
 @click.option("--no-compact", is_flag=True, help="leave the per-run partitions (compact later: slamobs batch compact)")
+@window_options
 @click.option("-q", "--quiet", is_flag=True, help="print only the final line")
 @click.option("--json", "as_json", is_flag=True, help="one JSON object per finished run, then a final one")
 def run(
@@ -245,6 +246,8 @@ def run(
     skip_failed: bool,
     prune: bool,
     no_compact: bool,
+    start: float | None,
+    end: float | None,
     quiet: bool,
     as_json: bool,
 ) -> None:
@@ -300,6 +303,7 @@ def run(
             config=config,
             observer=observer,
             msg_dir=str(msg_dir.resolve()) if msg_dir else None,
+            window=(start, end),
             force=force,
             skip_failed=skip_failed,
             prune=prune,

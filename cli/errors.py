@@ -59,6 +59,8 @@ def exit_code(err: SlamobsError) -> int:
 
 def exit_input_error(err: BaseException | str, code: int = INPUT_ERROR_EXIT) -> NoReturn:
     click.echo(f"error: {' '.join(str(err).split())}", err=True)
+    for line in getattr(err, "details", ()):
+        click.echo(f"  {line}", err=True)
     sys.exit(code)
 
 

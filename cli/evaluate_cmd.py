@@ -19,9 +19,16 @@ RELATIONS = ("trans_part", "angle_deg", "angle_rad", "full", "rot_part", "point_
 FORMATS = ("tum", "euroc", "kitti", "parquet")
 
 
+#: evo's first positional argument: the format of both files (``euroc``: a EuRoC truth and a TUM estimate), or
+#: ``bag``/``bag2``/``mcap``: topics of one log
+EVO_FORMS = {"tum": ("tum", "tum"), "kitti": ("kitti", "kitti"), "euroc": ("euroc", "tum")}
+BAG_FORMS = ("bag", "bag2", "mcap")
+#: evo's ``--plot_mode``: the axes of the trajectory panel (``xyz``: a 3D view)
+PLOT_MODES = ("xy", "xz", "yx", "yz", "zx", "zy", "xyz")
+
+
 @click.command("evaluate")
-@click.argument("truth")
-@click.argument("est")
+@click.argument("inputs", nargs=-1, required=True, metavar="[tum|kitti|euroc] TRUTH EST | bag|mcap LOG TOPIC TOPIC")
 @click.option(
     "--metric",
     type=click.Choice(["ape", "rpe"]),
@@ -45,8 +52,10 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
 @click.option(
     "--align-yaw",
     "--align_yaw",
+    "--align-posyaw",
+    "align_yaw",
     is_flag=True,
-    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity)",
+    help="4-DoF alignment: translation + yaw about z (for estimates with observed gravity; rpg's posyaw)",
 )
 @click.option(
     "--n-to-align",
@@ -122,11 +131,26 @@ FORMATS = ("tum", "euroc", "kitti", "parquet")
     default=None,
     help=".zip with the result in evo's layout (evo_res reads it)",
 )
+@click.option("-p", "--plot", is_flag=True, help="draw the error over time and on the trajectory (evo -p) into a PNG")
+@click.option(
+    "--plot-mode",
+    "--plot_mode",
+    type=click.Choice(PLOT_MODES),
+    default="xyz",
+    show_default=True,
+    help="axes of the trajectory panel (xyz: 3D)",
+)
+@click.option(
+    "--save-plot",
+    "--save_plot",
+    type=click.Path(path_type=Path, dir_okay=False),
+    default=None,
+    help="PNG file of the plot (implies -p; -p alone writes ape_plot.png or rpe_plot.png here)",
+)
 @click.option("--json", "as_json", is_flag=True, help="print the result as JSON instead of evo's text")
 @quiet_option("print nothing but errors")
 def evaluate(
-    truth: str,
-    est: str,
+    inputs: tuple[str, ...],
     metric: str,
     relation: str,
     align: bool,
@@ -147,19 +171,31 @@ def evaluate(
     truth_format: str | None,
     est_format: str | None,
     save_results: Path | None,
+    plot: bool,
+    plot_mode: str,
+    save_plot: Path | None,
     as_json: bool,
     quiet: bool,
 ) -> None:
     """Error of trajectory EST against TRUTH (APE by default; --metric rpe).
 
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
-    PoseStamped / Odometry topic of a ROS bag or MCAP. KITTI files without stamps are paired by index.
+    PoseStamped / Odometry topic of a ROS bag or MCAP (TRUTH also LOG:parent->child, a TF edge of the log). KITTI
+    files without stamps are paired by index.
+    evo's own forms work too: `evaluate tum|kitti|euroc TRUTH EST` and `evaluate bag|bag2|mcap LOG TOPIC TOPIC`.
     """
     from slamobs.pipeline.errors import InputError
 
+    truth, est, truth_format, est_format = _inputs(inputs, truth_format, est_format)
     kind = _alignment_kind(align, correct_scale, align_origin, align_yaw)
     offset = offset_seconds(t_offset)
+    if plot and save_plot is None:
+        save_plot = Path(f"{metric}_plot.png")
     try:
+        if save_plot is not None:
+            from slamobs.pipeline.paths import check_output_file
+
+            check_output_file(save_plot, (truth, est))
         if save_results is not None:
             from slamobs.pipeline.paths import check_output_file
 
@@ -191,6 +227,8 @@ def evaluate(
                 est_format,
                 save_results,
             )
+        if save_plot is not None:
+            _save_plot(save_plot, out[0], plot_mode)
     except InputError as err:
         exit_input_error(str(err))
     except ValueError as err:
@@ -208,6 +246,68 @@ def evaluate(
         click.echo(f"{p:>10}\t{st[p]:.6f}")
     if extra.get("time_offset_line"):
         click.echo(extra["time_offset_line"])
+    if save_plot is not None:
+        click.echo(f"{'plot':>10}\t{save_plot}")
+
+
+def _inputs(
+    inputs: tuple[str, ...], truth_format: str | None, est_format: str | None
+) -> tuple[str, str, str | None, str | None]:
+    """TRUTH, EST and their formats from the positional arguments: ``TRUTH EST``, evo's ``FORMAT TRUTH EST``
+    (the format of both unless --truth-format/--est-format say otherwise) or ``bag LOG TOPIC TOPIC``."""
+    if len(inputs) == 2:
+        return inputs[0], inputs[1], truth_format, est_format
+    if len(inputs) == 3 and inputs[0] in EVO_FORMS:
+        ref_fmt, est_fmt = EVO_FORMS[inputs[0]]
+        return inputs[1], inputs[2], truth_format or ref_fmt, est_format or est_fmt
+    if len(inputs) == 4 and inputs[0] in BAG_FORMS:
+        return f"{inputs[1]}:{inputs[2]}", f"{inputs[1]}:{inputs[3]}", truth_format, est_format
+    if len(inputs) == 3 and inputs[0] in BAG_FORMS:  # two LOG:TOPIC specifications
+        return inputs[1], inputs[2], truth_format, est_format
+    raise click.UsageError(
+        f"expected TRUTH EST, {'|'.join(EVO_FORMS)} TRUTH EST, or {'|'.join(BAG_FORMS)} LOG TOPIC TOPIC; got "
+        f"{len(inputs)} "
+        f"argument{'s' if len(inputs) != 1 else ''}: {' '.join(inputs)}"
+    )
+
+
+def _save_plot(path: Path, result, plot_mode: str) -> None:
+    """evo's -p figure of ``result`` into the PNG ``path`` (written under a temporary name, then renamed); an
+    existing file is replaced only when it is a PNG."""
+    import numpy as np
+
+    from slamobs.pipeline.evaluation.plots import plot_error_result
+    from slamobs.pipeline.writers import atomic_file
+
+    errors = np.asarray(result.errors, dtype=np.float64)
+    t_s = np.asarray(result.arrays.get("seconds_from_start", np.arange(len(errors))), dtype=np.float64)
+    if len(t_s) != len(errors):
+        t_s = np.arange(len(errors), dtype=np.float64)
+    est = np.asarray(result.est_pos_aligned, dtype=np.float64)
+    at = est if result.pair_i is None else est[np.asarray(result.pair_i)]
+    with atomic_file(path, why_kept=_why_kept_plot) as tmp:
+        plot_error_result(
+            tmp,
+            t_s,
+            errors,
+            result.stats,
+            np.asarray(result.paired.ref_pos, dtype=np.float64),
+            est,
+            at,
+            plot_mode=plot_mode,
+            title=result.title,
+            label=result.label,
+        )
+
+
+def _why_kept_plot(path: Path) -> str | None:
+    try:
+        with open(path, "rb") as f:
+            if f.read(8) == b"\x89PNG\r\n\x1a\n":
+                return None
+    except OSError:
+        pass
+    return "exists and is not a PNG plot: it is kept; remove it or choose another --save_plot"
 
 
 def _alignment_kind(align: bool, scale: bool, origin: bool, yaw: bool) -> str:
@@ -253,9 +353,10 @@ def _run(
         describe,
         rpe,
     )
+    from slamobs.pipeline.readers import read_truth
     from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
-    ref = read_trajectory(truth, truth_format)
+    ref = read_truth(truth, fmt=truth_format)  # the truth grammar of every command (LOG:parent->child too)
     est_t = read_trajectory(est, est_format)
     timed = ref.timed and est_t.timed
     method = "nearest" if sync_method == "nearest_time" else "interpolation"

@@ -17,11 +17,14 @@ _RATE = Finite(min=0.0)
 @click.command("export")
 @click.argument("run_dir", type=click.Path(path_type=Path))
 @click.option(
+    "-o",
+    "--out",
     "--mcap",
     "mcap_path",
     required=True,
     type=click.Path(path_type=Path, dir_okay=False),
-    help="MCAP file to write: pose, TF, path, landmark map, biases and innovations as ROS 2 messages",
+    help="MCAP file to write: pose, TF, path, landmark map, biases and innovations as ROS 2 messages "
+    "(--mcap, the older name, works too)",
 )
 @click.option(
     "--rate",

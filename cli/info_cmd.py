@@ -1,4 +1,5 @@
-"""``slamobs info LOG``: containers, topics, types, counts, rates, time span and detected roles."""
+"""``slamobs info LOG``: containers, topics, types, counts, rates, time span, detected roles, and whether the log
+can run (per estimator, with what would give each missing input and a ``run.yaml`` for what was found)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from slamobs.cli.errors import handled
 
 
 @click.command("info")
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 @click.option(
     "--msg-dir",
@@ -19,10 +20,88 @@ from slamobs.cli.errors import handled
     default=None,
     help="Directory of pkg/msg/Type.msg files for message types whose definitions the log lacks.",
 )
-def info(log: Path, *, as_json: bool, msg_dir: Path | None) -> None:
-    """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3) and the roles its topics would play."""
+@click.option(
+    "--noise",
+    is_flag=True,
+    help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs.",
+)
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml (with --noise).")
+def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
+    """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3), the roles its topics would play, and whether
+    each estimator can run on it; with --noise, the noise levels learned from it.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from slamobs.pipeline.readers import format_info, inspect_log
+    from slamobs.pipeline.readers.container import recording_of
+    from slamobs.pipeline.readiness import readiness
 
     with handled():  # as under the `slamobs` group, also when the command is used on its own
+        log = recording_of(logs)
+        if noise:
+            _noise(log, msg_dir, config_path, as_json)
+            return
         summary = inspect_log(log, msg_dir=msg_dir)
-    click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else format_info(summary))
+        ready = readiness(summary)
+    if as_json:
+        click.echo(json.dumps({**summary.to_dict(), "readiness": ready.to_dict()}, indent=2))
+    else:
+        click.echo(format_info(summary) + "\n\n" + format_readiness(ready))
+
+
+def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: bool) -> None:
+    """The noise levels of the reference estimators on LOG: the config's, else plausible covariances, else
+    estimated from the samples (the detection law from the log's own static landmarks: no estimator needed)."""
+    from dataclasses import replace
+
+    from slamobs.cli.progress import compile_notice, status_line
+    from slamobs.pipeline.run import silent
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    config = load_config(config_path)
+    if msg_dir:
+        config = replace(config, msg_dir=str(msg_dir))
+    status = status_line(quiet=False)
+    with compile_notice(status):
+        prepared = prepare_log(log, config, directions=False, progress=status or silent)
+        settings = log_noise(prepared, config)
+    if status is not None:
+        status.clear()
+    if as_json:
+        click.echo(json.dumps(settings.as_dict(), indent=2))
+        return
+    click.echo(f"noise levels of {log} (batch and riekf; key: value unit (source, ± standard error: method)):")
+    for line in settings.lines() + list(settings.notes):
+        click.echo(f"  {line}")
+
+
+def format_readiness(ready) -> str:
+    """The readiness section: each role found or missing, each estimator ready or what it lacks, the run.yaml."""
+    ready_names = [e.name for e in ready.estimators if e.ready]
+    verdict = f"{len(ready_names)} of {len(ready.estimators)} estimators can run" if ready_names else "cannot run"
+    lines = [f"  readiness: {verdict}"]
+    width = max(len(r.role) for r in ready.roles)
+    for r in ready.roles:
+        if r.found:
+            rate = f"{r.rate_hz:.1f} Hz" if r.rate_hz is not None else "-"
+            lines.append(f"    {r.role:<{width}}  found    {r.topic}  ({r.msgtype}, {rate})")
+        else:
+            lines.append(f"    {r.role:<{width}}  MISSING")
+    groups: dict[tuple, list[str]] = {}
+    for e in ready.estimators:
+        groups.setdefault((e.missing, e.unavailable), []).append(e.name)
+    lines.append("")
+    for (missing, unavailable), names in groups.items():
+        if unavailable:
+            state = f"cannot run: {unavailable}"
+        else:
+            state = f"cannot run, missing {', '.join(missing)}" if missing else "ready"
+        lines.append(f"    {', '.join(names)}: {state}")
+    needed = {m for e in ready.estimators for m in e.missing} | {"truth"}
+    for role, ways in ready.satisfy.items():
+        if role in needed:
+            what = "" if role != "truth" else " (optional: the error report)"
+            lines += ["", f"    to give {role}{what}:", *(f"      {w}" for w in ways)]
+    lines += ["", "  run.yaml for what was found:", *(f"    {x}" for x in ready.run_yaml.splitlines())]
+    return "\n".join(lines)

@@ -9,8 +9,8 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import export_option, quiet_option
-from slamobs.cli.progress import compile_notice, status_line
+from slamobs.cli.options import export_option, quiet_option, window_options
+from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
 # threads only add synchronisation (30x slower on a 2-core machine); results do not depend on the count.
@@ -93,7 +93,7 @@ def main() -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
@@ -104,54 +104,59 @@ def main() -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def run(
-    log: Path,
+    logs: tuple[Path, ...],
     out_dir: Path,
     observer: str | None,
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
-    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT."""
+    """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
+    from slamobs.pipeline.readers.container import recording_of
 
+    log = recording_of(logs)
     working_on(log, "a run of this log", run_memory_mb(log))
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log
 
-    config = with_observer(load_config(config_path), observer)
+    config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
         config = config.with_section("output", export=export)
-    status = status_line(quiet)
-    try:
-        with compile_notice(status, quiet=quiet):
-            summary = run_log(
-                log,
-                out_dir,
-                config,
-                force=force,
-                plot_helpers=min(1, free_cores()),
-                **({"progress": status} if status else {}),
-            )
-    finally:
-        if status:
-            status.clear()
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, free_cores()), progress=progress)
     if quiet:
         return
     _print_summary(summary)
 
 
 def _print_summary(summary) -> None:
+    from slamobs.cli.listing import wrote_line
+
     m = summary.metadata
     c = m["counts"]
     click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
@@ -182,7 +187,17 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
-    click.echo(f"wrote        {summary.out_dir}/")
+        for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
+            click.echo(f"note         {note}")
+    elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
+        err = m["map_error"]["error_m"]
+        click.echo(
+            f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
+            "(map-only SE(3) alignment)"
+        )
+    if m.get("figures"):
+        click.echo(f"figures      {', '.join(m['figures'])} (report.md shows them)")
+    click.echo(f"wrote        {wrote_line(summary.out_dir)}")
 
 
 @main.command()
@@ -197,6 +212,13 @@ def _print_summary(summary) -> None:
     help="pkg/msg/Type.msg definitions for types the log does not store",
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
+@window_options
+@click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
 @export_option()
 @quiet_option()
 def compare(
@@ -206,6 +228,9 @@ def compare(
     config_path: Path | None,
     msg_dir: Path | None,
     force: bool,
+    start: float | None,
+    end: float | None,
+    truth: str | None,
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
@@ -213,41 +238,32 @@ def compare(
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
+    from slamobs.cli.listing import wrote_line
 
     working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config, with_observer
+    from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.errors import InputError
 
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = load_config(config_path)
+    config = with_truth(load_config(config_path), truth).with_window(start, end)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     if export is not None:
         config = config.with_section("output", export=export)
-    status = status_line(quiet)
-    # on a terminal every stage on the status line; otherwise a line as each observer starts
-    lines = (
-        {"progress": status}
-        if status
-        else {}
-        if quiet
-        else {"on_observer": lambda m: click.echo(f"compare: {m}", err=True)}
-    )
-    try:
-        with compile_notice(status, quiet=quiet):
-            table = compare_log(log, out_dir, config, observers, force=force, **lines)
-    finally:
-        if status:
-            status.clear()
+    # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
+        table = compare_log(log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer)
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
-        click.echo(f"wrote {out_dir}/ (comparison.parquet, comparison.md, overlay.png, one run directory per observer)")
+        runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
+        click.echo(f"wrote {wrote_line(out_dir, ('comparison.parquet', 'comparison.md', 'overlay.png'), runs)}")
     if (table["status"] != "ok").all():
         sys.exit(1)
 
@@ -292,12 +308,15 @@ def _add_commands() -> None:
     from slamobs.cli.batch_cmd import batch
     from slamobs.cli.evaluate_cmd import evaluate
     from slamobs.cli.export_cmd import export
+    from slamobs.cli.import_cmd import import_group
     from slamobs.cli.info_cmd import info
     from slamobs.cli.report_cmd import report
     from slamobs.cli.simulate_cmd import simulate
+    from slamobs.cli.stats_cmd import stats
     from slamobs.cli.tune_cmd import tune
+    from slamobs.cli.view_cmd import view
 
-    for command in (info, simulate, report, evaluate, export, batch, tune):
+    for command in (info, simulate, import_group, report, evaluate, export, batch, tune, stats, view):
         main.add_command(command)
 
 

@@ -135,3 +135,18 @@ def export_option(
         + ", ".join(described[k] for k in allowed)
         + f"; none writes none [default: {default}]",
     )
+
+
+#: --start / --end: absolute stamps are Unix seconds, below 2**63 ns
+_WINDOW_BOUND = Finite(min=0.0, max=9.2e9)
+_WINDOW_RULE = "seconds from the log's start (its first angular-velocity sample), or an absolute stamp in s if > 1e9"
+
+
+def window_options(command):
+    """``--start`` / ``--end``: the part of the log a run uses (``time.start`` / ``time.end`` of run.yaml)."""
+    command = click.option(
+        "--end", type=_WINDOW_BOUND, default=None, help=f"use the log up to this time: {_WINDOW_RULE}"
+    )(command)
+    return click.option(
+        "--start", type=_WINDOW_BOUND, default=None, help=f"use the log from this time: {_WINDOW_RULE}"
+    )(command)

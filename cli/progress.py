@@ -3,7 +3,9 @@ that numba is compiling the numeric kernels (first run only), with or without a 
 
 from __future__ import annotations
 
+import os
 import sys
+import threading
 import time
 from contextlib import contextmanager
 
@@ -45,6 +47,66 @@ class StatusLine:
 
     def clear(self) -> None:
         click.echo("\r\x1b[K", nl=False, err=True)
+
+
+#: Seconds between two progress lines when stderr is not a terminal (a log file, CI); the environment variable
+#: ``SLAMOBS_PROGRESS_EVERY`` sets another.
+LINE_EVERY_S = 10.0
+
+
+class Progress:
+    """A command's progress, used as ``with Progress(quiet) as progress: work(progress=progress)``: on a terminal
+    the status line (redrawn each second, so its clock runs while one step lasts), otherwise a plain line
+    ``[  10.0 s] what it does`` every ``LINE_EVERY_S`` while the command works (the last message again when a
+    step is long; a command done sooner prints none); nothing when ``quiet``. ``status`` is the terminal's
+    :class:`StatusLine` (None elsewhere), for :func:`compile_notice`."""
+
+    def __init__(self, quiet: bool = False, every_s: float | None = None) -> None:
+        self.quiet = quiet
+        self.status = status_line(quiet)
+        self.every = every_s if every_s is not None else float(os.environ.get("SLAMOBS_PROGRESS_EVERY", LINE_EVERY_S))
+        self.message = ""
+        self._start = self._printed = time.perf_counter()  # a command done (or failed) sooner prints nothing
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._beat: threading.Thread | None = None
+
+    def __call__(self, message: str) -> None:
+        if self.quiet:
+            return
+        with self._lock:
+            self.message = message
+            if self.status is not None:
+                self.status(message)
+            elif time.perf_counter() - self._printed >= self.every:
+                self._line()
+
+    def _line(self) -> None:
+        self._printed = time.perf_counter()
+        click.echo(f"[{self._printed - self._start:6.1f} s] {self.message}", err=True)
+
+    def _heartbeat(self) -> None:
+        while not self._stop.wait(1.0 if self.status is not None else self.every / 2):
+            with self._lock:
+                if not self.message:
+                    continue
+                if self.status is not None:
+                    self.status._show()
+                elif time.perf_counter() - self._printed >= self.every:
+                    self._line()
+
+    def __enter__(self) -> Progress:
+        if not self.quiet:
+            self._beat = threading.Thread(target=self._heartbeat, daemon=True)
+            self._beat.start()
+        return self
+
+    def __exit__(self, *_exc) -> None:
+        self._stop.set()
+        if self._beat is not None:
+            self._beat.join()
+        if self.status is not None:
+            self.status.clear()
 
 
 def status_line(quiet: bool) -> StatusLine | None:

@@ -13,7 +13,7 @@ import click
 
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.options import Finite, Seconds, export_option, offset_seconds, quiet_option
-from slamobs.cli.progress import compile_notice
+from slamobs.cli.progress import Progress, compile_notice
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: How the summary names each alignment (one spelling in every command: "SE(3)-aligned").
@@ -55,8 +55,8 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option(
     "--truth",
     default=None,
-    help="a topic of the run's log, a TF edge parent->child, or a TUM / EuRoC CSV / KITTI (with stamps) "
-    "file [default: the run's truth topic]",
+    help="a topic of the run's log, a TF edge parent->child, a TUM / EuRoC CSV / KITTI (with stamps) file, or "
+    "LOG:TOPIC of another log [default: the run's truth]",
 )
 @click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
 @click.option(
@@ -67,9 +67,9 @@ def _previous_options(run_dir: Path) -> dict:
 )
 @click.option(
     "--align",
-    type=click.Choice(ALIGNMENTS),
+    type=click.Choice(ALIGNMENTS + ("posyaw",)),
     default=None,
-    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw)",
+    help="alignment of the estimate onto the truth (se3; yaw = 4-DoF translation + yaw, rpg's posyaw)",
 )
 @click.option("--convergence-threshold", type=Finite(), default=None, help="position error threshold [m] (0.1)")
 @click.option("--rpe-delta", type=Finite(), default=None, help="RPE pair distance [m] (1)")
@@ -94,7 +94,8 @@ def report(
     as_json: bool,
     quiet: bool,
 ) -> None:
-    """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically."""
+    """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically.
+    Without truth (the run had none and no --truth): the run's figures and a summary in report.md."""
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
     from slamobs.pipeline.evaluation.run_dir import load_run, options_for_run, report_run
@@ -109,14 +110,18 @@ def report(
     }
     if t_offset is not None:
         given["t_offset_s"] = offset_seconds(t_offset)
+    if truth is None and not _summarised(run_dir, as_json, quiet):  # a run without truth: its figures
+        return
     try:
         run = load_run(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
-        if base.get("drift_lengths_m") is not None:
-            base["drift_lengths_m"] = tuple(base["drift_lengths_m"])
+        for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+            if base.get(key) is not None:
+                base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
         options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
-        with compile_notice(quiet=quiet):
+        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+            progress("report: evaluating and drawing the figures")
             rep, written = report_run(run_dir, truth, options, exports=export)
     except (InputError, ValueError) as err:
         exit_input_error(str(err))
@@ -126,6 +131,38 @@ def report(
         click.echo(json.dumps(rep, indent=2, sort_keys=True))
         return
     _summary(rep, written)
+
+
+def _summarised(run_dir: Path, as_json: bool, quiet: bool) -> bool:
+    """A run without truth is summarised and drawn (False: done); True when the run has truth to report on."""
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.evaluation.run_dir import has_truth, load_run, summarise_run
+
+    try:
+        if has_truth(load_run(run_dir).meta):
+            return True
+        with Progress(quiet) as progress:
+            progress("report: drawing the run's figures (no truth: no error report)")
+            info, written = summarise_run(run_dir)
+    except InputError as err:
+        exit_input_error(str(err))
+    if as_json:
+        click.echo(json.dumps(info, indent=2, sort_keys=True))
+    elif not quiet:
+        click.echo("truth        none: the run's figures and summary only (give --truth for the error report)")
+        extent = " x ".join(f"{v:.3g}" for v in info.get("extent_m", []))
+        click.echo(
+            f"estimate     {info['n_poses']} poses over {info.get('duration_s', 0):.1f} s, path "
+            f"{info.get('path_length_m', 0):.2f} m, extent {extent} m"
+        )
+        click.echo(f"map          {info['landmarks']} landmarks")
+        if info.get("detection_frames"):
+            click.echo(
+                f"detections   {info['detection_frames']} frames, {info['detections_per_frame_mean']:.2f} per frame, "
+                f"median innovation {info['innovation_median']:.4g}"
+            )
+        click.echo(f"wrote        {', '.join(sorted(p.name for p in written))}")
+    return False
 
 
 def _summary(r: dict, written: list[Path]) -> None:

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import math
 import os
+from dataclasses import replace
 from pathlib import Path
 
 import click
 
 from slamobs.cli.options import SEED, AliasedOption, Finite, quiet_option
-from slamobs.cli.progress import compile_notice
+from slamobs.cli.progress import Progress, compile_notice
 
 #: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
 CONTAINERS = ("bag", "mcap", "ros2")
@@ -40,6 +42,24 @@ IMAGE_FOV_DEG = 70.0
 @click.option("--duration", type=_RATE, default=None, help="Seconds (default: the scenario's).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Noise and latency seed.")
 @click.option("--no-noise", is_flag=True, help="Exact measurements (biases and latencies are kept).")
+@click.option(
+    "--gyro-noise",
+    default=None,
+    metavar="SIGMA[,SY,SZ]",
+    help="Gyro noise per sample, rad/s: one value or x,y,z (default 0.005).",
+)
+@click.option(
+    "--velocity-noise",
+    default=None,
+    metavar="SIGMA[,SY,SZ]",
+    help="Odometry linear-velocity noise per sample, m/s: one value or x,y,z (default 0.02).",
+)
+@click.option(
+    "--detection-noise",
+    default=None,
+    metavar="S0,K[,A]",
+    help="Detection noise per axis at range r: S0 + K*r + A*r^2, m (default 0.01,0.002,0).",
+)
 @click.option("--imu-rate", type=_RATE, default=200.0, show_default=True, help="IMU rate, Hz.")
 @click.option("--odom-rate", type=_RATE, default=50.0, show_default=True, help="Wheel odometry rate, Hz.")
 @click.option("--mag-rate", type=_RATE, default=50.0, show_default=True, help="Magnetometer rate, Hz.")
@@ -112,6 +132,9 @@ def simulate(
     duration: float | None,
     seed: int,
     no_noise: bool,
+    gyro_noise: str | None,
+    velocity_noise: str | None,
+    detection_noise: str | None,
     imu_rate: float,
     odom_rate: float,
     mag_rate: float,
@@ -179,7 +202,7 @@ def simulate(
         rig,
         duration=duration,
         seed=seed,
-        noise=not no_noise,
+        noise=_noise_model(no_noise, gyro_noise, velocity_noise, detection_noise),
         imu_rate=imu_rate,
         odom_rate=odom_rate,
         mag_rate=mag_rate,
@@ -187,8 +210,9 @@ def simulate(
         mocap_rate=mocap_rate,
         camera=camera,
     )
-    with compile_notice(quiet=quiet):
-        path = write_log(sim, output, container, overwrite=force)
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        progress(f"simulate: writing {output}")
+        path = write_log(sim, output, container, overwrite=force, progress=progress)
     if quiet:
         return
     counts = ", ".join(f"{topic} {n}" for topic, n in sim.topic_counts().items())
@@ -196,6 +220,38 @@ def simulate(
         f"wrote {path} ({container}, {log_size(path) / 1e6:.2f} MB, {sim.scenario.name} {sim.duration:g} s, "
         f"seed {seed}{', no noise' if no_noise else ''}): {counts}"
     )
+
+
+def _numbers(text: str, option: str, counts: tuple[int, ...]) -> tuple[float, ...]:
+    """Comma-separated non-negative finite numbers, as many as one of ``counts``."""
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) not in counts or not all(math.isfinite(v) and v >= 0 for v in values):
+        raise click.BadParameter(f"{text!r}: {' or '.join(map(str, counts))} non-negative numbers", param_hint=option)
+    return values
+
+
+def _noise_model(no_noise: bool, gyro: str | None, velocity: str | None, detection: str | None):
+    """The simulator's noise: the default model (or none), with the levels given on the command line."""
+    from slamobs.pipeline.simulate.sensors import NoiseModel
+
+    if no_noise:
+        if gyro or velocity or detection:
+            raise click.BadParameter("noise levels given with --no-noise", param_hint="--no-noise")
+        return False
+    changes: dict = {}
+    if gyro:
+        g = _numbers(gyro, "--gyro-noise", (1, 3))
+        changes["gyro"] = g[0] if len(g) == 1 else g
+    if velocity:
+        v = _numbers(velocity, "--velocity-noise", (1, 3))
+        changes["odom_linear"] = v[0] if len(v) == 1 else v
+    if detection:
+        d = _numbers(detection, "--detection-noise", (2, 3))
+        changes.update(detection_base=d[0], detection_per_m=d[1], detection_per_m2=d[2] if len(d) == 3 else 0.0)
+    return replace(NoiseModel(), **changes) if changes else True
 
 
 def _camera(

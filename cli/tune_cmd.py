@@ -10,6 +10,7 @@ import click
 
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
 from slamobs.cli.errors import exit_input_error
+from slamobs.cli.listing import wrote_line
 from slamobs.cli.options import SEED, Finite
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
@@ -39,6 +40,14 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
     default="ape",
     show_default=True,
     help="minimised over the logs (median): APE translation RMSE, APE rotation RMSE, map error RMSE",
+)
+@click.option(
+    "--target",
+    type=click.Choice(["truth", "batch"]),
+    default="truth",
+    show_default=True,
+    help="what the objective is measured against: each log's ground truth, or the batch smoother's solution on "
+    "the same log (logs without truth can be tuned; --holdout logs are still checked against their truth)",
 )
 @click.option(
     "--config",
@@ -76,6 +85,7 @@ def tune(
     out_dir: Path,
     trials: int,
     objective: str,
+    target: str,
     config_path: Path | None,
     jobs: int | None,
     scheduler: str | None,
@@ -85,7 +95,7 @@ def tune(
     wait_workers: float,
     quiet: bool,
 ) -> None:
-    """Search OBSERVER's gains on LOGS (with ground truth) and write OUT.
+    """Search OBSERVER's gains on LOGS (with ground truth, or any logs with --target batch) and write OUT.
 
     Optuna's TPE sampler searches every gain log-uniformly within its range and the observer's stability
     conditions; the objective is the median over the logs. Trial 0 runs the defaults. OUT gets gains.yaml (use
@@ -135,10 +145,12 @@ def tune(
             force=force,
             wait_workers=wait_workers,
             holdout=holdout,
+            target=target,
         )
         if not quiet:
             where = f"Dask at {scheduler}" if scheduler else f"{options.jobs} local worker processes"
-            click.echo(f"tune: {observer} on {len(logs)} logs, {trials} trials, on {where}", err=True)
+            against = " against the batch smoother's solution" if target == "batch" else ""
+            click.echo(f"tune: {observer} on {len(logs)} logs{against}, {trials} trials, on {where}", err=True)
         result = run_tune(list(logs), options, on_round=on_round)
     except (InputError, GainError, TuneFailed) as err:
         exit_input_error(str(err))
@@ -182,7 +194,5 @@ def tune(
             f"tune never saw (median {held['median_defaults']:.4g} -> {held['median_tuned']:.4g} {unit})"
             + ("" if 2 * held["tuned_better"] > held["logs"] else ": they do not transfer, keep the defaults")
         )
-    click.echo(
-        f"wrote        {out_dir}/ (gains.yaml, trials.parquet, objective.png, tune.md, tune.json); "
-        f"{result.ran} trials run now"
-    )
+    files = ("gains.yaml", "trials.parquet", "objective.png", "tune.md", "tune.json")
+    click.echo(f"wrote        {wrote_line(out_dir, files)}; {result.ran} trials run now")

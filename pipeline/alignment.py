@@ -21,7 +21,7 @@ twist over it, time-base samples inside a linear-velocity gap and detection fram
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -36,7 +36,8 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
-from slamobs.pipeline.streams import DetectionStream, LogStreams, Vec3Stream
+from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
+from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 
 @dataclass(frozen=True)
@@ -209,11 +210,35 @@ def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
         notes.append(f"{topic}: {n} samples outside the /tf span use the nearest transform")
 
 
-def _require(streams: LogStreams, name: str, what: str):
-    stream = getattr(streams, name)
-    if stream is None or len(stream) == 0:
-        raise InputError(streams.path, f"no {what} found ({name}); set topics.{name} in the config")
-    return stream
+def check_required(streams: LogStreams, directions: int = 0) -> None:
+    """Every role an estimator needs has samples (tag corners count as detections), and ``directions`` of the
+    direction roles (accelerometer, magnetic field) for an estimator that needs them; else one error naming every
+    missing role, each with what would give it.
+
+    Raises:
+        InputError: One or more required roles missing; ``details`` holds one line per role.
+
+    """
+    missing = [
+        role
+        for role in REQUIRED_ROLES
+        if not _has_samples(getattr(streams, role)) and not (role == "detections" and streams.tag_corners)
+    ]
+    absent = [role for role in DIRECTION_ROLES if not _has_samples(getattr(streams, role))]
+    lacking = absent[: max(0, directions - (len(DIRECTION_ROLES) - len(absent)))]
+    if missing or lacking:
+        needed = len(REQUIRED_ROLES) + (directions if lacking else 0)
+        roles = missing + lacking
+        raise InputError(
+            streams.path,
+            f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
+            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
+            details=tuple(f"{role} ({ROLE_PURPOSE[role]}): {'; '.join(how_to_satisfy(role))}" for role in roles),
+        )
+
+
+def _has_samples(stream) -> bool:
+    return stream is not None and len(stream) > 0
 
 
 def _sorted(t: np.ndarray, *arrays: np.ndarray):
@@ -291,9 +316,10 @@ def align(
     plausibility gates and ``max_gap`` (default ``DEFAULT_LIMITS``; a None entry switches one off).
     """
     lim = {**DEFAULT_LIMITS, **(limits or {})}
-    om: Vec3Stream = _require(streams, "angular_velocity", "angular velocity (sensor_msgs/Imu or odometry twist)")
-    lv: Vec3Stream = _require(streams, "linear_velocity", "body linear velocity (nav_msgs/Odometry or TwistStamped)")
-    det: DetectionStream = _require(streams, "detections", "landmark detections (fiducial_msgs/FiducialTransformArray)")
+    check_required(streams)
+    om: Vec3Stream = streams.angular_velocity
+    lv: Vec3Stream = streams.linear_velocity
+    det: DetectionStream = streams.detections
     body = body_frame_name(lv, body_frame)
     ident = {f.lstrip("/") for f in identity_frames}
     override = frozenset(f.lstrip("/") for f in override_identity)
@@ -759,3 +785,118 @@ def _range_gate(
     notes.append(f"{topic}: detections dropped by the range gate: {', '.join(parts)}{extra}")
     keep_frame = ~emptied
     return det_y[~bad], ids[~bad], kept[keep_frame], t_frames[keep_frame]
+
+
+#: A time-window bound larger than this is an absolute stamp in seconds (Unix time: 1e9 s is 2001-09-09); one
+#: at or below it counts in seconds from the start of the run's time base (its first angular-velocity sample).
+ABSOLUTE_AFTER_S = 1e9
+
+
+@dataclass(frozen=True)
+class TimeWindow:
+    """The part of a log a run uses (``time.start`` / ``time.end``, ``--start`` / ``--end``), resolved on the
+    run's time base: ``start_ns``/``end_ns`` the window as asked (None: open), ``t0_ns`` the log's start."""
+
+    start_ns: int | None
+    end_ns: int | None
+    t0_ns: int
+    given: tuple[float | None, float | None]
+
+    def describe(self) -> dict:
+        """The window as run.json and the report state it: as given, as stamps, and in seconds from the start."""
+        rel = [None if t is None else (t - self.t0_ns) / 1e9 for t in (self.start_ns, self.end_ns)]
+        return {
+            "given": list(self.given),
+            "start_ns": self.start_ns,
+            "end_ns": self.end_ns,
+            "start_s": rel[0],
+            "end_s": rel[1],
+            "log_start_ns": self.t0_ns,
+            "rule": f"bounds above {ABSOLUTE_AFTER_S:g} are absolute stamps [s], others seconds from the log's start",
+        }
+
+    @classmethod
+    def described(cls, d: dict) -> TimeWindow:
+        """The window of a :meth:`describe` dict (run.json's ``time_window``)."""
+        return cls(d["start_ns"], d["end_ns"], d["log_start_ns"], tuple(d["given"]))
+
+    def poses(self, stream: PoseStream, stamps: np.ndarray | None = None) -> PoseStream:
+        """The poses of ``stream`` whose ``stamps`` (default its ``t_ns``) lie in the window."""
+        keep = self.keeps(stream.t_ns if stamps is None else stamps)
+        cols = ("t_ns", "rec_ns", "position", "quat_xyzw")
+        return replace(stream, **{k: np.asarray(getattr(stream, k))[keep] for k in cols})
+
+    def keeps(self, t_ns: np.ndarray) -> np.ndarray:
+        """Which stamps lie in the window (bounds included)."""
+        t = np.asarray(t_ns)
+        ok = np.ones(t.shape[0], dtype=bool)
+        if self.start_ns is not None:
+            ok &= t >= self.start_ns
+        if self.end_ns is not None:
+            ok &= t <= self.end_ns
+        return ok
+
+
+def time_window(start: float | None, end: float | None, t0_ns: int) -> TimeWindow | None:
+    """``start``/``end`` (seconds, :data:`ABSOLUTE_AFTER_S` decides absolute or relative) on a time base starting
+    at ``t0_ns``; None when neither is given."""
+    if start is None and end is None:
+        return None
+
+    def stamp(v: float | None) -> int | None:
+        if v is None:
+            return None
+        if v > ABSOLUTE_AFTER_S:  # to the microsecond: a double holds Unix seconds to about 0.2 µs
+            return int(round(v * 1e6)) * 1000
+        return t0_ns + int(round(v * 1e9))
+
+    return TimeWindow(stamp(start), stamp(end), int(t0_ns), (start, end))
+
+
+def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> AlignedStream:
+    """``aligned`` restricted to ``window`` (its time origin moves to the first sample kept).
+
+    Raises:
+        InputError: The window is empty, or keeps fewer than two velocity samples of the log.
+    """
+    if window is None:
+        return aligned
+    if window.start_ns is not None and window.end_ns is not None and window.end_ns <= window.start_ns:
+        d = window.describe()
+        raise InputError(path, f"time window: its end ({d['end_s']:g} s) is not after its start ({d['start_s']:g} s)")
+    t = aligned.vel_t_ns
+    keep = window.keeps(t)
+    if np.count_nonzero(keep) < 2:
+        span = f"0 to {(t[-1] - t[0]) / 1e9:.3f} s (stamps {t[0] / 1e9:.3f} to {t[-1] / 1e9:.3f})"
+        d = window.describe()
+        asked = f"{_bound(d['start_s'])} to {_bound(d['end_s'])} s"
+        raise InputError(path, f"time window {asked} from the log's start is outside the log, which spans {span}")
+    rows = np.flatnonzero(keep)
+    a, b = int(rows[0]), int(rows[-1]) + 1
+    # detection frames are in time order: those within the velocity samples kept
+    fa, fb = np.searchsorted(aligned.det_t_ns, t[a], "left"), np.searchsorted(aligned.det_t_ns, t[b - 1], "right")
+    da, db = int(aligned.det_offsets[fa]), int(aligned.det_offsets[fb])
+    ids, det_idx = np.unique(aligned.landmark_ids[aligned.det_idx[da:db]], return_inverse=True)
+    d = aligned.directions
+    if d is not None:
+        d = DirectionSet(d.names, d.inertial, d.body[a:b], d.weight[a:b], d.gravity_norm)
+    starts = aligned.segment_starts
+    return AlignedStream(
+        t0_ns=int(t[a]),
+        vel_t_ns=t[a:b],
+        omega=aligned.omega[a:b],
+        velocity=aligned.velocity[a:b],
+        det_t_ns=aligned.det_t_ns[fa:fb],
+        det_offsets=aligned.det_offsets[fa : fb + 1] - da,
+        det_idx=det_idx.reshape(-1).astype(aligned.det_idx.dtype),
+        det_y=aligned.det_y[da:db],
+        landmark_ids=ids.astype(aligned.landmark_ids.dtype),
+        body_frame=aligned.body_frame,
+        notes=list(aligned.notes),
+        directions=d,
+        segment_starts=starts[(starts > a) & (starts < b)] - a,
+    )
+
+
+def _bound(v: float | None) -> str:
+    return "…" if v is None else f"{v:g}"

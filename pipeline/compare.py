@@ -12,7 +12,11 @@ from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.run import Progress, RunSummary, silent, prepare_log, run_inputs, run_prepared
+from slamobs.pipeline.streams import PoseStream
 
+#: Each estimate's APE against the others' (or batch's) when the log has no truth.
+DISAGREEMENT = "disagreement_m"
+COLUMNS_NO_TRUTH = ("observer", "status", DISAGREEMENT, "landmarks", "path_length_m", "run_time_s", "error")
 COLUMNS = (
     "observer",
     "status",
@@ -90,6 +94,9 @@ def compare_log(
                     "run_time_s": summary.timings.get("observer_s", float("nan")),
                 }
             )
+        if not has_truth(prepared.streams):
+            table = _without_truth(tmp, rows, summaries, log)
+            return table
         columns = list(COLUMNS)
         if "batch" in observers:
             columns.insert(columns.index("ape_trans_rmse_m") + 1, VS_BATCH)
@@ -108,7 +115,115 @@ def compare_log(
     return table
 
 
-def _markdown(table, log: Path) -> str:
+def has_truth(streams) -> bool:
+    return streams.truth is not None and len(streams.truth) > 0
+
+
+def _without_truth(tmp: Path, rows: list[dict], summaries: dict[str, RunSummary], log: Path):
+    """The comparison of a log without truth: run time, map size, path length and each estimate's disagreement
+    with the others (APE of one estimate against another after SE(3) alignment; against ``batch`` when it
+    ran), the table files and an overlay of the estimates aligned onto the reference."""
+    import pandas as pd
+
+    from slamobs.pipeline.writers import read_columns, write_json
+
+    poses = {name: read_columns(Path(s.out_dir) / "poses.parquet") for name, s in summaries.items()}
+    reference = "batch" if "batch" in poses else None
+    spread, aligned = disagreement(poses, reference)
+    for r in rows:
+        s = summaries.get(r["observer"])
+        counts = (s.metadata.get("counts") or {}) if s is not None else {}
+        r[DISAGREEMENT] = spread.get(r["observer"])
+        r["landmarks"] = counts.get("landmarks")
+        r["path_length_m"] = path_length(poses[r["observer"]]) if r["observer"] in poses else None
+    table = pd.DataFrame(rows).reindex(columns=list(COLUMNS_NO_TRUTH))
+    table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
+    against = "the batch smoother's estimate" if reference else "each of the other estimates (their mean)"
+    (tmp / "comparison.md").write_text(_markdown(table, log, against))
+    doc = {"log": str(Path(log).resolve()), "truth": None, "disagreement_against": reference or "others"}
+    write_json(tmp / "comparison.json", {**doc, "rows": table.to_dict("records")})
+    if aligned:
+        plot_estimates(tmp / "overlay.png", aligned, spread, reference)
+    return table
+
+
+def path_length(poses) -> float:
+    xyz = np.column_stack([np.asarray(poses[c], dtype=np.float64) for c in "xyz"])
+    return float(np.sum(np.linalg.norm(np.diff(xyz, axis=0), axis=1)))
+
+
+def _as_stream(name: str, poses) -> PoseStream:
+    """An estimate as the stream another one is measured against."""
+    xyz = np.column_stack([np.asarray(poses[c], dtype=np.float64) for c in "xyz"])
+    quat = np.column_stack([np.asarray(poses[c], dtype=np.float64) for c in ("qx", "qy", "qz", "qw")])
+    t_ns = np.asarray(poses["t_ns"], dtype=np.int64)
+    return PoseStream(name, name, "", t_ns, t_ns, xyz, quat)
+
+
+def disagreement(poses: dict, reference: str | None) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+    """Each estimate's APE translation RMSE (m, after SE(3) alignment) against ``reference``'s estimate, or the
+    mean of those against every other estimate; and each estimate's positions aligned onto the reference (the
+    first estimate without one)."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
+
+    names = list(poses)
+    if not names:
+        return {}, {}
+    anchor = reference or names[0]
+
+    def against(a: str, b: str):
+        ev = evaluate_trajectory(poses[a], _as_stream(b, poses[b]), ReportOptions(), estimate_offset=False)
+        return float(np.sqrt(np.mean(ev.translation.errors**2))), ev.alignment
+
+    spread: dict[str, float] = {}
+    aligned: dict[str, np.ndarray] = {}
+    for a in names:
+        xyz = _as_stream(a, poses[a]).position
+        if a == anchor:
+            aligned[a] = xyz
+            continue
+        rmse, alignment = against(a, anchor)
+        aligned[a] = alignment.positions(xyz)
+        if reference is not None:
+            spread[a] = rmse
+    if reference is None and len(names) > 1:
+        pair = {(a, b): against(a, b)[0] for a in names for b in names if a < b}
+        for a in names:
+            spread[a] = float(np.mean([pair[tuple(sorted((a, b)))] for b in names if b != a]))
+    elif reference is not None:
+        spread[reference] = 0.0
+    return spread, aligned
+
+
+def plot_estimates(path: Path, aligned: dict[str, np.ndarray], spread: dict[str, float], reference) -> Path:
+    """Top view of every estimate, aligned onto the reference (or the first), labelled with its disagreement."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from slamobs.pipeline.evaluation.plots import PATH_POINTS, thin
+
+    fig = Figure(figsize=(8.0, 8.0), layout="constrained")
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    for name, xyz in aligned.items():
+        xy = xyz[thin(len(xyz), PATH_POINTS)]
+        d = spread.get(name)
+        label = name + (" (reference)" if name == reference else f" ({d:.3f} m)" if d is not None else "")
+        ref = name == reference
+        style = dict(lw=3.0, color="0.6", zorder=1) if ref else dict(lw=1.0, zorder=2)
+        ax.plot(xy[:, 0], xy[:, 1], "-", label=label, **style)
+    anchor = reference or next(iter(aligned))
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"Top view, no truth: estimates SE(3)-aligned onto {anchor}'s (in brackets: disagreement)")
+    ax.grid(True, alpha=0.3)
+    fig.legend(loc="outside lower center", ncols=3, fontsize=8)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _markdown(table, log: Path, against: str | None = None) -> str:
     columns = list(table.columns)
     head = "| " + " | ".join(LABELS.get(c, c) for c in columns) + " |\n|" + "---|" * len(columns) + "\n"
     body = ""
@@ -127,6 +242,14 @@ def _markdown(table, log: Path) -> str:
         if VS_BATCH in columns
         else ""
     )
+    if against is not None:
+        return (
+            f"# Observer comparison (no ground truth)\n\nLog: `{log}`\n\nThe log has no truth, so there are no "
+            f"errors: disagreement_m is each estimate's APE translation RMSE against {against} after SE(3) "
+            "alignment (a spread among the estimators, not an error); landmarks is the map size, path_length_m "
+            f"the estimated path's length; run time is the observer stage. overlay.png shows the estimates "
+            f"aligned onto one another.\n\n{head}{body}"
+        )
     return (
         f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
         f"truth; bias errors are final-sample norms; convergence_s is the first time after which the aligned "

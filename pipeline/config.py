@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.directions import DEFAULT_GRAVITY, DEFAULT_MAGNETIC_FIELD
-from slamobs.pipeline.alignment import DEFAULT_LIMITS, Limits
+from slamobs.pipeline.alignment import ABSOLUTE_AFTER_S, DEFAULT_LIMITS, Limits
 from slamobs.pipeline.errors import GainError, InputError
 from slamobs.pipeline.noise import NoiseConfig
 from slamobs.pipeline.smoother.settings import BatchSettings, batch_settings
@@ -36,6 +36,10 @@ class TimeConfig:
     #: per-topic clock (topic -> header | record)
     topics: dict[str, str] = field(default_factory=dict)
     max_meas_age: float = 0.5
+    #: the part of the log the run uses (alignment.time_window: seconds from the log's start, or absolute
+    #: stamps above alignment.ABSOLUTE_AFTER_S); None: from the beginning / to the end
+    start: float | None = None
+    end: float | None = None
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,8 @@ class FramesConfig:
     override_identity: tuple[str, ...] = ()
     tag_pattern: str | None = None
     marker_namespace: str | None = None
+    #: quaternion (x, y, z, w) of the truth's body frame in the estimate's: applied to the truth in evaluation only
+    truth_rotation: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -97,6 +103,7 @@ class EvaluationConfig:
     truth_times: str | None = None
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
+    align: str | None = None  # the report's alignment (align.NAMES); None = the report's default (SE(3))
     plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
     map_truth: str | None = None
 
@@ -192,7 +199,12 @@ class RunConfig:
             "truth_format": ev.truth_format,
             "truth_times": ev.truth_times,
             "clocks": clocks,
-            "images": ImageSearch(tags.family, dict(tags.detector) or None, tags.max_rate_hz),
+            "images": ImageSearch(
+                tags.family,
+                dict(tags.detector) or None,
+                tags.max_rate_hz,
+                recorded_family=tags.family == TagsConfig.__dataclass_fields__["family"].default,
+            ),
         }
 
     @property
@@ -203,6 +215,11 @@ class RunConfig:
     def with_section(self, name: str, **changes) -> RunConfig:
         """This config with some fields of one section changed."""
         return replace(self, **{name: replace(getattr(self, name), **changes)})
+
+    def with_window(self, start: float | None = None, end: float | None = None) -> RunConfig:
+        """This config with the time window bounds given (``--start`` / ``--end``) as ``time.start`` / ``time.end``."""
+        given = {k: v for k, v in (("start", start), ("end", end)) if v is not None}
+        return self.with_section("time", **given) if given else self
 
 
 def _non_finite(data, where: tuple[str, ...] = ()) -> tuple[tuple[str, ...], float] | None:
@@ -242,6 +259,8 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     frame = data.get("output", {}).get("frame")
     if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
         raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
+    if sum(q * q for q in data.get("frames", {}).get("truth_rotation") or (1.0,)) < 1e-18:
+        raise InputError(source, "invalid config at frames.truth_rotation: a zero quaternion is no rotation")
     limits = {**DEFAULT_LIMITS, **data.get("limits", {})}
     lo, hi = limits.get("min_range"), limits.get("max_range")
     if lo is not None and hi is not None and lo >= hi:  # every detection would be dropped
@@ -324,6 +343,14 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
 
     if config.observer not in ESTIMATORS:
         raise InputError(source, f"observer: {_unknown_observer(config.observer)}")
+    start, end = config.time.start, config.time.end
+    if (
+        start is not None
+        and end is not None
+        and (start > ABSOLUTE_AFTER_S) == (end > ABSOLUTE_AFTER_S)
+        and end <= start
+    ):
+        raise InputError(source, f"time window: end {end:g} is not after start {start:g}")
     for name, gains in config.gains.items():
         if name not in ESTIMATORS:
             raise InputError(source, f"gains.{name}: {_unknown_observer(name)}")
@@ -351,6 +378,21 @@ def with_observer(config: RunConfig, name: str | None, option: str = "--observer
     if name not in ESTIMATORS:
         raise InputError(option, _unknown_observer(name))
     return replace(config, observer=name)
+
+
+def with_truth(config: RunConfig, truth: str | None) -> RunConfig:
+    """``config`` with its truth given in the one grammar (``readers.parse_truth``; None: unchanged): a topic or
+    TF edge of the log becomes ``topics.truth``, a trajectory file or another log's ``LOG:TOPIC``
+    ``evaluation.truth_file`` (read on its own stamps, and again by ``slamobs report``)."""
+    from slamobs.pipeline.readers import parse_truth
+
+    if not truth:
+        return config
+    spec = parse_truth(truth)
+    topics = {k: v for k, v in config.topics.items() if k != "truth"}
+    if spec.kind == "file" or spec.log is not None:
+        return replace(config, topics=topics).with_section("evaluation", truth_file=str(truth))
+    return replace(config, topics={**topics, "truth": spec.name}).with_section("evaluation", truth_file=None)
 
 
 def _check_vectors(config: RunConfig, source: str) -> None:
@@ -386,6 +428,18 @@ def export_kinds(kinds) -> tuple[str, ...]:
     return tuple(k for k in EXPORTS if k in wanted)
 
 
+def _beside(truth: str | None, folder: Path) -> str | None:
+    """A truth specification whose file, or whose log in ``LOG:TOPIC``, is relative to ``folder`` (the config's),
+    made absolute; topics and TF edges as they are."""
+    if not truth:
+        return truth
+    head, sep, tail = truth.partition(":")
+    name = head if sep else truth
+    if Path(name).is_absolute() or not (folder / name).exists():
+        return truth
+    return str((folder / name).resolve()) + sep + tail
+
+
 def load_config(path: Path | None) -> RunConfig:
     """Read ``run.yaml`` (or defaults when ``path`` is None)."""
     if path is None:
@@ -404,12 +458,22 @@ def load_config(path: Path | None) -> RunConfig:
         return v if v is None or Path(v).is_absolute() else str((path.parent / v).resolve())
 
     ev = config.evaluation
-    return replace(
+    config = replace(
         config,
         msg_dir=resolve(config.msg_dir),
         cameras=tuple(resolve(v) for v in config.cameras),
         evaluation=replace(
-            ev, truth_file=resolve(ev.truth_file), truth_times=resolve(ev.truth_times), map_truth=resolve(ev.map_truth)
+            ev,
+            truth_file=_beside(ev.truth_file, path.parent) if ":" in (ev.truth_file or "") else resolve(ev.truth_file),
+            truth_times=resolve(ev.truth_times),
+            map_truth=resolve(ev.map_truth),
         ),
         map=replace(config.map, file=resolve(config.map.file)),
     )
+    truth = config.topics.get("truth")  # a truth file or LOG:TOPIC here is relative to the config file too
+    if not isinstance(truth, str) or not truth:
+        return config
+    from slamobs.pipeline.readers import parse_truth
+
+    truth = _beside(truth, path.parent)
+    return with_truth(config, truth) if parse_truth(truth).kind == "file" or ":" in truth else config

@@ -77,10 +77,12 @@ def kind_of(err: BaseException) -> type[SlamobsError] | None:
 class InputError(BadInput):
     """Bad input: names the file, the topic (if any) and the problem in one line."""
 
-    def __init__(self, path: object, problem: str, topic: str | None = None) -> None:
+    def __init__(self, path: object, problem: str, topic: str | None = None, *, details: tuple[str, ...] = ()) -> None:
         self.path = str(path)
         self.topic = topic
         self.problem = problem
+        #: Lines a terminal shows below the one line (one per item of a list the problem counts); not in str().
+        self.details = tuple(details)
         where = f"{self.path}" + (f" [{topic}]" if topic else "")
         super().__init__(f"{where}: {problem}")
 

@@ -421,3 +421,20 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple
         scale = float(np.sum(d * s_diag) / var_x)
     trans = mu_y - scale * rot @ mu_x
     return rot, trans, scale
+
+
+def rotate_covariance(cov: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Covariances (N, d, d) of error vectors that turn by ``r`` (d × d; a pose error ``(δθ, δp)`` turns by
+    ``diag(R, R)``): ``r Σ rᵀ`` each."""
+    return np.einsum("ij,njk,lk->nil", r, cov, r)
+
+
+def rots_to_rotvecs(r: np.ndarray) -> np.ndarray:
+    """Rotation vectors (N, 3) of rotation matrices (N, 3, 3) (:func:`so3_log` row by row, through the
+    quaternion: angle in [0, π])."""
+    q = rots_to_quats(r)
+    q = np.where(q[:, 3:] < 0.0, -q, q)
+    s = np.linalg.norm(q[:, :3], axis=1)
+    angle = 2.0 * np.arctan2(s, q[:, 3])
+    scale = np.where(s > 1e-12, angle / np.maximum(s, 1e-300), 2.0)  # sin(θ/2) ≈ θ/2 near 0
+    return q[:, :3] * scale[:, None]

@@ -1,10 +1,13 @@
-"""Noise levels of the reference estimators (``batch``, ``riekf``): the ``noise`` section of ``run.yaml``,
-else what the log's messages state (:mod:`pipeline.readers.covariance`), else documented defaults.
+"""Noise levels of the reference estimators (``batch``, ``riekf``): the ``noise`` section of ``run.yaml``
+key by key, else what the log's own samples show (``auto``, the default: :mod:`pipeline.noise_estimation`),
+with the log's message covariances (:mod:`pipeline.readers.covariance`) preferred where they are plausible,
+else documented defaults.
 
 Velocity noises are white-noise densities, so that one number describes a sensor at any rate: a
 per-sample standard deviation σ at period T is the density σ·√T. The defaults are the simulator's sensors
 (:class:`pipeline.simulate.NoiseModel` at its default rates); a detection's standard deviation per axis grows
-with range as on a fiducial detector: ``detection + detection_per_m * range``.
+with range r: ``detection + detection_per_m * r + detection_per_m2 * r²`` (a fiducial detector's linear law,
+the stereo / PnP law in r²).
 """
 
 from __future__ import annotations
@@ -14,12 +17,22 @@ from pathlib import Path
 
 import numpy as np
 
+from slamobs.pipeline.noise_estimation import (
+    LAWS,
+    DetectionLaw,
+    Estimate,
+    detection_law,
+    log_triplets,
+    white_noise_density,
+)
+
 #: key -> (default, unit, meaning); the config schema lists the same keys.
 DEFAULTS: dict[str, tuple[float, str, str]] = {
     "gyro": (0.005 * np.sqrt(1 / 200), "rad/s/sqrt(Hz)", "angular-velocity white-noise density"),
     "velocity": (0.02 * np.sqrt(1 / 50), "m/s/sqrt(Hz)", "linear-velocity white-noise density"),
     "detection": (0.01, "m", "detection standard deviation per axis at zero range"),
     "detection_per_m": (0.002, "m/m", "growth of the detection standard deviation with range"),
+    "detection_per_m2": (0.0, "m/m^2", "growth of the detection standard deviation with range squared"),
     "gyro_bias": (0.2, "rad/s", "prior standard deviation of each gyro-bias component (unknown start)"),
     "velocity_bias": (0.2, "m/s", "prior standard deviation of each velocity-bias component"),
     "gyro_bias_walk": (1e-4, "rad/s/sqrt(s)", "gyro-bias random walk (riekf; batch with bias: random-walk)"),
@@ -27,24 +40,32 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
 }
 #: keys that may come from the log's message covariances, and the role whose topic states them
 STATED = {"gyro": "angular_velocity", "velocity": "linear_velocity"}
+#: a stated density below this share of the estimated one is not believed (the sensor claims less noise than its
+#: samples show); above, up to ``STATED_ABOVE`` times the estimate, it is: the samples' high-frequency content is a
+#: lower bound of noise that is coloured (a VIO's or a filtered odometry's), which a driver may know better
+STATED_BELOW, STATED_ABOVE = 0.1, 100.0
 
 
 @dataclass(frozen=True)
 class NoiseConfig:
-    """The ``noise`` section of run.yaml as given: None = not set (the log's message covariance for ``gyro`` and
-    ``velocity`` where it states one, else the default in :data:`DEFAULTS`)."""
+    """The ``noise`` section of run.yaml as given: None = not set (estimated from the log when ``auto``, the log's
+    plausible message covariance for ``gyro`` and ``velocity``, else the default in :data:`DEFAULTS`)."""
 
+    auto: bool = True
     gyro: float | tuple[float, float, float] | None = None
     velocity: float | tuple[float, float, float] | None = None
     detection: float | None = None
     detection_per_m: float | None = None
+    detection_per_m2: float | None = None
     gyro_bias: float | None = None
     velocity_bias: float | None = None
     gyro_bias_walk: float | None = None
     velocity_bias_walk: float | None = None
 
     @classmethod
-    def from_section(cls, section: dict | None) -> NoiseConfig:
+    def from_section(cls, section: dict | str | None) -> NoiseConfig:
+        if section is None or section == "auto":
+            return cls()
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in (section or {}).items()})
 
     def given(self) -> dict:
@@ -58,22 +79,123 @@ class NoiseSettings:
     velocity: np.ndarray  # (3,) m/s/sqrt(Hz)
     detection: float
     detection_per_m: float
+    detection_per_m2: float
     gyro_bias: float
     velocity_bias: float
     gyro_bias_walk: float
     velocity_bias_walk: float
-    sources: dict[str, str] = field(default_factory=dict)  # key -> "config", "default" or "<topic> covariance"
+    #: key -> "config", "default", "<topic> covariance (<rate> Hz)" or "estimated"
+    sources: dict[str, str] = field(default_factory=dict)
+    #: key -> how an estimated level was found, and its standard error (same shape as the value)
+    methods: dict[str, str] = field(default_factory=dict)
+    uncertainty: dict[str, object] = field(default_factory=dict)
+    #: what was estimated, rejected or could not be told, in words
+    notes: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
-        """For run.json: every value and where it came from."""
-        out = {
-            k: (getattr(self, k).tolist() if isinstance(getattr(self, k), np.ndarray) else getattr(self, k))
+        """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
+        out = {k: _plain(getattr(self, k)) for k in DEFAULTS}
+        levels = {
+            k: {
+                "value": out[k],
+                "unit": DEFAULTS[k][1],
+                "source": self.sources.get(k, "default"),
+                "method": self.methods.get(k),
+                "uncertainty": _plain(self.uncertainty.get(k)),
+            }
             for k in DEFAULTS
         }
-        return {**out, "sources": dict(self.sources)}
+        return {**out, "sources": dict(self.sources), "levels": levels, "notes": list(self.notes)}
 
     def detection_sigma(self, ranges: np.ndarray) -> np.ndarray:
-        return self.detection + self.detection_per_m * np.asarray(ranges, dtype=float)
+        r = np.asarray(ranges, dtype=float)
+        return self.detection + self.detection_per_m * r + self.detection_per_m2 * r * r
+
+    def lines(self) -> list[str]:
+        """One line per level: value, unit, source, uncertainty and method."""
+        out, said = [], set()
+        for k, (_, unit, _meaning) in DEFAULTS.items():
+            value, se = _plain(getattr(self, k)), _plain(self.uncertainty.get(k))
+            text = f"{k} = {_fmt(value)} {unit} ({self.sources.get(k, 'default')}"
+            text += f", ± {_fmt(se)}" if se is not None else ""
+            method = self.methods.get(k)
+            text += ")" if method is None else ": the same fit)" if method in said else f": {method})"
+            said.add(method)
+            out.append(text)
+        return out
+
+
+def _plain(value):
+    """A NumPy value as plain Python for JSON."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return float(value) if isinstance(value, np.floating) else value
+
+
+def _fmt(value) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(f"{v:.3g}" for v in value) + "]"
+    return f"{value:.3g}"
+
+
+@dataclass(frozen=True)
+class LogNoise:
+    """What a log's own samples say about its noise (``noise: auto``): an estimate per stream, None where the
+    log cannot tell (too short, no repeated landmark), and notes saying so."""
+
+    gyro: Estimate | None
+    velocity: Estimate | None
+    detection: DetectionLaw | None
+    notes: tuple[str, ...] = ()
+
+    def levels(self) -> dict[str, Estimate]:
+        """Key of :data:`DEFAULTS` -> its estimate (the detection law sets all three detection keys)."""
+        out = {k: e for k, e in (("gyro", self.gyro), ("velocity", self.velocity)) if e is not None}
+        law = self.detection
+        if law is not None:
+            out["detection"] = law.base
+            for _, (power, key) in LAWS.items():
+                out[key] = law.slope if power == law.power else Estimate(0.0, 0.0, law.slope.method, law.slope.samples)
+        return out
+
+
+def stream_density(t_ns: np.ndarray, xyz: np.ndarray) -> Estimate | None:
+    """The white-noise density of one velocity stream as recorded (stamps in ns)."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    return white_noise_density((t_ns - (t_ns.min() if t_ns.size else 0)) * 1e-9, xyz) if t_ns.size else None
+
+
+def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> LogNoise:
+    """:class:`LogNoise` of an aligned stream (``pipeline.alignment.AlignedStream``): the gyro density from its
+    angular velocity (on its own stamps), the detection law from its detections; the velocity density is
+    ``velocity`` (:func:`stream_density` of the stream before alignment interpolated it onto the angular
+    velocity's stamps), or with ``"aligned"`` that of the aligned velocity."""
+    vel_t = (aligned.vel_t_ns - aligned.t0_ns) * 1e-9
+    gyro = white_noise_density(vel_t, aligned.omega)
+    if isinstance(velocity, str):
+        velocity = white_noise_density(vel_t, aligned.velocity)
+    notes = [
+        f"noise: the log is too short to estimate the {name} noise"
+        for name, e in (("gyro", gyro), ("velocity", velocity))
+        if e is None
+    ]
+    g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
+    v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
+    triplets = log_triplets(
+        vel_t,
+        aligned.omega,
+        aligned.velocity,
+        (aligned.det_t_ns - aligned.t0_ns) * 1e-9,
+        aligned.det_offsets,
+        aligned.det_idx,
+        aligned.det_y,
+        g,
+        v,
+    )
+    law = detection_law(triplets)
+    if law is None:
+        notes.append("noise: too few landmarks seen three times within 1 s to estimate the detection noise")
+    return LogNoise(gyro, velocity, law, tuple(notes))
 
 
 def _vec(value) -> np.ndarray:
@@ -81,25 +203,40 @@ def _vec(value) -> np.ndarray:
 
 
 def resolve_noise(
-    config: NoiseConfig | None = None, log: str | Path | None = None, topics: dict[str, str] | None = None
+    config: NoiseConfig | None = None,
+    log: str | Path | None = None,
+    topics: dict[str, str] | None = None,
+    estimated: LogNoise | None = None,
 ) -> NoiseSettings:
-    """The settings of a run: what ``config`` (the run's ``noise`` section) sets, the message covariances of
-    ``log`` for the velocity densities not set there, defaults for the rest."""
-    section = (config or NoiseConfig()).given()
-    values: dict = {}
-    sources: dict[str, str] = {}
+    """The settings of a run, key by key: what ``config`` (the run's ``noise`` section) sets; for the velocity
+    densities the message covariances of ``log`` where they are plausible (and, with an estimate, between
+    :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it); what the log's samples show (``estimated``, used
+    when ``config.auto``); else the defaults."""
+    cfg = config or NoiseConfig()
+    section = cfg.given()
+    found = estimated.levels() if estimated is not None and cfg.auto else {}
+    notes = list(estimated.notes) if estimated is not None and cfg.auto else []
     stated = {}
     if log is not None and topics and any(k not in section for k in STATED):
         from slamobs.pipeline.readers.covariance import stated_noise
 
         stated = stated_noise(log, topics, tuple(STATED[k] for k in STATED if k not in section))
+    values: dict = {}
+    sources: dict[str, str] = {}
+    methods: dict[str, str] = {}
+    uncertainty: dict[str, object] = {}
     for key, (default, _, _) in DEFAULTS.items():
+        covariance = _believed(key, stated.get(STATED.get(key, "")), found.get(key), notes)
         if key in section:
             values[key], sources[key] = section[key], "config"
-        elif key in STATED and STATED[key] in stated:
-            found = stated[STATED[key]]
-            values[key] = found.density
-            sources[key] = f"{found.topic} covariance ({1.0 / found.period_s:.4g} Hz)"
+        elif covariance is not None:
+            values[key] = covariance.density
+            sources[key] = f"{covariance.topic} covariance ({1.0 / covariance.period_s:.4g} Hz)"
+            if key in found:
+                methods[key] = f"plausible; the samples' white-noise estimate is {_fmt(_plain(found[key].value))}"
+        elif key in found:
+            values[key], sources[key] = found[key].value, "estimated"
+            methods[key], uncertainty[key] = found[key].method, found[key].uncertainty
         else:
             values[key], sources[key] = default, "default"
     return NoiseSettings(
@@ -107,4 +244,27 @@ def resolve_noise(
         velocity=_vec(values["velocity"]),
         **{k: float(values[k]) for k in DEFAULTS if k not in ("gyro", "velocity")},
         sources=sources,
+        methods=methods,
+        uncertainty=uncertainty,
+        notes=tuple(notes),
     )
+
+
+def _believed(key: str, stated, estimate: Estimate | None, notes: list[str]):
+    """The stated covariance of ``key`` when it is plausible and agrees with the estimate; else None, with a
+    note saying why it was rejected."""
+    if stated is None:
+        return None
+    if stated.problem is not None:
+        notes.append(f"noise: {stated.topic} covariance not used for {key}: {stated.problem}")
+        return None
+    if estimate is not None:
+        ratio = stated.density / np.maximum(np.asarray(estimate.value, dtype=float), 1e-300)
+        worst = float(ratio.flat[np.argmax(np.abs(np.log(ratio)))])
+        if not STATED_BELOW <= worst <= STATED_ABOVE:
+            notes.append(
+                f"noise: {stated.topic} covariance not used for {key}: it states {worst:.3g}x the density "
+                "estimated from the samples"
+            )
+            return None
+    return stated

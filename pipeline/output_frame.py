@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp, so3_log
+from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, rotate_covariance, so3_exp, so3_log
 from slamobs.pipeline.observers.base import ObserverResult
 
 NAMES = ("map", "start", "gravity", "truth")
@@ -74,6 +74,8 @@ class OutputFrame:
             track_xyz=part.track_xyz @ r.T + t,
             innovation=part.innovation @ r.T,
             landmark_xyz=part.landmark_xyz @ r.T + t,
+            pose_cov=None if part.pose_cov is None else rotate_covariance(part.pose_cov, np.kron(np.eye(2), r)),
+            landmark_cov=None if part.landmark_cov is None else rotate_covariance(part.landmark_cov, r),
         )
 
     def describe(self) -> dict:

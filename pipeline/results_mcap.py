@@ -303,8 +303,8 @@ def _latched_qos() -> str:
     return LATCHED_QOS_YAML
 
 
-#: The columns of each table this module reads (schemas/<table>.json describes them all).
-_READS = {
+#: The columns of each run table the MCAP export and the viewer need (schemas/<table>.json describes them all).
+RUN_TABLE_COLUMNS = {
     "poses": ("t_ns", "x", "y", "z", "qx", "qy", "qz", "qw"),
     "biases": ("t_ns", *(f"{b}_bias_{a}" for b in ("gyro", "vel") for a in "xyz")),
     "innovations": ("t_ns", "id", "ex", "ey", "ez"),
@@ -313,7 +313,7 @@ _READS = {
 }
 
 
-def _read(run_dir: Path, name: str):
+def read_run_table(run_dir: Path, name: str):
     """Table ``name`` of the run (None when the run has none); unreadable or lacking a column read here is one
     line naming the file."""
     from slamobs.pipeline.writers import read_frame
@@ -331,7 +331,7 @@ def _read(run_dir: Path, name: str):
         if found is None:
             return None
         frame, path = found.to_pandas(), run_dir
-    missing = [c for c in _READS[name] if c not in frame.columns]
+    missing = [c for c in RUN_TABLE_COLUMNS.get(name, ()) if c not in frame.columns]
     if missing:
         raise InputError(
             path,
@@ -508,11 +508,11 @@ def _write(stream, run_dir: Path, meta: dict, report: dict | None, rate_hz: floa
     time order, the final map last (channels registered in this order: their ids are part of the file)."""
     body = FRAME_PREFIX + str((meta.get("input") or {}).get("body_frame") or "base_link").lstrip("/")
     out = _Out(stream, _Messages(body))
-    poses = _read(run_dir, "poses")
+    poses = read_run_table(run_dir, "poses")
     t_pose = poses["t_ns"].to_numpy(np.int64)
     t0, t_end = (int(t_pose[0]), int(t_pose[-1])) if len(t_pose) else (0, 0)
     ch_pose, ch_tf = out.channel(TOPIC_POSE, _POSE_TYPE), out.channel(TOPIC_TF, _TF_TYPE)
-    innov = _read(run_dir, "innovations")
+    innov = read_run_table(run_dir, "innovations")
     t_i = innov["t_ns"].to_numpy(np.int64) if innov is not None else np.zeros(0, np.int64)
     t0 = min(t0, int(t_i[0])) if t_i.size else t0  # detections may come before the first velocity sample
     _write_latched(out, meta, report, poses, t0, body)
@@ -569,7 +569,7 @@ def _write_latched(out: _Out, meta: dict, report: dict | None, poses, t0: int, b
 def _add_other_topics(out: _Out, topics: _Topics, run_dir: Path, t_end: int, rate_hz: float | None):
     """Read the biases, the map's tracks and the final map into ``topics`` and register their channels; returns
     the final map (landmarks table, or None)."""
-    biases = _read(run_dir, "biases")
+    biases = read_run_table(run_dir, "biases")
     topics.biases = biases
     topics.ch_gyro = out.channel(TOPIC_GYRO_BIAS, _VEC_TYPE) if biases is not None else None
     topics.ch_vel = out.channel(TOPIC_VEL_BIAS, _VEC_TYPE) if biases is not None else None
@@ -578,8 +578,8 @@ def _add_other_topics(out: _Out, topics: _Topics, run_dir: Path, t_end: int, rat
         for i in np.unique(innov["id"].to_numpy(np.int64)):
             topics.inn_chan[int(i)] = out.channel(TOPIC_INNOVATION.format(id=int(i)), _VEC_TYPE)
     topics.ch_map = out.channel(TOPIC_LANDMARKS, _MARKERS_TYPE)
-    topics.updates = _map_updates(_read(run_dir, "landmark_tracks"), t_end)
-    landmarks = _read(run_dir, "landmarks")
+    topics.updates = _map_updates(read_run_table(run_dir, "landmark_tracks"), t_end)
+    landmarks = read_run_table(run_dir, "landmarks")
     topics.known = np.unique(
         np.concatenate(
             [np.zeros(0, np.int64)]

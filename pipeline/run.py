@@ -24,7 +24,15 @@ from typing import Callable
 import numpy as np
 
 from slamobs.pipeline.version import __version__
-from slamobs.pipeline.alignment import ACCEL_NOTE, AlignedStream, align
+from slamobs.pipeline.alignment import (
+    ACCEL_NOTE,
+    AlignedStream,
+    TimeWindow,
+    align,
+    check_required,
+    time_window,
+    windowed,
+)
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError, machine_failure, one_line, resource_error
@@ -55,7 +63,7 @@ class RunSummary:
 
 
 def headline_metrics(report: dict | None) -> dict[str, float | None]:
-    """APE, map and final bias errors and convergence time from a report dict (None if absent)."""
+    """APE, RPE, map and final bias errors and convergence time from a report dict (None if absent)."""
     r = report or {}
 
     def get(*keys):
@@ -69,6 +77,8 @@ def headline_metrics(report: dict | None) -> dict[str, float | None]:
     return {
         "ape_trans_rmse_m": get("ape", "translation_m", "rmse"),
         "ape_rot_rmse_deg": get("ape", "rotation_deg", "rmse"),
+        "rpe_trans_rmse_m": get("rpe", "translation_m", "rmse"),
+        "rpe_rot_rmse_deg": get("rpe", "rotation_deg", "rmse"),
         "landmark_rmse_m": get("landmarks", "error_m", "rmse"),
         "gyro_bias_err": get("biases", "error_norm", "gyro"),
         "vel_bias_err": get("biases", "error_norm", "velocity"),
@@ -211,6 +221,11 @@ class PreparedLog:
     #: a known map (pipeline.known_map.KnownMap), None otherwise
     known_map: object | None = None
     notes: list[str] = field(default_factory=list)
+    #: the linear-velocity noise density of the samples as recorded (pipeline.noise_estimation.Estimate; None:
+    #: not estimated, noise.auto false or too few samples)
+    velocity_noise: object | None = None
+    #: the part of the log used (time.start / time.end, alignment.TimeWindow), None: all of it
+    window: TimeWindow | None = None
 
 
 Progress = Callable[[str], None]
@@ -220,11 +235,14 @@ def silent(_message: str) -> None:
     """The progress callback that shows nothing."""
 
 
-def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent) -> PreparedLog:
+def prepare_log(
+    log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent, needs_directions: int = 0
+) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
-    IMU directions never read them, nor get the accelerometer note).
+    IMU directions never read them, nor get the accelerometer note). ``needs_directions``: how many inertial
+    directions the estimator needs, named with the other missing inputs when the log lacks them.
     """
     from slamobs.pipeline.readers import read_log
 
@@ -243,6 +261,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
     progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
+    check_required(streams, needs_directions)  # every missing input named at once, before tag poses are computed
     tags = None
     if streams.tag_corners:
         from slamobs.pipeline.vision.landmarks import tag_landmarks
@@ -251,7 +270,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         progress("tag poses")
         tags = tag_landmarks(
             streams,
-            config.tags.options(),
+            recorded_tags(config, streams, notes).options(),
             camera_files=config.cameras,
             identity_frames=config.frames.assume_identity,
             body_frame=config.frames.body,
@@ -266,6 +285,7 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
         if streams.landmark_truth:
             notes.append(f"landmark truth from {config.evaluation.map_truth} (evaluation.map_truth) replaces the log's")
         streams.landmark_truth = map_truth
+    velocity_noise = _recorded_velocity_noise(streams, config)
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
@@ -287,17 +307,56 @@ def prepare_log(log: Path, config: RunConfig, *, directions: bool = True, progre
             notes.append(note)
         if aligned.landmark_ids.size == 0:
             raise InputError(log, f"no detection of a landmark of the fixed map {config.map.file}")
+    window = time_window(config.time.start, config.time.end, aligned.t0_ns)
+    aligned = windowed(aligned, window, log)
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(
         path=streams.path,
-        truth=streams.truth,
+        truth=window_truth(streams.truth, window, config),
         landmark_truth=streams.landmark_truth,
         bias_truth=streams.bias_truth,
         warnings=streams.warnings,
         clocks=streams.clocks,
         derived=streams.derived,
     )
-    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes)
+    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
+
+
+def _recorded_velocity_noise(streams: LogStreams, config: RunConfig):
+    """The linear-velocity noise density from the samples as recorded: the alignment interpolates them onto the
+    angular velocity's stamps, which would smooth the noise away (None when ``noise.auto`` is off)."""
+    lv = streams.linear_velocity
+    if not config.noise.auto or lv is None:
+        return None
+    from slamobs.pipeline.noise import stream_density
+
+    return stream_density(lv.t_ns, lv.xyz)
+
+
+def log_noise(prepared: PreparedLog, config: RunConfig):
+    """The noise levels of the reference estimators on ``prepared`` (``pipeline.noise.NoiseSettings``): the
+    config's keys, else plausible message covariances, else estimated from the log (``noise.auto``), else the
+    defaults."""
+    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
+
+    estimated = None
+    if config.noise.auto and prepared.aligned is not None:
+        estimated = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
+    return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
+
+
+def recorded_tags(config: RunConfig, streams: LogStreams, notes: list[str]):
+    """The config's ``tags`` section, with the tag size a simulated log records where the config gives none."""
+    size = streams.recorded.get("tag_size")
+    if size is None or config.tags.size is not None or config.tags.sizes:
+        return config.tags
+    default = type(config.tags).__dataclass_fields__["family"].default
+    family = streams.recorded.get("tag_family") if config.tags.family == default else None
+    notes.append(
+        f"tag size {size:g} m{f' and family {family}' if family else ''} as the simulated log records them "
+        "(tags.size and tags.family in the config override them)"
+    )
+    return replace(config.tags, size=float(size))
 
 
 def run_log(
@@ -319,16 +378,15 @@ def run_log(
     check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
     check_map_mode(spec, config, log)
     # the gravity output frame of an observer without directions comes from the accelerometer
-    directions = spec.directions_needed(config) > 0 or config.output.frame == "gravity"
+    needed = spec.directions_needed(config)
+    directions = needed > 0 or config.output.frame == "gravity"
     workers = None
     if plot_helpers > 0 and config.evaluation.plots:
         from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
 
         workers = PlotWorkers(plot_helpers)
     try:
-        prepared = prepare_log(log, config, directions=directions, progress=progress)
-        if workers is not None and (prepared.streams.truth is None or not len(prepared.streams.truth)):
-            workers.close()  # no report, no figures
+        prepared = prepare_log(log, config, directions=directions, progress=progress, needs_directions=needed)
         return run_prepared(
             prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
         )
@@ -383,10 +441,9 @@ def estimator_input(prepared: PreparedLog, config: RunConfig) -> EstimatorInput:
         start = map_start(aligned, prepared.known_map)
         notes.append(start.note)
     noise = None
-    if spec.uses_noise:  # the config's levels, else what the log's messages state, else the defaults
-        from slamobs.pipeline.noise import resolve_noise
-
-        noise = resolve_noise(config.noise, log, dict(prepared.topics))
+    if spec.uses_noise:  # the config's levels, else plausible covariances, else estimated, else the defaults
+        noise = log_noise(prepared, config)
+        notes += [f"noise: {line}" for line in noise.lines()] + list(noise.notes)
     options = ObserverOptions(
         max_meas_age=config.time.max_meas_age,
         out_every=_out_every(aligned, config.output.rate_hz),
@@ -450,6 +507,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "landmarks": int(aligned.landmark_ids.shape[0]),
         },
         "span_ns": [int(aligned.vel_t_ns[0]), int(aligned.vel_t_ns[-1])],
+        **({"time_window": prepared.window.describe()} if prepared.window is not None else {}),
         "segments": aligned.segments(),
         "limits": config.limits.as_dict(),
         "output": {
@@ -583,6 +641,7 @@ def estimate(
                     part.landmark_xyz,
                     np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets)),
                     aligned.det_ids,
+                    landmark_cov=part.landmark_cov,
                 )
             }
         )
@@ -618,17 +677,34 @@ def evaluate_run(
     plot_workers=None,
 ) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
-    alone where the log has landmark truth only; (report, why there is none)."""
+    alone where the log has landmark truth only; (report, why there is none). Every run draws its own figures
+    (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them."""
+    report = report_error = None
+    t = time.perf_counter()
     if streams.truth is not None and len(streams.truth):
-        t = time.perf_counter()
         progress("error report")
         report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers)
         timings["report_s"] = time.perf_counter() - t
-        return report, report_error
-    notes.append("no ground truth in the log: no error report")
-    if streams.landmark_truth:
+    elif not streams.landmark_truth:
+        notes.append("no ground truth in the log: no error report (report.md and the figures show the estimate)")
+    else:
         metadata["map_error"] = _map_error(out, streams.landmark_truth)
-    return None, None
+        found = "" if metadata["map_error"] else " (fewer than three matched landmarks off one line: none computed)"
+        notes.append(
+            f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}"
+        )
+    if report is not None:
+        metadata["figures"] = list(report.get("figures") or [])
+    elif config.evaluation.plots:
+        from slamobs.pipeline.evaluation.figure_jobs import run_tables, write_run_figures
+
+        progress("figures")
+        t = time.perf_counter()
+        workers = plot_workers if report_error is None else None  # after a failed report: drawn here
+        written = write_run_figures(out, run_tables(out), notes, workers)
+        metadata["figures"] = [p.name for p in written if p.suffix == ".png"]
+        timings["figures_s"] = time.perf_counter() - t
+    return report, report_error
 
 
 def check_export(prepared: PreparedLog, config: RunConfig) -> None:
@@ -730,6 +806,13 @@ def _diverging_as_error(parts, log: Path, observer: str, t0_ns: int):
         raise _diverged(log, observer, (err.t_ns - t0_ns) * 1e-9, err.stats) from None
 
 
+def window_truth(truth, window: TimeWindow | None, config: RunConfig):
+    """The ground truth within the run's time window, by its stamps on the run's clock (all without a window)."""
+    if truth is None or window is None:
+        return truth
+    return window.poses(truth, truth.rec_ns if config.align_time_source == "record" else truth.t_ns)
+
+
 def truth_on_run_clock(streams: LogStreams, config: RunConfig):
     """The ground truth on the clock the run used (None without truth)."""
     truth = streams.truth
@@ -752,23 +835,29 @@ def _evaluate(
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
     from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
     from slamobs.pipeline.writers import read_columns
 
     segments = metadata["segments"]
     try:
         frames = {k: read_columns(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
+        own = run_figure_jobs({**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False)
         truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
         options = ReportOptions(
             t_max_diff_s=config.evaluation.t_max_diff,
             convergence_threshold_m=config.evaluation.convergence_threshold,
+            **({"align": config.evaluation.align} if config.evaluation.align else {}),
             gravity_aligned=gravity_aligned(metadata),
+            truth_rotation_xyzw=config.frames.truth_rotation,
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
         early = plot_workers if config.evaluation.plots and plot_workers is not None else None
+        if early is not None:
+            early.submit(own)  # drawn while the report is computed
         report, evaluation = evaluate_tables(
             frames,
             truth,
@@ -781,6 +870,8 @@ def _evaluate(
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
+        if noise := [n for n in notes if n.startswith("noise: ")]:  # the levels riekf and batch used, and why
+            report.setdefault("notes", []).extend(noise)
         if len(segments) > 1:
             report.setdefault("notes", []).append(
                 f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
@@ -788,6 +879,8 @@ def _evaluate(
                 "(run.json notes say where); errors just after a gap show how well that worked"
             )
             report["segments"] = segments
+        if metadata.get("time_window"):
+            report["time_window"] = metadata["time_window"]
         write_report(
             report,
             out,
@@ -801,6 +894,7 @@ def _evaluate(
             exports=config.output.export,
             metadata=metadata,
             plot_workers=plot_workers,
+            more_figures=own,
         )
     except OSError:
         raise
@@ -809,7 +903,7 @@ def _evaluate(
             raise stop from None
         if machine_failure(err):  # out of memory or threads: the run fails, never a run without its report
             raise
-        for name in REPORT_FILES:  # a report that failed half way is removed
+        for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)
         reason = one_line(err) or type(err).__name__
         if not isinstance(err, ValueError):

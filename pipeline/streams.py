@@ -140,3 +140,6 @@ class LogStreams:
     camera_info: list = field(default_factory=list)
     #: Roles whose values were derived rather than read, and how (e.g. angular velocity from orientations).
     derived: dict[str, str] = field(default_factory=dict)
+    #: What the log says about reading it (a simulated log's ``tag_size`` and ``tag_family``): used where the
+    #: config leaves them unset.
+    recorded: dict[str, object] = field(default_factory=dict)

@@ -57,11 +57,42 @@ _EXPONENT = np.uint64(0x7FF0_0000_0000_0000)
 LENGTH_STEP_EXP = -20
 
 
+#: Axes of the pose error ``(δθ, δp)`` in the order of the pose covariance (``cov_<a>_<b>`` columns, a ≤ b).
+POSE_AXES = ("rx", "ry", "rz", "x", "y", "z")
+
+
 def result_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     """Columns of every output table, named as in ``schemas/``."""
     return {
         **stretch_tables(res),
-        "landmarks": landmark_table(res.landmark_ids, res.landmark_xyz, res.det_t_ns, res.det_ids),
+        "landmarks": landmark_table(
+            res.landmark_ids, res.landmark_xyz, res.det_t_ns, res.det_ids, landmark_cov=res.landmark_cov
+        ),
+    }
+
+
+def pose_uncertainty_columns(cov: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The poses' standard deviations and covariance upper triangle from (K, 6, 6) covariances; none (the
+    writer fills nulls) without them."""
+    if cov is None:
+        return {}
+    sd = np.sqrt(np.clip(np.einsum("kii->ki", cov), 0.0, None))
+    n = len(POSE_AXES)
+    return {
+        **{f"sigma_{a}": sd[:, 3 + i] for i, a in enumerate("xyz")},
+        **{f"sigma_r{a}": sd[:, i] for i, a in enumerate("xyz")},
+        **{f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}": cov[:, i, j] for i in range(n) for j in range(i, n)},
+    }
+
+
+def landmark_uncertainty_columns(cov: np.ndarray | None) -> dict[str, np.ndarray]:
+    """A landmark's RMS standard deviation and covariance upper triangle from (L, 3, 3) covariances."""
+    if cov is None:
+        return {}
+    sigma = np.sqrt(np.clip(np.einsum("lii->l", cov) / 3.0, 0.0, None))
+    return {
+        "sigma": sigma,
+        **{f"cov_{a}{b}": cov[:, i, j] for i, a in enumerate("xyz") for j, b in enumerate("xyz") if j >= i},
     }
 
 
@@ -138,6 +169,7 @@ def stretch_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
             "qy": q[:, 1],
             "qz": q[:, 2],
             "qw": q[:, 3],
+            **pose_uncertainty_columns(res.pose_cov),
         },
         "biases": {
             "t_ns": res.t_ns,
@@ -159,9 +191,14 @@ def stretch_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
 
 
 def landmark_table(
-    landmark_ids: np.ndarray, landmark_xyz: np.ndarray, det_t_ns: np.ndarray, det_ids: np.ndarray
+    landmark_ids: np.ndarray,
+    landmark_xyz: np.ndarray,
+    det_t_ns: np.ndarray,
+    det_ids: np.ndarray,
+    landmark_cov: np.ndarray | None = None,
 ) -> dict[str, np.ndarray]:
-    """The final map: per landmark ever detected its position, first/last detection time and count."""
+    """The final map: per landmark ever detected its position, first/last detection time and count, and the
+    position covariance where the estimator has one (``landmark_ids`` order)."""
     ids, inv, n_obs = np.unique(det_ids, return_inverse=True, return_counts=True)
     first = np.full(ids.shape, np.iinfo(np.int64).max, dtype=np.int64)
     last = np.full(ids.shape, np.iinfo(np.int64).min, dtype=np.int64)
@@ -174,6 +211,7 @@ def landmark_table(
         "first_seen_ns": first,
         "last_seen_ns": last,
         "n_obs": n_obs.astype(np.int64),
+        **landmark_uncertainty_columns(None if landmark_cov is None else landmark_cov[order]),
     }
 
 
@@ -250,8 +288,15 @@ class TableWriter:
                     schema,
                 )
             writer, schema = self.writers[name]
-            # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element
-            arrays = [_arrow_array(self._values(columns[f.name], f), f.type) for f in schema]
+            rows = len(next(iter(columns.values()))) if columns else 0
+            # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element;
+            # a nullable column the estimator has no values for (the observers' uncertainty) is all null
+            arrays = [
+                _arrow_array(self._values(columns[f.name], f), f.type)
+                if f.name in columns or not f.nullable
+                else pa.nulls(rows, f.type)
+                for f in schema
+            ]
             writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
 
     def _values(self, column: np.ndarray, field: pa.Field) -> np.ndarray:

@@ -31,7 +31,7 @@ def arrow_schema(name: str):
         pa.field(
             f["name"],
             getattr(pa, f["type"])(),
-            nullable=False,
+            nullable=f.get("nullable", False),
             metadata={"unit": f["unit"], "description": f["description"]},
         )
         for f in spec["fields"]

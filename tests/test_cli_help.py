@@ -41,3 +41,20 @@ def test_help_shows_ranges_and_defaults_as_they_are_typed(path, cmd):
             checked += 1
     if path == ("evaluate",):
         assert checked >= 3  # --metric, --pose-relation, --sync-method at least: the check must see them
+
+
+#: the commands that write a file or directory of their own (report and evaluate write beside their inputs)
+WRITERS = ("run", "compare", "simulate", "export", "batch", "tune")
+
+
+@pytest.mark.parametrize("name", WRITERS)
+def test_every_command_that_writes_takes_o_and_out(name):
+    cmd = main.commands[name]
+    commands = [cmd, *getattr(cmd, "commands", {}).values()]  # a group (batch): the subcommand that writes
+    assert any({"-o", "--out"} <= {o for p in c.params for o in getattr(p, "opts", [])} for c in commands), name
+
+
+def test_export_takes_o_and_still_mcap(tmp_path):
+    for flag in ("-o", "--mcap"):
+        res = invoke("export", tmp_path / "no-run", flag, tmp_path / "x.mcap")
+        assert res.exit_code == 2 and "not a run directory" in res.stderr and "No such option" not in res.output

@@ -15,6 +15,7 @@ def test_each_report_section_is_one_class():
         "ApeByAlignmentSection",
         "RpeSection",
         "DriftSection",
+        "SegmentErrorsSection",
         "TimeOffsetSection",
         "LandmarkSection",
         "BiasSection",

@@ -68,6 +68,9 @@ SUMMARY_SCHEMA = pa.schema(
         ("gyro_bias_err", _F),
         ("vel_bias_err", _F),
         ("convergence_s", _F),
+        # added later (a summary written before has no such columns: readers treat them as missing)
+        ("rpe_trans_rmse_m", _F),
+        ("rpe_rot_rmse_deg", _F),
     ]
 )
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)

@@ -16,13 +16,17 @@ import numpy as np
 from slamobs.pipeline.lie import umeyama
 
 KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
+#: Other names of the same alignments: rpg_trajectory_evaluation's ``align_type`` (its eval_cfg.yaml) calls the
+#: 4-DoF one ``posyaw``. Accepted wherever an alignment is chosen; reports name the kind as in ``KINDS``.
+ALIASES = {"posyaw": "yaw"}
+NAMES = KINDS + tuple(ALIASES)
 
 DESCRIPTIONS = {
     "se3": "SE(3) Umeyama (least squares rotation + translation, no scale) on the associated positions (evo -a)",
     "sim3": "Sim(3) Umeyama (least squares rotation + translation + scale) on the associated positions (evo -as)",
     "scale": "scale only, the Umeyama Sim(3) scale applied to the estimate positions (evo -s without -a)",
-    "yaw": "4-DoF: translation + rotation about the z (gravity) axis, least squares on the associated positions; "
-    "for estimates whose roll and pitch are observed (IMU directions)",
+    "yaw": "4-DoF: translation + rotation about the z (gravity) axis, least squares on the associated positions "
+    "(rpg_trajectory_evaluation posyaw); for estimates whose roll and pitch are observed (IMU directions)",
     "origin": "origin: the first associated estimate pose is moved onto the first reference pose (evo --align_origin)",
     "none": "none: the estimate is compared in its own frame (evo without -a)",
 }
@@ -74,6 +78,23 @@ def yaw_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rot, y.mean(axis=0) - rot @ x.mean(axis=0)
 
 
+def yaw_fit_first(ref_pos0, est_pos0, ref_rot0, est_rot0) -> tuple[np.ndarray, np.ndarray]:
+    """The 4-DoF alignment from one pose pair (rpg_trajectory_evaluation ``alignPositionYawSingle``): the yaw
+    maximising ``trace(R_z(θ) R_est R_refᵀ)``, then the translation that puts the first positions together."""
+    c = np.asarray(est_rot0, dtype=np.float64) @ np.asarray(ref_rot0, dtype=np.float64).T
+    th = np.arctan2(c[0, 1] - c[1, 0], c[0, 0] + c[1, 1])
+    rot = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+    return rot, np.asarray(ref_pos0, dtype=np.float64) - rot @ np.asarray(est_pos0, dtype=np.float64)
+
+
+def canonical(kind: str) -> str:
+    """The alignment ``kind`` (any of ``NAMES``) as ``KINDS`` spells it."""
+    name = ALIASES.get(kind, kind)
+    if name not in KINDS:
+        raise ValueError(f"alignment must be one of {NAMES}, got {kind!r}")
+    return name
+
+
 def apply_alignment(rot: np.ndarray, trans: np.ndarray, scale: float, points: np.ndarray) -> np.ndarray:
     """``s R p + t`` for each row ``p`` of an ``(N, 3)`` array."""
     return scale * np.asarray(points, dtype=np.float64) @ np.asarray(rot).T + trans
@@ -95,9 +116,9 @@ def fit_alignment(
     n: int | None = None,
 ) -> Alignment:
     """Fit ``kind`` (one of ``KINDS``) on associated pairs; ``n`` limits the fit to the first ``n`` pairs
-    (evo ``--n_to_align``). ``origin`` needs the rotations of the first pair."""
-    if kind not in KINDS:
-        raise ValueError(f"alignment must be one of {KINDS}, got {kind!r}")
+    (evo ``--n_to_align``). ``origin`` needs the rotations of the first pair, and so does ``yaw`` fitted on one
+    pair (as rpg_trajectory_evaluation's posyaw with ``align_num_frames: 1``)."""
+    kind = canonical(kind)
     ref = np.asarray(ref_pos, dtype=np.float64)
     est = np.asarray(est_pos, dtype=np.float64)
     m = ref.shape[0] if n is None or n < 0 else min(int(n), ref.shape[0])
@@ -110,6 +131,9 @@ def fit_alignment(
             raise ValueError("origin alignment needs the rotations")
         rot = np.asarray(ref_rot[0]) @ np.asarray(est_rot[0]).T
         trans = ref[0] - rot @ est[0]
+        return Alignment(kind, rot, trans, 1.0, 1, _sim3(rot, trans, 1.0))
+    if kind == "yaw" and m == 1 and ref_rot is not None and est_rot is not None:
+        rot, trans = yaw_fit_first(ref[0], est[0], ref_rot[0], est_rot[0])
         return Alignment(kind, rot, trans, 1.0, 1, _sim3(rot, trans, 1.0))
     if kind == "yaw":
         rot, trans = yaw_fit(est[:m], ref[:m])

@@ -5,13 +5,24 @@ odometry devkit ``evaluate_odometry.cpp``: from every ``step``-th pose, for each
 first pose whose reference path distance exceeds the start's by more than L; the error pose of the segment is
 ``E = (P_i⁻¹ P_j)⁻¹ (Q_i⁻¹ Q_j)``; translation error ‖t_E‖ / L and rotation error angle(R_E) / L are averaged.
 Unlike APE it does not depend on the (unobservable) global alignment, only on the estimate's scale.
+
+:func:`segment_errors` is the same relative error with rpg_trajectory_evaluation's rules (Zhang and
+Scaramuzza, "A Tutorial on Quantitative Trajectory Evaluation for Visual(-Inertial) Odometry", IROS 2018;
+``compute_trajectory_errors.compute_relative_error``): sub-trajectory lengths are 10–50 % of the truth path
+(truncated to centimetres), every pair starts a segment that ends at the pair whose truth path distance is
+nearest to the start's + L (within 0.2 L), the error is ``E = (Q_i⁻¹ Q_j)⁻¹ (P_i⁻¹ P_j)`` with the estimate's
+relative translation times the alignment's scale, and each length keeps the distribution of its errors (the
+box plots) rather than their mean only: translation in m and % of L, rotation in deg and deg/m, and the yaw
+and gravity (roll-pitch) parts of the error rotated into the world by the estimate's attitude at the end.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles
+from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles, statistics
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
 
 KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
@@ -85,3 +96,108 @@ def segment_drift(
         "rotation_deg_per_m": float(r_all.mean()) if r_all.size else None,
         "path_length_m": float(dist[-1]) if dist.size else 0.0,
     }
+
+
+#: rpg_trajectory_evaluation's ``max_dist_diff``: a segment ends at most this fraction of L off the length
+RPG_MAX_DIFF_FRACTION = 0.2
+#: the errors :func:`segment_errors` gives per length, with their units
+SEGMENT_ERROR_KINDS = (
+    "translation_m",
+    "translation_pct",
+    "rotation_deg",
+    "rotation_deg_per_m",
+    "yaw_deg",
+    "gravity_deg",
+)
+
+
+def rpg_lengths(path_length_m: float, fractions: tuple[float, ...] = SHORT_PATH_FRACTIONS) -> tuple[float, ...]:
+    """rpg's sub-trajectory lengths: each fraction of the truth path, truncated to two decimals."""
+    return tuple(math.trunc(f * path_length_m * 100.0) / 100.0 for f in fractions)
+
+
+def rpg_segment_ends(dist: np.ndarray, length: float, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end index of every segment: from each pose, the later pose whose path distance is nearest to
+    the start's + ``length`` (the first of equals, the shorter on a tie, as rpg's scan), kept within
+    ``max_diff``."""
+    n = dist.shape[0]
+    start = np.arange(n)
+    target = dist + length
+    k = np.searchsorted(dist, target, side="left")  # first with d >= target
+    lo = np.maximum(np.searchsorted(dist, dist[np.maximum(k - 1, 0)], side="left"), start)
+    hi = np.minimum(k, n - 1)
+    e_lo = np.abs(dist[lo] - target)
+    e_hi = np.where(k < n, np.abs(dist[hi] - target), np.inf)
+    end = np.where(e_hi < e_lo, hi, lo)
+    ok = np.minimum(e_lo, e_hi) < max_diff
+    return start[ok], end[ok]
+
+
+def yaw_gravity(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """|yaw| and the roll-pitch magnitude (radians) of ``R = R_z(yaw) R_y(pitch) R_x(roll)`` (euler 'rzyx')."""
+    yaw = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+    pitch = np.arctan2(-rot[:, 2, 0], np.hypot(rot[:, 0, 0], rot[:, 1, 0]))
+    roll = np.arctan2(rot[:, 2, 1], rot[:, 2, 2])
+    return np.abs(yaw), np.hypot(pitch, roll)
+
+
+def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, scale: float = 1.0) -> dict:
+    """rpg's relative error of each segment ``i → j`` (arrays named as :data:`SEGMENT_ERROR_KINDS`), from the
+    per-pose ``turn = R_ref R_estᵀ`` (:func:`turns`).
+
+    rpg forms ``E = T_m⁻¹ T_c`` (``T_m = Q_i⁻¹ Q_j``, ``T_c = P_i⁻¹ P_j`` with its translation times ``scale``) and
+    rotates it into the world by ``R_c`` at ``j``; that rotation is ``D_jᵀ D_i`` with ``D = R_ref R_estᵀ``, the
+    norm of its translation ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖``: one product per segment instead of eight.
+    """
+    r_w = np.matmul(turn[j].transpose(0, 2, 1), turn[i])
+    moved = np.matmul(turn[i], (est_pos[j] - est_pos[i])[:, :, None])[:, :, 0]
+    trans = np.linalg.norm(scale * moved - (ref_pos[j] - ref_pos[i]), axis=1)
+    rot = np.degrees(np.arccos(np.clip((np.trace(r_w, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
+    yaw, gravity = yaw_gravity(r_w)
+    return dict(
+        zip(
+            SEGMENT_ERROR_KINDS,
+            (trans, 100.0 * trans / length, rot, rot / length, np.degrees(yaw), np.degrees(gravity)),
+        )
+    )
+
+
+def turns(ref_rot, est_rot) -> np.ndarray:
+    """``R_ref R_estᵀ`` of every pair (rotation matrices, or :class:`RotationRows`)."""
+    ref, est = (
+        np.asarray(r[np.arange(len(r))] if isinstance(r, RotationRows) else r, np.float64) for r in (ref_rot, est_rot)
+    )
+    return np.matmul(ref, est.transpose(0, 2, 1))
+
+
+def segment_errors(
+    ref_pos: np.ndarray,
+    ref_rot: np.ndarray,
+    est_pos: np.ndarray,
+    est_rot: np.ndarray,
+    path_length_m: float | None = None,
+    scale: float = 1.0,
+    fractions: tuple[float, ...] = SHORT_PATH_FRACTIONS,
+) -> tuple[dict, dict[float, dict[str, np.ndarray]]]:
+    """rpg's relative errors per sub-trajectory length on associated pairs (the estimate not aligned: only
+    ``scale`` of its alignment matters). ``path_length_m`` sets the lengths (rpg: the whole truth's path;
+    default the pairs'). Returns the JSON-ready statistics and the error arrays per length (the box plots)."""
+    rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
+    dist = accumulated_distances(rp)
+    total = float(dist[-1]) if path_length_m is None else float(path_length_m)
+    rows, arrays, turn = [], {}, turns(ref_rot, est_rot)
+    for length in rpg_lengths(total, fractions):
+        i, j = rpg_segment_ends(dist, length, RPG_MAX_DIFF_FRACTION * length) if length > 0 else ((), ())
+        row = {"length_m": length, "n_segments": len(i)}
+        if len(i) < 2:  # rpg: "Too few samples! Will not compute."
+            rows.append({**row, **{k: None for k in SEGMENT_ERROR_KINDS}})
+            continue
+        errs = relative_errors(rp, ep, turn, i, j, length, scale)
+        arrays[length] = errs
+        rows.append({**row, **{k: statistics(v) for k, v in errs.items()}})
+    return {
+        "fractions": [float(f) for f in fractions],
+        "path_length_m": total,
+        "scale": float(scale),
+        "per_length": rows,
+    }, arrays

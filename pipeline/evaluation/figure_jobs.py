@@ -1,5 +1,8 @@
-"""The report's figures planned: each as ``(plots function, file name, keyword arguments)``, the arrays it
-draws prepared from the report's sections and the trajectory evaluation.
+"""The figures planned: each as ``(plots function, file name, keyword arguments)``, the arrays it draws prepared
+from the report's sections and the trajectory evaluation (the error report's), or from the run's own tables
+(every run's, truth or not: the trajectory in top and 3D view, the map with landmark ids and how often each was
+seen, the biases over time, detections per frame and innovation statistics over time; ``summary`` is what
+``report.md`` and the CLI say about a run without truth).
 
 Drawing is :mod:`.plots` (in helper processes, :mod:`.plot_worker`, or in the run's own); a job needs only its
 sections, so the report hands each one over as soon as they are known.
@@ -7,6 +10,7 @@ sections, so the report hands each one over as soon as they are known.
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -48,6 +52,48 @@ def plot_jobs(
         error_plot_job(report["convergence"], ev),
         bias_plot_job(report["biases"], biases, int(ev.estimate.t_ns[0])),
         *landmark_plot_jobs(report["landmarks"]),
+        *segment_plot_jobs(segment_arrays(ev)),
+        *uncertainty_plot_jobs(report.get("uncertainty"), ev),
+    ]
+
+
+def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluation) -> list:
+    """The 3σ figure and the NEES figure when the estimate has a covariance (riekf, batch; none otherwise)."""
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation.sections import nees_values, nees_windows
+
+    u = ev.uncertainty
+    if section is None or u is None:
+        return []
+    t_s = (u.t_ns - int(ev.estimate.t_ns[0])) / 1e9
+    sigma = np.sqrt(np.clip(np.einsum("nii->ni", u.cov), 0.0, None))
+    keep = plots.envelope(len(t_s), np.abs(u.error) - 3.0 * sigma)
+    label = ALIGN_LABELS[ev.alignment.kind]
+    nees = {}
+    for part, sl in (("position", slice(3, 6)), ("attitude", slice(0, 3))):
+        mid, mean, counts = nees_windows(nees_values(u.error[:, sl], u.cov[:, sl, sl]), t_s - t_s[0])
+        nees[part] = (mid + t_s[0], mean, counts)
+    return [
+        (
+            "plot_sigma_bounds",
+            "uncertainty.png",
+            dict(
+                t_s=t_s[keep],
+                error=u.error[keep],
+                sigma=sigma[keep],
+                title=f"Error and ±3σ of the estimate's covariance after {label} alignment (truth frame)",
+            ),
+        ),
+        (
+            "plot_nees",
+            "nees.png",
+            dict(
+                position=nees["position"],
+                attitude=nees["attitude"],
+                mean={k: section[k]["mean"] for k in ("position", "attitude")},
+                window_s=section["window_s"],
+            ),
+        ),
     ]
 
 
@@ -103,6 +149,37 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             level=((level_t - t0) / 1e9, level),
         ),
     )
+
+
+#: the box plots of the segment errors (rpg_trajectory_evaluation's relative error per sub-trajectory length)
+SEGMENT_PLOT = "segment_errors.png"
+
+
+def segment_arrays(ev: TrajectoryEvaluation) -> dict[float, dict[str, np.ndarray]]:
+    """The segment error arrays per length, as the report's segment_errors section computed them."""
+    from slamobs.pipeline.evaluation.sections import SegmentErrorsSection
+
+    section = SegmentErrorsSection()
+    section.process_data(ev)
+    return section.arrays
+
+
+def segment_plot_jobs(arrays: dict[float, dict[str, np.ndarray]]) -> list:
+    """The segment errors' box plots when some length has segments (none otherwise)."""
+    if not arrays:
+        return []
+    lengths = sorted(arrays)
+    return [
+        (
+            "plot_segment_errors",
+            SEGMENT_PLOT,
+            dict(
+                lengths_m=np.array(lengths),
+                translation_pct=[arrays[k]["translation_pct"] for k in lengths],
+                rotation_deg_per_m=[arrays[k]["rotation_deg_per_m"] for k in lengths],
+            ),
+        )
+    ]
 
 
 def landmark_plot_jobs(landmark_section: dict[str, Any]) -> list:
@@ -162,3 +239,163 @@ def bias_plot_rows(biases: Table) -> Table:
     if hasattr(biases, "columns"):
         return biases.iloc[take].reset_index(drop=True)
     return {c: np.asarray(v)[take] for c, v in biases.items()}
+
+
+# ------------------------------------------------------------------------- the run's own figures, truth or not
+
+TRAJECTORY_PNG = "trajectory.png"
+MAP_PNG = "map.png"
+MEASUREMENTS_PNG = "measurements.png"
+BIASES_PNG = "biases.png"
+#: every file a run's own figures may write (the bias figure is the report's one, drawn without truth too)
+RUN_FIGURES = (TRAJECTORY_PNG, MAP_PNG, MEASUREMENTS_PNG, BIASES_PNG)
+#: the innovation statistics are taken over this many time bins at most (about one per 2 pixels)
+INNOVATION_BINS = 400
+
+
+def run_figure_jobs(tables: dict[str, Table | None], *, with_biases: bool = True) -> list:
+    """The run's figures from its ``tables`` (``poses`` needed; ``landmarks``, ``innovations``, ``biases``
+    used when present). ``with_biases`` False leaves the bias figure to the report (it adds the truth)."""
+    poses = tables.get("poses")
+    if poses is None or not n_rows(poses):
+        return []
+    t_ns = column(poses, "t_ns", np.int64)
+    t0 = int(np.min(t_ns))
+    jobs = [trajectory_job(poses), map_job(poses, tables.get("landmarks"))]
+    innovations = tables.get("innovations")
+    if innovations is not None and n_rows(innovations):
+        jobs.append(measurements_job(innovations, t0))
+    if with_biases:
+        from slamobs.pipeline.evaluation.sections import BiasSection
+        from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
+
+        section = BiasSection(None, ReportOptions().bias_window_fraction)
+        section.process_data(tables.get("biases"))
+        jobs.append(bias_plot_job(section.get_statistic(), tables.get("biases"), t0))
+    return jobs
+
+
+def _path_xyz(poses: Table) -> np.ndarray:
+    """The estimate's positions in time order, thinned to what a figure draws."""
+    from slamobs.pipeline.evaluation import plots
+
+    order = time_order(column(poses, "t_ns", np.int64))
+    xyz = columns(poses, ["x", "y", "z"], np.float64)[order]
+    return xyz[plots.thin(len(xyz), plots.PATH_POINTS)]
+
+
+def trajectory_job(poses: Table):
+    """Top view and 3D view of the estimate as written (the output frame), coloured by time."""
+    xyz = _path_xyz(poses)
+    return ("plot_trajectory", TRAJECTORY_PNG, dict(xyz=xyz))
+
+
+def _seen_counts(landmarks: Table | None) -> np.ndarray:
+    if landmarks is None or "n_obs" not in (landmarks.columns if hasattr(landmarks, "columns") else landmarks):
+        return np.zeros(0, dtype=np.int64)
+    return column(landmarks, "n_obs", np.int64)
+
+
+def map_job(poses: Table, landmarks: Table | None):
+    """The map: each landmark at its final estimate with its id and how often it was seen, over the path."""
+    ids, xyz = landmark_table(landmarks)
+    seen = _seen_counts(landmarks)
+    return (
+        "plot_map",
+        MAP_PNG,
+        dict(ids=ids, xyz=xyz, seen=seen if len(seen) == len(ids) else np.zeros(len(ids)), path_xyz=_path_xyz(poses)),
+    )
+
+
+def frame_counts(t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Detection frames (distinct stamps) and the number of detections in each."""
+    stamps, counts = np.unique(np.asarray(t_ns, dtype=np.int64), return_counts=True)
+    return stamps, counts
+
+
+def binned_stats(t_s: np.ndarray, values: np.ndarray, bins: int = INNOVATION_BINS) -> dict[str, np.ndarray]:
+    """Median, 95th percentile and maximum of ``values`` in up to ``bins`` equal runs of time-ordered samples."""
+    order = np.argsort(t_s, kind="stable")
+    t_s, values = t_s[order], values[order]
+    edges = np.unique(np.linspace(0, len(values), min(bins, len(values)) + 1).astype(np.int64))
+    out = {k: np.empty(len(edges) - 1) for k in ("t_s", "median", "p95", "max")}
+    for k, (a, b) in enumerate(zip(edges[:-1], edges[1:])):
+        v = values[a:b]
+        out["t_s"][k] = 0.5 * (t_s[a] + t_s[b - 1])
+        out["median"][k], out["p95"][k] = np.percentile(v, (50, 95))
+        out["max"][k] = np.max(v)
+    return out
+
+
+def measurements_job(innovations: Table, t0: int):
+    """Detections per frame and the innovation (residual) norms over time, as statistics per time bin."""
+    t_ns = column(innovations, "t_ns", np.int64)
+    stamps, counts = frame_counts(t_ns)
+    norms = column(innovations, "e_norm", np.float64)
+    ok = np.isfinite(norms)
+    stats = binned_stats((t_ns[ok] - t0) / 1e9, norms[ok]) if ok.any() else None
+    return (
+        "plot_measurements",
+        MEASUREMENTS_PNG,
+        dict(frame_t_s=(stamps - t0) / 1e9, per_frame=counts, innovation=stats),
+    )
+
+
+def summary(tables: dict[str, Table | None]) -> dict[str, Any]:
+    """What a run without truth can say about itself: duration, path length, map size, detections."""
+    poses, landmarks, innovations = (tables.get(k) for k in ("poses", "landmarks", "innovations"))
+    out: dict[str, Any] = {"n_poses": n_rows(poses) if poses is not None else 0}
+    if out["n_poses"]:
+        t_ns = column(poses, "t_ns", np.int64)
+        xyz = columns(poses, ["x", "y", "z"], np.float64)[time_order(t_ns)]
+        out["duration_s"] = float((np.max(t_ns) - np.min(t_ns)) / 1e9)
+        out["path_length_m"] = float(np.sum(np.linalg.norm(np.diff(xyz, axis=0), axis=1)))
+        out["extent_m"] = [float(v) for v in np.ptp(xyz, axis=0)]
+    out["landmarks"] = n_rows(landmarks) if landmarks is not None else 0
+    if innovations is not None and n_rows(innovations):
+        _, counts = frame_counts(column(innovations, "t_ns", np.int64))
+        norms = column(innovations, "e_norm", np.float64)
+        out["detection_frames"] = int(len(counts))
+        out["detections_per_frame_mean"] = float(np.mean(counts))
+        out["innovation_median"] = float(np.nanmedian(norms)) if np.isfinite(norms).any() else None
+    return out
+
+
+def summary_markdown(info: dict[str, Any], figures: list[str], notes: list[str] = ()) -> str:
+    """report.md of a run without truth: what the run did and its figures (no error numbers: no truth)."""
+    lines = ["# Run summary (no ground truth)", ""]
+    lines.append("The log has no ground truth, so there are no error numbers; the figures show the estimate.")
+    lines.append("Give truth with `slamobs report RUN --truth ...` for the error report.")
+    lines += ["", "| quantity | value |", "|---|---|"]
+    for key, value in info.items():
+        shown = ", ".join(f"{v:.4g}" for v in value) if isinstance(value, list) else value
+        lines.append(f"| {key} | {shown:.6g} |" if isinstance(shown, float) else f"| {key} | {shown} |")
+    if notes:
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
+    if figures:
+        lines += ["", "## Figures", ""] + [f"![{name}]({name})" for name in figures]
+    return "\n".join(lines) + "\n"
+
+
+def run_tables(out) -> dict[str, Table | None]:
+    """The tables of run directory ``out`` the run's figures draw (None where a table is missing)."""
+    from slamobs.pipeline.writers import read_columns
+
+    paths = {k: Path(out) / f"{k}.parquet" for k in ("poses", "biases", "landmarks", "innovations")}
+    return {k: read_columns(p) if p.is_file() else None for k, p in paths.items()}
+
+
+def write_run_figures(out, tables: dict[str, Table | None], notes: list[str] = (), plot_workers=None) -> list:
+    """A run without truth: its figures (by ``plot_workers`` when given, else here) and ``report.md`` saying what
+    the run did and showing them, into ``out``; the paths written."""
+    jobs = run_figure_jobs(tables)
+    if plot_workers is not None:
+        plot_workers.submit(jobs)
+        written = plot_workers.collect(Path(out))
+    else:
+        from slamobs.pipeline.evaluation.plot_worker import draw
+
+        written = draw(jobs, lambda name: Path(out) / name)
+    md = Path(out) / "report.md"
+    md.write_text(summary_markdown(summary(tables), [p.name for p in written], list(notes)), encoding="utf-8")
+    return [*written, md]

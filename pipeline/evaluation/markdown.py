@@ -110,6 +110,7 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
         ]
     if not rpe_s and not drift:
         lines += ["Path too short for RPE and drift.", ""]
+    lines += _md_segment_errors(report.get("segment_errors"))
     est = (
         "not estimated"
         if off["estimated_s"] is None
@@ -120,6 +121,29 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
     )
     lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     return lines
+
+
+def _md_segment_errors(seg: dict[str, Any] | None) -> list[str]:
+    """rpg's relative error per sub-trajectory length: "mean, median (min, max)" per length, rpg's table style."""
+    if not seg or not any(row["translation_pct"] for row in seg["per_length"]):
+        return []
+    lines = [
+        f"Segment errors (rpg_trajectory_evaluation; truth path {seg['path_length_m']:.4g} m, scale "
+        f"{seg['scale']:.6g}), mean, median (min, max):",
+        "",
+        "| length [m] | segments | translation [%] | rotation [deg/m] | yaw [deg] |",
+        "|---|---|---|---|---|",
+    ]
+    for row in seg["per_length"]:
+        cells = [
+            "–"
+            if row[k] is None
+            else f"{_fmt(row[k]['mean'], 3)}, {_fmt(row[k]['median'], 3)} "
+            f"({_fmt(row[k]['min'], 3)}, {_fmt(row[k]['max'], 3)})"
+            for k in ("translation_pct", "rotation_deg_per_m", "yaw_deg")
+        ]
+        lines.append(f"| {row['length_m']:g} | {row['n_segments']} | " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 #: What a reliable offset is and is not: the estimate's lag behind the truth (a filter's delay) looks the same.
@@ -200,16 +224,55 @@ def _md_biases(bi: dict[str, Any]) -> list[str]:
     ]
 
 
+def _window_text(win: dict[str, Any]) -> str:
+    """A time window as seconds from the log's start."""
+    ends = [
+        "start" if win["start_s"] is None else f"{win['start_s']:.3f} s",
+        "end" if win["end_s"] is None else f"{win['end_s']:.3f} s",
+    ]
+    return f"{ends[0]} to {ends[1]} from the log's start"
+
+
 def render_markdown(report: dict[str, Any]) -> str:
     """Human-readable version of the report (tables for APE, RPE/drift, landmarks, biases and the method)."""
     lines = ["# slamobs error report", ""]
+    if win := report.get("time_window"):
+        lines += [f"Time window: {_window_text(win)} (the run used this part of its log; the truth was cut to it).", ""]
     lines += _md_trajectory(report)
     lines += _md_landmarks(report["landmarks"])
     lines += _md_biases(report["biases"])
+    if report.get("uncertainty"):
+        lines += _md_uncertainty(report["uncertainty"])
     if report.get("notes"):
         lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
+    if report.get("figures"):
+        lines += ["## Figures", ""] + [f"![{name}]({name})" for name in report["figures"]] + [""]
     lines += _md_method(report)
     return "\n".join(lines)
+
+
+def _md_uncertainty(u: dict[str, Any]) -> list[str]:
+    """The estimator's covariance against its error: NEES with its bounds, errors within 3σ."""
+    lines = [
+        "## Uncertainty (NEES)",
+        "",
+        f"Error (δθ, δp) in the {u['frame']}.",
+        "",
+        "| part | pairs | mean NEES | 95 % bounds of the mean | median | instants within χ²(3) bounds | "
+        f"{u['window_s']:g} s windows within bounds | within ±3σ (x, y, z) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for part in ("position", "attitude"):
+        r = u[part]
+        if not r["n"]:
+            lines.append(f"| {part} | 0 | | | | | | |")
+            continue
+        lines.append(
+            f"| {part} | {r['n']} | {_fmt(r['mean'], 4)} | {_fmt(r['bounds'][0], 4)} – {_fmt(r['bounds'][1], 4)} | "
+            f"{_fmt(r['median'], 4)} | {_fmt(r['share_instants_within'], 3)} | {_fmt(r['share_windows_within'], 3)} | "
+            f"{_vec_str(r['within_3sigma'])} |"
+        )
+    return lines + [""]
 
 
 def _md_method(report: dict[str, Any]) -> list[str]:
@@ -246,5 +309,8 @@ def _md_method(report: dict[str, Any]) -> list[str]:
     ]
     if report["landmarks"].get("map_aligned"):
         lines.append(f"| map-only alignment | {report['landmarks']['map_aligned']['method']} |")
-    lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |", ""]
+    lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |"]
+    if report.get("uncertainty"):
+        lines.append(f"| uncertainty | {m['uncertainty']} |")
+    lines.append("")
     return lines

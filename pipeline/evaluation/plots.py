@@ -21,6 +21,7 @@ MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable an
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
 SCATTER_POINTS = 3000  # markers of a scatter
+MAX_LOG_GROUPS = 24  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -341,5 +342,288 @@ def plot_landmark_errors(
     ax.set_ylabel("position error [m]")
     ax.set_title("Landmark map error per id")
     ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    return _save(fig, path)
+
+
+def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.ndarray, title: str = "") -> Path:
+    """Per axis the error and the ±3σ band of the estimator's covariance: attitude (δθ, degrees) on the left,
+    position (δp, m) on the right."""
+    fig, axes = _figure(3, 2, (11.0, 7.5), top=0.6)
+    parts = ((slice(0, 3), np.degrees(1.0), "deg", "δθ"), (slice(3, 6), 1.0, "m", "δp"))
+    for col, (sl, scale, unit, name) in enumerate(parts):
+        e, sd = error[:, sl] * scale, sigma[:, sl] * scale
+        for k in range(3):
+            ax = axes[k, col]
+            ax.fill_between(t_s, -3.0 * sd[:, k], 3.0 * sd[:, k], color="0.85", lw=0, label="±3σ")
+            ax.plot(t_s, e[:, k], color=COLORS[k], lw=0.8, label=f"{name} {AXES[k]}")
+            ax.set_ylabel(f"{name} {AXES[k]} [{unit}]")
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="upper right", fontsize=7)
+        axes[2, col].set_xlabel("time since estimate start [s]")
+    fig.suptitle(title, fontsize=10)
+    return _save(fig, path)
+
+
+def plot_nees(path: Path, position, attitude, mean: dict, window_s: float) -> Path:
+    """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds."""
+    from slamobs.pipeline.evaluation.metrics import nees_bounds
+
+    fig, axes = _figure(2, 1, (9.0, 6.5))
+    for ax, (t, nees, counts), part in ((axes[0, 0], position, "position"), (axes[1, 0], attitude, "attitude")):
+        if len(t):
+            bounds = {int(c): nees_bounds(3, int(c)) for c in np.unique(counts)}
+            ax.fill_between(
+                t,
+                [bounds[int(c)][0] for c in counts],
+                [bounds[int(c)][1] for c in counts],
+                color="0.85",
+                lw=0,
+                step="mid",
+                label="95 % bounds of a window's mean",
+            )
+            ax.plot(t, nees, color="tab:blue", lw=1.0, label=f"NEES, {window_s:g} s windows")
+            ax.axhline(3.0, color="k", ls=":", lw=1.0, label="expected (3)")
+            ax.set_yscale("log")
+        if mean.get(part) is not None:
+            ax.set_title(f"{part.capitalize()} NEES (3 DoF): mean {mean[part]:.3g} over the run")
+        ax.set_ylabel("NEES")
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[1, 0].set_xlabel("time since estimate start [s]")
+    return _save(fig, path)
+
+
+def plot_segment_errors(
+    path: Path, lengths_m: np.ndarray, translation_pct: list[np.ndarray], rotation_deg_per_m: list[np.ndarray]
+) -> Path:
+    """Box plots of the relative error per sub-trajectory length (rpg_trajectory_evaluation's figure): translation
+    in % of the length and rotation in deg/m, one box per length (whiskers 1.5 IQR, outliers not drawn)."""
+    fig, axes = _figure(2, 1, (7.5, 6.5))
+    labels = [f"{x:g}" for x in lengths_m]
+    panels = (
+        (axes[0, 0], translation_pct, "translation error [%]", "tab:blue"),
+        (axes[1, 0], rotation_deg_per_m, "rotation error [deg/m]", "tab:purple"),
+    )
+    for ax, data, ylabel, color in panels:
+        ax.boxplot(
+            [np.asarray(d, dtype=np.float64) for d in data],
+            tick_labels=labels,
+            showfliers=False,
+            patch_artist=True,
+            boxprops=dict(facecolor=color, alpha=0.35),
+            medianprops=dict(color="black"),
+        )
+        ax.set_ylabel(ylabel)
+        ax.set_ylim(bottom=0.0)
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0, 0].set_title("Relative error per sub-trajectory length (segments of the truth path)")
+    axes[1, 0].set_xlabel("sub-trajectory length [m]")
+    return _save(fig, path)
+
+
+def _distribution(ax, groups: list[np.ndarray], positions: np.ndarray, kind: str, color, width: float) -> None:
+    """One box or violin per group at ``positions``; a group of one distinct value is a marker (a violin needs
+    a spread), an empty group nothing."""
+    spread = [k for k, g in enumerate(groups) if len(g) and np.ptp(g) > 0]
+    flat = [k for k, g in enumerate(groups) if len(g) and k not in spread]
+    if kind == "violin" and spread:
+        parts = ax.violinplot([groups[k] for k in spread], positions[spread], widths=width, showmedians=True)
+        for body in parts["bodies"]:
+            body.set_facecolor(color)
+            body.set_alpha(0.5)
+        for key in ("cmedians", "cmins", "cmaxes", "cbars"):
+            parts[key].set_color(color)
+    elif kind == "box" and spread:
+        box = ax.boxplot([groups[k] for k in spread], positions=positions[spread], widths=width, patch_artist=True)
+        for patch in box["boxes"]:
+            patch.set_facecolor(color)
+            patch.set_alpha(0.5)
+        for median in box["medians"]:
+            median.set_color("0.1")
+    if flat:
+        ax.plot(positions[flat], [groups[k][0] for k in flat], "o", color=color, ms=4)
+
+
+def plot_distributions(
+    path: Path,
+    values: dict[str, dict[str, np.ndarray]],
+    kind: str,
+    ylabel: str,
+    title: str,
+) -> Path:
+    """Box (``kind="box"``) or violin plots of a metric over runs: on top one per estimator over every log,
+    below one per log (the first ``MAX_LOG_GROUPS``) with an estimator's colour each. ``values[estimator][log]``
+    holds the runs' values."""
+    estimators = list(values)
+    every_log = list(dict.fromkeys(log for per in values.values() for log in per))
+    logs = every_log[:MAX_LOG_GROUPS]
+    fig, axes = _figure(2, 1, (max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))), 7.0), bottom=1.0, gap=0.8)
+    ax_e, ax_l = axes[0, 0], axes[1, 0]
+    colors = [f"C{k % 10}" for k in range(len(estimators))]
+    width = 0.8 / max(1, len(estimators))
+    for k, est in enumerate(estimators):
+        pooled = np.concatenate([v for v in values[est].values()] or [np.empty(0)])
+        _distribution(ax_e, [pooled], np.array([float(k)]), kind, colors[k], 0.6)
+        groups = [values[est].get(log, np.empty(0)) for log in logs]
+        at = np.arange(len(logs)) + (k - (len(estimators) - 1) / 2) * width
+        _distribution(ax_l, groups, at, kind, colors[k], width * 0.9)
+        ax_l.plot([], [], "s", color=colors[k], alpha=0.6, label=est)
+    ax_e.set_xticks(np.arange(len(estimators)), estimators)
+    ax_e.set_xlim(-0.6, len(estimators) - 0.4)
+    ax_e.set_title(f"{title}: per estimator, all logs")
+    ax_l.set_xticks(np.arange(len(logs)), logs, rotation=20, ha="right", fontsize=8)
+    ax_l.set_xlim(-0.6, len(logs) - 0.4)
+    shown = f"first {len(logs)} of {len(every_log)} logs" if len(logs) < len(every_log) else "per log"
+    ax_l.set_title(shown)
+    ax_l.legend(loc="best", fontsize=8)
+    for ax in (ax_e, ax_l):
+        ax.set_ylabel(ylabel)
+        ax.grid(True, axis="y", alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated trajectory (output frame)") -> Path:
+    """The estimate as written: a top view (x-y) and a 3D view, both coloured by time (start dark, end light)."""
+    fig, axes = _figure(1, 2, (12.0, 5.8), gap=0.0, right=0.4)
+    top = axes[0, 0]
+    box = axes[0, 1].get_position()
+    axes[0, 1].remove()
+    ax3 = fig.add_axes(box, projection="3d")
+    colour = np.linspace(0.0, 1.0, len(xyz))
+    if len(xyz):
+        top.plot(xyz[:, 0], xyz[:, 1], "-", color="0.6", lw=0.6)
+        sel = thin(len(xyz), SCATTER_POINTS)
+        sc = top.scatter(xyz[sel, 0], xyz[sel, 1], c=colour[sel], cmap="viridis", s=3, zorder=3)
+        top.plot(xyz[0, 0], xyz[0, 1], "o", color="tab:green", ms=6, label="start")
+        top.plot(xyz[-1, 0], xyz[-1, 1], "s", color="tab:red", ms=6, label="end")
+        ax3.plot(xyz[:, 0], xyz[:, 1], xyz[:, 2], "-", color="tab:blue", lw=0.8)
+        ax3.scatter(*xyz[0], color="tab:green", s=20)
+        ax3.scatter(*xyz[-1], color="tab:red", s=20)
+        fig.colorbar(sc, ax=top, shrink=0.8, label="fraction of the run")
+        top.legend(loc="upper right", fontsize=8)
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel("x [m]")
+    top.set_ylabel("y [m]")
+    top.set_title(title + ", top view")
+    top.grid(True, alpha=0.3)
+    ax3.set_xlabel("x [m]")
+    ax3.set_ylabel("y [m]")
+    ax3.set_zlabel("z [m]")
+    ax3.set_title("3D view")
+    return _save(fig, path)
+
+
+def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, path_xyz: np.ndarray) -> Path:
+    """The landmark map from above, each landmark with its id, coloured by how often it was seen, over the
+    path; beside it the number of observations per id."""
+    n = len(ids)
+    fig, axes = _figure(1, 2, (13.0, 6.0), gap=0.0, left=0.85, right=0.3)
+    ax, bars = axes[0, 0], axes[0, 1]
+    fig.subplots_adjust(wspace=0.3)
+    if len(path_xyz):
+        ax.plot(path_xyz[:, 0], path_xyz[:, 1], "-", color="0.7", lw=0.8, label="estimated path")
+    if n:
+        sc = ax.scatter(xyz[:, 0], xyz[:, 1], c=seen, cmap="plasma", s=60, edgecolors="k", lw=0.5, zorder=3)
+        fig.colorbar(sc, ax=ax, shrink=0.8, label="times seen")
+        if n <= MAX_ID_LABELS:
+            for i, p, k in zip(ids, xyz, seen):
+                ax.annotate(f"{int(i)} ({int(k)})", (p[0], p[1]), xytext=(4, 4), textcoords="offset points", fontsize=7)
+        x = np.arange(n)
+        bars.bar(x, seen, color="tab:purple")
+        if n <= MAX_ID_LABELS:
+            bars.set_xticks(x, [str(int(i)) for i in ids], rotation=90 if n > 20 else 0, fontsize=7)
+    else:
+        ax.text(0.5, 0.5, "no landmarks in the map", ha="center", va="center", transform=ax.transAxes)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"Landmark map ({n} landmarks): id (times seen)")
+    ax.grid(True, alpha=0.3)
+    if len(path_xyz):
+        ax.legend(loc="upper right", fontsize=8)
+    bars.set_xlabel("landmark id")
+    bars.set_ylabel("observations")
+    bars.set_title("How often each landmark was seen")
+    bars.grid(True, axis="y", alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_measurements(
+    path: Path, frame_t_s: np.ndarray, per_frame: np.ndarray, innovation: dict[str, np.ndarray] | None
+) -> Path:
+    """Detections per frame over time, and the innovation (measurement residual) norm per time bin: median,
+    95th percentile and maximum."""
+    fig, axes = _figure(2, 1, (9.0, 6.5))
+    ax_d, ax_i = axes[0, 0], axes[1, 0]
+    sel = envelope(len(frame_t_s), [per_frame])
+    ax_d.plot(frame_t_s[sel], per_frame[sel], ".", ms=2, color="tab:blue")
+    ax_d.set_ylabel("detections per frame")
+    ax_d.set_title(f"Landmark detections: {len(per_frame)} frames, {int(np.sum(per_frame))} detections")
+    ax_d.set_ylim(0, max(1, int(np.max(per_frame)) if len(per_frame) else 1) + 0.5)
+    if innovation is not None and len(innovation["t_s"]):
+        t = innovation["t_s"]
+        ax_i.plot(t, innovation["median"], color="tab:blue", lw=1.0, label="median")
+        ax_i.plot(t, innovation["p95"], color="tab:orange", lw=1.0, label="95th percentile")
+        ax_i.plot(t, innovation["max"], color="tab:red", lw=0.6, alpha=0.6, label="maximum")
+        ax_i.legend(loc="upper right", fontsize=8)
+    else:
+        ax_i.text(0.5, 0.5, "no innovations recorded", ha="center", va="center", transform=ax_i.transAxes)
+    ax_i.set_ylabel("innovation norm [m]")
+    ax_i.set_title("Innovation (measurement residual) norm per time bin")
+    ax_i.set_xlabel("time since estimate start [s]")
+    for ax in (ax_d, ax_i):
+        ax.grid(True, alpha=0.3)
+    return _save(fig, path)
+
+
+def plot_error_result(
+    path,
+    t_s: np.ndarray,
+    errors: np.ndarray,
+    stats: dict,
+    ref_xyz: np.ndarray,
+    est_xyz: np.ndarray,
+    error_xyz: np.ndarray,
+    *,
+    plot_mode: str = "xyz",
+    title: str = "",
+    label: str = "error",
+) -> Path:
+    """What evo_ape / evo_rpe ``-p`` shows, in one PNG: the error over time with its mean, median and RMSE and the
+    ±std band, and the reference (dashed grey) with the aligned estimate coloured by the error at ``error_xyz``
+    (the estimate positions each error belongs to) in ``plot_mode`` (evo's: two axes such as ``xy``, or ``xyz``
+    for a 3D view)."""
+    from matplotlib.colors import Normalize
+
+    fig, axes = _figure(2, 1, (9.0, 11.0), gap=0.8)
+    raw = axes[0, 0]
+    sel = envelope(len(t_s), [errors])
+    raw.plot(t_s[sel], errors[sel], color="0.35", lw=1.0, label=label)
+    for key, colour in (("rmse", "tab:blue"), ("median", "tab:green"), ("mean", "tab:red")):
+        raw.axhline(stats[key], color=colour, lw=1.2, label=key)
+    raw.axhspan(stats["mean"] - stats["std"], stats["mean"] + stats["std"], color="tab:olive", alpha=0.3, label="std")
+    raw.set_xlabel("t [s]")
+    raw.set_ylabel(label)
+    raw.set_title(title)
+    raw.grid(True, alpha=0.3)
+    raw.legend(loc="upper right", fontsize=8)
+    box = axes[1, 0].get_position()
+    axes[1, 0].remove()
+    dims = [AXES.index(c) for c in plot_mode]
+    ax = fig.add_axes(box, projection="3d" if plot_mode == "xyz" else None)
+    ref, est = ref_xyz[thin(len(ref_xyz), PATH_POINTS)], est_xyz[thin(len(est_xyz), PATH_POINTS)]
+    ax.plot(*(ref[:, d] for d in dims), "--", color="0.5", lw=1.0, label="reference")
+    norm = Normalize(float(np.min(errors)) if len(errors) else 0.0, float(np.max(errors)) if len(errors) else 1.0)
+    pick = thin(len(error_xyz), SCATTER_POINTS)
+    sc = ax.scatter(*(error_xyz[pick, d] for d in dims), c=errors[pick], cmap="jet", norm=norm, s=4)
+    ax.plot(*(est[:, d] for d in dims), "-", color="0.2", lw=0.4, alpha=0.5, label="estimate (aligned)")
+    fig.colorbar(sc, ax=ax, shrink=0.8, label=label)
+    for d, setter in zip(dims, ("set_xlabel", "set_ylabel", "set_zlabel")):
+        getattr(ax, setter)(f"{AXES[d]} [m]")
+    if plot_mode != "xyz":
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(True, alpha=0.3)
+    ax.set_title(f"{label} mapped onto the trajectory ({plot_mode})")
     ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)

@@ -25,9 +25,12 @@ from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation.figure_jobs import (
     bias_plot_job,
     error_plot_job,
+    SEGMENT_PLOT,
     landmark_plot_jobs,
     plot_jobs,
+    segment_plot_jobs,
     top_view_job,
+    uncertainty_plot_jobs,
 )
 from slamobs.pipeline.evaluation.markdown import render_markdown
 from slamobs.pipeline.evaluation.sections import (
@@ -39,7 +42,9 @@ from slamobs.pipeline.evaluation.sections import (
     DriftSection,
     LandmarkSection,
     RpeSection,
+    SegmentErrorsSection,
     TimeOffsetSection,
+    UncertaintySection,
     alignment_dict,
 )
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
@@ -58,7 +63,7 @@ SCHEMA_VERSION = 1
 TRUTH_TUM = "truth_tum.txt"
 ESTIMATE_TUM = "estimate_tum.txt"
 EVO_ZIP = "ape_evo.zip"
-PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png")
+PLOTS = ("trajectory_top.png", "errors.png", "biases.png", "landmarks.png", SEGMENT_PLOT, "uncertainty.png", "nees.png")
 #: the estimate moved into the truth's frame by the report's alignment (schemas/poses_aligned.json, ...)
 ALIGNED_TABLES = ("poses_aligned.parquet", "landmarks_aligned.parquet")
 REPORT_FILES = ("report.json", "report.md", *PLOTS, EVO_ZIP, ESTIMATE_TUM, TRUTH_TUM, *ALIGNED_TABLES)
@@ -164,23 +169,34 @@ def evaluate_tables(
         figures([error_plot_job(convergence.get_statistic(), ev)])
     time_offset = TimeOffsetSection(options)
     time_offset.unreliable_note(ev)
+    uncertainty = UncertaintySection()
+    uncertainty.process_data(ev)
+    if figures is not None:
+        figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
+    segments = SegmentErrorsSection()
     sections = {
         "ape": ApeSection(),
         "ape_by_alignment": by_alignment,
         "rpe": rpe,
         "drift": drift,
+        "segment_errors": segments,
         "time_offset": time_offset,
         "landmarks": landmark,
         "biases": biases,
         "convergence": convergence,
+        "uncertainty": uncertainty,
     }
-    for section in (sections["ape"], by_alignment, rpe, drift, time_offset):
+    for section in (sections["ape"], by_alignment, rpe, drift, segments, time_offset):
         section.process_data(ev)
+    if figures is not None:
+        figures(segment_plot_jobs(segments.arrays))
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    notes += landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes
+    notes += (
+        sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + uncertainty.notes
+    )
     report = {
         "schema_version": SCHEMA_VERSION,
         **{name: section.get_statistic() for name, section in sections.items()},
@@ -191,7 +207,11 @@ def evaluate_tables(
         "truth_source": {"kind": "stream", "name": truth.topic, "n_poses": len(truth)},
         "evo": _evo_commands(options, ev.applied_offset_s),
         "notes": notes,
-        "options": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(options).items()},
+        "options": {
+            k: (list(v) if isinstance(v, tuple) else v)
+            for k, v in asdict(options).items()
+            if v is not None or k != "truth_rotation_xyzw"  # only where set: reports without it stay as they were
+        },
         "method": _method(ev, options, sections.values()),
     }
     return report, ev
@@ -243,8 +263,9 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     opts["t_offset_s"] = report["method"]["association"]["t_offset_s"]
     opts["t_max_diff_s"] = report["method"]["association"]["t_max_diff_s"]
     opts["align"] = report["method"]["alignment"]["type"]
-    if opts.get("drift_lengths_m") is not None:
-        opts["drift_lengths_m"] = tuple(opts["drift_lengths_m"])
+    for key in ("drift_lengths_m", "truth_rotation_xyzw"):
+        if opts.get(key) is not None:
+            opts[key] = tuple(opts[key])
     fields = set(ReportOptions.__dataclass_fields__)
     return ReportOptions(**{k: v for k, v in opts.items() if k in fields})
 
@@ -263,6 +284,7 @@ def write_report(
     metadata: dict[str, Any] | None = None,
     exports: tuple[str, ...] = (),
     plot_workers=None,
+    more_figures: list = (),
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
     time on short logs), the estimate aligned into the truth's frame (``poses_aligned.parquet``,
@@ -273,14 +295,24 @@ def write_report(
     they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
     this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
     ``poses``. With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by
-    those helper processes while the aligned tables are written. The writes are plain: callers that
-    replace an existing report write into a temporary directory first (see :mod:`.run_dir`).
+    those helper processes while the aligned tables are written; ``more_figures`` (the run's own,
+    :mod:`.figure_jobs`) are drawn with the report's, and report.json lists every figure (``figures``). The
+    writes are plain: callers that replace an existing report write into a temporary directory first (see
+    :mod:`.run_dir`).
     """
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
     from slamobs.pipeline.readers.trajectory_files import write_tum
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
+    if evaluation is None and poses is None:
+        raise ValueError("write_report needs the poses table or the report's evaluation")
+    ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
+    submitted = plot_workers is not None and plot_workers.submitted  # by evaluate_tables, as it went
+    jobs = [*more_figures, *plot_jobs(report, ev, biases, landmarks, landmark_truth)] if plots and not submitted else []
+    if plots or submitted:  # the figures the report's directory holds, listed in the report
+        report["figures"] = [name for _, name, _ in (plot_workers.jobs if submitted else jobs)]
     written = []
     json_path = out / "report.json"
     json_path.write_text(json.dumps(report, indent=2, sort_keys=True, allow_nan=False) + "\n", encoding="utf-8")
@@ -289,17 +321,11 @@ def write_report(
     md_path.write_text(render_markdown(report), encoding="utf-8")
     written.append(md_path)
 
-    options = _options_of(report)  # the applied offset is fixed there: no need to estimate it again
-    if evaluation is None and poses is None:
-        raise ValueError("write_report needs the poses table or the report's evaluation")
-    ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
     if "evo" in exports:
         written.append(save_result_zip(out / EVO_ZIP, ev.translation))
     if "tum" in exports:
         written.append(write_tum(out / ESTIMATE_TUM, ev.estimate))
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
-    submitted = plot_workers is not None and plot_workers.submitted  # by evaluate_tables, as it went
-    jobs = plot_jobs(report, ev, biases, landmarks, landmark_truth) if plots and not submitted else []
     if jobs and plot_workers is not None:
         plot_workers.submit(jobs)  # drawn by the helper processes while the aligned tables are written
     written += write_aligned_tables(out, report, ev, landmarks, metadata or {})

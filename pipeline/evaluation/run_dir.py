@@ -13,13 +13,14 @@ import json
 import os
 import shutil
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from slamobs.pipeline import interrupts
+from slamobs.pipeline.alignment import TimeWindow
 from slamobs.pipeline.errors import InputError, OutputError
 from slamobs.pipeline.paths import check_utf8, read_manifest
 from slamobs.pipeline.evaluation.report import REPORT_FILES, evaluate_report, write_report
@@ -45,6 +46,7 @@ class RunTables:
     poses: pd.DataFrame
     biases: pd.DataFrame | None
     landmarks: pd.DataFrame | None
+    innovations: pd.DataFrame | None = None
 
 
 @dataclass
@@ -118,7 +120,7 @@ def load_run(run_dir: str | Path) -> RunTables:
 
         return pd.read_parquet(path) if path.is_file() else None
 
-    return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"))
+    return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"), table("innovations"))
 
 
 def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
@@ -128,25 +130,16 @@ def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
     return streams.landmark_truth, streams.bias_truth
 
 
-def _topic_truth(log: Path, topic: str, time_source: str, clocks: dict[str, str]) -> PoseStream:
-    """A truth topic or TF edge of the log, through the readers (same cleaning as ``slamobs run``)."""
-    from slamobs.pipeline.readers import ROLES, read_log
-
-    keep = ("truth", "static_tf", "tf") if "->" in topic else ("truth",)
-    streams = read_log(log, {**{r: None for r in ROLES if r not in keep}, "truth": topic}, clocks=clocks or None)
-    truth = streams.truth
-    if truth is None or len(truth) == 0:
-        raise InputError(log, "no truth poses", topic)
-    if time_source == "record":
-        truth = PoseStream(**{**truth.__dict__, "t_ns": truth.rec_ns})
-    return truth
+def has_truth(meta: dict[str, Any]) -> bool:
+    """Whether the run named a truth (a topic of its log or a trajectory file) that a report can use again."""
+    inp = meta.get("input") or {}
+    return bool(inp.get("truth_file") or (inp.get("topics") or {}).get("truth"))
 
 
 def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
-    """The truth for a run: ``source`` None -> the run's truth topic; a TF edge ``parent->child``; an existing
-    file (TUM, EuRoC CSV, KITTI with stamps); else a topic of the run's input log."""
-    from slamobs.pipeline.readers.trajectory_files import read_trajectory
-
+    """The truth for a run: ``source`` None -> the run's truth (its topic, TF edge or file); else a truth in the one
+    grammar (``readers.parse_truth``): a TF edge or topic of the run's input log, a trajectory file (TUM, EuRoC
+    CSV, KITTI with stamps), or another log's ``LOG:TOPIC``."""
     inp = meta.get("input") or {}
     log = Path(inp["path"]) if inp.get("path") else None
     time_source = inp.get("time_source", "header")
@@ -156,38 +149,54 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     given = inp.get("truth_file") if source is None else None  # the run's truth was a file: read it again
     if given is None and source is None and Path((inp.get("topics") or {}).get("truth") or "\0").is_file():
         given = {"path": inp["topics"]["truth"]}  # a run from before run.json named its truth file
-    if given is not None:
-        source = given["path"]
-        traj = read_trajectory(source, given.get("format"), kitti_times=given.get("times"))
-        if not traj.timed:
-            raise InputError(source, "KITTI poses carry no stamps and cannot be matched to a run's clock")
-        stream, desc = traj.stream, {"kind": "file", "format": traj.format, "name": str(source)}
-    elif source is not None and Path(source).is_file() and not (have_log and Path(source).resolve() == log.resolve()):
-        traj = read_trajectory(source)
-        if traj.format == "parquet":
-            raise InputError(source, "a poses.parquet is an estimate, not a ground-truth file")
-        if not traj.timed:
-            raise InputError(source, "KITTI poses carry no stamps and cannot be matched to a run's clock")
-        stream, desc = traj.stream, {"kind": "file", "format": traj.format, "name": str(source)}
-    else:
-        topic = source if source is not None else (inp.get("topics") or {}).get("truth")
-        if topic is None:
+    if given is None and source is not None and have_log and Path(source).resolve() == log.resolve():
+        raise InputError(source, "the run's own log: name a topic of it, or give LOG:TOPIC")
+    if given is None and source is None:
+        source = (inp.get("topics") or {}).get("truth")
+        if source is None:
             raise InputError(
                 meta.get("input", {}).get("path", "run.json"),
-                "the run's log has no truth topic: give --truth (a topic, TF edge or trajectory file)",
+                "the run's log has no truth topic: give --truth (a topic, a TF edge, a trajectory file or LOG:TOPIC)",
             )
-        if not have_log:
-            raise InputError(log or "run.json", "the run's input log is not there; give --truth as a trajectory file")
-        stream = _topic_truth(log, topic, time_source, inp.get("clocks") or {})
-        desc = {"kind": "tf_edge" if "->" in topic else "topic", "name": topic, "log": str(log)}
+    given = given or {"path": source}
+    traj = _read_truth(given, log if have_log else None, inp.get("clocks") or {})
+    if traj.format == "parquet":
+        raise InputError(given["path"], "a poses.parquet is an estimate, not a ground-truth file")
+    if not traj.timed:
+        raise InputError(given["path"], "KITTI poses carry no stamps and cannot be matched to a run's clock")
+    stream, desc = traj.stream, _truth_description(traj, given["path"], log)
+    own = desc["kind"] != "file" and desc["log"] == str(log)  # a topic of the run's log: on the run's clock
+    if own and time_source == "record":
+        stream = PoseStream(**{**stream.__dict__, "t_ns": stream.rec_ns})
     desc["n_poses"] = len(stream)
-    desc["time_source"] = time_source if desc["kind"] != "file" else "file stamps"
+    desc["time_source"] = time_source if own else "file stamps" if desc["kind"] == "file" else "header"
     lm_truth = bias_truth = None
     if have_log:
         lm_truth, bias_truth = _sim_truth(log)
     else:
         notes.append(f"input log {log} not found: no landmark or bias truth")
     return TruthInput(stream, lm_truth, bias_truth, desc, notes)
+
+
+def _read_truth(given: dict, log: Path | None, clocks: dict[str, str]):
+    """The truth ``given`` names (path, format, times), a topic or TF edge read from ``log``."""
+    from slamobs.pipeline.readers import parse_truth, read_truth
+
+    spec = parse_truth(given["path"]) if given.get("format") in (None, "topic") else None
+    if spec is not None and spec.kind != "file" and spec.log is None and log is None:
+        raise InputError("run.json", "the run's input log is not there; give --truth as a trajectory file or LOG:TOPIC")
+    return read_truth(given["path"], log, fmt=given.get("format"), times=given.get("times"), clocks=clocks)
+
+
+def _truth_description(traj, given: str, log: Path | None) -> dict:
+    """``truth_source`` of report.json: what kind of truth, its name, and the log it came from."""
+    if traj.format in ("topic", "tf_edge"):
+        from slamobs.pipeline.readers import parse_truth
+
+        spec = parse_truth(given)
+        kind = "tf_edge" if spec.kind == "edge" else "topic"
+        return {"kind": kind, "name": spec.name, "log": str(spec.log or log)}
+    return {"kind": "file", "format": traj.format, "name": str(traj.name)}
 
 
 def gravity_aligned(meta: dict[str, Any]) -> bool:
@@ -264,11 +273,16 @@ def report_run(
     ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
     Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
     """
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
+
     run = load_run(run_dir)
+    tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
     if exports is None:
         exports = tuple(k for k in (run.meta.get("output") or {}).get("export", []) if k in REPORT_EXPORTS)
     exports = tuple(k for k in exports if k in REPORT_EXPORTS)
     ti = resolve_truth(run.meta, truth)
+    if run.meta.get("time_window"):  # the run used part of its log: so does its truth
+        ti = replace(ti, stream=TimeWindow.described(run.meta["time_window"]).poses(ti.stream))
     options = options or options_for_run(run.meta, **overrides)
     try:
         report, evaluation = evaluate_report(
@@ -278,6 +292,8 @@ def report_run(
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source
     report["notes"] = ti.notes + report["notes"]
+    if run.meta.get("time_window"):
+        report["time_window"] = run.meta["time_window"]
     staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
     try:
         write_report(
@@ -291,11 +307,34 @@ def report_run(
             evaluation=evaluation,
             exports=exports,
             metadata=run.meta,
+            more_figures=run_figure_jobs(tables, with_biases=False),
         )
-        _stage_run_json(run.meta, ti.source, staged, exports)
+        _stage_run_json({**run.meta, "figures": report.get("figures", [])}, ti.source, staged, exports)
         for p in staged.iterdir():
             os.chmod(p, 0o644)
-        written = replace_files(run.path, staged, REPORT_FILES)
+        written = replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
     finally:
         shutil.rmtree(staged, ignore_errors=True)
     return report, written
+
+
+def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
+    """A run without truth: draw its figures and write report.md (what the run did, the figures) again, replacing
+    the report files atomically as :func:`report_run` does; returns the summary and the paths written."""
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, summary, write_run_figures
+
+    run = load_run(run_dir)
+    tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
+    info = summary(tables)
+    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
+    try:
+        written = write_run_figures(staged, tables, list(run.meta.get("notes") or []))
+        info["figures"] = [p.name for p in written if p.suffix == ".png"]
+        meta = {**run.meta, "figures": info["figures"]}
+        (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+        for p in staged.iterdir():
+            os.chmod(p, 0o644)
+        written = replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
+    finally:
+        shutil.rmtree(staged, ignore_errors=True)
+    return info, written

@@ -1,5 +1,5 @@
 """The report's sections, one class each: APE, APE under each alignment, RPE, drift, clock offset, landmark map,
-biases, convergence.
+biases, convergence, uncertainty (NEES of the reference estimators' covariance).
 
 Each is built with its options, computes from the data in :meth:`process_data` and gives its ``report.json``
 section in :meth:`get_statistic` (the shape of evo's ``core/metrics.py`` metric classes); :attr:`notes` are
@@ -16,7 +16,8 @@ import numpy as np
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
-from slamobs.pipeline.evaluation.drift import segment_drift
+from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
+from slamobs.pipeline.evaluation.rpe import accumulated_distances
 from slamobs.pipeline.evaluation.sync import NS_PER_S
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
@@ -31,7 +32,7 @@ from slamobs.pipeline.evaluation.tables import (
 )
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, TrajectoryEvaluation
-from slamobs.pipeline.lie import rots_to_quats
+from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
 
 #: evo's command-line flags of each alignment slamobs shares with it
 EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
@@ -77,6 +78,51 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
+        self.notes += truth_frame_note(ev)
+
+
+#: A rotation APE above this (deg) beside a translation APE below TRUTH_FRAME_TRANSLATION of the path length is
+#: no estimation error but a truth recorded in another body convention: the report estimates the rotation.
+TRUTH_FRAME_ROTATION_DEG = 20.0
+TRUTH_FRAME_TRANSLATION = 0.05
+
+
+def truth_body_rotation(ev: TrajectoryEvaluation) -> tuple[np.ndarray, np.ndarray]:
+    """Hand–eye on the aligned pairs: the constant X with ``R_truth_i ≈ R_est_i X`` (closed form: the rotation
+    nearest to ``Σ R_est_iᵀ R_truth_i``) and the per-pair angles (deg) it leaves."""
+    est, ref = ev.rotation.est_rot_aligned, ev.paired.ref_rot
+    n = len(ref)
+    total = np.zeros((3, 3))
+    for rows in row_blocks(n):
+        total += np.einsum("nji,njk->ik", est[rows], ref[rows])
+    x = nearest_rotation(total)
+    left = np.empty(n)
+    for rows in row_blocks(n):
+        cos = (np.einsum("njk,njk->n", np.matmul(est[rows], x), ref[rows]) - 1.0) / 2.0
+        left[rows] = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    return x, left
+
+
+def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
+    """The note naming a constant rotation between the truth's body frame and the estimate's, when the rotation
+    errors are implausible next to the translation errors, with the config key that applies it."""
+    rot, trans = ev.rotation.stats.get("rmse"), ev.translation.stats.get("rmse")
+    path = float(np.linalg.norm(np.diff(ev.paired.ref_pos, axis=0), axis=1).sum()) if len(ev.paired.ref_pos) else 0.0
+    if rot is None or trans is None or rot <= TRUTH_FRAME_ROTATION_DEG or trans >= TRUTH_FRAME_TRANSLATION * path:
+        return []
+    x, left = truth_body_rotation(ev)
+    q = rots_to_quats(x[None])[0]
+    q = q if q[3] >= 0 else -q
+    angle = float(np.degrees(2.0 * np.arctan2(np.linalg.norm(q[:3]), q[3])))
+    axis = q[:3] / (np.linalg.norm(q[:3]) or 1.0)
+    after = float(np.sqrt(np.mean(left**2)))
+    return [
+        f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
+        f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): the truth's body frame looks turned against the "
+        f"estimate's by a constant {angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
+        f"rotation APE would be {after:.2f} deg rmse; to apply it (evaluation only) set frames.truth_rotation: "
+        f"[{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
+    ]
 
 
 class ApeByAlignmentSection(Section):
@@ -203,6 +249,35 @@ class DriftSection(Section):
             "10–50 % of the truth path; independent of the rigid alignment, sensitive to scale"
         )
         self.result = out
+
+
+class SegmentErrorsSection(Section):
+    """rpg_trajectory_evaluation's relative error per sub-trajectory length (None with fewer than 3 pairs); the
+    error arrays per length stay in :attr:`arrays` for the box plots."""
+
+    METHOD = {
+        "segment_errors": (
+            "rpg_trajectory_evaluation (compute_relative_error) on the associated pairs: lengths L = 10, 20, 30, "
+            "40, 50 % of the truth path (truncated to cm); from every pair, the later pair whose truth path "
+            "distance is nearest to the start's + L, within 0.2 L; E = (Q_i⁻¹Q_j)⁻¹(P_i⁻¹P_j) with the "
+            "estimate's relative translation times the alignment's scale (so SE(3) and 4-DoF give the same, "
+            "Sim(3) corrects the scale); translation ‖t_E‖ [m] and ‖t_E‖/L [%], rotation angle(R_E) [deg] and "
+            "per metre, yaw and gravity (roll-pitch) parts of E rotated into the world by the estimate's attitude "
+            "at j; a length with fewer than 2 segments has null errors"
+        )
+    }
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.arrays: dict[float, dict[str, np.ndarray]] = {}
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        p = ev.paired
+        if len(p) < 3:
+            return
+        path = accumulated_distances(np.asarray(ev.truth.position))[-1]  # rpg: the whole truth's path
+        out, self.arrays = segment_errors(p.ref_pos, p.ref_rot, p.est_pos, p.est_rot, path, ev.alignment.scale)
+        self.result = {**out, "alignment": ev.alignment.kind}
 
 
 class TimeOffsetSection(Section):
@@ -483,3 +558,99 @@ class ConvergenceSection(Section):
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
         }
+
+
+#: Degrees of freedom of the position and of the attitude NEES.
+NEES_DOF = 3
+#: Seconds of pairs each NEES window averages (the figure's points and the share of windows within bounds).
+NEES_WINDOW_S = 1.0
+#: A covariance block whose smallest standard deviation is below this (m or rad) is the gauge (riekf's start,
+#: batch's anchor keyframe): held fixed by definition, it has no NEES.
+GAUGE_SIGMA = 1e-5
+
+
+class UncertaintySection(Section):
+    """The estimator's own covariance against its error (riekf, batch): NEES with its χ² bounds and the share of
+    errors within 3σ, as OpenVINS's ov_eval checks a filter's consistency. None for the observers."""
+
+    METHOD = {
+        "uncertainty": (
+            "error (δθ, δp) of each pair after the report's alignment, R_est = Exp(δθ) R_truth and p_est = p_truth + "
+            "δp in the truth frame, against the estimate's covariance turned by the alignment; NEES = eᵀ Σ⁻¹ e per "
+            "part (3 DoF each); bounds are two-sided 95 % χ² bounds of an average of n independent NEES values, "
+            f"χ²(3n)/n; windows of {NEES_WINDOW_S:g} s; pairs whose covariance block is below "
+            f"{GAUGE_SIGMA:g} (the gauge) are left out"
+        )
+    }
+
+    def process_data(self, ev: TrajectoryEvaluation) -> None:
+        u = ev.uncertainty
+        if u is None:
+            return
+        t_s = (u.t_ns - u.t_ns[0]) / NS_PER_S
+        self.result = {
+            "frame": "truth frame after the report's alignment; R_est = Exp(δθ) R_truth, p_est = p_truth + δp",
+            "window_s": NEES_WINDOW_S,
+            "position": nees_statistics(u.error[:, 3:], u.cov[:, 3:, 3:], t_s),
+            "attitude": nees_statistics(u.error[:, :3], u.cov[:, :3, :3], t_s),
+        }
+        for part in ("position", "attitude"):
+            r = self.result[part]
+            if r["n"] and not r["bounds"][0] <= r["mean"] <= r["bounds"][1]:
+                side = "above" if r["mean"] > r["bounds"][1] else "below"
+                self.notes.append(
+                    f"{part} NEES {r['mean']:.3g} is {side} its 95 % bounds "
+                    f"[{r['bounds'][0]:.3g}, {r['bounds'][1]:.3g}]: the estimator's {part} covariance is "
+                    f"{'optimistic' if side == 'above' else 'pessimistic'} for this log"
+                )
+
+
+def nees_values(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``eᵀ Σ⁻¹ e`` per row (N, 3) / (N, 3, 3); NaN where Σ is the gauge (``GAUGE_SIGMA``) or not finite."""
+    ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(error).all(axis=1)
+    out = np.full(error.shape[0], np.nan)
+    if ok.any():
+        ok[ok] = np.linalg.eigvalsh(cov[ok])[:, 0] > GAUGE_SIGMA**2
+    if ok.any():
+        out[ok] = np.einsum("ni,ni->n", error[ok], np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0])
+    return out
+
+
+def nees_windows(nees: np.ndarray, t_s: np.ndarray, window_s: float = NEES_WINDOW_S):
+    """Average NEES over consecutive windows of ``window_s`` seconds: window mid times, averages, counts."""
+    ok = np.isfinite(nees)
+    k = np.floor(t_s[ok] / window_s).astype(np.int64)
+    if k.size == 0:
+        return np.empty(0), np.empty(0), np.empty(0, np.int64)
+    ids, inv, counts = np.unique(k, return_inverse=True, return_counts=True)
+    return (ids + 0.5) * window_s, np.bincount(inv, weights=nees[ok]) / counts, counts
+
+
+def nees_statistics(error: np.ndarray, cov: np.ndarray, t_s: np.ndarray) -> dict[str, Any]:
+    """One part's consistency: mean and median NEES with the bounds of the run's mean, the share of instants
+    and of windows within their bounds, and the share of errors within ±3σ per axis."""
+    nees = nees_values(error, cov)
+    ok = np.isfinite(nees)
+    n = int(ok.sum())
+    sd = np.sqrt(np.clip(np.einsum("nii->ni", cov), 0.0, None))
+    inside = np.abs(error) <= 3.0 * sd
+    out: dict[str, Any] = {
+        "n": n,
+        "gauge_excluded": int(error.shape[0] - n),
+        "within_3sigma": [float(v) for v in np.mean(inside[ok], axis=0)] if n else None,
+        "mean_sigma": [float(v) for v in np.mean(sd[ok], axis=0)] if n else None,
+    }
+    if not n:
+        return {**out, "mean": None, "median": None, "bounds": None, "share_instants_within": None}
+    lo1, hi1 = metrics.nees_bounds(NEES_DOF, 1)
+    _, means, counts = nees_windows(nees, t_s)
+    bounds = np.array([metrics.nees_bounds(NEES_DOF, int(c)) for c in np.unique(counts)])
+    lo_w, hi_w = (bounds[np.searchsorted(np.unique(counts), counts), i] for i in (0, 1))
+    return {
+        **out,
+        "mean": float(np.mean(nees[ok])),
+        "median": float(np.median(nees[ok])),
+        "bounds": [float(v) for v in metrics.nees_bounds(NEES_DOF, n)],
+        "share_instants_within": float(np.mean((nees[ok] >= lo1) & (nees[ok] <= hi1))),
+        "share_windows_within": float(np.mean((means >= lo_w) & (means <= hi_w))),
+    }

@@ -14,7 +14,7 @@ from functools import cached_property
 import numpy as np
 
 from slamobs.pipeline.evaluation import metrics
-from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
+from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, canonical, fit_alignment
 from slamobs.pipeline.evaluation.metrics import RotationRows
 from slamobs.pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
 from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, associate, estimate_time_offset, interpolate_poses
@@ -40,6 +40,9 @@ class AlignOptions:
     kind: str = "none"
     n: int | None = None
     first_s: float | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "kind", canonical(self.kind))  # rpg's "posyaw" is "yaw"
 
 
 @dataclass(frozen=True)
@@ -214,7 +217,7 @@ def n_to_align(paired: Paired, opts: AlignOptions) -> int | None:
 
 def align_paired(paired: Paired, opts: AlignOptions) -> tuple[Alignment, np.ndarray]:
     """Fit the alignment on the (first) pairs; return it with the aligned estimate positions."""
-    first = (paired.ref_rot[:1], paired.est_rot[:1]) if opts.kind == "origin" else (None, None)
+    first = (paired.ref_rot[:1], paired.est_rot[:1]) if opts.kind in ("origin", "yaw") else (None, None)
     al = fit_alignment(opts.kind, paired.ref_pos, paired.est_pos, *first, n_to_align(paired, opts))
     return al, (paired.est_pos if al.kind == "none" else al.positions(paired.est_pos))
 

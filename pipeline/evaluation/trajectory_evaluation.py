@@ -10,12 +10,13 @@ from functools import cached_property
 import numpy as np
 
 from slamobs.pipeline.evaluation import slam_metrics
-from slamobs.pipeline.evaluation.align import KINDS, Alignment
+from slamobs.pipeline.evaluation.align import KINDS, NAMES, Alignment, canonical
 from slamobs.pipeline.evaluation.sync import TimeOffset
 from slamobs.pipeline.evaluation.tables import (
     POSE_COLUMNS,
     Table,
     column,
+    column_names,
     columns,
     n_rows,
     require_columns,
@@ -30,6 +31,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     checked_time_offset,
     synchronize,
 )
+from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
 CONVERGENCE_THRESHOLD_M = 0.1
@@ -54,10 +56,14 @@ class ReportOptions:
     drift_lengths_m: tuple[float, ...] | None = None
     bias_window_fraction: float = 0.2
     max_time_offset_s: float = 1.0
+    #: X (quaternion x, y, z, w) with R_truth = R_est X: the truth's body frame in the estimate's
+    #: (``frames.truth_rotation``); the truth's rotations are turned by Xᵀ before anything is compared
+    truth_rotation_xyzw: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        if self.align not in ALIGN_TYPES:
-            raise ValueError(f"align must be one of {ALIGN_TYPES}, got {self.align!r}")
+        if self.align not in NAMES:
+            raise ValueError(f"align must be one of {NAMES}, got {self.align!r}")
+        object.__setattr__(self, "align", canonical(self.align))  # rpg's "posyaw" is "yaw"
         if not (self.t_offset_s == "auto" or isinstance(self.t_offset_s, (int, float))):
             raise ValueError(f"t_offset_s must be seconds or 'auto', got {self.t_offset_s!r}")
         if self.t_max_diff_s < 0 or self.convergence_threshold_m <= 0 or self.rpe_delta_m <= 0:
@@ -97,6 +103,8 @@ class TrajectoryEvaluation:
     offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
+    #: (N, 6, 6) pose covariance of each estimate row in time order (``pose_covariance``), None without one
+    covariance: np.ndarray | None = None
 
     @cached_property
     def time_offset(self) -> TimeOffset | None:
@@ -120,6 +128,11 @@ class TrajectoryEvaluation:
         return self.paired.t_est_ns
 
     @cached_property
+    def uncertainty(self) -> PairedUncertainty | None:
+        """The paired errors beside the estimate's covariance, both in the truth frame (None without one)."""
+        return None if self.covariance is None else paired_uncertainty(self)
+
+    @cached_property
     def error_level(self) -> tuple[np.ndarray, np.ndarray]:
         """The running median of the position error (:func:`slam_metrics.error_level`): the convergence figure
         and the errors plot share it."""
@@ -133,6 +146,8 @@ def evaluate_trajectory(
     truth, _ = valid_truth(truth)
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
+    if options.truth_rotation_xyzw is not None:
+        truth = turned_truth(truth, options.truth_rotation_xyzw)
     est = estimate_stream(poses)
     truth_sorted = sorted_stream(truth)
     offset = None
@@ -153,7 +168,59 @@ def evaluate_trajectory(
     rot = ape(
         truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate", like=trans
     )
-    return TrajectoryEvaluation(est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync)
+    return TrajectoryEvaluation(
+        est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync, pose_covariance(poses)
+    )
+
+
+def pose_covariance(poses: Table) -> np.ndarray | None:
+    """The poses table's covariance columns (``cov_<a>_<b>``, written by the reference estimators) as (N, 6, 6) in
+    time order; None when it has none (the observers' are null)."""
+    from slamobs.pipeline.writers import POSE_AXES
+
+    n = len(POSE_AXES)
+    pairs = [(i, j) for i in range(n) for j in range(i, n)]
+    names = [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i, j in pairs]
+    if not set(names) <= set(column_names(poses)):
+        return None
+    rows = time_order(column(poses, "t_ns", np.int64))
+    values = columns(poses, names, np.float64)[rows]
+    if not np.isfinite(values).any():
+        return None
+    cov = np.empty((values.shape[0], n, n))
+    for k, (i, j) in enumerate(pairs):
+        cov[:, i, j] = cov[:, j, i] = values[:, k]
+    return cov
+
+
+@dataclass(frozen=True)
+class PairedUncertainty:
+    """Per associated pair: the estimate's error ``(δθ, δp)`` (``R_est = Exp(δθ) R_truth``, ``p_est = p_truth +
+    δp``, after the report's alignment, in the truth frame) and its covariance turned into that frame."""
+
+    t_ns: np.ndarray  # (N,) estimate stamps of the pairs
+    error: np.ndarray  # (N, 6) rad, m
+    cov: np.ndarray  # (N, 6, 6)
+
+
+def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
+    """The errors and covariances of the pairs: the alignment ``p ← s R p + t`` turns both error parts by ``R``
+    and scales the position part by ``s``."""
+    from slamobs.pipeline.blocks import row_blocks
+    from slamobs.pipeline.lie import rots_to_rotvecs
+
+    p, al = ev.paired, ev.alignment
+    idx = p.idx_est if p.idx_est is not None else np.searchsorted(ev.estimate.t_ns, p.t_est_ns)
+    error = np.empty((len(p), 6))
+    error[:, 3:] = ev.translation.est_pos_aligned - p.ref_pos
+    for rows in row_blocks(len(p)):
+        rel = np.matmul(al.rotations(p.est_rot[rows]), np.swapaxes(p.ref_rot[rows], 1, 2))
+        error[rows, :3] = rots_to_rotvecs(rel)
+    turn = np.zeros((6, 6))
+    turn[:3, :3], turn[3:, 3:] = al.rot, al.scale * al.rot
+    cov = np.einsum("ij,njk,lk->nil", turn, ev.covariance[idx], turn)
+    t_ns = ev.estimate.t_ns[idx] if p.t_est_ns is None else p.t_est_ns
+    return PairedUncertainty(np.asarray(t_ns, dtype=np.int64), error, cov)
 
 
 #: The clock-offset search runs beside the association and the APE for up to this many estimate and truth
@@ -208,6 +275,14 @@ def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
         np.asarray(truth.position)[ok],
         q[ok],
     ), int((~ok).sum())
+
+
+def turned_truth(truth: PoseStream, x_xyzw) -> PoseStream:
+    """The truth in the estimate's body convention: each rotation ``R_truth`` becomes ``R_truth Xᵀ`` (positions
+    unchanged), ``X`` the quaternion of ``frames.truth_rotation``."""
+    x = quat_to_rot(np.asarray(x_xyzw, dtype=np.float64))
+    turned = np.matmul(quats_to_rots(np.ascontiguousarray(truth.quat_xyzw, dtype=np.float64)), x.T)
+    return replace(truth, quat_xyzw=rots_to_quats(np.ascontiguousarray(turned)))
 
 
 def sorted_stream(stream: PoseStream) -> PoseStream:

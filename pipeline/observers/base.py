@@ -107,6 +107,11 @@ class ObserverResult:
     #: pose in their working (inertial) frame: ``rotation``/``translation`` now and ``mean_rotation`` (see
     #: :meth:`KernelState.frame_mean`), ``estimated_s`` seconds of estimation. None for the others.
     map_frame: dict | None = None
+    #: The reference estimators' uncertainty (None for the observers): per row the 6×6 covariance of the pose
+    #: error ``(δθ, δp)`` with ``R̂ = Exp(δθ) R``, ``p̂ = p + δp``, both in the map frame (docs/outputs.md), and
+    #: per landmark (``landmark_ids`` order) the 3×3 covariance of its position in the map frame.
+    pose_cov: np.ndarray | None = None
+    landmark_cov: np.ndarray | None = None
 
 
 def max_per_frame(det_offsets: np.ndarray) -> int:
@@ -134,9 +139,11 @@ class Outputs:
     trk: np.ndarray  # (M, 3)
     innov: np.ndarray  # (M, 3)
     det_base: int
+    #: (K, 6, 6) pose covariance per row (``ObserverResult.pose_cov``) for estimators that keep one, else None
+    cov: np.ndarray | None = None
 
     @classmethod
-    def empty(cls, rows: int, det_first: int, det_stop: int) -> Outputs:
+    def empty(cls, rows: int, det_first: int, det_stop: int, with_cov: bool = False) -> Outputs:
         m = det_stop - det_first
         return cls(
             np.empty(rows, np.int64),
@@ -146,11 +153,13 @@ class Outputs:
             np.empty((m, 3)),
             np.empty((m, 3)),
             det_first,
+            np.empty((rows, 6, 6)) if with_cov else None,
         )
 
     def rows_from(self, o: int) -> Outputs:
         """The same outputs from row ``o`` on (views; detection rows keep their places)."""
-        return Outputs(self.k[o:], self.r[o:], self.p[o:], self.b[o:], self.trk, self.innov, self.det_base)
+        cov = None if self.cov is None else self.cov[o:]
+        return Outputs(self.k[o:], self.r[o:], self.p[o:], self.b[o:], self.trk, self.innov, self.det_base, cov)
 
 
 class KernelState:
@@ -207,6 +216,8 @@ class Stepper:
     """
 
     state: KernelState
+    #: Whether the kernel fills ``Outputs.cov`` (the reference estimators' pose covariance).
+    keeps_covariance = False
 
     def __init__(self, stream: AlignedStream, options: ObserverOptions) -> None:
         self.stream, self.options = stream, options
@@ -243,6 +254,11 @@ class Stepper:
     def _extra(self) -> dict[str, dict[str, np.ndarray]]:
         """Observer-specific table rows of the stretch just run."""
         return {}
+
+    def landmark_covariance(self) -> np.ndarray | None:
+        """(L, 3, 3) covariance of each landmark's position in the map frame as it is now (NaN for landmarks not
+        yet estimated), for estimators that keep one; None for the observers."""
+        return None
 
     def _frame(self) -> dict | None:
         state = getattr(self, "state", None)
@@ -282,7 +298,8 @@ class Stepper:
         iv_stop = min(iv_stop, self.n_vel)
         jf_stop = self._frames_before(iv_stop)
         det_first, det_stop = int(s.det_offsets[self.jf]), int(s.det_offsets[jf_stop])
-        out = Outputs.empty(output_rows(self.n_vel, self.options.out_every, self.iv, iv_stop), det_first, det_stop)
+        rows_out = output_rows(self.n_vel, self.options.out_every, self.iv, iv_stop)
+        out = Outputs.empty(rows_out, det_first, det_stop, self.keeps_covariance)
         if self.iv == 0 and self.start_pose is not None:  # a known map fixes the frame: start where it says
             self.state.r_hat[:], self.state.p_hat[:] = self.start_pose
             self.start_pose = None
@@ -327,6 +344,8 @@ class Stepper:
             timings=dict(self.timings),
             extra_tables=self._extra(),
             map_frame=self._frame(),
+            pose_cov=out.cov,
+            landmark_cov=self.landmark_covariance(),
         )
 
     def _relocalise(self, iv: int) -> bool:

@@ -35,10 +35,11 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
   On a log where no window fails, none of this changes a number.
 
-Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml``, else the log's message
-covariances, else defaults). The start pose defines the map frame (the problem's gauge, docs/observers.md §1.1): its
-covariance is zero; the biases start at zero with the prior standard deviations ``noise.gyro_bias`` and
-``noise.velocity_bias`` (an unknown start, not a guess), and drift as slow random walks.
+Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
+message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
+problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
+standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess), and drift
+as slow random walks.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ import math
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.lie import project_so3, se3_exp_into, so3_left_jacobian_apply
+from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -234,6 +235,57 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
                     cov[c0 + 1, r0 + a] += x1
                     cov[c0 + 2, r0 + a] += x2
     acc[:, :, :] = 0.0
+
+
+@njit(cache=True)
+def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
+    """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
+    copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
+    filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
+    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order."""
+    c = cov[:N_FIXED, :N_FIXED].copy()
+    for k in range(3):
+        c[6 + k, 6 + k] += q_bw * q_bw * acc_dt
+        c[9 + k, 9 + k] += q_bv * q_bv * acc_dt
+    f = np.zeros((6, 6))  # rows ξ_R, ξ_P; columns b̃_Ω, b̃_V
+    for a in range(3):
+        for b in range(3):
+            f[a, b] = acc[_SR, a, b]
+            f[3 + a, b] = acc[_SPR, a, b]
+            f[3 + a, 3 + b] = acc[_SR, a, b]
+    g = np.zeros((6, 6))  # F Σ_b,pose and F Σ_bb
+    gb = np.zeros((6, 6))
+    for i in range(6):
+        for k in range(6):
+            for e in range(6):
+                g[i, k] += f[i, e] * c[6 + e, k]
+                gb[i, k] += f[i, e] * c[6 + e, 6 + k]
+    s = c[:6, :6].copy()
+    for i in range(6):
+        for k in range(6):
+            v = g[i, k] + g[k, i]
+            for e in range(6):
+                v += gb[i, e] * f[k, e]
+            s[i, k] += v
+    for a in range(3):
+        for b in range(3):
+            s[a, b] += acc[_QRR, a, b]
+            s[3 + a, 3 + b] += acc[_QPP, a, b]
+            s[3 + a, b] += acc[_QPR, a, b]
+            s[b, 3 + a] += acc[_QPR, a, b]
+    j = np.eye(6)
+    j[3:, :3] = -skew(p_hat)
+    t = np.zeros((6, 6))
+    for i in range(6):
+        for k in range(6):
+            for e in range(6):
+                t[i, k] += j[i, e] * s[e, k]
+    for i in range(6):
+        for k in range(6):
+            v = 0.0
+            for e in range(6):
+                v += t[i, e] * j[k, e]
+            out[i, k] = v
 
 
 @njit(cache=True)
@@ -588,12 +640,14 @@ def _advance(
     innov,
     det_base,
     cov_out,
+    pose_out,
 ):
     """The event loop from the state in the arrays until the next event is velocity sample ``iv_stop`` (all
-        events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
-        ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
-        (tests), else nothing. The noise enters multiplied by the recovery's variance factors (``fs[_SCALE]`` the
-    motion noise, ``fs[_DSCALE]`` the detections')."""
+    events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
+    ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
+    (tests), else nothing; ``pose_out`` (rows, 6, 6) the pose covariance in the written convention
+    (:func:`_pose_covariance`). The noise enters multiplied by the recovery's variance factors (``fs[_SCALE]``
+    the motion noise, ``fs[_DSCALE]`` the detections')."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     t, acc_dt = fs[_T], fs[_ACC_DT]
@@ -689,6 +743,7 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o])
                 if want_cov:
                     _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
                     acc_dt = 0.0
@@ -769,13 +824,10 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
-def detection_variances(det_y: np.ndarray, detection: float, per_m: float) -> np.ndarray:
-    """Per-axis variance of each detection: ``(detection + per_m * range)²``."""
-    return (detection + per_m * np.linalg.norm(det_y, axis=1)) ** 2
-
-
 class RiEKF(Stepper):
     """The filter on an aligned stream, a stretch of samples at a time."""
+
+    keeps_covariance = True
 
     def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
         from slamobs.pipeline.errors import InputError
@@ -798,7 +850,7 @@ class RiEKF(Stepper):
         self.state = _State(
             n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
         )
-        self.det_sigma2 = detection_variances(stream.det_y, nz.detection, nz.detection_per_m)
+        self.det_sigma2 = nz.detection_sigma(np.linalg.norm(stream.det_y, axis=1)) ** 2  # per-axis variances
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
@@ -853,6 +905,7 @@ class RiEKF(Stepper):
             out.innov,
             out.det_base,
             cov_out,
+            out.cov,
         )
         ns = self.state.ns
         self.stats["substeps"] = int(ns[_STEPS])
@@ -875,6 +928,22 @@ class RiEKF(Stepper):
         ) + recovery_notes(self.stats["metadata"]["filter"])
         self.stats["notes"] += time_offset_note("riekf", self.time_offset)
         return rows
+
+    def landmark_covariance(self) -> np.ndarray:
+        """Each landmark's position covariance in the map frame: ``δp_i = ξ_i − [p̂_i]×ξ_R`` from the filter's
+        landmark and attitude blocks (NaN for landmarks not in the state yet)."""
+        st = self.state
+        out = np.full((self.lm.shape[0], 3, 3), np.nan)
+        seen = np.flatnonzero(st.slot_of >= 0)
+        rows = N_FIXED + 3 * st.slot_of[seen][:, None] + np.arange(3)
+        idx = np.concatenate([np.broadcast_to(np.arange(3), rows.shape), rows], axis=1)  # (n, 6): ξ_R, ξ_i
+        block = st.cov[idx[:, :, None], idx[:, None, :]]
+        j = np.zeros((seen.size, 3, 6))
+        j[:, :, 3:] = np.eye(3)
+        for n, i in enumerate(seen):
+            j[n, :, :3] = -skew(self.lm[i, :3])
+        out[seen] = np.einsum("nij,njk,nlk->nil", j, block, j)
+        return out
 
     def _recovery(self) -> dict:
         """The recovery's record for run.json: status (``converged``, ``recovered`` or ``lost``), each recovery

@@ -35,16 +35,24 @@ from .decode import (
 )
 from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
 from .msgdefs import complete_definitions, require_types
-from .roles import IMAGE_TYPES, ODOMETRY, ROLES, TAG_CORNER_TYPES, TF_TYPES, accepted_types, select_roles, topics_of
+from .roles import (
+    IMAGE_TYPES,
+    ODOMETRY,
+    REQUIRED_ROLES,
+    ROLES,
+    TAG_CORNER_TYPES,
+    TF_TYPES,
+    accepted_types,
+    select_roles,
+    topics_of,
+)
 from .rows import Rows, TfRows
+from .trajectory_files import Trajectory, TruthSpec, parse_truth, read_trajectory
 
 if TYPE_CHECKING:
     from collections.abc import Callable
 
     from .decode import Cleaning
-
-#: Roles the observers cannot run without: a stream of them that held only NaN/Inf values is an error.
-REQUIRED_ROLES = ("angular_velocity", "linear_velocity", "detections")
 
 __all__ = [
     "ROLES",
@@ -56,7 +64,9 @@ __all__ = [
     "format_info",
     "inspect_log",
     "open_log",
+    "parse_truth",
     "read_log",
+    "read_truth",
 ]
 
 
@@ -103,8 +113,7 @@ def read_log(
     """
     path = Path(path)
     overrides = dict(topics or {})
-    if truth_file is not None:
-        overrides["truth"] = ""  # the file is the truth; no topic is read for it
+    truth_file = _outside_truth(overrides, truth_file)
     with open_log(path) as reader:
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
@@ -129,7 +138,8 @@ def read_log(
             return tf_rows[topic]
 
         multi = {t for topics_ in selection.multi.values() for t in topics_}
-        chosen = [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
+        # the roles in order, what the log records for reading it (a simulated log's tag family) first
+        chosen = sorted(_chosen_roles(selection), key=lambda pair: pair[0] != "sim_truth")
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
@@ -168,7 +178,7 @@ def read_log(
                 streams.tf, warnings = transform_series(tf_of(topic))
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
             elif role == "sim_truth":
-                landmarks, bias, warnings = decode_sim_truth(reader, path, topic, conns)
+                landmarks, bias, warnings, streams.recorded = decode_sim_truth(reader, path, topic, conns)
                 streams.landmark_truth = landmarks or None
                 streams.bias_truth = bias or None
                 streams.warnings += warnings
@@ -183,6 +193,19 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+def _outside_truth(overrides: dict, truth_file: str | Path | None) -> str | Path | None:
+    """The truth read apart from the log's topics: ``truth_file``, or ``overrides["truth"]`` naming a file or another
+    log's topic (the one truth grammar); the truth role is then left out of the log's roles."""
+    given = overrides.get("truth")
+    if truth_file is None and isinstance(given, str) and given:
+        spec = parse_truth(given)
+        if spec.kind == "file" or spec.log is not None:
+            truth_file = given
+    if truth_file is not None:
+        overrides["truth"] = ""  # the file is the truth; no topic is read for it
+    return truth_file
 
 
 def _check_clock_topics(path: Path, clocks, table: Mapping) -> None:
@@ -220,6 +243,11 @@ def _cleaning_notes(reports: Mapping[str, Mapping[str, list[str]]]) -> list[str]
     return notes
 
 
+def _chosen_roles(selection) -> list[tuple[str, str]]:
+    """``(role, topic)`` of every role the selection found a topic for, in the order of ``ROLES``."""
+    return [(role, topic) for role in ROLES if (topic := selection.roles.get(role)) is not None]
+
+
 @dataclass(frozen=True)
 class ImageSearch:
     """How camera images are searched for tags (``tags`` section of the config)."""
@@ -227,6 +255,8 @@ class ImageSearch:
     family: str = "36h11"
     detector: dict | None = None  # cv2.aruco.DetectorParameters fields
     max_rate_hz: float | None = None  # images per second and camera
+    #: a tag family the log records (a simulated log's) replaces ``family`` (the config did not choose one)
+    recorded_family: bool = True
 
 
 def _camera_topics(
@@ -248,7 +278,8 @@ def _camera_topics(
         note(topic, "detections", cleaning)
     if image_topics:
         search = images or ImageSearch()
-        detector = TagDetector(search.family, search.detector, path)
+        family = streams.recorded.get("tag_family") if search.recorded_family else None
+        detector = TagDetector(family or search.family, search.detector, path)
         found = detect_in_images(
             reader,
             path,
@@ -334,12 +365,44 @@ def _truth_from_tf(
     return truth
 
 
-def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
-    """Ground truth from a trajectory file; it must carry stamps to be matched to the log's clock."""
-    from .trajectory_files import read_trajectory  # lazy: only truth from a file needs the file parsers
+def read_truth(
+    source: str | Path,
+    log: str | Path | None = None,
+    *,
+    fmt: str | None = None,
+    times: str | Path | None = None,
+    clocks: Mapping[str, str] | None = None,
+) -> Trajectory:
+    """A truth given in the one grammar (``trajectory_files.parse_truth``): a file, ``LOG:TOPIC``,
+    ``LOG:parent->child``, or a topic or TF edge of ``log`` (the run's log; ``clocks`` its per-topic clocks).
 
-    traj = read_trajectory(source, fmt, kitti_times=times)
-    if traj.format not in ("tum", "euroc", "kitti"):
+    Raises:
+        InputError: The specification matches nothing, or what it names holds no poses.
+
+    """
+    spec = parse_truth(source) if fmt in (None, "topic") else TruthSpec("file", str(source))
+    if spec.kind == "file" or (spec.kind == "topic" and spec.log is not None):
+        return read_trajectory(source, fmt, kitti_times=times)
+    where = spec.log or log
+    if where is None:
+        raise InputError(source, f"a {'TF edge' if spec.kind == 'edge' else 'topic'} needs its log: give LOG:{source}")
+    keep = ("truth", "static_tf", "tf") if spec.kind == "edge" else ("truth",)
+    own = spec.log is None
+    streams = read_log(
+        where,
+        {**{r: None for r in ROLES if r not in keep}, "truth": spec.name},
+        clocks=(clocks or None) if own else None,
+    )
+    if streams.truth is None or len(streams.truth) == 0:
+        raise InputError(where, "no truth poses", spec.name)
+    return Trajectory(streams.truth, "tf_edge" if spec.kind == "edge" else "topic", str(source))
+
+
+def _truth_from_file(source: str | Path, fmt: str | None, times: str | Path | None) -> PoseStream:
+    """Ground truth from a trajectory file or another log's topic; it must carry stamps to be matched to the log's
+    clock."""
+    traj = read_truth(source, fmt=fmt, times=times)
+    if traj.format not in ("tum", "euroc", "kitti", "topic", "tf_edge"):
         raise InputError(source, f"a {traj.format} trajectory is not a ground-truth file (TUM, EuRoC CSV or KITTI)")
     if not traj.timed:
         raise InputError(source, "KITTI poses carry no stamps: give the sequence's times.txt as truth_times")

@@ -11,6 +11,11 @@ storage readers are replaced by the ones in :data:`FORMATS` (one module per form
 :mod:`.mcap`, :mod:`.rosbag2_sqlite`), which yield messages in batches (:class:`.storage.StorageReader`) and
 recover what they can of a truncated file (:func:`damage_notes`). A rosbag2 directory holds files of one of
 those formats. Adding a format means its module and one row of :data:`FORMATS`.
+
+A ROS1 recording split into several bag files (``rosbag record --split``: ``name_0.bag``, ``name_1.bag``, …) is
+one log too: the directory holding its parts (:func:`split_parts`). ``AnyReader`` reads several ROS1 bags as one
+(a topic's connections from every file, messages in file order, each file in record order); the notes say how
+the files follow each other in time (:func:`part_notes`: gaps between them, overlaps, missing parts).
 """
 
 from __future__ import annotations
@@ -47,7 +52,7 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-Kind = str  # "rosbag2" (a directory) or the kind of one of FORMATS: "ros1", "mcap", "db3"
+Kind = str  # "rosbag2" or "ros1-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
 
 
 @dataclass(frozen=True)
@@ -81,7 +86,9 @@ FORMATS: tuple[Format, ...] = (
 _READERS = tuple(f.reader for f in FORMATS)
 
 #: Human readable container names, used in messages.
-LABELS: dict[str, str] = {"rosbag2": "rosbag2 directory"} | {f.kind: f.label for f in FORMATS}
+LABELS: dict[str, str] = {"rosbag2": "rosbag2 directory", "ros1-split": "split ROS1 recording"} | {
+    f.kind: f.label for f in FORMATS
+}
 
 _WRAPPERS: tuple[tuple[bytes, str], ...] = (
     (b"BZh", "bzip2"),
@@ -104,6 +111,7 @@ class Container:
     kind: Kind
     storage: str = ""
     note: str = ""  # how the path was interpreted, when it needed interpreting (a warning of the run)
+    parts: tuple[Path, ...] = ()  # a split ROS1 recording's bags, in order (:mod:`.split`)
 
     @property
     def label(self) -> str:
@@ -129,6 +137,8 @@ def detect_container(path: str | Path) -> Container:
             if entry.name == "metadata.yaml" or entry.suffix in {".db3", ".mcap", ".zstd"}:
                 check_input(entry, "storage file of a rosbag2 directory", directory_ok=False)
         meta = path / "metadata.yaml"
+        if not meta.is_file() and (parts := split_parts(path, entries)):
+            return Container(path, "ros1-split", f"{len(parts)} bag files", parts=parts)
         if not meta.is_file():  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none
             inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
             if len(inner) == 1:
@@ -164,6 +174,80 @@ def detect_container(path: str | Path) -> Container:
         if head.startswith(magic):
             raise InputError(path, f"{_NOT_A_LOG} ({name}-compressed: decompress it first)")
     raise InputError(path, _NOT_A_LOG)
+
+
+# --------------------------------------------------------------------------- split ROS1 recordings
+
+#: ``rosbag record --split`` names: the recording's name, an underscore, the part's index
+PART = re.compile(r"^(?P<name>.+)_(?P<index>\d+)\.bag$")
+#: a gap between two files longer than this (seconds) is reported
+GAP_NOTE_S = 0.05
+
+
+def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
+    """The ROS1 bags among ``entries`` (the directory's), in part order; empty when there are none.
+
+    Raises:
+        InputError: A bag is not named ``NAME_N.bag``, the bags belong to several recordings, or one is not a
+            ROS1 bag.
+    """
+    bags = [e for e in entries if e.suffix == ".bag" and not e.name.startswith(".")]
+    found: dict[str, list[tuple[int, Path]]] = {}
+    for bag in bags:
+        m = PART.match(bag.name)
+        if m is None:
+            raise InputError(directory, f"{bag.name} is not named NAME_N.bag as the parts of a split recording are")
+        found.setdefault(m["name"], []).append((int(m["index"]), bag))
+    if len(found) > 1:
+        names = ", ".join(f"{n}_*.bag" for n in sorted(found))
+        raise InputError(directory, f"holds the parts of {len(found)} recordings ({names}): give one directory each")
+    parts = sorted(next(iter(found.values()), []))
+    for _, bag in parts:
+        check_input(bag, "part of a split ROS1 recording", directory_ok=False)
+        with bag.open("rb") as fobj:
+            if not fobj.read(len(ros1.MAGIC)).startswith(ros1.MAGIC):
+                raise InputError(bag, "not a ROS1 bag (a part of the split recording in its directory)")
+    return tuple(bag for _, bag in parts)
+
+
+def part_notes(parts: Sequence[Path], spans: Sequence[tuple[int, int]]) -> list[str]:
+    """What a run should know of how the parts follow each other: each part's span, gaps between parts longer than
+    :data:`GAP_NOTE_S`, overlaps and missing part numbers. ``spans`` are each part's first and last record time."""
+    t0 = min(a for a, _ in spans)
+    listed = ", ".join(f"{p.name} {(a - t0) / 1e9:.3f}–{(b - t0) / 1e9:.3f} s" for p, (a, b) in zip(parts, spans))
+    notes = [f"split recording of {len(parts)} ROS1 bags read as one: {listed}"]
+    indices = [int(PART.match(p.name)["index"]) for p in parts]
+    missing = sorted(set(range(indices[0], indices[-1] + 1)) - set(indices))
+    if missing:
+        notes.append(f"split recording: parts {', '.join(map(str, missing))} are missing (not in the directory)")
+    for (p, (_, end)), (q, (start, _)) in zip(zip(parts, spans), zip(parts[1:], spans[1:])):
+        gap = (start - end) / 1e9
+        if gap > GAP_NOTE_S:
+            notes.append(f"split recording: {gap:.3f} s without messages between {p.name} and {q.name}")
+        elif gap < 0:
+            notes.append(f"split recording: {q.name} starts {-gap:.3f} s before {p.name} ends (the parts overlap)")
+    return notes
+
+
+def recording_of(paths: Sequence[Path]) -> Path:
+    """The one log that ``paths`` name: the path itself, or for several bags the directory whose split recording
+    they are (all its ``NAME_N.bag`` parts, in any order).
+
+    Raises:
+        InputError: Several paths that are not exactly the parts of one directory's split recording.
+    """
+    if len(paths) == 1:
+        return Path(paths[0])
+    given = [Path(p) for p in paths]
+    folder = given[0].parent
+    rule = "several logs are read as one only when they are all the NAME_N.bag parts of one split ROS1 recording"
+    if any(p.parent.resolve() != folder.resolve() for p in given):
+        raise InputError(given[0], f"{rule}, in one directory (these are in several)")
+    parts = split_parts(folder, sorted(folder.iterdir()))
+    if sorted(p.name for p in parts) != sorted(p.name for p in given):
+        have = ", ".join(p.name for p in parts)
+        raise InputError(folder, f"{rule}; the directory holds {have or 'no bags'}: give the directory")
+    return folder
 
 
 def _explain(container: Container, err: BaseException) -> InputError:
@@ -301,8 +385,8 @@ def _rosbags_path(container: Container) -> Iterator[Path]:
     """Yield a path whose suffix makes ``AnyReader`` choose the right reader."""
     path = container.path
     want = next((f.suffix for f in FORMATS if f.kind == container.kind), None)
-    if container.kind == "rosbag2":
-        ok = path.suffix != ".bag"
+    if container.kind in ("rosbag2", "ros1-split"):  # a split recording opens its parts
+        ok = container.kind == "ros1-split" or path.suffix != ".bag"
         want = ""
     else:
         ok = path.suffix == want
@@ -358,13 +442,16 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
     container = detect_container(path)
     with _rosbags_path(container) as rpath:
         try:
-            reader = AnyReader([rpath], default_typestore=_FallbackTypes())  # type: ignore[arg-type]
+            reader = AnyReader(list(container.parts or [rpath]), default_typestore=_FallbackTypes())  # type: ignore[arg-type]
             _use_own_readers(reader)
             reader.open()
         except Exception as err:  # any reader failure means a bad file
             raise _explain(container, err) from None
-        if container.note:
-            setattr(reader, _NOTES, [container.note])
+        notes = [container.note] if container.note else []
+        if container.parts:  # how the files follow each other in time
+            notes += part_notes(container.parts, [(r.start_time, r.end_time - 1) for r in reader.readers])
+        if notes:
+            setattr(reader, _NOTES, notes)
         try:
             yield reader
         except (Ros1ReaderError, Ros2ReaderError, SerdeError, DamagedError) as err:

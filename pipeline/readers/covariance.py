@@ -32,8 +32,9 @@ class StatedNoise:
     """Per-axis standard deviation of one sample (body frame of the message) and the sample period."""
 
     topic: str
-    sigma: np.ndarray  # (3,)
+    sigma: np.ndarray  # (3,); NaN where ``problem`` says why the stated values are not believed
     period_s: float
+    problem: str | None = None
 
     @property
     def density(self) -> np.ndarray:
@@ -41,8 +42,31 @@ class StatedNoise:
         return self.sigma * np.sqrt(self.period_s)
 
 
+#: Diagonal variances drivers write when they know nothing: a value this large or this small that is an exact
+#: power of ten is a placeholder, not a measurement.
+PLACEHOLDER_ABOVE, PLACEHOLDER_BELOW = 1e2, 1e-8
+
+
+def implausible(diag: np.ndarray) -> str | None:
+    """Why three stated variances are not a measurement (None: plausible): REP 145's -1 ("no estimate"),
+    zeros ("unknown"), negative or non-finite values, placeholders such as 1e-9, 1e3 or 1e6."""
+    diag = np.asarray(diag, dtype=float)
+    if not np.all(np.isfinite(diag)):
+        return "not finite"
+    if diag[0] == -1:
+        return "-1 (REP 145: no estimate)"
+    if np.any(diag < 0):
+        return "negative"
+    if np.any(diag == 0):
+        return "zero (unknown)"
+    exact = np.isclose(np.log10(diag), np.round(np.log10(diag)), rtol=0, atol=1e-9)
+    if np.any(exact & ((diag >= PLACEHOLDER_ABOVE) | (diag <= PLACEHOLDER_BELOW))):
+        return f"placeholder ({', '.join(f'{d:g}' for d in diag)})"
+    return None
+
+
 def _diagonal(msg, msgtype: str, role: str) -> np.ndarray | None:
-    """The 3 variances of ``role`` stated by one message, None when the message states none."""
+    """The 3 variances of ``role`` stated by one message, None when the message type states none."""
     if msgtype == _IMU:
         if role != "angular_velocity":
             return None
@@ -53,17 +77,14 @@ def _diagonal(msg, msgtype: str, role: str) -> np.ndarray | None:
         idx = (0, 7, 14) if role == "linear_velocity" else (21, 28, 35)
     else:
         return None
-    diag = cov[list(idx)]
-    # REP 145: -1 in the first element means "no estimate"; all zeros is the common "unknown".
-    if not np.all(np.isfinite(diag)) or diag[0] < 0 or np.all(diag == 0) or np.any(diag < 0):
-        return None
-    return diag
+    return cov[list(idx)]
 
 
 def stated_noise(
     path: str | Path, topics: dict[str, str], roles: tuple[str, ...] = ("angular_velocity", "linear_velocity")
 ) -> dict[str, StatedNoise]:
-    """Role -> the noise stated by the first messages of that role's topic (roles without one are left out).
+    """Role -> the noise stated by the first messages of that role's topic (roles without one are left out;
+    a topic whose messages state only implausible values (:func:`implausible`) is given with its ``problem``).
 
     A topic whose messages cannot be read here is treated as stating nothing (the run reads it properly and
     reports any damage itself).
@@ -82,18 +103,24 @@ def stated_noise(
                 meta, conns = table[topic]
                 if meta.msgtype != _IMU and meta.msgtype not in _TWIST_COV:
                     continue
-                diags, stamps = [], []
+                diags, stamps, problems = [], [], []
                 for conn, _rec, raw in iter_raw(reader, path, conns):
                     msg = reader.deserialize(raw, conn.msgtype)
                     diag = _diagonal(msg, conn.msgtype, role)
                     if diag is not None:
-                        diags.append(diag)
+                        if (problem := implausible(diag)) is None:
+                            diags.append(diag)
+                        else:
+                            problems.append(problem)
                     stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
                     if len(stamps) >= SAMPLE_MESSAGES:
                         break
                 steps = np.diff(np.sort(np.asarray(stamps, dtype=np.int64))) * 1e-9
                 steps = steps[steps > 0]
-                if not diags or steps.size == 0:
+                if steps.size == 0 or not (diags or problems):
+                    continue
+                if not diags:
+                    found[role] = StatedNoise(topic, np.full(3, np.nan), float(np.median(steps)), problems[0])
                     continue
                 found[role] = StatedNoise(topic, np.sqrt(np.median(np.array(diags), axis=0)), float(np.median(steps)))
     except (InputError, AttributeError, KeyError, TypeError, ValueError):

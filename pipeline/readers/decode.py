@@ -718,12 +718,13 @@ def decode_sim_truth(
     path: str | Path,
     topic: str,
     connections: Collection[Connection],
-) -> tuple[dict[int, np.ndarray], dict[str, np.ndarray], list[str]]:
-    """Landmark and bias truth of a simulated log (JSON in a ``std_msgs/String``); the last message wins."""
+) -> tuple[dict[int, np.ndarray], dict[str, np.ndarray], list[str], dict[str, object]]:
+    """Landmark and bias truth of a simulated log (JSON in a ``std_msgs/String``; the last message wins), and
+    what the simulator recorded for reading the log (:func:`recorded_settings`)."""
     with layout_errors(path, connections):
         texts = [str(msg.data) for _, msg in decoded_messages(reader, path, connections)]
     if not texts:
-        return {}, {}, []
+        return {}, {}, [], {}
     warnings = [f"{topic}: {len(texts)} messages, using the last"] if len(texts) > 1 else []
     try:
         doc = json.loads(texts[-1])
@@ -736,12 +737,27 @@ def decode_sim_truth(
             for name, key in (("gyro", "gyro_bias"), ("velocity", "velocity_bias"))
             if key in doc
         }
+        recorded = recorded_settings(doc)
     except (ValueError, TypeError) as err:
         reason = one_line(err)
         raise InputError(path, f"invalid simulation truth JSON: {reason}", topic) from None
     except RecursionError:  # json's decoder recurses per level: '[' * 100000 does not end in a clean error
         raise InputError(path, "invalid simulation truth JSON: nested too deeply", topic) from None
-    return landmarks, bias, warnings
+    return landmarks, bias, warnings, recorded
+
+
+def recorded_settings(doc: dict) -> dict[str, object]:
+    """The tag size (m, a positive number) and family a simulated log's truth document records for its camera."""
+    out: dict[str, object] = {}
+    size = doc.get("tag_size")
+    if size is not None:
+        size = float(size)
+        if not (np.isfinite(size) and size > 0):
+            raise ValueError(f"tag_size must be a positive number, got {doc['tag_size']!r}")
+        out["tag_size"] = size
+    if doc.get("tag_family") is not None:
+        out["tag_family"] = str(doc["tag_family"])
+    return out
 
 
 # --- header scan (inspect) -------------------------------------------------------------------------

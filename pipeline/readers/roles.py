@@ -43,6 +43,7 @@ TF2 = "tf2_msgs/msg/TFMessage"
 TF1 = "tf/msg/tfMessage"  # ROS1 tf (not tf2) bags
 TF_TYPES = (TF2, TF1)
 STRING = "std_msgs/msg/String"
+DET = "detections"
 #: Tag corners in pixels (no 3D pose): a PnP with the camera model and the tag size makes them landmarks.
 TAG_CORNER_TYPES = (
     "apriltag_msgs/msg/ApriltagArrayStamped",  # ROS1 apriltag_ros (KumarRobotics / TagSLAM's detector)
@@ -59,6 +60,12 @@ CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 
 #: Separator of a TF edge given as a topic (``topics.truth: "map->base_link"``).
 EDGE_ARROW = "->"
+
+#: The forms a truth may be given in, everywhere one is accepted (``trajectory_files.parse_truth`` reads them).
+TRUTH_FORMS = (
+    "a truth is a topic of the log, a TF edge 'parent->child', a TUM / EuRoC CSV / KITTI file, or another "
+    "log's topic LOG:TOPIC"
+)
 
 #: Roles in the order they are reported.
 ROLES: tuple[str, ...] = (
@@ -99,6 +106,56 @@ EXPLICIT_TYPES: dict[str, tuple[str, ...]] = {
     "detections": (POSE_ARRAY, MARKER_ARRAY, *TF_TYPES),
     "truth": (POSE_COV_STAMPED, ODOMETRY),
 }
+
+#: Roles every estimator needs (a run without one cannot start), and the roles that give inertial directions
+#: (gravity from the accelerometer, the magnetic field) for the estimators that need them.
+REQUIRED_ROLES = ("angular_velocity", "linear_velocity", "detections")
+DIRECTION_ROLES = ("accel", "magnetic")
+
+#: What each role is, in a user's words.
+ROLE_PURPOSE: dict[str, str] = {
+    "angular_velocity": "angular velocity (gyro)",
+    "linear_velocity": "body linear velocity",
+    "accel": "accelerometer (gravity direction)",
+    "magnetic": "magnetic field direction",
+    "detections": "landmark detections",
+    "truth": "ground-truth trajectory (for the error report)",
+    "static_tf": "static transforms",
+    "tf": "transforms",
+    "sim_truth": "simulation truth",
+    "camera_info": "camera models",
+}
+
+#: What the tool does with a type in a role beyond decoding it, or what more it needs (config keys).
+TYPE_NEEDS: dict[tuple[str, str], str] = {
+    ("angular_velocity", ODOMETRY): "a zero twist.angular is differentiated from the orientations",
+    ("linear_velocity", ODOMETRY): "a twist.linear in the parent frame is rotated into the child frame",
+    **{(DET, t): "tags.size (edge, m) and camera_info or cameras:" for t in TAG_CORNER_TYPES},
+    **{(DET, t): "tags.size and tags.family; tags found in the images" for t in IMAGE_TYPES},
+    (DET, MARKER_ARRAY): "frames.marker_namespace picks one namespace",
+    **{(DET, t): "frames.tag_pattern, e.g. 'tag_{id}'" for t in TF_TYPES},
+}
+
+#: Other ways to give a role than a topic of the log (config keys).
+ROLE_ALTERNATIVES: dict[str, str] = {
+    "truth": "or as topics.truth: a TF edge 'parent->child', a TUM / EuRoC CSV / KITTI file, or another log's "
+    "LOG:TOPIC",
+}
+
+
+def how_to_satisfy(role: str) -> list[str]:
+    """Lines saying what would give ``role``: every accepted type, grouped by what it needs, and the config keys
+    (types only named, never detected, are marked)."""
+    groups: dict[str, list[str]] = {}
+    for msgtype in accepted_types(role):
+        need = TYPE_NEEDS.get((role, msgtype), "")
+        if msgtype in EXPLICIT_TYPES.get(role, ()) and msgtype not in TF_TYPES:  # TF tag frames: by the pattern
+            need = "; ".join(x for x in (f"only when named in topics.{role}", need) if x)
+        groups.setdefault(need, []).append(msgtype)
+    lines = [", ".join(types) + (f"  [{need}]" if need else "") for need, types in groups.items()]
+    lines = [f"set topics.{role} to a topic of type {lines[0]}", *(f"or {x}" for x in lines[1:])]
+    return [*lines, ROLE_ALTERNATIVES[role]] if role in ROLE_ALTERNATIVES else lines
+
 
 #: Roles found by topic name (their types are too generic to detect by type alone).
 ROLE_TOPIC_NAMES: dict[str, str] = {
@@ -246,7 +303,8 @@ def _check_override(
     if topic not in topics:
         names = sorted(topics)
         known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
-        raise InputError(path, f"topic for role {role} is not in the log (topics: {known})", topic)
+        hint = f"; {TRUTH_FORMS}" if role == "truth" else ""
+        raise InputError(path, f"topic for role {role} is not in the log (topics: {known}){hint}", topic)
     msgtype = topics[topic].msgtype
     if msgtype not in accepted_types(role):
         expected = " or ".join(accepted_types(role))

@@ -23,7 +23,7 @@ from slamobs.pipeline.streams import PoseStream
 
 from .container import detect_container, open_log
 from .decode import decode_rows, pose_stream
-from .roles import topics_of
+from .roles import EDGE_ARROW, TRUTH_FORMS, parse_edge, topics_of
 from .rows import LAYOUTS
 
 NS_PER_S = 1_000_000_000
@@ -400,6 +400,44 @@ def split_topic_source(source: str) -> tuple[Path, str] | None:
             if log.exists() and _is_log(log):
                 return log, source[k + 1 :]
     return None
+
+
+@dataclass(frozen=True)
+class TruthSpec:
+    """A truth as given (``topics.truth``, ``evaluation.truth_file``, ``report --truth``, ``evaluate TRUTH``):
+    ``kind`` is ``topic``, ``edge`` (a TF edge ``parent->child``) or ``file`` (TUM / EuRoC CSV / KITTI); ``log``
+    is the log a topic or edge is read from when given as ``LOG:TOPIC`` (None: the run's own log)."""
+
+    kind: str
+    name: str
+    log: Path | None = None
+
+
+def parse_truth(text: str | Path) -> TruthSpec:
+    """The one truth grammar: ``LOG:TOPIC`` or ``LOG:parent->child`` (an existing log), ``parent->child``, an
+    existing file, else a topic of the run's log. ROS names hold no ``:``, so a ``:`` names a log.
+
+    Raises:
+        InputError: Empty, a malformed TF edge, or ``X:Y`` where ``X`` is no log.
+
+    """
+    text = str(text).strip()
+    if not text:
+        raise InputError("truth", f"empty truth specification ({TRUTH_FORMS})")
+    spec = None
+    if (found := split_topic_source(text)) is not None:
+        spec = TruthSpec("edge" if EDGE_ARROW in found[1] else "topic", found[1].strip(), found[0])
+    elif Path(text).exists():
+        return TruthSpec("file", text)
+    elif ":" in text:
+        where = text.rsplit(":", 1)[0] if EDGE_ARROW not in text else text.split(":", 1)[0]
+        raise InputError(where, f"no such log: truth {text!r} reads as LOG:TOPIC ({TRUTH_FORMS})")
+    spec = spec or TruthSpec("edge" if EDGE_ARROW in text else "topic", text)
+    if spec.kind == "edge" and not all(parse_edge(spec.name) or ("",)):
+        raise InputError(spec.log or "truth", f"truth TF edge {spec.name!r} is not 'parent->child' ({TRUTH_FORMS})")
+    if not spec.name:
+        raise InputError(spec.log or "truth", f"no topic after the log in {text!r} ({TRUTH_FORMS})")
+    return spec
 
 
 def read_trajectory(source: str | Path, fmt: str | None = None, *, kitti_times: str | Path | None = None) -> Trajectory:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import shutil
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from functools import cached_property, partial
 from pathlib import Path
 
@@ -162,6 +162,11 @@ def infer_container(path: str | Path) -> str:
     return {".bag": "bag", ".mcap": "mcap"}.get(suffix, "ros2")
 
 
+def _per_axis(sigma) -> np.ndarray:
+    """One standard deviation or one per axis, as three."""
+    return np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
+
+
 class _Builder:
     """Makes the rosbags message objects of one :class:`SimLog` (or piece of one) for one typestore."""
 
@@ -173,10 +178,10 @@ class _Builder:
         self.Vector3, self.Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
         self.Point, self.Pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Pose"]
         self.Transform = t["geometry_msgs/msg/Transform"]
-        self.cov9_imu = self._cov(9, [sim.noise.gyro**2] * 3)
+        self.cov9_imu = self._cov(9, _per_axis(sim.noise.gyro) ** 2)
         self.cov9_acc = self._cov(9, [sim.noise.accel**2] * 3)
         self.cov9_mag = self._cov(9, [sim.noise.mag**2] * 3)
-        self.cov36_twist = self._cov(36, [sim.noise.odom_linear**2] * 3 + [sim.noise.odom_angular**2] * 3)
+        self.cov36_twist = self._cov(36, np.r_[_per_axis(sim.noise.odom_linear) ** 2, [sim.noise.odom_angular**2] * 3])
         self.orient_cov = np.zeros(9)
         self.orient_cov[0] = -1.0  # REP 145: no orientation estimate
 
@@ -392,14 +397,7 @@ class _Builder:
         columns = self.columns(topic) if n else None
         if columns is None:
             return lambda i: self.serialize(make(i), topic)
-        template = np.frombuffer(self.serialize(make(0), topic), np.uint8)
-        plan = make_plan(self.ts, self.types[topic], list(columns)[2:], (), cdr=not self.ros1)
-        assert plan is not None, topic
-        rows = np.empty((n, template.shape[0]), np.uint8)
-        rows[:] = template
-        for (size, kind), offset, values in zip(plan.leaves, leaf_offsets(plan, template), columns.values()):
-            little = np.asarray(values).astype(f"<{kind}{size}")
-            rows[:, offset : offset + size] = little.view(np.uint8).reshape(n, size)
+        rows = fixed_rows(self.ts, self.types[topic], self.serialize(make(0), topic), columns, ros1=self.ros1)
         return lambda i: rows[i].tobytes()
 
     def makers(self, latched: bool = True) -> dict[str, tuple[np.ndarray, Callable[[int], bytes]]]:
@@ -428,6 +426,28 @@ class _Builder:
         return out
 
 
+def fixed_rows(
+    ts: Typestore, msgtype: str, template: bytes, columns: dict[tuple[str, ...], np.ndarray], *, ros1: bool
+) -> np.ndarray:
+    """The serialised messages of a fixed-layout type, one row of bytes each: copies of ``template`` (one message
+    serialised by rosbags) with the changing fields, ``columns`` by path (header stamp sec and nanosec first),
+    written in bulk: the bytes rosbags would write, without an object per message."""
+    raw = np.frombuffer(template, np.uint8)
+    n = len(next(iter(columns.values())))
+    plan = make_plan(ts, msgtype, list(columns)[2:], (), cdr=not ros1)
+    assert plan is not None, msgtype
+    rows = np.empty((n, raw.shape[0]), np.uint8)
+    rows[:] = raw
+    for (size, kind), offset, values in zip(plan.leaves, leaf_offsets(plan, raw), columns.values()):
+        little = np.asarray(values).astype(f"<{kind}{size}")
+        rows[:, offset : offset + size] = little.view(np.uint8).reshape(n, size)
+    return rows
+
+
+#: messages between two progress lines of :func:`iter_messages` (an image costs milliseconds, a vector microseconds)
+PROGRESS_EVERY = 200
+
+
 def _build_message(factory: Callable[[int], bytes], index: int) -> bytes:
     """One serialised message (a module-level seam so tests can inject a failure mid-write)."""
     return factory(index)
@@ -437,9 +457,12 @@ def _pieces(sim: SimLog | Simulation) -> Iterator[SimLog]:
     return iter([sim]) if isinstance(sim, SimLog) else sim.pieces()
 
 
-def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterator[tuple[str, int, bytes]]:
+def iter_messages(
+    sim: SimLog | Simulation, ts: Typestore, ros1: bool, progress: Callable[[str], None] | None = None
+) -> Iterator[tuple[str, int, bytes]]:
     """``(topic, record time ns, serialised message)`` over all topics in record-time order (ties: topic order,
-    then message order), piece by piece for a :class:`Simulation`.
+    then message order), piece by piece for a :class:`Simulation`; ``progress`` hears how far the log is
+    written, every :data:`PROGRESS_EVERY` messages.
 
     A piece's messages are written once no later piece can precede them: record times are never before the
     stamps, so everything recorded before the next piece's first stamp is final; the rest waits for that piece.
@@ -448,11 +471,16 @@ def iter_messages(sim: SimLog | Simulation, ts: Typestore, ros1: bool) -> Iterat
     factories: dict[int, dict[str, Callable[[int], bytes]]] = {}
     waiting: list[np.ndarray] = []  # columns: record time, topic, index in the log, index in the piece, piece
 
+    count = [0]
+
     def emit(cols: list[np.ndarray]) -> Iterator[tuple[str, int, bytes]]:
         rec, topic, glob, local, piece = cols
         for j in np.lexsort((glob, topic, rec)):
             name = topics[topic[j]]
             yield name, int(rec[j]), _build_message(factories[int(piece[j])][name], int(local[j]))
+            count[0] += 1
+            if progress is not None and count[0] % PROGRESS_EVERY == 0:
+                progress(f"simulate: {(int(rec[j]) - sim.start_ns) / 1e9:.1f} of {sim.duration:g} s written")
 
     for p, part in enumerate(_pieces(sim)):
         makers = _Builder(part, ts, ros1).makers(latched=p == 0)
@@ -492,7 +520,7 @@ def _types_of(sim: SimLog | Simulation) -> dict[str, str]:
     return topic_types(sim.camera_sim if isinstance(sim, SimLog) else sim.camera)
 
 
-def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
+def _write_bag(sim: SimLog | Simulation, path: Path, progress=None) -> None:
     ts = make_typestore(ros1=True)
     writer = _Bag1Writer(path)
     writer.set_compression(_Bag1Writer.CompressionFormat.LZ4)
@@ -503,11 +531,11 @@ def _write_bag(sim: SimLog | Simulation, path: Path) -> None:
             )
             for tp, typ in _types_of(sim).items()
         }
-        for topic, rec, raw in iter_messages(sim, ts, ros1=True):
+        for topic, rec, raw in iter_messages(sim, ts, ros1=True, progress=progress):
             writer.write(conns[topic], rec, raw)
 
 
-def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
+def _write_ros2(sim: SimLog | Simulation, path: Path, progress=None) -> None:
     ts = make_typestore(ros1=False)
     with Bag2Writer(path, version=9) as writer:
         writer.set_custom_data(*WRITER_ROS2)
@@ -517,29 +545,44 @@ def _write_ros2(sim: SimLog | Simulation, path: Path) -> None:
             )
             for tp, typ in _types_of(sim).items()
         }
-        for topic, rec, raw in iter_messages(sim, ts, ros1=False):
+        for topic, rec, raw in iter_messages(sim, ts, ros1=False, progress=progress):
             writer.write(conns[topic], rec, raw)
 
 
-def _write_mcap(sim: SimLog | Simulation, path: Path) -> None:
+def _write_mcap(sim: SimLog | Simulation, path: Path, progress=None) -> None:
     ts = make_typestore(ros1=False)
+    write_mcap(path, _types_of(sim), iter_messages(sim, ts, ros1=False, progress=progress), ts, latched=LATCHED)
+
+
+def write_mcap(
+    path: Path,
+    types: dict[str, str],
+    messages: Iterable[tuple[str, int, bytes]],
+    ts: Typestore,
+    *,
+    latched: Collection[str] = (),
+    library: str | None = None,
+) -> None:
+    """A new bare ROS2 MCAP file (zstd chunks, message definitions embedded) of ``(topic, record ns, CDR bytes)``
+    in record-time order; ``types`` is topic -> message type in channel order, ``library`` names the writer
+    (default :data:`WRITER_MCAP`)."""
     with path.open("xb") as stream:
         writer = McapWriter(stream, compression=CompressionType.ZSTD)
-        writer.start(profile="ros2", library=WRITER_MCAP)
+        writer.start(profile="ros2", library=library or WRITER_MCAP)
         channels: dict[str, int] = {}
-        for tp, typ in _types_of(sim).items():
+        for tp, typ in types.items():
             msgdef, _ = ts.generate_msgdef(typ, ros_version=2)
             schema = writer.register_schema(name=typ, encoding="ros2msg", data=msgdef.encode())
-            meta = {"offered_qos_profiles": LATCHED_QOS_YAML if tp in LATCHED else ""}
+            meta = {"offered_qos_profiles": LATCHED_QOS_YAML if tp in latched else ""}
             channels[tp] = writer.register_channel(topic=tp, message_encoding="cdr", schema_id=schema, metadata=meta)
         seq = dict.fromkeys(channels, 0)
-        for topic, rec, data in iter_messages(sim, ts, ros1=False):
+        for topic, rec, data in messages:
             writer.add_message(channels[topic], log_time=rec, data=data, publish_time=rec, sequence=seq[topic])
             seq[topic] += 1
         writer.finish()
 
 
-_WRITERS: dict[str, Callable[[SimLog | Simulation, Path], None]] = {
+_WRITERS: dict[str, Callable[..., None]] = {
     "bag": _write_bag,
     "mcap": _write_mcap,
     "ros2": _write_ros2,
@@ -630,7 +673,12 @@ def _simulated(path: Path) -> bool:
 
 
 def write_log(
-    sim: SimLog | Simulation, path: str | Path, container: str | None = None, *, overwrite: bool = False
+    sim: SimLog | Simulation,
+    path: str | Path,
+    container: str | None = None,
+    *,
+    overwrite: bool = False,
+    progress: Callable[[str], None] | None = None,
 ) -> Path:
     """Write ``sim`` to ``path`` as ``container`` ("bag", "mcap", "ros2"; inferred from the suffix if None).
 
@@ -646,7 +694,7 @@ def write_log(
     if container not in _WRITERS:
         raise ValueError(f"unknown container {container!r}; expected one of {', '.join(CONTAINERS)}")
     with atomic_file(final, why_kept=partial(why_kept, overwrite=overwrite)) as tmp:
-        _WRITERS[container](sim, tmp)
+        _WRITERS[container](sim, tmp, progress)
     return final
 
 
@@ -659,6 +707,8 @@ __all__ = [
     "infer_container",
     "iter_messages",
     "log_size",
+    "fixed_rows",
     "make_typestore",
     "write_log",
+    "write_mcap",
 ]

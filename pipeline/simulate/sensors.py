@@ -55,16 +55,21 @@ _TAG_SIZE_M = 0.16
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Standard deviations of the additive white noises (all zero when simulating without noise)."""
+    """Standard deviations of the additive white noises (all zero when simulating without noise).
 
-    gyro: float = 0.005  # rad/s
+    ``gyro`` and ``odom_linear`` are one value or one per axis (x, y, z); a detection's standard deviation per
+    component is ``detection_base + detection_per_m * r + detection_per_m2 * r²`` at range r (the stereo / PnP
+    law grows with r²)."""
+
+    gyro: float | tuple[float, float, float] = 0.005  # rad/s
     accel: float = 0.05  # m/s^2
-    odom_linear: float = 0.02  # m/s
+    odom_linear: float | tuple[float, float, float] = 0.02  # m/s
     odom_angular: float = 0.01  # rad/s
     mag: float = 2e-7  # Tesla
     detection_base: float = 0.01  # m, per component
     detection_per_m: float = 0.002  # m per m of range, per component
     tag_rotation: float = 0.01  # rad
+    detection_per_m2: float = 0.0  # m per m² of range, per component
 
     @classmethod
     def zero(cls) -> NoiseModel:
@@ -218,9 +223,10 @@ def _record_times(rng: np.random.Generator, t_ns: np.ndarray, after: int) -> np.
     return np.maximum.accumulate(rec)
 
 
-def _white(rng: np.random.Generator, sigma: float, shape: tuple[int, ...]) -> np.ndarray:
-    """Gaussian noise; still draws when ``sigma == 0`` so noisy and clean runs share one random stream."""
-    return sigma * rng.standard_normal(shape)
+def _white(rng: np.random.Generator, sigma, shape: tuple[int, ...]) -> np.ndarray:
+    """Gaussian noise (``sigma`` one value or one per last axis); still draws when ``sigma == 0`` so noisy and
+    clean runs share one random stream."""
+    return (sigma if np.isscalar(sigma) else np.asarray(sigma, dtype=float)) * rng.standard_normal(shape)
 
 
 #: Seconds of log simulated at a time: bounds memory for logs of any length; logs up to this long are one
@@ -562,6 +568,8 @@ def _detections(
     true_xyz = y_cam[frame_idx, lm_idx]
     rng_m = np.linalg.norm(true_xyz, axis=1)
     sigma = nm.detection_base + nm.detection_per_m * rng_m
+    if nm.detection_per_m2:
+        sigma = sigma + nm.detection_per_m2 * rng_m * rng_m
     xyz = true_xyz + sigma[:, None] * rng.standard_normal((m, 3))
 
     # Tag orientation in the camera frame: R_bc^T R^T R_tag, perturbed by a small rotation.

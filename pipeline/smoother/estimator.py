@@ -23,6 +23,8 @@ GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
 #: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
 GAP_SIGMA = (1.0, 100.0)
+#: Seconds between the keyframes whose pose marginals are computed (rows between them are interpolated).
+COVARIANCE_DT = 1.0
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
 MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
@@ -61,8 +63,29 @@ class _Segments:
         return np.minimum((np.asarray(t) - self.t0) // self.segment_s, self.n - 1).astype(np.int64)
 
 
+def covariance_keyframes(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> np.ndarray:
+    """The keyframes whose marginal covariance the smoother computes: the first at or after each multiple of
+    ``every_s`` from the start, and the last (a marginal costs about 0.6 ms: every keyframe of an hour's log,
+    72,000 at 20 Hz, would cost more than the solve)."""
+    marks = kf_t[0] + every_s * np.arange(int((kf_t[-1] - kf_t[0]) // every_s) + 1)
+    return np.unique(np.r_[np.searchsorted(kf_t, marks), kf_t.shape[0] - 1])
+
+
+def interpolate_covariance(t_cov: np.ndarray, cov: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Covariances at times ``t`` linear in time between those at ``t_cov`` (held beyond the ends): between two
+    keyframes a pose is the odometry's continuation of both (a convex combination of positive definite
+    matrices stays positive definite)."""
+    j = np.clip(np.searchsorted(t_cov, t, side="right"), 1, max(t_cov.shape[0] - 1, 1))
+    if t_cov.shape[0] < 2:
+        return np.repeat(cov[:1], t.shape[0], axis=0)
+    w = np.clip((t - t_cov[j - 1]) / np.maximum(t_cov[j] - t_cov[j - 1], 1e-12), 0.0, 1.0)[:, None, None]
+    return (1.0 - w) * cov[j - 1] + w * cov[j]
+
+
 class BatchSmoother(Stepper):
     """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
+
+    keeps_covariance = True
 
     def __init__(
         self,
@@ -116,7 +139,20 @@ class BatchSmoother(Stepper):
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
-        self.result = {"kf_t": kf_t, "kf_of_det": kf_of_det, "segments": segments, "solution": sol, "seed": seed}
+        t1, c1 = time.perf_counter(), time.process_time()
+        cov_kf = covariance_keyframes(kf_t)
+        pose_cov, landmark_cov = g.covariances(problem, sol, cov_kf)
+        t_cov, c_cov = time.perf_counter() - t1, time.process_time() - c1
+        self.result = {
+            "kf_t": kf_t,
+            "kf_of_det": kf_of_det,
+            "segments": segments,
+            "solution": sol,
+            "seed": seed,
+            "cov_t": kf_t[cov_kf],
+            "pose_cov": pose_cov,
+            "landmark_cov": landmark_cov,
+        }
         summary, seconds = self._summary(sol, chosen.seed.name, stats)
         if robust is not None:
             summary["robust"] = robust[0]
@@ -134,6 +170,8 @@ class BatchSmoother(Stepper):
                 "seed_s": seed_s,
                 "smoother_s": t_solve,
                 "smoother_cpu_s": c_solve,
+                "covariance_s": t_cov,
+                "covariance_cpu_s": c_cov,
                 **{f"smoother_{k}_s": v for k, v in seconds.items()},
             }
         )
@@ -323,6 +361,10 @@ class BatchSmoother(Stepper):
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
 
+    def landmark_covariance(self) -> np.ndarray | None:
+        """The landmarks' marginal covariances at the solution (None before the solve)."""
+        return None if self.result is None else self.result["landmark_cov"]
+
     # ------------------------------------------------------------------ stretches
     def _relocalise(self, iv: int) -> bool:
         """A new segment: nothing to do here, the keyframes after the gap are fit to the map by the solve (the
@@ -349,6 +391,7 @@ class BatchSmoother(Stepper):
         )
         out.k[:n] = rows
         out.b[:n] = bias_rows[rows]
+        out.cov[:n] = interpolate_covariance(res["cov_t"], res["pose_cov"], self.vel_t[rows])
         # detections of the frames up to iv_stop: estimates from the solution at their keyframes
         jf_stop = self._frames_before(iv_stop)
         a, b = int(s.det_offsets[int(ns[_JF])]), int(s.det_offsets[jf_stop])

@@ -347,6 +347,25 @@ def cost(problem: Problem, guess: Guess) -> float:
     return float(graph.error(values)) + _Motion(problem, bias_keys).error(guess.rot, guess.pos, guess.bias)
 
 
+def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Marginal covariances at the solution, from one undamped factorization: of the poses at ``keyframes``
+    (K', 6, 6) and of every landmark (L, 3, 3), both in the map frame. GTSAM's pose marginal is that of the body
+    twist ``ξ = (ω, v)`` in ``T̂ = T Exp(ξ)``; the written error ``(δθ, δp)``, ``R̂ = Exp(δθ) R``, ``p̂ = p + δp``
+    is ``(R ω, R v)`` to first order. Both are conditioned on the gauge (the anchor keyframe held fixed)."""
+    k, lm_keys, bias_keys = _keys(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
+    graph, values = build(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
+    lin = graph.linearize(values)
+    _Motion(problem, bias_keys).linearize(sol.rot, sol.pos, sol.bias, 0.0, lin)
+    tree = lin.eliminateMultifrontal(ordering(k, lm_keys, bias_keys))
+    del lin
+    body = np.array([tree.marginalCovariance(int(i)) for i in keyframes]).reshape(-1, 6, 6)
+    turn = np.zeros((keyframes.shape[0], 6, 6))
+    turn[:, :3, :3] = turn[:, 3:, 3:] = sol.rot[keyframes]
+    pose = np.einsum("nij,njk,nlk->nil", turn, body, turn)
+    landmarks = np.array([tree.marginalCovariance(int(key)) for key in lm_keys]).reshape(-1, 3, 3)
+    return pose, landmarks
+
+
 def merge_summaries(first: dict, second: dict) -> dict:
     """The summary of a solve continued by a second one (after gating): counts added, errors joined."""
     out = dict(second)

@@ -26,6 +26,11 @@ import numpy as np
 from slamobs.pipeline.tune.worker import OBJECTIVES
 
 UNITS = {"ape": "m", "rotation": "deg", "landmarks": "m"}
+#: What the objective was measured against, by tune target other than the truth (worker.TARGETS).
+AGAINST = {
+    "batch": "the batch smoother's trajectory and map on each log (no ground truth needed; "
+    "--holdout logs: their truth)",
+}
 
 
 def _replace(path: Path, write) -> None:
@@ -250,7 +255,13 @@ def write_results(out: Path, study, spec, setup: dict, options, holdout: list[di
 
     summary = {
         "observer": spec.name,
-        "objective": {"name": options.objective, "metric": key, "unit": unit, "statistic": "median over the logs"},
+        "objective": {
+            "name": options.objective,
+            "metric": key,
+            "unit": unit,
+            "statistic": "median over the logs",
+            **({"against": AGAINST[options.target]} if options.target != "truth" else {}),
+        },
         "trials": {
             "complete": len(complete),
             "failed": len(_trials(study)) - len(complete),
@@ -294,7 +305,9 @@ def render_markdown(s: dict) -> str:
     lines = [
         f"# slamobs tune: {s['observer']}",
         "",
-        f"Objective: median over the logs of `{o['metric']}` [{o['unit']}]; {s['trials']['complete']} complete "
+        f"Objective: median over the logs of `{o['metric']}` [{o['unit']}]"
+        + (f" against {o['against']}" if "against" in o else "")
+        + f"; {s['trials']['complete']} complete "
         f"trials ({s['trials']['failed']} failed) of {s['trials']['requested']} requested.",
         "",
     ]

@@ -20,7 +20,7 @@ from pathlib import Path
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import BadInput, InputError
 from slamobs.pipeline.tune import space
-from slamobs.pipeline.tune.worker import OBJECTIVES
+from slamobs.pipeline.tune.worker import OBJECTIVES, TARGET_KEY, TARGETS
 
 JOURNAL = "tune.journal"
 LOCK = ".tune.lock"
@@ -51,6 +51,7 @@ class TuneOptions:
     timeout: float | None = 3600.0  # seconds per (trial, log) on local workers
     wait_workers: float = 60.0
     holdout: tuple[Path, ...] = ()  # logs the sampler never sees: defaults and best gains scored on them at the end
+    target: str = "truth"  # a key of worker.TARGETS: what a trial is measured against (holdout logs: their truth)
 
 
 @dataclass
@@ -98,7 +99,7 @@ def _storage(out: Path):
 def _setup(spec, logs: list[Path], hashes: list[str], options: TuneOptions) -> dict:
     from slamobs.pipeline.batch.runner import config_hash
 
-    return {
+    setup = {
         "observer": spec.name,
         "objective": options.objective,
         "logs": [str(p) for p in logs],
@@ -106,12 +107,16 @@ def _setup(spec, logs: list[Path], hashes: list[str], options: TuneOptions) -> d
         "config_hash": config_hash(replace(options.config, gains={})),
         "space": space.describe(spec),
     }
+    if options.target != "truth":  # a tune against the truth keeps the setup tunes had before targets existed
+        setup["target"] = options.target
+    return setup
 
 
 def _check_same(out: Path, had: dict, now: dict) -> None:
     for key, what in (
         ("observer", "observer"),
         ("objective", "objective"),
+        ("target", "target"),
         ("content_hashes", "set of logs"),
         ("config_hash", "config"),
         ("space", "search space"),
@@ -171,6 +176,8 @@ def run_tune(
         )
     if options.trials < 1:
         raise InputError("--trials", "needs at least 1 trial")
+    if options.target not in TARGETS:
+        raise InputError("--target", f"unknown target {options.target!r} (choose from {', '.join(TARGETS)})")
     config = with_observer(options.config, options.observer)
     spec = resolve_estimator(config)
     if not logs:
@@ -275,7 +282,7 @@ def _optimise(
             tasks, gains = [], {}
             for trial in trials:
                 gains[trial.number] = space.gains_of(spec, trial.params)
-                cfg = {**base.config, "gains": {spec.name: gains[trial.number]}}
+                cfg = {**base.config, "gains": {spec.name: gains[trial.number]}, **_target(options)}
                 tasks += [
                     replace(base, run_id=f"trial{trial.number}-log{i}", log=str(log), config=cfg)
                     for i, log in enumerate(logs)
@@ -319,6 +326,11 @@ def _optimise(
     finally:
         pool.close()
     return ran, held, held_failed
+
+
+def _target(options: TuneOptions) -> dict:
+    """What a tuning task's config says about its target (nothing for the truth: holdout tasks always use it)."""
+    return {} if options.target == "truth" else {TARGET_KEY: options.target}
 
 
 def _score_holdout(study, spec, base, holdout: list[Path], options: TuneOptions, pool) -> list[dict]:

@@ -24,6 +24,13 @@ CACHE_LOGS = 32
 _PREPARED: OrderedDict = OrderedDict()
 #: What a tune can minimise: the run's headline metric it reads (``RunSummary.headline`` names).
 OBJECTIVES = {"ape": "ape_trans_rmse_m", "rotation": "ape_rot_rmse_deg", "landmarks": "landmark_rmse_m"}
+#: What a trial is measured against: the log's ground truth, or the batch smoother's solution on the same log
+#: (logs without truth can then be tuned). The task's config carries it under :data:`TARGET_KEY` (a tune's own
+#: key, taken out before the config is read).
+TARGETS = ("truth", "batch")
+TARGET_KEY = "_tune_target"
+#: Batch solutions a worker process keeps (one per prepared log and noise/batch settings).
+_REFERENCES: OrderedDict = OrderedDict()
 
 
 def _reading_key(log: str, config: dict, directions: bool) -> str:
@@ -36,7 +43,7 @@ def _reading_key(log: str, config: dict, directions: bool) -> str:
     )
 
 
-def prepared_log(log: str, config, directions: bool):
+def prepared_log(log: str, config, directions: bool, need_truth: bool = True):
     """The log read and aligned, from this process's cache; (PreparedLog, read seconds or 0.0 when cached)."""
     from slamobs.pipeline.run import prepare_log
 
@@ -46,7 +53,7 @@ def prepared_log(log: str, config, directions: bool):
         return _PREPARED[key], 0.0
     t = time.perf_counter()
     prepared = prepare_log(Path(log), config, directions=directions)
-    if prepared.streams.truth is None or not len(prepared.streams.truth):
+    if need_truth and (prepared.streams.truth is None or not len(prepared.streams.truth)):
         from slamobs.pipeline.errors import InputError
 
         raise InputError(
@@ -60,9 +67,40 @@ def prepared_log(log: str, config, directions: bool):
     return prepared, time.perf_counter() - t
 
 
-def score(prepared, config) -> dict[str, float | None]:
+def batch_reference(prepared, config):
+    """The batch smoother's solution on ``prepared`` (its seed and noise as ``config`` says, every gain at its
+    default) as ``(truth, landmark truth)`` for :func:`score`, kept per worker process."""
+    import numpy as np
+
+    from slamobs.pipeline.lie import rots_to_quats
+    from slamobs.pipeline.run import estimator_input
+    from slamobs.pipeline.streams import PoseStream
+
+    cfg = replace(config, observer="batch", gains={})
+    key = json.dumps(
+        [id(prepared), cfg.to_dict().get("noise"), cfg.to_dict().get("batch")], sort_keys=True, default=str
+    )
+    if key in _REFERENCES and _REFERENCES[key][0] is prepared:  # held here, so its id is not reused meanwhile
+        _REFERENCES.move_to_end(key)
+        return _REFERENCES[key][1:]
+    est = estimator_input(prepared, cfg)
+    res = est.spec.run(prepared.aligned, est.gains, replace(est.options, out_every=1))
+    ok = np.isfinite(res.position).all(axis=1)
+    t = res.t_ns[ok]
+    truth = PoseStream(
+        "batch", "batch", "base_link", t, t, res.position[ok], rots_to_quats(np.ascontiguousarray(res.rotation[ok]))
+    )
+    marks = {int(i): np.asarray(p, float) for i, p in zip(res.landmark_ids, res.landmark_xyz) if np.isfinite(p).all()}
+    _REFERENCES[key] = (prepared, truth, marks)
+    while len(_REFERENCES) > CACHE_LOGS:
+        _REFERENCES.popitem(last=False)
+    return truth, marks
+
+
+def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
     """Run ``config``'s observer on a prepared log and measure it as the run's report does (APE after the SE(3)
-    alignment, map error after the same alignment), without writing anything.
+    alignment, map error after the same alignment), without writing anything; against the log's truth, or with
+    ``target="batch"`` against the batch smoother's trajectory and map on the same log.
 
     Raises:
         ObserverDiverged: the estimate became non-finite.
@@ -84,18 +122,17 @@ def score(prepared, config) -> dict[str, float | None]:
     if not np.isfinite(res.position).all():
         raise ObserverDiverged(int(res.t_ns[np.argmax(~np.isfinite(res.position).all(axis=1))]), res.stats)
     poses = pd.DataFrame(stretch_tables(res)["poses"])
+    if target == "batch":
+        truth, landmark_truth = batch_reference(prepared, config)
+    else:
+        truth, landmark_truth = truth_on_run_clock(prepared.streams, config), prepared.streams.landmark_truth
     ev = evaluate_trajectory(
-        poses,
-        truth_on_run_clock(prepared.streams, config),
-        ReportOptions(t_max_diff_s=config.evaluation.t_max_diff),
-        estimate_offset=False,
+        poses, truth, ReportOptions(t_max_diff_s=config.evaluation.t_max_diff), estimate_offset=False
     )
     lm_rmse = None
-    if prepared.streams.landmark_truth:
+    if landmark_truth:
         al = ev.alignment
-        lm = landmark_errors(
-            res.landmark_ids, res.landmark_xyz, prepared.streams.landmark_truth, al.rot, al.trans, al.scale
-        )
+        lm = landmark_errors(res.landmark_ids, res.landmark_xyz, landmark_truth, al.rot, al.trans, al.scale)
         lm_rmse = float(np.sqrt(np.mean(lm.errors**2))) if lm.errors.size else None
     return {
         "ape_trans_rmse_m": float(ev.translation.stats["rmse"]),
@@ -117,14 +154,16 @@ def run_trial_log(task: Task) -> dict:
     check_environment(task.version, task.code)
     t0 = time.perf_counter()
     row = {**base_row(task), "status": "ok", "error": None, "fatal": False, "read_s": 0.0}
-    config = RunConfig.from_dict(task.config)
+    raw = dict(task.config)
+    target = raw.pop(TARGET_KEY, "truth")
+    config = RunConfig.from_dict(raw)
     try:
         from slamobs.pipeline.estimators import get_estimator
 
         directions = get_estimator(config.observer).min_directions > 0
-        prepared, row["read_s"] = prepared_log(task.log, config, directions)
+        prepared, row["read_s"] = prepared_log(task.log, config, directions, need_truth=target == "truth")
         t = time.perf_counter()
-        row.update(score(prepared, config))
+        row.update(score(prepared, config, target))
         row["observer_s"] = time.perf_counter() - t
     except ObserverDiverged as err:
         row.update(status="diverged", error=f"{task.log}: observer diverged (non-finite state) at t_ns={err.t_ns}")

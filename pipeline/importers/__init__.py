@@ -1,0 +1,1 @@
+"""Importers: public datasets converted to logs that every slamobs command reads."""

@@ -1,0 +1,294 @@
+"""Noise levels estimated from a log's own samples (``noise: auto``): pure numerics over arrays, no I/O.
+
+Velocity streams (angular and linear): each sample is predicted from its six neighbours by the quintic through
+them at their own stamps (so jittered and irregular sampling is handled exactly), the prediction residual is
+scaled by its white-noise gain ``sqrt(1 + Σ w²)`` and its robust spread (1.4826 · MAD) is the per-sample
+standard deviation. A quintic follows the stream's own motion up to fifth order, so manoeuvres do not count as
+noise; the cubic (four neighbours) is computed too and a large gap between the two is reported as motion
+leaking in. The density is ``σ · sqrt(median period)``; the uncertainty is the spread of the estimate over 20
+consecutive blocks of the stream (its standard error).
+
+Detections: a landmark is static, so its detected position carried into a common frame by the velocities'
+dead reckoning must stay put. Over three consecutive detections of one landmark the middle one minus the
+linear interpolation of its neighbours (in time) cancels the landmark's position and any drift linear in
+time (the biases); what is left is detection noise and the small odometry noise of the short dead-reckoning
+between them (known from the velocity estimates). Its variance, ``Σ c_j² σ(r_j)² + odometry``, is fitted by
+variance-component estimation (Fisher scoring of the Gaussian likelihood, outliers beyond 4 σ dropped and the
+fit repeated until stable) for two laws of σ against range r: ``σ0 + k·r`` and ``b + a·r²``; the one with
+the higher likelihood is chosen. The uncertainty is a bootstrap over the triplets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from slamobs.pipeline.lie import integrate_body_twists, so3_exps
+
+#: 1.4826 · MAD is the standard deviation of Gaussian samples.
+MAD_TO_SIGMA = 1.4826
+#: Blocks of a stream for the standard error of its noise estimate.
+BLOCKS = 20
+#: Triplets of detections span at most this long (s): dead reckoning is short and nearly linear in drift.
+MAX_TRIPLET_S = 1.0
+#: Residuals beyond this many standard deviations are outliers (mis-associations, missed motion).
+OUTLIER_SIGMAS = 4.0
+#: Bootstrap resamples of the detection-noise fit.
+BOOTSTRAP = 20
+#: At most this many triplets are fitted (a uniform subsample of longer logs).
+MAX_TRIPLETS = 30_000
+#: Longest run of velocity samples read at once; a longer log is read in ``WINDOWS`` evenly spaced windows of
+#: this much in all (bounded memory and time on a log of hours, and still every part of it).
+MAX_SAMPLES, WINDOWS = 400_000, 10
+#: Fewest samples (velocity) or triplets (detections) an estimate is made from.
+MIN_SAMPLES = 50
+#: The smallest detection standard deviation at zero range a fit gives (m): a law fitted on ranges far from zero
+#: may reach zero there, and no detection is exact.
+MIN_DETECTION_M = 1e-4
+#: The detection laws: name -> (the power of range the second coefficient multiplies, its key in noise.DEFAULTS)
+LAWS = {"sigma0 + k*r": (1, "detection_per_m"), "b + a*r^2": (2, "detection_per_m2")}
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One estimated level: its value (one number or one per axis), its standard error and how it was found."""
+
+    value: np.ndarray | float
+    uncertainty: np.ndarray | float
+    method: str
+    samples: int
+
+
+@dataclass(frozen=True)
+class DetectionLaw:
+    """The detection noise against range: ``sigma(r) = base + slope * r**power`` (each with a standard error)."""
+
+    law: str
+    base: Estimate
+    slope: Estimate
+    power: int
+    ranges: tuple[float, float]  # 5th and 95th percentile of the ranges it was fitted on, m
+    other_loglik: float  # log-likelihood of the law not chosen minus this one's (negative: this one fits better)
+
+    def sigma(self, r) -> np.ndarray:
+        return float(self.base.value) + float(self.slope.value) * np.asarray(r, dtype=float) ** self.power
+
+
+def _neighbour_weights(t: np.ndarray, half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Lagrange weights predicting each sample from ``half`` neighbours either side at their own times, and the
+    indices of the samples they are defined for: (N', 2 half), (N',)."""
+    n = t.shape[0]
+    centre = np.arange(half, n - half)
+    offs = np.r_[np.arange(-half, 0), np.arange(1, half + 1)]
+    tn = t[centre[:, None] + offs[None, :]] - t[centre][:, None]  # neighbour times relative to the sample
+    w = np.ones_like(tn)
+    for j in range(offs.size):
+        for m in range(offs.size):
+            if m != j:
+                w[:, j] *= (0.0 - tn[:, m]) / (tn[:, j] - tn[:, m])
+    return w, centre
+
+
+def _prediction_residuals(t: np.ndarray, x: np.ndarray, half: int, max_step: float) -> np.ndarray:
+    """Each sample minus its prediction from its neighbours, over the white-noise gain (N', axes); samples whose
+    neighbours span a gap longer than ``max_step`` are left out."""
+    w, centre = _neighbour_weights(t, half)
+    offs = np.r_[np.arange(-half, 0), np.arange(1, half + 1)]
+    pred = np.einsum("nj,nja->na", w, x[centre[:, None] + offs[None, :]])
+    gain = np.sqrt(1.0 + np.sum(w * w, axis=1))
+    span = t[centre + half] - t[centre - half]
+    keep = span <= 2 * half * max_step
+    return ((x[centre] - pred) / gain[:, None])[keep]
+
+
+def _robust_sigma(z: np.ndarray) -> np.ndarray:
+    """Per-column 1.4826 · MAD."""
+    return MAD_TO_SIGMA * np.median(np.abs(z - np.median(z, axis=0)), axis=0)
+
+
+def windows(n: int) -> list[tuple[int, int]]:
+    """Index ranges read of ``n`` samples: all of them, or ``WINDOWS`` evenly spaced ones of ``MAX_SAMPLES`` in all."""
+    if n <= MAX_SAMPLES:
+        return [(0, n)]
+    size = MAX_SAMPLES // WINDOWS
+    return [(int(lo), int(lo) + size) for lo in np.linspace(0, n - size, WINDOWS)]
+
+
+def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
+    """Per-axis white-noise density (units · sqrt(s)) of the samples ``x`` (N, 3) at times ``t_s`` (N,), or None
+    when the stream is too short to tell."""
+    order = np.argsort(t_s, kind="stable")
+    t, x = np.asarray(t_s, float)[order], np.asarray(x, float)[order]
+    keep = np.r_[True, np.diff(t) > 0]
+    t, x = t[keep], x[keep]
+    if t.shape[0] < MIN_SAMPLES + 6:
+        return None
+    period = float(np.median(np.diff(t)))
+    parts = windows(t.shape[0])
+    z5 = np.concatenate([_prediction_residuals(t[lo:hi], x[lo:hi], 3, 3 * period) for lo, hi in parts])
+    if z5.shape[0] < MIN_SAMPLES:
+        return None
+    sigma = _robust_sigma(z5)
+    z3 = np.concatenate([_prediction_residuals(t[lo:hi], x[lo:hi], 2, 3 * period) for lo, hi in parts])
+    leak = float(np.max(_robust_sigma(z3) / np.maximum(sigma, 1e-300)))
+    blocks = np.array([_robust_sigma(b) for b in np.array_split(z5, BLOCKS)])
+    se = blocks.std(axis=0, ddof=1) / np.sqrt(BLOCKS)
+    method = f"quintic-prediction residuals (MAD) at {1 / period:.4g} Hz"
+    if leak > 1.2:
+        method += f"; motion leaks into lower orders (cubic {leak:.2f}x higher)"
+    return Estimate(sigma * np.sqrt(period), se * np.sqrt(period), method, int(z5.shape[0]))
+
+
+def _poses_at(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, t: np.ndarray):
+    """Dead-reckoned body poses (R, P) at times ``t`` from the velocity samples (first-order within a step)."""
+    rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), omega[:-1], velocity[:-1], np.diff(vel_t))
+    k = np.clip(np.searchsorted(vel_t, t, side="right") - 1, 0, vel_t.shape[0] - 1)
+    h = t - vel_t[k]
+    r = np.einsum("nij,njk->nik", rs[k], so3_exps(np.ascontiguousarray(omega[k] * h[:, None])))
+    p = ps[k] + np.einsum("nij,nj->ni", rs[k], velocity[k] * h[:, None])
+    return r, p
+
+
+@dataclass(frozen=True)
+class Triplets:
+    """Second differences of static landmarks: residual components (K, 3), the weights c_j² of the three
+    detections (K, 3), their ranges (K, 3) and the odometry part of each residual's variance (K,)."""
+
+    e: np.ndarray
+    c2: np.ndarray
+    r: np.ndarray
+    motion_var: np.ndarray
+
+
+def detection_triplets(
+    vel_t: np.ndarray,
+    omega: np.ndarray,
+    velocity: np.ndarray,
+    det_t: np.ndarray,
+    det_offsets: np.ndarray,
+    det_idx: np.ndarray,
+    det_y: np.ndarray,
+    gyro_density: float,
+    velocity_density: float,
+) -> Triplets:
+    """Every three consecutive detections of one landmark within ``MAX_TRIPLET_S`` (times in s, body frame)."""
+    t_of = np.repeat(det_t, np.diff(det_offsets))
+    r_w, p_w = _poses_at(vel_t, omega, velocity, t_of)
+    w = np.einsum("nij,nj->ni", r_w, det_y) + p_w
+    rng = np.linalg.norm(det_y, axis=1)
+    order = np.lexsort((t_of, det_idx))
+    lm, t, w, rng = det_idx[order], t_of[order], w[order], rng[order]
+    i = np.flatnonzero((lm[:-2] == lm[2:]) & (t[2:] - t[:-2] <= MAX_TRIPLET_S) & (t[2:] > t[1:-1]) & (t[1:-1] > t[:-2]))
+    gaps = np.cumsum(np.r_[0, np.diff(vel_t) > 0.5])
+    span_ok = gaps[np.searchsorted(vel_t, t[i])] == gaps[np.minimum(np.searchsorted(vel_t, t[i + 2]), vel_t.size - 1)]
+    i = i[span_ok]
+    t1, t2, t3 = t[i], t[i + 1], t[i + 2]
+    a = (t3 - t2) / (t3 - t1)
+    e = w[i + 1] - (a[:, None] * w[i] + (1 - a)[:, None] * w[i + 2])
+    c2 = np.stack([a * a, np.ones_like(a), (1 - a) ** 2], axis=1)
+    r = np.stack([rng[i], rng[i + 1], rng[i + 2]], axis=1)
+    gq, vq = gyro_density**2, velocity_density**2
+    motion = c2[:, 0] * (vq + 2 / 3 * gq * r[:, 0] ** 2) * (t2 - t1) + c2[:, 2] * (vq + 2 / 3 * gq * r[:, 2] ** 2) * (
+        t3 - t2
+    )
+    return Triplets(e, c2, r, motion)
+
+
+def log_triplets(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, gyro_density, velocity_density):
+    """:func:`detection_triplets` of the whole log, or of ``windows`` of its velocity samples on a long log."""
+    parts = []
+    for lo, hi in windows(vel_t.shape[0]):
+        f0, f1 = np.searchsorted(det_t, [vel_t[lo], vel_t[hi - 1]])
+        d0, d1 = det_offsets[f0], det_offsets[f1]
+        parts.append(
+            detection_triplets(
+                vel_t[lo:hi],
+                omega[lo:hi],
+                velocity[lo:hi],
+                det_t[f0:f1],
+                det_offsets[f0 : f1 + 1] - d0,
+                det_idx[d0:d1],
+                det_y[d0:d1],
+                gyro_density,
+                velocity_density,
+            )
+        )
+    return Triplets(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("e", "c2", "r", "motion_var")))
+
+
+def _variance(theta: np.ndarray, tri: Triplets, power: int) -> tuple[np.ndarray, np.ndarray]:
+    """Each residual component's variance under ``sigma = theta0 + theta1 r^power`` and its Jacobian (K, 2)."""
+    f = tri.r**power
+    s = theta[0] + theta[1] * f
+    v = np.sum(tri.c2 * s * s, axis=1) + tri.motion_var
+    jac = np.stack([np.sum(2 * tri.c2 * s, axis=1), np.sum(2 * tri.c2 * s * f, axis=1)], axis=1)
+    return v, jac
+
+
+def _fit_law(tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, float, np.ndarray]:
+    """Variance-component estimation of one law: Fisher scoring, outliers beyond ``OUTLIER_SIGMAS`` dropped and
+    the fit repeated; the coefficients (≥ 0), the mean log-likelihood per component and the inlier mask."""
+    theta = np.maximum(np.asarray(theta0, float), 0.0)
+    e2 = tri.e * tri.e  # (K, 3)
+    inl = np.ones(e2.shape[0], bool)
+    for _ in range(rounds):
+        for _ in range(30):
+            v, jac = _variance(theta, tri, power)
+            vi, ji, ei = v[inl], jac[inl], e2[inl]
+            wgt = 3.0 / (2.0 * vi * vi)  # three components share a variance
+            lhs = (ji * wgt[:, None]).T @ ji + 1e-12 * np.eye(2) * max(float(np.trace(ji.T @ ji)), 1e-300)
+            rhs = (ji * wgt[:, None]).T @ (ei.mean(axis=1) - vi)
+            step = np.linalg.solve(lhs, rhs)
+            new = np.maximum(theta + step, 0.0)
+            if new[0] <= 0 and new[1] <= 0:
+                new = np.maximum(theta * 0.5, 1e-9)
+            done = np.all(np.abs(new - theta) <= 1e-6 * np.maximum(np.abs(theta), 1e-9))
+            theta = new
+            if done:
+                break
+        v, _ = _variance(theta, tri, power)
+        inl = np.max(e2, axis=1) <= OUTLIER_SIGMAS**2 * v
+    v, _ = _variance(theta, tri, power)
+    ll = float(np.mean(-0.5 * (np.log(v[inl])[:, None] + e2[inl] / v[inl][:, None])))
+    return theta, ll, inl
+
+
+def _subset(tri: Triplets, idx: np.ndarray) -> Triplets:
+    return Triplets(tri.e[idx], tri.c2[idx], tri.r[idx], tri.motion_var[idx])
+
+
+def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
+    """The range law of the detection noise that fits the triplets best, or None with too few of them."""
+    k = tri.e.shape[0]
+    if k < MIN_SAMPLES:
+        return None
+    gen = np.random.default_rng(seed)
+    if k > MAX_TRIPLETS:
+        tri = _subset(tri, np.sort(gen.choice(k, MAX_TRIPLETS, replace=False)))
+    start = _robust_sigma(tri.e.ravel()[:, None])[0] / np.sqrt(np.mean(tri.c2.sum(axis=1)))
+    fits = {name: _fit_law(tri, power, np.array([start, 0.0])) for name, (power, _) in LAWS.items()}
+    best = max(fits, key=lambda name: fits[name][1])
+    other = min(fits, key=lambda name: fits[name][1])
+    theta, ll, inl = fits[best]
+    power = LAWS[best][0]
+    boot = []
+    n = tri.e.shape[0]
+    for _ in range(BOOTSTRAP):
+        sample = _subset(tri, gen.integers(0, n, n))
+        boot.append(_fit_law(sample, power, theta, rounds=1)[0])
+    se = np.std(np.array(boot), axis=0, ddof=1)
+    used = int(np.count_nonzero(inl))
+    method = (
+        f"variance components of {used} detection triplets (second differences of static landmarks, "
+        f"{n - used} outliers); law {best} chosen over {other} by log-likelihood"
+    )
+    ranges = tuple(float(q) for q in np.percentile(tri.r[inl, 1], [5, 95]))
+    return DetectionLaw(
+        best,
+        Estimate(max(float(theta[0]), MIN_DETECTION_M), float(se[0]), method, used),
+        Estimate(float(theta[1]), float(se[1]), method, used),
+        power,
+        ranges,
+        float((fits[other][1] - ll) * used * 3),
+    )

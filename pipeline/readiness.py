@@ -1,0 +1,133 @@
+"""Whether a log can run, per estimator: which inputs were found, which are missing and what would give them.
+
+Pure over the log's inspection (:class:`pipeline.readers.LogInfo`): the roles every estimator needs
+(``roles.REQUIRED_ROLES``), the inertial directions some need (``ObserverSpec.directions_needed``, from the
+``roles.DIRECTION_ROLES``) and the truth the error report needs. What would give a missing role comes from the
+readers' own tables (``roles.how_to_satisfy``), and a ``run.yaml`` names the topics found, so a user sees in one
+screen whether and how the log runs. ``slamobs info`` renders it (``cli/info_cmd.py``).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+
+from slamobs.pipeline.config import DEFAULT_OBSERVER, RunConfig, TagsConfig
+from slamobs.pipeline.errors import SlamobsError, one_line
+from slamobs.pipeline.estimators import ESTIMATORS
+from slamobs.pipeline.readers.inspect import LogInfo
+from slamobs.pipeline.readers.roles import (
+    DIRECTION_ROLES,
+    IMAGE_TYPES,
+    REQUIRED_ROLES,
+    ROLE_PURPOSE,
+    TAG_CORNER_TYPES,
+    accepted_types,
+    how_to_satisfy,
+)
+
+#: The roles the readiness section lists, in order: what every estimator needs, the directions, the truth.
+LISTED_ROLES = (*REQUIRED_ROLES, *DIRECTION_ROLES, "truth")
+
+
+@dataclass(frozen=True)
+class RoleStatus:
+    """One role: the topic(s) found for it (empty when missing), the type and rate of the first."""
+
+    role: str
+    topic: str = ""
+    msgtype: str = ""
+    rate_hz: float | None = None
+
+    @property
+    def found(self) -> bool:
+        return bool(self.topic)
+
+
+@dataclass(frozen=True)
+class EstimatorStatus:
+    """One estimator: the inputs it lacks on this log (empty: it can run), or why it cannot be used at all."""
+
+    name: str
+    missing: tuple[str, ...] = ()
+    unavailable: str = ""  # e.g. an optional dependency not installed
+
+    @property
+    def ready(self) -> bool:
+        return not self.missing and not self.unavailable
+
+
+@dataclass(frozen=True)
+class Readiness:
+    """The readiness of one log: role statuses, per-estimator statuses, what satisfies each missing role."""
+
+    roles: tuple[RoleStatus, ...]
+    estimators: tuple[EstimatorStatus, ...]
+    satisfy: dict[str, list[str]]
+    run_yaml: str
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary."""
+        doc = asdict(self)
+        doc["ready"] = [e.name for e in self.estimators if e.ready]
+        return doc
+
+
+def _role_status(info: LogInfo, role: str) -> RoleStatus:
+    topic = info.roles.get(role, "")
+    first = topic.split(", ")[0]
+    summary = next((t for t in info.topics if t.topic == first), None)
+    if summary is None:
+        return RoleStatus(role, topic)
+    return RoleStatus(role, topic, summary.msgtype, summary.rate_hz)
+
+
+def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
+    """What ``name`` lacks given the roles found: every required role, and enough direction roles."""
+    missing = [r for r in REQUIRED_ROLES if r not in found]
+    try:
+        needed = ESTIMATORS[name].directions_needed(RunConfig())
+    except SlamobsError as err:  # e.g. batch without GTSAM installed
+        return EstimatorStatus(name, tuple(missing), one_line(err))
+    have = [r for r in DIRECTION_ROLES if r in found]
+    if len(have) < needed:
+        missing += [r for r in DIRECTION_ROLES if r not in found][: needed - len(have)]
+    return EstimatorStatus(name, tuple(missing))
+
+
+def _candidates(info: LogInfo, role: str) -> list[str]:
+    """Topics of this log whose type ``role`` accepts when named (never picked on their own)."""
+    types = accepted_types(role)
+    used = {t for r, topics in info.roles.items() if r != role and r in LISTED_ROLES for t in topics.split(", ")}
+    found = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and t.count and t.topic not in used]
+    return [f"this log has: {', '.join(found)}"] if found else []
+
+
+def readiness(info: LogInfo) -> Readiness:
+    """Whether and how ``info``'s log can run, per estimator (see the module docstring)."""
+    roles = tuple(_role_status(info, r) for r in LISTED_ROLES)
+    found = {r.role for r in roles if r.found}
+    estimators = tuple(_estimator_status(name, found) for name in ESTIMATORS)
+    satisfy = {r.role: how_to_satisfy(r.role) + _candidates(info, r.role) for r in roles if not r.found}
+    return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators))
+
+
+def run_yaml(roles: tuple[RoleStatus, ...], estimators: tuple[EstimatorStatus, ...]) -> str:
+    """A ``run.yaml`` naming the topics found (valid against the config schema); what it still needs as comments."""
+    ready = [e.name for e in estimators if e.ready]
+    observer = DEFAULT_OBSERVER if DEFAULT_OBSERVER in ready or not ready else ready[0]
+    lines = [f"observer: {observer}", "topics:"]
+    for r in roles:
+        if r.found:
+            topics = r.topic.split(", ")
+            value = json.dumps(topics[0]) if len(topics) == 1 else json.dumps(topics)
+            lines.append(f"  {r.role}: {value}")
+        else:
+            what = "<topic, 'parent->child', a trajectory file or LOG:TOPIC>" if r.role == "truth" else "<topic>"
+            lines.append(f"  # {r.role}: {what}  # missing: {ROLE_PURPOSE[r.role]}")
+    detections = next(r for r in roles if r.role == "detections")
+    if detections.msgtype in TAG_CORNER_TYPES or detections.msgtype in IMAGE_TYPES:
+        lines += ["# tag corners and images need the tag edge (m) and family:", "# tags:", "#   size: <edge in m>"]
+        if detections.msgtype in IMAGE_TYPES:
+            lines.append(f"#   family: {TagsConfig.family}")
+    return "\n".join(lines) + "\n"

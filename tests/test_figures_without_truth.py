@@ -1,0 +1,168 @@
+"""Issue 25, items 2 and 5: every run draws its figures, truth or not; `report` and `compare` work without truth;
+commands show progress; a simulated log carries what a run needs to read it."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pandas as pd
+import pytest
+
+from cli_checks import invoke
+
+PNG = b"\x89PNG\r\n\x1a\n"
+NO_TRUTH = 'topics:\n  truth: ""\n'  # the log's truth topic left unread: a log without truth
+
+
+@pytest.fixture(scope="module")
+def log(tmp_path_factory):
+    """A short simulated log (its truth is ignored through the config)."""
+    path = tmp_path_factory.mktemp("log") / "circle.mcap"
+    res = invoke("simulate", "circle", "-o", path, "--duration", "8", "-q")
+    assert res.exit_code == 0, res.output
+    config = path.with_name("no_truth.yaml")
+    config.write_text(NO_TRUTH)
+    return path, config
+
+
+@pytest.fixture(scope="module")
+def run_dir(log, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "out"
+    res = invoke("run", log[0], "-o", out, "--config", log[1])
+    assert res.exit_code == 0, res.output
+    return out, res
+
+
+def _pngs(out, names):
+    for name in names:
+        data = (out / name).read_bytes()
+        assert data[:8] == PNG and len(data) > 5000, name
+
+
+def test_a_run_without_truth_draws_and_lists_its_figures(run_dir):
+    out, res = run_dir
+    run = json.loads((out / "run.json").read_text())
+    assert run["report"] is None and not (out / "report.json").exists()
+    figures = run["figures"]
+    assert {"trajectory.png", "map.png", "measurements.png", "biases.png"} <= set(figures)
+    _pngs(out, figures)
+    md = (out / "report.md").read_text()
+    assert "no ground truth" in md and all(f"({name})" in md for name in figures)
+    # the summary's numbers are the run's: as many landmarks as the map table holds
+    n_landmarks = len(pd.read_parquet(out / "landmarks.parquet"))
+    assert f"| landmarks | {n_landmarks} |" in md
+    assert "figures      trajectory.png" in res.output
+
+
+def test_report_without_truth_draws_the_figures_again(run_dir):
+    out, _ = run_dir
+    (out / "map.png").unlink()
+    res = invoke("report", out)
+    assert res.exit_code == 0, res.output
+    assert "truth        none" in res.output and "map.png" in res.output
+    assert f"map          {len(pd.read_parquet(out / 'landmarks.parquet'))} landmarks" in res.output
+    _pngs(out, json.loads((out / "run.json").read_text())["figures"])
+    as_json = json.loads(invoke("report", out, "--json").stdout)
+    assert as_json["landmarks"] == len(pd.read_parquet(out / "landmarks.parquet"))
+    assert as_json["path_length_m"] > 1.0
+
+
+def test_a_run_with_truth_adds_its_own_figures_to_the_report(log, tmp_path):
+    out = tmp_path / "out"
+    res = invoke("run", log[0], "-o", out)
+    assert res.exit_code == 0, res.output
+    report = json.loads((out / "report.json").read_text())
+    assert {"trajectory.png", "map.png", "measurements.png", "trajectory_top.png", "errors.png"} <= set(
+        report["figures"]
+    )
+    _pngs(out, report["figures"])
+    assert json.loads((out / "run.json").read_text())["figures"] == report["figures"]
+
+
+def test_compare_without_truth_measures_disagreement(log, tmp_path):
+    from slamobs.pipeline.compare import disagreement
+    from slamobs.pipeline.writers import read_columns
+
+    out, names = tmp_path / "cmp", ("fast-adaptation", "hashim", "batch")
+    config = tmp_path / "c.yaml"
+    config.write_text(NO_TRUTH + "evaluation:\n  plots: false\n")  # the runs' own figures are tested above
+    res = invoke("compare", log[0], "-o", out, "--observers", ",".join(names), "--config", config)
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(out / "comparison.parquet").set_index("observer")
+    assert list(table["status"]) == ["ok"] * 3
+    spread = table["disagreement_m"]  # against the batch smoother's estimate, in the list
+    assert spread["batch"] == 0.0 and spread["fast-adaptation"] > 0 and spread["hashim"] > 0
+    assert (table["landmarks"] > 0).all() and (table["path_length_m"] > 1.0).all()
+    assert (out / "overlay.png").read_bytes()[:8] == PNG
+    assert "no ground truth" in (out / "comparison.md").read_text()
+    assert "overlay.png" in res.output
+    poses = {n: read_columns(out / n / "poses.parquet") for n in names[:2]}
+    again, aligned = disagreement({**poses, "batch": read_columns(out / "batch" / "poses.parquet")}, "batch")
+    assert again["hashim"] == pytest.approx(spread["hashim"]) and set(aligned) == set(names)
+    # without batch each is measured against the others: two estimates, one APE (rigid alignment: symmetric)
+    pair, _ = disagreement(poses, None)
+    assert pair["fast-adaptation"] > 0 and pair["fast-adaptation"] == pytest.approx(pair["hashim"], rel=1e-6)
+
+
+# ------------------------------------------------------------------------------------------------- progress
+
+
+def test_progress_without_a_terminal_prints_a_line_now_and_then(capsys):
+    from slamobs.cli.progress import Progress
+
+    with Progress(every_s=0.1) as progress:
+        progress("step one")
+        time.sleep(0.45)  # one long step: the heartbeat repeats its line
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) >= 2 and all(line.startswith("[") and line.endswith(" s] step one") for line in lines)
+    with Progress(every_s=5.0) as progress:  # done sooner than a line is due: nothing
+        progress("quick")
+    with Progress(quiet=True, every_s=0.01) as progress:
+        progress("quiet")
+        time.sleep(0.05)
+    assert capsys.readouterr().err == ""
+
+
+def test_simulate_shows_progress_without_a_terminal(tmp_path, monkeypatch):
+    monkeypatch.setenv("SLAMOBS_PROGRESS_EVERY", "0.05")
+    res = invoke("simulate", "circle", "-o", tmp_path / "c.mcap", "--duration", "20")
+    assert res.exit_code == 0, res.output
+    lines = [line for line in res.stderr.splitlines() if line.startswith("[")]
+    assert len(lines) >= 2, res.stderr
+    assert any("s written" in line for line in lines), res.stderr
+
+
+# -------------------------------------------------------------------------------- self-describing simulated logs
+
+
+@pytest.fixture(scope="module")
+def corners_log(tmp_path_factory):
+    """A simulated log of tag corners and its run without a config."""
+    path = tmp_path_factory.mktemp("corners") / "corners.mcap"
+    res = invoke("simulate", "circle", "-o", path, "--duration", "6", "--camera", "corners", "--tag-size", "0.6", "-q")
+    assert res.exit_code == 0, res.output
+    res = invoke("run", path, "-o", path.with_name("own"), "-q")
+    assert res.exit_code == 0, res.output
+    return path
+
+
+def test_a_simulated_camera_log_runs_without_config(corners_log):
+    from slamobs.pipeline.readers import read_log
+
+    assert read_log(corners_log).recorded == {"tag_size": 0.6, "tag_family": "36h11"}
+    notes = json.loads((corners_log.with_name("own") / "run.json").read_text())["notes"]
+    assert any("tag size 0.6 m and family 36h11 as the simulated log records them" in n for n in notes)
+
+
+def test_the_config_overrides_what_the_log_records(corners_log, tmp_path):
+    config = tmp_path / "run.yaml"
+    config.write_text("tags:\n  size: 0.3\nevaluation:\n  plots: false\n")
+    res = invoke("run", corners_log, "-o", tmp_path / "half", "-q", "--config", config)
+    assert res.exit_code == 0, res.output
+    notes = json.loads((tmp_path / "half" / "run.json").read_text())["notes"]
+    assert not any("as the simulated log records them" in n for n in notes)
+    # another tag size puts every tag at another distance: other tag poses from the same corners
+    half = pd.read_parquet(tmp_path / "half" / "tag_detections.parquet")
+    own = pd.read_parquet(corners_log.with_name("own") / "tag_detections.parquet")
+    assert len(half) == len(own) and not half.equals(own)

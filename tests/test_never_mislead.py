@@ -1,0 +1,97 @@
+"""Never mislead: every metric computed is printed (the map error of a run with landmark truth only), the final
+listings name only files that exist, and a truth in another body convention is named with the rotation that
+explains it (hand–eye on the aligned trajectories) and the config key that applies it."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
+from slamobs.pipeline.readers import read_truth
+from slamobs.pipeline.readers.trajectory_files import write_tum
+from slamobs.pipeline.simulate.logwriter import write_log
+from slamobs.pipeline.simulate.scenarios import get_scenario
+from slamobs.pipeline.simulate.sensors import simulate
+
+from cli_checks import invoke
+
+#: The truth's body turned against the estimate's: 70 deg about a skew axis.
+AXIS = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
+ANGLE = np.radians(70.0)
+X_XYZW = np.array([*(np.sin(ANGLE / 2) * AXIS), np.cos(ANGLE / 2)])
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    """A short circle log, a config without figures, and the log's truth turned by X as a TUM file."""
+    root = tmp_path_factory.mktemp("mislead")
+    log = write_log(simulate("circle", duration=8.0, seed=11), root / "circle.mcap")
+    truth = read_truth(f"{log}:/mocap/pose").stream
+    turned = np.matmul(quats_to_rots(np.ascontiguousarray(truth.quat_xyzw)), quat_to_rot(X_XYZW))  # R_truth X
+    tum = write_tum(root / "turned_tum.txt", type(truth)(**{**truth.__dict__, "quat_xyzw": rots_to_quats(turned)}))
+    config = root / "run.yaml"
+    config.write_text("evaluation:\n  plots: false\n")
+    return {"log": log, "root": root, "tum": tum, "config": config}
+
+
+def _angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
+    return float(np.degrees(2.0 * np.arccos(min(1.0, abs(float(np.dot(q1, q2)))))))
+
+
+def test_hand_eye_note_finds_the_truth_rotation_and_its_key_removes_it(sim, tmp_path):
+    res = invoke("run", sim["log"], "-o", tmp_path / "turned", "--truth", sim["tum"], "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "turned" / "report.json").read_text())
+    assert report["ape"]["rotation_deg"]["rmse"] > 60
+    note = next(n for n in report["notes"] if "frames.truth_rotation" in n)
+    assert note in res.output  # the run prints it
+    found = np.array([float(v) for v in re.search(r"truth_rotation: \[([^\]]+)\]", note).group(1).split(",")])
+    assert _angle_deg(found, X_XYZW) < 1.0
+    left = float(re.search(r"would be ([0-9.]+) deg", note).group(1))
+    assert left < 2.0
+
+    fixed = tmp_path / "fixed.yaml"
+    fixed.write_text(
+        "evaluation:\n  plots: false\nframes:\n  truth_rotation: [" + ", ".join(f"{v:.6f}" for v in found) + "]\n"
+    )
+    res = invoke("run", sim["log"], "-o", tmp_path / "fixed", "--truth", sim["tum"], "--config", fixed)
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "fixed" / "report.json").read_text())
+    assert report["ape"]["rotation_deg"]["rmse"] < 2.0
+    assert not any("frames.truth_rotation" in n for n in report["notes"])
+    again = invoke("report", tmp_path / "fixed", "--json")  # a re-report keeps the rotation
+    assert json.loads(again.output)["ape"]["rotation_deg"]["rmse"] < 2.0
+
+
+def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):
+    sc = get_scenario("circle")
+    truth_map = tmp_path / "map.csv"
+    truth_map.write_text(
+        "id,x,y,z\n" + "".join(f"{i},{x},{y},{z}\n" for i, (x, y, z) in zip(sc.landmark_ids, sc.landmarks))
+    )
+    config = tmp_path / "run.yaml"
+    config.write_text(f"topics:\n  truth: ''\nevaluation:\n  plots: false\n  map_truth: {json.dumps(str(truth_map))}\n")
+    res = invoke("run", sim["log"], "-o", tmp_path / "out", "--config", config)
+    assert res.exit_code == 0, res.output
+    meta = json.loads((tmp_path / "out" / "run.json").read_text())
+    rmse = meta["map_error"]["error_m"]["rmse"]
+    assert f"map error rmse {rmse:.4f} m" in res.output
+    assert "no ground truth in the log: no error report" not in res.output
+
+
+def test_final_listings_name_only_files_that_exist(sim, tmp_path):
+    res = invoke("run", sim["log"], "-o", tmp_path / "run", "--config", sim["config"])
+    listed = res.output.split("wrote", 1)[1].split("(", 1)[1].rsplit(")", 1)[0].split(", ")
+    assert "poses.parquet" in listed and "report.json" in listed
+    assert all((tmp_path / "run" / name).is_file() for name in listed)
+    assert not any(name.endswith(".png") for name in listed)  # plots: false draws none, none is claimed
+    res = invoke(
+        "compare", sim["log"], "-o", tmp_path / "cmp", "--observers", "fast-adaptation", "--config", sim["config"]
+    )
+    line = next(x for x in res.output.splitlines() if x.startswith("wrote"))
+    for name in ("comparison.parquet", "comparison.md", "overlay.png"):
+        assert (name in line) == (tmp_path / "cmp" / name).exists(), (name, line)

@@ -1,0 +1,257 @@
+"""``noise: auto`` (issue 23, part 1): the noise levels learned from a log's own samples, against the truth the
+simulator drew them with; config keys override one key each; implausible message covariances are rejected with
+a note; riekf and batch given the estimates do as well as given the truth."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.lie import umeyama
+from slamobs.pipeline.noise import NoiseConfig, estimate_log_noise, resolve_noise, stream_density
+from slamobs.pipeline.noise_estimation import white_noise_density
+from slamobs.pipeline.readers.covariance import implausible
+from slamobs.pipeline.simulate import NoiseModel, expected_streams, get_scenario, simulate, write_log
+from cli_checks import invoke
+
+TOLERANCE = 0.25
+GYRO = (0.004, 0.009, 0.006)  # rad/s per sample, per axis
+VELOCITY = (0.03, 0.012, 0.02)  # m/s per sample, per axis
+
+
+def per_axis_model(law: str) -> NoiseModel:
+    """Per-axis velocity noises and a detection law: ``linear`` (σ0 + k·r) or ``square`` (b + a·r²)."""
+    detection = (
+        {"detection_base": 0.008, "detection_per_m": 0.003}
+        if law == "linear"
+        else {"detection_base": 0.004, "detection_per_m": 0.0, "detection_per_m2": 0.0008}
+    )
+    return replace(NoiseModel(), gyro=GYRO, odom_linear=VELOCITY, **detection)
+
+
+def true_sigma(nm: NoiseModel, r: np.ndarray) -> np.ndarray:
+    return nm.detection_base + nm.detection_per_m * r + nm.detection_per_m2 * r * r
+
+
+def within(estimate, truth, tol: float = TOLERANCE) -> bool:
+    ratio = np.asarray(estimate, float) / np.asarray(truth, float)
+    return bool(np.all(np.abs(ratio - 1.0) <= tol))
+
+
+@pytest.mark.parametrize(
+    ("rate", "seed", "law"), [(10, 1, "linear"), (50, 2, "square"), (200, 3, "linear"), (400, 4, "square")]
+)
+def test_every_level_is_within_25_percent_of_the_truth(rate, seed, law):
+    """Gyro and odometry at the same rate (10-400 Hz), per-axis densities, and the detection law at the 5th,
+    50th and 95th percentile of the ranges seen."""
+    nm = per_axis_model(law)
+    sim = simulate("figure8", duration=60.0 if rate < 50 else 30.0, seed=seed, noise=nm, imu_rate=rate, odom_rate=rate)
+    stream = align(expected_streams(sim), keep_directions=False)
+    found = estimate_log_noise(stream, stream_density(sim.odom.t_ns, sim.odom.linear))
+    period = 1.0 / rate
+    assert within(found.gyro.value, np.array(GYRO) * np.sqrt(period)), found.gyro.value / np.sqrt(period)
+    assert within(found.velocity.value, np.array(VELOCITY) * np.sqrt(period)), found.velocity.value / np.sqrt(period)
+    assert np.all(found.gyro.uncertainty < 0.1 * found.gyro.value)  # a standard error, not a placeholder
+    law_found = found.detection
+    r = np.linspace(*law_found.ranges, 3)
+    assert within(law_found.sigma(r), true_sigma(nm, r)), (law_found.law, law_found.sigma(r), true_sigma(nm, r))
+    assert ("r^2" in law_found.law) == (law == "square")
+
+
+def test_jittered_irregular_stamps_and_a_manoeuvre_are_not_counted_as_noise():
+    """Stamps jittered by ±30 % of the period with dropped samples, on a fast figure-8 sampled at 20 Hz: the
+    quintic through the neighbours at their own stamps leaves the white noise only."""
+    rng = np.random.default_rng(5)
+    sc = get_scenario("figure8")
+    period = 0.05
+    t = np.arange(0.0, 120.0, period) + rng.uniform(-0.3, 0.3, 2400) * period
+    t = np.sort(t[rng.random(t.size) > 0.1])
+    sigma = np.array([0.01, 0.002, 0.005])
+    x = 3.0 * sc.sample(t).omega + sigma * rng.standard_normal((t.size, 3))  # three times the scenario's turns
+    found = white_noise_density(t, x)
+    assert within(found.value, sigma * np.sqrt(np.median(np.diff(t)))), found.value / np.sqrt(period)
+
+
+def test_config_keys_override_that_key_alone():
+    sim = simulate("figure8", duration=20.0, seed=6, noise=per_axis_model("square"))
+    found = estimate_log_noise(align(expected_streams(sim), keep_directions=False))
+    nz = resolve_noise(NoiseConfig(gyro=1e-3, detection=0.05), estimated=found)
+    assert nz.gyro.tolist() == [1e-3] * 3 and nz.sources["gyro"] == "config"
+    assert nz.detection == 0.05 and nz.sources["detection"] == "config"
+    assert nz.sources["velocity"] == "estimated" and np.allclose(nz.velocity, found.velocity.value)
+    assert nz.detection_per_m2 == pytest.approx(found.detection.slope.value) and nz.detection_per_m2 > 0
+    assert nz.sources["gyro_bias"] == "default"
+    off = resolve_noise(NoiseConfig(auto=False), estimated=found)  # noise: {auto: false}: the defaults
+    assert set(off.sources.values()) == {"default"}
+
+
+def test_run_yaml_spells_auto_and_turns_it_off():
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.errors import InputError
+
+    assert parse_config({"noise": "auto"}).noise == NoiseConfig() == parse_config({}).noise
+    given = parse_config({"noise": {"auto": False, "detection_per_m2": 0.001}}).noise
+    assert given.auto is False and given.given() == {"detection_per_m2": 0.001}
+    with pytest.raises(InputError, match="noise"):
+        parse_config({"noise": "guess"})
+
+
+@pytest.mark.parametrize(
+    ("diag", "why"),
+    [
+        ([-1, 0, 0], "REP 145"),
+        ([0, 0, 0], "zero"),
+        ([1e-9] * 3, "placeholder"),
+        ([1e3] * 3, "placeholder"),
+        ([1e6, 1e6, 1e6], "placeholder"),
+        ([np.nan, 1, 1], "not finite"),
+        ([2.5e-5, 3e-5, 1e-4], None),
+    ],
+)
+def test_implausible_covariances(diag, why):
+    problem = implausible(np.array(diag, dtype=float))
+    assert (problem is None) if why is None else (why in problem)
+
+
+@pytest.fixture(scope="module")
+def stated_logs(tmp_path_factory):
+    """One 10 s log whose messages state placeholders (1e6 for the gyro), one whose odometry states a variance
+    400 times (density 20 times) below its real noise."""
+    sim = simulate("circle", duration=10.0, seed=7)
+    out = tmp_path_factory.mktemp("stated")
+    placeholder = out / "placeholder.mcap"
+    write_log(replace(sim, noise=replace(sim.noise, gyro=1e3)), placeholder)  # variance 1e6 on the diagonal
+    inconsistent = out / "inconsistent.mcap"
+    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear / 20)), inconsistent)
+    return placeholder, inconsistent, sim
+
+
+def test_implausible_covariances_are_rejected_with_a_note(stated_logs):
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    placeholder, inconsistent, sim = stated_logs
+    config = parse_config({"observer": "riekf"})
+    nz = log_noise(prepare_log(placeholder, config, directions=False), config)
+    assert nz.sources["gyro"] == "estimated" and nz.sources["velocity"].startswith("/odom covariance")
+    assert any("/imu/data covariance not used for gyro: placeholder" in n for n in nz.notes), nz.notes
+    assert within(nz.gyro, sim.noise.gyro * np.sqrt(1 / 200), 0.3)
+    nz = log_noise(prepare_log(inconsistent, config, directions=False), config)
+    assert nz.sources["velocity"] == "estimated" and nz.sources["gyro"].startswith("/imu/data covariance")
+    (note,) = [n for n in nz.notes if "/odom covariance not used for velocity" in n]
+    stated = float(note.split("it states ")[1].split("x the density")[0])
+    assert 0.04 < stated < 0.06  # the odometry states a twentieth of its noise
+
+
+def test_run_json_report_and_info_state_every_level(stated_logs, tmp_path):
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import run_log
+
+    placeholder = stated_logs[0]
+    out = tmp_path / "run"
+    run_log(placeholder, out, parse_config({"observer": "riekf", "evaluation": {"plots": False}}))
+    levels = json.loads((out / "run.json").read_text())["observer"]["filter"]["noise"]["levels"]
+    gyro = levels["gyro"]
+    assert gyro["source"] == "estimated" and "quintic" in gyro["method"] and len(gyro["uncertainty"]) == 3
+    assert levels["detection"]["source"] == "estimated" and levels["detection"]["uncertainty"] > 0
+    assert levels["gyro_bias"] == {
+        "value": 0.2,
+        "unit": "rad/s",
+        "source": "default",
+        "method": None,
+        "uncertainty": None,
+    }
+    report = (out / "report.md").read_text()
+    assert "noise: gyro = [" in report and "noise: detection = " in report
+    shown = invoke("info", "--noise", placeholder)
+    assert shown.exit_code == 0 and "gyro = [" in shown.output and "(estimated, ± " in shown.output
+    assert "covariance not used for gyro" in shown.output
+
+
+# ------------------------------------------------------------------------- the estimators on learned noise
+
+
+@pytest.fixture(scope="module")
+def loud_log():
+    """30 s of figure-8 with gyro noise 100 times the default and detections whose σ grows with r²."""
+    nm = replace(
+        NoiseModel(), gyro=100 * NoiseModel().gyro, detection_base=0.003, detection_per_m=0.0, detection_per_m2=0.001
+    )
+    sim = simulate("figure8", duration=30.0, seed=1, noise=nm)
+    stream = align(expected_streams(sim), keep_directions=False)  # no message covariances: all estimated
+    auto = resolve_noise(estimated=estimate_log_noise(stream, stream_density(sim.odom.t_ns, sim.odom.linear)))
+    truth = resolve_noise(
+        NoiseConfig(
+            gyro=nm.gyro * np.sqrt(1 / 200),
+            velocity=nm.odom_linear * np.sqrt(1 / 50),
+            detection=0.003,
+            detection_per_m=0.0,
+            detection_per_m2=0.001,
+        )
+    )
+    return sim, stream, auto, truth
+
+
+def ape(sim, t_ns: np.ndarray, pos: np.ndarray) -> float:
+    truth = get_scenario(sim.scenario).sample((t_ns - sim.start_ns) * 1e-9)
+    r, t, _ = umeyama(pos, truth.P)
+    return float(np.sqrt(np.mean(np.sum((pos @ r.T + t - truth.P) ** 2, axis=1))))
+
+
+def test_riekf_on_learned_noise_is_within_1_5x_of_riekf_on_the_truth(loud_log):
+    from slamobs.pipeline.observers import ObserverOptions
+    from slamobs.pipeline.observers.riekf import RiEKF
+
+    sim, stream, auto, truth = loud_log
+    errors, gated = {}, {}
+    for name, nz in (("auto", auto), ("truth", truth)):
+        filt = RiEKF(stream, {}, ObserverOptions(out_every=10), noise=nz)
+        res = filt.advance(filt.n_vel)
+        errors[name] = ape(sim, res.t_ns, res.position)
+        gated[name] = filt.stats["metadata"]["filter"]["gated_detections"] / stream.det_idx.shape[0]
+    assert errors["auto"] <= 1.5 * errors["truth"], errors
+    assert gated["auto"] < 0.05, gated
+
+
+def test_batch_on_learned_noise_is_within_1_2x_of_batch_on_the_truth(loud_log):
+    pytest.importorskip("gtsam")
+    from slamobs.pipeline.observers import ObserverOptions
+    from slamobs.pipeline.smoother.estimator import BatchSmoother
+
+    sim, stream, auto, truth = loud_log
+    errors = {}
+    for name, nz in (("auto", auto), ("truth", truth)):
+        smoother = BatchSmoother(stream, {}, ObserverOptions(), noise=nz)
+        smoother.solve()
+        kf_ns = stream.t0_ns + np.round(smoother.result["kf_t"] * 1e9).astype(np.int64)
+        errors[name] = ape(sim, kf_ns, smoother.result["solution"].pos)
+    assert errors["auto"] <= 1.2 * errors["truth"], errors
+
+
+def test_simulate_writes_per_axis_noise_and_a_range_squared_law(tmp_path):
+    """The simulator's new options: per-axis gyro and velocity noise (stated in the messages' covariances too)
+    and the detection law S0 + K·r + A·r²; a wrong count of numbers is one error line."""
+    out = tmp_path / "sim.mcap"
+    args = ["simulate", "circle", "-o", out, "--duration", "4", "--gyro-noise", "0.01,0.02,0.03"]
+    done = invoke(*args, "--velocity-noise", "0.05", "--detection-noise", "0.01,0,0.003", "-q")
+    assert done.exit_code == 0, done.output
+    topics = {"angular_velocity": "/imu/data", "linear_velocity": "/odom"}
+    stated = resolve_noise(NoiseConfig(auto=False), out, topics)
+    assert np.allclose(stated.gyro, np.array([0.01, 0.02, 0.03]) * np.sqrt(1 / 200))
+    assert np.allclose(stated.velocity, 0.05 * np.sqrt(1 / 50))
+    bad = invoke("simulate", "circle", "-o", tmp_path / "bad.mcap", "--gyro-noise", "0.01,0.02")
+    assert bad.exit_code == 2 and "--gyro-noise" in bad.output and not (tmp_path / "bad.mcap").exists()
+
+
+def test_per_axis_noise_draws_the_same_random_stream():
+    """Three equal per-axis values and a zero r² term draw exactly what one value draws: the new fields leave
+    the random stream of a default simulation (and so the sample logs) as it was."""
+    nm = NoiseModel()
+    assert nm.detection_per_m2 == 0.0 and np.isscalar(nm.gyro) and np.isscalar(nm.odom_linear)
+    a = simulate("circle", duration=2.0, seed=3)
+    b = simulate("circle", duration=2.0, seed=3, noise=replace(nm, gyro=(nm.gyro,) * 3, detection_per_m2=0.0))
+    assert np.array_equal(a.imu.gyro, b.imu.gyro) and np.array_equal(a.detections.xyz, b.detections.xyz)

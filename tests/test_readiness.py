@@ -1,0 +1,143 @@
+"""``slamobs info``'s readiness section and ``run``'s error naming every missing input, on short simulated logs
+with streams left out (and the real logs when ``$SLAMOBS_REALDATA`` has them)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import pytest
+
+from slamobs.pipeline.config import load_config
+from slamobs.pipeline.estimators import ESTIMATORS
+from slamobs.pipeline.readers import inspect_log
+from slamobs.pipeline.readers.roles import accepted_types
+from slamobs.pipeline.readiness import readiness
+from slamobs.pipeline.simulate.logwriter import write_log
+from slamobs.pipeline.simulate.sensors import simulate
+
+from cli_checks import SAMPLES, invoke
+from realdata import REALDATA
+
+
+def _empty(data):
+    """A simulated stream with no samples: its topic is written without messages."""
+    return dataclasses.replace(
+        data, **{f.name: getattr(data, f.name)[: 1 if f.name == "offsets" else 0] for f in dataclasses.fields(data)}
+    )
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """Short circle logs: complete, without odometry and detections, without the magnetometer."""
+    sim = simulate("circle", duration=4.0, seed=3)
+    root = tmp_path_factory.mktemp("readiness")
+    made = {
+        "full": sim,
+        "no_odom_det": dataclasses.replace(sim, odom=_empty(sim.odom), detections=_empty(sim.detections)),
+        "no_mag": dataclasses.replace(sim, mag=_empty(sim.mag)),
+    }
+    paths = {}
+    for name, log in made.items():
+        paths[name] = root / f"{name}.mcap"
+        write_log(log, paths[name])
+    return paths
+
+
+def _run_yaml(out: str) -> str:
+    """The run.yaml block ``info`` prints, unindented."""
+    block = out.split("run.yaml for what was found:\n", 1)[1]
+    return "\n".join(line[4:] for line in block.splitlines()) + "\n"
+
+
+def test_complete_log_is_ready_and_its_run_yaml_runs(logs, tmp_path):
+    res = invoke("info", logs["full"])
+    assert res.exit_code == 0
+    assert "MISSING" not in res.output.split("  readiness", 1)[1]
+    ready = readiness(inspect_log(logs["full"]))
+    assert all(e.ready or e.unavailable for e in ready.estimators)
+    config = tmp_path / "run.yaml"
+    config.write_text(_run_yaml(res.output))
+    loaded = load_config(config)
+    assert loaded.topics["linear_velocity"] == "/odom"
+    assert loaded.topics["detections"] == "/fiducial_transforms"
+    run = invoke("run", logs["full"], "--config", config, "-o", tmp_path / "out", "-q")
+    assert run.exit_code == 0, run.output
+    assert (tmp_path / "out" / "poses.parquet").is_file()
+
+
+def test_missing_roles_are_named_with_every_accepted_type(logs, tmp_path):
+    ready = readiness(inspect_log(logs["no_odom_det"]))
+    assert {r.role for r in ready.roles if not r.found} == {"linear_velocity", "detections"}
+    assert not any(e.ready for e in ready.estimators)
+    res = invoke("info", logs["no_odom_det"])
+    section = res.output.split("  readiness", 1)[1]
+    assert "linear_velocity   MISSING" in section and "detections        MISSING" in section
+    for role in ("linear_velocity", "detections"):
+        assert f"topics.{role}" in section
+        for msgtype in accepted_types(role):
+            assert msgtype in section, msgtype
+    assert "tags.size" in section and "frames.tag_pattern" in section
+    config = tmp_path / "run.yaml"
+    config.write_text(_run_yaml(res.output))
+    assert "linear_velocity" not in load_config(config).topics  # a comment, not a key
+    doc = json.loads(invoke("info", logs["no_odom_det"], "--json").output)["readiness"]
+    assert doc["ready"] == [] and set(doc["satisfy"]) == {"linear_velocity", "detections"}
+
+
+def test_run_names_every_missing_role_at_once(logs, tmp_path):
+    res = invoke("run", logs["no_odom_det"], "-o", tmp_path / "out")
+    assert res.exit_code == 2
+    lines = res.output.splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("error:"))
+    assert "cannot run" in lines[first] and "2 of the 3" in lines[first]
+    roles = [line.split()[0] for line in lines[first + 1 :]]
+    assert roles == ["linear_velocity", "detections"]
+    assert "nav_msgs/msg/Odometry" in lines[first + 1]
+    assert not (tmp_path / "out").exists()
+
+
+def test_direction_needs_per_estimator(logs):
+    ready = readiness(inspect_log(logs["no_mag"]))
+    lacking = {e.name: e.missing for e in ready.estimators if not e.unavailable}
+    needs_two = {n for n, s in ESTIMATORS.items() if s.min_directions >= 2}
+    assert needs_two  # hashim-imu and hybrid
+    for name, missing in lacking.items():
+        assert missing == (("magnetic",) if name in needs_two else ()), name
+
+
+def test_tag_corners_log_asks_for_the_tag_size(tmp_path):
+    res = invoke("info", SAMPLES / "figure8_camera.mcap")
+    yaml_text = _run_yaml(res.output)
+    assert "#   size:" in yaml_text
+    config = tmp_path / "run.yaml"
+    config.write_text(yaml_text)
+    assert load_config(config).tags.size is None
+
+
+REAL_LOGS = ("robot_localization/test1.bag", "imu_tools/ardrone_imu.bag", "fiducials_ubiquity/transforms.bag")
+
+
+@pytest.mark.skipif(not REALDATA.is_dir(), reason="real logs not available ($SLAMOBS_REALDATA)")
+@pytest.mark.parametrize("name", REAL_LOGS)
+def test_real_logs_readiness(name, tmp_path):
+    log = REALDATA / name
+    if not log.exists():
+        pytest.skip(f"{log} not available")
+    res = invoke("info", log)
+    assert res.exit_code == 0
+    section = res.output.split("  readiness", 1)[1]
+    assert "cannot run, missing" in section  # none of these has all three inputs
+    config = tmp_path / "run.yaml"
+    config.write_text(_run_yaml(res.output))
+    load_config(config)
+
+
+def test_run_names_a_missing_direction_with_the_other_inputs(logs, tmp_path):
+    needs_two = next(n for n, s in ESTIMATORS.items() if s.min_directions >= 2)
+    res = invoke("run", logs["no_mag"], "-o", tmp_path / "out", "--observer", needs_two)
+    assert res.exit_code == 2
+    lines = res.output.splitlines()
+    first = next(k for k, line in enumerate(lines) if line.startswith("error:"))
+    assert "1 of the 5 inputs" in lines[first] and "(magnetic)" in lines[first]
+    assert lines[first + 1].split()[0] == "magnetic" and "sensor_msgs/msg/MagneticField" in lines[first + 1]

@@ -1,0 +1,106 @@
+"""Split ROS1 recordings (issue 26, part 6): the ``NAME_N.bag`` parts of one recording, as a directory or as several
+paths, read as one log in order, with the gaps between the files in the notes."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from rosbags.rosbag1 import Reader, Writer
+
+from cli_checks import SAMPLES, invoke
+from slamobs.pipeline.readers import inspect_log
+
+LOG = SAMPLES / "circle.bag"
+
+
+def split_bag(src: Path, out: Path, cuts_s: list[float], drop_s: tuple[float, float] | None = None) -> list[Path]:
+    """``src`` as ``rec_0.bag``, ``rec_1.bag``, ... cut at ``cuts_s`` seconds after its start (as ``rosbag record
+    --split`` writes them: each part with the connections of its messages); messages in ``drop_s`` left out."""
+    out.mkdir(parents=True)
+    with Reader(src) as reader:
+        t0 = reader.start_time
+        cuts = [t0 + int(c * 1e9) for c in cuts_s]
+        paths = [out / f"rec_{k}.bag" for k in range(len(cuts) + 1)]
+        writers = [Writer(p) for p in paths]
+        conns: list[dict] = [{} for _ in paths]
+        for w in writers:
+            w.open()
+        for conn, t, raw in reader.messages():
+            if drop_s is not None and t0 + drop_s[0] * 1e9 <= t < t0 + drop_s[1] * 1e9:
+                continue
+            k = sum(t >= c for c in cuts)
+            if conn.id not in conns[k]:
+                conns[k][conn.id] = writers[k].add_connection(
+                    conn.topic,
+                    conn.msgtype,
+                    msgdef=conn.msgdef.data,
+                    md5sum=conn.digest,
+                    callerid=conn.ext.callerid,
+                    latching=conn.ext.latching,
+                )
+            writers[k].write(conns[k][conn.id], t, raw)
+        for w in writers:
+            w.close()
+    return paths
+
+
+@pytest.fixture(scope="module")
+def parts(tmp_path_factory) -> list[Path]:
+    return split_bag(LOG, tmp_path_factory.mktemp("split") / "rec", [10.0, 20.0])
+
+
+def test_info_reads_the_parts_as_one_log_in_order(parts):
+    whole, split = inspect_log(LOG), inspect_log(parts[0].parent)
+    assert split.container == "ros1-split" and split.storage == "3 bag files"
+    assert {t.topic: t.count for t in split.topics} == {t.topic: t.count for t in whole.topics}
+    assert split.duration_s == pytest.approx(whole.duration_s)
+    (note,) = [w for w in split.warnings if w.startswith("split recording of 3 ROS1 bags")]
+    assert note.index("rec_0.bag 0.000") < note.index("rec_1.bag 10.0") < note.index("rec_2.bag 20.0")
+    # the parts given one by one, in any order, are the same log
+    res = invoke("info", parts[2], parts[0], parts[1], "--json")
+    assert res.exit_code == 0 and json.loads(res.output)["path"] == str(parts[0].parent)
+
+
+def test_a_gap_between_files_is_reported(tmp_path):
+    gapped = split_bag(LOG, tmp_path / "rec", [10.0, 20.0], drop_s=(9.5, 10.7))
+    notes = inspect_log(gapped[0].parent).warnings
+    (gap,) = [n for n in notes if "without messages between rec_0.bag and rec_1.bag" in n]
+    assert 1.15 < float(gap.split("split recording: ")[1].split(" s")[0]) < 1.25  # 9.5 to 10.7 s, rates ~100 Hz
+    assert not any("between rec_1.bag and rec_2.bag" in n for n in notes)
+
+
+def test_a_run_on_the_parts_is_the_run_on_the_whole_log(parts, tmp_path):
+    config = tmp_path / "run.yaml"
+    config.write_text("evaluation:\n  plots: false\n")  # the figures are most of a short run's time
+    for name, log in (("whole", [LOG]), ("split", parts)):
+        res = invoke("run", *log, "-o", tmp_path / name, "--config", config, "-q")
+        assert res.exit_code == 0, res.output
+    for table in ("poses", "landmarks", "biases"):
+        whole = pd.read_parquet(tmp_path / "whole" / f"{table}.parquet")
+        assert whole.equals(pd.read_parquet(tmp_path / "split" / f"{table}.parquet")), table
+    meta = json.loads((tmp_path / "split" / "run.json").read_text())
+    assert meta["input"]["path"] == str(parts[0].parent.resolve())
+    assert any(n.startswith("split recording of 3 ROS1 bags") for n in meta["notes"])
+
+
+def test_what_is_not_one_split_recording_is_one_line(parts, tmp_path):
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for p in parts:
+        shutil.copy(p, mixed / p.name)
+    shutil.copy(parts[0], mixed / "other_0.bag")
+    res = invoke("info", mixed, catch_exceptions=True)
+    assert res.exit_code == 2 and "holds the parts of 2 recordings (other_*.bag, rec_*.bag)" in res.output
+    assert len(res.output.strip().splitlines()) == 1
+    res = invoke("run", parts[0], parts[1], "-o", tmp_path / "out", catch_exceptions=True)
+    assert res.exit_code == 2 and "give the directory" in res.output and not (tmp_path / "out").exists()
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "rec_0.bag").write_bytes(parts[0].read_bytes())
+    (bad / "rec_1.bag").write_text("not a bag")
+    res = invoke("info", bad, catch_exceptions=True)
+    assert res.exit_code == 2 and f"{bad / 'rec_1.bag'}: not a ROS1 bag" in res.output

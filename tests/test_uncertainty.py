@@ -1,0 +1,221 @@
+"""Uncertainty out (issue 26, part 2): riekf and batch write pose and landmark covariances in the documented convention
+(``R̂ = Exp(δθ) R``, ``p̂ = p + δp``, map/output frame), the observers leave those columns null, and the report
+checks the covariance against the error (NEES with χ² bounds, 3σ figures)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.evaluation.metrics import chi2_quantile, nees_bounds
+from slamobs.pipeline.evaluation.sections import nees_values
+from slamobs.pipeline.lie import rots_to_rotvecs, skew
+from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.observers.base import output_rows
+from slamobs.pipeline.observers.riekf import RiEKF
+from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate, write_log
+from slamobs.pipeline.writers import POSE_AXES
+
+SIGMA_B = 0.05
+RUNS, SECONDS, EVERY = 8, 15.0, 20
+
+
+@pytest.fixture(scope="module")
+def filter_runs():
+    """Noisy figure-8 runs whose biases are drawn from the filter's prior, the filter given the simulator's noise
+    and started at the true pose (the gauge); bias walks off, so the test mechanism's covariance rows (flushed at
+    each row) equal what the filter writes."""
+    noise = resolve_noise(
+        NoiseConfig(gyro_bias=SIGMA_B, velocity_bias=SIGMA_B, gyro_bias_walk=0.0, velocity_bias_walk=0.0)
+    )
+    rng = np.random.default_rng(26)
+    runs = []
+    for run in range(RUNS):
+        b = rng.normal(0.0, SIGMA_B, 6)
+        sc = replace(get_scenario("figure8"), gyro_bias=b[:3], velocity_bias=b[3:])
+        sim = simulate(sc, duration=SECONDS, seed=300 + run)
+        stream = align(expected_streams(sim), keep_directions=False)
+        start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
+        filt = RiEKF(stream, {}, ObserverOptions(out_every=EVERY), noise=noise, r0=start.R[0], p0=start.P[0])
+        filt.cov_rows = np.zeros((output_rows(filt.n_vel, EVERY, 0, filt.n_vel), 12, 12))
+        res = filt.advance(filt.n_vel)
+        truth = sc.sample((res.t_ns - sim.start_ns) * 1e-9)
+        lm_truth = sc.landmarks[np.searchsorted(sc.landmark_ids, res.landmark_ids)]
+        runs.append((res, truth, filt.cov_rows, lm_truth))
+    return runs
+
+
+def test_riekf_pose_covariance_is_the_filters_in_the_written_convention(filter_runs):
+    """The written 6×6 is the filter's (ξ_R, ξ_P) block turned by δθ = ξ_R, δp = ξ_P − [P̂]×ξ_R, symmetric and
+    positive definite after the start (the gauge: zero there)."""
+    res, _, cov12, _ = filter_runs[0]
+    for k in range(1, len(res.t_ns), 7):
+        j = np.eye(6)
+        j[3:, :3] = -skew(res.position[k])
+        expect = j @ cov12[k, :6, :6] @ j.T
+        assert np.allclose(res.pose_cov[k], expect, rtol=1e-9, atol=1e-15)
+    assert np.allclose(res.pose_cov[0], 0.0)
+    assert np.allclose(res.pose_cov, np.swapaxes(res.pose_cov, 1, 2))
+    assert np.linalg.eigvalsh(res.pose_cov[1:])[:, 0].min() > 0.0
+
+
+def test_riekf_nees_is_within_chi2_bounds(filter_runs):
+    """Position and attitude NEES of the written covariance against the true error in the written convention,
+    averaged over the runs at each instant (ov_eval's check): within the two-sided 95 % χ²(3R)/R bounds at most
+    instants and on average over the run."""
+    pos, att = [], []
+    for res, truth, _, _ in filter_runs:
+        d_theta = rots_to_rotvecs(np.matmul(res.rotation, np.swapaxes(truth.R, 1, 2)))
+        d_p = res.position - truth.P
+        pos.append(nees_values(d_p[1:], res.pose_cov[1:, 3:, 3:]))
+        att.append(nees_values(d_theta[1:], res.pose_cov[1:, :3, :3]))
+    lo, hi = nees_bounds(3, RUNS)
+    for name, nees in (("position", pos), ("attitude", att)):
+        n = min(len(r) for r in nees)
+        mean = np.mean([r[:n] for r in nees], axis=0)
+        assert np.isfinite(mean).all()
+        assert np.mean((mean >= lo) & (mean <= hi)) >= 0.9, (name, lo, hi, mean.round(1))
+        assert lo < mean.mean() < hi, (name, mean.mean())
+
+
+def test_riekf_landmark_covariance_is_consistent(filter_runs):
+    """Each landmark's 3×3 (map frame) is positive definite, and the NEES of the final map against the truth,
+    pooled over landmarks and runs, lies within its two-sided 95 % bounds (twice as wide: landmarks seen
+    together share their errors)."""
+    nees = []
+    for res, _, _, lm_truth in filter_runs:
+        seen = np.isfinite(res.landmark_cov).all(axis=(1, 2))
+        assert seen.sum() >= 10
+        assert np.linalg.eigvalsh(res.landmark_cov[seen])[:, 0].min() > 0.0
+        nees.append(nees_values(res.landmark_xyz[seen] - lm_truth[seen], res.landmark_cov[seen]))
+    nees = np.concatenate(nees)
+    lo, hi = nees_bounds(3, nees.size)
+    mid = 3.0
+    assert mid - 2 * (mid - lo) < nees.mean() < mid + 2 * (hi - mid), nees.mean()
+
+
+def test_chi2_quantiles_match_the_tables():
+    """χ² quantiles the NEES bounds come from: the tabulated values (3 and 30 DoF, and a large count)."""
+    assert chi2_quantile(0.025, 3) == pytest.approx(0.2158, abs=1e-4)
+    assert chi2_quantile(0.975, 3) == pytest.approx(9.3484, abs=1e-4)
+    assert chi2_quantile(0.975, 30) == pytest.approx(46.979, rel=1e-3)
+    assert chi2_quantile(0.025, 29) == pytest.approx(16.047, rel=1e-3)
+    lo, hi = nees_bounds(3, 1000)
+    assert lo < 3.0 < hi and hi - lo == pytest.approx(2 * 1.96 * np.sqrt(6 / 1000), rel=0.02)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """A 12 s simulated figure-8 log run by riekf and batch with the simulator's noise (the ``noise:`` config) and
+    by an observer; their run directories."""
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import run_log
+
+    base = tmp_path_factory.mktemp("uncertainty")
+    log = write_log(simulate("figure8", duration=12.0, seed=5), base / "f8.mcap")
+    out = {}
+    noise = {k: float(DEFAULTS[k][0]) for k in ("gyro", "velocity", "detection", "detection_per_m")}
+    for name in ("riekf", "batch", "fast-adaptation"):
+        if name == "batch":
+            pytest.importorskip("gtsam")
+        out[name] = base / name
+        run_log(log, out[name], parse_config({"observer": name, "noise": noise}))
+    return out
+
+
+def _covariances(table, names, n):
+    tri = [(i, j) for i in range(n) for j in range(i, n)]
+    cov = np.empty((table.num_rows, n, n))
+    for (i, j), name in zip(tri, names):
+        cov[:, i, j] = cov[:, j, i] = table.column(name).to_numpy()
+    return cov
+
+
+POSE_COV = [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i in range(6) for j in range(i, 6)]
+LM_COV = ["cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz"]
+
+
+@pytest.mark.parametrize("name", ["riekf", "batch"])
+def test_reference_estimators_write_positive_definite_covariances(runs, name):
+    """poses.parquet: 6 standard deviations that are the covariance's diagonal, the covariance positive definite
+    (apart from the gauge); landmarks.parquet: a positive definite 3×3 and its RMS standard deviation."""
+    poses = pq.read_table(runs[name] / "poses.parquet")
+    cov = _covariances(poses, POSE_COV, 6)
+    sd = np.stack([poses.column(f"sigma_{a}").to_numpy() for a in ("rx", "ry", "rz", "x", "y", "z")], axis=1)
+    assert np.allclose(sd, np.sqrt(np.einsum("nii->ni", cov)), rtol=1e-6)
+    eig = np.linalg.eigvalsh(cov)[:, 0]
+    assert np.mean(eig > 0) > 0.99 and eig.min() > -1e-12  # the gauge (start or anchor) is (nearly) zero
+    lms = pq.read_table(runs[name] / "landmarks.parquet")
+    lcov = _covariances(lms, LM_COV, 3)
+    assert np.linalg.eigvalsh(lcov)[:, 0].min() > 0.0
+    assert np.allclose(lms.column("sigma").to_numpy(), np.sqrt(np.einsum("nii->n", lcov) / 3), rtol=1e-6)
+
+
+def test_observers_leave_the_uncertainty_columns_null(runs):
+    """The observers keep no covariance: the columns are there, all null, and the report has no uncertainty."""
+    poses = pq.read_table(runs["fast-adaptation"] / "poses.parquet")
+    lms = pq.read_table(runs["fast-adaptation"] / "landmarks.parquet")
+    for table, names in ((poses, [*POSE_COV, "sigma_x", "sigma_rz"]), (lms, [*LM_COV, "sigma"])):
+        for name in names:
+            assert table.column(name).null_count == table.num_rows > 0, name
+    report = json.loads((runs["fast-adaptation"] / "report.json").read_text())
+    assert report["uncertainty"] is None
+    assert not (runs["fast-adaptation"] / "nees.png").exists()
+
+
+@pytest.mark.parametrize("name", ["riekf", "batch"])
+def test_report_has_nees_and_its_figures(runs, name):
+    """report.json: NEES (position, attitude) with bounds around 3 and counts; report.md the table; the 3σ and
+    NEES figures written."""
+    from slamobs.pipeline.evaluation.report import validate_report
+
+    report = json.loads((runs[name] / "report.json").read_text())
+    validate_report(report)
+    u = report["uncertainty"]
+    for part in ("position", "attitude"):
+        r = u[part]
+        assert r["n"] > 100 and r["mean"] > 0 and r["bounds"][0] < 3.0 < r["bounds"][1]
+        assert all(0.0 <= v <= 1.0 for v in r["within_3sigma"])
+    assert "## Uncertainty (NEES)" in (runs[name] / "report.md").read_text()
+    for figure in ("uncertainty.png", "nees.png"):
+        assert (runs[name] / figure).stat().st_size > 10_000
+
+
+def test_output_frame_turns_covariances_with_the_estimate(filter_runs):
+    """A rigid output frame turns the error (δθ, δp) by its rotation: the written covariance turns with it, so the
+    NEES of the turned error is the same."""
+    from slamobs.pipeline.lie import so3_exp
+    from slamobs.pipeline.output_frame import OutputFrame
+
+    res, truth, _, _ = filter_runs[1]
+    r = so3_exp(np.array([0.4, -1.1, 2.0]))
+    out = OutputFrame("test", r, np.array([3.0, -2.0, 1.0]), "test").apply(res)
+    error = np.c_[rots_to_rotvecs(np.matmul(res.rotation, np.swapaxes(truth.R, 1, 2))), res.position - truth.P][1:]
+    turned = error @ np.kron(np.eye(2), r).T
+    assert np.allclose(nees_values(turned, out.pose_cov[1:]), nees_values(error, res.pose_cov[1:]), rtol=1e-6)
+    seen = np.isfinite(res.landmark_cov).all(axis=(1, 2))
+    assert np.allclose(out.landmark_cov[seen], r @ res.landmark_cov[seen] @ r.T)
+
+
+def test_batch_covariance_between_marginal_keyframes_is_interpolated():
+    """The smoother computes marginals at one keyframe per second (and the last); rows between are linear in
+    time: exact at those keyframes, the mean half-way, positive definite throughout."""
+    from slamobs.pipeline.smoother.estimator import covariance_keyframes, interpolate_covariance
+
+    kf_t = np.arange(100) / 20.0  # 0 .. 4.95 s
+    picked = covariance_keyframes(kf_t)
+    assert np.allclose(kf_t[picked], [0.0, 1.0, 2.0, 3.0, 4.0, 4.95])
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(picked.size, 6, 6))
+    cov = a @ np.swapaxes(a, 1, 2) + 1e-3 * np.eye(6)
+    t = kf_t[picked]
+    assert np.allclose(interpolate_covariance(t, cov, t), cov)
+    assert np.allclose(interpolate_covariance(t, cov, np.array([1.5]))[0], 0.5 * (cov[1] + cov[2]))
+    rows = interpolate_covariance(t, cov, np.linspace(-1.0, 6.0, 50))
+    assert np.linalg.eigvalsh(rows)[:, 0].min() > 0.0
