@@ -21,7 +21,7 @@ MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable an
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
 SCATTER_POINTS = 3000  # markers of a scatter
-MAX_LOG_GROUPS = 24  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
+MAX_LOG_GROUPS = 12  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -458,7 +458,8 @@ def plot_distributions(
     estimators = list(values)
     every_log = list(dict.fromkeys(log for per in values.values() for log in per))
     logs = every_log[:MAX_LOG_GROUPS]
-    fig, axes = _figure(2, 1, (max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))), 7.0), bottom=1.0, gap=0.8)
+    width = min(16.0, max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))))  # half an inch a group, capped
+    fig, axes = _figure(2, 1, (width, 7.0), bottom=1.0, gap=0.8)
     ax_e, ax_l = axes[0, 0], axes[1, 0]
     colors = [f"C{k % 10}" for k in range(len(estimators))]
     width = 0.8 / max(1, len(estimators))
