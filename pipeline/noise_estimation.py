@@ -12,10 +12,11 @@ Detections: a landmark is static, so its detected position carried into a common
 dead reckoning must stay put. Over three consecutive detections of one landmark the middle one minus the
 linear interpolation of its neighbours (in time) cancels the landmark's position and any drift linear in
 time (the biases); what is left is detection noise and the small odometry noise of the short dead-reckoning
-between them (known from the velocity estimates). Its variance, ``Σ c_j² σ(r_j)² + odometry``, is fitted by
-variance-component estimation (Fisher scoring of the Gaussian likelihood, outliers beyond 4 σ dropped and the
-fit repeated until stable) for two laws of σ against range r: ``σ0 + k·r`` and ``b + a·r²``; the one with
-the higher likelihood is chosen. The uncertainty is a bootstrap over the triplets.
+between them (known from the velocity estimates and the time each velocity sample is held in the interval).
+Its variance, ``Σ c_j² σ(r_j)² + odometry``, is fitted by variance-component estimation (Fisher scoring of the
+Gaussian likelihood, outliers beyond 4 σ dropped and the fit repeated until stable) for two laws of σ against
+range r: ``σ0 + k·r`` and ``b + a·r²``; the one with the higher likelihood is chosen.
+The uncertainty is a bootstrap over the triplets.
 """
 
 from __future__ import annotations
@@ -46,6 +47,9 @@ MIN_SAMPLES = 50
 #: The smallest detection standard deviation at zero range a fit gives (m): a law fitted on ranges far from zero
 #: may reach zero there, and no detection is exact.
 MIN_DETECTION_M = 1e-4
+#: Share of the residuals' variance above which the dead reckoning's noise drowns the detections' (the law is
+#: then said to be uncertain).
+DOMINANT = 0.8
 #: The detection laws: name -> (the power of range the second coefficient multiplies, its key in noise.DEFAULTS)
 LAWS = {"sigma0 + k*r": (1, "detection_per_m"), "b + a*r^2": (2, "detection_per_m2")}
 
@@ -188,11 +192,25 @@ def detection_triplets(
     e = w[i + 1] - (a[:, None] * w[i] + (1 - a)[:, None] * w[i + 2])
     c2 = np.stack([a * a, np.ones_like(a), (1 - a) ** 2], axis=1)
     r = np.stack([rng[i], rng[i + 1], rng[i + 2]], axis=1)
-    gq, vq = gyro_density**2, velocity_density**2
-    motion = c2[:, 0] * (vq + 2 / 3 * gq * r[:, 0] ** 2) * (t2 - t1) + c2[:, 2] * (vq + 2 / 3 * gq * r[:, 2] ** 2) * (
-        t3 - t2
+    period = float(np.median(np.diff(vel_t)))
+    gq, vq = gyro_density**2 / period, velocity_density**2 / period  # per-sample variances
+    held = _held_squares(vel_t, t1, t2), _held_squares(vel_t, t2, t3)
+    motion = (
+        c2[:, 0] * (vq + 2 / 3 * gq * r[:, 0] ** 2) * held[0] + c2[:, 2] * (vq + 2 / 3 * gq * r[:, 2] ** 2) * held[1]
     )
     return Triplets(e, c2, r, motion)
+
+
+def _held_squares(vel_t: np.ndarray, ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
+    """Σ over the velocity samples of (time each is held within [ta, tb])²: the dead reckoning's error variance
+    over the interval per unit per-sample variance (Δt² within one sample, about Δt·T over many)."""
+    csum = np.r_[0.0, np.cumsum(np.diff(vel_t) ** 2)]
+    last = vel_t.shape[0] - 1
+    ka = np.clip(np.searchsorted(vel_t, ta, side="right") - 1, 0, last)
+    kb = np.clip(np.searchsorted(vel_t, tb, side="right") - 1, 0, last)
+    inside = csum[kb] - csum[np.minimum(ka + 1, kb)]  # whole samples ka + 1 .. kb - 1
+    ends = (vel_t[np.minimum(ka + 1, last)] - ta) ** 2 + (tb - vel_t[kb]) ** 2
+    return np.where(ka == kb, (tb - ta) ** 2, inside + ends)
 
 
 def log_triplets(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, gyro_density, velocity_density):
@@ -283,6 +301,9 @@ def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
         f"variance components of {used} detection triplets (second differences of static landmarks, "
         f"{n - used} outliers); law {best} chosen over {other} by log-likelihood"
     )
+    share = float(np.median(tri.motion_var[inl] / _variance(theta, tri, power)[0][inl]))
+    if share > DOMINANT:
+        method += f"; uncertain: the dead reckoning's noise is {100 * share:.0f} % of the residuals' variance"
     ranges = tuple(float(q) for q in np.percentile(tri.r[inl, 1], [5, 95]))
     return DetectionLaw(
         best,

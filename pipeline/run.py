@@ -226,6 +226,9 @@ class PreparedLog:
     velocity_noise: object | None = None
     #: the part of the log used (time.start / time.end, alignment.TimeWindow), None: all of it
     window: TimeWindow | None = None
+    #: what the log's samples say about its noise (pipeline.noise.LogNoise), estimated by the first run that
+    #: needs it (compare and tune run several estimators on one prepared log)
+    estimated_noise: object | None = None
 
 
 Progress = Callable[[str], None]
@@ -339,9 +342,9 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
     defaults."""
     from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
 
-    estimated = None
-    if config.noise.auto and prepared.aligned is not None:
-        estimated = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
+    if config.noise.auto and prepared.estimated_noise is None and prepared.aligned is not None:
+        prepared.estimated_noise = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
+    estimated = prepared.estimated_noise if config.noise.auto else None
     return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
 
 
