@@ -80,3 +80,22 @@ def test_kitti_values_equal_float_of_every_token(tmp_path):
     path.write_text("\n".join(" ".join(r) for r in tokens) + "\n")
     want = np.array([[float(v) for v in r] for r in tokens]).reshape(-1, 3, 4)
     assert np.array_equal(load_kitti(path).position, want[:, :, 3])
+
+
+def test_tum_stamps_all_decimal(tmp_path, tum):
+    """Every stamp through pyarrow's decimal parse (no stamp with more than 9 decimals), negative ones too."""
+    rows, _ = tum
+    rows = [list(r) for r in rows[3:]] + [["1.7e9", *rows[5][1:]], ["-12.5", *rows[6][1:]]]
+    path = tmp_path / "t.txt"
+    path.write_text("\n".join(" ".join(r) for r in rows) + "\n")
+    _check(load_tum(path), rows)
+
+
+def test_stamp_beyond_int64_is_refused(tmp_path, tum):
+    rows, _ = tum
+    rows = [list(r) for r in rows[3:20]]
+    rows[4][0] = "9300000000.5"  # 9.3e18 ns: past int64
+    path = tmp_path / "t.txt"
+    path.write_text("\n".join(" ".join(r) for r in rows) + "\n")
+    with pytest.raises(InputError, match=r"row 5: timestamp '9300000000.5' is out of range"):
+        load_tum(path)

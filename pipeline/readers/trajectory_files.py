@@ -105,8 +105,6 @@ def _row_error(
 #: a file with any of these takes the general path: comments, commas, and whitespace other than spaces and
 #: newlines, which Python's ``str.split`` (the error path, :func:`_data_lines`) treats as a separator too
 _NOT_PLAIN_TEXT = "#,\t\x0b\x0c\x1c\x1d\x1e\x1f"
-#: a stamp the fast path parses: seconds with up to 10 digits (< 9e9 s checked after) and up to 9 decimals
-_PLAIN_STAMP = r"^(?P<s>\d{1,10})(?:\.(?P<f>\d{0,9}))?$"
 
 
 def _fast_rows(text: str, min_fields: int, fixed: int | None, numeric_from: int):
@@ -244,18 +242,24 @@ def _plain_stamps_ns(tokens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _arrow_stamps_ns(tokens) -> np.ndarray | None:
-    """Exact nanoseconds of a pyarrow string array of plain stamps (:data:`_PLAIN_STAMP`, below 9e9 s); ``None``
-    when any stamp is not plain (then :func:`_stamps` parses them one by one)."""
+    """Exact nanoseconds of a pyarrow string array of stamps in seconds, through pyarrow's exact decimal parse
+    (scale 9: the unscaled integer is the stamp in ns); ``None`` when any stamp has more than 9 decimals, is not a
+    decimal or is out of int64 range (then :func:`_stamps` parses them one by one, rounding like
+    :func:`stamp_ns`)."""
+    import pyarrow as pa
     import pyarrow.compute as pc
 
-    parts = pc.extract_regex(tokens, _PLAIN_STAMP)
-    if parts.null_count:
+    try:
+        dec = pc.cast(tokens, pa.decimal128(38, 9))
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
         return None
-    whole = pc.cast(parts.field("s"), "int64").to_numpy()
-    if whole.size and whole.max() >= 9_000_000_000:
+    if dec.null_count:
         return None
-    frac = pc.cast(pc.utf8_rpad(parts.field("f"), 9, "0"), "int64").to_numpy()
-    return whole * NS_PER_S + frac
+    words = np.frombuffer(dec.buffers()[1], np.int64).reshape(-1, 2)[dec.offset : dec.offset + len(dec)]
+    low, high = words[:, 0], words[:, 1]
+    if not np.array_equal(high, low >> 63):  # the 128-bit value does not fit in int64
+        return None
+    return low.copy()
 
 
 def _stamps(path: Path, tokens: np.ndarray) -> np.ndarray:
