@@ -132,10 +132,11 @@ def _noise_text(meta: dict) -> str:
         return ""
 
     def level(key: str) -> str:
-        v = noise[key]
-        return f"{max(v) if isinstance(v, list) else v:.2g}"
+        v = noise.get(key)
+        v = max(v) if isinstance(v, list) and v else v
+        return f"{v:.2g}" if isinstance(v, (int, float)) else "?"
 
-    sources = sorted(set(noise.get("sources", {}).values()))
+    sources = sorted({str(v) for v in (noise.get("sources") or {}).values()})
     return (
         f"g {level('gyro')}, v {level('velocity')}, d {level('detection')}+{level('detection_per_m')}r "
         f"({'/'.join(sources)})"

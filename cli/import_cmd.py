@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.options import quiet_option
-from slamobs.cli.progress import status_line
+from slamobs.cli.progress import Progress
 
 
 @click.group("import")
@@ -44,14 +44,10 @@ def mrclam(folder: Path, out: Path, robot: str, force: bool, quiet: bool) -> Non
         raise click.BadParameter(str(err), param_hint="--robot") from None
     ds = read_dataset(folder)
     targets = [(number, out)] if number is not None else [(n, out / f"robot{n}.mcap") for n in ds.robots]
-    status = status_line(quiet)
-    try:
+    with Progress(quiet) as progress:  # a status line on a terminal, a line now and then otherwise
         for n, path in targets:
-            done = import_robot(ds, n, path, overwrite=force, progress=status)
-            if status is not None:
-                status.clear()
+            done = import_robot(ds, n, path, overwrite=force, progress=progress)
+            if progress.status is not None:
+                progress.status.clear()
             if not quiet:
                 click.echo(done.line())
-    finally:
-        if status is not None:
-            status.clear()

@@ -201,7 +201,7 @@ def _print_summary(summary) -> None:
 
 
 @main.command()
-@click.argument("log", type=click.Path(path_type=Path))
+@click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
 @click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
@@ -222,7 +222,7 @@ def _print_summary(summary) -> None:
 @export_option()
 @quiet_option()
 def compare(
-    log: Path,
+    logs: tuple[Path, ...],
     out_dir: Path,
     names: str,
     config_path: Path | None,
@@ -234,12 +234,17 @@ def compare(
     export: tuple[str, ...] | None,
     quiet: bool,
 ) -> None:
-    """Run several observers on LOG and write a side-by-side table and an overlay plot."""
+    """Run several observers on LOG and write a side-by-side table and an overlay plot.
+
+    A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
+    """
     from dataclasses import replace
 
     from slamobs.cli.errors import working_on
     from slamobs.cli.listing import wrote_line
+    from slamobs.pipeline.readers.container import recording_of
 
+    log = recording_of(logs)
     working_on(log, "a comparison on this log")
     from slamobs.pipeline.compare import compare_log
     from slamobs.pipeline.config import load_config, with_observer, with_truth

@@ -36,9 +36,12 @@ def stats(inputs: tuple[Path, ...], out_dir: Path, style: str, no_plots: bool, f
     directories, mixed as needed. OUT gets stats.md, stats.tex, stats.csv, ranking.csv, runs.csv and figures/.
     A metric a run lacks (no truth, no map) is shown as missing, never as zero.
     """
+    from slamobs.cli.progress import Progress
     from slamobs.pipeline.stats import write_stats
 
-    result = write_stats(list(inputs), out_dir, style=style, figures=not no_plots, force=force)
+    with Progress(quiet) as progress:
+        progress(f"stats: {len(inputs)} inputs into {out_dir}")
+        result = write_stats(list(inputs), out_dir, style=style, figures=not no_plots, force=force)
     if quiet:
         return
     runs = result.runs

@@ -179,6 +179,7 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
         for name, e in (("gyro", gyro), ("velocity", velocity))
         if e is None
     ]
+    gyro, velocity = (visible_noise(e, name, notes) for name, e in (("gyro", gyro), ("velocity", velocity)))
     g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
     triplets = log_triplets(
@@ -196,6 +197,18 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     if law is None:
         notes.append("noise: too few landmarks seen three times within 1 s to estimate the detection noise")
     return LogNoise(gyro, velocity, law, tuple(notes))
+
+
+def visible_noise(estimate: Estimate | None, name: str, notes: list[str]) -> Estimate | None:
+    """``estimate``, or None when every axis of its stream holds its values (a commanded or quantised stream,
+    e.g. MR.CLAM's commanded velocities): zero noise there would make riekf and batch trust it blindly."""
+    if estimate is None or not estimate.held or not all(estimate.held):
+        return estimate
+    notes.append(
+        f"noise: the {name} samples hold their values (commanded or quantised: most repeat the previous one), so "
+        f"their noise cannot be seen in them; the {name} level is not estimated"
+    )
+    return None
 
 
 def _vec(value) -> np.ndarray:

@@ -44,6 +44,8 @@ MAX_TRIPLETS = 30_000
 MAX_SAMPLES, WINDOWS = 400_000, 10
 #: Fewest samples (velocity) or triplets (detections) an estimate is made from.
 MIN_SAMPLES = 50
+#: an axis whose samples repeat the previous value more often than this holds its values (commanded, quantised)
+HELD_SHARE = 0.5
 #: The smallest detection standard deviation at zero range a fit gives (m): a law fitted on ranges far from zero
 #: may reach zero there, and no detection is exact.
 MIN_DETECTION_M = 1e-4
@@ -62,6 +64,9 @@ class Estimate:
     uncertainty: np.ndarray | float
     method: str
     samples: int
+    #: per axis: the samples hold their value (most repeat the previous one, or the residuals vanish), so no noise
+    #: can be seen in them; their value is that of the other axes (the stream is unusable when every axis holds)
+    held: tuple[bool, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -141,7 +146,12 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
     method = f"quintic-prediction residuals (MAD) at {1 / period:.4g} Hz"
     if leak > 1.2:
         method += f"; motion leaks into lower orders (cubic {leak:.2f}x higher)"
-    return Estimate(sigma * np.sqrt(period), se * np.sqrt(period), method, int(z5.shape[0]))
+    repeats = np.mean(np.diff(x, axis=0) == 0.0, axis=0)
+    held = (repeats > HELD_SHARE) | (sigma <= 1e-9 * np.maximum(1.0, np.max(np.abs(x), axis=0)))
+    if held.any() and not held.all():  # e.g. a wheel odometry's lateral and vertical velocity, always zero
+        sigma, se = np.where(held, np.max(sigma[~held]), sigma), np.where(held, np.max(se[~held]), se)
+        method += f"; {', '.join('xyz'[k] for k in np.flatnonzero(held))} held, given the other axes' level"
+    return Estimate(sigma * np.sqrt(period), se * np.sqrt(period), method, int(z5.shape[0]), tuple(held.tolist()))
 
 
 def _poses_at(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, t: np.ndarray):

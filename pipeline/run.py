@@ -699,15 +699,35 @@ def evaluate_run(
     if report is not None:
         metadata["figures"] = list(report.get("figures") or [])
     elif config.evaluation.plots:
-        from slamobs.pipeline.evaluation.figure_jobs import run_tables, write_run_figures
-
         progress("figures")
         t = time.perf_counter()
         workers = plot_workers if report_error is None else None  # after a failed report: drawn here
-        written = write_run_figures(out, run_tables(out), notes, workers)
-        metadata["figures"] = [p.name for p in written if p.suffix == ".png"]
+        metadata["figures"] = _run_figures(out, notes, workers)
         timings["figures_s"] = time.perf_counter() - t
     return report, report_error
+
+
+def _run_figures(out: Path, notes: list[str], plot_workers=None) -> list[str]:
+    """The run's own figures and its summary report.md (a run without an error report); the figures' names.
+    Figures that cannot be drawn are a note: the run's tables stand (out of memory and interruptions still end
+    the run)."""
+    from slamobs.pipeline import interrupts
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_tables, write_run_figures
+
+    try:
+        written = write_run_figures(out, run_tables(out), notes, plot_workers)
+    except OSError:
+        raise
+    except Exception as err:  # noqa: BLE001 - the run's outputs are complete without their figures
+        if (stop := interrupts.interruption(err)) is not None:
+            raise stop from None
+        if machine_failure(err):
+            raise
+        for name in (*RUN_FIGURES, "report.md"):
+            (out / name).unlink(missing_ok=True)
+        notes.append(f"no figures: {one_line(err) or type(err).__name__}")
+        return []
+    return [p.name for p in written if p.suffix == ".png"]
 
 
 def check_export(prepared: PreparedLog, config: RunConfig) -> None:

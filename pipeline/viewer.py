@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.evaluation.plots import PATH_POINTS, thin
 from slamobs.pipeline.results_mcap import read_run_table
 
@@ -74,7 +74,8 @@ def _truth_alignment(run_dir: Path, meta: dict, poses, notes: list[str]):
         truth = resolve_truth(meta, None)
         return evaluate_trajectory(poses, truth.stream, options_for_run(meta), estimate_offset=False)
     except (InputError, ValueError) as err:
-        notes.append(f"{run_dir}: no truth shown ({' '.join(str(err).split())})")
+        log = (meta.get("input") or {}).get("path")
+        notes.append(f"{run_dir}: no truth shown (log {log}: {one_line(err)})")
         return None
 
 

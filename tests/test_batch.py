@@ -182,7 +182,21 @@ def test_local_batch_runs_good_logs_and_reports_the_corrupt_one(done, logs):
         assert (ok[col] > 0).all(), col
     assert (ok["velocity_samples"] > 900).all() and (ok["landmarks"] >= 4).all()
     assert (ok["ape_trans_rmse_m"] < 0.1).all() and (ok["landmark_rmse_m"] < 0.3).all()
-    assert ok[["ape_rot_rmse_deg", "gyro_bias_err", "vel_bias_err", "convergence_s"]].notna().all().all()
+    assert (
+        ok[
+            [
+                "ape_rot_rmse_deg",
+                "rpe_trans_rmse_m",
+                "rpe_rot_rmse_deg",
+                "gyro_bias_err",
+                "vel_bias_err",
+                "convergence_s",
+            ]
+        ]
+        .notna()
+        .all()
+        .all()
+    )
     assert (ok["warning_count"] == 0).all()
     assert all(set(TABLES) <= set(t.split(",")) for t in ok["tables"])  # and the aligned tables (truth)
     for rid in ok["run_id"]:

@@ -166,3 +166,33 @@ def test_the_config_overrides_what_the_log_records(corners_log, tmp_path):
     half = pd.read_parquet(tmp_path / "half" / "tag_detections.parquet")
     own = pd.read_parquet(corners_log.with_name("own") / "tag_detections.parquet")
     assert len(half) == len(own) and not half.equals(own)
+
+
+def test_a_figure_that_fails_is_a_note_not_a_failed_run(log, tmp_path, monkeypatch):
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.run import run_log
+
+    def broken(*_args, **_kwargs):
+        raise ValueError("no room for the map")
+
+    monkeypatch.setattr(plots, "plot_map", broken)
+    summary = run_log(log[0], tmp_path / "out", load_config(log[1]))  # figures drawn in this process
+    assert "no figures: no room for the map" in summary.notes
+    assert summary.metadata["figures"] == [] and not list((tmp_path / "out").glob("*.png"))
+    assert (tmp_path / "out" / "poses.parquet").is_file()
+
+
+def test_report_with_truth_on_a_run_without_it_is_kept(log, tmp_path):
+    """`report RUN --truth T` on a run without truth makes its error report; `report RUN` later reuses T instead
+    of replacing that report with the summary."""
+    out = tmp_path / "out"
+    config = tmp_path / "c.yaml"
+    config.write_text(NO_TRUTH + "evaluation:\n  plots: false\n")
+    assert invoke("run", log[0], "-o", out, "--config", config, "-q").exit_code == 0
+    first = invoke("report", out, "--truth", "/mocap/pose", "--json")
+    assert first.exit_code == 0, first.output
+    again = invoke("report", out, "--json")
+    assert again.exit_code == 0, again.output
+    assert json.loads(again.stdout)["ape"] == json.loads(first.stdout)["ape"]
+    assert (out / "report.json").is_file() and (out / "trajectory_top.png").is_file()

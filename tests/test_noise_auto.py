@@ -255,3 +255,24 @@ def test_per_axis_noise_draws_the_same_random_stream():
     a = simulate("circle", duration=2.0, seed=3)
     b = simulate("circle", duration=2.0, seed=3, noise=replace(nm, gyro=(nm.gyro,) * 3, detection_per_m2=0.0))
     assert np.array_equal(a.imu.gyro, b.imu.gyro) and np.array_equal(a.detections.xyz, b.detections.xyz)
+
+
+def test_held_streams_are_not_taken_for_noiseless():
+    """A commanded velocity (MR.CLAM's odometry: each value held for ten samples) shows no high-frequency noise at
+    all; it must not become a zero noise level that riekf and batch would trust blindly. An axis that is always
+    zero (a wheel odometry's lateral speed) takes the level of the axes that move."""
+    rng = np.random.default_rng(4)
+    t = np.arange(4000) / 50.0
+    held = np.repeat(rng.normal(0.0, 0.3, (400, 3)), 10, axis=0)
+    found = white_noise_density(t, held)
+    assert found is not None and all(found.held)
+    notes: list[str] = []
+    from slamobs.pipeline.noise import visible_noise
+
+    assert visible_noise(found, "velocity", notes) is None and "hold their values" in notes[0]
+    moving = np.c_[np.sin(t) + rng.normal(0.0, 0.02, t.size), np.zeros(t.size), np.zeros(t.size)]
+    found = white_noise_density(t, moving)
+    assert found.held == (False, True, True)
+    assert np.allclose(found.value, found.value[0]) and found.value[0] == pytest.approx(
+        0.02 * np.sqrt(1 / 50), rel=0.25
+    )

@@ -17,6 +17,7 @@ from slamobs.cli.evaluate_cmd import evaluate
 from slamobs.cli.report_cmd import report
 from slamobs.pipeline.config import OutputConfig, RunConfig
 from slamobs.pipeline.evaluation.evo_zip import load_result_zip
+from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES
 from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
 from slamobs.pipeline.evaluation.run_dir import replace_files
 from slamobs.pipeline.run import run_log
@@ -60,7 +61,10 @@ def test_report_recomputes_the_run_report(run_dir):
     assert before["truth_source"]["time_source"] == "header"  # the run's own report names the truth's clock too
     assert after["ape"] == before["ape"] and after["landmarks"] == before["landmarks"]
     assert after["truth_source"]["kind"] == "topic" and after["truth_source"]["name"] == "/mocap/pose"
-    for name in REPORT_FILES:
+    # every report file but the figures, and every figure the report lists (an observer has no covariance: no
+    # uncertainty figures)
+    assert "uncertainty.png" not in after["figures"] and set(after["figures"]) <= set(REPORT_FILES) | set(RUN_FIGURES)
+    for name in [n for n in REPORT_FILES if not n.endswith(".png")] + after["figures"]:
         assert (run_dir / name).is_file(), name
     assert load(run_dir / "run.json")["report_truth"]["name"] == "/mocap/pose"
     assert "APE          translation rmse" in res.output and "pairs, SE(3)-aligned" in res.output
@@ -164,7 +168,8 @@ def test_report_errors_are_one_line(run_dir, tmp_path):
 def test_failed_report_leaves_the_previous_one(run_dir, monkeypatch):
     import slamobs.pipeline.evaluation.run_dir as rd
 
-    old = {name: (run_dir / name).read_bytes() for name in REPORT_FILES + ("run.json",)}
+    old = {name: (run_dir / name).read_bytes() for name in REPORT_FILES + ("run.json",) if (run_dir / name).is_file()}
+    assert "report.json" in old and "errors.png" in old
 
     def half_written(report_, out, *args, **kwargs):
         (Path(out) / "report.json").write_text("{ half")

@@ -20,6 +20,7 @@ def test_each_report_section_is_one_class():
         "LandmarkSection",
         "BiasSection",
         "ConvergenceSection",
+        "UncertaintySection",
     }
     for cls in classes:
         assert callable(getattr(cls, "process_data", None)) and callable(cls.get_statistic), cls.__name__

@@ -133,6 +133,8 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
         1e9,
         1.0,  # the recovery's variance factor (none yet) and its window
         np.zeros(9),
+        np.zeros((9, 3)),
+        np.zeros(9, np.int64),
         np.zeros(n_lm, np.bool_),
         np.zeros(n_lm, np.bool_),
     )

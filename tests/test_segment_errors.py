@@ -3,6 +3,8 @@ and the relative error per sub-trajectory length matches rpg's own definitions."
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -62,6 +64,27 @@ def test_report_with_posyaw(truth):
     rep = build_report(poses_of(truth.t_ns, truth.position @ yaw.T + shift, rots), None, None, truth, align="posyaw")
     assert rep["method"]["alignment"]["type"] == "yaw"
     assert rep["ape"]["translation_m"]["rmse"] < 1e-9
+
+
+def test_evaluate_takes_posyaw(truth, tmp_path):
+    from click.testing import CliRunner
+
+    from slamobs.cli.evaluate_cmd import evaluate
+
+    yaw, shift = _rz(0.7), np.array([0.5, -0.2, 0.1])
+    rots = np.einsum("ij,njk->nik", yaw, quats_to_rots(truth.quat_xyzw))
+    files = {}
+    for name, pos, q in (("truth", truth.position, truth.quat_xyzw), ("est", truth.position @ yaw.T + shift, None)):
+        q = rots_to_quats(rots) if q is None else q
+        files[name] = tmp_path / f"{name}.txt"
+        np.savetxt(files[name], np.column_stack([truth.t_ns / 1e9, pos, q]), fmt="%.9f")
+    out = {
+        flag: CliRunner().invoke(evaluate, [str(files["truth"]), str(files["est"]), flag, "--json"])
+        for flag in ("--align-posyaw", "--align-yaw", "-a")
+    }
+    assert all(r.exit_code == 0 for r in out.values()), {k: r.output for k, r in out.items()}
+    posyaw, yaw_, se3 = (json.loads(out[k].stdout) for k in ("--align-posyaw", "--align-yaw", "-a"))
+    assert posyaw == yaw_ and posyaw["stats"]["rmse"] < 1e-6 and se3["stats"]["rmse"] < 1e-6
 
 
 # ------------------------------------------------------------------------------------------ segment errors

@@ -75,8 +75,15 @@ def test_one_run_entities_and_counts(runs, tmp_path):
         gyro = [v[0] for v in rec[f"/biases/riekf/gyro/{axis}"]["columns"]["Scalars:scalars"]]
         np.testing.assert_allclose(gyro, biases[f"gyro_bias_{axis}"].to_numpy())
         assert rec[f"/biases/riekf/velocity/{axis}"]["rows"] == len(biases)
-    # the estimator without landmark covariance gets no ellipsoids
-    assert f"{base}/landmarks/covariance" not in rec
+    # riekf writes each landmark's covariance: one 3-sigma ellipsoid per landmark, axes from its eigenvalues
+    cov = landmarks[list(LANDMARK_COV)].to_numpy()
+    assert np.isfinite(cov).all()
+    xx, xy, xz, yy, yz, zz = cov.T
+    mats = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], 1)
+    half = np.array(rec[f"{base}/landmarks/covariance"]["columns"]["Ellipsoids3D:half_sizes"][0])
+    scale = report["method"]["alignment"].get("scale", 1.0)
+    expected = SIGMAS * scale * np.sqrt(np.clip(np.linalg.eigvalsh(mats), 0, None))
+    np.testing.assert_allclose(np.sort(half, axis=1), expected, rtol=1e-5, atol=1e-9)  # rerun stores float32
 
 
 def test_several_runs_in_one_recording_and_the_default_file(runs):
@@ -102,7 +109,7 @@ def test_landmark_covariance_becomes_ellipsoids(runs, tmp_path):
     cov = {c: 0.0 for c in LANDMARK_COV} | {"cov_xx": variances[0], "cov_yy": variances[1], "cov_zz": variances[2]}
     for name, value in cov.items():
         landmarks[name] = value
-    landmarks.loc[0, list(LANDMARK_COV)] = np.nan  # a landmark without covariance gets no ellipsoid
+    landmarks.loc[0, list(LANDMARK_COV)] = np.nan  # a landmark without covariance (an observer's) gets none
     landmarks.to_parquet(run / "landmarks.parquet")
     res = invoke("view", run, "-o", tmp_path / "cov.rrd")
     assert res.exit_code == 0, res.output
@@ -136,3 +143,14 @@ def test_without_truth_the_estimate_is_shown_alone(runs, tmp_path):
     poses = pd.read_parquet(run / "poses.parquet")
     shown = np.array([p[0] for p in rec["/world/riekf/pose"]["columns"]["Points3D:positions"]])
     np.testing.assert_allclose(shown, poses[["x", "y", "z"]].to_numpy(), rtol=1e-6, atol=1e-6)  # unaligned
+
+
+def test_a_run_without_covariance_columns_has_no_ellipsoids(runs, tmp_path):
+    run = tmp_path / "older"
+    shutil.copytree(runs / "copy", run)
+    landmarks = pd.read_parquet(run / "landmarks.parquet")
+    landmarks.drop(columns=[c for c in landmarks.columns if c.startswith("cov_")]).to_parquet(run / "landmarks.parquet")
+    res = invoke("view", run, "-o", tmp_path / "older.rrd")
+    assert res.exit_code == 0, res.output
+    rec = read_rrd(tmp_path / "older.rrd")
+    assert "/world/riekf/landmarks" in rec and "/world/riekf/landmarks/covariance" not in rec

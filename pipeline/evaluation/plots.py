@@ -21,7 +21,7 @@ MAX_ID_LABELS = 60  # beyond this many landmarks the id labels are unreadable an
 SERIES_BUCKETS = 1000  # time-series buckets per line, about one per pixel (each keeps up to three samples)
 PATH_POINTS = 10_000  # vertices of a drawn trajectory (overlapping laps of a long log stay smooth)
 SCATTER_POINTS = 3000  # markers of a scatter
-MAX_LOG_GROUPS = 24  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
+MAX_LOG_GROUPS = 12  # logs drawn side by side in a distribution figure (more are unreadable; the tables have all)
 AXES = ("x", "y", "z")
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -458,7 +458,8 @@ def plot_distributions(
     estimators = list(values)
     every_log = list(dict.fromkeys(log for per in values.values() for log in per))
     logs = every_log[:MAX_LOG_GROUPS]
-    fig, axes = _figure(2, 1, (max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))), 7.0), bottom=1.0, gap=0.8)
+    width = min(16.0, max(6.0, 1.2 + 0.5 * len(logs) * max(1, len(estimators))))  # half an inch a group, capped
+    fig, axes = _figure(2, 1, (width, 7.0), bottom=1.0, gap=0.8)
     ax_e, ax_l = axes[0, 0], axes[1, 0]
     colors = [f"C{k % 10}" for k in range(len(estimators))]
     width = 0.8 / max(1, len(estimators))
@@ -515,12 +516,11 @@ def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated traject
 
 
 def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, path_xyz: np.ndarray) -> Path:
-    """The landmark map from above, each landmark with its id, coloured by how often it was seen, over the
-    path; beside it the number of observations per id."""
+    """The landmark map from above over the path, each landmark labelled ``id (times seen)`` and coloured by how
+    often it was seen."""
     n = len(ids)
-    fig, axes = _figure(1, 2, (13.0, 6.0), gap=0.0, left=0.85, right=0.3)
-    ax, bars = axes[0, 0], axes[0, 1]
-    fig.subplots_adjust(wspace=0.3)
+    fig, axes = _figure(1, 1, (8.5, 7.5), right=0.2)
+    ax = axes[0, 0]
     if len(path_xyz):
         ax.plot(path_xyz[:, 0], path_xyz[:, 1], "-", color="0.7", lw=0.8, label="estimated path")
     if n:
@@ -529,23 +529,16 @@ def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, pat
         if n <= MAX_ID_LABELS:
             for i, p, k in zip(ids, xyz, seen):
                 ax.annotate(f"{int(i)} ({int(k)})", (p[0], p[1]), xytext=(4, 4), textcoords="offset points", fontsize=7)
-        x = np.arange(n)
-        bars.bar(x, seen, color="tab:purple")
-        if n <= MAX_ID_LABELS:
-            bars.set_xticks(x, [str(int(i)) for i in ids], rotation=90 if n > 20 else 0, fontsize=7)
     else:
         ax.text(0.5, 0.5, "no landmarks in the map", ha="center", va="center", transform=ax.transAxes)
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"Landmark map ({n} landmarks): id (times seen)")
+    seen_text = f", seen {int(np.min(seen))} to {int(np.max(seen))} times" if n else ""
+    ax.set_title(f"Landmark map: {n} landmarks{seen_text}; labels: id (times seen)")
     ax.grid(True, alpha=0.3)
     if len(path_xyz):
         ax.legend(loc="upper right", fontsize=8)
-    bars.set_xlabel("landmark id")
-    bars.set_ylabel("observations")
-    bars.set_title("How often each landmark was seen")
-    bars.grid(True, axis="y", alpha=0.3)
     return _save(fig, path)
 
 

@@ -133,7 +133,13 @@ def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
 def has_truth(meta: dict[str, Any]) -> bool:
     """Whether the run named a truth (a topic of its log or a trajectory file) that a report can use again."""
     inp = meta.get("input") or {}
-    return bool(inp.get("truth_file") or (inp.get("topics") or {}).get("truth"))
+    return bool(inp.get("truth_file") or (inp.get("topics") or {}).get("truth") or _earlier_truth(meta))
+
+
+def _earlier_truth(meta: dict[str, Any]) -> str | None:
+    """The truth an earlier ``slamobs report --truth`` used (a topic, TF edge or file), if any."""
+    earlier = meta.get("report_truth")
+    return str(earlier["name"]) if isinstance(earlier, dict) and earlier.get("name") else None
 
 
 def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
@@ -146,6 +152,8 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     notes: list[str] = []
     have_log = log is not None and log.exists()
 
+    if source is None and not inp.get("truth_file") and not (inp.get("topics") or {}).get("truth"):
+        source = _earlier_truth(meta)  # a run without truth reported on with --truth: that truth again
     given = inp.get("truth_file") if source is None else None  # the run's truth was a file: read it again
     if given is None and source is None and Path((inp.get("topics") or {}).get("truth") or "\0").is_file():
         given = {"path": inp["topics"]["truth"]}  # a run from before run.json named its truth file

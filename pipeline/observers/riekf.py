@@ -82,9 +82,13 @@ RECOVER_SHARE = 0.5
 CHI2_MEDIAN_3 = 2.366
 MIN_STEP, MAX_STEP = 4.0, 1e4
 MAX_FAILING = 4
+#: Share of the window's innovations common to a frame above which a failing window is put down to the motion
+#: (a pose error moves all of a frame's innovations alike), not to the detections (``_common_share``).
+COMMON_SHARE = 4.0
 MAX_SIGMA_SHARE = 0.25
 #: What a recovery did, by failing windows in a row (1, 2, 3 and more).
 RECOVERY_ACTIONS = {
+    0: "the motion noise variances and the covariance (the frames' innovations moved together: a pose error)",
     1: "the detection variances",
     2: "every noise variance and the covariance",
     3: "every noise variance and the covariance, re-initialising the landmarks that failed,",
@@ -377,6 +381,8 @@ def _update(
     gate,
     scale,
     win_d2,
+    win_z,
+    win_f,
     gated_lm,
     reinit,
 ):
@@ -407,6 +413,9 @@ def _update(
         d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
+            win_f[ns[_WIN_N]] = a0
+            for c in range(3):
+                win_z[ns[_WIN_N], c] = zi[c]
         ns[_WIN_N] += 1
         if d2 > gate:
             ns[_GATED] += 1
@@ -511,7 +520,34 @@ def _reset_landmark(cov, d, o, sigma2):
 
 
 @njit(cache=True)
-def _window_check(t, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale):
+def _common_share(n, win_z, win_f):
+    """How much of the window's innovations the frames share: ``Σ n_f |z̄_f|²`` over ``Σ |z_i − z̄_f|² n_f/(n_f−1)``
+    over frames with two or more detections (about 1 for independent detection errors; large when a pose error
+    moves all of a frame's innovations alike). 1 without such frames."""
+    common, spread = 0.0, 0.0
+    a = 0
+    while a < n:
+        b = a
+        while b < n and win_f[b] == win_f[a]:
+            b += 1
+        m = b - a
+        if m >= 2:
+            mean = np.zeros(3)
+            for k in range(a, b):
+                mean += win_z[k]
+            mean /= m
+            dev = 0.0
+            for k in range(a, b):
+                for c in range(3):
+                    dev += (win_z[k, c] - mean[c]) ** 2
+            common += m * (mean[0] ** 2 + mean[1] ** 2 + mean[2] ** 2)
+            spread += dev * m / (m - 1)
+        a = b
+    return common / spread if spread > 0.0 else 1.0
+
+
+@njit(cache=True)
+def _window_check(t, d, cov, fs, ns, win_d2, win_z, win_f, gated_lm, reinit, slot_of, rec_log, max_scale):
     """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
     docstring, "Recovery"), or give up; the window starts again. True when a noise factor changed."""
     n, gated = ns[_WIN_N], ns[_WIN_GATED]
@@ -520,25 +556,31 @@ def _window_check(t, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log,
     if gated <= RECOVER_SHARE * n:
         ns[_FAILING] = 0
     elif ns[_LOST] == 0:
-        step = min(max(np.median(win_d2[: min(n, win_d2.shape[0])]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
-        if ns[_FAILING] >= MAX_FAILING or fs[_SCALE] * fs[_DSCALE] * step > max_scale:
+        m = min(n, win_d2.shape[0])
+        step = min(max(np.median(win_d2[:m]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
+        failing = ns[_FAILING] + 1
+        # first: the detections, or, when the frames' innovations move together, the motion (a pose error);
+        # again: both; from the third on the landmarks that failed also start afresh
+        motion = failing >= 2 or _common_share(m, win_z, win_f) > COMMON_SHARE
+        detections = failing >= 2 or not motion
+        det = fs[_DSCALE] * step if detections else fs[_DSCALE]
+        if ns[_FAILING] >= MAX_FAILING or det > max_scale:
             ns[_LOST] = 1
             fs[_LOST_T] = t
         else:
-            ns[_FAILING] += 1
-            if ns[_FAILING] == 1:  # first: the detections are noisier than assumed
-                fs[_DSCALE] *= step
-            else:  # again: the whole noise model, and the covariance with it (the estimate may be lost)
+            ns[_FAILING] = failing
+            fs[_DSCALE] = det
+            if motion:
                 fs[_SCALE] *= step
                 cov[:d, :d] *= step
-            if ns[_FAILING] >= 3:  # and again: the landmarks that failed start afresh
+            if failing >= 3:
                 for i in range(gated_lm.shape[0]):
                     if gated_lm[i] and slot_of[i] >= 0:
                         reinit[i] = True
             r = ns[_RECOVERIES]
             if r < rec_log.shape[0]:
-                rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_SCALE] * fs[_DSCALE]
-                rec_log[r, 3] = min(ns[_FAILING], 3)
+                rec_log[r, 0], rec_log[r, 1], rec_log[r, 2] = t, step, fs[_DSCALE]
+                rec_log[r, 3] = 3 if failing >= 3 else 2 if detections and motion else 1 if detections else 0
             ns[_RECOVERIES] += 1
             changed = True
     gated_lm[:] = False
@@ -585,6 +627,8 @@ def _advance(
     pht,
     smat,
     win_d2,
+    win_z,
+    win_f,
     gated_lm,
     reinit,
     rec_log,
@@ -602,7 +646,8 @@ def _advance(
     events when it is the sample count) or ``budget`` work units are spent; returns the number of rows recorded.
     ``cov_out`` (rows, 12, 12) receives the pose-and-bias covariance at each recorded row when it has rows
     (tests), else nothing; ``pose_out`` (rows, 6, 6) the pose covariance in the written convention
-    (:func:`_pose_covariance`). The noise enters multiplied by the recovery's variance factor ``fs[_SCALE]``."""
+    (:func:`_pose_covariance`). The noise enters multiplied by the recovery's variance factors (``fs[_SCALE]``
+    the motion noise, ``fs[_DSCALE]`` the detections')."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
     t, acc_dt = fs[_T], fs[_ACC_DT]
@@ -614,7 +659,7 @@ def _advance(
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
-    scale, det_scale = fs[_SCALE], fs[_SCALE] * fs[_DSCALE]
+    scale, det_scale = fs[_SCALE], fs[_DSCALE]
     qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
@@ -676,13 +721,15 @@ def _advance(
                 gate,
                 det_scale,
                 win_d2,
+                win_z,
+                win_f,
                 gated_lm,
                 reinit,
             )
             if ns[_WIN_N] >= WINDOW and _window_check(
-                t_next, d, cov, fs, ns, win_d2, gated_lm, reinit, slot_of, rec_log, max_scale
+                t_next, d, cov, fs, ns, win_d2, win_z, win_f, gated_lm, reinit, slot_of, rec_log, max_scale
             ):
-                scale, det_scale = fs[_SCALE], fs[_SCALE] * fs[_DSCALE]
+                scale, det_scale = fs[_SCALE], fs[_DSCALE]
                 qs_om, qs_v = q_om * scale, q_v * scale
                 qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
             fs[_MEAS_T] = t_next
@@ -735,6 +782,8 @@ class _State(KernelState):
         self.pht = np.zeros((dim, k3))
         self.smat = np.zeros((k3, k3))
         self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
+        self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
+        self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
@@ -761,6 +810,8 @@ class _State(KernelState):
             self.pht,
             self.smat,
             self.win_d2,
+            self.win_z,
+            self.win_f,
             self.gated_lm,
             self.reinit,
             self.rec_log,
@@ -915,7 +966,7 @@ class RiEKF(Stepper):
             "recoveries": n,
             "recovery_log": log,
             "noise_factor": float(fs[_SCALE]),
-            "detection_noise_factor": float(fs[_SCALE] * fs[_DSCALE]),
+            "detection_noise_factor": float(fs[_DSCALE]),
             "landmarks_reinitialised": int(ns[_REINIT]),
             "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
         }

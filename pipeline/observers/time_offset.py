@@ -14,8 +14,9 @@ of the squared residuals over a grid of shifts (``MAX_OFFSET_S`` either side, ``
 
 It is applied (the detection stamps moved by it before the estimator runs) only when it is reliable: at least
 ``MIN_PAIRS`` pairs, the minimum inside the grid, more than ``MIN_SIGMAS`` standard errors and at least
-``MIN_APPLY_S`` away from zero, and the cost at zero shift at least ``MIN_GAIN`` times the minimum. Otherwise it
-is only reported.
+``MIN_APPLY_S`` away from zero, the cost at zero shift at least ``MIN_GAIN`` times the minimum, and the two halves
+of the log (pairs split at the median time) giving estimates within ``HALVES_SIGMAS`` combined standard errors
+of each other (a constant offset shows in both). Otherwise it is only reported.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ MAX_PAIRS = 2000
 MIN_SIGMAS = 5.0
 MIN_APPLY_S = 0.005
 MIN_GAIN = 1.2
+HALVES_SIGMAS = 3.0
 #: Bias step of the residuals' numerical Jacobian (rad/s, m/s).
 BIAS_STEP = 1e-4
 
@@ -106,6 +108,13 @@ class _Consistency:
         world_b = p_b + np.einsum("kij,kj->ki", r_b, self.y[self.b]) - p_a
         return self.y[self.a] - np.einsum("kji,kj->ki", r_a, world_b)
 
+    def subset(self, keep: np.ndarray) -> _Consistency:
+        """The same consistency over the pairs ``keep`` (a mask) only."""
+        out = object.__new__(_Consistency)
+        out.__dict__.update(self.__dict__)
+        out.a, out.b, out.jac, out.jtj = self.a[keep], self.b[keep], self.jac[keep], self.jtj[keep]
+        return out
+
     def cost(self, shift: float) -> float:
         """Trimmed mean squared residual after the bias correction that fits the pairs best (least squares on
         all pairs, then again on the ``TRIM`` share with the smallest residuals)."""
@@ -120,6 +129,32 @@ class _Consistency:
         return float(np.mean(d2[keep]))
 
 
+def _search(c: _Consistency) -> tuple[float, float, float]:
+    """The shift of least cost on the grid (coarse, then fine around the best), its standard error from the
+    curvature there, and the cost at zero over the cost there."""
+    coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
+    best = float(coarse[int(np.argmin([c.cost(s) for s in coarse]))])
+    fine = best + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
+    fine_costs = np.array([c.cost(s) for s in fine])
+    j = int(np.argmin(fine_costs))
+    shift, c_min = float(fine[j]), float(fine_costs[j])
+    curv = np.polyfit(fine - shift, fine_costs, 2)[0]  # cost ≈ c_min + curv (δ − shift)²
+    sigma = float(np.sqrt(c_min / (c.a.shape[0] * curv))) if curv > 0 else np.inf
+    return shift, sigma, c.cost(0.0) / max(c_min, 1e-300)
+
+
+def _halves_disagree(c: _Consistency, stream) -> str | None:
+    """Why the two halves of the log (the pairs by the time of their first detection) do not give one offset
+    within ``HALVES_SIGMAS`` combined standard errors, or None: a constant offset shows in both."""
+    t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))[c.a]
+    first = t < np.median(t)
+    found = [_search(c.subset(part)) for part in (first, ~first)]
+    (s1, e1, _), (s2, e2, _) = found
+    if abs(s1 - s2) > HALVES_SIGMAS * np.hypot(e1, e2):
+        return f"the log's halves disagree ({s1:+.4f} ± {e1:.2g} s and {s2:+.4f} ± {e2:.2g} s)"
+    return None
+
+
 def estimate(stream, bias: np.ndarray | None = None) -> dict:
     """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
     reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's)."""
@@ -128,16 +163,7 @@ def estimate(stream, bias: np.ndarray | None = None) -> dict:
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False}
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
-    coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
-    costs = np.array([c.cost(s) for s in coarse])
-    best = float(coarse[int(np.argmin(costs))])
-    fine = best + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
-    fine_costs = np.array([c.cost(s) for s in fine])
-    j = int(np.argmin(fine_costs))
-    shift, c_min = float(fine[j]), float(fine_costs[j])
-    curv = np.polyfit(fine - shift, fine_costs, 2)[0]  # cost ≈ c_min + curv (δ − shift)²
-    sigma = float(np.sqrt(c_min / (n * curv))) if curv > 0 else np.inf
-    gain = c.cost(0.0) / max(c_min, 1e-300)
+    shift, sigma, gain = _search(c)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     why = None
     if abs(shift) >= MAX_OFFSET_S - COARSE_S:
@@ -148,6 +174,8 @@ def estimate(stream, bias: np.ndarray | None = None) -> dict:
         why = f"below {MIN_APPLY_S} s"
     elif gain < MIN_GAIN:
         why = f"the detections fit it only {gain:.3g}x better than no shift"
+    else:  # only an offset about to be applied pays for the check of the halves
+        why = _halves_disagree(c, stream)
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
 

@@ -10,7 +10,7 @@ numbers for the same run.
 
 from __future__ import annotations
 
-import json
+import os
 from pathlib import Path
 
 import pandas as pd
@@ -18,8 +18,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, meta_dir, read_summary
-from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.run import headline_metrics
+from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.stored_runs import run_dir
 
 #: The metrics summarised, in table order: column -> label (lower is better for every one).
@@ -44,7 +43,7 @@ REPORT_JSON = "report.json"
 
 def gather_runs(inputs: list[Path]) -> pd.DataFrame:
     """One row per run of every input (:data:`RUN_COLUMNS`); missing metrics are NaN, never zero."""
-    frames = [read_input(Path(p)) for p in inputs]
+    frames = [f for f in (read_input(Path(p)) for p in inputs) if len(f)]
     runs = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(columns=RUN_COLUMNS)
     if runs.empty:
         raise InputError(inputs[0] if inputs else Path("."), "no runs found in the inputs")
@@ -80,29 +79,22 @@ def read_dataset(out: Path) -> pd.DataFrame:
             schema = pq.read_schema(out / SUMMARY)
             table = pq.read_table(out / SUMMARY, columns=[c for c in wanted if c in schema.names])
         except (pa.ArrowException, OSError) as err:
-            raise InputError(out / SUMMARY, f"unreadable batch summary ({' '.join(str(err).split())})") from None
+            raise InputError(out / SUMMARY, f"unreadable batch summary ({one_line(err)})") from None
+    if table.num_rows == 0:
+        return pd.DataFrame(columns=RUN_COLUMNS)
     frame = table.select([c for c in wanted if c in table.column_names]).to_pandas()
     frame = frame.rename(columns={"observer": "estimator", RUN_TIME_STAGE: "run_time_s"})
-    frame["source"] = [str(run_dir(out.resolve(), rid)) for rid in frame["run_id"]]
+    frame["source"] = str(run_dir(out.resolve(), "")) + os.sep + frame["run_id"].astype(str)  # one string op
     return frame.reindex(columns=RUN_COLUMNS).astype({m: "float64" for m in METRICS})
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as err:
-        raise InputError(path, f"cannot read: {err.strerror}") from None
-    except ValueError as err:
-        raise InputError(path, f"not valid JSON ({err})") from None
-    if not isinstance(doc, dict):
-        raise InputError(path, "not a JSON object")
-    return doc
 
 
 def read_run_dir(path: Path) -> dict:
     """One run directory (of ``slamobs run``, ``compare`` or a batch's ``runs/<id>``) as a runs-table row."""
-    meta = _read_json(path / RUN_JSON)
-    report = _read_json(path / REPORT_JSON) if (path / REPORT_JSON).is_file() else None
+    from slamobs.pipeline.evaluation.run_dir import read_json
+    from slamobs.pipeline.run import headline_metrics  # here: a batch dataset alone never imports the run path
+
+    meta = read_json(path / RUN_JSON)
+    report = read_json(path / REPORT_JSON) if (path / REPORT_JSON).is_file() else None
     observer = meta.get("observer")
     name = observer.get("name") if isinstance(observer, dict) else observer
     log = (meta.get("input") or {}).get("path") if isinstance(meta.get("input"), dict) else None
@@ -124,7 +116,7 @@ def read_comparison(path: Path) -> pd.DataFrame:
     try:
         table = pq.read_table(path / COMPARISON, columns=["observer", "status"]).to_pylist()
     except (pa.ArrowException, OSError) as err:
-        raise InputError(path / COMPARISON, f"unreadable comparison ({' '.join(str(err).split())})") from None
+        raise InputError(path / COMPARISON, f"unreadable comparison ({one_line(err)})") from None
     rows, log = [], None
     for row in table:
         if row["status"] == "ok":

@@ -8,8 +8,9 @@ Markdown, ``--`` in LaTeX and an empty field in CSV: never a zero.
 
 from __future__ import annotations
 
-import math
+import re
 
+import numpy as np
 import pandas as pd
 
 from slamobs.pipeline.stats.compute import STATS
@@ -20,17 +21,13 @@ MISSING = {"md": "–", "tex": "--"}
 NUMBER = "{:.4g}"
 
 
-def number(v, fmt: str) -> str:
-    """A value as text; NaN and None as the format's missing mark."""
-    if v is None or (isinstance(v, float) and math.isnan(v)):
-        return MISSING[fmt]
-    return NUMBER.format(v)
+TEX_SPECIAL = re.compile(r"[\\_%&#$]")
+TEX_ESCAPES = {"\\": r"\textbackslash{}", "_": r"\_", "%": r"\%", "&": r"\&", "#": r"\#", "$": r"\$"}
 
 
 def tex_escape(text: str) -> str:
-    for a, b in (("\\", r"\textbackslash{}"), ("_", r"\_"), ("%", r"\%"), ("&", r"\&"), ("#", r"\#"), ("$", r"\$")):
-        text = text.replace(a, b)
-    return text
+    """LaTeX's special characters in a log or estimator name made literal."""
+    return TEX_SPECIAL.sub(lambda m: TEX_ESCAPES[m.group(0)], text)
 
 
 def cell_texts(stats: pd.DataFrame, fmt: str) -> pd.DataFrame:
@@ -39,7 +36,10 @@ def cell_texts(stats: pd.DataFrame, fmt: str) -> pd.DataFrame:
     texts["runs"] = stats["runs"].astype(int).astype(str)
     texts["n"] = stats["n"].astype(int).astype(str)
     for s in STATS[1:]:
-        texts[s] = [number(v, fmt) for v in stats[s].to_numpy(dtype=float).tolist()]
+        values = stats[s].to_numpy(dtype=float)
+        text = np.array([NUMBER.format(v) for v in values.tolist()], dtype=object)
+        text[np.isnan(values)] = MISSING[fmt]
+        texts[s] = text
     rpg = texts["mean"] + ", " + texts["median"] + " (" + texts["min"] + ", " + texts["max"] + ")"
     texts["rpg"] = rpg.where(stats["n"].to_numpy() > 0, MISSING[fmt])
     return texts
@@ -107,7 +107,7 @@ def _tex_table(caption: str, head: list[str], rows: list[list[str]]) -> str:
     lines = [r"\begin{table}[t]", r"\centering", rf"\caption{{{tex_escape(caption)}}}", rf"\begin{{tabular}}{{{cols}}}"]
     lines += [r"\toprule", " & ".join(tex_escape(h) for h in head) + r" \\", r"\midrule"]
     for row in rows:
-        cells = [c if c.startswith(r"\textbf") else tex_escape(c) for c in row]
+        cells = [c if c.startswith(r"\textbf") else tex_escape(c) for c in row[:2]] + row[2:]  # names, then numbers
         lines.append(" & ".join(cells) + r" \\")
     return "\n".join([*lines, r"\bottomrule", r"\end{tabular}", r"\end{table}"]) + "\n"
 
