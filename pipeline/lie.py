@@ -426,7 +426,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple
 def rotate_covariance(cov: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Covariances (N, d, d) of error vectors that turn by ``r`` (d × d; a pose error ``(δθ, δp)`` turns by
     ``diag(R, R)``): ``r Σ rᵀ`` each."""
-    return np.einsum("ij,njk,lk->nil", r, cov, r)
+    return np.matmul(np.matmul(r, cov), r.T)
 
 
 def rots_to_rotvecs(r: np.ndarray) -> np.ndarray:

@@ -300,9 +300,11 @@ class TableWriter:
             writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
 
     def _values(self, column: np.ndarray, field: pa.Field) -> np.ndarray:
-        if pa.types.is_float64(field.type) and self.float_bits < 52:
-            finest = LENGTH_STEP_EXP if (field.metadata or {}).get(b"unit") == b"m" else None
-            return round_mantissa(column, self.float_bits, finest)  # contiguous, as a copy
+        meta = field.metadata or {}
+        bits = min(self.float_bits, int(meta.get(b"float_bits", 52)))  # a schema may keep fewer (uncertainty)
+        if pa.types.is_float64(field.type) and bits < 52:
+            finest = LENGTH_STEP_EXP if meta.get(b"unit") == b"m" else None
+            return round_mantissa(column, bits, finest)  # contiguous, as a copy
         return np.ascontiguousarray(column)
 
     def close(self, metadata: dict) -> list[Path]:

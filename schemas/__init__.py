@@ -32,7 +32,12 @@ def arrow_schema(name: str):
             f["name"],
             getattr(pa, f["type"])(),
             nullable=f.get("nullable", False),
-            metadata={"unit": f["unit"], "description": f["description"]},
+            metadata={
+                "unit": f["unit"],
+                "description": f["description"],
+                # the uncertainty columns: significant bits kept at most (output.float_bits applies below it)
+                **({"float_bits": str(f["float_bits"])} if "float_bits" in f else {}),
+            },
         )
         for f in spec["fields"]
     ]

@@ -13,7 +13,7 @@ import pytest
 
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.evaluation.metrics import chi2_quantile, nees_bounds
-from slamobs.pipeline.evaluation.sections import nees_values
+from slamobs.pipeline.evaluation.trajectory_evaluation import nees_values
 from slamobs.pipeline.lie import rots_to_rotvecs, skew
 from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
@@ -148,13 +148,13 @@ def test_reference_estimators_write_positive_definite_covariances(runs, name):
     poses = pq.read_table(runs[name] / "poses.parquet")
     cov = _covariances(poses, POSE_COV, 6)
     sd = np.stack([poses.column(f"sigma_{a}").to_numpy() for a in ("rx", "ry", "rz", "x", "y", "z")], axis=1)
-    assert np.allclose(sd, np.sqrt(np.einsum("nii->ni", cov)), rtol=1e-6)
+    assert np.allclose(sd, np.sqrt(np.einsum("nii->ni", cov)), rtol=3e-5)  # both stored on 16 bits (schema float_bits)
     eig = np.linalg.eigvalsh(cov)[:, 0]
     assert np.mean(eig > 0) > 0.99 and eig.min() > -1e-12  # the gauge (start or anchor) is (nearly) zero
     lms = pq.read_table(runs[name] / "landmarks.parquet")
     lcov = _covariances(lms, LM_COV, 3)
     assert np.linalg.eigvalsh(lcov)[:, 0].min() > 0.0
-    assert np.allclose(lms.column("sigma").to_numpy(), np.sqrt(np.einsum("nii->n", lcov) / 3), rtol=1e-6)
+    assert np.allclose(lms.column("sigma").to_numpy(), np.sqrt(np.einsum("nii->n", lcov) / 3), rtol=3e-5)
 
 
 def test_observers_leave_the_uncertainty_columns_null(runs):
@@ -206,7 +206,11 @@ def test_output_frame_turns_covariances_with_the_estimate(filter_runs):
 def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     """The smoother computes marginals at one keyframe per second (and the last); rows between are linear in
     time: exact at those keyframes, the mean half-way, positive definite throughout."""
-    from slamobs.pipeline.smoother.estimator import covariance_keyframes, interpolate_covariance
+    from slamobs.pipeline.smoother.estimator import (
+        COVARIANCE_MARGINALS,
+        covariance_keyframes,
+        interpolate_covariance,
+    )
 
     kf_t = np.arange(100) / 20.0  # 0 .. 4.95 s
     picked = covariance_keyframes(kf_t)
@@ -219,3 +223,5 @@ def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     assert np.allclose(interpolate_covariance(t, cov, np.array([1.5]))[0], 0.5 * (cov[1] + cov[2]))
     rows = interpolate_covariance(t, cov, np.linspace(-1.0, 6.0, 50))
     assert np.linalg.eigvalsh(rows)[:, 0].min() > 0.0
+    hour = covariance_keyframes(np.arange(72_000) / 20.0)  # an hour at 20 Hz: the count is capped, spread evenly
+    assert hour.size <= COVARIANCE_MARGINALS + 2 and np.ptp(np.diff(hour)) <= 1

@@ -60,18 +60,18 @@ def plot_jobs(
 def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluation) -> list:
     """The 3σ figure and the NEES figure when the estimate has a covariance (riekf, batch; none otherwise)."""
     from slamobs.pipeline.evaluation import plots
-    from slamobs.pipeline.evaluation.sections import nees_values, nees_windows
+    from slamobs.pipeline.evaluation.sections import nees_windows
 
     u = ev.uncertainty
     if section is None or u is None:
         return []
     t_s = (u.t_ns - int(ev.estimate.t_ns[0])) / 1e9
-    sigma = np.sqrt(np.clip(np.einsum("nii->ni", u.cov), 0.0, None))
+    variance = np.c_[np.einsum("nii->ni", u.cov_attitude), np.einsum("nii->ni", u.cov_position)]
+    sigma = np.sqrt(np.clip(variance, 0.0, None))
     keep = plots.envelope(len(t_s), np.abs(u.error) - 3.0 * sigma)
-    label = ALIGN_LABELS[ev.alignment.kind]
     nees = {}
-    for part, sl in (("position", slice(3, 6)), ("attitude", slice(0, 3))):
-        mid, mean, counts = nees_windows(nees_values(u.error[:, sl], u.cov[:, sl, sl]), t_s - t_s[0])
+    for part, values in (("position", u.nees_position), ("attitude", u.nees_attitude)):
+        mid, mean, counts = nees_windows(values, t_s - t_s[0])
         nees[part] = (mid + t_s[0], mean, counts)
     return [
         (
@@ -81,7 +81,7 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
                 t_s=t_s[keep],
                 error=u.error[keep],
                 sigma=sigma[keep],
-                title=f"Error and ±3σ of the estimate's covariance after {label} alignment (truth frame)",
+                title="Error and ±3σ of the estimate's covariance (truth frame, the gauge pose put on the truth)",
             ),
         ),
         (

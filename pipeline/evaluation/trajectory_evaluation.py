@@ -35,6 +35,9 @@ from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
 CONVERGENCE_THRESHOLD_M = 0.1
+#: A covariance block with a standard deviation below this (m or rad) is the gauge (riekf's start, batch's anchor
+#: keyframe): held fixed by definition, it has no NEES.
+GAUGE_SIGMA = 1e-5
 ALIGN_TYPES = KINDS
 
 
@@ -103,7 +106,7 @@ class TrajectoryEvaluation:
     offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
-    #: (N, 6, 6) pose covariance of each estimate row in time order (``pose_covariance``), None without one
+    #: (N, 21) pose covariance entries of each estimate row in time order (``pose_covariance``), None without one
     covariance: np.ndarray | None = None
 
     @cached_property
@@ -173,54 +176,101 @@ def evaluate_trajectory(
     )
 
 
-def pose_covariance(poses: Table) -> np.ndarray | None:
-    """The poses table's covariance columns (``cov_<a>_<b>``, written by the reference estimators) as (N, 6, 6) in
-    time order; None when it has none (the observers' are null)."""
+def _covariance_entries() -> tuple[list[tuple[int, int]], list[str]]:
+    """The 6×6 pose covariance's upper triangle: index pairs and the poses table's column names."""
     from slamobs.pipeline.writers import POSE_AXES
 
     n = len(POSE_AXES)
     pairs = [(i, j) for i in range(n) for j in range(i, n)]
-    names = [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i, j in pairs]
+    return pairs, [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i, j in pairs]
+
+
+def pose_covariance(poses: Table) -> np.ndarray | None:
+    """The poses table's covariance columns (``cov_<a>_<b>``, written by the reference estimators) as (N, 21) in
+    time order (the upper triangle: :func:`expand_covariance` makes the matrices of the rows asked for); None when
+    it has none (the observers' are null)."""
+    _, names = _covariance_entries()
     if not set(names) <= set(column_names(poses)):
         return None
-    rows = time_order(column(poses, "t_ns", np.int64))
-    values = columns(poses, names, np.float64)[rows]
-    if not np.isfinite(values).any():
-        return None
-    cov = np.empty((values.shape[0], n, n))
-    for k, (i, j) in enumerate(pairs):
-        cov[:, i, j] = cov[:, j, i] = values[:, k]
+    values = columns(poses, names, np.float64)[time_order(column(poses, "t_ns", np.int64))]
+    return values if np.isfinite(values).any() else None
+
+
+def expand_covariance(entries: np.ndarray, block: int | None = None) -> np.ndarray:
+    """(N, 6, 6) symmetric matrices from (N, 21) upper-triangle entries, or their diagonal 3×3 block from row and
+    column ``block`` (0: attitude, 3: position)."""
+    pairs = np.array(_covariance_entries()[0])
+    n, lo = (6, 0) if block is None else (3, block)
+    keep = np.flatnonzero((pairs >= lo).all(axis=1) & (pairs < lo + n).all(axis=1))
+    i, j = (pairs[keep] - lo).T
+    cov = np.empty((entries.shape[0], n, n))
+    cov[:, i, j] = entries[:, keep]
+    cov[:, j, i] = entries[:, keep]
     return cov
+
+
+def nees_values(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """``eᵀ Σ⁻¹ e`` per row (N, d) / (N, d, d); NaN where Σ is the gauge (a standard deviation below
+    ``GAUGE_SIGMA``), not finite or singular."""
+    ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(error).all(axis=1)
+    ok &= np.einsum("nii->ni", np.where(ok[:, None, None], cov, 0.0)).min(axis=1) > GAUGE_SIGMA**2
+    out = np.full(error.shape[0], np.nan)
+    if ok.any():
+        try:
+            w = np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0]
+        except np.linalg.LinAlgError:  # a singular block beyond the gauge: the positive definite ones only
+            ok[ok] = np.linalg.eigvalsh(cov[ok])[:, 0] > 0.0
+            w = np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0]
+        out[ok] = np.einsum("ni,ni->n", error[ok], w)
+    return out
 
 
 @dataclass(frozen=True)
 class PairedUncertainty:
     """Per associated pair: the estimate's error ``(δθ, δp)`` (``R_est = Exp(δθ) R_truth``, ``p_est = p_truth +
-    δp``, after the report's alignment, in the truth frame) and its covariance turned into that frame."""
+    δp``, in the truth frame, the estimate moved rigidly so that its gauge pose lies on the truth) and its
+    covariance turned into that frame."""
 
     t_ns: np.ndarray  # (N,) estimate stamps of the pairs
     error: np.ndarray  # (N, 6) rad, m
-    cov: np.ndarray  # (N, 6, 6)
+    cov_attitude: np.ndarray  # (N, 3, 3) of δθ (the diagonal blocks only: all the report uses)
+    cov_position: np.ndarray  # (N, 3, 3) of δp
+    gauge_t_ns: int  # the estimate row whose pose was put on the truth
+    nees_position: np.ndarray  # (N,) NaN at the gauge
+    nees_attitude: np.ndarray
 
 
 def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
-    """The errors and covariances of the pairs: the alignment ``p ← s R p + t`` turns both error parts by ``R``
-    and scales the position part by ``s``."""
+    """The errors and covariances of the pairs. An estimator's covariance is relative to its gauge, the pose it
+    holds fixed (riekf's start, batch's anchor keyframe: the estimate row with the smallest covariance inside
+    the truth's span), so the estimate is moved by the rigid transform that puts that pose on the truth
+    interpolated at its stamp (as evo's origin alignment does with the first pose): the report's least-squares
+    alignment would absorb part of the error the covariance describes. The transform turns both error parts and
+    the covariance by its rotation."""
     from slamobs.pipeline.blocks import row_blocks
-    from slamobs.pipeline.lie import rots_to_rotvecs
+    from slamobs.pipeline.evaluation.sync import interpolate_poses
+    from slamobs.pipeline.lie import quats_to_rots, rotate_covariance, rots_to_rotvecs
 
-    p, al = ev.paired, ev.alignment
-    idx = p.idx_est if p.idx_est is not None else np.searchsorted(ev.estimate.t_ns, p.t_est_ns)
+    p, est, truth = ev.paired, ev.estimate, ev.truth
+    t_on_truth = np.asarray(est.t_ns, dtype=np.int64) + int(round(ev.applied_offset_s * 1e9))
+    inside = (t_on_truth >= np.min(truth.t_ns)) & (t_on_truth <= np.max(truth.t_ns))
+    diagonal = [k for k, (i, j) in enumerate(_covariance_entries()[0]) if i == j]
+    g = int(np.nanargmin(np.where(inside, ev.covariance[:, diagonal].sum(axis=1), np.inf)))
+    ref_pos, ref_quat = interpolate_poses(truth.t_ns, truth.position, truth.quat_xyzw, t_on_truth[g : g + 1])
+    est_rot = quats_to_rots(np.asarray(est.quat_xyzw[g : g + 1], dtype=np.float64))[0]
+    rot = quats_to_rots(ref_quat)[0] @ est_rot.T
+    trans = ref_pos[0] - rot @ np.asarray(est.position[g], dtype=np.float64)
     error = np.empty((len(p), 6))
-    error[:, 3:] = ev.translation.est_pos_aligned - p.ref_pos
+    error[:, 3:] = p.est_pos @ rot.T + trans - p.ref_pos
     for rows in row_blocks(len(p)):
-        rel = np.matmul(al.rotations(p.est_rot[rows]), np.swapaxes(p.ref_rot[rows], 1, 2))
+        rel = np.matmul(np.matmul(rot, p.est_rot[rows]), np.swapaxes(p.ref_rot[rows], 1, 2))
         error[rows, :3] = rots_to_rotvecs(rel)
-    turn = np.zeros((6, 6))
-    turn[:3, :3], turn[3:, 3:] = al.rot, al.scale * al.rot
-    cov = np.einsum("ij,njk,lk->nil", turn, ev.covariance[idx], turn)
-    t_ns = ev.estimate.t_ns[idx] if p.t_est_ns is None else p.t_est_ns
-    return PairedUncertainty(np.asarray(t_ns, dtype=np.int64), error, cov)
+    idx = p.idx_est if p.idx_est is not None else np.searchsorted(est.t_ns, p.t_est_ns)
+    t_ns = np.asarray(est.t_ns[idx] if p.t_est_ns is None else p.t_est_ns, dtype=np.int64)
+    entries = ev.covariance[idx]
+    att, pos = (rotate_covariance(expand_covariance(entries, block), rot) for block in (0, 3))
+    nees_position, nees_attitude = nees_values(error[:, 3:], pos), nees_values(error[:, :3], att)
+    return PairedUncertainty(t_ns, error, att, pos, int(est.t_ns[g]), nees_position, nees_attitude)
 
 
 #: The clock-offset search runs beside the association and the APE for up to this many estimate and truth

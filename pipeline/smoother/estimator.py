@@ -23,8 +23,12 @@ GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
 #: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
 GAP_SIGMA = (1.0, 100.0)
-#: Seconds between the keyframes whose pose marginals are computed (rows between them are interpolated).
+#: Seconds between the keyframes whose pose marginals are computed (rows between them are interpolated), at
+#: least; on a longer log the spacing grows so that at most ``COVARIANCE_MARGINALS`` are computed: a marginal
+#: costs 0.6 ms on a minute's log but 10 ms on the one-hour benchmark log (its Bayes tree's root holds every
+#: block boundary), where 3,600 of them took 41 CPU seconds.
 COVARIANCE_DT = 1.0
+COVARIANCE_MARGINALS = 600
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
 MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
@@ -65,8 +69,9 @@ class _Segments:
 
 def covariance_keyframes(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> np.ndarray:
     """The keyframes whose marginal covariance the smoother computes: the first at or after each multiple of
-    ``every_s`` from the start, and the last (a marginal costs about 0.6 ms: every keyframe of an hour's log,
-    72,000 at 20 Hz, would cost more than the solve)."""
+    ``every_s`` (longer where the log would need more than ``COVARIANCE_MARGINALS``) from the start, and the
+    last (every keyframe of an hour's log, 72,000 at 20 Hz, would cost far more than the solve)."""
+    every_s = max(every_s, (kf_t[-1] - kf_t[0]) / COVARIANCE_MARGINALS)
     marks = kf_t[0] + every_s * np.arange(int((kf_t[-1] - kf_t[0]) // every_s) + 1)
     return np.unique(np.r_[np.searchsorted(kf_t, marks), kf_t.shape[0] - 1])
 

@@ -355,6 +355,7 @@ def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple
     k, lm_keys, bias_keys = _keys(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
     graph, values = build(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
     lin = graph.linearize(values)
+    del graph, values  # the nonlinear graph is not needed any more: memory for the factorization
     _Motion(problem, bias_keys).linearize(sol.rot, sol.pos, sol.bias, 0.0, lin)
     tree = lin.eliminateMultifrontal(ordering(k, lm_keys, bias_keys))
     del lin
