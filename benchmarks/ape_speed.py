@@ -29,6 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from end_to_end import MIN_APE_FILES_SPEEDUP, load, met  # noqa: E402
+
 EVO_TIMER = r"""
 import json, sys, time, copy
 import numpy as np
@@ -165,6 +168,10 @@ def main() -> None:
         )
     else:
         print("\nset SLAMOBS_EVO_PYTHON to a python with evo==1.38.1 for the evo column")
+    print(f"# floors (issue 27); {load()}")
+    ratio = f"{evo['files_s'] / ours['files_s']:.1f}x evo" if evo else "not measured (no evo)"
+    ok = bool(evo) and evo["files_s"] / ours["files_s"] >= MIN_APE_FILES_SPEEDUP
+    print(f"APE from two TUM files of {args.poses} poses: {ratio} (>= {MIN_APE_FILES_SPEEDUP:g}x): {met(ok)}")
     sys.stdout.flush()
 
 

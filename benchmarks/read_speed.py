@@ -58,6 +58,9 @@ from slamobs.pipeline.readers.roles import TF_TYPES, topics_of
 from slamobs.pipeline.simulate import make_typestore, simulate, write_log
 from slamobs.pipeline.simulate.logwriter import write_raw_log
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from end_to_end import MIN_READ_SPEEDUP, load, met  # noqa: E402
+
 REALDATA = Path(os.environ.get("SLAMOBS_REALDATA") or Path(__file__).resolve().parents[2] / "shared" / "realdata")
 Columns = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, list[str]]]  # topic -> t, rec, values, frames
 
@@ -304,7 +307,7 @@ def main() -> None:
         "inflate bound",
         "identical",
     )
-    rows = []
+    rows, speedups = [], []
     with tempfile.TemporaryDirectory(prefix="read_speed-") as tmp:
         for name, path in _logs(args, Path(tmp)):
             with open_log(path) as reader:
@@ -331,6 +334,7 @@ def main() -> None:
                         one, each = (best, each) if which == "one" else (one, best)
                 t_inflate = _inflate_only(path)
                 inflate = min(inflate, t_inflate) if t_inflate is not None else None
+            speedups.append((name, kind, ref[0] / one[0]))
             rows.append(
                 (
                     name,
@@ -350,6 +354,17 @@ def main() -> None:
     print()
     for row in [header, ["-" * w for w in widths], *rows]:
         print("  ".join(c.rjust(w) if i >= 2 else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))))
+    print_floors(speedups)
+
+
+def print_floors(speedups: list[tuple[str, str, float]]) -> None:
+    """Issue 27: reading is at least ``MIN_READ_SPEEDUP`` x rosbags on every file (each container its line)."""
+    print(f"# floors (issue 27); {load()}")
+    for name, kind, ratio in speedups:
+        print(f"{name} ({kind}): {ratio:.1f}x rosbags (>= {MIN_READ_SPEEDUP:g}x): {met(ratio >= MIN_READ_SPEEDUP)}")
+    for kind in ("ros1", "mcap", "db3"):
+        if not any(kind in k for _, k, _ in speedups):
+            print(f"{kind}: no log read: MISSED")
 
 
 if __name__ == "__main__":

@@ -320,10 +320,14 @@ def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
     return out
 
 
+_U32 = np.array([4], np.int64)  # one leaf of 4 bytes, for _gather
+
+
 def _u32(data: np.ndarray, offsets: np.ndarray, big: bool) -> np.ndarray:
-    """The uint32 at each of ``offsets`` (unaligned) as int64."""
-    words = np.ascontiguousarray(data[offsets[:, None] + np.arange(4)]).view(">u4" if big else "<u4")
-    return words.reshape(-1).astype(np.int64)
+    """The uint32 at each of ``offsets`` (unaligned) as int64, through the compiled :func:`_gather` (a NumPy
+    fancy index of the 4 bytes took a tenth of a db3 read)."""
+    where = np.ascontiguousarray(offsets, np.int64).reshape(-1, 1)
+    return _gather(data, where, _U32, big)[:, 0].astype(np.int64)
 
 
 @njit(cache=True, nogil=True)

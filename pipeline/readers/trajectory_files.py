@@ -102,6 +102,51 @@ def _row_error(
     return InputError(path, f"unreadable {what} file")
 
 
+#: a file with any of these takes the general path: comments, commas, and whitespace other than spaces and
+#: newlines, which Python's ``str.split`` (the error path, :func:`_data_lines`) treats as a separator too
+_NOT_PLAIN_TEXT = "#,\t\x0b\x0c\x1c\x1d\x1e\x1f"
+
+
+def _fast_rows(text: str, min_fields: int, fixed: int | None, numeric_from: int):
+    """:func:`_rows` for the regular case, through pyarrow's CSV reader (numbers parsed by fast_float, correctly
+    rounded like ``float()``): ASCII rows of fields separated by single spaces, every field a finite number, no
+    comments. The first column comes back as float64 (``numeric_from=0``) or as a pyarrow string array whose
+    tokens are all non-empty. ``None`` for anything else: the general path then parses it, or names its fault."""
+    if not text.isascii() or any(c in text for c in _NOT_PLAIN_TEXT):  # str.find: far faster than a regex
+        return None
+    import pyarrow as pa  # lazy, like pandas in _rows
+    import pyarrow.compute as pc
+    from pyarrow import csv
+
+    types = {f"f{k}": pa.float64() for k in range(numeric_from == 1, fixed or min_fields)}
+    try:
+        table = csv.read_csv(
+            pa.py_buffer(text.encode("ascii")),
+            read_options=csv.ReadOptions(autogenerate_column_names=True, block_size=1 << 24),
+            parse_options=csv.ParseOptions(delimiter=" ", quote_char=False),
+            convert_options=csv.ConvertOptions(column_types={"f0": pa.string(), **types}),
+        )
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        return None
+    if table.num_rows == 0 or table.num_columns < min_fields or fixed not in (None, table.num_columns):
+        return None
+    cols = [table.column(k).combine_chunks() for k in range(min_fields)]
+    if any(c.null_count for c in cols[numeric_from == 1 :]):
+        return None
+    values = np.column_stack([c.to_numpy() for c in cols[1:]]) if min_fields > 1 else np.empty((table.num_rows, 0))
+    first = cols[0].to_numpy() if numeric_from == 0 else cols[0]
+    if not np.isfinite(values).all() or (numeric_from == 0 and not np.isfinite(first).all()):
+        return None
+    if numeric_from == 1 and pc.min(pc.utf8_length(first)).as_py() == 0:
+        return None
+    return first, values
+
+
+def _texts(first) -> np.ndarray:
+    """The first column of :func:`_rows` as a NumPy array of str (the fast path gives a pyarrow array)."""
+    return first if isinstance(first, np.ndarray) else np.asarray(first.to_pylist(), dtype=str)
+
+
 def _rows(
     path: Path, min_fields: int, fixed: int | None, what: str, numeric_from: int = 1
 ) -> tuple[np.ndarray, np.ndarray, str]:
@@ -113,6 +158,9 @@ def _rows(
     import pandas as pd  # lazy: pandas takes a noticeable part of a second, and only text trajectories need it
 
     text = _read_text(path, what)
+    fast = _fast_rows(text, min_fields, fixed, numeric_from)
+    if fast is not None:
+        return *fast, text
     try:
         df = pd.read_csv(
             io.StringIO(text.replace(",", " ")),
@@ -193,10 +241,35 @@ def _plain_stamps_ns(tokens: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ns, plain
 
 
+def _arrow_stamps_ns(tokens) -> np.ndarray | None:
+    """Exact nanoseconds of a pyarrow string array of stamps in seconds, through pyarrow's exact decimal parse
+    (scale 9: the unscaled integer is the stamp in ns); ``None`` when any stamp has more than 9 decimals, is not a
+    decimal or is out of int64 range (then :func:`_stamps` parses them one by one, rounding like
+    :func:`stamp_ns`)."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    try:
+        dec = pc.cast(tokens, pa.decimal128(38, 9))
+    except (pa.ArrowInvalid, pa.ArrowNotImplementedError):
+        return None
+    if dec.null_count:
+        return None
+    words = np.frombuffer(dec.buffers()[1], np.int64).reshape(-1, 2)[dec.offset : dec.offset + len(dec)]
+    low, high = words[:, 0], words[:, 1]
+    if not np.array_equal(high, low >> 63):  # the 128-bit value does not fit in int64
+        return None
+    return low.copy()
+
+
 def _stamps(path: Path, tokens: np.ndarray) -> np.ndarray:
     """Exact nanoseconds of decimal-second stamps: vectorised for plain decimals with up to 9 decimals, through
     :func:`stamp_ns` for the rest (signs, exponents, more digits)."""
-    tokens = np.asarray(tokens, dtype=str)
+    if not isinstance(tokens, np.ndarray):
+        fast = _arrow_stamps_ns(tokens)
+        if fast is not None:
+            return fast
+    tokens = np.asarray(_texts(tokens), dtype=str)
     out, plain = _plain_stamps_ns(tokens)
     plain &= np.char.str_len(tokens) <= _WIDTH
     for k in np.flatnonzero(~plain):
@@ -230,7 +303,7 @@ def load_euroc_csv(path: str | Path) -> PoseStream:
     first, v, text = _rows(path, 8, None, "EuRoC CSV")
     _check_quats(path, v[:, 3:7], lambda k: f"line {_line_of(text, k)}")
     try:
-        t_ns = first.astype(np.int64)
+        t_ns = _texts(first).astype(np.int64)
     except ValueError:
         t_ns = _stamps(path, first) // NS_PER_S  # written as float nanoseconds
     return _stream(str(path), t_ns, v[:, 0:3], v[:, [4, 5, 6, 3]])
@@ -277,6 +350,7 @@ def _kitti(path: Path, times: str | Path | None) -> tuple[PoseStream, np.ndarray
         tpath = Path(times)
         tok, _, ttext = _rows(tpath, 1, 1, "KITTI times")
         t_ns = _stamps(tpath, tok)
+        tok = _texts(tok)
         if t_ns.shape[0] != m.shape[0]:
             raise InputError(tpath, f"{t_ns.shape[0]} stamps for {m.shape[0]} poses in {path}")
         step = np.diff(t_ns)
