@@ -418,7 +418,11 @@ def test_write_report_files(tmp_path):
     poses, biases, landmarks, truth, lm_truth, bias_truth = synthetic_run(0.01, 0.02)
     rep = checked(build_report(poses, biases, landmarks, truth, lm_truth, bias_truth))
     paths = write_report(rep, tmp_path / "out", poses, biases, landmarks, truth, lm_truth, exports=("tum", "evo"))
-    assert sorted(p.name for p in paths) == sorted(REPORT_FILES)
+    # every report file; of the figures, those the report lists (an estimate without a covariance: no 3-sigma
+    # or NEES figures)
+    assert rep["uncertainty"] is None and not {"uncertainty.png", "nees.png"} & set(rep["figures"])
+    expected = [n for n in REPORT_FILES if not n.endswith(".png")] + [n for n in rep["figures"] if n in REPORT_FILES]
+    assert sorted(p.name for p in paths) == sorted(expected) and "errors.png" in expected
     for p in paths:
         assert p.is_file() and p.stat().st_size > 0
         if p.suffix == ".png":
@@ -468,6 +472,7 @@ def test_write_report_without_map_biases_or_truth_extras(tmp_path):
     assert sorted(p.name for p in paths) == sorted(
         set(REPORT_FILES)
         - {"landmarks.png", "ape_evo.zip", "estimate_tum.txt", "truth_tum.txt", "landmarks_aligned.parquet"}
+        - {"uncertainty.png", "nees.png"}  # no covariance
     )
     assert all(p.is_file() for p in paths)
     assert "no landmark ground truth" in (tmp_path / "report.md").read_text()
