@@ -141,7 +141,8 @@ class TagRenderer:
     _textures: dict[int, np.ndarray] = field(default_factory=dict)
 
     @cached_property
-    def _cv2(self):
+    def cv2(self):
+        """OpenCV, imported when the first image is drawn (an optional dependency)."""
         from slamobs.pipeline.vision import opencv
 
         return opencv("", "simulated camera images")
@@ -157,13 +158,13 @@ class TagRenderer:
         ideal = self.cam.model().undistort(np.stack([ii.ravel(), jj.ravel()], axis=1))
         canvas = (s * (ideal + 0.5) - 0.5).astype(np.float32)
         return tuple(
-            self._cv2.resize(canvas[:, a].reshape(h, w), (s * w, s * h), interpolation=self._cv2.INTER_LINEAR)
+            self.cv2.resize(canvas[:, a].reshape(h, w), (s * w, s * h), interpolation=self.cv2.INTER_LINEAR)
             for a in range(2)
         )
 
     def render(self, r_wc: np.ndarray, t_wc: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """The 8-bit grey image at camera pose ``(r_wc, t_wc)``: tags, then distortion, blur and noise."""
-        cv2 = self._cv2
+        cv2 = self.cv2
         s, w, h = SUPERSAMPLE, self.cam.width, self.cam.height
         canvas = np.full((s * h, s * w), float(self.background), np.float32)
         a_s = np.array([[s, 0.0, 0.5 * (s - 1)], [0.0, s, 0.5 * (s - 1)], [0.0, 0.0, 1.0]])
@@ -218,13 +219,13 @@ class TagRenderer:
     def _dictionary(self):
         from slamobs.pipeline.vision.detector import family_constant
 
-        return self._cv2.aruco.getPredefinedDictionary(getattr(self._cv2.aruco, family_constant(self.cam.family)))
+        return self.cv2.aruco.getPredefinedDictionary(getattr(self.cv2.aruco, family_constant(self.cam.family)))
 
     def _marker(self, ident: int) -> tuple[np.ndarray, int]:
         """Marker image (black square of ``cells`` cells of ``CELL_PX``) in a white margin of one cell, float32,
         and the margin in px."""
         if ident not in self._textures:
             cells = self._dictionary.markerSize + 2
-            marker = self._cv2.aruco.generateImageMarker(self._dictionary, ident, cells * CELL_PX, borderBits=1)
+            marker = self.cv2.aruco.generateImageMarker(self._dictionary, ident, cells * CELL_PX, borderBits=1)
             self._textures[ident] = np.pad(marker, CELL_PX, constant_values=255).astype(np.float32)
         return self._textures[ident], CELL_PX

@@ -334,7 +334,7 @@ class _Builder:
                 step=gray.shape[1],
                 data=np.ascontiguousarray(gray).ravel(),
             )
-        cv2 = self.renderer._cv2
+        cv2 = self.renderer.cv2
         ok, buf = cv2.imencode(".jpg", gray, [cv2.IMWRITE_JPEG_QUALITY, int(cam.jpeg_quality)])
         assert ok
         return t["sensor_msgs/msg/CompressedImage"](header=header, format="jpeg", data=buf.ravel())
