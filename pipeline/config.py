@@ -14,14 +14,13 @@ from slamobs.pipeline.alignment import ABSOLUTE_AFTER_S, DEFAULT_LIMITS, Limits
 from slamobs.pipeline.errors import GainError, InputError
 from slamobs.pipeline.noise import NoiseConfig
 from slamobs.pipeline.smoother.settings import BatchSettings, batch_settings
+from slamobs.schemas import DEFAULT_FLOAT_BITS
 
 DEFAULT_OBSERVER = "fast-adaptation"
 #: Plausible magnitudes of the configured inertial references: gravity in m/s^2 (the Moon 1.6, Earth 9.8),
 #: the magnetic field in Tesla (Earth 25-65 µT).
 GRAVITY_RANGE = (1.0, 25.0)
 MAGNETIC_RANGE = (1e-6, 1e-3)
-#: Significant mantissa bits kept in float outputs (pipeline.writers.round_mantissa; 52 = float64 exactly).
-DEFAULT_FLOAT_BITS = 28
 #: Optional extra files of a run directory (``output.export``, ``--export``): the TUM trajectories of estimate
 #: and truth, the evo APE result zip, the results MCAP for Foxglove. None by default: the Parquet tables and
 #: the report hold the results, the extras only repeat them in other formats.

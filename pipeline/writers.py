@@ -27,15 +27,13 @@ import threading
 import time
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.config import DEFAULT_FLOAT_BITS
 from slamobs.pipeline.errors import OutputError, output_error
-from slamobs.pipeline.lie import rots_to_quats
-from slamobs.pipeline.observers.base import ObserverResult
 from slamobs.pipeline.paths import (
     MANIFEST,
     WRITER,
@@ -46,7 +44,10 @@ from slamobs.pipeline.paths import (
     read_manifest,
     temporary_prefix,
 )
-from slamobs.schemas import arrow_schema
+from slamobs.schemas import DEFAULT_FLOAT_BITS, arrow_schema
+
+if TYPE_CHECKING:  # importing observers (numba) is for runs: stats, compare and export write without it
+    from slamobs.pipeline.observers.base import ObserverResult
 
 COMPRESSION = "zstd"
 METADATA_KEY = b"slamobs"
@@ -158,6 +159,8 @@ class BackgroundWrites:
 
 def stretch_tables(res: ObserverResult) -> dict[str, dict[str, np.ndarray]]:
     """The tables with a row per sample or detection (all but ``landmarks``), of a whole run or a stretch."""
+    from slamobs.pipeline.lie import rots_to_quats  # numba: only a run's result needs it
+
     q = rots_to_quats(np.ascontiguousarray(res.rotation)) if len(res.t_ns) else np.zeros((0, 4))
     return {
         "poses": {

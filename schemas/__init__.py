@@ -14,6 +14,9 @@ TABLES = ("poses", "biases", "landmarks", "landmark_tracks", "innovations")
 #: Tables only some runs write: the hybrid's jumps; tag corner and image logs' detections; the estimate aligned
 #: into the truth's frame (runs with truth).
 OPTIONAL_TABLES = ("jumps", "tag_detections", "poses_aligned", "landmarks_aligned")
+#: Significant mantissa bits kept in float outputs (pipeline.writers.round_mantissa; 52 = float64 exactly); the
+#: default of ``output.float_bits`` (pipeline.config), here so that writing outputs never imports the config.
+DEFAULT_FLOAT_BITS = 28
 
 
 @cache
