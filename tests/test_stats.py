@@ -154,6 +154,29 @@ def test_box_and_violin_figures_only_for_metrics_with_values(dataset, tmp_path):
     assert all(p.stat().st_size > 5000 for p in written)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_boxes_and_violins_are_matplotlibs_statistics(seed):
+    """The figures draw their own boxes and violins (a few collections, not matplotlib's artists per group): the
+    quartiles, whiskers, outliers and violin outline are those matplotlib's boxplot and violinplot compute."""
+    from matplotlib import cbook, mlab
+
+    from slamobs.pipeline.evaluation.plots import VIOLIN_POINTS, box_stats, violin_outline
+
+    rng = np.random.default_rng(seed)
+    values = np.concatenate([rng.gamma(2.0, 0.05, 300), [2.0, 3.5]])  # two far outliers
+    ref = cbook.boxplot_stats(values)[0]
+    q1, med, q3, low, high, out = box_stats(values)
+    assert np.allclose([q1, med, q3, low, high], [ref["q1"], ref["med"], ref["q3"], ref["whislo"], ref["whishi"]])
+    assert np.array_equal(np.sort(out), np.sort(ref["fliers"])) and {2.0, 3.5} <= set(out.tolist())
+    outline = violin_outline(values, 4.0, 0.6)
+    heights = np.linspace(values.min(), values.max(), VIOLIN_POINTS)
+    density = mlab.GaussianKDE(values, "scott").evaluate(heights)
+    left = outline[:VIOLIN_POINTS]
+    assert np.allclose(left[:, 1], heights)
+    assert np.allclose(4.0 - left[:, 0], 0.3 * density / density.max())
+    assert np.allclose(outline[VIOLIN_POINTS:, 0] - 4.0, (4.0 - left[:, 0])[::-1])
+
+
 def test_records_newer_than_the_summary_are_read(dataset, tmp_path):
     import shutil
 
