@@ -90,13 +90,15 @@ def format_readiness(ready) -> str:
             lines.append(f"    {r.role:<{width}}  MISSING")
     groups: dict[tuple, list[str]] = {}
     for e in ready.estimators:
-        groups.setdefault((e.missing, e.unavailable), []).append(e.name)
+        groups.setdefault((e.missing, e.unavailable, e.needs), []).append(e.name)
     lines.append("")
-    for (missing, unavailable), names in groups.items():
+    for (missing, unavailable, needs), names in groups.items():
         if unavailable:
             state = f"cannot run: {unavailable}"
+        elif missing:
+            state = f"cannot run, missing {', '.join(missing)}"
         else:
-            state = f"cannot run, missing {', '.join(missing)}" if missing else "ready"
+            state = f"ready once the config gives {' and '.join(needs)}" if needs else "ready"
         lines.append(f"    {', '.join(names)}: {state}")
     needed = {m for e in ready.estimators for m in e.missing} | {"truth"}
     for role, ways in ready.satisfy.items():

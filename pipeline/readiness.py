@@ -10,7 +10,7 @@ screen whether and how the log runs. ``slamobs info`` renders it (``cli/info_cmd
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 from slamobs.pipeline.config import DEFAULT_OBSERVER, RunConfig, TagsConfig
 from slamobs.pipeline.errors import SlamobsError, one_line
@@ -51,6 +51,9 @@ class EstimatorStatus:
     name: str
     missing: tuple[str, ...] = ()
     unavailable: str = ""  # e.g. an optional dependency not installed
+    #: settings the run will ask for on this log (e.g. ``tags.size`` for tag corners): it has the inputs, but
+    #: ``slamobs run`` stops with one line until the config gives these
+    needs: tuple[str, ...] = ()
 
     @property
     def ready(self) -> bool:
@@ -95,6 +98,17 @@ def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
     return EstimatorStatus(name, tuple(missing))
 
 
+def _settings_needed(info: LogInfo, detections: RoleStatus) -> tuple[str, ...]:
+    """What a run on tag corners or images asks of the config: the tag size (a simulated log records it), and
+    for corners without a CameraInfo topic the camera calibration files."""
+    needs = []
+    if (detections.msgtype in TAG_CORNER_TYPES or detections.msgtype in IMAGE_TYPES) and "sim_truth" not in info.roles:
+        needs.append("tags.size")
+    if detections.msgtype in TAG_CORNER_TYPES and "camera_info" not in info.roles:
+        needs.append("cameras: (calibration files; the log has no CameraInfo topic)")
+    return tuple(needs)
+
+
 def _candidates(info: LogInfo, role: str) -> list[str]:
     """Topics of this log whose type ``role`` accepts when named (never picked on their own)."""
     types = accepted_types(role)
@@ -107,7 +121,8 @@ def readiness(info: LogInfo) -> Readiness:
     """Whether and how ``info``'s log can run, per estimator (see the module docstring)."""
     roles = tuple(_role_status(info, r) for r in LISTED_ROLES)
     found = {r.role for r in roles if r.found}
-    estimators = tuple(_estimator_status(name, found) for name in ESTIMATORS)
+    needs = _settings_needed(info, next(r for r in roles if r.role == "detections"))
+    estimators = tuple(replace(_estimator_status(name, found), needs=needs) for name in ESTIMATORS)
     satisfy = {r.role: how_to_satisfy(r.role) + _candidates(info, r.role) for r in roles if not r.found}
     return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators))
 

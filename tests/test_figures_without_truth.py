@@ -196,3 +196,19 @@ def test_report_with_truth_on_a_run_without_it_is_kept(log, tmp_path):
     assert again.exit_code == 0, again.output
     assert json.loads(again.stdout)["ape"] == json.loads(first.stdout)["ape"]
     assert (out / "report.json").is_file() and (out / "trajectory_top.png").is_file()
+
+
+def test_innovation_lines_break_where_no_detection_was_made():
+    """Time bins with innovations on both sides of a 40 s stretch without detections: the line stops there (a NaN
+    after the gap) instead of drawing values nobody measured across it."""
+    import numpy as np
+
+    from slamobs.pipeline.evaluation.plots import break_at_gaps
+
+    t = np.r_[np.arange(0.0, 10.0, 0.5), np.arange(50.0, 60.0, 0.5)]
+    y = np.ones_like(t)
+    tb, yb = break_at_gaps(t, y)
+    assert tb.size == t.size + 1 and np.isnan(tb[20]) and np.isnan(yb[20])
+    assert np.array_equal(tb[~np.isnan(tb)], t)
+    tb, yb = break_at_gaps(np.arange(5.0), np.arange(5.0))  # evenly spaced: untouched
+    assert not np.isnan(tb).any()

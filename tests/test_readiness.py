@@ -141,3 +141,27 @@ def test_run_names_a_missing_direction_with_the_other_inputs(logs, tmp_path):
     first = next(k for k, line in enumerate(lines) if line.startswith("error:"))
     assert "1 of the 5 inputs" in lines[first] and "(magnetic)" in lines[first]
     assert lines[first + 1].split()[0] == "magnetic" and "sensor_msgs/msg/MagneticField" in lines[first + 1]
+
+
+def test_corners_without_camera_info_are_ready_only_with_the_settings_run_asks_for():
+    """A TagSLAM-style log (corners, VIO odometry, no CameraInfo, no simulator record) has every input, but `run`
+    stops until the config gives the tag size and the camera files: info says so instead of a bare "ready"; a log
+    with CameraInfo needs the tag size only, one that records it (the simulator's) nothing."""
+    from slamobs.pipeline.readers.inspect import LogInfo, TopicSummary
+
+    topics = (
+        TopicSummary("/odom", "nav_msgs/msg/Odometry", 100, rate_hz=20.0),
+        TopicSummary("/tags", "apriltag_msgs/msg/ApriltagArrayStamped", 100, rate_hz=20.0),
+        TopicSummary("/camera_info", "sensor_msgs/msg/CameraInfo", 100, rate_hz=20.0),
+    )
+    roles = {"angular_velocity": "/odom", "linear_velocity": "/odom", "detections": "/tags"}
+
+    def needs(**extra):
+        info = LogInfo("x.bag", "ros1", "", 0, 1, 300, topics, {**roles, **extra})
+        return {e.needs for e in readiness(info).estimators if not e.missing}
+
+    assert needs() == {("tags.size", "cameras: (calibration files; the log has no CameraInfo topic)")}
+    assert needs(camera_info="/camera_info") == {("tags.size",)}
+    assert needs(camera_info="/camera_info", sim_truth="/slamobs/sim_truth") == {()}
+    text = invoke("info", SAMPLES / "figure8.mcap").output
+    assert "ready once" not in text and ": ready" in text  # 3D tag poses: nothing more to give

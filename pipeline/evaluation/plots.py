@@ -577,6 +577,17 @@ def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, pat
     return _save(fig, path)
 
 
+def break_at_gaps(t: np.ndarray, *series: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``t`` and ``series`` with a NaN after every gap longer than three typical steps, so a line is not drawn
+    across a stretch without data (it would show values nobody measured)."""
+    t = np.asarray(t, dtype=np.float64)
+    if t.size < 3:
+        return (t, *series)
+    step = np.diff(t)
+    cut = np.flatnonzero(step > 3.0 * np.median(step)) + 1
+    return tuple(np.insert(np.asarray(a, dtype=np.float64), cut, np.nan) for a in (t, *series))
+
+
 def plot_measurements(
     path: Path, frame_t_s: np.ndarray, per_frame: np.ndarray, innovation: dict[str, np.ndarray] | None
 ) -> Path:
@@ -590,10 +601,10 @@ def plot_measurements(
     ax_d.set_title(f"Landmark detections: {len(per_frame)} frames, {int(np.sum(per_frame))} detections")
     ax_d.set_ylim(0, max(1, int(np.max(per_frame)) if len(per_frame) else 1) + 0.5)
     if innovation is not None and len(innovation["t_s"]):
-        t = innovation["t_s"]
-        ax_i.plot(t, innovation["median"], color="tab:blue", lw=1.0, label="median")
-        ax_i.plot(t, innovation["p95"], color="tab:orange", lw=1.0, label="95th percentile")
-        ax_i.plot(t, innovation["max"], color="tab:red", lw=0.6, alpha=0.6, label="maximum")
+        t, median, p95, top = break_at_gaps(*(innovation[k] for k in ("t_s", "median", "p95", "max")))
+        ax_i.plot(t, median, ".-", color="tab:blue", lw=1.0, ms=2, label="median")  # dots: lone bins
+        ax_i.plot(t, p95, ".-", color="tab:orange", lw=1.0, ms=2, label="95th percentile")
+        ax_i.plot(t, top, ".-", color="tab:red", lw=0.6, ms=1.5, alpha=0.6, label="maximum")
         ax_i.legend(loc="upper right", fontsize=8)
     else:
         ax_i.text(0.5, 0.5, "no innovations recorded", ha="center", va="center", transform=ax_i.transAxes)
