@@ -177,6 +177,22 @@ def test_boxes_and_violins_are_matplotlibs_statistics(seed):
     assert np.allclose(outline[VIOLIN_POINTS:, 0] - 4.0, (4.0 - left[:, 0])[::-1])
 
 
+def test_stats_command_does_not_import_numba(dataset, tmp_path):
+    """numba (0.5-15 s to import on a loaded machine) is for runs: ``stats`` writes its tables without it."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys; from slamobs.cli.main import main; "
+        "main(['stats', sys.argv[1], '-o', sys.argv[2], '--no-plots', '-q'], standalone_mode=False); "
+        "print(sorted(m for m in sys.modules if m == 'numba' or m.startswith('numba.')))"
+    )
+    args = [sys.executable, "-c", code, str(dataset), str(tmp_path / "st")]
+    out = subprocess.run(args, capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]" and (tmp_path / "st" / "stats.md").is_file()
+
+
 def test_records_newer_than_the_summary_are_read(dataset, tmp_path):
     import shutil
 
