@@ -134,10 +134,13 @@ def run(
 
     from slamobs.cli.errors import working_on
     from slamobs.pipeline.paths import run_memory_mb
+
+    # named before the readers are imported: under a tight memory limit that import is what fails
+    first = Path(logs[0]) if len(logs) == 1 else Path(logs[0]).parent
+    working_on(first, "a run of this log", run_memory_mb(first))
     from slamobs.pipeline.readers.container import recording_of
 
     log = recording_of(logs)
-    working_on(log, "a run of this log", run_memory_mb(log))
     from slamobs.pipeline.config import load_config, with_observer, with_truth
     from slamobs.pipeline.evaluation.plot_worker import free_cores
     from slamobs.pipeline.run import run_log

@@ -116,7 +116,7 @@ def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
 
 
 def test_missing_roles_and_disjoint_times_are_errors():
-    with pytest.raises(InputError, match="landmark detections"):
+    with pytest.raises(InputError, match=r"inputs the estimator needs is missing \(detections\)"):
         align(_streams(detections=None))
     late = _streams()
     late.linear_velocity = Vec3Stream(
