@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import export_option, quiet_option, window_options
+from slamobs.cli.options import export_option, quiet_option, truth_option, window_options
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -105,12 +105,7 @@ def main() -> None:
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @window_options
-@click.option(
-    "--truth",
-    default=None,
-    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
-    "another log [default: topics.truth of the config, else detected]",
-)
+@truth_option
 @export_option()
 @quiet_option()
 def run(
@@ -216,12 +211,7 @@ def _print_summary(summary) -> None:
 )
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @window_options
-@click.option(
-    "--truth",
-    default=None,
-    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
-    "another log [default: topics.truth of the config, else detected]",
-)
+@truth_option
 @export_option()
 @quiet_option()
 def compare(

@@ -142,6 +142,15 @@ _WINDOW_BOUND = Finite(min=0.0, max=9.2e9)
 _WINDOW_RULE = "seconds from the log's start (its first angular-velocity sample), or an absolute stamp in s if > 1e9"
 
 
+#: ``--truth`` of run and compare: the one truth grammar (pipeline.readers.trajectory_files.parse_truth)
+truth_option = click.option(
+    "--truth",
+    default=None,
+    help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
+    "another log [default: topics.truth of the config, else detected]",
+)
+
+
 def window_options(command):
     """``--start`` / ``--end``: the part of the log a run uses (``time.start`` / ``time.end`` of run.yaml)."""
     command = click.option(

@@ -281,10 +281,10 @@ def report_run(
     ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
     Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
     """
-    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
+    from slamobs.pipeline.evaluation.figure_jobs import run_figure_jobs
 
     run = load_run(run_dir)
-    tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
+    tables = _tables(run)
     if exports is None:
         exports = tuple(k for k in (run.meta.get("output") or {}).get("export", []) if k in REPORT_EXPORTS)
     exports = tuple(k for k in exports if k in REPORT_EXPORTS)
@@ -302,8 +302,8 @@ def report_run(
     report["notes"] = ti.notes + report["notes"]
     if run.meta.get("time_window"):
         report["time_window"] = run.meta["time_window"]
-    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
-    try:
+
+    def fill(staged: Path) -> None:
         write_report(
             report,
             staged,
@@ -318,31 +318,43 @@ def report_run(
             more_figures=run_figure_jobs(tables, with_biases=False),
         )
         _stage_run_json({**run.meta, "figures": report.get("figures", [])}, ti.source, staged, exports)
-        for p in staged.iterdir():
-            os.chmod(p, 0o644)
-        written = replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
-    finally:
-        shutil.rmtree(staged, ignore_errors=True)
-    return report, written
+
+    return report, _replace_report_files(run, fill)
 
 
 def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
     """A run without truth: draw its figures and write report.md (what the run did, the figures) again, replacing
     the report files atomically as :func:`report_run` does; returns the summary and the paths written."""
-    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, summary, write_run_figures
+    from slamobs.pipeline.evaluation.figure_jobs import summary, write_run_figures
 
     run = load_run(run_dir)
-    tables = {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
+    tables = _tables(run)
     info = summary(tables)
-    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
-    try:
-        written = write_run_figures(staged, tables, list(run.meta.get("notes") or []))
-        info["figures"] = [p.name for p in written if p.suffix == ".png"]
+
+    def fill(staged: Path) -> None:
+        drawn = write_run_figures(staged, tables, list(run.meta.get("notes") or []))
+        info["figures"] = [p.name for p in drawn if p.suffix == ".png"]
         meta = {**run.meta, "figures": info["figures"]}
         (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
+
+    return info, _replace_report_files(run, fill)
+
+
+def _tables(run) -> dict[str, Any]:
+    """The run's tables the figures are drawn from."""
+    return {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
+
+
+def _replace_report_files(run, fill) -> list[Path]:
+    """``fill(staged)`` writes the new report files into a hidden directory inside the run; they then replace the
+    run's report files and figures at once (:func:`replace_files`), so a failure leaves the previous ones."""
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES
+
+    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
+    try:
+        fill(staged)
         for p in staged.iterdir():
             os.chmod(p, 0o644)
-        written = replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
+        return replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
     finally:
         shutil.rmtree(staged, ignore_errors=True)
-    return info, written

@@ -492,23 +492,15 @@ def _update(
         s = (d - N_FIXED) // 3
         slot_of[i] = s
         slot_lm[s] = i
-        o = d
-        for c in range(3):
-            for k in range(d):
-                cov[o + c, k] = cov[3 + c, k]
-                cov[k, o + c] = cov[k, 3 + c]
-        for a in range(3):
-            for c in range(3):
-                cov[o + a, o + c] = cov[3 + a, 3 + c]
-            cov[o + a, o + a] += det_sigma2[a0 + j] * scale
+        _reset_landmark(cov, d, d, det_sigma2[a0 + j] * scale)
         d += 3
     return d
 
 
 @njit(cache=True)
 def _reset_landmark(cov, d, o, sigma2):
-    """Landmark slot ``o`` re-initialised from the pose, as a new one is augmented: its rows copy ``P̂``'s and its
-    own block is ``Σ_PP + σ²I`` (its mean is set by the caller from the detection)."""
+    """Landmark slot ``o`` (re-)initialised from the pose, for a new landmark (``o == d``) or one that failed the
+    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I`` (its mean is set by the caller)."""
     for c in range(3):
         for k in range(d):
             cov[o + c, k] = cov[3 + c, k]
