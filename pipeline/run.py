@@ -712,12 +712,12 @@ def evaluate_run(
         progress("figures")
         t = time.perf_counter()
         workers = plot_workers if report_error is None else None  # after a failed report: drawn here
-        metadata["figures"] = _run_figures(out, notes, workers)
+        metadata["figures"] = _run_figures(out, notes, workers, config.evaluation.plots)
         timings["figures_s"] = time.perf_counter() - t
     return report, report_error
 
 
-def _run_figures(out: Path, notes: list[str], plot_workers=None) -> list[str]:
+def _run_figures(out: Path, notes: list[str], plot_workers=None, plots: bool | str = True) -> list[str]:
     """The run's own figures and its summary report.md (a run without an error report); the figures' names.
     Figures that cannot be drawn are a note: the run's tables stand (out of memory and interruptions still end
     the run)."""
@@ -725,7 +725,7 @@ def _run_figures(out: Path, notes: list[str], plot_workers=None) -> list[str]:
     from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_tables, write_run_figures
 
     try:
-        written = write_run_figures(out, run_tables(out), notes, plot_workers)
+        written = write_run_figures(out, run_tables(out), notes, plot_workers, plots)
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - the run's outputs are complete without their figures
@@ -868,7 +868,7 @@ def _evaluate(
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
     from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
+    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, chosen, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
     from slamobs.pipeline.writers import read_columns
 
@@ -879,7 +879,12 @@ def _evaluate(
         frames = {
             k: read_columns(out / f"{k}.parquet", skip_null=k == "poses") for k in ("poses", "biases", "landmarks")
         }
-        own = run_figure_jobs({**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False)
+        plots = config.evaluation.plots
+        own = []  # the run's own figures (trajectory, map, measurements) are none of the main ones
+        if plots == "all":
+            own = run_figure_jobs(
+                {**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False
+            )
         truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
@@ -893,10 +898,14 @@ def _evaluate(
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
         drawn_biases = bias_plot_rows(frames["biases"])
         landmarks = frames["landmarks"]
-        early = None
-        if config.evaluation.plots:  # helpers draw while the report is computed; else drawn here at the end
+        early = figures = None
+        if plots:  # helpers draw while the report is computed; else drawn here at the end
             early = plot_workers if plot_workers is not None else LocalFigures()
             early.submit(own)
+
+            def figures(jobs: list) -> None:
+                early.submit(chosen(jobs, plots))
+
         report, evaluation = evaluate_tables(
             frames,
             truth,
@@ -904,7 +913,7 @@ def _evaluate(
             streams.bias_truth,
             options=options,
             drawn_biases=drawn_biases,
-            figures=early.submit if early is not None else None,
+            figures=figures,
         )
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
@@ -929,7 +938,7 @@ def _evaluate(
             truth,
             streams.landmark_truth,
             evaluation=evaluation,
-            plots=config.evaluation.plots,
+            plots=plots,
             exports=config.output.export,
             metadata=metadata,
             plot_workers=early,
