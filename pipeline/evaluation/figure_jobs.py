@@ -250,10 +250,10 @@ BIASES_PNG = "biases.png"
 #: every file a run's own figures may write (the bias figure is the report's one, drawn without truth too)
 RUN_FIGURES = (TRAJECTORY_PNG, MAP_PNG, MEASUREMENTS_PNG, BIASES_PNG)
 #: the figures a run draws by default (``evaluation.plots: true``): with truth the estimate over the truth from
-#: above and the error over time, without truth the estimate and its map; ``evaluation.plots: all`` draws every
-#: figure (each costs 0.3-0.5 s of matplotlib whatever the log's length: most of a short log's run) and
-#: ``slamobs report RUN_DIR`` draws them all afterwards
-MAIN_FIGURES = ("trajectory_top.png", "errors.png")
+#: above, the error over time and (riekf, batch: runs of tens of seconds) the 3σ and NEES figures, without truth
+#: the estimate and its map; ``evaluation.plots: all`` draws every figure (each costs 0.3-0.5 s of matplotlib
+#: whatever the log's length: most of a short log's run) and ``slamobs report RUN_DIR`` draws them all afterwards
+MAIN_FIGURES = ("trajectory_top.png", "errors.png", "uncertainty.png", "nees.png")
 MAIN_RUN_FIGURES = (TRAJECTORY_PNG, MAP_PNG)
 
 
