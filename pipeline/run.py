@@ -868,7 +868,7 @@ def _evaluate(
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
     from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, chosen, run_figure_jobs
+    from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
     from slamobs.pipeline.writers import read_columns
 
@@ -896,7 +896,7 @@ def _evaluate(
             truth_rotation_xyzw=config.frames.truth_rotation,
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
-        drawn_biases = bias_plot_rows(frames["biases"])
+        drawn_biases = bias_plot_rows(frames["biases"]) if drawn(BIASES_PNG, plots) else None
         landmarks = frames["landmarks"]
         early = figures = None
         if plots:  # helpers draw while the report is computed; else drawn here at the end

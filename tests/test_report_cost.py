@@ -11,7 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from slamobs.pipeline.evaluation.figure_jobs import MAIN_FIGURES, MAIN_RUN_FIGURES, chosen
+from slamobs.pipeline.evaluation.figure_jobs import MAIN_FIGURES, MAIN_RUN_FIGURES, chosen, drawn
 from slamobs.pipeline.writers import null_columns, read_columns
 
 JOBS = [("plot_x", name, {}) for name in ("trajectory.png", "map.png", "biases.png", *MAIN_FIGURES)]
@@ -22,6 +22,8 @@ def test_plots_choose_the_figures():
     assert chosen(JOBS, False) == []
     assert [j[1] for j in chosen(JOBS, True)] == list(MAIN_FIGURES)
     assert [j[1] for j in chosen(JOBS, True, MAIN_RUN_FIGURES)] == ["trajectory.png", "map.png"]
+    assert drawn("biases.png", "all") and not drawn("biases.png", True) and drawn("errors.png", True)
+    assert not drawn("errors.png", False)
 
 
 @pytest.fixture(scope="module")

@@ -257,12 +257,15 @@ MAIN_FIGURES = ("trajectory_top.png", "errors.png", "uncertainty.png", "nees.png
 MAIN_RUN_FIGURES = (TRAJECTORY_PNG, MAP_PNG)
 
 
+def drawn(name: str, plots: bool | str, main: tuple[str, ...] = MAIN_FIGURES) -> bool:
+    """Whether ``evaluation.plots`` asks for the figure ``name``: all with ``"all"``, none with False, else those
+    of ``main``."""
+    return plots == "all" or (bool(plots) and name in main)
+
+
 def chosen(jobs: list, plots: bool | str, main: tuple[str, ...] = MAIN_FIGURES) -> list:
-    """The ``jobs`` that ``evaluation.plots`` asks for: all with ``"all"``, none with False, else those of
-    ``main``."""
-    if plots == "all":
-        return list(jobs)
-    return [job for job in jobs if plots and job[1] in main]
+    """The ``jobs`` (figures) that ``evaluation.plots`` asks for (:func:`drawn`)."""
+    return [job for job in jobs if drawn(job[1], plots, main)]
 
 
 #: the innovation statistics are taken over this many time bins at most (about one per 2 pixels)
