@@ -154,7 +154,8 @@ def _cross_mat(p, x, out):
 @njit(cache=True)
 def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
     """Apply the accumulated transition ``Φ = I + F`` and noise to the covariance (first ``d`` dimensions):
-    ``Σ ← Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``; ``f`` (D, 6) and ``g`` (D, 6) are scratch."""
+    ``Σ ← Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``; ``f`` (6, D) holds ``Fᵀ`` and ``g`` (6, D) ``(FΣ_bb)ᵀ`` (scratch,
+    transposed so that the inner loops run along rows: each entry is summed in the same order as written)."""
     if acc_dt <= 0.0:
         return
     # bias random walk over the interval (applied at its start: the transition then carries it)
@@ -163,35 +164,27 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
         cov[9 + c, 9 + c] += q_bv * q_bv * acc_dt
     n = (d - N_FIXED) // 3
     sr = acc[_SR]
-    f[:d, :] = 0.0
+    f[:, :d] = 0.0
     for a in range(3):
         for b in range(3):
-            f[a, b] = sr[a, b]  # ξ_R <- b̃_Ω
-            f[3 + a, b] = acc[_SPR, a, b]  # ξ_P <- b̃_Ω
-            f[3 + a, 3 + b] = sr[a, b]  # ξ_P <- b̃_V
+            f[b, a] = sr[a, b]  # ξ_R <- b̃_Ω
+            f[b, 3 + a] = acc[_SPR, a, b]  # ξ_P <- b̃_Ω
+            f[3 + b, 3 + a] = sr[a, b]  # ξ_P <- b̃_V
     tmp = np.empty((3, 3))
     for s in range(n):
         _cross_mat(lm[slot_lm[s]], sr, tmp)
         for a in range(3):
             for b in range(3):
-                f[N_FIXED + 3 * s + a, b] = tmp[a, b]  # ξ_s <- b̃_Ω
-    # the bias rows Σ_b as they are before the update, and g = F Σ_bb (D, 6)
+                f[b, N_FIXED + 3 * s + a] = tmp[a, b]  # ξ_s <- b̃_Ω
+    # the bias rows Σ_b as they are before the update, and g = (F Σ_bb)ᵀ (6, D)
     pb = cov[6:12, :d].copy()
-    for i in range(d):
-        for c in range(6):
+    for c in range(6):
+        for i in range(d):
             v = 0.0
             for e in range(6):
-                v += f[i, e] * pb[e, 6 + c]
-            g[i, c] = v
-    # Σ += F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ, symmetric: compute the upper triangle and mirror
-    for i in range(d):
-        for j in range(i, d):
-            v = 0.0
-            for e in range(6):
-                v += f[i, e] * pb[e, j] + pb[e, i] * f[j, e] + g[i, e] * f[j, e]
-            cov[i, j] += v
-            if j != i:
-                cov[j, i] = cov[i, j]
+                v += f[e, i] * pb[e, 6 + c]
+            g[c, i] = v
+    _add_bias_terms(cov, d, f, pb, g)
     # process noise Q: (R, P) block, landmark rows [p̂_s]× QRR, [p̂_s]× QPRᵀ, and [p̂_s]× QRR [p̂_u]×ᵀ
     qrr, qpr, qpp = acc[_QRR], acc[_QPR], acc[_QPP]
     for a in range(3):
@@ -235,6 +228,27 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
                     cov[c0 + 1, r0 + a] += x1
                     cov[c0 + 2, r0 + a] += x2
     acc[:, :, :] = 0.0
+
+
+@njit(cache=True)
+def _add_bias_terms(cov, d, f, pb, g):
+    """``Σ += F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ`` (``f`` = Fᵀ, ``pb`` = Σ_b, ``g`` = (F Σ_bb)ᵀ, each (6, D)): the upper
+    triangle a row at a time, each entry summed over the six bias columns in order, then mirrored."""
+    row = np.empty(d)
+    for i in range(d):
+        n = d - i  # views from the diagonal on, indexed from 0: the loops vectorise
+        acc = row[:n]
+        acc[:] = 0.0
+        for e in range(6):
+            a1, a2, a3 = f[e, i], pb[e, i], g[e, i]
+            fe, pe = f[e, i:], pb[e, i:]
+            for j in range(n):
+                acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
+        ci = cov[i, i:]
+        for j in range(n):
+            ci[j] += acc[j]
+        for j in range(i + 1, d):
+            cov[j, i] = cov[i, j]
 
 
 @njit(cache=True)
@@ -355,6 +369,47 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 
 
 @njit(cache=True)
+def _gain_and_downdate(cov, d, hp, chol, z, k3):
+    """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ (k3 × d): ``Uᵀ = L⁻¹ H Σ`` (in place), ``w = L⁻¹ z``;
+    returns ``ξ̂ = U w`` and makes ``Σ ← Σ − U Uᵀ``. Every loop runs along rows of ``hp`` (it vectorises);
+    each entry is summed in the order of the textbook loops."""
+    row = np.empty(d)
+    for c in range(k3):
+        row[:] = hp[c, :d]
+        for k in range(c):
+            s_ck, hk = chol[c, k], hp[k, :d]
+            for r in range(d):
+                row[r] -= hk[r] * s_ck
+        for r in range(d):
+            hp[c, r] = row[r] / chol[c, c]
+    w = np.empty(k3)
+    for c in range(k3):
+        v = z[c]
+        for k in range(c):
+            v -= chol[c, k] * w[k]
+        w[c] = v / chol[c, c]
+    xi = np.zeros(d)
+    for c in range(k3):
+        wc, hc = w[c], hp[c, :d]
+        for r in range(d):
+            xi[r] += hc[r] * wc
+    for r in range(d):
+        n = d - r  # views from the diagonal on, indexed from 0: the loops vectorise
+        acc = row[:n]
+        acc[:] = 0.0
+        for k in range(k3):
+            a, hk = hp[k, r], hp[k, r:d]
+            for c in range(n):
+                acc[c] += a * hk[c]
+        cr = cov[r, r:d]
+        for c in range(n):
+            cr[c] -= acc[c]
+        for c in range(r + 1, d):
+            cov[c, r] = cov[r, c]
+    return xi
+
+
+@njit(cache=True)
 def _update(
     a0,
     nd,
@@ -428,19 +483,19 @@ def _update(
         m += 1
     if m > 0:
         k3 = 3 * m
-        # PHᵀ (d × 3m): column block q = Σ[:, P] − Σ[:, slot of q]
+        # H Σ (3m × d), the transpose of Σ Hᵀ: row block q = Σ[P, :] − Σ[slot of q, :] (Σ is exactly symmetric)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            for r in range(d):
-                for c in range(3):
-                    pht[r, 3 * q + c] = cov[r, 3 + c] - cov[r, sl + c]
+            for c in range(3):
+                for r in range(d):
+                    pht[3 * q + c, r] = cov[3 + c, r] - cov[sl + c, r]
         # S = H PHᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             s2 = det_sigma2[a0 + sel[q]] * scale
             for c in range(3):
                 for k in range(k3):
-                    smat[3 * q + c, k] = pht[3 + c, k] - pht[sl + c, k]
+                    smat[3 * q + c, k] = pht[k, 3 + c] - pht[k, sl + c]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
@@ -450,33 +505,7 @@ def _update(
         if not _cholesky(smat, k3):
             ns[_SKIPPED] += 1
         else:
-            # U = PHᵀ L⁻ᵀ (rows solved forward, in place), w = L⁻¹ z; ξ̂ = U w; Σ ← Σ − U Uᵀ
-            for r in range(d):
-                for c in range(k3):
-                    v = pht[r, c]
-                    for k in range(c):
-                        v -= pht[r, k] * smat[c, k]
-                    pht[r, c] = v / smat[c, c]
-            w = np.empty(k3)
-            for c in range(k3):
-                v = z[c]
-                for k in range(c):
-                    v -= smat[c, k] * w[k]
-                w[c] = v / smat[c, c]
-            xi = np.zeros(d)
-            for r in range(d):
-                v = 0.0
-                for c in range(k3):
-                    v += pht[r, c] * w[c]
-                xi[r] = v
-            for r in range(d):
-                for c in range(r, d):
-                    v = 0.0
-                    for k in range(k3):
-                        v += pht[r, k] * pht[c, k]
-                    cov[r, c] -= v
-                    if c != r:
-                        cov[c, r] = cov[r, c]
+            xi = _gain_and_downdate(cov, d, pht, smat, z, k3)
             _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
             ns[_UPDATES] += 1
     # augmentation with the corrected pose
@@ -766,12 +795,12 @@ class _State(KernelState):
         self.slot_of = np.full(n_landmarks, -1, dtype=np.int64)
         self.slot_lm = np.zeros(max(n_landmarks, 1), dtype=np.int64)
         self.acc = np.zeros((5, 3, 3))
-        self.f = np.zeros((dim, 6))
-        self.g = np.zeros((dim, 6))
+        self.f = np.zeros((6, dim))
+        self.g = np.zeros((6, dim))
         k3 = 3 * max(n_max, 1)
         self.sel = np.zeros(max(n_max, 1), dtype=np.int64)
         self.z = np.zeros(k3)
-        self.pht = np.zeros((dim, k3))
+        self.pht = np.zeros((k3, dim))
         self.smat = np.zeros((k3, k3))
         self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
