@@ -257,49 +257,52 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
     frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order."""
-    c = cov[:N_FIXED, :N_FIXED].copy()
-    for k in range(3):
-        c[6 + k, 6 + k] += q_bw * q_bw * acc_dt
-        c[9 + k, 9 + k] += q_bv * q_bv * acc_dt
-    f = np.zeros((6, 6))  # rows ξ_R, ξ_P; columns b̃_Ω, b̃_V
+    w = np.empty((4, 6, 6))  # one allocation: F, the pending bias block, F Σ_b,pose and F Σ_bb
+    f, cbb, g, gb = w[0], w[1], w[2], w[3]
+    f[:, :] = 0.0  # rows ξ_R, ξ_P; columns b̃_Ω, b̃_V
     for a in range(3):
         for b in range(3):
             f[a, b] = acc[_SR, a, b]
             f[3 + a, b] = acc[_SPR, a, b]
             f[3 + a, 3 + b] = acc[_SR, a, b]
-    g = np.zeros((6, 6))  # F Σ_b,pose and F Σ_bb
-    gb = np.zeros((6, 6))
     for i in range(6):
         for k in range(6):
+            cbb[i, k] = cov[6 + i, 6 + k]
+    for k in range(3):
+        cbb[k, k] += q_bw * q_bw * acc_dt
+        cbb[3 + k, 3 + k] += q_bv * q_bv * acc_dt
+    for i in range(6):
+        for k in range(6):
+            v, vb = 0.0, 0.0
             for e in range(6):
-                g[i, k] += f[i, e] * c[6 + e, k]
-                gb[i, k] += f[i, e] * c[6 + e, 6 + k]
-    s = c[:6, :6].copy()
+                v += f[i, e] * cov[6 + e, k]
+                vb += f[i, e] * cbb[e, k]
+            g[i, k], gb[i, k] = v, vb
+    s = out  # Σ_pose pending, then turned in place
     for i in range(6):
         for k in range(6):
             v = g[i, k] + g[k, i]
             for e in range(6):
                 v += gb[i, e] * f[k, e]
-            s[i, k] += v
+            s[i, k] = cov[i, k] + v
     for a in range(3):
         for b in range(3):
             s[a, b] += acc[_QRR, a, b]
             s[3 + a, 3 + b] += acc[_QPP, a, b]
             s[3 + a, b] += acc[_QPR, a, b]
             s[b, 3 + a] += acc[_QPR, a, b]
-    j = np.eye(6)
-    j[3:, :3] = -skew(p_hat)
-    t = np.zeros((6, 6))
-    for i in range(6):
-        for k in range(6):
-            for e in range(6):
-                t[i, k] += j[i, e] * s[e, k]
-    for i in range(6):
-        for k in range(6):
-            v = 0.0
-            for e in range(6):
-                v += t[i, e] * j[k, e]
-            out[i, k] = v
+    # J s Jᵀ with J = [[I, 0], [−[P̂]×, I]]: δp = ξ_P − [P̂]× ξ_R
+    px, py, pz = p_hat[0], p_hat[1], p_hat[2]
+    for k in range(6):  # rows 3..5 of J s: s_P· − [P̂]× s_R·
+        r0, r1, r2 = s[0, k], s[1, k], s[2, k]
+        s[3, k] -= py * r2 - pz * r1
+        s[4, k] -= pz * r0 - px * r2
+        s[5, k] -= px * r1 - py * r0
+    for i in range(6):  # columns 3..5 of (J s) Jᵀ
+        c0, c1, c2 = s[i, 0], s[i, 1], s[i, 2]
+        s[i, 3] -= py * c2 - pz * c1
+        s[i, 4] -= pz * c0 - px * c2
+        s[i, 5] -= px * c1 - py * c0
 
 
 @njit(cache=True)
