@@ -486,12 +486,13 @@ def _update(
         m += 1
     if m > 0:
         k3 = 3 * m
-        # H Σ (3m × d), the transpose of Σ Hᵀ: row block q = Σ[P, :] − Σ[slot of q, :] (Σ is exactly symmetric)
+        # H Σ (3m × d), the transpose of Σ Hᵀ: row block q = (Σ[:, P] − Σ[:, slot of q])ᵀ (read by columns: the
+        # noise sums leave Σ symmetric only to round-off)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            for c in range(3):
-                for r in range(d):
-                    pht[3 * q + c, r] = cov[3 + c, r] - cov[sl + c, r]
+            for r in range(d):
+                for c in range(3):
+                    pht[3 * q + c, r] = cov[r, 3 + c] - cov[r, sl + c]
         # S = H PHᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
