@@ -279,7 +279,8 @@ def test_accumulated_propagation_equals_step_by_step(source, request):
     to 1e-9. The bias random walks are off: their per-interval discretisation (added at the interval's start)
     is the one thing that depends on the interval."""
     if source == "generated":
-        stream, options = align(expected_streams(simulate("figure8", duration=10.0, seed=4)), keep_directions=False), None
+        sim = simulate("figure8", duration=10.0, seed=4)
+        stream, options = align(expected_streams(sim), keep_directions=False), None
         noise = resolve_noise(NoiseConfig(gyro_bias_walk=0.0, velocity_bias_walk=0.0))
     else:
         stream, options = request.getfixturevalue("figure8_input")
