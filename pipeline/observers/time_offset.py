@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamobs.pipeline.lie import integrate_body_twists, so3_exps
+from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline.lie import integrate_body_twists, se3_exp_into
 
 PAIR_SPAN_S = 1.0
 PAIR_MAX_S = 2.0
@@ -67,6 +68,44 @@ def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
     return a[same], b[same]
 
 
+@njit(cache=True)
+def _pose_at(t_s, rot_s, pos_s, omega, vel, t, rot, pos, d_r, unused):
+    """The pose at time ``t``: sample ``k`` before it (the first one before the samples) carried on for
+    ``h = t − t_k`` with its twist: ``R_k Exp(h ω_k)``, ``P_k + R_k h v_k`` (``d_r``, ``unused``: scratch)."""
+    lo, hi = 0, t_s.shape[0]  # the first sample after t (binary search)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_s[mid] <= t:
+            lo = mid + 1
+        else:
+            hi = mid
+    k = min(max(lo - 1, 0), t_s.shape[0] - 1)
+    h = t - t_s[k]
+    se3_exp_into(h * omega[k, 0], h * omega[k, 1], h * omega[k, 2], 0.0, 0.0, 0.0, d_r, unused)
+    for i in range(3):
+        dp = rot_s[k, i, 0] * (h * vel[k, 0]) + rot_s[k, i, 1] * (h * vel[k, 1]) + rot_s[k, i, 2] * (h * vel[k, 2])
+        pos[i] = pos_s[k, i] + dp
+        for j in range(3):
+            rot[i, j] = rot_s[k, i, 0] * d_r[0, j] + rot_s[k, i, 1] * d_r[1, j] + rot_s[k, i, 2] * d_r[2, j]
+
+
+@njit(cache=True)
+def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shift, out):
+    """``out[m] = y_a − R_aᵀ (P_b + R_b y_b − P_a)`` for the pairs ``(a[m], b[m])`` at the stamps moved by
+    ``shift`` (:func:`_pose_at`)."""
+    r_a, r_b = np.empty((3, 3)), np.empty((3, 3))
+    p_a, p_b, w = np.empty(3), np.empty(3), np.empty(3)
+    d_r, unused = np.empty((3, 3)), np.empty(3)
+    for m in range(a.shape[0]):
+        i, j = a[m], b[m]
+        _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[i] + shift, r_a, p_a, d_r, unused)
+        _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[j] + shift, r_b, p_b, d_r, unused)
+        for c in range(3):
+            w[c] = (p_b[c] + (r_b[c, 0] * y[j, 0] + r_b[c, 1] * y[j, 1] + r_b[c, 2] * y[j, 2])) - p_a[c]
+        for c in range(3):
+            out[m, c] = y[i, c] - (r_a[0, c] * w[0] + r_a[1, c] * w[1] + r_a[2, c] * w[2])
+
+
 class _Consistency:
     """The pairs' cost as a function of the shift, the odometry's bias profiled out."""
 
@@ -90,23 +129,13 @@ class _Consistency:
         omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
         return (*_sample_poses(s, omega, vel), omega, vel)
 
-    def _at(self, idx: np.ndarray, shift: float, poses) -> tuple[np.ndarray, np.ndarray]:
-        """Poses at the stamps of detections ``idx`` moved by ``shift``: carried on from the sample before with
-        its twist."""
-        t_s, rot_s, pos_s, omega, vel = poses
-        t = self.det_t[idx] + shift
-        k = np.clip(np.searchsorted(t_s, t, side="right") - 1, 0, t_s.shape[0] - 1)
-        h = (t - t_s[k])[:, None]
-        rot = np.einsum("kij,kjl->kil", rot_s[k], so3_exps(np.ascontiguousarray(h * omega[k])))
-        return rot, pos_s[k] + np.einsum("kij,kj->ki", rot_s[k], h * vel[k])
-
     def residuals(self, shift: float, poses=None) -> np.ndarray:
-        """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``."""
-        poses = self.poses if poses is None else poses
-        r_a, p_a = self._at(self.a, shift, poses)
-        r_b, p_b = self._at(self.b, shift, poses)
-        world_b = p_b + np.einsum("kij,kj->ki", r_b, self.y[self.b]) - p_a
-        return self.y[self.a] - np.einsum("kji,kj->ki", r_a, world_b)
+        """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``, the
+        poses at the detection stamps moved by ``shift`` carried on from the sample before with its twist."""
+        t_s, rot_s, pos_s, omega, vel = self.poses if poses is None else poses
+        out = np.empty((self.a.shape[0], 3))
+        _pair_residuals(t_s, rot_s, pos_s, omega, vel, self.det_t, self.y, self.a, self.b, shift, out)
+        return out
 
     def subset(self, keep: np.ndarray) -> _Consistency:
         """The same consistency over the pairs ``keep`` (a mask) only."""
