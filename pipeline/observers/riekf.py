@@ -242,8 +242,12 @@ def _add_bias_terms(cov, d, f, pb, g):
         for e in range(6):
             a1, a2, a3 = f[e, i], pb[e, i], g[e, i]
             fe, pe = f[e, i:], pb[e, i:]
-            for j in range(n):
-                acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
+            if e < 3 or 3 <= i < 6:
+                for j in range(n):
+                    acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
+            else:  # b̃_V reaches ξ_P only: F[i, e] = 0 and F[j, e] = 0 off j = 3..5, the terms there add zeros
+                for j in range(max(3 - i, 0), 6 - i):
+                    acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
         ci = cov[i, i:]
         for j in range(n):
             ci[j] += acc[j]
