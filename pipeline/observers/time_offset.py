@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from slamobs.pipeline.kernel_cache import njit
-from slamobs.pipeline.lie import integrate_body_twists, se3_exp_into
+from slamobs.pipeline.lie import integrate_body_twists, integrate_body_twists_at, se3_exp_into
 
 PAIR_SPAN_S = 1.0
 PAIR_MAX_S = 2.0
@@ -42,13 +42,16 @@ HALVES_SIGMAS = 3.0
 BIAS_STEP = 1e-4
 
 
-def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times."""
+def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray, keep=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times;
+    only those of the samples ``keep`` (sorted indices) when given."""
     t = stream.seconds(stream.vel_t_ns)
     dt = np.diff(t)
     omega, vel = omega[:-1].copy(), vel[:-1].copy()
     gap = stream.segment_starts - 1
     omega[gap], vel[gap] = 0.0, 0.0
+    if keep is not None:
+        return t[keep], *integrate_body_twists_at(np.eye(3), np.zeros(3), omega, vel, dt, keep)
     rot, pos = integrate_body_twists(np.eye(3), np.zeros(3), omega, vel, dt)
     return t, rot, pos
 
@@ -115,19 +118,26 @@ class _Consistency:
         self.a, self.b = _pairs(stream)
         self.y = stream.det_y
         self.poses = self._poses(bias)
-        # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift)
+        # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
+        # the samples the pairs read there only)
         base = self.residuals(0.0)
+        t_s = self.poses[0]
+        at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
+        keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))
         self.jac = np.empty((base.shape[0], 3, 6))
         for c in range(6):
             db = np.zeros(6)
             db[c] = BIAS_STEP
-            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db)) - base) / BIAS_STEP
+            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db, keep)) - base) / BIAS_STEP
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
-    def _poses(self, bias: np.ndarray):
+    def _poses(self, bias: np.ndarray, keep=None):
+        """The samples' times, poses and bias-corrected twists (those of the samples ``keep`` when given)."""
         s = self.stream
         omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
-        return (*_sample_poses(s, omega, vel), omega, vel)
+        if keep is None:
+            return (*_sample_poses(s, omega, vel), omega, vel)
+        return (*_sample_poses(s, omega, vel, keep), omega[keep], vel[keep])
 
     def residuals(self, shift: float, poses=None) -> np.ndarray:
         """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``, the
