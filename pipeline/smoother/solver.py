@@ -44,13 +44,13 @@ def detection_terms(rot, pos, lms, kf_of_det, det_idx, det_y, det_sigma, huber, 
     ``weight``) for the normal equations."""
     total = 0.0
     for m in range(kf_of_det.shape[0]):
-        i, l = kf_of_det[m], det_idx[m]
+        i, lm = kf_of_det[m], det_idx[m]
         e2 = 0.0
         for c in range(3):
             q = (
-                rot[i, 0, c] * (lms[l, 0] - pos[i, 0])
-                + rot[i, 1, c] * (lms[l, 1] - pos[i, 1])
-                + rot[i, 2, c] * (lms[l, 2] - pos[i, 2])
+                rot[i, 0, c] * (lms[lm, 0] - pos[i, 0])
+                + rot[i, 1, c] * (lms[lm, 1] - pos[i, 1])
+                + rot[i, 2, c] * (lms[lm, 2] - pos[i, 2])
             )
             e2 += (q - det_y[m, c]) ** 2
         s2 = max(det_sigma[m], 1e-12) ** 2
@@ -111,14 +111,14 @@ def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, ad, ga, c
     """The detections' part of the normal equations: pose and landmark diagonal blocks and gradients (the
     pose-landmark blocks are recomputed by :func:`border_row` where needed)."""
     for m in range(kf_of_det.shape[0]):
-        i, l, a = kf_of_det[m], det_idx[m], weight[m]
+        i, lm, a = kf_of_det[m], det_idx[m], weight[m]
         q = np.empty(3)
         d = np.empty(3)
         for k in range(3):
             q[k] = (
-                rot[i, 0, k] * (lms[l, 0] - pos[i, 0])
-                + rot[i, 1, k] * (lms[l, 1] - pos[i, 1])
-                + rot[i, 2, k] * (lms[l, 2] - pos[i, 2])
+                rot[i, 0, k] * (lms[lm, 0] - pos[i, 0])
+                + rot[i, 1, k] * (lms[lm, 1] - pos[i, 1])
+                + rot[i, 2, k] * (lms[lm, 2] - pos[i, 2])
             )
             d[k] = q[k] - det_y[m, k]
         # J_pose = [[q]×, −I], J_ℓ = Rᵀ (times √a)
@@ -132,10 +132,10 @@ def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, ad, ga, c
                 ad[i, p, 3 + r] -= a * sk[r, p]
                 ad[i, 3 + r, p] -= a * sk[r, p]
             ad[i, 3 + p, 3 + p] += a
-            c[3 * l + p, 3 * l + p] += a
+            c[3 * lm + p, 3 * lm + p] += a
             ga[i, p] += a * (sk[0, p] * d[0] + sk[1, p] * d[1] + sk[2, p] * d[2])
             ga[i, 3 + p] -= a * d[p]
-            gb[3 * l + p] += a * (rot[i, p, 0] * d[0] + rot[i, p, 1] * d[1] + rot[i, p, 2] * d[2])
+            gb[3 * lm + p] += a * (rot[i, p, 0] * d[0] + rot[i, p, 1] * d[1] + rot[i, p, 2] * d[2])
 
 
 @njit(cache=True)
@@ -143,19 +143,19 @@ def border_row(i, rot, pos, lms, det_lo, det_hi, det_idx, weight, mb, seg_of, bi
     """Row block ``i`` of ``B`` (6 × n_b): the pose's coupling to the landmarks it sees and to its biases."""
     out[:] = 0.0
     for m in range(det_lo, det_hi):
-        l, a = det_idx[m], weight[m]
+        lm, a = det_idx[m], weight[m]
         q = np.empty(3)
         for k in range(3):
             q[k] = (
-                rot[i, 0, k] * (lms[l, 0] - pos[i, 0])
-                + rot[i, 1, k] * (lms[l, 1] - pos[i, 1])
-                + rot[i, 2, k] * (lms[l, 2] - pos[i, 2])
+                rot[i, 0, k] * (lms[lm, 0] - pos[i, 0])
+                + rot[i, 1, k] * (lms[lm, 1] - pos[i, 1])
+                + rot[i, 2, k] * (lms[lm, 2] - pos[i, 2])
             )
         sk = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]])
         for p in range(3):  # J_poseᵀ J_ℓ = a [[q]×ᵀ Rᵀ; −Rᵀ]
             for r in range(3):
-                out[3 + p, 3 * l + r] -= a * rot[i, r, p]
-                out[p, 3 * l + r] += a * (sk[0, p] * rot[i, r, 0] + sk[1, p] * rot[i, r, 1] + sk[2, p] * rot[i, r, 2])
+                out[3 + p, 3 * lm + r] -= a * rot[i, r, p]
+                out[p, 3 * lm + r] += a * (sk[0, p] * rot[i, r, 0] + sk[1, p] * rot[i, r, 1] + sk[2, p] * rot[i, r, 2])
     n = seg_of.shape[0]
     if i < n:
         b0 = bias0 + 6 * seg_of[i]
@@ -379,8 +379,8 @@ def retract(rot, pos, lms, bias, x, xb, n_lm, out_rot, out_pos, out_lms, out_bia
             for q in range(3):
                 out_rot[i, p, q] = rot[i, p, 0] * e[0, q] + rot[i, p, 1] * e[1, q] + rot[i, p, 2] * e[2, q]
             out_pos[i, p] = pos[i, p] + rot[i, p, 0] * x[i, 3] + rot[i, p, 1] * x[i, 4] + rot[i, p, 2] * x[i, 5]
-    for l in range(n_lm):
-        out_lms[l] = lms[l] + xb[3 * l : 3 * l + 3]
+    for lm in range(n_lm):
+        out_lms[lm] = lms[lm] + xb[3 * lm : 3 * lm + 3]
     for s in range(bias.shape[0]):
         out_bias[s] = bias[s] + xb[3 * n_lm + 6 * s : 3 * n_lm + 6 * s + 6]
 
