@@ -147,21 +147,14 @@ class _Normal:
 
     def factor(self, lam: float) -> tuple | None:
         """``A + λI`` factored and the border's Schur complement ``S`` (None: not positive definite), with
-        ``z = L⁻¹(−Jᵀr)_a`` and the border's right side; ``W``'s rows enter ``S`` a stretch at a time (BLAS)."""
-        from slamobs.pipeline.smoother.solver import ROWS, factor_rows
+        ``z = L⁻¹(−Jᵀr)_a`` and the border's right side."""
+        from slamobs.pipeline.smoother.solver import factor
 
-        k, nb = self.ad.shape[0], self.c.shape[0]
-        s, rb, z = self.c + lam * np.eye(nb), -self.gb, -self.ga
-        w_prev, buf, zbuf = np.zeros((6, nb)), np.empty((6 * ROWS, nb)), np.empty(6 * ROWS)
-        geo = self._geo()
-        for i0 in range(0, k, ROWS):
-            i1 = min(k, i0 + ROWS)
-            if not factor_rows(i0, i1, self.ad, self.ao, lam, z, geo, self.dd, self.ee, w_prev, buf, zbuf):
-                return None
-            part = buf[: 6 * (i1 - i0)]
-            s -= part.T @ part
-            rb -= part.T @ zbuf[: 6 * (i1 - i0)]
-        return s, rb, z
+        s, rb, z = self.c + lam * np.eye(self.c.shape[0]), -self.gb, -self.ga
+        if not factor(self.ad, self.ao, lam, z, self._geo(), self.dd, self.ee, s, rb):
+            return None
+        upper = np.triu(s)
+        return upper + np.triu(s, 1).T, rb, z
 
     def step(self, lam: float) -> tuple | None:
         """The damped Gauss–Newton step from the linearization point: the new point and ``S`` (None: singular)."""

@@ -9,12 +9,12 @@ information matrix is block tridiagonal in the poses (``A``) with a border of ``
     [A  B] [x_a]   [r_a]        W = L⁻¹B,  z = L⁻¹r_a  (A = L Lᵀ, L block lower bidiagonal),
     [Bᵀ C] [x_b] = [r_b]        (C − WᵀW) x_b = r_b − Wᵀz,   A x_a = r_a − B x_b.
 
-One forward sweep factors ``A`` block by block and accumulates the border's Schur complement (a few rows of
-``W`` at a time through BLAS); a second forward and backward sweep gives the poses. Nothing of size ``K × n_b``
-is held: ``W``'s rows are recomputed where needed. The marginal covariances come from the same factors: the
-poses' diagonal blocks of ``A⁻¹`` by the block tridiagonal recursion ``Z_ii = (D_i D_iᵀ)⁻¹ + F_iᵀ Z_{i+1,i+1}
-F_i`` (``F_i = E_{i+1} D_i⁻¹``), plus ``V_i S⁻¹ V_iᵀ`` with ``V = A⁻¹B`` (``Lᵀ V = W``, backward), and the
-border's marginals from ``S⁻¹``. Cost per sweep: ``O(K n_b²)`` flops, most of them in one BLAS product.
+One forward sweep factors ``A`` block by block and accumulates the border's Schur complement (the rows of ``W``
+of 32 keyframes at a time, in register tiles); a second forward and backward sweep gives the poses. Nothing of
+size ``K × n_b`` is held: ``W``'s rows are recomputed where needed. The marginal covariances come from the same
+factors: the poses' diagonal blocks of ``A⁻¹`` by the block tridiagonal recursion
+``Z_ii = (D_i D_iᵀ)⁻¹ + F_iᵀ Z_{i+1,i+1} F_i`` (``F_i = E_{i+1} D_i⁻¹``), plus ``V_i S⁻¹ V_iᵀ`` with ``V = A⁻¹B``
+(``Lᵀ V = W``, backward), and the border's marginals from ``S⁻¹``. Cost per sweep: ``O(K n_b²)`` flops.
 
 The landmark factor is the body-frame point ``Rᵀ(ℓ − P) − y`` with an isotropic standard deviation ``σ`` per
 axis and a Huber kernel on the norm of the whitened residual (GTSAM's ``Robust`` model: the residual and
@@ -32,8 +32,8 @@ from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import so3_exp, so3_log
 from slamobs.pipeline.smoother.preintegration import motion_residual
 
-#: Rows of ``W`` multiplied into the Schur complement at once (one BLAS call per ``ROWS`` keyframes).
-ROWS = 64
+#: Keyframes whose rows of ``W`` enter the Schur complement together (:func:`_schur_update`).
+BATCH = 32
 #: Keyframes between the stored rows of ``W`` from which the covariance sweep recomputes the others.
 CHECKPOINT = 512
 
@@ -142,20 +142,21 @@ def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, ad, ga, c
 def border_row(i, rot, pos, lms, det_lo, det_hi, det_idx, weight, mb, seg_of, bias0, out):
     """Row block ``i`` of ``B`` (6 × n_b): the pose's coupling to the landmarks it sees and to its biases."""
     out[:] = 0.0
+    r = rot[i]
     for m in range(det_lo, det_hi):
         lm, a = det_idx[m], weight[m]
-        q = np.empty(3)
-        for k in range(3):
-            q[k] = (
-                rot[i, 0, k] * (lms[lm, 0] - pos[i, 0])
-                + rot[i, 1, k] * (lms[lm, 1] - pos[i, 1])
-                + rot[i, 2, k] * (lms[lm, 2] - pos[i, 2])
-            )
-        sk = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]])
-        for p in range(3):  # J_poseᵀ J_ℓ = a [[q]×ᵀ Rᵀ; −Rᵀ]
-            for r in range(3):
-                out[3 + p, 3 * lm + r] -= a * rot[i, r, p]
-                out[p, 3 * lm + r] += a * (sk[0, p] * rot[i, r, 0] + sk[1, p] * rot[i, r, 1] + sk[2, p] * rot[i, r, 2])
+        d0, d1, d2 = lms[lm, 0] - pos[i, 0], lms[lm, 1] - pos[i, 1], lms[lm, 2] - pos[i, 2]
+        q0 = r[0, 0] * d0 + r[1, 0] * d1 + r[2, 0] * d2
+        q1 = r[0, 1] * d0 + r[1, 1] * d1 + r[2, 1] * d2
+        q2 = r[0, 2] * d0 + r[1, 2] * d1 + r[2, 2] * d2
+        for c in range(3):  # J_poseᵀ J_ℓ = a [[q]×ᵀ Rᵀ; −Rᵀ], [q]×ᵀ = −[q]×
+            col = 3 * lm + c
+            out[0, col] += a * (q2 * r[c, 1] - q1 * r[c, 2])
+            out[1, col] += a * (q0 * r[c, 2] - q2 * r[c, 0])
+            out[2, col] += a * (q1 * r[c, 0] - q0 * r[c, 1])
+            out[3, col] -= a * r[c, 0]
+            out[4, col] -= a * r[c, 1]
+            out[5, col] -= a * r[c, 2]
     n = seg_of.shape[0]
     if i < n:
         b0 = bias0 + 6 * seg_of[i]
@@ -171,24 +172,36 @@ def border_row(i, rot, pos, lms, det_lo, det_hi, det_idx, weight, mb, seg_of, bi
 
 @njit(cache=True)
 def _lower_solve(d, b, out):
-    """``out = d⁻¹ b`` for a lower triangular (6, 6) ``d`` and a (6, n) ``b``."""
-    for col in range(b.shape[1]):
-        for p in range(6):
-            x = b[p, col]
-            for k in range(p):
-                x -= d[p, k] * out[k, col]
-            out[p, col] = x / d[p, p]
+    """``out = d⁻¹ b`` for a lower triangular (6, 6) ``d`` and a (6, n) ``b`` (row by row: contiguous)."""
+    n = b.shape[1]
+    for p in range(6):
+        op, bp = out[p], b[p]
+        for col in range(n):
+            op[col] = bp[col]
+        for k in range(p):
+            x, ok = d[p, k], out[k]
+            for col in range(n):
+                op[col] -= x * ok[col]
+        inv = 1.0 / d[p, p]
+        for col in range(n):
+            op[col] *= inv
 
 
 @njit(cache=True)
 def _upper_solve(d, b, out):
     """``out = d⁻ᵀ b`` for a lower triangular (6, 6) ``d`` and a (6, n) ``b``."""
-    for col in range(b.shape[1]):
-        for p in range(5, -1, -1):
-            x = b[p, col]
-            for k in range(p + 1, 6):
-                x -= d[k, p] * out[k, col]
-            out[p, col] = x / d[p, p]
+    n = b.shape[1]
+    for p in range(5, -1, -1):
+        op, bp = out[p], b[p]
+        for col in range(n):
+            op[col] = bp[col]
+        for k in range(p + 1, 6):
+            x, ok = d[k, p], out[k]
+            for col in range(n):
+                op[col] -= x * ok[col]
+        inv = 1.0 / d[p, p]
+        for col in range(n):
+            op[col] *= inv
 
 
 @njit(cache=True)
@@ -229,20 +242,56 @@ def _w_row(i, dd, ee, brow, w_prev, out):
     _lower_solve(dd[i], brow, out)
 
 
+@njit(cache=True, fastmath=True)
+def _schur_update(wt, zt, used, s, rb):
+    """``S −= W_Rᵀ W_R`` (2 × 2 tiles of the upper triangle, ``n_b`` even) and ``r_b −= W_Rᵀ z_R`` for the first
+    ``used`` columns of ``wt`` (n_b, 6R), the rows of ``W`` of up to ``R`` keyframes side by side: the products
+    over ``6R`` rows at once, which keeps the operands in registers."""
+    nb = wt.shape[0]
+    for a in range(0, nb, 2):
+        wa0, wa1 = wt[a], wt[a + 1]
+        y0 = y1 = 0.0
+        for r in range(used):
+            y0 += wa0[r] * zt[r]
+            y1 += wa1[r] * zt[r]
+        rb[a] -= y0
+        rb[a + 1] -= y1
+        for b in range(a, nb, 2):
+            wb0, wb1 = wt[b], wt[b + 1]
+            x00 = x01 = x10 = x11 = 0.0
+            for r in range(used):
+                x00 += wa0[r] * wb0[r]
+                x01 += wa0[r] * wb1[r]
+                x10 += wa1[r] * wb0[r]
+                x11 += wa1[r] * wb1[r]
+            s[a, b] -= x00
+            s[a, b + 1] -= x01
+            s[a + 1, b] -= x10
+            s[a + 1, b + 1] -= x11
+
+
 @njit(cache=True)
-def factor_rows(i0, i1, ad, ao, lam, ra, geo, dd, ee, w_prev, buf, zbuf):
-    """Rows ``i0 .. i1`` of the factorization of ``A + λI`` (``dd``: diagonal Cholesky blocks, ``ee``: the
-    blocks of ``L`` below them) with their rows of ``W`` (into ``buf``, ``w_prev`` the one before) and of
-    ``z = L⁻¹ r_a`` (``ra`` overwritten, and into ``zbuf``): the caller multiplies them into the Schur complement.
-    ``geo``: the detections and biases for :func:`border_row`. False if ``A + λI`` is not positive definite."""
+def factor(ad, ao, lam, ra, geo, dd, ee, s, rb):
+    """Factor ``A + λI`` (``dd``: diagonal Cholesky blocks, ``ee``: the blocks of ``L`` below them), ``ra``
+    overwritten by ``z = L⁻¹ r_a``, and the Schur complement ``S −= WᵀW`` (upper triangle of ``s``) with its
+    right side ``rb −= Wᵀz``. ``geo``: the detections and biases for :func:`border_row`. False if ``A + λI``
+    is not positive definite."""
     rot, pos, lms, det_start, det_idx, weight, mb, seg_of, bias0 = geo
-    nb = w_prev.shape[1]
+    nb = s.shape[0]
+    pad = nb + nb % 2
+    w_prev = np.zeros((6, nb))
+    w = np.zeros((6, nb))
+    wt = np.zeros((pad, 6 * BATCH))
+    zt = np.zeros(6 * BATCH)
+    acc = np.zeros((pad, pad))
+    rba = np.zeros(pad)
+    used = 0
     m = np.empty((6, 6))
     et = np.empty((6, 6))
     brow = np.empty((6, nb))
     rhs = np.empty((6, 1))
     z = np.empty((6, 1))
-    for i in range(i0, i1):
+    for i in range(ad.shape[0]):
         m[:] = ad[i]
         for p in range(6):
             m[p, p] += lam
@@ -253,15 +302,22 @@ def factor_rows(i0, i1, ad, ao, lam, ra, geo, dd, ee, w_prev, buf, zbuf):
         if not _cholesky6(m, dd[i]):
             return False
         border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, mb, seg_of, bias0, brow)
-        w = buf[6 * (i - i0) : 6 * (i - i0) + 6]
         _w_row(i, dd, ee, brow, w_prev, w)
         rhs[:, 0] = ra[i]
         if i > 0:
             _sub_product(ee[i], ra[i - 1].reshape(6, 1), rhs, False)
         _lower_solve(dd[i], rhs, z)
         ra[i] = z[:, 0]
-        zbuf[6 * (i - i0) : 6 * (i - i0) + 6] = z[:, 0]
+        for p in range(6):
+            wt[:nb, used + p] = w[p]
+            zt[used + p] = z[p, 0]
+        used += 6
+        if used == 6 * BATCH or i == ad.shape[0] - 1:
+            _schur_update(wt, zt, used, acc, rba)
+            used = 0
         w_prev[:] = w
+    s += acc[:nb, :nb]
+    rb += rba[:nb]
     return True
 
 
