@@ -133,8 +133,7 @@ class BatchSmoother(Stepper):
         kf_t, kf_of_det, gaps = self._keyframes()
         seed = self._seed(kf_t, kf_of_det)
         t0, c0 = time.perf_counter(), time.process_time()
-        st = self.settings
-        segments = _Segments(self.vel_t[0], self.vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+        segments = self._segments()
         full = self._problem(kf_t, kf_of_det, gaps, seed, segments)
         first = self._candidate(full, seed, segments.n, progress)
         chosen, robust, seed_s = first, None, seed.seconds
@@ -181,6 +180,21 @@ class BatchSmoother(Stepper):
             }
         )
         return summary
+
+    def _segments(self) -> _Segments:
+        st = self.settings
+        return _Segments(self.vel_t[0], self.vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+
+    def first_problem(self):
+        """The graph data the configured seed's solve starts from, and the seed as its guess (what
+        ``benchmarks/batch_gtsam.py`` hands to GTSAM too)."""
+        from slamobs.pipeline.smoother import graph as g
+
+        kf_t, kf_of_det, gaps = self._keyframes()
+        seed = self._seed(kf_t, kf_of_det)
+        segments = self._segments()
+        problem = self._problem(kf_t, kf_of_det, gaps, seed, segments)
+        return problem, g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(problem.b_bar, (segments.n, 1)))
 
     def _candidate(self, problem, seed, n_segments: int, progress):
         """The smoother's solution from ``seed`` (gated and solved again as :meth:`_solve_gated` does)."""
