@@ -112,30 +112,49 @@ def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, ad, ga, c
     pose-landmark blocks are recomputed by :func:`border_row` where needed)."""
     for m in range(kf_of_det.shape[0]):
         i, lm, a = kf_of_det[m], det_idx[m], weight[m]
-        q = np.empty(3)
-        d = np.empty(3)
-        for k in range(3):
-            q[k] = (
-                rot[i, 0, k] * (lms[lm, 0] - pos[i, 0])
-                + rot[i, 1, k] * (lms[lm, 1] - pos[i, 1])
-                + rot[i, 2, k] * (lms[lm, 2] - pos[i, 2])
-            )
-            d[k] = q[k] - det_y[m, k]
-        # J_pose = [[q]×, −I], J_ℓ = Rᵀ (times √a)
-        sk = np.array([[0.0, -q[2], q[1]], [q[2], 0.0, -q[0]], [-q[1], q[0], 0.0]])
+        r = rot[i]
+        e0, e1, e2 = lms[lm, 0] - pos[i, 0], lms[lm, 1] - pos[i, 1], lms[lm, 2] - pos[i, 2]
+        q0 = r[0, 0] * e0 + r[1, 0] * e1 + r[2, 0] * e2
+        q1 = r[0, 1] * e0 + r[1, 1] * e1 + r[2, 1] * e2
+        q2 = r[0, 2] * e0 + r[1, 2] * e1 + r[2, 2] * e2
+        d0, d1, d2 = q0 - det_y[m, 0], q1 - det_y[m, 1], q2 - det_y[m, 2]
+        # J_pose = [[q]×, −I], J_ℓ = Rᵀ (times √a); [q]×ᵀ[q]× = |q|² I − q qᵀ
+        qq = q0 * q0 + q1 * q1 + q2 * q2
+        h = ad[i]
+        h[0, 0] += a * (qq - q0 * q0)
+        h[1, 1] += a * (qq - q1 * q1)
+        h[2, 2] += a * (qq - q2 * q2)
+        h[0, 1] -= a * q0 * q1
+        h[1, 0] -= a * q0 * q1
+        h[0, 2] -= a * q0 * q2
+        h[2, 0] -= a * q0 * q2
+        h[1, 2] -= a * q1 * q2
+        h[2, 1] -= a * q1 * q2
+        # −[q]×ᵀ = [q]× (top right), −[q]× (bottom left)
+        h[0, 4] -= a * q2
+        h[0, 5] += a * q1
+        h[1, 3] += a * q2
+        h[1, 5] -= a * q0
+        h[2, 3] -= a * q1
+        h[2, 4] += a * q0
+        h[4, 0] -= a * q2
+        h[5, 0] += a * q1
+        h[3, 1] += a * q2
+        h[5, 1] -= a * q0
+        h[3, 2] -= a * q1
+        h[4, 2] += a * q0
         for p in range(3):
-            for r in range(3):
-                x = 0.0
-                for k in range(3):
-                    x += sk[k, p] * sk[k, r]
-                ad[i, p, r] += a * x
-                ad[i, p, 3 + r] -= a * sk[r, p]
-                ad[i, 3 + r, p] -= a * sk[r, p]
-            ad[i, 3 + p, 3 + p] += a
+            h[3 + p, 3 + p] += a
             c[3 * lm + p, 3 * lm + p] += a
-            ga[i, p] += a * (sk[0, p] * d[0] + sk[1, p] * d[1] + sk[2, p] * d[2])
-            ga[i, 3 + p] -= a * d[p]
-            gb[3 * lm + p] += a * (rot[i, p, 0] * d[0] + rot[i, p, 1] * d[1] + rot[i, p, 2] * d[2])
+        # [q]×ᵀ d = d × q
+        ga[i, 0] += a * (d1 * q2 - d2 * q1)
+        ga[i, 1] += a * (d2 * q0 - d0 * q2)
+        ga[i, 2] += a * (d0 * q1 - d1 * q0)
+        ga[i, 3] -= a * d0
+        ga[i, 4] -= a * d1
+        ga[i, 5] -= a * d2
+        for p in range(3):
+            gb[3 * lm + p] += a * (r[p, 0] * d0 + r[p, 1] * d1 + r[p, 2] * d2)
 
 
 @njit(cache=True)
