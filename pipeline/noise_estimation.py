@@ -467,6 +467,8 @@ def held_motion_noise(
 ) -> HeldMotion | None:
     """The noise of velocity streams that hold their values (commanded velocities: their samples show no noise)
     from what the detections see over lags of ``PAIR_LAGS_S``; None with fewer than ``MIN_SAMPLES`` pairs."""
+    if det_idx.shape[0] < 2 or vel_t.shape[0] < 2:
+        return None
     e2, design = pair_design(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts)
     if e2.size < MIN_SAMPLES:
         return None

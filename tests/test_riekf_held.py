@@ -73,3 +73,22 @@ def test_riekf_on_held_commands_is_not_lost_and_beats_fast_adaptation(held_log):
     fa_res = fa.run(stream, fa.resolve_gains(None), ObserverOptions(out_every=10))
     riekf_ape, fa_ape = ape(sim, res.t_ns, res.position), ape(sim, fa_res.t_ns, fa_res.position)
     assert riekf_ape < fa_ape, (riekf_ape, fa_ape)
+
+
+def test_held_streams_without_enough_detections_keep_the_defaults_and_say_so(held_log):
+    """No landmark seen twice: nothing to learn the held streams' noise from; the defaults stay, with a note."""
+    from slamobs.pipeline.noise import DEFAULTS
+
+    _, stream, _ = held_log
+    first = stream.det_offsets[1]
+    blind = replace(
+        stream,
+        det_t_ns=stream.det_t_ns[:1],
+        det_offsets=stream.det_offsets[:2],
+        det_idx=stream.det_idx[:first],
+        det_y=stream.det_y[:first],
+    )
+    found = estimate_log_noise(blind)
+    noise = resolve_noise(estimated=found)
+    assert noise.sources["gyro"] == "default" and noise.gyro_bias == DEFAULTS["gyro_bias"][0]
+    assert any("held streams' noise" in n for n in found.notes), found.notes
