@@ -480,5 +480,6 @@ def held_motion_noise(
     levels = {}
     for name, th, s in zip(COMPONENTS, theta, se, strict=True):
         value = max(float(np.sqrt(th)), MIN_LEVEL)
-        levels[name] = Estimate(value, float(s / (2 * value)), method, used)  # σ = √θ: se(σ) = se(θ) / 2σ
+        # σ = √θ: se(σ) = se(θ) / 2σ, or √se(θ) for a σ the fit cannot tell from zero
+        levels[name] = Estimate(value, float(min(s / (2 * value), np.sqrt(s))), method, used)
     return HeldMotion(levels)
