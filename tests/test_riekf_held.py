@@ -92,3 +92,27 @@ def test_held_streams_without_enough_detections_keep_the_defaults_and_say_so(hel
     noise = resolve_noise(estimated=found)
     assert noise.sources["gyro"] == "default" and noise.gyro_bias == DEFAULTS["gyro_bias"][0]
     assert any("held streams' noise" in n for n in found.notes), found.notes
+
+
+def test_batch_global_model_test_passes_at_its_optimum_and_fails_away_from_it(held_log, monkeypatch):
+    """With noise levels that fit the log, a smoother stopped near a poor seed is no longer flagged by the gate;
+    the global model test (χ² over redundancy, ``candidates.GLOBAL_CHI2_DOUBT``) still tells it: at most about 1 at the
+    optimum, far above the bound at a solution whose trajectory is off by a quarter metre."""
+    from slamobs.pipeline.smoother import candidates
+    from slamobs.pipeline.smoother.estimator import BatchSmoother
+
+    _, stream, noise = held_log
+    seen = {}
+
+    def spy(problem, first):
+        seen["problem"], seen["sol"] = problem, first.sol
+        return doubt(problem, first)
+
+    doubt = candidates.doubt
+    monkeypatch.setattr(candidates, "doubt", spy)
+    BatchSmoother(stream, {}, replace(ObserverOptions(), noise=noise)).solve()
+    problem, sol = seen["problem"], seen["sol"]
+    at_optimum = candidates.global_chi2(problem, sol)
+    assert at_optimum < 1.5 < candidates.GLOBAL_CHI2_DOUBT, at_optimum
+    bent = np.linspace(0.0, 1.0, sol.pos.shape[0])[:, None] * np.array([0.25, -0.25, 0.0])  # a drift the map lacks
+    assert candidates.global_chi2(problem, replace(sol, pos=sol.pos + bent)) > candidates.GLOBAL_CHI2_DOUBT
