@@ -4,8 +4,9 @@
 
 On ``benchmarks/end_to_end.py``'s figure8-wide log of ``--seconds`` (generated once into the cache), the
 smoother's problem is built as ``slamobs run --observer batch`` builds it (seed, keyframes, preintegrated
-odometry), then solved twice from the seed: by the package's solver (``solve`` in ``pipeline/smoother/graph.py``, compiled
-normal equations over the block tridiagonal structure) and by GTSAM's ``LevenbergMarquardtOptimizer`` on a graph
+odometry), then solved twice from the seed: by the package's solver (``solve`` in
+``pipeline/smoother/graph.py``, compiled normal equations over the block tridiagonal structure) and by GTSAM's
+``LevenbergMarquardtOptimizer`` on a graph
 of stock factors made in Python: ``BetweenFactorPose3`` per keyframe interval (the preintegrated motion at the
 seed's bias and its covariance: stock factors have no bias correction, so the biases stay at the seed's),
 ``BearingRangeFactor3D`` per detection with the same Huber kernel, and a ``PriorFactorPose3`` gauge. Printed:
