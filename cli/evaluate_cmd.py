@@ -277,7 +277,7 @@ def _save_plot(path: Path, result, plot_mode: str) -> None:
     import numpy as np
 
     from slamobs.pipeline.evaluation.plots import plot_error_result
-    from slamobs.pipeline.writers import atomic_file
+    from slamobs.pipeline.writers import atomic_file, kept_unless
 
     errors = np.asarray(result.errors, dtype=np.float64)
     t_s = np.asarray(result.arrays.get("seconds_from_start", np.arange(len(errors))), dtype=np.float64)
@@ -285,7 +285,11 @@ def _save_plot(path: Path, result, plot_mode: str) -> None:
         t_s = np.arange(len(errors), dtype=np.float64)
     est = np.asarray(result.est_pos_aligned, dtype=np.float64)
     at = est if result.pair_i is None else est[np.asarray(result.pair_i)]
-    with atomic_file(path, why_kept=_why_kept_plot) as tmp:
+    why_kept = kept_unless(
+        lambda head: head.startswith(b"\x89PNG\r\n\x1a\n"),
+        "exists and is not a PNG plot: it is kept; remove it or choose another --save_plot",
+    )
+    with atomic_file(path, why_kept=why_kept) as tmp:
         plot_error_result(
             tmp,
             t_s,
@@ -298,16 +302,6 @@ def _save_plot(path: Path, result, plot_mode: str) -> None:
             title=result.title,
             label=result.label,
         )
-
-
-def _why_kept_plot(path: Path) -> str | None:
-    try:
-        with open(path, "rb") as f:
-            if f.read(8) == b"\x89PNG\r\n\x1a\n":
-                return None
-    except OSError:
-        pass
-    return "exists and is not a PNG plot: it is kept; remove it or choose another --save_plot"
 
 
 def _alignment_kind(align: bool, scale: bool, origin: bool, yaw: bool) -> str:

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,7 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.paths import check_utf8
 from slamobs.pipeline.readers.mcap import mcap_library
-from slamobs.pipeline.writers import atomic_file, update_manifest
+from slamobs.pipeline.writers import atomic_file, kept_unless, update_manifest
 
 RESULTS_MCAP = "results.mcap"
 MAP_FRAME = "slamobs/map"
@@ -417,7 +416,12 @@ def write_results_mcap(
     if parent is not None and not parent.is_dir():
         raise OutputError(out, f"{parent} is a file, not a directory")
     check_output_file(out, [p for p in run_dir.iterdir() if p.suffix != ".mcap"])  # the files read, not a results MCAP
-    why_kept = partial(_why_kept, force=force)
+    why_kept = kept_unless(
+        lambda head: mcap_library(head).startswith("slamobs "),
+        "exists and is not a results MCAP slamobs wrote: --force replaces only those; it is kept, remove it "
+        "or choose another --mcap",
+        force=force,
+    )
     if os.path.lexists(out) and (why := why_kept(out)) is not None:
         raise OutputError(out, why)
     with atomic_file(out, why_kept=why_kept) as tmp:
@@ -428,24 +432,6 @@ def write_results_mcap(
         os.chmod(tmp, 0o666 & ~umask)  # the results file is ordinary output
     update_manifest(out.parent, written=[out])  # exported into a run directory: still slamobs's
     return out
-
-
-def _why_kept(path: Path, *, force: bool) -> str | None:
-    """Why ``path`` must not be replaced: without ``force`` anything; with it anything but a results MCAP slamobs
-    wrote (a recorded log, say, is the user's)."""
-    if not force:
-        return "exists already (use --force to replace it)"
-    try:
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    except OSError:
-        head = b""
-    if mcap_library(head).startswith("slamobs "):
-        return None
-    return (
-        "exists and is not a results MCAP slamobs wrote: --force replaces only those; it is kept, remove it "
-        "or choose another --mcap"
-    )
 
 
 class _Out:

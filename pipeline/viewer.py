@@ -228,25 +228,11 @@ def record(rr, rec, runs: list[ViewRun]) -> None:
         log_run(rr, rec, rr.escape_entity_path_part(label), run)
 
 
-def _why_kept(path: Path, *, force: bool) -> str | None:
-    """Without ``force`` nothing is replaced; with it only a Rerun recording."""
-    if not force:
-        return "exists already (use --force to replace it)"
-    try:
-        with open(path, "rb") as f:
-            head = f.read(4)
-    except OSError:
-        head = b""
-    return None if head.startswith(b"RRF") else "exists and is not a Rerun recording: --force replaces only those"
-
-
 def view_runs(run_dirs: list[Path], out: Path | None = None, *, spawn: bool = False, force: bool = False):
     """Record ``run_dirs`` into ``out`` (default: ``view.rrd`` in the first run directory; none with ``spawn``
     and no ``out``) and/or a viewer spawned now. Every run is read before anything is written. Returns
     (the file written or None, the runs)."""
-    from functools import partial
-
-    from slamobs.pipeline.writers import atomic_file, update_manifest
+    from slamobs.pipeline.writers import atomic_file, kept_unless, update_manifest
 
     runs = [load_view_run(Path(p)) for p in run_dirs]
     rr = rerun_module(run_dirs[0])
@@ -259,7 +245,12 @@ def view_runs(run_dirs: list[Path], out: Path | None = None, *, spawn: bool = Fa
         rec.flush()
         return None, runs
     out = Path(out)
-    with atomic_file(out, why_kept=partial(_why_kept, force=force)) as tmp:
+    why_kept = kept_unless(
+        lambda head: head.startswith(b"RRF"),
+        "exists and is not a Rerun recording: --force replaces only those",
+        force=force,
+    )
+    with atomic_file(out, why_kept=why_kept) as tmp:
         if spawn:
             rec.spawn(connect=False)
             rec.set_sinks(rr.FileSink(str(tmp)), rr.GrpcSink())

@@ -773,6 +773,23 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     shutil.rmtree(container, ignore_errors=True)
 
 
+def kept_unless(is_ours, refusal: str, *, force: bool = True, nbytes: int = 4096):
+    """A ``why_kept`` for :func:`atomic_file`: without ``force`` nothing is replaced; with it only a file whose
+    first ``nbytes`` satisfy ``is_ours`` (a kind of file slamobs writes), anything else kept with ``refusal``."""
+
+    def why_kept(path: Path) -> str | None:
+        if not force:
+            return "exists already (use --force to replace it)"
+        try:
+            with open(path, "rb") as f:
+                head = f.read(nbytes)
+        except OSError:
+            head = b""
+        return None if is_ours(head) else refusal
+
+    return why_kept
+
+
 @contextmanager
 def atomic_file(final: Path, *, why_kept=lambda _path: "exists already"):
     """Yield a temporary path (in a hidden directory beside ``final``) that becomes ``final`` only if the block

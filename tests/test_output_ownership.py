@@ -436,3 +436,24 @@ def test_a_kill_between_the_swap_and_its_check_deletes_nothing_of_the_users(tmp_
     assert writers.remove_stale_temporaries(tmp_path)  # what the next run on this parent does first
     assert sorted(os.listdir(out)) == ["thesis.tex"] and (out / "thesis.tex").read_text() == "precious"
     assert sorted(os.listdir(tmp_path)) == ["earlier", "out"]
+
+
+def test_single_file_outputs_replace_only_their_own_kind(tmp_path):
+    """``kept_unless``: without --force nothing is replaced; with it only a file whose head says slamobs wrote it,
+    and the user's file stays untouched with the refusal as the one-line error."""
+    from slamobs.pipeline.errors import OutputError
+    from slamobs.pipeline.writers import atomic_file, kept_unless
+
+    ours, theirs = tmp_path / "a.rrd", tmp_path / "b.rrd"
+    ours.write_bytes(b"RRF2 old")
+    theirs.write_bytes(b"notes")
+    for force in (False, True):
+        why = kept_unless(lambda head: head.startswith(b"RRF"), "is not a recording", force=force)
+        with pytest.raises(OutputError, match="is not a recording" if force else "use --force"):
+            with atomic_file(theirs, why_kept=why) as tmp:
+                tmp.write_bytes(b"RRF2 new")
+        assert theirs.read_bytes() == b"notes"
+    with atomic_file(ours, why_kept=why) as tmp:
+        tmp.write_bytes(b"RRF2 new")
+    assert ours.read_bytes() == b"RRF2 new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.rrd", "b.rrd"]  # no hidden temporary left
