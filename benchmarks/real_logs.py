@@ -242,7 +242,10 @@ def best_of_grid(log: Log, estimator: str, work: Path, auto: Result, full: bool)
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
-    return "" if v is None else f"{v:.{digits}f}"
+    """``digits`` decimals, or two significant digits for a value that would print as 0.00… (test 22's mm)."""
+    if v is None:
+        return ""
+    return f"{v:.2g}" if 0 < abs(v) < 10.0 ** (1 - digits) else f"{v:.{digits}f}"
 
 
 def row(log: Log, estimator: str, r: Result, best: tuple[Result, str] | None, seed: Result | None) -> str:
