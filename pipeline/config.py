@@ -103,7 +103,9 @@ class EvaluationConfig:
     t_max_diff: float = 0.01
     convergence_threshold: float = 0.1
     align: str | None = None  # the report's alignment (align.NAMES); None = the report's default (SE(3))
-    plots: bool = True  # the report's PNG figures (most of its time on short logs; batch jobs may skip them)
+    #: the report's PNG figures: True the main ones, "all" every one, False none (figure_jobs.chosen; figures are
+    #: most of the report's time on short logs)
+    plots: bool | str = True
     map_truth: str | None = None
 
 

@@ -139,6 +139,7 @@ class KernelLocator(caching._CacheLocator):
 
     def __init__(self, py_func, path: Path, cache_path: Path) -> None:
         self._lineno = py_func.__code__.co_firstlineno
+        self._py_file = str(path)  # numba names it in its warning about a kernel it cannot cache
         self._stamp = source_stamp(path)
         self._cache_path = str(cache_path)
 

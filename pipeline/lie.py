@@ -366,20 +366,84 @@ def integrate_body_twists(r0, p0, omega, v, dt):
     """Dead-reckon ``(R, P)`` through steps ``(R, P) <- (R, P) exp(dt_k [omega_k; v_k])``.
 
     ``omega``, ``v`` are (K, 3) per-step body twists, ``dt`` (K,) step lengths; returns the K + 1 poses.
-    Used both for wheel-odometry poses and to check the scenarios' kinematic consistency.
+    Used both for wheel-odometry poses and to check the scenarios' kinematic consistency. Each step is
+    :func:`se3_exp` with the same operations in the same order, written without temporaries (the same numbers,
+    bit for bit, a tenth of the time on long logs).
     """
     k = dt.shape[0]
     rs = np.empty((k + 1, 3, 3))
     ps = np.empty((k + 1, 3))
     rs[0] = r0
     ps[0] = p0
+    scratch = np.empty((3, 3, 3))
     for i in range(k):
-        dr, dp = se3_exp(omega[i] * dt[i], v[i] * dt[i])
-        step = mat3_vec(rs[i], dp)
-        rs[i + 1] = mat3_mul(rs[i], dr)
-        for j in range(3):
-            ps[i + 1, j] = ps[i, j] + step[j]
+        _twist_step(rs[i], ps[i], omega[i], v[i], dt[i], scratch, rs[i + 1], ps[i + 1])
     return rs, ps
+
+
+@njit(cache=True)
+def integrate_body_twists_at(r0, p0, omega, v, dt, keep):
+    """:func:`integrate_body_twists`'s poses ``keep`` (sorted indices into its K + 1), the same numbers, without
+    storing the others (a long log's poses are read at a few places)."""
+    m = keep.shape[0]
+    rs = np.empty((m, 3, 3))
+    ps = np.empty((m, 3))
+    cur_r, cur_p = r0.copy(), p0.copy()
+    nxt_r, nxt_p = np.empty((3, 3)), np.empty(3)
+    scratch = np.empty((3, 3, 3))
+    j = 0
+    for i in range(dt.shape[0] + 1):
+        while j < m and keep[j] == i:
+            rs[j] = cur_r
+            ps[j] = cur_p
+            j += 1
+        if j == m or i == dt.shape[0]:
+            break
+        _twist_step(cur_r, cur_p, omega[i], v[i], dt[i], scratch, nxt_r, nxt_p)
+        cur_r, nxt_r = nxt_r, cur_r
+        cur_p, nxt_p = nxt_p, cur_p
+    return rs, ps
+
+
+@njit(cache=True, inline="always")
+def _twist_step(r, p, omega, v, dt, scratch, r_out, p_out):
+    """``(r_out, p_out) = (r, p) exp(dt [omega; v])`` as :func:`se3_exp`, :func:`mat3_vec` and :func:`mat3_mul`
+    compute it (``scratch``: (3, 3, 3))."""
+    kk, k2, dr = scratch[0], scratch[1], scratch[2]
+    w0, w1, w2 = omega[0] * dt, omega[1] * dt, omega[2] * dt
+    v0, v1, v2 = v[0] * dt, v[1] * dt, v[2] * dt
+    theta = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+    skew_into(w0, w1, w2, kk)
+    for a in range(3):
+        for b in range(3):
+            k2[a, b] = kk[a, 0] * kk[0, b] + kk[a, 1] * kk[1, b] + kk[a, 2] * kk[2, b]
+    # so3_exp and so3_left_jacobian: I + ca K + cb K² and I + cj K + cl K²
+    if theta < SMALL_ANGLE:
+        ca, cb, cj, cl = 1.0, 0.5, 0.5, 1.0 / 6.0
+    else:
+        t2, st, ct = theta * theta, np.sin(theta), np.cos(theta)
+        ca, cb = st / theta, (1.0 - ct) / t2
+        cj, cl = cb, (theta - st) / (t2 * theta)
+    for a in range(3):
+        for b in range(3):
+            eye = 1.0 if a == b else 0.0
+            dr[a, b] = (eye + ca * kk[a, b]) + cb * k2[a, b]
+    dp0 = _jl_row(0, cj, cl, kk, k2, v0, v1, v2)
+    dp1 = _jl_row(1, cj, cl, kk, k2, v0, v1, v2)
+    dp2 = _jl_row(2, cj, cl, kk, k2, v0, v1, v2)
+    for a in range(3):
+        p_out[a] = p[a] + (r[a, 0] * dp0 + r[a, 1] * dp1 + r[a, 2] * dp2)
+        for b in range(3):
+            r_out[a, b] = r[a, 0] * dr[0, b] + r[a, 1] * dr[1, b] + r[a, 2] * dr[2, b]
+
+
+@njit(cache=True, inline="always")
+def _jl_row(a, cj, cl, kk, k2, v0, v1, v2):
+    """Row ``a`` of ``(I + cj K + cl K²) v`` as :func:`so3_left_jacobian` and :func:`mat3_vec` compute it."""
+    j0 = ((1.0 if a == 0 else 0.0) + cj * kk[a, 0]) + cl * k2[a, 0]
+    j1 = ((1.0 if a == 1 else 0.0) + cj * kk[a, 1]) + cl * k2[a, 1]
+    j2 = ((1.0 if a == 2 else 0.0) + cj * kk[a, 2]) + cl * k2[a, 2]
+    return j0 * v0 + j1 * v1 + j2 * v2
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = False) -> tuple[np.ndarray, np.ndarray, float]:

@@ -12,7 +12,7 @@ the stereo / PnP law in r²).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,9 @@ from slamobs.pipeline.noise_estimation import (
     LAWS,
     DetectionLaw,
     Estimate,
+    HeldMotion,
     detection_law,
+    held_motion_noise,
     log_triplets,
     white_noise_density,
 )
@@ -147,10 +149,13 @@ class LogNoise:
     velocity: Estimate | None
     detection: DetectionLaw | None
     notes: tuple[str, ...] = ()
+    #: levels of held (commanded) streams and their bias priors, from detection pairs (:func:`held_levels`)
+    held: dict[str, Estimate] = field(default_factory=dict)
 
     def levels(self) -> dict[str, Estimate]:
         """Key of :data:`DEFAULTS` -> its estimate (the detection law sets all three detection keys)."""
         out = {k: e for k, e in (("gyro", self.gyro), ("velocity", self.velocity)) if e is not None}
+        out.update(self.held)
         law = self.detection
         if law is not None:
             out["detection"] = law.base
@@ -196,7 +201,46 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     law = detection_law(triplets)
     if law is None:
         notes.append("noise: too few landmarks seen three times within 1 s to estimate the detection noise")
-    return LogNoise(gyro, velocity, law, tuple(notes))
+    held: dict[str, Estimate] = {}
+    if gyro is None or velocity is None:
+        law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
+    return LogNoise(gyro, velocity, law, tuple(notes), held)
+
+
+def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], notes: list[str]):
+    """The levels of held (commanded) velocity streams (``streams``: "gyro", "velocity"), whose samples show no
+    noise, and their bias priors, from what pairs of detections of one landmark see over lags of seconds
+    (:func:`pipeline.noise_estimation.held_motion_noise`); the detection law rescaled by the same fit (the
+    triplets within 1 s miss detection errors that change slowly). The law and the levels found."""
+    sigma = law.sigma if law is not None else (lambda r: DEFAULTS["detection"][0] + DEFAULTS["detection_per_m"][0] * r)
+    fit: HeldMotion | None = held_motion_noise(
+        (aligned.vel_t_ns - aligned.t0_ns) * 1e-9,
+        aligned.omega,
+        aligned.velocity,
+        (aligned.det_t_ns - aligned.t0_ns) * 1e-9,
+        aligned.det_offsets,
+        aligned.det_idx,
+        aligned.det_y,
+        sigma,
+        aligned.segment_starts,
+    )
+    if fit is None:
+        notes.append("noise: too few landmarks seen twice to estimate the held streams' noise from the detections")
+        return law, {}
+    keys = [*streams, *(f"{k}_bias" for k in streams)]
+    notes.append(f"noise: {', '.join(keys)} estimated from the detections ({fit.levels[streams[0]].method})")
+    if law is not None:
+        f = fit.levels["detection_scale"]
+        law = replace(law, base=_scaled(law.base, f), slope=_scaled(law.slope, f))
+        notes.append(f"noise: the detection law scaled by {f.value:.3g} by the same fit")
+    return law, {k: fit.levels[k] for k in keys}
+
+
+def _scaled(e: Estimate, factor: Estimate) -> Estimate:
+    """``e`` times ``factor`` (its method and uncertainty carried along)."""
+    value = float(e.value) * factor.value
+    unc = value * float(np.hypot(float(e.uncertainty) / max(float(e.value), 1e-300), factor.uncertainty / factor.value))
+    return Estimate(value, unc, f"{e.method}; scaled by {factor.value:.3g} ({factor.method})", e.samples)
 
 
 def visible_noise(estimate: Estimate | None, name: str, notes: list[str]) -> Estimate | None:
@@ -206,7 +250,7 @@ def visible_noise(estimate: Estimate | None, name: str, notes: list[str]) -> Est
         return estimate
     notes.append(
         f"noise: the {name} samples hold their values (commanded or quantised: most repeat the previous one), so "
-        f"their noise cannot be seen in them; the {name} level is not estimated"
+        f"their noise cannot be seen in them (estimated from the detections instead, where they allow it)"
     )
     return None
 

@@ -323,3 +323,163 @@ def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
         ranges,
         float((fits[other][1] - ll) * used * 3),
     )
+
+
+# ------------------------------------------------------------------ motion noise of held streams, from detections
+#: Lags (s) at which each detection is paired with the next detection of its landmark (``held_motion_noise``): a
+#: spread of lags separates the detections' own noise (constant in the lag), the motion's white noise (linear)
+#: and its bias (quadratic).
+PAIR_LAGS_S = (0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+#: Variance components of a detection pair, in the order of ``held_motion_noise``'s result.
+COMPONENTS = ("detection_scale", "velocity", "gyro", "velocity_bias", "gyro_bias")
+#: The smallest level a held stream's fit gives (in each level's unit): a component the pairs cannot see is
+#: small, not exactly zero (a zero prior or density would make the estimators trust that part blindly).
+MIN_LEVEL = 1e-6
+
+
+@dataclass(frozen=True)
+class HeldMotion:
+    """What pairs of detections of one landmark say about held (commanded) velocity streams: the white-noise
+    densities and bias spreads of the velocities, and the factor on the detection law's standard deviation."""
+
+    levels: dict[str, Estimate]  # keys of COMPONENTS
+
+
+def _dead_reckoning_sums(vel_t, omega, velocity):
+    """Dead-reckoned poses at the velocity samples and the running integrals the pairs' variances are made of:
+    ``∫R``, ``∫P``, ``∫PPᵀ``, ``∫[P]×R`` and the time (left sums over the samples)."""
+    h = np.diff(vel_t)
+    rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), omega[:-1], velocity[:-1], h)
+    cross = np.cross(ps[:-1, :, None], rs[:-1], axis=1)  # [P]×R, column by column
+    outer = ps[:-1, :, None] * ps[:-1, None, :]
+    parts = (rs[:-1] * h[:, None, None], ps[:-1] * h[:, None], outer * h[:, None, None], cross * h[:, None, None], h)
+    sums = tuple(np.concatenate([np.zeros((1, *p.shape[1:])), np.cumsum(p, axis=0)]) for p in parts)
+    return rs, ps, sums
+
+
+def _pair_indices(t: np.ndarray, lm: np.ndarray, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Detection pairs (a, b) of one landmark: each detection and the first one at least each lag of
+    ``PAIR_LAGS_S`` later, within twice the lag and the same segment."""
+    order = np.lexsort((t, lm))
+    ts, ls = t[order], lm[order]
+    firsts, seconds = [], []
+    for lag in PAIR_LAGS_S:
+        key = ls * (2.0 * (ts.max() - ts.min() + 4 * lag) + 1.0) + ts
+        j = np.searchsorted(key, key + lag)
+        ok = np.flatnonzero(j < ts.size)
+        ok = ok[(ls[j[ok]] == ls[ok]) & (ts[j[ok]] - ts[ok] <= 2 * lag)]
+        firsts.append(order[ok])
+        seconds.append(order[j[ok]])
+    a, b = np.concatenate(firsts), np.concatenate(seconds)
+    keep = segment[a] == segment[b]
+    return a[keep], b[keep]
+
+
+def pair_design(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts):
+    """The squared residuals of detection pairs (dead-reckoned landmark positions, the later minus the earlier)
+    along the landmark's direction and across it, and their variances per unit of each of ``COMPONENTS``: (K,)
+    and (K, 5), one row per pair and direction that moves (a planar log's vertical never does). Along and
+    across separate the gyro's noise (it moves the landmark across its direction) from the velocity's."""
+    rs, ps, (c_r, c_p, c_pp, c_pr, c_t) = _dead_reckoning_sums(vel_t, omega, velocity)
+    t_of = np.repeat(det_t, np.diff(det_offsets))
+    k = np.clip(np.searchsorted(vel_t, t_of, side="right") - 1, 0, vel_t.size - 1)
+    seen = np.einsum("nij,nj->ni", rs[k], det_y)
+    w = seen + ps[k]
+    a, b = _pair_indices(t_of, det_idx, np.searchsorted(segment_starts, k, side="right"))
+    ka, kb = k[a], k[b]
+    lm, dt = 0.5 * (w[a] + w[b]), c_t[kb] - c_t[ka]
+    int_p = c_p[kb] - c_p[ka]
+    # ∫ℓℓᵀ with ℓ = landmark − P, and ∫[ℓ]×R
+    lever = dt[:, None, None] * lm[:, :, None] * lm[:, None, :] - lm[:, :, None] * int_p[:, None, :]
+    lever += np.swapaxes(lever, 1, 2) - dt[:, None, None] * lm[:, :, None] * lm[:, None, :] + c_pp[kb] - c_pp[ka]
+    big_r = c_r[kb] - c_r[ka]
+    big_b = np.cross(lm[:, :, None], big_r, axis=1) - (c_pr[kb] - c_pr[ka])
+    rng = np.linalg.norm(det_y, axis=1)
+    det = law_sigma(rng[a]) ** 2 + law_sigma(rng[b]) ** 2
+    e = w[b] - w[a]
+    scale = 1e-9 * max(1.0, float(np.max(np.abs(w))) if w.size else 1.0)
+    e2, rows = [], []
+    for u in _pair_directions(seen[a]):
+        eu = np.einsum("ni,ni->n", e, u)
+        if eu.size == 0 or np.max(np.abs(eu)) <= scale:
+            continue
+        gyro = np.trace(lever, axis1=1, axis2=2) - np.einsum("ni,nij,nj->n", u, lever, u)
+        bias_v, bias_g = (np.sum(np.einsum("ni,nij->nj", u, m) ** 2, axis=1) for m in (big_r, big_b))
+        e2.append(eu**2)
+        rows.append(np.stack([det, dt, gyro, bias_v, bias_g], axis=1))
+    if not rows:
+        return np.zeros(0), np.zeros((0, len(COMPONENTS)))
+    return np.concatenate(e2), np.concatenate(rows)
+
+
+def _pair_directions(seen: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per pair, three orthonormal directions: along the landmark as first seen, across it horizontally (in the
+    plane of the dead reckoning's first frame) and the third."""
+    along = seen / np.maximum(np.linalg.norm(seen, axis=1, keepdims=True), 1e-300)
+    across = np.cross(along, np.array([0.0, 0.0, 1.0]))
+    flat = np.linalg.norm(across, axis=1) < 1e-6  # looking straight up or down: any horizontal direction
+    across[flat] = np.array([1.0, 0.0, 0.0])
+    across /= np.linalg.norm(across, axis=1, keepdims=True)
+    return along, across, np.cross(along, across)
+
+
+def _fit_components(e2: np.ndarray, design: np.ndarray, rounds: int = 3) -> tuple[np.ndarray, np.ndarray, int]:
+    """Variance-component estimation of a linear variance model ``E[e²] = design · θ``, θ ≥ 0 (Fisher scoring
+    with an active set, on columns scaled to a common size; outliers beyond ``OUTLIER_SIGMAS`` dropped and the
+    fit repeated): θ, its standard errors and the inliers used."""
+    unit = np.maximum(np.mean(design, axis=0), 1e-300)
+    x = design / unit
+    n_par = x.shape[1]
+    theta = np.full(n_par, np.median(e2) / n_par)
+    inl = np.ones(e2.size, bool)
+    for _ in range(rounds):
+        for _ in range(50):
+            new = _scoring_step(x[inl], e2[inl], theta)
+            done = np.all(np.abs(new - theta) <= 1e-6 * max(float(np.max(theta)), 1e-300))
+            theta = new
+            if done:
+                break
+        inl = e2 <= OUTLIER_SIGMAS**2 * np.maximum(x @ theta, 1e-300)
+    v = np.maximum(x[inl] @ theta, 1e-300)
+    info = (x[inl] * (1.0 / (2.0 * v * v))[:, None]).T @ x[inl]
+    se = np.sqrt(np.clip(np.diag(np.linalg.pinv(info)), 0.0, None))
+    return theta / unit, se / unit, int(inl.sum())
+
+
+def _scoring_step(x: np.ndarray, e2: np.ndarray, theta: np.ndarray) -> np.ndarray:
+    """One Fisher-scoring step of the linear variance model (weights at ``theta``), components that would turn
+    negative held at zero (an active set)."""
+    v = np.maximum(x @ theta, 1e-12 * max(float(np.mean(e2)), 1e-300))
+    wx = x / (2.0 * v * v)[:, None]
+    free = np.ones(x.shape[1], bool)
+    new = np.zeros(x.shape[1])
+    while free.any():
+        new[:] = 0.0
+        new[free] = np.linalg.lstsq(wx[:, free].T @ x[:, free], wx[:, free].T @ e2, rcond=None)[0]
+        if (new >= 0).all():
+            break
+        free &= new > 0
+    return np.maximum(new, 0.0)
+
+
+def held_motion_noise(
+    vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts
+) -> HeldMotion | None:
+    """The noise of velocity streams that hold their values (commanded velocities: their samples show no noise)
+    from what the detections see over lags of ``PAIR_LAGS_S``; None with fewer than ``MIN_SAMPLES`` pairs."""
+    if det_idx.shape[0] < 2 or vel_t.shape[0] < 2:
+        return None
+    e2, design = pair_design(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts)
+    if e2.size < MIN_SAMPLES:
+        return None
+    theta, se, used = _fit_components(e2, design)
+    method = (
+        f"variance components of {used} detection-pair residuals over lags of {PAIR_LAGS_S[0]:g}-{PAIR_LAGS_S[-1]:g} s"
+        " (the held velocities' errors as the detections see them)"
+    )
+    levels = {}
+    for name, th, s in zip(COMPONENTS, theta, se, strict=True):
+        value = max(float(np.sqrt(th)), MIN_LEVEL)
+        # σ = √θ: se(σ) = se(θ) / 2σ, or √se(θ) for a σ the fit cannot tell from zero
+        levels[name] = Estimate(value, float(min(s / (2 * value), np.sqrt(s))), method, used)
+    return HeldMotion(levels)

@@ -239,13 +239,21 @@ def silent(_message: str) -> None:
 
 
 def prepare_log(
-    log: Path, config: RunConfig, *, directions: bool = True, progress: Progress = silent, needs_directions: int = 0
+    log: Path,
+    config: RunConfig,
+    *,
+    directions: bool = True,
+    progress: Progress = silent,
+    needs_directions: int = 0,
+    noise: bool = True,
 ) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
     ``directions=False`` leaves the inertial direction samples out of the aligned stream (observers without
     IMU directions never read them, nor get the accelerometer note). ``needs_directions``: how many inertial
-    directions the estimator needs, named with the other missing inputs when the log lacks them.
+    directions the estimator needs, named with the other missing inputs when the log lacks them. ``noise=False``
+    skips the recorded velocity's noise density (0.5 s on an hour of log), which only estimators with noise
+    levels use (``uses_noise``: riekf, batch).
     """
     from slamobs.pipeline.readers import read_log
 
@@ -288,7 +296,7 @@ def prepare_log(
         if streams.landmark_truth:
             notes.append(f"landmark truth from {config.evaluation.map_truth} (evaluation.map_truth) replaces the log's")
         streams.landmark_truth = map_truth
-    velocity_noise = _recorded_velocity_noise(streams, config)
+    velocity_noise = _recorded_velocity_noise(streams, config) if noise else None
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
@@ -389,7 +397,9 @@ def run_log(
 
         workers = PlotWorkers(plot_helpers)
     try:
-        prepared = prepare_log(log, config, directions=directions, progress=progress, needs_directions=needed)
+        prepared = prepare_log(
+            log, config, directions=directions, progress=progress, needs_directions=needed, noise=spec.uses_noise
+        )
         return run_prepared(
             prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
         )
@@ -702,12 +712,12 @@ def evaluate_run(
         progress("figures")
         t = time.perf_counter()
         workers = plot_workers if report_error is None else None  # after a failed report: drawn here
-        metadata["figures"] = _run_figures(out, notes, workers)
+        metadata["figures"] = _run_figures(out, notes, workers, config.evaluation.plots)
         timings["figures_s"] = time.perf_counter() - t
     return report, report_error
 
 
-def _run_figures(out: Path, notes: list[str], plot_workers=None) -> list[str]:
+def _run_figures(out: Path, notes: list[str], plot_workers=None, plots: bool | str = True) -> list[str]:
     """The run's own figures and its summary report.md (a run without an error report); the figures' names.
     Figures that cannot be drawn are a note: the run's tables stand (out of memory and interruptions still end
     the run)."""
@@ -715,7 +725,7 @@ def _run_figures(out: Path, notes: list[str], plot_workers=None) -> list[str]:
     from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_tables, write_run_figures
 
     try:
-        written = write_run_figures(out, run_tables(out), notes, plot_workers)
+        written = write_run_figures(out, run_tables(out), notes, plot_workers, plots)
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - the run's outputs are complete without their figures
@@ -858,13 +868,23 @@ def _evaluate(
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
     from slamobs.pipeline.evaluation.report import REPORT_FILES
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
-    from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_figure_jobs
+    from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
+    from slamobs.pipeline.evaluation.plot_worker import LocalFigures
     from slamobs.pipeline.writers import read_columns
 
     segments = metadata["segments"]
     try:
-        frames = {k: read_columns(out / f"{k}.parquet") for k in ("poses", "biases", "landmarks")}
-        own = run_figure_jobs({**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False)
+        # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
+        # the landmarks' are copied into landmarks_aligned.parquet)
+        frames = {
+            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses") for k in ("poses", "biases", "landmarks")
+        }
+        plots = config.evaluation.plots
+        own = []  # the run's own figures (trajectory, map, measurements) are none of the main ones
+        if plots == "all":
+            own = run_figure_jobs(
+                {**frames, "innovations": read_columns(out / "innovations.parquet")}, with_biases=False
+            )
         truth = truth_on_run_clock(streams, config)
         # observers that measure gravity fix roll and pitch: written in the gravity frame, the report adds the
         # 4-DoF (translation + yaw) alignment
@@ -876,11 +896,16 @@ def _evaluate(
             truth_rotation_xyzw=config.frames.truth_rotation,
         )
         # The tables are handed over (the report frees each once used); the bias plot needs only the rows it draws.
-        drawn_biases = bias_plot_rows(frames["biases"])
+        drawn_biases = bias_plot_rows(frames["biases"]) if drawn(BIASES_PNG, plots) else None
         landmarks = frames["landmarks"]
-        early = plot_workers if config.evaluation.plots and plot_workers is not None else None
-        if early is not None:
-            early.submit(own)  # drawn while the report is computed
+        early = figures = None
+        if plots:  # helpers draw while the report is computed; else drawn here at the end
+            early = plot_workers if plot_workers is not None else LocalFigures()
+            early.submit(own)
+
+            def figures(jobs: list) -> None:
+                early.submit(chosen(jobs, plots))
+
         report, evaluation = evaluate_tables(
             frames,
             truth,
@@ -888,7 +913,7 @@ def _evaluate(
             streams.bias_truth,
             options=options,
             drawn_biases=drawn_biases,
-            figures=early.submit if early is not None else None,
+            figures=figures,
         )
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
@@ -913,10 +938,10 @@ def _evaluate(
             truth,
             streams.landmark_truth,
             evaluation=evaluation,
-            plots=config.evaluation.plots,
+            plots=plots,
             exports=config.output.export,
             metadata=metadata,
-            plot_workers=plot_workers,
+            plot_workers=early,
             more_figures=own,
         )
     except OSError:

@@ -392,13 +392,20 @@ def read_frame(path: Path):
     return frame
 
 
-def read_columns(path: Path) -> dict[str, np.ndarray]:
+def read_columns(path: Path, *, skip_null: bool = False) -> dict[str, np.ndarray]:
     """A table written here as its columns (NumPy arrays, in file order), without pandas: pyarrow's
     ``to_numpy`` imports pandas (~0.8 s), which a run's own report does not need. Same values as
-    :func:`read_frame` (columns here have no nulls; one with nulls would go through ``to_numpy``)."""
+    :func:`read_frame` (columns here have no nulls; one with nulls would go through ``to_numpy``).
+    ``skip_null`` leaves out the columns null in every row (an observer's uncertainty columns: 27 columns of
+    NaN, a second on an hour of poses), as the file's statistics say without reading them."""
     f = pq.ParquetFile(path)
     n = f.metadata.num_rows
-    out = {x.name: np.empty(n, dtype=_PLAIN.get(str(x.type), np.dtype(object))) for x in f.schema_arrow}
+    absent = null_columns(f) if skip_null else set()
+    out = {
+        x.name: np.empty(n, dtype=_PLAIN.get(str(x.type), np.dtype(object)))
+        for x in f.schema_arrow
+        if x.name not in absent
+    }
     k = 0
     for g in range(f.num_row_groups):
         group = f.read_row_group(g)
@@ -413,10 +420,42 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
+def null_columns(f: pq.ParquetFile) -> set[str]:
+    """Names of the columns of ``f`` that hold no value in any row (by every row group's null count; a row
+    group without statistics counts as holding values)."""
+    meta = f.metadata
+    if meta.num_row_groups == 0 or meta.num_rows == 0:
+        return set()
+    nulls = {}
+    for g in range(meta.num_row_groups):
+        group = meta.row_group(g)
+        for c in range(group.num_columns):
+            col = group.column(c)
+            stats = col.statistics
+            full = stats is not None and stats.has_null_count and stats.null_count == group.num_rows
+            nulls[col.path_in_schema] = nulls.get(col.path_in_schema, True) and full
+    return {name for name, empty in nulls.items() if empty}
+
+
 def _chunk_values(chunk: pa.Array, dtype: np.dtype) -> np.ndarray:
     if chunk.null_count == 0 and dtype != np.dtype(object):  # the values buffer as it is (offset respected)
         return np.frombuffer(chunk.buffers()[1], dtype=dtype, count=len(chunk), offset=chunk.offset * dtype.itemsize)
+    if dtype.kind == "f":  # nulls as NaN, as to_numpy gives them, without its import of pandas (~1 s)
+        return _floats_with_nulls(chunk, dtype)
     return chunk.to_numpy(zero_copy_only=False)
+
+
+def _floats_with_nulls(chunk: pa.Array, dtype: np.dtype) -> np.ndarray:
+    """A float chunk with nulls as an array with NaN in their place (validity bitmap read here)."""
+    n, at = len(chunk), chunk.offset
+    valid_bits, values = chunk.buffers()[:2]
+    if values is None or chunk.null_count == n:
+        return np.full(n, np.nan, dtype=dtype)
+    out = np.frombuffer(values, dtype=dtype, count=n, offset=at * dtype.itemsize).copy()
+    if valid_bits is not None:
+        bits = np.unpackbits(np.frombuffer(valid_bits, np.uint8), count=at + n, bitorder="little")[at:]
+        out[bits == 0] = np.nan
+    return out
 
 
 def read_metadata(path: Path) -> dict:

@@ -22,7 +22,7 @@ def log(tmp_path_factory):
     res = invoke("simulate", "circle", "-o", path, "--duration", "8", "-q")
     assert res.exit_code == 0, res.output
     config = path.with_name("no_truth.yaml")
-    config.write_text(NO_TRUTH)
+    config.write_text(NO_TRUTH + "evaluation:\n  plots: all\n")  # every figure; the default draws the main ones
     return path, config
 
 
@@ -69,8 +69,9 @@ def test_report_without_truth_draws_the_figures_again(run_dir):
 
 
 def test_a_run_with_truth_adds_its_own_figures_to_the_report(log, tmp_path):
-    out = tmp_path / "out"
-    res = invoke("run", log[0], "-o", out)
+    out, config = tmp_path / "out", tmp_path / "all.yaml"
+    config.write_text("evaluation:\n  plots: all\n")
+    res = invoke("run", log[0], "-o", out, "--config", config)
     assert res.exit_code == 0, res.output
     report = json.loads((out / "report.json").read_text())
     assert {"trajectory.png", "map.png", "measurements.png", "trajectory_top.png", "errors.png"} <= set(
@@ -78,6 +79,22 @@ def test_a_run_with_truth_adds_its_own_figures_to_the_report(log, tmp_path):
     )
     _pngs(out, report["figures"])
     assert json.loads((out / "run.json").read_text())["figures"] == report["figures"]
+
+
+def test_the_default_figures_are_the_main_ones(log, tmp_path):
+    """``evaluation.plots: true`` (the default) draws the main figures only: with truth the top view and the
+    error over time, without truth the estimate and its map (each figure costs 0.3-0.5 s of matplotlib)."""
+    for name, text, main in (
+        ("truth", "", ["trajectory_top.png", "errors.png"]),
+        ("none", NO_TRUTH, ["trajectory.png", "map.png"]),
+    ):
+        out, config = tmp_path / name, tmp_path / f"{name}.yaml"
+        config.write_text(text or "{}\n")
+        assert invoke("run", log[0], "-o", out, "--config", config, "-q").exit_code == 0
+        figures = json.loads((out / "run.json").read_text())["figures"]
+        assert figures == main
+        assert sorted(p.name for p in out.glob("*.png")) == sorted(main)
+        _pngs(out, figures)
 
 
 def test_compare_without_truth_measures_disagreement(log, tmp_path):

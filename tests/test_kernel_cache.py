@@ -102,3 +102,27 @@ def test_kernel_modules_take_njit_from_kernel_cache():
         "from slamobs.pipeline.kernel_cache import njit"
         in (kernel_cache.PACKAGE_ROOT / "pipeline" / "lie.py").read_text()
     )
+
+
+def test_a_kernel_numba_cannot_cache_is_a_warning_naming_its_file():
+    """numba warns about a kernel it cannot cache (one holding a large global array, or compiled at
+    ``NUMBA_OPT=0``) at its locator's ``_py_file``: without it the run stopped with an AttributeError, which the
+    reader reported as a damaged log."""
+    import types
+    import warnings
+
+    from numba.core.errors import NumbaWarning
+
+    from slamobs.pipeline.observers import fast_adaptation
+
+    impl = fast_adaptation._integrate._cache._impl
+    cres = types.SimpleNamespace(
+        lifted=(),
+        library=types.SimpleNamespace(has_dynamic_globals=True),
+        fndesc=types.SimpleNamespace(qualname="_integrate"),
+    )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert impl.check_cachable(cres) is False
+    assert [w.category for w in caught] == [NumbaWarning]
+    assert Path(caught[0].filename) == Path(fast_adaptation.__file__).resolve()

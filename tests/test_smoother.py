@@ -32,7 +32,6 @@ from slamobs.pipeline.smoother.preintegration import (
 from slamobs.pipeline.smoother.seed import observer_seed
 from slamobs.pipeline.smoother.settings import BatchSettings
 
-pytest.importorskip("gtsam")
 
 PAPER_GYRO_BIAS = np.array([0.09, -0.15, -0.1])  # docs/observers.md §12.1
 PAPER_VEL_BIAS = np.array([0.09, 0.06, -0.07])

@@ -249,6 +249,25 @@ MEASUREMENTS_PNG = "measurements.png"
 BIASES_PNG = "biases.png"
 #: every file a run's own figures may write (the bias figure is the report's one, drawn without truth too)
 RUN_FIGURES = (TRAJECTORY_PNG, MAP_PNG, MEASUREMENTS_PNG, BIASES_PNG)
+#: the figures a run draws by default (``evaluation.plots: true``): with truth the estimate over the truth from
+#: above, the error over time and (riekf, batch: runs of tens of seconds) the 3σ and NEES figures, without truth
+#: the estimate and its map; ``evaluation.plots: all`` draws every figure (each costs 0.3-0.5 s of matplotlib
+#: whatever the log's length: most of a short log's run) and ``slamobs report RUN_DIR`` draws them all afterwards
+MAIN_FIGURES = ("trajectory_top.png", "errors.png", "uncertainty.png", "nees.png")
+MAIN_RUN_FIGURES = (TRAJECTORY_PNG, MAP_PNG)
+
+
+def drawn(name: str, plots: bool | str, main: tuple[str, ...] = MAIN_FIGURES) -> bool:
+    """Whether ``evaluation.plots`` asks for the figure ``name``: all with ``"all"``, none with False, else those
+    of ``main``."""
+    return plots == "all" or (bool(plots) and name in main)
+
+
+def chosen(jobs: list, plots: bool | str, main: tuple[str, ...] = MAIN_FIGURES) -> list:
+    """The ``jobs`` (figures) that ``evaluation.plots`` asks for (:func:`drawn`)."""
+    return [job for job in jobs if drawn(job[1], plots, main)]
+
+
 #: the innovation statistics are taken over this many time bins at most (about one per 2 pixels)
 INNOVATION_BINS = 400
 
@@ -385,10 +404,12 @@ def run_tables(out) -> dict[str, Table | None]:
     return {k: read_columns(p) if p.is_file() else None for k, p in paths.items()}
 
 
-def write_run_figures(out, tables: dict[str, Table | None], notes: list[str] = (), plot_workers=None) -> list:
-    """A run without truth: its figures (by ``plot_workers`` when given, else here) and ``report.md`` saying what
-    the run did and showing them, into ``out``; the paths written."""
-    jobs = run_figure_jobs(tables)
+def write_run_figures(
+    out, tables: dict[str, Table | None], notes: list[str] = (), plot_workers=None, plots: bool | str = "all"
+) -> list:
+    """A run without truth: its figures (those ``plots`` chooses, :func:`chosen`; by ``plot_workers`` when given,
+    else here) and ``report.md`` saying what the run did and showing them, into ``out``; the paths written."""
+    jobs = chosen(run_figure_jobs(tables), plots, MAIN_RUN_FIGURES)
     if plot_workers is not None:
         plot_workers.submit(jobs)
         written = plot_workers.collect(Path(out))

@@ -136,6 +136,29 @@ class PlotWorkers:
         self.close()
 
 
+class LocalFigures:
+    """:class:`PlotWorkers`' interface drawn in this process at :meth:`collect`: where no core is free the report
+    still hands its figure jobs over as it goes, so that what it computed for them (the segment errors of the
+    box plots) is not computed again for the figures, and they come in the same order."""
+
+    def __init__(self) -> None:
+        self.jobs: list[Job] = []
+
+    @property
+    def submitted(self) -> bool:
+        return bool(self.jobs)
+
+    def submit(self, jobs: list[Job]) -> None:
+        self.jobs += jobs
+
+    def collect(self, out: Path) -> list[Path]:
+        """Draw the submitted figures into ``out``; their paths in the order of the jobs."""
+        return draw(self.jobs, lambda name: Path(out) / name)
+
+    def close(self) -> None:
+        """Nothing to stop."""
+
+
 def _feed(proc: subprocess.Popen, data: bytes, before: threading.Thread | None) -> None:
     """Write one batch of jobs to a helper, after the batch before it; a helper that was stopped (the run
     failed) is no error here: :meth:`PlotWorkers.collect` reports a helper that did not answer."""

@@ -24,6 +24,7 @@ from slamobs.pipeline.version import __version__
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation.figure_jobs import (
     bias_plot_job,
+    chosen,
     error_plot_job,
     SEGMENT_PLOT,
     landmark_plot_jobs,
@@ -280,25 +281,23 @@ def write_report(
     landmark_truth: dict[int, np.ndarray] | None = None,
     *,
     evaluation: TrajectoryEvaluation | None = None,
-    plots: bool = True,
+    plots: bool | str = "all",
     metadata: dict[str, Any] | None = None,
     exports: tuple[str, ...] = (),
     plot_workers=None,
     more_figures: list = (),
 ) -> list[Path]:
-    """Write report.json, report.md, the PNG plots (unless ``plots`` is False: they are most of the report's
-    time on short logs), the estimate aligned into the truth's frame (``poses_aligned.parquet``,
-    ``landmarks_aligned.parquet``, with the run ``metadata``) and, as ``exports`` asks, the TUM files ("tum")
-    and the evo result zip ("evo") into ``out_dir``; returns the written paths.
-
-    The plots and the zip re-use the association window, clock offset and alignment recorded in the report, so
-    they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
-    this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from
-    ``poses``. With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by
-    those helper processes while the aligned tables are written; ``more_figures`` (the run's own,
-    :mod:`.figure_jobs`) are drawn with the report's, and report.json lists every figure (``figures``). The
-    writes are plain: callers that replace an existing report write into a temporary directory first (see
-    :mod:`.run_dir`).
+    """Write report.json, report.md, the PNG plots (``plots``: ``"all"``, the main ones with True, none with False:
+    they are most of the report's time on short logs; :func:`.figure_jobs.chosen`), the estimate aligned into the
+    truth's frame (``poses_aligned.parquet``, ``landmarks_aligned.parquet``, with the run ``metadata``) and, as
+    ``exports`` asks, the TUM files ("tum") and the evo result zip ("evo") into ``out_dir``; returns the written
+    paths. The plots and the zip re-use the association window, clock offset and alignment recorded in the report,
+    so they show exactly the numbers of the report; ``evaluation`` is the one :func:`evaluate_report` returned with
+    this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from ``poses``.
+    With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by those helper
+    processes while the aligned tables are written; ``more_figures`` (the run's own, :mod:`.figure_jobs`) are drawn
+    with the report's, and report.json lists every figure (``figures``). The writes are plain: callers that replace
+    an existing report write into a temporary directory first (see :mod:`.run_dir`).
     """
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
     from slamobs.pipeline.readers.trajectory_files import write_tum
@@ -311,6 +310,7 @@ def write_report(
     ev = evaluation or evaluate_trajectory(poses, truth, options, estimate_offset=False)
     submitted = plot_workers is not None and plot_workers.submitted  # by evaluate_tables, as it went
     jobs = [*more_figures, *plot_jobs(report, ev, biases, landmarks, landmark_truth)] if plots and not submitted else []
+    jobs = chosen(jobs, plots)
     if plots or submitted:  # the figures the report's directory holds, listed in the report
         report["figures"] = [name for _, name, _ in (plot_workers.jobs if submitted else jobs)]
     written = []

@@ -23,7 +23,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamobs.pipeline.lie import integrate_body_twists, so3_exps
+from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline.lie import integrate_body_twists, integrate_body_twists_at, se3_exp_into
 
 PAIR_SPAN_S = 1.0
 PAIR_MAX_S = 2.0
@@ -41,13 +42,16 @@ HALVES_SIGMAS = 3.0
 BIAS_STEP = 1e-4
 
 
-def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times."""
+def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray, keep=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times;
+    only those of the samples ``keep`` (sorted indices) when given."""
     t = stream.seconds(stream.vel_t_ns)
     dt = np.diff(t)
     omega, vel = omega[:-1].copy(), vel[:-1].copy()
     gap = stream.segment_starts - 1
     omega[gap], vel[gap] = 0.0, 0.0
+    if keep is not None:
+        return t[keep], *integrate_body_twists_at(np.eye(3), np.zeros(3), omega, vel, dt, keep)
     rot, pos = integrate_body_twists(np.eye(3), np.zeros(3), omega, vel, dt)
     return t, rot, pos
 
@@ -67,6 +71,44 @@ def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
     return a[same], b[same]
 
 
+@njit(cache=True)
+def _pose_at(t_s, rot_s, pos_s, omega, vel, t, rot, pos, d_r, unused):
+    """The pose at time ``t``: sample ``k`` before it (the first one before the samples) carried on for
+    ``h = t − t_k`` with its twist: ``R_k Exp(h ω_k)``, ``P_k + R_k h v_k`` (``d_r``, ``unused``: scratch)."""
+    lo, hi = 0, t_s.shape[0]  # the first sample after t (binary search)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_s[mid] <= t:
+            lo = mid + 1
+        else:
+            hi = mid
+    k = min(max(lo - 1, 0), t_s.shape[0] - 1)
+    h = t - t_s[k]
+    se3_exp_into(h * omega[k, 0], h * omega[k, 1], h * omega[k, 2], 0.0, 0.0, 0.0, d_r, unused)
+    for i in range(3):
+        dp = rot_s[k, i, 0] * (h * vel[k, 0]) + rot_s[k, i, 1] * (h * vel[k, 1]) + rot_s[k, i, 2] * (h * vel[k, 2])
+        pos[i] = pos_s[k, i] + dp
+        for j in range(3):
+            rot[i, j] = rot_s[k, i, 0] * d_r[0, j] + rot_s[k, i, 1] * d_r[1, j] + rot_s[k, i, 2] * d_r[2, j]
+
+
+@njit(cache=True)
+def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shift, out):
+    """``out[m] = y_a − R_aᵀ (P_b + R_b y_b − P_a)`` for the pairs ``(a[m], b[m])`` at the stamps moved by
+    ``shift`` (:func:`_pose_at`)."""
+    r_a, r_b = np.empty((3, 3)), np.empty((3, 3))
+    p_a, p_b, w = np.empty(3), np.empty(3), np.empty(3)
+    d_r, unused = np.empty((3, 3)), np.empty(3)
+    for m in range(a.shape[0]):
+        i, j = a[m], b[m]
+        _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[i] + shift, r_a, p_a, d_r, unused)
+        _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[j] + shift, r_b, p_b, d_r, unused)
+        for c in range(3):
+            w[c] = (p_b[c] + (r_b[c, 0] * y[j, 0] + r_b[c, 1] * y[j, 1] + r_b[c, 2] * y[j, 2])) - p_a[c]
+        for c in range(3):
+            out[m, c] = y[i, c] - (r_a[0, c] * w[0] + r_a[1, c] * w[1] + r_a[2, c] * w[2])
+
+
 class _Consistency:
     """The pairs' cost as a function of the shift, the odometry's bias profiled out."""
 
@@ -76,37 +118,34 @@ class _Consistency:
         self.a, self.b = _pairs(stream)
         self.y = stream.det_y
         self.poses = self._poses(bias)
-        # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift)
+        # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
+        # the samples the pairs read there only)
         base = self.residuals(0.0)
+        t_s = self.poses[0]
+        at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
+        keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))
         self.jac = np.empty((base.shape[0], 3, 6))
         for c in range(6):
             db = np.zeros(6)
             db[c] = BIAS_STEP
-            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db)) - base) / BIAS_STEP
+            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db, keep)) - base) / BIAS_STEP
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
-    def _poses(self, bias: np.ndarray):
+    def _poses(self, bias: np.ndarray, keep=None):
+        """The samples' times, poses and bias-corrected twists (those of the samples ``keep`` when given)."""
         s = self.stream
         omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
-        return (*_sample_poses(s, omega, vel), omega, vel)
-
-    def _at(self, idx: np.ndarray, shift: float, poses) -> tuple[np.ndarray, np.ndarray]:
-        """Poses at the stamps of detections ``idx`` moved by ``shift``: carried on from the sample before with
-        its twist."""
-        t_s, rot_s, pos_s, omega, vel = poses
-        t = self.det_t[idx] + shift
-        k = np.clip(np.searchsorted(t_s, t, side="right") - 1, 0, t_s.shape[0] - 1)
-        h = (t - t_s[k])[:, None]
-        rot = np.einsum("kij,kjl->kil", rot_s[k], so3_exps(np.ascontiguousarray(h * omega[k])))
-        return rot, pos_s[k] + np.einsum("kij,kj->ki", rot_s[k], h * vel[k])
+        if keep is None:
+            return (*_sample_poses(s, omega, vel), omega, vel)
+        return (*_sample_poses(s, omega, vel, keep), omega[keep], vel[keep])
 
     def residuals(self, shift: float, poses=None) -> np.ndarray:
-        """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``."""
-        poses = self.poses if poses is None else poses
-        r_a, p_a = self._at(self.a, shift, poses)
-        r_b, p_b = self._at(self.b, shift, poses)
-        world_b = p_b + np.einsum("kij,kj->ki", r_b, self.y[self.b]) - p_a
-        return self.y[self.a] - np.einsum("kji,kj->ki", r_a, world_b)
+        """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``, the
+        poses at the detection stamps moved by ``shift`` carried on from the sample before with its twist."""
+        t_s, rot_s, pos_s, omega, vel = self.poses if poses is None else poses
+        out = np.empty((self.a.shape[0], 3))
+        _pair_residuals(t_s, rot_s, pos_s, omega, vel, self.det_t, self.y, self.a, self.b, shift, out)
+        return out
 
     def subset(self, keep: np.ndarray) -> _Consistency:
         """The same consistency over the pairs ``keep`` (a mask) only."""

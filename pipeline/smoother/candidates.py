@@ -4,7 +4,8 @@ than its seed").
 The smoother's first solution, from the configured seed, is doubtful when more than ``estimator.MAX_GATED`` of
 the detections fail the χ² gate at it, or when its seed explains the detections better than it does (the
 Huber-robust cost of the landmark factors alone is lower at the seed's trajectory and map than at the
-solution: the smoother gave up detection fit for odometry fit, which a wrong noise model does). Only then are
+solution: the smoother gave up detection fit for odometry fit, which a wrong noise model does), or when its
+solution fails the global model test (``GLOBAL_CHI2_DOUBT``). Only then are
 the other starts tried (``extra_seeds``: dead reckoning, and riekf where its dense covariance is cheap), each
 moved rigidly onto the first seed's gauge (its anchor keyframe) and solved like the first. Every candidate
 (each start as it is, and each smoother solution) is scored by one criterion, evaluated identically for all:
@@ -26,6 +27,12 @@ CRITERION = (
     "the smoother's robust graph cost over every detection (before gating), odometry preintegrated at each "
     "candidate's bias"
 )
+#: The first solution is doubtful too when it fails the global model test: its χ² (whitened squares of every
+#: detection and relative-motion factor) over the redundancy ``d·(M − L)`` (``M`` detections of ``L`` landmarks,
+#: ``d`` measured axes) above this (1 expected; the sample logs 1.00). With noise levels that fit the log the gate
+#: no longer flags a smoother stopped near a poor seed (MR.CLAM seeded by fast-adaptation: 3.4 to 13; from dead
+#: reckoning or riekf 1.05 to 1.75); with levels far too small it is always above (MR.CLAM on the defaults: 70-280).
+GLOBAL_CHI2_DOUBT = 2.5
 #: riekf is tried as a start only up to this many landmarks (its covariance is dense: (12 + 3n)² per frame).
 RIEKF_SEED_MAX_LANDMARKS = 200
 
@@ -70,7 +77,24 @@ def doubt(problem, first: Candidate) -> str | None:
     at_sol = detection_cost(problem, first.sol.rot, first.sol.pos, first.sol.landmarks)
     if at_seed < at_sol:
         return f"the seed explains the detections better than the solution (robust cost {at_seed:.4g} < {at_sol:.4g})"
+    ratio = global_chi2(problem, first.sol)
+    if ratio > GLOBAL_CHI2_DOUBT:
+        return f"the solution fails the global model test (chi-square over redundancy {ratio:.3g})"
     return None
+
+
+def global_chi2(problem, sol) -> float:
+    """χ² of the detection and relative-motion factors at ``sol`` over the redundancy (``GLOBAL_CHI2_DOUBT``);
+    0 without redundancy."""
+    from slamobs.pipeline.smoother.preintegration import motion_residuals
+
+    kf = problem.kf_of_det
+    pred = np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf])
+    det = np.sum(((pred - problem.det_y) / np.maximum(problem.det_sigma, 1e-12)[:, None]) ** 2)
+    motion = motion_residuals(problem.data, problem.b_bar, sol.rot, sol.pos, sol.bias, problem.seg_of)[:, 2]
+    axes = int(np.count_nonzero(np.any(problem.det_y != 0.0, axis=0)))
+    redundancy = axes * (problem.det_idx.shape[0] - np.unique(problem.det_idx).shape[0])
+    return float((det + np.sum(motion**2)) / redundancy) if redundancy > 0 else 0.0
 
 
 def extra_seeds(configured: str, n_landmarks: int) -> list[str]:

@@ -1,7 +1,7 @@
 """``batch``: the factor-graph smoother behind the observers' interface (registry entry, same tables).
 
 The first stretch asked for runs everything: the seed (an observer, or dead reckoning), the preintegration of
-the odometry between keyframes, the GTSAM solve, and the trajectory at every velocity sample; stretches then
+the odometry between keyframes, the solve, and the trajectory at every velocity sample; stretches then
 hand out their rows. The tables mean what they mean for the observers: ``poses``/``biases`` at the velocity
 samples (the bias of each sample's segment), the final map, and per detection the landmark estimate and the
 innovation ``p̂ − R̂y − P̂`` at the detection's keyframe, both from the smoothed solution.
@@ -19,14 +19,13 @@ from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, 
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
-GTSAM_MISSING = "needs GTSAM, an optional dependency: pip install 'slamobs[gtsam]'"
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
 #: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
 GAP_SIGMA = (1.0, 100.0)
 #: Seconds between the keyframes whose pose marginals are computed (rows between them are interpolated), at
-#: least; on a longer log the spacing grows so that at most ``COVARIANCE_MARGINALS`` are computed: a marginal
-#: costs 0.6 ms on a minute's log but 10 ms on the one-hour benchmark log (its Bayes tree's root holds every
-#: block boundary), where 3,600 of them took 41 CPU seconds.
+#: least; on a longer log the spacing grows so that at most ``COVARIANCE_MARGINALS`` are computed (the cap dates
+#: from GTSAM's marginals, 10 ms each on the one-hour benchmark log; the package's solver computes them in one
+#: sweep whatever their number, docs/outputs.md).
 COVARIANCE_DT = 1.0
 COVARIANCE_MARGINALS = 600
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
@@ -34,19 +33,11 @@ MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
 
 
-def require_gtsam() -> None:
-    try:
-        import gtsam  # noqa: F401
-    except ImportError:
-        raise InputError("observer 'batch'", GTSAM_MISSING) from None
-
-
 def check_config(config) -> int:
-    """Settings valid and GTSAM importable, before any log is read; the directions the seed needs."""
+    """Settings valid, before any log is read; the directions the seed needs."""
     from slamobs.pipeline.observers import get_observer
 
     settings = config.batch
-    require_gtsam()
     if settings.seed == DEAD_RECKONING:
         return 0
     seed = get_observer(settings.seed)
@@ -127,14 +118,12 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.smoother import candidates as cands
         from slamobs.pipeline.smoother import graph as g
 
-        require_gtsam()
         if self.vel_t.shape[0] < 2:
             raise InputError(self.where, "the batch smoother needs at least two velocity samples")
         kf_t, kf_of_det, gaps = self._keyframes()
         seed = self._seed(kf_t, kf_of_det)
         t0, c0 = time.perf_counter(), time.process_time()
-        st = self.settings
-        segments = _Segments(self.vel_t[0], self.vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+        segments = self._segments()
         full = self._problem(kf_t, kf_of_det, gaps, seed, segments)
         first = self._candidate(full, seed, segments.n, progress)
         chosen, robust, seed_s = first, None, seed.seconds
@@ -181,6 +170,21 @@ class BatchSmoother(Stepper):
             }
         )
         return summary
+
+    def _segments(self) -> _Segments:
+        st = self.settings
+        return _Segments(self.vel_t[0], self.vel_t[-1], st.segment_s if st.bias == "random-walk" else None)
+
+    def first_problem(self):
+        """The graph data the configured seed's solve starts from, and the seed as its guess (what
+        ``benchmarks/batch_gtsam.py`` hands to GTSAM too)."""
+        from slamobs.pipeline.smoother import graph as g
+
+        kf_t, kf_of_det, gaps = self._keyframes()
+        seed = self._seed(kf_t, kf_of_det)
+        segments = self._segments()
+        problem = self._problem(kf_t, kf_of_det, gaps, seed, segments)
+        return problem, g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(problem.b_bar, (segments.n, 1)))
 
     def _candidate(self, problem, seed, n_segments: int, progress):
         """The smoother's solution from ``seed`` (gated and solved again as :meth:`_solve_gated` does)."""
@@ -378,7 +382,7 @@ class BatchSmoother(Stepper):
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         """Everything from the state's next sample to ``iv_stop`` at once (the solve, on the first call, is
-        Python and GTSAM calls of at most seconds each: signals are handled between them)."""
+        Python and compiled calls of about a second each at most: signals are handled between them)."""
         from slamobs.pipeline.smoother.preintegration import sample_poses
 
         if self.result is None:
@@ -417,7 +421,7 @@ class BatchSmoother(Stepper):
 SPEC = ObserverSpec(
     name="batch",
     algorithm="smoother",
-    paper="factor-graph smoother (GTSAM, Levenberg-Marquardt) over preintegrated odometry and landmark factors",
+    paper="factor-graph smoother (Levenberg-Marquardt) over preintegrated odometry and landmark factors",
     summary="reference solution: keyframe poses, landmarks and biases by least squares, seeded by an observer "
     "(batch.seed)",
     gains=(),

@@ -1,29 +1,24 @@
-"""The factor graph of the batch smoother, solved with GTSAM (used here only; ``estimator.require_gtsam`` imports
-it to check that it is installed).
+"""The batch smoother's least-squares problem and its Levenberg–Marquardt solution.
 
-Variables: one ``Pose3`` per keyframe (keys ``0 .. K−1``), one ``Point3`` per landmark (``K .. K+L−1``) and the
-bias ``[b_Ω; b_V]`` as a 6-vector, one per segment (``K+L ..``). Factors:
+Variables: one pose per keyframe, one point per landmark and the bias ``[b_Ω; b_V]`` as a 6-vector, one per
+segment. Factors:
 
-* each detection: GTSAM's ``BearingRangeFactor3D`` (the body-frame point as bearing and range, standard
-  deviations ``σ/r`` and ``σ`` for an isotropic ``σ`` per axis, to first order the same model) with a Huber
-  kernel on the norm of the whitened residual;
+* each detection: the body-frame point ``Rᵀ(ℓ − P) − y``, an isotropic standard deviation ``σ`` per axis,
+  with a Huber kernel on the norm of the whitened residual (the model of the χ² gate, the candidates' detection
+  cost and the residual statistics);
 * a prior on the biases (zero mean, the prior standard deviations of the noise settings), a random walk
   between segment biases when the bias model asks for it, and the gauge: the anchor keyframe held at the
-  seed's pose (the problem is invariant to one rigid transform, docs/observers.md §1.1);
+  seed's pose by a prior of ``GAUGE_SIGMA`` (the problem is invariant to one rigid transform,
+  docs/observers.md §1.1);
 * relative motion between consecutive keyframes, from the compiled preintegration
-  (:mod:`pipeline.smoother.preintegration`): GTSAM has no preintegrated factor for body-velocity odometry.
-  Its whitened residuals and analytic Jacobians are computed for all intervals in one compiled call and
-  enter GTSAM's linear system as ``JacobianFactor`` s at each linearization.
+  (:mod:`pipeline.smoother.preintegration`; GTSAM has no preintegrated factor for body-velocity odometry).
 
-Levenberg–Marquardt runs here (GTSAM linearizes its own factors, eliminates and retracts): GTSAM's optimizers
-copy the whole ``Values`` into Python for every ``CustomFactor`` call (measured: 1.8 ms per call at 2,400
-keyframes, growing with the log), so a Python-side factor cannot live inside them. The damping ``λI`` of
-each keyframe rides in its relative-motion factor's extra rows.
-
-Elimination order: the keyframes of each block of ``BLOCK`` consecutive keyframes, then the block
-boundaries, then landmarks and biases: a block's keyframes only share the landmarks seen inside it, which
-keeps the dense fronts small (for 9,000 keyframes and 30 landmarks, 3x faster than the time order and 4x
-faster than COLAMD).
+The normal equations are formed and solved by compiled code over their structure (block tridiagonal in the
+poses with a border of landmark and bias columns, :mod:`pipeline.smoother.solver`): on the one-hour benchmark
+log (72,000 keyframes, 577,200 detections) one linearization and solve takes about a second and the marginal
+covariances one more, where GTSAM's general elimination of the same graph (with a Python object per factor)
+took tens of seconds and 1.7 GB. ``benchmarks/batch_gtsam.py`` solves the same graph with GTSAM's stock
+factors for comparison.
 """
 
 from __future__ import annotations
@@ -33,10 +28,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: Keyframes per elimination block (see the module docstring).
-BLOCK = 100
-#: Relative resolution at which landmark noise models are shared (one model per 1 % of standard deviation).
-SIGMA_STEP = 0.01
 #: Standard deviation of the gauge prior on the anchor keyframe (rad and m: effectively a constraint).
 GAUGE_SIGMA = 1e-6
 
@@ -77,90 +68,6 @@ class Solution:
     summary: dict = field(default_factory=dict)
 
 
-def _keys(problem: Problem, guess: Guess):
-    """Keyframe count, landmark keys and bias keys (one per segment)."""
-    k = problem.data.shape[0] + 1
-    n_lm, n_seg = guess.landmarks.shape[0], guess.bias.shape[0]
-    return k, np.arange(k, k + n_lm), np.arange(k + n_lm, k + n_lm + n_seg)
-
-
-def build(problem: Problem, guess: Guess):
-    """GTSAM's part of the graph (every factor but the relative motion) and the initial values."""
-    import gtsam
-
-    k, lm_keys, bias_keys = _keys(problem, guess)
-    graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
-    for i in range(k):
-        values.insert(i, gtsam.Pose3(gtsam.Rot3(guess.rot[i]), guess.pos[i]))
-    for key, p in zip(lm_keys, guess.landmarks):
-        values.insert(int(key), np.asarray(p, dtype=float))
-    for key, b in zip(bias_keys, guess.bias):
-        values.insert(int(key), np.asarray(b, dtype=float))
-
-    huber = gtsam.noiseModel.mEstimator.Huber.Create(problem.huber)
-    models: dict[tuple[int, int], object] = {}
-    ranges = np.linalg.norm(problem.det_y, axis=1)
-    step = np.log1p(SIGMA_STEP)
-    sig = np.maximum(problem.det_sigma, 1e-9)
-    q_range = np.round(np.log(sig) / step).astype(np.int64)
-    q_bear = np.round(np.log(sig / np.maximum(ranges, 1e-9)) / step).astype(np.int64)
-    for m in range(problem.det_y.shape[0]):
-        if ranges[m] <= 0.0:
-            continue
-        key = (int(q_bear[m]), int(q_range[m]))
-        model = models.get(key)
-        if model is None:
-            sb, sr = np.exp(key[0] * step), np.exp(key[1] * step)
-            model = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(np.array([sb, sb, sr])))
-            models[key] = model
-        y = problem.det_y[m]
-        graph.add(
-            gtsam.BearingRangeFactor3D(
-                int(problem.kf_of_det[m]),
-                int(lm_keys[problem.det_idx[m]]),
-                gtsam.Unit3(y / ranges[m]),
-                float(ranges[m]),
-                model,
-            )
-        )
-
-    graph.add(
-        gtsam.PriorFactorVector(
-            int(bias_keys[0]),
-            np.asarray(problem.bias_prior_mean, dtype=float),
-            gtsam.noiseModel.Diagonal.Sigmas(problem.bias_prior_sigma),
-        )
-    )
-    if problem.walk_sigma is not None:
-        walk = gtsam.noiseModel.Diagonal.Sigmas(problem.walk_sigma)
-        for a, b in zip(bias_keys[:-1], bias_keys[1:]):
-            graph.add(gtsam.BetweenFactorVector(int(a), int(b), np.zeros(6), walk))
-    a = problem.anchor
-    graph.add(
-        gtsam.PriorFactorPose3(
-            a, gtsam.Pose3(gtsam.Rot3(guess.rot[a]), guess.pos[a]), gtsam.noiseModel.Isotropic.Sigma(6, GAUGE_SIGMA)
-        )
-    )
-    return graph, values
-
-
-def ordering(k: int, lm_keys: np.ndarray, bias_keys: np.ndarray):
-    """Block-wise elimination order (module docstring)."""
-    import gtsam
-
-    order = gtsam.Ordering()
-    bounds = set(range(0, k, BLOCK)) | {k - 1}
-    for i in range(k):
-        if i not in bounds:
-            order.push_back(i)
-    for i in sorted(bounds):
-        order.push_back(i)
-    for key in (*lm_keys, *bias_keys):
-        order.push_back(int(key))
-    return order
-
-
 def _stats(x: np.ndarray) -> dict:
     if x.size == 0:
         return {"n": 0}
@@ -173,115 +80,106 @@ def _stats(x: np.ndarray) -> dict:
     }
 
 
-class _Motion:
-    """The relative-motion factors: their error, and their linearization as GTSAM ``JacobianFactor`` s."""
+class _Normal:
+    """The normal equations of ``problem`` at one point, the factors that solve them, and the total error."""
 
-    CHUNK = 8192
+    def __init__(self, problem: Problem, guess: Guess) -> None:
+        p = self.p = problem
+        k, self.n_lm, self.n_seg = p.data.shape[0] + 1, guess.landmarks.shape[0], guess.bias.shape[0]
+        order = np.argsort(p.kf_of_det, kind="stable")  # the detections of each keyframe together
+        self.kf, self.idx = p.kf_of_det[order], p.det_idx[order]
+        self.y, self.sigma = np.ascontiguousarray(p.det_y[order], float), p.det_sigma[order].astype(float)
+        self.det_start = np.searchsorted(self.kf, np.arange(k + 1))
+        self.gauge = (guess.rot[p.anchor].copy(), guess.pos[p.anchor].copy())
+        nb = 3 * self.n_lm + 6 * self.n_seg
+        self.ad, self.ao, self.mb = np.zeros((k, 6, 6)), np.zeros((k - 1, 6, 6)), np.zeros((k - 1, 2, 6, 6))
+        self.ga, self.c, self.gb = np.zeros((k, 6)), np.zeros((nb, nb)), np.zeros(nb)
+        self.weight, self.scratch = np.zeros(self.kf.shape[0]), np.zeros(self.kf.shape[0])
+        self.dd, self.ee = np.zeros((k, 6, 6)), np.zeros((k, 6, 6))
+        self.at = None
 
-    def __init__(self, problem: Problem, bias_keys: np.ndarray) -> None:
-        import gtsam
-
-        self.p = problem
-        n = min(problem.data.shape[0], self.CHUNK)
-        self.r = np.empty((n, 12))
-        self.h = np.empty((n, 3, 12, 6))
-        self.kb = [int(bias_keys[s]) for s in problem.seg_of]
-        self.unit12 = gtsam.noiseModel.Unit.Create(12)
-
-    def error(self, rot, pos, bias) -> float:
+    def error(self, pt: tuple) -> float:
+        """Half the squared whitened residuals (Huber-robust for the detections) at ``pt`` (rot, pos, lms, bias)."""
         from slamobs.pipeline.smoother.preintegration import motion_error
+        from slamobs.pipeline.smoother.solver import detection_terms, pose_deviation
 
-        p = self.p
-        return 0.5 * motion_error(p.data, p.b_bar, rot, pos, bias, p.seg_of)
+        p, (rot, pos, lms, bias) = self.p, pt
+        total = detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, p.huber, self.scratch)
+        total += 0.5 * motion_error(p.data, p.b_bar, rot, pos, bias, p.seg_of)
+        total += 0.5 * np.sum(((bias[0] - p.bias_prior_mean) / p.bias_prior_sigma) ** 2)
+        if p.walk_sigma is not None:
+            total += 0.5 * np.sum((np.diff(bias, axis=0) / p.walk_sigma) ** 2)
+        dev = pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA
+        return float(total + 0.5 * dev @ dev)
 
-    def linearize(self, rot, pos, bias, damping: float, graph) -> None:
-        import gtsam
+    def linearize(self, pt: tuple) -> None:
+        """The normal equations ``JᵀJ``, ``Jᵀr`` at ``pt`` (with the detections' Huber weights there)."""
+        from slamobs.pipeline.smoother.solver import detection_normal, detection_terms, motion_terms, pose_deviation
 
-        from slamobs.pipeline.smoother.preintegration import motion_linearize
+        p, (rot, pos, lms, bias) = self.p, pt
+        detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, p.huber, self.weight)
+        for a in (self.ad, self.ao, self.ga, self.c, self.gb):
+            a[:] = 0.0
+        detection_normal(rot, pos, lms, self.kf, self.idx, self.y, self.weight, self.ad, self.ga, self.c, self.gb)
+        b0 = 3 * self.n_lm
+        motion_terms(p.data, p.b_bar, rot, pos, bias, p.seg_of, self.ad, self.ao, self.mb, self.ga, self.c, self.gb, b0)
+        prior = 1.0 / p.bias_prior_sigma**2
+        self.c[b0 : b0 + 6, b0 : b0 + 6] += np.diag(prior)
+        self.gb[b0 : b0 + 6] += prior * (bias[0] - p.bias_prior_mean)
+        if p.walk_sigma is not None:
+            w = 1.0 / p.walk_sigma**2
+            for s in range(self.n_seg - 1):
+                d = w * (bias[s + 1] - bias[s])
+                i, j = b0 + 6 * s, b0 + 6 * s + 6
+                self.c[i : i + 6, i : i + 6] += np.diag(w)
+                self.c[j : j + 6, j : j + 6] += np.diag(w)
+                self.c[i : i + 6, j : j + 6] -= np.diag(w)
+                self.c[j : j + 6, i : i + 6] -= np.diag(w)
+                self.gb[i : i + 6] -= d
+                self.gb[j : j + 6] += d
+        self.ad[p.anchor] += np.eye(6) / GAUGE_SIGMA**2
+        self.ga[p.anchor] += pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA**2
+        self.at = pt
 
-        p, r, h, kb, unit = self.p, self.r, self.h, self.kb, self.unit12
-        k = p.data.shape[0]
-        for a in range(0, k, self.CHUNK):  # a chunk at a time: the Jacobians of a long log are 1.7 KB each
-            b = min(k, a + self.CHUNK)
-            motion_linearize(p.data[a:b], p.b_bar, rot[a : b + 1], pos[a : b + 1], bias, p.seg_of[a:b], damping, r, h)
-            np.negative(r, out=r)  # JacobianFactor error is ‖A δ − b‖²: b = −residual
-            for i in range(b - a):
-                j = a + i
-                graph.push_back(gtsam.JacobianFactor(j, h[i, 0], j + 1, h[i, 1], kb[j], h[i, 2], r[i], unit))
+    def _geo(self) -> tuple:
+        rot, pos, lms, _ = self.at
+        return (rot, pos, lms, self.det_start, self.idx, self.weight, self.mb, self.p.seg_of, 3 * self.n_lm)
 
+    def factor(self, lam: float) -> tuple | None:
+        """``A + λI`` factored and the border's Schur complement ``S`` (None: not positive definite), with
+        ``z = L⁻¹(−Jᵀr)_a`` and the border's right side."""
+        from slamobs.pipeline.smoother.solver import factor
 
-def _arrays(values, k: int, bias_keys: np.ndarray):
-    import gtsam
+        s, rb, z = self.c + lam * np.eye(self.c.shape[0]), -self.gb, -self.ga
+        if not factor(self.ad, self.ao, lam, z, self._geo(), self.dd, self.ee, s, rb):
+            return None
+        upper = np.triu(s)
+        return upper + np.triu(s, 1).T, rb, z
 
-    poses = gtsam.utilities.extractPose3(values)
-    return (
-        np.ascontiguousarray(poses[:, :9].reshape(-1, 3, 3)),
-        np.ascontiguousarray(poses[:, 9:]),
-        np.array([values.atVector(int(key)) for key in bias_keys]).reshape(-1, 6),
-    )
+    def step(self, lam: float) -> tuple | None:
+        """The damped Gauss–Newton step from the linearization point: the new point and ``S`` (None: singular)."""
+        from slamobs.pipeline.smoother.solver import back_substitute, retract
 
+        f = self.factor(lam)
+        if f is None:
+            return None
+        s, rb, z = f
+        try:
+            xb = np.linalg.solve(s, rb)
+        except np.linalg.LinAlgError:
+            return None
+        x = np.empty_like(self.ga)
+        back_substitute(z, xb, self._geo(), self.dd, self.ee, x)
+        rot, pos, lms, bias = self.at
+        new = (np.empty_like(rot), np.empty_like(pos), np.empty_like(lms), np.empty_like(bias))
+        retract(rot, pos, lms, bias, x, xb, self.n_lm, *new)
+        return new, s
 
-def _damping(graph, keys_dims: list[tuple[int, int]], sqrt_lam: float) -> None:
-    """``√λ I`` on the variables the relative-motion factors do not damp (last keyframe, landmarks, biases)."""
-    import gtsam
-
-    for key, dim in keys_dims:
-        graph.push_back(
-            gtsam.JacobianFactor(key, sqrt_lam * np.eye(dim), np.zeros(dim), gtsam.noiseModel.Unit.Create(dim))
-        )
-
-
-class _Steps:
-    """One Levenberg–Marquardt problem: GTSAM's factors plus the compiled relative-motion factors, one
-    elimination order, and the variables the motion factors do not damp."""
-
-    def __init__(self, graph, motion: _Motion, order, k: int, lm_keys: np.ndarray, bias_keys: np.ndarray) -> None:
-        self.graph, self.motion, self.order, self.k, self.bias_keys = graph, motion, order, k, bias_keys
-        self.others = [(k - 1, 6), *((int(key), 3) for key in lm_keys), *((int(key), 6) for key in bias_keys)]
-
-    def error(self, values, arrays) -> float:
-        """The total error: GTSAM's factors and the relative-motion factors."""
-        return self.graph.error(values) + self.motion.error(*arrays)
-
-    def step(self, values, arrays, error: float, lam: float, lam_max: float = 1e10):
-        """The first damped step (``λ`` raised tenfold until one is found) that lowers ``error``: the new values,
-        arrays, error and (bias marginal, its ``λ``), or None; the ``λ`` reached and the linear solves made."""
-        import gtsam
-
-        base = self.graph.linearize(values)
-        trials = 0
-        while lam <= lam_max:
-            trials += 1
-            lin = gtsam.GaussianFactorGraph()
-            lin.push_back(base)
-            self.motion.linearize(*arrays, np.sqrt(lam), lin)
-            _damping(lin, self.others, np.sqrt(lam))
-            tree = lin.eliminateMultifrontal(self.order)
-            del lin
-            delta = tree.optimize()
-            step_cov = (self._marginals(tree), lam)
-            del tree
-            new_values = values.retract(delta)
-            del delta
-            new_arrays = _arrays(new_values, self.k, self.bias_keys)
-            new_error = self.error(new_values, new_arrays)
-            if np.isfinite(new_error) and new_error < error:
-                return (new_values, new_arrays, new_error, step_cov), lam, trials
-            del new_values, new_arrays
-            lam *= 10.0
-        return None, lam, trials
-
-    def bias_covariance(self, values, arrays) -> np.ndarray:
-        """The biases' marginal covariance from an undamped factorization at ``values``."""
-        lin = self.graph.linearize(values)
-        self.motion.linearize(*arrays, 0.0, lin)
-        tree = lin.eliminateMultifrontal(self.order)
-        del lin
-        return self._marginals(tree)
-
-    def _marginals(self, tree) -> np.ndarray:
-        """The biases' marginal covariances (segments × 6 × 6) from an eliminated Bayes tree."""
-        return np.array([tree.marginalCovariance(int(key)) for key in self.bias_keys]).reshape(-1, 6, 6)
+    def bias_covariance(self, s: np.ndarray) -> np.ndarray:
+        """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement."""
+        b0 = 3 * self.n_lm
+        cov = np.linalg.inv(s)[b0:, b0:]
+        return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
 
 
 def solve(
@@ -290,25 +188,20 @@ def solve(
     """Levenberg–Marquardt from ``guess``; the solution, the biases' marginal covariance and a summary."""
     t0 = time.perf_counter()
     k = problem.data.shape[0] + 1
-    _, lm_keys, bias_keys = _keys(problem, guess)
-    graph, values = build(problem, guess)
-    motion = _Motion(problem, bias_keys)
+    ne = _Normal(problem, guess)
+    pt = tuple(np.ascontiguousarray(a, float) for a in (guess.rot, guess.pos, guess.landmarks, guess.bias))
+    errors = [ne.error(pt)]
     t_build = time.perf_counter() - t0
-    lm = _Steps(graph, motion, ordering(k, lm_keys, bias_keys), k, lm_keys, bias_keys)
-    arrays = _arrays(values, k, bias_keys)
-    errors = [lm.error(values, arrays)]
-    lam = 1e-5
-    iterations, converged, trials = 0, False, 0
+    lam, iterations, converged, trials = 1e-5, 0, False, 0
     bias_cov, cov_lam = None, np.inf
     while iterations < max_iterations:
-        step, lam, n = lm.step(values, arrays, errors[-1], lam)
+        step, lam, n = _step(ne, pt, errors[-1], lam)
         trials += n
         if step is None:
             converged = True  # no step decreases the error any more: a (local) minimum
             break
-        # the marginal at the last point linearized (one small step before the solution)
-        values, arrays, error, (bias_cov, cov_lam) = step
-        del step
+        pt, error, s = step
+        bias_cov, cov_lam = ne.bias_covariance(s), lam  # at the last point linearized, one small step before
         iterations += 1
         errors.append(error)
         lam = max(lam / 10.0, 1e-12)
@@ -318,11 +211,11 @@ def solve(
             converged = True
             break
     t_solve = time.perf_counter() - t0 - t_build
-    rot, pos, bias = arrays
-    lms = np.array([values.atVector(int(key)) for key in lm_keys]).reshape(-1, 3)
     t = time.perf_counter()
     if bias_cov is None or cov_lam > 1e-3:  # no undamped factorization near the solution: one more
-        bias_cov = lm.bias_covariance(values, arrays)
+        ne.linearize(pt)
+        f = ne.factor(0.0)
+        bias_cov = ne.bias_covariance(f[0]) if f is not None else np.full((ne.n_seg, 6, 6), np.nan)
     t_marg = time.perf_counter() - t
     summary = {
         "iterations": iterations,
@@ -331,39 +224,67 @@ def solve(
         "initial_error": float(errors[0]),
         "final_error": float(errors[-1]),
         "error_per_iteration": [float(e) for e in errors],
-        "variables": {"keyframes": int(k), "landmarks": int(lm_keys.size), "bias_segments": int(bias_keys.size)},
-        "factors": int(graph.size()) + k - 1,
+        "variables": {"keyframes": int(k), "landmarks": ne.n_lm, "bias_segments": ne.n_seg},
+        "factors": _factor_count(problem, ne.n_seg),
         "seconds": {"build": round(t_build, 3), "optimize": round(t_solve, 3), "covariance": round(t_marg, 3)},
     }
+    rot, pos, lms, bias = pt
     return Solution(rot, pos, lms, bias, bias_cov, summary)
+
+
+def _factor_count(problem: Problem, n_seg: int) -> int:
+    """Detections, relative motions, the bias prior, the walk steps and the gauge."""
+    walk = n_seg - 1 if problem.walk_sigma is not None else 0
+    return int(problem.det_idx.shape[0]) + int(problem.data.shape[0]) + 1 + walk + 1
+
+
+def _step(ne: _Normal, pt: tuple, error: float, lam: float, lam_max: float = 1e10):
+    """The first damped step (``λ`` raised tenfold until one is found) that lowers ``error``: (the new point, its
+    error, the border's Schur complement) or None; the ``λ`` reached and the linear solves made."""
+    ne.linearize(pt)
+    trials = 0
+    while lam <= lam_max:
+        trials += 1
+        out = ne.step(lam)
+        if out is not None:
+            new, s = out
+            new_error = ne.error(new)
+            if np.isfinite(new_error) and new_error < error:
+                return (new, new_error, s), lam, trials
+        lam *= 10.0
+    return None, lam, trials
 
 
 def cost(problem: Problem, guess: Guess) -> float:
     """The smoother's objective at ``guess``: every factor of ``problem`` (Huber-robust landmark factors, relative
-    motion, bias priors; the gauge prior sits at the guess's own anchor pose and adds nothing), as GTSAM sums it
-    (half the squared whitened residuals). Solutions from different seeds are compared by it."""
-    _, _, bias_keys = _keys(problem, guess)
-    graph, values = build(problem, guess)
-    return float(graph.error(values)) + _Motion(problem, bias_keys).error(guess.rot, guess.pos, guess.bias)
+    motion, bias priors; the gauge prior sits at the guess's own anchor pose and adds nothing), half the squared
+    whitened residuals. Solutions from different seeds are compared by it."""
+    pt = tuple(np.ascontiguousarray(a, float) for a in (guess.rot, guess.pos, guess.landmarks, guess.bias))
+    return _Normal(problem, guess).error(pt)
 
 
 def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Marginal covariances at the solution, from one undamped factorization: of the poses at ``keyframes``
-    (K', 6, 6) and of every landmark (L, 3, 3), both in the map frame. GTSAM's pose marginal is that of the body
-    twist ``ξ = (ω, v)`` in ``T̂ = T Exp(ξ)``; the written error ``(δθ, δp)``, ``R̂ = Exp(δθ) R``, ``p̂ = p + δp``
-    is ``(R ω, R v)`` to first order. Both are conditioned on the gauge (the anchor keyframe held fixed)."""
-    k, lm_keys, bias_keys = _keys(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
-    graph, values = build(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
-    lin = graph.linearize(values)
-    del graph, values  # the nonlinear graph is not needed any more: memory for the factorization
-    _Motion(problem, bias_keys).linearize(sol.rot, sol.pos, sol.bias, 0.0, lin)
-    tree = lin.eliminateMultifrontal(ordering(k, lm_keys, bias_keys))
-    del lin
-    body = np.array([tree.marginalCovariance(int(i)) for i in keyframes]).reshape(-1, 6, 6)
-    turn = np.zeros((keyframes.shape[0], 6, 6))
+    (K', 6, 6; sorted) and of every landmark (L, 3, 3), both in the map frame. The pose marginal is that of the
+    body twist ``ξ = (ω, v)`` in ``T̂ = T Exp(ξ)``; the written error ``(δθ, δp)``, ``R̂ = Exp(δθ) R``,
+    ``p̂ = p + δp`` is ``(R ω, R v)`` to first order. Both are conditioned on the gauge (the anchor keyframe
+    held fixed)."""
+    from slamobs.pipeline.smoother.solver import pose_marginals
+
+    ne = _Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
+    pt = tuple(np.ascontiguousarray(a, float) for a in (sol.rot, sol.pos, sol.landmarks, sol.bias))
+    ne.linearize(pt)
+    f = ne.factor(0.0)
+    n = keyframes.shape[0]
+    if f is None:
+        return np.full((n, 6, 6), np.nan), np.full((ne.n_lm, 3, 3), np.nan)
+    s_inv = np.linalg.inv(f[0])
+    body = np.zeros((n, 6, 6))
+    pose_marginals(ne._geo(), ne.dd, ne.ee, s_inv, np.asarray(keyframes, np.int64), body)
+    turn = np.zeros((n, 6, 6))
     turn[:, :3, :3] = turn[:, 3:, 3:] = sol.rot[keyframes]
     pose = np.einsum("nij,njk,nlk->nil", turn, body, turn)
-    landmarks = np.array([tree.marginalCovariance(int(key)) for key in lm_keys]).reshape(-1, 3, 3)
+    landmarks = np.array([s_inv[3 * i : 3 * i + 3, 3 * i : 3 * i + 3] for i in range(ne.n_lm)]).reshape(-1, 3, 3)
     return pose, landmarks
 
 

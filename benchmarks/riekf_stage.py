@@ -1,0 +1,95 @@
+"""Where riekf's filter stage goes on a log: the time-offset estimate, the filter itself (per detection frame and per
+velocity sample), and the dense covariance work each frame needs, against the floor of issue 27.
+
+    .venv/bin/python benchmarks/riekf_stage.py LOG [--repeat 2]
+
+Reads the log once (``prepare_log``, noise levels as ``slamobs run`` resolves them), then times, in this process
+and on CPU seconds as well as wall (the VM is shared), ``time_offset.estimate`` and the filter run a stretch at a
+time as ``slamobs run`` runs it (the offset estimated again inside, as in a run). The last lines count the
+multiply-adds of the dense covariance work: per frame, the propagation applied to the ``D x D`` covariance
+(``F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ``: 18 per entry of one triangle) and the Kalman downdate (``3m`` per entry, ``m``
+detections); what one second of that work costs at the rate measured is the floor of this dense filter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from end_to_end import MAX_RIEKF_FILTER_1H_S, load  # noqa: E402
+
+
+def _timed(fn):
+    """``fn()``, its wall and CPU seconds."""
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w, time.process_time() - c
+
+
+def main() -> None:
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.observers import riekf, time_offset
+    from slamobs.pipeline.run import STRETCH_SAMPLES, estimator_input, prepare_log
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("log", type=Path)
+    ap.add_argument("--repeat", type=int, default=2, help="timed runs (the best is printed)")
+    args = ap.parse_args()
+    config = replace(load_config(None), observer="riekf")
+    prepared = prepare_log(args.log, config, directions=False)
+    options = estimator_input(prepared, config).options
+    stream = prepared.aligned
+    riekf.SPEC.start(stream, {}, options).advance(100)  # numba cache loaded
+    n_vel, n_frames = int(stream.vel_t_ns.shape[0]), int(stream.det_t_ns.shape[0])
+    span = float((stream.vel_t_ns[-1] - stream.vel_t_ns[0]) * 1e-9)
+
+    def run():
+        st = riekf.SPEC.start(stream, {}, options)
+        for stop in range(STRETCH_SAMPLES, st.n_vel + STRETCH_SAMPLES, STRETCH_SAMPLES):
+            st.advance(stop)
+        return st
+
+    best = {}
+    for _ in range(args.repeat):
+        for name, fn in (("time offset", lambda: time_offset.estimate(stream)), ("filter stage", run)):
+            out, wall, cpu = _timed(fn)
+            if name not in best or cpu < best[name][1]:
+                best[name] = (wall, cpu)
+            if name == "filter stage":
+                st = out
+    d = 12 + 3 * int(st.state.ns[7])
+    m = float(np.diff(stream.det_offsets).mean()) if n_frames else 0.0
+    madds = n_frames * d * (d + 1) / 2 * (18 + 3 * m)
+    kernel_cpu = best["filter stage"][1] - best["time offset"][1]
+    print(
+        f"# {args.log.name}: {span:.0f} s, {n_vel} velocity samples, {n_frames} detection frames "
+        f"({m:.1f} detections each), D = {d}"
+    )
+    print("| part | wall s | CPU s | µs per velocity sample | µs per frame |")
+    print("| --- | --- | --- | --- | --- |")
+    for name, (wall, cpu) in best.items():
+        print(f"| {name} | {wall:.2f} | {cpu:.2f} | {1e6 * cpu / n_vel:.2f} | {1e6 * cpu / max(n_frames, 1):.1f} |")
+    print(
+        f"| filter without the offset | | {kernel_cpu:.2f} | {1e6 * kernel_cpu / n_vel:.2f} | "
+        f"{1e6 * kernel_cpu / max(n_frames, 1):.1f} |"
+    )
+    rate = madds / max(kernel_cpu, 1e-9)
+    print(
+        f"dense covariance work: {madds / 1e9:.1f} G multiply-adds ({madds / max(n_frames, 1) / 1e3:.0f} k per "
+        f"frame), {rate / 1e9:.2f} G/s counting all of the filter's CPU time as that work"
+    )
+    wall = best["filter stage"][0]
+    print(
+        f"filter stage {wall:.2f} s wall = {span / wall:.0f}x real time (floor {MAX_RIEKF_FILTER_1H_S:g} s on the "
+        f"1 h log); {load()}"
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,46 @@
+"""What a run compiles: a first run (empty kernel cache) pays for every kernel it compiles, so a fast-adaptation
+run compiles (or loads) the kernels it calls and none of riekf, the smoother or the other observers."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from tests.cli_checks import SAMPLES
+
+#: Run in the child: ``slamobs run`` in-process, then every numba dispatcher's module, name and signatures.
+CHILD = """
+import gc, json, sys
+from numba.core.registry import CPUDispatcher
+from slamobs.cli.main import main
+main(["run", sys.argv[1], "-o", sys.argv[2], "-q", "--observer", "fast-adaptation"], standalone_mode=False)
+found = {}
+for d in gc.get_objects():
+    if isinstance(d, CPUDispatcher) and d.overloads:
+        found[f"{d.py_func.__module__}.{d.py_func.__qualname__}"] = len(d.overloads)
+print(json.dumps(found))
+"""
+
+#: Modules whose kernels only other estimators use.
+OTHERS = (
+    "slamobs.pipeline.observers.riekf",
+    "slamobs.pipeline.observers.time_offset",
+    "slamobs.pipeline.observers.hashim",
+    "slamobs.pipeline.observers.wang_tayebi",
+    "slamobs.pipeline.observers.hybrid",
+    "slamobs.pipeline.smoother.",
+)
+
+
+def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-c", CHILD, str(SAMPLES / "figure8.mcap"), str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stderr
+    kernels = json.loads(out.stdout.strip().splitlines()[-1])
+    # the observer's own event loop, for one set of argument types
+    assert kernels["slamobs.pipeline.observers.fast_adaptation._advance"] == 1
+    assert [k for k in kernels if k.startswith(OTHERS)] == []

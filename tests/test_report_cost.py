@@ -1,0 +1,85 @@
+"""What a run's report costs (issue 27): the figures a run draws by default, the tables it reads back without
+pandas, and the work only some estimators need (the recorded velocity's noise density)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from slamobs.pipeline.evaluation.figure_jobs import MAIN_FIGURES, MAIN_RUN_FIGURES, chosen, drawn
+from slamobs.pipeline.writers import null_columns, read_columns
+
+JOBS = [("plot_x", name, {}) for name in ("trajectory.png", "map.png", "biases.png", *MAIN_FIGURES)]
+
+
+def test_plots_choose_the_figures():
+    assert chosen(JOBS, "all") == JOBS
+    assert chosen(JOBS, False) == []
+    assert [j[1] for j in chosen(JOBS, True)] == list(MAIN_FIGURES)
+    assert [j[1] for j in chosen(JOBS, True, MAIN_RUN_FIGURES)] == ["trajectory.png", "map.png"]
+    assert drawn("biases.png", "all") and not drawn("biases.png", True) and drawn("errors.png", True)
+    assert not drawn("errors.png", False)
+
+
+@pytest.fixture(scope="module")
+def table_with_nulls(tmp_path_factory):
+    """Two row groups: a column of values, one with some nulls, one null throughout (an observer's covariance)."""
+    rng = np.random.default_rng(3)
+    n = 1000
+    some = pa.array(rng.normal(size=n), mask=rng.random(n) < 0.3)
+    table = pa.table(
+        {
+            "t_ns": np.arange(n, dtype=np.int64),
+            "x": rng.normal(size=n),
+            "some": some,
+            "none": pa.nulls(n, pa.float64()),
+        }
+    )
+    path = tmp_path_factory.mktemp("t") / "poses.parquet"
+    pq.write_table(table, path, row_group_size=600)
+    return path, table
+
+
+def test_read_columns_gives_nulls_as_nan_like_pyarrow(table_with_nulls):
+    path, table = table_with_nulls
+    got = read_columns(path)
+    assert list(got) == table.column_names
+    for name in table.column_names:
+        want = table.column(name).to_numpy(zero_copy_only=False)
+        assert got[name].dtype == want.dtype and np.array_equal(got[name], want, equal_nan=True), name
+
+
+def test_skip_null_leaves_out_only_the_columns_null_throughout(table_with_nulls):
+    path, _ = table_with_nulls
+    assert null_columns(pq.ParquetFile(path)) == {"none"}
+    assert list(read_columns(path, skip_null=True)) == ["t_ns", "x", "some"]
+
+
+def test_reading_columns_with_nulls_does_not_import_pandas(table_with_nulls):
+    """pyarrow's to_numpy of a column with nulls imports pandas (1-1.7 s of every report before)."""
+    code = (
+        "import sys; from slamobs.pipeline.writers import read_columns; "
+        f"read_columns({str(table_with_nulls[0])!r}); print('pandas' in sys.modules)"
+    )
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "False\n"
+
+
+def test_only_estimators_with_noise_levels_estimate_the_recorded_velocity_noise(monkeypatch):
+    """fast-adaptation's run does not compute the velocity's noise density (0.5 s on an hour); riekf's does."""
+    from slamobs.pipeline import noise, run
+    from slamobs.pipeline.config import RunConfig
+    from cli_checks import SAMPLES
+
+    calls = []
+    real = noise.stream_density
+    monkeypatch.setattr(noise, "stream_density", lambda *a: calls.append(1) or real(*a))
+    log = SAMPLES / "figure8.mcap"
+    assert run.prepare_log(log, RunConfig(), directions=False, noise=False).velocity_noise is None
+    assert calls == []
+    assert run.prepare_log(log, RunConfig(), directions=False).velocity_noise is not None
+    assert calls == [1]

@@ -1,0 +1,133 @@
+"""The batch smoother's own normal equations and their structured solution (pipeline/smoother/solver.py) against
+dense linear algebra: the gradient against finite differences of the cost, the information matrix against
+finite differences of the gradient, the damped step against a dense solve and the marginal covariances against
+the dense inverse, on a small generated problem with two bias segments (a random walk between them)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline.smoother import graph as g
+from slamobs.pipeline.smoother.preintegration import D_W, dead_reckon, preintegrate, whitening
+from slamobs.pipeline.smoother.solver import border_row, pose_marginals, retract
+
+K, N_LM, N_SEG = 30, 4, 2
+
+
+@pytest.fixture(scope="module")
+def case():
+    """A problem whose residuals all vanish at ``guess`` (poses dead-reckoned from the odometry, detections
+    exact), so that its Gauss–Newton information is the cost's Hessian there."""
+    rng = np.random.default_rng(7)
+    vel_t = np.arange(10 * (K - 1) + 1) * 0.01
+    omega = rng.normal(size=(vel_t.size, 3)) * 0.3
+    vel = rng.normal(size=(vel_t.size, 3)) * 0.2 + [1.0, 0.0, 0.0]
+    kf_t = vel_t[::10]
+    b_bar = rng.normal(size=6) * 0.01
+    data, cov = np.zeros((K - 1, 75)), np.zeros((K - 1, 6, 6))
+    preintegrate(vel_t, omega, vel, kf_t, b_bar, np.full(3, 1e-5), np.full(3, 1e-3), data, cov)
+    data[:, D_W:] = whitening(cov).reshape(-1, 36)
+    rot, pos = np.empty((K, 3, 3)), np.empty((K, 3))
+    dead_reckon(vel_t, omega, vel, kf_t, b_bar, np.eye(3), np.zeros(3), rot, pos)
+    lms = rng.uniform(-3.0, 3.0, size=(N_LM, 3)) + [1.5, 0.0, 0.0]
+    kf_of_det = np.repeat(np.arange(K), 2)
+    det_idx = np.array([rng.choice(N_LM, 2, replace=False) for _ in range(K)]).ravel()
+    det_y = np.einsum("mji,mj->mi", rot[kf_of_det], lms[det_idx] - pos[kf_of_det])
+    problem = g.Problem(
+        data=data,
+        b_bar=b_bar,
+        seg_of=np.arange(K - 1) * N_SEG // (K - 1),
+        kf_of_det=kf_of_det,
+        det_idx=det_idx,
+        det_y=det_y,
+        det_sigma=np.full(det_idx.size, 0.01),
+        bias_prior_sigma=np.full(6, 0.1),
+        bias_prior_mean=b_bar,
+        walk_sigma=np.full(6, 0.01),
+        huber=3.0,
+        anchor=K - 1,
+    )
+    guess = g.Guess(rot, pos, lms, np.tile(b_bar, (N_SEG, 1)))
+    return problem, guess, (rot, pos, lms, guess.bias)
+
+
+def moved(pt, x, xb):
+    """``pt`` retracted by the pose steps ``x`` (K, 6) and the border steps ``xb``."""
+    out = tuple(np.empty_like(a) for a in pt)
+    retract(*pt, x, xb, N_LM, *out)
+    return out
+
+
+def gradient(ne, pt):
+    ne.linearize(pt)
+    return np.r_[ne.ga.ravel(), ne.gb]
+
+
+def dense_information(ne) -> np.ndarray:
+    """``JᵀJ`` assembled densely from the solver's blocks."""
+    nb = ne.c.shape[0]
+    h = np.zeros((6 * K + nb, 6 * K + nb))
+    brow = np.empty((6, nb))
+    for i in range(K):
+        h[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] = ne.ad[i]
+        if i < K - 1:
+            h[6 * i : 6 * i + 6, 6 * i + 6 : 6 * i + 12] = ne.ao[i]
+            h[6 * i + 6 : 6 * i + 12, 6 * i : 6 * i + 6] = ne.ao[i].T
+        border_row(i, *ne._geo()[:3], ne.det_start[i], ne.det_start[i + 1], *ne._geo()[4:], brow)
+        h[6 * i : 6 * i + 6, 6 * K :] = brow
+        h[6 * K :, 6 * i : 6 * i + 6] = brow.T
+    h[6 * K :, 6 * K :] = ne.c
+    return h
+
+
+def split(v):
+    return v[: 6 * K].reshape(K, 6), v[6 * K :]
+
+
+def test_gradient_is_the_cost_derivative_away_from_the_minimum(case):
+    problem, guess, pt = case
+    rng = np.random.default_rng(1)
+    ne = g._Normal(problem, guess)
+    away = rng.normal(size=6 * K + 3 * N_LM + 6 * N_SEG) * 1e-3
+    away[6 * (K - 1) : 6 * K] = 0.0  # the anchor stays at its gauge (its prior is linearized as the identity)
+    here = moved(pt, *split(away))
+    grad = gradient(ne, here)
+    for _ in range(3):
+        d = rng.normal(size=grad.size)
+        d[6 * (K - 1) : 6 * K] = 0.0
+        eps = 1e-6
+        fd = (ne.error(moved(here, *split(eps * d))) - ne.error(moved(here, *split(-eps * d)))) / (2 * eps)
+        assert fd == pytest.approx(grad @ d, rel=1e-4)
+
+
+def test_information_step_and_marginals_match_dense_linear_algebra(case):
+    problem, guess, pt = case
+    rng = np.random.default_rng(2)
+    ne = g._Normal(problem, guess)
+    ne.linearize(pt)
+    h = dense_information(ne)
+    g0 = np.r_[ne.ga.ravel(), ne.gb]
+    d = rng.normal(size=h.shape[0])
+    d[6 * (K - 1) : 6 * K] = 0.0  # the anchor: its gauge prior's 1e12 would dwarf every other entry
+    eps = 1e-6
+    fd = (gradient(ne, moved(pt, *split(eps * d))) - gradient(ne, moved(pt, *split(-eps * d)))) / (2 * eps)
+    rows = np.r_[0 : 6 * (K - 1), 6 * K : h.shape[0]]
+    assert np.allclose(fd[rows], (h @ d)[rows], rtol=1e-4, atol=1e-5 * np.abs(h @ d)[rows].max())
+    ne.linearize(pt)
+    lam = 1e-3
+    out = ne.step(lam)
+    assert out is not None
+    expect = np.linalg.solve(h + lam * np.eye(h.shape[0]), -g0)
+    x_exp, xb_exp = split(expect)
+    assert np.allclose(out[0][2], pt[2] + xb_exp[: 3 * N_LM].reshape(-1, 3), rtol=0, atol=1e-9)
+    assert np.allclose(out[0][1], pt[1] + np.einsum("kij,kj->ki", pt[0], x_exp[:, 3:]), rtol=0, atol=1e-9)
+    assert np.allclose(out[0][3], pt[3] + xb_exp[3 * N_LM :].reshape(-1, 6), rtol=0, atol=1e-9)
+    cov = np.linalg.inv(h)
+    f = ne.factor(0.0)
+    body = np.zeros((K, 6, 6))
+    pose_marginals(ne._geo(), ne.dd, ne.ee, np.linalg.inv(f[0]), np.arange(K), body)
+    dense = np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(K)])
+    assert np.allclose(body, dense, rtol=1e-6, atol=1e-9 * np.abs(dense).max())
+    nb0 = 6 * K + 3 * N_LM
+    assert np.allclose(ne.bias_covariance(f[0])[1], cov[nb0 + 6 : nb0 + 12, nb0 + 6 : nb0 + 12], rtol=1e-6)
