@@ -13,11 +13,15 @@ Logs (``$SLAMOBS_REALDATA``, default ``../shared/realdata``; those absent are sk
 * ``mrclam6-rN``, ``mrclam7-rN`` (N = 1..5): UTIAS MR.CLAM robots imported with ``slamobs import mrclam`` into the
   cache; APE against Vicon, map error against the landmark survey.
 
-APE is the report's (SE(3) alignment); a planar log is better measured with translation and yaw only, which the
-report gives as ``ape_by_alignment["posyaw"]`` once that alignment exists: the table then uses it (column
-``align``). The noise levels of the default run are the ones run.json records (and their source). The grid
-scales the default levels of the motion keys (``gyro``, ``velocity``) and of the detection keys (``detection``,
-``detection_per_m``) separately; "best" is the lowest APE (map error without trajectory truth).
+APE is after the 4-DoF (translation + yaw) alignment where the report computes it (planar runs such as MR.CLAM's,
+and runs with IMU directions: ``ape_by_alignment["yaw"]``), else after SE(3); column ``align`` names it. The
+noise levels of the default run are the ones run.json records (and their source). The grid scales the levels the
+run with no configuration used (``auto``) for the motion keys (``gyro``, ``velocity``) by ``MOTION_SCALES`` and
+for the detection law (``detection``, ``detection_per_m``, ``detection_per_m2``) by ``DETECTION_SCALES``: by
+default a coordinate search (the motion scales at the auto detection law, then the detection scales at the best
+motion scale: 5 points, the centre being the auto levels themselves), ``--full-grid`` their whole product.
+"Best" is the lowest APE (map error without trajectory truth), the auto run included. ``vs seed`` is batch's
+score over its seed's (``fast-adaptation``, the default ``batch.seed``) when that ran too.
 """
 
 from __future__ import annotations
@@ -35,10 +39,10 @@ from pathlib import Path
 REALDATA = Path(os.environ.get("SLAMOBS_REALDATA") or Path(__file__).resolve().parents[2] / "shared" / "realdata")
 ESTIMATORS = ("fast-adaptation", "hashim", "hashim-imu", "wang-tayebi", "hybrid", "riekf", "batch")
 GRID_ESTIMATORS = ("riekf", "batch")
-#: (motion scale, detection scale) of the hand-set noise grid, relative to the defaults.
-GRID = [(m, d) for m in (0.1, 0.3, 1, 3, 10, 30, 100) for d in (0.1, 1, 10, 100)]
-QUICK_GRID = [(0.1, 1), (1, 1), (10, 1), (100, 1), (10, 10), (100, 100)]
-MOTION_KEYS, DETECTION_KEYS = ("gyro", "velocity"), ("detection", "detection_per_m")
+#: scales of the hand-set noise grid, relative to the levels the run with no configuration used
+MOTION_SCALES, DETECTION_SCALES = (0.1, 1.0, 10.0), (0.3, 1.0, 3.0)
+MOTION_KEYS, DETECTION_KEYS = ("gyro", "velocity"), ("detection", "detection_per_m", "detection_per_m2")
+SEED = "fast-adaptation"
 
 
 @dataclass
@@ -116,6 +120,7 @@ class Result:
     map_err: float | None = None
     seconds: float = 0.0
     noise: str = ""
+    levels: dict = field(default_factory=dict)
     error: str = ""
 
     @property
@@ -124,10 +129,14 @@ class Result:
         return float("inf") if value is None or self.error else value
 
 
-def _noise_text(meta: dict) -> str:
-    """The levels run.json records: gyro, velocity, detection (+ per metre) and where each came from."""
+def _noise(meta: dict) -> dict:
+    """The noise section run.json records (riekf keeps it under ``filter``), or {}."""
     observer = meta.get("observer") or {}
-    noise = observer.get("noise") or (observer.get("filter") or {}).get("noise")
+    return observer.get("noise") or (observer.get("filter") or {}).get("noise") or {}
+
+
+def _noise_text(noise: dict) -> str:
+    """The levels run.json records: gyro, velocity, detection (+ per metre, per metre²) and where each came from."""
     if not noise:
         return ""
 
@@ -138,7 +147,8 @@ def _noise_text(meta: dict) -> str:
 
     sources = sorted({str(v) for v in (noise.get("sources") or {}).values()})
     return (
-        f"g {level('gyro')}, v {level('velocity')}, d {level('detection')}+{level('detection_per_m')}r "
+        f"g {level('gyro')}, v {level('velocity')}, d {level('detection')}+{level('detection_per_m')}r"
+        f"+{level('detection_per_m2')}r² "
         f"({'/'.join(sources)})"
     )
 
@@ -159,14 +169,16 @@ def run_one(log: Log, estimator: str, out: Path, noise: dict | None = None) -> R
         return Result(seconds=time.perf_counter() - start, error=one_line(getattr(err, "problem", err))[:90])
     res = Result(seconds=time.perf_counter() - start)
     meta = json.loads((out / "run.json").read_text())
-    res.noise = _noise_text(meta)
+    noise_used = _noise(meta)
+    res.noise = _noise_text(noise_used)
+    res.levels = {k: noise_used[k] for k in MOTION_KEYS + DETECTION_KEYS if k in noise_used}
     report_path = out / "report.json"
     report = json.loads(report_path.read_text()) if report_path.is_file() else {}
     by = report.get("ape_by_alignment") or {}
-    ape = by.get("posyaw") or report.get("ape")
+    ape = by.get("yaw") or report.get("ape")
     if ape and "translation_m" in ape:
         res.ape, res.rot = ape["translation_m"]["rmse"], ape["rotation_deg"]["rmse"]
-        res.align = "posyaw" if "posyaw" in by else ape.get("alignment", {}).get("type", "se3")
+        res.align = "yaw" if "yaw" in by else ape.get("alignment", {}).get("type", "se3")
     lm = report.get("landmarks") or {}
     if "error_m" in lm:
         res.map_err = lm["error_m"]["rmse"]
@@ -197,30 +209,46 @@ def _pairwise_error(estimated: Path, reference: Path) -> float | None:
     return float(np.sqrt(np.mean(diff**2)))
 
 
-def grid_noise(motion: float, detection: float) -> dict:
-    from slamobs.pipeline.noise import DEFAULTS
+def grid_noise(levels: dict, motion: float, detection: float) -> dict:
+    """The auto run's levels, the motion keys scaled by ``motion`` and the detection law by ``detection``."""
 
-    return {
-        **{k: DEFAULTS[k][0] * motion for k in MOTION_KEYS},
-        **{k: DEFAULTS[k][0] * detection for k in DETECTION_KEYS},
-    }
+    def scaled(v, f):
+        return [x * f for x in v] if isinstance(v, list) else v * f
+
+    return {k: scaled(v, motion if k in MOTION_KEYS else detection) for k, v in levels.items()}
 
 
-def best_of_grid(log: Log, estimator: str, work: Path, grid: list[tuple[float, float]]) -> tuple[Result, str]:
-    """The grid point with the lowest score, and its scales."""
-    best, where = Result(error="no grid point ran"), ""
-    for m, d in grid:
-        r = run_one(log, estimator, work / f"{log.name}-{estimator}-grid", grid_noise(m, d))
-        if r.score < best.score:
-            best, where = r, f"motion x{m:g}, det x{d:g}"
-    return best, where
+def best_of_grid(log: Log, estimator: str, work: Path, auto: Result, full: bool) -> tuple[Result, str]:
+    """The lowest-scoring grid point around the auto run's levels (the auto run itself included, as the centre
+    when nothing is better), and its scales; a coordinate search unless ``full``."""
+    if not auto.levels:
+        return Result(error="the auto run recorded no noise levels"), ""
+    tried: dict[tuple[float, float], Result] = {}
+
+    def at(m: float, d: float) -> Result:
+        if (m, d) not in tried:
+            noise = grid_noise(auto.levels, m, d)
+            tried[m, d] = run_one(log, estimator, work / f"{log.name}-{estimator}-grid", noise)
+        return tried[m, d]
+
+    points = [(m, d) for m in MOTION_SCALES for d in DETECTION_SCALES] if full else [(m, 1.0) for m in MOTION_SCALES]
+    best = min(points, key=lambda p: at(*p).score)
+    if not full:
+        best = min([(best[0], d) for d in DETECTION_SCALES], key=lambda p: at(*p).score)
+    best = min([best, "auto"], key=lambda p: auto.score if p == "auto" else tried[p].score)
+    if best == "auto":
+        return auto, "auto"
+    return tried[best], f"motion x{best[0]:g}, det x{best[1]:g}"
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
-    return "" if v is None else f"{v:.{digits}f}"
+    """``digits`` decimals, or two significant digits for a value that would print as 0.00… (test 22's mm)."""
+    if v is None:
+        return ""
+    return f"{v:.2g}" if 0 < abs(v) < 10.0 ** (1 - digits) else f"{v:.{digits}f}"
 
 
-def row(log: Log, estimator: str, r: Result, best: tuple[Result, str] | None) -> str:
+def row(log: Log, estimator: str, r: Result, best: tuple[Result, str] | None, seed: Result | None) -> str:
     if r.error:
         cells = ["", "", "", "", f"{r.seconds:.1f}", f"error: {r.error}"]
     else:
@@ -231,6 +259,7 @@ def row(log: Log, estimator: str, r: Result, best: tuple[Result, str] | None) ->
         cells += [f"{_fmt(b.ape if b.ape is not None else b.map_err)} ({where})", f"{ratio:.2f}"]
     else:
         cells += ["", ""]
+    cells.append(f"{r.score / seed.score:.2f}" if seed is not None and 0.0 < seed.score < float("inf") else "")
     return f"| {log.name} | {estimator} | " + " | ".join(cells) + " |"
 
 
@@ -238,28 +267,33 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", default=None, help="comma-separated log names or prefixes (mrclam6, tagslam-11, ...)")
     ap.add_argument("--estimators", default=",".join(ESTIMATORS), help="comma-separated estimators")
-    ap.add_argument("--quick", action="store_true", help=f"grid of {len(QUICK_GRID)} points instead of {len(GRID)}")
+    ap.add_argument("--full-grid", action="store_true", help="every motion x detection scale, not a coordinate search")
     ap.add_argument("--no-grid", action="store_true", help="only the runs with no noise configuration")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     wanted = args.logs.split(",") if args.logs else None
     estimators = args.estimators.split(",")
-    grid = [] if args.no_grid else (QUICK_GRID if args.quick else GRID)
-    print(f"# real logs from {REALDATA}; grid {len(grid)} points (motion x det scales of the default noise)")
+    search = "none" if args.no_grid else "full" if args.full_grid else "coordinate search"
+    print(
+        f"# real logs from {REALDATA}; grid ({search}): motion x {MOTION_SCALES}, detection law x "
+        f"{DETECTION_SCALES} of the auto levels"
+    )
     print(
         "| log | estimator | APE m | rot deg | align | map m | time s | noise used (no config) "
-        "| best hand-set grid | no-config / best |"
+        "| best hand-set grid | no-config / best | vs seed |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for log in all_logs(args.cache, wanted):
         if log.skip:
-            print(f"| {log.name} | | | | | | | skipped: {log.skip} | | |", flush=True)
+            print(f"| {log.name} | | | | | | | skipped: {log.skip} | | | |", flush=True)
             continue
+        done: dict[str, Result] = {}
         for est in estimators:
-            r = run_one(log, est, args.cache / "runs" / f"{log.name}-{est}")
-            best = best_of_grid(log, est, args.cache / "runs", grid) if est in GRID_ESTIMATORS and grid else None
-            print(row(log, est, r, best), flush=True)
+            r = done[est] = run_one(log, est, args.cache / "runs" / f"{log.name}-{est}")
+            grid = est in GRID_ESTIMATORS and not args.no_grid
+            best = best_of_grid(log, est, args.cache / "runs", r, args.full_grid) if grid else None
+            print(row(log, est, r, best, done.get(SEED) if est == "batch" else None), flush=True)
 
 
 if __name__ == "__main__":

@@ -170,6 +170,14 @@ def stream_density(t_ns: np.ndarray, xyz: np.ndarray) -> Estimate | None:
     return white_noise_density((t_ns - (t_ns.min() if t_ns.size else 0)) * 1e-9, xyz) if t_ns.size else None
 
 
+def _stream_arrays(aligned) -> tuple:
+    """What the detection-based estimators read of an aligned stream: velocity stamps (s from the start), angular
+    and linear velocity, detection stamps (s), the frames' offsets, landmark ids and body-frame points."""
+    t = (aligned.vel_t_ns - aligned.t0_ns) * 1e-9
+    det_t = (aligned.det_t_ns - aligned.t0_ns) * 1e-9
+    return t, aligned.omega, aligned.velocity, det_t, aligned.det_offsets, aligned.det_idx, aligned.det_y
+
+
 def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> LogNoise:
     """:class:`LogNoise` of an aligned stream (``pipeline.alignment.AlignedStream``): the gyro density from its
     angular velocity (on its own stamps), the detection law from its detections; the velocity density is
@@ -187,17 +195,7 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     gyro, velocity = (visible_noise(e, name, notes) for name, e in (("gyro", gyro), ("velocity", velocity)))
     g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
-    triplets = log_triplets(
-        vel_t,
-        aligned.omega,
-        aligned.velocity,
-        (aligned.det_t_ns - aligned.t0_ns) * 1e-9,
-        aligned.det_offsets,
-        aligned.det_idx,
-        aligned.det_y,
-        g,
-        v,
-    )
+    triplets = log_triplets(*_stream_arrays(aligned), g, v)
     law = detection_law(triplets)
     if law is None:
         notes.append("noise: too few landmarks seen three times within 1 s to estimate the detection noise")
@@ -213,17 +211,7 @@ def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], not
     (:func:`pipeline.noise_estimation.held_motion_noise`); the detection law rescaled by the same fit (the
     triplets within 1 s miss detection errors that change slowly). The law and the levels found."""
     sigma = law.sigma if law is not None else (lambda r: DEFAULTS["detection"][0] + DEFAULTS["detection_per_m"][0] * r)
-    fit: HeldMotion | None = held_motion_noise(
-        (aligned.vel_t_ns - aligned.t0_ns) * 1e-9,
-        aligned.omega,
-        aligned.velocity,
-        (aligned.det_t_ns - aligned.t0_ns) * 1e-9,
-        aligned.det_offsets,
-        aligned.det_idx,
-        aligned.det_y,
-        sigma,
-        aligned.segment_starts,
-    )
+    fit: HeldMotion | None = held_motion_noise(*_stream_arrays(aligned), sigma, aligned.segment_starts)
     if fit is None:
         notes.append("noise: too few landmarks seen twice to estimate the held streams' noise from the detections")
         return law, {}

@@ -530,6 +530,29 @@ def test_yaw_alignment_for_runs_with_gravity():
     assert primary["method"]["alignment"]["type"] == "yaw" and primary["evo"]["ape"] is None
 
 
+def planar_truth(tilt: float = 0.0) -> PoseStream:
+    """A robot on a floor: positions in z = 0, yaw only (``tilt``: roll about x added, in radians)."""
+    t = np.arange(1500, dtype=np.int64) * 10_000_000 + T0_NS
+    s = (t - T0_NS) / 1e9
+    pos = np.stack([3.0 * np.sin(0.4 * s), 2.0 * np.sin(0.8 * s), np.zeros_like(s)], axis=1)
+    rots = np.array([so3_exp(np.array([0.0, 0.0, 0.4 * x])) @ so3_exp(np.array([tilt, 0.0, 0.0])) for x in s])
+    return PoseStream("/mocap", "world", "body", t, t.copy(), pos, rots_to_quats(rots))
+
+
+def test_yaw_alignment_for_planar_runs():
+    """Without IMU directions, a run whose estimate and truth both stay level gets the 4-DoF alignment (the
+    measure for a robot on a floor); one whose truth tilts does not."""
+    yaw_only = so3_exp(np.array([0.0, 0.0, -1.1]))
+    truth = planar_truth()
+    poses = moved(truth, yaw_only, np.array([1.0, 2.0, 0.0]), noise_m=0.002)
+    rep = checked(build_report(poses, None, None, truth))
+    assert rep["ape_by_alignment"]["yaw"]["translation_m"]["rmse"] < 0.005
+    assert np.allclose(rep["ape_by_alignment"]["yaw"]["alignment"]["rotation_matrix"], yaw_only.T, atol=1e-3)
+    tilted = planar_truth(tilt=np.radians(10.0))
+    rep = checked(build_report(moved(tilted, yaw_only, np.zeros(3)), None, None, tilted))
+    assert "yaw" not in rep["ape_by_alignment"]
+
+
 def test_clock_offset_is_estimated_always_and_applied_on_request():
     truth = make_truth(n=3000)
     poses = moved(truth, ROT_C, P_C, noise_m=0.002).iloc[::3].reset_index(drop=True)

@@ -34,6 +34,9 @@ from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, Ali
 from slamobs.pipeline.evaluation.trajectory_evaluation import GAUGE_SIGMA, ReportOptions, TrajectoryEvaluation
 from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
 
+#: a run whose estimate and truth both stay this close to level (degrees of tilt) is planar: the report adds the
+#: 4-DoF (translation + yaw) alignment, the right measure for a robot on a floor
+PLANAR_TILT_DEG = 5.0
 #: evo's command-line flags of each alignment slamobs shares with it
 EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
 
@@ -131,7 +134,8 @@ class ApeByAlignmentSection(Section):
     METHOD = {
         "ape_by_alignment": (
             "the same APE after each alignment fitted on the same pairs: what the primary "
-            "alignment absorbs; yaw (4-DoF) only for runs with IMU directions"
+            f"alignment absorbs; yaw (4-DoF) for runs with IMU directions and for planar runs (the estimate and "
+            f"the truth both level: every paired pose tilted less than {PLANAR_TILT_DEG:g} deg from the z axis)"
         )
     }
 
@@ -139,16 +143,18 @@ class ApeByAlignmentSection(Section):
         super().__init__()
         self.options = options
 
-    def kinds(self) -> list[str]:
-        """The report's alignment first; yaw (4-DoF) only for gravity-aligned runs (or when it is the report's)."""
+    def kinds(self, planar: bool = False) -> list[str]:
+        """The report's alignment first; yaw (4-DoF) only for gravity-aligned or planar runs (or when it is the
+        report's): only there do the estimate's and the truth's z axes agree, so that yaw is all to fit."""
         align = self.options.align
         kinds = [align] + [k for k in ("se3", "yaw", "origin", "none") if k != align]
-        if not self.options.gravity_aligned:
+        if not (self.options.gravity_aligned or planar):
             kinds = [k for k in kinds if k != "yaw" or k == align]
         return kinds
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
-        kinds, p = self.kinds(), ev.paired
+        p = ev.paired
+        kinds = self.kinds(planar=len(p) > 0 and level(p.ref_rot, len(p)) and level(p.est_rot, len(p)))
         fits: dict[str, Alignment] = {}
         for kind in kinds[1:]:
             try:
@@ -167,6 +173,13 @@ class ApeByAlignmentSection(Section):
             for kind in kinds
             if kind in fits
         }
+
+
+def level(rotations, n: int) -> bool:
+    """Whether every one of ``n`` rotations keeps the body z axis within ``PLANAR_TILT_DEG`` of the frame's z
+    axis (a planar robot's poses: roll and pitch fixed by the motion, yaw all that is free)."""
+    cos_max = np.cos(np.radians(PLANAR_TILT_DEG))
+    return all(bool(np.all(rotations[rows][:, 2, 2] >= cos_max)) for rows in row_blocks(n))
 
 
 def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.ndarray, np.ndarray]]:
