@@ -181,8 +181,7 @@ def test_report_segment_errors_section_markdown_and_figure(truth, drifting, tmp_
     md = render_markdown(rep)
     assert "| length [m] | segments | translation [%]" in md and f"| {seg['per_length'][0]['length_m']:g} |" in md
     ours, arrays = segment_errors(truth.position, quats_to_rots(truth.quat_xyzw), pos, rots, None, seg["scale"])
-    # computed on the report's own thread beside the other sections: the numbers of a direct call (the report's
-    # rotations went through quaternions, hence approx)
+    # the report's section gives the numbers of a direct call (its rotations went through quaternions: approx)
     for mine, theirs in zip(ours["per_length"], seg["per_length"], strict=True):
         assert mine["n_segments"] == theirs["n_segments"]
         for kind in ("translation_m", "rotation_deg", "yaw_deg"):
@@ -191,18 +190,6 @@ def test_report_segment_errors_section_markdown_and_figure(truth, drifting, tmp_
     assert name == SEGMENT_PLOT and len(kwargs["translation_pct"]) == 5
     png = getattr(plots, func)(tmp_path / name, **kwargs)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-
-
-def test_report_raises_what_the_segment_errors_raise(truth, drifting, monkeypatch):
-    """The segment errors run on a thread of their own (report._in_background): their failure is the report's."""
-    from slamobs.pipeline.evaluation import sections
-
-    def fail(self, ev):
-        raise FloatingPointError("segment errors failed")
-
-    monkeypatch.setattr(sections.SegmentErrorsSection, "process_data", fail)
-    with pytest.raises(FloatingPointError, match="segment errors failed"):
-        build_report(poses_of(truth.t_ns, *drifting), None, None, truth, align="sim3")
 
 
 #: seconds of each EuRoC estimate compared (rpg's start_end_time.yaml window): its segment search is quadratic

@@ -14,7 +14,6 @@ map-only alignment, bias error and stability, convergence time, clock offset est
 from __future__ import annotations
 
 import json
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Callable
@@ -156,8 +155,6 @@ def evaluate_tables(
         figures([bias_plot_job(biases.get_statistic(), drawn_biases, int(np.min(column(poses, "t_ns", np.int64))))])
     ev = evaluate_trajectory(poses, truth, options)  # ``ev.estimate`` holds what is needed
     del poses
-    segments = SegmentErrorsSection()
-    segments_done = _in_background(segments.process_data, ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
     landmark.process_data(landmarks, ev.alignment)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
@@ -178,6 +175,7 @@ def evaluate_tables(
     if figures is not None:
         figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
     by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
+    segments = SegmentErrorsSection()
     sections = {
         "ape": ApeSection(),
         "ape_by_alignment": by_alignment,
@@ -190,9 +188,8 @@ def evaluate_tables(
         "convergence": convergence,
         "uncertainty": uncertainty,
     }
-    for section in (sections["ape"], by_alignment, rpe, drift, time_offset):
+    for section in (sections["ape"], by_alignment, rpe, drift, segments, time_offset):
         section.process_data(ev)
-    segments_done.result()  # raises what the segment errors raised
     if figures is not None:
         figures(segment_plot_jobs(segments.arrays))
     notes = []
@@ -219,17 +216,6 @@ def evaluate_tables(
         "method": _method(ev, options, sections.values()),
     }
     return report, ev
-
-
-def _in_background(fn: Callable, *args: Any):
-    """``fn(*args)`` on a thread of its own; its future. The segment errors (1–2 s on an hour of poses, NumPy
-    that releases the GIL: stacked 3×3 products, arctan2, partitions) overlap the other sections this way, with
-    the same numbers: they only read the evaluation."""
-    pool = ThreadPoolExecutor(1, thread_name_prefix="slamobs-report")
-    try:
-        return pool.submit(fn, *args)
-    finally:
-        pool.shutdown(wait=False)  # the thread ends with its one task
 
 
 def _method(ev: TrajectoryEvaluation, options: ReportOptions, sections) -> dict[str, Any]:
