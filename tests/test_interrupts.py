@@ -173,7 +173,10 @@ def test_a_signal_after_the_command_ends_the_process_with_its_code(sig):
         f"os.kill(os.getpid(), {int(sig)})\n"
         "time.sleep(30)\n"
     )
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    # as from a shell: a job started in the background (CI under nohup) inherits SIGINT ignored, and keeps it so
+    proc = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, preexec_fn=_default_sigint
+    )
     assert proc.returncode == 128 + int(sig) and "Traceback" not in proc.stderr
 
 

@@ -165,3 +165,24 @@ def test_riekf_recovers_from_gyro_noise_100x_the_default_by_raising_the_motion_n
     assert f["recovery_log"][0]["action"].startswith("the motion noise variances")
     assert f["gated_detections"] < 0.1 * stream.det_idx.shape[0]
     assert ape(sim, res) < 0.3
+
+
+def test_a_start_that_reaches_the_same_minimum_does_not_replace_the_configured_seed():
+    """``choose``: a candidate wins only by more than TIE_COST (half-χ² units); a tie keeps the first solution,
+    and the note says it was a tie."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.smoother import candidates as cands
+
+    def cand(name, cost):
+        pos = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        c = cands.Candidate(SimpleNamespace(name=name, pos=pos, rot=None, landmarks=None), sol=object())
+        c.cost = cost
+        return c
+
+    first, riekf = cand("fast-adaptation", 637.518), cand("riekf", 637.487)
+    assert cands.choose([first, riekf]) is first
+    far = cand("riekf", first.cost - cands.TIE_COST - 0.5)
+    assert cands.choose([first, far]) is far
+    _, note = cands.record("test", [first, riekf], first, first.seed)
+    assert "kept 'fast-adaptation' (no start lowers the cost by more than 1: a tie)" in note

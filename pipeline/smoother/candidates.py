@@ -33,6 +33,10 @@ CRITERION = (
 #: no longer flags a smoother stopped near a poor seed (MR.CLAM seeded by fast-adaptation: 3.4 to 13; from dead
 #: reckoning or riekf 1.05 to 1.75); with levels far too small it is always above (MR.CLAM on the defaults: 70-280).
 GLOBAL_CHI2_DOUBT = 2.5
+#: A candidate replaces the first solution only when it lowers the objective (half the whitened squares) by more
+#: than this: a likelihood ratio above e. Starts that reach the same minimum differ by the solver's tolerance
+#: (figure8_camera: 637.518 against 637.487), and the configured seed's solution then stays.
+TIE_COST = 1.0
 #: riekf is tried as a start only up to this many landmarks (its covariance is dense: (12 + 3n)² per frame).
 RIEKF_SEED_MAX_LANDMARKS = 200
 
@@ -125,6 +129,14 @@ def disagreement(a, b) -> float:
     return float(np.sqrt(np.mean(np.sum((b.pos @ rot.T + trans - a.pos) ** 2, axis=1))))
 
 
+def choose(candidates: list[Candidate]) -> Candidate:
+    """The lowest-cost candidate, unless it beats the first (the configured seed's solution) by no more than
+    ``TIE_COST``: then the first."""
+    best = min(candidates, key=lambda c: c.cost)
+    first = candidates[0]
+    return first if first.cost - best.cost <= TIE_COST else best
+
+
 def record(reason: str, candidates: list[Candidate], best: Candidate, first_seed) -> tuple[dict, str]:
     """The choice for run.json (observer.smoother.candidates) and its note."""
     table = {
@@ -137,9 +149,11 @@ def record(reason: str, candidates: list[Candidate], best: Candidate, first_seed
     }
     spread = max(v["seed_ape_m"] for v in table.values())
     costs = ", ".join(f"{name} {v['cost']:.6g}" for name, v in table.items())
+    tied = best.cost > min(c.cost for c in candidates)
+    tie = f" (no start lowers the cost by more than {TIE_COST:g}: a tie)" if tied else ""
     note = (
         f"batch: first solution doubtful ({reason}); tried {len(candidates)} candidates, robust graph cost: "
-        f"{costs}; kept '{best.name}'; the starts disagreed by up to {spread:.3g} m (APE against "
+        f"{costs}; kept '{best.name}'{tie}; the starts disagreed by up to {spread:.3g} m (APE against "
         f"'{first_seed.name}')"
     )
     return {"reason": reason, "criterion": CRITERION, "winner": best.name, "candidates": table}, note

@@ -217,7 +217,7 @@ class BatchSmoother(Stepper):
             guess = c.guess()
             about = replace(c.seed, bias=guess.bias.mean(axis=0))
             c.cost = g.cost(replace(self._problem(kf_t, kf_of_det, gaps, about, segments), anchor=full.anchor), guess)
-        best = min(found, key=lambda c: c.cost)
+        best = cands.choose(found)
         if best.sol is None:  # a start as it is: its biases' covariance at it, no iteration
             guess = best.guess()
             best.sol = g.solve(full, replace(guess, bias=np.tile(guess.bias[0], (segments.n, 1))), max_iterations=0)
