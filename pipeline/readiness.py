@@ -90,7 +90,7 @@ def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
     missing = [r for r in REQUIRED_ROLES if r not in found]
     try:
         needed = ESTIMATORS[name].directions_needed(RunConfig())
-    except SlamobsError as err:  # e.g. batch without GTSAM installed
+    except SlamobsError as err:  # an estimator whose optional dependency is missing
         return EstimatorStatus(name, tuple(missing), one_line(err))
     have = [r for r in DIRECTION_ROLES if r in found]
     if len(have) < needed:
