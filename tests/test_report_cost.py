@@ -83,3 +83,30 @@ def test_only_estimators_with_noise_levels_estimate_the_recorded_velocity_noise(
     assert calls == []
     assert run.prepare_log(log, RunConfig(), directions=False).velocity_noise is not None
     assert calls == [1]
+
+
+def test_compiled_running_medians_equal_the_array_code(monkeypatch):
+    """The running median of the errors (convergence, the errors figure) from the compiled loop of long logs is
+    the array code's, bit for bit: odd and even window counts, strided windows, repeated values."""
+    from slamobs.pipeline.evaluation import metrics, slam_metrics
+
+    rng = np.random.default_rng(7)
+    n = 50_000
+    t = np.cumsum(rng.integers(5_000_000, 15_000_000, size=n))
+    errors = np.round(np.abs(rng.standard_cauchy(n)), 3)  # ties, and outliers the median ignores
+    found = {}
+    for use in (True, False):
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
+        found[use] = [
+            slam_metrics.error_level(t, errors, fraction, points) for fraction, points in ((0.1, 2000), (0.01, 777))
+        ]
+    counts = set()
+    for (grid_a, level_a), (grid_b, level_b) in zip(found[True], found[False]):
+        assert np.array_equal(grid_a, grid_b) and np.array_equal(level_a, level_b)
+        assert np.ptp(level_a) > 0
+    for fraction in (0.1, 0.01):  # both parities of the window's count occur
+        half = 0.5 * fraction * float(t[-1] - t[0])
+        width = np.searchsorted(t, t + half, side="right") - np.searchsorted(t, t - half, side="left")
+        step = np.maximum(1, width // slam_metrics.WINDOW_SAMPLES)
+        counts |= {int(c) % 2 for c in (width + step - 1) // step}
+    assert counts == {0, 1}

@@ -167,45 +167,34 @@ def test_segment_errors_match_rpg_on_a_generated_trajectory(truth, drifting):
     )
 
 
-def searchsorted_segment_ends(dist, length, max_diff):
-    """The array formulation the compiled sweep replaced (three ``searchsorted`` per length)."""
-    n = dist.shape[0]
-    start = np.arange(n)
-    target = dist + length
-    k = np.searchsorted(dist, target, side="left")
-    lo = np.maximum(np.searchsorted(dist, dist[np.maximum(k - 1, 0)], side="left"), start)
-    hi = np.minimum(k, n - 1)
-    e_lo = np.abs(dist[lo] - target)
-    e_hi = np.where(k < n, np.abs(dist[hi] - target), np.inf)
-    ok = np.minimum(e_lo, e_hi) < max_diff
-    return start[ok], np.where(e_hi < e_lo, hi, lo)[ok]
-
-
-def test_compiled_segment_errors_equal_the_array_formulation(truth, drifting):
-    """The compiled segment search and products give the segments and errors of the NumPy code they replaced:
-    the same indices (also where the truth stands still, equal path distances), errors equal to rounding
-    (the same bits where NumPy's BLAS uses FMA, as on the project's VM)."""
-    from slamobs.pipeline.evaluation.drift import (
-        relative_errors,
-        relative_errors_numpy,
-        rpg_segment_ends,
-        turns,
-    )
+def test_compiled_segment_errors_equal_the_array_formulation(truth, drifting, monkeypatch):
+    """The compiled segment search and products (long logs) give the segments and errors of the array code
+    (short ones): the same indices (also where the truth stands still, equal path distances), errors equal to
+    rounding (the same bits where NumPy's BLAS uses FMA, as on the project's VM)."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation.drift import relative_errors, rpg_segment_ends, turns
     from slamobs.pipeline.evaluation.rpe import accumulated_distances
+
+    def compiled(use: bool):
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
 
     still = np.repeat(truth.position, np.where(np.arange(len(truth)) % 50 == 0, 7, 1), axis=0)  # stops
     for pos in (truth.position, still):
         dist = accumulated_distances(pos)
         for length in rpg_lengths(float(dist[-1])) + (0.25, float(dist[-1]) * 0.999):
+            compiled(True)
             got = rpg_segment_ends(dist, length, 0.2 * length)
-            want = searchsorted_segment_ends(dist, length, 0.2 * length)
+            compiled(False)
+            want = rpg_segment_ends(dist, length, 0.2 * length)
             assert got[0].size and all(np.array_equal(a, b) for a, b in zip(got, want)), length
     pos, rots = drifting
     turn = turns(quats_to_rots(truth.quat_xyzw), rots)
     i, j = rpg_segment_ends(accumulated_distances(truth.position), 3.0, 0.6)
     for scale in (1.0, 1 / 1.02):
+        compiled(True)
         ours = relative_errors(truth.position, pos, turn, i, j, 3.0, scale)
-        theirs = relative_errors_numpy(truth.position, pos, turn, i, j, 3.0, scale)
+        compiled(False)
+        theirs = relative_errors(truth.position, pos, turn, i, j, 3.0, scale)
         for kind in SEGMENT_ERROR_KINDS:
             # arccos of the trace is ill-conditioned at small angles: an ulp of the trace is ~1e-14 rad there
             atol = 1e-9 if kind.startswith("rotation") else 0.0

@@ -24,6 +24,7 @@ import numpy as np
 from numba.core import types
 from numba.extending import intrinsic
 
+from slamobs.pipeline.evaluation import metrics
 from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles, statistics
 from slamobs.pipeline.evaluation.rpe import accumulated_distances, equal_runs
 from slamobs.pipeline.kernel_cache import njit
@@ -122,9 +123,20 @@ def rpg_lengths(path_length_m: float, fractions: tuple[float, ...] = SHORT_PATH_
 def rpg_segment_ends(dist: np.ndarray, length: float, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
     """Start and end index of every segment: from each pose, the later pose whose path distance is nearest to
     the start's + ``length`` (the first of equals, the shorter on a tie, as rpg's scan), kept within
-    ``max_diff``."""
+    ``max_diff``. Long paths (``metrics.KERNEL_ROWS`` poses) take a compiled sweep, the same indices."""
     d = np.ascontiguousarray(dist, dtype=np.float64)
-    return _segment_ends(d, equal_runs(d), float(length), float(max_diff))
+    if d.shape[0] >= metrics.KERNEL_ROWS:
+        return _segment_ends(d, equal_runs(d), float(length), float(max_diff))
+    n = d.shape[0]
+    start = np.arange(n)
+    target = d + length
+    k = np.searchsorted(d, target, side="left")  # first with d >= target
+    lo = np.maximum(np.searchsorted(d, d[np.maximum(k - 1, 0)], side="left"), start)
+    hi = np.minimum(k, n - 1)
+    e_lo = np.abs(d[lo] - target)
+    e_hi = np.where(k < n, np.abs(d[hi] - target), np.inf)
+    ok = np.minimum(e_lo, e_hi) < max_diff
+    return start[ok], np.where(e_hi < e_lo, hi, lo)[ok]
 
 
 @njit(cache=True)
@@ -202,8 +214,10 @@ def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, sca
     rpg forms ``E = T_m⁻¹ T_c`` (``T_m = Q_i⁻¹ Q_j``, ``T_c = P_i⁻¹ P_j`` with its translation times ``scale``) and
     rotates it into the world by ``R_c`` at ``j``; that rotation is ``D_jᵀ D_i`` with ``D = R_ref R_estᵀ``, the
     norm of its translation ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖``: one product per segment instead of eight,
-    in a compiled loop (:func:`_segment_products`).
+    in a compiled loop (:func:`_segment_products`) from ``metrics.KERNEL_ROWS`` segments on.
     """
+    if len(i) < metrics.KERNEL_ROWS:
+        return relative_errors_numpy(ref_pos, est_pos, turn, i, j, length, scale)
     r_w, trans = _segment_products(
         np.ascontiguousarray(turn, dtype=np.float64),
         np.ascontiguousarray(est_pos, dtype=np.float64),

@@ -151,19 +151,20 @@ def quat_angles(q: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]), np.abs(q[:, 3]))
 
 
-#: Rotation-angle blocks at least this long use the compiled :func:`_relative_quats` (a long log's blocks are
-#: 65 536 rows; a 3-minute log's pairs fewer).
-ANGLE_KERNEL_ROWS = 32_768
+#: Arrays at least this long take the report's compiled kernels (:func:`_relative_quats` for rotation-angle
+#: blocks, the segment errors, the running medians; a long log's blocks are 65 536 rows, a 3-minute log's pairs
+#: fewer); shorter ones the array code, whose numbers are the same: a kernel's first compilation (~1 s) would
+#: cost a short log's first run more than it saves.
+KERNEL_ROWS = 32_768
 
 
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`matrix_quats`); ``arccos`` of
     the trace would lose ~1e-8 rad at small angles. The products that are orthogonal to 1e-12 (all but
     rotations read from files with few digits) take :func:`_relative_quats`, the others :func:`matrix_quats`;
-    the numbers are the same, bit for bit. Fewer than ``ANGLE_KERNEL_ROWS`` rows take the array code: the
-    kernel's first compilation (~1 s) would cost a short log's first run more than it saves."""
+    the numbers are the same, bit for bit. Fewer than ``KERNEL_ROWS`` rows take the array code."""
     a, b = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
-    if a.shape[0] < ANGLE_KERNEL_ROWS:
+    if a.shape[0] < KERNEL_ROWS:
         return quat_angles(matrix_quats(_products(a, b)))
     q = np.empty((a.shape[0], 4))
     bad = np.zeros(a.shape[0], dtype=np.bool_)
