@@ -110,3 +110,24 @@ def test_compiled_running_medians_equal_the_array_code(monkeypatch):
         step = np.maximum(1, width // slam_metrics.WINDOW_SAMPLES)
         counts |= {int(c) % 2 for c in (width + step - 1) // step}
     assert counts == {0, 1}
+
+
+def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
+    """The report's compiled 3×3 products of long logs (a rotation times every matrix of a stack; each matrix
+    times another's transpose) are NumPy's ``matmul``: to the last bit where its OpenBLAS rounds with FMA (the
+    project's VM), within an ulp elsewhere."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation.drift import turns
+    from slamobs.pipeline.lie import quats_to_rots
+
+    rng = np.random.default_rng(4)
+    a, b = (quats_to_rots(rng.normal(size=(5000, 4))) for _ in range(2))
+    left = quats_to_rots(rng.normal(size=(1, 4)))[0]
+    monkeypatch.setattr(metrics, "KERNEL_ROWS", 1)
+    got = metrics.rotated(left, a), turns(a, b)
+    monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 << 62)
+    want = metrics.rotated(left, a), turns(a, b)
+    for g, w in zip(got, want):
+        assert g.shape == w.shape == (5000, 3, 3)
+        np.testing.assert_allclose(g, w, rtol=0, atol=4e-16)
+    assert np.allclose(want[1], np.einsum("nij,nkj->nik", a, b))  # what turns computes: a_k b_kᵀ

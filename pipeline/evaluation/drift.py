@@ -21,11 +21,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba.core import types
-from numba.extending import intrinsic
-
 from slamobs.pipeline.evaluation import metrics
-from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles, statistics
+from slamobs.pipeline.evaluation.metrics import RotationRows, fma, relative_angles, statistics
 from slamobs.pipeline.evaluation.rpe import accumulated_distances, equal_runs
 from slamobs.pipeline.kernel_cache import njit
 
@@ -162,23 +159,12 @@ def _segment_ends(dist, run_start, length, max_diff):
     return out_i[:m], out_j[:m]
 
 
-@intrinsic
-def _fma(typingctx, a, b, c):
-    """``a * b + c`` rounded once (LLVM's ``llvm.fma``): the products below round as OpenBLAS's do."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.fma(*args)
-
-    return sig, codegen
-
-
 @njit(cache=True)
 def _segment_products(turn, est_pos, ref_pos, i, j, scale):
     """Per segment ``r_w = D_jᵀ D_i`` and ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖`` without gathering ``D_i`` and
     ``D_j`` into stacks first. The sums round as NumPy's stacked ``matmul`` does through OpenBLAS on an FMA CPU
-    (its 3×3 products ``fma(a₂, b₂, fma(a₁, b₁, a₀b₀))``, its matrix-vector ones ``fma(a₂, x₂, fma(a₀, x₀,
-    a₁x₁))``): the same bits as :func:`relative_errors_numpy` there, within an ulp elsewhere."""
+    (its 3×3 products as :func:`.metrics.fma` says, its matrix-vector ones ``fma(a₂, x₂, fma(a₀, x₀, a₁x₁))``):
+    the same bits as :func:`relative_errors_numpy` there, within an ulp elsewhere."""
     m = i.shape[0]
     r_w = np.empty((m, 3, 3))
     trans = np.empty(m)
@@ -186,13 +172,13 @@ def _segment_products(turn, est_pos, ref_pos, i, j, scale):
         a, b = turn[j[s]], turn[i[s]]
         for r in range(3):
             for c in range(3):
-                r_w[s, r, c] = _fma(a[2, r], b[2, c], _fma(a[1, r], b[1, c], a[0, r] * b[0, c]))
+                r_w[s, r, c] = fma(a[2, r], b[2, c], fma(a[1, r], b[1, c], a[0, r] * b[0, c]))
         d0 = est_pos[j[s], 0] - est_pos[i[s], 0]
         d1 = est_pos[j[s], 1] - est_pos[i[s], 1]
         d2 = est_pos[j[s], 2] - est_pos[i[s], 2]
         sq = 0.0
         for r in range(3):
-            moved = _fma(b[r, 2], d2, _fma(b[r, 0], d0, b[r, 1] * d1))
+            moved = fma(b[r, 2], d2, fma(b[r, 0], d0, b[r, 1] * d1))
             e = scale * moved - (ref_pos[j[s], r] - ref_pos[i[s], r])
             sq += e * e
         trans[s] = np.sqrt(sq)
@@ -255,7 +241,21 @@ def turns(ref_rot, est_rot) -> np.ndarray:
     ref, est = (
         np.asarray(r[np.arange(len(r))] if isinstance(r, RotationRows) else r, np.float64) for r in (ref_rot, est_rot)
     )
-    return np.matmul(ref, est.transpose(0, 2, 1))
+    if ref.shape[0] < metrics.KERNEL_ROWS:
+        return np.matmul(ref, est.transpose(0, 2, 1))
+    out = np.empty_like(ref)
+    _turn_products(np.ascontiguousarray(ref), np.ascontiguousarray(est), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _turn_products(ref, est, out):  # pragma: no cover - compiled
+    """``out_k = ref_k est_kᵀ``, rounded as ``np.matmul`` (:func:`.metrics.fma`)."""
+    for s in range(ref.shape[0]):
+        for r in range(3):
+            for c in range(3):
+                first = ref[s, r, 0] * est[s, c, 0]
+                out[s, r, c] = fma(ref[s, r, 2], est[s, c, 2], fma(ref[s, r, 1], est[s, c, 1], first))
 
 
 def segment_errors(
