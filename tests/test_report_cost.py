@@ -131,3 +131,93 @@ def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
         assert g.shape == w.shape == (5000, 3, 3)
         np.testing.assert_allclose(g, w, rtol=0, atol=4e-16)
     assert np.allclose(want[1], np.einsum("nij,nkj->nik", a, b))  # what turns computes: a_k b_kᵀ
+
+
+REPORT_SECTIONS = (
+    "ape",
+    "ape_by_alignment",
+    "rpe",
+    "drift",
+    "segment_errors",
+    "time_offset",
+    "landmarks",
+    "biases",
+    "convergence",
+    "uncertainty",
+)
+
+
+@pytest.fixture(scope="module")
+def compiled_and_array_runs(tmp_path_factory):
+    """A sample log run twice: with the report's and the writer's compiled kernels taken at any size (as on a
+    long log), and with the array code only."""
+    from cli_checks import SAMPLES
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.config import EvaluationConfig, RunConfig
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.run import run_log
+
+    config = RunConfig(evaluation=EvaluationConfig(plots=False))
+    runs = {}
+    with pytest.MonkeyPatch.context() as mp:
+        for name, rows in (("compiled", 1), ("array", 1 << 62)):
+            mp.setattr(metrics, "KERNEL_ROWS", rows)
+            mp.setattr(writers, "ROUND_KERNEL_ROWS", rows)
+            runs[name] = tmp_path_factory.mktemp(name) / "run"
+            run_log(SAMPLES / "circle.bag", runs[name], config)
+    return runs
+
+
+def _assert_numbers_close(a, b, where: str = "") -> None:
+    """Equal JSON documents but for floats, which agree to 1e-12 relative."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            _assert_numbers_close(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for k, (x, y) in enumerate(zip(a, b)):
+            _assert_numbers_close(x, y, f"{where}[{k}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert b == pytest.approx(a, rel=1e-12, abs=1e-300), where
+    else:
+        assert a == b, where
+
+
+def test_compiled_paths_give_the_tables_and_report_of_the_array_code(compiled_and_array_runs):
+    """The same Parquet values (the rounding kernel and the two writing lanes) and the same report numbers (the
+    segment, rotation and running-median kernels; 1e-12 relative: BLAS without FMA rounds its products
+    differently) whichever path a log's length selects."""
+    import json
+
+    runs = compiled_and_array_runs
+    for name in ("poses", "biases", "innovations", "landmark_tracks", "landmarks", "poses_aligned"):
+        got, want = (read_columns(runs[k] / f"{name}.parquet") for k in ("compiled", "array"))
+        assert list(got) == list(want), name
+        for column in got:
+            assert np.array_equal(got[column], want[column], equal_nan=True), (name, column)
+    reports = {k: json.loads((runs[k] / "report.json").read_text()) for k in runs}
+    assert reports["compiled"]["segment_errors"]["per_length"][0]["n_segments"] > 100
+    _assert_numbers_close(reports["array"], reports["compiled"])
+
+
+def test_the_runs_report_is_what_slamobs_report_computes_from_its_files(compiled_and_array_runs, monkeypatch):
+    """The report a run writes (computed from its tables as written) is the one ``slamobs report RUN`` computes
+    again from the run directory: every section's numbers, with the long-log kernels as the run had them."""
+    import json
+
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation import plot_worker
+    from slamobs.pipeline.evaluation.run_dir import report_run
+
+    monkeypatch.setattr(plot_worker, "draw", lambda jobs, path_of: [])  # the numbers only, not the figures
+    run = compiled_and_array_runs["compiled"]
+    before = json.loads((run / "report.json").read_text())
+    monkeypatch.setattr(metrics, "KERNEL_ROWS", 1)
+    monkeypatch.setattr(writers, "ROUND_KERNEL_ROWS", 1)
+    again, _ = report_run(run)
+    assert json.loads((run / "report.json").read_text()) == again  # the files hold what it returned
+    for section in REPORT_SECTIONS:
+        assert again[section] == before[section], section
+    assert again["method"]["association"] == before["method"]["association"]
