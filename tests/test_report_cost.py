@@ -221,3 +221,26 @@ def test_the_runs_report_is_what_slamobs_report_computes_from_its_files(compiled
     for section in REPORT_SECTIONS:
         assert again[section] == before[section], section
     assert again["method"]["association"] == before["method"]["association"]
+
+
+def test_compiled_step_angles_give_the_clock_offset_of_the_array_code(monkeypatch):
+    """The clock-offset search of a long log takes its step angles from a compiled loop: the same offset, to the
+    bit, as the array code (quaternions not of unit length, both signs of w)."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation import sync
+
+    rng = np.random.default_rng(9)
+    n = 30_000
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    yaw = np.cumsum(0.02 * np.sin(0.003 * np.arange(n)) ** 2 + 0.002 * rng.random(n))
+    wobble = 0.1 * np.sin(0.001 * np.arange(n) + rng.random())
+    q = np.stack([wobble, 0.5 * wobble**2 + 0.01, np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)
+    q[::7] *= -1.7
+    pos = np.stack([np.cos(0.001 * np.arange(n)), np.sin(0.001 * np.arange(n)), np.zeros(n)], axis=1)
+    found, steps = {}, {}
+    for use in (True, False):
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
+        found[use] = sync.estimate_time_offset(t, pos, q, t[::2] - 37_000_000, pos[::2], q[::2])
+        steps[use] = sync._step_angles(q)
+    assert np.array_equal(steps[True], steps[False]) and found[True] == found[False]
+    assert found[True].offset_s == pytest.approx(0.037, abs=0.002) and found[True].signal == "angular rate |ω|"
