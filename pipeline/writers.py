@@ -293,6 +293,7 @@ class TableWriter:
         self.float_bits = float_bits
         self.writers: dict[str, tuple[pq.ParquetWriter, pa.Schema]] = {}
         self._helper = None  # the second lane's thread pool, started by the first write of several tables
+        self._nulls: dict[tuple[int, pa.DataType], pa.Array] = {}  # one all-null column per length and type
 
     def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
         """Append one stretch of rows to each table."""
@@ -332,10 +333,18 @@ class TableWriter:
         arrays = [
             _arrow_array(self._values(columns[f.name], f), f.type)
             if f.name in columns or not f.nullable
-            else pa.nulls(rows, f.type)
+            else self._null_column(rows, f.type)
             for f in schema
         ]
         writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
+
+    def _null_column(self, rows: int, kind: pa.DataType) -> pa.Array:
+        """An all-null column, made once per length and type (the observers' 27 uncertainty columns of every
+        stretch share it; Arrow arrays are immutable)."""
+        key = (rows, kind)
+        if key not in self._nulls:
+            self._nulls[key] = pa.nulls(rows, kind)
+        return self._nulls[key]
 
     def _values(self, column: np.ndarray, field: pa.Field) -> np.ndarray:
         meta = field.metadata or {}
