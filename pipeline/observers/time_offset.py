@@ -42,18 +42,15 @@ HALVES_SIGMAS = 3.0
 BIAS_STEP = 1e-4
 
 
-def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray, keep=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times;
-    only those of the samples ``keep`` (sorted indices) when given."""
+def _sample_steps(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """The velocity samples' times and the dead-reckoning steps between them (twists, lengths), nothing
+    integrated across a segment gap."""
     t = stream.seconds(stream.vel_t_ns)
     dt = np.diff(t)
     omega, vel = omega[:-1].copy(), vel[:-1].copy()
     gap = stream.segment_starts - 1
     omega[gap], vel[gap] = 0.0, 0.0
-    if keep is not None:
-        return t[keep], *integrate_body_twists_at(np.eye(3), np.zeros(3), omega, vel, dt, keep)
-    rot, pos = integrate_body_twists(np.eye(3), np.zeros(3), omega, vel, dt)
-    return t, rot, pos
+    return t, (omega, vel, dt)
 
 
 def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
@@ -145,16 +142,30 @@ class _Consistency:
         for c in range(6):
             db = np.zeros(6)
             db[c] = BIAS_STEP
-            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db, keep))[0] - base) / BIAS_STEP
+            self.jac[:, :, c] = (self.residuals(0.0, self._moved_poses(bias + db, c, keep))[0] - base) / BIAS_STEP
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
-    def _poses(self, bias: np.ndarray, keep=None):
-        """The samples' times, poses and bias-corrected twists (those of the samples ``keep`` when given)."""
+    def _poses(self, bias: np.ndarray):
+        """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for
+        :meth:`_moved_poses`."""
         s = self.stream
         omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
-        if keep is None:
-            return (*_sample_poses(s, omega, vel), omega, vel)
-        return (*_sample_poses(s, omega, vel, keep), omega[keep], vel[keep])
+        t, self._steps = _sample_steps(s, omega, vel)
+        return (t, *integrate_body_twists(np.eye(3), np.zeros(3), *self._steps), omega, vel)
+
+    def _moved_poses(self, bias: np.ndarray, c: int, keep: np.ndarray):
+        """:meth:`_poses` (the samples ``keep`` only) with ``bias``, which differs from the first poses' in entry
+        ``c`` only: the twists copied and that column computed again (the same numbers as from scratch)."""
+        s, t_s, _, _, omega, vel = self.stream, *self.poses
+        twists, steps = [omega[keep], vel[keep]], [self._steps[0], self._steps[1]]
+        w, j = divmod(c, 3)
+        raw = (s.omega, s.velocity)[w][:, j] - bias[c]
+        twists[w][:, j] = raw[keep]
+        steps[w] = steps[w].copy()
+        steps[w][:, j] = raw[:-1]
+        steps[w][s.segment_starts - 1, j] = 0.0
+        poses = integrate_body_twists_at(np.eye(3), np.zeros(3), *steps, self._steps[2], keep)
+        return (t_s[keep], *poses, *twists)
 
     def residuals(self, shifts, poses=None) -> np.ndarray:
         """Per shift and pair (shifts, pairs, 3), in the body frame of the pair's first detection:
