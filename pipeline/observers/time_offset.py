@@ -107,6 +107,8 @@ def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shifts, out):
     """``out[s, m] = y_a − R_aᵀ (P_b + R_b y_b − P_a)`` for the pairs ``(a[m], b[m])`` at the stamps moved by
     ``shifts[s]`` (:func:`_pose_at`): a pair at every shift in turn (its samples stay in the cache: a long log's
     poses do not fit there, and a pass over all pairs per shift read them from memory each time)."""
+    if shifts.shape[0] == 0:
+        return
     r_a, r_b = np.empty((3, 3)), np.empty((3, 3))
     p_a, p_b, w = np.empty(3), np.empty(3), np.empty(3)
     d_r, unused = np.empty((3, 3)), np.empty(3)
