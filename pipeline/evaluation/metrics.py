@@ -155,10 +155,11 @@ def quat_angles(q: np.ndarray) -> np.ndarray:
 
 
 #: Arrays at least this long take the report's compiled kernels (:func:`_relative_quats` for rotation-angle
-#: blocks, the segment errors, the running medians; a long log's blocks are 65 536 rows, a 3-minute log's pairs
-#: fewer); shorter ones the array code, whose numbers are the same: a kernel's first compilation (~1 s) would
-#: cost a short log's first run more than it saves.
-KERNEL_ROWS = 32_768
+#: blocks, the rotation products, the segment errors, the running medians, the clock offset's step angles; a
+#: long log's blocks are 65 536 rows); shorter ones the array code, whose numbers are the same: a kernel's first
+#: compilation (~1 s) would cost a short log's first run more than it saves (a 3-minute log's 36 000 poses at
+#: 200 Hz compile none of them).
+KERNEL_ROWS = 65_536
 
 
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
