@@ -80,8 +80,10 @@ def _dispatcher(module: str, name: str):
 
 
 def missing(entries) -> list[tuple[str, str, str]]:
-    """The entries whose kernel has no cache index yet (never compiled for these sources)."""
-    return [e for e in entries if not os.path.exists(_dispatcher(*e[:2])._cache._cache_file._index_path)]
+    """The entries whose kernel is not compiled for the current sources yet."""
+    from slamobs.pipeline.kernel_cache import cached
+
+    return [e for e in entries if not cached(e[0], e[1])]
 
 
 def wanted(spare_cores: int) -> bool:
@@ -101,21 +103,31 @@ def wanted(spare_cores: int) -> bool:
 
 
 class CompileAhead:
-    """The helper compiling ``entries`` and what it has finished; :meth:`wait_for` blocks until a kernel is."""
+    """The helper and what it has finished: it starts before the run knows its estimator, gets the kernels to
+    compile with :meth:`give`, and :meth:`wait_for` blocks until one of them is compiled."""
 
-    def __init__(self, entries: list[tuple[str, str, str]]) -> None:
-        self.pending = {f"{m}.{n}" for m, n, _ in entries}
+    def __init__(self) -> None:
+        self.pending: set[str] = set()
         self.done: set[str] = set()
         self.ended = False
         self.cond = threading.Condition()
         env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", __name__, str(os.getpid()), *(":".join(e) for e in entries)],
-            stdin=subprocess.DEVNULL,
+            [sys.executable, "-m", __name__, str(os.getpid())],
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             env=env,
         )
         threading.Thread(target=self._listen, name="slamobs-compile-ahead", daemon=True).start()
+
+    def give(self, entries: list[tuple[str, str, str]]) -> None:
+        """Hand the helper its kernels (none: it ends)."""
+        self.pending = {f"{m}.{n}" for m, n, _ in entries}
+        try:
+            self.proc.stdin.write(b"".join(f"{':'.join(e)}\n".encode() for e in entries))
+            self.proc.stdin.close()
+        except OSError:  # the helper is gone: the run compiles them itself
+            self.pending = set()
 
     def _listen(self) -> None:
         for line in self.proc.stdout:
@@ -145,7 +157,11 @@ class CompileAhead:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
-        self.proc.stdout.close()
+        for pipe in (self.proc.stdin, self.proc.stdout):
+            try:
+                pipe.close()
+            except OSError:
+                pass
 
 
 _ACTIVE: CompileAhead | None = None
@@ -165,20 +181,32 @@ def waiting_load(load):
     return load_overload
 
 
-def start(estimator: str, spare_cores: int) -> CompileAhead | None:
-    """Start the helper for a run of ``estimator`` when :func:`wanted` and a planned kernel is not cached yet;
-    None otherwise. Call from the main thread (the helper dies with the thread that started it)."""
-    global _ACTIVE
+def start_early(spare_cores: int) -> CompileAhead | None:
+    """The helper, started before the run reads its configuration (its start-up then overlaps the run's
+    imports), when :func:`wanted` and the kernels every run calls are not compiled for these sources; None
+    otherwise. Call from the main thread (the helper dies with the thread that started it)."""
     if not wanted(spare_cores):
+        return None
+    from slamobs.pipeline.kernel_cache import cached
+
+    module, name, _ = PLANS["prepare"][0]
+    return None if cached(module, name) else CompileAhead()
+
+
+def start(estimator: str, spare_cores: int, helper: CompileAhead | None = None) -> CompileAhead | None:
+    """Give ``helper`` (or a helper started now, when :func:`wanted`) the kernels of a run of ``estimator`` that
+    are not cached yet; the helper compiling them, or None (``helper`` stopped) when there are none."""
+    global _ACTIVE
+    todo = missing(plan(estimator)) if helper is not None or wanted(spare_cores) else []
+    if not todo:
+        stop(helper)
         return None
     from numba.core import caching
 
-    todo = missing(plan(estimator))
-    if not todo:
-        return None
     if not getattr(caching.Cache.load_overload, "slamobs_waits_for_helper", False):
         caching.Cache.load_overload = waiting_load(caching.Cache.load_overload)
-    _ACTIVE = CompileAhead(todo)
+    _ACTIVE = helper or CompileAhead()
+    _ACTIVE.give(todo)
     return _ACTIVE
 
 
@@ -191,10 +219,14 @@ def stop(helper: CompileAhead | None) -> None:
         helper.close()
 
 
-def _compile(entries: list[str]) -> None:
-    """The helper's work: compile each ``module:function:types`` into the kernel cache, saying so after each."""
-    for entry in entries:
-        module, name, spec = entry.split(":")
+def _compile(lines) -> None:
+    """The helper's work: compile each ``module:function:types`` line into the kernel cache as it arrives,
+    saying so after each."""
+    from numba import njit
+
+    njit(lambda: 0)()  # numba's compiler starts up (~0.4 s) while the run reads its configuration
+    for line in lines:
+        module, name, spec = line.decode().strip().split(":")
         try:
             _dispatcher(module, name).compile(argument_types(spec))
         except Exception:  # noqa: BLE001 - the run compiles it itself and reports what goes wrong
@@ -206,4 +238,6 @@ def _compile(entries: list[str]) -> None:
 if __name__ == "__main__":
     lifetime.bind_to_parent(int(sys.argv[1]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    _compile(sys.argv[2:])
+    import slamobs.pipeline.kernel_cache  # noqa: F401 - the cache locator, before any kernel module
+
+    _compile(sys.stdin.buffer)
