@@ -118,7 +118,11 @@ class CompileAhead:
             stdout=subprocess.PIPE,
             env=env,
         )
-        threading.Thread(target=self._listen, name="slamobs-compile-ahead", daemon=True).start()
+        try:
+            threading.Thread(target=self._listen, name="slamobs-compile-ahead", daemon=True).start()
+        except RuntimeError:  # no thread to spare
+            self.close()
+            raise
 
     def give(self, entries: list[tuple[str, str, str]]) -> None:
         """Hand the helper its kernels (none: it ends)."""
@@ -190,7 +194,16 @@ def start_early(spare_cores: int) -> CompileAhead | None:
     from slamobs.pipeline.kernel_cache import cached
 
     module, name, _ = PLANS["prepare"][0]
-    return None if cached(module, name) else CompileAhead()
+    return None if cached(module, name) else _spawn()
+
+
+def _spawn() -> CompileAhead | None:
+    """A new helper, or None when it cannot start (no process, descriptor or thread to spare: the run, which
+    needs fewer, goes on and compiles in process)."""
+    try:
+        return CompileAhead()
+    except (OSError, RuntimeError):
+        return None
 
 
 def start(estimator: str, spare_cores: int, helper: CompileAhead | None = None) -> CompileAhead | None:
@@ -198,16 +211,18 @@ def start(estimator: str, spare_cores: int, helper: CompileAhead | None = None) 
     are not cached yet; the helper compiling them, or None (``helper`` stopped) when there are none."""
     global _ACTIVE
     todo = missing(plan(estimator)) if helper is not None or wanted(spare_cores) else []
-    if not todo:
+    if todo and helper is None:
+        helper = _spawn()
+    if not todo or helper is None:
         stop(helper)
         return None
     from numba.core import caching
 
     if not getattr(caching.Cache.load_overload, "slamobs_waits_for_helper", False):
         caching.Cache.load_overload = waiting_load(caching.Cache.load_overload)
-    _ACTIVE = helper or CompileAhead()
-    _ACTIVE.give(todo)
-    return _ACTIVE
+    _ACTIVE = helper
+    helper.give(todo)
+    return helper
 
 
 def stop(helper: CompileAhead | None) -> None:

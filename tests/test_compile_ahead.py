@@ -134,3 +134,16 @@ def test_a_killed_run_leaves_no_helper(tmp_path, sig):
         assert time.monotonic() < deadline, f"compile helper {helper} runs on after its run ended ({sig.name})"
         time.sleep(0.05)
     assert not (tmp_path / "run").exists()
+
+
+def test_a_helper_that_cannot_start_leaves_the_run_to_compile(monkeypatch):
+    """No process or descriptor to spare for the helper: no helper, no error (the run compiles in process)."""
+
+    def no_process(*args, **kwargs):
+        raise OSError(24, "Too many open files")
+
+    monkeypatch.setenv(compile_ahead.ENV, "1")
+    monkeypatch.setattr("slamobs.pipeline.kernel_cache.cached", lambda module, name: False)
+    monkeypatch.setattr(compile_ahead.subprocess, "Popen", no_process)
+    assert compile_ahead.start_early(1) is None
+    assert compile_ahead.start("fast-adaptation", 1) is None
