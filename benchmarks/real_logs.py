@@ -19,7 +19,8 @@ noise levels of the default run are the ones run.json records (and their source)
 run with no configuration used (``auto``) for the motion keys (``gyro``, ``velocity``) by ``MOTION_SCALES`` and
 for the detection law (``detection``, ``detection_per_m``, ``detection_per_m2``) by ``DETECTION_SCALES``: by
 default a coordinate search (the motion scales at the auto detection law, then the detection scales at the best
-motion scale: 5 points, the centre being the auto levels themselves), ``--full-grid`` their whole product.
+motion scale: 5 points, the centre being the auto levels themselves), ``--full-grid`` their whole product;
+``--motion-keys velocity`` scales the velocity alone (the gyro kept at its auto level).
 "Best" is the lowest APE (map error without trajectory truth), the auto run included. ``vs seed`` is batch's
 score over its seed's (``fast-adaptation``, the default ``batch.seed``) when that ran too.
 """
@@ -209,25 +210,32 @@ def _pairwise_error(estimated: Path, reference: Path) -> float | None:
     return float(np.sqrt(np.mean(diff**2)))
 
 
-def grid_noise(levels: dict, motion: float, detection: float) -> dict:
-    """The auto run's levels, the motion keys scaled by ``motion`` and the detection law by ``detection``."""
+def grid_noise(levels: dict, motion: float, detection: float, motion_keys: tuple[str, ...] = MOTION_KEYS) -> dict:
+    """The auto run's levels, ``motion_keys`` scaled by ``motion`` (the other motion keys kept) and the detection
+    law by ``detection``."""
 
     def scaled(v, f):
         return [x * f for x in v] if isinstance(v, list) else v * f
 
-    return {k: scaled(v, motion if k in MOTION_KEYS else detection) for k, v in levels.items()}
+    def factor(k: str) -> float:
+        return detection if k in DETECTION_KEYS else motion if k in motion_keys else 1.0
+
+    return {k: scaled(v, factor(k)) for k, v in levels.items()}
 
 
-def best_of_grid(log: Log, estimator: str, work: Path, auto: Result, full: bool) -> tuple[Result, str]:
+def best_of_grid(
+    log: Log, estimator: str, work: Path, auto: Result, full: bool, motion_keys: tuple[str, ...] = MOTION_KEYS
+) -> tuple[Result, str]:
     """The lowest-scoring grid point around the auto run's levels (the auto run itself included, as the centre
-    when nothing is better), and its scales; a coordinate search unless ``full``."""
+    when nothing is better), and its scales; a coordinate search unless ``full``; the motion scales apply to
+    ``motion_keys``."""
     if not auto.levels:
         return Result(error="the auto run recorded no noise levels"), ""
     tried: dict[tuple[float, float], Result] = {}
 
     def at(m: float, d: float) -> Result:
         if (m, d) not in tried:
-            noise = grid_noise(auto.levels, m, d)
+            noise = grid_noise(auto.levels, m, d, motion_keys)
             tried[m, d] = run_one(log, estimator, work / f"{log.name}-{estimator}-grid", noise)
         return tried[m, d]
 
@@ -238,7 +246,8 @@ def best_of_grid(log: Log, estimator: str, work: Path, auto: Result, full: bool)
     best = min([best, "auto"], key=lambda p: auto.score if p == "auto" else tried[p].score)
     if best == "auto":
         return auto, "auto"
-    return tried[best], f"motion x{best[0]:g}, det x{best[1]:g}"
+    moved = "motion" if set(motion_keys) == set(MOTION_KEYS) else "+".join(motion_keys)
+    return tried[best], f"{moved} x{best[0]:g}, det x{best[1]:g}"
 
 
 def _fmt(v: float | None, digits: int = 3) -> str:
@@ -269,6 +278,9 @@ def main() -> None:
     ap.add_argument("--estimators", default=",".join(ESTIMATORS), help="comma-separated estimators")
     ap.add_argument("--full-grid", action="store_true", help="every motion x detection scale, not a coordinate search")
     ap.add_argument("--no-grid", action="store_true", help="only the runs with no noise configuration")
+    ap.add_argument(
+        "--motion-keys", default=",".join(MOTION_KEYS), help="the motion keys the grid scales (e.g. velocity alone)"
+    )
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
@@ -276,7 +288,7 @@ def main() -> None:
     estimators = args.estimators.split(",")
     search = "none" if args.no_grid else "full" if args.full_grid else "coordinate search"
     print(
-        f"# real logs from {REALDATA}; grid ({search}): motion x {MOTION_SCALES}, detection law x "
+        f"# real logs from {REALDATA}; grid ({search}): {args.motion_keys} x {MOTION_SCALES}, detection law x "
         f"{DETECTION_SCALES} of the auto levels"
     )
     print(
@@ -292,7 +304,8 @@ def main() -> None:
         for est in estimators:
             r = done[est] = run_one(log, est, args.cache / "runs" / f"{log.name}-{est}")
             grid = est in GRID_ESTIMATORS and not args.no_grid
-            best = best_of_grid(log, est, args.cache / "runs", r, args.full_grid) if grid else None
+            keys = tuple(args.motion_keys.split(","))
+            best = best_of_grid(log, est, args.cache / "runs", r, args.full_grid, keys) if grid else None
             print(row(log, est, r, best, done.get(SEED) if est == "batch" else None), flush=True)
 
 

@@ -357,13 +357,15 @@ def _dead_reckoning_sums(vel_t, omega, velocity):
     return rs, ps, sums
 
 
-def _pair_indices(t: np.ndarray, lm: np.ndarray, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Detection pairs (a, b) of one landmark: each detection and the first one at least each lag of
-    ``PAIR_LAGS_S`` later, within twice the lag and the same segment."""
+def pair_indices(
+    t: np.ndarray, lm: np.ndarray, segment: np.ndarray, lags: tuple[float, ...] = PAIR_LAGS_S
+) -> tuple[np.ndarray, np.ndarray]:
+    """Detection pairs (a, b) of one landmark: each detection and the first one at least each of ``lags`` (s)
+    later, within twice the lag and the same segment."""
     order = np.lexsort((t, lm))
     ts, ls = t[order], lm[order]
     firsts, seconds = [], []
-    for lag in PAIR_LAGS_S:
+    for lag in lags:
         key = ls * (2.0 * (ts.max() - ts.min() + 4 * lag) + 1.0) + ts
         j = np.searchsorted(key, key + lag)
         ok = np.flatnonzero(j < ts.size)
@@ -385,7 +387,7 @@ def pair_design(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_
     k = np.clip(np.searchsorted(vel_t, t_of, side="right") - 1, 0, vel_t.size - 1)
     seen = np.einsum("nij,nj->ni", rs[k], det_y)
     w = seen + ps[k]
-    a, b = _pair_indices(t_of, det_idx, np.searchsorted(segment_starts, k, side="right"))
+    a, b = pair_indices(t_of, det_idx, np.searchsorted(segment_starts, k, side="right"))
     ka, kb = k[a], k[b]
     lm, dt = 0.5 * (w[a] + w[b]), c_t[kb] - c_t[ka]
     int_p = c_p[kb] - c_p[ka]

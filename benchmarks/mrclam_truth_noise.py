@@ -1,0 +1,132 @@
+"""What Vicon truth says about MR.CLAM's noise, beside what ``noise: auto`` estimates without it (issue 23): a
+measuring tool for the held-stream fit, never an input to it. Prints two Markdown tables.
+
+    .venv/bin/python benchmarks/mrclam_truth_noise.py [--logs mrclam6,mrclam7-r3] [--cache DIR]
+
+Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
+
+* motion: the commanded yaw rate and speed integrated over windows of T s against Vicon's heading change and
+  path length along the heading, as a white-noise density (RMS error / sqrt(T), with the robust 1.4826 MAD in
+  brackets); a density that grows with T is an error correlated in time (a bias). Beside it the levels
+  ``noise: auto`` estimates from the detections (``pipeline.noise.estimate_log_noise``).
+* detections: each detection against the truth (robot pose from Vicon, landmark from the survey) as range and
+  bearing errors: their whole spread, the spread of the per-landmark means, and the variance of the difference
+  of two detections of one landmark ``lag`` s apart over two (the structure function: flat for a white error,
+  reaching the whole variance for one that decorrelates within the lag).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from real_logs import all_logs  # noqa: E402
+
+WINDOWS_S = (0.5, 2.0, 8.0, 32.0)
+LAGS_S = (0.5, 2.0, 8.0, 32.0)
+
+
+def _robust(x: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(x - np.median(x))))
+
+
+def _truth_yaw(streams, t: np.ndarray, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vicon's (unwrapped) yaw and planar position interpolated at ``t`` (s from ``t0_ns``)."""
+    tr = streams.truth
+    tt = (tr.t_ns - t0_ns) * 1e-9
+    q = tr.quat_xyzw
+    yaw = np.unwrap(2 * np.arctan2(q[:, 2], q[:, 3]))
+    pos = np.stack([np.interp(t, tt, tr.position[:, k]) for k in range(2)], axis=1)
+    return np.interp(t, tt, yaw), pos
+
+
+def motion_cells(streams, aligned) -> list[str]:
+    """Per window: the gyro and speed densities the commands' errors against Vicon amount to."""
+    t0 = aligned.t0_ns
+    tt = (streams.truth.t_ns - t0) * 1e-9
+    vt = (aligned.vel_t_ns - t0) * 1e-9
+    yaw, pos = _truth_yaw(streams, tt, t0)
+    heading = 0.5 * (yaw[1:] + yaw[:-1])
+    step = np.diff(pos, axis=0)
+    path = np.r_[0.0, np.cumsum(step[:, 0] * np.cos(heading) + step[:, 1] * np.sin(heading))]
+    h = np.diff(vt)
+    cmd_yaw = np.r_[0.0, np.cumsum(aligned.omega[:-1, 2] * h)]
+    cmd_path = np.r_[0.0, np.cumsum(aligned.velocity[:-1, 0] * h)]
+    lo, hi = max(vt[0], tt[0]), min(vt[-1], tt[-1])
+    cells = []
+    for w in WINDOWS_S:
+        start = np.arange(lo, hi - w, w / 2)
+
+        def change(t, c, start=start, w=w):
+            return np.interp(start + w, t, c) - np.interp(start, t, c)
+
+        for err in (change(vt, cmd_yaw) - change(tt, yaw), change(vt, cmd_path) - change(tt, path)):
+            cells.append(f"{np.sqrt(np.mean(err**2) / w):.3f} ({_robust(err) / np.sqrt(w):.3f})")
+    return cells
+
+
+def detection_errors(streams, aligned) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Range and bearing errors of every detection against the truth, with its time (s) and landmark index."""
+    t = np.repeat((aligned.det_t_ns - aligned.t0_ns) * 1e-9, np.diff(aligned.det_offsets))
+    yaw, pos = _truth_yaw(streams, t, aligned.t0_ns)
+    ids = aligned.landmark_ids
+    lm = np.array([streams.landmark_truth[int(ids[i])][:2] for i in aligned.det_idx]) - pos
+    c, s = np.cos(yaw), np.sin(yaw)
+    true = np.stack([c * lm[:, 0] + s * lm[:, 1], -s * lm[:, 0] + c * lm[:, 1]], axis=1)
+    y = aligned.det_y[:, :2]
+    d_range = np.linalg.norm(y, axis=1) - np.linalg.norm(true, axis=1)
+    d_bearing = (np.arctan2(y[:, 1], y[:, 0]) - np.arctan2(true[:, 1], true[:, 0]) + np.pi) % (2 * np.pi) - np.pi
+    return d_range, d_bearing, t, aligned.det_idx
+
+
+def detection_cells(streams, aligned) -> list[str]:
+    from slamobs.pipeline.noise_estimation import pair_indices
+
+    dr, db, t, lm = detection_errors(streams, aligned)
+    means = [(dr[lm == i].mean(), db[lm == i].mean()) for i in np.unique(lm) if np.count_nonzero(lm == i) > 5]
+    cells = [
+        f"{dr.std():.3f} / {db.std():.4f}",
+        f"{np.std([m[0] for m in means]):.3f} / {np.std([m[1] for m in means]):.4f}",
+    ]
+    for lag in LAGS_S:
+        a, b = pair_indices(t, lm, np.zeros(t.size, int), (lag,))
+        cells.append(
+            f"{np.sqrt(np.mean((dr[b] - dr[a]) ** 2) / 2):.3f} / {np.sqrt(np.mean((db[b] - db[a]) ** 2) / 2):.4f}"
+        )
+    return cells
+
+
+def main() -> None:
+    from slamobs.pipeline.alignment import align
+    from slamobs.pipeline.api import read_log
+    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--logs", default="mrclam6,mrclam7", help="comma-separated MR.CLAM robots or datasets")
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
+    args = ap.parse_args()
+    args.cache.mkdir(parents=True, exist_ok=True)
+    logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
+    heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
+    print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
+    rows = []
+    for log in logs:
+        streams = read_log(log.path)
+        aligned = align(streams)
+        noise = resolve_noise(estimated=estimate_log_noise(aligned))
+        vicon = motion_cells(streams, aligned)
+        pairs = [f"{vicon[2 * k]} / {vicon[2 * k + 1]}" for k in range(len(WINDOWS_S))]
+        print(f"| {log.name} | {np.max(noise.gyro):.3f} / {np.max(noise.velocity):.3f} | " + " | ".join(pairs) + " |")
+        rows.append(f"| {log.name} | " + " | ".join(detection_cells(streams, aligned)) + " |")
+    lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
+    print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
+    print("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()
