@@ -133,20 +133,28 @@ def run(
     # named before the readers are imported: under a tight memory limit that import is what fails
     first = Path(logs[0]) if len(logs) == 1 else Path(logs[0]).parent
     working_on(first, "a run of this log", run_memory_mb(first))
-    from slamobs.pipeline.readers.container import recording_of
-
-    log = recording_of(logs)
-    from slamobs.pipeline.config import load_config, with_observer, with_truth
+    from slamobs.pipeline import compile_ahead
     from slamobs.pipeline.evaluation.plot_worker import free_cores
-    from slamobs.pipeline.run import run_log
 
-    config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
-    if msg_dir:
-        config = replace(config, msg_dir=str(msg_dir))
-    if export is not None:
-        config = config.with_section("output", export=export)
-    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
-        summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, free_cores()), progress=progress)
+    spare = free_cores()
+    helper = compile_ahead.start_early(spare)  # a first run's kernels, compiled while it imports and reads
+    try:
+        from slamobs.pipeline.readers.container import recording_of
+
+        log = recording_of(logs)
+        from slamobs.pipeline.config import load_config, with_observer, with_truth
+        from slamobs.pipeline.run import run_log
+
+        config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
+        helper = compile_ahead.start(config.observer, spare, helper)
+        if msg_dir:
+            config = replace(config, msg_dir=str(msg_dir))
+        if export is not None:
+            config = config.with_section("output", export=export)
+        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, spare), progress=progress)
+    finally:
+        compile_ahead.stop(helper)
     if quiet:
         return
     _print_summary(summary)

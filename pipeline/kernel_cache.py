@@ -24,8 +24,10 @@ then in place before the first kernel is decorated.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
 import re
+import sys
 import time
 from functools import lru_cache
 from pathlib import Path
@@ -36,7 +38,7 @@ from numba.core import caching
 
 from slamobs.pipeline import native
 
-__all__ = ["cache_root", "install", "njit", "prune", "source_stamp"]
+__all__ = ["cache_root", "cached", "install", "njit", "prune", "source_stamp"]
 
 #: Cache files not written for this many days are removed when a run has compiled something (kernels of
 #: sources that changed, or of other versions; one still in use is compiled again, at most once per period).
@@ -128,6 +130,15 @@ def cache_root() -> Path:
         except ImportError:  # pragma: no cover - numba without its vendored appdirs
             base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / PACKAGE
     return base / f"kernels-numba{numba.__version__}"
+
+
+def cached(module: str, qualname: str) -> bool:
+    """Whether function ``qualname`` of package module ``module`` has been compiled for the current sources (for
+    any argument types), found without importing the module: its cache index exists."""
+    path = Path(importlib.util.find_spec(module).origin).resolve()
+    rel = path.relative_to(PACKAGE_ROOT)
+    name = f"{path.stem}.{qualname}-*-{source_stamp(path)}.py{sys.version_info[0]}{sys.version_info[1]}*.nbi"
+    return any(any(where.glob(name)) for where in (cache_root() / rel.parent, path.parent / "__pycache__"))
 
 
 _WRITABLE: dict[str, bool] = {}

@@ -276,7 +276,7 @@ def quat_to_rot(q):
 @njit(cache=True, error_model="numpy")
 def _rot_of_quat(qx, qy, qz, qw, out):
     """:func:`quat_to_rot` of the four scalars, written into ``out`` (a zero quaternion gives NaN)."""
-    n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     x, y, z, w = qx / n, qy / n, qz / n, qw / n
     out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
     out[0, 1] = 2.0 * (x * y - z * w)
@@ -302,32 +302,32 @@ def _quat_of_rot(r):
     """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it)."""
     tr = r[0, 0] + r[1, 1] + r[2, 2]
     if tr > 0.0:
-        s = 2.0 * np.sqrt(tr + 1.0)
+        s = 2.0 * math.sqrt(tr + 1.0)
         w = 0.25 * s
         x = (r[2, 1] - r[1, 2]) / s
         y = (r[0, 2] - r[2, 0]) / s
         z = (r[1, 0] - r[0, 1]) / s
     elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
+        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
         w = (r[2, 1] - r[1, 2]) / s
         x = 0.25 * s
         y = (r[0, 1] + r[1, 0]) / s
         z = (r[0, 2] + r[2, 0]) / s
     elif r[1, 1] > r[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
+        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
         w = (r[0, 2] - r[2, 0]) / s
         x = (r[0, 1] + r[1, 0]) / s
         y = 0.25 * s
         z = (r[1, 2] + r[2, 1]) / s
     else:
-        s = 2.0 * np.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
+        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
         w = (r[1, 0] - r[0, 1]) / s
         x = (r[0, 2] + r[2, 0]) / s
         y = (r[1, 2] + r[2, 1]) / s
         z = 0.25 * s
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
-    n = np.sqrt(x**2 + y**2 + z**2 + w**2)
+    n = math.sqrt(x * x + y * y + z * z + w * w)
     return x / n, y / n, z / n, w / n
 
 
