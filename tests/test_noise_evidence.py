@@ -59,7 +59,7 @@ def test_the_evidence_finds_the_true_velocity_level(log, start):
     stream, truth = log
     noise = replace(truth, velocity=truth.velocity * start, sources={**truth.sources, "velocity": "estimated"})
     s = smoother(stream, noise)
-    record = s.stats["metadata"]["smoother"]["noise_scale"]
+    record = s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]
     assert record["winner"] in neighbours(1.0 / start), record
     tried = record["log_evidence"]
     assert len(tried) >= 2 and f"{record['winner']:g}" in tried, record
@@ -73,7 +73,7 @@ def test_a_configured_velocity_level_is_used_as_given(log):
     """A ``noise: velocity`` key set by the user turns the choice off for it, and the record says why."""
     stream, truth = log
     s = smoother(stream, replace(truth, velocity=3.0 * truth.velocity))
-    record = s.stats["metadata"]["smoother"]["noise_scale"]
+    record = s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]
     assert "configuration" in record["skipped"], record
     np.testing.assert_allclose(s.stats["metadata"]["noise"]["velocity"], 3.0 * truth.velocity)
 
@@ -82,5 +82,5 @@ def test_held_mode_leaves_measured_streams_alone(log):
     """``held`` chooses only for a velocity stream that holds its values; a measured one keeps its level."""
     stream, truth = log
     noise = replace(truth, velocity=3.0 * truth.velocity, sources={**truth.sources, "velocity": "estimated"})
-    record = smoother(stream, noise, "held").stats["metadata"]["smoother"]["noise_scale"]
+    record = smoother(stream, noise, "held").stats["metadata"]["smoother"]["noise_scale"]["velocity"]
     assert "measured from its samples" in record["skipped"], record

@@ -17,6 +17,7 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
+from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -306,36 +307,46 @@ class BatchSmoother(Stepper):
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
         return data
 
-    def _evidence_skipped(self) -> str | None:
-        """Why the velocity level's scale is not chosen by the evidence here, or None."""
+    def _evidence_skipped(self, key: str) -> str | None:
+        """Why the scale of the level ``key`` is not chosen by the evidence here, or None."""
         mode, nz = self.settings.noise_evidence, self.noise
         if mode == "off":
             return "batch.noise_evidence is off"
-        if nz.sources.get("velocity") == "config":
-            return "noise: velocity is set in the configuration"
+        if nz.sources.get(key) == "config":
+            return f"noise: {key} is set in the configuration"
         if self.fixed_bias is not None:
             return "the biases are fixed (a reference run)"
-        if mode == "held" and "velocity" not in nz.held:
-            return "the velocity level is measured from its samples (batch.noise_evidence: held)"
+        if mode == "held" and key not in nz.held:
+            return f"the {key} level is measured from its samples (batch.noise_evidence: held)"
         return None
 
     def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
-        """The velocity level's scale chosen by the evidence (:mod:`pipeline.smoother.evidence`), searched from
-        the chosen solution on its detections; when a scale other than 1 wins, the noise is scaled and the
-        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, notes."""
+        """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other) chosen
+        by the evidence: the candidate kept, the record per key, the notes."""
+        records, notes = {}, []
+        for key in EVIDENCE_KEYS:
+            if (why := self._evidence_skipped(key)) is not None:
+                records[key] = {"skipped": why}
+                continue
+            chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
+            notes.append(note)
+        return chosen, records, notes
+
+    def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):
+        """The scale of the level ``key`` with the highest evidence (:mod:`pipeline.smoother.evidence`), searched
+        from the chosen solution on its detections; when a scale other than 1 wins, the noise is scaled and the
+        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note."""
         from slamobs.pipeline.smoother import evidence as ev
         from slamobs.pipeline.smoother import graph as g
         from slamobs.pipeline.smoother.candidates import Candidate
 
-        if (why := self._evidence_skipped()) is not None:
-            return chosen, {"key": "velocity", "skipped": why}, []
         kf_t, kf_of_det, gaps = keyframes
         base, st = chosen.problem, self.settings
         sols, scores = {1.0: chosen.sol}, {1.0: ev.log_evidence(base, chosen.sol)}
         for direction in ev.search_order():
             prev = 1.0
             for scale in direction:
-                nz = replace(self.noise, velocity=self.noise.velocity * scale)
+                nz = _scaled(self.noise, key, scale)
                 problem = replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, nz))
                 guess = g.Guess(sols[prev].rot, sols[prev].pos, sols[prev].landmarks, sols[prev].bias)
                 sols[scale] = g.solve(
@@ -348,17 +359,17 @@ class BatchSmoother(Stepper):
             if prev != 1.0:  # the evidence rose downwards: no need to look upwards
                 break
         winner = ev.best_scale(scores)
-        record, note = ev.record("velocity", self.noise.velocity, scores, winner)
+        record, note = ev.record(key, getattr(self.noise, key), scores, winner)
         if winner == 1.0:
-            return chosen, record, [note]
-        self.noise = _scaled_velocity(self.noise, winner)
+            return chosen, record, note
+        self.noise = _scaled(self.noise, key, winner, say=True)
         full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
         w = sols[winner]
         solved, sol, notes = self._solve_gated(
             full, g.Guess(w.rot, w.pos, w.landmarks, w.bias), chosen.seed.name, progress
         )
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
-        return Candidate(chosen.seed, solved, sol, notes), record, [note]
+        return Candidate(chosen.seed, solved, sol, notes), record, note
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
@@ -484,12 +495,14 @@ class BatchSmoother(Stepper):
         return n
 
 
-def _scaled_velocity(noise, scale: float):
-    """``noise`` with its velocity level scaled by ``scale``, its method saying so."""
+def _scaled(noise, key: str, scale: float, say: bool = False):
+    """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so)."""
+    if not say:
+        return replace(noise, **{key: getattr(noise, key) * scale})
     methods = dict(noise.methods)
-    was = methods.get("velocity") or noise.sources.get("velocity", "default")
-    methods["velocity"] = f"{was}; scaled by {scale:g} by the smoother's evidence"
-    return replace(noise, velocity=noise.velocity * scale, methods=methods)
+    was = methods.get(key) or noise.sources.get(key, "default")
+    methods[key] = f"{was}; scaled by {scale:g} by the smoother's evidence"
+    return replace(noise, **{key: getattr(noise, key) * scale}, methods=methods)
 
 
 SPEC = ObserverSpec(

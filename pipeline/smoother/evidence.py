@@ -1,8 +1,8 @@
 """The smoother's evidence: which scale of a noise level the log itself supports, without ground truth.
 
-For a scale ``s`` of the velocity white-noise level the smoother is solved (warm-started from the neighbouring
-scale's solution) and the Laplace approximation of the marginal likelihood of the measurements given ``s``
-(the trajectory, map and biases integrated out) is
+For a scale ``s`` of a motion white-noise level (velocity, then gyro) the smoother is solved (warm-started from
+the neighbouring scale's solution) and the Laplace approximation of the marginal likelihood of the measurements
+given ``s`` (the trajectory, map and biases integrated out) is
 
     log Z(s) = −F(x*; s) − ½ log det H(x*; s) − ½ Σᵢ log det Σᵢ(s) + const,
 
@@ -21,13 +21,15 @@ import numpy as np
 
 from slamobs.pipeline.smoother.preintegration import D_END, D_W
 
-#: Scales of the velocity level tried, from the level the run would otherwise use (``noise: auto``, estimated
+#: The levels whose scale is chosen, one after the other (each at the scales already chosen before it).
+KEYS = ("velocity", "gyro")
+#: Scales of each level tried, from the level the run would otherwise use (``noise: auto``, estimated
 #: or defaulted); searched downwards from 1 while the evidence rises, else upwards.
 SCALES = (0.1, 0.3, 1.0, 3.0)
 #: What the choice maximises, for run.json.
 CRITERION = (
-    "Laplace approximation of the marginal likelihood of the log's measurements given the velocity noise level "
-    "(the smoother's trajectory, map and biases integrated out)"
+    "Laplace approximation of the marginal likelihood of the log's measurements given the noise level (the "
+    "smoother's trajectory, map and biases integrated out)"
 )
 
 
@@ -67,7 +69,7 @@ def best_scale(scores: dict[float, float | None]) -> float:
 
 
 def record(key: str, level: np.ndarray, scores: dict[float, float | None], winner: float) -> tuple[dict, str]:
-    """The choice for run.json (observer.smoother.noise_scale) and its note."""
+    """The choice for run.json (observer.smoother.noise_scale.<key>) and its note."""
     table = {f"{s:g}": (None if z is None else round(float(z), 3)) for s, z in sorted(scores.items())}
     said = ", ".join(f"x{s} {z if z is not None else 'n/a'}" for s, z in table.items())
     kept = level * winner
@@ -75,5 +77,5 @@ def record(key: str, level: np.ndarray, scores: dict[float, float | None], winne
         f"batch: {key} noise level chosen by the evidence (log marginal likelihood): {said}; kept x{winner:g} "
         f"({', '.join(f'{v:.3g}' for v in np.atleast_1d(kept))})"
     )
-    out = {"key": key, "criterion": CRITERION, "log_evidence": table, "winner": winner, "level": kept.tolist()}
+    out = {"criterion": CRITERION, "log_evidence": table, "winner": winner, "level": kept.tolist()}
     return out, note
