@@ -16,13 +16,15 @@ from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
 from slamobs.pipeline.smoother.evidence import SCALES
 from slamobs.pipeline.smoother.settings import BatchSettings
 
-#: velocity noise of the generated log, times the default: large enough that its level matters to the smoother
-VELOCITY_FACTOR = 10.0
+#: velocity and gyro noise of the generated log, times the defaults: large enough that their levels matter
+VELOCITY_FACTOR, GYRO_FACTOR = 10.0, 30.0
 
 
 @pytest.fixture(scope="module")
 def log():
-    nm = replace(NoiseModel(), odom_linear=VELOCITY_FACTOR * NoiseModel().odom_linear)
+    nm = replace(
+        NoiseModel(), odom_linear=VELOCITY_FACTOR * NoiseModel().odom_linear, gyro=GYRO_FACTOR * NoiseModel().gyro
+    )
     sim = simulate("figure8", duration=20.0, seed=1, noise=nm)
     stream = align(expected_streams(sim), keep_directions=False)
     truth = resolve_noise(
@@ -60,12 +62,12 @@ def test_the_evidence_finds_the_true_velocity_level(log, start):
     noise = replace(truth, velocity=truth.velocity * start, sources={**truth.sources, "velocity": "estimated"})
     s = smoother(stream, noise)
     record = s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]
-    assert record["winner"] in neighbours(1.0 / start), record
+    assert min(neighbours(1.0 / start)) <= record["scale"] <= max(neighbours(1.0 / start)), record
     tried = record["log_evidence"]
     assert len(tried) >= 2 and f"{record['winner']:g}" in tried, record
     assert tried[f"{record['winner']:g}"] == max(tried.values()), record
     used = np.asarray(s.stats["metadata"]["noise"]["velocity"])
-    np.testing.assert_allclose(used, truth.velocity * start * record["winner"])
+    np.testing.assert_allclose(used, truth.velocity * start * record["scale"])
     assert any("chosen by the evidence" in n for n in s.stats["notes"]), s.stats["notes"]
 
 
@@ -84,3 +86,13 @@ def test_held_mode_leaves_measured_streams_alone(log):
     noise = replace(truth, velocity=3.0 * truth.velocity, sources={**truth.sources, "velocity": "estimated"})
     record = smoother(stream, noise, "held").stats["metadata"]["smoother"]["noise_scale"]["velocity"]
     assert "measured from its samples" in record["skipped"], record
+
+
+def test_gyro_and_velocity_wrong_in_opposite_directions_are_both_found(log):
+    """The gyro 3x too low and the velocity 3x too high trade off (one pass over the keys leaves the velocity
+    where it was); the passes bring both back to the truth or the grid's neighbouring scale."""
+    stream, truth = log
+    sources = {**truth.sources, "velocity": "estimated", "gyro": "estimated"}
+    noise = replace(truth, velocity=3.0 * truth.velocity, gyro=truth.gyro / 3.0, sources=sources)
+    record = smoother(stream, noise).stats["metadata"]["smoother"]["noise_scale"]
+    assert 0.1 <= record["velocity"]["scale"] < 1.0 < record["gyro"]["scale"] <= 10.0, record

@@ -18,6 +18,7 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
+from slamobs.pipeline.smoother.evidence import PASSES as EVIDENCE_PASSES
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -321,15 +322,23 @@ class BatchSmoother(Stepper):
         return None
 
     def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
-        """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other) chosen
-        by the evidence: the candidate kept, the record per key, the notes."""
-        records, notes = {}, []
-        for key in EVIDENCE_KEYS:
-            if (why := self._evidence_skipped(key)) is not None:
-                records[key] = {"skipped": why}
-                continue
-            chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
-            notes.append(note)
+        """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
+        while one moves: they trade off, up to ``EVIDENCE_PASSES``) chosen by the evidence: the candidate kept,
+        the record per key (its last scan), the notes."""
+        records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
+        for _ in range(EVIDENCE_PASSES):
+            moved = False
+            for key in EVIDENCE_KEYS:
+                if (why := self._evidence_skipped(key)) is not None:
+                    records[key] = {"skipped": why}
+                    continue
+                chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
+                notes.append(note)
+                total[key] *= records[key]["winner"]
+                records[key]["scale"] = total[key]  # of the level the run started from, over every pass
+                moved |= records[key]["winner"] != 1.0
+            if not moved:
+                break
         return chosen, records, notes
 
     def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):

@@ -23,6 +23,8 @@ from slamobs.pipeline.smoother.preintegration import D_END, D_W
 
 #: The levels whose scale is chosen, one after the other (each at the scales already chosen before it).
 KEYS = ("velocity", "gyro")
+#: Passes over ``KEYS`` at most: another while a scale moved (the levels trade off against each other).
+PASSES = 3
 #: Scales of each level tried, from the level the run would otherwise use (``noise: auto``, estimated
 #: or defaulted); searched downwards from 1 while the evidence rises, else upwards.
 SCALES = (0.1, 0.3, 1.0, 3.0)
