@@ -41,20 +41,22 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
-    print("| log | score off | score evidence | ratio | winner | log evidence by scale | CPU s off / evidence |")
+    print("| log | score off | score evidence | ratio | scale chosen | log Z by scale (last pass) | CPU s off / on |")
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for log in real_logs.all_logs(args.cache, args.logs.split(",")):
         if log.skip or log.path is None:
             continue
         off, cpu_off = run(log, "off", args.cache / "runs" / f"{log.name}-evidence-off")
         on, cpu_on = run(log, args.mode, args.cache / "runs" / f"{log.name}-evidence-on")
-        record = on.smoother.get("noise_scale") or {}
         ratio = on.score / off.score if 0.0 < off.score < float("inf") else float("nan")
-        scores = ", ".join(f"x{s} {z}" for s, z in (record.get("log_evidence") or {}).items())
-        winner = record.get("winner", record.get("skipped", ""))
+        records = on.smoother.get("noise_scale") or {}
+        chosen = ", ".join(f"{k} {r.get('scale', r.get('skipped', ''))}" for k, r in records.items())
+        scores = "; ".join(
+            f"{k}: " + ", ".join(f"x{s} {z}" for s, z in r.get("log_evidence", {}).items()) for k, r in records.items()
+        )
         print(
-            f"| {log.name} | {score(off.score)} | {score(on.score)} | {ratio:.3f} | {winner} | "
-            f"{scores} | {cpu_off:.1f} / {cpu_on:.1f} |",
+            f"| {log.name} | {score(off.score)} | {score(on.score)} | {ratio:.3f} | {chosen or on.error} | {scores} | "
+            f"{cpu_off:.1f} / {cpu_on:.1f} |",
             flush=True,
         )
 
