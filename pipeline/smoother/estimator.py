@@ -335,7 +335,7 @@ class BatchSmoother(Stepper):
                 chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
                 notes.append(note)
                 total[key] *= records[key]["winner"]
-                records[key]["scale"] = total[key]  # of the level the run started from, over every pass
+                records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
                 moved |= records[key]["winner"] != 1.0
             if not moved:
                 break

@@ -8,8 +8,8 @@ from slamobs.pipeline.errors import GainError
 
 DEAD_RECKONING = "dead-reckoning"
 BIAS_MODELS = ("constant", "random-walk")
-#: when the velocity level's scale is chosen by the smoother's evidence (pipeline.smoother.evidence): never, only
-#: for a velocity stream that holds its values (its level comes from the detections and is uncertain), or always
+#: when the motion levels' scales are chosen by the smoother's evidence (pipeline.smoother.evidence): never, only
+#: for a stream that holds its values (its level comes from the detections and is uncertain), or always
 EVIDENCE_MODES = ("off", "held", "always")
 
 
@@ -29,9 +29,9 @@ class BatchSettings:
     keyframe_dt: float = 0.2
     max_iterations: int = 50
     relative_tolerance: float = 1e-5
-    #: when the velocity noise level's scale is chosen by the evidence (one of ``EVIDENCE_MODES``); a ``noise:
-    #: velocity`` key set in run.yaml is used as given
-    noise_evidence: str = "held"
+    #: when the velocity and gyro levels' scales are chosen by the evidence (one of ``EVIDENCE_MODES``); a
+    #: ``noise: velocity`` or ``gyro`` key set in run.yaml is used as given
+    noise_evidence: str = "off"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
