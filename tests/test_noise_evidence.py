@@ -96,3 +96,16 @@ def test_gyro_and_velocity_wrong_in_opposite_directions_are_both_found(log):
     noise = replace(truth, velocity=3.0 * truth.velocity, gyro=truth.gyro / 3.0, sources=sources)
     record = smoother(stream, noise).stats["metadata"]["smoother"]["noise_scale"]
     assert 0.1 <= record["velocity"]["scale"] < 1.0 < record["gyro"]["scale"] <= 10.0, record
+
+
+def test_a_long_log_skips_the_choice_and_says_so(log, monkeypatch):
+    """Above ``evidence.MAX_KEYFRAMES`` each scale would cost a solve of a long log: skipped, with a note."""
+    from slamobs.pipeline.smoother import estimator
+
+    stream, truth = log
+    monkeypatch.setattr(estimator, "EVIDENCE_MAX_KEYFRAMES", 100)
+    noise = replace(truth, velocity=3.0 * truth.velocity, sources={**truth.sources, "velocity": "estimated"})
+    s = smoother(stream, noise)
+    assert "keyframes" in s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]["skipped"]
+    assert any("not chosen by the evidence" in n for n in s.stats["notes"]), s.stats["notes"]
+    np.testing.assert_allclose(s.stats["metadata"]["noise"]["velocity"], 3.0 * truth.velocity)

@@ -18,6 +18,7 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
+from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
 from slamobs.pipeline.smoother.evidence import PASSES as EVIDENCE_PASSES
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
@@ -325,6 +326,14 @@ class BatchSmoother(Stepper):
         """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
         while one moves: they trade off, up to ``EVIDENCE_PASSES``) chosen by the evidence: the candidate kept,
         the record per key (its last scan), the notes."""
+        n_kf = keyframes[0].shape[0]
+        if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
+            why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
+            return (
+                chosen,
+                {k: {"skipped": why} for k in EVIDENCE_KEYS},
+                [f"batch: noise levels not chosen by the evidence: {why}"],
+            )
         records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
         for _ in range(EVIDENCE_PASSES):
             moved = False
@@ -362,7 +371,7 @@ class BatchSmoother(Stepper):
                     problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance
                 )
                 scores[scale] = ev.log_evidence(problem, sols[scale])
-                if ev.best_scale({prev: scores[prev], scale: scores[scale]}) != scale:
+                if not ev.better(scores[scale], scores[prev]):
                     break
                 prev = scale
             if prev != 1.0:  # the evidence rose downwards: no need to look upwards
