@@ -20,12 +20,16 @@ so how much a second core adds depends on how busy the read keeps both cores: CP
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import threading
 import time
 from dataclasses import replace
 from pathlib import Path
 
+# as `slamobs` (cli/main.py) runs: one BLAS thread. With OpenBLAS's threads the alignment's (N, 3) @ (3, 3)
+# rotations cost ~20x the CPU (spinning threads) on the loaded 2-core VM, which a run never pays.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from end_to_end import load  # noqa: E402
 

@@ -9,6 +9,11 @@ time as ``slamobs run`` runs it (the offset estimated again inside, as in a run)
 multiply-adds of the dense covariance work: per frame, the propagation applied to the ``D x D`` covariance
 (``F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ``: 18 per entry of one triangle) and the Kalman downdate (``3m`` per entry, ``m``
 detections); what one second of that work costs at the rate measured is the floor of this dense filter.
+
+The last table is the cost model of a compressed EKF (Guivant & Nebot 2001) on the log's own visibility: the
+landmarks in view kept active until unseen for ``N`` frames (hysteresis), the mean active-set size, the
+active-set changes per hour (each a flush of the passive blocks) and the multiply-adds per frame against the
+dense filter's (docs/benchmarks.md, "riekf on the one-hour log", says why riekf stays dense).
 """
 
 from __future__ import annotations
@@ -30,6 +35,40 @@ def _timed(fn):
     w, c = time.perf_counter(), time.process_time()
     out = fn()
     return out, time.perf_counter() - w, time.process_time() - c
+
+
+#: Hysteresis lengths (frames) of the compressed-EKF cost model.
+HYSTERESIS = (1, 10, 50, 200)
+
+
+def active_sets(det_offsets: np.ndarray, det_idx: np.ndarray, n_lm: int, hold: int) -> tuple[float, int]:
+    """Mean size of the active set (landmarks seen in the last ``hold`` frames, those in view included) and how
+    often it changes (frames where a landmark enters or leaves it)."""
+    last = np.full(n_lm, -(10**9))
+    active = np.zeros(n_lm, dtype=bool)
+    changes, total = 0, 0
+    for f in range(det_offsets.shape[0] - 1):
+        seen = det_idx[det_offsets[f] : det_offsets[f + 1]]
+        last[seen] = f
+        leave = active & (f - last > hold)
+        if leave.any() or not active[seen].all():
+            changes += 1
+        active[seen] = True
+        active[leave] = False
+        total += int(active.sum())
+    return total / max(det_offsets.shape[0] - 1, 1), changes
+
+
+def cekf_madds(d: int, n_active: float, flush_share: float, m: float) -> float:
+    """Multiply-adds per frame of a compressed EKF: the active block's propagation and update (as the dense
+    filter's on ``d_A``), the accumulated transition of the active-passive block (``d_A²`` per rank of the
+    frame's change: 6 propagation, ``3m`` update), the passive block's sum (``3m d_A²/2``), and per flush
+    ``Σ_BA Φ`` and ``Σ_BA ψ Σ_AB`` (``2 d_B d_A² + d_B² d_A/2``) times the share of frames that flush."""
+    da = 12 + 3 * n_active
+    db = d - da
+    k = 3 * m
+    frame = da * (da + 1) / 2 * (18 + k) + k * k / 2 * da + da * da * (6 + k) + k * da * (da + 1) / 2
+    return frame + flush_share * (2 * db * da * da + db * db * da / 2)
 
 
 def main() -> None:
@@ -84,6 +123,16 @@ def main() -> None:
         f"dense covariance work: {madds / 1e9:.1f} G multiply-adds ({madds / max(n_frames, 1) / 1e3:.0f} k per "
         f"frame), {rate / 1e9:.2f} G/s counting all of the filter's CPU time as that work"
     )
+    n_lm = int(stream.landmark_ids.shape[0])
+    print(
+        "| compressed EKF: frames unseen before passive | mean active | flushes per hour | k multiply-adds per frame |"
+    )
+    print("| --- | --- | --- | --- |")
+    print(f"| dense (today) | {n_lm} | 0 | {madds / max(n_frames, 1) / 1e3:.0f} |")
+    for hold in HYSTERESIS:
+        mean, changes = active_sets(stream.det_offsets, stream.det_idx, n_lm, hold)
+        per = cekf_madds(d, mean, changes / max(n_frames, 1), m)
+        print(f"| {hold} | {mean:.1f} | {changes * 3600 / max(span, 1e-9):.0f} | {per / 1e3:.0f} |")
     wall = best["filter stage"][0]
     print(
         f"filter stage {wall:.2f} s wall = {span / wall:.0f}x real time (floor {MAX_RIEKF_FILTER_1H_S:g} s on the "

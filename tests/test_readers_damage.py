@@ -26,7 +26,8 @@ from slamobs.cli.info_cmd import info
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import inspect_log, read_log
 from slamobs.pipeline.readers import chunks, rosbag2_sqlite, storage
-from slamobs.pipeline.readers.container import damage_notes, open_log
+from slamobs.pipeline.readers.container import damage_notes, iter_batches, open_log
+from slamobs.pipeline.readers.container import storages as container_storages
 from slamobs.pipeline.readers.rows import LAYOUTS
 from slamobs.pipeline.readers.fastdecode import read_rows
 from slamobs.pipeline.readers.roles import topics_of
@@ -127,6 +128,32 @@ def test_every_container_and_compression(tmp_path, sim, container, compression):
     summary = inspect_log(path)
     assert {t.topic: t.count for t in summary.topics} == sim.topic_counts()
     assert not any("incomplete" in w for w in summary.warnings)
+
+
+@pytest.mark.parametrize(
+    ("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("mcap", ""), ("mcap", "lz4")]
+)
+def test_a_group_of_chunks_is_loaded_into_one_buffer(tmp_path, monkeypatch, sim, container, compression):
+    """Chunks are decompressed into their decoding group's buffer (no copy joining them for the decoder): each
+    group reaches the decoder as one batch, in order, and the streams are the simulated ones."""
+    path = _write(sim, tmp_path / f"log.{container}", container, compression)
+    monkeypatch.setattr(storage, "GROUP_BYTES", 2 * CHUNK)  # several groups of several chunks: the loading thread runs
+    joins = []
+    concat = storage.concat
+    monkeypatch.setattr(storage, "concat", lambda batches: joins.append(len(batches)) or concat(batches))
+    with open_log(path) as reader:
+        table = {t: c for t, (m, c) in topics_of(reader).items() if m.msgtype in LAYOUTS}
+        conns = [c for cs in table.values() for c in cs]
+        storages = [s for s, _, _ in container_storages(reader, conns)]
+        ids = {c.id for c in conns}
+        units = [u for s in storages for u in s.units if not u.conns or u.conns & ids]
+        batches = list(iter_batches(reader, path, conns))
+    groups = chunks.load_groups(units)
+    assert len(units) > len(groups) >= 2, (len(units), len(groups))
+    assert [b.data.shape[0] for b in batches] == [sum(map(chunks.slot_bytes, g)) for g in groups]
+    assert all(np.all(np.diff(b.start) > 0) for b in batches)  # messages in file order within the buffer
+    _same_streams(read_log(path), expected_streams(sim, str(path)))
+    assert max(joins, default=1) == 1  # storage.grouped passed each group through without joining
 
 
 @pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("ros2-sqlite3", "")])
@@ -329,12 +356,23 @@ def _chunk_messages(path: Path, container: str, k: int) -> int:
 
 
 @pytest.mark.parametrize(
-    ("container", "compression", "where"),
-    [("bag", "lz4", "data"), ("bag", "", "header"), ("mcap", "zstd", "data"), ("mcap", "", "data")],
+    ("container", "compression", "where", "group"),
+    [
+        ("bag", "lz4", "data", 0),
+        ("bag", "", "header", 0),
+        ("mcap", "zstd", "data", 0),
+        ("mcap", "", "data", 0),
+        ("mcap", "zstd", "data", 2 * CHUNK),
+    ],
 )
-def test_damaged_chunk_in_indexed_file_is_skipped_and_counted(tmp_path, sim, container, compression, where):
+def test_damaged_chunk_in_indexed_file_is_skipped_and_counted(
+    tmp_path, monkeypatch, sim, container, compression, where, group
+):
     """The index says where the next chunk starts: reading goes on after a damaged chunk (header or data), the
-    damaged chunk's messages are counted as lost, every other message is read."""
+    damaged chunk's messages are counted as lost, every other message is read (``group``: chunks decompressed
+    into decoding groups of that many bytes, loaded on the reading thread; 0: the whole log is one group)."""
+    if group:
+        monkeypatch.setattr(storage, "GROUP_BYTES", group)
     src = _write(sim, tmp_path / f"full.{container}", container, compression)
     data = bytearray(src.read_bytes())
     if container == "bag":

@@ -178,12 +178,13 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
                 f[b, N_FIXED + 3 * s + a] = tmp[a, b]  # ξ_s <- b̃_Ω
     # the bias rows Σ_b as they are before the update, and g = (F Σ_bb)ᵀ (6, D)
     pb = cov[6:12, :d].copy()
-    for c in range(6):
-        for i in range(d):
-            v = 0.0
-            for e in range(6):
-                v += f[e, i] * pb[e, 6 + c]
-            g[c, i] = v
+    for c in range(6):  # along rows (it vectorises), each entry summed over e in order from 0.0
+        gc = g[c, :d]
+        gc[:] = 0.0
+        for e in range(6):
+            fe, w = f[e, :d], pb[e, 6 + c]
+            for i in range(d):
+                gc[i] += fe[i] * w
     _add_bias_terms(cov, d, f, pb, g)
     # process noise Q: (R, P) block, landmark rows [p̂_s]× QRR, [p̂_s]× QPRᵀ, and [p̂_s]× QRR [p̂_u]×ᵀ
     qrr, qpr, qpp = acc[_QRR], acc[_QPR], acc[_QPP]
@@ -237,20 +238,31 @@ def _add_bias_terms(cov, d, f, pb, g):
     row = np.empty(d)
     for i in range(d):
         n = d - i  # views from the diagonal on, indexed from 0: the loops vectorise
-        acc = row[:n]
-        acc[:] = 0.0
-        for e in range(6):
-            a1, a2, a3 = f[e, i], pb[e, i], g[e, i]
-            fe, pe = f[e, i:], pb[e, i:]
-            if e < 3 or 3 <= i < 6:
-                for j in range(n):
-                    acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
-            else:  # b̃_V reaches ξ_P only: F[i, e] = 0 and F[j, e] = 0 off j = 3..5, the terms there add zeros
-                for j in range(max(3 - i, 0), 6 - i):
-                    acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
         ci = cov[i, i:]
-        for j in range(n):
-            ci[j] += acc[j]
+        if i >= 6:  # b̃_V reaches ξ_P only (columns 3..5, left of the diagonal here): the b̃_Ω terms in one pass
+            b0, b1, b2 = f[0, i], f[1, i], f[2, i]
+            c0, c1, c2 = pb[0, i], pb[1, i], pb[2, i]
+            e0, e1, e2 = g[0, i], g[1, i], g[2, i]
+            f0, f1, f2, p0, p1, p2 = f[0, i:], f[1, i:], f[2, i:], pb[0, i:], pb[1, i:], pb[2, i:]
+            for j in range(n):  # the sum of the loop below, term by term in its order
+                t0 = b0 * p0[j] + c0 * f0[j] + e0 * f0[j]
+                t1 = b1 * p1[j] + c1 * f1[j] + e1 * f1[j]
+                t2 = b2 * p2[j] + c2 * f2[j] + e2 * f2[j]
+                ci[j] += ((0.0 + t0) + t1) + t2
+        else:
+            acc = row[:n]
+            acc[:] = 0.0
+            for e in range(6):
+                a1, a2, a3 = f[e, i], pb[e, i], g[e, i]
+                fe, pe = f[e, i:], pb[e, i:]
+                if e < 3 or 3 <= i < 6:
+                    for j in range(n):
+                        acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
+                else:  # b̃_V reaches ξ_P only: F[i, e] = 0 and F[j, e] = 0 off j = 3..5, the terms there add zeros
+                    for j in range(max(3 - i, 0), 6 - i):
+                        acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
+            for j in range(n):
+                ci[j] += acc[j]
         for j in range(i + 1, d):
             cov[j, i] = cov[i, j]
 
@@ -378,12 +390,20 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 @njit(cache=True)
 def _gain_and_downdate(cov, d, hp, chol, z, k3):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ (k3 × d): ``Uᵀ = L⁻¹ H Σ`` (in place), ``w = L⁻¹ z``;
-    returns ``ξ̂ = U w`` and makes ``Σ ← Σ − U Uᵀ``. Every loop runs along rows of ``hp`` (it vectorises);
-    each entry is summed in the order of the textbook loops."""
+    returns ``ξ̂ = U w`` and makes ``Σ ← Σ − U Uᵀ``. Every loop runs along rows of ``hp`` (it vectorises),
+    four of its rows at a time (one pass over the row written instead of four); each entry is summed in the
+    order of the textbook loops, term by term, so the numbers are those of the one-row-at-a-time loops."""
     row = np.empty(d)
     for c in range(k3):
         row[:] = hp[c, :d]
-        for k in range(c):
+        k = 0
+        while k + 4 <= c:
+            s0, s1, s2, s3 = chol[c, k], chol[c, k + 1], chol[c, k + 2], chol[c, k + 3]
+            h0, h1, h2, h3 = hp[k, :d], hp[k + 1, :d], hp[k + 2, :d], hp[k + 3, :d]
+            for r in range(d):
+                row[r] = (((row[r] - h0[r] * s0) - h1[r] * s1) - h2[r] * s2) - h3[r] * s3
+            k += 4
+        for k in range(k, c):
             s_ck, hk = chol[c, k], hp[k, :d]
             for r in range(d):
                 row[r] -= hk[r] * s_ck
@@ -401,19 +421,33 @@ def _gain_and_downdate(cov, d, hp, chol, z, k3):
         for r in range(d):
             xi[r] += hc[r] * wc
     for r in range(d):
-        n = d - r  # views from the diagonal on, indexed from 0: the loops vectorise
-        acc = row[:n]
-        acc[:] = 0.0
-        for k in range(k3):
-            a, hk = hp[k, r], hp[k, r:d]
-            for c in range(n):
-                acc[c] += a * hk[c]
-        cr = cov[r, r:d]
-        for c in range(n):
-            cr[c] -= acc[c]
-        for c in range(r + 1, d):
-            cov[c, r] = cov[r, c]
+        _downdate_row(cov, r, d, hp, k3, row)
     return xi
+
+
+@njit(cache=True)
+def _downdate_row(cov, r, d, hp, k3, row):
+    """``Σ[r, r:] −= Σ_k hp[k, r] hp[k, r:]`` (each entry summed over ``k`` in order, four terms a pass; ``row``:
+    scratch), mirrored into column ``r``."""
+    n = d - r  # views from the diagonal on, indexed from 0: the loops vectorise
+    acc = row[:n]
+    acc[:] = 0.0
+    k = 0
+    while k + 4 <= k3:
+        a0, a1, a2, a3 = hp[k, r], hp[k + 1, r], hp[k + 2, r], hp[k + 3, r]
+        h0, h1, h2, h3 = hp[k, r:d], hp[k + 1, r:d], hp[k + 2, r:d], hp[k + 3, r:d]
+        for c in range(n):
+            acc[c] = (((acc[c] + a0 * h0[c]) + a1 * h1[c]) + a2 * h2[c]) + a3 * h3[c]
+        k += 4
+    for k in range(k, k3):
+        a, hk = hp[k, r], hp[k, r:d]
+        for c in range(n):
+            acc[c] += a * hk[c]
+    cr = cov[r, r:d]
+    for c in range(n):
+        cr[c] -= acc[c]
+    for c in range(r + 1, d):
+        cov[c, r] = cov[r, c]
 
 
 @njit(cache=True)

@@ -42,18 +42,15 @@ HALVES_SIGMAS = 3.0
 BIAS_STEP = 1e-4
 
 
-def _sample_poses(stream, omega: np.ndarray, vel: np.ndarray, keep=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Dead-reckoned poses at the velocity samples (nothing integrated across a segment gap) and their times;
-    only those of the samples ``keep`` (sorted indices) when given."""
+def _sample_steps(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, tuple]:
+    """The velocity samples' times and the dead-reckoning steps between them (twists, lengths), nothing
+    integrated across a segment gap."""
     t = stream.seconds(stream.vel_t_ns)
     dt = np.diff(t)
     omega, vel = omega[:-1].copy(), vel[:-1].copy()
     gap = stream.segment_starts - 1
     omega[gap], vel[gap] = 0.0, 0.0
-    if keep is not None:
-        return t[keep], *integrate_body_twists_at(np.eye(3), np.zeros(3), omega, vel, dt, keep)
-    rot, pos = integrate_body_twists(np.eye(3), np.zeros(3), omega, vel, dt)
-    return t, rot, pos
+    return t, (omega, vel, dt)
 
 
 def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
@@ -72,17 +69,16 @@ def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
 
 
 @njit(cache=True)
-def _pose_at(t_s, rot_s, pos_s, omega, vel, t, rot, pos, d_r, unused):
+def _pose_at(t_s, rot_s, pos_s, omega, vel, t, rot, pos, d_r, unused, lo):
     """The pose at time ``t``: sample ``k`` before it (the first one before the samples) carried on for
-    ``h = t − t_k`` with its twist: ``R_k Exp(h ω_k)``, ``P_k + R_k h v_k`` (``d_r``, ``unused``: scratch)."""
-    lo, hi = 0, t_s.shape[0]  # the first sample after t (binary search)
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if t_s[mid] <= t:
-            lo = mid + 1
-        else:
-            hi = mid
-    k = min(max(lo - 1, 0), t_s.shape[0] - 1)
+    ``h = t − t_k`` with its twist: ``R_k Exp(h ω_k)``, ``P_k + R_k h v_k`` (``d_r``, ``unused``: scratch).
+    ``lo``: a guess of the first sample after ``t`` (walked from to the true one, which is returned)."""
+    n = t_s.shape[0]
+    while lo < n and t_s[lo] <= t:
+        lo += 1
+    while lo > 0 and t_s[lo - 1] > t:
+        lo -= 1
+    k = min(max(lo - 1, 0), n - 1)
     h = t - t_s[k]
     se3_exp_into(h * omega[k, 0], h * omega[k, 1], h * omega[k, 2], 0.0, 0.0, 0.0, d_r, unused)
     for i in range(3):
@@ -90,23 +86,43 @@ def _pose_at(t_s, rot_s, pos_s, omega, vel, t, rot, pos, d_r, unused):
         pos[i] = pos_s[k, i] + dp
         for j in range(3):
             rot[i, j] = rot_s[k, i, 0] * d_r[0, j] + rot_s[k, i, 1] * d_r[1, j] + rot_s[k, i, 2] * d_r[2, j]
+    return lo
 
 
 @njit(cache=True)
-def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shift, out):
-    """``out[m] = y_a − R_aᵀ (P_b + R_b y_b − P_a)`` for the pairs ``(a[m], b[m])`` at the stamps moved by
-    ``shift`` (:func:`_pose_at`)."""
+def _first_after(t_s, t):
+    """The first sample after ``t`` (binary search)."""
+    lo, hi = 0, t_s.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if t_s[mid] <= t:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shifts, out):
+    """``out[s, m] = y_a − R_aᵀ (P_b + R_b y_b − P_a)`` for the pairs ``(a[m], b[m])`` at the stamps moved by
+    ``shifts[s]`` (:func:`_pose_at`): a pair at every shift in turn (its samples stay in the cache: a long log's
+    poses do not fit there, and a pass over all pairs per shift read them from memory each time)."""
+    if shifts.shape[0] == 0:
+        return
     r_a, r_b = np.empty((3, 3)), np.empty((3, 3))
     p_a, p_b, w = np.empty(3), np.empty(3), np.empty(3)
     d_r, unused = np.empty((3, 3)), np.empty(3)
     for m in range(a.shape[0]):
         i, j = a[m], b[m]
-        _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[i] + shift, r_a, p_a, d_r, unused)
-        _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[j] + shift, r_b, p_b, d_r, unused)
-        for c in range(3):
-            w[c] = (p_b[c] + (r_b[c, 0] * y[j, 0] + r_b[c, 1] * y[j, 1] + r_b[c, 2] * y[j, 2])) - p_a[c]
-        for c in range(3):
-            out[m, c] = y[i, c] - (r_a[0, c] * w[0] + r_a[1, c] * w[1] + r_a[2, c] * w[2])
+        ka = _first_after(t_s, det_t[i] + shifts[0])
+        kb = _first_after(t_s, det_t[j] + shifts[0])
+        for s in range(shifts.shape[0]):
+            ka = _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[i] + shifts[s], r_a, p_a, d_r, unused, ka)
+            kb = _pose_at(t_s, rot_s, pos_s, omega, vel, det_t[j] + shifts[s], r_b, p_b, d_r, unused, kb)
+            for c in range(3):
+                w[c] = (p_b[c] + (r_b[c, 0] * y[j, 0] + r_b[c, 1] * y[j, 1] + r_b[c, 2] * y[j, 2])) - p_a[c]
+            for c in range(3):
+                out[s, m, c] = y[i, c] - (r_a[0, c] * w[0] + r_a[1, c] * w[1] + r_a[2, c] * w[2])
 
 
 class _Consistency:
@@ -120,7 +136,7 @@ class _Consistency:
         self.poses = self._poses(bias)
         # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
         # the samples the pairs read there only)
-        base = self.residuals(0.0)
+        base = self.residuals(0.0)[0]
         t_s = self.poses[0]
         at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
         keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))
@@ -128,23 +144,39 @@ class _Consistency:
         for c in range(6):
             db = np.zeros(6)
             db[c] = BIAS_STEP
-            self.jac[:, :, c] = (self.residuals(0.0, self._poses(bias + db, keep)) - base) / BIAS_STEP
+            self.jac[:, :, c] = (self.residuals(0.0, self._moved_poses(bias + db, c, keep))[0] - base) / BIAS_STEP
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
-    def _poses(self, bias: np.ndarray, keep=None):
-        """The samples' times, poses and bias-corrected twists (those of the samples ``keep`` when given)."""
+    def _poses(self, bias: np.ndarray):
+        """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for
+        :meth:`_moved_poses`."""
         s = self.stream
         omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
-        if keep is None:
-            return (*_sample_poses(s, omega, vel), omega, vel)
-        return (*_sample_poses(s, omega, vel, keep), omega[keep], vel[keep])
+        t, self._steps = _sample_steps(s, omega, vel)
+        return (t, *integrate_body_twists(np.eye(3), np.zeros(3), *self._steps), omega, vel)
 
-    def residuals(self, shift: float, poses=None) -> np.ndarray:
-        """Per pair, in the body frame of its first detection: ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``, the
-        poses at the detection stamps moved by ``shift`` carried on from the sample before with its twist."""
+    def _moved_poses(self, bias: np.ndarray, c: int, keep: np.ndarray):
+        """:meth:`_poses` (the samples ``keep`` only) with ``bias``, which differs from the first poses' in entry
+        ``c`` only: the twists copied and that column computed again (the same numbers as from scratch)."""
+        s, t_s, _, _, omega, vel = self.stream, *self.poses
+        twists, steps = [omega[keep], vel[keep]], [self._steps[0], self._steps[1]]
+        w, j = divmod(c, 3)
+        raw = (s.omega, s.velocity)[w][:, j] - bias[c]
+        twists[w][:, j] = raw[keep]
+        steps[w] = steps[w].copy()
+        steps[w][:, j] = raw[:-1]
+        steps[w][s.segment_starts - 1, j] = 0.0
+        poses = integrate_body_twists_at(np.eye(3), np.zeros(3), *steps, self._steps[2], keep)
+        return (t_s[keep], *poses, *twists)
+
+    def residuals(self, shifts, poses=None) -> np.ndarray:
+        """Per shift and pair (shifts, pairs, 3), in the body frame of the pair's first detection:
+        ``y_a − (R_aᵀ R_b y_b + R_aᵀ (P_b − P_a))``, the poses at the detection stamps moved by the shift carried
+        on from the sample before with its twist."""
         t_s, rot_s, pos_s, omega, vel = self.poses if poses is None else poses
-        out = np.empty((self.a.shape[0], 3))
-        _pair_residuals(t_s, rot_s, pos_s, omega, vel, self.det_t, self.y, self.a, self.b, shift, out)
+        shifts = np.atleast_1d(np.asarray(shifts, dtype=np.float64))
+        out = np.empty((shifts.shape[0], self.a.shape[0], 3))
+        _pair_residuals(t_s, rot_s, pos_s, omega, vel, self.det_t, self.y, self.a, self.b, shifts, out)
         return out
 
     def subset(self, keep: np.ndarray) -> _Consistency:
@@ -154,10 +186,14 @@ class _Consistency:
         out.a, out.b, out.jac, out.jtj = self.a[keep], self.b[keep], self.jac[keep], self.jtj[keep]
         return out
 
-    def cost(self, shift: float) -> float:
-        """Trimmed mean squared residual after the bias correction that fits the pairs best (least squares on
-        all pairs, then again on the ``TRIM`` share with the smallest residuals)."""
-        e = self.residuals(shift)
+    def costs(self, shifts) -> np.ndarray:
+        """:meth:`cost` at each of ``shifts``, the residuals of all of them computed in one pass."""
+        return np.array([self.cost(e) for e in self.residuals(shifts)])
+
+    def cost(self, e: np.ndarray) -> float:
+        """Trimmed mean squared residual of the pairs' residuals ``e`` at one shift after the bias correction
+        that fits the pairs best (least squares on all pairs, then again on the ``TRIM`` share with the smallest
+        residuals)."""
         keep = np.arange(e.shape[0])
         for _ in range(2):  # normal equations (6 unknowns; a small ridge keeps them regular on straight motion)
             a = self.jtj[keep].sum(axis=0) + 1e-9 * np.eye(6)
@@ -172,14 +208,14 @@ def _search(c: _Consistency) -> tuple[float, float, float]:
     """The shift of least cost on the grid (coarse, then fine around the best), its standard error from the
     curvature there, and the cost at zero over the cost there."""
     coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
-    best = float(coarse[int(np.argmin([c.cost(s) for s in coarse]))])
+    best = float(coarse[int(np.argmin(c.costs(coarse)))])
     fine = best + np.arange(-COARSE_S, COARSE_S + FINE_S / 2, FINE_S)
-    fine_costs = np.array([c.cost(s) for s in fine])
+    fine_costs = c.costs(fine)
     j = int(np.argmin(fine_costs))
     shift, c_min = float(fine[j]), float(fine_costs[j])
     curv = np.polyfit(fine - shift, fine_costs, 2)[0]  # cost ≈ c_min + curv (δ − shift)²
     sigma = float(np.sqrt(c_min / (c.a.shape[0] * curv))) if curv > 0 else np.inf
-    return shift, sigma, c.cost(0.0) / max(c_min, 1e-300)
+    return shift, sigma, float(c.costs(0.0)[0]) / max(c_min, 1e-300)
 
 
 def _halves_disagree(c: _Consistency, stream) -> str | None:

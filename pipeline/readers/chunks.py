@@ -24,7 +24,7 @@ from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
 from . import storage
-from .storage import ConnIds, DamagedError, RawBatch, concat
+from .storage import ConnIds, DamagedError, RawBatch, concat, placed
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -83,21 +83,81 @@ def _inflate(blob: bytes, compression: str, raw_size: int, partial: bool) -> byt
     return raw
 
 
-def read_unit(bio: BinaryIO, unit: Unit) -> np.ndarray:
-    """The unit's records, decompressed and checked against the stored CRC32 (MCAP)."""
+def read_unit(bio: BinaryIO, unit: Unit, out: np.ndarray | None = None) -> np.ndarray:
+    """The unit's records, decompressed and checked against the stored CRC32 (MCAP).
+
+    ``out``: :func:`slot_bytes` bytes of a group's buffer (a complete unit) to decompress into, its read-only
+    view returned: the group's chunks then need not be copied into one buffer for the decoder.
+    """
     bio.seek(unit.pos)
-    blob = bio.read(unit.size)
-    if len(blob) != unit.size:
-        msg = f"chunk at byte {unit.pos} is cut off"
-        raise DamagedError(msg)
-    raw = _inflate(blob, unit.compression, unit.raw_size, unit.partial)
+    if out is not None and unit.compression in {"", "none"}:
+        got = bio.readinto(out)
+        if got != unit.size:
+            msg = f"chunk at byte {unit.pos} is cut off"
+            raise DamagedError(msg)
+        data = out
+    else:
+        blob = bio.read(unit.size)
+        if len(blob) != unit.size:
+            msg = f"chunk at byte {unit.pos} is cut off"
+            raise DamagedError(msg)
+        data = _inflate_into(blob, unit, out) if out is not None else None
+        if data is None:
+            raw = _inflate(blob, unit.compression, unit.raw_size, unit.partial)
+            data = np.frombuffer(raw, np.uint8)
+            if out is not None:
+                out[:] = data
+                data = out
     if unit.crc_at >= 0 and not unit.partial:
         bio.seek(unit.crc_at)
         (crc,) = struct.unpack("<I", bio.read(4))
-        if crc and zlib.crc32(raw) != crc:
+        if crc and zlib.crc32(data) != crc:
             msg = f"chunk at byte {unit.pos} fails its checksum"
             raise DamagedError(msg)
-    return np.frombuffer(raw, np.uint8)
+    if data.flags.writeable:  # as np.frombuffer gives it: the compiled walks are compiled for read-only buffers
+        data = data.view()
+        data.flags.writeable = False
+    return data
+
+
+def _inflate_into(blob: bytes, unit: Unit, out: np.ndarray) -> np.ndarray | None:
+    """A zstd chunk decompressed straight into ``out`` (its declared size); None for another compression."""
+    if unit.compression != "zstd":
+        return None
+    reader = zstandard.ZstdDecompressor().stream_reader(blob, read_size=len(blob), read_across_frames=False)
+    got = 0
+    while got < out.shape[0] and (step := reader.readinto(out[got:])):
+        got += step
+    if got != unit.raw_size or reader.read(1):
+        msg = f"chunk does not decompress to its declared {unit.raw_size} bytes"
+        raise DamagedError(msg)
+    return out
+
+
+def slot_bytes(unit: Unit) -> int:
+    """Bytes a complete unit's records take once decompressed."""
+    return unit.size if unit.compression in {"", "none"} else unit.raw_size
+
+
+def load_groups(units: Sequence[Unit]) -> list[list[Unit]]:
+    """Consecutive units in decoding groups of :data:`.storage.GROUP_BYTES` (as :func:`.storage.grouped` joins their
+    batches), each loaded into one buffer; a cut-off unit (whose size is known only once read) is a group alone."""
+    groups: list[list[Unit]] = []
+    group: list[Unit] = []
+    size = 0
+    for unit in units:
+        if unit.partial:
+            groups += [group, [unit]] if group else [[unit]]
+            group, size = [], 0
+            continue
+        group.append(unit)
+        size += slot_bytes(unit)
+        if size >= storage.GROUP_BYTES:
+            groups.append(group)
+            group, size = [], 0
+    if group:
+        groups.append(group)
+    return groups
 
 
 # Scanner status codes.
@@ -242,7 +302,10 @@ class Chunked:
         wanted = set(ids.ids.tolist())
         units = [u for u in self.units if not u.conns or u.conns & wanted]
         read = 0
-        loads = prefetched(lambda unit: self._load_or_skip(unit, ids), units)
+        if not ordered:  # a decoding group's chunks loaded at once, into one buffer
+            loads = prefetched(lambda group: self._load_group(group, ids), load_groups(units))
+        else:
+            loads = prefetched(lambda unit: self._load_or_skip(unit, ids), units)
         try:
             if not ordered:
                 for batch in loads:
@@ -262,11 +325,30 @@ class Chunked:
             msg = f"every chunk holding the topics read is damaged ({why})"
             raise DamagedError(msg)
 
-    def _load_or_skip(self, unit: Unit, ids: ConnIds) -> RawBatch | None:
+    def _load_group(self, group: list[Unit], ids: ConnIds) -> RawBatch | None:
+        """The requested messages of a group of complete units, each decompressed into its part of one buffer."""
+        if len(group) == 1:
+            return self._load_or_skip(group[0], ids)
+        sizes = [slot_bytes(unit) for unit in group]
+        data = np.empty(sum(sizes), np.uint8)
+        batches, at, pos = [], [], 0
+        for unit, size in zip(group, sizes, strict=True):
+            batch = self._load_or_skip(unit, ids, data[pos : pos + size])
+            if batch is not None:  # a damaged unit skipped leaves its part unused
+                batches.append(batch)
+                at.append(pos)
+            pos += size
+        if not batches:
+            return None
+        view = data.view()
+        view.flags.writeable = False
+        return placed(view, batches, at)
+
+    def _load_or_skip(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None) -> RawBatch | None:
         if not unit.indexed:
-            return self.load(unit, ids)
+            return self.load(unit, ids, out)
         try:
-            return self.load(unit, ids)
+            return self.load(unit, ids, out)
         except _CHUNK_ERRORS as err:
             if machine_failure(err):  # e.g. zstd's "Allocation error": the chunk is fine, the memory is not
                 raise
@@ -296,11 +378,11 @@ class Chunked:
             )
         return texts
 
-    def load(self, unit: Unit, ids: ConnIds) -> RawBatch:
-        """Decompress and scan one unit (damaged records at its end: the complete ones before them are kept
-        and the rest counted lost when the index says how many it held)."""
+    def load(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None) -> RawBatch:
+        """Decompress (into ``out``, see :func:`read_unit`) and scan one unit (damaged records at its end: the
+        complete ones before them are kept and the rest counted lost when the index says how many it held)."""
         assert self.bio
-        data = read_unit(self.bio, unit)
+        data = read_unit(self.bio, unit, out)
         recs = records(self.walk, data)
         if recs.status == BAD or (recs.status == CUT and not unit.partial):
             if unit.recovered:  # the scan kept the complete records before the damage and said so

@@ -91,6 +91,18 @@ def concat(batches: Sequence[RawBatch]) -> RawBatch:
     )
 
 
+def placed(data: np.ndarray, batches: Sequence[RawBatch], at: Sequence[int]) -> RawBatch:
+    """One batch of ``batches`` whose buffers already lie in ``data``, batch ``k``'s from byte ``at[k]`` on:
+    :func:`concat` without copying the bytes (a chunk reader decompresses a group's chunks into one buffer)."""
+    return RawBatch(
+        data,
+        np.concatenate([b.conn for b in batches]),
+        np.concatenate([b.rec_ns for b in batches]),
+        np.concatenate([b.start + s for b, s in zip(batches, at, strict=True)]),
+        np.concatenate([b.size for b in batches]),
+    )
+
+
 def joined(blobs: Sequence[bytes], conn: np.ndarray, rec_ns: np.ndarray) -> RawBatch:
     """A batch of separate payloads (sqlite rows, per-message decompressed ones) in one buffer."""
     size = np.fromiter(map(len, blobs), np.int64, len(blobs))
