@@ -1,13 +1,14 @@
 """Segment errors (rpg_trajectory_evaluation's relative error per sub-trajectory length) on long trajectories:
-slamobs' vectorised version against rpg's own loop (vendored in tests/oracles), and what they add to a report.
+slamobs' compiled version against its former NumPy formulation (stacked matmuls) and rpg's own loop (vendored in
+tests/oracles), and what they add to a report.
 
     PYTHONPATH=... .venv/bin/python benchmarks/segment_errors.py [--poses 1000 10000 100000 1000000] [--rpg-max 3000]
 
 For each size, a generated trajectory (a 3-D loop at 20 Hz with 1 % scale error and a slow yaw drift) is
 evaluated at rpg's five lengths (10-50 % of the path); best of ``--repeat`` runs. rpg's segment search is
 quadratic Python: it runs only up to ``--rpg-max`` poses (its time there is the reason the report does not use it).
-Prints one table row per size: poses, segments found, slamobs seconds, rpg seconds, and the largest difference
-between the two (where both ran).
+Prints one table row per size: poses, segments found, slamobs seconds, the same with the NumPy products, whether
+the two give the same bits, rpg seconds, and the largest difference to rpg (where it ran).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from slamobs.pipeline.evaluation import drift  # noqa: E402
 from slamobs.pipeline.evaluation.drift import SEGMENT_ERROR_KINDS, rpg_lengths, segment_errors  # noqa: E402
 from slamobs.pipeline.lie import rots_to_quats, so3_exp  # noqa: E402
 
@@ -60,13 +62,24 @@ def main() -> None:
     args = ap.parse_args()
     from oracles import rpg_relative_error as rpg
 
-    print("| poses | segments | slamobs [s] | rpg [s] | max abs difference |")
-    print("|---:|---:|---:|---:|---:|")
+    print("| poses | segments | slamobs [s] | NumPy products [s] | same bits | rpg [s] | max abs difference to rpg |")
+    print("|---:|---:|---:|---:|---|---:|---:|")
+    segment_errors(*trajectory(100), 10.0)  # the kernels loaded (or compiled) before the clock runs
     for n in args.poses:
         rp, rr, ep, er = trajectory(n)
         path = float(np.sum(np.linalg.norm(np.diff(rp, axis=0), axis=1)))
         ours_s, (ours, arrays) = best(lambda: segment_errors(rp, rr, ep, er, path), args.repeat)
         segments = sum(row["n_segments"] for row in ours["per_length"])
+        compiled = drift.relative_errors
+        drift.relative_errors = drift.relative_errors_numpy
+        try:
+            numpy_s, (_, numpy_arrays) = best(lambda: segment_errors(rp, rr, ep, er, path), args.repeat)
+        finally:
+            drift.relative_errors = compiled
+        same = (
+            all(np.array_equal(arrays[L][k], numpy_arrays[L][k]) for L in arrays for k in SEGMENT_ERROR_KINDS)
+            and arrays.keys() == numpy_arrays.keys()
+        )
         rpg_s, diff = "–", "–"
         if n <= args.rpg_max:
             qg, qe = rots_to_quats(rr), rots_to_quats(er)
@@ -83,7 +96,7 @@ def main() -> None:
                 for k in SEGMENT_ERROR_KINDS
             )
             diff = f"{diff:.1e}"
-        print(f"| {n} | {segments} | {ours_s:.4f} | {rpg_s} | {diff} |")
+        print(f"| {n} | {segments} | {ours_s:.4f} | {numpy_s:.4f} | {'yes' if same else 'no'} | {rpg_s} | {diff} |")
 
 
 if __name__ == "__main__":

@@ -218,6 +218,11 @@ def landmark_table(
     }
 
 
+#: Columns at least this long are rounded by the compiled :func:`.rounding.round_bits` (a long run's stretches
+#: are 131 072 rows); shorter ones by the array code: a short log's first run does not compile it.
+ROUND_KERNEL_ROWS = 65_536
+
+
 def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> np.ndarray:
     """``values`` (float64) rounded to nearest on ``bits`` significant mantissa bits (ties away from zero), as a
     new array; NaN, ±Inf and zero are kept. Relative error at most ``2**-(bits + 1)`` for normal numbers
@@ -229,6 +234,11 @@ def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> 
         return a
     if not 1 <= bits:
         raise ValueError(f"float_bits must be 1..52, got {bits}")
+    if a.ndim == 1 and a.shape[0] >= ROUND_KERNEL_ROWS:  # one compiled pass, the same bits (pipeline.rounding)
+        from slamobs.pipeline.rounding import round_bits
+
+        round_bits(a, int(bits), 0 if finest is None else int(finest), finest is not None)
+        return a
     u = a.view(np.uint64)
     finite = np.isfinite(a)
     bits_in = u[finite]
@@ -273,34 +283,68 @@ class TableWriter:
     The run metadata is known only when the run ends (e.g. the number of internal steps), so it goes into
     the footer at :meth:`close`, together with the Arrow schema that carries it (as ``pq.write_table``
     would have stored it). A table whose first stretch is empty is still written (schema, no rows).
+    The tables of one :meth:`write` are written on two lanes, the caller's thread and a helper thread (rounding
+    and pyarrow's encoding and compression run without the GIL; each file has its own writer, so the files are
+    the same bytes).
     """
 
     def __init__(self, out_dir: Path, float_bits: int = FLOAT_BITS) -> None:
         self.out_dir = Path(out_dir)
         self.float_bits = float_bits
         self.writers: dict[str, tuple[pq.ParquetWriter, pa.Schema]] = {}
+        self._helper = None  # the second lane's thread pool, started by the first write of several tables
+        self._nulls: dict[tuple[int, pa.DataType], pa.Array] = {}  # one all-null column per length and type
 
     def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
         """Append one stretch of rows to each table."""
-        for name, columns in tables.items():
-            if name not in self.writers:
-                schema = arrow_schema(name)
-                path = self.out_dir / f"{name}.parquet"
-                self.writers[name] = (
-                    pq.ParquetWriter(path, schema, store_schema=False, **parquet_options(schema)),
-                    schema,
-                )
-            writer, schema = self.writers[name]
-            rows = len(next(iter(columns.values()))) if columns else 0
-            # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element;
-            # a nullable column the estimator has no values for (the observers' uncertainty) is all null
-            arrays = [
-                _arrow_array(self._values(columns[f.name], f), f.type)
-                if f.name in columns or not f.nullable
-                else pa.nulls(rows, f.type)
-                for f in schema
-            ]
-            writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
+        if len(tables) < 2:
+            self._write_lane(list(tables.items()))
+            return
+        if self._helper is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._helper = ThreadPoolExecutor(1, thread_name_prefix="slamobs-write")
+        mine, other = _two_lanes(tables)
+        beside = self._helper.submit(self._write_lane, other)
+        try:
+            self._write_lane(mine)
+        finally:
+            error = beside.exception()  # waits: nothing writes into the files after this returns
+        if error is not None:
+            raise error
+
+    def _write_lane(self, tables: list[tuple[str, dict[str, np.ndarray]]]) -> None:
+        for name, columns in tables:
+            self._write_table(name, columns)
+
+    def _write_table(self, name: str, columns: dict[str, np.ndarray]) -> None:
+        """Append one stretch of rows to one table (opened at its first stretch)."""
+        if name not in self.writers:
+            schema = arrow_schema(name)
+            path = self.out_dir / f"{name}.parquet"
+            self.writers[name] = (
+                pq.ParquetWriter(path, schema, store_schema=False, **parquet_options(schema)),
+                schema,
+            )
+        writer, schema = self.writers[name]
+        rows = len(next(iter(columns.values()))) if columns else 0
+        # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element;
+        # a nullable column the estimator has no values for (the observers' uncertainty) is all null
+        arrays = [
+            _arrow_array(self._values(columns[f.name], f), f.type)
+            if f.name in columns or not f.nullable
+            else self._null_column(rows, f.type)
+            for f in schema
+        ]
+        writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
+
+    def _null_column(self, rows: int, kind: pa.DataType) -> pa.Array:
+        """An all-null column, made once per length and type (the observers' 27 uncertainty columns of every
+        stretch share it; Arrow arrays are immutable)."""
+        key = (rows, kind)
+        if key not in self._nulls:
+            self._nulls[key] = pa.nulls(rows, kind)
+        return self._nulls[key]
 
     def _values(self, column: np.ndarray, field: pa.Field) -> np.ndarray:
         meta = field.metadata or {}
@@ -326,13 +370,35 @@ class TableWriter:
             writer.close()
             written.append(self.out_dir / f"{name}.parquet")
         self.writers = {}
+        self._stop_helper()
         return written
 
     def abort(self) -> None:
         """Close the files without metadata (the caller discards the directory)."""
+        self._stop_helper()
         for writer, _ in self.writers.values():
             writer.close()
         self.writers = {}
+
+    def _stop_helper(self) -> None:
+        if self._helper is not None:
+            self._helper.shutdown(wait=True)
+            self._helper = None
+
+
+def _two_lanes(tables: dict[str, dict[str, np.ndarray]]) -> tuple[list, list]:
+    """The tables shared out between two lanes of about equal work (values to write, largest table first)."""
+
+    def work(columns: dict[str, np.ndarray]) -> int:
+        return len(columns) * (len(next(iter(columns.values()))) if columns else 0)
+
+    lanes: tuple[list, list] = ([], [])
+    load = [0, 0]
+    for name, columns in sorted(tables.items(), key=lambda item: -work(item[1])):
+        k = 0 if load[0] <= load[1] else 1
+        lanes[k].append((name, columns))
+        load[k] += work(columns)
+    return lanes
 
 
 #: NumPy dtypes whose contiguous arrays become Arrow arrays over the same memory (:func:`_arrow_array`)

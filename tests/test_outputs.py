@@ -274,3 +274,70 @@ def test_read_columns_equals_read_frame(tmp_path):
     for name in cols:
         assert cols[name].dtype == frame[name].to_numpy().dtype
         np.testing.assert_array_equal(cols[name], frame[name].to_numpy())
+
+
+def test_compiled_rounding_gives_the_bits_of_the_array_code(monkeypatch):
+    """Long columns are rounded by a compiled pass (pipeline.rounding): the same bits as the array code for every
+    kind of value (zeros, subnormals, NaN, ±Inf, values that would round into Inf), both signs, with and without
+    ``finest`` (per value, and the shortcut when no value needs it)."""
+    from slamobs.pipeline import writers
+
+    rng = np.random.default_rng(11)
+    n = 20_000
+    x = rng.normal(size=n) * 10.0 ** rng.integers(-30, 30, size=n)
+    x[::97], x[1::97], x[2::97], x[3::97], x[4::97] = 0.0, -0.0, np.nan, np.inf, -np.inf
+    x[5::97] = 5e-324 * rng.integers(1, 1000, size=x[5::97].size)
+    x[6::97] = np.finfo(np.float64).max * (1 - rng.random(x[6::97].size) * 1e-10)
+    local = rng.normal(size=n) * 3.0  # every step fine enough at the bits: the shortcut
+    for values in (x, -x, local):
+        for bits in (1, 20, 28, 51):
+            for finest in (None, -20, 5):
+                monkeypatch.setattr(writers, "ROUND_KERNEL_ROWS", 1)
+                compiled = writers.round_mantissa(values, bits, finest)
+                monkeypatch.setattr(writers, "ROUND_KERNEL_ROWS", 1 << 62)
+                array = writers.round_mantissa(values, bits, finest)
+                assert np.array_equal(compiled.view(np.uint64), array.view(np.uint64)), (bits, finest)
+                assert compiled is not values
+
+
+def test_tables_written_on_two_lanes_are_the_bytes_of_one(tmp_path, monkeypatch):
+    """TableWriter writes the tables of a stretch on two threads: the files are byte for byte those written one
+    table after the other, and an error on the helper's lane is raised by ``write``."""
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.writers import TableWriter
+
+    rng = np.random.default_rng(2)
+
+    def stretch(n: int, t0: int) -> dict:
+        t = t0 + np.arange(n, dtype=np.int64) * 5_000_000
+        return {
+            "poses": {"t_ns": t, **{c: rng.normal(size=n) for c in ("x", "y", "z", "qx", "qy", "qz", "qw")}},
+            "biases": {"t_ns": t, **{f"{k}_bias_{a}": rng.normal(size=n) for k in ("gyro", "vel") for a in "xyz"}},
+            "innovations": {
+                "t_ns": t[::3],
+                "id": np.arange(t[::3].size, dtype=np.int64) % 7,
+                **{c: rng.normal(size=t[::3].size) for c in ("ex", "ey", "ez", "e_norm")},
+            },
+        }
+
+    stretches = [stretch(3000, 0), stretch(2000, 3000 * 5_000_000)]
+    for lanes in ("two", "one"):
+        if lanes == "one":
+            monkeypatch.setattr(writers, "_two_lanes", lambda tables: (list(tables.items()), []))
+        (tmp_path / lanes).mkdir()
+        sink = TableWriter(tmp_path / lanes, 28)
+        for part in stretches:
+            sink.write(part)
+        sink.close({"run": 1})
+    for name in stretches[0]:
+        assert (tmp_path / "two" / f"{name}.parquet").read_bytes() == (
+            tmp_path / "one" / f"{name}.parquet"
+        ).read_bytes()
+    bad = {**stretches[0], "biases": {"t_ns": stretches[0]["biases"]["t_ns"]}}  # a required column missing
+    monkeypatch.setattr(
+        writers, "_two_lanes", lambda tables: ([("poses", tables["poses"])], [("biases", tables["biases"])])
+    )
+    sink = TableWriter(tmp_path, 28)
+    with pytest.raises(KeyError):
+        sink.write(bad)
+    sink.abort()

@@ -83,3 +83,164 @@ def test_only_estimators_with_noise_levels_estimate_the_recorded_velocity_noise(
     assert calls == []
     assert run.prepare_log(log, RunConfig(), directions=False).velocity_noise is not None
     assert calls == [1]
+
+
+def test_compiled_running_medians_equal_the_array_code(monkeypatch):
+    """The running median of the errors (convergence, the errors figure) from the compiled loop of long logs is
+    the array code's, bit for bit: odd and even window counts, strided windows, repeated values."""
+    from slamobs.pipeline.evaluation import metrics, slam_metrics
+
+    rng = np.random.default_rng(7)
+    n = 50_000
+    t = np.cumsum(rng.integers(5_000_000, 15_000_000, size=n))
+    errors = np.round(np.abs(rng.standard_cauchy(n)), 3)  # ties, and outliers the median ignores
+    found = {}
+    for use in (True, False):
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
+        found[use] = [
+            slam_metrics.error_level(t, errors, fraction, points) for fraction, points in ((0.1, 2000), (0.01, 777))
+        ]
+    counts = set()
+    for (grid_a, level_a), (grid_b, level_b) in zip(found[True], found[False]):
+        assert np.array_equal(grid_a, grid_b) and np.array_equal(level_a, level_b)
+        assert np.ptp(level_a) > 0
+    for fraction in (0.1, 0.01):  # both parities of the window's count occur
+        half = 0.5 * fraction * float(t[-1] - t[0])
+        width = np.searchsorted(t, t + half, side="right") - np.searchsorted(t, t - half, side="left")
+        step = np.maximum(1, width // slam_metrics.WINDOW_SAMPLES)
+        counts |= {int(c) % 2 for c in (width + step - 1) // step}
+    assert counts == {0, 1}
+
+
+def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
+    """The report's compiled 3×3 products of long logs (a rotation times every matrix of a stack; each matrix
+    times another's transpose) are NumPy's ``matmul``: to the last bit where its OpenBLAS rounds with FMA (the
+    project's VM), within an ulp elsewhere."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation.drift import turns
+    from slamobs.pipeline.lie import quats_to_rots
+
+    rng = np.random.default_rng(4)
+    a, b = (quats_to_rots(rng.normal(size=(5000, 4))) for _ in range(2))
+    left = quats_to_rots(rng.normal(size=(1, 4)))[0]
+    monkeypatch.setattr(metrics, "KERNEL_ROWS", 1)
+    got = metrics.rotated(left, a), turns(a, b)
+    monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 << 62)
+    want = metrics.rotated(left, a), turns(a, b)
+    for g, w in zip(got, want):
+        assert g.shape == w.shape == (5000, 3, 3)
+        np.testing.assert_allclose(g, w, rtol=0, atol=4e-16)
+    assert np.allclose(want[1], np.einsum("nij,nkj->nik", a, b))  # what turns computes: a_k b_kᵀ
+
+
+REPORT_SECTIONS = (
+    "ape",
+    "ape_by_alignment",
+    "rpe",
+    "drift",
+    "segment_errors",
+    "time_offset",
+    "landmarks",
+    "biases",
+    "convergence",
+    "uncertainty",
+)
+
+
+@pytest.fixture(scope="module")
+def compiled_and_array_runs(tmp_path_factory):
+    """A sample log run twice: with the report's and the writer's compiled kernels taken at any size (as on a
+    long log), and with the array code only."""
+    from cli_checks import SAMPLES
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.config import EvaluationConfig, RunConfig
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.run import run_log
+
+    config = RunConfig(evaluation=EvaluationConfig(plots=False))
+    runs = {}
+    with pytest.MonkeyPatch.context() as mp:
+        for name, rows in (("compiled", 1), ("array", 1 << 62)):
+            mp.setattr(metrics, "KERNEL_ROWS", rows)
+            mp.setattr(writers, "ROUND_KERNEL_ROWS", rows)
+            runs[name] = tmp_path_factory.mktemp(name) / "run"
+            run_log(SAMPLES / "circle.bag", runs[name], config)
+    return runs
+
+
+def _assert_numbers_close(a, b, where: str = "") -> None:
+    """Equal JSON documents but for floats, which agree to 1e-12 relative."""
+    if isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            _assert_numbers_close(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, list):
+        assert isinstance(b, list) and len(a) == len(b), where
+        for k, (x, y) in enumerate(zip(a, b)):
+            _assert_numbers_close(x, y, f"{where}[{k}]")
+    elif isinstance(a, float) and isinstance(b, float):
+        assert b == pytest.approx(a, rel=1e-12, abs=1e-300), where
+    else:
+        assert a == b, where
+
+
+def test_compiled_paths_give_the_tables_and_report_of_the_array_code(compiled_and_array_runs):
+    """The same Parquet values (the rounding kernel and the two writing lanes) and the same report numbers (the
+    segment, rotation and running-median kernels; 1e-12 relative: BLAS without FMA rounds its products
+    differently) whichever path a log's length selects."""
+    import json
+
+    runs = compiled_and_array_runs
+    for name in ("poses", "biases", "innovations", "landmark_tracks", "landmarks", "poses_aligned"):
+        got, want = (read_columns(runs[k] / f"{name}.parquet") for k in ("compiled", "array"))
+        assert list(got) == list(want), name
+        for column in got:
+            assert np.array_equal(got[column], want[column], equal_nan=True), (name, column)
+    reports = {k: json.loads((runs[k] / "report.json").read_text()) for k in runs}
+    assert reports["compiled"]["segment_errors"]["per_length"][0]["n_segments"] > 100
+    _assert_numbers_close(reports["array"], reports["compiled"])
+
+
+def test_the_runs_report_is_what_slamobs_report_computes_from_its_files(compiled_and_array_runs, monkeypatch):
+    """The report a run writes (computed from its tables as written) is the one ``slamobs report RUN`` computes
+    again from the run directory: every section's numbers, with the long-log kernels as the run had them."""
+    import json
+
+    from slamobs.pipeline import writers
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation import plot_worker
+    from slamobs.pipeline.evaluation.run_dir import report_run
+
+    monkeypatch.setattr(plot_worker, "draw", lambda jobs, path_of: [])  # the numbers only, not the figures
+    run = compiled_and_array_runs["compiled"]
+    before = json.loads((run / "report.json").read_text())
+    monkeypatch.setattr(metrics, "KERNEL_ROWS", 1)
+    monkeypatch.setattr(writers, "ROUND_KERNEL_ROWS", 1)
+    again, _ = report_run(run)
+    assert json.loads((run / "report.json").read_text()) == again  # the files hold what it returned
+    for section in REPORT_SECTIONS:
+        assert again[section] == before[section], section
+    assert again["method"]["association"] == before["method"]["association"]
+
+
+def test_compiled_step_angles_give_the_clock_offset_of_the_array_code(monkeypatch):
+    """The clock-offset search of a long log takes its step angles from a compiled loop: the same offset, to the
+    bit, as the array code (quaternions not of unit length, both signs of w)."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation import sync
+
+    rng = np.random.default_rng(9)
+    n = 30_000
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    yaw = np.cumsum(0.02 * np.sin(0.003 * np.arange(n)) ** 2 + 0.002 * rng.random(n))
+    wobble = 0.1 * np.sin(0.001 * np.arange(n) + rng.random())
+    q = np.stack([wobble, 0.5 * wobble**2 + 0.01, np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)
+    q[::7] *= -1.7
+    pos = np.stack([np.cos(0.001 * np.arange(n)), np.sin(0.001 * np.arange(n)), np.zeros(n)], axis=1)
+    found, steps = {}, {}
+    for use in (True, False):
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
+        found[use] = sync.estimate_time_offset(t, pos, q, t[::2] - 37_000_000, pos[::2], q[::2])
+        steps[use] = sync._step_angles(q)
+    assert np.array_equal(steps[True], steps[False]) and found[True] == found[False]
+    assert found[True].offset_s == pytest.approx(0.037, abs=0.002) and found[True].signal == "angular rate |ω|"

@@ -167,6 +167,41 @@ def test_segment_errors_match_rpg_on_a_generated_trajectory(truth, drifting):
     )
 
 
+def test_compiled_segment_errors_equal_the_array_formulation(truth, drifting, monkeypatch):
+    """The compiled segment search and products (long logs) give the segments and errors of the array code
+    (short ones): the same indices (also where the truth stands still, equal path distances), errors equal to
+    rounding (the same bits where NumPy's BLAS uses FMA, as on the project's VM)."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.evaluation.drift import relative_errors, rpg_segment_ends, turns
+    from slamobs.pipeline.evaluation.rpe import accumulated_distances
+
+    def compiled(use: bool):
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
+
+    still = np.repeat(truth.position, np.where(np.arange(len(truth)) % 50 == 0, 7, 1), axis=0)  # stops
+    for pos in (truth.position, still):
+        dist = accumulated_distances(pos)
+        for length in rpg_lengths(float(dist[-1])) + (0.25, float(dist[-1]) * 0.999):
+            compiled(True)
+            got = rpg_segment_ends(dist, length, 0.2 * length)
+            compiled(False)
+            want = rpg_segment_ends(dist, length, 0.2 * length)
+            assert got[0].size and all(np.array_equal(a, b) for a, b in zip(got, want)), length
+    pos, rots = drifting
+    turn = turns(quats_to_rots(truth.quat_xyzw), rots)
+    i, j = rpg_segment_ends(accumulated_distances(truth.position), 3.0, 0.6)
+    for scale in (1.0, 1 / 1.02):
+        compiled(True)
+        ours = relative_errors(truth.position, pos, turn, i, j, 3.0, scale)
+        compiled(False)
+        theirs = relative_errors(truth.position, pos, turn, i, j, 3.0, scale)
+        for kind in SEGMENT_ERROR_KINDS:
+            # arccos of the trace is ill-conditioned at small angles: an ulp of the trace is ~1e-14 rad there
+            atol = 1e-9 if kind.startswith("rotation") else 0.0
+            np.testing.assert_allclose(ours[kind], theirs[kind], rtol=1e-12, atol=atol, err_msg=kind)
+        assert np.max(ours["translation_m"]) > 0.01  # errors worth comparing: the scale and drift are in them
+
+
 def test_report_segment_errors_section_markdown_and_figure(truth, drifting, tmp_path):
     from slamobs.pipeline.evaluation import plots
     from slamobs.pipeline.evaluation.figure_jobs import SEGMENT_PLOT, segment_plot_jobs

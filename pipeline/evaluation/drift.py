@@ -21,9 +21,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles, statistics
-from slamobs.pipeline.evaluation.rpe import accumulated_distances
+from slamobs.pipeline.evaluation import metrics
+from slamobs.pipeline.evaluation.metrics import RotationRows, fma, relative_angles, statistics
+from slamobs.pipeline.evaluation.rpe import accumulated_distances, equal_runs
+from slamobs.pipeline.kernel_cache import njit
 
 KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 SHORT_PATH_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
@@ -119,18 +120,69 @@ def rpg_lengths(path_length_m: float, fractions: tuple[float, ...] = SHORT_PATH_
 def rpg_segment_ends(dist: np.ndarray, length: float, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
     """Start and end index of every segment: from each pose, the later pose whose path distance is nearest to
     the start's + ``length`` (the first of equals, the shorter on a tie, as rpg's scan), kept within
-    ``max_diff``."""
-    n = dist.shape[0]
+    ``max_diff``. Long paths (``metrics.KERNEL_ROWS`` poses) take a compiled sweep, the same indices."""
+    d = np.ascontiguousarray(dist, dtype=np.float64)
+    if d.shape[0] >= metrics.KERNEL_ROWS:
+        return _segment_ends(d, equal_runs(d), float(length), float(max_diff))
+    n = d.shape[0]
     start = np.arange(n)
-    target = dist + length
-    k = np.searchsorted(dist, target, side="left")  # first with d >= target
-    lo = np.maximum(np.searchsorted(dist, dist[np.maximum(k - 1, 0)], side="left"), start)
+    target = d + length
+    k = np.searchsorted(d, target, side="left")  # first with d >= target
+    lo = np.maximum(np.searchsorted(d, d[np.maximum(k - 1, 0)], side="left"), start)
     hi = np.minimum(k, n - 1)
-    e_lo = np.abs(dist[lo] - target)
-    e_hi = np.where(k < n, np.abs(dist[hi] - target), np.inf)
-    end = np.where(e_hi < e_lo, hi, lo)
+    e_lo = np.abs(d[lo] - target)
+    e_hi = np.where(k < n, np.abs(d[hi] - target), np.inf)
     ok = np.minimum(e_lo, e_hi) < max_diff
-    return start[ok], end[ok]
+    return start[ok], np.where(e_hi < e_lo, hi, lo)[ok]
+
+
+@njit(cache=True)
+def _segment_ends(dist, run_start, length, max_diff):
+    """:func:`rpg_segment_ends` in one sweep: the targets ``dist + length`` never decrease, so the first pose at
+    or past each target (``searchsorted``'s left side) only moves on. Same comparisons, same indices."""
+    n = dist.shape[0]
+    out_i = np.empty(n, dtype=np.int64)
+    out_j = np.empty(n, dtype=np.int64)
+    m = 0
+    k = 0
+    for s in range(n):
+        target = dist[s] + length
+        while k < n and dist[k] < target:  # first k with dist[k] >= target
+            k += 1
+        lo = max(run_start[max(k - 1, 0)], s)  # the first of the poses at dist[k - 1], not before the start
+        e_lo = abs(dist[lo] - target)
+        e_hi = abs(dist[min(k, n - 1)] - target) if k < n else np.inf
+        if min(e_lo, e_hi) < max_diff:
+            out_i[m] = s
+            out_j[m] = min(k, n - 1) if e_hi < e_lo else lo
+            m += 1
+    return out_i[:m], out_j[:m]
+
+
+@njit(cache=True)
+def _segment_products(turn, est_pos, ref_pos, i, j, scale):
+    """Per segment ``r_w = D_jᵀ D_i`` and ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖`` without gathering ``D_i`` and
+    ``D_j`` into stacks first. The sums round as NumPy's stacked ``matmul`` does through OpenBLAS on an FMA CPU
+    (its 3×3 products as :func:`.metrics.fma` says, its matrix-vector ones ``fma(a₂, x₂, fma(a₀, x₀, a₁x₁))``):
+    the same bits as :func:`relative_errors_numpy` there, within an ulp elsewhere."""
+    m = i.shape[0]
+    r_w = np.empty((m, 3, 3))
+    trans = np.empty(m)
+    for s in range(m):
+        a, b = turn[j[s]], turn[i[s]]
+        for r in range(3):
+            for c in range(3):
+                r_w[s, r, c] = fma(a[2, r], b[2, c], fma(a[1, r], b[1, c], a[0, r] * b[0, c]))
+        d0 = est_pos[j[s], 0] - est_pos[i[s], 0]
+        d1 = est_pos[j[s], 1] - est_pos[i[s], 1]
+        d2 = est_pos[j[s], 2] - est_pos[i[s], 2]
+        sq = 0.0
+        for r in range(3):
+            moved = fma(b[r, 2], d2, fma(b[r, 0], d0, b[r, 1] * d1))
+            e = scale * moved - (ref_pos[j[s], r] - ref_pos[i[s], r])
+            sq += e * e
+        trans[s] = np.sqrt(sq)
+    return r_w, trans
 
 
 def yaw_gravity(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -147,11 +199,33 @@ def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, sca
 
     rpg forms ``E = T_m⁻¹ T_c`` (``T_m = Q_i⁻¹ Q_j``, ``T_c = P_i⁻¹ P_j`` with its translation times ``scale``) and
     rotates it into the world by ``R_c`` at ``j``; that rotation is ``D_jᵀ D_i`` with ``D = R_ref R_estᵀ``, the
-    norm of its translation ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖``: one product per segment instead of eight.
+    norm of its translation ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖``: one product per segment instead of eight,
+    in a compiled loop (:func:`_segment_products`) from ``metrics.KERNEL_ROWS`` segments on.
     """
+    if len(i) < metrics.KERNEL_ROWS:
+        return relative_errors_numpy(ref_pos, est_pos, turn, i, j, length, scale)
+    r_w, trans = _segment_products(
+        np.ascontiguousarray(turn, dtype=np.float64),
+        np.ascontiguousarray(est_pos, dtype=np.float64),
+        np.ascontiguousarray(ref_pos, dtype=np.float64),
+        np.ascontiguousarray(i, dtype=np.int64),
+        np.ascontiguousarray(j, dtype=np.int64),
+        float(scale),
+    )
+    return _error_kinds(r_w, trans, length)
+
+
+def relative_errors_numpy(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, scale: float = 1.0) -> dict:
+    """:func:`relative_errors` with NumPy's stacked products (the formulation it replaced; the tests' and
+    ``benchmarks/segment_errors.py``'s reference)."""
     r_w = np.matmul(turn[j].transpose(0, 2, 1), turn[i])
     moved = np.matmul(turn[i], (est_pos[j] - est_pos[i])[:, :, None])[:, :, 0]
-    trans = np.linalg.norm(scale * moved - (ref_pos[j] - ref_pos[i]), axis=1)
+    return _error_kinds(r_w, np.linalg.norm(scale * moved - (ref_pos[j] - ref_pos[i]), axis=1), length)
+
+
+def _error_kinds(r_w: np.ndarray, trans: np.ndarray, length: float) -> dict:
+    """The error arrays of :data:`SEGMENT_ERROR_KINDS` from each segment's world-frame error rotation and
+    translation error."""
     rot = np.degrees(np.arccos(np.clip((np.trace(r_w, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)))
     yaw, gravity = yaw_gravity(r_w)
     return dict(
@@ -167,7 +241,21 @@ def turns(ref_rot, est_rot) -> np.ndarray:
     ref, est = (
         np.asarray(r[np.arange(len(r))] if isinstance(r, RotationRows) else r, np.float64) for r in (ref_rot, est_rot)
     )
-    return np.matmul(ref, est.transpose(0, 2, 1))
+    if ref.shape[0] < metrics.KERNEL_ROWS:
+        return np.matmul(ref, est.transpose(0, 2, 1))
+    out = np.empty_like(ref)
+    _turn_products(np.ascontiguousarray(ref), np.ascontiguousarray(est), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _turn_products(ref, est, out):  # pragma: no cover - compiled
+    """``out_k = ref_k est_kᵀ``, rounded as ``np.matmul`` (:func:`.metrics.fma`)."""
+    for s in range(ref.shape[0]):
+        for r in range(3):
+            for c in range(3):
+                first = ref[s, r, 0] * est[s, c, 0]
+                out[s, r, c] = fma(ref[s, r, 2], est[s, c, 2], fma(ref[s, r, 1], est[s, c, 1], first))
 
 
 def segment_errors(

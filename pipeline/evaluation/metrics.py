@@ -16,6 +16,9 @@ import numpy as np
 from slamobs.pipeline.blocks import blockwise
 from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
+from numba.core import types
+from numba.extending import intrinsic
+
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import quats_to_rots
 
@@ -151,19 +154,21 @@ def quat_angles(q: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]), np.abs(q[:, 3]))
 
 
-#: Rotation-angle blocks at least this long use the compiled :func:`_relative_quats` (a long log's blocks are
-#: 65 536 rows; a 3-minute log's pairs fewer).
-ANGLE_KERNEL_ROWS = 32_768
+#: Arrays at least this long take the report's compiled kernels (:func:`_relative_quats` for rotation-angle
+#: blocks, the rotation products, the segment errors, the running medians, the clock offset's step angles; a
+#: long log's blocks are 65 536 rows); shorter ones the array code, whose numbers are the same: a kernel's first
+#: compilation (~1 s) would cost a short log's first run more than it saves (a 3-minute log's 36 000 poses at
+#: 200 Hz compile none of them).
+KERNEL_ROWS = 65_536
 
 
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`matrix_quats`); ``arccos`` of
     the trace would lose ~1e-8 rad at small angles. The products that are orthogonal to 1e-12 (all but
     rotations read from files with few digits) take :func:`_relative_quats`, the others :func:`matrix_quats`;
-    the numbers are the same, bit for bit. Fewer than ``ANGLE_KERNEL_ROWS`` rows take the array code: the
-    kernel's first compilation (~1 s) would cost a short log's first run more than it saves."""
+    the numbers are the same, bit for bit. Fewer than ``KERNEL_ROWS`` rows take the array code."""
     a, b = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
-    if a.shape[0] < ANGLE_KERNEL_ROWS:
+    if a.shape[0] < KERNEL_ROWS:
         return quat_angles(matrix_quats(_products(a, b)))
     q = np.empty((a.shape[0], 4))
     bad = np.zeros(a.shape[0], dtype=np.bool_)
@@ -223,6 +228,39 @@ def _relative_quats(a, b, q, bad):  # pragma: no cover - compiled
             q[n, k] = t[k] / norm
 
 
+@intrinsic
+def fma(typingctx, a, b, c):
+    """``a * b + c`` rounded once (LLVM's ``llvm.fma``), for kernels that round their 3×3 products as NumPy's
+    stacked ``matmul`` does through OpenBLAS on an FMA CPU: ``fma(a₂, b₂, fma(a₁, b₁, a₀ b₀))`` per entry (every
+    3×3 product form the report uses, measured against NumPy 2.4's OpenBLAS 0.3.31, Haswell kernels)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        return builder.fma(*args)
+
+    return sig, codegen
+
+
+@njit(cache=True, nogil=True)
+def _left_products(left, m, out):  # pragma: no cover - compiled
+    """``out_k = left @ m_k`` with :func:`fma`'s rounding."""
+    for s in range(m.shape[0]):
+        for r in range(3):
+            for c in range(3):
+                out[s, r, c] = fma(left[r, 2], m[s, 2, c], fma(left[r, 1], m[s, 1, c], left[r, 0] * m[s, 0, c]))
+
+
+def rotated(left: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``left @ m_k`` for each of the ``(N, 3, 3)`` matrices ``m``: ``np.matmul``, from ``KERNEL_ROWS`` rows on a
+    compiled loop with its rounding (:func:`fma`; NumPy calls BLAS once per 3×3 matrix, ~1 µs each)."""
+    m = np.ascontiguousarray(m, dtype=np.float64)
+    if m.ndim != 3 or m.shape[0] < KERNEL_ROWS:
+        return np.matmul(left, m)
+    out = np.empty_like(m)
+    _left_products(np.ascontiguousarray(left, dtype=np.float64), m, out)
+    return out
+
+
 class RotationRows:
     """Rotation matrices of N poses, built for the rows asked for: ``left @ R_k`` with ``R_k`` from the
     quaternions ``(x, y, z, w)`` (or the matrices as given). An hour of pairs as ``(N, 3, 3)`` is ~26 MB per
@@ -253,7 +291,7 @@ class RotationRows:
             r = r[None]
         m = quats_to_rots(np.ascontiguousarray(r)) if r.ndim == 2 else np.ascontiguousarray(r)
         if self.left is not None:
-            m = np.matmul(self.left, m)
+            m = rotated(self.left, m)
         return m[0] if single else m
 
     def __array__(self, dtype=None, copy=None) -> np.ndarray:

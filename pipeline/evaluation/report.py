@@ -34,6 +34,7 @@ from slamobs.pipeline.evaluation.figure_jobs import (
     uncertainty_plot_jobs,
 )
 from slamobs.pipeline.evaluation.markdown import render_markdown
+from slamobs.pipeline.evaluation.metrics import rotated
 from slamobs.pipeline.evaluation.sections import (
     EVO_ALIGN_FLAGS,
     ApeByAlignmentSection,
@@ -360,7 +361,7 @@ def write_aligned_tables(
         est = ev.estimate
         for rows in row_blocks(len(est)):
             pos = al.positions(np.asarray(est.position[rows], dtype=np.float64))
-            rot = al.rotations(quats_to_rots(np.ascontiguousarray(est.quat_xyzw[rows], dtype=np.float64)))
+            rot = rotated(al.rot, quats_to_rots(np.ascontiguousarray(est.quat_xyzw[rows], dtype=np.float64)))
             q = rots_to_quats(np.ascontiguousarray(rot))
             sink.write(
                 {

@@ -81,16 +81,20 @@ def accumulated_distances(pos: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(p[1:] - p[:-1], axis=1))])
 
 
+def equal_runs(d: np.ndarray) -> np.ndarray:
+    """For each index of the non-decreasing ``d``, the first index holding the same value."""
+    if not d.shape[0]:
+        return np.zeros(0, dtype=np.int64)
+    new_run = np.concatenate([[True], d[1:] != d[:-1]])
+    return np.maximum.accumulate(np.where(new_run, np.arange(d.shape[0]), 0))
+
+
 def pairs_by_path(pos: np.ndarray, delta: float, tol: float = 0.0, all_pairs: bool = False):
     """Pairs whose travelled path is ``delta`` metres (consecutive: reaching ``delta`` closes a pair)."""
     p = np.asarray(pos, dtype=np.float64)
     if all_pairs:
         d = accumulated_distances(p)
-        run_start = np.zeros(d.shape[0], dtype=np.int64)
-        if d.shape[0]:
-            new_run = np.concatenate([[True], d[1:] != d[:-1]])
-            run_start = np.maximum.accumulate(np.where(new_run, np.arange(d.shape[0]), 0))
-        return _all_pairs_by_path(d, run_start, float(delta), float(tol))
+        return _all_pairs_by_path(d, equal_runs(d), float(delta), float(tol))
     steps = np.linalg.norm(p[1:] - p[:-1], axis=1) if p.shape[0] > 1 else np.empty(0)
     ids = _consecutive_by_accumulation(steps, float(delta))
     return ids[:-1], ids[1:]

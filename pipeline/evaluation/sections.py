@@ -192,7 +192,8 @@ def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.
         for kind, al in fits.items():
             pos = al.positions(est_pos)
             out[kind][0][rows] = metrics.ape_errors("trans_part", ref_pos, None, pos, None)
-            out[kind][1][rows] = metrics.ape_errors("angle_deg", ref_pos, ref_rot, pos, np.matmul(al.rot, est_rot))
+            turned = metrics.rotated(al.rot, est_rot)
+            out[kind][1][rows] = metrics.ape_errors("angle_deg", ref_pos, ref_rot, pos, turned)
     return out
 
 

@@ -172,8 +172,15 @@ class TimeOffset:
 
 
 def _step_angles(q: np.ndarray) -> np.ndarray:
-    """Rotation angle between consecutive (x, y, z, w) quaternions: 2 atan2(|v|, |w|) of q_k⁻¹ q_{k+1}."""
+    """Rotation angle between consecutive (x, y, z, w) quaternions: 2 atan2(|v|, |w|) of q_k⁻¹ q_{k+1}. From
+    ``metrics.KERNEL_ROWS`` quaternions on, ``|v|`` and ``|w|`` come from a compiled loop (the same operations
+    in the same order: the same bits; ``atan2`` stays NumPy's)."""
+    from slamobs.pipeline.evaluation import metrics  # its threshold (metrics imports this module)
+
     q = np.asarray(q, dtype=np.float64)
+    if q.shape[0] >= metrics.KERNEL_ROWS:
+        v, w = _step_parts(np.ascontiguousarray(q))
+        return 2.0 * np.arctan2(v, w)
     a, b = q[:-1], q[1:]
     norm = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
     nn = norm[:-1] * norm[1:]
@@ -185,6 +192,30 @@ def _step_angles(q: np.ndarray) -> np.ndarray:
     y = (a3 * b1 + a0 * b2 - a1 * b3 - a2 * b0) / nn
     z = (a3 * b2 - a0 * b1 + a1 * b0 - a2 * b3) / nn
     return 2.0 * np.arctan2(np.sqrt(x * x + y * y + z * z), np.abs(w))
+
+
+@njit(cache=True, nogil=True)
+def _step_parts(q):  # pragma: no cover - compiled
+    """``|v|`` and ``|w|`` of ``q_k⁻¹ q_{k+1}`` (each normalised), as :func:`_step_angles`' array code has them."""
+    n = q.shape[0] - 1
+    v = np.empty(max(n, 0))
+    w = np.empty(max(n, 0))
+    if n < 1:
+        return v, w
+    norm_a = np.sqrt(q[0, 0] * q[0, 0] + q[0, 1] * q[0, 1] + q[0, 2] * q[0, 2] + q[0, 3] * q[0, 3])
+    for k in range(n):
+        a0, a1, a2, a3 = q[k, 0], q[k, 1], q[k, 2], q[k, 3]
+        b0, b1, b2, b3 = q[k + 1, 0], q[k + 1, 1], q[k + 1, 2], q[k + 1, 3]
+        norm_b = np.sqrt(b0 * b0 + b1 * b1 + b2 * b2 + b3 * b3)
+        nn = norm_a * norm_b
+        ww = (a3 * b3 + a0 * b0 + a1 * b1 + a2 * b2) / nn
+        x = (a3 * b0 - a0 * b3 - a1 * b2 + a2 * b1) / nn
+        y = (a3 * b1 + a0 * b2 - a1 * b3 - a2 * b0) / nn
+        z = (a3 * b2 - a0 * b1 + a1 * b0 - a2 * b3) / nn
+        v[k] = np.sqrt(x * x + y * y + z * z)
+        w[k] = abs(ww)
+        norm_a = norm_b
+    return v, w
 
 
 def _rate_on_grid(
