@@ -123,6 +123,8 @@ class Result:
     noise: str = ""
     levels: dict = field(default_factory=dict)
     error: str = ""
+    #: run.json's observer.smoother (batch's record of its solve), {} for the others
+    smoother: dict = field(default_factory=dict)
 
     @property
     def score(self) -> float:
@@ -173,6 +175,7 @@ def run_one(log: Log, estimator: str, out: Path, noise: dict | None = None) -> R
     noise_used = _noise(meta)
     res.noise = _noise_text(noise_used)
     res.levels = {k: noise_used[k] for k in MOTION_KEYS + DETECTION_KEYS if k in noise_used}
+    res.smoother = (meta.get("observer") or {}).get("smoother") or {}
     report_path = out / "report.json"
     report = json.loads(report_path.read_text()) if report_path.is_file() else {}
     by = report.get("ape_by_alignment") or {}

@@ -93,6 +93,8 @@ class NoiseSettings:
     uncertainty: dict[str, object] = field(default_factory=dict)
     #: what was estimated, rejected or could not be told, in words
     notes: tuple[str, ...] = ()
+    #: keys estimated from the detections because their stream holds its values (commanded velocities)
+    held: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -292,6 +294,9 @@ def resolve_noise(
         methods=methods,
         uncertainty=uncertainty,
         notes=tuple(notes),
+        held=tuple(
+            k for k in (estimated.held if estimated is not None and cfg.auto else ()) if sources[k] == "estimated"
+        ),
     )
 
 

@@ -17,6 +17,9 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
+from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
+from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
+from slamobs.pipeline.smoother.evidence import PASSES as EVIDENCE_PASSES
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -129,6 +132,7 @@ class BatchSmoother(Stepper):
         chosen, robust, seed_s = first, None, seed.seconds
         if (reason := cands.doubt(full, first)) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
+        chosen, evidence, evidence_notes = self._evidence(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
@@ -150,6 +154,7 @@ class BatchSmoother(Stepper):
         summary, seconds = self._summary(sol, chosen.seed.name, stats)
         if robust is not None:
             summary["robust"] = robust[0]
+        summary["noise_scale"] = evidence
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -157,7 +162,7 @@ class BatchSmoother(Stepper):
             "noise": self.noise.as_dict(),
             "time_offset": self.time_offset,
         }
-        self.stats["notes"] = ([robust[1]] if robust is not None else []) + list(chosen.notes or [])
+        self.stats["notes"] = ([robust[1]] if robust is not None else []) + evidence_notes + list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
@@ -261,7 +266,6 @@ class BatchSmoother(Stepper):
         """The factor graph's data: the odometry preintegrated between keyframes about the seed's (or the fixed)
         bias, intervals across a gap left (almost) unconstrained, the detections, the bias priors and walk."""
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.preintegration import D_END, D_W, preintegrate, whitening
 
         s, st, nz = self.stream, self.settings, self.noise
         k = kf_t.shape[0]
@@ -270,13 +274,7 @@ class BatchSmoother(Stepper):
             walk = np.sqrt(st.segment_s) * np.r_[np.full(3, nz.gyro_bias_walk), np.full(3, nz.velocity_bias_walk)]
             walk = np.maximum(walk, 1e-12)
         b_bar = seed.bias.copy() if self.fixed_bias is None else np.asarray(self.fixed_bias, float)
-        data = np.zeros((k - 1, D_END))
-        cov = np.zeros((k - 1, 6, 6))
-        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro**2, nz.velocity**2, data, cov)
-        for lo, hi in gaps if gaps is not None else ():  # intervals across a gap: (almost) no constraint
-            across = (kf_t[:-1] < hi) & (kf_t[1:] > lo)
-            cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
-        data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
+        data = self._motion_data(kf_t, gaps, b_bar, nz)
         if self.fixed_bias is None:
             prior_mean, prior = np.zeros(6), np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
         else:  # the reference of the tests: biases known
@@ -295,6 +293,101 @@ class BatchSmoother(Stepper):
             huber=st.huber,
             anchor=k - 1,
         )
+
+    def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
+        """The relative-motion factors' data: the odometry preintegrated between keyframes about ``b_bar`` with
+        the levels of ``nz``, intervals across a gap left (almost) unconstrained."""
+        from slamobs.pipeline.smoother.preintegration import D_END, D_W, preintegrate, whitening
+
+        s, k = self.stream, kf_t.shape[0]
+        data = np.zeros((k - 1, D_END))
+        cov = np.zeros((k - 1, 6, 6))
+        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro**2, nz.velocity**2, data, cov)
+        for lo, hi in gaps if gaps is not None else ():  # intervals across a gap: (almost) no constraint
+            across = (kf_t[:-1] < hi) & (kf_t[1:] > lo)
+            cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
+        data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
+        return data
+
+    def _evidence_skipped(self, key: str) -> str | None:
+        """Why the scale of the level ``key`` is not chosen by the evidence here, or None."""
+        mode, nz = self.settings.noise_evidence, self.noise
+        if mode == "off":
+            return "batch.noise_evidence is off"
+        if nz.sources.get(key) == "config":
+            return f"noise: {key} is set in the configuration"
+        if self.fixed_bias is not None:
+            return "the biases are fixed (a reference run)"
+        if mode == "held" and key not in nz.held:
+            return f"the {key} level is measured from its samples (batch.noise_evidence: held)"
+        return None
+
+    def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
+        """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
+        while one moves: they trade off, up to ``EVIDENCE_PASSES``) chosen by the evidence: the candidate kept,
+        the record per key (its last scan), the notes."""
+        n_kf = keyframes[0].shape[0]
+        if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
+            why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
+            return (
+                chosen,
+                {k: {"skipped": why} for k in EVIDENCE_KEYS},
+                [f"batch: noise levels not chosen by the evidence: {why}"],
+            )
+        records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
+        for _ in range(EVIDENCE_PASSES):
+            moved = False
+            for key in EVIDENCE_KEYS:
+                if (why := self._evidence_skipped(key)) is not None:
+                    records[key] = {"skipped": why}
+                    continue
+                chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
+                notes.append(note)
+                total[key] *= records[key]["winner"]
+                records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
+                moved |= records[key]["winner"] != 1.0
+            if not moved:
+                break
+        return chosen, records, notes
+
+    def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):
+        """The scale of the level ``key`` with the highest evidence (:mod:`pipeline.smoother.evidence`), searched
+        from the chosen solution on its detections; when a scale other than 1 wins, the noise is scaled and the
+        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note."""
+        from slamobs.pipeline.smoother import evidence as ev
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.candidates import Candidate
+
+        kf_t, kf_of_det, gaps = keyframes
+        base, st = chosen.problem, self.settings
+        sols, scores = {1.0: chosen.sol}, {1.0: ev.log_evidence(base, chosen.sol)}
+        for direction in ev.search_order():
+            prev = 1.0
+            for scale in direction:
+                nz = _scaled(self.noise, key, scale)
+                problem = replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, nz))
+                guess = g.Guess(sols[prev].rot, sols[prev].pos, sols[prev].landmarks, sols[prev].bias)
+                sols[scale] = g.solve(
+                    problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance
+                )
+                scores[scale] = ev.log_evidence(problem, sols[scale])
+                if not ev.better(scores[scale], scores[prev]):
+                    break
+                prev = scale
+            if prev != 1.0:  # the evidence rose downwards: no need to look upwards
+                break
+        winner = ev.best_scale(scores)
+        record, note = ev.record(key, getattr(self.noise, key), scores, winner)
+        if winner == 1.0:
+            return chosen, record, note
+        self.noise = _scaled(self.noise, key, winner, say=True)
+        full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
+        w = sols[winner]
+        solved, sol, notes = self._solve_gated(
+            full, g.Guess(w.rot, w.pos, w.landmarks, w.bias), chosen.seed.name, progress
+        )
+        sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
+        return Candidate(chosen.seed, solved, sol, notes), record, note
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
@@ -418,6 +511,16 @@ class BatchSmoother(Stepper):
             self.state.r_hat[:], self.state.p_hat[:] = out.r[n - 1], out.p[n - 1]
         ns[_IV], ns[_JF] = iv_stop, jf_stop
         return n
+
+
+def _scaled(noise, key: str, scale: float, say: bool = False):
+    """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so)."""
+    if not say:
+        return replace(noise, **{key: getattr(noise, key) * scale})
+    methods = dict(noise.methods)
+    was = methods.get(key) or noise.sources.get(key, "default")
+    methods[key] = f"{was}; scaled by {scale:g} by the smoother's evidence"
+    return replace(noise, **{key: getattr(noise, key) * scale}, methods=methods)
 
 
 SPEC = ObserverSpec(

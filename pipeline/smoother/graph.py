@@ -288,6 +288,25 @@ def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple
     return pose, landmarks
 
 
+def evidence_terms(problem: Problem, sol: Solution) -> tuple[float, float] | None:
+    """The two terms of the Laplace approximation of the evidence that need the solver: the objective ``F`` at the
+    solution (half the whitened squares, Huber-robust) and ``log det H`` of the undamped Gauss–Newton normal
+    matrix there, ``2 Σ log diag`` of the poses' Cholesky blocks plus the border's Schur complement's log
+    determinant (None: not positive definite)."""
+    ne = _Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
+    pt = tuple(np.ascontiguousarray(a, float) for a in (sol.rot, sol.pos, sol.landmarks, sol.bias))
+    error = ne.error(pt)
+    ne.linearize(pt)
+    f = ne.factor(0.0)
+    if f is None:
+        return None
+    sign, border = np.linalg.slogdet(f[0])
+    if sign <= 0:
+        return None
+    chain = 2.0 * float(np.sum(np.log(np.diagonal(ne.dd, axis1=1, axis2=2))))
+    return error, chain + float(border)
+
+
 def merge_summaries(first: dict, second: dict) -> dict:
     """The summary of a solve continued by a second one (after gating): counts added, errors joined."""
     out = dict(second)

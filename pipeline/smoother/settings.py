@@ -8,6 +8,9 @@ from slamobs.pipeline.errors import GainError
 
 DEAD_RECKONING = "dead-reckoning"
 BIAS_MODELS = ("constant", "random-walk")
+#: when the motion levels' scales are chosen by the smoother's evidence (pipeline.smoother.evidence): never, only
+#: for a stream that holds its values (its level comes from the detections and is uncertain), or always
+EVIDENCE_MODES = ("off", "held", "always")
 
 
 @dataclass(frozen=True)
@@ -26,6 +29,9 @@ class BatchSettings:
     keyframe_dt: float = 0.2
     max_iterations: int = 50
     relative_tolerance: float = 1e-5
+    #: when the velocity and gyro levels' scales are chosen by the evidence (one of ``EVIDENCE_MODES``); a
+    #: ``noise: velocity`` or ``gyro`` key set in run.yaml is used as given
+    noise_evidence: str = "off"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -38,4 +44,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
         raise GainError(f"batch.seed '{settings.seed}' is not an observer (choose from {', '.join(names)})")
     if settings.bias not in BIAS_MODELS:
         raise GainError(f"batch.bias must be one of {', '.join(BIAS_MODELS)}, got {settings.bias!r}")
+    if settings.noise_evidence not in EVIDENCE_MODES:
+        modes = ", ".join(EVIDENCE_MODES)
+        raise GainError(f"batch.noise_evidence must be one of {modes}, got {settings.noise_evidence!r}")
     return settings

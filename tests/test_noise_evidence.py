@@ -1,0 +1,111 @@
+"""batch chooses the velocity noise level's scale by its evidence (issue 23; pipeline/smoother/evidence.py): the
+Laplace approximation of the marginal likelihood, no truth read. On a generated log with white velocity noise
+the evidence must pick the true level, or the neighbouring scale, whichever level the run starts from."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.noise import NoiseConfig, resolve_noise
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
+from slamobs.pipeline.smoother.evidence import SCALES
+from slamobs.pipeline.smoother.settings import BatchSettings
+
+#: velocity and gyro noise of the generated log, times the defaults: large enough that their levels matter
+VELOCITY_FACTOR, GYRO_FACTOR = 10.0, 30.0
+
+
+@pytest.fixture(scope="module")
+def log():
+    nm = replace(
+        NoiseModel(), odom_linear=VELOCITY_FACTOR * NoiseModel().odom_linear, gyro=GYRO_FACTOR * NoiseModel().gyro
+    )
+    sim = simulate("figure8", duration=20.0, seed=1, noise=nm)
+    stream = align(expected_streams(sim), keep_directions=False)
+    truth = resolve_noise(
+        NoiseConfig(
+            gyro=nm.gyro * np.sqrt(1 / 200),
+            velocity=nm.odom_linear * np.sqrt(1 / 50),
+            detection=nm.detection_base,
+            detection_per_m=nm.detection_per_m,
+            detection_per_m2=nm.detection_per_m2,
+        )
+    )
+    return stream, truth
+
+
+def smoother(stream, noise, mode: str = "always"):
+    from slamobs.pipeline.smoother.estimator import BatchSmoother
+
+    s = BatchSmoother(stream, {}, ObserverOptions(), settings=BatchSettings(noise_evidence=mode), noise=noise)
+    s.solve()
+    return s
+
+
+def neighbours(scale: float) -> set[float]:
+    """The grid's scales nearest to ``scale`` (in log) and the one on either side."""
+    grid = sorted(SCALES)
+    i = int(np.argmin(np.abs(np.log(np.array(grid)) - np.log(scale))))
+    return set(grid[max(i - 1, 0) : i + 2])
+
+
+@pytest.mark.parametrize("start", [1.0, 3.0, 0.3])
+def test_the_evidence_finds_the_true_velocity_level(log, start):
+    """Started from the true level, or 3x above or below it, the kept scale brings the level back to the truth
+    (or the grid's neighbouring scale); run.json states every tried scale's log evidence and the winner."""
+    stream, truth = log
+    noise = replace(truth, velocity=truth.velocity * start, sources={**truth.sources, "velocity": "estimated"})
+    s = smoother(stream, noise)
+    record = s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]
+    assert min(neighbours(1.0 / start)) <= record["scale"] <= max(neighbours(1.0 / start)), record
+    tried = record["log_evidence"]
+    assert len(tried) >= 2 and f"{record['winner']:g}" in tried, record
+    assert tried[f"{record['winner']:g}"] == max(tried.values()), record
+    used = np.asarray(s.stats["metadata"]["noise"]["velocity"])
+    np.testing.assert_allclose(used, truth.velocity * start * record["scale"])
+    assert any("chosen by the evidence" in n for n in s.stats["notes"]), s.stats["notes"]
+
+
+def test_a_configured_velocity_level_is_used_as_given(log):
+    """A ``noise: velocity`` key set by the user turns the choice off for it, and the record says why."""
+    stream, truth = log
+    s = smoother(stream, replace(truth, velocity=3.0 * truth.velocity))
+    record = s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]
+    assert "configuration" in record["skipped"], record
+    np.testing.assert_allclose(s.stats["metadata"]["noise"]["velocity"], 3.0 * truth.velocity)
+
+
+def test_held_mode_leaves_measured_streams_alone(log):
+    """``held`` chooses only for a velocity stream that holds its values; a measured one keeps its level."""
+    stream, truth = log
+    noise = replace(truth, velocity=3.0 * truth.velocity, sources={**truth.sources, "velocity": "estimated"})
+    record = smoother(stream, noise, "held").stats["metadata"]["smoother"]["noise_scale"]["velocity"]
+    assert "measured from its samples" in record["skipped"], record
+
+
+def test_gyro_and_velocity_wrong_in_opposite_directions_are_both_found(log):
+    """The gyro 3x too low and the velocity 3x too high trade off (one pass over the keys leaves the velocity
+    where it was); the passes bring both back to the truth or the grid's neighbouring scale."""
+    stream, truth = log
+    sources = {**truth.sources, "velocity": "estimated", "gyro": "estimated"}
+    noise = replace(truth, velocity=3.0 * truth.velocity, gyro=truth.gyro / 3.0, sources=sources)
+    record = smoother(stream, noise).stats["metadata"]["smoother"]["noise_scale"]
+    assert 0.1 <= record["velocity"]["scale"] < 1.0 < record["gyro"]["scale"] <= 10.0, record
+
+
+def test_a_long_log_skips_the_choice_and_says_so(log, monkeypatch):
+    """Above ``evidence.MAX_KEYFRAMES`` each scale would cost a solve of a long log: skipped, with a note."""
+    from slamobs.pipeline.smoother import estimator
+
+    stream, truth = log
+    monkeypatch.setattr(estimator, "EVIDENCE_MAX_KEYFRAMES", 100)
+    noise = replace(truth, velocity=3.0 * truth.velocity, sources={**truth.sources, "velocity": "estimated"})
+    s = smoother(stream, noise)
+    assert "keyframes" in s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]["skipped"]
+    assert any("not chosen by the evidence" in n for n in s.stats["notes"]), s.stats["notes"]
+    np.testing.assert_allclose(s.stats["metadata"]["noise"]["velocity"], 3.0 * truth.velocity)
