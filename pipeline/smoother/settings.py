@@ -31,7 +31,7 @@ class BatchSettings:
     relative_tolerance: float = 1e-5
     #: when the velocity and gyro levels' scales are chosen by the evidence (one of ``EVIDENCE_MODES``); a
     #: ``noise: velocity`` or ``gyro`` key set in run.yaml is used as given
-    noise_evidence: str = "off"
+    noise_evidence: str = "always"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
