@@ -237,7 +237,7 @@ def stop(helper: CompileAhead | None) -> None:
 def _compile(lines) -> None:
     """The helper's work: compile each ``module:function:types`` line into the kernel cache as it arrives,
     saying so after each."""
-    from numba import njit
+    from slamobs.pipeline.kernel_cache import njit
 
     njit(lambda: 0)()  # numba's compiler starts up (~0.4 s) while the run reads its configuration
     for line in lines:
