@@ -82,13 +82,7 @@ def concat(batches: Sequence[RawBatch]) -> RawBatch:
     if len(batches) == 1:
         return batches[0]
     shifts = np.cumsum([0, *(b.data.shape[0] for b in batches[:-1])])
-    return RawBatch(
-        np.concatenate([b.data for b in batches]),
-        np.concatenate([b.conn for b in batches]),
-        np.concatenate([b.rec_ns for b in batches]),
-        np.concatenate([b.start + s for b, s in zip(batches, shifts, strict=True)]),
-        np.concatenate([b.size for b in batches]),
-    )
+    return placed(np.concatenate([b.data for b in batches]), batches, shifts)
 
 
 def placed(data: np.ndarray, batches: Sequence[RawBatch], at: Sequence[int]) -> RawBatch:
