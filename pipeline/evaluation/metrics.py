@@ -12,13 +12,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba.core import types
+from numba.extending import intrinsic
 
 from slamobs.pipeline.blocks import blockwise
 from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
-from numba.core import types
-from numba.extending import intrinsic
-
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import quats_to_rots
 
