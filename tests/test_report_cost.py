@@ -112,6 +112,26 @@ def test_compiled_running_medians_equal_the_array_code(monkeypatch):
     assert counts == {0, 1}
 
 
+def test_compiled_row_norms_equal_numpy_norm(monkeypatch):
+    """The report's row norms of long arrays (APE, RPE, path lengths, the truth check) are ``np.linalg.norm(x -
+    y, axis=1)`` bit for bit: three and four columns, tiny to overflowing magnitudes, zeros, inf and NaN."""
+    from slamobs.pipeline.evaluation import metrics
+
+    rng = np.random.default_rng(11)
+    for cols in (3, 4):
+        x = rng.normal(size=(4000, cols)) * 10.0 ** rng.integers(-160, 160, size=(4000, 1))
+        y = rng.normal(size=(4000, cols)) * np.abs(x).max(axis=1, keepdims=True)
+        x[0], x[1], x[2, 0], x[3, 1] = 0.0, -0.0, np.inf, np.nan
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1)
+        got = metrics.row_norms(x), metrics.row_norms(x, y), metrics.row_norms(x[1:], x[:-1])
+        want = np.linalg.norm(x, axis=1), np.linalg.norm(x - y, axis=1), np.linalg.norm(np.diff(x, axis=0), axis=1)
+        for g, w in zip(got, want):
+            assert g.tobytes() == w.tobytes()
+        assert np.isinf(got[0]).any() and np.isnan(got[0]).any() and (got[0] == 0).any()
+        monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 << 62)
+        assert metrics.row_norms(x, y).tobytes() == want[1].tobytes()
+
+
 def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
     """The report's compiled 3×3 products of long logs (a rotation times every matrix of a stack; each matrix
     times another's transpose) are NumPy's ``matmul``: to the last bit where its OpenBLAS rounds with FMA (the

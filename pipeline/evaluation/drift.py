@@ -74,7 +74,7 @@ def segment_drift(
         q_t = np.einsum("nji,nj->ni", rr_i, rp[j] - rp[i])
         p_t = np.einsum("nji,nj->ni", er_i, ep[j] - ep[i])
         # E = P⁻¹ Q: R_E = R_Pᵀ R_Q, t_E = R_Pᵀ (t_Q − t_P)
-        t_err = np.linalg.norm(np.einsum("nji,nj->ni", p_rot, q_t - p_t), axis=1) / length
+        t_err = metrics.row_norms(np.einsum("nji,nj->ni", p_rot, q_t - p_t)) / length
         r_err = np.degrees(relative_angles(p_rot, q_rot)) / length
         all_t.append(t_err)
         all_r.append(r_err)

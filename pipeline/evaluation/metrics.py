@@ -9,6 +9,7 @@ relation, statistics).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,13 +40,37 @@ __all__ = [
 ]
 
 
+def row_norms(x: np.ndarray, minus: np.ndarray | None = None) -> np.ndarray:
+    """``np.linalg.norm(x - minus, axis=1)`` (``x`` alone without ``minus``) of (N, k) rows: from ``KERNEL_ROWS``
+    rows on a compiled loop with the same operations in the same order (each difference, its square, the squares
+    summed left to right as NumPy's reduction of a short axis does, one ``sqrt``): the same bits, without NumPy's
+    temporaries and its slow reduction along a short axis (~1 ms per 100 k rows)."""
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 2 or x.shape[0] < KERNEL_ROWS:
+        return np.linalg.norm(x if minus is None else x - minus, axis=1)
+    out = np.empty(x.shape[0])
+    _row_norms(np.ascontiguousarray(x), None if minus is None else np.ascontiguousarray(minus, dtype=np.float64), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _row_norms(x, minus, out):  # pragma: no cover - compiled
+    """:func:`row_norms` into ``out``."""
+    for n in range(x.shape[0]):
+        s = 0.0
+        for c in range(x.shape[1]):
+            d = x[n, c] if minus is None else x[n, c] - minus[n, c]
+            s += d * d
+        out[n] = math.sqrt(s)
+
+
 def ape_translation(ref_pos: np.ndarray, est_pos: np.ndarray) -> np.ndarray:
     """Per-pair ``‖p_est − p_ref‖`` (evo APE, translation part), metres."""
     ref = np.asarray(ref_pos, dtype=np.float64)
     est = np.asarray(est_pos, dtype=np.float64)
     if ref.shape != est.shape or ref.ndim != 2 or ref.shape[1] != 3:
         raise ValueError(f"ape_translation: expected two (N, 3) arrays, got {ref.shape} and {est.shape}")
-    return np.linalg.norm(est - ref, axis=1)
+    return row_norms(est, ref)
 
 
 #: evo ``-r`` choices -> (evo's PoseRelation text used in titles, unit of the error)
@@ -321,7 +346,7 @@ def ape_rotation_deg(ref_R: np.ndarray, est_R: np.ndarray) -> np.ndarray:
 def _error_pose_norms(relation: str, r_a: np.ndarray, r_b: np.ndarray, t_err: np.ndarray) -> np.ndarray:
     """Error of the pose E with ``R_E = R_aᵀ R_b`` and translation ``t_E = t_err`` under ``relation``."""
     if relation in ("trans_part", "point_distance"):
-        return np.linalg.norm(t_err, axis=1)
+        return row_norms(t_err)
     if relation in ("angle_deg", "angle_rad"):
         ang = relative_angles(r_a, r_b)
         return np.degrees(ang) if relation == "angle_deg" else ang
@@ -343,7 +368,7 @@ def ape_errors(
     if ref_p.shape != est_p.shape or ref_p.ndim != 2 or ref_p.shape[1] != 3:
         raise ValueError(f"ape_errors: expected two (N, 3) position arrays, got {ref_p.shape} and {est_p.shape}")
     if relation in ("trans_part", "point_distance"):
-        return np.linalg.norm(est_p - ref_p, axis=1)
+        return row_norms(est_p, ref_p)
     if isinstance(ref_R, RotationRows) or isinstance(est_R, RotationRows):  # block by block, never all at once
         return blockwise(
             lambda rp, rr, ep, er: ape_errors(relation, rp, rr, ep, er), ref_p.shape[0], ref_p, ref_R, est_p, est_R
@@ -374,7 +399,7 @@ def rpe_errors(
     j = np.asarray(j, dtype=np.int64)
     rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
     if relation == "point_distance":
-        return np.abs(np.linalg.norm(rp[i] - rp[j], axis=1) - np.linalg.norm(ep[i] - ep[j], axis=1))
+        return np.abs(row_norms(rp[i], rp[j]) - row_norms(ep[i], ep[j]))
     if not isinstance(ref_R, RotationRows):
         ref_R = _rotations(ref_R, "ref_R")
     if not isinstance(est_R, RotationRows):

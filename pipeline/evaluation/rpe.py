@@ -12,7 +12,7 @@ import math
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
-from slamobs.pipeline.evaluation.metrics import matrix_quats, relative_angles
+from slamobs.pipeline.evaluation.metrics import matrix_quats, relative_angles, row_norms
 
 DELTA_UNITS = {"f": "frames", "m": "m", "d": "deg", "r": "rad"}
 
@@ -78,7 +78,7 @@ def _all_pairs_by_path(d, run_start, delta, tol):
 def accumulated_distances(pos: np.ndarray) -> np.ndarray:
     """Path length from the first position to each position (0 first)."""
     p = np.asarray(pos, dtype=np.float64)
-    return np.concatenate([[0.0], np.cumsum(np.linalg.norm(p[1:] - p[:-1], axis=1))])
+    return np.concatenate([[0.0], np.cumsum(row_norms(p[1:], p[:-1]))])
 
 
 def equal_runs(d: np.ndarray) -> np.ndarray:
@@ -95,7 +95,7 @@ def pairs_by_path(pos: np.ndarray, delta: float, tol: float = 0.0, all_pairs: bo
     if all_pairs:
         d = accumulated_distances(p)
         return _all_pairs_by_path(d, equal_runs(d), float(delta), float(tol))
-    steps = np.linalg.norm(p[1:] - p[:-1], axis=1) if p.shape[0] > 1 else np.empty(0)
+    steps = row_norms(p[1:], p[:-1]) if p.shape[0] > 1 else np.empty(0)
     ids = _consecutive_by_accumulation(steps, float(delta))
     return ids[:-1], ids[1:]
 

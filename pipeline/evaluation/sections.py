@@ -110,7 +110,8 @@ def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
     """The note naming a constant rotation between the truth's body frame and the estimate's, when the rotation
     errors are implausible next to the translation errors, with the config key that applies it."""
     rot, trans = ev.rotation.stats.get("rmse"), ev.translation.stats.get("rmse")
-    path = float(np.linalg.norm(np.diff(ev.paired.ref_pos, axis=0), axis=1).sum()) if len(ev.paired.ref_pos) else 0.0
+    ref = ev.paired.ref_pos
+    path = float(metrics.row_norms(ref[1:], ref[:-1]).sum()) if len(ref) else 0.0
     if rot is None or trans is None or rot <= TRUTH_FRAME_ROTATION_DEG or trans >= TRUTH_FRAME_TRANSLATION * path:
         return []
     x, left = truth_body_rotation(ev)

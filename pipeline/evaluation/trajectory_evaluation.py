@@ -11,6 +11,7 @@ import numpy as np
 
 from slamobs.pipeline.evaluation import slam_metrics
 from slamobs.pipeline.evaluation.align import KINDS, NAMES, Alignment, canonical
+from slamobs.pipeline.evaluation.metrics import row_norms
 from slamobs.pipeline.evaluation.sync import TimeOffset
 from slamobs.pipeline.evaluation.tables import (
     POSE_COLUMNS,
@@ -313,7 +314,7 @@ def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
     q = np.asarray(truth.quat_xyzw, dtype=np.float64)
     ok = np.isfinite(q).all(axis=1) & np.isfinite(np.asarray(truth.position)).all(axis=1)
     with np.errstate(invalid="ignore"):
-        ok &= np.linalg.norm(np.where(ok[:, None], q, 0.0), axis=1) > 1e-6
+        ok &= row_norms(np.where(ok[:, None], q, 0.0)) > 1e-6
     if ok.all():
         return truth, 0
     return PoseStream(
