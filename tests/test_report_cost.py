@@ -132,6 +132,24 @@ def test_compiled_row_norms_equal_numpy_norm(monkeypatch):
         assert metrics.row_norms(x, y).tobytes() == want[1].tobytes()
 
 
+def test_order_statistics_equal_numpy_median_and_percentile():
+    """The report's median and percentiles from one partition are NumPy's ``median`` and ``percentile`` bit for
+    bit: every length from 1 to 40 (both parities, percentile ranks at and between samples), long vectors, ties,
+    constant vectors; a NaN gives NumPy's NaN."""
+    from slamobs.pipeline.evaluation.metrics import PERCENTILES, order_statistics
+
+    rng = np.random.default_rng(5)
+    for n in [*range(1, 41), 1000, 1001, 65_537]:
+        for e in (np.abs(rng.standard_cauchy(n)), np.round(rng.random(n), 1), np.full(n, 0.3)):
+            median, percentiles = order_statistics(e)
+            assert np.float64(median).tobytes() == np.median(e).tobytes()
+            assert percentiles.tobytes() == np.percentile(e, PERCENTILES).tobytes()
+    e = rng.random(100)
+    e[7] = np.nan
+    median, percentiles = order_statistics(e)
+    assert np.isnan(median) and np.isnan(percentiles).all()
+
+
 def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
     """The report's compiled 3×3 products of long logs (a rotation times every matrix of a stack; each matrix
     times another's transpose) are NumPy's ``matmul``: to the last bit where its OpenBLAS rounds with FMA (the

@@ -470,16 +470,40 @@ def statistics(errors: np.ndarray) -> dict[str, float | int]:
     out: dict[str, float | int] = {
         "rmse": float(np.sqrt(sse / e.size)),
         "mean": float(np.mean(e)),
-        "median": float(np.median(e)),
+        "median": None,
         "std": float(np.std(e)),
         "min": float(np.min(e)),
         "max": float(np.max(e)),
         "sse": sse,
         "n": int(e.size),
     }
-    for p, v in zip(PERCENTILES, np.percentile(e, PERCENTILES)):
+    median, percentiles = order_statistics(e)
+    out["median"] = median
+    for p, v in zip(PERCENTILES, percentiles):
         out[f"p{p}"] = float(v)
     return out
+
+
+def order_statistics(e: np.ndarray) -> tuple[float, np.ndarray]:
+    """``np.median(e)`` and ``np.percentile(e, PERCENTILES)`` (linear) from one partition of a copy of ``e``
+    instead of one each: NumPy's order statistics are the values at the same ranks, the median the mean of the
+    middle one or two, the percentiles NumPy's interpolation (``_lerp``) between the same neighbours with the same
+    weights, so the same bits (tested against both). With a NaN, NumPy's own calls."""
+    n = e.shape[0]
+    virtual = (n - 1) * np.true_divide(np.asarray(PERCENTILES), 100)
+    below = np.floor(virtual)
+    below[virtual >= n - 1] = -1
+    below = below.astype(np.intp)
+    above = np.where(below < 0, -1, below + 1)
+    middle = [n // 2 - 1, n // 2] if n % 2 == 0 else [n // 2]
+    part = np.partition(e, np.unique(np.concatenate(([0, n - 1], below % n, above % n, middle))))
+    if np.isnan(part[-1]):
+        return float(np.median(e)), np.percentile(e, PERCENTILES)
+    a, b = part[below], part[above]
+    gamma = virtual - below
+    diff = b - a
+    lerp = np.where(gamma >= 0.5, b - diff * (1 - gamma), a + diff * gamma)
+    return float(np.mean(part[middle[0] : middle[-1] + 1])), lerp
 
 
 @dataclass(frozen=True)
