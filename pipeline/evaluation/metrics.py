@@ -286,20 +286,24 @@ def rotated(left: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 class RotationRows:
-    """Rotation matrices of N poses, built for the rows asked for: ``left @ R_k`` with ``R_k`` from the
-    quaternions ``(x, y, z, w)`` (or the matrices as given). An hour of pairs as ``(N, 3, 3)`` is ~26 MB per
-    copy; the metrics index only the rows they need (segment ends, RPE pairs) or run block by block, with
-    the same per-row arithmetic, so the numbers are those of the full arrays.
+    """Rotation matrices of N poses: ``left @ R_k`` with ``R_k`` from the quaternions ``(x, y, z, w)`` (or the
+    matrices as given), for the rows asked for. The matrices of quaternions are built once, for all N rows, at
+    the first use, and shared with the :meth:`turned` copies (an hour of pairs is ~26 MB; the report's sections
+    asked for them ~16 times over, block by block); the turned rows are built for the rows asked for. The
+    arithmetic per row is the same either way, so the numbers are those of the full arrays.
     """
 
-    def __init__(self, rotation: np.ndarray, left: np.ndarray | None = None, index: np.ndarray | None = None) -> None:
+    def __init__(
+        self, rotation: np.ndarray, left: np.ndarray | None = None, index: np.ndarray | None = None, _built=None
+    ) -> None:
         self.rotation = np.asarray(rotation, dtype=np.float64)
         self.left = None if left is None else np.asarray(left, dtype=np.float64)
         self.index = index  # the rows of ``rotation`` these are (pairs refer to their streams' rows)
+        self._built = [] if _built is None else _built  # the quaternions' matrices, shared with turned copies
 
     def turned(self, left: np.ndarray) -> RotationRows:
         """The same rows rotated: ``left @ R_k``."""
-        return RotationRows(self.rotation, left, self.index)
+        return RotationRows(self.rotation, left, self.index, self._built)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -308,12 +312,19 @@ class RotationRows:
     def __len__(self) -> int:
         return int((self.rotation if self.index is None else self.index).shape[0])
 
+    def _matrices(self, rows) -> np.ndarray:
+        """``R_k`` of ``rows`` (not turned)."""
+        if self.rotation.ndim == 3:  # matrices as given: only the rows asked for are gathered
+            return self.rotation[rows if self.index is None else self.index[rows]]
+        if not self._built:
+            q = self.rotation if self.index is None else self.rotation[self.index]
+            self._built.append(quats_to_rots(np.ascontiguousarray(q)))
+        return self._built[0][rows]
+
     def __getitem__(self, rows) -> np.ndarray:
-        r = self.rotation[rows if self.index is None else self.index[rows]]
-        single = r.ndim == (2 if self.rotation.ndim == 3 else 1)
-        if single:
-            r = r[None]
-        m = quats_to_rots(np.ascontiguousarray(r)) if r.ndim == 2 else np.ascontiguousarray(r)
+        m = self._matrices(rows)
+        single = m.ndim == 2
+        m = np.ascontiguousarray(m[None] if single else m)
         if self.left is not None:
             m = rotated(self.left, m)
         return m[0] if single else m
