@@ -150,6 +150,30 @@ def test_order_statistics_equal_numpy_median_and_percentile():
     assert np.isnan(median) and np.isnan(percentiles).all()
 
 
+def test_a_loaded_kernel_takes_the_shorter_pieces_of_a_long_log(monkeypatch):
+    """Once a report kernel is in the process, the pieces of a long log shorter than ``KERNEL_ROWS`` (its last
+    block, the RPE's pairs) take it too, with the array code's numbers; shorter ones still take the array code."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.lie import quats_to_rots
+
+    rng = np.random.default_rng(9)
+    n = metrics.KERNEL_ROWS // 64
+    a, b = (quats_to_rots(rng.normal(size=(n, 4))) for _ in range(2))
+    array_calls = []
+    real = metrics.matrix_quats
+    monkeypatch.setattr(metrics, "matrix_quats", lambda m: array_calls.append(len(m)) or real(m))
+    with monkeypatch.context() as mp:
+        mp.setattr(metrics, "KERNEL_ROWS", 1 << 62)
+        want = metrics.relative_angles(a, b)
+        mp.setattr(metrics, "KERNEL_ROWS", 1)
+        metrics.relative_angles(a[:2], b[:2])  # the kernel is now in the process
+    assert array_calls == [n]
+    assert metrics.relative_angles(a, b).tobytes() == want.tobytes()
+    assert array_calls == [n]  # the kernel's
+    metrics.relative_angles(a[1:], b[1:])
+    assert array_calls == [n, n - 1]
+
+
 def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
     """The report's compiled 3×3 products of long logs (a rotation times every matrix of a stack; each matrix
     times another's transpose) are NumPy's ``matmul``: to the last bit where its OpenBLAS rounds with FMA (the

@@ -41,12 +41,12 @@ __all__ = [
 
 
 def row_norms(x: np.ndarray, minus: np.ndarray | None = None) -> np.ndarray:
-    """``np.linalg.norm(x - minus, axis=1)`` (``x`` alone without ``minus``) of (N, k) rows: from ``KERNEL_ROWS``
-    rows on a compiled loop with the same operations in the same order (each difference, its square, the squares
-    summed left to right as NumPy's reduction of a short axis does, one ``sqrt``): the same bits, without NumPy's
-    temporaries and its slow reduction along a short axis (~1 ms per 100 k rows)."""
+    """``np.linalg.norm(x - minus, axis=1)`` (``x`` alone without ``minus``) of (N, k) rows: where
+    :func:`compiled_for`, a compiled loop with the same operations in the same order (each difference, its
+    square, the squares summed left to right as NumPy's reduction of a short axis does, one ``sqrt``): the same
+    bits, without NumPy's temporaries and its slow reduction along a short axis (~1 ms per 100 k rows)."""
     x = np.asarray(x, dtype=np.float64)
-    if x.ndim != 2 or x.shape[0] < KERNEL_ROWS:
+    if x.ndim != 2 or not compiled_for(x.shape[0], _row_norms):
         return np.linalg.norm(x if minus is None else x - minus, axis=1)
     out = np.empty(x.shape[0])
     _row_norms(np.ascontiguousarray(x), None if minus is None else np.ascontiguousarray(minus, dtype=np.float64), out)
@@ -186,13 +186,20 @@ def quat_angles(q: np.ndarray) -> np.ndarray:
 KERNEL_ROWS = 65_536
 
 
+def compiled_for(n: int, kernel) -> bool:
+    """Whether ``n`` rows take the compiled ``kernel``: from ``KERNEL_ROWS`` rows on, and from ``KERNEL_ROWS //
+    64`` on once this process has the kernel (compiled or loaded: a long log's last block and its shorter
+    pieces, e.g. the RPE's pairs, need not take the slower array code; a short log still compiles nothing)."""
+    return n >= KERNEL_ROWS or (n >= KERNEL_ROWS // 64 and bool(kernel.signatures))
+
+
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Rotation angle of ``a_kᵀ b_k`` per row, through its quaternion (see :func:`matrix_quats`); ``arccos`` of
     the trace would lose ~1e-8 rad at small angles. The products that are orthogonal to 1e-12 (all but
     rotations read from files with few digits) take :func:`_relative_quats`, the others :func:`matrix_quats`;
-    the numbers are the same, bit for bit. Fewer than ``KERNEL_ROWS`` rows take the array code."""
+    the numbers are the same, bit for bit. Rows not :func:`compiled_for` take the array code."""
     a, b = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
-    if a.shape[0] < KERNEL_ROWS:
+    if not compiled_for(a.shape[0], _relative_quats):
         return quat_angles(matrix_quats(_products(a, b)))
     q = np.empty((a.shape[0], 4))
     bad = np.zeros(a.shape[0], dtype=np.bool_)
@@ -275,10 +282,10 @@ def _left_products(left, m, out):  # pragma: no cover - compiled
 
 
 def rotated(left: np.ndarray, m: np.ndarray) -> np.ndarray:
-    """``left @ m_k`` for each of the ``(N, 3, 3)`` matrices ``m``: ``np.matmul``, from ``KERNEL_ROWS`` rows on a
+    """``left @ m_k`` for each of the ``(N, 3, 3)`` matrices ``m``: ``np.matmul``, where :func:`compiled_for` a
     compiled loop with its rounding (:func:`fma`; NumPy calls BLAS once per 3×3 matrix, ~1 µs each)."""
     m = np.ascontiguousarray(m, dtype=np.float64)
-    if m.ndim != 3 or m.shape[0] < KERNEL_ROWS:
+    if m.ndim != 3 or not compiled_for(m.shape[0], _left_products):
         return np.matmul(left, m)
     out = np.empty_like(m)
     _left_products(np.ascontiguousarray(left, dtype=np.float64), m, out)
