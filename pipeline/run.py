@@ -95,6 +95,8 @@ def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:
 
 #: Velocity samples per observer stretch and Parquet row group (about 11 min at 200 Hz).
 STRETCH_SAMPLES = 131_072
+#: The run's tables its error report reads (handed over from the writer as written: :meth:`.TableWriter.kept`).
+REPORT_TABLES = ("poses", "biases", "landmarks")
 
 
 def _diverged(log: Path, observer: str, t_s: float, stats: dict) -> InputError:
@@ -566,8 +568,14 @@ def run_prepared(
             f"next to the output ({', '.join(stale[:3])}{', ...' if len(stale) > 3 else ''})"
         )
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
-        timings.update(estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress))
-        report, report_error = evaluate_run(tmp, streams, config, notes, metadata, timings, progress, plot_workers)
+        # the report's tables handed over as written, not read back from the files (when there is truth)
+        tables = {} if streams.truth is not None and len(streams.truth) else None
+        timings.update(
+            estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables)
+        )
+        report, report_error = evaluate_run(
+            tmp, streams, config, notes, metadata, timings, progress, plot_workers, tables=tables
+        )
         export_run(tmp, config, metadata, report, timings, progress)
         note_compilation(prepared, notes, metadata)
         write_json(
@@ -600,10 +608,12 @@ def estimate(
     *,
     release: bool = False,
     progress: Progress = silent,
+    handover: dict | None = None,
 ) -> dict[str, float]:
     """Run the estimator a stretch at a time, each stretch written to the tables in ``tmp`` while the next one is
     computed (in the output frame fixed from the first stretch); then the map. Adds to ``metadata`` and ``notes``;
-    returns the stage timings."""
+    returns the stage timings. A ``handover`` dict receives the report's tables as written
+    (:meth:`.TableWriter.kept`)."""
     from slamobs.pipeline import interrupts, output_frame
     from slamobs.pipeline.writers import BackgroundWrites, TableWriter, landmark_table
 
@@ -612,7 +622,7 @@ def estimate(
     frame_choice = output_frame.parse_frame(config.output.frame)
     frame = None
     t0_ns = int(aligned.vel_t_ns[0])
-    sink = TableWriter(tmp, config.output.float_bits)
+    sink = TableWriter(tmp, config.output.float_bits, keep=REPORT_TABLES if handover is not None else ())
     writes = None
     try:
         if tags is not None:
@@ -669,6 +679,8 @@ def estimate(
         if release:
             prepared.aligned = aligned = None
         sink.close(metadata)
+        if handover is not None:
+            handover.update({k: sink.kept(k, skip_null=k == "poses") for k in REPORT_TABLES})
     except BaseException:
         if writes is not None:
             writes.cancel()  # nothing writes into the output any more
@@ -688,15 +700,18 @@ def evaluate_run(
     timings: dict[str, float],
     progress: Progress = silent,
     plot_workers=None,
+    *,
+    tables: dict | None = None,
 ) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
     alone where the log has landmark truth only; (report, why there is none). Every run draws its own figures
-    (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them."""
+    (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them.
+    ``tables`` may hold the run's tables as written (else they are read from ``out``)."""
     report = report_error = None
     t = time.perf_counter()
     if streams.truth is not None and len(streams.truth):
         progress("error report")
-        report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers)
+        report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers, tables or {})
         timings["report_s"] = time.perf_counter() - t
     elif not streams.landmark_truth:
         notes.append("no ground truth in the log: no error report (report.md and the figures show the estimate)")
@@ -855,7 +870,13 @@ def truth_on_run_clock(streams: LogStreams, config: RunConfig):
 
 
 def _evaluate(
-    out: Path, streams: LogStreams, config: RunConfig, notes: list[str], metadata: dict, plot_workers=None
+    out: Path,
+    streams: LogStreams,
+    config: RunConfig,
+    notes: list[str],
+    metadata: dict,
+    plot_workers=None,
+    tables: dict | None = None,
 ) -> tuple[dict | None, str | None]:
     """Error report against the log's ground truth, and the reason when there is none.
 
@@ -876,8 +897,10 @@ def _evaluate(
     try:
         # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
         # the landmarks' are copied into landmarks_aligned.parquet)
+        handed = tables if tables is not None else {}
+        frames = {k: handed.pop(k, None) for k in REPORT_TABLES}  # handed over (the report frees each once used)
         frames = {
-            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses") for k in ("poses", "biases", "landmarks")
+            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses") if v is None else v for k, v in frames.items()
         }
         plots = config.evaluation.plots
         own = []  # the run's own figures (trajectory, map, measurements) are none of the main ones

@@ -288,12 +288,14 @@ class TableWriter:
     the same bytes).
     """
 
-    def __init__(self, out_dir: Path, float_bits: int = FLOAT_BITS) -> None:
+    def __init__(self, out_dir: Path, float_bits: int = FLOAT_BITS, keep: tuple[str, ...] = ()) -> None:
         self.out_dir = Path(out_dir)
         self.float_bits = float_bits
         self.writers: dict[str, tuple[pq.ParquetWriter, pa.Schema]] = {}
         self._helper = None  # the second lane's thread pool, started by the first write of several tables
         self._nulls: dict[tuple[int, pa.DataType], pa.Array] = {}  # one all-null column per length and type
+        #: the tables in ``keep``: each stretch's values as written (rounded), for :meth:`kept`
+        self._kept: dict[str, list[tuple[int, dict[str, np.ndarray]]]] = {name: [] for name in keep}
 
     def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
         """Append one stretch of rows to each table."""
@@ -330,13 +332,32 @@ class TableWriter:
         rows = len(next(iter(columns.values()))) if columns else 0
         # contiguous first: pyarrow converts a strided column (x of an (N, 3) array) element by element;
         # a nullable column the estimator has no values for (the observers' uncertainty) is all null
+        values = {f.name: self._values(columns[f.name], f) for f in schema if f.name in columns or not f.nullable}
         arrays = [
-            _arrow_array(self._values(columns[f.name], f), f.type)
-            if f.name in columns or not f.nullable
-            else self._null_column(rows, f.type)
+            _arrow_array(values[f.name], f.type) if f.name in values else self._null_column(rows, f.type)
             for f in schema
         ]
         writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
+        if name in self._kept:
+            self._kept[name].append((rows, values))
+
+    def kept(self, name: str, *, skip_null: bool = False) -> dict[str, np.ndarray] | None:
+        """The table ``name`` (one of ``keep``) as :func:`read_columns` reads it back from its file, from the values
+        written (the same numbers: Parquet stores float64 and int64 as they are), without reading the file; None
+        when it was not kept, not written or has a column of another type. Handed over once (the writer lets go
+        of it)."""
+        stretches = self._kept.pop(name, None)
+        schema = arrow_schema(name)
+        if not stretches or any(str(f.type) not in _PLAIN for f in schema):
+            return None
+        out = {}
+        for f in schema:
+            dtype = _PLAIN[str(f.type)]
+            if skip_null and all(f.name not in values for _, values in stretches):
+                continue  # null in every row
+            parts = [values.get(f.name, np.full(rows, np.nan)) for rows, values in stretches]
+            out[f.name] = np.concatenate([np.asarray(v).astype(dtype, copy=False) for v in parts])
+        return out
 
     def _null_column(self, rows: int, kind: pa.DataType) -> pa.Array:
         """An all-null column, made once per length and type (the observers' 27 uncertainty columns of every

@@ -341,3 +341,57 @@ def test_tables_written_on_two_lanes_are_the_bytes_of_one(tmp_path, monkeypatch)
     with pytest.raises(KeyError):
         sink.write(bad)
     sink.abort()
+
+
+def test_tables_kept_by_the_writer_equal_the_files_read_back(tmp_path):
+    """The tables a run hands to its report as written (``TableWriter.kept``) are ``read_columns`` of their
+    files, column for column and bit for bit: rounded floats, int32 indices stored as int64, NaN, the observers'
+    null uncertainty columns left out of the poses (``skip_null``) or read as NaN (landmarks); a table not kept
+    is not handed over, a kept one only once."""
+    from slamobs.pipeline.writers import TableWriter, read_columns, stretch_tables
+
+    res = _result(k=300, m=90)
+    sink = TableWriter(tmp_path, keep=("poses", "biases", "landmarks"))
+    for rows in (slice(0, 120), slice(120, 300)):
+        tables = stretch_tables(
+            ObserverResult(
+                res.t_ns[rows],
+                res.rotation[rows],
+                res.position[rows] * 1e3,
+                res.gyro_bias[rows],
+                res.vel_bias[rows],
+                res.landmark_ids,
+                res.landmark_xyz,
+                res.det_t_ns[:0],
+                res.det_ids[:0],
+                res.track_xyz[:0],
+                res.innovation[:0],
+            )
+        )
+        tables["biases"]["gyro_bias_x"] = tables["biases"]["gyro_bias_x"].copy()
+        tables["biases"]["gyro_bias_x"][3] = np.nan
+        sink.write(tables)
+    sink.write(
+        {
+            "landmarks": {
+                "id": np.array([4, 11, 30], dtype=np.int32),
+                "x": res.landmark_xyz[:, 0],
+                "y": res.landmark_xyz[:, 1],
+                "z": res.landmark_xyz[:, 2],
+                "first_seen_ns": np.zeros(3, dtype=np.int64),
+                "last_seen_ns": np.ones(3, dtype=np.int64),
+                "n_obs": np.array([1, 2, 3], dtype=np.int32),
+            }
+        }
+    )
+    sink.close({})
+    for name, skip in (("poses", True), ("biases", False), ("landmarks", False)):
+        kept = sink.kept(name, skip_null=skip)
+        assert sink.kept(name) is None  # handed over once
+        want = read_columns(tmp_path / f"{name}.parquet", skip_null=skip)
+        assert list(kept) == list(want), name
+        for column in want:
+            assert kept[column].dtype == want[column].dtype and kept[column].tobytes() == want[column].tobytes()
+        if name == "poses":
+            assert "cov_x_x" not in kept and not np.array_equal(kept["x"], res.position[:, 0] * 1e3)  # rounded
+    assert sink.kept("innovations") is None
