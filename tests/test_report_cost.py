@@ -174,6 +174,27 @@ def test_a_loaded_kernel_takes_the_shorter_pieces_of_a_long_log(monkeypatch):
     assert array_calls == [n, n - 1]
 
 
+def test_rotation_rows_kept_or_converted_each_time_are_the_same(monkeypatch):
+    """RotationRows gives the same matrices whether it keeps all rows' matrices (up to ``MATRICES_KEPT_ROWS``)
+    or converts the rows asked for each time: slices, index arrays, single rows, turned copies, pair indices."""
+    from slamobs.pipeline.evaluation import metrics
+    from slamobs.pipeline.lie import quats_to_rots
+
+    rng = np.random.default_rng(2)
+    q = rng.normal(size=(500, 4))
+    index = rng.integers(0, 500, size=300)
+    left = quats_to_rots(rng.normal(size=(1, 4)))[0]
+    asks = (slice(None), slice(10, 90), np.array([5, 3, 299]), 7)
+    found = {}
+    for kept in (1 << 20, 0):
+        monkeypatch.setattr(metrics, "MATRICES_KEPT_ROWS", kept)
+        rows = metrics.RotationRows(q, index=index)
+        found[kept] = [r[a] for r in (rows, rows.turned(left), rows) for a in asks]
+    for a, b in zip(found[1 << 20], found[0]):
+        assert a.tobytes() == b.tobytes()
+    assert np.array_equal(found[0][0], quats_to_rots(q[index]))
+
+
 def test_compiled_rotation_products_equal_numpy_matmul(monkeypatch):
     """The report's compiled 3×3 products of long logs (a rotation times every matrix of a stack; each matrix
     times another's transpose) are NumPy's ``matmul``: to the last bit where its OpenBLAS rounds with FMA (the

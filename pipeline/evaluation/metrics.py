@@ -292,6 +292,11 @@ def rotated(left: np.ndarray, m: np.ndarray) -> np.ndarray:
     return out
 
 
+#: :class:`RotationRows` keeps the matrices of up to this many rows (72 MB; ~1.5 h of 200 Hz pairs): beyond, a
+#: log's report would hold 72 bytes more per pose and pair, and the four-hour log's peak memory grows with it.
+MATRICES_KEPT_ROWS = 1 << 20
+
+
 class RotationRows:
     """Rotation matrices of N poses: ``left @ R_k`` with ``R_k`` from the quaternions ``(x, y, z, w)`` (or the
     matrices as given), for the rows asked for. The matrices of quaternions are built once, for all N rows, at
@@ -323,6 +328,9 @@ class RotationRows:
         """``R_k`` of ``rows`` (not turned)."""
         if self.rotation.ndim == 3:  # matrices as given: only the rows asked for are gathered
             return self.rotation[rows if self.index is None else self.index[rows]]
+        if len(self) > MATRICES_KEPT_ROWS:  # a longer log converts the rows asked for, each time
+            q = self.rotation[rows if self.index is None else self.index[rows]]
+            return quats_to_rots(np.ascontiguousarray(q[None] if q.ndim == 1 else q))[0 if q.ndim == 1 else slice(None)]
         if not self._built:
             q = self.rotation if self.index is None else self.rotation[self.index]
             self._built.append(quats_to_rots(np.ascontiguousarray(q)))
