@@ -97,6 +97,9 @@ def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:
 STRETCH_SAMPLES = 131_072
 #: The run's tables its error report reads (handed over from the writer as written: :meth:`.TableWriter.kept`).
 REPORT_TABLES = ("poses", "biases", "landmarks")
+#: Handed over for runs of up to this many velocity samples (~2.9 h at 200 Hz); a longer run's report reads them
+#: back: the writer would hold ~45 bytes a sample while the observer runs (four hours: +115 MB at the peak).
+HANDOVER_SAMPLES = 1 << 21
 
 
 def _diverged(log: Path, observer: str, t_s: float, stats: dict) -> InputError:
@@ -569,7 +572,8 @@ def run_prepared(
         )
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         # the report's tables handed over as written, not read back from the files (when there is truth)
-        tables = {} if streams.truth is not None and len(streams.truth) else None
+        short = aligned.vel_t_ns.shape[0] <= HANDOVER_SAMPLES
+        tables = {} if short and streams.truth is not None and len(streams.truth) else None
         timings.update(
             estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables)
         )

@@ -327,3 +327,23 @@ def test_compiled_step_angles_give_the_clock_offset_of_the_array_code(monkeypatc
         steps[use] = sync._step_angles(q)
     assert np.array_equal(steps[True], steps[False]) and found[True] == found[False]
     assert found[True].offset_s == pytest.approx(0.037, abs=0.002) and found[True].signal == "angular rate |ω|"
+
+
+def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, monkeypatch):
+    """A run hands its report the tables as written, without reading the three files back; a run longer than
+    ``HANDOVER_SAMPLES`` reads them back; both write the same report, byte for byte."""
+    from cli_checks import SAMPLES
+    from slamobs.pipeline import run, writers
+    from slamobs.pipeline.config import EvaluationConfig, RunConfig
+
+    read = []
+    real = writers.read_columns
+    monkeypatch.setattr(writers, "read_columns", lambda path, **kw: read.append(path.name) or real(path, **kw))
+    config = RunConfig(evaluation=EvaluationConfig(plots=False))
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "handed", config)
+    assert read == []
+    monkeypatch.setattr(run, "HANDOVER_SAMPLES", 0)
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "read", config)
+    assert sorted(read) == ["biases.parquet", "landmarks.parquet", "poses.parquet"]
+    for name in ("report.json", "report.md", "poses_aligned.parquet", "landmarks_aligned.parquet"):
+        assert (tmp_path / "handed" / name).read_bytes() == (tmp_path / "read" / name).read_bytes(), name
