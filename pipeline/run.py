@@ -98,7 +98,7 @@ STRETCH_SAMPLES = 131_072
 #: The run's tables its error report reads (handed over from the writer as written: :meth:`.TableWriter.kept`).
 REPORT_TABLES = ("poses", "biases", "landmarks")
 #: Handed over for runs of up to this many velocity samples (~2.9 h at 200 Hz); a longer run's report reads them
-#: back: the writer would hold ~45 bytes a sample while the observer runs (four hours: +115 MB at the peak).
+#: back: the writer would hold them (120 bytes a sample) while the observer runs (four hours: +115 MB at the peak).
 HANDOVER_SAMPLES = 1 << 21
 
 
