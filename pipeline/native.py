@@ -119,6 +119,8 @@ def guard_compilation() -> None:
 
     def guarded_load(self, sig, target_context):
         check_room("load a compiled kernel")
+        if not hasattr(self, "_load_overload"):  # a numba whose cache is laid out otherwise: its own load
+            return load(self, sig, target_context)
         return load_cached(self, sig, target_context)
 
     guarded_load._slamobs_guarded = True
