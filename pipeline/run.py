@@ -388,9 +388,14 @@ def run_log(
     here at the end (at once without ``evaluation.plots``)."""
     from slamobs.pipeline.paths import check_output, run_memory_mb
 
-    spec = resolve_estimator(config)  # fail on bad gains (and estimator settings) before reading a large log
-    check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
-    check_map_mode(spec, config, log)
+    try:
+        spec = resolve_estimator(config)  # fail on bad gains (and estimator settings) before reading a large log
+        check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
+        check_map_mode(spec, config, log)
+    except BaseException:
+        if plot_workers is not None:  # the caller's helpers end with the run, whenever it ends
+            plot_workers.close()
+        raise
     # the gravity output frame of an observer without directions comes from the accelerometer
     needed = spec.directions_needed(config)
     directions = needed > 0 or config.output.frame == "gravity"
