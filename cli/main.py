@@ -134,11 +134,14 @@ def run(
     first = Path(logs[0]) if len(logs) == 1 else Path(logs[0]).parent
     working_on(first, "a run of this log", run_memory_mb(first))
     from slamobs.pipeline import compile_ahead
-    from slamobs.pipeline.evaluation.plot_worker import free_cores
+    from slamobs.pipeline.evaluation.plot_worker import PlotWorkers, free_cores
 
     spare = free_cores()
-    helper = compile_ahead.start_early(spare)  # a first run's kernels, compiled while it imports and reads
+    # the figure helper imports matplotlib while this process imports the pipeline (~1 s of each on a short log)
+    workers = PlotWorkers(1) if spare else None
+    helper = None
     try:
+        helper = compile_ahead.start_early(spare)  # a first run's kernels, compiled while it imports and reads
         from slamobs.pipeline.readers.container import recording_of
 
         log = recording_of(logs)
@@ -152,8 +155,10 @@ def run(
         if export is not None:
             config = config.with_section("output", export=export)
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
-            summary = run_log(log, out_dir, config, force=force, plot_helpers=min(1, spare), progress=progress)
+            summary = run_log(log, out_dir, config, force=force, plot_workers=workers, progress=progress)
     finally:
+        if workers is not None:
+            workers.close()
         compile_ahead.stop(helper)
     if quiet:
         return

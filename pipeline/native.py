@@ -119,14 +119,29 @@ def guard_compilation() -> None:
 
     def guarded_load(self, sig, target_context):
         check_room("load a compiled kernel")
-        return load(self, sig, target_context)
+        if not hasattr(self, "_load_overload"):  # a numba whose cache is laid out otherwise: its own load
+            return load(self, sig, target_context)
+        return load_cached(self, sig, target_context)
 
     guarded_load._slamobs_guarded = True
     caching.Cache.load_overload = guarded_load
 
 
+def load_cached(cache, sig, target_context):
+    """numba's ``Cache.load_overload`` without its ``target_context.refresh()``: a compiled kernel from the cache
+    needs numba's runtime (NRT) started, not numba's typing and lowering registries, whose installation
+    (importing and registering every NumPy and Python implementation numba has) is ~0.25 s of CPU at the first
+    load of a process, most of the fixed cost of loading a short run's kernels. A cache miss compiles, and
+    numba's compiler refreshes the context itself first. The kernel loaded is the same machine code either way."""
+    from numba.core.runtime import rtsys
+
+    rtsys.initialize(target_context)
+    with cache._guard_against_spurious_io_errors():
+        return cache._load_overload(sig, target_context)
+
+
 def start() -> None:
     """All of the above: what a process that runs kernels does first (:mod:`.kernel_cache` calls it)."""
     start_blas()
-    load_array_functions_without_blas()
+    load_array_functions_without_blas()  # cached kernels need them too: unpickling one imports numba.np.arraymath
     guard_compilation()

@@ -383,21 +383,31 @@ def run_log(
     force: bool = False,
     progress: Progress = silent,
     plot_helpers: int = 0,
+    plot_workers=None,
 ) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
     ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
     report's figures are drawn by that many helper processes started now, which import matplotlib while the
-    log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``)."""
+    log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``);
+    ``plot_workers`` are such helpers started earlier by the caller (the CLI, before its own imports), stopped
+    here at the end (at once without ``evaluation.plots``)."""
     from slamobs.pipeline.paths import check_output, run_memory_mb
 
-    spec = resolve_estimator(config)  # fail on bad gains (and estimator settings) before reading a large log
-    check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
-    check_map_mode(spec, config, log)
+    try:
+        spec = resolve_estimator(config)  # fail on bad gains (and estimator settings) before reading a large log
+        check_output(out_dir, run_inputs(Path(log), config), force=force)  # and on an output that must not be
+        check_map_mode(spec, config, log)
+    except BaseException:
+        if plot_workers is not None:  # the caller's helpers end with the run, whenever it ends
+            plot_workers.close()
+        raise
     # the gravity output frame of an observer without directions comes from the accelerometer
     needed = spec.directions_needed(config)
     directions = needed > 0 or config.output.frame == "gravity"
-    workers = None
-    if plot_helpers > 0 and config.evaluation.plots:
+    workers = plot_workers if config.evaluation.plots else None
+    if plot_workers is not None and workers is None:
+        plot_workers.close()
+    if workers is None and plot_helpers > 0 and config.evaluation.plots:
         from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
 
         workers = PlotWorkers(plot_helpers)

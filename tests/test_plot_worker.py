@@ -132,3 +132,32 @@ def test_free_cores_counts_what_runs_now():
     assert plot_worker.free_cores("1.90 1.50 1.20 1/80 999") == cpus - 1  # busy a minute ago, idle now
     assert plot_worker.free_cores(f"0.10 0.10 0.10 {cpus + 1}/80 999") == 0  # as many others as cores: none
     assert plot_worker.free_cores("0.00 0.00 0.00 0/80 999") == cpus - 1
+
+
+def test_a_run_draws_with_helpers_its_caller_started_and_stops_them(tmp_path):
+    """The CLI starts the figure helper before it imports the pipeline (it imports matplotlib meanwhile) and hands
+    it to ``run_log``: the run's figures come from it, and the run stops it; a run without figures
+    (``evaluation.plots: false``) stops it at once and writes none, and so does a run that fails before reading."""
+    from pathlib import Path
+
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.run import run_log
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "figure8.mcap"
+    for plots in (True, False):
+        workers = plot_worker.PlotWorkers(1)
+        helper = workers.procs[0]
+        out = tmp_path / f"plots-{plots}"
+        summary = run_log(log, out, parse_config({"evaluation": {"plots": plots}}), plot_workers=workers)
+        assert workers.procs == [] and helper.returncode is not None
+        pngs = sorted(p.name for p in out.glob("*.png"))
+        assert pngs == (sorted(summary.metadata["figures"]) if plots else [])
+        assert (len(pngs) > 0) == plots
+    taken = tmp_path / "taken"  # a run that fails its checks before reading (an output it must not replace)
+    taken.mkdir()
+    (taken / "notes.txt").write_text("a user's file\n")
+    workers = plot_worker.PlotWorkers(1)
+    with pytest.raises(InputError):
+        run_log(log, taken, parse_config({}), plot_workers=workers)
+    assert workers.procs == [] and (taken / "notes.txt").is_file()
