@@ -17,9 +17,10 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
+from slamobs.pipeline.smoother.evidence import DETECTION, DETECTION_LAW
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
-from slamobs.pipeline.smoother.evidence import PASSES as EVIDENCE_PASSES
+from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -314,18 +315,19 @@ class BatchSmoother(Stepper):
         mode, nz = self.settings.noise_evidence, self.noise
         if mode == "off":
             return "batch.noise_evidence is off"
-        if nz.sources.get(key) == "config":
+        if any(nz.sources.get(k) == "config" for k in (DETECTION_LAW if key == DETECTION else (key,))):
             return f"noise: {key} is set in the configuration"
         if self.fixed_bias is not None:
             return "the biases are fixed (a reference run)"
-        if mode == "held" and key not in nz.held:
+        if mode == "held" and (key not in nz.held if key != DETECTION else not nz.held):
             return f"the {key} level is measured from its samples (batch.noise_evidence: held)"
         return None
 
     def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
-        while one moves: they trade off, up to ``EVIDENCE_PASSES``) chosen by the evidence: the candidate kept,
-        the record per key (its last scan), the notes."""
+        while one moves: they trade off; until the scans' linear solves exceed ``EVIDENCE_SOLVE_BUDGET`` times the
+        first solution's) chosen by the evidence: the candidate kept, the record per key (its last scan), the
+        notes."""
         n_kf = keyframes[0].shape[0]
         if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
             why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
@@ -335,7 +337,8 @@ class BatchSmoother(Stepper):
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
         records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
-        for _ in range(EVIDENCE_PASSES):
+        budget, spent, moved = EVIDENCE_SOLVE_BUDGET * max(chosen.sol.summary["linear_solves"], 1), 0, True
+        while moved and spent <= budget:
             moved = False
             for key in EVIDENCE_KEYS:
                 if (why := self._evidence_skipped(key)) is not None:
@@ -345,9 +348,13 @@ class BatchSmoother(Stepper):
                 notes.append(note)
                 total[key] *= records[key]["winner"]
                 records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
+                spent += records[key]["linear_solves"]
                 moved |= records[key]["winner"] != 1.0
-            if not moved:
-                break
+        if moved:
+            notes.append(
+                f"batch: the evidence scan stopped at its budget ({spent} linear solves, {EVIDENCE_SOLVE_BUDGET:g}x "
+                "the first solution's) while a level still moved"
+            )
         return chosen, records, notes
 
     def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):
@@ -364,8 +371,7 @@ class BatchSmoother(Stepper):
         for direction in ev.search_order():
             prev = 1.0
             for scale in direction:
-                nz = _scaled(self.noise, key, scale)
-                problem = replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, nz))
+                problem = self._scaled_problem(base, key, scale, keyframes)
                 guess = g.Guess(sols[prev].rot, sols[prev].pos, sols[prev].landmarks, sols[prev].bias)
                 sols[scale] = g.solve(
                     problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance
@@ -378,6 +384,7 @@ class BatchSmoother(Stepper):
                 break
         winner = ev.best_scale(scores)
         record, note = ev.record(key, getattr(self.noise, key), scores, winner)
+        record["linear_solves"] = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
         if winner == 1.0:
             return chosen, record, note
         self.noise = _scaled(self.noise, key, winner, say=True)
@@ -386,8 +393,17 @@ class BatchSmoother(Stepper):
         solved, sol, notes = self._solve_gated(
             full, g.Guess(w.rot, w.pos, w.landmarks, w.bias), chosen.seed.name, progress
         )
+        record["linear_solves"] += sol.summary["linear_solves"]
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
         return Candidate(chosen.seed, solved, sol, notes), record, note
+
+    def _scaled_problem(self, base, key: str, scale: float, keyframes: tuple):
+        """``base`` with the level ``key`` scaled by ``scale``: the detections' standard deviations, or the
+        odometry preintegrated again at the scaled motion level."""
+        if key == DETECTION:
+            return replace(base, det_sigma=base.det_sigma * scale)
+        kf_t, _, gaps = keyframes
+        return replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, _scaled(self.noise, key, scale)))
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
@@ -514,13 +530,17 @@ class BatchSmoother(Stepper):
 
 
 def _scaled(noise, key: str, scale: float, say: bool = False):
-    """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so)."""
+    """``noise`` with its level ``key`` scaled by ``scale`` (``DETECTION``: the whole detection law; ``say``: the
+    methods saying so)."""
+    keys = DETECTION_LAW if key == DETECTION else (key,)
+    values = {k: getattr(noise, k) * scale for k in keys}
     if not say:
-        return replace(noise, **{key: getattr(noise, key) * scale})
+        return replace(noise, **values)
     methods = dict(noise.methods)
-    was = methods.get(key) or noise.sources.get(key, "default")
-    methods[key] = f"{was}; scaled by {scale:g} by the smoother's evidence"
-    return replace(noise, **{key: getattr(noise, key) * scale}, methods=methods)
+    for k in keys:
+        was = methods.get(k) or noise.sources.get(k, "default")
+        methods[k] = f"{was}; scaled by {scale:g} by the smoother's evidence"
+    return replace(noise, **values, methods=methods)
 
 
 SPEC = ObserverSpec(
