@@ -17,7 +17,6 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
-from slamobs.pipeline.smoother.evidence import DETECTION, DETECTION_LAW
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
@@ -315,11 +314,11 @@ class BatchSmoother(Stepper):
         mode, nz = self.settings.noise_evidence, self.noise
         if mode == "off":
             return "batch.noise_evidence is off"
-        if any(nz.sources.get(k) == "config" for k in (DETECTION_LAW if key == DETECTION else (key,))):
+        if nz.sources.get(key) == "config":
             return f"noise: {key} is set in the configuration"
         if self.fixed_bias is not None:
             return "the biases are fixed (a reference run)"
-        if mode == "held" and (key not in nz.held if key != DETECTION else not nz.held):
+        if mode == "held" and key not in nz.held:
             return f"the {key} level is measured from its samples (batch.noise_evidence: held)"
         return None
 
@@ -371,7 +370,8 @@ class BatchSmoother(Stepper):
         for direction in ev.search_order():
             prev = 1.0
             for scale in direction:
-                problem = self._scaled_problem(base, key, scale, keyframes)
+                nz = _scaled(self.noise, key, scale)
+                problem = replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, nz))
                 guess = g.Guess(sols[prev].rot, sols[prev].pos, sols[prev].landmarks, sols[prev].bias)
                 sols[scale] = g.solve(
                     problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance
@@ -396,14 +396,6 @@ class BatchSmoother(Stepper):
         record["linear_solves"] += sol.summary["linear_solves"]
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
         return Candidate(chosen.seed, solved, sol, notes), record, note
-
-    def _scaled_problem(self, base, key: str, scale: float, keyframes: tuple):
-        """``base`` with the level ``key`` scaled by ``scale``: the detections' standard deviations, or the
-        odometry preintegrated again at the scaled motion level."""
-        if key == DETECTION:
-            return replace(base, det_sigma=base.det_sigma * scale)
-        kf_t, _, gaps = keyframes
-        return replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, _scaled(self.noise, key, scale)))
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
@@ -530,17 +522,13 @@ class BatchSmoother(Stepper):
 
 
 def _scaled(noise, key: str, scale: float, say: bool = False):
-    """``noise`` with its level ``key`` scaled by ``scale`` (``DETECTION``: the whole detection law; ``say``: the
-    methods saying so)."""
-    keys = DETECTION_LAW if key == DETECTION else (key,)
-    values = {k: getattr(noise, k) * scale for k in keys}
+    """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so)."""
     if not say:
-        return replace(noise, **values)
+        return replace(noise, **{key: getattr(noise, key) * scale})
     methods = dict(noise.methods)
-    for k in keys:
-        was = methods.get(k) or noise.sources.get(k, "default")
-        methods[k] = f"{was}; scaled by {scale:g} by the smoother's evidence"
-    return replace(noise, **values, methods=methods)
+    was = methods.get(key) or noise.sources.get(key, "default")
+    methods[key] = f"{was}; scaled by {scale:g} by the smoother's evidence"
+    return replace(noise, **{key: getattr(noise, key) * scale}, methods=methods)
 
 
 SPEC = ObserverSpec(

@@ -23,8 +23,6 @@ from slamobs.pipeline.smoother.preintegration import D_END, D_W
 
 #: The levels whose scale is chosen, one after the other (each at the scales already chosen before it).
 KEYS = ("velocity", "gyro")
-#: The detection law's key in the scan (its three coefficients scaled together) and those coefficients.
-DETECTION, DETECTION_LAW = "detection", ("detection", "detection_per_m", "detection_per_m2")
 #: Passes over ``KEYS`` go on while a scale moved (the levels trade off against each other, and a pass moves a
 #: level by x3 up or x10 down at most), until the scans' linear solves exceed this many times those of the first
 #: solution (the solver's work, counted rather than timed so that a run's result does not depend on the
@@ -111,5 +109,5 @@ def record(key: str, level: np.ndarray, scores: dict[float, float | None], winne
         f"batch: {key} noise level chosen by the evidence (log marginal likelihood): {said}; kept x{winner:g} "
         f"({', '.join(f'{v:.3g}' for v in np.atleast_1d(kept))})"
     )
-    out = {"criterion": CRITERION, "log_evidence": table, "winner": winner, "level": np.atleast_1d(kept).tolist()}
+    out = {"criterion": CRITERION, "log_evidence": table, "winner": winner, "level": kept.tolist()}
     return out, note
