@@ -20,6 +20,7 @@ from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
+from slamobs.pipeline.smoother.evidence import SOLVE_FLOOR as EVIDENCE_SOLVE_FLOOR
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -325,8 +326,8 @@ class BatchSmoother(Stepper):
     def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
         while one moves: they trade off; until the scans' linear solves exceed ``EVIDENCE_SOLVE_BUDGET`` times the
-        first solution's) chosen by the evidence: the candidate kept, the record per key (its last scan), the
-        notes."""
+        first solution's, or ``EVIDENCE_SOLVE_FLOOR``) chosen by the evidence: the candidate kept, the record per
+        key (its last scan), the notes."""
         n_kf = keyframes[0].shape[0]
         if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
             why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
@@ -336,7 +337,8 @@ class BatchSmoother(Stepper):
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
         records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
-        budget, spent, moved = EVIDENCE_SOLVE_BUDGET * max(chosen.sol.summary["linear_solves"], 1), 0, True
+        budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
+        spent, moved = 0, True
         while moved and spent <= budget:
             moved = False
             for key in EVIDENCE_KEYS:
@@ -352,7 +354,7 @@ class BatchSmoother(Stepper):
         if moved:
             notes.append(
                 f"batch: the evidence scan stopped at its budget ({spent} linear solves, {EVIDENCE_SOLVE_BUDGET:g}x "
-                "the first solution's) while a level still moved"
+                f"the first solution's or {EVIDENCE_SOLVE_FLOOR}) while a level still moved"
             )
         return chosen, records, notes
 

@@ -26,8 +26,9 @@ KEYS = ("velocity", "gyro")
 #: Passes over ``KEYS`` go on while a scale moved (the levels trade off against each other, and a pass moves a
 #: level by x3 up or x10 down at most), until the scans' linear solves exceed this many times those of the first
 #: solution (the solver's work, counted rather than timed so that a run's result does not depend on the
-#: machine's load). With 3 passes at most TagSLAM 21 stopped at x27 while its evidence still rose.
-SOLVE_BUDGET = 20.0
+#: machine's load), and at least ``SOLVE_FLOOR`` linear solves: on a small log the first solution takes few
+#: (TagSLAM 22: 9, while one scan of the velocity took 93), and 20x of them stopped it after two passes.
+SOLVE_BUDGET, SOLVE_FLOOR = 20.0, 600
 #: Scales of each level tried, from the level the run would otherwise use (``noise: auto``, estimated
 #: or defaulted); searched downwards from 1 while the evidence rises, else upwards.
 SCALES = (0.1, 0.3, 1.0, 3.0)
