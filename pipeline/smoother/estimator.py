@@ -345,11 +345,11 @@ class BatchSmoother(Stepper):
                 if (why := self._evidence_skipped(key)) is not None:
                     records[key] = {"skipped": why}
                     continue
-                chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
+                chosen, records[key], note, solves = self._scan(key, chosen, keyframes, segments, progress)
                 notes.append(note)
                 total[key] *= records[key]["winner"]
                 records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
-                spent += records[key]["linear_solves"]
+                spent += solves
                 moved |= records[key]["winner"] != 1.0
         if moved:
             notes.append(
@@ -361,7 +361,8 @@ class BatchSmoother(Stepper):
     def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):
         """The scale of the level ``key`` with the highest evidence (:mod:`pipeline.smoother.evidence`), searched
         from the chosen solution on its detections; when a scale other than 1 wins, the noise is scaled and the
-        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note."""
+        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note, and the
+        linear solves the scan took."""
         from slamobs.pipeline.smoother import evidence as ev
         from slamobs.pipeline.smoother import graph as g
         from slamobs.pipeline.smoother.candidates import Candidate
@@ -386,18 +387,18 @@ class BatchSmoother(Stepper):
                 break
         winner = ev.best_scale(scores)
         record, note = ev.record(key, getattr(self.noise, key), scores, winner)
-        record["linear_solves"] = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
+        solves = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
         if winner == 1.0:
-            return chosen, record, note
+            return chosen, record, note, solves
         self.noise = _scaled(self.noise, key, winner, say=True)
         full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
         w = sols[winner]
         solved, sol, notes = self._solve_gated(
             full, g.Guess(w.rot, w.pos, w.landmarks, w.bias), chosen.seed.name, progress
         )
-        record["linear_solves"] += sol.summary["linear_solves"]
+        solves += sol.summary["linear_solves"]
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
-        return Candidate(chosen.seed, solved, sol, notes), record, note
+        return Candidate(chosen.seed, solved, sol, notes), record, note, solves
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
