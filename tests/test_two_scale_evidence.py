@@ -18,6 +18,7 @@ from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.noise import NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.simulate import NoiseModel, expected_streams, get_scenario, simulate
+from slamobs.pipeline.simulate.sensors import PIECE_S
 from slamobs.pipeline.smoother import evidence as ev
 from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.settings import BatchSettings
@@ -83,3 +84,23 @@ def test_white_noise_keeps_the_white_model(white):
     z_white, _ = solved(white)
     z_two, _ = solved(white, 1.0, WALK)
     assert not ev.better(z_two, z_white), (z_two, z_white)
+
+
+def test_the_simulated_slow_error_has_its_rms_and_time_scale():
+    """``odom_linear_drift`` alone (no white noise): per axis about its RMS, nearly unchanged over a tenth of its
+    time scale and decorrelated over several; the pieces of a long log join (the error is a function of time)."""
+    sc = get_scenario("figure8")
+    nm = replace(NoiseModel.zero(), odom_linear_drift=DRIFT, odom_linear_drift_s=DRIFT_S)
+    sim = simulate(sc, duration=600.0, seed=2, noise=nm)
+    t = (sim.odom.t_ns - sim.start_ns) * 1e-9
+    err = sim.odom.linear - sc.sample(t).v - sc.velocity_bias
+    assert np.allclose(np.sqrt(np.mean(err**2, axis=0)), DRIFT, rtol=0.4), np.sqrt(np.mean(err**2, axis=0))
+
+    def corr(lag_s: float) -> float:
+        k = int(round(lag_s * 50.0))
+        return float(np.mean([np.corrcoef(err[:-k, i], err[k:, i])[0, 1] for i in range(3)]))
+
+    assert corr(0.1 * DRIFT_S) > 0.9 and abs(corr(5.0 * DRIFT_S)) < 0.5, (corr(0.1 * DRIFT_S), corr(5.0 * DRIFT_S))
+    step = np.abs(np.diff(err, axis=0))
+    at = int(np.searchsorted(t, PIECE_S))  # the first sample of the second piece
+    assert step[at - 1].max() <= 2.0 * np.percentile(step, 99), (step[at - 1], np.percentile(step, 99))
