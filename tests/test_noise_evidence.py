@@ -98,6 +98,15 @@ def test_gyro_and_velocity_wrong_in_opposite_directions_are_both_found(log):
     assert 0.1 <= record["velocity"]["scale"] < 1.0 < record["gyro"]["scale"] <= 10.0, record
 
 
+def test_the_passes_go_on_while_a_level_moves(log):
+    """A velocity level 100x too low needs five passes (x3 each): the passes go on while a scale moves, bounded
+    by the solver's work (``evidence.SOLVE_BUDGET``), not by a number of passes (three stopped it at x27)."""
+    stream, truth = log
+    noise = replace(truth, velocity=truth.velocity / 100.0, sources={**truth.sources, "velocity": "estimated"})
+    record = smoother(stream, noise).stats["metadata"]["smoother"]["noise_scale"]["velocity"]
+    assert 81.0 <= record["scale"] <= 243.0, record
+
+
 def test_a_long_log_skips_the_choice_and_says_so(log, monkeypatch):
     """Above ``evidence.MAX_KEYFRAMES`` each scale would cost a solve of a long log: skipped, with a note."""
     from slamobs.pipeline.smoother import estimator

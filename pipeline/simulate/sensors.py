@@ -70,6 +70,11 @@ class NoiseModel:
     detection_per_m: float = 0.002  # m per m of range, per component
     tag_rotation: float = 0.01  # rad
     detection_per_m2: float = 0.0  # m per m² of range, per component
+    #: RMS (m/s, per axis) of a slowly varying error of the odometry's linear velocity beside the white one (slip,
+    #: a robot lagging its commands), and its time scale (s): a sum of sinusoids of periods around
+    #: ``2π odom_linear_drift_s`` (:func:`_drift`); 0 draws nothing (the random stream is unchanged)
+    odom_linear_drift: float = 0.0
+    odom_linear_drift_s: float = 10.0
 
     @classmethod
     def zero(cls) -> NoiseModel:
@@ -426,7 +431,7 @@ def _piece(
 
     # one generator: the streams draw in this order (imu, odom, mag, detections, mocap), or the noise changes
     imu = _imu(sc, rng, nm, *stamps("imu"), carry.rec["imu"])
-    odom, odom_carry = _odom(sc, rng, nm, *stamps("odom"), carry)
+    odom, odom_carry = _odom(sc, rng, nm, *stamps("odom"), carry, sim.seed)
     mag = _mag(sc, rng, nm, *stamps("mag"), carry.rec["mag"])
     detections = _detections(sc, rng, nm, *stamps("detections"), carry.rec["detections"])
     camera = _camera(sim, detections) if sim.camera.output != "fiducials" else None
@@ -471,13 +476,21 @@ def _imu(
 
 
 def _odom(
-    sc: Scenario, rng: np.random.Generator, nm: NoiseModel, t_ns: np.ndarray, t: np.ndarray, carry: _Carry
+    sc: Scenario,
+    rng: np.random.Generator,
+    nm: NoiseModel,
+    t_ns: np.ndarray,
+    t: np.ndarray,
+    carry: _Carry,
+    seed: int = 0,
 ) -> tuple[OdomData, tuple | None]:
     """Wheel odometry: biased velocity, unbiased rate, pose dead-reckoned from the measured twist (continuing
     from the previous piece's last sample); the data and the dead-reckoning state for the next piece."""
     tr = sc.sample(t)
     n = t.shape[0]
     lin = tr.v + sc.velocity_bias + _white(rng, nm.odom_linear, (n, 3))
+    if nm.odom_linear_drift > 0.0:
+        lin += _drift(seed, nm.odom_linear_drift, nm.odom_linear_drift_s, t)
     ang = tr.omega + _white(rng, nm.odom_angular, (n, 3))
     if carry.odom is None:
         rs, ps = integrate_body_twists(np.eye(3), np.zeros(3), ang[:-1], lin[:-1], np.diff(t))
@@ -490,6 +503,21 @@ def _odom(
     odom = OdomData(t_ns, _record_times(rng, t_ns, carry.rec["odom"]), lin, ang, ps, rots_to_quats(rs))
     odom_carry = (rs[-1].copy(), ps[-1].copy(), ang[-1:].copy(), lin[-1:].copy(), float(t[-1])) if n else carry.odom
     return odom, odom_carry
+
+
+#: Sinusoids per axis of the slowly varying velocity error (:func:`_drift`).
+DRIFT_TERMS = 12
+
+
+def _drift(seed: int, rms: float, scale_s: float, t: np.ndarray) -> np.ndarray:
+    """A slowly varying error (n, 3) at times ``t``: per axis ``DRIFT_TERMS`` sinusoids of random phase whose
+    angular frequencies spread log-uniformly over a factor of 20 around ``1/scale_s``, RMS ``rms``. A function of
+    time from its own generator (``seed``): the pieces of a long log join, and the noise stream is untouched."""
+    g = np.random.default_rng([int(seed), 7919])
+    freq = np.exp(g.uniform(np.log(0.22), np.log(4.5), (DRIFT_TERMS, 3))) / scale_s
+    phase = g.uniform(0.0, 2.0 * np.pi, (DRIFT_TERMS, 3))
+    waves = np.sin(t[:, None, None] * freq[None] + phase[None])  # (n, terms, 3)
+    return rms * np.sqrt(2.0 / DRIFT_TERMS) * waves.sum(axis=1)
 
 
 def _mag(

@@ -19,7 +19,8 @@ from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, 
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
-from slamobs.pipeline.smoother.evidence import PASSES as EVIDENCE_PASSES
+from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
+from slamobs.pipeline.smoother.evidence import SOLVE_FLOOR as EVIDENCE_SOLVE_FLOOR
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
@@ -324,8 +325,9 @@ class BatchSmoother(Stepper):
 
     def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
-        while one moves: they trade off, up to ``EVIDENCE_PASSES``) chosen by the evidence: the candidate kept,
-        the record per key (its last scan), the notes."""
+        while one moves: they trade off; until the scans' linear solves exceed ``EVIDENCE_SOLVE_BUDGET`` times the
+        first solution's, or ``EVIDENCE_SOLVE_FLOOR``) chosen by the evidence: the candidate kept, the record per
+        key (its last scan), the notes."""
         n_kf = keyframes[0].shape[0]
         if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
             why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
@@ -335,25 +337,32 @@ class BatchSmoother(Stepper):
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
         records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
-        for _ in range(EVIDENCE_PASSES):
+        budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
+        spent, moved = 0, True
+        while moved and spent <= budget:
             moved = False
             for key in EVIDENCE_KEYS:
                 if (why := self._evidence_skipped(key)) is not None:
                     records[key] = {"skipped": why}
                     continue
-                chosen, records[key], note = self._scan(key, chosen, keyframes, segments, progress)
+                chosen, records[key], note, solves = self._scan(key, chosen, keyframes, segments, progress)
                 notes.append(note)
                 total[key] *= records[key]["winner"]
                 records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
+                spent += solves
                 moved |= records[key]["winner"] != 1.0
-            if not moved:
-                break
+        if moved:
+            notes.append(
+                f"batch: the evidence scan stopped at its budget ({spent} linear solves, {EVIDENCE_SOLVE_BUDGET:g}x "
+                f"the first solution's or {EVIDENCE_SOLVE_FLOOR}) while a level still moved"
+            )
         return chosen, records, notes
 
     def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):
         """The scale of the level ``key`` with the highest evidence (:mod:`pipeline.smoother.evidence`), searched
         from the chosen solution on its detections; when a scale other than 1 wins, the noise is scaled and the
-        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note."""
+        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note, and the
+        linear solves the scan took."""
         from slamobs.pipeline.smoother import evidence as ev
         from slamobs.pipeline.smoother import graph as g
         from slamobs.pipeline.smoother.candidates import Candidate
@@ -378,16 +387,18 @@ class BatchSmoother(Stepper):
                 break
         winner = ev.best_scale(scores)
         record, note = ev.record(key, getattr(self.noise, key), scores, winner)
+        solves = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
         if winner == 1.0:
-            return chosen, record, note
+            return chosen, record, note, solves
         self.noise = _scaled(self.noise, key, winner, say=True)
         full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
         w = sols[winner]
         solved, sol, notes = self._solve_gated(
             full, g.Guess(w.rot, w.pos, w.landmarks, w.bias), chosen.seed.name, progress
         )
+        solves += sol.summary["linear_solves"]
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
-        return Candidate(chosen.seed, solved, sol, notes), record, note
+        return Candidate(chosen.seed, solved, sol, notes), record, note, solves
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again

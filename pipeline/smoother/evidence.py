@@ -23,8 +23,12 @@ from slamobs.pipeline.smoother.preintegration import D_END, D_W
 
 #: The levels whose scale is chosen, one after the other (each at the scales already chosen before it).
 KEYS = ("velocity", "gyro")
-#: Passes over ``KEYS`` at most: another while a scale moved (the levels trade off against each other).
-PASSES = 3
+#: Passes over ``KEYS`` go on while a scale moved (the levels trade off against each other, and a pass moves a
+#: level by x3 up or x10 down at most), until the scans' linear solves exceed this many times those of the first
+#: solution (the solver's work, counted rather than timed so that a run's result does not depend on the
+#: machine's load), and at least ``SOLVE_FLOOR`` linear solves: on a small log the first solution takes few
+#: (TagSLAM 22: 9, while one scan of the velocity took 93), and 20x of them stopped it after two passes.
+SOLVE_BUDGET, SOLVE_FLOOR = 20.0, 600
 #: Scales of each level tried, from the level the run would otherwise use (``noise: auto``, estimated
 #: or defaulted); searched downwards from 1 while the evidence rises, else upwards.
 SCALES = (0.1, 0.3, 1.0, 3.0)
@@ -55,6 +59,15 @@ def detection_log_det(problem) -> float:
     return 6.0 * float(np.sum(np.log(np.maximum(problem.det_sigma, 1e-12))))
 
 
+def walk_log_det(problem, n_segments: int) -> float:
+    """``Σ log det Σ`` of the random-walk factors between the ``n_segments`` bias segments (diagonal, 6 axes
+    each; 0 for one constant bias). With them the evidence compares bias models and walk levels: a segment adds
+    six variables and one six-dimensional factor, so the ``2π`` terms cancel."""
+    if problem.walk_sigma is None or n_segments < 2:
+        return 0.0
+    return 2.0 * (n_segments - 1) * float(np.sum(np.log(problem.walk_sigma)))
+
+
 def log_evidence(problem, sol) -> float | None:
     """``log Z`` at the solution ``sol`` of ``problem`` (module docstring), up to a constant; None when the normal
     matrix there is not positive definite."""
@@ -64,7 +77,8 @@ def log_evidence(problem, sol) -> float | None:
     if terms is None:
         return None
     error, log_det_h = terms
-    return -error - 0.5 * log_det_h - 0.5 * (motion_log_det(problem) + detection_log_det(problem))
+    dets = motion_log_det(problem) + detection_log_det(problem) + walk_log_det(problem, sol.bias.shape[0])
+    return -error - 0.5 * log_det_h - 0.5 * dets
 
 
 def search_order(scales: tuple[float, ...] = SCALES) -> tuple[list[float], list[float]]:
