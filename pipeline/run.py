@@ -731,7 +731,11 @@ def evaluate_run(
         notes.append("no ground truth in the log: no error report (report.md and the figures show the estimate)")
     else:
         metadata["map_error"] = _map_error(out, streams.landmark_truth)
-        found = "" if metadata["map_error"] else " (fewer than three matched landmarks off one line: none computed)"
+        found = (
+            _map_error_words(metadata["map_error"])
+            if metadata["map_error"]
+            else " (fewer than three matched landmarks off one line: none computed)"
+        )
         notes.append(
             f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}"
         )
@@ -853,6 +857,16 @@ def _map_error(out: Path, landmark_truth: dict) -> dict | None:
     from slamobs.pipeline.writers import read_columns
 
     return map_only_section(read_columns(out / "landmarks.parquet"), landmark_truth)
+
+
+def _map_error_words(map_error: dict) -> str:
+    """The map error as report.md's note gives it: the number with its definition (a note without it said only
+    that there was one)."""
+    err = map_error["error_m"]
+    return (
+        f": rmse {err['rmse']:.4f} m over {map_error['n_matched']} landmarks after a map-only SE(3) alignment"
+        " (run.json map_error)"
+    )
 
 
 def _topics(streams: LogStreams) -> dict[str, str]:

@@ -80,6 +80,8 @@ def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):
     meta = json.loads((tmp_path / "out" / "run.json").read_text())
     rmse = meta["map_error"]["error_m"]["rmse"]
     assert f"map error rmse {rmse:.4f} m" in res.output
+    # the note report.md carries states the number and its alignment, not only that a map error exists
+    assert any(f"rmse {rmse:.4f} m over" in n and "map-only SE(3)" in n for n in meta["notes"]), meta["notes"]
     assert "no ground truth in the log: no error report" not in res.output
 
 
