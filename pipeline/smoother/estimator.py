@@ -111,6 +111,8 @@ class BatchSmoother(Stepper):
         self.seed_override = seed
         self.fixed_bias = fixed_bias
         self.result = None  # filled by the first stretch
+        #: each detection's variance factor for its errors' time correlation (None: white, every factor 1)
+        self.det_factor = None
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
@@ -133,6 +135,7 @@ class BatchSmoother(Stepper):
         chosen, robust, seed_s = first, None, seed.seconds
         if (reason := cands.doubt(full, first)) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
+        chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, evidence, evidence_notes = self._evidence(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -156,6 +159,7 @@ class BatchSmoother(Stepper):
         if robust is not None:
             summary["robust"] = robust[0]
         summary["noise_scale"] = evidence
+        summary["detection_correlation"] = correlation
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -163,7 +167,8 @@ class BatchSmoother(Stepper):
             "noise": self.noise.as_dict(),
             "time_offset": self.time_offset,
         }
-        self.stats["notes"] = ([robust[1]] if robust is not None else []) + evidence_notes + list(chosen.notes or [])
+        self.stats["notes"] = [robust[1]] if robust is not None else []
+        self.stats["notes"] += correlation_notes + evidence_notes + list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
@@ -287,7 +292,8 @@ class BatchSmoother(Stepper):
             kf_of_det=kf_of_det,
             det_idx=s.det_idx,
             det_y=s.det_y,
-            det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1)),
+            det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1))
+            * (1.0 if self.det_factor is None else np.sqrt(self.det_factor)),
             bias_prior_sigma=prior,
             bias_prior_mean=prior_mean,
             walk_sigma=walk,
@@ -309,6 +315,31 @@ class BatchSmoother(Stepper):
             cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
         return data
+
+    def _decorrelate(self, chosen, keyframes: tuple, segments: _Segments, progress):
+        """The detections' time correlation fitted to the chosen solution's residuals
+        (:mod:`pipeline.smoother.correlation`); when significant, every detection's variance is scaled by its
+        track's factor and the smoother solved (and gated) again from that solution. The candidate kept, the
+        record and the notes."""
+        from slamobs.pipeline.smoother import correlation as dc
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.candidates import Candidate
+
+        why = dc.skipped(self.settings.detection_correlation, self.fixed_bias is not None, self.noise)
+        if why is not None:
+            return chosen, {"skipped": why}, []
+        kf_t, kf_of_det, gaps = keyframes
+        p, sol = chosen.problem, chosen.sol
+        corr = dc.fit(kf_t[p.kf_of_det], p.det_idx, g.detection_residuals(p, sol) / p.det_sigma[:, None])
+        if not corr.significant:
+            return chosen, dc.record(corr, None), []
+        self.det_factor = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
+        full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
+        guess = g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias)
+        solved, new, notes = self._solve_gated(full, guess, chosen.seed.name, progress)
+        new.summary = g.merge_summaries(sol.summary, new.summary)
+        f = self.det_factor
+        return Candidate(chosen.seed, solved, new, notes), dc.record(corr, f), [dc.note(corr, f)]
 
     def _evidence_skipped(self, key: str) -> str | None:
         """Why the scale of the level ``key`` is not chosen by the evidence here, or None."""
@@ -470,9 +501,9 @@ class BatchSmoother(Stepper):
         freedom), or None when all do (or there is no gate)."""
         if gate_chi2 is None:
             return None
-        kf = problem.kf_of_det
-        pred = np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf])
-        d2 = np.sum((pred - problem.det_y) ** 2, axis=1) / np.maximum(problem.det_sigma, 1e-12) ** 2
+        from slamobs.pipeline.smoother.graph import detection_residuals
+
+        d2 = np.sum(detection_residuals(problem, sol) ** 2, axis=1) / np.maximum(problem.det_sigma, 1e-12) ** 2
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
 

@@ -319,15 +319,19 @@ def merge_summaries(first: dict, second: dict) -> dict:
     return out
 
 
+def detection_residuals(problem: Problem, sol: Solution) -> np.ndarray:
+    """Each detection's residual ``Rᵀ(ℓ − P) − y`` (M, 3, body frame, m) at the solution."""
+    kf = problem.kf_of_det
+    return np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf]) - problem.det_y
+
+
 def residual_statistics(problem: Problem, sol: Solution) -> dict:
     """Per factor type: residual sizes at the solution (metric and whitened), and how many detections the
     Huber kernel down-weights."""
     from slamobs.pipeline.smoother.preintegration import motion_residuals
 
     motion = motion_residuals(problem.data, problem.b_bar, sol.rot, sol.pos, sol.bias, problem.seg_of)
-    kf = problem.kf_of_det
-    pred = np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf])
-    err = np.linalg.norm(pred - problem.det_y, axis=1)
+    err = np.linalg.norm(detection_residuals(problem, sol), axis=1)
     whitened = err / np.maximum(problem.det_sigma, 1e-12)
     bias_prior = (sol.bias[0] - problem.bias_prior_mean) / problem.bias_prior_sigma
     return {

@@ -11,6 +11,7 @@ BIAS_MODELS = ("constant", "random-walk")
 #: when the motion levels' scales are chosen by the smoother's evidence (pipeline.smoother.evidence): never, only
 #: for a stream that holds its values (its level comes from the detections and is uncertain), or always
 EVIDENCE_MODES = ("off", "held", "always")
+CORRELATION_MODES = ("off", "auto")
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,9 @@ class BatchSettings:
     #: when the velocity and gyro levels' scales are chosen by the evidence (one of ``EVIDENCE_MODES``); a
     #: ``noise: velocity`` or ``gyro`` key set in run.yaml is used as given
     noise_evidence: str = "always"
+    #: "auto": the detections' time correlation fitted to the first solution's residuals, each detection's
+    #: variance scaled by its effective-sample factor when significant (pipeline.smoother.correlation); "off"
+    detection_correlation: str = "auto"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -47,4 +51,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
     if settings.noise_evidence not in EVIDENCE_MODES:
         modes = ", ".join(EVIDENCE_MODES)
         raise GainError(f"batch.noise_evidence must be one of {modes}, got {settings.noise_evidence!r}")
+    if settings.detection_correlation not in CORRELATION_MODES:
+        modes = ", ".join(CORRELATION_MODES)
+        raise GainError(f"batch.detection_correlation must be one of {modes}, got {settings.detection_correlation!r}")
     return settings

@@ -1,0 +1,164 @@
+"""Time-correlated detection errors: how many independent detections a landmark's track is worth.
+
+A detector's error need not be white: on MR.CLAM a landmark's range error changes over seconds (the viewing
+geometry, docs/benchmarks.md "The held streams against Vicon"). Weighed as independent, ``n`` detections of one
+landmark within a second count the same slow error ``n`` times, and the smoother trusts them over the odometry.
+
+From a solution's detection residuals, whitened by their standard deviations, the pairs of detections of one
+landmark at a lag ``h`` give the variogram ``γ(h) = ½ E|wᵢ − wⱼ|²`` relative to the residuals' variance ``v``:
+flat at 1 for a white error, below it where the error is correlated. The model
+
+    γ(h) / v = 1 − a · exp(−h / τ)        (ρ(h) = a · exp(−h / τ) for h > 0)
+
+is fitted by least squares over lag bins (``τ`` on a grid, ``a`` in closed form). Each detection's variance is
+then scaled by its row sum of the correlation matrix of its landmark's detections,
+
+    fᵢ = 1 + Σⱼ ρ(|tᵢ − tⱼ|)            (j ≠ i, the same landmark),
+
+the effective-sample-size correction (exact for equally correlated detections: ``n`` of them with correlation
+``ρ`` are worth ``n / (1 + (n − 1) ρ)``). Where the correlation is not significant (``a`` within
+``SIGNIFICANCE`` standard errors of 0, or below ``MIN_CORRELATION``: white detections, as the simulator writes)
+every factor is exactly 1 and nothing changes. Pure numerics, no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Longest lag (s) of the pairs the variogram is fitted on, and the bins' edges below it (s).
+LAG_EDGES = np.array([0.0, 0.15, 0.3, 0.6, 1.2, 2.5, 5.0, 10.0])
+#: Correlation times tried (s).
+TAUS = np.geomspace(0.05, 20.0, 41)
+#: The correlated share ``a`` must exceed this many of its standard errors (white under the null hypothesis) ...
+SIGNIFICANCE = 5.0
+#: ... and this value: a correlation this small changes the weights by less than the levels' own uncertainty.
+MIN_CORRELATION = 0.2
+#: Pairs at most this many detections apart along a landmark's track (the bins below ``LAG_EDGES[-1]`` fill long
+#: before; bounds the work on long logs).
+MAX_OFFSET = 64
+
+
+@dataclass(frozen=True)
+class Correlation:
+    """The fitted detection-error correlation ``ρ(h) = share · exp(−h / tau)`` and how sure it is."""
+
+    share: float  # a: the correlated share of the residuals' variance at lag 0+
+    tau: float  # s
+    stderr: float  # of ``share`` under white residuals
+    pairs: int
+    bins: dict  # lag bin centre (s) -> (pairs, γ/v)
+
+    @property
+    def significant(self) -> bool:
+        return self.share > max(SIGNIFICANCE * self.stderr, MIN_CORRELATION)
+
+    def rho(self, lag: np.ndarray) -> np.ndarray:
+        return self.share * np.exp(-np.abs(lag) / self.tau)
+
+
+def _tracks(t: np.ndarray, landmark: np.ndarray) -> np.ndarray:
+    """The detections' order by landmark, then time."""
+    return np.lexsort((t, landmark))
+
+
+def variogram(t: np.ndarray, landmark: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per lag bin (``LAG_EDGES``): mean lag, number of pairs and ``γ/v`` of the whitened residuals ``w`` (M, 3)
+    over pairs of detections of one landmark."""
+    o = _tracks(t, landmark)
+    t, landmark, w = t[o], landmark[o], w[o]
+    v = float(np.mean(np.sum(w * w, axis=1)))
+    nb = LAG_EDGES.shape[0] - 1
+    n, s, h = np.zeros(nb), np.zeros(nb), np.zeros(nb)
+    for k in range(1, min(MAX_OFFSET, t.shape[0] - 1) + 1):
+        lag = t[k:] - t[:-k]
+        ok = (landmark[k:] == landmark[:-k]) & (lag > 0.0) & (lag < LAG_EDGES[-1])
+        if not ok.any():
+            break
+        b = np.searchsorted(LAG_EDGES, lag[ok], side="right") - 1
+        d2 = 0.5 * np.sum((w[k:][ok] - w[:-k][ok]) ** 2, axis=1)
+        n += np.bincount(b, minlength=nb)
+        s += np.bincount(b, weights=d2, minlength=nb)
+        h += np.bincount(b, weights=lag[ok], minlength=nb)
+    full = n > 0
+    return h[full] / n[full], n[full], s[full] / n[full] / max(v, 1e-300)
+
+
+def fit(t: np.ndarray, landmark: np.ndarray, w: np.ndarray) -> Correlation:
+    """``ρ(h) = a·exp(−h/τ)`` fitted to the variogram of the whitened residuals ``w`` (module docstring)."""
+    lag, n, g = variogram(t, landmark, w)
+    if lag.size == 0:
+        return Correlation(0.0, float(TAUS[0]), float("inf"), 0, {})
+    best = (np.inf, 0.0, float(TAUS[0]), np.inf)
+    for tau in TAUS:
+        e = np.exp(-lag / tau)
+        a = float(np.clip(np.sum(n * e * (1.0 - g)) / np.sum(n * e * e), 0.0, 1.0))
+        sse = float(np.sum(n * (1.0 - g - a * e) ** 2))
+        if sse < best[0]:
+            # a pair's ½|Δw|²/v is χ²₃/3 under white residuals (variance 2/3); the pairs taken as independent
+            best = (sse, a, float(tau), float(np.sqrt((2.0 / 3.0) / np.sum(n * e * e))))
+    bins = {round(float(h), 3): (int(k), round(float(x), 3)) for h, k, x in zip(lag, n, g, strict=True)}
+    return Correlation(best[1], best[2], best[3], int(n.sum()), bins)
+
+
+def inflation(t: np.ndarray, landmark: np.ndarray, corr: Correlation) -> np.ndarray:
+    """Each detection's variance factor ``fᵢ = 1 + Σⱼ ρ(|tᵢ − tⱼ|)`` over the other detections of its landmark
+    (exactly 1 everywhere when the correlation is not significant)."""
+    f = np.ones(t.shape[0])
+    if not corr.significant:
+        return f
+    o = _tracks(t, landmark)
+    ts, ls = t[o], landmark[o]
+    fs = np.ones(t.shape[0])
+    reach = 10.0 * corr.tau  # exp(−10) of the share beyond
+    for k in range(1, t.shape[0]):
+        lag = ts[k:] - ts[:-k]
+        ok = (ls[k:] == ls[:-k]) & (lag < reach)
+        if not ok.any():
+            break
+        r = np.where(ok, corr.rho(lag), 0.0)
+        fs[k:] += r
+        fs[:-k] += r
+    f[o] = fs
+    return f
+
+
+def skipped(mode: str, fixed_bias: bool, noise) -> str | None:
+    """Why the correlation is not modelled here, or None."""
+    if mode == "off":
+        return "batch.detection_correlation is off"
+    if fixed_bias:
+        return "the biases are fixed (a reference run)"
+    if noise.sources.get("detection") == "config":
+        return "noise: detection is set in the configuration"
+    return None
+
+
+def record(corr: Correlation, factor: np.ndarray | None) -> dict:
+    """The fit for run.json (observer.smoother.detection_correlation)."""
+    out = {
+        "model": "rho(lag) = share * exp(-lag / tau_s), pairs of detections of one landmark",
+        "share": round(corr.share, 4),
+        "tau_s": round(corr.tau, 3),
+        "stderr": round(corr.stderr, 5) if np.isfinite(corr.stderr) else None,
+        "pairs": corr.pairs,
+        "variogram": {f"{h:g}": list(v) for h, v in corr.bins.items()},
+        "applied": factor is not None,
+    }
+    if factor is not None:
+        out["variance_factor"] = {
+            "median": round(float(np.median(factor)), 3),
+            "mean": round(float(np.mean(factor)), 3),
+            "max": round(float(np.max(factor)), 3),
+        }
+    return out
+
+
+def note(corr: Correlation, factor: np.ndarray) -> str:
+    return (
+        f"batch: the detections' errors are correlated in time (share {corr.share:.2f} of their variance, "
+        f"time constant {corr.tau:.2g} s, {corr.pairs} pairs of detections of one landmark): each detection's "
+        f"variance scaled by its track's effective-sample factor (median {np.median(factor):.3g}, "
+        f"max {np.max(factor):.3g})"
+    )
