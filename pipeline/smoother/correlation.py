@@ -132,14 +132,13 @@ def _chain(x: list[float]) -> list[float]:
     return out
 
 
-def skipped(mode: str, fixed_bias: bool, noise) -> str | None:
-    """Why the correlation is not modelled here, or None."""
+def skipped(mode: str, fixed_bias: bool) -> str | None:
+    """Why the correlation is not modelled here, or None. A detection level set under ``noise:`` is the marginal
+    σ of one detection: it says nothing of how many of them are independent, so it does not turn this off."""
     if mode == "off":
         return "batch.detection_correlation is off"
     if fixed_bias:
         return "the biases are fixed (a reference run)"
-    if noise.sources.get("detection") == "config":
-        return "noise: detection is set in the configuration"
     return None
 
 

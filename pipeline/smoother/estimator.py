@@ -325,7 +325,7 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.smoother import graph as g
         from slamobs.pipeline.smoother.candidates import Candidate
 
-        why = dc.skipped(self.settings.detection_correlation, self.fixed_bias is not None, self.noise)
+        why = dc.skipped(self.settings.detection_correlation, self.fixed_bias is not None)
         if why is not None:
             return chosen, {"skipped": why}, []
         kf_t, kf_of_det, gaps = keyframes
