@@ -135,8 +135,8 @@ class BatchSmoother(Stepper):
         chosen, robust, seed_s = first, None, seed.seconds
         if (reason := cands.doubt(full, first)) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
-        chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, evidence, evidence_notes = self._evidence(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
@@ -168,7 +168,7 @@ class BatchSmoother(Stepper):
             "time_offset": self.time_offset,
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
-        self.stats["notes"] += correlation_notes + evidence_notes + list(chosen.notes or [])
+        self.stats["notes"] += evidence_notes + correlation_notes + list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
