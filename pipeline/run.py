@@ -97,9 +97,11 @@ def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:
 STRETCH_SAMPLES = 131_072
 #: The run's tables its error report reads (handed over from the writer as written: :meth:`.TableWriter.kept`).
 REPORT_TABLES = ("poses", "biases", "landmarks")
-#: Handed over for runs of up to this many velocity samples (~2.9 h at 200 Hz); a longer run's report reads them
-#: back: the writer would hold them (120 bytes a sample) while the observer runs (four hours: +115 MB at the peak).
-HANDOVER_SAMPLES = 1 << 21
+#: Handed over while the values kept for them take at most this many bytes; past it the report reads them back:
+#: the writer holds them while the estimator runs, which adds them to the run's peak memory. An observer keeps
+#: 120 bytes a sample (one hour at 200 Hz: 86 MB); riekf and batch 336, with the pose covariances (one hour:
+#: 242 MB, which took batch's peak from 954 to 1130 MB when the limit counted samples).
+HANDOVER_BYTES = 1 << 27
 
 
 def _diverged(log: Path, observer: str, t_s: float, stats: dict) -> InputError:
@@ -582,8 +584,7 @@ def run_prepared(
         )
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         # the report's tables handed over as written, not read back from the files (when there is truth)
-        short = aligned.vel_t_ns.shape[0] <= HANDOVER_SAMPLES
-        tables = {} if short and streams.truth is not None and len(streams.truth) else None
+        tables = {} if streams.truth is not None and len(streams.truth) else None
         timings.update(
             estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables)
         )
@@ -636,7 +637,9 @@ def estimate(
     frame_choice = output_frame.parse_frame(config.output.frame)
     frame = None
     t0_ns = int(aligned.vel_t_ns[0])
-    sink = TableWriter(tmp, config.output.float_bits, keep=REPORT_TABLES if handover is not None else ())
+    sink = TableWriter(
+        tmp, config.output.float_bits, keep=REPORT_TABLES if handover is not None else (), keep_bytes=HANDOVER_BYTES
+    )
     writes = None
     try:
         if tags is not None:
