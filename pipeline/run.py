@@ -918,13 +918,12 @@ def _evaluate(
     from slamobs.pipeline import interrupts
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
-    from slamobs.pipeline.evaluation.report import REPORT_FILES
+    from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
     from slamobs.pipeline.writers import read_columns
 
-    segments = metadata["segments"]
     try:
         # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
         # the landmarks' are copied into landmarks_aligned.parquet)
@@ -972,17 +971,7 @@ def _evaluate(
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
-        if noise := [n for n in notes if n.startswith("noise: ")]:  # the levels riekf and batch used, and why
-            report.setdefault("notes", []).extend(noise)
-        if len(segments) > 1:
-            report.setdefault("notes", []).append(
-                f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
-                "integrated across a gap and the pose was re-anchored to the map after it where a frame allowed "
-                "(run.json notes say where); errors just after a gap show how well that worked"
-            )
-            report["segments"] = segments
-        if metadata.get("time_window"):
-            report["time_window"] = metadata["time_window"]
+        add_run_context(report, notes, metadata)
         write_report(
             report,
             out,
