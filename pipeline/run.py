@@ -384,15 +384,14 @@ def run_log(
     *,
     force: bool = False,
     progress: Progress = silent,
-    plot_helpers: int = 0,
     plot_workers=None,
 ) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
-    ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
-    report's figures are drawn by that many helper processes started now, which import matplotlib while the
-    log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``);
-    ``plot_workers`` are such helpers started earlier by the caller (the CLI, before its own imports), stopped
-    here at the end (at once without ``evaluation.plots``)."""
+    ``progress`` receives a short line at each stage (and each observer stretch). ``plot_workers`` (started
+    :class:`.evaluation.plot_worker.PlotWorkers`, which import matplotlib while the log is read; worth it where a
+    core is free: the CLI's ``run`` starts them before its own imports) draw the report's figures, and are
+    stopped here at the end (at once without ``evaluation.plots``); without them the figures are drawn in this
+    process."""
     from slamobs.pipeline.paths import check_output, run_memory_mb
 
     try:
@@ -409,10 +408,6 @@ def run_log(
     workers = plot_workers if config.evaluation.plots else None
     if plot_workers is not None and workers is None:
         plot_workers.close()
-    if workers is None and plot_helpers > 0 and config.evaluation.plots:
-        from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
-
-        workers = PlotWorkers(plot_helpers)
     try:
         prepared = prepare_log(
             log, config, directions=directions, progress=progress, needs_directions=needed, noise=spec.uses_noise
