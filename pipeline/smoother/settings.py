@@ -11,6 +11,9 @@ BIAS_MODELS = ("constant", "random-walk")
 #: when the motion levels' scales are chosen by the smoother's evidence (pipeline.smoother.evidence): never, only
 #: for a stream that holds its values (its level comes from the detections and is uncertain), or always
 EVIDENCE_MODES = ("off", "held", "always")
+#: how the noise scales are chosen: by the evidence (``noise_evidence`` says when), or by blocked
+#: cross-validation of the detections (pipeline.smoother.cross_validation; replaces the evidence)
+SELECTION_MODES = ("evidence", "cross_validation")
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,8 @@ class BatchSettings:
     #: when the velocity and gyro levels' scales are chosen by the evidence (one of ``EVIDENCE_MODES``); a
     #: ``noise: velocity`` or ``gyro`` key set in run.yaml is used as given
     noise_evidence: str = "always"
+    #: what chooses the noise scales (one of ``SELECTION_MODES``)
+    noise_selection: str = "evidence"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -47,4 +52,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
     if settings.noise_evidence not in EVIDENCE_MODES:
         modes = ", ".join(EVIDENCE_MODES)
         raise GainError(f"batch.noise_evidence must be one of {modes}, got {settings.noise_evidence!r}")
+    if settings.noise_selection not in SELECTION_MODES:
+        modes = ", ".join(SELECTION_MODES)
+        raise GainError(f"batch.noise_selection must be one of {modes}, got {settings.noise_selection!r}")
     return settings
