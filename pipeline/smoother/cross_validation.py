@@ -28,14 +28,14 @@ MOTION_SCALES = (0.1, 1.0, 10.0)
 DETECTION_SCALES = (0.3, 1.0, 3.0)
 #: Folds and the length of their interleaved blocks, s: block ``b`` (from the first detection) is in fold
 #: ``b mod FOLDS``.
-FOLDS, BLOCK_S = 4, 30.0
+FOLDS, BLOCK_S = 4, 60.0
 #: A held-out detection's standard deviation is multiplied by this in its fold (weight 1e-8 of a kept one).
 HELD_OUT = 1e4
 #: Levenberg–Marquardt iterations per fold solve (warm-started from the full solution).
-MAX_ITERATIONS = 10
+MAX_ITERATIONS = 20
 #: Scores within this fraction of the lowest are ties (the folds' scores are noisy at about a per cent): of them,
 #: the pair nearest x1, x1 wins.
-MIN_GAIN = 0.02
+MIN_GAIN = 0.01
 #: What the choice minimises, for run.json.
 CRITERION = (
     f"blocked cross-validation: {FOLDS} folds of interleaved {BLOCK_S:g} s blocks of detections held out, each "
