@@ -53,13 +53,14 @@ def main() -> None:
         cv, cpu_cv = run(log, "cross_validation", runs / f"{log.name}-selection-cv")
         best, where = real_logs.best_of_grid(log, "batch", runs, ev, False) if args.grid else (None, "")
         b = best.score if best is not None else float("nan")
+        ratios = [f"{x / b:.2f}" if best is not None else "" for x in (cv.score, ev.score)]
         record = (cv.smoother.get("noise_scale") or {}).get("cross_validation") or {}
         kept = record.get("winner") or record.get("skipped") or cv.error
         if isinstance(kept, dict):
             kept = f"motion x{kept['motion']:g}, det x{kept['detection']:g}"
         print(
-            f"| {log.name} | {fmt(ev.score)} | {fmt(cv.score)} | {fmt(b)} {f'({where})' if where else ''} | "
-            f"{cv.score / b:.2f} | {ev.score / b:.2f} | {kept} | {cpu_ev:.1f} / {cpu_cv:.1f} |",
+            f"| {log.name} | {fmt(ev.score)} | {fmt(cv.score)} | {f'{fmt(b)} ({where})' if where else ''} | "
+            f"{ratios[0]} | {ratios[1]} | {kept} | {cpu_ev:.1f} / {cpu_cv:.1f} |",
             flush=True,
         )
 
