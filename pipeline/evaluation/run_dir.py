@@ -23,7 +23,7 @@ from slamobs.pipeline import interrupts
 from slamobs.pipeline.alignment import TimeWindow
 from slamobs.pipeline.errors import InputError, OutputError
 from slamobs.pipeline.paths import check_utf8, read_manifest
-from slamobs.pipeline.evaluation.report import REPORT_FILES, evaluate_report, write_report
+from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import update_manifest
@@ -300,8 +300,7 @@ def report_run(
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source
     report["notes"] = ti.notes + report["notes"]
-    if run.meta.get("time_window"):
-        report["time_window"] = run.meta["time_window"]
+    add_run_context(report, list(run.meta.get("notes") or []), run.meta)
 
     def fill(staged: Path) -> None:
         write_report(
