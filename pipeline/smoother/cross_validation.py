@@ -59,32 +59,32 @@ def fold_of(t_det: np.ndarray, n_folds: int | None = None, block_s: float | None
     return ((t_det - t_det.min()) // block_s).astype(np.int64) % n_folds
 
 
-def holding_out(problem, held: np.ndarray, seen: np.ndarray):
-    """``problem`` without the detections ``held`` (a mask), except those of landmarks with no other detection
-    (``seen[landmark]`` False): kept with their standard deviation x ``HELD_OUT``, they keep the landmark
-    determined, and pull on nothing else (their landmark follows them)."""
-    keep = ~held | ~seen[problem.det_idx]
-    sigma = np.where(held, problem.det_sigma * HELD_OUT, problem.det_sigma)[keep]
+def subset(problem, keep: np.ndarray, det_sigma: np.ndarray | None = None):
+    """``problem`` with only the detections ``keep`` (a mask or indices), their standard deviations
+    ``det_sigma`` (all the problem's detections) if given."""
+    sigma = problem.det_sigma if det_sigma is None else det_sigma
     return replace(
         problem,
         kf_of_det=problem.kf_of_det[keep],
         det_idx=problem.det_idx[keep],
         det_y=problem.det_y[keep],
-        det_sigma=sigma,
+        det_sigma=sigma[keep],
     )
 
 
-def prediction_errors(problem, sol, which: np.ndarray) -> np.ndarray:
-    """The body-frame prediction error ``Rᵀ(ℓ − P) − y`` of the detections ``which`` (indices) at ``sol``."""
-    kf, lm = problem.kf_of_det[which], problem.det_idx[which]
+def holding_out(problem, held: np.ndarray, seen: np.ndarray):
+    """``problem`` without the detections ``held`` (a mask), except those of landmarks with no other detection
+    (``seen[landmark]`` False): kept with their standard deviation x ``HELD_OUT``, they keep the landmark
+    determined, and pull on nothing else (their landmark follows them)."""
+    keep = ~held | ~seen[problem.det_idx]
+    return subset(problem, keep, np.where(held, problem.det_sigma * HELD_OUT, problem.det_sigma))
+
+
+def prediction_errors(problem, sol) -> np.ndarray:
+    """The body-frame prediction error ``Rᵀ(ℓ − P) − y`` of every detection of ``problem`` at ``sol``."""
+    kf, lm = problem.kf_of_det, problem.det_idx
     pred = np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[lm] - sol.pos[kf])
-    return pred - problem.det_y[which]
-
-
-def robust_score(errors: np.ndarray, sigma_ref: np.ndarray, huber: float) -> float:
-    """Huber-robust sum of the errors' norms whitened by ``sigma_ref`` (the smoother's own kernel)."""
-    r = np.linalg.norm(errors, axis=1) / np.maximum(sigma_ref, 1e-12)
-    return float(np.sum(np.where(r <= huber, 0.5 * r * r, huber * (r - 0.5 * huber))))
+    return pred - problem.det_y
 
 
 def candidate_problem(problem, motion_data, motion: float, detection: float):
@@ -98,9 +98,9 @@ def cross_validate(problem, start, folds: np.ndarray, motion_data, solve, scales
     its per-fold parts and the linear solves taken. ``problem`` and ``start`` (a graph.Guess) are the full
     solution's; ``solve(problem, guess)`` solves a fold; a detection whose landmark has no kept detection in its
     fold is not scored (nothing predicts it)."""
+    from slamobs.pipeline.smoother.candidates import detection_cost
     from slamobs.pipeline.smoother.graph import Guess
 
-    sigma_ref = problem.det_sigma
     out = {}
     for motion, detection in scales:
         cand = candidate_problem(problem, motion_data, motion, detection)
@@ -112,9 +112,9 @@ def cross_validate(problem, start, folds: np.ndarray, motion_data, solve, scales
             which = np.flatnonzero(held & seen[problem.det_idx])
             sol = solve(holding_out(cand, held, seen), Guess(start.rot, start.pos, start.landmarks, start.bias))
             solves += int(sol.summary.get("linear_solves", 0))
-            err = prediction_errors(problem, sol, which)
-            parts.append(robust_score(err, sigma_ref[which], problem.huber))
-            sse += float(np.sum(err * err))
+            scored = subset(problem, which)  # at the run's own law: the fixed reference
+            parts.append(detection_cost(scored, sol.rot, sol.pos, sol.landmarks))
+            sse += float(np.sum(prediction_errors(scored, sol) ** 2))
         out[motion, detection] = {"score": float(np.sum(parts)), "folds": parts, "sse": sse, "solves": solves}
     return out
 
