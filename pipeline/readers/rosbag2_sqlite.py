@@ -25,10 +25,7 @@ MAGIC = b"SQLite format 3\x00"
 
 SQL_ROWS, SQL_BYTES = 8192, 1 << 20  # an ordered batch of rows stops at either (like a chunk: bounded memory)
 
-#: A window of row ids aims at this many decoding groups (:data:`.storage.GROUP_BYTES`) of payload: above one, so
-#: that a window a little lighter than the last still fills a group alone and is decoded without being joined.
-WINDOW_GROUPS = 1.25
-WINDOW_ROWS = 1 << 20  # and holds at most this many rows (the three number texts stay a few MB)
+WINDOW_ROWS = 1 << 20  # a window of row ids holds at most this many (its three number texts stay a few MB)
 
 
 class Sqlite3Storage(Sqlite3Reader):
@@ -73,7 +70,7 @@ def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Itera
     if last is None:
         return
     pages, page = (next(iter(db.execute(f"PRAGMA {name}")))[0] for name in ("page_count", "page_size"))
-    aim = WINDOW_GROUPS * storage.GROUP_BYTES  # read when called: a test may set smaller groups
+    aim = storage.GROUP_BYTES  # read when called: a test may set smaller groups
     window = _rows_for(aim, pages * page / (last - first + 1))  # from the database's bytes per row
     windows = _windows(db, (wanted, among, ids), first, last, window)
     # one window: nothing to overlap; several: the next is queried by a thread while the caller decodes
@@ -87,15 +84,16 @@ def _windows(
     row ids, the first ``window`` rows long.
 
     SQLite concatenates each window's payloads (one ``group_concat`` query); a window is aimed at a decoding
-    group of payload, so :func:`.storage.grouped` passes it on as it is instead of copying small windows into
-    one buffer. Each next window's rows follow from the payload per row of the one before (at most 4x more).
+    group of payload (:data:`.storage.GROUP_BYTES`), so :func:`.storage.grouped` passes it on as it is instead
+    of copying windows of 1 MB into one buffer (~0.5 ms a MB). Each next window's rows follow from the payload
+    per row of the one before (at most 4x more).
     """
     wanted, where, ids = among
     query = (
         "SELECT CAST(group_concat(data, x'') AS BLOB), group_concat(length(data)), group_concat(timestamp), "
         f"group_concat(topic_id) FROM messages WHERE {where} AND id >= ? AND id < ?"
     )
-    aim = WINDOW_GROUPS * storage.GROUP_BYTES
+    aim = storage.GROUP_BYTES
     lo = first
     while lo <= last:
         blob, sizes, stamps, topics = next(iter(db.execute(query, [*wanted, lo, lo + window])))

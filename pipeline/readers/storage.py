@@ -179,10 +179,17 @@ def read_ahead(batches: Iterator[RawBatch | None], name: str) -> Iterator[RawBat
 
 
 def grouped(batches: Iterable[RawBatch]) -> Iterator[RawBatch]:
-    """Consecutive batches joined until they hold ``GROUP_BYTES`` (the order of the messages is kept)."""
+    """Consecutive batches joined until they hold ``GROUP_BYTES`` (the order of the messages is kept); a batch
+    of half a group or more is passed on alone (after the group before it), not copied into a group."""
     group: list[RawBatch] = []
     size = 0
     for batch in batches:
+        if 2 * int(batch.data.shape[0]) >= GROUP_BYTES:
+            if group:
+                yield concat(group)
+                group, size = [], 0
+            yield batch
+            continue
         group.append(batch)
         size += int(batch.data.shape[0])
         if size >= GROUP_BYTES:
