@@ -199,7 +199,8 @@ def _print_summary(summary) -> None:
         if conv is not None:
             click.echo(f"converged    {conv}")
         for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
-            click.echo(f"note         {note}")
+            if note not in summary.notes:  # the run's own (the noise levels) are in the report too: printed above
+                click.echo(f"note         {note}")
     elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
         err = m["map_error"]["error_m"]
         click.echo(

@@ -98,7 +98,7 @@ def report(
     Without truth (the run had none and no --truth): the run's figures and a summary in report.md."""
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
-    from slamobs.pipeline.evaluation.run_dir import load_run, options_for_run, report_run
+    from slamobs.pipeline.evaluation.run_dir import options_for_run, report_run, run_meta
 
     given = {
         "t_max_diff_s": t_max_diff,
@@ -113,13 +113,13 @@ def report(
     if truth is None and not _summarised(run_dir, as_json, quiet):  # a run without truth: its figures
         return
     try:
-        run = load_run(run_dir)
+        meta = run_meta(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
         for key in ("drift_lengths_m", "truth_rotation_xyzw"):
             if base.get(key) is not None:
                 base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
-        options = options_for_run(run.meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
+        options = options_for_run(meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
             progress("report: evaluating and drawing the figures")
             rep, written = report_run(run_dir, truth, options, exports=export)
@@ -136,10 +136,10 @@ def report(
 def _summarised(run_dir: Path, as_json: bool, quiet: bool) -> bool:
     """A run without truth is summarised and drawn (False: done); True when the run has truth to report on."""
     from slamobs.pipeline.errors import InputError
-    from slamobs.pipeline.evaluation.run_dir import has_truth, load_run, summarise_run
+    from slamobs.pipeline.evaluation.run_dir import has_truth, run_meta, summarise_run
 
     try:
-        if has_truth(load_run(run_dir).meta):
+        if has_truth(run_meta(run_dir)):
             return True
         with Progress(quiet) as progress:
             progress("report: drawing the run's figures (no truth: no error report)")

@@ -97,9 +97,11 @@ def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:
 STRETCH_SAMPLES = 131_072
 #: The run's tables its error report reads (handed over from the writer as written: :meth:`.TableWriter.kept`).
 REPORT_TABLES = ("poses", "biases", "landmarks")
-#: Handed over for runs of up to this many velocity samples (~2.9 h at 200 Hz); a longer run's report reads them
-#: back: the writer would hold them (120 bytes a sample) while the observer runs (four hours: +115 MB at the peak).
-HANDOVER_SAMPLES = 1 << 21
+#: Handed over while the values kept for them take at most this many bytes; past it the report reads them back:
+#: the writer holds them while the estimator runs, which adds them to the run's peak memory. An observer keeps
+#: 120 bytes a sample (one hour at 200 Hz: 86 MB); riekf and batch 336, with the pose covariances (one hour:
+#: 242 MB, which took batch's peak from 954 to 1130 MB when the limit counted samples).
+HANDOVER_BYTES = 1 << 27
 
 
 def _diverged(log: Path, observer: str, t_s: float, stats: dict) -> InputError:
@@ -382,15 +384,14 @@ def run_log(
     *,
     force: bool = False,
     progress: Progress = silent,
-    plot_helpers: int = 0,
     plot_workers=None,
 ) -> RunSummary:
     """Run ``config.observer`` on ``log`` and write a complete run directory ``out_dir`` atomically;
-    ``progress`` receives a short line at each stage (and each observer stretch). With ``plot_helpers`` > 0 the
-    report's figures are drawn by that many helper processes started now, which import matplotlib while the
-    log is read (:mod:`.evaluation.plot_worker`; worth it where a core is free: the CLI's ``run``);
-    ``plot_workers`` are such helpers started earlier by the caller (the CLI, before its own imports), stopped
-    here at the end (at once without ``evaluation.plots``)."""
+    ``progress`` receives a short line at each stage (and each observer stretch). ``plot_workers`` (started
+    :class:`.evaluation.plot_worker.PlotWorkers`, which import matplotlib while the log is read; worth it where a
+    core is free: the CLI's ``run`` starts them before its own imports) draw the report's figures, and are
+    stopped here at the end (at once without ``evaluation.plots``); without them the figures are drawn in this
+    process."""
     from slamobs.pipeline.paths import check_output, run_memory_mb
 
     try:
@@ -407,10 +408,6 @@ def run_log(
     workers = plot_workers if config.evaluation.plots else None
     if plot_workers is not None and workers is None:
         plot_workers.close()
-    if workers is None and plot_helpers > 0 and config.evaluation.plots:
-        from slamobs.pipeline.evaluation.plot_worker import PlotWorkers
-
-        workers = PlotWorkers(plot_helpers)
     try:
         prepared = prepare_log(
             log, config, directions=directions, progress=progress, needs_directions=needed, noise=spec.uses_noise
@@ -582,8 +579,7 @@ def run_prepared(
         )
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         # the report's tables handed over as written, not read back from the files (when there is truth)
-        short = aligned.vel_t_ns.shape[0] <= HANDOVER_SAMPLES
-        tables = {} if short and streams.truth is not None and len(streams.truth) else None
+        tables = {} if streams.truth is not None and len(streams.truth) else None
         timings.update(
             estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables)
         )
@@ -636,7 +632,9 @@ def estimate(
     frame_choice = output_frame.parse_frame(config.output.frame)
     frame = None
     t0_ns = int(aligned.vel_t_ns[0])
-    sink = TableWriter(tmp, config.output.float_bits, keep=REPORT_TABLES if handover is not None else ())
+    sink = TableWriter(
+        tmp, config.output.float_bits, keep=REPORT_TABLES if handover is not None else (), keep_bytes=HANDOVER_BYTES
+    )
     writes = None
     try:
         if tags is not None:
@@ -915,13 +913,12 @@ def _evaluate(
     from slamobs.pipeline import interrupts
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
-    from slamobs.pipeline.evaluation.report import REPORT_FILES
+    from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
     from slamobs.pipeline.writers import read_columns
 
-    segments = metadata["segments"]
     try:
         # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
         # the landmarks' are copied into landmarks_aligned.parquet)
@@ -969,17 +966,7 @@ def _evaluate(
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
-        if noise := [n for n in notes if n.startswith("noise: ")]:  # the levels riekf and batch used, and why
-            report.setdefault("notes", []).extend(noise)
-        if len(segments) > 1:
-            report.setdefault("notes", []).append(
-                f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
-                "integrated across a gap and the pose was re-anchored to the map after it where a frame allowed "
-                "(run.json notes say where); errors just after a gap show how well that worked"
-            )
-            report["segments"] = segments
-        if metadata.get("time_window"):
-            report["time_window"] = metadata["time_window"]
+        add_run_context(report, notes, metadata)
         write_report(
             report,
             out,

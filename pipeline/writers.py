@@ -288,7 +288,9 @@ class TableWriter:
     the same bytes).
     """
 
-    def __init__(self, out_dir: Path, float_bits: int = FLOAT_BITS, keep: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self, out_dir: Path, float_bits: int = FLOAT_BITS, keep: tuple[str, ...] = (), keep_bytes: int | None = None
+    ) -> None:
         self.out_dir = Path(out_dir)
         self.float_bits = float_bits
         self.writers: dict[str, tuple[pq.ParquetWriter, pa.Schema]] = {}
@@ -296,6 +298,9 @@ class TableWriter:
         self._nulls: dict[tuple[int, pa.DataType], pa.Array] = {}  # one all-null column per length and type
         #: the tables in ``keep``: each stretch's values as written (rounded), for :meth:`kept`
         self._kept: dict[str, list[tuple[int, dict[str, np.ndarray]]]] = {name: [] for name in keep}
+        #: the kept values' bytes at most (None: no limit); past it nothing is kept (the reader reads the files)
+        self._keep_room = keep_bytes
+        self._keep_lock = threading.Lock()  # the two lanes keep their tables at once
 
     def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
         """Append one stretch of rows to each table."""
@@ -338,7 +343,19 @@ class TableWriter:
             for f in schema
         ]
         writer.write_table(pa.Table.from_arrays(arrays, schema=schema))
-        if name in self._kept:
+        self._keep(name, rows, values)
+
+    def _keep(self, name: str, rows: int, values: dict[str, np.ndarray]) -> None:
+        """Keep one stretch of ``name`` for :meth:`kept`, unless the kept values would pass ``keep_bytes``: then
+        nothing is kept any more, of any table (the caller reads the files back)."""
+        with self._keep_lock:
+            if name not in self._kept:
+                return
+            if self._keep_room is not None:
+                self._keep_room -= sum(v.nbytes for v in values.values())
+                if self._keep_room < 0:
+                    self._kept.clear()
+                    return
             self._kept[name].append((rows, values))
 
     def kept(self, name: str, *, skip_null: bool = False) -> dict[str, np.ndarray] | None:

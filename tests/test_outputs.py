@@ -395,3 +395,19 @@ def test_tables_kept_by_the_writer_equal_the_files_read_back(tmp_path):
         if name == "poses":
             assert "cov_x_x" not in kept and not np.array_equal(kept["x"], res.position[:, 0] * 1e3)  # rounded
     assert sink.kept("innovations") is None
+
+
+def test_writer_keeps_nothing_once_its_byte_limit_is_passed(tmp_path):
+    """Kept values never pass ``keep_bytes``: a stretch that would stops the keeping of every table (the report
+    then reads the files back), so what a run holds for its report is bounded whatever the table's width."""
+    from slamobs.pipeline.writers import TableWriter, stretch_tables
+
+    res = _result(k=300, m=90)
+    one = stretch_tables(res)
+    size = sum(v.nbytes for name in ("poses", "biases") for v in one[name].values() if isinstance(v, np.ndarray))
+    for limit, kept in ((10 * size, True), (size // 2, False)):
+        sink = TableWriter(tmp_path / str(limit), keep=("poses", "biases"), keep_bytes=limit)
+        (tmp_path / str(limit)).mkdir()
+        sink.write({k: one[k] for k in ("poses", "biases")})
+        sink.close({})
+        assert (sink.kept("poses") is not None) is kept and (sink.kept("biases") is not None) is kept, limit

@@ -382,3 +382,21 @@ def test_evaluate_output_equals_evo_cli(finished_run, tmp_path):
         ours = invoke(evaluate, truth, est, "--metric", metric, *flags)
         assert ours.exit_code == 0, ours.output
         assert ours.stdout.splitlines()[: len(evo_block)] == evo_block, (metric, flags)
+
+
+def test_report_again_keeps_what_the_run_said_and_prints_each_note_once(tmp_path):
+    """The noise levels riekf used (the run's ``noise:`` notes) are in the run's report and stay in it when
+    ``slamobs report`` makes it again; the run's console names each note once."""
+    from slamobs.cli.main import main
+
+    out = tmp_path / "riekf"
+    res = CliRunner().invoke(main, ["run", str(SAMPLE), "--observer", "riekf", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    noted = [line for line in res.output.splitlines() if line.startswith("note ")]
+    assert len(noted) == len(set(noted)) and any("noise: gyro" in line for line in noted)
+    before = load(out / "report.json")["notes"]
+    assert [n for n in before if n.startswith("noise: ")], before
+    res = invoke(report, out)
+    assert res.exit_code == 0, res.output
+    assert load(out / "report.json")["notes"] == before
+    assert all(n in (out / "report.md").read_text() for n in before if n.startswith("noise: "))

@@ -330,8 +330,8 @@ def test_compiled_step_angles_give_the_clock_offset_of_the_array_code(monkeypatc
 
 
 def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, monkeypatch):
-    """A run hands its report the tables as written, without reading the three files back; a run longer than
-    ``HANDOVER_SAMPLES`` reads them back; both write the same report, byte for byte."""
+    """A run hands its report the tables as written, without reading the three files back; a run whose tables
+    would keep more than ``HANDOVER_BYTES`` reads them back; both write the same report, byte for byte."""
     from cli_checks import SAMPLES
     from slamobs.pipeline import run, writers
     from slamobs.pipeline.config import EvaluationConfig, RunConfig
@@ -342,7 +342,7 @@ def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, mon
     config = RunConfig(evaluation=EvaluationConfig(plots=False))
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "handed", config)
     assert read == []
-    monkeypatch.setattr(run, "HANDOVER_SAMPLES", 0)
+    monkeypatch.setattr(run, "HANDOVER_BYTES", 0)
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "read", config)
     assert sorted(read) == ["biases.parquet", "landmarks.parquet", "poses.parquet"]
     for name in ("report.json", "report.md", "poses_aligned.parquet", "landmarks_aligned.parquet"):

@@ -272,6 +272,25 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     return ReportOptions(**{k: v for k, v in opts.items() if k in fields})
 
 
+def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict[str, Any]) -> None:
+    """What the run, not the comparison with the truth, tells the report's reader: the noise levels riekf and
+    batch used and why (the run's ``noise:`` notes), the velocity gaps that split the run into segments, and
+    the time window it kept. The same whether the report is made by ``slamobs run`` or again by ``slamobs
+    report``."""
+    if noise := [n for n in run_notes if n.startswith("noise: ")]:
+        report.setdefault("notes", []).extend(noise)
+    segments = metadata.get("segments") or []
+    if len(segments) > 1:
+        report.setdefault("notes", []).append(
+            f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
+            "integrated across a gap and the pose was re-anchored to the map after it where a frame allowed "
+            "(run.json notes say where); errors just after a gap show how well that worked"
+        )
+        report["segments"] = segments
+    if metadata.get("time_window"):
+        report["time_window"] = metadata["time_window"]
+
+
 def write_report(
     report: dict[str, Any],
     out_dir: Path | str,

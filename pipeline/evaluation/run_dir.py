@@ -23,13 +23,13 @@ from slamobs.pipeline import interrupts
 from slamobs.pipeline.alignment import TimeWindow
 from slamobs.pipeline.errors import InputError, OutputError
 from slamobs.pipeline.paths import check_utf8, read_manifest
-from slamobs.pipeline.evaluation.report import REPORT_FILES, evaluate_report, write_report
+from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import update_manifest
 
 if TYPE_CHECKING:
-    import pandas as pd
+    from slamobs.pipeline.evaluation.tables import Table
 
 #: The tables of a run directory a report reads (every run writes them).
 RUN_TABLES = ("poses", "biases", "landmarks")
@@ -43,10 +43,10 @@ class RunTables:
 
     path: Path
     meta: dict[str, Any]
-    poses: pd.DataFrame
-    biases: pd.DataFrame | None
-    landmarks: pd.DataFrame | None
-    innovations: pd.DataFrame | None = None
+    poses: Table
+    biases: Table | None
+    landmarks: Table | None
+    innovations: Table | None = None
 
 
 @dataclass
@@ -92,9 +92,14 @@ def _json_kind(value: Any) -> str:
     return {list: "array", str: "string", bool: "boolean", int: "number", float: "number"}.get(type(value), "null")
 
 
-def load_run(run_dir: str | Path) -> RunTables:
-    """``run.json`` and the Parquet tables of a run directory."""
-    run_dir = Path(run_dir)
+def run_meta(run_dir: str | Path) -> dict[str, Any]:
+    """``run.json`` of a run directory whose report tables are all there (one line naming what is not), without
+    reading the tables."""
+    return _checked_run(Path(run_dir))[0]
+
+
+def _checked_run(run_dir: Path) -> tuple[dict[str, Any], dict | None]:
+    """``run.json`` and, for a batch run directory (``OUT/runs/<id>``), its tables in the dataset (else None)."""
     check_utf8(run_dir)
     meta_path = run_dir / "run.json"
     if not meta_path.is_file():
@@ -111,14 +116,23 @@ def load_run(run_dir: str | Path) -> RunTables:
                 run_dir / f"{name}.parquet",
                 "missing: every run writes this table; the report needs it (run the log again)",
             )
+    return meta, in_dataset
 
-    def table(name: str) -> pd.DataFrame | None:
+
+def load_run(run_dir: str | Path) -> RunTables:
+    """``run.json`` and the Parquet tables of a run directory, read as a run's own report reads them
+    (:func:`.writers.read_columns`: NumPy columns, without pandas; an observer's all-null uncertainty columns of
+    the poses left out)."""
+    from slamobs.pipeline.writers import read_columns
+
+    run_dir = Path(run_dir)
+    meta, in_dataset = _checked_run(run_dir)
+
+    def table(name: str) -> Table | None:
         if in_dataset is not None:
             return in_dataset[name].to_pandas() if name in in_dataset else None
         path = run_dir / f"{name}.parquet"
-        import pandas as pd
-
-        return pd.read_parquet(path) if path.is_file() else None
+        return read_columns(path, skip_null=name == "poses") if path.is_file() else None
 
     return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"), table("innovations"))
 
@@ -300,8 +314,7 @@ def report_run(
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source
     report["notes"] = ti.notes + report["notes"]
-    if run.meta.get("time_window"):
-        report["time_window"] = run.meta["time_window"]
+    add_run_context(report, list(run.meta.get("notes") or []), run.meta)
 
     def fill(staged: Path) -> None:
         write_report(

@@ -244,16 +244,12 @@ def _accumulate(t_ns: np.ndarray, increments: np.ndarray) -> tuple[np.ndarray, n
 
 
 def _step_lengths(pos: np.ndarray) -> np.ndarray:
-    """‖p_{k+1} − p_k‖ (as ``np.linalg.norm(np.diff(p), axis=1)``, squaring in place: one temporary; long paths
-    through :func:`.metrics.row_norms`, the same bits)."""
+    """‖p_{k+1} − p_k‖ (as ``np.linalg.norm(np.diff(p), axis=1)``, through :func:`.metrics.row_norms`: the same
+    bits, a compiled pass where it decides)."""
     from slamobs.pipeline.evaluation import metrics  # (metrics imports this module)
 
     p = np.asarray(pos, dtype=np.float64)
-    if p.shape[0] > metrics.KERNEL_ROWS:
-        return metrics.row_norms(p[1:], p[:-1])
-    d = np.diff(p, axis=0)
-    np.multiply(d, d, out=d)
-    return np.sqrt(np.add.reduce(d, axis=1))
+    return metrics.row_norms(p[1:], p[:-1])
 
 
 def _signals(t_ns, pos, quat, grid_ns, step_ns):
