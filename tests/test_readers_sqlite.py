@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import shutil
 import sqlite3
+import struct
 import threading
 from pathlib import Path
 
@@ -22,7 +23,8 @@ from slamobs.pipeline.readers.container import storages as container_storages
 from slamobs.pipeline.readers.fastdecode import read_rows
 from slamobs.pipeline.readers.roles import topics_of
 from slamobs.pipeline.readers.rows import LAYOUTS
-from slamobs.pipeline.simulate import simulate, write_log
+from slamobs.pipeline.simulate import make_typestore, simulate, write_log
+from slamobs.pipeline.simulate.logwriter import write_raw_log
 
 THREAD = "slamobs-sqlite-reader"
 SMALL_GROUP = 64 * 1024  # the 6 s log's ~0.7 MB of payload in about ten windows
@@ -136,3 +138,30 @@ def test_a_malformed_database_is_one_line_naming_the_file(logs, tmp_path, monkey
         f"{bad}: corrupt or truncated rosbag2 directory (sqlite3): database disk image is malformed"
     )
     assert not _threads()
+
+
+def _string(n: int) -> bytes:
+    """A CDR ``std_msgs/String`` of ``n`` characters."""
+    return b"\x00\x01\x00\x00" + struct.pack("<I", n + 1) + b"x" * n + b"\x00"
+
+
+def test_a_window_after_light_rows_holds_a_few_groups_of_heavy_ones(tmp_path, monkeypatch):
+    """3,000 light rows, then 300 of 20 kB (a camera that started late): the window sized after the light rows
+    (64 kB of them: ~1,300 rows) would hold 26 MB of the heavy ones; it spans at most WINDOW_SPAN groups at the
+    database's bytes per row."""
+    monkeypatch.setattr(storage, "GROUP_BYTES", SMALL_GROUP)
+    topics = {
+        "/light": [(k * 1000, _string(50)) for k in range(3000)],
+        "/heavy": [(k * 1000 + 500, _string(20_000)) for k in range(300)],
+    }
+    path = write_raw_log(tmp_path / "late_ros2", "ros2", topics, "std_msgs/msg/String", make_typestore(ros1=False))
+    (db3,) = path.glob("*.db3")
+    with sqlite3.connect(db3) as db:
+        assert db.execute("SELECT topic_id FROM messages ORDER BY id").fetchall()[2999:3001] == [(1,), (2,)]
+        (rows,) = db.execute("SELECT count(*) FROM messages").fetchone()
+    most = rosbag2_sqlite.WINDOW_SPAN * int(SMALL_GROUP / (db3.stat().st_size / rows))
+    with open_log(path) as reader:
+        ((db, ids, _),) = list(container_storages(reader, reader.connections))
+        sizes = [b.data.shape[0] for b in db.batches(ids, False)]
+    assert sum(sizes) == 3000 * len(_string(50)) + 300 * len(_string(20_000))
+    assert max(sizes) <= most * len(_string(20_000)), (max(sizes), most)

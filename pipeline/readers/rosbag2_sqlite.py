@@ -26,6 +26,9 @@ MAGIC = b"SQLite format 3\x00"
 SQL_ROWS, SQL_BYTES = 8192, 1 << 20  # an ordered batch of rows stops at either (like a chunk: bounded memory)
 
 WINDOW_ROWS = 1 << 20  # a window of row ids holds at most this many (its three number texts stay a few MB)
+#: ... and at most the rows of this many decoding groups at the database's bytes per row: a window sized after a
+#: stretch of light rows (IMU alone, before a camera started) then holds at most a few groups of the heavy ones.
+WINDOW_SPAN = 4
 
 
 class Sqlite3Storage(Sqlite3Reader):
@@ -72,21 +75,21 @@ def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Itera
     pages, page = (next(iter(db.execute(f"PRAGMA {name}")))[0] for name in ("page_count", "page_size"))
     aim = storage.GROUP_BYTES  # read when called: a test may set smaller groups
     window = _rows_for(aim, pages * page / (last - first + 1))  # from the database's bytes per row
-    windows = _windows(db, (wanted, among, ids), first, last, window)
+    windows = _windows(db, (wanted, among, ids), (first, last), window, min(WINDOW_SPAN * window, WINDOW_ROWS))
     # one window: nothing to overlap; several: the next is queried by a thread while the caller decodes
     yield from windows if window > last - first else read_ahead(windows, "slamobs-sqlite-reader")
 
 
 def _windows(
-    db: Connection, among: tuple[list[int], str, ConnIds], first: int, last: int, window: int
+    db: Connection, among: tuple[list[int], str, ConnIds], span: tuple[int, int], window: int, most: int
 ) -> Iterator[RawBatch]:
-    """The rows with ids ``first`` to ``last`` of the topics ``among`` (ids, SQL condition, lookup) in windows of
-    row ids, the first ``window`` rows long.
+    """The rows with ids ``span`` (first, last) of the topics ``among`` (ids, SQL condition, lookup) in windows of
+    row ids, the first ``window`` rows long, none longer than ``most``.
 
     SQLite concatenates each window's payloads (one ``group_concat`` query); a window is aimed at a decoding
     group of payload (:data:`.storage.GROUP_BYTES`), so :func:`.storage.grouped` passes it on as it is instead
     of copying windows of 1 MB into one buffer (~0.5 ms a MB). Each next window's rows follow from the payload
-    per row of the one before (at most 4x more).
+    per row of the one before (at most 4x more, and at most ``most``: see :data:`WINDOW_SPAN`).
     """
     wanted, where, ids = among
     query = (
@@ -94,18 +97,18 @@ def _windows(
         f"group_concat(topic_id) FROM messages WHERE {where} AND id >= ? AND id < ?"
     )
     aim = storage.GROUP_BYTES
-    lo = first
+    lo, last = span
     while lo <= last:
         blob, sizes, stamps, topics = next(iter(db.execute(query, [*wanted, lo, lo + window])))
         lo += window
         if blob is None:
-            window = min(window * 4, WINDOW_ROWS)
+            window = min(window * 4, most)
             continue
         size = _numbers(sizes)
         start = np.zeros(size.shape[0], np.int64)
         np.cumsum(size[:-1], out=start[1:])
         yield RawBatch(np.frombuffer(blob, np.uint8), ids.lookup(_numbers(topics)), _numbers(stamps), start, size)
-        window = min(_rows_for(aim, len(blob) / window), window * 4)
+        window = min(_rows_for(aim, len(blob) / window), window * 4, most)
 
 
 def _rows_for(aim: float, per_row: float) -> int:
