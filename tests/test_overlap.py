@@ -28,7 +28,7 @@ def _batch(k: int, size: int = 1000):
 
 
 def test_prefetch_keeps_order_and_bounds_what_it_holds(monkeypatch):
-    monkeypatch.setattr(storage, "GROUP_BYTES", 4000)  # ahead: PREFETCH_GROUPS groups of 4000 bytes
+    monkeypatch.setattr(storage, "GROUP_BYTES", 4000)  # ahead: AHEAD_GROUPS groups of 4000 bytes
     loaded = []
 
     def load(unit):
@@ -41,7 +41,7 @@ def test_prefetch_keeps_order_and_bounds_what_it_holds(monkeypatch):
     ahead = len(loaded) - 1
     assert first.k == 0
     # the budget plus the unit it loaded before it saw the budget was used
-    assert ahead <= chunks.PREFETCH_GROUPS * 4000 // 1000 + 1, ahead
+    assert ahead <= storage.AHEAD_GROUPS * 4000 // 1000 + 1, ahead
     assert [b.k for b in it] == list(range(1, 50))
     assert not _threads("slamobs-chunk-reader")
 

@@ -25,7 +25,7 @@ from rosbags.rosbag2 import Writer as Bag2Writer
 from slamobs.cli.info_cmd import info
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import inspect_log, read_log
-from slamobs.pipeline.readers import chunks, rosbag2_sqlite, storage
+from slamobs.pipeline.readers import chunks, storage
 from slamobs.pipeline.readers.container import damage_notes, iter_batches, open_log
 from slamobs.pipeline.readers.container import storages as container_storages
 from slamobs.pipeline.readers.rows import LAYOUTS
@@ -159,8 +159,7 @@ def test_a_group_of_chunks_is_loaded_into_one_buffer(tmp_path, monkeypatch, sim,
 @pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("ros2-sqlite3", "")])
 def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, compression):
     """Peak memory beyond the decoded columns is the same for a 3 s and a 12 s log (read chunk by chunk)."""
-    monkeypatch.setattr(rosbag2_sqlite, "SQL_BYTES", CHUNK)  # sqlite rows come in batches like chunks
-    monkeypatch.setattr(storage, "GROUP_BYTES", CHUNK)  # chunks are decoded in groups of (16 MB) bytes
+    monkeypatch.setattr(storage, "GROUP_BYTES", CHUNK)  # chunks (and sqlite windows) decoded in groups of (16 MB) bytes
     overhead = []
     for seconds in (3.0, 12.0):
         name = f"{seconds:g}" + {"bag": ".bag", "mcap": ".mcap"}.get(container, "_ros2")
@@ -178,7 +177,7 @@ def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, 
         overhead.append(peak - columns)
     # the loading thread may hold PREFETCH_GROUPS decoding groups and the chunk in hand ahead of the decoder: a
     # constant, whichever log it reads ahead of (the short one may end before it is reached)
-    ahead = (chunks.PREFETCH_GROUPS + 1) * CHUNK
+    ahead = (storage.AHEAD_GROUPS + 1) * CHUNK
     assert overhead[1] < 1.25 * overhead[0] + 64 * 1024 + ahead, overhead
 
 

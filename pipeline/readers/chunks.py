@@ -10,9 +10,7 @@ which keeps every complete message (also from the readable part of a cut-off chu
 from __future__ import annotations
 
 import bz2
-import collections
 import struct
-import threading
 import zlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, BinaryIO
@@ -219,65 +217,14 @@ def _clusters(units: Iterable[Unit]) -> Iterator[list[Unit]]:
 _CHUNK_ERRORS = (DamagedError, RuntimeError, OSError, ValueError, EOFError, struct.error, zstandard.ZstdError)
 
 
-#: Decompressed chunks read ahead of the decoding (by one loading thread), in decoding groups: the decoder
-#: takes :data:`.storage.GROUP_BYTES` (16 MB) at a time, the thread keeps about two groups ready.
-PREFETCH_GROUPS = 2
-
-
 def prefetched(load: Callable[[Unit], RawBatch | None], units: Sequence[Unit]) -> Iterator[RawBatch | None]:
-    """``load(unit)`` of every unit, in order, computed by one thread ahead of the caller.
+    """``load(unit)`` of every unit, in order, computed by one thread ahead of the caller (:func:`.storage.read_ahead`).
 
     Reading, decompressing and checking a chunk (file I/O, zstd/lz4/bz2, CRC32 and the record walk all run
-    without the GIL) overlap the decoding of the chunks before. The thread is the only one that touches the
-    file while this runs; an exception it meets is raised here, at its unit; closing the generator (or an
-    exception of the caller) stops the thread and waits for it.
+    without the GIL) overlap the decoding of the chunks before; a single unit is loaded by the caller.
     """
-    if len(units) < 2:  # nothing to overlap
-        for unit in units:
-            yield load(unit)
-        return
-    budget = PREFETCH_GROUPS * storage.GROUP_BYTES  # read when called: a test may set smaller groups
-    ready: collections.deque = collections.deque()
-    room = threading.Condition()
-    held = [0]  # bytes loaded and not yet taken
-    stop = False
-
-    def work() -> None:
-        for unit in units:
-            try:
-                item = (True, load(unit))
-            except BaseException as err:  # noqa: BLE001 - handed to the caller, raised there
-                item = (False, err)
-            size = int(item[1].data.nbytes) if item[0] and item[1] is not None else 0
-            with room:
-                while held[0] and held[0] + size > budget and not stop:  # one unit always fits
-                    room.wait()
-                if stop:
-                    return
-                held[0] += size
-                ready.append((item, size))
-                room.notify_all()
-            if not item[0]:
-                return
-
-    thread = threading.Thread(target=work, name="slamobs-chunk-reader", daemon=True)
-    thread.start()
-    try:
-        for _ in units:
-            with room:
-                while not ready:
-                    room.wait()
-                (ok, value), size = ready.popleft()
-                held[0] -= size
-                room.notify_all()
-            if not ok:
-                raise value
-            yield value
-    finally:
-        with room:
-            stop = True
-            room.notify_all()
-        thread.join()
+    loads = (load(unit) for unit in units)
+    return loads if len(units) < 2 else storage.read_ahead(loads, "slamobs-chunk-reader")
 
 
 class Chunked:

@@ -12,15 +12,23 @@ from typing import TYPE_CHECKING
 import numpy as np
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
-from .storage import ConnIds, RawBatch, joined
+from . import storage
+from .storage import ConnIds, RawBatch, joined, read_ahead
 
 if TYPE_CHECKING:
     from collections.abc import Iterator
 
+    from apsw import Connection
+
 #: What an sqlite3 database starts with.
 MAGIC = b"SQLite format 3\x00"
 
-SQL_ROWS, SQL_BYTES = 8192, 1 << 20  # a batch of rows stops at either (like a chunk: bounded memory)
+SQL_ROWS, SQL_BYTES = 8192, 1 << 20  # an ordered batch of rows stops at either (like a chunk: bounded memory)
+
+WINDOW_ROWS = 1 << 20  # a window of row ids holds at most this many (its three number texts stay a few MB)
+#: ... and at most the rows of this many decoding groups at the database's bytes per row: a window sized after a
+#: stretch of light rows (IMU alone, before a camera started) then holds at most a few groups of the heavy ones.
+WINDOW_SPAN = 4
 
 
 class Sqlite3Storage(Sqlite3Reader):
@@ -35,15 +43,16 @@ class Sqlite3Storage(Sqlite3Reader):
         return []
 
 
-def _sqlite_batches(storage: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
-    """Rows of the requested topics in blocks of about ``SQL_BYTES``.
+def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
+    """Rows of the requested topics in blocks.
 
     Unordered (the columnar path), SQLite itself concatenates the payloads of a window of row ids
-    (``group_concat``, in C), so Python handles a few objects per block instead of three per row;
-    the decoded columns are sorted by record time afterwards. Ordered, rows come by timestamp.
+    (``group_concat``, in C; :func:`_windows`), so Python handles a few objects per block instead of three
+    per row; the decoded columns are sorted by record time afterwards. Ordered, rows come by timestamp, in
+    blocks of about ``SQL_BYTES`` (ordered reads are rare: decoding through rosbags, e.g. a type without a plan).
     """
-    assert storage.dbconn
-    db = storage.dbconn
+    assert reader.dbconn
+    db = reader.dbconn
     wanted = ids.ids.tolist()
     among = f"topic_id IN ({','.join('?' * len(wanted))})"
     text_is_bytes = next(iter(db.execute("PRAGMA encoding")))[0] == "UTF-8"
@@ -61,23 +70,50 @@ def _sqlite_batches(storage: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Iter
             yield _rows_batch(rows, ids)
         return
     first, last = next(iter(db.execute("SELECT min(id), max(id) FROM messages")))
+    if last is None:
+        return
+    pages, page = (next(iter(db.execute(f"PRAGMA {name}")))[0] for name in ("page_count", "page_size"))
+    aim = storage.GROUP_BYTES  # read when called: a test may set smaller groups
+    window = _rows_for(aim, pages * page / (last - first + 1))  # from the database's bytes per row
+    windows = _windows(db, (wanted, among, ids), (first, last), window, min(WINDOW_SPAN * window, WINDOW_ROWS))
+    # one window: nothing to overlap; several: the next is queried by a thread while the caller decodes
+    yield from windows if window > last - first else read_ahead(windows, "slamobs-sqlite-reader")
+
+
+def _windows(
+    db: Connection, among: tuple[list[int], str, ConnIds], span: tuple[int, int], window: int, most: int
+) -> Iterator[RawBatch]:
+    """The rows with ids ``span`` (first, last) of the topics ``among`` (ids, SQL condition, lookup) in windows of
+    row ids, the first ``window`` rows long, none longer than ``most``.
+
+    SQLite concatenates each window's payloads (one ``group_concat`` query); a window is aimed at a decoding
+    group of payload (:data:`.storage.GROUP_BYTES`), so :func:`.storage.grouped` passes it on as it is instead
+    of copying windows of 1 MB into one buffer (~0.5 ms a MB). Each next window's rows follow from the payload
+    per row of the one before (at most 4x more, and at most ``most``: see :data:`WINDOW_SPAN`).
+    """
+    wanted, where, ids = among
     query = (
         "SELECT CAST(group_concat(data, x'') AS BLOB), group_concat(length(data)), group_concat(timestamp), "
-        f"group_concat(topic_id) FROM messages WHERE {among} AND id >= ? AND id < ?"
+        f"group_concat(topic_id) FROM messages WHERE {where} AND id >= ? AND id < ?"
     )
-    window, lo = 16, first if first is not None else 1
-    while last is not None and lo <= last:
+    aim = storage.GROUP_BYTES
+    lo, last = span
+    while lo <= last:
         blob, sizes, stamps, topics = next(iter(db.execute(query, [*wanted, lo, lo + window])))
         lo += window
         if blob is None:
-            window = min(window * 4, SQL_ROWS)
+            window = min(window * 4, most)
             continue
         size = _numbers(sizes)
         start = np.zeros(size.shape[0], np.int64)
         np.cumsum(size[:-1], out=start[1:])
         yield RawBatch(np.frombuffer(blob, np.uint8), ids.lookup(_numbers(topics)), _numbers(stamps), start, size)
-        grow = SQL_BYTES / max(len(blob), 1)  # aim the next window at SQL_BYTES of payload
-        window = int(min(max(window * min(grow, 4.0), 1), SQL_ROWS))
+        window = min(_rows_for(aim, len(blob) / window), window * 4, most)
+
+
+def _rows_for(aim: float, per_row: float) -> int:
+    """Rows holding ``aim`` bytes at ``per_row`` bytes a row: at least one, at most ``WINDOW_ROWS``."""
+    return int(min(max(aim / max(per_row, 1.0), 1), WINDOW_ROWS))
 
 
 def _numbers(text: str) -> np.ndarray:

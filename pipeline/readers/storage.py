@@ -7,6 +7,8 @@ A storage reader (one module per format: :mod:`.ros1`, :mod:`.mcap`, :mod:`.rosb
 
 from __future__ import annotations
 
+import collections
+import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Protocol
 
@@ -106,15 +108,88 @@ def joined(blobs: Sequence[bytes], conn: np.ndarray, rec_ns: np.ndarray) -> RawB
 
 
 #: Decode batches of at least this many bytes: a chunk is often a few hundred kB, and each decode call costs
-#: a fixed amount of Python work per topic. The chunk readers' read-ahead is counted in such groups too.
+#: a fixed amount of Python work per topic. The storage readers' read-ahead is counted in such groups too.
 GROUP_BYTES = 16 << 20
+
+#: Batches read ahead of the decoding (by one loading thread, :func:`read_ahead`), in decoding groups: the
+#: decoder takes :data:`GROUP_BYTES` (16 MB) at a time, the thread keeps about two groups ready.
+AHEAD_GROUPS = 2
+
+
+def read_ahead(batches: Iterator[RawBatch | None], name: str) -> Iterator[RawBatch | None]:
+    """``batches``, in order, computed by one thread (named ``name``) ahead of the caller.
+
+    The thread is the only one that runs ``batches`` (and touches the file or database behind it) while this
+    runs: reading and decompressing chunks, or SQLite stepping rows, run without the GIL and so overlap the
+    decoding of the batches before. It keeps at most :data:`AHEAD_GROUPS` decoding groups of bytes ready (one
+    batch always fits). An exception it meets is raised here, where its batch would have come; closing this
+    generator (or an exception of the caller) stops the thread, closes ``batches`` there and waits for it.
+    """
+    budget = AHEAD_GROUPS * GROUP_BYTES  # read when called: a test may set smaller groups
+    ready: collections.deque = collections.deque()
+    room = threading.Condition()
+    state = {"held": 0, "stop": False}  # bytes loaded and not yet taken; the caller is done
+
+    def work() -> None:
+        try:
+            while True:
+                try:
+                    item: tuple[bool, object] | None = (True, next(batches))
+                except StopIteration:
+                    item = None
+                except BaseException as err:  # noqa: BLE001 - handed to the caller, raised there
+                    item = (False, err)
+                size = int(item[1].data.nbytes) if item is not None and item[0] and item[1] is not None else 0
+                with room:
+                    while state["held"] and state["held"] + size > budget and not state["stop"]:
+                        room.wait()
+                    if state["stop"]:
+                        return
+                    state["held"] += size
+                    ready.append((item, size))
+                    room.notify_all()
+                if item is None or not item[0]:
+                    return
+        finally:
+            close = getattr(batches, "close", None)
+            if close is not None:  # a generator's clean-up (an SQL cursor) runs where it ran
+                close()
+
+    thread = threading.Thread(target=work, name=name, daemon=True)
+    thread.start()
+    try:
+        while True:
+            with room:
+                while not ready:
+                    room.wait()
+                item, size = ready.popleft()
+                state["held"] -= size
+                room.notify_all()
+            if item is None:
+                return
+            ok, value = item
+            if not ok:
+                raise value
+            yield value
+    finally:
+        with room:
+            state["stop"] = True
+            room.notify_all()
+        thread.join()
 
 
 def grouped(batches: Iterable[RawBatch]) -> Iterator[RawBatch]:
-    """Consecutive batches joined until they hold ``GROUP_BYTES`` (the order of the messages is kept)."""
+    """Consecutive batches joined until they hold ``GROUP_BYTES`` (the order of the messages is kept); a batch
+    of half a group or more is passed on alone (after the group before it), not copied into a group."""
     group: list[RawBatch] = []
     size = 0
     for batch in batches:
+        if 2 * int(batch.data.shape[0]) >= GROUP_BYTES:
+            if group:
+                yield concat(group)
+                group, size = [], 0
+            yield batch
+            continue
         group.append(batch)
         size += int(batch.data.shape[0])
         if size >= GROUP_BYTES:

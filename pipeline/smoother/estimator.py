@@ -135,7 +135,8 @@ class BatchSmoother(Stepper):
         chosen, robust, seed_s = first, None, seed.seconds
         if (reason := cands.doubt(full, first)) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
-        chosen, evidence, evidence_notes = self._evidence(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        select = self._cross_validation if self.settings.noise_selection == "cross_validation" else self._evidence
+        chosen, evidence, evidence_notes = select(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -430,6 +431,49 @@ class BatchSmoother(Stepper):
         solves += sol.summary["linear_solves"]
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
         return Candidate(chosen.seed, solved, sol, notes), record, note, solves
+
+    def _cross_validation(self, chosen, keyframes: tuple, segments: _Segments, progress):
+        """The noise scales chosen by blocked cross-validation (:mod:`pipeline.smoother.cross_validation`) instead
+        of the evidence; when a pair other than x1, x1 wins, the smoother solved (and gated) again at it from the
+        chosen solution. The candidate kept, the record, the notes."""
+        from slamobs.pipeline.smoother import cross_validation as cv
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.candidates import Candidate
+
+        kf_t, kf_of_det, gaps = keyframes
+        nz, st, base, s = self.noise, self.settings, chosen.problem, chosen.sol
+        motion_keys = tuple(k for k in cv.MOTION_KEYS if nz.sources.get(k) != "config")
+        detection_free = all(nz.sources.get(k) != "config" for k in cv.DETECTION_KEYS)
+        why = (
+            f"the log has more than {EVIDENCE_MAX_KEYFRAMES} keyframes"
+            if kf_t.shape[0] > EVIDENCE_MAX_KEYFRAMES
+            else "the biases are fixed (a reference run)"
+            if self.fixed_bias is not None
+            else "the noise levels are set in the configuration"
+            if not motion_keys and not detection_free
+            else None
+        )
+        if why is not None:
+            return chosen, {"cross_validation": {"skipped": why}}, [f"batch: noise not cross-validated: {why}"]
+
+        def motion_data(scale: float) -> np.ndarray:
+            return self._motion_data(kf_t, gaps, base.b_bar, cv.scaled_noise(nz, scale, 1.0, motion_keys))
+
+        def solve(problem, guess):
+            return g.solve(problem, guess, max_iterations=cv.MAX_ITERATIONS, relative_tolerance=st.relative_tolerance)
+
+        start = g.Guess(s.rot, s.pos, s.landmarks, s.bias)
+        pairs = cv.candidates(bool(motion_keys), detection_free)
+        scores = cv.cross_validate(base, start, cv.fold_of(kf_t[base.kf_of_det]), motion_data, solve, pairs)
+        won = cv.winner(scores)
+        record, note = cv.record(scores, won, int(base.det_idx.shape[0]))
+        if won == (1.0, 1.0):
+            return chosen, {"cross_validation": record}, [note]
+        self.noise = cv.scaled_noise(nz, *won, motion_keys)
+        full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
+        solved, sol, notes = self._solve_gated(full, start, chosen.seed.name, progress)
+        sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
+        return Candidate(chosen.seed, solved, sol, notes), {"cross_validation": record}, [note]
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again

@@ -11,6 +11,9 @@ BIAS_MODELS = ("constant", "random-walk")
 #: when the motion levels' scales are chosen by the smoother's evidence (pipeline.smoother.evidence): never, only
 #: for a stream that holds its values (its level comes from the detections and is uncertain), or always
 EVIDENCE_MODES = ("off", "held", "always")
+#: how the noise scales are chosen: by the evidence (``noise_evidence`` says when), or by blocked
+#: cross-validation of the detections (pipeline.smoother.cross_validation; replaces the evidence)
+SELECTION_MODES = ("evidence", "cross_validation")
 CORRELATION_MODES = ("off", "auto")
 
 
@@ -33,6 +36,8 @@ class BatchSettings:
     #: when the velocity and gyro levels' scales are chosen by the evidence (one of ``EVIDENCE_MODES``); a
     #: ``noise: velocity`` or ``gyro`` key set in run.yaml is used as given
     noise_evidence: str = "always"
+    #: what chooses the noise scales (one of ``SELECTION_MODES``)
+    noise_selection: str = "evidence"
     #: "auto": the detections' time correlation fitted to the first solution's residuals, each detection's
     #: variance scaled by its effective-sample factor when significant (pipeline.smoother.correlation); "off"
     detection_correlation: str = "auto"
@@ -51,6 +56,9 @@ def batch_settings(section: dict | None) -> BatchSettings:
     if settings.noise_evidence not in EVIDENCE_MODES:
         modes = ", ".join(EVIDENCE_MODES)
         raise GainError(f"batch.noise_evidence must be one of {modes}, got {settings.noise_evidence!r}")
+    if settings.noise_selection not in SELECTION_MODES:
+        modes = ", ".join(SELECTION_MODES)
+        raise GainError(f"batch.noise_selection must be one of {modes}, got {settings.noise_selection!r}")
     if settings.detection_correlation not in CORRELATION_MODES:
         modes = ", ".join(CORRELATION_MODES)
         raise GainError(f"batch.detection_correlation must be one of {modes}, got {settings.detection_correlation!r}")

@@ -1,0 +1,167 @@
+"""rosbag2 sqlite3 (db3) reading: windows of row ids aimed at a decoding group, the next one queried by a thread.
+
+The decoded columns are the same bits whether the log is read in one window (the caller's thread) or in many
+(the read-ahead thread), and the same as from the same simulation written as MCAP; stopping early leaves no
+thread running; a database that SQLite finds malformed while a window is read still gives its one-line error.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sqlite3
+import struct
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import read_log, rosbag2_sqlite, storage
+from slamobs.pipeline.readers.container import iter_batches, open_log
+from slamobs.pipeline.readers.container import storages as container_storages
+from slamobs.pipeline.readers.fastdecode import read_rows
+from slamobs.pipeline.readers.roles import topics_of
+from slamobs.pipeline.readers.rows import LAYOUTS
+from slamobs.pipeline.simulate import make_typestore, simulate, write_log
+from slamobs.pipeline.simulate.logwriter import write_raw_log
+
+THREAD = "slamobs-sqlite-reader"
+SMALL_GROUP = 64 * 1024  # the 6 s log's ~0.7 MB of payload in about ten windows
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("db3")
+    sim = simulate("figure8", duration=6.0, seed=3)
+    return write_log(sim, tmp / "log_ros2", "ros2"), write_log(sim, tmp / "log.mcap", "mcap")
+
+
+def _threads() -> list[threading.Thread]:
+    return [t for t in threading.enumerate() if t.name == THREAD]
+
+
+def _rows(path: Path) -> dict[str, tuple]:
+    with open_log(path) as reader:
+        table = {t: c for t, (m, c) in topics_of(reader).items() if m.msgtype in LAYOUTS}
+        rows = read_rows(reader, path, table)
+    return {
+        t: (r.t_ns, r.rec_ns, r.values.view(np.uint64), [r.frame_names[k] for k in r.frame]) for t, r in rows.items()
+    }
+
+
+def _assert_same_bits(got: dict[str, tuple], want: dict[str, tuple]) -> None:
+    assert got.keys() == want.keys()
+    for topic, (t_ns, rec_ns, bits, frames) in got.items():
+        np.testing.assert_array_equal(t_ns, want[topic][0], err_msg=topic)
+        np.testing.assert_array_equal(rec_ns, want[topic][1], err_msg=topic)
+        np.testing.assert_array_equal(bits, want[topic][2], err_msg=topic)
+        assert frames == want[topic][3], topic
+
+
+def test_windows_decode_the_same_bits_in_one_window_or_many(logs, monkeypatch):
+    db3, mcap = logs
+    whole = _rows(db3)  # the log is one window: read on the caller's thread
+    assert len(whole) >= 4 and all(v[0].size for v in whole.values())
+    _assert_same_bits(whole, _rows(mcap))  # the same simulation through the MCAP reader
+
+    windows = []
+    ahead = rosbag2_sqlite.read_ahead
+
+    def counted(batches, name):
+        for batch in ahead(batches, name):
+            windows.append(bool(_threads()))  # the reading thread runs while the batch is decoded
+            yield batch
+
+    monkeypatch.setattr(rosbag2_sqlite, "read_ahead", counted)
+    monkeypatch.setattr(storage, "GROUP_BYTES", SMALL_GROUP)
+    _assert_same_bits(_rows(db3), whole)
+    assert len(windows) >= 5 and windows[0], windows  # many windows, read ahead by the thread
+    assert not _threads()
+
+
+def _sqlite_batches(reader, path: Path):
+    conns = [c for _, (m, cs) in topics_of(reader).items() if m.msgtype in LAYOUTS for c in cs]
+    ((db, ids, _),) = list(container_storages(reader, conns))
+    return db.batches(ids, False), conns
+
+
+def test_closing_early_stops_the_reading_thread(logs, monkeypatch):
+    db3, _ = logs
+    monkeypatch.setattr(storage, "GROUP_BYTES", SMALL_GROUP)
+    with open_log(db3) as reader:
+        batches, conns = _sqlite_batches(reader, db3)
+        first = next(batches)
+        assert len(first) and _threads()  # the thread queries the next windows
+        batches.close()  # the decoder failed, or the run was cancelled
+        assert not _threads()
+
+        with pytest.raises(KeyboardInterrupt):  # Ctrl-C while a batch is decoded
+            for k, _batch in enumerate(iter_batches(reader, db3, conns)):
+                if k == 1:
+                    raise KeyboardInterrupt
+        assert not _threads()
+        assert sum(map(len, iter_batches(reader, db3, conns))) == sum(c.msgcount for c in conns)  # still readable
+
+
+def _malformed_copy(src: Path, dst: Path) -> Path:
+    """``src`` with one IMU row two thirds in whose record header claims a longer payload than it holds: rosbags
+    opens it (its counts read only ``topic_id``), SQLite finds it malformed once a query reads ``data``."""
+    shutil.copytree(src, dst)
+    (db3,) = dst.glob("*.db3")
+    data = bytearray(db3.read_bytes())
+    with sqlite3.connect(db3) as db:
+        (n,) = db.execute("SELECT count(*) FROM messages").fetchone()
+        size, payload = db.execute(
+            "SELECT length(data), data FROM messages WHERE id > ? "
+            "AND topic_id = (SELECT id FROM topics WHERE name = '/imu/data') LIMIT 1",
+            (2 * n // 3,),
+        ).fetchone()
+    at = data.find(payload)
+    serial = 2 * size + 12  # a blob's serial type; its record: header (6 bytes), topic id (1), timestamp (8), data
+    assert data[at - 15 : at - 9] == bytes([6, 0, 1, 6, 0x80 | serial >> 7, serial & 0x7F])
+    data[at - 11] += 1  # the data now claims 64 bytes more than the record holds
+    db3.write_bytes(bytes(data))
+    return dst
+
+
+@pytest.mark.parametrize("group", [None, SMALL_GROUP])
+def test_a_malformed_database_is_one_line_naming_the_file(logs, tmp_path, monkeypatch, group):
+    """The same line whether SQLite meets the damage on the caller's thread (one window) or on the reading
+    thread after several windows were decoded."""
+    bad = _malformed_copy(logs[0], tmp_path / "bad_ros2")
+    if group is not None:
+        monkeypatch.setattr(storage, "GROUP_BYTES", group)
+    with pytest.raises(InputError) as err:
+        read_log(bad)
+    assert str(err.value) == (
+        f"{bad}: corrupt or truncated rosbag2 directory (sqlite3): database disk image is malformed"
+    )
+    assert not _threads()
+
+
+def _string(n: int) -> bytes:
+    """A CDR ``std_msgs/String`` of ``n`` characters."""
+    return b"\x00\x01\x00\x00" + struct.pack("<I", n + 1) + b"x" * n + b"\x00"
+
+
+def test_a_window_after_light_rows_holds_a_few_groups_of_heavy_ones(tmp_path, monkeypatch):
+    """3,000 light rows, then 300 of 20 kB (a camera that started late): the window sized after the light rows
+    (64 kB of them: ~1,300 rows) would hold 26 MB of the heavy ones; it spans at most WINDOW_SPAN groups at the
+    database's bytes per row."""
+    monkeypatch.setattr(storage, "GROUP_BYTES", SMALL_GROUP)
+    topics = {
+        "/light": [(k * 1000, _string(50)) for k in range(3000)],
+        "/heavy": [(k * 1000 + 500, _string(20_000)) for k in range(300)],
+    }
+    path = write_raw_log(tmp_path / "late_ros2", "ros2", topics, "std_msgs/msg/String", make_typestore(ros1=False))
+    (db3,) = path.glob("*.db3")
+    with sqlite3.connect(db3) as db:
+        assert db.execute("SELECT topic_id FROM messages ORDER BY id").fetchall()[2999:3001] == [(1,), (2,)]
+        (rows,) = db.execute("SELECT count(*) FROM messages").fetchone()
+    most = rosbag2_sqlite.WINDOW_SPAN * int(SMALL_GROUP / (db3.stat().st_size / rows))
+    with open_log(path) as reader:
+        ((db, ids, _),) = list(container_storages(reader, reader.connections))
+        sizes = [b.data.shape[0] for b in db.batches(ids, False)]
+    assert sum(sizes) == 3000 * len(_string(50)) + 300 * len(_string(20_000))
+    assert max(sizes) <= most * len(_string(20_000)), (max(sizes), most)
