@@ -135,16 +135,9 @@ class BatchSmoother(Stepper):
         chosen, robust, seed_s = first, None, seed.seconds
         if (reason := cands.doubt(full, first)) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
-        by_evidence = self.settings.noise_selection != "cross_validation"
-        select = self._evidence if by_evidence else self._cross_validation
-        first_solves = chosen.sol.summary["linear_solves"]
+        select = self._cross_validation if self.settings.noise_selection == "cross_validation" else self._evidence
         chosen, evidence, evidence_notes = select(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
-        if by_evidence and self.det_factor is not None:  # the levels chosen again on the decorrelated detections
-            chosen, evidence, rescan_notes = self._rescan(
-                chosen, evidence, (kf_t, kf_of_det, gaps), segments, first_solves, progress
-            )
-            correlation_notes += rescan_notes
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
@@ -362,27 +355,11 @@ class BatchSmoother(Stepper):
             return f"the {key} level is measured from its samples (batch.noise_evidence: held)"
         return None
 
-    def _rescan(self, chosen, before: dict, keyframes: tuple, segments: _Segments, first_solves: int, progress):
-        """The evidence scan again once the detections count by their effective number (:meth:`_decorrelate`
-        scaled their variances): the white likelihood of the first scan overcounted correlated detections. Its
-        budget is the first scan's (from the first solution's linear solves). The candidate kept, the record per
-        key (the scale over both scans, the first scan's record under ``before_correlation``), the notes."""
-        chosen, after, notes = self._evidence(chosen, keyframes, segments, progress, first_solves)
-        for key, rec in after.items():
-            if "scale" in rec:
-                rec["scale"] = round(before.get(key, {}).get("scale", 1.0) * rec["scale"], 9)
-            rec["before_correlation"] = before.get(key)
-        return (
-            chosen,
-            after,
-            [f"batch: the noise levels chosen again after the detections' correlation: {n}" for n in notes],
-        )
-
-    def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress, first_solves: int | None = None):
+    def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
         while one moves: they trade off; until the scans' linear solves exceed ``EVIDENCE_SOLVE_BUDGET`` times the
-        first solution's (``first_solves``, default ``chosen``'s), or ``EVIDENCE_SOLVE_FLOOR``) chosen by the
-        evidence: the candidate kept, the record per key (its last scan), the notes."""
+        first solution's, or ``EVIDENCE_SOLVE_FLOOR``) chosen by the evidence: the candidate kept, the record per
+        key (its last scan), the notes."""
         n_kf = keyframes[0].shape[0]
         if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
             why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
@@ -392,8 +369,7 @@ class BatchSmoother(Stepper):
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
         records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
-        first_solves = chosen.sol.summary["linear_solves"] if first_solves is None else first_solves
-        budget = max(EVIDENCE_SOLVE_BUDGET * first_solves, EVIDENCE_SOLVE_FLOOR)
+        budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
         spent, moved = 0, True
         while moved and spent <= budget:
             moved = False
