@@ -400,3 +400,22 @@ def test_report_again_keeps_what_the_run_said_and_prints_each_note_once(tmp_path
     assert res.exit_code == 0, res.output
     assert load(out / "report.json")["notes"] == before
     assert all(n in (out / "report.md").read_text() for n in before if n.startswith("noise: "))
+
+
+def test_the_report_carries_the_noise_and_what_the_estimator_said_of_its_run():
+    """The run's noise levels and the estimator's own notes (batch's evidence-scaled levels, the detections'
+    correlation it weighed) reach the report; the run's other notes (samples dropped) and another estimator's
+    do not; more than one segment is stated."""
+    from slamobs.pipeline.evaluation.report import add_run_context
+
+    notes = [
+        "noise: gyro = 0.01 rad/s/sqrt(Hz) (estimated)",
+        "batch: the detections' errors are correlated in time (share 0.7)",
+        "5 angular-velocity samples outside the linear-velocity span dropped",
+        "riekf: recovered",
+    ]
+    segments = [{"start_ns": 0, "end_ns": 1, "samples": 2}, {"start_ns": 3, "end_ns": 4, "samples": 2}]
+    report = {"notes": ["APE note"]}
+    add_run_context(report, notes, {"observer": {"name": "batch"}, "segments": segments})
+    assert report["notes"][:3] == ["APE note", notes[0], notes[1]]
+    assert "2 segments" in report["notes"][3] and report["segments"] == segments

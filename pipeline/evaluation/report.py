@@ -274,11 +274,13 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
 
 def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict[str, Any]) -> None:
     """What the run, not the comparison with the truth, tells the report's reader: the noise levels riekf and
-    batch used and why (the run's ``noise:`` notes), the velocity gaps that split the run into segments, and
-    the time window it kept. The same whether the report is made by ``slamobs run`` or again by ``slamobs
-    report``."""
-    if noise := [n for n in run_notes if n.startswith("noise: ")]:
-        report.setdefault("notes", []).extend(noise)
+    batch used and why (the run's ``noise:`` notes), what the estimator said of its own run (its notes,
+    ``<estimator>: ...``: e.g. batch's evidence-scaled levels and the detections' correlation it weighed, a
+    doubtful first solution, riekf's recoveries), the velocity gaps that split the run into segments, and the
+    time window it kept. The same whether the report is made by ``slamobs run`` or again by ``slamobs report``."""
+    own = f"{(metadata.get('observer') or {}).get('name')}: "
+    if said := [n for n in run_notes if n.startswith(("noise: ", own))]:
+        report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []
     if len(segments) > 1:
         report.setdefault("notes", []).append(
