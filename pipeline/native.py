@@ -145,3 +145,18 @@ def start() -> None:
     start_blas()
     load_array_functions_without_blas()  # cached kernels need them too: unpickling one imports numba.np.arraymath
     guard_compilation()
+
+
+def return_freed_memory() -> bool:
+    """Give the C heap's free pages back to the system (glibc's ``malloc_trim``; elsewhere nothing, False).
+    Arrays freed by a stage stay in the heap for reuse once glibc has raised its mmap threshold, so the next
+    stage's arrays land beside them and the peak counts both: returned between batch's smoother and its report,
+    the one-hour run's sampled peak went from 1089-1135 to ~1000 MB. A few milliseconds."""
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        return bool(libc.malloc_trim(0))
+    except (OSError, AttributeError):
+        return False

@@ -558,16 +558,18 @@ def run_prepared(
     ``release`` drops ``prepared.aligned`` once the estimator is done (the caller runs nothing else on it), so the
     report does not share memory with it.
     """
+    from slamobs.pipeline import native
     from slamobs.pipeline.writers import atomic_directory, remove_stale_temporaries, write_json
 
-    log, streams, aligned = prepared.log, prepared.streams, prepared.aligned
+    log, streams = prepared.log, prepared.streams  # not the aligned stream: released below, it must go
     est = estimator_input(prepared, config)
     check_export(prepared, config)
     needed = est.directions
     # a log read once for several observers (compare) has the accelerometer note: only its users keep it
-    notes = list(streams.warnings) + [n for n in aligned.notes if needed or not n.startswith(ACCEL_NOTE)]
+    aligned_notes = prepared.aligned.notes
+    notes = list(streams.warnings) + [n for n in aligned_notes if needed or not n.startswith(ACCEL_NOTE)]
     notes += list(prepared.notes) + est.notes
-    input_warnings = list(streams.warnings) + [n for n in aligned.notes if "limits." in n]
+    input_warnings = list(streams.warnings) + [n for n in aligned_notes if "limits." in n]
     if prepared.tags is not None:
         notes += prepared.tags.notes
     metadata = run_metadata(prepared, config, est)
@@ -583,6 +585,7 @@ def run_prepared(
         timings.update(
             estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables)
         )
+        native.return_freed_memory()  # what the estimator freed, before the report allocates its own
         report, report_error = evaluate_run(
             tmp, streams, config, notes, metadata, timings, progress, plot_workers, tables=tables
         )

@@ -107,8 +107,9 @@ class TrajectoryEvaluation:
     offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
-    #: (N, 21) pose covariance entries of each estimate row in time order (``pose_covariance``), None without one
-    covariance: np.ndarray | None = None
+    #: the pose covariance at the paired estimate rows and its size at every row (``paired_covariance``), None
+    #: without one
+    covariance: PairedCovariance | None = None
 
     @cached_property
     def time_offset(self) -> TimeOffset | None:
@@ -173,7 +174,16 @@ def evaluate_trajectory(
         truth_sorted, est, "angle_deg", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate", like=trans
     )
     return TrajectoryEvaluation(
-        est, truth_sorted, paired, trans.alignment, trans, rot, offset, applied, sync, pose_covariance(poses)
+        est,
+        truth_sorted,
+        paired,
+        trans.alignment,
+        trans,
+        rot,
+        offset,
+        applied,
+        sync,
+        paired_covariance(poses, est, paired),
     )
 
 
@@ -196,6 +206,26 @@ def pose_covariance(poses: Table) -> np.ndarray | None:
         return None
     values = columns(poses, names, np.float64)[time_order(column(poses, "t_ns", np.int64))]
     return values if np.isfinite(values).any() else None
+
+
+@dataclass(frozen=True)
+class PairedCovariance:
+    """What the uncertainty section needs of an estimate's pose covariance: the entries of :func:`pose_covariance`
+    at the paired estimate rows, and the sum of the diagonal at every estimate row (where the gauge is). Not every
+    row's entries: on batch's hour those (69 MB) and their copies were the report's peak."""
+
+    entries: np.ndarray  # (n_pairs, 12)
+    size: np.ndarray  # (N,)
+
+
+def paired_covariance(poses: Table, est: PoseStream, paired: Paired) -> PairedCovariance | None:
+    """The :class:`PairedCovariance` of ``poses`` (``est`` its time-ordered stream), None without a covariance."""
+    cov = pose_covariance(poses)
+    if cov is None:
+        return None
+    diagonal = [k for k, (i, j) in enumerate(_covariance_entries()[0]) if i == j]
+    idx = paired.idx_est if paired.idx_est is not None else np.searchsorted(est.t_ns, paired.t_est_ns)
+    return PairedCovariance(cov[idx], cov[:, diagonal].sum(axis=1))
 
 
 def expand_covariance(entries: np.ndarray, block: int) -> np.ndarray:
@@ -255,8 +285,7 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
     p, est, truth = ev.paired, ev.estimate, ev.truth
     t_on_truth = np.asarray(est.t_ns, dtype=np.int64) + int(round(ev.applied_offset_s * 1e9))
     inside = (t_on_truth >= np.min(truth.t_ns)) & (t_on_truth <= np.max(truth.t_ns))
-    diagonal = [k for k, (i, j) in enumerate(_covariance_entries()[0]) if i == j]
-    g = int(np.nanargmin(np.where(inside, ev.covariance[:, diagonal].sum(axis=1), np.inf)))
+    g = int(np.nanargmin(np.where(inside, ev.covariance.size, np.inf)))
     ref_pos, ref_quat = interpolate_poses(truth.t_ns, truth.position, truth.quat_xyzw, t_on_truth[g : g + 1])
     est_rot = quats_to_rots(np.asarray(est.quat_xyzw[g : g + 1], dtype=np.float64))[0]
     rot = quats_to_rots(ref_quat)[0] @ est_rot.T
@@ -268,8 +297,7 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
         error[rows, :3] = rots_to_rotvecs(rel)
     idx = p.idx_est if p.idx_est is not None else np.searchsorted(est.t_ns, p.t_est_ns)
     t_ns = np.asarray(est.t_ns[idx] if p.t_est_ns is None else p.t_est_ns, dtype=np.int64)
-    entries = ev.covariance[idx]
-    att, pos = (rotate_covariance(expand_covariance(entries, block), rot) for block in (0, 3))
+    att, pos = (rotate_covariance(expand_covariance(ev.covariance.entries, block), rot) for block in (0, 3))
     nees_position, nees_attitude = nees_values(error[:, 3:], pos), nees_values(error[:, :3], att)
     return PairedUncertainty(t_ns, error, att, pos, int(est.t_ns[g]), nees_position, nees_attitude)
 
