@@ -12,28 +12,15 @@ Truth is used only to measure; neither choice reads it.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import real_logs  # noqa: E402  (the benchmark's logs, scoring and grid, one place)
 
-
-def run(log, selection: str, out: Path) -> tuple[real_logs.Result, float]:
-    """One batch run with ``batch.noise_selection: selection``: its result and its CPU seconds."""
-    log = real_logs.Log(log.name, log.path, json.loads(json.dumps(log.config)), log.skip)
-    log.config.setdefault("batch", {})["noise_selection"] = selection
-    c0 = time.process_time()
-    res = real_logs.run_one(log, "batch", out)
-    return res, time.process_time() - c0
-
-
-def fmt(v: float) -> str:
-    return "" if v == float("inf") else f"{v:.4g}"
+score = real_logs.score_text
 
 
 def main() -> None:
@@ -49,8 +36,12 @@ def main() -> None:
         if log.skip or log.path is None:
             continue
         runs = args.cache / "runs"
-        ev, cpu_ev = run(log, "evidence", runs / f"{log.name}-selection-evidence")
-        cv, cpu_cv = run(log, "cross_validation", runs / f"{log.name}-selection-cv")
+        ev, cpu_ev = real_logs.run_batch_with(
+            log, "noise_selection", "evidence", runs / f"{log.name}-selection-evidence"
+        )
+        cv, cpu_cv = real_logs.run_batch_with(
+            log, "noise_selection", "cross_validation", runs / f"{log.name}-selection-cv"
+        )
         best, where = real_logs.best_of_grid(log, "batch", runs, ev, False) if args.grid else (None, "")
         b = best.score if best is not None else float("nan")
         ratios = [f"{x / b:.2f}" if best is not None else "" for x in (cv.score, ev.score)]
@@ -59,7 +50,7 @@ def main() -> None:
         if isinstance(kept, dict):
             kept = f"motion x{kept['motion']:g}, det x{kept['detection']:g}"
         print(
-            f"| {log.name} | {fmt(ev.score)} | {fmt(cv.score)} | {f'{fmt(b)} ({where})' if where else ''} | "
+            f"| {log.name} | {score(ev.score)} | {score(cv.score)} | {f'{score(b)} ({where})' if where else ''} | "
             f"{ratios[0]} | {ratios[1]} | {kept} | {cpu_ev:.1f} / {cpu_cv:.1f} |",
             flush=True,
         )

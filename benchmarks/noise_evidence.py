@@ -10,28 +10,15 @@ Truth is used only to measure; the choice reads none.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import real_logs  # noqa: E402  (the benchmark's logs and scoring, one place)
 
-
-def run(log, mode: str, out: Path) -> tuple[real_logs.Result, float]:
-    """One batch run with ``batch.noise_evidence: mode``: its result and its CPU seconds."""
-    log = real_logs.Log(log.name, log.path, json.loads(json.dumps(log.config)), log.skip)
-    log.config.setdefault("batch", {})["noise_evidence"] = mode
-    c0 = time.process_time()
-    res = real_logs.run_one(log, "batch", out)
-    return res, time.process_time() - c0
-
-
-def score(v: float) -> str:
-    return "" if v == float("inf") else f"{v:.4g}"
+score = real_logs.score_text
 
 
 def main() -> None:
@@ -46,8 +33,12 @@ def main() -> None:
     for log in real_logs.all_logs(args.cache, args.logs.split(",")):
         if log.skip or log.path is None:
             continue
-        off, cpu_off = run(log, "off", args.cache / "runs" / f"{log.name}-evidence-off")
-        on, cpu_on = run(log, args.mode, args.cache / "runs" / f"{log.name}-evidence-on")
+        off, cpu_off = real_logs.run_batch_with(
+            log, "noise_evidence", "off", args.cache / "runs" / f"{log.name}-evidence-off"
+        )
+        on, cpu_on = real_logs.run_batch_with(
+            log, "noise_evidence", args.mode, args.cache / "runs" / f"{log.name}-evidence-on"
+        )
         ratio = on.score / off.score if 0.0 < off.score < float("inf") else float("nan")
         records = on.smoother.get("noise_scale") or {}
         chosen = ", ".join(f"{k} {r.get('scale', r.get('skipped', ''))}" for k, r in records.items())

@@ -194,6 +194,21 @@ def run_one(log: Log, estimator: str, out: Path, noise: dict | None = None) -> R
     return res
 
 
+def run_batch_with(log: Log, key: str, value: str, out: Path) -> tuple[Result, float]:
+    """One batch run of ``log`` with ``batch.<key>: value`` added to its configuration: its result and its CPU
+    seconds (the noise-choice benchmarks compare settings with it)."""
+    log = Log(log.name, log.path, json.loads(json.dumps(log.config)), log.skip)
+    log.config.setdefault("batch", {})[key] = value
+    c0 = time.process_time()
+    res = run_one(log, "batch", out)
+    return res, time.process_time() - c0
+
+
+def score_text(v: float) -> str:
+    """A score for a table: blank when there is none (``inf``)."""
+    return "" if v == float("inf") else f"{v:.4g}"
+
+
 def _pairwise_error(estimated: Path, reference: Path) -> float | None:
     """RMS error of the distances between every two matched landmarks (for maps too small for a rigid fit:
     TagSLAM test 22 has two tags); None when fewer than two match."""

@@ -9,33 +9,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from slamobs.pipeline.alignment import align
-from slamobs.pipeline.noise import NoiseConfig, resolve_noise
+from noisy_logs import noisy_figure8
 from slamobs.pipeline.observers import ObserverOptions
-from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
 from slamobs.pipeline.smoother.evidence import SCALES
 from slamobs.pipeline.smoother.settings import BatchSettings
-
-#: velocity and gyro noise of the generated log, times the defaults: large enough that their levels matter
-VELOCITY_FACTOR, GYRO_FACTOR = 10.0, 30.0
 
 
 @pytest.fixture(scope="module")
 def log():
-    nm = replace(
-        NoiseModel(), odom_linear=VELOCITY_FACTOR * NoiseModel().odom_linear, gyro=GYRO_FACTOR * NoiseModel().gyro
-    )
-    sim = simulate("figure8", duration=20.0, seed=1, noise=nm)
-    stream = align(expected_streams(sim), keep_directions=False)
-    truth = resolve_noise(
-        NoiseConfig(
-            gyro=nm.gyro * np.sqrt(1 / 200),
-            velocity=nm.odom_linear * np.sqrt(1 / 50),
-            detection=nm.detection_base,
-            detection_per_m=nm.detection_per_m,
-            detection_per_m2=nm.detection_per_m2,
-        )
-    )
+    sim, stream, truth = noisy_figure8(20.0, 1)
     return stream, truth
 
 
