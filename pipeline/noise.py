@@ -111,6 +111,20 @@ class NoiseSettings:
         }
         return {**out, "sources": dict(self.sources), "levels": levels, "notes": list(self.notes)}
 
+    def scaled(self, factors: dict[str, float], by: str | None = None) -> NoiseSettings:
+        """These levels with each key of ``factors`` multiplied by its factor (a factor of 1 leaves the key as it
+        is); ``by`` (what chose the factors) is added to the scaled keys' methods."""
+        changes = {k: getattr(self, k) * f for k, f in factors.items() if f != 1.0}
+        if not changes:
+            return self
+        if by is None:
+            return replace(self, **changes)
+        methods = dict(self.methods)
+        for k in changes:
+            was = methods.get(k) or self.sources.get(k, "default")
+            methods[k] = f"{was}; scaled by {factors[k]:g} by {by}"
+        return replace(self, **changes, methods=methods)
+
     def detection_sigma(self, ranges: np.ndarray) -> np.ndarray:
         r = np.asarray(ranges, dtype=float)
         return self.detection + self.detection_per_m * r + self.detection_per_m2 * r * r

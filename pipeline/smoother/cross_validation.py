@@ -141,16 +141,8 @@ def winner(scores: dict) -> tuple[float, float]:
 def scaled_noise(noise, motion: float, detection: float, motion_keys=MOTION_KEYS):
     """``noise`` with the motion levels ``motion_keys`` scaled by ``motion`` and the detection law by
     ``detection``, the methods saying so."""
-    methods = dict(noise.methods)
-    changes = {}
-    for keys, f in ((motion_keys, motion), (DETECTION_KEYS, detection)):
-        if f == 1.0:
-            continue
-        for k in keys:
-            changes[k] = getattr(noise, k) * f
-            was = methods.get(k) or noise.sources.get(k, "default")
-            methods[k] = f"{was}; scaled by {f:g} by the smoother's cross-validation"
-    return replace(noise, **changes, methods=methods) if changes else noise
+    factors = {**dict.fromkeys(motion_keys, motion), **dict.fromkeys(DETECTION_KEYS, detection)}
+    return noise.scaled(factors, "the smoother's cross-validation")
 
 
 def record(scores: dict, chosen: tuple[float, float], n_det: int) -> tuple[dict, str]:

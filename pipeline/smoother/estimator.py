@@ -601,12 +601,7 @@ class BatchSmoother(Stepper):
 
 def _scaled(noise, key: str, scale: float, say: bool = False):
     """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so)."""
-    if not say:
-        return replace(noise, **{key: getattr(noise, key) * scale})
-    methods = dict(noise.methods)
-    was = methods.get(key) or noise.sources.get(key, "default")
-    methods[key] = f"{was}; scaled by {scale:g} by the smoother's evidence"
-    return replace(noise, **{key: getattr(noise, key) * scale}, methods=methods)
+    return noise.scaled({key: scale}, "the smoother's evidence" if say else None)
 
 
 SPEC = ObserverSpec(
