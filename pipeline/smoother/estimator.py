@@ -324,7 +324,6 @@ class BatchSmoother(Stepper):
         record and the notes."""
         from slamobs.pipeline.smoother import correlation as dc
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.candidates import Candidate
 
         why = dc.skipped(self.settings.detection_correlation, self.fixed_bias is not None)
         if why is not None:
@@ -334,13 +333,8 @@ class BatchSmoother(Stepper):
         corr = dc.fit(kf_t[p.kf_of_det], p.det_idx, g.detection_residuals(p, sol) / p.det_sigma[:, None])
         if not corr.significant:
             return chosen, dc.record(corr, None), []
-        self.det_factor = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
-        full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
-        guess = g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias)
-        solved, new, notes = self._solve_gated(full, guess, chosen.seed.name, progress)
-        new.summary = g.merge_summaries(sol.summary, new.summary)
-        f = self.det_factor
-        return Candidate(chosen.seed, solved, new, notes), dc.record(corr, f), [dc.note(corr, f)]
+        self.det_factor = f = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
+        return self._solved_again(chosen, sol, keyframes, segments, progress), dc.record(corr, f), [dc.note(corr, f)]
 
     def _evidence_skipped(self, key: str) -> str | None:
         """Why the scale of the level ``key`` is not chosen by the evidence here, or None."""
@@ -397,7 +391,6 @@ class BatchSmoother(Stepper):
         linear solves the scan took."""
         from slamobs.pipeline.smoother import evidence as ev
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.candidates import Candidate
 
         kf_t, kf_of_det, gaps = keyframes
         base, st = chosen.problem, self.settings
@@ -423,14 +416,9 @@ class BatchSmoother(Stepper):
         if winner == 1.0:
             return chosen, record, note, solves
         self.noise = _scaled(self.noise, key, winner, say=True)
-        full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
-        w = sols[winner]
-        solved, sol, notes = self._solve_gated(
-            full, g.Guess(w.rot, w.pos, w.landmarks, w.bias), chosen.seed.name, progress
-        )
-        solves += sol.summary["linear_solves"]
-        sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
-        return Candidate(chosen.seed, solved, sol, notes), record, note, solves
+        again = self._solved_again(chosen, sols[winner], keyframes, segments, progress)
+        solves += again.sol.summary["linear_solves"] - chosen.sol.summary["linear_solves"]
+        return again, record, note, solves
 
     def _cross_validation(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The noise scales chosen by blocked cross-validation (:mod:`pipeline.smoother.cross_validation`) instead
@@ -438,7 +426,6 @@ class BatchSmoother(Stepper):
         chosen solution. The candidate kept, the record, the notes."""
         from slamobs.pipeline.smoother import cross_validation as cv
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.candidates import Candidate
 
         kf_t, kf_of_det, gaps = keyframes
         nz, st, base, s = self.noise, self.settings, chosen.problem, chosen.sol
@@ -470,10 +457,20 @@ class BatchSmoother(Stepper):
         if won == (1.0, 1.0):
             return chosen, {"cross_validation": record}, [note]
         self.noise = cv.scaled_noise(nz, *won, motion_keys)
+        return self._solved_again(chosen, s, keyframes, segments, progress), {"cross_validation": record}, [note]
+
+    def _solved_again(self, chosen, start, keyframes: tuple, segments: _Segments, progress):
+        """The smoother on ``chosen``'s seed solved (and gated) again at the current noise levels and detection
+        factors, from the solution ``start``: the new candidate, its summary continuing ``chosen``'s."""
+        from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.candidates import Candidate
+
+        kf_t, kf_of_det, gaps = keyframes
         full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
-        solved, sol, notes = self._solve_gated(full, start, chosen.seed.name, progress)
+        guess = g.Guess(start.rot, start.pos, start.landmarks, start.bias)
+        solved, sol, notes = self._solve_gated(full, guess, chosen.seed.name, progress)
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
-        return Candidate(chosen.seed, solved, sol, notes), {"cross_validation": record}, [note]
+        return Candidate(chosen.seed, solved, sol, notes)
 
     def _solve_gated(self, problem, guess, seed_name: str, progress):
         """Solve; then, unless the χ² gate drops so many detections that the minimum must be wrong, solve again
