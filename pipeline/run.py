@@ -665,7 +665,9 @@ def estimate(
                     notes=notes,
                 )
                 metadata["output"]["frame"] = frame.describe()
-                writes = BackgroundWrites(partial(_write_stretch, sink, frame))
+                writes = BackgroundWrites(
+                    partial(_write_stretch, sink, frame), depth=0 if part.pose_cov is not None else 1
+                )
             # the map as it is now: the observer moves its live map on while this stretch is written
             writes.put(replace(part, landmark_xyz=np.array(part.landmark_xyz)))
             progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
@@ -920,15 +922,19 @@ def _evaluate(
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
+    from slamobs.pipeline.evaluation.trajectory_evaluation import report_pose_column
     from slamobs.pipeline.writers import read_columns
 
+    wanted = {"poses": report_pose_column}
     try:
         # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
-        # the landmarks' are copied into landmarks_aligned.parquet)
+        # the landmarks' are copied into landmarks_aligned.parquet), nor a reference estimator's columns the report
+        # does not use
         handed = tables if tables is not None else {}
         frames = {k: handed.pop(k, None) for k in REPORT_TABLES}  # handed over (the report frees each once used)
         frames = {
-            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses") if v is None else v for k, v in frames.items()
+            k: read_columns(out / f"{k}.parquet", skip_null=k == "poses", wanted=wanted.get(k)) if v is None else v
+            for k, v in frames.items()
         }
         plots = config.evaluation.plots
         own = []  # the run's own figures (trajectory, map, measurements) are none of the main ones

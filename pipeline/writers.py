@@ -27,6 +27,7 @@ import threading
 import time
 from contextlib import contextmanager, suppress
 from pathlib import Path
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -496,23 +497,26 @@ def read_frame(path: Path):
     return frame
 
 
-def read_columns(path: Path, *, skip_null: bool = False) -> dict[str, np.ndarray]:
+def read_columns(
+    path: Path, *, skip_null: bool = False, wanted: Callable[[str], bool] | None = None
+) -> dict[str, np.ndarray]:
     """A table written here as its columns (NumPy arrays, in file order), without pandas: pyarrow's
     ``to_numpy`` imports pandas (~0.8 s), which a run's own report does not need. Same values as
     :func:`read_frame` (columns here have no nulls; one with nulls would go through ``to_numpy``).
     ``skip_null`` leaves out the columns null in every row (an observer's uncertainty columns: 27 columns of
-    NaN, a second on an hour of poses), as the file's statistics say without reading them."""
+    NaN, a second on an hour of poses), as the file's statistics say without reading them; ``wanted`` (a
+    predicate on column names) leaves out the others unread."""
     f = pq.ParquetFile(path)
     n = f.metadata.num_rows
     absent = null_columns(f) if skip_null else set()
     out = {
         x.name: np.empty(n, dtype=_PLAIN.get(str(x.type), np.dtype(object)))
         for x in f.schema_arrow
-        if x.name not in absent
+        if x.name not in absent and (wanted is None or wanted(x.name))
     }
     k = 0
     for g in range(f.num_row_groups):
-        group = f.read_row_group(g)
+        group = f.read_row_group(g, columns=list(out))
         m = group.num_rows
         for name, column in out.items():
             at = k

@@ -274,6 +274,23 @@ def test_read_columns_equals_read_frame(tmp_path):
     for name in cols:
         assert cols[name].dtype == frame[name].to_numpy().dtype
         np.testing.assert_array_equal(cols[name], frame[name].to_numpy())
+    some = read_columns(tmp_path / "landmarks.parquet", wanted=lambda name: name in ("id", "y"))
+    assert list(some) == ["id", "y"]
+    np.testing.assert_array_equal(some["y"], cols["y"])
+
+
+def test_report_reads_the_pose_columns_it_uses():
+    """The run's report leaves out the poses' standard deviations and covariance cross terms (86 MB on batch's
+    hour), and reads every column it uses."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import report_pose_column
+
+    names = [f.name for f in arrow_schema("poses")]
+    read = {n for n in names if report_pose_column(n)}
+    blocks = [
+        f"cov_{a}_{b}" for axes in (("rx", "ry", "rz"), ("x", "y", "z")) for i, a in enumerate(axes) for b in axes[i:]
+    ]
+    assert read == {"t_ns", "x", "y", "z", "qx", "qy", "qz", "qw", *blocks} and len(blocks) == 12
+    assert len(names) - len(read) == 15
 
 
 def test_compiled_rounding_gives_the_bits_of_the_array_code(monkeypatch):

@@ -208,6 +208,7 @@ def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     time: exact at those keyframes, the mean half-way, positive definite throughout."""
     from slamobs.pipeline.smoother.estimator import (
         COVARIANCE_MARGINALS,
+        COVARIANCE_ROW_BLOCK,
         covariance_keyframes,
         interpolate_covariance,
     )
@@ -223,5 +224,12 @@ def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     assert np.allclose(interpolate_covariance(t, cov, np.array([1.5]))[0], 0.5 * (cov[1] + cov[2]))
     rows = interpolate_covariance(t, cov, np.linspace(-1.0, 6.0, 50))
     assert np.linalg.eigvalsh(rows)[:, 0].min() > 0.0
+    # a block at a time into ``out``: the same bits as the whole-array formula, across block boundaries
+    many = np.sort(rng.uniform(-1.0, 6.0, 3 * COVARIANCE_ROW_BLOCK + 100))
+    out = np.full((many.size, 6, 6), np.nan)
+    assert interpolate_covariance(t, cov, many, out) is out
+    j = np.clip(np.searchsorted(t, many, side="right"), 1, t.size - 1)
+    w = np.clip((many - t[j - 1]) / (t[j] - t[j - 1]), 0.0, 1.0)[:, None, None]
+    assert np.array_equal(out, (1.0 - w) * cov[j - 1] + w * cov[j])
     hour = covariance_keyframes(np.arange(72_000) / 20.0)  # an hour at 20 Hz: the count is capped, spread evenly
     assert hour.size <= COVARIANCE_MARGINALS + 2 and np.ptp(np.diff(hour)) <= 1

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -32,6 +33,8 @@ GAP_SIGMA = (1.0, 100.0)
 #: sweep whatever their number, docs/outputs.md).
 COVARIANCE_DT = 1.0
 COVARIANCE_MARGINALS = 600
+#: Rows per block of :func:`interpolate_covariance` (8,192 rows of 6 x 6 are 2.4 MB a temporary).
+COVARIANCE_ROW_BLOCK = 8_192
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
 MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
@@ -71,15 +74,23 @@ def covariance_keyframes(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> np
     return np.unique(np.r_[np.searchsorted(kf_t, marks), kf_t.shape[0] - 1])
 
 
-def interpolate_covariance(t_cov: np.ndarray, cov: np.ndarray, t: np.ndarray) -> np.ndarray:
+def interpolate_covariance(
+    t_cov: np.ndarray, cov: np.ndarray, t: np.ndarray, out: np.ndarray | None = None
+) -> np.ndarray:
     """Covariances at times ``t`` linear in time between those at ``t_cov`` (held beyond the ends): between two
     keyframes a pose is the odometry's continuation of both (a convex combination of positive definite
-    matrices stays positive definite)."""
-    j = np.clip(np.searchsorted(t_cov, t, side="right"), 1, max(t_cov.shape[0] - 1, 1))
+    matrices stays positive definite). Written into ``out`` a row block at a time (an hour's stretch of
+    (N, 6, 6) temporaries was the batch run's peak memory)."""
+    out = np.empty((t.shape[0], *cov.shape[1:])) if out is None else out
     if t_cov.shape[0] < 2:
-        return np.repeat(cov[:1], t.shape[0], axis=0)
-    w = np.clip((t - t_cov[j - 1]) / np.maximum(t_cov[j] - t_cov[j - 1], 1e-12), 0.0, 1.0)[:, None, None]
-    return (1.0 - w) * cov[j - 1] + w * cov[j]
+        out[:] = cov[:1]
+        return out
+    for rows in row_blocks(t.shape[0], COVARIANCE_ROW_BLOCK):
+        tb = t[rows]
+        j = np.clip(np.searchsorted(t_cov, tb, side="right"), 1, t_cov.shape[0] - 1)
+        w = np.clip((tb - t_cov[j - 1]) / np.maximum(t_cov[j] - t_cov[j - 1], 1e-12), 0.0, 1.0)[:, None, None]
+        out[rows] = (1.0 - w) * cov[j - 1] + w * cov[j]
+    return out
 
 
 class BatchSmoother(Stepper):
@@ -572,13 +583,30 @@ class BatchSmoother(Stepper):
         rows = np.arange(int(ns[_IV]), iv_stop)
         rows = rows[(rows % every == 0) | (rows == n_vel - 1)]
         n = rows.shape[0]
-        bias_rows = sol.bias[res["segments"].of(self.vel_t)]
-        sample_poses(
-            self.vel_t, s.omega, s.velocity, res["kf_t"], sol.rot, sol.pos, bias_rows, rows, out.r[:n], out.p[:n]
-        )
+        if n:
+            # the samples the poses integrate over: from the keyframe before the first row to the one after the last
+            kf_t, vel_t = res["kf_t"], self.vel_t
+            j0 = max(int(np.searchsorted(kf_t, vel_t[rows[0]], side="right")) - 1, 0)
+            j1 = min(int(np.searchsorted(kf_t, vel_t[rows[-1]], side="left")), kf_t.shape[0] - 1)
+            lo = max(int(np.searchsorted(vel_t, kf_t[j0], side="right")) - 1, 0)
+            hi = min(int(np.searchsorted(vel_t, kf_t[j1], side="right")) + 1, n_vel)
+            span = slice(lo, hi)
+            bias_span = sol.bias[res["segments"].of(vel_t[span])]
+            sample_poses(
+                vel_t[span],
+                s.omega[span],
+                s.velocity[span],
+                kf_t,
+                sol.rot,
+                sol.pos,
+                bias_span,
+                rows - lo,
+                out.r[:n],
+                out.p[:n],
+            )
+            out.b[:n] = bias_span[rows - lo]
         out.k[:n] = rows
-        out.b[:n] = bias_rows[rows]
-        out.cov[:n] = interpolate_covariance(res["cov_t"], res["pose_cov"], self.vel_t[rows])
+        interpolate_covariance(res["cov_t"], res["pose_cov"], self.vel_t[rows], out.cov[:n])
         # detections of the frames up to iv_stop: estimates from the solution at their keyframes
         jf_stop = self._frames_before(iv_stop)
         a, b = int(s.det_offsets[int(ns[_JF])]), int(s.det_offsets[jf_stop])
