@@ -635,8 +635,13 @@ def estimate(
     frame_choice = output_frame.parse_frame(config.output.frame)
     frame = None
     t0_ns = int(aligned.vel_t_ns[0])
+    n_out = -(-int(aligned.vel_t_ns.shape[0]) // options.out_every)  # rows of the poses and biases, about
     sink = TableWriter(
-        tmp, config.output.float_bits, keep=REPORT_TABLES if handover is not None else (), keep_bytes=HANDOVER_BYTES
+        tmp,
+        config.output.float_bits,
+        keep=REPORT_TABLES if handover is not None else (),
+        keep_bytes=HANDOVER_BYTES,
+        expected_rows={"poses": n_out, "biases": n_out},
     )
     writes = None
     try:

@@ -290,7 +290,12 @@ class TableWriter:
     """
 
     def __init__(
-        self, out_dir: Path, float_bits: int = FLOAT_BITS, keep: tuple[str, ...] = (), keep_bytes: int | None = None
+        self,
+        out_dir: Path,
+        float_bits: int = FLOAT_BITS,
+        keep: tuple[str, ...] = (),
+        keep_bytes: int | None = None,
+        expected_rows: dict[str, int] | None = None,
     ) -> None:
         self.out_dir = Path(out_dir)
         self.float_bits = float_bits
@@ -300,7 +305,12 @@ class TableWriter:
         #: the tables in ``keep``: each stretch's values as written (rounded), for :meth:`kept`
         self._kept: dict[str, list[tuple[int, dict[str, np.ndarray]]]] = {name: [] for name in keep}
         #: the kept values' bytes at most (None: no limit); past it nothing is kept (the reader reads the files)
-        self._keep_room = keep_bytes
+        self._keep_limit = keep_bytes
+        self._kept_bytes = 0
+        #: the rows a kept table will have in all, where known: when the first stretches say the tables would pass
+        #: ``keep_bytes``, nothing is kept from then on (what they would hold until the limit stays in the peak)
+        self._expected_rows = expected_rows or {}
+        self._projected_bytes = 0
         self._keep_lock = threading.Lock()  # the two lanes keep their tables at once
 
     def write(self, tables: dict[str, dict[str, np.ndarray]]) -> None:
@@ -347,14 +357,18 @@ class TableWriter:
         self._keep(name, rows, values)
 
     def _keep(self, name: str, rows: int, values: dict[str, np.ndarray]) -> None:
-        """Keep one stretch of ``name`` for :meth:`kept`, unless the kept values would pass ``keep_bytes``: then
-        nothing is kept any more, of any table (the caller reads the files back)."""
+        """Keep one stretch of ``name`` for :meth:`kept`, unless the kept values would pass ``keep_bytes`` (or
+        will, as the expected rows say): then nothing is kept any more, of any table (the caller reads the files
+        back)."""
         with self._keep_lock:
             if name not in self._kept:
                 return
-            if self._keep_room is not None:
-                self._keep_room -= sum(v.nbytes for v in values.values())
-                if self._keep_room < 0:
+            if self._keep_limit is not None:
+                size = sum(v.nbytes for v in values.values())
+                if not self._kept[name] and rows and name in self._expected_rows:
+                    self._projected_bytes += size * self._expected_rows[name] // rows
+                self._kept_bytes += size
+                if max(self._kept_bytes, self._projected_bytes) > self._keep_limit:
                     self._kept.clear()
                     return
             self._kept[name].append((rows, values))

@@ -428,3 +428,11 @@ def test_writer_keeps_nothing_once_its_byte_limit_is_passed(tmp_path):
         sink.write({k: one[k] for k in ("poses", "biases")})
         sink.close({})
         assert (sink.kept("poses") is not None) is kept and (sink.kept("biases") is not None) is kept, limit
+    # told the rows to come, the writer keeps nothing from the first stretch on when the whole would not fit
+    for rows, kept in ((2 * 300, True), (40 * 300, False)):
+        out = tmp_path / f"rows{rows}"
+        out.mkdir()
+        sink = TableWriter(out, keep=("poses", "biases"), keep_bytes=10 * size, expected_rows={"poses": rows})
+        sink.write({k: one[k] for k in ("poses", "biases")})
+        sink.close({})
+        assert (sink.kept("poses") is not None) is kept and (sink.kept("biases") is not None) is kept, rows
