@@ -3,8 +3,9 @@
 Variables: one pose per keyframe, one point per landmark and the bias ``[b_Ω; b_V]`` as a 6-vector, one per
 segment. Factors:
 
-* each detection: the body-frame point ``Rᵀ(ℓ − P) − y``, an isotropic standard deviation ``σ`` per axis,
-  with a Huber kernel on the norm of the whitened residual (the model of the χ² gate, the candidates' detection
+* each detection: the body-frame point ``Rᵀ(ℓ − P) − y``, a standard deviation ``σ`` per axis, or its
+  range apart from its bearing (``det_shape``, :mod:`pipeline.smoother.anisotropy`), with a Huber kernel on the
+  norm of the whitened residual (the model of the χ² gate, the candidates' detection
   cost and the residual statistics);
 * a prior on the biases (zero mean, the prior standard deviations of the noise settings), a random walk
   between segment biases when the bias model asks for it, and the gauge: the anchor keyframe held at the
