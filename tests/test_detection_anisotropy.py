@@ -179,3 +179,20 @@ def test_a_range_error_is_weighed_apart_and_the_trajectory_follows(generated):
     record = auto.stats["metadata"]["smoother"]["detection_anisotropy"]
     assert record["applied"] is True and record["ratio"] >= 4.0, record
     assert ape_auto < ape_off, (ape_auto, ape_off)
+
+
+def test_a_long_log_skips_the_ratio_and_says_so(generated, monkeypatch):
+    """Above the evidence's keyframe limit each ratio would cost a solve of a long log: skipped, with a note; off
+    skips it silently."""
+    from slamobs.pipeline.smoother import estimator
+
+    sim, stream = generated
+    noisy = with_range_error(stream, RANGE_SD, seed=4)
+    monkeypatch.setattr(estimator, "EVIDENCE_MAX_KEYFRAMES", 100)
+    long, _ = smoothed(sim, noisy, "auto")
+    assert "keyframes" in long.stats["metadata"]["smoother"]["detection_anisotropy"]["skipped"]
+    assert any("not weighed apart" in n for n in long.stats["notes"]), long.stats["notes"]
+    assert long.det_shape is None
+    off, _ = smoothed(sim, noisy, "off")
+    assert "is off" in off.stats["metadata"]["smoother"]["detection_anisotropy"]["skipped"]
+    assert not any("not weighed apart" in n for n in off.stats["notes"]), off.stats["notes"]

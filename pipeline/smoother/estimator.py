@@ -334,8 +334,9 @@ class BatchSmoother(Stepper):
         kf_t = keyframes[0]
         st = self.settings
         why = an.skipped(st.detection_anisotropy, self.fixed_bias is not None, kf_t.shape[0], EVIDENCE_MAX_KEYFRAMES)
-        if why is not None:
-            return chosen, {"skipped": why}, []
+        if why is not None:  # said in the notes where the mode asked for it
+            said = st.detection_anisotropy != "off" and self.fixed_bias is None
+            return chosen, {"skipped": why}, [f"batch: range and bearing not weighed apart: {why}"] if said else []
         base = chosen.problem
         sols, scores, prev = {1.0: chosen.sol}, {1.0: ev.log_evidence(base, chosen.sol)}, 1.0
         for ratio in an.RATIOS:
