@@ -69,6 +69,7 @@ def subset(problem, keep: np.ndarray, det_sigma: np.ndarray | None = None):
         det_idx=problem.det_idx[keep],
         det_y=problem.det_y[keep],
         det_sigma=sigma[keep],
+        det_shape=None if problem.det_shape is None else problem.det_shape[keep],
     )
 
 

@@ -124,6 +124,8 @@ class BatchSmoother(Stepper):
         self.result = None  # filled by the first stretch
         #: each detection's variance factor for its errors' time correlation (None: white, every factor 1)
         self.det_factor = None
+        #: each detection's information shape, range apart from bearing (None: isotropic)
+        self.det_shape = None
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
@@ -148,6 +150,7 @@ class BatchSmoother(Stepper):
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
         select = self._cross_validation if self.settings.noise_selection == "cross_validation" else self._evidence
         chosen, evidence, evidence_notes = select(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        chosen, anisotropy, anisotropy_notes = self._weigh_range(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -172,6 +175,7 @@ class BatchSmoother(Stepper):
             summary["robust"] = robust[0]
         summary["noise_scale"] = evidence
         summary["detection_correlation"] = correlation
+        summary["detection_anisotropy"] = anisotropy
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -180,7 +184,7 @@ class BatchSmoother(Stepper):
             "time_offset": self.time_offset,
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
-        self.stats["notes"] += evidence_notes + correlation_notes + list(chosen.notes or [])
+        self.stats["notes"] += evidence_notes + anisotropy_notes + correlation_notes + list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
@@ -311,6 +315,7 @@ class BatchSmoother(Stepper):
             walk_sigma=walk,
             huber=st.huber,
             anchor=k - 1,
+            det_shape=self.det_shape,
         )
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
@@ -328,6 +333,43 @@ class BatchSmoother(Stepper):
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
         return data
 
+    def _weigh_range(self, chosen, keyframes: tuple, segments: _Segments, progress):
+        """The ratio of the detections' range error to their bearing error (:mod:`pipeline.smoother.anisotropy`)
+        with the highest evidence, searched upwards from isotropic detections on the chosen solution's
+        detections (each ratio warm-started from the one before); when a ratio other than 1 wins, the smoother
+        solved (and gated) again from its solution. The candidate kept, the record, the notes."""
+        from slamobs.pipeline.smoother import anisotropy as an
+        from slamobs.pipeline.smoother import evidence as ev
+        from slamobs.pipeline.smoother import graph as g
+
+        kf_t = keyframes[0]
+        st = self.settings
+        why = an.skipped(st.detection_anisotropy, self.fixed_bias is not None, kf_t.shape[0], EVIDENCE_MAX_KEYFRAMES)
+        if why is not None:  # said in the notes where the mode asked for it
+            said = st.detection_anisotropy != "off" and self.fixed_bias is None
+            return chosen, {"skipped": why}, [f"batch: range and bearing not weighed apart: {why}"] if said else []
+        base = chosen.problem
+        sols, scores, prev = {1.0: chosen.sol}, {1.0: ev.log_evidence(base, chosen.sol)}, 1.0
+        for ratio in an.RATIOS:
+            problem = replace(base, det_shape=an.shape(base.det_y, ratio))
+            s = sols[prev]
+            sols[ratio] = g.solve(
+                problem,
+                g.Guess(s.rot, s.pos, s.landmarks, s.bias),
+                max_iterations=st.max_iterations,
+                relative_tolerance=st.relative_tolerance,
+            )
+            scores[ratio] = ev.log_evidence(problem, sols[ratio])
+            if not ev.better(scores[ratio], scores[prev]):
+                break
+            prev = ratio
+        winner = ev.best_scale(scores)
+        record, note = an.record(scores, winner, ev.CRITERION), an.note(scores, winner)
+        if winner == 1.0:
+            return chosen, record, [note]
+        self.det_shape = an.shape(self.stream.det_y, winner)
+        return self._solved_again(chosen, sols[winner], keyframes, segments, progress), record, [note]
+
     def _decorrelate(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The detections' time correlation fitted to the chosen solution's residuals
         (:mod:`pipeline.smoother.correlation`); when significant, every detection's variance is scaled by its
@@ -341,7 +383,7 @@ class BatchSmoother(Stepper):
             return chosen, {"skipped": why}, []
         kf_t, kf_of_det, gaps = keyframes
         p, sol = chosen.problem, chosen.sol
-        corr = dc.fit(kf_t[p.kf_of_det], p.det_idx, g.detection_residuals(p, sol) / p.det_sigma[:, None])
+        corr = dc.fit(kf_t[p.kf_of_det], p.det_idx, g.whitened_residuals(p, sol))
         if not corr.significant:
             return chosen, dc.record(corr, None), []
         self.det_factor = f = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
@@ -514,6 +556,7 @@ class BatchSmoother(Stepper):
                 det_idx=problem.det_idx[kept],
                 det_y=problem.det_y[kept],
                 det_sigma=problem.det_sigma[kept],
+                det_shape=None if problem.det_shape is None else problem.det_shape[kept],
             )
             sol = g.solve(
                 problem,
@@ -553,9 +596,9 @@ class BatchSmoother(Stepper):
         freedom), or None when all do (or there is no gate)."""
         if gate_chi2 is None:
             return None
-        from slamobs.pipeline.smoother.graph import detection_residuals
+        from slamobs.pipeline.smoother.graph import whitened_residuals
 
-        d2 = np.sum(detection_residuals(problem, sol) ** 2, axis=1) / np.maximum(problem.det_sigma, 1e-12) ** 2
+        d2 = np.sum(whitened_residuals(problem, sol) ** 2, axis=1)
         kept = d2 <= gate_chi2
         return None if kept.all() else np.flatnonzero(kept)
 

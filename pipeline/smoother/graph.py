@@ -3,8 +3,9 @@
 Variables: one pose per keyframe, one point per landmark and the bias ``[b_Ω; b_V]`` as a 6-vector, one per
 segment. Factors:
 
-* each detection: the body-frame point ``Rᵀ(ℓ − P) − y``, an isotropic standard deviation ``σ`` per axis,
-  with a Huber kernel on the norm of the whitened residual (the model of the χ² gate, the candidates' detection
+* each detection: the body-frame point ``Rᵀ(ℓ − P) − y``, a standard deviation ``σ`` per axis, or its
+  range apart from its bearing (``det_shape``, :mod:`pipeline.smoother.anisotropy`), with a Huber kernel on the
+  norm of the whitened residual (the model of the χ² gate, the candidates' detection
   cost and the residual statistics);
 * a prior on the biases (zero mean, the prior standard deviations of the noise settings), a random walk
   between segment biases when the bias model asks for it, and the gauge: the anchor keyframe held at the
@@ -48,6 +49,9 @@ class Problem:
     walk_sigma: np.ndarray | None  # (6,) per segment step, None for one constant bias
     huber: float
     anchor: int  # keyframe held fixed (gauge)
+    #: (M, 3, 3) each detection's body-frame information relative to ``1/σ²`` (range and bearing weighed apart,
+    #: :mod:`pipeline.smoother.anisotropy`; determinant 1), or None: isotropic, ``σ`` on every axis
+    det_shape: np.ndarray | None = None
 
 
 @dataclass
@@ -89,6 +93,7 @@ class _Normal:
         order = np.argsort(p.kf_of_det, kind="stable")  # the detections of each keyframe together
         self.kf, self.idx = p.kf_of_det[order], p.det_idx[order]
         self.y, self.sigma = np.ascontiguousarray(p.det_y[order], float), p.det_sigma[order].astype(float)
+        self.shape = np.zeros((0, 3, 3)) if p.det_shape is None else np.ascontiguousarray(p.det_shape[order], float)
         self.det_start = np.searchsorted(self.kf, np.arange(k + 1))
         self.gauge = (guess.rot[p.anchor].copy(), guess.pos[p.anchor].copy())
         nb = 3 * self.n_lm + 6 * self.n_seg
@@ -104,7 +109,7 @@ class _Normal:
         from slamobs.pipeline.smoother.solver import detection_terms, pose_deviation
 
         p, (rot, pos, lms, bias) = self.p, pt
-        total = detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, p.huber, self.scratch)
+        total = detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, self.shape, p.huber, self.scratch)
         total += 0.5 * motion_error(p.data, p.b_bar, rot, pos, bias, p.seg_of)
         total += 0.5 * np.sum(((bias[0] - p.bias_prior_mean) / p.bias_prior_sigma) ** 2)
         if p.walk_sigma is not None:
@@ -117,10 +122,12 @@ class _Normal:
         from slamobs.pipeline.smoother.solver import detection_normal, detection_terms, motion_terms, pose_deviation
 
         p, (rot, pos, lms, bias) = self.p, pt
-        detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, p.huber, self.weight)
+        detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, self.shape, p.huber, self.weight)
         for a in (self.ad, self.ao, self.ga, self.c, self.gb):
             a[:] = 0.0
-        detection_normal(rot, pos, lms, self.kf, self.idx, self.y, self.weight, self.ad, self.ga, self.c, self.gb)
+        detection_normal(
+            rot, pos, lms, self.kf, self.idx, self.y, self.weight, self.shape, self.ad, self.ga, self.c, self.gb
+        )
         b0 = 3 * self.n_lm
         motion_terms(p.data, p.b_bar, rot, pos, bias, p.seg_of, self.ad, self.ao, self.mb, self.ga, self.c, self.gb, b0)
         prior = 1.0 / p.bias_prior_sigma**2
@@ -143,7 +150,7 @@ class _Normal:
 
     def _geo(self) -> tuple:
         rot, pos, lms, _ = self.at
-        return (rot, pos, lms, self.det_start, self.idx, self.weight, self.mb, self.p.seg_of, 3 * self.n_lm)
+        return (rot, pos, lms, self.det_start, self.idx, self.weight, self.shape, self.mb, self.p.seg_of, 3 * self.n_lm)
 
     def factor(self, lam: float) -> tuple | None:
         """``A + λI`` factored and the border's Schur complement ``S`` (None: not positive definite), with
@@ -325,6 +332,15 @@ def detection_residuals(problem: Problem, sol: Solution) -> np.ndarray:
     return np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf]) - problem.det_y
 
 
+def whitened_residuals(problem: Problem, sol: Solution) -> np.ndarray:
+    """Each detection's residual whitened by its covariance ``σ² S⁻¹`` (M, 3; ``Lᵀr/σ`` with ``S = LLᵀ``, ``r/σ``
+    for isotropic ones): its squared norm is the χ² the gate and the Huber kernel read."""
+    r = detection_residuals(problem, sol) / np.maximum(problem.det_sigma, 1e-12)[:, None]
+    if problem.det_shape is None:
+        return r
+    return np.einsum("mji,mj->mi", np.linalg.cholesky(problem.det_shape), r)
+
+
 def residual_statistics(problem: Problem, sol: Solution) -> dict:
     """Per factor type: residual sizes at the solution (metric and whitened), and how many detections the
     Huber kernel down-weights."""
@@ -332,7 +348,7 @@ def residual_statistics(problem: Problem, sol: Solution) -> dict:
 
     motion = motion_residuals(problem.data, problem.b_bar, sol.rot, sol.pos, sol.bias, problem.seg_of)
     err = np.linalg.norm(detection_residuals(problem, sol), axis=1)
-    whitened = err / np.maximum(problem.det_sigma, 1e-12)
+    whitened = np.linalg.norm(whitened_residuals(problem, sol), axis=1)
     bias_prior = (sol.bias[0] - problem.bias_prior_mean) / problem.bias_prior_sigma
     return {
         "relative_motion": {

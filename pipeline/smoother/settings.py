@@ -15,6 +15,7 @@ EVIDENCE_MODES = ("off", "held", "always")
 #: cross-validation of the detections (pipeline.smoother.cross_validation; replaces the evidence)
 SELECTION_MODES = ("evidence", "cross_validation")
 CORRELATION_MODES = ("off", "auto")
+ANISOTROPY_MODES = ("off", "auto")
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,9 @@ class BatchSettings:
     #: "auto": the detections' time correlation fitted to the first solution's residuals, each detection's
     #: variance scaled by its effective-sample factor when significant (pipeline.smoother.correlation); "off"
     detection_correlation: str = "auto"
+    #: "auto": the ratio of the detections' range error to their bearing error chosen by the smoother's evidence
+    #: (1 = isotropic, then x2 steps while the evidence rises; pipeline.smoother.anisotropy); "off": isotropic
+    detection_anisotropy: str = "auto"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -62,4 +66,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
     if settings.detection_correlation not in CORRELATION_MODES:
         modes = ", ".join(CORRELATION_MODES)
         raise GainError(f"batch.detection_correlation must be one of {modes}, got {settings.detection_correlation!r}")
+    if settings.detection_anisotropy not in ANISOTROPY_MODES:
+        modes = ", ".join(ANISOTROPY_MODES)
+        raise GainError(f"batch.detection_anisotropy must be one of {modes}, got {settings.detection_anisotropy!r}")
     return settings

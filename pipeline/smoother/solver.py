@@ -39,10 +39,14 @@ CHECKPOINT = 512
 
 
 @njit(cache=True)
-def detection_terms(rot, pos, lms, kf_of_det, det_idx, det_y, det_sigma, huber, weight):
+def detection_terms(rot, pos, lms, kf_of_det, det_idx, det_y, det_sigma, shape, huber, weight):
     """Huber-robust cost of every detection at the point, and each detection's ``weight / σ²`` (into
-    ``weight``) for the normal equations."""
+    ``weight``) for the normal equations. ``shape`` (M, 3, 3): each detection's information matrix in the body
+    frame relative to ``1/σ²`` (range and bearing weighed apart, :mod:`pipeline.smoother.anisotropy`), or
+    empty (0, 3, 3): the identity, every axis alike."""
     total = 0.0
+    d = np.empty(3)
+    shaped = shape.shape[0] > 0
     for m in range(kf_of_det.shape[0]):
         i, lm = kf_of_det[m], det_idx[m]
         e2 = 0.0
@@ -52,9 +56,15 @@ def detection_terms(rot, pos, lms, kf_of_det, det_idx, det_y, det_sigma, huber, 
                 + rot[i, 1, c] * (lms[lm, 1] - pos[i, 1])
                 + rot[i, 2, c] * (lms[lm, 2] - pos[i, 2])
             )
-            e2 += (q - det_y[m, c]) ** 2
+            d[c] = q - det_y[m, c]
+            e2 += d[c] ** 2
+        if shaped:
+            e2 = 0.0
+            for c in range(3):
+                for k in range(3):
+                    e2 += d[c] * shape[m, c, k] * d[k]
         s2 = max(det_sigma[m], 1e-12) ** 2
-        e = math.sqrt(e2 / s2)
+        e = math.sqrt(max(e2, 0.0) / s2)
         if e <= huber:
             total += 0.5 * e * e
             weight[m] = 1.0 / s2
@@ -107,9 +117,13 @@ def motion_terms(data, b_bar, rot, pos, bias, seg_of, ad, ao, mb, ga, c, gb, bia
 
 
 @njit(cache=True)
-def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, ad, ga, c, gb):
+def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, shape, ad, ga, c, gb):
     """The detections' part of the normal equations: pose and landmark diagonal blocks and gradients (the
-    pose-landmark blocks are recomputed by :func:`border_row` where needed)."""
+    pose-landmark blocks are recomputed by :func:`border_row` where needed); ``shape`` as in
+    :func:`detection_terms`."""
+    if shape.shape[0] > 0:
+        _shaped_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, shape, ad, ga, c, gb)
+        return
     for m in range(kf_of_det.shape[0]):
         i, lm, a = kf_of_det[m], det_idx[m], weight[m]
         r = rot[i]
@@ -158,11 +172,88 @@ def detection_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, ad, ga, c
 
 
 @njit(cache=True)
-def border_row(i, rot, pos, lms, det_lo, det_hi, det_idx, weight, mb, seg_of, bias0, out):
-    """Row block ``i`` of ``B`` (6 × n_b): the pose's coupling to the landmarks it sees and to its biases."""
+def _skew_t_times(q, m, out):
+    """``out = [q]×ᵀ m`` for a (3, n) ``m`` (``[q]×ᵀ = −[q]×``: row p is ``(m × q)`` taken column-wise)."""
+    for col in range(m.shape[1]):
+        out[0, col] = q[2] * m[1, col] - q[1] * m[2, col]
+        out[1, col] = q[0] * m[2, col] - q[2] * m[0, col]
+        out[2, col] = q[1] * m[0, col] - q[0] * m[1, col]
+
+
+@njit(cache=True)
+def _shaped_normal(rot, pos, lms, kf_of_det, det_idx, det_y, weight, shape, ad, ga, c, gb):
+    """:func:`detection_normal` with each detection's information ``a·S`` (``J_pose = [[q]×, −I]``,
+    ``J_ℓ = Rᵀ``): ``[[q]×ᵀS[q]×, −[q]×ᵀS; −S[q]×, S]``, ``R S Rᵀ``, gradients ``[[q]×ᵀSd; −Sd]``, ``R S d``."""
+    q = np.empty(3)
+    d = np.empty((3, 1))
+    sq = np.empty((3, 3))  # S [q]×
+    qsq = np.empty((3, 3))
+    sd = np.empty((3, 1))
+    qsd = np.empty((3, 1))
+    qx = np.empty((3, 3))
+    for m in range(kf_of_det.shape[0]):
+        i, lm, a = kf_of_det[m], det_idx[m], weight[m]
+        r, sm = rot[i], shape[m]
+        e0, e1, e2 = lms[lm, 0] - pos[i, 0], lms[lm, 1] - pos[i, 1], lms[lm, 2] - pos[i, 2]
+        for p in range(3):
+            q[p] = r[0, p] * e0 + r[1, p] * e1 + r[2, p] * e2
+            d[p, 0] = q[p] - det_y[m, p]
+        qx[0, 0], qx[0, 1], qx[0, 2] = 0.0, -q[2], q[1]
+        qx[1, 0], qx[1, 1], qx[1, 2] = q[2], 0.0, -q[0]
+        qx[2, 0], qx[2, 1], qx[2, 2] = -q[1], q[0], 0.0
+        for p in range(3):
+            for k in range(3):
+                sq[p, k] = sm[p, 0] * qx[0, k] + sm[p, 1] * qx[1, k] + sm[p, 2] * qx[2, k]
+            sd[p, 0] = sm[p, 0] * d[0, 0] + sm[p, 1] * d[1, 0] + sm[p, 2] * d[2, 0]
+        _skew_t_times(q, sq, qsq)
+        _skew_t_times(q, sd, qsd)
+        h = ad[i]
+        for p in range(3):
+            for k in range(3):
+                h[p, k] += a * qsq[p, k]
+                h[3 + p, 3 + k] += a * sm[p, k]
+                h[3 + p, k] -= a * sq[p, k]  # −S[q]×
+                h[k, 3 + p] -= a * sq[p, k]  # its transpose
+            ga[i, p] += a * qsd[p, 0]
+            ga[i, 3 + p] -= a * sd[p, 0]
+        for p in range(3):  # R S Rᵀ and R S d
+            v = 0.0
+            for u in range(3):
+                v += r[p, u] * sd[u, 0]
+            gb[3 * lm + p] += a * v
+            for k in range(3):
+                v = 0.0
+                for u in range(3):
+                    for w in range(3):
+                        v += r[p, u] * sm[u, w] * r[k, w]
+                c[3 * lm + p, 3 * lm + k] += a * v
+
+
+@njit(cache=True)
+def border_row(i, rot, pos, lms, det_lo, det_hi, det_idx, weight, shape, mb, seg_of, bias0, out):
+    """Row block ``i`` of ``B`` (6 × n_b): the pose's coupling to the landmarks it sees and to its biases
+    (``shape`` as in :func:`detection_terms`)."""
     out[:] = 0.0
     r = rot[i]
+    shaped = shape.shape[0] > 0
+    q = np.empty(3)
+    srt = np.empty((3, 3))  # S Rᵀ
+    qsrt = np.empty((3, 3))
     for m in range(det_lo, det_hi):
+        if shaped:  # J_poseᵀ a S J_ℓ = a [[q]×ᵀ S Rᵀ; −S Rᵀ]
+            lm, a, sm = det_idx[m], weight[m], shape[m]
+            d0, d1, d2 = lms[lm, 0] - pos[i, 0], lms[lm, 1] - pos[i, 1], lms[lm, 2] - pos[i, 2]
+            for p in range(3):
+                q[p] = r[0, p] * d0 + r[1, p] * d1 + r[2, p] * d2
+                for k in range(3):
+                    srt[p, k] = sm[p, 0] * r[k, 0] + sm[p, 1] * r[k, 1] + sm[p, 2] * r[k, 2]
+            _skew_t_times(q, srt, qsrt)
+            for k in range(3):
+                col = 3 * lm + k
+                for p in range(3):
+                    out[p, col] += a * qsrt[p, k]
+                    out[3 + p, col] -= a * srt[p, k]
+            continue
         lm, a = det_idx[m], weight[m]
         d0, d1, d2 = lms[lm, 0] - pos[i, 0], lms[lm, 1] - pos[i, 1], lms[lm, 2] - pos[i, 2]
         q0 = r[0, 0] * d0 + r[1, 0] * d1 + r[2, 0] * d2
@@ -295,7 +386,7 @@ def factor(ad, ao, lam, ra, geo, dd, ee, s, rb):
     overwritten by ``z = L⁻¹ r_a``, and the Schur complement ``S −= WᵀW`` (upper triangle of ``s``) with its
     right side ``rb −= Wᵀz``. ``geo``: the detections and biases for :func:`border_row`. False if ``A + λI``
     is not positive definite."""
-    rot, pos, lms, det_start, det_idx, weight, mb, seg_of, bias0 = geo
+    rot, pos, lms, det_start, det_idx, weight, shape, mb, seg_of, bias0 = geo
     nb = s.shape[0]
     pad = nb + nb % 2
     w_prev = np.zeros((6, nb))
@@ -320,7 +411,7 @@ def factor(ad, ao, lam, ra, geo, dd, ee, s, rb):
             _sub_product(et, et, m, True)  # − E_i E_iᵀ
         if not _cholesky6(m, dd[i]):
             return False
-        border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, mb, seg_of, bias0, brow)
+        border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, shape, mb, seg_of, bias0, brow)
         _w_row(i, dd, ee, brow, w_prev, w)
         rhs[:, 0] = ra[i]
         if i > 0:
@@ -343,7 +434,7 @@ def factor(ad, ao, lam, ra, geo, dd, ee, s, rb):
 @njit(cache=True)
 def back_substitute(z, xb, geo, dd, ee, x):
     """The poses' step ``x`` (K, 6) from ``A x_a = r_a − B x_b``, given ``z = L⁻¹ r_a`` and the border's step."""
-    rot, pos, lms, det_start, det_idx, weight, mb, seg_of, bias0 = geo
+    rot, pos, lms, det_start, det_idx, weight, shape, mb, seg_of, bias0 = geo
     k, nb = z.shape[0], xb.shape[0]
     brow = np.empty((6, nb))
     rhs = np.empty((6, 1))
@@ -351,7 +442,7 @@ def back_substitute(z, xb, geo, dd, ee, x):
     y = np.empty((k, 6))
     prev = np.zeros((6, 1))
     for i in range(k):  # y = z + L⁻¹(−B x_b): y_i = z_i + D_i⁻¹(−B_i x_b − E_i (y − z)_{i−1})
-        border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, mb, seg_of, bias0, brow)
+        border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, shape, mb, seg_of, bias0, brow)
         for p in range(6):
             v = 0.0
             for col in range(nb):
@@ -395,7 +486,7 @@ def _marginal(z, v, s_inv, out):
 def pose_marginals(geo, dd, ee, s_inv, wanted, out):
     """Marginal covariances (body twist) of the keyframes ``wanted`` (sorted) into ``out``: ``Z_ii + V_i S⁻¹ V_iᵀ``
     (module docstring), with ``W``'s rows recomputed a ``CHECKPOINT`` at a time from stored ones."""
-    rot, pos, lms, det_start, det_idx, weight, mb, seg_of, bias0 = geo
+    rot, pos, lms, det_start, det_idx, weight, shape, mb, seg_of, bias0 = geo
     k, nb = dd.shape[0], s_inv.shape[0]
     n_cp = (k + CHECKPOINT - 1) // CHECKPOINT
     cps = np.zeros((n_cp, 6, nb))  # W at the row before each stretch
@@ -405,7 +496,7 @@ def pose_marginals(geo, dd, ee, s_inv, wanted, out):
     for i in range(k):
         if i % CHECKPOINT == 0:
             cps[i // CHECKPOINT] = w_prev
-        border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, mb, seg_of, bias0, brow)
+        border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, shape, mb, seg_of, bias0, brow)
         _w_row(i, dd, ee, brow, w_prev, w)
         w_prev[:] = w
     seg = np.empty((CHECKPOINT, 6, nb))
@@ -421,7 +512,9 @@ def pose_marginals(geo, dd, ee, s_inv, wanted, out):
         lo, hi = s * CHECKPOINT, min(k, (s + 1) * CHECKPOINT)
         w_prev[:] = cps[s]
         for i in range(lo, hi):
-            border_row(i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, mb, seg_of, bias0, brow)
+            border_row(
+                i, rot, pos, lms, det_start[i], det_start[i + 1], det_idx, weight, shape, mb, seg_of, bias0, brow
+            )
             _w_row(i, dd, ee, brow, w_prev, seg[i - lo])
             w_prev[:] = seg[i - lo]
         for i in range(hi - 1, lo - 1, -1):

@@ -1,0 +1,72 @@
+"""Range and bearing weighed apart: a detection's error along its line of sight and across it.
+
+A range-bearing sensor measures the direction to a landmark better than its distance: a camera's fiducial pose
+(PnP) is good across the image and poor in depth, and on MR.CLAM the range error is 0.12–0.28 m while the
+bearing's is about 0.01 rad, a few centimetres across at the ranges seen (docs/benchmarks.md "The held streams
+against Vicon"). The noise law ``σ(r)`` (``noise: detection``, ``_per_m``, ``_per_m2``) is one standard
+deviation per axis; weighed so, the slow range error pulls the trajectory along the heading as hard as the
+bearing does across it, and the smoother follows the range's noise.
+
+The model splits ``σ`` into ``σ_r = k_r σ`` along the line of sight ``u = y/|y|`` (body frame) and ``σ_⊥ = k_⊥ σ``
+across it, with ``k_r / k_⊥ = ρ`` and ``k_r k_⊥² = 1``: the error's volume (``det Σ = σ⁶``) is the isotropic
+one, so the evidence's determinant terms of the detections do not change with ``ρ`` and the law's level keeps
+its meaning (the geometric mean of the three axes). The information of a detection is ``S/σ²`` with
+
+    S = u uᵀ / k_r² + (I − u uᵀ) / k_⊥²,      k_r = ρ^(2/3),  k_⊥ = ρ^(−1/3).
+
+``ρ`` is chosen by the smoother's evidence (:mod:`pipeline.smoother.evidence`, the same Laplace approximation,
+margin and tie rule as the motion levels' scales): ``ρ = 1`` (isotropic) and ``RATIOS`` upwards while the
+evidence rises by more than ``evidence.MIN_GAIN``. The residuals themselves cannot give ``ρ``: the smoother
+absorbs the error in the direction it weighs least, so refitting the split from a solution's residuals and
+solving again runs away (MR.CLAM 7-r1: 3.0, 6.9, 12.8, 18.5, 23.0, 26.1 over six passes). Pure numerics, no I/O.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Ratios of the range's standard deviation to the across-the-line one tried after 1 (isotropic), upwards while
+#: the evidence rises.
+RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0)
+MODEL = "sigma_range = ratio^(2/3) sigma, sigma_across = ratio^(-1/3) sigma (line of sight y/|y|, det kept)"
+
+
+def shape(det_y: np.ndarray, ratio: float) -> np.ndarray:
+    """Each detection's body-frame information relative to ``1/σ²`` (M, 3, 3) for a range standard deviation
+    ``ratio`` times the across-the-line one, determinant 1 (module docstring)."""
+    u = det_y / np.maximum(np.linalg.norm(det_y, axis=1), 1e-12)[:, None]
+    uu = np.einsum("mi,mj->mij", u, u)
+    return uu / ratio ** (4.0 / 3.0) + (np.eye(3) - uu) * ratio ** (2.0 / 3.0)
+
+
+def skipped(mode: str, fixed_bias: bool, keyframes: int, max_keyframes: int) -> str | None:
+    """Why the ratio is not chosen here (the detections stay isotropic), or None."""
+    if mode == "off":
+        return "batch.detection_anisotropy is off"
+    if fixed_bias:
+        return "the biases are fixed (a reference run)"
+    if keyframes > max_keyframes:
+        return f"the log has {keyframes} keyframes (more than {max_keyframes}): each ratio would cost a solve"
+    return None
+
+
+def record(scores: dict[float, float | None], winner: float, criterion: str) -> dict:
+    """The choice for run.json (observer.smoother.detection_anisotropy)."""
+    return {
+        "model": MODEL,
+        "criterion": criterion,
+        "log_evidence": {f"{s:g}": (None if z is None else round(float(z), 3)) for s, z in sorted(scores.items())},
+        "ratio": winner,
+        "applied": winner != 1.0,
+    }
+
+
+def note(scores: dict[float, float | None], winner: float) -> str:
+    said = ", ".join(f"x{s:g} {'n/a' if z is None else f'{z:.1f}'}" for s, z in sorted(scores.items()))
+    kept = (
+        f"the range's standard deviation {winner:g}x the bearing's (σ(r) x{winner ** (2 / 3):.3g} along the line "
+        f"of sight, x{winner ** (-1 / 3):.3g} across)"
+        if winner != 1.0
+        else "isotropic detections"
+    )
+    return f"batch: range and bearing weighed apart by the evidence (log marginal likelihood): {said}; kept {kept}"
