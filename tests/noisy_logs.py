@@ -1,5 +1,6 @@
 """A generated figure-8 whose velocity and gyro noise are well above the defaults (so their levels matter to
-batch), aligned, with the true noise levels: the logs of the noise-scale choice tests (evidence, cross-validation)."""
+batch), aligned, with the true noise levels: the logs of the noise-scale choice tests (evidence, cross-validation);
+and the smoother's keyframe APE on a generated figure-8, which those tests and the detection-model tests compare."""
 
 from __future__ import annotations
 
@@ -8,8 +9,11 @@ from dataclasses import replace
 import numpy as np
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.noise import NoiseConfig, resolve_noise
-from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
+from slamobs.pipeline.observers import ObserverOptions
+from slamobs.pipeline.simulate import NoiseModel, expected_streams, get_scenario, simulate
+from slamobs.pipeline.smoother.estimator import BatchSmoother
 
 #: velocity and gyro noise of the generated log, times the defaults: large enough that their levels matter
 VELOCITY_FACTOR, GYRO_FACTOR = 10.0, 30.0
@@ -32,3 +36,14 @@ def noisy_figure8(duration: float, seed: int):
         )
     )
     return sim, stream, truth
+
+
+def smoothed(sim, stream, settings, noise=None) -> tuple[BatchSmoother, float]:
+    """The smoother on ``stream`` (of the figure-8 ``sim``) with ``settings``, solved, and its keyframes' APE
+    against the scenario's truth (m, after Umeyama's fit)."""
+    smoother = BatchSmoother(stream, {}, ObserverOptions(), settings=settings, noise=noise)
+    smoother.solve()
+    sol, kf_t = smoother.result["solution"], smoother.result["kf_t"]
+    truth = get_scenario("figure8").sample(kf_t + (stream.t0_ns - sim.start_ns) * 1e-9)
+    r, t, _ = umeyama(sol.pos, truth.P)
+    return smoother, float(np.sqrt(np.mean(np.sum((sol.pos @ r.T + t - truth.P) ** 2, axis=1))))

@@ -11,14 +11,12 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import noisy_logs
 import pytest
 
 from slamobs.pipeline.alignment import align
-from slamobs.pipeline.lie import umeyama
-from slamobs.pipeline.observers import ObserverOptions
-from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
+from slamobs.pipeline.simulate import expected_streams, simulate
 from slamobs.pipeline.smoother import correlation as dc
-from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.settings import BatchSettings
 
 #: generated residual tracks: landmarks, detections per track at RATE Hz, tracks per landmark
@@ -102,15 +100,9 @@ def generated():
     return sim, align(expected_streams(sim), keep_directions=False)
 
 
-def smoothed(sim, stream, mode: str) -> tuple[BatchSmoother, float]:
+def smoothed(sim, stream, mode: str):
     """The smoother (noise: auto's defaults, no evidence scan) and its keyframes' APE against the truth."""
-    settings = BatchSettings(noise_evidence="off", detection_correlation=mode)
-    smoother = BatchSmoother(stream, {}, ObserverOptions(), settings=settings)
-    smoother.solve()
-    sol, kf_t = smoother.result["solution"], smoother.result["kf_t"]
-    truth = get_scenario("figure8").sample(kf_t + (stream.t0_ns - sim.start_ns) * 1e-9)
-    r, t, _ = umeyama(sol.pos, truth.P)
-    return smoother, float(np.sqrt(np.mean(np.sum((sol.pos @ r.T + t - truth.P) ** 2, axis=1))))
+    return noisy_logs.smoothed(sim, stream, BatchSettings(noise_evidence="off", detection_correlation=mode))
 
 
 def test_a_white_log_keeps_the_independent_detections(generated):

@@ -11,12 +11,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from noisy_logs import noisy_figure8
-from slamobs.pipeline.lie import umeyama
-from slamobs.pipeline.observers import ObserverOptions
-from slamobs.pipeline.simulate import get_scenario
+from noisy_logs import noisy_figure8, smoothed
 from slamobs.pipeline.smoother import cross_validation as cv
-from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.settings import BatchSettings
 
 
@@ -36,12 +32,7 @@ def estimated(truth, motion: float):
 def run(log, noise, selection: str):
     """The smoother with ``batch.noise_selection: selection``: itself and its APE at the keyframes (m)."""
     sim, stream, _ = log
-    s = BatchSmoother(stream, {}, ObserverOptions(), settings=BatchSettings(noise_selection=selection), noise=noise)
-    s.solve()
-    sol, kf_t = s.result["solution"], s.result["kf_t"]
-    truth = get_scenario("figure8").sample(kf_t + (stream.t0_ns - sim.start_ns) * 1e-9)
-    r, t, _ = umeyama(sol.pos, truth.P)
-    return s, float(np.sqrt(np.mean(np.sum((sol.pos @ r.T + t - truth.P) ** 2, axis=1))))
+    return smoothed(sim, stream, BatchSettings(noise_selection=selection), noise)
 
 
 @pytest.fixture(scope="module")
