@@ -347,3 +347,29 @@ def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, mon
     assert sorted(read) == ["biases.parquet", "landmarks.parquet", "poses.parquet"]
     for name in ("report.json", "report.md", "poses_aligned.parquet", "landmarks_aligned.parquet"):
         assert (tmp_path / "handed" / name).read_bytes() == (tmp_path / "read" / name).read_bytes(), name
+
+
+def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_turn(tmp_path, monkeypatch):
+    """The report computes its segment errors on a thread beside the other sections; where no thread can be
+    started (no room under a memory limit) it computes them in turn: the same report, byte for byte."""
+    from cli_checks import SAMPLES
+    from slamobs.pipeline import run
+    from slamobs.pipeline.config import EvaluationConfig, RunConfig
+    from slamobs.pipeline.evaluation import report
+
+    started = []
+    real = report.Pending
+    monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
+    config = RunConfig(evaluation=EvaluationConfig(plots=False))
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "beside", config)
+    assert started == ["SegmentErrorsSection.process_data"]
+
+    def no_room(*_a):
+        raise MemoryError("no room")
+
+    monkeypatch.setattr(report, "Pending", no_room)
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "in_turn", config)
+    beside = (tmp_path / "beside" / "report.json").read_bytes()
+    assert b'"segment_errors"' in beside and b'"n_segments"' in beside
+    for name in ("report.json", "report.md", "poses_aligned.parquet"):
+        assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "in_turn" / name).read_bytes(), name

@@ -104,7 +104,7 @@ class TrajectoryEvaluation:
     alignment: Alignment
     translation: ErrorResult  # APE trans_part (the evo result written to the zip)
     rotation: ErrorResult  # APE angle_deg
-    offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
+    offset: TimeOffset | Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
     #: the pose covariance at the paired estimate rows and its size at every row (``paired_covariance``), None
@@ -116,7 +116,7 @@ class TrajectoryEvaluation:
         """The estimated clock offset (waits for it when it is computed beside the rest). Searched beside the
         rest, its APE without the offset is this evaluation's own (same pairs rule and alignment, no offset
         applied): it is filled in here rather than computed twice."""
-        if not isinstance(self.offset, _Pending):
+        if not isinstance(self.offset, Pending):
             return self.offset
         off = self.offset.result()
         if off is not None and off.checked and off.rmse_without_m is None:
@@ -161,7 +161,7 @@ def evaluate_trajectory(
     if options.t_offset_s == "auto" or (estimate_offset and not beside):  # first: needed, or too big to overlap
         offset = checked_time_offset(*search, max_offset_s=options.max_time_offset_s)
     elif estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
-        offset = _Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
+        offset = Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
     if options.t_offset_s == "auto":
         applied = offset.offset_s if offset is not None else 0.0
     else:
@@ -308,9 +308,10 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
 OFFSET_BESIDE_SAMPLES = 2_000_000
 
 
-class _Pending:
+class Pending:
     """``func(*args, **kwargs)`` computed on a thread of its own; :meth:`result` waits for it (and raises what
-    it raised). The thread is a daemon: a run stopped meanwhile does not wait for it to end."""
+    it raised). The thread is a daemon: a run stopped meanwhile does not wait for it to end. The report computes
+    the clock-offset search and its longest section (the segment errors) this way, beside the rest."""
 
     def __init__(self, func, *args, **kwargs) -> None:
         import threading
