@@ -373,3 +373,33 @@ def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_tu
     assert b'"segment_errors"' in beside and b'"n_segments"' in beside
     for name in ("report.json", "report.md", "poses_aligned.parquet"):
         assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "in_turn" / name).read_bytes(), name
+
+
+def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has_not_begun(monkeypatch):
+    """``Pending`` computes on its thread; when the caller asks for the result before the thread has begun (a
+    loaded machine), the caller computes it and the thread finds it taken: computed once, either way, and an
+    error is raised to the caller from both."""
+    import threading
+
+    from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
+
+    ran = []
+
+    def work(x, fail=False):
+        ran.append(threading.current_thread().name)
+        if fail:
+            raise ValueError("bad")
+        return 2 * x
+
+    done = Pending(work, 21)
+    assert done.result() == 42 and done.result() == 42 and len(ran) == 1
+    with pytest.raises(ValueError, match="bad"):
+        Pending(work, 1, fail=True).result()
+    ran.clear()
+    monkeypatch.setattr(threading.Thread, "start", lambda self: None)  # the thread never begins
+    late = Pending(work, 5)
+    assert late.result() == 10 and late.result() == 10 and ran == [threading.current_thread().name]
+    late._run()  # the thread, beginning after all, finds the work taken
+    assert ran == [threading.current_thread().name]
+    with pytest.raises(ValueError, match="bad"):
+        Pending(work, 1, fail=True).result()

@@ -310,8 +310,10 @@ OFFSET_BESIDE_SAMPLES = 2_000_000
 
 class Pending:
     """``func(*args, **kwargs)`` computed on a thread of its own; :meth:`result` waits for it (and raises what
-    it raised). The thread is a daemon: a run stopped meanwhile does not wait for it to end. The report computes
-    the clock-offset search and its longest section (the segment errors) this way, beside the rest."""
+    it raised), or computes it in the caller's thread when the thread has not begun it yet (a loaded machine,
+    where the thread got no core meanwhile: then no later than without a thread). The thread is a daemon: a run
+    stopped meanwhile does not wait for it to end. The report computes the clock-offset search and its longest
+    section (the segment errors) this way, beside the rest."""
 
     def __init__(self, func, *args, **kwargs) -> None:
         import threading
@@ -321,17 +323,29 @@ class Pending:
         # matrix products on two threads at once take a second OpenBLAS buffer, whose failure ends the process
         check_room("compute beside the report (a second OpenBLAS buffer)", BLAS_START_MB)
         self._value = self._error = None
-        self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report", daemon=True)
+        self._work = (func, args, kwargs)
+        self._claim = threading.Lock()  # held by whichever thread computes it
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="slamobs-report", daemon=True)
         self._thread.start()
 
-    def _run(self, func, args, kwargs) -> None:
+    def _run(self) -> None:
+        if self._claim.acquire(blocking=False):  # else the caller computes it itself
+            self._compute()
+
+    def _compute(self) -> None:
+        (func, args, kwargs), self._work = self._work, None
         try:
             self._value = func(*args, **kwargs)
         except BaseException as err:  # noqa: BLE001 - raised by result()
             self._error = err
+        finally:
+            self._done.set()
 
     def result(self):
-        self._thread.join()
+        if self._claim.acquire(blocking=False):  # not begun: computed here, the thread then finds it taken
+            self._compute()
+        self._done.wait()
         if self._error is not None:
             raise self._error
         return self._value
