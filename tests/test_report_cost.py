@@ -403,3 +403,32 @@ def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has
     assert ran == [threading.current_thread().name]
     with pytest.raises(ValueError, match="bad"):
         Pending(work, 1, fail=True).result()
+
+
+def test_a_pending_ctrl_c_or_sigterm_ends_the_wait_for_work_beside(monkeypatch):
+    """The main thread waiting for work on a thread (``Pending.result``) is inside threading's wait, where a
+    signal's exception is not raised (``pipeline.interrupts``): it looks for a pending Ctrl-C/SIGTERM between
+    waits and raises it while the work is still going on."""
+    import signal
+    import threading
+
+    from slamobs.pipeline import interrupts
+    from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
+
+    begun, release, finished = threading.Event(), threading.Event(), []
+
+    def work():
+        begun.set()
+        release.wait(10)
+        finished.append(True)
+
+    pending = Pending(work)
+    assert begun.wait(10)  # the thread has the work
+    monkeypatch.setattr(interrupts, "requested", signal.SIGTERM)
+    monkeypatch.setattr(interrupts, "_raised", False)
+    try:
+        with pytest.raises(interrupts.Interrupted):
+            pending.result()
+        assert not finished
+    finally:
+        release.set()

@@ -343,9 +343,13 @@ class Pending:
             self._done.set()
 
     def result(self):
+        from slamobs.pipeline import interrupts
+
         if self._claim.acquire(blocking=False):  # not begun: computed here, the thread then finds it taken
             self._compute()
-        self._done.wait()
+        # a Ctrl-C/SIGTERM is not raised inside threading's wait (:mod:`.interrupts`): looked for between waits
+        while not self._done.wait(interrupts.RETRY_S):
+            interrupts.check()
         if self._error is not None:
             raise self._error
         return self._value
