@@ -347,3 +347,94 @@ def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, mon
     assert sorted(read) == ["biases.parquet", "landmarks.parquet", "poses.parquet"]
     for name in ("report.json", "report.md", "poses_aligned.parquet", "landmarks_aligned.parquet"):
         assert (tmp_path / "handed" / name).read_bytes() == (tmp_path / "read" / name).read_bytes(), name
+
+
+def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_turn(tmp_path, monkeypatch):
+    """The report computes its segment errors on a thread beside the other sections; where no thread can be
+    started (no room under a memory limit) or the log has more pairs than ``MATRICES_KEPT_ROWS`` it computes them
+    in turn: the same report, byte for byte."""
+    from cli_checks import SAMPLES
+    from slamobs.pipeline import run
+    from slamobs.pipeline.config import EvaluationConfig, RunConfig
+    from slamobs.pipeline.evaluation import report
+
+    started = []
+    real = report.Pending
+    monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
+    config = RunConfig(evaluation=EvaluationConfig(plots=False))
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "beside", config)
+    assert started == ["SegmentErrorsSection.process_data"]
+
+    def no_room(*_a):
+        raise MemoryError("no room")
+
+    monkeypatch.setattr(report, "Pending", no_room)
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "in_turn", config)
+    monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
+    monkeypatch.setattr(report, "MATRICES_KEPT_ROWS", 10)  # a log longer than that: in turn, no thread
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "long", config)
+    assert started == ["SegmentErrorsSection.process_data"]
+    beside = (tmp_path / "beside" / "report.json").read_bytes()
+    assert b'"segment_errors"' in beside and b'"n_segments"' in beside
+    for name in ("report.json", "report.md", "poses_aligned.parquet"):
+        assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "in_turn" / name).read_bytes(), name
+        assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "long" / name).read_bytes(), name
+
+
+def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has_not_begun(monkeypatch):
+    """``Pending`` computes on its thread; when the caller asks for the result before the thread has begun (a
+    loaded machine), the caller computes it and the thread finds it taken: computed once, either way, and an
+    error is raised to the caller from both."""
+    import threading
+
+    from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
+
+    ran = []
+
+    def work(x, fail=False):
+        ran.append(threading.current_thread().name)
+        if fail:
+            raise ValueError("bad")
+        return 2 * x
+
+    done = Pending(work, 21)
+    assert done.result() == 42 and done.result() == 42 and len(ran) == 1
+    with pytest.raises(ValueError, match="bad"):
+        Pending(work, 1, fail=True).result()
+    ran.clear()
+    monkeypatch.setattr(threading.Thread, "start", lambda self: None)  # the thread never begins
+    late = Pending(work, 5)
+    assert late.result() == 10 and late.result() == 10 and ran == [threading.current_thread().name]
+    late._run()  # the thread, beginning after all, finds the work taken
+    assert ran == [threading.current_thread().name]
+    with pytest.raises(ValueError, match="bad"):
+        Pending(work, 1, fail=True).result()
+
+
+def test_a_pending_ctrl_c_or_sigterm_ends_the_wait_for_work_beside(monkeypatch):
+    """The main thread waiting for work on a thread (``Pending.result``) is inside threading's wait, where a
+    signal's exception is not raised (``pipeline.interrupts``): it looks for a pending Ctrl-C/SIGTERM between
+    waits and raises it while the work is still going on."""
+    import signal
+    import threading
+
+    from slamobs.pipeline import interrupts
+    from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
+
+    begun, release, finished = threading.Event(), threading.Event(), []
+
+    def work():
+        begun.set()
+        release.wait(10)
+        finished.append(True)
+
+    pending = Pending(work)
+    assert begun.wait(10)  # the thread has the work
+    monkeypatch.setattr(interrupts, "requested", signal.SIGTERM)
+    monkeypatch.setattr(interrupts, "_raised", False)
+    try:
+        with pytest.raises(interrupts.Interrupted):
+            pending.result()
+        assert not finished
+    finally:
+        release.set()

@@ -104,7 +104,7 @@ class TrajectoryEvaluation:
     alignment: Alignment
     translation: ErrorResult  # APE trans_part (the evo result written to the zip)
     rotation: ErrorResult  # APE angle_deg
-    offset: TimeOffset | _Pending | None  # the estimated clock offset, perhaps still being computed
+    offset: TimeOffset | Pending | None  # the estimated clock offset, perhaps still being computed
     applied_offset_s: float
     sync: SyncOptions
     #: the pose covariance at the paired estimate rows and its size at every row (``paired_covariance``), None
@@ -116,7 +116,7 @@ class TrajectoryEvaluation:
         """The estimated clock offset (waits for it when it is computed beside the rest). Searched beside the
         rest, its APE without the offset is this evaluation's own (same pairs rule and alignment, no offset
         applied): it is filled in here rather than computed twice."""
-        if not isinstance(self.offset, _Pending):
+        if not isinstance(self.offset, Pending):
             return self.offset
         off = self.offset.result()
         if off is not None and off.checked and off.rmse_without_m is None:
@@ -161,7 +161,7 @@ def evaluate_trajectory(
     if options.t_offset_s == "auto" or (estimate_offset and not beside):  # first: needed, or too big to overlap
         offset = checked_time_offset(*search, max_offset_s=options.max_time_offset_s)
     elif estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
-        offset = _Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
+        offset = Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
     if options.t_offset_s == "auto":
         applied = offset.offset_s if offset is not None else 0.0
     else:
@@ -314,9 +314,12 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
 OFFSET_BESIDE_SAMPLES = 2_000_000
 
 
-class _Pending:
+class Pending:
     """``func(*args, **kwargs)`` computed on a thread of its own; :meth:`result` waits for it (and raises what
-    it raised). The thread is a daemon: a run stopped meanwhile does not wait for it to end."""
+    it raised), or computes it in the caller's thread when the thread has not begun it yet (a loaded machine,
+    where the thread got no core meanwhile: then no later than without a thread). The thread is a daemon: a run
+    stopped meanwhile does not wait for it to end. The report computes the clock-offset search and its longest
+    section (the segment errors) this way, beside the rest."""
 
     def __init__(self, func, *args, **kwargs) -> None:
         import threading
@@ -326,17 +329,33 @@ class _Pending:
         # matrix products on two threads at once take a second OpenBLAS buffer, whose failure ends the process
         check_room("compute beside the report (a second OpenBLAS buffer)", BLAS_START_MB)
         self._value = self._error = None
-        self._thread = threading.Thread(target=self._run, args=(func, args, kwargs), name="slamobs-report", daemon=True)
+        self._work = (func, args, kwargs)
+        self._claim = threading.Lock()  # held by whichever thread computes it
+        self._done = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="slamobs-report", daemon=True)
         self._thread.start()
 
-    def _run(self, func, args, kwargs) -> None:
+    def _run(self) -> None:
+        if self._claim.acquire(blocking=False):  # else the caller computes it itself
+            self._compute()
+
+    def _compute(self) -> None:
+        (func, args, kwargs), self._work = self._work, None
         try:
             self._value = func(*args, **kwargs)
         except BaseException as err:  # noqa: BLE001 - raised by result()
             self._error = err
+        finally:
+            self._done.set()
 
     def result(self):
-        self._thread.join()
+        from slamobs.pipeline import interrupts
+
+        if self._claim.acquire(blocking=False):  # not begun: computed here, the thread then finds it taken
+            self._compute()
+        # a Ctrl-C/SIGTERM is not raised inside threading's wait (:mod:`.interrupts`): looked for between waits
+        while not self._done.wait(interrupts.RETRY_S):
+            interrupts.check()
         if self._error is not None:
             raise self._error
         return self._value
