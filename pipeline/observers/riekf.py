@@ -143,128 +143,168 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
 
 
 @njit(cache=True)
-def _cross_mat(p, x, out):
-    """``out = [p]× x`` for a 3x3 ``x``."""
-    for b in range(3):
-        out[0, b] = p[1] * x[2, b] - p[2] * x[1, b]
-        out[1, b] = p[2] * x[0, b] - p[0] * x[2, b]
-        out[2, b] = p[0] * x[1, b] - p[1] * x[0, b]
-
-
-@njit(cache=True)
-def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
-    """Apply the accumulated transition ``Φ = I + F`` and noise to the covariance (first ``d`` dimensions):
-    ``Σ ← Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``; ``f`` (6, D) holds ``Fᵀ`` and ``g`` (6, D) ``(FΣ_bb)ᵀ`` (scratch,
-    transposed so that the inner loops run along rows: each entry is summed in the same order as written)."""
+def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+    """The accumulated transition ``Φ = I + F`` and noise ``Q`` as the terms of one symmetric update, applied
+    later together with the frame's Kalman downdate (:func:`_apply`): ``Σ⁻ = Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``.
+    Off the position rows every row ``i`` of ``F`` and of ``Q``'s factor is ``j_i``-linear: ``F_i = (j_iᵀ ΣR̂h, 0)``
+    and ``Q = J W Jᵀ`` with ``J_i = (j_iᵀ, 0)``, where ``j_i`` is ``e_a`` on the attitude rows, row ``a`` of
+    ``[p̂_s]×`` on a landmark's, zero on the biases'. There the change is ``ΔΣ_ij = j_i·z_j + z_i·j_j`` with
+    ``z_j = ΣR̂h Σ_(b_Ω, j) + ½ M j_j``, ``M = ΣR̂h Σ_(b_Ω b_Ω) ΣR̂hᵀ + ΣM h``: rows 0..2 of ``lt`` hold ``jᵀ``, 3..5
+    ``zᵀ``, ``rt`` the two swapped. The position rows' change (3 × d, every column) goes to ``dp``. The bias
+    random walk over the interval is added to ``Σ`` now (at its start: the transition carries it), and the sums
+    are cleared. False when no time has passed (nothing to apply)."""
+    lt[:6, :d] = 0.0
+    rt[:6, :d] = 0.0
+    dp[:, :d] = 0.0
     if acc_dt <= 0.0:
-        return
-    # bias random walk over the interval (applied at its start: the transition then carries it)
+        return False
     for c in range(3):
         cov[6 + c, 6 + c] += q_bw * q_bw * acc_dt
         cov[9 + c, 9 + c] += q_bv * q_bv * acc_dt
     n = (d - N_FIXED) // 3
-    sr = acc[_SR]
-    f[:, :d] = 0.0
+    sr, spr, qrr, qpr, qpp = acc[_SR], acc[_SPR], acc[_QRR], acc[_QPR], acc[_QPP]
     for a in range(3):
-        for b in range(3):
-            f[b, a] = sr[a, b]  # ξ_R <- b̃_Ω
-            f[b, 3 + a] = acc[_SPR, a, b]  # ξ_P <- b̃_Ω
-            f[3 + b, 3 + a] = sr[a, b]  # ξ_P <- b̃_V
-    tmp = np.empty((3, 3))
-    for s in range(n):
-        _cross_mat(lm[slot_lm[s]], sr, tmp)
-        for a in range(3):
-            for b in range(3):
-                f[b, N_FIXED + 3 * s + a] = tmp[a, b]  # ξ_s <- b̃_Ω
-    # the bias rows Σ_b as they are before the update, and g = (F Σ_bb)ᵀ (6, D)
-    pb = cov[6:12, :d].copy()
-    for c in range(6):  # along rows (it vectorises), each entry summed over e in order from 0.0
-        gc = g[c, :d]
-        gc[:] = 0.0
-        for e in range(6):
-            fe, w = f[e, :d], pb[e, 6 + c]
-            for i in range(d):
-                gc[i] += fe[i] * w
-    _add_bias_terms(cov, d, f, pb, g)
-    # process noise Q: (R, P) block, landmark rows [p̂_s]× QRR, [p̂_s]× QPRᵀ, and [p̂_s]× QRR [p̂_u]×ᵀ
-    qrr, qpr, qpp = acc[_QRR], acc[_QPR], acc[_QPP]
-    for a in range(3):
-        for b in range(3):
-            cov[a, b] += qrr[a, b]
-            cov[3 + a, 3 + b] += qpp[a, b]
-            cov[3 + a, b] += qpr[a, b]
-            cov[b, 3 + a] += qpr[a, b]
-    qprt = np.empty((3, 3))
-    for a in range(3):
-        for b in range(3):
-            qprt[a, b] = qpr[b, a]
-    arr = np.empty((n, 3, 3))  # [p̂_s]× QRR
-    apr = np.empty((3, 3))
-    for s in range(n):
+        lt[a, a] = 1.0
+    for s in range(n):  # [p]× = [[0, −p2, p1], [p2, 0, −p0], [−p1, p0, 0]], row a in column r0 + a
         p = lm[slot_lm[s]]
-        _cross_mat(p, qrr, arr[s])
-        _cross_mat(p, qprt, apr)
         r0 = N_FIXED + 3 * s
-        for a in range(3):
-            for b in range(3):
-                cov[r0 + a, b] += arr[s, a, b]
-                cov[b, r0 + a] += arr[s, a, b]
-                cov[r0 + a, 3 + b] += apr[a, b]
-                cov[3 + b, r0 + a] += apr[a, b]
-    for s in range(n):
-        r0 = N_FIXED + 3 * s
-        for u in range(s, n):
-            q = lm[slot_lm[u]]
-            c0 = N_FIXED + 3 * u
-            for a in range(3):
-                # (arr_s [q]×ᵀ)[a, b] = Σ_c arr_s[a, c] [q]×[b, c]
-                x0 = arr[s, a, 2] * q[1] - arr[s, a, 1] * q[2]
-                x1 = arr[s, a, 0] * q[2] - arr[s, a, 2] * q[0]
-                x2 = arr[s, a, 1] * q[0] - arr[s, a, 0] * q[1]
-                cov[r0 + a, c0] += x0
-                cov[r0 + a, c0 + 1] += x1
-                cov[r0 + a, c0 + 2] += x2
-                if u != s:
-                    cov[c0, r0 + a] += x0
-                    cov[c0 + 1, r0 + a] += x1
-                    cov[c0 + 2, r0 + a] += x2
+        lt[1, r0], lt[2, r0] = -p[2], p[1]
+        lt[0, r0 + 1], lt[2, r0 + 1] = p[2], -p[0]
+        lt[0, r0 + 2], lt[1, r0 + 2] = -p[1], p[0]
+    w = np.empty((6, 6))  # the bias block (after the walk)
+    for e in range(6):
+        for k in range(6):
+            w[e, k] = cov[6 + e, 6 + k]
+    mh = np.empty((3, 3))  # ½ (ΣR̂h Σ_ΩΩ ΣR̂hᵀ + ΣM h), symmetric
+    for a in range(3):
+        for b in range(3):
+            v = 0.0
+            for e in range(3):
+                for k in range(3):
+                    v += sr[a, e] * w[e, k] * sr[b, k]
+            mh[a, b] = v + qrr[a, b]
+    for a in range(3):
+        for b in range(a, 3):
+            v = 0.25 * (mh[a, b] + mh[b, a])
+            mh[a, b], mh[b, a] = v, v
+    for a in range(3):
+        za = lt[3 + a, :d]
+        s0, s1, s2, m0, m1, m2 = sr[a, 0], sr[a, 1], sr[a, 2], mh[a, 0], mh[a, 1], mh[a, 2]
+        b0, b1, b2, j0, j1, j2 = cov[6, :d], cov[7, :d], cov[8, :d], lt[0, :d], lt[1, :d], lt[2, :d]
+        for j in range(d):
+            za[j] = s0 * b0[j] + s1 * b1[j] + s2 * b2[j] + m0 * j0[j] + m1 * j1[j] + m2 * j2[j]
+        za[3], za[4], za[5] = 0.0, 0.0, 0.0  # the position rows: in dp
+    for a in range(3):
+        rt[a, :d] = lt[3 + a, :d]
+        rt[3 + a, :d] = lt[a, :d]
+    # the position rows: F_(3+a) = (ΣR̂h-weighted [P̂]×: acc[_SPR][a], acc[_SR][a]) and ΔΣ_(3+a, j) for every j:
+    # Σ_e F_(3+a, e) Σ_(6+e, j) + (Σ_(b, 3+a) + F_(3+a) Σ_bb)·F_j + Q_(3+a, j)
+    fp = np.empty((3, 6))
+    for a in range(3):
+        for c in range(3):
+            fp[a, c], fp[a, 3 + c] = spr[a, c], sr[a, c]
+    gp = np.empty((3, 6))  # Σ_(b, 3+a) + F_(3+a) Σ_bb
+    for a in range(3):
+        for e in range(6):
+            v = cov[6 + e, 3 + a]
+            for k in range(6):
+                v += fp[a, k] * w[k, e]
+            gp[a, e] = v
+    for a in range(3):
+        # off the position columns F_j = (j_jᵀ ΣR̂h, 0) and Q_(3+a, j) = (ΣQ_PR j_j)_a: one 3-vector on j_j
+        u = np.empty(3)
+        for c in range(3):
+            u[c] = qpr[a, c] + gp[a, 0] * sr[c, 0] + gp[a, 1] * sr[c, 1] + gp[a, 2] * sr[c, 2]
+        da = dp[a, :d]
+        f0, f1, f2, f3, f4, f5 = fp[a, 0], fp[a, 1], fp[a, 2], fp[a, 3], fp[a, 4], fp[a, 5]
+        b0, b1, b2, b3, b4, b5 = cov[6, :d], cov[7, :d], cov[8, :d], cov[9, :d], cov[10, :d], cov[11, :d]
+        j0, j1, j2 = lt[0, :d], lt[1, :d], lt[2, :d]
+        for j in range(d):
+            x = f0 * b0[j] + f1 * b1[j] + f2 * b2[j] + f3 * b3[j] + f4 * b4[j] + f5 * b5[j]
+            da[j] = x + u[0] * j0[j] + u[1] * j1[j] + u[2] * j2[j]
+        for b in range(3):
+            v = qpp[a, b]
+            for e in range(6):
+                v += gp[a, e] * fp[b, e]
+            da[3 + b] += v
     acc[:, :, :] = 0.0
+    return True
 
 
 @njit(cache=True)
-def _add_bias_terms(cov, d, f, pb, g):
-    """``Σ += F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ`` (``f`` = Fᵀ, ``pb`` = Σ_b, ``g`` = (F Σ_bb)ᵀ, each (6, D)): the upper
-    triangle a row at a time, each entry summed over the six bias columns in order, then mirrored."""
-    row = np.empty(d)
-    for i in range(d):
-        n = d - i  # views from the diagonal on, indexed from 0: the loops vectorise
-        ci = cov[i, i:]
-        if i >= 6:  # b̃_V reaches ξ_P only (columns 3..5, left of the diagonal here): the b̃_Ω terms in one pass
-            b0, b1, b2 = f[0, i], f[1, i], f[2, i]
-            c0, c1, c2 = pb[0, i], pb[1, i], pb[2, i]
-            e0, e1, e2 = g[0, i], g[1, i], g[2, i]
-            f0, f1, f2, p0, p1, p2 = f[0, i:], f[1, i:], f[2, i:], pb[0, i:], pb[1, i:], pb[2, i:]
-            for j in range(n):  # the sum of the loop below, term by term in its order
-                t0 = b0 * p0[j] + c0 * f0[j] + e0 * f0[j]
-                t1 = b1 * p1[j] + c1 * f1[j] + e1 * f1[j]
-                t2 = b2 * p2[j] + c2 * f2[j] + e2 * f2[j]
-                ci[j] += ((0.0 + t0) + t1) + t2
-        else:
-            acc = row[:n]
-            acc[:] = 0.0
-            for e in range(6):
-                a1, a2, a3 = f[e, i], pb[e, i], g[e, i]
-                fe, pe = f[e, i:], pb[e, i:]
-                if e < 3 or 3 <= i < 6:
-                    for j in range(n):
-                        acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
-                else:  # b̃_V reaches ξ_P only: F[i, e] = 0 and F[j, e] = 0 off j = 3..5, the terms there add zeros
-                    for j in range(max(3 - i, 0), 6 - i):
-                        acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
+def _prior(cov, i, j, lt, rt, dp):
+    """``Σ⁻_ij``: entry ``(i, j)`` of the covariance with the pending propagation (:func:`_propagation_terms`)."""
+    if 3 <= i < 6:
+        return cov[i, j] + dp[i - 3, j]
+    if 3 <= j < 6:
+        return cov[i, j] + dp[j - 3, i]
+    v = cov[i, j]
+    for k in range(6):
+        v += lt[k, i] * rt[k, j]
+    return v
+
+
+@njit(cache=True, fastmath=True)
+def _apply(cov, d, lt, rt, k, dp):
+    """``Σ ← Σ + Σ_q lt[q]ᵀ rt[q]`` over ``q < k`` (the propagation's six terms and the downdate's ``−UUᵀ``,
+    each entry loaded and stored once), plus the position rows' ``dp``; the upper triangle four rows at a time
+    (six terms a pass along the rows, it vectorises), then mirrored: ``Σ`` stays exactly symmetric. ``k`` is a
+    multiple of 3. ``fastmath``: the terms of an entry may be added in any order (round-off only)."""
+    i = 0
+    while i + 4 <= d:
+        n = d - i
+        c0, c1, c2, c3 = cov[i, i:d], cov[i + 1, i:d], cov[i + 2, i:d], cov[i + 3, i:d]
+        q = 0
+        while q + 6 <= k:
+            a0, a1, a2, a3 = lt[q, i], lt[q, i + 1], lt[q, i + 2], lt[q, i + 3]
+            b0, b1, b2, b3 = lt[q + 1, i], lt[q + 1, i + 1], lt[q + 1, i + 2], lt[q + 1, i + 3]
+            e0, e1, e2, e3 = lt[q + 2, i], lt[q + 2, i + 1], lt[q + 2, i + 2], lt[q + 2, i + 3]
+            f0, f1, f2, f3 = lt[q + 3, i], lt[q + 3, i + 1], lt[q + 3, i + 2], lt[q + 3, i + 3]
+            g0, g1, g2, g3 = lt[q + 4, i], lt[q + 4, i + 1], lt[q + 4, i + 2], lt[q + 4, i + 3]
+            h0, h1, h2, h3 = lt[q + 5, i], lt[q + 5, i + 1], lt[q + 5, i + 2], lt[q + 5, i + 3]
+            ra, rb, re = rt[q, i:d], rt[q + 1, i:d], rt[q + 2, i:d]
+            rf, rg, rh = rt[q + 3, i:d], rt[q + 4, i:d], rt[q + 5, i:d]
             for j in range(n):
-                ci[j] += acc[j]
-        for j in range(i + 1, d):
-            cov[j, i] = cov[i, j]
+                x, y, z, u, v, w = ra[j], rb[j], re[j], rf[j], rg[j], rh[j]
+                c0[j] += a0 * x + b0 * y + e0 * z + f0 * u + g0 * v + h0 * w
+                c1[j] += a1 * x + b1 * y + e1 * z + f1 * u + g1 * v + h1 * w
+                c2[j] += a2 * x + b2 * y + e2 * z + f2 * u + g2 * v + h2 * w
+                c3[j] += a3 * x + b3 * y + e3 * z + f3 * u + g3 * v + h3 * w
+            q += 6
+        if q < k:  # three terms left
+            a0, a1, a2, a3 = lt[q, i], lt[q, i + 1], lt[q, i + 2], lt[q, i + 3]
+            b0, b1, b2, b3 = lt[q + 1, i], lt[q + 1, i + 1], lt[q + 1, i + 2], lt[q + 1, i + 3]
+            e0, e1, e2, e3 = lt[q + 2, i], lt[q + 2, i + 1], lt[q + 2, i + 2], lt[q + 2, i + 3]
+            ra, rb, re = rt[q, i:d], rt[q + 1, i:d], rt[q + 2, i:d]
+            for j in range(n):
+                x, y, z = ra[j], rb[j], re[j]
+                c0[j] += a0 * x + b0 * y + e0 * z
+                c1[j] += a1 * x + b1 * y + e1 * z
+                c2[j] += a2 * x + b2 * y + e2 * z
+                c3[j] += a3 * x + b3 * y + e3 * z
+        i += 4
+    for r in range(i, d):
+        cr = cov[r, r:d]
+        for q in range(k):
+            a, rq = lt[q, r], rt[q, r:d]
+            for j in range(d - r):
+                cr[j] += a * rq[j]
+    for a in range(3):
+        for j in range(3 + a, d):
+            cov[3 + a, j] += dp[a, j]
+        for b in range(3):
+            cov[b, 3 + a] += dp[a, b]
+    for r in range(d):
+        for j in range(r + 1, d):
+            cov[j, r] = cov[r, j]
+
+
+@njit(cache=True)
+def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+    """Apply the accumulated transition and noise to the covariance now (first ``d`` dimensions; ``lt``, ``rt``
+    (at least 6 × D) and ``dp`` (3 × D) are scratch): :func:`_propagation_terms` then :func:`_apply`."""
+    if _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+        _settle(cov, d, lt, rt, dp)
 
 
 @njit(cache=True)
@@ -341,12 +381,18 @@ def _cholesky(s, m):
 
 
 @njit(cache=True)
-def _gate(cov, z, sl, sigma2):
-    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I``."""
+def _gate(cov, z, sl, sigma2, lt, rt, dp):
+    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I`` (of ``Σ⁻``: the
+    pending propagation included, :func:`_prior`)."""
     s = np.empty((3, 3))
     for a in range(3):
         for b in range(3):
-            s[a, b] = cov[3 + a, 3 + b] - cov[3 + a, sl + b] - cov[sl + a, 3 + b] + cov[sl + a, sl + b]
+            s[a, b] = (
+                _prior(cov, 3 + a, 3 + b, lt, rt, dp)
+                - _prior(cov, 3 + a, sl + b, lt, rt, dp)
+                - _prior(cov, sl + a, 3 + b, lt, rt, dp)
+                + _prior(cov, sl + a, sl + b, lt, rt, dp)
+            )
         s[a, a] += sigma2
     if not _cholesky(s, 3):
         return np.inf
@@ -387,12 +433,11 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
 
 
-@njit(cache=True)
-def _gain_and_downdate(cov, d, hp, chol, z, k3):
-    """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ (k3 × d): ``Uᵀ = L⁻¹ H Σ`` (in place), ``w = L⁻¹ z``;
-    returns ``ξ̂ = U w`` and makes ``Σ ← Σ − U Uᵀ``. Every loop runs along rows of ``hp`` (it vectorises),
-    four of its rows at a time (one pass over the row written instead of four); each entry is summed in the
-    order of the textbook loops, term by term, so the numbers are those of the one-row-at-a-time loops."""
+@njit(cache=True, fastmath=True)
+def _gain(hp, chol, z, k3, d):
+    """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
+    ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
+    (it vectorises), four of its rows at a time (one pass over the row written instead of four)."""
     row = np.empty(d)
     for c in range(k3):
         row[:] = hp[c, :d]
@@ -407,8 +452,9 @@ def _gain_and_downdate(cov, d, hp, chol, z, k3):
             s_ck, hk = chol[c, k], hp[k, :d]
             for r in range(d):
                 row[r] -= hk[r] * s_ck
+        inv = 1.0 / chol[c, c]
         for r in range(d):
-            hp[c, r] = row[r] / chol[c, c]
+            hp[c, r] = row[r] * inv
     w = np.empty(k3)
     for c in range(k3):
         v = z[c]
@@ -420,34 +466,16 @@ def _gain_and_downdate(cov, d, hp, chol, z, k3):
         wc, hc = w[c], hp[c, :d]
         for r in range(d):
             xi[r] += hc[r] * wc
-    for r in range(d):
-        _downdate_row(cov, r, d, hp, k3, row)
     return xi
 
 
 @njit(cache=True)
-def _downdate_row(cov, r, d, hp, k3, row):
-    """``Σ[r, r:] −= Σ_k hp[k, r] hp[k, r:]`` (each entry summed over ``k`` in order, four terms a pass; ``row``:
-    scratch), mirrored into column ``r``."""
-    n = d - r  # views from the diagonal on, indexed from 0: the loops vectorise
-    acc = row[:n]
-    acc[:] = 0.0
-    k = 0
-    while k + 4 <= k3:
-        a0, a1, a2, a3 = hp[k, r], hp[k + 1, r], hp[k + 2, r], hp[k + 3, r]
-        h0, h1, h2, h3 = hp[k, r:d], hp[k + 1, r:d], hp[k + 2, r:d], hp[k + 3, r:d]
-        for c in range(n):
-            acc[c] = (((acc[c] + a0 * h0[c]) + a1 * h1[c]) + a2 * h2[c]) + a3 * h3[c]
-        k += 4
-    for k in range(k, k3):
-        a, hk = hp[k, r], hp[k, r:d]
-        for c in range(n):
-            acc[c] += a * hk[c]
-    cr = cov[r, r:d]
-    for c in range(n):
-        cr[c] -= acc[c]
-    for c in range(r + 1, d):
-        cov[c, r] = cov[r, c]
+def _settle(cov, d, lt, rt, dp):
+    """Apply the pending propagation (:func:`_propagation_terms`) to the covariance now, and clear it."""
+    _apply(cov, d, lt, rt, 6, dp)
+    lt[:6, :d] = 0.0
+    rt[:6, :d] = 0.0
+    dp[:, :d] = 0.0
 
 
 @njit(cache=True)
@@ -468,7 +496,9 @@ def _update(
     slot_lm,
     sel,
     z,
-    pht,
+    lt,
+    rt,
+    dp,
     smat,
     innov,
     trk_p,
@@ -484,7 +514,15 @@ def _update(
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
-    is counted in the recovery's window. Returns the new state dimension."""
+    is counted in the recovery's window. The propagation since the last frame is pending in ``lt``, ``rt``, ``dp``
+    (:func:`_propagation_terms`): it is applied in the same pass as the downdate (:func:`_apply`), the gain read
+    from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt``, ``rt`` are the downdate's scratch). Returns the new
+    state dimension."""
+    for j in range(nd):  # a re-initialisation copies rows of Σ⁻: apply the propagation first
+        i = det_idx[a0 + j]
+        if slot_of[i] >= 0 and reinit[i]:
+            _settle(cov, d, lt, rt, dp)
+            break
     m = 0
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -506,7 +544,7 @@ def _update(
             ns[_REINIT] += 1
             continue
         zi = -e
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale, lt, rt, dp)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -522,22 +560,37 @@ def _update(
         for c in range(3):
             z[3 * m + c] = zi[c]
         m += 1
+    terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
+    xi = np.zeros(0)
     if m > 0:
         k3 = 3 * m
-        # H Σ (3m × d), the transpose of Σ Hᵀ: row block q = (Σ[:, P] − Σ[:, slot of q])ᵀ (read by columns: the
-        # noise sums leave Σ symmetric only to round-off)
+        hp = lt[6:]
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added (_prior)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            for r in range(d):
-                for c in range(3):
-                    pht[3 * q + c, r] = cov[r, 3 + c] - cov[r, sl + c]
-        # S = H PHᵀ + σ² I
+            for c in range(3):
+                hq, cp, cs, dc = hp[3 * q + c, :d], cov[3 + c, :d], cov[sl + c, :d], dp[c, :d]
+                l0, l1, l2, l3, l4, l5 = (
+                    lt[0, sl + c],
+                    lt[1, sl + c],
+                    lt[2, sl + c],
+                    lt[3, sl + c],
+                    lt[4, sl + c],
+                    lt[5, sl + c],
+                )
+                r0, r1, r2, r3, r4, r5 = rt[0, :d], rt[1, :d], rt[2, :d], rt[3, :d], rt[4, :d], rt[5, :d]
+                for r in range(d):
+                    v = cs[r] + l0 * r0[r] + l1 * r1[r] + l2 * r2[r] + l3 * r3[r] + l4 * r4[r] + l5 * r5[r]
+                    hq[r] = (cp[r] + dc[r]) - v
+                for b in range(3):  # rt is zero in the position columns: their propagation is in dp
+                    hq[3 + b] -= dp[b, sl + c]
+        # S = H Σ⁻ Hᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             s2 = det_sigma2[a0 + sel[q]] * scale
             for c in range(3):
                 for k in range(k3):
-                    smat[3 * q + c, k] = pht[k, 3 + c] - pht[k, sl + c]
+                    smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
@@ -547,9 +600,16 @@ def _update(
         if not _cholesky(smat, k3):
             ns[_SKIPPED] += 1
         else:
-            xi = _gain_and_downdate(cov, d, pht, smat, z, k3)
-            _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
-            ns[_UPDATES] += 1
+            xi = _gain(hp, smat, z, k3, d)
+            for k in range(k3):
+                rk, hk = rt[6 + k, :d], hp[k, :d]
+                for r in range(d):
+                    rk[r] = -hk[r]
+            terms += k3
+    _apply(cov, d, lt, rt, terms, dp)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
+    if xi.shape[0] > 0:
+        _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+        ns[_UPDATES] += 1
     # augmentation with the corrected pose
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -683,11 +743,11 @@ def _advance(
     slot_of,
     slot_lm,
     acc,
-    f,
-    g,
+    lt,
+    rt,
+    dp,
     sel,
     z,
-    pht,
     smat,
     win_d2,
     win_z,
@@ -753,7 +813,7 @@ def _advance(
             work += m
             t = t_next
         if is_frame:
-            _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
+            _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
             acc_dt = 0.0
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
@@ -775,7 +835,9 @@ def _advance(
                 slot_lm,
                 sel,
                 z,
-                pht,
+                lt,
+                rt,
+                dp,
                 smat,
                 innov,
                 trk_p,
@@ -808,13 +870,13 @@ def _advance(
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o])
                 if want_cov:
-                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
+                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
                     cov_out[o] = cov[:N_FIXED, :N_FIXED]
                 o += 1
             iv += 1
     if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
-        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
+        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
         acc_dt = 0.0
     fs[_T], fs[_ACC_DT] = t, acc_dt
     ns[_IV], ns[_JF], ns[_NSEEN], ns[_STARTED], ns[_STEPS] = iv, jf, (d - N_FIXED) // 3, 1 if started else 0, steps
@@ -837,12 +899,13 @@ class _State(KernelState):
         self.slot_of = np.full(n_landmarks, -1, dtype=np.int64)
         self.slot_lm = np.zeros(max(n_landmarks, 1), dtype=np.int64)
         self.acc = np.zeros((5, 3, 3))
-        self.f = np.zeros((6, dim))
-        self.g = np.zeros((6, dim))
         k3 = 3 * max(n_max, 1)
+        # the pending propagation's terms and the downdate's (_propagation_terms, _update), the position rows'
+        self.lt = np.zeros((6 + k3, dim))
+        self.rt = np.zeros((6 + k3, dim))
+        self.dp = np.zeros((3, dim))
         self.sel = np.zeros(max(n_max, 1), dtype=np.int64)
         self.z = np.zeros(k3)
-        self.pht = np.zeros((k3, dim))
         self.smat = np.zeros((k3, k3))
         self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
@@ -866,11 +929,11 @@ class _State(KernelState):
             self.slot_of,
             self.slot_lm,
             self.acc,
-            self.f,
-            self.g,
+            self.lt,
+            self.rt,
+            self.dp,
             self.sel,
             self.z,
-            self.pht,
             self.smat,
             self.win_d2,
             self.win_z,
@@ -926,7 +989,7 @@ class RiEKF(Stepper):
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
         walks = np.sqrt(st.fs[_SCALE]) * np.array(self.params[2:4])
-        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.f, st.g)
+        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
         moved = super()._relocalise(iv)
