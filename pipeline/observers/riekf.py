@@ -95,6 +95,8 @@ RECOVERY_ACTIONS = {
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
+#: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
+PAD = 8
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
@@ -152,7 +154,8 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     ``z_j = ΣR̂h Σ_(b_Ω, j) + ½ M j_j``, ``M = ΣR̂h Σ_(b_Ω b_Ω) ΣR̂hᵀ + ΣM h``: rows 0..2 of ``lt`` hold ``jᵀ``, 3..5
     ``zᵀ``, ``rt`` the two swapped. The position rows' change (3 × d, every column) goes to ``dp``. The bias
     random walk over the interval is added to ``Σ`` now (at its start: the transition carries it), and the sums
-    are cleared. False when no time has passed (nothing to apply)."""
+    are cleared. False when no time has passed (nothing to apply). An entry of ``Σ⁻`` is then ``Σ_ij + dp[i − 3, j]``
+    on a position row ``i`` (``dp[j − 3, i]`` on a position column), else ``Σ_ij + Σ_(k<6) lt[k, i] rt[k, j]``."""
     lt[:6, :d] = 0.0
     rt[:6, :d] = 0.0
     dp[:, :d] = 0.0
@@ -231,29 +234,21 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     return True
 
 
-@njit(cache=True)
-def _prior(cov, i, j, lt, rt, dp):
-    """``Σ⁻_ij``: entry ``(i, j)`` of the covariance with the pending propagation (:func:`_propagation_terms`)."""
-    if 3 <= i < 6:
-        return cov[i, j] + dp[i - 3, j]
-    if 3 <= j < 6:
-        return cov[i, j] + dp[j - 3, i]
-    v = cov[i, j]
-    for k in range(6):
-        v += lt[k, i] * rt[k, j]
-    return v
-
-
 @njit(cache=True, fastmath=True)
 def _apply(cov, d, lt, rt, k, dp):
     """``Σ ← Σ + Σ_q lt[q]ᵀ rt[q]`` over ``q < k`` (the propagation's six terms and the downdate's ``−UUᵀ``,
     each entry loaded and stored once), plus the position rows' ``dp``; the upper triangle four rows at a time
     (six terms a pass along the rows, it vectorises), then mirrored: ``Σ`` stays exactly symmetric. ``k`` is a
-    multiple of 3. ``fastmath``: the terms of an entry may be added in any order (round-off only)."""
+    multiple of 3. ``fastmath``: the terms of an entry may be added in any order (round-off only). The rows run
+    from a multiple of ``PAD`` to the end of the arrays (``_State`` pads them to a multiple of ``PAD`` columns,
+    zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the loops run over whole vectors."""
+    end = min(cov.shape[1], lt.shape[1], rt.shape[1])
+    tiles = min(d + (-d) % 4, cov.shape[0] - cov.shape[0] % 4, lt.shape[1] - lt.shape[1] % 4)
     i = 0
-    while i + 4 <= d:
-        n = d - i
-        c0, c1, c2, c3 = cov[i, i:d], cov[i + 1, i:d], cov[i + 2, i:d], cov[i + 3, i:d]
+    while i < tiles:
+        j0 = i - i % PAD
+        c0, c1, c2, c3 = cov[i, j0:end], cov[i + 1, j0:end], cov[i + 2, j0:end], cov[i + 3, j0:end]
+        n = end - j0
         q = 0
         while q + 6 <= k:
             a0, a1, a2, a3 = lt[q, i], lt[q, i + 1], lt[q, i + 2], lt[q, i + 3]
@@ -262,8 +257,8 @@ def _apply(cov, d, lt, rt, k, dp):
             f0, f1, f2, f3 = lt[q + 3, i], lt[q + 3, i + 1], lt[q + 3, i + 2], lt[q + 3, i + 3]
             g0, g1, g2, g3 = lt[q + 4, i], lt[q + 4, i + 1], lt[q + 4, i + 2], lt[q + 4, i + 3]
             h0, h1, h2, h3 = lt[q + 5, i], lt[q + 5, i + 1], lt[q + 5, i + 2], lt[q + 5, i + 3]
-            ra, rb, re = rt[q, i:d], rt[q + 1, i:d], rt[q + 2, i:d]
-            rf, rg, rh = rt[q + 3, i:d], rt[q + 4, i:d], rt[q + 5, i:d]
+            ra, rb, re = rt[q, j0:end], rt[q + 1, j0:end], rt[q + 2, j0:end]
+            rf, rg, rh = rt[q + 3, j0:end], rt[q + 4, j0:end], rt[q + 5, j0:end]
             for j in range(n):
                 x, y, z, u, v, w = ra[j], rb[j], re[j], rf[j], rg[j], rh[j]
                 c0[j] += a0 * x + b0 * y + e0 * z + f0 * u + g0 * v + h0 * w
@@ -275,7 +270,7 @@ def _apply(cov, d, lt, rt, k, dp):
             a0, a1, a2, a3 = lt[q, i], lt[q, i + 1], lt[q, i + 2], lt[q, i + 3]
             b0, b1, b2, b3 = lt[q + 1, i], lt[q + 1, i + 1], lt[q + 1, i + 2], lt[q + 1, i + 3]
             e0, e1, e2, e3 = lt[q + 2, i], lt[q + 2, i + 1], lt[q + 2, i + 2], lt[q + 2, i + 3]
-            ra, rb, re = rt[q, i:d], rt[q + 1, i:d], rt[q + 2, i:d]
+            ra, rb, re = rt[q, j0:end], rt[q + 1, j0:end], rt[q + 2, j0:end]
             for j in range(n):
                 x, y, z = ra[j], rb[j], re[j]
                 c0[j] += a0 * x + b0 * y + e0 * z
@@ -283,7 +278,7 @@ def _apply(cov, d, lt, rt, k, dp):
                 c2[j] += a2 * x + b2 * y + e2 * z
                 c3[j] += a3 * x + b3 * y + e3 * z
         i += 4
-    for r in range(i, d):
+    for r in range(i, d):  # rows left when the arrays are not padded (tests)
         cr = cov[r, r:d]
         for q in range(k):
             a, rq = lt[q, r], rt[q, r:d]
@@ -294,7 +289,24 @@ def _apply(cov, d, lt, rt, k, dp):
             cov[3 + a, j] += dp[a, j]
         for b in range(3):
             cov[b, 3 + a] += dp[a, b]
-    for r in range(d):
+    _mirror(cov, d)
+
+
+@njit(cache=True)
+def _mirror(cov, d):
+    """The upper triangle of the first ``d`` dimensions copied into the lower, four rows at a time (four
+    neighbouring stores per column instead of one store per row)."""
+    i = 0
+    while i + 4 <= d:
+        for r in range(i, i + 3):
+            for j in range(r + 1, i + 4):
+                cov[j, r] = cov[r, j]
+        c0, c1, c2, c3 = cov[i], cov[i + 1], cov[i + 2], cov[i + 3]
+        for j in range(i + 4, d):
+            cj = cov[j]
+            cj[i], cj[i + 1], cj[i + 2], cj[i + 3] = c0[j], c1[j], c2[j], c3[j]
+        i += 4
+    for r in range(i, d):
         for j in range(r + 1, d):
             cov[j, r] = cov[r, j]
 
@@ -381,18 +393,18 @@ def _cholesky(s, m):
 
 
 @njit(cache=True)
-def _gate(cov, z, sl, sigma2, lt, rt, dp):
-    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I`` (of ``Σ⁻``: the
-    pending propagation included, :func:`_prior`)."""
-    s = np.empty((3, 3))
+def _gate(cov, z, sl, sigma2, lt, rt, dp, s):
+    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I`` of ``Σ⁻`` (the
+    pending propagation added, each term read once; ``s``: 3×3 scratch)."""
     for a in range(3):
         for b in range(3):
-            s[a, b] = (
-                _prior(cov, 3 + a, 3 + b, lt, rt, dp)
-                - _prior(cov, 3 + a, sl + b, lt, rt, dp)
-                - _prior(cov, sl + a, 3 + b, lt, rt, dp)
-                + _prior(cov, sl + a, sl + b, lt, rt, dp)
-            )
+            v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
+            v -= cov[3 + a, sl + b] + dp[a, sl + b]  # Σ⁻_Ps
+            v -= cov[sl + a, 3 + b] + dp[b, sl + a]  # Σ⁻_sP
+            v += cov[sl + a, sl + b]  # Σ⁻_ss
+            for k in range(6):
+                v += lt[k, sl + a] * rt[k, sl + b]
+            s[a, b] = v
         s[a, a] += sigma2
     if not _cholesky(s, 3):
         return np.inf
@@ -437,24 +449,44 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
     ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
-    (it vectorises), four of its rows at a time (one pass over the row written instead of four)."""
-    row = np.empty(d)
-    for c in range(k3):
-        row[:] = hp[c, :d]
-        k = 0
-        while k + 4 <= c:
-            s0, s1, s2, s3 = chol[c, k], chol[c, k + 1], chol[c, k + 2], chol[c, k + 3]
+    (it vectorises), four rows written at a time with four terms a pass (``fastmath``: round-off only)."""
+    c = 0
+    while c + 4 <= k3:  # four rows at a time: the rows above them first, four terms a pass, then among themselves
+        x0, x1, x2, x3 = hp[c, :d], hp[c + 1, :d], hp[c + 2, :d], hp[c + 3, :d]
+        for k in range(0, c, 4):  # c is a multiple of 4
             h0, h1, h2, h3 = hp[k, :d], hp[k + 1, :d], hp[k + 2, :d], hp[k + 3, :d]
+            a0, a1, a2, a3 = chol[c, k], chol[c, k + 1], chol[c, k + 2], chol[c, k + 3]
+            b0, b1, b2, b3 = chol[c + 1, k], chol[c + 1, k + 1], chol[c + 1, k + 2], chol[c + 1, k + 3]
+            e0, e1, e2, e3 = chol[c + 2, k], chol[c + 2, k + 1], chol[c + 2, k + 2], chol[c + 2, k + 3]
+            f0, f1, f2, f3 = chol[c + 3, k], chol[c + 3, k + 1], chol[c + 3, k + 2], chol[c + 3, k + 3]
             for r in range(d):
-                row[r] = (((row[r] - h0[r] * s0) - h1[r] * s1) - h2[r] * s2) - h3[r] * s3
-            k += 4
-        for k in range(k, c):
+                u, v, w, y = h0[r], h1[r], h2[r], h3[r]
+                x0[r] -= a0 * u + a1 * v + a2 * w + a3 * y
+                x1[r] -= b0 * u + b1 * v + b2 * w + b3 * y
+                x2[r] -= e0 * u + e1 * v + e2 * w + e3 * y
+                x3[r] -= f0 * u + f1 * v + f2 * w + f3 * y
+        i0 = 1.0 / chol[c, c]
+        i1 = 1.0 / chol[c + 1, c + 1]
+        i2 = 1.0 / chol[c + 2, c + 2]
+        i3 = 1.0 / chol[c + 3, c + 3]
+        l10, l20, l21 = chol[c + 1, c], chol[c + 2, c], chol[c + 2, c + 1]
+        l30, l31, l32 = chol[c + 3, c], chol[c + 3, c + 1], chol[c + 3, c + 2]
+        for r in range(d):
+            u = x0[r] * i0
+            v = (x1[r] - l10 * u) * i1
+            w = (x2[r] - l20 * u - l21 * v) * i2
+            x0[r], x1[r], x2[r] = u, v, w
+            x3[r] = (x3[r] - l30 * u - l31 * v - l32 * w) * i3
+        c += 4
+    for c in range(c, k3):  # the rows left, one at a time
+        x = hp[c, :d]
+        for k in range(c):
             s_ck, hk = chol[c, k], hp[k, :d]
             for r in range(d):
-                row[r] -= hk[r] * s_ck
+                x[r] -= hk[r] * s_ck
         inv = 1.0 / chol[c, c]
         for r in range(d):
-            hp[c, r] = row[r] * inv
+            x[r] *= inv
     w = np.empty(k3)
     for c in range(k3):
         v = z[c]
@@ -524,10 +556,12 @@ def _update(
             _settle(cov, d, lt, rt, dp)
             break
     m = 0
+    e = np.empty(3)  # scratch: a detection's e_i and z_i = −e_i, the gate's 3×3
+    zi = np.empty(3)
+    s3 = np.empty((3, 3))
     for j in range(nd):
         i = det_idx[a0 + j]
         y = det_y[a0 + j]
-        e = np.empty(3)
         for c in range(3):
             e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
         if slot_of[i] < 0:
@@ -543,8 +577,9 @@ def _update(
             reinit[i] = False
             ns[_REINIT] += 1
             continue
-        zi = -e
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale, lt, rt, dp)
+        for c in range(3):
+            zi[c] = -e[c]
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale, lt, rt, dp, s3)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -565,7 +600,7 @@ def _update(
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
-        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added (_prior)
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             for c in range(3):
@@ -893,6 +928,7 @@ class _State(KernelState):
         self.fs[_DSCALE] = 1.0
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
+        dim += -dim % PAD  # whole vectors for the one-pass sums (_apply); the dimensions past the state stay zero
         self.cov = np.zeros((dim, dim))
         for c in range(6):
             self.cov[6 + c, 6 + c] = sigma_bias[c] ** 2
