@@ -18,14 +18,15 @@ from slamobs.pipeline.simulate import expected_streams, simulate
 
 @pytest.mark.parametrize(("d", "k"), [(13, 6), (27, 9), (102, 30), (15, 33)])
 def test_one_pass_sum_equals_the_matrix_product(d, k):
-    """``_apply``: ``Σ + Σ_q lt[q]ᵀ rt[q]`` with the position rows' ``dp`` added, over the upper triangle four
-    rows at a time (and the rows left over), mirrored: the same matrix as NumPy's, exactly symmetric."""
+    """``_apply``: ``Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(q≥6) lt[q]ᵀ lt[q]`` with the position rows' ``dp`` added, over
+    the upper triangle four rows at a time (and the rows left over), mirrored: the same matrix as NumPy's, exactly
+    symmetric."""
     rng = np.random.default_rng(d + k)
     cov = rng.normal(size=(d, d))
     cov = cov + cov.T
     lt, rt, dp = rng.normal(size=(k, d)), rng.normal(size=(k, d)), rng.normal(size=(3, d))
     lt[:6, 3:6], rt[:6, 3:6] = 0.0, 0.0  # the position rows' change is in dp alone
-    sym = lt.T @ rt
+    sym = lt[:6].T @ rt[:6] - lt[6:].T @ lt[6:]
     expect = cov + np.triu(sym) + np.triu(sym, 1).T
     for a in range(3):  # dp[a] is row 3 + a of the change (upper triangle: from the diagonal on, and rows 0..2)
         expect[3 + a, 3 + a :] += dp[a, 3 + a :]

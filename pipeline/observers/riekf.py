@@ -236,12 +236,13 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
 
 @njit(cache=True, fastmath=True)
 def _apply(cov, d, lt, rt, k, dp):
-    """``Σ ← Σ + Σ_q lt[q]ᵀ rt[q]`` over ``q < k`` (the propagation's six terms and the downdate's ``−UUᵀ``,
-    each entry loaded and stored once), plus the position rows' ``dp``; the upper triangle four rows at a time
-    (six terms a pass along the rows, it vectorises), then mirrored: ``Σ`` stays exactly symmetric. ``k`` is a
-    multiple of 3. ``fastmath``: the terms of an entry may be added in any order (round-off only). The rows run
-    from a multiple of ``PAD`` to the end of the arrays (``_State`` pads them to a multiple of ``PAD`` columns,
-    zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the loops run over whole vectors."""
+    """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
+    ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
+    the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
+    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. ``fastmath``: the terms of an entry may be added
+    in any order (round-off only). The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
+    pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
+    loops run over whole vectors."""
     end = min(cov.shape[1], lt.shape[1], rt.shape[1])
     tiles = min(d + (-d) % 4, cov.shape[0] - cov.shape[0] % 4, lt.shape[1] - lt.shape[1] % 4)
     i = 0
@@ -251,14 +252,15 @@ def _apply(cov, d, lt, rt, k, dp):
         n = end - j0
         q = 0
         while q + 6 <= k:
-            a0, a1, a2, a3 = lt[q, i], lt[q, i + 1], lt[q, i + 2], lt[q, i + 3]
-            b0, b1, b2, b3 = lt[q + 1, i], lt[q + 1, i + 1], lt[q + 1, i + 2], lt[q + 1, i + 3]
-            e0, e1, e2, e3 = lt[q + 2, i], lt[q + 2, i + 1], lt[q + 2, i + 2], lt[q + 2, i + 3]
-            f0, f1, f2, f3 = lt[q + 3, i], lt[q + 3, i + 1], lt[q + 3, i + 2], lt[q + 3, i + 3]
-            g0, g1, g2, g3 = lt[q + 4, i], lt[q + 4, i + 1], lt[q + 4, i + 2], lt[q + 4, i + 3]
-            h0, h1, h2, h3 = lt[q + 5, i], lt[q + 5, i + 1], lt[q + 5, i + 2], lt[q + 5, i + 3]
-            ra, rb, re = rt[q, j0:end], rt[q + 1, j0:end], rt[q + 2, j0:end]
-            rf, rg, rh = rt[q + 3, j0:end], rt[q + 4, j0:end], rt[q + 5, j0:end]
+            src, sg = (rt, 1.0) if q < 6 else (lt, -1.0)
+            a0, a1, a2, a3 = sg * lt[q, i], sg * lt[q, i + 1], sg * lt[q, i + 2], sg * lt[q, i + 3]
+            b0, b1, b2, b3 = sg * lt[q + 1, i], sg * lt[q + 1, i + 1], sg * lt[q + 1, i + 2], sg * lt[q + 1, i + 3]
+            e0, e1, e2, e3 = sg * lt[q + 2, i], sg * lt[q + 2, i + 1], sg * lt[q + 2, i + 2], sg * lt[q + 2, i + 3]
+            f0, f1, f2, f3 = sg * lt[q + 3, i], sg * lt[q + 3, i + 1], sg * lt[q + 3, i + 2], sg * lt[q + 3, i + 3]
+            g0, g1, g2, g3 = sg * lt[q + 4, i], sg * lt[q + 4, i + 1], sg * lt[q + 4, i + 2], sg * lt[q + 4, i + 3]
+            h0, h1, h2, h3 = sg * lt[q + 5, i], sg * lt[q + 5, i + 1], sg * lt[q + 5, i + 2], sg * lt[q + 5, i + 3]
+            ra, rb, re = src[q, j0:end], src[q + 1, j0:end], src[q + 2, j0:end]
+            rf, rg, rh = src[q + 3, j0:end], src[q + 4, j0:end], src[q + 5, j0:end]
             for j in range(n):
                 x, y, z, u, v, w = ra[j], rb[j], re[j], rf[j], rg[j], rh[j]
                 c0[j] += a0 * x + b0 * y + e0 * z + f0 * u + g0 * v + h0 * w
@@ -266,11 +268,11 @@ def _apply(cov, d, lt, rt, k, dp):
                 c2[j] += a2 * x + b2 * y + e2 * z + f2 * u + g2 * v + h2 * w
                 c3[j] += a3 * x + b3 * y + e3 * z + f3 * u + g3 * v + h3 * w
             q += 6
-        if q < k:  # three terms left
-            a0, a1, a2, a3 = lt[q, i], lt[q, i + 1], lt[q, i + 2], lt[q, i + 3]
-            b0, b1, b2, b3 = lt[q + 1, i], lt[q + 1, i + 1], lt[q + 1, i + 2], lt[q + 1, i + 3]
-            e0, e1, e2, e3 = lt[q + 2, i], lt[q + 2, i + 1], lt[q + 2, i + 2], lt[q + 2, i + 3]
-            ra, rb, re = rt[q, j0:end], rt[q + 1, j0:end], rt[q + 2, j0:end]
+        if q < k:  # three terms left (of the downdate: k > 6)
+            a0, a1, a2, a3 = -lt[q, i], -lt[q, i + 1], -lt[q, i + 2], -lt[q, i + 3]
+            b0, b1, b2, b3 = -lt[q + 1, i], -lt[q + 1, i + 1], -lt[q + 1, i + 2], -lt[q + 1, i + 3]
+            e0, e1, e2, e3 = -lt[q + 2, i], -lt[q + 2, i + 1], -lt[q + 2, i + 2], -lt[q + 2, i + 3]
+            ra, rb, re = lt[q, j0:end], lt[q + 1, j0:end], lt[q + 2, j0:end]
             for j in range(n):
                 x, y, z = ra[j], rb[j], re[j]
                 c0[j] += a0 * x + b0 * y + e0 * z
@@ -281,7 +283,7 @@ def _apply(cov, d, lt, rt, k, dp):
     for r in range(i, d):  # rows left when the arrays are not padded (tests)
         cr = cov[r, r:d]
         for q in range(k):
-            a, rq = lt[q, r], rt[q, r:d]
+            a, rq = (lt[q, r], rt[q, r:d]) if q < 6 else (-lt[q, r], lt[q, r:d])
             for j in range(d - r):
                 cr[j] += a * rq[j]
     for a in range(3):
@@ -548,7 +550,7 @@ def _update(
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
     is counted in the recovery's window. The propagation since the last frame is pending in ``lt``, ``rt``, ``dp``
     (:func:`_propagation_terms`): it is applied in the same pass as the downdate (:func:`_apply`), the gain read
-    from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt``, ``rt`` are the downdate's scratch). Returns the new
+    from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt`` are the downdate's scratch). Returns the new
     state dimension."""
     for j in range(nd):  # a re-initialisation copies rows of Σ⁻: apply the propagation first
         i = det_idx[a0 + j]
@@ -636,10 +638,6 @@ def _update(
             ns[_SKIPPED] += 1
         else:
             xi = _gain(hp, smat, z, k3, d)
-            for k in range(k3):
-                rk, hk = rt[6 + k, :d], hp[k, :d]
-                for r in range(d):
-                    rk[r] = -hk[r]
             terms += k3
     _apply(cov, d, lt, rt, terms, dp)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
     if xi.shape[0] > 0:
@@ -938,7 +936,7 @@ class _State(KernelState):
         k3 = 3 * max(n_max, 1)
         # the pending propagation's terms and the downdate's (_propagation_terms, _update), the position rows'
         self.lt = np.zeros((6 + k3, dim))
-        self.rt = np.zeros((6 + k3, dim))
+        self.rt = np.zeros((6, dim))
         self.dp = np.zeros((3, dim))
         self.sel = np.zeros(max(n_max, 1), dtype=np.int64)
         self.z = np.zeros(k3)
