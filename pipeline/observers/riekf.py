@@ -12,7 +12,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   state-dependent term in the group block, which is what makes the filter consistent. The transition over
   any interval is ``I + Σ F_k`` exactly (each ``F_k`` maps biases to the group, so their products vanish), and
   the process noise only enters the group rows: both are accumulated as a few 3×3 running sums per velocity
-  sample and applied to the covariance once per detection frame (``O(6 D²)`` for ``D`` state dimensions).
+  sample and applied to the covariance once per detection frame, as six low-rank terms in the same pass over
+  the covariance as the frame's Kalman downdate (``O((6 + 3m) D²/2)`` for ``D`` state dimensions and ``m``
+  detections; :func:`_propagation_terms`, :func:`_apply`).
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
   correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
