@@ -377,9 +377,10 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
         s[i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath={"reassoc", "contract"})
 def _cholesky(s, m):
-    """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
+    """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite.
+    Its dot products may be summed in any order (``reassoc``: they vectorise; round-off only, NaN still fails)."""
     for j in range(m):
         v = s[j, j]
         for k in range(j):
