@@ -236,13 +236,15 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     return True
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
 def _apply(cov, d, lt, rt, k, dp):
     """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
     ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
     the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
-    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. ``fastmath``: the terms of an entry may be added
-    in any order (round-off only). The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
+    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. No ``fastmath``: each entry's terms are added in
+    the order written, so a kernel compiled in the run and one loaded from the cache give the same bits (with
+    ``fastmath`` they did not, and it was no faster: the pass is bound by the FMA and add units either way).
+    The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
     pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
     loops run over whole vectors."""
     end = min(cov.shape[1], lt.shape[1], rt.shape[1])
@@ -324,38 +326,49 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
 
 
 @njit(cache=True)
-def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
+def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
     """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
-    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order."""
-    w = np.empty((4, 6, 6))  # one allocation: F, the pending bias block, F Σ_b,pose and F Σ_bb
-    f, cbb, g, gb = w[0], w[1], w[2], w[3]
-    f[:, :] = 0.0  # rows ξ_R, ξ_P; columns b̃_Ω, b̃_V
-    for a in range(3):
-        for b in range(3):
-            f[a, b] = acc[_SR, a, b]
-            f[3 + a, b] = acc[_SPR, a, b]
-            f[3 + a, 3 + b] = acc[_SR, a, b]
+    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
+    # F = [[ΣR̂h, 0], [Σ[P̂]×R̂h, ΣR̂h]] (rows ξ_R, ξ_P; columns b̃_Ω, b̃_V): its zero blocks skipped, each sum
+    # otherwise in the order of the dense 6-term loops (the zeros they added changed nothing: the same bits)
+    sr, spr = acc[_SR], acc[_SPR]
+    cbb = w[0]  # the pending bias block; g = F Σ_b,pose, gb = F Σ_bb
+    g, gb = w[1], w[2]
     for i in range(6):
         for k in range(6):
             cbb[i, k] = cov[6 + i, 6 + k]
     for k in range(3):
         cbb[k, k] += q_bw * q_bw * acc_dt
         cbb[3 + k, 3 + k] += q_bv * q_bv * acc_dt
-    for i in range(6):
+    for a in range(3):
         for k in range(6):
             v, vb = 0.0, 0.0
-            for e in range(6):
-                v += f[i, e] * cov[6 + e, k]
-                vb += f[i, e] * cbb[e, k]
-            g[i, k], gb[i, k] = v, vb
+            for e in range(3):
+                v += sr[a, e] * cov[6 + e, k]
+                vb += sr[a, e] * cbb[e, k]
+            g[a, k], gb[a, k] = v, vb
+            v, vb = 0.0, 0.0
+            for e in range(3):
+                v += spr[a, e] * cov[6 + e, k]
+                vb += spr[a, e] * cbb[e, k]
+            for e in range(3):
+                v += sr[a, e] * cov[9 + e, k]
+                vb += sr[a, e] * cbb[3 + e, k]
+            g[3 + a, k], gb[3 + a, k] = v, vb
     s = out  # Σ_pose pending, then turned in place
     for i in range(6):
         for k in range(6):
             v = g[i, k] + g[k, i]
-            for e in range(6):
-                v += gb[i, e] * f[k, e]
+            if k < 3:
+                for e in range(3):
+                    v += gb[i, e] * sr[k, e]
+            else:
+                for e in range(3):
+                    v += gb[i, e] * spr[k - 3, e]
+                for e in range(3):
+                    v += gb[i, 3 + e] * sr[k - 3, e]
             s[i, k] = cov[i, k] + v
     for a in range(3):
         for b in range(3):
@@ -377,10 +390,9 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
         s[i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True, fastmath={"reassoc", "contract"})
+@njit(cache=True)
 def _cholesky(s, m):
-    """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite.
-    Its dot products may be summed in any order (``reassoc``: they vectorise; round-off only, NaN still fails)."""
+    """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
     for j in range(m):
         v = s[j, j]
         for k in range(j):
@@ -450,11 +462,11 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
     ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
-    (it vectorises), four rows written at a time with four terms a pass (``fastmath``: round-off only)."""
+    (it vectorises), four rows written at a time with four terms a pass."""
     c = 0
     while c + 4 <= k3:  # four rows at a time: the rows above them first, four terms a pass, then among themselves
         x0, x1, x2, x3 = hp[c, :d], hp[c + 1, :d], hp[c + 2, :d], hp[c + 3, :d]
@@ -815,6 +827,7 @@ def _advance(
     d_r = np.empty((3, 3))
     d_p = np.empty(3)
     bias = np.empty(6)
+    pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
@@ -904,7 +917,7 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o])
+                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o], pc_w)
                 if want_cov:
                     _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
