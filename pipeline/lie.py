@@ -405,13 +405,61 @@ def integrate_body_twists_at(r0, p0, omega, v, dt, keep):
     return rs, ps
 
 
+@njit(cache=True)
+def integrate_body_twists_at_columns(r0, p0, omega, v, cols, dt, keep):
+    """:func:`integrate_body_twists_at` for ``v`` with its column ``c`` replaced by ``cols[:, c]``, for each
+    ``c`` of 0..2 (three dead reckonings that share ``omega``): the rotations (the same for all three) once, the
+    positions of each; the same numbers as three calls. Returns ``rs`` (m, 3, 3) and ``ps`` (3, m, 3)."""
+    m = keep.shape[0]
+    rs = np.empty((m, 3, 3))
+    ps = np.empty((3, m, 3))
+    cur_r, nxt_r = r0.copy(), np.empty((3, 3))
+    cur_p, nxt_p = np.empty((3, 3)), np.empty((3, 3))
+    for c in range(3):
+        cur_p[c] = p0
+    vc = np.empty(3)
+    scratch = np.empty((3, 3, 3))
+    j = 0
+    for i in range(dt.shape[0] + 1):
+        while j < m and keep[j] == i:
+            rs[j] = cur_r
+            for c in range(3):
+                ps[c, j] = cur_p[c]
+            j += 1
+        if j == m or i == dt.shape[0]:
+            break
+        cj, cl = _twist_rotation(omega[i], dt[i], scratch)
+        for c in range(3):
+            vc[0], vc[1], vc[2] = v[i, 0], v[i, 1], v[i, 2]
+            vc[c] = cols[i, c]
+            _twist_position(cur_r, cur_p[c], vc, dt[i], cj, cl, scratch, nxt_p[c])
+        dr = scratch[2]
+        for a in range(3):
+            for b in range(3):
+                nxt_r[a, b] = cur_r[a, 0] * dr[0, b] + cur_r[a, 1] * dr[1, b] + cur_r[a, 2] * dr[2, b]
+        cur_r, nxt_r = nxt_r, cur_r
+        cur_p, nxt_p = nxt_p, cur_p
+    return rs, ps
+
+
 @njit(cache=True, inline="always")
 def _twist_step(r, p, omega, v, dt, scratch, r_out, p_out):
     """``(r_out, p_out) = (r, p) exp(dt [omega; v])`` as :func:`se3_exp`, :func:`mat3_vec` and :func:`mat3_mul`
     compute it (``scratch``: (3, 3, 3))."""
+    cj, cl = _twist_rotation(omega, dt, scratch)
+    _twist_position(r, p, v, dt, cj, cl, scratch, p_out)
+    dr = scratch[2]
+    for a in range(3):
+        for b in range(3):
+            r_out[a, b] = r[a, 0] * dr[0, b] + r[a, 1] * dr[1, b] + r[a, 2] * dr[2, b]
+
+
+@njit(cache=True, inline="always")
+def _twist_rotation(omega, dt, scratch):
+    """The rotation part of :func:`_twist_step`: ``K``, ``K²`` and ``Exp(dt omega)`` into ``scratch``; returns
+    the left Jacobian's coefficients ``(cj, cl)``."""
     kk, k2, dr = scratch[0], scratch[1], scratch[2]
     w0, w1, w2 = omega[0] * dt, omega[1] * dt, omega[2] * dt
-    v0, v1, v2 = v[0] * dt, v[1] * dt, v[2] * dt
     theta = np.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
     skew_into(w0, w1, w2, kk)
     for a in range(3):
@@ -428,13 +476,19 @@ def _twist_step(r, p, omega, v, dt, scratch, r_out, p_out):
         for b in range(3):
             eye = 1.0 if a == b else 0.0
             dr[a, b] = (eye + ca * kk[a, b]) + cb * k2[a, b]
+    return cj, cl
+
+
+@njit(cache=True, inline="always")
+def _twist_position(r, p, v, dt, cj, cl, scratch, p_out):
+    """The position part of :func:`_twist_step` (after :func:`_twist_rotation` filled ``scratch``)."""
+    kk, k2 = scratch[0], scratch[1]
+    v0, v1, v2 = v[0] * dt, v[1] * dt, v[2] * dt
     dp0 = _jl_row(0, cj, cl, kk, k2, v0, v1, v2)
     dp1 = _jl_row(1, cj, cl, kk, k2, v0, v1, v2)
     dp2 = _jl_row(2, cj, cl, kk, k2, v0, v1, v2)
     for a in range(3):
         p_out[a] = p[a] + (r[a, 0] * dp0 + r[a, 1] * dp1 + r[a, 2] * dp2)
-        for b in range(3):
-            r_out[a, b] = r[a, 0] * dr[0, b] + r[a, 1] * dr[1, b] + r[a, 2] * dr[2, b]
 
 
 @njit(cache=True, inline="always")

@@ -93,3 +93,23 @@ def test_skew_vex_and_identities():
     fixed = lie.project_so3(drift)
     assert np.allclose(fixed.T @ fixed, np.eye(3), atol=1e-12)
     assert np.abs(fixed - r).max() < 1e-6
+
+
+def test_three_velocity_columns_in_one_dead_reckoning_equal_three():
+    """``integrate_body_twists_at_columns`` (the time offset's velocity-bias Jacobian): the rotations shared, each
+    column's positions the same bits as :func:`lie.integrate_body_twists_at` on the velocities with that column
+    replaced, and the rotations those of every call."""
+    rng = np.random.default_rng(11)
+    k = 500
+    omega, v, cols = rng.normal(size=(k, 3)), rng.normal(size=(k, 3)), rng.normal(size=(k, 3))
+    omega[::50] = 0.0  # small angles take the series branch
+    dt = rng.uniform(0.001, 0.02, k)
+    keep = np.sort(rng.choice(k + 1, 40, replace=False))
+    r0, p0 = lie.so3_exp(rng.normal(size=3)), rng.normal(size=3)
+    rs, ps = lie.integrate_body_twists_at_columns(r0, p0, omega, v, cols, dt, keep)
+    for c in range(3):
+        vc = v.copy()
+        vc[:, c] = cols[:, c]
+        r_one, p_one = lie.integrate_body_twists_at(r0, p0, omega, vc, dt, keep)
+        assert np.array_equal(rs, r_one) and np.array_equal(ps[c], p_one)
+    assert not np.array_equal(ps[0], ps[1])

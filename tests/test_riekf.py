@@ -57,7 +57,7 @@ def test_running_sums_and_transition_equal_the_dense_propagation():
     expect[6:9, 6:9] += walk_w**2 * dt * np.eye(3)
     expect[9:12, 9:12] += walk_v**2 * dt * np.eye(3)
     expect = phi @ expect @ phi.T + q
-    _flush(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, np.zeros((6, d)), np.zeros((6, d)))
+    _flush(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, np.zeros((6, d)), np.zeros((6, d)), np.zeros((3, d)))
     assert np.allclose(cov, expect, rtol=1e-12, atol=1e-9)
 
 
@@ -124,7 +124,9 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
         slot_lm,
         np.zeros(3, np.int64),
         np.zeros(9),
-        np.zeros((9, cov.shape[0])),
+        np.zeros((15, cov.shape[0])),  # nothing pending: no propagation terms (rows 0..5), the downdate's scratch
+        np.zeros((15, cov.shape[0])),
+        np.zeros((3, cov.shape[0])),
         np.zeros((9, 9)),
         innov,
         trk,

@@ -1,6 +1,8 @@
-"""riekf's speed work keeps its numbers: the blocked dense loops sum each entry in the textbook order (bit for bit),
-the time offset's batched grid equals its shift-by-shift evaluation, and why a compressed EKF (Guivant & Nebot)
-cannot equal this filter: the landmarks out of view move at every update (docs/benchmarks.md, riekf)."""
+"""riekf's speed work keeps its numbers: the one-pass frame (the propagation pending as low-rank terms, applied
+with the Kalman downdate in one pass over the covariance) equals the propagation then the update in plain dense
+matrix algebra, the time offset's batched grid equals its shift-by-shift evaluation, and why a compressed EKF
+(Guivant & Nebot) cannot equal this filter: the landmarks out of view move at every update (docs/benchmarks.md,
+riekf)."""
 
 from __future__ import annotations
 
@@ -8,80 +10,108 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian
 from slamobs.pipeline.observers import ObserverOptions, time_offset
-from slamobs.pipeline.observers.riekf import N_FIXED, RiEKF, _add_bias_terms, _gain_and_downdate
+from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, RiEKF, _apply, _propagation_terms, _update
 from slamobs.pipeline.simulate import expected_streams, simulate
 
 
-def _textbook_gain_and_downdate(cov, d, hp, chol, z, k3):
-    """The loops as first written: one term a pass, each entry summed in order (plain Python)."""
-    for c in range(k3):
-        for r in range(d):
-            v = hp[c, r]
-            for k in range(c):
-                v -= hp[k, r] * chol[c, k]
-            hp[c, r] = v / chol[c, c]
-    w = np.zeros(k3)
-    for c in range(k3):
-        v = z[c]
-        for k in range(c):
-            v -= chol[c, k] * w[k]
-        w[c] = v / chol[c, c]
-    xi = np.zeros(d)
-    for c in range(k3):
-        for r in range(d):
-            xi[r] += hp[c, r] * w[c]
-    for r in range(d):
-        for c in range(r, d):
-            acc = 0.0
-            for k in range(k3):
-                acc += hp[k, r] * hp[k, c]
-            cov[r, c] -= acc
-            cov[c, r] = cov[r, c]
-    return xi
-
-
-def _textbook_bias_terms(cov, d, f, pb, g):
-    for i in range(d):
-        for j in range(i, d):
-            acc = 0.0
-            for e in range(6):
-                acc += f[e, i] * pb[e, j] + pb[e, i] * f[e, j] + g[e, i] * f[e, j]
-            cov[i, j] += acc
-            cov[j, i] = cov[i, j]
-
-
-@pytest.mark.parametrize("k3", [3, 9, 24])
-def test_blocked_downdate_is_bit_for_bit_the_textbook_loop(k3):
-    """Four terms a pass (and the remainder one at a time) add each entry's terms in the same order."""
-    rng = np.random.default_rng(k3)
-    d = N_FIXED + 3 * 5
-    a = rng.normal(size=(d, d))
-    cov = a @ a.T + d * np.eye(d)
-    hp = rng.normal(size=(k3, d))
-    s = rng.normal(size=(k3, k3))
-    chol = np.linalg.cholesky(s @ s.T + k3 * np.eye(k3))
-    z = rng.normal(size=k3)
-    c1, h1, c2, h2 = cov.copy(), hp.copy(), cov.copy(), hp.copy()
-    x1 = _gain_and_downdate(c1, d, h1, chol, z, k3)
-    x2 = _textbook_gain_and_downdate(c2, d, h2, chol, z, k3)
-    assert np.array_equal(h1, h2) and np.array_equal(x1, x2) and np.array_equal(c1, c2)
-
-
-def test_bias_terms_in_one_pass_are_bit_for_bit_the_textbook_loop():
-    """The landmark rows' three b̃_Ω terms in one pass: the same sums as over all six bias columns (F is zero in
-    the b̃_V columns off the position rows, as the filter builds it)."""
-    rng = np.random.default_rng(3)
-    d = N_FIXED + 3 * 4
+@pytest.mark.parametrize(("d", "k"), [(13, 6), (27, 9), (102, 30), (15, 33)])
+def test_one_pass_sum_equals_the_matrix_product(d, k):
+    """``_apply``: ``Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(q≥6) lt[q]ᵀ lt[q]`` with the position rows' ``dp`` added, over
+    the upper triangle four rows at a time (and the rows left over), mirrored: the same matrix as NumPy's, exactly
+    symmetric."""
+    rng = np.random.default_rng(d + k)
     cov = rng.normal(size=(d, d))
     cov = cov + cov.T
-    f, pb, g = rng.normal(size=(3, 6, d))
-    f[3:, :3] = 0.0  # Fᵀ: b̃_V reaches ξ_P (columns 3..5) only
-    f[3:, 6:] = 0.0
-    c1, c2 = cov.copy(), cov.copy()
-    _add_bias_terms(c1, d, f, pb, g)
-    _textbook_bias_terms(c2, d, f, pb, g)
-    assert np.array_equal(c1, c2)
+    lt, rt, dp = rng.normal(size=(k, d)), rng.normal(size=(k, d)), rng.normal(size=(3, d))
+    lt[:6, 3:6], rt[:6, 3:6] = 0.0, 0.0  # the position rows' change is in dp alone
+    sym = lt[:6].T @ rt[:6] - lt[6:].T @ lt[6:]
+    expect = cov + np.triu(sym) + np.triu(sym, 1).T
+    for a in range(3):  # dp[a] is row 3 + a of the change (upper triangle: from the diagonal on, and rows 0..2)
+        expect[3 + a, 3 + a :] += dp[a, 3 + a :]
+        expect[:3, 3 + a] += dp[a, :3]
+    expect = np.triu(expect) + np.triu(expect, 1).T
+    got = cov.copy()
+    _apply(got, d, lt, rt, k, dp)
+    assert np.array_equal(got, got.T)
+    assert np.abs(got - expect).max() <= 1e-13 * np.abs(expect).max()
+
+
+def _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise):
+    """One frame as the textbook writes it: ``Σ⁻ = Φ (Σ + walk) Φᵀ + Q`` with ``Φ = I + F`` from the running sums,
+    then ``K = Σ⁻Hᵀ S⁻¹``, ``ξ̂ = K z``, ``Σ⁺ = Σ⁻ − K S Kᵀ`` (dense matrices, NumPy)."""
+    n = (d - N_FIXED) // 3
+    f = np.zeros((d, 6))
+    f[0:3, 0:3], f[3:6, 0:3], f[3:6, 3:6] = acc[0], acc[1], acc[0]
+    q = np.zeros((d, d))
+    q[0:3, 0:3], q[3:6, 0:3], q[0:3, 3:6], q[3:6, 3:6] = acc[2], acc[3], acc[3].T, acc[4]
+    for s in range(n):
+        rs, ls = slice(N_FIXED + 3 * s, N_FIXED + 3 + 3 * s), skew(lm[slot_lm[s]])
+        f[rs, 0:3] = ls @ acc[0]
+        q[rs, 0:3], q[rs, 3:6] = ls @ acc[2], ls @ acc[3].T
+        q[0:3, rs], q[3:6, rs] = q[rs, 0:3].T, q[rs, 3:6].T
+        for u in range(n):
+            q[rs, N_FIXED + 3 * u : N_FIXED + 3 + 3 * u] = ls @ acc[2] @ skew(lm[slot_lm[u]]).T
+    phi = np.eye(d)
+    phi[:, 6:12] += f
+    prior = cov[:d, :d].copy()
+    prior[6:9, 6:9] += walk_w**2 * dt * np.eye(3)
+    prior[9:12, 9:12] += walk_v**2 * dt * np.eye(3)
+    prior = phi @ prior @ phi.T + q
+    s_mat = h @ prior @ h.T + noise
+    k = prior @ h.T @ np.linalg.inv(s_mat)
+    return k @ z, prior - k @ s_mat @ k.T
+
+
+def test_one_pass_frame_equals_propagation_then_kalman_update():
+    """A frame with propagation pending (``_propagation_terms``) and three detections of known landmarks
+    (``_update``: gain from the rows of ``Σ⁻`` it needs, propagation and downdate in one pass) against the
+    dense propagation then the dense Kalman update: covariance, state and map to 1e-12 of their magnitudes."""
+    rng = np.random.default_rng(27)
+    n = 6
+    d = N_FIXED + 3 * n
+    slot_of = rng.permutation(n)
+    slot_lm = np.argsort(slot_of)
+    a = rng.normal(size=(d, d))
+    cov = (a @ a.T + d * np.eye(d)) * 1e-3
+    lm = rng.normal(size=(n, 3)) * 5
+    acc = rng.normal(size=(5, 3, 3)) * 0.1  # ΣR̂h, Σ[P̂]×R̂h; the noise sums from a positive definite W
+    w = rng.normal(size=(6, 6)) * 0.1
+    w = w @ w.T
+    acc[2], acc[3], acc[4] = w[:3, :3], w[3:, :3], w[3:, 3:]
+    r_hat, p_hat = so3_exp(rng.normal(size=3)), rng.normal(size=3)
+    b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    det_idx = np.array([4, 1, 3])
+    det_y = rng.normal(size=(3, 3)) * 3
+    sigma2 = np.array([0.05, 0.02, 0.03]) ** 2
+    walk_w, walk_v, dt = 0.01, 0.02, 0.1
+    h = np.zeros((9, d))
+    z = np.zeros(9)
+    for q, i in enumerate(det_idx):
+        sl = N_FIXED + 3 * slot_of[i]
+        h[3 * q : 3 * q + 3, 3:6] = np.eye(3)
+        h[3 * q : 3 * q + 3, sl : sl + 3] = -np.eye(3)
+        z[3 * q : 3 * q + 3] = r_hat @ det_y[q] + p_hat - lm[i]
+    xi, cov_exp = _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, np.diag(np.repeat(sigma2, 3)))
+    a_exp, jl = so3_exp(-xi[:3]), so3_left_jacobian(-xi[:3])
+    lm_exp = np.array([a_exp @ lm[i] - jl @ xi[N_FIXED + 3 * slot_of[i] :][:3] for i in range(n)])
+    r_exp, p_exp = a_exp @ r_hat, a_exp @ p_hat - jl @ xi[3:6]
+    b_exp = np.r_[b_om, b_v] + xi[6:12]
+
+    lt, rt, dp = np.zeros((15, d)), np.zeros((15, d)), np.zeros((3, d))
+    assert _propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
+    ns = np.zeros(N_SLOTS, dtype=np.int64)
+    innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
+    d_out = _update(
+        0, 3, det_idx, det_y, sigma2, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+        np.zeros(3, np.int64), np.zeros(9), lt, rt, dp, np.zeros((9, 9)), innov, trk, 0, ns, 1e9, 1.0,
+        np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
+    )  # fmt: skip
+    assert d_out == d and ns[9] == 1 and ns[8] == 0  # no new landmark, none gated; one update
+    assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max() and np.array_equal(cov, cov.T)
+    for got, want in ((r_hat, r_exp), (p_hat, p_exp), (lm, lm_exp), (np.r_[b_om, b_v], b_exp)):
+        assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   state-dependent term in the group block, which is what makes the filter consistent. The transition over
   any interval is ``I + Σ F_k`` exactly (each ``F_k`` maps biases to the group, so their products vanish), and
   the process noise only enters the group rows: both are accumulated as a few 3×3 running sums per velocity
-  sample and applied to the covariance once per detection frame (``O(6 D²)`` for ``D`` state dimensions).
+  sample and applied to the covariance once per detection frame, as six low-rank terms in the same pass over
+  the covariance as the frame's Kalman downdate (``O((6 + 3m) D²/2)`` for ``D`` state dimensions and ``m``
+  detections; :func:`_propagation_terms`, :func:`_apply`).
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
   correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
@@ -95,6 +97,8 @@ RECOVERY_ACTIONS = {
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
+#: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
+PAD = 8
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
@@ -143,163 +147,228 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
 
 
 @njit(cache=True)
-def _cross_mat(p, x, out):
-    """``out = [p]× x`` for a 3x3 ``x``."""
-    for b in range(3):
-        out[0, b] = p[1] * x[2, b] - p[2] * x[1, b]
-        out[1, b] = p[2] * x[0, b] - p[0] * x[2, b]
-        out[2, b] = p[0] * x[1, b] - p[1] * x[0, b]
-
-
-@njit(cache=True)
-def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, f, g):
-    """Apply the accumulated transition ``Φ = I + F`` and noise to the covariance (first ``d`` dimensions):
-    ``Σ ← Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``; ``f`` (6, D) holds ``Fᵀ`` and ``g`` (6, D) ``(FΣ_bb)ᵀ`` (scratch,
-    transposed so that the inner loops run along rows: each entry is summed in the same order as written)."""
+def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+    """The accumulated transition ``Φ = I + F`` and noise ``Q`` as the terms of one symmetric update, applied
+    later together with the frame's Kalman downdate (:func:`_apply`): ``Σ⁻ = Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``.
+    Off the position rows every row ``i`` of ``F`` and of ``Q``'s factor is ``j_i``-linear: ``F_i = (j_iᵀ ΣR̂h, 0)``
+    and ``Q = J W Jᵀ`` with ``J_i = (j_iᵀ, 0)``, where ``j_i`` is ``e_a`` on the attitude rows, row ``a`` of
+    ``[p̂_s]×`` on a landmark's, zero on the biases'. There the change is ``ΔΣ_ij = j_i·z_j + z_i·j_j`` with
+    ``z_j = ΣR̂h Σ_(b_Ω, j) + ½ M j_j``, ``M = ΣR̂h Σ_(b_Ω b_Ω) ΣR̂hᵀ + ΣM h``: rows 0..2 of ``lt`` hold ``jᵀ``, 3..5
+    ``zᵀ``, ``rt`` the two swapped. The position rows' change (3 × d, every column) goes to ``dp``. The bias
+    random walk over the interval is added to ``Σ`` now (at its start: the transition carries it), and the sums
+    are cleared. False when no time has passed (nothing to apply). An entry of ``Σ⁻`` is then ``Σ_ij + dp[i − 3, j]``
+    on a position row ``i`` (``dp[j − 3, i]`` on a position column), else ``Σ_ij + Σ_(k<6) lt[k, i] rt[k, j]``."""
+    lt[:6, :d] = 0.0
+    rt[:6, :d] = 0.0
+    dp[:, :d] = 0.0
     if acc_dt <= 0.0:
-        return
-    # bias random walk over the interval (applied at its start: the transition then carries it)
+        return False
     for c in range(3):
         cov[6 + c, 6 + c] += q_bw * q_bw * acc_dt
         cov[9 + c, 9 + c] += q_bv * q_bv * acc_dt
     n = (d - N_FIXED) // 3
-    sr = acc[_SR]
-    f[:, :d] = 0.0
+    sr, spr, qrr, qpr, qpp = acc[_SR], acc[_SPR], acc[_QRR], acc[_QPR], acc[_QPP]
     for a in range(3):
-        for b in range(3):
-            f[b, a] = sr[a, b]  # ξ_R <- b̃_Ω
-            f[b, 3 + a] = acc[_SPR, a, b]  # ξ_P <- b̃_Ω
-            f[3 + b, 3 + a] = sr[a, b]  # ξ_P <- b̃_V
-    tmp = np.empty((3, 3))
-    for s in range(n):
-        _cross_mat(lm[slot_lm[s]], sr, tmp)
-        for a in range(3):
-            for b in range(3):
-                f[b, N_FIXED + 3 * s + a] = tmp[a, b]  # ξ_s <- b̃_Ω
-    # the bias rows Σ_b as they are before the update, and g = (F Σ_bb)ᵀ (6, D)
-    pb = cov[6:12, :d].copy()
-    for c in range(6):  # along rows (it vectorises), each entry summed over e in order from 0.0
-        gc = g[c, :d]
-        gc[:] = 0.0
-        for e in range(6):
-            fe, w = f[e, :d], pb[e, 6 + c]
-            for i in range(d):
-                gc[i] += fe[i] * w
-    _add_bias_terms(cov, d, f, pb, g)
-    # process noise Q: (R, P) block, landmark rows [p̂_s]× QRR, [p̂_s]× QPRᵀ, and [p̂_s]× QRR [p̂_u]×ᵀ
-    qrr, qpr, qpp = acc[_QRR], acc[_QPR], acc[_QPP]
-    for a in range(3):
-        for b in range(3):
-            cov[a, b] += qrr[a, b]
-            cov[3 + a, 3 + b] += qpp[a, b]
-            cov[3 + a, b] += qpr[a, b]
-            cov[b, 3 + a] += qpr[a, b]
-    qprt = np.empty((3, 3))
-    for a in range(3):
-        for b in range(3):
-            qprt[a, b] = qpr[b, a]
-    arr = np.empty((n, 3, 3))  # [p̂_s]× QRR
-    apr = np.empty((3, 3))
-    for s in range(n):
+        lt[a, a] = 1.0
+    for s in range(n):  # [p]× = [[0, −p2, p1], [p2, 0, −p0], [−p1, p0, 0]], row a in column r0 + a
         p = lm[slot_lm[s]]
-        _cross_mat(p, qrr, arr[s])
-        _cross_mat(p, qprt, apr)
         r0 = N_FIXED + 3 * s
-        for a in range(3):
-            for b in range(3):
-                cov[r0 + a, b] += arr[s, a, b]
-                cov[b, r0 + a] += arr[s, a, b]
-                cov[r0 + a, 3 + b] += apr[a, b]
-                cov[3 + b, r0 + a] += apr[a, b]
-    for s in range(n):
-        r0 = N_FIXED + 3 * s
-        for u in range(s, n):
-            q = lm[slot_lm[u]]
-            c0 = N_FIXED + 3 * u
-            for a in range(3):
-                # (arr_s [q]×ᵀ)[a, b] = Σ_c arr_s[a, c] [q]×[b, c]
-                x0 = arr[s, a, 2] * q[1] - arr[s, a, 1] * q[2]
-                x1 = arr[s, a, 0] * q[2] - arr[s, a, 2] * q[0]
-                x2 = arr[s, a, 1] * q[0] - arr[s, a, 0] * q[1]
-                cov[r0 + a, c0] += x0
-                cov[r0 + a, c0 + 1] += x1
-                cov[r0 + a, c0 + 2] += x2
-                if u != s:
-                    cov[c0, r0 + a] += x0
-                    cov[c0 + 1, r0 + a] += x1
-                    cov[c0 + 2, r0 + a] += x2
-    acc[:, :, :] = 0.0
-
-
-@njit(cache=True)
-def _add_bias_terms(cov, d, f, pb, g):
-    """``Σ += F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ`` (``f`` = Fᵀ, ``pb`` = Σ_b, ``g`` = (F Σ_bb)ᵀ, each (6, D)): the upper
-    triangle a row at a time, each entry summed over the six bias columns in order, then mirrored."""
-    row = np.empty(d)
-    for i in range(d):
-        n = d - i  # views from the diagonal on, indexed from 0: the loops vectorise
-        ci = cov[i, i:]
-        if i >= 6:  # b̃_V reaches ξ_P only (columns 3..5, left of the diagonal here): the b̃_Ω terms in one pass
-            b0, b1, b2 = f[0, i], f[1, i], f[2, i]
-            c0, c1, c2 = pb[0, i], pb[1, i], pb[2, i]
-            e0, e1, e2 = g[0, i], g[1, i], g[2, i]
-            f0, f1, f2, p0, p1, p2 = f[0, i:], f[1, i:], f[2, i:], pb[0, i:], pb[1, i:], pb[2, i:]
-            for j in range(n):  # the sum of the loop below, term by term in its order
-                t0 = b0 * p0[j] + c0 * f0[j] + e0 * f0[j]
-                t1 = b1 * p1[j] + c1 * f1[j] + e1 * f1[j]
-                t2 = b2 * p2[j] + c2 * f2[j] + e2 * f2[j]
-                ci[j] += ((0.0 + t0) + t1) + t2
-        else:
-            acc = row[:n]
-            acc[:] = 0.0
+        lt[1, r0], lt[2, r0] = -p[2], p[1]
+        lt[0, r0 + 1], lt[2, r0 + 1] = p[2], -p[0]
+        lt[0, r0 + 2], lt[1, r0 + 2] = -p[1], p[0]
+    w = np.empty((6, 6))  # the bias block (after the walk)
+    for e in range(6):
+        for k in range(6):
+            w[e, k] = cov[6 + e, 6 + k]
+    mh = np.empty((3, 3))  # ½ (ΣR̂h Σ_ΩΩ ΣR̂hᵀ + ΣM h), symmetric
+    for a in range(3):
+        for b in range(3):
+            v = 0.0
+            for e in range(3):
+                for k in range(3):
+                    v += sr[a, e] * w[e, k] * sr[b, k]
+            mh[a, b] = v + qrr[a, b]
+    for a in range(3):
+        for b in range(a, 3):
+            v = 0.25 * (mh[a, b] + mh[b, a])
+            mh[a, b], mh[b, a] = v, v
+    for a in range(3):
+        za = lt[3 + a, :d]
+        s0, s1, s2, m0, m1, m2 = sr[a, 0], sr[a, 1], sr[a, 2], mh[a, 0], mh[a, 1], mh[a, 2]
+        b0, b1, b2, j0, j1, j2 = cov[6, :d], cov[7, :d], cov[8, :d], lt[0, :d], lt[1, :d], lt[2, :d]
+        for j in range(d):
+            za[j] = s0 * b0[j] + s1 * b1[j] + s2 * b2[j] + m0 * j0[j] + m1 * j1[j] + m2 * j2[j]
+        za[3], za[4], za[5] = 0.0, 0.0, 0.0  # the position rows: in dp
+    for a in range(3):
+        rt[a, :d] = lt[3 + a, :d]
+        rt[3 + a, :d] = lt[a, :d]
+    # the position rows: F_(3+a) = (ΣR̂h-weighted [P̂]×: acc[_SPR][a], acc[_SR][a]) and ΔΣ_(3+a, j) for every j:
+    # Σ_e F_(3+a, e) Σ_(6+e, j) + (Σ_(b, 3+a) + F_(3+a) Σ_bb)·F_j + Q_(3+a, j)
+    fp = np.empty((3, 6))
+    for a in range(3):
+        for c in range(3):
+            fp[a, c], fp[a, 3 + c] = spr[a, c], sr[a, c]
+    gp = np.empty((3, 6))  # Σ_(b, 3+a) + F_(3+a) Σ_bb
+    for a in range(3):
+        for e in range(6):
+            v = cov[6 + e, 3 + a]
+            for k in range(6):
+                v += fp[a, k] * w[k, e]
+            gp[a, e] = v
+    for a in range(3):
+        # off the position columns F_j = (j_jᵀ ΣR̂h, 0) and Q_(3+a, j) = (ΣQ_PR j_j)_a: one 3-vector on j_j
+        u = np.empty(3)
+        for c in range(3):
+            u[c] = qpr[a, c] + gp[a, 0] * sr[c, 0] + gp[a, 1] * sr[c, 1] + gp[a, 2] * sr[c, 2]
+        da = dp[a, :d]
+        f0, f1, f2, f3, f4, f5 = fp[a, 0], fp[a, 1], fp[a, 2], fp[a, 3], fp[a, 4], fp[a, 5]
+        b0, b1, b2, b3, b4, b5 = cov[6, :d], cov[7, :d], cov[8, :d], cov[9, :d], cov[10, :d], cov[11, :d]
+        j0, j1, j2 = lt[0, :d], lt[1, :d], lt[2, :d]
+        for j in range(d):
+            x = f0 * b0[j] + f1 * b1[j] + f2 * b2[j] + f3 * b3[j] + f4 * b4[j] + f5 * b5[j]
+            da[j] = x + u[0] * j0[j] + u[1] * j1[j] + u[2] * j2[j]
+        for b in range(3):
+            v = qpp[a, b]
             for e in range(6):
-                a1, a2, a3 = f[e, i], pb[e, i], g[e, i]
-                fe, pe = f[e, i:], pb[e, i:]
-                if e < 3 or 3 <= i < 6:
-                    for j in range(n):
-                        acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
-                else:  # b̃_V reaches ξ_P only: F[i, e] = 0 and F[j, e] = 0 off j = 3..5, the terms there add zeros
-                    for j in range(max(3 - i, 0), 6 - i):
-                        acc[j] += a1 * pe[j] + a2 * fe[j] + a3 * fe[j]
-            for j in range(n):
-                ci[j] += acc[j]
-        for j in range(i + 1, d):
-            cov[j, i] = cov[i, j]
+                v += gp[a, e] * fp[b, e]
+            da[3 + b] += v
+    acc[:, :, :] = 0.0
+    return True
 
 
 @njit(cache=True)
-def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out):
+def _apply(cov, d, lt, rt, k, dp):
+    """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
+    ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
+    the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
+    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. No ``fastmath``: each entry's terms are added in
+    the order written, so a kernel compiled in the run and one loaded from the cache give the same bits (with
+    ``fastmath`` they did not, and it was no faster: the pass is bound by the FMA and add units either way).
+    The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
+    pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
+    loops run over whole vectors."""
+    end = min(cov.shape[1], lt.shape[1], rt.shape[1])
+    tiles = min(d + (-d) % 4, cov.shape[0] - cov.shape[0] % 4, lt.shape[1] - lt.shape[1] % 4)
+    i = 0
+    while i < tiles:
+        j0 = i - i % PAD
+        c0, c1, c2, c3 = cov[i, j0:end], cov[i + 1, j0:end], cov[i + 2, j0:end], cov[i + 3, j0:end]
+        n = end - j0
+        q = 0
+        while q + 6 <= k:
+            src, sg = (rt, 1.0) if q < 6 else (lt, -1.0)
+            a0, a1, a2, a3 = sg * lt[q, i], sg * lt[q, i + 1], sg * lt[q, i + 2], sg * lt[q, i + 3]
+            b0, b1, b2, b3 = sg * lt[q + 1, i], sg * lt[q + 1, i + 1], sg * lt[q + 1, i + 2], sg * lt[q + 1, i + 3]
+            e0, e1, e2, e3 = sg * lt[q + 2, i], sg * lt[q + 2, i + 1], sg * lt[q + 2, i + 2], sg * lt[q + 2, i + 3]
+            f0, f1, f2, f3 = sg * lt[q + 3, i], sg * lt[q + 3, i + 1], sg * lt[q + 3, i + 2], sg * lt[q + 3, i + 3]
+            g0, g1, g2, g3 = sg * lt[q + 4, i], sg * lt[q + 4, i + 1], sg * lt[q + 4, i + 2], sg * lt[q + 4, i + 3]
+            h0, h1, h2, h3 = sg * lt[q + 5, i], sg * lt[q + 5, i + 1], sg * lt[q + 5, i + 2], sg * lt[q + 5, i + 3]
+            ra, rb, re = src[q, j0:end], src[q + 1, j0:end], src[q + 2, j0:end]
+            rf, rg, rh = src[q + 3, j0:end], src[q + 4, j0:end], src[q + 5, j0:end]
+            for j in range(n):
+                x, y, z, u, v, w = ra[j], rb[j], re[j], rf[j], rg[j], rh[j]
+                c0[j] += a0 * x + b0 * y + e0 * z + f0 * u + g0 * v + h0 * w
+                c1[j] += a1 * x + b1 * y + e1 * z + f1 * u + g1 * v + h1 * w
+                c2[j] += a2 * x + b2 * y + e2 * z + f2 * u + g2 * v + h2 * w
+                c3[j] += a3 * x + b3 * y + e3 * z + f3 * u + g3 * v + h3 * w
+            q += 6
+        if q < k:  # three terms left (of the downdate: k > 6)
+            a0, a1, a2, a3 = -lt[q, i], -lt[q, i + 1], -lt[q, i + 2], -lt[q, i + 3]
+            b0, b1, b2, b3 = -lt[q + 1, i], -lt[q + 1, i + 1], -lt[q + 1, i + 2], -lt[q + 1, i + 3]
+            e0, e1, e2, e3 = -lt[q + 2, i], -lt[q + 2, i + 1], -lt[q + 2, i + 2], -lt[q + 2, i + 3]
+            ra, rb, re = lt[q, j0:end], lt[q + 1, j0:end], lt[q + 2, j0:end]
+            for j in range(n):
+                x, y, z = ra[j], rb[j], re[j]
+                c0[j] += a0 * x + b0 * y + e0 * z
+                c1[j] += a1 * x + b1 * y + e1 * z
+                c2[j] += a2 * x + b2 * y + e2 * z
+                c3[j] += a3 * x + b3 * y + e3 * z
+        i += 4
+    for r in range(i, d):  # rows left when the arrays are not padded (tests)
+        cr = cov[r, r:d]
+        for q in range(k):
+            a, rq = (lt[q, r], rt[q, r:d]) if q < 6 else (-lt[q, r], lt[q, r:d])
+            for j in range(d - r):
+                cr[j] += a * rq[j]
+    for a in range(3):
+        for j in range(3 + a, d):
+            cov[3 + a, j] += dp[a, j]
+        for b in range(3):
+            cov[b, 3 + a] += dp[a, b]
+    _mirror(cov, d)
+
+
+@njit(cache=True)
+def _mirror(cov, d):
+    """The upper triangle of the first ``d`` dimensions copied into the lower, four rows at a time (four
+    neighbouring stores per column instead of one store per row)."""
+    i = 0
+    while i + 4 <= d:
+        for r in range(i, i + 3):
+            for j in range(r + 1, i + 4):
+                cov[j, r] = cov[r, j]
+        c0, c1, c2, c3 = cov[i], cov[i + 1], cov[i + 2], cov[i + 3]
+        for j in range(i + 4, d):
+            cj = cov[j]
+            cj[i], cj[i + 1], cj[i + 2], cj[i + 3] = c0[j], c1[j], c2[j], c3[j]
+        i += 4
+    for r in range(i, d):
+        for j in range(r + 1, d):
+            cov[j, r] = cov[r, j]
+
+
+@njit(cache=True)
+def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+    """Apply the accumulated transition and noise to the covariance now (first ``d`` dimensions; ``lt``, ``rt``
+    (at least 6 × D) and ``dp`` (3 × D) are scratch): :func:`_propagation_terms` then :func:`_apply`."""
+    if _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+        _settle(cov, d, lt, rt, dp)
+
+
+@njit(cache=True)
+def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
     """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
-    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order."""
-    w = np.empty((4, 6, 6))  # one allocation: F, the pending bias block, F Σ_b,pose and F Σ_bb
-    f, cbb, g, gb = w[0], w[1], w[2], w[3]
-    f[:, :] = 0.0  # rows ξ_R, ξ_P; columns b̃_Ω, b̃_V
-    for a in range(3):
-        for b in range(3):
-            f[a, b] = acc[_SR, a, b]
-            f[3 + a, b] = acc[_SPR, a, b]
-            f[3 + a, 3 + b] = acc[_SR, a, b]
+    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
+    # F = [[ΣR̂h, 0], [Σ[P̂]×R̂h, ΣR̂h]] (rows ξ_R, ξ_P; columns b̃_Ω, b̃_V): its zero blocks skipped, each sum
+    # otherwise in the order of the dense 6-term loops (the zeros they added changed nothing: the same bits)
+    sr, spr = acc[_SR], acc[_SPR]
+    cbb = w[0]  # the pending bias block; g = F Σ_b,pose, gb = F Σ_bb
+    g, gb = w[1], w[2]
     for i in range(6):
         for k in range(6):
             cbb[i, k] = cov[6 + i, 6 + k]
     for k in range(3):
         cbb[k, k] += q_bw * q_bw * acc_dt
         cbb[3 + k, 3 + k] += q_bv * q_bv * acc_dt
-    for i in range(6):
+    for a in range(3):
         for k in range(6):
             v, vb = 0.0, 0.0
-            for e in range(6):
-                v += f[i, e] * cov[6 + e, k]
-                vb += f[i, e] * cbb[e, k]
-            g[i, k], gb[i, k] = v, vb
+            for e in range(3):
+                v += sr[a, e] * cov[6 + e, k]
+                vb += sr[a, e] * cbb[e, k]
+            g[a, k], gb[a, k] = v, vb
+            v, vb = 0.0, 0.0
+            for e in range(3):
+                v += spr[a, e] * cov[6 + e, k]
+                vb += spr[a, e] * cbb[e, k]
+            for e in range(3):
+                v += sr[a, e] * cov[9 + e, k]
+                vb += sr[a, e] * cbb[3 + e, k]
+            g[3 + a, k], gb[3 + a, k] = v, vb
     s = out  # Σ_pose pending, then turned in place
     for i in range(6):
         for k in range(6):
             v = g[i, k] + g[k, i]
-            for e in range(6):
-                v += gb[i, e] * f[k, e]
+            if k < 3:
+                for e in range(3):
+                    v += gb[i, e] * sr[k, e]
+            else:
+                for e in range(3):
+                    v += gb[i, e] * spr[k - 3, e]
+                for e in range(3):
+                    v += gb[i, 3 + e] * sr[k - 3, e]
             s[i, k] = cov[i, k] + v
     for a in range(3):
         for b in range(3):
@@ -341,12 +410,18 @@ def _cholesky(s, m):
 
 
 @njit(cache=True)
-def _gate(cov, z, sl, sigma2):
-    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I``."""
-    s = np.empty((3, 3))
+def _gate(cov, z, sl, sigma2, lt, rt, dp, s):
+    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I`` of ``Σ⁻`` (the
+    pending propagation added, each term read once; ``s``: 3×3 scratch)."""
     for a in range(3):
         for b in range(3):
-            s[a, b] = cov[3 + a, 3 + b] - cov[3 + a, sl + b] - cov[sl + a, 3 + b] + cov[sl + a, sl + b]
+            v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
+            v -= cov[3 + a, sl + b] + dp[a, sl + b]  # Σ⁻_Ps
+            v -= cov[sl + a, 3 + b] + dp[b, sl + a]  # Σ⁻_sP
+            v += cov[sl + a, sl + b]  # Σ⁻_ss
+            for k in range(6):
+                v += lt[k, sl + a] * rt[k, sl + b]
+            s[a, b] = v
         s[a, a] += sigma2
     if not _cholesky(s, 3):
         return np.inf
@@ -388,27 +463,47 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 
 
 @njit(cache=True)
-def _gain_and_downdate(cov, d, hp, chol, z, k3):
-    """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ (k3 × d): ``Uᵀ = L⁻¹ H Σ`` (in place), ``w = L⁻¹ z``;
-    returns ``ξ̂ = U w`` and makes ``Σ ← Σ − U Uᵀ``. Every loop runs along rows of ``hp`` (it vectorises),
-    four of its rows at a time (one pass over the row written instead of four); each entry is summed in the
-    order of the textbook loops, term by term, so the numbers are those of the one-row-at-a-time loops."""
-    row = np.empty(d)
-    for c in range(k3):
-        row[:] = hp[c, :d]
-        k = 0
-        while k + 4 <= c:
-            s0, s1, s2, s3 = chol[c, k], chol[c, k + 1], chol[c, k + 2], chol[c, k + 3]
+def _gain(hp, chol, z, k3, d):
+    """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
+    ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
+    (it vectorises), four rows written at a time with four terms a pass."""
+    c = 0
+    while c + 4 <= k3:  # four rows at a time: the rows above them first, four terms a pass, then among themselves
+        x0, x1, x2, x3 = hp[c, :d], hp[c + 1, :d], hp[c + 2, :d], hp[c + 3, :d]
+        for k in range(0, c, 4):  # c is a multiple of 4
             h0, h1, h2, h3 = hp[k, :d], hp[k + 1, :d], hp[k + 2, :d], hp[k + 3, :d]
+            a0, a1, a2, a3 = chol[c, k], chol[c, k + 1], chol[c, k + 2], chol[c, k + 3]
+            b0, b1, b2, b3 = chol[c + 1, k], chol[c + 1, k + 1], chol[c + 1, k + 2], chol[c + 1, k + 3]
+            e0, e1, e2, e3 = chol[c + 2, k], chol[c + 2, k + 1], chol[c + 2, k + 2], chol[c + 2, k + 3]
+            f0, f1, f2, f3 = chol[c + 3, k], chol[c + 3, k + 1], chol[c + 3, k + 2], chol[c + 3, k + 3]
             for r in range(d):
-                row[r] = (((row[r] - h0[r] * s0) - h1[r] * s1) - h2[r] * s2) - h3[r] * s3
-            k += 4
-        for k in range(k, c):
+                u, v, w, y = h0[r], h1[r], h2[r], h3[r]
+                x0[r] -= a0 * u + a1 * v + a2 * w + a3 * y
+                x1[r] -= b0 * u + b1 * v + b2 * w + b3 * y
+                x2[r] -= e0 * u + e1 * v + e2 * w + e3 * y
+                x3[r] -= f0 * u + f1 * v + f2 * w + f3 * y
+        i0 = 1.0 / chol[c, c]
+        i1 = 1.0 / chol[c + 1, c + 1]
+        i2 = 1.0 / chol[c + 2, c + 2]
+        i3 = 1.0 / chol[c + 3, c + 3]
+        l10, l20, l21 = chol[c + 1, c], chol[c + 2, c], chol[c + 2, c + 1]
+        l30, l31, l32 = chol[c + 3, c], chol[c + 3, c + 1], chol[c + 3, c + 2]
+        for r in range(d):
+            u = x0[r] * i0
+            v = (x1[r] - l10 * u) * i1
+            w = (x2[r] - l20 * u - l21 * v) * i2
+            x0[r], x1[r], x2[r] = u, v, w
+            x3[r] = (x3[r] - l30 * u - l31 * v - l32 * w) * i3
+        c += 4
+    for c in range(c, k3):  # the rows left, one at a time
+        x = hp[c, :d]
+        for k in range(c):
             s_ck, hk = chol[c, k], hp[k, :d]
             for r in range(d):
-                row[r] -= hk[r] * s_ck
+                x[r] -= hk[r] * s_ck
+        inv = 1.0 / chol[c, c]
         for r in range(d):
-            hp[c, r] = row[r] / chol[c, c]
+            x[r] *= inv
     w = np.empty(k3)
     for c in range(k3):
         v = z[c]
@@ -420,34 +515,16 @@ def _gain_and_downdate(cov, d, hp, chol, z, k3):
         wc, hc = w[c], hp[c, :d]
         for r in range(d):
             xi[r] += hc[r] * wc
-    for r in range(d):
-        _downdate_row(cov, r, d, hp, k3, row)
     return xi
 
 
 @njit(cache=True)
-def _downdate_row(cov, r, d, hp, k3, row):
-    """``Σ[r, r:] −= Σ_k hp[k, r] hp[k, r:]`` (each entry summed over ``k`` in order, four terms a pass; ``row``:
-    scratch), mirrored into column ``r``."""
-    n = d - r  # views from the diagonal on, indexed from 0: the loops vectorise
-    acc = row[:n]
-    acc[:] = 0.0
-    k = 0
-    while k + 4 <= k3:
-        a0, a1, a2, a3 = hp[k, r], hp[k + 1, r], hp[k + 2, r], hp[k + 3, r]
-        h0, h1, h2, h3 = hp[k, r:d], hp[k + 1, r:d], hp[k + 2, r:d], hp[k + 3, r:d]
-        for c in range(n):
-            acc[c] = (((acc[c] + a0 * h0[c]) + a1 * h1[c]) + a2 * h2[c]) + a3 * h3[c]
-        k += 4
-    for k in range(k, k3):
-        a, hk = hp[k, r], hp[k, r:d]
-        for c in range(n):
-            acc[c] += a * hk[c]
-    cr = cov[r, r:d]
-    for c in range(n):
-        cr[c] -= acc[c]
-    for c in range(r + 1, d):
-        cov[c, r] = cov[r, c]
+def _settle(cov, d, lt, rt, dp):
+    """Apply the pending propagation (:func:`_propagation_terms`) to the covariance now, and clear it."""
+    _apply(cov, d, lt, rt, 6, dp)
+    lt[:6, :d] = 0.0
+    rt[:6, :d] = 0.0
+    dp[:, :d] = 0.0
 
 
 @njit(cache=True)
@@ -468,7 +545,9 @@ def _update(
     slot_lm,
     sel,
     z,
-    pht,
+    lt,
+    rt,
+    dp,
     smat,
     innov,
     trk_p,
@@ -484,12 +563,22 @@ def _update(
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
-    is counted in the recovery's window. Returns the new state dimension."""
+    is counted in the recovery's window. The propagation since the last frame is pending in ``lt``, ``rt``, ``dp``
+    (:func:`_propagation_terms`): it is applied in the same pass as the downdate (:func:`_apply`), the gain read
+    from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt`` are the downdate's scratch). Returns the new
+    state dimension."""
+    for j in range(nd):  # a re-initialisation copies rows of Σ⁻: apply the propagation first
+        i = det_idx[a0 + j]
+        if slot_of[i] >= 0 and reinit[i]:
+            _settle(cov, d, lt, rt, dp)
+            break
     m = 0
+    e = np.empty(3)  # scratch: a detection's e_i and z_i = −e_i, the gate's 3×3
+    zi = np.empty(3)
+    s3 = np.empty((3, 3))
     for j in range(nd):
         i = det_idx[a0 + j]
         y = det_y[a0 + j]
-        e = np.empty(3)
         for c in range(3):
             e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
         if slot_of[i] < 0:
@@ -505,8 +594,9 @@ def _update(
             reinit[i] = False
             ns[_REINIT] += 1
             continue
-        zi = -e
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+        for c in range(3):
+            zi[c] = -e[c]
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale, lt, rt, dp, s3)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -522,22 +612,37 @@ def _update(
         for c in range(3):
             z[3 * m + c] = zi[c]
         m += 1
+    terms = 6  # the propagation's; the downdate's 3m follow when the frame updates
+    xi = np.zeros(0)
     if m > 0:
         k3 = 3 * m
-        # H Σ (3m × d), the transpose of Σ Hᵀ: row block q = (Σ[:, P] − Σ[:, slot of q])ᵀ (read by columns: the
-        # noise sums leave Σ symmetric only to round-off)
+        hp = lt[6:]
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            for r in range(d):
-                for c in range(3):
-                    pht[3 * q + c, r] = cov[r, 3 + c] - cov[r, sl + c]
-        # S = H PHᵀ + σ² I
+            for c in range(3):
+                hq, cp, cs, dc = hp[3 * q + c, :d], cov[3 + c, :d], cov[sl + c, :d], dp[c, :d]
+                l0, l1, l2, l3, l4, l5 = (
+                    lt[0, sl + c],
+                    lt[1, sl + c],
+                    lt[2, sl + c],
+                    lt[3, sl + c],
+                    lt[4, sl + c],
+                    lt[5, sl + c],
+                )
+                r0, r1, r2, r3, r4, r5 = rt[0, :d], rt[1, :d], rt[2, :d], rt[3, :d], rt[4, :d], rt[5, :d]
+                for r in range(d):
+                    v = cs[r] + l0 * r0[r] + l1 * r1[r] + l2 * r2[r] + l3 * r3[r] + l4 * r4[r] + l5 * r5[r]
+                    hq[r] = (cp[r] + dc[r]) - v
+                for b in range(3):  # rt is zero in the position columns: their propagation is in dp
+                    hq[3 + b] -= dp[b, sl + c]
+        # S = H Σ⁻ Hᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             s2 = det_sigma2[a0 + sel[q]] * scale
             for c in range(3):
                 for k in range(k3):
-                    smat[3 * q + c, k] = pht[k, 3 + c] - pht[k, sl + c]
+                    smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
@@ -547,9 +652,12 @@ def _update(
         if not _cholesky(smat, k3):
             ns[_SKIPPED] += 1
         else:
-            xi = _gain_and_downdate(cov, d, pht, smat, z, k3)
-            _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
-            ns[_UPDATES] += 1
+            xi = _gain(hp, smat, z, k3, d)
+            terms += k3
+    _apply(cov, d, lt, rt, terms, dp)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
+    if xi.shape[0] > 0:
+        _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+        ns[_UPDATES] += 1
     # augmentation with the corrected pose
     for j in range(nd):
         i = det_idx[a0 + j]
@@ -683,11 +791,11 @@ def _advance(
     slot_of,
     slot_lm,
     acc,
-    f,
-    g,
+    lt,
+    rt,
+    dp,
     sel,
     z,
-    pht,
     smat,
     win_d2,
     win_z,
@@ -719,6 +827,7 @@ def _advance(
     d_r = np.empty((3, 3))
     d_p = np.empty(3)
     bias = np.empty(6)
+    pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
@@ -753,7 +862,7 @@ def _advance(
             work += m
             t = t_next
         if is_frame:
-            _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
+            _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
             acc_dt = 0.0
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
@@ -775,7 +884,9 @@ def _advance(
                 slot_lm,
                 sel,
                 z,
-                pht,
+                lt,
+                rt,
+                dp,
                 smat,
                 innov,
                 trk_p,
@@ -806,15 +917,15 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o])
+                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o], pc_w)
                 if want_cov:
-                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
+                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
                     cov_out[o] = cov[:N_FIXED, :N_FIXED]
                 o += 1
             iv += 1
     if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
-        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, f, g)
+        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
         acc_dt = 0.0
     fs[_T], fs[_ACC_DT] = t, acc_dt
     ns[_IV], ns[_JF], ns[_NSEEN], ns[_STARTED], ns[_STEPS] = iv, jf, (d - N_FIXED) // 3, 1 if started else 0, steps
@@ -831,18 +942,20 @@ class _State(KernelState):
         self.fs[_DSCALE] = 1.0
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
+        dim += -dim % PAD  # whole vectors for the one-pass sums (_apply); the dimensions past the state stay zero
         self.cov = np.zeros((dim, dim))
         for c in range(6):
             self.cov[6 + c, 6 + c] = sigma_bias[c] ** 2
         self.slot_of = np.full(n_landmarks, -1, dtype=np.int64)
         self.slot_lm = np.zeros(max(n_landmarks, 1), dtype=np.int64)
         self.acc = np.zeros((5, 3, 3))
-        self.f = np.zeros((6, dim))
-        self.g = np.zeros((6, dim))
         k3 = 3 * max(n_max, 1)
+        # the pending propagation's terms and the downdate's (_propagation_terms, _update), the position rows'
+        self.lt = np.zeros((6 + k3, dim))
+        self.rt = np.zeros((6, dim))
+        self.dp = np.zeros((3, dim))
         self.sel = np.zeros(max(n_max, 1), dtype=np.int64)
         self.z = np.zeros(k3)
-        self.pht = np.zeros((k3, dim))
         self.smat = np.zeros((k3, k3))
         self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
@@ -866,11 +979,11 @@ class _State(KernelState):
             self.slot_of,
             self.slot_lm,
             self.acc,
-            self.f,
-            self.g,
+            self.lt,
+            self.rt,
+            self.dp,
             self.sel,
             self.z,
-            self.pht,
             self.smat,
             self.win_d2,
             self.win_z,
@@ -926,7 +1039,7 @@ class RiEKF(Stepper):
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
         walks = np.sqrt(st.fs[_SCALE]) * np.array(self.params[2:4])
-        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.f, st.g)
+        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
         moved = super()._relocalise(iv)

@@ -24,7 +24,12 @@ from __future__ import annotations
 import numpy as np
 
 from slamobs.pipeline.kernel_cache import njit
-from slamobs.pipeline.lie import integrate_body_twists, integrate_body_twists_at, se3_exp_into
+from slamobs.pipeline.lie import (
+    integrate_body_twists,
+    integrate_body_twists_at,
+    integrate_body_twists_at_columns,
+    se3_exp_into,
+)
 
 PAIR_SPAN_S = 1.0
 PAIR_MAX_S = 2.0
@@ -141,10 +146,12 @@ class _Consistency:
         at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
         keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))
         self.jac = np.empty((base.shape[0], 3, 6))
-        for c in range(6):
+        for c in range(3):
             db = np.zeros(6)
             db[c] = BIAS_STEP
             self.jac[:, :, c] = (self.residuals(0.0, self._moved_poses(bias + db, c, keep))[0] - base) / BIAS_STEP
+        for c, poses in enumerate(self._moved_velocity_poses(bias, keep), 3):
+            self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
     def _poses(self, bias: np.ndarray):
@@ -168,6 +175,21 @@ class _Consistency:
         steps[w][s.segment_starts - 1, j] = 0.0
         poses = integrate_body_twists_at(np.eye(3), np.zeros(3), *steps, self._steps[2], keep)
         return (t_s[keep], *poses, *twists)
+
+    def _moved_velocity_poses(self, bias: np.ndarray, keep: np.ndarray) -> list[tuple]:
+        """:meth:`_moved_poses` for each velocity-bias entry (3..5) moved by ``BIAS_STEP``, the three in one dead
+        reckoning (their rotations are the first poses' and shared: the same numbers as three calls)."""
+        s, t_s, _, _, omega, vel = self.stream, *self.poses
+        cols = s.velocity[:-1] - (bias[3:] + BIAS_STEP)  # entry j of bias + BIAS_STEP e_(3+j), as _moved_poses
+        cols[s.segment_starts - 1] = 0.0
+        omega_steps, vel_steps, dt = self._steps
+        rs, ps = integrate_body_twists_at_columns(np.eye(3), np.zeros(3), omega_steps, vel_steps, cols, dt, keep)
+        out = []
+        for j in range(3):
+            twist = vel[keep]
+            twist[:, j] = s.velocity[keep, j] - (bias[3 + j] + BIAS_STEP)
+            out.append((t_s[keep], rs, ps[j], omega[keep], twist))
+        return out
 
     def residuals(self, shifts, poses=None) -> np.ndarray:
         """Per shift and pair (shifts, pairs, 3), in the body frame of the pair's first detection:
