@@ -47,3 +47,25 @@ def smoothed(sim, stream, settings, noise=None) -> tuple[BatchSmoother, float]:
     truth = get_scenario("figure8").sample(kf_t + (stream.t0_ns - sim.start_ns) * 1e-9)
     r, t, _ = umeyama(sol.pos, truth.P)
     return smoother, float(np.sqrt(np.mean(np.sum((sol.pos @ r.T + t - truth.P) ** 2, axis=1))))
+
+
+def exponential(t: np.ndarray, tau: float, rng: np.random.Generator) -> np.ndarray:
+    """A unit-variance exponentially correlated sequence at the (sorted) times ``t``."""
+    x, out = rng.normal(), np.empty(t.size)
+    for k, r in enumerate(np.exp(-np.diff(t, prepend=t[0]) / tau)):
+        x = r * x + np.sqrt(1.0 - r * r) * rng.normal() if k else x
+        out[k] = x
+    return out
+
+
+def with_slow_range_error(stream, sd: float, tau: float, seed: int):
+    """``stream`` with an exponentially correlated error per landmark along each detection's line of sight."""
+    rng = np.random.default_rng(seed)
+    t = np.repeat((stream.det_t_ns - stream.t0_ns) * 1e-9, np.diff(stream.det_offsets))
+    err = np.zeros(t.size)
+    for j in np.unique(stream.det_idx):
+        idx = np.flatnonzero(stream.det_idx == j)
+        idx = idx[np.argsort(t[idx], kind="stable")]
+        err[idx] = sd * exponential(t[idx], tau, rng)
+    y = stream.det_y
+    return replace(stream, det_y=y + y / np.linalg.norm(y, axis=1, keepdims=True) * err[:, None])

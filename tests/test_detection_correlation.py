@@ -8,8 +8,6 @@ closer to the truth than with the detections taken as independent."""
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import noisy_logs
 import pytest
@@ -27,15 +25,6 @@ SHARE, TAU = 0.7, 3.0
 RANGE_SD, RANGE_TAU = 0.15, 5.0
 
 
-def exponential(t: np.ndarray, tau: float, rng: np.random.Generator) -> np.ndarray:
-    """A unit-variance exponentially correlated sequence at the (sorted) times ``t``."""
-    x, out = rng.normal(), np.empty(t.size)
-    for k, r in enumerate(np.exp(-np.diff(t, prepend=t[0]) / tau)):
-        x = r * x + np.sqrt(1.0 - r * r) * rng.normal() if k else x
-        out[k] = x
-    return out
-
-
 def tracks(share: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Detection times, landmark ids and whitened 3-D residuals: per track a correlated part (``share`` of the
     variance, time constant ``TAU``) plus a white one."""
@@ -44,7 +33,7 @@ def tracks(share: float, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndar
     for j in range(LANDMARKS):
         for k in range(TRACKS):
             tt = 60.0 * k + j + np.arange(PER_TRACK) / RATE + rng.uniform(0, 0.05, PER_TRACK)
-            slow = np.stack([exponential(tt, TAU, rng) for _ in range(3)], axis=1)
+            slow = np.stack([noisy_logs.exponential(tt, TAU, rng) for _ in range(3)], axis=1)
             t.append(tt)
             lm.append(np.full(PER_TRACK, j))
             w.append(np.sqrt(share) * slow + np.sqrt(1.0 - share) * rng.normal(size=(PER_TRACK, 3)))
@@ -81,19 +70,6 @@ def test_the_factors_count_a_track_as_its_correlation_does():
     assert exact < PER_TRACK / 3
 
 
-def with_range_error(stream, sd: float, tau: float, seed: int):
-    """``stream`` with an exponentially correlated error per landmark along each detection's line of sight."""
-    rng = np.random.default_rng(seed)
-    t = np.repeat((stream.det_t_ns - stream.t0_ns) * 1e-9, np.diff(stream.det_offsets))
-    err = np.zeros(t.size)
-    for j in np.unique(stream.det_idx):
-        idx = np.flatnonzero(stream.det_idx == j)
-        idx = idx[np.argsort(t[idx], kind="stable")]
-        err[idx] = sd * exponential(t[idx], tau, rng)
-    y = stream.det_y
-    return replace(stream, det_y=y + y / np.linalg.norm(y, axis=1, keepdims=True) * err[:, None])
-
-
 @pytest.fixture(scope="module")
 def generated():
     sim = simulate("figure8", duration=30.0, seed=3)
@@ -117,7 +93,7 @@ def test_a_white_log_keeps_the_independent_detections(generated):
 
 def test_a_slow_range_error_is_modelled_and_the_trajectory_follows(generated):
     sim, stream = generated
-    noisy = with_range_error(stream, RANGE_SD, RANGE_TAU, seed=4)
+    noisy = noisy_logs.with_slow_range_error(stream, RANGE_SD, RANGE_TAU, seed=4)
     auto, ape_auto = smoothed(sim, noisy, "auto")
     _, ape_off = smoothed(sim, noisy, "off")
     record = auto.stats["metadata"]["smoother"]["detection_correlation"]

@@ -61,6 +61,14 @@ def record(scores: dict[float, float | None], winner: float, criterion: str) -> 
     }
 
 
+def thinning_note(thinned: dict) -> str:
+    """What the note adds when the ratio's evidence was computed on thinned detections."""
+    return (
+        f" (on {thinned['detections']} of {thinned['of']} detections, {thinned['spacing_s']:g} s apart along each "
+        "landmark's track: their errors are correlated in time)"
+    )
+
+
 def note(scores: dict[float, float | None], winner: float) -> str:
     said = ", ".join(f"x{s:g} {'n/a' if z is None else f'{z:.1f}'}" for s, z in sorted(scores.items()))
     kept = (

@@ -123,6 +123,19 @@ def inflation(t: np.ndarray, landmark: np.ndarray, corr: Correlation) -> np.ndar
     return f
 
 
+def thinned(t: np.ndarray, landmark: np.ndarray, spacing: float) -> np.ndarray:
+    """Indices of the detections, along each landmark's track in time, at least ``spacing`` (s) after the last
+    one kept (the first of each track kept): with ``spacing`` the correlation time ``τ`` the errors of the ones
+    kept are nearly independent (``ρ(τ) = a/e``), where a likelihood that treats them so is honest."""
+    o = _tracks(t, landmark)
+    keep, last_landmark, last_t = [], None, 0.0
+    for i, lm, ti in zip(o.tolist(), landmark[o].tolist(), t[o].tolist(), strict=True):
+        if lm != last_landmark or ti - last_t >= spacing:
+            keep.append(i)
+            last_landmark, last_t = lm, ti
+    return np.sort(np.asarray(keep, np.int64))
+
+
 def _chain(x: list[float]) -> list[float]:
     """``Sᵢ = xᵢ (1 + Sᵢ₋₁)``, ``S₀ = x₀``: the sum of ``exp(−(tᵢ − tⱼ)/τ)`` over the earlier detections."""
     out, acc = [], 0.0

@@ -348,27 +348,50 @@ class BatchSmoother(Stepper):
         if why is not None:  # said in the notes where the mode asked for it
             said = st.detection_anisotropy != "off" and self.fixed_bias is None
             return chosen, {"skipped": why}, [f"batch: range and bearing not weighed apart: {why}"] if said else []
-        base = chosen.problem
-        sols, scores, prev = {1.0: chosen.sol}, {1.0: ev.log_evidence(base, chosen.sol)}, 1.0
+
+        def solved(problem, start):
+            guess = g.Guess(start.rot, start.pos, start.landmarks, start.bias)
+            return g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance)
+
+        base, sols = chosen.problem, {1.0: chosen.sol}
+        thinning = self._independent_detections(base, chosen.sol, kf_t)
+        if thinning is not None:  # the scan on detections about one correlation time apart, solved on them first
+            base = g.with_detections(base, thinning[0])
+            sols[1.0] = solved(base, chosen.sol)
+        scores, prev = {1.0: ev.log_evidence(base, sols[1.0])}, 1.0
         for ratio in an.RATIOS:
             problem = replace(base, det_shape=an.shape(base.det_y, ratio))
-            s = sols[prev]
-            sols[ratio] = g.solve(
-                problem,
-                g.Guess(s.rot, s.pos, s.landmarks, s.bias),
-                max_iterations=st.max_iterations,
-                relative_tolerance=st.relative_tolerance,
-            )
+            sols[ratio] = solved(problem, sols[prev])
             scores[ratio] = ev.log_evidence(problem, sols[ratio])
             if not ev.better(scores[ratio], scores[prev]):
                 break
             prev = ratio
         winner = ev.best_scale(scores)
         record, note = an.record(scores, winner, ev.CRITERION), an.note(scores, winner)
+        if thinning is not None:
+            record["thinned"] = thinning[1]
+            note += an.thinning_note(thinning[1])
         if winner == 1.0:
             return chosen, record, [note]
         self.det_shape = an.shape(self.stream.det_y, winner)
         return self._solved_again(chosen, sols[winner], keyframes, segments, progress), record, [note]
+
+    def _independent_detections(self, problem, sol, kf_t: np.ndarray) -> tuple[np.ndarray, dict] | None:
+        """The detections of ``problem`` the range/bearing ratio's evidence is computed on when their errors are
+        correlated in time (:func:`pipeline.smoother.correlation.thinned`, at the correlation time fitted to
+        ``sol``'s residuals) and the record of it; None when they are white or the correlation is not modelled
+        (``batch.detection_correlation: off``)."""
+        from slamobs.pipeline.smoother import correlation as dc
+        from slamobs.pipeline.smoother import graph as g
+
+        if dc.skipped(self.settings.detection_correlation, self.fixed_bias is not None) is not None:
+            return None
+        t = kf_t[problem.kf_of_det]
+        corr = dc.fit(t, problem.det_idx, g.whitened_residuals(problem, sol))
+        if not corr.significant:
+            return None
+        kept = dc.thinned(t, problem.det_idx, corr.tau)
+        return kept, {"spacing_s": round(corr.tau, 3), "detections": int(kept.size), "of": int(t.shape[0])}
 
     def _decorrelate(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The detections' time correlation fitted to the chosen solution's residuals
@@ -550,14 +573,7 @@ class BatchSmoother(Stepper):
             kept = None
         if kept is not None:  # outliers the Huber kernel still listens to: solved again without them
             first = sol.summary
-            problem = replace(
-                problem,
-                kf_of_det=problem.kf_of_det[kept],
-                det_idx=problem.det_idx[kept],
-                det_y=problem.det_y[kept],
-                det_sigma=problem.det_sigma[kept],
-                det_shape=None if problem.det_shape is None else problem.det_shape[kept],
-            )
+            problem = g.with_detections(problem, kept)
             sol = g.solve(
                 problem,
                 g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias),

@@ -25,7 +25,7 @@ factors for comparison.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -324,6 +324,18 @@ def merge_summaries(first: dict, second: dict) -> dict:
     out["error_before_gating"] = first["final_error"]
     out["seconds"] = {k: round(first["seconds"][k] + second["seconds"][k], 3) for k in second["seconds"]}
     return out
+
+
+def with_detections(problem: Problem, kept: np.ndarray) -> Problem:
+    """``problem`` with only the detections ``kept`` (indices into its detections)."""
+    return replace(
+        problem,
+        kf_of_det=problem.kf_of_det[kept],
+        det_idx=problem.det_idx[kept],
+        det_y=problem.det_y[kept],
+        det_sigma=problem.det_sigma[kept],
+        det_shape=None if problem.det_shape is None else problem.det_shape[kept],
+    )
 
 
 def detection_residuals(problem: Problem, sol: Solution) -> np.ndarray:
