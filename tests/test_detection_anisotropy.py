@@ -54,6 +54,19 @@ def solved(generated):
     return problem, g.solve(problem, guess, relative_tolerance=1e-12)
 
 
+def _moved(pt, i: int, k: int, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """The rotations and positions of ``pt`` with keyframe ``i`` moved by ``h`` along its body axis ``k`` (0-2:
+    rotation, 3-5: translation)."""
+    step = np.zeros(3)
+    step[k % 3] = h
+    rot, pos = pt[0].copy(), pt[1].copy()
+    if k < 3:
+        rot[i] = rot[i] @ so3_exp(step)
+    else:
+        pos[i] = pos[i] + rot[i] @ step
+    return rot, pos
+
+
 def _point(sol) -> tuple:
     return tuple(np.ascontiguousarray(a, float) for a in (sol.rot, sol.pos, sol.landmarks, sol.bias))
 
@@ -89,16 +102,7 @@ def test_the_shaped_gradient_is_the_objectives(solved):
             assert ne.gb[3 * lm + k] == pytest.approx(fd, rel=1e-4, abs=1e-3)
     i = int(problem.kf_of_det[len(problem.kf_of_det) // 2])
     for k in range(6):
-        step = np.zeros(3)
-        step[k % 3] = h
-        sides = []
-        for sign in (1.0, -1.0):
-            rot, pos = pt[0].copy(), pt[1].copy()
-            if k < 3:
-                rot[i] = rot[i] @ so3_exp(sign * step)
-            else:
-                pos[i] = pos[i] + rot[i] @ (sign * step)
-            sides.append(ne.error((rot, pos, pt[2], pt[3])))
+        sides = [ne.error((*_moved(pt, i, k, sign * h), pt[2], pt[3])) for sign in (1.0, -1.0)]
         assert ne.ga[i, k] == pytest.approx((sides[0] - sides[1]) / (2 * h), rel=1e-4, abs=1e-3)
 
 
@@ -130,15 +134,7 @@ def test_the_shaped_blocks_are_the_hessians_at_zero_residuals(solved):
     assert seen.size > 0
     h = 1e-6
     for k in range(6):
-        step, diff = np.zeros(3), []
-        step[k % 3] = h
-        for sign in (1.0, -1.0):
-            r, p = pt[0].copy(), pt[1].copy()
-            if k < 3:
-                r[i] = r[i] @ so3_exp(sign * step)
-            else:
-                p[i] = p[i] + r[i] @ (sign * step)
-            diff.append(landmark_gradient(r, p, pt[2]))
+        diff = [landmark_gradient(*_moved(pt, i, k, sign * h), pt[2]) for sign in (1.0, -1.0)]
         fd = (diff[0] - diff[1]) / (2 * h)
         cols = np.concatenate([3 * seen + c for c in range(3)])
         assert np.allclose(row[k, cols], fd[cols], rtol=1e-4, atol=1e-2 * np.abs(row[k, cols]).max())
