@@ -349,23 +349,17 @@ class BatchSmoother(Stepper):
             said = st.detection_anisotropy != "off" and self.fixed_bias is None
             return chosen, {"skipped": why}, [f"batch: range and bearing not weighed apart: {why}"] if said else []
 
-        def solved(problem, start):
-            guess = g.Guess(start.rot, start.pos, start.landmarks, start.bias)
-            return g.solve(problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance)
-
         base, sols = chosen.problem, {1.0: chosen.sol}
         thinning = self._independent_detections(base, chosen.sol, kf_t)
         if thinning is not None:  # the scan on detections about one correlation time apart, solved on them first
             base = g.with_detections(base, thinning[0])
-            sols[1.0] = solved(base, chosen.sol)
-        scores, prev = {1.0: ev.log_evidence(base, sols[1.0])}, 1.0
-        for ratio in an.RATIOS:
-            problem = replace(base, det_shape=an.shape(base.det_y, ratio))
-            sols[ratio] = solved(problem, sols[prev])
-            scores[ratio] = ev.log_evidence(problem, sols[ratio])
-            if not ev.better(scores[ratio], scores[prev]):
-                break
-            prev = ratio
+            sols[1.0] = self._solved_from(base, chosen.sol)
+        scores = {1.0: ev.log_evidence(base, sols[1.0])}
+
+        def shaped(ratio: float):
+            return replace(base, det_shape=an.shape(base.det_y, ratio))
+
+        ev.climb(an.RATIOS, shaped, self._solved_from, sols, scores)
         winner = ev.best_scale(scores)
         record, note = an.record(scores, winner, ev.CRITERION), an.note(scores, winner)
         if thinning is not None:
@@ -466,26 +460,17 @@ class BatchSmoother(Stepper):
         smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note, and the
         linear solves the scan took."""
         from slamobs.pipeline.smoother import evidence as ev
-        from slamobs.pipeline.smoother import graph as g
 
         kf_t, kf_of_det, gaps = keyframes
-        base, st = chosen.problem, self.settings
+        base = chosen.problem
         sols, scores = {1.0: chosen.sol}, {1.0: ev.log_evidence(base, chosen.sol)}
+
+        def problem_at(scale: float):
+            return replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, _scaled(self.noise, key, scale)))
+
         for direction in ev.search_order():
-            prev = 1.0
-            for scale in direction:
-                nz = _scaled(self.noise, key, scale)
-                problem = replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, nz))
-                guess = g.Guess(sols[prev].rot, sols[prev].pos, sols[prev].landmarks, sols[prev].bias)
-                sols[scale] = g.solve(
-                    problem, guess, max_iterations=st.max_iterations, relative_tolerance=st.relative_tolerance
-                )
-                scores[scale] = ev.log_evidence(problem, sols[scale])
-                if not ev.better(scores[scale], scores[prev]):
-                    break
-                prev = scale
-            if prev != 1.0:  # the evidence rose downwards: no need to look upwards
-                break
+            if ev.climb(direction, problem_at, self._solved_from, sols, scores) != 1.0:
+                break  # the evidence rose downwards: no need to look upwards
         winner = ev.best_scale(scores)
         record, note = ev.record(key, getattr(self.noise, key), scores, winner)
         solves = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
@@ -535,6 +520,20 @@ class BatchSmoother(Stepper):
         self.noise = cv.scaled_noise(nz, *won, motion_keys)
         return self._solved_again(chosen, s, keyframes, segments, progress), {"cross_validation": record}, [note]
 
+    def _solved_from(self, problem, start, progress=None):
+        """``problem`` solved from the solution ``start`` with the settings' iterations and tolerance."""
+        from slamobs.pipeline.smoother import graph as g
+
+        st = self.settings
+        guess = g.Guess(start.rot, start.pos, start.landmarks, start.bias)
+        return g.solve(
+            problem,
+            guess,
+            max_iterations=st.max_iterations,
+            relative_tolerance=st.relative_tolerance,
+            progress=progress,
+        )
+
     def _solved_again(self, chosen, start, keyframes: tuple, segments: _Segments, progress):
         """The smoother on ``chosen``'s seed solved (and gated) again at the current noise levels and detection
         factors, from the solution ``start``: the new candidate, its summary continuing ``chosen``'s."""
@@ -554,13 +553,7 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.smoother import graph as g
 
         st = self.settings
-        sol = g.solve(
-            problem,
-            guess,
-            max_iterations=st.max_iterations,
-            relative_tolerance=st.relative_tolerance,
-            progress=progress,
-        )
+        sol = self._solved_from(problem, guess, progress)
         kept = self._gate(problem, sol, st.gate_chi2)
         n_det = int(problem.det_idx.shape[0])
         notes = []
@@ -574,13 +567,7 @@ class BatchSmoother(Stepper):
         if kept is not None:  # outliers the Huber kernel still listens to: solved again without them
             first = sol.summary
             problem = g.with_detections(problem, kept)
-            sol = g.solve(
-                problem,
-                g.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias),
-                max_iterations=st.max_iterations,
-                relative_tolerance=st.relative_tolerance,
-                progress=progress,
-            )
+            sol = self._solved_from(problem, sol, progress)
             sol.summary = g.merge_summaries(first, sol.summary)
         return problem, sol, notes
 

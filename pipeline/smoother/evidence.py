@@ -91,6 +91,21 @@ def better(new: float | None, old: float | None) -> bool:
     return new is not None and np.isfinite(new) and (old is None or not np.isfinite(old) or new > old + MIN_GAIN)
 
 
+def climb(ladder, problem_at, solve, sols: dict, scores: dict) -> float:
+    """Along ``ladder`` (scales moving away from 1) while the evidence rises: each scale's problem
+    (``problem_at(scale)``) solved from the solution of the scale before (``solve(problem, start)``), its solution
+    and log evidence put into ``sols`` and ``scores`` (which hold scale 1's); the last scale that rose (1: none)."""
+    prev = 1.0
+    for scale in ladder:
+        problem = problem_at(scale)
+        sols[scale] = solve(problem, sols[prev])
+        scores[scale] = log_evidence(problem, sols[scale])
+        if not better(scores[scale], scores[prev]):
+            break
+        prev = scale
+    return prev
+
+
 def best_scale(scores: dict[float, float | None]) -> float:
     """Of the scales whose evidence is within ``MIN_GAIN`` of the highest, the one nearest 1 (1 when none could be
     evaluated)."""

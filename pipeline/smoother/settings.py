@@ -57,16 +57,12 @@ def batch_settings(section: dict | None) -> BatchSettings:
         raise GainError(f"batch.seed '{settings.seed}' is not an observer (choose from {', '.join(names)})")
     if settings.bias not in BIAS_MODELS:
         raise GainError(f"batch.bias must be one of {', '.join(BIAS_MODELS)}, got {settings.bias!r}")
-    if settings.noise_evidence not in EVIDENCE_MODES:
-        modes = ", ".join(EVIDENCE_MODES)
-        raise GainError(f"batch.noise_evidence must be one of {modes}, got {settings.noise_evidence!r}")
-    if settings.noise_selection not in SELECTION_MODES:
-        modes = ", ".join(SELECTION_MODES)
-        raise GainError(f"batch.noise_selection must be one of {modes}, got {settings.noise_selection!r}")
-    if settings.detection_correlation not in CORRELATION_MODES:
-        modes = ", ".join(CORRELATION_MODES)
-        raise GainError(f"batch.detection_correlation must be one of {modes}, got {settings.detection_correlation!r}")
-    if settings.detection_anisotropy not in ANISOTROPY_MODES:
-        modes = ", ".join(ANISOTROPY_MODES)
-        raise GainError(f"batch.detection_anisotropy must be one of {modes}, got {settings.detection_anisotropy!r}")
+    for key, modes in (
+        ("noise_evidence", EVIDENCE_MODES),
+        ("noise_selection", SELECTION_MODES),
+        ("detection_correlation", CORRELATION_MODES),
+        ("detection_anisotropy", ANISOTROPY_MODES),
+    ):
+        if getattr(settings, key) not in modes:
+            raise GainError(f"batch.{key} must be one of {', '.join(modes)}, got {getattr(settings, key)!r}")
     return settings
