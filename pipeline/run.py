@@ -670,9 +670,7 @@ def estimate(
                     notes=notes,
                 )
                 metadata["output"]["frame"] = frame.describe()
-                writes = BackgroundWrites(
-                    partial(_write_stretch, sink, frame), depth=0 if part.pose_cov is not None else 1
-                )
+                writes = BackgroundWrites(partial(_write_stretch, sink, frame))
             # the map as it is now: the observer moves its live map on while this stretch is written
             writes.put(replace(part, landmark_xyz=np.array(part.landmark_xyz)))
             progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
