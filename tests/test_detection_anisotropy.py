@@ -7,7 +7,8 @@ landmark blocks are its Hessian's. On a generated log with white isotropic detec
 isotropic (the solution is the one without the model); with a white range error 6x the across one it takes a
 ratio above 1 and the trajectory gets closer to the truth than with isotropic detections. With a slow (time
 correlated) range error the ratio's evidence is computed on detections a correlation time apart: it takes a larger
-ratio than on every detection and a lower APE; white detections are not thinned.
+ratio than on every detection and a lower APE; white detections are not thinned. Once a ratio is applied the
+motion levels are scanned again: scanned against isotropic detections they soak up the range error.
 """
 
 from __future__ import annotations
@@ -222,3 +223,30 @@ def test_a_slow_range_error_takes_the_ratio_on_nearly_independent_detections(mon
     assert a["ratio"] > b["ratio"], (a, b)
     assert ape_thin < ape_every, (ape_thin, ape_every)
     assert any("detections" in n and "apart" in n for n in thin.stats["notes"]), thin.stats["notes"]
+
+
+def test_the_motion_levels_are_scanned_again_once_the_range_is_weighed_apart(monkeypatch):
+    """Against isotropic detections with a range error the evidence inflates the motion levels (they absorb it);
+    with the ratio applied the second scan lowers them again, and the trajectory is closer to the truth than with
+    the first scan's levels. run.json's scale is of the level the run started from, over both scans."""
+    sim, stream, truth = noisy_logs.noisy_figure8(30.0, 3)
+    noisy = with_range_error(stream, RANGE_SD, seed=4)
+    noise = replace(truth, sources={**truth.sources, "velocity": "estimated", "gyro": "estimated"})
+    settings = BatchSettings(detection_correlation="off")
+    again, ape_again = noisy_logs.smoothed(sim, noisy, settings, noise=noise)
+    weigh_range = BatchSmoother._weigh_range
+
+    def not_again(self, *args):
+        chosen, record, notes = weigh_range(self, *args)
+        return chosen, {**record, "applied": False}, notes
+
+    monkeypatch.setattr(BatchSmoother, "_weigh_range", not_again)
+    once, ape_once = noisy_logs.smoothed(sim, noisy, settings, noise=noise)
+    scale = {s: s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]["scale"] for s in (again, once)}
+    assert scale[again] < scale[once], scale
+    used = np.asarray(again.stats["metadata"]["noise"]["velocity"])
+    np.testing.assert_allclose(used, truth.velocity * scale[again])
+    assert ape_again < ape_once, (ape_again, ape_once)
+    assert again.stats["metadata"]["smoother"]["detection_anisotropy"]["motion_scanned_again"] is True
+    scans = [n for n in again.stats["notes"] if n.startswith("batch: velocity noise level chosen by the evidence")]
+    assert len(scans) > len([n for n in once.stats["notes"] if n.startswith("batch: velocity noise level chosen")])

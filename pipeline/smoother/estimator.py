@@ -151,6 +151,12 @@ class BatchSmoother(Stepper):
         select = self._cross_validation if self.settings.noise_selection == "cross_validation" else self._evidence
         chosen, evidence, evidence_notes = select(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, anisotropy, anisotropy_notes = self._weigh_range(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        if anisotropy.get("applied") and select == self._evidence:
+            # the motion levels were scanned against isotropic detections, whose range error they soaked up: again
+            scales = {k: r["scale"] for k, r in evidence.items() if "scale" in r}
+            chosen, evidence, again = self._evidence(chosen, (kf_t, kf_of_det, gaps), segments, progress, scales)
+            anisotropy_notes += again
+            anisotropy["motion_scanned_again"] = True
         chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -419,11 +425,12 @@ class BatchSmoother(Stepper):
             return f"the {key} level is measured from its samples (batch.noise_evidence: held)"
         return None
 
-    def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress):
+    def _evidence(self, chosen, keyframes: tuple, segments: _Segments, progress, scales: dict | None = None):
         """The scales of the motion levels (:data:`pipeline.smoother.evidence.KEYS`, one after the other, again
         while one moves: they trade off; until the scans' linear solves exceed ``EVIDENCE_SOLVE_BUDGET`` times the
         first solution's, or ``EVIDENCE_SOLVE_FLOOR``) chosen by the evidence: the candidate kept, the record per
-        key (its last scan), the notes."""
+        key (its last scan; ``scale`` of the level the run started from, ``scales`` the ones an earlier scan
+        kept), the notes."""
         n_kf = keyframes[0].shape[0]
         if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
             why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
@@ -432,7 +439,7 @@ class BatchSmoother(Stepper):
                 {k: {"skipped": why} for k in EVIDENCE_KEYS},
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
-        records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0)
+        records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0) | (scales or {})
         budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
         spent, moved = 0, True
         while moved and spent <= budget:
