@@ -7,7 +7,9 @@ Velocity noises are white-noise densities, so that one number describes a sensor
 per-sample standard deviation σ at period T is the density σ·√T. The defaults are the simulator's sensors
 (:class:`pipeline.simulate.NoiseModel` at its default rates); a detection's standard deviation per axis grows
 with range r: ``detection + detection_per_m * r + detection_per_m2 * r²`` (a fiducial detector's linear law,
-the stereo / PnP law in r²).
+the stereo / PnP law in r²), the mean over the three axes: with ``detection_ratio`` ρ the range's variance is
+``3ρ²/(ρ² + 2)`` times that and each axis across it ``3/(ρ² + 2)`` times (riekf; batch weighs range and bearing
+apart by its own evidence).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from slamobs.pipeline.noise_estimation import (
     Estimate,
     HeldMotion,
     detection_law,
+    detection_ratio,
     held_motion_noise,
     log_triplets,
     white_noise_density,
@@ -35,6 +38,7 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
     "detection": (0.01, "m", "detection standard deviation per axis at zero range"),
     "detection_per_m": (0.002, "m/m", "growth of the detection standard deviation with range"),
     "detection_per_m2": (0.0, "m/m^2", "growth of the detection standard deviation with range squared"),
+    "detection_ratio": (1.0, "", "a detection's standard deviation along its line of sight over that across (riekf)"),
     "gyro_bias": (0.2, "rad/s", "prior standard deviation of each gyro-bias component (unknown start)"),
     "velocity_bias": (0.2, "m/s", "prior standard deviation of each velocity-bias component"),
     "gyro_bias_walk": (1e-4, "rad/s/sqrt(s)", "gyro-bias random walk (riekf; batch with bias: random-walk)"),
@@ -59,6 +63,7 @@ class NoiseConfig:
     detection: float | None = None
     detection_per_m: float | None = None
     detection_per_m2: float | None = None
+    detection_ratio: float | None = None
     gyro_bias: float | None = None
     velocity_bias: float | None = None
     gyro_bias_walk: float | None = None
@@ -86,6 +91,7 @@ class NoiseSettings:
     velocity_bias: float
     gyro_bias_walk: float
     velocity_bias_walk: float
+    detection_ratio: float = 1.0
     #: key -> "config", "default", "<topic> covariance (<rate> Hz)" or "estimated"
     sources: dict[str, str] = field(default_factory=dict)
     #: key -> how an estimated level was found, and its standard error (same shape as the value)
@@ -129,12 +135,22 @@ class NoiseSettings:
         r = np.asarray(ranges, dtype=float)
         return self.detection + self.detection_per_m * r + self.detection_per_m2 * r * r
 
+    def detection_axes(self, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per detection the variance of each axis across its line of sight, and what the range's adds to it
+        (zero with ``detection_ratio`` 1): the law's ``σ(r)²`` split by the ratio, its trace kept."""
+        var = self.detection_sigma(ranges) ** 2
+        ratio2 = self.detection_ratio**2
+        if ratio2 == 1.0:
+            return var, np.zeros_like(var)
+        across = 3.0 / (ratio2 + 2.0) * var
+        return across, (ratio2 - 1.0) * across
+
     def lines(self) -> list[str]:
         """One line per level: value, unit, source, uncertainty and method."""
         out, said = [], set()
         for k, (_, unit, _meaning) in DEFAULTS.items():
             value, se = _plain(getattr(self, k)), _plain(self.uncertainty.get(k))
-            text = f"{k} = {_fmt(value)} {unit} ({self.sources.get(k, 'default')}"
+            text = f"{k} = {_fmt(value)}{' ' * bool(unit)}{unit} ({self.sources.get(k, 'default')}"
             text += f", ± {_fmt(se)}" if se is not None else ""
             method = self.methods.get(k)
             text += ")" if method is None else ": the same fit)" if method in said else f": {method})"
@@ -167,6 +183,8 @@ class LogNoise:
     notes: tuple[str, ...] = ()
     #: levels of held (commanded) streams and their bias priors, from detection pairs (:func:`held_levels`)
     held: dict[str, Estimate] = field(default_factory=dict)
+    #: a detection's standard deviation along its line of sight over that across (None: not told from 1)
+    ratio: Estimate | None = None
 
     def levels(self) -> dict[str, Estimate]:
         """Key of :data:`DEFAULTS` -> its estimate (the detection law sets all three detection keys)."""
@@ -177,6 +195,8 @@ class LogNoise:
             out["detection"] = law.base
             for _, (power, key) in LAWS.items():
                 out[key] = law.slope if power == law.power else Estimate(0.0, 0.0, law.slope.method, law.slope.samples)
+        if self.ratio is not None:
+            out["detection_ratio"] = self.ratio
         return out
 
 
@@ -213,12 +233,21 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
     triplets = log_triplets(*_stream_arrays(aligned), g, v)
     law = detection_law(triplets)
+    ratio = None
     if law is None:
         notes.append("noise: too few landmarks seen three times within 1 s to estimate the detection noise")
+    elif (ratio := detection_ratio(triplets, law)) is None:
+        notes.append("noise: the detections' error along the line of sight is not told from that across it")
+    elif ratio.value < 1.0:  # no range sensor sees direction worse than distance: the turning's error shows there
+        notes.append(
+            f"noise: the detections' error across the line of sight is {1.0 / ratio.value:.2g}x that along it within "
+            f"1 s, most likely the dead reckoning's turning error: the same σ kept on every axis"
+        )
+        ratio = None
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    return LogNoise(gyro, velocity, law, tuple(notes), held)
+    return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
 
 
 def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], notes: list[str]):

@@ -16,7 +16,9 @@ between them (known from the velocity estimates and the time each velocity sampl
 Its variance, ``Σ c_j² σ(r_j)² + odometry``, is fitted by variance-component estimation (Fisher scoring of the
 Gaussian likelihood, outliers beyond 4 σ dropped and the fit repeated until stable) for two laws of σ against
 range r: ``σ0 + k·r`` and ``b + a·r²``; the one with the higher likelihood is chosen.
-The uncertainty is a bootstrap over the triplets.
+The uncertainty is a bootstrap over the triplets. The same residuals split along the middle detection's line of
+sight and across it give the ratio of the range's standard deviation to the bearing's (a stereo camera's or a
+tag's depth is far worse than its direction), the law staying the mean over the three axes.
 """
 
 from __future__ import annotations
@@ -52,6 +54,9 @@ MIN_DETECTION_M = 1e-4
 #: Share of the residuals' variance above which the dead reckoning's noise drowns the detections' (the law is
 #: then said to be uncertain).
 DOMINANT = 0.8
+#: A range/across ratio closer to 1 than this share, or within this many standard errors of 1 (in log), is not
+#: told from 1: the detections keep the same σ on every axis.
+RATIO_CLOSE, RATIO_SIGMAS = 0.1, 3.0
 #: The detection laws: name -> (the power of range the second coefficient multiplies, its key in noise.DEFAULTS)
 LAWS = {"sigma0 + k*r": (1, "detection_per_m"), "b + a*r^2": (2, "detection_per_m2")}
 
@@ -167,12 +172,14 @@ def _poses_at(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, t: np.
 @dataclass(frozen=True)
 class Triplets:
     """Second differences of static landmarks: residual components (K, 3), the weights c_j² of the three
-    detections (K, 3), their ranges (K, 3) and the odometry part of each residual's variance (K,)."""
+    detections (K, 3), their ranges (K, 3), the odometry part of each residual's variance (K,) and the middle
+    detection's line of sight in the residuals' frame (K, 3, unit)."""
 
     e: np.ndarray
     c2: np.ndarray
     r: np.ndarray
     motion_var: np.ndarray
+    u: np.ndarray
 
 
 def detection_triplets(
@@ -189,10 +196,11 @@ def detection_triplets(
     """Every three consecutive detections of one landmark within ``MAX_TRIPLET_S`` (times in s, body frame)."""
     t_of = np.repeat(det_t, np.diff(det_offsets))
     r_w, p_w = _poses_at(vel_t, omega, velocity, t_of)
-    w = np.einsum("nij,nj->ni", r_w, det_y) + p_w
+    sight = np.einsum("nij,nj->ni", r_w, det_y)
+    w = sight + p_w
     rng = np.linalg.norm(det_y, axis=1)
     order = np.lexsort((t_of, det_idx))
-    lm, t, w, rng = det_idx[order], t_of[order], w[order], rng[order]
+    lm, t, w, rng, sight = det_idx[order], t_of[order], w[order], rng[order], sight[order]
     i = np.flatnonzero((lm[:-2] == lm[2:]) & (t[2:] - t[:-2] <= MAX_TRIPLET_S) & (t[2:] > t[1:-1]) & (t[1:-1] > t[:-2]))
     gaps = np.cumsum(np.r_[0, np.diff(vel_t) > 0.5])
     span_ok = gaps[np.searchsorted(vel_t, t[i])] == gaps[np.minimum(np.searchsorted(vel_t, t[i + 2]), vel_t.size - 1)]
@@ -208,7 +216,7 @@ def detection_triplets(
     motion = (
         c2[:, 0] * (vq + 2 / 3 * gq * r[:, 0] ** 2) * held[0] + c2[:, 2] * (vq + 2 / 3 * gq * r[:, 2] ** 2) * held[1]
     )
-    return Triplets(e, c2, r, motion)
+    return Triplets(e, c2, r, motion, sight[i + 1] / np.maximum(r[:, 1:2], 1e-300))
 
 
 def _held_squares(vel_t: np.ndarray, ta: np.ndarray, tb: np.ndarray) -> np.ndarray:
@@ -242,7 +250,7 @@ def log_triplets(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, gyr
                 velocity_density,
             )
         )
-    return Triplets(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("e", "c2", "r", "motion_var")))
+    return Triplets(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("e", "c2", "r", "motion_var", "u")))
 
 
 def _variance(theta: np.ndarray, tri: Triplets, power: int) -> tuple[np.ndarray, np.ndarray]:
@@ -283,7 +291,7 @@ def _fit_law(tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3) -> 
 
 
 def _subset(tri: Triplets, idx: np.ndarray) -> Triplets:
-    return Triplets(tri.e[idx], tri.c2[idx], tri.r[idx], tri.motion_var[idx])
+    return Triplets(tri.e[idx], tri.c2[idx], tri.r[idx], tri.motion_var[idx], tri.u[idx])
 
 
 def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
@@ -323,6 +331,49 @@ def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
         ranges,
         float((fits[other][1] - ll) * used * 3),
     )
+
+
+def _axis_shares(tri: Triplets, law: DetectionLaw, rounds: int = 20) -> tuple[float, float]:
+    """The variance of a detection along its line of sight and of each axis across it, as shares of the law's
+    ``σ(r)²``: method of moments weighted by each residual's variance, outliers beyond ``OUTLIER_SIGMAS`` of
+    either part dropped and the fit repeated."""
+    law_var = np.sum(tri.c2 * law.sigma(tri.r) ** 2, axis=1)
+    along2 = np.sum(tri.e * tri.u, axis=1) ** 2
+    across2 = (np.sum(tri.e * tri.e, axis=1) - along2) / 2  # per axis across
+    m = tri.motion_var
+    k_along = k_across = 1.0
+    inl = np.ones(law_var.shape[0], bool)
+    for _ in range(rounds):
+        pred_along, pred_across = k_along * law_var + m, k_across * law_var + m
+        inl = (along2 <= OUTLIER_SIGMAS**2 * pred_along) & (across2 <= OUTLIER_SIGMAS**2 * pred_across)
+        v, w_a, w_c = law_var[inl], pred_along[inl] ** -2, pred_across[inl] ** -2
+        k_along = max(float(np.sum(w_a * (along2[inl] - m[inl]) * v) / np.sum(w_a * v * v)), 1e-9)
+        k_across = max(float(np.sum(w_c * (across2[inl] - m[inl]) * v) / np.sum(w_c * v * v)), 1e-9)
+    return k_along, k_across
+
+
+def detection_ratio(tri: Triplets, law: DetectionLaw, seed: int = 0) -> Estimate | None:
+    """The ratio of a detection's standard deviation along its line of sight to that across it, or None when
+    there are too few triplets or it cannot be told from 1 (``RATIO_CLOSE``, ``RATIO_SIGMAS`` standard errors of
+    a bootstrap over the triplets)."""
+    k = tri.e.shape[0]
+    if k < MIN_SAMPLES:
+        return None
+    gen = np.random.default_rng(seed)
+    if k > MAX_TRIPLETS:
+        tri = _subset(tri, np.sort(gen.choice(k, MAX_TRIPLETS, replace=False)))
+        k = MAX_TRIPLETS
+    k_along, k_across = _axis_shares(tri, law)
+    ratio = float(np.sqrt(k_along / k_across))
+    boot = [np.sqrt(np.divide(*_axis_shares(_subset(tri, gen.integers(0, k, k)), law, 3))) for _ in range(BOOTSTRAP)]
+    se_log = float(np.std(np.log(boot), ddof=1))
+    if abs(np.log(ratio)) < max(np.log1p(RATIO_CLOSE), RATIO_SIGMAS * se_log):
+        return None
+    method = (
+        f"the detection triplets' residuals along the line of sight against across it ({k} triplets): "
+        f"{k_along:.3g} and {k_across:.3g} of the law's variance"
+    )
+    return Estimate(ratio, ratio * se_log, method, k)
 
 
 # ------------------------------------------------------------------ motion noise of held streams, from detections

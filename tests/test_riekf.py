@@ -61,7 +61,10 @@ def test_running_sums_and_transition_equal_the_dense_propagation():
     assert np.allclose(cov, expect, rtol=1e-12, atol=1e-9)
 
 
-def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
+@pytest.mark.parametrize("extra", [0.0, 8.0])
+def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra):
+    """Each detection's noise is ``σ²I`` plus ``extra σ²`` along its line of sight ``R̂y/|y|`` (the range's
+    standard deviation apart from the bearing's, ``noise: detection_ratio``)."""
     rng = np.random.default_rng(1)
     n_lm = 4  # landmarks 0-2 in the state (slots 2, 0, 1), landmark 3 new in this frame
     slot_of = np.array([2, 0, 1, -1])
@@ -76,6 +79,8 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
     det_idx = np.array([0, 3, 2])
     det_y = rng.normal(size=(3, 3)) * 3
     sigma2 = np.array([0.01, 0.02, 0.03]) ** 2
+    sight = det_y @ r_hat.T / np.linalg.norm(det_y, axis=1)[:, None]
+    noise = [sigma2[j] * (np.eye(3) + extra * np.outer(sight[j], sight[j])) for j in range(3)]
     # dense reference
     known = [0, 2]
     h = np.zeros((6, d))
@@ -87,7 +92,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
         h[3 * q : 3 * q + 3, sl : sl + 3] = -np.eye(3)
         z[3 * q : 3 * q + 3] = r_hat @ det_y[j] + p_hat - lm[i]
     c = cov[:d, :d]
-    s_mat = h @ c @ h.T + np.diag(np.repeat(sigma2[known], 3))
+    s_mat = h @ c @ h.T + np.kron(np.diag([1.0, 0.0]), noise[0]) + np.kron(np.diag([0.0, 1.0]), noise[2])
     k = c @ h.T @ np.linalg.inv(s_mat)
     xi = k @ z
     c_new = c - k @ s_mat @ k.T
@@ -103,7 +108,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
     cov_exp[:d, :d] = c_new
     cov_exp[d:, :d] = c_new[3:6]
     cov_exp[:d, d:] = c_new[:, 3:6]
-    cov_exp[d:, d:] = c_new[3:6, 3:6] + sigma2[1] * np.eye(3)
+    cov_exp[d:, d:] = c_new[3:6, 3:6] + noise[1]
     # the kernel
     ns = np.zeros(N_SLOTS, dtype=np.int64)  # the kernel's integer state, all slots
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
@@ -112,7 +117,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks():
         3,
         det_idx,
         det_y,
-        sigma2,
+        np.stack([sigma2, extra * sigma2], axis=1),
         cov,
         d,
         r_hat,

@@ -410,9 +410,10 @@ def _cholesky(s, m):
 
 
 @njit(cache=True)
-def _gate(cov, z, sl, sigma2, lt, rt, dp, s):
-    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I`` of ``Σ⁻`` (the
-    pending propagation added, each term read once; ``s``: 3×3 scratch)."""
+def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
+    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ`` of ``Σ⁻`` (the
+    pending propagation added, each term read once; ``u``: the range's extra standard deviation along the line of
+    sight; ``s``: 3×3 scratch)."""
     for a in range(3):
         for b in range(3):
             v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
@@ -421,7 +422,7 @@ def _gate(cov, z, sl, sigma2, lt, rt, dp, s):
             v += cov[sl + a, sl + b]  # Σ⁻_ss
             for k in range(6):
                 v += lt[k, sl + a] * rt[k, sl + b]
-            s[a, b] = v
+            s[a, b] = v + ue[a] * ue[b]
         s[a, a] += sigma2
     if not _cholesky(s, 3):
         return np.inf
@@ -576,18 +577,24 @@ def _update(
     e = np.empty(3)  # scratch: a detection's e_i and z_i = −e_i, the gate's 3×3
     zi = np.empty(3)
     s3 = np.empty((3, 3))
+    ues = np.zeros((nd, 3))  # each detection's range noise beyond the across one, along its line of sight R̂y/|y|
     for j in range(nd):
         i = det_idx[a0 + j]
         y = det_y[a0 + j]
         for c in range(3):
             e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
+        extra = det_sigma2[a0 + j, 1] * scale
+        if extra > 0.0:
+            f = np.sqrt(extra / (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]))
+            for c in range(3):
+                ues[j, c] = f * (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2])
         if slot_of[i] < 0:
             continue  # new: recorded after augmentation
         for c in range(3):
             innov[row + j, c] = e[c]
             trk_p[row + j, c] = lm[i, c]
         if reinit[i]:
-            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale)
+            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j, 0] * scale, ues[j])
             for c in range(3):
                 lm[i, c] = lm[i, c] - e[c]
                 trk_p[row + j, c] = lm[i, c]
@@ -596,7 +603,7 @@ def _update(
             continue
         for c in range(3):
             zi[c] = -e[c]
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j] * scale, lt, rt, dp, s3)
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j, 0] * scale, ues[j], lt, rt, dp, s3)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -639,10 +646,13 @@ def _update(
         # S = H Σ⁻ Hᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            s2 = det_sigma2[a0 + sel[q]] * scale
+            s2 = det_sigma2[a0 + sel[q], 0] * scale
+            ue = ues[sel[q]]
             for c in range(3):
                 for k in range(k3):
                     smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
+                for b in range(3):
+                    smat[3 * q + c, 3 * q + b] += ue[c] * ue[b]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
@@ -671,22 +681,22 @@ def _update(
         s = (d - N_FIXED) // 3
         slot_of[i] = s
         slot_lm[s] = i
-        _reset_landmark(cov, d, d, det_sigma2[a0 + j] * scale)
+        _reset_landmark(cov, d, d, det_sigma2[a0 + j, 0] * scale, ues[j])
         d += 3
     return d
 
 
 @njit(cache=True)
-def _reset_landmark(cov, d, o, sigma2):
+def _reset_landmark(cov, d, o, sigma2, ue):
     """Landmark slot ``o`` (re-)initialised from the pose, for a new landmark (``o == d``) or one that failed the
-    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I`` (its mean is set by the caller)."""
+    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I + u uᵀ`` (its mean is set by the caller)."""
     for c in range(3):
         for k in range(d):
             cov[o + c, k] = cov[3 + c, k]
             cov[k, o + c] = cov[k, 3 + c]
     for a in range(3):
         for c in range(3):
-            cov[o + a, o + c] = cov[3 + a, 3 + c]
+            cov[o + a, o + c] = cov[3 + a, 3 + c] + ue[a] * ue[c]
         cov[o + a, o + a] += sigma2
 
 
@@ -1026,7 +1036,8 @@ class RiEKF(Stepper):
         self.state = _State(
             n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
         )
-        self.det_sigma2 = nz.detection_sigma(np.linalg.norm(stream.det_y, axis=1)) ** 2  # per-axis variances
+        # per detection: the variance of each axis across its line of sight, and what the range's adds
+        self.det_sigma2 = np.stack(nz.detection_axes(np.linalg.norm(stream.det_y, axis=1)), axis=1)
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
