@@ -294,14 +294,23 @@ def _subset(tri: Triplets, idx: np.ndarray) -> Triplets:
     return Triplets(tri.e[idx], tri.c2[idx], tri.r[idx], tri.motion_var[idx], tri.u[idx])
 
 
-def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
-    """The range law of the detection noise that fits the triplets best, or None with too few of them."""
+def _fitted(tri: Triplets, seed: int) -> tuple[Triplets, np.random.Generator] | None:
+    """The triplets a fit reads (a uniform subsample of ``MAX_TRIPLETS`` on a longer log) and the generator its
+    bootstrap goes on with; None with fewer than ``MIN_SAMPLES``."""
     k = tri.e.shape[0]
     if k < MIN_SAMPLES:
         return None
     gen = np.random.default_rng(seed)
     if k > MAX_TRIPLETS:
         tri = _subset(tri, np.sort(gen.choice(k, MAX_TRIPLETS, replace=False)))
+    return tri, gen
+
+
+def detection_law(tri: Triplets, seed: int = 0) -> DetectionLaw | None:
+    """The range law of the detection noise that fits the triplets best, or None with too few of them."""
+    if (fitted := _fitted(tri, seed)) is None:
+        return None
+    tri, gen = fitted
     start = _robust_sigma(tri.e.ravel()[:, None])[0] / np.sqrt(np.mean(tri.c2.sum(axis=1)))
     fits = {name: _fit_law(tri, power, np.array([start, 0.0])) for name, (power, _) in LAWS.items()}
     best = max(fits, key=lambda name: fits[name][1])
@@ -356,13 +365,10 @@ def detection_ratio(tri: Triplets, law: DetectionLaw, seed: int = 0) -> Estimate
     """The ratio of a detection's standard deviation along its line of sight to that across it, or None when
     there are too few triplets or it cannot be told from 1 (``RATIO_CLOSE``, ``RATIO_SIGMAS`` standard errors of
     a bootstrap over the triplets)."""
-    k = tri.e.shape[0]
-    if k < MIN_SAMPLES:
+    if (fitted := _fitted(tri, seed)) is None:
         return None
-    gen = np.random.default_rng(seed)
-    if k > MAX_TRIPLETS:
-        tri = _subset(tri, np.sort(gen.choice(k, MAX_TRIPLETS, replace=False)))
-        k = MAX_TRIPLETS
+    tri, gen = fitted
+    k = tri.e.shape[0]
     k_along, k_across = _axis_shares(tri, law)
     ratio = float(np.sqrt(k_along / k_across))
     boot = [np.sqrt(np.divide(*_axis_shares(_subset(tri, gen.integers(0, k, k)), law, 3))) for _ in range(BOOTSTRAP)]
