@@ -401,6 +401,24 @@ def test_a_growing_error_is_not_converged():
     assert not conv["growing"] and conv["t_since_start_s"] is not None
 
 
+def test_an_error_above_the_trajectorys_extent_is_not_converged():
+    """An estimate whose error levels off above the size of the motion itself ("converged" within a band of
+    tens of metres on a 3 m figure-eight) never locked on: not converged, and the report and summary say so."""
+    truth = make_truth()
+    t_s = (truth.t_ns - T0_NS) / 1e9
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 20.0 - 2.0 * np.exp(-t_s)  # bounded, levelling off at 20 m
+    rep = checked(build_report(poses, None, empty, truth, align="none"))
+    conv = rep["convergence"]
+    assert conv["lost"] and not conv["growing"] and conv["t_ns"] is None
+    assert 2.0 < conv["trajectory_extent_m"] < 4.0 < conv["steady_level_m"]
+    assert convergence_line(conv).startswith("no: the error level") and "never locked on" in render_markdown(rep)
+    poses["z"] = poses["z"] - 18.0  # the same error levelling off at 2 m: within the extent, converged
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert not conv["lost"] and conv["t_since_start_s"] is not None
+
+
 def test_no_time_overlap_raises_with_both_spans():
     poses, biases, landmarks, truth, *_ = synthetic_run()
     poses["t_ns"] = poses["t_ns"] - 3_600 * 10**9  # estimate stamped on another clock

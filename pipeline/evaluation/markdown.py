@@ -33,6 +33,12 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
 
 
 def _not_converged(conv: dict[str, Any]) -> str:
+    if conv.get("lost"):
+        return (
+            f"not converged (the error level, {conv['steady_level_m']:.3g} m at most over the last "
+            f"{round(100 * conv['tail_fraction'])} % of the log, is above the trajectory's own extent, "
+            f"{conv['trajectory_extent_m']:.3g} m RMS about its centre: the estimate never locked on to the motion)"
+        )
     if conv.get("growing"):
         tail = round(100 * conv["tail_fraction"])
         return (

@@ -543,7 +543,9 @@ class ConvergenceSection(Section):
             "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
             "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
-            "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m); "
+            "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m), or if "
+            "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
+            "centre (lost: the estimate never locked on to the motion); "
             "steady_error_m is the "
             "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
         )
@@ -555,7 +557,11 @@ class ConvergenceSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         t0 = int(ev.estimate.t_ns[0])
-        c = slam_metrics.convergence(ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level)
+        truth = ev.paired.ref_pos
+        extent = float(np.sqrt(np.mean(np.sum((truth - truth.mean(axis=0)) ** 2, axis=1))))
+        c = slam_metrics.convergence(
+            ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent=extent
+        )
         self.result = {
             "threshold_m": float(self.threshold_m),
             "window_s": c["window_s"],
@@ -569,6 +575,8 @@ class ConvergenceSection(Section):
             "earlier_level_m": c["earlier_level"],
             "growth_factor": slam_metrics.GROWTH_FACTOR,
             "growing": c["growing"],
+            "trajectory_extent_m": extent,
+            "lost": c["lost"],
             "estimate_start_ns": t0,
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,

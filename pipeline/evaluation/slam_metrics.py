@@ -113,7 +113,11 @@ def _strided_medians_compiled(e, lo, step, count):
 
 
 def convergence(
-    t_ns: np.ndarray, errors: np.ndarray, threshold: float, level: tuple[np.ndarray, np.ndarray] | None = None
+    t_ns: np.ndarray,
+    errors: np.ndarray,
+    threshold: float,
+    level: tuple[np.ndarray, np.ndarray] | None = None,
+    extent: float | None = None,
 ) -> dict:
     """When the error reaches the observer's own steady level and stays there.
 
@@ -124,8 +128,10 @@ def convergence(
     seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
     level is above it, or if the error still grows: its median level over the last ``TAIL_FRACTION`` above
     ``GROWTH_FACTOR`` times that over the stretch before and above ``threshold``; a drifting estimate would
-    otherwise be "converged" at its start, inside a band as wide as its final error). ``level`` is
-    :func:`error_level` of these errors when already computed.
+    otherwise be "converged" at its start, inside a band as wide as its final error), or if that steady level is
+    above ``extent`` (the truth's RMS distance from its centre) and ``threshold``: an estimate that far off never
+    locked on to the motion, whatever its level does. ``level`` is :func:`error_level` of these errors when
+    already computed.
     """
     t = np.asarray(t_ns, dtype=np.int64)
     e = np.asarray(errors, dtype=np.float64)
@@ -138,15 +144,17 @@ def convergence(
     earlier = float(np.median(before)) if before.size else None
     tail_level = float(np.median(level[grid >= cut]))
     growing = earlier is not None and tail_level > max(GROWTH_FACTOR * earlier, threshold)
+    lost = extent is not None and steady_level > max(extent, threshold)
     return {
         "band": band,
         "earlier_level": earlier,
         "tail_level": tail_level,
         "growing": bool(growing),
+        "lost": bool(lost),
         "steady_error": float(np.median(e[t >= cut])),
         "steady_level": steady_level,
         "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
-        "t_ns": None if k is None or growing else int(grid[k]),
+        "t_ns": None if k is None or growing or lost else int(grid[k]),
     }
 
 
