@@ -210,19 +210,24 @@ def _assert_same_rows(got: tuple, want: tuple) -> None:
 @pytest.mark.parametrize("group", [None, 4096])
 @pytest.mark.parametrize("page_size", [1024, 4096])
 def test_pages_read_directly_give_the_rows_sqlite_gives(tmp_path, monkeypatch, group, page_size):
-    """Rows of two of three interleaved topics, heavy payloads put together from their overflow pages, in one
-    window or many: the same rows, in the same order, with the same bytes as SQLite's query hands over."""
+    """Rows of two of three interleaved topics (the third's payloads in overflow pages), in one window or many:
+    the same rows, in the same order, with the same bytes as SQLite's query hands over. A wanted payload in
+    overflow pages stops the walk: SQLite reads from there, and the rows are the same again."""
     path = _interleaved_db3(tmp_path, page_size)
     if group is not None:
         monkeypatch.setattr(storage, "GROUP_BYTES", group)
-    walked = []
-    real_window = sqlitefile.read_window
+    walked, after = [], []
+    real_window, real_by_sql = sqlitefile.read_window, rosbag2_sqlite._by_sql
     monkeypatch.setattr(sqlitefile, "read_window", lambda *a: walked.append(a[1]) or real_window(*a))
-    got = _flat_batches(path, {"/light", "/heavy"})
-    assert walked and (len(walked) > 10 if group else len(walked) == 1), walked  # read from the pages
-    assert len(got[2]) == 660 and {len(p) for p in got[2]} > {len(_string(20_000))}
+    monkeypatch.setattr(rosbag2_sqlite, "_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
+    got = _flat_batches(path, {"/light", "/other"})
+    assert len(walked) > 10 if group else len(walked) == 1, walked  # read from the pages, SQLite not asked
+    assert not after and len(got[2]) == 900
+    heavy = _flat_batches(path, {"/light", "/heavy"})
+    assert len(after) == 1 and {len(p) for p in heavy[2]} > {len(_string(20_000))}
     monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)  # SQLite's group_concat windows
-    _assert_same_rows(got, _flat_batches(path, {"/light", "/heavy"}))
+    _assert_same_rows(got, _flat_batches(path, {"/light", "/other"}))
+    _assert_same_rows(heavy, _flat_batches(path, {"/light", "/heavy"}))
 
 
 def test_a_row_the_walk_does_not_take_leaves_the_rest_to_sqlite(tmp_path, monkeypatch):
@@ -238,16 +243,17 @@ def test_a_row_the_walk_does_not_take_leaves_the_rest_to_sqlite(tmp_path, monkey
     after = []
     real_by_sql = rosbag2_sqlite._by_sql
     monkeypatch.setattr(rosbag2_sqlite, "_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
-    got = _flat_batches(path, {"/light", "/heavy"})
+    got = _flat_batches(path, {"/light"})
     assert len(after) == 1 and 0 < after[0] < mid  # the pages before the text row were read directly
     monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)
-    _assert_same_rows(got, _flat_batches(path, {"/light", "/heavy"}))
+    _assert_same_rows(got, _flat_batches(path, {"/light"}))
 
 
 @pytest.mark.parametrize("child", ["past the end", "the root", "page 1"])
 def test_a_damaged_tree_is_not_walked(logs, tmp_path, child):
     """An interior page of the messages table naming a page past the file's end, itself (a loop) or the schema's
-    page: no leaf list (SQLite reads such a file, or reports it, as before); a tree read whole gives the pages."""
+    page: no leaf list, or the walk stops at the page that is no leaf (SQLite reads such a file, or reports it, as
+    before); the intact tree gives its leaves."""
     (db3,) = logs[0].glob("*.db3")
     with sqlite3.connect(db3) as db:
         (root,) = db.execute("SELECT rootpage FROM sqlite_master WHERE name = 'messages'").fetchone()
@@ -259,4 +265,10 @@ def test_a_damaged_tree_is_not_walked(logs, tmp_path, child):
     data[(root - 1) * page + 8 : (root - 1) * page + 12] = target.to_bytes(4, "big")  # its right-most child
     bad = tmp_path / "bad.db3"
     bad.write_bytes(bytes(data))
-    assert sqlitefile.open_table(bad, root) is None
+    table = sqlitefile.open_table(bad, root)
+    if child == "the root":  # the leaves' level ends with the root, an interior page: the window stops there
+        ids = storage.ConnIds({k: k for k in range(1, 10)})
+        _, done, _, stopped = sqlitefile.read_window(table, 0, 1 << 30, ids)
+        assert stopped and table.leaves[done] == root
+    else:
+        assert table is None

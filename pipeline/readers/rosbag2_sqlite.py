@@ -81,8 +81,8 @@ def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Itera
 
 
 def _table(reader: Sqlite3Reader) -> sqlitefile.Table | None:
-    """The ``messages`` table of the file, mapped (:mod:`.sqlitefile`); None when its pages are not read directly
-    (a path rosbags reads through a VFS, a table of other columns or without rowids, a file that cannot be mapped)."""
+    """The ``messages`` table of the file, read (:mod:`.sqlitefile`); None when its pages are not walked directly
+    (a path rosbags reads through a VFS, a table of other columns or without rowids, a file too large to read)."""
     assert reader.dbconn
     if not isinstance(reader.path, Path):
         return None

@@ -4,25 +4,27 @@ SQLite hands each row over through its virtual machine: ~3 ms of a 60 s db3's 25
 ``count(*)``; concatenating the payloads and printing the numbers as text (``group_concat``) for the decoders was
 more than half of that log's read. The file format is documented and stable (https://sqlite.org/fileformat.html):
 a rowid table is a b-tree whose leaf pages hold the rows' records, a payload too long for its page going on in
-a chain of overflow pages. Here the file is mapped, the tree's leaf pages listed in key order
-(:func:`_leaf_pages`), the records on them walked (:func:`_window`) and the payloads of the requested topics
-copied out (:func:`_assemble`): the same rows in the same order (rowid) as SQLite's scan, payload bytes,
-``topic_id`` and ``timestamp`` as stored.
+a chain of overflow pages. Here the tree's interior pages are read level by level to list the leaf pages in key
+order (:func:`open_table`), then the leaf pages are read a window at a time, their records walked
+(:func:`_window`) and the payloads of the requested topics copied out (:func:`_assemble`): the same rows in the
+same order (rowid) as SQLite's scan, payload bytes, ``topic_id`` and ``timestamp`` as stored.
 
 This reads only what SQLite itself would: rosbags opens the database ``immutable`` (no journal, no WAL), so the
 main file's pages are the whole database. Anything the walks do not take exactly as SQLite would (a page or cell
 that is not a valid table b-tree's, a record of other columns, a ``data`` that is not a blob, an int that is not
-an int) stops them at the page before: the caller reads the rest through SQLite, which then reads it or reports
-the damage in its own words. Every byte offset is checked before it is read, so a damaged file cannot make a
-walk read outside the mapping.
+an int, a payload that goes on in overflow pages) stops them at the page before: the caller reads the rest
+through SQLite, which then reads it or reports the damage in its own words. Every byte offset is checked before
+it is read, so a damaged file cannot make a walk read outside its buffer.
+
+The pages are read (``readinto``), not mapped: a file cut or rewritten while it is mapped ends the process with
+SIGBUS instead of a one-line error (why ``PRAGMA mmap_size`` is not used either). Memory stays bounded: a window
+holds at most a decoding group of pages.
 """
 
 from __future__ import annotations
 
-import mmap
 from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
@@ -31,8 +33,12 @@ from slamobs.pipeline.kernel_cache import njit
 from .storage import RawBatch
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
     from .storage import ConnIds
 
+#: A tree deeper than this is not one SQLite wrote (its own limit is 20 levels).
+_MAX_DEPTH = 40
 #: Bytes 0-15 of every SQLite database file.
 HEADER = b"SQLite format 3\x00"
 #: The page holding the byte at 1 GiB (SQLite's lock byte) is never a b-tree page.
@@ -48,10 +54,9 @@ COLUMNS = ("id", "topic_id", "timestamp", "data")
 
 @dataclass(frozen=True)
 class Table:
-    """A mapped database file and the leaf pages of one of its rowid tables, in key order."""
+    """A database file and the leaf pages of one of its rowid tables, in key order."""
 
-    mapped: mmap.mmap  # the file, read only
-    buf: np.ndarray  # (file bytes,) uint8: the mapping's bytes
+    path: Path
     page_size: int
     usable: int  # page size less the reserved bytes at each page's end
     npages: int  # pages a reference may name
@@ -77,43 +82,66 @@ def _header_fields(head: bytes, file_size: int) -> tuple[int, int, int] | None:
 
 
 def open_table(path: Path, root: int) -> Table | None:
-    """``path`` mapped, and the leaf pages of the table b-tree whose root is page ``root``; None when the file
-    cannot be mapped or its tree is not one the walks read (the caller then asks SQLite)."""
+    """The leaf pages of the table b-tree whose root is page ``root``, its interior pages read level by level
+    (a level's first page says whether it is the leaves' level; the windows check every leaf page's type); None
+    when the file cannot be read or the tree is not one the walks read (the caller then asks SQLite)."""
     try:
         with path.open("rb") as fobj:
-            size = fobj.seek(0, 2)
-            if size < 512:
+            fields = _header_fields(fobj.read(100), fobj.seek(0, 2))
+            if fields is None or not 2 <= root <= fields[2]:
                 return None
-            mapped = mmap.mmap(fobj.fileno(), 0, access=mmap.ACCESS_READ)  # kept alive by the array
-    except (OSError, ValueError):
+            page_size, usable, npages = fields
+            level = np.array([root], np.int64)
+            visited = 0
+            for _ in range(_MAX_DEPTH):
+                buf = _read_pages(fobj, level[:1], page_size)
+                if buf is None or buf[0] == _LEAF:
+                    return Table(path, *fields, level) if buf is not None else None
+                buf = _read_pages(fobj, level, page_size)
+                visited += level.shape[0]
+                if buf is None or visited > npages:  # cut, or a page named twice (a loop)
+                    return None
+                level, ok = _children(buf, level.shape[0], page_size, usable, npages)
+                if not ok:
+                    return None
+    except OSError:
         return None
-    buf = np.frombuffer(mapped, np.uint8)
-    fields = _header_fields(bytes(buf[:100]), size)
-    if fields is None or not 2 <= root <= fields[2]:
-        return None
-    leaves, ok = _leaf_pages(buf, root, *fields)
-    return Table(mapped, buf, *fields, leaves) if ok else None
+    return None
+
+
+def _read_pages(fobj: BinaryIO, pages: np.ndarray, page_size: int) -> np.ndarray | None:
+    """The pages one after the other in one buffer (runs of consecutive pages read at once); None if the file
+    ends before one of them."""
+    buf = np.empty(pages.shape[0] * page_size, np.uint8)
+    breaks = np.flatnonzero(np.diff(pages) != 1) + 1
+    for first, last in zip((0, *breaks.tolist()), (*breaks.tolist(), pages.shape[0]), strict=True):
+        fobj.seek((int(pages[first]) - 1) * page_size)
+        if fobj.readinto(buf[first * page_size : last * page_size]) != (last - first) * page_size:
+            return None
+    buf.flags.writeable = False  # the compiled walks are compiled for read-only buffers (as RawBatch's)
+    return buf
 
 
 def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch | None, int, int, bool]:
-    """The rows of the topics ``ids`` asks for on the leaf pages from ``table.leaves[at]`` on, whole pages until
-    their data make ``aim`` bytes: their payloads copied one after the other into the batch's buffer (those that go
-    on in overflow pages put together). When the table is read in several windows, the pages of the mapping are
-    given back after each (the file's pages stay in the page cache, not in this process's memory).
+    """The rows of the topics ``ids`` asks for on the leaf pages from ``table.leaves[at]`` on, ``aim`` bytes of
+    pages (at least one): their payloads copied one after the other into the batch's buffer.
 
     Returns the batch (None: no such row there), the index of the next leaf page, the rowid of the last row on the
     pages read (:data:`NO_ROW`: none) and whether the walk stopped at a page it does not take (SQLite reads from
     there on).
     """
-    page, leaves = table.page_size, table.leaves
-    got = _window(table.buf, leaves, page, table.usable, table.npages, ids.ids, ids.index, at, aim)
-    conn, stamp, start, size, local, chain, stop, last, ok = got
+    pages = table.leaves[at : at + max(aim // table.page_size, 1)]
+    with table.path.open("rb") as fobj:
+        buf = _read_pages(fobj, pages, table.page_size)
+    if buf is None:  # the file was cut since it was opened: SQLite's to report
+        return None, at, NO_ROW, True
+    conn, stamp, start, size, done, last, ok = _window(
+        buf, pages.shape[0], table.page_size, table.usable, ids.ids, ids.index
+    )
     batch = None
     if conn.shape[0]:
-        batch = RawBatch(_assemble(table.buf, page, table.usable, start, size, local, chain), conn, stamp, start, size)
-    if (at or stop < leaves.shape[0]) and hasattr(mmap, "MADV_DONTNEED"):  # read again from the page cache if needed
-        table.mapped.madvise(mmap.MADV_DONTNEED)
-    return batch, int(stop), int(last), not ok
+        batch = RawBatch(_assemble(buf, start, size), conn, stamp, start, size)
+    return batch, at + int(done), int(last), not ok
 
 
 # --------------------------------------------------------------------------- compiled walks
@@ -155,45 +183,31 @@ def _page_ok(pgno, page_size, npages):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _leaf_pages(buf, root, page_size, usable, npages):  # pragma: no cover - compiled
-    """Leaf pages of the table b-tree rooted at ``root`` in key order (left to right), and whether the tree is one
-    (every page in the file, of a table b-tree's type, none visited twice)."""
-    leaves = np.empty(npages, np.int64)
-    stack = np.empty(npages + 1, np.int64)
-    nleaves = 0
-    visits = 0
-    sp = 1
-    stack[0] = root
-    while sp > 0:
-        sp -= 1
-        pgno = stack[sp]
-        visits += 1
-        if visits > npages:  # a page named twice: a loop
-            return leaves[:0], False
-        base = (pgno - 1) * page_size
-        kind = buf[base]
-        if kind == _LEAF:
-            leaves[nleaves] = pgno
-            nleaves += 1
-            continue
+def _children(buf, count, page_size, usable, npages):  # pragma: no cover - compiled
+    """The child pages of ``count`` interior pages of a table b-tree (one after the other in ``buf``), left to
+    right, and whether each is one (its type, its cells inside it, every child a page of the file)."""
+    total = 0
+    for c in range(count):
+        total += _be(buf, c * page_size + 3, 2) + 1
+    out = np.empty(total, np.int64)
+    m = 0
+    for c in range(count):
+        base = c * page_size
         ncells = _be(buf, base + 3, 2)
-        if kind != _INTERIOR or 12 + 2 * ncells > usable or sp + ncells + 1 > stack.shape[0]:
-            return leaves[:0], False
-        right = _be(buf, base + 8, 4)
-        if not _page_ok(right, page_size, npages):
-            return leaves[:0], False
-        stack[sp] = right  # visited last
-        sp += 1
-        for i in range(ncells - 1, -1, -1):  # pushed last to first: popped first to last
+        if buf[base] != _INTERIOR or 12 + 2 * ncells > usable:
+            return out[:0], False
+        for i in range(ncells):
             cell = _be(buf, base + 12 + 2 * i, 2)
             if cell < 12 + 2 * ncells or cell + 4 > usable:
-                return leaves[:0], False
-            child = _be(buf, base + cell, 4)
-            if not _page_ok(child, page_size, npages):
-                return leaves[:0], False
-            stack[sp] = child
-            sp += 1
-    return leaves[:nleaves], True
+                return out[:0], False
+            out[m] = _be(buf, base + cell, 4)
+            m += 1
+        out[m] = _be(buf, base + 8, 4)  # the right-most child, last
+        m += 1
+    for k in range(m):
+        if not _page_ok(out[k], page_size, npages):
+            return out[:0], False
+    return out[:m], True
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -232,39 +246,36 @@ def _int(buf, at, serial):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _window(buf, leaves, page_size, usable, npages, ids, index, at, aim):  # pragma: no cover - compiled
-    """The rows whose ``topic_id`` is in ``ids`` (sorted; ``index``: their connection indices) on the leaf pages
-    from ``leaves[at]`` on, whole pages until their data make ``aim`` bytes (or ``aim`` bytes of pages are walked).
+def _window(buf, count, page_size, usable, ids, index):  # pragma: no cover - compiled
+    """The rows whose ``topic_id`` is in ``ids`` (sorted; ``index``: their connection indices) on ``count`` leaf
+    pages (one after the other in ``buf``).
 
-    Returns per row its connection index, timestamp, the file offset of its data, the data's size, the part of it
-    on the leaf page and the first overflow page (0: none); the next leaf index, the last rowid of the pages walked
-    and False when the walk stopped at a page holding something it does not take (the rows of the pages before it
-    are returned).
+    Returns per row its connection index, timestamp, the offset of its data in ``buf`` and the data's size; the
+    pages walked, the last rowid on them and False when the walk stopped at a page holding something it does not
+    take (the rows of the pages before it are returned): a page that is not a table leaf, a cell or record that is
+    not as SQLite writes them, rowids that do not rise, a wanted payload that goes on in overflow pages (SQLite
+    puts those together).
     """
     most = usable - 35  # the longest payload a leaf page keeps whole
     least = (usable - 12) * 32 // 255 - 23  # the least it keeps of a longer one
     spill = usable - 4  # payload bytes an overflow page holds
-    until = min(leaves.shape[0], at + max(aim // page_size, 1))  # the window's pages are at most these
     cap = 0
-    for k in range(at, until):
-        cap += min(_be(buf, (leaves[k] - 1) * page_size + 3, 2), usable // 2)
+    for k in range(count):
+        cap += min(_be(buf, k * page_size + 3, 2), usable // 2)
     conn = np.empty(cap, np.int64)
     stamp = np.empty(cap, np.int64)
-    start = np.empty(cap, np.int64)  # the payload's data: in the file, then in ``data``
+    start = np.empty(cap, np.int64)
     size = np.empty(cap, np.int64)
-    local = np.empty(cap, np.int64)  # data bytes on the leaf page
-    chain = np.empty(cap, np.int64)  # first overflow page (0: none)
     n = 0
-    nbytes = 0  # the rows' data
     last = _NO_ROW
     ok = True
-    k = at
-    while ok and k < until and (k == at or nbytes < aim):
-        base = (leaves[k] - 1) * page_size
+    k = 0
+    while ok and k < count:
+        base = k * page_size
         end = base + usable
         ncells = _be(buf, base + 3, 2)
-        ok = 8 + 2 * ncells <= usable
-        page_n, page_bytes, page_last = 0, 0, last
+        ok = buf[base] == _LEAF and 8 + 2 * ncells <= usable
+        page_n, page_last = 0, last
         for i in range(ncells if ok else 0):
             cell = _be(buf, base + 8 + 2 * i, 2)
             payload, p = _varint(buf, base + cell, end)
@@ -300,50 +311,32 @@ def _window(buf, leaves, page_size, usable, npages, ids, index, at, aim):  # pra
                 j += 1
             if j == ids.shape[0]:
                 continue
+            if here < payload:  # a wanted payload in overflow pages: SQLite's to put together
+                ok = False
+                break
             row = n + page_n
             conn[row] = index[j]
             stamp[row] = _int(buf, p + head + w1, t2)
-            size[row] = dlen
             start[row] = p + skip
-            local[row] = min(here - skip, dlen)
-            chain[row] = _be(buf, p + here, 4) if here < payload else 0
-            page = chain[row]
-            for _ in range((payload - here + spill - 1) // spill):  # the overflow pages must be there
-                if not _page_ok(page, page_size, npages):
-                    ok = False
-                    break
-                page = _be(buf, (page - 1) * page_size, 4)
-            if not ok:
-                break
-            page_bytes += dlen
+            size[row] = dlen
             page_n += 1
         if not ok:
             break
         n += page_n
-        nbytes += page_bytes
         last = page_last
         k += 1
-    return conn[:n], stamp[:n], start[:n], size[:n], local[:n], chain[:n], k, last, ok
+    return conn[:n], stamp[:n], start[:n], size[:n], k, last, ok
 
 
 @njit(cache=True, nogil=True)
-def _assemble(buf, page_size, usable, start, size, local, chain):  # pragma: no cover - compiled
-    """The rows' data one after the other in one buffer (see :func:`_window`); ``start`` becomes each row's offset
-    there. A copy in row order: the decoders read a leaf page's rows in place ~2x slower (its cells lie from the
-    page's end backwards)."""
-    spill = usable - 4
+def _assemble(buf, start, size):  # pragma: no cover - compiled
+    """The rows' data one after the other in one buffer; ``start`` (in ``buf``) becomes each row's offset there.
+    A copy in row order: the decoders read a leaf page's rows in place ~1.3x slower (its cells lie from the
+    page's end backwards), more than the copy costs."""
     data = np.empty(size.sum(), np.uint8)
     to = 0
     for row in range(start.shape[0]):
-        got = local[row]
-        _copy(data, to, buf, start[row], got)
-        page = chain[row]
-        while got < size[row]:  # the rest in the overflow pages
-            take = min(spill, size[row] - got)
-            first = (page - 1) * page_size + 4
-            _copy(data, to + got, buf, first, take)
-            got += take
-            page = _be(buf, first - 4, 4)
+        _copy(data, to, buf, start[row], size[row])
         start[row] = to
         to += size[row]
     return data
