@@ -5,9 +5,9 @@ SQLite hands each row over through its virtual machine: ~3 ms of a 60 s db3's 25
 more than half of that log's read. The file format is documented and stable (https://sqlite.org/fileformat.html):
 a rowid table is a b-tree whose leaf pages hold the rows' records, a payload too long for its page going on in
 a chain of overflow pages. Here the tree's interior pages are read level by level to list the leaf pages in key
-order (:func:`open_table`), then the leaf pages are read a window at a time, their records walked
-(:func:`_window`) and the payloads of the requested topics copied out (:func:`_assemble`): the same rows in the
-same order (rowid) as SQLite's scan, payload bytes, ``topic_id`` and ``timestamp`` as stored.
+order (:func:`open_table`), then the leaf pages are read a window at a time and their records walked
+(:func:`_window`): the same rows in the same order (rowid) as SQLite's scan, payload bytes (where they lie in the
+window's buffer), ``topic_id`` and ``timestamp`` as stored.
 
 This reads only what SQLite itself would: rosbags opens the database ``immutable`` (no journal, no WAL), so the
 main file's pages are the whole database. Anything the walks do not take exactly as SQLite would (a page or cell
@@ -124,7 +124,8 @@ def _read_pages(fobj: BinaryIO, pages: np.ndarray, page_size: int) -> np.ndarray
 
 def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch | None, int, int, bool]:
     """The rows of the topics ``ids`` asks for on the leaf pages from ``table.leaves[at]`` on, ``aim`` bytes of
-    pages (at least one): their payloads copied one after the other into the batch's buffer.
+    pages (at least one): the buffer the pages were read into is the batch's (the decoders read the payloads where
+    they lie: copying them out first cost more than it saved).
 
     Returns the batch (None: no such row there), the index of the next leaf page, the rowid of the last row on the
     pages read (:data:`NO_ROW`: none) and whether the walk stopped at a page it does not take (SQLite reads from
@@ -140,7 +141,7 @@ def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch
     )
     batch = None
     if conn.shape[0]:
-        batch = RawBatch(_assemble(buf, start, size), conn, stamp, start, size)
+        batch = RawBatch(buf, conn, stamp, start, size)
     return batch, at + int(done), int(last), not ok
 
 
@@ -208,15 +209,6 @@ def _children(buf, count, page_size, usable, npages):  # pragma: no cover - comp
         if not _page_ok(out[k], page_size, npages):
             return out[:0], False
     return out[:m], True
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _copy(out, to, buf, at, count):  # pragma: no cover - compiled
-    """``out[to : to + count] = buf[at : at + count]``; unsigned indices let LLVM vectorise the loop (numba's slice
-    assignment and signed indices, which may wrap around, copy ten times slower)."""
-    to_, at_ = np.uint64(to), np.uint64(at)
-    for b in range(np.uint64(count)):
-        out[to_ + b] = buf[at_ + b]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -326,17 +318,3 @@ def _window(buf, count, page_size, usable, ids, index):  # pragma: no cover - co
         last = page_last
         k += 1
     return conn[:n], stamp[:n], start[:n], size[:n], k, last, ok
-
-
-@njit(cache=True, nogil=True)
-def _assemble(buf, start, size):  # pragma: no cover - compiled
-    """The rows' data one after the other in one buffer; ``start`` (in ``buf``) becomes each row's offset there.
-    A copy in row order: the decoders read a leaf page's rows in place ~1.3x slower (its cells lie from the
-    page's end backwards), more than the copy costs."""
-    data = np.empty(size.sum(), np.uint8)
-    to = 0
-    for row in range(start.shape[0]):
-        _copy(data, to, buf, start[row], size[row])
-        start[row] = to
-        to += size[row]
-    return data
