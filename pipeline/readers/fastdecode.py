@@ -511,8 +511,9 @@ def _dedup(data, pos, length):  # pragma: no cover - compiled
     for i in range(n):
         if i > 0 and length[i] == length[i - 1]:
             same = True
-            for q in range(length[i]):
-                if data[pos[i - 1] + q] != data[pos[i] + q]:
+            a, b = np.uint64(pos[i - 1]), np.uint64(pos[i])  # unsigned: no wrap-around checks
+            for q in range(np.uint64(length[i])):
+                if data[a + q] != data[b + q]:
                     same = False
                     break
             if same:
@@ -876,9 +877,11 @@ def read_columns(
             dec = decode(plan, batch, rows)
         except DecodeError as err:
             raise InputError(path, f"cannot decode {plan.msgtype} message: {err}", names[k]) from None
-        sub = batch if rows is None else batch.take(rows)
-        digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4) if digests else None
-        out[k].append(dec, sub.rec_ns, digest)
+        digest = None
+        if digests:
+            sub = batch if rows is None else batch.take(rows)
+            digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4)
+        out[k].append(dec, batch.rec_ns if rows is None else batch.rec_ns[rows], digest)
 
     def run_lane(batch: RawBatch, todo: list[tuple[int, np.ndarray]]) -> tuple[int, InputError] | None:
         for k, rows in todo:
