@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.readers import read_log, rosbag2_sqlite, storage
+from slamobs.pipeline.readers import read_log, rosbag2_sqlite, sqlitefile, storage
 from slamobs.pipeline.readers.container import iter_batches, open_log
 from slamobs.pipeline.readers.container import storages as container_storages
 from slamobs.pipeline.readers.fastdecode import read_rows
@@ -150,6 +150,7 @@ def test_a_window_after_light_rows_holds_a_few_groups_of_heavy_ones(tmp_path, mo
     (64 kB of them: ~1,300 rows) would hold 26 MB of the heavy ones; it spans at most WINDOW_SPAN groups at the
     database's bytes per row."""
     monkeypatch.setattr(storage, "GROUP_BYTES", SMALL_GROUP)
+    monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)  # SQLite's windows (pages: a group at most)
     topics = {
         "/light": [(k * 1000, _string(50)) for k in range(3000)],
         "/heavy": [(k * 1000 + 500, _string(20_000)) for k in range(300)],
@@ -165,3 +166,110 @@ def test_a_window_after_light_rows_holds_a_few_groups_of_heavy_ones(tmp_path, mo
         sizes = [b.data.shape[0] for b in db.batches(ids, False)]
     assert sum(sizes) == 3000 * len(_string(50)) + 300 * len(_string(20_000))
     assert max(sizes) <= most * len(_string(20_000)), (max(sizes), most)
+
+
+# --------------------------------------------------------------------------- the messages table's pages read directly
+
+
+def _interleaved_db3(tmp_path: Path, page_size: int) -> Path:
+    """Light rows of two topics and heavy ones (20 kB: their payloads go on in overflow pages), rewritten in record
+    time order (the topics' rows interleaved on the pages) with pages of ``page_size`` bytes."""
+    topics = {
+        "/light": [(k * 1000, _string(50)) for k in range(600)],
+        "/heavy": [(k * 10_000 + 500, _string(20_000 + k)) for k in range(60)],
+        "/other": [(k * 2000 + 300, _string(100)) for k in range(300)],
+    }
+    path = write_raw_log(tmp_path / "mixed_ros2", "ros2", topics, "std_msgs/msg/String", make_typestore(ros1=False))
+    (db3,) = path.glob("*.db3")
+    db = sqlite3.connect(db3, isolation_level=None)
+    (n,) = db.execute("SELECT max(id) FROM messages").fetchone()
+    columns = "topic_id, timestamp, data"
+    db.execute(f"INSERT INTO messages ({columns}) SELECT {columns} FROM messages ORDER BY timestamp")
+    db.execute("DELETE FROM messages WHERE id <= ?", (n,))
+    db.execute(f"PRAGMA page_size = {page_size}")
+    db.execute("VACUUM")
+    db.close()
+    return path
+
+
+def _flat_batches(path: Path, topics: set[str]) -> tuple[np.ndarray, np.ndarray, list[bytes]]:
+    with open_log(path) as reader:
+        conns = [c for c in reader.connections if c.topic in topics]
+        ((db, ids, _),) = list(container_storages(reader, conns))
+        batches = list(db.batches(ids, False))
+    conn = np.concatenate([b.conn for b in batches])
+    rec = np.concatenate([b.rec_ns for b in batches])
+    return conn, rec, [b.payload(i) for b in batches for i in range(len(b))]
+
+
+def _assert_same_rows(got: tuple, want: tuple) -> None:
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    assert got[2] == want[2]
+
+
+@pytest.mark.parametrize("group", [None, 4096])
+@pytest.mark.parametrize("page_size", [1024, 4096])
+def test_pages_read_directly_give_the_rows_sqlite_gives(tmp_path, monkeypatch, group, page_size):
+    """Rows of two of three interleaved topics (the third's payloads in overflow pages), in one window or many:
+    the same rows, in the same order, with the same bytes as SQLite's query hands over. A wanted payload in
+    overflow pages stops the walk: SQLite reads from there, and the rows are the same again."""
+    path = _interleaved_db3(tmp_path, page_size)
+    if group is not None:
+        monkeypatch.setattr(storage, "GROUP_BYTES", group)
+    walked, after = [], []
+    real_window, real_by_sql = sqlitefile.read_window, rosbag2_sqlite._by_sql
+    monkeypatch.setattr(sqlitefile, "read_window", lambda *a: walked.append(a[1]) or real_window(*a))
+    monkeypatch.setattr(rosbag2_sqlite, "_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
+    got = _flat_batches(path, {"/light", "/other"})
+    assert len(walked) > 10 if group else len(walked) == 1, walked  # read from the pages, SQLite not asked
+    assert not after and len(got[2]) == 900
+    heavy = _flat_batches(path, {"/light", "/heavy"})
+    assert len(after) == 1 and {len(p) for p in heavy[2]} > {len(_string(20_000))}
+    monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)  # SQLite's group_concat windows
+    _assert_same_rows(got, _flat_batches(path, {"/light", "/other"}))
+    _assert_same_rows(heavy, _flat_batches(path, {"/light", "/heavy"}))
+
+
+def test_a_row_the_walk_does_not_take_leaves_the_rest_to_sqlite(tmp_path, monkeypatch):
+    """A row whose data SQLite stores as text (a blob is what rosbag2 writes) stops the walk at its page: the rows
+    before it come from the pages, the rest from SQLite, and together they are the rows SQLite alone gives."""
+    path = _interleaved_db3(tmp_path, 1024)
+    (db3,) = path.glob("*.db3")
+    with sqlite3.connect(db3) as db:
+        (mid,) = db.execute(
+            "SELECT id FROM messages WHERE topic_id = (SELECT id FROM topics WHERE name = '/other') LIMIT 1 OFFSET 150"
+        ).fetchone()
+        db.execute("UPDATE messages SET data = CAST(data AS TEXT) WHERE id = ?", (mid,))
+    after = []
+    real_by_sql = rosbag2_sqlite._by_sql
+    monkeypatch.setattr(rosbag2_sqlite, "_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
+    got = _flat_batches(path, {"/light"})
+    assert len(after) == 1 and 0 < after[0] < mid  # the pages before the text row were read directly
+    monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)
+    _assert_same_rows(got, _flat_batches(path, {"/light"}))
+
+
+@pytest.mark.parametrize("child", ["past the end", "the root", "page 1"])
+def test_a_damaged_tree_is_not_walked(logs, tmp_path, child):
+    """An interior page of the messages table naming a page past the file's end, itself (a loop) or the schema's
+    page: no leaf list, or the walk stops at the page that is no leaf (SQLite reads such a file, or reports it, as
+    before); the intact tree gives its leaves."""
+    (db3,) = logs[0].glob("*.db3")
+    with sqlite3.connect(db3) as db:
+        (root,) = db.execute("SELECT rootpage FROM sqlite_master WHERE name = 'messages'").fetchone()
+        (page,) = db.execute("PRAGMA page_size").fetchone()
+    data = bytearray(db3.read_bytes())
+    intact = sqlitefile.open_table(db3, root)
+    assert intact is not None and intact.leaves.size > 10 and data[(root - 1) * page] == 5  # an interior root
+    target = {"past the end": len(data) // page + 10, "the root": root, "page 1": 1}[child]
+    data[(root - 1) * page + 8 : (root - 1) * page + 12] = target.to_bytes(4, "big")  # its right-most child
+    bad = tmp_path / "bad.db3"
+    bad.write_bytes(bytes(data))
+    table = sqlitefile.open_table(bad, root)
+    if child == "the root":  # the leaves' level ends with the root, an interior page: the window stops there
+        ids = storage.ConnIds({k: k for k in range(1, 10)})
+        _, done, _, stopped = sqlitefile.read_window(table, 0, 1 << 30, ids)
+        assert stopped and table.leaves[done] == root
+    else:
+        assert table is None

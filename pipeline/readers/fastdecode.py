@@ -67,6 +67,9 @@ _PRIMITIVES: dict[str, tuple[int, str]] = {
     "float64": (8, "f"),
 }
 _BASE, _NAME, _ARRAY, _SEQUENCE = Nodetype.BASE, Nodetype.NAME, Nodetype.ARRAY, Nodetype.SEQUENCE
+#: Op kinds and leaf kinds as the compiled walk (:func:`_walk`) reads them.
+_LEAF, _SKIP, _STRING = 0, 1, 2
+_KINDS = {"f": 0, "i": 1, "u": 2}
 
 
 class DecodeError(BadInput, ValueError):
@@ -169,6 +172,18 @@ class Plan(_Leaves):
     leaves: tuple[tuple[int, str], ...]  # per leaf: (size, kind)
     nstrings: int
     items: ItemPlan | None = None  # the sequence right after ``ops``, if its elements are read
+
+    @cached_property
+    def program(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The ops as arrays for the compiled walk (:func:`_walk`): kind (:data:`_LEAF`, :data:`_SKIP`,
+        :data:`_STRING`), alignment, size, slot; and per leaf the kind of its bits (:data:`_KINDS`)."""
+        return (
+            np.array([{"leaf": _LEAF, "skip": _SKIP, "string": _STRING}[op.kind] for op in self.ops], np.int64),
+            np.array([op.align for op in self.ops], np.int64),
+            np.array([op.size for op in self.ops], np.int64),
+            np.array([op.slot for op in self.ops], np.int64),
+            np.array([_KINDS[kind] for _, kind in self.leaves], np.int64),
+        )
 
 
 def walk_fields(
@@ -320,6 +335,97 @@ def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _word(data, p, width, big):  # pragma: no cover - compiled
+    """The ``width`` bytes at ``p`` (unaligned) as a little-endian word; unsigned indices (no wrap-around checks)."""
+    w = np.uint64(0)
+    at = np.uint64(p)
+    if big:
+        for b in range(np.uint64(width)):
+            w = (w << np.uint64(8)) | np.uint64(data[at + b])
+    elif width == 8:  # the common case, unrolled
+        for b in range(8):
+            w = w | (np.uint64(data[at + np.uint64(b)]) << np.uint64(8 * b))
+    else:
+        for b in range(np.uint64(width)):
+            w = w | (np.uint64(data[at + b]) << np.uint64(8 * b))
+    return w
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _integer(w, width, signed):  # pragma: no cover - compiled
+    """A word of ``width`` bytes as int64 (sign-extended if ``signed``)."""
+    v = np.int64(w)
+    if signed and width < 8 and v >= np.int64(1) << np.int64(8 * width - 1):
+        v -= np.int64(1) << np.int64(8 * width)
+    return v
+
+
+@njit(cache=True, nogil=True)
+def _walk(data, origin, limit, big, cdr, kinds, aligns, sizes, slots, leaf_kinds, nstrings):  # pragma: no cover
+    """The wanted fields of every message (a plan without items) in one compiled pass: header stamps in ns, the
+    other leaves as float64, (position, length) of each wanted string: what :func:`_offsets`, :func:`_gather` and
+    :func:`_convert` do in array steps, without their temporary arrays, message by message (one sweep over the
+    bytes instead of one per op: ~25% faster than op by op).
+
+    Returns those and where the array steps, which go op by op over all messages, stop: the least of every
+    message's first failure, (op index, 0) for "message shorter than its layout" (op index = number of ops: the
+    end of the walk), (op index, 1) for "string runs past the end"; (-1, 0) when every message fits. A leaf past a
+    message's end is not read, as there: the next string or the end then fails.
+    """
+    n = origin.shape[0]
+    nops = kinds.shape[0]
+    t_ns = np.zeros(n, np.int64)
+    bits = np.empty((n, leaf_kinds.shape[0] - 2), np.uint64)  # float64 leaves are their bits: stored as read
+    values = bits.view(np.float64)
+    bits32 = np.empty(1, np.uint32)  # a float32 leaf's bits (its view made once: one made per value costs more)
+    float32 = bits32.view(np.float32)
+    spos = np.zeros((nstrings, n), np.int64)
+    slen = np.zeros((nstrings, n), np.int64)
+    fail_op, fail_stage = nops + 1, 0
+    for i in range(n):
+        o, lim = origin[i], limit[i]
+        p = 0  # relative to the origin (CDR aligns relative to the end of the encapsulation header)
+        op, stage = nops + 1, 0
+        for k in range(nops):
+            if aligns[k] > 1:  # a power of two
+                p = (p + aligns[k] - 1) & -aligns[k]
+            s, slot = sizes[k], slots[k]
+            if kinds[k] == _SKIP:
+                p += s
+            elif kinds[k] == _LEAF:
+                if p + s <= lim:
+                    kind = leaf_kinds[slot]
+                    w = _word(data, o + p, s, big)
+                    if slot < 2:  # header stamp (integers: see :func:`_walks`)
+                        t_ns[i] += _integer(w, s, kind == 1) * (_NS if slot == 0 else 1)
+                    elif kind == 0 and s == 8:
+                        bits[i, slot - 2] = w
+                    elif kind == 0:
+                        bits32[0] = np.uint32(w)
+                        values[i, slot - 2] = np.float64(float32[0])
+                    else:
+                        values[i, slot - 2] = np.float64(_integer(w, s, kind == 1)) if kind == 1 else np.float64(w)
+                p += s
+            else:
+                if p + 4 > lim:
+                    op = k
+                    break
+                length = np.int64(_word(data, o + p, 4, big))
+                p += 4 + length
+                if p > lim:
+                    op, stage = k, 1
+                    break
+                if slot >= 0:
+                    spos[slot, i] = o + p - length
+                    slen[slot, i] = max(length - 1, 0) if cdr else length
+        if op > nops and p > lim:
+            op = nops
+        if op < fail_op or (op == fail_op and stage < fail_stage):
+            fail_op, fail_stage = op, stage
+    return t_ns, values, spos, slen, (fail_op if fail_op <= nops else -1), fail_stage
+
+
 _U32 = np.array([4], np.int64)  # one leaf of 4 bytes, for _gather
 
 
@@ -405,8 +511,9 @@ def _dedup(data, pos, length):  # pragma: no cover - compiled
     for i in range(n):
         if i > 0 and length[i] == length[i - 1]:
             same = True
-            for q in range(length[i]):
-                if data[pos[i - 1] + q] != data[pos[i] + q]:
+            a, b = np.uint64(pos[i - 1]), np.uint64(pos[i])  # unsigned: no wrap-around checks
+            for q in range(np.uint64(length[i])):
+                if data[a + q] != data[b + q]:
                     same = False
                     break
             if same:
@@ -476,6 +583,10 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     data = batch.data
     start = batch.start if rows is None else batch.start[rows]
     size = batch.size if rows is None else batch.size[rows]
+    groups = _byte_orders(plan, data, start, size)
+    if len(groups) == 1 and _walks(plan):  # the common case: the compiled pass's arrays are the columns
+        t_ns, values, strings = _walked(plan, data, start, size, groups[0][1])
+        return Decoded(t_ns, values, [string_codes(data, pos, length) for pos, length in strings])
     n = start.shape[0]
     t_ns = np.empty(n, np.int64)
     values = np.empty((n, len(plan.leaves) - 2), np.float64)
@@ -483,33 +594,23 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     names: list[list[str]] = [[] for _ in range(plan.nstrings)]
     counts = np.zeros(n, np.int64) if plan.items is not None else None
     item_parts: list[tuple[np.ndarray, np.ndarray]] = []  # per group: (message rows, element values)
-    if not plan.cdr:
-        groups = [(slice(None), False)]
-    else:
-        if n and int(size.min()) < 4:
-            raise DecodeError("message shorter than its CDR header")
-        flag = data[start + 1]
-        if n and (np.any(data[start] != 0) or np.any(flag > 1)):
-            raise DecodeError("unsupported CDR encapsulation (only plain CDR is read)")
-        little = flag == 1
-        if little.all():
-            groups = [(slice(None), False)]
-        else:
-            groups = [(np.flatnonzero(little), False), (np.flatnonzero(~little), True)]
     for idx, big in groups:
-        origin = start[idx] + (4 if plan.cdr else 0)
-        limit = size[idx] - (4 if plan.cdr else 0)
-        if not origin.size:
+        if not start[idx].size:
             continue
-        offsets, strings, end = _offsets(plan, data, origin, limit, big)
-        if np.any(end > limit):
-            raise DecodeError(f"message shorter than its {plan.msgtype} layout")
-        if plan.items is not None:
-            counts[idx], values_of_group = _decode_items(plan, data, origin, limit, end, big)
-            item_parts.append((np.arange(n)[idx], values_of_group))
-        got = _convert(_gather(data, offsets, plan.sizes, big), plan)
-        t_ns[idx] = got[:, 0].astype(np.int64) * _NS + got[:, 1].astype(np.int64)
-        values[idx] = got[:, 2:]
+        if _walks(plan):
+            t_ns[idx], values[idx], strings = _walked(plan, data, start[idx], size[idx], big)
+        else:
+            origin = start[idx] + (4 if plan.cdr else 0)
+            limit = size[idx] - (4 if plan.cdr else 0)
+            offsets, strings, end = _offsets(plan, data, origin, limit, big)
+            if np.any(end > limit):
+                raise DecodeError(f"message shorter than its {plan.msgtype} layout")
+            if plan.items is not None:
+                counts[idx], values_of_group = _decode_items(plan, data, origin, limit, end, big)
+                item_parts.append((np.arange(n)[idx], values_of_group))
+            got = _convert(_gather(data, offsets, plan.sizes, big), plan)
+            t_ns[idx] = got[:, 0].astype(np.int64) * _NS + got[:, 1].astype(np.int64)
+            values[idx] = got[:, 2:]
         for k, (pos, length) in enumerate(strings):
             sub_codes, sub_names = string_codes(data, pos, length)
             codes[k][idx] = sub_codes + len(names[k])
@@ -518,6 +619,51 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     if plan.items is not None:
         items = _in_message_order(counts, item_parts, len(plan.items.leaves))
     return Decoded(t_ns, values, [(c, nm) for c, nm in zip(codes, names, strict=True)], counts, items)
+
+
+def _byte_orders(
+    plan: Plan, data: np.ndarray, start: np.ndarray, size: np.ndarray
+) -> list[tuple[slice | np.ndarray, bool]]:
+    """The messages by byte order: (rows, big endian) per group, little endian first (CDR says per message).
+
+    Raises:
+        DecodeError: A CDR message shorter than its header, or not plain CDR.
+    """
+    n = start.shape[0]
+    if not plan.cdr:
+        return [(slice(None), False)]
+    if n and int(size.min()) < 4:
+        raise DecodeError("message shorter than its CDR header")
+    flag = data[start + 1]
+    if n and (np.any(data[start] != 0) or np.any(flag > 1)):
+        raise DecodeError("unsupported CDR encapsulation (only plain CDR is read)")
+    little = flag == 1
+    if little.all():
+        return [(slice(None), False)]
+    return [(np.flatnonzero(little), False), (np.flatnonzero(~little), True)]
+
+
+def _walked(
+    plan: Plan, data: np.ndarray, start: np.ndarray, size: np.ndarray, big: bool
+) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    """Stamps, values and (position, length) per string of messages of one byte order, by :func:`_walk`.
+
+    Raises:
+        DecodeError: A message shorter than its layout, or a string running past its end.
+    """
+    head = 4 if plan.cdr else 0
+    t_ns, values, spos, slen, op, stage = _walk(
+        data, start + head, size - head, big, plan.cdr, *plan.program, plan.nstrings
+    )
+    if op >= 0:
+        what = "string runs past the end of a {} message" if stage else "message shorter than its {} layout"
+        raise DecodeError(what.format(plan.msgtype))
+    return t_ns, values, list(zip(spos, slen, strict=True))
+
+
+def _walks(plan: Plan) -> bool:
+    """Whether :func:`_walk` decodes ``plan``: no items, header stamps of integers (as every ROS header's are)."""
+    return plan.items is None and all(kind in "iu" for _, kind in plan.leaves[:2])
 
 
 def _convert(words: np.ndarray, leaves: _Leaves) -> np.ndarray:
@@ -731,9 +877,11 @@ def read_columns(
             dec = decode(plan, batch, rows)
         except DecodeError as err:
             raise InputError(path, f"cannot decode {plan.msgtype} message: {err}", names[k]) from None
-        sub = batch if rows is None else batch.take(rows)
-        digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4) if digests else None
-        out[k].append(dec, sub.rec_ns, digest)
+        digest = None
+        if digests:
+            sub = batch if rows is None else batch.take(rows)
+            digest = payload_hashes(sub.data, sub.start, sub.size, 0 if plan.cdr else 4)
+        out[k].append(dec, batch.rec_ns if rows is None else batch.rec_ns[rows], digest)
 
     def run_lane(batch: RawBatch, todo: list[tuple[int, np.ndarray]]) -> tuple[int, InputError] | None:
         for k, rows in todo:

@@ -1,22 +1,25 @@
-"""rosbag2 sqlite3 storage (``.db3``, bare or a rosbag2 directory's): rosbags' reader, its rows queried in bulk.
+"""rosbag2 sqlite3 storage (``.db3``, bare or a rosbag2 directory's): rosbags' reader, its rows read in bulk.
 
 rosbags' own reader (and its file-wise zstd decompression of a directory) opens the database; the messages of
-the requested topics are fetched in blocks of rows instead of one query result at a time, each block one
-:class:`.storage.RawBatch`.
+the requested topics are read in blocks of rows instead of one query result at a time, each block one
+:class:`.storage.RawBatch`: straight from the ``messages`` table's pages in the file (:mod:`.sqlitefile`), or,
+where those are not read directly, by SQLite in windows of row ids.
 """
 
 from __future__ import annotations
 
+from functools import partial
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
-from . import storage
+from . import sqlitefile, storage
 from .storage import ConnIds, RawBatch, joined, read_ahead
 
 if TYPE_CHECKING:
-    from collections.abc import Iterator
+    from collections.abc import Callable, Iterator
 
     from apsw import Connection
 
@@ -29,6 +32,8 @@ WINDOW_ROWS = 1 << 20  # a window of row ids holds at most this many (its three 
 #: ... and at most the rows of this many decoding groups at the database's bytes per row: a window sized after a
 #: stretch of light rows (IMU alone, before a camera started) then holds at most a few groups of the heavy ones.
 WINDOW_SPAN = 4
+
+THREAD = "slamobs-sqlite-reader"  # the read-ahead thread's name
 
 
 class Sqlite3Storage(Sqlite3Reader):
@@ -46,9 +51,10 @@ class Sqlite3Storage(Sqlite3Reader):
 def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
     """Rows of the requested topics in blocks.
 
-    Unordered (the columnar path), SQLite itself concatenates the payloads of a window of row ids
-    (``group_concat``, in C; :func:`_windows`), so Python handles a few objects per block instead of three
-    per row; the decoded columns are sorted by record time afterwards. Ordered, rows come by timestamp, in
+    Unordered (the columnar path), in row id order: read from the table's pages (:func:`_from_pages`), else
+    SQLite itself concatenates the payloads of a window of row ids (``group_concat``, in C; :func:`_windows`), so
+    Python handles a few objects per block instead of three per row; the decoded columns are sorted by record time
+    afterwards. Ordered, rows come by timestamp, in
     blocks of about ``SQL_BYTES`` (ordered reads are rare: decoding through rosbags, e.g. a type without a plan).
     """
     assert reader.dbconn
@@ -69,15 +75,64 @@ def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Itera
         if rows:
             yield _rows_batch(rows, ids)
         return
-    first, last = next(iter(db.execute("SELECT min(id), max(id) FROM messages")))
+    by_sql = partial(_by_sql, db, (wanted, among, ids))
+    table = _table(reader)
+    yield from by_sql(sqlitefile.NO_ROW) if table is None else _from_pages(table, ids, by_sql)
+
+
+def _table(reader: Sqlite3Reader) -> sqlitefile.Table | None:
+    """The ``messages`` table of the file, read (:mod:`.sqlitefile`); None when its pages are not walked directly
+    (a path rosbags reads through a VFS, a table of other columns or without rowids, a file too large to read)."""
+    assert reader.dbconn
+    if not isinstance(reader.path, Path):
+        return None
+    found = list(
+        reader.dbconn.execute("SELECT rootpage, sql FROM sqlite_master WHERE type = 'table' AND name = 'messages'")
+    )
+    columns = tuple(row[1] for row in reader.dbconn.execute("PRAGMA table_info(messages)"))
+    if len(found) != 1 or columns != sqlitefile.COLUMNS or "WITHOUT" in (found[0][1] or "").upper():
+        return None
+    return sqlitefile.open_table(reader.path, int(found[0][0] or 0))
+
+
+def _from_pages(
+    table: sqlitefile.Table, ids: ConnIds, by_sql: Callable[[int], Iterator[RawBatch]]
+) -> Iterator[RawBatch]:
+    """The requested rows read from the table's pages (:func:`.sqlitefile.read_window`) in windows aimed at a
+    decoding group; from where a walk stops (a page it does not take) SQLite reads the rest (``by_sql``: the rows
+    after the last rowid read). The first window is read by the caller; when more follow, a thread reads them while
+    the caller decodes."""
+
+    def windows(window: tuple[RawBatch | None, int, int, bool]) -> Iterator[RawBatch]:
+        while True:
+            batch, at, last, stopped = window
+            if batch is not None:
+                yield batch
+            if stopped:
+                yield from by_sql(last)
+                return
+            if at == table.leaves.shape[0]:
+                return
+            window = sqlitefile.read_window(table, at, storage.GROUP_BYTES, ids)
+
+    first = sqlitefile.read_window(table, 0, storage.GROUP_BYTES, ids)
+    more = not first[3] and first[1] < table.leaves.shape[0]
+    yield from read_ahead(windows(first), THREAD) if more else windows(first)
+
+
+def _by_sql(db: Connection, among: tuple[list[int], str, ConnIds], after: int) -> Iterator[RawBatch]:
+    """The requested rows with ids after ``after`` (:data:`.sqlitefile.NO_ROW`: all), queried in windows of row ids
+    (:func:`_windows`)."""
+    # two subqueries: SQLite reads one end of the table for each (min and max in one select scan every row)
+    first, last = next(iter(db.execute("SELECT (SELECT min(id) FROM messages), (SELECT max(id) FROM messages)")))
     if last is None:
         return
     pages, page = (next(iter(db.execute(f"PRAGMA {name}")))[0] for name in ("page_count", "page_size"))
-    aim = storage.GROUP_BYTES  # read when called: a test may set smaller groups
-    window = _rows_for(aim, pages * page / (last - first + 1))  # from the database's bytes per row
-    windows = _windows(db, (wanted, among, ids), (first, last), window, min(WINDOW_SPAN * window, WINDOW_ROWS))
+    window = _rows_for(storage.GROUP_BYTES, pages * page / (last - first + 1))  # from the database's bytes per row
+    lo = first if after == sqlitefile.NO_ROW else after + 1
+    windows = _windows(db, among, (lo, last), window, min(WINDOW_SPAN * window, WINDOW_ROWS))
     # one window: nothing to overlap; several: the next is queried by a thread while the caller decodes
-    yield from windows if window > last - first else read_ahead(windows, "slamobs-sqlite-reader")
+    yield from windows if window > last - lo else read_ahead(windows, THREAD)
 
 
 def _windows(
