@@ -31,6 +31,8 @@ from slamobs.pipeline.noise_estimation import (
     white_noise_density,
 )
 
+#: the keys of the detection law (the ratio apart)
+DETECTION_LAW_KEYS = ("detection", "detection_per_m", "detection_per_m2")
 #: key -> (default, unit, meaning); the config schema lists the same keys.
 DEFAULTS: dict[str, tuple[float, str, str]] = {
     "gyro": (0.005 * np.sqrt(1 / 200), "rad/s/sqrt(Hz)", "angular-velocity white-noise density"),
@@ -92,6 +94,9 @@ class NoiseSettings:
     gyro_bias_walk: float
     velocity_bias_walk: float
     detection_ratio: float = 1.0
+    #: the factor on the estimated detection law for the detections' slow error (held streams: from pairs of
+    #: detections over seconds), which batch leaves out where it models that error by their correlation in time
+    detection_held_scale: float = 1.0
     #: key -> "config", "default", "<topic> covariance (<rate> Hz)" or "estimated"
     sources: dict[str, str] = field(default_factory=dict)
     #: key -> how an estimated level was found, and its standard error (same shape as the value)
@@ -264,7 +269,7 @@ def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], not
     notes.append(f"noise: {', '.join(keys)} estimated from the detections ({fit.levels[streams[0]].method})")
     if law is not None:
         f = fit.levels["detection_scale"]
-        law = replace(law, base=_scaled(law.base, f), slope=_scaled(law.slope, f))
+        law = replace(law, base=_scaled(law.base, f), slope=_scaled(law.slope, f), held_scale=float(f.value))
         notes.append(f"noise: the detection law scaled by {f.value:.3g} by the same fit")
     return law, {k: fit.levels[k] for k in keys}
 
@@ -339,6 +344,14 @@ def resolve_noise(
         notes=tuple(notes),
         held=tuple(
             k for k in (estimated.held if estimated is not None and cfg.auto else ()) if sources[k] == "estimated"
+        ),
+        detection_held_scale=(
+            estimated.detection.held_scale
+            if estimated is not None
+            and cfg.auto
+            and estimated.detection is not None
+            and all(sources[k] == "estimated" for k in DETECTION_LAW_KEYS)
+            else 1.0
         ),
     )
 

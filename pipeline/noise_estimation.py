@@ -84,6 +84,9 @@ class DetectionLaw:
     power: int
     ranges: tuple[float, float]  # 5th and 95th percentile of the ranges it was fitted on, m
     other_loglik: float  # log-likelihood of the law not chosen minus this one's (negative: this one fits better)
+    #: the factor the held streams' fit (``held_motion_noise``) put on the triplets' law for the detections' slow
+    #: error (1: none)
+    held_scale: float = 1.0
 
     def sigma(self, r) -> np.ndarray:
         return float(self.base.value) + float(self.slope.value) * np.asarray(r, dtype=float) ** self.power

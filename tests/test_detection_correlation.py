@@ -13,8 +13,10 @@ import noisy_logs
 import pytest
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.simulate import expected_streams, simulate
 from slamobs.pipeline.smoother import correlation as dc
+from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.settings import BatchSettings
 
 #: generated residual tracks: landmarks, detections per track at RATE Hz, tracks per landmark
@@ -100,3 +102,27 @@ def test_a_slow_range_error_is_modelled_and_the_trajectory_follows(generated):
     assert record["applied"] is True, record
     assert record["variance_factor"]["median"] > 2.0, record
     assert ape_auto < ape_off, (ape_auto, ape_off)
+
+
+def test_batch_leaves_the_held_fits_factor_out_of_the_law_where_it_models_the_correlation():
+    """On held (commanded) streams the detection law carries a factor for the detections' slow error, fitted with
+    the streams' levels (MR.CLAM: 1.2-1.6); batch, which weighs that error by the detections' correlation in time,
+    takes the triplets' law without it (and says so), unless the correlation is off or the law is configured."""
+    from dataclasses import replace as swap
+
+    from slamobs.pipeline.noise import LogNoise, NoiseConfig, resolve_noise
+    from slamobs.pipeline.noise_estimation import DetectionLaw, Estimate
+
+    sim = simulate("figure8", duration=10.0, seed=2)
+    stream = align(expected_streams(sim), keep_directions=False)
+    law = DetectionLaw("sigma0 + k*r", Estimate(0.03, 0.001, "m", 100), Estimate(0.006, 0.001, "m", 100), 1, (1, 5), -1)
+    estimated = LogNoise(None, None, swap(law, held_scale=1.5))
+    nz = resolve_noise(estimated=estimated)
+    assert nz.detection_held_scale == 1.5 and nz.detection == 0.03
+    auto = BatchSmoother(stream, {}, ObserverOptions(), settings=BatchSettings(), noise=nz)
+    assert auto.noise.detection == pytest.approx(0.02) and auto.noise.detection_per_m == pytest.approx(0.004)
+    assert any("held streams' fit's factor 1.5" in n for n in auto.law_notes), auto.law_notes
+    off = BatchSmoother(stream, {}, ObserverOptions(), settings=BatchSettings(detection_correlation="off"), noise=nz)
+    assert off.noise.detection == 0.03 and not off.law_notes
+    configured = resolve_noise(NoiseConfig(detection=0.03), estimated=estimated)
+    assert configured.detection_held_scale == 1.0

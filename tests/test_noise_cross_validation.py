@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from noisy_logs import noisy_figure8, smoothed
+from slamobs.pipeline.noise import DETECTION_LAW_KEYS
 from slamobs.pipeline.smoother import cross_validation as cv
 from slamobs.pipeline.smoother.settings import BatchSettings
 
@@ -25,7 +26,7 @@ def log():
 def estimated(truth, motion: float):
     """The true levels with gyro and velocity scaled by ``motion``, every level marked as estimated (so that the
     choice may scale it)."""
-    sources = {k: "estimated" for k in (*cv.MOTION_KEYS, *cv.DETECTION_KEYS)}
+    sources = {k: "estimated" for k in (*cv.MOTION_KEYS, *DETECTION_LAW_KEYS)}
     return replace(truth, gyro=truth.gyro * motion, velocity=truth.velocity * motion, sources=sources)
 
 

@@ -22,6 +22,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from slamobs.pipeline.noise import DETECTION_LAW_KEYS
+
 #: Candidate scales of the motion levels (gyro and velocity together) and of the detection law: the hand-set
 #: grid of ``benchmarks/real_logs.py`` (so the choice can be scored against that grid's best).
 MOTION_SCALES = (0.1, 1.0, 10.0)
@@ -45,7 +47,6 @@ CRITERION = (
     "run's detection law before any scale"
 )
 MOTION_KEYS = ("gyro", "velocity")
-DETECTION_KEYS = ("detection", "detection_per_m", "detection_per_m2")
 
 
 def fold_of(t_det: np.ndarray, n_folds: int | None = None, block_s: float | None = None) -> np.ndarray:
@@ -142,7 +143,7 @@ def winner(scores: dict) -> tuple[float, float]:
 def scaled_noise(noise, motion: float, detection: float, motion_keys=MOTION_KEYS):
     """``noise`` with the motion levels ``motion_keys`` scaled by ``motion`` and the detection law by
     ``detection``, the methods saying so."""
-    factors = {**dict.fromkeys(motion_keys, motion), **dict.fromkeys(DETECTION_KEYS, detection)}
+    factors = {**dict.fromkeys(motion_keys, motion), **dict.fromkeys(DETECTION_LAW_KEYS, detection)}
     return noise.scaled(factors, "the smoother's cross-validation")
 
 

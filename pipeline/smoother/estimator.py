@@ -16,6 +16,7 @@ import numpy as np
 
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.noise import DETECTION_LAW_KEYS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
@@ -23,6 +24,9 @@ from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEY
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
 from slamobs.pipeline.smoother.evidence import SOLVE_FLOOR as EVIDENCE_SOLVE_FLOOR
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
+
+#: What the detection law's method says when batch leaves the held streams' factor out of it.
+HELD_SCALE_LEFT_OUT = "batch, whose correlation in time weighs the detections' slow error"
 
 #: Standard deviations (rad, m) added to a relative-motion factor across a gap between segments
 #: (``limits.max_gap``): the samples say nothing about the motion there, the landmarks decide.
@@ -110,6 +114,7 @@ class BatchSmoother(Stepper):
     ) -> None:
         from slamobs.pipeline.noise import resolve_noise
         from slamobs.pipeline.observers import time_offset
+        from slamobs.pipeline.smoother import correlation as dc
 
         self.time_offset = time_offset.estimate(stream)
         stream = time_offset.shifted(stream, self.time_offset)  # the seeds run on the stamps it corrects too
@@ -119,6 +124,15 @@ class BatchSmoother(Stepper):
             settings if settings is not None else options.batch if options.batch is not None else BatchSettings()
         )
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        self.law_notes = []
+        held = self.noise.detection_held_scale
+        if held != 1.0 and dc.skipped(self.settings.detection_correlation, fixed_bias is not None) is None:
+            # the held fit's factor stands for the detections' slow error, which the correlation step models
+            self.noise = self.noise.scaled(dict.fromkeys(DETECTION_LAW_KEYS, 1.0 / held), by=HELD_SCALE_LEFT_OUT)
+            self.law_notes.append(
+                f"batch: the detection law without the held streams' fit's factor {held:.3g} (the triplets' law): "
+                "the detections' slow error is weighed by their correlation in time instead"
+            )
         self.seed_override = seed
         self.fixed_bias = fixed_bias
         self.result = None  # filled by the first stretch
@@ -190,7 +204,8 @@ class BatchSmoother(Stepper):
             "time_offset": self.time_offset,
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
-        self.stats["notes"] += evidence_notes + anisotropy_notes + correlation_notes + list(chosen.notes or [])
+        self.stats["notes"] += self.law_notes + evidence_notes + anisotropy_notes + correlation_notes
+        self.stats["notes"] += list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
             {
@@ -498,7 +513,7 @@ class BatchSmoother(Stepper):
         kf_t, kf_of_det, gaps = keyframes
         nz, st, base, s = self.noise, self.settings, chosen.problem, chosen.sol
         motion_keys = tuple(k for k in cv.MOTION_KEYS if nz.sources.get(k) != "config")
-        detection_free = all(nz.sources.get(k) != "config" for k in cv.DETECTION_KEYS)
+        detection_free = all(nz.sources.get(k) != "config" for k in DETECTION_LAW_KEYS)
         why = (
             f"the log has more than {EVIDENCE_MAX_KEYFRAMES} keyframes"
             if kf_t.shape[0] > EVIDENCE_MAX_KEYFRAMES
