@@ -23,7 +23,7 @@ tag's depth is far worse than its direction), the law staying the mean over the 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -253,7 +253,7 @@ def log_triplets(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, gyr
                 velocity_density,
             )
         )
-    return Triplets(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("e", "c2", "r", "motion_var", "u")))
+    return Triplets(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Triplets)))
 
 
 def _variance(theta: np.ndarray, tri: Triplets, power: int) -> tuple[np.ndarray, np.ndarray]:
@@ -294,7 +294,7 @@ def _fit_law(tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3) -> 
 
 
 def _subset(tri: Triplets, idx: np.ndarray) -> Triplets:
-    return Triplets(tri.e[idx], tri.c2[idx], tri.r[idx], tri.motion_var[idx], tri.u[idx])
+    return Triplets(*(getattr(tri, f.name)[idx] for f in fields(Triplets)))
 
 
 def _fitted(tri: Triplets, seed: int) -> tuple[Triplets, np.random.Generator] | None:

@@ -122,6 +122,7 @@ def test_batch_leaves_the_held_fits_factor_out_of_the_law_where_it_models_the_co
     auto = BatchSmoother(stream, {}, ObserverOptions(), settings=BatchSettings(), noise=nz)
     assert auto.noise.detection == pytest.approx(0.02) and auto.noise.detection_per_m == pytest.approx(0.004)
     assert any("held streams' fit's factor 1.5" in n for n in auto.law_notes), auto.law_notes
+    assert auto.noise.detection_held_scale == 1.0  # the law it keeps carries no factor any more
     off = BatchSmoother(stream, {}, ObserverOptions(), settings=BatchSettings(detection_correlation="off"), noise=nz)
     assert off.noise.detection == 0.03 and not off.law_notes
     configured = resolve_noise(NoiseConfig(detection=0.03), estimated=estimated)

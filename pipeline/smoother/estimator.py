@@ -128,7 +128,8 @@ class BatchSmoother(Stepper):
         held = self.noise.detection_held_scale
         if held != 1.0 and dc.skipped(self.settings.detection_correlation, fixed_bias is not None) is None:
             # the held fit's factor stands for the detections' slow error, which the correlation step models
-            self.noise = self.noise.scaled(dict.fromkeys(DETECTION_LAW_KEYS, 1.0 / held), by=HELD_SCALE_LEFT_OUT)
+            unscaled = self.noise.scaled(dict.fromkeys(DETECTION_LAW_KEYS, 1.0 / held), by=HELD_SCALE_LEFT_OUT)
+            self.noise = replace(unscaled, detection_held_scale=1.0)
             self.law_notes.append(
                 f"batch: the detection law without the held streams' fit's factor {held:.3g} (the triplets' law): "
                 "the detections' slow error is weighed by their correlation in time instead"
