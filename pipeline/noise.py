@@ -8,8 +8,8 @@ per-sample standard deviation σ at period T is the density σ·√T. The defaul
 (:class:`pipeline.simulate.NoiseModel` at its default rates); a detection's standard deviation per axis grows
 with range r: ``detection + detection_per_m * r + detection_per_m2 * r²`` (a fiducial detector's linear law,
 the stereo / PnP law in r²), the mean over the three axes: with ``detection_ratio`` ρ the range's variance is
-``3ρ²/(ρ² + 2)`` times that and each axis across it ``3/(ρ² + 2)`` times (riekf; batch weighs range and bearing
-apart by its own evidence).
+``3ρ²/(ρ² + 2)`` times that and each axis across it ``3/(ρ² + 2)`` times (riekf, and batch when the key is set
+in the configuration; otherwise batch weighs range and bearing apart by its own evidence).
 """
 
 from __future__ import annotations
@@ -40,7 +40,11 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
     "detection": (0.01, "m", "detection standard deviation per axis at zero range"),
     "detection_per_m": (0.002, "m/m", "growth of the detection standard deviation with range"),
     "detection_per_m2": (0.0, "m/m^2", "growth of the detection standard deviation with range squared"),
-    "detection_ratio": (1.0, "", "a detection's standard deviation along its line of sight over that across (riekf)"),
+    "detection_ratio": (
+        1.0,
+        "",
+        "a detection's standard deviation along its line of sight over that across (riekf; batch when set)",
+    ),
     "gyro_bias": (0.2, "rad/s", "prior standard deviation of each gyro-bias component (unknown start)"),
     "velocity_bias": (0.2, "m/s", "prior standard deviation of each velocity-bias component"),
     "gyro_bias_walk": (1e-4, "rad/s/sqrt(s)", "gyro-bias random walk (riekf; batch with bias: random-walk)"),
@@ -140,15 +144,20 @@ class NoiseSettings:
         r = np.asarray(ranges, dtype=float)
         return self.detection + self.detection_per_m * r + self.detection_per_m2 * r * r
 
+    def ratio_split(self) -> tuple[float, float]:
+        """The factors of the law's ``σ(r)²`` across the line of sight and along it for ``detection_ratio``,
+        their trace kept (``σ(r)`` is the mean over the three axes): ``3/(ρ² + 2)`` and ``3ρ²/(ρ² + 2)``."""
+        ratio2 = self.detection_ratio**2
+        return 3.0 / (ratio2 + 2.0), 3.0 * ratio2 / (ratio2 + 2.0)
+
     def detection_axes(self, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Per detection the variance of each axis across its line of sight, and what the range's adds to it
-        (zero with ``detection_ratio`` 1): the law's ``σ(r)²`` split by the ratio, its trace kept."""
+        (zero with ``detection_ratio`` 1): the law's ``σ(r)²`` split by the ratio (:meth:`ratio_split`)."""
         var = self.detection_sigma(ranges) ** 2
-        ratio2 = self.detection_ratio**2
-        if ratio2 == 1.0:
+        if self.detection_ratio == 1.0:
             return var, np.zeros_like(var)
-        across = 3.0 / (ratio2 + 2.0) * var
-        return across, (ratio2 - 1.0) * across
+        across = self.ratio_split()[0] * var
+        return across, (self.detection_ratio**2 - 1.0) * across
 
     def lines(self) -> list[str]:
         """One line per level: value, unit, source, uncertainty and method."""

@@ -31,12 +31,24 @@ RATIOS = (2.0, 4.0, 8.0, 16.0, 32.0)
 MODEL = "sigma_range = ratio^(2/3) sigma, sigma_across = ratio^(-1/3) sigma (line of sight y/|y|, det kept)"
 
 
-def shape(det_y: np.ndarray, ratio: float) -> np.ndarray:
+def shape(det_y: np.ndarray, ratio: float, split: tuple[float, float] | None = None) -> np.ndarray:
     """Each detection's body-frame information relative to ``1/σ²`` (M, 3, 3) for a range standard deviation
-    ``ratio`` times the across-the-line one, determinant 1 (module docstring)."""
+    ``ratio`` times the across-the-line one, determinant 1 (module docstring); or, for a ratio set in the
+    configuration, with the variance factors ``split`` (across, along: ``NoiseSettings.ratio_split``, whose
+    law is the mean over the axes)."""
     u = det_y / np.maximum(np.linalg.norm(det_y, axis=1), 1e-12)[:, None]
     uu = np.einsum("mi,mj->mij", u, u)
+    if split is not None:
+        return uu / split[1] + (np.eye(3) - uu) / split[0]
     return uu / ratio ** (4.0 / 3.0) + (np.eye(3) - uu) * ratio ** (2.0 / 3.0)
+
+
+def configured(ratio: float) -> tuple[dict, str]:
+    """The record and note of a ratio set in the configuration (``noise: detection_ratio``): no scan."""
+    how = f"the range's standard deviation {ratio:g}x the bearing's" if ratio != 1.0 else "isotropic detections"
+    record = {"model": "noise: detection_ratio (sigma(r) the mean over the axes)", "ratio": ratio}
+    record |= {"applied": ratio != 1.0, "source": "config"}
+    return record, f"batch: range and bearing weighed by noise: detection_ratio from the configuration ({how})"
 
 
 def skipped(mode: str, fixed_bias: bool, keyframes: int, max_keyframes: int) -> str | None:

@@ -19,6 +19,7 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.noise import DETECTION_LAW_KEYS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
+from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
@@ -139,8 +140,11 @@ class BatchSmoother(Stepper):
         self.result = None  # filled by the first stretch
         #: each detection's variance factor for its errors' time correlation (None: white, every factor 1)
         self.det_factor = None
-        #: each detection's information shape, range apart from bearing (None: isotropic)
+        #: each detection's information shape, range apart from bearing (None: isotropic); a ratio set in the
+        #: configuration holds from the first solve on
         self.det_shape = None
+        if self._ratio_configured() and self.noise.detection_ratio != 1.0:
+            self.det_shape = an.shape(self.stream.det_y, self.noise.detection_ratio, self.noise.ratio_split())
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
@@ -360,10 +364,12 @@ class BatchSmoother(Stepper):
         with the highest evidence, searched upwards from isotropic detections on the chosen solution's
         detections (each ratio warm-started from the one before); when a ratio other than 1 wins, the smoother
         solved (and gated) again from its solution. The candidate kept, the record, the notes."""
-        from slamobs.pipeline.smoother import anisotropy as an
         from slamobs.pipeline.smoother import evidence as ev
         from slamobs.pipeline.smoother import graph as g
 
+        if self._ratio_configured():  # applied since the first solve (__init__)
+            record, note = an.configured(self.noise.detection_ratio)
+            return chosen, record, [note]
         kf_t = keyframes[0]
         st = self.settings
         why = an.skipped(st.detection_anisotropy, self.fixed_bias is not None, kf_t.shape[0], EVIDENCE_MAX_KEYFRAMES)
@@ -391,6 +397,9 @@ class BatchSmoother(Stepper):
             return chosen, record, [note]
         self.det_shape = an.shape(self.stream.det_y, winner)
         return self._solved_again(chosen, sols[winner], keyframes, segments, progress), record, [note]
+
+    def _ratio_configured(self) -> bool:
+        return self.noise.sources.get("detection_ratio") == "config"
 
     def _independent_detections(self, problem, sol, kf_t: np.ndarray) -> tuple[np.ndarray, dict] | None:
         """The detections of ``problem`` the range/bearing ratio's evidence is computed on when their errors are
