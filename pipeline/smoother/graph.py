@@ -338,10 +338,14 @@ def with_detections(problem: Problem, kept: np.ndarray) -> Problem:
     )
 
 
+def predicted_detections(kf_of_det: np.ndarray, det_idx: np.ndarray, sol: Solution) -> np.ndarray:
+    """Each detection as the solution predicts it, ``Rᵀ(ℓ − P)`` (M, 3, body frame, m)."""
+    return np.einsum("mji,mj->mi", sol.rot[kf_of_det], sol.landmarks[det_idx] - sol.pos[kf_of_det])
+
+
 def detection_residuals(problem: Problem, sol: Solution) -> np.ndarray:
     """Each detection's residual ``Rᵀ(ℓ − P) − y`` (M, 3, body frame, m) at the solution."""
-    kf = problem.kf_of_det
-    return np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf]) - problem.det_y
+    return predicted_detections(problem.kf_of_det, problem.det_idx, sol) - problem.det_y
 
 
 def whitened_residuals(problem: Problem, sol: Solution) -> np.ndarray:
