@@ -64,7 +64,8 @@ def test_running_sums_and_transition_equal_the_dense_propagation():
 @pytest.mark.parametrize("extra", [0.0, 8.0])
 def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra):
     """Each detection's noise is ``σ²I`` plus ``extra σ²`` along its line of sight ``R̂y/|y|`` (the range's
-    standard deviation apart from the bearing's, ``noise: detection_ratio``)."""
+    standard deviation apart from the bearing's, ``noise: detection_ratio``), ``σ`` the law's at the range the
+    state predicts for a known landmark and at the measured range for a new one."""
     rng = np.random.default_rng(1)
     n_lm = 4  # landmarks 0-2 in the state (slots 2, 0, 1), landmark 3 new in this frame
     slot_of = np.array([2, 0, 1, -1])
@@ -78,7 +79,11 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
     lm = rng.normal(size=(n_lm, 3)) * 4
     det_idx = np.array([0, 3, 2])
     det_y = rng.normal(size=(3, 3)) * 3
-    sigma2 = np.array([0.01, 0.02, 0.03]) ** 2
+    measured = np.array([0.01, 0.02, 0.03]) ** 2  # σ(r)² at the measured ranges: the new landmark's
+    law = np.array([0.005, 0.003, 0.0, 1.0, extra])  # σ0, k, a; across factor, range's extra factor
+    sigma2 = measured.copy()
+    for j in (0, 2):  # a known landmark's at the range the state predicts
+        sigma2[j] = (law[0] + law[1] * np.linalg.norm(lm[det_idx[j]] - p_hat)) ** 2
     sight = det_y @ r_hat.T / np.linalg.norm(det_y, axis=1)[:, None]
     noise = [sigma2[j] * (np.eye(3) + extra * np.outer(sight[j], sight[j])) for j in range(3)]
     # dense reference
@@ -117,7 +122,8 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
         3,
         det_idx,
         det_y,
-        np.stack([sigma2, extra * sigma2], axis=1),
+        np.stack([measured, extra * measured], axis=1),
+        law,
         cov,
         d,
         r_hat,

@@ -84,7 +84,8 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
     det_idx = np.array([4, 1, 3])
     det_y = rng.normal(size=(3, 3)) * 3
-    sigma2 = np.array([0.05, 0.02, 0.03]) ** 2
+    law = np.array([0.02, 0.004, 0.0, 1.0, 0.0])  # σ(r) = 0.02 + 0.004 r at the range the state predicts
+    sigma2 = (law[0] + law[1] * np.linalg.norm(lm[det_idx] - p_hat, axis=1)) ** 2
     walk_w, walk_v, dt = 0.01, 0.02, 0.1
     h = np.zeros((9, d))
     z = np.zeros(9)
@@ -103,9 +104,9 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     assert _propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
     ns = np.zeros(N_SLOTS, dtype=np.int64)
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
-    noise = np.stack([sigma2, 0 * sigma2], axis=1)  # the same σ on every axis
+    noise = np.full((3, 2), 0.0)  # the measured ranges' (a new landmark's): not read, every landmark is known
     d_out = _update(
-        0, 3, det_idx, det_y, noise, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+        0, 3, det_idx, det_y, noise, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
         np.zeros(3, np.int64), np.zeros(9), lt, rt, dp, np.zeros((9, 9)), innov, trk, 0, ns, 1e9, 1.0,
         np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
     )  # fmt: skip

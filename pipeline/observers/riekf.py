@@ -535,6 +535,7 @@ def _update(
     det_idx,
     det_y,
     det_sigma2,
+    det_law,
     cov,
     d,
     r_hat,
@@ -578,12 +579,20 @@ def _update(
     zi = np.empty(3)
     s3 = np.empty((3, 3))
     ues = np.zeros((nd, 3))  # each detection's range noise beyond the across one, along its line of sight R̂y/|y|
+    sig2 = np.empty(nd)  # each detection's variance across its line of sight
     for j in range(nd):
         i = det_idx[a0 + j]
         y = det_y[a0 + j]
         for c in range(3):
             e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
-        extra = det_sigma2[a0 + j, 1] * scale
+        if slot_of[i] >= 0 and not reinit[i]:  # σ(r) at the range the state predicts (module docstring)
+            rr = np.sqrt((lm[i, 0] - p_hat[0]) ** 2 + (lm[i, 1] - p_hat[1]) ** 2 + (lm[i, 2] - p_hat[2]) ** 2)
+            sg = det_law[0] + det_law[1] * rr + det_law[2] * rr * rr
+            sig2[j] = det_law[3] * sg * sg * scale
+            extra = det_law[4] * sig2[j]
+        else:
+            sig2[j] = det_sigma2[a0 + j, 0] * scale
+            extra = det_sigma2[a0 + j, 1] * scale
         if extra > 0.0:
             f = np.sqrt(extra / (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]))
             for c in range(3):
@@ -594,7 +603,7 @@ def _update(
             innov[row + j, c] = e[c]
             trk_p[row + j, c] = lm[i, c]
         if reinit[i]:
-            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j, 0] * scale, ues[j])
+            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], sig2[j], ues[j])
             for c in range(3):
                 lm[i, c] = lm[i, c] - e[c]
                 trk_p[row + j, c] = lm[i, c]
@@ -603,7 +612,7 @@ def _update(
             continue
         for c in range(3):
             zi[c] = -e[c]
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], det_sigma2[a0 + j, 0] * scale, ues[j], lt, rt, dp, s3)
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues[j], lt, rt, dp, s3)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -646,7 +655,7 @@ def _update(
         # S = H Σ⁻ Hᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
-            s2 = det_sigma2[a0 + sel[q], 0] * scale
+            s2 = sig2[sel[q]]
             ue = ues[sel[q]]
             for c in range(3):
                 for k in range(k3):
@@ -681,7 +690,7 @@ def _update(
         s = (d - N_FIXED) // 3
         slot_of[i] = s
         slot_lm[s] = i
-        _reset_landmark(cov, d, d, det_sigma2[a0 + j, 0] * scale, ues[j])
+        _reset_landmark(cov, d, d, sig2[j], ues[j])
         d += 3
     return d
 
@@ -778,6 +787,7 @@ def _advance(
     det_idx,
     det_y,
     det_sigma2,
+    det_law,
     lm,
     q_om,
     q_v,
@@ -883,6 +893,7 @@ def _advance(
                 det_idx,
                 det_y,
                 det_sigma2,
+                det_law,
                 cov,
                 d,
                 r_hat,
@@ -1036,8 +1047,14 @@ class RiEKF(Stepper):
         self.state = _State(
             n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
         )
-        # per detection: the variance of each axis across its line of sight, and what the range's adds
+        # per detection at its measured range (a new or re-initialised landmark's): the variance of each axis
+        # across its line of sight, and what the range's adds; a known landmark's at its predicted range from
+        # the law (σ0, k, a) and the split's factors (across, what the range's adds)
         self.det_sigma2 = np.stack(nz.detection_axes(np.linalg.norm(stream.det_y, axis=1)), axis=1)
+        across = nz.ratio_split()[0] if nz.detection_ratio != 1.0 else 1.0
+        self.det_law = np.array(
+            [nz.detection, nz.detection_per_m, nz.detection_per_m2, across, nz.detection_ratio**2 - 1.0]
+        )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
@@ -1078,6 +1095,7 @@ class RiEKF(Stepper):
             s.det_idx,
             s.det_y,
             self.det_sigma2,
+            self.det_law,
             self.lm,
             *self.params,
             o.out_every,
