@@ -321,7 +321,7 @@ class BatchSmoother(Stepper):
         bias, intervals across a gap left (almost) unconstrained, the detections, the bias priors and walk."""
         from slamobs.pipeline.smoother import graph as g
 
-        s, st, nz = self.stream, self.settings, self.noise
+        st, nz = self.settings, self.noise
         k = kf_t.shape[0]
         walk = None
         if segments.n > 1:
@@ -337,18 +337,27 @@ class BatchSmoother(Stepper):
             data=data,
             b_bar=b_bar,
             seg_of=segments.of(kf_t[:-1]),
-            kf_of_det=kf_of_det,
-            det_idx=s.det_idx,
-            det_y=s.det_y,
-            det_sigma=nz.detection_sigma(np.linalg.norm(s.det_y, axis=1) if self.det_range is None else self.det_range)
-            * (1.0 if self.det_factor is None else np.sqrt(self.det_factor)),
             bias_prior_sigma=prior,
             bias_prior_mean=prior_mean,
             walk_sigma=walk,
             huber=st.huber,
             anchor=k - 1,
-            det_shape=self.det_shape,
+            **self._detections(kf_of_det),
         )
+
+    def _detections(self, kf_of_det: np.ndarray) -> dict:
+        """The problem's detection fields: every detection of the stream, its σ at the current ranges, factors
+        and shape."""
+        s = self.stream
+        ranges = np.linalg.norm(s.det_y, axis=1) if self.det_range is None else self.det_range
+        factor = 1.0 if self.det_factor is None else np.sqrt(self.det_factor)
+        return {
+            "kf_of_det": kf_of_det,
+            "det_idx": s.det_idx,
+            "det_y": s.det_y,
+            "det_sigma": self.noise.detection_sigma(ranges) * factor,
+            "det_shape": self.det_shape,
+        }
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
         """The relative-motion factors' data: the odometry preintegrated between keyframes about ``b_bar`` with
@@ -371,13 +380,18 @@ class BatchSmoother(Stepper):
         carries the detection's own error: a reading that came out short got a smaller σ and more weight than
         one that came out long, and the map and trajectory shrank (a stereo-like figure-8, σ ∝ r²: by 8 %)."""
         from slamobs.pipeline.smoother import graph as g
+        from slamobs.pipeline.smoother.candidates import Candidate
 
         if self.noise.detection_per_m == 0.0 and self.noise.detection_per_m2 == 0.0:
             return chosen, []
-        for _ in range(RANGE_PASSES):
+        for _ in range(RANGE_PASSES):  # the motion factors as they are: only the detections' σ change
             predicted = g.predicted_detections(keyframes[1], self.stream.det_idx, chosen.sol)
             self.det_range = np.linalg.norm(predicted, axis=1)
-            chosen = self._solved_again(chosen, chosen.sol, keyframes, segments, progress)
+            full = replace(chosen.problem, **self._detections(keyframes[1]))
+            guess = g.Guess(chosen.sol.rot, chosen.sol.pos, chosen.sol.landmarks, chosen.sol.bias)
+            solved, sol, notes = self._solve_gated(full, guess, chosen.seed.name, progress)
+            sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
+            chosen = Candidate(chosen.seed, solved, sol, notes)
         return chosen, [
             "batch: each detection's σ(r) at the range the solution predicts, not the measured one (whose own "
             "error would weigh the short readings up)"
