@@ -403,7 +403,8 @@ def test_a_growing_error_is_not_converged():
 
 def test_an_error_above_the_trajectorys_extent_is_not_converged():
     """An estimate whose error levels off above the size of the motion itself ("converged" within a band of
-    tens of metres on a 3 m figure-eight) never locked on: not converged, and the report and summary say so."""
+    tens of metres on a 3 m figure-eight) never locked on: not converged, and the report and summary say so; one
+    that levels off at a sizeable share of it converged coarsely, and the summary says that too."""
     truth = make_truth()
     t_s = (truth.t_ns - T0_NS) / 1e9
     empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
@@ -414,9 +415,14 @@ def test_an_error_above_the_trajectorys_extent_is_not_converged():
     assert conv["lost"] and not conv["growing"] and conv["t_ns"] is None
     assert 2.0 < conv["trajectory_extent_m"] < 4.0 < conv["steady_level_m"]
     assert convergence_line(conv).startswith("no: the error level") and "never locked on" in render_markdown(rep)
-    poses["z"] = poses["z"] - 18.0  # the same error levelling off at 2 m: within the extent, converged
+    poses["z"] = poses["z"] - 18.0  # the same error levelling off at 2 m: within the extent, converged, coarsely
     conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
     assert not conv["lost"] and conv["t_since_start_s"] is not None
+    assert conv["coarse"] and conv["steady_level_share"] > conv["coarse_share"]
+    assert "a coarse estimate" in convergence_line(conv)
+    poses["z"] = poses["z"] - 1.9  # levelling off at 0.1 m, a few per cent of the extent: converged, not coarse
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert not conv["coarse"] and conv["t_since_start_s"] is not None and "coarse" not in convergence_line(conv)
 
 
 def test_no_time_overlap_raises_with_both_spans():

@@ -28,7 +28,17 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
         return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")")
     return (
         f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
-        f"within {conv['band_m']:.3g} m from then on)"
+        f"within {conv['band_m']:.3g} m from then on{_coarse(conv)})"
+    )
+
+
+def _coarse(conv: dict[str, Any]) -> str:
+    """What a converged figure adds when its level is a sizeable share of the motion itself."""
+    if not conv.get("coarse"):
+        return ""
+    return (
+        f"; but that level, {conv['steady_level_m']:.3g} m, is {100 * conv['steady_level_share']:.0f} % of the "
+        f"trajectory's own extent ({conv['trajectory_extent_m']:.3g} m RMS about its centre): a coarse estimate"
     )
 
 
@@ -76,7 +86,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     lines = ["## Absolute pose error (after alignment)", ""]
     lines += _stats_table([("translation [m]", ape["translation_m"]), ("rotation [deg]", ape["rotation_deg"])])
     conv_txt = (
-        f"{conv['t_since_start_s']:.3f} s after the estimate start"
+        f"{conv['t_since_start_s']:.3f} s after the estimate start{_coarse(conv)}"
         if conv["t_ns"] is not None
         else _not_converged(conv)
     )

@@ -545,7 +545,9 @@ class ConvergenceSection(Section):
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
             "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m), or if "
             "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
-            "centre (lost: the estimate never locked on to the motion); "
+            "centre (lost: the estimate never locked on to the motion); coarse: steady_level_m above coarse_share × "
+            "trajectory_extent_m and threshold_m but not lost (the report states the level as a share of the "
+            "extent beside the convergence time); "
             "steady_error_m is the "
             "median error over the last tail_fraction; t_since_start_s counts from the first estimate stamp"
         )
@@ -577,6 +579,9 @@ class ConvergenceSection(Section):
             "growing": c["growing"],
             "trajectory_extent_m": extent,
             "lost": c["lost"],
+            "coarse_share": slam_metrics.COARSE_SHARE,
+            "steady_level_share": c["steady_level"] / extent if extent > 0 else None,
+            "coarse": c["coarse"],
             "estimate_start_ns": t0,
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,

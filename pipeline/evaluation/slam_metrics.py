@@ -63,6 +63,9 @@ TAIL_FRACTION = 0.2
 BAND_FACTOR = 1.5
 #: the error still grows when its median level over the last TAIL_FRACTION exceeds this times the stretch before
 GROWTH_FACTOR = 1.5
+#: a converged estimate is coarse when its steady level is above this share of the trajectory's extent (and above
+#: the threshold): it follows the motion, but "converged" alone would not say how loosely
+COARSE_SHARE = 0.1
 #: The level is evaluated at this many evenly spaced times at most, each median over at most WINDOW_SAMPLES
 #: evenly strided errors of its window (a long log's pairs are not all needed for a level).
 LEVEL_POINTS = 2000
@@ -130,7 +133,8 @@ def convergence(
     ``GROWTH_FACTOR`` times that over the stretch before and above ``threshold``; a drifting estimate would
     otherwise be "converged" at its start, inside a band as wide as its final error), or if that steady level is
     above ``extent`` (the truth's RMS distance from its centre) and ``threshold``: an estimate that far off never
-    locked on to the motion, whatever its level does. ``level`` is :func:`error_level` of these errors when
+    locked on to the motion, whatever its level does (``coarse``: above ``COARSE_SHARE`` of ``extent``, converged
+    or not, but loosely). ``level`` is :func:`error_level` of these errors when
     already computed.
     """
     t = np.asarray(t_ns, dtype=np.int64)
@@ -145,12 +149,14 @@ def convergence(
     tail_level = float(np.median(level[grid >= cut]))
     growing = earlier is not None and tail_level > max(GROWTH_FACTOR * earlier, threshold)
     lost = extent is not None and steady_level > max(extent, threshold)
+    coarse = extent is not None and not lost and steady_level > max(COARSE_SHARE * extent, threshold)
     return {
         "band": band,
         "earlier_level": earlier,
         "tail_level": tail_level,
         "growing": bool(growing),
         "lost": bool(lost),
+        "coarse": bool(coarse),
         "steady_error": float(np.median(e[t >= cut])),
         "steady_level": steady_level,
         "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
