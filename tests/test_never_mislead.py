@@ -97,3 +97,24 @@ def test_final_listings_name_only_files_that_exist(sim, tmp_path):
     line = next(x for x in res.output.splitlines() if x.startswith("wrote"))
     for name in ("comparison.parquet", "comparison.md", "overlay.png"):
         assert (name in line) == (tmp_path / "cmp" / name).exists(), (name, line)
+
+
+def test_a_coarse_observer_run_says_so_and_what_to_try(sim, tmp_path):
+    """fast-adaptation on fixed gains over a log far noisier than its defaults (gyro 0.1 rad/s and velocity
+    0.08 m/s at 20 Hz, detection error growing with range squared): it converges, but to a level that is a
+    sizeable share of the motion itself; the summary says so beside the time and names the estimators that
+    weigh the log's own noise and the tune that fits the gains. A well-fitting run (the sample log) says neither."""
+    log = tmp_path / "noisy.mcap"
+    args = ["--duration", 20, "--gyro-noise", 0.1, "--velocity-noise", 0.08, "--detection-noise", "0.02,0,0.009"]
+    rates = ["--imu-rate", 20, "--odom-rate", 20, "--detection-rate", 10]
+    assert invoke("simulate", "figure8", "-o", log, *args, *rates).exit_code == 0
+    res = invoke("run", log, "-o", tmp_path / "out", "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    assert "a coarse estimate" in res.output and "--observer batch" in res.output, res.output
+    assert f"slamobs tune {log} --observer fast-adaptation --target batch" in res.output
+    conv = json.loads((tmp_path / "out" / "report.json").read_text())["convergence"]
+    assert conv["coarse"] and conv["steady_level_share"] > conv["coarse_share"]
+    from cli_checks import SAMPLES
+
+    res = invoke("run", SAMPLES / "figure8.mcap", "-o", tmp_path / "fine", "--config", sim["config"])
+    assert res.exit_code == 0 and "a coarse estimate" not in res.output and "\nhint " not in res.output, res.output
