@@ -173,6 +173,7 @@ def test_detection_helpers_give_numpys_arrays():
     """The hand-off's shortcuts (a row's norm by columns, ids by a table, repeats compared within a frame) give
     the arrays of the NumPy calls they replace, and fall back to them where the shortcut does not apply."""
     from slamobs.pipeline import alignment as A
+    from slamobs.pipeline.blocks import unique_inverse
 
     rng = np.random.default_rng(3)
     x = rng.normal(size=(5000, 3)) * 10.0 ** rng.integers(-8, 8, size=(5000, 1))
@@ -183,7 +184,7 @@ def test_detection_helpers_give_numpys_arrays():
         np.array([2**40, 3, 2**40, 7]),  # a range too wide for the table: NumPy's sort
         rng.integers(0, 30, size=3000).astype(np.int32),
     ):
-        got, want = A._sorted_ids_and_index(ids), np.unique(ids, return_inverse=True)
+        got, want = unique_inverse(ids), np.unique(ids, return_inverse=True)
         assert [g.tobytes() for g in got] == [w.tobytes() for w in want] and got[0].dtype == want[0].dtype
 
     def lexsorted(a, b):
