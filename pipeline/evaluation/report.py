@@ -155,7 +155,7 @@ def evaluate_tables(
     poses = tables.pop("poses")
     if figures is not None and n_rows(poses):  # the estimate's first stamp is the figures' time origin
         figures([bias_plot_job(biases.get_statistic(), drawn_biases, int(np.min(column(poses, "t_ns", np.int64))))])
-    ev = evaluate_trajectory(poses, truth, options)  # ``ev.estimate`` holds what is needed
+    ev = evaluate_trajectory(poses, truth, options, checked=True)  # ``ev.estimate`` holds what is needed
     del poses
     # the longest section, on a thread beside the others (array code and kernels without the GIL; the same numbers)
     segments = SegmentErrorsSection()

@@ -163,12 +163,13 @@ class ApeByAlignmentSection(Section):
             except ValueError as err:
                 self.notes.append(f"APE with {kind} alignment not computed: {err}")
         errors = aligned_errors(fits, p)
-        errors[self.options.align] = (ev.translation.errors, ev.rotation.errors)
+        stats = {kind: tuple(metrics.statistics(e) for e in pair) for kind, pair in errors.items()}
+        stats[self.options.align] = (dict(ev.translation.stats), dict(ev.rotation.stats))  # the same statistics
         fits[self.options.align] = ev.alignment
         self.result = {
             kind: {
-                "translation_m": metrics.statistics(errors[kind][0]),
-                "rotation_deg": metrics.statistics(errors[kind][1]),
+                "translation_m": stats[kind][0],
+                "rotation_deg": stats[kind][1],
                 "alignment": alignment_dict(fits[kind]),
             }
             for kind in kinds

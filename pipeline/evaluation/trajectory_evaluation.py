@@ -145,10 +145,12 @@ class TrajectoryEvaluation:
 
 
 def evaluate_trajectory(
-    poses: Table, truth: PoseStream, options: ReportOptions, *, estimate_offset: bool = True
+    poses: Table, truth: PoseStream, options: ReportOptions, *, estimate_offset: bool = True, checked: bool = False
 ) -> TrajectoryEvaluation:
-    """Estimate the clock offset, associate, align and compute the APE vectors."""
-    truth, _ = valid_truth(truth)
+    """Estimate the clock offset, associate, align and compute the APE vectors. ``checked``: ``truth`` is what
+    :func:`valid_truth` returned (not looked through again)."""
+    if not checked:
+        truth, _ = valid_truth(truth)
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
     if options.truth_rotation_xyzw is not None:
