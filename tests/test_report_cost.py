@@ -350,9 +350,10 @@ def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, mon
 
 
 def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_turn(tmp_path, monkeypatch):
-    """The report computes its segment errors on a thread beside the other sections; where no thread can be
-    started (no room under a memory limit) or the log has more pairs than ``MATRICES_KEPT_ROWS`` it computes them
-    in turn: the same report, byte for byte."""
+    """The report computes its segment errors on a thread beside the other sections, from the pairs as soon as
+    the trajectories are paired (an alignment without scale) or once the alignment is fitted (Sim(3)); where no
+    thread can be started (no room under a memory limit) or the log has more pairs than ``MATRICES_KEPT_ROWS`` it
+    computes them in turn: the same report, byte for byte."""
     from cli_checks import SAMPLES
     from slamobs.pipeline import run
     from slamobs.pipeline.config import EvaluationConfig, RunConfig
@@ -363,22 +364,28 @@ def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_tu
     monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
     config = RunConfig(evaluation=EvaluationConfig(plots=False))
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "beside", config)
-    assert started == ["SegmentErrorsSection.process_data"]
+    assert started == ["SegmentErrorsSection.process_pairs"]
+    sim3 = RunConfig(evaluation=EvaluationConfig(plots=False, align="sim3"))
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "sim3_beside", sim3)
+    assert started[1:] == ["SegmentErrorsSection.process_data"]
+    started.clear()
 
     def no_room(*_a):
         raise MemoryError("no room")
 
     monkeypatch.setattr(report, "Pending", no_room)
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "in_turn", config)
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "sim3_in_turn", sim3)
     monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
     monkeypatch.setattr(report, "MATRICES_KEPT_ROWS", 10)  # a log longer than that: in turn, no thread
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "long", config)
-    assert started == ["SegmentErrorsSection.process_data"]
+    assert started == []
     beside = (tmp_path / "beside" / "report.json").read_bytes()
     assert b'"segment_errors"' in beside and b'"n_segments"' in beside
     for name in ("report.json", "report.md", "poses_aligned.parquet"):
         assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "in_turn" / name).read_bytes(), name
         assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "long" / name).read_bytes(), name
+        assert (tmp_path / "sim3_beside" / name).read_bytes() == (tmp_path / "sim3_in_turn" / name).read_bytes(), name
 
 
 def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has_not_begun(monkeypatch):
