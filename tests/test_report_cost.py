@@ -445,3 +445,27 @@ def test_a_pending_ctrl_c_or_sigterm_ends_the_wait_for_work_beside(monkeypatch):
         assert not finished
     finally:
         release.set()
+
+
+def test_rate_on_grid_marks_the_same_samples_outside_the_span():
+    """The clock-offset search's resampling marks the grid points outside the stream's span by bisection (the grid
+    rises): the same NaNs and bits as comparing every point, for grids past either end, inside, and outside."""
+    from slamobs.pipeline.evaluation import sync
+
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.integers(4_000_000, 6_000_000, size=400)).astype(np.int64) + 10**18
+    inc = rng.random(399)
+    step = 10_000_000
+    nans = set()
+    for start, n in ((t[0] - 7 * step, 260), (t[0] + 3, 50), (t[-1] - 3 * step, 40), (t[-1] + step, 5), (t[0], 1)):
+        for shift in (0, 1, -1, 4_999_999, -step):
+            grid = start + np.arange(n, dtype=np.int64) * step - shift
+            got = sync._rate_on_grid(t, inc, grid, step)
+            cum_t, cum = sync._accumulate(t, inc)
+            edges = np.append(grid, grid[-1] + step).astype(np.float64)
+            at = np.interp(edges, cum_t, cum)
+            want = (at[1:] - at[:-1]) / (step / sync.NS_PER_S)
+            want[(grid < t[0]) | (grid + step > t[-1])] = np.nan
+            assert got.tobytes() == want.tobytes()
+            nans.add((bool(np.isnan(got[0])), bool(np.isnan(got[-1])), bool(np.isnan(got).all())))
+    assert {(True, True, False), (False, False, False), (True, True, True)} <= nans  # both ends, none, all
