@@ -33,7 +33,7 @@ from slamobs.pipeline.directions import (
     DirectionSet,
     build_directions,
 )
-from slamobs.pipeline.blocks import interp_sorted, row_blocks
+from slamobs.pipeline.blocks import interp_sorted, row_blocks, unique_inverse
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
@@ -459,7 +459,7 @@ def _gate_norm(
     """Samples whose magnitude exceeds ``limit`` dropped (and counted)."""
     if limit is None or not t.shape[0]:
         return t, x
-    norm = np.linalg.norm(x, axis=1)
+    norm = _row_norms3(x)
     bad = norm > limit
     if n := int(np.count_nonzero(bad)):
         notes.append(
@@ -619,7 +619,7 @@ def _detections(
     # range for the gates: from the sensor when it is fixed on the body (one static camera, or the cameras of a
     # rig), else (frames moving relative to the body, e.g. TF tag frames under a world frame) from the body origin
     fixed_sensor = bool(det.cameras) or cam_ext.rot.ndim == 2
-    rng = np.linalg.norm(det.xyz if sel is None else det.xyz[sel], axis=1) if fixed_sensor else None
+    rng = _row_norms3(det.xyz if sel is None else det.xyz[sel]) if fixed_sensor else None
     if sel is None and frames.size == len(det) and bool(np.all(np.diff(frames) == 1)):
         del frame_of  # every detection, frames already in time order
         ids, per_frame = det.ids, counts
@@ -633,7 +633,7 @@ def _detections(
     t_frames = t_det[frames]
     n_gated = ids.shape[0]
     det_y, ids, per_frame, t_frames = _range_gate(
-        det.topic, det_y, np.linalg.norm(det_y, axis=1) if rng is None else rng, ids, per_frame, t_frames, lim, notes
+        det.topic, det_y, _row_norms3(det_y) if rng is None else rng, ids, per_frame, t_frames, lim, notes
     )
     offsets = np.concatenate([[0], np.cumsum(per_frame)]).astype(np.int64)
     landmark_ids, det_idx = _landmark_index(path, det, ids, n_gated, counts, notes)
@@ -725,7 +725,7 @@ def _landmark_index(
     path, det: DetectionStream, ids: np.ndarray, n_gated: int, counts: np.ndarray, notes: list[str]
 ) -> tuple[np.ndarray, np.ndarray]:
     """The sorted landmark ids and each detection's index into them; an error naming the cause if none is left."""
-    landmark_ids, det_idx = np.unique(ids, return_inverse=True)
+    landmark_ids, det_idx = unique_inverse(ids)
     if landmark_ids.size == 0 and n_gated:  # the gate, not the time span, took them all: say so and what to do
         gate = notes[-1].partition(": detections dropped by the range gate: ")[2].partition(";")[0]
         raise InputError(
@@ -746,8 +746,35 @@ def _landmark_index(
     return landmark_ids, det_idx
 
 
+#: Longest run of equal ``a`` (detections in one frame) :func:`_first_of_pairs` compares row by row.
+MAX_FRAME_RUN = 64
+
+
+def _row_norms3(x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)`` of (N, 3) float rows, the same bits: NumPy sums the three squares of a row
+    left to right, as here, but its reduction along the short axis took ~4x as long (13 against 3.4 ms for an
+    hour's 720,000 rows)."""
+    if x.ndim != 2 or x.shape[1] != 3 or x.dtype != np.float64:
+        return np.linalg.norm(x, axis=1)
+    s = x[:, 0] * x[:, 0]
+    s += x[:, 1] * x[:, 1]
+    s += x[:, 2] * x[:, 2]
+    return np.sqrt(s, out=s)
+
+
 def _first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Indices of the first occurrence of each distinct pair ``(a[i], b[i])``, ascending."""
+    """Indices of the first occurrence of each distinct pair ``(a[i], b[i])``, ascending. Where ``a`` does not
+    decrease (the detections' frame of each row) and no run of equal ``a`` is longer than ``MAX_FRAME_RUN``,
+    each row is compared with the rows before it in its run (~3 against ~60 ms for an hour's detections);
+    else by sorting the pairs. The same indices either way."""
+    if a.shape[0] > 1 and bool(np.all(a[1:] >= a[:-1])):
+        cuts = np.flatnonzero(a[1:] != a[:-1])
+        longest = int(np.max(np.diff(cuts, prepend=-1, append=a.shape[0] - 1)))
+        if longest <= MAX_FRAME_RUN:
+            repeat = np.zeros(a.shape[0], dtype=bool)
+            for k in range(1, longest):  # row i repeats row i - k of its run
+                repeat[k:] |= (a[k:] == a[:-k]) & (b[k:] == b[:-k])
+            return np.flatnonzero(~repeat)
     order = np.lexsort((b, a))  # stable: equal pairs keep their order, the first one leads
     repeat = (a[order[1:]] == a[order[:-1]]) & (b[order[1:]] == b[order[:-1]])
     return np.sort(order[np.concatenate(([True], ~repeat))])

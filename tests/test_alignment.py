@@ -167,3 +167,39 @@ def test_assume_identity_applies_only_where_tf_has_no_transform(tmp_path):
         notes = json.loads((tmp_path / name / "run.json").read_text())["notes"]
         assert any(n.startswith("warning: frames.") for n in notes) == (name != "tf")
     assert ape["listed"] == ape["tf"] and ape["forced"] > 2 * ape["tf"]
+
+
+def test_detection_helpers_give_numpys_arrays():
+    """The hand-off's shortcuts (a row's norm by columns, ids by a table, repeats compared within a frame) give
+    the arrays of the NumPy calls they replace, and fall back to them where the shortcut does not apply."""
+    from slamobs.pipeline import alignment as A
+    from slamobs.pipeline.blocks import unique_inverse
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(5000, 3)) * 10.0 ** rng.integers(-8, 8, size=(5000, 1))
+    assert A._row_norms3(x).tobytes() == np.linalg.norm(x, axis=1).tobytes()
+    assert A._row_norms3(x[::2]).tobytes() == np.linalg.norm(x[::2], axis=1).tobytes()  # strided rows
+    for ids in (
+        rng.integers(-5, 40, size=3000),  # negative ids too
+        np.array([2**40, 3, 2**40, 7]),  # a range too wide for the table: NumPy's sort
+        rng.integers(0, 30, size=3000).astype(np.int32),
+    ):
+        got, want = unique_inverse(ids), np.unique(ids, return_inverse=True)
+        assert [g.tobytes() for g in got] == [w.tobytes() for w in want] and got[0].dtype == want[0].dtype
+
+    def lexsorted(a, b):
+        order = np.lexsort((b, a))
+        repeat = (a[order[1:]] == a[order[:-1]]) & (b[order[1:]] == b[order[:-1]])
+        return np.sort(order[np.concatenate(([True], ~repeat))])
+
+    frames = np.repeat(np.arange(400), rng.integers(1, 12, size=400))
+    ids = rng.integers(0, 6, size=frames.size)  # many repeats within a frame
+    long_run = np.repeat(np.arange(3), [2, A.MAX_FRAME_RUN + 5, 1])  # a frame longer than the row-by-row limit
+    for a, b in (
+        (frames, ids),
+        (frames[::-1].copy(), ids),  # frames not in order: sorted
+        (long_run, rng.integers(0, 4, size=long_run.size)),
+        (np.array([4]), np.array([1])),
+    ):
+        assert A._first_of_pairs(a, b).tolist() == lexsorted(a, b).tolist()
+    assert A._first_of_pairs(frames, ids).size < frames.size  # the case above had repeats to drop

@@ -350,9 +350,10 @@ def test_tables_handed_over_give_the_report_of_the_files_read_back(tmp_path, mon
 
 
 def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_turn(tmp_path, monkeypatch):
-    """The report computes its segment errors on a thread beside the other sections; where no thread can be
-    started (no room under a memory limit) or the log has more pairs than ``MATRICES_KEPT_ROWS`` it computes them
-    in turn: the same report, byte for byte."""
+    """The report computes its segment errors on a thread beside the other sections, from the pairs as soon as
+    the trajectories are paired (an alignment without scale) or once the alignment is fitted (Sim(3)); where no
+    thread can be started (no room under a memory limit) or the log has more pairs than ``MATRICES_KEPT_ROWS`` it
+    computes them in turn: the same report, byte for byte."""
     from cli_checks import SAMPLES
     from slamobs.pipeline import run
     from slamobs.pipeline.config import EvaluationConfig, RunConfig
@@ -363,22 +364,28 @@ def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_tu
     monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
     config = RunConfig(evaluation=EvaluationConfig(plots=False))
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "beside", config)
-    assert started == ["SegmentErrorsSection.process_data"]
+    assert started == ["SegmentErrorsSection.process_pairs"]
+    sim3 = RunConfig(evaluation=EvaluationConfig(plots=False, align="sim3"))
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "sim3_beside", sim3)
+    assert started[1:] == ["SegmentErrorsSection.process_data"]
+    started.clear()
 
     def no_room(*_a):
         raise MemoryError("no room")
 
     monkeypatch.setattr(report, "Pending", no_room)
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "in_turn", config)
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "sim3_in_turn", sim3)
     monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
     monkeypatch.setattr(report, "MATRICES_KEPT_ROWS", 10)  # a log longer than that: in turn, no thread
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "long", config)
-    assert started == ["SegmentErrorsSection.process_data"]
+    assert started == []
     beside = (tmp_path / "beside" / "report.json").read_bytes()
     assert b'"segment_errors"' in beside and b'"n_segments"' in beside
     for name in ("report.json", "report.md", "poses_aligned.parquet"):
         assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "in_turn" / name).read_bytes(), name
         assert (tmp_path / "beside" / name).read_bytes() == (tmp_path / "long" / name).read_bytes(), name
+        assert (tmp_path / "sim3_beside" / name).read_bytes() == (tmp_path / "sim3_in_turn" / name).read_bytes(), name
 
 
 def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has_not_begun(monkeypatch):
@@ -438,3 +445,27 @@ def test_a_pending_ctrl_c_or_sigterm_ends_the_wait_for_work_beside(monkeypatch):
         assert not finished
     finally:
         release.set()
+
+
+def test_rate_on_grid_marks_the_same_samples_outside_the_span():
+    """The clock-offset search's resampling marks the grid points outside the stream's span by bisection (the grid
+    rises): the same NaNs and bits as comparing every point, for grids past either end, inside, and outside."""
+    from slamobs.pipeline.evaluation import sync
+
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.integers(4_000_000, 6_000_000, size=400)).astype(np.int64) + 10**18
+    inc = rng.random(399)
+    step = 10_000_000
+    nans = set()
+    for start, n in ((t[0] - 7 * step, 260), (t[0] + 3, 50), (t[-1] - 3 * step, 40), (t[-1] + step, 5), (t[0], 1)):
+        for shift in (0, 1, -1, 4_999_999, -step):
+            grid = start + np.arange(n, dtype=np.int64) * step - shift
+            got = sync._rate_on_grid(t, inc, grid, step)
+            cum_t, cum = sync._accumulate(t, inc)
+            edges = np.append(grid, grid[-1] + step).astype(np.float64)
+            at = np.interp(edges, cum_t, cum)
+            want = (at[1:] - at[:-1]) / (step / sync.NS_PER_S)
+            want[(grid < t[0]) | (grid + step > t[-1])] = np.nan
+            assert got.tobytes() == want.tobytes()
+            nans.add((bool(np.isnan(got[0])), bool(np.isnan(got[-1])), bool(np.isnan(got).all())))
+    assert {(True, True, False), (False, False, False), (True, True, True)} <= nans  # both ends, none, all

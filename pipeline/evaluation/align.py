@@ -20,6 +20,8 @@ KINDS = ("se3", "sim3", "scale", "yaw", "origin", "none")
 #: 4-DoF one ``posyaw``. Accepted wherever an alignment is chosen; reports name the kind as in ``KINDS``.
 ALIASES = {"posyaw": "yaw"}
 NAMES = KINDS + tuple(ALIASES)
+#: the alignments that fit a scale (the others' is 1)
+SCALED_ALIGNMENTS = ("sim3", "scale")
 
 DESCRIPTIONS = {
     "se3": "SE(3) Umeyama (least squares rotation + translation, no scale) on the associated positions (evo -a)",
@@ -138,7 +140,7 @@ def fit_alignment(
     if kind == "yaw":
         rot, trans = yaw_fit(est[:m], ref[:m])
         return Alignment(kind, rot, trans, 1.0, m, _sim3(rot, trans, 1.0))
-    rot, trans, scale = umeyama(est[:m], ref[:m], with_scale=kind in ("sim3", "scale"))
+    rot, trans, scale = umeyama(est[:m], ref[:m], with_scale=kind in SCALED_ALIGNMENTS)
     evo = _sim3(rot, trans, scale)
     if kind == "scale":
         return Alignment(kind, np.eye(3), np.zeros(3), scale, m, evo)

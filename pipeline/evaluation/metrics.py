@@ -10,6 +10,7 @@ relation, statistics).
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -306,16 +307,23 @@ class RotationRows:
     """
 
     def __init__(
-        self, rotation: np.ndarray, left: np.ndarray | None = None, index: np.ndarray | None = None, _built=None
+        self,
+        rotation: np.ndarray,
+        left: np.ndarray | None = None,
+        index: np.ndarray | None = None,
+        _built=None,
+        _lock=None,
     ) -> None:
         self.rotation = np.asarray(rotation, dtype=np.float64)
         self.left = None if left is None else np.asarray(left, dtype=np.float64)
         self.index = index  # the rows of ``rotation`` these are (pairs refer to their streams' rows)
         self._built = [] if _built is None else _built  # the quaternions' matrices, shared with turned copies
+        # the report's threads ask for the same rows at once (segment errors and APE): the matrices built once
+        self._lock = threading.Lock() if _lock is None else _lock
 
     def turned(self, left: np.ndarray) -> RotationRows:
         """The same rows rotated: ``left @ R_k``."""
-        return RotationRows(self.rotation, left, self.index, self._built)
+        return RotationRows(self.rotation, left, self.index, self._built, self._lock)
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -332,8 +340,10 @@ class RotationRows:
             q = self.rotation[rows if self.index is None else self.index[rows]]
             return quats_to_rots(np.ascontiguousarray(q[None] if q.ndim == 1 else q))[0 if q.ndim == 1 else slice(None)]
         if not self._built:
-            q = self.rotation if self.index is None else self.rotation[self.index]
-            self._built.append(quats_to_rots(np.ascontiguousarray(q)))
+            with self._lock:
+                if not self._built:
+                    q = self.rotation if self.index is None else self.rotation[self.index]
+                    self._built.append(quats_to_rots(np.ascontiguousarray(q)))
         return self._built[0][rows]
 
     def __getitem__(self, rows) -> np.ndarray:

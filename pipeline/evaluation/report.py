@@ -33,6 +33,7 @@ from slamobs.pipeline.evaluation.figure_jobs import (
     top_view_job,
     uncertainty_plot_jobs,
 )
+from slamobs.pipeline.evaluation.align import SCALED_ALIGNMENTS
 from slamobs.pipeline.evaluation.markdown import render_markdown
 from slamobs.pipeline.evaluation.metrics import MATRICES_KEPT_ROWS, rotated
 from slamobs.pipeline.evaluation.sections import (
@@ -50,6 +51,7 @@ from slamobs.pipeline.evaluation.sections import (
     alignment_dict,
 )
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
+from slamobs.pipeline.evaluation.trajectory_error import Paired
 from slamobs.pipeline.evaluation.trajectory_evaluation import (
     Pending,
     ReportOptions,
@@ -155,11 +157,20 @@ def evaluate_tables(
     poses = tables.pop("poses")
     if figures is not None and n_rows(poses):  # the estimate's first stamp is the figures' time origin
         figures([bias_plot_job(biases.get_statistic(), drawn_biases, int(np.min(column(poses, "t_ns", np.int64))))])
-    ev = evaluate_trajectory(poses, truth, options)  # ``ev.estimate`` holds what is needed
+    # the longest section, on a thread beside the others (array code and kernels without the GIL; the same numbers),
+    # started once the trajectories are paired where the alignment has no scale (its scale is 1: the section needs
+    # no more), else once the alignment is fitted
+    segments, beside = SegmentErrorsSection(), []
+    if options.align not in SCALED_ALIGNMENTS:
+
+        def on_pairs(paired: Paired, truth_sorted: PoseStream) -> None:
+            beside.append(_beside(segments.process_pairs, len(paired), paired, truth_sorted, options.align, 1.0))
+
+    else:
+        on_pairs = None
+    ev = evaluate_trajectory(poses, truth, options, checked=True, on_pairs=on_pairs)  # ``ev.estimate`` holds all
     del poses
-    # the longest section, on a thread beside the others (array code and kernels without the GIL; the same numbers)
-    segments = SegmentErrorsSection()
-    segments_done = _beside(segments.process_data, ev)
+    segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
     landmark.process_data(landmarks, ev.alignment)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
@@ -224,19 +235,19 @@ def evaluate_tables(
     return report, ev
 
 
-def _beside(func: Callable[[TrajectoryEvaluation], None], ev: TrajectoryEvaluation) -> Pending | None:
-    """``func(ev)`` started on a thread (:class:`.Pending`; wait with ``result()``), or done at once (then None)
+def _beside(func: Callable[..., None], n_pairs: int, *args) -> Pending | None:
+    """``func(*args)`` started on a thread (:class:`.Pending`; wait with ``result()``), or done at once (then None)
     where the memory limit leaves no room for a second thread's buffers, or on a log of more pairs than
     ``MATRICES_KEPT_ROWS`` (~2.9 h at 100 Hz): there the segment errors convert and hold all the pairs' matrices
     (~300 MB on four hours) at the same time as the other sections' temporaries (four hours' peak RSS: 1462
     against 1348 MB computed in turn)."""
-    if len(ev.paired) > MATRICES_KEPT_ROWS:
-        func(ev)
+    if n_pairs > MATRICES_KEPT_ROWS:
+        func(*args)
         return None
     try:
-        return Pending(func, ev)
+        return Pending(func, *args)
     except MemoryError:
-        func(ev)
+        func(*args)
         return None
 
 

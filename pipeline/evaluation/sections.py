@@ -33,6 +33,7 @@ from slamobs.pipeline.evaluation.tables import (
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
 from slamobs.pipeline.evaluation.trajectory_evaluation import GAUGE_SIGMA, ReportOptions, TrajectoryEvaluation
 from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
+from slamobs.pipeline.streams import PoseStream
 
 #: a run whose estimate and truth both stay this close to level (degrees of tilt) is planar: the report adds the
 #: 4-DoF (translation + yaw) alignment, the right measure for a robot on a floor
@@ -163,12 +164,13 @@ class ApeByAlignmentSection(Section):
             except ValueError as err:
                 self.notes.append(f"APE with {kind} alignment not computed: {err}")
         errors = aligned_errors(fits, p)
-        errors[self.options.align] = (ev.translation.errors, ev.rotation.errors)
+        stats = {kind: tuple(metrics.statistics(e) for e in pair) for kind, pair in errors.items()}
+        stats[self.options.align] = (dict(ev.translation.stats), dict(ev.rotation.stats))  # the same statistics
         fits[self.options.align] = ev.alignment
         self.result = {
             kind: {
-                "translation_m": metrics.statistics(errors[kind][0]),
-                "rotation_deg": metrics.statistics(errors[kind][1]),
+                "translation_m": stats[kind][0],
+                "rotation_deg": stats[kind][1],
                 "alignment": alignment_dict(fits[kind]),
             }
             for kind in kinds
@@ -287,12 +289,16 @@ class SegmentErrorsSection(Section):
         self.arrays: dict[float, dict[str, np.ndarray]] = {}
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
-        p = ev.paired
+        self.process_pairs(ev.paired, ev.truth, ev.alignment.kind, ev.alignment.scale)
+
+    def process_pairs(self, p: Paired, truth: PoseStream, kind: str, scale: float) -> None:
+        """The section from the pairs alone (all it needs of the evaluation besides the alignment's ``kind`` and
+        ``scale``): the report starts it as soon as the trajectories are paired, before their APE."""
         if len(p) < 3:
             return
-        path = accumulated_distances(np.asarray(ev.truth.position))[-1]  # rpg: the whole truth's path
-        out, self.arrays = segment_errors(p.ref_pos, p.ref_rot, p.est_pos, p.est_rot, path, ev.alignment.scale)
-        self.result = {**out, "alignment": ev.alignment.kind}
+        path = accumulated_distances(np.asarray(truth.position))[-1]  # rpg: the whole truth's path
+        out, self.arrays = segment_errors(p.ref_pos, p.ref_rot, p.est_pos, p.est_rot, path, scale)
+        self.result = {**out, "alignment": kind}
 
 
 class TimeOffsetSection(Section):

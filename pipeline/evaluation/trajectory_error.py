@@ -8,7 +8,7 @@ seconds), then the metric on the aligned estimate.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -263,7 +263,16 @@ class ErrorResult:
     est_name: str = "estimate"
     pair_i: np.ndarray | None = None  # RPE: index pairs into the paired poses
     pair_j: np.ndarray | None = None
-    arrays: dict[str, np.ndarray] = field(default_factory=dict)  # evo result arrays (besides error_array)
+
+    @cached_property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """evo's result arrays besides ``error_array`` (:func:`_timing_arrays`, the alignment's matrix), built on
+        first use: only the evo zip (``--export evo``) reads them (the hour's APE: two path lengths and the stamps
+        of 360,000 pairs, ~15 ms each time a report computed them unused)."""
+        arrays = _timing_arrays(self.paired, self.est_pos_aligned, keep=self.pair_j if self.metric == "rpe" else None)
+        if self.alignment.evo_matrix is not None:
+            arrays["alignment_transformation_sim3"] = self.alignment.evo_matrix
+        return arrays
 
     @cached_property
     def est_rot_aligned(self) -> RotationRows:
@@ -327,18 +336,12 @@ def ape(
     """Absolute pose error of ``est`` against ``ref`` (evo_ape); PoseStreams or :class:`Source`-likes.
 
     ``like``: an APE of the same ``paired`` under the same ``align`` (another relation of one comparison);
-    its alignment, aligned positions and evo arrays are shared instead of computed and held again.
+    its alignment and aligned positions are shared instead of computed and held again.
     """
     paired = paired or synchronize(ref, est, sync)
     al, pos = (like.alignment, like.est_pos_aligned) if like is not None else align_paired(paired, align)
     name, unit = metrics.POSE_RELATIONS[relation]
     title = f"APE w.r.t. {name} ({unit})" + alignment_title(align, al)
-    if like is not None:
-        arrays = like.arrays
-    else:
-        arrays = _timing_arrays(paired, pos)
-        if al.evo_matrix is not None:
-            arrays["alignment_transformation_sim3"] = al.evo_matrix
     if relation in ("trans_part", "point_distance"):  # positions only: no rotation matrix is ever built
         errors = metrics.ape_translation(paired.ref_pos, pos)
     else:
@@ -355,7 +358,6 @@ def ape(
         pos,
         ref_name,
         est_name,
-        arrays=arrays,
     )
 
 
@@ -393,9 +395,6 @@ def rpe(
         i, j = rpe_pairs(pos, rot, opts.delta, opts.unit, opts.rel_tol, opts.all_pairs)
     ref_rot = None if relation == "point_distance" else paired.ref_rot
     errors = metrics.rpe_errors(relation, paired.ref_pos, ref_rot, pos, rot, i, j)
-    arrays = _timing_arrays(paired, pos, keep=j)
-    if al.evo_matrix is not None:
-        arrays["alignment_transformation_sim3"] = al.evo_matrix
     return ErrorResult(
         "rpe",
         relation,
@@ -410,7 +409,6 @@ def rpe(
         est_name,
         pair_i=i,
         pair_j=j,
-        arrays=arrays,
     )
 
 

@@ -4,6 +4,7 @@ figures share, computed once (association, alignment, APE vectors, the clock off
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -145,10 +146,19 @@ class TrajectoryEvaluation:
 
 
 def evaluate_trajectory(
-    poses: Table, truth: PoseStream, options: ReportOptions, *, estimate_offset: bool = True
+    poses: Table,
+    truth: PoseStream,
+    options: ReportOptions,
+    *,
+    estimate_offset: bool = True,
+    checked: bool = False,
+    on_pairs: Callable[[Paired, PoseStream], None] | None = None,
 ) -> TrajectoryEvaluation:
-    """Estimate the clock offset, associate, align and compute the APE vectors."""
-    truth, _ = valid_truth(truth)
+    """Estimate the clock offset, associate, align and compute the APE vectors. ``checked``: ``truth`` is what
+    :func:`valid_truth` returned (not looked through again). ``on_pairs(paired, truth)`` is called as soon as the
+    trajectories are paired (the truth in time order), before the alignment and the APE."""
+    if not checked:
+        truth, _ = valid_truth(truth)
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
     if options.truth_rotation_xyzw is not None:
@@ -168,6 +178,8 @@ def evaluate_trajectory(
         applied = float(options.t_offset_s)
     sync = SyncOptions(options.t_max_diff_s, applied, "nearest")
     paired = synchronize(truth_sorted, est, sync, ref_label="truth")
+    if on_pairs is not None:
+        on_pairs(paired, truth_sorted)
     al_opts = AlignOptions(options.align)
     trans = ape(truth_sorted, est, "trans_part", sync, al_opts, paired=paired, ref_name="truth", est_name="estimate")
     rot = ape(
