@@ -92,11 +92,11 @@ def main() -> None:
     """
 
 
-def _loose_hint(name: str, conv: dict, log: str) -> str | None:
+def loose_hint(name: str, conv: dict, log: str) -> str | None:
     """What to try when an observer with fixed gains followed the motion loosely or not at all."""
-    from slamobs.pipeline.observers import get_observer
+    from slamobs.pipeline.estimators import get_estimator
 
-    if not (conv.get("coarse") or conv.get("lost")) or get_observer(name).uses_noise:
+    if not (conv.get("coarse") or conv.get("lost")) or get_estimator(name).uses_noise:
         return None
     return (
         f"{name} runs on fixed gains; `--observer riekf` or `--observer batch` weigh this log's own noise, and "
@@ -210,7 +210,7 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
-        if (hint := _loose_hint(m["observer"]["name"], r.get("convergence") or {}, m["input"]["path"])) is not None:
+        if (hint := loose_hint(m["observer"]["name"], r.get("convergence") or {}, m["input"]["path"])) is not None:
             click.echo(f"hint         {hint}")
         for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
             if note not in summary.notes:  # the run's own (the noise levels) are in the report too: printed above

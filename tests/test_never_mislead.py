@@ -118,3 +118,14 @@ def test_a_coarse_observer_run_says_so_and_what_to_try(sim, tmp_path):
 
     res = invoke("run", SAMPLES / "figure8.mcap", "-o", tmp_path / "fine", "--config", sim["config"])
     assert res.exit_code == 0 and "a coarse estimate" not in res.output and "\nhint " not in res.output, res.output
+
+
+def test_the_hint_is_for_observers_on_fixed_gains_only():
+    """The reference estimators (riekf, batch: not in the observers' registry) weigh the log's noise: a lost run
+    of theirs gets the convergence line, no hint, and no lookup error (a lost batch run exited 2 on the lookup)."""
+    from slamobs.cli.main import loose_hint
+
+    for name in ("batch", "riekf"):
+        assert loose_hint(name, {"lost": True}, "log.mcap") is None
+    assert loose_hint("hashim", {"coarse": False, "lost": False}, "log.mcap") is None
+    assert "--target batch" in loose_hint("hashim", {"lost": True}, "log.mcap")
