@@ -170,7 +170,7 @@ class BatchSmoother(Stepper):
         full = self._problem(kf_t, kf_of_det, gaps, seed, segments)
         first = self._candidate(full, seed, segments.n, progress)
         chosen, robust, seed_s = first, None, seed.seconds
-        if (reason := cands.doubt(full, first)) is not None:
+        if (reason := cands.why_other_starts(full, first, int(kf_t.shape[0]))) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, range_notes = self._at_predicted_ranges(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         select = self._cross_validation if self.settings.noise_selection == "cross_validation" else self._evidence
