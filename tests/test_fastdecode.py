@@ -125,6 +125,18 @@ def test_frame_ids_numbered_by_first_appearance():
     assert [names[c] for c in codes] == frames
 
 
+def test_many_distinct_strings_numbered_by_first_appearance():
+    """More distinct strings than the first string table holds (tag frames: hundreds), repeats among them: the
+    table made again for every string gives the same codes a dict gives."""
+    rng = np.random.default_rng(5)
+    texts = [f"tag_{int(k)}" for k in rng.integers(0, 300, 2000)] + ["", "a" * 40]
+    data, starts, sizes = as_buffer([t.encode() for t in texts], rng)
+    codes, names = fastdecode.string_codes(data, starts, sizes)
+    want = list(dict.fromkeys(texts))
+    assert len(want) > 2 * fastdecode._SMALL_TABLE and names == want
+    assert [names[c] for c in codes] == texts
+
+
 def test_what_is_not_planned():
     assert layout_paths(lambda m: (m.a.x * 2,)) is None  # computes
     assert layout_paths(lambda m: (m.data[0],)) is None  # indexes
