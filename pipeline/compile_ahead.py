@@ -1,13 +1,14 @@
 """A first run's kernels compiled in a helper process while the run imports and reads its log.
 
 A first run (nothing in the kernel cache, or sources changed) compiles every kernel it calls, one after the
-other, in its own process: the readers' while it reads, the estimator's when the estimator starts, the
-report's when it evaluates. Only the readers' are needed at once. With a core to spare, :func:`start` hands
-the others (:data:`PLANS`: the kernels a run calls from Python after reading, for the argument types it calls
-them with) to a helper process that compiles them into the on-disk kernel cache while the run reads. When the
-run reaches such a kernel and the helper has not compiled it yet, the run waits for it (its cache lookup does,
-:func:`waiting_load`) instead of compiling it a second time, then loads it from the cache. The compiled code
-is the one the run would have compiled itself: same compiler, same sources, same types.
+other, in its own process: the readers' while it reads, the estimator's when the estimator starts, the report's
+when it evaluates. Only the readers' are needed at once. With a core to spare, :func:`start` hands the
+estimator's and the report's (:data:`PLANS`: kernels a run calls from Python after reading, for the argument
+types it calls them with; the alignment's small one the run compiles itself while it would wait) to a helper
+process that compiles them into the on-disk kernel cache while the run reads. When the run reaches such a kernel
+and the helper has not compiled it yet, the run waits for it (its cache lookup does, :func:`waiting_load`)
+instead of compiling it a second time, then loads it from the cache. The compiled code is the one the run would
+have compiled itself: same compiler, same sources, same types.
 
 Nothing depends on the helper: one that fails, is killed or has not answered within :data:`MAX_WAIT_S` only
 means the run compiles the kernel itself; a warm run (every planned kernel's cache index present) starts none.
@@ -31,11 +32,11 @@ from slamobs.pipeline import interrupts, lifetime
 
 #: Kernels compiled ahead: (module, function, argument types) in the order a run first calls them. Types are
 #: written short: ``f``, ``i``, ``b`` a float64, int64 or bool scalar, ``f2`` a C-contiguous 2-d float64 array.
-#: ``tests/test_compile_ahead.py`` checks each against the types a run calls it with. ``prepare`` is called
-#: for every log with ground truth (aligning it), an estimator's entry by that estimator, ``report`` by the
-#: report.
+#: ``tests/test_compile_ahead.py`` checks each against the types a run calls it with. An estimator's entry is
+#: called by that estimator, ``report`` by the report. The alignment's kernel (``lie._quats_to_rots_into``, for
+#: every log with ground truth) is not handed over: the helper's path (its start-up, then the estimator's event
+#: loop) is the longer one, and the run compiles that kernel in ~0.3 s while the helper is still on the loop.
 PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
-    "prepare": (("slamobs.pipeline.lie", "_quats_to_rots_into", "f2 f3"),),
     "fast-adaptation": (
         (
             "slamobs.pipeline.observers.fast_adaptation",
@@ -60,9 +61,9 @@ DONE = "compiled "
 
 
 def plan(estimator: str) -> tuple[tuple[str, str, str], ...]:
-    """The kernels a run of ``estimator`` calls after reading, in order (an estimator without an entry: the
-    alignment's and the report's only)."""
-    return PLANS["prepare"] + PLANS.get(estimator, ()) + PLANS["report"]
+    """The kernels of a run of ``estimator`` the helper compiles, in the order the run calls them (an estimator
+    without an entry: the report's only)."""
+    return PLANS.get(estimator, ()) + PLANS["report"]
 
 
 def argument_types(spec: str) -> tuple:
@@ -193,7 +194,7 @@ def start_early(spare_cores: int) -> CompileAhead | None:
         return None
     from slamobs.pipeline.kernel_cache import cached
 
-    module, name, _ = PLANS["prepare"][0]
+    module, name, _ = PLANS["report"][0]
     return None if cached(module, name) else _spawn()
 
 

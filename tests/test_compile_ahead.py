@@ -1,6 +1,6 @@
 """A first run's kernels compiled ahead in a helper process (pipeline/compile_ahead.py): the run then compiles
-only its readers' kernels, writes the same tables, compiles everything itself when the helper is gone, and a
-killed run leaves no helper behind."""
+only its readers' kernels and the alignment's, writes the same tables, compiles everything itself when the
+helper is gone, and a killed run leaves no helper behind."""
 
 from __future__ import annotations
 
@@ -60,11 +60,16 @@ def first_runs(tmp_path_factory):
     return tmp, _first_run(tmp, "ahead"), _first_run(tmp, "alone", "kill")
 
 
-def test_with_the_helper_a_first_run_compiles_only_its_readers(first_runs):
+#: What a first run with the helper compiles itself besides its readers' kernels: the alignment's (and its callee).
+ALIGNMENT = {"slamobs.pipeline.lie._quats_to_rots_into", "slamobs.pipeline.lie._rot_of_quat"}
+
+
+def test_with_the_helper_a_first_run_compiles_only_its_readers_and_the_alignment(first_runs):
     _, ahead, _ = first_runs
     ours = [f for f in ahead if f.startswith("slamobs.")]
     assert ours, "a first run compiles its readers' kernels itself"
-    assert [f for f in ours if not f.startswith("slamobs.pipeline.readers.")] == []
+    assert [f for f in ours if not f.startswith("slamobs.pipeline.readers.") and f not in ALIGNMENT] == []
+    assert "slamobs.pipeline.lie._quats_to_rots_into" in ours
     assert PLANNED.isdisjoint(ahead)
 
 
@@ -94,7 +99,7 @@ def test_a_warm_run_starts_no_helper(first_runs, monkeypatch):
 def test_the_choice(monkeypatch):
     monkeypatch.delenv(compile_ahead.ENV, raising=False)
     assert compile_ahead.wanted(1) and not compile_ahead.wanted(0)
-    assert compile_ahead.plan("riekf") == compile_ahead.PLANS["prepare"] + compile_ahead.PLANS["report"]
+    assert compile_ahead.plan("riekf") == compile_ahead.PLANS["report"]
 
 
 def _helper_of(run: subprocess.Popen, within: float = 30.0) -> int:

@@ -125,6 +125,18 @@ def test_frame_ids_numbered_by_first_appearance():
     assert [names[c] for c in codes] == frames
 
 
+def test_many_distinct_strings_numbered_by_first_appearance():
+    """More distinct strings than the first string table holds (tag frames: hundreds), repeats among them: the
+    table made again for every string gives the same codes a dict gives."""
+    rng = np.random.default_rng(5)
+    texts = [f"tag_{int(k)}" for k in rng.integers(0, 300, 2000)] + ["", "a" * 40]
+    data, starts, sizes = as_buffer([t.encode() for t in texts], rng)
+    codes, names = fastdecode.string_codes(data, starts, sizes)
+    want = list(dict.fromkeys(texts))
+    assert len(want) > 2 * fastdecode._SMALL_TABLE and names == want
+    assert [names[c] for c in codes] == texts
+
+
 def test_what_is_not_planned():
     assert layout_paths(lambda m: (m.a.x * 2,)) is None  # computes
     assert layout_paths(lambda m: (m.data[0],)) is None  # indexes
@@ -214,7 +226,7 @@ def test_the_compiled_walk_reads_every_primitive_as_rosbags(encoding):
 @pytest.mark.parametrize("encoding", ["ros1", "cdr", "mixed"])
 def test_the_compiled_walk_fails_as_the_array_steps_do(encoding, monkeypatch):
     """Batches with cut messages and string lengths pointing anywhere: the compiled pass raises the error the array
-    steps (still used for detection arrays) raise, or decodes the same bits."""
+    steps (the reference kept for this test) raise, or decodes the same bits."""
     ts, plan = _every_kind("ros1" if encoding == "ros1" else "cdr")
     rng = np.random.default_rng(11)
     seen = set()
@@ -368,3 +380,50 @@ def test_fast_detections_equal_rosbags_detections(logs, monkeypatch):
         for name in ("t_ns", "rec_ns", "offsets", "ids", "xyz"):
             np.testing.assert_array_equal(getattr(fast, name), getattr(slow, name), err_msg=f"{path} {name}")
         assert fast.frame_id == slow.frame_id and fast.topic == slow.topic
+
+
+@pytest.mark.parametrize("encoding", ["ros1", "cdr", "mixed"])
+def test_the_compiled_walk_of_detection_arrays_fails_as_the_array_steps_do(encoding, monkeypatch):
+    """Detection arrays cut anywhere, with element counts and string lengths pointing anywhere: the compiled pass
+    (one kernel for the header and the elements) raises the error the array steps raise, or decodes the same
+    counts, element bits and frame ids."""
+    from slamobs.pipeline.readers.fastdecode import item_plan_for
+
+    msgtype = "fiducial_msgs/msg/FiducialTransformArray"
+    ts = make_typestore(ros1=encoding == "ros1")
+    plan = item_plan_for(ts, msgtype, cdr=encoding != "ros1")
+    rng = np.random.default_rng(12)
+    seen = set()
+    for case in range(200):
+        raws = []
+        for k in range(5):
+            kind = "cdr-big-endian" if encoding == "mixed" and k % 2 else ("ros1" if encoding == "ros1" else "cdr")
+            msg = _detection_message(ts, msgtype, rng, FRAMES[(case + k) % len(FRAMES)], int(rng.integers(4)))
+            raw = bytearray(serialize(ts, msg, msgtype, kind))
+            if rng.random() < 0.2:
+                raw = raw[: rng.integers(len(raw) + 1)]
+            if rng.random() < 0.2 and len(raw) > 20:
+                at = int(rng.integers(4, len(raw) - 4))
+                raw[at : at + 4] = int(rng.integers(0, 80)).to_bytes(4, "big" if kind == "cdr-big-endian" else "little")
+            raws.append(bytes(raw))
+        batch = _batch(raws, rng)
+        outcomes = []
+        for walks in (True, False):
+            monkeypatch.setattr(fastdecode, "_walks", lambda plan, walks=walks: walks)
+            try:
+                got = decode(plan, batch)
+                codes, names = got.strings[0]
+                outcomes.append(
+                    (
+                        "ok",
+                        got.t_ns.tolist(),
+                        got.counts.tolist(),
+                        got.items.view(np.uint64).tolist(),
+                        [names[c] for c in codes],
+                    )
+                )
+            except DecodeError as err:
+                outcomes.append(("error", str(err)))
+        assert outcomes[0] == outcomes[1], f"case {case}"
+        seen.add(outcomes[0][0] if outcomes[0][0] == "ok" else outcomes[0][1].split(" ")[0])
+    assert len(seen) >= 3, seen  # decoded, cut and overlong sequences or strings all met

@@ -157,6 +157,11 @@ class ItemPlan(_Leaves):
         )
 
     @cached_property
+    def walk_kinds(self) -> np.ndarray:
+        """Per leaf the kind of its bits (:data:`_KINDS`), for the compiled walk."""
+        return np.array([_KINDS[kind] for _, kind in self.leaves], np.int64)
+
+    @cached_property
     def min_size(self) -> int:
         """Bytes of one element without padding: bounds the element count a message can hold."""
         return max(1, sum(op.size for op in self.ops))
@@ -362,27 +367,32 @@ def _integer(w, width, signed):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _walk(data, origin, limit, big, cdr, kinds, aligns, sizes, slots, leaf_kinds, nstrings):  # pragma: no cover
-    """The wanted fields of every message (a plan without items) in one compiled pass: header stamps in ns, the
-    other leaves as float64, (position, length) of each wanted string: what :func:`_offsets`, :func:`_gather` and
-    :func:`_convert` do in array steps, without their temporary arrays, message by message (one sweep over the
-    bytes instead of one per op: ~25% faster than op by op).
+def _walk(  # pragma: no cover - compiled
+    data, origin, limit, big, cdr,
+    kinds, aligns, sizes, slots, leaf_kinds,
+    with_items, item_leaf, item_align, item_size, item_slot, item_kinds, min_size,
+    t_ns, bits, values, bits32, float32, spos, slen, counts, item_bits, item_values,
+):  # fmt: skip
+    """The wanted fields of every message in one compiled pass: header stamps in ns, the other leaves as float64,
+    (position, length) of each wanted string, and for a plan with items the elements of the sequence after them: what
+    :func:`_offsets`, :func:`_decode_items`, :func:`_gather` and :func:`_convert` do in array steps, without
+    their temporary arrays, message by message (one sweep over the bytes instead of one per op: ~25% faster than
+    op by op; and a first run compiles one kernel, not three).
 
-    Returns those and where the array steps, which go op by op over all messages, stop: the least of every
-    message's first failure, (op index, 0) for "message shorter than its layout" (op index = number of ops: the
-    end of the walk), (op index, 1) for "string runs past the end"; (-1, 0) when every message fits. A leaf past a
+    Its arguments: the bytes, where each message's fields start and how many bytes it has from there, the byte
+    order, CDR or not; :attr:`Plan.program`; whether the plan has items, :attr:`ItemPlan.program` and the bytes of
+    an element without padding; the arrays written (see :func:`_walked`), element rows in message order.
+
+    Returns the number of element rows and where the array steps, which go op by op over all messages, stop: the
+    least of every message's first failure, (op index, 0) for "message shorter than its layout" (op index =
+    number of ops: the end of the walk, or of the sequence length after it), (op index, 1) for "string runs past
+    the end", (number of ops, 2) for "sequence runs past the end"; (-1, 0) when every message fits. A leaf past a
     message's end is not read, as there: the next string or the end then fails.
     """
     n = origin.shape[0]
     nops = kinds.shape[0]
-    t_ns = np.zeros(n, np.int64)
-    bits = np.empty((n, leaf_kinds.shape[0] - 2), np.uint64)  # float64 leaves are their bits: stored as read
-    values = bits.view(np.float64)
-    bits32 = np.empty(1, np.uint32)  # a float32 leaf's bits (its view made once: one made per value costs more)
-    float32 = bits32.view(np.float32)
-    spos = np.zeros((nstrings, n), np.int64)
-    slen = np.zeros((nstrings, n), np.int64)
     fail_op, fail_stage = nops + 1, 0
+    m = 0  # element rows written
     for i in range(n):
         o, lim = origin[i], limit[i]
         p = 0  # relative to the origin (CDR aligns relative to the end of the encapsulation header)
@@ -418,12 +428,47 @@ def _walk(data, origin, limit, big, cdr, kinds, aligns, sizes, slots, leaf_kinds
                     break
                 if slot >= 0:
                     spos[slot, i] = o + p - length
-                    slen[slot, i] = max(length - 1, 0) if cdr else length
+                    slen[slot, i] = (length - 1 if length > 0 else 0) if cdr else length
         if op > nops and p > lim:
             op = nops
+        if with_items and op > nops:  # the sequence: its uint32 length, then the elements
+            if cdr:
+                p = (p + 3) & -4
+            if p + 4 > lim:
+                op = nops
+            else:
+                count = np.int64(_word(data, o + p, 4, big))
+                p += 4
+                # a corrupt count must not run past the rows made for the batch (nor allocate gigabytes)
+                if count * min_size > lim - p or m + count > item_bits.shape[0]:
+                    op, stage = nops, 2
+                else:
+                    counts[i] = count
+                    for _ in range(count):
+                        for k in range(item_leaf.shape[0]):
+                            a = item_align[k]
+                            if a > 1:
+                                p = (p + a - 1) & -a
+                            s = item_size[k]
+                            if item_leaf[k] and p + s <= lim:
+                                slot, kind = item_slot[k], item_kinds[item_slot[k]]
+                                w = _word(data, o + p, s, big)
+                                if kind == 0 and s == 8:  # as above (a shared inlined function made both slower)
+                                    item_bits[m, slot] = w
+                                elif kind == 0:
+                                    bits32[0] = np.uint32(w)
+                                    item_values[m, slot] = np.float64(float32[0])
+                                elif kind == 1:
+                                    item_values[m, slot] = np.float64(_integer(w, s, True))
+                                else:
+                                    item_values[m, slot] = np.float64(w)
+                            p += s
+                        m += 1
+                    if p > lim:
+                        op, stage = nops, 2
         if op < fail_op or (op == fail_op and stage < fail_stage):
             fail_op, fail_stage = op, stage
-    return t_ns, values, spos, slen, (fail_op if fail_op <= nops else -1), fail_stage
+    return m, (fail_op if fail_op <= nops else -1), fail_stage
 
 
 _U32 = np.array([4], np.int64)  # one leaf of 4 bytes, for _gather
@@ -494,18 +539,15 @@ class Decoded:
 
 
 @njit(cache=True, nogil=True)
-def _dedup(data, pos, length):  # pragma: no cover - compiled
-    """Per-string code, distinct strings numbered by first appearance, and the first string of every code.
+def _dedup(data, pos, length, codes, firsts, hashes, table):  # pragma: no cover - compiled
+    """Per-string ``codes``, distinct strings numbered by first appearance, and the first string of every code
+    (``firsts``); returns the number of distinct strings, or -1 when they would fill ``table`` more than half.
 
-    An open-addressing table keyed by a 64-bit FNV-1a hash; a hit is confirmed byte for byte, so two strings
-    with one hash stay apart. A string equal to the one before it (a topic's frame id, message after message)
-    takes its code without hashing."""
+    An open-addressing table (``table``: all -1, a power of two long) keyed by a 64-bit FNV-1a hash; a hit is
+    confirmed byte for byte, so two strings with one hash stay apart. A string equal to the one before it (a
+    topic's frame id, message after message) takes its code without hashing."""
     n = pos.shape[0]
-    codes = np.empty(n, np.int32)
-    firsts = np.empty(n, np.int64)
-    hashes = np.empty(n, np.uint64)
-    cap = 64
-    table = np.full(cap, -1, np.int64)
+    cap = table.shape[0]
     k = 0
     prime = np.uint64(1099511628211)
     for i in range(n):
@@ -543,16 +585,18 @@ def _dedup(data, pos, length):  # pragma: no cover - compiled
             hashes[k] = h
             table[slot] = k
             k += 1
-            if 2 * k > cap:  # keep the table at most half full
-                cap *= 2
-                table = np.full(cap, -1, np.int64)
-                for c in range(k):
-                    slot = np.int64(hashes[c] & np.uint64(cap - 1))
-                    while table[slot] >= 0:
-                        slot = (slot + 1) & (cap - 1)
-                    table[slot] = c
+            if 2 * k > cap:  # the table is kept at most half full: the caller gives a larger one
+                return -1
         codes[i] = code
-    return codes, firsts[:k]
+    return k
+
+
+_SMALL_TABLE = 64
+
+
+def _table_size(n: int) -> int:
+    """A power of two at least twice ``n`` (and at least :data:`_SMALL_TABLE`)."""
+    return max(_SMALL_TABLE, 1 << (2 * n).bit_length())
 
 
 def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
@@ -564,7 +608,14 @@ def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple
         DecodeError: A string is not UTF-8.
 
     """
-    codes, firsts = _dedup(data, pos, length)
+    n = pos.shape[0]
+    codes, firsts, hashes = np.empty(n, np.int32), np.empty(n, np.int64), np.empty(n, np.uint64)
+    # the arrays made here, not in the kernel (see _walked); a table for 32 distinct strings, a frame id's few,
+    # else one that holds every string
+    k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_SMALL_TABLE, -1, np.int64))
+    if k < 0:
+        k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_table_size(n), -1, np.int64))
+    firsts = firsts[:k]
     try:
         names = [data[pos[f] : pos[f] + length[f]].tobytes().decode() for f in firsts.tolist()]
     except UnicodeDecodeError as err:
@@ -585,8 +636,8 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     size = batch.size if rows is None else batch.size[rows]
     groups = _byte_orders(plan, data, start, size)
     if len(groups) == 1 and _walks(plan):  # the common case: the compiled pass's arrays are the columns
-        t_ns, values, strings = _walked(plan, data, start, size, groups[0][1])
-        return Decoded(t_ns, values, [string_codes(data, pos, length) for pos, length in strings])
+        t_ns, values, strings, counts, items = _walked(plan, data, start, size, groups[0][1])
+        return Decoded(t_ns, values, [string_codes(data, pos, length) for pos, length in strings], counts, items)
     n = start.shape[0]
     t_ns = np.empty(n, np.int64)
     values = np.empty((n, len(plan.leaves) - 2), np.float64)
@@ -598,7 +649,10 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
         if not start[idx].size:
             continue
         if _walks(plan):
-            t_ns[idx], values[idx], strings = _walked(plan, data, start[idx], size[idx], big)
+            t_ns[idx], values[idx], strings, group_counts, group_items = _walked(plan, data, start[idx], size[idx], big)
+            if counts is not None and group_counts is not None and group_items is not None:
+                counts[idx] = group_counts
+                item_parts.append((np.arange(n)[idx], group_items))
         else:
             origin = start[idx] + (4 if plan.cdr else 0)
             limit = size[idx] - (4 if plan.cdr else 0)
@@ -645,25 +699,51 @@ def _byte_orders(
 
 def _walked(
     plan: Plan, data: np.ndarray, start: np.ndarray, size: np.ndarray, big: bool
-) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
-    """Stamps, values and (position, length) per string of messages of one byte order, by :func:`_walk`.
+) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray | None, np.ndarray | None]:
+    """Stamps, values, (position, length) per string, and with items the element counts and rows of messages of
+    one byte order, by :func:`_walk`.
 
     Raises:
-        DecodeError: A message shorter than its layout, or a string running past its end.
+        DecodeError: A message shorter than its layout, or a string or sequence running past its end.
     """
     head = 4 if plan.cdr else 0
-    t_ns, values, spos, slen, op, stage = _walk(
-        data, start + head, size - head, big, plan.cdr, *plan.program, plan.nstrings
-    )
+    n = start.shape[0]
+    limit = size - head
+    # the outputs made here, not in the kernel: numba compiles every allocation and view it is asked for (~0.6 s
+    # of a first run's compiling), NumPy makes them for nothing
+    t_ns = np.zeros(n, np.int64)
+    bits = np.empty((n, len(plan.leaves) - 2), np.uint64)  # float64 leaves are their bits: stored as read
+    bits32 = np.empty(1, np.uint32)  # a float32 leaf's bits (its view made once: one made per value costs more)
+    spos = np.zeros((plan.nstrings, n), np.int64)
+    slen = np.zeros((plan.nstrings, n), np.int64)
+    if plan.items is not None:  # rows for as many elements as the bytes can hold: a count beyond is an error
+        counts = np.zeros(n, np.int64)
+        item_bits = np.empty((max(int(limit.sum()), 0) // plan.items.min_size, len(plan.items.leaves)), np.uint64)
+        items = (True, *plan.items.program, plan.items.walk_kinds, plan.items.min_size)
+    else:
+        counts, item_bits, items = _NO_COUNTS, _NO_ITEM_BITS, _NO_ITEMS
+    values, item_values = bits.view(np.float64), item_bits.view(np.float64)
+    out = (t_ns, bits, values, bits32, bits32.view(np.float32), spos, slen, counts, item_bits, item_values)
+    rows, op, stage = _walk(data, start + head, limit, big, plan.cdr, *plan.program, *items, *out)
     if op >= 0:
-        what = "string runs past the end of a {} message" if stage else "message shorter than its {} layout"
-        raise DecodeError(what.format(plan.msgtype))
-    return t_ns, values, list(zip(spos, slen, strict=True))
+        what = ("message shorter than its {} layout", "string runs past the end of a {} message")
+        raise DecodeError((*what, "sequence runs past the end of a {} message")[stage].format(plan.msgtype))
+    strings = list(zip(spos, slen, strict=True))
+    if plan.items is None:
+        return t_ns, values, strings, None, None
+    return t_ns, values, strings, counts, item_values[:rows]
+
+
+#: What :func:`_walk` is given for a plan without items: the types of a plan with items, nothing in them (one
+#: compiled version serves both).
+_NO_ITEMS = (False, np.zeros(0, np.bool_), *(np.zeros(0, np.int64) for _ in range(4)), 1)
+_NO_COUNTS = np.zeros(0, np.int64)
+_NO_ITEM_BITS = np.zeros((0, 0), np.uint64)
 
 
 def _walks(plan: Plan) -> bool:
-    """Whether :func:`_walk` decodes ``plan``: no items, header stamps of integers (as every ROS header's are)."""
-    return plan.items is None and all(kind in "iu" for _, kind in plan.leaves[:2])
+    """Whether :func:`_walk` decodes ``plan``: header stamps of integers (as every ROS header's are)."""
+    return all(kind in "iu" for _, kind in plan.leaves[:2])
 
 
 def _convert(words: np.ndarray, leaves: _Leaves) -> np.ndarray:
