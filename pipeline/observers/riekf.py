@@ -47,12 +47,13 @@ as slow random walks.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 
@@ -1027,14 +1028,25 @@ class RiEKF(Stepper):
     keeps_covariance = True
 
     def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
-        from slamobs.pipeline.errors import InputError
         from slamobs.pipeline.noise import resolve_noise
         from slamobs.pipeline.observers import time_offset
 
-        self.time_offset = time_offset.estimate(stream)
-        stream = time_offset.shifted(stream, self.time_offset)
-        super().__init__(stream, options)
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
+        # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
+        # filter's first stretch is kept when the estimate is not applied (most logs), run again when it is
+        # (:meth:`advance`); either way the outputs are those of the filter on the stamps the estimate says
+        self._recorded, self._start = stream, (options, r0, p0)
+        self._offset: time_offset.Background | None = time_offset.Background(stream)
+        self.time_offset: dict | None = None
+        self._setup(stream)
+
+    def _setup(self, stream) -> None:
+        """The filter at the start of ``stream`` (the detection stamps moved by the time offset or not)."""
+        from slamobs.pipeline.errors import InputError
+
+        options, r0, p0 = self._start
+        super().__init__(stream, options)
         n_lm = int(stream.landmark_ids.shape[0])
         if N_FIXED + 3 * n_lm > MAX_DIM:
             raise InputError(
@@ -1057,8 +1069,27 @@ class RiEKF(Stepper):
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
-        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
+
+    def advance(self, iv_stop: int):
+        """:meth:`Stepper.advance`; the first stretch waits for the time-offset estimate before it is returned, and
+        is run again on the moved stamps when the estimate is applied."""
+        if self._offset is None:
+            return super().advance(iv_stop)
+        from slamobs.pipeline.observers import time_offset
+
+        try:
+            first = super().advance(iv_stop)
+        except ObserverDiverged:
+            first = None  # on the stamps as recorded: raised again below unless the offset is applied
+        self.time_offset, self._offset = self._offset.result(), None
+        if self.time_offset["applied"]:
+            self._setup(time_offset.shifted(self._recorded, self.time_offset))
+            return super().advance(iv_stop)
+        if first is None:
+            return super().advance(iv_stop)  # raises as it did
+        self._describe()
+        return replace(first, stats=dict(self.stats))
 
     def _relocalise(self, iv: int) -> bool:
         """After a gap (a new segment): the pose re-anchored to the map as the observers do it, and its
@@ -1112,7 +1143,12 @@ class RiEKF(Stepper):
             cov_out,
             out.cov,
         )
-        ns = self.state.ns
+        self._describe()
+        return rows
+
+    def _describe(self) -> None:
+        """The run's statistics and notes as they are now (``stats``)."""
+        s, ns = self.stream, self.state.ns
         self.stats["substeps"] = int(ns[_STEPS])
         bias_sd = np.sqrt(np.clip(np.diag(self.state.cov)[6:12], 0.0, None))
         self.stats["metadata"] = {
@@ -1131,8 +1167,8 @@ class RiEKF(Stepper):
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
         ) + recovery_notes(self.stats["metadata"]["filter"])
-        self.stats["notes"] += time_offset_note("riekf", self.time_offset)
-        return rows
+        if self.time_offset is not None:  # None while it is being estimated (:meth:`advance`)
+            self.stats["notes"] += time_offset_note("riekf", self.time_offset)
 
     def landmark_covariance(self) -> np.ndarray:
         """Each landmark's position covariance in the map frame: ``δp_i = ξ_i − [p̂_i]×ξ_R`` from the filter's
