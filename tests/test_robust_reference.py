@@ -166,18 +166,20 @@ def test_riekf_started_during_the_time_offset_estimate_equals_one_started_after_
     sim = simulate("figure8", seed=2, duration=20.0, detection_offset=offset)
     stream = align(expected_streams(sim))
 
-    def stretches():
+    def stretches(wait=False):
         st = RIEKF.start(stream, {}, ObserverOptions())
+        if wait:  # the estimate read before the filter runs: waited for, the filter started again when applied
+            assert st.time_offset["applied"] == (offset != 0.0)
         return [st.advance(stop) for stop in (1500, 2600, st.n_vel)]
 
     assert len(os.sched_getaffinity(0)) > 1 or pytest.skip("one core: nothing runs concurrently")
     assert time_offset.Background(stream)._thread is not None  # the estimate on its own thread
-    both = stretches()
+    both, waited = stretches(), stretches(wait=True)
     monkeypatch.setattr(time_offset.os, "sched_getaffinity", lambda _pid: {0})
     assert time_offset.Background(stream)._thread is None
     after = stretches()
     assert both[0].stats["metadata"]["time_offset"]["applied"] == (offset != 0.0)
-    for a, b in zip(both, after, strict=True):
+    for a, b in [*zip(both, after, strict=True), *zip(waited, after, strict=True)]:
         assert a.stats == b.stats
         for f in ("t_ns", "rotation", "position", "gyro_bias", "det_t_ns", "innovation", "pose_cov", "landmark_cov"):
             assert np.array_equal(getattr(a, f), getattr(b, f), equal_nan=True), f

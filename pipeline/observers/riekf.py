@@ -1038,7 +1038,7 @@ class RiEKF(Stepper):
         # (:meth:`advance`); either way the outputs are those of the filter on the stamps the estimate says
         self._recorded, self._start = stream, (options, r0, p0)
         self._offset: time_offset.Background | None = time_offset.Background(stream)
-        self.time_offset: dict | None = None
+        self._time_offset: dict | None = None  # None while it is being estimated
         self._setup(stream)
 
     def _setup(self, stream) -> None:
@@ -1071,23 +1071,33 @@ class RiEKF(Stepper):
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.stats.update({"noise": self.noise.as_dict()})
 
+    @property
+    def time_offset(self) -> dict:
+        """The time-offset estimate (``run.json`` ``observer.time_offset``), waited for while it is being made."""
+        if self._offset is not None:
+            self._resolve()
+        return self._time_offset
+
+    def _resolve(self) -> None:
+        """Wait for the time-offset estimate; when it is applied, start the filter again on the moved stamps."""
+        from slamobs.pipeline.observers import time_offset
+
+        self._time_offset, self._offset = self._offset.result(), None
+        if self._time_offset["applied"]:
+            self._setup(time_offset.shifted(self._recorded, self._time_offset))
+
     def advance(self, iv_stop: int):
         """:meth:`Stepper.advance`; the first stretch waits for the time-offset estimate before it is returned, and
         is run again on the moved stamps when the estimate is applied."""
         if self._offset is None:
             return super().advance(iv_stop)
-        from slamobs.pipeline.observers import time_offset
-
         try:
             first = super().advance(iv_stop)
         except ObserverDiverged:
             first = None  # on the stamps as recorded: raised again below unless the offset is applied
-        self.time_offset, self._offset = self._offset.result(), None
-        if self.time_offset["applied"]:
-            self._setup(time_offset.shifted(self._recorded, self.time_offset))
+        self._resolve()
+        if first is None or self._time_offset["applied"]:
             return super().advance(iv_stop)
-        if first is None:
-            return super().advance(iv_stop)  # raises as it did
         self._describe()
         return replace(first, stats=dict(self.stats))
 
@@ -1162,13 +1172,13 @@ class RiEKF(Stepper):
                 "noise": self.noise.as_dict(),
                 **self._recovery(),
             },
-            "time_offset": self.time_offset,
+            "time_offset": self._time_offset,
         }
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
         ) + recovery_notes(self.stats["metadata"]["filter"])
-        if self.time_offset is not None:  # None while it is being estimated (:meth:`advance`)
-            self.stats["notes"] += time_offset_note("riekf", self.time_offset)
+        if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
+            self.stats["notes"] += time_offset_note("riekf", self._time_offset)
 
     def landmark_covariance(self) -> np.ndarray:
         """Each landmark's position covariance in the map frame: ``δp_i = ξ_i − [p̂_i]×ξ_R`` from the filter's
