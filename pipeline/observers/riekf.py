@@ -1022,31 +1022,20 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
+class _OffsetApplied(Exception):
+    """The time offset, estimated while the filter ran on the recorded stamps, is applied (:meth:`RiEKF.advance`)."""
+
+
 class RiEKF(Stepper):
     """The filter on an aligned stream, a stretch of samples at a time."""
 
     keeps_covariance = True
 
     def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
+        from slamobs.pipeline.errors import InputError
         from slamobs.pipeline.noise import resolve_noise
         from slamobs.pipeline.observers import time_offset
 
-        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
-        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
-        # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
-        # filter's first stretch is kept when the estimate is not applied (most logs), run again when it is
-        # (:meth:`advance`); either way the outputs are those of the filter on the stamps the estimate says
-        self._recorded, self._start = stream, (options, r0, p0)
-        self._offset: time_offset.Background | None = time_offset.Background(stream)
-        self._time_offset: dict | None = None  # None while it is being estimated
-        self._setup(stream)
-
-    def _setup(self, stream) -> None:
-        """The filter at the start of ``stream`` (the detection stamps moved by the time offset or not)."""
-        from slamobs.pipeline.errors import InputError
-
-        options, r0, p0 = self._start
-        super().__init__(stream, options)
         n_lm = int(stream.landmark_ids.shape[0])
         if N_FIXED + 3 * n_lm > MAX_DIM:
             raise InputError(
@@ -1054,10 +1043,31 @@ class RiEKF(Stepper):
                 f"riekf keeps every landmark in a dense covariance; "
                 f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}",
             )
+        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
+        # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
+        # filter's first stretch is kept when the estimate is not applied (most logs), started again when it is
+        # (:meth:`advance`); either way the outputs are those of the filter on the stamps the estimate says
+        self._recorded, self._start = stream, (options, r0, p0)
+        self._offset: time_offset.Background | None = time_offset.Background(stream)
+        self._time_offset: dict | None = None  # None while it is being estimated
+        if self._offset.done():  # one core: estimated already, nothing to overlap
+            self._time_offset, self._offset = self._offset.result(), None
+            stream = time_offset.shifted(stream, self._time_offset)
+        self._setup(stream)
+
+    def _setup(self, stream) -> None:
+        """The filter at the start of ``stream`` (the detection stamps moved by the time offset or not)."""
+        options, r0, p0 = self._start
+        super().__init__(stream, options)
         nz = self.noise
         sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
         self.state = _State(
-            n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
+            int(stream.landmark_ids.shape[0]),
+            self.n_max,
+            np.eye(3) if r0 is None else r0,
+            np.zeros(3) if p0 is None else p0,
+            sigma_b,
         )
         # per detection at its measured range (a new or re-initialised landmark's): the variance of each axis
         # across its line of sight, and what the range's adds; a known landmark's at its predicted range from
@@ -1073,30 +1083,29 @@ class RiEKF(Stepper):
 
     @property
     def time_offset(self) -> dict:
-        """The time-offset estimate (``run.json`` ``observer.time_offset``), waited for while it is being made."""
-        if self._offset is not None:
-            self._resolve()
-        return self._time_offset
-
-    def _resolve(self) -> None:
-        """Wait for the time-offset estimate; when it is applied, start the filter again on the moved stamps."""
+        """The time-offset estimate (``run.json`` ``observer.time_offset``), waited for while it is being made; when
+        it is applied and the filter ran on the recorded stamps meanwhile, the filter starts again on the moved ones."""
         from slamobs.pipeline.observers import time_offset
 
-        self._time_offset, self._offset = self._offset.result(), None
-        if self._time_offset["applied"]:
-            self._setup(time_offset.shifted(self._recorded, self._time_offset))
+        if self._offset is not None:
+            self._time_offset, self._offset = self._offset.result(), None
+            if self._time_offset["applied"]:
+                self._setup(time_offset.shifted(self._recorded, self._time_offset))
+        return self._time_offset
 
     def advance(self, iv_stop: int):
-        """:meth:`Stepper.advance`; the first stretch waits for the time-offset estimate before it is returned, and
-        is run again on the moved stamps when the estimate is applied."""
+        """:meth:`Stepper.advance`. While the time offset is being estimated, the filter runs on the recorded
+        stamps; it stops as soon as the estimate is known to be applied (:meth:`_kernel`) and starts again on the
+        moved stamps, and the first stretch is returned only once the estimate is known."""
         if self._offset is None:
             return super().advance(iv_stop)
         try:
             first = super().advance(iv_stop)
-        except ObserverDiverged:
-            first = None  # on the stamps as recorded: raised again below unless the offset is applied
-        self._resolve()
-        if first is None or self._time_offset["applied"]:
+        except (ObserverDiverged, _OffsetApplied):
+            if not self.time_offset["applied"]:  # waits for the estimate (the filter started again if applied)
+                raise  # diverged on the stamps the estimate keeps: as without the overlap
+            return super().advance(iv_stop)
+        if self.time_offset["applied"]:
             return super().advance(iv_stop)
         self._describe()
         return replace(first, stats=dict(self.stats))
@@ -1122,6 +1131,8 @@ class RiEKF(Stepper):
         return moved
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
+        if self._offset is not None and self._offset.done() and self._offset.result()["applied"]:
+            raise _OffsetApplied  # the filter ran on the recorded stamps meanwhile: no use going on (advance)
         s, o = self.stream, self.options
         if self.cov_rows is not None:  # the rows of this call: those not yet written
             cov_out = self.cov_rows[self.cov_rows.shape[0] - out.k.shape[0] :]

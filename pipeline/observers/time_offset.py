@@ -301,6 +301,10 @@ class Background:
         except BaseException as err:  # handed to the caller by result()
             self._error = err
 
+    def done(self) -> bool:
+        """Whether the estimate (or its error) is there: :meth:`result` returns at once."""
+        return self._thread is None or not self._thread.is_alive()
+
     def result(self) -> dict:
         """The estimate (as :func:`estimate` returns it), once it is done; its error raised here."""
         if self._thread is not None:
