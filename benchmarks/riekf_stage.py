@@ -3,14 +3,15 @@ velocity sample), and the dense covariance work each frame needs, against the fl
 
     .venv/bin/python benchmarks/riekf_stage.py LOG [--repeat 2]
 
-Reads the log once (``prepare_log``, noise levels as ``slamobs run`` resolves them), then times, in this process
-and on CPU seconds as well as wall (the VM is shared), ``time_offset.estimate`` and the filter run a stretch at a
-time as ``slamobs run`` runs it (the offset estimated again inside, as in a run). The last lines count the
-multiply-adds of the dense covariance work: per frame, the propagation applied to the ``D x D`` covariance
-(``F Σ_b + Σ_bᵀ Fᵀ + F Σ_bb Fᵀ``: 18 per entry of one triangle written out, 6 as the filter applies it: rank-6
-terms) and the Kalman downdate (``3m`` per entry, ``m`` detections); then the one-pass kernel that applies both
-(``riekf._apply``, ``6 + 3m`` terms) timed alone at this ``D`` and ``m`` on generated numbers: its rate against
-the core's peak (8 multiply-adds per cycle with two 256-bit FMA units) is how close the filter is to its floor.
+Reads the log once (``prepare_log``, noise levels as ``slamobs run`` resolves them), then times, in this process and
+on CPU seconds as well as wall (the VM is shared), ``time_offset.estimate`` and the filter run a stretch at a time as
+``slamobs run`` runs it (the offset estimated again inside, as in a run: on another core while the filter starts, so
+the stage's wall time is below the sum when a core is free; its CPU seconds count both). The last lines count the
+multiply-adds of the dense covariance work: per frame, the propagation applied to the ``D x D`` covariance (``F Σ_b +
+Σ_bᵀ Fᵀ + F Σ_bb Fᵀ``: 18 per entry of one triangle written out, 6 as the filter applies it: rank-6 terms) and the
+Kalman downdate (``3m`` per entry, ``m`` detections); then the one-pass kernel that applies both (``riekf._apply``,
+``6 + 3m`` terms) timed alone at this ``D`` and ``m`` on generated numbers: its rate against the core's peak (8
+multiply-adds per cycle with two 256-bit FMA units) is how close the filter is to its floor.
 
 The last table is the cost model of a compressed EKF (Guivant & Nebot 2001) on the log's own visibility: the
 landmarks in view kept active until unseen for ``N`` frames (hysteresis), the mean active-set size, the

@@ -361,7 +361,7 @@ def _rots_to_quats_into(r, q):
         q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def integrate_body_twists(r0, p0, omega, v, dt):
     """Dead-reckon ``(R, P)`` through steps ``(R, P) <- (R, P) exp(dt_k [omega_k; v_k])``.
 
@@ -381,7 +381,7 @@ def integrate_body_twists(r0, p0, omega, v, dt):
     return rs, ps
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def integrate_body_twists_at(r0, p0, omega, v, dt, keep):
     """:func:`integrate_body_twists`'s poses ``keep`` (sorted indices into its K + 1), the same numbers, without
     storing the others (a long log's poses are read at a few places)."""
@@ -405,7 +405,7 @@ def integrate_body_twists_at(r0, p0, omega, v, dt, keep):
     return rs, ps
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def integrate_body_twists_at_columns(r0, p0, omega, v, cols, dt, keep):
     """:func:`integrate_body_twists_at` for ``v`` with its column ``c`` replaced by ``cols[:, c]``, for each
     ``c`` of 0..2 (three dead reckonings that share ``omega``): the rotations (the same for all three) once, the

@@ -376,3 +376,22 @@ def test_the_message_after_a_complete_output_says_so(capsys):
     assert done.value.code == 143
     err = capsys.readouterr().err.strip()
     assert err == "interrupted (SIGTERM) after the output was complete: /data/run1"
+
+
+def test_an_interrupted_run_does_not_wait_for_riekfs_time_offset_thread(tmp_path):
+    """riekf estimates the time offset on a thread of its own while its filter starts (``time_offset.Background``):
+    a run interrupted meanwhile (the CLI's handler unwinds it to an exit) ends at once, the thread with it (a
+    daemon: it writes nothing), however long the estimate still has to go (here: blocked for an hour)."""
+    script = tmp_path / "stop.py"
+    script.write_text(
+        "import os, sys, time\n"
+        "from slamobs.pipeline.observers import time_offset\n"
+        "time_offset.estimate = lambda stream: time.sleep(3600)\n"
+        "job = time_offset.Background(None)\n"
+        "assert job._thread is not None and job._thread.is_alive() and job._thread.daemon\n"
+        "sys.exit(143)\n"
+    )
+    if len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("one core: the estimate runs in the caller's thread")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=HANG)
+    assert proc.returncode == 143, proc.stderr

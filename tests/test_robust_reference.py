@@ -153,6 +153,40 @@ def test_detection_time_offset_is_estimated_and_applied_only_when_reliable(offse
     assert np.array_equal(res.det_t_ns, np.repeat(stream.det_t_ns + shift_ns, np.diff(stream.det_offsets)))
 
 
+@pytest.mark.parametrize("offset", [0.1, 0.0])
+def test_riekf_started_during_the_time_offset_estimate_equals_one_started_after_it(offset, monkeypatch):
+    """riekf starts on the recorded stamps while the offset is estimated on the other core
+    (``time_offset.Background``): its first stretch is kept when the estimate is not applied, run again on the
+    moved stamps when it is. Either way every output equals that of the filter started after the estimate
+    (one core: ``Background`` estimates at once), stretch by stretch."""
+    import os
+
+    from slamobs.pipeline.observers import time_offset
+
+    sim = simulate("figure8", seed=2, duration=20.0, detection_offset=offset)
+    stream = align(expected_streams(sim))
+
+    def stretches(wait=False, ready=False):
+        st = RIEKF.start(stream, {}, ObserverOptions())
+        if wait:  # the estimate read before the filter runs: waited for, the filter started again when applied
+            assert st.time_offset["applied"] == (offset != 0.0)
+        if ready:  # the estimate done before the filter's first kernel call: an applied one stops that filter at once
+            st._offset.result()
+        return [st.advance(stop) for stop in (1500, 2600, st.n_vel)]
+
+    assert len(os.sched_getaffinity(0)) > 1 or pytest.skip("one core: nothing runs concurrently")
+    assert time_offset.Background(stream)._thread is not None  # the estimate on its own thread
+    both, waited, ready = stretches(), stretches(wait=True), stretches(ready=True)
+    monkeypatch.setattr(time_offset.os, "sched_getaffinity", lambda _pid: {0})
+    assert time_offset.Background(stream)._thread is None
+    after = stretches()
+    assert both[0].stats["metadata"]["time_offset"]["applied"] == (offset != 0.0)
+    for a, b in [*zip(both, after, strict=True), *zip(waited, after, strict=True), *zip(ready, after, strict=True)]:
+        assert a.stats == b.stats
+        for f in ("t_ns", "rotation", "position", "gyro_bias", "det_t_ns", "innovation", "pose_cov", "landmark_cov"):
+            assert np.array_equal(getattr(a, f), getattr(b, f), equal_nan=True), f
+
+
 def test_riekf_recovers_from_gyro_noise_100x_the_default_by_raising_the_motion_noise():
     """The gyro 100x noisier than the defaults assume (issue 23): without the recovery the filter gated 4274 of
     4433 detections and ended 3 m off. The frames' innovations move together (a pose error, not noisy

@@ -47,12 +47,13 @@ as slow random walks.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
+from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 
@@ -1021,6 +1022,10 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
+class _OffsetApplied(Exception):
+    """The time offset, estimated while the filter ran on the recorded stamps, is applied (:meth:`RiEKF.advance`)."""
+
+
 class RiEKF(Stepper):
     """The filter on an aligned stream, a stretch of samples at a time."""
 
@@ -1031,10 +1036,6 @@ class RiEKF(Stepper):
         from slamobs.pipeline.noise import resolve_noise
         from slamobs.pipeline.observers import time_offset
 
-        self.time_offset = time_offset.estimate(stream)
-        stream = time_offset.shifted(stream, self.time_offset)
-        super().__init__(stream, options)
-        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         n_lm = int(stream.landmark_ids.shape[0])
         if N_FIXED + 3 * n_lm > MAX_DIM:
             raise InputError(
@@ -1042,10 +1043,31 @@ class RiEKF(Stepper):
                 f"riekf keeps every landmark in a dense covariance; "
                 f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}",
             )
+        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
+        # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
+        # filter's first stretch is kept when the estimate is not applied (most logs), started again when it is
+        # (:meth:`advance`); either way the outputs are those of the filter on the stamps the estimate says
+        self._recorded, self._start = stream, (options, r0, p0)
+        self._offset: time_offset.Background | None = time_offset.Background(stream)
+        self._time_offset: dict | None = None  # None while it is being estimated
+        if self._offset.done():  # one core: estimated already, nothing to overlap
+            self._time_offset, self._offset = self._offset.result(), None
+            stream = time_offset.shifted(stream, self._time_offset)
+        self._setup(stream)
+
+    def _setup(self, stream) -> None:
+        """The filter at the start of ``stream`` (the detection stamps moved by the time offset or not)."""
+        options, r0, p0 = self._start
+        super().__init__(stream, options)
         nz = self.noise
         sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
         self.state = _State(
-            n_lm, self.n_max, np.eye(3) if r0 is None else r0, np.zeros(3) if p0 is None else p0, sigma_b
+            int(stream.landmark_ids.shape[0]),
+            self.n_max,
+            np.eye(3) if r0 is None else r0,
+            np.zeros(3) if p0 is None else p0,
+            sigma_b,
         )
         # per detection at its measured range (a new or re-initialised landmark's): the variance of each axis
         # across its line of sight, and what the range's adds; a known landmark's at its predicted range from
@@ -1057,8 +1079,36 @@ class RiEKF(Stepper):
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
-        self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         self.stats.update({"noise": self.noise.as_dict()})
+
+    @property
+    def time_offset(self) -> dict:
+        """The time-offset estimate (``run.json`` ``observer.time_offset``), waited for while it is being made; when
+        it is applied and the filter ran on the recorded stamps meanwhile, the filter starts again on the moved ones."""
+        from slamobs.pipeline.observers import time_offset
+
+        if self._offset is not None:
+            self._time_offset, self._offset = self._offset.result(), None
+            if self._time_offset["applied"]:
+                self._setup(time_offset.shifted(self._recorded, self._time_offset))
+        return self._time_offset
+
+    def advance(self, iv_stop: int):
+        """:meth:`Stepper.advance`. While the time offset is being estimated, the filter runs on the recorded
+        stamps; it stops as soon as the estimate is known to be applied (:meth:`_kernel`) and starts again on the
+        moved stamps, and the first stretch is returned only once the estimate is known."""
+        if self._offset is None:
+            return super().advance(iv_stop)
+        try:
+            first = super().advance(iv_stop)
+        except (ObserverDiverged, _OffsetApplied):
+            if not self.time_offset["applied"]:  # waits for the estimate (the filter started again if applied)
+                raise  # diverged on the stamps the estimate keeps: as without the overlap
+            return super().advance(iv_stop)
+        if self.time_offset["applied"]:
+            return super().advance(iv_stop)
+        self._describe()
+        return replace(first, stats=dict(self.stats))
 
     def _relocalise(self, iv: int) -> bool:
         """After a gap (a new segment): the pose re-anchored to the map as the observers do it, and its
@@ -1081,6 +1131,8 @@ class RiEKF(Stepper):
         return moved
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
+        if self._offset is not None and self._offset.done() and self._offset.result()["applied"]:
+            raise _OffsetApplied  # the filter ran on the recorded stamps meanwhile: no use going on (advance)
         s, o = self.stream, self.options
         if self.cov_rows is not None:  # the rows of this call: those not yet written
             cov_out = self.cov_rows[self.cov_rows.shape[0] - out.k.shape[0] :]
@@ -1112,7 +1164,12 @@ class RiEKF(Stepper):
             cov_out,
             out.cov,
         )
-        ns = self.state.ns
+        self._describe()
+        return rows
+
+    def _describe(self) -> None:
+        """The run's statistics and notes as they are now (``stats``)."""
+        s, ns = self.stream, self.state.ns
         self.stats["substeps"] = int(ns[_STEPS])
         bias_sd = np.sqrt(np.clip(np.diag(self.state.cov)[6:12], 0.0, None))
         self.stats["metadata"] = {
@@ -1126,13 +1183,13 @@ class RiEKF(Stepper):
                 "noise": self.noise.as_dict(),
                 **self._recovery(),
             },
-            "time_offset": self.time_offset,
+            "time_offset": self._time_offset,
         }
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
         ) + recovery_notes(self.stats["metadata"]["filter"])
-        self.stats["notes"] += time_offset_note("riekf", self.time_offset)
-        return rows
+        if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
+            self.stats["notes"] += time_offset_note("riekf", self._time_offset)
 
     def landmark_covariance(self) -> np.ndarray:
         """Each landmark's position covariance in the map frame: ``δp_i = ξ_i − [p̂_i]×ξ_R`` from the filter's

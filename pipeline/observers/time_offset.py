@@ -21,6 +21,9 @@ of each other (a constant offset shows in both). Otherwise it is only reported.
 
 from __future__ import annotations
 
+import os
+import threading
+
 import numpy as np
 
 from slamobs.pipeline.kernel_cache import njit
@@ -107,7 +110,7 @@ def _first_after(t_s, t):
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shifts, out):
     """``out[s, m] = y_a − R_aᵀ (P_b + R_b y_b − P_a)`` for the pairs ``(a[m], b[m])`` at the stamps moved by
     ``shifts[s]`` (:func:`_pose_at`): a pair at every shift in turn (its samples stay in the cache: a long log's
@@ -274,6 +277,42 @@ def estimate(stream, bias: np.ndarray | None = None) -> dict:
     else:  # only an offset about to be applied pays for the check of the halves
         why = _halves_disagree(c, stream)
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
+
+
+class Background:
+    """:func:`estimate` on a thread of its own (its compiled loops release the GIL), for an estimator that starts on
+    the stamps as recorded meanwhile (``riekf``: the estimate is applied on few logs); :meth:`result` waits for it.
+    Without a second core it runs at once, in the caller's thread. The thread is a daemon that writes nothing: an
+    interrupted run does not wait for it, and a killed one leaves nothing behind."""
+
+    def __init__(self, stream) -> None:
+        self._value: dict | None = None
+        self._error: BaseException | None = None
+        self._thread: threading.Thread | None = None
+        if len(os.sched_getaffinity(0)) < 2:
+            self._value = estimate(stream)
+            return
+        self._thread = threading.Thread(target=self._run, args=(stream,), name="time-offset", daemon=True)
+        self._thread.start()
+
+    def _run(self, stream) -> None:
+        try:
+            self._value = estimate(stream)
+        except BaseException as err:  # handed to the caller by result()
+            self._error = err
+
+    def done(self) -> bool:
+        """Whether the estimate (or its error) is there: :meth:`result` returns at once."""
+        return self._thread is None or not self._thread.is_alive()
+
+    def result(self) -> dict:
+        """The estimate (as :func:`estimate` returns it), once it is done; its error raised here."""
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        if self._error is not None:
+            raise self._error
+        return self._value
 
 
 def shifted(stream, offset: dict):
