@@ -223,6 +223,29 @@ def test_the_compiled_walk_reads_every_primitive_as_rosbags(encoding):
             assert names[codes[i]] == text
 
 
+def _mangled(raw: bytes, rng, cut: float, byteorder: str) -> bytes:
+    """``raw`` cut short with probability ``cut``, and a length field pointing anywhere with probability 0.2."""
+    raw = bytearray(raw)
+    if rng.random() < cut:
+        raw = raw[: rng.integers(len(raw) + 1)]
+    if rng.random() < 0.2 and len(raw) > 20:
+        at = int(rng.integers(4, len(raw) - 4))
+        raw[at : at + 4] = int(rng.integers(0, 80)).to_bytes(4, byteorder)
+    return bytes(raw)
+
+
+def _both_ways(monkeypatch, plan, batch, summary) -> list[tuple]:
+    """``batch`` decoded by the compiled walk, then by the array steps: ``summary`` of each, or its error."""
+    outcomes = []
+    for walks in (True, False):
+        monkeypatch.setattr(fastdecode, "_walks", lambda plan, walks=walks: walks)
+        try:
+            outcomes.append(summary(decode(plan, batch)))
+        except DecodeError as err:
+            outcomes.append(("error", str(err)))
+    return outcomes
+
+
 @pytest.mark.parametrize("encoding", ["ros1", "cdr", "mixed"])
 def test_the_compiled_walk_fails_as_the_array_steps_do(encoding, monkeypatch):
     """Batches with cut messages and string lengths pointing anywhere: the compiled pass raises the error the array
@@ -234,22 +257,14 @@ def test_the_compiled_walk_fails_as_the_array_steps_do(encoding, monkeypatch):
         raws = []
         for k in range(6):
             kind = "cdr-big-endian" if encoding == "mixed" and k % 2 else ("ros1" if encoding == "ros1" else "cdr")
-            raw = bytearray(serialize(ts, _random(ts, "test_msgs/msg/EveryKind", rng, []), plan.msgtype, kind))
-            if rng.random() < 0.3:
-                raw = raw[: rng.integers(len(raw) + 1)]
-            if rng.random() < 0.2 and len(raw) > 20:
-                at = int(rng.integers(4, len(raw) - 4))
-                raw[at : at + 4] = int(rng.integers(0, 80)).to_bytes(4, "little")
-            raws.append(bytes(raw))
+            raw = serialize(ts, _random(ts, "test_msgs/msg/EveryKind", rng, []), plan.msgtype, kind)
+            raws.append(_mangled(raw, rng, 0.3, "little"))
         batch = _batch(raws, rng)
-        outcomes = []
-        for walks in (True, False):
-            monkeypatch.setattr(fastdecode, "_walks", lambda plan, walks=walks: walks)
-            try:
-                got = decode(plan, batch)
-                outcomes.append(("ok", got.t_ns.tolist(), got.values.view(np.uint64).tolist(), got.strings))
-            except DecodeError as err:
-                outcomes.append(("error", str(err)))
+
+        def summary(got):
+            return ("ok", got.t_ns.tolist(), got.values.view(np.uint64).tolist(), got.strings)
+
+        outcomes = _both_ways(monkeypatch, plan, batch, summary)
         assert outcomes[0][:3] == outcomes[1][:3], f"case {case}"
         if outcomes[0][0] == "ok":
             assert [[names[c] for c in codes] for codes, names in outcomes[0][3]] == [
@@ -399,31 +414,16 @@ def test_the_compiled_walk_of_detection_arrays_fails_as_the_array_steps_do(encod
         for k in range(5):
             kind = "cdr-big-endian" if encoding == "mixed" and k % 2 else ("ros1" if encoding == "ros1" else "cdr")
             msg = _detection_message(ts, msgtype, rng, FRAMES[(case + k) % len(FRAMES)], int(rng.integers(4)))
-            raw = bytearray(serialize(ts, msg, msgtype, kind))
-            if rng.random() < 0.2:
-                raw = raw[: rng.integers(len(raw) + 1)]
-            if rng.random() < 0.2 and len(raw) > 20:
-                at = int(rng.integers(4, len(raw) - 4))
-                raw[at : at + 4] = int(rng.integers(0, 80)).to_bytes(4, "big" if kind == "cdr-big-endian" else "little")
-            raws.append(bytes(raw))
+            raw = serialize(ts, msg, msgtype, kind)
+            raws.append(_mangled(raw, rng, 0.2, "big" if kind == "cdr-big-endian" else "little"))
         batch = _batch(raws, rng)
-        outcomes = []
-        for walks in (True, False):
-            monkeypatch.setattr(fastdecode, "_walks", lambda plan, walks=walks: walks)
-            try:
-                got = decode(plan, batch)
-                codes, names = got.strings[0]
-                outcomes.append(
-                    (
-                        "ok",
-                        got.t_ns.tolist(),
-                        got.counts.tolist(),
-                        got.items.view(np.uint64).tolist(),
-                        [names[c] for c in codes],
-                    )
-                )
-            except DecodeError as err:
-                outcomes.append(("error", str(err)))
+
+        def summary(got):
+            codes, names = got.strings[0]
+            items = got.items.view(np.uint64).tolist()
+            return ("ok", got.t_ns.tolist(), got.counts.tolist(), items, [names[c] for c in codes])
+
+        outcomes = _both_ways(monkeypatch, plan, batch, summary)
         assert outcomes[0] == outcomes[1], f"case {case}"
         seen.add(outcomes[0][0] if outcomes[0][0] == "ok" else outcomes[0][1].split(" ")[0])
     assert len(seen) >= 3, seen  # decoded, cut and overlong sequences or strings all met
