@@ -13,7 +13,8 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
+from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
+from slamobs.pipeline.cores import cores
 from slamobs.cli.options import Finite, window_options
 
 

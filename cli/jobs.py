@@ -1,9 +1,8 @@
-"""What the long commands that run many jobs (``batch``, ``tune``) share: exit codes, stopping on a signal,
-the number of cores to use."""
+"""What the long commands that run many jobs (``batch``, ``tune``) share: exit codes and stopping on a signal
+(the number of cores to use: :mod:`pipeline.cores`)."""
 
 from __future__ import annotations
 
-import os
 import signal
 
 from slamobs.cli.errors import EXIT_CODES
@@ -28,11 +27,3 @@ def on_signal(signum, _frame) -> None:
     for sig in EXIT_SIGNAL:  # a second signal must not cut the clean-up short (SIGKILL still can)
         signal.signal(sig, signal.SIG_IGN)
     raise Stopped(signum)
-
-
-def cores() -> int:
-    """The cores this process may run on (its CPU affinity, not the machine's count)."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1

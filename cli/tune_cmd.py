@@ -8,7 +8,8 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, cores, on_signal
+from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
+from slamobs.pipeline.cores import cores
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.listing import wrote_line
 from slamobs.cli.options import SEED, Finite

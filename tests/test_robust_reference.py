@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.cores import cores
 from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.noise import NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
@@ -159,8 +160,6 @@ def test_riekf_started_during_the_time_offset_estimate_equals_one_started_after_
     (``time_offset.Background``): its first stretch is kept when the estimate is not applied, run again on the
     moved stamps when it is. Either way every output equals that of the filter started after the estimate
     (one core: ``Background`` estimates at once), stretch by stretch."""
-    import os
-
     from slamobs.pipeline.observers import time_offset
 
     sim = simulate("figure8", seed=2, duration=20.0, detection_offset=offset)
@@ -174,10 +173,10 @@ def test_riekf_started_during_the_time_offset_estimate_equals_one_started_after_
             st._offset.result()
         return [st.advance(stop) for stop in (1500, 2600, st.n_vel)]
 
-    assert len(os.sched_getaffinity(0)) > 1 or pytest.skip("one core: nothing runs concurrently")
+    assert cores() > 1 or pytest.skip("one core: nothing runs concurrently")
     assert time_offset.Background(stream)._thread is not None  # the estimate on its own thread
     both, waited, ready = stretches(), stretches(wait=True), stretches(ready=True)
-    monkeypatch.setattr(time_offset.os, "sched_getaffinity", lambda _pid: {0})
+    monkeypatch.setattr(time_offset, "cores", lambda: 1)
     assert time_offset.Background(stream)._thread is None
     after = stretches()
     assert both[0].stats["metadata"]["time_offset"]["applied"] == (offset != 0.0)

@@ -26,6 +26,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from slamobs.pipeline.cores import cores
+
 #: A figure to draw: the name of a ``plots`` function, the file name it goes to, its keyword arguments.
 Job = tuple[str, str, dict[str, Any]]
 
@@ -41,10 +43,7 @@ def free_cores(loadavg: str | None = None) -> int:
     only adds its own imports (90 s log on 2 cores: 0.8 s slower at load 2.6-5, 0.3-0.8 s faster at load
     1.6-2). Not the load average alone: it still counts runs that have ended in the last minutes (back-to-back
     runs, a benchmark) and left the machine idle."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cpus = os.cpu_count() or 1
+    cpus = cores()
     try:
         text = loadavg if loadavg is not None else Path("/proc/loadavg").read_text()
         others = int(text.split()[3].split("/")[0]) - 1  # runnable now, this process (its reading thread) one
@@ -243,7 +242,7 @@ class _Batches:
     for a reader). Where ``os.fork`` is missing, the helper draws each batch itself."""
 
     def __init__(self) -> None:
-        self.slots = max(1, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+        self.slots = max(1, cores())
         self.children: list[tuple[int, Any]] = []  # (pid, file) per batch, in order
         self.drawn: list[list[bytes]] = []  # batches drawn here (no fork)
         self.status: dict[int, int] = {}  # exit status of reaped children

@@ -21,11 +21,11 @@ of each other (a constant offset shows in both). Otherwise it is only reported.
 
 from __future__ import annotations
 
-import os
 import threading
 
 import numpy as np
 
+from slamobs.pipeline.cores import cores
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import (
     integrate_body_twists,
@@ -289,7 +289,7 @@ class Background:
         self._value: dict | None = None
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
-        if len(os.sched_getaffinity(0)) < 2:
+        if cores() < 2:
             self._value = estimate(stream)
             return
         self._thread = threading.Thread(target=self._run, args=(stream,), name="time-offset", daemon=True)
