@@ -66,6 +66,12 @@ KINDS: tuple[type[SlamobsError], ...] = (
 )
 
 
+class Unwind(Exception):
+    """Not an error, and no kind: a private signal that unwinds a loop to the method of the same module that
+    catches it (riekf's filter stopped once its time offset is known to move the stamps); it never reaches the
+    CLI's boundary."""
+
+
 def kind_of(err: BaseException) -> type[SlamobsError] | None:
     """The kind of ``err`` (the first kind in its class's MRO), None for an error that is not slamobs'."""
     for cls in type(err).__mro__:

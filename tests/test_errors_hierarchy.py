@@ -70,6 +70,9 @@ def test_every_project_exception_derives_from_one_kind_of_slamobs_error():
         key: cls for key, cls in _project_exceptions().items() if cls is not SlamobsError and cls not in errors.KINDS
     }
     assert set(EXPECTED) <= set(found), f"not found: {set(EXPECTED) - set(found)}"
+    unwinds = {key for key, cls in found.items() if issubclass(cls, errors.Unwind) and cls is not errors.Unwind}
+    assert all(n.startswith("_") for _, n in unwinds), f"an Unwind is private to its module: {unwinds}"
+    found = {key: cls for key, cls in found.items() if key not in unwinds and cls is not errors.Unwind}
     outside = [f"{m}.{n}" for (m, n), cls in found.items() if not issubclass(cls, SlamobsError)]
     assert not outside, f"exceptions outside the hierarchy: {outside}"
     wrong = {f"{m}.{n}": _kind(cls) for (m, n), cls in found.items() if _kind(cls) is not EXPECTED.get((m, n))}

@@ -50,6 +50,7 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
@@ -1022,7 +1023,7 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
-class _OffsetApplied(Exception):
+class _OffsetApplied(Unwind):
     """The time offset, estimated while the filter ran on the recorded stamps, is applied (:meth:`RiEKF.advance`)."""
 
 
