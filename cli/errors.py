@@ -76,8 +76,11 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
     name = signal.Signals(signum).name
     from slamobs.pipeline.interrupts import published
 
-    if published:  # the signal came after the output was complete (while the command printed its summary)
-        click.echo(f"\ninterrupted ({name}) after the output was complete: {', '.join(published)}", err=True)
+    # outputs published since the command began that are still there: a compare's runs are published inside its
+    # temporary output, which the interruption removed
+    kept = [p for p in published if os.path.exists(p)]
+    if kept:  # the signal came after the output was complete (while the command printed its summary)
+        click.echo(f"\ninterrupted ({name}) after the output was complete: {', '.join(kept)}", err=True)
     else:
         click.echo(
             f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged", err=True

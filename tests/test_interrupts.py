@@ -363,19 +363,26 @@ def test_no_gap_between_the_commands_handlers_and_the_end_handlers():
             signal.signal(s, h)
 
 
-def test_the_message_after_a_complete_output_says_so(capsys):
+def test_the_message_after_a_complete_output_says_so(capsys, tmp_path):
+    """It names the outputs published that are still there; one published inside a temporary output the
+    interruption removed (a compare's runs) is not "complete": then nothing was written."""
     from slamobs.cli import errors
     from slamobs.pipeline import interrupts
 
-    interrupts.published[:] = ["/data/run1"]
-    try:
-        with pytest.raises(SystemExit) as done:
-            errors.exit_interrupted(interrupts.Interrupted(signal.SIGTERM))
-    finally:
-        interrupts.published.clear()
-    assert done.value.code == 143
-    err = capsys.readouterr().err.strip()
-    assert err == "interrupted (SIGTERM) after the output was complete: /data/run1"
+    run1 = tmp_path / "run1"
+    run1.mkdir()
+    for published, said in (
+        ([str(run1), str(tmp_path / "gone")], f"interrupted (SIGTERM) after the output was complete: {run1}"),
+        ([str(tmp_path / ".cmp.tmp-x" / "run" / "fast-adaptation")], "interrupted (SIGTERM): stopped; nothing was"),
+    ):
+        interrupts.published[:] = published
+        try:
+            with pytest.raises(SystemExit) as done:
+                errors.exit_interrupted(interrupts.Interrupted(signal.SIGTERM))
+        finally:
+            interrupts.published.clear()
+        assert done.value.code == 143
+        assert capsys.readouterr().err.strip().startswith(said)
 
 
 def test_an_interrupted_run_does_not_wait_for_riekfs_time_offset_thread(tmp_path):
