@@ -219,3 +219,24 @@ def test_a_start_that_reaches_the_same_minimum_does_not_replace_the_configured_s
     assert cands.choose([first, far]) is far
     _, note = cands.record("test", [first, riekf], first, first.seed)
     assert "kept 'fast-adaptation' (no start lowers the cost by more than 1: a tie)" in note
+
+
+def test_every_start_is_tried_on_a_short_log_and_only_when_doubtful_on_a_long_one(log, monkeypatch):
+    """A clean log's first solution passes every doubt check; on a log of at most ALWAYS_MAX_KEYFRAMES keyframes
+    the other starts are tried anyway (a wrong minimum can pass the checks), the lowest robust cost kept and the
+    note saying why; above the limit they are not (each start would be a long solve). The same trajectory either
+    way here: the starts reach one minimum, and a tie keeps the configured seed's solution."""
+    from slamobs.pipeline.smoother import candidates as cands
+    from slamobs.pipeline.smoother.estimator import BatchSmoother
+
+    _, stream = log
+    short = BatchSmoother(stream, {}, ObserverOptions(), noise=noise())
+    summary = short.solve()
+    robust = summary["robust"]
+    assert robust["reason"].startswith("every start tried on a log of") and robust["winner"] == "fast-adaptation"
+    assert {"dead-reckoning", "riekf"} <= set(robust["candidates"])
+    assert any(n.startswith("batch: every start tried") for n in short.stats["notes"])
+    monkeypatch.setattr(cands, "ALWAYS_MAX_KEYFRAMES", 10)
+    long = BatchSmoother(stream, {}, ObserverOptions(), noise=noise())
+    assert "robust" not in long.solve()
+    assert np.allclose(long.result["solution"].pos, short.result["solution"].pos, atol=1e-6)
