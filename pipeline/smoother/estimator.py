@@ -380,18 +380,13 @@ class BatchSmoother(Stepper):
         carries the detection's own error: a reading that came out short got a smaller σ and more weight than
         one that came out long, and the map and trajectory shrank (a stereo-like figure-8, σ ∝ r²: by 8 %)."""
         from slamobs.pipeline.smoother import graph as g
-        from slamobs.pipeline.smoother.candidates import Candidate
 
         if self.noise.detection_per_m == 0.0 and self.noise.detection_per_m2 == 0.0:
             return chosen, []
         for _ in range(RANGE_PASSES):  # the motion factors as they are: only the detections' σ change
             predicted = g.predicted_detections(keyframes[1], self.stream.det_idx, chosen.sol)
             self.det_range = np.linalg.norm(predicted, axis=1)
-            full = replace(chosen.problem, **self._detections(keyframes[1]))
-            guess = g.Guess(chosen.sol.rot, chosen.sol.pos, chosen.sol.landmarks, chosen.sol.bias)
-            solved, sol, notes = self._solve_gated(full, guess, chosen.seed.name, progress)
-            sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
-            chosen = Candidate(chosen.seed, solved, sol, notes)
+            chosen = self._solved_again(chosen, chosen.sol, keyframes, segments, progress, same_motion=True)
         return chosen, [
             "batch: each detection's σ(r) at the range the solution predicts, not the measured one (whose own "
             "error would weigh the short readings up)"
@@ -604,14 +599,19 @@ class BatchSmoother(Stepper):
             progress=progress,
         )
 
-    def _solved_again(self, chosen, start, keyframes: tuple, segments: _Segments, progress):
+    def _solved_again(self, chosen, start, keyframes: tuple, segments: _Segments, progress, same_motion=False):
         """The smoother on ``chosen``'s seed solved (and gated) again at the current noise levels and detection
-        factors, from the solution ``start``: the new candidate, its summary continuing ``chosen``'s."""
+        factors, from the solution ``start``: the new candidate, its summary continuing ``chosen``'s.
+        ``same_motion``: only the detections changed, ``chosen``'s motion factors are kept (not preintegrated
+        again)."""
         from slamobs.pipeline.smoother import graph as g
         from slamobs.pipeline.smoother.candidates import Candidate
 
         kf_t, kf_of_det, gaps = keyframes
-        full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
+        if same_motion:
+            full = replace(chosen.problem, **self._detections(kf_of_det))
+        else:
+            full = self._problem(kf_t, kf_of_det, gaps, chosen.seed, segments)
         guess = g.Guess(start.rot, start.pos, start.landmarks, start.bias)
         solved, sol, notes = self._solve_gated(full, guess, chosen.seed.name, progress)
         sol.summary = g.merge_summaries(chosen.sol.summary, sol.summary)
