@@ -150,15 +150,6 @@ class NoiseSettings:
         ratio2 = self.detection_ratio**2
         return 3.0 / (ratio2 + 2.0), 3.0 * ratio2 / (ratio2 + 2.0)
 
-    def detection_axes(self, ranges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per detection the variance of each axis across its line of sight, and what the range's adds to it
-        (zero with ``detection_ratio`` 1): the law's ``σ(r)²`` split by the ratio (:meth:`ratio_split`)."""
-        var = self.detection_sigma(ranges) ** 2
-        if self.detection_ratio == 1.0:
-            return var, np.zeros_like(var)
-        across = self.ratio_split()[0] * var
-        return across, (self.detection_ratio**2 - 1.0) * across
-
     def lines(self) -> list[str]:
         """One line per level: value, unit, source, uncertainty and method."""
         out, said = [], set()

@@ -53,9 +53,8 @@ def test_alike_axes_keep_one_and_say_so(logs):
     assert any("line of sight is not told" in n for n in found.notes), found.notes
     nz = resolve_noise(estimated=found)
     assert nz.detection_ratio == 1.0 and nz.sources["detection_ratio"] == "default"
-    across, extra = nz.detection_axes(np.array([1.0, 10.0]))
-    np.testing.assert_array_equal(across, nz.detection_sigma(np.array([1.0, 10.0])) ** 2)
-    assert not extra.any()
+    across, along = nz.ratio_split()  # the factors of σ(r)²: the law itself on every axis
+    assert across == along == 1.0
 
 
 def test_a_range_error_five_times_the_across_one_is_found_and_riekf_follows_it(logs):
@@ -65,9 +64,9 @@ def test_a_range_error_five_times_the_across_one_is_found_and_riekf_follows_it(l
     assert 0 < found.ratio.uncertainty < 0.1 * found.ratio.value
     nz = resolve_noise(estimated=found)
     assert nz.sources["detection_ratio"] == "estimated" and nz.detection_ratio == found.ratio.value
-    across, extra = nz.detection_axes(np.array([4.0]))
-    np.testing.assert_allclose(across + extra, nz.detection_ratio**2 * across)  # the range's variance
-    np.testing.assert_allclose((3 * across + extra) / 3, nz.detection_sigma(np.array([4.0])) ** 2)  # trace kept
+    across, along = nz.ratio_split()  # the factors of σ(r)² across the line of sight and along it
+    np.testing.assert_allclose(along, nz.detection_ratio**2 * across)  # the range's variance
+    np.testing.assert_allclose((2 * across + along) / 3, 1.0)  # trace kept: σ(r) the mean over the axes
     alike = riekf_ape(sim, sharp, replace(nz, detection_ratio=1.0))
     apart = riekf_ape(sim, sharp, nz)
     assert apart < alike, (apart, alike)

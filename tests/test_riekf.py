@@ -79,11 +79,12 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
     lm = rng.normal(size=(n_lm, 3)) * 4
     det_idx = np.array([0, 3, 2])
     det_y = rng.normal(size=(3, 3)) * 3
-    measured = np.array([0.01, 0.02, 0.03]) ** 2  # σ(r)² at the measured ranges: the new landmark's
     law = np.array([0.005, 0.003, 0.0, 1.0, extra])  # σ0, k, a; across factor, range's extra factor
-    sigma2 = measured.copy()
+    ranges = np.linalg.norm(det_y, axis=1)  # measured: the new landmark's (detection 1)
     for j in (0, 2):  # a known landmark's at the range the state predicts
-        sigma2[j] = (law[0] + law[1] * np.linalg.norm(lm[det_idx[j]] - p_hat)) ** 2
+        ranges[j] = np.linalg.norm(lm[det_idx[j]] - p_hat)
+    assert np.all(np.abs(ranges - np.linalg.norm(det_y, axis=1))[[0, 2]] > 0.1)  # the two ranges tell apart
+    sigma2 = (law[0] + law[1] * ranges) ** 2
     sight = det_y @ r_hat.T / np.linalg.norm(det_y, axis=1)[:, None]
     noise = [sigma2[j] * (np.eye(3) + extra * np.outer(sight[j], sight[j])) for j in range(3)]
     # dense reference
@@ -122,7 +123,6 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
         3,
         det_idx,
         det_y,
-        np.stack([measured, extra * measured], axis=1),
         law,
         cov,
         d,

@@ -104,9 +104,8 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     assert _propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
     ns = np.zeros(N_SLOTS, dtype=np.int64)
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
-    noise = np.full((3, 2), 0.0)  # the measured ranges' (a new landmark's): not read, every landmark is known
     d_out = _update(
-        0, 3, det_idx, det_y, noise, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+        0, 3, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
         np.zeros(3, np.int64), np.zeros(9), lt, rt, dp, np.zeros((9, 9)), innov, trk, 0, ns, 1e9, 1.0,
         np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
     )  # fmt: skip

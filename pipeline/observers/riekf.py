@@ -536,7 +536,6 @@ def _update(
     nd,
     det_idx,
     det_y,
-    det_sigma2,
     det_law,
     cov,
     d,
@@ -589,12 +588,11 @@ def _update(
             e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
         if slot_of[i] >= 0 and not reinit[i]:  # σ(r) at the range the state predicts (module docstring)
             rr = np.sqrt((lm[i, 0] - p_hat[0]) ** 2 + (lm[i, 1] - p_hat[1]) ** 2 + (lm[i, 2] - p_hat[2]) ** 2)
-            sg = det_law[0] + det_law[1] * rr + det_law[2] * rr * rr
-            sig2[j] = det_law[3] * sg * sg * scale
-            extra = det_law[4] * sig2[j]
-        else:
-            sig2[j] = det_sigma2[a0 + j, 0] * scale
-            extra = det_sigma2[a0 + j, 1] * scale
+        else:  # a new or re-initialised landmark's at its measured range
+            rr = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+        sg = det_law[0] + det_law[1] * rr + det_law[2] * rr * rr
+        sig2[j] = det_law[3] * (sg * sg) * scale
+        extra = det_law[4] * sig2[j]
         if extra > 0.0:
             f = np.sqrt(extra / (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]))
             for c in range(3):
@@ -788,7 +786,6 @@ def _advance(
     det_offsets,
     det_idx,
     det_y,
-    det_sigma2,
     det_law,
     lm,
     q_om,
@@ -894,7 +891,6 @@ def _advance(
                 nd,
                 det_idx,
                 det_y,
-                det_sigma2,
                 det_law,
                 cov,
                 d,
@@ -1070,13 +1066,10 @@ class RiEKF(Stepper):
             np.zeros(3) if p0 is None else p0,
             sigma_b,
         )
-        # per detection at its measured range (a new or re-initialised landmark's): the variance of each axis
-        # across its line of sight, and what the range's adds; a known landmark's at its predicted range from
-        # the law (σ0, k, a) and the split's factors (across, what the range's adds)
-        self.det_sigma2 = np.stack(nz.detection_axes(np.linalg.norm(stream.det_y, axis=1)), axis=1)
-        across = nz.ratio_split()[0] if nz.detection_ratio != 1.0 else 1.0
+        # the detection law (σ0, k, a) and the factors of σ(r)² across the line of sight and of what the range
+        # adds (the ratio's split): the kernel evaluates it at each detection's predicted (or measured) range
         self.det_law = np.array(
-            [nz.detection, nz.detection_per_m, nz.detection_per_m2, across, nz.detection_ratio**2 - 1.0]
+            [nz.detection, nz.detection_per_m, nz.detection_per_m2, nz.ratio_split()[0], nz.detection_ratio**2 - 1.0]
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
@@ -1147,7 +1140,6 @@ class RiEKF(Stepper):
             s.det_offsets,
             s.det_idx,
             s.det_y,
-            self.det_sigma2,
             self.det_law,
             self.lm,
             *self.params,
