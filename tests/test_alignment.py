@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.alignment import align
+from slamobs.pipeline.blocks import row_norms3
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import static_transform
 from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
@@ -177,8 +178,8 @@ def test_detection_helpers_give_numpys_arrays():
 
     rng = np.random.default_rng(3)
     x = rng.normal(size=(5000, 3)) * 10.0 ** rng.integers(-8, 8, size=(5000, 1))
-    assert A._row_norms3(x).tobytes() == np.linalg.norm(x, axis=1).tobytes()
-    assert A._row_norms3(x[::2]).tobytes() == np.linalg.norm(x[::2], axis=1).tobytes()  # strided rows
+    assert row_norms3(x).tobytes() == np.linalg.norm(x, axis=1).tobytes()
+    assert row_norms3(x[::2]).tobytes() == np.linalg.norm(x[::2], axis=1).tobytes()  # strided rows
     for ids in (
         rng.integers(-5, 40, size=3000),  # negative ids too
         np.array([2**40, 3, 2**40, 7]),  # a range too wide for the table: NumPy's sort
