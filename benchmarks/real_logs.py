@@ -9,7 +9,9 @@ Logs (``$SLAMOBS_REALDATA``, default ``../shared/realdata``; those absent are sk
 * ``tagslam-11``, ``-16``, ``-21``, ``-22``: TagSLAM's tests (real AprilTag corners; VIO odometry in 11, 21, 22;
   16 has no velocities and is listed as skipped). Map error against the survey (11: ``tagslam.yaml``) or against
   TagSLAM's own optimised tag positions (21, 22: ``reference.bag``; not independent truth), after a rigid fit
-  (22 has two tags, too few for a fit: the error of their distance instead).
+  (22 has two tags, too few for a fit: the error of their distance instead; that metric's resolution is the
+  standard error of the distance the detections measure directly, frame by frame, and two scores closer than it
+  are printed as a tie).
 * ``mrclam6-rN``, ``mrclam7-rN`` (N = 1..5): UTIAS MR.CLAM robots imported with ``slamobs import mrclam`` into the
   cache; APE against Vicon, map error against the landmark survey.
 
@@ -125,6 +127,8 @@ class Result:
     error: str = ""
     #: run.json's observer.smoother (batch's record of its solve), {} for the others
     smoother: dict = field(default_factory=dict)
+    #: the map score's resolution where it is the pairwise distance error (:func:`_pairwise_resolution`), else None
+    resolution: float | None = None
 
     @property
     def score(self) -> float:
@@ -190,6 +194,7 @@ def run_one(log: Log, estimator: str, out: Path, noise: dict | None = None) -> R
         res.map_err = meta["map_error"]["error_m"]["rmse"]
     if res.map_err is None and log.config.get("evaluation", {}).get("map_truth", "").endswith(".csv"):
         res.map_err = _pairwise_error(out / "landmarks.parquet", Path(log.config["evaluation"]["map_truth"]))
+        res.resolution = _pairwise_resolution(out)
     shutil.rmtree(out, ignore_errors=True)
     return res
 
@@ -226,6 +231,34 @@ def _pairwise_error(estimated: Path, reference: Path) -> float | None:
     i, j = np.triu_indices(len(ids), 1)
     diff = np.linalg.norm(a[i] - a[j], axis=1) - np.linalg.norm(b[i] - b[j], axis=1)
     return float(np.sqrt(np.mean(diff**2)))
+
+
+def _pairwise_resolution(run_dir: Path) -> float | None:
+    """The resolution of :func:`_pairwise_error`: the RMS over landmark pairs of the standard error of their
+    distance as the detections measure it directly, in the frames that see both (the detection in the world
+    frame at the solution, the landmark's estimate less the innovation ``R̂y + P̂``, so that two in one frame are
+    ``|y_j − y_i|`` apart whatever the solution). The reference (TagSLAM's own optimisation, from the same
+    detections) and every estimate of the distance carry about that much: scores closer than it are a tie. None
+    when no pair is seen together in two frames."""
+    import numpy as np
+    import pandas as pd
+
+    tracks, innov = run_dir / "landmark_tracks.parquet", run_dir / "innovations.parquet"
+    if not (tracks.is_file() and innov.is_file()):
+        return None
+    tr, iv = pd.read_parquet(tracks), pd.read_parquet(innov)
+    world = tr[["x", "y", "z"]].to_numpy() - iv[["ex", "ey", "ez"]].to_numpy()
+    frames: dict[int, dict[int, np.ndarray]] = {}
+    for t, i, w in zip(tr["t_ns"].to_numpy(), tr["id"].to_numpy(), world):
+        frames.setdefault(int(t), {})[int(i)] = w
+    dist: dict[tuple[int, int], list[float]] = {}
+    for seen in frames.values():
+        ids = sorted(seen)
+        for a in range(len(ids)):
+            for b in range(a + 1, len(ids)):
+                dist.setdefault((ids[a], ids[b]), []).append(float(np.linalg.norm(seen[ids[a]] - seen[ids[b]])))
+    se = [np.std(d, ddof=1) / np.sqrt(len(d)) for d in dist.values() if len(d) >= 2]
+    return float(np.sqrt(np.mean(np.square(se)))) if se else None
 
 
 def grid_noise(levels: dict, motion: float, detection: float, motion_keys: tuple[str, ...] = MOTION_KEYS) -> dict:
@@ -275,6 +308,14 @@ def _fmt(v: float | None, digits: int = 3) -> str:
     return f"{v:.2g}" if 0 < abs(v) < 10.0 ** (1 - digits) else f"{v:.{digits}f}"
 
 
+def _tie(r: Result, b: Result) -> str:
+    """The mark of a tie, when the two scores differ by less than their metric's resolution (else empty)."""
+    res = max((x.resolution for x in (r, b) if x.resolution is not None), default=None)
+    if res is None or b.score in (r.score, float("inf")) or abs(r.score - b.score) >= res:
+        return ""
+    return f" (a tie: Δ {_fmt(abs(r.score - b.score))} m < resolution {_fmt(res)} m)"
+
+
 def row(log: Log, estimator: str, r: Result, best: tuple[Result, str] | None, seed: Result | None) -> str:
     if r.error:
         cells = ["", "", "", "", f"{r.seconds:.1f}", f"error: {r.error}"]
@@ -283,7 +324,7 @@ def row(log: Log, estimator: str, r: Result, best: tuple[Result, str] | None, se
     if best is not None:
         b, where = best
         ratio = r.score / b.score if b.score not in (0.0, float("inf")) else float("nan")
-        cells += [f"{_fmt(b.ape if b.ape is not None else b.map_err)} ({where})", f"{ratio:.2f}"]
+        cells += [f"{_fmt(b.ape if b.ape is not None else b.map_err)} ({where})", f"{ratio:.2f}{_tie(r, b)}"]
     else:
         cells += ["", ""]
     cells.append(f"{r.score / seed.score:.2f}" if seed is not None and 0.0 < seed.score < float("inf") else "")
