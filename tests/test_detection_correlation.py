@@ -72,6 +72,20 @@ def test_the_factors_count_a_track_as_its_correlation_does():
     assert exact < PER_TRACK / 3
 
 
+def test_factors_of_tracks_that_start_before_the_last_one_ended_give_no_warning():
+    """Tracks taken landmark by landmark step back in time from one landmark's last detection to the next one's
+    first: no link is computed there (it overflowed ``exp`` and printed a RuntimeWarning on real logs), and the
+    factors are those of each track alone."""
+    t = np.r_[np.arange(50) * 10.0 + 5000.0, np.arange(40) / RATE]  # landmark 0 seen long after landmark 1
+    lm = np.r_[np.zeros(50, int), np.ones(40, int)]
+    corr = dc.Correlation(SHARE, 0.5, 0.0, 1, {})
+    with np.errstate(all="raise"):
+        got = dc.inflation(t, lm, corr)
+    alone = np.r_[dc.inflation(t[:50], lm[:50], corr), dc.inflation(t[50:], lm[50:], corr)]
+    assert np.array_equal(got, alone)
+    assert got[50:].min() > 1.5 and np.all(got[:50] < 1.0 + 1e-6)
+
+
 @pytest.fixture(scope="module")
 def generated():
     sim = simulate("figure8", duration=30.0, seed=3)

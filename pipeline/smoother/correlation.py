@@ -116,7 +116,8 @@ def inflation(t: np.ndarray, landmark: np.ndarray, corr: Correlation) -> np.ndar
     o = _tracks(t, landmark)
     ts, ls = t[o], landmark[o]
     x = np.zeros(ts.shape[0])
-    x[1:] = np.where(ls[1:] == ls[:-1], np.exp(-(ts[1:] - ts[:-1]) / corr.tau), 0.0)
+    same = np.flatnonzero(ls[1:] == ls[:-1]) + 1  # a link within a track (across two, the time steps back)
+    x[same] = np.exp(-(ts[same] - ts[same - 1]) / corr.tau)
     fwd = np.asarray(_chain(x.tolist()))
     bwd = np.asarray(_chain([0.0, *x[:0:-1].tolist()]))[::-1]  # the same, from the end: link i to i + 1 is x[i + 1]
     f[o] = 1.0 + corr.share * (fwd + bwd)
