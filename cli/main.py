@@ -347,3 +347,8 @@ def _add_commands() -> None:
 
 
 _add_commands()
+
+if __name__ == "__main__":  # `python -m slamobs.cli.main ...` ran nothing and exited 0 without this
+    from slamobs.cli.main import entry as _installed_entry  # the imported module, as the console script runs it
+
+    _installed_entry()
