@@ -233,12 +233,20 @@ def check_required(streams: LogStreams, directions: int = 0) -> None:
             streams.path,
             f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
             f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
-            details=tuple(f"{role} ({ROLE_PURPOSE[role]}): {'; '.join(how_to_satisfy(role))}" for role in roles),
+            details=tuple(
+                f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{'; '.join(how_to_satisfy(role))}"
+                for role in roles
+            ),
         )
 
 
 def _has_samples(stream) -> bool:
     return stream is not None and len(stream) > 0
+
+
+def _no_samples(stream) -> str:
+    """For a role whose topic was read but gave nothing: that topic, so it is not read as "no topic found"."""
+    return "" if stream is None else f"{stream.topic} has no samples in this log or the --start/--end window; "
 
 
 def _sorted(t: np.ndarray, *arrays: np.ndarray):

@@ -165,3 +165,18 @@ def test_corners_without_camera_info_are_ready_only_with_the_settings_run_asks_f
     assert needs(camera_info="/camera_info", sim_truth="/slamobs/sim_truth") == {()}
     text = invoke("info", SAMPLES / "figure8.mcap").output
     assert "ready once" not in text and ": ready" in text  # 3D tag poses: nothing more to give
+
+
+def test_a_role_whose_topic_is_empty_names_that_topic(logs, tmp_path):
+    """A detections topic recorded without messages is named, by ``info`` and by ``run`` when the config names
+    it (both said only "missing: set topics.detections to ..." as if the log had no such topic)."""
+    ready = readiness(inspect_log(logs["no_odom_det"]))
+    assert any("no messages on: /fiducial_transforms (" in w for w in ready.satisfy["detections"])
+    assert any("no messages on: /odom (nav_msgs/msg/Odometry)" in w for w in ready.satisfy["linear_velocity"])
+    config = tmp_path / "run.yaml"
+    config.write_text("topics:\n  detections: /fiducial_transforms\n")
+    res = invoke("run", logs["no_odom_det"], "--config", config, "-o", tmp_path / "out")
+    assert res.exit_code == 2
+    detail = next(line for line in res.output.splitlines() if line.lstrip().startswith("detections ("))
+    assert "/fiducial_transforms has no samples" in detail
+    assert not (tmp_path / "out").exists()
