@@ -651,7 +651,7 @@ def estimate(
         t = time.perf_counter()
         n_vel = int(aligned.vel_t_ns.shape[0])
         progress(f"{spec.name}: 0 of {n_vel} samples")
-        parts = spec.chunks(aligned, gains, options, STRETCH_SAMPLES)
+        parts = spec.chunks(aligned, gains, replace(options, progress=progress), STRETCH_SAMPLES)
         for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
             observer_s += time.perf_counter() - t
             interrupts.check()
