@@ -180,3 +180,20 @@ def test_a_role_whose_topic_is_empty_names_that_topic(logs, tmp_path):
     detail = next(line for line in res.output.splitlines() if line.lstrip().startswith("detections ("))
     assert "/fiducial_transforms has no samples" in detail
     assert not (tmp_path / "out").exists()
+
+
+def test_the_verdict_says_when_every_ready_estimator_still_needs_settings():
+    """TagSLAM test_22: "readiness: 5 of 7 estimators can run" while `run` without a config stopped on the
+    camera intrinsics; the verdict now names what the config must give (and stays bare when nothing is needed)."""
+    from slamobs.cli.info_cmd import format_readiness
+    from slamobs.pipeline.readers.inspect import LogInfo, TopicSummary
+
+    topics = (
+        TopicSummary("/odom", "nav_msgs/msg/Odometry", 100, rate_hz=20.0),
+        TopicSummary("/tags", "apriltag_msgs/msg/ApriltagArrayStamped", 100, rate_hz=20.0),
+    )
+    roles = {"angular_velocity": "/odom", "linear_velocity": "/odom", "detections": "/tags"}
+    first = format_readiness(readiness(LogInfo("x.bag", "ros1", "", 0, 1, 300, topics, roles))).splitlines()[0]
+    assert first == "  readiness: 5 of 7 estimators can run once the config gives tags.size and cameras"
+    text = invoke("info", SAMPLES / "figure8.mcap").output
+    assert "estimators can run\n" in text
