@@ -197,3 +197,14 @@ def test_the_verdict_says_when_every_ready_estimator_still_needs_settings():
     assert first == "  readiness: 5 of 7 estimators can run once the config gives tags.size and cameras"
     text = invoke("info", SAMPLES / "figure8.mcap").output
     assert "estimators can run\n" in text
+
+
+def test_a_mistyped_topic_names_the_nearest_one(logs, tmp_path):
+    """``topics.linear_velocity: /odm`` listed every topic; it now says which one was probably meant (and one line,
+    exit 2, nothing written, as before)."""
+    config = tmp_path / "run.yaml"
+    config.write_text("topics:\n  linear_velocity: /odm\n")
+    res = invoke("run", logs["full"], "--config", config, "-o", tmp_path / "out")
+    assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1
+    assert "[/odm]: topic for role linear_velocity is not in the log (did you mean /odom? topics: " in res.output
+    assert not (tmp_path / "out").exists()
