@@ -269,7 +269,8 @@ def _markdown(table, log: Path, against: str | None = None, compiled: dict[str, 
         )
     return (
         f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "
-        f"truth; bias errors are final-sample norms; convergence_s is the first time after which the aligned "
+        "truth; bias errors are final-sample norms (gyro_bias_err in rad/s, vel_bias_err in m/s); convergence_s is "
+        "the first time after which the aligned "
         f"position error's level (running median over 5 % of the log) stays within convergence_band_m = "
         f"max(threshold, 1.5 × the observer's highest level over the last 20 % of the log), so each observer is "
         f"measured against its own steady level; run time is the observer stage.{vs}\n\n{head}{body}"

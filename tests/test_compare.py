@@ -59,6 +59,7 @@ def test_compare_all_observers_side_by_side(tmp_path):
     md = (out / "comparison.md").read_text()
     assert all(f"| {name} | ok |" in md for name in names)
     assert "convergence_band_m" in md and "last 20 % of the log" in md
+    assert "gyro_bias_err in rad/s, vel_bias_err in m/s" in md  # the table's columns carry no unit
 
 
 def test_unknown_observer_is_a_usage_error_and_writes_nothing(tmp_path):
