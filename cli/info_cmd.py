@@ -80,6 +80,11 @@ def format_readiness(ready) -> str:
     """The readiness section: each role found or missing, each estimator ready or what it lacks, the run.yaml."""
     ready_names = [e.name for e in ready.estimators if e.ready]
     verdict = f"{len(ready_names)} of {len(ready.estimators)} estimators can run" if ready_names else "cannot run"
+    needs = {e.needs for e in ready.estimators if e.ready}
+    if ready_names and () not in needs:  # `run` with no config stops on these: the verdict says so
+        verdict += " once the config gives " + " and ".join(
+            dict.fromkeys(n.split(" (")[0] for x in needs for n in x)
+        ).replace(":", "")
     lines = [f"  readiness: {verdict}"]
     width = max(len(r.role) for r in ready.roles)
     for r in ready.roles:

@@ -288,6 +288,8 @@ def compare(
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+        if note := table.attrs.get("compile_note"):
+            click.echo(f"note: {note}")
         runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
         click.echo(f"wrote {wrote_line(out_dir, ('comparison.parquet', 'comparison.md', 'overlay.png'), runs)}")
     if (table["status"] != "ok").all():
@@ -347,3 +349,8 @@ def _add_commands() -> None:
 
 
 _add_commands()
+
+if __name__ == "__main__":  # `python -m slamobs.cli.main ...` ran nothing and exited 0 without this
+    from slamobs.cli.main import entry as _installed_entry  # the imported module, as the console script runs it
+
+    _installed_entry()

@@ -159,7 +159,8 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool) -> bool:
         if info.get("detection_frames"):
             click.echo(
                 f"detections   {info['detection_frames']} frames, {info['detections_per_frame_mean']:.2f} per frame, "
-                f"median innovation {info['innovation_median']:.4g}"
+                "median innovation "
+                + ("–" if info["innovation_median"] is None else f"{info['innovation_median']:.4g} m")
             )
         click.echo(f"wrote        {', '.join(sorted(p.name for p in written))}")
     return False

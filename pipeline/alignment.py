@@ -207,7 +207,7 @@ def _note_once(notes: list[str], note: str) -> None:
 def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
     """Velocity and direction samples outside the /tf span keep the nearest transform: say how many."""
     if ext.valid is not None and (n := int(np.count_nonzero(~ext.valid))):
-        notes.append(f"{topic}: {n} samples outside the /tf span use the nearest transform")
+        _note_once(notes, f"{topic}: {n} samples outside the /tf span use the nearest transform")
 
 
 def check_required(streams: LogStreams, directions: int = 0) -> None:
@@ -233,12 +233,20 @@ def check_required(streams: LogStreams, directions: int = 0) -> None:
             streams.path,
             f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
             f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
-            details=tuple(f"{role} ({ROLE_PURPOSE[role]}): {'; '.join(how_to_satisfy(role))}" for role in roles),
+            details=tuple(
+                f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{'; '.join(how_to_satisfy(role))}"
+                for role in roles
+            ),
         )
 
 
 def _has_samples(stream) -> bool:
     return stream is not None and len(stream) > 0
+
+
+def _no_samples(stream) -> str:
+    """For a role whose topic was read but gave nothing: that topic, so it is not read as "no topic found"."""
+    return "" if stream is None else f"{stream.topic} has no samples in this log or the --start/--end window; "
 
 
 def _sorted(t: np.ndarray, *arrays: np.ndarray):
@@ -550,7 +558,8 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
         block = vel_ext.rotate(v_interp, rows)
         block -= np.cross(omega[rows], vel_ext.trans)
         velocity[rows] = block
-    notes += _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic)
+    for note in _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic):  # once when both come from one topic
+        _note_once(notes, note)
     starts = np.zeros(0, np.int64)
     if max_gap is not None:
         starts = (np.flatnonzero(np.diff(t_om) > max_gap * 1e9) + 1).astype(np.int64)

@@ -255,8 +255,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     try:
         jsonschema.validate(data, config_schema())
     except jsonschema.ValidationError as err:
-        where = ".".join(str(p) for p in err.absolute_path) or "top level"
-        raise InputError(source, f"invalid config at {where}: {err.message}") from None
+        raise InputError(source, _schema_message(err, data)) from None
     frame = data.get("output", {}).get("frame")
     if isinstance(frame, dict) and sum(q * q for q in frame["orientation_xyzw"]) < 1e-18:
         raise InputError(source, "invalid config at output.frame.orientation_xyzw: a zero quaternion is no rotation")
@@ -360,6 +359,32 @@ def check_config(config: RunConfig, source: str = "<config>") -> None:
         except GainError as err:
             raise InputError(source, f"gains.{name}: {err}") from None
     _check_vectors(config, source)
+
+
+def _schema_message(err, data: dict) -> str:
+    """The schema's complaint with what the user meant: gains not under an observer's name (``gains: {k_p: 2}``
+    said "'2' is not of type 'object'"), the nearest allowed name for an unknown key (``topic:``, ``plot:``)."""
+    path = list(err.absolute_path)
+    where = ".".join(str(p) for p in path) or "top level"
+    gains = data.get("gains") if isinstance(data, dict) else None
+    if path[:1] == ["gains"] and isinstance(gains, dict):
+        stray = next((k for k in gains if not isinstance(gains[k], dict)), None)
+        if stray is not None:
+            example = f"gains: {{{data.get('observer') or DEFAULT_OBSERVER}: {{{stray}: ...}}}}"
+            return (
+                f"invalid config at gains.{stray}: gains are given per observer, e.g. {example} "
+                "(`slamobs observers` lists each one's gains)"
+            )
+    message = err.message
+    if err.validator == "additionalProperties" and isinstance(err.instance, dict):
+        allowed = list(err.schema.get("properties", {}))
+        for key in err.instance:
+            if key not in allowed and (close := difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.6)):
+                message += f" (did you mean '{close[0]}'?)"
+                break
+        else:
+            message += f" (allowed: {', '.join(allowed)})" if allowed else ""
+    return f"invalid config at {where}: {message}"
 
 
 def _unknown_observer(name: str) -> str:

@@ -110,11 +110,15 @@ def _settings_needed(info: LogInfo, detections: RoleStatus) -> tuple[str, ...]:
 
 
 def _candidates(info: LogInfo, role: str) -> list[str]:
-    """Topics of this log whose type ``role`` accepts when named (never picked on their own)."""
+    """Topics of this log whose type ``role`` accepts when named (never picked on their own), and those of an
+    accepted type that hold no messages (a detections topic recorded empty is why the role is missing)."""
     types = accepted_types(role)
     used = {t for r, topics in info.roles.items() if r != role and r in LISTED_ROLES for t in topics.split(", ")}
     found = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and t.count and t.topic not in used]
-    return [f"this log has: {', '.join(found)}"] if found else []
+    empty = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and not t.count]
+    return ([f"this log has: {', '.join(found)}"] if found else []) + (
+        [f"this log has no messages on: {', '.join(empty)}"] if empty else []
+    )
 
 
 def readiness(info: LogInfo) -> Readiness:

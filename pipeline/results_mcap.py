@@ -419,7 +419,7 @@ def write_results_mcap(
     why_kept = kept_unless(
         lambda head: mcap_library(head).startswith("slamobs "),
         "exists and is not a results MCAP slamobs wrote: --force replaces only those; it is kept, remove it "
-        "or choose another --mcap",
+        "or choose another -o",
         force=force,
     )
     if os.path.lexists(out) and (why := why_kept(out)) is not None:

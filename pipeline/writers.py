@@ -938,17 +938,18 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
 
 def kept_unless(is_ours, refusal: str, *, force: bool = True, nbytes: int = 4096):
     """A ``why_kept`` for :func:`atomic_file`: without ``force`` nothing is replaced; with it only a file whose
-    first ``nbytes`` satisfy ``is_ours`` (a kind of file slamobs writes), anything else kept with ``refusal``."""
+    first ``nbytes`` satisfy ``is_ours`` (a kind of file slamobs writes), anything else kept with ``refusal`` (also
+    the reason without ``force``, where "use --force" would only lead to that refusal)."""
 
     def why_kept(path: Path) -> str | None:
-        if not force:
-            return "exists already (use --force to replace it)"
         try:
             with open(path, "rb") as f:
                 head = f.read(nbytes)
         except OSError:
             head = b""
-        return None if is_ours(head) else refusal
+        if not is_ours(head):  # refused with or without --force: never suggest the option that would not help
+            return refusal
+        return None if force else "exists already (use --force to replace it)"
 
     return why_kept
 

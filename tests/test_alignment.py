@@ -204,3 +204,12 @@ def test_detection_helpers_give_numpys_arrays():
     ):
         assert A._first_of_pairs(a, b).tolist() == lexsorted(a, b).tolist()
     assert A._first_of_pairs(frames, ids).size < frames.size  # the case above had repeats to drop
+
+
+def test_a_gap_in_one_topic_giving_both_velocities_is_noted_once():
+    """MR.CLAM's /robot1/velocity (TwistStamped: gyro and velocity) printed its gap note twice."""
+    t = np.r_[np.arange(0, 1.0, 0.01), np.arange(2.0, 3.0, 0.01)]  # a 1 s gap
+    twist = _vec("/twist", "base_link", t, np.tile([0.1, 0.0, 0.0], (t.size, 1)))
+    a = align(_streams(angular_velocity=twist, linear_velocity=twist))
+    gaps = [n for n in a.notes if "gap(s) longer than" in n]
+    assert len(gaps) == 1 and gaps[0].startswith("/twist:")

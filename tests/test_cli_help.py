@@ -58,3 +58,17 @@ def test_export_takes_o_and_still_mcap(tmp_path):
     for flag in ("-o", "--mcap"):
         res = invoke("export", tmp_path / "no-run", flag, tmp_path / "x.mcap")
         assert res.exit_code == 2 and "not a run directory" in res.stderr and "No such option" not in res.output
+
+
+def test_python_dash_m_runs_the_command():
+    """``python -m slamobs.cli.main`` is the same command as ``slamobs`` (it printed nothing and exited 0)."""
+    import subprocess
+    import sys
+
+    res = subprocess.run(
+        [sys.executable, "-m", "slamobs.cli.main", "observers"], capture_output=True, text=True, timeout=120
+    )
+    assert res.returncode == 0, res.stderr
+    assert "riekf" in res.stdout and "batch" in res.stdout
+    bad = subprocess.run([sys.executable, "-m", "slamobs.cli.main", "no-such-command"], capture_output=True, text=True)
+    assert bad.returncode == 2 and "no-such-command" in bad.stderr

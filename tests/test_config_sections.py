@@ -86,3 +86,29 @@ def test_a_full_config_round_trips_through_its_dict():
     assert config.limits.max_gap is None and config.limits.min_range == 0.05
     assert config.tags.sizes == {3: 0.2} and config.output.export == ("tum", "mcap")
     assert config.noise.gyro == (1e-3, 2e-3, 3e-3) and config.batch.seed == "riekf"
+
+
+@pytest.mark.parametrize(
+    "data, says",
+    [
+        ({"topic": {"detections": "/x"}}, "('topic' was unexpected) (did you mean 'topics'?)"),
+        (
+            {"evaluation": {"plot": False}},
+            "at evaluation: Additional properties are not allowed ('plot' was unexpected) (did you mean 'plots'?)",
+        ),
+        ({"unknwn_key": 3}, "(allowed: observer, topics,"),
+        (
+            {"observer": "hashim", "gains": {"k_p": 2}},
+            "at gains.k_p: gains are given per observer, e.g. gains: {hashim: {k_p: ...}}",
+        ),
+        ({"gains": {"k_p": "fast"}}, "e.g. gains: {fast-adaptation: {k_p: ...}}"),
+    ],
+)
+def test_a_config_mistake_says_what_was_meant(data, says):
+    """An unknown key names the nearest allowed one (or lists them), and gains not under an observer's name say
+    how gains are given ("gains.k_p: 2 is not of type 'object'" before)."""
+    from slamobs.pipeline.errors import InputError
+
+    with pytest.raises(InputError) as err:
+        parse_config(data, "run.yaml")
+    assert says in str(err.value)

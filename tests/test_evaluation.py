@@ -466,6 +466,7 @@ def test_write_report_files(tmp_path):
         "Relative error and drift",
     ):
         assert needle in md
+    assert "KITTI-style drift: mean relative error" in md.split("| segment [m] |", 1)[0].splitlines()[-2]  # captioned
     # the evo zip holds the report's APE, the TUM exports are the estimate and the truth, exact to the ns
     info, stats, arrays = load_result_zip(out / "ape_evo.zip")
     assert info["title"] == "APE w.r.t. translation part (m)\n(with SE(3) Umeyama alignment)"

@@ -4,6 +4,7 @@ commands show progress; a simulated log carries what a run needs to read it."""
 from __future__ import annotations
 
 import json
+import re
 import time
 
 import pandas as pd
@@ -53,6 +54,10 @@ def test_a_run_without_truth_draws_and_lists_its_figures(run_dir):
     n_landmarks = len(pd.read_parquet(out / "landmarks.parquet"))
     assert f"| landmarks | {n_landmarks} |" in md
     assert "figures      trajectory.png" in res.output
+    # every number says what it is and its unit (innovation_median was a bare 0.0229)
+    rows = [line.split(" | ") for line in md.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert rows and all(len(r) == 3 and r[2].strip(" |") for r in rows), rows
+    assert any(r[0] == "| innovation_median" and r[2].startswith("m, median") for r in rows)
 
 
 def test_report_without_truth_draws_the_figures_again(run_dir):
@@ -62,6 +67,7 @@ def test_report_without_truth_draws_the_figures_again(run_dir):
     assert res.exit_code == 0, res.output
     assert "truth        none" in res.output and "map.png" in res.output
     assert f"map          {len(pd.read_parquet(out / 'landmarks.parquet'))} landmarks" in res.output
+    assert re.search(r"median innovation [0-9.e-]+ m\n", res.output), res.output
     _pngs(out, json.loads((out / "run.json").read_text())["figures"])
     as_json = json.loads(invoke("report", out, "--json").stdout)
     assert as_json["landmarks"] == len(pd.read_parquet(out / "landmarks.parquet"))

@@ -521,6 +521,7 @@ def test_a_run_without_landmarks_in_view_for_long_says_so():
     offsets = np.concatenate(([0], np.cumsum(counts)))
     (note,) = blind_note(vel, frames, offsets, 0.5)
     assert note.startswith("no landmark in view for 34.6 s of the 40.0 s run (longest 34.6 s, from 5.5 s to 40.0 s")
+    assert note.endswith("on its velocity inputs there, and its error grows")  # not "IMU": MR.CLAM has none
     everywhere = np.concatenate(([0], np.cumsum(np.full(frames.shape, 8))))
     assert blind_note(vel, frames, everywhere, 0.5) == []
     middle = np.where((frames > 10e9) & (frames < 14e9), 0, 8)  # 4 s without: under the 5 s minimum

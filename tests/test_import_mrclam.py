@@ -148,6 +148,8 @@ def test_all_robots_and_force_replaces_only_its_own_logs(dataset, tmp_path):
     foreign.write_bytes(b"not ours")
     res = invoke("import", "mrclam", dataset[0], "-o", foreign, "--robot", "2", "--force")
     assert res.exit_code == 2 and foreign.read_bytes() == b"not ours"
+    res = invoke("import", "mrclam", dataset[0], "-o", foreign, "--robot", "2")  # not "use --force" (refused too)
+    assert res.exit_code == 2 and "--force replaces only" in res.output and "use --force" not in res.output
 
 
 @pytest.mark.parametrize(

@@ -447,12 +447,16 @@ def test_single_file_outputs_replace_only_their_own_kind(tmp_path):
     ours, theirs = tmp_path / "a.rrd", tmp_path / "b.rrd"
     ours.write_bytes(b"RRF2 old")
     theirs.write_bytes(b"notes")
-    for force in (False, True):
+    for force in (False, True):  # the user's file: the refusal either way, never "use --force" that would not help
         why = kept_unless(lambda head: head.startswith(b"RRF"), "is not a recording", force=force)
-        with pytest.raises(OutputError, match="is not a recording" if force else "use --force"):
+        with pytest.raises(OutputError, match="is not a recording"):
             with atomic_file(theirs, why_kept=why) as tmp:
                 tmp.write_bytes(b"RRF2 new")
         assert theirs.read_bytes() == b"notes"
+    with pytest.raises(OutputError, match="use --force"):  # slamobs' own file without --force
+        with atomic_file(ours, why_kept=kept_unless(lambda head: head.startswith(b"RRF"), "-", force=False)) as tmp:
+            tmp.write_bytes(b"RRF2 new")
+    assert ours.read_bytes() == b"RRF2 old"
     with atomic_file(ours, why_kept=why) as tmp:
         tmp.write_bytes(b"RRF2 new")
     assert ours.read_bytes() == b"RRF2 new"

@@ -177,6 +177,12 @@ def test_export_command_every_row_atomic_and_no_overwrite(run_dir, tmp_path, mon
         assert res.exit_code == 2 and why in res.stderr, res.stderr
     res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(copy / "results.mcap"), "--force", "-q"])
     assert res.exit_code == 0, res.output  # a results MCAP beside the tables, as `--export mcap` writes it
+    notes = tmp_path / "notes.mcap"
+    notes.write_bytes(b"mine")
+    for force in ([], ["--force"]):  # a file slamobs did not write: refused, never "use --force" (refused too)
+        res = CliRunner().invoke(main, ["export", str(copy), "-o", str(notes), *force])
+        assert res.exit_code == 2 and "not a results MCAP" in res.stderr and "use --force" not in res.stderr
+        assert "choose another -o" in res.stderr and notes.read_bytes() == b"mine"
 
 
 def test_report_writes_tum_and_evo_on_request(run_dir, tmp_path):

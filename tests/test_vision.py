@@ -334,8 +334,11 @@ def test_camera_without_extrinsic_is_dropped():
     with pytest.raises(InputError, match="need the tag size"):
         tag_landmarks(streams, TagOptions(), identity_frames=("cam_a",))
     streams.camera_info = []
-    with pytest.raises(InputError, match=r"no camera intrinsics for /a/tags, /b/tags .*cameras: FILE"):
+    with pytest.raises(InputError, match=r"no camera intrinsics for /a/tags, /b/tags .*cameras: FILE\)$"):
         tag_landmarks(streams, TagOptions(size=0.3))
+    # without the tag size either: both in one error (TagSLAM test_22 asked for the cameras, then for the size)
+    with pytest.raises(InputError, match=r"cameras: FILE\); and tags.size \(edge, m\)$"):
+        tag_landmarks(streams, TagOptions())
 
 
 # --------------------------------------------------------------------------- logs end to end

@@ -380,15 +380,29 @@ def summary(tables: dict[str, Table | None]) -> dict[str, Any]:
     return out
 
 
+#: What each number of :func:`summary` is, with its unit (report.md of a run without truth showed them bare).
+SUMMARY_MEANING = {
+    "n_poses": "rows of poses.parquet",
+    "duration_s": "s from the first pose to the last",
+    "path_length_m": "m travelled by the estimate (sum of the steps between poses)",
+    "extent_m": "m, the estimate's range in x, y, z",
+    "landmarks": "landmarks in the final map",
+    "detection_frames": "detection frames with at least one landmark",
+    "detections_per_frame_mean": "mean landmarks per detection frame",
+    "innovation_median": "m, median over the detections of ‖e_i‖ = ‖p̂_i − R̂y_i − P̂‖ (innovations.parquet e_norm)",
+}
+
+
 def summary_markdown(info: dict[str, Any], figures: list[str], notes: list[str] = ()) -> str:
     """report.md of a run without truth: what the run did and its figures (no error numbers: no truth)."""
     lines = ["# Run summary (no ground truth)", ""]
     lines.append("The log has no ground truth, so there are no error numbers; the figures show the estimate.")
     lines.append("Give truth with `slamobs report RUN --truth ...` for the error report.")
-    lines += ["", "| quantity | value |", "|---|---|"]
+    lines += ["", "| quantity | value | meaning |", "|---|---|---|"]
     for key, value in info.items():
         shown = ", ".join(f"{v:.4g}" for v in value) if isinstance(value, list) else value
-        lines.append(f"| {key} | {shown:.6g} |" if isinstance(shown, float) else f"| {key} | {shown} |")
+        shown = f"{shown:.6g}" if isinstance(shown, float) else "–" if shown is None else shown
+        lines.append(f"| {key} | {shown} | {SUMMARY_MEANING.get(key, '')} |")
     if notes:
         lines += ["", "## Notes", ""] + [f"- {n}" for n in notes]
     if figures:

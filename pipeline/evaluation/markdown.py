@@ -112,8 +112,14 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
         lines += [f"RPE, delta {rpe_s['delta']:g} {rpe_s['delta_unit']} ({rpe_s['n_pairs']} pairs):", ""]
         lines += _stats_table([("translation [m]", rpe_s["translation_m"]), ("rotation [deg]", rpe_s["rotation_deg"])])
         lines.append("")
-    if drift:
-        lines += ["| segment [m] | segments | translation [%] | rotation [deg/m] |", "|---|---|---|---|"]
+    if drift:  # the table said neither what it is nor how it differs from the segment errors below
+        lines += [
+            "KITTI-style drift: mean relative error over the path segments of each length, translation in % of the "
+            "length, rotation per metre (definition under Method):",
+            "",
+            "| segment [m] | segments | translation [%] | rotation [deg/m] |",
+            "|---|---|---|---|",
+        ]
         for row in drift["per_length"]:
             lines.append(
                 f"| {row['length_m']:g} | {row['n_segments']} | {_fmt(row['translation_pct'], 4)} | "

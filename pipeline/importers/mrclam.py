@@ -298,14 +298,14 @@ def why_kept(path: Path, *, overwrite: bool) -> str | None:
     importer wrote."""
     from slamobs.pipeline.readers.mcap import mcap_library
 
-    if not overwrite:
-        return "exists already (use --force to replace it)"
     try:
         with open(path, "rb") as f:
             ours = not Path(path).is_symlink() and mcap_library(f.read(4096)) == WRITER
     except OSError:
         ours = False
-    return None if ours else "exists and is not a log slamobs import wrote: --force replaces only those"
+    if not ours:  # also without overwrite: "use --force" would only lead here
+        return "exists and is not a log slamobs import wrote: --force replaces only those"
+    return None if overwrite else "exists already (use --force to replace it)"
 
 
 @dataclass(frozen=True)

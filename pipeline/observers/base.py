@@ -80,6 +80,9 @@ class ObserverOptions:
     seed_gains: dict | None = None
     #: A known map (:class:`pipeline.known_map.MapStart`): initial landmarks, which are fixed, start pose.
     known_map: object | None = None
+    #: Where an estimator that solves the whole log at once (batch) says what it is doing while it works (the run's
+    #: progress line); streaming observers report by their stretches instead.
+    progress: Callable[[str], None] | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass

@@ -14,6 +14,8 @@ the ``camera_info`` topics (also all of them) or the config. Of an image topic a
 
 from __future__ import annotations
 
+import difflib
+
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -304,7 +306,9 @@ def _check_override(
         names = sorted(topics)
         known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
         hint = f"; {TRUTH_FORMS}" if role == "truth" else ""
-        raise InputError(path, f"topic for role {role} is not in the log (topics: {known}){hint}", topic)
+        close = difflib.get_close_matches(topic, names, n=1, cutoff=0.6)  # among all, also those not listed
+        mean = f"did you mean {close[0]}? " if close else ""
+        raise InputError(path, f"topic for role {role} is not in the log ({mean}topics: {known}){hint}", topic)
     msgtype = topics[topic].msgtype
     if msgtype not in accepted_types(role):
         expected = " or ".join(accepted_types(role))

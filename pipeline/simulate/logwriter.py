@@ -635,11 +635,9 @@ WRITER_MCAP, WRITER_CALLERID, WRITER_ROS2 = "slamobs-simulate", "/slamobs_simula
 def why_kept(path: Path, *, overwrite: bool) -> str | None:
     """Why the existing ``path`` must not be replaced by a new log: anything without ``overwrite``, and anything
     but a log ``slamobs simulate`` wrote with it."""
-    if not overwrite:
-        return "exists already (use --force to replace it)"
     if _simulated(Path(path)):
-        return None
-    return (
+        return None if overwrite else "exists already (use --force to replace it)"
+    return (  # also without overwrite: "use --force" would only lead here
         "exists and is not a log slamobs simulate wrote: --force replaces only those; it is kept, remove it or "
         "choose another -o"
     )

@@ -164,6 +164,8 @@ class BatchSmoother(Stepper):
         if self.vel_t.shape[0] < 2:
             raise InputError(self.where, "the batch smoother needs at least two velocity samples")
         kf_t, kf_of_det, gaps = self._keyframes()
+        if progress is not None:
+            progress(f"batch: seed observer ({self.settings.seed}) over {self.vel_t.shape[0]} samples")
         seed = self._seed(kf_t, kf_of_det)
         t0, c0 = time.perf_counter(), time.process_time()
         segments = self._segments()
@@ -266,6 +268,8 @@ class BatchSmoother(Stepper):
         found = [first, cands.Candidate(first.seed)]
         seconds = first.seed.seconds
         for name in cands.extra_seeds(first.seed.name, int(self.stream.landmark_ids.shape[0])):
+            if progress is not None:
+                progress(f"batch: first solution doubtful, solving from another start ({name})")
             try:
                 seed = self._seed(kf_t, kf_of_det, name)
             except InputError:
@@ -691,7 +695,7 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.smoother.preintegration import sample_poses
 
         if self.result is None:
-            self.solve()
+            self.solve(self.options.progress)
         res, s, ns = self.result, self.stream, self.state.ns
         sol = res["solution"]
         n_vel = self.n_vel

@@ -190,7 +190,8 @@ def tag_landmarks(
     notes: list[str] = []
     files = read_camera_files(list(camera_files)) if camera_files else CameraFiles()
     notes += files.notes
-    models, corner_streams = _with_intrinsics(streams, files, notes)
+    unsized = options.size is None and not options.sizes  # said with the intrinsics: one round trip, not two
+    models, corner_streams = _with_intrinsics(streams, files, notes, "; and tags.size (edge, m)" if unsized else "")
     kept, added = _with_extrinsics(streams, corner_streams, models, files, identity_frames, body_frame, notes)
     rows = []  # per camera: frame stamps, record times, offsets, ids, xyz, quat, quality, status, area
     cameras_meta = {}
@@ -211,7 +212,7 @@ def tag_landmarks(
     return TagLandmarks(stream, table, added, notes, cameras_meta)
 
 
-def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str]):
+def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str], also: str = ""):
     """The camera model of each corner stream and the streams that have one (the others noted as dropped).
 
     Raises:
@@ -226,7 +227,7 @@ def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str]):
         raise InputError(
             streams.path,
             f"no camera intrinsics for {', '.join(missing)} (the log has {have}); name a "
-            "Kalibr or ROS camera_info YAML file in the config (cameras: FILE)",
+            f"Kalibr or ROS camera_info YAML file in the config (cameras: FILE){also}",
             missing[0],
         )
     for topic in missing:
