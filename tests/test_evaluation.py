@@ -578,6 +578,25 @@ def test_yaw_alignment_for_planar_runs():
     assert "yaw" not in rep["ape_by_alignment"]
 
 
+def test_a_planar_estimate_turned_upside_down_by_the_alignment_is_said_so():
+    """A wrong planar estimate (here the truth's mirror image, level and yaw only, as a diverged observer on MR.CLAM
+    gave) fits best turned upside down: its SE(3) rotation APE reads ~180 deg whatever its heading. The note says
+    so and gives the 4-DoF numbers; an estimate the fit does not turn gets no note."""
+    truth = planar_truth()
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["y"] = -poses["y"]  # mirrored positions, the rotations still level
+    rep = checked(build_report(poses, None, None, truth))
+    assert rep["ape_by_alignment"]["se3"]["alignment"]["rotation_matrix"][2][2] < 0  # turned upside down
+    assert rep["ape"]["rotation_deg"]["rmse"] > 150.0
+    flipped = [n for n in rep["notes"] if "upside down" in n]
+    yaw = rep["ape_by_alignment"]["yaw"]
+    assert len(flipped) == 1 and f"{yaw['rotation_deg']['rmse']:.3f} deg" in flipped[0]
+    assert yaw["rotation_deg"]["rmse"] < 150.0
+    rep = checked(build_report(moved(truth, so3_exp(np.array([0.0, 0.0, -1.1])), np.ones(3)), None, None, truth))
+    assert not [n for n in rep["notes"] if "upside down" in n]
+    assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "upside" in n]
+
+
 def test_clock_offset_is_estimated_always_and_applied_on_request():
     truth = make_truth(n=3000)
     poses = moved(truth, ROT_C, P_C, noise_m=0.002).iloc[::3].reset_index(drop=True)

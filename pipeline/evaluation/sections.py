@@ -176,6 +176,22 @@ class ApeByAlignmentSection(Section):
             for kind in kinds
             if kind in fits
         }
+        self.notes += flipped_note(self.options.align, self.result)
+
+
+def flipped_note(align: str, by_alignment: dict[str, Any]) -> list[str]:
+    """The note for a planar run whose report alignment turned the estimate upside down: positions in a plane fit
+    as well flipped about an axis in it, and the rotation APE then reads ~180 deg whatever the estimate's heading."""
+    yaw, primary = by_alignment.get("yaw"), by_alignment.get(align)
+    if align == "yaw" or yaw is None or primary is None or primary["alignment"]["rotation_matrix"][2][2] >= 0.0:
+        return []
+    return [
+        f"the {align} alignment turned the estimate upside down (the positions lie in a plane, which fits as well "
+        f"flipped), so its rotation APE ({primary['rotation_deg']['rmse']:.1f} deg rmse) says nothing of the heading; "
+        f"this run is planar: with the 4-DoF alignment (translation + yaw, ape_by_alignment.yaw) APE is "
+        f"{yaw['translation_m']['rmse']:.4f} m, {yaw['rotation_deg']['rmse']:.3f} deg rmse (report --align yaw "
+        "makes it the headline)"
+    ]
 
 
 def level(rotations, n: int) -> bool:
