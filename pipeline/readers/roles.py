@@ -305,7 +305,7 @@ def _check_override(
     if topic not in topics:
         names = sorted(topics)
         known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
-        hint = f"; {TRUTH_FORMS}" if role == "truth" else ""
+        hint = f"; a truth that is no existing file reads as a topic; {TRUTH_FORMS}" if role == "truth" else ""
         close = difflib.get_close_matches(topic, names, n=1, cutoff=0.6)  # among all, also those not listed
         mean = f"did you mean {close[0]}? " if close else ""
         raise InputError(path, f"topic for role {role} is not in the log ({mean}topics: {known}){hint}", topic)
