@@ -291,7 +291,8 @@ def compare(
         if note := table.attrs.get("compile_note"):
             click.echo(f"note: {note}")
         runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
-        click.echo(f"wrote {wrote_line(out_dir, ('comparison.parquet', 'comparison.md', 'overlay.png'), runs)}")
+        files = ("comparison.parquet", "comparison.md", "comparison.json", "overlay.png")
+        click.echo(f"wrote {wrote_line(out_dir, files, runs)}")
     if (table["status"] != "ok").all():
         sys.exit(1)
 

@@ -48,5 +48,5 @@ def stats(inputs: tuple[Path, ...], out_dir: Path, style: str, no_plots: bool, f
     ok = int((runs["status"] == "ok").sum())
     click.echo(
         f"stats: {len(runs)} runs ({ok} ok) of {runs['estimator'].nunique()} estimators on {runs['log'].nunique()} "
-        f"logs; wrote {out_dir}/ (stats.md, stats.tex, stats.csv, ranking.csv, {len(result.figures)} figures)"
+        f"logs; wrote {out_dir}/ (stats.md, stats.tex, stats.csv, ranking.csv, runs.csv, {len(result.figures)} figures)"
     )

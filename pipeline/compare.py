@@ -17,6 +17,9 @@ from slamobs.pipeline.streams import PoseStream
 #: Each estimate's APE against the others' (or batch's) when the log has no truth.
 DISAGREEMENT = "disagreement_m"
 COLUMNS_NO_TRUTH = ("observer", "status", DISAGREEMENT, "landmarks", "path_length_m", "run_time_s", "error")
+#: Without trajectory truth but with landmark truth (``evaluation.map_truth``): each run's map error RMSE after a
+#: map-only SE(3) alignment (run.json ``map_error``), a column after ``landmarks``.
+MAP_ERROR = "map_error_m"
 COLUMNS = (
     "observer",
     "status",
@@ -151,7 +154,11 @@ def _without_truth(
         r[DISAGREEMENT] = spread.get(r["observer"])
         r["landmarks"] = counts.get("landmarks")
         r["path_length_m"] = path_length(poses[r["observer"]]) if r["observer"] in poses else None
-    table = pd.DataFrame(rows).reindex(columns=list(COLUMNS_NO_TRUTH))
+        r[MAP_ERROR] = (((s.metadata.get("map_error") or {}) if s is not None else {}).get("error_m") or {}).get("rmse")
+    columns = list(COLUMNS_NO_TRUTH)
+    if any(r[MAP_ERROR] is not None for r in rows):
+        columns.insert(columns.index("landmarks") + 1, MAP_ERROR)
+    table = pd.DataFrame(rows).reindex(columns=columns)
     table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
     against = "the batch smoother's estimate" if reference else "each of the other estimates (their mean)"
     (tmp / "comparison.md").write_text(_markdown(table, log, against, compiled))
@@ -260,12 +267,18 @@ def _markdown(table, log: Path, against: str | None = None, compiled: dict[str, 
     if note := compile_note(compiled or {}):
         body += f"\nThe {note}\n"
     if against is not None:
+        map_words = (
+            f"{MAP_ERROR} the map's RMS error against the landmark truth after a map-only SE(3) alignment "
+            "(run.json map_error), "
+            if MAP_ERROR in columns
+            else ""
+        )
         return (
-            f"# Observer comparison (no ground truth)\n\nLog: `{log}`\n\nThe log has no truth, so there are no "
-            f"errors: disagreement_m is each estimate's APE translation RMSE against {against} after SE(3) "
-            "alignment (a spread among the estimators, not an error); landmarks is the map size, path_length_m "
-            f"the estimated path's length; run time is the observer stage. overlay.png shows the estimates "
-            f"aligned onto one another.\n\n{head}{body}"
+            f"# Observer comparison (no ground truth)\n\nLog: `{log}`\n\nThe log has no trajectory truth, so "
+            f"there are no trajectory errors: disagreement_m is each estimate's APE translation RMSE against "
+            f"{against} after SE(3) alignment (a spread among the estimators, not an error); landmarks is the map "
+            f"size, {map_words}path_length_m the estimated path's length; run time is the observer stage. "
+            f"overlay.png shows the estimates aligned onto one another.\n\n{head}{body}"
         )
     return (
         f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "

@@ -60,6 +60,11 @@ def test_compare_all_observers_side_by_side(tmp_path):
     assert all(f"| {name} | ok |" in md for name in names)
     assert "convergence_band_m" in md and "last 20 % of the log" in md
     assert "gyro_bias_err in rad/s, vel_bias_err in m/s" in md  # the table's columns carry no unit
+    # the closing line names every file the comparison wrote (docs/outputs.md: .parquet / .md / .json, overlay)
+    wrote = res.stdout.splitlines()[-1]
+    written = sorted(p.name for p in out.iterdir() if p.is_file() and p.name != "slamobs-output.json")
+    assert written == ["comparison.json", "comparison.md", "comparison.parquet", "overlay.png"]
+    assert all(name in wrote for name in written), wrote
 
 
 def test_unknown_observer_is_a_usage_error_and_writes_nothing(tmp_path):

@@ -8,6 +8,7 @@ import json
 import re
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
@@ -83,6 +84,16 @@ def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):
     # the note report.md carries states the number and its alignment, not only that a map error exists
     assert any(f"rmse {rmse:.4f} m over" in n and "map-only SE(3)" in n for n in meta["notes"]), meta["notes"]
     assert "no ground truth in the log: no error report" not in res.output
+    # and a comparison on that log tables each estimator's map error beside the disagreement
+    res = invoke(
+        "compare", sim["log"], "-o", tmp_path / "cmp", "--observers", "fast-adaptation,hashim", "--config", config
+    )
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(tmp_path / "cmp" / "comparison.parquet").set_index("observer")
+    for name in ("fast-adaptation", "hashim"):
+        run = json.loads((tmp_path / "cmp" / name / "run.json").read_text())
+        assert table.loc[name, "map_error_m"] == pytest.approx(run["map_error"]["error_m"]["rmse"])
+    assert "map_error_m" in res.output and "map-only SE(3)" in (tmp_path / "cmp" / "comparison.md").read_text()
 
 
 def test_final_listings_name_only_files_that_exist(sim, tmp_path):

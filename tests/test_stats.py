@@ -76,6 +76,10 @@ def test_numbers_match_a_direct_computation(dataset, tmp_path):
     res = invoke("stats", dataset, "-o", tmp_path / "st", "--no-plots")
     assert res.exit_code == 0, res.output
     assert not (tmp_path / "st" / "figures").exists()
+    # the closing line names every table it wrote (docs/stats_and_viewer.md lists runs.csv beside the others)
+    tables = sorted(p.name for p in (tmp_path / "st").iterdir() if p.suffix in (".md", ".tex", ".csv"))
+    assert tables == ["ranking.csv", "runs.csv", "stats.csv", "stats.md", "stats.tex"]
+    assert all(name in res.stdout.splitlines()[-1] for name in tables), res.stdout
     got = pd.read_csv(tmp_path / "st" / "stats.csv")
     expected = _direct(dataset)
     per_log = got[got["log"] != ALL_LOGS].set_index(["metric", "estimator", "log"])

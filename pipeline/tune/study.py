@@ -167,7 +167,6 @@ def run_tune(
     from slamobs.pipeline.paths import check_input
     from slamobs.pipeline.readers.container import detect_container
     from slamobs.pipeline.run import resolve_estimator, run_inputs
-    from slamobs.pipeline.tune import results
     from slamobs.pipeline.tune.worker import run_trial_log
 
     if options.objective not in OBJECTIVES:
@@ -197,10 +196,41 @@ def run_tune(
             raise InputError(log, "is both a tuning log and a --holdout log")
     out = Path(options.out)
     inputs = [p for log in paths + holdout for p in run_inputs(log, config)]
+    created = not out.exists()
     resume = _prepare_out(out, inputs, options.force)
     hashes = [content_hash(p) for p in paths]
     setup = _setup(spec, paths, hashes, options)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    try:
+        return _run_study(out, resume, spec, config, paths, holdout, setup, options, on_round, run or run_trial_log)
+    except _NothingKept as err:  # a new tune that could not score a single trial leaves no output behind
+        _remove_unfinished(out, created)
+        raise err.failure from None
+
+
+class _NothingKept(Exception):
+    """A new tune failed on a log before any trial completed: its journal holds nothing worth resuming."""
+
+    def __init__(self, failure: BadInput) -> None:
+        self.failure = failure
+
+
+def _remove_unfinished(out: Path, created: bool) -> None:
+    """The journal and lock of a tune that completed no trial, and OUT itself when this tune created it."""
+    for name in (JOURNAL, LOCK):
+        (out / name).unlink(missing_ok=True)
+    if created:
+        try:
+            out.rmdir()
+        except OSError:  # something else appeared in it meanwhile: it stays
+            pass
+
+
+def _run_study(out, resume, spec, config, paths, holdout, setup, options, on_round, run) -> TuneResult:
+    import optuna
+
+    from slamobs.pipeline.tune import results
+
     with _exclusive(out):
         if options.force:
             _start_over(out)
@@ -219,7 +249,12 @@ def run_tune(
                 study.set_user_attr("setup", setup)
                 study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
         _requeue_interrupted(study)
-        ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round, run or run_trial_log)
+        try:
+            ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round, run)
+        except BadInput as err:
+            if not resume and _complete(study) == 0:
+                raise _NothingKept(err) from None
+            raise
         summary = results.write_results(out, study, spec, setup, options, held)
     if held_failed:  # the tune's own results are written; the holdout log is what failed
         raise TuneFailed(held_failed)
