@@ -233,4 +233,39 @@ def test_a_holdout_log_that_cannot_be_scored_keeps_the_tunes_results(logs, tmp_p
     assert (tmp_path / "t" / "gains.yaml").is_file() and (tmp_path / "t" / "tune.md").is_file()  # trials kept
 
 
+def test_a_forced_tune_that_fails_leaves_the_previous_tune_unchanged(logs, tmp_path):
+    """--force on a tune in OUT that then fails before a trial completes (here: no truth) leaves the previous tune as
+    it was, every file the same bytes (it deleted them first); a forced tune that finishes replaces them."""
+    out = tmp_path / "t"
+    done = subprocess.run(_tune_args(logs, out, "--trials", 2, "-j", 1), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    assert "tune.journal" in before and "gains.yaml" in before
+    cfg = tmp_path / "no_truth.yaml"
+    cfg.write_text("topics:\n  truth: ''\n")
+    args = _tune_args(logs, out, "--trials", 2, "-j", 1, "--force", "--config", cfg)
+    done = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 2 and "no ground truth" in done.stderr, done.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    done = subprocess.run(_tune_args(logs, out, "--trials", 1, "-j", 1, "--force"), capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert _complete_trials(out) == 1 and sorted(p.name for p in out.iterdir()) == sorted(before)
+
+
+def test_a_killed_forced_tune_gives_the_previous_tune_back_to_the_next(tmp_path):
+    """A forced tune killed before its results leaves the previous journal set aside: the next tune in OUT puts it
+    back before anything else (the killed tune's own journal dropped)."""
+    from slamobs.pipeline.tune import study
+
+    (tmp_path / study.JOURNAL).write_text("previous")
+    (tmp_path / "gains.yaml").write_text("previous gains")
+    study._set_aside(tmp_path)
+    (tmp_path / study.JOURNAL).write_text("the killed forced tune's")
+    assert study._put_back(tmp_path) and not study._put_back(tmp_path)
+    assert (tmp_path / study.JOURNAL).read_text() == "previous" and not (tmp_path / study.PREVIOUS).exists()
+    study._set_aside(tmp_path)
+    assert study._replace_results(tmp_path, lambda: {"written": 1}) == {"written": 1}
+    assert sorted(p.name for p in tmp_path.iterdir()) == []  # the new results are the writer's to write
+
+
 from test_batch_kills import _stop, _worker, scheduler  # noqa: F401 - real Dask processes, as the batch tests

@@ -10,6 +10,8 @@ compares with. The result files are rewritten at the end (:mod:`results`), each 
 
 from __future__ import annotations
 
+import functools
+
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -25,8 +27,10 @@ from slamobs.pipeline.tune.worker import OBJECTIVES, TARGET_KEY, TARGETS
 JOURNAL = "tune.journal"
 LOCK = ".tune.lock"
 STUDY = "slamobs-tune"
-#: The tune's own files in OUT (what --force removes).
+#: The tune's own files in OUT (what --force replaces).
 OWN_FILES = (JOURNAL, "gains.yaml", "trials.parquet", "objective.png", "tune.json", "tune.md")
+#: Where --force keeps the previous tune's journal until the new tune has written its results.
+PREVIOUS = ".tune.journal.previous"
 
 
 #: Rounds in a row whose every trial failed (workers dying, timeouts) after which the tune gives up.
@@ -142,10 +146,31 @@ def _prepare_out(out: Path, inputs: list, force: bool) -> bool:
     return resume
 
 
-def _start_over(out: Path) -> None:
-    """--force: the previous tune's files go (under the lock: never under a running tune)."""
-    for name in OWN_FILES:
+def _set_aside(out: Path) -> None:
+    """--force: the previous tune's journal is kept hidden (under the lock: never under a running tune) and its
+    result files stay, until the new tune replaces them with its own (:func:`_replace_results`); a forced tune that
+    ends without results puts the journal back (:func:`_put_back`): an existing tune is unchanged by a failed one."""
+    if (out / JOURNAL).is_file():
+        os.replace(out / JOURNAL, out / PREVIOUS)
+
+
+def _put_back(out: Path) -> bool:
+    """The journal a forced tune set aside back in place, the forced tune's own dropped (it ended without results,
+    or was killed: the next tune in OUT finds it here first); True when there was one."""
+    if not (out / PREVIOUS).is_file():
+        return False
+    os.replace(out / PREVIOUS, out / JOURNAL)
+    return True
+
+
+def _replace_results(out: Path, write: Callable[[], dict]) -> dict:
+    """A forced tune's results in place of the previous tune's (whose files it may not all write again); the
+    previous journal goes once they are written."""
+    for name in OWN_FILES[1:]:
         (out / name).unlink(missing_ok=True)
+    summary = write()
+    (out / PREVIOUS).unlink(missing_ok=True)
+    return summary
 
 
 def run_tune(
@@ -204,15 +229,17 @@ def run_tune(
     try:
         return _run_study(out, resume, spec, config, paths, holdout, setup, options, on_round, run or run_trial_log)
     except _NothingKept as err:  # a new tune that could not score a single trial leaves no output behind
-        _remove_unfinished(out, created)
+        if not err.put_back:  # a forced one's previous tune is back in place, as it was
+            _remove_unfinished(out, created)
         raise err.failure from None
 
 
 class _NothingKept(Exception):
     """A new tune failed on a log before any trial completed: its journal holds nothing worth resuming."""
 
-    def __init__(self, failure: BadInput) -> None:
+    def __init__(self, failure: BadInput, put_back: bool = False) -> None:
         self.failure = failure
+        self.put_back = put_back  # a forced tune's: the previous tune's journal is back in place
 
 
 def _remove_unfinished(out: Path, created: bool) -> None:
@@ -227,35 +254,49 @@ def _remove_unfinished(out: Path, created: bool) -> None:
 
 
 def _run_study(out, resume, spec, config, paths, holdout, setup, options, on_round, run) -> TuneResult:
+    with _exclusive(out):
+        if _put_back(out):  # a forced tune was killed here: the tune it replaced is what OUT holds
+            resume = (out / JOURNAL).is_file()
+        if options.force:
+            _set_aside(out)
+            resume = False
+        try:
+            return _study_in(out, resume, spec, config, paths, holdout, setup, options, on_round, run)
+        except BaseException as err:  # interrupted too: a forced tune without results leaves the previous one
+            put_back = options.force and _put_back(out)
+            if isinstance(err, _NothingKept) and put_back:
+                raise _NothingKept(err.failure, put_back=True) from None
+            raise
+
+
+def _study_in(out, resume, spec, config, paths, holdout, setup, options, on_round, run) -> TuneResult:
+    """The study in OUT (resumed, or new), its trials and its result files."""
     import optuna
 
     from slamobs.pipeline.tune import results
 
-    with _exclusive(out):
-        if options.force:
-            _start_over(out)
-            resume = False
-        study = optuna.create_study(
-            study_name=STUDY,
-            storage=_storage(out),
-            direction="minimize",
-            load_if_exists=True,
-            sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True, constant_liar=True),
-        )
-        if resume and "setup" in study.user_attrs:
-            _check_same(out, study.user_attrs["setup"], setup)
-        else:
-            with _deferred():
-                study.set_user_attr("setup", setup)
-                study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
-        _requeue_interrupted(study)
-        try:
-            ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round, run)
-        except BadInput as err:
-            if not resume and _complete(study) == 0:
-                raise _NothingKept(err) from None
-            raise
-        summary = results.write_results(out, study, spec, setup, options, held)
+    study = optuna.create_study(
+        study_name=STUDY,
+        storage=_storage(out),
+        direction="minimize",
+        load_if_exists=True,
+        sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True, constant_liar=True),
+    )
+    if resume and "setup" in study.user_attrs:
+        _check_same(out, study.user_attrs["setup"], setup)
+    else:
+        with _deferred():
+            study.set_user_attr("setup", setup)
+            study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
+    _requeue_interrupted(study)
+    try:
+        ran, held, held_failed = _optimise(study, spec, config, paths, holdout, options, on_round, run)
+    except BadInput as err:
+        if not resume and _complete(study) == 0:
+            raise _NothingKept(err) from None
+        raise
+    write = functools.partial(results.write_results, out, study, spec, setup, options, held)
+    summary = _replace_results(out, write) if options.force else write()
     if held_failed:  # the tune's own results are written; the holdout log is what failed
         raise TuneFailed(held_failed)
     return TuneResult(out, ran, summary)
