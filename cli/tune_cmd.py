@@ -70,7 +70,11 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
     help="a log with truth the sampler never sees: defaults and tuned gains are compared on it at the end (repeatable)",
 )
 @click.option("--seed", type=SEED, default=0, show_default=True, help="sampler seed")
-@click.option("--force", is_flag=True, help="start over: the tune in OUT is replaced once the new one has results (kept if it fails)")
+@click.option(
+    "--force",
+    is_flag=True,
+    help="start over: the tune in OUT is replaced once the new one has results (kept if it fails)",
+)
 @click.option(
     "--wait-workers",
     type=Finite(min=0),
