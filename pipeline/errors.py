@@ -68,8 +68,8 @@ KINDS: tuple[type[SlamobsError], ...] = (
 
 class Unwind(Exception):
     """Not an error, and no kind: a private signal that unwinds a loop to the method of the same module that
-    catches it (riekf's filter stopped once its time offset is known to move the stamps); it never reaches the
-    CLI's boundary."""
+    catches it (riekf's filter stopped once its time offset is known to move the stamps; a new tune that kept no
+    trial, whose failure is raised once its files are gone); it never reaches the CLI's boundary."""
 
 
 def kind_of(err: BaseException) -> type[SlamobsError] | None:

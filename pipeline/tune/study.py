@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import BadInput, InputError
+from slamobs.pipeline.errors import BadInput, InputError, Unwind
 from slamobs.pipeline.tune import space
 from slamobs.pipeline.tune.worker import OBJECTIVES, TARGET_KEY, TARGETS
 
@@ -234,7 +234,7 @@ def run_tune(
         raise err.failure from None
 
 
-class _NothingKept(Exception):
+class _NothingKept(Unwind):
     """A new tune failed on a log before any trial completed: its journal holds nothing worth resuming."""
 
     def __init__(self, failure: BadInput, put_back: bool = False) -> None:
