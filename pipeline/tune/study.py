@@ -237,9 +237,9 @@ def run_tune(
 class _NothingKept(Unwind):
     """A new tune failed on a log before any trial completed: its journal holds nothing worth resuming."""
 
-    def __init__(self, failure: BadInput, put_back: bool = False) -> None:
+    def __init__(self, failure: BadInput) -> None:
         self.failure = failure
-        self.put_back = put_back  # a forced tune's: the previous tune's journal is back in place
+        self.put_back = False  # a forced tune's: the previous tune's journal is back in place
 
 
 def _remove_unfinished(out: Path, created: bool) -> None:
@@ -263,9 +263,8 @@ def _run_study(out, resume, spec, config, paths, holdout, setup, options, on_rou
         try:
             return _study_in(out, resume, spec, config, paths, holdout, setup, options, on_round, run)
         except BaseException as err:  # interrupted too: a forced tune without results leaves the previous one
-            put_back = options.force and _put_back(out)
-            if isinstance(err, _NothingKept) and put_back:
-                raise _NothingKept(err.failure, put_back=True) from None
+            if options.force and _put_back(out) and isinstance(err, _NothingKept):
+                err.put_back = True  # the previous tune is back: run_tune leaves OUT as it is
             raise
 
 
