@@ -164,11 +164,12 @@ def tune(
         sys.exit(EXIT_INFRA)
     except KeyboardInterrupt as err:
         signum = err.signum if isinstance(err, Stopped) else signal.SIGINT
-        click.echo(
-            f"\n{signal.Signals(signum).name}: tune stopped, its workers killed; finished trials are kept in "
-            f"{out_dir}; run the same command again to continue",
-            err=True,
+        kept = (  # a forced tune keeps nothing before its results: OUT holds the tune it was to replace
+            f"the tune that was in {out_dir} is kept as it was (a forced tune replaces it only once it has results)"
+            if force
+            else f"finished trials are kept in {out_dir}; run the same command again to continue"
         )
+        click.echo(f"\n{signal.Signals(signum).name}: tune stopped, its workers killed; {kept}", err=True)
         sys.exit(EXIT_SIGNAL[signum])
     finally:
         for sig, old in handlers.items():

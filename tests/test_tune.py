@@ -159,6 +159,39 @@ def test_killed_tune_leaves_no_process_nor_partial_file_and_resumes(logs, tmp_pa
     assert summary["trials"]["complete"] == total and summary["defaults"]["trial"] == 0
 
 
+def test_a_killed_forced_tune_leaves_the_previous_tune(logs, tmp_path):
+    """A forced tune stopped (SIGTERM) or killed (SIGKILL) before its results: OUT keeps the tune it was to replace,
+    the same bytes after SIGTERM, and after SIGKILL once the next tune in OUT has put its journal back."""
+    out, err = tmp_path / "tune", tmp_path / "tune.err"
+    done = subprocess.run(_tune_args(logs, out, "--trials", 2, "-j", 1), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        with open(err, "w") as fh:
+            proc = subprocess.Popen(
+                _tune_args(logs, out, "--trials", 400, "-j", 2, "--force"),
+                stdout=subprocess.DEVNULL,
+                stderr=fh,
+                start_new_session=True,
+            )
+        try:
+            assert wait_for(lambda: "trials, best" in err.read_text() or proc.poll() is not None, 180)
+            os.kill(proc.pid, sig)
+            assert proc.wait(timeout=60) == (143 if sig == signal.SIGTERM else -9), err.read_text()
+            assert wait_gone(proc.pid) == []
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        if sig == signal.SIGTERM:
+            assert "is kept as it was" in err.read_text() and "run the same command" not in err.read_text()
+            assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    done = subprocess.run(_tune_args(logs, out, "--trials", 2, "-j", 1), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and "0 trials run now" in done.stdout, done.stdout + done.stderr
+    journal = (out / "tune.journal").read_bytes()  # the previous tune's, which the resumed tune may append to
+    assert _complete_trials(out) == 2 and journal.startswith(before["tune.journal"])
+    assert not (out / ".tune.journal.previous").exists()
+
+
 def test_tune_on_a_dask_cluster(logs, tmp_path, scheduler):
     import pandas as pd
 
