@@ -96,6 +96,7 @@ def report(
 ) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically.
     Without truth (the run had none and no --truth): the run's figures and a summary in report.md."""
+    from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
     from slamobs.pipeline.evaluation.run_dir import options_for_run, report_run, run_meta
@@ -122,7 +123,8 @@ def report(
         options = options_for_run(meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
             progress("report: evaluating and drawing the figures")
-            rep, written = report_run(run_dir, truth, options, exports=export)
+            with dataset_report(run_dir):  # a batch run: its rows in the dataset follow the new report
+                rep, written = report_run(run_dir, truth, options, exports=export)
     except (InputError, ValueError) as err:
         exit_input_error(str(err))
     if quiet:
@@ -135,13 +137,14 @@ def report(
 
 def _summarised(run_dir: Path, as_json: bool, quiet: bool) -> bool:
     """A run without truth is summarised and drawn (False: done); True when the run has truth to report on."""
+    from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.run_dir import has_truth, run_meta, summarise_run
 
     try:
         if has_truth(run_meta(run_dir)):
             return True
-        with Progress(quiet) as progress:
+        with Progress(quiet) as progress, dataset_report(run_dir):
             progress("report: drawing the run's figures (no truth: no error report)")
             info, written = summarise_run(run_dir)
     except InputError as err:

@@ -20,6 +20,8 @@ from slamobs.pipeline.batch.runner import config_hash
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 
+from batch_checks import assert_consistent
+
 # pandas, the simulator and duckdb/polars are imported inside the tests: the crash test's worker processes
 # import this module and should start fast
 
@@ -290,6 +292,137 @@ def test_rerun_skips_finished_runs_and_force_reruns(done, logs, tmp_path):
     poses = pd.read_parquet(out / "poses")
     assert set(poses["run_id"].astype(str)) == {r for r, x in read_summary(out).items() if x["status"] == "ok"}
     assert not poses.duplicated(["run_id", "t_ns"]).any()
+
+
+# --- slamobs report on a batch run: the dataset follows the new report -------------------------------------
+
+
+def _aligned_rows(out: Path, rid: str | None = None):
+    import pandas as pd
+
+    df = pd.read_parquet(out / "poses_aligned")
+    df["run_id"] = df["run_id"].astype(str)
+    assert not df.duplicated(["run_id", "t_ns"]).any()  # never a run twice, whatever state the switch is in
+    df = df.sort_values(["run_id", "t_ns"], ignore_index=True)
+    return df if rid is None else df[df["run_id"] == rid].drop(columns="run_id").reset_index(drop=True)
+
+
+def _report_row(out: Path, rid: str) -> dict:
+    import pandas as pd
+
+    from slamobs.pipeline.run import headline_metrics
+
+    rep = json.loads((out / "runs" / rid / "report.json").read_text())
+    row = pd.read_parquet(out / "summary.parquet").set_index("run_id").loc[rid]
+    return {k: (row[k], v) for k, v in headline_metrics(rep).items() if v is not None}
+
+
+def test_report_of_a_batch_run_updates_its_rows_in_the_dataset(done, logs, tmp_path):
+    import pandas as pd
+
+    from slamobs.cli.main import main
+    from slamobs.pipeline.batch.rereport import dataset_report
+    from slamobs.pipeline.evaluation.run_dir import report_run
+
+    out = _copy(done[1], tmp_path)
+    rid = _rid(out, logs["f8"])
+    before = read_summary(out)
+    others = _aligned_rows(out).query("run_id != @rid")
+    with dataset_report(out / "runs" / rid):  # what `slamobs report` does around the report
+        report_run(out / "runs" / rid, align="sim3")
+        expected = pd.read_parquet(out / "runs" / rid / "poses_aligned.parquet")  # the new report's aligned poses
+    pairs = _report_row(out, rid)
+    assert pairs["ape_trans_rmse_m"][0] != before[rid]["ape_trans_rmse_m"]  # Sim(3) fits better than SE(3)
+    assert all(a == b for a, b in pairs.values()), pairs  # summary.parquet == the run's report.json
+    pd.testing.assert_frame_equal(_aligned_rows(out, rid), expected, check_dtype=False)
+    assert not (out / "runs" / rid / "poses_aligned.parquet").exists()  # stored once, in the dataset
+    pd.testing.assert_frame_equal(_aligned_rows(out).query("run_id != @rid"), others)
+    assert {r: x for r, x in read_summary(out).items() if r != rid} == {r: x for r, x in before.items() if r != rid}
+    assert (
+        json.loads((out / "runs" / rid / "batch.json").read_text())["row"]["ape_trans_rmse_m"]
+        == pairs["ape_trans_rmse_m"][0]
+    )
+    assert_consistent(out)
+
+    # again with the batch's alignment (the run's rows are now a partition): the batch's numbers come back
+    res = CliRunner().invoke(main, ["report", str(out / "runs" / rid), "--align", "se3", "-q"])
+    assert res.exit_code == 0, res.output
+    pairs = _report_row(out, rid)
+    assert all(a == b for a, b in pairs.values()), pairs
+    assert pairs["ape_trans_rmse_m"][0] == pytest.approx(before[rid]["ape_trans_rmse_m"], rel=1e-9)
+    assert (out / "poses_aligned" / f"run_id={rid}").is_dir()
+    res = invoke(logs["data"], "-o", out, "--quiet")  # a batch afterwards: nothing to run, compacts, consistent
+    assert res.exit_code == 0 and "0 ok, 3 skipped" in res.output
+    assert not (out / "poses_aligned" / f"run_id={rid}").exists()
+    assert _report_row(out, rid) == pairs
+    assert_consistent(out)
+
+
+def test_report_of_a_batch_run_is_refused_while_a_batch_writes(done, logs, tmp_path):
+    from slamobs.cli.main import main
+    from slamobs.pipeline.batch.dataset import batch_lock
+
+    out = _copy(done[1], tmp_path)
+    rid = _rid(out, logs["circle"])
+    report = (out / "runs" / rid / "report.json").read_bytes()
+    with batch_lock(out):  # a batch is writing to OUT
+        res = CliRunner().invoke(main, ["report", str(out / "runs" / rid), "--align", "sim3"])
+    assert res.exit_code == 2 and "a batch (or another report) is writing to this directory" in res.output
+    assert (out / "runs" / rid / "report.json").read_bytes() == report  # nothing replaced
+
+
+#: A child process that brings the dataset in line with run RID's report and SIGKILLs itself at the rename onto NAME.
+_KILLED_SYNC = """
+import os, signal, sys
+from pathlib import Path
+from slamobs.pipeline.batch.dataset import batch_lock
+from slamobs.pipeline.batch.ledger import Ledger
+from slamobs.pipeline.batch.rereport import sync_run
+out, rid, name = Path(sys.argv[1]), sys.argv[2], sys.argv[3]
+real = os.replace
+def replace(src, dest, *args, **kwargs):
+    if Path(dest).name == name:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(src, dest, *args, **kwargs)
+os.replace = replace
+with batch_lock(out):
+    sync_run(out, rid, Ledger(out))
+"""
+
+
+@pytest.mark.parametrize(
+    "at", ["report.json", "part-0.parquet", "summary.parquet"], ids=["before-journal", "mid-tables", "before-summary"]
+)
+def test_a_killed_report_leaves_old_or_new_rows_and_the_next_writer_completes_it(done, logs, tmp_path, at):
+    import subprocess
+    import sys
+
+    import pandas as pd
+
+    from slamobs.pipeline.batch import compact_batch
+    from slamobs.pipeline.evaluation.run_dir import report_run
+
+    out = _copy(done[1], tmp_path)
+    rid = _rid(out, logs["circle"])
+    old_row, old_rows = read_summary(out)[rid], _aligned_rows(out, rid)
+    report_run(out / "runs" / rid, align="sim3")  # a report killed after its files: the run directory is new ...
+    (out / "_slamobs" / "reports").mkdir(exist_ok=True)
+    (out / "_slamobs" / "reports" / rid).touch()  # ... and marked, as `slamobs report` marks it before it starts
+    expected = pd.read_parquet(out / "runs" / rid / "poses_aligned.parquet")
+    proc = subprocess.run([sys.executable, "-c", _KILLED_SYNC, str(out), rid, at], capture_output=True)
+    assert proc.returncode == -9, proc.stderr.decode()[-2000:]
+    rows = _aligned_rows(out, rid)  # readable, never twice; old rows, or (between renames) none, or new ones
+    assert len(rows) == 0 or rows.equals(old_rows) or rows.equals(expected.astype(rows.dtypes))
+    summary = pd.read_parquet(out / "summary.parquet").set_index("run_id")
+    assert summary.loc[rid, "ape_trans_rmse_m"] == old_row["ape_trans_rmse_m"]  # the summary: old until the end
+    compact_batch(out)  # `slamobs batch compact OUT`, or a batch, or a report: completes it
+    pairs = _report_row(out, rid)
+    assert all(a == b for a, b in pairs.values()), pairs
+    assert pairs["ape_trans_rmse_m"][0] != old_row["ape_trans_rmse_m"]
+    pd.testing.assert_frame_equal(_aligned_rows(out, rid), expected, check_dtype=False)
+    assert not list((out / "_slamobs" / "reports").iterdir()) and not (out / "_slamobs" / "report.json").exists()
+    assert not [p for p in out.rglob(".*") if p.is_file()]  # no hidden temporaries left
+    assert_consistent(out)
 
 
 # --- interruption and resume ------------------------------------------------------------------------------

@@ -85,14 +85,21 @@ def stage_tables(staged: Path, run_id: str) -> dict[str, int]:
         src = staged / "run" / f"{table}.parquet"
         if not src.is_file():
             continue
-        f = pq.ParquetFile(src)
-        schema = with_run_id(f.schema_arrow.empty_table(), run_id).schema
-        with pq.ParquetWriter(staged / f"{table}.parquet", schema, **parquet_options(schema)) as writer:
-            for g in range(f.num_row_groups):
-                writer.write_table(with_run_id(f.read_row_group(g), run_id))
-        rows[table] = f.metadata.num_rows
-        f.close()
+        rows[table] = write_with_run_id(src, staged / f"{table}.parquet", run_id)
         src.unlink()
+    return rows
+
+
+def write_with_run_id(src: Path, dest: Path, run_id: str) -> int:
+    """Copy the table file ``src`` of a run to ``dest`` with a run_id column, row group by row group (bounded
+    memory); returns its rows."""
+    f = pq.ParquetFile(src)
+    schema = with_run_id(f.schema_arrow.empty_table(), run_id).schema
+    with pq.ParquetWriter(dest, schema, **parquet_options(schema)) as writer:
+        for g in range(f.num_row_groups):
+            writer.write_table(with_run_id(f.read_row_group(g), run_id))
+    rows = f.metadata.num_rows
+    f.close()
     return rows
 
 
@@ -162,22 +169,30 @@ class DatasetIndex:
         return ids
 
 
-def _rewrite_without(path: Path, drop: set[str]) -> None:
-    """Rewrite a compacted file without the rows of ``drop`` (atomically; deleted when nothing is left)."""
+def write_without(path: Path, drop: set[str], dest: Path) -> bool:
+    """Write the compacted file ``path`` without the rows of ``drop`` to ``dest``; False (nothing written) when
+    no run would be left in it."""
     import pyarrow.compute as pc
 
+    remaining = [r for r in compacted_run_ids(path) if r not in drop]
+    if not remaining:
+        return False
     table = pq.ParquetFile(path).read()
     keep = pc.invert(pc.is_in(table["run_id"].cast(pa.string()), value_set=pa.array(sorted(drop), pa.string())))
     table = table.filter(keep)
-    remaining = [r for r in compacted_run_ids(path) if r not in drop]
-    if not remaining:
-        path.unlink()
-        return
-    tmp = path.with_name(f".{path.name}.tmp")
-    with pq.ParquetWriter(tmp, table.schema, **parquet_options(table.schema)) as writer:
+    with pq.ParquetWriter(dest, table.schema, **parquet_options(table.schema)) as writer:
         writer.write_table(table.unify_dictionaries().combine_chunks(), row_group_size=1 << 20)
         writer.add_key_value_metadata({RUN_IDS_KEY: json.dumps(remaining)})
-    os.replace(tmp, path)
+    return True
+
+
+def _rewrite_without(path: Path, drop: set[str]) -> None:
+    """Rewrite a compacted file without the rows of ``drop`` (atomically; deleted when nothing is left)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    if write_without(path, drop, tmp):
+        os.replace(tmp, path)
+    else:
+        path.unlink()
 
 
 def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
@@ -232,6 +247,9 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
     out = Path(out)
     result = Reconciled()
     finish_compaction(out)
+    from slamobs.pipeline.batch.rereport import finish_reports  # imports this module
+
+    finish_reports(out, ledger)
     stale = _stale_files(out)
     for p in stale:
         remove_path(p)
@@ -257,14 +275,15 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
 
 
 @contextmanager
-def batch_lock(out: Path) -> Iterator[None]:
-    """One batch at a time per output directory (reconciliation must not hit a live batch)."""
+def batch_lock(out: Path, holder: str = "another batch (or a report of one of its runs)") -> Iterator[None]:
+    """One batch at a time per output directory (reconciliation must not hit a live batch); ``slamobs report``
+    on one of its runs takes it too (:mod:`.rereport`). ``holder`` names the other side in the refusal."""
     out = Path(out)
     try:
         meta_dir(out).mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise InputError(out, f"cannot create the output directory: {err.strerror}") from None
-    with exclusive(meta_dir(out) / LOCK, out, "another batch"):
+    with exclusive(meta_dir(out) / LOCK, out, holder):
         yield
 
 
