@@ -936,18 +936,27 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
     shutil.rmtree(container, ignore_errors=True)
 
 
-def kept_unless(is_ours, refusal: str, *, force: bool = True, nbytes: int = 4096):
+def kept_unless(is_ours, refusal: str, *, force: bool = True, nbytes: int | None = 4096, links: bool = True):
     """A ``why_kept`` for :func:`atomic_file`: without ``force`` nothing is replaced; with it only a file whose
     first ``nbytes`` satisfy ``is_ours`` (a kind of file slamobs writes), anything else kept with ``refusal`` (also
-    the reason without ``force``, where "use --force" would only lead to that refusal)."""
+    the reason without ``force``, where "use --force" would only lead to that refusal). With ``nbytes`` None
+    ``is_ours`` is given the path instead (a directory, or a format its first bytes do not tell); with ``links``
+    False a symbolic link is never ours. The one test of "may this command replace what is there" (``simulate``,
+    ``import``, ``export``, ``view``, ``evaluate --save_plot`` pass their own ``is_ours``)."""
 
     def why_kept(path: Path) -> str | None:
-        try:
-            with open(path, "rb") as f:
-                head = f.read(nbytes)
-        except OSError:
-            head = b""
-        if not is_ours(head):  # refused with or without --force: never suggest the option that would not help
+        if not links and Path(path).is_symlink():
+            ours = False
+        elif nbytes is None:
+            ours = is_ours(Path(path))
+        else:
+            try:
+                with open(path, "rb") as f:
+                    head = f.read(nbytes)
+            except OSError:
+                head = b""
+            ours = is_ours(head)
+        if not ours:  # refused with or without --force: never suggest the option that would not help
             return refusal
         return None if force else "exists already (use --force to replace it)"
 

@@ -461,3 +461,21 @@ def test_single_file_outputs_replace_only_their_own_kind(tmp_path):
         tmp.write_bytes(b"RRF2 new")
     assert ours.read_bytes() == b"RRF2 new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.rrd", "b.rrd"]  # no hidden temporary left
+
+
+def test_kept_unless_judges_a_path_and_may_refuse_links(tmp_path):
+    """The one ``why_kept`` of simulate and import too: ``nbytes=None`` hands the path to ``is_ours`` (a rosbag2
+    directory has no first bytes), ``links=False`` never replaces a symbolic link, even to a file of ours."""
+    from slamobs.pipeline.writers import kept_unless
+
+    ours = tmp_path / "ours.mcap"
+    ours.write_bytes(b"RRF2")
+    link = tmp_path / "link.mcap"
+    link.symlink_to(ours)
+    by_head = kept_unless(lambda head: head.startswith(b"RRF"), "not ours")
+    assert by_head(ours) is None and by_head(link) is None  # links followed by default (as before)
+    assert kept_unless(lambda head: head.startswith(b"RRF"), "not ours", links=False)(link) == "not ours"
+    seen = []
+    by_path = kept_unless(lambda p: seen.append(p) or p.is_dir(), "not a bag", force=False, nbytes=None)
+    assert by_path(tmp_path) == "exists already (use --force to replace it)" and seen == [tmp_path]
+    assert by_path(ours) == "not a bag"

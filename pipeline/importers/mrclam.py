@@ -295,17 +295,16 @@ def messages(ds: Dataset, log: RobotLog, ts) -> Iterator[tuple[str, int, bytes]]
 
 def why_kept(path: Path, *, overwrite: bool) -> str | None:
     """Why an existing ``path`` must not be replaced: anything without ``overwrite``, and anything but a log this
-    importer wrote."""
+    importer wrote (:func:`.writers.kept_unless`)."""
     from slamobs.pipeline.readers.mcap import mcap_library
+    from slamobs.pipeline.writers import kept_unless
 
-    try:
-        with open(path, "rb") as f:
-            ours = not Path(path).is_symlink() and mcap_library(f.read(4096)) == WRITER
-    except OSError:
-        ours = False
-    if not ours:  # also without overwrite: "use --force" would only lead here
-        return "exists and is not a log slamobs import wrote: --force replaces only those"
-    return None if overwrite else "exists already (use --force to replace it)"
+    return kept_unless(
+        lambda head: mcap_library(head) == WRITER,
+        "exists and is not a log slamobs import wrote: --force replaces only those",
+        force=overwrite,
+        links=False,
+    )(path)
 
 
 @dataclass(frozen=True)

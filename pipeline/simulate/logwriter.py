@@ -634,13 +634,16 @@ WRITER_MCAP, WRITER_CALLERID, WRITER_ROS2 = "slamobs-simulate", "/slamobs_simula
 
 def why_kept(path: Path, *, overwrite: bool) -> str | None:
     """Why the existing ``path`` must not be replaced by a new log: anything without ``overwrite``, and anything
-    but a log ``slamobs simulate`` wrote with it."""
-    if _simulated(Path(path)):
-        return None if overwrite else "exists already (use --force to replace it)"
-    return (  # also without overwrite: "use --force" would only lead here
+    but a log ``slamobs simulate`` wrote with it (:func:`.writers.kept_unless`)."""
+    from slamobs.pipeline.writers import kept_unless
+
+    return kept_unless(
+        _simulated,
         "exists and is not a log slamobs simulate wrote: --force replaces only those; it is kept, remove it or "
-        "choose another -o"
-    )
+        "choose another -o",
+        force=overwrite,
+        nbytes=None,
+    )(path)
 
 
 def _simulated(path: Path) -> bool:
