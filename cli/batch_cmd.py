@@ -15,7 +15,7 @@ import click
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
 from slamobs.pipeline.cores import cores
-from slamobs.cli.options import Finite, window_options
+from slamobs.cli.options import Finite, OutPath, window_options
 
 
 def _jsonable(row: dict) -> dict:
@@ -172,7 +172,7 @@ class _RunCommand(click.Command):
     "--out",
     "out_dir",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=OutPath(path_type=Path, file_okay=False),
     help="dataset directory (created; reused to resume)",
 )
 @click.option("--observer", default=None, help="observer for every log (overrides configs)")

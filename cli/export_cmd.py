@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import Finite, quiet_option
+from slamobs.cli.options import Finite, OutPath, quiet_option
 
 DEFAULT_RATE_HZ = 50.0  # pipeline.results_mcap.DEFAULT_RATE_HZ, literal so `slamobs --help` imports no numpy
 
@@ -22,7 +22,7 @@ _RATE = Finite(min=0.0)
     "--mcap",
     "mcap_path",
     required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=OutPath(path_type=Path, dir_okay=False),
     help="MCAP file to write: pose, TF, path, landmark map, biases and innovations as ROS 2 messages "
     "(--mcap, the older name, works too)",
 )

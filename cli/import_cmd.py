@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.options import quiet_option
+from slamobs.cli.options import OutPath, quiet_option
 from slamobs.cli.progress import Progress
 
 
@@ -22,7 +22,7 @@ def import_group() -> None:
     "--out",
     "out",
     required=True,
-    type=click.Path(path_type=Path),
+    type=OutPath(path_type=Path),
     help="MCAP log to write; with --robot all a directory that gets robot1.mcap ... robot5.mcap.",
 )
 @click.option("--robot", default="1", show_default=True, help="Robot number 1-5, or 'all'.")

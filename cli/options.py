@@ -29,6 +29,16 @@ class Finite(click.FloatRange):
         return number
 
 
+class OutPath(click.Path):
+    """The path of ``-o/--out``: empty (or only blanks) is a usage error. ``Path("")`` is ``.``: the output went into
+    the current directory (a batch wrote its dataset there) or a message named "." for it."""
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, str) and not value.strip():
+            self.fail(f"{value!r} is empty: name the output to write", param, ctx)
+        return super().convert(value, param, ctx)
+
+
 class Spelled(click.Choice):
     """Choices spelled with dashes, as the help shows them (the CLI turns ``_`` into ``-``), that also take evo's
     underscores (``trans_part``) when the command runs outside the ``slamobs`` group; the command gets the

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.options import SEED, AliasedOption, Finite, quiet_option
+from slamobs.cli.options import SEED, AliasedOption, Finite, OutPath, quiet_option
 from slamobs.cli.progress import Progress, compile_notice
 
 #: Kept literal so ``slamobs --help`` need not import the simulator (numba, rosbags); a test checks it.
@@ -28,7 +28,7 @@ IMAGE_FOV_DEG = 70.0
     "--output",
     "output",
     required=True,
-    type=click.Path(path_type=Path),
+    type=OutPath(path_type=Path),
     cls=AliasedOption,
     hidden_aliases=("--output",),
     help="Log to write.",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.options import quiet_option
+from slamobs.cli.options import OutPath, quiet_option
 
 STYLES = ("table", "rpg")  # pipeline.stats.render.STYLES, literal so `slamobs --help` imports no pandas
 
@@ -15,7 +15,7 @@ STYLES = ("table", "rpg")  # pipeline.stats.render.STYLES, literal so `slamobs -
 @click.command("stats")
 @click.argument("inputs", nargs=-1, required=True, type=click.Path(path_type=Path))
 @click.option(
-    "-o", "--out", "out_dir", required=True, type=click.Path(path_type=Path, file_okay=False), help="directory to write"
+    "-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path, file_okay=False), help="directory to write"
 )
 @click.option(
     "--style",

@@ -12,7 +12,7 @@ from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
 from slamobs.pipeline.cores import cores
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.listing import wrote_line
-from slamobs.cli.options import SEED, Finite
+from slamobs.cli.options import SEED, Finite, OutPath
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
 
@@ -25,7 +25,7 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
     "--out",
     "out_dir",
     required=True,
-    type=click.Path(path_type=Path, file_okay=False),
+    type=OutPath(path_type=Path, file_okay=False),
     help="tune directory (created; the same command continues an interrupted tune in it)",
 )
 @click.option(

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.options import quiet_option
+from slamobs.cli.options import OutPath, quiet_option
 
 
 @click.command("view")
@@ -15,7 +15,7 @@ from slamobs.cli.options import quiet_option
     "-o",
     "--out",
     "out",
-    type=click.Path(path_type=Path, dir_okay=False),
+    type=OutPath(path_type=Path, dir_okay=False),
     default=None,
     help="the .rrd file to write (default: view.rrd in the first RUN_DIR; none with --spawn)",
 )

@@ -156,3 +156,29 @@ def test_a_bad_option_value_is_one_line_and_nothing_is_written(tmp_path, args):
     option = [a for a in args if a.startswith("--")][-1]
     assert option in lines[0] and "Usage:" not in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt"]
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("run", "{a}"),
+        ("compare", "{a}", "--observers", "hashim"),
+        ("batch", "{a}"),
+        ("tune", "{a}", "--observer", "hashim"),
+        ("stats", "{a}"),
+        ("simulate", "circle"),
+        ("export", "{d}"),
+        ("import", "mrclam", "{d}"),
+        ("view", "{d}"),
+    ],
+    ids=lambda a: a[0],
+)
+@pytest.mark.parametrize("empty", ["", " "])
+def test_an_empty_output_path_is_a_usage_error(tmp_path, monkeypatch, args, empty):
+    """``-o ""`` is ``.``: a batch wrote its dataset into the current directory, run named "." in its refusal."""
+    (tmp_path / "a.mcap").write_bytes(b"")
+    monkeypatch.chdir(tmp_path)
+    res = CliRunner().invoke(main, [a.format(a=tmp_path / "a.mcap", d=tmp_path) for a in args] + ["-o", empty])
+    lines = res.stderr.strip().splitlines()
+    assert res.exit_code == 2 and len(lines) == 1 and "'-o'" in lines[0] and "is empty" in lines[0], res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.mcap"]

@@ -172,7 +172,7 @@ def test_export_command_every_row_atomic_and_no_overwrite(run_dir, tmp_path, mon
     table = (copy / "poses.parquet").read_bytes()  # a file of the run is an input, --force or not
     res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(copy / "poses.parquet"), "--force"])
     assert res.exit_code == 2 and "is the input" in res.stderr and (copy / "poses.parquet").read_bytes() == table
-    for bad, why in (("", "name an .mcap file"), (copy / "run.json" / "x.mcap", "is a file, not a directory")):
+    for bad, why in (("", "is empty: name the output"), (copy / "run.json" / "x.mcap", "is a file, not a directory")):
         res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(bad), "--force"])
         assert res.exit_code == 2 and why in res.stderr, res.stderr
     res = CliRunner().invoke(main, ["export", str(copy), "--mcap", str(copy / "results.mcap"), "--force", "-q"])
