@@ -16,6 +16,7 @@ from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
 from slamobs.pipeline.cores import cores
 from slamobs.cli.options import Finite, OutPath, window_options
+from slamobs.pipeline.errors import plural
 
 
 def _jsonable(row: dict) -> dict:
@@ -36,14 +37,10 @@ def _duration(s: float | None) -> str:
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}{'' if n == 1 else 's'}"
-
-
 def _row_line(row: dict, progress) -> str:
     status = row["status"]
     if status == "ok" and row.get("warning_count"):
-        status = f"ok ({_plural(row['warning_count'], 'warning')})"
+        status = f"ok ({plural(row['warning_count'], 'warning')})"
     head = f"[{progress.done}/{progress.total}] {status:<7} {row['run_id']}"
     if row["status"] == "failed":
         return f"{head}  {row['error']}"
@@ -64,7 +61,7 @@ class _Reporter:
     def start(self, progress, where: str) -> None:
         if self.quiet or self.as_json:
             return
-        text = f"batch: {progress.total} logs, {progress.to_run} to run on {where}"
+        text = f"batch: {plural(progress.total, 'log')}, {progress.to_run} to run on {where}"
         click.echo(f"\r\x1b[K[0/{progress.total}] {text}" if self.live else text, nl=not self.live, err=True)
 
     def __call__(self, row: dict, progress) -> None:
@@ -124,15 +121,15 @@ class _Reporter:
                     err=True,
                 )
             if result.pruned:
-                click.echo(f"batch: pruned {_plural(len(result.pruned), 'run')} whose logs are gone", err=True)
+                click.echo(f"batch: pruned {plural(len(result.pruned), 'run')} whose logs are gone", err=True)
         warned = f" ({result.warned} with warnings)" if result.warned else ""
         click.echo(
-            f"batch: {len(result.rows)} logs, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
+            f"batch: {plural(len(result.rows), 'log')}, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
             f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}"
         )
         if machine := result.machine_failures:
             click.echo(
-                f"batch: {_plural(len(machine), 'log')} failed because of the machine, not the log (first: "
+                f"batch: {plural(len(machine), 'log')} failed because of the machine, not the log (first: "
                 f"{machine[0]['error']}); not recorded: run the same command again once that is fixed",
                 err=True,
             )
@@ -318,9 +315,9 @@ def run(
         where = (
             f"Dask at {scheduler}"
             if scheduler
-            else f"a local Dask cluster of {options.jobs} workers"
+            else f"a local Dask cluster of {plural(options.jobs, 'worker')}"
             if options.executor == "dask"
-            else f"{options.jobs} local worker processes"
+            else plural(options.jobs, "local worker process", "local worker processes")
         )
         with as_interruption():
             result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
@@ -367,11 +364,11 @@ def compact(out_dir: Path, quiet: bool) -> None:
         return
     if fixed.adopted or fixed.removed or fixed.dropped:
         click.echo(
-            f"settled an interrupted batch: {len(fixed.adopted)} runs adopted, {len(fixed.removed)} partial "
-            "runs removed",
+            f"settled an interrupted batch: {plural(len(fixed.adopted), 'run')} adopted, "
+            f"{plural(len(fixed.removed), 'partial run')} removed",
             err=True,
         )
     if not report:
         click.echo(f"{out_dir}: nothing to compact")
     for t in report:
-        click.echo(f"{t.table}: {t.files_before} files -> {t.files_after} ({_plural(t.runs, 'run')}, {t.rows} rows)")
+        click.echo(f"{t.table}: {t.files_before} files -> {t.files_after} ({plural(t.runs, 'run')}, {t.rows} rows)")

@@ -141,6 +141,12 @@ def one_line(text: object) -> str:
     return " ".join(str(text).split())
 
 
+def plural(n: int, noun: str, nouns: str | None = None) -> str:
+    """``1 log``, ``3 logs``, ``0 logs``: a count in a message (``nouns``: the plural when it is not ``noun`` + s,
+    ``1 process``, ``2 processes``); the one helper of the readers' warnings and the commands' output."""
+    return f"{n} {noun if n == 1 else nouns or noun + 's'}"
+
+
 #: Texts of exceptions that are a failure of the machine without saying so by their type: a shared library that
 #: could not be mapped (an ImportError or OSError), a decompressor's or allocator's own out-of-memory error.
 _MEMORY_TEXTS = (

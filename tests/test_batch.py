@@ -276,7 +276,7 @@ def test_rerun_skips_finished_runs_and_force_reruns(done, logs, tmp_path):
     rid = _rid(out, logs["circle"])
     res = invoke(logs["circle"], "-o", out, "--force", "--quiet")
     lines = res.output.strip().splitlines()
-    assert res.exit_code == 0 and len(lines) == 1 and lines[0].startswith("batch: 1 logs, 1 ok, 0 skipped, 0 failed")
+    assert res.exit_code == 0 and len(lines) == 1 and lines[0].startswith("batch: 1 log, 1 ok, 0 skipped, 0 failed")
     assert read_summary(out)[rid]["finished_at"] > before[rid]["finished_at"]
     assert len(read_summary(out)) == 4  # rows of logs outside this invocation are kept
 
@@ -492,6 +492,17 @@ def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_p
     assert rows["not_there.mcap"]["error"].endswith("not_there.mcap: no such file or directory")
     assert rows["circle.mcap"]["error"].startswith(f"{tmp_path / 'bad_gains.yaml'}: gains.fast-adaptation: gain k_p")
     assert rows["circle.mcap"]["config_file"] == str(tmp_path / "bad_gains.yaml")
+
+
+def test_counts_are_spelled_for_one(logs, tmp_path):
+    from slamobs.pipeline.errors import plural
+
+    assert [plural(n, "log") for n in (0, 1, 2)] == ["0 logs", "1 log", "2 logs"]
+    assert plural(1, "process", "processes") == "1 process" and plural(3, "process", "processes") == "3 processes"
+    res = invoke(logs["bad"], "-o", tmp_path / "OUT", "-j", 1)
+    lines = res.output.strip().splitlines()
+    assert lines[0] == "batch: 1 log, 1 to run on 1 local worker process", lines
+    assert lines[-1].startswith("batch: 1 log, 0 ok, 0 skipped, 1 failed"), lines
 
 
 @pytest.mark.parametrize(

@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError, machine_failure
+from slamobs.pipeline.errors import InputError, machine_failure, plural
 from slamobs.pipeline.streams import CornerStream
 from slamobs.pipeline.vision.cameras import CameraModel, from_camera_info
 from slamobs.pipeline.vision.detector import TagDetector, compressed_to_gray, is_depth, raw_to_gray
 from slamobs.pipeline.vision.tagpose import winding
 
 from .container import iter_raw, require_definitions
-from .decode import Cleaning, clean_frames, decoded_messages, layout_errors, plural
+from .decode import Cleaning, clean_frames, decoded_messages, layout_errors
 from .roles import IMAGE
 from .rows import Frames
 

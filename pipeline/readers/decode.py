@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError, one_line, resource_error
+from slamobs.pipeline.errors import InputError, one_line, plural, resource_error
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
 from . import fastdecode, tfdecode
@@ -57,11 +57,6 @@ VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
     ("accel", IMU): ("linear_acceleration", "frame"),
     ("magnetic", MAGNETIC_FIELD): ("magnetic_field", "frame"),
 }
-
-
-def plural(n: int, noun: str) -> str:
-    """``1 stamp``, ``3 stamps``: counts in warnings."""
-    return f"{n} {noun}" + ("s" if n != 1 else "")
 
 
 @dataclass
