@@ -107,6 +107,24 @@ def test_records_append_survive_a_torn_line_and_compact(tmp_path):
     assert set(Ledger(tmp_path).rows) == set(read_summary(tmp_path)) == {"b", "c", "d", "e"}
 
 
+def test_summary_is_rewritten_every_second_or_at_most_a_twentieth_of_the_time(tmp_path):
+    """A batch killed by SIGKILL left a summary up to 30 s behind its tables (7 runs in the tables, none in the
+    summary); now the wait between rewrites follows what a rewrite costs, from 1 s up to 30 s."""
+    from slamobs.pipeline.batch.ledger import REFRESH_COST, REFRESH_MIN_S, REFRESH_S
+
+    led = Ledger(tmp_path)
+    assert led.refresh_every() == REFRESH_MIN_S == 1.0
+    for i in range(3):
+        led.put({"run_id": f"r{i}", "status": "ok"})
+        led.compact()
+    assert led.rewrites == 3 and 0 < led.compact_s < 1  # measured from the second rewrite on
+    led.compact_s = 0.2  # a large summary
+    assert led.refresh_every() == pytest.approx(REFRESH_COST * 0.2) and REFRESH_COST * 0.2 > REFRESH_MIN_S
+    led.compact_s = 10.0
+    assert led.refresh_every() == REFRESH_S
+    led.close()
+
+
 # --- identity: moved, copied, changed logs; hash cache; prune ----------------------------------------------
 
 

@@ -20,6 +20,7 @@ import pytest
 
 from batch_checks import CLI, alive, assert_consistent, children, wait_for, wait_gone
 from slamobs.pipeline.batch.executor import STARTED
+from slamobs.pipeline.batch.ledger import read_summary
 
 N_LOGS = 4
 EXPECTED_EXIT = {signal.SIGKILL: -9, signal.SIGTERM: 143, signal.SIGINT: 130}
@@ -244,8 +245,8 @@ def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, s
     out = tmp_path / "OUT"
     try:
         proc, err = _start(_batch_args(logs, out, "--scheduler", address, "--wait-workers", "30"), tmp_path, "batch")
-        records = lambda: sum(len(p.read_bytes().splitlines()) for p in (out / "_slamobs").glob("records-*.jsonl"))  # noqa: E731
-        assert wait_for(lambda: records() >= 1 or proc.poll() is not None, 180), err.read_text()
+        # a run recorded (its line may already be in summary.parquet: rewritten every second or so)
+        assert wait_for(lambda: len(read_summary(out)) >= 1 or proc.poll() is not None, 180), err.read_text()
         sched.kill()
         code = proc.wait(timeout=120)
         assert code == 3, err.read_text()

@@ -1,10 +1,11 @@
 """The record of a batch dataset's runs: append-only records, compacted into ``summary.parquet``.
 
 Recording a finished run costs one appended line (``_slamobs/records-<gen>.jsonl``), whatever the number
-of runs; ``summary.parquet`` is rewritten from the records only now and then (every ``REFRESH_S`` seconds
-during a batch and at its end), so its cost no longer grows with every run. The summary stores in its
-metadata the generation of records it already holds; the state is that summary plus the records of its
-generation and later, so a batch killed at any point loses nothing that was recorded.
+of runs; ``summary.parquet`` is rewritten from the records during a batch at most once a second and at most
+1/``REFRESH_COST`` of the time (:meth:`Ledger.refresh_every`), and at its end, so its cost does not grow with
+every run, and a batch killed by SIGKILL leaves a summary that lacks only its last second or so of runs. The
+summary stores in its metadata the generation of records it already holds; the state is that summary plus the
+records of its generation and later, so a batch killed at any point loses nothing that was recorded.
 
 A record is ``{"op": "put", "row": {...}}`` (a run's summary row, replacing any earlier one of that
 run_id) or ``{"op": "drop", "run_id": ...}``. Each is written by one ``write`` call: a kill leaves at
@@ -16,6 +17,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -28,8 +30,11 @@ SUMMARY = "summary.parquet"
 META_DIR = "_slamobs"
 RECORDS = "records-{gen:06d}.jsonl"
 GEN_KEY = b"slamobs.records_gen"
-#: Seconds between rewrites of summary.parquet while a batch runs (records are current at all times).
+#: Seconds between rewrites of summary.parquet while a batch runs (records are current at all times): at least
+#: REFRESH_MIN_S, and REFRESH_COST times what the last rewrite took (10k rows: 60-80 ms), at most REFRESH_S.
 REFRESH_S = 30.0
+REFRESH_MIN_S = 1.0
+REFRESH_COST = 20
 
 _F, _I, _S = pa.float64(), pa.int64(), pa.string()
 #: Columns of ``summary.parquet`` (units in the names; null where a run did not get that far).
@@ -191,6 +196,12 @@ class Ledger:
             self.gen = max(self.gen, g)
         self._fd: int | None = None
         self.appended = 0
+        self.compact_s = 0.0  # seconds the last rewrite of the summary took
+        self.rewrites = 0
+
+    def refresh_every(self) -> float:
+        """Seconds a batch waits between rewrites of the summary (see REFRESH_S)."""
+        return min(REFRESH_S, max(REFRESH_MIN_S, REFRESH_COST * self.compact_s))
 
     def _file(self) -> int:
         if self._fd is None:
@@ -222,6 +233,7 @@ class Ledger:
         path = self.out / SUMMARY
         if not force and not self.appended and not self.pending and path.is_file():
             return path  # already current
+        t0 = time.perf_counter()
         table = pa.Table.from_pylist(
             list(self.rows.values()), schema=SUMMARY_SCHEMA.with_metadata({GEN_KEY: str(self.gen + 1).encode()})
         )
@@ -242,6 +254,9 @@ class Ledger:
                 f.unlink(missing_ok=True)
         self.gen += 1
         self.appended = self.pending = 0
+        # the first rewrite of a process is not a measure: pyarrow imports pandas for it (0.3-0.8 s)
+        self.compact_s = time.perf_counter() - t0 if self.rewrites else 0.0
+        self.rewrites += 1
         return path
 
     def close(self) -> None:

@@ -2,9 +2,9 @@
 
 Only this process changes the dataset: workers stage their runs, and each finished run is committed here
 (:func:`dataset.commit_run`, with SIGINT/SIGTERM held back for the few renames) and recorded with one
-appended line (:class:`ledger.Ledger`). ``summary.parquet`` is rewritten every ``REFRESH_S`` seconds and at
-the end, whatever way the batch ends; the per-run partitions are compacted at the end of a batch that ran
-to completion.
+appended line (:class:`ledger.Ledger`). ``summary.parquet`` is rewritten every second or so
+(``Ledger.refresh_every``) and at the end, whatever way the batch ends (but SIGKILL); the per-run partitions are
+compacted at the end of a batch that ran to completion.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ from slamobs.pipeline.batch.executor import (
     run_task,
 )
 from slamobs.pipeline.batch.identity import HashCache, path_key, run_id_for, run_key
-from slamobs.pipeline.batch.ledger import REFRESH_S, SUMMARY, Ledger, meta_dir
+from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
 from slamobs.pipeline.batch.local import LocalPool
 from slamobs.pipeline.config import RunConfig, load_config
 from slamobs.pipeline.errors import BadConfig, InputError
@@ -516,7 +516,7 @@ def _execute(
             rows[position[task.run_id]] = row
             progress.add(row, dispatched=True)
             on_row(row, progress)
-            if time.monotonic() - refreshed > REFRESH_S:
+            if time.monotonic() - refreshed > ledger.refresh_every():
                 ledger.compact()
                 refreshed = time.monotonic()
     finally:
