@@ -29,6 +29,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -272,6 +273,17 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
     remove_files(index, set(result.removed))
     # failed (or unknown) records never keep files; a recorded failure has none by construction
     return index, result
+
+
+@contextmanager
+def signals_deferred():
+    """Hold SIGINT/SIGTERM/SIGHUP back (delivered on exit) while the dataset is being changed."""
+    sigs = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 @contextmanager

@@ -11,12 +11,14 @@ writes to ``OUT``, and a batch is refused while a report writes to it; neither e
 **Atomic switch.** The new files are written under hidden names; a journal (``_slamobs/report.json``) lists the
 renames, the files they make obsolete and the new summary row; then the renames are made (a compacted file
 without the run's old rows, before the run's new partition: a reader never sees the run twice), the obsolete
-files deleted, the row recorded, the summary rewritten and the journal removed. A marker
-(``_slamobs/reports/<run_id>``) is written before the report starts and removed at the end. Whatever kills the
-report, the next writer of ``OUT`` (a batch, ``slamobs batch compact OUT``, another report) completes it first:
-a journal is rolled forward (every file it names was complete before it was written), a marker left without one
-brings the dataset in line with whatever report the run directory now holds. Until then a killed report leaves
-the dataset's old rows and the run directory's aligned tables, which :func:`slamobs.load_run` prefers.
+files deleted, the row recorded, the summary rewritten and the journal removed. A report that fails or is
+stopped (Ctrl-C, SIGTERM) still brings the dataset in line with whatever report the run directory holds by then.
+A marker (``_slamobs/reports/<run_id>``) is written before the report starts and removed at the end. Whatever else
+kills a report (SIGKILL, power loss), the next writer of ``OUT`` (a batch, ``slamobs batch compact OUT``, another
+report) completes it first: a journal is rolled forward (every file it names was complete before it was
+written), a marker left without one brings the dataset in line with whatever report the run directory now holds.
+Until then a killed report leaves the dataset's old rows and the run directory's aligned tables, which
+:func:`slamobs.load_run` prefers.
 """
 
 from __future__ import annotations
@@ -27,10 +29,12 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from slamobs.pipeline import interrupts
 from slamobs.pipeline.batch.dataset import (
     DatasetIndex,
     batch_lock,
     remove_path,
+    signals_deferred,
     write_with_run_id,
     write_without,
 )
@@ -46,11 +50,13 @@ TMP = ".report-tmp"
 
 
 def batch_run(path: Path) -> tuple[Path, str] | None:
-    """``(OUT, run_id)`` when ``path`` is a batch run directory ``OUT/runs/<id>``, else None."""
+    """``(OUT, run_id)`` when ``path`` is a batch run directory ``OUT/runs/<id>``, else None (also for a copy of
+    one taken out of its dataset: nothing is created above it)."""
     meta = read_run_meta(Path(path))
-    if meta is None or not isinstance(meta.get("run_id"), str):
+    out = Path(path).resolve().parent.parent
+    if meta is None or not isinstance(meta.get("run_id"), str) or not meta_dir(out).is_dir():
         return None
-    return Path(path).resolve().parent.parent, meta["run_id"]
+    return out, meta["run_id"]
 
 
 @contextmanager
@@ -75,8 +81,13 @@ def dataset_report(path: Path) -> Iterator[None]:
             marker = meta_dir(out) / MARKERS / rid
             marker.parent.mkdir(exist_ok=True)
             marker.touch()
-            yield
-            sync_run(out, rid, ledger)
+            try:
+                yield
+            finally:  # also after a failure or a Ctrl-C/SIGTERM: the run directory may hold the new report already
+                # a signal now waits for the switch (a fraction of a second): held back, and the CLI's retry of a
+                # pending one (interrupts' SIGALRM) does not raise inside a critical block
+                with signals_deferred(), interrupts.critical():
+                    sync_run(out, rid, ledger)
         finally:
             ledger.close()
 
@@ -108,8 +119,6 @@ def sync_run(out: Path, rid: str, ledger: Ledger) -> bool:
 
 def _switch(out: Path, rid: str, meta: dict, row: dict, fresh: list[str], ledger: Ledger) -> None:
     """Write the run's new dataset files under hidden names, then the journal, then apply it."""
-    from slamobs.pipeline.batch.runner import signals_deferred
-
     rel = lambda p: str(Path(p).relative_to(out))  # noqa: E731
     index = DatasetIndex.scan(out)
     renames: list[tuple[Path, Path]] = []

@@ -12,12 +12,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -31,6 +29,7 @@ from slamobs.pipeline.batch.dataset import (
     drop_runs,
     reconcile,
     remove_path,
+    signals_deferred,
     staging_root,
 )
 from slamobs.pipeline.stored_runs import partition_file, run_dir
@@ -332,17 +331,6 @@ def _gone(row: dict, cache: HashCache) -> bool:
         return cache.content_hash(Path(log)) != row["content_hash"]
     except InputError:
         return True
-
-
-@contextmanager
-def signals_deferred():
-    """Hold SIGINT/SIGTERM/SIGHUP back (delivered on exit) while the dataset is being changed."""
-    sigs = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 class _Staging:
