@@ -115,9 +115,9 @@ class _Reporter:
         if not self.quiet:
             if fixed.adopted or fixed.removed or fixed.dropped:
                 click.echo(
-                    f"batch: settled an interrupted batch: {len(fixed.adopted)} finished runs adopted, "
-                    f"{len(fixed.removed)} partial runs removed, {len(fixed.dropped)} runs with missing files "
-                    "dropped",
+                    f"batch: settled an interrupted batch: {plural(len(fixed.adopted), 'finished run')} adopted, "
+                    f"{plural(len(fixed.removed), 'partial run')} removed, "
+                    f"{plural(len(fixed.dropped), 'run')} with missing files dropped",
                     err=True,
                 )
             if result.pruned:

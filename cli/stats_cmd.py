@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.options import OutPath, quiet_option
+from slamobs.pipeline.errors import plural
 
 STYLES = ("table", "rpg")  # pipeline.stats.render.STYLES, literal so `slamobs --help` imports no pandas
 
@@ -47,6 +48,7 @@ def stats(inputs: tuple[Path, ...], out_dir: Path, style: str, no_plots: bool, f
     runs = result.runs
     ok = int((runs["status"] == "ok").sum())
     click.echo(
-        f"stats: {len(runs)} runs ({ok} ok) of {runs['estimator'].nunique()} estimators on {runs['log'].nunique()} "
-        f"logs; wrote {out_dir}/ (stats.md, stats.tex, stats.csv, ranking.csv, runs.csv, {len(result.figures)} figures)"
+        f"stats: {plural(len(runs), 'run')} ({ok} ok) of {plural(runs['estimator'].nunique(), 'estimator')} on "
+        f"{plural(runs['log'].nunique(), 'log')}; wrote {out_dir}/ (stats.md, stats.tex, stats.csv, ranking.csv, "
+        f"runs.csv, {plural(len(result.figures), 'figure')})"
     )

@@ -13,6 +13,7 @@ from slamobs.pipeline.cores import cores
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.listing import wrote_line
 from slamobs.cli.options import SEED, Finite, OutPath
+from slamobs.pipeline.errors import plural
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
 
@@ -153,9 +154,16 @@ def tune(
             target=target,
         )
         if not quiet:
-            where = f"Dask at {scheduler}" if scheduler else f"{options.jobs} local worker processes"
+            where = (
+                f"Dask at {scheduler}"
+                if scheduler
+                else plural(options.jobs, "local worker process", "local worker processes")
+            )
             against = " against the batch smoother's solution" if target == "batch" else ""
-            click.echo(f"tune: {observer} on {len(logs)} logs{against}, {trials} trials, on {where}", err=True)
+            click.echo(
+                f"tune: {observer} on {plural(len(logs), 'log')}{against}, {plural(trials, 'trial')}, on {where}",
+                err=True,
+            )
         result = run_tune(list(logs), options, on_round=on_round)
     except (InputError, GainError, TuneFailed) as err:
         exit_input_error(str(err))
@@ -201,4 +209,4 @@ def tune(
             + ("" if 2 * held["tuned_better"] > held["logs"] else ": they do not transfer, keep the defaults")
         )
     files = ("gains.yaml", "trials.parquet", "objective.png", "tune.md", "tune.json")
-    click.echo(f"wrote        {wrote_line(out_dir, files)}; {result.ran} trials run now")
+    click.echo(f"wrote        {wrote_line(out_dir, files)}; {plural(result.ran, 'trial')} run now")

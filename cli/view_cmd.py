@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.options import OutPath, quiet_option
+from slamobs.pipeline.errors import plural
 
 
 @click.command("view")
@@ -38,4 +39,6 @@ def view(run_dirs: tuple[Path, ...], out: Path | None, spawn: bool, force: bool,
         for note in run.notes:
             click.echo(f"view: {note}", err=True)
     if path is not None:
-        click.echo(f"wrote {path} ({len(runs)} runs, {path.stat().st_size / 1e6:.2f} MB); open it with: rerun {path}")
+        click.echo(
+            f"wrote {path} ({plural(len(runs), 'run')}, {path.stat().st_size / 1e6:.2f} MB); open it with: rerun {path}"
+        )

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.tune.worker import OBJECTIVES
+from slamobs.pipeline.errors import plural
 
 UNITS = {"ape": "m", "rotation": "deg", "landmarks": "m"}
 #: What the objective was measured against, by tune target other than the truth (worker.TARGETS).
@@ -276,7 +277,8 @@ def write_results(out: Path, study, spec, setup: dict, options, holdout: list[di
     }
     if best is not None:
         header = [
-            f"slamobs tune: best of {len(complete)} trials on {len(logs)} logs (trial {best.number}), "
+            f"slamobs tune: best of {plural(len(complete), 'trial')} on {plural(len(logs), 'log')} "
+            f"(trial {best.number}), "
             f"median {key} {best.value:.4g} {unit}"
             + (f" (defaults {_fmt(default.value)})" if default is not None else ""),
             "use with: slamobs run LOG --config gains.yaml (or copy the gains section into your run.yaml)",
