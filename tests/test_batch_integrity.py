@@ -337,6 +337,86 @@ def test_compaction_keeps_every_row_and_run_id_and_survives_a_kill(tmp_path):
     assert_consistent(out)
 
 
+def _as_reported(out: Path, rid: str, rmse: float) -> None:
+    """What `slamobs report` leaves in a batch run directory before the dataset follows: report.json and an
+    aligned table (here the run's poses, shifted by ``rmse``), and the run's marker."""
+    import json
+
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from slamobs.pipeline.stored_runs import run_tables
+
+    poses = run_tables(out / "runs" / rid)["poses"]
+    poses = poses.set_column(1, poses.field(1), pc.add(poses.column("x"), rmse))  # x shifted by rmse
+    pq.write_table(poses, out / "runs" / rid / "poses_aligned.parquet")
+    (out / "runs" / rid / "report.json").write_text(json.dumps({"ape": {"translation_m": {"rmse": rmse}}}))
+    (out / "_slamobs" / "reports").mkdir(exist_ok=True)
+    (out / "_slamobs" / "reports" / rid).touch()
+
+
+def test_a_report_switch_killed_at_any_rename_never_shows_a_run_twice(tmp_path, monkeypatch):
+    """The rows of a re-reported batch run, in a compacted file alone (deleted) or with others (rewritten):
+    killed at each rename of the switch, readers see the run once or not at all; the next writer completes it."""
+    import pandas as pd
+
+    from slamobs.pipeline.batch import compact_batch, compact_dataset
+    from slamobs.pipeline.batch.dataset import batch_lock
+    from slamobs.pipeline.batch.rereport import sync_run
+
+    class Killed(BaseException):
+        pass
+
+    base = tmp_path / "base"
+    batch(make_logs(tmp_path / "in", ["a.mcap", "b.mcap"]), base)
+    a, b = sorted(read_summary(base))
+    for rid, rmse in ((a, 1.0), (b, 2.0)):  # both runs get aligned rows, compacted into one file
+        _as_reported(base, rid, rmse)
+        with batch_lock(base):
+            sync_run(base, rid, Ledger(base))
+    with batch_lock(base):
+        compact_dataset(base, file_rows=1)  # one run per file: the kill matrix covers a file that is deleted
+    assert len(list((base / "poses_aligned").glob("compacted-*"))) == 2
+
+    def aligned(out):
+        df = pd.read_parquet(out / "poses_aligned")
+        df["run_id"] = df["run_id"].astype(str)
+        assert not df.duplicated(["run_id", "t_ns"]).any()
+        return df
+
+    before = aligned(base).sort_values(["run_id", "t_ns"], ignore_index=True)
+    old_a, old_b = before[before["run_id"] == a], before[before["run_id"] == b]
+    new_a = old_a.assign(x=old_a["x"] + 2.0)  # reported again with 3.0 instead of 1.0
+    real = os.replace
+    for kill_at in range(4):  # the journal, the new partition, batch.json, the summary
+        out = tmp_path / f"k{kill_at}"
+        shutil.copytree(base, out)
+        _as_reported(out, a, 3.0)
+        calls = []
+
+        def replace(src, dst, *args, **kwargs):
+            calls.append(dst)
+            if len(calls) > kill_at:
+                raise Killed  # like SIGKILL: nothing after it runs (no clean-up code catches a BaseException here)
+            return real(src, dst, *args, **kwargs)
+
+        monkeypatch.setattr(os, "replace", replace)
+        with pytest.raises(Killed), batch_lock(out):
+            sync_run(out, a, Ledger(out))
+        monkeypatch.setattr(os, "replace", real)
+        rows = aligned(out).sort_values(["run_id", "t_ns"], ignore_index=True)  # never a run twice (in aligned)
+        pd.testing.assert_frame_equal(rows[rows["run_id"] == b].reset_index(drop=True), old_b.reset_index(drop=True))
+        got_a = rows[rows["run_id"] == a].reset_index(drop=True)
+        assert got_a.empty or got_a.equals(old_a.reset_index(drop=True)) or got_a.equals(new_a.reset_index(drop=True))
+        compact_batch(out)  # the next writer completes the switch
+        rows = aligned(out).sort_values(["run_id", "t_ns"], ignore_index=True)
+        pd.testing.assert_frame_equal(rows[rows["run_id"] == a].reset_index(drop=True), new_a.reset_index(drop=True))
+        assert read_summary(out)[a]["ape_trans_rmse_m"] == 3.0 and read_summary(out)[b]["ape_trans_rmse_m"] == 2.0
+        assert not (out / "runs" / a / "poses_aligned.parquet").exists()
+        assert_consistent(out)
+    assert [Path(c).name for c in calls[:3]] == ["report.json", "part-0.parquet", "batch.json"]  # what was killed
+
+
 # --- workers: timeout, death, hostile inputs ---------------------------------------------------------------
 
 

@@ -122,15 +122,17 @@ def _switch(out: Path, rid: str, meta: dict, row: dict, fresh: list[str], ledger
     rel = lambda p: str(Path(p).relative_to(out))  # noqa: E731
     index = DatasetIndex.scan(out)
     renames: list[tuple[Path, Path]] = []
-    obsolete: list[Path] = []
+    emptied: list[Path] = []  # compacted files that held only this run: deleted before the new rows come in
+    obsolete: list[Path] = []  # deleted after the renames
     tables = dict(meta["tables"])
     try:
         for table in fresh:
             for name, ids in sorted(index.compacted.get(table, {}).items()):
                 if rid in ids:  # the old rows leave the compacted file (rewritten in place) ...
                     path = out / table / name
-                    tmp = path.with_name(f".{name}{TMP}")
-                    renames.append((tmp, path)) if write_without(path, {rid}, tmp) else obsolete.append(path)
+                    renames.append((path.with_name(f".{name}{TMP}"), path))  # first: a failed write leaves nothing
+                    if not write_without(path, {rid}, renames[-1][0]):
+                        emptied.append(renames.pop()[1])  # the run was its only one
             final = partition_file(out, table, rid)  # ... and the new ones come in as the run's partition
             tmp = out / table / f".run_id={rid}{TMP}"
             tmp.parent.mkdir(exist_ok=True)
@@ -144,6 +146,7 @@ def _switch(out: Path, rid: str, meta: dict, row: dict, fresh: list[str], ledger
         renames.append((tmp, run_dir(out, rid) / RUN_META))
         doc = {
             "run_id": rid,
+            "emptied": [rel(p) for p in emptied],
             "renames": [[rel(a), rel(b)] for a, b in renames],
             "obsolete": [rel(p) for p in obsolete],
             "row": encode_row(row),
@@ -164,6 +167,8 @@ def _apply(out: Path, doc: dict, ledger: Ledger) -> None:
     """Make the switch a journal records (again, after a kill: a rename whose hidden file is gone was made)."""
     from slamobs.pipeline.writers import update_manifest
 
+    for p in doc["emptied"]:  # first: a reader never sees the run twice
+        remove_path(out / p)
     for a, b in doc["renames"]:
         if os.path.lexists(out / a):
             (out / b).parent.mkdir(exist_ok=True)
