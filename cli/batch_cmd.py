@@ -263,6 +263,7 @@ def run(
       1    some logs failed (bad log, timeout, a worker died twice on it, a log
            changed while it ran)
       2    bad arguments or config, nothing found, OUT locked by another batch
+           (or a report of one of its runs)
       3    infrastructure: Dask scheduler unreachable or lost, no workers, a worker
            without slamobs or with another version, workers dying at start-up;
            the machine failed (disk full, out of memory, permission): such logs
@@ -351,7 +352,7 @@ def compact(out_dir: Path, quiet: bool) -> None:
     """Merge the per-run partitions of the batch dataset OUT into a few large files per table.
 
     Same columns (run_id included), same readers; a batch does this at its end unless --no-compact.
-    Exit code 2 when OUT is not a batch dataset or another batch is writing to it.
+    Exit code 2 when OUT is not a batch dataset or another batch (or a report) is writing to it.
     """
     from slamobs.pipeline.batch import compact_batch
     from slamobs.pipeline.errors import InputError
