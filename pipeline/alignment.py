@@ -571,7 +571,9 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
                 f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
                 f"has {starts.size + 1} segments; nothing is integrated across a gap"
             )
-    return t_om, omega, velocity, (lo, hi), starts
+    # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
+    # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
+    return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts
 
 
 def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:

@@ -213,3 +213,14 @@ def test_a_gap_in_one_topic_giving_both_velocities_is_noted_once():
     a = align(_streams(angular_velocity=twist, linear_velocity=twist))
     gaps = [n for n in a.notes if "gap(s) longer than" in n]
     assert len(gaps) == 1 and gaps[0].startswith("/twist:")
+
+
+def test_detections_after_the_last_time_base_sample_are_dropped():
+    # the IMU's header clock jumps an hour ahead at 1 s, the odometry runs on to 2 s: the time base ends at 1 s,
+    # and the frames at 1.5 s (after it, where no estimator has motion) must go; batch indexed past its keyframes
+    t_om = np.arange(0, 2.0, 0.01)
+    t_om = np.where(t_om > 1.0, t_om + 3600.0, t_om)
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t_om, np.tile([0.0, 0.0, 0.5], (t_om.size, 1)))))
+    assert a.vel_t_ns[-1] == 6 * NS
+    assert a.det_t_ns.tolist() == [int(5.5 * NS), 6 * NS]
+    assert "1 detection frames outside the velocity span dropped" in a.notes
