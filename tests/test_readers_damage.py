@@ -471,3 +471,20 @@ def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
     with pytest.raises(InputError, match=r"crashed.*no metadata.yaml and 2 storage files") as err:
         read_log(path)
     assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("text", ["", "\n  \n"])
+def test_rosbag2_directory_with_an_empty_metadata_file(tmp_path, sim, text):
+    """A recording that crashed while writing metadata.yaml leaves it empty: read like one without it (rosbags
+    failed with "Invalid bag metadata: 'NoneType' object is not subscriptable")."""
+    path = _write(sim, tmp_path / "crashed", "ros2-sqlite3")
+    (path / "metadata.yaml").write_text(text)
+    (storage,) = [p for p in path.iterdir() if p.suffix == ".db3"]
+    got = read_log(path)
+    assert got.warnings[0] == (
+        f"crashed has an empty metadata.yaml (recording not closed?): read {storage.name} directly"
+    )
+    _same_streams(got, expected_streams(sim, str(path)))
+    storage.unlink()
+    with pytest.raises(InputError, match=r"crashed: not a ROS1 bag, .* \(its metadata.yaml is empty\)$"):
+        inspect_log(path)
