@@ -488,14 +488,21 @@ def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> No
         )
     if t.shape[0] == 1:
         raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
-    if t[0] == t[-1]:
-        when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
-        clock = _clock(stream)
-        if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
-            hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
-        else:
-            hint = "its record times do not advance either: the log carries no usable time for it"
-        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; {hint}")
+    _not_one_time(path, t, name, "samples", stream)
+
+
+def _not_one_time(path, t: np.ndarray, name: str, what: str, stream) -> None:
+    """Several samples (``what``) of ``stream`` all at one time (``t``, any order): one line saying what would give
+    it a usable time."""
+    if t.shape[0] < 2 or t.min() != t.max():
+        return
+    when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
+    clock = _clock(stream)
+    if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
+        hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
+    else:
+        hint = "its record times do not advance either: the log carries no usable time for it"
+    raise InputError(path, f"{name}: all {t.shape[0]} {what} have the same time ({when}) on its {clock}; {hint}")
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
@@ -618,6 +625,7 @@ def _detections(
     if det.ids.shape[0] == 0:
         raise InputError(path, f"the {len(det)} detection messages hold no detections", det.topic)
     t_det = _times(det, fr.time_source)
+    _not_one_time(path, t_det, f"detections ({det.topic})", "frames", det)  # else all seen at one instant
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
     in_span = _frames_in_span(det, t_det, lo, hi, gaps, notes)

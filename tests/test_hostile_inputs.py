@@ -475,6 +475,22 @@ def test_degenerate_stamps_name_the_real_cause(sim):
         align(zero)
 
 
+def test_detection_frames_all_at_one_stamp_name_the_real_cause(sim):
+    # a driver that stamps every frame alike: the run went on with every frame at one instant (APE 5.4 m on the
+    # figure-8 sample log, riekf lost)
+    s = expected_streams(sim, "mem.bag")
+    det = s.detections
+    same = replace(s, detections=replace(det, t_ns=np.full_like(det.t_ns, det.t_ns[5])))
+    with pytest.raises(
+        InputError,
+        match=r"detections \(/fiducial_transforms\): all \d+ frames have the same time \(\d+\.\d+ s\) on its "
+        r"header stamps; its record times advance: set time.source: record \(or time.topics: "
+        r"\{/fiducial_transforms: record\}\)",
+    ):
+        align(same)
+    assert align(same, time_source="record").det_t_ns.size > 1
+
+
 def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
     det = sim.detections
     log = _write(sim, tmp_path / "nan.bag", detections=replace(det, xyz=np.full_like(det.xyz, np.nan)))
