@@ -471,6 +471,9 @@ def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
     with pytest.raises(InputError, match=r"crashed.*no metadata.yaml and 2 storage files") as err:
         read_log(path)
     assert "\n" not in str(err.value)
+    # both named, with the command that writes a metadata.yaml for the parts of an unclosed split recording
+    assert f"second{storage.suffix}" in str(err.value) and storage.name in str(err.value)
+    assert f"`ros2 bag reindex {path}` writes its metadata.yaml" in str(err.value)
 
 
 @pytest.mark.parametrize("text", ["", "\n  \n"])

@@ -147,8 +147,11 @@ def detect_container(path: str | Path) -> Container:
                 found = detect_container(inner[0])
                 note = f"{path.name} has {which} metadata.yaml (recording not closed?): read {inner[0].name} directly"
                 return replace(found, note=note)
+            names = ", ".join(x.name for x in inner[:3]) + (", ..." if len(inner) > 3 else "")
             hint = (
-                f" (directory has {which} metadata.yaml and {len(inner)} storage files: open one of them directly)"
+                f" (directory has {which} metadata.yaml and {len(inner)} storage files, {names}: the parts of a "
+                f"recording that was not closed? `ros2 bag reindex {path}` writes its metadata.yaml; or open one "
+                "file directly)"
                 if inner
                 else (" (its metadata.yaml is empty)" if meta.is_file() else "")
             )
