@@ -628,7 +628,7 @@ def _detections(
     _not_one_time(path, t_det, f"detections ({det.topic})", "frames", det)  # else all seen at one instant
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
-    in_span = _frames_in_span(det, t_det, lo, hi, gaps, notes)
+    in_span = _frames_in_span(path, det, t_det, lo, hi, gaps, notes)
     cam_ext, in_span, keep_rows, row_of = _camera_to_body(fr, det, t_det, frame_of, in_span, notes)
     frames = np.argsort(t_det, kind="stable")
     frames = frames[in_span[frames]]
@@ -666,10 +666,24 @@ def _detections(
 
 
 def _frames_in_span(
-    det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None, notes: list[str]
+    path, det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None, notes: list[str]
 ) -> np.ndarray:
-    """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted)."""
+    """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted); an error
+    saying where the frames are when none is inside."""
     in_span = (t_det >= lo) & (t_det <= hi)
+    if len(det) and not in_span.any():  # say where they are: most often a topic on another clock
+        clock = _clock(det)
+        hint = (
+            f"; on another clock? set time.source: auto (or time.topics: {{{det.topic}: record}})"
+            if clock == "header stamps"
+            else ""
+        )
+        raise InputError(
+            path,
+            f"no detection frame inside the velocity time span ({lo * 1e-9:.3f} .. {hi * 1e-9:.3f} s): its "
+            f"{len(det)} frames span {t_det.min() * 1e-9:.3f} .. {t_det.max() * 1e-9:.3f} s on its {clock}{hint}",
+            det.topic,
+        )
     if n_out := len(det) - int(np.count_nonzero(in_span)):
         notes.append(f"{n_out} detection frames outside the velocity span dropped")
     if gaps is not None and gaps.shape[0]:

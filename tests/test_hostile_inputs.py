@@ -491,6 +491,22 @@ def test_detection_frames_all_at_one_stamp_name_the_real_cause(sim):
     assert align(same, time_source="record").det_t_ns.size > 1
 
 
+def test_detections_on_another_clock_say_where_they_are(sim):
+    # detections stamped on simulated time next to wall-clock velocities: the error said only 'no landmark
+    # detections inside the velocity time span', not where they were nor what to set
+    s = expected_streams(sim, "mem.bag")
+    det = s.detections
+    sim_time = replace(s, detections=replace(det, t_ns=det.t_ns - det.t_ns[0] + 5 * NS))
+    with pytest.raises(
+        InputError,
+        match=r"no detection frame inside the velocity time span \(\d+\.\d{3} \.\. \d+\.\d{3} s\): its \d+ frames "
+        r"span 5\.000 \.\. \d+\.\d{3} s on its header stamps; on another clock\? set time.source: auto \(or "
+        r"time.topics: \{/fiducial_transforms: record\}\)",
+    ):
+        align(sim_time)
+    assert align(sim_time, time_source="record").det_t_ns.size > 1
+
+
 def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
     det = sim.detections
     log = _write(sim, tmp_path / "nan.bag", detections=replace(det, xyz=np.full_like(det.xyz, np.nan)))
