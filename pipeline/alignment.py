@@ -520,11 +520,16 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
+        clocks = {_clock(om), _clock(lv)}
+        hint = ""
+        if len(clocks) > 1:
+            hint = "; the two clocks differ: try time.source: auto or record"
+        elif clocks == {"header stamps"}:  # e.g. one driver stamping simulated time in a wall-clock recording
+            hint = "; is one of them on another clock (simulated time)? try time.source: auto"
         raise InputError(
             path,
             f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
-            f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time"
-            + ("; the two clocks differ: try time.source: auto or record" if _clock(om) != _clock(lv) else ""),
+            f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time{hint}",
         )
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
