@@ -515,6 +515,7 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     t_om, w = _gate_norm(
         t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s", om.topic, notes
     )
+    t_om, w = _last_of_each_stamp(t_om, w, om.topic, notes)
     t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
     _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
     _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
@@ -586,6 +587,21 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
     # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
     return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts
+
+
+def _last_of_each_stamp(t: np.ndarray, w: np.ndarray, topic: str, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The time base's samples without those a later sample shares its stamp with: a sample is integrated up to the
+    next stamp, so such a sample covered no time (the estimators used only the last of each stamp) and a time base
+    of repeated stamps has no sample period (a driver stamping IMU samples in pairs)."""
+    later = np.zeros(t.shape[0], bool)
+    later[:-1] = t[1:] == t[:-1]
+    if n := int(np.count_nonzero(later)):
+        notes.append(
+            f"{topic}: {n} angular-velocity samples dropped, each sharing its stamp with a later one (which is "
+            "kept: a sample holds until the next stamp, so these covered no time)"
+        )
+        return t[~later], w[~later]
+    return t, w
 
 
 def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:

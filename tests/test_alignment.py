@@ -228,3 +228,14 @@ def test_detections_after_the_last_time_base_sample_are_dropped():
     assert a.vel_t_ns[-1] == 6 * NS
     assert a.det_t_ns.tolist() == [int(5.5 * NS), 6 * NS]
     assert "1 detection frames outside the velocity span dropped" in a.notes
+
+
+def test_time_base_keeps_the_last_sample_of_each_stamp():
+    # a driver stamping its IMU samples in pairs: half the time base's periods were zero, and the noise estimate
+    # of riekf and batch (median period) divided by zero; the estimators integrated only the later of each pair
+    t_om = np.repeat(np.arange(0, 2.0, 0.02), 2)
+    w = np.column_stack([np.zeros(t_om.size), np.zeros(t_om.size), np.tile([0.1, 0.5], t_om.size // 2)])
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t_om, w)))
+    assert np.all(np.diff(a.vel_t_ns) > 0) and a.vel_t_ns.size == 98  # the stamps inside /odom's 0-1.95 s
+    assert np.allclose(a.omega, (so3_exp(np.array([0.0, 0.0, np.pi / 2])) @ np.array([0.0, 0.0, 0.5]))[None])
+    assert "/imu: 100 angular-velocity samples dropped, each sharing its stamp with a later one" in "\n".join(a.notes)
