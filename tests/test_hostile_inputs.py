@@ -23,7 +23,7 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.readers import read_log
+from slamobs.pipeline.readers import read_log, read_truth
 from slamobs.pipeline.simulate import expected_streams, simulate, write_log
 from slamobs.pipeline.simulate.sensors import TOPIC_DETECTIONS, TOPIC_IMU
 from cli_checks import invoke
@@ -513,6 +513,15 @@ def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
     with pytest.raises(InputError, match=rf"all {det.xyz.shape[0]} detections are NaN or Inf") as err:
         read_log(log)
     assert err.value.topic == TOPIC_DETECTIONS
+
+
+def test_a_truth_of_nan_poses_says_why_it_has_none(sim, tmp_path):
+    # `slamobs report` of a run on such a log said only 'no truth poses'
+    mocap = sim.mocap
+    log = _write(sim, tmp_path / "nan.bag", mocap=replace(mocap, position=np.full_like(mocap.position, np.nan)))
+    n = mocap.position.shape[0]
+    with pytest.raises(InputError, match=rf"no truth poses \(/mocap/pose: {n} NaN/Inf samples dropped\)$"):
+        read_truth("/mocap/pose", log)
 
 
 def test_config_limits_are_parsed_and_switchable():

@@ -394,7 +394,8 @@ def read_truth(
         clocks=(clocks or None) if own else None,
     )
     if streams.truth is None or len(streams.truth) == 0:
-        raise InputError(where, "no truth poses", spec.name)
+        why = [w for w in streams.warnings if w.startswith(f"{spec.name}:")]  # e.g. every pose NaN
+        raise InputError(where, "no truth poses" + (f" ({'; '.join(why)})" if why else ""), spec.name)
     return Trajectory(streams.truth, "tf_edge" if spec.kind == "edge" else "topic", str(source))
 
 
