@@ -515,10 +515,10 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     t_om, w = _gate_norm(
         t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s", om.topic, notes
     )
-    t_om, w = _last_of_each_stamp(t_om, w, om.topic, notes)
     t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
     _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
     _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
+    t_om, w = _last_of_each_stamp(t_om, w, om.topic, notes)
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
         clocks = {_clock(om), _clock(lv)}
