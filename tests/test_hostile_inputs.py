@@ -524,6 +524,21 @@ def test_a_truth_of_nan_poses_says_why_it_has_none(sim, tmp_path):
         read_truth("/mocap/pose", log)
 
 
+def test_an_imu_that_does_not_fill_its_gyro_gives_way_to_the_odometry(sim, tmp_path):
+    # an IMU publishing angular_velocity all zero was the angular velocity of every run (riekf's APE on the figure-8
+    # sample log: 1.07e6 m, fast-adaptation 0.084 m); the odometry's twist.angular measures it
+    log = _write(sim, tmp_path / "zero.bag", imu=replace(sim.imu, gyro=np.zeros_like(sim.imu.gyro)))
+    streams = read_log(log)
+    assert streams.angular_velocity.topic == "/odom" and streams.accel.topic == TOPIC_IMU
+    np.testing.assert_array_equal(streams.angular_velocity.xyz, sim.odom.angular)
+    assert f"{TOPIC_IMU}: every angular velocity is zero (not measured): the angular velocity is /odom's" in "\n".join(
+        streams.warnings
+    )
+    assert streams.derived["angular_velocity"] == f"/odom's angular velocity: {TOPIC_IMU}'s is all zero"
+    # named in the config, the IMU stays the angular velocity
+    assert read_log(log, {"angular_velocity": TOPIC_IMU}).angular_velocity.topic == TOPIC_IMU
+
+
 def test_config_limits_are_parsed_and_switchable():
     cfg = parse_config({"limits": {"max_range": None, "max_gap": 60}})
     assert cfg.limits.max_range is None and cfg.limits.max_gap == 60.0 and cfg.limits.min_range == 0.05
