@@ -148,7 +148,10 @@ def _to_body(
     even a known transform by the identity, with a warning naming what was replaced.
     """
     frame = frame.lstrip("/")
-    if not frame or frame == body:
+    if not frame:  # nothing to look up: say what is assumed (a camera's detections would be in its own frame)
+        _note_once(notes, f"{topic}: no frame id: taken as the body frame '{body}' (no transform applied)")
+        return _IDENTITY
+    if frame == body:
         return _IDENTITY
     known = tf.chain(body, frame) is not None
     if frame in override:
