@@ -381,10 +381,13 @@ _NOTES = "_slamobs_notes"  # attribute of an opened reader: how its path was int
 def damage_notes(reader: AnyReader) -> list[str]:
     """What was recovered from truncated or unindexed files (empty for intact logs)."""
     notes = list(getattr(reader, _NOTES, ()))
+    files = []
     for sub in reader.readers:
         storage = sub.storage if isinstance(sub, Reader2) else sub
-        inner = storage.storages if isinstance(storage, DirectoryReader) else [storage]
-        notes += [text for s in inner if isinstance(s, _READERS) for text in s.damage_texts()]
+        files += storage.storages if isinstance(storage, DirectoryReader) else [storage]
+    for s in files:  # the parts of a split recording: each note names its file
+        if isinstance(s, _READERS):
+            notes += [f"{Path(s.path).name}: {text}" if len(files) > 1 else text for text in s.damage_texts()]
     return notes
 
 
