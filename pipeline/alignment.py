@@ -140,6 +140,7 @@ def _to_body(
     t_ns: np.ndarray,
     notes: list[str],
     override: frozenset[str] = frozenset(),
+    dropped: tuple[str, ...] = (),
 ) -> _Extrinsic:
     """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error.
 
@@ -165,10 +166,13 @@ def _to_body(
     if not known:
         if frame in ident:
             return _IDENTITY
+        lost = "".join(
+            f"; {d}" for d in dropped if any(frame in e.split("->") for e in d.partition("dropped: ")[2].split(", "))
+        )
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
-            f"({tf.explain(body, frame)}; set frames.body, or list '{frame}' in frames.assume_identity)",
+            f"({tf.explain(body, frame)}{lost}; set frames.body, or list '{frame}' in frames.assume_identity)",
             topic,
         )
     if frame in ident:
@@ -336,8 +340,9 @@ def align(
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
-    frame = _Frame(tf, body, ident, time_source, [], override)
-    dir_frame = _Frame(tf, body, ident, time_source, [], override)
+    dropped = tuple(w for w in streams.warnings if "NaN/Inf static transform" in w)
+    frame = _Frame(tf, body, ident, time_source, [], override, dropped)
+    dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim)
     del om, lv
@@ -448,9 +453,10 @@ class _Frame:
     time_source: str
     notes: list[str]
     override: frozenset[str] = frozenset()
+    dropped: tuple[str, ...] = ()  # the readers' notes of transforms dropped (NaN/Inf), for the error naming a frame
 
     def to_body(self, frame_id: str, topic: str, t_ns: np.ndarray) -> _Extrinsic:
-        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override)
+        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override, self.dropped)
 
 
 def _clock(stream) -> str:

@@ -10,6 +10,8 @@ from slamobs.pipeline.blocks import row_norms3
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import static_transform
 from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
+from slamobs.pipeline.readers.decode import static_transforms
+from slamobs.pipeline.readers.rows import TfRows
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Transform, Vec3Stream
 
 NS = 1_000_000_000
@@ -249,3 +251,26 @@ def test_a_sensor_without_frame_id_is_said_to_be_taken_as_the_body():
     a = align(s)
     assert "/fid: no frame id: taken as the body frame 'base_link' (no transform applied)" in a.notes
     assert a.det_y.shape[0] and all(any(np.array_equal(y, x) for x in s.detections.xyz) for y in a.det_y)
+
+
+def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
+    # a /tf_static camera transform with a NaN: the run said only "'camera' is in no transform"
+    rows = TfRows(
+        "/tf_static",
+        np.zeros(2, np.int64),
+        np.zeros(2, np.int64),
+        np.array([0, 0], np.int32),
+        np.array([1, 2], np.int32),
+        np.array([[0.1, 0, 0, 0, 0, 0, np.nan], [0, 0, 0, 0, 0, 0, 1.0]]),
+        ["base_link", "camera", "imu"],
+    )
+    found, warnings = static_transforms(rows)
+    assert [(t.parent, t.child) for t in found] == [("base_link", "imu")]
+    assert warnings == ["1 NaN/Inf static transform dropped: base_link->camera"]
+    s = _streams(static_tf=found, warnings=[f"/tf_static: {w}" for w in warnings])
+    with pytest.raises(
+        InputError,
+        match=r"'camera' is in no transform; .*; /tf_static: 1 NaN/Inf static transform "
+        r"dropped: base_link->camera; set frames.body",
+    ):
+        align(s)

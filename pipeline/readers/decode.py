@@ -599,7 +599,8 @@ def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str]]:
         pairs = ", ".join(f"{p}->{c}" for p, c in sorted(changed))
         warnings.append(f"static transforms published with different values, using the last: {pairs}")
     if nbad := int(ok.size - np.count_nonzero(ok)):
-        warnings.append(plural(nbad, "NaN/Inf static transform") + " dropped")
+        bad = sorted({f"{names[rows.parent[i]]}->{names[rows.child[i]]}" for i in np.flatnonzero(~ok)})
+        warnings.append(plural(nbad, "NaN/Inf static transform") + f" dropped: {', '.join(bad)}")
     return list(found.values()), warnings
 
 
