@@ -334,6 +334,12 @@ def test_nothing_recoverable_is_an_input_error(tmp_path, sim):
         with pytest.raises(InputError) as err:
             read_log(path)
         assert str(path) in str(err.value) and "\n" not in str(err.value)
+    # only the magic bytes: rosbags' own words were "ord() expected a character, but string of length 0 found"
+    magic = _cut(_write(sim, tmp_path / "full2.mcap", "mcap"), tmp_path / "magic.mcap", 8)
+    with pytest.raises(
+        InputError, match=r"corrupt or truncated MCAP file: the file ends after its magic bytes, before"
+    ):
+        read_log(magic)
 
 
 # --------------------------------------------------------------------------- corruption
