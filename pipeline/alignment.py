@@ -140,6 +140,7 @@ def _to_body(
     t_ns: np.ndarray,
     notes: list[str],
     override: frozenset[str] = frozenset(),
+    dropped: tuple[str, ...] = (),
 ) -> _Extrinsic:
     """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error.
 
@@ -148,7 +149,10 @@ def _to_body(
     even a known transform by the identity, with a warning naming what was replaced.
     """
     frame = frame.lstrip("/")
-    if not frame or frame == body:
+    if not frame:  # nothing to look up: say what is assumed (a camera's detections would be in its own frame)
+        _note_once(notes, f"{topic}: no frame id: taken as the body frame '{body}' (no transform applied)")
+        return _IDENTITY
+    if frame == body:
         return _IDENTITY
     known = tf.chain(body, frame) is not None
     if frame in override:
@@ -162,10 +166,13 @@ def _to_body(
     if not known:
         if frame in ident:
             return _IDENTITY
+        lost = "".join(
+            f"; {d}" for d in dropped if any(frame in e.split("->") for e in d.partition("dropped: ")[2].split(", "))
+        )
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
-            f"({tf.explain(body, frame)}; set frames.body, or list '{frame}' in frames.assume_identity)",
+            f"({tf.explain(body, frame)}{lost}; set frames.body, or list '{frame}' in frames.assume_identity)",
             topic,
         )
     if frame in ident:
@@ -333,8 +340,9 @@ def align(
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
-    frame = _Frame(tf, body, ident, time_source, [], override)
-    dir_frame = _Frame(tf, body, ident, time_source, [], override)
+    dropped = tuple(w for w in streams.warnings if "NaN/Inf static transform" in w)
+    frame = _Frame(tf, body, ident, time_source, [], override, dropped)
+    dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim)
     del om, lv
@@ -445,9 +453,10 @@ class _Frame:
     time_source: str
     notes: list[str]
     override: frozenset[str] = frozenset()
+    dropped: tuple[str, ...] = ()  # the readers' notes of transforms dropped (NaN/Inf), for the error naming a frame
 
     def to_body(self, frame_id: str, topic: str, t_ns: np.ndarray) -> _Extrinsic:
-        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override)
+        return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override, self.dropped)
 
 
 def _clock(stream) -> str:
@@ -488,14 +497,21 @@ def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> No
         )
     if t.shape[0] == 1:
         raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
-    if t[0] == t[-1]:
-        when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
-        clock = _clock(stream)
-        if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
-            hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
-        else:
-            hint = "its record times do not advance either: the log carries no usable time for it"
-        raise InputError(path, f"{name}: all {t.shape[0]} samples have the same time ({when}) on its {clock}; {hint}")
+    _not_one_time(path, t, name, "samples", stream)
+
+
+def _not_one_time(path, t: np.ndarray, name: str, what: str, stream) -> None:
+    """Several samples (``what``) of ``stream`` all at one time (``t``, any order): one line saying what would give
+    it a usable time."""
+    if t.shape[0] < 2 or t.min() != t.max():
+        return
+    when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
+    clock = _clock(stream)
+    if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
+        hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
+    else:
+        hint = "its record times do not advance either: the log carries no usable time for it"
+    raise InputError(path, f"{name}: all {t.shape[0]} {what} have the same time ({when}) on its {clock}; {hint}")
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
@@ -511,13 +527,19 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
     t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
     _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
     _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
+    t_om, w = _last_of_each_stamp(t_om, w, om.topic, notes)
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
+        clocks = {_clock(om), _clock(lv)}
+        hint = ""
+        if len(clocks) > 1:
+            hint = "; the two clocks differ: try time.source: auto or record"
+        elif clocks == {"header stamps"}:  # e.g. one driver stamping simulated time in a wall-clock recording
+            hint = "; is one of them on another clock (simulated time)? try time.source: auto"
         raise InputError(
             path,
             f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
-            f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time"
-            + ("; the two clocks differ: try time.source: auto or record" if _clock(om) != _clock(lv) else ""),
+            f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time{hint}",
         )
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
@@ -571,7 +593,24 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
                 f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
                 f"has {starts.size + 1} segments; nothing is integrated across a gap"
             )
-    return t_om, omega, velocity, (lo, hi), starts
+    # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
+    # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
+    return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts
+
+
+def _last_of_each_stamp(t: np.ndarray, w: np.ndarray, topic: str, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The time base's samples without those a later sample shares its stamp with: a sample is integrated up to the
+    next stamp, so such a sample covered no time (the estimators used only the last of each stamp) and a time base
+    of repeated stamps has no sample period (a driver stamping IMU samples in pairs)."""
+    later = np.zeros(t.shape[0], bool)
+    later[:-1] = t[1:] == t[:-1]
+    if n := int(np.count_nonzero(later)):
+        notes.append(
+            f"{topic}: {n} angular-velocity samples dropped, each sharing its stamp with a later one (which is "
+            "kept: a sample holds until the next stamp, so these covered no time)"
+        )
+        return t[~later], w[~later]
+    return t, w
 
 
 def _gap_spans(t_om: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -616,9 +655,10 @@ def _detections(
     if det.ids.shape[0] == 0:
         raise InputError(path, f"the {len(det)} detection messages hold no detections", det.topic)
     t_det = _times(det, fr.time_source)
+    _not_one_time(path, t_det, f"detections ({det.topic})", "frames", det)  # else all seen at one instant
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
-    in_span = _frames_in_span(det, t_det, lo, hi, gaps, notes)
+    in_span = _frames_in_span(path, det, t_det, lo, hi, gaps, notes)
     cam_ext, in_span, keep_rows, row_of = _camera_to_body(fr, det, t_det, frame_of, in_span, notes)
     frames = np.argsort(t_det, kind="stable")
     frames = frames[in_span[frames]]
@@ -656,10 +696,24 @@ def _detections(
 
 
 def _frames_in_span(
-    det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None, notes: list[str]
+    path, det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None, notes: list[str]
 ) -> np.ndarray:
-    """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted)."""
+    """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted); an error
+    saying where the frames are when none is inside."""
     in_span = (t_det >= lo) & (t_det <= hi)
+    if len(det) and not in_span.any():  # say where they are: most often a topic on another clock
+        clock = _clock(det)
+        hint = (
+            f"; on another clock? set time.source: auto (or time.topics: {{{det.topic}: record}})"
+            if clock == "header stamps"
+            else ""
+        )
+        raise InputError(
+            path,
+            f"no detection frame inside the velocity time span ({lo * 1e-9:.3f} .. {hi * 1e-9:.3f} s): its "
+            f"{len(det)} frames span {t_det.min() * 1e-9:.3f} .. {t_det.max() * 1e-9:.3f} s on its {clock}{hint}",
+            det.topic,
+        )
     if n_out := len(det) - int(np.count_nonzero(in_span)):
         notes.append(f"{n_out} detection frames outside the velocity span dropped")
     if gaps is not None and gaps.shape[0]:

@@ -10,6 +10,8 @@ from slamobs.pipeline.blocks import row_norms3
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import static_transform
 from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
+from slamobs.pipeline.readers.decode import static_transforms
+from slamobs.pipeline.readers.rows import TfRows
 from slamobs.pipeline.streams import DetectionStream, LogStreams, Transform, Vec3Stream
 
 NS = 1_000_000_000
@@ -127,8 +129,12 @@ def test_missing_roles_and_disjoint_times_are_errors():
         late.linear_velocity.rec_ns,
         late.linear_velocity.xyz,
     )
-    with pytest.raises(InputError, match="do not overlap"):
+    with pytest.raises(InputError, match="do not overlap") as err:
         align(late)
+    # both on header stamps: one of them may be on another clock, which time.source: auto finds
+    assert str(err.value).endswith(
+        "do not overlap in time; is one of them on another clock (simulated time)? try time.source: auto"
+    )
 
 
 def test_record_time_option_uses_record_stamps():
@@ -213,3 +219,58 @@ def test_a_gap_in_one_topic_giving_both_velocities_is_noted_once():
     a = align(_streams(angular_velocity=twist, linear_velocity=twist))
     gaps = [n for n in a.notes if "gap(s) longer than" in n]
     assert len(gaps) == 1 and gaps[0].startswith("/twist:")
+
+
+def test_detections_after_the_last_time_base_sample_are_dropped():
+    # the IMU's header clock jumps an hour ahead at 1 s, the odometry runs on to 2 s: the time base ends at 1 s,
+    # and the frames at 1.5 s (after it, where no estimator has motion) must go; batch indexed past its keyframes
+    t_om = np.arange(0, 2.0, 0.01)
+    t_om = np.where(t_om > 1.0, t_om + 3600.0, t_om)
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t_om, np.tile([0.0, 0.0, 0.5], (t_om.size, 1)))))
+    assert a.vel_t_ns[-1] == 6 * NS
+    assert a.det_t_ns.tolist() == [int(5.5 * NS), 6 * NS]
+    assert "1 detection frames outside the velocity span dropped" in a.notes
+
+
+def test_time_base_keeps_the_last_sample_of_each_stamp():
+    # a driver stamping its IMU samples in pairs: half the time base's periods were zero, and the noise estimate
+    # of riekf and batch (median period) divided by zero; the estimators integrated only the later of each pair
+    t_om = np.repeat(np.arange(0, 2.0, 0.02), 2)
+    w = np.column_stack([np.zeros(t_om.size), np.zeros(t_om.size), np.tile([0.1, 0.5], t_om.size // 2)])
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t_om, w)))
+    assert np.all(np.diff(a.vel_t_ns) > 0) and a.vel_t_ns.size == 98  # the stamps inside /odom's 0-1.95 s
+    assert np.allclose(a.omega, (so3_exp(np.array([0.0, 0.0, np.pi / 2])) @ np.array([0.0, 0.0, 0.5]))[None])
+    assert "/imu: 100 angular-velocity samples dropped, each sharing its stamp with a later one" in "\n".join(a.notes)
+
+
+def test_a_sensor_without_frame_id_is_said_to_be_taken_as_the_body():
+    # detections without a frame id were moved by no transform with only the reader's 'empty frame id' (figure-8
+    # sample log: APE 0.72 m, rotation APE 138 deg, riekf lost)
+    s = _streams()
+    s.detections = DetectionStream(**{**s.detections.__dict__, "frame_id": ""})
+    a = align(s)
+    assert "/fid: no frame id: taken as the body frame 'base_link' (no transform applied)" in a.notes
+    assert a.det_y.shape[0] and all(any(np.array_equal(y, x) for x in s.detections.xyz) for y in a.det_y)
+
+
+def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
+    # a /tf_static camera transform with a NaN: the run said only "'camera' is in no transform"
+    rows = TfRows(
+        "/tf_static",
+        np.zeros(2, np.int64),
+        np.zeros(2, np.int64),
+        np.array([0, 0], np.int32),
+        np.array([1, 2], np.int32),
+        np.array([[0.1, 0, 0, 0, 0, 0, np.nan], [0, 0, 0, 0, 0, 0, 1.0]]),
+        ["base_link", "camera", "imu"],
+    )
+    found, warnings = static_transforms(rows)
+    assert [(t.parent, t.child) for t in found] == [("base_link", "imu")]
+    assert warnings == ["1 NaN/Inf static transform dropped: base_link->camera"]
+    s = _streams(static_tf=found, warnings=[f"/tf_static: {w}" for w in warnings])
+    with pytest.raises(
+        InputError,
+        match=r"'camera' is in no transform; .*; /tf_static: 1 NaN/Inf static transform "
+        r"dropped: base_link->camera; set frames.body",
+    ):
+        align(s)

@@ -23,7 +23,7 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.readers import read_log
+from slamobs.pipeline.readers import read_log, read_truth
 from slamobs.pipeline.simulate import expected_streams, simulate, write_log
 from slamobs.pipeline.simulate.sensors import TOPIC_DETECTIONS, TOPIC_IMU
 from cli_checks import invoke
@@ -475,12 +475,68 @@ def test_degenerate_stamps_name_the_real_cause(sim):
         align(zero)
 
 
+def test_detection_frames_all_at_one_stamp_name_the_real_cause(sim):
+    # a driver that stamps every frame alike: the run went on with every frame at one instant (APE 5.4 m on the
+    # figure-8 sample log, riekf lost)
+    s = expected_streams(sim, "mem.bag")
+    det = s.detections
+    same = replace(s, detections=replace(det, t_ns=np.full_like(det.t_ns, det.t_ns[5])))
+    with pytest.raises(
+        InputError,
+        match=r"detections \(/fiducial_transforms\): all \d+ frames have the same time \(\d+\.\d+ s\) on its "
+        r"header stamps; its record times advance: set time.source: record \(or time.topics: "
+        r"\{/fiducial_transforms: record\}\)",
+    ):
+        align(same)
+    assert align(same, time_source="record").det_t_ns.size > 1
+
+
+def test_detections_on_another_clock_say_where_they_are(sim):
+    # detections stamped on simulated time next to wall-clock velocities: the error said only 'no landmark
+    # detections inside the velocity time span', not where they were nor what to set
+    s = expected_streams(sim, "mem.bag")
+    det = s.detections
+    sim_time = replace(s, detections=replace(det, t_ns=det.t_ns - det.t_ns[0] + 5 * NS))
+    with pytest.raises(
+        InputError,
+        match=r"no detection frame inside the velocity time span \(\d+\.\d{3} \.\. \d+\.\d{3} s\): its \d+ frames "
+        r"span 5\.000 \.\. \d+\.\d{3} s on its header stamps; on another clock\? set time.source: auto \(or "
+        r"time.topics: \{/fiducial_transforms: record\}\)",
+    ):
+        align(sim_time)
+    assert align(sim_time, time_source="record").det_t_ns.size > 1
+
+
 def test_all_nan_detections_name_the_real_cause(sim, tmp_path):
     det = sim.detections
     log = _write(sim, tmp_path / "nan.bag", detections=replace(det, xyz=np.full_like(det.xyz, np.nan)))
     with pytest.raises(InputError, match=rf"all {det.xyz.shape[0]} detections are NaN or Inf") as err:
         read_log(log)
     assert err.value.topic == TOPIC_DETECTIONS
+
+
+def test_a_truth_of_nan_poses_says_why_it_has_none(sim, tmp_path):
+    # `slamobs report` of a run on such a log said only 'no truth poses'
+    mocap = sim.mocap
+    log = _write(sim, tmp_path / "nan.bag", mocap=replace(mocap, position=np.full_like(mocap.position, np.nan)))
+    n = mocap.position.shape[0]
+    with pytest.raises(InputError, match=rf"no truth poses \(/mocap/pose: {n} NaN/Inf samples dropped\)$"):
+        read_truth("/mocap/pose", log)
+
+
+def test_an_imu_that_does_not_fill_its_gyro_gives_way_to_the_odometry(sim, tmp_path):
+    # an IMU publishing angular_velocity all zero was the angular velocity of every run (riekf's APE on the figure-8
+    # sample log: 1.07e6 m, fast-adaptation 0.084 m); the odometry's twist.angular measures it
+    log = _write(sim, tmp_path / "zero.bag", imu=replace(sim.imu, gyro=np.zeros_like(sim.imu.gyro)))
+    streams = read_log(log)
+    assert streams.angular_velocity.topic == "/odom" and streams.accel.topic == TOPIC_IMU
+    np.testing.assert_array_equal(streams.angular_velocity.xyz, sim.odom.angular)
+    assert f"{TOPIC_IMU}: every angular velocity is zero (not measured): the angular velocity is /odom's" in "\n".join(
+        streams.warnings
+    )
+    assert streams.derived["angular_velocity"] == f"/odom's angular velocity: {TOPIC_IMU}'s is all zero"
+    # named in the config, the IMU stays the angular velocity
+    assert read_log(log, {"angular_velocity": TOPIC_IMU}).angular_velocity.topic == TOPIC_IMU
 
 
 def test_config_limits_are_parsed_and_switchable():

@@ -334,6 +334,12 @@ def test_nothing_recoverable_is_an_input_error(tmp_path, sim):
         with pytest.raises(InputError) as err:
             read_log(path)
         assert str(path) in str(err.value) and "\n" not in str(err.value)
+    # only the magic bytes: rosbags' own words were "ord() expected a character, but string of length 0 found"
+    magic = _cut(_write(sim, tmp_path / "full2.mcap", "mcap"), tmp_path / "magic.mcap", 8)
+    with pytest.raises(
+        InputError, match=r"corrupt or truncated MCAP file: the file ends after its magic bytes, before"
+    ):
+        read_log(magic)
 
 
 # --------------------------------------------------------------------------- corruption
@@ -471,3 +477,23 @@ def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
     with pytest.raises(InputError, match=r"crashed.*no metadata.yaml and 2 storage files") as err:
         read_log(path)
     assert "\n" not in str(err.value)
+    # both named, with the command that writes a metadata.yaml for the parts of an unclosed split recording
+    assert f"second{storage.suffix}" in str(err.value) and storage.name in str(err.value)
+    assert f"`ros2 bag reindex {path}` writes its metadata.yaml" in str(err.value)
+
+
+@pytest.mark.parametrize("text", ["", "\n  \n"])
+def test_rosbag2_directory_with_an_empty_metadata_file(tmp_path, sim, text):
+    """A recording that crashed while writing metadata.yaml leaves it empty: read like one without it (rosbags
+    failed with "Invalid bag metadata: 'NoneType' object is not subscriptable")."""
+    path = _write(sim, tmp_path / "crashed", "ros2-sqlite3")
+    (path / "metadata.yaml").write_text(text)
+    (storage,) = [p for p in path.iterdir() if p.suffix == ".db3"]
+    got = read_log(path)
+    assert got.warnings[0] == (
+        f"crashed has an empty metadata.yaml (recording not closed?): read {storage.name} directly"
+    )
+    _same_streams(got, expected_streams(sim, str(path)))
+    storage.unlink()
+    with pytest.raises(InputError, match=r"crashed: not a ROS1 bag, .* \(its metadata.yaml is empty\)$"):
+        inspect_log(path)

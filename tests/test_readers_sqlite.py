@@ -273,3 +273,35 @@ def test_a_damaged_tree_is_not_walked(logs, tmp_path, child):
         assert stopped and table.leaves[done] == root
     else:
         assert table is None
+
+
+def test_a_recording_in_wal_mode_that_was_not_closed_is_read_whole(logs, tmp_path):
+    # rosbag2's 'resilient' preset writes in WAL mode: a crashed recording leaves the latest messages in its -wal
+    # file, which rosbags' immutable open did not read (half the messages were lost without a word)
+    src = next(logs[0].glob("*.db3"))
+    work = tmp_path / "work" / src.name
+    work.parent.mkdir()
+    shutil.copyfile(src, work)
+    con = sqlite3.connect(work)
+    n = con.execute("SELECT count(*) FROM messages").fetchone()[0]
+    later = con.execute("SELECT id, topic_id, timestamp, data FROM messages WHERE id > ?", (n // 2,)).fetchall()
+    con.execute("DELETE FROM messages WHERE id > ?", (n // 2,))
+    con.commit()
+    con.execute("VACUUM")
+    con.execute("PRAGMA journal_mode=WAL")
+    con.execute("PRAGMA wal_autocheckpoint=0")
+    con.executemany("INSERT INTO messages (id, topic_id, timestamp, data) VALUES (?, ?, ?, ?)", later)
+    con.commit()
+    crashed = tmp_path / "crashed"  # the files as the crash left them (the connection never closed)
+    crashed.mkdir()
+    for suffix in ("", "-wal"):
+        shutil.copyfile(f"{work}{suffix}", crashed / f"{src.name}{suffix}")
+    con.close()
+    before = {p.name: p.read_bytes() for p in crashed.iterdir()}
+    _assert_same_bits(_rows(crashed / src.name), _rows(src))
+    got = read_log(crashed / src.name)
+    assert any(
+        w.startswith(f"{src.name}: a recording in WAL mode that was not closed: its {src.name}-wal")
+        for w in got.warnings
+    )
+    assert {p.name: p.read_bytes() for p in crashed.iterdir()} == before  # the log itself is never written

@@ -12,7 +12,7 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 
 from cli_checks import SAMPLES, invoke
-from slamobs.pipeline.readers import inspect_log
+from slamobs.pipeline.readers import inspect_log, read_log
 
 LOG = SAMPLES / "circle.bag"
 
@@ -104,3 +104,16 @@ def test_what_is_not_one_split_recording_is_one_line(parts, tmp_path):
     (bad / "rec_1.bag").write_text("not a bag")
     res = invoke("info", bad, catch_exceptions=True)
     assert res.exit_code == 2 and f"{bad / 'rec_1.bag'}: not a ROS1 bag" in res.output
+
+
+def test_a_cut_part_is_named_in_the_recovery_note(parts, tmp_path):
+    # a recording whose last part was cut said 'ROS1 bag is incomplete ...' without saying which of its files
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    for p in parts:
+        shutil.copy(p, cut / p.name)
+    last = cut / parts[-1].name
+    last.write_bytes(last.read_bytes()[: last.stat().st_size // 2])
+    notes = read_log(cut).warnings
+    assert any(n.startswith(f"{last.name}: ROS1 bag is incomplete (") for n in notes), notes
+    assert not any(n.startswith("ROS1 bag is incomplete") for n in notes)

@@ -151,8 +151,10 @@ def read_log(
                 stream, cleaning = vec3_stream(rows[topic], role)
                 if meta.msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
                     stream, cleaning = _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
+                elif role == "angular_velocity" and "angular_velocity" not in overrides:
+                    stream, cleaning = _filled_gyro(topic, stream, cleaning, selection, table, rows, streams, note)
                 setattr(streams, role, stream)
-                note(topic, role, cleaning)
+                note(stream.topic, role, cleaning)
             elif role == "truth" and selection.truth_edge is None:
                 streams.truth, cleaning = pose_stream(rows[topic])
                 note(topic, role, cleaning)
@@ -193,6 +195,26 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, table, rows, streams, note):
+    """An angular velocity that is all zero (an IMU that does not fill the field) replaced by the angular velocity
+    of the linear-velocity topic (odometry, a twist) when that one holds some; the IMU's cleaning is noted here."""
+    other = selection.roles.get("linear_velocity")
+    if len(stream) < 2 or stream.xyz.any() or other is None or other == topic or other not in rows:
+        return stream, cleaning
+    if ("angular_velocity", table[other][0].msgtype) not in VEC3_ROLES:
+        return stream, cleaning
+    found, found_cleaning = vec3_stream(rows[other], "angular_velocity")
+    if not found.xyz.any():
+        return stream, cleaning
+    note(topic, "angular_velocity", cleaning)
+    streams.warnings.append(
+        f"{topic}: every angular velocity is zero (not measured): the angular velocity is {other}'s instead "
+        "(topics.angular_velocity chooses one)"
+    )
+    streams.derived["angular_velocity"] = f"{other}'s angular velocity: {topic}'s is all zero"
+    return found, found_cleaning
 
 
 def _outside_truth(overrides: dict, truth_file: str | Path | None) -> str | Path | None:
@@ -394,7 +416,8 @@ def read_truth(
         clocks=(clocks or None) if own else None,
     )
     if streams.truth is None or len(streams.truth) == 0:
-        raise InputError(where, "no truth poses", spec.name)
+        why = [w for w in streams.warnings if w.startswith(f"{spec.name}:")]  # e.g. every pose NaN
+        raise InputError(where, "no truth poses" + (f" ({'; '.join(why)})" if why else ""), spec.name)
     return Trajectory(streams.truth, "tf_edge" if spec.kind == "edge" else "topic", str(source))
 
 

@@ -137,26 +137,25 @@ def detect_container(path: str | Path) -> Container:
             if entry.name == "metadata.yaml" or entry.suffix in {".db3", ".mcap", ".zstd"}:
                 check_input(entry, "storage file of a rosbag2 directory", directory_ok=False)
         meta = path / "metadata.yaml"
-        if not meta.is_file() and (parts := split_parts(path, entries)):
+        text = _metadata_text(path, meta)
+        if text is None and (parts := split_parts(path, entries)):
             return Container(path, "ros1-split", f"{len(parts)} bag files", parts=parts)
-        if not meta.is_file():  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none
+        if text is None:  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none (or an empty one)
+            which = "an empty" if meta.is_file() else "no"
             inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
             if len(inner) == 1:
                 found = detect_container(inner[0])
-                return replace(
-                    found,
-                    note=f"{path.name} has no metadata.yaml (recording not closed?): read {inner[0].name} directly",
-                )
+                note = f"{path.name} has {which} metadata.yaml (recording not closed?): read {inner[0].name} directly"
+                return replace(found, note=note)
+            names = ", ".join(x.name for x in inner[:3]) + (", ..." if len(inner) > 3 else "")
             hint = (
-                f" (directory has no metadata.yaml and {len(inner)} storage files: open one of them directly)"
+                f" (directory has {which} metadata.yaml and {len(inner)} storage files, {names}: the parts of a "
+                f"recording that was not closed? `ros2 bag reindex {path}` writes its metadata.yaml; or open one "
+                "file directly)"
                 if inner
-                else ""
+                else (" (its metadata.yaml is empty)" if meta.is_file() else "")
             )
             raise InputError(path, _NOT_A_LOG + hint)
-        try:
-            text = meta.read_text(errors="replace")
-        except OSError as err:
-            raise InputError(path, f"cannot read metadata.yaml: {one_line(err.strerror)}") from None
         check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
         match = re.search(r'storage_identifier:\s*["\']?([\w.-]+)', text)
         return Container(path, "rosbag2", match.group(1) if match else "")
@@ -174,6 +173,18 @@ def detect_container(path: str | Path) -> Container:
         if head.startswith(magic):
             raise InputError(path, f"{_NOT_A_LOG} ({name}-compressed: decompress it first)")
     raise InputError(path, _NOT_A_LOG)
+
+
+def _metadata_text(path: Path, meta: Path) -> str | None:
+    """The text of a rosbag2 directory's ``metadata.yaml``; None when there is none or it holds nothing (a recording
+    that crashed while writing it)."""
+    if not meta.is_file():
+        return None
+    try:
+        text = meta.read_text(errors="replace")
+    except OSError as err:
+        raise InputError(path, f"cannot read metadata.yaml: {one_line(err.strerror)}") from None
+    return text if text.strip() else None
 
 
 # --------------------------------------------------------------------------- split ROS1 recordings
@@ -370,10 +381,13 @@ _NOTES = "_slamobs_notes"  # attribute of an opened reader: how its path was int
 def damage_notes(reader: AnyReader) -> list[str]:
     """What was recovered from truncated or unindexed files (empty for intact logs)."""
     notes = list(getattr(reader, _NOTES, ()))
+    files = []
     for sub in reader.readers:
         storage = sub.storage if isinstance(sub, Reader2) else sub
-        inner = storage.storages if isinstance(storage, DirectoryReader) else [storage]
-        notes += [text for s in inner if isinstance(s, _READERS) for text in s.damage_texts()]
+        files += storage.storages if isinstance(storage, DirectoryReader) else [storage]
+    for s in files:  # the parts of a split recording: each note names its file
+        if isinstance(s, _READERS):
+            notes += [f"{Path(s.path).name}: {text}" if len(files) > 1 else text for text in s.damage_texts()]
     return notes
 
 

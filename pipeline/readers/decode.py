@@ -59,6 +59,10 @@ VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
 }
 
 
+#: A step back of the stamps at least this long (ns) is named in the out-of-order note: a clock set back.
+CLOCK_STEP_NS = 500_000_000
+
+
 @dataclass
 class Cleaning:
     """What cleaning did to a stream; rendered into LogStreams.warnings."""
@@ -68,7 +72,14 @@ class Cleaning:
     duplicates: int = 0
     repeated: int = 0
     zero_stamps: bool = False
+    step_back_ns: int = 0  # the largest step back between consecutive stamps (record order)
     extra: list[str] = field(default_factory=list)
+
+    def count_order(self, t_ns: np.ndarray) -> None:
+        """Count the stamps (in record order) earlier than the one before, and the largest step back."""
+        steps = np.diff(t_ns)
+        self.out_of_order = int(np.count_nonzero(steps < 0))
+        self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
 
     def text(self) -> str:
         """One warning fragment, empty when nothing happened."""
@@ -76,7 +87,12 @@ class Cleaning:
         if self.zero_stamps:
             parts.append("header stamps are all zero, using record time")
         if self.out_of_order:
-            parts.append(plural(self.out_of_order, "out-of-order stamp"))
+            back = ""
+            if self.step_back_ns >= CLOCK_STEP_NS and not self.zero_stamps:  # not the jitter of a driver
+                back = (
+                    f" (a step back of {self.step_back_ns * 1e-9:.3f} s: a clock set back? time.source: auto or record)"
+                )
+            parts.append(plural(self.out_of_order, "out-of-order stamp") + back)
         if self.duplicates:
             parts.append(plural(self.duplicates, "exact duplicate") + " dropped")
         if self.repeated:
@@ -197,7 +213,7 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     finite = np.isfinite(values).all(axis=1)
     idx = np.flatnonzero(finite)
     cleaning.nonfinite = int(values.shape[0] - idx.size)
-    cleaning.out_of_order = int(np.count_nonzero(np.diff(t_ns[idx]) < 0))
+    cleaning.count_order(t_ns[idx])
     idx = idx[np.argsort(t_ns[idx], kind="stable")]
     drop, cleaning.repeated = _duplicate_mask(t_ns[idx], lambda i: values[idx[i]].tobytes())
     cleaning.duplicates = int(drop.sum())
@@ -485,7 +501,7 @@ def clean_frames(
     del owner
     offsets = _offsets(lengths)
 
-    cleaning.out_of_order = int(np.count_nonzero(np.diff(t_ns) < 0))
+    cleaning.count_order(t_ns)
     forder = np.argsort(t_ns, kind="stable")
 
     def key(i: int) -> bytes:
@@ -578,7 +594,8 @@ def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str]]:
         pairs = ", ".join(f"{p}->{c}" for p, c in sorted(changed))
         warnings.append(f"static transforms published with different values, using the last: {pairs}")
     if nbad := int(ok.size - np.count_nonzero(ok)):
-        warnings.append(plural(nbad, "NaN/Inf static transform") + " dropped")
+        bad = sorted({f"{names[rows.parent[i]]}->{names[rows.child[i]]}" for i in np.flatnonzero(~ok)})
+        warnings.append(plural(nbad, "NaN/Inf static transform") + f" dropped: {', '.join(bad)}")
     return list(found.values()), warnings
 
 

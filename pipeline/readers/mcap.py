@@ -137,6 +137,9 @@ class McapStorage(Chunked, McapReader):
             super()._open()
         except (Ros2ReaderError, struct.error, TypeError, ValueError, AssertionError, OSError, KeyError) as err:
             if not self.data_start:  # bad magic, header or profile: not ours to repair
+                if self.bio is not None and self.bio.seek(0, 2) == len(MAGIC):  # rosbags: "ord() expected a character"
+                    msg = "the file ends after its magic bytes, before the header record"
+                    raise Ros2ReaderError(msg) from None
                 raise
             assert self.bio
             size = self.bio.seek(0, 2)

@@ -8,6 +8,9 @@ where those are not read directly, by SQLite in windows of row ids.
 
 from __future__ import annotations
 
+import shutil
+import sqlite3
+import tempfile
 from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -36,16 +39,68 @@ WINDOW_SPAN = 4
 THREAD = "slamobs-sqlite-reader"  # the read-ahead thread's name
 
 
+#: A write-ahead log longer than its header holds frames (SQLite's WAL header is 32 bytes).
+WAL_HEADER = 32
+
+
 class Sqlite3Storage(Sqlite3Reader):
-    """rosbags' sqlite3 reader with the messages of several topics read in blocks of rows."""
+    """rosbags' sqlite3 reader with the messages of several topics read in blocks of rows.
+
+    rosbags opens the database ``immutable``: of a recording in WAL mode (rosbag2's ``resilient`` storage preset)
+    that was not closed, the messages still in its ``-wal`` file would not be read. Such a file is applied to a
+    temporary copy of the database, which is read instead (the log itself is never written)."""
+
+    _copy: tempfile.TemporaryDirectory | None = None
+    _wal_note: str = ""
+
+    def open(self) -> None:
+        """Open the database, or a copy with its write-ahead log applied."""
+        wal = Path(f"{self.path}-wal") if isinstance(self.path, Path) else None
+        if wal is not None and wal.is_file() and wal.stat().st_size > WAL_HEADER:
+            self._copy = tempfile.TemporaryDirectory(prefix="slamobs-wal-")
+            original, self.path = self.path, _checkpointed(self.path, wal, Path(self._copy.name))
+            self._wal_note = (
+                f"{original.name}: a recording in WAL mode that was not closed: its {wal.name} "
+                f"({wal.stat().st_size} bytes written after the last checkpoint) was applied to a temporary copy"
+            )
+        try:
+            super().open()
+        except BaseException:
+            self._drop_copy()
+            raise
+
+    def close(self) -> None:
+        """Close the database and remove the copy, if any."""
+        try:
+            super().close()
+        finally:
+            self._drop_copy()
+
+    def _drop_copy(self) -> None:
+        copy, self._copy = self._copy, None
+        if copy is not None:
+            copy.cleanup()
 
     def batches(self, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
         """Rows of the requested topics (see :func:`_sqlite_batches`)."""
         return _sqlite_batches(self, ids, ordered)
 
     def damage_texts(self) -> list[str]:
-        """Nothing: a damaged database is refused, not recovered."""
-        return []
+        """A write-ahead log applied to a copy; a damaged database is refused, not recovered."""
+        return [self._wal_note] if self._wal_note else []
+
+
+def _checkpointed(db: Path, wal: Path, into: Path) -> Path:
+    """A copy of ``db`` in ``into`` with the frames of its write-ahead log ``wal`` written into it."""
+    copy = into / db.name
+    shutil.copyfile(db, copy)
+    shutil.copyfile(wal, into / wal.name)
+    con = sqlite3.connect(copy)
+    try:
+        con.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+    finally:
+        con.close()
+    return copy
 
 
 def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
