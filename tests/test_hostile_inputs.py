@@ -112,13 +112,13 @@ def test_output_never_replaces_or_holds_an_input(logs, tmp_path, quick, case):
         assert snapshot(tmp_path) == before
 
 
-@pytest.mark.parametrize("out", [".", ""])
-def test_output_is_never_the_working_directory(logs, tmp_path, monkeypatch, out):
+@pytest.mark.parametrize(("out", "said"), [(".", "working directory"), ("", "is empty")])
+def test_output_is_never_the_working_directory(logs, tmp_path, monkeypatch, out, said):
     (tmp_path / "mine.txt").write_text("precious")
     (tmp_path / "run.json").write_text("{}")  # even one that looks like an earlier run
     monkeypatch.chdir(tmp_path)
     before = snapshot(tmp_path)
-    one_line_error(invoke("run", logs["bag"], "-o", out, "--force"), "working directory")
+    one_line_error(invoke("run", logs["bag"], "-o", out, "--force"), said)
     assert snapshot(tmp_path) == before
 
 
