@@ -62,3 +62,50 @@ def test_noise_auto_finds_the_square_law_and_a_steep_range_error():
     assert found.detection.law == "b + a*r^2", found.detection.law
     # along the line of sight / across: √2 z / b at the ranges seen (4-14 m) is 11-40
     assert found.ratio is not None and 10.0 < found.ratio.value < 60.0, found.ratio
+
+
+def test_riekf_on_a_stereo_log_with_learned_noise_is_within_1_5x_of_the_truth_and_gates_little():
+    """Issue 23's riekf criterion on a stereo-like log (gyro 100x the default density, velocity 4x, 6 px): with
+    the levels learned from the log, riekf is within 1.5x of riekf given the truth (the densities drawn, the
+    first-order stereo law σ̄(r) = √(2/3)·σ r²/(f b) with the ratio √2·r/b at the median range) and gates
+    fewer than 5 % of the detections."""
+    from slamobs.pipeline.lie import umeyama
+    from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
+    from slamobs.pipeline.observers import ObserverOptions
+    from slamobs.pipeline.observers.riekf import RiEKF
+    from slamobs.pipeline.simulate import get_scenario
+
+    rate, px = 50.0, 6.0
+    gyro, velocity = 100 * DEFAULTS["gyro"][0], 4 * DEFAULTS["velocity"][0]  # densities
+    nm = replace(
+        NoiseModel(),
+        gyro=gyro * np.sqrt(rate),
+        odom_linear=velocity * np.sqrt(rate),
+        stereo_pixel=px,
+        stereo_focal=F,
+        stereo_baseline=B,
+    )
+    sim = simulate("figure8-wide", duration=30.0, seed=88, noise=nm, imu_rate=rate, odom_rate=rate, detection_rate=20)
+    stream = align(expected_streams(sim), keep_directions=False)  # no message covariances: all estimated
+    auto = resolve_noise(estimated=estimate_log_noise(stream, stream_density(sim.odom.t_ns, sim.odom.linear)))
+    r_med = float(np.median(np.linalg.norm(stream.det_y, axis=1)))
+    truth = resolve_noise(
+        NoiseConfig(
+            gyro=gyro,
+            velocity=velocity,
+            detection=0.0,
+            detection_per_m=0.0,
+            detection_per_m2=np.sqrt(2.0 / 3.0) * px / (F * B),
+            detection_ratio=np.sqrt(2.0) * r_med / B,
+        )
+    )
+    errors, gated = {}, {}
+    for name, nz in (("auto", auto), ("truth", truth)):
+        filt = RiEKF(stream, {}, ObserverOptions(out_every=10), noise=nz)
+        res = filt.advance(filt.n_vel)
+        true_p = get_scenario(sim.scenario).sample((res.t_ns - sim.start_ns) * 1e-9).P
+        rot, t, _ = umeyama(res.position, true_p)
+        errors[name] = float(np.sqrt(np.mean(np.sum((res.position @ rot.T + t - true_p) ** 2, axis=1))))
+        gated[name] = filt.stats["metadata"]["filter"]["gated_detections"] / stream.det_idx.shape[0]
+    assert errors["auto"] <= 1.5 * errors["truth"], errors
+    assert gated["auto"] < 0.05, gated
