@@ -249,6 +249,8 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
             f"1 s, most likely the dead reckoning's turning error: the same σ kept on every axis"
         )
         ratio = None
+    else:  # a steep range error: the law again, its outliers judged along and across the line of sight
+        law = detection_law(triplets, ratio=ratio.value) or law
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)

@@ -1,6 +1,8 @@
 """batch chooses the velocity noise level's scale by its evidence (issue 23; pipeline/smoother/evidence.py): the
 Laplace approximation of the marginal likelihood, no truth read. On a generated log with white velocity noise
-the evidence must pick the true level, or the neighbouring scale, whichever level the run starts from."""
+the evidence must pick the true level, or the neighbouring scale, whichever level the run starts from; a level
+measured from its own samples (a lower bound of the stream's noise) is raised but never lowered below
+``evidence.SAMPLE_FLOOR`` of it (a level too high comes from a stated covariance here)."""
 
 from __future__ import annotations
 
@@ -11,8 +13,12 @@ import pytest
 
 from noisy_logs import noisy_figure8
 from slamobs.pipeline.observers import ObserverOptions
-from slamobs.pipeline.smoother.evidence import SCALES
+from slamobs.pipeline.smoother.evidence import SAMPLE_FLOOR, SCALES
 from slamobs.pipeline.smoother.settings import BatchSettings
+
+
+#: where a level above the truth comes from: a driver's stated covariance (the samples' own level is a lower bound)
+STATED = "/odom covariance (50 Hz)"
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +47,8 @@ def test_the_evidence_finds_the_true_velocity_level(log, start):
     """Started from the true level, or 3x above or below it, the kept scale brings the level back to the truth
     (or the grid's neighbouring scale); run.json states every tried scale's log evidence and the winner."""
     stream, truth = log
-    noise = replace(truth, velocity=truth.velocity * start, sources={**truth.sources, "velocity": "estimated"})
+    source = "estimated" if start <= 1.0 else STATED
+    noise = replace(truth, velocity=truth.velocity * start, sources={**truth.sources, "velocity": source})
     s = smoother(stream, noise)
     record = s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]
     assert min(neighbours(1.0 / start)) <= record["scale"] <= max(neighbours(1.0 / start)), record
@@ -74,10 +81,19 @@ def test_gyro_and_velocity_wrong_in_opposite_directions_are_both_found(log):
     """The gyro 3x too low and the velocity 3x too high trade off (one pass over the keys leaves the velocity
     where it was); the passes bring both back to the truth or the grid's neighbouring scale."""
     stream, truth = log
-    sources = {**truth.sources, "velocity": "estimated", "gyro": "estimated"}
+    sources = {**truth.sources, "velocity": STATED, "gyro": "estimated"}
     noise = replace(truth, velocity=3.0 * truth.velocity, gyro=truth.gyro / 3.0, sources=sources)
     record = smoother(stream, noise).stats["metadata"]["smoother"]["noise_scale"]
     assert 0.1 <= record["velocity"]["scale"] < 1.0 < record["gyro"]["scale"] <= 10.0, record
+
+
+def test_a_level_measured_from_its_samples_is_not_lowered_below_them(log):
+    """The same level 3x too high, but measured from the stream's samples: the evidence, which lowers it when a
+    covariance states it (above), tries no scale below ``SAMPLE_FLOOR`` and keeps it."""
+    stream, truth = log
+    noise = replace(truth, velocity=3.0 * truth.velocity, sources={**truth.sources, "velocity": "estimated"})
+    record = smoother(stream, noise).stats["metadata"]["smoother"]["noise_scale"]["velocity"]
+    assert record["scale"] >= SAMPLE_FLOOR and all(float(k) >= SAMPLE_FLOOR for k in record["log_evidence"]), record
 
 
 def test_the_passes_go_on_while_a_level_moves(log):

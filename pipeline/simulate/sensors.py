@@ -59,7 +59,10 @@ class NoiseModel:
 
     ``gyro`` and ``odom_linear`` are one value or one per axis (x, y, z); a detection's standard deviation per
     component is ``detection_base + detection_per_m * r + detection_per_m2 * r²`` at range r (the stereo / PnP
-    law grows with r²)."""
+    law grows with r²). With ``stereo_pixel`` > 0 the detections are instead stereo triangulations
+    (:func:`stereo_points`): a rectified pair of focal length ``stereo_focal`` px and baseline ``stereo_baseline``
+    m sees each point with white pixel noise ``stereo_pixel`` px (depth error ~ z²/(f b), lateral ~ z/f); points
+    behind the camera or whose noisy disparity is below twice the pixel noise are not detected."""
 
     gyro: float | tuple[float, float, float] = 0.005  # rad/s
     accel: float = 0.05  # m/s^2
@@ -75,6 +78,9 @@ class NoiseModel:
     #: ``2π odom_linear_drift_s`` (:func:`_drift`); 0 draws nothing (the random stream is unchanged)
     odom_linear_drift: float = 0.0
     odom_linear_drift_s: float = 10.0
+    stereo_pixel: float = 0.0  # px, standard deviation of each image coordinate; 0: the additive law above
+    stereo_focal: float = 450.0  # px
+    stereo_baseline: float = 0.24  # m
 
     @classmethod
     def zero(cls) -> NoiseModel:
@@ -595,10 +601,14 @@ def _detections(
 
     true_xyz = y_cam[frame_idx, lm_idx]
     rng_m = np.linalg.norm(true_xyz, axis=1)
-    sigma = nm.detection_base + nm.detection_per_m * rng_m
-    if nm.detection_per_m2:
-        sigma = sigma + nm.detection_per_m2 * rng_m * rng_m
-    xyz = true_xyz + sigma[:, None] * rng.standard_normal((m, 3))
+    draws = rng.standard_normal((m, 3))
+    if nm.stereo_pixel > 0.0:
+        xyz, seen = stereo_points(true_xyz, draws, nm.stereo_pixel, nm.stereo_focal, nm.stereo_baseline)
+    else:
+        sigma = nm.detection_base + nm.detection_per_m * rng_m
+        if nm.detection_per_m2:
+            sigma = sigma + nm.detection_per_m2 * rng_m * rng_m
+        xyz, seen = true_xyz + sigma[:, None] * draws, None
 
     # Tag orientation in the camera frame: R_bc^T R^T R_tag, perturbed by a small rotation.
     r_bt = np.einsum("mji,mjk->mik", tr.R[frame_idx], sc.landmark_rots[lm_idx])
@@ -617,7 +627,31 @@ def _detections(
     object_error = 1e-3 * rng_m * rng_m * jitter
     ids = sc.landmark_ids[lm_idx].copy()
     rec_ns = _record_times(rng, t_ns, rec_after)
+    if seen is not None:  # stereo points not triangulated: left out of their frames (every draw above is kept)
+        offsets[1:] = np.cumsum(np.bincount(frame_idx[seen], minlength=t.shape[0]))
+        ids, xyz, quats = ids[seen], xyz[seen], quats[seen]
+        image_error, object_error, area = image_error[seen], object_error[seen], area[seen]
     return DetectionData(t_ns, rec_ns, offsets, ids, xyz, quats, image_error, object_error, area)
+
+
+def stereo_points(
+    true_xyz: np.ndarray, draws: np.ndarray, pixel: float, focal: float, baseline: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Camera-frame points (M, 3) triangulated from a rectified stereo pair that sees ``true_xyz`` with pixel noise
+    ``pixel`` · ``draws`` (M, 3: left u, right u, v; v is the mean of the two images' rows, so its noise is
+    ``pixel/√2``), and which points are triangulated at all (in front of the camera, noisy disparity above
+    ``2 · pixel``). Depth ``z = f b / d`` from the disparity ``d``; the others scale the left pixel by ``z / f``."""
+    x, y, z = true_xyz.T
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    ul = focal * x / zs + pixel * draws[:, 0]
+    ur = focal * (x - baseline) / zs + pixel * draws[:, 1]
+    v = focal * y / zs + pixel * draws[:, 2] / np.sqrt(2.0)
+    disparity = ul - ur
+    seen = front & (disparity > 2.0 * pixel)
+    depth = focal * baseline / np.where(seen, disparity, 1.0)
+    xyz = np.stack([ul * depth / focal, v * depth / focal, depth], axis=1)
+    return np.where(seen[:, None], xyz, true_xyz), seen
 
 
 def _camera(sim: Simulation, det: DetectionData) -> CameraData:

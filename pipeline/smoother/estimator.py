@@ -22,6 +22,7 @@ from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
+from slamobs.pipeline.smoother.evidence import SAMPLE_FLOOR as EVIDENCE_SAMPLE_FLOOR
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
 from slamobs.pipeline.smoother.evidence import SOLVE_FLOOR as EVIDENCE_SOLVE_FLOOR
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
@@ -510,7 +511,8 @@ class BatchSmoother(Stepper):
                 if (why := self._evidence_skipped(key)) is not None:
                     records[key] = {"skipped": why}
                     continue
-                chosen, records[key], note, solves = self._scan(key, chosen, keyframes, segments, progress)
+                lowest = EVIDENCE_SAMPLE_FLOOR / total[key] if self._sampled(key) else 0.0
+                chosen, records[key], note, solves = self._scan(key, chosen, keyframes, segments, progress, lowest)
                 notes.append(note)
                 total[key] *= records[key]["winner"]
                 records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
@@ -523,11 +525,16 @@ class BatchSmoother(Stepper):
             )
         return chosen, records, notes
 
-    def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress):
+    def _sampled(self, key: str) -> bool:
+        """The level ``key`` is measured from its own stream's samples (not held, not stated, not a default): the
+        evidence does not take it below ``evidence.SAMPLE_FLOOR`` of that."""
+        return self.noise.sources.get(key) == "estimated" and key not in self.noise.held
+
+    def _scan(self, key: str, chosen, keyframes: tuple, segments: _Segments, progress, lowest: float = 0.0):
         """The scale of the level ``key`` with the highest evidence (:mod:`pipeline.smoother.evidence`), searched
-        from the chosen solution on its detections; when a scale other than 1 wins, the noise is scaled and the
-        smoother solved (and gated) again from that scale's solution. The candidate kept, the record, the note, and the
-        linear solves the scan took."""
+        from the chosen solution on its detections (no scale below ``lowest``); when a scale other than 1 wins, the
+        noise is scaled and the smoother solved (and gated) again from that scale's solution. The candidate kept,
+        the record, the note, and the linear solves the scan took."""
         from slamobs.pipeline.smoother import evidence as ev
 
         kf_t, kf_of_det, gaps = keyframes
@@ -538,6 +545,7 @@ class BatchSmoother(Stepper):
             return replace(base, data=self._motion_data(kf_t, gaps, base.b_bar, _scaled(self.noise, key, scale)))
 
         for direction in ev.search_order():
+            direction = [scale for scale in direction if scale >= lowest * (1.0 - 1e-9)]
             if ev.climb(direction, problem_at, self._solved_from, sols, scores) != 1.0:
                 break  # the evidence rose downwards: no need to look upwards
         winner = ev.best_scale(scores)

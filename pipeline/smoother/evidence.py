@@ -32,6 +32,13 @@ SOLVE_BUDGET, SOLVE_FLOOR = 20.0, 600
 #: Scales of each level tried, from the level the run would otherwise use (``noise: auto``, estimated
 #: or defaulted); searched downwards from 1 while the evidence rises, else upwards.
 SCALES = (0.1, 0.3, 1.0, 3.0)
+#: The lowest overall scale of a level measured from its own stream's samples (``noise: auto``, a stream whose
+#: samples move; not a held one's, nor a stated covariance): the samples' high-frequency content is a lower
+#: bound of the stream's noise (coloured noise adds to it, docs/noise.md), so the evidence may raise such a level
+#: but not take it below that bound by more than half a step of the ladder (x3: 1/√3; a pass that moved it x3 up
+#: may still come back to x0.9). On stereo-like logs (depth error ~ r², benchmarks/stereo_logs.py) the evidence
+#: took the measured velocity to x0.3 of its true level, and batch's APE 1.3-2x above the run at x1.
+SAMPLE_FLOOR = float(1.0 / np.sqrt(3.0))
 #: Above this many keyframes the choice is skipped (and the notes say so): on the one-hour benchmark log (72,002
 #: keyframes) it took the smoother from 7.5 to 29.6 CPU s (the scales tried cost a solve each) and kept x1.
 MAX_KEYFRAMES = 30_000
