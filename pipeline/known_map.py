@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import read_text, read_yaml
+from slamobs.pipeline.paths import check_input, read_text, read_yaml
 
 MODES = ("fixed", "prior")
 #: A pose fit needs mapped landmarks spread this much (m, second principal extent) in one frame.
@@ -56,8 +56,9 @@ def read_map(path: str | Path, mode: str = "fixed") -> KnownMap:
     path = Path(path)
     if mode not in MODES:
         raise InputError(path, f"map mode {mode!r} is not one of {', '.join(MODES)}")
-    if not path.is_file():
+    if not path.exists() and not path.is_symlink():
         raise InputError(path, "map file not found")
+    check_input(path, "map file", directory_ok=False)  # a directory, a FIFO, a dangling link: one line each
     suffix = path.suffix.lower()
     if suffix == ".parquet":
         ids, xyz = _parquet(path)

@@ -62,6 +62,9 @@ def test_map_files_agree_and_bad_ones_are_named(tmp_path):
         read_map(tmp_path / "dup.csv")
     with pytest.raises(InputError, match="map file not found"):
         read_map(tmp_path / "none.csv")
+    (tmp_path / "folder").mkdir()  # it said 'map file not found' of a directory that is there
+    with pytest.raises(InputError, match="folder: is a directory, not a map file$"):
+        read_map(tmp_path / "folder")
 
 
 def _run(log: Path, out: Path, **cfg) -> tuple[dict, dict | None]:

@@ -20,6 +20,7 @@ from rosbags.rosbag1 import Reader as Bag1Reader
 from rosbags.rosbag1 import Writer as Bag1Writer
 from rosbags.rosbag1.reader import Header
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.rosbag2 import Reader as Bag2Reader
 from rosbags.rosbag2 import Writer as Bag2Writer
 
 from slamobs.cli.info_cmd import info
@@ -497,3 +498,40 @@ def test_rosbag2_directory_with_an_empty_metadata_file(tmp_path, sim, text):
     storage.unlink()
     with pytest.raises(InputError, match=r"crashed: not a ROS1 bag, .* \(its metadata.yaml is empty\)$"):
         inspect_log(path)
+
+
+@pytest.mark.parametrize("container", ["ros2-sqlite3", "ros2-mcap"])
+def test_the_parts_of_an_unclosed_split_rosbag2_recording_are_read_in_order(tmp_path, sim, container):
+    """A split recording that crashed leaves NAME_0, NAME_1, ... without metadata.yaml: every part is read, in order
+    (it was an error asking to open one file, half the recording)."""
+    whole = _write(sim, tmp_path / "whole", container)
+    crashed = tmp_path / "crashed"
+    crashed.mkdir()
+    plugin = StoragePlugin.MCAP if container == "ros2-mcap" else StoragePlugin.SQLITE3
+    with Bag2Reader(whole) as reader:
+        cut = (reader.start_time + reader.end_time) // 2
+        writers = [Bag2Writer(tmp_path / f"part{k}", version=9, storage_plugin=plugin) for k in (0, 1)]
+        conns: list[dict] = [{}, {}]
+        for w in writers:
+            w.open()
+        for conn, t, raw in reader.messages():
+            k = int(t >= cut)
+            if conn.id not in conns[k]:
+                conns[k][conn.id] = writers[k].add_connection(
+                    conn.topic,
+                    conn.msgtype,
+                    msgdef=conn.msgdef.data,
+                    rihs01=conn.digest,
+                    offered_qos_profiles=conn.ext.offered_qos_profiles,
+                )
+            writers[k].write(conns[k][conn.id], t, raw)
+        for w in writers:
+            w.close()
+    for k in (0, 1):
+        (storage_file,) = [p for p in (tmp_path / f"part{k}").iterdir() if p.suffix in {".db3", ".mcap"}]
+        storage_file.rename(crashed / f"rec_{k}{storage_file.suffix}")
+    got = read_log(crashed)
+    suffix = ".mcap" if container == "ros2-mcap" else ".db3"
+    assert got.warnings[0] == "crashed has no metadata.yaml (recording not closed?): read its 2 files"
+    assert got.warnings[1].startswith(f"split recording of 2 {suffix} files read as one: rec_0{suffix} 0.000–")
+    _same_streams(got, expected_streams(sim, str(crashed)))

@@ -148,11 +148,9 @@ def read_log(
         for k, (role, topic) in enumerate(chosen):
             meta, conns = table[topic]
             if (role, meta.msgtype) in VEC3_ROLES:
-                stream, cleaning = vec3_stream(rows[topic], role)
-                if meta.msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
-                    stream, cleaning = _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
-                elif role == "angular_velocity" and "angular_velocity" not in overrides:
-                    stream, cleaning = _filled_gyro(topic, stream, cleaning, selection, table, rows, streams, note)
+                stream, cleaning = _checked_velocity(
+                    role, topic, *vec3_stream(rows[topic], role), selection, table, rows, streams, note, overrides
+                )
                 setattr(streams, role, stream)
                 note(stream.topic, role, cleaning)
             elif role == "truth" and selection.truth_edge is None:
@@ -195,6 +193,16 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     return _with_clocks(streams, clocks)
+
+
+def _checked_velocity(role, topic, stream, cleaning, selection, table, rows, streams, note, overrides):
+    """A velocity stream checked against what else the log says: an odometry twist against its poses, an angular
+    velocity that is all zero against the linear-velocity topic's (not when the config names the topic)."""
+    if table[topic][0].msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
+        return _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
+    if role == "angular_velocity" and "angular_velocity" not in overrides:
+        return _filled_gyro(topic, stream, cleaning, selection, table, rows, streams, note)
+    return stream, cleaning
 
 
 def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, table, rows, streams, note):

@@ -52,7 +52,7 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-Kind = str  # "rosbag2" or "ros1-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
+Kind = str  # "rosbag2", "ros1-split" or "ros2-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
 
 
 @dataclass(frozen=True)
@@ -86,9 +86,11 @@ FORMATS: tuple[Format, ...] = (
 _READERS = tuple(f.reader for f in FORMATS)
 
 #: Human readable container names, used in messages.
-LABELS: dict[str, str] = {"rosbag2": "rosbag2 directory", "ros1-split": "split ROS1 recording"} | {
-    f.kind: f.label for f in FORMATS
-}
+LABELS: dict[str, str] = {
+    "rosbag2": "rosbag2 directory",
+    "ros1-split": "split ROS1 recording",
+    "ros2-split": "rosbag2 directory without metadata.yaml",
+} | {f.kind: f.label for f in FORMATS}
 
 _WRAPPERS: tuple[tuple[bytes, str], ...] = (
     (b"BZh", "bzip2"),
@@ -111,7 +113,7 @@ class Container:
     kind: Kind
     storage: str = ""
     note: str = ""  # how the path was interpreted, when it needed interpreting (a warning of the run)
-    parts: tuple[Path, ...] = ()  # a split ROS1 recording's bags, in order (:mod:`.split`)
+    parts: tuple[Path, ...] = ()  # a split recording's files, in order (ROS1 bags, or rosbag2 files without metadata)
 
     @property
     def label(self) -> str:
@@ -147,6 +149,9 @@ def detect_container(path: str | Path) -> Container:
                 found = detect_container(inner[0])
                 note = f"{path.name} has {which} metadata.yaml (recording not closed?): read {inner[0].name} directly"
                 return replace(found, note=note)
+            if parts := _storage_parts(inner):
+                note = f"{path.name} has {which} metadata.yaml (recording not closed?): read its {len(parts)} files"
+                return Container(path, "ros2-split", f"{len(parts)} {parts[0].suffix} files", note, parts)
             names = ", ".join(x.name for x in inner[:3]) + (", ..." if len(inner) > 3 else "")
             hint = (
                 f" (directory has {which} metadata.yaml and {len(inner)} storage files, {names}: the parts of a "
@@ -175,6 +180,17 @@ def detect_container(path: str | Path) -> Container:
     raise InputError(path, _NOT_A_LOG)
 
 
+def _storage_parts(files: Sequence[Path]) -> tuple[Path, ...]:
+    """The storage files of a rosbag2 recording without metadata.yaml as its parts in order: all ``NAME_N`` of one
+    name and one storage format; empty when they are not."""
+    named = [(PART.match(f.name), f) for f in files]
+    if any(m is None for m, _ in named) or len({(m["name"], f.suffix) for m, f in named}) != 1:
+        return ()
+    if len({detect_container(f).kind for _, f in named}) != 1:
+        return ()
+    return tuple(f for _, f in sorted((int(m["index"]), f) for m, f in named))
+
+
 def _metadata_text(path: Path, meta: Path) -> str | None:
     """The text of a rosbag2 directory's ``metadata.yaml``; None when there is none or it holds nothing (a recording
     that crashed while writing it)."""
@@ -189,8 +205,8 @@ def _metadata_text(path: Path, meta: Path) -> str | None:
 
 # --------------------------------------------------------------------------- split ROS1 recordings
 
-#: ``rosbag record --split`` names: the recording's name, an underscore, the part's index
-PART = re.compile(r"^(?P<name>.+)_(?P<index>\d+)\.bag$")
+#: ``rosbag record --split`` names (and rosbag2's storage files): the recording's name, an underscore, the index
+PART = re.compile(r"^(?P<name>.+)_(?P<index>\d+)\.(?:bag|db3|mcap)$")
 #: a gap between two files longer than this (seconds) is reported
 GAP_NOTE_S = 0.05
 
@@ -226,7 +242,8 @@ def part_notes(parts: Sequence[Path], spans: Sequence[tuple[int, int]]) -> list[
     :data:`GAP_NOTE_S`, overlaps and missing part numbers. ``spans`` are each part's first and last record time."""
     t0 = min(a for a, _ in spans)
     listed = ", ".join(f"{p.name} {(a - t0) / 1e9:.3f}–{(b - t0) / 1e9:.3f} s" for p, (a, b) in zip(parts, spans))
-    notes = [f"split recording of {len(parts)} ROS1 bags read as one: {listed}"]
+    files = "ROS1 bags" if parts[0].suffix == ".bag" else f"{parts[0].suffix} files"
+    notes = [f"split recording of {len(parts)} {files} read as one: {listed}"]
     indices = [int(PART.match(p.name)["index"]) for p in parts]
     missing = sorted(set(range(indices[0], indices[-1] + 1)) - set(indices))
     if missing:
@@ -399,8 +416,8 @@ def _rosbags_path(container: Container) -> Iterator[Path]:
     """Yield a path whose suffix makes ``AnyReader`` choose the right reader."""
     path = container.path
     want = next((f.suffix for f in FORMATS if f.kind == container.kind), None)
-    if container.kind in ("rosbag2", "ros1-split"):  # a split recording opens its parts
-        ok = container.kind == "ros1-split" or path.suffix != ".bag"
+    if container.kind in ("rosbag2", "ros1-split", "ros2-split"):  # a split recording opens its parts
+        ok = container.kind != "rosbag2" or path.suffix != ".bag"
         want = ""
     else:
         ok = path.suffix == want
