@@ -96,6 +96,25 @@ def test_discover_directories_globs_and_rosbag2(tmp_path):
     assert [e.path for e in discover([x / "y" / "r2" / "metadata.yaml"])] == [x / "y" / "r2"]
 
 
+def test_discover_takes_a_split_recording_as_one_log_as_run_does(tmp_path):
+    """A directory holding the NAME_N parts of one recording and no metadata.yaml (a split rosbag2 recording that was
+    not closed, or a split ROS1 recording) is one log to ``run``: batch took each part as a log of its own."""
+    heads = {".db3": b"SQLite format 3\x00", ".mcap": b"\x89MCAP0\r\n", ".bag": b"#ROSBAG V2.0\n"}
+    x = tmp_path / "x"
+    for folder, names in {"crashed": ("rec_0.db3", "rec_1.db3"), "m": ("m_0.mcap", "m_1.mcap", "m_2.mcap"),
+                          "split": ("run_1.bag", "run_0.bag"), "mixed": ("a_0.db3", "b_0.db3")}.items():  # fmt: skip
+        (x / folder).mkdir(parents=True)
+        for name in names:
+            (x / folder / name).write_bytes(heads[Path(name).suffix] + b"data")
+    found = [e.path for e in discover([x])]
+    # two recordings' parts in one directory are not one log: each file stays a log of its own
+    assert found == [x / "crashed", x / "m", x / "mixed" / "a_0.db3", x / "mixed" / "b_0.db3", x / "split"]
+    assert [e.path for e in discover([x / "crashed"])] == [x / "crashed"]  # given itself, not searched
+    # a glob reaching into it stands for the recording; a part named by itself is that file (as ``run`` reads it)
+    assert [e.path for e in discover([f"{x}/m/*.mcap", f"{x}/s*/*_0.bag"])] == [x / "m", x / "split"]
+    assert [e.path for e in discover([x / "split" / "run_0.bag"])] == [x / "split" / "run_0.bag"]
+
+
 def test_discover_manifests_resolve_relative_paths(tmp_path):
     _fake_tree(tmp_path)
     (tmp_path / "x" / "cfg.yaml").write_text("observer: fast-adaptation\n")

@@ -35,6 +35,22 @@ def is_rosbag2_dir(path: Path) -> bool:
     return path.is_dir() and (path / ROSBAG2_META).is_file()
 
 
+def is_split_recording(path: Path) -> bool:
+    """A directory without metadata.yaml that ``slamobs run`` reads as one log: the ``NAME_N`` parts of one split
+    recording (ROS1 bags, or the .db3/.mcap files of a rosbag2 recording that was not closed). The readers' rule
+    (:func:`~slamobs.pipeline.readers.container.detect_container`), so that batch and run agree on what one log is;
+    a directory that is not one (no logs, files of several names, a file that is not a log) is False."""
+    if not path.is_dir() or is_rosbag2_dir(path):
+        return False
+    # imported here: discovery stays light for the batch CLI's start; only directories pay for the readers
+    from slamobs.pipeline.readers.container import SPLIT_KINDS, detect_container
+
+    try:
+        return detect_container(path).kind in SPLIT_KINDS
+    except InputError:
+        return False
+
+
 def _is_glob(text: str) -> bool:
     return any(c in text for c in "*?[")
 
@@ -47,8 +63,9 @@ def _is_manifest(path: Path) -> bool:
 
 
 def _walk(root: Path) -> list[Path]:
-    """Logs under ``root``: .bag/.mcap/.db3 files and rosbag2 directories (not descended into, so their storage
-    files are not counted again; a directory without metadata.yaml is walked and its storage file found).
+    """Logs under ``root``: .bag/.mcap/.db3 files, rosbag2 directories and split recordings (directories whose files
+    are the ``NAME_N`` parts of one recording, :func:`is_split_recording`), neither descended into, so their files
+    are not counted again (a directory without metadata.yaml and one storage file is walked and that file found).
 
     Hidden names are skipped: they are other tools' temporary files (e.g. a log still being written).
     """
@@ -59,7 +76,7 @@ def _walk(root: Path) -> list[Path]:
         for d in sorted(dirs):
             if d.startswith("."):
                 continue
-            if is_rosbag2_dir(base / d):
+            if is_rosbag2_dir(base / d) or is_split_recording(base / d):
                 found.append(base / d)
             else:
                 descend.append(d)
@@ -106,7 +123,7 @@ def _expand(path: Path, config: Path | None, origin: str) -> list[LogEntry]:
         check_openable(path)
     except InputError as err:
         raise InputError(path, f"{origin}: {err.problem}") from None
-    if is_rosbag2_dir(path):
+    if is_rosbag2_dir(path) or is_split_recording(path):
         return [LogEntry(path, config)]
     if path.is_dir():
         return [LogEntry(p, config) for p in _walk(path)]
@@ -136,8 +153,8 @@ def discover(inputs: Sequence[str | Path]) -> list[LogEntry]:
             if not matches:
                 raise InputError(text, "pattern matches nothing")
             for m in map(Path, matches):
-                if is_rosbag2_dir(m.parent):
-                    m = m.parent  # a file inside a rosbag2 directory stands for that one log
+                if is_rosbag2_dir(m.parent) or (m.is_file() and is_split_recording(m.parent)):
+                    m = m.parent  # a file inside a rosbag2 directory (or a split recording) stands for that one log
                 if m.is_dir() or m.suffix.lower() in LOG_SUFFIXES + MANIFEST_SUFFIXES:
                     entries.extend(_expand(m, None, "input"))
         else:

@@ -53,6 +53,8 @@ if TYPE_CHECKING:
     from rosbags.interfaces import Connection
 
 Kind = str  # "rosbag2", "ros1-split" or "ros2-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
+#: the kinds of a directory without metadata.yaml whose files are the parts of one split recording (one log)
+SPLIT_KINDS: frozenset[Kind] = frozenset({"ros1-split", "ros2-split"})
 
 
 @dataclass(frozen=True)
