@@ -99,6 +99,12 @@ class OutputError(BadOutput, InputError):
     errors into one line handles it too."""
 
 
+class TruthUnusable(InputError, ValueError):
+    """A ground truth that names something but holds too little to judge a run by: no poses (every one NaN), or
+    pose pairs covering too little of the run. ``run`` then reports without it (a note, exit 0), and ``report`` on a
+    run's own truth does the same; a ValueError too, as the report's other failures are."""
+
+
 class GainError(BadConfig, ValueError):
     """A gain or observer option is unknown, missing, not a number, or outside its admissible range."""
 

@@ -35,7 +35,7 @@ from slamobs.pipeline.alignment import (
 )
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import GainError, InputError, machine_failure, one_line, resource_error
+from slamobs.pipeline.errors import GainError, InputError, TruthUnusable, machine_failure, one_line, resource_error
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
 from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
 from slamobs.pipeline.observers.base import ObserverDiverged
@@ -729,22 +729,31 @@ def evaluate_run(
     ``tables`` may hold the run's tables as written (else they are read from ``out``)."""
     report = report_error = None
     t = time.perf_counter()
-    if streams.truth is not None and len(streams.truth):
+    had_truth = streams.truth is not None and len(streams.truth)
+    unusable = False  # a truth too short to judge the run by: as none (the map error alone), with its note
+    if had_truth:
         progress("error report")
-        report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers, tables or {})
+        try:
+            report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers, tables or {})
+        except TruthUnusable as err:
+            report_error, unusable = one_line(err), True
         timings["report_s"] = time.perf_counter() - t
-    elif not streams.landmark_truth:
-        notes.append("no ground truth in the log: no error report (report.md and the figures show the estimate)")
-    else:
-        metadata["map_error"] = _map_error(out, streams.landmark_truth)
-        found = (
-            _map_error_words(metadata["map_error"])
-            if metadata["map_error"]
-            else " (fewer than three matched landmarks off one line: none computed)"
-        )
-        notes.append(
-            f"no trajectory truth: no trajectory error report; the map error against the landmark truth{found}"
-        )
+    if unusable or not had_truth:
+        why = f"no error report: {report_error}" if unusable else "no trajectory truth: no trajectory error report"
+        if not streams.landmark_truth:
+            notes.append(
+                why
+                if unusable
+                else "no ground truth in the log: no error report (report.md and the figures show the estimate)"
+            )
+        else:
+            metadata["map_error"] = _map_error(out, streams.landmark_truth)
+            found = (
+                _map_error_words(metadata["map_error"])
+                if metadata["map_error"]
+                else " (fewer than three matched landmarks off one line: none computed)"
+            )
+            notes.append(f"{why}; the map error against the landmark truth{found}")
     if report is not None:
         metadata["figures"] = list(report.get("figures") or [])
     elif config.evaluation.plots:
@@ -1003,6 +1012,8 @@ def _evaluate(
             raise
         for name in REPORT_FILES + RUN_FIGURES:  # a report that failed half way is removed
             (out / name).unlink(missing_ok=True)
+        if isinstance(err, TruthUnusable):  # the caller reports without it
+            raise
         reason = one_line(err) or type(err).__name__
         if not isinstance(err, ValueError):
             reason = f"{type(err).__name__}: {reason}"

@@ -32,6 +32,7 @@ EXPECTED = {
     ("pipeline.errors", "InputError"): BadInput,
     ("pipeline.errors", "OutputError"): BadOutput,
     ("pipeline.errors", "GainError"): BadConfig,
+    ("pipeline.errors", "TruthUnusable"): BadInput,
     ("pipeline.errors", "ResourceError"): ResourceFailure,
     ("pipeline.readers.storage", "DamagedError"): BadInput,
     ("pipeline.readers.storage", "TimeRangeError"): BadInput,

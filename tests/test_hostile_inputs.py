@@ -582,3 +582,45 @@ def test_a_run_without_landmarks_in_view_for_long_says_so():
     assert blind_note(vel, frames, everywhere, 0.5) == []
     middle = np.where((frames > 10e9) & (frames < 14e9), 0, 8)  # 4 s without: under the 5 s minimum
     assert blind_note(vel, frames, np.concatenate(([0], np.cumsum(middle))), 0.5) == []
+
+
+def _truth_of_first(sim, n: int):
+    """The simulated mocap truth cut to its first ``n`` poses."""
+    m = sim.mocap
+    size = len(m.t_ns)
+    return replace(m, **{k: v[:n] for k, v in vars(m).items() if isinstance(v, np.ndarray) and len(v) == size})
+
+
+def test_a_truth_covering_a_moment_of_the_run_gives_no_ape(sim, tmp_path, quick):
+    # 3 mocap poses over 10 ms of a 6 s run gave an APE of a few tenths of a millimetre (3 pairs, SE(3)-fitted on
+    # them) printed as the run's error: the truth is said too short, and the run has the map error alone
+    log = _write(sim, tmp_path / "short.bag", mocap=_truth_of_first(sim, 3))
+    res = invoke("run", log, "-o", tmp_path / "out", "--config", quick)
+    assert res.exit_code == 0, res.output
+    assert "APE " not in res.output and not (tmp_path / "out" / "report.json").exists()
+    meta = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert meta["report_error"] == (
+        "/mocap/pose: the truth covers too little of the run to judge it: 3 pose pairs over 0.010 s of the "
+        "estimate's 5.970 s (a report needs at least 10 pairs spanning at least 10% of the run); no APE"
+    )
+    assert meta["map_error"]["n_matched"] > 3
+    assert any(n.startswith(f"no error report: {meta['report_error']}; the map error") for n in meta["notes"])
+
+
+def test_the_truth_coverage_threshold():
+    from slamobs.pipeline.errors import TruthUnusable
+    from slamobs.pipeline.evaluation.trajectory_evaluation import MIN_TRUTH_PAIRS, check_truth_coverage
+    from slamobs.pipeline.evaluation.trajectory_error import Paired
+
+    def paired(t_s):
+        t = np.asarray(t_s, float)
+        t_ns = (t * NS).astype(np.int64)
+        pos = np.zeros((t.size, 3))
+        return Paired(t_ns, t_ns, pos, None, pos, None, None, None, "nearest", "reference", t.size, t.size)
+
+    est = type("Est", (), {"t_ns": np.array([0, 100 * NS])})()
+    check_truth_coverage(paired(np.linspace(0, 10, MIN_TRUTH_PAIRS)), est)  # 10 pairs over 10 % of 100 s: judged
+    with pytest.raises(TruthUnusable, match=r"9 pose pairs over 10\.000 s of the estimate's 100\.000 s"):
+        check_truth_coverage(paired(np.linspace(0, 10, MIN_TRUTH_PAIRS - 1)), est)
+    with pytest.raises(TruthUnusable, match=r"1000 pose pairs over 9\.900 s"):
+        check_truth_coverage(paired(np.linspace(0, 9.9, 1000)), est)

@@ -396,7 +396,10 @@ SUMMARY_MEANING = {
 def summary_markdown(info: dict[str, Any], figures: list[str], notes: list[str] = ()) -> str:
     """report.md of a run without truth: what the run did and its figures (no error numbers: no truth)."""
     lines = ["# Run summary (no ground truth)", ""]
-    lines.append("The log has no ground truth, so there are no error numbers; the figures show the estimate.")
+    lines.append(
+        "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes say"
+        " which), so there are no error numbers; the figures show the estimate."
+    )
     lines.append("Give truth with `slamobs report RUN --truth ...` for the error report.")
     lines += ["", "| quantity | value | meaning |", "|---|---|---|"]
     for key, value in info.items():

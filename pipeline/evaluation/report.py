@@ -168,7 +168,8 @@ def evaluate_tables(
 
     else:
         on_pairs = None
-    ev = evaluate_trajectory(poses, truth, options, checked=True, on_pairs=on_pairs)  # ``ev.estimate`` holds all
+    # ``ev.estimate`` holds all; judged: a truth too short to judge the run by is TruthUnusable
+    ev = evaluate_trajectory(poses, truth, options, checked=True, judged=True, on_pairs=on_pairs)
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)

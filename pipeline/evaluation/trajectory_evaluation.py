@@ -33,6 +33,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     checked_time_offset,
     synchronize,
 )
+from slamobs.pipeline.errors import TruthUnusable
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
@@ -75,6 +76,30 @@ class ReportOptions:
             raise ValueError("t_max_diff_s must be >= 0, convergence_threshold_m and rpe_delta_m > 0")
         if not 0 < self.bias_window_fraction <= 1:
             raise ValueError(f"bias_window_fraction must be in (0, 1], got {self.bias_window_fraction}")
+
+
+#: The least truth a report judges a run by: this many associated pose pairs, spanning at least this fraction of the
+#: estimate's time span. Less (3 poses over 40 ms of a 30 s run) and the APE is a number about a moment, fitted
+#: on a few points, not about the run: the report says so instead of printing it.
+MIN_TRUTH_PAIRS = 10
+MIN_TRUTH_SPAN = 0.1
+
+
+def check_truth_coverage(paired: Paired, est: PoseStream, truth: str = "truth") -> None:
+    """:class:`~slamobs.pipeline.errors.TruthUnusable` (a ValueError) naming how little of the run the truth covers
+    when it is less than :data:`MIN_TRUTH_PAIRS` pairs or spans less than :data:`MIN_TRUTH_SPAN` of the estimate's
+    time span (poses paired by index: the count only)."""
+    n = len(paired)
+    run_s = float(est.t_ns[-1] - est.t_ns[0]) / 1e9
+    span_s = None if paired.t_est_ns is None else float(np.ptp(paired.t_est_ns)) / 1e9
+    if n >= MIN_TRUTH_PAIRS and (span_s is None or span_s >= MIN_TRUTH_SPAN * run_s):
+        return
+    over = "" if span_s is None else f" over {span_s:.3f} s of the estimate's {run_s:.3f} s"
+    raise TruthUnusable(
+        truth,
+        f"the truth covers too little of the run to judge it: {n} pose pairs{over} (a report needs at least "
+        f"{MIN_TRUTH_PAIRS} pairs spanning at least {MIN_TRUTH_SPAN:.0%} of the run); no APE",
+    )
 
 
 def estimate_stream(poses: Table) -> PoseStream:
@@ -152,11 +177,14 @@ def evaluate_trajectory(
     *,
     estimate_offset: bool = True,
     checked: bool = False,
+    judged: bool = False,
     on_pairs: Callable[[Paired, PoseStream], None] | None = None,
 ) -> TrajectoryEvaluation:
     """Estimate the clock offset, associate, align and compute the APE vectors. ``checked``: ``truth`` is what
-    :func:`valid_truth` returned (not looked through again). ``on_pairs(paired, truth)`` is called as soon as the
-    trajectories are paired (the truth in time order), before the alignment and the APE."""
+    :func:`valid_truth` returned (not looked through again). ``judged``: the run is judged by this truth (the
+    report), which must cover enough of it (:func:`check_truth_coverage`, before anything else is computed).
+    ``on_pairs(paired, truth)`` is called as soon as the trajectories are paired (the truth in time order), before
+    the alignment and the APE."""
     if not checked:
         truth, _ = valid_truth(truth)
     if len(truth) == 0:
@@ -178,6 +206,8 @@ def evaluate_trajectory(
         applied = float(options.t_offset_s)
     sync = SyncOptions(options.t_max_diff_s, applied, "nearest")
     paired = synchronize(truth_sorted, est, sync, ref_label="truth")
+    if judged:
+        check_truth_coverage(paired, est, truth_sorted.topic or "truth")
     if on_pairs is not None:
         on_pairs(paired, truth_sorted)
     al_opts = AlignOptions(options.align)
