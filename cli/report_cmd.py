@@ -95,11 +95,9 @@ def report(
     quiet: bool,
 ) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically.
-    Without truth (the run had none and no --truth): the run's figures and a summary in report.md."""
-    from slamobs.pipeline.batch.rereport import dataset_report
-    from slamobs.pipeline.errors import InputError
-    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
-    from slamobs.pipeline.evaluation.run_dir import options_for_run, report_run, run_meta
+    Without truth (the run had none and no --truth), or when the run's own truth cannot judge it (no poses, too
+    short: as ``slamobs run`` reported): the run's figures and a summary in report.md."""
+    from slamobs.pipeline.errors import TruthUnusable
 
     given = {
         "t_max_diff_s": t_max_diff,
@@ -114,6 +112,29 @@ def report(
     if truth is None and not _summarised(run_dir, as_json, quiet):  # a run without truth: its figures
         return
     try:
+        rep, written = _reported(run_dir, truth, export, given, quiet)
+    except TruthUnusable as err:
+        if truth is not None:  # a truth asked for by name that cannot judge the run: that is the answer
+            exit_input_error(str(err))
+        _summarised(run_dir, as_json, quiet, unusable=str(err))  # the run's own truth: as `slamobs run` reported
+        return
+    if quiet:
+        return
+    if as_json:
+        click.echo(json.dumps(rep, indent=2, sort_keys=True))
+        return
+    _summary(rep, written)
+
+
+def _reported(run_dir: Path, truth: str | None, export, given: dict, quiet: bool) -> tuple[dict, list[Path]]:
+    """The run's report against ``truth`` (None: the run's own) with the options given over the run's; a truth
+    that cannot judge the run raises TruthUnusable, every other input error ends the command (exit 2)."""
+    from slamobs.pipeline.batch.rereport import dataset_report
+    from slamobs.pipeline.errors import InputError, TruthUnusable
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
+    from slamobs.pipeline.evaluation.run_dir import options_for_run, report_run, run_meta
+
+    try:
         meta = run_meta(run_dir)
         base = {k: v for k, v in _previous_options(run_dir).items() if k in ReportOptions.__dataclass_fields__}
         for key in ("drift_lengths_m", "truth_rotation_xyzw"):
@@ -124,25 +145,22 @@ def report(
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
             progress("report: evaluating and drawing the figures")
             with dataset_report(run_dir):  # a batch run: its rows in the dataset follow the new report
-                rep, written = report_run(run_dir, truth, options, exports=export)
+                return report_run(run_dir, truth, options, exports=export)
+    except TruthUnusable:
+        raise
     except (InputError, ValueError) as err:
         exit_input_error(str(err))
-    if quiet:
-        return
-    if as_json:
-        click.echo(json.dumps(rep, indent=2, sort_keys=True))
-        return
-    _summary(rep, written)
 
 
-def _summarised(run_dir: Path, as_json: bool, quiet: bool) -> bool:
-    """A run without truth is summarised and drawn (False: done); True when the run has truth to report on."""
+def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None = None) -> bool:
+    """A run without truth is summarised and drawn (False: done); True when the run has truth to report on.
+    ``unusable``: why the run's truth cannot judge it (no poses, too short): summarised as without truth."""
     from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.run_dir import has_truth, run_meta, summarise_run
 
     try:
-        if has_truth(run_meta(run_dir)):
+        if unusable is None and has_truth(run_meta(run_dir)):
             return True
         with Progress(quiet) as progress, dataset_report(run_dir):
             progress("report: drawing the run's figures (no truth: no error report)")
@@ -152,7 +170,11 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool) -> bool:
     if as_json:
         click.echo(json.dumps(info, indent=2, sort_keys=True))
     elif not quiet:
-        click.echo("truth        none: the run's figures and summary only (give --truth for the error report)")
+        click.echo(
+            f"truth        unusable ({unusable}): the run's figures and summary only"
+            if unusable
+            else "truth        none: the run's figures and summary only (give --truth for the error report)"
+        )
         extent = " x ".join(f"{v:.3g}" for v in info.get("extent_m", []))
         click.echo(
             f"estimate     {info['n_poses']} poses over {info.get('duration_s', 0):.1f} s, path "

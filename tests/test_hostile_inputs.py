@@ -624,3 +624,23 @@ def test_the_truth_coverage_threshold():
         check_truth_coverage(paired(np.linspace(0, 10, MIN_TRUTH_PAIRS - 1)), est)
     with pytest.raises(TruthUnusable, match=r"1000 pose pairs over 9\.900 s"):
         check_truth_coverage(paired(np.linspace(0, 9.9, 1000)), est)
+
+
+@pytest.mark.parametrize("kept", [0, 3], ids=["all-nan", "3-poses"])
+def test_report_on_a_run_whose_truth_cannot_judge_it_does_what_the_run_did(sim, tmp_path, quick, kept):
+    # `slamobs run` on a log whose truth is all NaN (or 3 poses over 10 ms) exits 0 with the map error alone;
+    # `slamobs report` of that run exited 2 ('no truth poses', 'no report: ...')
+    mocap = (
+        _truth_of_first(sim, kept) if kept else replace(sim.mocap, position=np.full_like(sim.mocap.position, np.nan))
+    )
+    log, out = _write(sim, tmp_path / "t.bag", mocap=mocap), tmp_path / "out"
+    assert invoke("run", log, "-o", out, "--config", quick).exit_code == 0
+    map_error = json.loads((out / "run.json").read_text())["map_error"]
+    res = invoke("report", out)
+    assert res.exit_code == 0, res.output
+    why = "no truth poses (/mocap/pose: 600 NaN/Inf samples dropped)" if not kept else "3 pose pairs over 0.010 s"
+    assert res.output.startswith("truth        unusable (") and why in res.output.splitlines()[0]
+    assert "error numbers" in (out / "report.md").read_text() and not (out / "report.json").exists()
+    assert json.loads((out / "run.json").read_text())["map_error"] == map_error
+    # a truth asked for by name that cannot judge the run is still the one-line error
+    one_line_error(invoke("report", out, "--truth", "/mocap/pose"), "no truth poses" if not kept else "3 pose pairs")

@@ -21,7 +21,7 @@ import numpy as np
 
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.alignment import TimeWindow
-from slamobs.pipeline.errors import InputError, OutputError
+from slamobs.pipeline.errors import InputError, OutputError, TruthUnusable
 from slamobs.pipeline.paths import check_utf8, read_manifest
 from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
@@ -310,6 +310,8 @@ def report_run(
         report, evaluation = evaluate_report(
             run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth, ti.bias_truth, options=options
         )
+    except TruthUnusable:
+        raise  # the caller may report as without truth, as ``run`` did
     except ValueError as err:
         raise InputError(run.path, f"no report: {err}") from None
     report["truth_source"] = ti.source

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, TruthUnusable
 from slamobs.pipeline.streams import LogStreams, PoseStream, Vec3Stream
 from slamobs.pipeline.vision.detector import TagDetector
 
@@ -407,7 +407,8 @@ def read_truth(
     ``LOG:parent->child``, or a topic or TF edge of ``log`` (the run's log; ``clocks`` its per-topic clocks).
 
     Raises:
-        InputError: The specification matches nothing, or what it names holds no poses.
+        InputError: The specification matches nothing; :class:`~slamobs.pipeline.errors.TruthUnusable` when what it
+            names holds no poses (e.g. every one NaN).
 
     """
     spec = parse_truth(source) if fmt in (None, "topic") else TruthSpec("file", str(source))
@@ -425,7 +426,7 @@ def read_truth(
     )
     if streams.truth is None or len(streams.truth) == 0:
         why = [w for w in streams.warnings if w.startswith(f"{spec.name}:")]  # e.g. every pose NaN
-        raise InputError(where, "no truth poses" + (f" ({'; '.join(why)})" if why else ""), spec.name)
+        raise TruthUnusable(where, "no truth poses" + (f" ({'; '.join(why)})" if why else ""), spec.name)
     return Trajectory(streams.truth, "tf_edge" if spec.kind == "edge" else "topic", str(source))
 
 
