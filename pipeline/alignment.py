@@ -36,6 +36,7 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks, row_norms3, unique_inverse
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
+from slamobs.pipeline.readers.decode import CLOCK_STEP_NS
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -340,6 +341,7 @@ def align(
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
+    _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
     dropped = tuple(w for w in streams.warnings if "NaN/Inf static transform" in w)
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
@@ -512,6 +514,33 @@ def _not_one_time(path, t: np.ndarray, name: str, what: str, stream) -> None:
     else:
         hint = "its record times do not advance either: the log carries no usable time for it"
     raise InputError(path, f"{name}: all {t.shape[0]} {what} have the same time ({when}) on its {clock}; {hint}")
+
+
+def _no_clock_reset(path, time_source: str, *streams: tuple[Vec3Stream, str]) -> None:
+    """A velocity stream whose header clock was reset during the recording (stamps that go back, by at least
+    ``CLOCK_STEP_NS``, to before the stream's first one: a clock set back to ~0) is one line pointing to record
+    time: ordered by header stamps, the recording's later part would run first, its earlier part after a gap of
+    the whole reset (two segments in reversed order). A step back that stays within the stream's span (a clock set
+    back 1 s) is the readers' out-of-order note. Record times (``time.source: record``, or the topic's
+    ``time.topics``) are not looked at. O(n), no sort: by stamp, the first sample is then not the first recorded,
+    and at least two samples lie before the stamps of the clock's first run."""
+    if time_source == "record":
+        return
+    for stream, what in streams:
+        t, rec = stream.t_ns, stream.rec_ns
+        if t.shape[0] < 2 or t is rec or int(rec[0]) - int(rec.min()) < CLOCK_STEP_NS:
+            continue
+        before = rec < rec[0]  # recorded before the earliest stamp was: the clock's first run
+        if np.count_nonzero(t < t[before].min()) < 2:  # one stray stamp (a lone 0) is no reset
+            continue
+        t0 = int(rec.min())
+        raise InputError(
+            path,
+            f"{what} ({stream.topic}): its header clock was reset {(int(rec[0]) - t0) * 1e-9:.3f} s into the "
+            f"recording (the stamps go back from {int(t[before].max()) * 1e-9:.3f} s to {int(t[0]) * 1e-9:.3f} s): "
+            "ordered by header stamps the recording's later part would run first; set time.source: record "
+            f"(or time.topics: {{{stream.topic}: record}})",
+        )
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):

@@ -644,3 +644,31 @@ def test_report_on_a_run_whose_truth_cannot_judge_it_does_what_the_run_did(sim, 
     assert json.loads((out / "run.json").read_text())["map_error"] == map_error
     # a truth asked for by name that cannot judge the run is still the one-line error
     one_line_error(invoke("report", out, "--truth", "/mocap/pose"), "no truth poses" if not kept else "3 pose pairs")
+
+
+def _clock_reset(stream, at_s: float):
+    """``stream`` as the readers give it after its header clock was set back to ~1 s ``at_s`` into the recording:
+    re-sorted by stamp, record times kept."""
+    t = stream.t_ns.copy()
+    later = stream.rec_ns >= stream.rec_ns[0] + int(at_s * NS)
+    t[later] -= int(t[later][0]) - NS
+    order = np.argsort(t, kind="stable")
+    return replace(stream, t_ns=t[order], rec_ns=stream.rec_ns.copy()[order], xyz=stream.xyz[order])
+
+
+def test_a_header_clock_reset_mid_log_is_one_line_pointing_to_record_time(sim):
+    # circle.bag with every header stamp set back to ~1 s from 15 s on ran as two segments in reversed order (the
+    # later half first, a 1.7e9 s gap note, then the first half); record time runs it in recording order
+    streams = expected_streams(sim, "reset.bag")
+    reset = replace(
+        streams,
+        angular_velocity=_clock_reset(streams.angular_velocity, 3.0),
+        linear_velocity=_clock_reset(streams.linear_velocity, 3.0),
+    )
+    with pytest.raises(
+        InputError, match=r"angular velocity \(/imu/data\): its header clock was reset 3\.009 s into"
+    ) as e:
+        align(reset)
+    assert str(e.value).endswith("set time.source: record (or time.topics: {/imu/data: record})")
+    on_record = align(reset, time_source="record")
+    assert on_record.segment_starts.size == 0 and on_record.vel_t_ns[-1] - on_record.vel_t_ns[0] > 5.9 * NS
