@@ -8,6 +8,9 @@ so on such systems a worker may finish its current stretch first; on Linux the s
 The binding happens while the new process unpickles its start-up arguments (:class:`BindOnArrival` comes
 first), before the heavy imports that follow, so even a worker still starting dies with its batch. This
 module therefore imports nothing heavy at its top.
+
+Temporaries that a killed process leaves (a run's output directory, a WAL recording's copy) carry an owner marker
+(:func:`owner_marker`); the next process removes them once :func:`owner_alive` says their owner is gone.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from __future__ import annotations
 import ctypes
 import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -68,3 +72,38 @@ def bind_to_parent(parent_pid: int) -> None:
     if os.getppid() != parent_pid:
         os._exit(ORPHANED)
     watch(lambda: os.getppid() == parent_pid)
+
+
+# --------------------------------------------------------------------------- owners of temporaries
+
+
+def start_time(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot, Linux ``/proc``), to tell a reused pid apart."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[19].decode()
+    except (OSError, IndexError):
+        return None
+
+
+def owner_marker() -> dict:
+    """Who made a temporary file or directory: this process (pid, host, start time), for :func:`owner_alive`."""
+    return {"pid": os.getpid(), "host": socket.gethostname(), "start": start_time(os.getpid())}
+
+
+def owner_alive(owner: dict) -> bool:
+    """Whether the process that made a temporary file or directory (its :func:`owner_marker`) may still be using
+    it (other hosts: assume so)."""
+    if owner.get("host") != socket.gethostname():
+        return True
+    pid = int(owner.get("pid", -1))
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        pass  # another user's live process
+    start = owner.get("start")
+    return start is None or start_time(pid) in (None, start)

@@ -20,7 +20,6 @@ import json
 import os
 import queue
 import shutil
-import socket
 import sys
 import tempfile
 import threading
@@ -36,6 +35,7 @@ import pyarrow.parquet as pq
 
 from slamobs.pipeline.blocks import unique_inverse
 from slamobs.pipeline.errors import OutputError, output_error
+from slamobs.pipeline.lifetime import owner_alive, owner_marker
 from slamobs.pipeline.paths import (
     MANIFEST,
     WRITER,
@@ -605,36 +605,6 @@ def _json_default(o):
 OWNER, NEW, OLD, COMPLETE = "slamobs-owner.json", "run", "old", "complete"
 
 
-def _start_time(pid: int) -> str | None:
-    """When process ``pid`` started (clock ticks since boot, Linux ``/proc``), to tell a reused pid apart."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            return f.read().rsplit(b")", 1)[1].split()[19].decode()
-    except (OSError, IndexError):
-        return None
-
-
-def _owner() -> dict:
-    return {"pid": os.getpid(), "host": socket.gethostname(), "start": _start_time(os.getpid())}
-
-
-def _alive(owner: dict) -> bool:
-    """Whether the run that made a temporary directory may still be writing it (other hosts: assume so)."""
-    if owner.get("host") != socket.gethostname():
-        return True
-    pid = int(owner.get("pid", -1))
-    if pid <= 0:
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        pass  # another user's live process
-    start = owner.get("start")
-    return start is None or _start_time(pid) in (None, start)
-
-
 #: ``renameat2`` flags: fail if the target exists / swap the two paths.
 RENAME_NOREPLACE, RENAME_EXCHANGE = 1, 2
 
@@ -874,7 +844,7 @@ def remove_stale_temporaries(parent: Path) -> list[str]:
             if not entry.is_dir(follow_symlinks=False):
                 continue
             owner = json.loads((Path(entry.path) / OWNER).read_text())
-            if not isinstance(owner, dict) or _alive(owner):
+            if not isinstance(owner, dict) or owner_alive(owner):
                 continue
             _finish(Path(entry.path), owner)
         except (OSError, ValueError):
@@ -907,7 +877,13 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
             tmp = container / NEW
             try:
                 tmp.mkdir()
-                owner = {**_owner(), "final": final.name, "new": identity(tmp), "expected": expected, "force": force}
+                owner = {
+                    **owner_marker(),
+                    "final": final.name,
+                    "new": identity(tmp),
+                    "expected": expected,
+                    "force": force,
+                }
                 write_json(container / OWNER, owner)
             except OSError:
                 shutil.rmtree(container, ignore_errors=True)

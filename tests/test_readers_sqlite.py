@@ -7,8 +7,10 @@ thread running; a database that SQLite finds malformed while a window is read st
 
 from __future__ import annotations
 
+import json
 import shutil
 import sqlite3
+import tempfile
 import struct
 import threading
 from pathlib import Path
@@ -275,10 +277,8 @@ def test_a_damaged_tree_is_not_walked(logs, tmp_path, child):
         assert table is None
 
 
-def test_a_recording_in_wal_mode_that_was_not_closed_is_read_whole(logs, tmp_path):
-    # rosbag2's 'resilient' preset writes in WAL mode: a crashed recording leaves the latest messages in its -wal
-    # file, which rosbags' immutable open did not read (half the messages were lost without a word)
-    src = next(logs[0].glob("*.db3"))
+def _wal_crash(src: Path, tmp_path: Path) -> Path:
+    """A copy of ``src`` as a crashed recording in WAL mode leaves it: its later half still in the -wal file."""
     work = tmp_path / "work" / src.name
     work.parent.mkdir()
     shutil.copyfile(src, work)
@@ -297,6 +297,14 @@ def test_a_recording_in_wal_mode_that_was_not_closed_is_read_whole(logs, tmp_pat
     for suffix in ("", "-wal"):
         shutil.copyfile(f"{work}{suffix}", crashed / f"{src.name}{suffix}")
     con.close()
+    return crashed
+
+
+def test_a_recording_in_wal_mode_that_was_not_closed_is_read_whole(logs, tmp_path):
+    # rosbag2's 'resilient' preset writes in WAL mode: a crashed recording leaves the latest messages in its -wal
+    # file, which rosbags' immutable open did not read (half the messages were lost without a word)
+    src = next(logs[0].glob("*.db3"))
+    crashed = _wal_crash(src, tmp_path)
     before = {p.name: p.read_bytes() for p in crashed.iterdir()}
     _assert_same_bits(_rows(crashed / src.name), _rows(src))
     got = read_log(crashed / src.name)
@@ -305,3 +313,27 @@ def test_a_recording_in_wal_mode_that_was_not_closed_is_read_whole(logs, tmp_pat
         for w in got.warnings
     )
     assert {p.name: p.read_bytes() for p in crashed.iterdir()} == before  # the log itself is never written
+
+
+def test_a_wal_copy_left_by_a_killed_reader_is_removed_by_the_next(logs, tmp_path, monkeypatch):
+    # the copy a WAL recording is read from lives in the temporary directory; a SIGKILL left it there (as large as
+    # the recording), and every later kill left one more
+    from slamobs.pipeline.lifetime import owner_marker
+
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))
+    src = next(logs[0].glob("*.db3"))
+    crashed = _wal_crash(src, tmp_path)
+    markers = {
+        "slamobs-wal-killed": {**owner_marker(), "start": "0"},  # this pid, another start time: a dead process
+        "slamobs-wal-live": owner_marker(),  # a reader still running (this process)
+        "slamobs-wal-unmarked": None,  # not known to be ours
+    }
+    for name, owner in markers.items():
+        (temp / name).mkdir()
+        (temp / name / "copy.db3").write_bytes(b"x" * 1000)
+        if owner is not None:
+            (temp / name / rosbag2_sqlite.COPY_OWNER).write_text(json.dumps(owner))
+    read_log(crashed / src.name)
+    assert sorted(p.name for p in temp.iterdir()) == ["slamobs-wal-live", "slamobs-wal-unmarked"]  # its own: gone

@@ -8,6 +8,7 @@ where those are not read directly, by SQLite in windows of row ids.
 
 from __future__ import annotations
 
+import json
 import shutil
 import sqlite3
 import tempfile
@@ -17,6 +18,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
+
+from slamobs.pipeline.lifetime import owner_alive, owner_marker
 
 from . import sqlitefile, storage
 from .storage import ConnIds, RawBatch, joined, read_ahead
@@ -41,6 +44,27 @@ THREAD = "slamobs-sqlite-reader"  # the read-ahead thread's name
 
 #: A write-ahead log longer than its header holds frames (SQLite's WAL header is 32 bytes).
 WAL_HEADER = 32
+#: The temporary directory holding a WAL recording's checkpointed copy (in the system's temporary directory), and
+#: the marker naming the process that made it (:func:`remove_stale_copies`).
+COPY_PREFIX, COPY_OWNER = "slamobs-wal-", "slamobs-owner.json"
+
+
+def remove_stale_copies(root: str | Path | None = None) -> list[str]:
+    """Remove the WAL copies that killed readers left in ``root`` (default: the system's temporary directory; a
+    SIGKILL runs no cleanup, and a copy is as large as the recording); returns their names. Only directories named
+    ``slamobs-wal-*`` holding an owner marker whose process is no longer running are touched: a live reader's copy,
+    and anything without the marker, are left alone."""
+    removed = []
+    for d in Path(root or tempfile.gettempdir()).glob(f"{COPY_PREFIX}*"):
+        try:
+            owner = json.loads((d / COPY_OWNER).read_text())
+            if not isinstance(owner, dict) or owner_alive(owner):
+                continue
+        except (OSError, ValueError):
+            continue  # no marker (not ours, or one being made), or unreadable
+        shutil.rmtree(d, ignore_errors=True)
+        removed.append(d.name)
+    return removed
 
 
 class Sqlite3Storage(Sqlite3Reader):
@@ -48,7 +72,8 @@ class Sqlite3Storage(Sqlite3Reader):
 
     rosbags opens the database ``immutable``: of a recording in WAL mode (rosbag2's ``resilient`` storage preset)
     that was not closed, the messages still in its ``-wal`` file would not be read. Such a file is applied to a
-    temporary copy of the database, which is read instead (the log itself is never written)."""
+    temporary copy of the database, which is read instead (the log itself is never written); a copy that a killed
+    reader left behind is removed by the next one (:func:`remove_stale_copies`)."""
 
     _copy: tempfile.TemporaryDirectory | None = None
     _wal_note: str = ""
@@ -57,7 +82,9 @@ class Sqlite3Storage(Sqlite3Reader):
         """Open the database, or a copy with its write-ahead log applied."""
         wal = Path(f"{self.path}-wal") if isinstance(self.path, Path) else None
         if wal is not None and wal.is_file() and wal.stat().st_size > WAL_HEADER:
-            self._copy = tempfile.TemporaryDirectory(prefix="slamobs-wal-")
+            remove_stale_copies()
+            self._copy = tempfile.TemporaryDirectory(prefix=COPY_PREFIX)
+            (Path(self._copy.name) / COPY_OWNER).write_text(json.dumps(owner_marker()))  # before the copy
             original, self.path = self.path, _checkpointed(self.path, wal, Path(self._copy.name))
             self._wal_note = (
                 f"{original.name}: a recording in WAL mode that was not closed: its {wal.name} "
