@@ -672,3 +672,20 @@ def test_a_header_clock_reset_mid_log_is_one_line_pointing_to_record_time(sim):
     assert str(e.value).endswith("set time.source: record (or time.topics: {/imu/data: record})")
     on_record = align(reset, time_source="record")
     assert on_record.segment_starts.size == 0 and on_record.vel_t_ns[-1] - on_record.vel_t_ns[0] > 5.9 * NS
+
+
+def test_info_names_the_angular_velocity_run_takes_for_an_imu_that_does_not_fill_its_gyro(sim, tmp_path):
+    # info's roles, readiness and run.yaml named the IMU whose angular_velocity is all zero, while run takes the
+    # odometry's (and the run.yaml info printed, naming the IMU, would have made run keep the zeros)
+    from slamobs.pipeline.readers import inspect_log
+    from slamobs.pipeline.readiness import readiness
+
+    log = _write(sim, tmp_path / "zero.bag", imu=replace(sim.imu, gyro=np.zeros_like(sim.imu.gyro)))
+    got = inspect_log(log)
+    assert got.roles["angular_velocity"] == "/odom" == read_log(log).angular_velocity.topic
+    assert got.roles["accel"] == TOPIC_IMU
+    assert f"{TOPIC_IMU}: every angular velocity of its first 50 messages is zero (not measured)" in "\n".join(
+        got.warnings
+    )
+    assert 'angular_velocity: "/odom"' in readiness(got).run_yaml
+    assert inspect_log(_write(sim, tmp_path / "measured.bag")).roles["angular_velocity"] == TOPIC_IMU

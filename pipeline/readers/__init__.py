@@ -27,6 +27,8 @@ from .decode import (
     decode_topics,
     detection_stream,
     decode_tf,
+    gyro_not_filled,
+    has_angular_velocity,
     pose_stream,
     static_transforms,
     tag_detections,
@@ -209,9 +211,9 @@ def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, 
     """An angular velocity that is all zero (an IMU that does not fill the field) replaced by the angular velocity
     of the linear-velocity topic (odometry, a twist) when that one holds some; the IMU's cleaning is noted here."""
     other = selection.roles.get("linear_velocity")
-    if len(stream) < 2 or stream.xyz.any() or other is None or other == topic or other not in rows:
+    if not gyro_not_filled(stream.xyz) or other is None or other == topic or other not in rows:
         return stream, cleaning
-    if ("angular_velocity", table[other][0].msgtype) not in VEC3_ROLES:
+    if not has_angular_velocity(table[other][0].msgtype):
         return stream, cleaning
     found, found_cleaning = vec3_stream(rows[other], "angular_velocity")
     if not found.xyz.any():

@@ -59,6 +59,31 @@ VEC3_ROLES: dict[tuple[str, str], tuple[str, str]] = {
 }
 
 
+def gyro_not_filled(xyz: np.ndarray) -> bool:
+    """Whether angular velocities ``xyz`` (N, 3) are those of an IMU that does not fill the field: every one exactly
+    zero (a still IMU measures noise, never 0.0 on three axes). The linear-velocity topic's own angular velocity then
+    stands in, when its type has one (:func:`has_angular_velocity`) and it is not all zero too."""
+    return xyz.shape[0] >= 2 and not xyz.any()
+
+
+def has_angular_velocity(msgtype: str) -> bool:
+    """Whether messages of ``msgtype`` carry an angular velocity the readers read (odometry, twists, IMU)."""
+    return ("angular_velocity", msgtype) in VEC3_ROLES
+
+
+def first_vectors(reader: AnyReader, conns: Collection[Connection], msgtype: str, role: str, n: int) -> np.ndarray:
+    """The ``role`` vectors (:data:`VEC3_ROLES`) of the first ``n`` messages of a topic, (≤ n, 3): a look at a few
+    samples (``slamobs info``) without decoding the whole topic."""
+    layout = LAYOUTS[msgtype]
+    cols = layout.columns[VEC3_ROLES[role, msgtype][0]]
+    out = []
+    for _, _, raw in reader.messages(connections=list(conns)):
+        out.append(layout.row(reader.deserialize(raw, msgtype))[cols])
+        if len(out) >= n:
+            break
+    return np.asarray(out, np.float64).reshape(-1, 3)
+
+
 #: A step back of the stamps at least this long (ns) is named in the out-of-order note: a clock set back.
 CLOCK_STEP_NS = 500_000_000
 

@@ -27,7 +27,7 @@ from slamobs.pipeline.errors import plural
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import has_header, mean_rate
+from .decode import first_vectors, gyro_not_filled, has_angular_velocity, has_header, mean_rate
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ROLES, select_roles, topics_of
@@ -350,6 +350,31 @@ def _problems(t: TopicSummary) -> list[str]:
     return problems
 
 
+#: Messages ``info`` reads of the angular-velocity topic (and of the linear-velocity one) to tell an IMU that does not
+#: fill its gyro; ``run`` reads them all (an IMU all zero in its first 50 messages and measuring later is named by
+#: ``run``: the config's topics.angular_velocity then keeps it)
+GYRO_PROBE = 50
+
+
+def _gyro_source(reader, table: dict, roles: dict[str, str]) -> tuple[dict[str, str], list[str]]:
+    """The roles with the angular velocity ``run`` will take: the linear-velocity topic's when the detected one reads
+    zero in its first :data:`GYRO_PROBE` messages (``decode.gyro_not_filled``, the readers' rule) and that one's
+    does not; with a warning saying so."""
+    gyro, other = roles.get("angular_velocity"), roles.get("linear_velocity")
+    if gyro is None or other is None or gyro == other or not has_angular_velocity(table[other][0].msgtype):
+        return roles, []
+    (meta, conns), (other_meta, other_conns) = table[gyro], table[other]
+    seen = first_vectors(reader, conns, meta.msgtype, "angular_velocity", GYRO_PROBE)
+    if not gyro_not_filled(seen):
+        return roles, []
+    if not first_vectors(reader, other_conns, other_meta.msgtype, "angular_velocity", GYRO_PROBE).any():
+        return roles, []
+    return {**roles, "angular_velocity": other}, [
+        f"{gyro}: every angular velocity of its first {len(seen)} messages is zero (not measured): the angular "
+        f"velocity is {other}'s, as run takes it when all are zero (topics.angular_velocity chooses one)"
+    ]
+
+
 def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
     """Summarise a log: container, time span, per-topic type/count/frames/stamps/clocks, detected roles.
 
@@ -366,10 +391,11 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         table = topics_of(reader)
         selection = select_roles({t: m for t, (m, _) in table.items()}, None, path)
         columns = _scan(reader, path, table)
+        gyro_roles, gyro_notes = _gyro_source(reader, table, selection.roles)
         count = reader.message_count
         start = reader.start_time if count else None
         end = reader.end_time - 1 if count else None
-        warnings = [*damage_notes(reader), *selection.warnings]
+        warnings = [*damage_notes(reader), *selection.warnings, *gyro_notes]
         notes = {}
         for topic, (meta, _) in table.items():
             if meta.msgtype not in reader.typestore.fielddefs:
@@ -415,7 +441,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         end,
         count,
         topics,
-        {**selection.roles, **{r: ", ".join(t) for r, t in selection.multi.items()}},
+        {**gyro_roles, **{r: ", ".join(t) for r, t in selection.multi.items()}},
         tuple(warnings),
         record_clock,
         reference,
