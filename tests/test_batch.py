@@ -101,18 +101,22 @@ def test_discover_takes_a_split_recording_as_one_log_as_run_does(tmp_path):
     not closed, or a split ROS1 recording) is one log to ``run``: batch took each part as a log of its own."""
     heads = {".db3": b"SQLite format 3\x00", ".mcap": b"\x89MCAP0\r\n", ".bag": b"#ROSBAG V2.0\n"}
     x = tmp_path / "x"
-    for folder, names in {"crashed": ("rec_0.db3", "rec_1.db3"), "m": ("m_0.mcap", "m_1.mcap", "m_2.mcap"),
-                          "split": ("run_1.bag", "run_0.bag"), "mixed": ("a_0.db3", "b_0.db3")}.items():  # fmt: skip
+    for folder, names in {"crashed": ("crashed_0.db3", "crashed_1.db3"), "m": ("m_0.mcap", "m_1.mcap", "m_2.mcap"),
+                          "split": ("split_1.bag", "split_0.bag"), "mixed": ("a_0.db3", "b_0.db3"),
+                          "flights": ("flight_0.mcap", "flight_1.mcap")}.items():  # fmt: skip
         (x / folder).mkdir(parents=True)
         for name in names:
             (x / folder / name).write_bytes(heads[Path(name).suffix] + b"data")
     found = [e.path for e in discover([x])]
-    # two recordings' parts in one directory are not one log: each file stays a log of its own
-    assert found == [x / "crashed", x / "m", x / "mixed" / "a_0.db3", x / "mixed" / "b_0.db3", x / "split"]
+    # two recordings' parts in one directory are not one log, nor logs that are not named after their directory (a
+    # directory of whole logs flight_0, flight_1): each file stays a log of its own
+    flights, mixed = [x / "flights" / f"flight_{k}.mcap" for k in (0, 1)], [x / "mixed" / f"{n}_0.db3" for n in "ab"]
+    assert found == [x / "crashed", *flights, x / "m", *mixed, x / "split"]
     assert [e.path for e in discover([x / "crashed"])] == [x / "crashed"]  # given itself, not searched
     # a glob reaching into it stands for the recording; a part named by itself is that file (as ``run`` reads it)
     assert [e.path for e in discover([f"{x}/m/*.mcap", f"{x}/s*/*_0.bag"])] == [x / "m", x / "split"]
-    assert [e.path for e in discover([x / "split" / "run_0.bag"])] == [x / "split" / "run_0.bag"]
+    assert [e.path for e in discover([x / "split" / "split_0.bag"])] == [x / "split" / "split_0.bag"]
+    assert [e.path for e in discover([x / "flights"])] == flights
 
 
 def test_discover_manifests_resolve_relative_paths(tmp_path):
