@@ -12,9 +12,12 @@ import pytest
 from rosbags.rosbag1 import Reader, Writer
 
 from cli_checks import SAMPLES, invoke
+from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import inspect_log, read_log
+from slamobs.pipeline.readers.container import OVERLAP_ERROR_S, check_part_order
 
 LOG = SAMPLES / "circle.bag"
+NS = 1_000_000_000
 
 
 def split_bag(src: Path, out: Path, cuts_s: list[float], drop_s: tuple[float, float] | None = None) -> list[Path]:
@@ -117,3 +120,25 @@ def test_a_cut_part_is_named_in_the_recovery_note(parts, tmp_path):
     notes = read_log(cut).warnings
     assert any(n.startswith(f"{last.name}: ROS1 bag is incomplete (") for n in notes), notes
     assert not any(n.startswith("ROS1 bag is incomplete") for n in notes)
+
+
+def test_whole_logs_that_only_look_like_parts_are_one_line(tmp_path):
+    # two flights saved as flight_0.bag, flight_1.bag: read as one log their samples interleaved (6001 "repeated
+    # stamps with different values" and exit 0 on two copies of a simulated MCAP); parts of one recording follow
+    # each other in time
+    flights = tmp_path / "flights"
+    flights.mkdir()
+    for k in (0, 1):
+        shutil.copy(LOG, flights / f"flight_{k}.bag")
+    for command in (("info", flights), ("run", flights, "-o", tmp_path / "out")):
+        res = invoke(*command, catch_exceptions=True)
+        assert res.exit_code == 2, res.output
+        assert "flight_1.bag starts" in res.output and "not the parts of one split recording" in res.output
+        assert len(res.output.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+    # a recorder's cache may overlap two parts by milliseconds: still one recording, up to OVERLAP_ERROR_S
+    parts = [Path("rec_0.bag"), Path("rec_1.bag")]
+    end = 10 * NS
+    check_part_order(tmp_path, parts, [(0, end), (end - int(0.9 * OVERLAP_ERROR_S * NS), 20 * NS)])
+    with pytest.raises(InputError, match="rec_1.bag starts 1.100 s before rec_0.bag ends"):
+        check_part_order(tmp_path, parts, [(0, end), (end - int(1.1 * OVERLAP_ERROR_S * NS), 20 * NS)])

@@ -211,6 +211,9 @@ def _metadata_text(path: Path, meta: Path) -> str | None:
 PART = re.compile(r"^(?P<name>.+)_(?P<index>\d+)\.(?:bag|db3|mcap)$")
 #: a gap between two files longer than this (seconds) is reported
 GAP_NOTE_S = 0.05
+#: a file starting more than this (seconds) before the one before it ends is not the next part of one recording
+#: (the parts of a split recording follow each other; a writer's cache may overlap them by milliseconds)
+OVERLAP_ERROR_S = 1.0
 
 
 def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
@@ -237,6 +240,24 @@ def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
             if not fobj.read(len(ros1.MAGIC)).startswith(ros1.MAGIC):
                 raise InputError(bag, "not a ROS1 bag (a part of the split recording in its directory)")
     return tuple(bag for _, bag in parts)
+
+
+def check_part_order(directory: Path, parts: Sequence[Path], spans: Sequence[tuple[int, int]]) -> None:
+    """The parts follow each other in record time, as the parts of one split recording do; ``spans`` as in
+    :func:`part_notes`.
+
+    Raises:
+        InputError: A part starts more than :data:`OVERLAP_ERROR_S` before the one before it ends: whole logs that
+            only look like parts (two flights ``flight_0.mcap``, ``flight_1.mcap``), whose samples read as one log
+            would interleave two runs of the same clock.
+    """
+    for (p, (_, end)), (q, (start, _)) in zip(zip(parts, spans), zip(parts[1:], spans[1:])):
+        if (end - start) / 1e9 > OVERLAP_ERROR_S:
+            raise InputError(
+                directory,
+                f"{q.name} starts {(end - start) / 1e9:.3f} s before {p.name} ends: these are not the parts of one "
+                "split recording but separate logs (run each alone, or `slamobs batch` over them)",
+            )
 
 
 def part_notes(parts: Sequence[Path], spans: Sequence[tuple[int, int]]) -> list[str]:
@@ -482,7 +503,13 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
             raise _explain(container, err) from None
         notes = [container.note] if container.note else []
         if container.parts:  # how the files follow each other in time
-            notes += part_notes(container.parts, [(r.start_time, r.end_time - 1) for r in reader.readers])
+            spans = [(r.start_time, r.end_time - 1) for r in reader.readers]
+            try:
+                check_part_order(container.path, container.parts, spans)
+            except InputError:
+                reader.close()
+                raise
+            notes += part_notes(container.parts, spans)
         if notes:
             setattr(reader, _NOTES, notes)
         try:
