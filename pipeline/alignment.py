@@ -141,7 +141,7 @@ def _to_body(
     t_ns: np.ndarray,
     notes: list[str],
     override: frozenset[str] = frozenset(),
-    dropped: tuple[str, ...] = (),
+    dropped: dict[tuple[str, str], str] | None = None,
 ) -> _Extrinsic:
     """Transform ``frame`` -> body: the /tf_static chain, else the /tf chain at ``t_ns``, else a one-line error.
 
@@ -167,9 +167,7 @@ def _to_body(
     if not known:
         if frame in ident:
             return _IDENTITY
-        lost = "".join(
-            f"; {d}" for d in dropped if any(frame in e.split("->") for e in d.partition("dropped: ")[2].split(", "))
-        )
+        lost = "".join(f"; {w}" for w in dict.fromkeys(w for edge, w in (dropped or {}).items() if frame in edge))
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
@@ -342,7 +340,7 @@ def align(
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
     _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
-    dropped = tuple(w for w in streams.warnings if "NaN/Inf static transform" in w)
+    dropped = streams.static_tf_dropped
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
@@ -455,7 +453,7 @@ class _Frame:
     time_source: str
     notes: list[str]
     override: frozenset[str] = frozenset()
-    dropped: tuple[str, ...] = ()  # the readers' notes of transforms dropped (NaN/Inf), for the error naming a frame
+    dropped: dict[tuple[str, str], str] | None = None  # LogStreams.static_tf_dropped, for the error naming a frame
 
     def to_body(self, frame_id: str, topic: str, t_ns: np.ndarray) -> _Extrinsic:
         return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override, self.dropped)

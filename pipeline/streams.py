@@ -128,6 +128,8 @@ class LogStreams:
     accel: Vec3Stream | None = None
     magnetic: Vec3Stream | None = None
     static_tf: list[Transform] = field(default_factory=list)
+    #: (parent, child) pairs of ``/tf_static`` dropped as NaN/Inf, each with the warning that says so
+    static_tf_dropped: dict[tuple[str, str], str] = field(default_factory=dict)
     tf: list[TransformSeries] = field(default_factory=list)  # dynamic /tf edges
     landmark_truth: dict[int, np.ndarray] | None = None  # id -> (3,) in the truth frame
     bias_truth: dict[str, np.ndarray] | None = None  # {"gyro": (3,), "velocity": (3,)} body frame (simulated logs)

@@ -264,10 +264,11 @@ def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
         np.array([[0.1, 0, 0, 0, 0, 0, np.nan], [0, 0, 0, 0, 0, 0, 1.0]]),
         ["base_link", "camera", "imu"],
     )
-    found, warnings = static_transforms(rows)
+    found, warnings, dropped = static_transforms(rows)
     assert [(t.parent, t.child) for t in found] == [("base_link", "imu")]
     assert warnings == ["1 NaN/Inf static transform dropped: base_link->camera"]
-    s = _streams(static_tf=found, warnings=[f"/tf_static: {w}" for w in warnings])
+    assert dropped == {("base_link", "camera"): warnings[0]}
+    s = _streams(static_tf=found, static_tf_dropped={e: f"/tf_static: {w}" for e, w in dropped.items()})
     with pytest.raises(
         InputError,
         match=r"'camera' is in no transform; .*; /tf_static: 1 NaN/Inf static transform "

@@ -599,8 +599,9 @@ def _valid_transforms(values: np.ndarray) -> np.ndarray:
     return np.isfinite(values).all(axis=1) & (np.linalg.norm(values[:, 3:7], axis=1) > 1e-6)
 
 
-def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str]]:
-    """``/tf_static`` transforms, the last one per (parent, child) pair winning."""
+def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str], dict[tuple[str, str], str]]:
+    """``/tf_static`` transforms, the last one per (parent, child) pair winning; the warnings; the (parent, child)
+    pairs dropped as NaN/Inf, each with its warning (for an error that later misses one of those frames)."""
     found: dict[tuple[str, str], Transform] = {}
     changed: set[tuple[str, str]] = set()
     ok = _valid_transforms(rows.values)
@@ -614,14 +615,16 @@ def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str]]:
         ):
             changed.add(key)
         found[key] = Transform(*key, translation, quat)
-    warnings = []
+    warnings, dropped = [], {}
     if changed:
         pairs = ", ".join(f"{p}->{c}" for p, c in sorted(changed))
         warnings.append(f"static transforms published with different values, using the last: {pairs}")
     if nbad := int(ok.size - np.count_nonzero(ok)):
-        bad = sorted({f"{names[rows.parent[i]]}->{names[rows.child[i]]}" for i in np.flatnonzero(~ok)})
-        warnings.append(plural(nbad, "NaN/Inf static transform") + f" dropped: {', '.join(bad)}")
-    return list(found.values()), warnings
+        edges = sorted({(names[rows.parent[i]], names[rows.child[i]]) for i in np.flatnonzero(~ok)})
+        bad = ", ".join(f"{p}->{c}" for p, c in edges)
+        warnings.append(plural(nbad, "NaN/Inf static transform") + f" dropped: {bad}")
+        dropped = dict.fromkeys(edges, warnings[-1])
+    return list(found.values()), warnings, dropped
 
 
 def decode_static_tf(
@@ -631,7 +634,8 @@ def decode_static_tf(
 ) -> tuple[list[Transform], list[str]]:
     """Transforms of the ``/tf_static`` messages, the last one per (parent, child) pair winning."""
     topic = next(iter(connections)).topic
-    return static_transforms(decode_tf(reader, path, topic, connections))
+    found, warnings, _ = static_transforms(decode_tf(reader, path, topic, connections))
+    return found, warnings
 
 
 def transform_series(rows: TfRows) -> tuple[list[TransformSeries], list[str]]:
