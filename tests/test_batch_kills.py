@@ -255,3 +255,26 @@ def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, s
     finally:
         _stop(worker)
     _rerun_and_check(logs, out)
+
+
+def test_a_result_lost_with_the_scheduler_is_exit_3_not_a_failed_log(monkeypatch, tmp_path):
+    """The scheduler lost between a task finishing and its result being fetched (the connection refused or closed
+    while gathering: CI saw it once) is the lost scheduler, not an error line for the batch (exit 2)."""
+    pytest.importorskip("distributed")
+    from distributed import Future
+    from distributed.comm.core import CommClosedError
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import InfrastructureError, Task
+
+    def closed(self, timeout=None):
+        raise CommClosedError("in <TCP (closed) ConnectionPool.gather>: Stream is closed")
+
+    task = Task.make("r0", str(tmp_path / "a.mcap"), str(tmp_path / "OUT"), {})
+    pool = DaskPool(1, run=repr, wait_workers=30)
+    try:
+        monkeypatch.setattr(Future, "result", closed)
+        with pytest.raises(InfrastructureError, match=r"lost the Dask scheduler \(CommClosedError: .*Stream is closed"):
+            list(pool.results([task]))
+    finally:
+        pool.close()

@@ -17,6 +17,7 @@ turned into clear outcomes instead of waits.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import threading
 import time
@@ -125,6 +126,8 @@ class DaskPool:
 
         from slamobs.pipeline.batch.identity import code_hash
 
+        # the client logs a lost scheduler as tracebacks on stderr; results() turns it into one error line
+        logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         if self.scheduler:
             try:
                 self.client = Client(self.scheduler, timeout=f"{max(1.0, min(self.wait_workers, 30.0))}s")
@@ -162,6 +165,14 @@ class DaskPool:
                 pass
         self.client = self.cluster = None
 
+    def _fetch(self, get):
+        """A finished task's result (or error) comes from the scheduler: losing it then (the connection closed or
+        refused while fetching) is the same lost scheduler, not a failure of the log."""
+        try:
+            return get(timeout=max(self.wait_workers, 10.0))
+        except (OSError, TimeoutError, asyncio.CancelledError) as err:
+            raise InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})") from None
+
     def _workers(self) -> int:
         try:
             return len(self.client.scheduler_info().get("workers", {}))
@@ -196,11 +207,11 @@ class DaskPool:
                     task = pending.pop(fut.key)[1]
                     watch.finished(fut.key, time.monotonic())
                     if fut.status == "finished":
-                        yield task, fut.result()
+                        yield task, self._fetch(fut.result)
                     elif fut.status == "cancelled" and fut.key not in ours_cancelled:
                         raise InfrastructureError(f"{self.where}: lost the Dask scheduler (tasks cancelled)")
                     elif fut.status == "error":
-                        err = fut.exception()
+                        err = self._fetch(fut.exception)
                         if isinstance(err, EnvironmentMismatch):
                             raise InfrastructureError(f"Dask worker: {err}")
                         if isinstance(err, ImportError):
