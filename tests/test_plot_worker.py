@@ -161,3 +161,16 @@ def test_a_run_draws_with_helpers_its_caller_started_and_stops_them(tmp_path):
     with pytest.raises(InputError):
         run_log(log, taken, parse_config({}), plot_workers=workers)
     assert workers.procs == [] and (taken / "notes.txt").is_file()
+
+
+def test_a_helper_gone_before_a_small_batch_fails_the_collect_as_a_dead_helper(tmp_path):
+    """A batch smaller than the pipe's buffer stays buffered when its helper is already gone; closing its stdin
+    then raised BrokenPipeError, which the CLI takes for a closed stdout (exit 141, no message) instead of
+    the figure helper's failure (a note, the run's tables stand)."""
+    workers = plot_worker.PlotWorkers(1)
+    workers.procs[0].kill()
+    workers.procs[0].wait()
+    workers.submit([("plot_errors", "tiny.png", {})])
+    with pytest.raises(RuntimeError, match="figure helper"):
+        workers.collect(tmp_path)
+    assert workers.procs == []

@@ -104,7 +104,10 @@ class PlotWorkers:
             for proc, share, feed in zip(procs, self.shares, self._feeds):
                 if feed is not None:
                     feed.join()
-                proc.stdin.close()  # the helper's cue to answer
+                try:
+                    proc.stdin.close()  # the helper's cue to answer
+                except OSError:  # a helper gone before a small batch left the buffer: reported below
+                    pass
                 data = proc.stdout.read()
                 if proc.wait() == OUT_OF_MEMORY:
                     from slamobs.pipeline.errors import resource_error
