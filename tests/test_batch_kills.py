@@ -278,3 +278,40 @@ def test_a_result_lost_with_the_scheduler_is_exit_3_not_a_failed_log(monkeypatch
             list(pool.results([task]))
     finally:
         pool.close()
+
+
+def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit_3(monkeypatch, tmp_path):
+    """A tune's next round submitted after its client gave the lost scheduler up (ClosedClientError), and the
+    scheduler lost while the batch waits for workers (the identity call's connection closed), are the lost
+    scheduler (InfrastructureError, exit 3), not a traceback (exit 1) or an error line (exit 2)."""
+    pytest.importorskip("distributed")
+    import distributed
+    from distributed.client import ClosedClientError
+    from distributed.comm.core import CommClosedError
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import InfrastructureError, Task
+
+    class Gone:
+        status = "closed"
+
+        def __init__(self, *args, **kwargs):
+            pass
+
+        def submit(self, *args, **kwargs):
+            raise ClosedClientError("Client is closed. Can't send update-graph message.")
+
+        def wait_for_workers(self, n, timeout=None):
+            raise CommClosedError("in <TCP (closed) ConnectionPool.identity>: Stream is closed")
+
+        def close(self, timeout=None):
+            pass
+
+    task = Task.make("r0", str(tmp_path / "a.mcap"), str(tmp_path / "OUT"), {})
+    pool = DaskPool(1, scheduler="tcp://127.0.0.1:8786", run=repr)
+    pool.client = Gone()
+    with pytest.raises(InfrastructureError, match=r"lost the Dask scheduler \(ClosedClientError: Client is closed"):
+        list(pool.results([task]))
+    monkeypatch.setattr(distributed, "Client", Gone)
+    with pytest.raises(InfrastructureError, match=r"lost the Dask scheduler \(CommClosedError: .*Stream is closed"):
+        pool.connect()

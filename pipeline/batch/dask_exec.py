@@ -150,6 +150,8 @@ class DaskPool:
             raise InfrastructureError(
                 f"{self.where}: no Dask workers after {self.wait_workers:g} s (--wait-workers)"
             ) from None
+        except OSError as err:  # the scheduler went away while we waited (connection closed or refused)
+            raise self._lost(err) from None
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
     def close(self) -> None:
@@ -165,13 +167,16 @@ class DaskPool:
                 pass
         self.client = self.cluster = None
 
+    def _lost(self, err: BaseException) -> InfrastructureError:
+        return InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})")
+
     def _fetch(self, get):
         """A finished task's result (or error) comes from the scheduler: losing it then (the connection closed or
         refused while fetching) is the same lost scheduler, not a failure of the log."""
         try:
             return get(timeout=max(self.wait_workers, 10.0))
         except (OSError, TimeoutError, asyncio.CancelledError) as err:
-            raise InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})") from None
+            raise self._lost(err) from None
 
     def _workers(self) -> int:
         try:
@@ -182,13 +187,19 @@ class DaskPool:
     def results(self, tasks: Sequence[Task]) -> Iterator[tuple[Task, dict]]:
         """(task, row) in completion order; raises InfrastructureError as described in the module doc."""
         from distributed import KilledWorker, wait
+        from distributed.client import ClosedClientError
 
         if self.client is None:
             self.connect()
         client = self.client
         pending = {}
         for task in tasks:
-            fut = client.submit(self.run, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}")
+            try:
+                fut = client.submit(
+                    self.run, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}"
+                )
+            except (ClosedClientError, OSError) as err:  # a tune's next round: the client gave the scheduler up
+                raise self._lost(err) from None
             pending[fut.key] = (fut, task)
         watch = _Watch()
         ours_cancelled: set[str] = set()
