@@ -27,8 +27,7 @@ from .decode import (
     decode_topics,
     detection_stream,
     decode_tf,
-    gyro_not_filled,
-    has_angular_velocity,
+    gyro_stand_in,
     pose_stream,
     static_transforms,
     tag_detections,
@@ -212,13 +211,17 @@ def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, 
     """An angular velocity that is all zero (an IMU that does not fill the field) replaced by the angular velocity
     of the linear-velocity topic (odometry, a twist) when that one holds some; the IMU's cleaning is noted here."""
     other = selection.roles.get("linear_velocity")
-    if not gyro_not_filled(stream.xyz) or other is None or other == topic or other not in rows:
+    if other not in rows:
         return stream, cleaning
-    if not has_angular_velocity(table[other][0].msgtype):
+    decoded = []
+
+    def other_xyz() -> np.ndarray:
+        decoded.append(vec3_stream(rows[other], "angular_velocity"))
+        return decoded[0][0].xyz
+
+    if not gyro_stand_in(topic, lambda: stream.xyz, other, table[other][0].msgtype, other_xyz):
         return stream, cleaning
-    found, found_cleaning = vec3_stream(rows[other], "angular_velocity")
-    if not found.xyz.any():
-        return stream, cleaning
+    found, found_cleaning = decoded[0]
     note(topic, "angular_velocity", cleaning)
     streams.warnings.append(
         f"{topic}: every angular velocity is zero (not measured): the angular velocity is {other}'s instead "

@@ -66,6 +66,24 @@ def gyro_not_filled(xyz: np.ndarray) -> bool:
     return xyz.shape[0] >= 2 and not xyz.any()
 
 
+def gyro_stand_in(
+    gyro: str | None,
+    gyro_xyz: Callable[[], np.ndarray],
+    other: str | None,
+    other_msgtype: str | None,
+    other_xyz: Callable[[], np.ndarray],
+) -> bool:
+    """Whether the linear-velocity topic ``other``'s angular velocity stands in for the angular-velocity topic
+    ``gyro``'s: ``gyro``'s is not filled (:func:`gyro_not_filled`), ``other`` is another topic whose type has an
+    angular velocity (:func:`has_angular_velocity`) and its angular velocity is not all zero. The one rule of
+    ``read_log`` (every message) and ``slamobs info`` (the first few); the vectors are read only when needed."""
+    if gyro is None or other is None or other == gyro or other_msgtype is None:
+        return False
+    if not has_angular_velocity(other_msgtype) or not gyro_not_filled(gyro_xyz()):
+        return False
+    return bool(other_xyz().any())
+
+
 def has_angular_velocity(msgtype: str) -> bool:
     """Whether messages of ``msgtype`` carry an angular velocity the readers read (odometry, twists, IMU)."""
     return ("angular_velocity", msgtype) in VEC3_ROLES
