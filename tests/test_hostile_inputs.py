@@ -462,6 +462,11 @@ def test_degenerate_stamps_name_the_real_cause(sim):
     zeros = np.zeros_like(om.t_ns)
     with pytest.raises(InputError, match=r"same time \(zero\) on its record time; its record times do not advance"):
         align(replace(s, angular_velocity=replace(om, t_ns=zeros, rec_ns=zeros)))
+    # with time.source: record the message names the clock the run read (it said 'on its header stamps' of a stream
+    # whose header stamps were fine and only its record times all alike)
+    alike = replace(s, angular_velocity=replace(om, rec_ns=np.full_like(om.rec_ns, om.rec_ns[0])))
+    with pytest.raises(InputError, match=r"same time \(\d+\.\d+ s\) on its record time; its record times do not adv"):
+        align(alike, time_source="record")
     one = replace(s, angular_velocity=replace(om, t_ns=om.t_ns[:1], rec_ns=om.rec_ns[:1], xyz=om.xyz[:1]))
     with pytest.raises(InputError, match="has a single sample"):
         align(one)

@@ -124,12 +124,14 @@ class Cleaning:
         self.out_of_order = int(np.count_nonzero(steps < 0))
         self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
 
-    def text(self) -> str:
-        """One warning fragment, empty when nothing happened."""
+    def text(self, on_record_time: bool = False) -> str:
+        """One warning fragment, empty when nothing happened. ``on_record_time``: the run reads the stream's record
+        times (``time.source: record``, the topic's ``time.topics``), so what its header stamps do (all zero, out of
+        order, repeated) is left out: it does not describe the run."""
         parts = []
-        if self.zero_stamps:
+        if self.zero_stamps and not on_record_time:
             parts.append("header stamps are all zero, using record time")
-        if self.out_of_order:
+        if self.out_of_order and not on_record_time:
             back = ""
             if self.step_back_ns >= CLOCK_STEP_NS and not self.zero_stamps:  # not the jitter of a driver
                 back = (
@@ -138,7 +140,7 @@ class Cleaning:
             parts.append(plural(self.out_of_order, "out-of-order stamp") + back)
         if self.duplicates:
             parts.append(plural(self.duplicates, "exact duplicate") + " dropped")
-        if self.repeated:
+        if self.repeated and not on_record_time:
             parts.append(plural(self.repeated, "repeated stamp") + " with different values")
         if self.nonfinite:
             parts.append(plural(self.nonfinite, "NaN/Inf sample") + " dropped")
