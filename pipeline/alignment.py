@@ -459,11 +459,13 @@ class _Frame:
         return _to_body(self.tf, self.body, frame_id, topic, self.ident, t_ns, self.notes, self.override, self.dropped)
 
 
-def _clock(stream) -> str:
-    """Which clock a stream's times are on, for messages (all-zero header stamps are replaced by record times)."""
-    return (
-        "record time" if stream.t_ns is stream.rec_ns or np.array_equal(stream.t_ns, stream.rec_ns) else "header stamps"
-    )
+def _clock(stream, time_source: str) -> str:
+    """Which clock a stream's times are on, for messages: the alignment's ``time_source`` (``record``: every stream's
+    record times), or the stream's own (all-zero header stamps, or the topic's ``time.topics``, replace its stamps by
+    its record times)."""
+    if time_source == "record" or stream.t_ns is stream.rec_ns or np.array_equal(stream.t_ns, stream.rec_ns):
+        return "record time"
+    return "header stamps"
 
 
 def _span(t: np.ndarray) -> str:
@@ -486,7 +488,7 @@ def _gate_norm(
     return t, x
 
 
-def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> None:
+def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str, time_source: str) -> None:
     """A time base needs two distinct stamps: say why a stream has none (no samples, one, all equal)."""
     name = f"{what} ({stream.topic})"
     if t.shape[0] == 0:
@@ -497,16 +499,16 @@ def _usable(path, t: np.ndarray, n_read: int, what: str, stream, key: str) -> No
         )
     if t.shape[0] == 1:
         raise InputError(path, f"{name} has a single sample: the observer needs a stream of them")
-    _not_one_time(path, t, name, "samples", stream)
+    _not_one_time(path, t, name, "samples", stream, time_source)
 
 
-def _not_one_time(path, t: np.ndarray, name: str, what: str, stream) -> None:
+def _not_one_time(path, t: np.ndarray, name: str, what: str, stream, time_source: str) -> None:
     """Several samples (``what``) of ``stream`` all at one time (``t``, any order): one line saying what would give
     it a usable time."""
     if t.shape[0] < 2 or t.min() != t.max():
         return
     when = "zero" if t[0] == 0 else f"{t[0] * 1e-9:.3f} s"
-    clock = _clock(stream)
+    clock = _clock(stream, time_source)
     if clock == "header stamps" and np.ptp(stream.rec_ns) > 0:
         hint = f"its record times advance: set time.source: record (or time.topics: {{{stream.topic}: record}})"
     else:
@@ -552,12 +554,13 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
         t_om, w, lim["max_angular_rate"], "angular-velocity", "max_angular_rate", "rad/s", om.topic, notes
     )
     t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
-    _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate")
-    _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed")
+    _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate", fr.time_source)
+    _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed", fr.time_source)
     t_om, w = _last_of_each_stamp(t_om, w, om.topic, notes)
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
-        clocks = {_clock(om), _clock(lv)}
+        clock_om, clock_lv = _clock(om, fr.time_source), _clock(lv, fr.time_source)
+        clocks = {clock_om, clock_lv}
         hint = ""
         if len(clocks) > 1:
             hint = "; the two clocks differ: try time.source: auto or record"
@@ -565,8 +568,8 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
             hint = "; is one of them on another clock (simulated time)? try time.source: auto"
         raise InputError(
             path,
-            f"angular velocity ({om.topic}: {_span(t_om)}, {_clock(om)}) and linear velocity "
-            f"({lv.topic}: {_span(t_lv)}, {_clock(lv)}) do not overlap in time{hint}",
+            f"angular velocity ({om.topic}: {_span(t_om)}, {clock_om}) and linear velocity "
+            f"({lv.topic}: {_span(t_lv)}, {clock_lv}) do not overlap in time{hint}",
         )
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
@@ -682,10 +685,12 @@ def _detections(
     if det.ids.shape[0] == 0:
         raise InputError(path, f"the {len(det)} detection messages hold no detections", det.topic)
     t_det = _times(det, fr.time_source)
-    _not_one_time(path, t_det, f"detections ({det.topic})", "frames", det)  # else all seen at one instant
+    _not_one_time(
+        path, t_det, f"detections ({det.topic})", "frames", det, fr.time_source
+    )  # else all seen at one instant
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
-    in_span = _frames_in_span(path, det, t_det, lo, hi, gaps, notes)
+    in_span = _frames_in_span(path, det, t_det, lo, hi, gaps, notes, fr.time_source)
     cam_ext, in_span, keep_rows, row_of = _camera_to_body(fr, det, t_det, frame_of, in_span, notes)
     frames = np.argsort(t_det, kind="stable")
     frames = frames[in_span[frames]]
@@ -723,13 +728,20 @@ def _detections(
 
 
 def _frames_in_span(
-    path, det: DetectionStream, t_det: np.ndarray, lo: int, hi: int, gaps: np.ndarray | None, notes: list[str]
+    path,
+    det: DetectionStream,
+    t_det: np.ndarray,
+    lo: int,
+    hi: int,
+    gaps: np.ndarray | None,
+    notes: list[str],
+    time_source: str,
 ) -> np.ndarray:
     """Per detection frame: inside ``[lo, hi]`` and outside the velocity ``gaps`` (the drops noted); an error
     saying where the frames are when none is inside."""
     in_span = (t_det >= lo) & (t_det <= hi)
     if len(det) and not in_span.any():  # say where they are: most often a topic on another clock
-        clock = _clock(det)
+        clock = _clock(det, time_source)
         hint = (
             f"; on another clock? set time.source: auto (or time.topics: {{{det.topic}: record}})"
             if clock == "header stamps"

@@ -188,7 +188,7 @@ class RunConfig:
 
     def reader_options(self) -> dict:
         """Keyword arguments of :func:`pipeline.readers.read_log` that this config sets."""
-        clocks = "auto" if self.time.source == "auto" else (dict(self.time.topics) or None)
+        clocks = self.time.source if self.time.source in ("auto", "record") else (dict(self.time.topics) or None)
         from slamobs.pipeline.readers import ImageSearch
 
         ev, tags = self.evaluation, self.tags

@@ -19,7 +19,7 @@ import fcntl
 import os
 import re
 import stat
-from collections.abc import Iterable, Iterator
+from collections.abc import Collection, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -159,9 +159,10 @@ def read_manifest(directory: str | Path) -> dict | None:
     return doc
 
 
-def foreign_entry(directory: str | Path) -> tuple[str, str] | None:
+def foreign_entry(directory: str | Path, also: Collection[str] = ()) -> tuple[str, str] | None:
     """The first entry of ``directory`` slamobs did not write, as ``(relative path, why)``; None when slamobs wrote
-    every entry (or it is empty), so replacing the directory deletes nothing of the user's.
+    every entry (or it is empty), so replacing the directory deletes nothing of the user's. ``also``: files of
+    ``directory`` itself that slamobs writes beside its manifest (a batch run's ``batch.json``).
 
     With a manifest an entry is ours when the manifest lists it with the same kind and size (a subdirectory with
     its own manifest, a compare's run that was re-reported, answers for itself); without one (a directory from an
@@ -169,12 +170,12 @@ def foreign_entry(directory: str | Path) -> tuple[str, str] | None:
     files (an older compare's). Links are never followed.
     """
     try:
-        return _foreign(Path(directory), "", None, "")
+        return _foreign(Path(directory), "", None, "", frozenset(also))
     except OSError as err:
         return os.path.basename(err.filename or "."), f"unreadable ({err.strerror or err})"
 
 
-def _foreign(root: Path, rel: str, doc: dict | None, within: str) -> tuple[str, str] | None:
+def _foreign(root: Path, rel: str, doc: dict | None, within: str, also: frozenset[str]) -> tuple[str, str] | None:
     """:func:`foreign_entry` of ``root/rel``, governed by the manifest ``doc`` in which it is ``within``."""
     here = root / rel if rel else root
     if os.path.lexists(here / MANIFEST):
@@ -184,13 +185,15 @@ def _foreign(root: Path, rel: str, doc: dict | None, within: str) -> tuple[str, 
     for name in sorted(os.listdir(here)):
         path, key = _join(rel, name), _join(within, name)
         st = os.lstat(here / name)
+        if not rel and name in also and stat.S_ISREG(st.st_mode):
+            continue
         if doc is not None:
             if key == MANIFEST:
                 continue
             if stat.S_ISDIR(st.st_mode):
                 if key not in doc.get("directories", []):
                     return path, "not written by slamobs"
-                if found := _foreign(root, path, doc, key):
+                if found := _foreign(root, path, doc, key, frozenset()):
                     return found
             elif not stat.S_ISREG(st.st_mode) or key not in doc["files"]:
                 return path, "not written by slamobs"
@@ -199,7 +202,7 @@ def _foreign(root: Path, rel: str, doc: dict | None, within: str) -> tuple[str, 
         elif stat.S_ISDIR(st.st_mode):  # an older compare's run directories, nothing deeper
             if rel or not os.path.isfile(here / name / "run.json"):
                 return path, "not written by slamobs"
-            if found := _foreign(root, path, None, ""):
+            if found := _foreign(root, path, None, "", frozenset()):
                 return found
         elif not stat.S_ISREG(st.st_mode) or name not in LEGACY_NAMES:
             return path, "not written by slamobs"

@@ -317,6 +317,39 @@ def test_rerun_skips_finished_runs_and_force_reruns(done, logs, tmp_path):
     assert not poses.duplicated(["run_id", "t_ns"]).any()
 
 
+def test_force_and_reconciliation_never_delete_what_slamobs_did_not_write(done, logs, tmp_path):
+    # --force replaced OUT/runs/<id>/ whole and a start's reconciliation deleted any directory of runs/ it had no
+    # record of: a user's notes in a run directory, or a directory -o named that was no batch dataset, were lost
+    out = _copy(done[1], tmp_path)
+    rid = _rid(out, logs["circle"])
+    before = read_summary(out)[rid]
+    notes = out / "runs" / rid / "notes.txt"
+    notes.write_text("mine")
+    res = invoke(logs["circle"], "-o", out, "--force", "--quiet")
+    assert res.exit_code == 2 and res.output.startswith(f"error: {notes}: not written by slamobs; ")
+    assert len(res.output.strip().splitlines()) == 1 and f"move it out of {out}" in res.output
+    assert notes.read_text() == "mine" and read_summary(out)[rid] == before  # nothing deleted, nothing re-run
+    notes.unlink()
+    assert invoke(logs["circle"], "-o", out, "--force", "--quiet").exit_code == 0  # what slamobs wrote is replaced
+    assert read_summary(out)[rid]["finished_at"] > before["finished_at"]
+    mine = out / "runs" / "mine"
+    mine.mkdir()
+    (mine / "plot.png").write_text("mine")
+    res = invoke(logs["circle"], "-o", out, "--quiet")
+    assert res.exit_code == 2 and res.output.startswith(f"error: {mine / 'plot.png'}: not written by slamobs; ")
+    assert (mine / "plot.png").read_text() == "mine"
+    # a directory that is no batch dataset but holds names a batch writes and deletes
+    foreign = tmp_path / "foreign"
+    (foreign / "runs" / "x").mkdir(parents=True)
+    (foreign / "runs" / "x" / "f.txt").write_text("mine")
+    res = invoke(logs["circle"], "-o", foreign, "--quiet")
+    assert res.exit_code == 2 and res.output == (
+        f"error: {foreign}: not a slamobs batch dataset (no _slamobs/) but holds runs/, which a batch writes and "
+        "deletes: write the batch to a new or empty directory\n"
+    )
+    assert sorted(p.name for p in foreign.rglob("*")) == ["f.txt", "runs", "x"]
+
+
 # --- slamobs report on a batch run: the dataset follows the new report -------------------------------------
 
 

@@ -11,6 +11,7 @@ from mcap.writer import Writer as McapWriter
 from rosbags.rosbag1 import Writer as Bag1Writer
 
 from slamobs.cli.info_cmd import info
+from slamobs.pipeline.config import parse_config
 from slamobs.pipeline.readers import format_info, inspect_log, read_log
 from slamobs.pipeline.readers.decode import clean_order
 from slamobs.pipeline.readers.inspect import CLOCK_TOLERANCE_S, apply_clocks, recommend_clocks, stamp_stats
@@ -150,6 +151,26 @@ def test_out_of_order_duplicates_and_repeated_stamps(tmp_path):
     assert "2 out-of-order stamps, 1 exact duplicate, 1 repeated stamp with different content" in warning
     streams = read_log(tmp_path / "order.bag")
     assert np.all(np.diff(streams.angular_velocity.t_ns) >= 0)
+
+
+def test_header_stamp_notes_are_left_out_when_the_run_reads_record_times(tmp_path):
+    # time.source: record read the record times but still noted the header stamps' disorder ('2 out-of-order
+    # stamps, 1 repeated stamp with different values'): notes describe the clock the run reads
+    msgs = _steady(100, 2, 0)
+    msgs[10], msgs[11] = (msgs[11][0], msgs[10][1], msgs[11][2]), (msgs[10][0], msgs[11][1], msgs[10][2])
+    msgs[50], msgs[51] = (msgs[51][0], msgs[50][1], msgs[51][2]), (msgs[50][0], msgs[51][1], msgs[50][2])
+    msgs.append((msgs[20][0], msgs[20][1] + 1, msgs[20][2]))  # exact duplicate, recorded again: dropped on any clock
+    msgs.append((msgs[30][0], msgs[30][1] + 1, -1.0))  # same stamp, other value
+    log = _write(tmp_path / "order.bag", {"/imu": msgs, "/pose": _steady(50, 2, 0)})
+
+    def notes(clocks):
+        return [w for w in read_log(log, clocks=clocks).warnings if w.startswith("/imu")]
+
+    assert notes(None) == [
+        "/imu: 2 out-of-order stamps, 1 exact duplicate dropped, 1 repeated stamp with different values"
+    ]
+    assert notes("record") == notes({"/imu": "record"}) == ["/imu: 1 exact duplicate dropped"]
+    assert parse_config({"time": {"source": "record"}}).reader_options()["clocks"] == "record"
 
 
 def test_gap(tmp_path):

@@ -462,6 +462,11 @@ def test_degenerate_stamps_name_the_real_cause(sim):
     zeros = np.zeros_like(om.t_ns)
     with pytest.raises(InputError, match=r"same time \(zero\) on its record time; its record times do not advance"):
         align(replace(s, angular_velocity=replace(om, t_ns=zeros, rec_ns=zeros)))
+    # with time.source: record the message names the clock the run read (it said 'on its header stamps' of a stream
+    # whose header stamps were fine and only its record times all alike)
+    alike = replace(s, angular_velocity=replace(om, rec_ns=np.full_like(om.rec_ns, om.rec_ns[0])))
+    with pytest.raises(InputError, match=r"same time \(\d+\.\d+ s\) on its record time; its record times do not adv"):
+        align(alike, time_source="record")
     one = replace(s, angular_velocity=replace(om, t_ns=om.t_ns[:1], rec_ns=om.rec_ns[:1], xyz=om.xyz[:1]))
     with pytest.raises(InputError, match="has a single sample"):
         align(one)
@@ -672,6 +677,28 @@ def test_a_header_clock_reset_mid_log_is_one_line_pointing_to_record_time(sim):
     assert str(e.value).endswith("set time.source: record (or time.topics: {/imu/data: record})")
     on_record = align(reset, time_source="record")
     assert on_record.segment_starts.size == 0 and on_record.vel_t_ns[-1] - on_record.vel_t_ns[0] > 5.9 * NS
+
+
+def test_one_rule_decides_the_gyro_stand_in_and_reads_only_what_it_needs():
+    # read_log (every message) and info (the first few) both ask decode.gyro_stand_in
+    from slamobs.pipeline.readers.decode import gyro_stand_in
+    from slamobs.pipeline.readers.roles import IMU, ODOMETRY
+
+    zero, moving = np.zeros((5, 3)), np.ones((5, 3))
+    asked = []
+
+    def other(xyz):
+        return lambda: asked.append(1) or xyz
+
+    assert gyro_stand_in("/imu", lambda: zero, "/odom", ODOMETRY, other(moving))
+    assert not gyro_stand_in("/imu", lambda: zero, "/odom", ODOMETRY, other(zero))  # both zero: the IMU stays
+    assert not gyro_stand_in("/imu", lambda: zero[:1], "/odom", ODOMETRY, other(moving))  # one sample is no evidence
+    asked.clear()
+    assert not gyro_stand_in("/imu", lambda: moving, "/odom", ODOMETRY, other(moving))  # a measuring IMU
+    assert not gyro_stand_in("/imu", lambda: zero, "/imu", IMU, other(moving))  # the same topic
+    assert not gyro_stand_in("/imu", lambda: zero, None, None, other(moving))  # no linear-velocity topic
+    assert not gyro_stand_in("/imu", lambda: zero, "/v", "geometry_msgs/msg/Vector3Stamped", other(moving))
+    assert not asked  # the other topic is read only when the IMU's gyro is not filled
 
 
 def test_info_names_the_angular_velocity_run_takes_for_an_imu_that_does_not_fill_its_gyro(sim, tmp_path):

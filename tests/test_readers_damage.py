@@ -529,9 +529,9 @@ def test_the_parts_of_an_unclosed_split_rosbag2_recording_are_read_in_order(tmp_
             w.close()
     for k in (0, 1):
         (storage_file,) = [p for p in (tmp_path / f"part{k}").iterdir() if p.suffix in {".db3", ".mcap"}]
-        storage_file.rename(crashed / f"rec_{k}{storage_file.suffix}")
+        storage_file.rename(crashed / f"crashed_{k}{storage_file.suffix}")  # named after the directory, as rosbag2 does
     got = read_log(crashed)
     suffix = ".mcap" if container == "ros2-mcap" else ".db3"
     assert got.warnings[0] == "crashed has no metadata.yaml (recording not closed?): read its 2 files"
-    assert got.warnings[1].startswith(f"split recording of 2 {suffix} files read as one: rec_0{suffix} 0.000–")
+    assert got.warnings[1].startswith(f"split recording of 2 {suffix} files read as one: crashed_0{suffix} 0.000–")
     _same_streams(got, expected_streams(sim, str(crashed)))

@@ -111,8 +111,8 @@ def test_what_is_not_one_split_recording_is_one_line(parts, tmp_path):
 
 def test_a_cut_part_is_named_in_the_recovery_note(parts, tmp_path):
     # a recording whose last part was cut said 'ROS1 bag is incomplete ...' without saying which of its files
-    cut = tmp_path / "cut"
-    cut.mkdir()
+    cut = tmp_path / "cut" / "rec"
+    cut.mkdir(parents=True)
     for p in parts:
         shutil.copy(p, cut / p.name)
     last = cut / parts[-1].name
@@ -126,7 +126,7 @@ def test_whole_logs_that_only_look_like_parts_are_one_line(tmp_path):
     # two flights saved as flight_0.bag, flight_1.bag: read as one log their samples interleaved (6001 "repeated
     # stamps with different values" and exit 0 on two copies of a simulated MCAP); parts of one recording follow
     # each other in time
-    flights = tmp_path / "flights"
+    flights = tmp_path / "flight"  # named after its files, as a recorder lays out the parts of one recording
     flights.mkdir()
     for k in (0, 1):
         shutil.copy(LOG, flights / f"flight_{k}.bag")
@@ -142,3 +142,35 @@ def test_whole_logs_that_only_look_like_parts_are_one_line(tmp_path):
     check_part_order(tmp_path, parts, [(0, end), (end - int(0.9 * OVERLAP_ERROR_S * NS), 20 * NS)])
     with pytest.raises(InputError, match="rec_1.bag starts 1.100 s before rec_0.bag ends"):
         check_part_order(tmp_path, parts, [(0, end), (end - int(1.1 * OVERLAP_ERROR_S * NS), 20 * NS)])
+
+
+def test_a_directory_of_whole_logs_is_one_line_for_every_command_and_batch_runs_each(tmp_path):
+    # two flights recorded one after the other (no overlap), saved as flights/flight_0.mcap, flight_1.mcap: run read
+    # them as one log across the gap while batch took them as two; the parts of one recording are named after their
+    # directory (the one rule, container._one_recording, for run, info, compare, tune and batch discovery)
+    from slamobs.pipeline.batch.discover import discover
+    from slamobs.pipeline.simulate import simulation, write_log
+
+    flights, flight = tmp_path / "flights", tmp_path / "flight"
+    for k in (0, 1):
+        sim = simulation("circle", duration=3.0, start_ns=1_700_000_000 * NS + k * 60 * NS)
+        write_log(sim, flights / f"flight_{k}.mcap")
+        write_log(sim, flight / f"flight_{k}.mcap")
+    wanted = f"{flights}: holds 2 logs (flight_0.mcap, flight_1.mcap), not one recording"
+    for command in (
+        ("info", flights),
+        ("run", flights, "-o", tmp_path / "out"),
+        ("compare", flights, "--observers", "hashim,riekf", "-o", tmp_path / "out"),
+        ("tune", flights, "--observer", "hashim", "-o", tmp_path / "out"),
+    ):
+        res = invoke(*command, catch_exceptions=True)
+        assert res.exit_code == 2, (command[0], res.output)
+        assert wanted in res.output and f"`slamobs batch {flights}`" in res.output, (command[0], res.output)
+        (line,) = [line for line in res.output.splitlines() if not line.startswith(f"{command[0]}: ")]  # progress
+        assert line.startswith(f"error: {wanted}"), (command[0], res.output)
+    assert not (tmp_path / "out").exists()
+    assert [e.path for e in discover([flights])] == [flights / "flight_0.mcap", flights / "flight_1.mcap"]
+    # named after their directory they are the parts of one recording, for info and batch alike
+    info = inspect_log(flight)
+    assert info.container == "ros2-split" and info.duration_s > 60
+    assert [e.path for e in discover([flight])] == [flight]

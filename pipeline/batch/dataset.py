@@ -41,7 +41,7 @@ import pyarrow.parquet as pq
 
 from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, encode_row, meta_dir
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.paths import exclusive
+from slamobs.pipeline.paths import exclusive, foreign_entry
 from slamobs.pipeline.stored_runs import (
     COMPACTED,
     RUN_IDS_KEY,
@@ -123,6 +123,7 @@ def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> N
     final = run_dir(out, run_id)
     final.parent.mkdir(parents=True, exist_ok=True)
     if final.exists():
+        check_owned_runs(out, [run_id])
         remove_path(final)
     os.replace(staged / "run", final)
 
@@ -196,11 +197,34 @@ def _rewrite_without(path: Path, drop: set[str]) -> None:
         path.unlink()
 
 
+def check_owned_runs(out: Path, run_ids: Iterable[str]) -> None:
+    """Every run directory of ``run_ids`` holds only what slamobs wrote (its manifest's files, and ``batch.json``:
+    :func:`~slamobs.pipeline.paths.foreign_entry`), so deleting it (a ``--force``, a changed or pruned log, a partial
+    run) deletes nothing of the user's.
+
+    Raises:
+        InputError: A run directory holds an entry slamobs did not write (named, with the way out); nothing has
+            been deleted.
+    """
+    for rid in sorted(run_ids):
+        path = run_dir(out, rid)
+        if not path.is_dir() or path.is_symlink():  # a link goes, never what it points to
+            continue
+        if (found := foreign_entry(path, also=(RUN_META,))) is not None:
+            raise InputError(
+                path / found[0],
+                f"{found[1]}; the batch would delete it with run {rid} (--force, a changed, pruned or partial run): "
+                f"move it out of {out}",
+            )
+
+
 def remove_files(index: DatasetIndex, run_ids: set[str]) -> None:
-    """Delete every file of ``run_ids``: partitions, rows in compacted files, run directories."""
+    """Delete every file of ``run_ids``: partitions, rows in compacted files, run directories (each checked to hold
+    only what slamobs wrote before anything is deleted: :func:`check_owned_runs`)."""
     if not run_ids:
         return
     out = index.out
+    check_owned_runs(out, index.runs & run_ids)
     for table, fresh in index.fresh.items():
         for rid in fresh & run_ids:
             remove_path(partition_file(out, table, rid).parent)
@@ -301,11 +325,20 @@ def batch_lock(out: Path, holder: str = "another batch (or a report of one of it
 
 def check_layout(out: Path) -> None:
     """Refuse an output directory of the older layout (path-based run ids, tables in runs/): mixing would
-    duplicate every run."""
+    duplicate every run; and a directory that is no batch dataset (no ``_slamobs/``) but holds names a batch
+    writes and deletes (``runs/``, a table's directory): they are the user's."""
     out = Path(out)
-    if (out / SUMMARY).is_file() and not meta_dir(out).is_dir():
+    if meta_dir(out).is_dir():
+        return
+    if (out / SUMMARY).is_file():
         raise InputError(
             out, "written by an older slamobs batch (run ids from log paths); write this batch to a new directory"
+        )
+    if held := [f"{name}/" for name in (RUNS, *ALL_TABLES) if os.path.lexists(out / name)]:
+        raise InputError(
+            out,
+            f"not a slamobs batch dataset (no {meta_dir(out).name}/) but holds {', '.join(held)}, which a batch "
+            "writes and deletes: write the batch to a new or empty directory",
         )
 
 

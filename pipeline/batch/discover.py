@@ -40,18 +40,17 @@ def is_split_recording(path: Path) -> bool:
     recording (ROS1 bags, or the .db3/.mcap files of a rosbag2 recording that was not closed: the readers' rule,
     :func:`~slamobs.pipeline.readers.container.detect_container`), laid out as a recorder lays it out: the parts
     named after their directory (``rec/rec_0.db3``, as rosbag2 names them). A directory of logs that only look like
-    parts (``flights/flight_0.mcap``, ``flight_1.mcap``: whole logs) stays a directory of logs; a manifest entry
-    naming such a directory is run as one. False for anything else (no logs, several names, a file not a log)."""
+    parts (``flights/flight_0.mcap``, ``flight_1.mcap``: whole logs) stays a directory of logs (``run`` refuses it).
+    False for anything else (no logs, several names, a file not a log)."""
     if not path.is_dir() or is_rosbag2_dir(path):
         return False
     # imported here: discovery stays light for the batch CLI's start; only directories pay for the readers
-    from slamobs.pipeline.readers.container import PART, SPLIT_KINDS, detect_container
+    from slamobs.pipeline.readers.container import SPLIT_KINDS, detect_container
 
     try:
-        found = detect_container(path)
+        return detect_container(path).kind in SPLIT_KINDS  # the readers' rule names the parts after the directory
     except InputError:
         return False
-    return found.kind in SPLIT_KINDS and all(PART.match(p.name)["name"] == path.name for p in found.parts)
 
 
 def _is_glob(text: str) -> bool:

@@ -27,8 +27,7 @@ from .decode import (
     decode_topics,
     detection_stream,
     decode_tf,
-    gyro_not_filled,
-    has_angular_velocity,
+    gyro_stand_in,
     pose_stream,
     static_transforms,
     tag_detections,
@@ -100,7 +99,9 @@ def read_log(
         truth_file: Ground truth from a TUM, EuRoC CSV or KITTI file instead of a topic.
         truth_format: ``tum``, ``euroc`` or ``kitti`` (detected from the content by default).
         truth_times: KITTI ``times.txt`` (KITTI poses carry no stamps).
-        clocks: ``None``/``"header"`` keeps header stamps; ``"auto"`` takes record times for the topics whose
+        clocks: ``None``/``"header"`` keeps header stamps; ``"record"``: the run reads every stream's record
+            times (``time.source: record``, applied by the alignment; the notes leave header stamps out);
+            ``"auto"`` takes record times for the topics whose
             stamps look unusable next to the reference stream (:func:`recommend_clocks`); a mapping
             ``topic -> "header" | "record"`` chooses per topic. The choice is in ``LogStreams.clocks``.
         images: How camera images are searched for tags (family, detector settings, frame rate); tags found
@@ -123,11 +124,10 @@ def read_log(
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
         streams = LogStreams(path=str(path), warnings=list(selection.warnings))
         tf_rows: dict[str, TfRows] = {}
-        reports: dict[str, dict[str, list[str]]] = defaultdict(dict)  # topic -> text -> roles
+        reports: dict[str, list[tuple[str, Cleaning]]] = defaultdict(list)  # topic -> (role, cleaning)
 
         def note(topic: str, role: str, cleaning: Cleaning) -> None:
-            if text := cleaning.text():
-                reports[topic].setdefault(text, []).append(role)
+            reports[topic].append((role, cleaning))
             stream = getattr(streams, role, None)
             left = (stream.ids.shape[0] if role == "detections" else len(stream)) if stream is not None else 0
             if cleaning.nonfinite and not left and role in REQUIRED_ROLES:
@@ -192,10 +192,13 @@ def read_log(
         # damage found while decoding (a chunk skipped by its index) is known only now
         streams.warnings[:0] = damage_notes(reader)
 
-    streams.warnings += _cleaning_notes(reports)
+    at = len(streams.warnings)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
-    return _with_clocks(streams, clocks)
+    streams = _with_clocks(streams, clocks)
+    # described on the clock the run reads each topic on (known once the clocks are chosen)
+    streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
+    return streams
 
 
 def _checked_velocity(role, topic, stream, cleaning, selection, table, rows, streams, note, overrides):
@@ -212,13 +215,17 @@ def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, 
     """An angular velocity that is all zero (an IMU that does not fill the field) replaced by the angular velocity
     of the linear-velocity topic (odometry, a twist) when that one holds some; the IMU's cleaning is noted here."""
     other = selection.roles.get("linear_velocity")
-    if not gyro_not_filled(stream.xyz) or other is None or other == topic or other not in rows:
+    if other not in rows:
         return stream, cleaning
-    if not has_angular_velocity(table[other][0].msgtype):
+    decoded = []
+
+    def other_xyz() -> np.ndarray:
+        decoded.append(vec3_stream(rows[other], "angular_velocity"))
+        return decoded[0][0].xyz
+
+    if not gyro_stand_in(topic, lambda: stream.xyz, other, table[other][0].msgtype, other_xyz):
         return stream, cleaning
-    found, found_cleaning = vec3_stream(rows[other], "angular_velocity")
-    if not found.xyz.any():
-        return stream, cleaning
+    found, found_cleaning = decoded[0]
     note(topic, "angular_velocity", cleaning)
     streams.warnings.append(
         f"{topic}: every angular velocity is zero (not measured): the angular velocity is {other}'s instead "
@@ -266,10 +273,15 @@ def _one_pass_topics(chosen, table, selection, multi) -> tuple[dict, dict]:
     return numeric, found
 
 
-def _cleaning_notes(reports: Mapping[str, Mapping[str, list[str]]]) -> list[str]:
-    """One warning per topic and cleaning text; the roles are named where a topic serves several."""
+def _cleaning_notes(reports: Mapping[str, list[tuple[str, Cleaning]]], on_record_time: set[str]) -> list[str]:
+    """One warning per topic and cleaning text; the roles are named where a topic serves several. A topic the run
+    reads on record time (``on_record_time``) has no header-stamp notes (:meth:`Cleaning.text`)."""
     notes = []
-    for topic, texts in reports.items():
+    for topic, cleanings in reports.items():
+        texts: dict[str, list[str]] = {}
+        for role, cleaning in cleanings:
+            if text := cleaning.text(topic in on_record_time):
+                texts.setdefault(text, []).append(role)
         for text, roles in texts.items():
             where = topic if len(texts) == 1 else f"{topic} ({', '.join(roles)})"
             notes.append(f"{where}: {text}")
@@ -364,13 +376,13 @@ def _odometry_twist(
 
 
 def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None) -> LogStreams:
-    if clocks is None or clocks == "header":
+    if clocks is None or clocks in ("header", "record"):  # record: the alignment reads every record time
         return streams
     if clocks == "auto":
         chosen, warnings = recommend_clocks(streams)
         streams.warnings += warnings
     elif isinstance(clocks, str):
-        raise InputError(streams.path, f"unknown clock choice {clocks!r} (header, auto or a topic mapping)")
+        raise InputError(streams.path, f"unknown clock choice {clocks!r} (header, record, auto or a topic mapping)")
     else:
         chosen = dict(clocks)
     try:

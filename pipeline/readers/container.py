@@ -143,7 +143,7 @@ def detect_container(path: str | Path) -> Container:
         meta = path / "metadata.yaml"
         text = _metadata_text(path, meta)
         if text is None and (parts := split_parts(path, entries)):
-            return Container(path, "ros1-split", f"{len(parts)} bag files", parts=parts)
+            return Container(path, "ros1-split", f"{len(parts)} bag files", parts=_one_recording(path, parts))
         if text is None:  # rosbag2 writes metadata.yaml when a recording closes: a crash leaves none (or an empty one)
             which = "an empty" if meta.is_file() else "no"
             inner = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
@@ -153,7 +153,9 @@ def detect_container(path: str | Path) -> Container:
                 return replace(found, note=note)
             if parts := _storage_parts(inner):
                 note = f"{path.name} has {which} metadata.yaml (recording not closed?): read its {len(parts)} files"
-                return Container(path, "ros2-split", f"{len(parts)} {parts[0].suffix} files", note, parts)
+                return Container(
+                    path, "ros2-split", f"{len(parts)} {parts[0].suffix} files", note, _one_recording(path, parts)
+                )
             names = ", ".join(x.name for x in inner[:3]) + (", ..." if len(inner) > 3 else "")
             hint = (
                 f" (directory has {which} metadata.yaml and {len(inner)} storage files, {names}: the parts of a "
@@ -240,6 +242,26 @@ def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
             if not fobj.read(len(ros1.MAGIC)).startswith(ros1.MAGIC):
                 raise InputError(bag, "not a ROS1 bag (a part of the split recording in its directory)")
     return tuple(bag for _, bag in parts)
+
+
+def _one_recording(directory: Path, parts: tuple[Path, ...]) -> tuple[Path, ...]:
+    """``parts`` when they are laid out as a recorder lays out the parts of one recording: named after their
+    directory (``rec/rec_0.db3``, as rosbag2 names them). The one rule of what a directory of ``NAME_N`` files is,
+    for ``run``, ``info`` and batch discovery alike.
+
+    Raises:
+        InputError: The files are named otherwise (``flights/flight_0.mcap``, ``flight_1.mcap``): whole logs that
+            only look like parts.
+    """
+    name = PART.match(parts[0].name)["name"]
+    if name == directory.name:
+        return parts
+    listed = ", ".join(p.name for p in parts[:3]) + (", ..." if len(parts) > 3 else "")
+    raise InputError(
+        directory,
+        f"holds {len(parts)} logs ({listed}), not one recording (the parts of one are named after their directory: "
+        f"{name}/{parts[0].name}): run one file, or `slamobs batch {directory}` over them",
+    )
 
 
 def check_part_order(directory: Path, parts: Sequence[Path], spans: Sequence[tuple[int, int]]) -> None:

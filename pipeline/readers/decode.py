@@ -66,6 +66,24 @@ def gyro_not_filled(xyz: np.ndarray) -> bool:
     return xyz.shape[0] >= 2 and not xyz.any()
 
 
+def gyro_stand_in(
+    gyro: str | None,
+    gyro_xyz: Callable[[], np.ndarray],
+    other: str | None,
+    other_msgtype: str | None,
+    other_xyz: Callable[[], np.ndarray],
+) -> bool:
+    """Whether the linear-velocity topic ``other``'s angular velocity stands in for the angular-velocity topic
+    ``gyro``'s: ``gyro``'s is not filled (:func:`gyro_not_filled`), ``other`` is another topic whose type has an
+    angular velocity (:func:`has_angular_velocity`) and its angular velocity is not all zero. The one rule of
+    ``read_log`` (every message) and ``slamobs info`` (the first few); the vectors are read only when needed."""
+    if gyro is None or other is None or other == gyro or other_msgtype is None:
+        return False
+    if not has_angular_velocity(other_msgtype) or not gyro_not_filled(gyro_xyz()):
+        return False
+    return bool(other_xyz().any())
+
+
 def has_angular_velocity(msgtype: str) -> bool:
     """Whether messages of ``msgtype`` carry an angular velocity the readers read (odometry, twists, IMU)."""
     return ("angular_velocity", msgtype) in VEC3_ROLES
@@ -106,12 +124,14 @@ class Cleaning:
         self.out_of_order = int(np.count_nonzero(steps < 0))
         self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
 
-    def text(self) -> str:
-        """One warning fragment, empty when nothing happened."""
+    def text(self, on_record_time: bool = False) -> str:
+        """One warning fragment, empty when nothing happened. ``on_record_time``: the run reads the stream's record
+        times (``time.source: record``, the topic's ``time.topics``), so what its header stamps do (all zero, out of
+        order, repeated) is left out: it does not describe the run."""
         parts = []
-        if self.zero_stamps:
+        if self.zero_stamps and not on_record_time:
             parts.append("header stamps are all zero, using record time")
-        if self.out_of_order:
+        if self.out_of_order and not on_record_time:
             back = ""
             if self.step_back_ns >= CLOCK_STEP_NS and not self.zero_stamps:  # not the jitter of a driver
                 back = (
@@ -120,7 +140,7 @@ class Cleaning:
             parts.append(plural(self.out_of_order, "out-of-order stamp") + back)
         if self.duplicates:
             parts.append(plural(self.duplicates, "exact duplicate") + " dropped")
-        if self.repeated:
+        if self.repeated and not on_record_time:
             parts.append(plural(self.repeated, "repeated stamp") + " with different values")
         if self.nonfinite:
             parts.append(plural(self.nonfinite, "NaN/Inf sample") + " dropped")

@@ -27,7 +27,7 @@ from slamobs.pipeline.errors import plural
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import first_vectors, gyro_not_filled, has_angular_velocity, has_header, mean_rate
+from .decode import first_vectors, gyro_stand_in, has_header, mean_rate
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ROLES, select_roles, topics_of
@@ -358,19 +358,20 @@ GYRO_PROBE = 50
 
 def _gyro_source(reader, table: dict, roles: dict[str, str]) -> tuple[dict[str, str], list[str]]:
     """The roles with the angular velocity ``run`` will take: the linear-velocity topic's when the detected one reads
-    zero in its first :data:`GYRO_PROBE` messages (``decode.gyro_not_filled``, the readers' rule) and that one's
-    does not; with a warning saying so."""
+    zero in its first :data:`GYRO_PROBE` messages and that one's does not (``decode.gyro_stand_in``, the readers'
+    rule); with a warning saying so."""
     gyro, other = roles.get("angular_velocity"), roles.get("linear_velocity")
-    if gyro is None or other is None or gyro == other or not has_angular_velocity(table[other][0].msgtype):
-        return roles, []
-    (meta, conns), (other_meta, other_conns) = table[gyro], table[other]
-    seen = first_vectors(reader, conns, meta.msgtype, "angular_velocity", GYRO_PROBE)
-    if not gyro_not_filled(seen):
-        return roles, []
-    if not first_vectors(reader, other_conns, other_meta.msgtype, "angular_velocity", GYRO_PROBE).any():
+    seen = []
+
+    def probe(topic: str) -> np.ndarray:
+        meta, conns = table[topic]
+        seen.append(first_vectors(reader, conns, meta.msgtype, "angular_velocity", GYRO_PROBE))
+        return seen[-1]
+
+    if not gyro_stand_in(gyro, lambda: probe(gyro), other, other and table[other][0].msgtype, lambda: probe(other)):
         return roles, []
     return {**roles, "angular_velocity": other}, [
-        f"{gyro}: every angular velocity of its first {len(seen)} messages is zero (not measured): the angular "
+        f"{gyro}: every angular velocity of its first {len(seen[0])} messages is zero (not measured): the angular "
         f"velocity is {other}'s, as run takes it when all are zero (topics.angular_velocity chooses one)"
     ]
 
