@@ -147,8 +147,23 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             convergence_t_s=convergence["t_since_start_s"],
             title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment",
             level=((level_t - t0) / 1e9, level),
+            verdict=convergence_verdict(convergence),
         ),
     )
+
+
+def convergence_verdict(conv: dict[str, Any]) -> str | None:
+    """The error figure's words for the report's convergence section: why it has no convergence time (the band is
+    still drawn), or that the level reached is coarse; None for a plain convergence."""
+    if conv.get("t_since_start_s") is not None:
+        if not conv.get("coarse"):
+            return None
+        return f"coarse: level {100 * conv['steady_level_share']:.0f} % of the path's extent"
+    if conv.get("lost"):
+        return f"not converged: level above the path's extent ({conv['trajectory_extent_m']:.3g} m RMS)"
+    if conv.get("growing"):
+        return "not converged: the error level keeps growing"
+    return "not converged: the last error level is above the band"
 
 
 #: the box plots of the segment errors (rpg_trajectory_evaluation's relative error per sub-trajectory length)
