@@ -1573,3 +1573,19 @@ def test_error_plot_says_when_the_band_is_no_convergence(tmp_path, monkeypatch):
     legend = lambda fig: [x.get_text() for x in fig.axes[0].get_legend().get_texts()]  # noqa: E731
     assert "not converged: level above the path's extent (2.38 m RMS)" in legend(drawn[0])
     assert "converged at 0.00 s (coarse: level 38 % of the path's extent)" in legend(drawn[1])
+
+
+def test_map_residuals_measure_a_map_moved_off_its_own_detections():
+    """map_residuals is the distance from the final map to each detection as the run placed it (track − innovation):
+    zero where the map is where the poses put the detections, the shift where a landmark moved after them."""
+    from slamobs.pipeline.evaluation.slam_metrics import map_residuals
+
+    rng = np.random.default_rng(3)
+    map_ids, map_xyz = np.array([7, 2, 5]), rng.normal(size=(3, 3))
+    det_ids = np.array([2, 5, 7, 7, 9])
+    placed = np.r_[map_xyz[[1, 2, 0, 0]], np.zeros((1, 3))]
+    placed[3] += [0.0, 0.3, 0.4]  # this detection put landmark 7 0.5 m from where the map ends up
+    innovation = rng.normal(size=(5, 3))
+    r = map_residuals(det_ids, placed + innovation, innovation, map_ids, map_xyz)
+    np.testing.assert_allclose(r[:4], [0.0, 0.0, 0.0, 0.5], atol=1e-12)
+    assert np.isnan(r[4])  # id 9 is not in the map

@@ -392,7 +392,35 @@ def summary(tables: dict[str, Table | None]) -> dict[str, Any]:
         out["detection_frames"] = int(len(counts))
         out["detections_per_frame_mean"] = float(np.mean(counts))
         out["innovation_median"] = float(np.nanmedian(norms)) if np.isfinite(norms).any() else None
+        out.update(map_residual(tables.get("landmark_tracks"), innovations, landmarks))
     return out
+
+
+def map_residual(tracks: Table | None, innovations: Table, landmarks: Table | None) -> dict[str, float]:
+    """Median and 95th percentile of :func:`.slam_metrics.map_residuals` (m) when the tables allow it (the tracks
+    row for row with the innovations, as the run writes them), else {}."""
+    from slamobs.pipeline.evaluation.slam_metrics import map_residuals
+
+    if tracks is None or landmarks is None or n_rows(tracks) != n_rows(innovations) or not n_rows(landmarks):
+        return {}
+    t_ns, ids = column(tracks, "t_ns", np.int64), column(tracks, "id", np.int64)
+    if not (
+        np.array_equal(t_ns, column(innovations, "t_ns", np.int64))
+        and np.array_equal(ids, column(innovations, "id", np.int64))
+    ):
+        return {}
+    map_ids, map_xyz = landmark_table(landmarks)
+    r = map_residuals(
+        ids,
+        columns(tracks, ["x", "y", "z"], np.float64),
+        columns(innovations, ["ex", "ey", "ez"], np.float64),
+        map_ids,
+        map_xyz,
+    )
+    r = r[np.isfinite(r)]
+    if not len(r):
+        return {}
+    return {"map_residual_median": float(np.median(r)), "map_residual_p95": float(np.percentile(r, 95))}
 
 
 #: What each number of :func:`summary` is, with its unit (report.md of a run without truth showed them bare).
@@ -405,6 +433,13 @@ SUMMARY_MEANING = {
     "detection_frames": "detection frames with at least one landmark",
     "detections_per_frame_mean": "mean landmarks per detection frame",
     "innovation_median": "m, median over the detections of ‖e_i‖ = ‖p̂_i − R̂y_i − P̂‖ (innovations.parquet e_norm)",
+    "map_residual_median": (
+        "m, median over the detections of ‖p̂_i(final map) − (R̂y_i + P̂)‖: each detection made a point by the pose "
+        "the run held at its time (landmark_tracks − innovations) against the final map; well above "
+        "innovation_median when map and trajectory disagree (a filter's final map is refined by later frames, its "
+        "earlier poses are not)"
+    ),
+    "map_residual_p95": "m, 95th percentile of the same",
 }
 
 
@@ -432,7 +467,8 @@ def run_tables(out) -> dict[str, Table | None]:
     """The tables of run directory ``out`` the run's figures draw (None where a table is missing)."""
     from slamobs.pipeline.writers import read_columns
 
-    paths = {k: Path(out) / f"{k}.parquet" for k in ("poses", "biases", "landmarks", "innovations")}
+    names = ("poses", "biases", "landmarks", "innovations", "landmark_tracks")
+    paths = {k: Path(out) / f"{k}.parquet" for k in names}
     return {k: read_columns(p) if p.is_file() else None for k, p in paths.items()}
 
 
