@@ -50,7 +50,11 @@ def test_a_run_without_truth_draws_and_lists_its_figures(run_dir):
     assert {"trajectory.png", "map.png", "measurements.png", "biases.png"} <= set(figures)
     _pngs(out, figures)
     md = (out / "report.md").read_text()
-    assert "no ground truth" in md and all(f"({name})" in md for name in figures)
+    assert all(f"({name})" in md for name in figures)
+    # the simulated log's landmark truth stays: the page says it has no trajectory truth (it said "no ground truth")
+    # and shows the map error run.json holds
+    assert md.startswith("# Run summary (no trajectory truth; map error against the landmark truth)")
+    assert f"| map_error_rmse | {run['map_error']['error_m']['rmse']:.6g} |" in md
     # the summary's numbers are the run's: as many landmarks as the map table holds
     n_landmarks = len(pd.read_parquet(out / "landmarks.parquet"))
     assert f"| landmarks | {n_landmarks} |" in md

@@ -440,19 +440,39 @@ SUMMARY_MEANING = {
         "earlier poses are not)"
     ),
     "map_residual_p95": "m, 95th percentile of the same",
+    "map_error_rmse": (
+        "m, RMS distance of the map's landmarks from their truth after an SE(3) fit of the map alone (no trajectory "
+        "truth to align by; run.json map_error)"
+    ),
+    "map_error_max": "m, the largest of those distances",
+    "map_error_landmarks": "landmarks matched to the truth by id (those the fit and the error are over)",
 }
 
 
-def summary_markdown(info: dict[str, Any], figures: list[str], notes: list[str] = ()) -> str:
-    """report.md of a run without truth: what the run did and its figures (no error numbers: no truth)."""
-    lines = ["# Run summary (no ground truth)", ""]
-    lines.append(
-        "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes say"
-        " which), so there are no error numbers; the figures show the estimate."
-    )
+def summary_markdown(
+    info: dict[str, Any], figures: list[str], notes: list[str] = (), map_error: dict[str, Any] | None = None
+) -> str:
+    """report.md of a run without trajectory truth: what the run did and its figures; with landmark truth the map
+    error (``run.json`` ``map_error``: the one error number such a run has)."""
+    if map_error is None:
+        lines = ["# Run summary (no ground truth)", ""]
+        lines.append(
+            "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes "
+            "say which), so there are no error numbers; the figures show the estimate."
+        )
+    else:
+        lines = ["# Run summary (no trajectory truth; map error against the landmark truth)", ""]
+        lines.append(
+            "The run has landmark truth but no trajectory truth (none in the log, or one too short or empty: the "
+            "notes say which): the map error below is its only error number; the figures show the estimate."
+        )
     lines.append("Give truth with `slamobs report RUN --truth ...` for the error report.")
     lines += ["", "| quantity | value | meaning |", "|---|---|---|"]
-    for key, value in info.items():
+    rows = dict(info)
+    if map_error is not None:
+        err = map_error["error_m"]
+        rows.update(map_error_rmse=err["rmse"], map_error_max=err["max"], map_error_landmarks=map_error["n_matched"])
+    for key, value in rows.items():
         shown = ", ".join(f"{v:.4g}" for v in value) if isinstance(value, list) else value
         shown = f"{shown:.6g}" if isinstance(shown, float) else "–" if shown is None else shown
         lines.append(f"| {key} | {shown} | {SUMMARY_MEANING.get(key, '')} |")
@@ -473,7 +493,12 @@ def run_tables(out) -> dict[str, Table | None]:
 
 
 def write_run_figures(
-    out, tables: dict[str, Table | None], notes: list[str] = (), plot_workers=None, plots: bool | str = "all"
+    out,
+    tables: dict[str, Table | None],
+    notes: list[str] = (),
+    plot_workers=None,
+    plots: bool | str = "all",
+    map_error: dict[str, Any] | None = None,
 ) -> list:
     """A run without truth: its figures (those ``plots`` chooses, :func:`chosen`; by ``plot_workers`` when given,
     else here) and ``report.md`` saying what the run did and showing them, into ``out``; the paths written."""
@@ -486,5 +511,7 @@ def write_run_figures(
 
         written = draw(jobs, lambda name: Path(out) / name)
     md = Path(out) / "report.md"
-    md.write_text(summary_markdown(summary(tables), [p.name for p in written], list(notes)), encoding="utf-8")
+    md.write_text(
+        summary_markdown(summary(tables), [p.name for p in written], list(notes), map_error), encoding="utf-8"
+    )
     return [*written, md]

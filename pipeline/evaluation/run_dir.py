@@ -356,7 +356,9 @@ def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
     info = summary(tables)
 
     def fill(staged: Path) -> None:
-        drawn = write_run_figures(staged, tables, list(run.meta.get("notes") or []))
+        drawn = write_run_figures(
+            staged, tables, list(run.meta.get("notes") or []), map_error=run.meta.get("map_error")
+        )
         info["figures"] = [p.name for p in drawn if p.suffix == ".png"]
         meta = {**run.meta, "figures": info["figures"]}
         (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
