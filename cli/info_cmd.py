@@ -25,7 +25,13 @@ from slamobs.cli.errors import handled
     is_flag=True,
     help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs.",
 )
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml (with --noise).")
+@click.option(
+    "--config",
+    "config_path",
+    type=click.Path(path_type=Path),
+    default=None,
+    help="run.yaml: the settings it gives (tags.size, cameras) are not asked for; with --noise its noise levels.",
+)
 def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
     """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3), the roles its topics would play, and whether
     each estimator can run on it; with --noise, the noise levels learned from it.
@@ -42,11 +48,18 @@ def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: 
             _noise(log, msg_dir, config_path, as_json)
             return
         summary = inspect_log(log, msg_dir=msg_dir)
-        ready = readiness(summary)
+        ready = readiness(summary, _config(config_path))
     if as_json:
         click.echo(json.dumps({**summary.to_dict(), "readiness": ready.to_dict()}, indent=2))
     else:
         click.echo(format_info(summary) + "\n\n" + format_readiness(ready))
+
+
+def _config(config_path: Path | None):
+    """The run.yaml given to info, or None."""
+    from slamobs.pipeline.config import load_config
+
+    return None if config_path is None else load_config(config_path)
 
 
 def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: bool) -> None:

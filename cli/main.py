@@ -290,6 +290,8 @@ def compare(
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
         if note := table.attrs.get("compile_note"):
             click.echo(f"note: {note}")
+        for note in table.attrs.get("notes", []):  # what a blank or 180-degree cell means (comparison.md: Notes)
+            click.echo(f"note: {note}")
         runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
         files = ("comparison.parquet", "comparison.md", "comparison.json", "overlay.png")
         click.echo(f"wrote {wrote_line(out_dir, files, runs)}")

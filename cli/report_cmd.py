@@ -180,7 +180,13 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None 
             f"estimate     {info['n_poses']} poses over {info.get('duration_s', 0):.1f} s, path "
             f"{info.get('path_length_m', 0):.2f} m, extent {extent} m"
         )
-        click.echo(f"map          {info['landmarks']} landmarks")
+        residual = (
+            f"; the detections placed by the run's own poses lie {info['map_residual_median']:.4g} m from it "
+            f"(median; p95 {info['map_residual_p95']:.3g} m)"
+            if info.get("map_residual_median") is not None
+            else ""
+        )
+        click.echo(f"map          {info['landmarks']} landmarks{residual}")
         if info.get("detection_frames"):
             click.echo(
                 f"detections   {info['detection_frames']} frames, {info['detections_per_frame_mean']:.2f} per frame, "

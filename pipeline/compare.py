@@ -114,12 +114,24 @@ def compare_log(
                 r[VS_BATCH] = ape / ref if ape is not None and ref else None
         table = pd.DataFrame(rows).reindex(columns=columns)
         table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
-        (tmp / "comparison.md").write_text(_markdown(table, log, compiled=compiled))
+        notes = caveats(summaries)
+        if table["gyro_bias_err"].isna().all() and table["vel_bias_err"].isna().all():
+            notes.append("gyro_bias_err and vel_bias_err are blank: the log has no bias truth")
+        (tmp / "comparison.md").write_text(_markdown(table, log, compiled=compiled, notes=notes))
         write_json(tmp / "comparison.json", {"log": str(Path(log).resolve()), "rows": table.to_dict("records")})
         if prepared.streams.truth is not None and summaries:
             plot_overlay(tmp / "overlay.png", prepared.streams.truth, summaries)
     table.attrs["compile_note"] = compile_note(compiled)
+    table.attrs["notes"] = notes
     return table
+
+
+def caveats(summaries: dict[str, RunSummary]) -> list[str]:
+    """Per observer, what its report says beside its headline numbers (:func:`.evaluation.markdown.headline_caveats`:
+    no or a coarse convergence, an upside-down alignment), so a blank or 180-degree cell is explained."""
+    from slamobs.pipeline.evaluation.markdown import headline_caveats
+
+    return [f"{name}: {c}" for name, s in summaries.items() for c in headline_caveats(s.report or {})]
 
 
 def has_truth(streams) -> bool:
@@ -245,7 +257,13 @@ def plot_estimates(path: Path, aligned: dict[str, np.ndarray], spread: dict[str,
     return path
 
 
-def _markdown(table, log: Path, against: str | None = None, compiled: dict[str, float] | None = None) -> str:
+def _markdown(
+    table,
+    log: Path,
+    against: str | None = None,
+    compiled: dict[str, float] | None = None,
+    notes: list[str] = (),
+) -> str:
     columns = list(table.columns)
     head = "| " + " | ".join(LABELS.get(c, c) for c in columns) + " |\n|" + "---|" * len(columns) + "\n"
     body = ""
@@ -266,6 +284,8 @@ def _markdown(table, log: Path, against: str | None = None, compiled: dict[str, 
     )
     if note := compile_note(compiled or {}):
         body += f"\nThe {note}\n"
+    if notes:
+        body += "\n## Notes\n\n" + "".join(f"- {n}\n" for n in notes)
     if against is not None:
         map_words = (
             f"{MAP_ERROR} the map's RMS error against the landmark truth after a map-only SE(3) alignment "

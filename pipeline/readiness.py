@@ -98,13 +98,16 @@ def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
     return EstimatorStatus(name, tuple(missing))
 
 
-def _settings_needed(info: LogInfo, detections: RoleStatus) -> tuple[str, ...]:
+def _settings_needed(info: LogInfo, detections: RoleStatus, config: RunConfig | None = None) -> tuple[str, ...]:
     """What a run on tag corners or images asks of the config: the tag size (a simulated log records it), and
-    for corners without a CameraInfo topic the camera calibration files."""
+    for corners without a CameraInfo topic the camera calibration files; none of what ``config`` gives."""
     needs = []
-    if (detections.msgtype in TAG_CORNER_TYPES or detections.msgtype in IMAGE_TYPES) and "sim_truth" not in info.roles:
+    sized = config is not None and (config.tags.size is not None or bool(config.tags.sizes))
+    tags = detections.msgtype in TAG_CORNER_TYPES or detections.msgtype in IMAGE_TYPES
+    if tags and "sim_truth" not in info.roles and not sized:
         needs.append("tags.size")
-    if detections.msgtype in TAG_CORNER_TYPES and "camera_info" not in info.roles:
+    calibrated = config is not None and bool(config.cameras)
+    if detections.msgtype in TAG_CORNER_TYPES and "camera_info" not in info.roles and not calibrated:
         needs.append("cameras: (calibration files; the log has no CameraInfo topic)")
     return tuple(needs)
 
@@ -121,11 +124,12 @@ def _candidates(info: LogInfo, role: str) -> list[str]:
     )
 
 
-def readiness(info: LogInfo) -> Readiness:
-    """Whether and how ``info``'s log can run, per estimator (see the module docstring)."""
+def readiness(info: LogInfo, config: RunConfig | None = None) -> Readiness:
+    """Whether and how ``info``'s log can run, per estimator (see the module docstring); the settings ``config``
+    gives (``tags.size``, ``cameras``) are not asked for again."""
     roles = tuple(_role_status(info, r) for r in LISTED_ROLES)
     found = {r.role for r in roles if r.found}
-    needs = _settings_needed(info, next(r for r in roles if r.role == "detections"))
+    needs = _settings_needed(info, next(r for r in roles if r.role == "detections"), config)
     estimators = tuple(replace(_estimator_status(name, found), needs=needs) for name in ESTIMATORS)
     satisfy = {r.role: how_to_satisfy(r.role) + _candidates(info, r.role) for r in roles if not r.found}
     return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators))

@@ -760,12 +760,14 @@ def evaluate_run(
         progress("figures")
         t = time.perf_counter()
         workers = plot_workers if report_error is None else None  # after a failed report: drawn here
-        metadata["figures"] = _run_figures(out, notes, workers, config.evaluation.plots)
+        metadata["figures"] = _run_figures(out, notes, workers, config.evaluation.plots, metadata.get("map_error"))
         timings["figures_s"] = time.perf_counter() - t
     return report, report_error
 
 
-def _run_figures(out: Path, notes: list[str], plot_workers=None, plots: bool | str = True) -> list[str]:
+def _run_figures(
+    out: Path, notes: list[str], plot_workers=None, plots: bool | str = True, map_error: dict | None = None
+) -> list[str]:
     """The run's own figures and its summary report.md (a run without an error report); the figures' names.
     Figures that cannot be drawn are a note: the run's tables stand (out of memory and interruptions still end
     the run)."""
@@ -773,7 +775,7 @@ def _run_figures(out: Path, notes: list[str], plot_workers=None, plots: bool | s
     from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES, run_tables, write_run_figures
 
     try:
-        written = write_run_figures(out, run_tables(out), notes, plot_workers, plots)
+        written = write_run_figures(out, run_tables(out), notes, plot_workers, plots, map_error)
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - the run's outputs are complete without their figures

@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from slamobs.pipeline.estimators import ESTIMATORS
+from slamobs.pipeline.evaluation.markdown import headline_caveats
 from cli_checks import SAMPLES, invoke
 
 SAMPLE = SAMPLES / "circle.bag"
@@ -60,6 +63,10 @@ def test_compare_all_observers_side_by_side(tmp_path):
     assert all(f"| {name} | ok |" in md for name in names)
     assert "convergence_band_m" in md and "last 20 % of the log" in md
     assert "gyro_bias_err in rad/s, vel_bias_err in m/s" in md  # the table's columns carry no unit
+    # every caveat of the runs' reports stands under the table (none here but what the reports say)
+    caveats = [f"{n}: {c}" for n in names for c in headline_caveats(json.loads((out / n / "report.json").read_text()))]
+    assert all(f"- {c}\n" in md for c in caveats) and ("## Notes" in md) == bool(caveats)
+    assert all(f"note: {c}" in res.stdout for c in caveats)
     # the closing line names every file the comparison wrote (docs/outputs.md: .parquet / .md / .json, overlay)
     wrote = res.stdout.splitlines()[-1]
     written = sorted(p.name for p in out.iterdir() if p.is_file() and p.name != "slamobs-output.json")
@@ -95,3 +102,30 @@ def test_a_run_time_that_includes_compiling_says_so(tmp_path, monkeypatch):
     note = "run time includes compiling numeric kernels (first run only): hashim's 31.2 s; run again for warm times."
     assert f"note: {note}" in res.stdout and f"The {note}" in (out / "comparison.md").read_text()
     assert "fast-adaptation's" not in res.stdout
+
+
+def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation():
+    """MR.CLAM 6 robot 1, fast-adaptation: comparison.md showed convergence_s blank beside a band of 11.2 m and a
+    rotation APE of 180 deg with no word; each report's verdicts now stand under the table."""
+    from slamobs.pipeline.compare import _markdown
+
+    lost = {"t_since_start_s": None, "lost": True, "steady_level_m": 7.47, "tail_fraction": 0.2}
+    lost["trajectory_extent_m"] = 2.38
+    flip = [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]]
+    stats = {"rmse": 6.2, "translation_m": {"rmse": 6.2}, "rotation_deg": {"rmse": 180.0}}
+    by = {
+        "se3": {"alignment": {"rotation_matrix": flip}, **stats},
+        "yaw": {"alignment": {"rotation_matrix": np.eye(3).tolist()}, **stats},
+    }
+    report = {"convergence": lost, "method": {"alignment": {"type": "se3"}}, "ape_by_alignment": by}
+    caveats = headline_caveats(report)
+    assert caveats[0] == (
+        "convergence: no: the error level, 7.47 m at most over the last 20 % of the log, is above the trajectory's "
+        "own extent, 2.38 m RMS about its centre: the estimate never locked on to the motion"
+    )
+    assert len(caveats) == 2 and caveats[1].startswith("the se3 alignment turned the estimate upside down")
+    plain = {"convergence": {"t_since_start_s": 1.0, "coarse": False}, "method": {"alignment": {"type": "se3"}}}
+    assert headline_caveats(plain) == []
+    table = pd.DataFrame([{"observer": "fast-adaptation", "status": "ok"}])
+    md = _markdown(table, Path("x.mcap"), notes=[f"fast-adaptation: {c}" for c in caveats])
+    assert "\n## Notes\n\n- fast-adaptation: convergence: no: the error level" in md

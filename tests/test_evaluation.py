@@ -1550,3 +1550,42 @@ def test_a_map_in_the_wrong_place_is_named_in_the_notes():
     (note,) = [n for n in rep["notes"] if n.startswith("landmark map:")]
     assert "its shape fits the landmark truth, its place does not" in note
     assert rep["landmarks"]["error_m"]["rmse"] > 4e6 and rep["landmarks"]["map_aligned"]["error_m"]["rmse"] < 0.1
+
+
+def test_error_plot_says_when_the_band_is_no_convergence(tmp_path, monkeypatch):
+    """Without a convergence time the band is still drawn: the legend says why there is none (lost / growing), and
+    a coarse convergence says so beside its time, as report.md does."""
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation.figure_jobs import convergence_verdict
+
+    lost = {"t_since_start_s": None, "lost": True, "growing": False, "trajectory_extent_m": 2.38}
+    assert convergence_verdict(lost) == "not converged: level above the path's extent (2.38 m RMS)"
+    growing = {**lost, "lost": False, "growing": True}
+    assert convergence_verdict(growing) == "not converged: the error level keeps growing"
+    coarse = {"t_since_start_s": 0.0, "coarse": True, "steady_level_share": 0.378}
+    assert convergence_verdict(coarse) == "coarse: level 38 % of the path's extent"
+    assert convergence_verdict({**coarse, "coarse": False}) is None
+    drawn = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or path)
+    t = np.linspace(0.0, 10.0, 200)
+    plots.plot_errors(tmp_path / "e.png", t, t, t, band_m=3.0, convergence_t_s=None, verdict=convergence_verdict(lost))
+    plots.plot_errors(tmp_path / "c.png", t, t, t, band_m=3.0, convergence_t_s=0.0, verdict=convergence_verdict(coarse))
+    legend = lambda fig: [x.get_text() for x in fig.axes[0].get_legend().get_texts()]  # noqa: E731
+    assert "not converged: level above the path's extent (2.38 m RMS)" in legend(drawn[0])
+    assert "converged at 0.00 s (coarse: level 38 % of the path's extent)" in legend(drawn[1])
+
+
+def test_map_residuals_measure_a_map_moved_off_its_own_detections():
+    """map_residuals is the distance from the final map to each detection as the run placed it (track − innovation):
+    zero where the map is where the poses put the detections, the shift where a landmark moved after them."""
+    from slamobs.pipeline.evaluation.slam_metrics import map_residuals
+
+    rng = np.random.default_rng(3)
+    map_ids, map_xyz = np.array([7, 2, 5]), rng.normal(size=(3, 3))
+    det_ids = np.array([2, 5, 7, 7, 9])
+    placed = np.r_[map_xyz[[1, 2, 0, 0]], np.zeros((1, 3))]
+    placed[3] += [0.0, 0.3, 0.4]  # this detection put landmark 7 0.5 m from where the map ends up
+    innovation = rng.normal(size=(5, 3))
+    r = map_residuals(det_ids, placed + innovation, innovation, map_ids, map_xyz)
+    np.testing.assert_allclose(r[:4], [0.0, 0.0, 0.0, 0.5], atol=1e-12)
+    assert np.isnan(r[4])  # id 9 is not in the map

@@ -7,6 +7,7 @@ import json
 import re
 import time
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -49,7 +50,11 @@ def test_a_run_without_truth_draws_and_lists_its_figures(run_dir):
     assert {"trajectory.png", "map.png", "measurements.png", "biases.png"} <= set(figures)
     _pngs(out, figures)
     md = (out / "report.md").read_text()
-    assert "no ground truth" in md and all(f"({name})" in md for name in figures)
+    assert all(f"({name})" in md for name in figures)
+    # the simulated log's landmark truth stays: the page says it has no trajectory truth (it said "no ground truth")
+    # and shows the map error run.json holds
+    assert md.startswith("# Run summary (no trajectory truth; map error against the landmark truth)")
+    assert f"| map_error_rmse | {run['map_error']['error_m']['rmse']:.6g} |" in md
     # the summary's numbers are the run's: as many landmarks as the map table holds
     n_landmarks = len(pd.read_parquet(out / "landmarks.parquet"))
     assert f"| landmarks | {n_landmarks} |" in md
@@ -58,6 +63,13 @@ def test_a_run_without_truth_draws_and_lists_its_figures(run_dir):
     rows = [line.split(" | ") for line in md.splitlines() if line.startswith("| ") and "---" not in line][1:]
     assert rows and all(len(r) == 3 and r[2].strip(" |") for r in rows), rows
     assert any(r[0] == "| innovation_median" and r[2].startswith("m, median") for r in rows)
+    # the map against the run's own poses: each detection placed by its pose (track − innovation) vs the final map
+    tracks, innov = pd.read_parquet(out / "landmark_tracks.parquet"), pd.read_parquet(out / "innovations.parquet")
+    final = pd.read_parquet(out / "landmarks.parquet").set_index("id").loc[tracks["id"], ["x", "y", "z"]].to_numpy()
+    placed = tracks[["x", "y", "z"]].to_numpy() - innov[["ex", "ey", "ez"]].to_numpy()
+    residual = float(np.median(np.linalg.norm(final - placed, axis=1)))
+    row = next(r for r in rows if r[0] == "| map_residual_median")
+    assert float(row[1]) == pytest.approx(residual, rel=1e-5) and row[2].startswith("m, median")
 
 
 def test_report_without_truth_draws_the_figures_again(run_dir):
@@ -66,7 +78,9 @@ def test_report_without_truth_draws_the_figures_again(run_dir):
     res = invoke("report", out)
     assert res.exit_code == 0, res.output
     assert "truth        none" in res.output and "map.png" in res.output
-    assert f"map          {len(pd.read_parquet(out / 'landmarks.parquet'))} landmarks" in res.output
+    assert (
+        f"map          {len(pd.read_parquet(out / 'landmarks.parquet'))} landmarks; the detections placed" in res.output
+    )
     assert re.search(r"median innovation [0-9.e-]+ m\n", res.output), res.output
     _pngs(out, json.loads((out / "run.json").read_text())["figures"])
     as_json = json.loads(invoke("report", out, "--json").stdout)

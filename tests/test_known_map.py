@@ -123,6 +123,16 @@ def test_map_truth_without_trajectory_truth(log, tmp_path):
     assert meta["map_error"]["n_matched"] == report["landmarks"]["n_matched"]
     assert meta["map_error"]["error_m"]["rmse"] == pytest.approx(report["landmarks"]["map_aligned"]["error_m"]["rmse"])
 
+    # the summary report.md says what the run can be judged by and shows the map error with its definition
+    meta, _ = _run(
+        log, tmp_path / "md", topics={"truth": ""}, evaluation={"plots": True, "map_truth": str(files["yaml"])}
+    )
+    md = (tmp_path / "md" / "report.md").read_text()
+    assert md.startswith("# Run summary (no trajectory truth; map error against the landmark truth)")
+    row = next(line for line in md.splitlines() if line.startswith("| map_error_rmse |"))
+    assert float(row.split(" | ")[1]) == pytest.approx(meta["map_error"]["error_m"]["rmse"], rel=1e-5)
+    assert "SE(3) fit of the map alone" in row
+
 
 # --------------------------------------------------------------------------- odometry twists
 

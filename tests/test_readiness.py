@@ -208,3 +208,26 @@ def test_a_mistyped_topic_names_the_nearest_one(logs, tmp_path):
     assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1
     assert "[/odm]: topic for role linear_velocity is not in the log (did you mean /odom? topics: " in res.output
     assert not (tmp_path / "out").exists()
+
+
+def test_info_with_a_config_does_not_ask_for_what_it_gives():
+    """TagSLAM test_11 with its config (tags.size, cameras): `info --config` still said "ready once the config gives
+    tags.size and cameras" (the config was read with --noise only)."""
+    from slamobs.cli.info_cmd import format_readiness
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.readers.inspect import LogInfo, TopicSummary
+
+    topics = (
+        TopicSummary("/odom", "nav_msgs/msg/Odometry", 100, rate_hz=20.0),
+        TopicSummary("/tags", "apriltag_msgs/msg/ApriltagArrayStamped", 100, rate_hz=20.0),
+    )
+    roles = {"angular_velocity": "/odom", "linear_velocity": "/odom", "detections": "/tags"}
+    info = LogInfo("x.bag", "ros1", "", 0, 1, 300, topics, roles)
+    first = lambda config: format_readiness(readiness(info, config)).splitlines()[0]  # noqa: E731
+    assert first(parse_config({"tags": {"size": 0.15}})) == (
+        "  readiness: 5 of 7 estimators can run once the config gives cameras"
+    )
+    assert first(parse_config({"tags": {"sizes": {3: 0.1}}, "cameras": ["cameras.yaml"]})) == (
+        "  readiness: 5 of 7 estimators can run"
+    )
+    assert first(None).endswith("once the config gives tags.size and cameras")

@@ -147,8 +147,23 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             convergence_t_s=convergence["t_since_start_s"],
             title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment",
             level=((level_t - t0) / 1e9, level),
+            verdict=convergence_verdict(convergence),
         ),
     )
+
+
+def convergence_verdict(conv: dict[str, Any]) -> str | None:
+    """The error figure's words for the report's convergence section: why it has no convergence time (the band is
+    still drawn), or that the level reached is coarse; None for a plain convergence."""
+    if conv.get("t_since_start_s") is not None:
+        if not conv.get("coarse"):
+            return None
+        return f"coarse: level {100 * conv['steady_level_share']:.0f} % of the path's extent"
+    if conv.get("lost"):
+        return f"not converged: level above the path's extent ({conv['trajectory_extent_m']:.3g} m RMS)"
+    if conv.get("growing"):
+        return "not converged: the error level keeps growing"
+    return "not converged: the last error level is above the band"
 
 
 #: the box plots of the segment errors (rpg_trajectory_evaluation's relative error per sub-trajectory length)
@@ -377,7 +392,35 @@ def summary(tables: dict[str, Table | None]) -> dict[str, Any]:
         out["detection_frames"] = int(len(counts))
         out["detections_per_frame_mean"] = float(np.mean(counts))
         out["innovation_median"] = float(np.nanmedian(norms)) if np.isfinite(norms).any() else None
+        out.update(map_residual(tables.get("landmark_tracks"), innovations, landmarks))
     return out
+
+
+def map_residual(tracks: Table | None, innovations: Table, landmarks: Table | None) -> dict[str, float]:
+    """Median and 95th percentile of :func:`.slam_metrics.map_residuals` (m) when the tables allow it (the tracks
+    row for row with the innovations, as the run writes them), else {}."""
+    from slamobs.pipeline.evaluation.slam_metrics import map_residuals
+
+    if tracks is None or landmarks is None or n_rows(tracks) != n_rows(innovations) or not n_rows(landmarks):
+        return {}
+    t_ns, ids = column(tracks, "t_ns", np.int64), column(tracks, "id", np.int64)
+    if not (
+        np.array_equal(t_ns, column(innovations, "t_ns", np.int64))
+        and np.array_equal(ids, column(innovations, "id", np.int64))
+    ):
+        return {}
+    map_ids, map_xyz = landmark_table(landmarks)
+    r = map_residuals(
+        ids,
+        columns(tracks, ["x", "y", "z"], np.float64),
+        columns(innovations, ["ex", "ey", "ez"], np.float64),
+        map_ids,
+        map_xyz,
+    )
+    r = r[np.isfinite(r)]
+    if not len(r):
+        return {}
+    return {"map_residual_median": float(np.median(r)), "map_residual_p95": float(np.percentile(r, 95))}
 
 
 #: What each number of :func:`summary` is, with its unit (report.md of a run without truth showed them bare).
@@ -390,19 +433,46 @@ SUMMARY_MEANING = {
     "detection_frames": "detection frames with at least one landmark",
     "detections_per_frame_mean": "mean landmarks per detection frame",
     "innovation_median": "m, median over the detections of ‖e_i‖ = ‖p̂_i − R̂y_i − P̂‖ (innovations.parquet e_norm)",
+    "map_residual_median": (
+        "m, median over the detections of ‖p̂_i(final map) − (R̂y_i + P̂)‖: each detection made a point by the pose "
+        "the run held at its time (landmark_tracks − innovations) against the final map; well above "
+        "innovation_median when map and trajectory disagree (a filter's final map is refined by later frames, its "
+        "earlier poses are not)"
+    ),
+    "map_residual_p95": "m, 95th percentile of the same",
+    "map_error_rmse": (
+        "m, RMS distance of the map's landmarks from their truth after an SE(3) fit of the map alone (no trajectory "
+        "truth to align by; run.json map_error)"
+    ),
+    "map_error_max": "m, the largest of those distances",
+    "map_error_landmarks": "landmarks matched to the truth by id (those the fit and the error are over)",
 }
 
 
-def summary_markdown(info: dict[str, Any], figures: list[str], notes: list[str] = ()) -> str:
-    """report.md of a run without truth: what the run did and its figures (no error numbers: no truth)."""
-    lines = ["# Run summary (no ground truth)", ""]
-    lines.append(
-        "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes say"
-        " which), so there are no error numbers; the figures show the estimate."
-    )
+def summary_markdown(
+    info: dict[str, Any], figures: list[str], notes: list[str] = (), map_error: dict[str, Any] | None = None
+) -> str:
+    """report.md of a run without trajectory truth: what the run did and its figures; with landmark truth the map
+    error (``run.json`` ``map_error``: the one error number such a run has)."""
+    if map_error is None:
+        lines = ["# Run summary (no ground truth)", ""]
+        lines.append(
+            "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes "
+            "say which), so there are no error numbers; the figures show the estimate."
+        )
+    else:
+        lines = ["# Run summary (no trajectory truth; map error against the landmark truth)", ""]
+        lines.append(
+            "The run has landmark truth but no trajectory truth (none in the log, or one too short or empty: the "
+            "notes say which): the map error below is its only error number; the figures show the estimate."
+        )
     lines.append("Give truth with `slamobs report RUN --truth ...` for the error report.")
     lines += ["", "| quantity | value | meaning |", "|---|---|---|"]
-    for key, value in info.items():
+    rows = dict(info)
+    if map_error is not None:
+        err = map_error["error_m"]
+        rows.update(map_error_rmse=err["rmse"], map_error_max=err["max"], map_error_landmarks=map_error["n_matched"])
+    for key, value in rows.items():
         shown = ", ".join(f"{v:.4g}" for v in value) if isinstance(value, list) else value
         shown = f"{shown:.6g}" if isinstance(shown, float) else "–" if shown is None else shown
         lines.append(f"| {key} | {shown} | {SUMMARY_MEANING.get(key, '')} |")
@@ -417,12 +487,18 @@ def run_tables(out) -> dict[str, Table | None]:
     """The tables of run directory ``out`` the run's figures draw (None where a table is missing)."""
     from slamobs.pipeline.writers import read_columns
 
-    paths = {k: Path(out) / f"{k}.parquet" for k in ("poses", "biases", "landmarks", "innovations")}
+    names = ("poses", "biases", "landmarks", "innovations", "landmark_tracks")
+    paths = {k: Path(out) / f"{k}.parquet" for k in names}
     return {k: read_columns(p) if p.is_file() else None for k, p in paths.items()}
 
 
 def write_run_figures(
-    out, tables: dict[str, Table | None], notes: list[str] = (), plot_workers=None, plots: bool | str = "all"
+    out,
+    tables: dict[str, Table | None],
+    notes: list[str] = (),
+    plot_workers=None,
+    plots: bool | str = "all",
+    map_error: dict[str, Any] | None = None,
 ) -> list:
     """A run without truth: its figures (those ``plots`` chooses, :func:`chosen`; by ``plot_workers`` when given,
     else here) and ``report.md`` saying what the run did and showing them, into ``out``; the paths written."""
@@ -435,5 +511,7 @@ def write_run_figures(
 
         written = draw(jobs, lambda name: Path(out) / name)
     md = Path(out) / "report.md"
-    md.write_text(summary_markdown(summary(tables), [p.name for p in written], list(notes)), encoding="utf-8")
+    md.write_text(
+        summary_markdown(summary(tables), [p.name for p in written], list(notes), map_error), encoding="utf-8"
+    )
     return [*written, md]

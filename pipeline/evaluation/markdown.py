@@ -32,6 +32,21 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
     )
 
 
+def headline_caveats(report: dict[str, Any]) -> list[str]:
+    """What a table of headline numbers (``slamobs compare``) must say beside them from this report: no convergence
+    time and why, a coarse one, a rotation APE made meaningless by an upside-down alignment of a planar run."""
+    from slamobs.pipeline.evaluation.sections import flipped_note
+
+    conv = report.get("convergence") or {}
+    out = []
+    if conv and (conv.get("t_since_start_s") is None or conv.get("coarse")):
+        out.append(f"convergence: {convergence_line(conv)}")
+    align = ((report.get("method") or {}).get("alignment") or {}).get("type")
+    if align:
+        out += flipped_note(align, report.get("ape_by_alignment") or {})
+    return out
+
+
 def _coarse(conv: dict[str, Any]) -> str:
     """What a converged figure adds when its level is a sizeable share of the motion itself."""
     if not conv.get("coarse"):

@@ -246,9 +246,12 @@ def plot_errors(
     convergence_t_s: float | None = None,
     title: str = "Absolute pose error after SE(3) alignment",
     level: tuple[np.ndarray, np.ndarray] | None = None,
+    verdict: str | None = None,
 ) -> Path:
     """Aligned position and attitude error over time; on the position panel only (the convergence figure is about
-    the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time."""
+    the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time, and in
+    its legend ``verdict``: why there is no convergence time, or what qualifies the one drawn (a coarse level), so
+    the band is never read as a convergence the report does not claim."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m])
@@ -260,7 +263,10 @@ def plot_errors(
     sel = envelope(len(t_s), [attitude_error_deg])
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if convergence_t_s is not None:
-        ax_p.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0, label=f"converged at {convergence_t_s:.2f} s")
+        label = f"converged at {convergence_t_s:.2f} s" + (f" ({verdict})" if verdict else "")
+        ax_p.axvline(convergence_t_s, color="tab:green", ls="--", lw=1.0, label=label)
+    elif verdict:
+        ax_p.plot([], [], " ", label=verdict)  # a legend line without a mark: the report's verdict
     ax_p.set_title(title)
     ax_p.set_ylabel("position error [m]")
     ax_r.set_ylabel("attitude error [deg]")
@@ -273,7 +279,7 @@ def plot_errors(
         ax.set_ylim(0.0, top)
         ax.ticklabel_format(axis="y", useOffset=False)
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="best", fontsize=8)  # where it hides least of the curves (the verdict makes it four lines)
     return _save(fig, path)
 
 

@@ -47,6 +47,7 @@ class RunTables:
     biases: Table | None
     landmarks: Table | None
     innovations: Table | None = None
+    landmark_tracks: Table | None = None
 
 
 @dataclass
@@ -134,7 +135,15 @@ def load_run(run_dir: str | Path) -> RunTables:
         path = run_dir / f"{name}.parquet"
         return read_columns(path, skip_null=name == "poses") if path.is_file() else None
 
-    return RunTables(run_dir, meta, table("poses"), table("biases"), table("landmarks"), table("innovations"))
+    return RunTables(
+        run_dir,
+        meta,
+        table("poses"),
+        table("biases"),
+        table("landmarks"),
+        table("innovations"),
+        table("landmark_tracks"),
+    )
 
 
 def _sim_truth(log: Path) -> tuple[dict | None, dict | None]:
@@ -347,7 +356,9 @@ def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
     info = summary(tables)
 
     def fill(staged: Path) -> None:
-        drawn = write_run_figures(staged, tables, list(run.meta.get("notes") or []))
+        drawn = write_run_figures(
+            staged, tables, list(run.meta.get("notes") or []), map_error=run.meta.get("map_error")
+        )
         info["figures"] = [p.name for p in drawn if p.suffix == ".png"]
         meta = {**run.meta, "figures": info["figures"]}
         (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
@@ -357,7 +368,13 @@ def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
 
 def _tables(run) -> dict[str, Any]:
     """The run's tables the figures are drawn from."""
-    return {"poses": run.poses, "biases": run.biases, "landmarks": run.landmarks, "innovations": run.innovations}
+    return {
+        "poses": run.poses,
+        "biases": run.biases,
+        "landmarks": run.landmarks,
+        "innovations": run.innovations,
+        "landmark_tracks": run.landmark_tracks,
+    }
 
 
 def _replace_report_files(run, fill) -> list[Path]:

@@ -25,6 +25,26 @@ def map_only_alignment(est_xyz: np.ndarray, truth_xyz: np.ndarray) -> tuple[np.n
     return rot, trans
 
 
+def map_residuals(
+    det_ids: np.ndarray, track_xyz: np.ndarray, innovation: np.ndarray, map_ids: np.ndarray, map_xyz: np.ndarray
+) -> np.ndarray:
+    """How far the final map lies from where the run's own poses put each detection: per detection
+    ``‖p̂_i(final) − (R̂y_i + P̂)‖`` with ``R̂y_i + P̂ = p̂_i(t) − e_i`` (its landmark_tracks row minus its innovation:
+    the detection made a point by the pose the estimator held at its time). Needs no truth: the check that map and
+    trajectory agree. NaN for a detection whose id is not in the map."""
+    det_ids = np.asarray(det_ids, dtype=np.int64)
+    map_ids = np.asarray(map_ids, dtype=np.int64)
+    placed = np.asarray(track_xyz, dtype=np.float64) - np.asarray(innovation, dtype=np.float64)
+    order = np.argsort(map_ids, kind="stable")
+    k = np.clip(np.searchsorted(map_ids[order], det_ids), 0, max(len(map_ids) - 1, 0))
+    out = np.full(len(det_ids), np.nan)
+    if len(map_ids):
+        row = order[k]
+        known = map_ids[row] == det_ids
+        out[known] = np.linalg.norm(np.asarray(map_xyz, dtype=np.float64)[row[known]] - placed[known], axis=1)
+    return out
+
+
 def window_stats(t_ns: np.ndarray, values, fraction: float) -> dict:
     """Behaviour of a (N, 3) history (an array or its three columns) over its last ``fraction`` of time:
     per-axis mean, population std, range (max − min) and least-squares slope per second;
