@@ -37,6 +37,11 @@ BLOCKS = 20
 MAX_TRIPLET_S = 1.0
 #: Residuals beyond this many standard deviations are outliers (mis-associations, missed motion).
 OUTLIER_SIGMAS = 4.0
+#: Before the first fit, a triplet whose residual is over this many times the median of the triplets at similar
+#: range (one of ``GROSS_BINS`` range quantiles) is left out: a gross outlier (a detection carrying another
+#: landmark's ID, a point at an absurd range) would otherwise widen the Gaussian fit until it is no longer beyond
+#: 4 σ of it. Later rounds judge every triplet again against the fitted law.
+GROSS_FACTOR, GROSS_BINS = 10.0, 10
 #: Bootstrap resamples of the detection-noise fit.
 BOOTSTRAP = 20
 #: At most this many triplets are fitted (a uniform subsample of longer logs).
@@ -281,15 +286,25 @@ def _inliers(tri: Triplets, e2: np.ndarray, v: np.ndarray, ratio: float) -> np.n
     return (along2 <= OUTLIER_SIGMAS**2 * pred_along) & (across2 <= OUTLIER_SIGMAS**2 * pred_across)
 
 
+def _not_gross(tri: Triplets) -> np.ndarray:
+    """The triplets whose residual norm is within ``GROSS_FACTOR`` times the median of their range quantile."""
+    norm = np.linalg.norm(tri.e, axis=1)
+    keep = np.ones(norm.size, bool)
+    for part in np.array_split(np.argsort(tri.r[:, 1], kind="stable"), min(GROSS_BINS, max(1, norm.size // 10))):
+        keep[part] = norm[part] <= GROSS_FACTOR * np.median(norm[part])
+    return keep
+
+
 def _fit_law(
     tri: Triplets, power: int, theta0: np.ndarray, rounds: int = 3, ratio: float = 1.0
 ) -> tuple[np.ndarray, float, np.ndarray]:
-    """Variance-component estimation of one law: Fisher scoring, outliers beyond ``OUTLIER_SIGMAS`` dropped
-    (:func:`_inliers`, at the range/bearing ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean
-    log-likelihood per component and the inlier mask."""
+    """Variance-component estimation of one law: Fisher scoring on the triplets that are not gross outliers
+    (:func:`_not_gross`), then outliers beyond ``OUTLIER_SIGMAS`` dropped (:func:`_inliers`, at the range/bearing
+    ``ratio``) and the fit repeated; the coefficients (≥ 0), the mean log-likelihood per component and the inlier
+    mask."""
     theta = np.maximum(np.asarray(theta0, float), 0.0)
     e2 = tri.e * tri.e  # (K, 3)
-    inl = np.ones(e2.shape[0], bool)
+    inl = _not_gross(tri)
     for _ in range(rounds):
         for _ in range(30):
             v, jac = _variance(theta, tri, power)

@@ -276,3 +276,16 @@ def test_held_streams_are_not_taken_for_noiseless():
     assert np.allclose(found.value, found.value[0]) and found.value[0] == pytest.approx(
         0.02 * np.sqrt(1 / 50), rel=0.25
     )
+
+
+def test_wrong_ids_and_absurd_ranges_do_not_widen_the_detection_law():
+    """1.5 % of the detections carry another landmark's ID and 0.3 % sit 5-50x too far (a real tag or stereo
+    matching failure): the law stays within 25 % of the truth (the Gaussian fit on every triplet came out 400x
+    wide on such a log, wide enough that no outlier was beyond 4 σ of it)."""
+    nm = replace(per_axis_model("square"), wrong_id=0.015, absurd_range=0.003)
+    sim = simulate("figure8", duration=30.0, seed=5, noise=nm, imu_rate=50, odom_rate=50)
+    assert np.any(np.linalg.norm(sim.detections.xyz, axis=1) > 60.0)  # the absurd ranges are in the log
+    stream = align(expected_streams(sim), keep_directions=False)
+    law = estimate_log_noise(stream, stream_density(sim.odom.t_ns, sim.odom.linear)).detection
+    r = np.linspace(*law.ranges, 3)
+    assert within(law.sigma(r), true_sigma(nm, r)), (law.law, law.sigma(r), true_sigma(nm, r))

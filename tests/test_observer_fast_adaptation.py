@@ -160,3 +160,23 @@ def test_noise_free_innovations_vanish_from_random_start(seed):
     e = np.linalg.norm(innov.reshape(sc["t"].size, 6, 3), axis=2).max(axis=1)
     assert e[-1] < 1e-2 * e[0]
     assert np.all(np.isfinite(out_b))
+
+
+@pytest.mark.parametrize("wrong_id", [0.0, 0.02])
+def test_gross_detections_into_an_observer_without_a_gate_are_noted(tmp_path, wrong_id):
+    """2 % of the detections carry another landmark's ID and 0.5 % sit 5-50x too far: fast-adaptation takes them
+    in (it has no gate) and says so in run.json instead of a quiet 1.5 m trajectory (a ground-robot log of
+    benchmarks/unseen_logs.py); the clean log gets no such note."""
+    import json
+    from dataclasses import replace
+
+    from slamobs.pipeline.api import run_log
+    from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
+
+    nm = replace(NoiseModel(), wrong_id=wrong_id, absurd_range=wrong_id / 4)
+    log = tmp_path / "log.mcap"
+    write_log(simulate("figure8", duration=30.0, seed=3, noise=nm), log)
+    run_log(log, tmp_path / "out", observer="fast-adaptation", config={"evaluation": {"plots": False}})
+    notes = json.loads((tmp_path / "out" / "run.json").read_text())["notes"]
+    gross = [n for n in notes if "mis-identified landmarks" in n]
+    assert bool(gross) == (wrong_id > 0), notes

@@ -1027,6 +1027,7 @@ class RiEKF(Stepper):
     """The filter on an aligned stream, a stretch of samples at a time."""
 
     keeps_covariance = True
+    gates_detections = True
 
     def __init__(self, stream, gains: dict[str, float], options, noise=None, r0=None, p0=None) -> None:
         from slamobs.pipeline.errors import InputError

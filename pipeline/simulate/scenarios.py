@@ -62,6 +62,10 @@ class Scenario:
     detections_until: float | None = None
     #: IMU mounting (imu_link -> body rotation, published on /tf_static); None = aligned with the body.
     imu_rotation: np.ndarray | None = None
+    #: (start, stop) s spans in which the camera detects nothing; empty = none.
+    detection_gaps: tuple[tuple[float, float], ...] = ()
+    #: (landmark id, seconds before which it is never detected): landmarks first seen late; empty = none.
+    hidden_until: tuple[tuple[int, float], ...] = ()
 
     def sample(self, t: np.ndarray) -> Trajectory:
         """True state at times ``t`` (s since start)."""
@@ -359,7 +363,56 @@ def loop(n_landmarks: int = LOOP_LANDMARKS) -> Scenario:
     )
 
 
+# --------------------------------------------------------------------------- ground robot
+
+GROUND_PERIOD = 80.0  # s per figure 8: 0.2-0.6 m/s
+GROUND_A = 4.0  # m, x amplitude (y amplitude is A/2)
+GROUND_H = 0.3  # m, body height above the floor
+GROUND_WOBBLE = 0.015  # rad, roll and pitch on an uneven floor
+
+
+def ground_trajectory(t: np.ndarray) -> Trajectory:
+    """A wheeled robot's figure 8 on a flat floor (fixed height) with a small roll/pitch wobble."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    w = 2.0 * np.pi / GROUND_PERIOD
+    th = w * t
+    a, b = GROUND_A, 0.5 * GROUND_A
+    xs = (a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th))
+    ys = (b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th))
+    zero = np.zeros_like(t)
+    zs = (zero + GROUND_H, zero, zero)
+    roll = (GROUND_WOBBLE * np.sin(7.3 * th), 7.3 * w * GROUND_WOBBLE * np.cos(7.3 * th))
+    pitch = (GROUND_WOBBLE * np.sin(11.1 * th), 11.1 * w * GROUND_WOBBLE * np.cos(11.1 * th))
+    return _heading_along_path(t, xs, ys, zs, roll, pitch)
+
+
+def ground() -> Scenario:
+    """A ground robot driving a 8 m x 4 m figure 8 at 0.2-0.6 m/s in a 12 m x 8 m room with 16 landmarks on its
+    walls (0.4-2.2 m high), seen by a forward camera (tilted 10 deg up, 60 deg field of view, up to 5 m): 0-4
+    landmarks in view, none for stretches of tens of seconds."""
+    rng = np.random.default_rng(20261204)  # the layout is part of the scenario, not of the noise seed
+    walls = [(np.array([x, -4.0]), np.array([x, 4.0])) for x in (-4.5, -1.5, 1.5, 4.5)]
+    walls += [(np.array([-6.0, y]), np.array([6.0, y])) for y in (-2.0, 2.0)]
+    lms = np.array([[*p, 0.0] for pair in walls for p in pair])
+    lms[:, 2] = rng.uniform(0.4, 2.2, lms.shape[0])
+    lms[:, :2] += rng.uniform(-0.3, 0.3, (lms.shape[0], 2))
+    rots = np.stack([_wall_rotation(p) for p in lms])
+    return Scenario(
+        name="ground",
+        duration=GROUND_PERIOD,
+        trajectory=ground_trajectory,
+        landmark_ids=np.arange(1, lms.shape[0] + 1, dtype=np.int64),
+        landmarks=lms,
+        landmark_rots=rots,
+        gyro_bias=np.array([0.004, -0.006, 0.01]),
+        velocity_bias=np.array([0.02, -0.01, 0.0]),
+        camera=_forward_camera(-10.0, 60.0, 45.0, 5.0),
+        detection_rate=15.0,
+    )
+
+
 SCENARIOS: dict[str, Callable[[], Scenario]] = {
+    "ground": ground,
     "circle": circle,
     "figure8": figure8,
     "figure8-wide": figure8_wide,
@@ -384,6 +437,8 @@ def customize(
     fov_deg: float | None = None,
     detections_until: float | None = None,
     imu_rpy_deg: tuple[float, float, float] | None = None,
+    detection_gaps: tuple[tuple[float, float], ...] | None = None,
+    first_seen: tuple[tuple[int, float], ...] | None = None,
 ) -> Scenario:
     """``sc`` with some of its rig changed (each option left at None keeps the scenario's value).
 
@@ -391,7 +446,8 @@ def customize(
     their map. ``fov_deg``: horizontal field of view, the vertical one scaled in proportion (an unlimited
     camera gets a vertical field of view of 0.75 times it). ``detections_until``: nothing is detected after
     that many seconds. ``imu_rpy_deg``: IMU mounting as roll, pitch, yaw (imu_link -> body,
-    R = Rz(yaw) Ry(pitch) Rx(roll)), published on /tf_static.
+    R = Rz(yaw) Ry(pitch) Rx(roll)), published on /tf_static. ``detection_gaps``: (start, stop) s spans with no
+    detections. ``first_seen``: (landmark id, s) pairs, each landmark never detected before that time.
     """
     if landmarks is not None:
         if sc.name.startswith("loop"):
@@ -426,4 +482,14 @@ def customize(
         r, p, y = np.deg2rad(np.asarray(imu_rpy_deg, dtype=float))
         rot = (rot_z(np.array([y])) @ rot_y(np.array([p])) @ rot_x(np.array([r])))[0]
         sc = replace(sc, imu_rotation=rot)
+    if detection_gaps is not None:
+        gaps = tuple((float(lo), float(hi)) for lo, hi in detection_gaps)
+        if any(hi <= lo for lo, hi in gaps):
+            raise ValueError(f"each detection gap must end after it starts, got {gaps}")
+        sc = replace(sc, detection_gaps=gaps)
+    if first_seen is not None:
+        unknown = sorted({int(i) for i, _ in first_seen} - set(sc.landmark_ids.tolist()))
+        if unknown:
+            raise ValueError(f"scenario {sc.name!r} has no landmarks {unknown}")
+        sc = replace(sc, hidden_until=tuple((int(i), float(s)) for i, s in first_seen))
     return sc

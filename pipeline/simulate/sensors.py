@@ -81,6 +81,11 @@ class NoiseModel:
     stereo_pixel: float = 0.0  # px, standard deviation of each image coordinate; 0: the additive law above
     stereo_focal: float = 450.0  # px
     stereo_baseline: float = 0.24  # m
+    #: share of the detections that carry another landmark's ID (a tag decoding or stereo matching failure), and
+    #: share placed at an absurd range (the point scaled 5-50x along its ray); drawn from their own generator, so
+    #: 0 leaves every other draw unchanged
+    wrong_id: float = 0.0
+    absurd_range: float = 0.0
 
     @classmethod
     def zero(cls) -> NoiseModel:
@@ -594,6 +599,12 @@ def _detections(
     vis = visibility(sc.camera, y_cam)
     if sc.detections_until is not None:  # the landmarks have left view: empty detection messages
         vis &= (t <= sc.detections_until)[:, None]
+    for lo, hi in sc.detection_gaps:  # the camera sees nothing (dark, covered, its driver stalled)
+        vis &= ((t < lo) | (t >= hi))[:, None]
+    if sc.hidden_until:  # landmarks first seen late (behind a door, put up during the run)
+        late = dict(sc.hidden_until)
+        hide = np.array([late.get(int(i), -np.inf) for i in sc.landmark_ids])
+        vis &= t[:, None] >= hide[None, :]
     frame_idx, lm_idx = np.nonzero(vis)  # row-major: frames in order, landmarks in map order
     m = frame_idx.shape[0]
     offsets = np.zeros(t.shape[0] + 1, dtype=np.int64)
@@ -627,11 +638,31 @@ def _detections(
     object_error = 1e-3 * rng_m * rng_m * jitter
     ids = sc.landmark_ids[lm_idx].copy()
     rec_ns = _record_times(rng, t_ns, rec_after)
+    if (nm.wrong_id > 0.0 or nm.absurd_range > 0.0) and m:
+        ids, xyz = _outliers(nm, sc.landmark_ids, ids, xyz, int(t_ns[0]))
     if seen is not None:  # stereo points not triangulated: left out of their frames (every draw above is kept)
         offsets[1:] = np.cumsum(np.bincount(frame_idx[seen], minlength=t.shape[0]))
         ids, xyz, quats = ids[seen], xyz[seen], quats[seen]
         image_error, object_error, area = image_error[seen], object_error[seen], area[seen]
     return DetectionData(t_ns, rec_ns, offsets, ids, xyz, quats, image_error, object_error, area)
+
+
+def _outliers(
+    nm: NoiseModel, known: np.ndarray, ids: np.ndarray, xyz: np.ndarray, stamp: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """``ids`` with a share ``nm.wrong_id`` swapped for another landmark's and ``xyz`` with a share
+    ``nm.absurd_range`` scaled 5-50x along its ray, drawn from a generator of their own (keyed by the piece's first
+    stamp) so the other draws stay as without them."""
+    rng = np.random.default_rng([stamp & 0x7FFFFFFF, 23])
+    ids, xyz = ids.copy(), xyz.copy()
+    wrong = np.flatnonzero(rng.random(ids.size) < nm.wrong_id)
+    if known.size > 1:
+        shift = rng.integers(1, known.size, wrong.size)
+        pos = np.searchsorted(np.sort(known), ids[wrong])
+        ids[wrong] = np.sort(known)[(pos + shift) % known.size]
+    far = np.flatnonzero(rng.random(ids.size) < nm.absurd_range)
+    xyz[far] *= rng.uniform(5.0, 50.0, far.size)[:, None]
+    return ids, xyz
 
 
 def stereo_points(

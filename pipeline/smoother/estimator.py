@@ -105,6 +105,7 @@ class BatchSmoother(Stepper):
     """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
 
     keeps_covariance = True
+    gates_detections = True  # robust loss and its own gate
 
     def __init__(
         self,
