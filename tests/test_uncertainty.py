@@ -233,3 +233,22 @@ def test_batch_covariance_between_marginal_keyframes_is_interpolated():
     assert np.array_equal(out, (1.0 - w) * cov[j - 1] + w * cov[j])
     hour = covariance_keyframes(np.arange(72_000) / 20.0)  # an hour at 20 Hz: the count is capped, spread evenly
     assert hour.size <= COVARIANCE_MARGINALS + 2 and np.ptp(np.diff(hour)) <= 1
+
+
+def test_a_planar_run_counts_only_the_axes_with_error():
+    """MR.CLAM (planar): truth and riekf's estimate both hold z, roll and pitch at zero, so those axes' large σ
+    measured nothing and the NEES was compared with 3 (attitude 3.2 'just above' [2.98, 3.02]); it is over the axes
+    with error, with χ²(dof) bounds (attitude: yaw alone, 1 DoF, 3.2 times its expectation)."""
+    from slamobs.pipeline.evaluation.sections import nees_statistics
+    from slamobs.pipeline.evaluation.trajectory_evaluation import axes_with_error
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    err = np.c_[rng.normal(0.0, 0.1, (n, 2)), np.zeros(n)]  # x, y consistent with σ 0.1, z zero by construction
+    cov = np.tile(np.diag([0.01, 0.01, 1.0]), (n, 1, 1))  # a 1 m σ on z that nothing tests
+    assert axes_with_error(err) == (0, 1) and axes_with_error(np.zeros((3, 3))) == (0, 1, 2)
+    full = nees_statistics(err, cov, nees_values(err, cov), np.arange(n) * 0.01)
+    assert full["dof"] == 3 and full["mean"] < full["bounds"][0]  # the zero axis drags a consistent NEES below 3
+    planar = nees_statistics(err, cov, nees_values(err[:, :2], cov[:, :2, :2]), np.arange(n) * 0.01, 2)
+    lo, hi = nees_bounds(2, n)
+    assert planar["dof"] == 2 and planar["bounds"] == pytest.approx([lo, hi]) and lo < planar["mean"] < hi

@@ -92,6 +92,7 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
                 attitude=nees["attitude"],
                 mean={k: section[k]["mean"] for k in ("position", "attitude")},
                 window_s=section["window_s"],
+                dof={k: section[k].get("dof", 3) for k in ("position", "attitude")},
             ),
         ),
     ]

@@ -295,17 +295,18 @@ def _md_uncertainty(u: dict[str, Any]) -> list[str]:
         "",
         f"Error (δθ, δp) in the {u['frame']}.",
         "",
-        "| part | pairs | mean NEES | 95 % bounds of the mean | median | instants within χ²(3) bounds | "
+        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | median | instants within χ²(DoF) bounds | "
         f"{u['window_s']:g} s windows within bounds | within ±3σ (x, y, z) |",
-        "|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for part in ("position", "attitude"):
         r = u[part]
         if not r["n"]:
-            lines.append(f"| {part} | 0 | | | | | | |")
+            lines.append(f"| {part} | | 0 | | | | | | |")
             continue
         lines.append(
-            f"| {part} | {r['n']} | {_fmt(r['mean'], 4)} | {_fmt(r['bounds'][0], 4)} – {_fmt(r['bounds'][1], 4)} | "
+            f"| {part} | {r.get('dof', 3)}{' (' + ', '.join(r['axes']) + ')' if r.get('axes') else ''} | {r['n']} | "
+            f"{_fmt(r['mean'], 4)} | {_fmt(r['bounds'][0], 4)} – {_fmt(r['bounds'][1], 4)} | "
             f"{_fmt(r['median'], 4)} | {_fmt(r['share_instants_within'], 3)} | {_fmt(r['share_windows_within'], 3)} | "
             f"{_vec_str(r['within_3sigma'])} |"
         )

@@ -371,14 +371,16 @@ def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.
     return _save(fig, path)
 
 
-def plot_nees(path: Path, position, attitude, mean: dict, window_s: float) -> Path:
-    """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds."""
+def plot_nees(path: Path, position, attitude, mean: dict, window_s: float, dof: dict | None = None) -> Path:
+    """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds; ``dof`` per
+    part the degrees of freedom each NEES is over (3 unless a planar run's axes without error are left out)."""
     from slamobs.pipeline.evaluation.metrics import nees_bounds
 
     fig, axes = _figure(2, 1, (9.0, 6.5))
     for ax, (t, nees, counts), part in ((axes[0, 0], position, "position"), (axes[1, 0], attitude, "attitude")):
+        k = (dof or {}).get(part, 3)
         if len(t):
-            bounds = {int(c): nees_bounds(3, int(c)) for c in np.unique(counts)}
+            bounds = {int(c): nees_bounds(k, int(c)) for c in np.unique(counts)}
             ax.fill_between(
                 t,
                 [bounds[int(c)][0] for c in counts],
@@ -389,10 +391,10 @@ def plot_nees(path: Path, position, attitude, mean: dict, window_s: float) -> Pa
                 label="95 % bounds of a window's mean",
             )
             ax.plot(t, nees, color="tab:blue", lw=1.0, label=f"NEES, {window_s:g} s windows")
-            ax.axhline(3.0, color="k", ls=":", lw=1.0, label="expected (3)")
+            ax.axhline(float(k), color="k", ls=":", lw=1.0, label=f"expected ({k})")
             ax.set_yscale("log")
         if mean.get(part) is not None:
-            ax.set_title(f"{part.capitalize()} NEES (3 DoF): mean {mean[part]:.3g} over the run")
+            ax.set_title(f"{part.capitalize()} NEES ({k} DoF): mean {mean[part]:.3g} over the run")
         ax.set_ylabel("NEES")
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)

@@ -642,9 +642,18 @@ class UncertaintySection(Section):
             "p_est = p_truth + δp",
             "gauge_t_ns": u.gauge_t_ns,
             "window_s": NEES_WINDOW_S,
-            "position": nees_statistics(u.error[:, 3:], u.cov_position, u.nees_position, t_s),
-            "attitude": nees_statistics(u.error[:, :3], u.cov_attitude, u.nees_attitude, t_s),
+            "position": nees_statistics(u.error[:, 3:], u.cov_position, u.nees_position, t_s, len(u.position_axes)),
+            "attitude": nees_statistics(u.error[:, :3], u.cov_attitude, u.nees_attitude, t_s, len(u.attitude_axes)),
         }
+        for part, axes in (("position", u.position_axes), ("attitude", u.attitude_axes)):
+            if len(axes) < NEES_DOF:
+                self.result[part]["axes"] = ["xyz"[i] for i in axes]
+                off = ", ".join("xyz"[i] for i in range(3) if i not in axes)
+                self.notes.append(
+                    f"{part} NEES over {', '.join('xyz'[i] for i in axes)} only ({len(axes)} DoF, expected mean "
+                    f"{len(axes)}): the {part} error about {off} is zero on every pair (a planar run), so the "
+                    "covariance there is measured against nothing"
+                )
         for part in ("position", "attitude"):
             r = self.result[part]
             if r["n"] and not r["bounds"][0] <= r["mean"] <= r["bounds"][1]:
@@ -667,7 +676,9 @@ def nees_windows(nees: np.ndarray, t_s: np.ndarray, window_s: float = NEES_WINDO
     return (ids + 0.5) * window_s, np.bincount(inv, weights=nees[ok]) / counts, counts
 
 
-def nees_statistics(error: np.ndarray, cov: np.ndarray, nees: np.ndarray, t_s: np.ndarray) -> dict[str, Any]:
+def nees_statistics(
+    error: np.ndarray, cov: np.ndarray, nees: np.ndarray, t_s: np.ndarray, dof: int = NEES_DOF
+) -> dict[str, Any]:
     """One part's consistency: mean and median NEES with the bounds of the run's mean, the share of instants
     and of windows within their bounds, and the share of errors within ±3σ per axis."""
     ok = np.isfinite(nees)
@@ -682,15 +693,16 @@ def nees_statistics(error: np.ndarray, cov: np.ndarray, nees: np.ndarray, t_s: n
     }
     if not n:
         return {**out, "mean": None, "median": None, "bounds": None, "share_instants_within": None}
-    lo1, hi1 = metrics.nees_bounds(NEES_DOF, 1)
+    lo1, hi1 = metrics.nees_bounds(dof, 1)
     _, means, counts = nees_windows(nees, t_s)
-    bounds = np.array([metrics.nees_bounds(NEES_DOF, int(c)) for c in np.unique(counts)])
+    bounds = np.array([metrics.nees_bounds(dof, int(c)) for c in np.unique(counts)])
     lo_w, hi_w = (bounds[np.searchsorted(np.unique(counts), counts), i] for i in (0, 1))
     return {
         **out,
         "mean": float(np.mean(nees[ok])),
         "median": float(np.median(nees[ok])),
-        "bounds": [float(v) for v in metrics.nees_bounds(NEES_DOF, n)],
+        "dof": dof,
+        "bounds": [float(v) for v in metrics.nees_bounds(dof, n)],
         "share_instants_within": float(np.mean((nees[ok] >= lo1) & (nees[ok] <= hi1))),
         "share_windows_within": float(np.mean((means >= lo_w) & (means <= hi_w))),
     }

@@ -317,6 +317,16 @@ class PairedUncertainty:
     gauge_t_ns: int  # the estimate row whose pose was put on the truth
     nees_position: np.ndarray  # (N,) NaN at the gauge
     nees_attitude: np.ndarray
+    #: the axes (0-2: x, y, z of δp / δθ) each NEES is over: all three but those whose error is zero on every pair
+    #: (a planar run's z, roll and pitch: truth and estimate both hold them at zero, so their σ measures nothing)
+    position_axes: tuple[int, ...] = (0, 1, 2)
+    attitude_axes: tuple[int, ...] = (0, 1, 2)
+
+
+def axes_with_error(error: np.ndarray) -> tuple[int, ...]:
+    """The axes of an (N, 3) error that are not zero on every pair (all three when every axis is)."""
+    moving = tuple(int(i) for i in np.flatnonzero(np.max(np.abs(error), axis=0, initial=0.0) > 1e-12))
+    return moving or (0, 1, 2)
 
 
 def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
@@ -346,8 +356,10 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
     idx = p.idx_est if p.idx_est is not None else np.searchsorted(est.t_ns, p.t_est_ns)
     t_ns = np.asarray(est.t_ns[idx] if p.t_est_ns is None else p.t_est_ns, dtype=np.int64)
     att, pos = (rotate_covariance(expand_covariance(ev.covariance.entries, block), rot) for block in (0, 3))
-    nees_position, nees_attitude = nees_values(error[:, 3:], pos), nees_values(error[:, :3], att)
-    return PairedUncertainty(t_ns, error, att, pos, int(est.t_ns[g]), nees_position, nees_attitude)
+    pa, aa = axes_with_error(error[:, 3:]), axes_with_error(error[:, :3])
+    nees_position = nees_values(error[:, 3:][:, pa], pos[:, pa][:, :, pa])
+    nees_attitude = nees_values(error[:, :3][:, aa], att[:, aa][:, :, aa])
+    return PairedUncertainty(t_ns, error, att, pos, int(est.t_ns[g]), nees_position, nees_attitude, pa, aa)
 
 
 #: The clock-offset search runs beside the association and the APE for up to this many estimate and truth
