@@ -266,6 +266,7 @@ class Stepper:
         self._segment = 0  # segment starts passed so far
         self.stats: dict = {"substeps": 0}
         self.timings: dict[str, float] = {}
+        self._innovation_norms: list[np.ndarray] = []  # per stretch, for gross_note (observers without a gate)
 
     @property
     def n_vel(self) -> int:
@@ -357,8 +358,7 @@ class Stepper:
         frames = slice(self.jf, jf_stop)
         self.iv, self.jf = iv_stop, jf_stop
         if not self.gates_detections:
-            norms = getattr(self, "_innovation_norms", [])
-            self._innovation_norms = norms + [np.linalg.norm(out.innov, axis=1)]
+            self._innovation_norms.append(np.linalg.norm(out.innov, axis=1))
             if iv_stop >= self.n_vel:
                 self.stats["notes"] = gross_note(np.concatenate(self._innovation_norms))
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
