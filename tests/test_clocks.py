@@ -202,7 +202,7 @@ def test_info_text_and_json(tmp_path):
     assert "hdr-rec [s]" in text and "+0.500" in text
     result = CliRunner().invoke(info, [str(path), "--json"])
     assert result.exit_code == 0
-    doc = json.loads(result.output)
+    doc = json.loads(result.stdout)
     pose = next(t for t in doc["topics"] if t["topic"] == "/pose")
     assert pose["clock"] == "record" and pose["relative_offset_s"] == pytest.approx(0.5)
     assert doc["clock_reference"] == "/imu" and doc["record_clock"] == "wall"

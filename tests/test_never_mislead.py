@@ -65,7 +65,7 @@ def test_hand_eye_note_finds_the_truth_rotation_and_its_key_removes_it(sim, tmp_
     assert report["ape"]["rotation_deg"]["rmse"] < 2.0
     assert not any("frames.truth_rotation" in n for n in report["notes"])
     again = invoke("report", tmp_path / "fixed", "--json")  # a re-report keeps the rotation
-    assert json.loads(again.output)["ape"]["rotation_deg"]["rmse"] < 2.0
+    assert json.loads(again.stdout)["ape"]["rotation_deg"]["rmse"] < 2.0
 
 
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):

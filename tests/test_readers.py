@@ -284,7 +284,7 @@ def test_format_info_and_json(tmp_path, sim):
     assert "ROS1 bag" in text and "sensor_msgs/msg/Imu" in text and "angular_velocity" in text
     result = CliRunner().invoke(info, [str(path), "--json"])
     assert result.exit_code == 0
-    doc = json.loads(result.output)
+    doc = json.loads(result.stdout)
     assert doc["container"] == "ros1" and doc["roles"]["detections"] == "/fiducial_transforms"
     assert {t["topic"]: t["count"] for t in doc["topics"]} == sim.topic_counts()
     result = CliRunner().invoke(info, [str(path)])

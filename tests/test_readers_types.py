@@ -646,7 +646,7 @@ def test_msg_dir_supplies_missing_definitions(tmp_path, kind):
     assert fid.note == "" and fid.frame_ids == ("camera",)
     result = CliRunner().invoke(info, [str(log), "--msg-dir", str(full), "--json"])
     assert result.exit_code == 0, result.output
-    assert json.loads(result.output)["roles"]["detections"] == "/fiducial_transforms"
+    assert json.loads(result.stdout)["roles"]["detections"] == "/fiducial_transforms"
 
 
 def test_bad_msg_dir(tmp_path, zoo_bag):

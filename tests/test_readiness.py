@@ -81,7 +81,7 @@ def test_missing_roles_are_named_with_every_accepted_type(logs, tmp_path):
     config = tmp_path / "run.yaml"
     config.write_text(_run_yaml(res.output))
     assert "linear_velocity" not in load_config(config).topics  # a comment, not a key
-    doc = json.loads(invoke("info", logs["no_odom_det"], "--json").output)["readiness"]
+    doc = json.loads(invoke("info", logs["no_odom_det"], "--json").stdout)["readiness"]
     assert doc["ready"] == [] and set(doc["satisfy"]) == {"linear_velocity", "detections"}
 
 

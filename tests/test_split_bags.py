@@ -65,7 +65,7 @@ def test_info_reads_the_parts_as_one_log_in_order(parts):
     assert note.index("rec_0.bag 0.000") < note.index("rec_1.bag 10.0") < note.index("rec_2.bag 20.0")
     # the parts given one by one, in any order, are the same log
     res = invoke("info", parts[2], parts[0], parts[1], "--json")
-    assert res.exit_code == 0 and json.loads(res.output)["path"] == str(parts[0].parent)
+    assert res.exit_code == 0 and json.loads(res.stdout)["path"] == str(parts[0].parent)
 
 
 def test_a_gap_between_files_is_reported(tmp_path):

@@ -100,9 +100,9 @@ def test_report_takes_every_form(logs, run_dirs):
     for name, text in _forms(logs).items():
         res = invoke("report", base, "--truth", text, "--json")
         assert res.exit_code == 0, (name, res.output)
-        rep = json.loads(res.output)
+        rep = json.loads(res.stdout)
         assert abs(rep["ape"]["translation_m"]["rmse"] - _ape(run_dirs[name])) < 1e-3, name
-    src = json.loads(invoke("report", base, "--truth", f"{logs['other']}:{TOPIC}", "--json").output)["truth_source"]
+    src = json.loads(invoke("report", base, "--truth", f"{logs['other']}:{TOPIC}", "--json").stdout)["truth_source"]
     assert src["log"] == str(logs["other"])
 
 
@@ -126,7 +126,7 @@ def test_evaluate_takes_file_and_log_forms(logs):
     for text in (str(logs["tum"]), f"{logs['other']}:{TOPIC}", f"{logs['log']}:{EDGE}"):
         res = invoke("evaluate", text, est, "--json")
         assert res.exit_code == 0, (text, res.output)
-        assert json.loads(res.output)["stats"]["rmse"] > 0
+        assert json.loads(res.stdout)["stats"]["rmse"] > 0
     res = invoke("evaluate", TOPIC, est)
     assert res.exit_code == 2 and "needs its log" in res.output
 
