@@ -400,6 +400,21 @@ def _bad_inputs(tmp: Path, good_bag: Path) -> dict[str, tuple[Path, str]]:
     }
 
 
+def test_data_slamobs_takes_elsewhere_given_as_a_log_says_what_takes_it(tmp_path):
+    # an MR.CLAM folder and a TUM file given to run/info said only 'not a ROS1 bag, rosbag2 directory or MCAP file'
+    mrclam = tmp_path / "MRCLAM_Dataset6"
+    mrclam.mkdir()
+    (mrclam / "Barcodes.dat").write_text("# Subject #    Barcode #\n1 72\n")
+    tum = tmp_path / "V102.txt"
+    tum.write_text("0.0 0 0 0 0 0 0 1\n")
+    with pytest.raises(InputError, match=rf"MR.CLAM dataset folder: `slamobs import mrclam {mrclam} -o LOG.mcap`"):
+        read_log(mrclam)
+    with pytest.raises(
+        InputError, match=r"\(a trajectory file\? `slamobs evaluate` compares two; evaluation.truth_file"
+    ):
+        inspect_log(tum)
+
+
 def test_bad_input_raises_input_error(tmp_path, good_bag):
     for what, (path, problem) in _bad_inputs(tmp_path, good_bag).items():
         for func in (inspect_log, read_log):

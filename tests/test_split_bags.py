@@ -174,3 +174,20 @@ def test_a_directory_of_whole_logs_is_one_line_for_every_command_and_batch_runs_
     info = inspect_log(flight)
     assert info.container == "ros2-split" and info.duration_s > 60
     assert [e.path for e in discover([flight])] == [flight]
+
+
+def test_a_directory_of_whole_bags_says_what_to_run(tmp_path):
+    # imu_tools/ holding ardrone_imu.bag, sparkfun_razor.bag said 'ardrone_imu.bag is not named NAME_N.bag as the
+    # parts of a split recording are', not what to run instead
+    logs = tmp_path / "imu_tools"
+    logs.mkdir()
+    for name in ("ardrone_imu.bag", "sparkfun_razor.bag"):
+        shutil.copy(LOG, logs / name)
+    res = invoke("info", logs, catch_exceptions=True)
+    assert res.exit_code == 2 and res.output == (
+        f"error: {logs}: holds 2 logs (ardrone_imu.bag, sparkfun_razor.bag), not one recording (the parts of one are "
+        f"named after their directory: imu_tools/imu_tools_0.bag): run one file, or `slamobs batch {logs}` over them\n"
+    )
+    (logs / "sparkfun_razor.bag").unlink()
+    with pytest.raises(InputError, match=rf"holds one log, ardrone_imu.bag, not the parts of a recording: run {logs}/"):
+        read_log(logs)

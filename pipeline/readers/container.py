@@ -162,7 +162,7 @@ def detect_container(path: str | Path) -> Container:
                 f"recording that was not closed? `ros2 bag reindex {path}` writes its metadata.yaml; or open one "
                 "file directly)"
                 if inner
-                else (" (its metadata.yaml is empty)" if meta.is_file() else "")
+                else (" (its metadata.yaml is empty)" if meta.is_file() else _other_data(path))
             )
             raise InputError(path, _NOT_A_LOG + hint)
         check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
@@ -181,7 +181,24 @@ def detect_container(path: str | Path) -> Container:
     for magic, name in _WRAPPERS:
         if head.startswith(magic):
             raise InputError(path, f"{_NOT_A_LOG} ({name}-compressed: decompress it first)")
-    raise InputError(path, _NOT_A_LOG)
+    raise InputError(path, _NOT_A_LOG + _other_data(path))
+
+
+#: suffixes of trajectory files (TUM, EuRoC CSV, KITTI): a file of them given as a log gets a hint
+_TRAJECTORY_SUFFIXES = (".txt", ".csv", ".tum")
+
+
+def _other_data(path: Path) -> str:
+    """A hint for input that is no log but that slamobs takes elsewhere ("" when none applies): an MR.CLAM dataset
+    folder (converted by ``slamobs import mrclam``), a trajectory file (truth of a run, or ``slamobs evaluate``)."""
+    if path.is_dir() and (path / "Barcodes.dat").is_file():
+        return f" (an MR.CLAM dataset folder: `slamobs import mrclam {path} -o LOG.mcap` converts one robot of it)"
+    if path.is_file() and path.suffix.lower() in _TRAJECTORY_SUFFIXES:
+        return (
+            " (a trajectory file? `slamobs evaluate` compares two; evaluation.truth_file in a run's config makes it "
+            "the run's truth)"
+        )
+    return ""
 
 
 def _storage_parts(files: Sequence[Path]) -> tuple[Path, ...]:
@@ -230,7 +247,7 @@ def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
     for bag in bags:
         m = PART.match(bag.name)
         if m is None:
-            raise InputError(directory, f"{bag.name} is not named NAME_N.bag as the parts of a split recording are")
+            raise _separate_logs(directory, sorted(bags), f"{directory.name}/{directory.name}_0.bag")
         found.setdefault(m["name"], []).append((int(m["index"]), bag))
     if len(found) > 1:
         names = ", ".join(f"{n}_*.bag" for n in sorted(found))
@@ -256,11 +273,19 @@ def _one_recording(directory: Path, parts: tuple[Path, ...]) -> tuple[Path, ...]
     name = PART.match(parts[0].name)["name"]
     if name == directory.name:
         return parts
-    listed = ", ".join(p.name for p in parts[:3]) + (", ..." if len(parts) > 3 else "")
-    raise InputError(
+    raise _separate_logs(directory, parts, f"{name}/{parts[0].name}")
+
+
+def _separate_logs(directory: Path, files: Sequence[Path], example: str) -> InputError:
+    """The error for a directory whose log files are not the parts of one recording (``example``: how a part of one
+    would be named), saying what to run instead."""
+    if len(files) == 1:
+        return InputError(directory, f"holds one log, {files[0].name}, not the parts of a recording: run {files[0]}")
+    listed = ", ".join(p.name for p in files[:3]) + (", ..." if len(files) > 3 else "")
+    return InputError(
         directory,
-        f"holds {len(parts)} logs ({listed}), not one recording (the parts of one are named after their directory: "
-        f"{name}/{parts[0].name}): run one file, or `slamobs batch {directory}` over them",
+        f"holds {len(files)} logs ({listed}), not one recording (the parts of one are named after their directory: "
+        f"{example}): run one file, or `slamobs batch {directory}` over them",
     )
 
 
