@@ -163,14 +163,18 @@ def test_a_run_draws_with_helpers_its_caller_started_and_stops_them(tmp_path):
     assert workers.procs == [] and (taken / "notes.txt").is_file()
 
 
-def test_a_helper_gone_before_a_small_batch_fails_the_collect_as_a_dead_helper(tmp_path):
-    """A batch smaller than the pipe's buffer stays buffered when its helper is already gone; closing its stdin
-    then raised BrokenPipeError, which the CLI takes for a closed stdout (exit 141, no message) instead of
-    the figure helper's failure (a note, the run's tables stand)."""
+def test_a_killed_helper_s_figures_are_drawn_here(tmp_path):
+    """A helper killed (the kernel's OOM killer sends SIGKILL) before a batch smaller than the pipe's buffer left
+    it: closing its stdin raised BrokenPipeError, which the CLI takes for a closed stdout (exit 141, no message);
+    then the figure helper's failure removed a run's whole error report. Its figures are drawn in this process
+    instead, the same bytes."""
+    jobs = _jobs()
+    drawn_here = plot_worker.draw(jobs, lambda name: tmp_path / f"here-{name}")
     workers = plot_worker.PlotWorkers(1)
     workers.procs[0].kill()
     workers.procs[0].wait()
-    workers.submit([("plot_errors", "tiny.png", {})])
-    with pytest.raises(RuntimeError, match="figure helper"):
-        workers.collect(tmp_path)
+    workers.submit(jobs)
+    drawn = workers.collect(tmp_path)
+    assert [p.name for p in drawn] == [j[1] for j in jobs]
+    assert [p.read_bytes() for p in drawn] == [p.read_bytes() for p in drawn_here]
     assert workers.procs == []

@@ -17,6 +17,7 @@ helper the same way, so batches are drawn side by side on free cores (:class:`_B
 
 from __future__ import annotations
 
+import io
 import os
 import pickle
 import subprocess
@@ -113,6 +114,9 @@ class PlotWorkers:
                     from slamobs.pipeline.errors import resource_error
 
                     raise resource_error(MemoryError(), out, "drawing the report's figures")
+                if proc.returncode < 0 and share:  # killed (the kernel's OOM killer sends SIGKILL): drawn here
+                    images.update(zip(share, _drawn_here([self.jobs[k] for k in share]), strict=True))
+                    continue
                 if proc.returncode != 0 or (share and not data):
                     raise RuntimeError(f"the figure helper process ended with status {proc.returncode}")
                 if share:
@@ -184,6 +188,12 @@ def _stop(procs: list[subprocess.Popen]) -> None:
                     stream.close()
                 except OSError:  # a pipe whose reader was killed
                     pass
+
+
+def _drawn_here(jobs: list[Job]) -> list[bytes]:
+    """The PNG bytes of ``jobs`` drawn in this process (the same bytes a helper returns)."""
+    files = draw(jobs, lambda _name: io.BytesIO())
+    return [f.getvalue() for f in files]
 
 
 def draw(jobs: list[Job], target=None) -> list[Any]:
