@@ -315,3 +315,20 @@ def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit
     monkeypatch.setattr(distributed, "Client", Gone)
     with pytest.raises(InfrastructureError, match=r"lost the Dask scheduler \(CommClosedError: .*Stream is closed"):
         pool.connect()
+
+
+def test_a_local_cluster_that_cannot_start_is_exit_3(monkeypatch):
+    """A local Dask cluster that cannot start (no free port, no processes) is the machine's failure (exit 3 with
+    one line), not an error line about the batch (exit 2)."""
+    pytest.importorskip("distributed")
+    import distributed
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import InfrastructureError
+
+    def no_ports(*args, **kwargs):
+        raise OSError(98, "Address already in use")
+
+    monkeypatch.setattr(distributed, "LocalCluster", no_ports)
+    with pytest.raises(InfrastructureError, match=r"local Dask cluster: cannot start \(OSError: .*Address already"):
+        DaskPool(1).connect()

@@ -136,14 +136,17 @@ class DaskPool:
                     f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
                 ) from None
         else:
-            self.cluster = LocalCluster(
-                n_workers=self.jobs,
-                processes=True,
-                threads_per_worker=1,
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            )
-            self.client = Client(self.cluster)
+            try:
+                self.cluster = LocalCluster(
+                    n_workers=self.jobs,
+                    processes=True,
+                    threads_per_worker=1,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+                self.client = Client(self.cluster)
+            except (OSError, TimeoutError, RuntimeError) as err:  # no port, no processes: the machine, not a log
+                raise InfrastructureError(f"{self.where}: cannot start ({failure_text(err)})") from None
         try:
             self.client.wait_for_workers(1, timeout=self.wait_workers)
         except TimeoutError:
