@@ -45,6 +45,7 @@ class Case:
     gap: tuple[float, float] | None = None
     late: tuple[int, float] | None = None
     duration: float = 160.0
+    drift: float = 0.02  # wheel slip, NoiseModel.odom_linear_drift (m/s)
 
 
 CASES = (
@@ -55,23 +56,28 @@ CASES = (
 )
 
 
+def scenario(case: Case):
+    """The ground scenario with the case's gap and late landmark."""
+    return customize(
+        get_scenario("ground"),
+        detection_gaps=(case.gap,) if case.gap else None,
+        first_seen=(case.late,) if case.late else None,
+    )
+
+
 def make_log(case: Case, seed: int, cache: Path) -> tuple[Path, dict]:
     name = f"{case.name}-s{seed}"
     path, truth_path = cache / f"{name}.mcap", cache / f"{name}.truth.json"
     if path.is_file() and truth_path.is_file():
         return path, json.loads(truth_path.read_text())
-    sc = customize(
-        get_scenario("ground"),
-        detection_gaps=(case.gap,) if case.gap else None,
-        first_seen=(case.late,) if case.late else None,
-    )
+    sc = scenario(case)
     gyro = GYRO_X * DEFAULTS["gyro"][0] / np.sqrt(1.0 / RATE_HZ)
     velocity = VELOCITY_X * DEFAULTS["velocity"][0] / np.sqrt(1.0 / RATE_HZ)
     nm = replace(
         NoiseModel(),
         gyro=gyro,
         odom_linear=velocity,
-        odom_linear_drift=0.02,
+        odom_linear_drift=case.drift,
         stereo_pixel=PIXEL,
         stereo_focal=FOCAL_PX,
         stereo_baseline=BASELINE_M,
