@@ -4,11 +4,12 @@ median σ the filter reports, given the true noise (as ``unseen_logs.py``'s "tru
 slip, and with extra noise keys (e.g. a velocity-bias random walk). A consistent filter gives NEES ≈ its DoF.
 
     .venv/bin/python benchmarks/riekf_ground_nees.py [--cache DIR] [--seeds 1 2 3] [--cases 0 3]
-        [--walks 0 0.003 0.009]
+        [--walks 0 0.003 0.009] [--gyro-x 1] [--isotropic]
 
 The errors are those of the right-invariant filter (``η = R̂Rᵀ``: ``ξ_R = log η``, ``ξ_P = P̂ − ηP``) against the
 simulator's truth in the start pose's frame (the filter's gauge), after the first 2 s; ``walk`` 0 keeps the default
-``velocity_bias_walk``.
+``velocity_bias_walk``. ``--gyro-x`` and ``--isotropic`` change the log (gyro density; the simulator's additive
+detection law in place of the stereo-like one) to take the errors apart.
 """
 
 from __future__ import annotations
@@ -72,6 +73,8 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-unseen-logs")
     ap.add_argument("--cases", type=int, nargs="+", default=[0], help="indices into unseen_logs.CASES")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--gyro-x", type=float, help="the gyro's density over the default (unseen_logs: 50)")
+    ap.add_argument("--isotropic", action="store_true", help="the additive detection law, not stereo-like")
     ap.add_argument("--walks", type=float, nargs="+", default=[0.0], help="velocity_bias_walk (0: the default)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
@@ -81,6 +84,10 @@ def main() -> None:
     )
     print("| --- | --- | --- | --- | --- | --- | --- |")
     for base in (CASES[i] for i in args.cases):
+        if args.gyro_x:
+            base = replace(base, name=f"{base.name}-gyro{args.gyro_x:g}", gyro_x=args.gyro_x)
+        if args.isotropic:
+            base = replace(base, name=f"{base.name}-iso", pixel=0.0)
         for case in (base, replace(base, name=f"{base.name}-noslip", drift=0.0)):
             for seed in args.seeds:
                 log, truth = make_log(case, seed, args.cache)
