@@ -45,6 +45,9 @@ class Case:
     gap: tuple[float, float] | None = None
     late: tuple[int, float] | None = None
     duration: float = 160.0
+    drift: float = 0.02  # wheel slip, NoiseModel.odom_linear_drift (m/s)
+    gyro_x: float = GYRO_X  # the gyro's density over the default
+    pixel: float = PIXEL  # stereo pixel noise; 0: the simulator's additive detection law (isotropic)
 
 
 CASES = (
@@ -55,24 +58,29 @@ CASES = (
 )
 
 
+def scenario(case: Case):
+    """The ground scenario with the case's gap and late landmark."""
+    return customize(
+        get_scenario("ground"),
+        detection_gaps=(case.gap,) if case.gap else None,
+        first_seen=(case.late,) if case.late else None,
+    )
+
+
 def make_log(case: Case, seed: int, cache: Path) -> tuple[Path, dict]:
     name = f"{case.name}-s{seed}"
     path, truth_path = cache / f"{name}.mcap", cache / f"{name}.truth.json"
     if path.is_file() and truth_path.is_file():
         return path, json.loads(truth_path.read_text())
-    sc = customize(
-        get_scenario("ground"),
-        detection_gaps=(case.gap,) if case.gap else None,
-        first_seen=(case.late,) if case.late else None,
-    )
-    gyro = GYRO_X * DEFAULTS["gyro"][0] / np.sqrt(1.0 / RATE_HZ)
+    sc = scenario(case)
+    gyro = case.gyro_x * DEFAULTS["gyro"][0] / np.sqrt(1.0 / RATE_HZ)
     velocity = VELOCITY_X * DEFAULTS["velocity"][0] / np.sqrt(1.0 / RATE_HZ)
     nm = replace(
         NoiseModel(),
         gyro=gyro,
         odom_linear=velocity,
-        odom_linear_drift=0.02,
-        stereo_pixel=PIXEL,
+        odom_linear_drift=case.drift,
+        stereo_pixel=case.pixel,
         stereo_focal=FOCAL_PX,
         stereo_baseline=BASELINE_M,
     )
@@ -83,7 +91,7 @@ def make_log(case: Case, seed: int, cache: Path) -> tuple[Path, dict]:
     clean = simulate(sc, noise=nm, **kw)  # the same draws without the outliers: the law fitted to the inliers
     exact = simulate(sc, noise=False, **kw)
     truth = {
-        "gyro": GYRO_X * DEFAULTS["gyro"][0],
+        "gyro": case.gyro_x * DEFAULTS["gyro"][0],
         "velocity": VELOCITY_X * DEFAULTS["velocity"][0],
         "detection_per_m": 0.0,
         **fit_truth(clean.detections, exact.detections),
