@@ -56,6 +56,19 @@ def parts(tmp_path_factory) -> list[Path]:
     return split_bag(LOG, tmp_path_factory.mktemp("split") / "rec", [10.0, 20.0])
 
 
+def test_rosbag_split_parts_named_after_their_start_are_one_recording_in_any_directory(parts, tmp_path):
+    """``rosbag record --split -o session`` writes session_2024-05-01-12-00-00_0.bag, _1.bag, ... wherever it runs:
+    the start time in their names marks them as one recording, whatever the directory is called; whole logs named
+    flight_0.bag, flight_1.bag in it are not (test_whole_logs_that_only_look_like_parts_are_one_line)."""
+    shelf = tmp_path / "bags"
+    shelf.mkdir()
+    for k, part in enumerate(parts):
+        shutil.copy(part, shelf / f"session_2024-05-01-12-00-00_{k}.bag")
+    whole, split = inspect_log(LOG), inspect_log(shelf)
+    assert split.container == "ros1-split" and split.storage == "3 bag files"
+    assert {t.topic: t.count for t in split.topics} == {t.topic: t.count for t in whole.topics}
+
+
 def test_info_reads_the_parts_as_one_log_in_order(parts):
     whole, split = inspect_log(LOG), inspect_log(parts[0].parent)
     assert split.container == "ros1-split" and split.storage == "3 bag files"

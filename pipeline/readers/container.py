@@ -261,17 +261,22 @@ def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
     return tuple(bag for _, bag in parts)
 
 
+#: ``rosbag record --split -o PREFIX`` names every part after the recording's start: PREFIX_2024-05-01-12-00-00_N.bag
+ROSBAG_START = re.compile(r"\d{4}-\d{2}-\d{2}-\d{2}-\d{2}-\d{2}$")
+
+
 def _one_recording(directory: Path, parts: tuple[Path, ...]) -> tuple[Path, ...]:
     """``parts`` when they are laid out as a recorder lays out the parts of one recording: named after their
-    directory (``rec/rec_0.db3``, as rosbag2 names them). The one rule of what a directory of ``NAME_N`` files is,
-    for ``run``, ``info`` and batch discovery alike.
+    directory (``rec/rec_0.db3``, as rosbag2 names them), or ROS1 bags named after the recording's start time as
+    ``rosbag record --split`` names them (``any/session_2024-05-01-12-00-00_0.bag``). The one rule of what a
+    directory of ``NAME_N`` files is, for ``run``, ``info`` and batch discovery alike.
 
     Raises:
         InputError: The files are named otherwise (``flights/flight_0.mcap``, ``flight_1.mcap``): whole logs that
             only look like parts.
     """
     name = PART.match(parts[0].name)["name"]
-    if name == directory.name:
+    if name == directory.name or (parts[0].suffix == ".bag" and ROSBAG_START.search(name)):
         return parts
     raise _separate_logs(directory, parts, f"{name}/{parts[0].name}")
 
