@@ -156,7 +156,7 @@ def simulate(
     force: bool,
     quiet: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop) and write it
+    """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop, ground) and write it
     to OUT with landmark and bias truth.
 
     With --camera corners or images the camera reports tags as a real one does (tag corners, or images rendered
