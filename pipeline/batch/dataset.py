@@ -197,8 +197,14 @@ def _rewrite_without(path: Path, drop: set[str]) -> None:
         path.unlink()
 
 
+#: Suffix of the hidden files a report of a batch run (:mod:`.rereport`) writes before its journal: slamobs's own,
+#: so a report killed before its switch leaves nothing that stops the next batch (:func:`check_owned_runs`).
+REPORT_TMP = ".report-tmp"
+
+
 def check_owned_runs(out: Path, run_ids: Iterable[str]) -> None:
-    """Every run directory of ``run_ids`` holds only what slamobs wrote (its manifest's files, and ``batch.json``:
+    """Every run directory of ``run_ids`` holds only what slamobs wrote (its manifest's files, ``batch.json`` and a
+    killed report's hidden temporaries:
     :func:`~slamobs.pipeline.paths.foreign_entry`), so deleting it (a ``--force``, a changed or pruned log, a partial
     run) deletes nothing of the user's.
 
@@ -210,7 +216,8 @@ def check_owned_runs(out: Path, run_ids: Iterable[str]) -> None:
         path = run_dir(out, rid)
         if not path.is_dir() or path.is_symlink():  # a link goes, never what it points to
             continue
-        if (found := foreign_entry(path, also=(RUN_META,))) is not None:
+        ours = (RUN_META, *(n for n in os.listdir(path) if n.startswith(".") and n.endswith(REPORT_TMP)))
+        if (found := foreign_entry(path, also=ours)) is not None:
             raise InputError(
                 path / found[0],
                 f"{found[1]}; the batch would delete it with run {rid} (--force, a changed, pruned or partial run): "

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.batch.dataset import (
+    REPORT_TMP as TMP,
     DatasetIndex,
     batch_lock,
     remove_path,
@@ -45,8 +46,6 @@ from slamobs.pipeline.stored_runs import RUN_META, partition_file, read_run_meta
 REPORT_TABLES = ("poses_aligned", "landmarks_aligned")
 JOURNAL = "report.json"
 MARKERS = "reports"
-#: Suffix of the hidden files a report writes before its journal (removed as stale when no journal names them).
-TMP = ".report-tmp"
 
 
 def batch_run(path: Path) -> tuple[Path, str] | None:
