@@ -7,6 +7,7 @@ every repair in ``LogStreams.warnings``. Every failure is an :class:`~pipeline.e
 
 from __future__ import annotations
 
+import functools
 from collections import defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -217,15 +218,10 @@ def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, 
     other = selection.roles.get("linear_velocity")
     if other not in rows:
         return stream, cleaning
-    decoded = []
-
-    def other_xyz() -> np.ndarray:
-        decoded.append(vec3_stream(rows[other], "angular_velocity"))
-        return decoded[0][0].xyz
-
-    if not gyro_stand_in(topic, lambda: stream.xyz, other, table[other][0].msgtype, other_xyz):
+    decoded = functools.cache(lambda: vec3_stream(rows[other], "angular_velocity"))  # decoded only when asked
+    if not gyro_stand_in(topic, lambda: stream.xyz, other, table[other][0].msgtype, lambda: decoded()[0].xyz):
         return stream, cleaning
-    found, found_cleaning = decoded[0]
+    found, found_cleaning = decoded()
     note(topic, "angular_velocity", cleaning)
     streams.warnings.append(
         f"{topic}: every angular velocity is zero (not measured): the angular velocity is {other}'s instead "

@@ -17,6 +17,7 @@ follows record time, and if it does not, every topic is (record time is then the
 from __future__ import annotations
 
 import dataclasses
+import functools
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Any
@@ -361,17 +362,16 @@ def _gyro_source(reader, table: dict, roles: dict[str, str]) -> tuple[dict[str, 
     zero in its first :data:`GYRO_PROBE` messages and that one's does not (``decode.gyro_stand_in``, the readers'
     rule); with a warning saying so."""
     gyro, other = roles.get("angular_velocity"), roles.get("linear_velocity")
-    seen = []
 
-    def probe(topic: str) -> np.ndarray:
+    @functools.cache
+    def probe(topic: str) -> np.ndarray:  # read only when the rule asks, once
         meta, conns = table[topic]
-        seen.append(first_vectors(reader, conns, meta.msgtype, "angular_velocity", GYRO_PROBE))
-        return seen[-1]
+        return first_vectors(reader, conns, meta.msgtype, "angular_velocity", GYRO_PROBE)
 
     if not gyro_stand_in(gyro, lambda: probe(gyro), other, other and table[other][0].msgtype, lambda: probe(other)):
         return roles, []
     return {**roles, "angular_velocity": other}, [
-        f"{gyro}: every angular velocity of its first {len(seen[0])} messages is zero (not measured): the angular "
+        f"{gyro}: every angular velocity of its first {len(probe(gyro))} messages is zero (not measured): the angular "
         f"velocity is {other}'s, as run takes it when all are zero (topics.angular_velocity chooses one)"
     ]
 
