@@ -685,9 +685,8 @@ def _detections(
     if det.ids.shape[0] == 0:
         raise InputError(path, f"the {len(det)} detection messages hold no detections", det.topic)
     t_det = _times(det, fr.time_source)
-    _not_one_time(
-        path, t_det, f"detections ({det.topic})", "frames", det, fr.time_source
-    )  # else all seen at one instant
+    # else all seen at one instant
+    _not_one_time(path, t_det, f"detections ({det.topic})", "frames", det, fr.time_source)
     counts = np.diff(det.offsets)
     frame_of = np.repeat(np.arange(len(det)), counts)
     in_span = _frames_in_span(path, det, t_det, lo, hi, gaps, notes, fr.time_source)

@@ -16,7 +16,7 @@ from slamobs.pipeline.readiness import readiness
 from slamobs.pipeline.simulate.logwriter import write_log
 from slamobs.pipeline.simulate.sensors import simulate
 
-from cli_checks import SAMPLES, invoke, message_lines
+from cli_checks import SAMPLES, invoke
 from realdata import REALDATA
 
 
@@ -205,7 +205,7 @@ def test_a_mistyped_topic_names_the_nearest_one(logs, tmp_path):
     config = tmp_path / "run.yaml"
     config.write_text("topics:\n  linear_velocity: /odm\n")
     res = invoke("run", logs["full"], "--config", config, "-o", tmp_path / "out")
-    assert res.exit_code == 2 and len(message_lines(res)) == 1
+    assert res.exit_code == 2 and len(res.output.strip().splitlines()) == 1
     assert "[/odm]: topic for role linear_velocity is not in the log (did you mean /odom? topics: " in res.output
     assert not (tmp_path / "out").exists()
 
