@@ -240,3 +240,18 @@ def test_every_start_is_tried_on_a_short_log_and_only_when_doubtful_on_a_long_on
     long = BatchSmoother(stream, {}, ObserverOptions(), noise=noise())
     assert "robust" not in long.solve()
     assert np.allclose(long.result["solution"].pos, short.result["solution"].pos, atol=1e-6)
+
+
+@pytest.mark.parametrize("drift", [0.05, 0.0])
+def test_riekf_says_when_wheel_slip_makes_it_overconfident(drift):
+    """Wheel slip (a slowly varying velocity error the noise model lacks) passes the gate but makes the innovations
+    correlated in time: the filter records it and says its covariance understates the error; without slip the
+    check finds nothing and writes nothing."""
+    sim = simulate("figure8", seed=2, duration=30.0, noise=replace(NoiseModel(), odom_linear_drift=drift))
+    res = RIEKF.run(align(expected_streams(sim)), {}, ObserverOptions())
+    con = res.stats["metadata"]["filter"]["consistency"]
+    said = [n for n in res.stats["notes"] if n.startswith("riekf: overconfident from")]
+    if drift:
+        assert con["overconfident"] >= 1 and con["log"][0]["median_d2"] > 6.25 and len(said) == 1
+    else:
+        assert con == {"overconfident": 0, "log": []} and not said

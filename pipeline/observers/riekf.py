@@ -36,6 +36,14 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
   would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
   On a log where no window fails, none of this changes a number.
+* Overconfidence (a consistency check that changes no number): a consistent filter's innovations are white, so
+  the sum of a window's accepted innovations has the sum of their joint covariances (a frame's cross blocks
+  included) and its Mahalanobis distance² follows χ² (3 DoF) whatever the window's size. A slowly varying error
+  the noise model lacks (wheel slip; the gate still passes) makes them correlated: when the median of that d²
+  over the last ``WALK_WINDOWS`` passing windows exceeds ``WALK_HOT`` (χ² 90 %: about 3 in 1000 windows of a
+  consistent filter), the time and the median are recorded (run.json ``observer.filter.consistency``, a note:
+  the covariance understates the error). Raising the velocity-bias walk there instead was tried and left out
+  (docs/benchmarks.md, "riekf: overconfidence from the innovations").
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -76,7 +84,9 @@ _NSEEN, _GATED, _UPDATES, _SKIPPED = 7, 8, 9, 10
 #: The recovery's slots (module docstring, "Recovery"): detections tested and gated in the current window,
 #: recoveries made, consecutive failing windows, landmarks re-initialised, and whether the filter gave up.
 _WIN_N, _WIN_GATED, _RECOVERIES, _FAILING, _REINIT, _LOST = 11, 12, 13, 14, 15, 16
-N_SLOTS = 17
+#: The consistency check's slots (module docstring, "Overconfidence"): windows in its ring, times it fired.
+_HOT, _RAISES = 17, 18
+N_SLOTS = 19
 #: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
 #: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
 #: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
@@ -90,6 +100,10 @@ MAX_FAILING = 4
 #: (a pose error moves all of a frame's innovations alike), not to the detections (``_common_share``).
 COMMON_SHARE = 4.0
 MAX_SIGMA_SHARE = 0.25
+#: Overconfidence (module docstring): the median over ``WALK_WINDOWS`` windows of the summed innovations' d² (χ²,
+#: 3 DoF, 90 %) above which the filter is overconfident.
+WALK_HOT = 6.25
+WALK_WINDOWS = 7
 #: What a recovery did, by failing windows in a row (1, 2, 3 and more).
 RECOVERY_ACTIONS = {
     0: "the motion noise variances and the covariance (the frames' innovations moved together: a pose error)",
@@ -563,6 +577,7 @@ def _update(
     win_f,
     gated_lm,
     reinit,
+    win_sum,
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
@@ -668,6 +683,7 @@ def _update(
                 v = 0.5 * (smat[r, c] + smat[c, r])
                 smat[r, c] = v
                 smat[c, r] = v
+        _sum_innovations(z, smat, k3, win_sum)
         if not _cholesky(smat, k3):
             ns[_SKIPPED] += 1
         else:
@@ -693,6 +709,16 @@ def _update(
         _reset_landmark(cov, d, d, sig2[j], ues[j])
         d += 3
     return d
+
+
+@njit(cache=True)
+def _sum_innovations(z, smat, k3, win_sum):
+    """The window's sum of the frame's accepted innovations (row 0 of ``win_sum``) and of their joint covariance
+    (rows 1..3: every 3×3 block of ``S``, the cross blocks of a frame's common pose error included)."""
+    for r in range(k3):
+        win_sum[0, r % 3] += z[r]
+        for c in range(k3):
+            win_sum[1 + r % 3, c % 3] += smat[r, c]
 
 
 @njit(cache=True)
@@ -737,14 +763,49 @@ def _common_share(n, win_z, win_f):
 
 
 @njit(cache=True)
-def _window_check(t, d, cov, fs, ns, win_d2, win_z, win_f, gated_lm, reinit, slot_of, rec_log, max_scale):
+def _walk_check(t, ns, win_sum, walk_log):
+    """A window that passed the gate: the Mahalanobis distance² of the sum of its accepted innovations joins the
+    ring of the last ``WALK_WINDOWS``; when their median exceeds ``WALK_HOT`` the filter is overconfident (module
+    docstring, "Overconfidence"): recorded, and the ring starts again. Changes no estimate."""
+    s = win_sum[1:4, :3].copy()
+    if not _cholesky(s, 3):
+        return
+    d2 = 0.0  # |L⁻¹ Σz|², by forward substitution
+    y = np.empty(3)
+    for a in range(3):
+        v = win_sum[0, a]
+        for k in range(a):
+            v -= s[a, k] * y[k]
+        y[a] = v / s[a, a]
+        d2 += y[a] * y[a]
+    hist = win_sum[4]  # the last WALK_WINDOWS windows' d2, in a ring
+    hist[ns[_HOT] % WALK_WINDOWS] = d2
+    ns[_HOT] += 1
+    if ns[_HOT] < WALK_WINDOWS or ns[_LOST] != 0:
+        return
+    ratio = np.median(hist)
+    if ratio <= WALK_HOT:
+        return
+    ns[_HOT] = 0
+    r = ns[_RAISES]
+    if r < walk_log.shape[0]:
+        walk_log[r, 0], walk_log[r, 1] = t, ratio
+    ns[_RAISES] += 1
+
+
+@njit(cache=True)
+def _window_check(
+    t, d, cov, fs, ns, win_d2, win_z, win_f, win_sum, gated_lm, reinit, slot_of, rec_log, walk_log, max_scale
+):
     """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
-    docstring, "Recovery"), or give up; the window starts again. True when a noise factor changed."""
+    docstring, "Recovery"), or give up; else check its consistency (:func:`_walk_check`); the window starts
+    again. True when a noise factor changed."""
     n, gated = ns[_WIN_N], ns[_WIN_GATED]
     ns[_WIN_N], ns[_WIN_GATED] = 0, 0
     changed = False
     if gated <= RECOVER_SHARE * n:
         ns[_FAILING] = 0
+        _walk_check(t, ns, win_sum, walk_log)
     elif ns[_LOST] == 0:
         m = min(n, win_d2.shape[0])
         step = min(max(np.median(win_d2[:m]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
@@ -774,6 +835,7 @@ def _window_check(t, d, cov, fs, ns, win_d2, win_z, win_f, gated_lm, reinit, slo
             ns[_RECOVERIES] += 1
             changed = True
     gated_lm[:] = False
+    win_sum[:4, :] = 0.0
     return changed
 
 
@@ -819,9 +881,11 @@ def _advance(
     win_d2,
     win_z,
     win_f,
+    win_sum,
     gated_lm,
     reinit,
     rec_log,
+    walk_log,
     out_k,
     out_r,
     out_p,
@@ -918,9 +982,24 @@ def _advance(
                 win_f,
                 gated_lm,
                 reinit,
+                win_sum,
             )
             if ns[_WIN_N] >= WINDOW and _window_check(
-                t_next, d, cov, fs, ns, win_d2, win_z, win_f, gated_lm, reinit, slot_of, rec_log, max_scale
+                t_next,
+                d,
+                cov,
+                fs,
+                ns,
+                win_d2,
+                win_z,
+                win_f,
+                win_sum,
+                gated_lm,
+                reinit,
+                slot_of,
+                rec_log,
+                walk_log,
+                max_scale,
             ):
                 scale, det_scale = fs[_SCALE], fs[_DSCALE]
                 qs_om, qs_v = q_om * scale, q_v * scale
@@ -979,9 +1058,12 @@ class _State(KernelState):
         self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
         self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
+        # the window's summed accepted innovations and their covariance; the last windows' d² (_walk_check)
+        self.win_sum = np.zeros((5, WALK_WINDOWS))
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
+        self.walk_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
 
     def arrays(self) -> tuple:
         return (
@@ -1007,9 +1089,11 @@ class _State(KernelState):
             self.win_d2,
             self.win_z,
             self.win_f,
+            self.win_sum,
             self.gated_lm,
             self.reinit,
             self.rec_log,
+            self.walk_log,
         )
 
 
@@ -1225,6 +1309,13 @@ class RiEKF(Stepper):
             "detection_noise_factor": float(fs[_DSCALE]),
             "landmarks_reinitialised": int(ns[_REINIT]),
             "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
+            "consistency": {
+                "overconfident": int(ns[_RAISES]),
+                "log": [
+                    {"t_s": round(float(r[0]) - t0, 3), "median_d2": round(float(r[1]), 3)}
+                    for r in self.state.walk_log[: min(int(ns[_RAISES]), MAX_LOG)]
+                ],
+            },
         }
 
 
@@ -1247,6 +1338,17 @@ def recovery_notes(filt: dict) -> list[str]:
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
             f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now "
             f"x{np.sqrt(r['detection_factor']):.3g} in standard deviation)"
+        )
+    con = filt.get("consistency") or {}
+    if con.get("overconfident"):
+        first = con["log"][0]
+        notes.append(
+            f"riekf: overconfident from {first['t_s']:.2f} s ({con['overconfident']} time(s)): over {WALK_WINDOWS} "
+            f"windows of {WINDOW} detections that passed the gate, the Mahalanobis distance² of each window's summed "
+            f"innovations had a median of {first['median_d2']:.3g} (a consistent filter: {CHI2_MEDIAN_3}): its errors "
+            "are correlated in time, the covariance understates them and the trajectory may be further off than it "
+            "says (a slowly varying error the noise model lacks, such as wheel slip; run.json "
+            "observer.filter.consistency)"
         )
     if filt["recoveries"] > 5:
         notes.append(f"riekf: {filt['recoveries']} recoveries in all (run.json observer.filter.recovery_log)")
