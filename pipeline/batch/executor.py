@@ -41,7 +41,8 @@ LEASE_POLL_S = 2.0
 RETRY = "retry"
 #: "name": a file name the summary cannot store (not UTF-8); "kept": the run directory holds a file of the user's, so
 #: the run was neither deleted nor run (a "skipped" row, see runner.kept_row)
-RETRY_WHY = ("machine", "changed", "name", "kept")
+KEPT = "kept"
+RETRY_WHY = ("machine", "changed", "name", KEPT)
 
 
 class EnvironmentMismatch(InfrastructureFailure, RuntimeError):

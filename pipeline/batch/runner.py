@@ -37,6 +37,7 @@ from slamobs.pipeline.stored_runs import partition_file, run_dir
 from slamobs.pipeline.batch.discover import LogEntry, outside
 from slamobs.pipeline.batch.executor import (
     EXECUTORS,
+    KEPT,
     RETRY,
     Task,
     base_row,
@@ -327,7 +328,7 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
 def kept_row(task: Task, why: str) -> dict:
     """The row of a log whose run directory holds a file of the user's: skipped, saying why; never recorded (the
     next batch runs it once the file is gone)."""
-    return {**base_row(task), "status": "skipped", "error": why, RETRY: "kept"}
+    return {**base_row(task), "status": "skipped", "error": why, RETRY: KEPT}
 
 
 def _keep(plan: _Plan, kept: dict[str, str]) -> None:
@@ -525,7 +526,7 @@ def _execute(
             with signals_deferred():
                 if row["status"] == "ok":
                     row = _commit(out, task, row)
-                    if row.get(RETRY) == "kept":
+                    if row.get(RETRY) == KEPT:
                         kept[task.run_id] = row["error"]
                 if not row.get(RETRY):  # not the log's failure: the next batch runs it again
                     ledger.put(row)
