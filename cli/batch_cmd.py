@@ -37,12 +37,19 @@ def _duration(s: float | None) -> str:
     return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}" if s >= 3600 else f"{s // 60}:{s % 60:02d}"
 
 
+def _kept(row: dict) -> bool:
+    """A log whose run the batch kept as it was (a file of the user's in its directory): its line says why."""
+    from slamobs.pipeline.batch.executor import KEPT, RETRY
+
+    return row.get(RETRY) == KEPT
+
+
 def _row_line(row: dict, progress) -> str:
     status = row["status"]
     if status == "ok" and row.get("warning_count"):
         status = f"ok ({plural(row['warning_count'], 'warning')})"
     head = f"[{progress.done}/{progress.total}] {status:<7} {row['run_id']}"
-    if row["status"] == "failed":
+    if row["status"] == "failed" or _kept(row):
         return f"{head}  {row['error']}"
     ape = row.get("ape_trans_rmse_m")
     tail = f"  APE {ape:.4f} m" if ape is not None else ""
@@ -76,7 +83,7 @@ class _Reporter:
         if not self.live:
             click.echo(_row_line(row, progress), err=True)
             return
-        if row["status"] == "failed" or row.get("warning_count"):
+        if row["status"] == "failed" or row.get("warning_count") or _kept(row):
             click.echo("\r\x1b[K" + _row_line(row, progress), err=True)
         click.echo(
             f"\r\x1b[K[{progress.done}/{progress.total}] {progress.ok} ok, {progress.failed} failed, "
@@ -107,6 +114,7 @@ class _Reporter:
                         "removed": len(fixed.removed) + len(fixed.dropped),
                         "elapsed_s": round(result.elapsed_s, 3),
                         "summary": str(summary),
+                        "kept": result.kept,
                         "exit_code": result.exit_code,
                     }
                 )
@@ -127,6 +135,16 @@ class _Reporter:
             f"batch: {plural(len(result.rows), 'log')}, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
             f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}"
         )
+        if result.kept:
+            listed = {r["run_id"] for r in result.rows if _kept(r)}
+            for rid, why in result.kept.items():
+                if rid not in listed or self.quiet:  # the others' lines said so already
+                    click.echo(f"batch: {why}", err=True)
+            click.echo(
+                f"batch: {plural(len(result.kept), 'run')} kept as it was because its directory holds a file "
+                f"slamobs did not write (see above); exit {result.exit_code}",
+                err=True,
+            )
         if machine := result.machine_failures:
             click.echo(
                 f"batch: {plural(len(machine), 'log')} failed because of the machine, not the log (first: "
@@ -262,6 +280,8 @@ def run(
       0    every log ok or skipped
       1    some logs failed (bad log, timeout, a worker died twice on it, a log
            changed while it ran)
+      4    none failed, but some runs were kept as they were (not deleted, not
+           run) because OUT/runs/<id>/ holds a file slamobs did not write (named)
       2    bad arguments or config, nothing found, OUT locked by another batch
            (or a report of one of its runs)
       3    infrastructure: Dask scheduler unreachable or lost, no workers, a worker

@@ -319,28 +319,39 @@ def test_rerun_skips_finished_runs_and_force_reruns(done, logs, tmp_path):
 
 def test_force_and_reconciliation_never_delete_what_slamobs_did_not_write(done, logs, tmp_path):
     # --force replaced OUT/runs/<id>/ whole and a start's reconciliation deleted any directory of runs/ it had no
-    # record of: a user's notes in a run directory, or a directory -o named that was no batch dataset, were lost
+    # record of: a user's notes in a run directory, or a directory -o named that was no batch dataset, were lost;
+    # then one such file stopped the whole batch (exit 2) before any other log ran: now only that run is kept
     out = _copy(done[1], tmp_path)
-    rid = _rid(out, logs["circle"])
-    before = read_summary(out)[rid]
+    rid, other = _rid(out, logs["circle"]), _rid(out, logs["f8"])
+    before = read_summary(out)
     notes = out / "runs" / rid / "notes.txt"
     notes.write_text("mine")
+    res = invoke(logs["circle"], logs["f8"], "-o", out, "--force", "--json")
+    *rows, done_event = [json.loads(x) for x in res.stdout.strip().splitlines()]
+    by_id = {r["run_id"]: r for r in rows}
+    assert res.exit_code == 4 and done_event["exit_code"] == 4 and list(done_event["kept"]) == [rid]
+    assert by_id[rid]["status"] == "skipped" and by_id[rid]["error"].startswith(f"{notes}: not written by slamobs; ")
+    assert f"move it out of {out}" in by_id[rid]["error"]
+    assert by_id[other]["status"] == "ok"  # the other log of the batch ran
+    after = read_summary(out)
+    assert notes.read_text() == "mine" and after[rid] == before[rid]  # nothing deleted, nothing re-run
+    assert after[other]["finished_at"] > before[other]["finished_at"]
+    assert_consistent(out)
     res = invoke(logs["circle"], "-o", out, "--force", "--quiet")
-    assert res.exit_code == 2 and res.output.startswith(f"error: {notes}: not written by slamobs; ")
-    assert len(res.output.strip().splitlines()) == 1 and f"move it out of {out}" in res.output
-    assert notes.read_text() == "mine" and read_summary(out)[rid] == before  # nothing deleted, nothing re-run
+    assert res.exit_code == 4 and f"{notes}: not written by slamobs; " in res.output  # --quiet still names it
     notes.unlink()
     # a report of this run killed before its switch leaves its hidden temporaries: slamobs's, no obstacle
     (out / "runs" / rid / ".batch.json.report-tmp").write_text("{}")
     assert invoke(logs["circle"], "-o", out, "--force", "--quiet").exit_code == 0  # what slamobs wrote is replaced
     assert not (out / "runs" / rid / ".batch.json.report-tmp").exists()
-    assert read_summary(out)[rid]["finished_at"] > before["finished_at"]
+    assert read_summary(out)[rid]["finished_at"] > before[rid]["finished_at"]
+    # a directory of the user's in runs/ (no record: a start's reconciliation would remove it as partial)
     mine = out / "runs" / "mine"
     mine.mkdir()
     (mine / "plot.png").write_text("mine")
-    res = invoke(logs["circle"], "-o", out, "--quiet")
-    assert res.exit_code == 2 and res.output.startswith(f"error: {mine / 'plot.png'}: not written by slamobs; ")
-    assert (mine / "plot.png").read_text() == "mine"
+    res = invoke(logs["circle"], "-o", out, "--force", "--quiet")
+    assert res.exit_code == 4 and f"batch: {mine / 'plot.png'}: not written by slamobs; run mine kept" in res.output
+    assert (mine / "plot.png").read_text() == "mine" and read_summary(out)[rid]["status"] == "ok"
     # a directory that is no batch dataset but holds names a batch writes and deletes
     foreign = tmp_path / "foreign"
     (foreign / "runs" / "x").mkdir(parents=True)

@@ -82,6 +82,17 @@ def batch(inputs, out: Path, jobs: int = 1, **kwargs):
     return run_batch(discover(inputs), BatchOptions(out=out, jobs=jobs, **kwargs), run=FAKE)
 
 
+def raced_pipeline(log: Path, out_dir: Path, config):
+    """:func:`fake_pipeline`, but while a log named ``raced*`` runs a user's file appears in its run directory of
+    the dataset (``out_dir`` is ``OUT/_slamobs/staging/<batch>/<run_id>/run``)."""
+    run_id = out_dir.parent.name
+    if Path(log).name.startswith("raced"):
+        final = out_dir.parents[4] / "runs" / run_id
+        final.mkdir(parents=True, exist_ok=True)
+        (final / "notes.txt").write_text("mine")
+    return fake_pipeline(log, out_dir, config)
+
+
 # --- records ------------------------------------------------------------------------------------------------
 
 
@@ -553,3 +564,19 @@ def test_workers_that_die_while_starting_are_an_infrastructure_error(tmp_path):
     with pytest.raises(InfrastructureError, match=f"die while starting \\(exit status 3, {STARTUP_FAILURES} times"):
         list(pool.results(tasks))
     assert pool.pids() == []
+
+
+def test_a_file_of_the_users_appearing_in_a_run_directory_during_the_run_keeps_it_and_the_batch_goes_on(tmp_path):
+    # commit_run moved the run's tables into the dataset and then raised InputError on the user's file in its run
+    # directory: the batch stopped (exit 2) with the tables of a run without record or run directory in place
+    logs = make_logs(tmp_path / "logs", ["raced.bag", "a.bag", "b.bag"])
+    out = tmp_path / "OUT"
+    res = run_batch(discover(logs), BatchOptions(out=out, jobs=1), run=partial(run_task, pipeline=raced_pipeline))
+    rows = {Path(r["log"]).name: r for r in res.rows}
+    raced = rows["raced.bag"]
+    assert raced["status"] == "skipped" and "notes.txt: not written by slamobs" in raced["error"]
+    assert res.kept == {raced["run_id"]: raced["error"]} and res.exit_code == 4
+    assert rows["a.bag"]["status"] == rows["b.bag"]["status"] == "ok"
+    assert (out / "runs" / raced["run_id"] / "notes.txt").read_text() == "mine"
+    assert raced["run_id"] not in read_summary(out)  # not recorded: the next batch runs it
+    assert not list((out / "poses").glob(f"run_id={raced['run_id']}"))  # nothing of it moved in

@@ -234,3 +234,76 @@ def test_a_clock_set_back_is_named_in_the_out_of_order_note():
     assert step.text() == "1 out-of-order stamp (a step back of 1.500 s: a clock set back? time.source: auto or record)"
     _, _, jitter = clean_order(np.array([0, 10, 5, 20, 30]) * ms, np.arange(5) * 10 * ms, values)
     assert jitter.text() == "1 out-of-order stamp"
+
+
+def _imu_extrinsic_on_tf(src, dst):
+    """The simulated MCAP ``src`` with its base_link -> imu_link extrinsic moved from /tf_static to /tf, one
+    message per IMU message (recorded with it), whose header stamps are disordered: pairs swapped, a stamp repeated
+    with another value (record times stay in order)."""
+    from mcap.reader import make_reader
+
+    from slamobs.pipeline.simulate.sensors import FRAME_IMU, TOPIC_IMU, TOPIC_TF_STATIC
+
+    ts = make_typestore(ros1=False)
+    tf_type = "tf2_msgs/msg/TFMessage"
+    with src.open("rb") as fin, dst.open("wb") as fout:
+        writer = McapWriter(fout)
+        writer.start(profile="ros2", library="slamobs-tests")
+        msgdef, _ = ts.generate_msgdef(tf_type, ros_version=2)
+        tf_channel = writer.register_channel("/tf", "cdr", writer.register_schema(tf_type, "ros2msg", msgdef.encode()))
+        schemas, channels, edge, k, last = {}, {}, None, 0, None
+        for schema, channel, msg in make_reader(fin).iter_messages():
+            data = msg.data
+            if channel.topic == TOPIC_TF_STATIC:
+                tfm = ts.deserialize_cdr(msg.data, tf_type)
+                edge = next(t for t in tfm.transforms if t.child_frame_id == FRAME_IMU)
+                kept = [t for t in tfm.transforms if t.child_frame_id != FRAME_IMU]
+                data = bytes(ts.serialize_cdr(ts.types[tf_type](transforms=kept), tf_type))
+            elif channel.topic == TOPIC_IMU and edge is not None:
+                imu = ts.deserialize_cdr(msg.data, schema.name)
+                ns = imu.header.stamp.sec * NS + imu.header.stamp.nanosec - 15_000_000 * (k % 50 == 10)  # early
+                stamp = last if k % 50 == 30 else type(imu.header.stamp)(sec=ns // NS, nanosec=ns % NS)
+                turn = 0.01 * (k % 50 == 30)  # the stamp before, repeated with another value
+                last, k = stamp, k + 1
+                rot = type(edge.transform.rotation)(x=np.sin(turn / 2), y=0.0, z=0.0, w=np.cos(turn / 2))
+                t = type(edge)(
+                    header=type(edge.header)(stamp=stamp, frame_id=edge.header.frame_id),
+                    child_frame_id=FRAME_IMU,
+                    transform=type(edge.transform)(translation=edge.transform.translation, rotation=rot),
+                )
+                tf_data = bytes(ts.serialize_cdr(ts.types[tf_type](transforms=[t]), tf_type))
+                writer.add_message(tf_channel, log_time=msg.log_time, publish_time=msg.publish_time, data=tf_data)
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata
+                )
+            writer.add_message(channels[channel.id], log_time=msg.log_time, data=data, publish_time=msg.publish_time)
+        writer.finish()
+    return dst
+
+
+def test_tf_notes_describe_the_clock_the_run_reads(tmp_path):
+    # time.source: record read /tf on its record times, but its edges were still sorted, cleaned and described
+    # on their header stamps ('/tf: base_link->imu_link: 4 out-of-order stamps, 2 repeated stamps dropped')
+    from slamobs.pipeline.alignment import align
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    src = write_log(simulate("circle", duration=2.0, seed=3), tmp_path / "sim.mcap")
+    log = _imu_extrinsic_on_tf(src, tmp_path / "tf.mcap")
+
+    def tf_notes(clocks):
+        streams = read_log(log, clocks=clocks)
+        return streams, [w for w in streams.warnings if w.startswith("/tf:")]
+
+    header, notes = tf_notes(None)
+    assert len(notes) == 1 and "out-of-order stamp" in notes[0] and "repeated stamp" in notes[0]
+    record, notes = tf_notes("record")
+    assert notes == []  # the record times are in order and distinct: nothing to say, nothing dropped
+    (edge,) = [s for s in record.tf if s.child == "imu_link"]
+    n_imu = len(record.angular_velocity)
+    assert len(edge) == n_imu and np.all(np.diff(edge.t_ns) > 0) and np.array_equal(edge.t_ns, edge.rec_ns)
+    assert len([s for s in header.tf if s.child == "imu_link"][0]) < n_imu  # the header stamps' repeats dropped
+    aligned = align(record, time_source="record")
+    assert any("through /tf (base_link->imu_link)" in n and "time-varying" in n for n in aligned.notes)

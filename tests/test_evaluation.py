@@ -597,6 +597,34 @@ def test_a_planar_estimate_turned_upside_down_by_the_alignment_is_said_so():
     assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "upside" in n]
 
 
+def test_a_planar_estimate_tilted_by_the_alignment_is_said_so():
+    """A wrong planar estimate that climbs along x (z = 0.5 x, its rotations still level) fits best under SE(3)
+    tilted ~26.6 deg off level, which no gravity-respecting alignment could do and which flatters its APE: only an
+    upside-down fit was named before. report.json gives every alignment's tilt; a note, report.md and the figure
+    titles say so with the 4-DoF APE; a level fit (or --align yaw) says nothing."""
+    from slamobs.pipeline.evaluation.figure_jobs import tilt_caveat
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
+
+    truth = planar_truth()
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = 0.5 * poses["x"]
+    rep = checked(build_report(poses, None, None, truth))
+    by = rep["ape_by_alignment"]
+    assert by["se3"]["alignment"]["gravity_tilt_deg"] == pytest.approx(np.degrees(np.arctan(0.5)), abs=0.5)
+    assert by["yaw"]["alignment"]["gravity_tilt_deg"] == 0.0
+    assert by["se3"]["translation_m"]["rmse"] < by["yaw"]["translation_m"]["rmse"]  # the tilt flatters it
+    (note,) = [n for n in rep["notes"] if "tilted the estimate's z axis" in n]
+    assert note.startswith("the se3 alignment tilted the estimate's z axis 26.6 deg off the truth's")
+    assert f"{by['yaw']['translation_m']['rmse']:.4f} m" in note and note in render_markdown(rep)
+    ev = evaluate_trajectory(poses, truth, ReportOptions())
+    assert ev.planar and ev.gravity_tilt_deg == pytest.approx(26.57, abs=0.5)
+    assert "tilts the estimate 27 deg off level" in tilt_caveat(ev)
+    level = moved(truth, so3_exp(np.array([0.0, 0.0, -1.1])), np.ones(3), noise_m=0.01)
+    assert tilt_caveat(evaluate_trajectory(level, truth, ReportOptions())) == ""
+    assert not [n for n in checked(build_report(level, None, None, truth))["notes"] if "tilt" in n]
+    assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "tilt" in n]
+
+
 def test_clock_offset_is_estimated_always_and_applied_on_request():
     truth = make_truth(n=3000)
     poses = moved(truth, ROT_C, P_C, noise_m=0.002).iloc[::3].reset_index(drop=True)

@@ -19,6 +19,9 @@ staging directories are deleted, a run directory whose tables are all in place b
 missing is adopted (its ``batch.json`` holds the summary row), anything partial is deleted, and a recorded
 run whose files are gone is dropped from the record (and runs again).
 
+**The user's files are kept.** A run directory holding an entry slamobs did not write is never deleted: that
+run is left as it is (files and record), not run again, and reported (:func:`kept_runs`); the others go on.
+
 ``run_id`` is stored inside the files as a dictionary-encoded string: that is the type pyarrow gives a
 Hive partition key, so the file column and the directory key merge when ``pd.read_parquet(OUT / "poses")``
 reads the dataset, and fresh partitions and compacted files read as one table.
@@ -115,7 +118,13 @@ def write_run_meta(staged: Path, run_id: str, tables: dict[str, int], row: dict)
 
 def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> None:
     """Move a staged run into the dataset: table files first, the run directory last (see module doc).
-    The caller appends the record; until then :func:`reconcile` would adopt the run from its batch.json."""
+    The caller appends the record; until then :func:`reconcile` would adopt the run from its batch.json.
+
+    Raises:
+        InputError: The run directory holds an entry slamobs did not write (:func:`check_owned_runs`); nothing
+            has moved.
+    """
+    check_owned_runs(out, [run_id])  # before anything moves: a file of the user's keeps the run as it was
     for table in tables:
         dest = partition_file(out, table, run_id)
         dest.parent.mkdir(parents=True, exist_ok=True)
@@ -123,7 +132,6 @@ def commit_run(out: Path, staged: Path, run_id: str, tables: Iterable[str]) -> N
     final = run_dir(out, run_id)
     final.parent.mkdir(parents=True, exist_ok=True)
     if final.exists():
-        check_owned_runs(out, [run_id])
         remove_path(final)
     os.replace(staged / "run", final)
 
@@ -202,24 +210,44 @@ def _rewrite_without(path: Path, drop: set[str]) -> None:
 REPORT_TMP = ".report-tmp"
 
 
+def foreign_in_run(out: Path, run_id: str) -> tuple[Path, str] | None:
+    """The first entry of run directory ``run_id`` that slamobs did not write, as ``(path, why)``; None when it
+    holds only its manifest's files, ``batch.json`` and a killed report's hidden temporaries
+    (:func:`~slamobs.pipeline.paths.foreign_entry`), or is no directory (a link goes, never what it points to)."""
+    path = run_dir(out, run_id)
+    if not path.is_dir() or path.is_symlink():
+        return None
+    ours = (RUN_META, *(n for n in os.listdir(path) if n.startswith(".") and n.endswith(REPORT_TMP)))
+    found = foreign_entry(path, also=ours)
+    return None if found is None else (path / found[0], found[1])
+
+
+def kept_runs(out: Path, run_ids: Iterable[str]) -> dict[str, str]:
+    """The runs of ``run_ids`` that must stay as they are because their directory holds an entry slamobs did not
+    write, each with a line naming it and the way out (a batch neither deletes nor re-runs them)."""
+    kept = {}
+    for rid in sorted(run_ids):
+        if (found := foreign_in_run(out, rid)) is not None:
+            kept[rid] = (
+                f"{found[0]}: {found[1]}; run {rid} kept as it was (not deleted, not run again): "
+                f"move it out of {out} and run the batch again"
+            )
+    return kept
+
+
 def check_owned_runs(out: Path, run_ids: Iterable[str]) -> None:
-    """Every run directory of ``run_ids`` holds only what slamobs wrote (its manifest's files, ``batch.json`` and a
-    killed report's hidden temporaries:
-    :func:`~slamobs.pipeline.paths.foreign_entry`), so deleting it (a ``--force``, a changed or pruned log, a partial
-    run) deletes nothing of the user's.
+    """Every run directory of ``run_ids`` holds only what slamobs wrote (:func:`foreign_in_run`), so deleting it
+    (a ``--force``, a changed or pruned log, a partial run) deletes nothing of the user's. The batch leaves such
+    runs out before (:func:`kept_runs`); this is the last guard.
 
     Raises:
         InputError: A run directory holds an entry slamobs did not write (named, with the way out); nothing has
             been deleted.
     """
     for rid in sorted(run_ids):
-        path = run_dir(out, rid)
-        if not path.is_dir() or path.is_symlink():  # a link goes, never what it points to
-            continue
-        ours = (RUN_META, *(n for n in os.listdir(path) if n.startswith(".") and n.endswith(REPORT_TMP)))
-        if (found := foreign_entry(path, also=ours)) is not None:
+        if (found := foreign_in_run(out, rid)) is not None:
             raise InputError(
-                path / found[0],
+                found[0],
                 f"{found[1]}; the batch would delete it with run {rid} (--force, a changed, pruned or partial run): "
                 f"move it out of {out}",
             )
@@ -271,6 +299,8 @@ class Reconciled:
     adopted: list[str] = field(default_factory=list)
     removed: list[str] = field(default_factory=list)  # partial runs whose files were deleted
     dropped: list[str] = field(default_factory=list)  # recorded runs whose files were gone
+    #: runs left as they were, files and record, because their directory holds the user's: run_id -> why
+    kept: dict[str, str] = field(default_factory=dict)
     stale_files: int = 0
 
 
@@ -292,6 +322,8 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
         tables = [t for t in (ledger.rows[rid].get("tables") or "").split(",") if t]
         if not (rid in index.runs and all(index.has(t, rid) for t in tables)):
             result.dropped.append(rid)
+    result.kept = kept_runs(out, result.dropped)
+    result.dropped = [rid for rid in result.dropped if rid not in result.kept]
     drop_runs(index, ledger, result.dropped)
     ok -= set(result.dropped)
     for rid in sorted(index.runs - ok):
@@ -300,7 +332,9 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
             ledger.put(meta["row"])
             ok.add(rid)
             result.adopted.append(rid)
-    result.removed = sorted(index.all_ids() - ok)
+    partial = index.all_ids() - ok
+    result.kept |= kept_runs(out, partial)
+    result.removed = sorted(partial - result.kept.keys())
     remove_files(index, set(result.removed))
     # failed (or unknown) records never keep files; a recorded failure has none by construction
     return index, result

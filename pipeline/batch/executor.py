@@ -39,7 +39,10 @@ LEASE_STALE_S = 60.0
 LEASE_POLL_S = 2.0
 #: Row key of a failure that is not the log's (see the module doc): why, one of RETRY_WHY.
 RETRY = "retry"
-RETRY_WHY = ("machine", "changed", "name")  # "name": a file name the summary cannot store (not UTF-8)
+#: "name": a file name the summary cannot store (not UTF-8); "kept": the run directory holds a file of the user's, so
+#: the run was neither deleted nor run (a "skipped" row, see runner.kept_row)
+KEPT = "kept"
+RETRY_WHY = ("machine", "changed", "name", KEPT)
 
 
 class EnvironmentMismatch(InfrastructureFailure, RuntimeError):

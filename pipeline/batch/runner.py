@@ -27,6 +27,7 @@ from slamobs.pipeline.batch.dataset import (
     check_layout,
     commit_run,
     drop_runs,
+    kept_runs,
     reconcile,
     remove_path,
     signals_deferred,
@@ -36,6 +37,7 @@ from slamobs.pipeline.stored_runs import partition_file, run_dir
 from slamobs.pipeline.batch.discover import LogEntry, outside
 from slamobs.pipeline.batch.executor import (
     EXECUTORS,
+    KEPT,
     RETRY,
     Task,
     base_row,
@@ -117,6 +119,9 @@ class BatchResult:
     pruned: list[str] = field(default_factory=list)
     reconciled: Reconciled = field(default_factory=Reconciled)
     compaction: list[TableCompaction] = field(default_factory=list)
+    #: runs left as they were because their directory holds a file of the user's: run_id -> why (rows of this
+    #: batch's logs among them are "skipped" rows saying so; the others were runs to delete)
+    kept: dict[str, str] = field(default_factory=dict)
 
     def count(self, status: str) -> int:
         return sum(r["status"] == status for r in self.rows)
@@ -133,8 +138,8 @@ class BatchResult:
     @property
     def exit_code(self) -> int:
         """0: every log ok or skipped; 1: some failed; 3: the machine failed some (other infrastructure
-        problems raise instead)."""
-        return 3 if self.machine_failures else 1 if self.count("failed") else 0
+        problems raise instead); 4: none failed but some runs were kept as they were (:attr:`kept`)."""
+        return 3 if self.machine_failures else 1 if self.count("failed") else 4 if self.kept else 0
 
 
 def config_hash(config: RunConfig) -> str:
@@ -320,6 +325,22 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
     return plan
 
 
+def kept_row(task: Task, why: str) -> dict:
+    """The row of a log whose run directory holds a file of the user's: skipped, saying why; never recorded (the
+    next batch runs it once the file is gone)."""
+    return {**base_row(task), "status": "skipped", "error": why, RETRY: KEPT}
+
+
+def _keep(plan: _Plan, kept: dict[str, str]) -> None:
+    """Take the runs of ``kept`` out of ``plan``: neither deleted nor run; a log of them gets a :func:`kept_row`."""
+    plan.drop -= kept.keys()
+    for i, rid in enumerate(plan.order):
+        if i not in plan.rows and rid in kept:
+            task = next(t for t in plan.tasks if t.run_id == rid)
+            plan.rows[i] = kept_row(task, kept[rid])
+    plan.tasks = [t for t in plan.tasks if t.run_id not in kept]
+
+
 def _gone(row: dict, cache: HashCache) -> bool:
     """The run's log is no longer at its recorded path with its recorded content."""
     log = row.get("log")
@@ -409,6 +430,8 @@ def run_batch(
                     plan.drop |= set(pruned)
             finally:
                 cache.save()
+            kept = fixed.kept | kept_runs(out, plan.drop | {t.run_id for t in plan.tasks})
+            _keep(plan, kept)
             with signals_deferred():
                 drop_runs(index, ledger, plan.drop)
                 for row in plan.records:
@@ -433,7 +456,7 @@ def run_batch(
                     on_row(plan.rows[pos], progress)
                 progress.started = time.perf_counter()
                 if pool is not None:
-                    _execute(plan, pool, options, use_dask, ledger, rows, progress, on_row)
+                    _execute(plan, pool, options, use_dask, ledger, rows, progress, on_row, kept)
             finally:
                 if use_dask and pool is not None:
                     pool.close()
@@ -450,6 +473,7 @@ def run_batch(
         pruned=pruned,
         reconciled=fixed,
         compaction=compaction,
+        kept=kept,
     )
 
 
@@ -459,6 +483,8 @@ def _commit(out: Path, task: Task, row: dict) -> dict:
     try:
         commit_run(out, Path(task.staged), task.run_id, tables)
         return row
+    except InputError:  # a file of the user's appeared in the run directory while the run ran: nothing moved
+        return kept_row(task, kept_runs(out, [task.run_id]).get(task.run_id, "its run directory changed"))
     except OSError as err:
         for table in tables:
             remove_path(partition_file(out, table, task.run_id).parent)
@@ -478,8 +504,10 @@ def _execute(
     rows: dict[int, dict],
     progress: Progress,
     on_row: Callable[[dict, Progress], None],
+    kept: dict[str, str],
 ) -> None:
-    """Run the plan's tasks on ``pool``, committing and recording each as it finishes."""
+    """Run the plan's tasks on ``pool``, committing and recording each as it finishes (a run found kept at its
+    commit is added to ``kept``)."""
     out = Path(options.out)
     position = {}
     for i, rid in enumerate(plan.order):
@@ -498,6 +526,8 @@ def _execute(
             with signals_deferred():
                 if row["status"] == "ok":
                     row = _commit(out, task, row)
+                    if row.get(RETRY) == KEPT:
+                        kept[task.run_id] = row["error"]
                 if not row.get(RETRY):  # not the log's failure: the next batch runs it again
                     ledger.put(row)
             remove_path(Path(task.staged))

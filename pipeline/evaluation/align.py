@@ -62,6 +62,12 @@ class Alignment:
         return m
 
 
+def gravity_tilt_deg(rot: np.ndarray) -> float:
+    """How far (degrees) the rotation ``rot`` turns the z (gravity) axis: 0 for a rotation about z only (the 4-DoF
+    alignment's), 180 for one that turns the estimate upside down."""
+    return float(np.degrees(np.arccos(np.clip(np.asarray(rot, dtype=np.float64)[2, 2], -1.0, 1.0))))
+
+
 def yaw_fit(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares ``dst ≈ R_z(θ) src + t`` (rotation about z only): with centred points,
     ``θ = atan2(Σ (x_s y_d − y_s x_d), Σ (x_s x_d + y_s y_d))`` and ``t = μ_dst − R_z μ_src``."""

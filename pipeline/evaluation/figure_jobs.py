@@ -98,6 +98,15 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
     ]
 
 
+def tilt_caveat(ev: TrajectoryEvaluation) -> str:
+    """A second title line for a run the report's alignment tilts although it has a gravity axis (the report's
+    note says more), else nothing."""
+    tilt = ev.gravity_tilt_deg
+    if tilt is None:
+        return ""
+    return f"\n(this alignment tilts the estimate {tilt:.0f} deg off level: see the report's note and the 4-DoF APE)"
+
+
 def top_view_job(
     landmark_section: dict[str, Any],
     ev: TrajectoryEvaluation,
@@ -128,7 +137,8 @@ def top_view_job(
             pair_xyz=ev.translation.est_pos_aligned,
             pair_error_m=ev.translation.errors,
             lm_error_m=np.array([lm_err.get(int(i), np.nan) for i in ids]),
-            title=f"Top view (x-y): estimate after {ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE",
+            title=f"Top view (x-y): estimate after {ALIGN_LABELS[al.kind]} alignment vs truth, coloured by APE"
+            + tilt_caveat(ev),
         ),
     )
 
@@ -146,7 +156,7 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             attitude_error_deg=ev.rotation.errors,
             band_m=convergence["band_m"],
             convergence_t_s=convergence["t_since_start_s"],
-            title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment",
+            title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment" + tilt_caveat(ev),
             level=((level_t - t0) / 1e9, level),
             verdict=convergence_verdict(convergence),
         ),

@@ -34,8 +34,8 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
 
 def headline_caveats(report: dict[str, Any]) -> list[str]:
     """What a table of headline numbers (``slamobs compare``) must say beside them from this report: no convergence
-    time and why, a coarse one, a rotation APE made meaningless by an upside-down alignment of a planar run."""
-    from slamobs.pipeline.evaluation.sections import flipped_note
+    time and why, a coarse one, an alignment that tilts a planar run (upside down: its rotation APE is meaningless)."""
+    from slamobs.pipeline.evaluation.sections import tilt_note
 
     conv = report.get("convergence") or {}
     out = []
@@ -43,7 +43,7 @@ def headline_caveats(report: dict[str, Any]) -> list[str]:
         out.append(f"convergence: {convergence_line(conv)}")
     align = ((report.get("method") or {}).get("alignment") or {}).get("type")
     if align:
-        out += flipped_note(align, report.get("ape_by_alignment") or {})
+        out += tilt_note(align, report.get("ape_by_alignment") or {})
     return out
 
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
-from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment
+from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment, gravity_tilt_deg
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
 from slamobs.pipeline.evaluation.sync import NS_PER_S
@@ -31,13 +31,15 @@ from slamobs.pipeline.evaluation.tables import (
     time_order,
 )
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
-from slamobs.pipeline.evaluation.trajectory_evaluation import GAUGE_SIGMA, ReportOptions, TrajectoryEvaluation
+from slamobs.pipeline.evaluation.trajectory_evaluation import (
+    GAUGE_SIGMA,
+    PLANAR_TILT_DEG,
+    ReportOptions,
+    TrajectoryEvaluation,
+)
 from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
 
-#: a run whose estimate and truth both stay this close to level (degrees of tilt) is planar: the report adds the
-#: 4-DoF (translation + yaw) alignment, the right measure for a robot on a floor
-PLANAR_TILT_DEG = 5.0
 #: evo's command-line flags of each alignment slamobs shares with it
 EVO_ALIGN_FLAGS = {"se3": " -a", "sim3": " -as", "scale": " -s", "origin": " --align_origin", "none": ""}
 
@@ -52,6 +54,7 @@ def alignment_dict(al: Alignment) -> dict[str, Any]:
         "rotation_matrix": [[float(v) for v in row] for row in al.rot],
         "translation_m": [float(v) for v in al.trans],
         "scale": float(al.scale),
+        "gravity_tilt_deg": gravity_tilt_deg(al.rot),
     }
 
 
@@ -156,7 +159,7 @@ class ApeByAlignmentSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         p = ev.paired
-        kinds = self.kinds(planar=len(p) > 0 and level(p.ref_rot, len(p)) and level(p.est_rot, len(p)))
+        kinds = self.kinds(planar=ev.planar)
         fits: dict[str, Alignment] = {}
         for kind in kinds[1:]:
             try:
@@ -176,29 +179,38 @@ class ApeByAlignmentSection(Section):
             for kind in kinds
             if kind in fits
         }
-        self.notes += flipped_note(self.options.align, self.result)
+        self.notes += tilt_note(self.options.align, self.result)
 
 
-def flipped_note(align: str, by_alignment: dict[str, Any]) -> list[str]:
-    """The note for a planar run whose report alignment turned the estimate upside down: positions in a plane fit
-    as well flipped about an axis in it, and the rotation APE then reads ~180 deg whatever the estimate's heading."""
+def tilt_note(align: str, by_alignment: dict[str, Any]) -> list[str]:
+    """The note for a run whose estimate and truth both have a gravity axis (the 4-DoF alignment was computed: a
+    planar run, or IMU directions) but whose report alignment tilts the estimate's z axis off the truth's by more
+    than ``PLANAR_TILT_DEG``: a fit no gravity-respecting alignment could give, which flatters its translation APE;
+    turned upside down (positions in a plane fit as well flipped), its rotation APE reads ~180 deg whatever the
+    heading."""
     yaw, primary = by_alignment.get("yaw"), by_alignment.get(align)
-    if align == "yaw" or yaw is None or primary is None or primary["alignment"]["rotation_matrix"][2][2] >= 0.0:
+    if align == "yaw" or yaw is None or primary is None:
         return []
+    tilt = gravity_tilt_deg(np.asarray(primary["alignment"]["rotation_matrix"]))
+    if tilt <= PLANAR_TILT_DEG:
+        return []
+    if tilt > 90.0:
+        what = (
+            f"the {align} alignment turned the estimate upside down (the positions lie in a plane, which fits as well "
+            f"flipped), so its rotation APE ({primary['rotation_deg']['rmse']:.1f} deg rmse) says nothing of the "
+            "heading"
+        )
+    else:
+        what = (
+            f"the {align} alignment tilted the estimate's z axis {tilt:.1f} deg off the truth's, though both have a "
+            f"gravity axis: no gravity-respecting alignment could, and its APE ({primary['translation_m']['rmse']:.4f} "
+            f"m, {primary['rotation_deg']['rmse']:.3f} deg rmse) looks better for it"
+        )
     return [
-        f"the {align} alignment turned the estimate upside down (the positions lie in a plane, which fits as well "
-        f"flipped), so its rotation APE ({primary['rotation_deg']['rmse']:.1f} deg rmse) says nothing of the heading; "
-        f"this run is planar: with the 4-DoF alignment (translation + yaw, ape_by_alignment.yaw) APE is "
+        f"{what}; with the 4-DoF alignment (translation + yaw, ape_by_alignment.yaw) APE is "
         f"{yaw['translation_m']['rmse']:.4f} m, {yaw['rotation_deg']['rmse']:.3f} deg rmse (report --align yaw "
         "makes it the headline)"
     ]
-
-
-def level(rotations, n: int) -> bool:
-    """Whether every one of ``n`` rotations keeps the body z axis within ``PLANAR_TILT_DEG`` of the frame's z
-    axis (a planar robot's poses: roll and pitch fixed by the motion, yaw all that is free)."""
-    cos_max = np.cos(np.radians(PLANAR_TILT_DEG))
-    return all(bool(np.all(rotations[rows][:, 2, 2] >= cos_max)) for rows in row_blocks(n))
 
 
 def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.ndarray, np.ndarray]]:

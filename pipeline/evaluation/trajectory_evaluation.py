@@ -11,7 +11,8 @@ from functools import cached_property
 import numpy as np
 
 from slamobs.pipeline.evaluation import slam_metrics
-from slamobs.pipeline.evaluation.align import KINDS, NAMES, Alignment, canonical
+from slamobs.pipeline.blocks import row_blocks
+from slamobs.pipeline.evaluation.align import KINDS, NAMES, Alignment, canonical, gravity_tilt_deg
 from slamobs.pipeline.evaluation.metrics import row_norms
 from slamobs.pipeline.evaluation.sync import TimeOffset
 from slamobs.pipeline.evaluation.tables import (
@@ -120,6 +121,19 @@ def estimate_stream(poses: Table) -> PoseStream:
     )
 
 
+#: a run whose estimate and truth both stay this close to level (degrees of tilt) is planar: the report adds the
+#: 4-DoF (translation + yaw) alignment, the right measure for a robot on a floor; an alignment that tilts the z axis
+#: of such a run (or of one with IMU directions) by more than this is said so
+PLANAR_TILT_DEG = 5.0
+
+
+def level(rotations, n: int) -> bool:
+    """Whether every one of ``n`` rotations keeps the body z axis within ``PLANAR_TILT_DEG`` of the frame's z
+    axis (a planar robot's poses: roll and pitch fixed by the motion, yaw all that is free)."""
+    cos_max = np.cos(np.radians(PLANAR_TILT_DEG))
+    return all(bool(np.all(rotations[rows][:, 2, 2] >= cos_max)) for rows in row_blocks(n))
+
+
 @dataclass(frozen=True)
 class TrajectoryEvaluation:
     """Everything the report and its plots share: pairs, alignment, APE vectors, the aligned estimate."""
@@ -136,6 +150,24 @@ class TrajectoryEvaluation:
     #: the pose covariance at the paired estimate rows and its size at every row (``paired_covariance``), None
     #: without one
     covariance: PairedCovariance | None = None
+    #: the estimate's roll and pitch are observed (IMU directions, gravity frame: ``ReportOptions.gravity_aligned``)
+    gravity_aligned: bool = False
+
+    @cached_property
+    def planar(self) -> bool:
+        """The estimate and the truth both stay level at every pair (:func:`level`): a robot on a floor."""
+        p = self.paired
+        return len(p) > 0 and level(p.ref_rot, len(p)) and level(p.est_rot, len(p))
+
+    @property
+    def gravity_tilt_deg(self) -> float | None:
+        """How far the report's alignment tilts the estimate's z axis off the truth's when both have one (a planar
+        run, or IMU directions) and that is more than ``PLANAR_TILT_DEG``: an alignment no gravity-respecting fit
+        could give, which flatters the APE (:func:`~.sections.tilt_note`); else None."""
+        if self.alignment.kind == "yaw" or not (self.gravity_aligned or self.planar):
+            return None
+        tilt = gravity_tilt_deg(self.alignment.rot)
+        return tilt if tilt > PLANAR_TILT_DEG else None
 
     @cached_property
     def time_offset(self) -> TimeOffset | None:
@@ -226,6 +258,7 @@ def evaluate_trajectory(
         applied,
         sync,
         paired_covariance(poses, est, paired),
+        options.gravity_aligned,
     )
 
 

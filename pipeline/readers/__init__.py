@@ -179,7 +179,7 @@ def read_log(
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
                 streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
             elif role == "tf":
-                streams.tf, warnings = transform_series(tf_of(topic))
+                streams.tf, warnings = transform_series(tf_of(topic), on_record_time=clocks == "record")
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
             elif role == "sim_truth":
                 landmarks, bias, warnings, streams.recorded = decode_sim_truth(reader, path, topic, conns)

@@ -658,10 +658,12 @@ def decode_static_tf(
     return found, warnings
 
 
-def transform_series(rows: TfRows) -> tuple[list[TransformSeries], list[str]]:
+def transform_series(rows: TfRows, on_record_time: bool = False) -> tuple[list[TransformSeries], list[str]]:
     """``/tf`` edges as time series, each cleaned like a stream (sorted, duplicates and invalid rows dropped).
 
     Two different transforms of one edge at one stamp keep the first, as tf2 does (``TF_REPEATED_DATA``).
+    ``on_record_time``: the run reads the edges on their record times (``time.source: record``), so they are
+    sorted and cleaned on those, and the warnings say nothing of the header stamps (as :meth:`Cleaning.text`).
     """
     series: list[TransformSeries] = []
     reports: dict[str, list[str]] = {}  # cleaning text -> edges
@@ -672,7 +674,8 @@ def transform_series(rows: TfRows) -> tuple[list[TransformSeries], list[str]]:
     for sel in np.split(by_edge, bounds) if by_edge.size else ():
         values = rows.values[sel]
         values = np.where(_valid_transforms(values)[:, None], values, np.nan)  # invalid quaternions as NaN
-        idx, t_ns, cleaning = clean_order(rows.t_ns[sel], rows.rec_ns[sel], values)
+        rec = rows.rec_ns[sel]
+        idx, t_ns, cleaning = clean_order(rec if on_record_time else rows.t_ns[sel], rec, values)
         t = t_ns[idx]
         first = np.concatenate(([True], t[1:] != t[:-1])) if t.size else np.zeros(0, bool)
         if cleaning.repeated:
@@ -686,8 +689,8 @@ def transform_series(rows: TfRows) -> tuple[list[TransformSeries], list[str]]:
                 rows.topic,
                 parent,
                 child,
-                t_ns[idx],
-                rows.rec_ns[sel][idx],
+                t_ns[idx],  # on_record_time: the record times, the clock every reader of the run takes
+                rec[idx],
                 np.ascontiguousarray(vals[:, :3]),
                 np.ascontiguousarray(vals[:, 3:]),
             ),
