@@ -340,6 +340,7 @@ def align(
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
     _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
+    _stamps_at_record_pace(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
     dropped = streams.static_tf_dropped
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
@@ -540,6 +541,49 @@ def _no_clock_reset(path, time_source: str, *streams: tuple[Vec3Stream, str]) ->
             f"recording (the stamps go back from {int(t[before].max()) * 1e-9:.3f} s to {int(t[0]) * 1e-9:.3f} s): "
             "ordered by header stamps the recording's later part would run first; set time.source: record "
             f"(or time.topics: {{{stream.topic}: record}})",
+        )
+
+
+#: Header stamps advancing this many times faster or slower than the record times of the same messages are on
+#: another unit (milliseconds or microseconds written as seconds, nanoseconds as microseconds), not on a clock.
+STAMP_PACE_FACTOR = 100.0
+
+
+def _stamp_pace(t: np.ndarray, rec: np.ndarray) -> float | None:
+    """How fast the header stamps advance against the record times (1: as fast), the median over stretches of the
+    recording of ~1 s (up to 20; so that a clock jump, a recorder's bursts and a gap sway one stretch at most);
+    None when no stretch spans 0.2 s of recording."""
+    order = np.argsort(rec, kind="stable")
+    t, rec = t[order], rec[order]
+    stretches = int(np.clip((int(rec[-1]) - int(rec[0])) // 1_000_000_000, 1, 20))
+    bounds = np.linspace(0, t.shape[0] - 1, min(stretches, t.shape[0] // 10) + 1).astype(np.int64)
+    d_rec = np.diff(rec[bounds]).astype(np.float64)
+    d_t = np.diff(t[bounds]).astype(np.float64)
+    keep = d_rec >= 2e8
+    if not keep.any():
+        return None
+    return float(np.median(d_t[keep] / d_rec[keep]))
+
+
+def _stamps_at_record_pace(path, time_source: str, *streams: tuple[Vec3Stream, str]) -> None:
+    """A velocity stream whose header stamps advance ``STAMP_PACE_FACTOR`` times faster or slower than its record
+    times (stamps in another unit: 0.9 s of stamps over 900 s of recording) is one line naming the pace and record
+    time: on those stamps every sample is a thousandth of its true interval, and the other topics' frames fall
+    outside the stream's span (the error used to blame the detections). Record times are not looked at."""
+    if time_source == "record":
+        return
+    for stream, what in streams:
+        t, rec = stream.t_ns, stream.rec_ns
+        if t.shape[0] < 20 or t is rec or t.min() == t.max():  # stamps all alike: _not_one_time's line
+            continue
+        pace = _stamp_pace(t, rec)
+        if pace is None or 1 / STAMP_PACE_FACTOR < pace < STAMP_PACE_FACTOR:
+            continue
+        raise InputError(
+            path,
+            f"{what} ({stream.topic}): its header stamps advance {pace:.3g}x as fast as its record times "
+            f"({np.ptp(t) * 1e-9:.3f} s of stamps over {np.ptp(rec) * 1e-9:.3f} s of recording): stamps in another "
+            f"unit (ms or us written as s)? set time.topics: {{{stream.topic}: record}} (or time.source: record)",
         )
 
 
