@@ -36,7 +36,7 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks, row_norms3, unique_inverse
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
-from slamobs.pipeline.readers.decode import CLOCK_STEP_NS
+from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, STAMP_PACE_FACTOR, stamp_pace
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -544,27 +544,6 @@ def _no_clock_reset(path, time_source: str, *streams: tuple[Vec3Stream, str]) ->
         )
 
 
-#: Header stamps advancing this many times faster or slower than the record times of the same messages are on
-#: another unit (milliseconds or microseconds written as seconds, nanoseconds as microseconds), not on a clock.
-STAMP_PACE_FACTOR = 100.0
-
-
-def _stamp_pace(t: np.ndarray, rec: np.ndarray) -> float | None:
-    """How fast the header stamps advance against the record times (1: as fast), the median over stretches of the
-    recording of ~1 s (up to 20; so that a clock jump, a recorder's bursts and a gap sway one stretch at most);
-    None when no stretch spans 0.2 s of recording."""
-    order = np.argsort(rec, kind="stable")
-    t, rec = t[order], rec[order]
-    stretches = int(np.clip((int(rec[-1]) - int(rec[0])) // 1_000_000_000, 1, 20))
-    bounds = np.linspace(0, t.shape[0] - 1, min(stretches, t.shape[0] // 10) + 1).astype(np.int64)
-    d_rec = np.diff(rec[bounds]).astype(np.float64)
-    d_t = np.diff(t[bounds]).astype(np.float64)
-    keep = d_rec >= 2e8
-    if not keep.any():
-        return None
-    return float(np.median(d_t[keep] / d_rec[keep]))
-
-
 def _stamps_at_record_pace(path, time_source: str, *streams: tuple[Vec3Stream, str]) -> None:
     """A velocity stream whose header stamps advance ``STAMP_PACE_FACTOR`` times faster or slower than its record
     times (stamps in another unit: 0.9 s of stamps over 900 s of recording) is one line naming the pace and record
@@ -574,9 +553,9 @@ def _stamps_at_record_pace(path, time_source: str, *streams: tuple[Vec3Stream, s
         return
     for stream, what in streams:
         t, rec = stream.t_ns, stream.rec_ns
-        if t.shape[0] < 20 or t is rec or t.min() == t.max():  # stamps all alike: _not_one_time's line
+        if t is rec or t.min() == t.max():  # stamps all alike: _not_one_time's line
             continue
-        pace = _stamp_pace(t, rec)
+        pace = stamp_pace(t, rec)
         if pace is None or 1 / STAMP_PACE_FACTOR < pace < STAMP_PACE_FACTOR:
             continue
         raise InputError(

@@ -748,3 +748,18 @@ def align_error(streams) -> InputError:
     with pytest.raises(InputError) as e:
         align(streams)
     return e.value
+
+
+def test_info_and_run_name_imu_stamps_in_milliseconds(sim, tmp_path):
+    # info called MR.CLAM's velocity stamps divided by 1000 'simulation time next to wall-clock record times'
+    from slamobs.pipeline.readers import inspect_log
+
+    log = _write(sim, tmp_path / "milli.bag", imu=replace(sim.imu, t_ns=sim.imu.t_ns // 1000))
+    info = inspect_log(log)
+    imu = next(t for t in info.topics if t.topic == TOPIC_IMU)
+    assert imu.stamp_pace == pytest.approx(0.001, rel=0.01)
+    assert not any("simulation time" in w for w in info.warnings)
+    assert any(w.startswith(f"{TOPIC_IMU}: header stamps advance 0.001x as fast as record time") for w in info.warnings)
+    out = tmp_path / "out"
+    one_line_error(invoke("run", log, "-o", out), f"angular velocity ({TOPIC_IMU}): its header stamps advance 0.001x")
+    assert not out.exists()
