@@ -36,7 +36,7 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks, row_norms3, unique_inverse
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
-from slamobs.pipeline.readers.decode import CLOCK_STEP_NS
+from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, STAMP_PACE_FACTOR, stamp_pace
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -340,6 +340,7 @@ def align(
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
     _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
+    _stamps_at_record_pace(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
     dropped = streams.static_tf_dropped
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
@@ -540,6 +541,28 @@ def _no_clock_reset(path, time_source: str, *streams: tuple[Vec3Stream, str]) ->
             f"recording (the stamps go back from {int(t[before].max()) * 1e-9:.3f} s to {int(t[0]) * 1e-9:.3f} s): "
             "ordered by header stamps the recording's later part would run first; set time.source: record "
             f"(or time.topics: {{{stream.topic}: record}})",
+        )
+
+
+def _stamps_at_record_pace(path, time_source: str, *streams: tuple[Vec3Stream, str]) -> None:
+    """A velocity stream whose header stamps advance ``STAMP_PACE_FACTOR`` times faster or slower than its record
+    times (stamps in another unit: 0.9 s of stamps over 900 s of recording) is one line naming the pace and record
+    time: on those stamps every sample is a thousandth of its true interval, and the other topics' frames fall
+    outside the stream's span (the error used to blame the detections). Record times are not looked at."""
+    if time_source == "record":
+        return
+    for stream, what in streams:
+        t, rec = stream.t_ns, stream.rec_ns
+        if t is rec or t.min() == t.max():  # stamps all alike: _not_one_time's line
+            continue
+        pace = stamp_pace(t, rec)
+        if pace is None or 1 / STAMP_PACE_FACTOR < pace < STAMP_PACE_FACTOR:
+            continue
+        raise InputError(
+            path,
+            f"{what} ({stream.topic}): its header stamps advance {pace:.3g}x as fast as its record times "
+            f"({np.ptp(t) * 1e-9:.3f} s of stamps over {np.ptp(rec) * 1e-9:.3f} s of recording): stamps in another "
+            f"unit (ms or us written as s)? set time.topics: {{{stream.topic}: record}} (or time.source: record)",
         )
 
 

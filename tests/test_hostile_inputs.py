@@ -718,3 +718,48 @@ def test_info_names_the_angular_velocity_run_takes_for_an_imu_that_does_not_fill
     )
     assert 'angular_velocity: "/odom"' in readiness(got).run_yaml
     assert inspect_log(_write(sim, tmp_path / "measured.bag")).roles["angular_velocity"] == TOPIC_IMU
+
+
+def _restamped(stream, stamps):
+    """``stream`` with header stamps ``stamps(t_ns)`` (record times kept), re-sorted by stamp as the readers give it."""
+    t = stamps(stream.t_ns.copy())
+    order = np.argsort(t, kind="stable")
+    return replace(stream, t_ns=t[order], rec_ns=stream.rec_ns.copy()[order], xyz=stream.xyz[order])
+
+
+def test_header_stamps_in_another_unit_are_one_line_naming_the_topic_and_record_time(sim):
+    # MR.CLAM's velocity topic with its stamps divided by 1000 (ms written as s) was refused as 'no detection
+    # frame inside the velocity time span' of the detection topic, whose clock was fine
+    streams = expected_streams(sim, "milli.bag")
+    milli = replace(streams, angular_velocity=_restamped(streams.angular_velocity, lambda t: t // 1000))
+    with pytest.raises(InputError, match=r"angular velocity \(/imu/data\): its header stamps advance 0\.001x as fast"):
+        align(milli)
+    assert "set time.topics: {/imu/data: record} (or time.source: record)" in str(align_error(milli))
+    assert align(milli, time_source="record").vel_t_ns.shape[0] > 100
+    # a clock jumping 1 h forward mid-log keeps its pace elsewhere: a gap (two segments), not a unit
+    jump = replace(
+        streams,
+        angular_velocity=_restamped(streams.angular_velocity, lambda t: t + (t > t[t.shape[0] // 2]) * 3600 * NS),
+    )
+    assert align(jump).vel_t_ns.shape[0] > 100
+
+
+def align_error(streams) -> InputError:
+    with pytest.raises(InputError) as e:
+        align(streams)
+    return e.value
+
+
+def test_info_and_run_name_imu_stamps_in_milliseconds(sim, tmp_path):
+    # info called MR.CLAM's velocity stamps divided by 1000 'simulation time next to wall-clock record times'
+    from slamobs.pipeline.readers import inspect_log
+
+    log = _write(sim, tmp_path / "milli.bag", imu=replace(sim.imu, t_ns=sim.imu.t_ns // 1000))
+    info = inspect_log(log)
+    imu = next(t for t in info.topics if t.topic == TOPIC_IMU)
+    assert imu.stamp_pace == pytest.approx(0.001, rel=0.01)
+    assert not any("simulation time" in w for w in info.warnings)
+    assert any(w.startswith(f"{TOPIC_IMU}: header stamps advance 0.001x as fast as record time") for w in info.warnings)
+    out = tmp_path / "out"
+    one_line_error(invoke("run", log, "-o", out), f"angular velocity ({TOPIC_IMU}): its header stamps advance 0.001x")
+    assert not out.exists()

@@ -146,14 +146,23 @@ def test_body_rates_from_orientations():
     assert np.percentile(err, 95) < 0.01 and np.abs(tr.omega).max() > 0.2
 
 
-def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path):
+@pytest.mark.parametrize("nan", [False, True], ids=["clean", "nan-twists"])
+def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path, nan):
     """A VIO-like odometry: twist.angular zero, twist.linear in the parent frame; the readers derive the angular
-    velocity from the orientations and rotate the linear velocity into the child frame, and say so."""
+    velocity from the orientations and rotate the linear velocity into the child frame, and say so. With some NaN
+    twists (TagSLAM test_11 mutated: NaN in every 20th twist.angular) both rules held back and the run used the zero
+    twist: a map error of 8.3 m instead of 0.16 m."""
     ts = make_typestore(ros1=True)
     t = np.arange(0.0, 20.0, 0.05)
     tr = SC.sample(t)
     q = rots_to_quats(np.ascontiguousarray(tr.R))
     v_world = np.einsum("nij,nj->ni", tr.R, tr.v)
+    w_twist = np.zeros((t.size, 3))
+    nan_lin = np.zeros(t.size, bool)
+    if nan:
+        w_twist[::20, 0] = np.nan
+        nan_lin[7::25] = True
+        v_world[nan_lin, 1] = np.nan
     T = ts.types
     msgs = []
     for k in range(t.size):
@@ -174,7 +183,7 @@ def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path):
                 covariance=np.zeros(36),
             ),
             twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                twist=T["geometry_msgs/msg/Twist"](linear=vec(v_world[k]), angular=vec(np.zeros(3))),
+                twist=T["geometry_msgs/msg/Twist"](linear=vec(v_world[k]), angular=vec(w_twist[k])),
                 covariance=np.zeros(36),
             ),
         )
@@ -184,8 +193,11 @@ def test_odometry_without_angular_twist_and_with_a_world_frame_twist(tmp_path):
     assert "orientations of /vio/odom" in s.derived["angular_velocity"]
     assert "parent frame 'world'" in s.derived["linear_velocity"]
     inner = slice(5, -5)
-    np.testing.assert_allclose(s.linear_velocity.xyz, tr.v, atol=1e-9)
-    assert np.percentile(np.linalg.norm(s.angular_velocity.xyz[inner] - tr.omega[inner], axis=1), 95) < 0.01
+    np.testing.assert_allclose(s.linear_velocity.xyz, tr.v[~nan_lin], atol=1e-9)
+    assert (
+        s.angular_velocity.xyz.shape[0] == t.size
+        and np.percentile(np.linalg.norm(s.angular_velocity.xyz[inner] - tr.omega[inner], axis=1), 95) < 0.01
+    )
     # a proper body-frame twist is left alone
     assert "linear_velocity" not in read_log(write_log(simulate("circle", duration=2.0), tmp_path / "c.bag")).derived
 

@@ -210,6 +210,22 @@ def test_a_mistyped_topic_names_the_nearest_one(logs, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_the_nearest_topic_is_one_of_the_roles_types():
+    """MR.CLAM with ``topics.angular_velocity: /robot1/odom`` was asked 'did you mean /robot1/landmarks?' (the
+    nearest name, a detection topic the role refuses); the nearest of the role's types comes first."""
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.readers.roles import TopicMeta, select_roles
+
+    topics = {
+        "/robot1/landmarks": TopicMeta("fiducial_msgs/msg/FiducialTransformArray", 10),
+        "/robot1/velocity": TopicMeta("geometry_msgs/msg/TwistStamped", 10),
+    }
+    with pytest.raises(InputError, match=r"did you mean /robot1/velocity\?"):
+        select_roles(topics, {"angular_velocity": "/robot1/odom"})
+    with pytest.raises(InputError, match=r"did you mean /robot1/landmarks\?"):  # no fitting name: the nearest
+        select_roles(topics, {"angular_velocity": "/robot1/landmark"})
+
+
 def test_info_with_a_config_does_not_ask_for_what_it_gives():
     """TagSLAM test_11 with its config (tags.size, cameras): `info --config` still said "ready once the config gives
     tags.size and cameras" (the config was read with --noise only)."""

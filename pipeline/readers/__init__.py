@@ -337,6 +337,19 @@ def _camera_topics(
             note(topic, "detections", result[1])
 
 
+def _poses_at(poses: PoseStream, t_ns: np.ndarray) -> PoseStream | None:
+    """The odometry's poses at the twist's stamps ``t_ns`` (cleaning may have dropped other rows of each: NaN
+    twists, NaN poses); None when a stamp has no pose."""
+    if len(poses) == t_ns.shape[0] and np.array_equal(poses.t_ns, t_ns):
+        return poses
+    k = np.searchsorted(poses.t_ns, t_ns)
+    if not t_ns.shape[0] or k.max() >= len(poses) or not np.array_equal(poses.t_ns[k], t_ns):
+        return None
+    return PoseStream(
+        poses.topic, poses.frame_id, poses.child_frame_id, t_ns, poses.rec_ns[k], poses.position[k], poses.quat_xyzw[k]
+    )
+
+
 def _odometry_twist(
     rows: Rows, role: str, stream: Vec3Stream, cleaning: Cleaning, derived: dict[str, str]
 ) -> tuple[Vec3Stream, Cleaning]:
@@ -346,8 +359,8 @@ def _odometry_twist(
     from .odometry import SMOOTH_S, angular_from_poses, rotate_into_child, twist_in_parent  # lazy: ~0.1 s of kernels
 
     poses, _ = pose_stream(rows)
-    if len(poses) != len(stream) or not np.array_equal(poses.t_ns, stream.t_ns):
-        return stream, cleaning  # cleaning kept different rows (NaN twists): leave the twist as it is
+    # The orientations stand in for a zero twist.angular on their own stamps, whatever rows of the twist cleaning
+    # dropped (NaN twists: those rows used to keep the zero twist, the run turning nowhere)
     if role == "angular_velocity" and len(stream) > 1 and not stream.xyz.any():
         derived[role] = (
             f"differentiated from the orientations of {rows.topic} (twist.angular is all zero), "
@@ -356,7 +369,7 @@ def _odometry_twist(
         cleaning.extra = [x for x in cleaning.extra if not x.startswith("all values are zero")]
         cleaning.extra.append("twist.angular is all zero: angular velocity differentiated from the orientations")
         return angular_from_poses(poses, stream.frame_id), cleaning
-    if role == "linear_velocity":
+    if role == "linear_velocity" and (poses := _poses_at(poses, stream.t_ns)) is not None:
         parent, fit_parent, fit_child = twist_in_parent(poses, stream)
         if parent:
             derived[role] = (

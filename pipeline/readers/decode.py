@@ -105,6 +105,28 @@ def first_vectors(reader: AnyReader, conns: Collection[Connection], msgtype: str
 #: A step back of the stamps at least this long (ns) is named in the out-of-order note: a clock set back.
 CLOCK_STEP_NS = 500_000_000
 
+#: Header stamps advancing this many times faster or slower than the record times of the same messages are on
+#: another unit (milliseconds or microseconds written as seconds, nanoseconds as microseconds), not on a clock.
+STAMP_PACE_FACTOR = 100.0
+
+
+def stamp_pace(t: np.ndarray, rec: np.ndarray) -> float | None:
+    """How fast the header stamps advance against the record times (1: as fast), the median over stretches of the
+    recording of ~1 s (up to 20; so that a clock jump, a recorder's bursts and a gap sway one stretch at most);
+    None when no stretch spans 0.2 s of recording (or fewer than 20 stamps)."""
+    if t.shape[0] < 20:
+        return None
+    order = np.argsort(rec, kind="stable")
+    t, rec = t[order], rec[order]
+    stretches = int(np.clip((int(rec[-1]) - int(rec[0])) // 1_000_000_000, 1, 20))
+    bounds = np.linspace(0, t.shape[0] - 1, min(stretches, t.shape[0] // 10) + 1).astype(np.int64)
+    d_rec = np.diff(rec[bounds]).astype(np.float64)
+    d_t = np.diff(t[bounds]).astype(np.float64)
+    keep = d_rec >= 2e8
+    if not keep.any():
+        return None
+    return float(np.median(d_t[keep] / d_rec[keep]))
+
 
 @dataclass
 class Cleaning:

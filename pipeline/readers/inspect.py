@@ -28,7 +28,7 @@ from slamobs.pipeline.errors import plural
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import first_vectors, gyro_stand_in, has_header, mean_rate
+from .decode import STAMP_PACE_FACTOR, first_vectors, gyro_stand_in, has_header, mean_rate, stamp_pace
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ROLES, select_roles, topics_of
@@ -76,6 +76,7 @@ class TopicSummary:
     max_gap_s: float | None = None
     max_gap_at_s: float | None = None  # where the longest gap starts, from the first stamp
     rate_segments: tuple[tuple[float, float], ...] = ()  # (start from the first stamp [s], rate [Hz]) if it changes
+    stamp_pace: float | None = None  # header stamps' advance per record-time second (1: same pace)
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,7 @@ class StampStats:
     max_gap_ns: int | None
     max_gap_at_ns: int | None  # from the first stamp
     rate_segments: tuple[tuple[float, float], ...]
+    pace: float | None = None  # how fast the header stamps advance against record time (decode.stamp_pace)
 
 
 def clock_kind(t_ns: np.ndarray) -> str:
@@ -185,6 +187,7 @@ def stamp_stats(t_ns: np.ndarray, rec_ns: np.ndarray) -> StampStats:
         int(steps[worst]) if worst is not None else None,
         int(times[worst]) - int(times[0]) if worst is not None else None,
         _rate_segments(times, period),
+        stamp_pace(t_ns, rec_ns) if kind != "zero" else None,
     )
 
 
@@ -328,11 +331,23 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
         max_gap_s=stats.max_gap_ns / _NS if stats.max_gap_ns is not None else None,
         max_gap_at_s=stats.max_gap_at_ns / _NS if stats.max_gap_at_ns is not None else None,
         rate_segments=stats.rate_segments,
+        stamp_pace=stats.pace,
     )
+
+
+def _off_pace(t: TopicSummary) -> bool:
+    """Header stamps in another unit than seconds: they advance ``STAMP_PACE_FACTOR`` times faster or slower than
+    record time (not a simulation clock, whose stamps may also lie before 2000)."""
+    return t.stamp_pace is not None and not 1 / STAMP_PACE_FACTOR < t.stamp_pace < STAMP_PACE_FACTOR
 
 
 def _problems(t: TopicSummary) -> list[str]:
     problems = []
+    if _off_pace(t):
+        problems.append(
+            f"header stamps advance {t.stamp_pace:.3g}x as fast as record time (stamps in another unit?): "
+            f"time.topics: {{{t.topic}: record}}"
+        )
     if t.out_of_order:
         problems.append(plural(t.out_of_order, "out-of-order stamp"))
     if t.duplicates:
@@ -429,7 +444,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
     )
     record_clock = clock_kind(np.array([start], np.int64)) if start is not None else None
     if record_clock == "wall":
-        sim = [t.topic for t in topics if t.header_clock == "sim"]
+        sim = [t.topic for t in topics if t.header_clock == "sim" and not _off_pace(t)]
         if sim:
             warnings.append(f"header stamps are simulation time next to wall-clock record times: {', '.join(sim)}")
     warnings += clock_warnings

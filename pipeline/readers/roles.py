@@ -306,7 +306,10 @@ def _check_override(
         names = sorted(topics)
         known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
         hint = f"; a truth that is no existing file reads as a topic; {TRUTH_FORMS}" if role == "truth" else ""
-        close = difflib.get_close_matches(topic, names, n=1, cutoff=0.6)  # among all, also those not listed
+        fitting = [name for name in names if topics[name].msgtype in accepted_types(role)]  # of the role's types
+        close = difflib.get_close_matches(topic, fitting, n=1, cutoff=0.6) or difflib.get_close_matches(
+            topic, names, n=1, cutoff=0.6
+        )  # among all, also those not listed
         mean = f"did you mean {close[0]}? " if close else ""
         raise InputError(path, f"topic for role {role} is not in the log ({mean}topics: {known}){hint}", topic)
     msgtype = topics[topic].msgtype
