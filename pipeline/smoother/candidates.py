@@ -61,13 +61,15 @@ class Candidate:
     def name(self) -> str:
         return self.seed.name if self.sol is not None else f"{self.seed.name} (unsmoothed)"
 
-    def guess(self):
-        """The candidate's trajectory, map and biases as a graph guess."""
+    def guess(self, n_segments: int):
+        """The candidate's trajectory, map and biases as a graph guess of ``n_segments`` bias segments (a start's one
+        bias in each: the graph reads segment ``seg_of[j]``'s row for interval ``j``, and a single row for several
+        segments was read past its end, a random-walk log's starts then scored from whatever memory followed)."""
         from slamobs.pipeline.smoother.graph import Guess
 
         if self.sol is not None:
             return Guess(self.sol.rot, self.sol.pos, self.sol.landmarks, self.sol.bias)
-        return Guess(self.seed.rot, self.seed.pos, self.seed.landmarks, self.seed.bias[None, :])
+        return Guess(self.seed.rot, self.seed.pos, self.seed.landmarks, np.tile(self.seed.bias, (n_segments, 1)))
 
 
 def detection_cost(problem, rot: np.ndarray, pos: np.ndarray, landmarks: np.ndarray) -> float:
