@@ -91,6 +91,11 @@ def test_run_command_with_random_walk_biases(tmp_path):
     assert run["observer"]["smoother"]["variables"]["bias_segments"] == 3
     biases = pd.read_parquet(out / "biases.parquet")
     assert biases["gyro_bias_x"].nunique() == 3  # one bias per 10 s segment
+    # every start is scored with its bias in each of the 3 segments (one row was read past its end: NaN costs)
+    candidates = run["observer"]["smoother"]["robust"]["candidates"]
+    assert "riekf (unsmoothed)" in candidates
+    costs = [c["cost"] for c in candidates.values()]
+    assert all(np.isfinite(costs)) and min(costs) > 0, costs
 
 
 @pytest.mark.parametrize("observer", ["riekf", "batch"])

@@ -122,6 +122,9 @@ def test_batch_is_never_worse_than_a_poor_fast_adaptation_seed_and_names_the_win
     assert robust["winner"] == summary["seed"] == min(costs, key=costs.get) != "fast-adaptation"
     assert costs["fast-adaptation"] > 10 * costs[robust["winner"]]
     assert robust["candidates"]["dead-reckoning"]["seed_ape_m"] > 1.0  # the starts disagreed, and it says by how much
+    # each candidate's trajectory against the winner's: 0 for the winner, the poor seed's minimum far from it
+    assert robust["candidates"][robust["winner"]]["solution_ape_m"] == 0.0
+    assert robust["candidates"]["fast-adaptation"]["solution_ape_m"] > 1.0
     (note,) = [n for n in run.stats["notes"] if n.startswith("batch: first solution doubtful")]
     assert f"kept '{robust['winner']}'" in note and "many detections fail" in note
     assert not any("local minimum" in n for n in run.stats["notes"])  # the winner passes the gate
@@ -209,7 +212,7 @@ def test_a_start_that_reaches_the_same_minimum_does_not_replace_the_configured_s
 
     def cand(name, cost):
         pos = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
-        c = cands.Candidate(SimpleNamespace(name=name, pos=pos, rot=None, landmarks=None), sol=object())
+        c = cands.Candidate(SimpleNamespace(name=name, pos=pos, rot=None, landmarks=None), sol=SimpleNamespace(pos=pos))
         c.cost = cost
         return c
 
@@ -219,6 +222,7 @@ def test_a_start_that_reaches_the_same_minimum_does_not_replace_the_configured_s
     assert cands.choose([first, far]) is far
     _, note = cands.record("test", [first, riekf], first, first.seed)
     assert "kept 'fast-adaptation' (no start lowers the cost by more than 1: a tie)" in note
+    assert note.endswith("the other solutions against the kept one: riekf 0 m")  # one minimum, reached twice
 
 
 def test_every_start_is_tried_on_a_short_log_and_only_when_doubtful_on_a_long_one(log, monkeypatch):

@@ -281,13 +281,12 @@ class BatchSmoother(Stepper):
             problem = self._problem(kf_t, kf_of_det, gaps, seed, segments)
             found += [self._candidate(problem, seed, segments.n, progress), cands.Candidate(seed)]
         for c in found:  # the odometry preintegrated about each candidate's own bias: exact for a constant one
-            guess = c.guess()
+            guess = c.guess(segments.n)
             about = replace(c.seed, bias=guess.bias.mean(axis=0))
             c.cost = g.cost(replace(self._problem(kf_t, kf_of_det, gaps, about, segments), anchor=full.anchor), guess)
         best = cands.choose(found)
         if best.sol is None:  # a start as it is: its biases' covariance at it, no iteration
-            guess = best.guess()
-            best.sol = g.solve(full, replace(guess, bias=np.tile(guess.bias[0], (segments.n, 1))), max_iterations=0)
+            best.sol = g.solve(full, best.guess(segments.n), max_iterations=0)
             best.problem, best.notes = full, []
         return best, cands.record(reason, found, best, first.seed), seconds
 
