@@ -36,7 +36,7 @@ from slamobs.pipeline.directions import (
 from slamobs.pipeline.blocks import interp_sorted, row_blocks, row_norms3, unique_inverse
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
-from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, STAMP_PACE_FACTOR, stamp_pace
+from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, stamp_pace
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -340,7 +340,7 @@ def align(
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
     _check_frames(streams, tf, body_frame, ident, override)
     _no_clock_reset(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
-    _stamps_at_record_pace(streams.path, time_source, (om, "angular velocity"), (lv, "linear velocity"))
+    _stamps_at_record_pace(streams.path, time_source, streams, (om, "angular velocity"), (lv, "linear velocity"))
     dropped = streams.static_tf_dropped
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
@@ -544,26 +544,30 @@ def _no_clock_reset(path, time_source: str, *streams: tuple[Vec3Stream, str]) ->
         )
 
 
-def _stamps_at_record_pace(path, time_source: str, *streams: tuple[Vec3Stream, str]) -> None:
-    """A velocity stream whose header stamps advance ``STAMP_PACE_FACTOR`` times faster or slower than its record
-    times (stamps in another unit: 0.9 s of stamps over 900 s of recording) is one line naming the pace and record
-    time: on those stamps every sample is a thousandth of its true interval, and the other topics' frames fall
-    outside the stream's span (the error used to blame the detections). Record times are not looked at."""
+def _stamps_at_record_pace(path, time_source: str, streams: LogStreams, *checked: tuple[Vec3Stream, str]) -> None:
+    """A velocity stream whose header stamps advance ``decode.STAMP_PACE_FACTOR`` times faster or slower than the
+    log's other streams' (each against its record times: :func:`decode.off_pace`) is one line naming the pace and
+    record time: stamps in another unit (0.9 s of stamps over 900 s of recording) make every sample a thousandth
+    of its true interval and put the other topics' frames outside the stream's span (the error used to blame the
+    detections). A log whose record times all run at another pace (written by a converter in seconds) is not."""
     if time_source == "record":
         return
-    for stream, what in streams:
-        t, rec = stream.t_ns, stream.rec_ns
-        if t is rec or t.min() == t.max():  # stamps all alike: _not_one_time's line
-            continue
-        pace = stamp_pace(t, rec)
-        if pace is None or 1 / STAMP_PACE_FACTOR < pace < STAMP_PACE_FACTOR:
-            continue
-        raise InputError(
-            path,
-            f"{what} ({stream.topic}): its header stamps advance {pace:.3g}x as fast as its record times "
-            f"({np.ptp(t) * 1e-9:.3f} s of stamps over {np.ptp(rec) * 1e-9:.3f} s of recording): stamps in another "
-            f"unit (ms or us written as s)? set time.topics: {{{stream.topic}: record}} (or time.source: record)",
-        )
+    sensors = (streams.angular_velocity, streams.linear_velocity, streams.detections, streams.accel, streams.magnetic)
+    paces: dict[str, float | None] = {}
+    for s in sensors:  # a topic of two roles (an IMU's gyro and accelerometer) by its first
+        if s is not None and s.t_ns is not s.rec_ns and len(s.t_ns) and s.t_ns.min() < s.t_ns.max():
+            paces.setdefault(s.topic, stamp_pace(s.t_ns, s.rec_ns))
+    off = off_pace(paces)
+    for stream, what in checked:
+        if stream.topic in off:
+            t, rec = stream.t_ns, stream.rec_ns
+            raise InputError(
+                path,
+                f"{what} ({stream.topic}): its header stamps advance {off[stream.topic]:.3g}x as fast as the "
+                f"other topics' ({np.ptp(t) * 1e-9:.3f} s of stamps over {np.ptp(rec) * 1e-9:.3f} s of recording): "
+                f"stamps in another unit (ms or us written as s)? set time.topics: {{{stream.topic}: record}} "
+                "(or time.source: record)",
+            )
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):

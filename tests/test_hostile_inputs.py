@@ -744,6 +744,21 @@ def test_header_stamps_in_another_unit_are_one_line_naming_the_topic_and_record_
     assert align(jump).vel_t_ns.shape[0] > 100
 
 
+def test_a_log_whose_record_times_all_run_fast_is_not_said_to_have_stamps_in_another_unit():
+    # a converter that wrote a 60 s log in 0.38 s: every topic's stamps advance 159x as fast as its record times,
+    # and the stamps are right; the run was refused (info flagged every topic) telling the user to read record times
+    from slamobs.pipeline.readers.decode import off_pace, stamp_pace
+
+    t_imu, t_odom = np.arange(0, 60 * NS, NS // 200), np.arange(NS // 100, 60 * NS, NS // 50)
+    converted = {"/imu": stamp_pace(t_imu, t_imu // 159), "/odom": stamp_pace(t_odom, t_odom // 159)}
+    assert converted["/imu"] == pytest.approx(159, rel=0.01)
+    assert off_pace(converted) == {}
+    # the same log with the IMU's stamps in milliseconds: that topic, against the other
+    milli = {**converted, "/imu": stamp_pace(t_imu // 1000, t_imu // 159), "/mag": converted["/odom"]}
+    assert set(off_pace(milli)) == {"/imu"} and off_pace(milli)["/imu"] == pytest.approx(0.001, rel=0.01)
+    assert off_pace({"/imu": converted["/imu"]}) == {}  # one topic alone: nothing to tell the clocks apart by
+
+
 def align_error(streams) -> InputError:
     with pytest.raises(InputError) as e:
         align(streams)
@@ -759,7 +774,8 @@ def test_info_and_run_name_imu_stamps_in_milliseconds(sim, tmp_path):
     imu = next(t for t in info.topics if t.topic == TOPIC_IMU)
     assert imu.stamp_pace == pytest.approx(0.001, rel=0.01)
     assert not any("simulation time" in w for w in info.warnings)
-    assert any(w.startswith(f"{TOPIC_IMU}: header stamps advance 0.001x as fast as record time") for w in info.warnings)
+    said = f"{TOPIC_IMU}: header stamps advance 0.001x as fast as the other topics'"
+    assert any(w.startswith(said) for w in info.warnings)
     out = tmp_path / "out"
     one_line_error(invoke("run", log, "-o", out), f"angular velocity ({TOPIC_IMU}): its header stamps advance 0.001x")
     assert not out.exists()

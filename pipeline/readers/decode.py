@@ -128,6 +128,18 @@ def stamp_pace(t: np.ndarray, rec: np.ndarray) -> float | None:
     return float(np.median(d_t[keep] / d_rec[keep]))
 
 
+def off_pace(paces: dict[str, float | None]) -> dict[str, float]:
+    """The topics whose header stamps advance ``STAMP_PACE_FACTOR`` times faster or slower than the log's other
+    topics' (their :func:`stamp_pace` over the median of all): topic -> that ratio. Measured against the other
+    topics, not against record time alone: a converter that wrote an hour of messages in a few seconds puts every
+    topic off the record clock's pace, and the stamps are right. One topic alone is never off."""
+    known = {topic: p for topic, p in paces.items() if p is not None and p > 0}
+    if len(known) < 2:
+        return {}
+    ref = float(np.median(list(known.values())))
+    return {topic: p / ref for topic, p in known.items() if not 1 / STAMP_PACE_FACTOR < p / ref < STAMP_PACE_FACTOR}
+
+
 @dataclass
 class Cleaning:
     """What cleaning did to a stream; rendered into LogStreams.warnings."""

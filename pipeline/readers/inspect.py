@@ -28,7 +28,7 @@ from slamobs.pipeline.errors import plural
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import STAMP_PACE_FACTOR, first_vectors, gyro_stand_in, has_header, mean_rate, stamp_pace
+from .decode import first_vectors, gyro_stand_in, has_header, mean_rate, off_pace, stamp_pace
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ROLES, select_roles, topics_of
@@ -335,17 +335,13 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
     )
 
 
-def _off_pace(t: TopicSummary) -> bool:
-    """Header stamps in another unit than seconds: they advance ``STAMP_PACE_FACTOR`` times faster or slower than
-    record time (not a simulation clock, whose stamps may also lie before 2000)."""
-    return t.stamp_pace is not None and not 1 / STAMP_PACE_FACTOR < t.stamp_pace < STAMP_PACE_FACTOR
-
-
-def _problems(t: TopicSummary) -> list[str]:
+def _problems(t: TopicSummary, pace: float | None) -> list[str]:
+    """What is wrong with one topic's stamps; ``pace``: how fast its header stamps advance against the log's other
+    topics' when that is off by ``decode.STAMP_PACE_FACTOR`` (:func:`decode.off_pace`), else None."""
     problems = []
-    if _off_pace(t):
+    if pace is not None:
         problems.append(
-            f"header stamps advance {t.stamp_pace:.3g}x as fast as record time (stamps in another unit?): "
+            f"header stamps advance {pace:.3g}x as fast as the other topics' (stamps in another unit?): "
             f"time.topics: {{{t.topic}: record}}"
         )
     if t.out_of_order:
@@ -442,13 +438,14 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         )
         for s in summaries.values()
     )
+    off = off_pace({t.topic: t.stamp_pace for t in topics})
     record_clock = clock_kind(np.array([start], np.int64)) if start is not None else None
     if record_clock == "wall":
-        sim = [t.topic for t in topics if t.header_clock == "sim" and not _off_pace(t)]
+        sim = [t.topic for t in topics if t.header_clock == "sim" and t.topic not in off]
         if sim:
             warnings.append(f"header stamps are simulation time next to wall-clock record times: {', '.join(sim)}")
     warnings += clock_warnings
-    warnings += [f"{t.topic}: " + ", ".join(p) for t in topics if (p := _problems(t))]
+    warnings += [f"{t.topic}: " + ", ".join(p) for t in topics if (p := _problems(t, off.get(t.topic)))]
     return LogInfo(
         str(path),
         container.kind,
