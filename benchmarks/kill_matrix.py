@@ -38,7 +38,7 @@ HANG_S = 60.0  # a process not gone this long after SIGTERM / SIGINT counts as h
 LINGER_S = 5.0  # processes of the session still alive this long after the main one exited are violations
 SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGKILL)
 # columns that legitimately differ between two runs of the same command (wall-clock times, paths of the trial)
-VOLATILE = ("time", "seconds", "wall", "duration", "started", "finished", "host", "pid", "path", "dir")
+VOLATILE = ("time", "seconds", "wall", "duration", "started", "finished", "host", "pid", "path", "dir", "worker")
 
 
 def _stable(columns) -> list[str]:
@@ -195,6 +195,9 @@ def visible_violations(case: Case, tdir: Path, killed_by: int | None) -> list[st
 
 
 def digest_file(path: Path) -> str:
+    if path.suffix == ".zip":  # the members' contents: their stored dates are the time of writing
+        with zipfile.ZipFile(path) as z:
+            return hashlib.sha256(b"".join(n.encode() + z.read(n) for n in sorted(z.namelist()))).hexdigest()
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
@@ -221,7 +224,18 @@ def digest(case: Case, out: Path) -> dict[str, str]:
                 d[table] = digest_table_dir(out / table)
         return d
     if case.kind == "tune":
-        return {"trials": digest_table(out / "trials.parquet", ("number",))}
+        # a trial cut by the kill is recorded FAIL and run again with the same gains under a new number, and a
+        # resumed tune draws new gains: as many complete trials, the defaults scored alike, no gains run twice
+        import pandas as pd
+
+        df = pd.read_parquet(out / "trials.parquet")
+        done = df[df["state"] == "COMPLETE"]
+        gains = done.drop_duplicates("trial")[[c for c in done.columns if c.startswith("gain_")]]
+        return {
+            "complete": str(len(gains)),
+            "defaults": str(sorted(done[done["is_default"]]["objective"].round(12))),
+            "distinct gains": str(not gains.duplicated().any()),
+        }
     return {str(p.relative_to(out)): digest_table(p) for p in sorted(out.rglob("*.parquet"))}
 
 
