@@ -2,7 +2,7 @@
 SIGTERM / SIGINT (to the group, as Ctrl-C does) / SIGKILL at a random delay drawn over the command's whole
 duration (measured first, unkilled), then check what docs/reliability.md promises.
 
-    .venv/bin/python benchmarks/kill_matrix.py [--trials 40] [--seed S] [--only run-fa,batch,...] [--cache DIR]
+    .venv/bin/python benchmarks/kill_matrix.py [--trials 11] [--seed S] [--only run-fa,batch,...] [--cache DIR]
 
 Per trial: the process exits within a bound with 143 / 130 (-9 after SIGKILL; 0 only if it ended before the
 signal), no process of its session is alive a few seconds later, nothing is visible under a final name unless
@@ -357,7 +357,7 @@ def measure(case: Case, inp: Path) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=40, help="trials in total, spread over the cases")
+    ap.add_argument("--trials", type=int, default=11, help="trials in total, spread over the cases (11: one each)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--only", default=None, help="comma-separated case names")
     ap.add_argument("--dask", action="store_true", help="also batch --executor dask")
