@@ -302,3 +302,19 @@ def test_a_killed_forced_tune_gives_the_previous_tune_back_to_the_next(tmp_path)
 
 
 from test_batch_kills import _stop, _worker, scheduler  # noqa: F401 - real Dask processes, as the batch tests
+
+
+def test_a_resumed_tune_samples_new_gains_not_the_earlier_ones_again(logs, tmp_path):
+    """A resumed (or extended) tune's sampler does not start its random draws over: its first draw would be the
+    gains of the first sampled trial again (found by benchmarks/kill_matrix.py: a tune killed in its first round
+    and run again ran one gain set twice and one never)."""
+    import pandas as pd
+
+    from slamobs.pipeline.tune.study import TuneOptions, run_tune
+
+    options = TuneOptions(out=tmp_path / "tune", observer="fast-adaptation", trials=2, jobs=1, seed=1)
+    run_tune(logs[:1], options)
+    run_tune(logs[:1], replace(options, trials=4))
+    trials = pd.read_parquet(tmp_path / "tune" / "trials.parquet")
+    gains = trials[trials["state"] == "COMPLETE"][[c for c in trials.columns if c.startswith("gain_")]]
+    assert len(gains) == 4 and not gains.duplicated().any(), gains

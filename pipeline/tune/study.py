@@ -279,8 +279,10 @@ def _study_in(out, resume, spec, config, paths, holdout, setup, options, on_roun
         storage=_storage(out),
         direction="minimize",
         load_if_exists=True,
-        sampler=optuna.samplers.TPESampler(seed=options.seed, multivariate=True, constant_liar=True),
+        sampler=_sampler(options.seed, 0),
     )
+    if earlier := len(study.get_trials(deepcopy=False)):  # resumed: new draws, not the first ones again
+        study.sampler = _sampler(options.seed, earlier)
     if resume and "setup" in study.user_attrs:
         _check_same(out, study.user_attrs["setup"], setup)
     else:
@@ -299,6 +301,15 @@ def _study_in(out, resume, spec, config, paths, holdout, setup, options, on_roun
     if held_failed:  # the tune's own results are written; the holdout log is what failed
         raise TuneFailed(held_failed)
     return TuneResult(out, ran, summary)
+
+
+def _sampler(seed: int | None, earlier: int):
+    """TPE seeded by the tune's seed and the number of trials the journal already holds: a sampler seeded alike
+    on resume would repeat its first random draws, the gains of trials already run."""
+    import optuna
+
+    seed = seed if seed is None or not earlier else (seed * 1_000_003 + earlier) % 2**32
+    return optuna.samplers.TPESampler(seed=seed, multivariate=True, constant_liar=True)
 
 
 @contextmanager

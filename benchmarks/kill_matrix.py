@@ -1,0 +1,417 @@
+"""Randomized kill harness over every command: start the real CLI in its own session on generated logs, send
+SIGTERM / SIGINT (to the group, as Ctrl-C does) / SIGKILL at a random delay drawn over the command's whole
+duration (measured first, unkilled), then check what docs/reliability.md promises.
+
+    .venv/bin/python benchmarks/kill_matrix.py [--trials 11] [--seed S] [--only run-fa,batch,...] [--cache DIR]
+
+Per trial: the process exits within a bound with 143 / 130 (-9 after SIGKILL; 0 only if it ended before the
+signal), no process of its session is alive a few seconds later, nothing is visible under a final name unless
+complete (the manifest's files with their sizes, JSON parses, Parquet reads, PNG decodes, the MCAP / zip
+equals the unkilled one's), no hidden temporary is left after SIGTERM / SIGINT (after SIGKILL they are
+documented: the next run removes them), and the same command run again (``--force`` where the output exists;
+``batch`` and ``tune`` without: resume) exits 0 with the same tables as the unkilled run. Prints a line per
+trial (with its seed, to replay it: ``--seed S --only CASE --trials 1``), a table per case and the violations;
+exits 1 if there are any.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from batch_checks import CLI, assert_consistent, group_alive  # noqa: E402
+
+HANG_S = 60.0  # a process not gone this long after SIGTERM / SIGINT counts as hung
+LINGER_S = 5.0  # processes of the session still alive this long after the main one exited are violations
+SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGKILL)
+# columns that legitimately differ between two runs of the same command (wall-clock times, paths of the trial)
+VOLATILE = ("time", "seconds", "wall", "duration", "started", "finished", "host", "pid", "path", "dir", "worker")
+
+
+def _stable(columns) -> list[str]:
+    return [c for c in columns if not c.endswith("_s") and not any(v in c.split("_") for v in VOLATILE)]
+
+
+@dataclass
+class Case:
+    name: str
+    argv: list  # OUT stands for the trial's output, IN for the case's input directory
+    out: str  # the output's name inside the trial directory
+    kind: str  # dir (manifest), file (compared whole), batch, tune
+    force: bool = True  # a rerun over an existing output adds --force
+    prepare: str | None = None  # a reference output copied into the trial first (report)
+    ref: dict = field(default_factory=dict)
+    duration: float = 0.0
+
+
+def make_cases(inp: Path, realdata: Path | None, dask: bool) -> list[Case]:
+    log, long_log = str(inp / "f180.mcap"), str(inp / "f600.mcap")
+    cfg = str(inp / "noplots.yaml")
+    cases = [
+        Case("run-fa", ["run", log, "-o", "OUT", "-q"], "out", "dir"),
+        Case("run-fa-600s", ["run", long_log, "-o", "OUT", "-q"], "out", "dir"),
+        Case("run-riekf", ["run", log, "-o", "OUT", "-q", "--observer", "riekf"], "out", "dir"),
+        Case("run-batch", ["run", log, "-o", "OUT", "-q", "--observer", "batch"], "out", "dir"),
+        Case("compare", ["compare", log, "-o", "OUT", "-q", "--observers", "fast-adaptation,riekf"], "out", "dir"),
+        Case("batch", ["batch", str(inp / "many"), "-o", "OUT", "-j", "2", "--config", cfg], "out", "batch", False),
+        Case(
+            "tune",
+            ["tune", str(inp / "many" / "m0.mcap"), "--observer", "fast-adaptation", "-o", "OUT", "--trials", "3"],
+            "out",
+            "tune",
+            False,
+        ),
+        Case("report", ["report", "OUT"], "out", "dir", False, prepare="run-fa"),
+        Case("simulate", ["simulate", "figure8-wide", "-o", "OUT", "--duration", "180"], "sim.mcap", "file"),
+        Case(
+            "evaluate",
+            [
+                "evaluate",
+                f"{log}:/mocap/pose",
+                "IN/ref-run-fa/out/poses.parquet",
+                "-a",
+                "-q",
+                "--save-results",
+                "OUT",
+                "--save-plot",
+                "OUT.png",
+            ],
+            "ape.zip",
+            "file",
+            False,
+        ),
+    ]
+    if dask:
+        cases.append(
+            Case(
+                "batch-dask",
+                ["batch", str(inp / "many"), "-o", "OUT", "--executor", "dask", "-j", "2", "--config", cfg],
+                "out",
+                "batch",
+                False,
+            )
+        )
+    if realdata is not None:
+        folder = str(realdata / "mrclam" / "MRCLAM_Dataset6")
+        cases.append(Case("import-mrclam", ["import", "mrclam", folder, "-o", "OUT", "-q"], "r1.mcap", "file"))
+    return cases
+
+
+def argv_for(case: Case, tdir: Path, inp: Path, rerun: bool = False) -> list[str]:
+    out = str(tdir / case.out)
+    args = [a.replace("OUT", out).replace("IN/", f"{inp}/") for a in case.argv]
+    if rerun and case.force and (tdir / case.out).exists():
+        args.append("--force")
+    return [*CLI, *args]
+
+
+# --------------------------------------------------------------------------- what "complete" means
+
+
+def _check_file(path: Path) -> str | None:
+    try:
+        if path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            pq.read_table(path)
+        elif path.suffix == ".png":
+            from PIL import Image
+
+            with Image.open(path) as im:
+                im.load()
+        elif path.suffix == ".zip":
+            with zipfile.ZipFile(path) as z:
+                if z.testzip() is not None:
+                    return f"{path.name}: bad zip member"
+    except Exception as exc:  # noqa: BLE001 - any failure to open is an incomplete file
+        return f"{path.name}: {type(exc).__name__}: {str(exc)[:80]}"
+    return None
+
+
+def check_dir(out: Path) -> list[str]:
+    """A visible output directory: its manifest lists every file with its size, and each file opens."""
+    bad = []
+    manifest = out / "slamobs-output.json"
+    if not manifest.is_file():
+        return [f"{out.name}: visible without slamobs-output.json: {sorted(p.name for p in out.iterdir())[:6]}"]
+    try:
+        listed = json.loads(manifest.read_text())
+    except ValueError as exc:
+        return [f"{out.name}/slamobs-output.json: {exc}"]
+    for rel, size in listed.get("files", {}).items():
+        p = out / rel
+        if not p.is_file() or p.stat().st_size != size:
+            bad.append(f"{out.name}/{rel}: missing or size differs from the manifest")
+        elif (err := _check_file(p)) is not None:
+            bad.append(f"{out.name}/{err}")
+    for d in listed.get("directories", []):
+        if (out / d).is_dir():
+            bad.extend(check_dir(out / d))
+    return bad
+
+
+def visible_violations(case: Case, tdir: Path, killed_by: int | None) -> list[str]:
+    bad = []
+    for p in sorted(tdir.rglob("*")):
+        rel = p.relative_to(tdir)
+        hidden = any(part.startswith(".") for part in rel.parts)
+        in_batch_state = case.kind == "batch" and "_slamobs" in rel.parts
+        if hidden and not in_batch_state and killed_by in (signal.SIGTERM, signal.SIGINT) and p.parent == tdir:
+            bad.append(f"hidden temporary left after {signal.Signals(killed_by).name}: {rel}")
+    out = tdir / case.out
+    if not out.exists():
+        return bad
+    if case.kind == "dir":
+        bad.extend(check_dir(out))
+    elif case.kind == "file":
+        for p in [out, *tdir.glob("*.png")]:
+            if (err := _check_file(p)) is not None:
+                bad.append(err)
+        if case.name != "evaluate" and digest_file(out) != case.ref["file"]:
+            bad.append(f"{case.out}: visible but differs from the unkilled output")
+    elif case.kind == "tune":
+        for p in out.iterdir():
+            if not p.name.startswith(".") and p.is_file() and (err := _check_file(p)) is not None:
+                bad.append(f"tune/{err}")
+    return bad
+
+
+# --------------------------------------------------------------------------- same outputs as an unkilled run
+
+
+def digest_file(path: Path) -> str:
+    if path.suffix == ".zip":  # the members' contents: their stored dates are the time of writing
+        with zipfile.ZipFile(path) as z:
+            return hashlib.sha256(b"".join(n.encode() + z.read(n) for n in sorted(z.namelist()))).hexdigest()
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def digest_table(path: Path, sort: tuple[str, ...] = ()) -> str:
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    keep = _stable(table.column_names)
+    df = table.select(keep).to_pandas()
+    if sort:
+        df = df.sort_values([c for c in sort if c in df.columns], kind="stable").reset_index(drop=True)
+    df = df.drop(columns=[c for c in ("run_id",) if c in df.columns and "run_id" not in sort])
+    return hashlib.sha256(df.to_csv(index=False).encode()).hexdigest()
+
+
+def digest(case: Case, out: Path) -> dict[str, str]:
+    if case.kind == "file":
+        return {"file": digest_file(out)}
+    if case.kind == "batch":
+        rows = assert_consistent(out)
+        d = {"ok": str(sorted(r["status"] for r in rows.values()))}
+        for table in ("poses", "landmarks", "biases"):
+            if (out / table).is_dir():
+                d[table] = digest_table_dir(out / table)
+        return d
+    if case.kind == "tune":
+        # a trial cut by the kill is recorded FAIL and run again with the same gains under a new number, and a
+        # resumed tune draws new gains: as many complete trials, the defaults scored alike, no gains run twice
+        import pandas as pd
+
+        df = pd.read_parquet(out / "trials.parquet")
+        done = df[df["state"] == "COMPLETE"]
+        gains = done.drop_duplicates("trial")[[c for c in done.columns if c.startswith("gain_")]]
+        return {
+            "complete": str(len(gains)),
+            "defaults": str(sorted(done[done["is_default"]]["objective"].round(12))),
+            "distinct gains": str(not gains.duplicated().any()),
+        }
+    return {str(p.relative_to(out)): digest_table(p) for p in sorted(out.rglob("*.parquet"))}
+
+
+def digest_table_dir(path: Path) -> str:
+    import pandas as pd
+
+    df = pd.read_parquet(path)
+    df = df[_stable(df.columns)]
+    df = df.sort_values([c for c in df.columns if df[c].dtype != object or c == "run_id"]).reset_index(drop=True)
+    return hashlib.sha256(df.to_csv(index=False).encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------- one trial
+
+
+def _sigint() -> None:
+    # as from a terminal: a harness started in the background by a script inherits SIGINT ignored, and an
+    # ignored SIGINT stays ignored through exec
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_text().replace("\0", " ")[:120]
+    except OSError:
+        return "?"
+
+
+def trial(case: Case, sig: int, delay: float, tdir: Path, inp: Path) -> dict:
+    tdir.mkdir(parents=True)
+    if case.prepare:
+        shutil.copytree(inp / f"ref-{case.prepare}" / "out", tdir / case.out)
+    err = tdir.parent / f"{tdir.name}.err"
+    with open(err, "w") as fh:
+        p = subprocess.Popen(
+            argv_for(case, tdir, inp), stdout=subprocess.DEVNULL, stderr=fh, start_new_session=True, preexec_fn=_sigint
+        )
+    res = {"rc": None, "signalled": False, "violations": []}
+    t0 = time.monotonic()
+    try:
+        p.wait(timeout=delay)
+    except subprocess.TimeoutExpired:
+        res["signalled"] = True
+        (os.killpg if sig == signal.SIGINT else os.kill)(p.pid, sig)
+    try:
+        res["rc"] = p.wait(timeout=HANG_S)
+    except subprocess.TimeoutExpired:
+        res["violations"].append(f"hung: alive {HANG_S:.0f} s after {signal.Signals(sig).name}")
+        os.killpg(p.pid, signal.SIGKILL)
+        res["rc"] = p.wait()
+    res["exit_s"] = time.monotonic() - t0 - delay if res["signalled"] else 0.0
+    deadline = time.monotonic() + LINGER_S
+    while (left := group_alive(p.pid)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    if left:
+        res["violations"].append(
+            f"{len(left)} processes of the session alive {LINGER_S:g} s later: "
+            + "; ".join(_cmdline(q) for q in left[:3])
+        )
+        for q in left:
+            try:
+                os.kill(q, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+    if res["signalled"]:
+        expected = {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig}
+        if res["rc"] not in expected:
+            tail = err.read_text().strip().splitlines()[-1:] if err.exists() else []
+            res["violations"].append(f"exit code {res['rc']} after {signal.Signals(sig).name}: {tail}")
+    elif res["rc"] != 0:
+        res["violations"].append(f"exit code {res['rc']} without a signal: {err.read_text()[-200:]}")
+    res["violations"].extend(visible_violations(case, tdir, sig if res["signalled"] else None))
+    rerun = subprocess.run(argv_for(case, tdir, inp, rerun=True), capture_output=True, text=True, timeout=900)
+    if rerun.returncode != 0:
+        res["violations"].append(f"rerun exit {rerun.returncode}: {rerun.stderr.strip().splitlines()[-1:]}")
+    else:
+        try:
+            got = digest(case, tdir / case.out)
+            diff = sorted(k for k in case.ref if got.get(k) != case.ref[k])
+            if diff:
+                res["violations"].append(f"rerun differs from the unkilled run in {diff[:4]}")
+        except Exception as exc:  # noqa: BLE001 - a failed check is a violation, shown
+            res["violations"].append(f"rerun inconsistent: {type(exc).__name__}: {str(exc)[:120]}")
+    return res
+
+
+# --------------------------------------------------------------------------- set-up and main
+
+
+def make_inputs(inp: Path) -> None:
+    def sim(scenario: str, duration: int, out: Path, seed: int = 0) -> None:
+        if not out.exists():
+            cmd = [*CLI, "simulate", scenario, "-o", str(out), "--duration", str(duration), "--seed", str(seed)]
+            subprocess.run(cmd, check=True, capture_output=True)
+
+    inp.mkdir(parents=True, exist_ok=True)
+    sim("figure8-wide", 180, inp / "f180.mcap")
+    sim("figure8-wide", 600, inp / "f600.mcap")
+    for i in range(3):
+        sim(("circle", "figure8")[i % 2], 20, inp / "many" / f"m{i}.mcap", seed=70 + i)
+    (inp / "noplots.yaml").write_text("evaluation:\n  plots: false\n")
+
+
+def measure(case: Case, inp: Path) -> None:
+    """The unkilled run: its duration (the delays are drawn over it) and its outputs (the reference)."""
+    for tag in ("warm", "ref"):  # the first compiles or loads the kernels and reads the log into the page cache
+        tdir = inp / f"{tag}-{case.name}"
+        shutil.rmtree(tdir, ignore_errors=True)
+        tdir.mkdir()
+        if case.prepare:
+            shutil.copytree(inp / f"ref-{case.prepare}" / "out", tdir / case.out)
+        t = time.monotonic()
+        r = subprocess.run(argv_for(case, tdir, inp), capture_output=True, text=True)
+        case.duration = time.monotonic() - t
+        if r.returncode != 0:
+            raise SystemExit(f"{case.name}: the unkilled run failed: {r.stderr[-400:]}")
+    case.ref = digest(case, tdir / case.out)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--trials", type=int, default=11, help="trials in total, spread over the cases (11: one each)")
+    ap.add_argument("--seed", type=int, default=None)
+    ap.add_argument("--only", default=None, help="comma-separated case names")
+    ap.add_argument("--dask", action="store_true", help="also batch --executor dask")
+    ap.add_argument("--cache", type=Path, default=None, help="keep the generated logs and references here")
+    args = ap.parse_args()
+    seed = args.seed if args.seed is not None else random.randrange(2**32)
+    realdata = Path(os.environ["SLAMOBS_REALDATA"]) if os.environ.get("SLAMOBS_REALDATA") else None
+    with tempfile.TemporaryDirectory(prefix="kill_matrix-") as tmp:
+        inp = args.cache or Path(tmp) / "in"
+        make_inputs(inp)
+        cases = make_cases(inp, realdata, args.dask)
+        if args.only:
+            cases = [c for c in cases if c.name in args.only.split(",")]
+        for c in cases:
+            measure(c, inp)
+            print(f"{c.name}: {c.duration:.1f} s unkilled", flush=True)
+        print(f"seed {seed}; load average {os.getloadavg()[0]:.2f} (2 cores)", flush=True)
+        results: dict[str, list] = {c.name: [] for c in cases}
+        for k in range(args.trials):
+            case = cases[k % len(cases)]
+            rng = random.Random(f"{seed}-{k // len(cases)}-{case.name}")
+            sig = rng.choice(SIGNALS)
+            delay = rng.uniform(0.0, case.duration * 1.05)
+            tdir = Path(tmp) / "t" / f"{k}"
+            r = trial(case, sig, delay, tdir, inp)
+            results[case.name].append((sig, r))
+            mark = "OK" if not r["violations"] else "VIOLATION"
+            print(
+                f"trial {k} {case.name} {signal.Signals(sig).name}@{delay:.2f}s rc={r['rc']} "
+                f"exit+{r['exit_s']:.2f}s {mark} {'; '.join(r['violations'])}",
+                flush=True,
+            )
+            shutil.rmtree(tdir, ignore_errors=True)
+        report(results, seed)
+
+
+def report(results: dict[str, list], seed: int) -> None:
+    print(f"\nseed {seed}; load average {os.getloadavg()[0]:.2f}\n")
+    print(
+        "| command | trials | SIGTERM / SIGINT / SIGKILL | ended first | exit codes | slowest exit after signal "
+        "| violations |\n| --- | --- | --- | --- | --- | --- | --- |"
+    )
+    total = 0
+    for name, rs in results.items():
+        n = [sum(1 for s, _ in rs if s == sig) for sig in SIGNALS]
+        codes = ", ".join(sorted({str(r["rc"]) for _, r in rs}))
+        slow = max((r["exit_s"] for s, r in rs if r["signalled"] and s != signal.SIGKILL), default=0.0)
+        bad = sum(1 for _, r in rs if r["violations"])
+        total += bad
+        first = sum(1 for _, r in rs if not r["signalled"])
+        print(f"| {name} | {len(rs)} | {n[0]} / {n[1]} / {n[2]} | {first} | {codes} | {slow:.2f} s | {bad} |")
+    print(f"\n{total} trials with violations")
+    sys.exit(1 if total else 0)
+
+
+if __name__ == "__main__":
+    main()
