@@ -28,7 +28,16 @@ from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import STAMP_PACE_FACTOR, decode_static_tf, first_vectors, gyro_stand_in, has_header, mean_rate, stamp_pace
+from .decode import (
+    STAMP_PACE_FACTOR,
+    decode_static_tf,
+    duplicates_text,
+    first_vectors,
+    gyro_stand_in,
+    has_header,
+    mean_rate,
+    stamp_pace,
+)
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
@@ -351,7 +360,7 @@ def _problems(t: TopicSummary) -> list[str]:
     if t.out_of_order:
         problems.append(plural(t.out_of_order, "out-of-order stamp"))
     if t.duplicates:
-        problems.append(plural(t.duplicates, "exact duplicate"))
+        problems.append(duplicates_text(t.duplicates, t.count - t.duplicates))
     if t.repeated_stamps:
         problems.append(plural(t.repeated_stamps, "repeated stamp") + " with different content")
     if len(t.frame_ids) > 1:
