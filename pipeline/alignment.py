@@ -165,7 +165,10 @@ def _to_body(
             )
         return _IDENTITY
     if not known:
-        if frame in ident:
+        if frame in ident:  # an assumption the report must show: which extrinsic was not measured
+            _note_once(
+                notes, f"{topic}: frame '{frame}' taken as body '{body}' (frames.assume_identity: TF has no transform)"
+            )
             return _IDENTITY
         lost = "".join(f"; {w}" for w in dict.fromkeys(w for edge, w in (dropped or {}).items() if frame in edge))
         raise InputError(

@@ -116,6 +116,9 @@ def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
     # ... unless the user says that frame is the body frame
     a = align(_streams(static_tf=[]), identity_frames=("imu", "camera"))
     assert a.det_y.shape == (4, 3)
+    # ... and the report says which extrinsics were assumed, not measured
+    assumed = [n for n in a.notes if "frames.assume_identity: TF has no transform" in n]
+    assert {n.split(":")[0] for n in assumed} == {"/imu", "/fid"}, a.notes
 
 
 def test_missing_roles_and_disjoint_times_are_errors():

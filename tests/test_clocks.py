@@ -20,7 +20,7 @@ from slamobs.pipeline.streams import DetectionStream, LogStreams
 
 NS = 1_000_000_000
 WALL = 1_700_000_000 * NS
-IMU, POSE = "sensor_msgs/msg/Imu", "geometry_msgs/msg/PoseStamped"
+IMU, POSE, TWIST = "sensor_msgs/msg/Imu", "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TwistStamped"
 
 
 def _grid(seconds: float, rate: float, start: float = 0.0) -> np.ndarray:
@@ -28,7 +28,8 @@ def _grid(seconds: float, rate: float, start: float = 0.0) -> np.ndarray:
 
 
 def _write(path, topics: dict[str, list[tuple[int, int, float]]]):
-    """A log with an Imu ``/imu`` and a PoseStamped ``/pose``: (header stamp, record time, value) each."""
+    """A log with an Imu ``/imu``, a PoseStamped ``/pose`` and a TwistStamped ``/vel`` (the value its linear x, its
+    angular velocity zero): (header stamp, record time, value) each."""
     ros1 = path.suffix == ".bag"
     ts = make_typestore(ros1=ros1)
     t = ts.types
@@ -45,10 +46,13 @@ def _write(path, topics: dict[str, list[tuple[int, int, float]]]):
                 angular_velocity_covariance=np.zeros(9), linear_acceleration=vec,
                 linear_acceleration_covariance=np.zeros(9),
             )  # fmt: skip
+        if topic == "/vel":
+            zero = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)
+            return t[TWIST](header=header, twist=t["geometry_msgs/msg/Twist"](linear=vec, angular=zero))
         point = t["geometry_msgs/msg/Point"](x=value, y=0.0, z=0.0)
         return t[POSE](header=header, pose=t["geometry_msgs/msg/Pose"](position=point, orientation=quat))
 
-    types = {"/imu": IMU, "/pose": POSE}
+    types = {"/imu": IMU, "/pose": POSE, "/vel": TWIST}
     items = sorted((rec, topic, stamp, value) for topic, msgs in topics.items() for stamp, rec, value in msgs)
     if ros1:
         with Bag1Writer(path) as writer:
@@ -151,6 +155,32 @@ def test_out_of_order_duplicates_and_repeated_stamps(tmp_path):
     assert "2 out-of-order stamps, 1 exact duplicate, 1 repeated stamp with different content" in warning
     streams = read_log(tmp_path / "order.bag")
     assert np.all(np.diff(streams.angular_velocity.t_ns) >= 0)
+
+
+@pytest.mark.parametrize("suffix", [".bag", ".mcap"])
+def test_every_message_recorded_twice_is_said_and_read_as_once(tmp_path, suffix):
+    """A driver publishing twice (each message recorded again 1 ns later): the run reads the stream of a log holding
+    each once, and the note and info say every message is there twice (not only 'N exact duplicates dropped')."""
+    once = [(stamp, rec, np.sin(k / 10.0)) for k, (stamp, rec, _) in enumerate(_steady(50, 4, 0))]
+    twice = sorted([*once, *((stamp, rec + 1, value) for stamp, rec, value in once)], key=lambda m: m[1])
+    logs = {
+        name: _write(tmp_path / f"{name}{suffix}", {"/imu": msgs}) for name, msgs in (("once", once), ("twice", twice))
+    }
+    a, b = (read_log(logs[name]).angular_velocity for name in ("once", "twice"))
+    assert np.array_equal(a.t_ns, b.t_ns) and np.array_equal(a.xyz, b.xyz)
+    said = (
+        "200 exact duplicates dropped (every message recorded twice: a driver publishing twice? the stream is its 200"
+    )
+    assert any(w.startswith(f"/imu: {said}") for w in read_log(logs["twice"]).warnings)
+    summary = inspect_log(logs["twice"])
+    assert _topic(summary, "/imu").rate_hz == _topic(inspect_log(logs["once"]), "/imu").rate_hz
+    assert any(w.startswith("/imu: 200 exact duplicates (every message recorded twice") for w in summary.warnings)
+
+
+def test_a_note_of_one_role_of_a_topic_serving_two_names_the_role(tmp_path):
+    """A TwistStamped whose angular velocity is all zero serves both velocities: the note is the angular one's."""
+    notes = [w for w in read_log(_write(tmp_path / "vel.mcap", {"/vel": _steady(50, 2, 0)})).warnings if "/vel" in w]
+    assert notes == ["/vel (angular_velocity): all values are zero (field not filled by the publisher?)"], notes
 
 
 def test_header_stamp_notes_are_left_out_when_the_run_reads_record_times(tmp_path):

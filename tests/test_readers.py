@@ -170,6 +170,9 @@ def _write_faulty(path: Path, container: str) -> Path:
         transform=t["geometry_msgs/msg/Transform"](translation=vec(0.1, 0, 0), rotation=quat),
     )
     msgs.append(("/tf_static", "tf2_msgs/msg/TFMessage", t["tf2_msgs/msg/TFMessage"](transforms=[tf])))
+    moved = t["geometry_msgs/msg/Transform"](translation=vec(0.3, 0, 0), rotation=quat)  # published again, moved
+    tf2 = t["geometry_msgs/msg/TransformStamped"](header=tf.header, child_frame_id="camera", transform=moved)
+    msgs.append(("/tf_static", "tf2_msgs/msg/TFMessage", t["tf2_msgs/msg/TFMessage"](transforms=[tf2])))
     truth = json.dumps({"frame_id": "world", "landmarks": {"1": [1, 2, 3]}, "gyro_bias": [0.1, 0.2, 0.3]})
     msgs.append(("/slamobs/sim_truth", "std_msgs/msg/String", t["std_msgs/msg/String"](data=truth)))
 
@@ -227,6 +230,7 @@ def test_cleaning_and_role_choice(tmp_path, container, name):
     np.testing.assert_array_equal(det.xyz[:, 0], [0.1, 0.2, 0.3, 0.4])
 
     assert [(tf.parent, tf.child) for tf in streams.static_tf] == [("base", "camera")]
+    assert streams.static_tf[0].translation[0] == 0.3  # the last of the two
     assert streams.landmark_truth.keys() == {1}
     np.testing.assert_array_equal(streams.landmark_truth[1], [1.0, 2.0, 3.0])
     assert streams.bias_truth.keys() == {"gyro"}
@@ -245,6 +249,9 @@ def test_cleaning_and_role_choice(tmp_path, container, name):
     imu = next(t for t in summary.topics if t.topic == "/imu/data")
     assert (imu.count, imu.out_of_order, imu.duplicates) == (9, 1, 1)
     assert "/imu/data: 1 out-of-order stamp, 1 exact duplicate" in summary.warnings
+    # the static transform published twice with different values: info says it as run does (one rule)
+    twice = "/tf_static: static transforms published with different values, using the last: base->camera"
+    assert twice in streams.warnings and twice in summary.warnings
 
 
 def test_override_picks_other_topic(tmp_path):

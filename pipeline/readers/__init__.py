@@ -278,8 +278,8 @@ def _cleaning_notes(reports: Mapping[str, list[tuple[str, Cleaning]]], on_record
         for role, cleaning in cleanings:
             if text := cleaning.text(topic in on_record_time):
                 texts.setdefault(text, []).append(role)
-        for text, roles in texts.items():
-            where = topic if len(texts) == 1 else f"{topic} ({', '.join(roles)})"
+        for text, roles in texts.items():  # the roles named unless the text is of every role the topic serves
+            where = topic if len(roles) == len(cleanings) else f"{topic} ({', '.join(roles)})"
             notes.append(f"{where}: {text}")
     return notes
 

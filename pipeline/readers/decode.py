@@ -140,6 +140,20 @@ def off_pace(paces: dict[str, float | None]) -> dict[str, float]:
     return {topic: p / ref for topic, p in known.items() if not 1 / STAMP_PACE_FACTOR < p / ref < STAMP_PACE_FACTOR}
 
 
+def duplicates_text(duplicates: int, distinct: int, done: str = "") -> str:
+    """``N exact duplicates`` (+ ``done``); when every message is there twice or more (a driver or recorder
+    publishing twice), said so: the stream is its distinct samples, at their rate, as a log holding each once.
+    ``distinct``: the messages left once each (0: not known)."""
+    text = plural(duplicates, "exact duplicate") + done
+    if distinct and duplicates >= distinct:
+        times = "twice" if duplicates == distinct else "twice or more"
+        text += (
+            f" (every message recorded {times}: a driver publishing twice? the stream is its {distinct} distinct "
+            "samples, read as a log holding each once)"
+        )
+    return text
+
+
 @dataclass
 class Cleaning:
     """What cleaning did to a stream; rendered into LogStreams.warnings."""
@@ -150,6 +164,7 @@ class Cleaning:
     repeated: int = 0
     zero_stamps: bool = False
     step_back_ns: int = 0  # the largest step back between consecutive stamps (record order)
+    kept: int = 0  # samples left (clean_order's streams; 0: not counted)
     extra: list[str] = field(default_factory=list)
 
     def count_order(self, t_ns: np.ndarray) -> None:
@@ -173,7 +188,7 @@ class Cleaning:
                 )
             parts.append(plural(self.out_of_order, "out-of-order stamp") + back)
         if self.duplicates:
-            parts.append(plural(self.duplicates, "exact duplicate") + " dropped")
+            parts.append(duplicates_text(self.duplicates, self.kept, " dropped"))
         if self.repeated and not on_record_time:
             parts.append(plural(self.repeated, "repeated stamp") + " with different values")
         if self.nonfinite:
@@ -296,6 +311,7 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     idx = idx[np.argsort(t_ns[idx], kind="stable")]
     drop, cleaning.repeated = _duplicate_mask(t_ns[idx], lambda i: values[idx[i]].tobytes())
     cleaning.duplicates = int(drop.sum())
+    cleaning.kept = idx.size - cleaning.duplicates
     return idx[~drop], t_ns, cleaning
 
 

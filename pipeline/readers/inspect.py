@@ -24,14 +24,23 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.errors import plural
+from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 from .container import LABELS, damage_notes, detect_container, open_log
-from .decode import first_vectors, gyro_stand_in, has_header, mean_rate, off_pace, stamp_pace
+from .decode import (
+    decode_static_tf,
+    duplicates_text,
+    first_vectors,
+    gyro_stand_in,
+    has_header,
+    mean_rate,
+    off_pace,
+    stamp_pace,
+)
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
-from .roles import ROLES, select_roles, topics_of
+from .roles import ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
 from .rows import frame_name
 
 if TYPE_CHECKING:
@@ -347,7 +356,7 @@ def _problems(t: TopicSummary, pace: float | None) -> list[str]:
     if t.out_of_order:
         problems.append(plural(t.out_of_order, "out-of-order stamp"))
     if t.duplicates:
-        problems.append(plural(t.duplicates, "exact duplicate"))
+        problems.append(duplicates_text(t.duplicates, t.count - t.duplicates))
     if t.repeated_stamps:
         problems.append(plural(t.repeated_stamps, "repeated stamp") + " with different content")
     if len(t.frame_ids) > 1:
@@ -387,6 +396,19 @@ def _gyro_source(reader, table: dict, roles: dict[str, str]) -> tuple[dict[str, 
     ]
 
 
+def _static_tf_notes(reader, path: str | Path, table: dict) -> list[str]:
+    """What ``run`` says of ``/tf_static`` (a transform published twice with different values, NaN/Inf ones), by
+    the readers' rule (``decode.static_transforms``): the topic is small, so it is decoded whole."""
+    topic = ROLE_TOPIC_NAMES["static_tf"]
+    if topic not in table or table[topic][0].msgtype not in TF_TYPES or not table[topic][0].count:
+        return []
+    try:
+        _, warnings = decode_static_tf(reader, path, table[topic][1])
+    except InputError as err:  # info describes a log run refuses; run says this one line
+        return [f"{topic}: {err.problem}"]
+    return [f"{topic}: {w}" for w in warnings]
+
+
 def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
     """Summarise a log: container, time span, per-topic type/count/frames/stamps/clocks, detected roles.
 
@@ -407,7 +429,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         count = reader.message_count
         start = reader.start_time if count else None
         end = reader.end_time - 1 if count else None
-        warnings = [*damage_notes(reader), *selection.warnings, *gyro_notes]
+        warnings = [*damage_notes(reader), *selection.warnings, *gyro_notes, *_static_tf_notes(reader, path, table)]
         notes = {}
         for topic, (meta, _) in table.items():
             if meta.msgtype not in reader.typestore.fielddefs:
