@@ -280,6 +280,32 @@ def test_a_result_lost_with_the_scheduler_is_exit_3_not_a_failed_log(monkeypatch
         pool.close()
 
 
+def test_a_result_cancelled_with_the_lost_scheduler_is_exit_3_not_an_internal_error(monkeypatch, tmp_path):
+    """The other side of the same race: the client, giving the lost scheduler up, cancels every future, so the
+    fetch of a result already seen finished raises distributed's FutureCancelledError (a
+    concurrent.futures.CancelledError, not asyncio's): it escaped the batch as an internal error."""
+    pytest.importorskip("distributed")
+    from distributed import Future
+    from distributed.client import FutureCancelledError
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import InfrastructureError, Task
+
+    def cancelled(self, timeout=None):
+        raise FutureCancelledError(self.key, "scheduler-connection-lost")
+
+    task = Task.make("r0", str(tmp_path / "a.mcap"), str(tmp_path / "OUT"), {})
+    pool = DaskPool(1, run=repr, wait_workers=30)
+    try:
+        monkeypatch.setattr(Future, "result", cancelled)
+        with pytest.raises(
+            InfrastructureError, match=r"lost the Dask scheduler \(FutureCancelledError: .*connection-lost"
+        ):
+            list(pool.results([task]))
+    finally:
+        pool.close()
+
+
 def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit_3(monkeypatch, tmp_path):
     """A tune's next round submitted after its client gave the lost scheduler up (ClosedClientError), and the
     scheduler lost while the batch waits for workers (the identity call's connection closed), are the lost

@@ -22,6 +22,7 @@ import logging
 import threading
 import time
 from collections.abc import Iterator, Sequence
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -175,10 +176,12 @@ class DaskPool:
 
     def _fetch(self, get):
         """A finished task's result (or error) comes from the scheduler: losing it then (the connection closed or
-        refused while fetching) is the same lost scheduler, not a failure of the log."""
+        refused while fetching, or the client giving the scheduler up and cancelling every future: distributed's
+        ``FutureCancelledError`` is a ``concurrent.futures.CancelledError``, not asyncio's) is the same lost
+        scheduler, not a failure of the log."""
         try:
             return get(timeout=max(self.wait_workers, 10.0))
-        except (OSError, TimeoutError, asyncio.CancelledError) as err:
+        except (OSError, TimeoutError, asyncio.CancelledError, CancelledError) as err:
             raise self._lost(err) from None
 
     def _workers(self) -> int:
