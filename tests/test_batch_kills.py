@@ -306,6 +306,41 @@ def test_a_result_cancelled_with_the_lost_scheduler_is_exit_3_not_an_internal_er
         pool.close()
 
 
+def test_a_stopped_batch_kills_its_local_clusters_running_logs_instead_of_waiting_for_them(tmp_path):
+    """A signal stops a batch on a local Dask cluster with logs running: their worker processes are killed, as
+    local workers are, not closed gracefully (each waited for its running log: exit 11 s after a SIGTERM in
+    benchmarks/kill_matrix.py). The log here would finish 2 s after starting; it must not."""
+    pytest.importorskip("distributed")
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import Task
+
+    marks = str(tmp_path)
+
+    def slow(task):
+        import pathlib
+        import time
+
+        (pathlib.Path(marks) / "started").touch()
+        time.sleep(2.0)
+        (pathlib.Path(marks) / "finished").touch()
+        return {}
+
+    def stopped_once_running():
+        if (tmp_path / "started").exists():
+            raise KeyboardInterrupt
+        return 1
+
+    pool = DaskPool(1, run=slow, wait_workers=30)
+    try:
+        pool._workers = stopped_once_running  # the batch's SIGTERM, once the log runs
+        with pytest.raises(KeyboardInterrupt):
+            list(pool.results([Task.make("r0", str(tmp_path / "a.mcap"), str(tmp_path / "OUT"), {})]))
+    finally:
+        pool.close()
+    time.sleep(3.0)  # longer than the log had left to run
+    assert (tmp_path / "started").exists() and not (tmp_path / "finished").exists()
+
+
 def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit_3(monkeypatch, tmp_path):
     """A tune's next round submitted after its client gave the lost scheduler up (ClosedClientError), and the
     scheduler lost while the batch waits for workers (the identity call's connection closed), are the lost

@@ -119,6 +119,7 @@ class DaskPool:
         self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
+        self._busy = False  # tasks were still pending when results() ended
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
@@ -159,6 +160,11 @@ class DaskPool:
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
     def close(self) -> None:
+        """Close the client, and the local cluster if we started one. A local cluster left with tasks running (the
+        batch stopped by a signal) has its worker processes killed first, as local workers are: closed gracefully,
+        each waited for its running log (11 s after a SIGTERM in the kill matrix)."""
+        if self.cluster is not None and self._busy:
+            self._kill_local_workers()
         if self.client is not None:
             try:
                 self.client.close(timeout=5)
@@ -170,6 +176,21 @@ class DaskPool:
             except Exception:  # noqa: BLE001
                 pass
         self.client = self.cluster = None
+        self._busy = False
+
+    def _kill_local_workers(self) -> None:
+        import os
+        import signal
+
+        for nanny in list(getattr(self.cluster, "workers", {}).values()):
+            pid = getattr(nanny, "pid", None)
+            if hasattr(nanny, "close_gracefully"):
+                nanny.close_gracefully(reason="slamobs batch stopped")  # the nanny must not start it again
+            if pid:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
 
     def _lost(self, err: BaseException) -> InfrastructureError:
         return InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})")
@@ -258,6 +279,7 @@ class DaskPool:
                 if self.timeout:
                     yield from self._timeouts(pending, watch, ours_cancelled, now)
         finally:
+            self._busy = bool(pending)
             for fut, _ in pending.values():
                 fut.cancel()
 
