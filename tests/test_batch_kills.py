@@ -341,6 +341,34 @@ def test_a_stopped_batch_kills_its_local_clusters_running_logs_instead_of_waitin
     assert (tmp_path / "started").exists() and not (tmp_path / "finished").exists()
 
 
+def test_a_local_cluster_starts_without_a_warning_when_port_8787_is_taken():
+    """A second batch (or any Dask dashboard) holding port 8787 made every local-cluster batch print "Port 8787
+    is already in use. Perhaps you already have a cluster running?" above its own lines."""
+    pytest.importorskip("distributed")
+    import socket
+    import warnings
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+
+    taken = socket.socket()
+    try:
+        taken.bind(("", 8787))
+        taken.listen()
+    except OSError:
+        taken.close()
+        taken = None  # someone else holds it: the same situation
+    pool = DaskPool(1, run=repr, wait_workers=30)
+    try:
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            pool.connect()
+        assert not [w for w in seen if "already in use" in str(w.message)]
+    finally:
+        pool.close()
+        if taken is not None:
+            taken.close()
+
+
 def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit_3(monkeypatch, tmp_path):
     """A tune's next round submitted after its client gave the lost scheduler up (ClosedClientError), and the
     scheduler lost while the batch waits for workers (the identity call's connection closed), are the lost

@@ -144,6 +144,9 @@ class DaskPool:
                     processes=True,
                     threads_per_worker=1,
                     dashboard_address=None,
+                    # its HTTP server (health routes) still starts: on a free port, not 8787 with a warning
+                    # ("Port 8787 is already in use") printed above the batch's lines when another cluster has it
+                    scheduler_kwargs={"dashboard_address": ":0"},
                     silence_logs=logging.ERROR,
                 )
                 self.client = Client(self.cluster)
