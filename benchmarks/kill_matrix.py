@@ -354,9 +354,9 @@ def send(p: subprocess.Popen, victim: str, sig: int, cluster: Cluster | None) ->
     return "command"
 
 
-def _expected(victim: str, sig: int) -> set:
-    if victim == "worker":
-        return {0}  # its log runs again
+def _expected(victim: str, sig: int, starting: bool) -> set:
+    if victim == "worker":  # its log runs again; a LocalCluster whose worker is killed as it starts cannot start
+        return {0, 3} if starting else {0}
     if victim == "scheduler":
         return {3}  # a lost cluster
     return {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig}
@@ -397,6 +397,7 @@ def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
         p.wait(timeout=delay)
     except subprocess.TimeoutExpired:
         res["signalled"] = True
+        res["starting"] = "to run on" not in err.read_text()  # the batch's first line: its cluster is up
         res["hit"] = send(p, victim, sig, cluster)
     bound = HANG_S if victim == "command" else LOST_S
     try:
@@ -422,7 +423,7 @@ def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
     tail = err.read_text().strip().splitlines()[-1:] if err.exists() else []
     res["tail"] = tail
     if res["signalled"] and res.get("hit") != "no worker yet":
-        if res["rc"] not in _expected(victim, sig):
+        if res["rc"] not in _expected(victim, sig, res["starting"]):
             res["violations"].append(f"exit code {res['rc']} after {signal.Signals(sig).name} of the {victim}: {tail}")
     elif res["rc"] != 0:
         res["violations"].append(f"exit code {res['rc']} without a signal: {err.read_text()[-200:]}")
@@ -432,6 +433,7 @@ def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
             assert_consistent(tdir / case.out)
         except Exception as exc:  # noqa: BLE001 - shown as a violation
             res["violations"].append(f"inconsistent after rc {res['rc']}: {type(exc).__name__}: {str(exc)[:120]}")
+            shutil.copytree(tdir / case.out, tdir.parent / f"{tdir.name}.inconsistent")  # before the rerun mends it
 
 
 def _rerun(case, tdir, inp, cluster, res) -> None:
@@ -532,6 +534,13 @@ def main() -> None:
                 + (f" ({' '.join(r['tail'])[:100]})" if victim != "command" and r["signalled"] else ""),
                 flush=True,
             )
+            if r["violations"] and args.cache:  # kept for a look: the trial's output and the command's stderr
+                keep = args.cache.parent / f"violation-{seed}-{k}"
+                shutil.copytree(tdir, keep, dirs_exist_ok=True)
+                shutil.copy(tdir.parent / f"{k}.err", keep / "stderr.txt")
+                if (tdir.parent / f"{k}.inconsistent").is_dir():
+                    shutil.copytree(tdir.parent / f"{k}.inconsistent", keep / "as-left")
+                print(f"  kept in {keep}", flush=True)
             shutil.rmtree(tdir, ignore_errors=True)
         report(results, seed, signals)
 
