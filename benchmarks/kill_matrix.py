@@ -344,7 +344,7 @@ def send(p: subprocess.Popen, victim: str, sig: int, cluster: Cluster | None) ->
         return "scheduler"
     if victim == "worker":
         workers = cluster.workers() if cluster else [w for n in children(p.pid) for w in [n, *children(n)]]
-        workers = [w for w in workers if "distributed" in _cmdline(w) or "multiprocessing" in _cmdline(w)]
+        workers = [w for w in workers if "spawn_main" in _cmdline(w)]  # not multiprocessing's resource tracker
         if workers:
             w = random.Random(p.pid).choice(workers)
             os.kill(w, sig)
