@@ -3,11 +3,20 @@ SIGTERM / SIGINT (to the group, as Ctrl-C does) / SIGKILL at a random delay draw
 duration (measured first, unkilled), then check what docs/reliability.md promises.
 
     .venv/bin/python benchmarks/kill_matrix.py [--trials 11] [--seed S] [--only run-fa,batch,...] [--cache DIR]
+        [--signals TERM,INT,KILL,HUP] [--dask] [--dask-cluster]
 
-Per trial: the process exits within a bound with 143 / 130 (-9 after SIGKILL; 0 only if it ended before the
-signal), no process of its session is alive a few seconds later, nothing is visible under a final name unless
-complete (the manifest's files with their sizes, JSON parses, Parquet reads, PNG decodes, the MCAP / zip
-equals the unkilled one's), no hidden temporary is left after SIGTERM / SIGINT (after SIGKILL they are
+SIGHUP (``--signals ...,HUP``) goes to the group, as a closed terminal's shell sends it to its jobs. ``--dask`` adds
+``batch --executor dask`` (a LocalCluster in the batch's session), ``--dask-cluster`` a batch on a ``dask scheduler``
+and two ``dask worker`` processes the harness starts in their own sessions (a fresh cluster per trial; the rerun
+uses the same one unless its scheduler was killed). On both, a trial may instead SIGKILL one Dask worker process
+(the batch then exits 0: its log runs again) or the external scheduler (exit 3, a lost cluster).
+
+Per trial: the process exits within a bound with 143 / 130 / 129 (-9 after SIGKILL; 0 only if it ended before the
+signal), no process of its session is alive a few seconds later (checked by session id: a LocalCluster's nannies
+and workers too), a batch that ended by itself (not SIGKILL) left a consistent dataset, nothing is visible
+under a final name unless complete (the manifest's files with their sizes, JSON parses, Parquet reads, PNG
+decodes, the MCAP / zip equals the unkilled one's), no hidden temporary is left after SIGTERM / SIGINT / SIGHUP
+(after SIGKILL they are
 documented: the next run removes them), and the same command run again (``--force`` where the output exists;
 ``batch`` and ``tune`` without: resume) exits 0 with the same tables as the unkilled run. Prints a line per
 trial (with its seed, to replay it: ``--seed S --only CASE --trials 1``), a table per case and the violations;
@@ -32,11 +41,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from batch_checks import CLI, assert_consistent, group_alive  # noqa: E402
+from batch_checks import CLI, assert_consistent, children, descendants, wait_for  # noqa: E402
 
 HANG_S = 60.0  # a process not gone this long after SIGTERM / SIGINT counts as hung
+LOST_S = 120.0  # ... and this long after its Dask worker or scheduler was killed (--wait-workers 20 in the cases)
 LINGER_S = 5.0  # processes of the session still alive this long after the main one exited are violations
-SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGKILL)
+GROUP_SIGNALS = (signal.SIGINT, signal.SIGHUP)  # sent to the process group: Ctrl-C, a closed terminal
+DASK = Path(sys.executable).with_name("dask")
 # columns that legitimately differ between two runs of the same command (wall-clock times, paths of the trial)
 VOLATILE = ("time", "seconds", "wall", "duration", "started", "finished", "host", "pid", "path", "dir", "worker")
 
@@ -55,9 +66,10 @@ class Case:
     prepare: str | None = None  # a reference output copied into the trial first (report)
     ref: dict = field(default_factory=dict)
     duration: float = 0.0
+    victims: tuple = ()  # besides the command itself: "worker" (a Dask worker process), "scheduler" (external)
 
 
-def make_cases(inp: Path, realdata: Path | None, dask: bool) -> list[Case]:
+def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool = False) -> list[Case]:
     log, long_log = str(inp / "f180.mcap"), str(inp / "f600.mcap")
     cfg = str(inp / "noplots.yaml")
     cases = [
@@ -94,25 +106,22 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool) -> list[Case]:
             False,
         ),
     ]
+    many = ["batch", str(inp / "many"), "-o", "OUT", "--config", cfg, "--wait-workers", "20"]
     if dask:
-        cases.append(
-            Case(
-                "batch-dask",
-                ["batch", str(inp / "many"), "-o", "OUT", "--executor", "dask", "-j", "2", "--config", cfg],
-                "out",
-                "batch",
-                False,
-            )
-        )
+        cases.append(Case("batch-dask", [*many, "--executor", "dask", "-j", "2"], "out", "batch", False))
+        cases[-1].victims = ("worker",)
+    if dask_cluster:
+        cases.append(Case("batch-dask-cluster", [*many, "--scheduler", "SCHED"], "out", "batch", False))
+        cases[-1].victims = ("worker", "scheduler")
     if realdata is not None:
         folder = str(realdata / "mrclam" / "MRCLAM_Dataset6")
         cases.append(Case("import-mrclam", ["import", "mrclam", folder, "-o", "OUT", "-q"], "r1.mcap", "file"))
     return cases
 
 
-def argv_for(case: Case, tdir: Path, inp: Path, rerun: bool = False) -> list[str]:
+def argv_for(case: Case, tdir: Path, inp: Path, rerun: bool = False, sched: str = "") -> list[str]:
     out = str(tdir / case.out)
-    args = [a.replace("OUT", out).replace("IN/", f"{inp}/") for a in case.argv]
+    args = [a.replace("OUT", out).replace("IN/", f"{inp}/").replace("SCHED", sched) for a in case.argv]
     if rerun and case.force and (tdir / case.out).exists():
         args.append("--force")
     return [*CLI, *args]
@@ -171,7 +180,12 @@ def visible_violations(case: Case, tdir: Path, killed_by: int | None) -> list[st
         rel = p.relative_to(tdir)
         hidden = any(part.startswith(".") for part in rel.parts)
         in_batch_state = case.kind == "batch" and "_slamobs" in rel.parts
-        if hidden and not in_batch_state and killed_by in (signal.SIGTERM, signal.SIGINT) and p.parent == tdir:
+        if (
+            hidden
+            and not in_batch_state
+            and killed_by in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
+            and p.parent == tdir
+        ):
             bad.append(f"hidden temporary left after {signal.Signals(killed_by).name}: {rel}")
     out = tdir / case.out
     if not out.exists():
@@ -252,9 +266,10 @@ def digest_table_dir(path: Path) -> str:
 
 
 def _sigint() -> None:
-    # as from a terminal: a harness started in the background by a script inherits SIGINT ignored, and an
-    # ignored SIGINT stays ignored through exec
+    # as from a terminal: a harness started in the background by a script inherits SIGINT ignored, and under
+    # nohup SIGHUP ignored; an ignored signal stays ignored through exec (a SIGHUP trial then saw exit 0)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
 def _cmdline(pid: int) -> str:
@@ -264,31 +279,136 @@ def _cmdline(pid: int) -> str:
         return "?"
 
 
-def trial(case: Case, sig: int, delay: float, tdir: Path, inp: Path) -> dict:
+class Cluster:
+    """A ``dask scheduler`` and two single-threaded ``dask worker`` processes (nanny and worker), each in its own
+    session as on a real cluster; their logs under ``work``."""
+
+    def __init__(self, work: Path) -> None:
+        work.mkdir(parents=True, exist_ok=True)
+        self.work, self.procs = work, []
+        info = work / "scheduler.json"
+        info.unlink(missing_ok=True)
+        self.scheduler = self._spawn(
+            ["scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", info, "--dashboard-address", ":0"],
+            "scheduler",
+        )
+        if not wait_for(info.is_file, 60):
+            self.stop()
+            raise SystemExit(f"dask scheduler did not start: {(work / 'scheduler.log').read_text()[-400:]}")
+        time.sleep(0.2)
+        self.address = json.loads(info.read_text())["address"]
+        for i in range(2):
+            self._spawn(["worker", self.address, "--nthreads", "1", "--no-dashboard", "--local-directory", work], i)
+
+    def _spawn(self, args, tag) -> subprocess.Popen:
+        with open(self.work / f"{tag}.log", "w") as fh:
+            p = subprocess.Popen(
+                [str(a) for a in [DASK, *args]], stdout=fh, stderr=subprocess.STDOUT, start_new_session=True
+            )
+        self.procs.append(p)
+        return p
+
+    def workers(self) -> list[int]:
+        return [w for p in self.procs[1:] for w in children(p.pid)]
+
+    def stop(self) -> None:
+        for p in self.procs:
+            for q in [*descendants(p.pid), p.pid]:
+                try:
+                    os.kill(q, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            p.wait()
+
+
+def session_alive(sid: int) -> list[int]:
+    """Live (not zombie) processes of session ``sid`` (a process may leave the group, not the session)."""
+    alive = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as fh:
+                    fields = fh.read().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[3]) == sid and fields[0] != "Z":
+                alive.append(int(entry))
+    return alive
+
+
+def send(p: subprocess.Popen, victim: str, sig: int, cluster: Cluster | None) -> str:
+    """Send ``sig`` to the command (its group for SIGINT/SIGHUP) or a Dask worker process or the scheduler; returns
+    what was hit."""
+    if victim == "scheduler":
+        cluster.scheduler.send_signal(sig)
+        return "scheduler"
+    if victim == "worker":
+        workers = cluster.workers() if cluster else [w for n in children(p.pid) for w in [n, *children(n)]]
+        workers = [w for w in workers if "spawn_main" in _cmdline(w)]  # not multiprocessing's resource tracker
+        if workers:
+            w = random.Random(p.pid).choice(workers)
+            os.kill(w, sig)
+            return f"worker {w}"
+        return "no worker yet"
+    (os.killpg if sig in GROUP_SIGNALS else os.kill)(p.pid, sig)
+    return "command"
+
+
+def _expected(victim: str, sig: int, starting: bool) -> set:
+    if victim == "worker":  # its log runs again; a LocalCluster whose worker is killed as it starts cannot start
+        return {0, 3} if starting else {0}
+    if victim == "scheduler":
+        return {3}  # a lost cluster
+    return {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig}
+
+
+def trial(case: Case, sig: int, delay: float, tdir: Path, inp: Path, victim: str = "command") -> dict:
     tdir.mkdir(parents=True)
     if case.prepare:
         shutil.copytree(inp / f"ref-{case.prepare}" / "out", tdir / case.out)
+    cluster = Cluster(tdir.parent / f"{tdir.name}.dask") if "SCHED" in case.argv else None
+    res = {"rc": None, "signalled": False, "violations": [], "victim": victim}
+    try:
+        _run_killed(case, sig, delay, tdir, inp, victim, cluster, res)
+        if victim == "scheduler" and res["signalled"]:  # the rerun needs a cluster again
+            cluster.stop()
+            cluster = Cluster(tdir.parent / f"{tdir.name}.dask2")
+        _rerun(case, tdir, inp, cluster, res)
+    finally:
+        if cluster:
+            cluster.stop()
+            shutil.rmtree(cluster.work, ignore_errors=True)
+    return res
+
+
+def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
     err = tdir.parent / f"{tdir.name}.err"
+    sched = cluster.address if cluster else ""
     with open(err, "w") as fh:
         p = subprocess.Popen(
-            argv_for(case, tdir, inp), stdout=subprocess.DEVNULL, stderr=fh, start_new_session=True, preexec_fn=_sigint
+            argv_for(case, tdir, inp, sched=sched),
+            stdout=subprocess.DEVNULL,
+            stderr=fh,
+            start_new_session=True,
+            preexec_fn=_sigint,
         )
-    res = {"rc": None, "signalled": False, "violations": []}
     t0 = time.monotonic()
     try:
         p.wait(timeout=delay)
     except subprocess.TimeoutExpired:
         res["signalled"] = True
-        (os.killpg if sig == signal.SIGINT else os.kill)(p.pid, sig)
+        res["starting"] = "to run on" not in err.read_text()  # the batch's first line: its cluster is up
+        res["hit"] = send(p, victim, sig, cluster)
+    bound = HANG_S if victim == "command" else LOST_S
     try:
-        res["rc"] = p.wait(timeout=HANG_S)
+        res["rc"] = p.wait(timeout=bound)
     except subprocess.TimeoutExpired:
-        res["violations"].append(f"hung: alive {HANG_S:.0f} s after {signal.Signals(sig).name}")
+        res["violations"].append(f"hung: alive {bound:.0f} s after {signal.Signals(sig).name} of the {victim}")
         os.killpg(p.pid, signal.SIGKILL)
         res["rc"] = p.wait()
     res["exit_s"] = time.monotonic() - t0 - delay if res["signalled"] else 0.0
     deadline = time.monotonic() + LINGER_S
-    while (left := group_alive(p.pid)) and time.monotonic() < deadline:
+    while (left := session_alive(p.pid)) and time.monotonic() < deadline:
         time.sleep(0.05)
     if left:
         res["violations"].append(
@@ -300,26 +420,35 @@ def trial(case: Case, sig: int, delay: float, tdir: Path, inp: Path) -> dict:
                 os.kill(q, signal.SIGKILL)
             except ProcessLookupError:
                 pass
-    if res["signalled"]:
-        expected = {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig}
-        if res["rc"] not in expected:
-            tail = err.read_text().strip().splitlines()[-1:] if err.exists() else []
-            res["violations"].append(f"exit code {res['rc']} after {signal.Signals(sig).name}: {tail}")
+    tail = err.read_text().strip().splitlines()[-1:] if err.exists() else []
+    res["tail"] = tail
+    if res["signalled"] and res.get("hit") != "no worker yet":
+        if res["rc"] not in _expected(victim, sig, res["starting"]):
+            res["violations"].append(f"exit code {res['rc']} after {signal.Signals(sig).name} of the {victim}: {tail}")
     elif res["rc"] != 0:
         res["violations"].append(f"exit code {res['rc']} without a signal: {err.read_text()[-200:]}")
     res["violations"].extend(visible_violations(case, tdir, sig if res["signalled"] else None))
-    rerun = subprocess.run(argv_for(case, tdir, inp, rerun=True), capture_output=True, text=True, timeout=900)
+    if case.kind == "batch" and res["rc"] != -signal.SIGKILL and (tdir / case.out / "summary.parquet").exists():
+        try:  # a batch that ended by itself (signal handled, lost cluster) leaves its dataset consistent
+            assert_consistent(tdir / case.out)
+        except Exception as exc:  # noqa: BLE001 - shown as a violation
+            res["violations"].append(f"inconsistent after rc {res['rc']}: {type(exc).__name__}: {str(exc)[:120]}")
+            shutil.copytree(tdir / case.out, tdir.parent / f"{tdir.name}.inconsistent")  # before the rerun mends it
+
+
+def _rerun(case, tdir, inp, cluster, res) -> None:
+    argv = argv_for(case, tdir, inp, rerun=True, sched=cluster.address if cluster else "")
+    rerun = subprocess.run(argv, capture_output=True, text=True, timeout=900)
     if rerun.returncode != 0:
         res["violations"].append(f"rerun exit {rerun.returncode}: {rerun.stderr.strip().splitlines()[-1:]}")
-    else:
-        try:
-            got = digest(case, tdir / case.out)
-            diff = sorted(k for k in case.ref if got.get(k) != case.ref[k])
-            if diff:
-                res["violations"].append(f"rerun differs from the unkilled run in {diff[:4]}")
-        except Exception as exc:  # noqa: BLE001 - a failed check is a violation, shown
-            res["violations"].append(f"rerun inconsistent: {type(exc).__name__}: {str(exc)[:120]}")
-    return res
+        return
+    try:
+        got = digest(case, tdir / case.out)
+        diff = sorted(k for k in case.ref if got.get(k) != case.ref[k])
+        if diff:
+            res["violations"].append(f"rerun differs from the unkilled run in {diff[:4]}")
+    except Exception as exc:  # noqa: BLE001 - a failed check is a violation, shown
+        res["violations"].append(f"rerun inconsistent: {type(exc).__name__}: {str(exc)[:120]}")
 
 
 # --------------------------------------------------------------------------- set-up and main
@@ -341,17 +470,24 @@ def make_inputs(inp: Path) -> None:
 
 def measure(case: Case, inp: Path) -> None:
     """The unkilled run: its duration (the delays are drawn over it) and its outputs (the reference)."""
-    for tag in ("warm", "ref"):  # the first compiles or loads the kernels and reads the log into the page cache
-        tdir = inp / f"{tag}-{case.name}"
-        shutil.rmtree(tdir, ignore_errors=True)
-        tdir.mkdir()
-        if case.prepare:
-            shutil.copytree(inp / f"ref-{case.prepare}" / "out", tdir / case.out)
-        t = time.monotonic()
-        r = subprocess.run(argv_for(case, tdir, inp), capture_output=True, text=True)
-        case.duration = time.monotonic() - t
-        if r.returncode != 0:
-            raise SystemExit(f"{case.name}: the unkilled run failed: {r.stderr[-400:]}")
+    cluster = Cluster(inp / "measure.dask") if "SCHED" in case.argv else None
+    try:
+        for tag in ("warm", "ref"):  # the first compiles or loads the kernels and reads the log into the page cache
+            tdir = inp / f"{tag}-{case.name}"
+            shutil.rmtree(tdir, ignore_errors=True)
+            tdir.mkdir()
+            if case.prepare:
+                shutil.copytree(inp / f"ref-{case.prepare}" / "out", tdir / case.out)
+            t = time.monotonic()
+            r = subprocess.run(
+                argv_for(case, tdir, inp, sched=cluster.address if cluster else ""), capture_output=True, text=True
+            )
+            case.duration = time.monotonic() - t
+            if r.returncode != 0:
+                raise SystemExit(f"{case.name}: the unkilled run failed: {r.stderr[-400:]}")
+    finally:
+        if cluster:
+            cluster.stop()
     case.ref = digest(case, tdir / case.out)
 
 
@@ -360,7 +496,16 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=11, help="trials in total, spread over the cases (11: one each)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--only", default=None, help="comma-separated case names")
-    ap.add_argument("--dask", action="store_true", help="also batch --executor dask")
+    ap.add_argument("--dask", action="store_true", help="also batch --executor dask (a LocalCluster)")
+    ap.add_argument("--dask-cluster", action="store_true", help="also batch on a dask scheduler + 2 workers")
+    ap.add_argument(
+        "--span",
+        type=float,
+        default=1.05,
+        help="delays drawn over this fraction of the unkilled duration (a loaded "
+        "VM's measured durations run long: fewer trials end before their signal with 0.7)",
+    )
+    ap.add_argument("--signals", default="TERM,INT,KILL", help="drawn from for the command: TERM,INT,KILL,HUP")
     ap.add_argument("--cache", type=Path, default=None, help="keep the generated logs and references here")
     args = ap.parse_args()
     seed = args.seed if args.seed is not None else random.randrange(2**32)
@@ -368,7 +513,8 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="kill_matrix-") as tmp:
         inp = args.cache or Path(tmp) / "in"
         make_inputs(inp)
-        cases = make_cases(inp, realdata, args.dask)
+        cases = make_cases(inp, realdata, args.dask, args.dask_cluster)
+        signals = [signal.Signals["SIG" + name.strip().upper()] for name in args.signals.split(",")]
         if args.only:
             cases = [c for c in cases if c.name in args.only.split(",")]
         for c in cases:
@@ -379,36 +525,52 @@ def main() -> None:
         for k in range(args.trials):
             case = cases[k % len(cases)]
             rng = random.Random(f"{seed}-{k // len(cases)}-{case.name}")
-            sig = rng.choice(SIGNALS)
-            delay = rng.uniform(0.0, case.duration * 1.05)
+            sig = rng.choice(signals)
+            delay = rng.uniform(0.0, case.duration * args.span)
+            victim = "command"
+            if case.victims and rng.random() < 0.5:  # half of a Dask case's trials kill a worker or the scheduler
+                victim, sig = rng.choice(case.victims), signal.SIGKILL
             tdir = Path(tmp) / "t" / f"{k}"
-            r = trial(case, sig, delay, tdir, inp)
+            r = trial(case, sig, delay, tdir, inp, victim)
             results[case.name].append((sig, r))
             mark = "OK" if not r["violations"] else "VIOLATION"
             print(
-                f"trial {k} {case.name} {signal.Signals(sig).name}@{delay:.2f}s rc={r['rc']} "
-                f"exit+{r['exit_s']:.2f}s {mark} {'; '.join(r['violations'])}",
+                f"trial {k} {case.name} {signal.Signals(sig).name}@{delay:.2f}s of the {r.get('hit', victim)} "
+                f"rc={r['rc']} "
+                f"exit+{r['exit_s']:.2f}s {mark} {'; '.join(r['violations'])}"
+                + (f" ({' '.join(r['tail'])[:100]})" if victim != "command" and r["signalled"] else ""),
                 flush=True,
             )
+            if r["violations"] and args.cache:  # kept for a look: the trial's output and the command's stderr
+                keep = args.cache.parent / f"violation-{seed}-{k}"
+                shutil.copytree(tdir, keep, dirs_exist_ok=True)
+                shutil.copy(tdir.parent / f"{k}.err", keep / "stderr.txt")
+                if (tdir.parent / f"{k}.inconsistent").is_dir():
+                    shutil.copytree(tdir.parent / f"{k}.inconsistent", keep / "as-left")
+                print(f"  kept in {keep}", flush=True)
             shutil.rmtree(tdir, ignore_errors=True)
-        report(results, seed)
+        report(results, seed, signals)
 
 
-def report(results: dict[str, list], seed: int) -> None:
+def report(results: dict[str, list], seed: int, signals) -> None:
     print(f"\nseed {seed}; load average {os.getloadavg()[0]:.2f}\n")
+    names = " / ".join(s.name for s in signals)
     print(
-        "| command | trials | SIGTERM / SIGINT / SIGKILL | ended first | exit codes | slowest exit after signal "
-        "| violations |\n| --- | --- | --- | --- | --- | --- | --- |"
+        f"| command | trials | {names} of the command | SIGKILL of a Dask worker / scheduler | ended first "
+        "| exit codes | slowest exit after signal | violations |\n| --- | --- | --- | --- | --- | --- | --- | --- |"
     )
     total = 0
     for name, rs in results.items():
-        n = [sum(1 for s, _ in rs if s == sig) for sig in SIGNALS]
+        n = [sum(1 for s, r in rs if s == sig and r["victim"] == "command") for sig in signals]
+        other = [sum(1 for _, r in rs if r["victim"] == v) for v in ("worker", "scheduler")]
         codes = ", ".join(sorted({str(r["rc"]) for _, r in rs}))
         slow = max((r["exit_s"] for s, r in rs if r["signalled"] and s != signal.SIGKILL), default=0.0)
+        slow = max([slow, *(r["exit_s"] for _, r in rs if r["signalled"] and r["victim"] == "scheduler")])
         bad = sum(1 for _, r in rs if r["violations"])
         total += bad
         first = sum(1 for _, r in rs if not r["signalled"])
-        print(f"| {name} | {len(rs)} | {n[0]} / {n[1]} / {n[2]} | {first} | {codes} | {slow:.2f} s | {bad} |")
+        counts = " / ".join(map(str, n))
+        print(f"| {name} | {len(rs)} | {counts} | {other[0]} / {other[1]} | {first} | {codes} | {slow:.2f} s | {bad} |")
     print(f"\n{total} trials with violations")
     sys.exit(1 if total else 0)
 

@@ -280,6 +280,95 @@ def test_a_result_lost_with_the_scheduler_is_exit_3_not_a_failed_log(monkeypatch
         pool.close()
 
 
+def test_a_result_cancelled_with_the_lost_scheduler_is_exit_3_not_an_internal_error(monkeypatch, tmp_path):
+    """The other side of the same race: the client, giving the lost scheduler up, cancels every future, so the
+    fetch of a result already seen finished raises distributed's FutureCancelledError (a
+    concurrent.futures.CancelledError, not asyncio's): it escaped the batch as an internal error."""
+    pytest.importorskip("distributed")
+    from distributed import Future
+    from distributed.client import FutureCancelledError
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import InfrastructureError, Task
+
+    def cancelled(self, timeout=None):
+        raise FutureCancelledError(self.key, "scheduler-connection-lost")
+
+    task = Task.make("r0", str(tmp_path / "a.mcap"), str(tmp_path / "OUT"), {})
+    pool = DaskPool(1, run=repr, wait_workers=30)
+    try:
+        monkeypatch.setattr(Future, "result", cancelled)
+        with pytest.raises(
+            InfrastructureError, match=r"lost the Dask scheduler \(FutureCancelledError: .*connection-lost"
+        ):
+            list(pool.results([task]))
+    finally:
+        pool.close()
+
+
+def test_a_stopped_batch_kills_its_local_clusters_running_logs_instead_of_waiting_for_them(tmp_path):
+    """A signal stops a batch on a local Dask cluster with logs running: their worker processes are killed, as
+    local workers are, not closed gracefully (each waited for its running log: exit 11 s after a SIGTERM in
+    benchmarks/kill_matrix.py). The log here would finish 2 s after starting; it must not."""
+    pytest.importorskip("distributed")
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import Task
+
+    marks = str(tmp_path)
+
+    def slow(task):
+        import pathlib
+        import time
+
+        (pathlib.Path(marks) / "started").touch()
+        time.sleep(2.0)
+        (pathlib.Path(marks) / "finished").touch()
+        return {}
+
+    def stopped_once_running():
+        if (tmp_path / "started").exists():
+            raise KeyboardInterrupt
+        return 1
+
+    pool = DaskPool(1, run=slow, wait_workers=30)
+    try:
+        pool._workers = stopped_once_running  # the batch's SIGTERM, once the log runs
+        with pytest.raises(KeyboardInterrupt):
+            list(pool.results([Task.make("r0", str(tmp_path / "a.mcap"), str(tmp_path / "OUT"), {})]))
+    finally:
+        pool.close()
+    time.sleep(3.0)  # longer than the log had left to run
+    assert (tmp_path / "started").exists() and not (tmp_path / "finished").exists()
+
+
+def test_a_local_cluster_starts_without_a_warning_when_port_8787_is_taken():
+    """A second batch (or any Dask dashboard) holding port 8787 made every local-cluster batch print "Port 8787
+    is already in use. Perhaps you already have a cluster running?" above its own lines."""
+    pytest.importorskip("distributed")
+    import socket
+    import warnings
+
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+
+    taken = socket.socket()
+    try:
+        taken.bind(("", 8787))
+        taken.listen()
+    except OSError:
+        taken.close()
+        taken = None  # someone else holds it: the same situation
+    pool = DaskPool(1, run=repr, wait_workers=30)
+    try:
+        with warnings.catch_warnings(record=True) as seen:
+            warnings.simplefilter("always")
+            pool.connect()
+        assert not [w for w in seen if "already in use" in str(w.message)]
+    finally:
+        pool.close()
+        if taken is not None:
+            taken.close()
+
+
 def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit_3(monkeypatch, tmp_path):
     """A tune's next round submitted after its client gave the lost scheduler up (ClosedClientError), and the
     scheduler lost while the batch waits for workers (the identity call's connection closed), are the lost

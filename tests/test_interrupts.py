@@ -402,3 +402,33 @@ def test_an_interrupted_run_does_not_wait_for_riekfs_time_offset_thread(tmp_path
         pytest.skip("one core: the estimate runs in the caller's thread")
     proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=HANG)
     assert proc.returncode == 143, proc.stderr
+
+
+def test_a_signal_while_a_batch_commits_waits_for_the_commit_with_other_threads_running():
+    """``signals_deferred`` blocked the signals for the main thread only: with another thread running (Dask's
+    client loop, any helper thread), the kernel hands the signal to that thread and Python runs the handler in
+    the main thread all the same, inside the commit. A batch on a Dask cluster stopped by SIGINT then left its
+    dataset inconsistent (benchmarks/kill_matrix.py --dask-cluster, seed 15)."""
+    import threading
+
+    from slamobs.cli.jobs import Stopped, on_signal
+    from slamobs.pipeline.batch.dataset import signals_deferred
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
+    done = threading.Event()
+    other = threading.Thread(target=done.wait, daemon=True)  # started before the block: signals not blocked
+    other.start()
+    steps = []
+    try:
+        with pytest.raises(Stopped):
+            with signals_deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                for _ in range(200):  # the handler would run here, at a bytecode boundary
+                    time.sleep(0.005)
+                steps.append("committed")
+            steps.append("after the block")
+    finally:
+        done.set()
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+    assert steps == ["committed"]

@@ -22,6 +22,7 @@ import logging
 import threading
 import time
 from collections.abc import Iterator, Sequence
+from concurrent.futures import CancelledError
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -118,6 +119,7 @@ class DaskPool:
         self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
+        self._busy = False  # tasks were still pending when results() ended
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
@@ -142,6 +144,9 @@ class DaskPool:
                     processes=True,
                     threads_per_worker=1,
                     dashboard_address=None,
+                    # its HTTP server (health routes) still starts: on a free port, not 8787 with a warning
+                    # ("Port 8787 is already in use") printed above the batch's lines when another cluster has it
+                    scheduler_kwargs={"dashboard_address": ":0"},
                     silence_logs=logging.ERROR,
                 )
                 self.client = Client(self.cluster)
@@ -158,6 +163,11 @@ class DaskPool:
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
     def close(self) -> None:
+        """Close the client, and the local cluster if we started one. A local cluster left with tasks running (the
+        batch stopped by a signal) has its worker processes killed first, as local workers are: closed gracefully,
+        each waited for its running log (11 s after a SIGTERM in the kill matrix)."""
+        if self.cluster is not None and self._busy:
+            self._kill_local_workers()
         if self.client is not None:
             try:
                 self.client.close(timeout=5)
@@ -169,16 +179,33 @@ class DaskPool:
             except Exception:  # noqa: BLE001
                 pass
         self.client = self.cluster = None
+        self._busy = False
+
+    def _kill_local_workers(self) -> None:
+        import os
+        import signal
+
+        for nanny in list(getattr(self.cluster, "workers", {}).values()):
+            pid = getattr(nanny, "pid", None)
+            if hasattr(nanny, "close_gracefully"):
+                nanny.close_gracefully(reason="slamobs batch stopped")  # the nanny must not start it again
+            if pid:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
 
     def _lost(self, err: BaseException) -> InfrastructureError:
         return InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})")
 
     def _fetch(self, get):
         """A finished task's result (or error) comes from the scheduler: losing it then (the connection closed or
-        refused while fetching) is the same lost scheduler, not a failure of the log."""
+        refused while fetching, or the client giving the scheduler up and cancelling every future: distributed's
+        ``FutureCancelledError`` is a ``concurrent.futures.CancelledError``, not asyncio's) is the same lost
+        scheduler, not a failure of the log."""
         try:
             return get(timeout=max(self.wait_workers, 10.0))
-        except (OSError, TimeoutError, asyncio.CancelledError) as err:
+        except (OSError, TimeoutError, asyncio.CancelledError, CancelledError) as err:
             raise self._lost(err) from None
 
     def _workers(self) -> int:
@@ -255,6 +282,7 @@ class DaskPool:
                 if self.timeout:
                     yield from self._timeouts(pending, watch, ours_cancelled, now)
         finally:
+            self._busy = bool(pending)
             for fut, _ in pending.values():
                 fut.cancel()
 

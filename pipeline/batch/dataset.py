@@ -33,6 +33,7 @@ import json
 import os
 import shutil
 import signal
+import threading
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -342,13 +343,28 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
 
 @contextmanager
 def signals_deferred():
-    """Hold SIGINT/SIGTERM/SIGHUP back (delivered on exit) while the dataset is being changed."""
-    sigs = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    """Hold SIGINT/SIGTERM/SIGHUP back (delivered on exit) while the dataset is being changed.
+
+    Blocking them for the main thread is not enough: with another thread running (Dask's client loop, a helper
+    thread) the kernel hands the signal to that thread, and Python runs its handler in the main thread all the
+    same, inside the block (a SIGINT cut a Dask batch's commit in two). So the Python handlers are replaced by a
+    recorder for the block's length, and a signal it recorded is raised again once the old ones are back."""
+    sigs = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+    held: list[int] = []
+    swapped = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in sigs:
+            if callable(signal.getsignal(sig)):  # not SIG_IGN / SIG_DFL: those need no deferring
+                swapped[sig] = signal.signal(sig, lambda signum, _frame: held.append(signum))
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, set(sigs))
     try:
         yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for sig, handler in swapped.items():
+            signal.signal(sig, handler)
+        if held:
+            signal.raise_signal(held[0])
 
 
 @contextmanager
