@@ -483,6 +483,23 @@ def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
     assert f"`ros2 bag reindex {path}` writes its metadata.yaml" in str(err.value)
 
 
+@pytest.mark.parametrize(
+    ("container", "said", "files"), [("ros2-sqlite3", "mcap", "sqlite3"), ("ros2-mcap", "sqlite3", "mcap")]
+)
+def test_rosbag2_metadata_naming_another_storage(tmp_path, sim, container, said, files):
+    """A metadata.yaml whose storage_identifier is not its files' storage was 'corrupt or truncated rosbag2
+    directory (mcap): File magic is invalid.': now one line naming both and the fix."""
+    path = _write(sim, tmp_path / "swapped", container)
+    meta = path / "metadata.yaml"
+    meta.write_text(re.sub(r"storage_identifier: \S+", f"storage_identifier: {said}", meta.read_text()))
+    for read in (read_log, inspect_log):
+        with pytest.raises(InputError) as err:
+            read(path)
+        msg = str(err.value)
+        assert msg.startswith(f"{path}: metadata.yaml says storage_identifier: {said}, but its storage files are")
+        assert f"set storage_identifier: {files} " in msg and "\n" not in msg
+
+
 @pytest.mark.parametrize("text", ["", "\n  \n"])
 def test_rosbag2_directory_with_an_empty_metadata_file(tmp_path, sim, text):
     """A recording that crashed while writing metadata.yaml leaves it empty: read like one without it (rosbags

@@ -533,6 +533,23 @@ def test_truth_topics(zoo_log, topic, frame, child, position):
         np.testing.assert_allclose(quats_to_rots(truth.quat_xyzw)[2], so3_exp(np.array([0, 0, 0.2])), atol=1e-12)
 
 
+def test_a_truth_taken_only_when_named_is_pointed_at_when_none_is_found(zoo_log):
+    """A ground truth recorded as PoseWithCovarianceStamped (a type taken as truth only when named) left the run
+    without an error report and its notes silent about it: the selection now names the topic and the setting."""
+    odom, pwcs = TopicMeta("nav_msgs/msg/Odometry", 9), TopicMeta("geometry_msgs/msg/PoseWithCovarianceStamped", 9)
+    sel = select_roles({"/odom": odom, "/gt": pwcs, "/f": TopicMeta(FIDUCIALS_TYPE, 9)})
+    assert "truth" not in sel.roles
+    hint = [w for w in sel.warnings if w.startswith("truth:")]
+    assert hint == [
+        "truth: none found; /gt (geometry_msgs/msg/PoseWithCovarianceStamped): a truth only when named "
+        "(topics.truth: /gt), as such poses are often estimates (odometry, AMCL)"
+    ]  # the odometry the velocities read is not offered
+    assert not any(
+        w.startswith("truth:") for w in select_roles({"/odom": odom, "/gt": pwcs}, {"truth": "/gt"}).warnings
+    )
+    assert not any(w.startswith("truth:") for w in read_log(zoo_log).warnings)  # a truth found: nothing said
+
+
 def test_truth_tf_edge_and_chain(zoo_log):
     edge = read_log(zoo_log, {"truth": "world->odom"}).truth
     assert (edge.topic, edge.frame_id, edge.child_frame_id) == ("/tf", "world", "odom")

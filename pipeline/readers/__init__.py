@@ -23,6 +23,7 @@ from slamobs.pipeline.vision.detector import TagDetector
 from .cameradecode import decode_camera_info, decode_corners, detect_in_images
 from .container import Container, damage_notes, detect_container, open_log
 from .decode import (
+    ALL_ZERO,
     VEC3_ROLES,
     decode_sim_truth,
     decode_topics,
@@ -222,6 +223,7 @@ def _filled_gyro(topic: str, stream: Vec3Stream, cleaning: Cleaning, selection, 
     if not gyro_stand_in(topic, lambda: stream.xyz, other, table[other][0].msgtype, lambda: decoded()[0].xyz):
         return stream, cleaning
     found, found_cleaning = decoded()
+    cleaning.extra = [e for e in cleaning.extra if not e.startswith(ALL_ZERO)]  # said below, with what replaces it
     note(topic, "angular_velocity", cleaning)
     streams.warnings.append(
         f"{topic}: every angular velocity is zero (not measured): the angular velocity is {other}'s instead "

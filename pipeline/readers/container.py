@@ -167,6 +167,7 @@ def detect_container(path: str | Path) -> Container:
             raise InputError(path, _NOT_A_LOG + hint)
         check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
         match = re.search(r'storage_identifier:\s*["\']?([\w.-]+)', text)
+        _check_storage_id(path, match.group(1) if match else "", entries)
         return Container(path, "rosbag2", match.group(1) if match else "")
     try:
         with path.open("rb") as fobj:
@@ -182,6 +183,30 @@ def detect_container(path: str | Path) -> Container:
         if head.startswith(magic):
             raise InputError(path, f"{_NOT_A_LOG} ({name}-compressed: decompress it first)")
     raise InputError(path, _NOT_A_LOG + _other_data(path))
+
+
+def _check_storage_id(path: Path, storage_id: str, entries: Sequence[Path]) -> None:
+    """A metadata.yaml naming one storage (``storage_identifier``) over storage files that all are another (a
+    metadata.yaml edited or copied from another recording): one line naming both, not the reader's complaint
+    about the other format's first bytes ('File magic is invalid')."""
+    by_id = {f.storage_id: f for f in FORMATS if f.storage_id}
+    files = [x for x in entries if x.suffix in {".db3", ".mcap"} and x.is_file()]
+    if storage_id not in by_id or not files:
+        return
+    try:
+        kinds = {detect_container(x).kind for x in files}
+    except InputError:  # a damaged storage file: the reader says what is wrong with it
+        return
+    stored = {f.kind: f for f in by_id.values()}
+    if by_id[storage_id].kind in kinds or len(kinds) != 1 or (found := next(iter(kinds))) not in stored:
+        return
+    actual = stored[found]
+    raise InputError(
+        path,
+        f"metadata.yaml says storage_identifier: {storage_id}, but its storage files are {actual.label}s "
+        f"({', '.join(x.name for x in files[:3])}): set storage_identifier: {actual.storage_id} "
+        "(metadata.yaml of another recording?)",
+    )
 
 
 #: suffixes of trajectory files (TUM, EuRoC CSV, KITTI): a file of them given as a log gets a hint

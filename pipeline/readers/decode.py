@@ -340,6 +340,14 @@ def _is_identity(idx: np.ndarray, n: int) -> bool:
     return idx.shape[0] == n and (n == 0 or (int(idx[0]) == 0 and bool(np.all(np.diff(idx) == 1))))
 
 
+#: A stream's note when every value is zero, and what a velocity stream that is all zero makes of the run.
+ALL_ZERO = "all values are zero (field not filled by the publisher?)"
+ZERO_MEANS = {
+    "angular_velocity": ": the run takes the body as never turning",
+    "linear_velocity": ": the run takes the body as never moving",
+}
+
+
 def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
     """The role's 3-vector out of decoded rows, cleaned; a clean stream shares the decoded arrays (no copy)."""
     column, frame_from = VEC3_ROLES[role, rows.msgtype]
@@ -347,7 +355,7 @@ def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, xyz)
     frame = _dominant((rows.child if frame_from == "child" else rows.frame)[idx], rows.frame_names, cleaning)
     if idx.size and not xyz[idx].any():
-        cleaning.extra.append("all values are zero (field not filled by the publisher?)")
+        cleaning.extra.append(ALL_ZERO + ZERO_MEANS.get(role, ""))
     if _is_identity(idx, xyz.shape[0]) and rows.values.shape[1] <= SHARE_WIDTH:
         return Vec3Stream(rows.topic, frame, t_ns, rows.rec_ns, xyz), cleaning
     stream = Vec3Stream(rows.topic, frame, t_ns[idx], rows.rec_ns[idx], np.ascontiguousarray(xyz[idx]))

@@ -31,6 +31,7 @@ from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import (
     decode_static_tf,
     duplicates_text,
+    gyro_not_filled,
     first_vectors,
     gyro_stand_in,
     has_header,
@@ -40,7 +41,7 @@ from .decode import (
 )
 from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
-from .roles import ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
+from .roles import ODOMETRY, ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
 from .rows import frame_name
 
 if TYPE_CHECKING:
@@ -389,7 +390,12 @@ def _gyro_source(reader, table: dict, roles: dict[str, str]) -> tuple[dict[str, 
         return first_vectors(reader, conns, meta.msgtype, "angular_velocity", GYRO_PROBE)
 
     if not gyro_stand_in(gyro, lambda: probe(gyro), other, other and table[other][0].msgtype, lambda: probe(other)):
-        return roles, []
+        if gyro is None or table[gyro][0].msgtype == ODOMETRY or not gyro_not_filled(probe(gyro)):
+            return roles, []  # an odometry's zero twist.angular is differentiated from its orientations
+        return roles, [
+            f"{gyro}: every angular velocity of its first {len(probe(gyro))} messages is zero (field not filled by the "
+            "publisher?): if all are, the run takes the body as never turning"
+        ]
     return {**roles, "angular_velocity": other}, [
         f"{gyro}: every angular velocity of its first {len(probe(gyro))} messages is zero (not measured): the angular "
         f"velocity is {other}'s, as run takes it when all are zero (topics.angular_velocity chooses one)"

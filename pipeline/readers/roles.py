@@ -386,6 +386,8 @@ def select_roles(
         if warning:
             selection.warnings.append(warning)
 
+    if "truth" not in overrides and "truth" not in selection.roles and (hint := _named_truth_hint(topics, selection)):
+        selection.warnings.append(hint)
     tf_topic = overrides.get("tf") or _pick("tf", topics)[0]
     if edge is not None:
         if not tf_topic:
@@ -393,6 +395,20 @@ def select_roles(
         selection.roles["truth"], selection.truth_edge = tf_topic, edge
     _tag_frames(selection, overrides, topics, tf_topic, tag_pattern, path)
     return selection
+
+
+def _named_truth_hint(topics: Mapping[str, TopicMeta], selection: RoleSelection) -> str | None:
+    """With no truth found: the topics of a type taken as truth only when named (a PoseWithCovarianceStamped, an
+    odometry no other role reads), so that a run without an error report says where a truth may be."""
+    used = set(selection.roles.values())
+    found = [t for t, m in sorted(topics.items()) if m.msgtype in EXPLICIT_TYPES["truth"] and m.count and t not in used]
+    if not found:
+        return None
+    listed = ", ".join(f"{t} ({topics[t].msgtype})" for t in found)
+    return (
+        f"truth: none found; {listed}: a truth only when named (topics.truth: {found[0]}), "
+        "as such poses are often estimates (odometry, AMCL)"
+    )
 
 
 def _names(value: str | list[str] | tuple[str, ...]) -> list[str]:
