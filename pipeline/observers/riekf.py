@@ -44,6 +44,15 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   consistent filter), the time and the median are recorded (run.json ``observer.filter.consistency``, a note:
   the covariance understates the error). Raising the velocity-bias walk there instead was tried and left out
   (docs/benchmarks.md, "riekf: overconfidence from the innovations").
+* Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
+  gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
+  propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
+  that follow are checked: when nearly all (over ``BLIND_SHARE``) fail the gate, the pose is off (not a few
+  outliers), and the position's covariance is re-opened to the error the landmarks see (their median squared
+  innovation on each axis, uncorrelated with the rest of the state, as at a segment start): the re-observed
+  landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
+  half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
+  real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -76,7 +85,7 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE = 0, 1, 2, 3, 4, 5
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T = 0, 1, 2, 3, 4, 5, 6, 7
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -86,7 +95,10 @@ _NSEEN, _GATED, _UPDATES, _SKIPPED = 7, 8, 9, 10
 _WIN_N, _WIN_GATED, _RECOVERIES, _FAILING, _REINIT, _LOST = 11, 12, 13, 14, 15, 16
 #: The consistency check's slots (module docstring, "Overconfidence"): windows in its ring, times it fired.
 _HOT, _RAISES = 17, 18
-N_SLOTS = 19
+#: After a blind stretch (module docstring, "Blind stretches"): whether its check is pending, the known-landmark
+#: detections tested and gated since it ended, and the pose covariances re-opened.
+_ARMED, _PB_N, _PB_GATED, _RELOCS = 19, 20, 21, 22
+N_SLOTS = 23
 #: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
 #: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
 #: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
@@ -104,6 +116,12 @@ MAX_SIGMA_SHARE = 0.25
 #: 3 DoF, 90 %) above which the filter is overconfident.
 WALK_HOT = 6.25
 WALK_WINDOWS = 7
+#: Blind stretches (module docstring): the seconds without a known landmark's detection after which the first
+#: ``BLIND_WINDOW`` tested detections are checked, and the share of them failing the gate above which the pose, not
+#: a few outliers, is off.
+BLIND_S = 20.0
+BLIND_WINDOW = 20
+BLIND_SHARE = 0.9
 #: What a recovery did, by failing windows in a row (1, 2, 3 and more).
 RECOVERY_ACTIONS = {
     0: "the motion noise variances and the covariance (the frames' innovations moved together: a pose error)",
@@ -578,6 +596,7 @@ def _update(
     gated_lm,
     reinit,
     win_sum,
+    blind_z2,
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
@@ -634,9 +653,13 @@ def _update(
             for c in range(3):
                 win_z[ns[_WIN_N], c] = zi[c]
         ns[_WIN_N] += 1
+        ns[_PB_N] += ns[_ARMED]
+        if ns[_ARMED] and ns[_PB_N] <= blind_z2.shape[0]:  # the squared innovations since (_blind_check)
+            blind_z2[ns[_PB_N] - 1] = zi[0] * zi[0] + zi[1] * zi[1] + zi[2] * zi[2]
         if d2 > gate:
             ns[_GATED] += 1
             ns[_WIN_GATED] += 1
+            ns[_PB_GATED] += ns[_ARMED]
             gated_lm[i] = True
             continue
         sel[m] = j
@@ -763,21 +786,74 @@ def _common_share(n, win_z, win_f):
 
 
 @njit(cache=True)
-def _walk_check(t, ns, win_sum, walk_log):
-    """A window that passed the gate: the Mahalanobis distance² of the sum of its accepted innovations joins the
-    ring of the last ``WALK_WINDOWS``; when their median exceeds ``WALK_HOT`` the filter is overconfident (module
-    docstring, "Overconfidence"): recorded, and the ring starts again. Changes no estimate."""
-    s = win_sum[1:4, :3].copy()
+def _summed_d2(sums):
+    """The Mahalanobis distance² of a window's summed innovations (row 0 of ``sums``) under their summed
+    covariance (rows 1..3); −1 when that is not positive definite (no accepted innovation)."""
+    s = sums[1:4, :3].copy()
     if not _cholesky(s, 3):
-        return
+        return -1.0
     d2 = 0.0  # |L⁻¹ Σz|², by forward substitution
     y = np.empty(3)
     for a in range(3):
-        v = win_sum[0, a]
+        v = sums[0, a]
         for k in range(a):
             v -= s[a, k] * y[k]
         y[a] = v / s[a, a]
         d2 += y[a] * y[a]
+    return d2
+
+
+@njit(cache=True)
+def _blind_start(t, nd, a0, det_idx, slot_of, reinit, fs, ns):
+    """Before a frame: when it holds a known landmark's detection, the first after ``BLIND_S`` or more without
+    one, the check of the detections that follow is armed (module docstring, "Blind stretches")."""
+    for j in range(nd):
+        i = det_idx[a0 + j]
+        if slot_of[i] >= 0 and not reinit[i]:
+            if t - fs[_KNOWN_T] >= BLIND_S and ns[_LOST] == 0:
+                ns[_ARMED], ns[_PB_N], ns[_PB_GATED] = 1, 0, 0
+                fs[_BLIND_T] = fs[_KNOWN_T]
+            fs[_KNOWN_T] = t
+            return
+
+
+@njit(cache=True)
+def _blind_check(t, d, cov, fs, ns, win_sum, blind_z2, gated_lm, blind_log):
+    """After the first ``BLIND_WINDOW`` known-landmark detections that follow a blind stretch: when nearly all
+    failed the gate (over ``BLIND_SHARE``), the pose error is beyond the covariance: the position's covariance is
+    re-opened to the landmarks' median squared innovation on each axis (uncorrelated with the rest of the state, as
+    at a segment start), so that the re-observed landmarks re-anchor the pose; the recovery's window starts again.
+    Recorded when it acts; nothing changes when it does not."""
+    ns[_ARMED] = 0
+    n, gated = ns[_PB_N], ns[_PB_GATED]
+    if gated <= BLIND_SHARE * n:
+        return
+    v = np.median(blind_z2[: min(n, blind_z2.shape[0])])  # the position's error as the landmarks see it
+    for r in range(3, 6):
+        v = max(v, cov[r, r])  # never below what the filter had
+    for r in range(3, 6):
+        for c in range(d):
+            cov[r, c] = 0.0
+            cov[c, r] = 0.0
+        cov[r, r] = v
+    ns[_WIN_N], ns[_WIN_GATED] = 0, 0
+    win_sum[:4, :] = 0.0
+    gated_lm[:] = False
+    k = ns[_RELOCS]
+    if k < blind_log.shape[0]:
+        blind_log[k, 0], blind_log[k, 1] = t, t - fs[_BLIND_T]
+        blind_log[k, 2], blind_log[k, 3] = gated / n, math.sqrt(v)
+    ns[_RELOCS] += 1
+
+
+@njit(cache=True)
+def _walk_check(t, ns, win_sum, walk_log):
+    """A window that passed the gate: the Mahalanobis distance² of the sum of its accepted innovations joins the
+    ring of the last ``WALK_WINDOWS``; when their median exceeds ``WALK_HOT`` the filter is overconfident (module
+    docstring, "Overconfidence"): recorded, and the ring starts again. Changes no estimate."""
+    d2 = _summed_d2(win_sum)
+    if d2 < 0.0:
+        return
     hist = win_sum[4]  # the last WALK_WINDOWS windows' d2, in a ring
     hist[ns[_HOT] % WALK_WINDOWS] = d2
     ns[_HOT] += 1
@@ -882,10 +958,12 @@ def _advance(
     win_z,
     win_f,
     win_sum,
+    blind_z2,
     gated_lm,
     reinit,
     rec_log,
     walk_log,
+    blind_log,
     out_k,
     out_r,
     out_p,
@@ -950,6 +1028,7 @@ def _advance(
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
             work += d * d * (3 * nd + 6) // _FRAME_WORK_SCALE
+            _blind_start(t_next, nd, a0, det_idx, slot_of, reinit, fs, ns)
             d = _update(
                 a0,
                 nd,
@@ -983,7 +1062,10 @@ def _advance(
                 gated_lm,
                 reinit,
                 win_sum,
+                blind_z2,
             )
+            if ns[_ARMED] and ns[_PB_N] >= BLIND_WINDOW:
+                _blind_check(t_next, d, cov, fs, ns, win_sum, blind_z2, gated_lm, blind_log)
             if ns[_WIN_N] >= WINDOW and _window_check(
                 t_next,
                 d,
@@ -1035,9 +1117,10 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=6)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=8)
         self.fs[_SCALE] = 1.0
         self.fs[_DSCALE] = 1.0
+        self.fs[_KNOWN_T] = np.inf  # no known landmark's detection yet: no blind stretch either
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
         dim += -dim % PAD  # whole vectors for the one-pass sums (_apply); the dimensions past the state stay zero
@@ -1060,10 +1143,12 @@ class _State(KernelState):
         self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
         # the window's summed accepted innovations and their covariance; the last windows' d² (_walk_check)
         self.win_sum = np.zeros((5, WALK_WINDOWS))
+        self.blind_z2 = np.zeros(BLIND_WINDOW + max(n_max, 1))  # |z|² of the detections after a blind stretch
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
         self.walk_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
+        self.blind_log = np.zeros((MAX_LOG, 4))  # re-opened after a blind stretch: time, its length, gated share, σ
 
     def arrays(self) -> tuple:
         return (
@@ -1090,10 +1175,12 @@ class _State(KernelState):
             self.win_z,
             self.win_f,
             self.win_sum,
+            self.blind_z2,
             self.gated_lm,
             self.reinit,
             self.rec_log,
             self.walk_log,
+            self.blind_log,
         )
 
 
@@ -1309,6 +1396,15 @@ class RiEKF(Stepper):
             "detection_noise_factor": float(fs[_DSCALE]),
             "landmarks_reinitialised": int(ns[_REINIT]),
             "lost_at_s": round(float(fs[_LOST_T]) - t0, 3) if ns[_LOST] else None,
+            "blind": [
+                {
+                    "t_s": round(float(r[0]) - t0, 3),
+                    "blind_s": round(float(r[1]), 3),
+                    "gated_share": round(float(r[2]), 3),
+                    "position_sigma_m": round(float(r[3]), 3),
+                }
+                for r in self.state.blind_log[: min(int(ns[_RELOCS]), MAX_LOG)]
+            ],
             "consistency": {
                 "overconfident": int(ns[_RAISES]),
                 "log": [
@@ -1338,6 +1434,13 @@ def recovery_notes(filt: dict) -> list[str]:
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
             f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now "
             f"x{np.sqrt(r['detection_factor']):.3g} in standard deviation)"
+        )
+    for r in filt.get("blind", [])[:5]:
+        notes.append(
+            f"riekf: at {r['t_s']:.2f} s, after {r['blind_s']:.1f} s without a known landmark's detection, the first "
+            f"{BLIND_WINDOW} that followed did not fit the pose ({100 * r['gated_share']:.0f} % failed the gate): "
+            f"the position's covariance was re-opened to {r['position_sigma_m']:.3g} m on each axis and the "
+            "re-observed landmarks re-anchored it (run.json observer.filter.blind)"
         )
     con = filt.get("consistency") or {}
     if con.get("overconfident"):
