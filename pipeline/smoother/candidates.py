@@ -183,3 +183,20 @@ def record(reason: str, candidates: list[Candidate], best: Candidate, first_seed
         f"'{first_seed.name}'); the other solutions against the kept one: {reached or 'none'}"
     )
     return {"reason": reason, "criterion": CRITERION, "winner": best.name, "candidates": table}, note
+
+
+def seed_check(found: list[Candidate], kept: Candidate) -> dict:
+    """The final check against the starts (the estimator's ``_against_seeds``) for run.json
+    (observer.smoother.seed_check): the criterion, each one's cost under the final noise model, the one kept."""
+    costs = {c.name if c.sol is None else "solution": round(float(c.cost), 6) for c in found}
+    kept_name = "solution" if kept.sol is not None and kept is found[0] else kept.name
+    return {"criterion": CRITERION + ", under the final noise model", "cost": costs, "kept": kept_name}
+
+
+def seed_check_note(record: dict) -> str:
+    """The note when a start as it is beat the final solution."""
+    costs = ", ".join(f"{name} {cost:.6g}" for name, cost in record["cost"].items())
+    return (
+        f"batch: the final solution (after the noise levels, range/bearing and correlation steps) scored worse "
+        f"than a start as it is under the final noise model ({costs}): kept '{record['kept']}'"
+    )
