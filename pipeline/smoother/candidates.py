@@ -28,6 +28,11 @@ CRITERION = (
     "the smoother's robust graph cost over every detection (before gating), odometry preintegrated at each "
     "candidate's bias"
 )
+#: What the final check against the starts scores (the estimator's ``_against_seeds``).
+SEED_CHECK_CRITERION = (
+    "the smoother's robust graph cost over every detection (before gating) under the final noise model, odometry "
+    "preintegrated about the kept candidate's seed's bias (another seed's: about its own)"
+)
 #: The first solution is doubtful too when it fails the global model test: its χ² (whitened squares of every
 #: detection and relative-motion factor) over the redundancy ``d·(M − L)`` (``M`` detections of ``L`` landmarks,
 #: ``d`` measured axes) above this (1 expected; the sample logs 1.00). With noise levels that fit the log the gate
@@ -190,7 +195,7 @@ def seed_check(found: list[Candidate], kept: Candidate) -> dict:
     (observer.smoother.seed_check): the criterion, each one's cost under the final noise model, the one kept."""
     costs = {c.name if c.sol is None else "solution": round(float(c.cost), 6) for c in found}
     kept_name = "solution" if kept.sol is not None and kept is found[0] else kept.name
-    return {"criterion": CRITERION + ", under the final noise model", "cost": costs, "kept": kept_name}
+    return {"criterion": SEED_CHECK_CRITERION, "cost": costs, "kept": kept_name}
 
 
 def seed_check_note(record: dict) -> str:
