@@ -282,3 +282,20 @@ def test_a_ratio_set_in_the_configuration_holds_from_the_first_solve(generated):
         assert u @ info @ u == pytest.approx(along)
         _, ape_iso = smoothed(sim, noisy, "off")
         assert ape < ape_iso, (ape, ape_iso)
+
+
+def test_the_evidence_counts_the_shapes_log_determinant(solved):
+    """``Σ log det Σ`` of the detections with a shape ``S`` is that of ``σ² S⁻¹``: the scan's own shape keeps the
+    volume (``det S = 1``, no change), a ratio set in the configuration (the trace kept) does not, and the
+    evidence must count it wherever shapes of different volume are compared."""
+    from slamobs.pipeline.noise import NoiseConfig, resolve_noise
+    from slamobs.pipeline.smoother import evidence as ev
+
+    problem, _ = solved
+    m = problem.det_y.shape[0]
+    iso = ev.detection_log_det(problem)
+    kept = replace(problem, det_shape=an.shape(problem.det_y, 4.0))
+    assert ev.detection_log_det(kept) == pytest.approx(iso, abs=1e-6 * m)
+    across, along = resolve_noise(NoiseConfig(detection_ratio=6.0)).ratio_split()
+    trace = replace(problem, det_shape=an.shape(problem.det_y, 6.0, (across, along)))
+    assert ev.detection_log_det(trace) == pytest.approx(iso + m * np.log(across * across * along), rel=1e-9)

@@ -10,7 +10,10 @@ bearing does across it, and the smoother follows the range's noise.
 The model splits ``σ`` into ``σ_r = k_r σ`` along the line of sight ``u = y/|y|`` (body frame) and ``σ_⊥ = k_⊥ σ``
 across it, with ``k_r / k_⊥ = ρ`` and ``k_r k_⊥² = 1``: the error's volume (``det Σ = σ⁶``) is the isotropic
 one, so the evidence's determinant terms of the detections do not change with ``ρ`` and the law's level keeps
-its meaning (the geometric mean of the three axes). The information of a detection is ``S/σ²`` with
+its meaning (the geometric mean of the three axes). Scanned in riekf's shape instead (the law the mean over the
+axes, its ``log det`` counted), the ratio reaches the stereo-like logs' true one (32 against 8-16 here), but batch
+got worse on 3 of 7 of them, 2-10x (docs/benchmarks.md, "batch's range/bearing ratio in the triplets' shape"). The
+information of a detection is ``S/σ²`` with
 
     S = u uᵀ / k_r² + (I − u uᵀ) / k_⊥²,      k_r = ρ^(2/3),  k_⊥ = ρ^(−1/3).
 

@@ -28,6 +28,11 @@ CRITERION = (
     "the smoother's robust graph cost over every detection (before gating), odometry preintegrated at each "
     "candidate's bias"
 )
+#: What the final check against the starts scores (the estimator's ``_against_seeds``).
+SEED_CHECK_CRITERION = (
+    "the smoother's robust graph cost over every detection (before gating) under the final noise model, odometry "
+    "preintegrated about the kept candidate's seed's bias (another seed's: about its own)"
+)
 #: The first solution is doubtful too when it fails the global model test: its χ² (whitened squares of every
 #: detection and relative-motion factor) over the redundancy ``d·(M − L)`` (``M`` detections of ``L`` landmarks,
 #: ``d`` measured axes) above this (1 expected; the sample logs 1.00). With noise levels that fit the log the gate
@@ -183,3 +188,20 @@ def record(reason: str, candidates: list[Candidate], best: Candidate, first_seed
         f"'{first_seed.name}'); the other solutions against the kept one: {reached or 'none'}"
     )
     return {"reason": reason, "criterion": CRITERION, "winner": best.name, "candidates": table}, note
+
+
+def seed_check(found: list[Candidate], kept: Candidate) -> dict:
+    """The final check against the starts (the estimator's ``_against_seeds``) for run.json
+    (observer.smoother.seed_check): the criterion, each one's cost under the final noise model, the one kept."""
+    costs = {c.name if c.sol is None else "solution": round(float(c.cost), 6) for c in found}
+    kept_name = "solution" if kept.sol is not None and kept is found[0] else kept.name
+    return {"criterion": SEED_CHECK_CRITERION, "cost": costs, "kept": kept_name}
+
+
+def seed_check_note(record: dict) -> str:
+    """The note when a start as it is beat the final solution."""
+    costs = ", ".join(f"{name} {cost:.6g}" for name, cost in record["cost"].items())
+    return (
+        f"batch: the final solution (after the noise levels, range/bearing and correlation steps) scored worse "
+        f"than a start as it is under the final noise model ({costs}): kept '{record['kept']}'"
+    )

@@ -187,6 +187,7 @@ class BatchSmoother(Stepper):
             anisotropy_notes += again
             anisotropy["motion_scanned_again"] = True
         chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, (kf_t, kf_of_det, gaps), segments)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
@@ -211,6 +212,7 @@ class BatchSmoother(Stepper):
         summary["noise_scale"] = evidence
         summary["detection_correlation"] = correlation
         summary["detection_anisotropy"] = anisotropy
+        summary["seed_check"] = seed_check
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -220,6 +222,7 @@ class BatchSmoother(Stepper):
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
+        self.stats["notes"] += seed_notes
         self.stats["notes"] += list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
@@ -289,6 +292,35 @@ class BatchSmoother(Stepper):
             best.sol = g.solve(full, best.guess(segments.n), max_iterations=0)
             best.problem, best.notes = full, []
         return best, cands.record(reason, found, best, first.seed), seconds
+
+    def _against_seeds(self, chosen, first_seed, keyframes: tuple, segments: _Segments):
+        """ "Never worse than its seed", checked once every step has re-solved: the final solution and its starts as
+        they are (the configured seed's, and the kept candidate's when another) scored by the smoother's objective
+        over every detection under the final noise model (levels, range/bearing shape, time correlation, σ at the
+        solution's ranges): the final problem (its odometry preintegrated about the kept candidate's seed's bias,
+        as every re-solve builds it) with every detection; another seed's odometry about its own bias. A start
+        lower by more than ``candidates.TIE_COST`` is kept as it is. The candidate kept, the record, the notes."""
+        from slamobs.pipeline.smoother import candidates as cands
+        from slamobs.pipeline.smoother import graph as g
+
+        kf_t, kf_of_det, gaps = keyframes
+        if self.fixed_bias is not None:  # a reference run: its biases are given, no start to fall back on
+            return chosen, {"skipped": "the biases are fixed (a reference run)"}, []
+        final = replace(chosen.problem, **self._detections(kf_of_det))
+        found = [chosen] + [cands.Candidate(s) for s in {id(s): s for s in (chosen.seed, first_seed)}.values()]
+        problems = [
+            final if c.seed is chosen.seed else self._problem(kf_t, kf_of_det, gaps, c.seed, segments) for c in found
+        ]
+        for c, p in zip(found, problems, strict=True):
+            c.cost = g.cost(p, c.guess(segments.n))
+        best = cands.choose(found)
+        record, notes = cands.seed_check(found, best), []
+        if best is not chosen:  # a start as it is: its biases' covariance at it, no iteration
+            best.problem = problems[found.index(best)]
+            best.sol = g.solve(best.problem, best.guess(segments.n), max_iterations=0)
+            best.notes = []
+            notes.append(cands.seed_check_note(record))
+        return best, record, notes
 
     def _keyframes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Keyframe times, each detection's keyframe, and the velocity gaps between segments (None: no gap)."""

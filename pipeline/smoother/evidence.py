@@ -62,8 +62,13 @@ def motion_log_det(problem) -> float:
 
 
 def detection_log_det(problem) -> float:
-    """``Σ log det Σ`` of the detections (isotropic, three axes each)."""
-    return 6.0 * float(np.sum(np.log(np.maximum(problem.det_sigma, 1e-12))))
+    """``Σ log det Σ`` of the detections: three axes of ``σ`` each, times ``S⁻¹`` when range and bearing are
+    weighed apart (``det_shape``, :mod:`pipeline.smoother.anisotropy`): 0 for the scan's own shape (its volume
+    kept), not for a ratio set in the configuration (its trace kept), so shapes of either kind compare."""
+    isotropic = 6.0 * float(np.sum(np.log(np.maximum(problem.det_sigma, 1e-12))))
+    if problem.det_shape is None:
+        return isotropic
+    return isotropic - float(np.sum(np.linalg.slogdet(problem.det_shape)[1]))
 
 
 def walk_log_det(problem, n_segments: int) -> float:
