@@ -3,7 +3,7 @@ SIGTERM / SIGINT (to the group, as Ctrl-C does) / SIGKILL at a random delay draw
 duration (measured first, unkilled), then check what docs/reliability.md promises.
 
     .venv/bin/python benchmarks/kill_matrix.py [--trials 11] [--seed S] [--only run-fa,batch,...] [--cache DIR]
-        [--signals TERM,INT,KILL,HUP] [--dask] [--dask-cluster]
+        [--signals TERM,INT,KILL,HUP] [--span 1.05] [--dask] [--dask-cluster]
 
 SIGHUP (``--signals ...,HUP``) goes to the group, as a closed terminal's shell sends it to its jobs. ``--dask`` adds
 ``batch --executor dask`` (a LocalCluster in the batch's session), ``--dask-cluster`` a batch on a ``dask scheduler``
