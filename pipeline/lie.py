@@ -172,7 +172,7 @@ def se3_exp(w, v):
     return so3_exp(w), mat3_vec(so3_left_jacobian(w), v)
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
     """:func:`se3_exp` written into ``r_out``/``p_out`` without temporaries (for the hot loops).
 
@@ -250,7 +250,7 @@ def project_so3(r):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def project_so3_into(r):
     """:func:`project_so3` in place (for the observer kernels: no temporary, no array assignment)."""
     x, y, z, w = _quat_of_rot(r)
@@ -273,7 +273,7 @@ def quat_to_rot(q):
     return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nrt=False)
 def _rot_of_quat(qx, qy, qz, qw, out):
     """:func:`quat_to_rot` of the four scalars, written into ``out`` (a zero quaternion gives NaN)."""
     n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
@@ -297,7 +297,7 @@ def rot_to_quat(r):
     return q
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nrt=False)
 def _quat_of_rot(r):
     """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it). The nine
     elements are read once: numba lowers every element read of an array with a copy of the array's struct and its
@@ -345,7 +345,7 @@ def quats_to_rots(q):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _quats_to_rots_into(q, out):
     for n in range(q.shape[0]):
         _rot_of_quat(q[n, 0], q[n, 1], q[n, 2], q[n, 3], out[n])
@@ -360,7 +360,7 @@ def rots_to_quats(r):
     return q
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _rots_to_quats_into(r, q):
     for n in range(r.shape[0]):
         q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])

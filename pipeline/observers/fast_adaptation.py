@@ -45,7 +45,7 @@ STEP_RATIO = 0.5
 REORTHO_EVERY = 1000
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     """Number of sub-steps for an interval of length ``dt`` (docs/observers.md §6.1 rate bound).
 
@@ -80,7 +80,7 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     return substep_count(dt, lam, STEP_RATIO)
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def _integrate(
     dt,
     omega_m,
@@ -146,16 +146,18 @@ def _integrate(
             d_r,
             d_p,
         )
-        p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2]
-        p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2]
-        p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2]
+        dp0, dp1, dp2 = d_p[0], d_p[1], d_p[2]
+        p_hat[0] += r00 * dp0 + r01 * dp1 + r02 * dp2
+        p_hat[1] += r10 * dp0 + r11 * dp1 + r12 * dp2
+        p_hat[2] += r20 * dp0 + r21 * dp1 + r22 * dp2
         for b in range(3):  # R̂ ← R̂ dR from the row scalars read above (R̂ is unchanged until here)
             c0, c1, c2 = d_r[0, b], d_r[1, b], d_r[2, b]
             r_hat[0, b] = r00 * c0 + r01 * c1 + r02 * c2
             r_hat[1, b] = r10 * c0 + r11 * c1 + r12 * c2
             r_hat[2, b] = r20 * c0 + r21 * c1 + r22 * c2
-        counter[0] += 1
-        if counter[0] % REORTHO_EVERY == 0:
+        count = counter[0] + 1
+        counter[0] = count
+        if count % REORTHO_EVERY == 0:
             project_so3_into(r_hat)
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
@@ -171,7 +173,7 @@ _T, _MEAS_T = 0, 1
 _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _advance(
     vel_t,
     omega,
@@ -218,8 +220,14 @@ def _advance(
     ``det_base`` on)."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
-    t, meas_t = fs[_T], fs[_MEAS_T]
-    iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
+    # one statement per element (a five-element tuple assignment compiles a tuple and its unpacking)
+    t = fs[_T]
+    meas_t = fs[_MEAS_T]
+    iv = ns[_IV]
+    jf = ns[_JF]
+    nvis = ns[_NVIS]
+    started = ns[_STARTED] != 0
+    substeps = ns[_SUBSTEPS]
     o = np.int64(0)  # not the literal 0: callees would compile for it too
     work = 0
     while (iv < n_vel or jf < n_frames) and work < budget:
@@ -275,8 +283,13 @@ def _advance(
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
-    fs[_T], fs[_MEAS_T] = t, meas_t
-    ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps
+    fs[_T] = t
+    fs[_MEAS_T] = meas_t
+    ns[_IV] = iv
+    ns[_JF] = jf
+    ns[_NVIS] = nvis
+    ns[_STARTED] = 1 if started else 0
+    ns[_SUBSTEPS] = substeps
     return o
 
 
