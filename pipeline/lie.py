@@ -172,7 +172,7 @@ def se3_exp(w, v):
     return so3_exp(w), mat3_vec(so3_left_jacobian(w), v)
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
     """:func:`se3_exp` written into ``r_out``/``p_out`` without temporaries (for the hot loops).
 
@@ -250,7 +250,7 @@ def project_so3(r):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def project_so3_into(r):
     """:func:`project_so3` in place (for the observer kernels: no temporary, no array assignment)."""
     x, y, z, w = _quat_of_rot(r)
@@ -273,7 +273,7 @@ def quat_to_rot(q):
     return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nrt=False)
 def _rot_of_quat(qx, qy, qz, qw, out):
     """:func:`quat_to_rot` of the four scalars, written into ``out`` (a zero quaternion gives NaN)."""
     n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
@@ -297,33 +297,38 @@ def rot_to_quat(r):
     return q
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nrt=False)
 def _quat_of_rot(r):
-    """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it)."""
-    tr = r[0, 0] + r[1, 1] + r[2, 2]
+    """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it). The nine
+    elements are read once: numba lowers every element read of an array with a copy of the array's struct and its
+    reference count, so reading each once makes a third of the code to compile, with the same arithmetic."""
+    r00, r01, r02 = r[0, 0], r[0, 1], r[0, 2]
+    r10, r11, r12 = r[1, 0], r[1, 1], r[1, 2]
+    r20, r21, r22 = r[2, 0], r[2, 1], r[2, 2]
+    tr = r00 + r11 + r22
     if tr > 0.0:
         s = 2.0 * math.sqrt(tr + 1.0)
         w = 0.25 * s
-        x = (r[2, 1] - r[1, 2]) / s
-        y = (r[0, 2] - r[2, 0]) / s
-        z = (r[1, 0] - r[0, 1]) / s
-    elif r[0, 0] > r[1, 1] and r[0, 0] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[0, 0] - r[1, 1] - r[2, 2])
-        w = (r[2, 1] - r[1, 2]) / s
+        x = (r21 - r12) / s
+        y = (r02 - r20) / s
+        z = (r10 - r01) / s
+    elif r00 > r11 and r00 > r22:
+        s = 2.0 * math.sqrt(1.0 + r00 - r11 - r22)
+        w = (r21 - r12) / s
         x = 0.25 * s
-        y = (r[0, 1] + r[1, 0]) / s
-        z = (r[0, 2] + r[2, 0]) / s
-    elif r[1, 1] > r[2, 2]:
-        s = 2.0 * math.sqrt(1.0 + r[1, 1] - r[0, 0] - r[2, 2])
-        w = (r[0, 2] - r[2, 0]) / s
-        x = (r[0, 1] + r[1, 0]) / s
+        y = (r01 + r10) / s
+        z = (r02 + r20) / s
+    elif r11 > r22:
+        s = 2.0 * math.sqrt(1.0 + r11 - r00 - r22)
+        w = (r02 - r20) / s
+        x = (r01 + r10) / s
         y = 0.25 * s
-        z = (r[1, 2] + r[2, 1]) / s
+        z = (r12 + r21) / s
     else:
-        s = 2.0 * math.sqrt(1.0 + r[2, 2] - r[0, 0] - r[1, 1])
-        w = (r[1, 0] - r[0, 1]) / s
-        x = (r[0, 2] + r[2, 0]) / s
-        y = (r[1, 2] + r[2, 1]) / s
+        s = 2.0 * math.sqrt(1.0 + r22 - r00 - r11)
+        w = (r10 - r01) / s
+        x = (r02 + r20) / s
+        y = (r12 + r21) / s
         z = 0.25 * s
     if w < 0.0:
         x, y, z, w = -x, -y, -z, -w
@@ -340,7 +345,7 @@ def quats_to_rots(q):
     return out
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _quats_to_rots_into(q, out):
     for n in range(q.shape[0]):
         _rot_of_quat(q[n, 0], q[n, 1], q[n, 2], q[n, 3], out[n])
@@ -355,7 +360,7 @@ def rots_to_quats(r):
     return q
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _rots_to_quats_into(r, q):
     for n in range(r.shape[0]):
         q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])

@@ -162,3 +162,34 @@ def test_a_cached_kernel_loads_without_numbas_registries():
     assert int(hits) == 1 and registries == "0" and compiled == "42"
     # numba's extensions (entry points) are not looked for to load a kernel, and are before compiling one
     assert extensions_before == "0" and extensions_after == "1"
+
+
+def test_a_kernel_without_the_runtime_counts_no_references_and_computes_the_same():
+    """``nrt=False`` (kernels that allocate nothing): no reference counting lowered, no C-callable wrapper, same
+    results as numba's default; a kernel that allocates needs the runtime."""
+    import numba
+    import numpy as np
+    import pytest
+
+    def scale_into(a, out):
+        for i in range(a.shape[0]):
+            out[i] = 2.0 * a[i] + a[i] * a[i]
+
+    lean = kernel_cache.njit(nrt=False)(scale_into)
+    default = numba.njit(scale_into)
+    a = np.linspace(-1.0, 1.0, 7)
+    out_lean, out_default = np.empty(7), np.empty(7)
+    lean(a, out_lean)
+    default(a, out_default)
+    assert out_lean.tobytes() == out_default.tobytes()
+    (sig,) = lean.signatures
+    assert "NRT_decref" not in lean.inspect_llvm(sig) and "NRT_decref" in default.inspect_llvm(sig)
+    assert "cfunc." not in lean.inspect_llvm(sig)
+
+    def allocates(n):
+        x = np.empty(n)
+        x[0] = 1.0
+        return x[0]
+
+    with pytest.raises(numba.core.errors.TypingError, match="empty"):
+        kernel_cache.njit(nrt=False)(allocates)(3)

@@ -45,7 +45,7 @@ STEP_RATIO = 0.5
 REORTHO_EVERY = 1000
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     """Number of sub-steps for an interval of length ``dt`` (docs/observers.md §6.1 rate bound).
 
@@ -57,14 +57,19 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
         return 1
     s = 0.0
     psi_max = 0.0
+    # R̂ and P̂ read once (numba lowers every element read with a copy of the array's struct: less to compile)
+    r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
+    r10, r11, r12 = r_hat[1, 0], r_hat[1, 1], r_hat[1, 2]
+    r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
+    p0, p1, p2 = p_hat[0], p_hat[1], p_hat[2]
     for j in range(nvis):
         y0, y1, y2 = y[j, 0], y[j, 1], y[j, 2]
         yy = y0 * y0 + y1 * y1 + y2 * y2
         s += yy + 1.0
         i = vis_idx[j]
-        e0 = lm[i, 0] - (r_hat[0, 0] * y0 + r_hat[0, 1] * y1 + r_hat[0, 2] * y2) - p_hat[0]
-        e1 = lm[i, 1] - (r_hat[1, 0] * y0 + r_hat[1, 1] * y1 + r_hat[1, 2] * y2) - p_hat[1]
-        e2 = lm[i, 2] - (r_hat[2, 0] * y0 + r_hat[2, 1] * y1 + r_hat[2, 2] * y2) - p_hat[2]
+        e0 = lm[i, 0] - (r00 * y0 + r01 * y1 + r02 * y2) - p0
+        e1 = lm[i, 1] - (r10 * y0 + r11 * y1 + r12 * y2) - p1
+        e2 = lm[i, 2] - (r20 * y0 + r21 * y1 + r22 * y2) - p2
         psi = k_p * (1.0 + e0 * e0 + e1 * e1 + e2 * e2) / 4.0
         if psi > psi_max:
             psi_max = psi
@@ -75,7 +80,7 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     return substep_count(dt, lam, STEP_RATIO)
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def _integrate(
     dt,
     omega_m,
@@ -108,6 +113,12 @@ def _integrate(
     g_bias = gamma if nvis >= min_landmarks_bias else 0.0
     kwa = k_w / alpha
     gba = h * g_bias / alpha
+    # The held twist and the biases as scalars over the sub-steps (the biases written back after them): numba
+    # lowers every element read or write of an array with a copy of its struct, so fewer of them compile faster.
+    om0, om1, om2 = omega_m[0], omega_m[1], omega_m[2]
+    vm0, vm1, vm2 = vel_m[0], vel_m[1], vel_m[2]
+    bo0, bo1, bo2 = b_om[0], b_om[1], b_om[2]
+    bv0, bv1, bv2 = b_v[0], b_v[1], b_v[2]
     for _ in range(m):
         # docs/observers.md §4's discrete step but the pose update, with the state at the start of the sub-step.
         r00, r01, r02 = r_hat[0, 0], r_hat[0, 1], r_hat[0, 2]
@@ -115,15 +126,15 @@ def _integrate(
         r20, r21, r22 = r_hat[2, 0], r_hat[2, 1], r_hat[2, 2]
         w0, w1, w2, u0, u1, u2 = landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, h * k_p, True)
         # Corrected twist = measured − bias − W with W = −(k_w/α) Σ(...); prediction uses odometry only.
-        o0, o1, o2 = omega_m[0] - b_om[0], omega_m[1] - b_om[1], omega_m[2] - b_om[2]
-        v0, v1, v2 = vel_m[0] - b_v[0], vel_m[1] - b_v[1], vel_m[2] - b_v[2]
+        o0, o1, o2 = om0 - bo0, om1 - bo1, om2 - bo2
+        v0, v1, v2 = vm0 - bv0, vm1 - bv1, vm2 - bv2
         # Step 7 (biases, with the Δt the paper's b̂_V update omits): b ← b − h Γ/α Σ(...)
-        b_om[0] -= gba * w0
-        b_om[1] -= gba * w1
-        b_om[2] -= gba * w2
-        b_v[0] -= gba * u0
-        b_v[1] -= gba * u1
-        b_v[2] -= gba * u2
+        bo0 -= gba * w0
+        bo1 -= gba * w1
+        bo2 -= gba * w2
+        bv0 -= gba * u0
+        bv1 -= gba * u1
+        bv2 -= gba * u2
         # Step 5: T̂ ← T̂ exp(h [ω; v]∧)
         se3_exp_into(
             h * (o0 + kwa * w0),
@@ -135,21 +146,25 @@ def _integrate(
             d_r,
             d_p,
         )
-        p_hat[0] += r00 * d_p[0] + r01 * d_p[1] + r02 * d_p[2]
-        p_hat[1] += r10 * d_p[0] + r11 * d_p[1] + r12 * d_p[2]
-        p_hat[2] += r20 * d_p[0] + r21 * d_p[1] + r22 * d_p[2]
+        dp0, dp1, dp2 = d_p[0], d_p[1], d_p[2]
+        p_hat[0] += r00 * dp0 + r01 * dp1 + r02 * dp2
+        p_hat[1] += r10 * dp0 + r11 * dp1 + r12 * dp2
+        p_hat[2] += r20 * dp0 + r21 * dp1 + r22 * dp2
         for b in range(3):  # R̂ ← R̂ dR from the row scalars read above (R̂ is unchanged until here)
             c0, c1, c2 = d_r[0, b], d_r[1, b], d_r[2, b]
             r_hat[0, b] = r00 * c0 + r01 * c1 + r02 * c2
             r_hat[1, b] = r10 * c0 + r11 * c1 + r12 * c2
             r_hat[2, b] = r20 * c0 + r21 * c1 + r22 * c2
-        counter[0] += 1
-        if counter[0] % REORTHO_EVERY == 0:
+        count = counter[0] + 1
+        counter[0] = count
+        if count % REORTHO_EVERY == 0:
             project_so3_into(r_hat)
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
             se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
             predict_points(y, nvis, d_r, d_p)
+    b_om[0], b_om[1], b_om[2] = bo0, bo1, bo2
+    b_v[0], b_v[1], b_v[2] = bv0, bv1, bv2
     return m
 
 
@@ -158,7 +173,7 @@ _T, _MEAS_T = 0, 1
 _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _advance(
     vel_t,
     omega,
@@ -205,8 +220,14 @@ def _advance(
     ``det_base`` on)."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
-    t, meas_t = fs[_T], fs[_MEAS_T]
-    iv, jf, nvis, started, substeps = ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED] != 0, ns[_SUBSTEPS]
+    # one statement per element (a five-element tuple assignment compiles a tuple and its unpacking)
+    t = fs[_T]
+    meas_t = fs[_MEAS_T]
+    iv = ns[_IV]
+    jf = ns[_JF]
+    nvis = ns[_NVIS]
+    started = ns[_STARTED] != 0
+    substeps = ns[_SUBSTEPS]
     o = np.int64(0)  # not the literal 0: callees would compile for it too
     work = 0
     while (iv < n_vel or jf < n_frames) and work < budget:
@@ -262,8 +283,13 @@ def _advance(
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 o += 1
             iv += 1
-    fs[_T], fs[_MEAS_T] = t, meas_t
-    ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps
+    fs[_T] = t
+    fs[_MEAS_T] = meas_t
+    ns[_IV] = iv
+    ns[_JF] = jf
+    ns[_NVIS] = nvis
+    ns[_STARTED] = 1 if started else 0
+    ns[_SUBSTEPS] = substeps
     return o
 
 

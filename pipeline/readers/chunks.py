@@ -162,7 +162,7 @@ def load_groups(units: Sequence[Unit]) -> list[list[Unit]]:
 CLEAN, CUT, BAD = 0, 1, 2
 
 
-@njit(cache=True)
+@njit(cache=True, nrt=False)
 def u32(buf, p):  # pragma: no cover - compiled
     return np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16) | (np.int64(buf[p + 3]) << 24)
 

@@ -366,7 +366,7 @@ def _integer(w, width, signed):  # pragma: no cover - compiled
     return v
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _walk(  # pragma: no cover - compiled
     data, origin, limit, big, cdr,
     kinds, aligns, sizes, slots, leaf_kinds,
@@ -538,7 +538,7 @@ class Decoded:
     items: np.ndarray | None = None  # (sum(counts), nitems) float64, elements in message order
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _dedup(data, pos, length, codes, firsts, hashes, table):  # pragma: no cover - compiled
     """Per-string ``codes``, distinct strings numbered by first appearance, and the first string of every code
     (``firsts``); returns the number of distinct strings, or -1 when they would fill ``table`` more than half.

@@ -49,7 +49,7 @@ def mcap_library(head: bytes) -> str:
         return ""
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, nrt=False)
 def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover - compiled
     """Walk MCAP records (opcode, uint64 length, body); messages get channel, log time and payload."""
     end = buf.shape[0]
