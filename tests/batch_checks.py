@@ -38,9 +38,10 @@ def assert_consistent(out: Path) -> dict[str, dict]:
     return rows
 
 
-def group_alive(pgid: int) -> list[int]:
-    """Live (not zombie) processes of process group ``pgid``."""
-    alive = []
+def _live_where(column: int, value: int) -> list[int]:
+    """Live (not zombie) processes whose ``/proc/PID/stat`` field ``column`` (counted after the command name: 1
+    parent, 2 process group, 3 session) is ``value``."""
+    found = []
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
             continue
@@ -49,23 +50,23 @@ def group_alive(pgid: int) -> list[int]:
                 fields = fh.read().rsplit(")", 1)[1].split()
         except OSError:
             continue
-        if int(fields[2]) == pgid and fields[0] != "Z":
-            alive.append(int(entry))
-    return alive
+        if int(fields[column]) == value and fields[0] != "Z":
+            found.append(int(entry))
+    return found
+
+
+def group_alive(pgid: int) -> list[int]:
+    """Live processes of process group ``pgid``."""
+    return _live_where(2, pgid)
+
+
+def session_alive(sid: int) -> list[int]:
+    """Live processes of session ``sid`` (a process may leave the group, not the session)."""
+    return _live_where(3, sid)
 
 
 def children(pid: int) -> list[int]:
-    found = []
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as fh:
-                    fields = fh.read().rsplit(")", 1)[1].split()
-            except OSError:
-                continue
-            if int(fields[1]) == pid and fields[0] != "Z":
-                found.append(int(entry))
-    return found
+    return _live_where(1, pid)
 
 
 def descendants(pid: int) -> list[int]:
