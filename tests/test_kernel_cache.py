@@ -193,3 +193,20 @@ def test_a_kernel_without_the_runtime_counts_no_references_and_computes_the_same
 
     with pytest.raises(numba.core.errors.TypingError, match="empty"):
         kernel_cache.njit(nrt=False)(allocates)(3)
+    # a helper it calls is compiled the same way: one that allocates is refused too, one that does not runs the
+    # same from a caller with the runtime afterwards
+    helper = kernel_cache.njit(allocates)
+    with pytest.raises(numba.core.errors.TypingError):
+        kernel_cache.njit(nrt=False)(lambda n: helper(n))(3)
+
+    def first(a):
+        return a[0] * 2.0
+
+    plain = kernel_cache.njit(first)
+    assert kernel_cache.njit(nrt=False)(lambda a: plain(a))(a) == 2.0 * a[0]
+
+    def allocating_caller(n):
+        x = np.full(n, 3.0)
+        return plain(x)
+
+    assert kernel_cache.njit(allocating_caller)(4) == 6.0
