@@ -40,10 +40,10 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   the sum of a window's accepted innovations has the sum of their joint covariances (a frame's cross blocks
   included) and its Mahalanobis distance² follows χ² (3 DoF) whatever the window's size. A slowly varying error
   the noise model lacks (wheel slip; the gate still passes) makes them correlated: when the median of that d²
-  over the last ``WALK_WINDOWS`` passing windows exceeds ``WALK_HOT`` (χ² 90 %: about 3 in 1000 windows of a
-  consistent filter), the time and the median are recorded (run.json ``observer.filter.consistency``, a note:
-  the covariance understates the error). Raising the velocity-bias walk there instead was tried and left out
-  (docs/benchmarks.md, "riekf: overconfidence from the innovations").
+  over the last ``CONSISTENCY_WINDOWS`` passing windows exceeds ``OVERCONFIDENT_D2`` (χ² 90 %: about 3 in 1000
+  windows of a consistent filter), the time and the median are recorded (run.json
+  ``observer.filter.consistency``, a note: the covariance understates the error). Raising the velocity-bias walk
+  there instead was tried and left out (docs/benchmarks.md, "riekf: overconfidence from the innovations").
 * Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
   gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
   propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
@@ -94,7 +94,7 @@ _NSEEN, _GATED, _UPDATES, _SKIPPED = 7, 8, 9, 10
 #: recoveries made, consecutive failing windows, landmarks re-initialised, and whether the filter gave up.
 _WIN_N, _WIN_GATED, _RECOVERIES, _FAILING, _REINIT, _LOST = 11, 12, 13, 14, 15, 16
 #: The consistency check's slots (module docstring, "Overconfidence"): windows in its ring, times it fired.
-_HOT, _RAISES = 17, 18
+_CONSISTENCY_N, _OVERCONFIDENT = 17, 18
 #: After a blind stretch (module docstring, "Blind stretches"): whether its check is pending, the known-landmark
 #: detections tested and gated since it ended, and the pose covariances re-opened.
 _ARMED, _PB_N, _PB_GATED, _RELOCS = 19, 20, 21, 22
@@ -112,10 +112,10 @@ MAX_FAILING = 4
 #: (a pose error moves all of a frame's innovations alike), not to the detections (``_common_share``).
 COMMON_SHARE = 4.0
 MAX_SIGMA_SHARE = 0.25
-#: Overconfidence (module docstring): the median over ``WALK_WINDOWS`` windows of the summed innovations' d² (χ²,
+#: Overconfidence (module docstring): the median over ``CONSISTENCY_WINDOWS`` windows of the summed innovations' d² (χ²,
 #: 3 DoF, 90 %) above which the filter is overconfident.
-WALK_HOT = 6.25
-WALK_WINDOWS = 7
+OVERCONFIDENT_D2 = 6.25
+CONSISTENCY_WINDOWS = 7
 #: Blind stretches (module docstring): the seconds without a known landmark's detection after which the first
 #: ``BLIND_WINDOW`` tested detections are checked, and the share of them failing the gate above which the pose, not
 #: a few outliers, is off.
@@ -847,41 +847,41 @@ def _blind_check(t, d, cov, fs, ns, win_sum, blind_z2, gated_lm, blind_log):
 
 
 @njit(cache=True)
-def _walk_check(t, ns, win_sum, walk_log):
+def _consistency_check(t, ns, win_sum, consistency_log):
     """A window that passed the gate: the Mahalanobis distance² of the sum of its accepted innovations joins the
-    ring of the last ``WALK_WINDOWS``; when their median exceeds ``WALK_HOT`` the filter is overconfident (module
-    docstring, "Overconfidence"): recorded, and the ring starts again. Changes no estimate."""
+    ring of the last ``CONSISTENCY_WINDOWS``; when their median exceeds ``OVERCONFIDENT_D2`` the filter is
+    overconfident (module docstring, "Overconfidence"): recorded, and the ring starts again. Changes no estimate."""
     d2 = _summed_d2(win_sum)
     if d2 < 0.0:
         return
-    hist = win_sum[4]  # the last WALK_WINDOWS windows' d2, in a ring
-    hist[ns[_HOT] % WALK_WINDOWS] = d2
-    ns[_HOT] += 1
-    if ns[_HOT] < WALK_WINDOWS or ns[_LOST] != 0:
+    hist = win_sum[4]  # the last CONSISTENCY_WINDOWS windows' d2, in a ring
+    hist[ns[_CONSISTENCY_N] % CONSISTENCY_WINDOWS] = d2
+    ns[_CONSISTENCY_N] += 1
+    if ns[_CONSISTENCY_N] < CONSISTENCY_WINDOWS or ns[_LOST] != 0:
         return
-    ratio = np.median(hist)
-    if ratio <= WALK_HOT:
+    median_d2 = np.median(hist)
+    if median_d2 <= OVERCONFIDENT_D2:
         return
-    ns[_HOT] = 0
-    r = ns[_RAISES]
-    if r < walk_log.shape[0]:
-        walk_log[r, 0], walk_log[r, 1] = t, ratio
-    ns[_RAISES] += 1
+    ns[_CONSISTENCY_N] = 0
+    r = ns[_OVERCONFIDENT]
+    if r < consistency_log.shape[0]:
+        consistency_log[r, 0], consistency_log[r, 1] = t, median_d2
+    ns[_OVERCONFIDENT] += 1
 
 
 @njit(cache=True)
 def _window_check(
-    t, d, cov, fs, ns, win_d2, win_z, win_f, win_sum, gated_lm, reinit, slot_of, rec_log, walk_log, max_scale
+    t, d, cov, fs, ns, win_d2, win_z, win_f, win_sum, gated_lm, reinit, slot_of, rec_log, consistency_log, max_scale
 ):
     """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
-    docstring, "Recovery"), or give up; else check its consistency (:func:`_walk_check`); the window starts
+    docstring, "Recovery"), or give up; else check its consistency (:func:`_consistency_check`); the window starts
     again. True when a noise factor changed."""
     n, gated = ns[_WIN_N], ns[_WIN_GATED]
     ns[_WIN_N], ns[_WIN_GATED] = 0, 0
     changed = False
     if gated <= RECOVER_SHARE * n:
         ns[_FAILING] = 0
-        _walk_check(t, ns, win_sum, walk_log)
+        _consistency_check(t, ns, win_sum, consistency_log)
     elif ns[_LOST] == 0:
         m = min(n, win_d2.shape[0])
         step = min(max(np.median(win_d2[:m]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
@@ -962,7 +962,7 @@ def _advance(
     gated_lm,
     reinit,
     rec_log,
-    walk_log,
+    consistency_log,
     blind_log,
     out_k,
     out_r,
@@ -1080,7 +1080,7 @@ def _advance(
                 reinit,
                 slot_of,
                 rec_log,
-                walk_log,
+                consistency_log,
                 max_scale,
             ):
                 scale, det_scale = fs[_SCALE], fs[_DSCALE]
@@ -1141,13 +1141,13 @@ class _State(KernelState):
         self.win_d2 = np.zeros(WINDOW + 3 * max(n_max, 1))  # a window ends at the frame that fills it
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
         self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
-        # the window's summed accepted innovations and their covariance; the last windows' d² (_walk_check)
-        self.win_sum = np.zeros((5, WALK_WINDOWS))
+        # the window's summed accepted innovations and their covariance; the last windows' d² (_consistency_check)
+        self.win_sum = np.zeros((5, CONSISTENCY_WINDOWS))
         self.blind_z2 = np.zeros(BLIND_WINDOW + max(n_max, 1))  # |z|² of the detections after a blind stretch
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
-        self.walk_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
+        self.consistency_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
         self.blind_log = np.zeros((MAX_LOG, 4))  # re-opened after a blind stretch: time, its length, gated share, σ
 
     def arrays(self) -> tuple:
@@ -1179,7 +1179,7 @@ class _State(KernelState):
             self.gated_lm,
             self.reinit,
             self.rec_log,
-            self.walk_log,
+            self.consistency_log,
             self.blind_log,
         )
 
@@ -1406,10 +1406,10 @@ class RiEKF(Stepper):
                 for r in self.state.blind_log[: min(int(ns[_RELOCS]), MAX_LOG)]
             ],
             "consistency": {
-                "overconfident": int(ns[_RAISES]),
+                "overconfident": int(ns[_OVERCONFIDENT]),
                 "log": [
                     {"t_s": round(float(r[0]) - t0, 3), "median_d2": round(float(r[1]), 3)}
-                    for r in self.state.walk_log[: min(int(ns[_RAISES]), MAX_LOG)]
+                    for r in self.state.consistency_log[: min(int(ns[_OVERCONFIDENT]), MAX_LOG)]
                 ],
             },
         }
@@ -1446,12 +1446,12 @@ def recovery_notes(filt: dict) -> list[str]:
     if con.get("overconfident"):
         first = con["log"][0]
         notes.append(
-            f"riekf: overconfident from {first['t_s']:.2f} s ({con['overconfident']} time(s)): over {WALK_WINDOWS} "
-            f"windows of {WINDOW} detections that passed the gate, the Mahalanobis distance² of each window's summed "
-            f"innovations had a median of {first['median_d2']:.3g} (a consistent filter: {CHI2_MEDIAN_3}): its errors "
-            "are correlated in time, the covariance understates them and the trajectory may be further off than it "
-            "says (a slowly varying error the noise model lacks, such as wheel slip; run.json "
-            "observer.filter.consistency)"
+            f"riekf: overconfident from {first['t_s']:.2f} s ({con['overconfident']} time(s)): over "
+            f"{CONSISTENCY_WINDOWS} windows of {WINDOW} detections that passed the gate, the Mahalanobis distance² "
+            f"of each window's summed innovations had a median of {first['median_d2']:.3g} (a consistent filter: "
+            f"{CHI2_MEDIAN_3}): its errors are correlated in time, the covariance understates them and the trajectory "
+            "may be further off than it says (a slowly varying error the noise model lacks, such as wheel slip; "
+            "run.json observer.filter.consistency)"
         )
     if filt["recoveries"] > 5:
         notes.append(f"riekf: {filt['recoveries']} recoveries in all (run.json observer.filter.recovery_log)")
