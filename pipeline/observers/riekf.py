@@ -458,6 +458,13 @@ def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
                 v += lt[k, sl + a] * rt[k, sl + b]
             s[a, b] = v + ue[a] * ue[b]
         s[a, a] += sigma2
+    return _mahalanobis3(s, z)
+
+
+@njit(cache=True)
+def _mahalanobis3(s, z):
+    """``zᵀ S⁻¹ z`` for the 3×3 ``s`` (overwritten by its Cholesky factor L: ``|L⁻¹ z|²``); inf when S is not
+    positive definite."""
     if not _cholesky(s, 3):
         return np.inf
     w0 = z[0] / s[0, 0]
@@ -786,24 +793,6 @@ def _common_share(n, win_z, win_f):
 
 
 @njit(cache=True)
-def _summed_d2(sums):
-    """The Mahalanobis distance² of a window's summed innovations (row 0 of ``sums``) under their summed
-    covariance (rows 1..3); −1 when that is not positive definite (no accepted innovation)."""
-    s = sums[1:4, :3].copy()
-    if not _cholesky(s, 3):
-        return -1.0
-    d2 = 0.0  # |L⁻¹ Σz|², by forward substitution
-    y = np.empty(3)
-    for a in range(3):
-        v = sums[0, a]
-        for k in range(a):
-            v -= s[a, k] * y[k]
-        y[a] = v / s[a, a]
-        d2 += y[a] * y[a]
-    return d2
-
-
-@njit(cache=True)
 def _blind_start(t, nd, a0, det_idx, slot_of, reinit, fs, ns):
     """Before a frame: when it holds a known landmark's detection, the first after ``BLIND_S`` or more without
     one, the check of the detections that follow is armed (module docstring, "Blind stretches")."""
@@ -851,8 +840,8 @@ def _consistency_check(t, ns, win_sum, consistency_log):
     """A window that passed the gate: the Mahalanobis distance² of the sum of its accepted innovations joins the
     ring of the last ``CONSISTENCY_WINDOWS``; when their median exceeds ``OVERCONFIDENT_D2`` the filter is
     overconfident (module docstring, "Overconfidence"): recorded, and the ring starts again. Changes no estimate."""
-    d2 = _summed_d2(win_sum)
-    if d2 < 0.0:
+    d2 = _mahalanobis3(win_sum[1:4, :3].copy(), win_sum[0])  # the summed innovations under their summed covariance
+    if d2 == np.inf:  # no accepted innovation
         return
     hist = win_sum[4]  # the last CONSISTENCY_WINDOWS windows' d2, in a ring
     hist[ns[_CONSISTENCY_N] % CONSISTENCY_WINDOWS] = d2
