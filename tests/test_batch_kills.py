@@ -257,6 +257,23 @@ def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, s
     _rerun_and_check(logs, out)
 
 
+def test_a_scheduler_killed_before_the_batch_connects_is_exit_3_at_once_naming_it(logs, tmp_path, scheduler):
+    """Nothing listens at the address any more: one line naming it, exit 3, without waiting out Dask's connect
+    timeout (min(--wait-workers, 30) s: 25 s measured with --wait-workers 20)."""
+    sched, address = scheduler
+    sched.kill()
+    sched.wait()
+    t0 = time.monotonic()
+    args = [*CLI, *map(str, _batch_args(logs, tmp_path / "OUT", "--scheduler", address, "--wait-workers", "60"))]
+    done = subprocess.run(args, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 3, done.stderr
+    assert done.stderr.strip().splitlines() == [
+        f"error: {address}: cannot reach the Dask scheduler "
+        "(connection refused for 3 s: is it running at this address?)"
+    ]
+    assert time.monotonic() - t0 < 30  # not Dask's connect timeout
+
+
 def test_a_result_lost_with_the_scheduler_is_exit_3_not_a_failed_log(monkeypatch, tmp_path):
     """The scheduler lost between a task finishing and its result being fetched (the connection refused or closed
     while gathering: CI saw it once) is the lost scheduler, not an error line for the batch (exit 2)."""

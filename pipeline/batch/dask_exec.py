@@ -37,6 +37,9 @@ from slamobs.pipeline.batch.executor import (
 from slamobs.pipeline.batch.local import STARTUP_S
 
 POLL_S = 1.0
+#: A scheduler address that refuses connections this long has nothing listening (a scheduler not started or
+#: killed): the batch says so then, instead of after Dask's connect timeout (``--wait-workers``, up to 30 s).
+REFUSED_S = 3.0
 
 
 def dask_available() -> bool:
@@ -87,6 +90,34 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
     return len(answers)
 
 
+def _refused(address: str, within: float = REFUSED_S) -> bool:
+    """True when every TCP connection to a ``tcp://`` scheduler address is refused for ``within`` seconds (nothing
+    listens there); False as soon as one is accepted, or on any other failure (a host that does not answer, a name
+    that does not resolve, another transport): Dask's own connect then says what is wrong, within its timeout."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+
+    try:
+        scheme, location = parse_address(address)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError):
+        return False
+    if scheme != "tcp" or not port:
+        return False
+    deadline = time.monotonic() + within
+    while True:
+        try:
+            with socket.create_connection((host, port), timeout=max(0.2, deadline - time.monotonic())):
+                return False
+        except ConnectionRefusedError:
+            if time.monotonic() >= deadline:
+                return True
+            time.sleep(0.2)
+        except OSError:
+            return False
+
+
 @dataclass
 class _Watch:
     """Where each pending task is and since when, for the timeouts (see the module doc)."""
@@ -131,6 +162,11 @@ class DaskPool:
         # the client logs a lost scheduler as tracebacks on stderr; results() turns it into one error line
         logging.getLogger("distributed.client").setLevel(logging.CRITICAL)
         if self.scheduler:
+            if _refused(self.scheduler):
+                raise InfrastructureError(
+                    f"{self.scheduler}: cannot reach the Dask scheduler (connection refused for {REFUSED_S:g} s: "
+                    "is it running at this address?)"
+                )
             try:
                 self.client = Client(self.scheduler, timeout=f"{max(1.0, min(self.wait_workers, 30.0))}s")
             except (OSError, TimeoutError, ValueError) as err:
