@@ -11,7 +11,13 @@ SIGHUP (``--signals ...,HUP``) goes to the group, as a closed terminal's shell s
 ``batch --executor dask`` (a LocalCluster in the batch's session), ``--dask-cluster`` a batch on a ``dask scheduler``
 and two ``dask worker`` processes the harness starts in their own sessions (a fresh cluster per trial; the rerun
 uses the same one unless its scheduler was killed). On both, a trial may instead SIGKILL one Dask worker process
-(the batch then exits 0: its log runs again) or the external scheduler (exit 3, a lost cluster).
+(the batch then exits 0: its log runs again) or the external scheduler (exit 3, a lost cluster); on the local
+``batch`` case one of its worker processes, mid-log. ``--group`` (0.3) of the SIGTERM / SIGKILL trials send it to
+the whole process group (workers and helpers get it beside their parent) instead of the command alone.
+Cases without a signal from the harness: ``batch-timeout`` runs under ``timeout -s TERM -k 1 DELAY`` (a cron
+job's limit; plots on, so its runs have figure helpers): exit 124 or 137, or 0 if it finished;
+``run-memory-limit`` under ``prlimit --as`` at a limit drawn from 250-1400 MB: it fits (0) or ends with one line
+naming the memory (2), never a traceback or a hang. Also ``export``, ``stats`` and ``info`` of the 600 s log.
 
 Per trial: the process exits within a bound with 143 / 130 / 129 (-9 after SIGKILL; 0 only if it ended before the
 signal), no process of its session is alive a few seconds later (checked by session id: a LocalCluster's nannies
@@ -68,6 +74,8 @@ class Case:
     prepare: str | None = None  # a reference output copied into the trial first (report)
     ref: dict = field(default_factory=dict)
     durations: list = field(default_factory=list)  # unkilled runs' seconds: the reference, reruns, trials ended first
+    needs: tuple = ()  # the cases whose unkilled outputs it reads (IN/ref-NAME)
+    wrap: str = ""  # "timeout": under timeout -s TERM -k 1 DELAY; "memory": under prlimit --as=LIMIT (no signal)
     victims: tuple = ()  # besides the command itself: "worker" (a Dask worker process), "scheduler" (external)
 
     @property
@@ -98,7 +106,7 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
             "tune",
             False,
         ),
-        Case("report", ["report", "OUT"], "out", "dir", False, prepare="run-fa"),
+        Case("report", ["report", "OUT"], "out", "dir", False, prepare="run-fa", needs=("run-fa",)),
         Case("simulate", ["simulate", "figure8-wide", "-o", "OUT", "--duration", "180"], "sim.mcap", "file"),
         Case(
             "evaluate",
@@ -116,8 +124,26 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
             "ape.zip",
             "file",
             False,
+            needs=("run-fa",),
         ),
     ]
+    cases += [
+        Case("export", ["export", "IN/ref-run-fa/out", "-o", "OUT", "-q"], "res.mcap", "file", needs=("run-fa",)),
+        Case(
+            "stats",
+            ["stats", "IN/ref-run-fa/out", "IN/ref-compare/out", "-o", "OUT", "-q"],
+            "out",
+            "dir",
+            needs=("run-fa", "compare"),
+        ),
+        Case("info-600s", ["info", long_log], "none", "none"),
+        Case("run-memory-limit", ["run", log, "-o", "OUT", "-q"], "out", "dir", wrap="memory"),
+        # a cron job's timeout: TERM, then KILL 1 s later, to a batch whose runs draw figures in helper processes
+        Case("batch-timeout", ["batch", str(inp / "many"), "-o", "OUT", "-j", "2"], "out", "batch", False),
+    ]
+    cases[-1].wrap = "timeout"
+    cases[5].victims = ("worker",)  # batch (-j 2): a local worker SIGKILLed mid-log, its log runs again
+    assert cases[5].name == "batch"
     many = ["batch", str(inp / "many"), "-o", "OUT", "--config", cfg, "--wait-workers", "20"]
     if dask:
         cases.append(Case("batch-dask", [*many, "--executor", "dask", "-j", "2"], "out", "batch", False))
@@ -131,12 +157,27 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
     return cases
 
 
-def argv_for(case: Case, tdir: Path, inp: Path, rerun: bool = False, sched: str = "") -> list[str]:
+def argv_for(case: Case, tdir: Path, inp: Path, rerun: bool = False, sched: str = "", wrap=()) -> list[str]:
     out = str(tdir / case.out)
     args = [a.replace("OUT", out).replace("IN/", f"{inp}/").replace("SCHED", sched) for a in case.argv]
     if rerun and case.force and (tdir / case.out).exists():
         args.append("--force")
-    return [*CLI, *args]
+    return [*wrap, *CLI, *args]
+
+
+#: The memory limits drawn for a run under ``prlimit --as`` (MB): from too small to start to enough for the run.
+MEMORY_MB = (250, 1400)
+#: A command under ``timeout -s TERM -k KILL_AFTER_S DELAY`` that has not ended KILL_AFTER_S after the TERM gets
+#: SIGKILL (timeout sends both to its process group: the batch, its workers and their figure helpers).
+KILL_AFTER_S = 1.0
+
+
+def wrapper(victim: str, sig: int, delay: float) -> list[str]:
+    if victim == "timeout":
+        return ["timeout", "-s", signal.Signals(sig).name[3:], "-k", f"{KILL_AFTER_S:g}", f"{delay:.3f}"]
+    if victim == "memory":  # delay: the limit in MB
+        return ["prlimit", f"--as={int(delay) << 20}", "--"]
+    return []
 
 
 # --------------------------------------------------------------------------- what "complete" means
@@ -249,6 +290,8 @@ def digest(case: Case, out: Path) -> dict[str, str]:
             if (out / table).is_dir():
                 d[table] = digest_table_dir(out / table)
         return d
+    if case.kind == "none":
+        return {}
     if case.kind == "tune":
         # a trial cut by the kill is recorded FAIL and run again with the same gains under a new number, and a
         # resumed tune draws new gains: as many complete trials, the defaults scored alike, no gains run twice
@@ -347,6 +390,9 @@ def send(p: subprocess.Popen, victim: str, sig: int, cluster: Cluster | None) ->
             os.kill(w, sig)
             return f"worker {w}"
         return "no worker yet"
+    if victim == "group":  # a job control kill %1, systemd's KillMode=control-group, a cluster's job killer
+        os.killpg(p.pid, sig)
+        return "group"
     (os.killpg if sig in GROUP_SIGNALS else os.kill)(p.pid, sig)
     return "command"
 
@@ -357,7 +403,11 @@ INTERPRETER_START_S = 0.1
 
 
 def _expected(victim: str, sig: int, starting: bool, delay: float = 1.0) -> set:
-    if victim == "command" and delay < INTERPRETER_START_S:
+    if victim == "timeout":  # the command ended on the TERM (124) or needed the KILL (137); 0: it finished first
+        return {0, 124, 128 + signal.SIGKILL}
+    if victim == "memory":  # it fits, or one line with exit 2
+        return {0, 2}
+    if victim in ("command", "group") and delay < INTERPRETER_START_S:
         return {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig, -sig}
     if victim == "worker":  # its log runs again; a LocalCluster whose worker is killed as it starts cannot start
         return {0, 3} if starting else {0}
@@ -394,28 +444,36 @@ def trial(
 def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
     err = tdir.parent / f"{tdir.name}.err"
     sched = cluster.address if cluster else ""
+    wrap = wrapper(victim, sig, delay)
     with open(err, "w") as fh:
         p = subprocess.Popen(
-            argv_for(case, tdir, inp, sched=sched),
+            argv_for(case, tdir, inp, sched=sched, wrap=wrap),
             stdout=subprocess.DEVNULL,
             stderr=fh,
             start_new_session=True,
             preexec_fn=_sigint,
         )
     t0 = time.monotonic()
-    try:
-        p.wait(timeout=delay)
-    except subprocess.TimeoutExpired:
-        res["signalled"] = True
-        res["starting"] = "to run on" not in err.read_text()  # the batch's first line: its cluster is up
-        res["hit"] = send(p, victim, sig, cluster)
-    bound = HANG_S if victim == "command" else LOST_S
+    bound = HANG_S if victim in ("command", "group") else LOST_S
+    if wrap:  # the wrapper sends the signal (or sets the limit): its exit code says what happened
+        bound = delay + HANG_S if victim == "timeout" else HANG_S * 10
+    else:
+        try:
+            p.wait(timeout=delay)
+        except subprocess.TimeoutExpired:
+            res["signalled"] = True
+            res["starting"] = "to run on" not in err.read_text()  # the batch's first line: its cluster is up
+            res["hit"] = send(p, victim, sig, cluster)
     try:
         res["rc"] = p.wait(timeout=bound)
     except subprocess.TimeoutExpired:
         res["violations"].append(f"hung: alive {bound:.0f} s after {signal.Signals(sig).name} of the {victim}")
         os.killpg(p.pid, signal.SIGKILL)
         res["rc"] = p.wait()
+    if wrap:
+        res["signalled"] = victim == "memory" or res["rc"] != 0
+        res["starting"], res["hit"] = False, victim
+        delay = delay if victim == "timeout" else 0.0
     res["exit_s"] = time.monotonic() - t0 - delay if res["signalled"] else 0.0
     res["ran_s"] = time.monotonic() - t0  # unkilled duration when it ended before the signal
     deadline = time.monotonic() + LINGER_S
@@ -438,7 +496,12 @@ def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
             res["violations"].append(f"exit code {res['rc']} after {signal.Signals(sig).name} of the {victim}: {tail}")
     elif res["rc"] != 0:
         res["violations"].append(f"exit code {res['rc']} without a signal: {err.read_text()[-200:]}")
-    res["violations"].extend(visible_violations(case, tdir, sig if res["signalled"] else None))
+    if victim == "memory" and res["rc"] == 2:  # one line, naming the machine's failure: not a traceback
+        lines = err.read_text().strip().splitlines()
+        if len(lines) != 1 or not lines[0].startswith("error:") or not ("memory" in lines[0] or "thread" in lines[0]):
+            res["violations"].append(f"not one line naming the memory limit: {lines[-3:]}")
+    killed_by = signal.SIGKILL if res["rc"] in (-signal.SIGKILL, 128 + signal.SIGKILL) else sig
+    res["violations"].extend(visible_violations(case, tdir, killed_by if res["signalled"] else None))
     if case.kind == "batch" and res["rc"] != -signal.SIGKILL and (tdir / case.out / "summary.parquet").exists():
         try:  # a batch that ended by itself (signal handled, lost cluster) leaves its dataset consistent
             assert_consistent(tdir / case.out)
@@ -514,8 +577,14 @@ def drawn_trial(case: Case, rng: random.Random, signals, args, tdir: Path, inp: 
     victim = "command"
     if case.victims and rng.random() < 0.5:  # half of a Dask case's trials kill a worker or the scheduler
         victim, sig = rng.choice(case.victims), signal.SIGKILL
+    elif sig in (signal.SIGTERM, signal.SIGKILL) and rng.random() < args.group:
+        victim = "group"  # the whole process group at once: workers and helpers get it beside their parent
+    if case.wrap:
+        victim, sig = case.wrap, signal.SIGTERM
     for attempt in range(args.retries + 1):
         delay = rng.uniform(0.0, case.duration * args.span)
+        if victim == "memory":
+            delay = rng.uniform(*MEMORY_MB)
         r = trial(case, sig, delay, tdir, inp, victim, retry=attempt < args.retries)
         r["attempts"] = attempt + 1
         if r["signalled"] or r["violations"]:
@@ -541,6 +610,12 @@ def main() -> None:
         "the trials that ended before their signal)",
     )
     ap.add_argument(
+        "--group",
+        type=float,
+        default=0.3,
+        help="this fraction of the SIGTERM / SIGKILL trials send it to the whole process group, not only the command",
+    )
+    ap.add_argument(
         "--retries",
         type=int,
         default=2,
@@ -557,7 +632,12 @@ def main() -> None:
         cases = make_cases(inp, realdata, args.dask, args.dask_cluster)
         signals = [signal.Signals["SIG" + name.strip().upper()] for name in args.signals.split(",")]
         if args.only:
-            cases = [c for c in cases if c.name in args.only.split(",")]
+            chosen = [c for c in cases if c.name in args.only.split(",")]
+            needed = {n for c in chosen for n in c.needs}
+            for c in cases:  # the references a chosen case reads, made if missing
+                if c.name in needed and c not in chosen and not (inp / f"ref-{c.name}").is_dir():
+                    measure(c, inp)
+            cases = chosen
         for c in cases:
             measure(c, inp)
             print(f"{c.name}: {c.duration:.1f} s unkilled", flush=True)
@@ -570,8 +650,13 @@ def main() -> None:
             sig, delay, r = drawn_trial(case, rng, signals, args, tdir, inp)
             results[case.name].append((sig, r))
             mark = "OK" if not r["violations"] else "VIOLATION"
+            what = (
+                f"{delay:.0f} MB address space"
+                if r["victim"] == "memory"
+                else f"{signal.Signals(sig).name}@{delay:.2f}s"
+            )
             print(
-                f"trial {k} {case.name} {signal.Signals(sig).name}@{delay:.2f}s of the {r.get('hit', r['victim'])} "
+                f"trial {k} {case.name} {what} of the {r.get('hit', r['victim'])} "
                 + (f"(draw {r['attempts']}, median {case.duration:.1f} s) " if r["attempts"] > 1 else "")
                 + f"rc={r['rc']} "
                 f"exit+{r['exit_s']:.2f}s {mark} {'; '.join(r['violations'])}"
@@ -589,21 +674,26 @@ def main() -> None:
         report(results, seed, signals)
 
 
+#: Who got the signal besides the command alone, in the table's column (a wrapper's trials: the memory limit drawn
+#: for ``prlimit``, the ``timeout`` command's TERM and KILL).
+OTHER_VICTIMS = ("group", "worker", "scheduler", "timeout", "memory")
+
+
 def report(results: dict[str, list], seed: int, signals) -> None:
     print(f"\nseed {seed}; load average {os.getloadavg()[0]:.2f}\n")
     names = " / ".join(s.name for s in signals)
     print(
-        f"| command | trials | {names} of the command | SIGKILL of a Dask worker / scheduler | hit a live process "
-        "| drawn again | ended first | exit codes | slowest exit after signal | violations |\n"
+        f"| command | trials | {names} of the command | to the group; Dask worker / scheduler; timeout; memory limit "
+        "| hit a live process | drawn again | ended first | exit codes | slowest exit after signal | violations |\n"
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
     )
     total = 0
     for name, rs in results.items():
-        n = [sum(1 for s, r in rs if s == sig and r["victim"] == "command") for sig in signals]
-        other = [sum(1 for _, r in rs if r["victim"] == v) for v in ("worker", "scheduler")]
+        n = [sum(1 for s, r in rs if s == sig and r["victim"] in ("command", "group")) for sig in signals]
+        other = ", ".join(f"{v} {k}" for v in OTHER_VICTIMS if (k := sum(1 for _, r in rs if r["victim"] == v)))
         codes = ", ".join(sorted({str(r["rc"]) for _, r in rs}))
-        slow = max((r["exit_s"] for s, r in rs if r["signalled"] and s != signal.SIGKILL), default=0.0)
-        slow = max([slow, *(r["exit_s"] for _, r in rs if r["signalled"] and r["victim"] == "scheduler")])
+        timed = [(s, r) for s, r in rs if r["signalled"] and r["victim"] != "memory"]  # memory: no signal
+        slow = max((r["exit_s"] for s, r in timed if s != signal.SIGKILL or r["victim"] == "scheduler"), default=0.0)
         bad = sum(1 for _, r in rs if r["violations"])
         total += bad
         first = sum(1 for _, r in rs if not r["signalled"])
@@ -611,7 +701,7 @@ def report(results: dict[str, list], seed: int, signals) -> None:
         again = sum(r["attempts"] - 1 for _, r in rs)
         counts = " / ".join(map(str, n))
         print(
-            f"| {name} | {len(rs)} | {counts} | {other[0]} / {other[1]} | {hit} | {again} | {first} | {codes} "
+            f"| {name} | {len(rs)} | {counts} | {other or '–'} | {hit} | {again} | {first} | {codes} "
             f"| {slow:.2f} s | {bad} |"
         )
     print(f"\n{total} trials with violations")
