@@ -45,9 +45,8 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ),
     ),
     "report": (
-        ("slamobs.pipeline.lie", "rot_to_quat", "f2"),
         ("slamobs.pipeline.lie", "_rots_to_quats_into", "f3 f2"),
-        ("slamobs.pipeline.evaluation.rpe", "_consecutive_by_accumulation", "f1 f"),
+        ("slamobs.pipeline.evaluation.rpe", "_consecutive_by_accumulation", "f1 f i1"),
     ),
 }
 

@@ -12,7 +12,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from slamobs.pipeline.kernel_cache import njit
+from numba import types
+from slamobs.pipeline.kernel_cache import njit, subroutine
 
 SMALL_ANGLE = 1e-8
 
@@ -172,7 +173,7 @@ def se3_exp(w, v):
     return so3_exp(w), mat3_vec(so3_left_jacobian(w), v)
 
 
-@njit(cache=True, nrt=False)
+@subroutine(types.none)
 def se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
     """:func:`se3_exp` written into ``r_out``/``p_out`` without temporaries (for the hot loops).
 
@@ -250,7 +251,7 @@ def project_so3(r):
     return out
 
 
-@njit(cache=True, nrt=False)
+@subroutine(types.none)
 def project_so3_into(r):
     """:func:`project_so3` in place (for the observer kernels: no temporary, no array assignment)."""
     x, y, z, w = _quat_of_rot(r)
@@ -273,7 +274,7 @@ def quat_to_rot(q):
     return out
 
 
-@njit(cache=True, error_model="numpy", nrt=False)
+@subroutine(types.none, error_model="numpy")
 def _rot_of_quat(qx, qy, qz, qw, out):
     """:func:`quat_to_rot` of the four scalars, written into ``out`` (a zero quaternion gives NaN)."""
     n = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
@@ -297,7 +298,7 @@ def rot_to_quat(r):
     return q
 
 
-@njit(cache=True, error_model="numpy", nrt=False)
+@subroutine(types.UniTuple(types.float64, 4), error_model="numpy")
 def _quat_of_rot(r):
     """:func:`rot_to_quat` as four scalars (no temporaries: the kernels re-orthonormalise with it). The nine
     elements are read once: numba lowers every element read of an array with a copy of the array's struct and its

@@ -28,7 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from slamobs.pipeline.errors import InputError
-from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, rotate_covariance, so3_exp, so3_log
+from slamobs.pipeline.lie import quat_to_rot, rotate_covariance, rots_to_quats, so3_exp, so3_log
 from slamobs.pipeline.observers.base import ObserverResult
 
 NAMES = ("map", "start", "gravity", "truth")
@@ -84,7 +84,7 @@ class OutputFrame:
             "name": self.name,
             "method": self.method,
             "from_map_frame": {
-                "rotation_quat_xyzw": [float(v) for v in rot_to_quat(np.ascontiguousarray(self.rot))],
+                "rotation_quat_xyzw": [float(v) for v in rots_to_quats(self.rot[None])[0]],
                 "translation_m": [float(v) for v in self.trans],
             },
         }

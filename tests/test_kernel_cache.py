@@ -65,7 +65,7 @@ def test_a_kernel_is_stale_when_a_function_it_calls_from_another_module_changes(
 def test_package_kernels_are_cached_by_content_not_by_location():
     from slamobs.pipeline.observers import fast_adaptation
 
-    locator = fast_adaptation._integrate._cache._impl.locator
+    locator = fast_adaptation._advance._cache._impl.locator
     assert isinstance(locator, KernelLocator)
     stamp = source_stamp(fast_adaptation.__file__)
     assert locator.get_source_stamp() == stamp and locator.get_disambiguator().endswith(f"-{stamp}")
@@ -115,11 +115,11 @@ def test_a_kernel_numba_cannot_cache_is_a_warning_naming_its_file():
 
     from slamobs.pipeline.observers import fast_adaptation
 
-    impl = fast_adaptation._integrate._cache._impl
+    impl = fast_adaptation._advance._cache._impl
     cres = types.SimpleNamespace(
         lifted=(),
         library=types.SimpleNamespace(has_dynamic_globals=True),
-        fndesc=types.SimpleNamespace(qualname="_integrate"),
+        fndesc=types.SimpleNamespace(qualname="_advance"),
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -210,3 +210,59 @@ def test_a_kernel_without_the_runtime_counts_no_references_and_computes_the_same
         return plain(x)
 
     assert kernel_cache.njit(allocating_caller)(4) == 6.0
+
+
+def test_a_subroutine_compiles_only_inside_its_callers():
+    """``subroutine``: a kernel's helper is typed and lowered inside the kernel that calls it, with no compilation of
+    its own (numba compiled an ``njit`` helper as a kernel first: its own machine code, Python wrapper and cache
+    file), and computes the same; its error model is its own; called from Python it is an ordinary kernel; one that
+    allocates does not compile."""
+    import numba
+    import numpy as np
+    import pytest
+    from numba import types
+
+    from slamobs.pipeline.compile_clock import compiled_functions
+
+    def weigh(a, w):
+        return a / w, a * w
+
+    def weigh_all(a, w, out):
+        for i in range(a.shape[0]):
+            out[i, 0], out[i, 1] = helper(a[i], w)
+
+    helper = kernel_cache.subroutine(types.UniTuple(types.float64, 2))(weigh)
+    kernel = kernel_cache.njit(nrt=False)(weigh_all)
+    a, out = np.linspace(-1.0, 1.0, 5), np.empty((5, 2))
+    before = len(compiled_functions())
+    kernel(a, 3.0, out)
+    assert [c.function.rsplit(".", 1)[-1] for c in compiled_functions()[before:]] == ["weigh_all"]
+    expected = np.empty((5, 2))
+    reference = numba.njit(weigh)
+    for i in range(5):
+        expected[i] = reference(a[i], 3.0)
+    assert out.tobytes() == expected.tobytes()
+    assert helper(a[1], 3.0) == reference(a[1], 3.0)  # from Python
+    with pytest.raises(ZeroDivisionError):
+        kernel(a, 0.0, out)  # numba's default error model: Python's
+
+    def weigh_again(a, w):  # another function: numba keeps one compilation per function and types
+        return a / w, a * w
+
+    lenient = kernel_cache.subroutine(types.UniTuple(types.float64, 2), error_model="numpy")(weigh_again)
+
+    def weigh_lenient(a, w, out):
+        for i in range(a.shape[0]):
+            out[i, 0], out[i, 1] = lenient(a[i], w)
+
+    kernel_cache.njit(nrt=False)(weigh_lenient)(a, 0.0, out)
+    assert np.isinf(out[0, 0]) and np.isnan(out[2, 0])  # -1/0, 0/0
+
+    def allocates(n):
+        x = np.empty(n)
+        x[0] = 1.0
+        return x[0]
+
+    grows = kernel_cache.subroutine(types.float64)(allocates)
+    with pytest.raises(numba.core.errors.NumbaError):
+        kernel_cache.njit(lambda n: grows(n))(3)

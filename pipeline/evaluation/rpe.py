@@ -28,10 +28,11 @@ def pairs_by_frames(n: int, delta: int, all_pairs: bool = False) -> tuple[np.nda
     return ids[:-1], ids[1:]
 
 
-@njit(cache=True)
-def _consecutive_by_accumulation(steps, delta):
-    """Indices where the quantity accumulated since the last index reaches ``delta`` (then it restarts at 0)."""
-    ids = np.empty(steps.shape[0] + 1, dtype=np.int64)
+@njit(cache=True, nrt=False)
+def _consecutive_by_accumulation(steps, delta, ids):
+    """Indices where the quantity accumulated since the last index reaches ``delta`` (then it restarts at 0),
+    written into ``ids`` (``steps.shape[0] + 1`` long; made by the caller: a first run compiles no allocation);
+    returns how many."""
     ids[0] = 0
     m = 1
     acc = 0.0
@@ -41,7 +42,7 @@ def _consecutive_by_accumulation(steps, delta):
             ids[m] = k + 1
             m += 1
             acc = 0.0
-    return ids[:m]
+    return m
 
 
 @njit(cache=True)
@@ -96,7 +97,8 @@ def pairs_by_path(pos: np.ndarray, delta: float, tol: float = 0.0, all_pairs: bo
         d = accumulated_distances(p)
         return _all_pairs_by_path(d, equal_runs(d), float(delta), float(tol))
     steps = row_norms(p[1:], p[:-1]) if p.shape[0] > 1 else np.empty(0)
-    ids = _consecutive_by_accumulation(steps, float(delta))
+    ids = np.empty(steps.shape[0] + 1, dtype=np.int64)
+    ids = ids[: _consecutive_by_accumulation(steps, float(delta), ids)]
     return ids[:-1], ids[1:]
 
 
@@ -144,7 +146,8 @@ def pairs_by_angle(rot: np.ndarray, delta: float, tol: float = 0.0, degrees: boo
     if all_pairs:  # each rotation normalised to its quaternion first, as evo does through SciPy
         return _all_pairs_by_angle(matrix_quats(r), delta - tol, delta + tol)
     steps = relative_angles(r[:-1], r[1:]) if r.shape[0] > 1 else np.empty(0)
-    ids = _consecutive_by_accumulation(steps, float(delta))
+    ids = np.empty(steps.shape[0] + 1, dtype=np.int64)
+    ids = ids[: _consecutive_by_accumulation(steps, float(delta), ids)]
     return ids[:-1], ids[1:]
 
 

@@ -18,7 +18,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from slamobs.pipeline.kernel_cache import njit
+from numba import types
+from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.observers.base import (
     GainSpec,
@@ -45,7 +46,7 @@ STEP_RATIO = 0.5
 REORTHO_EVERY = 1000
 
 
-@njit(cache=True, nrt=False)
+@subroutine(types.int64)
 def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     """Number of sub-steps for an interval of length ``dt`` (docs/observers.md §6.1 rate bound).
 
@@ -80,7 +81,7 @@ def _substeps(dt, y, nvis, lm, vis_idx, r_hat, p_hat, k_p, k_w, alpha, gamma):
     return substep_count(dt, lam, STEP_RATIO)
 
 
-@njit(cache=True, nrt=False)
+@subroutine(types.int64)
 def _integrate(
     dt,
     omega_m,

@@ -19,7 +19,8 @@ import lz4.frame
 import numpy as np
 import zstandard
 from slamobs.pipeline.errors import machine_failure, one_line
-from slamobs.pipeline.kernel_cache import njit
+from numba import types
+from slamobs.pipeline.kernel_cache import subroutine
 
 from . import storage
 from .storage import ConnIds, DamagedError, RawBatch, concat, placed
@@ -162,7 +163,7 @@ def load_groups(units: Sequence[Unit]) -> list[list[Unit]]:
 CLEAN, CUT, BAD = 0, 1, 2
 
 
-@njit(cache=True, nrt=False)
+@subroutine(types.int64)
 def u32(buf, p):  # pragma: no cover - compiled
     return np.int64(buf[p]) | (np.int64(buf[p + 1]) << 8) | (np.int64(buf[p + 2]) << 16) | (np.int64(buf[p + 3]) << 24)
 
