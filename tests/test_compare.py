@@ -108,6 +108,7 @@ def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation(
     """MR.CLAM 6 robot 1, fast-adaptation: comparison.md showed convergence_s blank beside a band of 11.2 m and a
     rotation APE of 180 deg with no word; each report's verdicts now stand under the table."""
     from slamobs.pipeline.compare import _markdown
+    from slamobs.pipeline.evaluation.sections import tilt_note
 
     lost = {"t_since_start_s": None, "lost": True, "steady_level_m": 7.47, "tail_fraction": 0.2}
     lost["trajectory_extent_m"] = 2.38
@@ -118,6 +119,7 @@ def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation(
         "yaw": {"alignment": {"rotation_matrix": np.eye(3).tolist()}, **stats},
     }
     report = {"convergence": lost, "method": {"alignment": {"type": "se3"}}, "ape_by_alignment": by}
+    report["notes"] = ["other note"] + tilt_note("se3", 180.0, by)  # the report's own note, as its section wrote it
     caveats = headline_caveats(report)
     assert caveats[0] == (
         "convergence: no: the error level, 7.47 m at most over the last 20 % of the log, is above the trajectory's "

@@ -625,6 +625,29 @@ def test_a_planar_estimate_tilted_by_the_alignment_is_said_so():
     assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "tilt" in n]
 
 
+def test_the_tilt_rule_is_the_evaluations_alone(monkeypatch):
+    """The report's tilt note, the figure titles and a headline table (compare) follow one rule,
+    ``TrajectoryEvaluation.gravity_tilt_deg``: the report's section decided "tilt > PLANAR_TILT_DEG" a second time
+    on report.json's rotation matrix, and ``headline_caveats`` a third. With the threshold raised above the 26.6 deg
+    tilt of this run, none of them speaks of it; at its value, the headline table's caveat is the report's note."""
+    from slamobs.pipeline.evaluation import trajectory_evaluation
+    from slamobs.pipeline.evaluation.figure_jobs import tilt_caveat
+    from slamobs.pipeline.evaluation.markdown import headline_caveats
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
+
+    truth = planar_truth()
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = 0.5 * poses["x"]
+    rep = checked(build_report(poses, None, None, truth))
+    (note,) = [n for n in rep["notes"] if "tilted the estimate's z axis" in n]
+    assert headline_caveats(rep)[-1] == note
+    monkeypatch.setattr(trajectory_evaluation, "PLANAR_TILT_DEG", 30.0)
+    rep = checked(build_report(poses, None, None, truth))
+    assert rep["ape_by_alignment"]["se3"]["alignment"]["gravity_tilt_deg"] > 26.0  # the tilt is still measured
+    assert tilt_caveat(evaluate_trajectory(poses, truth, ReportOptions())) == ""
+    assert not [n for n in rep["notes"] if "tilt" in n] and not [c for c in headline_caveats(rep) if "tilt" in c]
+
+
 def test_clock_offset_is_estimated_always_and_applied_on_request():
     truth = make_truth(n=3000)
     poses = moved(truth, ROT_C, P_C, noise_m=0.002).iloc[::3].reset_index(drop=True)

@@ -34,17 +34,15 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
 
 def headline_caveats(report: dict[str, Any]) -> list[str]:
     """What a table of headline numbers (``slamobs compare``) must say beside them from this report: no convergence
-    time and why, a coarse one, an alignment that tilts a planar run (upside down: its rotation APE is meaningless)."""
-    from slamobs.pipeline.evaluation.sections import tilt_note
+    time and why, a coarse one, and the report's note of an alignment that tilts a run with a gravity axis (upside
+    down: its rotation APE is meaningless)."""
+    from slamobs.pipeline.evaluation.sections import TILT_NOTE_END
 
     conv = report.get("convergence") or {}
     out = []
     if conv and (conv.get("t_since_start_s") is None or conv.get("coarse")):
         out.append(f"convergence: {convergence_line(conv)}")
-    align = ((report.get("method") or {}).get("alignment") or {}).get("type")
-    if align:
-        out += tilt_note(align, report.get("ape_by_alignment") or {})
-    return out
+    return out + [n for n in report.get("notes") or [] if n.endswith(TILT_NOTE_END)]
 
 
 def _coarse(conv: dict[str, Any]) -> str:

@@ -179,20 +179,21 @@ class ApeByAlignmentSection(Section):
             for kind in kinds
             if kind in fits
         }
-        self.notes += tilt_note(self.options.align, self.result)
+        self.notes += tilt_note(self.options.align, ev.gravity_tilt_deg, self.result)
 
 
-def tilt_note(align: str, by_alignment: dict[str, Any]) -> list[str]:
-    """The note for a run whose estimate and truth both have a gravity axis (the 4-DoF alignment was computed: a
-    planar run, or IMU directions) but whose report alignment tilts the estimate's z axis off the truth's by more
-    than ``PLANAR_TILT_DEG``: a fit no gravity-respecting alignment could give, which flatters its translation APE;
+#: how every tilt note ends: what a headline table (:func:`.markdown.headline_caveats`) picks from a report's notes
+TILT_NOTE_END = "(report --align yaw makes it the headline)"
+
+
+def tilt_note(align: str, tilt: float | None, by_alignment: dict[str, Any]) -> list[str]:
+    """The note for a run whose report alignment tilts the estimate's z axis off the truth's although both have a
+    gravity axis: ``tilt`` is :attr:`~.trajectory_evaluation.TrajectoryEvaluation.gravity_tilt_deg`, the one rule
+    (None: no such tilt). Such a fit no gravity-respecting alignment could give flatters its translation APE;
     turned upside down (positions in a plane fit as well flipped), its rotation APE reads ~180 deg whatever the
-    heading."""
+    heading. The note sets the 4-DoF APE beside it (none without that fit)."""
     yaw, primary = by_alignment.get("yaw"), by_alignment.get(align)
-    if align == "yaw" or yaw is None or primary is None:
-        return []
-    tilt = gravity_tilt_deg(np.asarray(primary["alignment"]["rotation_matrix"]))
-    if tilt <= PLANAR_TILT_DEG:
+    if tilt is None or yaw is None or primary is None:
         return []
     if tilt > 90.0:
         what = (
@@ -208,8 +209,7 @@ def tilt_note(align: str, by_alignment: dict[str, Any]) -> list[str]:
         )
     return [
         f"{what}; with the 4-DoF alignment (translation + yaw, ape_by_alignment.yaw) APE is "
-        f"{yaw['translation_m']['rmse']:.4f} m, {yaw['rotation_deg']['rmse']:.3f} deg rmse (report --align yaw "
-        "makes it the headline)"
+        f"{yaw['translation_m']['rmse']:.4f} m, {yaw['rotation_deg']['rmse']:.3f} deg rmse {TILT_NOTE_END}"
     ]
 
 
