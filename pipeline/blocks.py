@@ -65,6 +65,17 @@ def unique_inverse(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (np.flatnonzero(present) + lo).astype(values.dtype), rank[at]
 
 
+def finite_rows(x: np.ndarray) -> np.ndarray:
+    """``np.isfinite(x).all(axis=1)`` of (N, k) rows (the same booleans), a column at a time: NumPy's reduction along
+    the short axis took ~3x as long (16 against 6 ms for the three columns of an hour's 720,000 IMU rows)."""
+    if x.ndim != 2 or x.shape[1] == 0:
+        return np.isfinite(x).all(axis=1)
+    out = np.isfinite(x[:, 0])
+    for c in range(1, x.shape[1]):
+        out &= np.isfinite(x[:, c])
+    return out
+
+
 def row_norms3(x: np.ndarray) -> np.ndarray:
     """``np.linalg.norm(x, axis=1)``, the same bits; (N, 3) float rows summed here: NumPy sums the three squares
     of a row left to right, as here, but its reduction along the short axis took ~4x as long (13 against 3.4 ms

@@ -473,3 +473,56 @@ def test_info_command_errors_in_one_line(tmp_path, good_bag):
         assert result.exit_code == 2
         assert result.output.startswith("error: ") and result.output.count("\n") == 1, result.output
         assert "Traceback" not in result.output
+
+
+def test_the_cleaning_shortcuts_give_the_arrays_of_the_numpy_calls_they_replace():
+    """Rows checked for NaN/Inf a column at a time (``blocks.finite_rows``), zero quaternions by component, the
+    stable sort skipped for stamps already in order and the index kept when nothing is dropped: the same indices,
+    stamps and counts as NumPy's whole-row reductions and an unconditional sort, with and without NaN, Inf,
+    out-of-order stamps, exact duplicates and zero quaternions."""
+    from slamobs.pipeline.blocks import finite_rows
+    from slamobs.pipeline.readers import decode as D
+    from slamobs.pipeline.readers.rows import LAYOUTS, Rows
+
+    def reference(t_ns, values):  # clean_order as it was written with the whole-row reduction
+        idx = np.flatnonzero(np.isfinite(values).all(axis=1))
+        idx = idx[np.argsort(t_ns[idx], kind="stable")]
+        drop, repeated = D._duplicate_mask(t_ns[idx], lambda i: values[idx[i]].tobytes())
+        return idx[~drop], repeated, int(drop.sum())
+
+    rng = np.random.default_rng(5)
+    n = 4000
+    t = np.cumsum(rng.integers(1, 5, size=n)).astype(np.int64)
+    x = rng.normal(size=(n, 7))
+    bad = x.copy()
+    bad[rng.integers(0, n, 40), rng.integers(0, 7, 40)] = [np.nan, np.inf, -np.inf, np.nan] * 10
+    shuffled = t.copy()
+    shuffled[100:110] = shuffled[100:110][::-1]
+    repeats = t.copy()
+    repeats[200:260:2] = repeats[199:259:2]  # repeated stamps, some with equal values (exact duplicates)
+    dup = x.copy()
+    dup[200:230:4] = dup[199:229:4]
+    for stamps, values in ((t, x), (t, bad), (shuffled, x), (shuffled, bad), (repeats, dup), (t, x[:, :0])):
+        assert finite_rows(values).tobytes() == np.isfinite(values).all(axis=1).tobytes()
+        assert finite_rows(values[::3]).tobytes() == np.isfinite(values[::3]).all(axis=1).tobytes()  # strided
+        idx, _, cleaning = D.clean_order(stamps, stamps + 7, values)
+        want, repeated, duplicates = reference(stamps, values)
+        assert idx.tobytes() == want.tobytes()
+        assert (cleaning.repeated, cleaning.duplicates) == (repeated, duplicates)
+    # zero quaternions: every component under 1e-6, finite (a NaN row is counted as NaN, not as a zero rotation)
+    msgtype = next(m for m, layout in LAYOUTS.items() if "quat_xyzw" in layout.columns and not layout.child)
+    width = LAYOUTS[msgtype].width
+    values = rng.normal(size=(n, width))
+    q = LAYOUTS[msgtype].columns["quat_xyzw"]
+    values[10:20, q] = 0.0
+    values[20:25, q] = 5e-7
+    values[25, q] = [0.0, 0.0, 0.0, 2e-6]
+    values[26, q] = [0.0, np.nan, 0.0, 0.0]
+    frame = np.zeros(n, np.int32)
+    rows = Rows("/p", msgtype, t, t, values, frame, frame, ["map"])
+    poses, cleaning = D.pose_stream(rows)
+    quat = values[:, q]
+    zero = np.isfinite(quat).all(axis=1) & (np.abs(quat).max(axis=1, initial=0.0) < 1e-6)
+    keep = ~zero & np.isfinite(values[:, : q.stop]).all(axis=1)
+    assert poses.t_ns.tobytes() == t[keep].tobytes() and cleaning.nonfinite == 1
+    assert any("15 zero quaternions" in e for e in cleaning.extra)

@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from slamobs.pipeline.blocks import finite_rows
 from slamobs.pipeline.errors import InputError, one_line, plural, resource_error
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
@@ -304,15 +305,18 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     """
     cleaning = Cleaning()
     t_ns = _effective_stamps(t_ns, rec_ns, cleaning)
-    finite = np.isfinite(values).all(axis=1)
+    finite = finite_rows(values)
     idx = np.flatnonzero(finite)
     cleaning.nonfinite = int(values.shape[0] - idx.size)
-    cleaning.count_order(t_ns[idx])
-    idx = idx[np.argsort(t_ns[idx], kind="stable")]
-    drop, cleaning.repeated = _duplicate_mask(t_ns[idx], lambda i: values[idx[i]].tobytes())
+    kept_t = t_ns if not cleaning.nonfinite else t_ns[idx]
+    cleaning.count_order(kept_t)
+    if cleaning.out_of_order:  # else the stable sort keeps every row in place
+        idx = idx[np.argsort(kept_t, kind="stable")]
+        kept_t = t_ns[idx]
+    drop, cleaning.repeated = _duplicate_mask(kept_t, lambda i: values[idx[i]].tobytes())
     cleaning.duplicates = int(drop.sum())
     cleaning.kept = idx.size - cleaning.duplicates
-    return idx[~drop], t_ns, cleaning
+    return idx[~drop] if cleaning.duplicates else idx, t_ns, cleaning
 
 
 def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning, what: str = "frame id") -> str:
@@ -354,9 +358,10 @@ def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
     xyz = rows.values[:, LAYOUTS[rows.msgtype].columns[column]]
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, xyz)
     frame = _dominant((rows.child if frame_from == "child" else rows.frame)[idx], rows.frame_names, cleaning)
-    if idx.size and not xyz[idx].any():
+    kept_all = _is_identity(idx, xyz.shape[0])  # every row, in place: no gather of the rows
+    if idx.size and not (xyz if kept_all else xyz[idx]).any():
         cleaning.extra.append(ALL_ZERO + ZERO_MEANS.get(role, ""))
-    if _is_identity(idx, xyz.shape[0]) and rows.values.shape[1] <= SHARE_WIDTH:
+    if kept_all and rows.values.shape[1] <= SHARE_WIDTH:
         return Vec3Stream(rows.topic, frame, t_ns, rows.rec_ns, xyz), cleaning
     stream = Vec3Stream(rows.topic, frame, t_ns[idx], rows.rec_ns[idx], np.ascontiguousarray(xyz[idx]))
     return stream, cleaning
@@ -369,7 +374,9 @@ def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
     cols = layout.columns
     values = rows.values[:, cols["position"].start : cols["quat_xyzw"].stop]
     quat = rows.values[:, cols["quat_xyzw"]]
-    zero = np.isfinite(quat).all(axis=1) & (np.abs(quat).max(axis=1, initial=0.0) < 1e-6)
+    zero = finite_rows(quat)  # and every component under 1e-6 (a column at a time, as finite_rows)
+    for c in range(quat.shape[1]):
+        zero &= np.abs(quat[:, c]) < 1e-6
     if nzero := int(np.count_nonzero(zero)):  # no rotation at all: dropped like NaN, counted apart
         values = np.where(zero[:, None], np.nan, values)
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, values)
@@ -587,7 +594,7 @@ def clean_frames(
     flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
 
     # (arrays are copied only where something is dropped or moved: an hour of detections is tens of MB)
-    finite = np.isfinite(flat).all(axis=1)
+    finite = finite_rows(flat)
     cleaning.nonfinite = int(finite.size - np.count_nonzero(finite))
     if cleaning.nonfinite:
         ids, values, flat, owner = ids[finite], values[finite], flat[finite], owner[finite]

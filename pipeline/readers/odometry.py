@@ -14,6 +14,7 @@ Both are reported (``LogStreams.derived``, written to ``run.json``).
 from __future__ import annotations
 
 import numpy as np
+from slamobs.pipeline.blocks import row_norms3
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import mat3_mul, quats_to_rots, so3_log
@@ -81,12 +82,12 @@ def twist_in_parent(poses: PoseStream, linear: Vec3Stream) -> tuple[bool, float,
     quat = poses.quat_xyzw[rows]
     rots = quats_to_rots(np.ascontiguousarray(quat / np.linalg.norm(quat, axis=1, keepdims=True)))
     in_child = np.einsum("nji,nj->ni", rots, d_p)
-    moving = np.linalg.norm(d_p, axis=1) > 1e-3
+    moving = row_norms3(d_p) > 1e-3  # np.linalg.norm's bits
     if np.count_nonzero(moving) < 3:
         return False, np.nan, np.nan
     lin = linear.xyz[rows]
-    parent_fit = float(np.median(np.linalg.norm(lin[moving] - d_p[moving], axis=1)))
-    child_fit = float(np.median(np.linalg.norm(lin[moving] - in_child[moving], axis=1)))
+    parent_fit = float(np.median(row_norms3(lin[moving] - d_p[moving])))
+    child_fit = float(np.median(row_norms3(lin[moving] - in_child[moving])))
     return parent_fit * FRAME_MARGIN < child_fit, parent_fit, child_fit
 
 
