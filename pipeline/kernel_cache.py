@@ -31,6 +31,7 @@ import os
 import re
 import sys
 import time
+import weakref
 from functools import lru_cache, update_wrapper
 from pathlib import Path
 
@@ -182,17 +183,16 @@ def _no_extensions_yet() -> None:
 
 
 def subroutine(returns, error_model: str = "python"):
-    """A helper of the kernels compiled into each kernel that calls it, not as a kernel of its own: typed and lowered
-    once per process and argument types, then optimised and turned into machine code only as part of its callers.
+    """A helper of the kernels compiled into each kernel that calls it, not as a kernel of its own.
 
     A helper decorated with :func:`njit` is a kernel like any other when a kernel calls it: numba compiles it on its
-    own (its machine code, its Python wrapper, its cache file) and then again inside each caller, whose library
-    links the helper's in and optimises and generates code for the whole. As a subroutine (numba's own word for
-    its internal helpers, ``BaseContext.compile_subroutine``) it skips all but the last: the fast-adaptation
-    event loop with its sub-step and the rotation helpers it calls compiled in ~14 % less CPU, to the same
-    machine arithmetic. Its result type is declared (``returns``, a numba type) rather than inferred by compiling
-    it; a helper that allocates does not compile (no runtime: it works in the arrays it is given).
-    ``error_model``: numba's, as for :func:`njit`.
+    own (optimised machine code, a Python wrapper, a cache file), then links it into the caller, whose library is
+    optimised and turned into machine code again as a whole. A subroutine is typed and lowered into the calling
+    kernel's own library (once per kernel and argument types), so the machine code is generated once, for the
+    kernel. The fast-adaptation event loop with its sub-step and the rotation helpers compiles in ~20 % less CPU,
+    to the same arithmetic. Its result type is declared (``returns``, a numba type), not inferred by compiling it;
+    it is compiled without numba's runtime, so one that allocates does not compile (it works in the arrays it is
+    given). ``error_model``: numba's, as for :func:`njit`.
 
     Called from Python, it runs as an ordinary kernel (:func:`njit`, compiled at the first such call)."""
 
@@ -203,8 +203,9 @@ def subroutine(returns, error_model: str = "python"):
 
 
 class _Subroutine:
-    """:func:`subroutine`'s helper: numba types a call of it by its declared result type and lowers it with
-    ``compile_subroutine``; Python calls go to a kernel made on first use."""
+    """:func:`subroutine`'s helper: numba types a call of it by its declared result type, and lowers it as a call of
+    the function compiled into the caller's library (numba's ``compile_internal`` without code generation, as its
+    own internal helpers); Python calls go to a kernel made on first use."""
 
     def __init__(self, func, returns, error_model: str) -> None:
         from numba.core import types
@@ -214,6 +215,8 @@ class _Subroutine:
         self.py_func = func
         self.error_model = error_model
         self._kernel = None
+        #: per library being compiled: argument types -> the function compiled into it
+        self._lowered: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
         update_wrapper(self, func)
 
         class Call(AbstractTemplate):
@@ -229,12 +232,19 @@ class _Subroutine:
     def _lower(self, context, builder, sig, args):
         from numba.core import compiler
 
-        flags = compiler.Flags()
-        flags.error_model = self.error_model
-        # without the runtime whatever the caller's (a caller with it would otherwise pass it on)
-        lean = context.subtarget(enable_nrt=False)
-        compiled = lean.compile_subroutine(builder, self.py_func, sig, flags=flags)
-        return context.call_internal(builder, compiled.fndesc, sig, args)
+        library = context.active_code_library
+        done = self._lowered.setdefault(library, {})
+        if (fndesc := done.get(sig)) is None:
+            flags = compiler.Flags()
+            flags.error_model = self.error_model
+            flags.no_compile = flags.no_cpython_wrapper = flags.no_cfunc_wrapper = True
+            # without the runtime whatever the caller's (a caller with it would otherwise pass it on)
+            lean = context.subtarget(enable_nrt=False)
+            compiled = compiler.compile_internal(
+                context.typing_context, lean, library, self.py_func, sig.args, sig.return_type, flags, {}
+            )
+            fndesc = done[sig] = compiled.fndesc
+        return context.call_internal(builder, fndesc, sig, args)
 
     def __call__(self, *args):
         if self._kernel is None:

@@ -243,6 +243,11 @@ def test_a_subroutine_compiles_only_inside_its_callers():
         expected[i] = reference(a[i], 3.0)
     assert out.tobytes() == expected.tobytes()
     assert helper(a[1], 3.0) == reference(a[1], 3.0)  # from Python
+
+    def twice(a, w):  # a second kernel calling it (twice): compiled into that one's code too
+        return helper(a, w)[0] + helper(a, 2.0 * w)[1]
+
+    assert kernel_cache.njit(nrt=False)(twice)(a[1], 3.0) == reference(a[1], 3.0)[0] + reference(a[1], 6.0)[1]
     with pytest.raises(ZeroDivisionError):
         kernel(a, 0.0, out)  # numba's default error model: Python's
 
