@@ -318,3 +318,35 @@ def test_a_resumed_tune_samples_new_gains_not_the_earlier_ones_again(logs, tmp_p
     trials = pd.read_parquet(tmp_path / "tune" / "trials.parquet")
     gains = trials[trials["state"] == "COMPLETE"][[c for c in trials.columns if c.startswith("gain_")]]
     assert len(gains) == 4 and not gains.duplicated().any(), gains
+
+
+#: ``slamobs`` whose tune SIGKILLs itself as soon as its journal holds the setup: the defaults' trial, the next
+#: journal line, not yet written.
+KILLED_AFTER_THE_SETUP = """
+import os, signal, optuna
+from slamobs.cli.main import entry
+set_user_attr = optuna.study.Study.set_user_attr
+def set_and_die(study, key, value):
+    set_user_attr(study, key, value)
+    if key == "setup":
+        os.kill(os.getpid(), signal.SIGKILL)
+optuna.study.Study.set_user_attr = set_and_die
+entry()
+"""
+
+
+def test_a_tune_killed_between_its_setup_and_the_defaults_trial_scores_the_defaults_on_resume(logs, tmp_path):
+    """The setup and the defaults' trial are two journal lines: a tune SIGKILLed between them (kill_matrix seed 30,
+    SIGKILL at 1.5 s) was resumed without the defaults' trial, its results without the defaults' score."""
+    import pandas as pd
+
+    out = tmp_path / "tune"
+    args = _tune_args(logs[:1], out, "--trials", 2, "-j", 1)[len(CLI) :]
+    killed = subprocess.run([CLI[0], "-c", KILLED_AFTER_THE_SETUP, *args], capture_output=True, text=True)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    done = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    trials = pd.read_parquet(out / "trials.parquet")
+    defaults = trials[trials["is_default"]]
+    assert list(defaults["state"]) == ["COMPLETE"], trials
+    assert json.loads((out / "tune.json").read_text())["defaults"]["trial"] == defaults["trial"].iloc[0]

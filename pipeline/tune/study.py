@@ -288,6 +288,10 @@ def _study_in(out, resume, spec, config, paths, holdout, setup, options, on_roun
     else:
         with _deferred():
             study.set_user_attr("setup", setup)
+    if not any(t.user_attrs.get("default") for t in study.get_trials(deepcopy=False)):
+        # two journal lines: a tune SIGKILLed between them left the setup without the defaults' trial, and the
+        # resumed tune never scored the defaults (kill_matrix seed 30)
+        with _deferred():
             study.enqueue_trial(space.params_of(spec, spec.resolve_gains(None)), user_attrs={"default": True})
     _requeue_interrupted(study)
     try:
