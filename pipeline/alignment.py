@@ -348,7 +348,7 @@ def align(
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
-    t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim)
+    t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -573,9 +573,10 @@ def _stamps_at_record_pace(path, time_source: str, streams: LogStreams, *checked
             )
 
 
-def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
+def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, holes=()):
     """Time base (int64 ns), body angular and linear velocity on it, the span both streams cover and the first
-    sample of each segment after the first (velocity gaps longer than ``lim["max_gap"]``)."""
+    sample of each segment after the first (velocity gaps longer than ``lim["max_gap"]``, and the ``holes``: record
+    time spans a split recording's missing files leave)."""
     notes = fr.notes
     t_om, w = _sorted(_times(om, fr.time_source), om.xyz)
     t_lv, v = _sorted(_times(lv, fr.time_source), lv.xyz)
@@ -642,20 +643,52 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict):
         velocity[rows] = block
     for note in _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic):  # once when both come from one topic
         _note_once(notes, note)
+    starts = _segment_starts(t_om, max_gap, _hole_starts(t_om, om, fr.time_source, holes), notes)
+    # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
+    # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
+    return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts
+
+
+def _hole_starts(t_om: np.ndarray, om: Vec3Stream, time_source: str, holes) -> np.ndarray:
+    """The first time-base sample after each of ``holes`` (record-time spans a missing file of a split recording
+    leaves): the first sample recorded after the hole, on the time base's clock."""
+    out = []
+    times = _times(om, time_source)
+    for _, end in holes:
+        after = om.rec_ns >= end
+        if after.any() and not after.all():
+            k = int(np.searchsorted(t_om, times[after].min(), side="left"))
+            if 0 < k < t_om.shape[0]:
+                out.append(k)
+    return np.array(out, np.int64)
+
+
+def _segment_starts(t_om: np.ndarray, max_gap: float | None, holes: np.ndarray, notes: list[str]) -> np.ndarray:
+    """The first sample of each segment after the first: after a velocity gap longer than ``max_gap`` and after a
+    missing file's hole (``holes``: their first samples), with a note of where."""
     starts = np.zeros(0, np.int64)
     if max_gap is not None:
         starts = (np.flatnonzero(np.diff(t_om) > max_gap * 1e9) + 1).astype(np.int64)
         if starts.size:
-            where = ", ".join(
-                f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)" for k in starts[:5]
-            ) + (", ..." if starts.size > 5 else "")
             notes.append(
-                f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {where}: the run "
-                f"has {starts.size + 1} segments; nothing is integrated across a gap"
+                f"{starts.size} velocity gap(s) longer than limits.max_gap {max_gap:g} s at {_where(t_om, starts)}: "
+                f"the run has {starts.size + 1} segments; nothing is integrated across a gap"
             )
-    # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
-    # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
-    return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts
+    extra = np.setdiff1d(holes, starts)
+    if extra.size:
+        starts = np.union1d(starts, extra).astype(np.int64)
+        notes.append(
+            f"{extra.size} gap(s) where a split recording's file is missing at {_where(t_om, extra)}: the run has "
+            f"{starts.size + 1} segments; nothing is integrated across a gap"
+        )
+    return starts
+
+
+def _where(t_om: np.ndarray, starts: np.ndarray) -> str:
+    """Where segments start: time of the last sample before each gap from the first, and the gap's length."""
+    return ", ".join(
+        f"+{(t_om[k - 1] - t_om[0]) * 1e-9:.2f} s ({(t_om[k] - t_om[k - 1]) * 1e-9:.1f} s)" for k in starts[:5]
+    ) + (", ..." if starts.size > 5 else "")
 
 
 def _last_of_each_stamp(t: np.ndarray, w: np.ndarray, topic: str, notes: list[str]) -> tuple[np.ndarray, np.ndarray]:

@@ -134,6 +134,9 @@ class LogStreams:
     landmark_truth: dict[int, np.ndarray] | None = None  # id -> (3,) in the truth frame
     bias_truth: dict[str, np.ndarray] | None = None  # {"gyro": (3,), "velocity": (3,)} body frame (simulated logs)
     warnings: list[str] = field(default_factory=list)
+    #: record-time spans (first, last ns) that missing files of a split recording leave between the files read:
+    #: the alignment starts a new segment after each rather than interpolate across it
+    missing_spans: list[tuple[int, int]] = field(default_factory=list)
     clocks: dict[str, str] = field(default_factory=dict)  # topic -> "record" where record time replaced the stamp
     #: Tag corners per camera topic (corner messages, or tags found in images), made landmarks by
     #: :mod:`pipeline.vision.landmarks` into ``detections``.

@@ -204,3 +204,94 @@ def test_a_directory_of_whole_bags_says_what_to_run(tmp_path):
     (logs / "sparkfun_razor.bag").unlink()
     with pytest.raises(InputError, match=rf"holds one log, ardrone_imu.bag, not the parts of a recording: run {logs}/"):
         read_log(logs)
+
+
+def split_rosbag2(src: Path, out: Path, cuts_s: list[float]) -> Path:
+    """The rosbag2 directory ``src`` as a split recording ``out/NAME_0.db3``, ``NAME_1.db3``, ... cut at ``cuts_s``
+    seconds after its start, with the metadata.yaml rosbag2 writes for one (every file listed, each with its start,
+    duration and message count)."""
+    import yaml
+    from rosbags.rosbag2 import Reader as Reader2
+    from rosbags.rosbag2 import Writer as Writer2
+
+    out.mkdir(parents=True)
+    with Reader2(src) as reader:
+        cuts = [reader.start_time + int(c * NS) for c in cuts_s]
+        writers = [Writer2(out / f"p{k}", version=9) for k in range(len(cuts) + 1)]
+        conns: list[dict] = [{} for _ in writers]
+        for w in writers:
+            w.open()
+        for conn, t, raw in reader.messages():
+            k = sum(t >= c for c in cuts)
+            if conn.id not in conns[k]:
+                conns[k][conn.id] = writers[k].add_connection(
+                    conn.topic, conn.msgtype, msgdef=conn.msgdef.data, rihs01=conn.digest
+                )
+            writers[k].write(conns[k][conn.id], t, raw)
+        for w in writers:
+            w.close()
+    meta = yaml.safe_load((src / "metadata.yaml").read_text())
+    files = []
+    for k in range(len(writers)):
+        (part,) = yaml.safe_load((out / f"p{k}" / "metadata.yaml").read_text())["rosbag2_bagfile_information"]["files"]
+        (out / f"p{k}" / part["path"]).rename(out / f"{out.name}_{k}.db3")
+        files.append({**part, "path": f"{out.name}_{k}.db3"})
+        shutil.rmtree(out / f"p{k}")
+    info = meta["rosbag2_bagfile_information"]
+    info["relative_file_paths"], info["files"] = [f["path"] for f in files], files
+    (out / "metadata.yaml").write_text(yaml.safe_dump(meta))
+    return out
+
+
+def test_a_rosbag2_recording_with_a_listed_file_missing_runs_on_the_others_with_a_gap(tmp_path):
+    """metadata.yaml lists x_0.db3, x_1.db3, x_2.db3 and x_1 is gone: it was an error ('Some database files are
+    missing'); the parts there are are read, info names the missing file and the span it held (from metadata.yaml's
+    per-file start and duration, else the parts around it), and the alignment starts a new segment after it: the
+    3 s hole is shorter than limits.max_gap, so the velocities were interpolated across it."""
+    from slamobs.pipeline.alignment import align
+
+    rec = split_rosbag2(SAMPLES / "circle_ros2", tmp_path / "x", [10.0, 13.0])
+    whole = read_log(rec)
+    assert "missing" not in " ".join(whole.warnings) and align(whole).segment_starts.size == 0
+    (rec / "x_1.db3").unlink()
+    res = invoke("info", rec)
+    assert res.exit_code == 0, res.output
+    assert "rosbag2 directory with missing files (2 of 3 .db3 files)" in res.output
+    (note,) = [w for w in inspect_log(rec).warnings if "x_1.db3" in w]
+    assert note.startswith("split recording: x_1.db3, listed in metadata.yaml, is missing: 10.00")
+    assert "of the recording (2.9" in note and "messages) not read; a gap" in note and f"    {note}" in res.output
+    streams = read_log(rec)
+    aligned = align(streams)
+    (start,) = aligned.segment_starts
+    t = aligned.vel_t_ns
+    assert 2.9 < (t[start] - t[start - 1]) / NS < 3.1 and (t[start - 1] - t[0]) / NS == pytest.approx(10.0, abs=0.02)
+    assert any(
+        "where a split recording's file is missing at +9.98 s (3.0 s): the run has 2" in n for n in aligned.notes
+    )
+    # without per-file information (metadata before version 5) the span is the one between the parts around it
+    text = (rec / "metadata.yaml").read_text()
+    (rec / "metadata.yaml").write_text(text.replace("  files:", "  old_files:"))
+    (note,) = [w for w in inspect_log(rec).warnings if "x_1.db3" in w]
+    assert note.startswith("split recording: x_1.db3, listed in metadata.yaml, is missing: the 3.0")
+    assert "s between x_0.db3 and x_2.db3 (9.99" in note
+    for k in (0, 2):
+        (rec / f"x_{k}.db3").unlink()
+    with pytest.raises(InputError, match=r"x: none of the 3 storage files metadata.yaml lists is in it \(x_0.db3, "):
+        inspect_log(rec)
+
+
+def test_a_missing_part_number_is_a_gap_too(parts, tmp_path):
+    """rec_0.bag and rec_2.bag without rec_1.bag: the note names the missing file and the span between its
+    neighbours ('parts 1 are missing' before), and the run starts a new segment after it."""
+    from slamobs.pipeline.alignment import align
+
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    for k in (0, 2):
+        shutil.copy(parts[k], rec / parts[k].name)
+    streams = read_log(rec)
+    (note,) = [w for w in streams.warnings if "rec_1.bag" in w]
+    assert (
+        note.startswith("split recording: rec_1.bag is missing: the 10.0") and "between rec_0.bag and rec_2.bag" in note
+    )
+    assert align(streams, limits={"max_gap": None}).segment_starts.size == 1

@@ -317,7 +317,8 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     segments = metadata.get("segments") or []
     if len(segments) > 1:
         report.setdefault("notes", []).append(
-            f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap): nothing was "
+            f"the run has {len(segments)} segments (velocity gaps longer than limits.max_gap, or a split "
+            "recording's missing files): nothing was "
             "integrated across a gap and the pose was re-anchored to the map after it where a frame allowed "
             "(run.json notes say where); errors just after a gap show how well that worked"
         )

@@ -21,7 +21,7 @@ from slamobs.pipeline.streams import LogStreams, PoseStream, Vec3Stream
 from slamobs.pipeline.vision.detector import TagDetector
 
 from .cameradecode import decode_camera_info, decode_corners, detect_in_images
-from .container import Container, damage_notes, detect_container, open_log
+from .container import Container, damage_notes, detect_container, missing_spans, open_log
 from .decode import (
     ALL_ZERO,
     VEC3_ROLES,
@@ -193,6 +193,7 @@ def read_log(
             streams.truth = _truth_from_tf(streams, selection.roles["truth"], selection.truth_edge, tf_of)
         # damage found while decoding (a chunk skipped by its index) is known only now
         streams.warnings[:0] = damage_notes(reader)
+        streams.missing_spans = missing_spans(reader)
 
     at = len(streams.warnings)
     if truth_file is not None:

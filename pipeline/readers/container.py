@@ -25,7 +25,7 @@ import stat
 import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -42,7 +42,7 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from slamobs.pipeline.errors import InputError, one_line, resource_error
-from slamobs.pipeline.paths import check_input, check_yaml_depth
+from slamobs.pipeline.paths import check_input, check_yaml_depth, read_yaml
 
 from . import mcap, ros1, rosbag2_sqlite
 from .storage import TIME_LIMIT_NS, TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined
@@ -52,7 +52,9 @@ if TYPE_CHECKING:
 
     from rosbags.interfaces import Connection
 
-Kind = str  # "rosbag2", "ros1-split" or "ros2-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
+#: "rosbag2", "ros2-partial" (a rosbag2 directory whose metadata.yaml lists files it lacks), "ros1-split" or
+#: "ros2-split" (directories) or the kind of one of FORMATS: "ros1", "mcap", "db3"
+Kind = str
 #: the kinds of a directory without metadata.yaml whose files are the parts of one split recording (one log)
 SPLIT_KINDS: frozenset[Kind] = frozenset({"ros1-split", "ros2-split"})
 
@@ -92,6 +94,7 @@ LABELS: dict[str, str] = {
     "rosbag2": "rosbag2 directory",
     "ros1-split": "split ROS1 recording",
     "ros2-split": "rosbag2 directory without metadata.yaml",
+    "ros2-partial": "rosbag2 directory with missing files",
 } | {f.kind: f.label for f in FORMATS}
 
 _WRAPPERS: tuple[tuple[bytes, str], ...] = (
@@ -108,6 +111,19 @@ _FALLBACK_STORE = Stores.ROS2_HUMBLE
 
 
 @dataclass(frozen=True)
+class MissingPart:
+    """A part of a split recording that is not there: a file its metadata.yaml lists, or a part number between
+    those in the directory; with what metadata.yaml says of it (None where it says nothing)."""
+
+    name: str
+    before: int  # how many of the parts read come before it in the recording
+    start_ns: int | None = None
+    duration_ns: int | None = None
+    messages: int | None = None
+    listed: bool = False  # metadata.yaml lists it (else: a part number missing between those there)
+
+
+@dataclass(frozen=True)
 class Container:
     """What a path holds: ``kind`` and, for rosbag2 directories, the storage plugin."""
 
@@ -116,6 +132,7 @@ class Container:
     storage: str = ""
     note: str = ""  # how the path was interpreted, when it needed interpreting (a warning of the run)
     parts: tuple[Path, ...] = ()  # a split recording's files, in order (ROS1 bags, or rosbag2 files without metadata)
+    missing: tuple[MissingPart, ...] = ()  # the files metadata.yaml lists that are not in the directory
 
     @property
     def label(self) -> str:
@@ -168,7 +185,7 @@ def detect_container(path: str | Path) -> Container:
         check_yaml_depth(text, meta, "metadata.yaml")  # rosbags parses it: 15 s before failing on 3000 '['
         match = re.search(r'storage_identifier:\s*["\']?([\w.-]+)', text)
         _check_storage_id(path, match.group(1) if match else "", entries)
-        return Container(path, "rosbag2", match.group(1) if match else "")
+        return _partial(path, text, entries) or Container(path, "rosbag2", match.group(1) if match else "")
     try:
         with path.open("rb") as fobj:
             head = fobj.read(16)
@@ -183,6 +200,58 @@ def detect_container(path: str | Path) -> Container:
         if head.startswith(magic):
             raise InputError(path, f"{_NOT_A_LOG} ({name}-compressed: decompress it first)")
     raise InputError(path, _NOT_A_LOG + _other_data(path))
+
+
+#: the storage file names a metadata.yaml may list
+_STORAGE_NAME = re.compile(r"[^\s'\"/]+\.(?:db3|mcap)(?:\.zstd)?\b")
+
+
+def _partial(path: Path, text: str, entries: Sequence[Path]) -> Container | None:
+    """A rosbag2 directory whose metadata.yaml lists storage files that are not in it, as the parts that are (the
+    missing ones with what metadata.yaml says of them: their time span and message count); None when every listed
+    file is there (only then is metadata.yaml parsed here).
+
+    Raises:
+        InputError: No listed file is there, or the files are compressed (read only through a whole metadata.yaml).
+    """
+    have = {e.name for e in entries}
+    if all(name in have for name in _STORAGE_NAME.findall(text)):
+        return None
+    info = (read_yaml(path / "metadata.yaml", "metadata.yaml") or {}).get("rosbag2_bagfile_information")
+    listed = info.get("relative_file_paths") if isinstance(info, dict) else None
+    if not isinstance(listed, list) or all(PurePath(str(x)).name in have for x in listed):
+        return None  # rosbags says what is wrong with it
+    names = [PurePath(str(x)).name for x in listed]
+    lost = [n for n in names if n not in have]
+    said = ", ".join(lost[:3]) + (", ..." if len(lost) > 3 else "")
+    if len(lost) == len(names):
+        raise InputError(path, f"none of the {len(names)} storage files metadata.yaml lists is in it ({said})")
+    if str(info.get("compression_mode") or "none").lower() != "none":
+        raise InputError(
+            path,
+            f"metadata.yaml lists {said}, not in the directory, and the recording is compressed "
+            f"({info.get('compression_mode')} mode), which slamobs reads only whole: restore the missing file",
+        )
+    per_file = {PurePath(str(f.get("path"))).name: f for f in info.get("files") or [] if isinstance(f, dict)}
+    missing, parts = [], []
+    for name in names:
+        if name in have:
+            parts.append(path / name)
+            continue
+        f = per_file.get(name, {})
+        start, dur = _int(f, "starting_time", "nanoseconds_since_epoch"), _int(f, "duration", "nanoseconds")
+        missing.append(MissingPart(name, len(parts), start, dur, _int(f, "message_count"), listed=True))
+    suffix = parts[0].suffix
+    return Container(
+        path, "ros2-partial", f"{len(parts)} of {len(names)} {suffix} files", parts=tuple(parts), missing=tuple(missing)
+    )
+
+
+def _int(d: dict, *keys: str) -> int | None:
+    """``d[k0][k1]...`` when it is an integer, else None (a metadata.yaml may leave it out)."""
+    for k in keys:
+        d = d.get(k) if isinstance(d, dict) else None
+    return d if isinstance(d, int) and not isinstance(d, bool) else None
 
 
 def _check_storage_id(path: Path, storage_id: str, entries: Sequence[Path]) -> None:
@@ -337,19 +406,62 @@ def check_part_order(directory: Path, parts: Sequence[Path], spans: Sequence[tup
             )
 
 
-def part_notes(parts: Sequence[Path], spans: Sequence[tuple[int, int]]) -> list[str]:
+def missing_numbers(parts: Sequence[Path]) -> tuple[MissingPart, ...]:
+    """The part numbers between the first and the last of ``parts`` (``NAME_N`` files, in order) that none has."""
+    named = [PART.match(p.name) for p in parts]
+    if any(m is None for m in named):
+        return ()
+    indices = [int(m["index"]) for m in named]
+    name, suffix = named[0]["name"], parts[0].suffix
+    return tuple(
+        MissingPart(f"{name}_{i}{suffix}", int(np.searchsorted(indices, i)))
+        for i in sorted(set(range(indices[0], indices[-1] + 1)) - set(indices))
+    )
+
+
+def holes(spans: Sequence[tuple[int, int]], missing: Sequence[MissingPart]) -> list[tuple[int, int]]:
+    """The record-time spans between the parts read where missing parts were: from the last message before to the
+    first after (none for a part missing before the first or after the last: the log is shorter, not holed)."""
+    return [(spans[k - 1][1], spans[k][0]) for k in sorted({m.before for m in missing}) if 0 < k < len(spans)]
+
+
+def _missing_note(m: MissingPart, parts: Sequence[Path], spans: Sequence[tuple[int, int]], t0: int) -> str:
+    """One missing part: its span in the recording (metadata.yaml's, else the parts' around it) and what the run
+    does about it."""
+    head = f"split recording: {m.name}{', listed in metadata.yaml,' if m.listed else ''} is missing"
+    if m.start_ns is not None and m.duration_ns is not None:
+        a, b = (m.start_ns - t0) / 1e9, (m.start_ns + m.duration_ns - t0) / 1e9
+        count = f", {m.messages} messages" if m.messages is not None else ""
+        span = f"{a:.3f}–{b:.3f} s of the recording ({b - a:.3f} s{count}) not read"
+    elif 0 < m.before < len(parts):
+        a, b = (spans[m.before - 1][1] - t0) / 1e9, (spans[m.before][0] - t0) / 1e9
+        between = f"{parts[m.before - 1].name} and {parts[m.before].name}"
+        span = f"the {b - a:.3f} s between {between} ({a:.3f}–{b:.3f} s) not read"
+    else:
+        side = "before" if m.before == 0 else "after"
+        span = f"what it held {side} {parts[min(m.before, len(parts) - 1)].name} not read"
+    if 0 < m.before < len(parts):
+        return f"{head}: {span}; a gap: the run starts a new segment after it (nothing is integrated across it)"
+    return f"{head}: {span}; the run covers the parts there are"
+
+
+def part_notes(
+    parts: Sequence[Path], spans: Sequence[tuple[int, int]], missing: Sequence[MissingPart] = ()
+) -> list[str]:
     """What a run should know of how the parts follow each other: each part's span, gaps between parts longer than
-    :data:`GAP_NOTE_S`, overlaps and missing part numbers. ``spans`` are each part's first and last record time."""
-    t0 = min(a for a, _ in spans)
+    :data:`GAP_NOTE_S`, overlaps and the parts that are missing (``missing``: metadata.yaml's, else the part numbers
+    not there, :func:`missing_numbers`). ``spans`` are each part's first and last record time."""
+    missing = list(missing or missing_numbers(parts))
+    t0 = min([a for a, _ in spans] + [m.start_ns for m in missing if m.start_ns is not None])
     listed = ", ".join(f"{p.name} {(a - t0) / 1e9:.3f}–{(b - t0) / 1e9:.3f} s" for p, (a, b) in zip(parts, spans))
     files = "ROS1 bags" if parts[0].suffix == ".bag" else f"{parts[0].suffix} files"
     notes = [f"split recording of {len(parts)} {files} read as one: {listed}"]
-    indices = [int(PART.match(p.name)["index"]) for p in parts]
-    missing = sorted(set(range(indices[0], indices[-1] + 1)) - set(indices))
-    if missing:
-        notes.append(f"split recording: parts {', '.join(map(str, missing))} are missing (not in the directory)")
-    for (p, (_, end)), (q, (start, _)) in zip(zip(parts, spans), zip(parts[1:], spans[1:])):
+    notes += [_missing_note(m, parts, spans, t0) for m in missing]
+    holed = {m.before for m in missing}
+    for k, ((p, (_, end)), (q, (start, _))) in enumerate(zip(zip(parts, spans), zip(parts[1:], spans[1:])), 1):
         gap = (start - end) / 1e9
+        if k in holed:  # said with the missing part
+            continue
         if gap > GAP_NOTE_S:
             notes.append(f"split recording: {gap:.3f} s without messages between {p.name} and {q.name}")
         elif gap < 0:
@@ -493,6 +605,13 @@ def iter_raw(
 
 
 _NOTES = "_slamobs_notes"  # attribute of an opened reader: how its path was interpreted
+_HOLES = "_slamobs_holes"  # attribute of an opened reader: record-time spans its missing parts leave
+
+
+def missing_spans(reader: AnyReader) -> list[tuple[int, int]]:
+    """The record-time spans (first, last ns) the missing parts of a split recording leave between the parts read:
+    gaps the alignment must not interpolate across (empty for a whole log)."""
+    return list(getattr(reader, _HOLES, ()))
 
 
 def damage_notes(reader: AnyReader) -> list[str]:
@@ -516,7 +635,7 @@ def _rosbags_path(container: Container) -> Iterator[Path]:
     """Yield a path whose suffix makes ``AnyReader`` choose the right reader."""
     path = container.path
     want = next((f.suffix for f in FORMATS if f.kind == container.kind), None)
-    if container.kind in ("rosbag2", "ros1-split", "ros2-split"):  # a split recording opens its parts
+    if container.kind in ("rosbag2", "ros2-partial", "ros1-split", "ros2-split"):  # a split recording opens its parts
         ok = container.kind != "rosbag2" or path.suffix != ".bag"
         want = ""
     else:
@@ -586,7 +705,9 @@ def open_log(path: str | Path) -> Iterator[AnyReader]:
             except InputError:
                 reader.close()
                 raise
-            notes += part_notes(container.parts, spans)
+            missing = container.missing or missing_numbers(container.parts)
+            notes += part_notes(container.parts, spans, missing)
+            setattr(reader, _HOLES, holes(spans, missing))
         if notes:
             setattr(reader, _NOTES, notes)
         try:
