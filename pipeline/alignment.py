@@ -33,7 +33,7 @@ from slamobs.pipeline.directions import (
     DirectionSet,
     build_directions,
 )
-from slamobs.pipeline.blocks import interp_sorted, row_blocks, row_norms3, unique_inverse
+from slamobs.pipeline.blocks import first_of_pairs, interp_sorted, row_blocks, row_norms3, unique_inverse
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, stamp_pace
@@ -858,7 +858,7 @@ def _unique_rows(
     if not n_sel:
         return sel
     # (frame, id) pairs compared whole: a key of the id's low 32 bits took ids 5 and 5 + 2^32 for one
-    first = _first_of_pairs(frame_of if sel is None else frame_of[sel], det.ids if sel is None else det.ids[sel])
+    first = first_of_pairs(frame_of if sel is None else frame_of[sel], det.ids if sel is None else det.ids[sel])
     if first.size < n_sel:
         notes.append(f"{det.topic}: {n_sel - first.size} repeated ids within a frame dropped")
         mask = np.zeros(n_sel, bool)
@@ -908,28 +908,6 @@ def _landmark_index(
             det.topic,
         )
     return landmark_ids, det_idx
-
-
-#: Longest run of equal ``a`` (detections in one frame) :func:`_first_of_pairs` compares row by row.
-MAX_FRAME_RUN = 64
-
-
-def _first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Indices of the first occurrence of each distinct pair ``(a[i], b[i])``, ascending. Where ``a`` does not
-    decrease (the detections' frame of each row) and no run of equal ``a`` is longer than ``MAX_FRAME_RUN``,
-    each row is compared with the rows before it in its run (~3 against ~60 ms for an hour's detections);
-    else by sorting the pairs. The same indices either way."""
-    if a.shape[0] > 1 and bool(np.all(a[1:] >= a[:-1])):
-        cuts = np.flatnonzero(a[1:] != a[:-1])
-        longest = int(np.max(np.diff(cuts, prepend=-1, append=a.shape[0] - 1)))
-        if longest <= MAX_FRAME_RUN:
-            repeat = np.zeros(a.shape[0], dtype=bool)
-            for k in range(1, longest):  # row i repeats row i - k of its run
-                repeat[k:] |= (a[k:] == a[:-k]) & (b[k:] == b[:-k])
-            return np.flatnonzero(~repeat)
-    order = np.lexsort((b, a))  # stable: equal pairs keep their order, the first one leads
-    repeat = (a[order[1:]] == a[order[:-1]]) & (b[order[1:]] == b[order[:-1]])
-    return np.sort(order[np.concatenate(([True], ~repeat))])
 
 
 def _range_gate(

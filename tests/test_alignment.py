@@ -182,8 +182,7 @@ def test_assume_identity_applies_only_where_tf_has_no_transform(tmp_path):
 def test_detection_helpers_give_numpys_arrays():
     """The hand-off's shortcuts (a row's norm by columns, ids by a table, repeats compared within a frame) give
     the arrays of the NumPy calls they replace, and fall back to them where the shortcut does not apply."""
-    from slamobs.pipeline import alignment as A
-    from slamobs.pipeline.blocks import unique_inverse
+    from slamobs.pipeline.blocks import MAX_FRAME_RUN, first_of_pairs, repeated_pairs, unique_inverse
 
     rng = np.random.default_rng(3)
     x = rng.normal(size=(5000, 3)) * 10.0 ** rng.integers(-8, 8, size=(5000, 1))
@@ -204,15 +203,18 @@ def test_detection_helpers_give_numpys_arrays():
 
     frames = np.repeat(np.arange(400), rng.integers(1, 12, size=400))
     ids = rng.integers(0, 6, size=frames.size)  # many repeats within a frame
-    long_run = np.repeat(np.arange(3), [2, A.MAX_FRAME_RUN + 5, 1])  # a frame longer than the row-by-row limit
+    long_run = np.repeat(np.arange(3), [2, MAX_FRAME_RUN + 5, 1])  # a frame longer than the row-by-row limit
     for a, b in (
         (frames, ids),
         (frames[::-1].copy(), ids),  # frames not in order: sorted
         (long_run, rng.integers(0, 4, size=long_run.size)),
         (np.array([4]), np.array([1])),
     ):
-        assert A._first_of_pairs(a, b).tolist() == lexsorted(a, b).tolist()
-    assert A._first_of_pairs(frames, ids).size < frames.size  # the case above had repeats to drop
+        assert first_of_pairs(a, b).tolist() == lexsorted(a, b).tolist()
+        repeated = np.ones(a.shape[0], bool)
+        repeated[lexsorted(a, b)] = False
+        assert repeated_pairs(a, b).tolist() == repeated.tolist()  # the readers' mask of the repeats
+    assert first_of_pairs(frames, ids).size < frames.size  # the case above had repeats to drop
 
 
 def test_a_gap_in_one_topic_giving_both_velocities_is_noted_once():

@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.blocks import finite_rows
+from slamobs.pipeline.blocks import finite_rows, repeated_pairs
 from slamobs.pipeline.errors import InputError, one_line, plural, resource_error
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
@@ -599,10 +599,7 @@ def clean_frames(
     if cleaning.nonfinite:
         ids, values, flat, owner = ids[finite], values[finite], flat[finite], owner[finite]
     del finite
-    order = np.lexsort((ids, owner))  # stable: the first detection of an id in a frame is kept
-    same = np.zeros(ids.shape[0], bool)
-    same[order[1:]] = (owner[order[1:]] == owner[order[:-1]]) & (ids[order[1:]] == ids[order[:-1]])
-    del order
+    same = repeated_pairs(owner, ids)  # the first detection of an id in a frame is kept
     if nsame := int(np.count_nonzero(same)):
         cleaning.extra.append(plural(nsame, "repeated id") + " within a frame dropped")
         ids, values, flat, owner = ids[~same], values[~same], flat[~same], owner[~same]
