@@ -46,7 +46,8 @@ def substep_count(dt, lam, step_ratio):
     x = dt * lam / step_ratio
     if not x < MAX_SUBSTEPS:
         return MAX_SUBSTEPS
-    return max(1, int(math.ceil(x)))
+    n = math.ceil(x)  # an int64 in compiled code: no int() and max() of numba's to compile for it
+    return n if n > 1 else 1
 
 
 @njit(cache=True, inline="always")

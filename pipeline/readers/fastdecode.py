@@ -23,7 +23,8 @@ from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from slamobs.pipeline.kernel_cache import njit
+from numba import types
+from slamobs.pipeline.kernel_cache import njit, subroutine
 from rosbags.interfaces import Nodetype
 
 from slamobs.pipeline.errors import BadInput, InputError
@@ -340,7 +341,7 @@ def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True, nogil=True, inline="always")
+@subroutine(types.uint64)
 def _word(data, p, width, big):  # pragma: no cover - compiled
     """The ``width`` bytes at ``p`` (unaligned) as a little-endian word; unsigned indices (no wrap-around checks)."""
     w = np.uint64(0)
@@ -357,7 +358,7 @@ def _word(data, p, width, big):  # pragma: no cover - compiled
     return w
 
 
-@njit(cache=True, nogil=True, inline="always")
+@subroutine(types.int64)
 def _integer(w, width, signed):  # pragma: no cover - compiled
     """A word of ``width`` bytes as int64 (sign-extended if ``signed``)."""
     v = np.int64(w)

@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING, BinaryIO
 
 import numpy as np
 
-from slamobs.pipeline.kernel_cache import njit
+from numba import types
+from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from .storage import RawBatch
 
@@ -151,11 +152,12 @@ def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch
 
 
 # --------------------------------------------------------------------------- compiled walks
-# The byte readers are inlined into the walks (numba calls a compiled function otherwise: ~2x slower here); the
-# integer of a serial type is called (inlining _int twice doubled _window's compile time for ~10% of its speed).
+# The byte readers and the integer of a serial type are subroutines of the walk (kernel_cache.subroutine): typed
+# and lowered once each, and LLVM inlines them into it. As inline="always" numba typed and lowered their bodies
+# at every call site (compiling), as kernels of their own it called them (~2x slower here).
 
 
-@njit(cache=True, nogil=True, inline="always")
+@subroutine(types.int64)
 def _be(buf, at, width):  # pragma: no cover - compiled
     """Big-endian unsigned int of ``width`` bytes (``width`` <= 8, bounds checked by the caller)."""
     v = np.int64(0)
@@ -164,7 +166,7 @@ def _be(buf, at, width):  # pragma: no cover - compiled
     return v
 
 
-@njit(cache=True, nogil=True, inline="always")
+@subroutine(types.UniTuple(types.int64, 2))
 def _varint(buf, at, end):  # pragma: no cover - compiled
     """SQLite varint at ``at``: (value, position after it); the position is -1 when it runs to ``end`` or ``at``
     is -1 already (a chain of reads stops at the first that fails)."""
@@ -217,7 +219,7 @@ def _be_at(buf: np.ndarray, at: np.ndarray, width: int) -> np.ndarray:
     return v
 
 
-@njit(cache=True, nogil=True)
+@subroutine(types.int64)
 def _int_size(serial):  # pragma: no cover - compiled
     """Bytes of an integer of this serial type (-1: the value is not an integer)."""
     if 1 <= serial <= 4:
@@ -231,7 +233,7 @@ def _int_size(serial):  # pragma: no cover - compiled
     return -1
 
 
-@njit(cache=True, nogil=True)
+@subroutine(types.int64)
 def _int(buf, at, serial):  # pragma: no cover - compiled
     """The integer of serial type ``serial`` at ``at`` (big-endian two's complement; 8 and 9 are 0 and 1)."""
     if serial == 8 or serial == 9:
@@ -285,7 +287,7 @@ def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size)
             head, q = _varint(buf, p, min(p + here, end))
             types_end = min(p + head, p + here, end)
             t0 = t1 = t2 = t3 = np.int64(0)
-            for c in range(4):  # one inlined varint read for the four (each inlined copy costs compiling)
+            for c in range(4):  # one varint read for the four
                 t, q = _varint(buf, q, types_end)
                 if c == 0:
                     t0 = t
