@@ -222,7 +222,7 @@ def check_dir(out: Path) -> list[str]:
         elif (err := _check_file(p)) is not None:
             bad.append(f"{out.name}/{err}")
     for d in listed.get("directories", []):
-        if (out / d).is_dir():
+        if f"{d}/slamobs-output.json" in listed.get("files", {}):  # a run of a compare (stats' figures/: files)
             bad.extend(check_dir(out / d))
     return bad
 
