@@ -14,8 +14,8 @@ uses the same one unless its scheduler was killed). On both, a trial may instead
 (the batch then exits 0: its log runs again) or the external scheduler (exit 3, a lost cluster); on the local
 ``batch`` case one of its worker processes, mid-log. ``--group`` (0.3) of the SIGTERM / SIGKILL trials send it to
 the whole process group (workers and helpers get it beside their parent) instead of the command alone.
-Cases without a signal from the harness: ``batch-timeout`` runs under ``timeout -s TERM -k 1 DELAY`` (a cron
-job's limit; plots on, so its runs have figure helpers): exit 124 or 137, or 0 if it finished;
+Cases without a signal from the harness: ``batch-timeout`` runs under ``timeout -s TERM -k K DELAY`` (a cron
+job's limit, K 0.05-1 s; plots on, so its runs have figure helpers): exit 124 or 137, or 0 if it finished;
 ``run-memory-limit`` under ``prlimit --as`` at a limit drawn from 250-1400 MB: it fits (0) or ends with one line
 naming the memory (2), never a traceback or a hang. Also ``export``, ``stats`` and ``info`` of the 600 s log.
 
@@ -138,7 +138,7 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
         ),
         Case("info-600s", ["info", long_log], "none", "none"),
         Case("run-memory-limit", ["run", log, "-o", "OUT", "-q"], "out", "dir", wrap="memory"),
-        # a cron job's timeout: TERM, then KILL 1 s later, to a batch whose runs draw figures in helper processes
+        # a cron job's timeout: TERM, then KILL soon after, to a batch whose runs draw figures in helper processes
         Case("batch-timeout", ["batch", str(inp / "many"), "-o", "OUT", "-j", "2"], "out", "batch", False),
     ]
     cases[-1].wrap = "timeout"
@@ -167,14 +167,16 @@ def argv_for(case: Case, tdir: Path, inp: Path, rerun: bool = False, sched: str 
 
 #: The memory limits drawn for a run under ``prlimit --as`` (MB): from too small to start to enough for the run.
 MEMORY_MB = (250, 1400)
-#: A command under ``timeout -s TERM -k KILL_AFTER_S DELAY`` that has not ended KILL_AFTER_S after the TERM gets
-#: SIGKILL (timeout sends both to its process group: the batch, its workers and their figure helpers).
-KILL_AFTER_S = 1.0
+#: A command under ``timeout -s TERM -k K DELAY`` that has not ended K seconds after the TERM gets SIGKILL (timeout
+#: sends both to its process group: the batch, its workers and their figure helpers); K is drawn from this range
+#: (from the delay, so that a trial's seed and delay replay it): short enough that some batches get the KILL.
+KILL_AFTER_S = (0.05, 1.0)
 
 
 def wrapper(victim: str, sig: int, delay: float) -> list[str]:
     if victim == "timeout":
-        return ["timeout", "-s", signal.Signals(sig).name[3:], "-k", f"{KILL_AFTER_S:g}", f"{delay:.3f}"]
+        kill_after = random.Random(delay).uniform(*KILL_AFTER_S)
+        return ["timeout", "-s", signal.Signals(sig).name[3:], "-k", f"{kill_after:.2f}", f"{delay:.3f}"]
     if victim == "memory":  # delay: the limit in MB
         return ["prlimit", f"--as={int(delay) << 20}", "--"]
     return []
@@ -222,7 +224,7 @@ def check_dir(out: Path) -> list[str]:
         elif (err := _check_file(p)) is not None:
             bad.append(f"{out.name}/{err}")
     for d in listed.get("directories", []):
-        if (out / d).is_dir():
+        if f"{d}/slamobs-output.json" in listed.get("files", {}):  # a run of a compare (stats' figures/: files)
             bad.extend(check_dir(out / d))
     return bad
 

@@ -350,3 +350,38 @@ def test_a_tune_killed_between_its_setup_and_the_defaults_trial_scores_the_defau
     defaults = trials[trials["is_default"]]
     assert list(defaults["state"]) == ["COMPLETE"], trials
     assert json.loads((out / "tune.json").read_text())["defaults"]["trial"] == defaults["trial"].iloc[0]
+
+
+#: ``slamobs`` SIGKILLed at the first call of a ``Study`` method (``tell``: a round's first result; ``enqueue_trial``:
+#: a resume's first re-queued trial), right after that call's journal line when ``after``.
+KILLED_AT = """
+import os, signal, sys, optuna
+from slamobs.cli.main import entry
+name, after = sys.argv.pop(1), sys.argv.pop(1) == "after"
+method = getattr(optuna.study.Study, name)
+def die(study, *args, **kwargs):
+    if after:
+        method(study, *args, **kwargs)
+    os.kill(os.getpid(), signal.SIGKILL)
+setattr(optuna.study.Study, name, die)
+entry()
+"""
+
+
+def test_a_resume_killed_between_requeueing_a_trial_and_failing_it_runs_its_gains_once(logs, tmp_path):
+    """A resume re-queues each trial the killed tune left running, then fails it: two journal lines. SIGKILLed
+    between them, the next resume queued the same gains a second time and ran them twice."""
+    import pandas as pd
+
+    out = tmp_path / "tune"
+    args = _tune_args(logs[:1], out, "--trials", 3, "-j", 2)[len(CLI) :]
+    for name, after in (("tell", "before"), ("enqueue_trial", "after")):  # trials 0 and 1 left running, then
+        killed = subprocess.run([CLI[0], "-c", KILLED_AT, name, after, *args], capture_output=True, text=True)
+        assert killed.returncode == -signal.SIGKILL, killed.stderr
+    done = subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    trials = pd.read_parquet(out / "trials.parquet")
+    complete = trials[trials["state"] == "COMPLETE"]
+    gains = complete[[c for c in complete.columns if c.startswith("gain_")]]
+    assert len(complete) == 3 and not gains.duplicated().any(), trials
+    assert complete["is_default"].sum() == 1

@@ -328,9 +328,14 @@ def _requeue_interrupted(study) -> None:
     """Trials a killed tune left running: failed in the journal, their gains queued to run again."""
     import optuna
 
+    waiting = [  # a queued trial's gains are its fixed parameters (its params are set when it is asked for)
+        t.system_attrs.get("fixed_params", t.params)
+        for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,))
+    ]
     for t in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
         with _deferred():
-            study.enqueue_trial(t.params, user_attrs={k: v for k, v in t.user_attrs.items() if k == "default"})
+            if t.params not in waiting:  # queued already by a resume SIGKILLed before its next line (the FAIL)
+                study.enqueue_trial(t.params, user_attrs={k: v for k, v in t.user_attrs.items() if k == "default"})
             study.tell(t.number, state=optuna.trial.TrialState.FAIL)
 
 
