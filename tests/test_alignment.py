@@ -267,7 +267,7 @@ def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
         np.array([[0.1, 0, 0, 0, 0, 0, np.nan], [0, 0, 0, 0, 0, 0, 1.0]]),
         ["base_link", "camera", "imu"],
     )
-    found, warnings, dropped = static_transforms(rows)
+    found, warnings, dropped, _ = static_transforms(rows)
     assert [(t.parent, t.child) for t in found] == [("base_link", "imu")]
     assert warnings == ["1 NaN/Inf static transform dropped: base_link->camera"]
     assert dropped == {("base_link", "camera"): warnings[0]}
