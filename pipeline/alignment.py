@@ -243,10 +243,27 @@ def check_required(streams: LogStreams, directions: int = 0) -> None:
             f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
             f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
             details=tuple(
-                f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{'; '.join(how_to_satisfy(role))}"
+                f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{_how_to_give(role)}"
                 for role in roles
             ),
         )
+
+
+#: characters of a missing role's line in the error of a log that cannot run; longer, its first way is given and
+#: ``slamobs info`` lists the rest (its readiness section gives them a line each)
+HOW_TO_GIVE_CHARS = 300
+
+
+def _how_to_give(role: str) -> str:
+    """What would give ``role``, in one line of the error: every way when they are short, else the first and a
+    count (detections have 6 ways over 15 message types: 900 characters in one line)."""
+    ways = how_to_satisfy(role)
+    text = "; ".join(ways)
+    if len(text) <= HOW_TO_GIVE_CHARS:
+        return text
+    return (
+        f"{ways[0]}; or one of {len(ways) - 1} other kinds of topic (`slamobs info` lists them, with what each needs)"
+    )
 
 
 def _has_samples(stream) -> bool:

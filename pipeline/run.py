@@ -336,6 +336,8 @@ def prepare_log(
         warnings=streams.warnings,
         clocks=streams.clocks,
         derived=streams.derived,
+        static_tf_dropped=streams.static_tf_dropped,
+        static_tf_changed=streams.static_tf_changed,
     )
     return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
 
@@ -495,6 +497,9 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "body_frame": aligned.body_frame,
             "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
             "derived": dict(streams.derived),
+            # every frame pair the readers' warnings name only the first of (decode.frame_pairs)
+            "static_tf_changed": [f"{p}->{c}" for p, c in streams.static_tf_changed],
+            "static_tf_dropped": [f"{p}->{c}" for p, c in streams.static_tf_dropped],
             "cameras": dict(tags.cameras) if tags is not None else {},
             "map": (
                 {"file": prepared.known_map.source, "mode": prepared.known_map.mode}

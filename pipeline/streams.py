@@ -130,6 +130,8 @@ class LogStreams:
     static_tf: list[Transform] = field(default_factory=list)
     #: (parent, child) pairs of ``/tf_static`` dropped as NaN/Inf, each with the warning that says so
     static_tf_dropped: dict[tuple[str, str], str] = field(default_factory=dict)
+    #: (parent, child) pairs of ``/tf_static`` published with different values (the last kept)
+    static_tf_changed: list[tuple[str, str]] = field(default_factory=list)
     tf: list[TransformSeries] = field(default_factory=list)  # dynamic /tf edges
     landmark_truth: dict[int, np.ndarray] | None = None  # id -> (3,) in the truth frame
     bias_truth: dict[str, np.ndarray] | None = None  # {"gyro": (3,), "velocity": (3,)} body frame (simulated logs)

@@ -122,8 +122,17 @@ def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
 
 
 def test_missing_roles_and_disjoint_times_are_errors():
-    with pytest.raises(InputError, match=r"inputs the estimator needs is missing \(detections\)"):
+    with pytest.raises(InputError, match=r"inputs the estimator needs is missing \(detections\)") as err:
         align(_streams(detections=None))
+    # the detections' line named its 15 message types in 900 characters; now the first way and where the rest are
+    # (slamobs info, one line each); a role with few ways keeps them all
+    (line,) = err.value.details
+    assert line.startswith("detections (landmark detections): set topics.detections to a topic of type fiducial_msgs/")
+    assert line.endswith("; or one of 5 other kinds of topic (`slamobs info` lists them, with what each needs)")
+    assert len(line) < 300 and "sensor_msgs/msg/Image" not in line
+    with pytest.raises(InputError) as err:
+        align(_streams(angular_velocity=None))
+    assert "; or nav_msgs/msg/Odometry  [a zero twist.angular is differentiated" in err.value.details[0]
     late = _streams()
     late.linear_velocity = Vec3Stream(
         "/odom",
@@ -269,7 +278,7 @@ def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
         np.array([[0.1, 0, 0, 0, 0, 0, np.nan], [0, 0, 0, 0, 0, 0, 1.0]]),
         ["base_link", "camera", "imu"],
     )
-    found, warnings, dropped = static_transforms(rows)
+    found, warnings, dropped, _ = static_transforms(rows)
     assert [(t.parent, t.child) for t in found] == [("base_link", "imu")]
     assert warnings == ["1 NaN/Inf static transform dropped: base_link->camera"]
     assert dropped == {("base_link", "camera"): warnings[0]}

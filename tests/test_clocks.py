@@ -130,7 +130,10 @@ def test_reference_off_record_time_means_record_time_for_all(tmp_path):
     topics = {"/imu": _steady(100, 3, 12 * NS - WALL), "/pose": _steady(50, 3, 0)}  # only the imu is simulated
     summary = inspect_log(_write(tmp_path / "mixed.bag", topics))
     assert summary.clocks == {"/imu": "record", "/pose": "record"}
-    assert any("use record time for every topic" in w for w in summary.warnings)
+    # advice a user can follow: info names the key (a run reads header stamps unless told)
+    assert any("use record time for every topic (set time.source: auto;" in w for w in summary.warnings)
+    one = inspect_log(_write(tmp_path / "one.bag", {"/imu": _steady(1, 1, 0)}))
+    assert "(0.000 s, 1 message)" in format_info(one)  # was '1 messages'
 
 
 def test_zero_stamps_use_record_time(tmp_path):

@@ -526,3 +526,52 @@ def test_the_cleaning_shortcuts_give_the_arrays_of_the_numpy_calls_they_replace(
     keep = ~zero & np.isfinite(values[:, : q.stop]).all(axis=1)
     assert poses.t_ns.tobytes() == t[keep].tobytes() and cleaning.nonfinite == 1
     assert any("15 zero quaternions" in e for e in cleaning.extra)
+
+
+def test_many_changed_static_transforms_are_counted_not_listed_in_one_line(tmp_path):
+    """nav2_turtlebot with its /tf_static published again with other values: info and run listed all 29 frame
+    pairs in one 1081-character line. Now the count, the first pairs and where run.json lists them all; a few
+    are still named in full (test_faulty_streams: 'using the last: base->camera')."""
+    from cli_checks import invoke
+    from rosbags.rosbag2 import Reader as Bag2Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+
+    src, log, NS_1S = SAMPLE_DIR / "circle_ros2", tmp_path / "tf_twice", 1_000_000_000
+    with Bag2Reader(src) as reader, Bag2Writer(log, version=9) as writer:
+        conns = {
+            c.id: writer.add_connection(c.topic, c.msgtype, msgdef=c.msgdef.data, rihs01=c.digest)
+            for c in reader.connections
+        }
+        for conn, t, raw in reader.messages():
+            writer.write(conns[conn.id], t, raw)
+            if conn.topic == "/tf_static":  # again 1 s later: every transform moved, 28 new frames published twice
+                msg = store.deserialize_cdr(raw, conn.msgtype)
+                stamped = msg.transforms[0]
+                extra = [
+                    type(stamped)(header=stamped.header, child_frame_id=f"link_{k:02d}", transform=stamped.transform)
+                    for k in range(28)
+                ]
+                msg.transforms = [*msg.transforms, *extra]
+                writer.write(conns[conn.id], t + NS_1S, store.serialize_cdr(msg, conn.msgtype))
+                for tf in msg.transforms:
+                    tf.transform.translation.x += 0.01
+                writer.write(conns[conn.id], t + 2 * NS_1S, store.serialize_cdr(msg, conn.msgtype))
+    streams = read_log(log)
+    (warning,) = [w for w in streams.warnings if "different values" in w]
+    changed = [f"{p}->{c}" for p, c in streams.static_tf_changed]
+    assert len(changed) > 28 and warning.startswith(
+        f"/tf_static: static transforms published with different values, using the last: {len(changed)} frame pairs ("
+    )
+    assert warning.endswith(", ...; run.json: input.static_tf_changed lists all)") and changed[0] in warning
+    assert len(warning) < 200 and changed[-1] not in warning
+    res = invoke("info", log)
+    assert res.exit_code == 0 and f"    {warning}\n" in res.output
+    config = tmp_path / "run.yaml"
+    config.write_text("evaluation:\n  plots: false\n")
+    res = invoke("run", log, "-o", tmp_path / "out", "--config", config)
+    assert res.exit_code == 0, res.output
+    run = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert run["input"]["static_tf_changed"] == changed and warning in run["notes"]
+    assert run["input"]["static_tf_dropped"] == []

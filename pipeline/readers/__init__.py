@@ -176,7 +176,7 @@ def read_log(
                     del found
                 note(topic, role, cleaning)
             elif role == "static_tf":
-                streams.static_tf, warnings, dropped = static_transforms(tf_of(topic))
+                streams.static_tf, warnings, dropped, streams.static_tf_changed = static_transforms(tf_of(topic))
                 streams.warnings += [f"{topic}: {w}" for w in warnings]
                 streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
             elif role == "tf":

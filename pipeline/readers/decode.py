@@ -36,7 +36,7 @@ from .roles import APRILTAG_ROS, IMU, MAGNETIC_FIELD, MARKER_ARRAY, ODOMETRY, TW
 from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Notes, Rows, TfRows, frame_name, quat, vec
 
 if TYPE_CHECKING:
-    from collections.abc import Callable, Collection, Iterable, Iterator, Mapping
+    from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -681,9 +681,31 @@ def _valid_transforms(values: np.ndarray) -> np.ndarray:
     return np.isfinite(values).all(axis=1) & (np.linalg.norm(values[:, 3:7], axis=1) > 1e-6)
 
 
-def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str], dict[tuple[str, str], str]]:
+#: how many characters of frame pairs a warning names: more are counted, the first named, run.json lists all
+PAIRS_SHOWN_CHARS = 50
+
+
+def frame_pairs(edges: Sequence[tuple[str, str]], where: str) -> str:
+    """``edges`` as a warning names them: all when they are few, else their count, the first that fit in
+    :data:`PAIRS_SHOWN_CHARS` and where run.json lists them all (``where``: the key under ``input``)."""
+    names = [f"{p}->{c}" for p, c in edges]
+    text = ", ".join(names)
+    if len(text) <= PAIRS_SHOWN_CHARS:
+        return text
+    shown = names[:1]
+    for name in names[1:]:
+        if len(", ".join([*shown, name])) > PAIRS_SHOWN_CHARS:
+            break
+        shown.append(name)
+    return f"{len(names)} frame pairs ({', '.join(shown)}, ...; run.json: input.{where} lists all)"
+
+
+def static_transforms(
+    rows: TfRows,
+) -> tuple[list[Transform], list[str], dict[tuple[str, str], str], list[tuple[str, str]]]:
     """``/tf_static`` transforms, the last one per (parent, child) pair winning; the warnings; the (parent, child)
-    pairs dropped as NaN/Inf, each with its warning (for an error that later misses one of those frames)."""
+    pairs dropped as NaN/Inf, each with its warning (for an error that later misses one of those frames); the pairs
+    published with different values."""
     found: dict[tuple[str, str], Transform] = {}
     changed: set[tuple[str, str]] = set()
     ok = _valid_transforms(rows.values)
@@ -699,14 +721,14 @@ def static_transforms(rows: TfRows) -> tuple[list[Transform], list[str], dict[tu
         found[key] = Transform(*key, translation, quat)
     warnings, dropped = [], {}
     if changed:
-        pairs = ", ".join(f"{p}->{c}" for p, c in sorted(changed))
+        pairs = frame_pairs(sorted(changed), "static_tf_changed")
         warnings.append(f"static transforms published with different values, using the last: {pairs}")
     if nbad := int(ok.size - np.count_nonzero(ok)):
         edges = sorted({(names[rows.parent[i]], names[rows.child[i]]) for i in np.flatnonzero(~ok)})
-        bad = ", ".join(f"{p}->{c}" for p, c in edges)
+        bad = frame_pairs(edges, "static_tf_dropped")
         warnings.append(plural(nbad, "NaN/Inf static transform") + f" dropped: {bad}")
         dropped = dict.fromkeys(edges, warnings[-1])
-    return list(found.values()), warnings, dropped
+    return list(found.values()), warnings, dropped, sorted(changed)
 
 
 def decode_static_tf(
@@ -716,7 +738,7 @@ def decode_static_tf(
 ) -> tuple[list[Transform], list[str]]:
     """Transforms of the ``/tf_static`` messages, the last one per (parent, child) pair winning."""
     topic = next(iter(connections)).topic
-    found, warnings, _ = static_transforms(decode_tf(reader, path, topic, connections))
+    found, warnings, _, _ = static_transforms(decode_tf(reader, path, topic, connections))
     return found, warnings
 
 

@@ -455,6 +455,8 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
     if reference not in offsets:
         reference = max(offsets, key=lambda t: (summaries[t].count, t), default=None)
     clocks, clock_warnings = choose_clocks(offsets, reference)
+    # advice here (a run reads header stamps unless told otherwise), what was done in a run with time.source: auto
+    clock_warnings = [f"{w} (set time.source: auto; a run reads header stamps by default)" for w in clock_warnings]
     ref_offset = summaries[reference].offset_s if reference is not None else None
     topics = tuple(
         dataclasses.replace(
@@ -519,7 +521,7 @@ def format_info(info: LogInfo) -> str:
     if info.start_ns is not None and info.end_ns is not None:
         lines.append(
             f"  recorded   {_when(info.start_ns)} .. {_when(info.end_ns)}"
-            f"  ({info.duration_s:.3f} s, {info.message_count} messages)",
+            f"  ({info.duration_s:.3f} s, {plural(info.message_count, 'message')})",
         )
     else:
         lines.append("  recorded   no messages")
