@@ -387,8 +387,16 @@ def _odometry_twist(
     return stream, cleaning
 
 
+#: The run's answer to a clock warning of :func:`recommend_clocks` when it reads header stamps (a topic on another
+#: machine's clock, minutes off the velocities', was read on its header stamps with no word of it).
+_HEADER_READ = "this run reads header stamps (time.source: header): time.source: auto takes that advice"
+
+
 def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None) -> LogStreams:
-    if clocks is None or clocks in ("header", "record"):  # record: the alignment reads every record time
+    if clocks == "record":  # the alignment reads every record time
+        return streams
+    if clocks is None or clocks == "header":  # info's clock rule, said where the run does not follow it
+        streams.warnings += [f"warning: {w}; {_HEADER_READ}" for w in recommend_clocks(streams)[1]]
         return streams
     if clocks == "auto":
         chosen, warnings = recommend_clocks(streams)

@@ -106,6 +106,38 @@ def first_vectors(reader: AnyReader, conns: Collection[Connection], msgtype: str
 #: A step back of the stamps at least this long (ns) is named in the out-of-order note: a clock set back.
 CLOCK_STEP_NS = 500_000_000
 
+
+#: Messages a header clock's step needs on either side (:func:`clock_step_forward`).
+STEP_SIDE = 5
+
+
+def clock_step_forward(t_ns: np.ndarray, rec_ns: np.ndarray) -> tuple[int, int]:
+    """The largest jump ahead of the header stamps against the record times between two messages in a row (record
+    order), when it lasts (the median header-minus-record after it at least ``CLOCK_STEP_NS`` above the one before):
+    a header clock set forward, which no stamp out of order shows (a 30 s step of a detection topic's clock left
+    its later frames 30 s off the velocities' without a word). ``(step ns, record ns of the first message after
+    it)``; ``(0, 0)`` when none. A recorder that stalls and then writes a burst moves the record times, not ahead of
+    them; a gap in both clocks moves neither. A step needs ``STEP_SIDE`` messages either side: a stale first stamp
+    (nav2's first /amcl_pose, 4.9 s older than the next) is no clock."""
+    if t_ns.shape[0] < 2 * STEP_SIDE:
+        return 0, 0
+    lag = t_ns - rec_ns
+    jumps = np.diff(lag)
+    jumps[: STEP_SIDE - 1] = jumps[jumps.shape[0] - STEP_SIDE + 1 :] = np.iinfo(np.int64).min
+    k = int(np.argmax(jumps))
+    if jumps[k] < CLOCK_STEP_NS or np.median(lag[k + 1 :]) - np.median(lag[: k + 1]) < CLOCK_STEP_NS:
+        return 0, 0
+    return int(jumps[k]), int(rec_ns[k + 1])
+
+
+def clock_step_text(step_ns: int, at_s: float) -> str:
+    """The words of a :func:`clock_step_forward` step, alike in run's notes and info's warnings."""
+    return (
+        f"header stamps jump {step_ns * 1e-9:.3f} s ahead of record time {at_s:.1f} s into the topic (a clock set "
+        "forward? time.source: record, or the topic in time.topics: record, reads record time)"
+    )
+
+
 #: Header stamps advancing this many times faster or slower than the record times of the same messages are on
 #: another unit (milliseconds or microseconds written as seconds, nanoseconds as microseconds), not on a clock.
 STAMP_PACE_FACTOR = 100.0
@@ -165,14 +197,18 @@ class Cleaning:
     repeated: int = 0
     zero_stamps: bool = False
     step_back_ns: int = 0  # the largest step back between consecutive stamps (record order)
+    step_forward: tuple[int, int] = (0, 0)  # a header clock set forward: clock_step_forward, at from the first
     kept: int = 0  # samples left (clean_order's streams; 0: not counted)
     extra: list[str] = field(default_factory=list)
 
-    def count_order(self, t_ns: np.ndarray) -> None:
-        """Count the stamps (in record order) earlier than the one before, and the largest step back."""
+    def count_order(self, t_ns: np.ndarray, rec_ns: np.ndarray) -> None:
+        """Count the stamps (in record order) earlier than the one before, the largest step back, and a step of
+        the header clock ahead of the record times."""
         steps = np.diff(t_ns)
         self.out_of_order = int(np.count_nonzero(steps < 0))
         self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
+        step, at = clock_step_forward(t_ns, rec_ns)
+        self.step_forward = (step, at - int(rec_ns.min())) if step else (0, 0)
 
     def text(self, on_record_time: bool = False) -> str:
         """One warning fragment, empty when nothing happened. ``on_record_time``: the run reads the stream's record
@@ -188,6 +224,8 @@ class Cleaning:
                     f" (a step back of {self.step_back_ns * 1e-9:.3f} s: a clock set back? time.source: auto or record)"
                 )
             parts.append(plural(self.out_of_order, "out-of-order stamp") + back)
+        if self.step_forward[0] and not on_record_time and not self.zero_stamps:
+            parts.append(clock_step_text(self.step_forward[0], self.step_forward[1] * 1e-9))
         if self.duplicates:
             parts.append(duplicates_text(self.duplicates, self.kept, " dropped"))
         if self.repeated and not on_record_time:
@@ -309,7 +347,7 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     idx = np.flatnonzero(finite)
     cleaning.nonfinite = int(values.shape[0] - idx.size)
     kept_t = t_ns if not cleaning.nonfinite else t_ns[idx]
-    cleaning.count_order(kept_t)
+    cleaning.count_order(kept_t, rec_ns if not cleaning.nonfinite else rec_ns[idx])
     if cleaning.out_of_order:  # else the stable sort keeps every row in place
         idx = idx[np.argsort(kept_t, kind="stable")]
         kept_t = t_ns[idx]
@@ -608,7 +646,7 @@ def clean_frames(
     del owner
     offsets = _offsets(lengths)
 
-    cleaning.count_order(t_ns)
+    cleaning.count_order(t_ns, rec_ns)
     forder = np.argsort(t_ns, kind="stable")
 
     def key(i: int) -> bytes:

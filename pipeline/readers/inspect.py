@@ -29,6 +29,8 @@ from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Ve
 
 from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import (
+    clock_step_forward,
+    clock_step_text,
     decode_static_tf,
     duplicates_text,
     gyro_not_filled,
@@ -87,6 +89,8 @@ class TopicSummary:
     max_gap_at_s: float | None = None  # where the longest gap starts, from the first stamp
     rate_segments: tuple[tuple[float, float], ...] = ()  # (start from the first stamp [s], rate [Hz]) if it changes
     stamp_pace: float | None = None  # header stamps' advance per record-time second (1: same pace)
+    clock_step_s: float | None = None  # header stamps' jump ahead of record time (decode.clock_step_forward)
+    clock_step_at_s: float | None = None  # where it is, from the topic's first record time
 
 
 @dataclass(frozen=True)
@@ -322,6 +326,7 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
     distinct = np.unique(pairs, axis=0).shape[0]
     stamps = np.unique(t_ns).size
     stats = stamp_stats(t_ns, rec_ns)
+    step, at = clock_step_forward(t_ns, rec_ns) if stats.header_clock != "zero" else (0, 0)
     return TopicSummary(
         topic,
         msgtype,
@@ -342,6 +347,8 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
         max_gap_at_s=stats.max_gap_at_ns / _NS if stats.max_gap_at_ns is not None else None,
         rate_segments=stats.rate_segments,
         stamp_pace=stats.pace,
+        clock_step_s=step / _NS if step else None,
+        clock_step_at_s=(at - int(rec_ns.min())) / _NS if step else None,
     )
 
 
@@ -356,6 +363,8 @@ def _problems(t: TopicSummary, pace: float | None) -> list[str]:
         )
     if t.out_of_order:
         problems.append(plural(t.out_of_order, "out-of-order stamp"))
+    if t.clock_step_s is not None and t.clock_step_at_s is not None:
+        problems.append(clock_step_text(round(t.clock_step_s * _NS), t.clock_step_at_s))
     if t.duplicates:
         problems.append(duplicates_text(t.duplicates, t.count - t.duplicates))
     if t.repeated_stamps:
