@@ -376,3 +376,19 @@ def test_a_header_clock_set_forward_is_named_by_info_and_run(tmp_path):
     stalled = [(s, steady[200][1] if 100 <= k < 200 else r, v) for k, (s, r, v) in enumerate(steady)]
     calm = _write(tmp_path / "stall.mcap", {"/imu": stalled, "/pose": _steady(50, 6, 0)})
     assert not any("ahead of record time" in w for w in read_log(calm).warnings + list(inspect_log(calm).warnings))
+
+
+def test_every_detection_frame_recorded_twice_is_said_as_for_the_velocities():
+    # MR.CLAM with every detection message recorded three times: run said '2024 exact duplicates dropped', info
+    # that every message was there twice or more
+    from slamobs.pipeline.readers.decode import clean_frames
+
+    t = np.repeat(np.arange(4) * NS, 2)
+    lengths = np.ones(8, np.int64)
+    ids = np.repeat(np.arange(4), 2)
+    values = np.repeat(np.arange(12.0).reshape(4, 3), 2, axis=0)
+    *_, cleaning = clean_frames(t, t + 1, lengths, ids, values, np.zeros(8, np.int32), ["cam"])
+    assert cleaning.text() == (
+        "4 exact duplicates dropped (every message recorded twice: a driver publishing twice? the stream is its 4 "
+        "distinct samples, read as a log holding each once)"
+    )

@@ -1640,3 +1640,36 @@ def test_map_residuals_measure_a_map_moved_off_its_own_detections():
     r = map_residuals(det_ids, placed + innovation, innovation, map_ids, map_xyz)
     np.testing.assert_allclose(r[:4], [0.0, 0.0, 0.0, 0.5], atol=1e-12)
     assert np.isnan(r[4])  # id 9 is not in the map
+
+
+def test_landmark_ids_the_truth_does_not_know_are_said():
+    # MR.CLAM with its landmark ids negated: report.json had no map error (0 matched) and nothing said why
+    poses, biases, landmarks, truth, lm_truth, bias_truth = synthetic_run()
+    rep = checked(build_report(poses, biases, landmarks, truth, lm_truth, bias_truth))
+    assert not [n for n in rep["notes"] if n.startswith("landmark map: ")]
+    renamed = landmarks.assign(id=-landmarks["id"])
+    rep = checked(build_report(poses, biases, renamed, truth, lm_truth, bias_truth))
+    assert rep["landmarks"]["n_matched"] == 0
+    said = [n for n in rep["notes"] if n.startswith("landmark map: ")]
+    assert said == [
+        f"landmark map: 0 of the {len(landmarks)} estimated landmark ids are in the landmark truth (estimated ids "
+        f"{-landmarks['id'].max()}..{-landmarks['id'].min()}, truth ids {min(lm_truth)}..{max(lm_truth)}): no map "
+        "error (the truth numbers the landmarks otherwise?)"
+    ]
+
+
+def test_a_truth_in_millimetres_is_said():
+    # MR.CLAM with its truth positions in mm: APE 2374 m and no word why
+    from dataclasses import replace
+
+    poses, biases, landmarks, truth, *_ = synthetic_run()
+    rep = checked(build_report(poses, biases, landmarks, truth))
+    assert not [n for n in rep["notes"] if n.startswith("the truth is ")]
+    mm = replace(truth, position=truth.position * 1000.0)
+    rep = checked(build_report(poses, biases, landmarks, mm))
+    said = [n for n in rep["notes"] if n.startswith("the truth is ")]
+    assert len(said) == 1 and said[0].startswith("the truth is 1000x as large as the estimate")
+    assert "(report --align sim3 fits a scale)" in said[0]
+    assert not [
+        n for n in checked(build_report(poses, biases, landmarks, mm, align="sim3"))["notes"] if "as large" in n
+    ]

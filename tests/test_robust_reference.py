@@ -322,3 +322,16 @@ def test_a_re_solve_that_ends_worse_than_the_seed_keeps_the_seed(log, monkeypatc
     seed = bad.result["seed"]
     assert np.array_equal(bad.result["solution"].pos, seed.pos)
     assert any("scored worse than a start as it is" in n for n in bad.stats["notes"]), bad.stats["notes"]
+
+
+def test_an_angular_velocity_in_degrees_or_of_the_wrong_sign_is_named():
+    # MR.CLAM with its gyro in deg/s: riekf APE 0.49 -> 3.8 m, its sign flipped: 48 m, and no word of the gyro;
+    # the detection pairs say which reading fits them
+    from slamobs.pipeline.observers import time_offset
+
+    stream = align(expected_streams(simulate("figure8", seed=2, duration=20.0)))
+    assert time_offset.note("riekf", time_offset.estimate(stream)) == []  # as recorded: no misread fits better
+    for factor, what in ((np.degrees(1.0), "divided by 57.3 (deg/s?)"), (-1.0, "angular velocity's sign flipped")):
+        misread = time_offset.estimate(replace(stream, omega=stream.omega * factor))
+        said = [n for n in time_offset.note("riekf", misread) if n.startswith("warning: riekf: the detections fit")]
+        assert len(said) == 1 and what in said[0], (factor, said)

@@ -15,7 +15,13 @@ import numpy as np
 
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
-from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, fit_alignment, gravity_tilt_deg
+from slamobs.pipeline.evaluation.align import (
+    DESCRIPTIONS,
+    SCALED_ALIGNMENTS,
+    Alignment,
+    fit_alignment,
+    gravity_tilt_deg,
+)
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
 from slamobs.pipeline.evaluation.sync import NS_PER_S
@@ -85,7 +91,32 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
-        self.notes += truth_frame_note(ev)
+        self.notes += truth_frame_note(ev) + truth_scale_note(ev)
+
+
+#: The truth's extent over the estimate's (RMS distance of the paired positions from their centre) beyond this
+#: factor either way is no estimation error but a unit (a truth in millimetres), or an estimate without metric
+#: scale: the report says so.
+TRUTH_SCALE_FACTOR = 10.0
+
+
+def truth_scale_note(ev: TrajectoryEvaluation) -> list[str]:
+    """The note for a truth ``TRUTH_SCALE_FACTOR`` times as large as the estimate or more (or as small): MR.CLAM's
+    truth in millimetres gave an APE of 2374 m and no word why. Extents, not path lengths: an estimate's jitter
+    lengthens its path."""
+    if ev.alignment.kind in SCALED_ALIGNMENTS or len(ev.paired.ref_pos) < 2:
+        return []
+    ref, est = ev.paired.ref_pos, ev.paired.est_pos
+    truth_m = float(np.sqrt(np.mean(np.sum((ref - ref.mean(axis=0)) ** 2, axis=1))))
+    est_m = float(np.sqrt(np.mean(np.sum((est - est.mean(axis=0)) ** 2, axis=1))))
+    if truth_m <= 0.0 or est_m <= 0.0 or 1.0 / TRUTH_SCALE_FACTOR < truth_m / est_m < TRUTH_SCALE_FACTOR:
+        return []
+    return [
+        f"the truth is {truth_m / est_m:.4g}x as large as the estimate (RMS distance of the paired positions from "
+        f"their centre: {truth_m:.4g} m against {est_m:.4g} m): a truth in other units (millimetres: 1000x)?, an "
+        "estimate without metric scale, or one that diverged; the APE says nothing of the estimate then (report "
+        "--align sim3 fits a scale)"
+    ]
 
 
 #: A rotation APE above this (deg) beside a translation APE below TRUTH_FRAME_TRANSLATION of the path length is
@@ -443,7 +474,20 @@ class LandmarkSection(Section):
             truth_never_estimated=[int(i) for i in lm.truth_never_estimated],
             map_aligned=map_aligned,
         )
-        self.notes += self._map_place_note()
+        self.notes += self._map_place_note() + self._unmatched_note(ids)
+
+    def _unmatched_note(self, ids: np.ndarray) -> list[str]:
+        """Say when most estimated landmarks have no truth by id: a map error over a few of them, or none at all
+        (MR.CLAM with its landmark ids negated: no map error and no word why)."""
+        matched, truth = self.result["n_matched"], sorted(self.landmark_truth or ())
+        if not ids.size or not truth or 2 * matched >= ids.size:
+            return []
+        what = "no map error" if not matched else f"the map error covers those {matched} only"
+        return [
+            f"landmark map: {matched} of the {ids.size} estimated landmark ids are in the landmark truth "
+            f"(estimated ids {int(ids.min())}..{int(ids.max())}, truth ids {truth[0]}..{truth[-1]}): {what} "
+            "(the truth numbers the landmarks otherwise?)"
+        ]
 
     def _map_only(self, raw: np.ndarray, lm: metrics.LandmarkErrors) -> tuple[np.ndarray | None, dict | None]:
         """Per-landmark error after an SE(3) alignment of the matched landmarks alone, and its section."""

@@ -255,6 +255,38 @@ def _halves_disagree(c: _Consistency, stream) -> str | None:
     return None
 
 
+#: Angular velocities a log may hold misread, as the factor that would undo it: the sign (a left-handed or
+#: upside-down gyro), degrees per second (the ROS unit is rad/s).
+GYRO_MISREADS = {
+    "with its angular velocity's sign flipped": -1.0,
+    "with its angular velocity divided by 57.3 (deg/s?)": float(np.radians(1.0)),
+}
+#: A misread is named when the pairs' trimmed mean squared residual with the angular velocity so undone is this
+#: many times smaller than as read (MR.CLAM 6 r1 as recorded: 2.4x and 8.6x larger; in deg/s 712x smaller, its
+#: sign flipped 8.6x smaller).
+GYRO_MISREAD_GAIN = 4.0
+
+
+def _trimmed_cost(e: np.ndarray) -> float:
+    d2 = np.sum(e**2, axis=1)
+    n = max(1, int(TRIM * d2.shape[0]))
+    return float(np.mean(np.partition(d2, n - 1)[:n]))
+
+
+def gyro_misreads(c: _Consistency) -> dict[str, float]:
+    """How many times better the detection pairs fit the odometry with its angular velocity undone by each of
+    ``GYRO_MISREADS`` than as read (no bias fitted: a misread dwarfs a bias): the angular velocity in deg/s or of
+    the wrong sign is no noise the estimators can absorb (MR.CLAM in deg/s: riekf APE 0.49 -> 3.8 m, no word)."""
+    omega_steps, vel_steps, dt = c._steps
+    t_s, *_, omega, vel = c.poses
+    base = _trimmed_cost(c.residuals(0.0)[0])
+    out = {}
+    for what, g in GYRO_MISREADS.items():
+        poses = (t_s, *integrate_body_twists(np.eye(3), np.zeros(3), omega_steps * g, vel_steps, dt), omega * g, vel)
+        out[what] = base / max(_trimmed_cost(c.residuals(0.0, poses)[0]), 1e-300)
+    return out
+
+
 def estimate(stream, bias: np.ndarray | None = None) -> dict:
     """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
     reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's)."""
@@ -263,6 +295,7 @@ def estimate(stream, bias: np.ndarray | None = None) -> dict:
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False}
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
+    out["gyro_misreads"] = gyro_misreads(c)
     shift, sigma, gain = _search(c)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     why = None
@@ -325,11 +358,20 @@ def shifted(stream, offset: dict):
 
 
 def note(name: str, offset: dict) -> list[str]:
-    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always)."""
+    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
+    an angular velocity the detections say is misread (``gyro_misreads``)."""
+    notes = [
+        f"warning: {name}: the detections fit the odometry {gain:.3g}x better {what} "
+        f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the gyro's unit and axes; "
+        "the estimate used it as read"
+        for what, gain in (offset.get("gyro_misreads") or {}).items()
+        if gain >= GYRO_MISREAD_GAIN
+    ]
     if not offset["applied"]:
-        return []
+        return notes
     return [
         f"{name}: detection stamps moved by {offset['estimate_s']:+.4f} s (± {offset['sigma_s']:.2g}) onto the "
         f"velocity clock, estimated from the data ({offset['pairs']} detection pairs; docs/observers.md, Time "
-        "offset): applied"
+        "offset): applied",
+        *notes,
     ]

@@ -656,6 +656,7 @@ def clean_frames(
     drop, cleaning.repeated = _duplicate_mask(t_ns[forder], key)
     cleaning.duplicates = int(drop.sum())
     forder = forder[~drop]
+    cleaning.kept = int(forder.shape[0])  # frames: the note says when every one was there twice, as info does
 
     frame_id = _dominant(frame[forder], frame_names, cleaning)
     if forder.shape[0] == nframes and bool(np.all(np.diff(forder) == 1)):  # every frame, in order: keep as is
