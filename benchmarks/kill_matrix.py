@@ -15,7 +15,8 @@ uses the same one unless its scheduler was killed). On both, a trial may instead
 ``batch`` case one of its worker processes, mid-log. ``--group`` (0.3) of the SIGTERM / SIGKILL trials send it to
 the whole process group (workers and helpers get it beside their parent) instead of the command alone.
 Cases without a signal from the harness: ``batch-timeout`` runs under ``timeout -s TERM -k K DELAY`` (a cron
-job's limit, K 0.05-1 s; plots on, so its runs have figure helpers): exit 124 or 137, or 0 if it finished;
+job's limit, K 0.05-1 s; plots on, so its runs have figure helpers): exit 124, or -9 when the KILL was needed
+(timeout sends it to its own group, itself included: 137 in a shell), or 0 if it finished;
 ``run-memory-limit`` under ``prlimit --as`` at a limit drawn from 250-1400 MB: it fits (0) or ends with one line
 naming the memory (2), never a traceback or a hang. Also ``export``, ``stats`` and ``info`` of the 600 s log.
 
@@ -405,8 +406,8 @@ INTERPRETER_START_S = 0.1
 
 
 def _expected(victim: str, sig: int, starting: bool, delay: float = 1.0) -> set:
-    if victim == "timeout":  # the command ended on the TERM (124) or needed the KILL (137); 0: it finished first
-        return {0, 124, 128 + signal.SIGKILL}
+    if victim == "timeout":  # the command ended on the TERM (124) or needed the KILL, which timeout also sends its
+        return {0, 124, 128 + signal.SIGKILL, -signal.SIGKILL}  # own group: itself killed (-9, 137 in a shell)
     if victim == "memory":  # it fits, or one line with exit 2
         return {0, 2}
     if victim in ("command", "group") and delay < INTERPRETER_START_S:
