@@ -419,6 +419,11 @@ def _expected(victim: str, sig: int, starting: bool, delay: float = 1.0) -> set:
     return {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig}
 
 
+def _hit(res: dict) -> bool:
+    """The signal reached a live process (not: the command had ended, or had no Dask / local worker yet)."""
+    return res["signalled"] and res.get("hit") != "no worker yet"
+
+
 def trial(
     case: Case, sig: int, delay: float, tdir: Path, inp: Path, victim: str = "command", retry: bool = False
 ) -> dict:
@@ -431,7 +436,7 @@ def trial(
     res = {"rc": None, "signalled": False, "violations": [], "victim": victim}
     try:
         _run_killed(case, sig, delay, tdir, inp, victim, cluster, res)
-        if retry and not res["signalled"]:
+        if retry and not _hit(res):
             return res
         if victim == "scheduler" and res["signalled"]:  # the rerun needs a cluster again
             cluster.stop()
@@ -590,9 +595,10 @@ def drawn_trial(case: Case, rng: random.Random, signals, args, tdir: Path, inp: 
             delay = rng.uniform(*MEMORY_MB)
         r = trial(case, sig, delay, tdir, inp, victim, retry=attempt < args.retries)
         r["attempts"] = attempt + 1
-        if r["signalled"] or r["violations"]:
+        if _hit(r) or r["violations"]:
             break
-        case.observe(r["ran_s"])
+        if r["rc"] == 0:  # it ran to its end: an unkilled duration
+            case.observe(r["ran_s"])
         if attempt < args.retries:
             shutil.rmtree(tdir, ignore_errors=True)
     return sig, delay, r
@@ -700,7 +706,7 @@ def report(results: dict[str, list], seed: int, signals) -> None:
         bad = sum(1 for _, r in rs if r["violations"])
         total += bad
         first = sum(1 for _, r in rs if not r["signalled"])
-        hit = sum(1 for _, r in rs if r["signalled"] and r.get("hit") != "no worker yet")
+        hit = sum(1 for _, r in rs if _hit(r))
         again = sum(r["attempts"] - 1 for _, r in rs)
         counts = " / ".join(map(str, n))
         print(
