@@ -15,7 +15,8 @@ uses the same one unless its scheduler was killed). On both, a trial may instead
 ``batch`` case one of its worker processes, mid-log. ``--group`` (0.3) of the SIGTERM / SIGKILL trials send it to
 the whole process group (workers and helpers get it beside their parent) instead of the command alone.
 Cases without a signal from the harness: ``batch-timeout`` runs under ``timeout -s TERM -k K DELAY`` (a cron
-job's limit, K 0.05-1 s; plots on, so its runs have figure helpers): exit 124 or 137, or 0 if it finished;
+job's limit, K 0.05-1 s; plots on, so its runs have figure helpers): exit 124, or -9 when the KILL was needed
+(timeout sends it to its own group, itself included: 137 in a shell), or 0 if it finished;
 ``run-memory-limit`` under ``prlimit --as`` at a limit drawn from 250-1400 MB: it fits (0) or ends with one line
 naming the memory (2), never a traceback or a hang. Also ``export``, ``stats`` and ``info`` of the 600 s log.
 
@@ -405,8 +406,8 @@ INTERPRETER_START_S = 0.1
 
 
 def _expected(victim: str, sig: int, starting: bool, delay: float = 1.0) -> set:
-    if victim == "timeout":  # the command ended on the TERM (124) or needed the KILL (137); 0: it finished first
-        return {0, 124, 128 + signal.SIGKILL}
+    if victim == "timeout":  # the command ended on the TERM (124) or needed the KILL, which timeout also sends its
+        return {0, 124, 128 + signal.SIGKILL, -signal.SIGKILL}  # own group: itself killed (-9, 137 in a shell)
     if victim == "memory":  # it fits, or one line with exit 2
         return {0, 2}
     if victim in ("command", "group") and delay < INTERPRETER_START_S:
@@ -416,6 +417,11 @@ def _expected(victim: str, sig: int, starting: bool, delay: float = 1.0) -> set:
     if victim == "scheduler":
         return {3}  # a lost cluster
     return {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig}
+
+
+def _hit(res: dict) -> bool:
+    """The signal reached a live process (not: the command had ended, or had no Dask / local worker yet)."""
+    return res["signalled"] and res.get("hit") != "no worker yet"
 
 
 def trial(
@@ -430,7 +436,7 @@ def trial(
     res = {"rc": None, "signalled": False, "violations": [], "victim": victim}
     try:
         _run_killed(case, sig, delay, tdir, inp, victim, cluster, res)
-        if retry and not res["signalled"]:
+        if retry and not _hit(res):
             return res
         if victim == "scheduler" and res["signalled"]:  # the rerun needs a cluster again
             cluster.stop()
@@ -589,9 +595,10 @@ def drawn_trial(case: Case, rng: random.Random, signals, args, tdir: Path, inp: 
             delay = rng.uniform(*MEMORY_MB)
         r = trial(case, sig, delay, tdir, inp, victim, retry=attempt < args.retries)
         r["attempts"] = attempt + 1
-        if r["signalled"] or r["violations"]:
+        if _hit(r) or r["violations"]:
             break
-        case.observe(r["ran_s"])
+        if r["rc"] == 0:  # it ran to its end: an unkilled duration
+            case.observe(r["ran_s"])
         if attempt < args.retries:
             shutil.rmtree(tdir, ignore_errors=True)
     return sig, delay, r
@@ -699,7 +706,7 @@ def report(results: dict[str, list], seed: int, signals) -> None:
         bad = sum(1 for _, r in rs if r["violations"])
         total += bad
         first = sum(1 for _, r in rs if not r["signalled"])
-        hit = sum(1 for _, r in rs if r["signalled"] and r.get("hit") != "no worker yet")
+        hit = sum(1 for _, r in rs if _hit(r))
         again = sum(r["attempts"] - 1 for _, r in rs)
         counts = " / ".join(map(str, n))
         print(
