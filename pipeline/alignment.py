@@ -174,7 +174,9 @@ def _to_body(
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
-            f"({tf.explain(body, frame)}{lost}; set frames.body, or list '{frame}' in frames.assume_identity)",
+            f"({tf.explain(body, frame)}{lost}; set frames.body, list '{frame}' in frames.assume_identity, or give "
+            "the transform: the camera of tag corners or images takes it from files in cameras: a Kalibr chain, "
+            "or TagSLAM's camera_poses.yaml (camera in rig) and tagslam.yaml (odometry frame in rig))",
             topic,
         )
     if frame in ident:

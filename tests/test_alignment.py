@@ -113,6 +113,8 @@ def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
         align(s)
     msg = str(err.value)
     assert "mem.bag" in msg and "/imu" in msg and "imu" in msg and "\n" not in msg
+    # the way that works for a camera (TagSLAM test_22's corners: cameras: [cameras.yaml, camera_poses.yaml, ...])
+    assert "or give the transform: the camera of tag corners or images takes it from files in cameras: a Kalibr" in msg
     # ... unless the user says that frame is the body frame
     a = align(_streams(static_tf=[]), identity_frames=("imu", "camera"))
     assert a.det_y.shape == (4, 3)
