@@ -174,7 +174,9 @@ def _to_body(
         raise InputError(
             tf.path,
             f"no transform from frame '{frame}' to body frame '{body}' in /tf_static or /tf "
-            f"({tf.explain(body, frame)}{lost}; set frames.body, or list '{frame}' in frames.assume_identity)",
+            f"({tf.explain(body, frame)}{lost}; set frames.body, list '{frame}' in frames.assume_identity, or give "
+            "the transform: the camera of tag corners or images takes it from files in cameras: a Kalibr chain, "
+            "or TagSLAM's camera_poses.yaml (camera in rig) and tagslam.yaml (odometry frame in rig))",
             topic,
         )
     if frame in ident:
@@ -238,10 +240,18 @@ def check_required(streams: LogStreams, directions: int = 0) -> None:
     if missing or lacking:
         needed = len(REQUIRED_ROLES) + (directions if lacking else 0)
         roles = missing + lacking
+        poses = ""
+        if {"angular_velocity", "linear_velocity"} <= set(missing) and _has_samples(streams.truth):
+            topic = streams.truth.topic  # a log of trajectories (evo's example bags): what it is good for
+            poses = (
+                f"; its poses ({topic}) are a trajectory: `slamobs evaluate {streams.path}:{topic} EST` measures "
+                "another's error"
+            )
         raise InputError(
             streams.path,
             f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
-            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has",
+            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has"
+            + poses,
             details=tuple(
                 f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{_how_to_give(role)}"
                 for role in roles

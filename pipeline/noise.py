@@ -152,16 +152,24 @@ class NoiseSettings:
 
     def lines(self) -> list[str]:
         """One line per level: value, unit, source, uncertainty and method."""
-        out, said = [], set()
+        out, said = [], {}
         for k, (_, unit, _meaning) in DEFAULTS.items():
             value, se = _plain(getattr(self, k)), _plain(self.uncertainty.get(k))
             text = f"{k} = {_fmt(value)}{' ' * bool(unit)}{unit} ({self.sources.get(k, 'default')}"
             text += f", ± {_fmt(se)}" if se is not None else ""
             method = self.methods.get(k)
-            text += ")" if method is None else ": the same fit)" if method in said else f": {method})"
-            said.add(method)
+            text += ")" if method is None else ": the same fit)" if method in said else f": {_told(method, said)})"
+            said.setdefault(method, k)
             out.append(text)
         return out
+
+
+def _told(method: str, said: dict) -> str:
+    """``method`` with a method a line above gave in full (a fit that scaled this level too) named by its level."""
+    for m, k in said.items():
+        if m and f"({m})" in method:
+            method = method.replace(f"({m})", f"(the same fit as {k})")
+    return method
 
 
 def _plain(value):

@@ -12,7 +12,7 @@ from slamobs.pipeline.frames import static_transform
 from slamobs.pipeline.lie import quat_to_rot, rot_to_quat, so3_exp
 from slamobs.pipeline.readers.decode import static_transforms
 from slamobs.pipeline.readers.rows import TfRows
-from slamobs.pipeline.streams import DetectionStream, LogStreams, Transform, Vec3Stream
+from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Transform, Vec3Stream
 
 NS = 1_000_000_000
 
@@ -113,6 +113,8 @@ def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
         align(s)
     msg = str(err.value)
     assert "mem.bag" in msg and "/imu" in msg and "imu" in msg and "\n" not in msg
+    # the way that works for a camera (TagSLAM test_22's corners: cameras: [cameras.yaml, camera_poses.yaml, ...])
+    assert "or give the transform: the camera of tag corners or images takes it from files in cameras: a Kalibr" in msg
     # ... unless the user says that frame is the body frame
     a = align(_streams(static_tf=[]), identity_frames=("imu", "camera"))
     assert a.det_y.shape == (4, 3)
@@ -130,6 +132,14 @@ def test_missing_roles_and_disjoint_times_are_errors():
     assert line.startswith("detections (landmark detections): set topics.detections to a topic of type fiducial_msgs/")
     assert line.endswith("; or one of 5 other kinds of topic (`slamobs info` lists them, with what each needs)")
     assert len(line) < 300 and "sensor_msgs/msg/Image" not in line
+    with pytest.raises(InputError) as err:
+        align(_streams(angular_velocity=None))
+    assert "slamobs evaluate" not in str(err.value)
+    # a log of poses only (evo's ROS_example.bag): what it is good for, and a command that works
+    t = np.arange(3, dtype=np.int64) * NS
+    truth = PoseStream("groundtruth", "world", "body", t, t, np.zeros((3, 3)), np.tile([0.0, 0, 0, 1], (3, 1)))
+    with pytest.raises(InputError, match=r"its poses \(groundtruth\) are a trajectory: `slamobs evaluate mem.bag:"):
+        align(_streams(angular_velocity=None, linear_velocity=None, truth=truth))
     with pytest.raises(InputError) as err:
         align(_streams(angular_velocity=None))
     assert "; or nav_msgs/msg/Odometry  [a zero twist.angular is differentiated" in err.value.details[0]

@@ -227,6 +227,9 @@ def test_gap(tmp_path):
     assert imu.gaps == 1
     assert imu.max_gap_s == pytest.approx(1.01, abs=1e-9) and imu.max_gap_at_s == pytest.approx(2.99, abs=1e-9)
     assert imu.rate_segments == ()
+    # says what a gap is here: MR.CLAM's velocity had '621 gaps' in info beside run's '32 gap(s) longer than 0.5 s'
+    warnings = inspect_log(tmp_path / "gap.bag").warnings
+    assert "/imu: 1 gap over 5x the median interval (longest 1.010 s at +2.990 s)" in warnings
 
 
 def test_rate_change(tmp_path):

@@ -289,3 +289,19 @@ def test_wrong_ids_and_absurd_ranges_do_not_widen_the_detection_law():
     law = estimate_log_noise(stream, stream_density(sim.odom.t_ns, sim.odom.linear)).detection
     r = np.linspace(*law.ranges, 3)
     assert within(law.sigma(r), true_sigma(nm, r)), (law.law, law.sigma(r), true_sigma(nm, r))
+
+
+def test_a_fit_told_in_full_above_is_named_not_repeated():
+    """MR.CLAM 6 robot 1, riekf's report: the detection level's line repeated the held-velocity fit's whole
+    description, already the gyro line's, inside its own ('scaled by 1.47 (variance components of 12936 ...)')."""
+    from slamobs.pipeline.noise import NoiseSettings
+
+    fit = "variance components of 12936 detection-pair residuals over lags of 0.5-32 s"
+    levels = NoiseSettings(
+        *(0.01,) * 9,
+        sources={"gyro": "estimated", "velocity": "estimated", "detection": "estimated"},
+        methods={"gyro": fit, "velocity": fit, "detection": f"635 detection triplets; scaled by 1.47 ({fit})"},
+    )
+    gyro, velocity, detection = levels.lines()[:3]
+    assert gyro.endswith(f": {fit})") and velocity.endswith(": the same fit)")
+    assert detection.endswith(": 635 detection triplets; scaled by 1.47 (the same fit as gyro))")

@@ -320,3 +320,18 @@ def test_accumulated_propagation_equals_step_by_step(source, request):
         (fast.state.cov, step.state.cov),
     ):
         assert _rel(a, b) < 1e-9
+
+
+def test_a_recovery_note_says_the_detection_noise_was_left_alone():
+    """MR.CLAM 6 robot 1's report read 'detection noise now x1 in standard deviation' for a recovery that left it
+    alone."""
+    from slamobs.pipeline.observers.riekf import recovery_notes
+
+    log = [
+        {"t_s": 436.64, "action": "the motion noise variances", "factor": 33.7, "detection_factor": 1.0},
+        {"t_s": 500.0, "action": "the covariance", "factor": 4.0, "detection_factor": 4.0},
+    ]
+    filt = {"recovery_log": log, "recoveries": 2, "landmarks_reinitialised": 0, "status": "ok"}
+    same, grown = recovery_notes(filt)
+    assert same.endswith("by 33.7 (detection noise unchanged)")
+    assert grown.endswith("by 4 (detection noise 2 times its standard deviation)")

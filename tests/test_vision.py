@@ -116,6 +116,11 @@ def test_camera_files(tmp_path):
     ]
     assert models["cam0"].topics == ("/left/image_raw",) and models["cam1"].size == (1280, 1024)
     assert models["narrow_stereo"].k[1, 1] == 501.0 and models["narrow_stereo"].rectified().k[0, 0] == 480.0
+    # the run's note and run.json give the model with units (was 'f=(283.9, 285.0) c=(421.1, 400.5)')
+    assert models["cam1"].describe().startswith("radtan 1280x1024 px, f=(")
+    assert " px, c=(" in models["cam1"].describe() and models["cam1"].describe().endswith(
+        " px, from kalibr.yaml (cam1)"
+    )
     ends = {(t.parent, t.child): t for t in files.transforms}
     chain = ends[("camera", "cam0"), ("camera", "cam1")]  # x_cam0 = T_c1_c0^-1 x_cam1
     np.testing.assert_allclose(chain.trans, [0.2, 0, 0])

@@ -1419,10 +1419,11 @@ def recovery_notes(filt: dict) -> list[str]:
     line when the filter gave up (its trajectory is not to be trusted after that time)."""
     notes = []
     for r in filt["recovery_log"][:5]:
+        grown = np.sqrt(r["detection_factor"])  # 'now x1 in standard deviation' said it was left alone
+        det = "unchanged" if grown == 1.0 else f"{grown:.3g} times its standard deviation"
         notes.append(
             f"riekf: at {r['t_s']:.2f} s most detections of a window of {WINDOW} failed the gate: recovered by "
-            f"multiplying {r['action']} by {r['factor']:.3g} (detection noise now "
-            f"x{np.sqrt(r['detection_factor']):.3g} in standard deviation)"
+            f"multiplying {r['action']} by {r['factor']:.3g} (detection noise {det})"
         )
     for r in filt.get("blind", [])[:5]:
         notes.append(

@@ -374,7 +374,10 @@ def _problems(t: TopicSummary, pace: float | None) -> list[str]:
     if t.header_clock == "zero":
         problems.append("header stamps are all zero")
     if t.gaps:
-        problems.append(plural(t.gaps, "gap") + f" (longest {t.max_gap_s:.3f} s at +{t.max_gap_at_s:.3f} s)")
+        problems.append(  # what counts as a gap, so it is not read as run's (longer than a fixed 0.5 s)
+            plural(t.gaps, "gap")
+            + f" over {GAP_FACTOR:g}x the median interval (longest {t.max_gap_s:.3f} s at +{t.max_gap_at_s:.3f} s)"
+        )
     if t.rate_segments:
         steps = " -> ".join(f"{rate:.4g} Hz" + (f" at +{at:.1f} s" if at else "") for at, rate in t.rate_segments[:5])
         problems.append(f"rate changes: {steps}" + (" ..." if len(t.rate_segments) > 5 else ""))

@@ -111,7 +111,7 @@ class CameraModel:
     def describe(self) -> str:
         fx, fy, cx, cy = self.k[0, 0], self.k[1, 1], self.k[0, 2], self.k[1, 2]
         size = f" {self.size[0]}x{self.size[1]}" if self.size else ""
-        return f"{self.model}{size} f=({fx:.1f}, {fy:.1f}) c=({cx:.1f}, {cy:.1f}) from {self.source}"
+        return f"{self.model}{size} px, f=({fx:.1f}, {fy:.1f}) px, c=({cx:.1f}, {cy:.1f}) px, from {self.source}"
 
 
 @dataclass(frozen=True)
