@@ -155,8 +155,9 @@ class BatchSmoother(Stepper):
         self.det_shape = None
         if self._ratio_configured() and self.noise.detection_ratio != 1.0:
             self.det_shape = an.shape(self.stream.det_y, self.noise.detection_ratio, self.noise.ratio_split())
-        #: (σ_u, σ_w) when the detections are weighed in inverse depth (pipeline.smoother.inverse_depth), the
-        #: record for run.json, and the body-frame points its factors are linearized at (None: the measurements)
+        #: the detections' median depth and range when they are weighed in inverse depth (its levels follow the
+        #: law's: pipeline.smoother.inverse_depth), the record for run.json, and the body-frame points its factors
+        #: are linearized at (None: the measurements)
         self.inverse_depth, self.inverse_depth_record, self.det_at = self._inverse_depth()
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
@@ -219,6 +220,10 @@ class BatchSmoother(Stepper):
         summary["detection_correlation"] = correlation
         summary["detection_anisotropy"] = anisotropy
         summary["detection_inverse_depth"] = self.inverse_depth_record
+        if self.inverse_depth is not None:  # the levels the final solution used
+            summary["detection_inverse_depth"] |= idp.record(
+                *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
+            )
         summary["seed_check"] = seed_check
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
@@ -390,7 +395,8 @@ class BatchSmoother(Stepper):
         )
 
     def _inverse_depth(self) -> tuple[tuple[float, float] | None, dict, None]:
-        """The inverse-depth levels when they apply (else None), the record, no linearization point yet."""
+        """The detections' typical depth and range when inverse depth applies (else None), the record, no
+        linearization point yet."""
         s = self.stream
         sensor = getattr(s, "det_sensor", None)
         why = idp.why_not(self.noise, sensor, s.det_y, self.settings.detection_inverse_depth)
@@ -398,8 +404,8 @@ class BatchSmoother(Stepper):
             why = "noise.detection_ratio is set"
         if why is not None:
             return None, {"skipped": why}, None
-        levels = idp.levels(self.noise, idp.sensor_points(sensor, s.det_y))
-        return levels, idp.record(*levels, INVERSE_DEPTH_PASSES), None
+        typical = idp.typical(sensor, s.det_y)
+        return typical, idp.record(*idp.levels(self.noise, *typical), INVERSE_DEPTH_PASSES), None
 
     def _detections(self, kf_of_det: np.ndarray) -> dict:
         """The problem's detection fields: every detection of the stream, its σ at the current ranges, factors
@@ -407,7 +413,8 @@ class BatchSmoother(Stepper):
         s = self.stream
         factor = 1.0 if self.det_factor is None else np.sqrt(self.det_factor)
         if self.inverse_depth is not None:
-            y, sigma, shape = idp.factors(s.det_sensor, s.det_y, self.det_at, *self.inverse_depth)
+            levels = idp.levels(self.noise, *self.inverse_depth)  # the law's, as scaled by cross-validation
+            y, sigma, shape = idp.factors(s.det_sensor, s.det_y, self.det_at, *levels)
             return {
                 "kf_of_det": kf_of_det,
                 "det_idx": s.det_idx,
@@ -450,7 +457,8 @@ class BatchSmoother(Stepper):
             for _ in range(INVERSE_DEPTH_PASSES):
                 self.det_at = g.predicted_detections(keyframes[1], self.stream.det_idx, chosen.sol)
                 chosen = self._solved_again(chosen, chosen.sol, keyframes, segments, progress, same_motion=True)
-            return chosen, [idp.note(*self.inverse_depth)]
+            levels = idp.levels(self.noise, *self.inverse_depth)
+            return chosen, [idp.note(*levels)]
         if self.noise.detection_per_m == 0.0 and self.noise.detection_per_m2 == 0.0:
             return chosen, []
         for _ in range(RANGE_PASSES):  # the motion factors as they are: only the detections' σ change

@@ -62,15 +62,19 @@ def sensor_points(det_sensor, y: np.ndarray) -> np.ndarray:
     return (y - trans) @ rot
 
 
-def levels(noise, c: np.ndarray) -> tuple[float, float]:
+def typical(det_sensor, y: np.ndarray) -> tuple[float, float]:
+    """The median depth and range (m) of the body-frame points ``y`` in the detections' sensor frame."""
+    c = sensor_points(det_sensor, y)
+    return float(np.median(c[:, 2])), float(np.median(np.linalg.norm(c, axis=1)))
+
+
+def levels(noise, depth: float, rng: float) -> tuple[float, float]:
     """``σ_u`` (across the image, per unit depth) and ``σ_w`` (inverse depth, 1/m) from the law ``σ(r)`` and its
-    range/bearing ratio (the mean over the axes, as riekf weighs it: ``NoiseSettings.ratio_split``) at the
-    median depth of the sensor-frame points ``c``."""
-    z = float(np.median(c[:, 2]))
-    r = float(np.median(np.linalg.norm(c, axis=1)))
+    range/bearing ratio (the mean over the axes, as riekf weighs it: ``NoiseSettings.ratio_split``) at a typical
+    ``depth`` and range ``rng`` (:func:`typical`)."""
     across, along = noise.ratio_split()
-    s = float(noise.detection_sigma(np.array([r]))[0])
-    return float(np.sqrt(across) * s / z), float(np.sqrt(along) * s / (z * z))
+    s = float(noise.detection_sigma(np.array([rng]))[0])
+    return float(np.sqrt(across) * s / depth), float(np.sqrt(along) * s / (depth * depth))
 
 
 def factors(
