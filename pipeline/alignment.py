@@ -85,6 +85,10 @@ class AlignedStream:
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
     #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
     segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    #: The detections' sensor-to-body transform ``(R, t)`` (``y_body = R y_sensor + t``) when it is one constant
+    #: transform (one camera fixed on the body, or the body frame itself); None for several cameras or a moving
+    #: frame. The batch smoother reads the detections in the sensor's own frame through it (inverse depth).
+    det_sensor: tuple[np.ndarray, np.ndarray] | None = None
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -387,7 +391,7 @@ def align(
     del accel, magnetic
     if release:
         streams.detections = None
-    det_t_ns, offsets, det_idx, det_y, landmark_ids = _detections(
+    det_t_ns, offsets, det_idx, det_y, landmark_ids, det_sensor = _detections(
         streams.path, det, lo, hi, frame, lim, _gap_spans(t_om, starts)
     )
     del det
@@ -412,6 +416,7 @@ def align(
         notes=notes,
         directions=directions if keep_directions else None,
         segment_starts=starts,
+        det_sensor=det_sensor,
     )
 
 
@@ -768,7 +773,8 @@ def _detections(
 ):
     """Detection frames inside ``[lo, hi]`` and outside the velocity ``gaps`` in time order, in the body frame,
     without detections outside the range gates of ``lim``: stamps, CSR offsets, dense landmark indices,
-    positions and the sorted landmark ids. Rows are gathered only when some are dropped or moved (a clean log
+    positions, the sorted landmark ids and the sensor-to-body transform when it is one constant transform (else
+    None). Rows are gathered only when some are dropped or moved (a clean log
     keeps its order: an hour of detections is tens of MB per copy)."""
     notes = fr.notes
     lim = {**DEFAULT_LIMITS, **(lim or {})}
@@ -813,6 +819,7 @@ def _detections(
         det_idx.astype(np.int64),
         np.ascontiguousarray(det_y, dtype=np.float64),
         landmark_ids.astype(np.int64),
+        None if det.cameras or cam_ext.rot.ndim != 2 else (cam_ext.rot.copy(), np.array(cam_ext.trans, float)),
     )
 
 
@@ -1079,6 +1086,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         notes=list(aligned.notes),
         directions=d,
         segment_starts=starts[(starts > a) & (starts < b)] - a,
+        det_sensor=aligned.det_sensor,
     )
 
 

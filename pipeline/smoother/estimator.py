@@ -20,6 +20,7 @@ from slamobs.pipeline.noise import DETECTION_LAW_KEYS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
+from slamobs.pipeline.smoother import inverse_depth as idp
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
 from slamobs.pipeline.smoother.evidence import SAMPLE_FLOOR as EVIDENCE_SAMPLE_FLOOR
@@ -43,6 +44,8 @@ COVARIANCE_MARGINALS = 600
 COVARIANCE_ROW_BLOCK = 8_192
 #: Solves with each detection's σ(r) at the range the last solution predicts (``_at_predicted_ranges``).
 RANGE_PASSES = 1
+#: Solves with the inverse-depth factors linearized at the last solution's points (``_at_predicted_ranges``).
+INVERSE_DEPTH_PASSES = 3
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
 MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
@@ -152,6 +155,10 @@ class BatchSmoother(Stepper):
         self.det_shape = None
         if self._ratio_configured() and self.noise.detection_ratio != 1.0:
             self.det_shape = an.shape(self.stream.det_y, self.noise.detection_ratio, self.noise.ratio_split())
+        #: the detections' median depth and range when they are weighed in inverse depth (its levels follow the
+        #: law's: pipeline.smoother.inverse_depth), the record for run.json, and the body-frame points its factors
+        #: are linearized at (None: the measurements)
+        self.inverse_depth, self.inverse_depth_record, self.det_at = self._inverse_depth()
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
@@ -212,6 +219,11 @@ class BatchSmoother(Stepper):
         summary["noise_scale"] = evidence
         summary["detection_correlation"] = correlation
         summary["detection_anisotropy"] = anisotropy
+        summary["detection_inverse_depth"] = self.inverse_depth_record
+        if self.inverse_depth is not None:  # the levels the final solution used
+            summary["detection_inverse_depth"] |= idp.record(
+                *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
+            )
         summary["seed_check"] = seed_check
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
@@ -382,12 +394,35 @@ class BatchSmoother(Stepper):
             **self._detections(kf_of_det),
         )
 
+    def _inverse_depth(self) -> tuple[tuple[float, float] | None, dict, None]:
+        """The detections' typical depth and range when inverse depth applies (else None), the record, no
+        linearization point yet."""
+        s = self.stream
+        sensor = getattr(s, "det_sensor", None)
+        why = idp.why_not(self.noise, sensor, s.det_y, self.settings.detection_inverse_depth)
+        if why is None and self._ratio_configured():
+            why = "noise.detection_ratio is set"
+        if why is not None:
+            return None, {"skipped": why}, None
+        typical = idp.typical(sensor, s.det_y)
+        return typical, idp.record(*idp.levels(self.noise, *typical), INVERSE_DEPTH_PASSES), None
+
     def _detections(self, kf_of_det: np.ndarray) -> dict:
         """The problem's detection fields: every detection of the stream, its σ at the current ranges, factors
-        and shape."""
+        and shape (in inverse depth: the pseudo-measurements at the current linearization points)."""
         s = self.stream
-        ranges = np.linalg.norm(s.det_y, axis=1) if self.det_range is None else self.det_range
         factor = 1.0 if self.det_factor is None else np.sqrt(self.det_factor)
+        if self.inverse_depth is not None:
+            levels = idp.levels(self.noise, *self.inverse_depth)  # the law's, as scaled by cross-validation
+            y, sigma, shape = idp.factors(s.det_sensor, s.det_y, self.det_at, *levels)
+            return {
+                "kf_of_det": kf_of_det,
+                "det_idx": s.det_idx,
+                "det_y": y,
+                "det_sigma": sigma * factor,
+                "det_shape": shape,
+            }
+        ranges = np.linalg.norm(s.det_y, axis=1) if self.det_range is None else self.det_range
         return {
             "kf_of_det": kf_of_det,
             "det_idx": s.det_idx,
@@ -418,6 +453,12 @@ class BatchSmoother(Stepper):
         one that came out long, and the map and trajectory shrank (a stereo-like figure-8, σ ∝ r²: by 8 %)."""
         from slamobs.pipeline.smoother import graph as g
 
+        if self.inverse_depth is not None:  # the factors linearized at the solution's points until they settle
+            for _ in range(INVERSE_DEPTH_PASSES):
+                self.det_at = g.predicted_detections(keyframes[1], self.stream.det_idx, chosen.sol)
+                chosen = self._solved_again(chosen, chosen.sol, keyframes, segments, progress, same_motion=True)
+            levels = idp.levels(self.noise, *self.inverse_depth)
+            return chosen, [idp.note(*levels)]
         if self.noise.detection_per_m == 0.0 and self.noise.detection_per_m2 == 0.0:
             return chosen, []
         for _ in range(RANGE_PASSES):  # the motion factors as they are: only the detections' σ change
@@ -440,6 +481,8 @@ class BatchSmoother(Stepper):
         if self._ratio_configured():  # applied since the first solve (__init__)
             record, note = an.configured(self.noise.detection_ratio)
             return chosen, record, [note]
+        if self.inverse_depth is not None:  # the inverse-depth factors shape every detection (__init__)
+            return chosen, {"skipped": "the detections are weighed in inverse depth"}, []
         kf_t = keyframes[0]
         st = self.settings
         why = an.skipped(st.detection_anisotropy, self.fixed_bias is not None, kf_t.shape[0], EVIDENCE_MAX_KEYFRAMES)

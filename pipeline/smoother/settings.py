@@ -16,6 +16,7 @@ EVIDENCE_MODES = ("off", "held", "always")
 SELECTION_MODES = ("evidence", "cross_validation")
 CORRELATION_MODES = ("off", "auto")
 ANISOTROPY_MODES = ("off", "auto")
+INVERSE_DEPTH_MODES = ("off", "auto")
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,9 @@ class BatchSettings:
     #: "auto": the ratio of the detections' range error to their bearing error chosen by the smoother's evidence
     #: (1 = isotropic, then x2 steps while the evidence rises; pipeline.smoother.anisotropy); "off": isotropic
     detection_anisotropy: str = "auto"
+    #: "auto": with the law ``b + a·r²`` and detections in one camera's frame (z forward), each detection weighed
+    #: in inverse depth (x/z, y/z, 1/z; pipeline.smoother.inverse_depth) instead of range apart from bearing; "off"
+    detection_inverse_depth: str = "auto"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -62,6 +66,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
         ("noise_selection", SELECTION_MODES),
         ("detection_correlation", CORRELATION_MODES),
         ("detection_anisotropy", ANISOTROPY_MODES),
+        ("detection_inverse_depth", INVERSE_DEPTH_MODES),
     ):
         if getattr(settings, key) not in modes:
             raise GainError(f"batch.{key} must be one of {', '.join(modes)}, got {getattr(settings, key)!r}")
