@@ -133,11 +133,16 @@ RECOVERY_ACTIONS = {
 MAX_LOG = 64
 #: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
 PAD = 8
+#: The kernels' floating-point flags: ``a * b + c`` fused into one multiply-add instruction (one rounding instead of
+#: two; the order of the additions as written, no other ``fastmath`` licence): half the floating-point instructions
+#: of the dense pass, whose non-fused form kept the multiply and add units busy (docs/benchmarks.md, "riekf on the
+#: one-hour log"). The same bits run after run, compiled or loaded from the cache.
+CONTRACT = {"contract"}
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
     ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
@@ -180,7 +185,7 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
         acc[_QPP, a, 2] += h * (c2 + mv[a, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
     """The accumulated transition ``Φ = I + F`` and noise ``Q`` as the terms of one symmetric update, applied
     later together with the frame's Kalman downdate (:func:`_apply`): ``Σ⁻ = Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``.
@@ -270,14 +275,15 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _apply(cov, d, lt, rt, k, dp):
     """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
     ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
     the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
-    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. No ``fastmath``: each entry's terms are added in
-    the order written, so a kernel compiled in the run and one loaded from the cache give the same bits (with
-    ``fastmath`` they did not, and it was no faster: the pass is bound by the FMA and add units either way).
+    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. Only ``contract`` of the ``fastmath`` flags
+    (:data:`CONTRACT`): each entry's terms are added in the order written, each product fused into its addition,
+    so a kernel compiled in the run and one loaded from the cache give the same bits (with all of ``fastmath``
+    they did not).
     The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
     pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
     loops run over whole vectors."""
@@ -359,7 +365,7 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
         _settle(cov, d, lt, rt, dp)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
     """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
@@ -424,7 +430,7 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
         s[i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _cholesky(s, m):
     """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
     for j in range(m):
@@ -473,7 +479,7 @@ def _mahalanobis3(s, z):
     return w0 * w0 + w1 * w1 + w2 * w2
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (the exponential of docs/observers.md §1, applied on the left) and
     ``b̂ ← b̂ + b̃̂``."""
@@ -504,7 +510,7 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
     ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
@@ -569,7 +575,7 @@ def _settle(cov, d, lt, rt, dp):
     dp[:, :d] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _update(
     a0,
     nd,
@@ -904,7 +910,7 @@ def _window_check(
     return changed
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=CONTRACT)
 def _advance(
     vel_t,
     omega,
