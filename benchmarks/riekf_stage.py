@@ -76,7 +76,8 @@ def cekf_madds(d: int, n_active: float, flush_share: float, m: float) -> float:
 
 def one_pass_rate(d: int, k: int, calls: int = 20000) -> tuple[float, float]:
     """CPU seconds per call of ``riekf._apply`` (``k`` terms at ``D = d``, generated numbers, arrays padded as the
-    filter pads them) and the multiply-adds it computes per call (its four-row tiles from a multiple of ``PAD``)."""
+    filter pads them, the rows of ``(k − 6)/3`` landmarks mirrored below the diagonal as a frame mirrors them) and
+    the multiply-adds it computes per call (its four-row tiles from a multiple of ``PAD``)."""
     from slamobs.pipeline.observers import riekf
 
     dim = d + -d % riekf.PAD
@@ -84,10 +85,12 @@ def one_pass_rate(d: int, k: int, calls: int = 20000) -> tuple[float, float]:
     cov = np.zeros((dim, dim))
     lt, rt, dp = np.zeros((k, dim)), np.zeros((6, dim)), np.zeros((3, dim))
     lt[:, :d], rt[:, :d] = rng.normal(size=(k, d)) * 1e-9, rng.normal(size=(6, d)) * 1e-9
-    riekf._apply(cov, d, lt, rt, k, dp)
+    m = (k - 6) // 3  # the next frame's landmark rows mirrored below the diagonal, as a frame mirrors them
+    rows = (riekf.N_FIXED + 3 * np.linspace(0, (d - riekf.N_FIXED) // 3 - 1, m)).astype(np.int64)
+    riekf._apply(cov, d, lt, rt, k, dp, rows, m)
     c = time.process_time()
     for _ in range(calls):
-        riekf._apply(cov, d, lt, rt, k, dp)
+        riekf._apply(cov, d, lt, rt, k, dp, rows, m)
     per_call = (time.process_time() - c) / calls
     tiles = range(0, d + -d % 4, 4)
     return per_call, sum(4 * (dim - (i - i % riekf.PAD)) * k for i in tiles)

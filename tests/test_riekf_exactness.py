@@ -33,7 +33,7 @@ def test_one_pass_sum_equals_the_matrix_product(d, k):
         expect[:3, 3 + a] += dp[a, :3]
     expect = np.triu(expect) + np.triu(expect, 1).T
     got = cov.copy()
-    _apply(got, d, lt, rt, k, dp)
+    _apply(got, d, lt, rt, k, dp, np.zeros(0, np.int64), -1)  # the whole triangle mirrored
     assert np.array_equal(got, got.T)
     assert np.abs(got - expect).max() <= 1e-13 * np.abs(expect).max()
 
@@ -114,6 +114,55 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max() and np.array_equal(cov, cov.T)
     for got, want in ((r_hat, r_exp), (p_hat, p_exp), (lm, lm_exp), (np.r_[b_om, b_v], b_exp)):
         assert np.abs(got - want).max() <= 1e-12 * np.abs(want).max()
+
+
+def _two_frames(partial: bool):
+    """Two frames through ``_update``, propagation pending before each: the first detects landmarks 4, 1, 3 and a
+    new one, 6 (augmented from the position's rows), and mirrors either the whole lower triangle or (``partial``)
+    only what the second reads of it (the second detects 0, 1, 5 and 6); the covariance, state and map after each."""
+    rng = np.random.default_rng(31)
+    n, seen = 7, 6
+    d = N_FIXED + 3 * seen
+    slot_of = np.r_[rng.permutation(seen), -1]
+    slot_lm = np.r_[np.argsort(slot_of[:seen]), 0]
+    a = rng.normal(size=(d, d))
+    cov = np.zeros((d + 4, d + 4))  # room for the new landmark, padded
+    cov[:d, :d] = (a @ a.T + d * np.eye(d)) * 1e-3
+    lm = rng.normal(size=(n, 3)) * 5
+    r_hat, p_hat = so3_exp(rng.normal(size=3) * 0.3), rng.normal(size=3)
+    b_om, b_v = np.zeros(3), np.zeros(3)
+    det_idx = np.array([4, 1, 3, 6, 0, 1, 5, 6])
+    det_y = np.array([r_hat.T @ (lm[i] - p_hat) for i in det_idx]) + rng.normal(size=(8, 3)) * 0.01
+    law = np.array([0.02, 0.004, 0.0, 1.0, 0.0])
+    width = cov.shape[0]
+    lt, rt, dp = np.zeros((6 + 12, width)), np.zeros((6, width)), np.zeros((3, width))
+    ns = np.zeros(N_SLOTS, dtype=np.int64)
+    after = []
+    for a0, nd, nxt in ((0, 4, 4 if partial else -1), (4, 4, -1)):
+        acc = rng.normal(size=(5, 3, 3)) * 0.01
+        w = rng.normal(size=(6, 6)) * 0.01
+        acc[2], acc[3], acc[4] = (w @ w.T)[:3, :3], (w @ w.T)[3:, :3], (w @ w.T)[3:, 3:]
+        _propagation_terms(cov, d, lm, slot_lm, acc, 0.1, 0.01, 0.02, lt, rt, dp)
+        d = _update(
+            a0, nd, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
+            np.zeros(4, np.int64), np.zeros(12), lt, rt, dp, np.zeros((12, 12)), np.zeros((8, 3)), np.zeros((8, 3)),
+            0, ns, 1e9, 1.0, np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_),
+            np.zeros(n, np.bool_), np.zeros((5, 7)), np.zeros(1), 4, nxt,
+        )  # fmt: skip
+        after.append((cov.copy(), r_hat.copy(), p_hat.copy(), np.r_[b_om, b_v], lm.copy()))
+    assert ns[9] == 2 and ns[8] == 0 and d == N_FIXED + 3 * n  # two updates, none gated, landmark 6 augmented
+    return after
+
+
+def test_mirroring_what_the_next_frame_reads_gives_the_same_bits():
+    """``_update`` with the next frame's detections mirrors only the rows of ``Σ`` that frame reads below the
+    diagonal (``_mirror_read``): the next frame gives the bits it gives after a whole mirror, though the first
+    frame left other entries below the diagonal stale (and augmented a landmark from the position's rows)."""
+    whole, partial = _two_frames(False), _two_frames(True)
+    cov_w, cov_p = whole[0][0], partial[0][0]
+    assert np.array_equal(np.triu(cov_w), np.triu(cov_p)) and not np.array_equal(cov_w, cov_p)
+    for got, want in zip(partial[1], whole[1], strict=True):  # the second frame mirrors the whole triangle
+        assert np.array_equal(got, want)
 
 
 @pytest.fixture(scope="module")

@@ -133,11 +133,16 @@ RECOVERY_ACTIONS = {
 MAX_LOG = 64
 #: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
 PAD = 8
+#: The kernels' floating-point flags: ``a * b + c`` fused into one multiply-add instruction (one rounding instead of
+#: two; the order of the additions as written, no other ``fastmath`` licence): half the floating-point instructions
+#: of the dense pass, whose non-fused form kept the multiply and add units busy (docs/benchmarks.md, "riekf on the
+#: one-hour log"). The same bits run after run, compiled or loaded from the cache.
+CONTRACT = {"contract"}
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
     ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
@@ -180,7 +185,7 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
         acc[_QPP, a, 2] += h * (c2 + mv[a, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
     """The accumulated transition ``Φ = I + F`` and noise ``Q`` as the terms of one symmetric update, applied
     later together with the frame's Kalman downdate (:func:`_apply`): ``Σ⁻ = Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``.
@@ -270,14 +275,16 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     return True
 
 
-@njit(cache=True)
-def _apply(cov, d, lt, rt, k, dp):
+@njit(cache=True, fastmath=CONTRACT)
+def _apply(cov, d, lt, rt, k, dp, rows, n_rows):
     """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
     ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
     the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
-    ``Σ`` stays exactly symmetric. ``k`` is a multiple of 3. No ``fastmath``: each entry's terms are added in
-    the order written, so a kernel compiled in the run and one loaded from the cache give the same bits (with
-    ``fastmath`` they did not, and it was no faster: the pass is bound by the FMA and add units either way).
+    ``Σ`` stays exactly symmetric (``n_rows < 0``), or only what the next frame reads of the lower triangle is
+    (:func:`_mirror_read`, the landmark rows starting at ``rows[:n_rows]``). ``k`` is a multiple of 3. Only
+    ``contract`` of the ``fastmath`` flags (:data:`CONTRACT`): each entry's terms are added in the order written,
+    each product fused into its addition, so a kernel compiled in the run and one loaded from the cache give the
+    same bits (with all of ``fastmath`` they did not).
     The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
     pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
     loops run over whole vectors."""
@@ -329,7 +336,10 @@ def _apply(cov, d, lt, rt, k, dp):
             cov[3 + a, j] += dp[a, j]
         for b in range(3):
             cov[b, 3 + a] += dp[a, b]
-    _mirror(cov, d)
+    if n_rows < 0:
+        _mirror(cov, d)
+    else:
+        _mirror_read(cov, rows, n_rows)
 
 
 @njit(cache=True)
@@ -352,6 +362,24 @@ def _mirror(cov, d):
 
 
 @njit(cache=True)
+def _mirror_read(cov, rows, n_rows):
+    """The lower-triangle entries a frame reads (the filter's other kernels read the upper triangle or these): the
+    fixed block's (``N_FIXED`` rows: bias and position rows, the pose covariance) and the rows of the landmarks
+    the frame detects (slots starting at ``rows[:n_rows]``: the gates and ``HΣ⁻`` read them whole). The rest of
+    the lower triangle is left as it was until :func:`_advance` returns (a full :func:`_mirror`)."""
+    for r in range(N_FIXED - 1):
+        for j in range(r + 1, N_FIXED):
+            cov[j, r] = cov[r, j]
+    for q in range(n_rows):
+        o = rows[q]
+        l0, l1, l2 = cov[o], cov[o + 1], cov[o + 2]
+        for j in range(o):
+            cj = cov[j]
+            l0[j], l1[j], l2[j] = cj[o], cj[o + 1], cj[o + 2]
+        l1[o], l2[o], l2[o + 1] = l0[o + 1], l0[o + 2], l1[o + 2]
+
+
+@njit(cache=True)
 def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
     """Apply the accumulated transition and noise to the covariance now (first ``d`` dimensions; ``lt``, ``rt``
     (at least 6 × D) and ``dp`` (3 × D) are scratch): :func:`_propagation_terms` then :func:`_apply`."""
@@ -359,7 +387,7 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
         _settle(cov, d, lt, rt, dp)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
     """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
@@ -424,7 +452,7 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
         s[i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _cholesky(s, m):
     """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
     for j in range(m):
@@ -473,7 +501,7 @@ def _mahalanobis3(s, z):
     return w0 * w0 + w1 * w1 + w2 * w2
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (the exponential of docs/observers.md §1, applied on the left) and
     ``b̂ ← b̂ + b̃̂``."""
@@ -504,7 +532,7 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
     ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
@@ -563,13 +591,13 @@ def _gain(hp, chol, z, k3, d):
 @njit(cache=True)
 def _settle(cov, d, lt, rt, dp):
     """Apply the pending propagation (:func:`_propagation_terms`) to the covariance now, and clear it."""
-    _apply(cov, d, lt, rt, 6, dp)
+    _apply(cov, d, lt, rt, 6, dp, np.zeros(0, np.int64), -1)
     lt[:6, :d] = 0.0
     rt[:6, :d] = 0.0
     dp[:, :d] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _update(
     a0,
     nd,
@@ -604,13 +632,16 @@ def _update(
     reinit,
     win_sum,
     blind_z2,
+    next_a0=0,
+    next_nd=-1,
 ):
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
     is counted in the recovery's window. The propagation since the last frame is pending in ``lt``, ``rt``, ``dp``
     (:func:`_propagation_terms`): it is applied in the same pass as the downdate (:func:`_apply`), the gain read
-    from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt`` are the downdate's scratch). Returns the new
-    state dimension."""
+    from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt`` are the downdate's scratch). ``next_a0``, ``next_nd``:
+    the next frame's detections, whose rows of ``Σ`` are all of its lower triangle that is mirrored
+    (:func:`_mirror_read`; ``next_nd < 0``: all of it). Returns the new state dimension."""
     for j in range(nd):  # a re-initialisation copies rows of Σ⁻: apply the propagation first
         i = det_idx[a0 + j]
         if slot_of[i] >= 0 and reinit[i]:
@@ -719,7 +750,14 @@ def _update(
         else:
             xi = _gain(hp, smat, z, k3, d)
             terms += k3
-    _apply(cov, d, lt, rt, terms, dp)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
+    rows = np.empty(max(next_nd, 0), np.int64)  # the next frame's known landmarks: their rows of Σ mirrored
+    n_rows = next_nd if next_nd < 0 else 0
+    for j in range(next_nd):
+        o = slot_of[det_idx[next_a0 + j]]
+        if o >= 0:
+            rows[n_rows] = N_FIXED + 3 * o
+            n_rows += 1
+    _apply(cov, d, lt, rt, terms, dp, rows, n_rows)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
     if xi.shape[0] > 0:
         _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
         ns[_UPDATES] += 1
@@ -758,7 +796,7 @@ def _reset_landmark(cov, d, o, sigma2, ue):
     for c in range(3):
         for k in range(d):
             cov[o + c, k] = cov[3 + c, k]
-            cov[k, o + c] = cov[k, 3 + c]
+            cov[k, o + c] = cov[3 + c, k]
     for a in range(3):
         for c in range(3):
             cov[o + a, o + c] = cov[3 + a, 3 + c] + ue[a] * ue[c]
@@ -904,7 +942,7 @@ def _window_check(
     return changed
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, fastmath=CONTRACT)
 def _advance(
     vel_t,
     omega,
@@ -1018,6 +1056,7 @@ def _advance(
             nd = det_offsets[jf + 1] - a0
             work += d * d * (3 * nd + 6) // _FRAME_WORK_SCALE
             _blind_start(t_next, nd, a0, det_idx, slot_of, reinit, fs, ns)
+            next_nd = det_offsets[jf + 2] - det_offsets[jf + 1] if jf + 1 < n_frames else -1
             d = _update(
                 a0,
                 nd,
@@ -1052,6 +1091,8 @@ def _advance(
                 reinit,
                 win_sum,
                 blind_z2,
+                det_offsets[jf + 1],
+                next_nd,
             )
             if ns[_ARMED] and ns[_PB_N] >= BLIND_WINDOW:
                 _blind_check(t_next, d, cov, fs, ns, win_sum, blind_z2, gated_lm, blind_log)
@@ -1096,6 +1137,7 @@ def _advance(
     if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
         _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
         acc_dt = 0.0
+    _mirror(cov, d)  # the frames mirrored only what the next one reads (_mirror_read): Σ whole for the caller
     fs[_T], fs[_ACC_DT] = t, acc_dt
     ns[_IV], ns[_JF], ns[_NSEEN], ns[_STARTED], ns[_STEPS] = iv, jf, (d - N_FIXED) // 3, 1 if started else 0, steps
     return o
