@@ -342,14 +342,8 @@ def quats_to_rots(q):
     quaternion gives NaN."""
     q = np.ascontiguousarray(q, dtype=np.float64)
     out = np.empty((q.shape[0], 3, 3))
-    _quats_to_rots_into(q, out)
+    _rots_quats_into(out, q, False)
     return out
-
-
-@njit(cache=True, nogil=True, nrt=False)
-def _quats_to_rots_into(q, out):
-    for n in range(q.shape[0]):
-        _rot_of_quat(q[n, 0], q[n, 1], q[n, 2], q[n, 3], out[n])
 
 
 def rots_to_quats(r):
@@ -357,14 +351,20 @@ def rots_to_quats(r):
     (NaN rows give NaN)."""
     r = np.ascontiguousarray(r, dtype=np.float64)
     q = np.empty((r.shape[0], 4))
-    _rots_to_quats_into(r, q)
+    _rots_quats_into(r, q, True)
     return q
 
 
 @njit(cache=True, nogil=True, nrt=False)
-def _rots_to_quats_into(r, q):
-    for n in range(r.shape[0]):
-        q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])
+def _rots_quats_into(r, q, to_quats):
+    """Rotations ``r`` (N, 3, 3) to quaternions ``q`` (N, 4), or back when ``to_quats`` is False: both directions
+    in one kernel, so a first run compiles one (the alignment's) where it compiled two (the report's too)."""
+    if to_quats:
+        for n in range(r.shape[0]):
+            q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])
+    else:
+        for n in range(q.shape[0]):
+            _rot_of_quat(q[n, 0], q[n, 1], q[n, 2], q[n, 3], r[n])
 
 
 @njit(cache=True, nogil=True)
