@@ -250,6 +250,7 @@ def test_the_motion_levels_are_scanned_again_once_the_range_is_weighed_apart(mon
     assert again.stats["metadata"]["smoother"]["detection_anisotropy"]["motion_scanned_again"] is True
     scans = [n for n in again.stats["notes"] if n.startswith("batch: velocity noise level chosen by the evidence")]
     assert len(scans) > len([n for n in once.stats["notes"] if n.startswith("batch: velocity noise level chosen")])
+    assert any("again after range and bearing were weighed apart)" in n for n in scans)  # not a bare repetition
 
 
 def test_a_ratio_set_in_the_configuration_holds_from_the_first_solve(generated):

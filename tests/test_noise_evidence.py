@@ -116,3 +116,19 @@ def test_a_long_log_skips_the_choice_and_says_so(log, monkeypatch):
     assert "keyframes" in s.stats["metadata"]["smoother"]["noise_scale"]["velocity"]["skipped"]
     assert any("not chosen by the evidence" in n for n in s.stats["notes"]), s.stats["notes"]
     np.testing.assert_allclose(s.stats["metadata"]["noise"]["velocity"], 3.0 * truth.velocity)
+
+
+def test_the_notes_of_several_passes_say_which_pass():
+    """MR.CLAM 6 robot 1 (batch): the velocity and gyro levels' evidence notes came three times each with other
+    numbers and no word of why (two passes over the levels, then a scan again after range and bearing were weighed
+    apart); each now says which pass it is. One pass reads as before."""
+    from slamobs.pipeline.smoother.evidence import in_passes
+
+    note = "batch: velocity noise level chosen by the evidence (log marginal likelihood): x1 2.0; kept x1 (0.04)"
+    assert in_passes([[note]]) == [note]
+    first, second = in_passes([[note], [note]])
+    assert first.startswith("batch: velocity noise level chosen by the evidence (pass 1 of 2) (log marginal")
+    assert second.startswith("batch: velocity noise level chosen by the evidence (pass 2 of 2) (log")
+    (again,) = in_passes([[note]], again=True)
+    assert "evidence (again after range and bearing were weighed apart) (log" in again
+    assert "(pass 2 of 2; again after" in in_passes([[note], [note]], again=True)[1]

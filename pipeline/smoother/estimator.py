@@ -26,6 +26,7 @@ from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEY
 from slamobs.pipeline.smoother.evidence import SAMPLE_FLOOR as EVIDENCE_SAMPLE_FLOOR
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
 from slamobs.pipeline.smoother.evidence import SOLVE_FLOOR as EVIDENCE_SOLVE_FLOOR
+from slamobs.pipeline.smoother.evidence import in_passes as evidence_passes
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: What the detection law's method says when batch leaves the held streams' factor out of it.
@@ -579,20 +580,22 @@ class BatchSmoother(Stepper):
             )
         records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0) | (scales or {})
         budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
-        spent, moved = 0, True
+        spent, moved, passes = 0, True, []
         while moved and spent <= budget:
             moved = False
+            passes.append([])
             for key in EVIDENCE_KEYS:
                 if (why := self._evidence_skipped(key)) is not None:
                     records[key] = {"skipped": why}
                     continue
                 lowest = EVIDENCE_SAMPLE_FLOOR / total[key] if self._sampled(key) else 0.0
                 chosen, records[key], note, solves = self._scan(key, chosen, keyframes, segments, progress, lowest)
-                notes.append(note)
+                passes[-1].append(note)
                 total[key] *= records[key]["winner"]
                 records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
                 spent += solves
                 moved |= records[key]["winner"] != 1.0
+        notes += evidence_passes(passes, again=scales is not None)
         if moved:
             notes.append(
                 f"batch: the evidence scan stopped at its budget ({spent} linear solves, {EVIDENCE_SOLVE_BUDGET:g}x "

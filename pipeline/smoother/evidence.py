@@ -128,6 +128,26 @@ def best_scale(scores: dict[float, float | None]) -> float:
     return min((s for s, z in valid.items() if z >= top - MIN_GAIN), key=lambda s: abs(np.log(s)))
 
 
+def in_passes(passes: list[list[str]], again: bool = False) -> list[str]:
+    """The choices' notes (:func:`record`) of each pass over the levels, each saying which pass it is when there
+    were several, or when the scan was made again after range and bearing were weighed apart (``again``): the
+    same level's note two or three times with other numbers read as a repetition."""
+    if len(passes) == 1 and not again:
+        return list(passes[0])
+
+    def label(k: int) -> str:
+        said = [f"pass {k} of {len(passes)}"] * (len(passes) > 1) + [
+            "again after range and bearing were weighed apart"
+        ] * again
+        return "; ".join(said)
+
+    return [
+        note.replace("chosen by the evidence", f"chosen by the evidence ({label(k)})", 1)
+        for k, notes in enumerate(passes, 1)
+        for note in notes
+    ]
+
+
 def record(key: str, level: np.ndarray, scores: dict[float, float | None], winner: float) -> tuple[dict, str]:
     """The choice for run.json (observer.smoother.noise_scale.<key>) and its note."""
     table = {f"{s:g}": (None if z is None else round(float(z), 3)) for s, z in sorted(scores.items())}
