@@ -78,3 +78,6 @@ def test_other_detections_are_left_alone(stereo):
     assert "one fixed sensor frame" in idp.why_not(noise, None, y, "auto")
     planar = np.c_[y[:, :2], np.zeros(y.shape[0])]  # range-bearing points in the body plane (MR.CLAM)
     assert "not a camera's" in idp.why_not(noise, (np.eye(3), np.zeros(3)), planar, "auto")
+    behind = y.copy()
+    behind[0] = 2.0 * sensor[1] - behind[0]  # one point mirrored through the camera's centre: z < 0
+    assert "1 detections lie behind" in idp.why_not(noise, sensor, behind, "auto")

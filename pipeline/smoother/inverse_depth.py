@@ -25,12 +25,11 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Share of the detections that must lie in front of their sensor (optical z > 0) for the frame to be a camera's.
-IN_FRONT = 0.999
 #: Median of ``z / |c|`` at or above which the sensor frame's z is taken as its optical axis (a camera's field of
 #: view: a point is never far off the axis; MR.CLAM's range-bearing points in the body plane have z = 0).
 ON_AXIS = 0.5
-#: Nearest depth a predicted point is linearized at (m); one behind it keeps the measurement's linearization.
+#: Nearest depth (m) of a measured point (every one must lie beyond it: 1/z of a point behind the camera is no
+#: measurement) and of a predicted one (one nearer keeps the measurement's linearization).
 MIN_DEPTH = 1e-3
 
 
@@ -51,8 +50,10 @@ def why_not(noise, det_sensor, det_y: np.ndarray, mode: str) -> str | None:
         return "no detection"
     c = sensor_points(det_sensor, det_y)
     z = c[:, 2]
-    if np.mean(z > MIN_DEPTH) < IN_FRONT or np.median(z / np.maximum(np.linalg.norm(c, axis=1), 1e-12)) < ON_AXIS:
+    if np.median(z / np.maximum(np.linalg.norm(c, axis=1), 1e-12)) < ON_AXIS:
         return "the detections' sensor frame is not a camera's (z forward)"
+    if (behind := int(np.count_nonzero(z <= MIN_DEPTH))) > 0:
+        return f"{behind} detections lie behind their camera (z <= {MIN_DEPTH} m)"
     return None
 
 
