@@ -440,3 +440,46 @@ def test_a_local_cluster_that_cannot_start_is_exit_3(monkeypatch):
     monkeypatch.setattr(distributed, "LocalCluster", no_ports)
     with pytest.raises(InfrastructureError, match=r"local Dask cluster: cannot start \(OSError: .*Address already"):
         DaskPool(1).connect()
+
+
+def test_a_worker_killed_twice_under_one_log_fails_that_log_only_and_a_rerun_runs_it(logs, tmp_path):
+    """SIGKILL of the worker running a log, then of the fresh worker running it again (an OOM killer that keeps
+    choosing it): that log fails naming the signal, the others run, the batch exits 1 with a consistent dataset,
+    and the same command runs the failed log (kill_matrix kills a worker once: its log runs again)."""
+    out = tmp_path / "OUT"
+    proc, err = _start(_batch_args(logs, out, "-j", 1), tmp_path, "batch")
+    killed: list[int] = []
+    victim_staged = None
+    try:
+        for _ in range(2):
+            assert wait_for(
+                lambda: [s for s in _staged(out) if s[1] not in killed] or proc.poll() is not None, 180, step=0.005
+            ), err.read_text()
+            running = [s for s in _staged(out) if s[1] not in killed]
+            assert running and proc.poll() is None, err.read_text()
+            staged, pid = running[0]
+            assert victim_staged in (None, staged)  # the same log again, in a fresh worker
+            victim_staged = staged
+            os.kill(pid, signal.SIGKILL)
+            killed.append(pid)
+        assert proc.wait(timeout=300) == 1, err.read_text()
+        assert wait_gone(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    rows = assert_consistent(out)
+    failed = [r for r in rows.values() if r["status"] != "ok"]
+    assert len(rows) == N_LOGS and len(failed) == 1, rows
+    assert "worker process died twice while running this log (killed by SIGKILL)" in failed[0]["error"]
+    _rerun_and_check(logs, out)
+
+
+def _staged(out: Path) -> list[tuple[Path, int]]:
+    """(staging directory, worker pid) of each log a worker has begun."""
+    found = []
+    for marker in (out / "_slamobs" / "staging").glob(f"*/*/{STARTED}"):
+        try:
+            found.append((marker.parent, json.loads(marker.read_text())["pid"]))
+        except (OSError, ValueError, KeyError):
+            pass
+    return found
