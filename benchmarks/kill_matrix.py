@@ -4,7 +4,7 @@ command's median unkilled duration (the reference run, then every rerun and ever
 signal: such a trial is drawn again, up to ``--retries`` times, so that the trials hit a live process), then
 check what docs/reliability.md promises.
 
-    .venv/bin/python benchmarks/kill_matrix.py [--trials 11] [--seed S] [--only run-fa,batch,...] [--cache DIR]
+    .venv/bin/python benchmarks/kill_matrix.py [--trials N] [--seed S] [--only run-fa,batch,...] [--cache DIR]
         [--signals TERM,INT,KILL,HUP] [--span 0.9] [--retries 2] [--dask] [--dask-cluster]
 
 SIGHUP (``--signals ...,HUP``) goes to the group, as a closed terminal's shell sends it to its jobs. ``--dask`` adds
@@ -606,7 +606,7 @@ def drawn_trial(case: Case, rng: random.Random, signals, args, tdir: Path, inp: 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=11, help="trials in total, spread over the cases (11: one each)")
+    ap.add_argument("--trials", type=int, default=None, help="trials in total, spread over the cases (one each)")
     ap.add_argument("--seed", type=int, default=None)
     ap.add_argument("--only", default=None, help="comma-separated case names")
     ap.add_argument("--dask", action="store_true", help="also batch --executor dask (a LocalCluster)")
@@ -652,7 +652,7 @@ def main() -> None:
             print(f"{c.name}: {c.duration:.1f} s unkilled", flush=True)
         print(f"seed {seed}; load average {os.getloadavg()[0]:.2f} (2 cores)", flush=True)
         results: dict[str, list] = {c.name: [] for c in cases}
-        for k in range(args.trials):
+        for k in range(args.trials or len(cases)):
             case = cases[k % len(cases)]
             rng = random.Random(f"{seed}-{k // len(cases)}-{case.name}")
             tdir = Path(tmp) / "t" / f"{k}"

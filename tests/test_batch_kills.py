@@ -257,6 +257,29 @@ def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, s
     _rerun_and_check(logs, out)
 
 
+def test_a_scheduler_killed_while_a_task_runs_leaves_nothing_staged(logs, tmp_path, scheduler):
+    """The worker outlives the killed scheduler and its task goes on: its run's writer made the staging directory
+    again after the batch had removed it (kill_matrix seed 35: two staged runs left after exit 3). The batch now
+    removes what such tasks write until they have seen its lease gone and ended."""
+    from slamobs.pipeline.batch.executor import LEASE_POLL_S
+
+    sched, address = scheduler
+    worker = _worker(address, tmp_path, "w1")
+    out = tmp_path / "OUT"
+    try:
+        proc, err = _start(_batch_args(logs, out, "--scheduler", address, "--wait-workers", "30"), tmp_path, "batch")
+        assert wait_for(lambda: _started(out) or proc.poll() is not None, 180, step=0.01), err.read_text()
+        sched.kill()
+        assert proc.wait(timeout=120) == 3, err.read_text()
+        time.sleep(LEASE_POLL_S + 3)  # the orphaned task has seen the lease gone and ended its worker process
+        staged = sorted(str(p.relative_to(out)) for p in (out / "_slamobs" / "staging").rglob("*"))
+        assert staged == [], staged
+        assert_consistent(out)
+    finally:
+        _stop(worker)
+    _rerun_and_check(logs, out)
+
+
 def test_a_scheduler_killed_before_the_batch_connects_is_exit_3_at_once_naming_it(logs, tmp_path, scheduler):
     """Nothing listens at the address any more: one line naming it, exit 3, without waiting out Dask's connect
     timeout (min(--wait-workers, 30) s: 25 s measured with --wait-workers 20)."""

@@ -38,6 +38,7 @@ from slamobs.pipeline.batch.discover import LogEntry, outside
 from slamobs.pipeline.batch.executor import (
     EXECUTORS,
     KEPT,
+    LEASE_POLL_S,
     RETRY,
     Task,
     base_row,
@@ -375,9 +376,19 @@ class _Staging:
             except OSError:
                 return
 
-    def close(self) -> None:
+    def close(self, tasks_may_run: bool = False) -> None:
+        """Remove the lease, then the directory. ``tasks_may_run``: tasks of this batch may still run on a Dask
+        cluster it lost (their workers outlive a killed scheduler): they end within ``LEASE_POLL_S`` of seeing the
+        lease gone, and what they write until then (a run's writer makes its parent directories again) is removed
+        as it appears, so that the batch leaves nothing staged (kill_matrix seed 35: scheduler SIGKILLed mid-run,
+        two staged runs left after exit 3)."""
         self._stop.set()
+        self.lease.unlink(missing_ok=True)
         remove_path(self.dir)
+        deadline = time.monotonic() + (LEASE_POLL_S + 1.0 if tasks_may_run else 0.0)
+        while time.monotonic() < deadline:
+            time.sleep(0.1)
+            remove_path(self.dir)
 
 
 def run_batch(
@@ -519,6 +530,7 @@ def _execute(
         for t in plan.tasks
     ]
     results = None
+    ended = False
     try:
         results = pool.results(tasks)
         refreshed = time.monotonic()
@@ -537,10 +549,13 @@ def _execute(
             if time.monotonic() - refreshed > ledger.refresh_every():
                 ledger.compact()
                 refreshed = time.monotonic()
+        ended = True
     finally:
         if results is not None:
             results.close()  # kills the local workers
-        staging.close()
+        if use_dask and not options.scheduler:
+            pool.close()  # a local cluster's workers killed before its tasks could write into staging again
+        staging.close(tasks_may_run=use_dask and bool(options.scheduler) and not ended)
 
 
 def compact_batch(out: Path) -> tuple[Reconciled, list[TableCompaction]]:
