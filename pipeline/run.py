@@ -752,13 +752,11 @@ def evaluate_run(
             report_error, unusable = one_line(err), True
         timings["report_s"] = time.perf_counter() - t
     if unusable or not had_truth:
+        from slamobs.pipeline.evaluation.figure_jobs import NO_TRUTH_NOTE
+
         why = f"no error report: {report_error}" if unusable else "no trajectory truth: no trajectory error report"
         if not streams.landmark_truth:
-            notes.append(
-                why
-                if unusable
-                else "no ground truth in the log: no error report (report.md and the figures show the estimate)"
-            )
+            notes.append(why if unusable else NO_TRUTH_NOTE)
         else:
             metadata["map_error"] = _map_error(out, streams.landmark_truth)
             found = (
