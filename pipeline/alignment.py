@@ -225,10 +225,11 @@ def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
         _note_once(notes, f"{topic}: {n} samples outside the /tf span use the nearest transform")
 
 
-def check_required(streams: LogStreams, directions: int = 0) -> None:
+def check_required(streams: LogStreams, directions: int = 0, needed_by: str | None = None) -> None:
     """Every role an estimator needs has samples (tag corners count as detections), and ``directions`` of the
     direction roles (accelerometer, magnetic field) for an estimator that needs them; else one error naming every
-    missing role, each with what would give it.
+    missing role, each with what would give it, and who needs them (``needed_by``: the estimator's name; None:
+    every estimator).
 
     Raises:
         InputError: One or more required roles missing; ``details`` holds one line per role.
@@ -253,7 +254,7 @@ def check_required(streams: LogStreams, directions: int = 0) -> None:
             )
         raise InputError(
             streams.path,
-            f"the log cannot run: {len(roles)} of the {needed} inputs the estimator needs "
+            f"the log cannot run: {len(roles)} of the {needed} inputs needed by {needed_by or 'every estimator'} "
             f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has"
             + poses,
             details=tuple(

@@ -66,7 +66,7 @@ def compare_log(
     inputs = run_inputs(Path(log), config)
     check_output(out_dir, inputs, force=force)  # before reading the log: nothing touched
     on_observer(f"reading {log}")
-    prepared = prepare_log(log, config, progress=progress)
+    prepared = prepare_log(log, config, progress=progress, estimator=", ".join(observers))
     rows, summaries, compiled = [], {}, {}
     with atomic_directory(out_dir, force=force, inputs=inputs) as tmp:
         for k, name in enumerate(observers, 1):

@@ -253,6 +253,7 @@ def prepare_log(
     progress: Progress = silent,
     needs_directions: int = 0,
     noise: bool = True,
+    estimator: str | None = None,
 ) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
@@ -260,7 +261,8 @@ def prepare_log(
     IMU directions never read them, nor get the accelerometer note). ``needs_directions``: how many inertial
     directions the estimator needs, named with the other missing inputs when the log lacks them. ``noise=False``
     skips the recorded velocity's noise density (0.5 s on an hour of log), which only estimators with noise
-    levels use (``uses_noise``: riekf, batch).
+    levels use (``uses_noise``: riekf, batch). ``estimator``: the name(s) the missing-inputs error gives as needing
+    them (None: every estimator).
     """
     from slamobs.pipeline.readers import read_log
 
@@ -279,7 +281,7 @@ def prepare_log(
     progress(f"reading {log}")
     streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
-    check_required(streams, needs_directions)  # every missing input named at once, before tag poses are computed
+    check_required(streams, needs_directions, estimator)  # every missing input at once, before tag poses
     tags = None
     if streams.tag_corners:
         from slamobs.pipeline.vision.landmarks import tag_landmarks
@@ -412,7 +414,13 @@ def run_log(
         plot_workers.close()
     try:
         prepared = prepare_log(
-            log, config, directions=directions, progress=progress, needs_directions=needed, noise=spec.uses_noise
+            log,
+            config,
+            directions=directions,
+            progress=progress,
+            needs_directions=needed,
+            noise=spec.uses_noise,
+            estimator=spec.name,
         )
         return run_prepared(
             prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
@@ -744,13 +752,11 @@ def evaluate_run(
             report_error, unusable = one_line(err), True
         timings["report_s"] = time.perf_counter() - t
     if unusable or not had_truth:
+        from slamobs.pipeline.evaluation.figure_jobs import NO_TRUTH_NOTE
+
         why = f"no error report: {report_error}" if unusable else "no trajectory truth: no trajectory error report"
         if not streams.landmark_truth:
-            notes.append(
-                why
-                if unusable
-                else "no ground truth in the log: no error report (report.md and the figures show the estimate)"
-            )
+            notes.append(why if unusable else NO_TRUTH_NOTE)
         else:
             metadata["map_error"] = _map_error(out, streams.landmark_truth)
             found = (

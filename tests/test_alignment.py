@@ -124,7 +124,7 @@ def test_missing_extrinsic_is_a_one_line_error_naming_the_topic():
 
 
 def test_missing_roles_and_disjoint_times_are_errors():
-    with pytest.raises(InputError, match=r"inputs the estimator needs is missing \(detections\)") as err:
+    with pytest.raises(InputError, match=r"inputs needed by every estimator is missing \(detections\)") as err:
         align(_streams(detections=None))
     # the detections' line named its 15 message types in 900 characters; now the first way and where the rest are
     # (slamobs info, one line each); a role with few ways keeps them all

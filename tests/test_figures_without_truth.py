@@ -249,3 +249,16 @@ def test_innovation_lines_break_where_no_detection_was_made():
     assert np.array_equal(tb[~np.isnan(tb)], t)
     tb, yb = break_at_gaps(np.arange(5.0), np.arange(5.0))  # evenly spaced: untouched
     assert not np.isnan(tb).any()
+
+
+def test_report_md_of_a_log_without_any_truth_says_so_once(log, tmp_path):
+    """No trajectory and no landmark truth: report.md said "no ground truth" in its title, its first sentence and
+    again in its notes; now in the title alone (run.json's notes keep the note: it has no title)."""
+    config = tmp_path / "none.yaml"
+    config.write_text(NO_TRUTH + '  sim_truth: ""\n')
+    res = invoke("run", log[0], "-o", tmp_path / "out", "--config", config)
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert md.startswith("# Run summary (no ground truth)") and md.count("ground truth") == 1, md
+    notes = json.loads((tmp_path / "out" / "run.json").read_text())["notes"]
+    assert any(n.startswith("no ground truth in the log") for n in notes)

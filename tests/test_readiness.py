@@ -95,6 +95,10 @@ def test_run_names_every_missing_role_at_once(logs, tmp_path):
     assert roles == ["linear_velocity", "detections"]
     assert "nav_msgs/msg/Odometry" in lines[first + 1]
     assert not (tmp_path / "out").exists()
+    # the error names the estimator that needs them (it said "the estimator", with no name given or defaulted)
+    assert "2 of the 3 inputs needed by fast-adaptation are missing" in lines[first]
+    res = invoke("run", logs["no_mag"], "-o", tmp_path / "out", "--observer", "hashim-imu")
+    assert res.exit_code == 2 and "1 of the 5 inputs needed by hashim-imu is missing (magnetic)" in res.output
 
 
 def test_direction_needs_per_estimator(logs):

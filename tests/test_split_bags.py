@@ -280,6 +280,17 @@ def test_a_rosbag2_recording_with_a_listed_file_missing_runs_on_the_others_with_
         inspect_log(rec)
 
 
+def test_info_rate_is_over_the_time_recorded_not_the_missing_part(tmp_path):
+    """The IMU of circle_ros2 is 100 Hz; with x_1.db3 (3 s of 30) gone, the rate averaged over the whole span read
+    90 Hz in info's topic table and readiness: the gap the clocks table reports is left out of the span."""
+    rec = split_rosbag2(SAMPLES / "circle_ros2", tmp_path / "x", [10.0, 13.0])
+    (rec / "x_1.db3").unlink()
+    rates = {t.topic: t.rate_hz for t in inspect_log(rec).topics}
+    assert rates["/imu/data"] == pytest.approx(100.0, rel=1e-3) and rates["/odom"] == pytest.approx(25.0, rel=1e-3)
+    res = invoke("info", rec)
+    assert "(sensor_msgs/msg/Imu, 100.0 Hz)" in res.output, res.output
+
+
 def test_a_missing_part_number_is_a_gap_too(parts, tmp_path):
     """rec_0.bag and rec_2.bag without rec_1.bag: the note names the missing file and the span between its
     neighbours ('parts 1 are missing' before), and the run starts a new segment after it."""

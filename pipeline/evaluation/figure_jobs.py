@@ -460,12 +460,20 @@ SUMMARY_MEANING = {
 }
 
 
+#: The note of a run whose log has no truth at all (run.json ``notes``); report.md says it in its first lines.
+NO_TRUTH_NOTE = "no ground truth in the log: no error report (report.md and the figures show the estimate)"
+
+
 def summary_markdown(
     info: dict[str, Any], figures: list[str], notes: list[str] = (), map_error: dict[str, Any] | None = None
 ) -> str:
     """report.md of a run without trajectory truth: what the run did and its figures; with landmark truth the map
     error (``run.json`` ``map_error``: the one error number such a run has)."""
-    if map_error is None:
+    if map_error is None and NO_TRUTH_NOTE in notes:  # said once, at the top, not again among the notes
+        notes = [n for n in notes if n != NO_TRUTH_NOTE]
+        lines = ["# Run summary (no ground truth)", ""]
+        lines.append("There are no error numbers; the figures show the estimate.")
+    elif map_error is None:
         lines = ["# Run summary (no ground truth)", ""]
         lines.append(
             "The run has no ground truth it can be judged by (none in the log, or one too short or empty: the notes "

@@ -16,7 +16,6 @@ merges connections by record time, which re-decompresses chunks over and over wh
 from __future__ import annotations
 
 import json
-import math
 import re
 import struct
 from collections import Counter
@@ -1003,14 +1002,3 @@ def scan_headers(reader: AnyReader, path: str | Path, connections: Collection[Co
         else:
             seen.add((stamp, body))
     return HeaderScan(t_ns[:i], frames, duplicates)
-
-
-def mean_rate(t_ns: np.ndarray) -> float | None:
-    """Mean rate in Hz over the stamp span (None for fewer than two distinct stamps)."""
-    if t_ns.size < 2:
-        return None
-    span = int(t_ns.max()) - int(t_ns.min())
-    if span <= 0:
-        return None
-    rate = (np.unique(t_ns).size - 1) * _NS / span
-    return rate if math.isfinite(rate) else None

@@ -37,7 +37,6 @@ from .decode import (
     first_vectors,
     gyro_stand_in,
     has_header,
-    mean_rate,
     off_pace,
     stamp_pace,
 )
@@ -148,6 +147,7 @@ class StampStats:
     max_gap_ns: int | None
     max_gap_at_ns: int | None  # from the first stamp
     rate_segments: tuple[tuple[float, float], ...]
+    rate_hz: float | None = None  # distinct stamps per second of the time recorded (the gaps left out)
     pace: float | None = None  # how fast the header stamps advance against record time (decode.stamp_pace)
 
 
@@ -201,8 +201,18 @@ def stamp_stats(t_ns: np.ndarray, rec_ns: np.ndarray) -> StampStats:
         int(steps[worst]) if worst is not None else None,
         int(times[worst]) - int(times[0]) if worst is not None else None,
         _rate_segments(times, period),
+        _recorded_rate(steps, long),
         stamp_pace(t_ns, rec_ns) if kind != "zero" else None,
     )
+
+
+def _recorded_rate(steps: np.ndarray, gaps: np.ndarray) -> float | None:
+    """Distinct stamps per second over the time the topic was recorded: the intervals ``stamp_stats`` counts as
+    gaps (a missing split part, a pause) are left out of the span, so a 200 Hz topic with a hole reads 200 Hz."""
+    positive = steps > 0
+    positive[gaps] = False
+    span = int(steps[positive].sum())
+    return int(np.count_nonzero(positive)) * _NS / span if span > 0 else None
 
 
 def choose_clocks(offsets: Mapping[str, tuple[str, int]], reference: str | None) -> tuple[dict[str, str], list[str]]:
@@ -334,7 +344,7 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
         frame_ids=tuple(sorted((n for n in names if names[n]), key=lambda n: -names[n])),
         stamp_start_ns=int(t_ns.min()),
         stamp_end_ns=int(t_ns.max()),
-        rate_hz=mean_rate(t_ns),
+        rate_hz=stats.rate_hz,
         out_of_order=stats.out_of_order,
         duplicates=t_ns.size - distinct,
         note=note,

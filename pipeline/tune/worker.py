@@ -52,7 +52,7 @@ def prepared_log(log: str, config, directions: bool, need_truth: bool = True):
         _PREPARED.move_to_end(key)
         return _PREPARED[key], 0.0
     t = time.perf_counter()
-    prepared = prepare_log(Path(log), config, directions=directions)
+    prepared = prepare_log(Path(log), config, directions=directions, estimator=config.observer)
     if need_truth and (prepared.streams.truth is None or not len(prepared.streams.truth)):
         from slamobs.pipeline.errors import InputError
 
