@@ -3,8 +3,8 @@
 Conventions (docs/observers.md §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
 ``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. The per-pose functions are
 numba-compiled so the observer kernels can call them (they also work from plain Python on NumPy arrays); the
-ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) are NumPy with the same arithmetic
-per row, so code that only calls them from Python compiles and loads no kernel.
+ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) run the same per-row arithmetic in one
+kernel for both directions (``_rots_quats_into``), so a first run compiles it once.
 """
 
 from __future__ import annotations
