@@ -384,8 +384,12 @@ class _Staging:
         two staged runs left after exit 3)."""
         self._stop.set()
         self.lease.unlink(missing_ok=True)
+        try:  # only a task that made its run's directory can make it again (a task starting later cannot)
+            begun = tasks_may_run and any(p.is_dir() for p in self.dir.iterdir())
+        except OSError:
+            begun = False
         remove_path(self.dir)
-        deadline = time.monotonic() + (LEASE_POLL_S + 1.0 if tasks_may_run else 0.0)
+        deadline = time.monotonic() + (LEASE_POLL_S + 1.0 if begun else 0.0)
         while time.monotonic() < deadline:
             time.sleep(0.1)
             remove_path(self.dir)
