@@ -133,16 +133,17 @@ RECOVERY_ACTIONS = {
 MAX_LOG = 64
 #: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
 PAD = 8
-#: The kernels' floating-point flags: ``a * b + c`` fused into one multiply-add instruction (one rounding instead of
-#: two; the order of the additions as written, no other ``fastmath`` licence): half the floating-point instructions
-#: of the dense pass, whose non-fused form kept the multiply and add units busy (docs/benchmarks.md, "riekf on the
-#: one-hour log"). The same bits run after run, compiled or loaded from the cache.
+#: The dense kernels' floating-point flags (``_propagation_terms``, ``_apply``, ``_gain``, ``_update``): ``a * b + c``
+#: fused into one multiply-add instruction (one rounding instead of two; the order of the additions as written, no
+#: other ``fastmath`` licence): half the floating-point instructions of the dense pass (docs/benchmarks.md, "riekf's
+#: filter stage"). The same bits run after run, compiled or loaded from the cache; with the flag on ``_advance`` and
+#: the per-sample kernels too, a run that compiled them gave other bits (2.9e-13) than one that loaded them.
 CONTRACT = {"contract"}
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
 
 
-@njit(cache=True, fastmath=CONTRACT)
+@njit(cache=True)
 def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
     ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
@@ -387,7 +388,7 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
         _settle(cov, d, lt, rt, dp)
 
 
-@njit(cache=True, fastmath=CONTRACT)
+@njit(cache=True)
 def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
     """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
@@ -452,7 +453,7 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
         s[i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True, fastmath=CONTRACT)
+@njit(cache=True)
 def _cholesky(s, m):
     """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
     for j in range(m):
@@ -501,7 +502,7 @@ def _mahalanobis3(s, z):
     return w0 * w0 + w1 * w1 + w2 * w2
 
 
-@njit(cache=True, fastmath=CONTRACT)
+@njit(cache=True)
 def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (the exponential of docs/observers.md §1, applied on the left) and
     ``b̂ ← b̂ + b̃̂``."""
@@ -942,7 +943,7 @@ def _window_check(
     return changed
 
 
-@njit(cache=True, nogil=True, fastmath=CONTRACT)
+@njit(cache=True, nogil=True)
 def _advance(
     vel_t,
     omega,
