@@ -335,3 +335,31 @@ def test_an_angular_velocity_in_degrees_or_of_the_wrong_sign_is_named():
         misread = time_offset.estimate(replace(stream, omega=stream.omega * factor))
         said = [n for n in time_offset.note("riekf", misread) if n.startswith("warning: riekf: the detections fit")]
         assert len(said) == 1 and what in said[0], (factor, said)
+
+
+def test_the_written_pose_covariance_after_a_recovery_is_the_filters_own():
+    """After a recovery scales the motion noise, the pose covariance written at each row is still the filter's
+    (ξ_R, ξ_P) block as its flush makes it (turned to δθ, δp): the bias walks added between flushes are the scaled
+    ones the filter itself propagates, not the configured ones (they were, so every written pose covariance after
+    a recovery left out part of the bias walks' growth)."""
+    from slamobs.pipeline.lie import skew
+    from slamobs.pipeline.observers.base import output_rows
+    from slamobs.pipeline.observers.riekf import RiEKF
+
+    sim = simulate("figure8", seed=3, duration=DURATION, noise=NoiseModel(gyro=0.5))
+    stream = align(expected_streams(sim))
+    walks = resolve_noise(NoiseConfig(gyro_bias_walk=0.01, velocity_bias_walk=0.01))
+    every = 20
+    filt = RiEKF(stream, {}, ObserverOptions(out_every=every), noise=walks)
+    filt.cov_rows = np.zeros((output_rows(filt.n_vel, every, 0, filt.n_vel), 12, 12))
+    res = filt.advance(filt.n_vel)
+    f = res.stats["metadata"]["filter"]
+    assert f["status"] == "recovered" and f["noise_factor"] > 10.0
+    t_rec = f["recovery_log"][0]["t_s"]
+    after = np.flatnonzero((res.t_ns - res.t_ns[0]) * 1e-9 > t_rec + 1.0)
+    assert after.size > 50
+    for k in after[::5]:
+        j = np.eye(6)
+        j[3:, :3] = -skew(res.position[k])
+        expect = j @ filt.cov_rows[k, :6, :6] @ j.T
+        assert np.allclose(res.pose_cov[k], expect, rtol=1e-9, atol=1e-15), k

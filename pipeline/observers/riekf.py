@@ -1128,7 +1128,7 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, pose_out[o], pc_w)
+                _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out[o], pc_w)
                 if want_cov:
                     _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
