@@ -34,7 +34,7 @@ from slamobs.pipeline.directions import (
     build_directions,
 )
 from slamobs.pipeline.blocks import first_of_pairs, interp_sorted, row_blocks, row_norms3, unique_inverse
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, stamp_pace
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
@@ -637,7 +637,7 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
         )
     first, stop = np.searchsorted(t_om, lo, side="left"), np.searchsorted(t_om, hi, side="right")  # sorted
     if n_out := t_om.shape[0] - int(stop - first):
-        notes.append(f"{n_out} angular-velocity samples outside the linear-velocity span dropped")
+        notes.append(f"{plural(n_out, 'angular-velocity sample')} outside the linear-velocity span dropped")
         t_om, w = t_om[first:stop], w[first:stop]
     max_gap = lim["max_gap"]
     if max_gap is not None and t_lv.shape[0] > 1:
@@ -851,7 +851,7 @@ def _frames_in_span(
             det.topic,
         )
     if n_out := len(det) - int(np.count_nonzero(in_span)):
-        notes.append(f"{n_out} detection frames outside the velocity span dropped")
+        notes.append(f"{plural(n_out, 'detection frame')} outside the velocity span dropped")
     if gaps is not None and gaps.shape[0]:
         k = np.searchsorted(gaps[:, 0], t_det, side="left") - 1  # the gap starting before each frame
         in_gap = (k >= 0) & (t_det < gaps[np.clip(k, 0, None), 1])
@@ -873,7 +873,7 @@ def _camera_to_body(
         return cam_ext, in_span, keep_rows, np.arange(det.ids.shape[0])  # rows of the per-row transforms
     cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
     if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
-        notes.append(f"{det.topic}: {n_tf} detection frames outside the /tf span dropped")
+        notes.append(f"{det.topic}: {plural(n_tf, 'detection frame')} outside the /tf span dropped")
         in_span &= cam_ext.valid
     return cam_ext, in_span, None, frame_of
 

@@ -110,6 +110,9 @@ class NoiseSettings:
     notes: tuple[str, ...] = ()
     #: keys estimated from the detections because their stream holds its values (commanded velocities)
     held: tuple[str, ...] = ()
+    #: detection-law keys the estimated law has no term for (0 by its form, not measured): :meth:`lines` leaves
+    #: them out, run.json's ``levels`` says so in their method
+    absent: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -154,6 +157,8 @@ class NoiseSettings:
         """One line per level: value, unit, source, uncertainty and method."""
         out, said = [], {}
         for k, (_, unit, _meaning) in DEFAULTS.items():
+            if k in self.absent:
+                continue
             value, se = _plain(getattr(self, k)), _plain(self.uncertainty.get(k))
             text = f"{k} = {_fmt(value)}{' ' * bool(unit)}{unit} ({self.sources.get(k, 'default')}"
             text += f", ± {_fmt(se)}" if se is not None else ""
@@ -211,6 +216,11 @@ class LogNoise:
         if self.ratio is not None:
             out["detection_ratio"] = self.ratio
         return out
+
+    def absent_terms(self) -> tuple[str, ...]:
+        """The detection-law keys the chosen law has no term for (the linear law has no r² term)."""
+        law = self.detection
+        return () if law is None else tuple(key for power, key in LAWS.values() if power != law.power)
 
 
 def stream_density(t_ns: np.ndarray, xyz: np.ndarray) -> Estimate | None:
@@ -321,6 +331,7 @@ def resolve_noise(
     section = cfg.given()
     found = estimated.levels() if estimated is not None and cfg.auto else {}
     notes = list(estimated.notes) if estimated is not None and cfg.auto else []
+    absent = estimated.absent_terms() if estimated is not None and cfg.auto else ()
     stated = {}
     if log is not None and topics and any(k not in section for k in STATED):
         from slamobs.pipeline.readers.covariance import stated_noise
@@ -339,6 +350,9 @@ def resolve_noise(
             sources[key] = f"{covariance.topic} covariance ({1.0 / covariance.period_s:.4g} Hz)"
             if key in found:
                 methods[key] = f"plausible; the samples' white-noise estimate is {_fmt(_plain(found[key].value))}"
+        elif key in absent:
+            values[key], sources[key] = 0.0, "estimated"
+            methods[key] = f"not a term of the law chosen, {estimated.detection.law}"
         elif key in found:
             values[key], sources[key] = found[key].value, "estimated"
             methods[key], uncertainty[key] = found[key].method, found[key].uncertainty
@@ -355,6 +369,7 @@ def resolve_noise(
         held=tuple(
             k for k in (estimated.held if estimated is not None and cfg.auto else ()) if sources[k] == "estimated"
         ),
+        absent=tuple(k for k in absent if k not in section),
         detection_held_scale=(
             estimated.detection.held_scale
             if estimated is not None

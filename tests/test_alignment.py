@@ -253,7 +253,7 @@ def test_detections_after_the_last_time_base_sample_are_dropped():
     a = align(_streams(angular_velocity=_vec("/imu", "imu", t_om, np.tile([0.0, 0.0, 0.5], (t_om.size, 1)))))
     assert a.vel_t_ns[-1] == 6 * NS
     assert a.det_t_ns.tolist() == [int(5.5 * NS), 6 * NS]
-    assert "1 detection frames outside the velocity span dropped" in a.notes
+    assert "1 detection frame outside the velocity span dropped" in a.notes
 
 
 def test_time_base_keeps_the_last_sample_of_each_stamp():

@@ -226,7 +226,7 @@ def test_alignment_uses_tf_when_static_is_absent():
     for k, (angle, y) in enumerate(((0.5, [0, 0, 1.0]), (1.0, [0, 0, 2.0]))):
         want = so3_exp(np.array([0, 0, angle])) @ np.array(y) + [0.1, 0, 0]
         np.testing.assert_allclose(a.det_y[k], want, atol=1e-12)
-    assert any("/fid: 1 detection frames outside the /tf span dropped" in n for n in a.notes)
+    assert any("/fid: 1 detection frame outside the /tf span dropped" in n for n in a.notes)
     assert any("time-varying" in n and "/fid" in n for n in a.notes)
 
 

@@ -305,3 +305,22 @@ def test_a_fit_told_in_full_above_is_named_not_repeated():
     gyro, velocity, detection = levels.lines()[:3]
     assert gyro.endswith(f": {fit})") and velocity.endswith(": the same fit)")
     assert detection.endswith(": 635 detection triplets; scaled by 1.47 (the same fit as gyro))")
+
+
+def test_the_term_the_chosen_law_lacks_is_not_shown_as_a_measured_zero():
+    """figure8.mcap's detections fit b + a*r^2: 'detection_per_m = 0 m/m (estimated, ± 0: the same fit)' read as a
+    measured zero; the line is left out (the detection line names the law chosen) and run.json's levels say why."""
+    from cli_checks import SAMPLES
+
+    shown = invoke("info", "--noise", SAMPLES / "figure8.mcap")
+    assert shown.exit_code == 0, shown.output
+    assert "law b + a*r^2 chosen over sigma0 + k*r" in shown.output and "detection_per_m2 = " in shown.output
+    assert "detection_per_m = " not in shown.output
+    levels = json.loads(invoke("info", "--noise", "--json", SAMPLES / "figure8.mcap").stdout)["levels"]
+    assert levels["detection_per_m"] == {
+        "value": 0.0,
+        "unit": "m/m",
+        "source": "estimated",
+        "method": "not a term of the law chosen, b + a*r^2",
+        "uncertainty": None,
+    }
