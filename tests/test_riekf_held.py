@@ -116,3 +116,40 @@ def test_batch_global_model_test_passes_at_its_optimum_and_fails_away_from_it(he
     assert at_optimum < 1.5 < candidates.GLOBAL_CHI2_DOUBT, at_optimum
     bent = np.linspace(0.0, 1.0, sol.pos.shape[0])[:, None] * np.array([0.25, -0.25, 0.0])  # a drift the map lacks
     assert candidates.global_chi2(problem, replace(sol, pos=sol.pos + bent)) > candidates.GLOBAL_CHI2_DOUBT
+
+
+def test_batch_global_model_test_and_seed_check_read_the_detections_shape(held_log, monkeypatch):
+    """The global model test and the robust detection cost whiten each residual by its shape as the solver does
+    (range and bearing weighed apart, stereo points in inverse depth): residuals drawn from ``σ² S⁻¹`` with a depth
+    axis 10x looser than the lateral ones give χ² over redundancy about 1, where read with ``σ`` on every axis they
+    were about 7 and the first solution of a clean stereo-like log was called doubtful (ground, seed 44: 8.71)."""
+    from slamobs.pipeline.smoother import candidates
+    from slamobs.pipeline.smoother.estimator import BatchSmoother
+    from slamobs.pipeline.smoother.graph import predicted_detections
+
+    _, stream, noise = held_log
+    seen = {}
+
+    def spy(problem, first):
+        seen["problem"], seen["sol"] = problem, first.sol
+        return doubt(problem, first)
+
+    doubt = candidates.doubt
+    monkeypatch.setattr(candidates, "doubt", spy)
+    BatchSmoother(stream, {}, replace(ObserverOptions(), noise=noise)).solve()
+    problem, sol = seen["problem"], seen["sol"]
+    m = problem.det_y.shape[0]
+    shape = np.tile(np.diag([0.1, 0.1, 100.0]), (m, 1, 1))  # determinant 1: depth σ 10x the lateral
+    white = np.random.default_rng(3).standard_normal((m, 3))
+    err = (
+        problem.det_sigma[:, None]
+        * np.linalg.solve(np.linalg.cholesky(shape).transpose(0, 2, 1), white[..., None])[..., 0]
+    )
+    shaped = replace(
+        problem, det_y=predicted_detections(problem.kf_of_det, problem.det_idx, sol) - err, det_shape=shape
+    )
+    assert candidates.global_chi2(shaped, sol) < 1.5, candidates.global_chi2(shaped, sol)
+    assert candidates.global_chi2(replace(shaped, det_shape=None), sol) > candidates.GLOBAL_CHI2_DOUBT
+    cost = candidates.detection_cost(shaped, sol.rot, sol.pos, sol.landmarks)
+    assert cost <= 0.5 * np.sum(white**2) + 1e-6 * m, (cost, 0.5 * np.sum(white**2))
+    assert cost < 0.5 * candidates.detection_cost(replace(shaped, det_shape=None), sol.rot, sol.pos, sol.landmarks)

@@ -78,10 +78,13 @@ class Candidate:
 
 
 def detection_cost(problem, rot: np.ndarray, pos: np.ndarray, landmarks: np.ndarray) -> float:
-    """Huber-robust cost of the landmark factors alone (threshold ``problem.huber``, whitened residual norms)."""
+    """Huber-robust cost of the landmark factors alone (threshold ``problem.huber``, whitened residual norms: the
+    range and bearing weighed apart, or in inverse depth, by their shape as the solver weighs them)."""
+    from slamobs.pipeline.smoother.graph import whiten_detections
+
     kf = problem.kf_of_det
     pred = np.einsum("mji,mj->mi", rot[kf], landmarks[problem.det_idx] - pos[kf])
-    r = np.linalg.norm(pred - problem.det_y, axis=1) / np.maximum(problem.det_sigma, 1e-12)
+    r = np.linalg.norm(whiten_detections(problem, pred - problem.det_y), axis=1)
     k = problem.huber
     return float(np.sum(np.where(r <= k, 0.5 * r * r, k * (r - 0.5 * k))))
 
@@ -113,11 +116,10 @@ def why_other_starts(problem, first: Candidate, keyframes: int) -> str | None:
 def global_chi2(problem, sol) -> float:
     """χ² of the detection and relative-motion factors at ``sol`` over the redundancy (``GLOBAL_CHI2_DOUBT``);
     0 without redundancy."""
+    from slamobs.pipeline.smoother.graph import whitened_residuals
     from slamobs.pipeline.smoother.preintegration import motion_residuals
 
-    kf = problem.kf_of_det
-    pred = np.einsum("mji,mj->mi", sol.rot[kf], sol.landmarks[problem.det_idx] - sol.pos[kf])
-    det = np.sum(((pred - problem.det_y) / np.maximum(problem.det_sigma, 1e-12)[:, None]) ** 2)
+    det = np.sum(whitened_residuals(problem, sol) ** 2)  # the shape too (range/bearing apart, inverse depth)
     motion = motion_residuals(problem.data, problem.b_bar, sol.rot, sol.pos, sol.bias, problem.seg_of)[:, 2]
     axes = int(np.count_nonzero(np.any(problem.det_y != 0.0, axis=0)))
     redundancy = axes * (problem.det_idx.shape[0] - np.unique(problem.det_idx).shape[0])

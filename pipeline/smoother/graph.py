@@ -351,7 +351,12 @@ def detection_residuals(problem: Problem, sol: Solution) -> np.ndarray:
 def whitened_residuals(problem: Problem, sol: Solution) -> np.ndarray:
     """Each detection's residual whitened by its covariance ``σ² S⁻¹`` (M, 3; ``Lᵀr/σ`` with ``S = LLᵀ``, ``r/σ``
     for isotropic ones): its squared norm is the χ² the gate and the Huber kernel read."""
-    r = detection_residuals(problem, sol) / np.maximum(problem.det_sigma, 1e-12)[:, None]
+    return whiten_detections(problem, detection_residuals(problem, sol))
+
+
+def whiten_detections(problem: Problem, r: np.ndarray) -> np.ndarray:
+    """Detection residuals ``r`` (M, 3, body frame, m) whitened by their covariance ``σ² S⁻¹`` (``Lᵀr/σ``)."""
+    r = r / np.maximum(problem.det_sigma, 1e-12)[:, None]
     if problem.det_shape is None:
         return r
     return np.einsum("mji,mj->mi", np.linalg.cholesky(problem.det_shape), r)
