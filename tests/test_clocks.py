@@ -287,6 +287,18 @@ def test_a_clock_set_back_is_named_in_the_out_of_order_note():
     assert jitter.text() == "1 out-of-order stamp"
 
 
+def test_info_names_a_clock_set_back_as_the_run_does(tmp_path):
+    """A header clock set back 5 s mid-log: info said only '1 out-of-order stamp' (beside a 'header clocks
+    disagree' line that did not say why) where the run's note names the step; both now give the same words."""
+    msgs = _steady(100, 4, 0)
+    msgs = msgs[:200] + [(stamp - 5 * NS, rec, value) for stamp, rec, value in msgs[200:]]
+    log = _write(tmp_path / "back.mcap", {"/imu": msgs})
+    warning = next(w for w in inspect_log(log).warnings if w.startswith("/imu:"))
+    words = "1 out-of-order stamp (a step back of 4.990 s: a clock set back? time.source: auto or record)"
+    assert words in warning
+    assert any(words in w for w in read_log(log).warnings)
+
+
 def _imu_extrinsic_on_tf(src, dst):
     """The simulated MCAP ``src`` with its base_link -> imu_link extrinsic moved from /tf_static to /tf, one
     message per IMU message (recorded with it), whose header stamps are disordered: pairs swapped, a stamp repeated

@@ -129,6 +129,15 @@ def clock_step_forward(t_ns: np.ndarray, rec_ns: np.ndarray) -> tuple[int, int]:
     return int(jumps[k]), int(rec_ns[k + 1])
 
 
+def out_of_order_text(count: int, step_back_ns: int) -> str:
+    """Out-of-order stamps in run's notes and info's warnings alike: a step back of ``CLOCK_STEP_NS`` or more (not
+    a driver's jitter) is named with its size, a clock set back."""
+    text = plural(count, "out-of-order stamp")
+    if step_back_ns >= CLOCK_STEP_NS:
+        text += f" (a step back of {step_back_ns * 1e-9:.3f} s: a clock set back? time.source: auto or record)"
+    return text
+
+
 def clock_step_text(step_ns: int, at_s: float) -> str:
     """The words of a :func:`clock_step_forward` step, alike in run's notes and info's warnings."""
     return (
@@ -217,12 +226,8 @@ class Cleaning:
         if self.zero_stamps and not on_record_time:
             parts.append("header stamps are all zero, using record time")
         if self.out_of_order and not on_record_time:
-            back = ""
-            if self.step_back_ns >= CLOCK_STEP_NS and not self.zero_stamps:  # not the jitter of a driver
-                back = (
-                    f" (a step back of {self.step_back_ns * 1e-9:.3f} s: a clock set back? time.source: auto or record)"
-                )
-            parts.append(plural(self.out_of_order, "out-of-order stamp") + back)
+            step_back = 0 if self.zero_stamps else self.step_back_ns
+            parts.append(out_of_order_text(self.out_of_order, step_back))
         if self.step_forward[0] and not on_record_time and not self.zero_stamps:
             parts.append(clock_step_text(self.step_forward[0], self.step_forward[1] * 1e-9))
         if self.duplicates:

@@ -31,6 +31,7 @@ from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import (
     clock_step_forward,
     clock_step_text,
+    out_of_order_text,
     decode_static_tf,
     duplicates_text,
     gyro_not_filled,
@@ -90,6 +91,7 @@ class TopicSummary:
     stamp_pace: float | None = None  # header stamps' advance per record-time second (1: same pace)
     clock_step_s: float | None = None  # header stamps' jump ahead of record time (decode.clock_step_forward)
     clock_step_at_s: float | None = None  # where it is, from the topic's first record time
+    step_back_s: float | None = None  # the largest step back between consecutive stamps (record order)
 
 
 @dataclass(frozen=True)
@@ -359,7 +361,13 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
         stamp_pace=stats.pace,
         clock_step_s=step / _NS if step else None,
         clock_step_at_s=(at - int(rec_ns.min())) / _NS if step else None,
+        step_back_s=_step_back_ns(t_ns) / _NS if stats.out_of_order and stats.header_clock != "zero" else None,
     )
+
+
+def _step_back_ns(t_ns: np.ndarray) -> int:
+    """The largest step back between consecutive stamps (record order), 0 when none."""
+    return max(0, -int(np.diff(t_ns).min())) if t_ns.size > 1 else 0
 
 
 def _problems(t: TopicSummary, pace: float | None) -> list[str]:
@@ -372,7 +380,7 @@ def _problems(t: TopicSummary, pace: float | None) -> list[str]:
             f"time.topics: {{{t.topic}: record}}"
         )
     if t.out_of_order:
-        problems.append(plural(t.out_of_order, "out-of-order stamp"))
+        problems.append(out_of_order_text(t.out_of_order, round((t.step_back_s or 0.0) * _NS)))
     if t.clock_step_s is not None and t.clock_step_at_s is not None:
         problems.append(clock_step_text(round(t.clock_step_s * _NS), t.clock_step_at_s))
     if t.duplicates:
