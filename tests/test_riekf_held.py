@@ -94,24 +94,31 @@ def test_held_streams_without_enough_detections_keep_the_defaults_and_say_so(hel
     assert any("held streams' noise" in n for n in found.notes), found.notes
 
 
-def test_batch_global_model_test_passes_at_its_optimum_and_fails_away_from_it(held_log, monkeypatch):
-    """With noise levels that fit the log, a smoother stopped near a poor seed is no longer flagged by the gate;
-    the global model test (χ² over redundancy, ``candidates.GLOBAL_CHI2_DOUBT``) still tells it: at most about 1 at the
-    optimum, far above the bound at a solution whose trajectory is off by a quarter metre."""
+def _first_solution(held_log, monkeypatch):
+    """The smoothed problem and the first solution batch judges (``candidates.doubt``'s arguments) on the held log."""
     from slamobs.pipeline.smoother import candidates
     from slamobs.pipeline.smoother.estimator import BatchSmoother
 
     _, stream, noise = held_log
     seen = {}
+    doubt = candidates.doubt
 
     def spy(problem, first):
         seen["problem"], seen["sol"] = problem, first.sol
         return doubt(problem, first)
 
-    doubt = candidates.doubt
     monkeypatch.setattr(candidates, "doubt", spy)
     BatchSmoother(stream, {}, replace(ObserverOptions(), noise=noise)).solve()
-    problem, sol = seen["problem"], seen["sol"]
+    return seen["problem"], seen["sol"]
+
+
+def test_batch_global_model_test_passes_at_its_optimum_and_fails_away_from_it(held_log, monkeypatch):
+    """With noise levels that fit the log, a smoother stopped near a poor seed is no longer flagged by the gate;
+    the global model test (χ² over redundancy, ``candidates.GLOBAL_CHI2_DOUBT``) still tells it: at most about 1 at the
+    optimum, far above the bound at a solution whose trajectory is off by a quarter metre."""
+    from slamobs.pipeline.smoother import candidates
+
+    problem, sol = _first_solution(held_log, monkeypatch)
     at_optimum = candidates.global_chi2(problem, sol)
     assert at_optimum < 1.5 < candidates.GLOBAL_CHI2_DOUBT, at_optimum
     bent = np.linspace(0.0, 1.0, sol.pos.shape[0])[:, None] * np.array([0.25, -0.25, 0.0])  # a drift the map lacks
@@ -124,20 +131,9 @@ def test_batch_global_model_test_and_seed_check_read_the_detections_shape(held_l
     axis 10x looser than the lateral ones give χ² over redundancy about 1, where read with ``σ`` on every axis they
     were about 7 and the first solution of a clean stereo-like log was called doubtful (ground, seed 44: 8.71)."""
     from slamobs.pipeline.smoother import candidates
-    from slamobs.pipeline.smoother.estimator import BatchSmoother
     from slamobs.pipeline.smoother.graph import predicted_detections
 
-    _, stream, noise = held_log
-    seen = {}
-
-    def spy(problem, first):
-        seen["problem"], seen["sol"] = problem, first.sol
-        return doubt(problem, first)
-
-    doubt = candidates.doubt
-    monkeypatch.setattr(candidates, "doubt", spy)
-    BatchSmoother(stream, {}, replace(ObserverOptions(), noise=noise)).solve()
-    problem, sol = seen["problem"], seen["sol"]
+    problem, sol = _first_solution(held_log, monkeypatch)
     m = problem.det_y.shape[0]
     shape = np.tile(np.diag([0.1, 0.1, 100.0]), (m, 1, 1))  # determinant 1: depth σ 10x the lateral
     white = np.random.default_rng(3).standard_normal((m, 3))
