@@ -39,8 +39,9 @@ WORK_PER_CALL = 250_000
 GROSS_INNOVATION, GROSS_NOTE_COUNT, GROSS_NOTE_SHARE = 20.0, 5, 0.005
 #: A landmark seen again after at least ``RESIGHT_GAP_S`` s out of view tests the map against the trajectory: an
 #: observer without a gate says its estimate is likely lost when at least ``RESIGHT_COUNT`` such detections
-#: arrived a median over ``RESIGHT_RATIO`` times the median innovation of all detections (consistent runs:
-#: 1.0-1.4; fast-adaptation lost on a generated loop, APE 16.9 m: 3.6; on MR.CLAM, APE 2-11 m: 4.6-8.5).
+#: arrived a median over ``RESIGHT_RATIO`` times the median innovation of all detections (consistent runs with
+#: 20 or more: 1.3-2.5; fast-adaptation lost on a generated loop, APE 16.9 m: 7.3; on MR.CLAM, APE 2-11 m:
+#: 4.0-8.6; docs/benchmarks.md "Lost fast-adaptation notes").
 RESIGHT_GAP_S, RESIGHT_COUNT, RESIGHT_RATIO = 10.0, 20, 3.0
 #: Integer state slots every kernel shares (``KernelState.ns``).
 _IV, _JF, _NVIS = 0, 1, 2
