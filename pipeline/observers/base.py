@@ -271,14 +271,15 @@ def resighting_check(norms: np.ndarray, back: np.ndarray) -> dict:
     }
 
 
-def lost_note(check: dict) -> list[str]:
-    """A note when at least ``RESIGHT_COUNT`` landmarks seen again arrived over ``RESIGHT_RATIO`` times the usual
-    distance from the map (``check``: :func:`resighting_check`): the map and the trajectory disagree, which the
-    median innovation cannot show when the pose was lost all along (the map follows it)."""
-    if check["detections"] < RESIGHT_COUNT or check["ratio"] is None or check["ratio"] <= RESIGHT_RATIO:
+def lost_note(name: str, check: dict | None) -> list[str]:
+    """Estimator ``name``'s note when at least ``RESIGHT_COUNT`` landmarks seen again arrived over
+    ``RESIGHT_RATIO`` times the usual distance from the map (``check``: :func:`resighting_check`): the map and the
+    trajectory disagree, which the median innovation cannot show when the pose was lost all along (the map
+    follows it)."""
+    if not check or check["detections"] < RESIGHT_COUNT or check["ratio"] is None or check["ratio"] <= RESIGHT_RATIO:
         return []
     return [
-        "warning: this observer's estimate is likely lost: landmarks seen again after "
+        f"warning: {name}: its estimate is likely lost: landmarks seen again after "
         f"{RESIGHT_GAP_S:g} s or more out of view ({check['detections']} detections) arrived a median "
         f"{check['median_m']:.3g} m from its map, {check['ratio']:.1f}x its usual {check['usual_m']:.3g} m, so its "
         "trajectory and map disagree; do not trust it without truth: run riekf or batch (`slamobs compare`), or "
@@ -416,7 +417,7 @@ class Stepper:
                 norms = np.concatenate(self._innovation_norms)
                 det_t = np.repeat(self.det_t, np.diff(s.det_offsets))[: norms.shape[0]]
                 check = resighting_check(norms, resightings(s.det_idx[: norms.shape[0]], det_t))
-                self.stats["notes"] = gross_note(norms) + lost_note(check)
+                self.stats["notes"] = gross_note(norms)  # and run.py's lost_note from the check
                 self.stats.setdefault("metadata", {})["resightings"] = check
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
         return ObserverResult(
