@@ -38,7 +38,7 @@ from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError, TruthUnusable, machine_failure, one_line, resource_error
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
 from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
-from slamobs.pipeline.observers.base import ObserverDiverged
+from slamobs.pipeline.observers.base import ObserverDiverged, lost_note
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.streams import LogStreams
 
@@ -706,6 +706,7 @@ def estimate(
         notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
         notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
         notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
+        notes += lost_note(spec.name, part.stats.get("metadata", {}).get("resightings"))
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
         stage_timings = dict(part.timings)
         del part

@@ -37,6 +37,12 @@ WORK_PER_CALL = 250_000
 #: of the run's is a gross outlier (another landmark's ID, an absurd range); an observer without a gate says so
 #: when there are at least ``GROSS_NOTE_COUNT`` of them and ``GROSS_NOTE_SHARE`` of the detections.
 GROSS_INNOVATION, GROSS_NOTE_COUNT, GROSS_NOTE_SHARE = 20.0, 5, 0.005
+#: A landmark seen again after at least ``RESIGHT_GAP_S`` s out of view tests the map against the trajectory: an
+#: observer without a gate says its estimate is likely lost when at least ``RESIGHT_COUNT`` such detections
+#: arrived a median over ``RESIGHT_RATIO`` times the median innovation of all detections (consistent runs with
+#: 20 or more: 1.3-2.5; fast-adaptation lost on a generated loop, APE 16.9 m: 7.3; on MR.CLAM, APE 2-11 m:
+#: 4.0-8.6; docs/benchmarks.md "Lost fast-adaptation notes").
+RESIGHT_GAP_S, RESIGHT_COUNT, RESIGHT_RATIO = 10.0, 20, 3.0
 #: Integer state slots every kernel shares (``KernelState.ns``).
 _IV, _JF, _NVIS = 0, 1, 2
 _T, _MEAS_T = 0, 1
@@ -233,6 +239,54 @@ def gross_note(norms: np.ndarray) -> list[str]:
     ]
 
 
+def resightings(det_idx: np.ndarray, det_t: np.ndarray) -> np.ndarray:
+    """Which detections see their landmark again after ``RESIGHT_GAP_S`` s or more out of view."""
+    order = np.lexsort((det_t, det_idx))
+    t, idx = det_t[order], det_idx[order]
+    back_sorted = np.zeros(t.shape[0], dtype=np.bool_)
+    same = idx[1:] == idx[:-1]
+    back_sorted[1:] = same & (np.diff(t) >= RESIGHT_GAP_S)
+    back = np.empty_like(back_sorted)
+    back[order] = back_sorted
+    return back
+
+
+def resighting_check(norms: np.ndarray, back: np.ndarray) -> dict:
+    """run.json's record of the map-against-trajectory check: detections of landmarks seen again (``back``:
+    :func:`resightings`) and the median of their innovation ‖e‖ (``norms``) over that of all detections, gross
+    outliers (:func:`gross_note`'s) left out of both; ``ratio`` None when there are none."""
+    ok = np.isfinite(norms) & (norms > 0.0)
+    if not ok.any():
+        return {"detections": 0, "median_m": None, "ratio": None}
+    ok &= norms <= GROSS_INNOVATION * float(np.median(norms[ok]))
+    back = back & ok
+    n_back = int(np.count_nonzero(back))
+    median = float(np.median(norms[ok]))
+    back_median = float(np.median(norms[back])) if n_back else None
+    return {
+        "detections": n_back,
+        "median_m": back_median,
+        "ratio": back_median / median if n_back and median > 0.0 else None,
+        "usual_m": median,
+    }
+
+
+def lost_note(name: str, check: dict | None) -> list[str]:
+    """Estimator ``name``'s note when at least ``RESIGHT_COUNT`` landmarks seen again arrived over
+    ``RESIGHT_RATIO`` times the usual distance from the map (``check``: :func:`resighting_check`): the map and the
+    trajectory disagree, which the median innovation cannot show when the pose was lost all along (the map
+    follows it)."""
+    if not check or check["detections"] < RESIGHT_COUNT or check["ratio"] is None or check["ratio"] <= RESIGHT_RATIO:
+        return []
+    return [
+        f"warning: {name}: its estimate is likely lost: landmarks seen again after "
+        f"{RESIGHT_GAP_S:g} s or more out of view ({check['detections']} detections) arrived a median "
+        f"{check['median_m']:.3g} m from its map, {check['ratio']:.1f}x its usual {check['usual_m']:.3g} m, so its "
+        "trajectory and map disagree; do not trust it without truth: run riekf or batch (`slamobs compare`), or "
+        "tune its gains (`slamobs tune`)"
+    ]
+
+
 class Stepper:
     """One run of an observer's kernel over an aligned stream, advanced a stretch of samples at a time.
 
@@ -360,7 +414,11 @@ class Stepper:
         if not self.gates_detections:
             self._innovation_norms.append(np.linalg.norm(out.innov, axis=1))
             if iv_stop >= self.n_vel:
-                self.stats["notes"] = gross_note(np.concatenate(self._innovation_norms))
+                norms = np.concatenate(self._innovation_norms)
+                det_t = np.repeat(self.det_t, np.diff(s.det_offsets))[: norms.shape[0]]
+                check = resighting_check(norms, resightings(s.det_idx[: norms.shape[0]], det_t))
+                self.stats["notes"] = gross_note(norms)  # and run.py's lost_note from the check
+                self.stats.setdefault("metadata", {})["resightings"] = check
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
         return ObserverResult(
             t_ns=s.vel_t_ns[out.k],
