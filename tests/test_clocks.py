@@ -299,6 +299,23 @@ def test_info_names_a_clock_set_back_as_the_run_does(tmp_path):
     assert any(words in w for w in read_log(log).warnings)
 
 
+def test_clocks_set_back_together_are_said_to_step_not_to_disagree(tmp_path):
+    """Every header clock set back 5 s mid-log (an NTP step on the recording machine): the topics' median offsets
+    fall on either side of the step, and info said 'header clocks disagree' with the reference's offset, as if
+    the topics were on different machines; it now says the clocks step against record time."""
+
+    def stepped(rate):
+        msgs = _steady(rate, 4, 0)
+        half = len(msgs) // 2 + (1 if rate == 50 else -1)  # medians on either side of the step
+        return msgs[:half] + [(stamp - 5 * NS, rec, value) for stamp, rec, value in msgs[half:]]
+
+    summary = inspect_log(_write(tmp_path / "stepped.mcap", {"/imu": stepped(100), "/pose": stepped(50)}))
+    clock = [w for w in summary.warnings if "clocks" in w]
+    assert len(clock) == 1 and clock[0].startswith("header clocks step against record time (/imu"), clock
+    assert "spreads over 5.000 s" in clock[0] and "disagree" not in clock[0]
+    assert set(summary.clocks.values()) == {"record"}
+
+
 def _imu_extrinsic_on_tf(src, dst):
     """The simulated MCAP ``src`` with its base_link -> imu_link extrinsic moved from /tf_static to /tf, one
     message per IMU message (recorded with it), whose header stamps are disordered: pairs swapped, a stamp repeated

@@ -217,19 +217,22 @@ def _recorded_rate(steps: np.ndarray, gaps: np.ndarray) -> float | None:
     return int(np.count_nonzero(positive)) * _NS / span if span > 0 else None
 
 
-def choose_clocks(offsets: Mapping[str, tuple[str, int]], reference: str | None) -> tuple[dict[str, str], list[str]]:
-    """Time source per topic from its (header clock kind, median header-minus-record ns), with warnings.
+def choose_clocks(
+    offsets: Mapping[str, tuple[str, int, int]], reference: str | None
+) -> tuple[dict[str, str], list[str]]:
+    """Time source per topic from its (header clock kind, median header-minus-record ns, that difference's 5th-95th
+    percentile spread ns), with warnings.
 
     See the module docstring; ``reference`` is the topic whose clock the others must agree with.
     """
-    clocks = {t: "record" if kind == "zero" else "header" for t, (kind, _) in offsets.items()}
+    clocks = {t: "record" if kind == "zero" else "header" for t, (kind, _, _) in offsets.items()}
     if reference not in offsets or offsets[reference][0] == "zero":
         return clocks, []
-    ref_kind, ref_offset = offsets[reference]
+    ref_kind, ref_offset, _ = offsets[reference]
     tol = CLOCK_TOLERANCE_S * _NS
     odd = [
         t
-        for t, (kind, offset) in offsets.items()
+        for t, (kind, offset, _) in offsets.items()
         if kind != "zero" and (kind != ref_kind or abs(offset - ref_offset) > tol)
     ]
     if not odd:
@@ -244,6 +247,12 @@ def choose_clocks(offsets: Mapping[str, tuple[str, int]], reference: str | None)
         ]
     for t in clocks:
         clocks[t] = "record"
+    if unsteady := [t for t in [reference, *odd] if offsets[t][2] > tol]:  # medians of a clock that stepped
+        return clocks, [
+            f"header clocks step against record time ({', '.join(unsteady)}: header minus record time spreads over "
+            f"{max(offsets[t][2] for t in unsteady) / _NS:.3f} s; a clock set back or forward mid-log?): "
+            "use record time for every topic",
+        ]
     return clocks, [
         f"header clocks disagree ({', '.join(odd)} vs {reference}) and {reference}'s is not record time "
         f"({ref_offset / _NS:+.3f} s): use record time for every topic",
@@ -260,7 +269,7 @@ def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:
         stream = getattr(streams, role)
         if stream is not None and len(stream) and stream.topic not in found:
             stats = stamp_stats(stream.t_ns, stream.rec_ns)
-            found[stream.topic] = (stats.header_clock, stats.offset_ns)
+            found[stream.topic] = (stats.header_clock, stats.offset_ns, stats.spread_ns)
     reference = streams.angular_velocity.topic if streams.angular_velocity is not None else None
     return choose_clocks(found, reference)
 
@@ -477,7 +486,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         for topic, (meta, _) in sorted(table.items())
     }
     offsets = {
-        t: (s.header_clock, round(s.offset_s * _NS))
+        t: (s.header_clock, round(s.offset_s * _NS), round((s.offset_spread_s or 0.0) * _NS))
         for t, s in summaries.items()
         if s.header_clock is not None and s.offset_s is not None
     }
