@@ -314,6 +314,12 @@ def test_clocks_set_back_together_are_said_to_step_not_to_disagree(tmp_path):
     assert len(clock) == 1 and clock[0].startswith("header clocks step against record time (/imu"), clock
     assert "spreads over 5.000 s" in clock[0] and "disagree" not in clock[0]
     assert set(summary.clocks.values()) == {"record"}
+    # a jittery reference (spread 0.2 s) whose offset is 1 s from another topic's still disagrees: no step
+    rng = np.random.default_rng(4)
+    jitter = [(g, g + 300_000_000 + int(rng.uniform(0, 0.25) * NS), 0.0) for g, _, _ in _steady(100, 4, 0)]
+    late = [(g, r + 1_300_000_000, v) for g, r, v in _steady(50, 4, 0)]
+    other = inspect_log(_write(tmp_path / "jitter.mcap", {"/imu": jitter, "/pose": late}))
+    assert any(w.startswith("header clocks disagree (/pose vs /imu)") for w in other.warnings), other.warnings
 
 
 def _imu_extrinsic_on_tf(src, dst):

@@ -247,7 +247,9 @@ def choose_clocks(
         ]
     for t in clocks:
         clocks[t] = "record"
-    if unsteady := [t for t in [reference, *odd] if offsets[t][2] > tol]:  # medians of a clock that stepped
+    apart = max(abs(offsets[t][1] - ref_offset) for t in odd)
+    # medians on either side of one step: the spread within topics as large as the disagreement between them
+    if unsteady := [t for t in [reference, *odd] if offsets[t][2] > max(tol, 0.5 * apart)]:
         return clocks, [
             f"header clocks step against record time ({', '.join(unsteady)}: header minus record time spreads over "
             f"{max(offsets[t][2] for t in unsteady) / _NS:.3f} s; a clock set back or forward mid-log?): "
