@@ -29,7 +29,7 @@ from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Ve
 
 from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import (
-    clock_step_forward,
+    Cleaning,
     clock_step_text,
     out_of_order_text,
     decode_static_tf,
@@ -349,7 +349,10 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
     distinct = np.unique(pairs, axis=0).shape[0]
     stamps = np.unique(t_ns).size
     stats = stamp_stats(t_ns, rec_ns)
-    step, at = clock_step_forward(t_ns, rec_ns) if stats.header_clock != "zero" else (0, 0)
+    order = Cleaning()  # the run's own rules for a clock stepped forward or set back
+    if stats.header_clock != "zero":
+        order.count_order(t_ns, rec_ns)
+    step, at_s = order.step_forward[0], order.step_forward[1] / _NS
     return TopicSummary(
         topic,
         msgtype,
@@ -371,14 +374,9 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
         rate_segments=stats.rate_segments,
         stamp_pace=stats.pace,
         clock_step_s=step / _NS if step else None,
-        clock_step_at_s=(at - int(rec_ns.min())) / _NS if step else None,
-        step_back_s=_step_back_ns(t_ns) / _NS if stats.out_of_order and stats.header_clock != "zero" else None,
+        clock_step_at_s=at_s if step else None,
+        step_back_s=order.step_back_ns / _NS if order.step_back_ns else None,
     )
-
-
-def _step_back_ns(t_ns: np.ndarray) -> int:
-    """The largest step back between consecutive stamps (record order), 0 when none."""
-    return max(0, -int(np.diff(t_ns).min())) if t_ns.size > 1 else 0
 
 
 def _problems(t: TopicSummary, pace: float | None) -> list[str]:
