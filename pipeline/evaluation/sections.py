@@ -107,8 +107,7 @@ def truth_scale_note(ev: TrajectoryEvaluation) -> list[str]:
     if ev.alignment.kind in SCALED_ALIGNMENTS or len(ev.paired.ref_pos) < 2:
         return []
     ref, est = ev.paired.ref_pos, ev.paired.est_pos
-    truth_m = float(np.sqrt(np.mean(np.sum((ref - ref.mean(axis=0)) ** 2, axis=1))))
-    est_m = float(np.sqrt(np.mean(np.sum((est - est.mean(axis=0)) ** 2, axis=1))))
+    truth_m, est_m = slam_metrics.rms_extent(ref), slam_metrics.rms_extent(est)
     if truth_m <= 0.0 or est_m <= 0.0 or 1.0 / TRUTH_SCALE_FACTOR < truth_m / est_m < TRUTH_SCALE_FACTOR:
         return []
     return [
@@ -637,8 +636,7 @@ class ConvergenceSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         t0 = int(ev.estimate.t_ns[0])
-        truth = ev.paired.ref_pos
-        extent = float(np.sqrt(np.mean(np.sum((truth - truth.mean(axis=0)) ** 2, axis=1))))
+        extent = slam_metrics.rms_extent(ev.paired.ref_pos)
         c = slam_metrics.convergence(
             ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent=extent
         )

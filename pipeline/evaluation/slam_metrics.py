@@ -12,6 +12,12 @@ from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import umeyama
 
 
+def rms_extent(xyz: np.ndarray) -> float:
+    """RMS distance of the points from their centre (m): a trajectory's size that its jitter does not lengthen, as
+    a path length would."""
+    return float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(axis=0)) ** 2, axis=1))))
+
+
 def map_only_alignment(est_xyz: np.ndarray, truth_xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     """SE(3) Umeyama fitted on the matched landmarks themselves, or None if they cannot fix a rotation
     (fewer than 3, or collinear). Compared with the trajectory-fitted alignment it separates the map's shape
