@@ -42,7 +42,7 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
         (
             "slamobs.pipeline.observers.fast_adaptation",
             "_advance",
-            "f1 f2 f2 f1 i1 i1 f2 f2 b1 f f f f i f i i i f2 i1 f2 i1 i1 f3 f2 f2 f2 f2 i",
+            "f1 f2 f2 f1 i1 i1 f2 f2 b1 f f f f i f i i i f2 f1 f1 f1 f2 i1 f1 f1 i1 f2 f1 f1 i1 i1 f3 f2 f2 f2 f2 i",
         ),
     ),
     "report": (("slamobs.pipeline.evaluation.rpe", "_consecutive_by_accumulation", "f1 f i1"),),

@@ -49,26 +49,3 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     helpers = ("._integrate", "._substeps", ".se3_exp_into", ".project_so3_into", "._quat_of_rot", "._rot_of_quat")
     assert [k for k in kernels if k.endswith(helpers)] == []
     assert [k for k in kernels if k.startswith(OTHERS)] == []
-
-
-def test_the_event_loop_takes_its_small_state_arrays_packed():
-    """A first run compiles a Python wrapper that unboxes each array argument of a kernel (~4-8 ms of compiling
-    each): fast-adaptation's event loop takes its state's small arrays as rows of two (19 arrays, were 27), and
-    the state's attributes are views of them, so what the kernel writes is what the stepper reads."""
-    import numpy as np
-    from numba.core import types
-
-    from slamobs.pipeline import compile_ahead
-    from slamobs.pipeline.observers import fast_adaptation
-
-    ((_, name, spec),) = compile_ahead.PLANS["fast-adaptation"]
-    assert name == "_advance"
-    assert sum(isinstance(t, types.Array) for t in compile_ahead.argument_types(spec)) <= 19
-    state = fast_adaptation._State(4, np.eye(3), np.arange(3.0), np.ones(3), np.full(3, 2.0))
-    assert len(state.arrays()) == 4
-    for attr in ("r_hat", "p_hat", "b_om", "b_v", "om_m", "v_m", "d_r", "d_p", "fs"):
-        assert np.shares_memory(getattr(state, attr), state.st), attr
-    for attr in ("ns", "counter"):
-        assert np.shares_memory(getattr(state, attr), state.ni), attr
-    assert (state.r_hat == np.eye(3)).all() and (state.p_hat == np.arange(3.0)).all()
-    assert (state.b_v == 2.0).all() and state.fs[1] == -np.inf and state.ns[-1] == -1

@@ -172,11 +172,6 @@ def _integrate(
 #: Kernel scalars kept between stretches: ``fs = [t, meas_t]``, ``ns = [iv, jf, nvis, started, substeps]``.
 _T, _MEAS_T = 0, 1
 _IV, _JF, _NVIS, _STARTED, _SUBSTEPS = 0, 1, 2, 3, 4
-#: Rows of :class:`_State`'s ``st`` (R̂ three rows, P̂, b̂_Ω, b̂_V, the held twist, the sub-step's scratch dR three
-#: rows and dp, then the clocks ``fs``) and the sub-step counter's place in ``ni`` (after ``ns``). Each array the
-#: kernel takes is unboxed by its Python wrapper (~4-8 ms of compiling each): 19 arrays instead of 27.
-_R_HAT, _P_HAT, _B_OM, _B_V, _OM_M, _V_M, _D_R, _D_P, _FS = 0, 3, 4, 5, 6, 7, 8, 11, 12
-_COUNTER = 7
 
 
 @njit(cache=True, nogil=True, nrt=False)
@@ -199,10 +194,19 @@ def _advance(
     out_every,
     iv_stop,
     budget,
-    st,
-    ni,
+    r_hat,
+    p_hat,
+    b_om,
+    b_v,
     y,
     vis_idx,
+    om_m,
+    v_m,
+    counter,
+    d_r,
+    d_p,
+    fs,
+    ns,
     out_k,
     out_r,
     out_p,
@@ -214,21 +218,9 @@ def _advance(
     """The event loop of :func:`run_kernel` from the state in the arrays, until the next event is velocity
     sample ``iv_stop`` (all events when ``iv_stop`` is the sample count) or ``budget`` work units are spent;
     stores the state back and returns the number of rows recorded (detection rows are written from
-    ``det_base`` on). The state is :class:`_State`'s: its small arrays packed into ``st`` and ``ni``."""
+    ``det_base`` on)."""
     n_vel = vel_t.shape[0]
     n_frames = det_t.shape[0]
-    # the state's small arrays are rows of ``st`` and ``ni`` (:class:`_State`): views, the same types as arrays
-    r_hat = st[_R_HAT : _R_HAT + 3]
-    p_hat = st[_P_HAT]
-    b_om = st[_B_OM]
-    b_v = st[_B_V]
-    om_m = st[_OM_M]
-    v_m = st[_V_M]
-    d_r = st[_D_R : _D_R + 3]
-    d_p = st[_D_P]
-    fs = st[_FS]
-    ns = ni
-    counter = ni[_COUNTER:]
     # one statement per element (a five-element tuple assignment compiles a tuple and its unpacking)
     t = fs[_T]
     meas_t = fs[_MEAS_T]
@@ -303,27 +295,29 @@ def _advance(
 
 
 class _State(KernelState):
-    """Algorithm A's state: the common one and the scratch of :func:`_integrate`, the small arrays packed for
-    :func:`_advance` (the attributes are views of ``st`` and ``ni``)."""
+    """Algorithm A's state: the common one and the scratch of :func:`_integrate`."""
 
     def __init__(self, n_max: int, r0: np.ndarray, p0: np.ndarray, b_om0: np.ndarray, b_v0: np.ndarray) -> None:
         super().__init__(n_max, r0, p0, b_om0, b_v0)
-        self.st = np.zeros((_FS + 1, 3))
-        assert self.ns.shape[0] == _COUNTER, "the counter follows KernelState's ns"
-        self.ni = np.zeros(_COUNTER + 1, dtype=np.int64)
-        for name, row, rows in (("r_hat", _R_HAT, 3), ("p_hat", _P_HAT, 0), ("b_om", _B_OM, 0), ("b_v", _B_V, 0)):
-            view = self.st[row : row + rows] if rows else self.st[row]
-            view[...] = getattr(self, name)
-            setattr(self, name, view)
-        self.om_m, self.v_m = self.st[_OM_M], self.st[_V_M]
-        self.d_r, self.d_p = self.st[_D_R : _D_R + 3], self.st[_D_P]
-        self.st[_FS, : self.fs.shape[0]] = self.fs
-        self.fs = self.st[_FS, : self.fs.shape[0]]
-        self.ni[: self.ns.shape[0]] = self.ns
-        self.ns, self.counter = self.ni[: self.ns.shape[0]], self.ni[_COUNTER:]
+        self.d_r = np.empty((3, 3))
+        self.d_p = np.empty(3)
 
     def arrays(self) -> tuple:
-        return (self.st, self.ni, self.y, self.vis_idx)
+        return (
+            self.r_hat,
+            self.p_hat,
+            self.b_om,
+            self.b_v,
+            self.y,
+            self.vis_idx,
+            self.om_m,
+            self.v_m,
+            self.counter,
+            self.d_r,
+            self.d_p,
+            self.fs,
+            self.ns,
+        )
 
 
 def run_kernel(
