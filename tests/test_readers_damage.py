@@ -181,6 +181,29 @@ def test_a_groups_chunks_are_decompressed_on_two_lanes(tmp_path, monkeypatch, si
     _same_streams(two, one)
 
 
+def test_stream_builds_on_a_second_thread_give_the_streams_of_one(tmp_path, monkeypatch, sim):
+    """A long log's streams are built on two threads (the caller from the first role, ``slamobs-streams`` from the
+    last): the same streams and notes as built on the caller's thread, which a short log keeps to."""
+    import threading
+
+    import slamobs.pipeline.readers as readers
+
+    path = _write(sim, tmp_path / "log.mcap", "mcap", "zstd")
+    where = []
+    for name in ("vec3_stream", "pose_stream", "detection_stream"):
+        build = getattr(readers, name)
+        monkeypatch.setattr(readers, name, lambda *a, b=build: where.append(threading.current_thread().name) or b(*a))
+    one = read_log(path)  # a 2 s log: fewer rows than AHEAD_ROWS
+    assert where and set(where) == {"MainThread"}, where
+    where.clear()
+    monkeypatch.setattr(readers, "AHEAD_ROWS", 0)
+    two = read_log(path)
+    assert any(name.startswith("slamobs-streams") for name in where), where
+    assert not [t for t in threading.enumerate() if t.name.startswith("slamobs-streams")]
+    _same_streams(two, one)
+    assert two.warnings == one.warnings
+
+
 @pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("ros2-sqlite3", "")])
 def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, compression):
     """Peak memory beyond the decoded columns is the same for a 3 s and a 12 s log (read chunk by chunk)."""

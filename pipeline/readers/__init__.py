@@ -275,6 +275,11 @@ def _one_pass_topics(chosen, table, selection, multi) -> tuple[dict, dict]:
     return numeric, found
 
 
+#: Rows of the streams to build below which :class:`_StreamsAhead` builds them all on the caller's thread (about
+#: five minutes of the benchmark's figure-8 logs; the 90 s log has 37,803 messages, the hour 1.5 million).
+AHEAD_ROWS = 1 << 17
+
+
 class _StreamsAhead:
     """Streams built on a second thread while the caller builds the others in role order: each of the builds that
     need nothing but their own topic's decoded rows (:func:`vec3_stream`, :func:`pose_stream`,
@@ -306,8 +311,9 @@ class _StreamsAhead:
         return rows, detections
 
     def _start(self, builds: list[tuple]) -> None:
-        """``builds``: ``(function, rows, *args)`` in the order the caller asks for them."""
-        if len(builds) < 2:
+        """``builds``: ``(function, rows, *args)`` in the order the caller asks for them; on a short log (fewer than
+        :data:`AHEAD_ROWS` rows in all, a few ms of builds) none: a second thread would not pay."""
+        if len(builds) < 2 or sum(int(rows.t_ns.shape[0]) for _, rows, *_ in builds) < AHEAD_ROWS:
             return
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="slamobs-streams")
         for build, *args in reversed(builds):
