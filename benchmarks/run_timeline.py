@@ -15,6 +15,10 @@ into it from another stage could use; a stage without them is bound by its CPU. 
 include what other processes took (the load average and the speed of a plain loop are printed before and
 after). The sampler's own CPU (~1-2 %) is left out.
 
+``--chart SECONDS`` also draws each run as a chart: one row per lane (thread or child process), one column per
+``SECONDS`` of wall time, each cell the share of a core the lane used then (``1``-``9``: 10-90 %, ``#``: a whole
+core, blank: none), under a row of the main thread's stage letters: where a core sits idle and what runs beside.
+
 ``--figure-helper`` starts the figure helper process as ``slamobs run`` does when a core is free, even if none
 is free now (``free_cores``: on a shared VM there often is none, and the figures are then drawn at the end of
 the report in this process).
@@ -79,6 +83,8 @@ class Sampler(threading.Thread):
         self.names: dict[str, str] = {}
         self.stopped = threading.Event()
         self.pid = os.getpid()
+        #: (time, stage, CPU seconds used since the last sample by each key) of every sample, for ``--chart``
+        self.series: list[tuple[float, str, dict[str, float]]] = []
 
     def snapshot(self) -> dict[str, float]:
         """CPU seconds so far of each thread (``tid``) and each descendant process (``pid:N``); names noted."""
@@ -105,10 +111,13 @@ class Sampler(threading.Thread):
 
     def sample(self) -> None:
         now = self.snapshot()
+        step = {}
         for key, value in now.items():
             used = value - self.last.get(key, 0.0)
             if used > 0:
                 self.cpu[self.stage][key] += used
+                step[key] = used
+        self.series.append((time.perf_counter(), self.stage, step))
         self.last.update(now)
 
     def by_name(self) -> dict[str, dict[str, float]]:
@@ -182,8 +191,34 @@ STAGE_FUNCTIONS = {
 }
 
 
-def one_run(log: Path, out: Path, helper: bool) -> tuple[dict[str, float], dict[str, dict[str, float]], float]:
-    """Stage walls, CPU per stage and thread, and the run's wall."""
+def chart(sampler: Sampler, bucket: float) -> None:
+    """The run's lanes over time, ``bucket`` seconds a column (see the module's docstring)."""
+    if not sampler.series:
+        return
+    t0 = sampler.series[0][0]
+    used: dict[str, dict[int, float]] = defaultdict(lambda: defaultdict(float))
+    stages: dict[int, str] = {}
+    for t, stage, step in sampler.series:
+        col = int((t - t0) / bucket)
+        stages.setdefault(col, stage)
+        for key, cpu in step.items():
+            used[sampler.names.get(key, "?")][col] += cpu
+    cols = max(stages) + 1
+    print(f"# each column {bucket:g} s; stages: " + ", ".join(f"{s[0]} {s}" for s in STAGES))
+    print(f"{'stage':<16} " + "".join(stages.get(c, " ")[0] for c in range(cols)))
+    for name in sorted(used, key=lambda n: (n != "main", min(used[n]))):
+        total = sum(used[name].values())
+        if total < 0.02:
+            continue
+        cells = (used[name].get(c, 0.0) / bucket for c in range(cols))
+        row = "".join(" " if x < 0.05 else "#" if x >= 0.95 else str(max(1, int(x * 10))) for x in cells)
+        print(f"{name[:16]:<16} {row} {total:.2f}")
+
+
+def one_run(
+    log: Path, out: Path, helper: bool, bucket: float | None = None
+) -> tuple[dict[str, float], dict[str, dict[str, float]], float]:
+    """Stage walls, CPU per stage and thread, and the run's wall (and its chart, ``bucket`` seconds a column)."""
     from slamobs.cli import main as cli
     from slamobs.pipeline.evaluation import plot_worker
 
@@ -218,6 +253,8 @@ def one_run(log: Path, out: Path, helper: bool) -> tuple[dict[str, float], dict[
                 if module is not None:
                     setattr(module, attr, original or getattr(module, attr).__wrapped__)
     walls["start"] = wall - sum(walls.values())  # the rest: before the read and after the report
+    if bucket:
+        chart(sampler, bucket)
     return dict(walls), sampler.by_name(), wall
 
 
@@ -250,6 +287,7 @@ def main() -> None:
     ap.add_argument("-o", "--out", type=Path, default=None, help="run directory (default: a temporary one)")
     ap.add_argument("--repeat", type=int, default=2, help="runs (the kernels are loaded by the first)")
     ap.add_argument("--figure-helper", action="store_true", help="start the figure helper even without a free core")
+    ap.add_argument("--chart", type=float, default=None, metavar="SECONDS", help="each run's lanes over time")
     args = ap.parse_args()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as `slamobs` (cli/main.py)
     import slamobs
@@ -259,7 +297,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="slamobs-timeline-") as tmp:
         out = args.out or Path(tmp) / "run"
         for k in range(max(1, args.repeat)):
-            walls, cpu, wall = one_run(args.log, out, args.figure_helper)
+            walls, cpu, wall = one_run(args.log, out, args.figure_helper, args.chart)
             print(f"## run {k + 1}: {wall:.2f} s wall")
             show(walls, cpu, wall, cores)
     print(f"# {load()}")

@@ -146,11 +146,11 @@ def run(
     first = Path(logs[0]) if len(logs) == 1 else Path(logs[0]).parent
     working_on(first, "a run of this log", run_memory_mb(first))
     from slamobs.pipeline import compile_ahead
-    from slamobs.pipeline.evaluation.plot_worker import PlotWorkers, free_cores
+    from slamobs.pipeline.evaluation.plot_worker import PlotWorkers, free_cores, helper_wanted
 
     spare = free_cores()
     # the figure helper imports matplotlib while this process imports the pipeline (~1 s of each on a short log)
-    workers = PlotWorkers(1) if spare else None
+    workers = PlotWorkers(1) if helper_wanted(spare) else None
     helper = None
     try:
         helper = compile_ahead.start_early(spare)  # a first run's kernels, compiled while it imports and reads

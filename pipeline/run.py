@@ -944,7 +944,7 @@ def _evaluate(
     from slamobs.pipeline import interrupts
     from slamobs.pipeline.evaluation import ReportOptions, evaluate_tables, write_report
     from slamobs.pipeline.evaluation.figure_jobs import bias_plot_rows
-    from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context
+    from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, aligned_rows
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
@@ -952,6 +952,7 @@ def _evaluate(
     from slamobs.pipeline.writers import read_columns
 
     wanted = {"poses": report_pose_column}
+    rows = {}  # the aligned tables' rows, written while the report's threads finish (pipeline.evaluation.report)
     try:
         # an observer's poses have no uncertainty: their null columns are not read (the report needs none of them;
         # the landmarks' are copied into landmarks_aligned.parquet), nor a reference estimator's columns the report
@@ -997,6 +998,7 @@ def _evaluate(
             options=options,
             drawn_biases=drawn_biases,
             figures=figures,
+            aligned=lambda ev: rows.setdefault("sink", aligned_rows(out, ev, landmarks, metadata)),
         )
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
@@ -1016,10 +1018,13 @@ def _evaluate(
             metadata=metadata,
             plot_workers=early,
             more_figures=own,
+            aligned=rows.get("sink"),
         )
     except OSError:
         raise
     except Exception as err:  # noqa: BLE001 - whatever the truth holds, the observer output stands
+        if "sink" in rows:  # closed before the files are removed
+            rows["sink"].abort()
         if (stop := interrupts.interruption(err)) is not None:  # a SIGTERM or Ctrl-C, not a bad truth
             raise stop from None
         if machine_failure(err):  # out of memory or threads: the run fails, never a run without its report
@@ -1033,4 +1038,7 @@ def _evaluate(
             reason = f"{type(err).__name__}: {reason}"
         notes.append(f"no error report: {reason}")
         return None, reason
+    finally:
+        if "sink" in rows:  # an interruption: its files closed (nothing once write_report closed them)
+            rows["sink"].abort()
     return report, None

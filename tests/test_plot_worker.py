@@ -124,6 +124,17 @@ def test_helper_dies_with_a_killed_run():
         time.sleep(0.05)
 
 
+def test_the_figure_helper_is_chosen_by_free_cores_unless_the_environment_says(monkeypatch):
+    """``SLAMOBS_FIGURE_HELPER=1`` starts the figure helper without a free core (a benchmark measuring a quiet
+    machine's run on a shared one), ``=0`` never; unset, a free core decides."""
+    monkeypatch.delenv(plot_worker.ENV, raising=False)
+    assert plot_worker.helper_wanted(1) and not plot_worker.helper_wanted(0)
+    monkeypatch.setenv(plot_worker.ENV, "1")
+    assert plot_worker.helper_wanted(0)
+    monkeypatch.setenv(plot_worker.ENV, "0")
+    assert not plot_worker.helper_wanted(2)
+
+
 def test_free_cores_counts_what_runs_now():
     """Runnable threads right now (the fourth field of /proc/loadavg, this process one of them), not the load
     average, which still counts runs that ended a minute ago."""

@@ -157,6 +157,53 @@ def test_a_group_of_chunks_is_loaded_into_one_buffer(tmp_path, monkeypatch, sim,
     assert max(joins, default=1) == 1  # storage.grouped passed each group through without joining
 
 
+@pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd")])
+def test_a_groups_chunks_are_decompressed_on_two_lanes(tmp_path, monkeypatch, sim, container, compression):
+    """A log of several decoding groups has each group's compressed chunks read in order by the loading thread,
+    then decompressed, checked and walked on two lanes (it and ``slamobs-inflate``): the streams are the
+    simulated ones, the same as on one lane (one core), and no thread is left once the log is read."""
+    import threading
+
+    path = _write(sim, tmp_path / f"log.{container}", container, compression)
+    monkeypatch.setattr(storage, "GROUP_BYTES", 4 * CHUNK)
+    lanes = []
+    unpack = chunks.unpack_unit
+    monkeypatch.setattr(chunks, "unpack_unit", lambda *a: lanes.append(threading.current_thread().name) or unpack(*a))
+    two = read_log(path)
+    assert {"slamobs-chunk-reader", "slamobs-inflate"} <= {name.split("_")[0] for name in lanes}, lanes
+    assert not [t for t in threading.enumerate() if t.name.startswith("slamobs-inflate")]
+    lanes.clear()
+    monkeypatch.setattr(chunks, "cores", lambda: 1)
+    one = read_log(path)
+    assert "slamobs-chunk-reader" in lanes, lanes  # one core: each unit read and decompressed in turn, as before
+    assert not [name for name in lanes if name.startswith("slamobs-inflate")], lanes
+    _same_streams(two, expected_streams(sim, str(path)))
+    _same_streams(two, one)
+
+
+def test_stream_builds_on_a_second_thread_give_the_streams_of_one(tmp_path, monkeypatch, sim):
+    """A long log's streams are built on two threads (the caller from the first role, ``slamobs-streams`` from the
+    last): the same streams and notes as built on the caller's thread, which a short log keeps to."""
+    import threading
+
+    import slamobs.pipeline.readers as readers
+
+    path = _write(sim, tmp_path / "log.mcap", "mcap", "zstd")
+    where = []
+    for name in ("vec3_stream", "pose_stream", "detection_stream"):
+        build = getattr(readers, name)
+        monkeypatch.setattr(readers, name, lambda *a, b=build: where.append(threading.current_thread().name) or b(*a))
+    one = read_log(path)  # a 2 s log: fewer rows than AHEAD_ROWS
+    assert where and set(where) == {"MainThread"}, where
+    where.clear()
+    monkeypatch.setattr(readers, "AHEAD_ROWS", 0)
+    two = read_log(path)
+    assert any(name.startswith("slamobs-streams") for name in where), where
+    assert not [t for t in threading.enumerate() if t.name.startswith("slamobs-streams")]
+    _same_streams(two, one)
+    assert two.warnings == one.warnings
+
+
 @pytest.mark.parametrize(("container", "compression"), [("bag", "lz4"), ("mcap", "zstd"), ("ros2-sqlite3", "")])
 def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, compression):
     """Peak memory beyond the decoded columns is the same for a 3 s and a 12 s log (read chunk by chunk)."""

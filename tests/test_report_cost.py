@@ -394,6 +394,50 @@ def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_tu
         assert (tmp_path / "sim3_beside" / name).read_bytes() == (tmp_path / "sim3_in_turn" / name).read_bytes(), name
 
 
+def test_aligned_rows_are_written_before_the_report_waits_for_the_work_beside(tmp_path, monkeypatch):
+    """A run writes the aligned tables' rows once its main thread's sections are done, before it waits for the
+    clock-offset search and the segment errors (then the second core is not left idle while one thread writes
+    them at the end); the footer comes last. The tables are the bytes written in one go (as ``slamobs report``
+    writes them), and a report that fails after the rows were written leaves no aligned table."""
+    from cli_checks import SAMPLES
+    from slamobs.pipeline import run
+    from slamobs.pipeline.config import EvaluationConfig, RunConfig
+    from slamobs.pipeline.evaluation import report, trajectory_evaluation
+
+    events = []
+    rows, wait = report.aligned_rows, trajectory_evaluation.Pending.result
+    monkeypatch.setattr(report, "aligned_rows", lambda *a: events.append("rows") or rows(*a))
+    monkeypatch.setattr(trajectory_evaluation.Pending, "result", lambda self: events.append("wait") or wait(self))
+    config = RunConfig(evaluation=EvaluationConfig(plots=False))
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "ahead", config)
+    assert events and events[0] == "rows" and events.count("rows") == 1, events
+    monkeypatch.setattr(report, "aligned_rows", rows)
+    at_once = tmp_path / "at_once"
+    at_once.mkdir()
+    written = []
+    real_write = report.write_report
+
+    def write_at_once(rep, out, *args, **kwargs):  # the rows and the footer in one go
+        ev, meta = kwargs["evaluation"], kwargs["metadata"]
+        kwargs["aligned"].abort()
+        written.extend(report.write_aligned_tables(at_once, rep, ev, args[2], meta))
+        return real_write(rep, tmp_path / "ahead_again", *args, **{**kwargs, "aligned": None})
+
+    monkeypatch.setattr(report, "write_report", write_at_once)
+    monkeypatch.setattr("slamobs.pipeline.evaluation.write_report", write_at_once)
+    run.run_log(SAMPLES / "figure8.mcap", tmp_path / "unused", config)
+    for name in report.ALIGNED_TABLES:
+        assert (tmp_path / "ahead" / name).read_bytes() == (at_once / name).read_bytes(), name
+
+    def fails(*_a, **_kw):
+        raise ValueError("the report cannot be written")
+
+    monkeypatch.setattr("slamobs.pipeline.evaluation.write_report", fails)
+    summary = run.run_log(SAMPLES / "figure8.mcap", tmp_path / "failed", config)
+    assert summary.report is None
+    assert not [name for name in report.ALIGNED_TABLES if (tmp_path / "failed" / name).exists()]
+
+
 def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has_not_begun(monkeypatch):
     """``Pending`` computes on its thread; when the caller asks for the result before the thread has begun (a
     loaded machine), the caller computes it and the thread finds it taken: computed once, either way, and an

@@ -58,6 +58,20 @@ def free_cores(loadavg: str | None = None) -> int:
     return max(0, round(cpus - max(load, 1.0)))
 
 
+#: ``0`` never starts the figure helper of ``slamobs run``, ``1`` starts it even without a free core (else: where
+#: :func:`free_cores` finds one); a benchmark on a shared machine measures the run as a quiet one would run it.
+ENV = "SLAMOBS_FIGURE_HELPER"
+
+
+def helper_wanted(spare_cores: int) -> bool:
+    """Whether ``slamobs run`` draws its figures in a helper process: with a core to spare, unless :data:`ENV` says
+    otherwise."""
+    choice = os.environ.get(ENV, "")
+    if choice in ("0", "1"):
+        return choice == "1"
+    return spare_cores > 0
+
+
 class PlotWorkers:
     """Up to ``count`` helper processes, started at once; :meth:`submit` shares the figures out among them."""
 

@@ -141,6 +141,7 @@ def evaluate_tables(
     options: ReportOptions | None = None,
     figures: Callable[[list], None] | None = None,
     drawn_biases: Table | None = None,
+    aligned: Callable[[TrajectoryEvaluation], None] | None = None,
     **overrides: Any,
 ) -> tuple[dict[str, Any], TrajectoryEvaluation]:
     """:func:`evaluate_report` of the ``poses``, ``biases`` and ``landmarks`` tables in ``tables``, each removed
@@ -149,7 +150,9 @@ def evaluate_tables(
 
     ``figures`` (e.g. :meth:`.plot_worker.PlotWorkers.submit`) is handed the report's figure jobs as soon as
     their sections are known (the bias figure, drawn from ``drawn_biases``, first), so that helper processes
-    draw them while the rest of the report is computed."""
+    draw them while the rest of the report is computed. ``aligned(ev)`` is called once this thread's sections are
+    done, before it waits for the work beside it (the clock-offset search, the segment errors): a run writes the
+    aligned tables' rows there, where they would otherwise follow that wait with the second core idle."""
     options = replace(options or ReportOptions(), **overrides)
     truth, invalid = valid_truth(truth)
     biases = BiasSection(bias_truth, options.bias_window_fraction)
@@ -204,8 +207,11 @@ def evaluate_tables(
         "convergence": convergence,
         "uncertainty": uncertainty,
     }
-    for section in (sections["ape"], by_alignment, rpe, drift, time_offset):
+    for section in (sections["ape"], by_alignment, rpe, drift):
         section.process_data(ev)
+    if aligned is not None:
+        aligned(ev)
+    time_offset.process_data(ev)  # waits for the search beside
     if segments_done is not None:
         segments_done.result()
     if figures is not None:
@@ -342,6 +348,7 @@ def write_report(
     exports: tuple[str, ...] = (),
     plot_workers=None,
     more_figures: list = (),
+    aligned=None,
 ) -> list[Path]:
     """Write report.json, report.md, the PNG plots (``plots``: ``"all"``, the main ones with True, none with False:
     they are most of the report's time on short logs; :func:`.figure_jobs.chosen`), the estimate aligned into the
@@ -352,8 +359,9 @@ def write_report(
     this report (same pairs and alignment; ``poses`` may then be None), else it is computed again from ``poses``.
     With ``plot_workers`` (started :class:`~.plot_worker.PlotWorkers`) the figures are drawn by those helper
     processes while the aligned tables are written; ``more_figures`` (the run's own, :mod:`.figure_jobs`) are drawn
-    with the report's, and report.json lists every figure (``figures``). The writes are plain: callers that replace
-    an existing report write into a temporary directory first (see :mod:`.run_dir`).
+    with the report's, and report.json lists every figure (``figures``). ``aligned``: the aligned tables' rows
+    already written (:func:`aligned_rows`), finished here. The writes are plain: callers that replace an existing
+    report write into a temporary directory first (see :mod:`.run_dir`).
     """
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
     from slamobs.pipeline.readers.trajectory_files import write_tum
@@ -384,7 +392,10 @@ def write_report(
         written.append(write_tum(out / TRUTH_TUM, ev.truth))
     if jobs and plot_workers is not None:
         plot_workers.submit(jobs)  # drawn by the helper processes while the aligned tables are written
-    written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
+    if aligned is not None:
+        written += close_aligned(aligned, report, metadata or {})
+    else:
+        written += write_aligned_tables(out, report, ev, landmarks, metadata or {})
     if plot_workers is not None and plot_workers.submitted:
         written += plot_workers.collect(out)
     elif jobs:
@@ -399,17 +410,16 @@ def write_aligned_tables(
 ) -> list[Path]:
     """``poses_aligned.parquet`` and ``landmarks_aligned.parquet``: every pose and the map moved by the report's
     alignment into the truth's frame (a stretch of poses at a time), with the run metadata and the alignment."""
+    return close_aligned(aligned_rows(out, ev, landmarks, metadata), report, metadata)
+
+
+def aligned_rows(out: Path, ev: TrajectoryEvaluation, landmarks: Table | None, metadata: dict[str, Any]):
+    """The rows of the aligned tables written into ``out`` (a :class:`~pipeline.writers.TableWriter` whose footer
+    :func:`close_aligned` adds): all they need is the alignment, so a run writes them while its report's threads
+    still compute (the footer's report and metadata come at the end)."""
     from slamobs.pipeline.writers import FLOAT_BITS, TableWriter
 
     al = ev.alignment
-    meta = {
-        **metadata,
-        "aligned": {
-            "frame": "ground truth",
-            "alignment": report["method"]["alignment"],
-            "truth_source": report.get("truth_source"),
-        },
-    }
     bits = int((metadata.get("output") or {}).get("float_bits", FLOAT_BITS))
     sink = TableWriter(out, bits)
     try:
@@ -444,6 +454,23 @@ def write_aligned_tables(
                     }
                 }
             )
+    except BaseException:
+        sink.abort()
+        raise
+    return sink
+
+
+def close_aligned(sink, report: dict[str, Any], metadata: dict[str, Any]) -> list[Path]:
+    """The aligned tables of :func:`aligned_rows` finished with the run ``metadata`` and the report's alignment."""
+    meta = {
+        **metadata,
+        "aligned": {
+            "frame": "ground truth",
+            "alignment": report["method"]["alignment"],
+            "truth_source": report.get("truth_source"),
+        },
+    }
+    try:
         return sink.close(meta)
     except BaseException:
         sink.abort()

@@ -8,6 +8,7 @@ every repair in ``LogStreams.warnings``. Every failure is an :class:`~pipeline.e
 from __future__ import annotations
 
 import functools
+from concurrent.futures import Future, ThreadPoolExecutor
 from collections import defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -119,7 +120,7 @@ def read_log(
     path = Path(path)
     overrides = dict(topics or {})
     truth_file = _outside_truth(overrides, truth_file)
-    with open_log(path) as reader:
+    with open_log(path) as reader, _StreamsAhead() as ahead:
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
         _check_clock_topics(path, clocks, table)
@@ -147,18 +148,18 @@ def read_log(
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
         # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
-        rows, detections = decode_topics(reader, path, *_one_pass_topics(chosen, table, selection, multi), marker_ns)
+        rows, detections = ahead.start(reader, path, chosen, table, selection, multi, marker_ns)
         last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
         for k, (role, topic) in enumerate(chosen):
             meta, conns = table[topic]
             if (role, meta.msgtype) in VEC3_ROLES:
                 stream, cleaning = _checked_velocity(
-                    role, topic, *vec3_stream(rows[topic], role), selection, table, rows, streams, note, overrides
+                    role, topic, ahead(vec3_stream, rows[topic], role), selection, table, rows, streams, note, overrides
                 )
                 setattr(streams, role, stream)
                 note(stream.topic, role, cleaning)
             elif role == "truth" and selection.truth_edge is None:
-                streams.truth, cleaning = pose_stream(rows[topic])
+                streams.truth, cleaning = ahead(pose_stream, rows[topic])
                 note(topic, role, cleaning)
             elif role == "detections" and topic in multi:
                 _camera_topics(reader, path, table, selection.multi["detections"], streams, note, images, progress)
@@ -172,7 +173,7 @@ def read_log(
                     streams.detections, cleaning = tag_detections(tf_of(topic), str(selection.tag_pattern), path)
                 else:
                     found = detections.pop(topic)
-                    streams.detections, cleaning = detection_stream(found) if isinstance(found, Rows) else found
+                    streams.detections, cleaning = ahead(detection_stream, found) if isinstance(found, Rows) else found
                     del found
                 note(topic, role, cleaning)
             elif role == "static_tf":
@@ -204,9 +205,11 @@ def read_log(
     return streams
 
 
-def _checked_velocity(role, topic, stream, cleaning, selection, table, rows, streams, note, overrides):
-    """A velocity stream checked against what else the log says: an odometry twist against its poses, an angular
-    velocity that is all zero against the linear-velocity topic's (not when the config names the topic)."""
+def _checked_velocity(role, topic, built, selection, table, rows, streams, note, overrides):
+    """A velocity stream (``built``: it and its cleaning) checked against what else the log says: an odometry twist
+    against its poses, an angular velocity that is all zero against the linear-velocity topic's (not when the config
+    names the topic)."""
+    stream, cleaning = built
     if table[topic][0].msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
         return _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
     if role == "angular_velocity" and "angular_velocity" not in overrides:
@@ -270,6 +273,72 @@ def _one_pass_topics(chosen, table, selection, multi) -> tuple[dict, dict]:
         if r == "detections" and table[t][0].msgtype not in TF_TYPES and t not in multi
     }
     return numeric, found
+
+
+#: Rows of the streams to build below which :class:`_StreamsAhead` builds them all on the caller's thread (about
+#: five minutes of the benchmark's figure-8 logs; the 90 s log has 37,803 messages, the hour 1.5 million).
+AHEAD_ROWS = 1 << 17
+
+
+class _StreamsAhead:
+    """Streams built on a second thread while the caller builds the others in role order: each of the builds that
+    need nothing but their own topic's decoded rows (:func:`vec3_stream`, :func:`pose_stream`,
+    :func:`detection_stream`: pure functions of the rows, most of their time in NumPy without the GIL). The helper
+    takes them from the last role backwards and the caller from the first, so the caller waits only for a build
+    the helper has started and builds itself one it has not; every stream, its cleaning and the order of the
+    notes are those of one thread."""
+
+    def __init__(self) -> None:
+        self._pool: ThreadPoolExecutor | None = None
+        self._builds: dict[tuple, Future] = {}
+
+    def __enter__(self) -> _StreamsAhead:
+        return self
+
+    def __exit__(self, *_exc) -> None:  # a failure or Ctrl-C: the build in hand finishes, the others are dropped
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+    @staticmethod
+    def _key(build, rows, *args) -> tuple:
+        return (build, id(rows), *args)
+
+    def start(self, reader, path: Path, chosen, table, selection, multi, marker_ns) -> tuple[dict, dict]:
+        """The numeric topics and the detections decoded in one pass over the log (each chunk decompressed once,
+        :func:`decode_topics`), their stream builds started."""
+        rows, detections = decode_topics(reader, path, *_one_pass_topics(chosen, table, selection, multi), marker_ns)
+        self._start(_own_row_builds(chosen, table, selection, rows, detections))
+        return rows, detections
+
+    def _start(self, builds: list[tuple]) -> None:
+        """``builds``: ``(function, rows, *args)`` in the order the caller asks for them; on a short log (fewer than
+        :data:`AHEAD_ROWS` rows in all, a few ms of builds) none: a second thread would not pay."""
+        if len(builds) < 2 or sum(int(rows.t_ns.shape[0]) for _, rows, *_ in builds) < AHEAD_ROWS:
+            return
+        self._pool = ThreadPoolExecutor(1, thread_name_prefix="slamobs-streams")
+        for build, *args in reversed(builds):
+            self._builds[self._key(build, *args)] = self._pool.submit(build, *args)
+
+    def __call__(self, build, rows, *args):
+        """``build(rows, *args)``: the helper's result if it has started it, else built here."""
+        found = self._builds.pop(self._key(build, rows, *args), None)
+        if found is not None and not found.cancel():
+            return found.result()
+        return build(rows, *args)
+
+
+def _own_row_builds(chosen, table, selection, rows, detections) -> list[tuple]:
+    """The builds :class:`_StreamsAhead` may run ahead, in role order (as :func:`read_log`'s loop asks for them)."""
+    builds = []
+    for role, topic in chosen:
+        msgtype = table[topic][0].msgtype
+        if (role, msgtype) in VEC3_ROLES:
+            builds.append((vec3_stream, rows[topic], role))
+        elif role == "truth" and selection.truth_edge is None:
+            builds.append((pose_stream, rows[topic]))
+        elif role == "detections" and isinstance(found := detections.get(topic), Rows):
+            builds.append((detection_stream, found))
+    return builds
 
 
 def _cleaning_notes(reports: Mapping[str, list[tuple[str, Cleaning]]], on_record_time: set[str]) -> list[str]:

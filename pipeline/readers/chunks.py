@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, BinaryIO
 import lz4.frame
 import numpy as np
 import zstandard
+from slamobs.pipeline.cores import cores
 from slamobs.pipeline.errors import machine_failure, one_line
 from numba import types
 from slamobs.pipeline.kernel_cache import subroutine
@@ -88,28 +89,51 @@ def read_unit(bio: BinaryIO, unit: Unit, out: np.ndarray | None = None) -> np.nd
     ``out``: :func:`slot_bytes` bytes of a group's buffer (a complete unit) to decompress into, its read-only
     view returned: the group's chunks then need not be copied into one buffer for the decoder.
     """
-    bio.seek(unit.pos)
     if out is not None and unit.compression in {"", "none"}:
+        bio.seek(unit.pos)
         got = bio.readinto(out)
         if got != unit.size:
             msg = f"chunk at byte {unit.pos} is cut off"
             raise DamagedError(msg)
-        data = out
-    else:
-        blob = bio.read(unit.size)
-        if len(blob) != unit.size:
-            msg = f"chunk at byte {unit.pos} is cut off"
-            raise DamagedError(msg)
-        data = _inflate_into(blob, unit, out) if out is not None else None
-        if data is None:
-            raw = _inflate(blob, unit.compression, unit.raw_size, unit.partial)
-            data = np.frombuffer(raw, np.uint8)
-            if out is not None:
-                out[:] = data
-                data = out
-    if unit.crc_at >= 0 and not unit.partial:
-        bio.seek(unit.crc_at)
-        (crc,) = struct.unpack("<I", bio.read(4))
+        return _checked(out, _stored_crc(bio, unit), unit)
+    return unpack_unit(*read_blob(bio, unit), unit, out)
+
+
+def read_blob(bio: BinaryIO, unit: Unit) -> tuple[bytes, bytes | None]:
+    """The unit's bytes as stored and its stored CRC32's bytes (None: none): all :func:`unpack_unit` needs of the
+    file, so that units read one after the other can be decompressed on two threads."""
+    bio.seek(unit.pos)
+    blob = bio.read(unit.size)
+    if len(blob) != unit.size:
+        msg = f"chunk at byte {unit.pos} is cut off"
+        raise DamagedError(msg)
+    return blob, _stored_crc(bio, unit)
+
+
+def _stored_crc(bio: BinaryIO, unit: Unit) -> bytes | None:
+    if unit.crc_at < 0 or unit.partial:
+        return None
+    bio.seek(unit.crc_at)
+    return bio.read(4)
+
+
+def unpack_unit(blob: bytes, crc: bytes | None, unit: Unit, out: np.ndarray | None = None) -> np.ndarray:
+    """:func:`read_unit` of the bytes :func:`read_blob` read (decompression, zstd's into ``out``, and the CRC32
+    run without the GIL)."""
+    data = _inflate_into(blob, unit, out) if out is not None else None
+    if data is None:
+        raw = _inflate(blob, unit.compression, unit.raw_size, unit.partial)
+        data = np.frombuffer(raw, np.uint8)
+        if out is not None:
+            out[:] = data
+            data = out
+    return _checked(data, crc, unit)
+
+
+def _checked(data: np.ndarray, crc_bytes: bytes | None, unit: Unit) -> np.ndarray:
+    """``data`` checked against the stored CRC32 (0: none), as a read-only array."""
+    if crc_bytes is not None:
+        (crc,) = struct.unpack("<I", crc_bytes)
         if crc and zlib.crc32(data) != crc:
             msg = f"chunk at byte {unit.pos} fails its checksum"
             raise DamagedError(msg)
@@ -251,7 +275,9 @@ class Chunked:
         units = [u for u in self.units if not u.conns or u.conns & wanted]
         read = 0
         if not ordered:  # a decoding group's chunks loaded at once, into one buffer
-            loads = prefetched(lambda group: self._load_group(group, ids), load_groups(units))
+            groups = load_groups(units)
+            self._start_inflater(len(groups))
+            loads = prefetched(lambda group: self._load_group(group, ids), groups)
         else:
             loads = prefetched(lambda unit: self._load_or_skip(unit, ids), units)
         try:
@@ -268,10 +294,26 @@ class Chunked:
                         yield concat(loaded).in_record_order()
         finally:
             loads.close()  # the loading thread is stopped and done before the file may be closed
+            self._stop_inflater()
         if units and not read:
             why = self.lost[min(self.lost)][2] if getattr(self, "lost", None) else "damaged"
             msg = f"every chunk holding the topics read is damaged ({why})"
             raise DamagedError(msg)
+
+    def _start_inflater(self, groups: int) -> None:
+        """The second lane of :meth:`_load_units` for a log of several decoding groups, where two cores are free
+        to run it (a short log's one group is loaded as before)."""
+        self.inflater = None
+        if groups >= 2 and cores() >= 2:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self.lost = getattr(self, "lost", {})  # made here: both lanes may record a damaged unit
+            self.inflater = ThreadPoolExecutor(1, thread_name_prefix="slamobs-inflate")
+
+    def _stop_inflater(self) -> None:
+        pool, self.inflater = getattr(self, "inflater", None), None
+        if pool is not None:
+            pool.shutdown(wait=True)
 
     def _load_group(self, group: list[Unit], ids: ConnIds) -> RawBatch | None:
         """The requested messages of a group of complete units, each decompressed into its part of one buffer."""
@@ -279,24 +321,52 @@ class Chunked:
             return self._load_or_skip(group[0], ids)
         sizes = [slot_bytes(unit) for unit in group]
         data = np.empty(sum(sizes), np.uint8)
-        batches, at, pos = [], [], 0
-        for unit, size in zip(group, sizes, strict=True):
-            batch = self._load_or_skip(unit, ids, data[pos : pos + size])
-            if batch is not None:  # a damaged unit skipped leaves its part unused
-                batches.append(batch)
-                at.append(pos)
+        slots, pos = [], 0
+        for size in sizes:
+            slots.append((pos, data[pos : pos + size]))
             pos += size
+        loaded = self._load_units(group, ids, [out for _, out in slots])
+        batches = [batch for batch in loaded if batch is not None]  # a damaged unit skipped leaves its part unused
+        at = [p for (p, _), batch in zip(slots, loaded, strict=True) if batch is not None]
         if not batches:
             return None
         view = data.view()
         view.flags.writeable = False
         return placed(view, batches, at)
 
-    def _load_or_skip(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None) -> RawBatch | None:
-        if not unit.indexed:
-            return self.load(unit, ids, out)
+    def _load_units(self, group: list[Unit], ids: ConnIds, outs: list[np.ndarray]) -> list[RawBatch | None]:
+        """:meth:`_load_or_skip` of each unit of a group into its slot, in order. Compressed units are read from
+        the file here, then decompressed, checked and walked on two lanes (this thread and :attr:`inflater`, whose
+        work runs without the GIL): the loading lane, the read's longest, is halved."""
+        pool = getattr(self, "inflater", None)
+        if pool is None or any(unit.compression in {"", "none"} or unit.partial for unit in group):
+            return [self._load_or_skip(unit, ids, out) for unit, out in zip(group, outs, strict=True)]
+        blobs = []
+        for unit in group:  # the file is read by this thread only, in order
+            try:
+                blobs.append(read_blob(self.bio, unit))
+            except _CHUNK_ERRORS as err:  # raised (or the unit skipped) where its unpacking would be
+                blobs.append(err)
+        work = list(zip(group, blobs, outs, strict=True))
+        half = (len(work) + 1) // 2
+
+        def lane(items) -> list[RawBatch | None]:
+            return [self._load_or_skip(unit, ids, out, blob) for unit, blob, out in items]
+
+        beside = pool.submit(lane, work[half:])
         try:
-            return self.load(unit, ids, out)
+            mine = lane(work[:half])
+        finally:
+            error = beside.exception()  # waits: nothing writes into the group's buffer after this returns
+        if error is not None:
+            raise error
+        return mine + beside.result()
+
+    def _load_or_skip(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None, blob=None) -> RawBatch | None:
+        if not unit.indexed:
+            return self.load(unit, ids, out, blob)
+        try:
+            return self.load(unit, ids, out, blob)
         except _CHUNK_ERRORS as err:
             if machine_failure(err):  # e.g. zstd's "Allocation error": the chunk is fine, the memory is not
                 raise
@@ -326,11 +396,17 @@ class Chunked:
             )
         return texts
 
-    def load(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None) -> RawBatch:
+    def load(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None, blob=None) -> RawBatch:
         """Decompress (into ``out``, see :func:`read_unit`) and scan one unit (damaged records at its end: the
-        complete ones before them are kept and the rest counted lost when the index says how many it held)."""
-        assert self.bio
-        data = read_unit(self.bio, unit, out)
+        complete ones before them are kept and the rest counted lost when the index says how many it held).
+        ``blob``: what :func:`read_blob` read of it (or raised), else it is read here."""
+        if blob is None:
+            assert self.bio
+            data = read_unit(self.bio, unit, out)
+        elif isinstance(blob, BaseException):
+            raise blob
+        else:
+            data = unpack_unit(*blob, unit, out)
         recs = records(self.walk, data)
         if recs.status == BAD or (recs.status == CUT and not unit.partial):
             if unit.recovered:  # the scan kept the complete records before the damage and said so
