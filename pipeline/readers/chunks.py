@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import bz2
 import struct
-import zlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, BinaryIO
 
@@ -22,7 +21,7 @@ from slamobs.pipeline.errors import machine_failure, one_line
 from numba import types
 from slamobs.pipeline.kernel_cache import subroutine
 
-from . import storage
+from . import checksum, storage
 from .storage import ConnIds, DamagedError, RawBatch, concat, placed
 
 if TYPE_CHECKING:
@@ -110,7 +109,7 @@ def read_unit(bio: BinaryIO, unit: Unit, out: np.ndarray | None = None) -> np.nd
     if unit.crc_at >= 0 and not unit.partial:
         bio.seek(unit.crc_at)
         (crc,) = struct.unpack("<I", bio.read(4))
-        if crc and zlib.crc32(data) != crc:
+        if crc and checksum.crc32(data) != crc:
             msg = f"chunk at byte {unit.pos} fails its checksum"
             raise DamagedError(msg)
     if data.flags.writeable:  # as np.frombuffer gives it: the compiled walks are compiled for read-only buffers
@@ -249,6 +248,7 @@ class Chunked:
         """
         wanted = set(ids.ids.tolist())
         units = [u for u in self.units if not u.conns or u.conns & wanted]
+        checksum.prepare(sum(u.raw_size for u in units if u.crc_at >= 0))
         read = 0
         if not ordered:  # a decoding group's chunks loaded at once, into one buffer
             loads = prefetched(lambda group: self._load_group(group, ids), load_groups(units))
