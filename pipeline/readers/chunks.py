@@ -181,17 +181,35 @@ class Records:
     status: int
 
 
-def records(walk: Callable[..., tuple[int, int, int]], buf: np.ndarray) -> Records:
-    """Count, then fill (two passes keep the scratch arrays exactly as long as the record count)."""
-    none = np.empty(0, np.int64)
-    n, _, _ = walk(buf, False, none, none, none, none, none, none)
+_EVERY = np.empty(0, np.int64)
+
+
+def records(walk: Callable[..., tuple[int, int, int]], buf: np.ndarray, wanted: np.ndarray = _EVERY) -> Records:
+    """Count, then fill (two passes keep the scratch arrays exactly as long as the record count). ``wanted``
+    (:func:`wanted_table`): only the requested messages, ``conn`` their index among the requested connections."""
+    n, _, _ = walk(buf, False, _EVERY, _EVERY, _EVERY, _EVERY, _EVERY, _EVERY, wanted)
     arrays = [np.empty(n, np.int64) for _ in range(6)]
-    n, stop, status = walk(buf, True, *arrays)
+    n, stop, status = walk(buf, True, *arrays, wanted)
     return Records(*arrays, stop=int(stop), status=int(status))
 
 
+#: Connection ids up to this are looked up by a table in the record walks (MCAP's are 16-bit; ROS1 bags count
+#: from 0); a larger one takes the whole record list and :func:`message_batch`.
+_TABLE_IDS = 1 << 16
+
+
+def wanted_table(ids: ConnIds) -> np.ndarray | None:
+    """Storage connection id -> index into the requested connections (-1: not requested), for the record walks;
+    None when an id is too large for a table."""
+    if not ids.ids.size or int(ids.ids.max()) >= _TABLE_IDS or int(ids.ids.min()) < 0:
+        return None
+    table = np.full(int(ids.ids.max()) + 1, -1, np.int64)
+    table[ids.ids] = ids.index
+    return table
+
+
 def message_batch(data: np.ndarray, recs: Records, message_op: int, ids: ConnIds) -> RawBatch:
-    """The requested messages among ``recs``."""
+    """The requested messages among ``recs`` (every record of the buffer)."""
     index = ids.lookup(recs.conn)
     keep = (recs.op == message_op) & (index >= 0)
     return RawBatch(data, index[keep], recs.t_ns[keep], recs.dpos[keep], recs.dlen[keep])
@@ -331,6 +349,11 @@ class Chunked:
         complete ones before them are kept and the rest counted lost when the index says how many it held)."""
         assert self.bio
         data = read_unit(self.bio, unit, out)
+        wanted = wanted_table(ids)
+        if wanted is not None:  # the requested messages straight from the walk
+            recs = records(self.walk, data, wanted)
+            if recs.status == CLEAN or (recs.status == CUT and unit.partial):
+                return RawBatch(data, recs.conn, recs.t_ns, recs.dpos, recs.dlen)
         recs = records(self.walk, data)
         if recs.status == BAD or (recs.status == CUT and not unit.partial):
             if unit.recovered:  # the scan kept the complete records before the damage and said so
