@@ -388,25 +388,14 @@ def _walk(  # pragma: no cover - compiled
     least of every message's first failure, (op index, 0) for "message shorter than its layout" (op index =
     number of ops: the end of the walk, or of the sequence length after it), (op index, 1) for "string runs past
     the end", (number of ops, 2) for "sequence runs past the end"; (-1, 0) when every message fits. A leaf past a
-    message's end is not read, as there: the next string or the end then fails. CDR: each message's byte order is
-    its encapsulation header's (``big`` is ignored); a message shorter than the header, (0, 3), or one not plain
-    CDR, (0, 4), fails the batch before anything else (what :func:`_byte_orders` checks first on the array steps).
+    message's end is not read, as there: the next string or the end then fails.
     """
     n = origin.shape[0]
     nops = kinds.shape[0]
     fail_op, fail_stage = nops + 1, 0
-    short_header, other_encoding = False, False
     m = 0  # element rows written
     for i in range(n):
         o, lim = origin[i], limit[i]
-        if cdr:  # the 4-byte encapsulation header before the origin: plain CDR, its byte order
-            if lim < 0:
-                short_header = True
-                continue
-            if data[o - 4] != 0 or data[o - 3] > 1:
-                other_encoding = True
-                continue
-            big = data[o - 3] == 0
         p = 0  # relative to the origin (CDR aligns relative to the end of the encapsulation header)
         op, stage = nops + 1, 0
         for k in range(nops):
@@ -480,8 +469,6 @@ def _walk(  # pragma: no cover - compiled
                         op, stage = nops, 2
         if op < fail_op or (op == fail_op and stage < fail_stage):
             fail_op, fail_stage = op, stage
-    if short_header or other_encoding:  # before any failure inside a message, as the header check came first
-        return m, 0, 3 if short_header else 4
     return m, (fail_op if fail_op <= nops else -1), fail_stage
 
 
@@ -648,15 +635,10 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     data = batch.data
     start = batch.start if rows is None else batch.start[rows]
     size = batch.size if rows is None else batch.size[rows]
-    if _walks(plan):  # the common case: the compiled pass (which reads each CDR message's byte order) makes the columns
-        try:
-            t_ns, values, strings, counts, items = _walked(plan, data, start, size)
-            return Decoded(t_ns, values, [string_codes(data, pos, length) for pos, length in strings], counts, items)
-        except DecodeError:
-            if len(_byte_orders(plan, data, start, size)) == 1:
-                raise
-            # messages of both byte orders: the failure is the one met group by group (little endian first), below
     groups = _byte_orders(plan, data, start, size)
+    if len(groups) == 1 and _walks(plan):  # the common case: the compiled pass's arrays are the columns
+        t_ns, values, strings, counts, items = _walked(plan, data, start, size, groups[0][1])
+        return Decoded(t_ns, values, [string_codes(data, pos, length) for pos, length in strings], counts, items)
     n = start.shape[0]
     t_ns = np.empty(n, np.int64)
     values = np.empty((n, len(plan.leaves) - 2), np.float64)
@@ -668,7 +650,7 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
         if not start[idx].size:
             continue
         if _walks(plan):
-            t_ns[idx], values[idx], strings, group_counts, group_items = _walked(plan, data, start[idx], size[idx])
+            t_ns[idx], values[idx], strings, group_counts, group_items = _walked(plan, data, start[idx], size[idx], big)
             if counts is not None and group_counts is not None and group_items is not None:
                 counts[idx] = group_counts
                 item_parts.append((np.arange(n)[idx], group_items))
@@ -717,14 +699,13 @@ def _byte_orders(
 
 
 def _walked(
-    plan: Plan, data: np.ndarray, start: np.ndarray, size: np.ndarray
+    plan: Plan, data: np.ndarray, start: np.ndarray, size: np.ndarray, big: bool
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray | None, np.ndarray | None]:
-    """Stamps, values, (position, length) per string, and with items the element counts and rows, by :func:`_walk`
-    (ROS1 little endian; CDR each message in the byte order its header gives).
+    """Stamps, values, (position, length) per string, and with items the element counts and rows of messages of
+    one byte order, by :func:`_walk`.
 
     Raises:
-        DecodeError: A message shorter than its layout or (CDR) its header, not plain CDR, or a string or sequence
-            running past its end.
+        DecodeError: A message shorter than its layout, or a string or sequence running past its end.
     """
     head = 4 if plan.cdr else 0
     n = start.shape[0]
@@ -744,23 +725,14 @@ def _walked(
         counts, item_bits, items = _NO_COUNTS, _NO_ITEM_BITS, _NO_ITEMS
     values, item_values = bits.view(np.float64), item_bits.view(np.float64)
     out = (t_ns, bits, values, bits32, bits32.view(np.float32), spos, slen, counts, item_bits, item_values)
-    rows, op, stage = _walk(data, start + head, limit, False, plan.cdr, *plan.program, *items, *out)
+    rows, op, stage = _walk(data, start + head, limit, big, plan.cdr, *plan.program, *items, *out)
     if op >= 0:
-        raise DecodeError(_WALK_FAILURES[stage].format(plan.msgtype))
+        what = ("message shorter than its {} layout", "string runs past the end of a {} message")
+        raise DecodeError((*what, "sequence runs past the end of a {} message")[stage].format(plan.msgtype))
     strings = list(zip(spos, slen, strict=True))
     if plan.items is None:
         return t_ns, values, strings, None, None
     return t_ns, values, strings, counts, item_values[:rows]
-
-
-#: What a failure of :func:`_walk` says, by its stage (the last two as :func:`_byte_orders` says them).
-_WALK_FAILURES = (
-    "message shorter than its {} layout",
-    "string runs past the end of a {} message",
-    "sequence runs past the end of a {} message",
-    "message shorter than its CDR header",
-    "unsupported CDR encapsulation (only plain CDR is read)",
-)
 
 
 #: What :func:`_walk` is given for a plan without items: the types of a plan with items, nothing in them (one
