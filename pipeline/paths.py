@@ -303,14 +303,21 @@ def temporary_prefix(final: str | Path, tag: str = ".tmp-") -> str:
     return "." + text + tag
 
 
-def read_text(path: str | Path, what: str, errors: str = "strict") -> str:
-    """A user's text file (config, camera file, map, manifest) as UTF-8, with or without the byte order mark that
-    spreadsheets and Windows editors write; unreadable or not UTF-8 is one line naming it and the ``what``.
-    ``errors="replace"`` keeps undecodable bytes for a parser that names the offending line itself."""
+def read_bytes(path: str | Path, what: str) -> bytes:
+    """A user's file as bytes; unreadable is one line naming it and the ``what``."""
     try:
-        raw = Path(path).read_bytes()
+        return Path(path).read_bytes()
     except OSError as err:
         raise InputError(path, f"cannot read the {what}: {err.strerror or err}") from None
+
+
+def read_text(path: str | Path, what: str, errors: str = "strict", raw: bytes | None = None) -> str:
+    """A user's text file (config, camera file, map, manifest) as UTF-8, with or without the byte order mark that
+    spreadsheets and Windows editors write; unreadable or not UTF-8 is one line naming it and the ``what``.
+    ``errors="replace"`` keeps undecodable bytes for a parser that names the offending line itself. ``raw``: the
+    file's bytes, already read (:func:`read_bytes`)."""
+    if raw is None:
+        raw = read_bytes(path, what)
     try:
         return raw.decode("utf-8-sig", errors=errors)
     except UnicodeDecodeError as err:

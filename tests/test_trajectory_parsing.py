@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.readers import trajectory_files
 from slamobs.pipeline.readers.trajectory_files import load_kitti, load_tum, stamp_ns
 
 N = 2_000
@@ -99,3 +100,41 @@ def test_stamp_beyond_int64_is_refused(tmp_path, tum):
     path.write_text("\n".join(" ".join(r) for r in rows) + "\n")
     with pytest.raises(InputError, match=r"row 5: timestamp '9300000000.5' is out of range"):
         load_tum(path)
+
+
+def _outcome(path):
+    """What ``load_tum`` makes of a file: its arrays, or its one-line error."""
+    try:
+        s = load_tum(path)
+    except InputError as err:
+        return str(err)
+    return s.t_ns.tolist(), s.position.tobytes(), s.quat_xyzw.tobytes()
+
+
+@pytest.mark.parametrize("char", list("#,\t\x0b\x0c\x1c\x1d\x1e\x1f"))
+def test_separator_and_comment_characters_read_as_the_general_path_reads_them(tmp_path, tum, monkeypatch, char):
+    """The fast path searches only the stamps' text for comment marks, commas and the other whitespace (every
+    other field is parsed as a number, which refuses them but for a tab beside a number): wherever one stands in a
+    line, the file reads as the general (pandas) path reads it."""
+    rows, _ = tum
+    base = [" ".join(r) for r in rows[3:23]]
+    t, x, *rest = rows[10][:]
+    places = [
+        f"{char}{t} {x} {' '.join(rest)}",  # line start
+        f"{t}{char} {x} {' '.join(rest)}",  # after the stamp
+        f"{t[:4]}{char}{t[4:]} {x} {' '.join(rest)}",  # inside the stamp
+        f"{t}{char}{x} {' '.join(rest)}",  # the stamp's separator
+        f"{t} {char}{x} {' '.join(rest)}",  # before a number
+        f"{t} {x}{char} {' '.join(rest)}",  # after a number
+        f"{t} {x[:2]}{char}{x[2:]} {' '.join(rest)}",  # inside a number
+        f"{t} {x} {' '.join(rest)}{char}",  # line end
+        f"{t} {x} {' '.join(rest)} {char}",  # a field of its own at the end
+    ]
+    for k, line in enumerate(places):
+        path = tmp_path / f"t{k}.txt"
+        path.write_text("\n".join([*base[:7], line, *base[7:]]) + "\n")
+        fast = _outcome(path)
+        with monkeypatch.context() as m:
+            m.setattr(trajectory_files, "_fast_rows", lambda *args: None)
+            general = _outcome(path)
+        assert fast == general, (repr(char), k, fast if isinstance(fast, str) else "", general)

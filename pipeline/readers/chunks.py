@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import bz2
 import struct
-import zlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, BinaryIO
 
@@ -23,7 +22,7 @@ from slamobs.pipeline.errors import machine_failure, one_line
 from numba import types
 from slamobs.pipeline.kernel_cache import subroutine
 
-from . import storage
+from . import checksum, storage
 from .storage import ConnIds, DamagedError, RawBatch, concat, placed
 
 if TYPE_CHECKING:
@@ -134,7 +133,7 @@ def _checked(data: np.ndarray, crc_bytes: bytes | None, unit: Unit) -> np.ndarra
     """``data`` checked against the stored CRC32 (0: none), as a read-only array."""
     if crc_bytes is not None:
         (crc,) = struct.unpack("<I", crc_bytes)
-        if crc and zlib.crc32(data) != crc:
+        if crc and checksum.crc32(data) != crc:
             msg = f"chunk at byte {unit.pos} fails its checksum"
             raise DamagedError(msg)
     if data.flags.writeable:  # as np.frombuffer gives it: the compiled walks are compiled for read-only buffers
@@ -206,17 +205,35 @@ class Records:
     status: int
 
 
-def records(walk: Callable[..., tuple[int, int, int]], buf: np.ndarray) -> Records:
-    """Count, then fill (two passes keep the scratch arrays exactly as long as the record count)."""
-    none = np.empty(0, np.int64)
-    n, _, _ = walk(buf, False, none, none, none, none, none, none)
+_EVERY = np.empty(0, np.int64)
+
+
+def records(walk: Callable[..., tuple[int, int, int]], buf: np.ndarray, wanted: np.ndarray = _EVERY) -> Records:
+    """Count, then fill (two passes keep the scratch arrays exactly as long as the record count). ``wanted``
+    (:func:`wanted_table`): only the requested messages, ``conn`` their index among the requested connections."""
+    n, _, _ = walk(buf, False, _EVERY, _EVERY, _EVERY, _EVERY, _EVERY, _EVERY, wanted)
     arrays = [np.empty(n, np.int64) for _ in range(6)]
-    n, stop, status = walk(buf, True, *arrays)
+    n, stop, status = walk(buf, True, *arrays, wanted)
     return Records(*arrays, stop=int(stop), status=int(status))
 
 
+#: Connection ids up to this are looked up by a table in the record walks (MCAP's are 16-bit; ROS1 bags count
+#: from 0); a larger one takes the whole record list and :func:`message_batch`.
+_TABLE_IDS = 1 << 16
+
+
+def wanted_table(ids: ConnIds) -> np.ndarray | None:
+    """Storage connection id -> index into the requested connections (-1: not requested), for the record walks;
+    None when an id is too large for a table."""
+    if not ids.ids.size or int(ids.ids.max()) >= _TABLE_IDS or int(ids.ids.min()) < 0:
+        return None
+    table = np.full(int(ids.ids.max()) + 1, -1, np.int64)
+    table[ids.ids] = ids.index
+    return table
+
+
 def message_batch(data: np.ndarray, recs: Records, message_op: int, ids: ConnIds) -> RawBatch:
-    """The requested messages among ``recs``."""
+    """The requested messages among ``recs`` (every record of the buffer)."""
     index = ids.lookup(recs.conn)
     keep = (recs.op == message_op) & (index >= 0)
     return RawBatch(data, index[keep], recs.t_ns[keep], recs.dpos[keep], recs.dlen[keep])
@@ -273,6 +290,7 @@ class Chunked:
         """
         wanted = set(ids.ids.tolist())
         units = [u for u in self.units if not u.conns or u.conns & wanted]
+        checksum.prepare(sum(u.raw_size for u in units if u.crc_at >= 0))
         read = 0
         if not ordered:  # a decoding group's chunks loaded at once, into one buffer
             groups = load_groups(units)
@@ -398,6 +416,7 @@ class Chunked:
 
     def load(self, unit: Unit, ids: ConnIds, out: np.ndarray | None = None, blob=None) -> RawBatch:
         """Decompress (into ``out``, see :func:`read_unit`) and scan one unit (damaged records at its end: the
+<<<<<<< HEAD
         complete ones before them are kept and the rest counted lost when the index says how many it held).
         ``blob``: what :func:`read_blob` read of it (or raised), else it is read here."""
         if blob is None:
@@ -407,6 +426,16 @@ class Chunked:
             raise blob
         else:
             data = unpack_unit(*blob, unit, out)
+=======
+        complete ones before them are kept and the rest counted lost when the index says how many it held)."""
+        assert self.bio
+        data = read_unit(self.bio, unit, out)
+        wanted = wanted_table(ids)
+        if wanted is not None:  # the requested messages straight from the walk
+            recs = records(self.walk, data, wanted)
+            if recs.status == CLEAN or (recs.status == CUT and unit.partial):
+                return RawBatch(data, recs.conn, recs.t_ns, recs.dpos, recs.dlen)
+>>>>>>> h-read
         recs = records(self.walk, data)
         if recs.status == BAD or (recs.status == CUT and not unit.partial):
             if unit.recovered:  # the scan kept the complete records before the damage and said so

@@ -50,8 +50,10 @@ def mcap_library(head: bytes) -> str:
 
 
 @njit(cache=True, nogil=True, nrt=False)
-def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover - compiled
-    """Walk MCAP records (opcode, uint64 length, body); messages get channel, log time and payload."""
+def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: no cover - compiled
+    """Walk MCAP records (opcode, uint64 length, body); messages get channel, log time and payload. ``wanted``
+    (channel id -> index, -1: not wanted; empty: every record): only the wanted messages, their channel as the
+    index (:func:`.chunks.records`)."""
     end = buf.shape[0]
     pos = 0
     n = 0
@@ -64,6 +66,21 @@ def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover
         rop = np.int64(buf[pos])
         if rop == 5 and length < 22:
             return n, pos, BAD
+        if wanted.shape[0]:
+            channel = np.int64(buf[pos + 9]) | (np.int64(buf[pos + 10]) << 8) if rop == 5 else -1
+            if channel < 0 or channel >= wanted.shape[0] or wanted[channel] < 0:
+                pos += 9 + length
+                continue
+            if fill:
+                op[n] = rop
+                conn[n] = wanted[channel]
+                t_ns[n] = u32(buf, pos + 15) | (u32(buf, pos + 19) << 32)
+                hpos[n] = pos
+                dpos[n] = pos + 31
+                dlen[n] = length - 22
+            n += 1
+            pos += 9 + length
+            continue
         if fill:
             op[n] = rop
             hpos[n] = pos

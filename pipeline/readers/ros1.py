@@ -38,8 +38,10 @@ MSGDATA_ROS1 = 2
 
 
 @njit(cache=True, nogil=True)
-def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover - compiled
-    """Walk ROS1 records (header length, ``name=value`` fields, data length, data); count or fill."""
+def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: no cover - compiled
+    """Walk ROS1 records (header length, ``name=value`` fields, data length, data); count or fill. ``wanted``
+    (connection id -> index, -1: not wanted; empty: every record): only the wanted messages, their connection as
+    the index (:func:`.chunks.records`)."""
     end = buf.shape[0]
     pos = 0
     n = 0
@@ -78,6 +80,11 @@ def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen):  # pragma: no cover
         dl = u32(buf, hend)
         if hend + 4 + dl > end:
             return n, pos, CUT
+        if wanted.shape[0]:
+            if rop != 2 or rconn < 0 or rconn >= wanted.shape[0] or wanted[rconn] < 0:
+                pos = hend + 4 + dl
+                continue
+            rconn = wanted[rconn]
         if fill:
             op[n] = rop
             conn[n] = rconn

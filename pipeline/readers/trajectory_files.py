@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from slamobs.pipeline.errors import InputError, one_line, resource_error
-from slamobs.pipeline.paths import check_input, read_text
+from slamobs.pipeline.paths import check_input, read_bytes, read_text
 from slamobs.pipeline.streams import PoseStream
 
 from .container import detect_container, open_log
@@ -66,20 +66,23 @@ def stamp_ns(text: str) -> int:
         raise ValueError(f"not a number: {text!r}") from None
 
 
-def _read_text(path: Path, what: str) -> str:
+def _read_bytes(path: Path, what: str) -> bytes:
     check_input(path, f"{what} file", directory_ok=False)
-    return read_text(path, f"{what} file")
+    return read_bytes(path, f"{what} file")
 
 
-def _data_lines(text: str):
-    """(line number, fields) of the rows of a file, as :func:`_rows` reads them (blank and ``#`` lines skipped)."""
+def _data_lines(text: str | bytes):
+    """(line number, fields) of the rows of a file, as :func:`_rows` reads them (blank and ``#`` lines skipped);
+    ``text`` as bytes: ASCII (as the fast path of :func:`_rows` returns it)."""
+    if isinstance(text, bytes):
+        text = text.decode("ascii")
     for lineno, line in enumerate(text.replace(",", " ").splitlines(), 1):
         tok = line.split()
         if tok and not tok[0].startswith("#"):
             yield lineno, tok
 
 
-def _line_of(text: str, row: int) -> int:
+def _line_of(text: str | bytes, row: int) -> int:
     """The line number of row ``row`` (from 0) of :func:`_rows`, for naming it in an error."""
     return next(lineno for k, (lineno, _) in enumerate(_data_lines(text)) if k == row)
 
@@ -104,15 +107,24 @@ def _row_error(
 
 #: a file with any of these takes the general path: comments, commas, and whitespace other than spaces and
 #: newlines, which Python's ``str.split`` (the error path, :func:`_data_lines`) treats as a separator too
-_NOT_PLAIN_TEXT = "#,\t\x0b\x0c\x1c\x1d\x1e\x1f"
+_NOT_PLAIN_TEXT = b"#,\t\x0b\x0c\x1c\x1d\x1e\x1f"
 
 
-def _fast_rows(text: str, min_fields: int, fixed: int | None, numeric_from: int):
+def _plain(text: bytes) -> bool:
+    """Whether ``text`` holds none of :data:`_NOT_PLAIN_TEXT` (``bytes.find``: memchr, far faster than a regex)."""
+    return not any(text.find(c) >= 0 for c in _NOT_PLAIN_TEXT)
+
+
+def _fast_rows(text: bytes, min_fields: int, fixed: int | None, numeric_from: int):
     """:func:`_rows` for the regular case, through pyarrow's CSV reader (numbers parsed by fast_float, correctly
     rounded like ``float()``): ASCII rows of fields separated by single spaces, every field a finite number, no
     comments. The first column comes back as float64 (``numeric_from=0``) or as a pyarrow string array whose
-    tokens are all non-empty. ``None`` for anything else: the general path then parses it, or names its fault."""
-    if not text.isascii() or any(c in text for c in _NOT_PLAIN_TEXT):  # str.find: far faster than a regex
+    tokens are all non-empty. ``None`` for anything else: the general path then parses it, or names its fault.
+
+    With ``fixed`` columns every field but a text first one is parsed as a number, which refuses each of
+    :data:`_NOT_PLAIN_TEXT` but a tab before or after a number (where it separates as a space does): only the
+    first column's text is searched for them. Otherwise (extra columns, not parsed) the whole file is."""
+    if not text.isascii() or (fixed is None and not _plain(text)):
         return None
     import pyarrow as pa  # lazy, like pandas in _rows
     import pyarrow.compute as pc
@@ -121,7 +133,7 @@ def _fast_rows(text: str, min_fields: int, fixed: int | None, numeric_from: int)
     types = {f"f{k}": pa.float64() for k in range(numeric_from == 1, fixed or min_fields)}
     try:
         table = csv.read_csv(
-            pa.py_buffer(text.encode("ascii")),
+            pa.py_buffer(text),
             read_options=csv.ReadOptions(autogenerate_column_names=True, block_size=1 << 24),
             parse_options=csv.ParseOptions(delimiter=" ", quote_char=False),
             convert_options=csv.ConvertOptions(column_types={"f0": pa.string(), **types}),
@@ -139,7 +151,15 @@ def _fast_rows(text: str, min_fields: int, fixed: int | None, numeric_from: int)
         return None
     if numeric_from == 1 and pc.min(pc.utf8_length(first)).as_py() == 0:
         return None
+    if numeric_from == 1 and fixed is not None and not _plain(_text_bytes(first)):
+        return None
     return first, values
+
+
+def _text_bytes(strings) -> bytes:
+    """The characters of a pyarrow string array, one after the other."""
+    offsets = np.frombuffer(strings.buffers()[1], np.int32)[strings.offset : strings.offset + len(strings) + 1]
+    return strings.buffers()[2].to_pybytes()[offsets[0] : offsets[-1]] if len(strings) else b""
 
 
 def _texts(first) -> np.ndarray:
@@ -149,18 +169,19 @@ def _texts(first) -> np.ndarray:
 
 def _rows(
     path: Path, min_fields: int, fixed: int | None, what: str, numeric_from: int = 1
-) -> tuple[np.ndarray, np.ndarray, str]:
-    """First column as text and the next ``min_fields - 1`` columns as floats (``fixed``: exactly that many
-    fields per row), and the text (for :func:`_line_of`). Fields are separated by spaces, tabs or commas; ``#``
-    starts a comment line. Parsed by pandas' C tokenizer (a 100k-line file in a fraction of a second); any
-    irregular row, or a number that is not finite, is named by its line. ``numeric_from=0``: the first column
-    must be a finite number too (KITTI)."""
-    import pandas as pd  # lazy: pandas takes a noticeable part of a second, and only text trajectories need it
-
-    text = _read_text(path, what)
-    fast = _fast_rows(text, min_fields, fixed, numeric_from)
+) -> tuple[np.ndarray, np.ndarray, str | bytes]:
+    """First column as text and the next ``min_fields - 1`` columns as floats (``fixed``: exactly that many fields
+    per row), and the text (for :func:`_line_of`; the file's ASCII bytes where the fast path read it). Fields are
+    separated by spaces, tabs or commas; ``#`` starts a comment line. Parsed by pandas' C tokenizer (a 100k-line
+    file in a fraction of a second); any irregular row, or a number that is not finite, is named by its line.
+    ``numeric_from=0``: the first column must be a finite number too (KITTI)."""
+    raw = _read_bytes(path, what)
+    fast = _fast_rows(raw, min_fields, fixed, numeric_from)
     if fast is not None:
-        return *fast, text
+        return *fast, raw
+    import pandas as pd  # lazy: pandas takes a noticeable part of a second, and only irregular text files need it
+
+    text = read_text(path, f"{what} file", raw=raw)
     try:
         df = pd.read_csv(
             io.StringIO(text.replace(",", " ")),
