@@ -17,8 +17,7 @@ header stamp, record time, the layout's values and the frame ids.
 when opening (rosbags' ROS1 index, metadata YAML, typestore; the same code for rosbag2 on both sides)
 is counted too. Each side runs once to warm up (numba kernels, rosbags' generated deserialisers), then
 ``--repeat`` times alternating; the best CPU time of this process is kept, so other load on a shared
-machine counts less. The MCAP chunk CRC kernel (``readers/checksum.py``) is made ready first, as a warm run has
-it. "identical" compares stamps, record times, frame ids and the bits of every value.
+machine counts less. "identical" compares stamps, record times, frame ids and the bits of every value.
 
 "inflate bound" is rosbags' read time over the CPU time of only reading and decompressing the chunks that
 hold those topics (ROS1 and MCAP; both readers must do at least that): the largest speed-up any reader can
@@ -49,7 +48,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from slamobs.pipeline.readers import checksum, decode, tfdecode
+from slamobs.pipeline.readers import decode, tfdecode
 from slamobs.pipeline.readers.chunks import Chunked, read_unit
 from slamobs.pipeline.readers.container import open_log, storages
 from slamobs.pipeline.readers.decode import decode_rows, decode_tf
@@ -293,9 +292,6 @@ def main() -> None:
     parser.add_argument("--no-real", action="store_true", help="skip ../shared/realdata")
     parser.add_argument("--tf", action="store_true", help="TF topics: decode_tf through rosbags vs. tfdecode")
     args = parser.parse_args()
-    # warm: the CRC kernel as a process has it once it is in the kernel cache (a short read alone would not compile
-    # it; a read of checksum.COMPILE_BYTES does)
-    checksum.prepare(checksum.COMPILE_BYTES)
     if args.tf:
         tf_table(args)
         return

@@ -599,3 +599,21 @@ def test_the_parts_of_an_unclosed_split_rosbag2_recording_are_read_in_order(tmp_
     assert got.warnings[0] == "crashed has no metadata.yaml (recording not closed?): read its 2 files"
     assert got.warnings[1].startswith(f"split recording of 2 {suffix} files read as one: crashed_0{suffix} 0.000–")
     _same_streams(got, expected_streams(sim, str(crashed)))
+
+
+def test_corrupt_uncompressed_chunk_is_damaged(tmp_path):
+    """A byte changed inside an uncompressed chunk's records (their structure intact) fails the chunk's CRC: the
+    chunk is skipped and counted, as zlib's CRC-32 would say."""
+    sim = simulate("figure8", duration=2.0, seed=3)
+    src = _write(sim, tmp_path / "full.mcap", "mcap")
+    data = bytearray(src.read_bytes())
+    with src.open("rb") as fobj:
+        index = make_reader(fobj).get_summary().chunk_indexes[1]
+    assert index.compression == "" and index.uncompressed_size > 0
+    last = index.chunk_start_offset + index.chunk_length - 1  # the last byte of the last message's payload
+    data[last] ^= 0x01
+    path = tmp_path / "bad.mcap"
+    path.write_bytes(bytes(data))
+    got = read_log(path)
+    notes = [w for w in got.warnings if "damaged chunk" in w]
+    assert len(notes) == 1 and "fails its checksum" in notes[0], got.warnings
