@@ -129,10 +129,11 @@ class NoiseSettings:
         }
         return {**out, "sources": dict(self.sources), "levels": levels, "notes": list(self.notes)}
 
-    def scaled(self, factors: dict[str, float], by: str | None = None) -> NoiseSettings:
+    def scaled(self, factors: dict[str, float | np.ndarray], by: str | None = None) -> NoiseSettings:
         """These levels with each key of ``factors`` multiplied by its factor (a factor of 1 leaves the key as it
-        is); ``by`` (what chose the factors) is added to the scaled keys' methods."""
-        changes = {k: getattr(self, k) * f for k, f in factors.items() if f != 1.0}
+        is; an array scales a three-axis level per axis); ``by`` (what chose the factors) is added to the scaled
+        keys' methods."""
+        changes = {k: getattr(self, k) * f for k, f in factors.items() if np.any(np.asarray(f) != 1.0)}
         if not changes:
             return self
         if by is None:
@@ -140,7 +141,9 @@ class NoiseSettings:
         methods = dict(self.methods)
         for k in changes:
             was = methods.get(k) or self.sources.get(k, "default")
-            methods[k] = f"{was}; scaled by {factors[k]:g} by {by}"
+            f = np.asarray(factors[k], dtype=float)
+            said = f"{float(f):g}" if f.ndim == 0 else f"({', '.join(f'{x:g}' for x in f)}) per axis"
+            methods[k] = f"{was}; scaled by {said} by {by}"
         return replace(self, **changes, methods=methods)
 
     def detection_sigma(self, ranges: np.ndarray) -> np.ndarray:

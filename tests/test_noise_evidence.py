@@ -132,3 +132,25 @@ def test_the_notes_of_several_passes_say_which_pass():
     (again,) = in_passes([[note]], again=True)
     assert "evidence (again after range and bearing were weighed apart) (log" in again
     assert "(pass 2 of 2; again after" in in_passes([[note], [note]], again=True)[1]
+
+
+def test_a_held_velocity_s_axes_across_the_heading_are_scanned_apart(log):
+    """A held (commanded) velocity stream's one level from the detection pairs is the same on every axis; the
+    evidence scans the axes across the heading (body y, z: ``evidence.ACROSS``) apart. Started 10x too high there
+    (forward at the truth), the kept level across returns to the truth or the grid's neighbouring scale, the
+    forward one stays near it, and the method says per axis."""
+    from slamobs.pipeline.smoother.evidence import ACROSS
+
+    stream, truth = log
+    noise = replace(
+        truth,
+        velocity=truth.velocity * np.array([1.0, 10.0, 10.0]),
+        sources={**truth.sources, "velocity": "estimated"},
+        held=("velocity",),
+    )
+    s = smoother(stream, noise)
+    records = s.stats["metadata"]["smoother"]["noise_scale"]
+    used = np.asarray(s.stats["metadata"]["noise"]["velocity"]) / truth.velocity
+    assert 0.3 <= used[0] <= 3.0 and np.all((0.3 <= used[1:]) & (used[1:] <= 3.0)), (used, records)
+    assert records[ACROSS]["scale"] * records["velocity"]["scale"] < 0.35, records
+    assert "per axis" in s.stats["metadata"]["noise"]["levels"]["velocity"]["method"]

@@ -21,6 +21,7 @@ from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, 
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother import inverse_depth as idp
+from slamobs.pipeline.smoother.evidence import ACROSS as EVIDENCE_ACROSS
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
 from slamobs.pipeline.smoother.evidence import SAMPLE_FLOOR as EVIDENCE_SAMPLE_FLOOR
@@ -551,9 +552,15 @@ class BatchSmoother(Stepper):
         self.det_factor = f = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
         return self._solved_again(chosen, sol, keyframes, segments, progress), dc.record(corr, f), [dc.note(corr, f)]
 
+    def _evidence_keys(self) -> tuple[str, ...]:
+        """The levels the evidence scans: :data:`pipeline.smoother.evidence.KEYS`, and the velocity's axes across
+        the heading apart (``evidence.ACROSS``) when the velocity stream holds its values."""
+        return EVIDENCE_KEYS + (EVIDENCE_ACROSS,) * ("velocity" in self.noise.held)
+
     def _evidence_skipped(self, key: str) -> str | None:
         """Why the scale of the level ``key`` is not chosen by the evidence here, or None."""
         mode, nz = self.settings.noise_evidence, self.noise
+        key = "velocity" if key == EVIDENCE_ACROSS else key
         if mode == "off":
             return "batch.noise_evidence is off"
         if nz.sources.get(key) == "config":
@@ -578,13 +585,14 @@ class BatchSmoother(Stepper):
                 {k: {"skipped": why} for k in EVIDENCE_KEYS},
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
-        records, notes, total = {}, [], dict.fromkeys(EVIDENCE_KEYS, 1.0) | (scales or {})
+        keys = self._evidence_keys()
+        records, notes, total = {}, [], dict.fromkeys(keys, 1.0) | (scales or {})
         budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
         spent, moved, passes = 0, True, []
         while moved and spent <= budget:
             moved = False
             passes.append([])
-            for key in EVIDENCE_KEYS:
+            for key in keys:
                 if (why := self._evidence_skipped(key)) is not None:
                     records[key] = {"skipped": why}
                     continue
@@ -627,7 +635,8 @@ class BatchSmoother(Stepper):
             if ev.climb(direction, problem_at, self._solved_from, sols, scores) != 1.0:
                 break  # the evidence rose downwards: no need to look upwards
         winner = ev.best_scale(scores)
-        record, note = ev.record(key, getattr(self.noise, key), scores, winner)
+        level = self.noise.velocity[1:] if key == EVIDENCE_ACROSS else getattr(self.noise, key)
+        record, note = ev.record(key, level, scores, winner)
         solves = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
         if winner == 1.0:
             return chosen, record, note, solves
@@ -831,7 +840,10 @@ class BatchSmoother(Stepper):
 
 
 def _scaled(noise, key: str, scale: float, say: bool = False):
-    """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so)."""
+    """``noise`` with its level ``key`` scaled by ``scale`` (``say``: its method saying so); ``evidence.ACROSS``
+    scales the velocity's body y and z axes."""
+    if key == EVIDENCE_ACROSS:
+        return noise.scaled({"velocity": np.array([1.0, scale, scale])}, "the smoother's evidence" if say else None)
     return noise.scaled({key: scale}, "the smoother's evidence" if say else None)
 
 

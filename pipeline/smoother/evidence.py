@@ -23,6 +23,12 @@ from slamobs.pipeline.smoother.preintegration import D_END, D_W
 
 #: The levels whose scale is chosen, one after the other (each at the scales already chosen before it).
 KEYS = ("velocity", "gyro")
+#: The velocity's axes across the heading (body y and z), scanned apart after ``KEYS`` when the velocity stream
+#: holds its values (commanded): the held streams' fit gives one level for every axis (the detection pairs
+#: cannot tell the forward drift from the sideways one), while a ground robot's command is a forward speed whose
+#: sideways and vertical parts are zero by its kinematics. On MR.CLAM the evidence takes them x0.3 and batch's
+#: APE falls (docs/benchmarks.md, "The velocity across the heading apart (MR.CLAM)").
+ACROSS = "velocity_across"
 #: Passes over ``KEYS`` go on while a scale moved (the levels trade off against each other, and a pass moves a
 #: level by x3 up or x10 down at most), until the scans' linear solves exceed this many times those of the first
 #: solution (the solver's work, counted rather than timed so that a run's result does not depend on the
