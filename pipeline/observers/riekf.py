@@ -67,13 +67,15 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from numba import types
 from slamobs.pipeline.errors import Unwind
-from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
+from slamobs.pipeline.simd import fma8, load8, splat8, store8
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -131,7 +133,8 @@ RECOVERY_ACTIONS = {
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
-#: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
+#: The covariance is allocated to a multiple of this many rows and columns, the one-pass scratch rows to a multiple
+#: of this many columns: :func:`_apply`'s tiles are this many rows by one or two vectors of :mod:`pipeline.simd`.
 PAD = 8
 #: The dense kernels' floating-point flags (``_propagation_terms``, ``_apply``, ``_gain``, ``_update``): ``a * b + c``
 #: fused into one multiply-add instruction (one rounding instead of two; the order of the additions as written, no
@@ -276,56 +279,124 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     return True
 
 
+@subroutine(types.none)
+def _rows8x16(cov, i, j, lt, rt, k):
+    """Rows ``i .. i + 7``, columns ``j .. j + 15`` of :func:`_apply`'s sum: the tile held in registers (16 vectors)
+    across all ``k`` terms, each added as one fused multiply-add (``fma8``), in the order of the terms."""
+    c00, c01 = load8(cov, i, j), load8(cov, i, j + 8)
+    c10, c11 = load8(cov, i + 1, j), load8(cov, i + 1, j + 8)
+    c20, c21 = load8(cov, i + 2, j), load8(cov, i + 2, j + 8)
+    c30, c31 = load8(cov, i + 3, j), load8(cov, i + 3, j + 8)
+    c40, c41 = load8(cov, i + 4, j), load8(cov, i + 4, j + 8)
+    c50, c51 = load8(cov, i + 5, j), load8(cov, i + 5, j + 8)
+    c60, c61 = load8(cov, i + 6, j), load8(cov, i + 6, j + 8)
+    c70, c71 = load8(cov, i + 7, j), load8(cov, i + 7, j + 8)
+    for q in range(6):  # the propagation's terms, lt[q]ᵀ rt[q]
+        x0, x1 = load8(rt, q, j), load8(rt, q, j + 8)
+        a = splat8(lt[q, i])
+        c00, c01 = fma8(a, x0, c00), fma8(a, x1, c01)
+        a = splat8(lt[q, i + 1])
+        c10, c11 = fma8(a, x0, c10), fma8(a, x1, c11)
+        a = splat8(lt[q, i + 2])
+        c20, c21 = fma8(a, x0, c20), fma8(a, x1, c21)
+        a = splat8(lt[q, i + 3])
+        c30, c31 = fma8(a, x0, c30), fma8(a, x1, c31)
+        a = splat8(lt[q, i + 4])
+        c40, c41 = fma8(a, x0, c40), fma8(a, x1, c41)
+        a = splat8(lt[q, i + 5])
+        c50, c51 = fma8(a, x0, c50), fma8(a, x1, c51)
+        a = splat8(lt[q, i + 6])
+        c60, c61 = fma8(a, x0, c60), fma8(a, x1, c61)
+        a = splat8(lt[q, i + 7])
+        c70, c71 = fma8(a, x0, c70), fma8(a, x1, c71)
+    for q in range(6, k):  # the downdate's, −lt[q]ᵀ lt[q]
+        x0, x1 = load8(lt, q, j), load8(lt, q, j + 8)
+        a = splat8(-lt[q, i])
+        c00, c01 = fma8(a, x0, c00), fma8(a, x1, c01)
+        a = splat8(-lt[q, i + 1])
+        c10, c11 = fma8(a, x0, c10), fma8(a, x1, c11)
+        a = splat8(-lt[q, i + 2])
+        c20, c21 = fma8(a, x0, c20), fma8(a, x1, c21)
+        a = splat8(-lt[q, i + 3])
+        c30, c31 = fma8(a, x0, c30), fma8(a, x1, c31)
+        a = splat8(-lt[q, i + 4])
+        c40, c41 = fma8(a, x0, c40), fma8(a, x1, c41)
+        a = splat8(-lt[q, i + 5])
+        c50, c51 = fma8(a, x0, c50), fma8(a, x1, c51)
+        a = splat8(-lt[q, i + 6])
+        c60, c61 = fma8(a, x0, c60), fma8(a, x1, c61)
+        a = splat8(-lt[q, i + 7])
+        c70, c71 = fma8(a, x0, c70), fma8(a, x1, c71)
+    store8(cov, i, j, c00)
+    store8(cov, i, j + 8, c01)
+    store8(cov, i + 1, j, c10)
+    store8(cov, i + 1, j + 8, c11)
+    store8(cov, i + 2, j, c20)
+    store8(cov, i + 2, j + 8, c21)
+    store8(cov, i + 3, j, c30)
+    store8(cov, i + 3, j + 8, c31)
+    store8(cov, i + 4, j, c40)
+    store8(cov, i + 4, j + 8, c41)
+    store8(cov, i + 5, j, c50)
+    store8(cov, i + 5, j + 8, c51)
+    store8(cov, i + 6, j, c60)
+    store8(cov, i + 6, j + 8, c61)
+    store8(cov, i + 7, j, c70)
+    store8(cov, i + 7, j + 8, c71)
+
+
+@subroutine(types.none)
+def _rows8x8(cov, i, j, lt, rt, k):
+    """:func:`_rows8x16` on columns ``j .. j + 7`` (a row's last eight when its length is an odd number of eights)."""
+    c0, c1, c2, c3 = load8(cov, i, j), load8(cov, i + 1, j), load8(cov, i + 2, j), load8(cov, i + 3, j)
+    c4, c5, c6, c7 = load8(cov, i + 4, j), load8(cov, i + 5, j), load8(cov, i + 6, j), load8(cov, i + 7, j)
+    for q in range(6):
+        x = load8(rt, q, j)
+        c0, c1 = fma8(splat8(lt[q, i]), x, c0), fma8(splat8(lt[q, i + 1]), x, c1)
+        c2, c3 = fma8(splat8(lt[q, i + 2]), x, c2), fma8(splat8(lt[q, i + 3]), x, c3)
+        c4, c5 = fma8(splat8(lt[q, i + 4]), x, c4), fma8(splat8(lt[q, i + 5]), x, c5)
+        c6, c7 = fma8(splat8(lt[q, i + 6]), x, c6), fma8(splat8(lt[q, i + 7]), x, c7)
+    for q in range(6, k):
+        x = load8(lt, q, j)
+        c0, c1 = fma8(splat8(-lt[q, i]), x, c0), fma8(splat8(-lt[q, i + 1]), x, c1)
+        c2, c3 = fma8(splat8(-lt[q, i + 2]), x, c2), fma8(splat8(-lt[q, i + 3]), x, c3)
+        c4, c5 = fma8(splat8(-lt[q, i + 4]), x, c4), fma8(splat8(-lt[q, i + 5]), x, c5)
+        c6, c7 = fma8(splat8(-lt[q, i + 6]), x, c6), fma8(splat8(-lt[q, i + 7]), x, c7)
+    store8(cov, i, j, c0)
+    store8(cov, i + 1, j, c1)
+    store8(cov, i + 2, j, c2)
+    store8(cov, i + 3, j, c3)
+    store8(cov, i + 4, j, c4)
+    store8(cov, i + 5, j, c5)
+    store8(cov, i + 6, j, c6)
+    store8(cov, i + 7, j, c7)
+
+
 @njit(cache=True, fastmath=CONTRACT)
 def _apply(cov, d, lt, rt, k, dp, rows, n_rows):
     """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
     ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
-    the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
-    ``Σ`` stays exactly symmetric (``n_rows < 0``), or only what the next frame reads of the lower triangle is
-    (:func:`_mirror_read`, the landmark rows starting at ``rows[:n_rows]``). ``k`` is a multiple of 3. Only
-    ``contract`` of the ``fastmath`` flags (:data:`CONTRACT`): each entry's terms are added in the order written,
-    each product fused into its addition, so a kernel compiled in the run and one loaded from the cache give the
-    same bits (with all of ``fastmath`` they did not).
-    The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
-    pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
-    loops run over whole vectors."""
+    the upper triangle in tiles of eight rows by sixteen columns held in registers across all ``k`` terms
+    (:func:`_rows8x16`), then mirrored: ``Σ`` stays exactly symmetric (``n_rows < 0``), or only what the next
+    frame reads of the lower triangle is (:func:`_mirror_read`, the landmark rows starting at ``rows[:n_rows]``).
+    Each entry's terms are added one at a time in their order, each product fused into its addition (one
+    rounding), in the tiles as in the rows left over: the same bits whatever the padding, compiled or loaded
+    from the cache.
+    The tiles run from the diagonal's multiple of ``PAD`` to the end of the arrays (``_State`` pads them to a
+    multiple of ``PAD`` rows and columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros); arrays that are not
+    padded (tests) are summed row by row."""
     end = min(cov.shape[1], lt.shape[1], rt.shape[1])
-    tiles = min(d + (-d) % 4, cov.shape[0] - cov.shape[0] % 4, lt.shape[1] - lt.shape[1] % 4)
+    end -= end % PAD
+    tiles = min(d + (-d) % PAD, cov.shape[0] - cov.shape[0] % PAD) if end >= d else 0
     i = 0
     while i < tiles:
-        j0 = i - i % PAD
-        c0, c1, c2, c3 = cov[i, j0:end], cov[i + 1, j0:end], cov[i + 2, j0:end], cov[i + 3, j0:end]
-        n = end - j0
-        q = 0
-        while q + 6 <= k:
-            src, sg = (rt, 1.0) if q < 6 else (lt, -1.0)
-            a0, a1, a2, a3 = sg * lt[q, i], sg * lt[q, i + 1], sg * lt[q, i + 2], sg * lt[q, i + 3]
-            b0, b1, b2, b3 = sg * lt[q + 1, i], sg * lt[q + 1, i + 1], sg * lt[q + 1, i + 2], sg * lt[q + 1, i + 3]
-            e0, e1, e2, e3 = sg * lt[q + 2, i], sg * lt[q + 2, i + 1], sg * lt[q + 2, i + 2], sg * lt[q + 2, i + 3]
-            f0, f1, f2, f3 = sg * lt[q + 3, i], sg * lt[q + 3, i + 1], sg * lt[q + 3, i + 2], sg * lt[q + 3, i + 3]
-            g0, g1, g2, g3 = sg * lt[q + 4, i], sg * lt[q + 4, i + 1], sg * lt[q + 4, i + 2], sg * lt[q + 4, i + 3]
-            h0, h1, h2, h3 = sg * lt[q + 5, i], sg * lt[q + 5, i + 1], sg * lt[q + 5, i + 2], sg * lt[q + 5, i + 3]
-            ra, rb, re = src[q, j0:end], src[q + 1, j0:end], src[q + 2, j0:end]
-            rf, rg, rh = src[q + 3, j0:end], src[q + 4, j0:end], src[q + 5, j0:end]
-            for j in range(n):
-                x, y, z, u, v, w = ra[j], rb[j], re[j], rf[j], rg[j], rh[j]
-                c0[j] += a0 * x + b0 * y + e0 * z + f0 * u + g0 * v + h0 * w
-                c1[j] += a1 * x + b1 * y + e1 * z + f1 * u + g1 * v + h1 * w
-                c2[j] += a2 * x + b2 * y + e2 * z + f2 * u + g2 * v + h2 * w
-                c3[j] += a3 * x + b3 * y + e3 * z + f3 * u + g3 * v + h3 * w
-            q += 6
-        if q < k:  # three terms left (of the downdate: k > 6)
-            a0, a1, a2, a3 = -lt[q, i], -lt[q, i + 1], -lt[q, i + 2], -lt[q, i + 3]
-            b0, b1, b2, b3 = -lt[q + 1, i], -lt[q + 1, i + 1], -lt[q + 1, i + 2], -lt[q + 1, i + 3]
-            e0, e1, e2, e3 = -lt[q + 2, i], -lt[q + 2, i + 1], -lt[q + 2, i + 2], -lt[q + 2, i + 3]
-            ra, rb, re = lt[q, j0:end], lt[q + 1, j0:end], lt[q + 2, j0:end]
-            for j in range(n):
-                x, y, z = ra[j], rb[j], re[j]
-                c0[j] += a0 * x + b0 * y + e0 * z
-                c1[j] += a1 * x + b1 * y + e1 * z
-                c2[j] += a2 * x + b2 * y + e2 * z
-                c3[j] += a3 * x + b3 * y + e3 * z
-        i += 4
+        j = i
+        while j + 2 * PAD <= end:
+            _rows8x16(cov, i, j, lt, rt, k)
+            j += 2 * PAD
+        if j < end:
+            _rows8x8(cov, i, j, lt, rt, k)
+        i += PAD
     for r in range(i, d):  # rows left when the arrays are not padded (tests)
         cr = cov[r, r:d]
         for q in range(k):
