@@ -17,7 +17,7 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["fma8", "load8", "splat8", "store8", "vec8"]
+__all__ = ["add8", "fma8", "load8", "splat8", "store8", "sub8", "vec8"]
 
 _LLVM_VEC8 = ir.VectorType(ir.DoubleType(), 8)
 
@@ -106,3 +106,23 @@ def fma8(typingctx, a, b, c):
         return builder.call(fn, list(args))
 
     return vec8(a, b, c), codegen
+
+
+def _lanewise(op: str):
+    """An intrinsic applying LLVM's ``op`` (``fadd``, ``fsub``) lane by lane to two vectors."""
+
+    @intrinsic
+    def apply(typingctx, a, b):
+        if not (a == b == vec8):
+            return None
+
+        def codegen(context, builder, sig, args):
+            return getattr(builder, op)(*args)
+
+        return vec8(a, b), codegen
+
+    return apply
+
+
+#: ``a + b`` and ``a − b`` lane by lane (each rounded as the scalar operation).
+add8, sub8 = _lanewise("fadd"), _lanewise("fsub")

@@ -75,7 +75,7 @@ from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacob
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
-from slamobs.pipeline.simd import fma8, load8, splat8, store8
+from slamobs.pipeline.simd import add8, fma8, load8, splat8, store8, sub8
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -147,12 +147,13 @@ _FRAME_WORK_SCALE = 1000
 
 
 @njit(cache=True)
-def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
+def _accumulate(h, r_hat, p_hat, q_om, q_v, acc, w=None):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
     ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
-    ``Σ ([P̂]×M[P̂]×ᵀ + R̂ Q_V R̂ᵀ) h`` with ``M = R̂ Q_Ω R̂ᵀ`` (the process noise)."""
-    m = np.empty((3, 3))
-    mv = np.empty((3, 3))
+    ``Σ ([P̂]×M[P̂]×ᵀ + R̂ Q_V R̂ᵀ) h`` with ``M = R̂ Q_Ω R̂ᵀ`` (the process noise). ``w``: (3, 3, 3) scratch for ``M``,
+    ``R̂ Q_V R̂ᵀ`` and ``[P̂]×M``, indexed whole (a view or an allocation per step cost more than the step's sums)."""
+    if w is None:
+        w = np.empty((3, 3, 3))
     for a in range(3):
         for b in range(3):
             sw = 0.0
@@ -160,11 +161,10 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
             for c in range(3):
                 sw += r_hat[a, c] * q_om[c] * r_hat[b, c]
                 sv += r_hat[a, c] * q_v[c] * r_hat[b, c]
-            m[a, b] = sw
-            mv[a, b] = sv
+            w[0, a, b] = sw
+            w[1, a, b] = sv
     px, py, pz = p_hat[0], p_hat[1], p_hat[2]
     # [P̂]× X for a 3x3 X, row by row: row0 = py X[2] − pz X[1], row1 = pz X[0] − px X[2], row2 = px X[1] − py X[0]
-    pm = np.empty((3, 3))
     for b in range(3):
         acc[_SR, 0, b] += h * r_hat[0, b]
         acc[_SR, 1, b] += h * r_hat[1, b]
@@ -172,21 +172,21 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
         acc[_SPR, 0, b] += h * (py * r_hat[2, b] - pz * r_hat[1, b])
         acc[_SPR, 1, b] += h * (pz * r_hat[0, b] - px * r_hat[2, b])
         acc[_SPR, 2, b] += h * (px * r_hat[1, b] - py * r_hat[0, b])
-        pm[0, b] = py * m[2, b] - pz * m[1, b]
-        pm[1, b] = pz * m[0, b] - px * m[2, b]
-        pm[2, b] = px * m[1, b] - py * m[0, b]
+        w[2, 0, b] = py * w[0, 2, b] - pz * w[0, 1, b]
+        w[2, 1, b] = pz * w[0, 0, b] - px * w[0, 2, b]
+        w[2, 2, b] = px * w[0, 1, b] - py * w[0, 0, b]
     for a in range(3):
         for b in range(3):
-            acc[_QRR, a, b] += h * m[a, b]
-            acc[_QPR, a, b] += h * pm[a, b]
-    # [P̂]× M [P̂]×ᵀ = pm [P̂]×ᵀ: (pm [P̂]×ᵀ)[a, b] = Σ_c pm[a, c] [P̂]×[b, c]
+            acc[_QRR, a, b] += h * w[0, a, b]
+            acc[_QPR, a, b] += h * w[2, a, b]
+    # [P̂]× M [P̂]×ᵀ = (w[2] = [P̂]×M) [P̂]×ᵀ: its [a, b] = Σ_c w[2, a, c] [P̂]×[b, c]
     for a in range(3):
-        c0 = pm[a, 2] * py - pm[a, 1] * pz
-        c1 = pm[a, 0] * pz - pm[a, 2] * px
-        c2 = pm[a, 1] * px - pm[a, 0] * py
-        acc[_QPP, a, 0] += h * (c0 + mv[a, 0])
-        acc[_QPP, a, 1] += h * (c1 + mv[a, 1])
-        acc[_QPP, a, 2] += h * (c2 + mv[a, 2])
+        c0 = w[2, a, 2] * py - w[2, a, 1] * pz
+        c1 = w[2, a, 0] * pz - w[2, a, 2] * px
+        c2 = w[2, a, 1] * px - w[2, a, 0] * py
+        acc[_QPP, a, 0] += h * (c0 + w[1, a, 0])
+        acc[_QPP, a, 1] += h * (c1 + w[1, a, 1])
+        acc[_QPP, a, 2] += h * (c2 + w[1, a, 2])
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -460,8 +460,8 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
 
 
 @njit(cache=True)
-def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
-    """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
+def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
+    """``out[o]`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
     frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
@@ -491,7 +491,6 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
                 v += sr[a, e] * cov[9 + e, k]
                 vb += sr[a, e] * cbb[3 + e, k]
             g[3 + a, k], gb[3 + a, k] = v, vb
-    s = out  # Σ_pose pending, then turned in place
     for i in range(6):
         for k in range(6):
             v = g[i, k] + g[k, i]
@@ -503,25 +502,25 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
                     v += gb[i, e] * spr[k - 3, e]
                 for e in range(3):
                     v += gb[i, 3 + e] * sr[k - 3, e]
-            s[i, k] = cov[i, k] + v
+            out[o, i, k] = cov[i, k] + v
     for a in range(3):
         for b in range(3):
-            s[a, b] += acc[_QRR, a, b]
-            s[3 + a, 3 + b] += acc[_QPP, a, b]
-            s[3 + a, b] += acc[_QPR, a, b]
-            s[b, 3 + a] += acc[_QPR, a, b]
+            out[o, a, b] += acc[_QRR, a, b]
+            out[o, 3 + a, 3 + b] += acc[_QPP, a, b]
+            out[o, 3 + a, b] += acc[_QPR, a, b]
+            out[o, b, 3 + a] += acc[_QPR, a, b]
     # J s Jᵀ with J = [[I, 0], [−[P̂]×, I]]: δp = ξ_P − [P̂]× ξ_R
     px, py, pz = p_hat[0], p_hat[1], p_hat[2]
     for k in range(6):  # rows 3..5 of J s: s_P· − [P̂]× s_R·
-        r0, r1, r2 = s[0, k], s[1, k], s[2, k]
-        s[3, k] -= py * r2 - pz * r1
-        s[4, k] -= pz * r0 - px * r2
-        s[5, k] -= px * r1 - py * r0
+        r0, r1, r2 = out[o, 0, k], out[o, 1, k], out[o, 2, k]
+        out[o, 3, k] -= py * r2 - pz * r1
+        out[o, 4, k] -= pz * r0 - px * r2
+        out[o, 5, k] -= px * r1 - py * r0
     for i in range(6):  # columns 3..5 of (J s) Jᵀ
-        c0, c1, c2 = s[i, 0], s[i, 1], s[i, 2]
-        s[i, 3] -= py * c2 - pz * c1
-        s[i, 4] -= pz * c0 - px * c2
-        s[i, 5] -= px * c1 - py * c0
+        c0, c1, c2 = out[o, i, 0], out[o, i, 1], out[o, i, 2]
+        out[o, i, 3] -= py * c2 - pz * c1
+        out[o, i, 4] -= pz * c0 - px * c2
+        out[o, i, 5] -= px * c1 - py * c0
 
 
 @njit(cache=True)
@@ -670,6 +669,25 @@ def _settle(cov, d, lt, rt, dp):
 
 
 @njit(cache=True, fastmath=CONTRACT)
+def _hp_row(hp, h, cov, dp, lt, rt, s, c, d):
+    """Row ``h`` of ``HΣ⁻``: ``Σ⁻[3 + c, :] − Σ⁻[s, :]`` (position axis ``c``, landmark row ``s``) with the pending
+    propagation (``dp``, the six terms) added: eight columns at a time (:mod:`pipeline.simd`) over padded rows, else
+    one at a time, the same operations in the same order either way."""
+    end = min(hp.shape[1], cov.shape[1], dp.shape[1], rt.shape[1])
+    end = end - end % PAD if end - end % PAD >= d else 0
+    l0, l1, l2, l3, l4, l5 = lt[0, s], lt[1, s], lt[2, s], lt[3, s], lt[4, s], lt[5, s]
+    a0, a1, a2, a3, a4, a5 = splat8(l0), splat8(l1), splat8(l2), splat8(l3), splat8(l4), splat8(l5)
+    for j in range(0, end, PAD):
+        v = fma8(a0, load8(rt, 0, j), load8(cov, s, j))
+        v = fma8(a3, load8(rt, 3, j), fma8(a2, load8(rt, 2, j), fma8(a1, load8(rt, 1, j), v)))
+        v = fma8(a5, load8(rt, 5, j), fma8(a4, load8(rt, 4, j), v))
+        store8(hp, h, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
+    for r in range(end, d):
+        v = cov[s, r] + l0 * rt[0, r] + l1 * rt[1, r] + l2 * rt[2, r] + l3 * rt[3, r] + l4 * rt[4, r] + l5 * rt[5, r]
+        hp[h, r] = (cov[3 + c, r] + dp[c, r]) - v
+
+
+@njit(cache=True, fastmath=CONTRACT)
 def _update(
     a0,
     nd,
@@ -781,25 +799,14 @@ def _update(
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
-        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
+        # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             for c in range(3):
-                hq, cp, cs, dc = hp[3 * q + c, :d], cov[3 + c, :d], cov[sl + c, :d], dp[c, :d]
-                l0, l1, l2, l3, l4, l5 = (
-                    lt[0, sl + c],
-                    lt[1, sl + c],
-                    lt[2, sl + c],
-                    lt[3, sl + c],
-                    lt[4, sl + c],
-                    lt[5, sl + c],
-                )
-                r0, r1, r2, r3, r4, r5 = rt[0, :d], rt[1, :d], rt[2, :d], rt[3, :d], rt[4, :d], rt[5, :d]
-                for r in range(d):
-                    v = cs[r] + l0 * r0[r] + l1 * r1[r] + l2 * r2[r] + l3 * r3[r] + l4 * r4[r] + l5 * r5[r]
-                    hq[r] = (cp[r] + dc[r]) - v
+                _hp_row(hp, 3 * q + c, cov, dp, lt, rt, sl + c, c, d)
                 for b in range(3):  # rt is zero in the position columns: their propagation is in dp
-                    hq[3 + b] -= dp[b, sl + c]
+                    hp[3 * q + c, 3 + b] -= dp[b, sl + c]
         # S = H Σ⁻ Hᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
@@ -1088,6 +1095,7 @@ def _advance(
     d_p = np.empty(3)
     bias = np.empty(6)
     pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
+    acc_w = np.empty((3, 3, 3))  # _accumulate's
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
@@ -1106,7 +1114,7 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
-                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc)
+                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc, acc_w)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):
                     p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
@@ -1199,7 +1207,7 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out[o], pc_w)
+                _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out, o, pc_w)
                 if want_cov:
                     _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
