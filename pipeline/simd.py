@@ -17,7 +17,7 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["add8", "fma8", "load8", "splat8", "store8", "sub8", "vec8"]
+__all__ = ["add8", "fma8", "load8", "mul8", "splat8", "store8", "sub8", "vec8"]
 
 _LLVM_VEC8 = ir.VectorType(ir.DoubleType(), 8)
 
@@ -109,7 +109,7 @@ def fma8(typingctx, a, b, c):
 
 
 def _lanewise(op: str):
-    """An intrinsic applying LLVM's ``op`` (``fadd``, ``fsub``) lane by lane to two vectors."""
+    """An intrinsic applying LLVM's ``op`` (``fadd``, ``fsub``, ``fmul``) lane by lane to two vectors."""
 
     @intrinsic
     def apply(typingctx, a, b):
@@ -124,5 +124,5 @@ def _lanewise(op: str):
     return apply
 
 
-#: ``a + b`` and ``a − b`` lane by lane (each rounded as the scalar operation).
-add8, sub8 = _lanewise("fadd"), _lanewise("fsub")
+#: ``a + b``, ``a − b`` and ``a * b`` lane by lane (each rounded as the scalar operation).
+add8, sub8, mul8 = _lanewise("fadd"), _lanewise("fsub"), _lanewise("fmul")

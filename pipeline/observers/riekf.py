@@ -75,7 +75,7 @@ from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacob
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
-from slamobs.pipeline.simd import add8, fma8, load8, splat8, store8, sub8
+from slamobs.pipeline.simd import add8, fma8, load8, mul8, splat8, store8, sub8
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -603,12 +603,40 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
 
 
+@subroutine(types.none)
+def _solve4(hp, chol, c, end):
+    """Rows ``c .. c + 3`` of ``L⁻¹ HΣ⁻`` in place (:func:`_gain`), the rows above them done: eight columns at a
+    time (:mod:`pipeline.simd`), each row above subtracted as one fused multiply-add in order, then the four rows
+    among themselves."""
+    i0, i1 = splat8(1.0 / chol[c, c]), splat8(1.0 / chol[c + 1, c + 1])
+    i2, i3 = splat8(1.0 / chol[c + 2, c + 2]), splat8(1.0 / chol[c + 3, c + 3])
+    l10, l20, l21 = splat8(-chol[c + 1, c]), splat8(-chol[c + 2, c]), splat8(-chol[c + 2, c + 1])
+    l30, l31, l32 = splat8(-chol[c + 3, c]), splat8(-chol[c + 3, c + 1]), splat8(-chol[c + 3, c + 2])
+    for j in range(0, end, PAD):
+        x0, x1, x2, x3 = load8(hp, c, j), load8(hp, c + 1, j), load8(hp, c + 2, j), load8(hp, c + 3, j)
+        for k in range(c):
+            h = load8(hp, k, j)
+            x0, x1 = fma8(splat8(-chol[c, k]), h, x0), fma8(splat8(-chol[c + 1, k]), h, x1)
+            x2, x3 = fma8(splat8(-chol[c + 2, k]), h, x2), fma8(splat8(-chol[c + 3, k]), h, x3)
+        u = mul8(x0, i0)
+        v = mul8(fma8(l10, u, x1), i1)
+        w = mul8(fma8(l21, v, fma8(l20, u, x2)), i2)
+        store8(hp, c, j, u)
+        store8(hp, c + 1, j, v)
+        store8(hp, c + 2, j, w)
+        store8(hp, c + 3, j, mul8(fma8(l32, w, fma8(l31, v, fma8(l30, u, x3))), i3))
+
+
 @njit(cache=True, fastmath=CONTRACT)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
     ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
     (it vectorises), four rows written at a time with four terms a pass."""
     c = 0
+    end = hp.shape[1] - hp.shape[1] % PAD
+    while c + 4 <= k3 and end >= d:  # padded rows: four at a time, eight columns a vector (_solve4)
+        _solve4(hp, chol, c, end)
+        c += 4
     while c + 4 <= k3:  # four rows at a time: the rows above them first, four terms a pass, then among themselves
         x0, x1, x2, x3 = hp[c, :d], hp[c + 1, :d], hp[c + 2, :d], hp[c + 3, :d]
         for k in range(0, c, 4):  # c is a multiple of 4
