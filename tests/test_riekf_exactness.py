@@ -12,7 +12,7 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian
 from slamobs.pipeline.observers import ObserverOptions, time_offset
-from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, RiEKF, _apply, _propagation_terms, _update
+from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PAD, RiEKF, _apply, _propagation_terms, _update
 from slamobs.pipeline.simulate import expected_streams, simulate
 
 
@@ -36,6 +36,27 @@ def test_one_pass_sum_equals_the_matrix_product(d, k):
     _apply(got, d, lt, rt, k, dp, np.zeros(0, np.int64), -1)  # the whole triangle mirrored
     assert np.array_equal(got, got.T)
     assert np.abs(got - expect).max() <= 1e-13 * np.abs(expect).max()
+
+
+@pytest.mark.parametrize(("d", "k"), [(102, 30), (27, 6), (45, 33)])
+def test_one_pass_tiles_give_the_bits_of_the_rows(d, k):
+    """``_apply`` on arrays padded to whole vectors (``PAD``: the eight-row tiles held in registers, ``pipeline.simd``)
+    and on the same numbers unpadded (summed row by row): every entry of the upper triangle the same bits, each term
+    added in its order as one fused multiply-add either way."""
+    rng = np.random.default_rng(7 * d + k)
+    dim = d + -d % PAD
+    cov = np.zeros((dim, dim))
+    cov[:d, :d] = rng.normal(size=(d, d))
+    cov[:d, :d] += cov[:d, :d].T
+    lt, rt, dp = np.zeros((k, dim)), np.zeros((6, dim)), np.zeros((3, dim))
+    lt[:, :d], rt[:, :d], dp[:, :d] = rng.normal(size=(k, d)), rng.normal(size=(6, d)), rng.normal(size=(3, d))
+    lt[:6, 3:6], rt[:, 3:6] = 0.0, 0.0
+    padded, rows = cov.copy(), np.zeros(0, np.int64)
+    _apply(padded, d, lt, rt, k, dp, rows, -1)
+    plain = np.ascontiguousarray(cov[:d, :d])
+    _apply(plain, d, lt[:, :d].copy(), rt[:, :d].copy(), k, dp[:, :d].copy(), rows, -1)
+    assert np.array_equal(padded[:d, :d], plain)
+    assert not padded[d:].any() and not padded[:, d:].any()  # zeros past d add zeros
 
 
 def _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise):

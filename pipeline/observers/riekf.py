@@ -67,13 +67,15 @@ import math
 from dataclasses import replace
 
 import numpy as np
+from numba import types
 from slamobs.pipeline.errors import Unwind
-from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
+from slamobs.pipeline.simd import add8, fma8, load8, mul8, splat8, store8, sub8
 
 #: Mahalanobis gate of one landmark innovation (χ², 3 DoF, 99.99 %).
 GATE_CHI2 = 21.1
@@ -131,7 +133,8 @@ RECOVERY_ACTIONS = {
 }
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
-#: The covariance and the one-pass scratch rows are allocated to a multiple of this many columns (:func:`_apply`).
+#: The covariance is allocated to a multiple of this many rows and columns, the one-pass scratch rows to a multiple
+#: of this many columns: :func:`_apply`'s tiles are this many rows by one or two vectors of :mod:`pipeline.simd`.
 PAD = 8
 #: The dense kernels' floating-point flags (``_propagation_terms``, ``_apply``, ``_gain``, ``_update``): ``a * b + c``
 #: fused into one multiply-add instruction (one rounding instead of two; the order of the additions as written, no
@@ -144,12 +147,13 @@ _FRAME_WORK_SCALE = 1000
 
 
 @njit(cache=True)
-def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
+def _accumulate(h, r_hat, p_hat, q_om, q_v, acc, w=None):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
     ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
-    ``Σ ([P̂]×M[P̂]×ᵀ + R̂ Q_V R̂ᵀ) h`` with ``M = R̂ Q_Ω R̂ᵀ`` (the process noise)."""
-    m = np.empty((3, 3))
-    mv = np.empty((3, 3))
+    ``Σ ([P̂]×M[P̂]×ᵀ + R̂ Q_V R̂ᵀ) h`` with ``M = R̂ Q_Ω R̂ᵀ`` (the process noise). ``w``: (3, 3, 3) scratch for ``M``,
+    ``R̂ Q_V R̂ᵀ`` and ``[P̂]×M``, indexed whole (a view or an allocation per step cost more than the step's sums)."""
+    if w is None:
+        w = np.empty((3, 3, 3))
     for a in range(3):
         for b in range(3):
             sw = 0.0
@@ -157,11 +161,10 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
             for c in range(3):
                 sw += r_hat[a, c] * q_om[c] * r_hat[b, c]
                 sv += r_hat[a, c] * q_v[c] * r_hat[b, c]
-            m[a, b] = sw
-            mv[a, b] = sv
+            w[0, a, b] = sw
+            w[1, a, b] = sv
     px, py, pz = p_hat[0], p_hat[1], p_hat[2]
     # [P̂]× X for a 3x3 X, row by row: row0 = py X[2] − pz X[1], row1 = pz X[0] − px X[2], row2 = px X[1] − py X[0]
-    pm = np.empty((3, 3))
     for b in range(3):
         acc[_SR, 0, b] += h * r_hat[0, b]
         acc[_SR, 1, b] += h * r_hat[1, b]
@@ -169,21 +172,21 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc):
         acc[_SPR, 0, b] += h * (py * r_hat[2, b] - pz * r_hat[1, b])
         acc[_SPR, 1, b] += h * (pz * r_hat[0, b] - px * r_hat[2, b])
         acc[_SPR, 2, b] += h * (px * r_hat[1, b] - py * r_hat[0, b])
-        pm[0, b] = py * m[2, b] - pz * m[1, b]
-        pm[1, b] = pz * m[0, b] - px * m[2, b]
-        pm[2, b] = px * m[1, b] - py * m[0, b]
+        w[2, 0, b] = py * w[0, 2, b] - pz * w[0, 1, b]
+        w[2, 1, b] = pz * w[0, 0, b] - px * w[0, 2, b]
+        w[2, 2, b] = px * w[0, 1, b] - py * w[0, 0, b]
     for a in range(3):
         for b in range(3):
-            acc[_QRR, a, b] += h * m[a, b]
-            acc[_QPR, a, b] += h * pm[a, b]
-    # [P̂]× M [P̂]×ᵀ = pm [P̂]×ᵀ: (pm [P̂]×ᵀ)[a, b] = Σ_c pm[a, c] [P̂]×[b, c]
+            acc[_QRR, a, b] += h * w[0, a, b]
+            acc[_QPR, a, b] += h * w[2, a, b]
+    # [P̂]× M [P̂]×ᵀ = (w[2] = [P̂]×M) [P̂]×ᵀ: its [a, b] = Σ_c w[2, a, c] [P̂]×[b, c]
     for a in range(3):
-        c0 = pm[a, 2] * py - pm[a, 1] * pz
-        c1 = pm[a, 0] * pz - pm[a, 2] * px
-        c2 = pm[a, 1] * px - pm[a, 0] * py
-        acc[_QPP, a, 0] += h * (c0 + mv[a, 0])
-        acc[_QPP, a, 1] += h * (c1 + mv[a, 1])
-        acc[_QPP, a, 2] += h * (c2 + mv[a, 2])
+        c0 = w[2, a, 2] * py - w[2, a, 1] * pz
+        c1 = w[2, a, 0] * pz - w[2, a, 2] * px
+        c2 = w[2, a, 1] * px - w[2, a, 0] * py
+        acc[_QPP, a, 0] += h * (c0 + w[1, a, 0])
+        acc[_QPP, a, 1] += h * (c1 + w[1, a, 1])
+        acc[_QPP, a, 2] += h * (c2 + w[1, a, 2])
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -276,56 +279,124 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     return True
 
 
+@subroutine(types.none)
+def _rows8x16(cov, i, j, lt, rt, k):
+    """Rows ``i .. i + 7``, columns ``j .. j + 15`` of :func:`_apply`'s sum: the tile held in registers (16 vectors)
+    across all ``k`` terms, each added as one fused multiply-add (``fma8``), in the order of the terms."""
+    c00, c01 = load8(cov, i, j), load8(cov, i, j + 8)
+    c10, c11 = load8(cov, i + 1, j), load8(cov, i + 1, j + 8)
+    c20, c21 = load8(cov, i + 2, j), load8(cov, i + 2, j + 8)
+    c30, c31 = load8(cov, i + 3, j), load8(cov, i + 3, j + 8)
+    c40, c41 = load8(cov, i + 4, j), load8(cov, i + 4, j + 8)
+    c50, c51 = load8(cov, i + 5, j), load8(cov, i + 5, j + 8)
+    c60, c61 = load8(cov, i + 6, j), load8(cov, i + 6, j + 8)
+    c70, c71 = load8(cov, i + 7, j), load8(cov, i + 7, j + 8)
+    for q in range(6):  # the propagation's terms, lt[q]ᵀ rt[q]
+        x0, x1 = load8(rt, q, j), load8(rt, q, j + 8)
+        a = splat8(lt[q, i])
+        c00, c01 = fma8(a, x0, c00), fma8(a, x1, c01)
+        a = splat8(lt[q, i + 1])
+        c10, c11 = fma8(a, x0, c10), fma8(a, x1, c11)
+        a = splat8(lt[q, i + 2])
+        c20, c21 = fma8(a, x0, c20), fma8(a, x1, c21)
+        a = splat8(lt[q, i + 3])
+        c30, c31 = fma8(a, x0, c30), fma8(a, x1, c31)
+        a = splat8(lt[q, i + 4])
+        c40, c41 = fma8(a, x0, c40), fma8(a, x1, c41)
+        a = splat8(lt[q, i + 5])
+        c50, c51 = fma8(a, x0, c50), fma8(a, x1, c51)
+        a = splat8(lt[q, i + 6])
+        c60, c61 = fma8(a, x0, c60), fma8(a, x1, c61)
+        a = splat8(lt[q, i + 7])
+        c70, c71 = fma8(a, x0, c70), fma8(a, x1, c71)
+    for q in range(6, k):  # the downdate's, −lt[q]ᵀ lt[q]
+        x0, x1 = load8(lt, q, j), load8(lt, q, j + 8)
+        a = splat8(-lt[q, i])
+        c00, c01 = fma8(a, x0, c00), fma8(a, x1, c01)
+        a = splat8(-lt[q, i + 1])
+        c10, c11 = fma8(a, x0, c10), fma8(a, x1, c11)
+        a = splat8(-lt[q, i + 2])
+        c20, c21 = fma8(a, x0, c20), fma8(a, x1, c21)
+        a = splat8(-lt[q, i + 3])
+        c30, c31 = fma8(a, x0, c30), fma8(a, x1, c31)
+        a = splat8(-lt[q, i + 4])
+        c40, c41 = fma8(a, x0, c40), fma8(a, x1, c41)
+        a = splat8(-lt[q, i + 5])
+        c50, c51 = fma8(a, x0, c50), fma8(a, x1, c51)
+        a = splat8(-lt[q, i + 6])
+        c60, c61 = fma8(a, x0, c60), fma8(a, x1, c61)
+        a = splat8(-lt[q, i + 7])
+        c70, c71 = fma8(a, x0, c70), fma8(a, x1, c71)
+    store8(cov, i, j, c00)
+    store8(cov, i, j + 8, c01)
+    store8(cov, i + 1, j, c10)
+    store8(cov, i + 1, j + 8, c11)
+    store8(cov, i + 2, j, c20)
+    store8(cov, i + 2, j + 8, c21)
+    store8(cov, i + 3, j, c30)
+    store8(cov, i + 3, j + 8, c31)
+    store8(cov, i + 4, j, c40)
+    store8(cov, i + 4, j + 8, c41)
+    store8(cov, i + 5, j, c50)
+    store8(cov, i + 5, j + 8, c51)
+    store8(cov, i + 6, j, c60)
+    store8(cov, i + 6, j + 8, c61)
+    store8(cov, i + 7, j, c70)
+    store8(cov, i + 7, j + 8, c71)
+
+
+@subroutine(types.none)
+def _rows8x8(cov, i, j, lt, rt, k):
+    """:func:`_rows8x16` on columns ``j .. j + 7`` (a row's last eight when its length is an odd number of eights)."""
+    c0, c1, c2, c3 = load8(cov, i, j), load8(cov, i + 1, j), load8(cov, i + 2, j), load8(cov, i + 3, j)
+    c4, c5, c6, c7 = load8(cov, i + 4, j), load8(cov, i + 5, j), load8(cov, i + 6, j), load8(cov, i + 7, j)
+    for q in range(6):
+        x = load8(rt, q, j)
+        c0, c1 = fma8(splat8(lt[q, i]), x, c0), fma8(splat8(lt[q, i + 1]), x, c1)
+        c2, c3 = fma8(splat8(lt[q, i + 2]), x, c2), fma8(splat8(lt[q, i + 3]), x, c3)
+        c4, c5 = fma8(splat8(lt[q, i + 4]), x, c4), fma8(splat8(lt[q, i + 5]), x, c5)
+        c6, c7 = fma8(splat8(lt[q, i + 6]), x, c6), fma8(splat8(lt[q, i + 7]), x, c7)
+    for q in range(6, k):
+        x = load8(lt, q, j)
+        c0, c1 = fma8(splat8(-lt[q, i]), x, c0), fma8(splat8(-lt[q, i + 1]), x, c1)
+        c2, c3 = fma8(splat8(-lt[q, i + 2]), x, c2), fma8(splat8(-lt[q, i + 3]), x, c3)
+        c4, c5 = fma8(splat8(-lt[q, i + 4]), x, c4), fma8(splat8(-lt[q, i + 5]), x, c5)
+        c6, c7 = fma8(splat8(-lt[q, i + 6]), x, c6), fma8(splat8(-lt[q, i + 7]), x, c7)
+    store8(cov, i, j, c0)
+    store8(cov, i + 1, j, c1)
+    store8(cov, i + 2, j, c2)
+    store8(cov, i + 3, j, c3)
+    store8(cov, i + 4, j, c4)
+    store8(cov, i + 5, j, c5)
+    store8(cov, i + 6, j, c6)
+    store8(cov, i + 7, j, c7)
+
+
 @njit(cache=True, fastmath=CONTRACT)
 def _apply(cov, d, lt, rt, k, dp, rows, n_rows):
     """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
     ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
-    the upper triangle four rows at a time (six terms a pass along the rows, it vectorises), then mirrored:
-    ``Σ`` stays exactly symmetric (``n_rows < 0``), or only what the next frame reads of the lower triangle is
-    (:func:`_mirror_read`, the landmark rows starting at ``rows[:n_rows]``). ``k`` is a multiple of 3. Only
-    ``contract`` of the ``fastmath`` flags (:data:`CONTRACT`): each entry's terms are added in the order written,
-    each product fused into its addition, so a kernel compiled in the run and one loaded from the cache give the
-    same bits (with all of ``fastmath`` they did not).
-    The rows run from a multiple of ``PAD`` to the end of the arrays (``_State``
-    pads them to a multiple of ``PAD`` columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros), so the
-    loops run over whole vectors."""
+    the upper triangle in tiles of eight rows by sixteen columns held in registers across all ``k`` terms
+    (:func:`_rows8x16`), then mirrored: ``Σ`` stays exactly symmetric (``n_rows < 0``), or only what the next
+    frame reads of the lower triangle is (:func:`_mirror_read`, the landmark rows starting at ``rows[:n_rows]``).
+    Each entry's terms are added one at a time in their order, each product fused into its addition (one
+    rounding), in the tiles as in the rows left over: the same bits whatever the padding, compiled or loaded
+    from the cache.
+    The tiles run from the diagonal's multiple of ``PAD`` to the end of the arrays (``_State`` pads them to a
+    multiple of ``PAD`` rows and columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros); arrays that are not
+    padded (tests) are summed row by row."""
     end = min(cov.shape[1], lt.shape[1], rt.shape[1])
-    tiles = min(d + (-d) % 4, cov.shape[0] - cov.shape[0] % 4, lt.shape[1] - lt.shape[1] % 4)
+    end -= end % PAD
+    tiles = min(d + (-d) % PAD, cov.shape[0] - cov.shape[0] % PAD) if end >= d else 0
     i = 0
     while i < tiles:
-        j0 = i - i % PAD
-        c0, c1, c2, c3 = cov[i, j0:end], cov[i + 1, j0:end], cov[i + 2, j0:end], cov[i + 3, j0:end]
-        n = end - j0
-        q = 0
-        while q + 6 <= k:
-            src, sg = (rt, 1.0) if q < 6 else (lt, -1.0)
-            a0, a1, a2, a3 = sg * lt[q, i], sg * lt[q, i + 1], sg * lt[q, i + 2], sg * lt[q, i + 3]
-            b0, b1, b2, b3 = sg * lt[q + 1, i], sg * lt[q + 1, i + 1], sg * lt[q + 1, i + 2], sg * lt[q + 1, i + 3]
-            e0, e1, e2, e3 = sg * lt[q + 2, i], sg * lt[q + 2, i + 1], sg * lt[q + 2, i + 2], sg * lt[q + 2, i + 3]
-            f0, f1, f2, f3 = sg * lt[q + 3, i], sg * lt[q + 3, i + 1], sg * lt[q + 3, i + 2], sg * lt[q + 3, i + 3]
-            g0, g1, g2, g3 = sg * lt[q + 4, i], sg * lt[q + 4, i + 1], sg * lt[q + 4, i + 2], sg * lt[q + 4, i + 3]
-            h0, h1, h2, h3 = sg * lt[q + 5, i], sg * lt[q + 5, i + 1], sg * lt[q + 5, i + 2], sg * lt[q + 5, i + 3]
-            ra, rb, re = src[q, j0:end], src[q + 1, j0:end], src[q + 2, j0:end]
-            rf, rg, rh = src[q + 3, j0:end], src[q + 4, j0:end], src[q + 5, j0:end]
-            for j in range(n):
-                x, y, z, u, v, w = ra[j], rb[j], re[j], rf[j], rg[j], rh[j]
-                c0[j] += a0 * x + b0 * y + e0 * z + f0 * u + g0 * v + h0 * w
-                c1[j] += a1 * x + b1 * y + e1 * z + f1 * u + g1 * v + h1 * w
-                c2[j] += a2 * x + b2 * y + e2 * z + f2 * u + g2 * v + h2 * w
-                c3[j] += a3 * x + b3 * y + e3 * z + f3 * u + g3 * v + h3 * w
-            q += 6
-        if q < k:  # three terms left (of the downdate: k > 6)
-            a0, a1, a2, a3 = -lt[q, i], -lt[q, i + 1], -lt[q, i + 2], -lt[q, i + 3]
-            b0, b1, b2, b3 = -lt[q + 1, i], -lt[q + 1, i + 1], -lt[q + 1, i + 2], -lt[q + 1, i + 3]
-            e0, e1, e2, e3 = -lt[q + 2, i], -lt[q + 2, i + 1], -lt[q + 2, i + 2], -lt[q + 2, i + 3]
-            ra, rb, re = lt[q, j0:end], lt[q + 1, j0:end], lt[q + 2, j0:end]
-            for j in range(n):
-                x, y, z = ra[j], rb[j], re[j]
-                c0[j] += a0 * x + b0 * y + e0 * z
-                c1[j] += a1 * x + b1 * y + e1 * z
-                c2[j] += a2 * x + b2 * y + e2 * z
-                c3[j] += a3 * x + b3 * y + e3 * z
-        i += 4
+        j = i
+        while j + 2 * PAD <= end:
+            _rows8x16(cov, i, j, lt, rt, k)
+            j += 2 * PAD
+        if j < end:
+            _rows8x8(cov, i, j, lt, rt, k)
+        i += PAD
     for r in range(i, d):  # rows left when the arrays are not padded (tests)
         cr = cov[r, r:d]
         for q in range(k):
@@ -389,8 +460,8 @@ def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
 
 
 @njit(cache=True)
-def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
-    """``out`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
+def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
+    """``out[o]`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
     frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
@@ -420,7 +491,6 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
                 v += sr[a, e] * cov[9 + e, k]
                 vb += sr[a, e] * cbb[3 + e, k]
             g[3 + a, k], gb[3 + a, k] = v, vb
-    s = out  # Σ_pose pending, then turned in place
     for i in range(6):
         for k in range(6):
             v = g[i, k] + g[k, i]
@@ -432,25 +502,25 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, w):
                     v += gb[i, e] * spr[k - 3, e]
                 for e in range(3):
                     v += gb[i, 3 + e] * sr[k - 3, e]
-            s[i, k] = cov[i, k] + v
+            out[o, i, k] = cov[i, k] + v
     for a in range(3):
         for b in range(3):
-            s[a, b] += acc[_QRR, a, b]
-            s[3 + a, 3 + b] += acc[_QPP, a, b]
-            s[3 + a, b] += acc[_QPR, a, b]
-            s[b, 3 + a] += acc[_QPR, a, b]
+            out[o, a, b] += acc[_QRR, a, b]
+            out[o, 3 + a, 3 + b] += acc[_QPP, a, b]
+            out[o, 3 + a, b] += acc[_QPR, a, b]
+            out[o, b, 3 + a] += acc[_QPR, a, b]
     # J s Jᵀ with J = [[I, 0], [−[P̂]×, I]]: δp = ξ_P − [P̂]× ξ_R
     px, py, pz = p_hat[0], p_hat[1], p_hat[2]
     for k in range(6):  # rows 3..5 of J s: s_P· − [P̂]× s_R·
-        r0, r1, r2 = s[0, k], s[1, k], s[2, k]
-        s[3, k] -= py * r2 - pz * r1
-        s[4, k] -= pz * r0 - px * r2
-        s[5, k] -= px * r1 - py * r0
+        r0, r1, r2 = out[o, 0, k], out[o, 1, k], out[o, 2, k]
+        out[o, 3, k] -= py * r2 - pz * r1
+        out[o, 4, k] -= pz * r0 - px * r2
+        out[o, 5, k] -= px * r1 - py * r0
     for i in range(6):  # columns 3..5 of (J s) Jᵀ
-        c0, c1, c2 = s[i, 0], s[i, 1], s[i, 2]
-        s[i, 3] -= py * c2 - pz * c1
-        s[i, 4] -= pz * c0 - px * c2
-        s[i, 5] -= px * c1 - py * c0
+        c0, c1, c2 = out[o, i, 0], out[o, i, 1], out[o, i, 2]
+        out[o, i, 3] -= py * c2 - pz * c1
+        out[o, i, 4] -= pz * c0 - px * c2
+        out[o, i, 5] -= px * c1 - py * c0
 
 
 @njit(cache=True)
@@ -533,12 +603,40 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
         lm[i, 0], lm[i, 1], lm[i, 2] = q0, q1, q2
 
 
+@subroutine(types.none)
+def _solve4(hp, chol, c, end):
+    """Rows ``c .. c + 3`` of ``L⁻¹ HΣ⁻`` in place (:func:`_gain`), the rows above them done: eight columns at a
+    time (:mod:`pipeline.simd`), each row above subtracted as one fused multiply-add in order, then the four rows
+    among themselves."""
+    i0, i1 = splat8(1.0 / chol[c, c]), splat8(1.0 / chol[c + 1, c + 1])
+    i2, i3 = splat8(1.0 / chol[c + 2, c + 2]), splat8(1.0 / chol[c + 3, c + 3])
+    l10, l20, l21 = splat8(-chol[c + 1, c]), splat8(-chol[c + 2, c]), splat8(-chol[c + 2, c + 1])
+    l30, l31, l32 = splat8(-chol[c + 3, c]), splat8(-chol[c + 3, c + 1]), splat8(-chol[c + 3, c + 2])
+    for j in range(0, end, PAD):
+        x0, x1, x2, x3 = load8(hp, c, j), load8(hp, c + 1, j), load8(hp, c + 2, j), load8(hp, c + 3, j)
+        for k in range(c):
+            h = load8(hp, k, j)
+            x0, x1 = fma8(splat8(-chol[c, k]), h, x0), fma8(splat8(-chol[c + 1, k]), h, x1)
+            x2, x3 = fma8(splat8(-chol[c + 2, k]), h, x2), fma8(splat8(-chol[c + 3, k]), h, x3)
+        u = mul8(x0, i0)
+        v = mul8(fma8(l10, u, x1), i1)
+        w = mul8(fma8(l21, v, fma8(l20, u, x2)), i2)
+        store8(hp, c, j, u)
+        store8(hp, c + 1, j, v)
+        store8(hp, c + 2, j, w)
+        store8(hp, c + 3, j, mul8(fma8(l32, w, fma8(l31, v, fma8(l30, u, x3))), i3))
+
+
 @njit(cache=True, fastmath=CONTRACT)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
     ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
     (it vectorises), four rows written at a time with four terms a pass."""
     c = 0
+    end = hp.shape[1] - hp.shape[1] % PAD
+    while c + 4 <= k3 and end >= d:  # padded rows: four at a time, eight columns a vector (_solve4)
+        _solve4(hp, chol, c, end)
+        c += 4
     while c + 4 <= k3:  # four rows at a time: the rows above them first, four terms a pass, then among themselves
         x0, x1, x2, x3 = hp[c, :d], hp[c + 1, :d], hp[c + 2, :d], hp[c + 3, :d]
         for k in range(0, c, 4):  # c is a multiple of 4
@@ -596,6 +694,25 @@ def _settle(cov, d, lt, rt, dp):
     lt[:6, :d] = 0.0
     rt[:6, :d] = 0.0
     dp[:, :d] = 0.0
+
+
+@njit(cache=True, fastmath=CONTRACT)
+def _hp_row(hp, h, cov, dp, lt, rt, s, c, d):
+    """Row ``h`` of ``HΣ⁻``: ``Σ⁻[3 + c, :] − Σ⁻[s, :]`` (position axis ``c``, landmark row ``s``) with the pending
+    propagation (``dp``, the six terms) added: eight columns at a time (:mod:`pipeline.simd`) over padded rows, else
+    one at a time, the same operations in the same order either way."""
+    end = min(hp.shape[1], cov.shape[1], dp.shape[1], rt.shape[1])
+    end = end - end % PAD if end - end % PAD >= d else 0
+    l0, l1, l2, l3, l4, l5 = lt[0, s], lt[1, s], lt[2, s], lt[3, s], lt[4, s], lt[5, s]
+    a0, a1, a2, a3, a4, a5 = splat8(l0), splat8(l1), splat8(l2), splat8(l3), splat8(l4), splat8(l5)
+    for j in range(0, end, PAD):
+        v = fma8(a0, load8(rt, 0, j), load8(cov, s, j))
+        v = fma8(a3, load8(rt, 3, j), fma8(a2, load8(rt, 2, j), fma8(a1, load8(rt, 1, j), v)))
+        v = fma8(a5, load8(rt, 5, j), fma8(a4, load8(rt, 4, j), v))
+        store8(hp, h, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
+    for r in range(end, d):
+        v = cov[s, r] + l0 * rt[0, r] + l1 * rt[1, r] + l2 * rt[2, r] + l3 * rt[3, r] + l4 * rt[4, r] + l5 * rt[5, r]
+        hp[h, r] = (cov[3 + c, r] + dp[c, r]) - v
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -710,25 +827,14 @@ def _update(
     if m > 0:
         k3 = 3 * m
         hp = lt[6:]
-        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added
+        # H Σ⁻ (3m × d): row block q = Σ⁻[P, :] − Σ⁻[slot of q, :], the pending propagation added; whole vectors
+        # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             for c in range(3):
-                hq, cp, cs, dc = hp[3 * q + c, :d], cov[3 + c, :d], cov[sl + c, :d], dp[c, :d]
-                l0, l1, l2, l3, l4, l5 = (
-                    lt[0, sl + c],
-                    lt[1, sl + c],
-                    lt[2, sl + c],
-                    lt[3, sl + c],
-                    lt[4, sl + c],
-                    lt[5, sl + c],
-                )
-                r0, r1, r2, r3, r4, r5 = rt[0, :d], rt[1, :d], rt[2, :d], rt[3, :d], rt[4, :d], rt[5, :d]
-                for r in range(d):
-                    v = cs[r] + l0 * r0[r] + l1 * r1[r] + l2 * r2[r] + l3 * r3[r] + l4 * r4[r] + l5 * r5[r]
-                    hq[r] = (cp[r] + dc[r]) - v
+                _hp_row(hp, 3 * q + c, cov, dp, lt, rt, sl + c, c, d)
                 for b in range(3):  # rt is zero in the position columns: their propagation is in dp
-                    hq[3 + b] -= dp[b, sl + c]
+                    hp[3 * q + c, 3 + b] -= dp[b, sl + c]
         # S = H Σ⁻ Hᵀ + σ² I
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
@@ -1017,6 +1123,7 @@ def _advance(
     d_p = np.empty(3)
     bias = np.empty(6)
     pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
+    acc_w = np.empty((3, 3, 3))  # _accumulate's
     o = 0
     want_cov = cov_out.shape[0] > 0
     work = 0
@@ -1035,7 +1142,7 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
-                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc)
+                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc, acc_w)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):
                     p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
@@ -1128,7 +1235,7 @@ def _advance(
                 t = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out[o], pc_w)
+                _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out, o, pc_w)
                 if want_cov:
                     _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
