@@ -1463,6 +1463,7 @@ class RiEKF(Stepper):
                 "gate_chi2": GATE_CHI2,
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
+                "detection_inverse_depth": self.inverse_depth,
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -1470,6 +1471,8 @@ class RiEKF(Stepper):
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
         ) + recovery_notes(self.stats["metadata"]["filter"])
+        if self.inverse_depth.get("applied"):
+            self.stats["notes"].append(inverse_depth_note(self.inverse_depth))
         if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
             self.stats["notes"] += time_offset_note("riekf", self._time_offset)
 
@@ -1586,6 +1589,15 @@ def recovery_notes(filt: dict) -> list[str]:
             "frames and the time stamps)"
         )
     return notes
+
+
+def inverse_depth_note(record: dict) -> str:
+    """The run's note when the detections were weighed in inverse depth (``_inverse_depth_law``)."""
+    return (
+        f"riekf: detections weighed in inverse depth (x/z, y/z, 1/z) in their camera's frame at the point the state "
+        f"predicts: σ_u {record['sigma_u']:.3g}, σ_w {record['sigma_w_per_m']:.3g} 1/m from the r² law and its "
+        "range/bearing ratio"
+    )
 
 
 #: Share of the detections rejected by the gate above which the run says so (a few are outliers; most, a noise model
