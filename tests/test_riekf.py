@@ -160,6 +160,73 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
     assert np.allclose(innov[[0, 2]], -z.reshape(2, 3)) and np.allclose(innov[1], 0.0)
 
 
+def test_inverse_depth_update_equals_the_kalman_update_in_inverse_depth():
+    """With the inverse-depth levels and a camera appended to the law (stereo-like detections,
+    pipeline.inverse_depth): the frame's update, gate and new landmark's block are the Kalman filter's on
+    ``ν = h(c) − h(ĉ)``, ``h(c) = (x/z, y/z, 1/z)`` of each detection's camera point, linearized at the point the
+    state predicts (``H_h = J Rᵀ R̂ᵀ H``, noise ``diag(σ_u², σ_u², σ_w²)``), times the recovery's variance factor."""
+    rng = np.random.default_rng(3)
+    n_lm, slot_of, slot_lm = 4, np.array([2, 0, 1, -1]), np.array([1, 2, 0, 0])
+    d = N_FIXED + 9
+    cov = np.zeros((N_FIXED + 3 * n_lm,) * 2)
+    cov[:d, :d] = spd(rng, d) * 1e-3
+    r_hat, p_hat = so3_exp(rng.normal(size=3)), rng.normal(size=3)
+    b_om, b_v = rng.normal(size=3) * 0.01, rng.normal(size=3) * 0.01
+    b_before = np.r_[b_om, b_v]
+    r_c, t_c = so3_exp(rng.normal(size=3)), np.array([0.2, -0.1, 0.4])  # camera -> body
+    det_idx = np.array([0, 3, 2])
+    c = np.c_[rng.normal(0.0, 1.0, (3, 2)), rng.uniform(3.0, 10.0, 3)]  # measured points, camera frame
+    det_y = c @ r_c.T + t_c
+    c_hat = c + rng.normal(0.0, 0.3, c.shape)  # the points the state predicts
+    lm = rng.normal(size=(n_lm, 3)) * 4
+    for j in (0, 2):
+        lm[det_idx[j]] = r_hat @ (r_c @ c_hat[j] + t_c) + p_hat
+    su2, sw2, scale = 0.004**2, 0.02**2, 1.7
+    law = np.r_[0.5, 0.5, 0.5, 1.0, 3.0, su2, sw2, r_c.ravel(), t_c]  # σ(r) and the ratio are not used
+    h = lambda p: np.r_[p[:2] / p[2], 1.0 / p[2]]  # noqa: E731
+
+    def jac(p):  # ∂h/∂c
+        return np.array([[1 / p[2], 0, -p[0] / p[2] ** 2], [0, 1 / p[2], -p[1] / p[2] ** 2], [0, 0, -1 / p[2] ** 2]])
+
+    noise = scale * np.diag([su2, su2, sw2])
+    hh, nu = np.zeros((6, d)), np.zeros(6)
+    for q, j in enumerate((0, 2)):
+        sl = N_FIXED + 3 * slot_of[det_idx[j]]
+        a = jac(c_hat[j]) @ r_c.T @ r_hat.T  # ν ≈ a (R̂y + P̂ − p̂_i)
+        hh[3 * q : 3 * q + 3, 3:6], hh[3 * q : 3 * q + 3, sl : sl + 3] = a, -a
+        nu[3 * q : 3 * q + 3] = h(c[j]) - h(c_hat[j])
+    cv = cov[:d, :d]
+    s_mat = hh @ cv @ hh.T + np.kron(np.eye(2), noise)
+    k = cv @ hh.T @ np.linalg.inv(s_mat)
+    xi = k @ nu
+    c_new = cv - k @ s_mat @ k.T
+    blocks = [slice(0, 3), slice(3, 6)]
+    d2 = [nu[b] @ np.linalg.solve(s_mat[b, b], nu[b]) for b in blocks]
+    a, jl = so3_exp(-xi[:3]), so3_left_jacobian(-xi[:3])
+    r_exp, p_exp = a @ r_hat, a @ p_hat - jl @ xi[3:6]
+    m = r_hat @ r_c  # R̂R (before the update, which corrects R̂ in place); the new landmark: J⁻¹DJ⁻ᵀ
+    jinv = np.linalg.inv(jac(c[1]))
+    block = c_new[3:6, 3:6] + m @ jinv @ noise @ jinv.T @ m.T
+    ns = np.zeros(N_SLOTS, dtype=np.int64)
+    innov, trk, win_d2 = np.zeros((3, 3)), np.zeros((3, 3)), np.zeros(9)
+    args = (np.zeros(3, np.int64), np.zeros(9), np.zeros((15, cov.shape[0])), np.zeros((15, cov.shape[0])))
+    args += (np.zeros((3, cov.shape[0])), np.zeros((9, 9)), innov, trk, 0, ns, 1e9, scale, win_d2)
+    args += (np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n_lm, np.bool_), np.zeros(n_lm, np.bool_))
+    args += (np.zeros((5, 7)), np.zeros(1))
+    d_out = _update(0, 3, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm, *args)
+    assert d_out == d + 3
+    np.testing.assert_allclose(win_d2[:2], d2, rtol=1e-9)  # the gate: the same covariance
+    np.testing.assert_allclose(cov[:d, :d], c_new, atol=1e-12)
+    np.testing.assert_allclose(cov[d : d + 3, d : d + 3], block, atol=1e-12)
+    np.testing.assert_allclose(r_hat, r_exp, atol=1e-12)
+    np.testing.assert_allclose(p_hat, p_exp, atol=1e-12)
+    np.testing.assert_allclose(np.r_[b_om, b_v], b_before + xi[6:12], atol=1e-12)
+    np.testing.assert_allclose(lm[3], r_exp @ det_y[1] + p_exp, atol=1e-12)
+    for q, j in enumerate((0, 2)):  # the innovation recorded: the pseudo-measurement's, R̂ R J⁻¹ ν
+        pseudo = m @ np.linalg.solve(jac(c_hat[j]), nu[3 * q : 3 * q + 3])
+        np.testing.assert_allclose(innov[j], -pseudo, atol=1e-12)
+
+
 def chi2_ppf(p: float, dof: int) -> float:
     """Wilson–Hilferty approximation of the χ² quantile (relative error < 1e-3 at these degrees of freedom)."""
     z = NormalDist().inv_cdf(p)
