@@ -17,7 +17,10 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   detections; :func:`_propagation_terms`, :func:`_apply`).
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
-  correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
+  correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``. Stereo-like detections (:mod:`pipeline.inverse_depth`
+  says which) are weighed in inverse depth instead: ``y`` is the pseudo-measurement at the point the state
+  predicts and ``N`` the inverse-depth noise carried to it (:func:`_inverse_depth_noise`), the Kalman update in
+  ``(x/z, y/z, 1/z)``.
 * Gaps (new segments, ``limits.max_gap``): nothing is integrated across them (as for the observers); the pose
   is re-anchored to the map where a frame allows it and gets the covariance of a fresh start (``GAP_SIGMA``).
 * New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
