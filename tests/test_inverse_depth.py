@@ -18,7 +18,6 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.noise import NoiseConfig, resolve_noise
 from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
-from slamobs.pipeline import inverse_depth as idm
 from slamobs.pipeline.smoother import inverse_depth as idp
 from slamobs.pipeline.smoother.settings import BatchSettings
 
@@ -73,12 +72,12 @@ def test_stereo_like_detections_are_weighed_in_inverse_depth(stereo):
 def test_other_detections_are_left_alone(stereo):
     _, stream, noise = stereo
     sensor, y = stream.det_sensor, stream.det_y
-    assert idm.why_not(noise, sensor, y, "auto") is None
-    assert "not b + a·r²" in idm.why_not(replace(noise, detection_per_m=0.01), sensor, y, "auto")
-    assert "ratio 1" in idm.why_not(replace(noise, detection_ratio=1.0), sensor, y, "auto")
-    assert "one fixed sensor frame" in idm.why_not(noise, None, y, "auto")
+    assert idp.why_not(noise, sensor, y, "auto") is None
+    assert "not b + a·r²" in idp.why_not(replace(noise, detection_per_m=0.01), sensor, y, "auto")
+    assert "ratio 1" in idp.why_not(replace(noise, detection_ratio=1.0), sensor, y, "auto")
+    assert "one fixed sensor frame" in idp.why_not(noise, None, y, "auto")
     planar = np.c_[y[:, :2], np.zeros(y.shape[0])]  # range-bearing points in the body plane (MR.CLAM)
-    assert "not a camera's" in idm.why_not(noise, (np.eye(3), np.zeros(3)), planar, "auto")
+    assert "not a camera's" in idp.why_not(noise, (np.eye(3), np.zeros(3)), planar, "auto")
     behind = y.copy()
     behind[0] = 2.0 * sensor[1] - behind[0]  # one point mirrored through the camera's centre: z < 0
-    assert "1 detections lie behind" in idm.why_not(noise, sensor, behind, "auto")
+    assert "1 detections lie behind" in idp.why_not(noise, sensor, behind, "auto")

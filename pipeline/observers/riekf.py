@@ -17,10 +17,7 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   detections; :func:`_propagation_terms`, :func:`_apply`).
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
-  correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``. Stereo-like detections (:mod:`pipeline.inverse_depth`
-  says which) are weighed in inverse depth instead: ``y`` is the pseudo-measurement at the point the state
-  predicts and ``N`` the inverse-depth noise carried to it (:func:`_inverse_depth_noise`), the Kalman update in
-  ``(x/z, y/z, 1/z)``.
+  correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
 * Gaps (new segments, ``limits.max_gap``): nothing is integrated across them (as for the observers); the pose
   is re-anchored to the map where a frame allows it and gets the covariance of a fresh start (``GAP_SIGMA``).
 * New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
@@ -71,7 +68,6 @@ from dataclasses import replace
 
 import numpy as np
 from slamobs.pipeline.errors import Unwind
-from slamobs.pipeline.inverse_depth import MIN_DEPTH
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
@@ -145,10 +141,6 @@ PAD = 8
 CONTRACT = {"contract"}
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
-#: The detection law's array (``RiEKF.det_law``): σ0, k, a of ``σ(r)``, the factor of ``σ(r)²`` across the line of
-#: sight, what the range adds along it; when the detections are weighed in inverse depth (:mod:`pipeline.inverse_depth`)
-#: also ``σ_u²``, ``σ_w²``, the camera-to-body rotation (row by row) and translation (:func:`_inverse_depth_noise`).
-_LAW_SU2, _LAW_SW2, _LAW_ROT, _LAW_T, _LAW_INVERSE_DEPTH = 5, 6, 7, 16, 19
 
 
 @njit(cache=True)
@@ -481,10 +473,10 @@ def _cholesky(s, m):
 
 
 @njit(cache=True)
-def _gate(cov, z, sl, sigma2, ue, nj, lt, rt, dp, s):
-    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ + N`` of ``Σ⁻`` (the
+def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
+    """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ`` of ``Σ⁻`` (the
     pending propagation added, each term read once; ``u``: the range's extra standard deviation along the line of
-    sight; ``N``: the inverse-depth noise, zero otherwise, ``nj``; ``s``: 3×3 scratch)."""
+    sight; ``s``: 3×3 scratch)."""
     for a in range(3):
         for b in range(3):
             v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
@@ -494,7 +486,6 @@ def _gate(cov, z, sl, sigma2, ue, nj, lt, rt, dp, s):
             for k in range(6):
                 v += lt[k, sl + a] * rt[k, sl + b]
             s[a, b] = v + ue[a] * ue[b]
-            s[a, b] += nj[a, b]
         s[a, a] += sigma2
     return _mahalanobis3(s, z)
 
@@ -607,57 +598,6 @@ def _settle(cov, d, lt, rt, dp):
     dp[:, :d] = 0.0
 
 
-@njit(cache=True)
-def _inverse_depth_noise(det_law, y, lm_i, known, r_hat, p_hat, scale, e, n):
-    """A stereo-like detection ``y`` (body frame) weighed in inverse depth ``h(c) = (x/z, y/z, 1/z)`` of its camera's
-    point ``c``, linearized at the point ``ĉ`` the state predicts for a known landmark (``lm_i``; at the measured
-    point for a new or re-initialised one, or one predicted behind the camera): ``e`` (the innovation's negative,
-    as for a Cartesian detection) of the pseudo-measurement ``c* = ĉ + J⁻¹ (h(c) − h(ĉ))`` and ``n``, its noise
-    ``J⁻¹ D J⁻ᵀ = ẑ² (σ_u² (I − e_z e_zᵀ) + σ_w² ĉ ĉᵀ)`` (``J = ∂h/∂c`` at ``ĉ``, ``D = diag(σ_u², σ_u², σ_w²)``)
-    carried into the map frame and multiplied by the recovery's ``scale``: the Kalman update in ``h`` exactly,
-    since ``J`` is invertible."""
-    rot, t = det_law[_LAW_ROT:_LAW_T], det_law[_LAW_T:_LAW_INVERSE_DEPTH]  # row-major R (camera -> body), t
-    c = np.empty(3)  # the measured point and ĉ in the camera's frame
-    ch = np.empty(3)
-    for a in range(3):
-        c[a] = rot[a] * (y[0] - t[0]) + rot[3 + a] * (y[1] - t[1]) + rot[6 + a] * (y[2] - t[2])
-        ch[a] = c[a]
-    if known:  # ŷ = R̂ᵀ (p̂_i − P̂), ĉ = Rᵀ (ŷ − t)
-        yh = np.empty(3)
-        for a in range(3):
-            yh[a] = (
-                r_hat[0, a] * (lm_i[0] - p_hat[0])
-                + r_hat[1, a] * (lm_i[1] - p_hat[1])
-                + r_hat[2, a] * (lm_i[2] - p_hat[2])
-            )
-        z = rot[2] * (yh[0] - t[0]) + rot[5] * (yh[1] - t[1]) + rot[8] * (yh[2] - t[2])
-        if z >= MIN_DEPTH:
-            for a in range(3):
-                ch[a] = rot[a] * (yh[0] - t[0]) + rot[3 + a] * (yh[1] - t[1]) + rot[6 + a] * (yh[2] - t[2])
-    zh = ch[2]
-    du = c[0] / c[2] - ch[0] / zh  # h(c) − h(ĉ)
-    dv = c[1] / c[2] - ch[1] / zh
-    dw = 1.0 / c[2] - 1.0 / zh
-    cs = np.empty(3)  # c* = ĉ + J⁻¹ Δh, J⁻¹ = [[ẑ, 0, −x̂ẑ], [0, ẑ, −ŷẑ], [0, 0, −ẑ²]]
-    cs[0] = ch[0] + zh * du - ch[0] * zh * dw
-    cs[1] = ch[1] + zh * dv - ch[1] * zh * dw
-    cs[2] = ch[2] - zh * zh * dw
-    m = np.empty((3, 3))  # R̂ R: camera -> map
-    for a in range(3):
-        for b in range(3):
-            m[a, b] = r_hat[a, 0] * rot[b] + r_hat[a, 1] * rot[3 + b] + r_hat[a, 2] * rot[6 + b]
-    su2, sw2 = det_law[_LAW_SU2] * scale * zh * zh, det_law[_LAW_SW2] * scale * zh * zh
-    q = np.empty(3)  # ĉ in the map frame's axes
-    ys = np.empty(3)  # the body-frame pseudo-measurement y* = R c* + t
-    for a in range(3):
-        q[a] = m[a, 0] * ch[0] + m[a, 1] * ch[1] + m[a, 2] * ch[2]
-        ys[a] = rot[3 * a] * cs[0] + rot[3 * a + 1] * cs[1] + rot[3 * a + 2] * cs[2] + t[a]
-    for a in range(3):  # e = p̂_i − R̂ y* − P̂; the optical axis in the map frame is m[:, 2]
-        e[a] = lm_i[a] - (r_hat[a, 0] * ys[0] + r_hat[a, 1] * ys[1] + r_hat[a, 2] * ys[2]) - p_hat[a]
-        for b in range(3):
-            n[a, b] = su2 * ((1.0 if a == b else 0.0) - m[a, 2] * m[b, 2]) + sw2 * q[a] * q[b]
-
-
 @njit(cache=True, fastmath=CONTRACT)
 def _update(
     a0,
@@ -714,36 +654,29 @@ def _update(
     s3 = np.empty((3, 3))
     ues = np.zeros((nd, 3))  # each detection's range noise beyond the across one, along its line of sight R̂y/|y|
     sig2 = np.empty(nd)  # each detection's variance across its line of sight
-    nmat = np.zeros((nd, 3, 3))  # each detection's noise in inverse depth (zero: σ(r) and the ratio instead)
-    inverse = det_law.shape[0] >= _LAW_INVERSE_DEPTH
     for j in range(nd):
         i = det_idx[a0 + j]
         y = det_y[a0 + j]
-        known = slot_of[i] >= 0 and not reinit[i]
-        if inverse:  # the pseudo-measurement's innovation and its noise at the predicted point (module docstring)
-            _inverse_depth_noise(det_law, y, lm[i], known, r_hat, p_hat, scale, e, nmat[j])
-            sig2[j] = 0.0
-        else:
+        for c in range(3):
+            e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
+        if slot_of[i] >= 0 and not reinit[i]:  # σ(r) at the range the state predicts (module docstring)
+            rr = np.sqrt((lm[i, 0] - p_hat[0]) ** 2 + (lm[i, 1] - p_hat[1]) ** 2 + (lm[i, 2] - p_hat[2]) ** 2)
+        else:  # a new or re-initialised landmark's at its measured range
+            rr = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+        sg = det_law[0] + det_law[1] * rr + det_law[2] * rr * rr
+        sig2[j] = det_law[3] * (sg * sg) * scale
+        extra = det_law[4] * sig2[j]
+        if extra > 0.0:
+            f = np.sqrt(extra / (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]))
             for c in range(3):
-                e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
-            if known:  # σ(r) at the range the state predicts (module docstring)
-                rr = np.sqrt((lm[i, 0] - p_hat[0]) ** 2 + (lm[i, 1] - p_hat[1]) ** 2 + (lm[i, 2] - p_hat[2]) ** 2)
-            else:  # a new or re-initialised landmark's at its measured range
-                rr = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
-            sg = det_law[0] + det_law[1] * rr + det_law[2] * rr * rr
-            sig2[j] = det_law[3] * (sg * sg) * scale
-            extra = det_law[4] * sig2[j]
-            if extra > 0.0:
-                f = np.sqrt(extra / (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]))
-                for c in range(3):
-                    ues[j, c] = f * (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2])
+                ues[j, c] = f * (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2])
         if slot_of[i] < 0:
             continue  # new: recorded after augmentation
         for c in range(3):
             innov[row + j, c] = e[c]
             trk_p[row + j, c] = lm[i, c]
         if reinit[i]:
-            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], sig2[j], ues[j], nmat[j])
+            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], sig2[j], ues[j])
             for c in range(3):
                 lm[i, c] = lm[i, c] - e[c]
                 trk_p[row + j, c] = lm[i, c]
@@ -752,7 +685,7 @@ def _update(
             continue
         for c in range(3):
             zi[c] = -e[c]
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues[j], nmat[j], lt, rt, dp, s3)
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues[j], lt, rt, dp, s3)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -801,13 +734,11 @@ def _update(
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             s2 = sig2[sel[q]]
             ue = ues[sel[q]]
-            nq = nmat[sel[q]]
             for c in range(3):
                 for k in range(k3):
                     smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 for b in range(3):
                     smat[3 * q + c, 3 * q + b] += ue[c] * ue[b]
-                    smat[3 * q + c, 3 * q + b] += nq[c, b]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
@@ -844,7 +775,7 @@ def _update(
         s = (d - N_FIXED) // 3
         slot_of[i] = s
         slot_lm[s] = i
-        _reset_landmark(cov, d, d, sig2[j], ues[j], nmat[j])
+        _reset_landmark(cov, d, d, sig2[j], ues[j])
         d += 3
     return d
 
@@ -860,9 +791,9 @@ def _sum_innovations(z, smat, k3, win_sum):
 
 
 @njit(cache=True)
-def _reset_landmark(cov, d, o, sigma2, ue, nj):
+def _reset_landmark(cov, d, o, sigma2, ue):
     """Landmark slot ``o`` (re-)initialised from the pose, for a new landmark (``o == d``) or one that failed the
-    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I + u uᵀ + N`` (its mean is set by the caller)."""
+    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I + u uᵀ`` (its mean is set by the caller)."""
     for c in range(3):
         for k in range(d):
             cov[o + c, k] = cov[3 + c, k]
@@ -870,7 +801,6 @@ def _reset_landmark(cov, d, o, sigma2, ue, nj):
     for a in range(3):
         for c in range(3):
             cov[o + a, o + c] = cov[3 + a, 3 + c] + ue[a] * ue[c]
-            cov[o + a, o + c] += nj[a, c]
         cov[o + a, o + a] += sigma2
 
 
@@ -1292,23 +1222,6 @@ GAP_SIGMA = {True: (0.05, 0.3), False: (0.5, 5.0)}
 MAX_DIM = 6012
 
 
-def _inverse_depth_law(det_law: np.ndarray, stream, options, noise) -> tuple[np.ndarray, dict]:
-    """The detection law's array with the inverse-depth levels and the camera's transform appended when the
-    detections are weighed in inverse depth (:func:`pipeline.inverse_depth.why_not`, batch's decision:
-    ``batch.detection_inverse_depth``), and the record for run.json (``observer.filter.detection_inverse_depth``)."""
-    from slamobs.pipeline import inverse_depth as idm
-
-    sensor = getattr(stream, "det_sensor", None)
-    mode = options.batch.detection_inverse_depth if options.batch is not None else idm.DEFAULT_MODE
-    why = idm.why_not(noise, sensor, stream.det_y, mode)
-    if why is not None:
-        return det_law, {"skipped": why}
-    sigma_u, sigma_w = idm.levels(noise, *idm.typical(sensor, stream.det_y))
-    rot, trans = sensor
-    law = np.r_[det_law, sigma_u**2, sigma_w**2, np.asarray(rot, float).ravel(), np.asarray(trans, float)]
-    return law, {"applied": True, "sigma_u": sigma_u, "sigma_w_per_m": sigma_w}
-
-
 class _OffsetApplied(Unwind):
     """The time offset, estimated while the filter ran on the recorded stamps, is applied (:meth:`RiEKF.advance`)."""
 
@@ -1362,7 +1275,6 @@ class RiEKF(Stepper):
         self.det_law = np.array(
             [nz.detection, nz.detection_per_m, nz.detection_per_m2, nz.ratio_split()[0], nz.detection_ratio**2 - 1.0]
         )
-        self.det_law, self.inverse_depth = _inverse_depth_law(self.det_law, stream, options, nz)
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.stats.update({"noise": self.noise.as_dict()})
@@ -1466,7 +1378,6 @@ class RiEKF(Stepper):
                 "gate_chi2": GATE_CHI2,
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
-                "detection_inverse_depth": self.inverse_depth,
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -1474,8 +1385,6 @@ class RiEKF(Stepper):
         self.stats["notes"] = _unused_note(
             int(ns[_SKIPPED]), int(self.det_t.shape[0]), int(ns[_GATED]), int(s.det_idx.shape[0])
         ) + recovery_notes(self.stats["metadata"]["filter"])
-        if self.inverse_depth.get("applied"):
-            self.stats["notes"].append(inverse_depth_note(self.inverse_depth))
         if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
             self.stats["notes"] += time_offset_note("riekf", self._time_offset)
 
@@ -1592,15 +1501,6 @@ def recovery_notes(filt: dict) -> list[str]:
             "frames and the time stamps)"
         )
     return notes
-
-
-def inverse_depth_note(record: dict) -> str:
-    """The run's note when the detections were weighed in inverse depth (``_inverse_depth_law``)."""
-    return (
-        f"riekf: detections weighed in inverse depth (x/z, y/z, 1/z) in their camera's frame at the point the state "
-        f"predicts: σ_u {record['sigma_u']:.3g}, σ_w {record['sigma_w_per_m']:.3g} 1/m from the r² law and its "
-        "range/bearing ratio"
-    )
 
 
 #: Share of the detections rejected by the gate above which the run says so (a few are outliers; most, a noise model

@@ -20,7 +20,6 @@ from slamobs.pipeline.noise import DETECTION_LAW_KEYS
 from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
-from slamobs.pipeline import inverse_depth as idm
 from slamobs.pipeline.smoother import inverse_depth as idp
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
@@ -224,7 +223,7 @@ class BatchSmoother(Stepper):
         summary["detection_inverse_depth"] = self.inverse_depth_record
         if self.inverse_depth is not None:  # the levels the final solution used
             summary["detection_inverse_depth"] |= idp.record(
-                *idm.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
+                *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
             )
         summary["seed_check"] = seed_check
         self.stats["substeps"] = int(kf_t.shape[0])
@@ -401,11 +400,13 @@ class BatchSmoother(Stepper):
         linearization point yet."""
         s = self.stream
         sensor = getattr(s, "det_sensor", None)
-        why = idm.why_not(self.noise, sensor, s.det_y, self.settings.detection_inverse_depth)
+        why = idp.why_not(self.noise, sensor, s.det_y, self.settings.detection_inverse_depth)
+        if why is None and self._ratio_configured():
+            why = "noise.detection_ratio is set"
         if why is not None:
             return None, {"skipped": why}, None
-        typical = idm.typical(sensor, s.det_y)
-        return typical, idp.record(*idm.levels(self.noise, *typical), INVERSE_DEPTH_PASSES), None
+        typical = idp.typical(sensor, s.det_y)
+        return typical, idp.record(*idp.levels(self.noise, *typical), INVERSE_DEPTH_PASSES), None
 
     def _detections(self, kf_of_det: np.ndarray) -> dict:
         """The problem's detection fields: every detection of the stream, its σ at the current ranges, factors
@@ -413,7 +414,7 @@ class BatchSmoother(Stepper):
         s = self.stream
         factor = 1.0 if self.det_factor is None else np.sqrt(self.det_factor)
         if self.inverse_depth is not None:
-            levels = idm.levels(self.noise, *self.inverse_depth)  # the law's, as scaled by cross-validation
+            levels = idp.levels(self.noise, *self.inverse_depth)  # the law's, as scaled by cross-validation
             y, sigma, shape = idp.factors(s.det_sensor, s.det_y, self.det_at, *levels)
             return {
                 "kf_of_det": kf_of_det,
@@ -457,7 +458,7 @@ class BatchSmoother(Stepper):
             for _ in range(INVERSE_DEPTH_PASSES):
                 self.det_at = g.predicted_detections(keyframes[1], self.stream.det_idx, chosen.sol)
                 chosen = self._solved_again(chosen, chosen.sol, keyframes, segments, progress, same_motion=True)
-            levels = idm.levels(self.noise, *self.inverse_depth)
+            levels = idp.levels(self.noise, *self.inverse_depth)
             return chosen, [idp.note(*levels)]
         if self.noise.detection_per_m == 0.0 and self.noise.detection_per_m2 == 0.0:
             return chosen, []

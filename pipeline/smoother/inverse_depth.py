@@ -16,15 +16,66 @@ predicted point; the measurement before any solution), the pseudo-measurement an
 until it stops moving is a stationary point of the inverse-depth problem. ``Λ`` is passed as ``det_sigma``
 (``det(Λ)^(-1/6)``) and a shape of determinant 1, as :mod:`pipeline.smoother.anisotropy`'s.
 
-Whether they are weighed so and the two levels (from the detection law the triplets fitted, at the detections'
-median depth) are riekf's too: :mod:`pipeline.inverse_depth`.
+The two levels come from the detection law the triplets fitted (``noise_estimation``): the law's variance split
+along and across the line of sight by its ratio ``ρ``, along ``= z²·σ_w``, across ``= z·σ_u``, at the detections'
+median depth.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from slamobs.pipeline.inverse_depth import MIN_DEPTH, sensor_points
+#: Median of ``z / |c|`` at or above which the sensor frame's z is taken as its optical axis (a camera's field of
+#: view: a point is never far off the axis; MR.CLAM's range-bearing points in the body plane have z = 0).
+ON_AXIS = 0.5
+#: Nearest depth (m) of a measured point (every one must lie beyond it: 1/z of a point behind the camera is no
+#: measurement) and of a predicted one (one nearer keeps the measurement's linearization).
+MIN_DEPTH = 1e-3
+
+
+def why_not(noise, det_sensor, det_y: np.ndarray, mode: str) -> str | None:
+    """None when the detections are weighed in inverse depth: ``mode`` auto, the law grows as r² (and not
+    linearly), its range error larger than its bearing error (the triplets' ratio above 1: a depth from a
+    disparity or a tag's size in the image), one constant sensor frame whose z is the optical axis; else why
+    not."""
+    if mode == "off":
+        return "off"
+    if noise.detection_per_m2 <= 0.0 or noise.detection_per_m != 0.0:
+        return "the detection law is not b + a·r²"
+    if noise.detection_ratio <= 1.0:
+        return "the range's error is not larger than the bearing's (detection_ratio 1)"
+    if det_sensor is None:
+        return "the detections are not in one fixed sensor frame"
+    if det_y.shape[0] == 0:
+        return "no detection"
+    c = sensor_points(det_sensor, det_y)
+    z = c[:, 2]
+    if np.median(z / np.maximum(np.linalg.norm(c, axis=1), 1e-12)) < ON_AXIS:
+        return "the detections' sensor frame is not a camera's (z forward)"
+    if (behind := int(np.count_nonzero(z <= MIN_DEPTH))) > 0:
+        return f"{behind} detections lie behind their camera (z <= {MIN_DEPTH} m)"
+    return None
+
+
+def sensor_points(det_sensor, y: np.ndarray) -> np.ndarray:
+    """Body-frame points ``y`` (M, 3) in the detections' sensor frame."""
+    rot, trans = det_sensor
+    return (y - trans) @ rot
+
+
+def typical(det_sensor, y: np.ndarray) -> tuple[float, float]:
+    """The median depth and range (m) of the body-frame points ``y`` in the detections' sensor frame."""
+    c = sensor_points(det_sensor, y)
+    return float(np.median(c[:, 2])), float(np.median(np.linalg.norm(c, axis=1)))
+
+
+def levels(noise, depth: float, rng: float) -> tuple[float, float]:
+    """``σ_u`` (across the image, per unit depth) and ``σ_w`` (inverse depth, 1/m) from the law ``σ(r)`` and its
+    range/bearing ratio (the mean over the axes, as riekf weighs it: ``NoiseSettings.ratio_split``) at a typical
+    ``depth`` and range ``rng`` (:func:`typical`)."""
+    across, along = noise.ratio_split()
+    s = float(noise.detection_sigma(np.array([rng]))[0])
+    return float(np.sqrt(across) * s / depth), float(np.sqrt(along) * s / (depth * depth))
 
 
 def factors(

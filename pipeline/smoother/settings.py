@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from slamobs.pipeline.errors import GainError
-from slamobs.pipeline.inverse_depth import DEFAULT_MODE, MODES
 
 DEAD_RECKONING = "dead-reckoning"
 BIAS_MODELS = ("constant", "random-walk")
@@ -17,7 +16,7 @@ EVIDENCE_MODES = ("off", "held", "always")
 SELECTION_MODES = ("evidence", "cross_validation")
 CORRELATION_MODES = ("off", "auto")
 ANISOTROPY_MODES = ("off", "auto")
-INVERSE_DEPTH_MODES = MODES
+INVERSE_DEPTH_MODES = ("off", "auto")
 
 
 @dataclass(frozen=True)
@@ -48,9 +47,8 @@ class BatchSettings:
     #: (1 = isotropic, then x2 steps while the evidence rises; pipeline.smoother.anisotropy); "off": isotropic
     detection_anisotropy: str = "auto"
     #: "auto": with the law ``b + a·r²`` and detections in one camera's frame (z forward), each detection weighed
-    #: in inverse depth (x/z, y/z, 1/z; pipeline.inverse_depth) instead of range apart from bearing, by batch and by
-    #: riekf; "off"
-    detection_inverse_depth: str = DEFAULT_MODE
+    #: in inverse depth (x/z, y/z, 1/z; pipeline.smoother.inverse_depth) instead of range apart from bearing; "off"
+    detection_inverse_depth: str = "auto"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
