@@ -337,6 +337,29 @@ def test_an_angular_velocity_in_degrees_or_of_the_wrong_sign_is_named():
         assert len(said) == 1 and what in said[0], (factor, said)
 
 
+def test_a_velocity_in_another_unit_or_of_the_wrong_sign_on_one_axis_is_named():
+    # MR.CLAM with its velocity in km/h: riekf APE 0.49 -> 0.89 m, of the wrong sign: lost, and no word of the
+    # velocity; the detection pairs give each axis's scale (the odometry's bias fitted with it)
+    from slamobs.pipeline.observers import time_offset
+
+    stream = align(expected_streams(simulate("figure8", seed=2, duration=20.0)))
+    as_read = time_offset.estimate(stream)
+    assert as_read["velocity_scale"]["scale"][0] == pytest.approx(1.0, abs=0.01)
+    assert [n for n in time_offset.note("riekf", as_read) if "velocity" in n] == []
+    for factor, said_of in (
+        ((3.6, 3.6, 3.6), ("along x 0.278x", "along z 0.273x", "km/h?")),
+        ((1, -1, 1), ("along y -0.8",)),
+    ):
+        misread = time_offset.estimate(replace(stream, velocity=stream.velocity * np.array(factor)))
+        said = [n for n in time_offset.note("riekf", misread) if "the detections say the body moved" in n]
+        assert said and all(any(w in n for n in said) for w in said_of), (factor, said)
+    # constant motion: a scale is a bias there, so nothing is said of it
+    circle = align(expected_streams(simulate("circle", seed=2, duration=20.0)))
+    for factor in (1.0, 3.6):
+        est = time_offset.estimate(replace(circle, velocity=circle.velocity * factor))
+        assert est["velocity_scale"]["scale"] == [None, None, None]
+
+
 def test_the_written_pose_covariance_after_a_recovery_is_the_filters_own():
     """After a recovery scales the motion noise, the pose covariance written at each row is still the filter's
     (ξ_R, ξ_P) block as its flush makes it (turned to δθ, δp): the bias walks added between flushes are the scaled
