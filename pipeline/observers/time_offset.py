@@ -289,9 +289,10 @@ def gyro_misreads(c: _Consistency) -> dict[str, float]:
 
 #: A velocity axis's scale is named when the detections put it outside ``1 / VELOCITY_SCALE_OFF .. VELOCITY_SCALE_OFF``
 #: times the velocity as read and more than ``VELOCITY_SCALE_SIGMAS`` standard errors from 1 (MR.CLAM's ten robots
-#: as recorded: 0.84-1.09, ± 0.04-0.08; 6 r1 in km/h: 0.25 ± 0.02, of the wrong sign: -0.92).
+#: as recorded: 0.84-1.09, ± 0.04-0.08; 6 r1 in km/h: 0.25 ± 0.02, of the wrong sign: -0.92; its ranges in cm:
+#: 116 ± 12, the detections' unit this time).
 VELOCITY_SCALE_OFF = 1.5
-VELOCITY_SCALE_SIGMAS = 10.0
+VELOCITY_SCALE_SIGMAS = 5.0
 #: An axis's scale is left unsaid when fitting the bias with it inflates its variance more than this (constant
 #: motion, where a scale and a bias are the same change: the simulator's circle 300-1,300,000; MR.CLAM 4-29, the
 #: figure 8 and the ground robot 1-26).
@@ -451,7 +452,8 @@ def note(name: str, offset: dict) -> list[str]:
     ]
     notes += [
         f"warning: {name}: the detections say the body moved {what} ({offset['pairs']} detection pairs, the "
-        "odometry's bias fitted with it): check the velocity's unit and axes; the estimate used it as read"
+        "odometry's bias fitted with it): check the velocity's unit and axes (and the detections'); the estimate used "
+        "them as read"
         for what in velocity_misread(offset.get("velocity_scale") or {"scale": [], "sigma": []})
     ]
     if not offset["applied"]:
