@@ -297,6 +297,11 @@ VELOCITY_SCALE_SIGMAS = 5.0
 #: motion, where a scale and a bias are the same change: the simulator's circle 300-1,300,000; MR.CLAM 4-29, the
 #: figure 8 and the ground robot 1-26).
 MAX_SCALE_INFLATION = 100.0
+#: An axis's scale is fitted only where the body's displacement along it is at least this share of the largest
+#: axis's (RMS over the pairs): along a ground robot's or a figure 8's lateral axis (shares 0.02-0.045) the velocity
+#: as read is mostly noise and its fitted scale is too (-1.45 ± 0.34 on a generated ground robot); a figure 8's or a
+#: loop's vertical axis (0.06-0.11) is fitted to ± 0.004-0.011.
+MIN_AXIS_SHARE = 0.05
 #: Units a velocity may be misread in, as the scale the detections would find, with what to say of it.
 VELOCITY_MISREADS = (
     (-1.0, "of the wrong sign"),
@@ -328,13 +333,14 @@ def velocity_scale(c: _Consistency) -> dict:
     """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
     ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`_Consistency.cost`). An axis along
-    which the body does not move (``|D|`` nil) has no scale (None), nor one whose scale is not told from a bias
-    (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity). The velocity
+    which the body hardly moves (``MIN_AXIS_SHARE``) has no scale (None), nor one whose scale is not told from a
+    bias (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity). The velocity
     in another unit or of the wrong sign on an axis is no noise the estimators can absorb (MR.CLAM 6 r1 in km/h:
     riekf 0.49 -> 0.89 m, with its sign flipped: lost, and no word of the velocity)."""
     d = _velocity_displacements(c)
     base = c.residuals(0.0)[0]
-    moved = np.sqrt(np.einsum("mcj,mcj->j", d, d)) > 1e-6 * max(1, d.shape[0])
+    rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
+    moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
     a = np.concatenate([-d[:, :, moved], c.jac], axis=2)  # (pairs, 3, unknowns)
     keep = np.arange(base.shape[0])
     for _ in range(3):  # least squares on all pairs, then twice on the TRIM share with the smallest residuals
