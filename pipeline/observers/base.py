@@ -46,7 +46,10 @@ RESIGHT_GAP_S, RESIGHT_COUNT, RESIGHT_RATIO = 10.0, 20, 3.0
 #: A landmark "jumps" (its id reused for another landmark, or the landmark moved) when its detections on one side of
 #: a time split, at least ``JUMP_MIN_DETECTIONS`` on each side, arrive a median over ``JUMP_RATIO`` times the run's
 #: median innovation from the map and those on the other side under ``JUMP_CALM`` times, while the other landmarks'
-#: detections over the first side's span stay under ``JUMP_CALM`` times (else the pose, not the landmark, was off).
+#: detections over the first side's span (at least ``JUMP_MIN_DETECTIONS``) stay under ``JUMP_CALM`` times (else the
+#: pose, not the landmark, was off: riekf on MR.CLAM 7 r4 as recorded, landmarks 12 and 13 at 28x and 56x over
+#: its last seconds, seen alone); and three quarters of the first side over ``JUMP_CALM`` times (riekf's 10 last
+#: detections of landmark 12 on 7 r4: 5 calm, then 5 at 57x while every landmark was at 50-80x for 30 s).
 #: MR.CLAM 6 r1 with landmark 6's id given to landmark 16 from mid-log (8.7 m away): riekf 159x after the jump,
 #: batch 118x before it; as recorded, riekf and batch have no side over 13x with 8 detections or more. Only the
 #: estimators with a gate and noise levels (riekf, batch) check it: an observer's innovations, once it is lost,
@@ -320,13 +323,16 @@ class InnovationRecord:
 def _best_split(e: np.ndarray, median: float) -> tuple | None:
     """A landmark's change point (index, ratio before, ratio after), ``e`` its innovations in time order: the split
     of least absolute deviation of log ‖e‖ from each side's median, among those whose one side is over
-    ``JUMP_RATIO`` and the other under ``JUMP_CALM`` times ``median``; None when no split is."""
+    ``JUMP_RATIO`` and the other under ``JUMP_CALM`` times ``median``, three quarters of the first over ``JUMP_CALM``
+    times; None when no split is."""
     n, log_e = e.shape[0], np.log(e)
     best, best_cost = None, np.inf
     for k in np.unique(np.linspace(JUMP_MIN_DETECTIONS, n - JUMP_MIN_DETECTIONS, JUMP_SPLITS).astype(np.int64)):
         a, b = float(np.median(e[:k])) / median, float(np.median(e[k:])) / median
         if max(a, b) <= JUMP_RATIO or min(a, b) >= JUMP_CALM:
             continue
+        if np.quantile(e[:k] if a > b else e[k:], 0.25) < JUMP_CALM * median:
+            continue  # a quarter of the far side or more is calm: a burst (the pose lost a while), no jump
         lo, hi = log_e[:k], log_e[k:]
         cost = float(np.abs(lo - np.median(lo)).sum() + np.abs(hi - np.median(hi)).sum())
         if cost < best_cost:
@@ -354,9 +360,10 @@ def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list
             continue
         k, before, after = split
         bad = order[:k] if before > after else order[k:]
+        bad = bad[norms[bad] > JUMP_RATIO * median]  # its far detections: the span over which the others must be calm
         during = (t_ns >= t_ns[bad].min()) & (t_ns <= t_ns[bad].max()) & (ids != lid)
-        if np.any(during) and float(np.median(norms[during])) / median >= JUMP_CALM:
-            continue  # the others were off then too: the pose, not this landmark
+        if np.count_nonzero(during) < JUMP_MIN_DETECTIONS or float(np.median(norms[during])) / median >= JUMP_CALM:
+            continue  # the others were off then too, or not seen enough to tell: the pose, not this landmark
         out.append(
             {"id": int(lid), "t_ns": int(t_ns[order[k]]), "before": [k, before], "after": [order.shape[0] - k, after]}
         )

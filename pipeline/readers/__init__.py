@@ -198,10 +198,7 @@ def read_log(
     at = len(streams.warnings)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
-    stepped = {
-        t: c.clock_step_words() for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps
-    }
-    streams = _with_clocks(streams, clocks, stepped)
+    streams = _with_clocks(streams, clocks, _stepped(reports))
     # described on the clock the run reads each topic on (known once the clocks are chosen)
     streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
     return streams
@@ -393,6 +390,11 @@ def _odometry_twist(
 #: The run's answer to a clock warning of :func:`recommend_clocks` when it reads header stamps (a topic on another
 #: machine's clock, minutes off the velocities', was read on its header stamps with no word of it).
 _HEADER_READ = "this run reads header stamps (time.source: header): time.source: auto takes that advice"
+
+
+def _stepped(reports: Mapping[str, list[tuple[str, Cleaning]]]) -> dict[str, str]:
+    """The topics whose header clock steps mid-log (:attr:`Cleaning.clock_steps`) and how."""
+    return {t: c.clock_step_words() for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps}
 
 
 def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
