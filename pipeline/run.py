@@ -38,7 +38,7 @@ from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import GainError, InputError, TruthUnusable, machine_failure, one_line, resource_error
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
 from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
-from slamobs.pipeline.observers.base import ObserverDiverged, lost_note
+from slamobs.pipeline.observers.base import InnovationRecord, ObserverDiverged, jump_note, landmark_jumps, lost_note
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.streams import LogStreams
 
@@ -665,10 +665,13 @@ def estimate(
         n_vel = int(aligned.vel_t_ns.shape[0])
         progress(f"{spec.name}: 0 of {n_vel} samples")
         parts = spec.chunks(aligned, gains, replace(options, progress=progress), STRETCH_SAMPLES)
+        innovations = InnovationRecord() if spec.uses_noise else None
         for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
             observer_s += time.perf_counter() - t
             interrupts.check()
             _check_finite(part, log, spec.name, t0_ns)
+            if innovations is not None:
+                innovations.add(part)
             if frame is None:  # fixed from the first stretch, before anything is written
                 frame = output_frame.resolve(
                     frame_choice,
@@ -707,6 +710,9 @@ def estimate(
         notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
         notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
         notes += lost_note(spec.name, part.stats.get("metadata", {}).get("resightings"))
+        if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
+            metadata["observer"]["landmark_jumps"] = jumps = landmark_jumps(*innovations.arrays())
+            notes += jump_note(spec.name, jumps, t0_ns)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
         stage_timings = dict(part.timings)
         del part

@@ -293,10 +293,30 @@ def test_info_names_a_clock_set_back_as_the_run_does(tmp_path):
     msgs = _steady(100, 4, 0)
     msgs = msgs[:200] + [(stamp - 5 * NS, rec, value) for stamp, rec, value in msgs[200:]]
     log = _write(tmp_path / "back.mcap", {"/imu": msgs})
-    warning = next(w for w in inspect_log(log).warnings if w.startswith("/imu:"))
+    info = inspect_log(log).warnings
     words = "1 out-of-order stamp (a step back of 4.990 s: a clock set back? time.source: auto or record)"
-    assert words in warning
-    assert any(words in w for w in read_log(log).warnings)
+    assert words in next(w for w in info if w.startswith("/imu:"))
+    assert any(words in w for w in read_log(log, clocks={"/imu": "header"}).warnings)  # header stamps, as asked
+
+
+def test_a_clock_set_back_or_forward_mid_log_is_read_on_record_time_by_default(tmp_path):
+    """A header clock set back 5 s mid-log (or forward 30 s) under the default header stamps: the run read the
+    stamps that step (MR.CLAM 6 r1 with every clock set back 5 s: riekf lost the log; the detections' set forward
+    30 s: riekf map 0.24 -> 7.2 m), with a note that `time.source: auto` helps; now it reads record time for every
+    topic and says so, as info does."""
+    steady = _steady(100, 4, 0)
+    for delta, how in ((-5, "stamps step back 4.990 s"), (30, "jump 30.000 s ahead 2.0 s in")):
+        msgs = steady[:200] + [(stamp + delta * NS, rec, value) for stamp, rec, value in steady[200:]]
+        log = _write(tmp_path / f"step{delta}.mcap", {"/imu": msgs})
+        streams = read_log(log)
+        assert streams.clocks == {"/imu": "record"}
+        np.testing.assert_array_equal(streams.angular_velocity.t_ns, streams.angular_velocity.rec_ns)
+        said = [w for w in streams.warnings if "mid-log" in w]
+        assert len(said) == 1 and f"(/imu: {how}): this run reads record time for every topic" in said[0], said
+        info = inspect_log(log)
+        assert any(w.startswith("header clock set back or forward mid-log (/imu") for w in info.warnings)
+        assert info.clocks == {"/imu": "record"}
+    assert read_log(_write(tmp_path / "steady.mcap", {"/imu": steady})).clocks == {}
 
 
 def test_clocks_set_back_together_are_said_to_step_not_to_disagree(tmp_path):
@@ -406,8 +426,9 @@ def test_a_header_clock_set_forward_is_named_by_info_and_run(tmp_path):
         "header stamps jump 30.000 s ahead of record time 3.0 s into the topic (a clock set forward? "
         "time.source: record, or the topic in time.topics: record, reads record time)"
     )
-    assert any(w.startswith("/pose: ") and said in w for w in read_log(path).warnings)
+    assert any(w.startswith("/pose: ") and said in w for w in read_log(path, clocks={"/pose": "header"}).warnings)
     assert any(w.startswith("/pose: ") and said in w for w in inspect_log(path).warnings)
+    assert read_log(path).clocks == {"/imu": "record", "/pose": "record"}  # by default: the clock steps
     assert not any(said in w for w in read_log(path, clocks="record").warnings)
     # a recorder that stalls 1 s and then writes the held messages at once moves record times, not the stamps
     steady = _steady(100, 6, 0)

@@ -71,6 +71,31 @@ def test_riekf_recovers_from_a_50x_detection_noise_jump_and_says_so(log):
     assert ape(sim, res, 0.5) < 3 * ape(sim, clean, 0.5) + 0.01
 
 
+def test_a_landmark_id_reused_mid_log_for_another_landmark_is_named(log):
+    """Halfway, two landmarks' ids are swapped (a tag printed again, a barcode reassigned): riekf gates the later
+    detections of both and said nothing of it (MR.CLAM 6 r1 with landmark 6's id given to landmark 16: batch's map
+    0.09 -> 2.2 m); the innovations of each landmark on either side of the swap say so, and nothing on the log as
+    generated."""
+    from slamobs.pipeline.observers.base import jump_note, landmark_jumps
+
+    _, stream = log
+    late = second_half(stream)
+    a, b = np.argsort(np.bincount(stream.det_idx[late]))[-2:]  # the two landmarks seen most after the middle
+    idx = stream.det_idx.copy()
+    idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+    swapped = replace(stream, det_idx=idx)
+    for s, expected in ((stream, []), (swapped, sorted(stream.landmark_ids[[a, b]].tolist()))):
+        res = RIEKF.run(s, {}, ObserverOptions(noise=noise()))
+        jumps = landmark_jumps(res.det_t_ns, res.det_ids, np.linalg.norm(res.innovation, axis=1))
+        assert sorted(j["id"] for j in jumps) == expected, jumps
+        t_det = np.repeat(s.det_t_ns, np.diff(s.det_offsets))
+        for j in jumps:  # the change point: the landmark's first detection after the swap
+            first_late = t_det[late & (s.det_idx == np.searchsorted(s.landmark_ids, j["id"]))].min()
+            assert abs(j["t_ns"] - first_late) <= 500_000_000, (j, first_late)
+        said = jump_note("riekf", jumps, int(s.vel_t_ns[0]))
+        assert len(said) == len(expected[:1]) and all("id reused for another landmark" in n for n in said)
+
+
 def test_riekf_that_cannot_recover_says_so_in_an_error_line(log):
     """Halfway, the detections are associated with random landmarks: no noise level explains them, so the
     filter gives up with status lost and an error line, not a quiet trajectory."""
@@ -335,6 +360,30 @@ def test_an_angular_velocity_in_degrees_or_of_the_wrong_sign_is_named():
         misread = time_offset.estimate(replace(stream, omega=stream.omega * factor))
         said = [n for n in time_offset.note("riekf", misread) if n.startswith("warning: riekf: the detections fit")]
         assert len(said) == 1 and what in said[0], (factor, said)
+
+
+def test_a_velocity_in_another_unit_or_of_the_wrong_sign_on_one_axis_is_named():
+    # MR.CLAM with its velocity in km/h: riekf APE 0.49 -> 0.89 m, of the wrong sign: lost, and no word of the
+    # velocity; the detection pairs give each axis's scale (the odometry's bias fitted with it)
+    from slamobs.pipeline.observers import time_offset
+
+    stream = align(expected_streams(simulate("figure8", seed=2, duration=20.0)))
+    as_read = time_offset.estimate(stream)
+    assert as_read["velocity_scale"]["scale"][0] == pytest.approx(1.0, abs=0.01)
+    assert [n for n in time_offset.note("riekf", as_read) if "velocity" in n] == []
+    assert as_read["velocity_scale"]["scale"][1] is None  # the lateral axis: its velocity as read is mostly noise
+    for factor, said_of in (
+        ((3.6, 3.6, 3.6), ("along x 0.277x", "along z 0.274x", "km/h?")),
+        ((-1, 1, 1), ("along x -1", "wrong sign")),
+    ):
+        misread = time_offset.estimate(replace(stream, velocity=stream.velocity * np.array(factor)))
+        said = [n for n in time_offset.note("riekf", misread) if "the detections say the body moved" in n]
+        assert said and all(any(w in n for n in said) for w in said_of), (factor, said)
+    # constant motion: a scale is a bias there, so nothing is said of it
+    circle = align(expected_streams(simulate("circle", seed=2, duration=20.0)))
+    for factor in (1.0, 3.6):
+        est = time_offset.estimate(replace(circle, velocity=circle.velocity * factor))
+        assert est["velocity_scale"]["scale"] == [None, None, None]
 
 
 def test_the_written_pose_covariance_after_a_recovery_is_the_filters_own():

@@ -147,7 +147,7 @@ class _Consistency:
         base = self.residuals(0.0)[0]
         t_s = self.poses[0]
         at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
-        keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))
+        self.keep = keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))  # the samples the pairs read
         self.jac = np.empty((base.shape[0], 3, 6))
         for c in range(3):
             db = np.zeros(6)
@@ -287,6 +287,94 @@ def gyro_misreads(c: _Consistency) -> dict[str, float]:
     return out
 
 
+#: A velocity axis's scale is named when the detections put it outside ``1 / VELOCITY_SCALE_OFF .. VELOCITY_SCALE_OFF``
+#: times the velocity as read and more than ``VELOCITY_SCALE_SIGMAS`` standard errors from 1 (MR.CLAM's ten robots
+#: as recorded: 0.84-1.09, ± 0.04-0.08; 6 r1 in km/h: 0.25 ± 0.02, of the wrong sign: -0.92; its ranges in cm:
+#: 116 ± 12, the detections' unit this time).
+VELOCITY_SCALE_OFF = 1.5
+VELOCITY_SCALE_SIGMAS = 5.0
+#: An axis's scale is left unsaid when fitting the bias with it inflates its variance more than this (constant
+#: motion, where a scale and a bias are the same change: the simulator's circle 300-1,300,000; MR.CLAM 4-29, the
+#: figure 8 and the ground robot 1-26).
+MAX_SCALE_INFLATION = 100.0
+#: An axis's scale is fitted only where the body's displacement along it is at least this share of the largest
+#: axis's (RMS over the pairs): along a ground robot's or a figure 8's lateral axis (shares 0.02-0.045) the velocity
+#: as read is mostly noise and its fitted scale is too (-1.45 ± 0.34 on a generated ground robot); a figure 8's or a
+#: loop's vertical axis (0.06-0.11) is fitted to ± 0.004-0.011.
+MIN_AXIS_SHARE = 0.05
+#: Units a velocity may be misread in, as the scale the detections would find, with what to say of it.
+VELOCITY_MISREADS = (
+    (-1.0, "of the wrong sign"),
+    (1.0 / 3.6, "in km/h?"),
+    (0.3048, "in ft/s?"),
+    (0.01, "in cm/s?"),
+    (0.001, "in mm/s?"),
+)
+
+
+def _velocity_displacements(c: _Consistency) -> np.ndarray:
+    """Per pair and velocity axis (pairs, 3, 3): how the pair's residual moves when that axis's velocity is
+    doubled (the displacement it contributes between the two detections, in the first one's body frame), so that
+    scaling the axes by ``g`` moves the residuals by ``-Σ_j (g_j - 1) D[:, :, j]`` (the rotations do not depend on
+    the velocity: the relation is exact)."""
+    (t_s, _, _, omega, vel), keep = c.poses, c.keep
+    omega_steps, vel_steps, dt = c._steps
+    rs, ps = integrate_body_twists_at_columns(np.eye(3), np.zeros(3), omega_steps, vel_steps, 2.0 * vel_steps, dt, keep)
+    base = c.residuals(0.0)[0]
+    out = np.empty((base.shape[0], 3, 3))
+    for j in range(3):
+        twist = vel[keep]
+        twist[:, j] *= 2.0
+        out[:, :, j] = base - c.residuals(0.0, (t_s[keep], rs, ps[j], omega[keep], twist))[0]
+    return out
+
+
+def velocity_scale(c: _Consistency) -> dict:
+    """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
+    best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
+    ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`_Consistency.cost`). An axis along
+    which the body hardly moves (``MIN_AXIS_SHARE``) has no scale (None), nor one whose scale is not told from a
+    bias (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity). The velocity
+    in another unit or of the wrong sign on an axis is no noise the estimators can absorb (MR.CLAM 6 r1 in km/h:
+    riekf 0.49 -> 0.89 m, with its sign flipped: lost, and no word of the velocity)."""
+    d = _velocity_displacements(c)
+    base = c.residuals(0.0)[0]
+    rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
+    moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
+    a = np.concatenate([-d[:, :, moved], c.jac], axis=2)  # (pairs, 3, unknowns)
+    keep = np.arange(base.shape[0])
+    for _ in range(3):  # least squares on all pairs, then twice on the TRIM share with the smallest residuals
+        ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
+        x = np.linalg.solve(ata, -np.einsum("mci,mc->i", a[keep], base[keep]))
+        d2 = np.sum((base + a @ x) ** 2, axis=1)
+        n = max(1, int(TRIM * d2.shape[0]))
+        keep = np.argpartition(d2, n - 1)[:n]
+    ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
+    sigma = np.sqrt(np.diag(np.linalg.inv(ata)) * float(np.mean(d2[keep])) / 3.0)
+    inflation = np.diag(np.linalg.inv(ata)) * np.diag(ata)
+    scale, err = [None] * 3, [None] * 3
+    for i, j in enumerate(np.flatnonzero(moved)):
+        if inflation[i] <= MAX_SCALE_INFLATION:
+            scale[j], err[j] = round(1.0 + float(x[i]), 6), float(sigma[i])
+    return {"scale": scale, "sigma": err}
+
+
+def velocity_misread(scale: dict) -> list[str]:
+    """What the scales say of the velocity's axes that are off (``VELOCITY_SCALE_OFF``, ``VELOCITY_SCALE_SIGMAS``),
+    one phrase each: the axis, the factor and the unit it suggests."""
+    out = []
+    for axis, g, e in zip("xyz", scale["scale"], scale["sigma"], strict=True):
+        if (
+            g is None
+            or 1.0 / VELOCITY_SCALE_OFF <= g <= VELOCITY_SCALE_OFF
+            or abs(g - 1.0) <= VELOCITY_SCALE_SIGMAS * e
+        ):
+            continue
+        hint = next((what for f, what in VELOCITY_MISREADS if abs(g / f - 1.0) < 0.25), "in another unit or scale?")
+        out.append(f"along {axis} {g:.3g}x as far as its velocity says (± {e:.2g}: {hint})")
+    return out
+
+
 def estimate(stream, bias: np.ndarray | None = None) -> dict:
     """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
     reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's)."""
@@ -296,6 +384,7 @@ def estimate(stream, bias: np.ndarray | None = None) -> dict:
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
     out["gyro_misreads"] = gyro_misreads(c)
+    out["velocity_scale"] = velocity_scale(c)
     shift, sigma, gain = _search(c)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     why = None
@@ -366,6 +455,12 @@ def note(name: str, offset: dict) -> list[str]:
         "the estimate used it as read"
         for what, gain in (offset.get("gyro_misreads") or {}).items()
         if gain >= GYRO_MISREAD_GAIN
+    ]
+    notes += [
+        f"warning: {name}: the detections say the body moved {what} ({offset['pairs']} detection pairs, the "
+        "odometry's bias fitted with it): check the velocity's unit and axes (and the detections'); the estimate used "
+        "them as read"
+        for what in velocity_misread(offset.get("velocity_scale") or {"scale": [], "sigma": []})
     ]
     if not offset["applied"]:
         return notes

@@ -199,7 +199,7 @@ def read_log(
     at = len(streams.warnings)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
-    streams = _with_clocks(streams, clocks)
+    streams = _with_clocks(streams, clocks, _stepped(reports))
     # described on the clock the run reads each topic on (known once the clocks are chosen)
     streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
     return streams
@@ -461,9 +461,25 @@ def _odometry_twist(
 _HEADER_READ = "this run reads header stamps (time.source: header): time.source: auto takes that advice"
 
 
-def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None) -> LogStreams:
+def _stepped(reports: Mapping[str, list[tuple[str, Cleaning]]]) -> dict[str, str]:
+    """The topics whose header clock steps mid-log (:attr:`Cleaning.clock_steps`) and how."""
+    return {t: c.clock_step_words() for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps}
+
+
+def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
+    """``streams`` on the clocks chosen; ``stepped``: the topics whose header clock steps mid-log
+    (:func:`decode.clock_steps`) and how, read on record time, every topic with them, when header stamps would be
+    read."""
     if clocks == "record":  # the alignment reads every record time
         return streams
+    if (clocks is None or clocks == "header") and stepped:
+        said = "; ".join(f"{t}: {how}" for t, how in stepped.items())
+        streams.warnings.append(
+            f"warning: header clock set back or forward mid-log ({said}): this run reads record time for every "
+            "topic (time.source: header reads header stamps only where no clock steps; time.topics: "
+            f"{{{next(iter(stepped))}: header}} reads them anyway)"
+        )
+        clocks = {s.topic: "record" for role in ROLES if hasattr(s := getattr(streams, role, None), "t_ns")}
     if clocks is None or clocks == "header":  # info's clock rule, said where the run does not follow it
         streams.warnings += [f"warning: {w}; {_HEADER_READ}" for w in recommend_clocks(streams)[1]]
         return streams

@@ -129,6 +129,14 @@ def clock_step_forward(t_ns: np.ndarray, rec_ns: np.ndarray) -> tuple[int, int]:
     return int(jumps[k]), int(rec_ns[k + 1])
 
 
+def clock_steps(step_back_ns: int, step_forward_ns: int) -> bool:
+    """A header clock set back (a step back of ``CLOCK_STEP_NS`` or more) or set forward (:func:`clock_step_forward`)
+    mid-log: no reading of its header stamps is right (set back 5 s, every MR.CLAM topic's samples of those 5 s
+    interleave with the next 5 s'; riekf lost the log), so a run that reads header stamps reads record time for every
+    topic instead (``readers._with_clocks``)."""
+    return step_back_ns >= CLOCK_STEP_NS or step_forward_ns > 0
+
+
 def out_of_order_text(count: int, step_back_ns: int) -> str:
     """Out-of-order stamps in run's notes and info's warnings alike: a step back of ``CLOCK_STEP_NS`` or more (not
     a driver's jitter) is named with its size, a clock set back."""
@@ -217,6 +225,18 @@ class Cleaning:
         self.step_back_ns = int(-steps.min()) if self.out_of_order else 0
         step, at = clock_step_forward(t_ns, rec_ns)
         self.step_forward = (step, at - int(rec_ns.min())) if step else (0, 0)
+
+    @property
+    def clock_steps(self) -> bool:
+        """Whether the header clock steps mid-log against record time (:func:`clock_steps`)."""
+        return clock_steps(self.step_back_ns, self.step_forward[0]) and not self.zero_stamps
+
+    def clock_step_words(self) -> str:
+        """How the header clock steps (:attr:`clock_steps`): back, ahead, or both."""
+        words = [f"stamps step back {self.step_back_ns * 1e-9:.3f} s"] if self.step_back_ns >= CLOCK_STEP_NS else []
+        if self.step_forward[0]:
+            words.append(f"jump {self.step_forward[0] * 1e-9:.3f} s ahead {self.step_forward[1] * 1e-9:.1f} s in")
+        return ", ".join(words)
 
     def text(self, on_record_time: bool = False) -> str:
         """One warning fragment, empty when nothing happened. ``on_record_time``: the run reads the stream's record

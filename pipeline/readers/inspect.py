@@ -30,6 +30,7 @@ from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Ve
 from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import (
     Cleaning,
+    clock_steps,
     clock_step_text,
     out_of_order_text,
     decode_static_tf,
@@ -494,8 +495,22 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
     if reference not in offsets:
         reference = max(offsets, key=lambda t: (summaries[t].count, t), default=None)
     clocks, clock_warnings = choose_clocks(offsets, reference)
-    # advice here (a run reads header stamps unless told otherwise), what was done in a run with time.source: auto
-    clock_warnings = [f"{w} (set time.source: auto; a run reads header stamps by default)" for w in clock_warnings]
+    stepped = [
+        t
+        for t, s in summaries.items()
+        if clock_steps(round((s.step_back_s or 0.0) * _NS), round((s.clock_step_s or 0.0) * _NS))
+    ]
+    if stepped:  # what a run does by default then (readers._with_clocks)
+        clocks = dict.fromkeys(clocks, "record")
+        clock_warnings = [
+            f"{w} (a run reads record time for every topic by default: a header clock steps mid-log)"
+            for w in clock_warnings
+        ] or [
+            f"header clock set back or forward mid-log ({', '.join(stepped)}, below): a run reads record time for "
+            "every topic (time.source: header reads header stamps only where no clock steps)"
+        ]
+    else:  # advice here (a run reads header stamps unless told otherwise), what a run with time.source: auto does
+        clock_warnings = [f"{w} (set time.source: auto; a run reads header stamps by default)" for w in clock_warnings]
     ref_offset = summaries[reference].offset_s if reference is not None else None
     topics = tuple(
         dataclasses.replace(
