@@ -401,6 +401,24 @@ def test_a_growing_error_is_not_converged():
     assert not conv["growing"] and conv["t_since_start_s"] is not None
 
 
+def test_a_drift_that_began_before_the_last_two_fifths_is_not_converged():
+    """Dead reckoning after the landmarks left view (the simulator's figure8-blind: fast-adaptation's level rose
+    from 0.58 m to 1.1 m over the last 50 s of 90) grows less than 1.5 x between the last fifth and the fifth
+    before, so it was "converged" at 0.00 s inside a band as wide as its final error; against its level before
+    the tail it is growing, and the report says over what it was compared."""
+    truth = make_truth()
+    t_s = (truth.t_ns - T0_NS) / 1e9
+    u = t_s / t_s[-1]
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.3 + np.clip(u - 0.45, 0.0, None) / 0.55  # 0.3 m, from 45 % on rising to 1.3 m
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["tail_level_m"] < 1.5 * conv["earlier_level_m"]  # the fifth before alone does not show it
+    assert conv["tail_level_m"] > 1.5 * conv["before_tail_level_m"]
+    assert conv["growing"] and conv["t_since_start_s"] is None
+    assert "over the 80 % before" in convergence_line(conv)
+
+
 def test_an_error_above_the_trajectorys_extent_is_not_converged():
     """An estimate whose error levels off above the size of the motion itself ("converged" within a band of
     tens of metres on a 3 m figure-eight) never locked on: not converged, and the report and summary say so; one

@@ -64,9 +64,14 @@ def _not_converged(conv: dict[str, Any]) -> str:
         )
     if conv.get("growing"):
         tail = round(100 * conv["tail_fraction"])
+        earlier, before_tail = conv.get("earlier_level_m"), conv.get("before_tail_level_m")
+        if before_tail is not None and (earlier is None or before_tail < earlier):
+            against = f"{before_tail:.3g} m over the {100 - tail} % before"
+        else:
+            against = f"{earlier:.3g} m over the {tail} % before"
         return (
             f"not converged (the error level keeps growing: a median of {conv['tail_level_m']:.3g} m over the last "
-            f"{tail} % of the log against {conv['earlier_level_m']:.3g} m over the {tail} % before)"
+            f"{tail} % of the log against {against})"
         )
     return "not converged (the last aligned position error is above the band)"
 

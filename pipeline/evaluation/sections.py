@@ -620,7 +620,8 @@ class ConvergenceSection(Section):
             "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
             "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
-            "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m), or if "
+            "earlier_level_m, the median level over the tail_fraction before it, or above growth_factor × "
+            "before_tail_level_m, the median level over everything before it, and above threshold_m), or if "
             "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
             "centre (lost: the estimate never locked on to the motion); coarse: steady_level_m above coarse_share × "
             "trajectory_extent_m and threshold_m but not lost (the report states the level as a share of the "
@@ -651,6 +652,7 @@ class ConvergenceSection(Section):
             "band_factor": slam_metrics.BAND_FACTOR,
             "tail_level_m": c["tail_level"],
             "earlier_level_m": c["earlier_level"],
+            "before_tail_level_m": c["before_tail_level"],
             "growth_factor": slam_metrics.GROWTH_FACTOR,
             "growing": c["growing"],
             "trajectory_extent_m": extent,

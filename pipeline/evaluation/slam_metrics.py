@@ -156,8 +156,10 @@ def convergence(
     path would never have "converged". Returns the band, the steady median error and level, the window in
     seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
     level is above it, or if the error still grows: its median level over the last ``TAIL_FRACTION`` above
-    ``GROWTH_FACTOR`` times that over the stretch before and above ``threshold``; a drifting estimate would
-    otherwise be "converged" at its start, inside a band as wide as its final error), or if that steady level is
+    ``GROWTH_FACTOR`` times that over the ``TAIL_FRACTION`` before or times that over everything before the tail,
+    and above ``threshold``; a drifting estimate would otherwise be "converged" at its start, inside a band as
+    wide as its final error; the second comparison catches a drift that began earlier than the stretch before
+    the tail, e.g. dead reckoning after the landmarks left view), or if that steady level is
     above ``extent`` (the truth's RMS distance from its centre) and ``threshold``: an estimate that far off never
     locked on to the motion, whatever its level does (``coarse``: above ``COARSE_SHARE`` of ``extent``, converged
     or not, but loosely). ``level`` is :func:`error_level` of these errors when
@@ -172,13 +174,16 @@ def convergence(
     k = convergence_index(level, np.nextafter(band, np.inf))  # "within": level <= band
     before = level[(grid >= cut - (t[-1] - cut)) & (grid < cut)]
     earlier = float(np.median(before)) if before.size else None
+    before_tail = float(np.median(level[grid < cut])) if np.any(grid < cut) else None
     tail_level = float(np.median(level[grid >= cut]))
-    growing = earlier is not None and tail_level > max(GROWTH_FACTOR * earlier, threshold)
+    lowest = min((x for x in (earlier, before_tail) if x is not None), default=None)
+    growing = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
     lost = extent is not None and steady_level > max(extent, threshold)
     coarse = extent is not None and not lost and steady_level > max(COARSE_SHARE * extent, threshold)
     return {
         "band": band,
         "earlier_level": earlier,
+        "before_tail_level": before_tail,
         "tail_level": tail_level,
         "growing": bool(growing),
         "lost": bool(lost),
