@@ -419,6 +419,29 @@ def test_a_drift_that_began_before_the_last_two_fifths_is_not_converged():
     assert "over the 80 % before" in convergence_line(conv)
 
 
+def test_an_error_that_returns_once_a_lap_is_not_converged_after_its_last_return():
+    """The simulator's loop (seed 64, 240 s): fast-adaptation's error rises to 1.2 m once a lap (85-95 s, 175-185 s)
+    and lies at 0.2-0.4 m between; the last fifth holds no rise, so the band (1.5 x that fifth's level) left the
+    rises out and the report said "converged at 189.56 s", just before the last fifth: the time of the last
+    rise, not of settling. A level already that long within the band before, that left it again, recurs."""
+    truth = make_truth()
+    t_s = (truth.t_ns - T0_NS) / 1e9
+    u = t_s / t_s[-1]
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    rises = ((u > 0.35) & (u < 0.42)) | ((u > 0.72) & (u < 0.79))
+    poses["z"] = poses["z"] + 0.3 + 1.0 * rises
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert not conv["growing"] and conv["t_since_start_s"] is None
+    a, b = conv["recurring_s"]
+    assert a == 0.0 and b == pytest.approx(0.35 * t_s[-1], abs=0.5)  # the longest stretch within, before a rise
+    assert "the error level recurs" in convergence_line(conv)
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.3 + 1.0 * ((u > 0.35) & (u < 0.42))  # one rise, then settled for longer: converged
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["recurring_s"] is None and conv["t_since_start_s"] == pytest.approx(0.42 * t_s[-1], abs=0.5)
+
+
 def test_an_error_above_the_trajectorys_extent_is_not_converged():
     """An estimate whose error levels off above the size of the motion itself ("converged" within a band of
     tens of metres on a 3 m figure-eight) never locked on: not converged, and the report and summary say so; one

@@ -623,7 +623,10 @@ class ConvergenceSection(Section):
             "earlier_level_m, the median level over the tail_fraction before it, or above growth_factor × "
             "before_tail_level_m, the median level over everything before it, and above threshold_m), or if "
             "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
-            "centre (lost: the estimate never locked on to the motion); coarse: steady_level_m above coarse_share × "
+            "centre (lost: the estimate never locked on to the motion), or if the level was within band_m before, "
+            "for at least as long as from that time to the end, and left it again (recurring_s: that stretch, s "
+            "after the estimate start: an error that returns, e.g. once a lap); coarse: steady_level_m above "
+            "coarse_share × "
             "trajectory_extent_m and threshold_m but not lost (the report states the level as a share of the "
             "extent beside the convergence time); "
             "steady_error_m is the "
@@ -661,6 +664,7 @@ class ConvergenceSection(Section):
             "steady_level_share": c["steady_level"] / extent if extent > 0 else None,
             "coarse": c["coarse"],
             "estimate_start_ns": t0,
+            "recurring_s": None if c["recurring"] is None else [(x - t0) / 1e9 for x in c["recurring"]],
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
         }
