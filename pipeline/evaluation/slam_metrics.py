@@ -180,7 +180,7 @@ def convergence(
     tail_level = float(np.median(level[grid >= cut]))
     lowest = min((x for x in (earlier, before_tail) if x is not None), default=None)
     growing = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
-    recurring = longest_earlier_stretch(grid, level, band, k)
+    recurring = longest_earlier_stretch(grid, level, band, k, WINDOW_FRACTION * float(t[-1] - t[0]))
     lost = extent is not None and steady_level > max(extent, threshold)
     coarse = extent is not None and not lost and steady_level > max(COARSE_SHARE * extent, threshold)
     return {
@@ -199,17 +199,23 @@ def convergence(
     }
 
 
-def longest_earlier_stretch(grid: np.ndarray, level: np.ndarray, band: float, k: int | None) -> tuple[int, int] | None:
+def longest_earlier_stretch(
+    grid: np.ndarray, level: np.ndarray, band: float, k: int | None, min_excursion_ns: float
+) -> tuple[int, int] | None:
     """``(start_ns, end_ns)`` of the longest stretch before ``grid[k]`` over which ``level`` was already within
-    ``band`` and then left it, when that stretch lasted at least as long as the final one (``grid[k]`` to the end);
-    else None. A level that was as long within the band before and left it again recurs (an error that returns
-    once a lap): the final stretch may be one more such, and its start is no convergence time. Stretches of noise
-    crossing the band are short against a settled final stretch."""
+    ``band`` and then left it for at least ``min_excursion_ns`` (a window of the level: a touch of the band is no
+    return), when that stretch lasted at least as long as the final one (``grid[k]`` to the end); else None. A
+    level that was as long within the band before and left it again recurs (an error that returns once a lap):
+    the final stretch may be one more such, and its start is no convergence time. Stretches of noise crossing the
+    band are short against a settled final stretch."""
     if k is None or k == 0:
         return None
     inside = level[:k] <= band
     edges = np.flatnonzero(np.diff(np.concatenate(([0], inside.astype(np.int8), [0]))))
     starts, ends = edges[0::2], edges[1::2] - 1  # stretches [start, end] within the band, each left at end + 1
+    left_for = grid[np.append(starts[1:], k)] - grid[ends]  # how long the level stayed out after each
+    keep = left_for >= min_excursion_ns
+    starts, ends = starts[keep], ends[keep]
     if not starts.size:
         return None
     i = int(np.argmax(grid[ends] - grid[starts]))
