@@ -440,6 +440,10 @@ def test_an_error_that_returns_once_a_lap_is_not_converged_after_its_last_return
     poses["z"] = poses["z"] + 0.3 + 1.0 * ((u > 0.35) & (u < 0.42))  # one rise, then settled for longer: converged
     conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
     assert conv["recurring_s"] is None and conv["t_since_start_s"] == pytest.approx(0.42 * t_s[-1], abs=0.5)
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.3 + 1.0 * ((u > 0.6) & (u < 0.635))  # a touch of the band, shorter than a window
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["recurring_s"] is None and conv["t_since_start_s"] is not None  # (mrclam6-r4 riekf: 4 s, window 44 s)
 
 
 def test_an_error_above_the_trajectorys_extent_is_not_converged():
