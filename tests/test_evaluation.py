@@ -401,6 +401,51 @@ def test_a_growing_error_is_not_converged():
     assert not conv["growing"] and conv["t_since_start_s"] is not None
 
 
+def test_a_drift_that_began_before_the_last_two_fifths_is_not_converged():
+    """Dead reckoning after the landmarks left view (the simulator's figure8-blind: fast-adaptation's level rose
+    from 0.58 m to 1.1 m over the last 50 s of 90) grows less than 1.5 x between the last fifth and the fifth
+    before, so it was "converged" at 0.00 s inside a band as wide as its final error; against its level before
+    the tail it is growing, and the report says over what it was compared."""
+    truth = make_truth()
+    t_s = (truth.t_ns - T0_NS) / 1e9
+    u = t_s / t_s[-1]
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.3 + np.clip(u - 0.45, 0.0, None) / 0.55  # 0.3 m, from 45 % on rising to 1.3 m
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["tail_level_m"] < 1.5 * conv["earlier_level_m"]  # the fifth before alone does not show it
+    assert conv["tail_level_m"] > 1.5 * conv["before_tail_level_m"]
+    assert conv["growing"] and conv["t_since_start_s"] is None
+    assert "over the 80 % before" in convergence_line(conv)
+
+
+def test_an_error_that_returns_once_a_lap_is_not_converged_after_its_last_return():
+    """The simulator's loop (seed 64, 240 s): fast-adaptation's error rises to 1.2 m once a lap (85-95 s, 175-185 s)
+    and lies at 0.2-0.4 m between; the last fifth holds no rise, so the band (1.5 x that fifth's level) left the
+    rises out and the report said "converged at 189.56 s", just before the last fifth: the time of the last
+    rise, not of settling. A level already that long within the band before, that left it again, recurs."""
+    truth = make_truth()
+    t_s = (truth.t_ns - T0_NS) / 1e9
+    u = t_s / t_s[-1]
+    empty = pd.DataFrame({"id": np.array([], dtype=np.int64), "x": [], "y": [], "z": []})
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    rises = ((u > 0.35) & (u < 0.42)) | ((u > 0.72) & (u < 0.79))
+    poses["z"] = poses["z"] + 0.3 + 1.0 * rises
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert not conv["growing"] and conv["t_since_start_s"] is None
+    a, b = conv["recurring_s"]
+    assert a == 0.0 and b == pytest.approx(0.35 * t_s[-1], abs=0.5)  # the longest stretch within, before a rise
+    assert "the error level recurs" in convergence_line(conv)
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.3 + 1.0 * ((u > 0.35) & (u < 0.42))  # one rise, then settled for longer: converged
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["recurring_s"] is None and conv["t_since_start_s"] == pytest.approx(0.42 * t_s[-1], abs=0.5)
+    poses = moved(truth, np.eye(3), np.zeros(3))
+    poses["z"] = poses["z"] + 0.3 + 1.0 * ((u > 0.6) & (u < 0.635))  # a touch of the band, shorter than a window
+    conv = checked(build_report(poses, None, empty, truth, align="none"))["convergence"]
+    assert conv["recurring_s"] is None and conv["t_since_start_s"] is not None  # (mrclam6-r4 riekf: 4 s, window 44 s)
+
+
 def test_an_error_above_the_trajectorys_extent_is_not_converged():
     """An estimate whose error levels off above the size of the motion itself ("converged" within a band of
     tens of metres on a 3 m figure-eight) never locked on: not converged, and the report and summary say so; one

@@ -174,6 +174,9 @@ def convergence_verdict(conv: dict[str, Any]) -> str | None:
         return f"not converged: level above the path's extent ({conv['trajectory_extent_m']:.3g} m RMS)"
     if conv.get("growing"):
         return "not converged: the error level keeps growing"
+    if conv.get("recurring_s"):
+        a, b = conv["recurring_s"]
+        return f"not converged: the level left the band again after {b - a:.3g} s within it"
     return "not converged: the last error level is above the band"
 
 

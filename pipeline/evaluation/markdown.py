@@ -46,7 +46,7 @@ def headline_caveats(report: dict[str, Any]) -> list[str]:
 
 
 def _coarse(conv: dict[str, Any]) -> str:
-    """What a converged figure adds when its level is a sizeable share of the motion itself."""
+    """What a converged (or recurring) figure adds when its level is a sizeable share of the motion itself."""
     if not conv.get("coarse"):
         return ""
     return (
@@ -64,9 +64,21 @@ def _not_converged(conv: dict[str, Any]) -> str:
         )
     if conv.get("growing"):
         tail = round(100 * conv["tail_fraction"])
+        earlier, before_tail = conv.get("earlier_level_m"), conv.get("before_tail_level_m")
+        if before_tail is not None and (earlier is None or before_tail < earlier):
+            against = f"{before_tail:.3g} m over the {100 - tail} % before"
+        else:
+            against = f"{earlier:.3g} m over the {tail} % before"
         return (
             f"not converged (the error level keeps growing: a median of {conv['tail_level_m']:.3g} m over the last "
-            f"{tail} % of the log against {conv['earlier_level_m']:.3g} m over the {tail} % before)"
+            f"{tail} % of the log against {against})"
+        )
+    if conv.get("recurring_s"):
+        a, b = conv["recurring_s"]
+        return (
+            f"not converged (the error level recurs: it was within the band {conv['band_m']:.3g} m for {b - a:.3g} s, "
+            f"{a:.3g}-{b:.3g} s after the start, and left it again; its last stretch within it, no longer, may be "
+            f"one more such{_coarse(conv)})"
         )
     return "not converged (the last aligned position error is above the band)"
 

@@ -620,9 +620,14 @@ class ConvergenceSection(Section):
             "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
             "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
-            "earlier_level_m, the median level over the tail_fraction before it, and above threshold_m), or if "
+            "earlier_level_m, the median level over the tail_fraction before it, or above growth_factor × "
+            "before_tail_level_m, the median level over everything before it, and above threshold_m), or if "
             "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
-            "centre (lost: the estimate never locked on to the motion); coarse: steady_level_m above coarse_share × "
+            "centre (lost: the estimate never locked on to the motion), or if the level was within band_m before, "
+            "for at least as long as from that time to the end, and left it again for at least window_s (recurring_s: "
+            "that stretch, s "
+            "after the estimate start: an error that returns, e.g. once a lap); coarse: steady_level_m above "
+            "coarse_share × "
             "trajectory_extent_m and threshold_m but not lost (the report states the level as a share of the "
             "extent beside the convergence time); "
             "steady_error_m is the "
@@ -651,6 +656,7 @@ class ConvergenceSection(Section):
             "band_factor": slam_metrics.BAND_FACTOR,
             "tail_level_m": c["tail_level"],
             "earlier_level_m": c["earlier_level"],
+            "before_tail_level_m": c["before_tail_level"],
             "growth_factor": slam_metrics.GROWTH_FACTOR,
             "growing": c["growing"],
             "trajectory_extent_m": extent,
@@ -659,6 +665,7 @@ class ConvergenceSection(Section):
             "steady_level_share": c["steady_level"] / extent if extent > 0 else None,
             "coarse": c["coarse"],
             "estimate_start_ns": t0,
+            "recurring_s": None if c["recurring"] is None else [(x - t0) / 1e9 for x in c["recurring"]],
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
         }

@@ -156,10 +156,14 @@ def convergence(
     path would never have "converged". Returns the band, the steady median error and level, the window in
     seconds and ``t_ns``, the first level time after which the level stays within the band (None if the last
     level is above it, or if the error still grows: its median level over the last ``TAIL_FRACTION`` above
-    ``GROWTH_FACTOR`` times that over the stretch before and above ``threshold``; a drifting estimate would
-    otherwise be "converged" at its start, inside a band as wide as its final error), or if that steady level is
+    ``GROWTH_FACTOR`` times that over the ``TAIL_FRACTION`` before or times that over everything before the tail,
+    and above ``threshold``; a drifting estimate would otherwise be "converged" at its start, inside a band as
+    wide as its final error; the second comparison catches a drift that began earlier than the stretch before
+    the tail, e.g. dead reckoning after the landmarks left view), or if that steady level is
     above ``extent`` (the truth's RMS distance from its centre) and ``threshold``: an estimate that far off never
-    locked on to the motion, whatever its level does (``coarse``: above ``COARSE_SHARE`` of ``extent``, converged
+    locked on to the motion, whatever its level does, or if the level was within the band before for at least as
+    long as from that time on and left it again (``recurring``, :func:`longest_earlier_stretch`; ``coarse``:
+    above ``COARSE_SHARE`` of ``extent``, converged
     or not, but loosely). ``level`` is :func:`error_level` of these errors when
     already computed.
     """
@@ -172,13 +176,17 @@ def convergence(
     k = convergence_index(level, np.nextafter(band, np.inf))  # "within": level <= band
     before = level[(grid >= cut - (t[-1] - cut)) & (grid < cut)]
     earlier = float(np.median(before)) if before.size else None
+    before_tail = float(np.median(level[grid < cut])) if np.any(grid < cut) else None
     tail_level = float(np.median(level[grid >= cut]))
-    growing = earlier is not None and tail_level > max(GROWTH_FACTOR * earlier, threshold)
+    lowest = min((x for x in (earlier, before_tail) if x is not None), default=None)
+    growing = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
+    recurring = longest_earlier_stretch(grid, level, band, k, WINDOW_FRACTION * float(t[-1] - t[0]))
     lost = extent is not None and steady_level > max(extent, threshold)
     coarse = extent is not None and not lost and steady_level > max(COARSE_SHARE * extent, threshold)
     return {
         "band": band,
         "earlier_level": earlier,
+        "before_tail_level": before_tail,
         "tail_level": tail_level,
         "growing": bool(growing),
         "lost": bool(lost),
@@ -186,8 +194,34 @@ def convergence(
         "steady_error": float(np.median(e[t >= cut])),
         "steady_level": steady_level,
         "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
-        "t_ns": None if k is None or growing or lost else int(grid[k]),
+        "recurring": recurring,
+        "t_ns": None if k is None or growing or lost or recurring is not None else int(grid[k]),
     }
+
+
+def longest_earlier_stretch(
+    grid: np.ndarray, level: np.ndarray, band: float, k: int | None, min_excursion_ns: float
+) -> tuple[int, int] | None:
+    """``(start_ns, end_ns)`` of the longest stretch before ``grid[k]`` over which ``level`` was already within
+    ``band`` and then left it for at least ``min_excursion_ns`` (a window of the level: a touch of the band is no
+    return), when that stretch lasted at least as long as the final one (``grid[k]`` to the end); else None. A
+    level that was as long within the band before and left it again recurs (an error that returns once a lap):
+    the final stretch may be one more such, and its start is no convergence time. Stretches of noise crossing the
+    band are short against a settled final stretch."""
+    if k is None or k == 0:
+        return None
+    inside = level[:k] <= band
+    edges = np.flatnonzero(np.diff(np.concatenate(([0], inside.astype(np.int8), [0]))))
+    starts, ends = edges[0::2], edges[1::2] - 1  # stretches [start, end] within the band, each left at end + 1
+    left_for = grid[np.append(starts[1:], k)] - grid[ends]  # how long the level stayed out after each
+    keep = left_for >= min_excursion_ns
+    starts, ends = starts[keep], ends[keep]
+    if not starts.size:
+        return None
+    i = int(np.argmax(grid[ends] - grid[starts]))
+    if grid[ends[i]] - grid[starts[i]] < grid[-1] - grid[k]:
+        return None
+    return int(grid[starts[i]]), int(grid[ends[i]])
 
 
 def convergence_index(errors: np.ndarray, threshold: float) -> int | None:
