@@ -506,3 +506,30 @@ def _staged(out: Path) -> list[tuple[Path, int]]:
         except (OSError, ValueError, KeyError):
             pass
     return found
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_a_batch_stopped_while_its_local_cluster_starts_says_one_line_and_leaves_no_process(logs, tmp_path, sig):
+    """A signal while ``LocalCluster`` starts its worker processes cut the constructor in two: the batch printed
+    its one line, then distributed's exit hook closed the half-built cluster and printed a traceback
+    (``AssertionError: Status.init``, kill4's loop: SIGTERM at 6.0 s under load). The signal lands once the first
+    worker process exists and before the batch says where it runs."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "OUT"
+    proc, err = _start(_batch_args(logs, out, "--executor", "dask", "-j", 2, "--wait-workers", 60), tmp_path, "b")
+    try:
+        assert wait_for(lambda: children(proc.pid) or proc.poll() is not None, 120, step=0.005), err.read_text()
+        assert proc.poll() is None and "to run on" not in err.read_text()  # the cluster is starting
+        os.kill(proc.pid, sig)
+        code = proc.wait(timeout=60)
+        text = err.read_text()
+        assert code == 128 + sig, text
+        assert "Traceback" not in text and "Exception ignored" not in text, text
+        assert [line for line in text.splitlines() if line.strip()] == [
+            f"{signal.Signals(sig).name}: batch stopped, its workers killed; finished runs are recorded; run the "
+            "same command again to resume"
+        ], text
+        assert wait_gone(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
