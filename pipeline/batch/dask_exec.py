@@ -136,6 +136,22 @@ class _Watch:
             self.alive[worker] = now
 
 
+def _kill_workers(cluster) -> None:
+    """SIGKILL a local cluster's worker processes, their nannies told first not to start them again."""
+    import os
+    import signal
+
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if hasattr(nanny, "close_gracefully"):
+            nanny.close_gracefully(reason="slamobs batch stopped")  # the nanny must not start it again
+        if pid:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
 class DaskPool:
     """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
 
@@ -194,7 +210,24 @@ class DaskPool:
     def _local_cluster(self):
         from distributed import LocalCluster
 
-        return LocalCluster(
+        class Local(LocalCluster):
+            """A cluster whose start failed (its workers ended by the same Ctrl-C, as they import) is closed here,
+            errors ignored, and not left to distributed's exit hook: it printed a traceback (AssertionError:
+            Status.init) under the batch's line (kill_matrix seed 45)."""
+
+            def __init__(self, **kwargs) -> None:
+                try:
+                    super().__init__(**kwargs)
+                except BaseException:
+                    _kill_workers(self)
+                    try:
+                        self.close(timeout=5)
+                    except BaseException:  # noqa: BLE001 - half built: nothing of it to keep
+                        pass
+                    self.shutdown_on_close = False  # the exit hook leaves it alone
+                    raise
+
+        return Local(
             n_workers=self.jobs,
             processes=True,
             threads_per_worker=1,
@@ -216,7 +249,7 @@ class DaskPool:
 
     def _close(self) -> None:
         if self.cluster is not None:
-            self._kill_local_workers()
+            _kill_workers(self.cluster)
         if self.client is not None:
             try:
                 self.client.close(timeout=5)
@@ -228,20 +261,6 @@ class DaskPool:
             except Exception:  # noqa: BLE001
                 pass
         self.client = self.cluster = None
-
-    def _kill_local_workers(self) -> None:
-        import os
-        import signal
-
-        for nanny in list(getattr(self.cluster, "workers", {}).values()):
-            pid = getattr(nanny, "pid", None)
-            if hasattr(nanny, "close_gracefully"):
-                nanny.close_gracefully(reason="slamobs batch stopped")  # the nanny must not start it again
-            if pid:
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
 
     def _lost(self, err: BaseException) -> InfrastructureError:
         return InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})")
