@@ -558,3 +558,31 @@ def test_ctrl_c_while_the_local_cluster_starts_leaves_no_half_built_cluster_to_t
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
+
+
+def test_a_signal_during_the_compaction_switch_is_raised_after_it(tmp_path, monkeypatch):
+    """SIGHUP while the compaction's journal was applied (kill_matrix seed 47, trial 5: exit 129): the renames were
+    made, the replaced per-run files not deleted, so the stopped batch left every row of a run twice until the
+    next batch finished the journal. The signal (a real one, to this process) now waits for the switch."""
+    from slamobs.pipeline import interrupts
+    from slamobs.pipeline.batch import dataset
+    from slamobs.pipeline.batch.compact import compact_dataset
+    from test_batch_integrity import batch, make_logs
+
+    make_logs(tmp_path / "in", ["a.mcap", "b.mcap", "c.mcap"])
+    out = tmp_path / "OUT"
+    batch([tmp_path / "in"], out, compact=False)
+    real = dataset.remove_path
+
+    def hangup_then_remove(p):
+        if "compaction" not in str(p) and not getattr(hangup_then_remove, "sent", False):
+            hangup_then_remove.sent = True
+            signal.raise_signal(signal.SIGHUP)  # between the renames and the deletions
+        real(p)
+
+    monkeypatch.setattr(dataset, "remove_path", hangup_then_remove)
+    with pytest.raises(interrupts.Interrupted), interrupts.raise_when_safe():
+        compact_dataset(out)
+    assert hangup_then_remove.sent
+    assert not (out / "_slamobs" / dataset.JOURNAL).exists()
+    assert len(assert_consistent(out)) == 3
