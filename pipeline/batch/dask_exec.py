@@ -249,9 +249,10 @@ class DaskPool:
 
     def _close(self) -> None:
         if self.cluster is not None:
-            # what its comms log of the killed workers ("Batched Comm Closed" and a CommClosedError traceback, at
-            # INFO once the cluster's close restored distributed's handlers: kill_matrix seed 46) is noise
-            logging.getLogger("distributed").setLevel(logging.ERROR)
+            # what it logs of the killed workers is noise: its comms ("Batched Comm Closed" and a CommClosedError
+            # traceback, at INFO once the cluster's close restored distributed's handlers: kill_matrix seed 46), a
+            # nanny restarting a worker killed mid-batch (an ERROR traceback: seed 48)
+            logging.getLogger("distributed").setLevel(logging.CRITICAL)
             _kill_workers(self.cluster)
         if self.client is not None:
             try:
