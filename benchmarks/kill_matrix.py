@@ -18,7 +18,11 @@ Cases without a signal from the harness: ``batch-timeout`` runs under ``timeout 
 job's limit, K 0.05-1 s; plots on, so its runs have figure helpers): exit 124, or -9 when the KILL was needed
 (timeout sends it to its own group, itself included: 137 in a shell), or 0 if it finished;
 ``run-memory-limit`` under ``prlimit --as`` at a limit drawn from 250-1400 MB: it fits (0) or ends with one line
-naming the memory (2), never a traceback or a hang. Also ``export``, ``stats`` and ``info`` of the 600 s log.
+naming the memory (2), never a traceback or a hang; ``batch-fsize`` under ``prlimit --fsize`` at 4-600 KB (a quota,
+``ulimit -f``: the writers get EFBIG as on a full disk): it fits (0) or the machine failed its runs (3), nothing
+recorded as a failed log, the rerun with room equal to the unkilled batch. Also ``export``, ``stats`` and ``info`` of
+the 600 s log, ``report`` and ``evaluate`` of its run, ``tune --target batch`` (the smoother as the target) and
+``compare`` of three estimators (its figure helpers drawing). Any trial whose stderr holds a traceback is a violation.
 
 Per trial: the process exits within a bound with 143 / 130 / 129 (-9 after SIGKILL; 0 only if it ended before the
 signal), no process of its session is alive a few seconds later (checked by session id: a LocalCluster's nannies
@@ -37,6 +41,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+import math
 import os
 import random
 import shutil
@@ -76,7 +81,7 @@ class Case:
     ref: dict = field(default_factory=dict)
     durations: list = field(default_factory=list)  # unkilled runs' seconds: the reference, reruns, trials ended first
     needs: tuple = ()  # the cases whose unkilled outputs it reads (IN/ref-NAME)
-    wrap: str = ""  # "timeout": under timeout -s TERM -k 1 DELAY; "memory": under prlimit --as=LIMIT (no signal)
+    wrap: str = ""  # "timeout": under timeout -s TERM -k 1 DELAY; "memory" / "fsize": under prlimit (no signal)
     victims: tuple = ()  # besides the command itself: "worker" (a Dask worker process), "scheduler" (external)
 
     @property
@@ -143,6 +148,49 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
         Case("batch-timeout", ["batch", str(inp / "many"), "-o", "OUT", "-j", "2"], "out", "batch", False),
     ]
     cases[-1].wrap = "timeout"
+    cases += [  # part 4: the smoother as a tune's target, three estimators' figures, big runs, a file size limit
+        Case(
+            "tune-batch",
+            ["tune", str(inp / "many" / "m0.mcap"), "--observer", "fast-adaptation", "--target", "batch"]
+            + ["-o", "OUT", "--trials", "3"],
+            "out",
+            "tune",
+            False,
+        ),
+        Case(
+            "compare-3",
+            ["compare", log, "-o", "OUT", "-q", "--observers", "fast-adaptation,riekf,batch"],
+            "out",
+            "dir",
+        ),
+        Case("report-600s", ["report", "OUT"], "out", "dir", False, prepare="run-fa-600s", needs=("run-fa-600s",)),
+        Case(
+            "evaluate-600s",
+            [
+                "evaluate",
+                f"{long_log}:/mocap/pose",
+                "IN/ref-run-fa-600s/out/poses.parquet",
+                "-a",
+                "-q",
+                "--save-results",
+                "OUT",
+                "--save-plot",
+                "OUT.png",
+            ],
+            "ape.zip",
+            "file",
+            False,
+            needs=("run-fa-600s",),
+        ),
+        Case(
+            "batch-fsize",
+            ["batch", str(inp / "many"), "-o", "OUT", "-j", "2", "--config", cfg],
+            "out",
+            "batch",
+            False,
+            wrap="fsize",
+        ),
+    ]
     cases[5].victims = ("worker",)  # batch (-j 2): a local worker SIGKILLed mid-log, its log runs again
     assert cases[5].name == "batch"
     many = ["batch", str(inp / "many"), "-o", "OUT", "--config", cfg, "--wait-workers", "20"]
@@ -172,6 +220,9 @@ MEMORY_MB = (250, 1400)
 #: sends both to its process group: the batch, its workers and their figure helpers); K is drawn from this range
 #: (from the delay, so that a trial's seed and delay replay it): short enough that some batches get the KILL.
 KILL_AFTER_S = (0.05, 1.0)
+#: The file size limits drawn for a batch under ``prlimit --fsize`` (KB, log-uniform): from too small for any run's
+#: table to enough for the compacted ones (300 KB): a quota or ``ulimit -f``, as a full disk, on the whole output.
+FSIZE_KB = (4, 600)
 
 
 def wrapper(victim: str, sig: int, delay: float) -> list[str]:
@@ -180,6 +231,8 @@ def wrapper(victim: str, sig: int, delay: float) -> list[str]:
         return ["timeout", "-s", signal.Signals(sig).name[3:], "-k", f"{kill_after:.2f}", f"{delay:.3f}"]
     if victim == "memory":  # delay: the limit in MB
         return ["prlimit", f"--as={int(delay) << 20}", "--"]
+    if victim == "fsize":  # delay: the limit in KB
+        return ["prlimit", f"--fsize={int(delay * 1024)}", "--"]
     return []
 
 
@@ -410,6 +463,8 @@ def _expected(victim: str, sig: int, starting: bool, delay: float = 1.0) -> set:
         return {0, 124, 128 + signal.SIGKILL, -signal.SIGKILL}  # own group: itself killed (-9, 137 in a shell)
     if victim == "memory":  # it fits, or one line with exit 2
         return {0, 2}
+    if victim == "fsize":  # it fits, or the machine failed its runs or summary: not recorded, exit 3
+        return {0, 3}
     if victim in ("command", "group") and delay < INTERPRETER_START_S:
         return {-signal.SIGKILL} if sig == signal.SIGKILL else {128 + sig, -sig}
     if victim == "worker":  # its log runs again; a LocalCluster whose worker is killed as it starts cannot start
@@ -479,9 +534,9 @@ def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
         os.killpg(p.pid, signal.SIGKILL)
         res["rc"] = p.wait()
     if wrap:
-        res["signalled"] = victim == "memory" or res["rc"] != 0
+        res["signalled"] = victim in ("memory", "fsize") or res["rc"] != 0
         res["starting"], res["hit"] = False, victim
-        delay = delay if victim == "timeout" else 0.0
+        delay = delay if victim == "timeout" else 0.0  # no signal sent
     res["exit_s"] = time.monotonic() - t0 - delay if res["signalled"] else 0.0
     res["ran_s"] = time.monotonic() - t0  # unkilled duration when it ended before the signal
     deadline = time.monotonic() + LINGER_S
@@ -499,6 +554,9 @@ def _run_killed(case, sig, delay, tdir, inp, victim, cluster, res) -> None:
                 pass
     tail = err.read_text().strip().splitlines()[-1:] if err.exists() else []
     res["tail"] = tail
+    if err.exists() and any(t in err.read_text() for t in ("Traceback", "Exception ignored")):
+        text = err.read_text()  # a user-facing error is one line (a batch: its rows and one line), never a traceback
+        res["violations"].append(f"a traceback on stderr: {text[text.find('Traceback') :][:160]!r}")
     if res["signalled"] and res.get("hit") != "no worker yet":
         if res["rc"] not in _expected(victim, sig, res["starting"], delay):
             res["violations"].append(f"exit code {res['rc']} after {signal.Signals(sig).name} of the {victim}: {tail}")
@@ -593,6 +651,8 @@ def drawn_trial(case: Case, rng: random.Random, signals, args, tdir: Path, inp: 
         delay = rng.uniform(0.0, case.duration * args.span)
         if victim == "memory":
             delay = rng.uniform(*MEMORY_MB)
+        if victim == "fsize":
+            delay = math.exp(rng.uniform(*map(math.log, FSIZE_KB)))
         r = trial(case, sig, delay, tdir, inp, victim, retry=attempt < args.retries)
         r["attempts"] = attempt + 1
         if _hit(r) or r["violations"]:
@@ -662,6 +722,8 @@ def main() -> None:
             what = (
                 f"{delay:.0f} MB address space"
                 if r["victim"] == "memory"
+                else f"{delay:.0f} KB file size limit"
+                if r["victim"] == "fsize"
                 else f"{signal.Signals(sig).name}@{delay:.2f}s"
             )
             print(
@@ -685,14 +747,15 @@ def main() -> None:
 
 #: Who got the signal besides the command alone, in the table's column (a wrapper's trials: the memory limit drawn
 #: for ``prlimit``, the ``timeout`` command's TERM and KILL).
-OTHER_VICTIMS = ("group", "worker", "scheduler", "timeout", "memory")
+OTHER_VICTIMS = ("group", "worker", "scheduler", "timeout", "memory", "fsize")
 
 
 def report(results: dict[str, list], seed: int, signals) -> None:
     print(f"\nseed {seed}; load average {os.getloadavg()[0]:.2f}\n")
     names = " / ".join(s.name for s in signals)
     print(
-        f"| command | trials | {names} of the command | to the group; Dask worker / scheduler; timeout; memory limit "
+        f"| command | trials | {names} of the command | to the group; Dask worker / scheduler; timeout; memory / file "
+        "size limit "
         "| hit a live process | drawn again | ended first | exit codes | slowest exit after signal | violations |\n"
         "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"
     )
@@ -701,7 +764,7 @@ def report(results: dict[str, list], seed: int, signals) -> None:
         n = [sum(1 for s, r in rs if s == sig and r["victim"] in ("command", "group")) for sig in signals]
         other = ", ".join(f"{v} {k}" for v in OTHER_VICTIMS if (k := sum(1 for _, r in rs if r["victim"] == v)))
         codes = ", ".join(sorted({str(r["rc"]) for _, r in rs}))
-        timed = [(s, r) for s, r in rs if r["signalled"] and r["victim"] != "memory"]  # memory: no signal
+        timed = [(s, r) for s, r in rs if r["signalled"] and r["victim"] not in ("memory", "fsize")]  # no signal
         slow = max((r["exit_s"] for s, r in timed if s != signal.SIGKILL or r["victim"] == "scheduler"), default=0.0)
         bad = sum(1 for _, r in rs if r["violations"])
         total += bad

@@ -118,10 +118,21 @@ class ResourceError(ResourceFailure, OutputError):
     """
 
 
-#: OS errors that say the machine refused or ran out (disk or quota full, read-only file system, permission,
-#: memory, file descriptors), whatever file the work was on.
+#: OS errors that say the machine refused or ran out (disk or quota full, a file size limit: ``ulimit -f`` or the
+#: file system's largest file, read-only file system, permission, memory, file descriptors), whatever file the
+#: work was on.
 RESOURCE_ERRNOS = frozenset(
-    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOMEM, errno.EMFILE, errno.ENFILE}
+    {
+        errno.ENOSPC,
+        errno.EDQUOT,
+        errno.EFBIG,
+        errno.EROFS,
+        errno.EACCES,
+        errno.EPERM,
+        errno.ENOMEM,
+        errno.EMFILE,
+        errno.ENFILE,
+    }
 )
 
 

@@ -245,3 +245,32 @@ def test_a_stopped_dask_worker_times_out_and_its_queued_logs_go_to_another(tmp_p
     assert set(rows.values()) == {("ok", None)} and len(rows) == 3
     assert not alive(stopped)  # restarted through its nanny: the stopped process was killed
     assert sorted(r["status"] for r in assert_consistent(out).values()) == ["failed", "ok", "ok", "ok"]
+
+
+def test_a_file_size_limit_is_a_machine_failure_never_recorded_as_a_failed_log(tmp_path):
+    """A real batch under ``RLIMIT_FSIZE`` (a quota, ``ulimit -f`` of a cron job, a file system's largest file):
+    the writers get EFBIG ("File too large"), the machine's refusal as much as ENOSPC. It was recorded as the
+    log's failure (exit 1, a ``put`` row in the ledger), so ``--skip-failed`` skipped the log once there was room."""
+    import resource
+
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    write_log(simulate("circle", duration=3.0, seed=5), tmp_path / "in" / "c.mcap")
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n")
+    out = tmp_path / "OUT"
+    args = [*CLI, "batch", str(tmp_path / "in"), "-o", str(out), "--config", str(cfg), "--skip-failed"]
+
+    def small_files():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # EFBIG instead of being killed (Python's own setting)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (8192, 8192))
+
+    limited = subprocess.run(args, capture_output=True, text=True, preexec_fn=small_files, timeout=600)
+    assert limited.returncode == 3, limited.stderr
+    assert "File too large" in limited.stderr and "Traceback" not in limited.stderr, limited.stderr
+    assert read_summary(out) == {}  # nothing a later --skip-failed could skip
+    assert not list((out / "_slamobs" / "staging").glob("*/*")), "a staged run left"
+
+    again = subprocess.run(args, capture_output=True, text=True, timeout=600)  # room again
+    assert again.returncode == 0, again.stderr
+    assert [r["status"] for r in assert_consistent(out).values()] == ["ok"]

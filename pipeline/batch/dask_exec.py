@@ -35,6 +35,7 @@ from slamobs.pipeline.batch.executor import (
     run_task,
 )
 from slamobs.pipeline.batch.local import STARTUP_S
+from slamobs.pipeline.interrupts import critical
 
 POLL_S = 1.0
 #: A scheduler address that refuses connections this long has nothing listening (a scheduler not started or
@@ -135,6 +136,22 @@ class _Watch:
             self.alive[worker] = now
 
 
+def _kill_workers(cluster) -> None:
+    """SIGKILL a local cluster's worker processes, their nannies told first not to start them again."""
+    import os
+    import signal
+
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        pid = getattr(nanny, "pid", None)
+        if hasattr(nanny, "close_gracefully"):
+            nanny.close_gracefully(reason="slamobs batch stopped")  # the nanny must not start it again
+        if pid:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
 class DaskPool:
     """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
 
@@ -150,12 +167,11 @@ class DaskPool:
         self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
-        self._busy = False  # tasks were still pending when results() ended
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
         from slamobs.pipeline.version import __version__
-        from distributed import Client, LocalCluster
+        from distributed import Client
 
         from slamobs.pipeline.batch.identity import code_hash
 
@@ -174,18 +190,11 @@ class DaskPool:
                     f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
                 ) from None
         else:
-            try:
-                self.cluster = LocalCluster(
-                    n_workers=self.jobs,
-                    processes=True,
-                    threads_per_worker=1,
-                    dashboard_address=None,
-                    # its HTTP server (health routes) still starts: on a free port, not 8787 with a warning
-                    # ("Port 8787 is already in use") printed above the batch's lines when another cluster has it
-                    scheduler_kwargs={"dashboard_address": ":0"},
-                    silence_logs=logging.ERROR,
-                )
-                self.client = Client(self.cluster)
+            try:  # a signal waits for the constructor: cut in two, its cluster was closed by distributed's exit
+                # hook, which printed a traceback (AssertionError: Status.init) under the batch's one line
+                with critical():
+                    self.cluster = self._local_cluster()
+                    self.client = Client(self.cluster)
             except (OSError, TimeoutError, RuntimeError) as err:  # no port, no processes: the machine, not a log
                 raise InfrastructureError(f"{self.where}: cannot start ({failure_text(err)})") from None
         try:
@@ -198,12 +207,53 @@ class DaskPool:
             raise self._lost(err) from None
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
+    def _local_cluster(self):
+        from distributed import LocalCluster
+
+        class Local(LocalCluster):
+            """A cluster whose start failed (its workers ended by the same Ctrl-C, as they import) is closed here,
+            errors ignored, and not left to distributed's exit hook: it printed a traceback (AssertionError:
+            Status.init) under the batch's line (kill_matrix seed 45)."""
+
+            def __init__(self, **kwargs) -> None:
+                try:
+                    super().__init__(**kwargs)
+                except BaseException:
+                    _kill_workers(self)
+                    try:
+                        self.close(timeout=5)
+                    except BaseException:  # noqa: BLE001 - half built: nothing of it to keep
+                        pass
+                    self.shutdown_on_close = False  # the exit hook leaves it alone
+                    raise
+
+        return Local(
+            n_workers=self.jobs,
+            processes=True,
+            threads_per_worker=1,
+            dashboard_address=None,
+            # its HTTP server (health routes) still starts: on a free port, not 8787 with a warning
+            # ("Port 8787 is already in use") printed above the batch's lines when another cluster has it
+            scheduler_kwargs={"dashboard_address": ":0"},
+            silence_logs=logging.ERROR,
+        )
+
     def close(self) -> None:
-        """Close the client, and the local cluster if we started one. A local cluster left with tasks running (the
-        batch stopped by a signal) has its worker processes killed first, as local workers are: closed gracefully,
-        each waited for its running log (11 s after a SIGTERM in the kill matrix)."""
-        if self.cluster is not None and self._busy:
-            self._kill_local_workers()
+        """Close the client, and the local cluster if we started one, its worker processes killed first, as local
+        workers are: they hold nothing the batch needs. Closed gracefully, each waited for its running log (11 s
+        after a SIGTERM in the kill matrix), and idle ones took seconds under load to stop (a SIGTERM as the batch
+        ended: exit 12.4 s later). Not cut in two by a signal (it is raised after): a cluster cut while closing
+        was left "closing", and closing it again waited for that until its timeout."""
+        with critical():
+            self._close()
+
+    def _close(self) -> None:
+        if self.cluster is not None:
+            # what it logs of the killed workers is noise: its comms ("Batched Comm Closed" and a CommClosedError
+            # traceback, at INFO once the cluster's close restored distributed's handlers: kill_matrix seed 46), a
+            # nanny restarting a worker killed mid-batch (an ERROR traceback: seed 48)
+            logging.getLogger("distributed").setLevel(logging.CRITICAL)
+            _kill_workers(self.cluster)
         if self.client is not None:
             try:
                 self.client.close(timeout=5)
@@ -215,21 +265,6 @@ class DaskPool:
             except Exception:  # noqa: BLE001
                 pass
         self.client = self.cluster = None
-        self._busy = False
-
-    def _kill_local_workers(self) -> None:
-        import os
-        import signal
-
-        for nanny in list(getattr(self.cluster, "workers", {}).values()):
-            pid = getattr(nanny, "pid", None)
-            if hasattr(nanny, "close_gracefully"):
-                nanny.close_gracefully(reason="slamobs batch stopped")  # the nanny must not start it again
-            if pid:
-                try:
-                    os.kill(pid, signal.SIGKILL)
-                except ProcessLookupError:
-                    pass
 
     def _lost(self, err: BaseException) -> InfrastructureError:
         return InfrastructureError(f"{self.where}: lost the Dask scheduler ({failure_text(err)})")
@@ -318,7 +353,6 @@ class DaskPool:
                 if self.timeout:
                     yield from self._timeouts(pending, watch, ours_cancelled, now)
         finally:
-            self._busy = bool(pending)
             for fut, _ in pending.values():
                 fut.cancel()
 
