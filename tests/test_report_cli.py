@@ -7,6 +7,7 @@ import json
 import os
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -179,7 +180,34 @@ def test_failed_report_leaves_the_previous_one(run_dir, monkeypatch):
     res = invoke(report, run_dir, "--align", "origin", catch=True)
     assert isinstance(res.exception, OSError)
     assert {name: (run_dir / name).read_bytes() for name in old} == old
-    assert not [p for p in run_dir.iterdir() if p.name.startswith(".report-")]
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".report")]
+
+
+KILLED_REPORT = """
+import os, signal, sys
+from pathlib import Path
+import slamobs.pipeline.evaluation.run_dir as rd
+
+def killed(report_, out, *args, **kwargs):  # SIGKILLed with a table half-written in the staging
+    (Path(out) / "poses_aligned.parquet").write_bytes(b"PAR1 half")
+    os.kill(os.getpid(), signal.SIGKILL)
+
+rd.write_report = killed
+rd.report_run(sys.argv[1])
+"""
+
+
+def test_a_report_killed_while_staging_leaves_nothing_the_next_report_keeps(run_dir):
+    """A ``slamobs report`` SIGKILLed while writing its staging left ``.report-*`` with a half-written Parquet file
+    in the run for good (a recursive glob of the outputs read it: kill matrix seed 61); the next report removes it."""
+    done = subprocess.run([sys.executable, "-c", KILLED_REPORT, str(run_dir)], timeout=300)
+    assert done.returncode == -9
+    left = [p for p in run_dir.iterdir() if p.name.startswith(".report")]
+    assert len(left) == 1 and list(left[0].rglob("*.parquet")), left
+    res = invoke(report, run_dir)
+    assert res.exit_code == 0, res.output
+    assert not [p for p in run_dir.iterdir() if p.name.startswith(".")], sorted(p.name for p in run_dir.iterdir())
+    validate_report(load(run_dir / "report.json"))
 
 
 def test_replace_files_renames_and_drops_stale_ones(tmp_path):

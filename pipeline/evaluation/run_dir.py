@@ -22,11 +22,12 @@ import numpy as np
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.alignment import TimeWindow
 from slamobs.pipeline.errors import InputError, OutputError, TruthUnusable
-from slamobs.pipeline.paths import check_utf8, read_manifest
+from slamobs.pipeline.lifetime import owner_marker
+from slamobs.pipeline.paths import check_utf8, read_manifest, temporary_prefix
 from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
 from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
 from slamobs.pipeline.streams import PoseStream
-from slamobs.pipeline.writers import update_manifest
+from slamobs.pipeline.writers import NEW, OWNER, remove_stale_temporaries, update_manifest, write_json
 
 if TYPE_CHECKING:
     from slamobs.pipeline.evaluation.tables import Table
@@ -382,11 +383,19 @@ def _replace_report_files(run, fill) -> list[Path]:
     run's report files and figures at once (:func:`replace_files`), so a failure leaves the previous ones."""
     from slamobs.pipeline.evaluation.figure_jobs import RUN_FIGURES
 
-    staged = Path(tempfile.mkdtemp(prefix=".report-", dir=run.path))
+    # A report SIGKILLed while staging left its hidden directory in the run, half-written Parquet files in it that
+    # a recursive glob of the outputs reads: the staging is marked with its owner, and the next report removes
+    # what killed ones left (kill matrix seed 61).
+    remove_stale_temporaries(run.path)
+    with interrupts.critical():  # a directory without its owner marker would never be removed
+        container = Path(tempfile.mkdtemp(prefix=temporary_prefix("report"), dir=run.path))
+        write_json(container / OWNER, owner_marker())
     try:
+        staged = container / NEW
+        staged.mkdir()
         fill(staged)
         for p in staged.iterdir():
             os.chmod(p, 0o644)
         return replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
     finally:
-        shutil.rmtree(staged, ignore_errors=True)
+        shutil.rmtree(container, ignore_errors=True)
