@@ -95,6 +95,12 @@ class Case:
         self.durations.append(seconds)
 
 
+def _evaluate_case(name: str, log: str, ref: str) -> Case:
+    """``slamobs evaluate`` of case ``ref``'s unkilled poses against ``log``'s mocap, saving results and a plot."""
+    argv = ["evaluate", f"{log}:/mocap/pose", f"IN/ref-{ref}/out/poses.parquet", "-a", "-q", "--save-results", "OUT"]
+    return Case(name, [*argv, "--save-plot", "OUT.png"], "ape.zip", "file", False, needs=(ref,))
+
+
 def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool = False) -> list[Case]:
     log, long_log = str(inp / "f180.mcap"), str(inp / "f600.mcap")
     cfg = str(inp / "noplots.yaml")
@@ -114,24 +120,7 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
         ),
         Case("report", ["report", "OUT"], "out", "dir", False, prepare="run-fa", needs=("run-fa",)),
         Case("simulate", ["simulate", "figure8-wide", "-o", "OUT", "--duration", "180"], "sim.mcap", "file"),
-        Case(
-            "evaluate",
-            [
-                "evaluate",
-                f"{log}:/mocap/pose",
-                "IN/ref-run-fa/out/poses.parquet",
-                "-a",
-                "-q",
-                "--save-results",
-                "OUT",
-                "--save-plot",
-                "OUT.png",
-            ],
-            "ape.zip",
-            "file",
-            False,
-            needs=("run-fa",),
-        ),
+        _evaluate_case("evaluate", log, "run-fa"),
     ]
     cases += [
         Case("export", ["export", "IN/ref-run-fa/out", "-o", "OUT", "-q"], "res.mcap", "file", needs=("run-fa",)),
@@ -164,24 +153,7 @@ def make_cases(inp: Path, realdata: Path | None, dask: bool, dask_cluster: bool 
             "dir",
         ),
         Case("report-600s", ["report", "OUT"], "out", "dir", False, prepare="run-fa-600s", needs=("run-fa-600s",)),
-        Case(
-            "evaluate-600s",
-            [
-                "evaluate",
-                f"{long_log}:/mocap/pose",
-                "IN/ref-run-fa-600s/out/poses.parquet",
-                "-a",
-                "-q",
-                "--save-results",
-                "OUT",
-                "--save-plot",
-                "OUT.png",
-            ],
-            "ape.zip",
-            "file",
-            False,
-            needs=("run-fa-600s",),
-        ),
+        _evaluate_case("evaluate-600s", long_log, "run-fa-600s"),
         Case(
             "batch-fsize",
             ["batch", str(inp / "many"), "-o", "OUT", "-j", "2", "--config", cfg],
