@@ -509,6 +509,21 @@ def _staged(out: Path) -> list[tuple[Path, int]]:
     return found
 
 
+def _batch_with_its_cluster_starting(logs, tmp_path):
+    """A ``batch --executor dask`` process, returned once its local cluster has a worker process and before the
+    batch says where it runs (the cluster is starting), with its stderr file."""
+    pytest.importorskip("distributed")
+    args = _batch_args(logs, tmp_path / "OUT", "--executor", "dask", "-j", 2, "--wait-workers", 60)
+    proc, err = _start(args, tmp_path, "b")
+    try:
+        assert wait_for(lambda: children(proc.pid) or proc.poll() is not None, 120, step=0.005), err.read_text()
+        assert proc.poll() is None and "to run on" not in err.read_text()
+    except BaseException:
+        os.killpg(proc.pid, signal.SIGKILL)
+        raise
+    return proc, err
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
 def test_a_batch_stopped_while_its_local_cluster_starts_says_one_line_and_leaves_no_process(logs, tmp_path, sig):
     """A signal while ``LocalCluster`` starts its worker processes cut the constructor in two: the batch printed
@@ -516,12 +531,8 @@ def test_a_batch_stopped_while_its_local_cluster_starts_says_one_line_and_leaves
     (``AssertionError: Status.init``, kill4's loop: SIGTERM at 6.0 s under load). The signal lands once the first
     worker process exists and before the batch says where it runs. A worker process still being spawned as the
     batch ends may print its own traceback (its semaphore gone): theirs, left open, not checked here."""
-    pytest.importorskip("distributed")
-    out = tmp_path / "OUT"
-    proc, err = _start(_batch_args(logs, out, "--executor", "dask", "-j", 2, "--wait-workers", 60), tmp_path, "b")
+    proc, err = _batch_with_its_cluster_starting(logs, tmp_path)
     try:
-        assert wait_for(lambda: children(proc.pid) or proc.poll() is not None, 120, step=0.005), err.read_text()
-        assert proc.poll() is None and "to run on" not in err.read_text()  # the cluster is starting
         os.kill(proc.pid, sig)
         code = proc.wait(timeout=60)
         text = err.read_text()
@@ -542,12 +553,8 @@ def test_ctrl_c_while_the_local_cluster_starts_leaves_no_half_built_cluster_to_t
     import: the constructor then raised, its half-built cluster was left to distributed's exit hook, which printed
     ``AssertionError: Status.init`` (kill_matrix seed 45, trial 4). The workers' own KeyboardInterrupt at import is
     their output, not the batch's, and is not checked here."""
-    pytest.importorskip("distributed")
-    out = tmp_path / "OUT"
-    proc, err = _start(_batch_args(logs, out, "--executor", "dask", "-j", 2, "--wait-workers", 60), tmp_path, "b")
+    proc, err = _batch_with_its_cluster_starting(logs, tmp_path)
     try:
-        assert wait_for(lambda: children(proc.pid) or proc.poll() is not None, 120, step=0.005), err.read_text()
-        assert proc.poll() is None and "to run on" not in err.read_text()  # the cluster is starting
         time.sleep(0.3)  # its worker processes are importing
         os.killpg(proc.pid, signal.SIGINT)
         code = proc.wait(timeout=60)
