@@ -137,10 +137,16 @@ class _Watch:
 
 
 def _kill_workers(cluster) -> None:
-    """SIGKILL a local cluster's worker processes, their nannies told first not to start them again."""
+    """SIGKILL a local cluster's worker processes, their nannies told first not to start them again.
+
+    What distributed then logs of the killed workers is noise, silenced first: its comms ("Batched Comm Closed" and
+    a CommClosedError traceback at INFO once a cluster's close restored distributed's handlers, kill_matrix seed 46;
+    a signal while the cluster starts, as its constructor's clean-up kills them), a nanny restarting a worker killed
+    mid-batch (an ERROR traceback: seed 48)."""
     import os
     import signal
 
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(nanny, "pid", None)
         if hasattr(nanny, "close_gracefully"):
@@ -249,10 +255,6 @@ class DaskPool:
 
     def _close(self) -> None:
         if self.cluster is not None:
-            # what it logs of the killed workers is noise: its comms ("Batched Comm Closed" and a CommClosedError
-            # traceback, at INFO once the cluster's close restored distributed's handlers: kill_matrix seed 46), a
-            # nanny restarting a worker killed mid-batch (an ERROR traceback: seed 48)
-            logging.getLogger("distributed").setLevel(logging.CRITICAL)
             _kill_workers(self.cluster)
         if self.client is not None:
             try:
