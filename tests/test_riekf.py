@@ -150,7 +150,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
         np.zeros(9, np.int64),
         np.zeros(n_lm, np.bool_),
         np.zeros(n_lm, np.bool_),
-        np.zeros((5, 7)),  # the consistency check's sums
+        np.zeros((8, 7)),  # the consistency check's sums, the velocity-bias walk's
         np.zeros(1),  # the innovations after a blind stretch (none here)
     )
     assert d_out == d + 3 and slot_of[3] == 3 and slot_lm[3] == 3

@@ -43,7 +43,18 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   over the last ``CONSISTENCY_WINDOWS`` passing windows exceeds ``OVERCONFIDENT_D2`` (χ² 90 %: about 3 in 1000
   windows of a consistent filter), the time and the median are recorded (run.json
   ``observer.filter.consistency``, a note: the covariance understates the error). Raising the velocity-bias walk
-  there instead was tried and left out (docs/benchmarks.md, "riekf: overconfidence from the innovations").
+  on this test was tried and left out (docs/benchmarks.md, "riekf: overconfidence from the innovations").
+* Velocity-bias walk (learned from the log unless ``noise.velocity_bias_walk`` is given): variance matching on the
+  bias states (Myers & Tapley 1976, Mohamed & Schwarz 1999: a state's corrections ``δx̂ = Kz`` have the covariance
+  ``K S Kᵀ``, the downdate ``U Uᵀ`` of its rows, when the model is right). Over the last ``CONSISTENCY_WINDOWS``
+  windows that passed the gate, the summed ``|δb̂_V|²`` is compared with the summed trace of ``U Uᵀ`` on the
+  velocity-bias rows; when it exceeds ``WALK_RATIO`` times that (``WALK_RATIO_AGAIN`` once raised), the bias moves
+  more than its walk allows (a slowly varying velocity error, such as wheel slip, that the frozen bias pushes into the
+  position), and the walk's standard deviation is multiplied by that ratio squared (the ratio understates the
+  walk: the corrections and their expectation both shrink with the gain; up to ``MAX_WALK_FACTOR`` in all; run.json
+  ``observer.filter.walk``, a note). The ratio measured on the generated ground robot with slip is 4-6, on MR.CLAM,
+  TagSLAM and clean generated logs at most 3.7, where a larger walk hurts (docs/benchmarks.md, "riekf's
+  velocity-bias walk from the log (session 16)"). On a log where it stays below, nothing changes.
 * Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
   gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
   propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
@@ -87,7 +98,7 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T = 0, 1, 2, 3, 4, 5, 6, 7
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK = 0, 1, 2, 3, 4, 5, 6, 7, 8
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -100,7 +111,10 @@ _CONSISTENCY_N, _OVERCONFIDENT = 17, 18
 #: After a blind stretch (module docstring, "Blind stretches"): whether its check is pending, the known-landmark
 #: detections tested and gated since it ended, and the pose covariances re-opened.
 _ARMED, _PB_N, _PB_GATED, _RELOCS = 19, 20, 21, 22
-N_SLOTS = 23
+#: The velocity-bias walk (module docstring, "Velocity-bias walk"): windows in its ring, times it was raised, and
+#: whether it is fixed (given in the configuration).
+_WALK_N, _WALK_RAISES, _WALK_FIXED = 23, 24, 25
+N_SLOTS = 26
 #: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
 #: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
 #: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
@@ -118,6 +132,12 @@ MAX_SIGMA_SHARE = 0.25
 #: 3 DoF, 90 %) above which the filter is overconfident.
 OVERCONFIDENT_D2 = 6.25
 CONSISTENCY_WINDOWS = 7
+#: Velocity-bias walk (module docstring): over the last ``CONSISTENCY_WINDOWS`` passing windows, the ratio of the
+#: squared velocity-bias corrections to what a consistent filter expects of them above which the walk is raised
+#: (first time; ``WALK_RATIO_AGAIN`` once raised), and the largest factor on its standard deviation in all.
+WALK_RATIO = 4.0
+WALK_RATIO_AGAIN = 2.0
+MAX_WALK_FACTOR = 100.0
 #: Blind stretches (module docstring): the seconds without a known landmark's detection after which the first
 #: ``BLIND_WINDOW`` tested detections are checked, and the share of them failing the gate above which the pose, not
 #: a few outliers, is off.
@@ -856,6 +876,7 @@ def _update(
             ns[_SKIPPED] += 1
         else:
             xi = _gain(hp, smat, z, k3, d)
+            _bias_corrections(xi, hp, k3, win_sum)
             terms += k3
     rows = np.empty(max(next_nd, 0), np.int64)  # the next frame's known landmarks: their rows of Σ mirrored
     n_rows = next_nd if next_nd < 0 else 0
@@ -894,6 +915,19 @@ def _sum_innovations(z, smat, k3, win_sum):
         win_sum[0, r % 3] += z[r]
         for c in range(k3):
             win_sum[1 + r % 3, c % 3] += smat[r, c]
+
+
+@njit(cache=True)
+def _bias_corrections(xi, u, k3, win_sum):
+    """The window's squared velocity-bias corrections ``|δb̂_V|²`` (``win_sum[5, 0]``) and what a consistent filter
+    expects of them, the trace of the downdate ``U Uᵀ`` on the velocity-bias rows (``win_sum[5, 1]``; ``u`` = ``Uᵀ``,
+    k3 × d): the variance matching of the velocity-bias walk (module docstring, "Velocity-bias walk")."""
+    for a in range(3):
+        e = 0.0
+        for k in range(k3):
+            e += u[k, 9 + a] * u[k, 9 + a]
+        win_sum[5, 0] += xi[9 + a] * xi[9 + a]
+        win_sum[5, 1] += e
 
 
 @njit(cache=True)
@@ -1004,18 +1038,60 @@ def _consistency_check(t, ns, win_sum, consistency_log):
 
 
 @njit(cache=True)
+def _walk_check(t, fs, ns, win_sum, walk_log):
+    """A window that passed the gate: its squared velocity-bias corrections and their expectation
+    (:func:`_bias_corrections`) join the ring of the last ``CONSISTENCY_WINDOWS`` (rows 6 and 7 of ``win_sum``); when
+    the ring's corrections exceed ``WALK_RATIO`` times their expectation (``WALK_RATIO_AGAIN`` once raised), the
+    walk's standard deviation is multiplied by that ratio squared (up to ``MAX_WALK_FACTOR`` in all), recorded, and the
+    ring starts again (module docstring, "Velocity-bias walk"). True when the walk changed."""
+    if ns[_WALK_FIXED] or ns[_LOST] != 0 or win_sum[5, 1] <= 0.0:
+        return False
+    k = ns[_WALK_N] % CONSISTENCY_WINDOWS
+    win_sum[6, k], win_sum[7, k] = win_sum[5, 0], win_sum[5, 1]
+    ns[_WALK_N] += 1
+    if ns[_WALK_N] < CONSISTENCY_WINDOWS:
+        return False
+    ratio = win_sum[6].sum() / win_sum[7].sum()
+    if ratio <= (WALK_RATIO_AGAIN if ns[_WALK_RAISES] else WALK_RATIO) or fs[_WALK] >= MAX_WALK_FACTOR**2:
+        return False
+    fs[_WALK] = min(fs[_WALK] * ratio**4, MAX_WALK_FACTOR**2)
+    ns[_WALK_N] = 0
+    r = ns[_WALK_RAISES]
+    if r < walk_log.shape[0]:
+        walk_log[r, 0], walk_log[r, 1], walk_log[r, 2] = t, ratio, math.sqrt(fs[_WALK])
+    ns[_WALK_RAISES] += 1
+    return True
+
+
+@njit(cache=True)
 def _window_check(
-    t, d, cov, fs, ns, win_d2, win_z, win_f, win_sum, gated_lm, reinit, slot_of, rec_log, consistency_log, max_scale
+    t,
+    d,
+    cov,
+    fs,
+    ns,
+    win_d2,
+    win_z,
+    win_f,
+    win_sum,
+    gated_lm,
+    reinit,
+    slot_of,
+    rec_log,
+    consistency_log,
+    walk_log,
+    max_scale,
 ):
     """At the end of a window of ``WINDOW`` tested detections: recover when most failed the gate (module
-    docstring, "Recovery"), or give up; else check its consistency (:func:`_consistency_check`); the window starts
-    again. True when a noise factor changed."""
+    docstring, "Recovery"), or give up; else check its consistency (:func:`_consistency_check`) and the velocity-bias
+    walk (:func:`_walk_check`); the window starts again. True when a noise factor changed."""
     n, gated = ns[_WIN_N], ns[_WIN_GATED]
     ns[_WIN_N], ns[_WIN_GATED] = 0, 0
     changed = False
     if gated <= RECOVER_SHARE * n:
         ns[_FAILING] = 0
         _consistency_check(t, ns, win_sum, consistency_log)
+        changed = _walk_check(t, fs, ns, win_sum, walk_log)
     elif ns[_LOST] == 0:
         m = min(n, win_d2.shape[0])
         step = min(max(np.median(win_d2[:m]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
@@ -1046,6 +1122,7 @@ def _window_check(
             changed = True
     gated_lm[:] = False
     win_sum[:4, :] = 0.0
+    win_sum[5, :2] = 0.0
     return changed
 
 
@@ -1097,6 +1174,7 @@ def _advance(
     reinit,
     rec_log,
     consistency_log,
+    walk_log,
     blind_log,
     out_k,
     out_r,
@@ -1128,7 +1206,7 @@ def _advance(
     want_cov = cov_out.shape[0] > 0
     work = 0
     scale, det_scale = fs[_SCALE], fs[_DSCALE]
-    qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
+    qs_om, qs_v, qs_bw, qs_bv = q_om * scale, q_v * scale, q_bw * math.sqrt(scale), q_bv * math.sqrt(scale * fs[_WALK])
     while (iv < n_vel or jf < n_frames) and work < budget:
         is_frame = jf < n_frames and (iv >= n_vel or det_t[jf] < vel_t[iv])
         if not is_frame and iv >= iv_stop:
@@ -1219,11 +1297,12 @@ def _advance(
                 slot_of,
                 rec_log,
                 consistency_log,
+                walk_log,
                 max_scale,
             ):
                 scale, det_scale = fs[_SCALE], fs[_DSCALE]
                 qs_om, qs_v = q_om * scale, q_v * scale
-                qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale)
+                qs_bw, qs_bv = q_bw * math.sqrt(scale), q_bv * math.sqrt(scale * fs[_WALK])
             fs[_MEAS_T] = t_next
             jf += 1
         else:
@@ -1256,8 +1335,9 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=8)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=9)
         self.fs[_SCALE] = 1.0
+        self.fs[_WALK] = 1.0
         self.fs[_DSCALE] = 1.0
         self.fs[_KNOWN_T] = np.inf  # no known landmark's detection yet: no blind stretch either
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
@@ -1281,12 +1361,13 @@ class _State(KernelState):
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
         self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
         # the window's summed accepted innovations and their covariance; the last windows' d² (_consistency_check)
-        self.win_sum = np.zeros((5, CONSISTENCY_WINDOWS))
+        self.win_sum = np.zeros((8, CONSISTENCY_WINDOWS))
         self.blind_z2 = np.zeros(BLIND_WINDOW + max(n_max, 1))  # |z|² of the detections after a blind stretch
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
         self.consistency_log = np.zeros((MAX_LOG, 2))  # the overconfidence check's findings: time, median d²
+        self.walk_log = np.zeros((MAX_LOG, 3))  # the velocity-bias walk raised: time, ratio, factor on its σ
         self.blind_log = np.zeros((MAX_LOG, 4))  # re-opened after a blind stretch: time, its length, gated share, σ
 
     def arrays(self) -> tuple:
@@ -1319,6 +1400,7 @@ class _State(KernelState):
             self.reinit,
             self.rec_log,
             self.consistency_log,
+            self.walk_log,
             self.blind_log,
         )
 
@@ -1377,6 +1459,8 @@ class RiEKF(Stepper):
             np.zeros(3) if p0 is None else p0,
             sigma_b,
         )
+        # a walk given in the configuration is kept; else it is learned from the log (module docstring)
+        self.state.ns[_WALK_FIXED] = int(nz.sources.get("velocity_bias_walk") == "config")
         # the detection law (σ0, k, a) and the factors of σ(r)² across the line of sight and of what the range
         # adds (the ratio's split): the kernel evaluates it at each detection's predicted (or measured) range
         self.det_law = np.array(
@@ -1421,7 +1505,7 @@ class RiEKF(Stepper):
         when no frame allowed the re-anchoring and the pose is held from before the gap."""
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
-        walks = np.sqrt(st.fs[_SCALE]) * np.array(self.params[2:4])
+        walks = np.sqrt(st.fs[_SCALE] * np.array([1.0, st.fs[_WALK]])) * np.array(self.params[2:4])
         _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
@@ -1544,6 +1628,7 @@ class RiEKF(Stepper):
                 }
                 for r in self.state.blind_log[: min(int(ns[_RELOCS]), MAX_LOG)]
             ],
+            "walk": self._walk(),
             "consistency": {
                 "overconfident": int(ns[_OVERCONFIDENT]),
                 "log": [
@@ -1551,6 +1636,22 @@ class RiEKF(Stepper):
                     for r in self.state.consistency_log[: min(int(ns[_OVERCONFIDENT]), MAX_LOG)]
                 ],
             },
+        }
+
+    def _walk(self) -> dict:
+        """The velocity-bias walk for run.json: given (configuration) or learned, its value now and each raise (log
+        seconds, the ratio of the bias corrections to their expectation, the walk after it)."""
+        ns, fs = self.state.ns, self.state.fs
+        t0 = float(self.vel_t[0]) if self.vel_t.size else 0.0
+        given = float(self.params[3])
+        return {
+            "learned": not ns[_WALK_FIXED],
+            "given_m_s_sqrt_s": given,
+            "velocity_bias_walk": given * float(np.sqrt(fs[_WALK])),
+            "raises": [
+                {"t_s": round(float(r[0]) - t0, 3), "ratio": round(float(r[1]), 3), "walk": given * float(r[2])}
+                for r in self.state.walk_log[: min(int(ns[_WALK_RAISES]), MAX_LOG)]
+            ],
         }
 
 
@@ -1581,6 +1682,17 @@ def recovery_notes(filt: dict) -> list[str]:
             f"{BLIND_WINDOW} that followed did not fit the pose ({100 * r['gated_share']:.0f} % failed the gate): "
             f"the position's covariance was re-opened to {r['position_sigma_m']:.3g} m on each axis and the "
             "re-observed landmarks re-anchored it (run.json observer.filter.blind)"
+        )
+    walk = filt.get("walk") or {}
+    if walk.get("raises"):
+        first = walk["raises"][0]
+        notes.append(
+            f"riekf: velocity-bias walk learned from the log: {walk['given_m_s_sqrt_s']:.3g} -> "
+            f"{walk['velocity_bias_walk']:.3g} m/s/sqrt(s) ({len(walk['raises'])} raise(s), the first at "
+            f"{first['t_s']:.2f} s): over {CONSISTENCY_WINDOWS} windows of {WINDOW} detections the velocity-bias "
+            f"corrections were {first['ratio']:.3g} times the size (squared) a consistent filter expects: a slowly "
+            "varying velocity error, such as wheel slip (run.json observer.filter.walk; noise: velocity_bias_walk "
+            "fixes it)"
         )
     con = filt.get("consistency") or {}
     if con.get("overconfident"):
