@@ -375,18 +375,18 @@ def velocity_misread(scale: dict) -> list[str]:
     return out
 
 
-def estimate(stream, bias: np.ndarray | None = None) -> dict:
+def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
-    reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's)."""
+    reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's).
+    ``decided``, when given, is called with ``{"applied", "estimate_s"}`` as soon as they are known, before the
+    checks that only report (``gyro_misreads``, ``velocity_scale``), so that a caller waiting for whether the offset
+    is applied (:class:`Background`) need not wait for those."""
     c = _Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
     n = int(c.a.shape[0])
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False}
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
-    out["gyro_misreads"] = gyro_misreads(c)
-    out["velocity_scale"] = velocity_scale(c)
     shift, sigma, gain = _search(c)
-    out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     why = None
     if abs(shift) >= MAX_OFFSET_S - COARSE_S:
         why = f"the best shift is at the edge of the search (±{MAX_OFFSET_S} s)"
@@ -398,19 +398,27 @@ def estimate(stream, bias: np.ndarray | None = None) -> dict:
         why = f"the detections fit it only {gain:.3g}x better than no shift"
     else:  # only an offset about to be applied pays for the check of the halves
         why = _halves_disagree(c, stream)
+    if decided is not None:
+        decided({"applied": why is None, "estimate_s": round(shift, 6)})
+    out["gyro_misreads"] = gyro_misreads(c)
+    out["velocity_scale"] = velocity_scale(c)
+    out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
 
 class Background:
     """:func:`estimate` on a thread of its own (its compiled loops release the GIL), for an estimator that starts on
-    the stamps as recorded meanwhile (``riekf``: the estimate is applied on few logs); :meth:`result` waits for it.
-    Without a second core it runs at once, in the caller's thread. The thread is a daemon that writes nothing: an
-    interrupted run does not wait for it, and a killed one leaves nothing behind."""
+    the stamps as recorded meanwhile (``riekf``: the estimate is applied on few logs); :meth:`decision` waits for
+    whether it is applied, :meth:`result` for all of it. Without a second core it runs at once, in the caller's
+    thread. The thread is a daemon that writes nothing: an interrupted run does not wait for it, and a killed one
+    leaves nothing behind."""
 
     def __init__(self, stream) -> None:
         self._value: dict | None = None
         self._error: BaseException | None = None
         self._thread: threading.Thread | None = None
+        self._decision: dict | None = None
+        self._decided = threading.Event()
         if cores() < 2:
             self._value = estimate(stream)
             return
@@ -419,13 +427,30 @@ class Background:
 
     def _run(self, stream) -> None:
         try:
-            self._value = estimate(stream)
+            self._value = estimate(stream, decided=self._decide)
         except BaseException as err:  # handed to the caller by result()
             self._error = err
+        finally:
+            self._decided.set()
+
+    def _decide(self, decision: dict) -> None:
+        self._decision = decision
+        self._decided.set()
 
     def done(self) -> bool:
         """Whether the estimate (or its error) is there: :meth:`result` returns at once."""
         return self._thread is None or not self._thread.is_alive()
+
+    def decided(self) -> bool:
+        """Whether :meth:`decision` returns at once."""
+        return self._thread is None or self._decided.is_set()
+
+    def decision(self) -> dict:
+        """``{"applied", "estimate_s"}`` of the estimate (all of it when it ended before the reporting checks),
+        waited for only until they are known (:func:`estimate`'s ``decided``); the estimate's error raised here."""
+        if self._thread is not None:
+            self._decided.wait()
+        return self._decision if self._decision is not None else self.result()
 
     def result(self) -> dict:
         """The estimate (as :func:`estimate` returns it), once it is done; its error raised here."""
