@@ -55,8 +55,10 @@ def _sample_steps(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarra
     integrated across a segment gap."""
     t = stream.seconds(stream.vel_t_ns)
     dt = np.diff(t)
-    omega, vel = omega[:-1].copy(), vel[:-1].copy()
     gap = stream.segment_starts - 1
+    if gap.shape[0] == 0:  # one segment: the twists themselves (no copy of a long log's 17 MB each)
+        return t, (omega[:-1], vel[:-1], dt)
+    omega, vel = omega[:-1].copy(), vel[:-1].copy()
     omega[gap], vel[gap] = 0.0, 0.0
     return t, (omega, vel, dt)
 
@@ -65,15 +67,39 @@ def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
     """Detection indices (a, b): each detection and the first detection of the same landmark at least
     ``PAIR_SPAN_S`` later, when that one is within ``PAIR_MAX_S``."""
     t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))
-    order = np.lexsort((t, stream.det_idx))
+    idx = stream.det_idx
+    if idx.shape[0] and idx.max() < 2**16 and idx.min() >= 0 and np.all(t[1:] >= t[:-1]):
+        order = np.argsort(idx.astype(np.uint16), kind="stable")  # lexsort's order when t is (a radix sort: 3x faster)
+    else:
+        order = np.lexsort((t, idx))
     key = stream.det_idx[order].astype(np.float64) * (2.0 * (t.max() - t.min() + PAIR_MAX_S) + 1.0) + t[order]
-    j = np.searchsorted(key, key + PAIR_SPAN_S)  # sorted by landmark, then time: the partner is the next ≥ span
-    ok = j < order.shape[0]
-    a, b = order[ok], order[j[ok]]
-    same = np.flatnonzero((stream.det_idx[a] == stream.det_idx[b]) & (t[b] - t[a] <= PAIR_MAX_S))
-    if same.shape[0] > MAX_PAIRS:  # evenly over the log: the estimate's cost stays bounded on long logs
-        same = same[np.linspace(0, same.shape[0] - 1, MAX_PAIRS).astype(np.int64)]
-    return a[same], b[same]
+    a, b = _partners(order, key, idx, t)
+    if a.shape[0] > MAX_PAIRS:  # evenly over the log: the estimate's cost stays bounded on long logs
+        same = np.linspace(0, a.shape[0] - 1, MAX_PAIRS).astype(np.int64)
+        return a[same], b[same]
+    return a, b
+
+
+@njit(cache=True, nogil=True)
+def _partners(order, key, idx, t):
+    """The pairs of :func:`_pairs` from the detections sorted by landmark then time (``order``, ``key``): for each,
+    the first sorted detection whose key is at least ``PAIR_SPAN_S`` above its own (``np.searchsorted(key, key +
+    PAIR_SPAN_S)``: a walk, as those keys never decrease), kept when it is the same landmark's within ``PAIR_MAX_S``;
+    in sorted order."""
+    n = order.shape[0]
+    a, b = np.empty(n, np.int64), np.empty(n, np.int64)
+    m, j = 0, 0
+    for p in range(n):
+        v = key[p] + PAIR_SPAN_S
+        while j < n and key[j] < v:
+            j += 1
+        if j == n:
+            break
+        i, k = order[p], order[j]
+        if idx[i] == idx[k] and t[k] - t[i] <= PAIR_MAX_S:
+            a[m], b[m] = i, k
+            m += 1
+    return a[:m], b[:m]
 
 
 @njit(cache=True)
@@ -161,7 +187,7 @@ class _Consistency:
         """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for
         :meth:`_moved_poses`."""
         s = self.stream
-        omega, vel = s.omega - bias[:3], s.velocity - bias[3:]
+        omega, vel = (s.omega - bias[:3], s.velocity - bias[3:]) if bias.any() else (s.omega, s.velocity)
         t, self._steps = _sample_steps(s, omega, vel)
         return (t, *integrate_body_twists(np.eye(3), np.zeros(3), *self._steps), omega, vel)
 
@@ -212,21 +238,97 @@ class _Consistency:
         return out
 
     def costs(self, shifts) -> np.ndarray:
-        """:meth:`cost` at each of ``shifts``, the residuals of all of them computed in one pass."""
-        return np.array([self.cost(e) for e in self.residuals(shifts)])
+        """The cost at each of ``shifts`` (:func:`_trimmed_costs`), the residuals of all of them computed in one
+        pass."""
+        e = self.residuals(shifts)
+        out = np.empty(e.shape[0])
+        _trimmed_costs(self.jac, self.jtj, e, out)
+        return out
 
-    def cost(self, e: np.ndarray) -> float:
-        """Trimmed mean squared residual of the pairs' residuals ``e`` at one shift after the bias correction
-        that fits the pairs best (least squares on all pairs, then again on the ``TRIM`` share with the smallest
-        residuals)."""
-        keep = np.arange(e.shape[0])
-        for _ in range(2):  # normal equations (6 unknowns; a small ridge keeps them regular on straight motion)
-            a = self.jtj[keep].sum(axis=0) + 1e-9 * np.eye(6)
-            db = np.linalg.solve(a, -np.einsum("kci,kc->i", self.jac[keep], e[keep]))
-            d2 = np.sum((e + self.jac @ db) ** 2, axis=1)
-            n = max(1, int(TRIM * d2.shape[0]))
-            keep = np.argpartition(d2, n - 1)[:n]
-        return float(np.mean(d2[keep]))
+
+@njit(cache=True, nogil=True)
+def _trimmed_costs(jac, jtj, e, out):
+    """``out[s]``: the trimmed mean squared residual of the pairs' residuals ``e[s]`` at shift ``s`` after the bias
+    correction that fits the pairs best (least squares on all pairs, then again on the ``TRIM`` share with the
+    smallest residuals; normal equations in 6 unknowns, a small ridge keeps them regular on straight motion):
+    one compiled loop (the NumPy calls per shift were 60 ms of the 1 h log's 93 shifts)."""
+    k = e.shape[1]
+    n = max(1, int(TRIM * k))
+    keep, d2 = np.empty(k, np.int64), np.empty(k)
+    a, rhs = np.empty((6, 6)), np.empty(6)
+    for s in range(e.shape[0]):
+        m = k
+        for q in range(k):
+            keep[q] = q
+        for _ in range(2):
+            a[:, :] = 0.0
+            rhs[:] = 0.0
+            for q in range(m):
+                p = keep[q]
+                for i in range(6):
+                    for j in range(6):
+                        a[i, j] += jtj[p, i, j]
+                    rhs[i] -= jac[p, 0, i] * e[s, p, 0] + jac[p, 1, i] * e[s, p, 1] + jac[p, 2, i] * e[s, p, 2]
+            for i in range(6):
+                a[i, i] += 1e-9
+            _solve_spd(a, rhs)
+            for p in range(k):
+                v = 0.0
+                for c in range(3):
+                    r = e[s, p, c]
+                    for i in range(6):
+                        r += jac[p, c, i] * rhs[i]
+                    v += r * r
+                d2[p] = v
+            m = _smallest(d2, n, keep)
+        total = 0.0
+        for q in range(m):
+            total += d2[keep[q]]
+        out[s] = total / m
+
+
+@njit(cache=True, nogil=True)
+def _smallest(d2, n, keep):
+    """``keep[:n]``: the indices of the ``n`` smallest of ``d2`` (ties at the n-th value taken in index order);
+    returns ``n``."""
+    thr = np.partition(d2, n - 1)[n - 1]
+    m = 0
+    for p in range(d2.shape[0]):
+        if d2[p] < thr:
+            keep[m] = p
+            m += 1
+    for p in range(d2.shape[0]):
+        if m < n and d2[p] == thr:
+            keep[m] = p
+            m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _solve_spd(a, b):
+    """``b ← a⁻¹ b`` for a symmetric positive definite ``a`` (overwritten by its Cholesky factor)."""
+    n = b.shape[0]
+    for j in range(n):
+        v = a[j, j]
+        for k in range(j):
+            v -= a[j, k] * a[j, k]
+        v = np.sqrt(v)
+        a[j, j] = v
+        for i in range(j + 1, n):
+            w = a[i, j]
+            for k in range(j):
+                w -= a[i, k] * a[j, k]
+            a[i, j] = w / v
+    for i in range(n):
+        v = b[i]
+        for k in range(i):
+            v -= a[i, k] * b[k]
+        b[i] = v / a[i, i]
+    for i in range(n - 1, -1, -1):
+        v = b[i]
+        for k in range(i + 1, n):
+            v -= a[k, i] * b[k]
+        b[i] = v / a[i, i]
 
 
 def _search(c: _Consistency) -> tuple[float, float, float]:
