@@ -29,8 +29,8 @@ from slamobs.pipeline.cores import cores
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import (
     integrate_body_twists,
-    integrate_body_twists_at,
     integrate_body_twists_at_columns,
+    integrate_body_twists_at_rotation_columns,
     se3_exp_into,
 )
 
@@ -175,41 +175,43 @@ class _Consistency:
         at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
         self.keep = keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))  # the samples the pairs read
         self.jac = np.empty((base.shape[0], 3, 6))
-        for c in range(3):
-            db = np.zeros(6)
-            db[c] = BIAS_STEP
-            self.jac[:, :, c] = (self.residuals(0.0, self._moved_poses(bias + db, c, keep))[0] - base) / BIAS_STEP
+        for c, poses in enumerate(self._moved_gyro_poses(bias, keep)):
+            self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
         for c, poses in enumerate(self._moved_velocity_poses(bias, keep), 3):
             self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
     def _poses(self, bias: np.ndarray):
-        """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for
-        :meth:`_moved_poses`."""
+        """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for the Jacobian's
+        dead reckonings (:meth:`_moved_gyro_poses`, :meth:`_moved_velocity_poses`)."""
         s = self.stream
         omega, vel = (s.omega - bias[:3], s.velocity - bias[3:]) if bias.any() else (s.omega, s.velocity)
         t, self._steps = _sample_steps(s, omega, vel)
         return (t, *integrate_body_twists(np.eye(3), np.zeros(3), *self._steps), omega, vel)
 
-    def _moved_poses(self, bias: np.ndarray, c: int, keep: np.ndarray):
-        """:meth:`_poses` (the samples ``keep`` only) with ``bias``, which differs from the first poses' in entry
-        ``c`` only: the twists copied and that column computed again (the same numbers as from scratch)."""
+    def _moved_gyro_poses(self, bias: np.ndarray, keep: np.ndarray) -> list[tuple]:
+        """:meth:`_poses` (the samples ``keep`` only) with each gyro-bias entry (0..2) moved by ``BIAS_STEP``: that
+        twist column computed again, the three dead reckonings in one pass
+        (``lie.integrate_body_twists_at_rotation_columns``: the same numbers as three from scratch)."""
         s, t_s, _, _, omega, vel = self.stream, *self.poses
-        twists, steps = [omega[keep], vel[keep]], [self._steps[0], self._steps[1]]
-        w, j = divmod(c, 3)
-        raw = (s.omega, s.velocity)[w][:, j] - bias[c]
-        twists[w][:, j] = raw[keep]
-        steps[w] = steps[w].copy()
-        steps[w][:, j] = raw[:-1]
-        steps[w][s.segment_starts - 1, j] = 0.0
-        poses = integrate_body_twists_at(np.eye(3), np.zeros(3), *steps, self._steps[2], keep)
-        return (t_s[keep], *poses, *twists)
+        cols = s.omega[:-1] - (bias[:3] + BIAS_STEP)  # column j: entry j of bias + BIAS_STEP e_j
+        cols[s.segment_starts - 1] = 0.0
+        omega_steps, vel_steps, dt = self._steps
+        rs, ps = integrate_body_twists_at_rotation_columns(
+            np.eye(3), np.zeros(3), omega_steps, vel_steps, cols, dt, keep
+        )
+        out = []
+        for j in range(3):
+            twist = omega[keep]
+            twist[:, j] = s.omega[keep, j] - (bias[j] + BIAS_STEP)
+            out.append((t_s[keep], rs[j], ps[j], twist, vel[keep]))
+        return out
 
     def _moved_velocity_poses(self, bias: np.ndarray, keep: np.ndarray) -> list[tuple]:
-        """:meth:`_moved_poses` for each velocity-bias entry (3..5) moved by ``BIAS_STEP``, the three in one dead
-        reckoning (their rotations are the first poses' and shared: the same numbers as three calls)."""
+        """:meth:`_moved_gyro_poses` for each velocity-bias entry (3..5), the three in one dead reckoning (their
+        rotations are the first poses' and shared: the same numbers as three from scratch)."""
         s, t_s, _, _, omega, vel = self.stream, *self.poses
-        cols = s.velocity[:-1] - (bias[3:] + BIAS_STEP)  # entry j of bias + BIAS_STEP e_(3+j), as _moved_poses
+        cols = s.velocity[:-1] - (bias[3:] + BIAS_STEP)  # column j: entry j of bias + BIAS_STEP e_(3+j)
         cols[s.segment_starts - 1] = 0.0
         omega_steps, vel_steps, dt = self._steps
         rs, ps = integrate_body_twists_at_columns(np.eye(3), np.zeros(3), omega_steps, vel_steps, cols, dt, keep)
