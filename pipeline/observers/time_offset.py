@@ -29,6 +29,7 @@ from slamobs.pipeline.cores import cores
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import (
     integrate_body_twists,
+    integrate_body_twists_at,
     integrate_body_twists_at_columns,
     integrate_body_twists_at_rotation_columns,
     se3_exp_into,
@@ -382,11 +383,12 @@ def gyro_misreads(c: _Consistency) -> dict[str, float]:
     ``GYRO_MISREADS`` than as read (no bias fitted: a misread dwarfs a bias): the angular velocity in deg/s or of
     the wrong sign is no noise the estimators can absorb (MR.CLAM in deg/s: riekf APE 0.49 -> 3.8 m, no word)."""
     omega_steps, vel_steps, dt = c._steps
-    t_s, *_, omega, vel = c.poses
+    (t_s, *_, omega, vel), keep = c.poses, c.keep  # at zero shift the pairs read the samples keep only
     base = _trimmed_cost(c.residuals(0.0)[0])
     out = {}
     for what, g in GYRO_MISREADS.items():
-        poses = (t_s, *integrate_body_twists(np.eye(3), np.zeros(3), omega_steps * g, vel_steps, dt), omega * g, vel)
+        rs, ps = integrate_body_twists_at(np.eye(3), np.zeros(3), omega_steps * g, vel_steps, dt, keep)
+        poses = (t_s[keep], rs, ps, omega[keep] * g, vel[keep])
         out[what] = base / max(_trimmed_cost(c.residuals(0.0, poses)[0]), 1e-300)
     return out
 
