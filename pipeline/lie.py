@@ -448,6 +448,39 @@ def integrate_body_twists_at_columns(r0, p0, omega, v, cols, dt, keep):
     return rs, ps
 
 
+@njit(cache=True, nogil=True)
+def integrate_body_twists_at_rotation_columns(r0, p0, omega, v, cols, dt, keep):
+    """:func:`integrate_body_twists_at` for ``omega`` with its column ``c`` replaced by ``cols[:, c]``, for each ``c``
+    of 0..2: three dead reckonings in one pass over the steps (each step's three chains independent: the core
+    overlaps them), the same numbers as three calls. Returns ``rs`` (3, m, 3, 3) and ``ps`` (3, m, 3)."""
+    m = keep.shape[0]
+    rs = np.empty((3, m, 3, 3))
+    ps = np.empty((3, m, 3))
+    cur_r, nxt_r = np.empty((3, 3, 3)), np.empty((3, 3, 3))
+    cur_p, nxt_p = np.empty((3, 3)), np.empty((3, 3))
+    for c in range(3):
+        cur_r[c] = r0
+        cur_p[c] = p0
+    wc = np.empty(3)
+    scratch = np.empty((3, 3, 3))
+    j = 0
+    for i in range(dt.shape[0] + 1):
+        while j < m and keep[j] == i:
+            for c in range(3):
+                rs[c, j] = cur_r[c]
+                ps[c, j] = cur_p[c]
+            j += 1
+        if j == m or i == dt.shape[0]:
+            break
+        for c in range(3):
+            wc[0], wc[1], wc[2] = omega[i, 0], omega[i, 1], omega[i, 2]
+            wc[c] = cols[i, c]
+            _twist_step(cur_r[c], cur_p[c], wc, v[i], dt[i], scratch, nxt_r[c], nxt_p[c])
+        cur_r, nxt_r = nxt_r, cur_r
+        cur_p, nxt_p = nxt_p, cur_p
+    return rs, ps
+
+
 @njit(cache=True, inline="always")
 def _twist_step(r, p, omega, v, dt, scratch, r_out, p_out):
     """``(r_out, p_out) = (r, p) exp(dt [omega; v])`` as :func:`se3_exp`, :func:`mat3_vec` and :func:`mat3_mul`

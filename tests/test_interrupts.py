@@ -393,7 +393,7 @@ def test_an_interrupted_run_does_not_wait_for_riekfs_time_offset_thread(tmp_path
     script.write_text(
         "import os, sys, time\n"
         "from slamobs.pipeline.observers import time_offset\n"
-        "time_offset.estimate = lambda stream: time.sleep(3600)\n"
+        "time_offset.estimate = lambda stream, decided=None: time.sleep(3600)\n"
         "job = time_offset.Background(None)\n"
         "assert job._thread is not None and job._thread.is_alive() and job._thread.daemon\n"
         "sys.exit(143)\n"

@@ -113,3 +113,23 @@ def test_three_velocity_columns_in_one_dead_reckoning_equal_three():
         r_one, p_one = lie.integrate_body_twists_at(r0, p0, omega, vc, dt, keep)
         assert np.array_equal(rs, r_one) and np.array_equal(ps[c], p_one)
     assert not np.array_equal(ps[0], ps[1])
+
+
+def test_three_gyro_columns_in_one_pass_equal_three_dead_reckonings():
+    """``integrate_body_twists_at_rotation_columns`` (the time offset's gyro-bias Jacobian): each column's rotations
+    and positions the same bits as :func:`lie.integrate_body_twists_at` on the angular velocities with that column
+    replaced."""
+    rng = np.random.default_rng(12)
+    k = 500
+    omega, v, cols = rng.normal(size=(k, 3)), rng.normal(size=(k, 3)), rng.normal(size=(k, 3))
+    omega[::50], cols[::70] = 0.0, 0.0  # small angles take the series branch
+    dt = rng.uniform(0.001, 0.02, k)
+    keep = np.sort(rng.choice(k + 1, 40, replace=False))
+    r0, p0 = lie.so3_exp(rng.normal(size=3)), rng.normal(size=3)
+    rs, ps = lie.integrate_body_twists_at_rotation_columns(r0, p0, omega, v, cols, dt, keep)
+    for c in range(3):
+        oc = omega.copy()
+        oc[:, c] = cols[:, c]
+        r_one, p_one = lie.integrate_body_twists_at(r0, p0, oc, v, dt, keep)
+        assert np.array_equal(rs[c], r_one) and np.array_equal(ps[c], p_one)
+    assert not np.array_equal(rs[0], rs[1])

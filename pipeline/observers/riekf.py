@@ -1441,6 +1441,7 @@ class RiEKF(Stepper):
         self._recorded, self._start = stream, (options, r0, p0)
         self._offset: time_offset.Background | None = time_offset.Background(stream)
         self._time_offset: dict | None = None  # None while it is being estimated
+        self._known = False  # whether the estimate is applied is known and acted upon (:meth:`_offset_applied`)
         if self._offset.done():  # one core: estimated already, nothing to overlap
             self._time_offset, self._offset = self._offset.result(), None
             stream = time_offset.shifted(stream, self._time_offset)
@@ -1474,30 +1475,49 @@ class RiEKF(Stepper):
     def time_offset(self) -> dict:
         """The time-offset estimate (``run.json`` ``observer.time_offset``), waited for while it is being made; when
         it is applied and the filter ran on the recorded stamps meanwhile, the filter starts again on the moved ones."""
+        if self._offset is not None:
+            self._offset_applied()
+            self._time_offset, self._offset = self._offset.result(), None
+        return self._time_offset
+
+    def _offset_applied(self) -> bool:
+        """Whether the time offset being estimated is applied, waited for only until that is known (the estimate's
+        reporting checks may still run); when it is, the filter starts again on the moved stamps, once."""
         from slamobs.pipeline.observers import time_offset
 
-        if self._offset is not None:
-            self._time_offset, self._offset = self._offset.result(), None
-            if self._time_offset["applied"]:
-                self._setup(time_offset.shifted(self._recorded, self._time_offset))
-        return self._time_offset
+        decision = self._offset.decision()
+        if decision["applied"] and not self._known:
+            self._setup(time_offset.shifted(self._recorded, decision))
+        self._known = True
+        return decision["applied"]
 
     def advance(self, iv_stop: int):
         """:meth:`Stepper.advance`. While the time offset is being estimated, the filter runs on the recorded
         stamps; it stops as soon as the estimate is known to be applied (:meth:`_kernel`) and starts again on the
-        moved stamps, and the first stretch is returned only once the estimate is known."""
+        moved stamps, and the first stretch is returned only once that is known. The estimate's reporting checks
+        (:func:`time_offset.estimate`'s ``decided``) may go on meanwhile: the stretches' statistics hold the estimate
+        from the first call that finds it done, and the last stretch's (``iv_stop`` at the end) always."""
         if self._offset is None:
             return super().advance(iv_stop)
+        if self._known:  # only the estimate's record is awaited
+            return self._with_estimate(super().advance(iv_stop), iv_stop)
         try:
             first = super().advance(iv_stop)
         except (ObserverDiverged, _OffsetApplied):
-            if not self.time_offset["applied"]:  # waits for the estimate (the filter started again if applied)
+            if not self._offset_applied():  # waits for the decision (the filter started again if applied)
                 raise  # diverged on the stamps the estimate keeps: as without the overlap
-            return super().advance(iv_stop)
-        if self.time_offset["applied"]:
-            return super().advance(iv_stop)
+            return self._with_estimate(super().advance(iv_stop), iv_stop)
+        if self._offset_applied():
+            return self._with_estimate(super().advance(iv_stop), iv_stop)
+        return self._with_estimate(first, iv_stop)
+
+    def _with_estimate(self, res, iv_stop: int):
+        """``res`` with the statistics as they are now, the time-offset estimate in them once it is done (waited for
+        at the last stretch)."""
+        if self._offset is not None and (iv_stop >= self.n_vel or self._offset.done()):
+            self._time_offset, self._offset = self._offset.result(), None
         self._describe()
-        return replace(first, stats=dict(self.stats))
+        return replace(res, stats=dict(self.stats))
 
     def _relocalise(self, iv: int) -> bool:
         """After a gap (a new segment): the pose re-anchored to the map as the observers do it, and its
@@ -1520,7 +1540,12 @@ class RiEKF(Stepper):
         return moved
 
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
-        if self._offset is not None and self._offset.done() and self._offset.result()["applied"]:
+        if (
+            self._offset is not None
+            and not self._known
+            and self._offset.decided()
+            and self._offset.decision()["applied"]
+        ):
             raise _OffsetApplied  # the filter ran on the recorded stamps meanwhile: no use going on (advance)
         s, o = self.stream, self.options
         if self.cov_rows is not None:  # the rows of this call: those not yet written
