@@ -32,7 +32,7 @@ IMPORTS = (
     ("click, slamobs.cli.main", ("slamobs.cli.main",)),
     ("numpy", ("numpy",)),
     ("numba", ("numba",)),
-    ("kernel_cache (numba's array functions, BLAS start)", ("slamobs.pipeline.kernel_cache",)),
+    ("kernel_cache (BLAS start, cache hooks)", ("slamobs.pipeline.kernel_cache",)),
     ("readers (rosbags, zstandard, lz4; reader kernels)", ("slamobs.pipeline.readers",)),
     ("config (yaml, alignment, lie, noise)", ("slamobs.pipeline.config",)),
     ("run (observers, estimators)", ("slamobs.pipeline.run",)),

@@ -351,4 +351,4 @@ def install() -> None:
 
 
 install()
-native.start()  # BLAS and numba's array functions start here, on the importing (main) thread, not on a reader's
+native.start()  # BLAS starts here, on the importing (main) thread, not on a reader's; numba's array functions lazily

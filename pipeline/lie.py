@@ -3,8 +3,9 @@
 Conventions (docs/observers.md §1): ``R`` maps body-frame vectors to the inertial frame, twists are ordered
 ``[omega; v]``, quaternions are stored ``(x, y, z, w)`` as in ROS messages. The per-pose functions are
 numba-compiled so the observer kernels can call them (they also work from plain Python on NumPy arrays); the
-ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) run the same per-row arithmetic in one
-kernel for both directions (``_rots_quats_into``), so a first run compiles it once.
+ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) run the same per-row arithmetic, in array
+code on a short log's arrays (no compile on its first run) and in one kernel for both directions
+(``_rots_quats_into``) on long ones, with the same bits.
 """
 
 from __future__ import annotations
@@ -337,22 +338,99 @@ def _quat_of_rot(r):
     return x / n, y / n, z / n, w / n
 
 
+#: Rows from which :func:`quats_to_rots` and :func:`rots_to_quats` take their compiled kernel (and from a 64th of it
+#: once this process has it); shorter arrays take the array code, whose numbers are the same bit for bit: the
+#: kernel's first compilation (~0.3 s of CPU) would cost a short log's first run more than it saves (a 3-minute
+#: log's 36 000 poses compile nothing here; an hour's 720 000 take the kernel).
+ROTATION_KERNEL_ROWS = 65_536
+
+
+def _kernel_for(n: int) -> bool:
+    return n >= ROTATION_KERNEL_ROWS or (n >= ROTATION_KERNEL_ROWS // 64 and bool(_rots_quats_into.signatures))
+
+
 def quats_to_rots(q):
-    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array: the same compiled arithmetic row by row; a zero
-    quaternion gives NaN."""
+    """Vectorised :func:`quat_to_rot` over an ``(N, 4)`` array: the same arithmetic row by row (compiled for long
+    arrays, :data:`ROTATION_KERNEL_ROWS`); a zero quaternion gives NaN."""
     q = np.ascontiguousarray(q, dtype=np.float64)
     out = np.empty((q.shape[0], 3, 3))
-    _rots_quats_into(out, q, False)
+    if _kernel_for(q.shape[0]):
+        _rots_quats_into(out, q, False)
+    else:
+        _rots_of_quats(q, out)
     return out
 
 
 def rots_to_quats(r):
-    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array: the same compiled arithmetic row by row
-    (NaN rows give NaN)."""
+    """Vectorised :func:`rot_to_quat` over an ``(N, 3, 3)`` array: the same arithmetic row by row (compiled for long
+    arrays, :data:`ROTATION_KERNEL_ROWS`); NaN rows give NaN."""
     r = np.ascontiguousarray(r, dtype=np.float64)
     q = np.empty((r.shape[0], 4))
-    _rots_quats_into(r, q, True)
+    if _kernel_for(r.shape[0]):
+        _rots_quats_into(r, q, True)
+    else:
+        _quats_of_rots(r, q)
     return q
+
+
+def _rots_of_quats(q: np.ndarray, out: np.ndarray) -> None:
+    """:func:`_rot_of_quat` of every row of ``q`` into ``out`` in array code: its operations in its order."""
+    qx, qy, qz, qw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        x, y, z, w = qx / n, qy / n, qz / n, qw / n
+        out[:, 0, 0] = 1.0 - 2.0 * (y * y + z * z)
+        out[:, 0, 1] = 2.0 * (x * y - z * w)
+        out[:, 0, 2] = 2.0 * (x * z + y * w)
+        out[:, 1, 0] = 2.0 * (x * y + z * w)
+        out[:, 1, 1] = 1.0 - 2.0 * (x * x + z * z)
+        out[:, 1, 2] = 2.0 * (y * z - x * w)
+        out[:, 2, 0] = 2.0 * (x * z - y * w)
+        out[:, 2, 1] = 2.0 * (y * z + x * w)
+        out[:, 2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+def _quats_of_rots(r: np.ndarray, q: np.ndarray) -> None:
+    """:func:`_quat_of_rot` of every matrix of ``r`` into ``q`` in array code: each of its four cases on the rows
+    that take it, its operations in its order."""
+    n = r.shape[0]
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = r.reshape(n, 9).T.copy()  # each element contiguous over the rows
+    xyzw = np.empty((4, n))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        tr = r00 + r11 + r22
+        s = 2.0 * np.sqrt(tr + 1.0)  # the first case on every row (nearly all take it); the others' rows redone
+        xyzw[:] = (r21 - r12) / s, (r02 - r20) / s, (r10 - r01) / s, 0.25 * s
+        rest = ~(tr > 0.0)
+        second = rest & (r00 > r11) & (r00 > r22)
+        third = rest & ~second & (r11 > r22)
+        fourth = rest & ~second & ~third
+        for rows, k in ((second, 0), (third, 1), (fourth, 2)):  # the diagonal element k is the largest
+            _quats_case(k, np.flatnonzero(rows), (r00, r01, r02, r10, r11, r12, r20, r21, r22), xyzw)
+        flip = np.flatnonzero(xyzw[3] < 0.0)
+        xyzw[:, flip] = -xyzw[:, flip]
+        x, y, z, w = xyzw
+        norm = np.sqrt(x * x + y * y + z * z + w * w)
+        for c in range(4):
+            q[:, c] = xyzw[c] / norm
+
+
+def _quats_case(k: int, i: np.ndarray, e: tuple, xyzw: np.ndarray) -> None:
+    """Rows ``i`` of :func:`_quats_of_rots` in :func:`_quat_of_rot`'s case of the diagonal element ``k`` (0, 1, 2:
+    x, y, z is the component found first), from the matrices' elements ``e`` (row-major, each over the rows)."""
+    if not i.size:
+        return
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = (c[i] for c in e)
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + r00 - r11 - r22)
+        x, y, z, w = 0.25 * s, (r01 + r10) / s, (r02 + r20) / s, (r21 - r12) / s
+    elif k == 1:
+        s = 2.0 * np.sqrt(1.0 + r11 - r00 - r22)
+        x, y, z, w = (r01 + r10) / s, 0.25 * s, (r12 + r21) / s, (r02 - r20) / s
+    else:
+        s = 2.0 * np.sqrt(1.0 + r22 - r00 - r11)
+        x, y, z, w = (r02 + r20) / s, (r12 + r21) / s, 0.25 * s, (r10 - r01) / s
+    for c, v in enumerate((x, y, z, w)):
+        xyzw[c, i] = v
 
 
 @njit(cache=True, nogil=True, nrt=False)

@@ -12,6 +12,7 @@ limit and the process's mapped size (``/proc/self/status``), so without a limit 
 from __future__ import annotations
 
 import sys
+from contextlib import contextmanager
 
 #: What OpenBLAS's first matrix product maps (its 32 MB buffer and more: NumPy imported, 97 MB, it failed under
 #: ``ulimit -v 130000`` and passed under 140000), with some margin.
@@ -57,14 +58,24 @@ def load_array_functions_without_blas() -> None:
     """Load numba's array functions (``numba.np.arraymath``) now, in this thread, without SciPy's BLAS.
 
     numba imports ``scipy.linalg.cython_blas`` (when SciPy is installed) as it loads its array functions, on the
-    first kernel compiled or loaded: in a run, on the thread that reads the log's chunks. That started SciPy's
-    OpenBLAS (see above). No kernel here calls BLAS (np.dot, np.linalg), so numba is told there is none (it then
-    compiles every kernel as before); a SciPy imported by someone else afterwards loads as usual."""
+    first kernel compiled or loaded that needs them: in a run, on the thread that reads the log's chunks. That
+    started SciPy's OpenBLAS (see above). No kernel here calls BLAS (np.dot, np.linalg), so numba is told there is
+    none (it then compiles every kernel as before); a SciPy imported by someone else afterwards loads as usual."""
+    with array_functions_without_blas():
+        import numba.np.arraymath  # noqa: F401
+
+
+@contextmanager
+def array_functions_without_blas():
+    """numba's array functions, where numba imports them inside this block, load as
+    :func:`load_array_functions_without_blas` loads them: ``import scipy.linalg`` fails meanwhile (nothing is
+    imported here; once they are loaded, or SciPy's ``linalg`` is, nothing changes)."""
     if "numba.np.arraymath" in sys.modules or "scipy.linalg" in sys.modules:
+        yield
         return
     sys.modules["scipy.linalg"] = None  # type: ignore[assignment]  # `import scipy.linalg...` raises ImportError
     try:
-        import numba.np.arraymath  # noqa: F401
+        yield
     finally:
         if sys.modules.get("scipy.linalg", 0) is None:
             del sys.modules["scipy.linalg"]
@@ -91,6 +102,7 @@ class _CompileGuard:
             except MemoryError:
                 self.depth -= 1
                 raise
+            load_array_functions_without_blas()  # numba's compiler loads them (its registries) next
 
     def on_end(self, _ev) -> None:
         self.depth = max(0, self.depth - 1)
@@ -120,7 +132,8 @@ def guard_compilation() -> None:
     def guarded_load(self, sig, target_context):
         check_room("load a compiled kernel")
         if not hasattr(self, "_load_overload"):  # a numba whose cache is laid out otherwise: its own load
-            return load(self, sig, target_context)
+            with array_functions_without_blas():
+                return load(self, sig, target_context)
         return load_cached(self, sig, target_context)
 
     guarded_load._slamobs_guarded = True
@@ -136,15 +149,14 @@ def load_cached(cache, sig, target_context):
     from numba.core.runtime import rtsys
 
     rtsys.initialize(target_context)
-    with cache._guard_against_spurious_io_errors():
-        return cache._load_overload(sig, target_context)
+    with cache._guard_against_spurious_io_errors(), array_functions_without_blas():  # a kernel that allocates needs
+        return cache._load_overload(sig, target_context)  # them: unpickling it imports them, the others do not
 
 
 def start() -> None:
     """All of the above: what a process that runs kernels does first (:mod:`.kernel_cache` calls it)."""
     start_blas()
-    load_array_functions_without_blas()  # cached kernels need them too: unpickling one imports numba.np.arraymath
-    guard_compilation()
+    guard_compilation()  # numba's array functions (~0.06 s) are loaded when a kernel compiled or loaded needs them
 
 
 def return_freed_memory() -> bool:

@@ -49,3 +49,6 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     helpers = ("._integrate", "._substeps", ".se3_exp_into", ".project_so3_into", "._quat_of_rot", "._rot_of_quat")
     assert [k for k in kernels if k.endswith(helpers)] == []
     assert [k for k in kernels if k.startswith(OTHERS)] == []
+    # a short log's rotations and quaternions are array code (lie.ROTATION_KERNEL_ROWS): its first run compiles no
+    # kernel for them
+    assert "slamobs.pipeline.lie._rots_quats_into" not in kernels

@@ -132,7 +132,8 @@ def test_a_cached_kernel_loads_without_numbas_registries():
     """A kernel from the cache is loaded without numba's ``refresh()`` (its typing and lowering registries,
     ~0.25 s of CPU at a short run's first load) and without the scan for numba extensions (~0.06 s): in a fresh
     process the cached kernel gives the right result, the modules only that refresh imports (numba's NumPy
-    polynomial and random implementations) stay unloaded and no extension was looked for; a kernel compiled
+    polynomial and random implementations, its array functions) stay unloaded and no extension was looked for; a
+    kernel compiled
     afterwards in the same process still compiles, its extensions loaded first (numba's compiler refreshes)."""
     import subprocess
     import sys
@@ -149,6 +150,7 @@ def test_a_cached_kernel_loads_without_numbas_registries():
         assert np.allclose(q, [0.0, 0.0, math.sin(a / 2), math.cos(a / 2)]), q
         print(lie.rot_to_quat.stats.cache_hits.get(lie.rot_to_quat.signatures[0], 0))
         print(sum(m in sys.modules for m in ("numba.np.polynomial.polynomial_core", "numba.np.random.legacy")))
+        print(int("numba.np.arraymath" in sys.modules))
         from numba.core import entrypoints
         print(int(entrypoints._already_initialized))
         print(kc.njit(lambda x: x + 1)(41))
@@ -158,8 +160,10 @@ def test_a_cached_kernel_loads_without_numbas_registries():
     assert first.returncode == 0, first.stderr[-2000:]  # compiled here if it was not cached yet
     again = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr[-2000:]
-    hits, registries, extensions_before, compiled, extensions_after = again.stdout.split()
+    hits, registries, array_functions, extensions_before, compiled, extensions_after = again.stdout.split()
     assert int(hits) == 1 and registries == "0" and compiled == "42"
+    # nor numba's array functions (~0.06 s to import): no cached kernel of a run refers to them
+    assert array_functions == "0"
     # numba's extensions (entry points) are not looked for to load a kernel, and are before compiling one
     assert extensions_before == "0" and extensions_after == "1"
 

@@ -81,6 +81,31 @@ def test_quats_to_rots_is_quat_to_rot_row_by_row():
     assert np.isnan(got[3]).all() and np.isnan(got[4]).all()  # a zero quaternion is no rotation: NaN
 
 
+def test_short_and_long_arrays_of_rotations_give_the_same_bits(monkeypatch):
+    """Short arrays take array code, long ones the compiled kernel (``lie.ROTATION_KERNEL_ROWS``): both directions
+    give the same bits for every case of Shepperd's method, near-ties between diagonal entries, tiny, zero and NaN
+    quaternions, matrices that are not rotations."""
+    rng = np.random.default_rng(8)
+    q = rng.normal(size=(6000, 4))
+    q[:100] *= 1e-200
+    q[100:200] = 0.0
+    q[200:300, :3] = 0.0
+    q[300, 1] = np.nan
+    q[400:500] = np.round(q[400:500])  # exact multiples of pi / 2 and ties
+    m = np.empty((6000, 3, 3))
+    lie._rots_quats_into(m, q, False)
+    m[500:1000] += rng.normal(scale=1e-3, size=(500, 3, 3))
+    m[1000:1100] = rng.normal(size=(100, 3, 3))
+    m[1100:1200] = np.diag([-1.0, -1.0, 1.0])
+    m[1200] = np.nan
+    got = {}
+    for rows in (1, 1 << 62):
+        monkeypatch.setattr(lie, "ROTATION_KERNEL_ROWS", rows)
+        got[rows] = (lie.quats_to_rots(q), lie.rots_to_quats(m))
+    for a, b in zip(got[1], got[1 << 62]):
+        assert np.array_equal(a.view(np.int64), b.view(np.int64))
+
+
 def test_skew_vex_and_identities():
     rng = np.random.default_rng(5)
     x, y = rng.normal(size=3), rng.normal(size=3)

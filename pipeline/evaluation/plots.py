@@ -207,27 +207,9 @@ def plot_trajectory_top(
                 label="estimated landmarks (aligned)",
             )
         if len(lm_est_ids) <= MAX_ID_LABELS:
-            for i, p in zip(lm_est_ids, lm_est_xyz):
-                ax.annotate(
-                    str(int(i)),
-                    (p[0], p[1]),
-                    xytext=(4, 4),
-                    textcoords="offset points",
-                    fontsize=7,
-                    color="tab:orange",
-                    in_layout=False,
-                )  # inside the axes: not a layout concern
+            _id_labels(ax, lm_est_ids, lm_est_xyz, (4, 4), "tab:orange")
     if lm_truth_ids is not None and lm_truth_xyz is not None and 0 < len(lm_truth_ids) <= MAX_ID_LABELS:
-        for i, p in zip(lm_truth_ids, lm_truth_xyz):
-            ax.annotate(
-                str(int(i)),
-                (p[0], p[1]),
-                xytext=(4, -10),
-                textcoords="offset points",
-                fontsize=7,
-                color="0.2",
-                in_layout=False,
-            )
+        _id_labels(ax, lm_truth_ids, lm_truth_xyz, (4, -10), "0.2")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -235,6 +217,16 @@ def plot_trajectory_top(
     ax.grid(True, alpha=0.3)
     fig.legend(loc="lower center", ncols=3, fontsize=8)  # below the axes: never over the data
     return _save(fig, path)
+
+
+def _id_labels(ax, ids: np.ndarray, xyz: np.ndarray, offset_pt: tuple[float, float], color) -> None:
+    """Each landmark's id as a 7 pt text ``offset_pt`` points right of and above its x-y position: plain texts on
+    one shifted data transform (an ``annotate`` per label drew the same pixels at about twice the cost)."""
+    from matplotlib.transforms import ScaledTranslation
+
+    shifted = ax.transData + ScaledTranslation(offset_pt[0] / 72.0, offset_pt[1] / 72.0, ax.figure.dpi_scale_trans)
+    for i, p in zip(ids, xyz):  # inside the axes: not a layout concern
+        ax.text(p[0], p[1], str(int(i)), transform=shifted, fontsize=7, color=color, in_layout=False)
 
 
 def plot_errors(
