@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numba import types
 from slamobs.pipeline.kernel_cache import njit, subroutine
+from slamobs.pipeline.simd import prefetch
 from rosbags.interfaces import Nodetype
 
 from slamobs.pipeline.errors import BadInput, InputError
@@ -70,6 +71,7 @@ _PRIMITIVES: dict[str, tuple[int, str]] = {
 _BASE, _NAME, _ARRAY, _SEQUENCE = Nodetype.BASE, Nodetype.NAME, Nodetype.ARRAY, Nodetype.SEQUENCE
 #: Op kinds and leaf kinds as the compiled walk (:func:`_walk`) reads them.
 _LEAF, _SKIP, _STRING = 0, 1, 2
+_AHEAD = 8
 _KINDS = {"f": 0, "i": 1, "u": 2}
 
 
@@ -395,6 +397,10 @@ def _walk(  # pragma: no cover - compiled
     fail_op, fail_stage = nops + 1, 0
     m = 0  # element rows written
     for i in range(n):
+        if i + _AHEAD < n:
+            ahead = origin[i + _AHEAD]
+            for q in range(0, limit[i + _AHEAD], 64):
+                prefetch(data, ahead + q)
         o, lim = origin[i], limit[i]
         p = 0  # relative to the origin (CDR aligns relative to the end of the encapsulation header)
         op, stage = nops + 1, 0

@@ -30,6 +30,7 @@ import numpy as np
 
 from numba import types
 from slamobs.pipeline.kernel_cache import njit, subroutine
+from slamobs.pipeline.simd import prefetch
 
 from .storage import RawBatch
 
@@ -267,6 +268,9 @@ def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size)
     while ok and k < count:
         base = k * page_size
         end = base + usable
+        if k + 1 < count:
+            for q in range(base + page_size, base + 2 * page_size, 64):
+                prefetch(buf, q)
         ncells = _be(buf, base + 3, 2)
         ok = buf[base] == _LEAF and 8 + 2 * ncells <= usable
         page_n, page_last = 0, last
