@@ -162,8 +162,9 @@ def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch
 def _be(buf, at, width):  # pragma: no cover - compiled
     """Big-endian unsigned int of ``width`` bytes (``width`` <= 8, bounds checked by the caller)."""
     v = np.int64(0)
-    for k in range(width):
-        v = (v << np.int64(8)) | np.int64(buf[at + k])
+    a = np.uint64(at)  # unsigned indices: no wrap-around checks
+    for k in range(np.uint64(width)):
+        v = (v << np.int64(8)) | np.int64(buf[a + k])
     return v
 
 
@@ -173,17 +174,18 @@ def _varint(buf, at, end):  # pragma: no cover - compiled
     is -1 already (a chain of reads stops at the first that fails)."""
     if at < 0:
         return np.int64(0), np.int64(-1)
+    a = np.uint64(at)  # unsigned indices: no wrap-around checks
     v = np.int64(0)
     for k in range(8):
         if at + k >= end:
             return np.int64(0), np.int64(-1)
-        b = np.int64(buf[at + k])
+        b = np.int64(buf[a + np.uint64(k)])
         v = (v << np.int64(7)) | (b & np.int64(0x7F))
         if b < 0x80:
             return v, np.int64(at + k + 1)
     if at + 8 >= end:
         return np.int64(0), np.int64(-1)
-    return (v << np.int64(8)) | np.int64(buf[at + 8]), np.int64(at + 9)
+    return (v << np.int64(8)) | np.int64(buf[a + np.uint64(8)]), np.int64(at + 9)
 
 
 def _children(buf: np.ndarray, count: int, page_size: int, usable: int, npages: int) -> tuple[np.ndarray, bool]:
