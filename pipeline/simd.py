@@ -9,6 +9,9 @@ C-contiguous 2-D float64 array, :func:`splat8` broadcasts a scalar, :func:`fma8`
 whatever the vector width of the machine; without AVX-512 LLVM splits each vector into two 256-bit halves).
 Nothing is checked: the caller keeps ``j + 8`` within the row (riekf pads its rows to whole vectors,
 ``riekf.PAD``).
+
+:func:`prefetch` asks the CPU for an array's cache line ahead of its use (LLVM's ``llvm.prefetch``): the readers'
+compiled walks read messages scattered over a chunk or a db3 window that is no longer in cache.
 """
 
 from __future__ import annotations
