@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cache, cached_property
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -1091,10 +1091,19 @@ def read_columns(
     return {t: cols.done() for t, cols in zip(names, out, strict=True)}
 
 
+@cache
+def _row_paths(msgtype: str) -> tuple[tuple[Path_, ...], Path_ | None] | None:
+    """:func:`layout_paths` of a ``rows.LAYOUTS`` type (None: no layout, or not plain field reads), found once
+    per process: running the row functions on probes was a tenth of a small log's read."""
+    layout = LAYOUTS.get(msgtype)
+    paths = layout_paths(layout.row, layout.child) if layout is not None else None
+    return (tuple(paths[0]), paths[1]) if paths is not None else None
+
+
 def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
     """The plan reading a ``rows.LAYOUTS`` type's row and frames, None if it needs rosbags."""
     layout = LAYOUTS.get(msgtype)
-    paths = layout_paths(layout.row, layout.child) if layout is not None else None
+    paths = _row_paths(msgtype)
     if layout is None or paths is None:
         return None
     strings = (FRAME_ID,) + ((paths[1],) if paths[1] is not None else ())
