@@ -99,7 +99,8 @@ def open_table(path: Path, root: int) -> Table | None:
                 buf = _read_pages(fobj, level[:1], page_size)
                 if buf is None or buf[0] == _LEAF:
                     return Table(path, *fields, level) if buf is not None else None
-                buf = _read_pages(fobj, level, page_size)
+                if level.shape[0] > 1:  # a level of one page (the root) is read already
+                    buf = _read_pages(fobj, level, page_size)
                 visited += level.shape[0]
                 if buf is None or visited > npages:  # cut, or a page named twice (a loop)
                     return None
