@@ -9,6 +9,9 @@ C-contiguous 2-D float64 array, :func:`splat8` broadcasts a scalar, :func:`fma8`
 whatever the vector width of the machine; without AVX-512 LLVM splits each vector into two 256-bit halves).
 Nothing is checked: the caller keeps ``j + 8`` within the row (riekf pads its rows to whole vectors,
 ``riekf.PAD``).
+
+:func:`prefetch` asks the CPU for an array's cache line ahead of its use (LLVM's ``llvm.prefetch``): the readers'
+compiled walks read messages scattered over a chunk or a db3 window that is no longer in cache.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["add8", "fma8", "load8", "mul8", "splat8", "store8", "sub8", "vec8"]
+__all__ = ["add8", "fma8", "load8", "mul8", "prefetch", "splat8", "store8", "sub8", "vec8"]
 
 _LLVM_VEC8 = ir.VectorType(ir.DoubleType(), 8)
 
@@ -126,3 +129,25 @@ def _lanewise(op: str):
 
 #: ``a + b``, ``a − b`` and ``a * b`` lane by lane (each rounded as the scalar operation).
 add8, sub8, mul8 = _lanewise("fadd"), _lanewise("fsub"), _lanewise("fmul")
+
+
+@intrinsic
+def prefetch(typingctx, ary, i):
+    """Ask the CPU to bring the cache line of ``ary[i]`` (a 1-D array) closer (LLVM's ``llvm.prefetch``: a read,
+    kept in every cache level). A hint only: nothing is read into the program, an index outside the array is
+    harmless (a prefetch never faults), so nothing is checked."""
+    if not (isinstance(ary, types.Array) and ary.ndim == 1 and isinstance(i, types.Integer)):
+        return None
+
+    def codegen(context, builder, sig, args):
+        a = context.make_array(sig.args[0])(context, builder, args[0])
+        i_ = context.cast(builder, args[1], sig.args[1], types.intp)
+        p = builder.bitcast(builder.gep(a.data, [i_]), ir.IntType(8).as_pointer())
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(
+            builder.module, ir.FunctionType(ir.VoidType(), [p.type, i32, i32, i32]), "llvm.prefetch.p0i8"
+        )
+        builder.call(fn, [p, ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return types.none(ary, i), codegen

@@ -173,6 +173,34 @@ def test_bad_payloads_raise(encoding):
             decode(plan, _batch([b"\x00\x03\x00\x00" + good[4:]], rng))
 
 
+def test_cdr_headers_are_checked_before_the_layouts():
+    """The compiled pass checks every message's CDR header: a header too short wins over a header that is not plain
+    CDR, which wins over any message's layout error, wherever each lies in the batch (as when the headers were
+    checked over the whole batch before the pass); a batch whose first message is big-endian reads as rosbags."""
+    ts = make_typestore(ros1=False)
+    rng = np.random.default_rng(3)
+    msgtype = "sensor_msgs/msg/Imu"
+    layout = LAYOUTS[msgtype]
+    plan = make_plan(ts, msgtype, layout_paths(layout.row)[0], cdr=True)
+    good = serialize(ts, _random(ts, msgtype, rng, ["imu"]), msgtype, "cdr")
+    short, foreign, cut = good[:3], b"\x00\x03\x00\x00" + good[4:], good[: len(good) // 2]
+    for batch, error in (
+        ([good, short, foreign], "shorter than its CDR header"),
+        ([foreign, good, short], "shorter than its CDR header"),
+        ([good, cut, foreign], "encapsulation"),
+        ([cut, foreign, good], "encapsulation"),
+        ([good, cut], "shorter than its sensor_msgs/msg/Imu layout"),
+    ):
+        with pytest.raises(DecodeError, match=error):
+            decode(plan, _batch(batch, rng))
+    msgs = [_random(ts, msgtype, rng, ["imu"]) for _ in range(5)]
+    raws = [serialize(ts, m, msgtype, "cdr" if i else "cdr-big-endian") for i, m in enumerate(msgs)]
+    got = decode(plan, _batch(raws, rng))
+    for i, raw in enumerate(raws):
+        row = np.array(layout.row(deserialize(ts, raw, msgtype, "cdr" if i else "cdr-big-endian")), np.float64)
+        np.testing.assert_array_equal(got.values[i].view(np.uint64), row.view(np.uint64))
+
+
 #: a header, then every primitive between strings (alignment after a string is per message) and an array skipped
 EVERY_KIND = """std_msgs/Header header
 uint8 a_uint8

@@ -30,6 +30,7 @@ import numpy as np
 
 from numba import types
 from slamobs.pipeline.kernel_cache import njit, subroutine
+from slamobs.pipeline.simd import prefetch
 
 from .storage import RawBatch
 
@@ -98,7 +99,8 @@ def open_table(path: Path, root: int) -> Table | None:
                 buf = _read_pages(fobj, level[:1], page_size)
                 if buf is None or buf[0] == _LEAF:
                     return Table(path, *fields, level) if buf is not None else None
-                buf = _read_pages(fobj, level, page_size)
+                if level.shape[0] > 1:  # a level of one page (the root) is read already
+                    buf = _read_pages(fobj, level, page_size)
                 visited += level.shape[0]
                 if buf is None or visited > npages:  # cut, or a page named twice (a loop)
                     return None
@@ -161,8 +163,9 @@ def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch
 def _be(buf, at, width):  # pragma: no cover - compiled
     """Big-endian unsigned int of ``width`` bytes (``width`` <= 8, bounds checked by the caller)."""
     v = np.int64(0)
-    for k in range(width):
-        v = (v << np.int64(8)) | np.int64(buf[at + k])
+    a = np.uint64(at)  # unsigned indices: no wrap-around checks
+    for k in range(np.uint64(width)):
+        v = (v << np.int64(8)) | np.int64(buf[a + k])
     return v
 
 
@@ -172,17 +175,18 @@ def _varint(buf, at, end):  # pragma: no cover - compiled
     is -1 already (a chain of reads stops at the first that fails)."""
     if at < 0:
         return np.int64(0), np.int64(-1)
+    a = np.uint64(at)  # unsigned indices: no wrap-around checks
     v = np.int64(0)
     for k in range(8):
         if at + k >= end:
             return np.int64(0), np.int64(-1)
-        b = np.int64(buf[at + k])
+        b = np.int64(buf[a + np.uint64(k)])
         v = (v << np.int64(7)) | (b & np.int64(0x7F))
         if b < 0x80:
             return v, np.int64(at + k + 1)
     if at + 8 >= end:
         return np.int64(0), np.int64(-1)
-    return (v << np.int64(8)) | np.int64(buf[at + 8]), np.int64(at + 9)
+    return (v << np.int64(8)) | np.int64(buf[a + np.uint64(8)]), np.int64(at + 9)
 
 
 def _children(buf: np.ndarray, count: int, page_size: int, usable: int, npages: int) -> tuple[np.ndarray, bool]:
@@ -256,6 +260,9 @@ def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size)
     take (the rows of the pages before it are returned): a page that is not a table leaf, a cell or record that is
     not as SQLite writes them, rowids that do not rise, a wanted payload that goes on in overflow pages (SQLite
     puts those together).
+
+    The next page's lines are asked for (:func:`.simd.prefetch`) while a page is walked: its cells are met at
+    scattered places, each a cache miss when the window's pages are not in cache (~2x the walk's time).
     """
     most = usable - 35  # the longest payload a leaf page keeps whole
     least = (usable - 12) * 32 // 255 - 23  # the least it keeps of a longer one
@@ -267,6 +274,9 @@ def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size)
     while ok and k < count:
         base = k * page_size
         end = base + usable
+        if k + 1 < count:
+            for q in range(base + page_size, base + 2 * page_size, 64):
+                prefetch(buf, q)
         ncells = _be(buf, base + 3, 2)
         ok = buf[base] == _LEAF and 8 + 2 * ncells <= usable
         page_n, page_last = 0, last
