@@ -731,7 +731,10 @@ def estimate(
         notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
         notes += lost_note(spec.name, part.stats.get("metadata", {}).get("resightings"))
         if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
-            jumps = landmark_jumps(*innovations.arrays())
+            # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
+            jumps = landmark_jumps(*innovations.arrays()) or part.stats.get("metadata", {}).get(
+                "start_landmark_jumps", []
+            )
             if jumps and split is None and prepared.known_map is None:
                 raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
             metadata["observer"]["landmark_jumps"] = (split or []) + jumps
