@@ -50,6 +50,12 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
     "gyro_bias_walk": (1e-4, "rad/s/sqrt(s)", "gyro-bias random walk (riekf; batch with bias: random-walk)"),
     "velocity_bias_walk": (1e-4, "m/s/sqrt(s)", "velocity-bias random walk (as gyro_bias_walk)"),
 }
+#: The detections "scatter" when the estimated law's σ at their middle range (the geometric mean of the 5th and 95th
+#: percentile the law was fitted on) is over this share of that range: their directions look random within 1 s, no
+#: noise an estimator can weigh (bearings in degrees: MR.CLAM 6 r1 0.52, generated figure 8s 0.28-0.29, missed on a
+#: ground robot, a circle and a loop at 0.10-0.17; as recorded, 13 real logs 0.0017-0.021, 16 generated and sample
+#: logs 0.0013-0.10, the most on 7 px stereo: docs/benchmarks.md "Silent wrong results, round 5").
+SCATTERED_SHARE = 0.25
 #: keys that may come from the log's message covariances, and the role whose topic states them
 STATED = {"gyro": "angular_velocity", "velocity": "linear_velocity"}
 #: a stated density below this share of the estimated one is not believed (the sensor claims less noise than its
@@ -275,7 +281,26 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
+    notes += scattered_note(law)
     return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
+
+
+def scattered_note(law: DetectionLaw | None) -> list[str]:
+    """A warning when the detections scatter (``SCATTERED_SHARE``): bearings in degrees read as radians, an angle
+    or frame that turns with them; riekf and batch take it for noise and say nothing else (MR.CLAM 6 r1 in
+    degrees: riekf APE 0.49 -> 4.2 m)."""
+    if law is None:
+        return []
+    r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
+    share = float(law.sigma(r)) / r
+    if share <= SCATTERED_SHARE:
+        return []
+    return [
+        f"warning: noise: the detections scatter by {float(law.sigma(r)):.3g} m at their middle range {r:.3g} m "
+        f"({share:.2f} of it) within 1 s: their directions look random, not noisy (a bearing in degrees read as "
+        "radians? a frame that turns with the detections?): check the detections' unit and frame; estimates from "
+        "them cannot be trusted"
+    ]
 
 
 def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], notes: list[str]):

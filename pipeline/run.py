@@ -14,6 +14,7 @@ input is released when it is done (single runs), and the report reads back the c
 
 from __future__ import annotations
 
+import copy
 import platform
 import time
 from dataclasses import dataclass, field, replace
@@ -35,10 +36,25 @@ from slamobs.pipeline.alignment import (
 )
 from slamobs.pipeline.compile_clock import CompileMark, compile_mark, compiled_since
 from slamobs.pipeline.config import RunConfig
-from slamobs.pipeline.errors import GainError, InputError, TruthUnusable, machine_failure, one_line, resource_error
+from slamobs.pipeline.errors import (
+    GainError,
+    InputError,
+    TruthUnusable,
+    Unwind,
+    machine_failure,
+    one_line,
+    resource_error,
+)
 from slamobs.pipeline.observers import ObserverOptions, ObserverResult, ObserverSpec
 from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
-from slamobs.pipeline.observers.base import InnovationRecord, ObserverDiverged, jump_note, landmark_jumps, lost_note
+from slamobs.pipeline.observers.base import (
+    InnovationRecord,
+    ObserverDiverged,
+    jump_note,
+    landmark_jumps,
+    lost_note,
+    split_jumps,
+)
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.streams import LogStreams
 
@@ -596,7 +612,9 @@ def run_prepared(
         # the report's tables handed over as written, not read back from the files (when there is truth)
         tables = {} if streams.truth is not None and len(streams.truth) else None
         timings.update(
-            estimate(prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables)
+            estimate_splitting(
+                prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables
+            )
         )
         native.return_freed_memory()  # what the estimator freed, before the report allocates its own
         report, report_error = evaluate_run(
@@ -635,11 +653,13 @@ def estimate(
     release: bool = False,
     progress: Progress = silent,
     handover: dict | None = None,
+    split: list[dict] | None = None,
 ) -> dict[str, float]:
     """Run the estimator a stretch at a time, each stretch written to the tables in ``tmp`` while the next one is
     computed (in the output frame fixed from the first stretch); then the map. Adds to ``metadata`` and ``notes``;
     returns the stage timings. A ``handover`` dict receives the report's tables as written
-    (:meth:`.TableWriter.kept`)."""
+    (:meth:`.TableWriter.kept`). A landmark whose detections jump (:func:`.landmark_jumps`) raises
+    :class:`_LandmarksJumped` unless ``split`` lists the jumps already split (or a known map fixes the ids)."""
     from slamobs.pipeline import interrupts, output_frame
     from slamobs.pipeline.writers import BackgroundWrites, TableWriter, landmark_table
 
@@ -711,8 +731,14 @@ def estimate(
         notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
         notes += lost_note(spec.name, part.stats.get("metadata", {}).get("resightings"))
         if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
-            metadata["observer"]["landmark_jumps"] = jumps = landmark_jumps(*innovations.arrays())
-            notes += jump_note(spec.name, jumps, t0_ns)
+            # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
+            jumps = landmark_jumps(*innovations.arrays()) or part.stats.get("metadata", {}).get(
+                "start_landmark_jumps", []
+            )
+            if jumps and split is None and prepared.known_map is None:
+                raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
+            metadata["observer"]["landmark_jumps"] = (split or []) + jumps
+            notes += jump_note(spec.name, split or [], t0_ns) + jump_note(spec.name, jumps, t0_ns)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
         stage_timings = dict(part.timings)
         del part
@@ -729,6 +755,39 @@ def estimate(
     # parts of observer_s (batch: seed_s, smoother_s); the writer's own time (it overlaps the observer) and the
     # landmarks and footers after the last stretch
     return {"observer_s": observer_s, **stage_timings, "write_s": writes.busy_s + time.perf_counter() - t_end}
+
+
+class _LandmarksJumped(Unwind):
+    """Landmarks whose detections jump (``jumps``: :func:`.landmark_jumps`), found once the estimator is done:
+    :func:`estimate_splitting` runs it again with them split."""
+
+    def __init__(self, jumps: list[dict]) -> None:
+        super().__init__(jumps)
+        self.jumps = jumps
+
+
+def estimate_splitting(
+    prepared: PreparedLog, config: RunConfig, est: EstimatorInput, tmp: Path, metadata: dict, notes: list[str], **kw
+) -> dict[str, float]:
+    """:func:`estimate`, made again when a landmark's detections jump (an id reused for another landmark, or a
+    landmark moved: MR.CLAM 6 r1 with landmark 6's id given to landmark 16 from mid-log took batch's map from
+    0.09 to 2.2 m) with the detections after each jump as a landmark of their own (:func:`.split_jumps`, the next
+    id free of the log's and the landmark truth's); ``first_pass_s`` times the run that found them."""
+    kept_notes, kept_metadata, t = len(notes), copy.deepcopy(metadata), time.perf_counter()
+    try:
+        return estimate(prepared, config, est, tmp, metadata, notes, **kw)
+    except _LandmarksJumped as jumped:
+        jumps = jumped.jumps
+    del notes[kept_notes:]
+    metadata.clear()
+    metadata.update(kept_metadata)
+    first_pass_s = time.perf_counter() - t
+    truth = prepared.streams.landmark_truth or {}
+    split = replace(prepared, aligned=split_jumps(prepared.aligned, jumps, np.array(list(truth), np.int64)))
+    timings = estimate(split, config, est, tmp, metadata, notes, split=jumps, **kw)
+    if split.aligned is None:  # released by the run
+        prepared.aligned = None
+    return {**timings, "first_pass_s": first_pass_s}
 
 
 def evaluate_run(

@@ -318,7 +318,7 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     doubtful first solution, riekf's recoveries), the velocity gaps that split the run into segments, and the
     time window it kept. The same whether the report is made by ``slamobs run`` or again by ``slamobs report``."""
     own = f"{(metadata.get('observer') or {}).get('name')}: "
-    if said := [n for n in run_notes if n.startswith(("noise: ", own, f"warning: {own}"))]:
+    if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []
     if len(segments) > 1:

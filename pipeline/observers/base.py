@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -373,15 +373,44 @@ def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list
     return out
 
 
+def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) -> AlignedStream:
+    """``aligned`` with the detections of each jumping landmark (:func:`landmark_jumps`) from its jump on given an
+    id of their own, the next free one above ``taken`` and the stream's ids (set as each jump's ``new_id``): a
+    landmark after it, not the same place. ``aligned`` is left as it was (compare runs others on it)."""
+    t_det = np.repeat(aligned.det_t_ns, np.diff(aligned.det_offsets))
+    ids = aligned.det_ids.copy()
+    next_id = int(max(aligned.landmark_ids.max(initial=0), np.max(taken, initial=0))) + 1
+    for j in jumps:
+        j["new_id"] = next_id
+        ids[(aligned.det_ids == j["id"]) & (t_det >= j["t_ns"])] = next_id
+        next_id += 1
+    landmark_ids, det_idx = np.unique(ids, return_inverse=True)
+    return replace(
+        aligned,
+        landmark_ids=landmark_ids.astype(aligned.landmark_ids.dtype),
+        det_idx=det_idx.astype(aligned.det_idx.dtype),
+    )
+
+
 def jump_note(name: str, jumps: list[dict], t0_ns: int) -> list[str]:
-    """Estimator ``name``'s warning naming the landmarks that jump (:func:`landmark_jumps`)."""
+    """Estimator ``name``'s warning naming the landmarks that jump (:func:`landmark_jumps`); those split by
+    :func:`split_jumps` (a ``new_id``) say which id their later detections got."""
     if not jumps:
         return []
     said = "; ".join(
         f"{j['id']} at {(j['t_ns'] - t0_ns) / 1e9:.1f} s ({j['before'][0]} detections before it a median "
-        f"{j['before'][1]:.3g}x the run's usual distance from the map, {j['after'][0]} after it {j['after'][1]:.3g}x)"
+        f"{j['before'][1]:.3g}x the run's usual distance from the map, {j['after'][0]} after it {j['after'][1]:.3g}x"
+        + (f"; from then on landmark {j['new_id']}" if "new_id" in j else "")
+        + ")"
         for j in jumps
     )
+    if all("new_id" in j for j in jumps):
+        return [
+            f"warning: {name}: landmark {said}: a landmark id reused for another landmark (a tag printed again, a "
+            "barcode reassigned) or a landmark moved; the run was made again with the detections after the jump "
+            "as a landmark of their own (the new id in landmarks.parquet, no truth for it): give them an id of "
+            "their own in the log"
+        ]
     return [
         f"warning: {name}: landmark {said}: a landmark id reused for another landmark (a tag printed again, a "
         "barcode reassigned) or a landmark moved; the estimate took them as one place, so its map and the poses "

@@ -366,6 +366,13 @@ GYRO_MISREADS = {
     "with its angular velocity's sign flipped": -1.0,
     "with its angular velocity divided by 57.3 (deg/s?)": float(np.radians(1.0)),
 }
+#: A turn of the wrong sign is also what mirrored detections show (one axis of the camera frame flipped: a
+#: left-handed extrinsic, a bearing of the wrong sign): to the pairs a mirror and a flipped gyro are the same, on a
+#: robot that does not move sideways exactly (MR.CLAM 6 r1 with its bearings negated: the sign flip 8.35x better).
+MIRROR_ADVICE = (
+    ", or whether the detections are mirrored (an axis of their frame flipped: a left-handed camera extrinsic, a "
+    "bearing of the wrong sign), which the detections cannot tell from it"
+)
 #: A misread is named when the pairs' trimmed mean squared residual with the angular velocity so undone is this
 #: many times smaller than as read (MR.CLAM 6 r1 as recorded: 2.4x and 8.6x larger; in deg/s 712x smaller, its
 #: sign flipped 8.6x smaller).
@@ -582,8 +589,9 @@ def note(name: str, offset: dict) -> list[str]:
     an angular velocity the detections say is misread (``gyro_misreads``)."""
     notes = [
         f"warning: {name}: the detections fit the odometry {gain:.3g}x better {what} "
-        f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the gyro's unit and axes; "
-        "the estimate used it as read"
+        f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the gyro's unit and axes"
+        + (MIRROR_ADVICE if GYRO_MISREADS[what] < 0 else "")
+        + "; the estimate used it as read"
         for what, gain in (offset.get("gyro_misreads") or {}).items()
         if gain >= GYRO_MISREAD_GAIN
     ]

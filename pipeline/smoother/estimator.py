@@ -135,6 +135,7 @@ class BatchSmoother(Stepper):
         )
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
         self.law_notes = []
+        self.start_jumps: list[dict] = []  # the first start whose landmarks jump (:func:`.seed.observer_seed`)
         held = self.noise.detection_held_scale
         if held != 1.0 and dc.skipped(self.settings.detection_correlation, fixed_bias is not None) is None:
             # the held fit's factor stands for the detections' slow error, which the correlation step models
@@ -233,6 +234,8 @@ class BatchSmoother(Stepper):
             "smoother": summary,
             "noise": self.noise.as_dict(),
             "time_offset": self.time_offset,
+            # a start's (riekf's) innovations jumping: the run splits those landmarks as it does its own
+            "start_landmark_jumps": self.start_jumps,
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
@@ -363,9 +366,11 @@ class BatchSmoother(Stepper):
         spec = get_observer(name)
         gains = spec.resolve_gains(self.options.seed_gains if name == self.settings.seed else None)
         try:
-            return observer_seed(name, self.stream, gains, self.options, kf_t)
+            seed = observer_seed(name, self.stream, gains, self.options, kf_t)
         except InputError as err:
             raise InputError(self.where, err.problem) from None
+        self.start_jumps = self.start_jumps or seed.landmark_jumps
+        return seed
 
     def _problem(self, kf_t: np.ndarray, kf_of_det: np.ndarray, gaps: np.ndarray | None, seed, segments: _Segments):
         """The factor graph's data: the odometry preintegrated between keyframes about the seed's (or the fixed)

@@ -9,7 +9,7 @@ is the start a smoother would have without an observer.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -29,6 +29,8 @@ class Seed:
     landmarks: np.ndarray  # (L, 3) in the stream's landmark order
     bias: np.ndarray  # (6,) [b_Ω, b_V]
     seconds: float
+    #: landmarks whose detections jump in the run of a seed with a gate (riekf: :func:`.landmark_jumps`)
+    landmark_jumps: list = field(default_factory=list)
 
 
 def first_sightings(stream: AlignedStream, kf_of_det: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> np.ndarray:
@@ -63,8 +65,11 @@ def observer_seed(name: str, stream: AlignedStream, gains: dict, options, kf_t: 
     s_of_kf = np.searchsorted(vel_t, kf_t, side="right") - 1  # the sample each keyframe falls in
     k = kf_t.shape[0]
     rot, pos, bias = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6))
-    from slamobs.pipeline.observers.base import ObserverDiverged
+    from slamobs.pipeline.observers.base import InnovationRecord, ObserverDiverged, landmark_jumps
 
+    # riekf's innovations show a reused landmark id where batch's own may not (MR.CLAM 6 r1, id 6 given to
+    # landmark 16: batch kept riekf's start, weighed the range 32x down and took 3.75 m with no jump in its own)
+    record = InnovationRecord() if get_observer(name).uses_noise else None
     part = None
     first = 0
     for stop in range(STRETCH, stepper.n_vel + STRETCH, STRETCH):
@@ -79,6 +84,8 @@ def observer_seed(name: str, stream: AlignedStream, gains: dict, options, kf_t: 
         rot[sel], pos[sel] = part.rotation[rows], part.position[rows]
         bias[sel, :3], bias[sel, 3:] = part.gyro_bias[rows], part.vel_bias[rows]
         first += n
+        if record is not None:
+            record.add(part)
     if part is None or not (np.isfinite(pos).all() and np.isfinite(part.landmark_xyz).all()):
         raise InputError(
             "<stream>", f"the seed observer '{name}' diverged (non-finite state); choose another batch.seed"
@@ -91,4 +98,5 @@ def observer_seed(name: str, stream: AlignedStream, gains: dict, options, kf_t: 
         np.array(part.landmark_xyz, dtype=float),
         np.r_[part.gyro_bias[-1], part.vel_bias[-1]],
         time.perf_counter() - t,
+        landmark_jumps(*record.arrays()) if record is not None else [],
     )
