@@ -25,5 +25,12 @@ class Stopped(Interruption):
 def on_signal(signum, _frame) -> None:
     """Signal handler of a long command: ignore further signals while it cleans up, stop with :class:`Stopped`."""
     for sig in EXIT_SIGNAL:  # a second signal must not cut the clean-up short (SIGKILL still can)
-        signal.signal(sig, signal.SIG_IGN)
+        signal.signal(sig, _ignored)
     raise Stopped(signum)
+
+
+def _ignored(_signum, _frame) -> None:
+    """A second signal while a stopped command cleans up: nothing. Not ``SIG_IGN``: an ignored signal stays ignored
+    across exec, and the worker processes a starting local Dask cluster still spawned after the stop ignored SIGTERM,
+    SIGHUP and SIGINT: multiprocessing's exit hook sent them SIGTERM and waited for them to finish importing and
+    give up on their nanny (a SIGHUP while the cluster started: exit 11-50 s after the batch's line, load 20)."""

@@ -147,6 +147,10 @@ def _kill_workers(cluster) -> None:
     import signal
 
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    # a nanny whose start was cut by the stop fails ("Nanny failed to start."): its task, abandoned by the cluster's
+    # interrupted start, was reported by asyncio as "Task exception was never retrieved" and a traceback when
+    # collected at exit, under the batch's line (a SIGHUP while the local cluster started)
+    logging.getLogger("asyncio").setLevel(logging.CRITICAL)
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(nanny, "pid", None)
         if hasattr(nanny, "close_gracefully"):
