@@ -200,8 +200,12 @@ class DaskPool:
                     f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
                 ) from None
         else:
-            try:  # a signal waits for the constructor: cut in two, its cluster was closed by distributed's exit
-                # hook, which printed a traceback (AssertionError: Status.init) under the batch's one line
+            # critical() defers only interrupts' handler (a command under raise_when_safe); batch's and tune's
+            # on_signal (cli/jobs.py) raise wherever the main thread is, here in distributed's sync() wait, so the
+            # constructor is cut in two and Local's clean-up closes its half-built cluster (left to distributed's exit
+            # hook, it printed a traceback, AssertionError: Status.init, under the batch's line). A signal the kernel
+            # hands to another thread runs the handler only when that wait returns (up to 3 s at load 10-20).
+            try:
                 with critical():
                     self.cluster = self._local_cluster()
                     self.client = Client(self.cluster)
