@@ -652,3 +652,33 @@ def test_a_command_ends_at_once_with_its_daemonic_children_killed():
     assert done.returncode == 7, done.stderr
     assert "teardown" not in done.stdout and "leaked" not in done.stderr, done.stdout + done.stderr
     assert not alive(int(done.stdout.split()[0]))
+
+
+SIGNAL_TO_ANOTHER_THREAD = """
+import signal, threading, time
+from slamobs.cli.jobs import EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
+for sig in EXIT_SIGNAL:
+    signal.signal(sig, on_signal)
+go = threading.Event()
+def other():
+    go.wait()
+    time.sleep(0.5)
+    signal.pthread_kill(threading.get_ident(), signal.SIGHUP)  # the kernel's choice: not the main thread
+    time.sleep(600)
+threading.Thread(target=other, daemon=True).start()
+try:
+    with signals_to_the_main_thread():
+        go.set()
+        threading.Event().wait(600)  # a lock wait, as distributed's sync() while a local cluster starts
+    print("the wait ended")
+except Stopped as stop:
+    print("stopped by", stop.signum, flush=True)
+"""
+
+
+def test_a_signal_handed_to_another_thread_stops_a_main_thread_waiting_on_a_lock():
+    """SIGHUP while a local Dask cluster starts: the main thread waits on a lock in distributed's ``sync()``, and the
+    kernel may hand the signal to one of Dask's threads; Python then ran the batch's handler only when that wait
+    returned (the batch's line 2-8 s after the signal at load 8-20). The signal is sent on to the main thread."""
+    done = subprocess.run([sys.executable, "-c", SIGNAL_TO_ANOTHER_THREAD], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == f"stopped by {int(signal.SIGHUP)}", done.stdout + done.stderr
