@@ -150,18 +150,17 @@ def _end_daemonic_children() -> None:
     if mp is None:
         return
     import time
-    from multiprocessing.connection import wait
 
-    pending = {}
+    killed = []
     for proc in mp.active_children():
         if proc.daemon:
             with suppress(Exception):
                 proc.kill()
-                pending[proc.sentinel] = proc
+                killed.append(proc)
     deadline = time.monotonic() + DAEMONIC_CHILD_S
-    while pending and (left := deadline - time.monotonic()) > 0:
-        for ended in wait(list(pending), left):  # not join(): another thread (Dask's) may be reaping it
-            pending.pop(ended)
+    for proc in killed:  # join, not only its sentinel: that is ready before the child can be reaped
+        with suppress(Exception):
+            proc.join(max(0.0, deadline - time.monotonic()))
 
 
 def _release_semaphores() -> None:
