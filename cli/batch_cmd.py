@@ -13,7 +13,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
+from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
 from slamobs.pipeline.cores import cores
 from slamobs.cli.options import Finite, OutPath, window_options
 from slamobs.pipeline.errors import plural
@@ -340,7 +340,7 @@ def run(
             if options.executor == "dask"
             else plural(options.jobs, "local worker process", "local worker processes")
         )
-        with as_interruption():
+        with as_interruption(), signals_to_the_main_thread():
             result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
     except (InfrastructureError, ResourceError) as err:  # ResourceError before InputError: it is one
         reporter.clear()

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal
+from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
 from slamobs.pipeline.cores import cores
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.listing import wrote_line
@@ -164,7 +164,8 @@ def tune(
                 f"tune: {observer} on {plural(len(logs), 'log')}{against}, {plural(trials, 'trial')}, on {where}",
                 err=True,
             )
-        result = run_tune(list(logs), options, on_round=on_round)
+        with signals_to_the_main_thread():  # a Dask cluster's start waits on a lock
+            result = run_tune(list(logs), options, on_round=on_round)
     except (InputError, GainError, TuneFailed) as err:
         exit_input_error(str(err))
     except InfrastructureError as err:

@@ -600,3 +600,85 @@ def test_a_signal_during_the_compaction_switch_is_raised_after_it(tmp_path, monk
     assert hangup_then_remove.sent
     assert not (out / "_slamobs" / dataset.JOURNAL).exists()
     assert len(assert_consistent(out)) == 3
+
+
+def test_a_process_started_after_the_stop_still_ends_on_sigterm():
+    """Once stopped, the batch ignored further signals with ``SIG_IGN``, which survives exec: the worker processes a
+    starting local Dask cluster spawned after a SIGHUP ignored SIGTERM, and the batch's exit (multiprocessing's
+    SIGTERM, then its wait) took 11-50 s after the batch's line under load 20. A process started after the stop
+    must end on SIGTERM."""
+    from slamobs.cli.jobs import EXIT_SIGNAL, Stopped, on_signal
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
+    try:
+        with pytest.raises(Stopped):
+            os.kill(os.getpid(), signal.SIGHUP)
+            for _ in range(400):  # the handler runs at a bytecode boundary
+                time.sleep(0.005)
+        os.kill(os.getpid(), signal.SIGTERM)  # a second signal during the clean-up: nothing
+        child = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(300)"])
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+    try:
+        child.terminate()
+        assert child.wait(timeout=60) == -signal.SIGTERM
+    finally:
+        child.kill()
+        child.wait()
+
+
+EXIT_WITH_A_DAEMONIC_CHILD = """
+import multiprocessing, sys, time
+from slamobs.cli import errors
+if __name__ == "__main__":
+    child = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(300,), daemon=True)
+    child.start()
+    print(child.pid, flush=True)
+    errors.EXIT_AT_ONCE = True
+    errors.exit_at_once(7)
+    print("the interpreter's teardown", flush=True)
+"""
+
+
+def test_a_command_ends_at_once_with_its_daemonic_children_killed():
+    """A daemonic multiprocessing child alive at the end (the worker processes a starting local Dask cluster spawned
+    after the stop) sent the command through the interpreter's teardown: SIGTERM to the child, a wait without bound,
+    then garbage collection (3-6 s after a stopped batch's line at load 10-20, and "Task exception was never
+    retrieved" tracebacks of its nannies as they were collected). The exit kills the child and ends at once."""
+    done = subprocess.run(
+        [sys.executable, "-c", EXIT_WITH_A_DAEMONIC_CHILD], capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 7, done.stderr
+    assert "teardown" not in done.stdout and "leaked" not in done.stderr, done.stdout + done.stderr
+    assert not alive(int(done.stdout.split()[0]))
+
+
+SIGNAL_TO_ANOTHER_THREAD = """
+import signal, threading, time
+from slamobs.cli.jobs import EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
+for sig in EXIT_SIGNAL:
+    signal.signal(sig, on_signal)
+go = threading.Event()
+def other():
+    go.wait()
+    time.sleep(0.5)
+    signal.pthread_kill(threading.get_ident(), signal.SIGHUP)  # the kernel's choice: not the main thread
+    time.sleep(600)
+threading.Thread(target=other, daemon=True).start()
+try:
+    with signals_to_the_main_thread():
+        go.set()
+        threading.Event().wait(600)  # a lock wait, as distributed's sync() while a local cluster starts
+    print("the wait ended")
+except Stopped as stop:
+    print("stopped by", stop.signum, flush=True)
+"""
+
+
+def test_a_signal_handed_to_another_thread_stops_a_main_thread_waiting_on_a_lock():
+    """SIGHUP while a local Dask cluster starts: the main thread waits on a lock in distributed's ``sync()``, and the
+    kernel may hand the signal to one of Dask's threads; Python then ran the batch's handler only when that wait
+    returned (the batch's line 2-8 s after the signal at load 8-20). The signal is sent on to the main thread."""
+    done = subprocess.run([sys.executable, "-c", SIGNAL_TO_ANOTHER_THREAD], capture_output=True, text=True, timeout=60)
+    assert done.stdout.strip() == f"stopped by {int(signal.SIGHUP)}", done.stdout + done.stderr

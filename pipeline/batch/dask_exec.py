@@ -147,6 +147,10 @@ def _kill_workers(cluster) -> None:
     import signal
 
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    # a nanny whose start was cut by the stop fails ("Nanny failed to start."): its task, abandoned by the cluster's
+    # interrupted start, was reported by asyncio as "Task exception was never retrieved" and a traceback when
+    # collected at exit, under the batch's line (a SIGHUP while the local cluster started)
+    logging.getLogger("asyncio").setLevel(logging.CRITICAL)
     for nanny in list(getattr(cluster, "workers", {}).values()):
         pid = getattr(nanny, "pid", None)
         if hasattr(nanny, "close_gracefully"):
@@ -196,8 +200,12 @@ class DaskPool:
                     f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
                 ) from None
         else:
-            try:  # a signal waits for the constructor: cut in two, its cluster was closed by distributed's exit
-                # hook, which printed a traceback (AssertionError: Status.init) under the batch's one line
+            # critical() defers only interrupts' handler (a command under raise_when_safe); batch's and tune's
+            # on_signal (cli/jobs.py) raise wherever the main thread is, here in distributed's sync() wait, so the
+            # constructor is cut in two and Local's clean-up closes its half-built cluster (left to distributed's exit
+            # hook, it printed a traceback, AssertionError: Status.init, under the batch's line). A signal the kernel
+            # hands to another thread runs the handler only when that wait returns (up to 3 s at load 10-20).
+            try:
                 with critical():
                     self.cluster = self._local_cluster()
                     self.client = Client(self.cluster)
