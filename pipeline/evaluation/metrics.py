@@ -543,11 +543,18 @@ def order_statistics(e: np.ndarray) -> tuple[float, np.ndarray]:
     return float(np.mean(part[middle[0] : middle[-1] + 1])), lerp
 
 
+#: values from which :func:`ranked` partitions one rank at a time (1,000 values: 0.012 against 0.006 ms at once)
+RANKED_ROWS = 4096
+
+
 def ranked(e: np.ndarray, ranks: np.ndarray) -> np.ndarray:
     """A copy of ``e`` with the values of rising ``ranks`` in place, as ``np.partition(e, ranks)`` puts them
     (NaN last), partitioned at one rank at a time over what lies above the rank before: NumPy partitions at a
     single rank with its vectorised selection and at several with its scalar one (360,000 errors, the report's
-    nine ranks: ~1.5 against 6.5 ms)."""
+    nine ranks: ~1.6 against 4.4-6.5 ms; ``benchmarks/order_statistics.py``). Below ``RANKED_ROWS`` values, where
+    the loop costs more than it saves, ``np.partition`` itself."""
+    if e.shape[0] < RANKED_ROWS:
+        return np.partition(np.asarray(e, dtype=np.float64), ranks)
     part = np.array(e, dtype=np.float64, copy=True)
     lo = 0
     for r in ranks:
