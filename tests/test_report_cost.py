@@ -156,6 +156,40 @@ def test_order_statistics_equal_numpy_median_and_percentile():
     assert np.isnan(median) and np.isnan(percentiles).all()
 
 
+def test_ranked_puts_the_values_of_each_rank_where_a_sort_does():
+    """``ranked`` (one single-rank partition after another) leaves at every asked rank the value a sort puts
+    there, NaN last, for rank sets with the ends, neighbours and repeats of ties."""
+    from slamobs.pipeline.evaluation.metrics import ranked
+
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 3, 10, 1000, 4097):
+        for e in (rng.standard_normal(n), np.round(rng.random(n), 1), np.full(n, 0.5)):
+            if n > 3:
+                e[rng.integers(0, n, 2)] = np.nan
+            for ranks in (np.array([0]), np.array([n - 1]), np.unique(rng.integers(0, n, 7)), np.arange(n)):
+                got = ranked(e, ranks)
+                assert got[ranks].tobytes() == np.sort(e)[ranks].tobytes()
+                assert np.sort(got).tobytes() == np.sort(e).tobytes()  # a permutation of e, e untouched
+    e = rng.random(20)
+    before = e.copy()
+    ranked(e, np.array([3, 10]))
+    assert e.tobytes() == before.tobytes()
+
+
+def test_median_is_numpy_median_bit_for_bit():
+    """``metrics.median`` is ``float(np.median(e))``: even and odd lengths on both sides of ``RANKED_ROWS``, floats
+    with ties, integer stamp steps, a NaN (NaN)."""
+    from slamobs.pipeline.evaluation.metrics import RANKED_ROWS, median
+
+    rng = np.random.default_rng(12)
+    for n in (1, 2, 3, RANKED_ROWS - 1, RANKED_ROWS, RANKED_ROWS + 1, 10_000, 10_001):
+        for e in (rng.standard_normal(n), np.round(rng.random(n), 1), rng.integers(4_990_000, 5_010_000, n)):
+            assert np.float64(median(e)).tobytes() == np.float64(np.median(e)).tobytes()
+        e = rng.random(n)
+        e[n // 3] = np.nan
+        assert np.isnan(median(e))
+
+
 def test_a_loaded_kernel_takes_the_shorter_pieces_of_a_long_log(monkeypatch):
     """Once a report kernel is in the process, the pieces of a long log shorter than ``KERNEL_ROWS`` (its last
     block, the RPE's pairs) take it too, with the array code's numbers; shorter ones still take the array code."""

@@ -304,7 +304,7 @@ class DriftSection(Section):
         if len(p) < 3:
             return
         t = p.t_est_ns
-        dt = float(np.median(np.diff(t))) / NS_PER_S if t is not None and t.shape[0] > 1 else 0.1
+        dt = metrics.median(np.diff(t)) / NS_PER_S if t is not None and t.shape[0] > 1 else 0.1
         step = max(1, int(round(1.0 / dt))) if dt > 0 else 10
         out = segment_drift(
             p.ref_pos,
@@ -761,7 +761,7 @@ def nees_statistics(
     return {
         **out,
         "mean": float(np.mean(nees[ok])),
-        "median": float(np.median(nees[ok])),
+        "median": metrics.median(nees[ok]),
         "dof": dof,
         "bounds": [float(v) for v in metrics.nees_bounds(dof, n)],
         "share_instants_within": float(np.mean((nees[ok] >= lo1) & (nees[ok] <= hi1))),

@@ -191,7 +191,7 @@ def convergence(
         "growing": bool(growing),
         "lost": bool(lost),
         "coarse": bool(coarse),
-        "steady_error": float(np.median(e[t >= cut])),
+        "steady_error": metrics.median(e[t >= cut]),
         "steady_level": steady_level,
         "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
         "recurring": recurring,

@@ -376,7 +376,9 @@ def _search_grid(
     The default step follows the slower stream (within 1-50 ms) so that each grid step holds a sample.
     """
     if step_s is None:
-        dt = max(float(np.median(np.diff(tr))), float(np.median(np.diff(te)))) / NS_PER_S
+        from slamobs.pipeline.evaluation.metrics import median  # (metrics imports this module)
+
+        dt = max(median(np.diff(tr)), median(np.diff(te))) / NS_PER_S
         step_s = min(max(dt, 1e-3), 0.05)
     step_ns = max(int(round(step_s * NS_PER_S)), 1)
     max_lag = max(int(math.ceil(max_offset_s / step_s)), 1)
