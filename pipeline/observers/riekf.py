@@ -79,6 +79,7 @@ from dataclasses import replace
 
 import numpy as np
 from numba import types
+from slamobs.pipeline.cholesky import cholesky_lower
 from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
@@ -544,25 +545,6 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
 
 
 @njit(cache=True)
-def _cholesky(s, m):
-    """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s``; False if not positive definite."""
-    for j in range(m):
-        v = s[j, j]
-        for k in range(j):
-            v -= s[j, k] * s[j, k]
-        if not v > 0.0:
-            return False
-        v = math.sqrt(v)
-        s[j, j] = v
-        for i in range(j + 1, m):
-            w = s[i, j]
-            for k in range(j):
-                w -= s[i, k] * s[j, k]
-            s[i, j] = w / v
-    return True
-
-
-@njit(cache=True)
 def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
     """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ`` of ``Σ⁻`` (the
     pending propagation added, each term read once; ``u``: the range's extra standard deviation along the line of
@@ -584,7 +566,7 @@ def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
 def _mahalanobis3(s, z):
     """``zᵀ S⁻¹ z`` for the 3×3 ``s`` (overwritten by its Cholesky factor L: ``|L⁻¹ z|²``); inf when S is not
     positive definite."""
-    if not _cholesky(s, 3):
+    if not cholesky_lower(s, 3):
         return np.inf
     w0 = z[0] / s[0, 0]
     w1 = (z[1] - s[1, 0] * w0) / s[1, 1]
@@ -872,7 +854,7 @@ def _update(
                 smat[r, c] = v
                 smat[c, r] = v
         _sum_innovations(z, smat, k3, win_sum)
-        if not _cholesky(smat, k3):
+        if not cholesky_lower(smat, k3):
             ns[_SKIPPED] += 1
         else:
             xi = _gain(hp, smat, z, k3, d)

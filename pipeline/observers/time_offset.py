@@ -25,6 +25,7 @@ import threading
 
 import numpy as np
 
+from slamobs.pipeline.cholesky import cholesky_lower
 from slamobs.pipeline.cores import cores
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import (
@@ -309,19 +310,12 @@ def _smallest(d2, n, keep):
 
 @njit(cache=True, nogil=True)
 def _solve_spd(a, b):
-    """``b ← a⁻¹ b`` for a symmetric positive definite ``a`` (overwritten by its Cholesky factor)."""
+    """``b ← a⁻¹ b`` for a symmetric positive definite ``a`` (overwritten by its Cholesky factor); NaN when it is
+    not positive definite."""
     n = b.shape[0]
-    for j in range(n):
-        v = a[j, j]
-        for k in range(j):
-            v -= a[j, k] * a[j, k]
-        v = np.sqrt(v)
-        a[j, j] = v
-        for i in range(j + 1, n):
-            w = a[i, j]
-            for k in range(j):
-                w -= a[i, k] * a[j, k]
-            a[i, j] = w / v
+    if not cholesky_lower(a, n):
+        b[:] = np.nan
+        return
     for i in range(n):
         v = b[i]
         for k in range(i):
