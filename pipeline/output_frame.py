@@ -65,8 +65,16 @@ class OutputFrame:
     method: str
 
     def apply(self, part: ObserverResult) -> ObserverResult:
-        """The stretch (and its map) in this frame; biases are body-frame and stay."""
+        """The stretch (and its map) in this frame; biases are body-frame and stay. The identity (``map``, or
+        ``start`` from a first pose at the identity, as riekf's and batch's) moves nothing: the stretch's rows as
+        they are, the map copied (its live arrays move on)."""
         r, t = self.rot, self.trans
+        if self.is_identity():
+            return replace(
+                part,
+                landmark_xyz=np.array(part.landmark_xyz),
+                landmark_cov=None if part.landmark_cov is None else np.array(part.landmark_cov),
+            )
         return replace(
             part,
             rotation=np.einsum("ij,kjl->kil", r, part.rotation),
@@ -77,6 +85,10 @@ class OutputFrame:
             pose_cov=None if part.pose_cov is None else rotate_covariance(part.pose_cov, np.kron(np.eye(2), r)),
             landmark_cov=None if part.landmark_cov is None else rotate_covariance(part.landmark_cov, r),
         )
+
+    def is_identity(self) -> bool:
+        """``x_out = x_map``: rotation exactly the identity, no translation (the rows keep their bits)."""
+        return bool(np.array_equal(self.rot, np.eye(3)) and not np.any(self.trans))
 
     def describe(self) -> dict:
         """For run.json and the Parquet metadata."""

@@ -186,3 +186,48 @@ def test_observers_without_directions_do_not_depend_on_their_initial_frame(name)
     np.testing.assert_allclose(res.rotation, np.einsum("ij,kjl->kil", r0, plain.rotation), atol=1e-8)
     np.testing.assert_allclose(res.landmark_xyz, plain.landmark_xyz @ r0.T + p0, atol=1e-6)
     np.testing.assert_allclose(res.gyro_bias, plain.gyro_bias, atol=1e-8)
+
+
+def test_the_identity_frame_moves_nothing_and_copies_the_map():
+    """``start`` from a first pose at the identity (riekf's, batch's) and ``map`` write the rows as the estimator
+    made them: no rotation of the hour's 131,072-row stretches on the writer's thread (its matrix products woke
+    OpenBLAS's second thread, which then spun beside the filter), the same values; the map is copied (its live
+    arrays move on while the stretch is written). A row with one non-finite component keeps its finite ones (the
+    product with the identity made the whole row NaN)."""
+    rng = np.random.default_rng(4)
+    n = 50
+    q = rng.normal(size=(n, 4))
+    rot = quats_to_rots(q / np.linalg.norm(q, axis=1)[:, None])
+    rot[0] = np.eye(3)
+    position = rng.normal(size=(n, 3))
+    position[0] = 0.0
+    innovation = rng.normal(size=(4, 3))
+    innovation[1, 2] = np.nan
+    cov = rng.normal(size=(n, 6, 6))
+    part = ObserverResult(
+        np.arange(n, dtype=np.int64),
+        rot,
+        position,
+        *(np.zeros((n, 3)),) * 2,
+        np.arange(2, dtype=np.int64),
+        rng.normal(size=(2, 3)),
+        np.arange(4, dtype=np.int64),
+        np.zeros(4, np.int64),
+        rng.normal(size=(4, 3)),
+        innovation,
+        pose_cov=cov @ cov.transpose(0, 2, 1),
+        landmark_cov=np.tile(np.eye(3), (2, 1, 1)),
+    )
+    for choice in ("start", "map"):
+        frame = output_frame.resolve(choice, part, aligned=None, log="x", gravity=(0.0, 0.0, -9.81))
+        assert frame.is_identity()
+        moved = frame.apply(part)
+        for name in ("rotation", "position", "track_xyz", "innovation", "pose_cov"):
+            assert getattr(moved, name) is getattr(part, name), name
+        assert np.array_equal(moved.innovation[1], [innovation[1, 0], innovation[1, 1], np.nan], equal_nan=True)
+        for name in ("landmark_xyz", "landmark_cov"):
+            assert np.array_equal(getattr(moved, name), getattr(part, name))
+            assert not np.shares_memory(getattr(moved, name), getattr(part, name)), name
+    turned = output_frame.OutputFrame("pose", so3_exp(np.array([0.0, 0.0, 0.3])), np.zeros(3), "a turn")
+    assert not turned.is_identity()
+    assert not np.array_equal(turned.apply(part).position, position)
