@@ -66,8 +66,8 @@ class OutputFrame:
 
     def apply(self, part: ObserverResult) -> ObserverResult:
         """The stretch (and its map) in this frame; biases are body-frame and stay. The identity (``map``, or
-        ``start`` from a first pose at the identity, as riekf's and batch's) moves nothing: the stretch's rows as
-        they are, the map copied (its live arrays move on)."""
+        ``start`` from a first pose at the identity, as riekf's and fast-adaptation's) moves nothing: the
+        stretch's rows as they are, the map copied (its live arrays move on)."""
         r, t = self.rot, self.trans
         if self.is_identity():
             return replace(
