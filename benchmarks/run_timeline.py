@@ -1,6 +1,6 @@
 """Where the wall time of one ``slamobs run`` goes, stage by stage, and how busy the cores are in each (issue 27).
 
-    .venv/bin/python benchmarks/run_timeline.py LOG [-o OUT] [--repeat 2] [--figure-helper]
+    .venv/bin/python benchmarks/run_timeline.py LOG [-o OUT] [--repeat 2] [--figure-helper] [--observer NAME]
 
 The run is ``slamobs run LOG -o OUT --force -q`` in this process, with a sampler thread that reads every 10 ms
 the CPU time of each thread of the process (``/proc/self/task``) and of its descendant processes (the figure
@@ -216,7 +216,7 @@ def chart(sampler: Sampler, bucket: float) -> None:
 
 
 def one_run(
-    log: Path, out: Path, helper: bool, bucket: float | None = None
+    log: Path, out: Path, helper: bool, bucket: float | None = None, extra: tuple[str, ...] = ()
 ) -> tuple[dict[str, float], dict[str, dict[str, float]], float]:
     """Stage walls, CPU per stage and thread, and the run's wall (and its chart, ``bucket`` seconds a column)."""
     from slamobs.cli import main as cli
@@ -238,7 +238,7 @@ def one_run(
     start = time.perf_counter()
     sampler.start()
     try:
-        cli.main(["run", str(log), "-o", str(out), "--force", "-q"], standalone_mode=False)
+        cli.main(["run", str(log), "-o", str(out), "--force", "-q", *extra], standalone_mode=False)
     finally:
         wall = time.perf_counter() - start
         sampler.stopped.set()
@@ -288,7 +288,9 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2, help="runs (the kernels are loaded by the first)")
     ap.add_argument("--figure-helper", action="store_true", help="start the figure helper even without a free core")
     ap.add_argument("--chart", type=float, default=None, metavar="SECONDS", help="each run's lanes over time")
+    ap.add_argument("--observer", default=None, help="the run's observer (default: the run's default)")
     args = ap.parse_args()
+    extra = ("--observer", args.observer) if args.observer else ()
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as `slamobs` (cli/main.py)
     import slamobs
 
@@ -297,7 +299,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="slamobs-timeline-") as tmp:
         out = args.out or Path(tmp) / "run"
         for k in range(max(1, args.repeat)):
-            walls, cpu, wall = one_run(args.log, out, args.figure_helper, args.chart)
+            walls, cpu, wall = one_run(args.log, out, args.figure_helper, args.chart, extra)
             print(f"## run {k + 1}: {wall:.2f} s wall")
             show(walls, cpu, wall, cores)
     print(f"# {load()}")
