@@ -186,3 +186,24 @@ def test_observers_without_directions_do_not_depend_on_their_initial_frame(name)
     np.testing.assert_allclose(res.rotation, np.einsum("ij,kjl->kil", r0, plain.rotation), atol=1e-8)
     np.testing.assert_allclose(res.landmark_xyz, plain.landmark_xyz @ r0.T + p0, atol=1e-6)
     np.testing.assert_allclose(res.gyro_bias, plain.gyro_bias, atol=1e-8)
+
+
+def test_compiled_frame_moves_give_the_bits_of_einsum_and_matmul(monkeypatch):
+    """A long stretch is moved into the output frame by compiled loops: the bits of ``np.einsum`` (rotations) and
+    of NumPy's BLAS product (points, with and without a translation), signed zeros too, at every length."""
+    from slamobs.pipeline import output_frame
+
+    rng = np.random.default_rng(21)
+    monkeypatch.setattr(output_frame, "FRAME_KERNEL_ROWS", 1)
+    for n in (1, 3, 7, 8, 17, 1000, 4097):
+        m = rng.normal(size=(n, 3, 3))
+        m[rng.random(m.shape) < 0.1] = 0.0
+        m[rng.random(m.shape) < 0.1] = -0.0
+        p = 10.0 * rng.normal(size=(n, 3))
+        p[rng.random(p.shape) < 0.2] = -0.0
+        for r, t in ((np.eye(3), np.zeros(3)), (rng.normal(size=(3, 3)), rng.normal(size=3))):
+            assert output_frame.turned(r, m).tobytes() == np.einsum("ij,kjl->kil", r, m).tobytes(), n
+            assert output_frame.moved(p, r, t).tobytes() == (p @ r.T + t).tobytes(), n
+            assert output_frame.moved(p, r).tobytes() == (p @ r.T).tobytes(), n
+    strided = p[::2]  # not C-contiguous: the array code
+    assert output_frame.moved(strided, r, t).tobytes() == (strided @ r.T + t).tobytes()
