@@ -230,3 +230,33 @@ def test_the_identity_frame_moves_nothing_and_copies_the_map():
     turned = output_frame.OutputFrame("pose", so3_exp(np.array([0.0, 0.0, 0.3])), np.zeros(3), "a turn")
     assert not turned.is_identity()
     assert not np.array_equal(turned.apply(part).position, position)
+
+
+def _near_exact(got, points, r, t):
+    """Within two roundings of the exact ``points @ r.T + t`` (80-bit reference): OpenBLAS picks its kernel by CPU,
+    so its last bit is not a portable oracle; on an FMA CPU the loops give its bits (docs/benchmarks.md, h-hour2)."""
+    exact = points.astype(np.longdouble) @ r.T.astype(np.longdouble) + t.astype(np.longdouble)
+    bound = 2 * np.finfo(float).eps * (np.abs(points) @ np.abs(r).T + np.abs(t))
+    return bool(np.all(np.abs(got.astype(np.longdouble) - exact) <= bound))
+
+
+def test_compiled_frame_moves_give_the_bits_of_einsum_and_matmul_rounding(monkeypatch):
+    """A long stretch is moved into the output frame by compiled loops: the bits of ``np.einsum`` (rotations), signed
+    zeros too, and the points (with and without a translation) within BLAS's rounding, at every length."""
+    from slamobs.pipeline import output_frame
+
+    rng = np.random.default_rng(21)
+    monkeypatch.setattr(output_frame, "FRAME_KERNEL_ROWS", 1)
+    for n in (1, 3, 7, 8, 17, 1000, 4097):
+        m = rng.normal(size=(n, 3, 3))
+        m[rng.random(m.shape) < 0.1] = 0.0
+        m[rng.random(m.shape) < 0.1] = -0.0
+        p = 10.0 * rng.normal(size=(n, 3))
+        p[rng.random(p.shape) < 0.2] = -0.0
+        for r, t in ((np.eye(3), np.zeros(3)), (rng.normal(size=(3, 3)), rng.normal(size=3))):
+            assert output_frame.turned(r, m).tobytes() == np.einsum("ij,kjl->kil", r, m).tobytes(), n
+            assert _near_exact(output_frame.moved(p, r, t), p, r, t), n
+            assert _near_exact(output_frame.moved(p, r), p, r, np.zeros(3)), n
+            assert not np.signbit(output_frame.moved(-np.zeros((1, 3)), r)).any()
+    strided = p[::2]  # not C-contiguous: the array code
+    assert output_frame.moved(strided, r, t).tobytes() == (strided @ r.T + t).tobytes()

@@ -55,6 +55,21 @@ def test_every_table_matches_its_schema_and_round_trips_through_pandas(tmp_path)
         assert str(df.dtypes.iloc[0]) == "int64"
 
 
+def test_statistics_are_kept_where_read_back_and_dropped_for_floats_that_cannot_be_null(tmp_path):
+    """The writer computes no min/max of the long float columns (nothing reads them back); the times, ids and the
+    nullable uncertainty columns keep theirs, so ``null_columns`` still finds the columns null throughout."""
+    from slamobs.pipeline.writers import null_columns
+
+    write_result(tmp_path, _result(), {"observer": {"name": "test"}})
+    f = pq.ParquetFile(tmp_path / "poses.parquet")
+    group = f.metadata.row_group(0)
+    stats = {group.column(c).path_in_schema: group.column(c).statistics for c in range(group.num_columns)}
+    assert stats["t_ns"] is not None and stats["t_ns"].min == 1_700_000_000 * 10**9
+    assert all(stats[c] is None for c in ("x", "y", "z", "qx", "qy", "qz", "qw"))
+    nullable = {field.name for field in arrow_schema("poses") if field.nullable}
+    assert len(nullable) == 27 and null_columns(f) == nullable
+
+
 def test_table_contents():
     res = _result()
     t = result_tables(res)

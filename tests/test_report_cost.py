@@ -553,3 +553,53 @@ def test_rate_on_grid_marks_the_same_samples_outside_the_span():
             assert got.tobytes() == want.tobytes()
             nans.add((bool(np.isnan(got[0])), bool(np.isnan(got[-1])), bool(np.isnan(got).all())))
     assert {(True, True, False), (False, False, False), (True, True, True)} <= nans  # both ends, none, all
+
+
+def test_fft_size_is_the_smallest_length_of_factors_2_3_5():
+    """The clock-offset search pads its FFTs to the smallest 2^a 3^b 5^c at or past the length it needs (no
+    product wraps around), not to the next power of two."""
+    from slamobs.pipeline.evaluation import sync
+
+    def smooth(m: int) -> bool:
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        return m == 1
+
+    for n in [*range(1, 2000), 360_401, 524_288, 524_289]:
+        size = sync.fft_size(n)
+        assert size >= n and smooth(size) and not any(smooth(m) for m in range(n, size)), n
+    assert sync.fft_size(360_300 + 101) == 364_500  # the hour's grid: not 2^19
+
+
+def test_compiled_offset_correlation_is_the_array_codes_to_round_off(monkeypatch):
+    """A long log's golden-section search takes each trial offset's correlation from one compiled pass: the array
+    code's value to 1e-12 at offsets inside, across and past the stream's span (reference NaNs, too few points:
+    -1), and the same offset to the bit from ``estimate_time_offset``."""
+    from slamobs.pipeline.evaluation import sync
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    t = np.cumsum(rng.integers(4_000_000, 6_000_000, size=n)).astype(np.int64)
+    steps = 0.01 + 0.02 * np.sin(0.01 * np.arange(n - 1)) ** 2 + 0.002 * rng.random(n - 1)
+    step = 10_000_000
+    grid = t[0] - 50 * step + np.arange((t[-1] - t[0]) // step + 100, dtype=np.int64) * step
+    ref = sync._rate_on_grid(t, steps, grid - 23_000_000, step)
+    ref[::13] = np.nan
+    value = {}
+    for kernel in (True, False):
+        monkeypatch.setattr(sync, "CORRELATION_KERNEL_ROWS", 1 if kernel else 1 << 62)
+        corr = sync._offset_correlation(ref, t, steps, grid, step)
+        value[kernel] = [corr(tau) for tau in (-2.5e7, -1.23e6, 0.0, 7.7e6, 2.3e7, 3.1e10, -3.1e10, (t[-1] - t[0]) - 5)]
+    assert value[True] == pytest.approx(value[False], rel=1e-12, abs=1e-14)
+    assert value[True][5] == value[True][6] == -1.0 and max(value[True]) > 0.9
+    yaw = np.cumsum(0.02 * np.sin(0.003 * np.arange(20_000)) ** 2)
+    q = np.stack([np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)
+    tt = np.arange(20_000, dtype=np.int64) * 10_000_000
+    pos = np.zeros((20_000, 3))
+    found = {}
+    for kernel in (True, False):
+        monkeypatch.setattr(sync, "CORRELATION_KERNEL_ROWS", 1 if kernel else 1 << 62)
+        found[kernel] = sync.estimate_time_offset(tt, pos, q, tt[::2] - 37_000_000, pos[::2], q[::2])
+    assert found[True].offset_s == found[False].offset_s == pytest.approx(0.037, abs=0.002)
+    assert found[True].peak_correlation == pytest.approx(found[False].peak_correlation, rel=1e-12)

@@ -159,20 +159,24 @@ def _segment_ends(dist, run_start, length, max_diff):
     return out_i[:m], out_j[:m]
 
 
-@njit(cache=True)
-def _segment_products(turn, est_pos, ref_pos, i, j, scale):
+@njit(cache=True, nogil=True)
+def _segment_errors(turn, est_pos, ref_pos, i, j, scale):  # pragma: no cover - compiled
     """Per segment ``r_w = D_jᵀ D_i`` and ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖`` without gathering ``D_i`` and
-    ``D_j`` into stacks first. The sums round as NumPy's stacked ``matmul`` does through OpenBLAS on an FMA CPU
-    (its 3×3 products as :func:`.metrics.fma` says, its matrix-vector ones ``fma(a₂, x₂, fma(a₀, x₀, a₁x₁))``):
-    the same bits as :func:`relative_errors_numpy` there, within an ulp elsewhere."""
+    ``D_j`` into stacks first, and :func:`_error_kinds`' angles of ``r_w`` (rotation angle, |yaw|, roll-pitch
+    magnitude, in degrees) in the same pass, no ``(m, 3, 3)`` stack. The sums round as NumPy's stacked ``matmul``
+    does through OpenBLAS on an FMA CPU (its 3×3 products as :func:`.metrics.fma` says, its matrix-vector ones
+    ``fma(a₂, x₂, fma(a₀, x₀, a₁x₁))``): the translation errors' bits of :func:`relative_errors_numpy` there; the
+    angles through the C library's ``acos``, ``atan2`` and ``hypot``, within a few ulps of NumPy's
+    (``tests/test_segment_errors.py``)."""
     m = i.shape[0]
-    r_w = np.empty((m, 3, 3))
-    trans = np.empty(m)
+    trans, rot, yaw, gravity = np.empty(m), np.empty(m), np.empty(m), np.empty(m)
+    r_w = np.empty((3, 3))
+    to_deg = 180.0 / np.pi
     for s in range(m):
         a, b = turn[j[s]], turn[i[s]]
         for r in range(3):
             for c in range(3):
-                r_w[s, r, c] = fma(a[2, r], b[2, c], fma(a[1, r], b[1, c], a[0, r] * b[0, c]))
+                r_w[r, c] = fma(a[2, r], b[2, c], fma(a[1, r], b[1, c], a[0, r] * b[0, c]))
         d0 = est_pos[j[s], 0] - est_pos[i[s], 0]
         d1 = est_pos[j[s], 1] - est_pos[i[s], 1]
         d2 = est_pos[j[s], 2] - est_pos[i[s], 2]
@@ -182,7 +186,12 @@ def _segment_products(turn, est_pos, ref_pos, i, j, scale):
             e = scale * moved - (ref_pos[j[s], r] - ref_pos[i[s], r])
             sq += e * e
         trans[s] = np.sqrt(sq)
-    return r_w, trans
+        cos = ((r_w[0, 0] + r_w[1, 1] + r_w[2, 2]) - 1.0) / 2.0
+        rot[s] = np.arccos(min(max(cos, -1.0), 1.0)) * to_deg
+        yaw[s] = abs(np.arctan2(r_w[1, 0], r_w[0, 0])) * to_deg
+        pitch = np.arctan2(-r_w[2, 0], np.hypot(r_w[0, 0], r_w[1, 0]))
+        gravity[s] = np.hypot(pitch, np.arctan2(r_w[2, 1], r_w[2, 2])) * to_deg
+    return trans, rot, yaw, gravity
 
 
 def yaw_gravity(rot: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -200,11 +209,11 @@ def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, sca
     rpg forms ``E = T_m⁻¹ T_c`` (``T_m = Q_i⁻¹ Q_j``, ``T_c = P_i⁻¹ P_j`` with its translation times ``scale``) and
     rotates it into the world by ``R_c`` at ``j``; that rotation is ``D_jᵀ D_i`` with ``D = R_ref R_estᵀ``, the
     norm of its translation ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖``: one product per segment instead of eight,
-    in a compiled loop (:func:`_segment_products`) from ``metrics.KERNEL_ROWS`` segments on.
+    in a compiled loop (:func:`_segment_errors`) from ``metrics.KERNEL_ROWS`` segments on.
     """
     if len(i) < metrics.KERNEL_ROWS:
         return relative_errors_numpy(ref_pos, est_pos, turn, i, j, length, scale)
-    r_w, trans = _segment_products(
+    trans, rot, yaw, gravity = _segment_errors(
         np.ascontiguousarray(turn, dtype=np.float64),
         np.ascontiguousarray(est_pos, dtype=np.float64),
         np.ascontiguousarray(ref_pos, dtype=np.float64),
@@ -212,7 +221,7 @@ def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, sca
         np.ascontiguousarray(j, dtype=np.int64),
         float(scale),
     )
-    return _error_kinds(r_w, trans, length)
+    return dict(zip(SEGMENT_ERROR_KINDS, (trans, 100.0 * trans / length, rot, rot / length, yaw, gravity)))
 
 
 def relative_errors_numpy(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, scale: float = 1.0) -> dict:

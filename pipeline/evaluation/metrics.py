@@ -14,14 +14,13 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
-from numba.core import types
-from numba.extending import intrinsic
 
 from slamobs.pipeline.blocks import blockwise, row_norms3
 from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import quats_to_rots
+from slamobs.pipeline.simd import fma
 
 __all__ = [
     "NS_PER_S",
@@ -258,19 +257,6 @@ def _relative_quats(a, b, q, bad):  # pragma: no cover - compiled
         norm = np.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2] + t[3] * t[3])
         for k in range(4):
             q[n, k] = t[k] / norm
-
-
-@intrinsic
-def fma(typingctx, a, b, c):
-    """``a * b + c`` rounded once (LLVM's ``llvm.fma``), for kernels that round their 3×3 products as NumPy's
-    stacked ``matmul`` does through OpenBLAS on an FMA CPU: ``fma(a₂, b₂, fma(a₁, b₁, a₀ b₀))`` per entry (every
-    3×3 product form the report uses, measured against NumPy 2.4's OpenBLAS 0.3.31, Haswell kernels)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.fma(*args)
-
-    return sig, codegen
 
 
 @njit(cache=True, nogil=True)

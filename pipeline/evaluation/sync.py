@@ -279,16 +279,34 @@ def _xcorr(spectrum_x: np.ndarray, conj_spectrum_y: np.ndarray, size: int, lags:
 FLAT = 1e-9
 
 
+def fft_size(n: int) -> int:
+    """The smallest 2^a 3^b 5^c ≥ ``n``: NumPy's FFT of such a length is as fast per sample as a power of two's,
+    and the hour's grid (360,300 steps and 201 lags) takes 364,500 points instead of 2^19 = 524,288 (an rfft and
+    irfft pair 8.9 against 20.5 ms)."""
+    best = 1 << max(int(n) - 1, 0).bit_length()
+    p3 = 1
+    while p3 < best:
+        p35 = p3
+        while p35 < best:
+            m = p35
+            while m < n:
+                m *= 2
+            best = min(best, m)
+            p35 *= 5
+        p3 *= 3
+    return best
+
+
 def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
     """Pearson correlation of a[t + L] with b[t] over the samples where both are defined, per lag L in
     [-max_lag, max_lag] (NaN where the overlap is under a fifth of the shorter signal or either signal is
     constant over it).
 
     The six lagged sums share their transforms: each input is transformed once (12 FFTs, not 18), zero padded
-    to the power of two that holds the signal and the longest lag (no product wraps around)."""
+    to the smallest :func:`fft_size` that holds the signal and the longest lag (no product wraps around)."""
     ma, mb = np.isfinite(a), np.isfinite(b)
     a0, b0 = np.where(ma, a, 0.0), np.where(mb, b, 0.0)
-    size = 1 << int(math.ceil(math.log2(max(a.shape[0], b.shape[0]) + max_lag + 1)))
+    size = fft_size(max(a.shape[0], b.shape[0]) + max_lag + 1)
     lags = np.arange(-max_lag, max_lag + 1)
 
     def spectrum(x: np.ndarray, conj: bool = False) -> np.ndarray:
@@ -411,6 +429,15 @@ def _offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarra
     accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
     ref_defined = np.isfinite(ref_signal)
 
+    if grid.shape[0] >= CORRELATION_KERNEL_ROWS:  # one compiled pass per trial offset
+        t_float, cum = accumulated
+        ref = np.ascontiguousarray(ref_signal, dtype=np.float64)
+        pairs = np.empty((2, grid.shape[0]))
+        first, last = int(te[0]), int(te[-1])
+        return lambda tau_ns: _shifted_correlation(
+            t_float, cum, first, last, grid, step_ns, int(round(tau_ns)), ref, pairs
+        )
+
     def corr(tau_ns: float) -> float:
         e = _rate_on_grid(te, steps, grid - int(round(tau_ns)), step_ns, accumulated)
         ok = np.isfinite(e) & ref_defined
@@ -422,6 +449,55 @@ def _offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarra
         return float(np.corrcoef(ref, e)[0, 1])
 
     return corr
+
+
+#: Grid points from which :func:`_offset_correlation` takes its compiled pass (a short log's grid keeps the array
+#: code: its first run does not compile the kernel).
+CORRELATION_KERNEL_ROWS = 65_536
+
+
+@njit(cache=True, nogil=True)
+def _shifted_correlation(t, cum, t_first, t_last, grid, step_ns, shift_ns, ref, pairs):  # pragma: no cover
+    """Pearson correlation of ``ref`` with the estimate's mean rate over [g − shift, g − shift + step] (the
+    running sum ``cum`` at the float stamps ``t``, interpolated as ``np.interp``), over the grid points where both
+    are defined; -1 where fewer than 8 are or either is constant there. :func:`_offset_correlation`'s array
+    code in one compiled pass (``pairs`` a (2, grid) scratch buffer): the same values to round-off (its sums in
+    another order), so the golden-section search takes the same steps unless two trials tie to ~1e-15."""
+    n_t, n_g = t.shape[0], grid.shape[0]
+    step_s = step_ns / 1e9
+    j, m = 0, 0
+    sum_e, sum_r, prev = 0.0, 0.0, 0.0
+    for i in range(n_g + 1):
+        x = float((grid[i] if i < n_g else grid[n_g - 1] + step_ns) - shift_ns)
+        while j < n_t - 2 and t[j + 1] <= x:
+            j += 1
+        if x <= t[0]:
+            at = cum[0]
+        elif x >= t[n_t - 1]:
+            at = cum[n_t - 1]
+        else:
+            at = (cum[j + 1] - cum[j]) / (t[j + 1] - t[j]) * (x - t[j]) + cum[j]
+        if i > 0:
+            g = grid[i - 1] - shift_ns
+            v, r = (at - prev) / step_s, ref[i - 1]
+            if g >= t_first and g <= t_last - step_ns and np.isfinite(r) and np.isfinite(v):
+                pairs[0, m], pairs[1, m] = v, r
+                sum_e += v
+                sum_r += r
+                m += 1
+        prev = at
+    if m < 8:
+        return -1.0
+    mean_e, mean_r = sum_e / m, sum_r / m
+    see, srr, ser = 0.0, 0.0, 0.0
+    for k in range(m):
+        de, dr = pairs[0, k] - mean_e, pairs[1, k] - mean_r
+        see += de * de
+        srr += dr * dr
+        ser += de * dr
+    if see == 0.0 or srr == 0.0:
+        return -1.0
+    return min(max(ser / np.sqrt(see * srr), -1.0), 1.0)
 
 
 def _golden_section_max(f, lo: float, hi: float, tol: float) -> float:
