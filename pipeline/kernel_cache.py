@@ -40,7 +40,17 @@ from numba.core import caching
 
 from slamobs.pipeline import native
 
-__all__ = ["cache_root", "cached", "install", "njit", "prune", "source_stamp", "subroutine"]
+__all__ = [
+    "KERNEL_ROWS",
+    "cache_root",
+    "cached",
+    "compiled_for",
+    "install",
+    "njit",
+    "prune",
+    "source_stamp",
+    "subroutine",
+]
 
 #: Cache files not written for this many days are removed when a run has compiled something (kernels of
 #: sources that changed, or of other versions; one still in use is compiled again, at most once per period).
@@ -141,6 +151,20 @@ def cached(module: str, qualname: str) -> bool:
     rel = path.relative_to(PACKAGE_ROOT)
     name = f"{path.stem}.{qualname}-*-{source_stamp(path)}.py{sys.version_info[0]}{sys.version_info[1]}*.nbi"
     return any(any(where.glob(name)) for where in (cache_root() / rel.parent, path.parent / "__pycache__"))
+
+
+#: Arrays at least this long take a compiled kernel where array code gives the same numbers (the report's
+#: rotation-angle blocks, products, segment errors, running medians; the readers' string codes); shorter ones the
+#: array code: a kernel's first compilation (0.2-1 s) would cost a short log's first run more than it saves (a
+#: 3-minute log's 36 000 poses at 200 Hz compile none of them; a long log's blocks are 65 536 rows).
+KERNEL_ROWS = 65_536
+
+
+def compiled_for(n: int, kernel, rows: int = KERNEL_ROWS) -> bool:
+    """Whether ``n`` rows take the compiled ``kernel``: from ``rows`` on, and from ``rows // 64`` on once this
+    process has the kernel (compiled or loaded: a long log's last block and its shorter pieces, e.g. the RPE's
+    pairs, need not take the slower array code; a short log still compiles nothing)."""
+    return n >= rows or (n >= rows // 64 and bool(kernel.signatures))
 
 
 _WRITABLE: dict[str, bool] = {}

@@ -15,6 +15,7 @@ import math
 import numpy as np
 from numba import types
 from slamobs.pipeline.kernel_cache import njit, subroutine
+from slamobs.pipeline.kernel_cache import compiled_for
 
 SMALL_ANGLE = 1e-8
 
@@ -346,7 +347,7 @@ ROTATION_KERNEL_ROWS = 65_536
 
 
 def _kernel_for(n: int) -> bool:
-    return n >= ROTATION_KERNEL_ROWS or (n >= ROTATION_KERNEL_ROWS // 64 and bool(_rots_quats_into.signatures))
+    return compiled_for(n, _rots_quats_into, ROTATION_KERNEL_ROWS)
 
 
 def quats_to_rots(q):

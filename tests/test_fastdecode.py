@@ -137,6 +137,36 @@ def test_many_distinct_strings_numbered_by_first_appearance():
     assert [names[c] for c in codes] == texts
 
 
+@pytest.mark.parametrize(
+    "texts",
+    [
+        ["odom"] * 50,  # one frame id: array code, no kernel
+        [],
+        [""] * 3,
+        ["odom"] * 49 + ["odon"],  # one byte differs in the last string
+        ["odom"] * 49 + ["odo"],  # a shorter one
+        ["odo"] + ["odom"] * 49,
+    ],
+)
+def test_one_string_without_the_kernel_as_with_it(texts, monkeypatch):
+    """A short array whose strings are all one (a topic's frame id) is coded without :func:`fastdecode._dedup`, so
+    that a short log's first run does not compile it; the codes and names are those the kernel gives."""
+    rng = np.random.default_rng(len(texts))
+    data, starts, sizes = as_buffer([t.encode() for t in texts], rng)
+    with_kernel = fastdecode._dedup
+    calls = []
+
+    def counted(*args):
+        calls.append(1)
+        return with_kernel(*args)
+
+    monkeypatch.setattr(fastdecode, "_dedup", counted)
+    codes, names = fastdecode.string_codes(data, starts, sizes)
+    assert names == list(dict.fromkeys(texts)) and [names[c] for c in codes] == texts
+    assert codes.dtype == np.int32
+    assert bool(calls) == (len(set(texts)) > 1)
+
+
 def test_what_is_not_planned():
     assert layout_paths(lambda m: (m.a.x * 2,)) is None  # computes
     assert layout_paths(lambda m: (m.data[0],)) is None  # indexes

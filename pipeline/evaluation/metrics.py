@@ -18,7 +18,8 @@ import numpy as np
 from slamobs.pipeline.blocks import blockwise, row_norms3
 from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
-from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline import kernel_cache
+from slamobs.pipeline.kernel_cache import KERNEL_ROWS, njit
 from slamobs.pipeline.lie import quats_to_rots
 from slamobs.pipeline.simd import fma
 
@@ -178,19 +179,10 @@ def quat_angles(q: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]), np.abs(q[:, 3]))
 
 
-#: Arrays at least this long take the report's compiled kernels (:func:`_relative_quats` for rotation-angle
-#: blocks, the rotation products, the segment errors, the running medians, the clock offset's step angles; a
-#: long log's blocks are 65 536 rows); shorter ones the array code, whose numbers are the same: a kernel's first
-#: compilation (~1 s) would cost a short log's first run more than it saves (a 3-minute log's 36 000 poses at
-#: 200 Hz compile none of them).
-KERNEL_ROWS = 65_536
-
-
 def compiled_for(n: int, kernel) -> bool:
-    """Whether ``n`` rows take the compiled ``kernel``: from ``KERNEL_ROWS`` rows on, and from ``KERNEL_ROWS //
-    64`` on once this process has the kernel (compiled or loaded: a long log's last block and its shorter
-    pieces, e.g. the RPE's pairs, need not take the slower array code; a short log still compiles nothing)."""
-    return n >= KERNEL_ROWS or (n >= KERNEL_ROWS // 64 and bool(kernel.signatures))
+    """Whether ``n`` rows take the compiled ``kernel`` (:func:`.kernel_cache.compiled_for`, from this module's
+    ``KERNEL_ROWS``)."""
+    return kernel_cache.compiled_for(n, kernel, KERNEL_ROWS)
 
 
 def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:

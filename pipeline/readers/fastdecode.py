@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import types
-from slamobs.pipeline.kernel_cache import njit, subroutine
+from slamobs.pipeline.kernel_cache import compiled_for, njit, subroutine
 from slamobs.pipeline.simd import prefetch
 from rosbags.interfaces import Nodetype
 
@@ -413,7 +413,7 @@ def _walk(  # pragma: no cover - compiled
             if lim < 0:
                 header = 2
             elif data[o - 4] != 0 or data[o - 3] > 1:
-                header = max(header, 1)
+                header = 1 if header < 1 else header
             elif header == 0 and (data[o - 3] == 0) != big:
                 header = -1
         p = 0  # relative to the origin (CDR aligns relative to the end of the encapsulation header)
@@ -622,6 +622,19 @@ def _table_size(n: int) -> int:
     return max(_SMALL_TABLE, 1 << (2 * n).bit_length())
 
 
+def _one_string(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> bool:
+    """Whether every string is the first one (or there are none), checked by array code: a topic's frame id is one
+    string message after message, and a short log's first run need not compile :func:`_dedup` for it (~0.25 s of
+    CPU). One gather of every string's byte per position: for arrays shorter than :data:`.kernel_cache.KERNEL_ROWS`."""
+    if not pos.shape[0]:
+        return True
+    size = int(length[0])
+    if np.any(length != size):
+        return False
+    first = int(pos[0])
+    return all(np.all(data[pos + q] == data[first + q]) for q in range(size))
+
+
 def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """Per-string codes and the distinct strings in order of first appearance, coded in compiled code
     (:func:`_dedup`) however many distinct values a field has (a frame id takes a handful, tag frames
@@ -632,13 +645,16 @@ def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple
 
     """
     n = pos.shape[0]
-    codes, firsts, hashes = np.empty(n, np.int32), np.empty(n, np.int64), np.empty(n, np.uint64)
-    # the arrays made here, not in the kernel (see _walked); a table for 32 distinct strings, a frame id's few,
-    # else one that holds every string
-    k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_SMALL_TABLE, -1, np.int64))
-    if k < 0:
-        k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_table_size(n), -1, np.int64))
-    firsts = firsts[:k]
+    if not compiled_for(n, _dedup) and _one_string(data, pos, length):
+        codes, firsts = np.zeros(n, np.int32), np.zeros(min(n, 1), np.int64)
+    else:
+        codes, firsts, hashes = np.empty(n, np.int32), np.empty(n, np.int64), np.empty(n, np.uint64)
+        # the arrays made here, not in the kernel (see _walked); a table for 32 distinct strings, a frame id's few,
+        # else one that holds every string
+        k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_SMALL_TABLE, -1, np.int64))
+        if k < 0:
+            k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_table_size(n), -1, np.int64))
+        firsts = firsts[:k]
     try:
         names = [data[pos[f] : pos[f] + length[f]].tobytes().decode() for f in firsts.tolist()]
     except UnicodeDecodeError as err:
