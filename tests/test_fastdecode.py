@@ -125,6 +125,30 @@ def test_frame_ids_numbered_by_first_appearance():
     assert [names[c] for c in codes] == frames
 
 
+@pytest.mark.parametrize("encoding", ENCODINGS)
+def test_a_string_equal_to_the_one_before_is_read_where_that_one_lies(encoding):
+    """The pass gives a frame id equal to the message before's (a topic's own, message after message) the position
+    of that one's bytes, so coding it reads bytes in cache; a different one (same length or not) its own place."""
+    ts = make_typestore(ros1=encoding == "ros1")
+    rng = np.random.default_rng(7)
+    msgtype = "geometry_msgs/msg/PoseStamped"
+    frames = ["odom", "odom", "odom", "map_", "odom", "", "", "base_link", "odom"]
+    raws = [serialize(ts, _random(ts, msgtype, rng, [f]), msgtype, encoding) for f in frames]
+    plan = make_plan(ts, msgtype, [("pose", "position", "x")], cdr=encoding != "ros1")
+    batch = _batch(raws, rng)
+    head = 4 if plan.cdr else 0
+    big = encoding == "cdr-big-endian"
+    _, _, strings, _, _ = fastdecode._walked(plan, batch.data, batch.start, batch.size, big)
+    pos, length = strings[0]
+    at = [int(batch.data[p : p + n].tobytes() == f.encode()) for p, n, f in zip(pos, length, frames, strict=True)]
+    assert at == [1] * len(frames)  # every position holds its message's frame id
+    own = batch.start + head  # each message's own bytes start after this
+    assert pos[1] == pos[2] == pos[0] < own[1] and pos[6] == pos[5]
+    assert all(pos[i] > own[i] for i in (0, 3, 4, 7, 8))
+    codes, names = decode(plan, batch).strings[0]
+    assert [names[c] for c in codes] == frames
+
+
 def test_many_distinct_strings_numbered_by_first_appearance():
     """More distinct strings than the first string table holds (tag frames: hundreds), repeats among them: the
     table made again for every string gives the same codes a dict gives."""

@@ -575,3 +575,44 @@ def test_many_changed_static_transforms_are_counted_not_listed_in_one_line(tmp_p
     run = json.loads((tmp_path / "out" / "run.json").read_text())
     assert run["input"]["static_tf_changed"] == changed and warning in run["notes"]
     assert run["input"]["static_tf_dropped"] == []
+
+
+@pytest.mark.parametrize("container", ["bag", "mcap"])
+def test_a_chunk_is_walked_once_when_the_index_counts_its_messages(tmp_path, monkeypatch, container):
+    """The record walk fills arrays as long as the index's message count of the chunk in one walk (a ROS1 record's
+    header fields are parsed at every walk); a count too small (the arrays full before the chunk's end) falls back
+    to counting first: the same records either way, and a read passes every chunk's count."""
+    from slamobs.pipeline.readers import chunks
+    from slamobs.pipeline.readers.container import storages
+    from slamobs.pipeline.readers.fastdecode import read_rows
+    from slamobs.pipeline.readers.roles import topics_of
+    from slamobs.pipeline.readers.rows import LAYOUTS
+
+    path = write_log(simulate("figure8", duration=3.0, seed=1), tmp_path / f"log.{container}", container)
+    fields = ("op", "conn", "t_ns", "hpos", "dpos", "dlen", "stop", "status")
+    with open_log(path) as reader:
+        conns = [c for _, cs in topics_of(reader).values() for c in cs]
+        ((storage, ids, _),) = list(storages(reader, conns))
+        wanted = chunks.wanted_table(ids)
+        assert wanted is not None and storage.units
+        for unit in storage.units:
+            data = chunks.read_unit(storage.bio, unit)
+            fills = []
+
+            def walk(*args, fills=fills):
+                fills.append(args[1])
+                return storage.walk(*args)
+
+            one = chunks.records(walk, data, wanted, unit.messages)
+            assert fills == [True] and unit.messages >= one.conn.size > 0
+            few = chunks.records(walk, data, wanted, 3)
+            assert fills == [True, True, False, True]
+            both = chunks.records(walk, data, wanted)
+            for name in fields:
+                assert np.array_equal(getattr(one, name), getattr(both, name)), name
+                assert np.array_equal(getattr(few, name), getattr(both, name)), name
+        counts, most = [u.messages for u in storage.units], []
+        real = chunks.records
+        monkeypatch.setattr(chunks, "records", lambda *a: most.append(a[3] if len(a) > 3 else -1) or real(*a))
+        read_rows(reader, path, {t: c for t, (m, c) in topics_of(reader).items() if m.msgtype in LAYOUTS})
+    assert most == counts

@@ -233,6 +233,25 @@ def test_pages_read_directly_give_the_rows_sqlite_gives(tmp_path, monkeypatch, g
     _assert_same_rows(heavy, _flat_batches(path, {"/light", "/heavy"}))
 
 
+@pytest.mark.parametrize("piece", [1, 3])
+def test_pages_walked_a_few_at_a_time_give_the_rows_sqlite_gives(tmp_path, monkeypatch, piece):
+    """Leaf pages read and walked ``PIECE`` at a time, the rows' arrays grown when a page's cells do not fit (light
+    rows: ~40 a page against the 16 a page first made room for): the rows SQLite's query hands over."""
+    topics = {
+        "/light": [(k * 1000, _string(50)) for k in range(600)],
+        "/other": [(k * 2000 + 300, _string(100)) for k in range(300)],
+    }
+    path = write_raw_log(tmp_path / "light_ros2", "ros2", topics, "std_msgs/msg/String", make_typestore(ros1=False))
+    grown = []
+    real_grown = sqlitefile._grown
+    monkeypatch.setattr(sqlitefile, "_grown", lambda *a: grown.append(a[1]) or real_grown(*a))
+    monkeypatch.setattr(sqlitefile, "PIECE", piece)
+    got = _flat_batches(path, {"/light", "/other"})
+    assert grown and len(got[2]) == 900
+    monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)  # SQLite's group_concat windows
+    _assert_same_rows(got, _flat_batches(path, {"/light", "/other"}))
+
+
 def test_a_row_the_walk_does_not_take_leaves_the_rest_to_sqlite(tmp_path, monkeypatch):
     """A row whose data SQLite stores as text (a blob is what rosbag2 writes) stops the walk at its page: the rows
     before it come from the pages, the rest from SQLite, and together they are the rows SQLite alone gives."""

@@ -198,6 +198,8 @@ def load_groups(units: Sequence[Unit]) -> list[list[Unit]]:
 
 # Scanner status codes.
 CLEAN, CUT, BAD = 0, 1, 2
+#: A filling walk's arrays are full (:func:`records` then counts first).
+FULL = 3
 
 
 @subroutine(types.int64)
@@ -222,9 +224,18 @@ class Records:
 _EVERY = np.empty(0, np.int64)
 
 
-def records(walk: Callable[..., tuple[int, int, int]], buf: np.ndarray, wanted: np.ndarray = _EVERY) -> Records:
-    """Count, then fill (two passes keep the scratch arrays exactly as long as the record count). ``wanted``
-    (:func:`wanted_table`): only the requested messages, ``conn`` their index among the requested connections."""
+def records(
+    walk: Callable[..., tuple[int, int, int]], buf: np.ndarray, wanted: np.ndarray = _EVERY, most: int = -1
+) -> Records:
+    """The records (``wanted`` (:func:`wanted_table`): only the requested messages, ``conn`` their index among the
+    requested connections). With ``most`` (the unit's message count by the index) one filling walk into arrays of
+    that many; without it, or when the walk finds more, a counting walk first (the arrays exactly as long as the
+    record count): a ROS1 record's header fields are parsed at each walk, the second as long as the first."""
+    if most >= 0:
+        arrays = np.empty((6, most), np.int64)
+        n, stop, status = walk(buf, True, *arrays, wanted)
+        if status != FULL:
+            return Records(*arrays[:, :n], stop=int(stop), status=int(status))
     n, _, _ = walk(buf, False, _EVERY, _EVERY, _EVERY, _EVERY, _EVERY, _EVERY, wanted)
     arrays = [np.empty(n, np.int64) for _ in range(6)]
     n, stop, status = walk(buf, True, *arrays, wanted)
@@ -440,7 +451,7 @@ class Chunked:
             data = unpack_unit(*blob, unit, out)
         wanted = wanted_table(ids)
         if wanted is not None:  # the requested messages straight from the walk
-            recs = records(self.walk, data, wanted)
+            recs = records(self.walk, data, wanted, unit.messages)
             if recs.status == CLEAN or (recs.status == CUT and unit.partial):
                 return RawBatch(data, recs.conn, recs.t_ns, recs.dpos, recs.dlen)
         recs = records(self.walk, data)

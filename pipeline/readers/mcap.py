@@ -21,7 +21,7 @@ from rosbags.rosbag2.storage_mcap import Channel, McapReader, Schema, Statistics
 from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
-from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
+from .chunks import BAD, CLEAN, CUT, FULL, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
 from .storage import TIME_LIMIT_NS, TIME_RANGE, DamagedError, TimeRangeError
 
 if TYPE_CHECKING:
@@ -53,7 +53,7 @@ def mcap_library(head: bytes) -> str:
 def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: no cover - compiled
     """Walk MCAP records (opcode, uint64 length, body); messages get channel, log time and payload. ``wanted``
     (channel id -> index, -1: not wanted; empty: every record): only the wanted messages, their channel as the
-    index (:func:`.chunks.records`)."""
+    index (:func:`.chunks.records`). Filling stops (``FULL``) before a record the arrays have no room for."""
     end = buf.shape[0]
     pos = 0
     n = 0
@@ -72,6 +72,8 @@ def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: 
                 pos += 9 + length
                 continue
             if fill:
+                if n == op.shape[0]:
+                    return n, pos, FULL
                 op[n] = rop
                 conn[n] = wanted[channel]
                 t_ns[n] = u32(buf, pos + 15) | (u32(buf, pos + 19) << 32)
@@ -82,6 +84,8 @@ def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: 
             pos += 9 + length
             continue
         if fill:
+            if n == op.shape[0]:
+                return n, pos, FULL
             op[n] = rop
             hpos[n] = pos
             if rop == 5:

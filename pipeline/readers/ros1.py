@@ -24,7 +24,7 @@ from rosbags.typesys.msg import normalize_msgtype
 from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
-from .chunks import BAD, CLEAN, CUT, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
+from .chunks import BAD, CLEAN, CUT, FULL, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
 from .storage import DamagedError
 
 if TYPE_CHECKING:
@@ -41,7 +41,7 @@ MSGDATA_ROS1 = 2
 def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: no cover - compiled
     """Walk ROS1 records (header length, ``name=value`` fields, data length, data); count or fill. ``wanted``
     (connection id -> index, -1: not wanted; empty: every record): only the wanted messages, their connection as
-    the index (:func:`.chunks.records`)."""
+    the index (:func:`.chunks.records`). Filling stops (``FULL``) before a record the arrays have no room for."""
     end = buf.shape[0]
     pos = 0
     n = 0
@@ -86,6 +86,8 @@ def _ros1_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: 
                 continue
             rconn = wanted[rconn]
         if fill:
+            if n == op.shape[0]:
+                return n, pos, FULL
             op[n] = rop
             conn[n] = rconn
             t_ns[n] = rtime

@@ -35,6 +35,7 @@ from slamobs.pipeline.simd import prefetch
 from .storage import RawBatch
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
     from pathlib import Path
 
     from .storage import ConnIds
@@ -130,27 +131,69 @@ def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch
     pages (at least one): the buffer the pages were read into is the batch's (the decoders read the payloads where
     they lie: copying them out first cost more than it saved).
 
+    The pages are walked :data:`PIECE` pages at a time right after they are read, while the kernel's copy is still
+    in the core's cache: walked after the whole window was read, each page was a cache miss again.
+
     Returns the batch (None: no such row there), the index of the next leaf page, the rowid of the last row on the
     pages read (:data:`NO_ROW`: none) and whether the walk stopped at a page it does not take (SQLite reads from
     there on).
     """
     pages = table.leaves[at : at + max(aim // table.page_size, 1)]
+    count, page_size = pages.shape[0], table.page_size
+    buf = np.empty(count * page_size, np.uint8)
+    # the rows' arrays made here (numba compiles each allocation it is asked for), grown when a piece's pages hold
+    # more cells than they have room for (the walk stops before such a page)
+    rows = np.empty((4, count * 16 + 64), np.int64)
+    n, done, last, ok = 0, 0, _NO_ROW, True
     with table.path.open("rb") as fobj:
-        buf = _read_pages(fobj, pages, table.page_size)
-    if buf is None:  # the file was cut since it was opened: SQLite's to report
-        return None, at, NO_ROW, True
-    # the rows' arrays made here (numba compiles each allocation it is asked for), as long as the pages' cell
-    # counts allow (at most usable // 2 cells fit on a page)
-    count = pages.shape[0]
-    cap = int(
-        np.minimum(_be_at(buf, np.arange(count, dtype=np.int64) * table.page_size + 3, 2), table.usable // 2).sum()
-    )
-    conn, stamp, start, size = (np.empty(cap, np.int64) for _ in range(4))
-    n, done, last, ok = _window(buf, count, table.page_size, table.usable, ids.ids, ids.index, conn, stamp, start, size)
+        for end in _pieces(fobj, pages, page_size, buf):
+            if end < 0:  # the file was cut since it was opened: SQLite's to report
+                ok = False
+                break
+            while ok and done < end:
+                n, walked, last, ok = _window(
+                    buf, done, end, page_size, table.usable, ids.ids, ids.index, *rows, n, last
+                )
+                if ok and walked < end:  # no room for the next page's cells
+                    rows = _grown(rows, n, walked, count)
+                done = walked
+            if not ok:
+                break
     batch = None
     if n:
-        batch = RawBatch(buf, conn[:n], stamp[:n], start[:n], size[:n])
-    return batch, at + int(done), int(last), not ok
+        buf.flags.writeable = False  # the compiled walks are compiled for read-only buffers (as RawBatch's)
+        conn, stamp, start, size = rows[:, :n]
+        batch = RawBatch(buf, conn, stamp, start, size)
+    return batch, at + done, int(last), not ok
+
+
+#: Leaf pages read then walked at a time (256 kB of 4 kB pages: in the core's cache when walked).
+PIECE = 64
+
+
+def _pieces(fobj: BinaryIO, pages: np.ndarray, page_size: int, buf: np.ndarray) -> Iterator[int]:
+    """Reads the pages into ``buf`` one after the other, runs of consecutive pages at once; yields the end of each
+    :data:`PIECE` of pages read (the number of pages read), -1 when the file ends before a page."""
+    breaks = np.flatnonzero(np.diff(pages) != 1) + 1
+    count = pages.shape[0]
+    first = 0
+    for stop in (*breaks.tolist(), count):
+        while first < stop:
+            last = min(stop, (first // PIECE + 1) * PIECE)
+            fobj.seek((int(pages[first]) - 1) * page_size)
+            if fobj.readinto(buf[first * page_size : last * page_size]) != (last - first) * page_size:
+                yield -1
+                return
+            first = last
+            if last % PIECE == 0 or last == count:
+                yield last
+
+
+def _grown(rows: np.ndarray, n: int, walked: int, count: int) -> np.ndarray:
+    """``rows`` with room for the rest of ``count`` pages at twice the rows per page so far (the first ``n`` kept)."""
+    more = np.empty((4, max(2 * rows.shape[1], n + 2 * (n // max(walked, 1) + 64) * (count - walked))), np.int64)
+    more[:, :n] = rows[:, :n]
+    return more
 
 
 # --------------------------------------------------------------------------- compiled walks
@@ -250,16 +293,19 @@ def _int(buf, at, serial):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True)
-def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size):  # pragma: no cover - compiled
-    """The rows whose ``topic_id`` is in ``ids`` (sorted; ``index``: their connection indices) on ``count`` leaf
-    pages (one after the other in ``buf``).
+def _window(
+    buf, first, count, page_size, usable, ids, index, conn, stamp, start, size, n, last
+):  # pragma: no cover - compiled
+    """The rows whose ``topic_id`` is in ``ids`` (sorted; ``index``: their connection indices) on leaf pages
+    ``first`` to ``count`` - 1 (one after the other in ``buf``), after ``n`` rows found before whose last rowid
+    was ``last``.
 
-    Writes per row its connection index, timestamp, the offset of its data in ``buf`` and the data's size (each
-    array holds at least the pages' cells, up to ``usable // 2`` a page). Returns the number of rows, the pages
-    walked, the last rowid on them and False when the walk stopped at a page holding something it does not
-    take (the rows of the pages before it are returned): a page that is not a table leaf, a cell or record that is
-    not as SQLite writes them, rowids that do not rise, a wanted payload that goes on in overflow pages (SQLite
-    puts those together).
+    Writes per row its connection index, timestamp, the offset of its data in ``buf`` and the data's size, from
+    row ``n`` on. Returns the number of rows then, the next page to walk, the last rowid walked and False when the
+    walk stopped at a page holding something it does not take (the rows of the pages before it are returned): a
+    page that is not a table leaf, a cell or record that is not as SQLite writes them, rowids that do not rise, a
+    wanted payload that goes on in overflow pages (SQLite puts those together). It stops (True) before a page
+    whose cells the arrays have no room for.
 
     The next page's lines are asked for (:func:`.simd.prefetch`) while a page is walked: its cells are met at
     scattered places, each a cache miss when the window's pages are not in cache (~2x the walk's time).
@@ -267,10 +313,8 @@ def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size)
     most = usable - 35  # the longest payload a leaf page keeps whole
     least = (usable - 12) * 32 // 255 - 23  # the least it keeps of a longer one
     spill = usable - 4  # payload bytes an overflow page holds
-    n = 0
-    last = _NO_ROW
     ok = True
-    k = 0
+    k = first
     while ok and k < count:
         base = k * page_size
         end = base + usable
@@ -279,6 +323,8 @@ def _window(buf, count, page_size, usable, ids, index, conn, stamp, start, size)
                 prefetch(buf, q)
         ncells = _be(buf, base + 3, 2)
         ok = buf[base] == _LEAF and 8 + 2 * ncells <= usable
+        if ok and n + ncells > conn.shape[0]:
+            break
         page_n, page_last = 0, last
         for i in range(ncells if ok else 0):
             cell = _be(buf, base + 8 + 2 * i, 2)
