@@ -548,6 +548,46 @@ def test_a_batch_stopped_while_its_local_cluster_starts_says_one_line_and_leaves
             os.killpg(proc.pid, signal.SIGKILL)
 
 
+def _spawned_workers(pid: int) -> list[int]:
+    """The worker processes a local Dask cluster's nannies spawned under the batch ``pid`` (not multiprocessing's
+    resource tracker)."""
+    found = []
+    for child in children(pid):
+        try:
+            with open(f"/proc/{child}/cmdline", "rb") as fh:
+                if b"spawn_main" in fh.read():
+                    found.append(child)
+        except OSError:
+            pass
+    return found
+
+
+def test_a_worker_killed_while_the_local_cluster_starts_is_started_again_and_the_batch_runs(logs, tmp_path):
+    """SIGKILL of one worker process as the local cluster starts (as it imports, before it registers) failed the
+    cluster's whole start: exit 3, "local Dask cluster: cannot start (RuntimeError: Nanny failed to start.)"
+    (kill_matrix seed 72, trial 3). Its nanny is now started again: one line says so, every log runs, exit 0."""
+    proc, err = _batch_with_its_cluster_starting(logs, tmp_path)
+    out = tmp_path / "OUT"
+    try:
+        assert wait_for(lambda: _spawned_workers(proc.pid) or proc.poll() is not None, 60, step=0.005)
+        os.kill(_spawned_workers(proc.pid)[0], signal.SIGKILL)
+        code = proc.wait(timeout=300)
+        text = err.read_text()
+        assert code == 0, text
+        notes = [line for line in text.splitlines() if line.startswith("note: ")]
+        assert notes == [
+            "note: local Dask cluster: a worker process died as it started (RuntimeError: Nanny failed to start "
+            "worker process); started it again"
+        ], text
+        assert "Traceback" not in text, text
+        assert wait_gone(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    rows = assert_consistent(out)
+    assert sorted(r["status"] for r in rows.values()) == ["ok"] * N_LOGS
+
+
 def test_ctrl_c_while_the_local_cluster_starts_leaves_no_half_built_cluster_to_the_exit_hook(logs, tmp_path):
     """Ctrl-C (SIGINT to the whole group) while the local cluster starts also ends its worker processes as they
     import: the constructor then raised, its half-built cluster was left to distributed's exit hook, which printed

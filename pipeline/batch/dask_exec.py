@@ -177,6 +177,7 @@ class DaskPool:
         self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
+        self.notes: list[str] = []  # what the batch should say as it starts (one line each)
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
@@ -209,6 +210,7 @@ class DaskPool:
                 with critical():
                     self.cluster = self._local_cluster()
                     self.client = Client(self.cluster)
+                self.notes += self._lost_at_start()
             except (OSError, TimeoutError, RuntimeError) as err:  # no port, no processes: the machine, not a log
                 raise InfrastructureError(f"{self.where}: cannot start ({failure_text(err)})") from None
         try:
@@ -221,13 +223,49 @@ class DaskPool:
             raise self._lost(err) from None
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
+    def _lost_at_start(self) -> list[str]:
+        """One line when worker processes of the local cluster died as it started (see ``_local_cluster``)."""
+        lost = getattr(self.cluster, "lost", [])
+        if not lost:
+            return []
+        why = lost[-1][1]
+        running = len(self.cluster.workers)
+        if running == self.jobs:
+            return [f"{self.where}: a worker process died as it started ({why}); started it again"]
+        return [
+            f"{self.where}: {self.jobs - running} of {self.jobs} worker processes did not start ({why}); "
+            f"the batch runs on {running}"
+        ]
+
     def _local_cluster(self):
         from distributed import LocalCluster
+        from distributed.core import Status
 
         class Local(LocalCluster):
             """A cluster whose start failed (its workers ended by the same Ctrl-C, as they import) is closed here,
             errors ignored, and not left to distributed's exit hook: it printed a traceback (AssertionError:
-            Status.init) under the batch's line (kill_matrix seed 45)."""
+            Status.init) under the batch's line (kill_matrix seed 45).
+
+            A worker process that dies as the cluster starts (killed, out of memory) failed the whole start, and
+            the batch with it (exit 3 "Nanny failed to start.", kill_matrix seed 72): its nanny is started again
+            once, then left out; the start fails only when no worker started. ``lost`` says what happened."""
+
+            lost: list[tuple[int, str, bool]] = []  # (nannies, why, started again) per failed start
+
+            async def _correct_state_internal(self) -> None:
+                for again in (True, False):
+                    try:
+                        return await super()._correct_state_internal()
+                    except Exception as err:  # noqa: BLE001 - the nannies that did not start are known below
+                        failed = [name for name, nanny in self.workers.items() if nanny.status != Status.running]
+                        if not failed or len(failed) == len(self.workers) and not again:
+                            raise
+                        why = failure_text(err.__cause__ or err)
+                        for name in failed:
+                            del self.workers[name]
+                            if not again:
+                                del self.worker_spec[name]
+                        self.lost = [*self.lost, (len(failed), why, again)]
 
             def __init__(self, **kwargs) -> None:
                 try:

@@ -96,6 +96,7 @@ class Progress:
     warned: int = 0  # ok runs with warnings (salvaged log, dropped samples, ...)
     ran: int = 0
     started: float = field(default_factory=time.perf_counter)
+    notes: list[str] = field(default_factory=list)  # what the executor said as it started (a worker lost)
 
     @property
     def done(self) -> int:
@@ -464,7 +465,9 @@ def run_batch(
             try:
                 if use_dask and pool is not None:
                     pool.connect()
-                progress = Progress(total=len(plan.order), to_run=len(plan.tasks))
+                progress = Progress(
+                    total=len(plan.order), to_run=len(plan.tasks), notes=list(getattr(pool, "notes", []))
+                )
                 on_start(progress)
                 for pos in sorted(plan.rows):
                     progress.add(plan.rows[pos], dispatched=False)
