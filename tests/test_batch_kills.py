@@ -509,6 +509,38 @@ def _staged(out: Path) -> list[tuple[Path, int]]:
     return found
 
 
+def test_a_dask_worker_killed_under_a_log_until_dask_gives_up_fails_that_log_with_one_line(logs, tmp_path):
+    """SIGKILL of the local Dask worker running a log (an OOM kill), as many times as Dask allows
+    (``allowed-failures`` 0 here, 3 by default: kill6's loop killed the same log 4 times): that log fails naming the
+    dying workers, the others run, exit 1, a consistent dataset, no process left, and the batch's own lines only:
+    the scheduler running in the batch printed its ERROR lines between them ("Task ... marked as failed because 1
+    workers died while trying to run it", "Couldn't gather keys")."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "OUT"
+    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES": "0"}
+    err = tmp_path / "b.err"
+    with open(err, "w") as fh:
+        args = _batch_args(logs, out, "--executor", "dask", "-j", 2)
+        proc = subprocess.Popen(
+            [*CLI, *map(str, args)], stdout=subprocess.DEVNULL, stderr=fh, env=env, start_new_session=True
+        )
+    try:
+        assert wait_for(lambda: _staged(out) or proc.poll() is not None, 180, step=0.005), err.read_text()
+        os.kill(_staged(out)[0][1], signal.SIGKILL)
+        assert proc.wait(timeout=300) == 1, err.read_text()
+        assert wait_gone(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    lines = err.read_text().strip().splitlines()
+    assert lines[0].startswith("batch: ") and all(line.startswith("[") for line in lines[1:]), lines
+    rows = assert_consistent(out)
+    failed = [r for r in rows.values() if r["status"] != "ok"]
+    # the tasks Dask had handed to that worker (queued behind the log) count as its victims too
+    assert len(rows) == N_LOGS and 1 <= len(failed) < N_LOGS, rows
+    assert all("Dask workers died while running this log" in r["error"] for r in failed), failed
+
+
 def _batch_with_its_cluster_starting(logs, tmp_path):
     """A ``batch --executor dask`` process, returned once its local cluster has a worker process and before the
     batch says where it runs (the cluster is starting), with its stderr file."""

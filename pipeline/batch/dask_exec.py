@@ -287,7 +287,10 @@ class DaskPool:
             # its HTTP server (health routes) still starts: on a free port, not 8787 with a warning
             # ("Port 8787 is already in use") printed above the batch's lines when another cluster has it
             scheduler_kwargs={"dashboard_address": ":0"},
-            silence_logs=logging.ERROR,
+            # not ERROR: the scheduler, in the batch's process, printed "Task ... marked as failed because 4 workers
+            # died while trying to run it" and "Couldn't gather keys" between the batch's lines when a worker was
+            # killed under a log (an OOM kill); the batch's row says what happened, in one line
+            silence_logs=logging.CRITICAL,
         )
 
     def close(self) -> None:
