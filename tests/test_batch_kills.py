@@ -381,6 +381,47 @@ def test_a_stopped_batch_kills_its_local_clusters_running_logs_instead_of_waitin
     assert (tmp_path / "started").exists() and not (tmp_path / "finished").exists()
 
 
+def test_a_stop_signal_while_the_local_cluster_closes_is_raised_after_the_close_and_the_staging_clean_up(
+    logs, tmp_path, monkeypatch
+):
+    """A first SIGTERM while a batch closes its local Dask cluster (its normal end): batch's own handler raised at
+    once, inside ``DaskPool.close``, which only ``interrupts``' handler deferred (``critical()``): the close was cut
+    (the cluster's worker processes left to the exit) and the staging clean-up after it skipped, so the stopped batch
+    left its staging directory (and what its last tasks staged). Now the stop is raised after both."""
+    pytest.importorskip("distributed")
+    from slamobs.cli.jobs import EXIT_SIGNAL, Stopped, on_signal
+    from slamobs.pipeline.batch import BatchOptions, discover, run_batch
+    from slamobs.pipeline.batch import dask_exec
+    from slamobs.pipeline.config import load_config
+
+    kill, seen, whole = dask_exec._kill_workers, [], []
+
+    def signalled_first(cluster):
+        first = not seen
+        if first:
+            seen.extend(nanny.pid for nanny in cluster.workers.values())
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler runs in this frame, right after the kill
+        kill(cluster)
+        whole.append(first)  # not reached when the signal cut the close here
+
+    monkeypatch.setattr(dask_exec, "_kill_workers", signalled_first)
+    base, cfg = logs
+    out = tmp_path / "OUT"
+    options = BatchOptions(out=out, config=load_config(cfg), executor="dask", jobs=1, compact=False, wait_workers=60)
+    handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
+    try:
+        with pytest.raises(Stopped):
+            run_batch(discover([base]), options)
+    finally:
+        for sig, old in handlers.items():
+            signal.signal(sig, old)
+    assert seen and whole[:1] == [True], whole  # the close the signal hit ran to its end
+    assert wait_for(lambda: not any(alive(pid) for pid in seen), 20), seen
+    staging = out / "_slamobs" / "staging"
+    assert not staging.exists() or not list(staging.iterdir()), list(staging.rglob("*"))
+    assert_consistent(out)
+
+
 def test_a_local_cluster_starts_without_a_warning_when_port_8787_is_taken():
     """A second batch (or any Dask dashboard) holding port 8787 made every local-cluster batch print "Port 8787
     is already in use. Perhaps you already have a cluster running?" above its own lines."""

@@ -201,15 +201,13 @@ class DaskPool:
                     f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
                 ) from None
         else:
-            # critical() defers only interrupts' handler (a command under raise_when_safe); batch's and tune's
-            # on_signal (cli/jobs.py) raise wherever the main thread is, here in distributed's sync() wait, so the
-            # constructor is cut in two and Local's clean-up closes its half-built cluster (left to distributed's exit
-            # hook, it printed a traceback, AssertionError: Status.init, under the batch's line). A signal the kernel
-            # hands to another thread runs the handler only when that wait returns (up to 3 s at load 10-20).
+            # Not in critical(), which batch's and tune's on_signal (cli/jobs.py) now honour too: a stop cuts the
+            # start (in distributed's sync() wait) and Local's clean-up closes its half-built cluster (left to
+            # distributed's exit hook, it printed a traceback, AssertionError: Status.init, under the batch's line);
+            # deferred to the start's end, the exit waited for the workers to start (7.0-8.7 s at load 18-21).
             try:
-                with critical():
-                    self.cluster = self._local_cluster()
-                    self.client = Client(self.cluster)
+                self.cluster = self._local_cluster()
+                self.client = Client(self.cluster)
                 self.notes += self._lost_at_start()
             except (OSError, TimeoutError, RuntimeError) as err:  # no port, no processes: the machine, not a log
                 raise InfrastructureError(f"{self.where}: cannot start ({failure_text(err)})") from None
