@@ -682,6 +682,50 @@ def test_ctrl_c_while_the_local_cluster_starts_leaves_no_half_built_cluster_to_t
             os.killpg(proc.pid, signal.SIGKILL)
 
 
+_ENDS_WHILE_A_CHILD_STARTS = """
+import multiprocessing, os, sys, threading, time
+from multiprocessing import resource_tracker, util
+
+from slamobs.pipeline.batch.dask_exec import spawns_settled
+
+resource_tracker.ensure_running()  # started by a first spawn, through the same call: not the child slowed below
+launch = util.spawnv_passfds
+
+
+def slow(*args):  # the child exists, its start data not yet written (a nanny's start as the batch ends)
+    pid = launch(*args)
+    time.sleep(1.5)
+    return pid
+
+
+util.spawnv_passfds = slow
+child = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(60,), daemon=True)
+threading.Thread(target=child.start, daemon=True).start()
+time.sleep(0.5)
+if sys.argv[1] == "settle":
+    spawns_settled()
+for proc in multiprocessing.active_children():  # what the exit does (cli.errors.exit_at_once)
+    proc.kill()
+    proc.join(5)
+os._exit(0)
+"""
+
+
+def test_a_process_that_ends_while_a_child_process_starts_waits_for_the_start_so_the_child_prints_nothing():
+    """A batch that ended while a local Dask nanny started its worker process (a thread between fork-exec and
+    writing the child's start data) left the child to read a closed pipe: ``EOFError: Ran out of input`` and a
+    traceback under the batch's line (1 of 5 Ctrl-C trials, kill5). ``spawns_settled`` (the cluster's close and
+    a failed start) waits for the start; then the exit kills the child. Both ways here, the child's start slowed."""
+    seen = {}
+    for how in ("settle", "no"):
+        done = subprocess.run(
+            [sys.executable, "-c", _ENDS_WHILE_A_CHILD_STARTS, how], capture_output=True, text=True, timeout=120
+        )
+        seen[how] = (done.returncode, done.stderr)
+    assert seen["no"][0] == 0 and "EOFError" in seen["no"][1], seen  # the fault, reproduced without the wait
+    assert seen["settle"] == (0, ""), seen
+
+
 def test_a_signal_during_the_compaction_switch_is_raised_after_it(tmp_path, monkeypatch):
     """SIGHUP while the compaction's journal was applied (kill_matrix seed 47, trial 5: exit 129): the renames were
     made, the replaced per-run files not deleted, so the stopped batch left every row of a run twice until the

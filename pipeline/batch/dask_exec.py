@@ -162,6 +162,31 @@ def _kill_workers(cluster) -> None:
                 pass
 
 
+def _launching(frame) -> bool:
+    while frame is not None:
+        if frame.f_code.co_name == "_launch" and "multiprocessing" in frame.f_code.co_filename:
+            return True
+        frame = frame.f_back
+    return False
+
+
+def spawns_settled(within: float = 5.0) -> None:
+    """Wait (at most ``within`` seconds) until no other thread is between starting a child process and writing it
+    its start data (multiprocessing's ``Popen._launch``): a local cluster's nanny starts its worker process in a
+    thread of its own, and a batch that ended then (stopped as its cluster started) left the child to read a closed
+    pipe and print ``EOFError: Ran out of input`` under the batch's line (1 of 5 Ctrl-C trials, kill5). Once its
+    start returns, the child is one of multiprocessing's daemonic children, which the exit kills."""
+    import sys
+
+    me = threading.get_ident()
+    deadline = time.monotonic() + within
+    while time.monotonic() < deadline:
+        frames = sys._current_frames()  # noqa: SLF001 - documented; the only view of other threads' stacks
+        if not any(_launching(frame) for ident, frame in frames.items() if ident != me):
+            return
+        time.sleep(0.01)
+
+
 class DaskPool:
     """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
 
@@ -275,6 +300,7 @@ class DaskPool:
                     except BaseException:  # noqa: BLE001 - half built: nothing of it to keep
                         pass
                     self.shutdown_on_close = False  # the exit hook leaves it alone
+                    spawns_settled()
                     raise
 
         return Local(
@@ -313,6 +339,7 @@ class DaskPool:
                 self.cluster.close(timeout=10)
             except Exception:  # noqa: BLE001
                 pass
+            spawns_settled()
         self.client = self.cluster = None
 
     def _lost(self, err: BaseException) -> InfrastructureError:
