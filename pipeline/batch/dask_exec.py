@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import signal
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -144,7 +145,6 @@ def _kill_workers(cluster) -> None:
     a signal while the cluster starts, as its constructor's clean-up kills them), a nanny restarting a worker killed
     mid-batch (an ERROR traceback: seed 48)."""
     import os
-    import signal
 
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
     # a nanny whose start was cut by the stop fails ("Nanny failed to start."): its task, abandoned by the cluster's
@@ -276,6 +276,17 @@ class DaskPool:
             lost: list[tuple[int, str, bool]] = []  # (nannies, why, started again) per failed start
 
             async def _correct_state_internal(self) -> None:
+                if threading.current_thread() is not threading.main_thread():  # the cluster's event loop thread
+                    # its nannies start their worker processes from threads it makes: they inherit the mask, and
+                    # the processes too, across exec; Ctrl-C or a closed terminal (SIGINT, SIGHUP to the group) as
+                    # they imported printed their KeyboardInterrupt tracebacks under the batch's line (8 of 10
+                    # Ctrl-C trials at load 15-20); the batch kills them itself, and SIGTERM still ends them.
+                    # multiprocessing's resource tracker is started first: its start unblocks SIGINT in the thread
+                    # that starts it (bpo-33613), here a nanny's, whatever that thread had blocked
+                    from multiprocessing import resource_tracker
+
+                    resource_tracker.ensure_running()
+                    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGHUP})
                 for again in (True, False):
                     try:
                         return await super()._correct_state_internal()
