@@ -281,10 +281,13 @@ class DaskPool:
                     # the processes too, across exec; Ctrl-C or a closed terminal (SIGINT, SIGHUP to the group) as
                     # they imported printed their KeyboardInterrupt tracebacks under the batch's line (8 of 10
                     # Ctrl-C trials at load 15-20); the batch kills them itself, and SIGTERM still ends them.
-                    # multiprocessing's resource tracker is started first: its start unblocks SIGINT in the thread
-                    # that starts it (bpo-33613), here a nanny's, whatever that thread had blocked
+                    # multiprocessing's resource tracker is started here, with them blocked too: started by a
+                    # nanny's thread, a SIGHUP to the group killed it (it ignores SIGINT and SIGTERM only), and the
+                    # one relaunched printed a KeyError traceback per semaphore it had not seen (kill_matrix seed 75);
+                    # its start unblocks SIGINT and SIGTERM in the thread that starts it (bpo-33613): blocked again
                     from multiprocessing import resource_tracker
 
+                    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGHUP})
                     resource_tracker.ensure_running()
                     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGHUP})
                 for again in (True, False):
