@@ -489,6 +489,39 @@ def test_a_scheduler_lost_before_submitting_or_while_waiting_for_workers_is_exit
         pool.connect()
 
 
+def test_a_worker_that_dies_during_the_environment_check_is_left_out_unless_none_answered():
+    """An external cluster's worker SIGKILLed while the batch asked every worker for its environment ended the batch:
+    exit 3, "Dask worker tcp://...: cannot run the environment check (CommClosedError: ... Stream is closed)"
+    (kill_matrix seed 75, trial 5). A worker whose connection closed is left out while another answered; all gone,
+    or any other error, still stops the batch. (The client stands in for the cluster: the race is one of ms.)"""
+    pytest.importorskip("distributed")
+    from distributed.comm.core import CommClosedError
+
+    from slamobs.pipeline.batch import dask_exec
+    from slamobs.pipeline.batch.executor import InfrastructureError
+    from slamobs.pipeline.batch.identity import code_hash
+    from slamobs.pipeline.version import __version__
+
+    ok = {"ok": True, "version": __version__, "code": code_hash(), "host": "h", "python": "p"}
+
+    class Client:
+        def __init__(self, answers):
+            self.answers = answers
+
+        def run(self, _function, on_error):
+            return self.answers
+
+    closed = CommClosedError("in <TCP (closed) Scheduler Broadcast>: Stream is closed")
+    both = {"tcp://a:1": ok, "tcp://b:2": closed}
+    assert dask_exec._check_workers(Client(both), "S", __version__, code_hash(), 10) == 1
+    with pytest.raises(InfrastructureError, match="cannot run the environment check"):
+        dask_exec._check_workers(Client({"tcp://b:2": closed}), "S", __version__, code_hash(), 10)
+    with pytest.raises(InfrastructureError, match="cannot run the environment check"):
+        dask_exec._check_workers(
+            Client({"tcp://a:1": ok, "tcp://b:2": ValueError("x")}), "S", __version__, code_hash(), 10
+        )
+
+
 def test_a_local_cluster_that_cannot_start_is_exit_3(monkeypatch):
     """A local Dask cluster that cannot start (no free port, no processes) is the machine's failure (exit 3 with
     one line), not an error line about the batch (exit 2)."""
