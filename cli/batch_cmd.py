@@ -69,6 +69,8 @@ class _Reporter:
         if self.quiet or self.as_json:
             return
         text = f"batch: {plural(progress.total, 'log')}, {progress.to_run} to run on {where}"
+        for note in progress.notes:  # a local Dask worker that did not start: the batch goes on without it
+            click.echo(f"note: {note}", err=True)
         click.echo(f"\r\x1b[K[0/{progress.total}] {text}" if self.live else text, nl=not self.live, err=True)
 
     def __call__(self, row: dict, progress) -> None:

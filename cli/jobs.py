@@ -7,9 +7,11 @@ import os
 import signal
 import threading
 from contextlib import contextmanager
+from functools import partial
 
 from slamobs.cli.errors import EXIT_CODES
 from slamobs.pipeline.errors import BadInput, InfrastructureFailure, Interruption
+from slamobs.pipeline.interrupts import after_critical
 
 #: Exit codes (documented in --help and the README).
 EXIT_OK, EXIT_FAILED = 0, 1
@@ -26,9 +28,15 @@ class Stopped(Interruption):
 
 
 def on_signal(signum, _frame) -> None:
-    """Signal handler of a long command: ignore further signals while it cleans up, stop with :class:`Stopped`."""
+    """Signal handler of a long command: ignore further signals while it cleans up, stop with :class:`Stopped`, at
+    once or, in a block that must not be cut in two (``interrupts.critical()``: a Dask cluster's close), as it ends."""
     for sig in EXIT_SIGNAL:  # a second signal must not cut the clean-up short (SIGKILL still can)
         signal.signal(sig, _ignored)
+    if not after_critical(partial(_stop, signum)):
+        _stop(signum)
+
+
+def _stop(signum: int) -> None:
     raise Stopped(signum)
 
 

@@ -47,6 +47,8 @@ HANGUP_LIKE = (signal.SIGINT, signal.SIGHUP)
 requested: int | None = None
 _raised = False
 _critical = 0  # depth of :func:`critical` blocks
+_main_critical = 0  # ... of those the main thread is in
+_after_critical: list = []  # what :func:`after_critical` deferred to the end of the main thread's critical block
 #: Outputs published under their final names since the command began (its interrupted message names them).
 published: list[str] = []
 
@@ -97,13 +99,32 @@ def as_interruption():
 
 @contextmanager
 def critical():
-    """A block a signal must not cut in two (several renames that make one output): raised after it."""
-    global _critical
+    """A block a signal must not cut in two (several renames that make one output): raised after it (by this
+    module's handler, or by a command's own through :func:`after_critical`)."""
+    global _critical, _main_critical
+    main = threading.current_thread() is threading.main_thread()
     _critical += 1
+    _main_critical += main
     try:
         yield
     finally:
         _critical -= 1
+        _main_critical -= main
+        if main and not _main_critical and _after_critical:
+            action = _after_critical.pop(0)
+            _after_critical.clear()
+            action()
+
+
+def after_critical(action) -> bool:
+    """For a command's own signal handler (batch's and tune's :func:`cli.jobs.on_signal`, which raise at once, not at
+    a safe point): when the main thread is in a :func:`critical` block, run ``action`` (the handler's raise) as the
+    block ends and return True; False outside one (act now). Without it a first SIGTERM cut ``DaskPool.close`` in
+    two and skipped the batch's staging clean-up after it (a stopped batch left its staging directory)."""
+    if not _main_critical or threading.current_thread() is not threading.main_thread():
+        return False
+    _after_critical.append(action)
+    return True
 
 
 def _unsafe(frame) -> bool:

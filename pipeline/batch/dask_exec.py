@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import signal
 import threading
 import time
 from collections.abc import Iterator, Sequence
@@ -72,6 +73,12 @@ def _check_workers(client, where: str, version: str, code: str, within: float) -
     finally:
         pool.shutdown(wait=False)
         cloudpickle.unregister_pickle_by_value(probe)
+    # a worker that died while asked (killed, out of memory: its connection closed) is not checked; the batch goes on
+    # with the others (exit 3 "cannot run the environment check (CommClosedError ...)", kill_matrix seed 75 trial 5);
+    # a worker that joins later is checked by its first task (EnvironmentMismatch)
+    gone = [addr for addr, ans in answers.items() if isinstance(ans, OSError)]
+    if gone and len(gone) < len(answers):
+        answers = {addr: ans for addr, ans in answers.items() if addr not in gone}
     if not answers:
         raise InfrastructureError(f"{where}: no Dask workers")
     for addr, ans in sorted(answers.items()):
@@ -144,7 +151,6 @@ def _kill_workers(cluster) -> None:
     a signal while the cluster starts, as its constructor's clean-up kills them), a nanny restarting a worker killed
     mid-batch (an ERROR traceback: seed 48)."""
     import os
-    import signal
 
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
     # a nanny whose start was cut by the stop fails ("Nanny failed to start."): its task, abandoned by the cluster's
@@ -162,6 +168,31 @@ def _kill_workers(cluster) -> None:
                 pass
 
 
+def _launching(frame) -> bool:
+    while frame is not None:
+        if frame.f_code.co_name == "_launch" and "multiprocessing" in frame.f_code.co_filename:
+            return True
+        frame = frame.f_back
+    return False
+
+
+def spawns_settled(within: float = 5.0) -> None:
+    """Wait (at most ``within`` seconds) until no other thread is between starting a child process and writing it
+    its start data (multiprocessing's ``Popen._launch``): a local cluster's nanny starts its worker process in a
+    thread of its own, and a batch that ended then (stopped as its cluster started) left the child to read a closed
+    pipe and print ``EOFError: Ran out of input`` under the batch's line (1 of 5 Ctrl-C trials, kill5). Once its
+    start returns, the child is one of multiprocessing's daemonic children, which the exit kills."""
+    import sys
+
+    me = threading.get_ident()
+    deadline = time.monotonic() + within
+    while time.monotonic() < deadline:
+        frames = sys._current_frames()  # noqa: SLF001 - documented; the only view of other threads' stacks
+        if not any(_launching(frame) for ident, frame in frames.items() if ident != me):
+            return
+        time.sleep(0.01)
+
+
 class DaskPool:
     """Tasks on Dask; ``scheduler`` None starts a ``LocalCluster`` of ``jobs`` single-threaded processes."""
 
@@ -177,6 +208,7 @@ class DaskPool:
         self.run = run  # the task function (tests pass run_task with a stand-in pipeline)
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
+        self.notes: list[str] = []  # what the batch should say as it starts (one line each)
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
@@ -200,15 +232,14 @@ class DaskPool:
                     f"{self.scheduler}: cannot reach the Dask scheduler ({failure_text(err)})"
                 ) from None
         else:
-            # critical() defers only interrupts' handler (a command under raise_when_safe); batch's and tune's
-            # on_signal (cli/jobs.py) raise wherever the main thread is, here in distributed's sync() wait, so the
-            # constructor is cut in two and Local's clean-up closes its half-built cluster (left to distributed's exit
-            # hook, it printed a traceback, AssertionError: Status.init, under the batch's line). A signal the kernel
-            # hands to another thread runs the handler only when that wait returns (up to 3 s at load 10-20).
+            # Not in critical(), which batch's and tune's on_signal (cli/jobs.py) now honour too: a stop cuts the
+            # start (in distributed's sync() wait) and Local's clean-up closes its half-built cluster (left to
+            # distributed's exit hook, it printed a traceback, AssertionError: Status.init, under the batch's line);
+            # deferred to the start's end, the exit waited for the workers to start (7.0-8.7 s at load 18-21).
             try:
-                with critical():
-                    self.cluster = self._local_cluster()
-                    self.client = Client(self.cluster)
+                self.cluster = self._local_cluster()
+                self.client = Client(self.cluster)
+                self.notes += self._lost_at_start()
             except (OSError, TimeoutError, RuntimeError) as err:  # no port, no processes: the machine, not a log
                 raise InfrastructureError(f"{self.where}: cannot start ({failure_text(err)})") from None
         try:
@@ -221,13 +252,63 @@ class DaskPool:
             raise self._lost(err) from None
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
+    def _lost_at_start(self) -> list[str]:
+        """One line when worker processes of the local cluster died as it started (see ``_local_cluster``)."""
+        lost = getattr(self.cluster, "lost", [])
+        if not lost:
+            return []
+        why = lost[-1][1]
+        running = len(self.cluster.workers)
+        if running == self.jobs:
+            return [f"{self.where}: a worker process died as it started ({why}); started it again"]
+        return [
+            f"{self.where}: {self.jobs - running} of {self.jobs} worker processes did not start ({why}); "
+            f"the batch runs on {running}"
+        ]
+
     def _local_cluster(self):
         from distributed import LocalCluster
+        from distributed.core import Status
 
         class Local(LocalCluster):
             """A cluster whose start failed (its workers ended by the same Ctrl-C, as they import) is closed here,
             errors ignored, and not left to distributed's exit hook: it printed a traceback (AssertionError:
-            Status.init) under the batch's line (kill_matrix seed 45)."""
+            Status.init) under the batch's line (kill_matrix seed 45).
+
+            A worker process that dies as the cluster starts (killed, out of memory) failed the whole start, and
+            the batch with it (exit 3 "Nanny failed to start.", kill_matrix seed 72): its nanny is started again
+            once, then left out; the start fails only when no worker started. ``lost`` says what happened."""
+
+            lost: list[tuple[int, str, bool]] = []  # (nannies, why, started again) per failed start
+
+            async def _correct_state_internal(self) -> None:
+                if threading.current_thread() is not threading.main_thread():  # the cluster's event loop thread
+                    # its nannies start their worker processes from threads it makes: they inherit the mask, and
+                    # the processes too, across exec; Ctrl-C or a closed terminal (SIGINT, SIGHUP to the group) as
+                    # they imported printed their KeyboardInterrupt tracebacks under the batch's line (8 of 10
+                    # Ctrl-C trials at load 15-20); the batch kills them itself, and SIGTERM still ends them.
+                    # multiprocessing's resource tracker is started here, with them blocked too: started by a
+                    # nanny's thread, a SIGHUP to the group killed it (it ignores SIGINT and SIGTERM only), and the
+                    # one relaunched printed a KeyError traceback per semaphore it had not seen (kill_matrix seed 75);
+                    # its start unblocks SIGINT and SIGTERM in the thread that starts it (bpo-33613): blocked again
+                    from multiprocessing import resource_tracker
+
+                    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGHUP})
+                    resource_tracker.ensure_running()
+                    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGHUP})
+                for again in (True, False):
+                    try:
+                        return await super()._correct_state_internal()
+                    except Exception as err:  # noqa: BLE001 - the nannies that did not start are known below
+                        failed = [name for name, nanny in self.workers.items() if nanny.status != Status.running]
+                        if not failed or len(failed) == len(self.workers) and not again:
+                            raise
+                        why = failure_text(err.__cause__ or err)
+                        for name in failed:
+                            del self.workers[name]
+                            if not again:
+                                del self.worker_spec[name]
+                        self.lost = [*self.lost, (len(failed), why, again)]
 
             def __init__(self, **kwargs) -> None:
                 try:
@@ -239,6 +320,7 @@ class DaskPool:
                     except BaseException:  # noqa: BLE001 - half built: nothing of it to keep
                         pass
                     self.shutdown_on_close = False  # the exit hook leaves it alone
+                    spawns_settled()
                     raise
 
         return Local(
@@ -249,7 +331,10 @@ class DaskPool:
             # its HTTP server (health routes) still starts: on a free port, not 8787 with a warning
             # ("Port 8787 is already in use") printed above the batch's lines when another cluster has it
             scheduler_kwargs={"dashboard_address": ":0"},
-            silence_logs=logging.ERROR,
+            # not ERROR: the scheduler, in the batch's process, printed "Task ... marked as failed because 4 workers
+            # died while trying to run it" and "Couldn't gather keys" between the batch's lines when a worker was
+            # killed under a log (an OOM kill); the batch's row says what happened, in one line
+            silence_logs=logging.CRITICAL,
         )
 
     def close(self) -> None:
@@ -274,6 +359,7 @@ class DaskPool:
                 self.cluster.close(timeout=10)
             except Exception:  # noqa: BLE001
                 pass
+            spawns_settled()
         self.client = self.cluster = None
 
     def _lost(self, err: BaseException) -> InfrastructureError:

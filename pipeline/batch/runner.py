@@ -52,6 +52,7 @@ from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
 from slamobs.pipeline.batch.local import LocalPool
 from slamobs.pipeline.config import RunConfig, load_config
 from slamobs.pipeline.errors import BadConfig, InputError
+from slamobs.pipeline.interrupts import critical
 
 DASK_MISSING = "--executor dask needs Dask: pip install 'slamobs[dask]' (or: pip install \"dask[distributed]\")"
 #: Default seconds one log may run before its worker is killed (a 4 h log takes ~1 min on one core).
@@ -96,6 +97,7 @@ class Progress:
     warned: int = 0  # ok runs with warnings (salvaged log, dropped samples, ...)
     ran: int = 0
     started: float = field(default_factory=time.perf_counter)
+    notes: list[str] = field(default_factory=list)  # what the executor said as it started (a worker lost)
 
     @property
     def done(self) -> int:
@@ -464,7 +466,9 @@ def run_batch(
             try:
                 if use_dask and pool is not None:
                     pool.connect()
-                progress = Progress(total=len(plan.order), to_run=len(plan.tasks))
+                progress = Progress(
+                    total=len(plan.order), to_run=len(plan.tasks), notes=list(getattr(pool, "notes", []))
+                )
                 on_start(progress)
                 for pos in sorted(plan.rows):
                     progress.add(plan.rows[pos], dispatched=False)
@@ -554,12 +558,17 @@ def _execute(
                 ledger.compact()
                 refreshed = time.monotonic()
         ended = True
-    finally:
-        if results is not None:
-            results.close()  # kills the local workers
-        if use_dask and not options.scheduler:
-            pool.close()  # a local cluster's workers killed before its tasks could write into staging again
-        staging.close(tasks_may_run=use_dask and bool(options.scheduler) and not ended)
+    finally:  # each step even when a stop signal cut the one before (it left the staging directory behind)
+        try:
+            if results is not None:
+                results.close()  # kills the local workers
+        finally:
+            try:
+                if use_dask and not options.scheduler:
+                    pool.close()  # a local cluster's workers killed before its tasks could write into staging again
+            finally:
+                with critical():  # a stop signal is raised after it, never leaving half of it
+                    staging.close(tasks_may_run=use_dask and bool(options.scheduler) and not ended)
 
 
 def compact_batch(out: Path) -> tuple[Reconciled, list[TableCompaction]]:
