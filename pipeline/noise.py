@@ -56,6 +56,12 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
 #: ground robot, a circle and a loop at 0.10-0.17; as recorded, 13 real logs 0.0017-0.021, 16 generated and sample
 #: logs 0.0013-0.10, the most on 7 px stereo: docs/benchmarks.md "Silent wrong results, round 5").
 SCATTERED_SHARE = 0.25
+#: The held streams' fit (:func:`held_levels`) may scale the detection law by no less than this: the detections
+#: cannot be quieter over seconds than they scatter within 1 s. Below it the fit gave the pairs' whole spread to
+#: the motion (MR.CLAM 6 r1 mirrored: 1e-6, σ 1.9e-8 m; a generated figure 8 with its velocities held for 3-30
+#: samples: 1e-6); as recorded the 10 MR.CLAM robots give 1.18-3.33 (docs/benchmarks.md "Silent wrong results,
+#: round 6").
+HELD_SCALE_FLOOR = 0.1
 #: keys that may come from the log's message covariances, and the role whose topic states them
 STATED = {"gyro": "angular_velocity", "velocity": "linear_velocity"}
 #: a stated density below this share of the estimated one is not believed (the sensor claims less noise than its
@@ -315,8 +321,17 @@ def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], not
         return law, {}
     keys = [*streams, *(f"{k}_bias" for k in streams)]
     notes.append(f"noise: {', '.join(keys)} estimated from the detections ({fit.levels[streams[0]].method})")
-    if law is not None:
-        f = fit.levels["detection_scale"]
+    f = fit.levels["detection_scale"]
+    if law is not None and f.value < HELD_SCALE_FLOOR:
+        r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
+        notes.append(
+            f"noise: the held streams' fit put the detections' own error at {f.value:.3g}x what they scatter by "
+            f"within 1 s ({float(law.sigma(r)) * f.value:.3g} m against {float(law.sigma(r)):.3g} m at {r:.3g} m), "
+            "not a level a sensor has: it gave the detection pairs' whole spread to the motion (as it does when "
+            "the detections and the velocities disagree on the turns, e.g. mirrored detections); the detection law "
+            "kept as the triplets measured it, unscaled"
+        )
+    elif law is not None:
         law = replace(law, base=_scaled(law.base, f), slope=_scaled(law.slope, f), held_scale=float(f.value))
         notes.append(f"noise: the detection law scaled by {f.value:.3g} by the same fit")
     return law, {k: fit.levels[k] for k in keys}

@@ -557,3 +557,22 @@ def test_the_written_pose_covariance_after_a_recovery_is_the_filters_own():
         j[3:, :3] = -skew(res.position[k])
         expect = j @ filt.cov_rows[k, :6, :6] @ j.T
         assert np.allclose(res.pose_cov[k], expect, rtol=1e-9, atol=1e-15), k
+
+
+def test_a_held_fit_that_makes_the_detections_noiseless_is_named_not_used():
+    # MR.CLAM 6 r1 with its bearings negated (mirrored), and a generated figure 8 with its velocities held for ten
+    # samples: the held streams' fit gave the detection pairs' whole spread to the motion and scaled the detection
+    # law by 1e-6 (σ ~1e-8 m), which riekf and batch used, with no word
+    from slamobs.pipeline.noise import estimate_log_noise
+
+    for scenario, mirror in (("figure8", 1.0), ("ground", -1.0)):
+        stream = align(expected_streams(simulate(scenario, seed=3, duration=60.0)))
+        n = stream.omega.shape[0] // 10 * 10  # commanded velocities: each value held for ten samples
+        held = {
+            k: np.r_[np.repeat(getattr(stream, k)[:n:10], 10, axis=0), getattr(stream, k)[n:]]
+            for k in ("omega", "velocity")
+        }
+        found = estimate_log_noise(replace(stream, **held, det_y=stream.det_y * np.array([1.0, mirror, 1.0])))
+        said = [n for n in found.notes if "put the detections' own error at 1e-06x" in n]
+        assert len(said) == 1 and "kept as the triplets measured it" in said[0], (scenario, found.notes)
+        assert found.detection.held_scale == 1.0 and 0.003 < found.detection.base.value < 0.03, found.detection
