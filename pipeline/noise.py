@@ -24,6 +24,7 @@ from slamobs.pipeline.noise_estimation import (
     DetectionLaw,
     Estimate,
     HeldMotion,
+    azimuths_from_degrees,
     detection_law,
     detection_ratio,
     held_motion_noise,
@@ -56,6 +57,12 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
 #: ground robot, a circle and a loop at 0.10-0.17; as recorded, 13 real logs 0.0017-0.021, 16 generated and sample
 #: logs 0.0013-0.10, the most on 7 px stereo: docs/benchmarks.md "Silent wrong results, round 5").
 SCATTERED_SHARE = 0.25
+#: Below ``SCATTERED_SHARE`` the detections' azimuths are read again as degrees (:func:`degrees_note`) when their
+#: scatter share is over ``DEGREES_FROM_SHARE``; they are named when that reading scatters ``DEGREES_RATIO`` times
+#: less than as read (bearings in degrees on generated ground, circle, loop logs: 0.10-0.17 as read, 30-40x less;
+#: as recorded 0.62-1.0 on MR.CLAM, whose shares stay under 0.03 anyway, 1.0 on the 5-7 px stereo logs over
+#: 0.03, 1.2-1.3 on generated figure 8s, loops, circles; docs/benchmarks.md "Silent wrong results, round 6").
+DEGREES_FROM_SHARE, DEGREES_RATIO = 0.03, 8.0
 #: The held streams' fit (:func:`held_levels`) may scale the detection law by no less than this: the detections
 #: cannot be quieter over seconds than they scatter within 1 s. Below it the fit gave the pairs' whole spread to
 #: the motion (MR.CLAM 6 r1 mirrored: 1e-6, σ 1.9e-8 m; a generated figure 8 with its velocities held for 3-30
@@ -287,7 +294,7 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    notes += scattered_note(law)
+    notes += scattered_note(law) or degrees_note(aligned, law, g, v)
     return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
 
 
@@ -306,6 +313,30 @@ def scattered_note(law: DetectionLaw | None) -> list[str]:
         f"({share:.2f} of it) within 1 s: their directions look random, not noisy (a bearing in degrees read as "
         "radians? a frame that turns with the detections?): check the detections' unit and frame; estimates from "
         "them cannot be trusted"
+    ]
+
+
+def _scatter_share(law: DetectionLaw) -> tuple[float, float]:
+    """The law's σ at the detections' middle range over that range, and the range."""
+    r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
+    return float(law.sigma(r)) / r, r
+
+
+def degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float) -> list[str]:
+    """A warning when the detections scatter ``DEGREES_RATIO`` times less with their azimuths read as degrees
+    (:func:`pipeline.noise_estimation.azimuths_from_degrees`): a bearing in degrees read as radians on a body
+    that turns slowly scatters under ``SCATTERED_SHARE`` (its error is 57.3x, its wraps few)."""
+    if law is None or (share := _scatter_share(law)[0] / law.held_scale) <= DEGREES_FROM_SHARE:  # as the triplets saw
+        return []
+    arrays = _stream_arrays(aligned)
+    reread = azimuths_from_degrees(*arrays[3:])
+    law_deg = detection_law(log_triplets(*arrays[:6], reread, gyro, velocity))
+    if law_deg is None or (deg := _scatter_share(law_deg)[0]) * DEGREES_RATIO > share:
+        return []
+    return [
+        f"warning: noise: the detections scatter {share / deg:.3g}x less with their azimuths read as degrees "
+        f"({deg:.2g} of their range within 1 s against {share:.2g} as read): a bearing in degrees read as radians? "
+        "check the detections' unit; estimates from them cannot be trusted"
     ]
 
 
