@@ -24,6 +24,7 @@ from slamobs.pipeline.noise_estimation import (
     DetectionLaw,
     Estimate,
     HeldMotion,
+    azimuths_from_degrees,
     detection_law,
     detection_ratio,
     held_motion_noise,
@@ -56,6 +57,18 @@ DEFAULTS: dict[str, tuple[float, str, str]] = {
 #: ground robot, a circle and a loop at 0.10-0.17; as recorded, 13 real logs 0.0017-0.021, 16 generated and sample
 #: logs 0.0013-0.10, the most on 7 px stereo: docs/benchmarks.md "Silent wrong results, round 5").
 SCATTERED_SHARE = 0.25
+#: Below ``SCATTERED_SHARE`` the detections' azimuths are read again as degrees (:func:`degrees_note`) when their
+#: scatter share is over ``DEGREES_FROM_SHARE``; they are named when that reading scatters ``DEGREES_RATIO`` times
+#: less than as read (bearings in degrees on generated ground, circle, loop logs: 0.10-0.17 as read, 30-40x less;
+#: as recorded 0.62-1.0 on MR.CLAM, whose shares stay under 0.03 anyway, 1.0 on the 5-7 px stereo logs over
+#: 0.03, 1.2-1.3 on generated figure 8s, loops, circles; docs/benchmarks.md "Silent wrong results, round 6").
+DEGREES_FROM_SHARE, DEGREES_RATIO = 0.03, 8.0
+#: The held streams' fit (:func:`held_levels`) may scale the detection law by no less than this: the detections
+#: cannot be quieter over seconds than they scatter within 1 s. Below it the fit gave the pairs' whole spread to
+#: the motion (MR.CLAM 6 r1 mirrored: 1e-6, σ 1.9e-8 m; a generated figure 8 with its velocities held for 3-30
+#: samples: 1e-6); as recorded the 10 MR.CLAM robots give 1.18-3.33 (docs/benchmarks.md "Silent wrong results,
+#: round 6").
+HELD_SCALE_FLOOR = 0.1
 #: keys that may come from the log's message covariances, and the role whose topic states them
 STATED = {"gyro": "angular_velocity", "velocity": "linear_velocity"}
 #: a stated density below this share of the estimated one is not believed (the sensor claims less noise than its
@@ -281,7 +294,7 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    notes += scattered_note(law)
+    notes += scattered_note(law) or degrees_note(aligned, law, g, v)
     return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
 
 
@@ -303,6 +316,30 @@ def scattered_note(law: DetectionLaw | None) -> list[str]:
     ]
 
 
+def _scatter_share(law: DetectionLaw) -> tuple[float, float]:
+    """The law's σ at the detections' middle range over that range, and the range."""
+    r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
+    return float(law.sigma(r)) / r, r
+
+
+def degrees_note(aligned, law: DetectionLaw | None, gyro: float, velocity: float) -> list[str]:
+    """A warning when the detections scatter ``DEGREES_RATIO`` times less with their azimuths read as degrees
+    (:func:`pipeline.noise_estimation.azimuths_from_degrees`): a bearing in degrees read as radians on a body
+    that turns slowly scatters under ``SCATTERED_SHARE`` (its error is 57.3x, its wraps few)."""
+    if law is None or (share := _scatter_share(law)[0] / law.held_scale) <= DEGREES_FROM_SHARE:  # as the triplets saw
+        return []
+    arrays = _stream_arrays(aligned)
+    reread = azimuths_from_degrees(*arrays[3:])
+    law_deg = detection_law(log_triplets(*arrays[:6], reread, gyro, velocity))
+    if law_deg is None or (deg := _scatter_share(law_deg)[0]) * DEGREES_RATIO > share:
+        return []
+    return [
+        f"warning: noise: the detections scatter {share / deg:.3g}x less with their azimuths read as degrees "
+        f"({deg:.2g} of their range within 1 s against {share:.2g} as read): a bearing in degrees read as radians? "
+        "check the detections' unit; estimates from them cannot be trusted"
+    ]
+
+
 def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], notes: list[str]):
     """The levels of held (commanded) velocity streams (``streams``: "gyro", "velocity"), whose samples show no
     noise, and their bias priors, from what pairs of detections of one landmark see over lags of seconds
@@ -315,8 +352,17 @@ def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], not
         return law, {}
     keys = [*streams, *(f"{k}_bias" for k in streams)]
     notes.append(f"noise: {', '.join(keys)} estimated from the detections ({fit.levels[streams[0]].method})")
-    if law is not None:
-        f = fit.levels["detection_scale"]
+    f = fit.levels["detection_scale"]
+    if law is not None and f.value < HELD_SCALE_FLOOR:
+        r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
+        notes.append(
+            f"noise: the held streams' fit put the detections' own error at {f.value:.3g}x what they scatter by "
+            f"within 1 s ({float(law.sigma(r)) * f.value:.3g} m against {float(law.sigma(r)):.3g} m at {r:.3g} m), "
+            "not a level a sensor has: it gave the detection pairs' whole spread to the motion (as it does when "
+            "the detections and the velocities disagree on the turns, e.g. mirrored detections); the detection law "
+            "kept as the triplets measured it, unscaled"
+        )
+    elif law is not None:
         law = replace(law, base=_scaled(law.base, f), slope=_scaled(law.slope, f), held_scale=float(f.value))
         notes.append(f"noise: the detection law scaled by {f.value:.3g} by the same fit")
     return law, {k: fit.levels[k] for k in keys}

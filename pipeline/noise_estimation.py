@@ -263,6 +263,26 @@ def log_triplets(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, gyr
     return Triplets(*(np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(Triplets)))
 
 
+def azimuths_from_degrees(det_t, det_offsets, det_idx, det_y) -> np.ndarray:
+    """``det_y`` with each detection's azimuth (about its frame's z) read as degrees: unwrapped along its
+    landmark's detections in time and divided by 57.3 (range and height kept). A bearing in degrees read as
+    radians wraps 57.3x as fast as the landmark turns; read back, its detections are as smooth as a sensor's."""
+    t = np.repeat(det_t, np.diff(det_offsets))
+    az = np.arctan2(det_y[:, 1], det_y[:, 0])
+    order = np.lexsort((t, det_idx))
+    step = np.diff(az[order])
+    step = (step + np.pi) % (2.0 * np.pi) - np.pi
+    step[det_idx[order][1:] != det_idx[order][:-1]] = 0.0  # each landmark starts from its own first azimuth
+    walked = np.r_[0.0, np.cumsum(step)]
+    first = np.r_[0, np.flatnonzero(det_idx[order][1:] != det_idx[order][:-1]) + 1]
+    counts = np.diff(np.r_[first, order.size])
+    unwrapped = np.empty_like(az)
+    unwrapped[order] = np.repeat(az[order][first] - walked[first], counts) + walked
+    r = np.hypot(det_y[:, 0], det_y[:, 1])
+    back = np.radians(unwrapped)
+    return np.stack([r * np.cos(back), r * np.sin(back), det_y[:, 2]], axis=1)
+
+
 def _variance(theta: np.ndarray, tri: Triplets, power: int) -> tuple[np.ndarray, np.ndarray]:
     """Each residual component's variance under ``sigma = theta0 + theta1 r^power`` and its Jacobian (K, 2)."""
     f = tri.r**power

@@ -729,7 +729,8 @@ def estimate(
         notes += _cap_note(spec, part.stats, t0_ns) + _segment_note(spec, part.stats)
         notes += blind_note(aligned.vel_t_ns, aligned.det_t_ns, aligned.det_offsets, options.max_meas_age)
         notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
-        notes += lost_note(spec.name, part.stats.get("metadata", {}).get("resightings"))
+        checks = part.stats.get("metadata", {})
+        notes += lost_note(spec.name, checks.get("resightings"), checks.get("velocity_bias"))
         if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
             # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
             jumps = landmark_jumps(*innovations.arrays()) or part.stats.get("metadata", {}).get(

@@ -591,8 +591,9 @@ def note(name: str, offset: dict) -> list[str]:
     ]
     notes += [
         f"warning: {name}: the detections say the body moved {what} ({offset['pairs']} detection pairs, the "
-        "odometry's bias fitted with it): check the velocity's unit and axes (and the detections'); the estimate used "
-        "them as read"
+        "odometry's bias fitted with it): check the velocity's unit and axes, and the detections' (their unit, and "
+        "their frame's extrinsic: a camera turned or given as the inverse transform reads this way); the estimate "
+        "used them as read"
         for what in velocity_misread(offset.get("velocity_scale") or {"scale": [], "sigma": []})
     ]
     if not offset["applied"]:
