@@ -480,6 +480,26 @@ def test_an_angular_velocity_in_degrees_or_of_the_wrong_sign_is_named():
         assert len(said) == 1 and what in said[0], (factor, said)
 
 
+def test_a_camera_extrinsic_turned_or_inverted_is_named():
+    # a generated figure 8 with its camera turned 90 deg about its z, or its extrinsic given as the inverse transform:
+    # riekf APE 9-11 m, and only "the body moved along x 2.08x as far as its velocity says" (round 6)
+    from slamobs.pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
+    from slamobs.pipeline.observers import time_offset
+
+    sim = simulate("figure8", seed=2, duration=20.0)
+    said = [n for n in time_offset.note("riekf", time_offset.estimate(align(expected_streams(sim)))) if "turned" in n]
+    assert said == []  # as recorded: no turn fits better
+    camera = sim.static_tf[0]
+    r = quats_to_rots(np.asarray(camera.quat_xyzw)[None])[0]
+    turned = r @ so3_exp(np.array([0.0, 0.0, np.pi / 2]))
+    for rot, shift in ((turned, camera.translation), (r.T, -r.T @ camera.translation)):
+        tf = replace(camera, quat_xyzw=rots_to_quats(np.ascontiguousarray(rot[None]))[0], translation=shift)
+        stream = align(expected_streams(replace(sim, static_tf=[tf, *sim.static_tf[1:]])))
+        notes = time_offset.note("riekf", time_offset.estimate(stream))
+        said = [n for n in notes if "check the camera's extrinsic" in n]
+        assert len(said) == 1, notes
+
+
 def test_mirrored_detections_are_named_with_the_gyro_they_read_as():
     # a mirror (one axis of the detections' frame flipped) turns them the other way: to the detection pairs the
     # same as a gyro of the wrong sign on a ground robot, whose warning said "check the gyro" only
