@@ -383,6 +383,17 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
     return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
 
 
+def detection_checks(prepared: PreparedLog) -> list[str]:
+    """What the detection pairs say of the odometry and the camera before any estimator runs (the checks riekf and
+    batch make in a run: a gyro misread, a camera extrinsic turned, a velocity axis scaled; ``time_offset.note``),
+    one warning each; none without the aligned streams."""
+    from slamobs.pipeline.observers import time_offset
+
+    if prepared.aligned is None or prepared.aligned.det_y.shape[0] == 0:
+        return []
+    return time_offset.note(None, time_offset.estimate(prepared.aligned))
+
+
 def recorded_tags(config: RunConfig, streams: LogStreams, notes: list[str]):
     """The config's ``tags`` section, with the tag size a simulated log records where the config gives none."""
     size = streams.recorded.get("tag_size")

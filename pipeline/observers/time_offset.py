@@ -635,10 +635,14 @@ def shifted(stream, offset: dict):
     return replace(stream, det_t_ns=stream.det_t_ns + int(round(offset["estimate_s"] * 1e9)))
 
 
-def note(name: str, offset: dict) -> list[str]:
+def note(name: str | None, offset: dict) -> list[str]:
     """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
     an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
-    (``extrinsic_turn``) and a velocity axis they say is scaled (``velocity_scale``)."""
+    (``extrinsic_turn``) and a velocity axis they say is scaled (``velocity_scale``); ``name`` None: the warnings
+    alone, as ``slamobs info --noise`` says them before any estimator runs."""
+    if name is None:
+        said = note("info", {**offset, "applied": False})
+        return [n.replace("warning: info: ", "warning: ").rsplit("; the estimate used", 1)[0] for n in said]
     notes = [
         f"warning: {name}: the detections fit the odometry {gain:.3g}x better {what} "
         f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the gyro's unit and axes"
