@@ -56,6 +56,7 @@ from slamobs.pipeline.observers.base import (
     split_jumps,
 )
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
+from slamobs.pipeline.observers.time_offset import misread as time_offset_misread
 from slamobs.pipeline.streams import LogStreams
 
 
@@ -747,10 +748,12 @@ def estimate(
             jumps = landmark_jumps(*innovations.arrays()) or part.stats.get("metadata", {}).get(
                 "start_landmark_jumps", []
             )
-            if jumps and split is None and prepared.known_map is None:
+            # after a misread input the detections named, the jumps are the lost pose's: not split (round 7)
+            lost = time_offset_misread(checks.get("time_offset"))
+            if jumps and split is None and prepared.known_map is None and not lost:
                 raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
             metadata["observer"]["landmark_jumps"] = (split or []) + jumps
-            notes += jump_note(spec.name, split or [], t0_ns) + jump_note(spec.name, jumps, t0_ns)
+            notes += jump_note(spec.name, split or [], t0_ns) + jump_note(spec.name, jumps, t0_ns, lost and not split)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
         stage_timings = dict(part.timings)
         del part

@@ -635,6 +635,12 @@ def shifted(stream, offset: dict):
     return replace(stream, det_t_ns=stream.det_t_ns + int(round(offset["estimate_s"] * 1e9)))
 
 
+def misread(offset: dict | None) -> bool:
+    """Whether the detection pairs named a misread input (a :func:`note` warning: the gyro, the camera extrinsic or
+    a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose."""
+    return offset is not None and any(n.startswith("warning: ") for n in note(None, offset))
+
+
 def note(name: str | None, offset: dict) -> list[str]:
     """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
     an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
