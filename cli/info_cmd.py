@@ -70,7 +70,7 @@ def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: b
     from slamobs.cli.progress import compile_notice, status_line
     from slamobs.pipeline.run import silent
     from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.run import log_noise, prepare_log
+    from slamobs.pipeline.run import detection_checks, log_noise, prepare_log
 
     config = load_config(config_path)
     if msg_dir:
@@ -79,13 +79,14 @@ def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: b
     with compile_notice(status):
         prepared = prepare_log(log, config, directions=False, progress=status or silent)
         settings = log_noise(prepared, config)
+        checks = [] if as_json else detection_checks(prepared)
     if status is not None:
         status.clear()
     if as_json:
         click.echo(json.dumps(settings.as_dict(), indent=2))
         return
     click.echo(f"noise levels of {log} (batch and riekf; key: value unit (source, ± standard error: method)):")
-    for line in settings.lines() + list(settings.notes):
+    for line in settings.lines() + list(settings.notes) + checks:
         click.echo(f"  {line}")
 
 

@@ -56,6 +56,7 @@ from slamobs.pipeline.observers.base import (
     split_jumps,
 )
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
+from slamobs.pipeline.observers.time_offset import misread as time_offset_misread
 from slamobs.pipeline.streams import LogStreams
 
 
@@ -381,6 +382,17 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
         prepared.estimated_noise = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
     estimated = prepared.estimated_noise if config.noise.auto else None
     return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
+
+
+def detection_checks(prepared: PreparedLog) -> list[str]:
+    """What the detection pairs say of the odometry and the camera before any estimator runs (the checks riekf and
+    batch make in a run: a gyro misread, a camera extrinsic turned, a velocity axis scaled; ``time_offset.note``),
+    one warning each; none without the aligned streams."""
+    from slamobs.pipeline.observers import time_offset
+
+    if prepared.aligned is None or prepared.aligned.det_y.shape[0] == 0:
+        return []
+    return time_offset.note(None, time_offset.estimate(prepared.aligned))
 
 
 def recorded_tags(config: RunConfig, streams: LogStreams, notes: list[str]):
@@ -736,10 +748,12 @@ def estimate(
             jumps = landmark_jumps(*innovations.arrays()) or part.stats.get("metadata", {}).get(
                 "start_landmark_jumps", []
             )
-            if jumps and split is None and prepared.known_map is None:
+            # after a misread input the detections named, the jumps are the lost pose's: not split (round 7)
+            lost = time_offset_misread(checks.get("time_offset"))
+            if jumps and split is None and prepared.known_map is None and not lost:
                 raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
             metadata["observer"]["landmark_jumps"] = (split or []) + jumps
-            notes += jump_note(spec.name, split or [], t0_ns) + jump_note(spec.name, jumps, t0_ns)
+            notes += jump_note(spec.name, split or [], t0_ns) + jump_note(spec.name, jumps, t0_ns, lost and not split)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
         stage_timings = dict(part.timings)
         del part

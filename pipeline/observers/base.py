@@ -421,9 +421,10 @@ def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) ->
     )
 
 
-def jump_note(name: str, jumps: list[dict], t0_ns: int) -> list[str]:
+def jump_note(name: str, jumps: list[dict], t0_ns: int, lost: bool = False) -> list[str]:
     """Estimator ``name``'s warning naming the landmarks that jump (:func:`landmark_jumps`); those split by
-    :func:`split_jumps` (a ``new_id``) say which id their later detections got."""
+    :func:`split_jumps` (a ``new_id``) say which id their later detections got. ``lost``: the run's own checks named
+    a misread input first (``time_offset.misread``), so the jumps are likely its pose's and were not split."""
     if not jumps:
         return []
     said = "; ".join(
@@ -433,6 +434,12 @@ def jump_note(name: str, jumps: list[dict], t0_ns: int) -> list[str]:
         + ")"
         for j in jumps
     )
+    if lost:
+        return [
+            f"warning: {name}: landmark {said}: jumps that follow a misread input the detections named (the "
+            "warnings above: the gyro, the camera extrinsic or the velocity), so more likely the estimate's pose lost "
+            "than a landmark id reused; the run was not made again with them split: fix that input first"
+        ]
     if all("new_id" in j for j in jumps):
         return [
             f"warning: {name}: landmark {said}: a landmark id reused for another landmark (a tag printed again, a "

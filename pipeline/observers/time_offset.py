@@ -21,6 +21,7 @@ of each other (a constant offset shows in both). Otherwise it is only reported.
 
 from __future__ import annotations
 
+import itertools
 import threading
 
 import numpy as np
@@ -34,6 +35,7 @@ from slamobs.pipeline.lie import (
     integrate_body_twists_at_columns,
     integrate_body_twists_at_rotation_columns,
     se3_exp_into,
+    so3_log,
 )
 
 PAIR_SPAN_S = 1.0
@@ -419,6 +421,60 @@ VELOCITY_MISREADS = (
 )
 
 
+#: A turn of the detections (about the body's origin, by a multiple of 90 deg about the body's axes: the 23 turns
+#: that map the axes onto the axes) is named when the pairs' trimmed mean squared residual with the detections so
+#: turned is this many times smaller than as read: a camera extrinsic turned about one of its axes, or given as the
+#: inverse transform, reads so when the camera sits along the body's axes (a generated figure 8 with its camera
+#: turned 90 deg about its z: 5.5x, its extrinsic inverted: 11.2x, riekf APE 9-11 m with only a velocity-scale
+#: warning; as recorded the best turn fits 0.044x as well, MR.CLAM's ten robots 0.27-0.78x (docs/benchmarks.md,
+#: "Silent wrong results, round 7")).
+EXTRINSIC_TURN_GAIN = 3.0
+
+
+def _axis_turns() -> list[np.ndarray]:
+    """The 23 rotations other than the identity that map the body's axes onto its axes (signed permutations of
+    determinant 1)."""
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            m = np.zeros((3, 3))
+            m[[0, 1, 2], list(perm)] = signs
+            if np.linalg.det(m) > 0.0 and not np.array_equal(m, np.eye(3)):
+                out.append(m)
+    return out
+
+
+def extrinsic_turn(c: _Consistency) -> dict:
+    """The turn of the detections (``EXTRINSIC_TURN_GAIN``'s set) that fits the pairs best, as a rotation vector
+    in the body frame (deg), and how many times better it fits than the detections as read (no bias fitted, as
+    :func:`gyro_misreads`): a camera extrinsic turned or inverted is no noise the estimators can absorb."""
+    base = _trimmed_cost(c.residuals(0.0)[0])
+    best, turn, y = 0.0, None, c.y
+    try:
+        for q in _axis_turns():
+            c.y = np.ascontiguousarray(y @ q.T)
+            gain = base / max(_trimmed_cost(c.residuals(0.0)[0]), 1e-300)
+            if gain > best:
+                best, turn = gain, q
+    finally:
+        c.y = y
+    return {"gain": best, "rotvec_deg": np.round(np.degrees(so3_log(turn)), 3).tolist()}
+
+
+def _turn_phrase(rotvec_deg) -> str:
+    """ "by 90 deg about the body's -x" for a rotation vector in degrees (its axis as a unit vector when it is not
+    one of the body's)."""
+    w = np.asarray(rotvec_deg, dtype=float)
+    angle = float(np.linalg.norm(w))
+    axis = w / angle
+    k = int(np.argmax(np.abs(axis)))
+    if abs(axis[k]) > 0.999:
+        about = ("-" if axis[k] < 0 else "") + "xyz"[k]
+    else:
+        about = "(" + ", ".join(f"{a:.2f}" for a in axis) + ")"
+    return f"by {angle:.0f} deg about the body's {about}"
+
+
 def _velocity_displacements(c: _Consistency) -> np.ndarray:
     """Per pair and velocity axis (pairs, 3, 3): how the pair's residual moves when that axis's velocity is
     doubled (the displacement it contributes between the two detections, in the first one's body frame), so that
@@ -509,6 +565,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
     out["gyro_misreads"] = gyro_misreads(c)
     out["velocity_scale"] = velocity_scale(c)
+    out["extrinsic_turn"] = extrinsic_turn(c)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
@@ -578,9 +635,20 @@ def shifted(stream, offset: dict):
     return replace(stream, det_t_ns=stream.det_t_ns + int(round(offset["estimate_s"] * 1e9)))
 
 
-def note(name: str, offset: dict) -> list[str]:
+def misread(offset: dict | None) -> bool:
+    """Whether the detection pairs named a misread input (a :func:`note` warning: the gyro, the camera extrinsic or
+    a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose."""
+    return offset is not None and any(n.startswith("warning: ") for n in note(None, offset))
+
+
+def note(name: str | None, offset: dict) -> list[str]:
     """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
-    an angular velocity the detections say is misread (``gyro_misreads``)."""
+    an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
+    (``extrinsic_turn``) and a velocity axis they say is scaled (``velocity_scale``); ``name`` None: the warnings
+    alone, as ``slamobs info --noise`` says them before any estimator runs."""
+    if name is None:
+        said = note("info", {**offset, "applied": False})
+        return [n.replace("warning: info: ", "warning: ").rsplit("; the estimate used", 1)[0] for n in said]
     notes = [
         f"warning: {name}: the detections fit the odometry {gain:.3g}x better {what} "
         f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the gyro's unit and axes"
@@ -589,6 +657,17 @@ def note(name: str, offset: dict) -> list[str]:
         for what, gain in (offset.get("gyro_misreads") or {}).items()
         if gain >= GYRO_MISREAD_GAIN
     ]
+    turn = offset.get("extrinsic_turn") or {"gain": 0.0}
+    # only where the gyro reads right (a gyro of the wrong sign, or mirrored detections, fit as well turned by 180
+    # deg about a horizontal axis: 57-138x on generated figure 8s and ground robots; in deg/s the detections fit
+    # turned 2.3-7.1x better), and before the velocity's scale, which a turned camera also upsets
+    if turn["gain"] >= EXTRINSIC_TURN_GAIN and not notes:
+        notes.append(
+            f"warning: {name}: the detections fit the odometry {turn['gain']:.3g}x better turned "
+            f"{_turn_phrase(turn['rotvec_deg'])} ({offset['pairs']} detection pairs, trimmed mean squared residual): "
+            "check the camera's extrinsic (turned about one of its axes, or given as the inverse transform); the "
+            "estimate used it as read"
+        )
     notes += [
         f"warning: {name}: the detections say the body moved {what} ({offset['pairs']} detection pairs, the "
         "odometry's bias fitted with it): check the velocity's unit and axes, and the detections' (their unit, and "
