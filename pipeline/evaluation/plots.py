@@ -519,8 +519,29 @@ def plot_distributions(
     return _save(fig, path)
 
 
+#: a 3D view's height axis is drawn at least this share of its widest horizontal extent (a level path's
+#: centimetres would otherwise be a flat line); more than its own extent is a stretch the title states
+MIN_Z_SHARE = 0.25
+
+
+def one_scale_3d(ax, xyz: np.ndarray) -> str:
+    """Draw the 3D axes ``ax`` of the points ``xyz`` to one scale in x, y and z (matplotlib stretches each axis
+    to the box, so 1 m of height looked as long as 40 m of path), z at least ``MIN_Z_SHARE`` of the horizontal
+    extent; returns the title's note of that stretch ("" when there is none)."""
+    span = np.ptp(xyz, axis=0) if len(xyz) else np.zeros(3)
+    wide = max(float(span[0]), float(span[1]), 1e-9)
+    height = max(float(span[2]), MIN_Z_SHARE * wide)
+    ax.set_box_aspect((max(float(span[0]), 1e-3 * wide), max(float(span[1]), 1e-3 * wide), height), zoom=0.85)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.zaxis.set_major_locator(MaxNLocator(3))
+    stretch = height / max(float(span[2]), 1e-9)
+    return f" (z stretched {stretch:.3g}x)" if stretch > 1.01 else " (one scale)"
+
+
 def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated trajectory (output frame)") -> Path:
-    """The estimate as written: a top view (x-y) and a 3D view, both coloured by time (start dark, end light)."""
+    """The estimate as written: a top view (x-y) coloured by the fraction of the run (start dark, end light)
+    and a 3D view to one scale (:func:`one_scale_3d`)."""
     fig, axes = _figure(1, 2, (12.0, 5.8), gap=0.0, right=0.4)
     top = axes[0, 0]
     box = axes[0, 1].get_position()
@@ -546,7 +567,7 @@ def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated traject
     ax3.set_xlabel("x [m]")
     ax3.set_ylabel("y [m]")
     ax3.set_zlabel("z [m]")
-    ax3.set_title("3D view")
+    ax3.set_title("3D view" + one_scale_3d(ax3, xyz))
     return _save(fig, path)
 
 
@@ -663,6 +684,7 @@ def plot_error_result(
     if plot_mode != "xyz":
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.3)
-    ax.set_title(f"{label} mapped onto the trajectory ({plot_mode})")
+    scale = one_scale_3d(ax, np.concatenate([ref_xyz, est_xyz])) if plot_mode == "xyz" else ""
+    ax.set_title(f"{label} mapped onto the trajectory ({plot_mode}){scale}")
     ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)
