@@ -287,3 +287,24 @@ def test_the_3d_view_is_drawn_to_one_scale_and_says_when_its_height_is_stretched
     x, y, z = ax.get_box_aspect()
     assert z / x == pytest.approx(0.8, rel=1e-6)
     plt.close("all")
+
+
+def test_a_log_axis_over_less_than_a_decade_is_labelled_in_plain_numbers():
+    """nees.png's attitude panel (NEES 0.2 to 4) was labelled 2×10⁰, 3×10⁰, 4×10⁰ by matplotlib's minor ticks."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slamobs.pipeline.evaluation.plots import plain_log_axis
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1, 2], [0.2, 1.0, 4.0])
+    ax.set_yscale("log")
+    plain_log_axis(ax.yaxis)
+    fig.canvas.draw()
+    lo, hi = ax.get_ylim()
+    shown = [t.get_text() for t in ax.get_yticklabels() if lo <= t.get_position()[1] <= hi and t.get_text()]
+    minor = [t.get_text() for t in ax.yaxis.get_minorticklabels() if t.get_text()]
+    plt.close(fig)
+    assert shown == ["0.2", "0.5", "1", "2"] and not minor, (shown, minor)

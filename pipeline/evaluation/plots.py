@@ -363,6 +363,16 @@ def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.
     return _save(fig, path)
 
 
+def plain_log_axis(axis) -> None:
+    """Label a log-scale ``axis`` (``ax.yaxis``) in plain numbers at 1, 2 and 5 per decade: over less than a decade
+    matplotlib labels its minor ticks as 2×10⁰, 3×10⁰, 4×10⁰, ..."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
 def plot_nees(path: Path, position, attitude, mean: dict, window_s: float, dof: dict | None = None) -> Path:
     """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds; ``dof`` per
     part the degrees of freedom each NEES is over (3 unless a planar run's axes without error are left out)."""
@@ -385,11 +395,12 @@ def plot_nees(path: Path, position, attitude, mean: dict, window_s: float, dof: 
             ax.plot(t, nees, color="tab:blue", lw=1.0, label=f"NEES, {window_s:g} s windows")
             ax.axhline(float(k), color="k", ls=":", lw=1.0, label=f"expected ({k})")
             ax.set_yscale("log")
+            plain_log_axis(ax.yaxis)
         if mean.get(part) is not None:
             ax.set_title(f"{part.capitalize()} NEES ({k} DoF): mean {mean[part]:.3g} over the run")
         ax.set_ylabel("NEES")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="best", fontsize=8)  # not over the curve (it covered a rise at the right end)
     axes[1, 0].set_xlabel("time since estimate start [s]")
     return _save(fig, path)
 
