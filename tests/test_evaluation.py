@@ -1664,10 +1664,15 @@ def test_error_plot_says_when_the_band_is_no_convergence(tmp_path, monkeypatch):
     drawn = []
     monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or path)
     t = np.linspace(0.0, 10.0, 200)
-    plots.plot_errors(tmp_path / "e.png", t, t, t, band_m=3.0, convergence_t_s=None, verdict=convergence_verdict(lost))
+    plots.plot_errors(
+        tmp_path / "e.png", t, t, t, band_m=3.0, convergence_t_s=None, verdict=convergence_verdict(lost), extent_m=2.38
+    )
     plots.plot_errors(tmp_path / "c.png", t, t, t, band_m=3.0, convergence_t_s=0.0, verdict=convergence_verdict(coarse))
     legend = lambda fig: [x.get_text() for x in fig.axes[0].get_legend().get_texts()]  # noqa: E731
     assert "not converged: level above the path's extent (2.38 m RMS)" in legend(drawn[0])
+    # ... and that extent is drawn: the band (1.5x the lost level) alone had the level under it, read as converged
+    assert "path's extent 2.38 m RMS" in legend(drawn[0])
+    assert not [x for x in legend(drawn[1]) if x.startswith("path's extent")]
     assert "converged at 0.00 s (coarse: level 38 % of the path's extent)" in legend(drawn[1])
 
 

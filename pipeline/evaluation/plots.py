@@ -239,11 +239,13 @@ def plot_errors(
     title: str = "Absolute pose error after SE(3) alignment",
     level: tuple[np.ndarray, np.ndarray] | None = None,
     verdict: str | None = None,
+    extent_m: float | None = None,
 ) -> Path:
     """Aligned position and attitude error over time; on the position panel only (the convergence figure is about
     the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time, and in
     its legend ``verdict``: why there is no convergence time, or what qualifies the one drawn (a coarse level), so
-    the band is never read as a convergence the report does not claim."""
+    the band is never read as a convergence the report does not claim; ``extent_m`` (a lost estimate's) the path's
+    extent its level is judged against, drawn so the level is seen above it."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m])
@@ -252,6 +254,8 @@ def plot_errors(
         ax_p.plot(level[0], level[1], color="tab:orange", lw=1.5, label="error level (running median)")
     if band_m is not None:
         ax_p.axhline(band_m, color="tab:red", ls=":", lw=1.0, label=f"convergence band {band_m:.3g} m")
+    if extent_m is not None:
+        ax_p.axhline(extent_m, color="0.3", ls="--", lw=1.0, label=f"path's extent {extent_m:.3g} m RMS")
     sel = envelope(len(t_s), [attitude_error_deg])
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if convergence_t_s is not None:
