@@ -208,8 +208,10 @@ def plot_trajectory_top(
             )
         if len(lm_est_ids) <= MAX_ID_LABELS:
             _id_labels(ax, lm_est_ids, lm_est_xyz, (4, 4), "tab:orange")
+            ax.plot([], [], " ", label="ids: estimate's orange, above right")  # which of two ids is which
     if lm_truth_ids is not None and lm_truth_xyz is not None and 0 < len(lm_truth_ids) <= MAX_ID_LABELS:
         _id_labels(ax, lm_truth_ids, lm_truth_xyz, (4, -10), "0.2")
+        ax.plot([], [], " ", label="ids: truth's grey, below right")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
