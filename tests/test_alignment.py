@@ -135,6 +135,8 @@ def test_missing_roles_and_disjoint_times_are_errors():
     with pytest.raises(InputError) as err:
         align(_streams(angular_velocity=None))
     assert "slamobs evaluate" not in str(err.value)
+    # the role's words in brackets hold no brackets of their own: "angular_velocity (angular velocity (gyro))"
+    assert err.value.details[0].startswith("angular_velocity (angular velocity, gyro): set topics.angular_velocity")
     # a log of poses only (evo's ROS_example.bag): what it is good for, and a command that works
     t = np.arange(3, dtype=np.int64) * NS
     truth = PoseStream("groundtruth", "world", "body", t, t, np.zeros((3, 3)), np.tile([0.0, 0, 0, 1], (3, 1)))

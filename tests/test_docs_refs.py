@@ -102,3 +102,29 @@ def test_named_files_exist():
                 if not any(p.exists() for p in (ROOT / ref, path.parent / ref, ROOT / "pipeline" / ref)):
                     missing.append(f"{rel.as_posix()}:{i}: {ref}")
     assert not missing, "files named that do not exist:\n" + "\n".join(missing)
+
+
+YAML_BLOCK = re.compile(r"^```ya?ml\n(.*?)^```", re.M | re.S)
+
+
+def test_config_examples_in_the_docs_are_valid_configs():
+    """Every YAML config shown in the README and docs/ (a mapping with config keys) passes the config schema, so
+    a user who copies one, e.g. the full key list of docs/reading-logs.md, gets a run and not an error."""
+    import yaml
+
+    from slamobs.pipeline.errors import InputError
+    from slamobs.pipeline.config import parse_config
+
+    bad = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        text = path.read_text(encoding="utf-8")
+        for m in YAML_BLOCK.finditer(text):
+            data = yaml.safe_load(m.group(1))
+            if not isinstance(data, dict):
+                continue
+            where = f"{path.relative_to(ROOT).as_posix()}:{text.count(chr(10), 0, m.start()) + 1}"
+            try:
+                parse_config(data, where)
+            except InputError as err:  # its message names the block: file and line
+                bad.append(str(err))
+    assert not bad, "config examples the schema rejects:\n" + "\n".join(bad)

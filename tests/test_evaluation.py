@@ -1664,10 +1664,15 @@ def test_error_plot_says_when_the_band_is_no_convergence(tmp_path, monkeypatch):
     drawn = []
     monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or path)
     t = np.linspace(0.0, 10.0, 200)
-    plots.plot_errors(tmp_path / "e.png", t, t, t, band_m=3.0, convergence_t_s=None, verdict=convergence_verdict(lost))
+    plots.plot_errors(
+        tmp_path / "e.png", t, t, t, band_m=3.0, convergence_t_s=None, verdict=convergence_verdict(lost), extent_m=2.38
+    )
     plots.plot_errors(tmp_path / "c.png", t, t, t, band_m=3.0, convergence_t_s=0.0, verdict=convergence_verdict(coarse))
     legend = lambda fig: [x.get_text() for x in fig.axes[0].get_legend().get_texts()]  # noqa: E731
     assert "not converged: level above the path's extent (2.38 m RMS)" in legend(drawn[0])
+    # ... and that extent is drawn: the band (1.5x the lost level) alone had the level under it, read as converged
+    assert "path's extent 2.38 m RMS" in legend(drawn[0])
+    assert not [x for x in legend(drawn[1]) if x.startswith("path's extent")]
     assert "converged at 0.00 s (coarse: level 38 % of the path's extent)" in legend(drawn[1])
 
 
@@ -1718,3 +1723,17 @@ def test_a_truth_in_millimetres_is_said():
     assert not [
         n for n in checked(build_report(poses, biases, landmarks, mm, align="sim3"))["notes"] if "as large" in n
     ]
+
+
+def test_the_top_view_legend_says_which_landmark_id_is_the_estimates(tmp_path, monkeypatch):
+    """trajectory_top.png labels each landmark twice, the estimate's id in orange and the truth's in grey: the
+    legend says which is which (a mismatched id was otherwise unreadable)."""
+    from slamobs.pipeline.evaluation import plots
+
+    drawn = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.append(fig) or path)
+    xyz = np.column_stack([np.linspace(0.0, 5.0, 50), np.zeros(50), np.zeros(50)])
+    ids, lm = np.array([1, 2]), np.array([[1.0, 1.0, 0.0], [3.0, -1.0, 0.0]])
+    plots.plot_trajectory_top(tmp_path / "t.png", xyz, xyz, ids, lm, ids, lm + 0.1)
+    texts = [t.get_text() for t in drawn[0].legends[0].get_texts()]
+    assert "ids: estimate's orange, above right" in texts and "ids: truth's grey, below right" in texts, texts

@@ -262,3 +262,49 @@ def test_report_md_of_a_log_without_any_truth_says_so_once(log, tmp_path):
     assert md.startswith("# Run summary (no ground truth)") and md.count("ground truth") == 1, md
     notes = json.loads((tmp_path / "out" / "run.json").read_text())["notes"]
     assert any(n.startswith("no ground truth in the log") for n in notes)
+
+
+def test_the_3d_view_is_drawn_to_one_scale_and_says_when_its_height_is_stretched():
+    """matplotlib fills the 3D box on every axis, so 1 m of height drew as long as 40 m of path; the view keeps
+    one scale, and a nearly level path's height, stretched to be seen, is stated in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slamobs.pipeline.evaluation.plots import MIN_Z_SHARE, one_scale_3d
+
+    s = np.linspace(0.0, 1.0, 200)
+    level = np.column_stack([40.0 * s, 20.0 * s, 1.0 * np.sin(6 * s)])  # 40 m x 20 m, ~1 m of height
+    ax = plt.figure().add_subplot(projection="3d")
+    note = one_scale_3d(ax, level)
+    x, y, z = ax.get_box_aspect()
+    assert x / y == pytest.approx(2.0, rel=1e-6) and z / x == pytest.approx(MIN_Z_SHARE, rel=1e-6)
+    assert note == f" (z stretched {MIN_Z_SHARE * 40.0 / np.ptp(level[:, 2]):.3g}x)"
+    steep = np.column_stack([10.0 * s, 10.0 * s, 8.0 * s])  # a climb: its own height, no stretch
+    ax = plt.figure().add_subplot(projection="3d")
+    assert one_scale_3d(ax, steep) == " (one scale)"
+    x, y, z = ax.get_box_aspect()
+    assert z / x == pytest.approx(0.8, rel=1e-6)
+    plt.close("all")
+
+
+def test_a_log_axis_over_less_than_a_decade_is_labelled_in_plain_numbers():
+    """nees.png's attitude panel (NEES 0.2 to 4) was labelled 2×10⁰, 3×10⁰, 4×10⁰ by matplotlib's minor ticks."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slamobs.pipeline.evaluation.plots import plain_log_axis
+
+    fig, ax = plt.subplots()
+    ax.plot([0, 1, 2], [0.2, 1.0, 4.0])
+    ax.set_yscale("log")
+    plain_log_axis(ax.yaxis)
+    fig.canvas.draw()
+    lo, hi = ax.get_ylim()
+    shown = [t.get_text() for t in ax.get_yticklabels() if lo <= t.get_position()[1] <= hi and t.get_text()]
+    minor = [t.get_text() for t in ax.yaxis.get_minorticklabels() if t.get_text()]
+    plt.close(fig)
+    assert shown == ["0.2", "0.5", "1", "2"] and not minor, (shown, minor)

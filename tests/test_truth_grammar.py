@@ -158,7 +158,7 @@ def test_compare_and_batch_take_a_truth(logs, tmp_path):
     ("text", "says"),
     [
         ("/no/such/topic", "topic for role truth is not in the log"),
-        ("/no/such/traj.txt", "a truth that is no existing file reads as a topic"),  # a mistyped file
+        ("/no/such/traj.txt", "/no/such/traj.txt: no such file"),  # a mistyped file (it read as a missing topic)
         ("missing.bag:/mocap/pose", "no such log"),
         ("world->", "is not 'parent->child'"),
     ],

@@ -385,3 +385,24 @@ def test_a_resume_killed_between_requeueing_a_trial_and_failing_it_runs_its_gain
     gains = complete[[c for c in complete.columns if c.startswith("gain_")]]
     assert len(complete) == 3 and not gains.duplicated().any(), trials
     assert complete["is_default"].sum() == 1
+
+
+def test_the_objective_figure_counts_trials_in_whole_numbers_and_plain_errors(tmp_path, monkeypatch):
+    """objective.png of a 3-trial tune ticked trial 0.25, 0.5, ... and labelled its log axis 5×10⁻², 6×10⁻²."""
+    from types import SimpleNamespace
+
+    from matplotlib.figure import Figure
+
+    from slamobs.pipeline.tune import results
+
+    drawn = []
+    monkeypatch.setattr(Figure, "savefig", lambda fig, tmp, **k: drawn.append(fig) or Path(tmp).write_bytes(b""))
+    trials = [SimpleNamespace(number=i, value=v) for i, v in enumerate((0.0423, 0.0708, 0.0521))]
+    results.plot_objective(tmp_path / "objective.png", trials, trials[0], "ape")
+    (ax,) = drawn[0].axes
+    drawn[0].canvas.draw()
+    lo, hi = ax.get_xlim()
+    xs = [t for t in ax.get_xticks() if lo <= t <= hi]
+    assert xs and all(float(t).is_integer() for t in xs), xs
+    labels = [t.get_text() for t in ax.get_yticklabels() + ax.yaxis.get_minorticklabels() if t.get_text()]
+    assert labels and not [x for x in labels if "×" in x or "^" in x], labels

@@ -208,8 +208,10 @@ def plot_trajectory_top(
             )
         if len(lm_est_ids) <= MAX_ID_LABELS:
             _id_labels(ax, lm_est_ids, lm_est_xyz, (4, 4), "tab:orange")
+            ax.plot([], [], " ", label="ids: estimate's orange, above right")  # which of two ids is which
     if lm_truth_ids is not None and lm_truth_xyz is not None and 0 < len(lm_truth_ids) <= MAX_ID_LABELS:
         _id_labels(ax, lm_truth_ids, lm_truth_xyz, (4, -10), "0.2")
+        ax.plot([], [], " ", label="ids: truth's grey, below right")
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
@@ -239,11 +241,13 @@ def plot_errors(
     title: str = "Absolute pose error after SE(3) alignment",
     level: tuple[np.ndarray, np.ndarray] | None = None,
     verdict: str | None = None,
+    extent_m: float | None = None,
 ) -> Path:
     """Aligned position and attitude error over time; on the position panel only (the convergence figure is about
     the position error) the error level ``(t_s, m)`` it is measured on, the band and the convergence time, and in
     its legend ``verdict``: why there is no convergence time, or what qualifies the one drawn (a coarse level), so
-    the band is never read as a convergence the report does not claim."""
+    the band is never read as a convergence the report does not claim; ``extent_m`` (a lost estimate's) the path's
+    extent its level is judged against, drawn so the level is seen above it."""
     fig, axes = _figure(2, 1, (9.0, 6.5))
     ax_p, ax_r = axes[0, 0], axes[1, 0]
     sel = envelope(len(t_s), [position_error_m])
@@ -252,6 +256,8 @@ def plot_errors(
         ax_p.plot(level[0], level[1], color="tab:orange", lw=1.5, label="error level (running median)")
     if band_m is not None:
         ax_p.axhline(band_m, color="tab:red", ls=":", lw=1.0, label=f"convergence band {band_m:.3g} m")
+    if extent_m is not None:
+        ax_p.axhline(extent_m, color="0.3", ls="--", lw=1.0, label=f"path's extent {extent_m:.3g} m RMS")
     sel = envelope(len(t_s), [attitude_error_deg])
     ax_r.plot(t_s[sel], attitude_error_deg[sel], color="tab:purple", lw=1.0, label="attitude error angle")
     if convergence_t_s is not None:
@@ -363,6 +369,16 @@ def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.
     return _save(fig, path)
 
 
+def plain_log_axis(axis) -> None:
+    """Label a log-scale ``axis`` (``ax.yaxis``) in plain numbers at 1, 2 and 5 per decade: over less than a decade
+    matplotlib labels its minor ticks as 2×10⁰, 3×10⁰, 4×10⁰, ..."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+    axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
 def plot_nees(path: Path, position, attitude, mean: dict, window_s: float, dof: dict | None = None) -> Path:
     """Position and attitude NEES averaged over windows, with each window's two-sided 95 % χ² bounds; ``dof`` per
     part the degrees of freedom each NEES is over (3 unless a planar run's axes without error are left out)."""
@@ -385,11 +401,12 @@ def plot_nees(path: Path, position, attitude, mean: dict, window_s: float, dof: 
             ax.plot(t, nees, color="tab:blue", lw=1.0, label=f"NEES, {window_s:g} s windows")
             ax.axhline(float(k), color="k", ls=":", lw=1.0, label=f"expected ({k})")
             ax.set_yscale("log")
+            plain_log_axis(ax.yaxis)
         if mean.get(part) is not None:
             ax.set_title(f"{part.capitalize()} NEES ({k} DoF): mean {mean[part]:.3g} over the run")
         ax.set_ylabel("NEES")
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="upper right", fontsize=8)
+        ax.legend(loc="best", fontsize=8)  # not over the curve (it covered a rise at the right end)
     axes[1, 0].set_xlabel("time since estimate start [s]")
     return _save(fig, path)
 
@@ -519,8 +536,29 @@ def plot_distributions(
     return _save(fig, path)
 
 
+#: a 3D view's height axis is drawn at least this share of its widest horizontal extent (a level path's
+#: centimetres would otherwise be a flat line); more than its own extent is a stretch the title states
+MIN_Z_SHARE = 0.25
+
+
+def one_scale_3d(ax, xyz: np.ndarray) -> str:
+    """Draw the 3D axes ``ax`` of the points ``xyz`` to one scale in x, y and z (matplotlib stretches each axis
+    to the box, so 1 m of height looked as long as 40 m of path), z at least ``MIN_Z_SHARE`` of the horizontal
+    extent; returns the title's note of that stretch ("" when there is none)."""
+    span = np.ptp(xyz, axis=0) if len(xyz) else np.zeros(3)
+    wide = max(float(span[0]), float(span[1]), 1e-9)
+    height = max(float(span[2]), MIN_Z_SHARE * wide)
+    ax.set_box_aspect((max(float(span[0]), 1e-3 * wide), max(float(span[1]), 1e-3 * wide), height), zoom=0.85)
+    from matplotlib.ticker import MaxNLocator
+
+    ax.zaxis.set_major_locator(MaxNLocator(3))
+    stretch = height / max(float(span[2]), 1e-9)
+    return f" (z stretched {stretch:.3g}x)" if stretch > 1.01 else " (one scale)"
+
+
 def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated trajectory (output frame)") -> Path:
-    """The estimate as written: a top view (x-y) and a 3D view, both coloured by time (start dark, end light)."""
+    """The estimate as written: a top view (x-y) coloured by the fraction of the run (start dark, end light)
+    and a 3D view to one scale (:func:`one_scale_3d`)."""
     fig, axes = _figure(1, 2, (12.0, 5.8), gap=0.0, right=0.4)
     top = axes[0, 0]
     box = axes[0, 1].get_position()
@@ -546,7 +584,7 @@ def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated traject
     ax3.set_xlabel("x [m]")
     ax3.set_ylabel("y [m]")
     ax3.set_zlabel("z [m]")
-    ax3.set_title("3D view")
+    ax3.set_title("3D view" + one_scale_3d(ax3, xyz))
     return _save(fig, path)
 
 
@@ -663,6 +701,7 @@ def plot_error_result(
     if plot_mode != "xyz":
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(True, alpha=0.3)
-    ax.set_title(f"{label} mapped onto the trajectory ({plot_mode})")
+    scale = one_scale_3d(ax, np.concatenate([ref_xyz, est_xyz])) if plot_mode == "xyz" else ""
+    ax.set_title(f"{label} mapped onto the trajectory ({plot_mode}){scale}")
     ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)

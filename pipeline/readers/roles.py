@@ -116,12 +116,12 @@ DIRECTION_ROLES = ("accel", "magnetic")
 
 #: What each role is, in a user's words.
 ROLE_PURPOSE: dict[str, str] = {
-    "angular_velocity": "angular velocity (gyro)",
+    "angular_velocity": "angular velocity, gyro",
     "linear_velocity": "body linear velocity",
-    "accel": "accelerometer (gravity direction)",
+    "accel": "accelerometer, gravity direction",
     "magnetic": "magnetic field direction",
     "detections": "landmark detections",
-    "truth": "ground-truth trajectory (for the error report)",
+    "truth": "ground-truth trajectory, for the error report",
     "static_tf": "static transforms",
     "tf": "transforms",
     "sim_truth": "simulation truth",

@@ -527,6 +527,8 @@ def parse_truth(text: str | Path) -> TruthSpec:
     elif ":" in text:
         where = text.rsplit(":", 1)[0] if EDGE_ARROW not in text else text.split(":", 1)[0]
         raise InputError(where, f"no such log: truth {text!r} reads as LOG:TOPIC ({TRUTH_FORMS})")
+    elif "." in Path(text).name and EDGE_ARROW not in text:  # ROS topic names hold no '.': a file that is not there
+        raise InputError(text, f"no such file (a name with a '.' is a file: topics hold none; {TRUTH_FORMS})")
     spec = spec or TruthSpec("edge" if EDGE_ARROW in text else "topic", text)
     if spec.kind == "edge" and not all(parse_edge(spec.name) or ("",)):
         raise InputError(spec.log or "truth", f"truth TF edge {spec.name!r} is not 'parent->child' ({TRUTH_FORMS})")

@@ -205,6 +205,9 @@ def write_gains(path: Path, spec, gains: dict, header: list[str]) -> None:
 def plot_objective(path: Path, complete: list, default, objective: str) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
+
+    from slamobs.pipeline.evaluation.plots import plain_log_axis
 
     fig = Figure(figsize=(8.0, 4.5), layout="constrained")
     FigureCanvasAgg(fig)
@@ -222,6 +225,8 @@ def plot_objective(path: Path, complete: list, default, objective: str) -> None:
     if default is not None and default.value is not None and math.isfinite(default.value):
         ax.axhline(default.value, ls="--", color="0.4", label="defaults")
     ax.set_yscale("log")
+    plain_log_axis(ax.yaxis)  # not 5×10⁻², 6×10⁻², ...
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # trials are counted: no trial 0.25
     ax.set_xlabel("trial")
     ax.set_ylabel(f"median {OBJECTIVES[objective]} [{UNITS[objective]}]")
     ax.set_title("slamobs tune: objective per trial")
