@@ -22,9 +22,10 @@ import math
 
 import numpy as np
 from slamobs.pipeline.evaluation import metrics
-from slamobs.pipeline.evaluation.metrics import RotationRows, fma, relative_angles, statistics
+from slamobs.pipeline.evaluation.metrics import RotationRows, relative_angles, statistics
 from slamobs.pipeline.evaluation.rpe import accumulated_distances, equal_runs
 from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline.simd import fma
 
 KITTI_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
 SHORT_PATH_FRACTIONS = (0.1, 0.2, 0.3, 0.4, 0.5)
@@ -164,7 +165,7 @@ def _segment_errors(turn, est_pos, ref_pos, i, j, scale):  # pragma: no cover - 
     """Per segment ``r_w = D_jᵀ D_i`` and ``‖s D_i (p̂_j − p̂_i) − (p_j − p_i)‖`` without gathering ``D_i`` and
     ``D_j`` into stacks first, and :func:`_error_kinds`' angles of ``r_w`` (rotation angle, |yaw|, roll-pitch
     magnitude, in degrees) in the same pass, no ``(m, 3, 3)`` stack. The sums round as NumPy's stacked ``matmul``
-    does through OpenBLAS on an FMA CPU (its 3×3 products as :func:`.metrics.fma` says, its matrix-vector ones
+    does through OpenBLAS on an FMA CPU (its 3×3 products as :func:`.simd.fma` says, its matrix-vector ones
     ``fma(a₂, x₂, fma(a₀, x₀, a₁x₁))``): the translation errors' bits of :func:`relative_errors_numpy` there; the
     angles through the C library's ``acos``, ``atan2`` and ``hypot``, within a few ulps of NumPy's
     (``tests/test_segment_errors.py``)."""
@@ -258,7 +259,7 @@ def turns(ref_rot, est_rot) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _turn_products(ref, est, out):  # pragma: no cover - compiled
-    """``out_k = ref_k est_kᵀ``, rounded as ``np.matmul`` (:func:`.metrics.fma`)."""
+    """``out_k = ref_k est_kᵀ``, rounded as ``np.matmul`` (:func:`.simd.fma`)."""
     for s in range(ref.shape[0]):
         for r in range(3):
             for c in range(3):
