@@ -450,9 +450,11 @@ def extrinsic_turn(c: _Consistency) -> dict:
     :func:`gyro_misreads`): a camera extrinsic turned or inverted is no noise the estimators can absorb."""
     base = _trimmed_cost(c.residuals(0.0)[0])
     best, turn, y = 0.0, None, c.y
+    used = np.unique(np.concatenate([c.a, c.b]))  # the pairs' detections only (the hour's 576,000 took 0.5 CPU s)
+    c.y = turned = np.array(y, dtype=np.float64, order="C")
     try:
         for q in _axis_turns():
-            c.y = np.ascontiguousarray(y @ q.T)
+            turned[used] = y[used] @ q.T
             gain = base / max(_trimmed_cost(c.residuals(0.0)[0]), 1e-300)
             if gain > best:
                 best, turn = gain, q
