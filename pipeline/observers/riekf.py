@@ -281,16 +281,16 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
             gp[a, e] = v
     for a in range(3):
         # off the position columns F_j = (j_jᵀ ΣR̂h, 0) and Q_(3+a, j) = (ΣQ_PR j_j)_a: one 3-vector on j_j
-        u = np.empty(3)
-        for c in range(3):
-            u[c] = qpr[a, c] + gp[a, 0] * sr[c, 0] + gp[a, 1] * sr[c, 1] + gp[a, 2] * sr[c, 2]
+        u0 = qpr[a, 0] + gp[a, 0] * sr[0, 0] + gp[a, 1] * sr[0, 1] + gp[a, 2] * sr[0, 2]
+        u1 = qpr[a, 1] + gp[a, 0] * sr[1, 0] + gp[a, 1] * sr[1, 1] + gp[a, 2] * sr[1, 2]
+        u2 = qpr[a, 2] + gp[a, 0] * sr[2, 0] + gp[a, 1] * sr[2, 1] + gp[a, 2] * sr[2, 2]
         da = dp[a, :d]
         f0, f1, f2, f3, f4, f5 = fp[a, 0], fp[a, 1], fp[a, 2], fp[a, 3], fp[a, 4], fp[a, 5]
         b0, b1, b2, b3, b4, b5 = cov[6, :d], cov[7, :d], cov[8, :d], cov[9, :d], cov[10, :d], cov[11, :d]
         j0, j1, j2 = lt[0, :d], lt[1, :d], lt[2, :d]
         for j in range(d):
             x = f0 * b0[j] + f1 * b1[j] + f2 * b2[j] + f3 * b3[j] + f4 * b4[j] + f5 * b5[j]
-            da[j] = x + u[0] * j0[j] + u[1] * j1[j] + u[2] * j2[j]
+            da[j] = x + u0 * j0[j] + u1 * j1[j] + u2 * j2[j]
         for b in range(3):
             v = qpp[a, b]
             for e in range(6):
@@ -582,11 +582,10 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     unused = np.empty(3)
     w0, w1, w2 = -xi[0], -xi[1], -xi[2]
     se3_exp_into(w0, w1, w2, 0.0, 0.0, 0.0, a, unused)
-    r_new = np.empty((3, 3))
-    for r in range(3):
-        for c in range(3):
-            r_new[r, c] = a[r, 0] * r_hat[0, c] + a[r, 1] * r_hat[1, c] + a[r, 2] * r_hat[2, c]
-    r_hat[:, :] = r_new
+    for c in range(3):  # R̂ ← A R̂, column by column from the column's old values
+        x0, x1, x2 = r_hat[0, c], r_hat[1, c], r_hat[2, c]
+        for r in range(3):
+            r_hat[r, c] = a[r, 0] * x0 + a[r, 1] * x1 + a[r, 2] * x2
     t0, t1, t2 = so3_left_jacobian_apply(w0, w1, w2, -xi[3], -xi[4], -xi[5])
     q0 = a[0, 0] * p_hat[0] + a[0, 1] * p_hat[1] + a[0, 2] * p_hat[2] + t0
     q1 = a[1, 0] * p_hat[0] + a[1, 1] * p_hat[1] + a[1, 2] * p_hat[2] + t1
@@ -632,8 +631,8 @@ def _solve4(hp, chol, c, end):
 @njit(cache=True, fastmath=CONTRACT)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
-    ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z``; returns ``ξ̂ = U w``. Every loop runs along rows of ``hp``
-    (it vectorises), four rows written at a time with four terms a pass."""
+    ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z`` (in place of ``z``); returns ``ξ̂ = U w``. Every loop runs
+    along rows of ``hp`` (it vectorises), four rows written at a time with four terms a pass."""
     c = 0
     end = hp.shape[1] - hp.shape[1] % PAD
     while c + 4 <= k3 and end >= d:  # padded rows: four at a time, eight columns a vector (_solve4)
@@ -675,15 +674,14 @@ def _gain(hp, chol, z, k3, d):
         inv = 1.0 / chol[c, c]
         for r in range(d):
             x[r] *= inv
-    w = np.empty(k3)
-    for c in range(k3):
+    for c in range(k3):  # w = L⁻¹ z in place of z (z[c] read before it is written)
         v = z[c]
         for k in range(c):
-            v -= chol[c, k] * w[k]
-        w[c] = v / chol[c, c]
+            v -= chol[c, k] * z[k]
+        z[c] = v / chol[c, c]
     xi = np.zeros(d)
     for c in range(k3):
-        wc, hc = w[c], hp[c, :d]
+        wc, hc = z[c], hp[c, :d]
         for r in range(d):
             xi[r] += hc[r] * wc
     return xi
@@ -775,20 +773,20 @@ def _update(
     sig2 = np.empty(nd)  # each detection's variance across its line of sight
     for j in range(nd):
         i = det_idx[a0 + j]
-        y = det_y[a0 + j]
+        y0, y1, y2 = det_y[a0 + j, 0], det_y[a0 + j, 1], det_y[a0 + j, 2]  # no view per detection
         for c in range(3):
-            e[c] = lm[i, c] - (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]) - p_hat[c]
+            e[c] = lm[i, c] - (r_hat[c, 0] * y0 + r_hat[c, 1] * y1 + r_hat[c, 2] * y2) - p_hat[c]
         if slot_of[i] >= 0 and not reinit[i]:  # σ(r) at the range the state predicts (module docstring)
             rr = np.sqrt((lm[i, 0] - p_hat[0]) ** 2 + (lm[i, 1] - p_hat[1]) ** 2 + (lm[i, 2] - p_hat[2]) ** 2)
         else:  # a new or re-initialised landmark's at its measured range
-            rr = np.sqrt(y[0] * y[0] + y[1] * y[1] + y[2] * y[2])
+            rr = np.sqrt(y0 * y0 + y1 * y1 + y2 * y2)
         sg = det_law[0] + det_law[1] * rr + det_law[2] * rr * rr
         sig2[j] = det_law[3] * (sg * sg) * scale
         extra = det_law[4] * sig2[j]
         if extra > 0.0:
-            f = np.sqrt(extra / (y[0] * y[0] + y[1] * y[1] + y[2] * y[2]))
+            f = np.sqrt(extra / (y0 * y0 + y1 * y1 + y2 * y2))
             for c in range(3):
-                ues[j, c] = f * (r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2])
+                ues[j, c] = f * (r_hat[c, 0] * y0 + r_hat[c, 1] * y1 + r_hat[c, 2] * y2)
         if slot_of[i] < 0:
             continue  # new: recorded after augmentation
         for c in range(3):
@@ -876,9 +874,9 @@ def _update(
         i = det_idx[a0 + j]
         if slot_of[i] >= 0:
             continue
-        y = det_y[a0 + j]
+        y0, y1, y2 = det_y[a0 + j, 0], det_y[a0 + j, 1], det_y[a0 + j, 2]  # no view per detection
         for c in range(3):
-            lm[i, c] = p_hat[c] + r_hat[c, 0] * y[0] + r_hat[c, 1] * y[1] + r_hat[c, 2] * y[2]
+            lm[i, c] = p_hat[c] + r_hat[c, 0] * y0 + r_hat[c, 1] * y1 + r_hat[c, 2] * y2
             innov[row + j, c] = 0.0
             trk_p[row + j, c] = lm[i, c]
         s = (d - N_FIXED) // 3
