@@ -48,7 +48,7 @@ RESIGHT_GAP_S, RESIGHT_COUNT, RESIGHT_RATIO = 10.0, 20, 3.0
 #: no landmark is seen again. The wander, not the size: a slow vehicle's constant odometry bias, learned right,
 #: is a large share of its speed too (docs/benchmarks.md "Silent wrong results, round 6", and the lead's rows).
 BIAS_SHARE = 0.3
-#: Every how many written rows the bias check keeps one (a long run's rows are not held twice).
+#: The bias check keeps the rows of every how many-th velocity sample (a long run's rows are not held twice).
 BIAS_STRIDE = 4
 #: A landmark "jumps" (its id reused for another landmark, or the landmark moved) when its detections on one side of
 #: a time split, at least ``JUMP_MIN_DETECTIONS`` on each side, arrive a median over ``JUMP_RATIO`` times the run's
@@ -488,7 +488,7 @@ class Stepper:
         self.stats: dict = {"substeps": 0}
         self.timings: dict[str, float] = {}
         self._innovation_norms: list[np.ndarray] = []  # per stretch, for gross_note (observers without a gate)
-        self._biases: list[tuple[np.ndarray, np.ndarray]] = []  # per stretch, every BIAS_STRIDE-th row's k, b_v
+        self._biases: list[tuple[np.ndarray, np.ndarray]] = []  # per stretch, k and b_v where k % BIAS_STRIDE == 0
 
     @property
     def n_vel(self) -> int:
@@ -581,7 +581,8 @@ class Stepper:
         self.iv, self.jf = iv_stop, jf_stop
         if not self.gates_detections:
             self._innovation_norms.append(np.linalg.norm(out.innov, axis=1))
-            self._biases.append((out.k[::BIAS_STRIDE].copy(), out.b[::BIAS_STRIDE, 3:].copy()))
+            kept = out.k % BIAS_STRIDE == 0  # by sample, not by row of the stretch: a run in stretches keeps the same
+            self._biases.append((out.k[kept], out.b[kept, 3:]))
             if iv_stop >= self.n_vel:
                 norms = np.concatenate(self._innovation_norms)
                 det_t = np.repeat(self.det_t, np.diff(s.det_offsets))[: norms.shape[0]]
