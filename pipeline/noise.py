@@ -304,8 +304,7 @@ def scattered_note(law: DetectionLaw | None) -> list[str]:
     degrees: riekf APE 0.49 -> 4.2 m)."""
     if law is None:
         return []
-    r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
-    share = float(law.sigma(r)) / r
+    share, r = _scatter_share(law)
     if share <= SCATTERED_SHARE:
         return []
     return [
@@ -317,7 +316,8 @@ def scattered_note(law: DetectionLaw | None) -> list[str]:
 
 
 def _scatter_share(law: DetectionLaw) -> tuple[float, float]:
-    """The law's σ at the detections' middle range over that range, and the range."""
+    """The law's σ at the detections' middle range (the geometric mean of the ranges it was fitted on) over that
+    range, and the range."""
     r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
     return float(law.sigma(r)) / r, r
 
@@ -354,7 +354,7 @@ def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], not
     notes.append(f"noise: {', '.join(keys)} estimated from the detections ({fit.levels[streams[0]].method})")
     f = fit.levels["detection_scale"]
     if law is not None and f.value < HELD_SCALE_FLOOR:
-        r = float(np.sqrt(max(law.ranges[0], 1e-3) * max(law.ranges[1], 1e-3)))
+        r = _scatter_share(law)[1]
         notes.append(
             f"noise: the held streams' fit put the detections' own error at {f.value:.3g}x what they scatter by "
             f"within 1 s ({float(law.sigma(r)) * f.value:.3g} m against {float(law.sigma(r)):.3g} m at {r:.3g} m), "

@@ -745,9 +745,7 @@ def estimate(
         notes += lost_note(spec.name, checks.get("resightings"), checks.get("velocity_bias"))
         if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
             # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
-            jumps = landmark_jumps(*innovations.arrays()) or part.stats.get("metadata", {}).get(
-                "start_landmark_jumps", []
-            )
+            jumps = landmark_jumps(*innovations.arrays()) or checks.get("start_landmark_jumps", [])
             # after a misread input the detections named, the jumps are the lost pose's: not split (round 7)
             lost = time_offset_misread(checks.get("time_offset"))
             if jumps and split is None and prepared.known_map is None and not lost:
