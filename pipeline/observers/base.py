@@ -297,11 +297,14 @@ def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray) -> dict:
     (M, 3) at velocity samples ``k``), its ``wander_m_s`` (rms about its median over the rows after the first fifth
     of the velocity samples, when the estimate has settled) and that wander's share of the velocity input's rms
     (``velocity``: (N, 3))."""
-    b = float(np.sqrt(np.mean(np.sum(bias**2, axis=1)))) if bias.size else 0.0
-    settled = bias[k >= velocity.shape[0] // 5] if bias.size else bias
+
+    def rms(rows: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(np.sum(rows**2, axis=1)))) if rows.size else 0.0
+
+    settled = bias[k >= velocity.shape[0] // 5]
     settled = settled if settled.size else bias
-    wander = float(np.sqrt(np.mean(np.sum((settled - np.median(settled, axis=0)) ** 2, axis=1)))) if bias.size else 0.0
-    v = float(np.sqrt(np.mean(np.sum(velocity**2, axis=1)))) if velocity.size else 0.0
+    b, v = rms(bias), rms(velocity)
+    wander = rms(settled - np.median(settled, axis=0)) if settled.size else 0.0
     return {"rms_m_s": b, "wander_m_s": wander, "velocity_rms_m_s": v, "share": wander / v if v > 0.0 else None}
 
 
@@ -309,9 +312,8 @@ def lost_note(name: str, check: dict | None, bias: dict | None = None) -> list[s
     """Estimator ``name``'s note when at least ``RESIGHT_COUNT`` landmarks seen again arrived over
     ``RESIGHT_RATIO`` times the usual distance from the map (``check``: :func:`resighting_check`): the map and the
     trajectory disagree, which the median innovation cannot show when the pose was lost all along (the map
-    follows it). Else when its velocity bias estimate is over ``BIAS_SHARE`` of the velocity's rms (``bias``:
-    :func:`bias_share`) wanders by over ``BIAS_SHARE`` of the velocity's rms, which needs no landmark seen
-    again."""
+    follows it). Else when its velocity bias estimate wanders by over ``BIAS_SHARE`` of the velocity's rms
+    (``bias``: :func:`bias_share`), which needs no landmark seen again."""
     advice = "do not trust it without truth: run riekf or batch (`slamobs compare`), or tune its gains (`slamobs tune`)"
     if check and check["detections"] >= RESIGHT_COUNT and check["ratio"] is not None and check["ratio"] > RESIGHT_RATIO:
         return [
