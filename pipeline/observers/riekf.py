@@ -99,7 +99,7 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK = 0, 1, 2, 3, 4, 5, 6, 7, 8
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK, _PLANE_T = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -139,6 +139,13 @@ CONSISTENCY_WINDOWS = 7
 WALK_RATIO = 4.0
 WALK_RATIO_AGAIN = 2.0
 MAX_WALK_FACTOR = 100.0
+#: Planar motion (module docstring): the RMS of the roll and pitch rates and of the vertical velocity over their noise
+#: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
+#: floor's pseudo-measurements, and the seconds between them.
+PLANAR_RATIO = 1.25
+PLANAR_TILT = 0.02
+PLANAR_HEIGHT = 0.02
+PLANAR_EVERY_S = 0.5
 #: Blind stretches (module docstring): the seconds without a known landmark's detection after which the first
 #: ``BLIND_WINDOW`` tested detections are checked, and the share of them failing the gate above which the pose, not
 #: a few outliers, is off.
@@ -688,6 +695,66 @@ def _gain(hp, chol, z, k3, d):
 
 
 @njit(cache=True)
+def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
+    """The floor's pseudo-measurements (module docstring, "Planar motion"): the body's up axis ``R e3`` has no part
+    along the floor's tangents ``t1``, ``t2`` and the position's height ``nᵀP`` is the start's. ``plane``: on, ``n``
+    (3), the height, ``t1`` (3), ``t2`` (3), the tilt's and the height's σ, the period. With ``R ≈ exp(−ξ_R)R̂``,
+    ``P ≈ P̂ − ξ_P + [P̂]×ξ_R``: ``z_k = t_kᵀR̂e3`` with ``H_k = −t_kᵀ[R̂e3]×`` on ``ξ_R``, ``z_3 = nᵀP̂ − h`` with
+    ``H_3 = (−nᵀ[P̂]×, nᵀ)``; one Kalman update of the whole (mirrored) state, then :func:`_correct`."""
+    _mirror(cov, d)
+    h = np.zeros((3, 6))
+    z = np.empty(3)
+    u = np.empty(3)
+    for c in range(3):
+        u[c] = r_hat[c, 2]
+    for k in range(2):
+        t = plane[5 + 3 * k : 8 + 3 * k]
+        z[k] = t[0] * u[0] + t[1] * u[1] + t[2] * u[2]
+        h[k, 0] = u[1] * t[2] - u[2] * t[1]  # −tᵀ[u]×ξ = (u × t)·ξ
+        h[k, 1] = u[2] * t[0] - u[0] * t[2]
+        h[k, 2] = u[0] * t[1] - u[1] * t[0]
+    n = plane[1:4]
+    z[2] = n[0] * p_hat[0] + n[1] * p_hat[1] + n[2] * p_hat[2] - plane[4]
+    h[2, 0] = p_hat[1] * n[2] - p_hat[2] * n[1]  # −nᵀ[P̂]×ξ = (P̂ × n)·ξ
+    h[2, 1] = p_hat[2] * n[0] - p_hat[0] * n[2]
+    h[2, 2] = p_hat[0] * n[1] - p_hat[1] * n[0]
+    for c in range(3):
+        h[2, 3 + c] = n[c]
+    b = np.zeros((3, d))  # H Σ
+    for r in range(3):
+        for c in range(6):
+            if h[r, c] != 0.0:
+                for j in range(d):
+                    b[r, j] += h[r, c] * cov[c, j]
+    s = np.empty((3, 3))
+    for r in range(3):
+        for q in range(3):
+            v = 0.0
+            for c in range(6):
+                v += b[r, c] * h[q, c]
+            s[r, q] = v
+    s[0, 0] += plane[11] ** 2
+    s[1, 1] += plane[11] ** 2
+    s[2, 2] += plane[12] ** 2
+    if not cholesky_lower(s, 3):
+        return
+    for j in range(d):  # W = L⁻¹ H Σ, column by column
+        w0 = b[0, j] / s[0, 0]
+        w1 = (b[1, j] - s[1, 0] * w0) / s[1, 1]
+        b[0, j], b[1, j], b[2, j] = w0, w1, (b[2, j] - s[2, 0] * w0 - s[2, 1] * w1) / s[2, 2]
+    v0 = z[0] / s[0, 0]
+    v1 = (z[1] - s[1, 0] * v0) / s[1, 1]
+    v2 = (z[2] - s[2, 0] * v0 - s[2, 1] * v1) / s[2, 2]
+    xi = np.empty(d)
+    for j in range(d):
+        xi[j] = b[0, j] * v0 + b[1, j] * v1 + b[2, j] * v2
+    for i in range(d):  # Σ ← Σ − WᵀW
+        for j in range(d):
+            cov[i, j] -= b[0, i] * b[0, j] + b[1, i] * b[1, j] + b[2, i] * b[2, j]
+    _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
+
+
+@njit(cache=True)
 def _settle(cov, d, lt, rt, dp):
     """Apply the pending propagation (:func:`_propagation_terms`) to the covariance now, and clear it."""
     _apply(cov, d, lt, rt, 6, dp, np.zeros(0, np.int64), -1)
@@ -1123,6 +1190,7 @@ def _advance(
     q_bv,
     gate,
     max_scale,
+    plane,
     out_every,
     iv_stop,
     budget,
@@ -1292,6 +1360,11 @@ def _advance(
             if not started:
                 started = True
                 t = t_next
+            if plane[0] > 0.0 and t_next - fs[_PLANE_T] >= plane[13]:  # the floor (module docstring)
+                _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
+                acc_dt = 0.0
+                _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane)
+                fs[_PLANE_T] = t_next
             if iv % out_every == 0 or iv == n_vel - 1:
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out, o, pc_w)
@@ -1315,7 +1388,7 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=9)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=10)
         self.fs[_SCALE] = 1.0
         self.fs[_WALK] = 1.0
         self.fs[_DSCALE] = 1.0
@@ -1449,6 +1522,8 @@ class RiEKF(Stepper):
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
+        self.planar = planar_evidence(self.vel_t, stream.omega, stream.velocity, nz)
+        self.plane = floor_plane(r0, p0) if self.planar["planar"] else np.zeros(14)
         self.stats.update({"noise": self.noise.as_dict()})
 
     @property
@@ -1543,6 +1618,7 @@ class RiEKF(Stepper):
             self.det_law,
             self.lm,
             *self.params,
+            self.plane,
             o.out_every,
             iv_stop,
             budget,
@@ -1574,6 +1650,7 @@ class RiEKF(Stepper):
                 "gate_chi2": GATE_CHI2,
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
+                "planar": self._planar_record(),
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -1583,6 +1660,20 @@ class RiEKF(Stepper):
         ) + recovery_notes(self.stats["metadata"]["filter"])
         if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
             self.stats["notes"] += time_offset_note("riekf", self._time_offset)
+        if self.planar["planar"]:
+            r = self.planar["ratios"]
+            self.stats["notes"].append(
+                f"riekf: planar motion (roll rate, pitch rate, vertical velocity {r[0]:.2g} / {r[1]:.2g} / {r[2]:.2g} "
+                f"times their noise): the floor held as pseudo-measurements every {PLANAR_EVERY_S:g} s "
+                f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m)"
+            )
+
+    def _planar_record(self) -> dict:
+        """Planar motion for run.json: the evidence (:func:`planar_evidence`) and, when held, the floor's levels."""
+        rec = dict(self.planar)
+        if rec["planar"]:
+            rec.update(tilt_sigma_rad=PLANAR_TILT, height_sigma_m=PLANAR_HEIGHT, every_s=PLANAR_EVERY_S)
+        return rec
 
     def landmark_covariance(self) -> np.ndarray:
         """Each landmark's position covariance in the map frame: ``δp_i = ξ_i − [p̂_i]×ξ_R`` from the filter's
@@ -1658,6 +1749,33 @@ class RiEKF(Stepper):
                 for r in self.state.walk_log[: min(int(ns[_WALK_RAISES]), MAX_LOG)]
             ],
         }
+
+
+def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise) -> dict:
+    """Whether the body moves in a plane, from the log (module docstring, "Planar motion"): the standard deviation of
+    the roll and pitch rates and of the vertical velocity over their noise per sample (the density over the square
+    root of the median sample interval); planar when none exceeds ``PLANAR_RATIO`` (what they measure is noise)."""
+    if vel_t.shape[0] < 3:
+        return {"planar": False, "ratios": None}
+    dt = float(np.median(np.diff(vel_t)))
+    sig_om = np.broadcast_to(np.asarray(noise.gyro, float), (3,)) / math.sqrt(max(dt, 1e-9))
+    sig_v = np.broadcast_to(np.asarray(noise.velocity, float), (3,)) / math.sqrt(max(dt, 1e-9))
+    spread = (np.std(omega[:, 0]), np.std(omega[:, 1]), np.std(velocity[:, 2]))
+    ratios = [
+        float(x / sg) if sg > 0 else (0.0 if x == 0 else np.inf) for x, sg in zip(spread, (*sig_om[:2], sig_v[2]))
+    ]
+    return {"planar": max(ratios) <= PLANAR_RATIO, "ratios": [round(r, 3) for r in ratios]}
+
+
+def floor_plane(r0, p0) -> np.ndarray:
+    """The floor of :func:`_planar_update` through the start pose (its up axis the normal, its height the floor's),
+    with the pseudo-measurements' levels and period."""
+    n = np.array([0.0, 0.0, 1.0]) if r0 is None else np.asarray(r0, float)[:, 2]
+    h = 0.0 if p0 is None else float(n @ np.asarray(p0, float))
+    t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(n, t1)
+    return np.r_[1.0, n, h, t1, t2, PLANAR_TILT, PLANAR_HEIGHT, PLANAR_EVERY_S]
 
 
 def max_variance_factor(det_y: np.ndarray, noise) -> float:
