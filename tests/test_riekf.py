@@ -335,3 +335,43 @@ def test_a_recovery_note_says_the_detection_noise_was_left_alone():
     same, grown = recovery_notes(filt)
     assert same.endswith("by 33.7 (detection noise unchanged)")
     assert grown.endswith("by 4 (detection noise 2 times its standard deviation)")
+
+
+def _ground_run(planar: bool, monkeypatch) -> tuple[np.ndarray, np.ndarray, dict]:
+    """riekf given the true noise on 60 s of benchmarks/unseen_logs.py's ground robot (gyro x50 and wheel velocity x4
+    the default densities at 20 Hz, wheel slip, stereo-like detections at 12 Hz), started at the true pose; with
+    ``planar`` False the floor's evidence threshold is 0 (the filter without the floor). Returns the height error
+    (m) and the tilt error (rad) of the up axis at each output row, and run.json's ``planar`` record."""
+    from slamobs.pipeline.observers import riekf
+    from slamobs.pipeline.simulate import NoiseModel
+
+    if not planar:
+        monkeypatch.setattr(riekf, "PLANAR_RATIO", 0.0)
+    rate = 20.0
+    gyro, vel = 50 * DEFAULTS["gyro"][0], 4 * DEFAULTS["velocity"][0]
+    nm = NoiseModel(gyro=gyro * np.sqrt(rate), odom_linear=vel * np.sqrt(rate), odom_linear_drift=0.02)
+    nm = replace(nm, stereo_pixel=4.0, stereo_focal=1000.0, stereo_baseline=0.5)
+    sc = get_scenario("ground")
+    sim = simulate(sc, noise=nm, duration=60.0, seed=1, imu_rate=rate, odom_rate=rate, detection_rate=12.0)
+    stream = align(expected_streams(sim), keep_directions=False)
+    noise = resolve_noise(NoiseConfig(gyro=gyro, velocity=vel, detection=0.01, detection_per_m2=0.008))
+    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
+    filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
+    res = filt.advance(filt.n_vel)
+    truth = sc.sample((res.t_ns - sim.start_ns) * 1e-9)
+    tilt = np.arccos(np.clip(np.einsum("ni,ni->n", res.rotation[:, :, 2], truth.R[:, :, 2]), -1.0, 1.0))
+    return res.position[:, 2] - truth.P[:, 2], tilt, filt.stats["metadata"]["filter"]["planar"]
+
+
+def test_a_ground_robot_s_floor_holds_its_height_and_tilt(monkeypatch):
+    """A 6-DoF filter has no way to know the floor is flat: with the 50x gyro its roll and pitch walk while no
+    landmark is in view, and the height follows (docs/benchmarks.md, "riekf on ground robots (session 18)"). The
+    log says the body is planar (roll and pitch rates and vertical velocity at their noise level) and the floor's
+    pseudo-measurements hold the height to centimetres."""
+    dz, tilt, planar = _ground_run(True, monkeypatch)
+    assert planar["planar"] and max(planar["ratios"]) <= 1.25
+    rms = np.sqrt(np.mean(dz**2))
+    assert rms < 0.05
+    dz0, tilt0, planar0 = _ground_run(False, monkeypatch)
+    assert not planar0["planar"]
+    assert np.sqrt(np.mean(dz0**2)) > 3 * rms and np.mean(tilt0**2) > np.mean(tilt**2)

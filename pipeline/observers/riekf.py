@@ -1764,7 +1764,9 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     ratios = [
         float(x / sg) if sg > 0 else (0.0 if x == 0 else np.inf) for x, sg in zip(spread, (*sig_om[:2], sig_v[2]))
     ]
-    return {"planar": max(ratios) <= PLANAR_RATIO, "ratios": [round(r, 3) for r in ratios]}
+    # samples with no roll, pitch or vertical part at all (a planar log by construction: MR.CLAM's held commands)
+    # keep the filter in its plane without the floor, which would only reshape the covariance
+    return {"planar": max(ratios) <= PLANAR_RATIO and max(spread) > 0.0, "ratios": [round(r, 3) for r in ratios]}
 
 
 def floor_plane(r0, p0) -> np.ndarray:
