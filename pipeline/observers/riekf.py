@@ -64,6 +64,14 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
   half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
   real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
+* Planar motion (a ground robot on a flat floor): a 6-DoF filter has no way to know the floor is flat, and with a
+  noisy gyro its roll and pitch walk while no landmark is in view; the height follows them (docs/benchmarks.md,
+  "riekf on ground robots (session 18, h-riekfg)"). When the log's roll and pitch rates and vertical velocity
+  spread no more than ``PLANAR_RATIO`` times their noise per sample (:func:`planar_evidence`: what they measure is
+  noise, not motion), the floor through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
+  (:func:`_planar_update`): the body's up axis normal to it (``PLANAR_TILT``) and the position's height on it
+  (``PLANAR_HEIGHT``). run.json ``observer.filter.planar`` and a note say so; samples with no roll, pitch or
+  vertical part at all (a planar log by construction) stay in their plane without it, and nothing changes.
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -1766,7 +1774,7 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     ]
     # samples with no roll, pitch or vertical part at all (a planar log by construction: MR.CLAM's held commands)
     # keep the filter in its plane without the floor, which would only reshape the covariance
-    return {"planar": max(ratios) <= PLANAR_RATIO and max(spread) > 0.0, "ratios": [round(r, 3) for r in ratios]}
+    return {"planar": bool(max(ratios) <= PLANAR_RATIO and max(spread) > 0.0), "ratios": [round(r, 3) for r in ratios]}
 
 
 def floor_plane(r0, p0) -> np.ndarray:
