@@ -1762,12 +1762,17 @@ class RiEKF(Stepper):
 def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise) -> dict:
     """Whether the body moves in a plane, from the log (module docstring, "Planar motion"): the standard deviation of
     the roll and pitch rates and of the vertical velocity over their noise per sample (the density over the square
-    root of the median sample interval); planar when none exceeds ``PLANAR_RATIO`` (what they measure is noise)."""
+    root of the mean interval between new values: a held command's noise is per command); planar when none exceeds
+    ``PLANAR_RATIO`` (what they measure is noise) and they are not all exactly zero."""
     if vel_t.shape[0] < 3:
         return {"planar": False, "ratios": None}
-    dt = float(np.median(np.diff(vel_t)))
-    sig_om = np.broadcast_to(np.asarray(noise.gyro, float), (3,)) / math.sqrt(max(dt, 1e-9))
-    sig_v = np.broadcast_to(np.asarray(noise.velocity, float), (3,)) / math.sqrt(max(dt, 1e-9))
+    span = float(vel_t[-1] - vel_t[0])
+
+    def per_sample(density, x: np.ndarray) -> np.ndarray:  # over the time between new values (held samples)
+        dt = span / max(1, int(np.count_nonzero(np.any(np.diff(x, axis=0) != 0.0, axis=1))))
+        return np.broadcast_to(np.asarray(density, float), (3,)) / math.sqrt(max(dt, 1e-9))
+
+    sig_om, sig_v = per_sample(noise.gyro, omega), per_sample(noise.velocity, velocity)
     spread = (np.std(omega[:, 0]), np.std(omega[:, 1]), np.std(velocity[:, 2]))
     ratios = [
         float(x / sg) if sg > 0 else (0.0 if x == 0 else np.inf) for x, sg in zip(spread, (*sig_om[:2], sig_v[2]))
