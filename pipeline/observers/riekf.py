@@ -152,7 +152,7 @@ MAX_WALK_FACTOR = 100.0
 #: floor's pseudo-measurements, and the seconds between them.
 PLANAR_RATIO = 1.25
 PLANAR_TILT = 0.02
-PLANAR_HEIGHT = 0.02
+PLANAR_HEIGHT = 0.05
 PLANAR_EVERY_S = 0.5
 #: Blind stretches (module docstring): the seconds without a known landmark's detection after which the first
 #: ``BLIND_WINDOW`` tested detections are checked, and the share of them failing the gate above which the pose, not
