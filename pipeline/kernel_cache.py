@@ -184,11 +184,18 @@ def njit(*args, **kwargs):
     lowers every use of an array variable with an increment and a decrement of the array's count (which LLVM
     later removes again): the fast-adaptation event loop and its callees are ~25 % less IR to compile without
     them. The functions it calls are compiled the same way when it compiles them first; a kernel that allocates
-    does not compile with it (numba's typing error names the allocation)."""
+    does not compile with it (numba's typing error names the allocation).
+
+    Its floating-point flags are its own (``fastmath``, strict unless given), never its caller's: numba lets a kernel
+    without them take those of the kernel compiling it first (``inherit_if_not_set``), so a helper of riekf's
+    ``fastmath={"contract"}`` kernels fused ``a * b + c`` in a process that compiled it from one of them and not in a
+    process that compiled it from elsewhere first (a test, another estimator), and the cache kept whichever came
+    first (docs/benchmarks.md, "A cached kernel that gave another answer")."""
     if args and not callable(args[0]):
         return numba.njit(*args, **kwargs)
     cache = kwargs.pop("cache", False)
     kwargs.setdefault("no_cfunc_wrapper", True)
+    kwargs.setdefault("fastmath", False)  # its own flags, not those of the first kernel that compiles it
     if not kwargs.pop("nrt", True):
         kwargs["_nrt"] = False
 

@@ -364,3 +364,27 @@ def test_a_subroutine_is_one_body_under_one_name_in_every_process(tmp_path):
     assert linked["contracting"] == alone["contracting"] and linked["strict"] == alone["strict"]
     assert alone["contracting"] == alone["strict"]  # the subroutine's flags, not the caller's
     assert linked["strict_fused"] != alone["strict"]  # its own {"contract"}, in a strict caller
+
+
+def test_a_kernel_keeps_its_own_floating_point_flags_whoever_compiles_it_first():
+    """numba compiles a kernel without ``fastmath`` of its own with the flags of the kernel that compiles it first
+    (``inherit_if_not_set``): a strict helper first compiled from a ``{"contract"}`` kernel fused its ``a * b + c``,
+    first compiled from Python or a strict kernel it did not, and the cache kept whichever came first. Here it is
+    strict either way, and a helper declared ``{"contract"}`` fuses whoever calls it."""
+    import numpy as np
+
+    def madd(a, b, c):
+        return a * b + c
+
+    def twice_of(helper, fastmath):
+        return kernel_cache.njit(fastmath=fastmath)(lambda a, b, c: 2.0 * helper(a, b, c))
+
+    x = (0.1, 10.0 / 3.0, -1.0 / 3.0)
+    strict = kernel_cache.njit(madd)
+    twice_of(strict, {"contract"})(*x)  # compiled first from a contracting kernel
+    (sig,) = strict.signatures
+    assert " contract " not in strict.inspect_llvm(sig)
+    assert strict(*x) == np.float64(0.1) * np.float64(10.0 / 3.0) + np.float64(-1.0 / 3.0)
+    fused = kernel_cache.njit(fastmath={"contract"})(madd)
+    twice_of(fused, False)(*x)  # compiled first from a strict kernel
+    assert " contract " in fused.inspect_llvm(fused.signatures[0])
