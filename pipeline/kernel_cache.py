@@ -184,11 +184,18 @@ def njit(*args, **kwargs):
     lowers every use of an array variable with an increment and a decrement of the array's count (which LLVM
     later removes again): the fast-adaptation event loop and its callees are ~25 % less IR to compile without
     them. The functions it calls are compiled the same way when it compiles them first; a kernel that allocates
-    does not compile with it (numba's typing error names the allocation)."""
+    does not compile with it (numba's typing error names the allocation).
+
+    Its floating-point flags are its own (``fastmath``, strict unless given), never its caller's: numba lets a kernel
+    without them take those of the kernel compiling it first (``inherit_if_not_set``), so a helper of riekf's
+    ``fastmath={"contract"}`` kernels fused ``a * b + c`` in a process that compiled it from one of them and not in a
+    process that compiled it from elsewhere first (a test, another estimator), and the cache kept whichever came
+    first (docs/benchmarks.md, "A cached kernel that gave another answer")."""
     if args and not callable(args[0]):
         return numba.njit(*args, **kwargs)
     cache = kwargs.pop("cache", False)
     kwargs.setdefault("no_cfunc_wrapper", True)
+    kwargs.setdefault("fastmath", False)  # its own flags, not those of the first kernel that compiles it
     if not kwargs.pop("nrt", True):
         kwargs["_nrt"] = False
 
@@ -206,7 +213,7 @@ def _no_extensions_yet() -> None:
     """A kernel's hook before it types its arguments: nothing (see :func:`njit`)."""
 
 
-def subroutine(returns, error_model: str = "python"):
+def subroutine(returns, error_model: str = "python", fastmath=False):
     """A helper of the kernels compiled into each kernel that calls it, not as a kernel of its own.
 
     A helper decorated with :func:`njit` is a kernel like any other when a kernel calls it: numba compiles it on its
@@ -218,26 +225,51 @@ def subroutine(returns, error_model: str = "python"):
     it is compiled without numba's runtime, so one that allocates does not compile (it works in the arrays it is
     given). ``error_model``: numba's, as for :func:`njit`.
 
+    ``fastmath``: its own floating-point flags (numba's, e.g. ``{"contract"}``; strict by default), whatever its
+    caller's. Every kernel carries its own copy of the subroutine under one symbol name with weak linkage (one
+    definition wins where two kernels' copies meet, linked into a third kernel or loaded into one process), so
+    every copy must be the same code: compiled with the caller's flags, a copy in a ``fastmath={"contract"}``
+    kernel fused ``a * b + c`` where a strict kernel's copy rounded twice, and numba's name for it held a counter
+    of the compiling process, so kernels compiled in different processes carried different bodies under one name
+    and a process ran whichever it linked first (docs/benchmarks.md, "A cached kernel that gave another
+    answer"). Here the name holds a hash of the subroutine's sources (:func:`source_stamp`) and flags instead:
+    one name, one body, in every process.
+
     Called from Python, it runs as an ordinary kernel (:func:`njit`, compiled at the first such call)."""
 
     def decorate(func):
-        return _Subroutine(func, returns, error_model)
+        return _Subroutine(func, returns, error_model, fastmath)
 
     return decorate
+
+
+def _code_stamp(func) -> str:
+    """Hash of the source of ``func``'s module and of what it imports (:func:`source_stamp`; a module outside the
+    package: its file alone)."""
+    path = Path(func.__code__.co_filename).resolve()
+    try:
+        path.relative_to(PACKAGE_ROOT)
+    except ValueError:
+        return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+    return source_stamp(path)
 
 
 class _Subroutine:
     """:func:`subroutine`'s helper: numba types a call of it by its declared result type, and lowers it as a call of
     the function compiled into the caller's library (numba's ``compile_internal`` without code generation, as its
-    own internal helpers); Python calls go to a kernel made on first use."""
+    own internal helpers), with its own flags and a name the same in every process; Python calls go to a kernel
+    made on first use."""
 
-    def __init__(self, func, returns, error_model: str) -> None:
+    def __init__(self, func, returns, error_model: str, fastmath) -> None:
         from numba.core import types
+        from numba.core.cpu_options import FastMathOptions
         from numba.core.imputils import lower_builtin
         from numba.core.typing.templates import AbstractTemplate, infer_global, signature
 
         self.py_func = func
         self.error_model = error_model
+        self.fastmath = FastMathOptions(fastmath)
+        self._uid: str | None = None
         self._kernel = None
         #: per library being compiled: argument types -> the function compiled into it
         self._lowered: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -253,6 +285,17 @@ class _Subroutine:
         infer_global(self, types.Function(Call))
         lower_builtin(self, types.VarArg(types.Any))(self._lower)
 
+    def _mangle(self, name, argtypes, *, abi_tags=(), uid=None):
+        """numba's symbol name with, in place of its per-process counter, a hash of the sources and the flags
+        (the argument types are in the name already)."""
+        from numba.core.funcdesc import default_mangler
+
+        if self._uid is None:
+            flags = ",".join(sorted(self.fastmath.flags))
+            key = f"{self.py_func.__module__}.{self.py_func.__qualname__}|{_code_stamp(self.py_func)}|{flags}"
+            self._uid = "s" + hashlib.sha256(f"{key}|{self.error_model}".encode()).hexdigest()[:16]
+        return default_mangler(name, argtypes, abi_tags=abi_tags, uid=self._uid)
+
     def _lower(self, context, builder, sig, args):
         from numba.core import compiler
 
@@ -261,18 +304,24 @@ class _Subroutine:
         if (fndesc := done.get(sig)) is None:
             flags = compiler.Flags()
             flags.error_model = self.error_model
+            if self.fastmath:
+                flags.fastmath = self.fastmath
             flags.no_compile = flags.no_cpython_wrapper = flags.no_cfunc_wrapper = True
-            # without the runtime whatever the caller's (a caller with it would otherwise pass it on)
-            lean = context.subtarget(enable_nrt=False)
+            # without the runtime whatever the caller's (a caller with it would otherwise pass it on), with its own
+            # floating-point flags (the caller's context carries the caller's) and name
+            own = context.subtarget(enable_nrt=False, fastmath=self.fastmath if self.fastmath else False)
+            own.mangler = self._mangle
+            own.cached_internal_func = {}  # numba's helpers compiled in it: with its flags too, not shared
             compiled = compiler.compile_internal(
-                context.typing_context, lean, library, self.py_func, sig.args, sig.return_type, flags, {}
+                context.typing_context, own, library, self.py_func, sig.args, sig.return_type, flags, {}
             )
             fndesc = done[sig] = compiled.fndesc
         return context.call_internal(builder, fndesc, sig, args)
 
     def __call__(self, *args):
         if self._kernel is None:
-            self._kernel = njit(cache=True, error_model=self.error_model)(self.py_func)
+            kernel = njit(cache=True, error_model=self.error_model, fastmath=self.fastmath if self.fastmath else False)
+            self._kernel = kernel(self.py_func)
         return self._kernel(*args)
 
 

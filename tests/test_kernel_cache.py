@@ -275,3 +275,116 @@ def test_a_subroutine_compiles_only_inside_its_callers():
     grows = kernel_cache.subroutine(types.float64)(allocates)
     with pytest.raises(numba.core.errors.NumbaError):
         kernel_cache.njit(lambda n: grows(n))(3)
+
+
+_HORNER = """\
+import numpy as np
+from numba import types
+from slamobs.pipeline.kernel_cache import njit, subroutine
+
+
+def horner(c, x):  # a * b + c chains: one rounding each when contracted (fused multiply-add), two when strict
+    s = 0.0
+    t = 0.0
+{loops}
+    return s * t + s
+
+
+plain = subroutine(types.float64)(horner)
+fused = subroutine(types.float64, fastmath={{"contract"}})(horner)
+
+
+@njit(cache=True, fastmath={{"contract"}})
+def contracting(c, xs):
+    out = 0.0
+    for x in xs:
+        out += plain(c, x)
+    return out
+
+
+@njit(cache=True)
+def strict(c, xs):
+    out = 0.0
+    for x in xs:
+        out += plain(c, x)
+    return out
+
+
+@njit(cache=True)
+def both(c, xs):  # links the two kernels' code, each with its copy of the subroutine
+    return contracting(c, xs), strict(c, xs)
+
+
+@njit(cache=True)
+def strict_fused(c, xs):
+    out = 0.0
+    for x in xs:
+        out += fused(c, x)
+    return out
+"""
+
+
+def test_a_subroutine_is_one_body_under_one_name_in_every_process(tmp_path):
+    """A subroutine is compiled with its own floating-point flags, not its caller's, under a name that does not
+    depend on the compiling process: two kernels calling it, one ``fastmath={"contract"}`` and one strict, compiled
+    in two processes into one cache and linked in a third (a kernel calling both), give the same bits as each
+    alone, and the same as each other. Before, each copy took its caller's flags and numba's per-process counter
+    into its name: both copies had one (weak) name and the third process ran the strict body for both kernels
+    (the contracting kernel alone gave other bits). A subroutine declared ``{"contract"}`` fuses in a strict
+    kernel."""
+    import subprocess
+    import sys
+
+    # big enough that the callers keep calling it rather than inline it (a call resolved by its name)
+    loops = "".join(
+        f"    for k in range(c.shape[0]):\n        s = s * x + c[k] * {1 + r * 0.01}\n"
+        f"        t = t * (x + {0.1 * r}) + c[k] * s\n"
+        for r in range(12)
+    )
+    (tmp_path / "horner_kernels.py").write_text(_HORNER.format(loops=loops))
+    code = (
+        "import sys\nimport numpy as np\nsys.path.insert(0, sys.argv[1])\nimport horner_kernels as m\n"
+        "rng = np.random.default_rng(1)\nc, xs = rng.normal(size=17) * 0.3, rng.normal(size=1000) * 0.5\n"
+        "for name in sys.argv[2].split(','):\n"
+        "    r = getattr(m, name)(c, xs)\n"
+        "    print(name, *(float(v).hex() for v in np.atleast_1d(r)))\n"
+    )
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+
+    def run(names: str) -> dict[str, list[str]]:
+        done = subprocess.run(
+            [sys.executable, "-c", code, str(tmp_path), names], capture_output=True, text=True, timeout=600, env=env
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        return {line.split()[0]: line.split()[1:] for line in done.stdout.splitlines()}
+
+    alone = {**run("contracting"), **run("strict")}  # each compiled in a process of its own
+    linked = run("both,contracting,strict,strict_fused")  # both loaded from the cache, linked into a third
+    assert linked["both"] == alone["contracting"] + alone["strict"]
+    assert linked["contracting"] == alone["contracting"] and linked["strict"] == alone["strict"]
+    assert alone["contracting"] == alone["strict"]  # the subroutine's flags, not the caller's
+    assert linked["strict_fused"] != alone["strict"]  # its own {"contract"}, in a strict caller
+
+
+def test_a_kernel_keeps_its_own_floating_point_flags_whoever_compiles_it_first():
+    """numba compiles a kernel without ``fastmath`` of its own with the flags of the kernel that compiles it first
+    (``inherit_if_not_set``): a strict helper first compiled from a ``{"contract"}`` kernel fused its ``a * b + c``,
+    first compiled from Python or a strict kernel it did not, and the cache kept whichever came first. Here it is
+    strict either way, and a helper declared ``{"contract"}`` fuses whoever calls it."""
+    import numpy as np
+
+    def madd(a, b, c):
+        return a * b + c
+
+    def twice_of(helper, fastmath):
+        return kernel_cache.njit(fastmath=fastmath)(lambda a, b, c: 2.0 * helper(a, b, c))
+
+    x = (0.1, 10.0 / 3.0, -1.0 / 3.0)
+    strict = kernel_cache.njit(madd)
+    twice_of(strict, {"contract"})(*x)  # compiled first from a contracting kernel
+    (sig,) = strict.signatures
+    assert " contract " not in strict.inspect_llvm(sig)
+    assert strict(*x) == np.float64(0.1) * np.float64(10.0 / 3.0) + np.float64(-1.0 / 3.0)
+    fused = kernel_cache.njit(fastmath={"contract"})(madd)
+    twice_of(fused, False)(*x)  # compiled first from a strict kernel
+    assert " contract " in fused.inspect_llvm(fused.signatures[0])

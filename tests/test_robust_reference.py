@@ -40,6 +40,25 @@ def second_half(stream) -> np.ndarray:
     return t > (stream.det_t_ns[0] + stream.det_t_ns[-1]) // 2
 
 
+def swap_on_candidates(stream, landmarks) -> tuple[np.ndarray, list[int]]:
+    """Detections from the first time after the middle at which each of the two ``landmarks``' ids, once their
+    detections from then on are swapped, has its change point (its detections before, the first sighting left out
+    as the jump search leaves it) on an index the search tries, the two next to it too; and those change points."""
+    from slamobs.pipeline.observers.base import split_candidates
+
+    t = np.repeat(stream.det_t_ns, np.diff(stream.det_offsets))
+    ma, mb = (np.sort(t[stream.det_idx == x]) for x in landmarks)
+    for start in np.unique(np.concatenate([ma, mb])):
+        if start <= (t[0] + t[-1]) // 2:
+            continue
+        before = int(np.searchsorted(ma, start)), int(np.searchsorted(mb, start))
+        sizes = before[0] + mb.shape[0] - before[1] - 1, before[1] + ma.shape[0] - before[0] - 1
+        change = [before[0] - 1, before[1] - 1]
+        if all({k - 1, k, k + 1} <= set(split_candidates(n).tolist()) for k, n in zip(change, sizes, strict=True)):
+            return t >= start, change
+    raise AssertionError("no swap time with every change point on the search's indices")
+
+
 def ape(sim, result, last_share: float = 1.0) -> float:
     """Position RMSE against the simulator's truth after a rigid alignment, over the last share of the run."""
     idx = np.searchsorted(sim.mocap.t_ns, result.t_ns).clip(0, sim.mocap.t_ns.shape[0] - 1)
@@ -100,7 +119,13 @@ def test_a_landmark_id_reused_mid_log_for_another_landmark_is_named(log):
 def test_a_reused_landmark_id_is_split_and_the_run_made_again(tmp_path):
     """The sample figure 8 with two landmarks' ids swapped from the middle on: the run finds the jumps, runs again
     with each one's later detections as a landmark of its own, and says so; the new landmarks sit where the other
-    id's first half put them (before: one id for two places, batch's map on MR.CLAM 6 r1 0.09 -> 2.2 m)."""
+    id's first half put them (before: one id for two places, batch's map on MR.CLAM 6 r1 0.09 -> 2.2 m).
+
+    The swap is at a time where each landmark's change point is one of the indices the jump search tries
+    (``split_candidates``), its neighbours too: the split then falls exactly at the swap, by a margin of a whole
+    misfiled detection. Swapped at the middle, the change point fell between two tried indices, and the split went
+    to whichever neighbour won by rounding: one detection late passed, one early gave the new landmark a detection
+    of the old place, which the second run kept it at (8.1 m off, with a riekf kernel compiled elsewhere)."""
     import json
 
     import pyarrow.parquet as pq
@@ -111,8 +136,8 @@ def test_a_reused_landmark_id_is_split_and_the_run_made_again(tmp_path):
     config = parse_config({"observer": "riekf", "evaluation": {"plots": False}})
     prepared = prepare_log(Path(__file__).parents[1] / "sample_logs" / "figure8.mcap", config, directions=False)
     stream = prepared.aligned
-    late = second_half(stream)
-    a, b = np.argsort(np.bincount(stream.det_idx[late]))[-2:]  # the two landmarks seen most after the middle
+    a, b = np.argsort(np.bincount(stream.det_idx[second_half(stream)]))[-2:]  # the two seen most after the middle
+    late, change = swap_on_candidates(stream, (a, b))
     idx = stream.det_idx.copy()
     idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
     prepared.aligned = replace(stream, det_idx=idx)
@@ -120,6 +145,7 @@ def test_a_reused_landmark_id_is_split_and_the_run_made_again(tmp_path):
     jumps = json.loads((tmp_path / "run" / "run.json").read_text())["observer"]["landmark_jumps"]
     id_a, id_b = stream.landmark_ids[[a, b]].tolist()
     assert sorted(j["id"] for j in jumps) == sorted([id_a, id_b]), jumps
+    assert {j["id"]: j["before"][0] for j in jumps} == {id_a: change[0], id_b: change[1]}, jumps  # at the swap
     new = {j["id"]: j["new_id"] for j in jumps}
     assert set(new.values()).isdisjoint(stream.landmark_ids.tolist() + list(prepared.streams.landmark_truth))
     lm = pq.read_table(tmp_path / "run" / "landmarks.parquet").to_pandas().set_index("id")[["x", "y", "z"]]

@@ -351,6 +351,12 @@ class InnovationRecord:
         return tuple(np.concatenate(c) for c in zip(*self._parts, strict=True))
 
 
+def split_candidates(n: int) -> np.ndarray:
+    """The indices :func:`landmark_jumps` tries as the change point of a landmark with ``n`` detections: at most
+    ``JUMP_SPLITS``, ``JUMP_MIN_DETECTIONS`` from either end (past ``JUMP_SPLITS`` detections not every index)."""
+    return np.unique(np.linspace(JUMP_MIN_DETECTIONS, n - JUMP_MIN_DETECTIONS, JUMP_SPLITS).astype(np.int64))
+
+
 def _best_split(e: np.ndarray, median: float) -> tuple | None:
     """A landmark's change point (index, ratio before, ratio after), ``e`` its innovations in time order: the split
     of least absolute deviation of log ‖e‖ from each side's median, among those whose one side is over
@@ -358,7 +364,7 @@ def _best_split(e: np.ndarray, median: float) -> tuple | None:
     times; None when no split is."""
     n, log_e = e.shape[0], np.log(e)
     best, best_cost = None, np.inf
-    for k in np.unique(np.linspace(JUMP_MIN_DETECTIONS, n - JUMP_MIN_DETECTIONS, JUMP_SPLITS).astype(np.int64)):
+    for k in split_candidates(n):
         a, b = float(np.median(e[:k])) / median, float(np.median(e[k:])) / median
         if max(a, b) <= JUMP_RATIO or min(a, b) >= JUMP_CALM:
             continue

@@ -172,7 +172,9 @@ MAX_LOG = 64
 #: The covariance is allocated to a multiple of this many rows and columns, the one-pass scratch rows to a multiple
 #: of this many columns: :func:`_apply`'s tiles are this many rows by one or two vectors of :mod:`pipeline.simd`.
 PAD = 8
-#: The dense kernels' floating-point flags (``_propagation_terms``, ``_apply``, ``_gain``, ``_update``): ``a * b + c``
+#: The dense kernels' floating-point flags (``_propagation_terms``, ``_apply``, ``_gain``, ``_update`` and the frame's
+#: helpers ``_gate``, ``_mahalanobis3``, ``_reset_landmark``, ``_bias_corrections``, ``_correct``, declared here: a
+#: kernel's flags are its own, never its caller's, kernel_cache.njit): ``a * b + c``
 #: fused into one multiply-add instruction (one rounding instead of two; the order of the additions as written, no
 #: other ``fastmath`` licence): half the floating-point instructions of the dense pass (docs/benchmarks.md, "riekf's
 #: filter stage"). The same bits run after run, compiled or loaded from the cache; with the flag on ``_advance`` and
@@ -559,7 +561,7 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
         out[o, i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
     """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ`` of ``Σ⁻`` (the
     pending propagation added, each term read once; ``u``: the range's extra standard deviation along the line of
@@ -577,7 +579,7 @@ def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
     return _mahalanobis3(s, z)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _mahalanobis3(s, z):
     """``zᵀ S⁻¹ z`` for the 3×3 ``s`` (overwritten by its Cholesky factor L: ``|L⁻¹ z|²``); inf when S is not
     positive definite."""
@@ -589,7 +591,7 @@ def _mahalanobis3(s, z):
     return w0 * w0 + w1 * w1 + w2 * w2
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
     """``X̂ ← exp(−ξ̂) X̂`` on SE_{1+n}(3) (the exponential of docs/observers.md §1, applied on the left) and
     ``b̂ ← b̂ + b̃̂``."""
@@ -972,7 +974,7 @@ def _sum_innovations(z, smat, k3, win_sum):
             win_sum[1 + r % 3, c % 3] += smat[r, c]
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _bias_corrections(xi, u, k3, win_sum):
     """The window's squared velocity-bias corrections ``|δb̂_V|²`` (``win_sum[5, 0]``) and what a consistent filter
     expects of them, the trace of the downdate ``U Uᵀ`` on the velocity-bias rows (``win_sum[5, 1]``; ``u`` = ``Uᵀ``,
@@ -985,7 +987,7 @@ def _bias_corrections(xi, u, k3, win_sum):
         win_sum[5, 1] += e
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _reset_landmark(cov, d, o, sigma2, ue):
     """Landmark slot ``o`` (re-)initialised from the pose, for a new landmark (``o == d``) or one that failed the
     gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I + u uᵀ`` (its mean is set by the caller)."""
