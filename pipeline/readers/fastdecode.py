@@ -370,6 +370,22 @@ def _integer(w, width, signed):  # pragma: no cover - compiled
     return v
 
 
+@subroutine(types.none)
+def _store(w, s, kind, bits, values, row, col, bits32, float32):  # pragma: no cover - compiled
+    """A leaf's word ``w`` of ``s`` bytes into row ``row``, column ``col``: a float64's bits into ``bits``, the other
+    kinds (float32 ``0``, signed ``1``, unsigned integers) as float64 into ``values``; ``bits32`` and ``float32`` one
+    word's two views. The message's and the elements' leaves share it (one copy of the dispatch to compile)."""
+    if kind == 0 and s == 8:
+        bits[row, col] = w
+    elif kind == 0:
+        bits32[0] = np.uint32(w)
+        values[row, col] = np.float64(float32[0])
+    elif kind == 1:
+        values[row, col] = np.float64(_integer(w, s, True))
+    else:
+        values[row, col] = np.float64(w)
+
+
 @njit(cache=True, nogil=True, nrt=False)
 def _walk(  # pragma: no cover - compiled
     data, origin, limit, big, cdr, check,
@@ -433,13 +449,8 @@ def _walk(  # pragma: no cover - compiled
                     w = _word(data, o + p, s, big)
                     if slot < 2:  # header stamp (integers: see :func:`_walks`)
                         t_ns[i] += _integer(w, s, kind == 1) * (_NS if slot == 0 else 1)
-                    elif kind == 0 and s == 8:
-                        bits[i, slot - 2] = w
-                    elif kind == 0:
-                        bits32[0] = np.uint32(w)
-                        values[i, slot - 2] = np.float64(float32[0])
                     else:
-                        values[i, slot - 2] = np.float64(_integer(w, s, kind == 1)) if kind == 1 else np.float64(w)
+                        _store(w, s, kind, bits, values, i, slot - 2, bits32, float32)
                 p += s
             else:
                 if p + 4 > lim:
@@ -488,15 +499,7 @@ def _walk(  # pragma: no cover - compiled
                             if item_leaf[k] and p + s <= lim:
                                 slot, kind = item_slot[k], item_kinds[item_slot[k]]
                                 w = _word(data, o + p, s, big)
-                                if kind == 0 and s == 8:  # as above (a shared inlined function made both slower)
-                                    item_bits[m, slot] = w
-                                elif kind == 0:
-                                    bits32[0] = np.uint32(w)
-                                    item_values[m, slot] = np.float64(float32[0])
-                                elif kind == 1:
-                                    item_values[m, slot] = np.float64(_integer(w, s, True))
-                                else:
-                                    item_values[m, slot] = np.float64(w)
+                                _store(w, s, kind, item_bits, item_values, m, slot, bits32, float32)
                             p += s
                         m += 1
                     if p > lim:

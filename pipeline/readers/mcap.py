@@ -64,37 +64,26 @@ def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: 
         if length < 0 or length > end - pos - 9:
             return n, pos, CUT
         rop = np.int64(buf[pos])
-        if rop == 5 and length < 22:
+        message = rop == 5
+        if message and length < 22:
             return n, pos, BAD
-        if wanted.shape[0]:
-            channel = np.int64(buf[pos + 9]) | (np.int64(buf[pos + 10]) << 8) if rop == 5 else -1
+        channel = np.int64(buf[pos + 9]) | (np.int64(buf[pos + 10]) << 8) if message else -1
+        if wanted.shape[0]:  # one walk for both: the filtered one keeps wanted messages, their index as channel
             if channel < 0 or channel >= wanted.shape[0] or wanted[channel] < 0:
                 pos += 9 + length
                 continue
-            if fill:
-                if n == op.shape[0]:
-                    return n, pos, FULL
-                op[n] = rop
-                conn[n] = wanted[channel]
-                t_ns[n] = u32(buf, pos + 15) | (u32(buf, pos + 19) << 32)
-                hpos[n] = pos
-                dpos[n] = pos + 31
-                dlen[n] = length - 22
-            n += 1
-            pos += 9 + length
-            continue
+            channel = wanted[channel]
         if fill:
             if n == op.shape[0]:
                 return n, pos, FULL
             op[n] = rop
+            conn[n] = channel
             hpos[n] = pos
-            if rop == 5:
-                conn[n] = np.int64(buf[pos + 9]) | (np.int64(buf[pos + 10]) << 8)
+            if message:
                 t_ns[n] = u32(buf, pos + 15) | (u32(buf, pos + 19) << 32)
                 dpos[n] = pos + 31
                 dlen[n] = length - 22
             else:
-                conn[n] = -1
                 t_ns[n] = -1
                 dpos[n] = pos + 9
                 dlen[n] = length
