@@ -157,7 +157,8 @@ truth_option = click.option(
     "--truth",
     default=None,
     help="ground truth: a topic of LOG, a TF edge parent->child, a TUM / EuRoC CSV / KITTI file, or LOG:TOPIC of "
-    "another log [default: topics.truth of the config, else detected]",
+    "another log; 'none': no truth, not even a detected one (no APE; a landmark truth still gives the map error) "
+    "[default: topics.truth of the config, else detected]",
 )
 
 

@@ -56,7 +56,7 @@ def _previous_options(run_dir: Path) -> dict:
     "--truth",
     default=None,
     help="a topic of the run's log, a TF edge parent->child, a TUM / EuRoC CSV / KITTI (with stamps) file, or "
-    "LOG:TOPIC of another log [default: the run's truth]",
+    "LOG:TOPIC of another log; 'none': the run's figures and summary without its truth [default: the run's truth]",
 )
 @click.option("--t-max-diff", "--t_max_diff", type=Seconds(), default=None, help="association tolerance [s] (0.01)")
 @click.option(
@@ -97,6 +97,7 @@ def report(
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically.
     Without truth (the run had none and no --truth), or when the run's own truth cannot judge it (no poses, too
     short: as ``slamobs run`` reported): the run's figures and a summary in report.md."""
+    from slamobs.pipeline.config import NO_TRUTH
     from slamobs.pipeline.errors import TruthUnusable
 
     given = {
@@ -109,6 +110,9 @@ def report(
     }
     if t_offset is not None:
         given["t_offset_s"] = offset_seconds(t_offset)
+    if truth is not None and truth.strip() == NO_TRUTH:  # asked for none: as a run without truth
+        _summarised(run_dir, as_json, quiet, told=True)
+        return
     if truth is None and not _summarised(run_dir, as_json, quiet):  # a run without truth: its figures
         return
     try:
@@ -152,15 +156,16 @@ def _reported(run_dir: Path, truth: str | None, export, given: dict, quiet: bool
         exit_input_error(str(err))
 
 
-def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None = None) -> bool:
+def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None = None, told: bool = False) -> bool:
     """A run without truth is summarised and drawn (False: done); True when the run has truth to report on.
-    ``unusable``: why the run's truth cannot judge it (no poses, too short): summarised as without truth."""
+    ``unusable``: why the run's truth cannot judge it (no poses, too short): summarised as without truth; ``told``:
+    ``--truth none``, summarised as without truth."""
     from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError
     from slamobs.pipeline.evaluation.run_dir import has_truth, run_meta, summarise_run
 
     try:
-        if unusable is None and has_truth(run_meta(run_dir)):
+        if unusable is None and not told and has_truth(run_meta(run_dir)):
             return True
         with Progress(quiet) as progress, dataset_report(run_dir):
             progress("report: drawing the run's figures (no truth: no error report)")
@@ -173,6 +178,8 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None 
         click.echo(
             f"truth        unusable ({unusable}): the run's figures and summary only"
             if unusable
+            else "truth        none (--truth none): the run's figures and summary only"
+            if told
             else "truth        none: the run's figures and summary only (give --truth for the error report)"
         )
         extent = " x ".join(f"{v:.3g}" for v in info.get("extent_m", []))

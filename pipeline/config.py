@@ -406,16 +406,23 @@ def with_observer(config: RunConfig, name: str | None, option: str = "--observer
     return replace(config, observer=name)
 
 
+#: ``--truth none``: no trajectory truth, none detected either (a run as on a log without one)
+NO_TRUTH = "none"
+
+
 def with_truth(config: RunConfig, truth: str | None) -> RunConfig:
     """``config`` with its truth given in the one grammar (``readers.parse_truth``; None: unchanged): a topic or
     TF edge of the log becomes ``topics.truth``, a trajectory file or another log's ``LOG:TOPIC``
-    ``evaluation.truth_file`` (read on its own stamps, and again by ``slamobs report``)."""
+    ``evaluation.truth_file`` (read on its own stamps, and again by ``slamobs report``); ``NO_TRUTH``: none, the
+    config's and a detected one dropped (``topics.truth`` empty: the role unused)."""
     from slamobs.pipeline.readers import parse_truth
 
     if not truth:
         return config
-    spec = parse_truth(truth)
     topics = {k: v for k, v in config.topics.items() if k != "truth"}
+    if truth.strip() == NO_TRUTH:
+        return replace(config, topics={**topics, "truth": ""}).with_section("evaluation", truth_file=None)
+    spec = parse_truth(truth)
     if spec.kind == "file" or spec.log is not None:
         return replace(config, topics=topics).with_section("evaluation", truth_file=str(truth))
     return replace(config, topics={**topics, "truth": spec.name}).with_section("evaluation", truth_file=None)

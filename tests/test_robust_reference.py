@@ -511,6 +511,61 @@ def test_an_angular_velocity_in_degrees_or_of_the_wrong_sign_is_named():
         assert len(said) == 1 and what in said[0], (factor, said)
 
 
+def test_info_and_the_run_say_the_same_misread_sentences():
+    """``info --noise`` (``note(None, ...)``) says each sentence the run says, without the estimator's name and what
+    the estimate used: one source for both (session 18; info cut the run's sentences before)."""
+    from slamobs.pipeline.observers import time_offset
+
+    offset = {
+        "pairs": 321,
+        "applied": True,
+        "estimate_s": 0.0421,
+        "sigma_s": 0.003,
+        "gyro_misreads": {"with its angular velocity's sign flipped": 9.0},
+        "extrinsic_turn": {"gain": 12.0, "rotvec_deg": [0.0, 180.0, 0.0]},  # not named: the gyro is
+        "velocity_scale": {"scale": [1000.0, 1.0, None], "sigma": [1.0, 0.1, None]},
+    }
+    gyro = (
+        "the detections fit the odometry 9x better with its angular velocity's sign flipped (321 detection pairs, "
+        "trimmed mean squared residual): check the gyro's unit and axes, or whether the detections are mirrored (an "
+        "axis of their frame flipped: a left-handed camera extrinsic, a bearing of the wrong sign), which the "
+        "detections cannot tell from it"
+    )
+    (velocity,) = time_offset.velocity_misread(offset["velocity_scale"])
+    velocity = (
+        f"the detections say the body moved {velocity} (321 detection pairs, the odometry's bias fitted with it): "
+        "check the velocity's unit and axes, and the detections' (their unit, and their frame's extrinsic: a camera "
+        "turned or given as the inverse transform reads this way)"
+    )
+    assert time_offset.note(None, offset) == [f"warning: {gyro}", f"warning: {velocity}"]
+    assert time_offset.note("riekf", offset) == [
+        "riekf: detection stamps moved by +0.0421 s (± 0.003) onto the velocity clock, estimated from the data (321 "
+        "detection pairs; docs/observers.md, Time offset): applied",
+        f"warning: riekf: {gyro}; the estimate used it as read",
+        f"warning: riekf: {velocity}; the estimate used them as read",
+    ]
+    turned = {**offset, "gyro_misreads": {}, "velocity_scale": None, "applied": False}
+    turn = (
+        "the detections fit the odometry 12x better turned by 180 deg about the body's y (321 detection pairs, "
+        "trimmed mean squared residual): check the camera's extrinsic (turned about one of its axes, or given as the "
+        "inverse transform)"
+    )
+    assert time_offset.note(None, turned) == [f"warning: {turn}"]
+    assert time_offset.note("batch", turned) == [f"warning: batch: {turn}; the estimate used it as read"]
+
+
+def test_a_log_of_too_few_detection_pairs_has_no_misread_note():
+    # riekf on sample_logs/figure8.mcap --end 1 ended in a traceback (ValueError from zip): the offset's estimate
+    # returns before its checks on fewer than MIN_PAIRS pairs, and the note read their absence as three empty axes
+    from slamobs.pipeline.observers import time_offset
+
+    stream = align(expected_streams(simulate("figure8", seed=2, duration=1.0)))
+    offset = time_offset.estimate(stream)
+    assert offset["pairs"] < time_offset.MIN_PAIRS and "velocity_scale" not in offset
+    assert time_offset.note("riekf", offset) == [] and time_offset.note(None, offset) == []
+    assert not time_offset.misread(offset)
+
+
 def test_landmark_jumps_after_a_misread_velocity_are_not_split(tmp_path):
     """The odometry's twist given in the truth's world frame (generated figure 8, seed 5, 40 s): riekf loses its
     pose (APE 1.85 m), the detection pairs name the velocity's scale, and landmarks seen before and after the loss

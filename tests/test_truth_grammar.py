@@ -170,3 +170,18 @@ def test_a_truth_that_names_nothing_is_one_line(logs, tmp_path, text, says):
     assert len(errors) == 1 and says in errors[0], res.output
     assert "a truth is a topic of the log" in errors[0]
     assert not (tmp_path / "out").exists()
+
+
+def test_truth_none_runs_and_reports_without_truth(logs, run_dirs, tmp_path):
+    # session 17: `--truth none` read as a topic named "none" (exit 2); a user with a truth in the log had no way to
+    # run as without it. Now no truth, not even the one the log's /mocap/pose would give by detection.
+    res = invoke("run", logs["log"], "-o", tmp_path / "run", "--truth", "none", "--config", logs["config"])
+    assert res.exit_code == 0, res.output
+    assert "APE" not in res.output and not (tmp_path / "run" / "report.json").exists(), res.output
+    assert "truth" not in json.loads((tmp_path / "run" / "run.json").read_text())["input"]["topics"]
+    res = invoke("compare", logs["log"], "-o", tmp_path / "cmp", "--observers", "fast-adaptation", "--truth", "none")
+    assert res.exit_code == 0, res.output
+    assert not (tmp_path / "cmp" / "fast-adaptation" / "report.json").exists()
+    res = invoke("report", run_dirs["topic"], "--truth", "none")  # a run with truth, summarised without it
+    assert res.exit_code == 0 and res.output.startswith("truth        none (--truth none)"), res.output
+    assert "# Run summary (no ground truth)" in (run_dirs["topic"] / "report.md").read_text()

@@ -640,22 +640,19 @@ def shifted(stream, offset: dict):
 def misread(offset: dict | None) -> bool:
     """Whether the detection pairs named a misread input (a :func:`note` warning: the gyro, the camera extrinsic or
     a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose."""
-    return offset is not None and any(n.startswith("warning: ") for n in note(None, offset))
+    return offset is not None and bool(_misreads(offset))
 
 
-def note(name: str | None, offset: dict) -> list[str]:
-    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
-    an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
-    (``extrinsic_turn``) and a velocity axis they say is scaled (``velocity_scale``); ``name`` None: the warnings
-    alone, as ``slamobs info --noise`` says them before any estimator runs."""
-    if name is None:
-        said = note("info", {**offset, "applied": False})
-        return [n.replace("warning: info: ", "warning: ").rsplit("; the estimate used", 1)[0] for n in said]
-    notes = [
-        f"warning: {name}: the detections fit the odometry {gain:.3g}x better {what} "
-        f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the gyro's unit and axes"
-        + (MIRROR_ADVICE if GYRO_MISREADS[what] < 0 else "")
-        + "; the estimate used it as read"
+def _misreads(offset: dict) -> list[tuple[str, str]]:
+    """What the detection pairs say is misread, one ``(sentence, what the estimate used)`` each: the sentence
+    without an estimator's name or the run's tail, which :func:`note` adds ("it" / "them" as read)."""
+    found = [
+        (
+            f"the detections fit the odometry {gain:.3g}x better {what} ({offset['pairs']} detection pairs, trimmed "
+            "mean squared residual): check the gyro's unit and axes"
+            + (MIRROR_ADVICE if GYRO_MISREADS[what] < 0 else ""),
+            "it",
+        )
         for what, gain in (offset.get("gyro_misreads") or {}).items()
         if gain >= GYRO_MISREAD_GAIN
     ]
@@ -663,20 +660,37 @@ def note(name: str | None, offset: dict) -> list[str]:
     # only where the gyro reads right (a gyro of the wrong sign, or mirrored detections, fit as well turned by 180
     # deg about a horizontal axis: 57-138x on generated figure 8s and ground robots; in deg/s the detections fit
     # turned 2.3-7.1x better), and before the velocity's scale, which a turned camera also upsets
-    if turn["gain"] >= EXTRINSIC_TURN_GAIN and not notes:
-        notes.append(
-            f"warning: {name}: the detections fit the odometry {turn['gain']:.3g}x better turned "
-            f"{_turn_phrase(turn['rotvec_deg'])} ({offset['pairs']} detection pairs, trimmed mean squared residual): "
-            "check the camera's extrinsic (turned about one of its axes, or given as the inverse transform); the "
-            "estimate used it as read"
+    if turn["gain"] >= EXTRINSIC_TURN_GAIN and not found:
+        found.append(
+            (
+                f"the detections fit the odometry {turn['gain']:.3g}x better turned {_turn_phrase(turn['rotvec_deg'])} "
+                f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the camera's extrinsic "
+                "(turned about one of its axes, or given as the inverse transform)",
+                "it",
+            )
         )
-    notes += [
-        f"warning: {name}: the detections say the body moved {what} ({offset['pairs']} detection pairs, the "
-        "odometry's bias fitted with it): check the velocity's unit and axes, and the detections' (their unit, and "
-        "their frame's extrinsic: a camera turned or given as the inverse transform reads this way); the estimate "
-        "used them as read"
-        for what in velocity_misread(offset.get("velocity_scale") or {"scale": [], "sigma": []})
+    found += [
+        (
+            f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
+            "with it): check the velocity's unit and axes, and the detections' (their unit, and their frame's "
+            "extrinsic: a camera turned or given as the inverse transform reads this way)",
+            "them",
+        )
+        # none on a log of too few pairs (:func:`estimate` returns before its checks)
+        for what in (velocity_misread(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
     ]
+    return found
+
+
+def note(name: str | None, offset: dict) -> list[str]:
+    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
+    an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
+    (``extrinsic_turn``) and a velocity axis they say is scaled (``velocity_scale``), each with what the estimate
+    did about it; ``name`` None: the warnings alone, as ``slamobs info --noise`` says them before any estimator
+    runs (the same sentences, without an estimator's name and what it used)."""
+    if name is None:
+        return [f"warning: {sentence}" for sentence, _ in _misreads(offset)]
+    notes = [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
     if not offset["applied"]:
         return notes
     return [
