@@ -18,7 +18,7 @@ import copy
 import platform
 import time
 from dataclasses import dataclass, field, replace
-from functools import partial
+from functools import cache, partial
 from pathlib import Path
 from typing import Callable
 
@@ -623,6 +623,7 @@ def run_prepared(
     with atomic_directory(out_dir, force=force, inputs=run_inputs(log, config)) as tmp:
         # the report's tables handed over as written, not read back from the files (when there is truth)
         tables = {} if streams.truth is not None and len(streams.truth) else None
+        found_offset = offset_beside(prepared, config) if tables is not None else None
         timings.update(
             estimate_splitting(
                 prepared, config, est, tmp, metadata, notes, release=release, progress=progress, handover=tables
@@ -630,7 +631,16 @@ def run_prepared(
         )
         native.return_freed_memory()  # what the estimator freed, before the report allocates its own
         report, report_error = evaluate_run(
-            tmp, streams, config, notes, metadata, timings, progress, plot_workers, tables=tables
+            tmp,
+            streams,
+            config,
+            notes,
+            metadata,
+            timings,
+            progress,
+            plot_workers,
+            tables=tables,
+            found_offset=found_offset,
         )
         export_run(tmp, config, metadata, report, timings, progress)
         note_compilation(prepared, notes, metadata)
@@ -814,11 +824,13 @@ def evaluate_run(
     plot_workers=None,
     *,
     tables: dict | None = None,
+    found_offset=None,
 ) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
     alone where the log has landmark truth only; (report, why there is none). Every run draws its own figures
     (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them.
-    ``tables`` may hold the run's tables as written (else they are read from ``out``)."""
+    ``tables`` may hold the run's tables as written (else they are read from ``out``); ``found_offset`` is
+    :func:`offset_beside`'s (else the report searches the clock offset against the estimate)."""
     report = report_error = None
     t = time.perf_counter()
     had_truth = streams.truth is not None and len(streams.truth)
@@ -826,7 +838,9 @@ def evaluate_run(
     if had_truth:
         progress("error report")
         try:
-            report, report_error = _evaluate(out, streams, config, notes, metadata, plot_workers, tables or {})
+            report, report_error = _evaluate(
+                out, streams, config, notes, metadata, plot_workers, tables or {}, found_offset
+            )
         except TruthUnusable as err:
             report_error, unusable = one_line(err), True
         timings["report_s"] = time.perf_counter() - t
@@ -996,6 +1010,33 @@ def window_truth(truth, window: TimeWindow | None, config: RunConfig):
     return window.poses(truth, truth.rec_ns if config.align_time_source == "record" else truth.t_ns)
 
 
+def offset_beside(prepared: PreparedLog, config: RunConfig):
+    """The report's clock-offset search, the truth against the log's own velocity samples
+    (:func:`.evaluation.trajectory_evaluation.log_time_offset`: it needs no estimate), started on a thread beside the
+    observer, whose kernel leaves the second core idle but for the writer (docs/benchmarks.md, session 18); returns
+    the function that gives it (waits for it). A log of more samples than ``OFFSET_BESIDE_SAMPLES`` (its buffers
+    would add to the run's peak), or no room for the thread, has it searched when the report asks."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import OFFSET_BESIDE_SAMPLES, Pending, log_time_offset
+
+    aligned, truth = prepared.aligned, truth_on_run_clock(prepared.streams, config)
+    search = cache(  # the report asks twice: to check it, and for run.json's record
+        partial(
+            log_time_offset,
+            truth,
+            aligned.vel_t_ns,
+            aligned.omega,
+            aligned.velocity,
+            truth_rotation_xyzw=config.frames.truth_rotation,
+        )
+    )
+    if aligned.vel_t_ns.shape[0] + len(truth) > OFFSET_BESIDE_SAMPLES:
+        return search
+    try:
+        return Pending(search).result
+    except MemoryError:
+        return search
+
+
 def truth_on_run_clock(streams: LogStreams, config: RunConfig):
     """The ground truth on the clock the run used (None without truth)."""
     truth = streams.truth
@@ -1012,6 +1053,7 @@ def _evaluate(
     metadata: dict,
     plot_workers=None,
     tables: dict | None = None,
+    found_offset=None,
 ) -> tuple[dict | None, str | None]:
     """Error report against the log's ground truth, and the reason when there is none.
 
@@ -1026,7 +1068,7 @@ def _evaluate(
     from slamobs.pipeline.evaluation.run_dir import gravity_aligned
     from slamobs.pipeline.evaluation.figure_jobs import BIASES_PNG, RUN_FIGURES, chosen, drawn, run_figure_jobs
     from slamobs.pipeline.evaluation.plot_worker import LocalFigures
-    from slamobs.pipeline.evaluation.trajectory_evaluation import report_pose_column
+    from slamobs.pipeline.evaluation.trajectory_evaluation import offset_record, report_pose_column
     from slamobs.pipeline.writers import read_columns
 
     wanted = {"poses": report_pose_column}
@@ -1077,7 +1119,10 @@ def _evaluate(
             drawn_biases=drawn_biases,
             figures=figures,
             aligned=lambda ev: rows.setdefault("sink", aligned_rows(out, ev, landmarks, metadata)),
+            found_offset=found_offset,
         )
+        if found_offset is not None:  # searched against the log: `slamobs report` checks this one again
+            metadata["truth_clock_offset"] = offset_record(found_offset())
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock

@@ -744,6 +744,66 @@ def test_time_offset_estimate_both_signs():
     assert got.signal == "angular rate |ω|" and got.offset_s == pytest.approx(0.061, abs=0.002)
 
 
+def _turning_log(offset_ns: int):
+    """A robot at 1 m/s whose turn rate varies, as a log's velocity samples (100 Hz, body frame) and a 50 Hz truth
+    on a clock ``offset_ns`` ahead of the log's."""
+    t = np.arange(6000, dtype=np.int64) * 10_000_000 + T0_NS
+    s = (t - T0_NS) / 1e9
+    yaw = np.sin(0.7 * s) + 0.3 * np.sin(2.1 * s)
+    rate = 0.7 * np.cos(0.7 * s) + 0.63 * np.cos(2.1 * s)
+    omega = np.column_stack([0.02 * np.ones_like(s), np.zeros_like(s), rate])  # a small gyro bias on x
+    velocity = np.column_stack([np.ones_like(s), np.zeros_like(s), np.zeros_like(s)])
+    step = np.column_stack([np.cos(yaw), np.sin(yaw), np.zeros_like(s)]) * 0.01
+    pos = np.cumsum(step, axis=0)
+    q = rots_to_quats(np.array([so3_exp(np.array([0.0, 0.0, a])) for a in yaw]))
+    truth = PoseStream("/mocap", "world", "base", t[::2] + offset_ns, t[::2] + offset_ns, pos[::2], q[::2])
+    return t, omega, velocity, truth, (pos, q)
+
+
+def test_a_runs_clock_offset_is_the_truth_against_the_logs_velocity_samples():
+    """A run searches the truth's clock offset against its log's own velocity samples (before the estimate exists):
+    the truth's 61 ms lead is found from |ω| whatever the estimate does, here an estimate 40 ms behind the motion
+    (an observer's filtering delay), which a search against the estimate takes for 21 ms."""
+    from slamobs.pipeline.evaluation.sync import pose_steps, time_offset_of_steps
+    from slamobs.pipeline.evaluation.trajectory_evaluation import log_time_offset, offset_record, recorded_offset
+
+    t, omega, velocity, truth, (pos, q) = _turning_log(61_000_000)
+    found = log_time_offset(truth, t, omega, velocity)
+    assert found.signal == "angular rate |ω|" and found.offset_s == pytest.approx(0.061, abs=0.002)
+    assert found.peak_correlation > 0.9 and found.reliable
+    lagging = np.searchsorted(t, t - 40_000_000).clip(0)  # the pose at t is the motion's of t - 40 ms
+    est = estimate_time_offset(truth.t_ns, truth.position, truth.quat_xyzw, t, pos[lagging], q[lagging])
+    assert est.offset_s == pytest.approx(0.021, abs=0.003)
+    # one search, two inputs: the estimate's pose steps give estimate_time_offset's result to the bit
+    same = time_offset_of_steps(truth.t_ns, truth.position, truth.quat_xyzw, t, pose_steps(pos[lagging], q[lagging]))
+    assert same == est
+    assert recorded_offset(json.loads(json.dumps(offset_record(found)))) == found  # run.json keeps its bits
+    assert recorded_offset(None) is None and offset_record(None) is None
+
+
+def test_a_report_checks_the_offset_it_is_handed():
+    """The report given a run's offset (``found_offset``) checks that one against the estimate (APE with and
+    without it) instead of searching the estimate, and says what it was searched against."""
+    t, omega, velocity, truth, (pos, q) = _turning_log(61_000_000)
+    from slamobs.pipeline.evaluation.report import evaluate_report
+    from slamobs.pipeline.evaluation.trajectory_evaluation import log_time_offset
+
+    found = log_time_offset(truth, t, omega, velocity)
+    poses = pd.DataFrame({"t_ns": t[::2]})
+    for i, k in enumerate("xyz"):
+        poses[k] = pos[::2, i]
+    for i, k in enumerate(("qx", "qy", "qz", "qw")):
+        poses[k] = q[::2, i]
+    asked = []
+    report, _ = evaluate_report(poses, None, None, truth, found_offset=lambda: asked.append(1) or found)
+    off = report["time_offset"]
+    assert asked and off["estimated_s"] == found.offset_s and off["searched_against"] == "velocity samples"
+    assert off["ape_rmse_with_m"] < off["ape_rmse_without_m"] and off["reliable"]
+    assert "velocity samples" in off["method"] and "velocity samples" in render_markdown(report)
+    plain, _ = evaluate_report(poses, None, None, truth)
+    assert plain["time_offset"]["searched_against"] == "estimate"
+
+
 def test_a_clock_offset_the_trajectories_contradict_is_not_reliable(monkeypatch):
     """The correlation peak is checked against the trajectories: the true offset lowers the aligned APE and stays
     reliable; a wrong peak (an observer's correction plateau put riekf's at -0.86 s on a simulated loop, correlation

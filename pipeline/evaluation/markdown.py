@@ -158,15 +158,18 @@ def _md_relative(report: dict[str, Any]) -> list[str]:
     if not rpe_s and not drift:
         lines += ["Path too short for RPE and drift.", ""]
     lines += _md_segment_errors(report.get("segment_errors"))
+    of_log = off.get("searched_against") == "velocity samples"
+    caveat = LOG_CAVEAT if of_log else LAG_CAVEAT
     est = (
         "not estimated"
         if off["estimated_s"] is None
         else (
             f"{off['estimated_s']:.4f} s (peak correlation {off['peak_correlation']:.2f}, "
-            f"{'reliable' + LAG_CAVEAT if off['reliable'] else 'NOT reliable' + offset_doubts(off)})"
+            f"{'reliable' + caveat if off['reliable'] else 'NOT reliable' + offset_doubts(off)})"
         )
     )
-    lines += [f"Clock offset of the estimate: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
+    whose = "the log (its velocity samples) against the truth" if of_log else "the estimate"
+    lines += [f"Clock offset of {whose}: {est}; applied: {off['applied_s']:g} s ({off['applied_from']}).", ""]
     return lines
 
 
@@ -197,6 +200,11 @@ def _md_segment_errors(seg: dict[str, Any] | None) -> list[str]:
 LAG_CAVEAT = (
     ": the estimate matches the truth best when shifted by this much, from the clocks or from the "
     "estimate lagging behind the motion; the trajectories cannot tell the two apart"
+)
+#: A run's offset is searched against its log's own velocity samples, on whose clock the estimate's stamps are.
+LOG_CAVEAT = (
+    ": the log's velocity samples match the truth's motion best when shifted by this much, whatever the estimate "
+    "does; the estimate's stamps are on the log's clock"
 )
 
 

@@ -118,16 +118,19 @@ def evaluate_report(
     bias_truth: dict[str, np.ndarray] | None = None,
     *,
     options: ReportOptions | None = None,
+    found_offset: Callable[[], Any] | None = None,
     **overrides: Any,
 ) -> tuple[dict[str, Any], TrajectoryEvaluation]:
     """:func:`build_report` and the trajectory evaluation behind it (hand it to :func:`write_report`, which
-    otherwise associates and aligns the trajectories again: seconds on a long log)."""
+    otherwise associates and aligns the trajectories again: seconds on a long log); ``found_offset`` as for
+    :func:`evaluate_tables`."""
     return evaluate_tables(
         {"poses": poses, "biases": biases, "landmarks": landmarks},
         truth,
         landmark_truth,
         bias_truth,
         options=options,
+        found_offset=found_offset,
         **overrides,
     )
 
@@ -142,6 +145,7 @@ def evaluate_tables(
     figures: Callable[[list], None] | None = None,
     drawn_biases: Table | None = None,
     aligned: Callable[[TrajectoryEvaluation], None] | None = None,
+    found_offset: Callable[[], Any] | None = None,
     **overrides: Any,
 ) -> tuple[dict[str, Any], TrajectoryEvaluation]:
     """:func:`evaluate_report` of the ``poses``, ``biases`` and ``landmarks`` tables in ``tables``, each removed
@@ -152,7 +156,9 @@ def evaluate_tables(
     their sections are known (the bias figure, drawn from ``drawn_biases``, first), so that helper processes
     draw them while the rest of the report is computed. ``aligned(ev)`` is called once this thread's sections are
     done, before it waits for the work beside it (the clock-offset search, the segment errors): a run writes the
-    aligned tables' rows there, where they would otherwise follow that wait with the second core idle."""
+    aligned tables' rows there, where they would otherwise follow that wait with the second core idle.
+    ``found_offset()`` gives the clock offset searched before (a run's, against its log's velocity samples:
+    :func:`.trajectory_evaluation.log_time_offset`), checked here instead of searching the estimate."""
     options = replace(options or ReportOptions(), **overrides)
     truth, invalid = valid_truth(truth)
     biases = BiasSection(bias_truth, options.bias_window_fraction)
@@ -172,7 +178,9 @@ def evaluate_tables(
     else:
         on_pairs = None
     # ``ev.estimate`` holds all; judged: a truth too short to judge the run by is TruthUnusable
-    ev = evaluate_trajectory(poses, truth, options, checked=True, judged=True, on_pairs=on_pairs)
+    ev = evaluate_trajectory(
+        poses, truth, options, checked=True, judged=True, on_pairs=on_pairs, found_offset=found_offset
+    )
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)

@@ -14,6 +14,7 @@ import os
 import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -25,7 +26,7 @@ from slamobs.pipeline.errors import InputError, OutputError, TruthUnusable
 from slamobs.pipeline.lifetime import owner_marker
 from slamobs.pipeline.paths import check_utf8, read_manifest, temporary_prefix
 from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
-from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
+from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, recorded_offset
 from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import NEW, OWNER, remove_stale_temporaries, update_manifest, write_json
 
@@ -316,9 +317,20 @@ def report_run(
     if run.meta.get("time_window"):  # the run used part of its log: so does its truth
         ti = replace(ti, stream=TimeWindow.described(run.meta["time_window"]).poses(ti.stream))
     options = options or options_for_run(run.meta, **overrides)
+    # the run's own truth: the clock offset the run searched against its log's velocity samples, checked again
+    found = None
+    if truth is None and "truth_clock_offset" in run.meta:
+        found = partial(recorded_offset, run.meta["truth_clock_offset"])
     try:
         report, evaluation = evaluate_report(
-            run.poses, run.biases, run.landmarks, ti.stream, ti.landmark_truth, ti.bias_truth, options=options
+            run.poses,
+            run.biases,
+            run.landmarks,
+            ti.stream,
+            ti.landmark_truth,
+            ti.bias_truth,
+            options=options,
+            found_offset=found,
         )
     except TruthUnusable:
         raise  # the caller may report as without truth, as ``run`` did

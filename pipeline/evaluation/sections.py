@@ -406,6 +406,7 @@ class TimeOffsetSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         off = ev.time_offset
+        against = ev.offset_against
         self.result = {
             "estimated_s": None if off is None else off.offset_s,
             "peak_correlation": None if off is None else off.peak_correlation,
@@ -417,19 +418,39 @@ class TimeOffsetSection(Section):
             "grid_step_s": None if off is None else off.grid_step_s,
             "applied_s": float(ev.applied_offset_s),
             "applied_from": "estimate" if self.options.t_offset_s == "auto" else "option",
-            "method": (
-                "Pearson cross-correlation of a motion signal that the unknown frame alignment does not change: "
-                "the angular rate magnitude |ω|, or the speed |v| when it varies clearly more (signal), of estimate "
-                "and truth, resampled on one grid as mean rates per grid step; best lag within ±search_window_s, "
-                "refined off the grid by golden-section search. Sign as evo --t_offset: t_estimate + offset is on "
-                "the truth clock. Reliable: peak correlation >= 0.5, not on the window edge, and an offset more than "
-                "one grid step from zero must not make the translation APE rmse larger (ape_rmse_with_m, with it "
-                "applied; ape_rmse_without_m, without; same association and alignment). A lag of the estimate "
-                "behind the motion (an observer's filtering delay) shows as the same offset: a reliable offset is "
-                "where the estimate matches the truth best, not proof that the clocks differ. Applied to the "
-                "association only when asked (t_offset auto)"
-            ),
+            "searched_against": against,
+            "method": self.method(against),
         }
+
+    @staticmethod
+    def method(against: str) -> str:
+        """The method text for an offset searched against the estimate or the log's velocity samples."""
+        if against == "estimate":
+            other = "of estimate and truth"
+            lag = (
+                "A lag of the estimate behind the motion (an observer's filtering delay) shows as the same offset: "
+                "a reliable offset is where the estimate matches the truth best, not proof that the clocks differ"
+            )
+        else:
+            other = (
+                "of the truth and of the log's own velocity samples (the trapezoid rule on their norms; the "
+                "estimate's stamps are on their clock)"
+            )
+            lag = (
+                "It is the offset between the truth's clock and the log's: an estimate lagging the motion (an "
+                "observer's filtering delay) or lost does not move it, and the APE with it applied says whether the "
+                "estimate agrees"
+            )
+        return (
+            "Pearson cross-correlation of a motion signal that the unknown frame alignment does not change: "
+            f"the angular rate magnitude |ω|, or the speed |v| when it varies clearly more (signal), {other}, "
+            "resampled on one grid as mean rates per grid step; best lag within ±search_window_s, "
+            "refined off the grid by golden-section search. Sign as evo --t_offset: t_estimate + offset is on "
+            "the truth clock. Reliable: peak correlation >= 0.5, not on the window edge, and an offset more than "
+            "one grid step from zero must not make the translation APE rmse larger (ape_rmse_with_m, with it "
+            f"applied; ape_rmse_without_m, without; same association and alignment). {lag}. Applied to the "
+            "association only when asked (t_offset auto)"
+        )
 
 
 #: A map whose error after the trajectory's alignment is this many times its error after an alignment of its own (and

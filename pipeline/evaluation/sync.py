@@ -255,11 +255,28 @@ def _step_lengths(pos: np.ndarray) -> np.ndarray:
     return metrics.row_norms(p[1:], p[:-1])
 
 
-def _signals(t_ns, pos, quat, grid_ns, step_ns):
-    """Angular rate and speed on the grid, and the step angles and lengths they came from."""
-    ang = _step_angles(quat)
-    dist = _step_lengths(pos)
-    return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns), (ang, dist)
+def pose_steps(pos: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation angle and the distance from each pose of a trajectory to the next (the motion increments the
+    clock-offset search resamples as rates)."""
+    return _step_angles(quat), _step_lengths(pos)
+
+
+def velocity_steps(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation angle and the distance from each velocity sample to the next, by the trapezoid rule on
+    ``|ω|`` and ``|v|`` (body rates: their norms are what a trajectory integrating them rotates and moves by):
+    :func:`estimate_time_offset`'s increments of a log's own velocity samples instead of an estimate's poses."""
+    dt = np.diff(np.asarray(t_ns, dtype=np.int64)) / NS_PER_S
+    rates = []
+    for x in (omega, velocity):
+        norm = np.sqrt(np.einsum("ij,ij->i", np.asarray(x, np.float64), np.asarray(x, np.float64)))
+        rates.append(0.5 * (norm[:-1] + norm[1:]) * dt)
+    return rates[0], rates[1]
+
+
+def _signals(t_ns, steps, grid_ns, step_ns):
+    """Angular rate and speed on the grid from the step angles and lengths ``steps``."""
+    ang, dist = steps
+    return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns)
 
 
 def _variation(x: np.ndarray) -> float:
@@ -355,6 +372,27 @@ def estimate_time_offset(
     the correlation ignores) is used instead when it varies clearly more than the angular rate.
     Returns None when the streams do not overlap enough to tell.
     """
+    te = _as_stamps(t_est_ns, "t_est_ns")
+    if te.shape[0] < 4 or np.any(np.diff(te) <= 0):
+        return None
+    steps = pose_steps(est_pos, est_quat_xyzw)
+    return time_offset_of_steps(t_ref_ns, ref_pos, ref_quat_xyzw, te, steps, max_offset_s=max_offset_s, step_s=step_s)
+
+
+def time_offset_of_steps(
+    t_ref_ns: np.ndarray,
+    ref_pos: np.ndarray,
+    ref_quat_xyzw: np.ndarray,
+    t_est_ns: np.ndarray,
+    est_steps: tuple[np.ndarray, np.ndarray],
+    *,
+    max_offset_s: float = 1.0,
+    step_s: float | None = None,
+) -> TimeOffset | None:
+    """:func:`estimate_time_offset`'s search, the other side given by its motion increments ``est_steps`` (the
+    rotation angle and the distance from each stamp of ``t_est_ns`` to the next): :func:`pose_steps` of an
+    estimate's poses, or :func:`velocity_steps` of a log's velocity samples (a run's clock against the truth's,
+    known before the estimate is)."""
     tr, te = _as_stamps(t_ref_ns, "t_ref_ns"), _as_stamps(t_est_ns, "t_est_ns")
     if tr.shape[0] < 4 or te.shape[0] < 4 or np.any(np.diff(tr) <= 0) or np.any(np.diff(te) <= 0):
         return None
@@ -362,8 +400,8 @@ def estimate_time_offset(
     if found is None:
         return None
     grid, step_ns, max_lag = found
-    r_ang, r_spd, _ = _signals(tr, ref_pos, ref_quat_xyzw, grid, step_ns)
-    e_ang, e_spd, e_steps = _signals(te, est_pos, est_quat_xyzw, grid, step_ns)
+    r_ang, r_spd = _signals(tr, pose_steps(ref_pos, ref_quat_xyzw), grid, step_ns)
+    e_ang, e_spd = _signals(te, est_steps, grid, step_ns)
     best = _best_grid_lag((r_ang, r_spd), (e_ang, e_spd), max_lag)
     if best is None:
         return None
@@ -371,7 +409,7 @@ def estimate_time_offset(
     # c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
-    corr = _offset_correlation((r_ang, r_spd)[idx], te, e_steps[idx], grid, step_ns)
+    corr = _offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns)
     tau = _golden_section_max(corr, (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns, 1e-4 * NS_PER_S)  # 0.1 ms
     peak = max(corr(tau), float(c[k]))
     offset = tau / NS_PER_S

@@ -8,6 +8,7 @@ seconds), then the metric on the aligned estimate.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -459,14 +460,20 @@ def checked_time_offset(
     max_offset_s: float = 1.0,
     *,
     without: bool = True,
+    found: Callable[[], TimeOffset | None] | None = None,
 ) -> TimeOffset | None:
     """:func:`~.sync.estimate_time_offset` of two time-sorted pose streams, checked against the trajectories:
     the translation APE rmse (association rule ``sync``, alignment ``align``) with the offset applied and
     without it, so that a correlation peak which makes the error larger is not called reliable. ``without=False``
-    leaves ``rmse_without_m`` None for a caller that computes that APE anyway and fills it in (the report)."""
-    off = estimate_time_offset(
-        ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw, max_offset_s=max_offset_s
-    )
+    leaves ``rmse_without_m`` None for a caller that computes that APE anyway and fills it in (the report).
+    ``found()``: the offset searched another way (a run's: the truth against the log's own velocity samples,
+    :func:`.trajectory_evaluation.log_time_offset`), checked here the same way instead of searching the estimate."""
+    if found is None:
+        off = estimate_time_offset(
+            ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw, max_offset_s=max_offset_s
+        )
+    else:
+        off = found()
     if off is None:
         return None
 

@@ -34,6 +34,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     checked_time_offset,
     synchronize,
 )
+from slamobs.pipeline.evaluation.sync import time_offset_of_steps, velocity_steps
 from slamobs.pipeline.errors import TruthUnusable
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
@@ -152,6 +153,8 @@ class TrajectoryEvaluation:
     covariance: PairedCovariance | None = None
     #: the estimate's roll and pitch are observed (IMU directions, gravity frame: ``ReportOptions.gravity_aligned``)
     gravity_aligned: bool = False
+    #: what the clock-offset search correlated the truth with: the estimate, or the log's velocity samples (a run)
+    offset_against: str = "estimate"
 
     @cached_property
     def planar(self) -> bool:
@@ -211,27 +214,28 @@ def evaluate_trajectory(
     checked: bool = False,
     judged: bool = False,
     on_pairs: Callable[[Paired, PoseStream], None] | None = None,
+    found_offset: Callable[[], TimeOffset | None] | None = None,
 ) -> TrajectoryEvaluation:
     """Estimate the clock offset, associate, align and compute the APE vectors. ``checked``: ``truth`` is what
     :func:`valid_truth` returned (not looked through again). ``judged``: the run is judged by this truth (the
     report), which must cover enough of it (:func:`check_truth_coverage`, before anything else is computed).
     ``on_pairs(paired, truth)`` is called as soon as the trajectories are paired (the truth in time order), before
-    the alignment and the APE."""
+    the alignment and the APE. ``found_offset()`` gives the clock offset searched another way (a run's:
+    :func:`log_time_offset`), checked against the estimate instead of searching it."""
     if not checked:
         truth, _ = valid_truth(truth)
     if len(truth) == 0:
         raise ValueError("ground-truth stream is empty: nothing to compare the estimate with")
-    if options.truth_rotation_xyzw is not None:
-        truth = turned_truth(truth, options.truth_rotation_xyzw)
     est = estimate_stream(poses)
-    truth_sorted = sorted_stream(truth)
+    truth_sorted = sorted_stream(turned_truth(truth, options.truth_rotation_xyzw))
     offset = None
     search = (truth_sorted, est, SyncOptions(options.t_max_diff_s, 0.0, "nearest"), AlignOptions(options.align))
     beside = len(est) + len(truth_sorted) <= OFFSET_BESIDE_SAMPLES
+    max_s = options.max_time_offset_s
     if options.t_offset_s == "auto" or (estimate_offset and not beside):  # first: needed, or too big to overlap
-        offset = checked_time_offset(*search, max_offset_s=options.max_time_offset_s)
-    elif estimate_offset:  # a diagnostic only: searched on a thread (array code, mostly without the GIL)
-        offset = Pending(checked_time_offset, *search, max_offset_s=options.max_time_offset_s, without=False)
+        offset = checked_time_offset(*search, max_offset_s=max_s, found=found_offset)
+    elif estimate_offset:  # a diagnostic only: searched (or checked) on a thread (array code, mostly without the GIL)
+        offset = Pending(checked_time_offset, *search, max_offset_s=max_s, without=False, found=found_offset)
     if options.t_offset_s == "auto":
         applied = offset.offset_s if offset is not None else 0.0
     else:
@@ -259,6 +263,7 @@ def evaluate_trajectory(
         sync,
         paired_covariance(poses, est, paired),
         options.gravity_aligned,
+        "estimate" if found_offset is None else "velocity samples",
     )
 
 
@@ -468,9 +473,47 @@ def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
     ), int((~ok).sum())
 
 
+def log_time_offset(
+    truth: PoseStream,
+    vel_t_ns: np.ndarray,
+    omega: np.ndarray,
+    velocity: np.ndarray,
+    *,
+    max_offset_s: float = ReportOptions.max_time_offset_s,
+    truth_rotation_xyzw=None,
+) -> TimeOffset | None:
+    """The clock offset of a log against its truth (``truth`` on the run's clock): the truth's angular rate (or
+    speed) correlated with the log's own velocity samples (:func:`.sync.velocity_steps`), which the estimate
+    shares the clock with. Known before the estimate is (a run searches it beside the observer); an estimate
+    that lags the motion (filtering) or is lost does not move it. The truth as the report takes it (valid poses,
+    ``frames.truth_rotation``, time order)."""
+    truth = sorted_stream(turned_truth(valid_truth(truth)[0], truth_rotation_xyzw))
+    if len(truth) == 0:
+        return None
+    steps = velocity_steps(vel_t_ns, omega, velocity)
+    return time_offset_of_steps(truth.t_ns, truth.position, truth.quat_xyzw, vel_t_ns, steps, max_offset_s=max_offset_s)
+
+
+#: The search's own fields of a :class:`.sync.TimeOffset` (not the check against the estimate): what run.json's
+#: ``truth_clock_offset`` records of a run's :func:`log_time_offset`, for ``slamobs report`` to check again.
+SEARCH_FIELDS = ("offset_s", "peak_correlation", "signal", "grid_step_s", "search_window_s", "at_window_edge")
+
+
+def offset_record(off: TimeOffset | None) -> dict | None:
+    """:func:`log_time_offset`'s result as run.json records it (None: the motion told no offset)."""
+    return None if off is None else {k: getattr(off, k) for k in SEARCH_FIELDS}
+
+
+def recorded_offset(record: dict | None) -> TimeOffset | None:
+    """The offset :func:`offset_record` recorded (the same bits: JSON keeps a float's shortest repr)."""
+    return None if record is None else TimeOffset(**{k: record[k] for k in SEARCH_FIELDS})
+
+
 def turned_truth(truth: PoseStream, x_xyzw) -> PoseStream:
     """The truth in the estimate's body convention: each rotation ``R_truth`` becomes ``R_truth Xᵀ`` (positions
-    unchanged), ``X`` the quaternion of ``frames.truth_rotation``."""
+    unchanged), ``X`` the quaternion of ``frames.truth_rotation``; the truth itself without one."""
+    if x_xyzw is None:
+        return truth
     x = quat_to_rot(np.asarray(x_xyzw, dtype=np.float64))
     turned = np.matmul(quats_to_rots(np.ascontiguousarray(truth.quat_xyzw, dtype=np.float64)), x.T)
     return replace(truth, quat_xyzw=rots_to_quats(np.ascontiguousarray(turned)))
