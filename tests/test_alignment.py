@@ -301,3 +301,21 @@ def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
         r"dropped: base_link->camera; set frames.body",
     ):
         align(s)
+
+
+def test_two_tags_that_share_an_id_are_named():
+    # a generated figure 8 with one tag's id given to another tag all along (two tag families with the same id):
+    # 118 repeats within a frame dropped with a plain note, the second tag's other 39 detections taken as the
+    # first's, its landmark gone from the map, and no warning
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    sim = simulate("figure8", seed=5, duration=20.0)
+    assert not [n for n in align(expected_streams(sim)).notes if n.startswith("warning")]
+    det = sim.detections
+    ids = det.ids.copy()
+    ids[ids == 60] = 10
+    notes = align(expected_streams(replace(sim, detections=replace(det, ids=ids)))).notes
+    said = [n for n in notes if "two tags share the id" in n]
+    assert len(said) == 1 and said[0].startswith("warning: ") and " id 10 seen twice" in said[0], notes

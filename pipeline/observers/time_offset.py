@@ -35,6 +35,7 @@ from slamobs.pipeline.lie import (
     integrate_body_twists_at_columns,
     integrate_body_twists_at_rotation_columns,
     se3_exp_into,
+    so3_exps,
     so3_log,
 )
 
@@ -477,6 +478,57 @@ def _turn_phrase(rotvec_deg) -> str:
     return f"by {angle:.0f} deg about the body's {about}"
 
 
+#: A twist in a world frame (not the body's, where ``nav_msgs/Odometry`` gives it in ``child_frame_id``; the reader
+#: turns one in the odometry's own parent frame into the body, not one in another frame) is named when the pairs'
+#: trimmed mean squared residual with the velocity read as a world frame's, turned into the body by the dead-reckoned
+#: heading (one constant turn between the two frames fitted per ``WORLD_TWIST_WINDOW_S``: the heading drifts), is
+#: this many times smaller than as read: generated figure 8 / figure8-wide / ground / loop with the twist in the
+#: truth's world frame 14-84x (riekf APE 1.85 m with only velocity-scale warnings), circle 3.0x; as recorded the
+#: generated logs 0.07-0.86x, MR.CLAM's ten robots 0.92-1.13x, TagSLAM 0.01-1.24x (docs/benchmarks.md, "Silent
+#: wrong results, round 8").
+WORLD_TWIST_GAIN = 4.0
+WORLD_TWIST_WINDOW_S = 20.0
+#: A window's turn is fitted only from at least this many pairs (its pairs are left out of both costs otherwise).
+WORLD_TWIST_MIN_PAIRS = 10
+
+
+def _dead_reckoned_at(c: _Consistency, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dead-reckoned rotations at the times ``t`` (the sample before carried on with its angular velocity) and
+    the velocity integrated without them (the positions it gives as a world frame's, segment gaps left out)."""
+    t_s, rot_s, _, omega, vel = c.poses
+    _, vel_steps, dt = c._steps
+    summed = np.concatenate([np.zeros((1, 3)), np.cumsum(vel_steps * dt[:, None], axis=0)])
+    k = np.clip(np.searchsorted(t_s, t, side="right") - 1, 0, t_s.shape[0] - 1)
+    h = t - t_s[k]
+    return rot_s[k] @ so3_exps(np.ascontiguousarray(h[:, None] * omega[k])), summed[k] + h[:, None] * vel[k]
+
+
+def world_twist(c: _Consistency) -> dict:
+    """How many times better the detection pairs fit the velocity read as a world frame's than as read (no bias
+    fitted, as :func:`gyro_misreads`): per pair the detections' displacement in the dead-reckoned frame
+    ``R_a y_a − R_b y_b`` against the velocity's integral between the two times turned by one rotation per
+    ``WORLD_TWIST_WINDOW_S`` (least squares, Kabsch). A twist in a frame the body turns in is no noise the
+    estimators can absorb (a generated figure 8: riekf APE 1.85 m, named only as velocity scales)."""
+    ta, tb = c.det_t[c.a], c.det_t[c.b]
+    r_a, p_a = _dead_reckoned_at(c, ta)
+    r_b, p_b = _dead_reckoned_at(c, tb)
+    u = np.einsum("nij,nj->ni", r_a, c.y[c.a]) - np.einsum("nij,nj->ni", r_b, c.y[c.b])
+    v = p_b - p_a
+    window = np.floor((ta - ta.min()) / WORLD_TWIST_WINDOW_S).astype(np.int64) if ta.shape[0] else ta
+    e, used = np.zeros_like(u), np.zeros(u.shape[0], np.bool_)
+    for w in np.unique(window):
+        m = window == w
+        if np.count_nonzero(m) < WORLD_TWIST_MIN_PAIRS:
+            continue
+        left, _, right = np.linalg.svd(u[m].T @ v[m])
+        flip = np.array([1.0, 1.0, np.sign(np.linalg.det(left @ right)) or 1.0])
+        e[m], used[m] = u[m] - v[m] @ ((left * flip) @ right).T, True
+    if not used.any():
+        return {"gain": 0.0}
+    base = _trimmed_cost(c.residuals(0.0)[0][used])
+    return {"gain": base / max(_trimmed_cost(e[used]), 1e-300)}
+
+
 def _velocity_displacements(c: _Consistency) -> np.ndarray:
     """Per pair and velocity axis (pairs, 3, 3): how the pair's residual moves when that axis's velocity is
     doubled (the displacement it contributes between the two detections, in the first one's body frame), so that
@@ -499,7 +551,10 @@ def velocity_scale(c: _Consistency) -> dict:
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
     ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`_Consistency.cost`). An axis along
     which the body hardly moves (``MIN_AXIS_SHARE``) has no scale (None), nor one whose scale is not told from a
-    bias (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity). The velocity
+    bias (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity), nor one
+    along which the detections see the body hardly move (the scale times the velocity's displacement, against the
+    largest axis's: a ground robot's y or z whose velocity as read is noise, 0.0016 ± 0.12 and -0.07 ± 0.16 on
+    ``unseen_logs.py``'s ground logs, which were named as misread). The velocity
     in another unit or of the wrong sign on an axis is no noise the estimators can absorb (MR.CLAM 6 r1 in km/h:
     riekf 0.49 -> 0.89 m, with its sign flipped: lost, and no word of the velocity)."""
     d = _velocity_displacements(c)
@@ -518,8 +573,11 @@ def velocity_scale(c: _Consistency) -> dict:
     sigma = np.sqrt(np.diag(np.linalg.inv(ata)) * float(np.mean(d2[keep])) / 3.0)
     inflation = np.diag(np.linalg.inv(ata)) * np.diag(ata)
     scale, err = [None] * 3, [None] * 3
+    # the displacement along each axis the detections see (its scale times the velocity's): an axis along which they
+    # see the body hardly move (MIN_AXIS_SHARE) has a velocity as read that is noise, and no measurable scale
+    seen = np.abs(1.0 + x[: int(moved.sum())]) * rms[moved]
     for i, j in enumerate(np.flatnonzero(moved)):
-        if inflation[i] <= MAX_SCALE_INFLATION:
+        if inflation[i] <= MAX_SCALE_INFLATION and seen[i] >= MIN_AXIS_SHARE * seen.max():
             scale[j], err[j] = round(1.0 + float(x[i]), 6), float(sigma[i])
     return {"scale": scale, "sigma": err}
 
@@ -568,6 +626,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     out["gyro_misreads"] = gyro_misreads(c)
     out["velocity_scale"] = velocity_scale(c)
     out["extrinsic_turn"] = extrinsic_turn(c)
+    out["world_twist"] = world_twist(c)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
@@ -669,6 +728,10 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
                 "it",
             )
         )
+    world = (offset.get("world_twist") or {"gain": 0.0})["gain"]
+    if world >= WORLD_TWIST_GAIN and not found:  # the dead-reckoned heading is the gyro's: only where it reads right
+        # the velocity's scale on each axis is then a consequence: not said besides
+        return [*found, (_world_twist_sentence(offset, world), "it")]
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
@@ -682,12 +745,22 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     return found
 
 
+def _world_twist_sentence(offset: dict, gain: float) -> str:
+    return (
+        "the odometry's twist looks like it is in a world frame, not the body's (nav_msgs/Odometry gives it in "
+        f"child_frame_id): the detections fit it {gain:.3g}x better turned into the body by the dead-reckoned heading "
+        f"({offset['pairs']} detection pairs, trimmed mean squared residual; a twist in the odometry's own parent "
+        "frame is turned into the body when read, one in another frame is not): publish the twist in child_frame_id"
+    )
+
+
 def note(name: str | None, offset: dict) -> list[str]:
     """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
     an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
-    (``extrinsic_turn``) and a velocity axis they say is scaled (``velocity_scale``), each with what the estimate
-    did about it; ``name`` None: the warnings alone, as ``slamobs info --noise`` says them before any estimator
-    runs (the same sentences, without an estimator's name and what it used)."""
+    (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity scale is said) and
+    a velocity axis they say is scaled (``velocity_scale``), each with what the estimate did about it; ``name``
+    None: the warnings alone, as ``slamobs info --noise`` says them before any estimator runs (the same sentences,
+    without an estimator's name and what it used)."""
     if name is None:
         return [f"warning: {sentence}" for sentence, _ in _misreads(offset)]
     notes = [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
