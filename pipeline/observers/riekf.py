@@ -70,8 +70,12 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   spread no more than ``PLANAR_RATIO`` times their noise per sample (:func:`planar_evidence`: what they measure is
   noise, not motion), the floor through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
   (:func:`_planar_update`): the body's up axis normal to it (``PLANAR_TILT``) and the position's height on it
-  (``PLANAR_HEIGHT``). run.json ``observer.filter.planar`` and a note say so; samples with no roll, pitch or
-  vertical part at all (a planar log by construction) stay in their plane without it, and nothing changes.
+  (``PLANAR_HEIGHT``). The floor's error (the start's tilt) is the same at every one, not new each time: each
+  row's noise brings the filter's variance of its quantity down to that level and no further (the information
+  over the log is bounded; repeated as independent, the height's NEES was 4-15). run.json
+  ``observer.filter.planar`` and a note say so; ``noise.floor`` (``auto``, true, false) follows the evidence,
+  forces the floor or turns it off. Samples with no roll, pitch or vertical part at all (a planar log by
+  construction) stay in their plane without it, and nothing changes.
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -741,9 +745,9 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
             for c in range(6):
                 v += b[r, c] * h[q, c]
             s[r, q] = v
-    s[0, 0] += plane[11] ** 2
-    s[1, 1] += plane[11] ** 2
-    s[2, 2] += plane[12] ** 2
+    for k in range(3):  # the floor's error is fixed, not new each time: no row's variance is brought below its level
+        f = plane[11 + k // 2] ** 2
+        s[k, k] += s[k, k] * f / (s[k, k] - f) if s[k, k] > 1.001 * f else 1e6 * (s[k, k] + f)
     if not cholesky_lower(s, 3):
         return
     for j in range(d):  # W = L⁻¹ H Σ, column by column
@@ -1531,7 +1535,9 @@ class RiEKF(Stepper):
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.planar = planar_evidence(self.vel_t, stream.omega, stream.velocity, nz)
-        self.plane = floor_plane(r0, p0) if self.planar["planar"] else np.zeros(14)
+        self.planar["held"] = nz.floor is True or (nz.floor == "auto" and self.planar["planar"])
+        self.planar["floor"] = nz.floor
+        self.plane = floor_plane(r0, p0) if self.planar["held"] else np.zeros(14)
         self.stats.update({"noise": self.noise.as_dict()})
 
     @property
@@ -1668,18 +1674,29 @@ class RiEKF(Stepper):
         ) + recovery_notes(self.stats["metadata"]["filter"])
         if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
             self.stats["notes"] += time_offset_note("riekf", self._time_offset)
-        if self.planar["planar"]:
-            r = self.planar["ratios"]
-            self.stats["notes"].append(
-                f"riekf: planar motion (roll rate, pitch rate, vertical velocity {r[0]:.2g} / {r[1]:.2g} / {r[2]:.2g} "
-                f"times their noise): the floor held as pseudo-measurements every {PLANAR_EVERY_S:g} s "
-                f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m)"
-            )
+        if self.planar["planar"] or self.planar["held"]:
+            self.stats["notes"].append(self._planar_note())
+
+    def _planar_note(self) -> str:
+        """The note of a floor held, or of planar motion seen with the floor switched off (``noise.floor``)."""
+        r, pl = self.planar["ratios"], self.planar
+        seen = "planar motion" if pl["planar"] else "motion not planar"
+        if r is not None:
+            ratios = f"{r[0]:.2g} / {r[1]:.2g} / {r[2]:.2g}"
+            seen += f" (roll rate, pitch rate, vertical velocity {ratios} times their noise)"
+        if not pl["held"]:
+            return f"riekf: {seen}, the floor not held (noise.floor: false)"
+        why = "" if pl["floor"] == "auto" else " (noise.floor: true)"
+        return (
+            f"riekf: {seen}: the floor held{why} as pseudo-measurements every {PLANAR_EVERY_S:g} s "
+            f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m, each no tighter than that over the log)"
+        )
 
     def _planar_record(self) -> dict:
-        """Planar motion for run.json: the evidence (:func:`planar_evidence`) and, when held, the floor's levels."""
+        """Planar motion for run.json: the evidence (:func:`planar_evidence`), the setting (``noise.floor``),
+        whether the floor is held and, when held, its levels."""
         rec = dict(self.planar)
-        if rec["planar"]:
+        if rec["held"]:
             rec.update(tilt_sigma_rad=PLANAR_TILT, height_sigma_m=PLANAR_HEIGHT, every_s=PLANAR_EVERY_S)
         return rec
 
