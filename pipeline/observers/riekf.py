@@ -745,9 +745,10 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
             for c in range(6):
                 v += b[r, c] * h[q, c]
             s[r, q] = v
-    for k in range(3):  # the floor's error is fixed, not new each time: no row's variance is brought below its level
-        f = plane[11 + k // 2] ** 2
-        s[k, k] += s[k, k] * f / (s[k, k] - f) if s[k, k] > 1.001 * f else 1e6 * (s[k, k] + f)
+    s[0, 0] += plane[11] ** 2  # the body's tilt on the floor: its wobble, new at each
+    s[1, 1] += plane[11] ** 2
+    f = plane[12] ** 2  # the floor's height error is the same each time: its variance brought down to f, no further
+    s[2, 2] += s[2, 2] * f / (s[2, 2] - f) if s[2, 2] > 1.001 * f else 1e6 * (s[2, 2] + f)
     if not cholesky_lower(s, 3):
         return
     for j in range(d):  # W = L⁻¹ H Σ, column by column
