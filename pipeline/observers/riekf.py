@@ -70,9 +70,10 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   spread no more than ``PLANAR_RATIO`` times their noise per sample (:func:`planar_evidence`: what they measure is
   noise, not motion), the floor through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
   (:func:`_planar_update`): the body's up axis normal to it (``PLANAR_TILT``) and the position's height on it
-  (``PLANAR_HEIGHT``). The floor's error (the start's tilt) is the same at every one, not new each time: each
-  row's noise brings the filter's variance of its quantity down to that level and no further (the information
-  over the log is bounded; repeated as independent, the height's NEES was 4-15). run.json
+  (``PLANAR_HEIGHT``). The floor's height error (the start's tilt a few metres on) is the same at every one, not
+  new each time: the height row's noise brings the filter's height variance down to that level and no further
+  (the information over the log is bounded; repeated as independent, the height's NEES was 4-15); the tilt rows
+  (the body's wobble on the floor, new each time) keep ``PLANAR_TILT``. run.json
   ``observer.filter.planar`` and a note say so; ``noise.floor`` (``auto``, true, false) follows the evidence,
   forces the floor or turns it off. Samples with no roll, pitch or vertical part at all (a planar log by
   construction) stay in their plane without it, and nothing changes.
@@ -1690,7 +1691,7 @@ class RiEKF(Stepper):
         why = "" if pl["floor"] == "auto" else " (noise.floor: true)"
         return (
             f"riekf: {seen}: the floor held{why} as pseudo-measurements every {PLANAR_EVERY_S:g} s "
-            f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m, each no tighter than that over the log)"
+            f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m, the height no tighter than that over the log)"
         )
 
     def _planar_record(self) -> dict:
