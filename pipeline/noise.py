@@ -93,6 +93,9 @@ class NoiseConfig:
     velocity_bias: float | None = None
     gyro_bias_walk: float | None = None
     velocity_bias_walk: float | None = None
+    #: riekf's floor (pipeline.observers.riekf, "Planar motion"): "auto" held when the log shows planar motion,
+    #: true always, false never
+    floor: str | bool = "auto"
 
     @classmethod
     def from_section(cls, section: dict | str | None) -> NoiseConfig:
@@ -132,6 +135,8 @@ class NoiseSettings:
     #: detection-law keys the estimated law has no term for (0 by its form, not measured): :meth:`lines` leaves
     #: them out, run.json's ``levels`` says so in their method
     absent: tuple[str, ...] = ()
+    #: riekf's floor as configured (:attr:`NoiseConfig.floor`)
+    floor: str | bool = "auto"
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -444,6 +449,7 @@ def resolve_noise(
             k for k in (estimated.held if estimated is not None and cfg.auto else ()) if sources[k] == "estimated"
         ),
         absent=tuple(k for k in absent if k not in section),
+        floor=cfg.floor,
         detection_held_scale=(
             estimated.detection.held_scale
             if estimated is not None

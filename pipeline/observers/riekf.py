@@ -70,8 +70,16 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   spread no more than ``PLANAR_RATIO`` times their noise per sample (:func:`planar_evidence`: what they measure is
   noise, not motion), the floor through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
   (:func:`_planar_update`): the body's up axis normal to it (``PLANAR_TILT``) and the position's height on it
-  (``PLANAR_HEIGHT``). run.json ``observer.filter.planar`` and a note say so; samples with no roll, pitch or
-  vertical part at all (a planar log by construction) stay in their plane without it, and nothing changes.
+  (``PLANAR_HEIGHT``). The floor's height error (the start's tilt a few metres on) is the same at every one, not
+  new each time: the height row's noise brings the filter's height variance down to that level and no further
+  (the information over the log is bounded; repeated as independent, the height's NEES was 4-15); the tilt rows
+  (the body's wobble on the floor, new each time) keep ``PLANAR_TILT``. Held roll and pitch leave the heading's
+  variance to grow by the gyro's noise alone over a blind stretch, less than a slipping wheel turns it: when the
+  blind check re-opens the position, the heading relative to the map is re-opened too, about the robot
+  (:func:`_reopen_heading`). run.json
+  ``observer.filter.planar`` and a note say so; ``noise.floor`` (``auto``, true, false) follows the evidence,
+  forces the floor or turns it off. Samples with no roll, pitch or vertical part at all (a planar log by
+  construction) stay in their plane without it, and nothing changes.
 
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
@@ -708,9 +716,10 @@ def _gain(hp, chol, z, k3, d):
 def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     """The floor's pseudo-measurements (module docstring, "Planar motion"): the body's up axis ``R e3`` has no part
     along the floor's tangents ``t1``, ``t2`` and the position's height ``nᵀP`` is the start's. ``plane``: on, ``n``
-    (3), the height, ``t1`` (3), ``t2`` (3), the tilt's and the height's σ, the period. With ``R ≈ exp(−ξ_R)R̂``,
-    ``P ≈ P̂ − ξ_P + [P̂]×ξ_R``: ``z_k = t_kᵀR̂e3`` with ``H_k = −t_kᵀ[R̂e3]×`` on ``ξ_R``, ``z_3 = nᵀP̂ − h`` with
-    ``H_3 = (−nᵀ[P̂]×, nᵀ)``; one Kalman update of the whole (mirrored) state, then :func:`_correct`."""
+    (3), the height, ``t1`` (3), ``t2`` (3), the tilt's and the height's σ, the period, the median range. With
+    ``R ≈ exp(−ξ_R)R̂``, ``P ≈ P̂ − ξ_P + [P̂]×ξ_R``: ``z_k = t_kᵀR̂e3`` with ``H_k = −t_kᵀ[R̂e3]×`` on ``ξ_R``,
+    ``z_3 = nᵀP̂ − h`` with ``H_3 = (−nᵀ[P̂]×, nᵀ)``; one Kalman update of the whole (mirrored) state, then
+    :func:`_correct`."""
     _mirror(cov, d)
     h = np.zeros((3, 6))
     z = np.empty(3)
@@ -743,9 +752,10 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
             for c in range(6):
                 v += b[r, c] * h[q, c]
             s[r, q] = v
-    s[0, 0] += plane[11] ** 2
+    s[0, 0] += plane[11] ** 2  # the body's tilt on the floor: its wobble, new at each
     s[1, 1] += plane[11] ** 2
-    s[2, 2] += plane[12] ** 2
+    f = plane[12] ** 2  # the floor's height error is the same each time: its variance brought down to f, no further
+    s[2, 2] += s[2, 2] * f / (s[2, 2] - f) if s[2, 2] > 1.001 * f else 1e6 * (s[2, 2] + f)
     if not cholesky_lower(s, 3):
         return
     for j in range(d):  # W = L⁻¹ H Σ, column by column
@@ -1072,6 +1082,29 @@ def _blind_check(t, d, cov, fs, ns, win_sum, blind_z2, gated_lm, blind_log):
 
 
 @njit(cache=True)
+def _reopen_heading(cov, d, p_hat, lm, slot_lm, plane, sigma_p):
+    """After a blind stretch on the floor (:func:`_blind_check` acted): the heading relative to the map re-opened,
+    the robot turned about the floor's normal ``n`` in place with the map kept: ``Σ += σ² u uᵀ``, ``u = (n, P̂×n,
+    0, L̂ᵢ×n ...)`` (with ``X̂ ← exp(−ξ)X̂`` that moves neither ``P̂`` nor a landmark), ``σ`` the re-opened position's
+    over the median range (``plane[14]``)."""
+    var = (sigma_p / plane[14]) ** 2
+    n = plane[1:4]
+    u = np.zeros(d)
+    u[0], u[1], u[2] = n[0], n[1], n[2]
+    u[3] = p_hat[1] * n[2] - p_hat[2] * n[1]
+    u[4] = p_hat[2] * n[0] - p_hat[0] * n[2]
+    u[5] = p_hat[0] * n[1] - p_hat[1] * n[0]
+    for s in range((d - N_FIXED) // 3):
+        i, o = slot_lm[s], N_FIXED + 3 * s
+        u[o] = lm[i, 1] * n[2] - lm[i, 2] * n[1]
+        u[o + 1] = lm[i, 2] * n[0] - lm[i, 0] * n[2]
+        u[o + 2] = lm[i, 0] * n[1] - lm[i, 1] * n[0]
+    for r in range(d):
+        for c in range(d):
+            cov[r, c] += var * u[r] * u[c]
+
+
+@njit(cache=True)
 def _consistency_check(t, ns, win_sum, consistency_log):
     """A window that passed the gate: the Mahalanobis distance² of the sum of its accepted innovations joins the
     ring of the last ``CONSISTENCY_WINDOWS``; when their median exceeds ``OVERCONFIDENT_D2`` the filter is
@@ -1339,7 +1372,10 @@ def _advance(
                 next_nd,
             )
             if ns[_ARMED] and ns[_PB_N] >= BLIND_WINDOW:
+                relocs = ns[_RELOCS]
                 _blind_check(t_next, d, cov, fs, ns, win_sum, blind_z2, gated_lm, blind_log)
+                if plane[0] > 0.0 and ns[_RELOCS] > relocs:  # on the floor the heading is re-opened too
+                    _reopen_heading(cov, d, p_hat, lm, slot_lm, plane, blind_log[min(relocs, MAX_LOG - 1), 3])
             if ns[_WIN_N] >= WINDOW and _window_check(
                 t_next,
                 d,
@@ -1533,7 +1569,9 @@ class RiEKF(Stepper):
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
         self.planar = planar_evidence(self.vel_t, stream.omega, stream.velocity, nz)
-        self.plane = floor_plane(r0, p0) if self.planar["planar"] else np.zeros(14)
+        self.planar["held"] = nz.floor is True or (nz.floor == "auto" and self.planar["planar"])
+        self.planar["floor"] = nz.floor
+        self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         self.stats.update({"noise": self.noise.as_dict()})
 
     @property
@@ -1670,18 +1708,29 @@ class RiEKF(Stepper):
         ) + recovery_notes(self.stats["metadata"]["filter"])
         if self._time_offset is not None:  # None while it is being estimated (:meth:`advance`)
             self.stats["notes"] += time_offset_note("riekf", self._time_offset)
-        if self.planar["planar"]:
-            r = self.planar["ratios"]
-            self.stats["notes"].append(
-                f"riekf: planar motion (roll rate, pitch rate, vertical velocity {r[0]:.2g} / {r[1]:.2g} / {r[2]:.2g} "
-                f"times their noise): the floor held as pseudo-measurements every {PLANAR_EVERY_S:g} s "
-                f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m)"
-            )
+        if self.planar["planar"] or self.planar["held"]:
+            self.stats["notes"].append(self._planar_note())
+
+    def _planar_note(self) -> str:
+        """The note of a floor held, or of planar motion seen with the floor switched off (``noise.floor``)."""
+        r, pl = self.planar["ratios"], self.planar
+        seen = "planar motion" if pl["planar"] else "motion not planar"
+        if r is not None:
+            ratios = f"{r[0]:.2g} / {r[1]:.2g} / {r[2]:.2g}"
+            seen += f" (roll rate, pitch rate, vertical velocity {ratios} times their noise)"
+        if not pl["held"]:
+            return f"riekf: {seen}, the floor not held (noise.floor: false)"
+        why = "" if pl["floor"] == "auto" else " (noise.floor: true)"
+        return (
+            f"riekf: {seen}: the floor held{why} as pseudo-measurements every {PLANAR_EVERY_S:g} s "
+            f"(tilt {PLANAR_TILT:g} rad, height {PLANAR_HEIGHT:g} m, the height no tighter than that over the log)"
+        )
 
     def _planar_record(self) -> dict:
-        """Planar motion for run.json: the evidence (:func:`planar_evidence`) and, when held, the floor's levels."""
+        """Planar motion for run.json: the evidence (:func:`planar_evidence`), the setting (``noise.floor``),
+        whether the floor is held and, when held, its levels."""
         rec = dict(self.planar)
-        if rec["planar"]:
+        if rec["held"]:
             rec.update(tilt_sigma_rad=PLANAR_TILT, height_sigma_m=PLANAR_HEIGHT, every_s=PLANAR_EVERY_S)
         return rec
 
@@ -1784,15 +1833,20 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     return {"planar": bool(max(ratios) <= PLANAR_RATIO and max(spread) > 0.0), "ratios": [round(r, 3) for r in ratios]}
 
 
-def floor_plane(r0, p0) -> np.ndarray:
+def floor_plane(r0, p0, det_y: np.ndarray) -> np.ndarray:
     """The floor of :func:`_planar_update` through the start pose (its up axis the normal, its height the floor's),
-    with the pseudo-measurements' levels and period."""
+    with the pseudo-measurements' levels and period, and the detections' median range (:func:`_reopen_heading`)."""
     n = np.array([0.0, 0.0, 1.0]) if r0 is None else np.asarray(r0, float)[:, 2]
     h = 0.0 if p0 is None else float(n @ np.asarray(p0, float))
     t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
     t1 /= np.linalg.norm(t1)
     t2 = np.cross(n, t1)
-    return np.r_[1.0, n, h, t1, t2, PLANAR_TILT, PLANAR_HEIGHT, PLANAR_EVERY_S]
+    return np.r_[1.0, n, h, t1, t2, PLANAR_TILT, PLANAR_HEIGHT, PLANAR_EVERY_S, median_range(det_y)]
+
+
+def median_range(det_y: np.ndarray) -> float:
+    """The detections' median range (m); 1 without detections."""
+    return float(np.median(np.linalg.norm(det_y, axis=1))) if det_y.shape[0] else 1.0
 
 
 def max_variance_factor(det_y: np.ndarray, noise) -> float:
@@ -1800,7 +1854,7 @@ def max_variance_factor(det_y: np.ndarray, noise) -> float:
     ``MAX_SIGMA_SHARE`` of that range (module docstring, "Recovery"); unbounded without detections."""
     if det_y.shape[0] == 0:
         return np.inf
-    r = float(np.median(np.linalg.norm(det_y, axis=1)))
+    r = median_range(det_y)
     sigma = float(noise.detection_sigma(np.array([r]))[0])
     return (MAX_SIGMA_SHARE * r / sigma) ** 2 if sigma > 0 else np.inf
 
