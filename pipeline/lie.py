@@ -183,14 +183,7 @@ def se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
     ``a = sin θ/θ``, ``b = (1 − cos θ)/θ²``, ``c = (θ − sin θ)/θ³``.
     """
     t2 = w0 * w0 + w1 * w1 + w2 * w2
-    theta = math.sqrt(t2)
-    if theta < SMALL_ANGLE:
-        a, b, c = 1.0, 0.5, 1.0 / 6.0
-    else:
-        st = math.sin(theta)
-        a = st / theta
-        b = (1.0 - math.cos(theta)) / t2
-        c = (theta - st) / (t2 * theta)
+    a, b, c = _closed_coefficients(t2)
     _se3_of_coefficients(a, b, c, t2, w0, w1, w2, v0, v1, v2, r_out, p_out)
 
 
@@ -214,9 +207,19 @@ def se3_step_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
         a = _A[0] + t2 * (_A[1] + t2 * (_A[2] + t2 * (_A[3] + t2 * (_A[4] + t2 * _A[5]))))
         b = _B[0] + t2 * (_B[1] + t2 * (_B[2] + t2 * (_B[3] + t2 * (_B[4] + t2 * _B[5]))))
         c = _C[0] + t2 * (_C[1] + t2 * (_C[2] + t2 * (_C[3] + t2 * (_C[4] + t2 * _C[5]))))
-        _se3_of_coefficients(a, b, c, t2, w0, w1, w2, v0, v1, v2, r_out, p_out)
     else:
-        se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out)
+        a, b, c = _closed_coefficients(t2)
+    _se3_of_coefficients(a, b, c, t2, w0, w1, w2, v0, v1, v2, r_out, p_out)
+
+
+@njit(cache=True, inline="always")
+def _closed_coefficients(t2):
+    """``(a, b, c)`` of :func:`se3_exp_into` at ``θ² = t2`` in closed form (their limits below ``SMALL_ANGLE``)."""
+    theta = math.sqrt(t2)
+    if theta < SMALL_ANGLE:
+        return 1.0, 0.5, 1.0 / 6.0
+    st = math.sin(theta)
+    return st / theta, (1.0 - math.cos(theta)) / t2, (theta - st) / (t2 * theta)
 
 
 @njit(cache=True, inline="always")
