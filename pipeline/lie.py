@@ -183,14 +183,48 @@ def se3_exp_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
     ``a = sin θ/θ``, ``b = (1 − cos θ)/θ²``, ``c = (θ − sin θ)/θ³``.
     """
     t2 = w0 * w0 + w1 * w1 + w2 * w2
+    a, b, c = _closed_coefficients(t2)
+    _se3_of_coefficients(a, b, c, t2, w0, w1, w2, v0, v1, v2, r_out, p_out)
+
+
+#: Largest θ² up to which :func:`se3_step_into` takes its coefficients from their series (θ < 0.1 rad).
+SERIES_T2 = 1e-2
+#: Taylor coefficients in θ² of ``a = sin θ/θ``, ``b = (1 − cos θ)/θ²``, ``c = (θ − sin θ)/θ³``, from the θ⁰ term on
+#: (six terms: the first left out is below 3e-18 relative for θ² < SERIES_T2).
+_A = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(6))
+_B = tuple((-1.0) ** k / math.factorial(2 * k + 2) for k in range(6))
+_C = tuple((-1.0) ** k / math.factorial(2 * k + 3) for k in range(6))
+
+
+@subroutine(types.none)
+def se3_step_into(w0, w1, w2, v0, v1, v2, r_out, p_out):
+    """:func:`se3_exp_into` for the small twists of an integration sub-step: for ``θ² < SERIES_T2`` its
+    coefficients ``a``, ``b``, ``c`` from their Taylor series in ``θ²`` (:data:`_A`, :data:`_B`, :data:`_C` by
+    Horner: no square root, sine, cosine or division, and none of the closed form's cancellation in ``1 − cos θ``
+    and ``θ − sin θ``, whose rounding is ~1e-16/θ² relative), else :func:`se3_exp_into`'s closed form."""
+    t2 = w0 * w0 + w1 * w1 + w2 * w2
+    if t2 < SERIES_T2:
+        a = _A[0] + t2 * (_A[1] + t2 * (_A[2] + t2 * (_A[3] + t2 * (_A[4] + t2 * _A[5]))))
+        b = _B[0] + t2 * (_B[1] + t2 * (_B[2] + t2 * (_B[3] + t2 * (_B[4] + t2 * _B[5]))))
+        c = _C[0] + t2 * (_C[1] + t2 * (_C[2] + t2 * (_C[3] + t2 * (_C[4] + t2 * _C[5]))))
+    else:
+        a, b, c = _closed_coefficients(t2)
+    _se3_of_coefficients(a, b, c, t2, w0, w1, w2, v0, v1, v2, r_out, p_out)
+
+
+@njit(cache=True, inline="always")
+def _closed_coefficients(t2):
+    """``(a, b, c)`` of :func:`se3_exp_into` at ``θ² = t2`` in closed form (their limits below ``SMALL_ANGLE``)."""
     theta = math.sqrt(t2)
     if theta < SMALL_ANGLE:
-        a, b, c = 1.0, 0.5, 1.0 / 6.0
-    else:
-        st = math.sin(theta)
-        a = st / theta
-        b = (1.0 - math.cos(theta)) / t2
-        c = (theta - st) / (t2 * theta)
+        return 1.0, 0.5, 1.0 / 6.0
+    st = math.sin(theta)
+    return st / theta, (1.0 - math.cos(theta)) / t2, (theta - st) / (t2 * theta)
+
+
+@njit(cache=True, inline="always")
+def _se3_of_coefficients(a, b, c, t2, w0, w1, w2, v0, v1, v2, r_out, p_out):
+    """``R = I + a K + b K²`` and ``p = v + b (w x v) + c w x (w x v)`` into ``r_out``/``p_out``."""
     # K² = w wᵀ − θ² I
     r_out[0, 0] = 1.0 + b * (w0 * w0 - t2)
     r_out[1, 1] = 1.0 + b * (w1 * w1 - t2)

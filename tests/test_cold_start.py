@@ -46,7 +46,15 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     # the observer's own event loop, for one set of argument types
     assert kernels["slamobs.pipeline.observers.fast_adaptation._advance"] == 1
     # its helpers are subroutines compiled inside it, not kernels of their own (kernel_cache.subroutine)
-    helpers = ("._integrate", "._substeps", ".se3_exp_into", ".project_so3_into", "._quat_of_rot", "._rot_of_quat")
+    helpers = (
+        "._integrate",
+        "._substeps",
+        ".se3_step_into",
+        ".se3_exp_into",
+        ".project_so3_into",
+        "._quat_of_rot",
+        "._rot_of_quat",
+    )
     assert [k for k in kernels if k.endswith(helpers)] == []
     assert [k for k in kernels if k.startswith(OTHERS)] == []
     # a short log's rotations and quaternions are array code (lie.ROTATION_KERNEL_ROWS): its first run compiles no

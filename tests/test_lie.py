@@ -36,6 +36,28 @@ def test_se3_exp_matches_matrix_exponential(scale):
     assert np.allclose(r2, r, atol=1e-14) and np.allclose(p2, p, atol=1e-14)
 
 
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-6, 1e-4, 1e-3, 0.03, 0.0999, 0.1001, 0.5])
+def test_se3_step_is_the_exponential_to_rounding(scale):
+    """The sub-step exponential's series (below 0.1 rad) is the matrix exponential to rounding, also at the angles
+    of a sub-step where the closed form's ``1 − cos θ`` and ``θ − sin θ`` lose digits; above, it is the closed form."""
+    rng = np.random.default_rng(int(scale * 1e6) + 7)
+    w = rng.normal(size=3)
+    w = w / np.linalg.norm(w) * scale
+    v = rng.normal(size=3)
+    a = np.zeros((4, 4))
+    a[:3, :3] = lie.skew(w)
+    a[:3, 3] = v
+    ref = expm(a)
+    r, p = np.empty((3, 3)), np.empty(3)
+    lie.se3_step_into(*w, *v, r, p)
+    assert np.abs(r - ref[:3, :3]).max() <= 4e-16
+    assert np.abs(p - ref[:3, 3]).max() <= 4e-15 * max(1.0, scale)
+    if scale > 0.1:
+        r2, p2 = np.empty((3, 3)), np.empty(3)
+        lie.se3_exp_into(*w, *v, r2, p2)
+        assert np.array_equal(r, r2) and np.array_equal(p, p2)
+
+
 def test_log_inverts_exp_including_near_pi():
     rng = np.random.default_rng(3)
     for angle in [1e-9, 1e-3, 1.0, np.pi - 1e-3, np.pi - 1e-7]:
