@@ -37,6 +37,7 @@ from slamobs.pipeline.batch.executor import (
 )
 from slamobs.pipeline.batch.local import STARTUP_S
 from slamobs.pipeline.interrupts import critical
+from slamobs.pipeline.lifetime import others_leave
 
 POLL_S = 1.0
 #: A scheduler address that refuses connections this long has nothing listening (a scheduler not started or
@@ -169,11 +170,7 @@ def _kill_workers(cluster) -> None:
 
 
 def _launching(frame) -> bool:
-    while frame is not None:
-        if frame.f_code.co_name == "_launch" and "multiprocessing" in frame.f_code.co_filename:
-            return True
-        frame = frame.f_back
-    return False
+    return frame.f_code.co_name == "_launch" and "multiprocessing" in frame.f_code.co_filename
 
 
 def spawns_settled(within: float = 5.0) -> None:
@@ -182,15 +179,7 @@ def spawns_settled(within: float = 5.0) -> None:
     thread of its own, and a batch that ended then (stopped as its cluster started) left the child to read a closed
     pipe and print ``EOFError: Ran out of input`` under the batch's line (1 of 5 Ctrl-C trials, kill5). Once its
     start returns, the child is one of multiprocessing's daemonic children, which the exit kills."""
-    import sys
-
-    me = threading.get_ident()
-    deadline = time.monotonic() + within
-    while time.monotonic() < deadline:
-        frames = sys._current_frames()  # noqa: SLF001 - documented; the only view of other threads' stacks
-        if not any(_launching(frame) for ident, frame in frames.items() if ident != me):
-            return
-        time.sleep(0.01)
+    others_leave(_launching, within)
 
 
 class DaskPool:
