@@ -703,6 +703,50 @@ def test_ctrl_c_while_the_local_cluster_starts_prints_the_batch_s_line_only(logs
     ], text
 
 
+@pytest.fixture(scope="module")
+def six_logs(tmp_path_factory):
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    base = tmp_path_factory.mktemp("six_logs")
+    for i in range(6):
+        write_log(simulate(("circle", "figure8")[i % 2], duration=3.0, seed=50 + i), base / f"k{i}.mcap")
+    cfg = base / "run.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n")
+    return base, cfg
+
+
+def test_a_dask_worker_killed_under_a_log_fails_that_log_only_not_the_ones_queued_on_it(
+    six_logs, tmp_path, monkeypatch
+):
+    """Dask counts a worker's death against every log the worker held, the one queued behind the running one too
+    (two per single-threaded worker): with ``allowed-failures`` 0, one kill -9 of a worker running a log failed
+    two logs of 6 ("Dask workers died while running this log, every retry"), one of which never started. A log
+    that never began on a dying worker is now submitted again; only the log it was running fails."""
+    pytest.importorskip("distributed")
+    monkeypatch.setenv("DASK_DISTRIBUTED__SCHEDULER__ALLOWED_FAILURES", "0")
+    out = tmp_path / "OUT"
+    proc, err = _start(_batch_args(six_logs, out, "--executor", "dask", "-j", 2), tmp_path, "b")
+    try:
+        assert wait_for(lambda: _started(out) or proc.poll() is not None, 300, step=0.005), err.read_text()
+        markers = list((out / "_slamobs" / "staging").glob(f"*/*/{STARTED}"))
+        victim = json.loads(markers[0].read_text())["pid"]
+        os.kill(victim, signal.SIGKILL)
+        code = proc.wait(timeout=600)
+        text = err.read_text()
+        assert wait_gone(proc.pid) == []
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert code == 1, text
+    rows = assert_consistent(out)
+    failed = {rid: row["error"] for rid, row in rows.items() if row["status"] != "ok"}
+    assert failed == {
+        markers[0].parent.name: f"{six_logs[0] / markers[0].parent.name.rsplit('-', 1)[0]}.mcap: "
+        "Dask workers died while running this log, every retry (crash or out of memory)"
+    }, text
+    assert len(rows) == 6, text
+
+
 def test_a_worker_killed_while_the_local_cluster_starts_is_started_again_and_the_batch_runs(logs, tmp_path):
     """SIGKILL of one worker process as the local cluster starts (as it imports, before it registers) failed the
     cluster's whole start: exit 3, "local Dask cluster: cannot start (RuntimeError: Nanny failed to start.)"
