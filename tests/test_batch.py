@@ -678,6 +678,7 @@ def test_a_dask_log_fails_for_dying_workers_only_once_they_began_it_that_often(t
     refused = run_task(replace(task, starts_limit=2), pipeline=lambda log, out, cfg: ran.append(log))
     assert refused["status"] == "failed" and refused["error"] == f"{task.log}: {DIED}" and len(ran) == 2
     assert pool._killed(task)["error"] == f"{task.log}: {DIED}" and RETRY not in pool._killed(task)
+    assert pool._killed(replace(task, staged=""))["error"] == f"{task.log}: {DIED}"  # a tune's trial: as Dask says
 
 
 def test_manifest_not_utf8_is_one_line(tmp_path):

@@ -470,7 +470,7 @@ class DaskPool:
         kill -9 at allowed-failures 0). It fails once workers began it that often (:data:`executor.STARTS`; the
         task itself refuses one more start); one that never got that far is submitted again, as a new key, at
         most ``allowed-failures`` + 1 times, then fails as the machine's failure (the next batch runs it again)."""
-        if starts(task) > self.allowed:
+        if not task.staged or starts(task) > self.allowed:  # a tune's trial counts no starts: as Dask says
             return failed_row(task, f"{task.log}: {DIED}")
         again = self.requeued[task.run_id] = self.requeued.get(task.run_id, 0) + 1
         if again <= self.allowed + 1:

@@ -210,7 +210,7 @@ def starts(task: Task) -> int:
     """How many times a worker began ``task``'s log in this batch (:data:`STARTS`)."""
     try:
         return _starts_file(Path(task.staged)).read_bytes().count(b"\n")
-    except OSError:
+    except (OSError, ValueError):  # not begun; or no staging directory (a tune's trial)
         return 0
 
 
