@@ -163,14 +163,40 @@ def _end_daemonic_children() -> None:
             proc.join(max(0.0, deadline - time.monotonic()))
 
 
+#: How long the exit waits for another thread to finish releasing or making a semaphore.
+SEMAPHORE_S = 2.0
+
+
 def _release_semaphores() -> None:
     """Run multiprocessing's finalizers of priority 0 and up (its semaphores' unlinking; not a queue's join, at -5),
     as its exit hook would: skipped, the resource tracker warned "There appear to be 9 leaked semaphore objects"
-    under a batch stopped while its local Dask cluster started (a nanny's queues still open)."""
+    under a batch stopped while its local Dask cluster started (a nanny's queues still open).
+
+    Another thread may be releasing one itself (the local cluster's event loop collecting a closed nanny's queue):
+    ended between its unlink and the tracker's unregister, the tracker warned "1 leaked semaphore objects" and
+    "[Errno 2] No such file or directory" under the batch's line (1 of 5 Ctrl-C trials as the cluster started).
+    The exit waits for it (and for a semaphore being made), then runs the finalizers made meanwhile."""
     util = sys.modules.get("multiprocessing.util")
-    if util is not None:
-        with suppress(Exception):
-            util._run_finalizers(0)  # noqa: SLF001 - no public name for what the exit hook runs
+    if util is None:
+        return
+    from slamobs.pipeline.lifetime import others_leave
+
+    with suppress(Exception):
+        util._run_finalizers(0)  # noqa: SLF001 - no public name for what the exit hook runs
+        others_leave(_on_a_semaphore, SEMAPHORE_S)
+        util._run_finalizers(0)  # noqa: SLF001
+
+
+def _on_a_semaphore(frame) -> bool:
+    """A frame of multiprocessing making or releasing a semaphore (``SemLock.__init__``, ``SemLock._cleanup``, or
+    the finalizer that calls the latter, its entry already taken from the registry)."""
+    code = frame.f_code
+    if code.co_filename.endswith(os.path.join("multiprocessing", "synchronize.py")):
+        return True
+    if code.co_name != "__call__" or not code.co_filename.endswith(os.path.join("multiprocessing", "util.py")):
+        return False
+    callback = getattr(frame.f_locals.get("self"), "_callback", None)
+    return getattr(callback, "__qualname__", "").startswith("SemLock.")
 
 
 def _still_running() -> bool:

@@ -53,6 +53,29 @@ def watch(alive, interval: float = 0.5, name: str = "slamobs-lifeline") -> threa
     return thread
 
 
+def others_leave(inside, within: float) -> bool:
+    """Wait (at most ``within`` seconds) until no thread but this one has a frame on its stack for which
+    ``inside(frame)`` is true: an exit that ends the process at once must not cut another thread's work in two
+    (a child being started, a semaphore being released). True once none has; False at the deadline."""
+    me = threading.get_ident()
+    deadline = time.monotonic() + within
+    while True:
+        frames = sys._current_frames()  # noqa: SLF001 - documented; the only view of other threads' stacks
+        if not any(_on_stack(frame, inside) for ident, frame in frames.items() if ident != me):
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+
+
+def _on_stack(frame, inside) -> bool:
+    while frame is not None:
+        if inside(frame):
+            return True
+        frame = frame.f_back
+    return False
+
+
 class BindOnArrival:
     """Pickled as the first start-up argument of a worker: unpickling it binds the new process to ``pid``."""
 

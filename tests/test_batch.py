@@ -654,6 +654,33 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
     assert not (tmp_path / "stage" / "x").exists()
 
 
+def test_a_dask_log_fails_for_dying_workers_only_once_they_began_it_that_often(tmp_path):
+    """Dask counts a worker's death against the logs queued on it too (``KilledWorker`` for a log that never ran):
+    such a log is submitted again, and fails only once workers began it ``allowed-failures`` + 1 times; the task
+    refuses a start past that. The kill itself: test_batch_kills.py (a real worker, kill -9)."""
+    from slamobs.pipeline.batch.dask_exec import DaskPool
+    from slamobs.pipeline.batch.executor import DIED, RETRY, run_task, starts
+
+    (tmp_path / "stage").mkdir()
+    task = replace(
+        Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()),
+        staged=str(tmp_path / "stage" / "x"),
+    )
+    pool = DaskPool(2)
+    pool.allowed = 1
+    assert pool._killed(task) is None and pool._killed(task) is None  # never began: again, twice
+    row = pool._killed(task)
+    assert row[RETRY] == "machine" and "died 6 times while they held this log, before it could run" in row["error"]
+    ran = []
+    run_task(task, pipeline=lambda log, out, cfg: ran.append(log) or 1 / 0)  # began once (and failed)
+    run_task(replace(task, starts_limit=2), pipeline=lambda log, out, cfg: ran.append(log) or 1 / 0)
+    assert starts(task) == 2 and len(ran) == 2
+    refused = run_task(replace(task, starts_limit=2), pipeline=lambda log, out, cfg: ran.append(log))
+    assert refused["status"] == "failed" and refused["error"] == f"{task.log}: {DIED}" and len(ran) == 2
+    assert pool._killed(task)["error"] == f"{task.log}: {DIED}" and RETRY not in pool._killed(task)
+    assert pool._killed(replace(task, staged=""))["error"] == f"{task.log}: {DIED}"  # a tune's trial: as Dask says
+
+
 def test_manifest_not_utf8_is_one_line(tmp_path):
     manifest = tmp_path / "m.csv"
     manifest.write_bytes(b"log,config\n\xff\xfe,ok.yaml\n")

@@ -24,19 +24,24 @@ import threading
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import CancelledError
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from slamobs.pipeline.batch.executor import (
+    DIED,
     EnvironmentMismatch,
     InfrastructureError,
     Task,
     failed_row,
     failure_text,
+    retry_row,
     run_task,
+    starts,
 )
 from slamobs.pipeline.batch.local import STARTUP_S
+from slamobs.pipeline.errors import plural
 from slamobs.pipeline.interrupts import critical
+from slamobs.pipeline.lifetime import others_leave
 
 POLL_S = 1.0
 #: A scheduler address that refuses connections this long has nothing listening (a scheduler not started or
@@ -169,11 +174,7 @@ def _kill_workers(cluster) -> None:
 
 
 def _launching(frame) -> bool:
-    while frame is not None:
-        if frame.f_code.co_name == "_launch" and "multiprocessing" in frame.f_code.co_filename:
-            return True
-        frame = frame.f_back
-    return False
+    return frame.f_code.co_name == "_launch" and "multiprocessing" in frame.f_code.co_filename
 
 
 def spawns_settled(within: float = 5.0) -> None:
@@ -182,15 +183,7 @@ def spawns_settled(within: float = 5.0) -> None:
     thread of its own, and a batch that ended then (stopped as its cluster started) left the child to read a closed
     pipe and print ``EOFError: Ran out of input`` under the batch's line (1 of 5 Ctrl-C trials, kill5). Once its
     start returns, the child is one of multiprocessing's daemonic children, which the exit kills."""
-    import sys
-
-    me = threading.get_ident()
-    deadline = time.monotonic() + within
-    while time.monotonic() < deadline:
-        frames = sys._current_frames()  # noqa: SLF001 - documented; the only view of other threads' stacks
-        if not any(_launching(frame) for ident, frame in frames.items() if ident != me):
-            return
-        time.sleep(0.01)
+    others_leave(_launching, within)
 
 
 class DaskPool:
@@ -209,6 +202,8 @@ class DaskPool:
         self.where = scheduler or "local Dask cluster"
         self.client = self.cluster = None
         self.notes: list[str] = []  # what the batch should say as it starts (one line each)
+        self.allowed = 3  # the scheduler's allowed-failures (asked as the pool connects)
+        self.requeued: dict[str, int] = {}  # run_id -> times submitted again after a KilledWorker (see _killed)
 
     def connect(self) -> int:
         """Connect (or start the local cluster), wait for a worker, check every worker; returns their count."""
@@ -250,7 +245,18 @@ class DaskPool:
             ) from None
         except OSError as err:  # the scheduler went away while we waited (connection closed or refused)
             raise self._lost(err) from None
+        self.allowed = self._allowed_failures()
         return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
+
+    def _allowed_failures(self) -> int:
+        """The scheduler's ``distributed.scheduler.allowed-failures`` (a cluster's own configuration), or this
+        process's where the scheduler cannot say."""
+        import dask
+
+        try:
+            return int(self.client.run_on_scheduler(lambda dask_scheduler: dask_scheduler.allowed_failures))
+        except Exception:  # noqa: BLE001 - an older or stripped scheduler: Dask's default is the best guess
+            return int(dask.config.get("distributed.scheduler.allowed-failures"))
 
     def _lost_at_start(self) -> list[str]:
         """One line when worker processes of the local cluster died as it started (see ``_local_cluster``)."""
@@ -384,19 +390,13 @@ class DaskPool:
     def results(self, tasks: Sequence[Task]) -> Iterator[tuple[Task, dict]]:
         """(task, row) in completion order; raises InfrastructureError as described in the module doc."""
         from distributed import KilledWorker, wait
-        from distributed.client import ClosedClientError
 
         if self.client is None:
             self.connect()
         client = self.client
         pending = {}
         for task in tasks:
-            try:
-                fut = client.submit(
-                    self.run, task, pure=False, retries=0, key=f"slamobs-{task.run_id}-{time.time_ns():x}"
-                )
-            except (ClosedClientError, OSError) as err:  # a tune's next round: the client gave the scheduler up
-                raise self._lost(err) from None
+            fut = self._submit(task)
             pending[fut.key] = (fut, task)
         watch = _Watch()
         ours_cancelled: set[str] = set()
@@ -427,14 +427,11 @@ class DaskPool:
                                 f"a Dask worker cannot import slamobs ({failure_text(err)}); install it on every worker"
                             )
                         if isinstance(err, KilledWorker):
-                            yield (
-                                task,
-                                failed_row(
-                                    task,
-                                    f"{task.log}: Dask workers died while running this log, "
-                                    "every retry (crash or out of memory)",
-                                ),
-                            )
+                            if (row := self._killed(task)) is None:
+                                fut = self._submit(task)
+                                pending[fut.key] = (fut, task)
+                            else:
+                                yield task, row
                         else:
                             yield task, failed_row(task, failure_text(err, task.log))
                 now = time.monotonic()
@@ -451,6 +448,39 @@ class DaskPool:
         finally:
             for fut, _ in pending.values():
                 fut.cancel()
+
+    def _submit(self, task: Task):
+        from distributed.client import ClosedClientError
+
+        try:
+            return self.client.submit(
+                self.run,
+                replace(task, starts_limit=self.allowed + 1),
+                pure=False,
+                retries=0,
+                key=f"slamobs-{task.run_id}-{time.time_ns():x}",
+            )
+        except (ClosedClientError, OSError) as err:  # a tune's next round: the client gave the scheduler up
+            raise self._lost(err) from None
+
+    def _killed(self, task: Task) -> dict | None:
+        """The row of a log Dask gave up on (``KilledWorker``: workers died ``allowed-failures`` + 1 times while it
+        held the log), or None to submit it again: Dask counts a death against the logs queued on the worker too,
+        and one queued behind a log that killed its workers failed with it (kill7: 2 of 6 logs failed after one
+        kill -9 at allowed-failures 0). It fails once workers began it that often (:data:`executor.STARTS`; the
+        task itself refuses one more start); one that never got that far is submitted again, as a new key, at
+        most ``allowed-failures`` + 1 times, then fails as the machine's failure (the next batch runs it again)."""
+        if not task.staged or starts(task) > self.allowed:  # a tune's trial counts no starts: as Dask says
+            return failed_row(task, f"{task.log}: {DIED}")
+        again = self.requeued[task.run_id] = self.requeued.get(task.run_id, 0) + 1
+        if again <= self.allowed + 1:
+            return None
+        return retry_row(
+            task,
+            f"{task.log}: Dask workers died {again * (self.allowed + 1)} times while they held this log, before "
+            f"it could run (it began {plural(starts(task), 'time')})",
+            "machine",
+        )
 
     def _restart(self, worker: str, back: list[str]) -> None:
         try:

@@ -33,6 +33,12 @@ EXECUTORS = ("local", "dask")
 #: Written into a task's staging directory as its run begins (worker and pid): what an operator, or a kill test,
 #: looks for to know a log is running and where. Timeouts count from the staging directory itself.
 STARTED = "started.json"
+#: Next to a task's staging directory (``<run_id>.starts``): one line per time a worker began the log. Dask counts a
+#: worker's death against every log it held, the ones queued on it too; this file tells those from the logs that were
+#: running (see ``DaskPool``).
+STARTS = ".starts"
+#: A log whose Dask workers died under it every time (Dask's ``allowed-failures`` + 1 times running).
+DIED = "Dask workers died while running this log, every retry (crash or out of memory)"
 #: A Dask task gives up (ends its worker process) when its batch's lease file has not been touched for this
 #: long: the batch process is gone, nothing the task produces can be committed.
 LEASE_STALE_S = 60.0
@@ -73,6 +79,7 @@ class Task:
     code: str = ""  # identity.code_hash() of the batch
     lease: str | None = None  # Dask: the batch's lease file (see LEASE_STALE_S)
     stat_key: str | None = None  # identity.stat_key of the log when the batch hashed it (None: not checked)
+    starts_limit: int = 0  # Dask: fail at once once workers began the log this often (0: no limit; see STARTS)
 
     @classmethod
     def make(cls, run_id: str, log: str, out: str, config: RunConfig | dict, **kwargs) -> Task:
@@ -195,6 +202,30 @@ def _worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
+def _starts_file(staged: Path) -> Path:
+    return staged.with_name(staged.name + STARTS)
+
+
+def starts(task: Task) -> int:
+    """How many times a worker began ``task``'s log in this batch (:data:`STARTS`)."""
+    try:
+        return _starts_file(Path(task.staged)).read_bytes().count(b"\n")
+    except (OSError, ValueError):  # not begun; or no staging directory (a tune's trial)
+        return 0
+
+
+def _begin(staged: Path) -> None:
+    """Make the staging directory (a Dask retry's anew), count the start, and say who runs the log."""
+    from slamobs.pipeline.batch.dataset import remove_path
+
+    if staged.exists():  # a Dask retry after a worker died on this task
+        remove_path(staged)
+    staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
+    with open(_starts_file(staged), "a") as fh:
+        fh.write(f"{os.getpid()}\n")
+    (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
+
+
 def run_task(task: Task, pipeline=_run) -> dict:
     """Run one log (worker side) into its staging directory; returns the summary row.
 
@@ -210,6 +241,8 @@ def run_task(task: Task, pipeline=_run) -> dict:
     check_environment(task.version, task.code)
     t0 = time.perf_counter()
     staged = Path(task.staged)
+    if task.starts_limit and starts(task) >= task.starts_limit:  # died under it every time: not once more
+        return {**failed_row(task, f"{task.log}: {DIED}"), "warnings": None, "total_s": 0.0}
     done = threading.Event()
     if task.lease:
         _watch_lease(Path(task.lease), done)
@@ -220,10 +253,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
         # warnings go into the summary row: worker stderr would interleave with the batch's progress output
         warnings.simplefilter("default")
         try:
-            if staged.exists():  # a Dask retry after a worker died on this task
-                remove_path(staged)
-            staged.mkdir()  # not parents: a batch that is gone has removed them, and nothing is recreated
-            (staged / STARTED).write_text(json.dumps({"worker": _worker_name(), "pid": os.getpid()}))
+            _begin(staged)
             changed = _changed(task, read=False)
             failure = None
             if changed is None:
