@@ -33,10 +33,10 @@ from slamobs.pipeline.directions import (
     DirectionSet,
     build_directions,
 )
-from slamobs.pipeline.blocks import first_of_pairs, interp_sorted, row_blocks, row_norms3, unique_inverse
+from slamobs.pipeline.blocks import far_repeats, first_of_pairs, interp_sorted, row_blocks, row_norms3, unique_inverse
 from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.frames import TfBuffer
-from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, stamp_pace
+from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, shared_id_text, stamp_pace
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -903,36 +903,14 @@ def _unique_rows(
     return sel
 
 
-#: Two detections of one id in one frame (one camera) farther apart than this share of their range, and
-#: ``REPEATED_ID_APART_M``, are two tags that share the id (two tag families, or a reused id), not one tag seen twice.
-REPEATED_ID_APART = 0.1
-REPEATED_ID_APART_M = 0.25
-
-
 def _two_tags_one_id(det: DetectionStream, frame_of: np.ndarray, rows: np.ndarray, notes: list[str]) -> None:
-    """A warning when the repeated ids within a frame (among ``rows``) lie apart from the detection before them of
-    their frame and id: two tags share the id, and its landmark's detections mix two places
+    """A warning when the repeated ids within a frame (among ``rows``) lie apart (:func:`blocks.far_repeats`)
     (a generated figure 8 with one tag's id given to another: that landmark gone from the map, 39 of its detections
     taken as the other's, and only the note of the repeats dropped)."""
-    f, i = frame_of[rows], det.ids[rows]
-    order = np.lexsort((np.arange(rows.size), i, f))
-    same = (f[order][1:] == f[order][:-1]) & (i[order][1:] == i[order][:-1])
-    kept, dup = rows[order[:-1][same]], rows[order[1:][same]]
-    if det.camera_of is not None:
-        one = det.camera_of[kept] == det.camera_of[dup]
-        kept, dup = kept[one], dup[one]
-    apart = np.linalg.norm(det.xyz[dup] - det.xyz[kept], axis=1)
-    far = apart > np.maximum(REPEATED_ID_APART * np.linalg.norm(det.xyz[kept], axis=1), REPEATED_ID_APART_M)
-    if not far.any():
-        return
-    ids = np.unique(det.ids[dup[far]])
-    notes.append(
-        f"warning: {det.topic}: id{'s' if ids.size > 1 else ''} {', '.join(str(v) for v in ids[:5])}"
-        f"{' ...' if ids.size > 5 else ''} seen twice in {int(far.sum())} frames, {float(np.median(apart[far])):.3g} m "
-        "apart (median): two tags share the id (two tag families or dictionaries, or an id reused), so its "
-        "landmark's detections mix two places; the second of each frame is dropped, the rest used as read: give "
-        "the tags distinct ids (or read one family only)"
-    )
+    camera = None if det.camera_of is None else det.camera_of[rows]
+    ids, apart = far_repeats(frame_of[rows], det.ids[rows], det.xyz[rows], camera)
+    if ids.size:
+        notes.append(f"warning: {det.topic}: {shared_id_text(ids, apart)}")
 
 
 def _rank_in(frames: np.ndarray, n: int) -> np.ndarray:

@@ -93,6 +93,29 @@ def first_of_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.flatnonzero(~repeated_pairs(a, b))
 
 
+#: Two detections of one id in one frame (one camera) farther apart than this share of their range, and
+#: ``REPEATED_ID_APART_M``, are two tags that share the id (two tag families, or a reused id), not one tag seen twice.
+REPEATED_ID_APART = 0.1
+REPEATED_ID_APART_M = 0.25
+
+
+def far_repeats(
+    frame: np.ndarray, ids: np.ndarray, xyz: np.ndarray, camera: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ids and distances of the repeated ids within a frame (and camera) that lie apart from the detection
+    before them of their frame and id (``REPEATED_ID_APART``): two tags that share the id, whose landmark's
+    detections would mix two places. The readers and the alignment drop the repeats; both say this."""
+    order = np.lexsort((np.arange(ids.shape[0]), ids, frame))
+    same = (frame[order][1:] == frame[order][:-1]) & (ids[order][1:] == ids[order][:-1])
+    kept, dup = order[:-1][same], order[1:][same]
+    if camera is not None:
+        one = camera[kept] == camera[dup]
+        kept, dup = kept[one], dup[one]
+    apart = np.linalg.norm(xyz[dup] - xyz[kept], axis=1)
+    far = apart > np.maximum(REPEATED_ID_APART * np.linalg.norm(xyz[kept], axis=1), REPEATED_ID_APART_M)
+    return ids[dup[far]], apart[far]
+
+
 def finite_rows(x: np.ndarray) -> np.ndarray:
     """``np.isfinite(x).all(axis=1)`` of (N, k) rows (the same booleans), a column at a time: NumPy's reduction along
     the short axis took ~3x as long (16 against 6 ms for the three columns of an hour's 720,000 IMU rows)."""

@@ -341,3 +341,17 @@ def test_info_noise_names_a_camera_extrinsic_turned_before_any_run(tmp_path):
         assert shown.exit_code == 0, shown.output
         said = [line for line in shown.output.splitlines() if "check the camera's extrinsic" in line]
         assert len(said) == (name == "turned") and "turned by 90 deg" in "".join(said or ["turned by 90 deg"]), said
+
+
+def test_info_noise_names_two_tags_that_share_an_id(tmp_path):
+    """One tag's id given to another (two tag families): the run warned that two tags share the id, `info --noise`
+    did not (it printed the detection pairs' checks only; session 18). Now it prints the alignment's warnings too."""
+    sim = simulate("figure8", seed=5, duration=20.0)
+    ids = sim.detections.ids.copy()
+    ids[ids == 60] = 10
+    for name, s in (("clean", sim), ("shared", replace(sim, detections=replace(sim.detections, ids=ids)))):
+        write_log(s, tmp_path / f"{name}.mcap")
+        shown = invoke("info", "--noise", tmp_path / f"{name}.mcap")
+        assert shown.exit_code == 0, shown.output
+        said = [line for line in shown.output.splitlines() if "two tags share the id" in line]
+        assert len(said) == (name == "shared"), shown.output

@@ -353,6 +353,7 @@ def _cleaning_notes(reports: Mapping[str, list[tuple[str, Cleaning]]], on_record
         for text, roles in texts.items():  # the roles named unless the text is of every role the topic serves
             where = topic if len(roles) == len(cleanings) else f"{topic} ({', '.join(roles)})"
             notes.append(f"{where}: {text}")
+        notes += [f"warning: {topic}: {w}" for w in dict.fromkeys(w for _, c in cleanings for w in c.warnings)]
     return notes
 
 

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from slamobs.pipeline.blocks import finite_rows, repeated_pairs
+from slamobs.pipeline.blocks import far_repeats, finite_rows, repeated_pairs
 from slamobs.pipeline.errors import InputError, one_line, plural, resource_error
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
@@ -216,6 +216,7 @@ class Cleaning:
     step_forward: tuple[int, int] = (0, 0)  # a header clock set forward: clock_step_forward, at from the first
     kept: int = 0  # samples left (clean_order's streams; 0: not counted)
     extra: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # said as warnings, apart from :meth:`text`
 
     def count_order(self, t_ns: np.ndarray, rec_ns: np.ndarray) -> None:
         """Count the stamps (in record order) earlier than the one before, the largest step back, and a step of
@@ -637,6 +638,17 @@ def _clean_detections(
     return DetectionStream(topic, frame_id, t_ns, rec_ns, offsets, ids, xyz), cleaning
 
 
+def shared_id_text(ids: np.ndarray, apart: np.ndarray) -> str:
+    """The warning on repeated ids within a frame that lie apart (:func:`blocks.far_repeats`), without its topic."""
+    ids = np.unique(ids)
+    return (
+        f"id{'s' if ids.size > 1 else ''} {', '.join(str(v) for v in ids[:5])}{' ...' if ids.size > 5 else ''} seen "
+        f"twice in {apart.size} frames, {float(np.median(apart)):.3g} m apart (median): two tags share the id (two tag "
+        "families or dictionaries, or an id reused), so its landmark's detections mix two places; the second of each "
+        "frame is dropped, the rest used as read: give the tags distinct ids (or read one family only)"
+    )
+
+
 def clean_frames(
     t_ns: np.ndarray,
     rec_ns: np.ndarray,
@@ -664,6 +676,10 @@ def clean_frames(
     same = repeated_pairs(owner, ids)  # the first detection of an id in a frame is kept
     if nsame := int(np.count_nonzero(same)):
         cleaning.extra.append(plural(nsame, "repeated id") + " within a frame dropped")
+        if values.ndim == 2 and values.shape[1] == 3:  # positions (not corners): two tags sharing an id said
+            far_ids, apart = far_repeats(owner, ids, values)
+            if far_ids.size:
+                cleaning.warnings.append(shared_id_text(far_ids, apart))
         ids, values, flat, owner = ids[~same], values[~same], flat[~same], owner[~same]
     del same
     lengths = np.bincount(owner, minlength=nframes).astype(np.int64)
