@@ -120,7 +120,7 @@ def test_a_landmark_id_reused_mid_log_for_another_landmark_is_named(log):
 @pytest.mark.parametrize("far_first", [False, True])
 def test_a_jump_between_the_coarse_search_s_indices_is_split_exactly(far_first):
     """Generated innovations: landmark 0 among four calm ones, 60x its usual distance from the map from (or, with
-    ``far_first``, until) a change point that is none of the indices the coarse search tries (past 276 detections,
+    ``far_first``, until) a change point that is none of the indices the coarse search tries (from 276 detections on,
     ``split_candidates`` skips some), at several places on 300 to 2000 detections: the split is that change point,
     not the nearest candidate (one early gives the new landmark a detection of the old place)."""
     from slamobs.pipeline.observers.base import landmark_jumps, split_candidates

@@ -62,7 +62,8 @@ BIAS_STRIDE = 4
 #: estimators with a gate and noise levels (riekf, batch) check it: an observer's innovations, once it is lost,
 #: jump too (fast-adaptation on MR.CLAM 6 r1 with its velocity in km/h: landmark 6 22x, then 1.6x).
 JUMP_MIN_DETECTIONS, JUMP_RATIO, JUMP_CALM = 10, 20.0, 3.0
-#: Candidate splits tried per landmark (evenly over its detections): the check stays linear on long logs.
+#: Candidate splits tried per landmark (evenly over its detections), the best one then refined over the indices
+#: between its neighbours (``_best_split``): the check stays linear on long logs and the split exact.
 JUMP_SPLITS = 256
 #: Integer state slots every kernel shares (``KernelState.ns``).
 _IV, _JF, _NVIS = 0, 1, 2
@@ -353,7 +354,8 @@ class InnovationRecord:
 
 def split_candidates(n: int) -> np.ndarray:
     """The indices :func:`landmark_jumps` tries as the change point of a landmark with ``n`` detections: at most
-    ``JUMP_SPLITS``, ``JUMP_MIN_DETECTIONS`` from either end (past ``JUMP_SPLITS`` detections not every index)."""
+    ``JUMP_SPLITS``, ``JUMP_MIN_DETECTIONS`` from either end (past ``JUMP_SPLITS`` detections not every index: the
+    best is refined between its neighbours)."""
     return np.unique(np.linspace(JUMP_MIN_DETECTIONS, n - JUMP_MIN_DETECTIONS, JUMP_SPLITS).astype(np.int64))
 
 
