@@ -62,7 +62,8 @@ BIAS_STRIDE = 4
 #: estimators with a gate and noise levels (riekf, batch) check it: an observer's innovations, once it is lost,
 #: jump too (fast-adaptation on MR.CLAM 6 r1 with its velocity in km/h: landmark 6 22x, then 1.6x).
 JUMP_MIN_DETECTIONS, JUMP_RATIO, JUMP_CALM = 10, 20.0, 3.0
-#: Candidate splits tried per landmark (evenly over its detections): the check stays linear on long logs.
+#: Candidate splits tried per landmark (evenly over its detections), the best one then refined over the indices
+#: between its neighbours (``_best_split``): the check stays linear on long logs and the split exact.
 JUMP_SPLITS = 256
 #: Integer state slots every kernel shares (``KernelState.ns``).
 _IV, _JF, _NVIS = 0, 1, 2
@@ -353,28 +354,46 @@ class InnovationRecord:
 
 def split_candidates(n: int) -> np.ndarray:
     """The indices :func:`landmark_jumps` tries as the change point of a landmark with ``n`` detections: at most
-    ``JUMP_SPLITS``, ``JUMP_MIN_DETECTIONS`` from either end (past ``JUMP_SPLITS`` detections not every index)."""
+    ``JUMP_SPLITS``, ``JUMP_MIN_DETECTIONS`` from either end (past ``JUMP_SPLITS`` detections not every index: the
+    best is refined between its neighbours)."""
     return np.unique(np.linspace(JUMP_MIN_DETECTIONS, n - JUMP_MIN_DETECTIONS, JUMP_SPLITS).astype(np.int64))
+
+
+def _split_cost(e: np.ndarray, log_e: np.ndarray, k: int, median: float) -> tuple | None:
+    """The cost of splitting a landmark's innovations ``e`` (time order, ``log_e`` their logs) before index ``k``
+    and the median ratio of each side, (cost, ratio before, ratio after); None when the split is no jump (one side
+    over ``JUMP_RATIO`` and the other under ``JUMP_CALM`` times ``median``, three quarters of the first over
+    ``JUMP_CALM`` times)."""
+    a, b = float(np.median(e[:k])) / median, float(np.median(e[k:])) / median
+    if max(a, b) <= JUMP_RATIO or min(a, b) >= JUMP_CALM:
+        return None
+    if np.quantile(e[:k] if a > b else e[k:], 0.25) < JUMP_CALM * median:
+        return None  # a quarter of the far side or more is calm: a burst (the pose lost a while), no jump
+    lo, hi = log_e[:k], log_e[k:]
+    return float(np.abs(lo - np.median(lo)).sum() + np.abs(hi - np.median(hi)).sum()), a, b
 
 
 def _best_split(e: np.ndarray, median: float) -> tuple | None:
     """A landmark's change point (index, ratio before, ratio after), ``e`` its innovations in time order: the split
-    of least absolute deviation of log ‖e‖ from each side's median, among those whose one side is over
-    ``JUMP_RATIO`` and the other under ``JUMP_CALM`` times ``median``, three quarters of the first over ``JUMP_CALM``
-    times; None when no split is."""
-    n, log_e = e.shape[0], np.log(e)
-    best, best_cost = None, np.inf
-    for k in split_candidates(n):
-        a, b = float(np.median(e[:k])) / median, float(np.median(e[k:])) / median
-        if max(a, b) <= JUMP_RATIO or min(a, b) >= JUMP_CALM:
-            continue
-        if np.quantile(e[:k] if a > b else e[k:], 0.25) < JUMP_CALM * median:
-            continue  # a quarter of the far side or more is calm: a burst (the pose lost a while), no jump
-        lo, hi = log_e[:k], log_e[k:]
-        cost = float(np.abs(lo - np.median(lo)).sum() + np.abs(hi - np.median(hi)).sum())
-        if cost < best_cost:
-            best, best_cost = (int(k), a, b), cost
-    return best
+    of least absolute deviation of log ‖e‖ from each side's median among those :func:`_split_cost` takes; None
+    when no split is. The best of :func:`split_candidates` is then refined over every index between its two
+    neighbouring candidates, so the split is exact on a landmark seen more often than the candidates are many (the
+    cost of a step falls towards its change point from either side: the true one lies between those neighbours)."""
+    log_e, tried = np.log(e), split_candidates(e.shape[0])
+    best, best_i = (np.inf,), -1
+    for i, k in enumerate(tried):
+        c = _split_cost(e, log_e, int(k), median)
+        if c is not None and c[0] < best[0]:
+            best, best_i, best_k = c, i, int(k)
+    if best_i < 0:
+        return None
+    lo = int(tried[best_i - 1]) + 1 if best_i > 0 else best_k
+    hi = int(tried[best_i + 1]) if best_i + 1 < tried.shape[0] else best_k + 1
+    for k in range(lo, hi):
+        c = _split_cost(e, log_e, k, median) if k != best_k else None
+        if c is not None and c[0] < best[0]:
+            best, best_k = c, k
+    return best_k, best[1], best[2]
 
 
 def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list[dict]:
