@@ -18,16 +18,21 @@ def expm(a, terms=40):
     return out
 
 
-@pytest.mark.parametrize("scale", [0.0, 1e-10, 1e-3, 0.5, 2.0, 3.1])
-def test_se3_exp_matches_matrix_exponential(scale):
-    rng = np.random.default_rng(int(scale * 1000))
+def _twist_and_exponential(scale: float, seed: int):
+    """A random twist ``(w, v)`` with ``|w| = scale`` and its SE(3) exponential by ``scipy.linalg.expm``."""
+    rng = np.random.default_rng(seed)
     w = rng.normal(size=3)
     w = w / np.linalg.norm(w) * scale
     v = rng.normal(size=3)
     a = np.zeros((4, 4))
     a[:3, :3] = lie.skew(w)
     a[:3, 3] = v
-    ref = expm(a)
+    return w, v, expm(a)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-10, 1e-3, 0.5, 2.0, 3.1])
+def test_se3_exp_matches_matrix_exponential(scale):
+    w, v, ref = _twist_and_exponential(scale, int(scale * 1000))
     r, p = lie.se3_exp(w, v)
     assert np.allclose(r, ref[:3, :3], atol=1e-12)
     assert np.allclose(p, ref[:3, 3], atol=1e-12)
@@ -40,14 +45,7 @@ def test_se3_exp_matches_matrix_exponential(scale):
 def test_se3_step_is_the_exponential_to_rounding(scale):
     """The sub-step exponential's series (below 0.1 rad) is the matrix exponential to rounding, also at the angles
     of a sub-step where the closed form's ``1 − cos θ`` and ``θ − sin θ`` lose digits; above, it is the closed form."""
-    rng = np.random.default_rng(int(scale * 1e6) + 7)
-    w = rng.normal(size=3)
-    w = w / np.linalg.norm(w) * scale
-    v = rng.normal(size=3)
-    a = np.zeros((4, 4))
-    a[:3, :3] = lie.skew(w)
-    a[:3, 3] = v
-    ref = expm(a)
+    w, v, ref = _twist_and_exponential(scale, int(scale * 1e6) + 7)
     r, p = np.empty((3, 3)), np.empty(3)
     lie.se3_step_into(*w, *v, r, p)
     assert np.abs(r - ref[:3, :3]).max() <= 4e-16
