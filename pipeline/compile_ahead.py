@@ -48,7 +48,7 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
     ),
     # riekf: the run compiles its event loop itself (~28 of its ~47 CPU s on figure8.mcap; the run reaches it
     # first, after the readers' and the dead reckoning's); the helper takes what the run calls after it, the
-    # time-offset search's and the report's (~13 s), so the run finds them compiled when the loop is done.
+    # time-offset search's and the report's (~11 s), so the run finds them compiled when the loop is done.
     "riekf": (
         ("slamobs.pipeline.observers.time_offset", "_partners", "i1 f1 i1 f1"),
         ("slamobs.pipeline.observers.time_offset", "_pair_residuals", "f1 f3 f2 f2 f2 f1 f2 i1 i1 f1 f3"),

@@ -70,12 +70,19 @@ def test_with_the_helper_a_first_run_compiles_only_its_readers(first_runs):
     assert PLANNED.isdisjoint(ahead)
 
 
-@pytest.mark.parametrize("estimator", ["riekf", "batch"])
-def test_a_first_riekf_or_batch_run_compiles_none_of_the_helpers_kernels(tmp_path, estimator):
-    """Each is compiled for the types the run calls it with (riekf's event loop: by the riekf run itself, by the
-    helper for batch)."""
+@pytest.mark.parametrize(
+    ("estimator", "its_own", "the_helpers"),
+    [
+        ("riekf", "observers.riekf._advance", "observers.time_offset._trimmed_costs"),
+        ("batch", "smoother.solver.factor", "observers.riekf._advance"),
+    ],
+)
+def test_a_first_riekf_or_batch_run_compiles_none_of_the_helpers_kernels(tmp_path, estimator, its_own, the_helpers):
+    """Each is compiled for the types the run calls it with; the kernel the run needs first after reading it
+    compiles itself."""
     compiled = _first_run(tmp_path, estimator, observer=estimator)
-    assert ("slamobs.pipeline.observers.riekf._advance" in compiled) == (estimator == "riekf")
+    assert f"slamobs.pipeline.{its_own}" in compiled
+    assert f"slamobs.pipeline.{the_helpers}" not in compiled
     assert {f"{m}.{n}" for m, n, _ in compile_ahead.plan(estimator)}.isdisjoint(compiled)
 
 
