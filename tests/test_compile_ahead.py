@@ -34,18 +34,18 @@ if sys.argv[-1] == "kill":
         helper.proc.kill()
         return helper
     compile_ahead.start = killed
-main(["run", sys.argv[1], "-o", sys.argv[2], "-q", "--observer", "fast-adaptation"], standalone_mode=False)
+main(["run", sys.argv[1], "-o", sys.argv[2], "-q", "--observer", sys.argv[3]], standalone_mode=False)
 print(json.dumps(sorted({c.function for c in compiled_functions()})))
 """
 
 PLANNED = {f"{m}.{n}" for m, n, _ in compile_ahead.plan("fast-adaptation")}
 
 
-def _first_run(tmp, name: str, kill: str = "") -> list[str]:
+def _first_run(tmp, name: str, kill: str = "", observer: str = "fast-adaptation") -> list[str]:
     """A run of the sample log with an empty kernel cache and the helper on; the functions it compiled."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp / f"numba-{name}"), compile_ahead.ENV: "1"}
     out = subprocess.run(
-        [sys.executable, "-c", CHILD, str(LOG), str(tmp / name), kill],
+        [sys.executable, "-c", CHILD, str(LOG), str(tmp / name), observer, kill],
         capture_output=True,
         text=True,
         env=env,
@@ -68,6 +68,22 @@ def test_with_the_helper_a_first_run_compiles_only_its_readers(first_runs):
     assert ours, "a first run compiles its readers' kernels itself"
     assert [f for f in ours if not f.startswith("slamobs.pipeline.readers.")] == []
     assert PLANNED.isdisjoint(ahead)
+
+
+@pytest.mark.parametrize(
+    ("estimator", "its_own", "the_helpers"),
+    [
+        ("riekf", "observers.riekf._advance", "observers.time_offset._trimmed_costs"),
+        ("batch", "smoother.solver.factor", "observers.riekf._advance"),
+    ],
+)
+def test_a_first_riekf_or_batch_run_compiles_none_of_the_helpers_kernels(tmp_path, estimator, its_own, the_helpers):
+    """Each is compiled for the types the run calls it with; the kernel the run needs first after reading it
+    compiles itself."""
+    compiled = _first_run(tmp_path, estimator, observer=estimator)
+    assert f"slamobs.pipeline.{its_own}" in compiled
+    assert f"slamobs.pipeline.{the_helpers}" not in compiled
+    assert {f"{m}.{n}" for m, n, _ in compile_ahead.plan(estimator)}.isdisjoint(compiled)
 
 
 def test_without_its_helper_a_run_compiles_everything_and_writes_the_same_tables(first_runs):
@@ -96,7 +112,7 @@ def test_a_warm_run_starts_no_helper(first_runs, monkeypatch):
 def test_the_choice(monkeypatch):
     monkeypatch.delenv(compile_ahead.ENV, raising=False)
     assert compile_ahead.wanted(1) and not compile_ahead.wanted(0)
-    assert compile_ahead.plan("riekf") == compile_ahead.PLANS["report"]
+    assert compile_ahead.plan("hashim") == compile_ahead.PLANS["report"]
 
 
 def _helper_of(run: subprocess.Popen, within: float = 30.0) -> int:
