@@ -609,11 +609,14 @@ VELOCITY_LAG_GAIN = 1.1
 VELOCITY_LAG_MIN_S = 0.02
 
 
-def velocity_lag(stream, bias: np.ndarray, shift: float) -> dict | None:
+def velocity_lag(c: _Consistency, shift: float) -> dict | None:
     """How late the linear velocity's stamps look against the angular velocity's: the detection pairs' cost (at
     the detection shift ``shift``, the bias profiled out) with the velocity read ``lag`` seconds later, over a grid
-    (the best refined by a parabola through it and its neighbours); None when both come from one topic.
-    ``{"lag_s", "gain"}``: the lag of least cost and the cost as stamped over the cost there."""
+    (the best refined by a parabola through it and its neighbours; the bias's Jacobian is ``c``'s, one dead
+    reckoning per lag); None when both come from one topic.
+    ``{"lag_s", "gain", "edge"}``: the lag of least cost, the cost as stamped over the cost there, and whether
+    it is at the edge of the grid."""
+    stream = c.stream
     if not getattr(stream, "two_twist_topics", False):
         return None
     from dataclasses import replace
@@ -623,7 +626,11 @@ def velocity_lag(stream, bias: np.ndarray, shift: float) -> dict | None:
     costs = np.empty(lags.shape[0])
     for k, lag in enumerate(lags):
         moved = np.column_stack([np.interp(t + lag, t, stream.velocity[:, a]) for a in range(3)])
-        costs[k] = _Consistency(replace(stream, velocity=moved), bias).costs(shift)[0]
+        lagged = object.__new__(_Consistency)
+        lagged.__dict__.update(c.__dict__)
+        lagged.stream = replace(stream, velocity=moved)
+        lagged.poses = lagged._poses(c.bias)
+        costs[k] = lagged.costs(shift)[0]
     j = int(np.argmin(costs))
     zero = int(np.argmin(np.abs(lags)))
     lag = float(lags[j])
@@ -681,7 +688,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     out["velocity_scale"] = velocity_scale(c)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
-    out["velocity_lag"] = velocity_lag(stream, c.bias, shift if why is None else 0.0)
+    out["velocity_lag"] = velocity_lag(c, shift if why is None else 0.0)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
