@@ -89,6 +89,9 @@ class AlignedStream:
     #: transform (one camera fixed on the body, or the body frame itself); None for several cameras or a moving
     #: frame. The batch smoother reads the detections in the sensor's own frame through it (inverse depth).
     det_sensor: tuple[np.ndarray, np.ndarray] | None = None
+    #: Whether the angular and the linear velocity come from two topics (an IMU's gyro and an odometry): their
+    #: stamps can then lag one another, which the time offset's ``velocity_lag`` looks for.
+    two_twist_topics: bool = False
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -381,6 +384,7 @@ def align(
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
+    two_topics = om.topic != lv.topic
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -418,6 +422,7 @@ def align(
         directions=directions if keep_directions else None,
         segment_starts=starts,
         det_sensor=det_sensor,
+        two_twist_topics=two_topics,
     )
 
 
@@ -1099,6 +1104,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         directions=d,
         segment_starts=starts[(starts > a) & (starts < b)] - a,
         det_sensor=aligned.det_sensor,
+        two_twist_topics=aligned.two_twist_topics,
     )
 
 

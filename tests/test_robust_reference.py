@@ -793,3 +793,24 @@ def test_a_ground_robots_axes_that_do_not_move_get_no_velocity_scale():
     # the axis that moves is still measured: the velocity in cm/s is named
     said = time_offset.note("riekf", time_offset.estimate(replace(stream, velocity=stream.velocity * 100.0)))
     assert len(said) == 1 and "along x" in said[0] and "cm/s?" in said[0], said
+
+
+def test_an_odometry_stamped_late_against_the_gyro_is_named():
+    # the odometry stamped with its record time (80-90 ms late) while the IMU and the detections use header stamps:
+    # riekf 0.038 m against 0.011 clean on a figure 8 and only an "overconfident" note; the detection pairs' time
+    # offset (against both velocity streams at once) is 0.008 s and not applied. Read 80-90 ms earlier, the
+    # velocity fits the pairs better than as stamped, which the time offset now names (a ground robot's steady
+    # motion does not show it: 1.005x, not named; nor is anything on the clean logs)
+    from slamobs.pipeline.observers import time_offset
+
+    ground = time_offset.estimate(align(expected_streams(simulate("ground", seed=2, duration=30.0))))
+    assert time_offset.note("riekf", ground) == []
+    sim = simulate("figure8", seed=2, duration=30.0)
+    clean = time_offset.estimate(align(expected_streams(sim)))
+    assert time_offset.note("riekf", clean) == [] and clean["velocity_lag"]["gain"] < 1.05, clean["velocity_lag"]
+    o = sim.odom
+    late = np.maximum.accumulate(o.t_ns + 80_000_000 + np.random.default_rng(0).integers(0, 10_000_000, o.t_ns.size))
+    offset = time_offset.estimate(align(expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late)))))
+    assert 0.07 < offset["velocity_lag"]["lag_s"] < 0.1, offset["velocity_lag"]
+    for said in (time_offset.note("riekf", offset), time_offset.note(None, offset)):  # a run, `info --noise`
+        assert len(said) == 1 and "linear velocity's stamps look 0.0" in said[0] and "s late against" in said[0], said

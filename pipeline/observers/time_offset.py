@@ -598,6 +598,67 @@ def velocity_misread(scale: dict) -> list[str]:
     return out
 
 
+#: The velocity's lag against the angular velocity (two topics only: one odometry message's twist has one stamp):
+#: searched over ``±VELOCITY_LAG_MAX_S`` in ``VELOCITY_LAG_STEP_S`` steps; named (not applied) when the detections
+#: fit the velocity moved by it ``VELOCITY_LAG_GAIN`` times better than as stamped, it is at least
+#: ``VELOCITY_LAG_MIN_S`` and inside the search (docs/benchmarks.md "Clock offsets on real logs (session 18,
+#: h-tagoff)": 1.20x for an odometry stamped 80-90 ms late on a generated figure 8, 1.00x clean).
+VELOCITY_LAG_MAX_S = 0.2
+VELOCITY_LAG_STEP_S = 0.02
+VELOCITY_LAG_GAIN = 1.1
+VELOCITY_LAG_MIN_S = 0.02
+
+
+def velocity_lag(c: _Consistency, shift: float) -> dict | None:
+    """How late the linear velocity's stamps look against the angular velocity's: the detection pairs' cost (at
+    the detection shift ``shift``, the bias profiled out) with the velocity read ``lag`` seconds later, over a grid
+    (the best refined by a parabola through it and its neighbours; the bias's Jacobian is ``c``'s, one dead
+    reckoning per lag); None when both come from one topic.
+    ``{"lag_s", "gain", "edge"}``: the lag of least cost, the cost as stamped over the cost there, and whether
+    it is at the edge of the grid."""
+    stream = c.stream
+    if not getattr(stream, "two_twist_topics", False):
+        return None
+    from dataclasses import replace
+
+    t = stream.seconds(stream.vel_t_ns)
+    lags = np.arange(-VELOCITY_LAG_MAX_S, VELOCITY_LAG_MAX_S + VELOCITY_LAG_STEP_S / 2, VELOCITY_LAG_STEP_S)
+    costs = np.empty(lags.shape[0])
+    for k, lag in enumerate(lags):
+        moved = np.column_stack([np.interp(t + lag, t, stream.velocity[:, a]) for a in range(3)])
+        lagged = object.__new__(_Consistency)
+        lagged.__dict__.update(c.__dict__)
+        lagged.stream = replace(stream, velocity=moved)
+        lagged.poses = lagged._poses(c.bias)
+        costs[k] = lagged.costs(shift)[0]
+    j = int(np.argmin(costs))
+    zero = int(np.argmin(np.abs(lags)))
+    lag = float(lags[j])
+    if 0 < j < lags.shape[0] - 1:
+        c0, c1, c2 = costs[j - 1 : j + 2]
+        curv = c0 - 2.0 * c1 + c2
+        if curv > 0:
+            lag += 0.5 * VELOCITY_LAG_STEP_S * (c0 - c2) / curv
+    return {
+        "lag_s": round(float(lag), 4),
+        "gain": float(costs[zero] / max(costs[j], 1e-300)),
+        "edge": j in (0, lags.shape[0] - 1),
+    }
+
+
+def velocity_lag_sentence(lag: dict | None, pairs: int) -> str | None:
+    """The sentence naming a lag between the velocity streams (:func:`velocity_lag`), or None when there is none
+    to name."""
+    if not lag or lag["edge"] or lag["gain"] < VELOCITY_LAG_GAIN or abs(lag["lag_s"]) < VELOCITY_LAG_MIN_S:
+        return None
+    late = "late" if lag["lag_s"] > 0 else "early"
+    return (
+        f"the linear velocity's stamps look {abs(lag['lag_s']):.3f} s {late} against the angular velocity's: the "
+        f"detections fit it {lag['gain']:.3g}x better so moved ({pairs} detection pairs, trimmed mean squared "
+        "residual; a topic stamped with its record time, or on another clock?): stamp both at the measurement"
+    )
+
+
 def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
     reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's).
@@ -627,6 +688,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     out["velocity_scale"] = velocity_scale(c)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
+    out["velocity_lag"] = velocity_lag(c, shift if why is None else 0.0)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
@@ -732,6 +794,9 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     if world >= WORLD_TWIST_GAIN and not found:  # the dead-reckoned heading is the gyro's: only where it reads right
         # the velocity's scale on each axis is then a consequence: not said besides
         return [*found, (_world_twist_sentence(offset, world), "it")]
+    lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
+    if lag is not None:
+        found.append((lag, "them"))
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
