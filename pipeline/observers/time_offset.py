@@ -237,12 +237,16 @@ class _Consistency:
         _pair_residuals(t_s, rot_s, pos_s, omega, vel, self.det_t, self.y, self.a, self.b, shifts, out)
         return out
 
-    def subset(self, keep: np.ndarray) -> _Consistency:
-        """The same consistency over the pairs ``keep`` (a mask) only."""
+    def varied(self, **changes) -> _Consistency:
+        """A copy of this consistency with the attributes ``changes`` replaced (the rest shared, not recomputed)."""
         out = object.__new__(_Consistency)
         out.__dict__.update(self.__dict__)
-        out.a, out.b, out.jac, out.jtj = self.a[keep], self.b[keep], self.jac[keep], self.jtj[keep]
+        out.__dict__.update(changes)
         return out
+
+    def subset(self, keep: np.ndarray) -> _Consistency:
+        """The same consistency over the pairs ``keep`` (a mask) only."""
+        return self.varied(a=self.a[keep], b=self.b[keep], jac=self.jac[keep], jtj=self.jtj[keep])
 
     def costs(self, shifts) -> np.ndarray:
         """The cost at each of ``shifts`` (:func:`_trimmed_costs`), the residuals of all of them computed in one
@@ -452,15 +456,13 @@ def extrinsic_turn(c: _Consistency) -> dict:
     base = _trimmed_cost(c.residuals(0.0)[0])
     best, turn, y = 0.0, None, c.y
     used = np.unique(np.concatenate([c.a, c.b]))  # the pairs' detections only (the hour's 576,000 took 0.5 CPU s)
-    c.y = turned = np.array(y, dtype=np.float64, order="C")
-    try:
-        for q in _axis_turns():
-            turned[used] = y[used] @ q.T
-            gain = base / max(_trimmed_cost(c.residuals(0.0)[0]), 1e-300)
-            if gain > best:
-                best, turn = gain, q
-    finally:
-        c.y = y
+    turned = np.array(y, dtype=np.float64, order="C")
+    with_turned = c.varied(y=turned)
+    for q in _axis_turns():
+        turned[used] = y[used] @ q.T
+        gain = base / max(_trimmed_cost(with_turned.residuals(0.0)[0]), 1e-300)
+        if gain > best:
+            best, turn = gain, q
     return {"gain": best, "rotvec_deg": np.round(np.degrees(so3_log(turn)), 3).tolist()}
 
 
@@ -626,9 +628,7 @@ def velocity_lag(c: _Consistency, shift: float) -> dict | None:
     costs = np.empty(lags.shape[0])
     for k, lag in enumerate(lags):
         moved = np.column_stack([np.interp(t + lag, t, stream.velocity[:, a]) for a in range(3)])
-        lagged = object.__new__(_Consistency)
-        lagged.__dict__.update(c.__dict__)
-        lagged.stream = replace(stream, velocity=moved)
+        lagged = c.varied(stream=replace(stream, velocity=moved))
         lagged.poses = lagged._poses(c.bias)
         costs[k] = lagged.costs(shift)[0]
     j = int(np.argmin(costs))
@@ -841,8 +841,9 @@ def _world_twist_sentence(offset: dict, gain: float) -> str:
 def note(name: str | None, offset: dict) -> list[str]:
     """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
     an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
-    (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity scale is said) and
-    a velocity axis they say is scaled (``velocity_scale``), each with what the estimate did about it; ``name``
+    (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity scale is said), a
+    lag between the velocity streams (``velocity_lag``) and a velocity axis they say is scaled (``velocity_scale``),
+    each with what the estimate did about it; ``name``
     None: the warnings alone, as ``slamobs info --noise`` says them before any estimator runs (the same sentences,
     without an estimator's name and what it used)."""
     if name is None:
