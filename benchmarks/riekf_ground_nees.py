@@ -7,9 +7,12 @@ slip, and with extra noise keys (e.g. a velocity-bias random walk). A consistent
         [--walks 0 0.003 0.009] [--gyro-x 1] [--isotropic]
 
 The errors are those of the right-invariant filter (``η = R̂Rᵀ``: ``ξ_R = log η``, ``ξ_P = P̂ − ηP``) against the
-simulator's truth in the start pose's frame (the filter's gauge), after the first 2 s; ``walk`` 0 keeps the default
-``velocity_bias_walk``. ``--gyro-x`` and ``--isotropic`` change the log (gyro density; the simulator's additive
-detection law in place of the stereo-like one) to take the errors apart.
+simulator's truth in the start pose's frame (the filter's gauge), after the first 2 s; the final map's mean landmark
+NEES (3 DoF, ``landmarks.parquet``'s covariance) and RMS error against the simulator's landmarks in that frame (with
+the median σ, the root of the covariance's trace); the velocity-bias walk the run ended with and its passes over the
+log (run.json ``observer.filter.walk``). ``walk`` 0 keeps the default ``velocity_bias_walk`` (learned from the log).
+``--gyro-x`` and ``--isotropic`` change the log (gyro density; the simulator's additive detection law in place of the
+stereo-like one) to take the errors apart.
 """
 
 from __future__ import annotations
@@ -38,7 +41,9 @@ def nees(case, log: Path, truth: dict, extra: dict, out: Path) -> dict:
     noise = {k: v for k, v in truth.items() if k != "median_range_m"} | extra
     run_log(log, out, observer="riekf", config={"evaluation": {"plots": False}, "noise": noise}, force=True)
     p = pq.read_table(out / "poses.parquet").to_pandas()
-    notes = [n for n in json.loads((out / "run.json").read_text()).get("notes") or [] if n.startswith("error")]
+    run = json.loads((out / "run.json").read_text())
+    notes = [n for n in run.get("notes") or [] if n.startswith("error")]
+    lm = pq.read_table(out / "landmarks.parquet").to_pandas()
     shutil.rmtree(out, ignore_errors=True)
     sc = scenario(case)
     t0 = simulate(sc, duration=0.5, seed=1, noise=False).start_ns
@@ -65,7 +70,21 @@ def nees(case, log: Path, truth: dict, extra: dict, out: Path) -> dict:
     res["rms"] = np.sqrt(np.mean(e**2, axis=0))
     res["sigma"] = np.sqrt(np.median(np.diagonal(cv, axis1=1, axis2=2), axis=0))
     res["lost"] = bool(notes)
+    # the final map against the simulator's landmarks moved into the start pose's frame (the filter's gauge)
+    lm = lm[np.isin(lm.id.to_numpy(), sc.landmark_ids)]
+    i = np.searchsorted(sc.landmark_ids, lm.id.to_numpy())
+    lm_err = lm[["x", "y", "z"]].to_numpy() - (sc.landmarks[i] - tr.P[0]) @ tr.R[0]
+    lm_cov = np.stack([np.stack([c_lm(lm, a, b) for b in "xyz"], -1) for a in "xyz"], -2)
+    res["lm_nees"] = float(np.mean(np.einsum("ni,ni->n", lm_err, np.linalg.solve(lm_cov, lm_err[..., None])[..., 0])))
+    res["lm_err"] = float(np.sqrt(np.mean(np.sum(lm_err**2, axis=1))))
+    res["lm_sigma"] = float(np.sqrt(np.median(np.trace(lm_cov, axis1=1, axis2=2))))
+    walk = run["observer"]["filter"]["walk"]
+    res["walk"] = f"{walk['velocity_bias_walk']:.2g} ({walk.get('passes', 1)})"
     return res
+
+
+def c_lm(lm, a: str, b: str) -> np.ndarray:
+    return lm[f"cov_{a}{b}"].to_numpy() if f"cov_{a}{b}" in lm else lm[f"cov_{b}{a}"].to_numpy()
 
 
 def main() -> None:
@@ -80,9 +99,9 @@ def main() -> None:
     args.cache.mkdir(parents=True, exist_ok=True)
     print(
         "| log | slip m/s | velocity_bias_walk | NEES att (3) / rp (2) / yaw (1) | NEES pos (3) / xy (2) / z (1) | "
-        "RMS err rx ry rz deg (σ) | RMS err x y z m (σ) |"
+        "RMS err rx ry rz deg (σ) | RMS err x y z m (σ) | landmark NEES (3) | map err m (σ) | walk (passes) |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     for base in (CASES[i] for i in args.cases):
         if args.gyro_x:
             base = replace(base, name=f"{base.name}-gyro{args.gyro_x:g}", gyro_x=args.gyro_x)
@@ -101,7 +120,11 @@ def main() -> None:
                     xyz = f"{fmt(r['rms'][3:], '%.2f')} ({fmt(r['sigma'][3:], '%.2f')})"
                     name = f"{case.name}-s{seed}{' (lost)' if r['lost'] else ''}"
                     w = walk if walk > 0 else "default"
-                    print(f"| {name} | {case.drift:g} | {w} | {att} | {pos} | {rot} | {xyz} |", flush=True)
+                    lmc = f"{r['lm_nees']:.1f} | {r['lm_err']:.2f} ({r['lm_sigma']:.2f})"
+                    print(
+                        f"| {name} | {case.drift:g} | {w} | {att} | {pos} | {rot} | {xyz} | {lmc} | {r['walk']} |",
+                        flush=True,
+                    )
 
 
 if __name__ == "__main__":

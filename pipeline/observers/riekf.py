@@ -54,7 +54,15 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   walk: the corrections and their expectation both shrink with the gain; up to ``MAX_WALK_FACTOR`` in all; run.json
   ``observer.filter.walk``, a note). The ratio measured on the generated ground robot with slip is 4-6, on MR.CLAM,
   TagSLAM and clean generated logs at most 3.7, where a larger walk hurts (docs/benchmarks.md, "riekf's
-  velocity-bias walk from the log (session 16)"). On a log where it stays below, nothing changes.
+  velocity-bias walk from the log (session 16)"). On a log where it stays below, nothing changes. A raise comes late
+  (the signal appears once the bias prior has collapsed) and the trajectory before it kept the slip's error in a
+  covariance that did not allow for it (position, heading and map NEES 5-30 on the generated ground logs): so when
+  the first stretch's largest ratio exceeds ``RESTART_RATIO`` the filter starts again from the log's start with the
+  walk's standard deviation multiplied by that ratio squared (:meth:`RiEKF._walk_restart`, before anything of the
+  stretch is returned; up to ``MAX_WALK_PASSES`` passes; run.json ``observer.filter.walk`` ``passes`` and
+  ``start_walk``, a note). Not where the velocity level was estimated from detection pairs over seconds (held
+  commands, ``noise.held``: MR.CLAM): that level already holds the slow error, and a walk on top made MR.CLAM
+  worse (docs/benchmarks.md, "riekf under wheel slip, session 19 (h-slip)").
 * Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
   gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
   propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
@@ -115,7 +123,7 @@ REORTHO_EVERY = 1000
 N_FIXED = 12
 #: Indices into the accumulator stack ``acc`` (3×3 each) and the scalar ``fs`` clocks.
 _SR, _SPR, _QRR, _QPR, _QPP = 0, 1, 2, 3, 4
-_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK, _PLANE_T = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9
+_T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK, _PLANE_T, _WALK_MAX = range(11)
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -155,6 +163,10 @@ CONSISTENCY_WINDOWS = 7
 WALK_RATIO = 4.0
 WALK_RATIO_AGAIN = 2.0
 MAX_WALK_FACTOR = 100.0
+#: Velocity-bias walk from the first stretch (module docstring): the ratio above which the filter starts again with the
+#: walk the stretch learned, and the most passes over it in all.
+RESTART_RATIO = 2.0
+MAX_WALK_PASSES = 4
 #: Planar motion (module docstring): the RMS of the roll and pitch rates and of the vertical velocity over their noise
 #: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
 #: floor's pseudo-measurements, and the seconds between them.
@@ -1142,6 +1154,7 @@ def _walk_check(t, fs, ns, win_sum, walk_log):
     if ns[_WALK_N] < CONSISTENCY_WINDOWS:
         return False
     ratio = win_sum[6].sum() / win_sum[7].sum()
+    fs[_WALK_MAX] = max(fs[_WALK_MAX], ratio)
     if ratio <= (WALK_RATIO_AGAIN if ns[_WALK_RAISES] else WALK_RATIO) or fs[_WALK] >= MAX_WALK_FACTOR**2:
         return False
     fs[_WALK] = min(fs[_WALK] * ratio**4, MAX_WALK_FACTOR**2)
@@ -1434,7 +1447,7 @@ class _State(KernelState):
     can need, the running sums and the update scratch."""
 
     def __init__(self, n_landmarks: int, n_max: int, r0, p0, sigma_bias: np.ndarray) -> None:
-        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=10)
+        super().__init__(n_max, r0, p0, np.zeros(3), np.zeros(3), n_clocks=11)
         self.fs[_SCALE] = 1.0
         self.fs[_WALK] = 1.0
         self.fs[_DSCALE] = 1.0
@@ -1541,6 +1554,8 @@ class RiEKF(Stepper):
         self._offset: time_offset.Background | None = time_offset.Background(stream)
         self._time_offset: dict | None = None  # None while it is being estimated
         self._known = False  # whether the estimate is applied is known and acted upon (:meth:`_offset_applied`)
+        # the walk's variance factor a pass starts from, the passes over the first stretch, whether one was returned
+        self._walk0, self._passes, self._returned = 1.0, 1, False
         if self._offset.done():  # one core: estimated already, nothing to overlap
             self._time_offset, self._offset = self._offset.result(), None
             stream = time_offset.shifted(stream, self._time_offset)
@@ -1561,6 +1576,7 @@ class RiEKF(Stepper):
         )
         # a walk given in the configuration is kept; else it is learned from the log (module docstring)
         self.state.ns[_WALK_FIXED] = int(nz.sources.get("velocity_bias_walk") == "config")
+        self.state.fs[_WALK] = self._walk0
         # the detection law (σ0, k, a) and the factors of σ(r)² across the line of sight and of what the range
         # adds (the ratio's split): the kernel evaluates it at each detection's predicted (or measured) range
         self.det_law = np.array(
@@ -1595,7 +1611,33 @@ class RiEKF(Stepper):
         return decision["applied"]
 
     def advance(self, iv_stop: int):
-        """:meth:`Stepper.advance`. While the time offset is being estimated, the filter runs on the recorded
+        """:meth:`Stepper.advance` (:meth:`_advance_stretch`); the first stretch is run again from the start with the
+        walk it learned as long as its velocity-bias corrections say the walk is too small (:meth:`_walk_restart`)."""
+        res = self._advance_stretch(iv_stop)
+        while not self._returned and self._walk_restart():
+            res = self._advance_stretch(iv_stop)
+        self._returned = True
+        return res
+
+    def _walk_restart(self) -> bool:
+        """Whether the first stretch is run again (module docstring, "Velocity-bias walk"): when the largest ratio of
+        its velocity-bias corrections to their expectation exceeded ``RESTART_RATIO``, the filter starts again with
+        the walk's standard deviation multiplied by that ratio squared (or the walk the stretch raised to, if larger),
+        up to ``MAX_WALK_PASSES`` passes and ``MAX_WALK_FACTOR``."""
+        ns, fs = self.state.ns, self.state.fs
+        if ns[_WALK_FIXED] or "velocity" in self.noise.held:  # given; or the slow error is in the velocity level
+            return False
+        if self._passes >= MAX_WALK_PASSES or fs[_WALK_MAX] <= RESTART_RATIO:
+            return False
+        if self._walk0 >= MAX_WALK_FACTOR**2:
+            return False
+        self._walk0 = min(max(self._walk0 * fs[_WALK_MAX] ** 4, fs[_WALK]), MAX_WALK_FACTOR**2)
+        self._passes += 1
+        self._setup(self.stream)
+        return True
+
+    def _advance_stretch(self, iv_stop: int):
+        """One stretch. While the time offset is being estimated, the filter runs on the recorded
         stamps; it stops as soon as the estimate is known to be applied (:meth:`_kernel`) and starts again on the
         moved stamps, and the first stretch is returned only once that is known. The estimate's reporting checks
         (:func:`time_offset.estimate`'s ``decided``) may go on meanwhile: the stretches' statistics hold the estimate
@@ -1794,14 +1836,17 @@ class RiEKF(Stepper):
         }
 
     def _walk(self) -> dict:
-        """The velocity-bias walk for run.json: given (configuration) or learned, its value now and each raise (log
-        seconds, the ratio of the bias corrections to their expectation, the walk after it)."""
+        """The velocity-bias walk for run.json: given (configuration) or learned, the passes over the first stretch
+        and the walk the last one started from (:meth:`_walk_restart`), its value now and each raise of the last pass
+        (log seconds, the ratio of the bias corrections to their expectation, the walk after it)."""
         ns, fs = self.state.ns, self.state.fs
         t0 = float(self.vel_t[0]) if self.vel_t.size else 0.0
         given = float(self.params[3])
         return {
             "learned": not ns[_WALK_FIXED],
             "given_m_s_sqrt_s": given,
+            "passes": self._passes,
+            "start_walk": given * float(np.sqrt(self._walk0)),
             "velocity_bias_walk": given * float(np.sqrt(fs[_WALK])),
             "raises": [
                 {"t_s": round(float(r[0]) - t0, 3), "ratio": round(float(r[1]), 3), "walk": given * float(r[2])}
@@ -1878,6 +1923,15 @@ def recovery_notes(filt: dict) -> list[str]:
             "re-observed landmarks re-anchored it (run.json observer.filter.blind)"
         )
     walk = filt.get("walk") or {}
+    if walk.get("passes", 1) > 1:
+        notes.append(
+            f"riekf: velocity-bias walk learned from the log: {walk['given_m_s_sqrt_s']:.3g} -> "
+            f"{walk['start_walk']:.3g} m/s/sqrt(s) from the start ({walk['passes'] - 1} run(s) again): the "
+            f"velocity-bias corrections over {CONSISTENCY_WINDOWS} windows of {WINDOW} detections reached over "
+            f"{RESTART_RATIO:g} times the size (squared) a consistent filter expects: a slowly varying velocity error, "
+            "such as wheel slip, that the noise model lacked (run.json observer.filter.walk; noise: velocity_bias_walk "
+            "fixes it)"
+        )
     if walk.get("raises"):
         first = walk["raises"][0]
         notes.append(
