@@ -429,10 +429,10 @@ def test_riekf_says_when_wheel_slip_makes_it_overconfident(drift):
 
 def test_riekf_learns_its_velocity_bias_walk_from_wheel_slip_and_says_so():
     """Wheel slip (0.05 m/s, 10 s time scale) moves the velocity bias faster than the default walk lets the filter
-    follow: its bias corrections grow beyond what it expects of them, and the filter runs the log again from the start
-    with the walk they say (run.json observer.filter.walk, a note), which brings the trajectory closer than with the
-    walk held at its default (given in the configuration: kept as given). Without slip the corrections are what the
-    filter expects and the walk stays."""
+    follow: its bias corrections grow beyond what it expects of them, and the walk is raised (run.json
+    observer.filter.walk, a note), which brings the later trajectory closer than with the walk held at its default
+    (given in the configuration: kept as given). Without slip the corrections are what the filter expects and the
+    walk stays."""
     slip = align(
         expected_streams(
             simulate("figure8", seed=2, duration=60.0, noise=replace(NoiseModel(), odom_linear_drift=0.05))
@@ -440,21 +440,18 @@ def test_riekf_learns_its_velocity_bias_walk_from_wheel_slip_and_says_so():
     )
     learned = RIEKF.run(slip, {}, ObserverOptions())
     f = learned.stats["metadata"]["filter"]["walk"]
-    assert f["learned"] and f["passes"] >= 2 and f["start_walk"] > 10 * f["given_m_s_sqrt_s"]
-    assert f["velocity_bias_walk"] >= f["start_walk"]
-    assert (
-        sum(n.startswith("riekf: velocity-bias walk learned") and "from the start" in n for n in learned.stats["notes"])
-        == 1
-    )
+    assert f["learned"] and f["raises"] and f["raises"][0]["ratio"] > 4.0
+    assert f["velocity_bias_walk"] > 10 * f["given_m_s_sqrt_s"]
+    assert sum(n.startswith("riekf: velocity-bias walk learned from the log") for n in learned.stats["notes"]) == 1
     held = RIEKF.run(slip, {}, ObserverOptions(noise=resolve_noise(NoiseConfig(velocity_bias_walk=1e-4))))
     h = held.stats["metadata"]["filter"]["walk"]
-    assert not h["learned"] and h["raises"] == [] and h["passes"] == 1 and h["velocity_bias_walk"] == 1e-4
+    assert not h["learned"] and h["raises"] == [] and h["velocity_bias_walk"] == 1e-4
     assert not any("velocity-bias walk learned" in n for n in held.stats["notes"])
     sim = simulate("figure8", seed=2, duration=60.0, noise=replace(NoiseModel(), odom_linear_drift=0.05))
     assert ape(sim, learned, 0.4) < 0.8 * ape(sim, held, 0.4)
     clean = RIEKF.run(align(expected_streams(simulate("figure8", seed=2, duration=60.0))), {}, ObserverOptions())
     assert clean.stats["metadata"]["filter"]["walk"]["raises"] == []
-    assert clean.stats["metadata"]["filter"]["walk"]["passes"] == 1
+    assert learned.stats["metadata"]["filter"]["walk"]["passes"] == 1  # not a ground robot on its floor: not run again
 
 
 def _gap_run(tmp_path, seed: int, floor, late=None, walk=None) -> dict:

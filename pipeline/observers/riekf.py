@@ -60,9 +60,11 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   the first stretch's largest ratio exceeds ``RESTART_RATIO`` the filter starts again from the log's start with the
   walk's standard deviation multiplied by that ratio squared (:meth:`RiEKF._walk_restart`, before anything of the
   stretch is returned; up to ``MAX_WALK_PASSES`` passes; run.json ``observer.filter.walk`` ``passes`` and
-  ``start_walk``, a note). Not where the velocity level was estimated from detection pairs over seconds (held
-  commands, ``noise.held``: MR.CLAM): that level already holds the slow error, and a walk on top made MR.CLAM
-  worse (docs/benchmarks.md, "riekf under wheel slip, session 19 (h-slip)").
+  ``start_walk``, a note). Only on a ground robot whose floor is held (below, "Planar motion": wheels on a floor,
+  where slip is the slow velocity error); not where the velocity level was estimated from detection pairs over
+  seconds (held commands, ``noise.held``: MR.CLAM), which already holds the slow error (a walk on top made MR.CLAM
+  worse), nor on moving 3-D logs, whose large corrections came from elsewhere (stereo detections' skewed depth: the
+  walk from the start made those worse; docs/benchmarks.md, "riekf under wheel slip, session 19 (h-slip)").
 * Blind stretches: after ``BLIND_S`` or more without a known landmark's detection (none in view, or a detection
   gap), the pose error has grown by dead reckoning alone and a re-observed landmark may fall outside the
   propagated covariance (wheel slip the noise model lacks). The first ``BLIND_WINDOW`` known-landmark detections
@@ -1625,7 +1627,8 @@ class RiEKF(Stepper):
         the walk's standard deviation multiplied by that ratio squared (or the walk the stretch raised to, if larger),
         up to ``MAX_WALK_PASSES`` passes and ``MAX_WALK_FACTOR``."""
         ns, fs = self.state.ns, self.state.fs
-        if ns[_WALK_FIXED] or "velocity" in self.noise.held:  # given; or the slow error is in the velocity level
+        # given; or the slow error is in the velocity level (held commands); or not a ground robot on its floor
+        if ns[_WALK_FIXED] or "velocity" in self.noise.held or not self.planar["held"]:
             return False
         if self._passes >= MAX_WALK_PASSES or fs[_WALK_MAX] <= RESTART_RATIO:
             return False
