@@ -30,6 +30,7 @@ import argparse
 import functools
 import importlib.abc
 import importlib.util
+import json
 import os
 import sys
 import tempfile
@@ -136,10 +137,13 @@ class Sampler(threading.Thread):
 
 
 def _staged(sampler: Sampler, walls: dict[str, float], stage: str, func):
-    """``func`` that marks ``stage`` while it runs (and the stage after it once it returns)."""
+    """``func`` that marks ``stage`` while it runs (and the stage after it once it returns), when the main thread
+    calls it (the observer run ahead on a log's prefixes aligns them on its own thread, within the read)."""
 
     @functools.wraps(func)
     def wrapped(*args, **kwargs):
+        if threading.current_thread() is not threading.main_thread():
+            return func(*args, **kwargs)
         sampler.sample()
         sampler.stage, start = stage, time.perf_counter()
         try:
@@ -300,7 +304,9 @@ def main() -> None:
         out = args.out or Path(tmp) / "run"
         for k in range(max(1, args.repeat)):
             walls, cpu, wall = one_run(args.log, out, args.figure_helper, args.chart, extra)
-            print(f"## run {k + 1}: {wall:.2f} s wall")
+            ahead = json.loads((out / "run.json").read_text())["timings_s"].get("ahead_samples")
+            said = "" if ahead is None else f", the observer {ahead} samples ahead when the log's stream took it over"
+            print(f"## run {k + 1}: {wall:.2f} s wall{said}")
             show(walls, cpu, wall, cores)
     print(f"# {load()}")
 
