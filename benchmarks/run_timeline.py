@@ -30,7 +30,6 @@ import argparse
 import functools
 import importlib.abc
 import importlib.util
-import json
 import os
 import sys
 import tempfile
@@ -144,13 +143,10 @@ class Sampler(threading.Thread):
 
 
 def _staged(sampler: Sampler, walls: dict[str, float], stage: str, func):
-    """``func`` that marks ``stage`` while it runs (and the stage after it once it returns), when the main thread
-    calls it (the observer run ahead on a log's prefixes aligns them on its own thread, within the read)."""
+    """``func`` that marks ``stage`` while it runs (and the stage after it once it returns)."""
 
     @functools.wraps(func)
     def wrapped(*args, **kwargs):
-        if threading.current_thread() is not threading.main_thread():
-            return func(*args, **kwargs)
         sampler.sample()
         sampler.stage, start = stage, time.perf_counter()
         try:
@@ -313,9 +309,7 @@ def main() -> None:
         out = args.out or Path(tmp) / "run"
         for k in range(max(1, args.repeat)):
             walls, cpu, wall, rss = one_run(args.log, out, args.figure_helper, args.chart, extra)
-            ahead = json.loads((out / "run.json").read_text())["timings_s"].get("ahead_samples")
-            said = "" if ahead is None else f", the observer {ahead} samples ahead when the log's stream took it over"
-            print(f"## run {k + 1}: {wall:.2f} s wall{said}")
+            print(f"## run {k + 1}: {wall:.2f} s wall")
             show(walls, cpu, wall, cores, rss)
     print(f"# {load()}")
 

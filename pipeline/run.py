@@ -253,8 +253,6 @@ class PreparedLog:
     #: what the log's samples say about its noise (pipeline.noise.LogNoise), estimated by the first run that
     #: needs it (compare and tune run several estimators on one prepared log)
     estimated_noise: object | None = None
-    #: the observer run ahead on the log's prefixes while it was read (pipeline.speculation.Speculation), None: not
-    speculation: object | None = None
 
 
 Progress = Callable[[str], None]
@@ -273,7 +271,6 @@ def prepare_log(
     needs_directions: int = 0,
     noise: bool = True,
     estimator: str | None = None,
-    speculation=None,
 ) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
@@ -282,8 +279,7 @@ def prepare_log(
     directions the estimator needs, named with the other missing inputs when the log lacks them. ``noise=False``
     skips the recorded velocity's noise density (0.5 s on an hour of log), which only estimators with noise
     levels use (``uses_noise``: riekf, batch). ``estimator``: the name(s) the missing-inputs error gives as needing
-    them (None: every estimator). ``speculation`` (:func:`speculation_for`) runs the observer on the log's prefixes
-    while it is read.
+    them (None: every estimator).
     """
     from slamobs.pipeline.readers import read_log
 
@@ -300,7 +296,7 @@ def prepare_log(
     check_camera_files(config.cameras)  # a camera file given is read even where the log has no camera topics
     t = time.perf_counter()
     progress(f"reading {log}")
-    streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress, prefix=speculation)
+    streams = read_log(log, config.topics or None, **config.reader_options(), progress=progress)
     timings["read_s"] = time.perf_counter() - t
     check_required(streams, needs_directions, estimator)  # every missing input at once, before tag poses
     tags = None
@@ -330,7 +326,18 @@ def prepare_log(
     t = time.perf_counter()
     progress("aligning the streams")
     topics = _topics(streams)
-    aligned = align(streams, **align_options(config, directions), release=True)
+    aligned = align(
+        streams,
+        body_frame=config.frames.body,
+        time_source=config.align_time_source,
+        identity_frames=config.frames.assume_identity,
+        override_identity=config.frames.override_identity,
+        gravity=config.directions.gravity,
+        magnetic_field=config.directions.magnetic_field,
+        keep_directions=directions,
+        release=True,
+        limits=config.limits.as_dict(),
+    )
     if known is not None and known.fixed:
         aligned, note = restrict_to_map(aligned, known)
         if note:
@@ -351,45 +358,7 @@ def prepare_log(
         static_tf_dropped=streams.static_tf_dropped,
         static_tf_changed=streams.static_tf_changed,
     )
-    prepared = PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
-    prepared.speculation = speculation
-    return prepared
-
-
-def align_options(config: RunConfig, directions: bool) -> dict:
-    """How ``config`` aligns a log's streams (``alignment.align``'s options): the whole log's, and its prefixes'
-    while it is read (:func:`speculation_for`)."""
-    return {
-        "body_frame": config.frames.body,
-        "time_source": config.align_time_source,
-        "identity_frames": config.frames.assume_identity,
-        "override_identity": config.frames.override_identity,
-        "gravity": config.directions.gravity,
-        "magnetic_field": config.directions.magnetic_field,
-        "keep_directions": directions,
-        "limits": config.limits.as_dict(),
-    }
-
-
-def speculation_for(spec, log: Path, config: RunConfig, directions: bool):
-    """The observer run ahead on the log's prefixes while it is read (:mod:`pipeline.speculation`), where that
-    gives the staged run's stretches: an observer that reads only the prefix, two cores, and nothing of the run
-    found over the whole log first (a known map, a time window, an output rate, cameras); else None."""
-    from slamobs.pipeline.cores import cores
-    from slamobs.pipeline.speculation import Speculation
-
-    whole_log = config.map.file or config.time.start is not None or config.time.end is not None
-    if not spec.reads_prefix_only or whole_log or config.output.rate_hz is not None or config.cameras or cores() < 2:
-        return None
-    gains = spec.resolve_gains(config.gains.get(spec.name))
-
-    def options_for(aligned: AlignedStream):
-        return estimator_input(PreparedLog(log, LogStreams(path=str(log)), aligned, {}), config).options
-
-    roles = ("angular_velocity", "linear_velocity", "detections", "static_tf", "tf")
-    roles += ("accel", "magnetic") if directions else ()  # what the alignment reads
-    aligning = partial(align, **align_options(config, directions))
-    return Speculation(spec, gains, aligning, options_for, STRETCH_SAMPLES, roles)
+    return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
 
 
 def _recorded_velocity_noise(streams: LogStreams, config: RunConfig):
@@ -473,7 +442,6 @@ def run_log(
     workers = plot_workers if config.evaluation.plots else None
     if plot_workers is not None and workers is None:
         plot_workers.close()
-    ahead = speculation_for(spec, Path(log), config, directions)
     try:
         prepared = prepare_log(
             log,
@@ -483,7 +451,6 @@ def run_log(
             needs_directions=needed,
             noise=spec.uses_noise,
             estimator=spec.name,
-            speculation=ahead,
         )
         return run_prepared(
             prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
@@ -493,8 +460,6 @@ def run_log(
             raise machine from None
         raise
     finally:
-        if ahead is not None:
-            ahead.close()
         if workers is not None:
             workers.close()
 
@@ -743,12 +708,7 @@ def estimate(
         t = time.perf_counter()
         n_vel = int(aligned.vel_t_ns.shape[0])
         progress(f"{spec.name}: 0 of {n_vel} samples")
-        ahead = prepared.speculation
-        if ahead is not None:  # run ahead on the prefixes: the stretches it checked, then the rest
-            prepared.speculation = None
-            parts = ahead.parts(aligned, gains, replace(options, progress=progress))
-        else:
-            parts = spec.chunks(aligned, gains, replace(options, progress=progress), STRETCH_SAMPLES)
+        parts = spec.chunks(aligned, gains, replace(options, progress=progress), STRETCH_SAMPLES)
         innovations = InnovationRecord() if spec.uses_noise else None
         for done, part in enumerate(_diverging_as_error(parts, log, spec.name, t0_ns), 1):
             observer_s += time.perf_counter() - t
@@ -819,13 +779,7 @@ def estimate(
         raise
     # parts of observer_s (batch: seed_s, smoother_s); the writer's own time (it overlaps the observer) and the
     # landmarks and footers after the last stretch
-    ahead_s = {"ahead_samples": ahead.summary["samples"]} if ahead else {}
-    return {
-        "observer_s": observer_s,
-        **stage_timings,
-        "write_s": writes.busy_s + time.perf_counter() - t_end,
-        **ahead_s,
-    }
+    return {"observer_s": observer_s, **stage_timings, "write_s": writes.busy_s + time.perf_counter() - t_end}
 
 
 class _LandmarksJumped(Unwind):

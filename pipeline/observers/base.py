@@ -149,24 +149,6 @@ class ObserverResult:
     landmark_cov: np.ndarray | None = None
 
 
-def joined(pieces: list[ObserverResult]) -> ObserverResult:
-    """Consecutive stretches of one run as the one stretch they make up: a kernel goes on exactly where it stopped,
-    so their rows joined are the rows one stretch over the same samples gives, and the map, the statistics and the
-    frame are the last piece's (as they are at its end). Extra tables are joined row by row."""
-    if len(pieces) == 1:
-        return pieces[0]
-    last = pieces[-1]
-    rows = ("t_ns", "rotation", "position", "gyro_bias", "vel_bias", "det_t_ns", "det_ids", "track_xyz", "innovation")
-    cov = None if last.pose_cov is None else np.concatenate([p.pose_cov for p in pieces])
-    extra = {
-        name: {col: np.concatenate([p.extra_tables[name][col] for p in pieces]) for col in table}
-        for name, table in last.extra_tables.items()
-    }
-    return replace(
-        last, **{k: np.concatenate([getattr(p, k) for p in pieces]) for k in rows}, pose_cov=cov, extra_tables=extra
-    )
-
-
 def max_per_frame(det_offsets: np.ndarray) -> int:
     """Most detections in one frame (0 without frames)."""
     return int(np.diff(det_offsets).max()) if det_offsets.shape[0] > 1 else 0
@@ -544,14 +526,6 @@ class Stepper:
         """Most detections in one frame: the size of the visible-landmark buffers."""
         return max_per_frame(self.stream.det_offsets)
 
-    def continue_on(self, stream: AlignedStream) -> None:
-        """Go on over ``stream``, which agrees with the stream so far on everything this run has read and its
-        next stretch reads (``pipeline.speculation`` checks that): the log's whole stream in place of the
-        prefix the run started on. Only for the observers whose spec says ``reads_prefix_only``."""
-        self.stream = stream
-        self.vel_t = stream.seconds(stream.vel_t_ns)
-        self.det_t = stream.seconds(stream.det_t_ns)
-
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:  # pragma: no cover - abstract
         """Run the kernel from its state; returns the rows written to ``out`` (from its first row)."""
         raise NotImplementedError
@@ -729,11 +703,6 @@ class ObserverSpec:
     takes_known_map: bool = True
     #: Whether it weighs measurements by noise levels (``options.noise``): the reference estimators do.
     uses_noise: bool = False
-    #: Whether its stepper reads nothing of the stream but the samples and frames up to where it stands, the
-    #: landmark ids, the segment starts and the most detections in a frame (no direction samples, nothing found
-    #: over the whole log): then it may start on the settled prefix of a log still being read
-    #: (``pipeline.speculation``, :meth:`Stepper.continue_on`).
-    reads_prefix_only: bool = False
 
     def directions_needed(self, config) -> int:
         """Inertial directions a run of this estimator with ``config`` needs (checking the config first)."""

@@ -453,5 +453,4 @@ SPEC = ObserverSpec(
         GainSpec("k_w", 1.0, "pose correction gain [paper: 2]", (0.01, 10.0)),
     ),
     start=FastAdaptation,
-    reads_prefix_only=True,
 )

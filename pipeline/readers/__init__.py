@@ -13,7 +13,7 @@ from collections import defaultdict
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -87,7 +87,6 @@ def read_log(
     clocks: str | Mapping[str, str] | None = None,
     images: ImageSearch | None = None,
     progress: Callable[[str], None] | None = None,
-    prefix: PrefixConsumer | None = None,
 ) -> LogStreams:
     """Decode the topics of each role into streams.
 
@@ -104,15 +103,14 @@ def read_log(
         truth_format: ``tum``, ``euroc`` or ``kitti`` (detected from the content by default).
         truth_times: KITTI ``times.txt`` (KITTI poses carry no stamps).
         clocks: ``None``/``"header"`` keeps header stamps; ``"record"``: the run reads every stream's record
-            times (``time.source: record``, applied by the alignment; the notes leave header stamps out); ``"auto"``
-            takes record times for the topics whose stamps look unusable next to the reference stream
-            (:func:`recommend_clocks`); a mapping ``topic -> "header" | "record"`` chooses per topic. The choice is
-            in ``LogStreams.clocks``.
+            times (``time.source: record``, applied by the alignment; the notes leave header stamps out);
+            ``"auto"`` takes record times for the topics whose
+            stamps look unusable next to the reference stream (:func:`recommend_clocks`); a mapping
+            ``topic -> "header" | "record"`` chooses per topic. The choice is in ``LogStreams.clocks``.
         images: How camera images are searched for tags (family, detector settings, frame rate); tags found
             in images and tag corner messages land in ``LogStreams.tag_corners`` (made landmarks later, by
             :mod:`pipeline.vision.landmarks`), ``camera_info`` topics in ``LogStreams.camera_info``.
         progress: Receives a line about once a second while images are searched.
-        prefix: Offered the streams of the rows decoded so far after each decoding group (:class:`PrefixConsumer`).
 
     Raises:
         InputError: Unreadable log, bad override, undecodable topic, missing message definition, invalid
@@ -149,18 +147,8 @@ def read_log(
         chosen = sorted(_chosen_roles(selection), key=lambda pair: pair[0] != "sim_truth")
         for topic in [t for _, t in chosen] + sorted(multi):
             require_types(reader, path, table[topic][1])
-        # the numeric topics and the detections in one pass over the log (each chunk decompressed once); the rows
-        # decoded so far offered to ``prefix`` after each decoding group
-        rows, detections = ahead.start(
-            reader,
-            path,
-            chosen,
-            table,
-            selection,
-            multi,
-            marker_ns,
-            _prefix_teller(prefix, path, chosen, table, selection, overrides, tf_of, clocks),
-        )
+        # the numeric topics and the detections in one pass over the log (each chunk decompressed once)
+        rows, detections = ahead.start(reader, path, chosen, table, selection, multi, marker_ns)
         last_use = {topic: k for k, (_, topic) in enumerate(chosen)}
         for k, (role, topic) in enumerate(chosen):
             meta, conns = table[topic]
@@ -315,11 +303,10 @@ class _StreamsAhead:
     def _key(build, rows, *args) -> tuple:
         return (build, id(rows), *args)
 
-    def start(self, reader, path: Path, chosen, table, selection, multi, marker_ns, told=None) -> tuple[dict, dict]:
+    def start(self, reader, path: Path, chosen, table, selection, multi, marker_ns) -> tuple[dict, dict]:
         """The numeric topics and the detections decoded in one pass over the log (each chunk decompressed once,
-        :func:`decode_topics`; ``told``: its ``on_group``), their stream builds started."""
-        topics = _one_pass_topics(chosen, table, selection, multi)
-        rows, detections = decode_topics(reader, path, *topics, marker_ns, on_group=told)
+        :func:`decode_topics`), their stream builds started."""
+        rows, detections = decode_topics(reader, path, *_one_pass_topics(chosen, table, selection, multi), marker_ns)
         self._start(_own_row_builds(chosen, table, selection, rows, detections))
         return rows, detections
 
@@ -352,70 +339,6 @@ def _own_row_builds(chosen, table, selection, rows, detections) -> list[tuple]:
         elif role == "detections" and isinstance(found := detections.get(topic), Rows):
             builds.append((detection_stream, found))
     return builds
-
-
-class PrefixConsumer(Protocol):
-    """What :func:`read_log` hands the rows decoded so far to (``pipeline.speculation``)."""
-
-    #: the roles whose streams it needs (the alignment's input); a prefix holds no others
-    roles: tuple[str, ...]
-
-    def wants(self, rows: Mapping[str, int]) -> bool:
-        """Whether to build the streams of the rows decoded so far, given their count per role."""
-
-    def offer(self, build: Callable[[], LogStreams | None]) -> None:
-        """``build()`` (on any thread) gives the streams of those rows, None where they cannot be built alone."""
-
-
-def _prefix_teller(prefix: PrefixConsumer | None, path: Path, chosen, table, selection, overrides, tf_of, clocks):
-    """``decode_topics``' ``on_group``: the rows so far, counted by role, offered to ``prefix`` as streams to build
-    after each decoding group but the last (a function to call on any thread, :func:`prefix_streams`); None without
-    ``prefix``. ``/tf_static`` is decoded first (one message): the prefixes' streams are moved by it too."""
-    if prefix is None:
-        return None
-    static = next((tf_of(topic) for role, topic in chosen if role == "static_tf" and role in prefix.roles), None)
-
-    def told(counts: Mapping[str, int], rows_so_far: Callable[[], dict[str, Rows]]) -> None:
-        if prefix.wants({role: counts[topic] for role, topic in chosen if topic in counts}):
-            rows = rows_so_far()  # now: the next group appends to the buffers
-            wanted = [(role, topic) for role, topic in chosen if role in prefix.roles]
-            build = functools.partial(prefix_streams, path, rows, wanted, table, selection, overrides, static, clocks)
-            prefix.offer(build)
-
-    return told
-
-
-def prefix_streams(
-    path: Path, rows: dict[str, Rows], chosen, table, selection, overrides, static, clocks
-) -> LogStreams | None:
-    """The streams of the roles ``chosen`` from the rows decoded so far, each built as :func:`read_log` builds the
-    whole log's (cleaned, checked, on the clocks chosen); None where a role needs more than those rows (TF,
-    cameras, images, a header clock that steps, topics decoded through rosbags). No warnings: the whole log's are
-    the run's."""
-    streams = LogStreams(path=str(path), warnings=[])
-    reports: dict[str, list[tuple[str, Cleaning]]] = defaultdict(list)
-
-    def note(topic: str, role: str, cleaning: Cleaning) -> None:
-        reports[topic].append((role, cleaning))
-
-    for role, topic in chosen:
-        msgtype = table[topic][0].msgtype
-        if (role, msgtype) in VEC3_ROLES and topic in rows:
-            built = vec3_stream(rows[topic], role)
-            stream, cleaning = _checked_velocity(role, topic, built, selection, table, rows, streams, note, overrides)
-            setattr(streams, role, stream)
-            note(stream.topic, role, cleaning)
-        elif role == "detections" and topic in rows and rows[topic].counts is not None:
-            streams.detections, cleaning = detection_stream(rows[topic])
-            note(topic, role, cleaning)
-        elif role == "static_tf" and static is not None:
-            streams.static_tf, _, dropped, streams.static_tf_changed = static_transforms(static)
-            streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
-        elif role not in ("truth", "sim_truth"):  # what the alignment does not read
-            return None
-    if _stepped(reports):
-        return None
-    return streams if clocks is None or clocks == "header" else _with_clocks(streams, clocks, {})
 
 
 def _cleaning_notes(reports: Mapping[str, list[tuple[str, Cleaning]]], on_record_time: set[str]) -> list[str]:

@@ -599,19 +599,16 @@ def decode_topics(
     rows: Mapping[str, Collection[Connection]],
     detections: Mapping[str, Collection[Connection]],
     marker_ns: str | None = None,
-    on_group=None,
 ) -> tuple[dict[str, Rows], dict[str, Rows | tuple[DetectionStream, Cleaning]]]:
     """``decode_rows`` of ``rows`` and the detection topics, every topic that can be decoded from the bytes in
     one pass over the log (each chunk decompressed once), the others through rosbags. A detection topic comes
     back as rows for :func:`detection_stream` (decoded from the bytes; cleaned when the caller is ready for it)
-    or as the stream :func:`decode_detections` made. ``on_group``: :func:`fastdecode.read_rows`'s, for the
-    topics decoded from the bytes."""
+    or as the stream :func:`decode_detections` made."""
     fast = fastdecode.read_rows(
         reader,
         path,
         {**rows, **detections},
         [t for t, c in detections.items() if next(iter(c)).msgtype in ITEM_LAYOUTS],
-        on_group=on_group,
     )
     got_rows = {t: fast[t] if t in fast else decode_rows(reader, path, t, c) for t, c in rows.items()}
     got_dets = {

@@ -1055,15 +1055,11 @@ def read_columns(
     topics: Mapping[str, tuple[Sequence[Connection], Plan]],
     *,
     digests: bool = False,
-    on_group: Callable[[dict[str, int], Callable[[], dict[str, TopicColumns]]], None] | None = None,
 ) -> dict[str, TopicColumns]:
     """Decode several topics in one pass over the log (each chunk is decompressed once).
 
     ``digests`` adds a 64-bit hash of every payload (ROS1: after the header ``seq``, which differs
     between otherwise identical messages), for finding duplicates without keeping the bytes.
-    ``on_group(counts, prefix)`` is called on the caller's thread after each decoded group but the last, with
-    each topic's rows so far; ``prefix()``, called there (not later: the next group appends), gives the columns
-    so far as :meth:`_Columns.done` would (views of the buffers, which later groups only append to).
 
     Raises:
         InputError: Unreadable data, or a message that does not match its definition.
@@ -1105,12 +1101,8 @@ def read_columns(
     # Several topics are decoded on two threads (the kernels run without the GIL): the topics of each group
     # are dealt to the caller's thread and one helper by message count, the helper's first.
     helper = ThreadPoolExecutor(1, thread_name_prefix="slamobs-decode") if len(names) > 1 else None
-
-    def prefix() -> dict[str, TopicColumns]:
-        return {t: cols.done() for t, cols in zip(names, out, strict=True)}
-
     try:
-        for batch in _after_each(grouped(iter_batches(reader, path, conns)), on_group, names, out, prefix):
+        for batch in grouped(iter_batches(reader, path, conns)):
             if helper is None:
                 decode_topic(0, batch, None)
                 continue
@@ -1141,15 +1133,6 @@ def _row_paths(msgtype: str) -> tuple[tuple[Path_, ...], Path_ | None] | None:
     return (tuple(paths[0]), paths[1]) if paths is not None else None
 
 
-def _after_each(batches, on_group, names: list[str], out: list[_Columns], prefix):
-    """``batches``, with ``on_group`` told of the rows decoded so far before each group after the first (so never
-    after the last): the decoding of the group before it is done by then."""
-    for k, batch in enumerate(batches):
-        if k and on_group is not None:
-            on_group({t: cols.n for t, cols in zip(names, out, strict=True)}, prefix)
-        yield batch
-
-
 def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
     """The plan reading a ``rows.LAYOUTS`` type's row and frames, None if it needs rosbags."""
     layout = LAYOUTS.get(msgtype)
@@ -1174,14 +1157,12 @@ def read_rows(
     path: str | Path,
     topics: Mapping[str, Collection[Connection]],
     items: Collection[str] = (),
-    on_group: Callable[[dict[str, int], Callable[[], dict[str, Rows]]], None] | None = None,
 ) -> dict[str, Rows]:
     """``rows.Rows`` of every topic of ``topics`` that has a plan, all read in one pass over the log.
 
     Topics named in ``items`` are detection arrays (:func:`item_plan_for`): their rows carry the elements
     (``Rows.counts``, ``Rows.items``). Topics without a plan (see :func:`plan_for`) are left out: decode
-    them with ``decode.decode_rows`` / ``decode.decode_detections``. ``on_group``: as :func:`read_columns`'s,
-    the rows so far as ``Rows``.
+    them with ``decode.decode_rows`` / ``decode.decode_detections``.
 
     Raises:
         InputError: Missing definition, unreadable data, or a message that does not match its definition.
@@ -1194,31 +1175,26 @@ def read_rows(
         choose = item_plan_for if topic in items else plan_for
         if conns and (plan := choose(reader.typestore, conns[0].msgtype, reader.is2)) is not None:
             planned[topic] = (conns, plan)
-
-    def as_rows(columns: dict[str, TopicColumns]) -> dict[str, Rows]:
-        return {topic: _rows_of(topic, planned[topic][1], cols) for topic, cols in columns.items()}
-
-    told = None if on_group is None else lambda counts, prefix: on_group(counts, lambda: as_rows(prefix()))
-    return as_rows(read_columns(reader, path, planned, on_group=told))
-
-
-def _rows_of(topic: str, plan: Plan, cols: TopicColumns) -> Rows:
-    """One topic's decoded columns as ``Rows``, frame ids as tf2 names them."""
-    frames = Frames()  # two stored spellings may become one
-    lut = np.array([frames.code(name) for name in cols.names] or [0], np.int32)
-    child = lut[cols.child] if plan.nstrings > 1 else cols.child
-    return Rows(
-        topic,
-        plan.msgtype,
-        cols.t_ns,
-        cols.rec_ns,
-        cols.values,
-        lut[cols.frame],
-        child,
-        frames.names(),
-        cols.counts,
-        cols.items,
-    )
+    out = {}
+    for topic, cols in read_columns(reader, path, planned).items():
+        frames = Frames()  # frame ids as tf2 names them; two stored spellings may become one
+        lut = np.array([frames.code(name) for name in cols.names] or [0], np.int32)
+        has_child = planned[topic][1].nstrings > 1
+        child = lut[cols.child] if has_child else cols.child
+        msgtype = planned[topic][1].msgtype
+        out[topic] = Rows(
+            topic,
+            msgtype,
+            cols.t_ns,
+            cols.rec_ns,
+            cols.values,
+            lut[cols.frame],
+            child,
+            frames.names(),
+            cols.counts,
+            cols.items,
+        )
+    return out
 
 
 def leaf_offsets(plan: Plan, payload: np.ndarray) -> np.ndarray:
