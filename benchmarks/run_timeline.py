@@ -43,6 +43,7 @@ from end_to_end import load  # noqa: E402
 
 STAGES = ("start", "read", "align", "observer", "report", "end")
 TICK = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+PAGE = os.sysconf("SC_PAGE_SIZE") if hasattr(os, "sysconf") else 4096
 
 
 def _cpu_of(stat: str) -> float:
@@ -85,6 +86,8 @@ class Sampler(threading.Thread):
         self.pid = os.getpid()
         #: (time, stage, CPU seconds used since the last sample by each key) of every sample, for ``--chart``
         self.series: list[tuple[float, str, dict[str, float]]] = []
+        #: the largest resident set of this process (MB) seen in each stage (the figure helper's is its own)
+        self.rss: dict[str, float] = defaultdict(float)
 
     def snapshot(self) -> dict[str, float]:
         """CPU seconds so far of each thread (``tid``) and each descendant process (``pid:N``); names noted."""
@@ -118,6 +121,10 @@ class Sampler(threading.Thread):
                 self.cpu[self.stage][key] += used
                 step[key] = used
         self.series.append((time.perf_counter(), self.stage, step))
+        statm = _read(f"/proc/{self.pid}/statm")
+        if statm is not None:
+            rss = int(statm.split()[1]) * PAGE / 2**20
+            self.rss[self.stage] = max(self.rss[self.stage], rss)
         self.last.update(now)
 
     def by_name(self) -> dict[str, dict[str, float]]:
@@ -217,8 +224,9 @@ def chart(sampler: Sampler, bucket: float) -> None:
 
 def one_run(
     log: Path, out: Path, helper: bool, bucket: float | None = None, extra: tuple[str, ...] = ()
-) -> tuple[dict[str, float], dict[str, dict[str, float]], float]:
-    """Stage walls, CPU per stage and thread, and the run's wall (and its chart, ``bucket`` seconds a column)."""
+) -> tuple[dict[str, float], dict[str, dict[str, float]], float, dict[str, float]]:
+    """Stage walls, CPU per stage and thread, the run's wall and the peak RSS per stage (and its chart, ``bucket``
+    seconds a column)."""
     from slamobs.cli import main as cli
     from slamobs.pipeline.evaluation import plot_worker
 
@@ -255,15 +263,15 @@ def one_run(
     walls["start"] = wall - sum(walls.values())  # the rest: before the read and after the report
     if bucket:
         chart(sampler, bucket)
-    return dict(walls), sampler.by_name(), wall
+    return dict(walls), sampler.by_name(), wall, dict(sampler.rss)
 
 
-def show(walls: dict[str, float], cpu: dict[str, dict[str, float]], wall: float, cores: int) -> None:
+def show(walls: dict[str, float], cpu: dict[str, dict[str, float]], wall: float, cores: int, rss: dict) -> None:
     threads = sorted({k for per in cpu.values() for k in per if k != "main"})
     print(
         f"{'stage':<9} {'wall s':>7} {'main':>6} "
         + " ".join(f"{k[:14]:>14}" for k in threads)
-        + f" {'idle core-s':>11}"
+        + f" {'idle core-s':>11} {'peak RSS MB':>11}"
     )
     total = defaultdict(float)
     for stage in STAGES:
@@ -273,11 +281,12 @@ def show(walls: dict[str, float], cpu: dict[str, dict[str, float]], wall: float,
         cols = " ".join(f"{per.get(k, 0.0):>14.2f}" for k in threads)
         wall_s = f"{w:>7.2f}" if w is not None else f"{'':>7}"
         idle = f"{cores * w - used:>11.2f}" if w is not None else f"{'':>11}"
-        print(f"{stage:<9} {wall_s} {per.get('main', 0.0):>6.2f} {cols} {idle}")
+        print(f"{stage:<9} {wall_s} {per.get('main', 0.0):>6.2f} {cols} {idle} {rss.get(stage, 0.0):>11.0f}")
         for k, v in per.items():
             total[k] += v
     cols = " ".join(f"{total.get(k, 0.0):>14.2f}" for k in threads)
-    print(f"{'all':<9} {wall:>7.2f} {total.get('main', 0.0):>6.2f} {cols} {cores * wall - sum(total.values()):>11.2f}")
+    idle, peak = cores * wall - sum(total.values()), max(rss.values(), default=0.0)
+    print(f"{'all':<9} {wall:>7.2f} {total.get('main', 0.0):>6.2f} {cols} {idle:>11.2f} {peak:>11.0f}")
     print(f"# 'start' and 'end' together took {walls['start']:.2f} s of wall (imports before the read, run.json after)")
 
 
@@ -299,9 +308,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="slamobs-timeline-") as tmp:
         out = args.out or Path(tmp) / "run"
         for k in range(max(1, args.repeat)):
-            walls, cpu, wall = one_run(args.log, out, args.figure_helper, args.chart, extra)
+            walls, cpu, wall, rss = one_run(args.log, out, args.figure_helper, args.chart, extra)
             print(f"## run {k + 1}: {wall:.2f} s wall")
-            show(walls, cpu, wall, cores)
+            show(walls, cpu, wall, cores, rss)
     print(f"# {load()}")
 
 
