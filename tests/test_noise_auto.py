@@ -355,3 +355,20 @@ def test_info_noise_names_two_tags_that_share_an_id(tmp_path):
         assert shown.exit_code == 0, shown.output
         said = [line for line in shown.output.splitlines() if "two tags share the id" in line]
         assert len(said) == (name == "shared"), shown.output
+
+
+def test_info_noise_names_an_imu_dropping_samples_in_short_bursts(tmp_path):
+    """A 400 Hz IMU with 0.2 s dropped every 4 s, written to MCAP: `info` counted the gaps among its stamp notes, the
+    run and `info --noise` said nothing (the run's gap note starts at 0.5 s; session 18)."""
+    sim = simulate("figure8", seed=5, duration=20.0, imu_rate=400.0)
+    t = (sim.imu.t_ns - sim.imu.t_ns[0]) * 1e-9
+    keep = (t % 4.0) > 0.2
+    imu = sim.imu
+    dropped = replace(imu, t_ns=imu.t_ns[keep], rec_ns=imu.rec_ns[keep], gyro=imu.gyro[keep], accel=imu.accel[keep])
+    for name, s in (("clean", sim), ("bursts", replace(sim, imu=dropped))):
+        write_log(s, tmp_path / f"{name}.mcap")
+        shown = invoke("info", "--noise", tmp_path / f"{name}.mcap")
+        assert shown.exit_code == 0, shown.output
+        said = [line for line in shown.output.splitlines() if "gaps over 5x its median interval" in line]
+        assert len(said) == (name == "bursts"), shown.output
+    assert "/imu/data: 4 gaps" in said[0] and "longest 0.205 s" in said[0], said
