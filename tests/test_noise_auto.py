@@ -372,3 +372,15 @@ def test_info_noise_names_an_imu_dropping_samples_in_short_bursts(tmp_path):
         said = [line for line in shown.output.splitlines() if "gaps over 5x its median interval" in line]
         assert len(said) == (name == "bursts"), shown.output
     assert "/imu/data: 4 gaps" in said[0] and "longest 0.205 s" in said[0], said
+
+
+def test_info_noise_names_a_gyro_whose_x_and_z_are_swapped(tmp_path):
+    """An IMU's gyro x and z swapped (mounted on its side with another's extrinsic), written to MCAP: riekf was lost
+    (22 m on a 40 s figure 8) with only a velocity-scale warning that pointed at the velocity (session 19)."""
+    sim = simulate("figure8", seed=5, duration=20.0)
+    swapped = replace(sim, imu=replace(sim.imu, gyro=sim.imu.gyro[:, [2, 1, 0]].copy()))
+    write_log(swapped, tmp_path / "swapped.mcap")
+    shown = invoke("info", "--noise", tmp_path / "swapped.mcap")
+    assert shown.exit_code == 0, shown.output
+    said = [line for line in shown.output.splitlines() if "angular velocity's x and z swapped" in line]
+    assert len(said) == 1 and "check the gyro's unit and axes" in said[0], shown.output
