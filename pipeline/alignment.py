@@ -37,6 +37,7 @@ from slamobs.pipeline.blocks import far_repeats, first_of_pairs, interp_sorted, 
 from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, shared_id_text, stamp_pace
+from slamobs.pipeline.readers.inspect import GAP_FACTOR
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
@@ -65,6 +66,16 @@ ACCEL_NOTE = "accelerometer: "
 
 #: Velocity gaps longer than this (seconds) are reported: the observer holds the last sample across them.
 GAP_WARN_S = 0.5
+#: A measuring velocity stream's gaps (over ``GAP_FACTOR`` median intervals) covering this share of its span are a
+#: warning (a 400 Hz IMU dropping 0.1 s every 4 s covers 2.5 %); under it a note (docs/benchmarks.md, "Silent
+#: wrong results, round 9": the values on the real logs).
+GAP_SHARE_WARN = 0.01
+#: A velocity stream with at least this share of its samples equal to the one before is a held command, not a
+#: measurement: its gaps are the command held, not samples lost.
+HELD_STEP_SHARE = 0.5
+#: A velocity stream with at least this share of its samples repeating the stamp before with another value is a
+#: warning (MR.CLAM's robots: 0-3 such samples in 52,000-65,000, under 0.01 %).
+REPEAT_SHARE_WARN = 0.01
 
 
 @dataclass(frozen=True)
@@ -300,14 +311,53 @@ def _sorted(t: np.ndarray, *arrays: np.ndarray):
     return (t, *arrays)
 
 
-def _gaps(t_ns: np.ndarray, topic: str) -> list[str]:
-    if t_ns.shape[0] < 2:
+def _gaps(t_ns: np.ndarray, x: np.ndarray, topic: str, across: str) -> list[str]:
+    """What the run says of one velocity stream's gaps. A measuring stream (an IMU, wheel odometry: fewer than
+    ``HELD_STEP_SHARE`` of its samples repeat the one before) gets its intervals over ``GAP_FACTOR`` median
+    intervals (what ``slamobs info`` counts) named, how many, the longest, how long in all (a warning from
+    ``GAP_SHARE_WARN`` of its span: dropped samples that ``across`` says what the run did over); a stream that
+    repeats its values (a command logged as it is held: MR.CLAM's velocity, whose 400-900 gaps are the command
+    held) gets its gaps over ``GAP_WARN_S`` noted."""
+    if t_ns.shape[0] < 3:
         return []
-    d = np.diff(t_ns) * 1e-9
-    big = d > GAP_WARN_S
+    d = np.diff(t_ns)
+    positive = d[d > 0]
+    period = float(np.median(positive)) if positive.size else 0.0
+    held = np.count_nonzero(np.all(x[1:] == x[:-1], axis=1)) >= HELD_STEP_SHARE * (x.shape[0] - 1)
+    gaps = np.flatnonzero(d > GAP_FACTOR * period) if period > 0 and not held else np.zeros(0, np.int64)
+    if gaps.size:
+        span = d[gaps] * 1e-9
+        share = float((d[gaps] - period).sum() / (t_ns[-1] - t_ns[0]))
+        longest = int(gaps[np.argmax(span)])
+        text = (
+            f"{topic}: {plural(gaps.size, 'gap')} over {GAP_FACTOR:g}x its median interval {period * 1e-6:.3g} ms "
+            f"(longest {span.max():.3f} s at +{(t_ns[longest] - t_ns[0]) * 1e-9:.2f} s; {span.sum():.2f} s in all, "
+            f"{share:.1%} of its span): samples dropped? {across}"
+        )
+        return [f"warning: {text}" if share >= GAP_SHARE_WARN else text]
+    big = d * 1e-9 > GAP_WARN_S
     if not np.any(big):
         return []
-    return [f"{topic}: {int(big.sum())} gap(s) longer than {GAP_WARN_S} s (largest {d.max():.2f} s)"]
+    return [f"{topic}: {int(big.sum())} gap(s) longer than {GAP_WARN_S} s (largest {d.max() * 1e-9:.2f} s)"]
+
+
+def _repeats(t_ns: np.ndarray, x: np.ndarray, topic: str) -> list[str]:
+    """A warning when at least ``REPEAT_SHARE_WARN`` of a velocity stream's samples (``t_ns`` sorted) share their
+    stamp with the one before and say otherwise (two publishers on one topic, a driver re-sending a message with
+    another value), with how far apart they are beside the step between stamps: the run cannot tell which is right
+    (a generated figure 8 whose odometry repeats every 5th message's stamp with zero velocity: riekf 0.053 m against
+    0.011 m, and only the readers' note; MR.CLAM's robots have 0-3 in 52,000-65,000)."""
+    same = (t_ns[1:] == t_ns[:-1]) & np.any(x[1:] != x[:-1], axis=1)
+    n = int(np.count_nonzero(same))
+    if n < REPEAT_SHARE_WARN * t_ns.shape[0] or n == 0:
+        return []
+    apart = float(np.median(row_norms3(x[1:][same] - x[:-1][same])))
+    step = float(np.median(row_norms3(np.diff(x[np.r_[True, ~(t_ns[1:] == t_ns[:-1])]], axis=0))))
+    return [
+        f"warning: {topic}: {n} of its {t_ns.shape[0]} samples share their stamp with the one before and say otherwise "
+        f"({apart:.3g} apart, median, where samples a stamp apart differ by {step:.3g}): two publishers on one topic, "
+        "or a driver re-sending with another value? The run cannot tell which is right"
+    ]
 
 
 class _Resampled:
@@ -625,6 +675,7 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
     t_lv, v = _gate_norm(t_lv, v, lim["max_speed"], "linear-velocity", "max_speed", "m/s", lv.topic, notes)
     _usable(path, t_om, n_om, "angular velocity", om, "max_angular_rate", fr.time_source)
     _usable(path, t_lv, n_lv, "linear velocity", lv, "max_speed", fr.time_source)
+    notes += _repeats(t_om, w, om.topic) + (_repeats(t_lv, v, lv.topic) if lv.topic != om.topic else [])
     t_om, w = _last_of_each_stamp(t_om, w, om.topic, notes)
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
@@ -679,8 +730,9 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
         block = vel_ext.rotate(v_interp, rows)
         block -= np.cross(omega[rows], vel_ext.trans)
         velocity[rows] = block
-    for note in _gaps(t_om, om.topic) + _gaps(t_lv, lv.topic):  # once when both come from one topic
-        _note_once(notes, note)
+    held = "the run holds the sample before each gap across it"
+    lerp = "the run interpolates the velocity across each gap"
+    notes += _gaps(t_om, w, om.topic, held) + (_gaps(t_lv, v, lv.topic, lerp) if lv.topic != om.topic else [])
     starts = _segment_starts(t_om, max_gap, _hole_starts(t_om, om, fr.time_source, holes), notes)
     # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
     # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).

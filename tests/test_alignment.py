@@ -247,6 +247,37 @@ def test_a_gap_in_one_topic_giving_both_velocities_is_noted_once():
     assert len(gaps) == 1 and gaps[0].startswith("/twist:")
 
 
+def test_an_imu_dropping_samples_in_short_bursts_is_named_and_a_held_command_is_not():
+    """A 100 Hz gyro with 0.06 s dropped every 0.5 s (bursts under GAP_WARN_S 0.5 s): the run said nothing, the
+    sample before each burst held across it (session 18). A stream that repeats its values (a command logged as
+    held, MR.CLAM's velocity) with the same gaps keeps its old note: its gaps are the command held."""
+    t = np.arange(0, 2.0, 0.01)
+    t = t[(t % 0.5) > 0.05 + 1e-9]
+    rng = np.random.default_rng(0)
+    measured = np.column_stack([np.zeros((t.size, 2)), 0.5 + 0.01 * rng.standard_normal(t.size)])
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t, measured)))
+    said = [n for n in a.notes if "gap" in n]
+    assert len(said) == 1 and said[0].startswith("warning: /imu: 3 gaps over 5x its median interval 10 ms"), said
+    assert "longest 0.070 s" in said[0] and "holds the sample before each gap" in said[0], said
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t, np.tile([0.0, 0.0, 0.5], (t.size, 1)))))
+    assert not [n for n in a.notes if "gap" in n], a.notes  # a held command, no gap over 0.5 s: nothing
+
+
+def test_a_velocity_stream_repeating_stamps_with_other_values_is_named():
+    """Every 5th odometry message sent twice with one stamp, the second saying the body stood still: riekf 0.053 m
+    against 0.011 m on a generated figure 8, with only the readers' note (session 19). One such repeat is not."""
+    t_v = np.arange(0, 2.0, 0.05)
+    k = np.sort(np.r_[np.arange(t_v.size), np.arange(0, t_v.size, 5)])
+    v = np.column_stack([np.ones(k.size), np.zeros(k.size), 0.01 * np.arange(k.size)])
+    v[np.r_[False, k[1:] == k[:-1]]] = 0.0
+    a = align(_streams(linear_velocity=_vec("/odom", "base_link", t_v[k], v)))
+    said = [n for n in a.notes if "share their stamp" in n]
+    assert len(said) == 1 and said[0].startswith("warning: /odom: 8 of its 48 samples share their stamp"), said
+    once = np.r_[np.arange(t_v.size), 20]
+    a = align(_streams(linear_velocity=_vec("/odom", "base_link", np.sort(t_v[once]), np.ones((once.size, 3)))))
+    assert not [n for n in a.notes if "share their stamp" in n], a.notes
+
+
 def test_detections_after_the_last_time_base_sample_are_dropped():
     # the IMU's header clock jumps an hour ahead at 1 s, the odometry runs on to 2 s: the time base ends at 1 s,
     # and the frames at 1.5 s (after it, where no estimator has motion) must go; batch indexed past its keyframes
