@@ -13,6 +13,10 @@ Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
   bearing errors: their whole spread, the spread of the per-landmark means, and the variance of the difference
   of two detections of one landmark ``lag`` s apart over two (the structure function: flat for a white error,
   reaching the whole variance for one that decorrelates within the lag).
+* ``--speed``: a third table, what the commanded speed's error is made of: the speed density over the same windows
+  raw, after one scale, lag and bias fitted to Vicon over 2 s windows (a constant scale, a lag and a bias are what
+  a calibration would remove), and after an oracle scale or bias per segment of 60, 30 or 15 s (what a slowly
+  varying scale or velocity-bias state could at best absorb).
 """
 
 from __future__ import annotations
@@ -29,6 +33,9 @@ from real_logs import all_logs  # noqa: E402
 
 WINDOWS_S = (0.5, 2.0, 8.0, 32.0)
 LAGS_S = (0.5, 2.0, 8.0, 32.0)
+#: The commands' lags tried (s) and the segments (s) of the oracle scale and bias of ``--speed``.
+SPEED_LAGS_S = tuple(np.round(np.arange(0.0, 0.61, 0.05), 2))
+SPEED_SEGMENTS_S = (60.0, 30.0, 15.0)
 
 
 def _robust(x: np.ndarray) -> float:
@@ -70,6 +77,77 @@ def motion_cells(streams, aligned) -> list[str]:
     return cells
 
 
+def _truth_path(streams, t0_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Vicon's stamps (s from ``t0_ns``) and its path length along the heading there."""
+    tt = (streams.truth.t_ns - t0_ns) * 1e-9
+    yaw, pos = _truth_yaw(streams, tt, t0_ns)
+    heading = 0.5 * (yaw[1:] + yaw[:-1])
+    step = np.diff(pos, axis=0)
+    return tt, np.r_[0.0, np.cumsum(step[:, 0] * np.cos(heading) + step[:, 1] * np.sin(heading))]
+
+
+def _densities(vt: np.ndarray, speed: np.ndarray, tt: np.ndarray, path: np.ndarray, lo: float, hi: float) -> list:
+    """The error of ``speed`` (on stamps ``vt``) integrated over each of :data:`WINDOWS_S` against Vicon's path,
+    as a white-noise density (RMS / sqrt(T), m/sqrt(s))."""
+    cmd = np.r_[0.0, np.cumsum(speed[:-1] * np.diff(vt))]
+    out = []
+    for w in WINDOWS_S:
+        s = np.arange(lo, hi - w, w / 2)
+        err = np.interp(s + w, vt, cmd) - np.interp(s, vt, cmd) - (np.interp(s + w, tt, path) - np.interp(s, tt, path))
+        out.append(float(np.sqrt(np.mean(err**2) / w)))
+    return out
+
+
+def _calibration(vt, v, tt, path, lo, hi) -> tuple[float, float, float]:
+    """The lag (s, of :data:`SPEED_LAGS_S`), scale and bias (m/s) that best map the commanded speed onto Vicon's
+    over 2 s windows (least squares)."""
+    start = np.arange(lo, hi - 2.0, 1.0)
+    truth = np.interp(start + 2.0, tt, path) - np.interp(start, tt, path)
+    cmd = np.r_[0.0, np.cumsum(v[:-1] * np.diff(vt))]
+    best = None
+    for lag in SPEED_LAGS_S:
+        a = np.interp(start + 2.0 - lag, vt, cmd) - np.interp(start - lag, vt, cmd)
+        design = np.stack([a, np.full_like(a, 2.0)], axis=1)
+        (k, b), *_ = np.linalg.lstsq(design, truth, rcond=None)
+        rms = float(np.sqrt(np.mean((design @ (k, b) - truth) ** 2)))
+        if best is None or rms < best[0]:
+            best = (rms, float(lag), float(k), float(b))
+    return best[1:]
+
+
+def _per_segment(vt, v, v_true, lo, hi, seg_s: float, kind: str) -> np.ndarray:
+    """The commanded speed with Vicon's least-squares scale (``kind`` "scale") or its mean error while moving
+    ("bias") put in per segment of ``seg_s``: an oracle, what a state varying at that pace could absorb."""
+    out = v.copy()
+    for a in np.arange(lo, hi, seg_s):
+        m = (vt >= a) & (vt < min(a + seg_s, hi))
+        if kind == "scale" and np.sum(v[m] ** 2) > 1e-9:
+            out[m] = v[m] * np.sum(v[m] * v_true[m]) / np.sum(v[m] ** 2)
+        elif kind == "bias" and (moving := m & (np.abs(v) > 1e-9)).any():
+            out[moving] = v[moving] + np.mean(v_true[moving] - v[moving])
+    return out
+
+
+def speed_rows(name: str, streams, aligned) -> list[str]:
+    """``--speed``'s rows of one robot (module docstring)."""
+    tt, path = _truth_path(streams, aligned.t0_ns)
+    vt = (aligned.vel_t_ns - aligned.t0_ns) * 1e-9
+    v = aligned.velocity[:, 0]
+    lo, hi = max(vt[0], tt[0]) + 1.0, min(vt[-1], tt[-1]) - 1.0
+    lag, k, b = _calibration(vt, v, tt, path, lo, hi)
+    rows = [("raw commands", _densities(vt, v, tt, path, lo, hi))]
+    rows.append(
+        (f"scale {k:.3f}, lag {lag:.2f} s, bias {b:+.4f} m/s", _densities(vt + lag, k * v + b, tt, path, lo, hi))
+    )
+    vt = vt + lag
+    v_true = (np.interp(vt + 0.1, tt, path) - np.interp(vt - 0.1, tt, path)) / 0.2
+    for seg in SPEED_SEGMENTS_S:
+        for kind in ("scale", "bias"):
+            speed = _per_segment(vt, v, v_true, lo, hi, seg, kind)
+            rows.append((f"lag, oracle {kind} per {seg:g} s", _densities(vt, speed, tt, path, lo, hi)))
+    return [f"| {name} | {label} | " + " | ".join(f"{d:.4f}" for d in dens) + " |" for label, dens in rows]
+
+
 def detection_errors(streams, aligned) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Range and bearing errors of every detection against the truth, with its time (s) and landmark index."""
     t = np.repeat((aligned.det_t_ns - aligned.t0_ns) * 1e-9, np.diff(aligned.det_offsets))
@@ -109,12 +187,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", default="mrclam6,mrclam7", help="comma-separated MR.CLAM robots or datasets")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
+    ap.add_argument("--speed", action="store_true", help="also the commanded speed's error taken apart (third table)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
     heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
     print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
-    rows = []
+    rows, speed = [], []
     for log in logs:
         streams = read_log(log.path)
         aligned = align(streams)
@@ -123,9 +202,14 @@ def main() -> None:
         pairs = [f"{vicon[2 * k]} / {vicon[2 * k + 1]}" for k in range(len(WINDOWS_S))]
         print(f"| {log.name} | {np.max(noise.gyro):.3f} / {np.max(noise.velocity):.3f} | " + " | ".join(pairs) + " |")
         rows.append(f"| {log.name} | " + " | ".join(detection_cells(streams, aligned)) + " |")
+        speed += speed_rows(log.name, streams, aligned) if args.speed else []
     lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
     print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
     print("\n".join(rows))
+    if speed:
+        windows = " | ".join(f"v Vicon T={w:g}s" for w in WINDOWS_S)
+        print(f"\n| robot | commanded speed | {windows} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
+        print("\n".join(speed))
 
 
 if __name__ == "__main__":

@@ -8,7 +8,8 @@ isotropic (the solution is the one without the model); with a white range error 
 ratio above 1 and the trajectory gets closer to the truth than with isotropic detections. With a slow (time
 correlated) range error the ratio's evidence is computed on detections a correlation time apart: it takes a larger
 ratio than on every detection and a lower APE; white detections are not thinned. Once a ratio is applied the
-motion levels are scanned again: scanned against isotropic detections they soak up the range error.
+motion levels are scanned again: scanned against isotropic detections they soak up the range error. Once a ratio
+has beaten isotropy by the evidence's margin, the highest-scoring ratio is kept, not the one nearest 1.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.simulate import expected_streams, simulate
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother import correlation as dc
+from slamobs.pipeline.smoother import evidence as ev
 from slamobs.pipeline.smoother import graph as g
 from slamobs.pipeline.smoother.estimator import BatchSmoother
 from slamobs.pipeline.smoother.settings import BatchSettings
@@ -192,6 +194,16 @@ def test_a_long_log_skips_the_ratio_and_says_so(generated, monkeypatch):
     off, _ = smoothed(sim, noisy, "off")
     assert "is off" in off.stats["metadata"]["smoother"]["detection_anisotropy"]["skipped"]
     assert not any("not weighed apart" in n for n in off.stats["notes"]), off.stats["notes"]
+
+
+def test_once_isotropy_is_left_the_ratio_with_the_highest_evidence_is_kept():
+    # MR.CLAM 7-r4's thinned scan: 16 beats 8 by less than the margin, both beat 1 by far more
+    scores = {1.0: 92.119, 2.0: 110.371, 4.0: 123.827, 8.0: 133.058, 16.0: 135.461}
+    assert ev.best_scale(scores) == 8.0  # the motion levels' tie rule: nearest 1 among the near-ties
+    assert an.winner(scores, ev.best_scale(scores)) == 16.0
+    near = {1.0: 10.0, 2.0: 12.0, 4.0: 14.0}  # none beats isotropy by the margin: isotropic, not the highest
+    assert an.winner(near, ev.best_scale(near)) == 1.0
+    assert an.winner({1.0: 0.0, 2.0: 50.0, 4.0: None}, 2.0) == 2.0
 
 
 def test_thinning_keeps_detections_a_spacing_apart_along_each_track():

@@ -17,9 +17,10 @@ information of a detection is ``S/σ²`` with
 
     S = u uᵀ / k_r² + (I − u uᵀ) / k_⊥²,      k_r = ρ^(2/3),  k_⊥ = ρ^(−1/3).
 
-``ρ`` is chosen by the smoother's evidence (:mod:`pipeline.smoother.evidence`, the same Laplace approximation,
-margin and tie rule as the motion levels' scales): ``ρ = 1`` (isotropic) and ``RATIOS`` upwards while the
-evidence rises by more than ``evidence.MIN_GAIN``. The residuals themselves cannot give ``ρ``: the smoother
+``ρ`` is chosen by the smoother's evidence (:mod:`pipeline.smoother.evidence`, the same Laplace approximation
+and margin as the motion levels' scales): ``ρ = 1`` (isotropic) and ``RATIOS`` upwards while the evidence rises
+by more than ``evidence.MIN_GAIN``; once a ratio has beaten isotropy by that margin, the ratio with the highest
+evidence is kept (:func:`winner`), not the one nearest 1. The residuals themselves cannot give ``ρ``: the smoother
 absorbs the error in the direction it weighs least, so refitting the split from a solution's residuals and
 solving again runs away (MR.CLAM 7-r1: 3.0, 6.9, 12.8, 18.5, 23.0, 26.1 over six passes). Pure numerics, no I/O.
 """
@@ -44,6 +45,19 @@ def shape(det_y: np.ndarray, ratio: float, split: tuple[float, float] | None = N
     if split is not None:
         return uu / split[1] + (np.eye(3) - uu) / split[0]
     return uu / ratio ** (4.0 / 3.0) + (np.eye(3) - uu) * ratio ** (2.0 / 3.0)
+
+
+def winner(scores: dict[float, float | None], nearest_one: float) -> float:
+    """The ratio kept of those scanned (``scores``: log evidence by ratio): 1 when the evidence did not leave
+    isotropy by its margin (``nearest_one``, :func:`pipeline.smoother.evidence.best_scale`'s choice, is 1), else
+    the ratio with the highest evidence. A motion level's x1 is the log's own estimate, so its scans keep the scale
+    nearest it among near-ties; a ratio's 1 is only the isotropic default, and once the evidence has left it no
+    ratio is nearer the data than another: on MR.CLAM 7-r4 the tie rule kept 8 (log Z 133.1) against 16 (135.5)
+    and batch's APE was 0.246 m against 0.189 (docs/benchmarks.md, "MR.CLAM's four robots, session 19")."""
+    if nearest_one == 1.0:
+        return 1.0
+    valid = {r: z for r, z in scores.items() if z is not None and np.isfinite(z)}
+    return max(valid, key=valid.__getitem__)
 
 
 def configured(ratio: float) -> tuple[dict, str]:

@@ -508,7 +508,7 @@ class BatchSmoother(Stepper):
             return replace(base, det_shape=an.shape(base.det_y, ratio))
 
         ev.climb(an.RATIOS, shaped, self._solved_from, sols, scores)
-        winner = ev.best_scale(scores)
+        winner = an.winner(scores, ev.best_scale(scores))
         record, note = an.record(scores, winner, ev.CRITERION), an.note(scores, winner)
         if thinning is not None:
             record["thinned"] = thinning[1]
