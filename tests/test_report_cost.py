@@ -404,11 +404,10 @@ def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_tu
     monkeypatch.setattr(report, "Pending", lambda func, *a: started.append(func.__qualname__) or real(func, *a))
     config = RunConfig(evaluation=EvaluationConfig(plots=False))
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "beside", config)
-    aligned = "_evaluate.<locals>.<lambda>"  # the run's aligned tables (pipeline.run._evaluate), beside as well
-    assert started == ["SegmentErrorsSection.process_pairs", aligned]
+    assert started == ["SegmentErrorsSection.process_pairs"]
     sim3 = RunConfig(evaluation=EvaluationConfig(plots=False, align="sim3"))
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "sim3_beside", sim3)
-    assert started[2:] == ["SegmentErrorsSection.process_data", aligned]
+    assert started[1:] == ["SegmentErrorsSection.process_data"]
     started.clear()
 
     def no_room(*_a):
@@ -429,36 +428,32 @@ def test_segment_errors_beside_the_other_sections_give_the_report_computed_in_tu
         assert (tmp_path / "sim3_beside" / name).read_bytes() == (tmp_path / "sim3_in_turn" / name).read_bytes(), name
 
 
-def test_aligned_rows_are_written_beside_the_sections(tmp_path, monkeypatch):
-    """A run writes the aligned tables' rows on a thread as soon as the trajectories are aligned, beside the main
-    thread's sections (session 19: 0.11-0.12 CPU s off the hour's main thread); the footer comes last. The tables
-    are the bytes written in one go (as ``slamobs report`` writes them), and a report that fails after the rows
-    were written leaves no aligned table."""
+def test_aligned_rows_are_written_before_the_report_waits_for_the_work_beside(tmp_path, monkeypatch):
+    """A run writes the aligned tables' rows once its main thread's sections are done, before it waits for the
+    clock-offset search and the segment errors (then the second core is not left idle while one thread writes
+    them at the end); the footer comes last. The tables are the bytes written in one go (as ``slamobs report``
+    writes them), and a report that fails after the rows were written leaves no aligned table."""
     import threading
 
     from cli_checks import SAMPLES
     from slamobs.pipeline import run
     from slamobs.pipeline.config import EvaluationConfig, RunConfig
-    from slamobs.pipeline.evaluation import report, sections
+    from slamobs.pipeline.evaluation import report, trajectory_evaluation
 
     events = []
-    rows, ape = report.aligned_rows, sections.ApeByAlignmentSection.process_data
-
-    def noted_rows(*a):
-        events.append(("rows", threading.current_thread() is threading.main_thread()))
-        return rows(*a)
-
-    def noted_ape(self, ev):
-        events.append(("ape by alignment", threading.current_thread() is threading.main_thread()))
-        return ape(self, ev)
-
-    monkeypatch.setattr(report, "aligned_rows", noted_rows)
-    monkeypatch.setattr(sections.ApeByAlignmentSection, "process_data", noted_ape)
+    rows, wait = report.aligned_rows, trajectory_evaluation.Pending.result
+    monkeypatch.setattr(report, "aligned_rows", lambda *a: events.append("rows") or rows(*a))
+    # the main thread's waits (the offset check beside it waits for the run's offset search, started with the
+    # observer: that wait holds no core)
+    monkeypatch.setattr(
+        trajectory_evaluation.Pending,
+        "result",
+        lambda self: (threading.current_thread() is threading.main_thread() and events.append("wait")) or wait(self),
+    )
     config = RunConfig(evaluation=EvaluationConfig(plots=False))
     run.run_log(SAMPLES / "figure8.mcap", tmp_path / "ahead", config)
-    assert sorted(events) == [("ape by alignment", True), ("rows", False)], events
+    assert events and events[0] == "rows" and events.count("rows") == 1, events
     monkeypatch.setattr(report, "aligned_rows", rows)
-    monkeypatch.setattr(sections.ApeByAlignmentSection, "process_data", ape)
     at_once = tmp_path / "at_once"
     at_once.mkdir()
     written = []
@@ -483,43 +478,6 @@ def test_aligned_rows_are_written_beside_the_sections(tmp_path, monkeypatch):
     summary = run.run_log(SAMPLES / "figure8.mcap", tmp_path / "failed", config)
     assert summary.report is None
     assert not [name for name in report.ALIGNED_TABLES if (tmp_path / "failed" / name).exists()]
-
-
-def test_a_report_that_fails_waits_for_the_aligned_rows_beside_it(tmp_path, monkeypatch):
-    """A section that fails while the aligned tables' rows are written on their thread: the report waits for that
-    thread before its files are removed (nothing writes into the run directory afterwards), and the run keeps its
-    tables without a report or an aligned table."""
-    import time
-
-    from cli_checks import SAMPLES
-    from slamobs.pipeline import run
-    from slamobs.pipeline.config import EvaluationConfig, RunConfig
-    from slamobs.pipeline.evaluation import report, sections
-
-    events, rows = [], report.aligned_rows
-
-    def slow_rows(*a):
-        events.append("begun")
-        time.sleep(1.0)  # still writing when the section below fails
-        out = rows(*a)
-        events.append("written")
-        return out
-
-    def fails(self, ev):
-        waited = time.monotonic()
-        while not events and time.monotonic() - waited < 5:  # the rows have begun on their thread
-            time.sleep(0.001)
-        raise ValueError("this section cannot be computed")
-
-    monkeypatch.setattr(report, "aligned_rows", slow_rows)
-    monkeypatch.setattr(sections.DriftSection, "process_data", fails)
-    summary = run.run_log(
-        SAMPLES / "figure8.mcap", tmp_path / "run", RunConfig(evaluation=EvaluationConfig(plots=False))
-    )
-    assert events == ["begun", "written"]  # the run waited for them
-    assert summary.report is None and "this section cannot be computed" in " ".join(summary.notes)
-    assert (tmp_path / "run" / "poses.parquet").exists()
-    assert not [name for name in report.ALIGNED_TABLES if (tmp_path / "run" / name).exists()]
 
 
 def test_pending_work_is_done_by_the_thread_or_by_the_caller_when_the_thread_has_not_begun(monkeypatch):

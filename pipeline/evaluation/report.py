@@ -14,7 +14,6 @@ map-only alignment, bias error and stability, convergence time, clock offset est
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Callable
@@ -155,11 +154,9 @@ def evaluate_tables(
 
     ``figures`` (e.g. :meth:`.plot_worker.PlotWorkers.submit`) is handed the report's figure jobs as soon as
     their sections are known (the bias figure, drawn from ``drawn_biases``, first), so that helper processes
-    draw them while the rest of the report is computed. ``aligned(ev)`` is called on a thread as soon as the
-    trajectories are aligned (:func:`_beside`) and waited for before this returns (and after an error of this
-    thread, so nothing writes into the run directory afterwards): a run writes the aligned tables' rows there,
-    beside the sections, which took 0.11-0.12 CPU s of this thread on the hour's report (docs/benchmarks.md, session
-    19).
+    draw them while the rest of the report is computed. ``aligned(ev)`` is called once this thread's sections are
+    done, before it waits for the work beside it (the clock-offset search, the segment errors): a run writes the
+    aligned tables' rows there, where they would otherwise follow that wait with the second core idle.
     ``found_offset()`` gives the clock offset searched before (a run's, against its log's velocity samples:
     :func:`.trajectory_evaluation.log_time_offset`), checked here instead of searching the estimate."""
     options = replace(options or ReportOptions(), **overrides)
@@ -186,47 +183,47 @@ def evaluate_tables(
     )
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
-    # the aligned tables need no more than the alignment: written on a thread while this one computes the sections
-    with _beside_while(aligned, len(ev.paired), ev):
-        landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
-        landmark.process_data(landmarks, ev.alignment)
-        if figures is not None:  # the top view and the landmark errors need no more than the landmark section
-            figures(
-                [
-                    top_view_job(landmark.get_statistic(), ev, landmarks, landmark_truth),
-                    *landmark_plot_jobs(landmark.get_statistic()),
-                ]
-            )
-        convergence = ConvergenceSection(options.convergence_threshold_m)
-        convergence.process_data(ev)
-        if figures is not None:
-            figures([error_plot_job(convergence.get_statistic(), ev)])
-        time_offset = TimeOffsetSection(options)
-        time_offset.unreliable_note(ev)
-        uncertainty = UncertaintySection()
-        uncertainty.process_data(ev)
-        if figures is not None:
-            figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
-        by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
-        sections = {
-            "ape": ApeSection(),
-            "ape_by_alignment": by_alignment,
-            "rpe": rpe,
-            "drift": drift,
-            "segment_errors": segments,
-            "time_offset": time_offset,
-            "landmarks": landmark,
-            "biases": biases,
-            "convergence": convergence,
-            "uncertainty": uncertainty,
-        }
-        for section in (sections["ape"], by_alignment, rpe, drift):
-            section.process_data(ev)
-        time_offset.process_data(ev)  # waits for the search beside
-        if segments_done is not None:
-            segments_done.result()
-        if figures is not None:
-            figures(segment_plot_jobs(segments.arrays))
+    landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
+    landmark.process_data(landmarks, ev.alignment)
+    if figures is not None:  # the top view and the landmark errors need no more than the landmark section
+        figures(
+            [
+                top_view_job(landmark.get_statistic(), ev, landmarks, landmark_truth),
+                *landmark_plot_jobs(landmark.get_statistic()),
+            ]
+        )
+    convergence = ConvergenceSection(options.convergence_threshold_m)
+    convergence.process_data(ev)
+    if figures is not None:
+        figures([error_plot_job(convergence.get_statistic(), ev)])
+    time_offset = TimeOffsetSection(options)
+    time_offset.unreliable_note(ev)
+    uncertainty = UncertaintySection()
+    uncertainty.process_data(ev)
+    if figures is not None:
+        figures(uncertainty_plot_jobs(uncertainty.get_statistic(), ev))
+    by_alignment, rpe, drift = ApeByAlignmentSection(options), RpeSection(options), DriftSection(options)
+    sections = {
+        "ape": ApeSection(),
+        "ape_by_alignment": by_alignment,
+        "rpe": rpe,
+        "drift": drift,
+        "segment_errors": segments,
+        "time_offset": time_offset,
+        "landmarks": landmark,
+        "biases": biases,
+        "convergence": convergence,
+        "uncertainty": uncertainty,
+    }
+    for section in (sections["ape"], by_alignment, rpe, drift):
+        section.process_data(ev)
+    if aligned is not None:
+        aligned(ev)
+    time_offset.process_data(ev)  # waits for the search beside
+    if segments_done is not None:
+        segments_done.result()
+    if figures is not None:
+        figures(segment_plot_jobs(segments.arrays))
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
@@ -251,22 +248,6 @@ def evaluate_tables(
         "method": _method(ev, options, sections.values()),
     }
     return report, ev
-
-
-@contextmanager
-def _beside_while(func: Callable[..., None] | None, n_pairs: int, *args):
-    """``func(*args)`` (none: nothing) computed beside the ``with`` block as :func:`_beside` starts it, waited for at
-    the block's end (its error raised there). After an error of the block it is waited for if it has begun (else
-    it never begins) and its own error is dropped: nothing it does outlives the block."""
-    pending = None if func is None else _beside(func, n_pairs, *args)
-    try:
-        yield
-    except BaseException:
-        if pending is not None:
-            pending.settle()
-        raise
-    if pending is not None:
-        pending.result()
 
 
 def _beside(func: Callable[..., None], n_pairs: int, *args) -> Pending | None:

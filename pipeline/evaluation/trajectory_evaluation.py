@@ -452,14 +452,6 @@ class Pending:
             raise self._error
         return self._value
 
-    def settle(self) -> None:
-        """After the caller failed: wait for the thread if it has begun (else it never begins); its outcome is
-        dropped."""
-        if self._claim.acquire(blocking=False):
-            self._work = None
-            return
-        self._done.wait()
-
 
 def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
     """``truth`` without poses that are no rotation (a zero or non-finite quaternion, a non-finite position),
