@@ -49,7 +49,6 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     helpers = (
         "._integrate",
         "._substeps",
-        ".se3_step_into",
         ".se3_exp_into",
         ".project_so3_into",
         "._quat_of_rot",

@@ -38,7 +38,7 @@ from slamobs.pipeline.observers.shared_steps import (
     record_row,
     substep_count,
 )
-from slamobs.pipeline.lie import mat3_vec, project_so3_into, se3_step_into
+from slamobs.pipeline.lie import mat3_vec, project_so3_into, se3_exp_into
 
 #: Largest stable ``h * lambda`` of one explicit sub-step (docs/observers.md §6.1 uses 0.5).
 STEP_RATIO = 0.5
@@ -137,7 +137,7 @@ def _integrate(
         bv1 -= gba * u1
         bv2 -= gba * u2
         # Step 5: T̂ ← T̂ exp(h [ω; v]∧)
-        se3_step_into(
+        se3_exp_into(
             h * (o0 + kwa * w0),
             h * (o1 + kwa * w1),
             h * (o2 + kwa * w2),
@@ -162,7 +162,7 @@ def _integrate(
             project_so3_into(r_hat)
         if nvis > 0:
             # Predict the measurements over the sub-step: y ← dRᵀ(y − dp) with bias-corrected odometry.
-            se3_step_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
+            se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
             predict_points(y, nvis, d_r, d_p)
     b_om[0], b_om[1], b_om[2] = bo0, bo1, bo2
     b_v[0], b_v[1], b_v[2] = bv0, bv1, bv2

@@ -605,7 +605,7 @@ def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
 def _mahalanobis3(s, z):
     """``zᵀ S⁻¹ z`` for the 3×3 ``s`` (overwritten by its Cholesky factor L: ``|L⁻¹ z|²``); inf when S is not
     positive definite."""
-    if not cholesky_lower(s, 3):
+    if not cholesky_lower(s, np.int64(3)):
         return np.inf
     w0 = z[0] / s[0, 0]
     w1 = (z[1] - s[1, 0] * w0) / s[1, 1]
@@ -770,7 +770,7 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
     s[1, 1] += plane[11] ** 2
     f = plane[12] ** 2  # the floor's height error is the same each time: its variance brought down to f, no further
     s[2, 2] += s[2, 2] * f / (s[2, 2] - f) if s[2, 2] > 1.001 * f else 1e6 * (s[2, 2] + f)
-    if not cholesky_lower(s, 3):
+    if not cholesky_lower(s, np.int64(3)):
         return
     for j in range(d):  # W = L⁻¹ H Σ, column by column
         w0 = b[0, j] / s[0, 0]
@@ -791,7 +791,10 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
 @njit(cache=True)
 def _settle(cov, d, lt, rt, dp):
     """Apply the pending propagation (:func:`_propagation_terms`) to the covariance now, and clear it."""
-    _apply(cov, d, lt, rt, 6, dp, np.zeros(0, np.int64), -1)
+    # int64s, not literals: numba compiles a callee once per literal argument (literal 6 and -1 here compiled _apply and
+    # _mirror_read a second time beside _update's int64 call, as a literal 3 did cholesky_lower, a literal row 0
+    # _pose_covariance: ~2 s of a first run's compile, docs/benchmarks.md, session 19)
+    _apply(cov, d, lt, rt, np.int64(6), dp, np.zeros(0, np.int64), np.int64(-1))
     lt[:6, :d] = 0.0
     rt[:6, :d] = 0.0
     dp[:, :d] = 0.0
@@ -1308,7 +1311,7 @@ def _advance(
     bias = np.empty(6)
     pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
     acc_w = np.empty((3, 3, 3))  # _accumulate's
-    o = 0
+    o = np.int64(0)  # int64 from the start: a literal 0 compiles _pose_covariance a second time (_settle's comment)
     want_cov = cov_out.shape[0] > 0
     work = 0
     scale, det_scale = fs[_SCALE], fs[_DSCALE]
