@@ -30,6 +30,39 @@ HANG = 300.0  # a first run, or a killed one, not done after this long counts as
 STOPS_WITHIN_S = 10.0  # a stop this much after the signal is no hang (the old wait was the whole compilation)
 
 
+#: A process in numba's compiler for a minute (a frame of a ``numba`` module in a call that runs no Python, as LLVM's
+#: optimisation), with a temporary directory registered for removal and a child process, when SIGTERM arrives.
+IN_COMPILER = r"""
+import os, signal, subprocess, sys
+from pathlib import Path
+from slamobs.pipeline import interrupts
+temp = Path(sys.argv[1])
+temp.mkdir()
+sleep = [sys.executable, "-c", "import time; time.sleep(600)"]
+child = subprocess.Popen(sleep, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+print(child.pid, flush=True)
+ns = {"__name__": "numba.core.fake"}
+exec("import os, signal, time\ndef optimise():\n    os.kill(os.getpid(), signal.SIGTERM)\n    time.sleep(60)\n", ns)
+with interrupts.raise_when_safe(lambda signum: f"stopped by {signum}\n"), interrupts.undone_at_end(temp.rmdir):
+    ns["optimise"]()
+print("the compiler returned", flush=True)
+"""
+
+
+def test_a_process_in_the_compiler_ends_from_the_watching_thread(tmp_path):
+    """Its children killed, its temporaries removed, the farewell line printed, exit 143: within seconds."""
+    started = time.monotonic()
+    done = subprocess.run(
+        [sys.executable, "-c", IN_COMPILER, str(tmp_path / "temp")], capture_output=True, text=True, timeout=HANG
+    )
+    assert time.monotonic() - started < STOPS_WITHIN_S
+    assert done.returncode == 143, done.stderr
+    assert done.stderr == "stopped by 15\n"
+    child = int(done.stdout.split()[0])
+    assert "returned" not in done.stdout and not alive(child)
+    assert not (tmp_path / "temp").exists()
+
+
 def _default_sigint() -> None:  # as from a shell (a pytest-xdist worker may ignore SIGINT)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
