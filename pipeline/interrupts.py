@@ -253,6 +253,9 @@ def _end_in_compiler(signum: int, farewell) -> None:
     for action in list(_undo)[::-1]:
         with suppress(Exception):
             action()
+    for stream in (sys.stdout, sys.stderr):  # what the command printed so far (a status line), then its line
+        with suppress(Exception):
+            stream.flush()
     with suppress(Exception):
         os.write(2, farewell(signum).encode())
     os._exit(128 + signum)
