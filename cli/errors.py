@@ -71,8 +71,8 @@ def exit_input_error(err: BaseException | str, code: int = INPUT_ERROR_EXIT) -> 
 EXIT_AT_ONCE = False
 
 
-def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
-    signum = getattr(err, "signum", signal.SIGINT)
+def interrupted_line(signum: int) -> str:
+    """What an interrupted command says (on stderr, a line of its own)."""
     name = signal.Signals(signum).name
     from slamobs.pipeline.interrupts import published
 
@@ -80,11 +80,13 @@ def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
     # temporary output, which the interruption removed
     kept = [p for p in published if os.path.exists(p)]
     if kept:  # the signal came after the output was complete (while the command printed its summary)
-        click.echo(f"\ninterrupted ({name}) after the output was complete: {', '.join(kept)}", err=True)
-    else:
-        click.echo(
-            f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged", err=True
-        )
+        return f"\ninterrupted ({name}) after the output was complete: {', '.join(kept)}\n"
+    return f"\ninterrupted ({name}): stopped; nothing was written and an existing output is unchanged\n"
+
+
+def exit_interrupted(err: KeyboardInterrupt) -> NoReturn:
+    signum = getattr(err, "signum", signal.SIGINT)
+    click.echo(interrupted_line(signum), err=True, nl=False)
     code = EXIT_CODES[Interruption] + int(signum)
     if EXIT_AT_ONCE:
         _end_now(code)
@@ -245,7 +247,8 @@ def handled():
     global _subject
     _subject = None  # until the command names its file, if it has one
     try:
-        with as_interruption(), raise_when_safe():
+        # the console script's process may end from another thread inside numba's compiler, saying this line
+        with as_interruption(), raise_when_safe(interrupted_line if EXIT_AT_ONCE else None):
             check_numpy_room()  # NumPy's OpenBLAS would end the process ("OpenBLAS error", exit 1) if it cannot start
             yield
     except KeyboardInterrupt as err:  # Interruption, and Python's own for a SIGINT before the handlers

@@ -383,11 +383,13 @@ class KernelLocator(caching._CacheLocator):
 
 def prune(max_age_days: float = MAX_AGE_DAYS, root: Path | None = None) -> int:
     """Remove the cache files older than ``max_age_days``; returns how many. A kernel whose files go while
-    another process uses them is compiled again there (numba treats a missing file as a cache miss)."""
+    another process uses them is compiled again there (numba treats a missing file as a cache miss). Also the
+    temporary files numba writes a cache file in before renaming it into place (``NAME.nbi.tmp.UID``), which a
+    process killed while it wrote one (a run ended inside the compiler, its compile helper) leaves behind."""
     root = cache_root() if root is None else root
     limit = time.time() - max_age_days * 86400.0
     removed = 0
-    for file in root.rglob("*.nb[ci]"):
+    for file in [*root.rglob("*.nb[ci]"), *root.rglob("*.nb[ci].tmp.*")]:
         try:
             if file.stat().st_mtime < limit:
                 file.unlink()

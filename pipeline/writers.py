@@ -26,6 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from contextlib import contextmanager, suppress
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -907,8 +908,9 @@ def atomic_directory(final: Path, *, force: bool = False, inputs=()):
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(container, 0o777 & ~umask)  # mkdtemp makes it private; a run directory is ordinary output
-        yield tmp
-        write_manifest(tmp)
+        with interrupts.undone_at_end(partial(_finish, container, owner)):  # a signal that ends the process
+            yield tmp  # inside numba's compiler does not wait for this frame's clean-up
+            write_manifest(tmp)
         interrupts.check()  # a Ctrl-C/SIGTERM that Python dropped (raised in a finalizer) never publishes
         with interrupts.critical():  # a swap and its check (and a swap back) are one step
             _publish(container, final, expected, force)
@@ -977,7 +979,8 @@ def atomic_file(final: Path, *, why_kept=lambda _path: "exists already"):
         raise output_error(final, err, "cannot create the output") from None
     kept = None
     try:
-        yield container / final.name
+        with interrupts.undone_at_end(partial(shutil.rmtree, container, ignore_errors=True)):
+            yield container / final.name
         interrupts.check()  # a pending Ctrl-C/SIGTERM publishes nothing
         with interrupts.critical():
             publish(

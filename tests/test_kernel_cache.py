@@ -82,11 +82,15 @@ def test_prune_removes_only_old_cache_files(tmp_path):
     old_data = write(tmp_path, "pipeline/lie.f-1-aa.py311.1.nbc", "")
     new = write(tmp_path, "pipeline/lie.f-1-bb.py311.nbi", "")
     other = write(tmp_path, "notes.txt", "")
+    # what a process killed while numba wrote a cache file leaves: its temporary, never read
+    torn = write(tmp_path, "pipeline/lie.f-1-aa.py311.1.nbc.tmp.0123456789abcdef", "")
+    fresh_torn = write(tmp_path, "pipeline/lie.f-1-bb.py311.nbi.tmp.0123456789abcdef", "")
     month = time.time() - 31 * 86400
-    for path in (old, old_data, other):
+    for path in (old, old_data, other, torn):
         os.utime(path, (month, month))
-    assert prune(30, tmp_path) == 2
-    assert not old.exists() and not old_data.exists() and new.exists() and other.exists()
+    assert prune(30, tmp_path) == 3
+    assert not old.exists() and not old_data.exists() and not torn.exists()
+    assert new.exists() and other.exists() and fresh_torn.exists()  # a process may be writing it
 
 
 def test_kernel_modules_take_njit_from_kernel_cache():

@@ -402,6 +402,8 @@ def _replace_report_files(run, fill) -> list[Path]:
     with interrupts.critical():  # a directory without its owner marker would never be removed
         container = Path(tempfile.mkdtemp(prefix=temporary_prefix("report"), dir=run.path))
         write_json(container / OWNER, owner_marker())
+        drop = partial(shutil.rmtree, container, ignore_errors=True)
+        interrupts.at_end(drop)  # a signal that ends the process inside numba's compiler removes it too
     try:
         staged = container / NEW
         staged.mkdir()
@@ -410,4 +412,5 @@ def _replace_report_files(run, fill) -> list[Path]:
             os.chmod(p, 0o644)
         return replace_files(run.path, staged, REPORT_FILES + RUN_FIGURES)
     finally:
-        shutil.rmtree(container, ignore_errors=True)
+        interrupts.not_at_end(drop)
+        drop()

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from rosbags.rosbag2.storage_sqlite3 import Sqlite3Reader
 
+from slamobs.pipeline import interrupts
 from slamobs.pipeline.lifetime import owner_alive, owner_marker
 
 from . import sqlitefile, storage
@@ -84,6 +85,7 @@ class Sqlite3Storage(Sqlite3Reader):
         if wal is not None and wal.is_file() and wal.stat().st_size > WAL_HEADER:
             remove_stale_copies()
             self._copy = tempfile.TemporaryDirectory(prefix=COPY_PREFIX)
+            interrupts.at_end(self._copy.cleanup)  # a signal that ends the process in numba's compiler removes it
             (Path(self._copy.name) / COPY_OWNER).write_text(json.dumps(owner_marker()))  # before the copy
             original, self.path = self.path, _checkpointed(self.path, wal, Path(self._copy.name))
             self._wal_note = (
@@ -106,6 +108,7 @@ class Sqlite3Storage(Sqlite3Reader):
     def _drop_copy(self) -> None:
         copy, self._copy = self._copy, None
         if copy is not None:
+            interrupts.not_at_end(copy.cleanup)
             copy.cleanup()
 
     def batches(self, ids: ConnIds, ordered: bool) -> Iterator[RawBatch]:
