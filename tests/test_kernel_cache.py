@@ -366,21 +366,6 @@ def test_a_subroutine_is_one_body_under_one_name_in_every_process(tmp_path):
     assert linked["strict_fused"] != alone["strict"]  # its own {"contract"}, in a strict caller
 
 
-def test_the_landmark_observers_per_event_steps_are_subroutines_not_numba_inlines():
-    """The steps the landmark observers' event loops call once per event or sub-step are subroutines: numba's
-    ``inline="always"`` runs its untyped passes over the helper again and deep-copies its IR at every call site
-    (then post-processes the whole caller), which made fast-adaptation's first-run compile ~0.1-0.2 s of CPU
-    longer for the same machine code (LLVM inlines these subroutines; docs/benchmarks.md, "Fixed costs,
-    session 19"). ``landmark_sums`` stays inlined by numba: as a subroutine LLVM kept it a call per sub-step."""
-    import numba
-
-    from slamobs.pipeline.observers import shared_steps
-
-    steps = ("substep_count", "count_capped", "load_frame", "predict_points", "record_row")
-    assert not [s for s in steps if isinstance(getattr(shared_steps, s), numba.core.dispatcher.Dispatcher)]
-    assert shared_steps.landmark_sums.targetoptions.get("inline") == "always"
-
-
 def test_a_kernel_keeps_its_own_floating_point_flags_whoever_compiles_it_first():
     """numba compiles a kernel without ``fastmath`` of its own with the flags of the kernel that compiles it first
     (``inherit_if_not_set``): a strict helper first compiled from a ``{"contract"}`` kernel fused its ``a * b + c``,

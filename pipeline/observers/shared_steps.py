@@ -18,20 +18,14 @@
 - :func:`landmark_weight`: how much of its landmark step a landmark takes: 1, or, when a known map gives ``lm``
   a fourth column, that column (0 for a landmark fixed by the map, which is then never updated).
 
-All are written with scalars (no temporaries): they run once per sub-step or event. Those called once per event or
-sub-step are ``kernel_cache.subroutine`` s (typed and lowered once per kernel, inlined by LLVM) rather than numba's
-``inline="always"``, which re-runs numba's untyped passes and copies the helper's IR at every call site; only
-:func:`landmark_sums` (and :func:`landmark_weight` in it) stays inlined by numba: as a subroutine LLVM left it a call
-per sub-step.
+All are written with scalars (no temporaries): they run once per sub-step or event.
 """
 
 from __future__ import annotations
 
 import math
 
-from numba import types
-
-from slamobs.pipeline.kernel_cache import njit, subroutine
+from slamobs.pipeline.kernel_cache import njit
 
 #: Most sub-steps one interval between two events is cut into. Logs need a few to a few hundred; an interval
 #: that asks for more (gains far too stiff for the sample rate, an absurd innovation) is integrated with this
@@ -45,7 +39,7 @@ CAPPED, CAP_IV = 5, 6
 FRAME_SETTLE = 5.0
 
 
-@subroutine(types.int64)
+@njit(cache=True, inline="always")
 def substep_count(dt, lam, step_ratio):
     """Sub-steps for an interval ``dt`` at loop rate ``lam``: ``ceil(dt lam / step_ratio)``, 1 to ``MAX_SUBSTEPS``
     (a NaN or infinite rate gets the cap)."""
@@ -56,7 +50,7 @@ def substep_count(dt, lam, step_ratio):
     return n if n > 1 else 1
 
 
-@subroutine(types.none)
+@njit(cache=True, inline="always")
 def count_capped(m, iv, ns):
     """Count an interval integrated with ``m`` sub-steps if that was the cap (``iv``: the next velocity sample)."""
     if m >= MAX_SUBSTEPS:
@@ -65,7 +59,7 @@ def count_capped(m, iv, ns):
             ns[CAP_IV] = iv
 
 
-@subroutine(types.none)
+@njit(cache=True, inline="always")
 def load_frame(a, nvis, det_idx, det_y, r_hat, p_hat, lm, lm_init, vis_idx, y, innov, trk_p, row):
     """Take detections ``a .. a + nvis - 1`` as the visible set; their output rows start at ``row``."""
     for j in range(nvis):
@@ -129,7 +123,7 @@ def landmark_sums(nvis, vis_idx, y, lm, r_hat, p_hat, hkp, adaptive):
     return w0, w1, w2, u0, u1, u2
 
 
-@subroutine(types.none)
+@njit(cache=True, inline="always")
 def predict_points(x, n, d_r, d_p):
     """``x_j ← dRᵀ(x_j − dp)`` for rows ``0 .. n - 1``: body-frame points after the body moved by ``(dR, dp)``
     over a sub-step (directions: ``dp = 0``)."""
@@ -142,7 +136,7 @@ def predict_points(x, n, d_r, d_p):
         x[j, 2] = d_r[0, 2] * d0 + d_r[1, 2] * d1 + d_r[2, 2] * d2
 
 
-@subroutine(types.none)
+@njit(cache=True, inline="always")
 def record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
     """Row ``o`` of the outputs: velocity sample ``iv``, R̂, P̂ and the biases ``[b̂_Ω, b̂_V]``."""
     out_k[o] = iv
