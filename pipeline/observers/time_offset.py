@@ -665,23 +665,26 @@ def velocity_lag(c: _Consistency, shift: float) -> dict | None:
     }
 
 
-#: Velocity samples past which :func:`velocity_lag` searches the log's first this many only (a stamping lag is
-#: the same all along; its 21 dead reckonings of the whole hour's 720,000 samples cost 1.5 CPU s, and made riekf's
-#: filter stage 1.67 -> 2.5 s wall on the one-hour log, where the check runs beside the filter).
-VELOCITY_LAG_SAMPLES = 1 << 17
+#: Velocity samples past which the checks that dead-reckon the log once per trial (:func:`gyro_misreads`,
+#: :func:`velocity_lag`) read the log's first this many only, where they hold ``MIN_PAIRS`` detection pairs (a
+#: misread axis or a stamping lag is the same all along): the lag's 21 dead reckonings of the whole hour's 720,000
+#: samples cost 1.5 CPU s and made riekf's filter stage 1.67 -> 2.5 s wall on the one-hour log, where the checks
+#: run beside the filter; the misreads' four, 0.27 CPU s and 1.67 -> 1.75-1.84 s (session 19).
+PREFIX_SAMPLES = 1 << 17
 
 
 def _prefix_of(c: _Consistency) -> _Consistency:
-    """``c``, or for a log of more than ``VELOCITY_LAG_SAMPLES`` velocity samples the pairs' cost on its first that
-    many (:func:`velocity_lag`)."""
+    """``c``, or for a log of more than ``PREFIX_SAMPLES`` velocity samples the pairs' cost on its first that many
+    when they hold ``MIN_PAIRS`` pairs or more."""
     stream = c.stream
     t = stream.vel_t_ns
-    if t.shape[0] <= VELOCITY_LAG_SAMPLES or not getattr(stream, "two_twist_topics", False):
+    if t.shape[0] <= PREFIX_SAMPLES:
         return c
     from slamobs.pipeline.alignment import TimeWindow, windowed
 
-    end = int(t[VELOCITY_LAG_SAMPLES - 1])
-    return _Consistency(windowed(stream, TimeWindow(None, end, int(t[0]), (None, None)), "velocity lag"), c.bias)
+    end = int(t[PREFIX_SAMPLES - 1])
+    head = _Consistency(windowed(stream, TimeWindow(None, end, int(t[0]), (None, None)), "log prefix"), c.bias)
+    return head if head.a.shape[0] >= MIN_PAIRS else c
 
 
 def velocity_lag_sentence(lag: dict | None, pairs: int) -> str | None:
@@ -722,11 +725,12 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
         why = _halves_disagree(c, stream)
     if decided is not None:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
-    out["gyro_misreads"] = gyro_misreads(c)
+    head = _prefix_of(c)
+    out["gyro_misreads"] = gyro_misreads(head)
     out["velocity_scale"] = velocity_scale(c)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
-    out["velocity_lag"] = velocity_lag(_prefix_of(c), shift if why is None else 0.0)
+    out["velocity_lag"] = velocity_lag(head, shift if why is None else 0.0)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
 
