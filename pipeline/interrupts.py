@@ -151,14 +151,18 @@ def after_critical(action) -> bool:
     return True
 
 
+def _package(frame) -> str:
+    """The top-level package of the module ``frame`` runs in ("" for code without a module name)."""
+    return (frame.f_globals.get("__name__") or "").partition(".")[0]
+
+
 def _unsafe(frame) -> bool:
     """In a :func:`critical` block, or some frame of the stack from ``frame`` down is in :data:`UNSAFE_MODULES`
     or a finalizer."""
     if _critical:
         return True
     while frame is not None:
-        module = frame.f_globals.get("__name__") or ""
-        if module.partition(".")[0] in UNSAFE_MODULES or frame.f_code.co_name == "__del__":
+        if _package(frame) in UNSAFE_MODULES or frame.f_code.co_name == "__del__":
             return True
         frame = frame.f_back
     return False
@@ -233,14 +237,14 @@ def _in_compiler(ident: int) -> bool:
         return False
     frame = sys._current_frames().get(ident)  # noqa: SLF001 - documented; the only view of another thread's stack
     while frame is not None:
-        if (frame.f_globals.get("__name__") or "").partition(".")[0] in COMPILER_MODULES:
+        if _package(frame) in COMPILER_MODULES:
             return True
         frame = frame.f_back
     return False
 
 
 def _starting_a_child(frame) -> bool:
-    return (frame.f_globals.get("__name__") or "").partition(".")[0] in ("subprocess", "multiprocessing")
+    return _package(frame) in ("subprocess", "multiprocessing")
 
 
 def _end_in_compiler(signum: int, farewell) -> None:
