@@ -17,6 +17,11 @@ Per robot (imported into the cache as ``benchmarks/real_logs.py`` does):
   raw, after one scale, lag and bias fitted to Vicon over 2 s windows (a constant scale, a lag and a bias are what
   a calibration would remove), and after an oracle scale or bias per segment of 60, 30 or 15 s (what a slowly
   varying scale or velocity-bias state could at best absorb).
+* ``--shared``: a fourth table, whether the detections' error is shared by the landmarks seen together: the
+  correlation of two different landmarks' range (bearing) errors in one frame, per-landmark means removed and
+  mis-associations (bearing error above ``MISASSOCIATED_RAD``) left out, beside one landmark's own at 0.5-1.5 s;
+  then the detections' stamp offset that best explains the bearing error by Vicon's yaw rate (``e = −ω·δ``), the
+  share of its variance that explains, and the same-frame bearing correlation left after it.
 """
 
 from __future__ import annotations
@@ -36,6 +41,9 @@ LAGS_S = (0.5, 2.0, 8.0, 32.0)
 #: The commands' lags tried (s) and the segments (s) of the oracle scale and bias of ``--speed``.
 SPEED_LAGS_S = tuple(np.round(np.arange(0.0, 0.61, 0.05), 2))
 SPEED_SEGMENTS_S = (60.0, 30.0, 15.0)
+#: ``--shared``: a bearing error above this (rad) is a mis-association, left out; two detections less than
+#: ``SAME_FRAME_S`` apart are one frame's.
+MISASSOCIATED_RAD, SAME_FRAME_S = 0.1, 0.05
 
 
 def _robust(x: np.ndarray) -> float:
@@ -179,6 +187,50 @@ def detection_cells(streams, aligned) -> list[str]:
     return cells
 
 
+def _pairs(t: np.ndarray, lm: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Indices of detection pairs (sorted by time ``t``): two different landmarks in one frame, and one landmark
+    0.5-1.5 s apart."""
+    a, b, c, d = [], [], [], []
+    for k in range(t.size):
+        j = k + 1
+        while j < t.size and t[j] - t[k] < 1.5:
+            if lm[j] != lm[k] and t[j] - t[k] < SAME_FRAME_S:
+                a.append(k), b.append(j)
+            elif lm[j] == lm[k] and t[j] - t[k] >= 0.5:
+                c.append(k), d.append(j)
+            j += 1
+    return tuple(np.array(x, np.int64) for x in (a, b, c, d))
+
+
+def shared_cells(streams, aligned) -> list[str]:
+    """The ``--shared`` table's cells for one robot (module docstring)."""
+
+    def corr(x: np.ndarray, i: np.ndarray, j: np.ndarray) -> float:
+        return float(np.sum(x[i] * x[j]) / np.sqrt(np.sum(x[i] ** 2) * np.sum(x[j] ** 2)))
+
+    dr, db, t, lm = detection_errors(streams, aligned)
+    ok = np.abs(db) < MISASSOCIATED_RAD
+    dr, db, t, lm = dr[ok], db[ok], t[ok], lm[ok]
+    for i in np.unique(lm):
+        dr[lm == i] -= dr[lm == i].mean()
+        db[lm == i] -= db[lm == i].mean()
+    order = np.argsort(t, kind="stable")
+    dr, db, t, lm = dr[order], db[order], t[order], lm[order]
+    a, b, c, d = _pairs(t, lm)
+    yaw1, _ = _truth_yaw(streams, t + 0.05, aligned.t0_ns)
+    yaw0, _ = _truth_yaw(streams, t - 0.05, aligned.t0_ns)
+    rate = (yaw1 - yaw0) / 0.1
+    delta = -float(np.sum(rate * db) / np.sum(rate * rate))
+    left = db + rate * delta
+    return [
+        f"{a.size}",
+        f"{corr(dr, a, b):.2f} / {corr(db, a, b):.2f}",
+        f"{corr(dr, c, d):.2f} / {corr(db, c, d):.2f}",
+        f"{delta:+.3f} s, {1 - np.var(left) / np.var(db):.2f}",
+        f"{corr(left, a, b):.2f}",
+    ]
+
+
 def main() -> None:
     from slamobs.pipeline.alignment import align
     from slamobs.pipeline.api import read_log
@@ -188,12 +240,13 @@ def main() -> None:
     ap.add_argument("--logs", default="mrclam6,mrclam7", help="comma-separated MR.CLAM robots or datasets")
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
     ap.add_argument("--speed", action="store_true", help="also the commanded speed's error taken apart (third table)")
+    ap.add_argument("--shared", action="store_true", help="also the detections' error shared across landmarks (fourth)")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     logs = [g for g in all_logs(args.cache, args.logs.split(",")) if g.name.startswith("mrclam") and not g.skip]
     heads = " | ".join(f"g / v Vicon T={w:g}s" for w in WINDOWS_S)
     print(f"| robot | g / v auto | {heads} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
-    rows, speed = [], []
+    rows, speed, shared = [], [], []
     for log in logs:
         streams = read_log(log.path)
         aligned = align(streams)
@@ -203,6 +256,8 @@ def main() -> None:
         print(f"| {log.name} | {np.max(noise.gyro):.3f} / {np.max(noise.velocity):.3f} | " + " | ".join(pairs) + " |")
         rows.append(f"| {log.name} | " + " | ".join(detection_cells(streams, aligned)) + " |")
         speed += speed_rows(log.name, streams, aligned) if args.speed else []
+        if args.shared:
+            shared.append(f"| {log.name} | " + " | ".join(shared_cells(streams, aligned)) + " |")
     lags = " | ".join(f"lag {lag:g}s" for lag in LAGS_S)
     print(f"\n| robot | range m / bearing rad sd | per-landmark mean sd | {lags} |\n|" + " --- |" * (3 + len(LAGS_S)))
     print("\n".join(rows))
@@ -210,6 +265,14 @@ def main() -> None:
         windows = " | ".join(f"v Vicon T={w:g}s" for w in WINDOWS_S)
         print(f"\n| robot | commanded speed | {windows} |\n|" + " --- |" * (2 + len(WINDOWS_S)))
         print("\n".join(speed))
+    if shared:
+        print(
+            "\n| robot | pairs in one frame | two landmarks, one frame: range / bearing r | one landmark 0.5-1.5 s: "
+            "range / bearing r | stamp offset by the yaw rate, bearing variance it explains | one frame's bearing r "
+            "after it |"
+            "\n|" + " --- |" * 6
+        )
+        print("\n".join(shared))
 
 
 if __name__ == "__main__":
