@@ -156,6 +156,32 @@ def test_order_statistics_equal_numpy_median_and_percentile():
     assert np.isnan(median) and np.isnan(percentiles).all()
 
 
+def test_scaled_kinds_statistics_from_the_base_kinds_ranks_are_numpys():
+    """The segment errors' % and per-metre kinds take their median and percentiles from the metre and degree
+    kinds' ranks (``drift.kind_statistics``): every statistic the same bits as ``metrics.statistics`` of the scaled
+    array itself (so as NumPy's), on long vectors with ties, tiny and huge values, odd and even counts, and with a
+    NaN (NumPy's NaN)."""
+    from slamobs.pipeline.evaluation.drift import SEGMENT_ERROR_KINDS, kind_statistics, per_metre, percent
+    from slamobs.pipeline.evaluation.metrics import statistics
+
+    rng = np.random.default_rng(3)
+    for n, length in ((4096, 3.7), (65_537, 0.3), (100_000, 1472.92)):
+        trans = np.abs(rng.standard_cauchy(n)) * 1e-3
+        trans[: n // 10] = np.round(trans[: n // 10], 4)  # ties
+        trans[-5:] = (5e-324, 1e-300, 1e150, 0.0, 0.0)
+        rot = np.round(rng.random(n) * 3, 3)
+        errs = dict(zip(SEGMENT_ERROR_KINDS, (trans, percent(trans, length), rot, per_metre(rot, length), rot, trans)))
+        for kind, stats in kind_statistics(errs, length).items():
+            assert stats == statistics(np.array(errs[kind])), kind
+            assert stats["p95"] == float(np.percentile(errs[kind], 95)) and stats["median"] == float(
+                np.median(errs[kind])
+            )
+        trans[7] = np.nan
+        errs = dict(zip(SEGMENT_ERROR_KINDS, (trans, percent(trans, length), rot, per_metre(rot, length), rot, trans)))
+        got = kind_statistics(errs, length)
+        assert np.isnan(got["translation_pct"]["median"]) and np.isnan(got["translation_pct"]["p99"])
+
+
 def test_ranked_puts_the_values_of_each_rank_where_a_sort_does():
     """``ranked`` (one single-rank partition after another) leaves at every asked rank the value a sort puts
     there, NaN last, for rank sets with the ends, neighbours and repeats of ties."""
@@ -611,3 +637,23 @@ def test_compiled_offset_correlation_is_the_array_codes_to_round_off(monkeypatch
         found[kernel] = sync.estimate_time_offset(tt, pos, q, tt[::2] - 37_000_000, pos[::2], q[::2])
     assert found[True].offset_s == found[False].offset_s == pytest.approx(0.037, abs=0.002)
     assert found[True].peak_correlation == pytest.approx(found[False].peak_correlation, rel=1e-12)
+
+
+def test_yaw_fit_centres_each_mean_once_same_bits():
+    """``align.yaw_fit`` takes each mean once and centres only the horizontal columns: the same rotation and
+    translation, bit for bit, as the whole centred arrays with the means taken again for the translation."""
+    from slamobs.pipeline.evaluation.align import yaw_fit
+
+    rng = np.random.default_rng(8)
+    for n in (2, 3, 1000, 70_001):
+        x = rng.normal(size=(n, 3)) * 40.0 + 3.0
+        turn = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
+        y = x @ turn.T + rng.normal(size=(n, 3)) * 0.05 + 7.0
+        xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
+        th = np.arctan2(
+            np.sum(xc[:, 0] * yc[:, 1] - xc[:, 1] * yc[:, 0]), np.sum(xc[:, 0] * yc[:, 0] + xc[:, 1] * yc[:, 1])
+        )
+        rot = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+        got_rot, got_trans = yaw_fit(x, y)
+        assert got_rot.tobytes() == rot.tobytes()
+        assert got_trans.tobytes() == (y.mean(axis=0) - rot @ x.mean(axis=0)).tobytes()
