@@ -657,3 +657,16 @@ def test_yaw_fit_centres_each_mean_once_same_bits():
         got_rot, got_trans = yaw_fit(x, y)
         assert got_rot.tobytes() == rot.tobytes()
         assert got_trans.tobytes() == (y.mean(axis=0) - rot @ x.mean(axis=0)).tobytes()
+
+
+def test_rms_extent_same_bits_as_the_centred_sum_along_rows():
+    """``slam_metrics.rms_extent`` adds each centred column's squares in turn: the same bits as NumPy's
+    ``sqrt(mean(sum((x - mean) ** 2, axis=1)))``, on offset, rounded (ties), constant and one-row positions."""
+    from slamobs.pipeline.evaluation.slam_metrics import rms_extent
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 7, 1000, 70_001):
+        for x in (rng.normal(size=(n, 3)) * 30 + 1e4, np.round(rng.normal(size=(n, 3)), 2), np.full((n, 3), 0.1)):
+            want = np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1)))
+            assert np.float64(rms_extent(x)).tobytes() == want.tobytes()
+    assert rms_extent(np.ones((5, 2))) == 0.0  # other shapes: NumPy's own expression

@@ -133,8 +133,7 @@ def truth_scale_note(ev: TrajectoryEvaluation) -> list[str]:
     lengthens its path."""
     if ev.alignment.kind in SCALED_ALIGNMENTS or len(ev.paired.ref_pos) < 2:
         return []
-    ref, est = ev.paired.ref_pos, ev.paired.est_pos
-    truth_m, est_m = slam_metrics.rms_extent(ref), slam_metrics.rms_extent(est)
+    truth_m, est_m = ev.truth_extent_m, slam_metrics.rms_extent(ev.paired.est_pos)
     if truth_m <= 0.0 or est_m <= 0.0 or 1.0 / TRUTH_SCALE_FACTOR < truth_m / est_m < TRUTH_SCALE_FACTOR:
         return []
     return [
@@ -689,7 +688,7 @@ class ConvergenceSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         t0 = int(ev.estimate.t_ns[0])
-        extent = slam_metrics.rms_extent(ev.paired.ref_pos)
+        extent = ev.truth_extent_m
         c = slam_metrics.convergence(
             ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent=extent
         )

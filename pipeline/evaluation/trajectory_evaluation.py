@@ -199,6 +199,12 @@ class TrajectoryEvaluation:
         return None if self.covariance is None else paired_uncertainty(self)
 
     @cached_property
+    def truth_extent_m(self) -> float:
+        """The paired truth positions' :func:`slam_metrics.rms_extent`: the truth-scale note and the convergence
+        section share it."""
+        return slam_metrics.rms_extent(self.paired.ref_pos)
+
+    @cached_property
     def error_level(self) -> tuple[np.ndarray, np.ndarray]:
         """The running median of the position error (:func:`slam_metrics.error_level`): the convergence figure
         and the errors plot share it."""
