@@ -670,3 +670,18 @@ def test_rms_extent_same_bits_as_the_centred_sum_along_rows():
             want = np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1)))
             assert np.float64(rms_extent(x)).tobytes() == want.tobytes()
     assert rms_extent(np.ones((5, 2))) == 0.0  # other shapes: NumPy's own expression
+
+
+def test_apply_alignment_same_bits_as_the_whole_expression():
+    """``align.apply_alignment`` multiplies by a scale of 1 not at all and adds the translation in place: the same
+    bits as ``scale * p @ R.T + t`` for scales 1 and not, zero and other translations, rows and one point."""
+    from slamobs.pipeline.evaluation.align import apply_alignment
+
+    rng = np.random.default_rng(6)
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    for p in (rng.normal(size=(1000, 3)) * 50.0, -np.zeros((4, 3)), rng.normal(size=3)):
+        for scale in (1.0, 0.7):
+            for trans in (np.zeros(3), rng.normal(size=3)):
+                got = apply_alignment(rot, trans, scale, p)
+                want = scale * p @ rot.T + trans
+                assert got.shape == want.shape and got.tobytes() == want.tobytes()

@@ -277,9 +277,10 @@ def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.
     for rows in row_blocks(n):
         ref_pos, est_pos, ref_rot, est_rot = p.ref_pos[rows], p.est_pos[rows], p.ref_rot[rows], p.est_rot[rows]
         for kind, al in fits.items():
-            pos = al.positions(est_pos)
+            none = al.kind == "none"  # the estimate as it is (as trajectory_error.align_paired takes it)
+            pos = est_pos if none else al.positions(est_pos)
             out[kind][0][rows] = metrics.ape_errors("trans_part", ref_pos, None, pos, None)
-            turned = metrics.rotated(al.rot, est_rot)
+            turned = est_rot if none else metrics.rotated(al.rot, est_rot)
             out[kind][1][rows] = metrics.ape_errors("angle_deg", ref_pos, ref_rot, pos, turned)
     return out
 
