@@ -685,3 +685,16 @@ def test_apply_alignment_same_bits_as_the_whole_expression():
                 got = apply_alignment(rot, trans, scale, p)
                 want = scale * p @ rot.T + trans
                 assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+def test_statistics_mean_and_std_are_numpys():
+    """``metrics.statistics`` hands its mean to ``np.std``: mean and std the same bits as ``np.mean`` and
+    ``np.std`` of the vector, for one to many values, ties, heavy tails and constants."""
+    from slamobs.pipeline.evaluation.metrics import statistics
+
+    rng = np.random.default_rng(9)
+    for n in (1, 2, 3, 1000, 100_001):
+        for e in (rng.random(n), np.abs(rng.standard_cauchy(n)), np.full(n, 0.1), np.round(rng.random(n), 2)):
+            got = statistics(e)
+            assert np.float64(got["mean"]).tobytes() == np.mean(e).tobytes()
+            assert np.float64(got["std"]).tobytes() == np.std(e).tobytes()

@@ -483,11 +483,12 @@ def statistics(errors: np.ndarray, part: np.ndarray | None = None) -> dict[str, 
     if e.size == 0:
         raise ValueError("statistics: empty error vector")
     sse = float(np.dot(e, e))
+    mean = np.mean(e, keepdims=True)  # np.std's own mean (the same sum and division): handed to it, not summed again
     out: dict[str, float | int] = {
         "rmse": float(np.sqrt(sse / e.size)),
-        "mean": float(np.mean(e)),
+        "mean": float(mean[0]),
         "median": None,
-        "std": float(np.std(e)),
+        "std": float(np.std(e, mean=mean)),
         "min": float(np.min(e)),
         "max": float(np.max(e)),
         "sse": sse,
