@@ -698,3 +698,32 @@ def test_statistics_mean_and_std_are_numpys():
             got = statistics(e)
             assert np.float64(got["mean"]).tobytes() == np.mean(e).tobytes()
             assert np.float64(got["std"]).tobytes() == np.std(e).tobytes()
+
+
+def test_valid_truth_keeps_the_same_poses_on_its_finite_path():
+    """``valid_truth`` checks a truth finite throughout as a whole (no per-row reductions): all kept, the stream
+    itself returned; a NaN quaternion entry, an infinite position or a zero quaternion still drop their pose
+    alone (the per-row path), and so does a tiny quaternion on the finite path."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import valid_truth
+    from slamobs.pipeline.streams import PoseStream
+
+    rng = np.random.default_rng(12)
+    n = 1000
+    for bad in (None, "nan_quat", "inf_position", "zero_quat", "tiny_quat"):
+        q = rng.normal(size=(n, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        pos = rng.normal(size=(n, 3))
+        if bad == "nan_quat":
+            q[17, 2] = np.nan
+        elif bad == "inf_position":
+            pos[17, 0] = -np.inf
+        elif bad in ("zero_quat", "tiny_quat"):
+            q[17] = 0.0 if bad == "zero_quat" else 1e-9
+        t = np.arange(n, dtype=np.int64)
+        truth = PoseStream("/truth", "world", "body", t, t, pos, q)
+        kept, dropped = valid_truth(truth)
+        if bad is None:
+            assert kept is truth and dropped == 0
+        else:
+            assert dropped == 1 and np.array_equal(kept.t_ns, np.delete(t, 17))
+            assert kept.quat_xyzw.tobytes() == np.delete(q, 17, axis=0).tobytes()
