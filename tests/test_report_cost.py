@@ -156,6 +156,32 @@ def test_order_statistics_equal_numpy_median_and_percentile():
     assert np.isnan(median) and np.isnan(percentiles).all()
 
 
+def test_scaled_kinds_statistics_from_the_base_kinds_ranks_are_numpys():
+    """The segment errors' % and per-metre kinds take their median and percentiles from the metre and degree
+    kinds' ranks (``drift.kind_statistics``): every statistic the same bits as ``metrics.statistics`` of the scaled
+    array itself (so as NumPy's), on long vectors with ties, tiny and huge values, odd and even counts, and with a
+    NaN (NumPy's NaN)."""
+    from slamobs.pipeline.evaluation.drift import SEGMENT_ERROR_KINDS, kind_statistics, per_metre, percent
+    from slamobs.pipeline.evaluation.metrics import statistics
+
+    rng = np.random.default_rng(3)
+    for n, length in ((4096, 3.7), (65_537, 0.3), (100_000, 1472.92)):
+        trans = np.abs(rng.standard_cauchy(n)) * 1e-3
+        trans[: n // 10] = np.round(trans[: n // 10], 4)  # ties
+        trans[-5:] = (5e-324, 1e-300, 1e150, 0.0, 0.0)
+        rot = np.round(rng.random(n) * 3, 3)
+        errs = dict(zip(SEGMENT_ERROR_KINDS, (trans, percent(trans, length), rot, per_metre(rot, length), rot, trans)))
+        for kind, stats in kind_statistics(errs, length).items():
+            assert stats == statistics(np.array(errs[kind])), kind
+            assert stats["p95"] == float(np.percentile(errs[kind], 95)) and stats["median"] == float(
+                np.median(errs[kind])
+            )
+        trans[7] = np.nan
+        errs = dict(zip(SEGMENT_ERROR_KINDS, (trans, percent(trans, length), rot, per_metre(rot, length), rot, trans)))
+        got = kind_statistics(errs, length)
+        assert np.isnan(got["translation_pct"]["median"]) and np.isnan(got["translation_pct"]["p99"])
+
+
 def test_ranked_puts_the_values_of_each_rank_where_a_sort_does():
     """``ranked`` (one single-rank partition after another) leaves at every asked rank the value a sort puts
     there, NaN last, for rank sets with the ends, neighbours and repeats of ties."""
@@ -611,3 +637,93 @@ def test_compiled_offset_correlation_is_the_array_codes_to_round_off(monkeypatch
         found[kernel] = sync.estimate_time_offset(tt, pos, q, tt[::2] - 37_000_000, pos[::2], q[::2])
     assert found[True].offset_s == found[False].offset_s == pytest.approx(0.037, abs=0.002)
     assert found[True].peak_correlation == pytest.approx(found[False].peak_correlation, rel=1e-12)
+
+
+def test_yaw_fit_centres_each_mean_once_same_bits():
+    """``align.yaw_fit`` takes each mean once and centres only the horizontal columns: the same rotation and
+    translation, bit for bit, as the whole centred arrays with the means taken again for the translation."""
+    from slamobs.pipeline.evaluation.align import yaw_fit
+
+    rng = np.random.default_rng(8)
+    for n in (2, 3, 1000, 70_001):
+        x = rng.normal(size=(n, 3)) * 40.0 + 3.0
+        turn = np.array([[0.6, -0.8, 0.0], [0.8, 0.6, 0.0], [0.0, 0.0, 1.0]])
+        y = x @ turn.T + rng.normal(size=(n, 3)) * 0.05 + 7.0
+        xc, yc = x - x.mean(axis=0), y - y.mean(axis=0)
+        th = np.arctan2(
+            np.sum(xc[:, 0] * yc[:, 1] - xc[:, 1] * yc[:, 0]), np.sum(xc[:, 0] * yc[:, 0] + xc[:, 1] * yc[:, 1])
+        )
+        rot = np.array([[np.cos(th), -np.sin(th), 0.0], [np.sin(th), np.cos(th), 0.0], [0.0, 0.0, 1.0]])
+        got_rot, got_trans = yaw_fit(x, y)
+        assert got_rot.tobytes() == rot.tobytes()
+        assert got_trans.tobytes() == (y.mean(axis=0) - rot @ x.mean(axis=0)).tobytes()
+
+
+def test_rms_extent_same_bits_as_the_centred_sum_along_rows():
+    """``slam_metrics.rms_extent`` adds each centred column's squares in turn: the same bits as NumPy's
+    ``sqrt(mean(sum((x - mean) ** 2, axis=1)))``, on offset, rounded (ties), constant and one-row positions."""
+    from slamobs.pipeline.evaluation.slam_metrics import rms_extent
+
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 7, 1000, 70_001):
+        for x in (rng.normal(size=(n, 3)) * 30 + 1e4, np.round(rng.normal(size=(n, 3)), 2), np.full((n, 3), 0.1)):
+            want = np.sqrt(np.mean(np.sum((x - x.mean(axis=0)) ** 2, axis=1)))
+            assert np.float64(rms_extent(x)).tobytes() == want.tobytes()
+    assert rms_extent(np.ones((5, 2))) == 0.0  # other shapes: NumPy's own expression
+
+
+def test_apply_alignment_same_bits_as_the_whole_expression():
+    """``align.apply_alignment`` multiplies by a scale of 1 not at all and adds the translation in place: the same
+    bits as ``scale * p @ R.T + t`` for scales 1 and not, zero and other translations, rows and one point."""
+    from slamobs.pipeline.evaluation.align import apply_alignment
+
+    rng = np.random.default_rng(6)
+    rot = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    for p in (rng.normal(size=(1000, 3)) * 50.0, -np.zeros((4, 3)), rng.normal(size=3)):
+        for scale in (1.0, 0.7):
+            for trans in (np.zeros(3), rng.normal(size=3)):
+                got = apply_alignment(rot, trans, scale, p)
+                want = scale * p @ rot.T + trans
+                assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+def test_statistics_mean_and_std_are_numpys():
+    """``metrics.statistics`` hands its mean to ``np.std``: mean and std the same bits as ``np.mean`` and
+    ``np.std`` of the vector, for one to many values, ties, heavy tails and constants."""
+    from slamobs.pipeline.evaluation.metrics import statistics
+
+    rng = np.random.default_rng(9)
+    for n in (1, 2, 3, 1000, 100_001):
+        for e in (rng.random(n), np.abs(rng.standard_cauchy(n)), np.full(n, 0.1), np.round(rng.random(n), 2)):
+            got = statistics(e)
+            assert np.float64(got["mean"]).tobytes() == np.mean(e).tobytes()
+            assert np.float64(got["std"]).tobytes() == np.std(e).tobytes()
+
+
+def test_valid_truth_keeps_the_same_poses_on_its_finite_path():
+    """``valid_truth`` checks a truth finite throughout as a whole (no per-row reductions): all kept, the stream
+    itself returned; a NaN quaternion entry, an infinite position or a zero quaternion still drop their pose
+    alone (the per-row path), and so does a tiny quaternion on the finite path."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import valid_truth
+    from slamobs.pipeline.streams import PoseStream
+
+    rng = np.random.default_rng(12)
+    n = 1000
+    for bad in (None, "nan_quat", "inf_position", "zero_quat", "tiny_quat"):
+        q = rng.normal(size=(n, 4))
+        q /= np.linalg.norm(q, axis=1, keepdims=True)
+        pos = rng.normal(size=(n, 3))
+        if bad == "nan_quat":
+            q[17, 2] = np.nan
+        elif bad == "inf_position":
+            pos[17, 0] = -np.inf
+        elif bad in ("zero_quat", "tiny_quat"):
+            q[17] = 0.0 if bad == "zero_quat" else 1e-9
+        t = np.arange(n, dtype=np.int64)
+        truth = PoseStream("/truth", "world", "body", t, t, pos, q)
+        kept, dropped = valid_truth(truth)
+        if bad is None:
+            assert kept is truth and dropped == 0
+        else:
+            assert dropped == 1 and np.array_equal(kept.t_ns, np.delete(t, 17))
+            assert kept.quat_xyzw.tobytes() == np.delete(q, 17, axis=0).tobytes()

@@ -118,13 +118,16 @@ def rpg_lengths(path_length_m: float, fractions: tuple[float, ...] = SHORT_PATH_
     return tuple(math.trunc(f * path_length_m * 100.0) / 100.0 for f in fractions)
 
 
-def rpg_segment_ends(dist: np.ndarray, length: float, max_diff: float) -> tuple[np.ndarray, np.ndarray]:
+def rpg_segment_ends(
+    dist: np.ndarray, length: float, max_diff: float, runs: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Start and end index of every segment: from each pose, the later pose whose path distance is nearest to
     the start's + ``length`` (the first of equals, the shorter on a tie, as rpg's scan), kept within
-    ``max_diff``. Long paths (``metrics.KERNEL_ROWS`` poses) take a compiled sweep, the same indices."""
+    ``max_diff``. Long paths (``metrics.KERNEL_ROWS`` poses) take a compiled sweep, the same indices, over
+    ``runs`` (``equal_runs(dist)``: give it for several lengths, it is the same for all)."""
     d = np.ascontiguousarray(dist, dtype=np.float64)
     if d.shape[0] >= metrics.KERNEL_ROWS:
-        return _segment_ends(d, equal_runs(d), float(length), float(max_diff))
+        return _segment_ends(d, equal_runs(d) if runs is None else runs, float(length), float(max_diff))
     n = d.shape[0]
     start = np.arange(n)
     target = d + length
@@ -222,7 +225,36 @@ def relative_errors(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, sca
         np.ascontiguousarray(j, dtype=np.int64),
         float(scale),
     )
-    return dict(zip(SEGMENT_ERROR_KINDS, (trans, 100.0 * trans / length, rot, rot / length, yaw, gravity)))
+    return dict(zip(SEGMENT_ERROR_KINDS, (trans, percent(trans, length), rot, per_metre(rot, length), yaw, gravity)))
+
+
+def percent(trans: np.ndarray, length: float) -> np.ndarray:
+    """The translation error in % of the segment length."""
+    return 100.0 * trans / length
+
+
+def per_metre(rot: np.ndarray, length: float) -> np.ndarray:
+    """The rotation error per metre of the segment length."""
+    return rot / length
+
+
+#: the kinds that are another kind scaled by a positive constant: their order statistics come from its ranks
+SCALED_KINDS = {"translation_pct": ("translation_m", percent), "rotation_deg_per_m": ("rotation_deg", per_metre)}
+
+
+def kind_statistics(errs: dict[str, np.ndarray], length: float) -> dict[str, dict]:
+    """``metrics.statistics`` of each error array of a length; the % and per-metre kinds take their order
+    statistics from the metre and degree kinds' ranks (:func:`metrics.monotone_part`: the same bits, two
+    partitions of six saved)."""
+    parts, out = {}, {}
+    for kind, v in errs.items():
+        if kind in SCALED_KINDS and SCALED_KINDS[kind][0] in parts:
+            base, f = SCALED_KINDS[kind]
+            parts[kind] = metrics.monotone_part(parts[base], lambda x, f=f: f(x, length))
+        elif v.shape[0] >= metrics.RANKED_ROWS:
+            parts[kind] = metrics.ranked(v, metrics.statistic_ranks(v.shape[0]))
+        out[kind] = statistics(v, parts.get(kind))
+    return out
 
 
 def relative_errors_numpy(ref_pos, est_pos, turn: np.ndarray, i, j, length: float, scale: float = 1.0) -> dict:
@@ -241,7 +273,7 @@ def _error_kinds(r_w: np.ndarray, trans: np.ndarray, length: float) -> dict:
     return dict(
         zip(
             SEGMENT_ERROR_KINDS,
-            (trans, 100.0 * trans / length, rot, rot / length, np.degrees(yaw), np.degrees(gravity)),
+            (trans, percent(trans, length), rot, per_metre(rot, length), np.degrees(yaw), np.degrees(gravity)),
         )
     )
 
@@ -282,16 +314,16 @@ def segment_errors(
     rp, ep = np.asarray(ref_pos, dtype=np.float64), np.asarray(est_pos, dtype=np.float64)
     dist = accumulated_distances(rp)
     total = float(dist[-1]) if path_length_m is None else float(path_length_m)
-    rows, arrays, turn = [], {}, turns(ref_rot, est_rot)
+    rows, arrays, turn, runs = [], {}, turns(ref_rot, est_rot), equal_runs(dist)
     for length in rpg_lengths(total, fractions):
-        i, j = rpg_segment_ends(dist, length, RPG_MAX_DIFF_FRACTION * length) if length > 0 else ((), ())
+        i, j = rpg_segment_ends(dist, length, RPG_MAX_DIFF_FRACTION * length, runs) if length > 0 else ((), ())
         row = {"length_m": length, "n_segments": len(i)}
         if len(i) < 2:  # rpg: "Too few samples! Will not compute."
             rows.append({**row, **{k: None for k in SEGMENT_ERROR_KINDS}})
             continue
         errs = relative_errors(rp, ep, turn, i, j, length, scale)
         arrays[length] = errs
-        rows.append({**row, **{k: statistics(v) for k, v in errs.items()}})
+        rows.append({**row, **kind_statistics(errs, length)})
     return {
         "fractions": [float(f) for f in fractions],
         "path_length_m": total,

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -473,45 +474,72 @@ EVO_STATS = ("rmse", "mean", "median", "std", "min", "max", "sse")
 PERCENTILES = (90, 95, 99)
 
 
-def statistics(errors: np.ndarray) -> dict[str, float | int]:
+def statistics(errors: np.ndarray, part: np.ndarray | None = None) -> dict[str, float | int]:
     """Summary of an error vector as evo reports it: rmse, mean, median, std (population, ddof=0),
     min, max, sse (sum of squares); plus the count n and the 90/95/99th percentiles (linear interpolation,
-    NumPy's default) as p90, p95, p99. Plain Python numbers (JSON-ready)."""
+    NumPy's default) as p90, p95, p99. Plain Python numbers (JSON-ready). ``part``: the errors' values at
+    :func:`statistic_ranks` where the caller has them (:func:`monotone_part`), else put in order here."""
     e = np.asarray(errors, dtype=np.float64).ravel()
     if e.size == 0:
         raise ValueError("statistics: empty error vector")
     sse = float(np.dot(e, e))
+    mean = np.mean(e, keepdims=True)  # np.std's own mean (the same sum and division): handed to it, not summed again
     out: dict[str, float | int] = {
         "rmse": float(np.sqrt(sse / e.size)),
-        "mean": float(np.mean(e)),
+        "mean": float(mean[0]),
         "median": None,
-        "std": float(np.std(e)),
+        "std": float(np.std(e, mean=mean)),
         "min": float(np.min(e)),
         "max": float(np.max(e)),
         "sse": sse,
         "n": int(e.size),
     }
-    median, percentiles = order_statistics(e)
+    median, percentiles = order_statistics(e, part)
     out["median"] = median
     for p, v in zip(PERCENTILES, percentiles):
         out[f"p{p}"] = float(v)
     return out
 
 
-def order_statistics(e: np.ndarray) -> tuple[float, np.ndarray]:
-    """``np.median(e)`` and ``np.percentile(e, PERCENTILES)`` (linear) from one copy of ``e`` put in order at the
-    ranks they need (:func:`ranked`) instead of one partition each: NumPy's order statistics are the values at
-    the same ranks, the median the mean of the middle one or two, the percentiles NumPy's interpolation
-    (``_lerp``) between the same neighbours with the same weights, so the same bits (tested against both). With a
-    NaN, NumPy's own calls."""
-    n = e.shape[0]
+def _percentile_ranks(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[int]]:
+    """NumPy's linear percentile of ``n`` values at ``PERCENTILES``: the virtual index, the ranks below and above
+    it (-1 at the last value), and the middle rank(s) of the median."""
     virtual = (n - 1) * np.true_divide(np.asarray(PERCENTILES), 100)
     below = np.floor(virtual)
     below[virtual >= n - 1] = -1
     below = below.astype(np.intp)
     above = np.where(below < 0, -1, below + 1)
-    middle = [n // 2 - 1, n // 2] if n % 2 == 0 else [n // 2]
-    part = ranked(e, np.unique(np.concatenate(([0, n - 1], below % n, above % n, middle))))
+    return virtual, below, above, [n // 2 - 1, n // 2] if n % 2 == 0 else [n // 2]
+
+
+def statistic_ranks(n: int) -> np.ndarray:
+    """The rising ranks :func:`order_statistics` needs in order among ``n`` values (first, last: NaN's place,
+    the percentiles' neighbours, the median's middle)."""
+    _, below, above, middle = _percentile_ranks(n)
+    return np.unique(np.concatenate(([0, n - 1], below % n, above % n, middle)))
+
+
+def monotone_part(part: np.ndarray, f: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """The values at :func:`statistic_ranks` of ``f(e)`` from those of ``e`` (``part``, as :func:`ranked` left
+    them), for an elementwise ``f`` that never decreases (a positive scale: rounding keeps the order), so the
+    ``k``-th smallest of ``f(e)`` is ``f`` of the ``k``-th smallest of ``e``, bit for bit: no second partition of
+    ``f(e)`` (the segment errors' % and per-metre kinds). The other places are left unset."""
+    ranks = statistic_ranks(part.shape[0])
+    out = np.empty_like(part)
+    out[ranks] = f(part[ranks])
+    return out
+
+
+def order_statistics(e: np.ndarray, part: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """``np.median(e)`` and ``np.percentile(e, PERCENTILES)`` (linear) from one copy of ``e`` put in order at the
+    ranks they need (:func:`ranked`; or ``part``, its values at those ranks, from :func:`monotone_part`) instead of
+    one partition each: NumPy's order statistics are the values at the same ranks, the median the mean of the
+    middle one or two, the percentiles NumPy's interpolation (``_lerp``) between the same neighbours with the same
+    weights, so the same bits (tested against both). With a NaN, NumPy's own calls."""
+    n = e.shape[0]
+    virtual, below, above, middle = _percentile_ranks(n)
+    if part is None:
+        part = ranked(e, statistic_ranks(n))
     if np.isnan(part[-1]):
         return float(np.median(e)), np.percentile(e, PERCENTILES)
     a, b = part[below], part[above]

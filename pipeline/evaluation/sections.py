@@ -133,8 +133,7 @@ def truth_scale_note(ev: TrajectoryEvaluation) -> list[str]:
     lengthens its path."""
     if ev.alignment.kind in SCALED_ALIGNMENTS or len(ev.paired.ref_pos) < 2:
         return []
-    ref, est = ev.paired.ref_pos, ev.paired.est_pos
-    truth_m, est_m = slam_metrics.rms_extent(ref), slam_metrics.rms_extent(est)
+    truth_m, est_m = ev.truth_extent_m, slam_metrics.rms_extent(ev.paired.est_pos)
     if truth_m <= 0.0 or est_m <= 0.0 or 1.0 / TRUTH_SCALE_FACTOR < truth_m / est_m < TRUTH_SCALE_FACTOR:
         return []
     return [
@@ -278,9 +277,10 @@ def aligned_errors(fits: dict[str, Alignment], p: Paired) -> dict[str, tuple[np.
     for rows in row_blocks(n):
         ref_pos, est_pos, ref_rot, est_rot = p.ref_pos[rows], p.est_pos[rows], p.ref_rot[rows], p.est_rot[rows]
         for kind, al in fits.items():
-            pos = al.positions(est_pos)
+            none = al.kind == "none"  # the estimate as it is (as trajectory_error.align_paired takes it)
+            pos = est_pos if none else al.positions(est_pos)
             out[kind][0][rows] = metrics.ape_errors("trans_part", ref_pos, None, pos, None)
-            turned = metrics.rotated(al.rot, est_rot)
+            turned = est_rot if none else metrics.rotated(al.rot, est_rot)
             out[kind][1][rows] = metrics.ape_errors("angle_deg", ref_pos, ref_rot, pos, turned)
     return out
 
@@ -689,7 +689,7 @@ class ConvergenceSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         t0 = int(ev.estimate.t_ns[0])
-        extent = slam_metrics.rms_extent(ev.paired.ref_pos)
+        extent = ev.truth_extent_m
         c = slam_metrics.convergence(
             ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent=extent
         )

@@ -14,8 +14,19 @@ from slamobs.pipeline.lie import umeyama
 
 def rms_extent(xyz: np.ndarray) -> float:
     """RMS distance of the points from their centre (m): a trajectory's size that its jitter does not lengthen, as
-    a path length would."""
-    return float(np.sqrt(np.mean(np.sum((xyz - xyz.mean(axis=0)) ** 2, axis=1))))
+    a path length would. (N, 3) float rows take each centred column's squares in turn, added left to right as
+    NumPy's reduction along the short axis adds them (the same bits, without its slow short-axis reduction and
+    the centred copy: 13 against ~5 ms on an hour's pairs; the report asks three times)."""
+    x = np.asarray(xyz)
+    centre = x.mean(axis=0)
+    if x.ndim != 2 or x.shape[1] != 3 or x.dtype != np.float64:
+        return float(np.sqrt(np.mean(np.sum((x - centre) ** 2, axis=1))))
+    d = x[:, 0] - centre[0]
+    sq = np.multiply(d, d)
+    for c in (1, 2):
+        np.subtract(x[:, c], centre[c], out=d)
+        sq += np.multiply(d, d, out=d)
+    return float(np.sqrt(np.mean(sq)))
 
 
 def map_only_alignment(est_xyz: np.ndarray, truth_xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

@@ -199,6 +199,12 @@ class TrajectoryEvaluation:
         return None if self.covariance is None else paired_uncertainty(self)
 
     @cached_property
+    def truth_extent_m(self) -> float:
+        """The paired truth positions' :func:`slam_metrics.rms_extent`: the truth-scale note and the convergence
+        section share it."""
+        return slam_metrics.rms_extent(self.paired.ref_pos)
+
+    @cached_property
     def error_level(self) -> tuple[np.ndarray, np.ndarray]:
         """The running median of the position error (:func:`slam_metrics.error_level`): the convergence figure
         and the errors plot share it."""
@@ -455,11 +461,15 @@ class Pending:
 
 def valid_truth(truth: PoseStream) -> tuple[PoseStream, int]:
     """``truth`` without poses that are no rotation (a zero or non-finite quaternion, a non-finite position),
-    and how many were dropped."""
+    and how many were dropped. A truth finite throughout (the usual) is checked for finite values as a whole,
+    without the per-row reductions along the short axis and the masked copy: the same poses kept."""
     q = np.asarray(truth.quat_xyzw, dtype=np.float64)
-    ok = np.isfinite(q).all(axis=1) & np.isfinite(np.asarray(truth.position)).all(axis=1)
-    with np.errstate(invalid="ignore"):
-        ok &= row_norms(np.where(ok[:, None], q, 0.0)) > 1e-6
+    if np.isfinite(q).all() and np.isfinite(np.asarray(truth.position)).all():
+        ok = row_norms(q) > 1e-6
+    else:
+        ok = np.isfinite(q).all(axis=1) & np.isfinite(np.asarray(truth.position)).all(axis=1)
+        with np.errstate(invalid="ignore"):
+            ok &= row_norms(np.where(ok[:, None], q, 0.0)) > 1e-6
     if ok.all():
         return truth, 0
     return PoseStream(
