@@ -1,8 +1,11 @@
-"""Checks shared by the batch, kill and helper tests: dataset consistency and the processes a job leaves alive."""
+"""Checks shared by the batch, kill and helper tests: dataset consistency, the processes a job leaves alive, and
+what a first run compiles."""
 
 from __future__ import annotations
 
+import json
 import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -12,6 +15,47 @@ from pathlib import Path
 #: ``main()`` the interpreter's teardown followed, in which Python has put SIGTERM back to its default: a batch
 #: stopped just as it finished was killed by the signal (-15), a race of this harness, not of the command.
 CLI = [sys.executable, "-c", "from slamobs.cli.main import entry; entry()"]
+
+
+#: Run in the child: ``slamobs run ARGS...`` in-process (``kill`` as the first argument: the compile helper is killed
+#: as soon as it is started), then what this process compiled, as JSON.
+_COMPILING_RUN = """
+import json, sys
+from slamobs.pipeline import compile_ahead
+from slamobs.pipeline.compile_clock import compiled_functions
+from slamobs.cli.main import main
+if sys.argv[1] == "kill":
+    start = compile_ahead.start
+    def killed(*args):
+        helper = start(*args)
+        helper.proc.kill()
+        return helper
+    compile_ahead.start = killed
+main(["run", *sys.argv[2:]], standalone_mode=False)
+print(json.dumps(sorted({c.function for c in compiled_functions()})))
+"""
+
+
+def first_run(args: list, cache: Path, kill: bool = False) -> list[str]:
+    """``slamobs run ARGS...`` in a fresh process with the kernel cache ``cache`` (empty: a first run) and the
+    compile helper on (killed at its start with ``kill``); the functions the run compiled itself."""
+    from slamobs.pipeline import compile_ahead
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), compile_ahead.ENV: "1"}
+    argv = [sys.executable, "-c", _COMPILING_RUN, "kill" if kill else "-", *map(str, args)]
+    out = subprocess.run(argv, capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def assert_compiles_none_of_the_helpers_kernels(compiled: list[str], estimator: str, its_own: str, the_helpers: str):
+    """What a first run with the helper on compiled (:func:`first_run`): none of the helper's kernels, each compiled
+    for the types the run calls it with; the kernel the run needs first after reading it compiles itself."""
+    from slamobs.pipeline import compile_ahead
+
+    assert f"slamobs.pipeline.{its_own}" in compiled
+    assert f"slamobs.pipeline.{the_helpers}" not in compiled
+    assert {f"{m}.{n}" for m, n, _ in compile_ahead.plan(estimator)}.isdisjoint(compiled)
 
 
 def assert_consistent(out: Path) -> dict[str, dict]:

@@ -4,7 +4,6 @@ when the helper is gone, and a killed run leaves no helper behind."""
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -13,51 +12,25 @@ import time
 
 import pytest
 
-from batch_checks import CLI, alive, children
+from batch_checks import CLI, alive, assert_compiles_none_of_the_helpers_kernels, children, first_run
 from tests.cli_checks import SAMPLES
 
 from slamobs.pipeline import compile_ahead
 
 LOG = SAMPLES / "figure8.mcap"
 
-#: Run in the child: ``slamobs run`` in-process (``kill`` as the last argument: the helper is killed as soon as
-#: it is started), then what this process compiled, as JSON.
-CHILD = """
-import json, sys
-from slamobs.pipeline import compile_ahead
-from slamobs.pipeline.compile_clock import compiled_functions
-from slamobs.cli.main import main
-if sys.argv[-1] == "kill":
-    start = compile_ahead.start
-    def killed(*args):
-        helper = start(*args)
-        helper.proc.kill()
-        return helper
-    compile_ahead.start = killed
-main(["run", sys.argv[1], "-o", sys.argv[2], "-q", "--observer", sys.argv[3]], standalone_mode=False)
-print(json.dumps(sorted({c.function for c in compiled_functions()})))
-"""
-
 PLANNED = {f"{m}.{n}" for m, n, _ in compile_ahead.plan("fast-adaptation")}
 
 
-def _first_run(tmp, name: str, kill: str = "", observer: str = "fast-adaptation") -> list[str]:
+def _first_run(tmp, name: str, kill: bool = False, observer: str = "fast-adaptation") -> list[str]:
     """A run of the sample log with an empty kernel cache and the helper on; the functions it compiled."""
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp / f"numba-{name}"), compile_ahead.ENV: "1"}
-    out = subprocess.run(
-        [sys.executable, "-c", CHILD, str(LOG), str(tmp / name), observer, kill],
-        capture_output=True,
-        text=True,
-        env=env,
-    )
-    assert out.returncode == 0, out.stderr
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return first_run([LOG, "-o", tmp / name, "-q", "--observer", observer], tmp / f"numba-{name}", kill)
 
 
 @pytest.fixture(scope="module")
 def first_runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("ahead")
-    return tmp, _first_run(tmp, "ahead"), _first_run(tmp, "alone", "kill")
+    return tmp, _first_run(tmp, "ahead"), _first_run(tmp, "alone", kill=True)
 
 
 def test_with_the_helper_a_first_run_compiles_only_its_readers(first_runs):
@@ -70,20 +43,11 @@ def test_with_the_helper_a_first_run_compiles_only_its_readers(first_runs):
     assert PLANNED.isdisjoint(ahead)
 
 
-@pytest.mark.parametrize(
-    ("estimator", "its_own", "the_helpers"),
-    [
-        ("riekf", "observers.riekf._advance", "observers.time_offset._trimmed_costs"),
-        ("batch", "smoother.solver.factor", "observers.riekf._advance"),
-    ],
-)
-def test_a_first_riekf_or_batch_run_compiles_none_of_the_helpers_kernels(tmp_path, estimator, its_own, the_helpers):
-    """Each is compiled for the types the run calls it with; the kernel the run needs first after reading it
-    compiles itself."""
-    compiled = _first_run(tmp_path, estimator, observer=estimator)
-    assert f"slamobs.pipeline.{its_own}" in compiled
-    assert f"slamobs.pipeline.{the_helpers}" not in compiled
-    assert {f"{m}.{n}" for m, n, _ in compile_ahead.plan(estimator)}.isdisjoint(compiled)
+def test_a_first_batch_run_compiles_none_of_the_helpers_kernels(tmp_path):
+    """riekf's first run: test_interrupts_compile.py, whose reference run is one (a first riekf compile each
+    module pays once)."""
+    compiled = _first_run(tmp_path, "batch", observer="batch")
+    assert_compiles_none_of_the_helpers_kernels(compiled, "batch", "smoother.solver.factor", "observers.riekf._advance")
 
 
 def test_without_its_helper_a_run_compiles_everything_and_writes_the_same_tables(first_runs):

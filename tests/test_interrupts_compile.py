@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 import pytest
-from batch_checks import CLI, alive, descendants
+from batch_checks import CLI, alive, assert_compiles_none_of_the_helpers_kernels, descendants, first_run
 
 from slamobs.pipeline.simulate import simulate, write_log
 
@@ -69,23 +69,30 @@ def _default_sigint() -> None:  # as from a shell (a pytest-xdist worker may ign
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory):
-    """A short generated log, a config without figures, and the tables of a run with a kernel cache of its own, empty
-    at its start: riekf's kernels compiled as a first run compiles them. (Not the session's cache, which other tests
-    filled in other orders: riekf's outputs from kernels compiled in another context differ in the last bits of the
-    run metadata's floats, e.g. final_bias_sigma at 6e-15 relative, the written columns' 28-bit values equal.)"""
+    """A short generated log, a config without figures, the tables of a run with a kernel cache of its own, empty
+    at its start, and the functions that run compiled: riekf's kernels compiled as a first run (with the compile
+    helper) compiles them. (Not the session's cache, which other tests filled in other orders: riekf's outputs from
+    kernels compiled in another context differ in the last bits of the run metadata's floats, e.g. final_bias_sigma
+    at 6e-15 relative, the written columns' 28-bit values equal.)"""
     base = tmp_path_factory.mktemp("compile-sig")
     log = write_log(simulate("figure8", duration=12.0, seed=6), base / "short.mcap")
     cfg = base / "run.yaml"
     cfg.write_text("evaluation:\n  plots: false\n")
     ref = base / "ref"
-    argv = [*CLI, "run", str(log), "-o", str(ref), "-q", "--observer", "riekf", "--config", str(cfg)]
-    done = subprocess.run(argv, env={**os.environ, "NUMBA_CACHE_DIR": str(base / "numba-ref")})
-    assert done.returncode == 0
-    return log, cfg, ref
+    compiled = first_run([log, "-o", ref, "-q", "--observer", "riekf", "--config", cfg], base / "numba-ref")
+    return log, cfg, ref, compiled
+
+
+def test_a_first_riekf_run_compiles_none_of_the_helpers_kernels(inputs):
+    """test_compile_ahead.py's check for riekf, on the reference run (one first riekf compile, not two)."""
+    compiled = inputs[3]
+    assert_compiles_none_of_the_helpers_kernels(
+        compiled, "riekf", "observers.riekf._advance", "observers.time_offset._trimmed_costs"
+    )
 
 
 def _run(inputs, out: Path, env: dict, **kw) -> subprocess.Popen:
-    log, cfg, _ = inputs
+    log, cfg, _, _ = inputs
     argv = [*CLI, "run", str(log), "-o", str(out), "-q", "--observer", "riekf", "--config", str(cfg)]
     return subprocess.Popen(argv, env=env, **kw)
 
