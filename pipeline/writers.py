@@ -3,7 +3,7 @@
 Tables are written a stretch of rows at a time (:class:`TableWriter`, one row group per stretch), so a
 multi-hour run never holds its histories. Encodings suit the data: float columns are byte-stream split
 (the sign/exponent/high-mantissa bytes of a smooth series compress well, the low mantissa bytes are
-noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all LZ4. Float values are
+noise), nanosecond times delta-packed, small integer ids dictionary-encoded; all zstd. Float values are
 rounded to ``float_bits`` significant mantissa bits before writing (default 28, a relative rounding of at most
 2**-29 ≈ 1.9e-9: 2 µm at 1 km): the dropped low bits are the incompressible part of a noisy estimate, and they
 are far below any observer's accuracy. A length (a column in metres) keeps more bits where it is far from the
@@ -52,11 +52,10 @@ from slamobs.schemas import DEFAULT_FLOAT_BITS, arrow_schema
 if TYPE_CHECKING:  # importing observers (numba) is for runs: stats, compare and export write without it
     from slamobs.pipeline.observers.base import ObserverResult
 
-#: LZ4 (pyarrow's ``lz4``): the rounded floats' byte streams are zeros or near noise, which no codec shrinks much
-#: (zstd -1: 61.75 MB, level 9: 60.2 MB on the hour): LZ4 writes the hour's tables with ~15 % less of the writer's
-#: CPU than zstd -1 and pandas reads them back faster, for 2.2 MB more (63.97 MB; docs/benchmarks.md, session 20)
-COMPRESSION = "lz4"
-COMPRESSION_LEVEL = None  # LZ4 has no levels in Parquet
+COMPRESSION = "zstd"
+#: zstd's first fast level: the hour's tables 61.63 -> 61.74 MB (the rounded floats' low bytes are zero, the
+#: rest near noise: level 1 finds little more), ~8 % less of the writer's CPU (docs/benchmarks.md, session 17)
+COMPRESSION_LEVEL = -1
 METADATA_KEY = b"slamobs"
 FLOAT_BITS = DEFAULT_FLOAT_BITS
 _EXPONENT = np.uint64(0x7FF0_0000_0000_0000)
@@ -273,8 +272,8 @@ def round_mantissa(values: np.ndarray, bits: int, finest: int | None = None) -> 
 
 
 def parquet_options(schema: pa.Schema) -> dict:
-    """Writer options per column: byte-stream split floats, delta-packed ``*_ns`` times, dictionary ids;
-    :data:`COMPRESSION`; statistics (min, max, null count) for every column but the floats that cannot be
+    """Writer options per column: byte-stream split floats, delta-packed ``*_ns`` times, dictionary ids; zstd at
+    :data:`COMPRESSION_LEVEL`; statistics (min, max, null count) for every column but the floats that cannot be
     null (their min and max are not read back; :func:`null_columns` needs the nullable columns' null counts)."""
     encoding, dictionary, statistics = {}, [], []
     for f in schema:

@@ -47,7 +47,7 @@ def test_every_table_matches_its_schema_and_round_trips_through_pandas(tmp_path)
         assert schema.remove_metadata().equals(arrow_schema(name).remove_metadata())
         assert schema.field(0).metadata[b"unit"] is not None
         assert read_metadata(path) == meta
-        assert pq.ParquetFile(path).metadata.row_group(0).column(0).compression == "LZ4"
+        assert pq.ParquetFile(path).metadata.row_group(0).column(0).compression == "ZSTD"
         df = pd.read_parquet(path)
         nullable = [f["name"] for f in table_spec(name)["fields"] if f.get("nullable")]  # uncertainty: riekf, batch
         assert len(df) > 0 and not df.drop(columns=nullable).isna().any().any()
@@ -167,9 +167,9 @@ def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
         assert all("BYTE_STREAM_SPLIT" in e for c, e in encodings.items() if c not in ("t_ns", "id"))
 
 
-def test_every_column_is_lz4_with_its_encoding_and_reads_back_bit_for_bit(tmp_path):
-    """The codec and encodings chosen for the hour's tables (docs/benchmarks.md, session 20): every column chunk
-    LZ4, floats byte-stream split, ``*_ns`` delta-packed, ids dictionary-encoded; pandas and
+def test_every_column_is_zstd_with_its_encoding_and_reads_back_bit_for_bit(tmp_path):
+    """The codec and encodings kept for the hour's tables (docs/benchmarks.md, session 20): every column chunk
+    zstd, floats byte-stream split, ``*_ns`` delta-packed, ids dictionary-encoded; pandas and
     pyarrow read the written (rounded) values back bit for bit."""
     from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
 
@@ -179,7 +179,7 @@ def test_every_column_is_lz4_with_its_encoding_and_reads_back_bit_for_bit(tmp_pa
         path = tmp_path / f"{name}.parquet"
         meta = pq.ParquetFile(path).metadata
         chunks = [meta.row_group(g).column(i) for g in range(meta.num_row_groups) for i in range(meta.num_columns)]
-        assert {c.compression for c in chunks} == {"LZ4"}, name
+        assert {c.compression for c in chunks} == {"ZSTD"}, name
         for c in chunks:
             column = c.path_in_schema
             kind = "BYTE_STREAM_SPLIT" if c.physical_type == "DOUBLE" else None
