@@ -167,6 +167,36 @@ def test_tables_written_stretch_by_stretch_equal_one_stretch(tmp_path):
         assert all("BYTE_STREAM_SPLIT" in e for c, e in encodings.items() if c not in ("t_ns", "id"))
 
 
+def test_every_column_is_zstd_with_its_encoding_and_reads_back_bit_for_bit(tmp_path):
+    """The codec and encodings kept for the hour's tables (docs/benchmarks.md, session 20): every column chunk
+    zstd, floats byte-stream split, ``*_ns`` delta-packed, ids dictionary-encoded; pandas and
+    pyarrow read the written (rounded) values back bit for bit."""
+    from slamobs.pipeline.writers import FLOAT_BITS, round_mantissa
+
+    res = _result(k=300, m=90)
+    write_result(tmp_path, res, {"run": 1})
+    for name, columns in result_tables(res).items():
+        path = tmp_path / f"{name}.parquet"
+        meta = pq.ParquetFile(path).metadata
+        chunks = [meta.row_group(g).column(i) for g in range(meta.num_row_groups) for i in range(meta.num_columns)]
+        assert {c.compression for c in chunks} == {"ZSTD"}, name
+        for c in chunks:
+            column = c.path_in_schema
+            kind = "BYTE_STREAM_SPLIT" if c.physical_type == "DOUBLE" else None
+            kind = "DELTA_BINARY_PACKED" if column.endswith("_ns") else kind
+            assert (kind or "RLE_DICTIONARY") in c.encodings, (name, column, c.encodings)
+        table, frame = pq.read_table(path), pd.read_parquet(path)
+        for field in arrow_schema(name):
+            if field.name not in columns:
+                continue
+            values = np.asarray(columns[field.name])
+            if values.dtype == np.float64:
+                unit = (field.metadata or {}).get(b"unit")
+                values = round_mantissa(values, FLOAT_BITS, -20 if unit == b"m" else None)
+            assert table.column(field.name).to_numpy().tobytes() == values.tobytes(), (name, field.name)
+            assert frame[field.name].to_numpy().tobytes() == values.tobytes(), (name, field.name)
+
+
 def test_round_mantissa_bounds_the_relative_error_and_keeps_special_values():
     from slamobs.pipeline.writers import round_mantissa
 
