@@ -93,8 +93,9 @@ def _axes(*order: int, sign=(1.0, 1.0, 1.0)) -> np.ndarray:
 
 
 #: Gyro misreads the detection pairs hardly see (they see yaw; ``time_offset.GYRO_MISREADS`` has the ones they
-#: do), as the matrix that undoes them (``omega @ m.T``, body frame): x and y swapped (a generated figure 8 so read:
-#: riekf 0.87 m against 0.011 m, exit 0, no word), or one of them of the wrong sign.
+#: do), as the matrix that undoes them (``omega @ m.T`` in the IMU's frame, turned into the body's by its
+#: extrinsic): x and y swapped (a generated figure 8 so read: riekf 0.87 m against 0.011 m, exit 0, no word), or
+#: one of them of the wrong sign.
 TILT_MISREADS = {
     "x and y were swapped": _axes(1, 0, 2),
     "x were of the wrong sign": _axes(0, 1, 2, sign=(-1.0, 1.0, 1.0)),
@@ -556,7 +557,9 @@ def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> li
     base, pairs = _tilt_cost(t_s, omega[:n], velocity[:n], f, g)
     if not base > 0:
         return []
-    costs = {what: _tilt_cost(t_s, omega[:n] @ m.T, velocity[:n], f, g)[0] for what, m in TILT_MISREADS.items()}
+    r = res.ext.rot if res.ext.rot.ndim == 2 else np.eye(3)  # misread in the IMU's frame (the gyro's, one message)
+    undo = {what: r @ m @ r.T for what, m in TILT_MISREADS.items()}
+    costs = {what: _tilt_cost(t_s, omega[:n] @ m.T, velocity[:n], f, g)[0] for what, m in undo.items()}
     gains = {what: base / max(c, 1e-300) for what, c in costs.items() if c == c}
     what, gain = max(gains.items(), key=lambda kv: kv[1], default=("", 0.0))
     if not gain >= TILT_MISREAD_GAIN:
