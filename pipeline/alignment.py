@@ -26,6 +26,8 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from slamobs.pipeline.directions import (
+    body_acceleration,
+    gravity_up,
     ACCEL_GATE,
     ACCEL_TOL,
     DEFAULT_GRAVITY,
@@ -76,6 +78,29 @@ HELD_STEP_SHARE = 0.5
 #: A velocity stream with at least this share of its samples repeating the stamp before with another value is a
 #: warning (MR.CLAM's robots: 0-3 such samples in 52,000-65,000, under 0.01 %).
 REPEAT_SHARE_WARN = 0.01
+
+#: The gyro against its own accelerometer (:func:`_gyro_by_gravity`): samples of the time base looked at (its start,
+#: as ``time_offset.PREFIX_SAMPLES``: bounded on an hour-long log), the blocks whose mean gravity direction is
+#: differenced (s), the fewest block pairs that say anything, and how many times better a misread must fit.
+TILT_SAMPLES = 1 << 17
+TILT_BLOCK_S = 1.0
+TILT_MIN_PAIRS = 20
+TILT_MISREAD_GAIN = 4.0
+
+
+def _axes(*order: int, sign=(1.0, 1.0, 1.0)) -> np.ndarray:
+    return np.eye(3)[list(order)] * np.asarray(sign)[:, None]
+
+
+#: Gyro misreads the detection pairs hardly see (they see yaw; ``time_offset.GYRO_MISREADS`` has the ones they
+#: do), as the matrix that undoes them (``omega @ m.T`` in the IMU's frame, turned into the body's by its
+#: extrinsic): x and y swapped (a generated figure 8 so read: riekf 0.87 m against 0.011 m, exit 0, no word), or
+#: one of them of the wrong sign.
+TILT_MISREADS = {
+    "x and y were swapped": _axes(1, 0, 2),
+    "x were of the wrong sign": _axes(0, 1, 2, sign=(-1.0, 1.0, 1.0)),
+    "y were of the wrong sign": _axes(0, 1, 2, sign=(1.0, -1.0, 1.0)),
+}
 
 
 @dataclass(frozen=True)
@@ -434,7 +459,7 @@ def align(
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
-    two_topics = om.topic != lv.topic
+    two_topics, gyro_topic = om.topic != lv.topic, om.topic
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -443,6 +468,9 @@ def align(
     directions, w = _directions(
         dir_frame, t_om, omega, velocity, accel, magnetic, gravity, magnetic_field, keep_directions
     )
+    if accel is not None and accel.topic == gyro_topic:  # the IMU's own accelerometer
+        notes_tilt = _gyro_by_gravity(replace(dir_frame, notes=[]), accel, t_om, omega, velocity)
+        dir_frame.notes.extend(notes_tilt)
     del accel, magnetic
     if release:
         streams.detections = None
@@ -474,6 +502,75 @@ def align(
         det_sensor=det_sensor,
         two_twist_topics=two_topics,
     )
+
+
+def _tilt_cost(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, f: np.ndarray, g: float):
+    """How far the accelerometer's "up" (body acceleration from the velocity taken off: ``directions.gravity_up``,
+    samples it trusts fully) turns otherwise than the angular velocity turns it: the trimmed mean squared residual
+    of ``du/dt + (omega - b) x u`` between consecutive ``TILT_BLOCK_S`` block means, a gyro bias ``b`` fitted; and
+    the block pairs it had (NaN cost under ``TILT_MIN_PAIRS``)."""
+    up, weight = gravity_up(f, body_acceleration(t_s, omega, velocity), g)
+    ok = (weight >= 1.0) & np.all(np.isfinite(up), axis=1)
+    k = ((t_s - t_s[0]) / TILT_BLOCK_S).astype(np.int64)
+    nb = int(k[-1]) + 1
+    full = np.bincount(k, minlength=nb).astype(np.float64)
+    used = np.bincount(k[ok], minlength=nb).astype(np.float64)
+    u = np.column_stack([np.bincount(k[ok], up[ok, a], minlength=nb) for a in range(3)])
+    w = np.column_stack([np.bincount(k, omega[:, a], minlength=nb) for a in range(3)]) / np.maximum(full, 1)[:, None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u /= row_norms3(u)[:, None]
+    good = (used >= 0.8 * full) & (full > 0)
+    pair = good[1:] & good[:-1]
+    n = int(np.count_nonzero(pair))
+    if n < TILT_MIN_PAIRS:
+        return float("nan"), n
+    um, wm = 0.5 * (u[1:] + u[:-1])[pair], 0.5 * (w[1:] + w[:-1])[pair]
+    c = (u[1:] - u[:-1])[pair] / TILT_BLOCK_S + np.cross(wm, um)
+    # c - b x um = c + um x b, linear in b: [um]x stacked
+    z = np.zeros(n)
+    s = np.stack([np.column_stack([z, -um[:, 2], um[:, 1]]), np.column_stack([um[:, 2], z, -um[:, 0]])], axis=1)
+    s = np.concatenate([s, np.column_stack([-um[:, 1], um[:, 0], z])[:, None]], axis=1)
+    b = np.linalg.lstsq(s.reshape(-1, 3), -c.reshape(-1), rcond=None)[0]
+    d2 = np.sort(np.sum((c + s @ b) ** 2, axis=1))
+    return float(np.mean(d2[: max(1, int(0.9 * n))])), n
+
+
+def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> list[str]:
+    """A warning when the IMU's accelerometer says its gyro is misread: over the first ``TILT_SAMPLES`` samples of
+    the time base, its gravity direction turns ``TILT_MISREAD_GAIN`` times more as the angular velocity undone by
+    one of ``TILT_MISREADS`` says than as read (:func:`_tilt_cost`; the best one named). The detections cannot see
+    these (their pairs see the yaw); the gravity direction sees roll and pitch rates wherever the body tilts."""
+    n = min(t_om.shape[0], TILT_SAMPLES)
+    if n < 3:
+        return []
+    head = slice(0, min(len(accel), 2 * n))  # the accelerometer's samples over the time base's head (same messages)
+    part = replace(accel, t_ns=accel.t_ns[head], rec_ns=accel.rec_ns[head], xyz=accel.xyz[head])
+    res = _resampled(fr, part, t_om[:n])
+    if res is None:
+        return []
+    f = res.rows()
+    norm = row_norms3(f)
+    if not np.any(np.isfinite(norm)):
+        return []
+    t_s = (t_om[:n] - t_om[0]).astype(np.float64) * 1e-9
+    g = float(np.nanmedian(norm))
+    base, pairs = _tilt_cost(t_s, omega[:n], velocity[:n], f, g)
+    if not base > 0:
+        return []
+    r = res.ext.rot if res.ext.rot.ndim == 2 else np.eye(3)  # misread in the IMU's frame (the gyro's, one message)
+    undo = {what: r @ m @ r.T for what, m in TILT_MISREADS.items()}
+    costs = {what: _tilt_cost(t_s, omega[:n] @ m.T, velocity[:n], f, g)[0] for what, m in undo.items()}
+    gains = {what: base / max(c, 1e-300) for what, c in costs.items() if c == c}
+    what, gain = max(gains.items(), key=lambda kv: kv[1], default=("", 0.0))
+    if not gain >= TILT_MISREAD_GAIN:
+        return []
+    return [
+        f"warning: {accel.topic}: the gyro reads as if its {what}: "
+        f"its accelerometer's gravity direction follows the angular velocity {gain:.3g}x better so undone than as "
+        f"read (tilt rates over {pairs} pairs of {TILT_BLOCK_S:g} s blocks in the first {t_s[-1]:.0f} s): the run "
+        "used it as read; check the gyro's axes (a driver's axis map, another IMU's extrinsic), which the detections "
+        "cannot see"
+    ]
 
 
 def _check_frames(
