@@ -25,6 +25,7 @@ run imports ~100 kernels and calls ~10, and setting up the others' caches was ~0
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import os
@@ -45,6 +46,7 @@ __all__ = [
     "cache_root",
     "cached",
     "compiled_for",
+    "directory_lock",
     "install",
     "njit",
     "prune",
@@ -337,8 +339,77 @@ class _FirstUseCache:
         if name.startswith("__") or "_py_func" not in self.__dict__:  # copying, pickling: nothing made for them
             raise AttributeError(name)
         if self._cache is None:
-            self._cache = caching.FunctionCache(self._py_func)
+            cache = caching.FunctionCache(self._py_func)
+            if isinstance(locator := cache._impl.locator, KernelLocator):
+                cache._cache_file = _CheckedIndex(cache.cache_path, cache._impl.filename_base, locator._stamp)
+            self._cache = cache
         return getattr(self._cache, name)
+
+
+#: Seconds a process waits for another one's write into a cache directory before it skips its own (the kernel is
+#: then compiled again by the next run that needs it); a write takes milliseconds.
+LOCK_WAIT_S = 10.0
+#: The lock file of a cache directory (numba's files are written there under it).
+LOCK_NAME = "slamobs-kernels.lock"
+
+
+@contextlib.contextmanager
+def directory_lock(directory: str | Path, wait_s: float | None = None):
+    """Hold the exclusive lock of cache ``directory`` (``flock`` of its :data:`LOCK_NAME`, released by the kernel
+    when its holder dies): yields True once held, or where files cannot be locked (a read-only directory, a file
+    system without locks: what numba did without it); False when another process has held it for ``wait_s``
+    (default :data:`LOCK_WAIT_S`; a stopped holder: the caller skips its write rather than wait without end)."""
+    try:
+        import fcntl
+
+        fd = os.open(os.path.join(directory, LOCK_NAME), os.O_RDONLY | os.O_CREAT, 0o666)
+    except (ImportError, OSError):
+        yield True
+        return
+    try:
+        limit = time.monotonic() + (LOCK_WAIT_S if wait_s is None else wait_s)
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held = True
+                break
+            except BlockingIOError:
+                if time.monotonic() >= limit:
+                    held = False
+                    break
+                time.sleep(0.005)
+            except OSError:  # no locks on this file system
+                held = None
+                break
+        yield held is not False
+    finally:
+        os.close(fd)  # releases the lock
+
+
+class _CheckedIndex(caching.IndexDataCacheFile):
+    """numba's index and data files of one kernel, written by one process at a time, and a data file loaded only when
+    it holds the argument types asked for.
+
+    numba saves a new entry by reading the kernel's index, taking the first data-file number it does not list,
+    writing the index, then the data file, with no lock: two processes saving two argument types of one kernel at
+    once could both take ``.1.nbc``, and the index then named one's compiled code for the other's types. Every
+    later run calling it with those types ran the other code (a TypeError, or wrong numbers: the APE's row norms
+    ran without the reference subtracted) until the sources changed (docs/benchmarks.md, "The kernel cache written
+    by two processes"). Here a save holds the cache directory's :func:`directory_lock` (skipped when another
+    process holds it for :data:`LOCK_WAIT_S`), and a data file whose signature is not its key's is a cache miss:
+    the kernel is compiled and its file written over, so a cache spoilt before mends itself."""
+
+    def save(self, key, data):
+        with directory_lock(self._cache_path) as held:
+            if held:
+                super().save(key, data)
+
+    def load(self, key):
+        data = super().load(key)
+        if data is None:
+            return None
+        signature = data[3] if isinstance(data, tuple) and len(data) > 3 else None
+        return data if tuple(getattr(signature, "args", ())) == tuple(key[0]) else None
 
 
 class KernelLocator(caching._CacheLocator):
@@ -385,17 +456,25 @@ def prune(max_age_days: float = MAX_AGE_DAYS, root: Path | None = None) -> int:
     """Remove the cache files older than ``max_age_days``; returns how many. A kernel whose files go while
     another process uses them is compiled again there (numba treats a missing file as a cache miss). Also the
     temporary files numba writes a cache file in before renaming it into place (``NAME.nbi.tmp.UID``), which a
-    process killed while it wrote one (a run ended inside the compiler, its compile helper) leaves behind."""
+    process killed while it wrote one (a run ended inside the compiler, its compile helper) leaves behind. Each
+    directory is pruned holding its :func:`directory_lock`, so an old file's age and its removal are of one file,
+    not of the file another process has just renamed into its place (a directory locked for :data:`LOCK_WAIT_S`
+    is left for the next prune)."""
     root = cache_root() if root is None else root
     limit = time.time() - max_age_days * 86400.0
     removed = 0
+    directories: dict[Path, list[Path]] = {}
     for file in [*root.rglob("*.nb[ci]"), *root.rglob("*.nb[ci].tmp.*")]:
-        try:
-            if file.stat().st_mtime < limit:
-                file.unlink()
-                removed += 1
-        except OSError:  # gone already, or not ours to remove
-            pass
+        directories.setdefault(file.parent, []).append(file)
+    for directory, files in directories.items():
+        with directory_lock(directory) as held:  # not a file another process has just written in its old one's place
+            for file in files if held else ():
+                try:
+                    if file.stat().st_mtime < limit:
+                        file.unlink()
+                        removed += 1
+                except OSError:  # gone already, or not ours to remove
+                    pass
     return removed
 
 

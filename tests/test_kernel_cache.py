@@ -392,3 +392,164 @@ def test_a_kernel_keeps_its_own_floating_point_flags_whoever_compiles_it_first()
     fused = kernel_cache.njit(fastmath={"contract"})(madd)
     twice_of(fused, False)(*x)  # compiled first from a strict kernel
     assert " contract " in fused.inspect_llvm(fused.signatures[0])
+
+
+def _index_entries(cache: Path, kernel: str) -> dict[tuple, tuple]:
+    """``{argument types of an index entry: argument types of the code in its data file}`` of ``kernel``'s index
+    files under ``cache``."""
+    import pickle
+
+    found = {}
+    for index in cache.rglob(f"{kernel}-*.nbi"):
+        with open(index, "rb") as f:
+            pickle.load(f)  # numba's version
+            _, overloads = pickle.loads(f.read())
+        for key, name in overloads.items():
+            found[tuple(key[0])] = tuple(pickle.loads((index.parent / name).read_bytes())[3].args)
+    return found
+
+
+# A process compiling metrics._row_norms for one of its two argument types (`minus` an array, A; None, B), its save
+# held until the other process saves too, then numba's writes interleaved as two processes' can be: the first's
+# index, the other's index and data, the first's data.
+_RACING_SAVE = r"""
+import sys, time
+from pathlib import Path
+import numpy as np
+from numba.core import caching
+from slamobs.pipeline.evaluation import metrics
+
+role, first, sync = sys.argv[1], sys.argv[2], Path(sys.argv[3])
+save, save_index, save_data = (
+    caching.Cache._save_overload, caching.IndexDataCacheFile._save_index, caching.IndexDataCacheFile._save_data
+)
+
+def meet(self, sig, data):
+    (sync / role).touch()
+    limit = time.monotonic() + 120
+    while not (sync / ("B" if role == "A" else "A")).exists() and time.monotonic() < limit:
+        time.sleep(0.01)
+    save(self, sig, data)
+
+def slow_index(self, overloads):
+    time.sleep(0.3 if role == first else 0.6)
+    save_index(self, overloads)
+
+def slow_data(self, name, data):
+    time.sleep(1.2 if role == first else 0)
+    save_data(self, name, data)
+
+caching.Cache._save_overload = meet
+caching.IndexDataCacheFile._save_index, caching.IndexDataCacheFile._save_data = slow_index, slow_data
+x = np.ones((4, 3))
+metrics._row_norms(x, x * 0.5 if role == "A" else None, np.empty(4))
+"""
+
+
+def test_two_processes_saving_two_argument_types_of_a_kernel_keep_both(tmp_path, monkeypatch):
+    """numba saves a kernel's new cache entry by reading its index, taking the first data-file number the index
+    does not list, then writing the index and the data file, with no lock. Two processes (a batch's workers) saving
+    two argument types of one kernel at once both took ``.1.nbc``: the index kept one entry and named the other
+    process's code for it, and every later run calling the kernel with those types ran the wrong code (here: the
+    row norms without ``minus`` subtracted). With the cache directory's lock, the second save reads the first's
+    index: two entries, each naming its own code, and a later process loads both and computes right."""
+    import subprocess
+    import sys
+
+    import numba
+    import numpy as np
+
+    from slamobs.pipeline.evaluation import metrics
+
+    cache, sync = tmp_path / "cache", tmp_path / "sync"
+    sync.mkdir()
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(cache)}
+    racing = [
+        subprocess.Popen([sys.executable, "-c", _RACING_SAVE, role, "A", str(sync)], env=env, stderr=subprocess.PIPE)
+        for role in "AB"
+    ]
+    for proc in racing:
+        assert proc.wait(timeout=300) == 0, proc.stderr.read()[-2000:]
+        proc.stderr.close()
+    entries = _index_entries(cache, "metrics._row_norms")
+    assert len(entries) == 2 and all(key == code for key, code in entries.items()), entries
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(cache))
+    later = kernel_cache.njit(cache=True, nogil=True)(metrics._row_norms.py_func)  # a later run's kernel
+    x, minus, out = np.arange(12.0).reshape(4, 3), np.ones((4, 3)), np.empty(4)
+    later(x, minus, out)
+    np.testing.assert_allclose(out, np.linalg.norm(x - minus, axis=1))
+    later(x, None, out)
+    np.testing.assert_allclose(out, np.linalg.norm(x, axis=1))
+    assert sum(later.stats.cache_hits.values()) == 2 and not later.stats.cache_misses
+
+
+def test_a_cache_entry_naming_another_signatures_code_is_compiled_again(tmp_path, monkeypatch):
+    """A cache spoilt before (an index entry naming a data file that holds another argument types' code, what the
+    race above left) is a cache miss: the kernel is compiled again, right, and its data file written over. numba
+    itself loads the file without looking and runs the other code: a TypeError, or wrong numbers."""
+    import pickle
+
+    import numba
+    import numpy as np
+
+    from slamobs.pipeline.evaluation import metrics
+
+    monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
+    x, minus, out = np.arange(12.0).reshape(4, 3), np.ones((4, 3)), np.empty(4)
+    first = kernel_cache.njit(cache=True, nogil=True)(metrics._row_norms.py_func)
+    first(x, minus, out)
+    first(x, None, out)
+    (index,) = tmp_path.rglob("metrics._row_norms-*.nbi")
+    with open(index, "rb") as f:
+        version = pickle.load(f)
+        stamp, overloads = pickle.loads(f.read())
+    keys = list(overloads)
+    swapped = {keys[0]: overloads[keys[1]], keys[1]: overloads[keys[0]]}
+    with open(index, "wb") as f:
+        pickle.dump(version, f, protocol=-1)
+        f.write(pickle.dumps((stamp, swapped), protocol=-1))
+    assert all(key != code for key, code in _index_entries(tmp_path, "metrics._row_norms").items())
+
+    later = kernel_cache.njit(cache=True, nogil=True)(metrics._row_norms.py_func)
+    later(x, minus, out)
+    np.testing.assert_allclose(out, np.linalg.norm(x - minus, axis=1))
+    later(x, None, out)
+    np.testing.assert_allclose(out, np.linalg.norm(x, axis=1))
+    assert sum(later.stats.cache_misses.values()) == 2
+    assert all(key == code for key, code in _index_entries(tmp_path, "metrics._row_norms").items())
+
+
+_HOLD_LOCK = (
+    "import fcntl, os, sys, time\n"
+    "fd = os.open(sys.argv[1], os.O_RDONLY | os.O_CREAT, 0o666)\nfcntl.flock(fd, fcntl.LOCK_EX)\n"
+    "print('held', flush=True)\ntime.sleep(600)\n"
+)
+
+
+def test_a_cache_directory_lock_is_waited_for_boundedly_and_freed_by_its_holders_death(tmp_path, monkeypatch):
+    """A process holding a cache directory's lock makes a writer wait at most ``wait_s``, then skip its write
+    (False), and prune leave that directory alone; the kernel releases a killed holder's lock: the next writer
+    takes it at once."""
+    import subprocess
+    import sys
+
+    old = write(tmp_path, "pipeline/lie.f-1-aa.py311.nbi", "")
+    month = time.time() - 31 * 86400
+    os.utime(old, (month, month))
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLD_LOCK, str(old.parent / kernel_cache.LOCK_NAME)], stdout=subprocess.PIPE
+    )
+    try:
+        assert holder.stdout.readline() == b"held\n"
+        with kernel_cache.directory_lock(old.parent, wait_s=0.2) as held:
+            assert held is False
+        monkeypatch.setattr(kernel_cache, "LOCK_WAIT_S", 0.2)
+        assert prune(30, tmp_path) == 0 and old.exists()
+    finally:
+        holder.kill()
+        holder.wait()
+        holder.stdout.close()
+    with kernel_cache.directory_lock(old.parent, wait_s=60) as held:
+        assert held is True
+    assert prune(30, tmp_path) == 1 and not old.exists()
