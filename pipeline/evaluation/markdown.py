@@ -313,8 +313,8 @@ def _md_uncertainty(u: dict[str, Any]) -> list[str]:
         "",
         f"Error (δθ, δp) in the {u['frame']}.",
         "",
-        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | median | instants within χ²(DoF) bounds | "
-        f"{u['window_s']:g} s windows within bounds | within ±3σ (x, y, z) |",
+        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | median | share of instants within χ²(DoF) "
+        f"bounds | share of {u['window_s']:g} s windows within bounds | share within ±3σ (x, y, z; – not measured) |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for part in ("position", "attitude"):

@@ -735,9 +735,10 @@ class UncertaintySection(Section):
             "estimate moved rigidly so that its gauge pose (the pair with the smallest covariance: riekf's start, "
             "batch's anchor keyframe) lies on the truth (the covariance is relative to it; a least-squares alignment "
             "would absorb part of the error it describes), against the covariance turned likewise; NEES = eᵀ Σ⁻¹ e per "
-            "part (3 DoF each); bounds are two-sided 95 % χ² bounds of an average of n independent NEES values, "
-            f"χ²(3n)/n; windows of {NEES_WINDOW_S:g} s; pairs whose covariance block is below "
-            f"{GAUGE_SIGMA:g} (the gauge) are left out"
+            "part over its DoF axes (3 each; on a planar run only the axes whose error is not zero on every pair: "
+            "the DoF column, the others' share within ±3σ null); bounds are two-sided 95 % χ² bounds of an average "
+            f"of n independent NEES values, χ²(DoF·n)/n; windows of {NEES_WINDOW_S:g} s; pairs whose covariance "
+            f"block is below {GAUGE_SIGMA:g} (the gauge) are left out"
         )
     }
 
@@ -757,6 +758,8 @@ class UncertaintySection(Section):
         for part, axes in (("position", u.position_axes), ("attitude", u.attitude_axes)):
             if len(axes) < NEES_DOF:
                 self.result[part]["axes"] = ["xyz"[i] for i in axes]
+                if within := self.result[part]["within_3sigma"]:  # an axis with no error is "within" by nothing
+                    self.result[part]["within_3sigma"] = [v if i in axes else None for i, v in enumerate(within)]
                 off = ", ".join("xyz"[i] for i in range(3) if i not in axes)
                 self.notes.append(
                     f"{part} NEES over {', '.join('xyz'[i] for i in axes)} only ({len(axes)} DoF, expected mean "
