@@ -1821,3 +1821,16 @@ def test_an_ape_over_few_of_the_poses_it_could_pair_is_said():
     assert not [
         n for n in checked(build_report(est, biases, landmarks, sparse, t_max_diff_s=0.03))["notes"] if "APE is" in n
     ]
+
+
+def test_every_definition_of_a_shown_number_is_in_report_md():
+    """report.md's Method table held every definition report.json's ``method`` has but the segment errors' (MR.CLAM,
+    TagSLAM test_22: a "Segment errors" table with a yaw column and a "scale" nothing in the page defined): each
+    method text of a section the page shows is in the page."""
+    poses, biases, landmarks, truth, lm_truth, bias_truth = synthetic_run(0.01, 0.02)
+    rep = checked(build_report(poses, biases, landmarks, truth, lm_truth, bias_truth))
+    md = render_markdown(rep)
+    assert rep["segment_errors"] and "Segment errors (rpg_trajectory_evaluation" in md
+    for key, text in rep["method"].items():
+        if isinstance(text, str) and rep.get(key, True) is not None:
+            assert text in md, key
