@@ -1834,3 +1834,18 @@ def test_every_definition_of_a_shown_number_is_in_report_md():
     for key, text in rep["method"].items():
         if isinstance(text, str) and rep.get(key, True) is not None:
             assert text in md, key
+
+
+def test_a_touch_outside_the_band_shorter_than_a_window_is_no_departure():
+    """TagSLAM test_22, fast-adaptation: the level within the band from the start but for 0.2 s at 27.1 s of 35 s
+    (a window: 1.74 s) was "converged at 27.31 s"; such a touch is no departure, as a touch of the band is no
+    return: converged at the start. A departure of a window or longer still counts."""
+    t = np.arange(0, 35_000_000_000, 50_000_000)
+    e = np.full(t.size, 0.2)
+    e[(t >= 26_000_000_000) & (t < 27_500_000_000)] = 5.0  # the level (a 1.75 s median) out for about 0.6 s
+    grid, level = slam_metrics.error_level(t, e)
+    assert 0 < np.ptp(grid[level > 0.3]) < 0.05 * 35e9
+    conv = slam_metrics.convergence(t, e, 0.1)
+    assert conv["t_ns"] == t[0] and conv["recurring"] is None
+    e[(t >= 2_000_000_000) & (t < 9_000_000_000)] = 5.0  # out for 7 s: a departure
+    assert 8e9 < slam_metrics.convergence(t, e, 0.1)["t_ns"] < 10e9
