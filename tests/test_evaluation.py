@@ -1849,3 +1849,14 @@ def test_a_touch_outside_the_band_shorter_than_a_window_is_no_departure():
     assert conv["t_ns"] == t[0] and conv["recurring"] is None
     e[(t >= 2_000_000_000) & (t < 9_000_000_000)] = 5.0  # out for 7 s: a departure
     assert 8e9 < slam_metrics.convergence(t, e, 0.1)["t_ns"] < 10e9
+
+
+def test_a_map_error_without_trajectory_truth_names_no_trajectory_alignment():
+    """run.json map_error of a run without trajectory truth (TagSLAM test_11, test_21) said "The gap to error_m
+    (trajectory alignment) is how far the map sits ...": there is no such alignment nor error_m there."""
+    from slamobs.pipeline.evaluation.sections import map_only_section
+
+    truth_lm = make_landmarks()
+    found = map_only_section(landmark_table(truth_lm, np.eye(3), np.zeros(3), noise_m=0.01), truth_lm)
+    assert found["error_m"]["rmse"] < 0.05 and "trajectory alignment" not in found["method"]
+    assert found["method"].startswith("SE(3) Umeyama fitted on the matched landmarks alone")

@@ -593,7 +593,11 @@ def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarr
     report's ``map_aligned``."""
     section = LandmarkSection(landmark_truth)
     section.process_data(landmarks, Alignment("none", np.eye(3), np.zeros(3), 1.0, 0))
-    return section.map_only()
+    if (found := section.map_only()) is not None:  # no trajectory alignment to name a gap to
+        found["method"] = section.MAP_ALIGNED_METHOD.split(". The gap", 1)[0] + (
+            ": the map's shape error (no trajectory truth to place it by)"
+        )
+    return found
 
 
 def _vec(v: Any) -> list[float]:
