@@ -252,3 +252,40 @@ def test_a_planar_run_counts_only_the_axes_with_error():
     planar = nees_statistics(err, cov, nees_values(err[:, :2], cov[:, :2, :2]), np.arange(n) * 0.01, 2)
     lo, hi = nees_bounds(2, n)
     assert planar["dof"] == 2 and planar["bounds"] == pytest.approx([lo, hi]) and lo < planar["mean"] < hi
+
+
+def test_a_planar_runs_unmeasured_axes_are_not_called_within_3_sigma():
+    """MR.CLAM 7 robot 1, riekf: the report's table said 1 (every pair within ±3σ) for position z and attitude x, y,
+    the axes the NEES leaves out because their error is zero on every pair, and the Method row said "3 DoF each,
+    χ²(3n)/n" beside a DoF column of 2 and 1. Those shares are null ("–"), the Method says the DoF column's bounds."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation.markdown import _md_uncertainty
+    from slamobs.pipeline.evaluation.sections import UncertaintySection
+
+    rng = np.random.default_rng(7)
+    n = 500
+    err = np.zeros((n, 6))
+    err[:, 2] = rng.normal(0.0, 0.01, n)  # yaw
+    err[:, 3:5] = rng.normal(0.0, 0.1, (n, 2))  # x, y
+    cov = np.tile(np.diag([0.01, 0.01, 1e-4, 0.01, 0.01, 1.0]), (n, 1, 1))
+    u = SimpleNamespace(
+        t_ns=np.arange(n) * 10_000_000,
+        gauge_t_ns=0,
+        error=err,
+        cov_position=cov[:, 3:, 3:],
+        cov_attitude=cov[:, :3, :3],
+        nees_position=nees_values(err[:, 3:5], cov[:, 3:5, 3:5]),
+        nees_attitude=nees_values(err[:, 2:3], cov[:, 2:3, 2:3]),
+        position_axes=(0, 1),
+        attitude_axes=(2,),
+    )
+    section = UncertaintySection()
+    section.process_data(SimpleNamespace(uncertainty=u))
+    pos, att = section.result["position"], section.result["attitude"]
+    assert pos["within_3sigma"][2] is None and pos["within_3sigma"][0] > 0.9
+    assert att["within_3sigma"][:2] == [None, None] and att["within_3sigma"][2] > 0.9
+    rows = "\n".join(_md_uncertainty(section.result))
+    assert "| position | 2 (x, y) |" in rows and ", –]" in rows and "[–, –, " in rows
+    method = UncertaintySection.METHOD["uncertainty"]
+    assert "χ²(DoF·n)/n" in method and "(3 DoF each)" not in method

@@ -179,7 +179,7 @@ def _md_segment_errors(seg: dict[str, Any] | None) -> list[str]:
         return []
     lines = [
         f"Segment errors (rpg_trajectory_evaluation; truth path {seg['path_length_m']:.4g} m, scale "
-        f"{seg['scale']:.6g}), mean, median (min, max):",
+        f"{seg['scale']:.6g}: the alignment's), mean, median (min, max) (definition under Method):",
         "",
         "| length [m] | segments | translation [%] | rotation [deg/m] | yaw [deg] |",
         "|---|---|---|---|---|",
@@ -313,8 +313,8 @@ def _md_uncertainty(u: dict[str, Any]) -> list[str]:
         "",
         f"Error (δθ, δp) in the {u['frame']}.",
         "",
-        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | median | instants within χ²(DoF) bounds | "
-        f"{u['window_s']:g} s windows within bounds | within ±3σ (x, y, z) |",
+        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | median | share of instants within χ²(DoF) "
+        f"bounds | share of {u['window_s']:g} s windows within bounds | share within ±3σ (x, y, z; – not measured) |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for part in ("position", "attitude"):
@@ -359,6 +359,8 @@ def _md_method(report: dict[str, Any]) -> list[str]:
         lines.append(f"| RPE | {report['rpe']['method']} |")
     if report.get("drift"):
         lines.append(f"| drift | {report['drift']['method']} |")
+    if _md_segment_errors(report.get("segment_errors")):  # the table is shown: its definition with it
+        lines.append(f"| segment errors | {m['segment_errors']} |")
     lines += [
         f"| clock offset | {report['time_offset']['method']} |",
         f"| landmarks | {m['landmarks']} |",

@@ -593,7 +593,11 @@ def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarr
     report's ``map_aligned``."""
     section = LandmarkSection(landmark_truth)
     section.process_data(landmarks, Alignment("none", np.eye(3), np.zeros(3), 1.0, 0))
-    return section.map_only()
+    if (found := section.map_only()) is not None:  # no trajectory alignment to name a gap to
+        found["method"] = section.MAP_ALIGNED_METHOD.split(". The gap", 1)[0] + (
+            ": the map's shape error (no trajectory truth to place it by)"
+        )
+    return found
 
 
 def _vec(v: Any) -> list[float]:
@@ -665,7 +669,8 @@ class ConvergenceSection(Section):
             "an even stride of at most 2001 errors of the window); "
             "steady_level_m is its highest value over the last tail_fraction of the span, band_m = "
             "max(threshold_m, band_factor × steady_level_m); t_ns is the first stamp after which the level "
-            "stays within band_m to the end: when the observer reaches its own steady level, not when noise "
+            "stays within band_m to the end (a stay outside shorter than window_s is no departure): when the observer "
+            "reaches its own steady level, not when noise "
             "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
             "earlier_level_m, the median level over the tail_fraction before it, or above growth_factor × "
@@ -735,9 +740,10 @@ class UncertaintySection(Section):
             "estimate moved rigidly so that its gauge pose (the pair with the smallest covariance: riekf's start, "
             "batch's anchor keyframe) lies on the truth (the covariance is relative to it; a least-squares alignment "
             "would absorb part of the error it describes), against the covariance turned likewise; NEES = eᵀ Σ⁻¹ e per "
-            "part (3 DoF each); bounds are two-sided 95 % χ² bounds of an average of n independent NEES values, "
-            f"χ²(3n)/n; windows of {NEES_WINDOW_S:g} s; pairs whose covariance block is below "
-            f"{GAUGE_SIGMA:g} (the gauge) are left out"
+            "part over its DoF axes (3 each; on a planar run only the axes whose error is not zero on every pair: "
+            "the DoF column, the others' share within ±3σ null); bounds are two-sided 95 % χ² bounds of an average "
+            f"of n independent NEES values, χ²(DoF·n)/n; windows of {NEES_WINDOW_S:g} s; pairs whose covariance "
+            f"block is below {GAUGE_SIGMA:g} (the gauge) are left out"
         )
     }
 
@@ -757,6 +763,8 @@ class UncertaintySection(Section):
         for part, axes in (("position", u.position_axes), ("attitude", u.attitude_axes)):
             if len(axes) < NEES_DOF:
                 self.result[part]["axes"] = ["xyz"[i] for i in axes]
+                if within := self.result[part]["within_3sigma"]:  # an axis with no error is "within" by nothing
+                    self.result[part]["within_3sigma"] = [v if i in axes else None for i, v in enumerate(within)]
                 off = ", ".join("xyz"[i] for i in range(3) if i not in axes)
                 self.notes.append(
                     f"{part} NEES over {', '.join('xyz'[i] for i in axes)} only ({len(axes)} DoF, expected mean "
