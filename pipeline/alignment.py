@@ -79,10 +79,11 @@ HELD_STEP_SHARE = 0.5
 #: warning (MR.CLAM's robots: 0-3 such samples in 52,000-65,000, under 0.01 %).
 REPEAT_SHARE_WARN = 0.01
 
-#: The gyro against its own accelerometer (:func:`_gyro_by_gravity`): samples of the time base looked at (its start,
-#: as ``time_offset.PREFIX_SAMPLES``: bounded on an hour-long log), the blocks whose mean gravity direction is
-#: differenced (s), the fewest block pairs that say anything, and how many times better a misread must fit.
-TILT_SAMPLES = 1 << 17
+#: The gyro against its own accelerometer (:func:`_gyro_by_gravity`): samples of the time base looked at (its start:
+#: it runs on the run's path before the observer, so bounded; 2^15 is 163 s of 200 Hz, over 150 block pairs where 20
+#: say something, and holds every real log's IMU whole), the blocks whose mean gravity direction is differenced (s),
+#: the fewest block pairs that say anything, and how many times better a misread must fit.
+TILT_SAMPLES = 1 << 15
 TILT_BLOCK_S = 1.0
 TILT_MIN_PAIRS = 20
 TILT_MISREAD_GAIN = 4.0
