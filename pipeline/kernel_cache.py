@@ -409,7 +409,8 @@ class _CheckedIndex(caching.IndexDataCacheFile):
         if data is None:
             return None
         signature = data[3] if isinstance(data, tuple) and len(data) > 3 else None
-        return data if tuple(getattr(signature, "args", ())) == tuple(key[0]) else None
+        args = getattr(signature, "args", None)  # a numba whose data files keep no signature there: loaded as before
+        return data if args is None or tuple(args) == tuple(key[0]) else None
 
 
 class KernelLocator(caching._CacheLocator):
