@@ -289,3 +289,30 @@ def test_a_planar_runs_unmeasured_axes_are_not_called_within_3_sigma():
     assert "| position | 2 (x, y) |" in rows and ", –]" in rows and "[–, –, " in rows
     method = UncertaintySection.METHOD["uncertainty"]
     assert "χ²(DoF·n)/n" in method and "(3 DoF each)" not in method
+
+
+def test_the_3_sigma_figure_draws_a_planar_runs_unmeasured_axes_empty(monkeypatch, tmp_path):
+    """MR.CLAM 7 robot 1, riekf: uncertainty.png showed δθ x, δθ y and δp z as a zero error inside ±3σ bands of up to
+    45° and 4 m (the covariance riekf keeps open on the axes a planar run holds): a consistent-looking estimate on
+    axes nothing measured. Those panels are drawn empty with a word; the others keep their error and band."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation import plots
+    from slamobs.pipeline.evaluation.figure_jobs import unmeasured_axes
+
+    u = SimpleNamespace(position_axes=(0, 1), attitude_axes=(2,))
+    held = unmeasured_axes(u)
+    assert held == (0, 1, 5)
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    n = 50
+    t = np.linspace(0.0, 5.0, n)
+    plots.plot_sigma_bounds(tmp_path / "u.png", t, np.zeros((n, 6)), np.ones((n, 6)), unmeasured=held)
+    (fig,) = figures
+    panels = fig.axes[:6]  # rows of (attitude, position): axes[k, col] in row-major order
+    for k in range(3):
+        for col in range(2):
+            ax = panels[2 * k + col]
+            empty = 3 * col + k in held
+            assert (len(ax.lines) == 0) == empty and (len(ax.collections) == 0) == empty, (k, col)
+            assert any("not measured" in x.get_text() for x in ax.texts) == empty, (k, col)

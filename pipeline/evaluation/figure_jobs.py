@@ -57,6 +57,14 @@ def plot_jobs(
     ]
 
 
+def unmeasured_axes(u) -> tuple[int, ...]:
+    """The 3σ figure's axes (0-2 attitude, 3-5 position) the NEES leaves out: a planar run's, error zero on every
+    pair (``PairedUncertainty.attitude_axes`` / ``position_axes``)."""
+    return tuple(i for i in range(3) if i not in u.attitude_axes) + tuple(
+        3 + i for i in range(3) if i not in u.position_axes
+    )
+
+
 def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluation) -> list:
     """The 3σ figure and the NEES figure when the estimate has a covariance (riekf, batch; none otherwise)."""
     from slamobs.pipeline.evaluation import plots
@@ -82,6 +90,7 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
                 error=u.error[keep],
                 sigma=sigma[keep],
                 title="Error and ±3σ of the estimate's covariance (truth frame, the gauge pose put on the truth)",
+                unmeasured=unmeasured_axes(u),
             ),
         ),
         (

@@ -350,15 +350,24 @@ def plot_landmark_errors(
     return _save(fig, path)
 
 
-def plot_sigma_bounds(path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.ndarray, title: str = "") -> Path:
+def plot_sigma_bounds(
+    path: Path, t_s: np.ndarray, error: np.ndarray, sigma: np.ndarray, title: str = "", unmeasured: tuple = ()
+) -> Path:
     """Per axis the error and the ±3σ band of the estimator's covariance: attitude (δθ, degrees) on the left,
-    position (δp, m) on the right."""
+    position (δp, m) on the right. An axis in ``unmeasured`` (0-2 attitude, 3-5 position: a planar run's axes
+    whose error is zero on every pair) is drawn empty with a word: its zero error inside a band of the
+    covariance the filter keeps open there would read as a consistent estimate."""
     fig, axes = _figure(3, 2, (11.0, 7.5), top=0.6)
     parts = ((slice(0, 3), np.degrees(1.0), "deg", "δθ"), (slice(3, 6), 1.0, "m", "δp"))
     for col, (sl, scale, unit, name) in enumerate(parts):
         e, sd = error[:, sl] * scale, sigma[:, sl] * scale
         for k in range(3):
             ax = axes[k, col]
+            if 3 * col + k in unmeasured:
+                ax.text(0.5, 0.5, "not measured: the run holds this axis (planar)", ha="center", va="center",
+                        transform=ax.transAxes, fontsize=8, color="0.4")  # fmt: skip
+                ax.set_ylabel(f"{name} {AXES[k]} [{unit}]")
+                continue
             ax.fill_between(t_s, -3.0 * sd[:, k], 3.0 * sd[:, k], color="0.85", lw=0, label="±3σ")
             ax.plot(t_s, e[:, k], color=COLORS[k], lw=0.8, label=f"{name} {AXES[k]}")
             ax.set_ylabel(f"{name} {AXES[k]} [{unit}]")
