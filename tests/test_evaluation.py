@@ -1860,3 +1860,35 @@ def test_a_map_error_without_trajectory_truth_names_no_trajectory_alignment():
     found = map_only_section(landmark_table(truth_lm, np.eye(3), np.zeros(3), noise_m=0.01), truth_lm)
     assert found["error_m"]["rmse"] < 0.05 and "trajectory alignment" not in found["method"]
     assert found["method"].startswith("SE(3) Umeyama fitted on the matched landmarks alone")
+
+
+def test_a_truth_that_is_the_estimates_mirror_image_is_named_and_a_level_one_is_not():
+    """A truth with one axis negated (a left-handed frame): no alignment absorbs a reflection, so the APE (0.698 m on
+    a generated figure 8 with the truth's y negated) was read as the estimator's, the only note "turned by a
+    constant 179.5 deg". Now a note says the truth looks mirrored; the same estimate against its own truth, and a
+    level trajectory's mirror (a rotation, which the fit absorbs), get none."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation.sections import truth_mirror_note
+    from slamobs.pipeline.evaluation.slam_metrics import rms_extent
+
+    rng = np.random.default_rng(3)
+    t = np.linspace(0.0, 40.0, 2000)
+    truth = np.c_[2.0 * np.sin(0.3 * t), np.sin(0.6 * t), 0.5 * np.sin(0.2 * t) + 0.1 * t]
+    est = truth + rng.normal(0.0, 0.01, truth.shape)
+
+    def ev(ref, est):
+        err = np.sqrt(np.mean(np.sum((ref - est) ** 2, axis=1)))
+        return SimpleNamespace(
+            translation=SimpleNamespace(stats={"rmse": float(err)}),
+            rotation=SimpleNamespace(stats={"rmse": 1.0}),
+            truth_extent_m=rms_extent(ref),
+            paired=SimpleNamespace(ref_pos=ref, est_pos=est),
+        )
+
+    mirror = np.array([1.0, -1.0, 1.0])
+    notes = truth_mirror_note(ev(truth * mirror, est))
+    assert len(notes) == 1 and "mirror image" in notes[0], notes
+    assert truth_mirror_note(ev(truth, est)) == []
+    level = truth * np.array([1.0, 1.0, 0.0])
+    assert truth_mirror_note(ev(level * mirror, level + rng.normal(0.0, 0.01, level.shape))) == []

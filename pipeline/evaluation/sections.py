@@ -43,7 +43,7 @@ from slamobs.pipeline.evaluation.trajectory_evaluation import (
     ReportOptions,
     TrajectoryEvaluation,
 )
-from slamobs.pipeline.lie import nearest_rotation, rots_to_quats
+from slamobs.pipeline.lie import nearest_rotation, rots_to_quats, umeyama
 from slamobs.pipeline.streams import PoseStream
 
 #: evo's command-line flags of each alignment slamobs shares with it
@@ -91,7 +91,48 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
-        self.notes += truth_frame_note(ev) + truth_scale_note(ev) + sparse_pairs_note(ev)
+        frame = truth_mirror_note(ev) or truth_frame_note(ev)  # a mirror is no turn: the turn would mislead
+        self.notes += frame + truth_scale_note(ev) + sparse_pairs_note(ev)
+
+
+#: A translation APE above this share of the truth's RMS extent, or a rotation APE above TRUTH_FRAME_ROTATION_DEG, is
+#: tried against a mirrored estimate; the mirror is named when an SE(3) fit of it leaves MIRROR_GAIN times less error
+#: than the estimate as it is.
+MIRROR_CHECK_SHARE = 0.1
+MIRROR_GAIN = 4.0
+
+
+def _rigid_fit_rmse(src: np.ndarray, dst: np.ndarray) -> float:
+    rot, t, _ = umeyama(src, dst)
+    return float(np.sqrt(np.mean(np.sum((src @ rot.T + t - dst) ** 2, axis=1))))
+
+
+def truth_mirror_note(ev: TrajectoryEvaluation) -> list[str]:
+    """The note naming a truth that is the estimate's mirror image (a left-handed frame, one axis of the wrong
+    sign): no alignment the report fits can absorb a reflection, so its APE would be read as the estimator's
+    error (a generated figure 8 with the truth's y negated: 0.674 m, the note "turned by a constant 179.2 deg":
+    nearly level, the mirror is nearly a half turn about x, all but its height). Tried only when the translation
+    APE is above ``MIRROR_CHECK_SHARE`` of the truth's extent or the rotation APE is implausible; a level
+    trajectory's mirror is a rotation, which the fit absorbs, so it is never named."""
+    trans, rot, extent = ev.translation.stats.get("rmse"), ev.rotation.stats.get("rmse"), ev.truth_extent_m
+    ref, est = ev.paired.ref_pos, ev.paired.est_pos
+    if trans is None or not extent > 0.0 or len(ref) < 3:
+        return []
+    if trans <= MIRROR_CHECK_SHARE * extent and not (rot is not None and rot > TRUTH_FRAME_ROTATION_DEG):
+        return []
+    try:
+        as_is = _rigid_fit_rmse(est, ref)
+        mirrored = _rigid_fit_rmse(est * np.array([-1.0, 1.0, 1.0]), ref)
+    except ValueError:  # collinear pairs: no fit either way
+        return []
+    if not mirrored * MIRROR_GAIN < as_is:
+        return []
+    return [
+        f"the truth looks like the estimate's mirror image: a rigid fit of the estimate with one axis negated leaves "
+        f"{mirrored:.3g} m rmse against {as_is:.3g} m as it is ({as_is / max(mirrored, 1e-12):.3g}x less): a truth "
+        "recorded in a left-handed frame, or an axis of the truth (or of a sensor) of the wrong sign; no alignment "
+        "absorbs a mirror, so the APE here is mostly that"
+    ]
 
 
 #: Pairs fewer than this share of the shorter series' poses: most of its stamps lie further than t_max_diff from
