@@ -394,9 +394,15 @@ def detection_law(tri: Triplets, seed: int = 0, ratio: float = 1.0) -> Detection
     if share > DOMINANT:
         method += f"; uncertain: the dead reckoning's noise is {100 * share:.0f} % of the residuals' variance"
     ranges = tuple(float(q) for q in np.percentile(tri.r[inl, 1], [5, 95]))
+    base_method = method
+    if theta[0] < MIN_DETECTION_M:  # TagSLAM test_11 said "0.0001 m (estimated, ± 0)": the floor, not a fit
+        base_method += (
+            f"; at zero range the fit gave {float(theta[0]):.2g} m, raised to the floor {MIN_DETECTION_M:g} m (no "
+            f"detection is exact): the detections' ranges ({ranges[0]:.2g}-{ranges[1]:.2g} m, 5-95 %) do not fix it"
+        )
     return DetectionLaw(
         best,
-        Estimate(max(float(theta[0]), MIN_DETECTION_M), float(se[0]), method, used),
+        Estimate(max(float(theta[0]), MIN_DETECTION_M), float(se[0]), base_method, used),
         Estimate(float(theta[1]), float(se[1]), method, used),
         power,
         ranges,

@@ -445,3 +445,18 @@ def test_info_noise_names_odometry_that_repeats_stamps_with_other_values(tmp_pat
     assert shown.exit_code == 0, shown.output
     said = [line for line in shown.output.splitlines() if "share their stamp with the one before" in line]
     assert len(said) == 1 and "/odom: 200 of its 1200 samples" in said[0], shown.output
+
+
+def test_a_detection_law_at_its_floor_says_so(tmp_path):
+    """Detections whose σ grows as r² with nothing at zero range, seen at 5-14 m: the fit's value at zero range is
+    not fixed by the data and is raised to ``MIN_DETECTION_M``. TagSLAM test_11 printed that floor as
+    "detection = 0.0001 m (estimated, ± 0)", a measurement it is not; the line now says the fit was raised to the
+    floor and over which ranges."""
+    nm = replace(NoiseModel(), detection_base=0.0, detection_per_m=0.0, detection_per_m2=0.004)
+    write_log(simulate("figure8", duration=60.0, seed=9533, noise=nm), tmp_path / "r2.mcap")
+    shown = invoke("info", "--noise", tmp_path / "r2.mcap")
+    assert shown.exit_code == 0, shown.output
+    (line,) = [x for x in shown.output.splitlines() if x.strip().startswith("detection = ")]
+    assert "raised to the floor 0.0001 m" in line and "do not fix it" in line, line
+    (law,) = [x for x in shown.output.splitlines() if x.strip().startswith("detection_per_m2 = ")]
+    assert "floor" not in law, law
