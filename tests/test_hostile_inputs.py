@@ -780,3 +780,24 @@ def test_info_and_run_name_imu_stamps_in_milliseconds(sim, tmp_path):
     out = tmp_path / "out"
     one_line_error(invoke("run", log, "-o", out), f"angular velocity ({TOPIC_IMU}): its header stamps advance 0.001x")
     assert not out.exists()
+
+
+def test_a_detection_topic_whose_frame_id_changes_mid_log_is_a_warning():
+    """Detections naming two camera frames on one topic (two cameras published together, a driver renaming its
+    frame mid-log): every detection is placed by the most common frame's extrinsic, so the others' are misplaced;
+    this was only a readers' note ("2 frame ids (...), using X"). Now a warning; a frame spelled with and without a
+    leading '/' (the same frame) stays a note."""
+    from slamobs.pipeline.readers.decode import clean_frames
+
+    n = 6
+    t = np.arange(n, dtype=np.int64) * 100_000_000
+    lengths = np.ones(n, dtype=np.int64)
+    ids = np.arange(n, dtype=np.int64) % 2
+    values = np.ones((n, 3)) + np.arange(n)[:, None]
+    frame = np.array([0, 0, 0, 0, 1, 1])
+    *_, frame_id, cleaning = clean_frames(t, t, lengths, ids, values, frame, ["camera_left", "camera_right"])
+    assert frame_id == "camera_left"
+    (said,) = cleaning.warnings
+    assert "camera_left 4, camera_right 2" in said and "misplaced" in said, said
+    *_, frame_id, cleaning = clean_frames(t, t, lengths, ids, values, frame, ["camera", "/camera"])
+    assert cleaning.warnings == [] and any("2 frame ids" in x for x in cleaning.extra), cleaning

@@ -382,8 +382,12 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     return idx[~drop] if cleaning.duplicates else idx, t_ns, cleaning
 
 
-def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning, what: str = "frame id") -> str:
-    """Most common frame id; a topic mixing frames is reported."""
+def _dominant(
+    codes: np.ndarray, names: list[str], cleaning: Cleaning, what: str = "frame id", placed: bool = False
+) -> str:
+    """Most common frame id; a topic mixing frames is reported: as a warning where the frame places what the
+    topic measures (``placed``: detections, by their camera's extrinsic) and the frames differ by more than a
+    leading '/', whose other frames' samples are then placed by the most common one's extrinsic."""
     if not codes.size:
         return names[0] if names else ""
     counts = np.bincount(codes, minlength=len(names))
@@ -391,6 +395,14 @@ def _dominant(codes: np.ndarray, names: list[str], cleaning: Cleaning, what: str
     if np.count_nonzero(counts) > 1:
         label = [name or "<empty>" for name in names]
         seen = ", ".join(f"{label[k]} {counts[k]}" for k in np.argsort(-counts) if counts[k])
+        if placed and len({names[k].lstrip("/") for k in np.flatnonzero(counts)}) > 1:
+            cleaning.warnings.append(
+                f"its messages name {np.count_nonzero(counts)} {what}s ({seen}): every one is taken in "
+                f"{label[best]} (the most common) and placed by its extrinsic, so the others' detections are "
+                "misplaced unless their frames coincide with it: split the topic by frame, or fix the driver's "
+                "frame_id"
+            )
+            return names[best]
         cleaning.extra.append(f"{np.count_nonzero(counts)} {what}s ({seen}), using {label[best]}")
     elif not names[best]:
         cleaning.extra.append(f"empty {what}")
@@ -698,7 +710,7 @@ def clean_frames(
     forder = forder[~drop]
     cleaning.kept = int(forder.shape[0])  # frames: the note says when every one was there twice, as info does
 
-    frame_id = _dominant(frame[forder], frame_names, cleaning)
+    frame_id = _dominant(frame[forder], frame_names, cleaning, placed=True)
     if forder.shape[0] == nframes and bool(np.all(np.diff(forder) == 1)):  # every frame, in order: keep as is
         return t_ns[forder], rec_ns[forder], offsets, ids, np.ascontiguousarray(values), frame_id, cleaning
     sel_len = lengths[forder]
