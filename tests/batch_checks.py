@@ -43,7 +43,7 @@ def first_run(args: list, cache: Path, kill: bool = False) -> list[str]:
 
     env = {**os.environ, "NUMBA_CACHE_DIR": str(cache), compile_ahead.ENV: "1"}
     argv = [sys.executable, "-c", _COMPILING_RUN, "kill" if kill else "-", *map(str, args)]
-    out = subprocess.run(argv, capture_output=True, text=True, env=env)
+    out = subprocess.run(argv, capture_output=True, text=True, env=env, timeout=600)  # a hang fails, never stalls
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
