@@ -19,6 +19,7 @@ from slamobs.pipeline.evaluation.align import (
     DESCRIPTIONS,
     SCALED_ALIGNMENTS,
     Alignment,
+    apply_alignment,
     fit_alignment,
     gravity_tilt_deg,
 )
@@ -104,7 +105,7 @@ MIRROR_GAIN = 4.0
 
 def _rigid_fit_rmse(src: np.ndarray, dst: np.ndarray) -> float:
     rot, t, _ = umeyama(src, dst)
-    return float(np.sqrt(np.mean(np.sum((src @ rot.T + t - dst) ** 2, axis=1))))
+    return float(np.sqrt(np.mean(metrics.row_norms(apply_alignment(rot, t, 1.0, src), dst) ** 2)))
 
 
 def truth_mirror_note(ev: TrajectoryEvaluation) -> list[str]:
