@@ -66,14 +66,8 @@ def children(pid: int | None = None) -> list[int]:
     except OSError:
         return found
     for entry in entries:
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat", "rb") as f:
-                    fields = f.read().rsplit(b")", 1)[1].split()
-            except (OSError, IndexError):
-                continue
-            if int(fields[1]) == pid and fields[0] != b"Z":
-                found.append(int(entry))
+        if entry.isdigit() and (fields := _stat_fields(entry)) and int(fields[1]) == pid and fields[0] != b"Z":
+            found.append(int(entry))
     return found
 
 
@@ -146,13 +140,19 @@ def bind_to_parent(parent_pid: int) -> None:
 # --------------------------------------------------------------------------- owners of temporaries
 
 
-def start_time(pid: int) -> str | None:
-    """When process ``pid`` started (clock ticks since boot, Linux ``/proc``), to tell a reused pid apart."""
+def _stat_fields(pid: int | str) -> list[bytes] | None:
+    """The fields of Linux ``/proc/PID/stat`` after the command name (state, parent, group, ...; None when gone)."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as f:
-            return f.read().rsplit(b")", 1)[1].split()[19].decode()
+            return f.read().rsplit(b")", 1)[1].split()
     except (OSError, IndexError):
         return None
+
+
+def start_time(pid: int) -> str | None:
+    """When process ``pid`` started (clock ticks since boot, Linux ``/proc``), to tell a reused pid apart."""
+    fields = _stat_fields(pid)
+    return fields[19].decode() if fields is not None and len(fields) > 19 else None
 
 
 def owner_marker() -> dict:

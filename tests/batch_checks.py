@@ -110,7 +110,10 @@ def session_alive(sid: int) -> list[int]:
 
 
 def children(pid: int) -> list[int]:
-    return _live_where(1, pid)
+    """Live children of ``pid``: the pipeline's own scan (``lifetime.children``)."""
+    from slamobs.pipeline.lifetime import children as live_children
+
+    return live_children(pid)
 
 
 def descendants(pid: int) -> list[int]:
