@@ -69,15 +69,3 @@ def with_slow_range_error(stream, sd: float, tau: float, seed: int):
         err[idx] = sd * exponential(t[idx], tau, rng)
     y = stream.det_y
     return replace(stream, det_y=y + y / np.linalg.norm(y, axis=1, keepdims=True) * err[:, None])
-
-
-def with_shared_bearing_error(stream, sd: float, tau: float, seed: int):
-    """``stream`` with one exponentially correlated yaw error (rad) of the sensor, shared by every detection of a
-    frame: each detection turned about the body's vertical by it (MR.CLAM's shared bearing error)."""
-    rng = np.random.default_rng(seed)
-    frame_t = (stream.det_t_ns - stream.t0_ns) * 1e-9
-    yaw = np.repeat(sd * exponential(frame_t, tau, rng), np.diff(stream.det_offsets))
-    c, s = np.cos(yaw), np.sin(yaw)
-    y = stream.det_y.copy()
-    y[:, 0], y[:, 1] = c * stream.det_y[:, 0] - s * stream.det_y[:, 1], s * stream.det_y[:, 0] + c * stream.det_y[:, 1]
-    return replace(stream, det_y=y)

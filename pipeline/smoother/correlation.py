@@ -94,46 +94,34 @@ def fit(t: np.ndarray, landmark: np.ndarray, w: np.ndarray) -> Correlation:
     lag, n, g = variogram(t, landmark, w)
     if lag.size == 0:
         return Correlation(0.0, float(TAUS[0]), float("inf"), 0, {})
-    # a pair's ½|Δw|²/v is χ²₃/3 under white residuals (variance 2/3); the pairs taken as independent
-    return fitted(lag, n, g, 2.0 / 3.0)
-
-
-def fitted(lag: np.ndarray, n: np.ndarray, g: np.ndarray, pair_variance: float) -> Correlation:
-    """``ρ(h) = a·exp(−h/τ)`` by least squares over lag bins of ``1 − g`` (``τ`` on ``TAUS``, ``a`` in closed
-    form), ``pair_variance`` one pair's variance under white residuals (for ``a``'s standard error)."""
     best = (np.inf, 0.0, float(TAUS[0]), np.inf)
     for tau in TAUS:
         e = np.exp(-lag / tau)
         a = float(np.clip(np.sum(n * e * (1.0 - g)) / np.sum(n * e * e), 0.0, 1.0))
         sse = float(np.sum(n * (1.0 - g - a * e) ** 2))
         if sse < best[0]:
-            best = (sse, a, float(tau), float(np.sqrt(pair_variance / np.sum(n * e * e))))
+            # a pair's ½|Δw|²/v is χ²₃/3 under white residuals (variance 2/3); the pairs taken as independent
+            best = (sse, a, float(tau), float(np.sqrt((2.0 / 3.0) / np.sum(n * e * e))))
     bins = {round(float(h), 3): (int(k), round(float(x), 3)) for h, k, x in zip(lag, n, g, strict=True)}
     return Correlation(best[1], best[2], best[3], int(n.sum()), bins)
 
 
 def inflation(t: np.ndarray, landmark: np.ndarray, corr: Correlation) -> np.ndarray:
     """Each detection's variance factor ``fᵢ = 1 + Σⱼ ρ(|tᵢ − tⱼ|)`` over the other detections of its landmark
-    (exactly 1 everywhere when the correlation is not significant)."""
+    (exactly 1 everywhere when the correlation is not significant). The exponential's sums run forwards and
+    backwards along each landmark's detections in one pass each (``Sᵢ = xᵢ (1 + Sᵢ₋₁)``, ``xᵢ = exp(−Δtᵢ/τ)``)."""
     f = np.ones(t.shape[0])
     if not corr.significant:
         return f
-    return 1.0 + corr.share * track_sums(t, landmark, corr.tau)
-
-
-def track_sums(t: np.ndarray, landmark: np.ndarray, tau: float) -> np.ndarray:
-    """Each detection's ``Σⱼ exp(−|tᵢ − tⱼ|/τ)`` over the other detections of its landmark. The exponential's sums
-    run forwards and backwards along each track in one pass each (``Sᵢ = xᵢ (1 + Sᵢ₋₁)``, ``xᵢ = exp(−Δtᵢ/τ)``)."""
     o = _tracks(t, landmark)
     ts, ls = t[o], landmark[o]
     x = np.zeros(ts.shape[0])
     same = np.flatnonzero(ls[1:] == ls[:-1]) + 1  # a link within a track (across two, the time steps back)
-    x[same] = np.exp(-(ts[same] - ts[same - 1]) / tau)
+    x[same] = np.exp(-(ts[same] - ts[same - 1]) / corr.tau)
     fwd = np.asarray(_chain(x.tolist()))
     bwd = np.asarray(_chain([0.0, *x[:0:-1].tolist()]))[::-1]  # the same, from the end: link i to i + 1 is x[i + 1]
-    out = np.empty(t.shape[0])
-    out[o] = fwd + bwd
-    return out
+    f[o] = 1.0 + corr.share * (fwd + bwd)
+    return f
 
 
 def thinned(t: np.ndarray, landmark: np.ndarray, spacing: float) -> np.ndarray:

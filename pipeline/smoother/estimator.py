@@ -21,7 +21,6 @@ from slamobs.pipeline.observers.base import KernelState, ObserverSpec, Outputs, 
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.smoother import anisotropy as an
 from slamobs.pipeline.smoother import inverse_depth as idp
-from slamobs.pipeline.smoother import shared_bearing as sb
 from slamobs.pipeline.smoother.evidence import ACROSS as EVIDENCE_ACROSS
 from slamobs.pipeline.smoother.evidence import KEYS as EVIDENCE_KEYS
 from slamobs.pipeline.smoother.evidence import MAX_KEYFRAMES as EVIDENCE_MAX_KEYFRAMES
@@ -151,9 +150,6 @@ class BatchSmoother(Stepper):
         self.result = None  # filled by the first stretch
         #: each detection's variance factor for its errors' time correlation (None: white, every factor 1)
         self.det_factor = None
-        #: each detection's bearing variance factor for the bearing error it shares with the other landmarks'
-        #: detections near in time (None: independent; pipeline.smoother.shared_bearing)
-        self.det_bearing = None
         #: the range each detection's σ(r) is evaluated at (None: its measured range; then the one a solution
         #: predicts, :meth:`_at_predicted_ranges`)
         self.det_range = None
@@ -201,7 +197,6 @@ class BatchSmoother(Stepper):
             anisotropy_notes += again
             anisotropy["motion_scanned_again"] = True
         chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
-        chosen, shared, shared_notes = self._share_bearing(chosen, (kf_t, kf_of_det, gaps), segments, progress)
         chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, (kf_t, kf_of_det, gaps), segments)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -227,7 +222,6 @@ class BatchSmoother(Stepper):
         summary["noise_scale"] = evidence
         summary["detection_correlation"] = correlation
         summary["detection_anisotropy"] = anisotropy
-        summary["detection_shared_bearing"] = shared
         summary["detection_inverse_depth"] = self.inverse_depth_record
         if self.inverse_depth is not None:  # the levels the final solution used
             summary["detection_inverse_depth"] |= idp.record(
@@ -245,7 +239,7 @@ class BatchSmoother(Stepper):
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
-        self.stats["notes"] += shared_notes + seed_notes
+        self.stats["notes"] += seed_notes
         self.stats["notes"] += list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
@@ -436,13 +430,12 @@ class BatchSmoother(Stepper):
                 "det_shape": shape,
             }
         ranges = np.linalg.norm(s.det_y, axis=1) if self.det_range is None else self.det_range
-        shape = self.det_shape if self.det_bearing is None else sb.shape(s.det_y, self.det_shape, self.det_bearing)
         return {
             "kf_of_det": kf_of_det,
             "det_idx": s.det_idx,
             "det_y": s.det_y,
             "det_sigma": self.noise.detection_sigma(ranges) * factor,
-            "det_shape": shape,
+            "det_shape": self.det_shape,
         }
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
@@ -563,26 +556,6 @@ class BatchSmoother(Stepper):
             return chosen, dc.record(corr, None), []
         self.det_factor = f = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
         return self._solved_again(chosen, sol, keyframes, segments, progress), dc.record(corr, f), [dc.note(corr, f)]
-
-    def _share_bearing(self, chosen, keyframes: tuple, segments: _Segments, progress):
-        """The bearing error the detections share across landmarks, fitted to the chosen solution's residuals
-        (:mod:`pipeline.smoother.shared_bearing`); when significant, every detection's bearing variance is scaled
-        by its effective-sample factor and the smoother solved (and gated) again from that solution. The candidate
-        kept, the record and the notes."""
-        from slamobs.pipeline.smoother import graph as g
-
-        why = sb.skipped(
-            self.settings.detection_shared_bearing, self.fixed_bias is not None, self.inverse_depth is not None
-        )
-        if why is not None:
-            return chosen, {"skipped": why}, []
-        kf_t, kf_of_det, _ = keyframes
-        p, sol = chosen.problem, chosen.sol
-        corr = sb.fit(kf_t[p.kf_of_det], p.det_idx, p.det_y, g.detection_residuals(p, sol))
-        if not corr.significant:
-            return chosen, sb.record(corr, None), []
-        self.det_bearing = f = sb.factor(kf_t[kf_of_det], self.stream.det_idx, corr)
-        return self._solved_again(chosen, sol, keyframes, segments, progress), sb.record(corr, f), [sb.note(corr, f)]
 
     def _evidence_keys(self) -> tuple[str, ...]:
         """The levels the evidence scans: :data:`pipeline.smoother.evidence.KEYS`, and the velocity's axes across

@@ -15,7 +15,6 @@ EVIDENCE_MODES = ("off", "held", "always")
 #: cross-validation of the detections (pipeline.smoother.cross_validation; replaces the evidence)
 SELECTION_MODES = ("evidence", "cross_validation")
 CORRELATION_MODES = ("off", "auto")
-SHARED_BEARING_MODES = ("off", "auto")
 ANISOTROPY_MODES = ("off", "auto")
 INVERSE_DEPTH_MODES = ("off", "auto")
 
@@ -44,10 +43,6 @@ class BatchSettings:
     #: "auto": the detections' time correlation fitted to the first solution's residuals, each detection's
     #: variance scaled by its effective-sample factor when significant (pipeline.smoother.correlation); "off"
     detection_correlation: str = "auto"
-    #: "auto": the bearing error the detections share across landmarks (a frame's, and slow) fitted to the
-    #: solution's residuals, each detection's bearing variance scaled by its effective-sample factor when
-    #: significant (pipeline.smoother.shared_bearing); "off"
-    detection_shared_bearing: str = "auto"
     #: "auto": the ratio of the detections' range error to their bearing error chosen by the smoother's evidence
     #: (1 = isotropic, then x2 steps while the evidence rises; pipeline.smoother.anisotropy); "off": isotropic
     detection_anisotropy: str = "auto"
@@ -70,7 +65,6 @@ def batch_settings(section: dict | None) -> BatchSettings:
         ("noise_evidence", EVIDENCE_MODES),
         ("noise_selection", SELECTION_MODES),
         ("detection_correlation", CORRELATION_MODES),
-        ("detection_shared_bearing", SHARED_BEARING_MODES),
         ("detection_anisotropy", ANISOTROPY_MODES),
         ("detection_inverse_depth", INVERSE_DEPTH_MODES),
     ):
