@@ -597,6 +597,70 @@ def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated traject
     return _save(fig, path)
 
 
+#: radius of plot_map's landmark markers (``s=60`` points², edge included), points
+MAP_MARKER_RADIUS_PT = 4.5
+#: an id label's size at 7 pt: width per character and height, points (DejaVu Sans digits 0.64 em, 1.2 em line)
+LABEL_CHAR_PT, LABEL_HEIGHT_PT = 4.5, 8.5
+#: how far from its landmark a label may go (points along x and y), tried nearest first
+LABEL_GAPS_PT = (4.0, 10.0, 18.0)
+
+
+def label_offsets(anchors_pt: np.ndarray, sizes_pt: np.ndarray, marker_radius_pt: float) -> np.ndarray:
+    """Each label's lower-left corner relative to its anchor (points), chosen in turn: the first of the four corners
+    about the anchor at each gap of ``LABEL_GAPS_PT`` whose box clears the labels placed before and every marker
+    (a disc of ``marker_radius_pt``), else the spot that overlaps least. (N, 2) anchors and sizes (width, height)
+    in points, on one figure's scale; labels in the order given take the best spots (TagSLAM test_11: "6 (506)"
+    over "36 (19)", "35 (24)" over "11 (22)" with one fixed spot)."""
+    a, wh = np.asarray(anchors_pt, dtype=np.float64), np.asarray(sizes_pt, dtype=np.float64)
+    out = np.zeros_like(a)
+    boxes: list[np.ndarray] = []
+    for k in range(a.shape[0]):
+        w, h = wh[k]
+        spots = [
+            (g if sx > 0 else -g - w, g if sy > 0 else -g - h)
+            for g in LABEL_GAPS_PT
+            for sy in (1, -1)
+            for sx in (1, -1)
+        ]
+        best, least = spots[0], np.inf
+        for dx, dy in spots:
+            lo = a[k] + (dx, dy)
+            clash = box_overlap(lo, lo + (w, h), boxes) + disc_overlap(lo, lo + (w, h), a, marker_radius_pt)
+            if clash < least:
+                best, least = (dx, dy), clash
+            if clash == 0:
+                break
+        out[k] = best
+        boxes.append(np.array([*(a[k] + best), *(a[k] + best + (w, h))]))
+    return out
+
+
+def box_overlap(lo: np.ndarray, hi: np.ndarray, boxes: list[np.ndarray]) -> float:
+    """Area (points²) the box ``lo``-``hi`` shares with ``boxes`` (rows x0, y0, x1, y1)."""
+    if not boxes:
+        return 0.0
+    b = np.asarray(boxes)
+    w = np.clip(np.minimum(hi[0], b[:, 2]) - np.maximum(lo[0], b[:, 0]), 0, None)
+    h = np.clip(np.minimum(hi[1], b[:, 3]) - np.maximum(lo[1], b[:, 1]), 0, None)
+    return float(np.sum(w * h))
+
+
+def disc_overlap(lo: np.ndarray, hi: np.ndarray, centres: np.ndarray, radius: float) -> float:
+    """How deep (points) the box ``lo``-``hi`` reaches into discs of ``radius`` about ``centres``, summed."""
+    nearest = np.clip(centres, lo, hi)
+    return float(np.sum(np.clip(radius - np.linalg.norm(centres - nearest, axis=1), 0, None)))
+
+
+def _placed_labels(ax, texts: list[str], xyz: np.ndarray, marker_radius_pt: float) -> None:
+    """``texts`` at 7 pt beside their landmarks' x-y positions where they clear each other and the markers
+    (:func:`label_offsets`, on the axes' final limits)."""
+    ax.apply_aspect()
+    anchors = ax.transData.transform(xyz[:, :2]) * (72.0 / ax.figure.dpi)
+    sizes = np.array([(LABEL_CHAR_PT * len(t), LABEL_HEIGHT_PT) for t in texts])
+    for t, p, off in zip(texts, xyz, label_offsets(anchors, sizes, marker_radius_pt)):
+        ax.annotate(t, (p[0], p[1]), xytext=off, textcoords="offset points", fontsize=7, ha="left", va="bottom")
+
+
 def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, path_xyz: np.ndarray) -> Path:
     """The landmark map from above over the path, each landmark labelled ``id (times seen)`` and coloured by how
     often it was seen."""
@@ -605,15 +669,14 @@ def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, pat
     ax = axes[0, 0]
     if len(path_xyz):
         ax.plot(path_xyz[:, 0], path_xyz[:, 1], "-", color="0.7", lw=0.8, label="estimated path")
+    ax.set_aspect("equal", adjustable="datalim")  # before the labels: they are placed on the final limits
     if n:
         sc = ax.scatter(xyz[:, 0], xyz[:, 1], c=seen, cmap="plasma", s=60, edgecolors="k", lw=0.5, zorder=3)
         fig.colorbar(sc, ax=ax, shrink=0.8, label="times seen")
         if n <= MAX_ID_LABELS:
-            for i, p, k in zip(ids, xyz, seen):
-                ax.annotate(f"{int(i)} ({int(k)})", (p[0], p[1]), xytext=(4, 4), textcoords="offset points", fontsize=7)
+            _placed_labels(ax, [f"{int(i)} ({int(k)})" for i, k in zip(ids, seen)], xyz, MAP_MARKER_RADIUS_PT)
     else:
         ax.text(0.5, 0.5, "no landmarks in the map", ha="center", va="center", transform=ax.transAxes)
-    ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     seen_text = f", seen {int(np.min(seen))} to {int(np.max(seen))} times" if n else ""
