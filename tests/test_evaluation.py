@@ -1949,6 +1949,7 @@ def test_a_map_sigma_far_below_its_error_is_named_overconfident():
             np.median([r["error_turned_m"] for r in section.get_statistic()["per_landmark"]]) / sigma
         )
         assert bool([n for n in section.notes if "overconfident" in n]) is overconfident
+        assert check["worst"]["id"] in (2, 3) and check["n_above_single_bound"] == (2 if overconfident else 0)
     assert _turned_map_section(circle).get_statistic()["sigma_check"] is None
     truth_lm = make_landmarks()
     lm = landmark_table(truth_lm, np.eye(3), np.zeros(3), noise_m=0.3)

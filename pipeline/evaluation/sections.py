@@ -513,40 +513,61 @@ def _sigma(cov: np.ndarray) -> float | None:
     return float(np.sqrt(v)) if np.isfinite(v) and v >= 0 else None
 
 
-def sigma_check(errors: np.ndarray, cov: np.ndarray | None, method: str) -> dict[str, Any] | None:
+#: a map σ check whose median ‖e‖/σ is at least this says the σ is that many times too small; below it, the mean
+#: NEES may come from a few landmarks or from the covariance's shape, and the note names the worst landmark
+MAP_SIGMA_FAR = 10.0
+
+
+def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, method: str) -> dict[str, Any] | None:
     """The map's stated covariance against its error: per landmark NEES ``eᵀΣ⁻¹e`` (3 DoF), their mean against the
-    two-sided 95 % χ² bounds of a mean of n, and ``‖e‖ / σ`` (σ = ``sqrt(trace Σ / 3)``); None without a
-    covariance (the observers)."""
+    two-sided 95 % χ² bounds of a mean of n, how many lie above one NEES's upper bound, the worst landmark, and
+    ``‖e‖ / σ`` (σ = ``sqrt(trace Σ / 3)``); None without a covariance (the observers)."""
     if cov is None:
         return None
     nees = slam_metrics.landmark_nees(errors, cov)
-    ok = np.isfinite(nees)
-    if not ok.any():
+    ok = np.flatnonzero(np.isfinite(nees))
+    if not ok.size:
         return None
     sigma = np.sqrt(np.trace(cov[ok], axis1=1, axis2=2) / 3.0)
-    ratio = np.linalg.norm(errors[ok], axis=1) / sigma
+    norms = np.linalg.norm(errors[ok], axis=1)
+    bounds = metrics.nees_bounds(NEES_DOF, int(ok.size))
+    w = int(np.argmax(nees[ok]))
     return {
-        "n": int(ok.sum()),
+        "n": int(ok.size),
         "mean_nees": float(np.mean(nees[ok])),
-        "bounds": [float(v) for v in metrics.nees_bounds(NEES_DOF, int(ok.sum()))],
+        "bounds": [float(v) for v in bounds],
+        "n_above_single_bound": int(np.sum(nees[ok] > metrics.nees_bounds(NEES_DOF, 1)[1])),
+        "worst": {
+            "id": int(ids[ok[w]]),
+            "nees": float(nees[ok[w]]),
+            "error_m": float(norms[w]),
+            "sigma_m": float(sigma[w]),
+        },
         "sigma_m": [float(np.min(sigma)), float(np.max(sigma))],
-        "error_over_sigma_median": metrics.median(ratio),
-        "overconfident": bool(np.mean(nees[ok]) > metrics.nees_bounds(NEES_DOF, int(ok.sum()))[1]),
+        "error_over_sigma_median": metrics.median(norms / sigma),
+        "overconfident": bool(np.mean(nees[ok]) > bounds[1]),
         "method": method,
     }
 
 
 def overconfidence_note(check: dict[str, Any] | None, after: str) -> list[str]:
-    """The note of an overconfident :func:`sigma_check` (errors measured ``after`` an alignment), else []."""
+    """The note of an overconfident :func:`sigma_check` (errors measured ``after`` an alignment), else []: the σ's
+    shortfall when the median ‖e‖/σ reaches ``MAP_SIGMA_FAR``, else how many landmarks and which one drive it."""
     if not check or not check["overconfident"]:
         return []
     lo, hi = check["sigma_m"]
-    return [
-        f"landmark map: its stated σ ({lo:.2g}-{hi:.2g} m) is far below its error {after} (median error/σ "
-        f"{check['error_over_sigma_median']:.3g}; mean landmark NEES {check['mean_nees']:.3g} above the 95 % bound "
-        f"{check['bounds'][1]:.3g} of {check['n']} landmarks): the map's covariance is overconfident "
-        "(landmarks.sigma_check)"
-    ]
+    ratio, worst = check["error_over_sigma_median"], check["worst"]
+    nees = (
+        f"mean landmark NEES {check['mean_nees']:.3g} above the 95 % bound {check['bounds'][1]:.3g} of "
+        f"{check['n']} landmarks, {check['n_above_single_bound']} of them above one NEES's "
+        f"{metrics.nees_bounds(NEES_DOF, 1)[1]:.3g}; worst landmark {worst['id']}: NEES {worst['nees']:.3g}, error "
+        f"{worst['error_m']:.3g} m at σ {worst['sigma_m']:.2g} m"
+    )
+    if ratio >= MAP_SIGMA_FAR:
+        head = f"its stated σ ({lo:.2g}-{hi:.2g} m) is {ratio:.3g}x below its error {after} (median error/σ)"
+    else:
+        head = f"its stated covariance does not cover its error {after} (median error/σ {ratio:.3g})"
+    return [f"landmark map: {head}; {nees}: the map's covariance is overconfident (landmarks.sigma_check)"]
 
 
 class LandmarkSection(Section):
@@ -579,9 +600,11 @@ class LandmarkSection(Section):
         "per landmark NEES eᵀΣ⁻¹e (3 DoF) of the error e after the trajectory's alignment and its loose turn "
         "(error_turned_m) against the landmark's covariance Σ turned likewise; mean_nees against the two-sided 95 % "
         "χ² bounds of a mean of n independent values, χ²(3n)/n; error_over_sigma the error ‖e‖ over σ = "
-        "sqrt(trace Σ / 3); overconfident: mean_nees above the upper bound. The covariance is relative to the "
-        "estimator's gauge (its start or anchor), which a least-squares alignment does not respect: a looser test "
-        "than the trajectory's NEES, and a mean NEES hundreds of times the bound is no gauge effect"
+        "sqrt(trace Σ / 3); n_above_single_bound the landmarks whose NEES is above one NEES's upper bound "
+        "(χ²(3): 9.35), worst the landmark of the largest NEES; overconfident: mean_nees above the upper bound. The "
+        "covariance is relative to the estimator's gauge (its start or anchor), which a least-squares alignment "
+        "does not respect: a looser test than the trajectory's NEES, and a mean NEES hundreds of times the bound is "
+        "no gauge effect"
     )
 
     def __init__(self, landmark_truth: dict[int, np.ndarray] | None) -> None:
@@ -590,6 +613,7 @@ class LandmarkSection(Section):
         #: the matched landmarks' covariances in the estimate's frame, and their errors (vectors) after the map-only
         #: alignment with its rotation: what :meth:`map_only` checks the σ with
         self._map_cov: np.ndarray | None = None
+        self._map_ids = np.empty(0, dtype=np.int64)
         self._map_only_fit: tuple[np.ndarray, np.ndarray] | None = None
 
     def process_data(
@@ -621,7 +645,8 @@ class LandmarkSection(Section):
         turn, turned = self._loose_turn(lm, truth_xyz, ape_rmse)
         cov = landmark_covariances(landmarks)
         if cov is not None:  # the matched rows; into the truth frame by the alignment, then the loose turn
-            self._map_cov = cov = cov[[row_of[int(i)] for i in lm.ids]]
+            self._map_cov, self._map_ids = cov[[row_of[int(i)] for i in lm.ids]], lm.ids
+            cov = self._map_cov
             cov = al.scale**2 * (al.rot @ cov @ al.rot.T)
             cov = turned[1] @ cov @ turned[1].T
         has_n_obs = landmarks is not None and "n_obs" in column_names(landmarks)
@@ -648,7 +673,7 @@ class LandmarkSection(Section):
             truth_never_estimated=[int(i) for i in lm.truth_never_estimated],
             map_aligned=map_aligned,
             alignment_turn=turn,
-            sigma_check=sigma_check(turned[0] - lm.truth, cov, self.SIGMA_METHOD) if lm.ids.size else None,
+            sigma_check=sigma_check(lm.ids, turned[0] - lm.truth, cov, self.SIGMA_METHOD) if lm.ids.size else None,
         )
         self.notes += self._map_place_note() + self._turn_note() + self._sigma_note() + self._unmatched_note(ids)
 
@@ -783,7 +808,7 @@ class LandmarkSection(Section):
         if self._map_cov is None or self._map_only_fit is None:
             return None
         rot, vectors = self._map_only_fit
-        return sigma_check(vectors, rot @ self._map_cov @ rot.T, self.MAP_ONLY_SIGMA_METHOD)
+        return sigma_check(self._map_ids, vectors, rot @ self._map_cov @ rot.T, self.MAP_ONLY_SIGMA_METHOD)
 
 
 def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:
