@@ -860,6 +860,7 @@ def evaluate_run(
                 else " (fewer than three matched landmarks off one line: none computed)"
             )
             notes.append(f"{why}; the map error against the landmark truth{found}")
+            notes += metadata["map_error"].pop("notes") if metadata["map_error"] else []  # its σ against its error
     if report is not None:
         metadata["figures"] = list(report.get("figures") or [])
     elif config.evaluation.plots:

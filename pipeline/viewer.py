@@ -30,8 +30,6 @@ from slamobs.pipeline.results_mcap import read_run_table
 TIMELINE = "time"
 APPLICATION = "slamobs"
 RRD = "view.rrd"
-#: Landmark covariance columns (map frame, m²), upper triangle; null for estimators without covariance.
-LANDMARK_COV = ("cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz")
 SIGMAS = 3.0  # ellipsoid half-axes in standard deviations
 MAX_RAYS = 20_000  # detection rays drawn per run (evenly thinned beyond)
 EXTRA_HINT = "install it with: pip install 'slamobs[view]'"
@@ -81,15 +79,15 @@ def _truth_alignment(run_dir: Path, meta: dict, poses, notes: list[str]):
 
 def landmark_covariances(frame, rot: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
     """Rows with a full covariance and their (n, 3, 3) matrices turned into the shown frame, or None."""
-    if frame is None or not all(c in frame.columns for c in LANDMARK_COV):
+    from slamobs.pipeline.evaluation.tables import landmark_covariances as table_covariances
+
+    mats = table_covariances(frame)
+    if mats is None:
         return None
-    cov = frame[list(LANDMARK_COV)].to_numpy(np.float64)
-    rows = np.flatnonzero(np.isfinite(cov).all(axis=1))
+    rows = np.flatnonzero(np.isfinite(mats).all(axis=(1, 2)))
     if rows.size == 0:
         return None
-    xx, xy, xz, yy, yz, zz = cov[rows].T
-    mats = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], 1)
-    return rows, scale**2 * (rot @ mats @ rot.T)
+    return rows, scale**2 * (rot @ mats[rows] @ rot.T)
 
 
 def detection_rays(innov, position: np.ndarray, t_ns: np.ndarray, ids: np.ndarray, xyz: np.ndarray):

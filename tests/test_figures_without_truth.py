@@ -308,3 +308,21 @@ def test_a_log_axis_over_less_than_a_decade_is_labelled_in_plain_numbers():
     minor = [t.get_text() for t in ax.yaxis.get_minorticklabels() if t.get_text()]
     plt.close(fig)
     assert shown == ["0.2", "0.5", "1", "2"] and not minor, (shown, minor)
+
+
+def test_map_labels_clear_each_other_and_the_markers():
+    """TagSLAM test_11's map.png: "6 (506)" over "36 (19)" and "35 (24)" over "11 (22)", every label drawn 4 pt
+    above right of its landmark. Two landmarks 6 pt apart and a third under the first's usual spot: their label
+    boxes now share no area and reach into no marker; the fixed spot overlapped both."""
+    from slamobs.pipeline.evaluation.plots import MAP_MARKER_RADIUS_PT, box_overlap, disc_overlap, label_offsets
+
+    anchors = np.array([[100.0, 100.0], [106.0, 101.0], [115.0, 110.0]])
+    sizes = np.array([[31.5, 8.5], [31.5, 8.5], [36.0, 8.5]])
+
+    def clashes(offsets):
+        boxes = [np.r_[a + o, a + o + s] for a, o, s in zip(anchors, offsets, sizes)]
+        shared = sum(box_overlap(b[:2], b[2:], boxes[:k]) for k, b in enumerate(boxes))
+        return shared, sum(disc_overlap(b[:2], b[2:], anchors, MAP_MARKER_RADIUS_PT) for b in boxes)
+
+    assert all(c > 0 for c in clashes(np.full((3, 2), 4.0)))
+    assert clashes(label_offsets(anchors, sizes, MAP_MARKER_RADIUS_PT)) == (0.0, 0.0)

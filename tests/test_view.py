@@ -14,7 +14,8 @@ from cli_checks import invoke
 
 chunk = pytest.importorskip("rerun.chunk", reason="rerun-sdk (the view extra) is not installed")
 
-from slamobs.pipeline.viewer import LANDMARK_COV, SIGMAS
+from slamobs.pipeline.evaluation.tables import LANDMARK_COV
+from slamobs.pipeline.viewer import SIGMAS
 
 
 @pytest.fixture(scope="module")

@@ -231,24 +231,42 @@ def _md_landmarks(lm: dict[str, Any]) -> list[str]:
         "",
     ]
     rows = [("after trajectory alignment [m]", lm["error_m"])]
+    turn = lm.get("alignment_turn")
+    if turn:
+        rows.append((f"after its loose turn, {turn['best_turn_deg']:.3g} deg [m]", turn["error_turned_m"]))
     if lm.get("map_aligned"):
         rows.append(("after map-only alignment [m]", lm["map_aligned"]["error_m"]))
     lines += _stats_table(rows)
     lines += [
         "",
-        "| id | error [m] | error, map-only alignment [m] | estimate (aligned) [m] | truth [m] | n_obs |",
-        "|---|---|---|---|---|---|",
+        "| id | error [m] | error, loose turn [m] | slack of the alignment [m] | stated σ [m] | error, map-only "
+        "alignment [m] | estimate (aligned) [m] | truth [m] | n_obs |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for row in lm["per_landmark"]:
         lines.append(
-            f"| {row['id']} | {row['error_m']:.6g} | {_fmt(row.get('error_map_aligned_m'))} | "
+            f"| {row['id']} | {row['error_m']:.6g} | {_fmt(row.get('error_turned_m'))} | "
+            f"{_fmt(row.get('alignment_slack_m'))} | {_fmt(row.get('sigma_m'))} | "
+            f"{_fmt(row.get('error_map_aligned_m'))} | "
             f"{_vec_str(row['estimate_aligned'])} | {_vec_str(row['truth'])} | {_fmt(row['n_obs'])} |"
         )
+    lines += ["", *_md_sigma_check(lm.get("sigma_check"))] if lm.get("sigma_check") else []
     return lines + [
         "",
         f"Estimated without truth: {lm['estimated_without_truth'] or 'none'}. "
         f"True landmarks never estimated: {lm['truth_never_estimated'] or 'none'}.",
         "",
+    ]
+
+
+def _md_sigma_check(check: dict[str, Any]) -> list[str]:
+    """The map's stated σ against its error, in one line (report.json landmarks.sigma_check)."""
+    lo, hi = check["bounds"]
+    verdict = "overconfident" if check["overconfident"] else "within or below the bound"
+    return [
+        f"Map σ against its error: mean landmark NEES {check['mean_nees']:.3g} over {check['n']} landmarks "
+        f"(95 % bounds {lo:.3g}-{hi:.3g}), median error/σ {check['error_over_sigma_median']:.3g}, stated σ "
+        f"{check['sigma_m'][0]:.3g}-{check['sigma_m'][1]:.3g} m: {verdict} (Method: map σ check)."
     ]
 
 
@@ -367,6 +385,10 @@ def _md_method(report: dict[str, Any]) -> list[str]:
     ]
     if report["landmarks"].get("map_aligned"):
         lines.append(f"| map-only alignment | {report['landmarks']['map_aligned']['method']} |")
+    if report["landmarks"].get("alignment_turn"):
+        lines.append(f"| loose turn of the alignment | {report['landmarks']['alignment_turn']['method']} |")
+    if report["landmarks"].get("sigma_check"):
+        lines.append(f"| map σ check | {report['landmarks']['sigma_check']['method']} |")
     lines += [f"| biases | {m['biases']} |", f"| convergence | {m['convergence']} |"]
     if report.get("uncertainty"):
         lines.append(f"| uncertainty | {m['uncertainty']} |")

@@ -206,29 +206,28 @@ def plot_trajectory_top(
                 mew=1.5,
                 label="estimated landmarks (aligned)",
             )
-        if len(lm_est_ids) <= MAX_ID_LABELS:
-            _id_labels(ax, lm_est_ids, lm_est_xyz, (4, 4), "tab:orange")
-            ax.plot([], [], " ", label="ids: estimate's orange, above right")  # which of two ids is which
+    ax.set_aspect("equal", adjustable="datalim")  # before the labels: they are placed on the final limits
+    groups = []
+    if len(lm_est_xyz) and len(lm_est_ids) <= MAX_ID_LABELS:
+        groups.append((lm_est_ids, lm_est_xyz, "tab:orange"))
+        ax.plot([], [], " ", label="ids: estimate's orange")  # which of two ids is which
     if lm_truth_ids is not None and lm_truth_xyz is not None and 0 < len(lm_truth_ids) <= MAX_ID_LABELS:
-        _id_labels(ax, lm_truth_ids, lm_truth_xyz, (4, -10), "0.2")
-        ax.plot([], [], " ", label="ids: truth's grey, below right")
-    ax.set_aspect("equal", adjustable="datalim")
+        groups.append((lm_truth_ids, lm_truth_xyz, "0.2"))
+        ax.plot([], [], " ", label="ids: truth's grey")
+    if groups:
+        _placed_labels(
+            ax,
+            [str(int(i)) for ids, _, _ in groups for i in ids],
+            np.concatenate([np.asarray(xyz, dtype=np.float64) for _, xyz, _ in groups]),
+            TOP_MARKER_RADIUS_PT,
+            [c for ids, _, c in groups for _ in ids],
+        )
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     fig.legend(loc="lower center", ncols=3, fontsize=8)  # below the axes: never over the data
     return _save(fig, path)
-
-
-def _id_labels(ax, ids: np.ndarray, xyz: np.ndarray, offset_pt: tuple[float, float], color) -> None:
-    """Each landmark's id as a 7 pt text ``offset_pt`` points right of and above its x-y position: plain texts on
-    one shifted data transform (an ``annotate`` per label drew the same pixels at about twice the cost)."""
-    from matplotlib.transforms import ScaledTranslation
-
-    shifted = ax.transData + ScaledTranslation(offset_pt[0] / 72.0, offset_pt[1] / 72.0, ax.figure.dpi_scale_trans)
-    for i, p in zip(ids, xyz):  # inside the axes: not a layout concern
-        ax.text(p[0], p[1], str(int(i)), transform=shifted, fontsize=7, color=color, in_layout=False)
 
 
 def plot_errors(
@@ -597,6 +596,77 @@ def plot_trajectory(path: Path, xyz: np.ndarray, title: str = "Estimated traject
     return _save(fig, path)
 
 
+#: radius of plot_map's landmark markers (``s=60`` points², edge included), points
+MAP_MARKER_RADIUS_PT = 4.5
+#: radius of the top view's landmark markers (estimates ``s=70`` with a 1.5 pt edge, truth an 8 pt cross), points
+TOP_MARKER_RADIUS_PT = 5.0
+#: an id label's size at 7 pt: width per character and height, points (DejaVu Sans digits 0.64 em, 1.2 em line)
+LABEL_CHAR_PT, LABEL_HEIGHT_PT = 4.5, 8.5
+#: how far from its landmark a label may go (points along x and y), tried nearest first
+LABEL_GAPS_PT = (4.0, 10.0, 18.0)
+
+
+def label_offsets(anchors_pt: np.ndarray, sizes_pt: np.ndarray, marker_radius_pt: float) -> np.ndarray:
+    """Each label's lower-left corner relative to its anchor (points), chosen in turn: the first of the four corners
+    about the anchor at each gap of ``LABEL_GAPS_PT`` whose box clears the labels placed before and every marker
+    (a disc of ``marker_radius_pt``), else the spot that overlaps least. (N, 2) anchors and sizes (width, height)
+    in points, on one figure's scale; labels in the order given take the best spots (TagSLAM test_11: "6 (506)"
+    over "36 (19)", "35 (24)" over "11 (22)" with one fixed spot)."""
+    a, wh = np.asarray(anchors_pt, dtype=np.float64), np.asarray(sizes_pt, dtype=np.float64)
+    out = np.zeros_like(a)
+    boxes: list[np.ndarray] = []
+    for k in range(a.shape[0]):
+        w, h = wh[k]
+        spots = [
+            (g if sx > 0 else -g - w, g if sy > 0 else -g - h)
+            for g in LABEL_GAPS_PT
+            for sy in (1, -1)
+            for sx in (1, -1)
+        ]
+        best, least = spots[0], np.inf
+        for dx, dy in spots:
+            lo = a[k] + (dx, dy)
+            clash = box_overlap(lo, lo + (w, h), boxes) + disc_overlap(lo, lo + (w, h), a, marker_radius_pt)
+            if clash < least:
+                best, least = (dx, dy), clash
+            if clash == 0:
+                break
+        out[k] = best
+        boxes.append(np.array([*(a[k] + best), *(a[k] + best + (w, h))]))
+    return out
+
+
+def box_overlap(lo: np.ndarray, hi: np.ndarray, boxes: list[np.ndarray]) -> float:
+    """Area (points²) the box ``lo``-``hi`` shares with ``boxes`` (rows x0, y0, x1, y1)."""
+    if not boxes:
+        return 0.0
+    b = np.asarray(boxes)
+    w = np.clip(np.minimum(hi[0], b[:, 2]) - np.maximum(lo[0], b[:, 0]), 0, None)
+    h = np.clip(np.minimum(hi[1], b[:, 3]) - np.maximum(lo[1], b[:, 1]), 0, None)
+    return float(np.sum(w * h))
+
+
+def disc_overlap(lo: np.ndarray, hi: np.ndarray, centres: np.ndarray, radius: float) -> float:
+    """How deep (points) the box ``lo``-``hi`` reaches into discs of ``radius`` about ``centres``, summed."""
+    nearest = np.clip(centres, lo, hi)
+    return float(np.sum(np.clip(radius - np.linalg.norm(centres - nearest, axis=1), 0, None)))
+
+
+def _placed_labels(ax, texts: list[str], xyz: np.ndarray, marker_radius_pt: float, colours=None) -> None:
+    """``texts`` at 7 pt beside their landmarks' x-y positions where they clear each other and the markers
+    (:func:`label_offsets`, on the axes' final limits): plain texts, each on the data transform shifted by its
+    offset (an ``annotate`` per label drew the same pixels at about twice the cost)."""
+    from matplotlib.transforms import ScaledTranslation
+
+    ax.apply_aspect()
+    anchors = ax.transData.transform(xyz[:, :2]) * (72.0 / ax.figure.dpi)
+    sizes = np.array([(LABEL_CHAR_PT * len(t), LABEL_HEIGHT_PT) for t in texts])
+    colours = colours or ["k"] * len(texts)
+    for t, p, off, c in zip(texts, xyz, label_offsets(anchors, sizes, marker_radius_pt), colours):
+        shifted = ax.transData + ScaledTranslation(off[0] / 72.0, off[1] / 72.0, ax.figure.dpi_scale_trans)
+        ax.text(p[0], p[1], t, transform=shifted, fontsize=7, color=c, va="bottom", in_layout=False)
+
+
 def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, path_xyz: np.ndarray) -> Path:
     """The landmark map from above over the path, each landmark labelled ``id (times seen)`` and coloured by how
     often it was seen."""
@@ -605,15 +675,14 @@ def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, pat
     ax = axes[0, 0]
     if len(path_xyz):
         ax.plot(path_xyz[:, 0], path_xyz[:, 1], "-", color="0.7", lw=0.8, label="estimated path")
+    ax.set_aspect("equal", adjustable="datalim")  # before the labels: they are placed on the final limits
     if n:
         sc = ax.scatter(xyz[:, 0], xyz[:, 1], c=seen, cmap="plasma", s=60, edgecolors="k", lw=0.5, zorder=3)
         fig.colorbar(sc, ax=ax, shrink=0.8, label="times seen")
         if n <= MAX_ID_LABELS:
-            for i, p, k in zip(ids, xyz, seen):
-                ax.annotate(f"{int(i)} ({int(k)})", (p[0], p[1]), xytext=(4, 4), textcoords="offset points", fontsize=7)
+            _placed_labels(ax, [f"{int(i)} ({int(k)})" for i, k in zip(ids, seen)], xyz, MAP_MARKER_RADIUS_PT)
     else:
         ax.text(0.5, 0.5, "no landmarks in the map", ha="center", va="center", transform=ax.transAxes)
-    ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     seen_text = f", seen {int(np.min(seen))} to {int(np.max(seen))} times" if n else ""

@@ -184,7 +184,7 @@ def evaluate_tables(
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
-    landmark.process_data(landmarks, ev.alignment)
+    landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]))
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
         figures(
             [

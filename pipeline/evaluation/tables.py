@@ -21,6 +21,8 @@ POSE_COLUMNS = ("t_ns", "x", "y", "z", "qx", "qy", "qz", "qw")
 GYRO_COLUMNS = ("gyro_bias_x", "gyro_bias_y", "gyro_bias_z")
 VEL_COLUMNS = ("vel_bias_x", "vel_bias_y", "vel_bias_z")
 LANDMARK_COLUMNS = ("id", "x", "y", "z")
+#: Landmark covariance columns (map frame, m²), upper triangle; null for estimators without covariance.
+LANDMARK_COV = ("cov_xx", "cov_xy", "cov_xz", "cov_yy", "cov_yz", "cov_zz")
 
 
 def column_names(table: Table) -> list[str]:
@@ -62,3 +64,14 @@ def landmark_table(landmarks: Table | None) -> tuple[np.ndarray, np.ndarray]:
         return np.empty(0, dtype=np.int64), np.empty((0, 3))
     require_columns(landmarks, LANDMARK_COLUMNS, "landmarks")
     return column(landmarks, "id", np.int64), columns(landmarks, ["x", "y", "z"], np.float64)
+
+
+def landmark_covariances(landmarks: Table | None) -> np.ndarray | None:
+    """The final map's (N, 3, 3) position covariances in the table's frame, row for row with
+    :func:`landmark_table` (NaN where a row has none); None without covariance columns or with none filled."""
+    if landmarks is None or not set(LANDMARK_COV) <= set(column_names(landmarks)):
+        return None
+    xx, xy, xz, yy, yz, zz = columns(landmarks, list(LANDMARK_COV), np.float64).T
+    if not np.isfinite(xx).any():
+        return None
+    return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], 1)
