@@ -35,7 +35,15 @@ from slamobs.pipeline.directions import (
     DirectionSet,
     build_directions,
 )
-from slamobs.pipeline.blocks import far_repeats, first_of_pairs, interp_sorted, row_blocks, row_norms3, unique_inverse
+from slamobs.pipeline.blocks import (
+    equal_rows,
+    far_repeats,
+    first_of_pairs,
+    interp_sorted,
+    row_blocks,
+    row_norms3,
+    unique_inverse,
+)
 from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, shared_id_text, stamp_pace
@@ -349,7 +357,7 @@ def _gaps(t_ns: np.ndarray, x: np.ndarray, topic: str, across: str) -> list[str]
     d = np.diff(t_ns)
     positive = d[d > 0]
     period = float(np.median(positive)) if positive.size else 0.0
-    held = np.count_nonzero(np.all(x[1:] == x[:-1], axis=1)) >= HELD_STEP_SHARE * (x.shape[0] - 1)
+    held = np.count_nonzero(equal_rows(x[1:], x[:-1])) >= HELD_STEP_SHARE * (x.shape[0] - 1)
     gaps = np.flatnonzero(d > GAP_FACTOR * period) if period > 0 and not held else np.zeros(0, np.int64)
     if gaps.size:
         span = d[gaps] * 1e-9
@@ -373,7 +381,10 @@ def _repeats(t_ns: np.ndarray, x: np.ndarray, topic: str) -> list[str]:
     another value), with how far apart they are beside the step between stamps: the run cannot tell which is right
     (a generated figure 8 whose odometry repeats every 5th message's stamp with zero velocity: riekf 0.053 m against
     0.011 m, and only the readers' note; MR.CLAM's robots have 0-3 in 52,000-65,000)."""
-    same = (t_ns[1:] == t_ns[:-1]) & np.any(x[1:] != x[:-1], axis=1)
+    same = t_ns[1:] == t_ns[:-1]
+    if not same.any():  # the usual stream: no stamp twice, nothing to compare
+        return []
+    same &= ~equal_rows(x[1:], x[:-1])
     n = int(np.count_nonzero(same))
     if n < REPEAT_SHARE_WARN * t_ns.shape[0] or n == 0:
         return []

@@ -127,13 +127,33 @@ def finite_rows(x: np.ndarray) -> np.ndarray:
     return out
 
 
+def equal_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``np.all(a == b, axis=1)`` of two (N, k) arrays (the same booleans), a column at a time, as
+    :func:`finite_rows` (an hour's 720,000 gyro rows: ~4 against ~13 ms)."""
+    if a.ndim != 2 or a.shape != b.shape or a.shape[1] == 0:
+        return np.all(a == b, axis=1)
+    out = a[:, 0] == b[:, 0]
+    for c in range(1, a.shape[1]):
+        out &= a[:, c] == b[:, c]
+    return out
+
+
 def row_norms3(x: np.ndarray) -> np.ndarray:
     """``np.linalg.norm(x, axis=1)``, the same bits; (N, 3) float rows summed here: NumPy sums the three squares
     of a row left to right, as here, but its reduction along the short axis took ~4x as long (13 against 3.4 ms
     for an hour's 720,000 rows)."""
     if x.ndim != 2 or x.shape[1] != 3 or x.dtype != np.float64:
         return np.linalg.norm(x, axis=1)
+    s = row_squares3(x)
+    return np.sqrt(s, out=s)
+
+
+def row_squares3(x: np.ndarray) -> np.ndarray:
+    """``np.sum(x**2, axis=1)`` of (N, 3) float64 rows, the same bits (each row's three squares added left to right,
+    as NumPy's reduction along the short axis adds them), a column at a time: ~4x faster than that reduction."""
+    if x.ndim != 2 or x.shape[1] != 3 or x.dtype != np.float64:
+        return np.sum(x**2, axis=1)
     s = x[:, 0] * x[:, 0]
     s += x[:, 1] * x[:, 1]
     s += x[:, 2] * x[:, 2]
-    return np.sqrt(s, out=s)
+    return s

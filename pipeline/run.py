@@ -736,6 +736,7 @@ def estimate(
             progress(f"{spec.name}: {min(done * STRETCH_SAMPLES, n_vel)} of {n_vel} samples")
             t = time.perf_counter()
         t_end = time.perf_counter()
+        observer_s += t_end - t  # the whole run's checks, made while the last stretch is written (spec.chunks)
         part = writes.finish()  # the last stretch, in the output frame
         sink.write(
             {
