@@ -85,6 +85,22 @@ def test_a_comparison_carries_the_truth_rotation_note_beside_its_rotation_column
         assert f"- {name}: {note}\n" in md and f"note: {name}: {note}" in res.stdout
 
 
+def test_a_comparison_without_landmark_truth_says_why_its_map_column_is_blank(sim, tmp_path):
+    """TagSLAM test_21 against its rig trajectory: landmark_rmse_m blank for every estimator with no word (the
+    bias columns had theirs), though the folder's tagslam.yaml would give it."""
+    from slamobs.pipeline.compare import NO_MAP_TRUTH
+
+    config = tmp_path / "run.yaml"
+    config.write_text("topics:\n  sim_truth: ''\nevaluation:\n  plots: false\n")  # the log's poses, no map
+    res = invoke("compare", sim["log"], "-o", tmp_path / "cmp", "--observers", "fast-adaptation", "--config", config)
+    assert res.exit_code == 0, res.output
+    assert pd.read_parquet(tmp_path / "cmp" / "comparison.parquet")["landmark_rmse_m"].isna().all()
+    assert f"- {NO_MAP_TRUTH}\n" in (tmp_path / "cmp" / "comparison.md").read_text()
+    assert f"note: {NO_MAP_TRUTH}" in res.stdout
+    res = invoke("compare", sim["log"], "-o", tmp_path / "all", "--observers", "fast-adaptation")
+    assert res.exit_code == 0 and "landmark_rmse_m is blank" not in res.stdout  # the simulator's map: no note
+
+
 def test_no_truth_rotation_is_named_for_errors_a_constant_turn_does_not_explain():
     """MR.CLAM 7 robot 3, fast-adaptation (lost: 2.07 m APE on a 49 m path): the note named a 19.6 deg turn that
     left 53.0 of the 57.3 deg rotation APE, a key that changes nothing. A turn that explains the error is still
