@@ -117,6 +117,8 @@ def compare_log(
         notes = caveats(summaries)
         if table["gyro_bias_err"].isna().all() and table["vel_bias_err"].isna().all():
             notes.append("gyro_bias_err and vel_bias_err are blank: the log has no bias truth")
+        if table["landmark_rmse_m"].isna().all():
+            notes.append(NO_MAP_TRUTH)
         (tmp / "comparison.md").write_text(_markdown(table, log, compiled=compiled, notes=notes))
         write_json(tmp / "comparison.json", {"log": str(Path(log).resolve()), "rows": table.to_dict("records")})
         if prepared.streams.truth is not None and summaries:
@@ -124,6 +126,13 @@ def compare_log(
     table.attrs["compile_note"] = compile_note(compiled)
     table.attrs["notes"] = notes
     return table
+
+
+#: the note of a comparison with trajectory truth but no landmark truth (TagSLAM test_21: a blank column, no word)
+NO_MAP_TRUTH = (
+    "landmark_rmse_m is blank: no landmark truth; evaluation.map_truth names a surveyed map (landmarks.parquet, "
+    "CSV id,x,y,z or a TagSLAM tagslam.yaml) for the map error"
+)
 
 
 def caveats(summaries: dict[str, RunSummary]) -> list[str]:

@@ -98,6 +98,10 @@ def _estimator_status(name: str, found: set[str]) -> EstimatorStatus:
     return EstimatorStatus(name, tuple(missing))
 
 
+#: what a log of tag corners without a CameraInfo topic asks of the config (besides the tag size)
+CAMERAS_NEED = "cameras: (calibration files; the log has no CameraInfo topic)"
+
+
 def _settings_needed(info: LogInfo, detections: RoleStatus, config: RunConfig | None = None) -> tuple[str, ...]:
     """What a run on tag corners or images asks of the config: the tag size (a simulated log records it), and
     for corners without a CameraInfo topic the camera calibration files; none of what ``config`` gives."""
@@ -108,7 +112,7 @@ def _settings_needed(info: LogInfo, detections: RoleStatus, config: RunConfig | 
         needs.append("tags.size")
     calibrated = config is not None and bool(config.cameras)
     if detections.msgtype in TAG_CORNER_TYPES and "camera_info" not in info.roles and not calibrated:
-        needs.append("cameras: (calibration files; the log has no CameraInfo topic)")
+        needs.append(CAMERAS_NEED)
     return tuple(needs)
 
 
@@ -153,4 +157,21 @@ def run_yaml(roles: tuple[RoleStatus, ...], estimators: tuple[EstimatorStatus, .
         lines += ["# tag corners and images need the tag edge (m) and family:", "# tags:", "#   size: <edge in m>"]
         if detections.msgtype in IMAGE_TYPES:
             lines.append(f"#   family: {TagsConfig.family}")
+    if any(CAMERAS_NEED in e.needs for e in estimators):
+        lines += _cameras_comment(len(detections.topic.split(", ")))
     return "\n".join(lines) + "\n"
+
+
+def _cameras_comment(cameras: int) -> list[str]:
+    """The ``cameras:`` lines of a ``run.yaml`` for tag corners without CameraInfo: the calibration file, and with
+    several cameras the files that place each on the rig (``run`` drops a camera it cannot place, TagSLAM test_21:
+    three of four without ``camera_poses.yaml``, all four without ``tagslam.yaml``'s ``T_body_odom``)."""
+    lines = ["# no CameraInfo topic: name the cameras' calibration files (paths relative to this file):"]
+    if cameras == 1:
+        return lines + ["# cameras: <Kalibr camchain or ROS camera_info YAML>"]
+    return lines + [
+        "# cameras:",
+        "#   - <Kalibr camchain (intrinsics; T_cn_cnm1 between the cameras) or ROS camera_info YAML per camera>",
+        "#   - <where each camera sits on the rig, unless on /tf: e.g. TagSLAM camera_poses.yaml>",
+        "#   - <where the odometry's frame sits on the rig: e.g. TagSLAM tagslam.yaml (T_body_odom)>",
+    ]

@@ -223,6 +223,9 @@ def test_local_batch_runs_good_logs_and_reports_the_corrupt_one(done, logs):
         .all()
     )
     assert (ok["warning_count"] == 0).all()
+    # each run's line names its log (TagSLAM's tests all call theirs tag_detections.bag: two lines alike)
+    lines = [line for line in res.stderr.splitlines() if "] ok " in line]
+    assert sorted(line.rsplit("  ", 1)[1] for line in lines) == sorted(ok["log"]) and all(" APE " in x for x in lines)
     assert all(set(TABLES) <= set(t.split(",")) for t in ok["tables"])  # and the aligned tables (truth)
     for rid in ok["run_id"]:
         run = json.loads((out / "runs" / rid / "run.json").read_text())

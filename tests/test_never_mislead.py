@@ -68,6 +68,71 @@ def test_hand_eye_note_finds_the_truth_rotation_and_its_key_removes_it(sim, tmp_
     assert json.loads(again.stdout)["ape"]["rotation_deg"]["rmse"] < 2.0
 
 
+def test_a_comparison_carries_the_truth_rotation_note_beside_its_rotation_column(sim, tmp_path):
+    """TagSLAM test_21 against its rig trajectory: comparison.md's ape_rot_rmse_deg read 160-179 deg beside
+    centimetres of translation with no word; each run's report named the turn and its key."""
+    res = invoke("compare", sim["log"], "-o", tmp_path / "cmp", "--observers", "fast-adaptation,hashim")
+    assert res.exit_code == 0, res.output  # the log's own truth: no note
+    assert "frames.truth_rotation" not in (tmp_path / "cmp" / "comparison.md").read_text()
+    res = invoke(
+        "compare", sim["log"], "-o", tmp_path / "turned", "--observers", "fast-adaptation,hashim", "--truth", sim["tum"]
+    )
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "turned" / "comparison.md").read_text()
+    for name in ("fast-adaptation", "hashim"):
+        report = json.loads((tmp_path / "turned" / name / "report.json").read_text())
+        note = next(n for n in report["notes"] if "frames.truth_rotation" in n)
+        assert f"- {name}: {note}\n" in md and f"note: {name}: {note}" in res.stdout
+
+
+def test_a_comparison_without_landmark_truth_says_why_its_map_column_is_blank(sim, tmp_path):
+    """TagSLAM test_21 against its rig trajectory: landmark_rmse_m blank for every estimator with no word (the
+    bias columns had theirs), though the folder's tagslam.yaml would give it."""
+    from slamobs.pipeline.compare import NO_MAP_TRUTH
+
+    config = tmp_path / "run.yaml"
+    config.write_text("topics:\n  sim_truth: ''\nevaluation:\n  plots: false\n")  # the log's poses, no map
+    res = invoke("compare", sim["log"], "-o", tmp_path / "cmp", "--observers", "fast-adaptation", "--config", config)
+    assert res.exit_code == 0, res.output
+    assert pd.read_parquet(tmp_path / "cmp" / "comparison.parquet")["landmark_rmse_m"].isna().all()
+    assert f"- {NO_MAP_TRUTH}\n" in (tmp_path / "cmp" / "comparison.md").read_text()
+    assert f"note: {NO_MAP_TRUTH}" in res.stdout
+    res = invoke("compare", sim["log"], "-o", tmp_path / "all", "--observers", "fast-adaptation")
+    assert res.exit_code == 0 and "landmark_rmse_m is blank" not in res.stdout  # the simulator's map: no note
+
+
+def test_no_truth_rotation_is_named_for_errors_a_constant_turn_does_not_explain():
+    """MR.CLAM 7 robot 3, fast-adaptation (lost: 2.07 m APE on a 49 m path): the note named a 19.6 deg turn that
+    left 53.0 of the 57.3 deg rotation APE, a key that changes nothing. A turn that explains the error is still
+    named."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation.sections import truth_frame_note
+    from slamobs.pipeline.lie import so3_exp
+
+    rng = np.random.default_rng(3)
+    n = 400
+    pos = np.column_stack([np.linspace(0.0, 50.0, n), np.zeros(n), np.zeros(n)])
+    est = np.array([so3_exp(v) for v in rng.normal(0.0, 0.02, (n, 3)).cumsum(axis=0)])  # a wandering attitude
+    heading = 1.2 * np.sin(np.linspace(0.0, 6.0 * np.pi, n))  # a heading error swinging +-69 deg about none
+    wander = np.array([so3_exp(np.array([0.0, 0.0, a])) for a in heading])
+
+    def note(ref_rot):
+        cos = (np.einsum("nij,nij->n", est, ref_rot) - 1.0) / 2.0
+        rot = float(np.sqrt(np.mean(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) ** 2)))
+        ev = SimpleNamespace(
+            rotation=SimpleNamespace(stats={"rmse": rot}, est_rot_aligned=est),
+            translation=SimpleNamespace(stats={"rmse": 0.5}),
+            paired=SimpleNamespace(ref_pos=pos, ref_rot=ref_rot),
+        )
+        return rot, truth_frame_note(ev)
+
+    rot, notes = note(np.matmul(est, wander))  # errors that wander: no constant turn explains them
+    assert rot > 30.0 and notes == []
+    rot, notes = note(np.matmul(est, quat_to_rot(X_XYZW)))  # a constant turn: named, with its key
+    assert rot > 60.0 and len(notes) == 1 and "frames.truth_rotation" in notes[0]
+
+
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):
     sc = get_scenario("circle")
     truth_map = tmp_path / "map.csv"

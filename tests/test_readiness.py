@@ -171,6 +171,28 @@ def test_corners_without_camera_info_are_ready_only_with_the_settings_run_asks_f
     assert "ready once" not in text and ": ready" in text  # 3D tag poses: nothing more to give
 
 
+def test_the_run_yaml_of_corners_without_camera_info_names_the_camera_files():
+    """TagSLAM test_21: info said "ready once the config gives tags.size and cameras" and its run.yaml had a
+    commented tags.size but no cameras line; with four cameras the run then stopped twice on their extrinsics.
+    The run.yaml now shows the key, for a rig with the files that place each camera; it stays valid YAML."""
+    import yaml
+
+    from slamobs.pipeline.readers.inspect import LogInfo, TopicSummary
+
+    def run_yaml(detections: str, **extra) -> str:
+        topics = tuple(
+            TopicSummary(t, "apriltag_msgs/msg/ApriltagArrayStamped", 100, rate_hz=20.0) for t in detections.split(", ")
+        ) + (TopicSummary("/odom", "nav_msgs/msg/Odometry", 100, rate_hz=20.0),)
+        roles = {"angular_velocity": "/odom", "linear_velocity": "/odom", "detections": detections, **extra}
+        return readiness(LogInfo("x.bag", "ros1", "", 0, 1, 300, topics, roles)).run_yaml
+
+    one, rig = run_yaml("/tags"), run_yaml("/left/tags, /right/tags")
+    assert "# cameras: <Kalibr camchain or ROS camera_info YAML>" in one.splitlines()
+    assert "# cameras:" in rig.splitlines() and "camera_poses.yaml" in rig and "T_body_odom" in rig
+    assert yaml.safe_load(rig)["topics"]["detections"] == ["/left/tags", "/right/tags"]
+    assert "cameras" not in run_yaml("/tags", camera_info="/camera_info")  # a CameraInfo topic: nothing to give
+
+
 def test_a_role_whose_topic_is_empty_names_that_topic(logs, tmp_path):
     """A detections topic recorded without messages is named, by ``info`` and by ``run`` when the config names
     it (both said only "missing: set topics.detections to ..." as if the log had no such topic)."""

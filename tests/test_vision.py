@@ -335,7 +335,8 @@ def test_camera_without_extrinsic_is_dropped():
     )
     tags = tag_landmarks(streams, TagOptions(size=0.3), identity_frames=("cam_a",))
     assert tags.detections.topic == "/a/tags"
-    assert any("/b/tags: no transform from camera frame 'cam_b'" in n for n in tags.notes)
+    dropped = next(n for n in tags.notes if n.startswith("/b/tags: no transform from camera frame 'cam_b'"))
+    assert "in the config's cameras: files" in dropped  # where the extrinsic goes (TagSLAM test_21's cameras)
     with pytest.raises(InputError, match="need the tag size"):
         tag_landmarks(streams, TagOptions(), identity_frames=("cam_a",))
     streams.camera_info = []
@@ -344,6 +345,32 @@ def test_camera_without_extrinsic_is_dropped():
     # without the tag size either: both in one error (TagSLAM test_22 asked for the cameras, then for the size)
     with pytest.raises(InputError, match=r"cameras: FILE\); and tags.size \(edge, m\)$"):
         tag_landmarks(streams, TagOptions())
+
+
+def test_a_rig_with_no_camera_placed_names_its_frames_and_where_the_extrinsics_go():
+    """TagSLAM test_21 (four cameras) with its intrinsics file, then its camera poses too: twice "no camera has a
+    transform to the body frame ...; (TF, Kalibr chain, TagSLAM camera poses)", no frame named, no config key,
+    nothing of the placed camera's rig left unconnected to the odometry's frame."""
+    model = CameraSim().model()
+    t_ns = np.arange(3, dtype=np.int64) * 100_000_000
+    streams = LogStreams(
+        "rig.bag",
+        linear_velocity=Vec3Stream("/odom", "base", t_ns, t_ns, np.zeros((3, 3))),
+        static_tf=[Transform("rig", "cam_b", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))],
+        tag_corners=[
+            _corner_stream("/a/tags", "cam_a", t_ns, model, [np.array([0, 0, 2.0])] * 3, 0.3),
+            _corner_stream("/b/tags", "cam_b", t_ns, model, [np.array([0, 0, 2.0])] * 3, 0.3),
+        ],
+        camera_info=[
+            CameraModel("/cam/camera_info", model.k, model.dist, model.model, None, "x", frame=f)
+            for f in ("cam_a", "cam_b")
+        ],
+    )
+    with pytest.raises(InputError) as err:
+        tag_landmarks(streams, TagOptions(size=0.3))
+    msg = str(err.value.problem)
+    assert msg.startswith("no camera has a transform to the body frame 'base' ('cam_b' connects to rig; 'base' ")
+    assert "in the config's cameras: files" in msg and msg.endswith("frames.assume_identity: [cam_a, cam_b]")
 
 
 # --------------------------------------------------------------------------- logs end to end

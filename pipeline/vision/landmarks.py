@@ -235,6 +235,12 @@ def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str], 
     return models, [s for s in corner_streams if s.topic in models]
 
 
+#: the camera files that place cameras on the rig, as the errors and notes about a missing extrinsic name them
+EXTRINSIC_FILES = (
+    "a Kalibr chain's T_cn_cnm1 and T_cam_imu, TagSLAM's camera_poses.yaml and tagslam.yaml with its T_body_odom"
+)
+
+
 def _with_extrinsics(
     streams: LogStreams,
     corner_streams: list[CornerStream],
@@ -278,19 +284,28 @@ def _with_extrinsics(
         elif len(corner_streams) > 1:
             notes.append(
                 f"{s.topic}: no transform from camera frame '{frame}' to body frame '{body}' "
-                f"({tf.explain(body, frame)}), its detections dropped; list '{frame}' in "
-                "frames.assume_identity or give the extrinsic (TF, Kalibr chain, TagSLAM camera poses)"
+                f"({tf.explain(body, frame)}), its detections dropped; give its extrinsic on /tf or in the "
+                f"config's cameras: files ({EXTRINSIC_FILES}), or list '{frame}' in frames.assume_identity"
             )
         else:
             kept.append(s)  # one camera: the alignment stage reports the missing transform
     if not kept:
-        raise InputError(
-            path,
-            f"no camera has a transform to the body frame '{body}'; list the camera frames in "
-            "frames.assume_identity or give the extrinsics (TF, Kalibr chain, TagSLAM camera "
-            "poses)",
-        )
+        raise InputError(path, _no_extrinsics(corner_streams, body, tf))
     return kept, added
+
+
+def _no_extrinsics(corner_streams: list[CornerStream], body: str, tf) -> str:
+    """The error of a rig none of whose cameras has a transform to the body: the frames, why (the first camera's
+    chain), and where each way of giving them goes (TagSLAM test_21 with ``cameras: cameras.yaml`` and then with
+    ``camera_poses.yaml`` too said only "(TF, Kalibr chain, TagSLAM camera poses)", twice)."""
+    frames = [s.frame_id.lstrip("/") for s in corner_streams]
+    reasons = [tf.explain(body, f) for f in frames]  # a placed camera's, when one is: it shows what is left
+    why = next((r for f, r in zip(frames, reasons) if not r.startswith(f"'{f}' is in no transform")), reasons[0])
+    return (
+        f"no camera has a transform to the body frame '{body}' ({why}); give the "
+        f"extrinsics on /tf or in the config's cameras: files ({EXTRINSIC_FILES}), or list the camera frames in "
+        f"frames.assume_identity: [{', '.join(frames)}]"
+    )
 
 
 def _camera_poses(
