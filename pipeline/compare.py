@@ -11,6 +11,7 @@ import numpy as np
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.estimators import get_estimator
+from slamobs.pipeline.evaluation.markdown import MAP_TRUTH_HINT
 from slamobs.pipeline.run import Progress, RunSummary, silent, prepare_log, run_inputs, run_prepared
 from slamobs.pipeline.streams import PoseStream
 
@@ -129,10 +130,7 @@ def compare_log(
 
 
 #: the note of a comparison with trajectory truth but no landmark truth (TagSLAM test_21: a blank column, no word)
-NO_MAP_TRUTH = (
-    "landmark_rmse_m is blank: no landmark truth; evaluation.map_truth names a surveyed map (landmarks.parquet, "
-    "CSV id,x,y,z or a TagSLAM tagslam.yaml) for the map error"
-)
+NO_MAP_TRUTH = f"landmark_rmse_m is blank: no landmark truth; {MAP_TRUTH_HINT}"
 
 
 def caveats(summaries: dict[str, RunSummary]) -> list[str]:

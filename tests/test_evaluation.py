@@ -545,7 +545,7 @@ def test_write_report_without_map_biases_or_truth_extras(tmp_path):
         - {"uncertainty.png", "nees.png"}  # no covariance
     )
     assert all(p.is_file() for p in paths)
-    assert "no landmark ground truth" in (tmp_path / "report.md").read_text()
+    assert "no landmark ground truth available: evaluation.map_truth" in (tmp_path / "report.md").read_text()
 
 
 # ------------------------------------------------------------------------------------------ report: beyond evo

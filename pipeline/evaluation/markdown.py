@@ -222,10 +222,20 @@ def offset_doubts(off: dict[str, Any]) -> str:
     return ": " + "; ".join(why) if why else ""
 
 
+#: Where a map error's truth comes from, said wherever a map error is blank for the want of it (report.md, compare).
+MAP_TRUTH_HINT = (
+    "evaluation.map_truth in the run's config names a surveyed map (landmarks.parquet, CSV id,x,y,z or a TagSLAM "
+    "tagslam.yaml) for the map error"
+)
+
+
 def _md_landmarks(lm: dict[str, Any]) -> list[str]:
     lines = ["## Landmark map error", ""]
     if not lm["truth_available"]:
-        return lines + [f"{lm['n_estimated']} landmarks estimated; no landmark ground truth available.", ""]
+        return lines + [
+            f"{lm['n_estimated']} landmarks estimated; no landmark ground truth available: {MAP_TRUTH_HINT}.",
+            "",
+        ]
     lines += [
         f"{lm['n_matched']} of {lm['n_estimated']} estimated landmarks have ground truth "
         f"({lm['n_truth']} true landmarks).",
