@@ -75,7 +75,7 @@ def _figure(
 ):
     """A figure of ``size`` inches with a grid of axes; the margins around the grid and the ``gap`` between rows
     in inches (room for tick labels, axis labels and titles at the default font)."""
-    _import_matplotlib()
+    import_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
@@ -94,7 +94,7 @@ def _figure(
     return fig, axes
 
 
-def _import_matplotlib() -> None:
+def import_matplotlib() -> None:
     """Import matplotlib's figure and Agg canvas (the modules every figure here uses come with them) without the
     text it generates for help() as each of its ~100 ``Artist`` classes is defined: the properties table of every
     class's docstring (``matplotlib.artist.kwdoc``) and the keyword signature of its ``set``. Nothing drawn reads
