@@ -101,14 +101,18 @@ def import_matplotlib() -> None:
     them (``set`` itself and every property work as before; the PNG bytes are the same); they were ~0.1 s of a
     ~0.4 s import, which is on a short run's path wherever its figures are drawn in its own process (one core,
     a busy machine) and in the figure helper's start. Both are put back once the modules are imported, so
-    classes defined later get them; a process that has imported the figure already is left as it is."""
+    classes defined later get them; a process that has imported the figure already is left as it is, and so is
+    a matplotlib without these two names (imported as it comes)."""
     import sys
 
     if "matplotlib.figure" in sys.modules:
         return
     from matplotlib import artist
 
-    kwdoc, update = artist.kwdoc, artist.Artist.__dict__["_update_set_signature_and_docstring"]
+    kwdoc = getattr(artist, "kwdoc", None)
+    update = artist.Artist.__dict__.get("_update_set_signature_and_docstring")
+    if kwdoc is None or update is None:
+        return
     artist.kwdoc = lambda _artist: ""
     artist.Artist._update_set_signature_and_docstring = classmethod(_mark_set_generated)
     try:
