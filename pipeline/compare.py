@@ -238,10 +238,11 @@ def disagreement(poses: dict, reference: str | None) -> tuple[dict[str, float], 
 
 def plot_estimates(path: Path, aligned: dict[str, np.ndarray], spread: dict[str, float], reference) -> Path:
     """Top view of every estimate, aligned onto the reference (or the first), labelled with its disagreement."""
+    from slamobs.pipeline.evaluation.plots import PATH_POINTS, import_matplotlib, thin
+
+    import_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
-
-    from slamobs.pipeline.evaluation.plots import PATH_POINTS, thin
 
     fig = Figure(figsize=(8.0, 8.0), layout="constrained")
     FigureCanvasAgg(fig)
@@ -320,6 +321,10 @@ def _markdown(
 def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:
     """Top view: truth and every observer's trajectory after its own SE(3) alignment."""
     import pandas as pd
+
+    from slamobs.pipeline.evaluation.plots import import_matplotlib
+
+    import_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import pickle
 import signal
 import subprocess
 import sys
@@ -53,6 +54,39 @@ def test_helpers_draw_the_same_png_bytes(tmp_path):
         assert a.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
         assert a.read_bytes() == b.read_bytes(), a.name
     assert all(p.poll() is not None for p in procs) and workers.procs == []
+
+
+#: Draws the pickled jobs into a directory in a fresh process, matplotlib's figure imported first by itself
+#: (``full``: the help text of every Artist class generated as usual) or by the report's first figure (``lean``).
+_DRAW_IN_A_FRESH_PROCESS = """
+import pickle, sys
+from pathlib import Path
+if sys.argv[1] == "full":
+    import matplotlib.figure
+from slamobs.pipeline.evaluation import plot_worker
+out = Path(sys.argv[3])
+plot_worker.draw(pickle.loads(Path(sys.argv[2]).read_bytes()), lambda name: out / name)
+from matplotlib import artist, lines
+print(lines.Line2D.set.__doc__ is None, bool(artist.kwdoc(lines.Line2D)))
+"""
+
+
+def test_figures_drawn_without_matplotlib_s_help_text_have_the_same_bytes(tmp_path):
+    jobs = tmp_path / "jobs.pickle"
+    jobs.write_bytes(pickle.dumps(_jobs()))
+    printed = {}
+    for how in ("full", "lean"):
+        (tmp_path / how).mkdir()
+        done = subprocess.run(
+            [sys.executable, "-c", _DRAW_IN_A_FRESH_PROCESS, how, str(jobs), str(tmp_path / how)],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        printed[how] = done.stdout.split()
+    assert printed == {"full": ["False", "True"], "lean": ["True", "True"]}  # left out, and put back after
+    for name in ("errors.png", "landmarks.png"):
+        assert (tmp_path / "lean" / name).read_bytes() == (tmp_path / "full" / name).read_bytes(), name
 
 
 def test_batches_drawn_side_by_side_come_back_in_order(tmp_path):

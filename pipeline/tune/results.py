@@ -203,11 +203,12 @@ def write_gains(path: Path, spec, gains: dict, header: list[str]) -> None:
 
 
 def plot_objective(path: Path, complete: list, default, objective: str) -> None:
+    from slamobs.pipeline.evaluation.plots import import_matplotlib, plain_log_axis
+
+    import_matplotlib()
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
     from matplotlib.ticker import MaxNLocator
-
-    from slamobs.pipeline.evaluation.plots import plain_log_axis
 
     fig = Figure(figsize=(8.0, 4.5), layout="constrained")
     FigureCanvasAgg(fig)
