@@ -107,6 +107,8 @@ GYRO_LAG_GAIN = 4.0
 GYRO_LAG_SMOOTH_S = 0.1
 #: odometry samples the coarse grid is computed on (evenly spread)
 GYRO_LAG_COARSE_SAMPLES = 500
+#: and the fine grid and the lag as stamped on this many
+GYRO_LAG_FINE_SAMPLES = 5000
 
 
 def _axes(*order: int, sign=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -451,7 +453,12 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     if t_o.shape[0] < 20 or t_g.shape[0] < 20:
         return []
     half = max(int(np.median(np.diff(t_o))) // 2, int(GYRO_LAG_SMOOTH_S * 0.5e9))
-    b = _windowed_mean(t_o, w_o, t_o, half)  # both averaged alike
+    every = max(1, t_o.shape[0] // GYRO_LAG_FINE_SAMPLES)  # evenly spread stamps of the span: enough to time it
+    b = _windowed_mean(t_o, w_o, t_o[::every], half)  # both averaged alike
+    t_o = t_o[::every]
+    reach = int(GYRO_LAG_MAX_S * 1e9) + half  # the gyro's samples any lag can reach, no more (an hour-long IMU)
+    near = slice(np.searchsorted(t_g, t_o[0] - reach), np.searchsorted(t_g, t_o[-1] + reach, "right"))
+    t_g, w_g = t_g[near], w_g[near]
     coarse = np.arange(-GYRO_LAG_MAX_S, GYRO_LAG_MAX_S + 0.5 * GYRO_LAG_STEP_S, GYRO_LAG_STEP_S)
     every = max(1, t_o.shape[0] // GYRO_LAG_COARSE_SAMPLES)  # the coarse grid on a share of the stamps
     m = _misfits(t_g, w_g, t_o[::every], b[::every], coarse, half)
