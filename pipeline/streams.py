@@ -127,6 +127,9 @@ class LogStreams:
     truth: PoseStream | None = None
     accel: Vec3Stream | None = None
     magnetic: Vec3Stream | None = None
+    #: the linear-velocity topic's own angular velocity when the gyro is another topic's (odometry beside an IMU):
+    #: the alignment times the gyro's stamps against it (``alignment.GYRO_LAG_WARN_S``)
+    twist_angular: Vec3Stream | None = None
     static_tf: list[Transform] = field(default_factory=list)
     #: (parent, child) pairs of ``/tf_static`` dropped as NaN/Inf, each with the warning that says so
     static_tf_dropped: dict[tuple[str, str], str] = field(default_factory=dict)

@@ -447,6 +447,23 @@ def test_info_noise_names_odometry_that_repeats_stamps_with_other_values(tmp_pat
     assert len(said) == 1 and "/odom: 200 of its 1200 samples" in said[0], shown.output
 
 
+def test_info_noise_names_an_imu_stamped_off_the_odometrys_clock(tmp_path):
+    """The IMU's stamps and record times 0.3 s late against every other topic's, written to MCAP: every clock rule
+    compares a topic's stamps with its record times, which agree here; riekf 0.53 m against 0.011 m, exit 0, no
+    warning (session 21). The gyro against the odometry's own angular velocity names it."""
+    sim = simulate("figure8", seed=5, duration=20.0)
+    late = 300_000_000
+    write_log(
+        replace(sim, imu=replace(sim.imu, t_ns=sim.imu.t_ns + late, rec_ns=sim.imu.rec_ns + late)), tmp_path / "l.mcap"
+    )
+    shown = invoke("info", "--noise", tmp_path / "l.mcap")
+    assert shown.exit_code == 0, shown.output
+    said = [line for line in shown.output.splitlines() if "stamps look" in line]
+    assert len(said) == 1 and "/imu/data: its angular velocity's stamps look 0.300 s late against /odom" in said[0], (
+        shown.output
+    )
+
+
 def test_a_detection_law_at_its_floor_says_so(tmp_path):
     """Detections whose σ grows as r² with nothing at zero range, seen at 5-14 m: the fit's value at zero range is
     not fixed by the data and is raised to ``MIN_DETECTION_M``. TagSLAM test_11 printed that floor as

@@ -51,6 +51,9 @@ def test_simulated_log_round_trip(tmp_path, sim, container, name):
         assert (g.topic, g.frame_id) == (w.topic, w.frame_id), role
         assert g.t_ns.dtype == np.int64 and g.xyz.dtype == np.float64
         assert_same(g, w, ("t_ns", "rec_ns", "xyz"))
+    # the odometry's own angular velocity beside the IMU's gyro: the alignment times the gyro's stamps against it
+    assert (got.twist_angular.topic, got.twist_angular.frame_id) == ("/odom", "base_link")
+    assert_same(got.twist_angular, want.twist_angular, ("t_ns", "rec_ns", "xyz"))
     assert (got.detections.topic, got.detections.frame_id) == ("/fiducial_transforms", "camera")
     assert_same(got.detections, want.detections, ("t_ns", "rec_ns", "offsets", "ids", "xyz"))
     want_truth = (want.truth.topic, want.truth.frame_id, want.truth.child_frame_id)

@@ -31,6 +31,7 @@ from .decode import (
     detection_stream,
     decode_tf,
     gyro_stand_in,
+    has_angular_velocity,
     pose_stream,
     static_transforms,
     tag_detections,
@@ -208,8 +209,18 @@ def read_log(
 def _checked_velocity(role, topic, built, selection, table, rows, streams, note, overrides):
     """A velocity stream (``built``: it and its cleaning) checked against what else the log says: an odometry twist
     against its poses, an angular velocity that is all zero against the linear-velocity topic's (not when the config
-    names the topic)."""
+    names the topic). The linear-velocity topic's own angular velocity, when the gyro is another topic's, is kept
+    (``LogStreams.twist_angular``) for the alignment to time the gyro's stamps against."""
     stream, cleaning = built
+    gyro = streams.angular_velocity
+    if (
+        role == "linear_velocity"
+        and gyro is not None
+        and gyro.topic != topic
+        and has_angular_velocity(table[topic][0].msgtype)
+    ):
+        twist = vec3_stream(rows[topic], "angular_velocity")[0]
+        streams.twist_angular = twist if len(twist) > 1 and twist.xyz.any() else None
     if table[topic][0].msgtype == ODOMETRY and role in ("angular_velocity", "linear_velocity"):
         return _odometry_twist(rows[topic], role, stream, cleaning, streams.derived)
     if role == "angular_velocity" and "angular_velocity" not in overrides:

@@ -262,7 +262,7 @@ def choose_clocks(
     ]
 
 
-_TIMED_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic", "detections", "truth")
+_TIMED_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic", "detections", "truth", "twist_angular")
 
 
 def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:

@@ -720,6 +720,7 @@ def expected_streams(sim: SimLog, path: str = "") -> LogStreams:
         truth=PoseStream(TOPIC_MOCAP, FRAME_WORLD, "", moc.t_ns, moc.rec_ns, moc.position, moc.quat_xyzw),
         accel=Vec3Stream(TOPIC_IMU, FRAME_IMU, sim.imu.t_ns, sim.imu.rec_ns, sim.imu.accel),
         magnetic=Vec3Stream(TOPIC_MAG, FRAME_IMU, sim.mag.t_ns, sim.mag.rec_ns, sim.mag.field),
+        twist_angular=Vec3Stream(TOPIC_ODOM, FRAME_BODY, sim.odom.t_ns, sim.odom.rec_ns, sim.odom.angular),
         static_tf=list(sim.static_tf),
         landmark_truth={int(k): np.asarray(v, dtype=float) for k, v in sim.truth["landmarks"].items()},
         bias_truth={
