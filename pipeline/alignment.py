@@ -114,9 +114,9 @@ GYRO_LAG_GAIN = 4.0
 #: both magnitudes are averaged over this window (s), or over the odometry's interval if longer
 GYRO_LAG_SMOOTH_S = 0.1
 #: odometry samples the coarse grid is computed on (evenly spread)
-GYRO_LAG_COARSE_SAMPLES = 500
+GYRO_LAG_COARSE_SAMPLES = 200
 #: and the fine grid and the lag as stamped on this many
-GYRO_LAG_FINE_SAMPLES = 5000
+GYRO_LAG_FINE_SAMPLES = 2000
 
 
 def _axes(*order: int, sign=(1.0, 1.0, 1.0)) -> np.ndarray:
