@@ -318,10 +318,12 @@ def test_several_cameras_one_stream():
     assert sorted(table["camera"]) == ["/left/tags"] * 6 + ["/right/tags"] * 3
 
 
-def test_camera_without_extrinsic_is_dropped():
+def _two_cameras(**fields) -> LogStreams:
+    """A log of two cameras (cam_a, cam_b) with intrinsics, each seeing one tag 2 m ahead in three frames, odometry in
+    'base' and no transform unless ``fields`` give one."""
     model = CameraSim().model()
     t_ns = np.arange(3, dtype=np.int64) * 100_000_000
-    streams = LogStreams(
+    return LogStreams(
         "rig.bag",
         linear_velocity=Vec3Stream("/odom", "base", t_ns, t_ns, np.zeros((3, 3))),
         tag_corners=[
@@ -332,7 +334,12 @@ def test_camera_without_extrinsic_is_dropped():
             CameraModel("/cam/camera_info", model.k, model.dist, model.model, None, "x", frame=f)
             for f in ("cam_a", "cam_b")
         ],
+        **fields,
     )
+
+
+def test_camera_without_extrinsic_is_dropped():
+    streams = _two_cameras()
     tags = tag_landmarks(streams, TagOptions(size=0.3), identity_frames=("cam_a",))
     assert tags.detections.topic == "/a/tags"
     dropped = next(n for n in tags.notes if n.startswith("/b/tags: no transform from camera frame 'cam_b'"))
@@ -351,21 +358,7 @@ def test_a_rig_with_no_camera_placed_names_its_frames_and_where_the_extrinsics_g
     """TagSLAM test_21 (four cameras) with its intrinsics file, then its camera poses too: twice "no camera has a
     transform to the body frame ...; (TF, Kalibr chain, TagSLAM camera poses)", no frame named, no config key,
     nothing of the placed camera's rig left unconnected to the odometry's frame."""
-    model = CameraSim().model()
-    t_ns = np.arange(3, dtype=np.int64) * 100_000_000
-    streams = LogStreams(
-        "rig.bag",
-        linear_velocity=Vec3Stream("/odom", "base", t_ns, t_ns, np.zeros((3, 3))),
-        static_tf=[Transform("rig", "cam_b", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))],
-        tag_corners=[
-            _corner_stream("/a/tags", "cam_a", t_ns, model, [np.array([0, 0, 2.0])] * 3, 0.3),
-            _corner_stream("/b/tags", "cam_b", t_ns, model, [np.array([0, 0, 2.0])] * 3, 0.3),
-        ],
-        camera_info=[
-            CameraModel("/cam/camera_info", model.k, model.dist, model.model, None, "x", frame=f)
-            for f in ("cam_a", "cam_b")
-        ],
-    )
+    streams = _two_cameras(static_tf=[Transform("rig", "cam_b", np.zeros(3), np.array([0.0, 0.0, 0.0, 1.0]))])
     with pytest.raises(InputError) as err:
         tag_landmarks(streams, TagOptions(size=0.3))
     msg = str(err.value.problem)
