@@ -394,7 +394,7 @@ def test_a_stop_signal_while_the_local_cluster_closes_is_raised_after_the_close_
     from slamobs.pipeline.batch import dask_exec
     from slamobs.pipeline.config import load_config
 
-    kill, seen, whole = dask_exec._kill_workers, [], []
+    kill, seen, whole = dask_exec.kill_workers, [], []
 
     def signalled_first(cluster):
         first = not seen
@@ -404,7 +404,7 @@ def test_a_stop_signal_while_the_local_cluster_closes_is_raised_after_the_close_
         kill(cluster)
         whole.append(first)  # not reached when the signal cut the close here
 
-    monkeypatch.setattr(dask_exec, "_kill_workers", signalled_first)
+    monkeypatch.setattr(dask_exec, "kill_workers", signalled_first)
     base, cfg = logs
     out = tmp_path / "OUT"
     options = BatchOptions(out=out, config=load_config(cfg), executor="dask", jobs=1, compact=False, wait_workers=60)
@@ -513,11 +513,11 @@ def test_a_worker_that_dies_during_the_environment_check_is_left_out_unless_none
 
     closed = CommClosedError("in <TCP (closed) Scheduler Broadcast>: Stream is closed")
     both = {"tcp://a:1": ok, "tcp://b:2": closed}
-    assert dask_exec._check_workers(Client(both), "S", __version__, code_hash(), 10) == 1
+    assert dask_exec.check_workers(Client(both), "S", __version__, code_hash(), 10) == 1
     with pytest.raises(InfrastructureError, match="cannot run the environment check"):
-        dask_exec._check_workers(Client({"tcp://b:2": closed}), "S", __version__, code_hash(), 10)
+        dask_exec.check_workers(Client({"tcp://b:2": closed}), "S", __version__, code_hash(), 10)
     with pytest.raises(InfrastructureError, match="cannot run the environment check"):
-        dask_exec._check_workers(
+        dask_exec.check_workers(
             Client({"tcp://a:1": ok, "tcp://b:2": ValueError("x")}), "S", __version__, code_hash(), 10
         )
 

@@ -114,9 +114,9 @@ def _tune_args(logs, out: Path, *extra) -> list[str]:
 def _complete_trials(out: Path) -> int:
     import optuna
 
-    from slamobs.pipeline.tune.study import STUDY, _storage
+    from slamobs.pipeline.tune.study import STUDY, journal_storage
 
-    study = optuna.load_study(study_name=STUDY, storage=_storage(out))
+    study = optuna.load_study(study_name=STUDY, storage=journal_storage(out))
     return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
 
 
@@ -292,12 +292,12 @@ def test_a_killed_forced_tune_gives_the_previous_tune_back_to_the_next(tmp_path)
 
     (tmp_path / study.JOURNAL).write_text("previous")
     (tmp_path / "gains.yaml").write_text("previous gains")
-    study._set_aside(tmp_path)
+    study.set_aside(tmp_path)
     (tmp_path / study.JOURNAL).write_text("the killed forced tune's")
-    assert study._put_back(tmp_path) and not study._put_back(tmp_path)
+    assert study.put_back(tmp_path) and not study.put_back(tmp_path)
     assert (tmp_path / study.JOURNAL).read_text() == "previous" and not (tmp_path / study.PREVIOUS).exists()
-    study._set_aside(tmp_path)
-    assert study._replace_results(tmp_path, lambda: {"written": 1}) == {"written": 1}
+    study.set_aside(tmp_path)
+    assert study.replace_results(tmp_path, lambda: {"written": 1}) == {"written": 1}
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # the new results are the writer's to write
 
 
