@@ -175,18 +175,18 @@ def main() -> None:
         led.close()
         from slamobs.pipeline.batch import compact as compact_mod
 
-        apply, t_delete = compact_mod._apply, []
+        apply, t_delete = compact_mod.apply_journal, []
 
         def timed_apply(o):
             t0 = time.perf_counter()
             apply(o)
             t_delete.append(time.perf_counter() - t0)
 
-        compact_mod._apply = timed_apply
+        compact_mod.apply_journal = timed_apply
         t = time.perf_counter()
         report = compact_dataset(out, DatasetIndex.scan(out))
         t_compact = time.perf_counter() - t
-        compact_mod._apply = apply
+        compact_mod.apply_journal = apply
         files_after = count_files(out)
         q_after = queries(out)
 

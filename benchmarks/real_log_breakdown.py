@@ -144,7 +144,7 @@ def main() -> None:
     out = work / "auto"
     run_log(log.path, out, observer="batch", config=base, force=True)
     rows = [("no config", breakdown(out, streams))]
-    levels = rl._noise(json.loads((out / "run.json").read_text()))
+    levels = rl.run_noise(json.loads((out / "run.json").read_text()))
     levels = {k: levels[k] for k in rl.MOTION_KEYS + rl.DETECTION_KEYS if k in levels}
     extra = []
     for point in filter(None, args.points.split(",")):

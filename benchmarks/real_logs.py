@@ -140,8 +140,9 @@ class Result:
         return float("inf") if value is None or self.error else value
 
 
-def _noise(meta: dict) -> dict:
-    """The noise section run.json records (riekf keeps it under ``filter``), or {}."""
+def run_noise(meta: dict) -> dict:
+    """The noise section run.json records (riekf keeps it under ``filter``), or {}.
+    Public: benchmarks/real_log_breakdown.py reads a run's levels with it."""
     observer = meta.get("observer") or {}
     return observer.get("noise") or (observer.get("filter") or {}).get("noise") or {}
 
@@ -180,7 +181,7 @@ def run_one(log: Log, estimator: str, out: Path, noise: dict | None = None) -> R
         return Result(seconds=time.perf_counter() - start, error=one_line(getattr(err, "problem", err))[:90])
     res = Result(seconds=time.perf_counter() - start)
     meta = json.loads((out / "run.json").read_text())
-    noise_used = _noise(meta)
+    noise_used = run_noise(meta)
     res.noise = _noise_text(noise_used)
     res.levels = {k: noise_used[k] for k in MOTION_KEYS + DETECTION_KEYS if k in noise_used}
     res.smoother = (meta.get("observer") or {}).get("smoother") or {}

@@ -9,7 +9,7 @@ on CPU seconds as well as wall (the VM is shared), ``time_offset.estimate`` and 
 the stage's wall time is below the sum when a core is free; its CPU seconds count both). The last lines count the
 multiply-adds of the dense covariance work: per frame, the propagation applied to the ``D x D`` covariance (``F Σ_b +
 Σ_bᵀ Fᵀ + F Σ_bb Fᵀ``: 18 per entry of one triangle written out, 6 as the filter applies it: rank-6 terms) and the
-Kalman downdate (``3m`` per entry, ``m`` detections); then the one-pass kernel that applies both (``riekf._apply``,
+Kalman downdate (``3m`` per entry, ``m`` detections); then the one-pass kernel that applies both (``riekf.apply``,
 ``6 + 3m`` terms) timed alone at this ``D`` and ``m`` on generated numbers: its rate against the core's peak (8
 multiply-adds per cycle with two 256-bit FMA units) is how close the filter is to its floor.
 
@@ -75,7 +75,7 @@ def cekf_madds(d: int, n_active: float, flush_share: float, m: float) -> float:
 
 
 def one_pass_rate(d: int, k: int, calls: int = 20000) -> tuple[float, float]:
-    """CPU seconds per call of ``riekf._apply`` (``k`` terms at ``D = d``, generated numbers, arrays padded as the
+    """CPU seconds per call of ``riekf.apply`` (``k`` terms at ``D = d``, generated numbers, arrays padded as the
     filter pads them, the rows of ``(k − 6)/3`` landmarks mirrored below the diagonal as a frame mirrors them) and
     the multiply-adds it computes per call (its four-row tiles from a multiple of ``PAD``)."""
     from slamobs.pipeline.observers import riekf
@@ -87,10 +87,10 @@ def one_pass_rate(d: int, k: int, calls: int = 20000) -> tuple[float, float]:
     lt[:, :d], rt[:, :d] = rng.normal(size=(k, d)) * 1e-9, rng.normal(size=(6, d)) * 1e-9
     m = (k - 6) // 3  # the next frame's landmark rows mirrored below the diagonal, as a frame mirrors them
     rows = (riekf.N_FIXED + 3 * np.linspace(0, (d - riekf.N_FIXED) // 3 - 1, m)).astype(np.int64)
-    riekf._apply(cov, d, lt, rt, k, dp, rows, m)
+    riekf.apply(cov, d, lt, rt, k, dp, rows, m)
     c = time.process_time()
     for _ in range(calls):
-        riekf._apply(cov, d, lt, rt, k, dp, rows, m)
+        riekf.apply(cov, d, lt, rt, k, dp, rows, m)
     per_call = (time.process_time() - c) / calls
     tiles = range(0, d + -d % 4, 4)
     return per_call, sum(4 * (dim - (i - i % riekf.PAD)) * k for i in tiles)
@@ -162,7 +162,7 @@ def main() -> None:
     one_pass = n_frames * d * (d + 1) / 2 * k
     print(
         f"as applied (rank-6 propagation terms and the downdate, one pass): {one_pass / 1e9:.1f} G multiply-adds "
-        f"({one_pass / max(n_frames, 1) / 1e3:.0f} k per frame); riekf._apply alone at D = {d}, {k} terms: "
+        f"({one_pass / max(n_frames, 1) / 1e3:.0f} k per frame); riekf.apply alone at D = {d}, {k} terms: "
         f"{1e6 * per_call:.1f} µs per frame, {done / per_call / 1e9:.1f} G multiply-adds/s over the entries it "
         f"computes ({done / 1e3:.0f} k, the padded tiles); {per_call * n_frames:.2f} s of the hour"
     )

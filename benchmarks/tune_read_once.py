@@ -19,7 +19,7 @@ def read_every_trial(task):
     """The worker function without the per-process log cache (what a tune that re-read the logs would do)."""
     from slamobs.pipeline.tune import worker
 
-    worker._PREPARED.clear()
+    worker.PREPARED.clear()
     return worker.run_trial_log(task)
 
 

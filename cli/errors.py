@@ -102,10 +102,11 @@ def end_signals_at_once() -> None:
     for signum in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         with suppress(ValueError, OSError):  # not the main thread
             if signal.getsignal(signum) is not signal.SIG_IGN:
-                signal.signal(signum, _end_by_signal)
+                signal.signal(signum, end_by_signal)
 
 
-def _end_by_signal(signum: int, _frame) -> None:
+def end_by_signal(signum: int, _frame) -> None:
+    """The handler a command's signals end it by (public: tests/test_interrupts.py calls it)."""
     _end_now(128 + signum)
 
 

@@ -120,7 +120,7 @@ def compare_log(
             notes.append("gyro_bias_err and vel_bias_err are blank: the log has no bias truth")
         if table["landmark_rmse_m"].isna().all():
             notes.append(NO_MAP_TRUTH)
-        (tmp / "comparison.md").write_text(_markdown(table, log, compiled=compiled, notes=notes))
+        (tmp / "comparison.md").write_text(comparison_markdown(table, log, compiled=compiled, notes=notes))
         write_json(tmp / "comparison.json", {"log": str(Path(log).resolve()), "rows": table.to_dict("records")})
         if prepared.streams.truth is not None and summaries:
             plot_overlay(tmp / "overlay.png", prepared.streams.truth, summaries)
@@ -180,7 +180,7 @@ def _without_truth(
     table = pd.DataFrame(rows).reindex(columns=columns)
     table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
     against = "the batch smoother's estimate" if reference else "each of the other estimates (their mean)"
-    (tmp / "comparison.md").write_text(_markdown(table, log, against, compiled))
+    (tmp / "comparison.md").write_text(comparison_markdown(table, log, against, compiled))
     doc = {"log": str(Path(log).resolve()), "truth": None, "disagreement_against": reference or "others"}
     write_json(tmp / "comparison.json", {**doc, "rows": table.to_dict("records")})
     if aligned:
@@ -265,13 +265,15 @@ def plot_estimates(path: Path, aligned: dict[str, np.ndarray], spread: dict[str,
     return path
 
 
-def _markdown(
+def comparison_markdown(
     table,
     log: Path,
     against: str | None = None,
     compiled: dict[str, float] | None = None,
     notes: list[str] = (),
 ) -> str:
+    """comparison.md: the table of the estimators' metrics on ``log``, each report's caveats under it. Public:
+    tests/test_compare.py reads the caveats from made-up reports."""
     columns = list(table.columns)
     head = "| " + " | ".join(LABELS.get(c, c) for c in columns) + " |\n|" + "---|" * len(columns) + "\n"
     body = ""

@@ -33,7 +33,7 @@ from slamobs.pipeline import interrupts, lifetime
 #: Kernels compiled ahead: (module, function, argument types) in the order a run first calls them. Types are
 #: written short: ``f``, ``i``, ``b`` a float64, int64 or bool scalar, ``f2`` a C-contiguous 2-d float64 array.
 #: ``tests/test_compile_ahead.py`` checks each against the types a run calls it with. An estimator's entry is
-#: called by that estimator, ``report`` by the report. The alignment's kernel (``lie._rots_quats_into``, for
+#: called by that estimator, ``report`` by the report. The alignment's kernel (``lie.rots_quats_into``, for
 #: logs with ground truth of at least ``lie.ROTATION_KERNEL_ROWS`` poses; shorter ones take array code) is not
 #: handed over: the helper's path (its start-up, then the estimator's event loop) is the longer one, and the run
 #: compiles that kernel in ~0.3 s while the helper is still on the loop; the report's quaternions are the same

@@ -116,6 +116,13 @@ def source_stamp(path: str | Path, root: str | Path = PACKAGE_ROOT, package: str
     return _stamp(os.path.realpath(path), os.path.realpath(root), package)
 
 
+def forget_stamps() -> None:
+    """Forget the sources read and the stamps computed so far in this process (:func:`source_stamp` reads each
+    file once per process): the next stamp reads the files again, as after an edit under a running process."""
+    _read.cache_clear()
+    _stamp.cache_clear()
+
+
 @lru_cache(maxsize=None)
 def _stamp(path: str, root: str, package: str) -> str:
     seen: set[str] = set()

@@ -5,7 +5,7 @@ Conventions (docs/observers.md §1): ``R`` maps body-frame vectors to the inerti
 numba-compiled so the observer kernels can call them (they also work from plain Python on NumPy arrays); the
 ones over arrays of poses (:func:`quats_to_rots`, :func:`rots_to_quats`) run the same per-row arithmetic, in array
 code on a short log's arrays (no compile on its first run) and in one kernel for both directions
-(``_rots_quats_into``) on long ones, with the same bits.
+(``rots_quats_into``) on long ones, with the same bits.
 """
 
 from __future__ import annotations
@@ -368,7 +368,7 @@ ROTATION_KERNEL_ROWS = 65_536
 
 
 def _kernel_for(n: int) -> bool:
-    return compiled_for(n, _rots_quats_into, ROTATION_KERNEL_ROWS)
+    return compiled_for(n, rots_quats_into, ROTATION_KERNEL_ROWS)
 
 
 def quats_to_rots(q):
@@ -377,7 +377,7 @@ def quats_to_rots(q):
     q = np.ascontiguousarray(q, dtype=np.float64)
     out = np.empty((q.shape[0], 3, 3))
     if _kernel_for(q.shape[0]):
-        _rots_quats_into(out, q, False)
+        rots_quats_into(out, q, False)
     else:
         _rots_of_quats(q, out)
     return out
@@ -389,7 +389,7 @@ def rots_to_quats(r):
     r = np.ascontiguousarray(r, dtype=np.float64)
     q = np.empty((r.shape[0], 4))
     if _kernel_for(r.shape[0]):
-        _rots_quats_into(r, q, True)
+        rots_quats_into(r, q, True)
     else:
         _quats_of_rots(r, q)
     return q
@@ -456,9 +456,10 @@ def _quats_case(k: int, i: np.ndarray, e: tuple, xyzw: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True, nrt=False)
-def _rots_quats_into(r, q, to_quats):
+def rots_quats_into(r, q, to_quats):
     """Rotations ``r`` (N, 3, 3) to quaternions ``q`` (N, 4), or back when ``to_quats`` is False: both directions
-    in one kernel, so a first run compiles one (the alignment's) where it compiled two (the report's too)."""
+    in one kernel, so a first run compiles one (the alignment's) where it compiled two (the report's too).
+    Public: tests/test_lie.py checks it bit for bit."""
     if to_quats:
         for n in range(r.shape[0]):
             q[n, 0], q[n, 1], q[n, 2], q[n, 3] = _quat_of_rot(r[n])

@@ -625,9 +625,9 @@ RENAME_NOREPLACE, RENAME_EXCHANGE = 1, 2
 
 def _renameat2_call(a: Path, b: Path, flags: int) -> bool:
     """``renameat2(a, b, flags)``; False where the system or the file system lacks it (an OSError otherwise)."""
-    if _RENAMEAT2 is None:
+    if RENAMEAT2 is None:
         return False
-    if _RENAMEAT2(-100, os.fsencode(a), -100, os.fsencode(b), flags) == 0:  # AT_FDCWD
+    if RENAMEAT2(-100, os.fsencode(a), -100, os.fsencode(b), flags) == 0:  # AT_FDCWD
         return True
     err = ctypes.get_errno()
     if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):  # e.g. a file system without the flag
@@ -635,8 +635,9 @@ def _renameat2_call(a: Path, b: Path, flags: int) -> bool:
     raise OSError(err, os.strerror(err), str(b))
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where that is unavailable."""
+def exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux ``renameat2(RENAME_EXCHANGE)``); False where that is unavailable.
+    Public: the kill tests (tests/test_interrupts.py, tests/test_output_ownership.py) cut it."""
     return _renameat2_call(a, b, RENAME_EXCHANGE)
 
 
@@ -688,7 +689,7 @@ def publish(
             ) from None
         return None
     try:
-        if _exchange(new, final):
+        if exchange(new, final):
             old, swapped = new, True
         else:
             os.rename(final, aside)
@@ -705,7 +706,7 @@ def publish(
             place(new, final)
         return old
     if swapped:  # the other output goes back; ours is discarded with the temporary
-        _exchange(new, final)
+        exchange(new, final)
     else:
         try:
             place(aside, final)
@@ -767,7 +768,8 @@ def _renameat2():
     return fn
 
 
-_RENAMEAT2 = _renameat2()
+#: Public: tests skip the exchange's kill tests where it is None.
+RENAMEAT2 = _renameat2()
 
 
 def _publish(container: Path, final: Path, expected: tuple[int, int] | None, force: bool) -> None:
@@ -824,7 +826,7 @@ def _recover(container: Path, final: Path, owner: dict) -> None:
 
     if os.path.lexists(new) and identity(new) != new_id:  # exchanged: ``new`` holds what was at ``final``
         if not checked(new):
-            _exchange(new, final)  # back under its name; ours returns into the container
+            exchange(new, final)  # back under its name; ours returns into the container
             if identity(new) != new_id:
                 raise OSError(errno.EEXIST, "could not swap back", str(final))
         return

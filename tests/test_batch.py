@@ -660,7 +660,7 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
 def test_a_dask_log_fails_for_dying_workers_only_once_they_began_it_that_often(tmp_path):
     """Dask counts a worker's death against the logs queued on it too (``KilledWorker`` for a log that never ran):
     such a log is submitted again, and fails only once workers began it ``allowed-failures`` + 1 times; the task
-    refuses a start past that. The kill itself: test_batch_kills.py (a real worker, kill -9)."""
+    refuses a start past that. The kill itself: test_batch_kills_local.py (a real worker, kill -9)."""
     from slamobs.pipeline.batch.dask_exec import DaskPool
     from slamobs.pipeline.batch.executor import DIED, RETRY, run_task, starts
 

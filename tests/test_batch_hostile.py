@@ -166,13 +166,13 @@ def test_compaction_on_a_full_disk_names_its_file_and_leaves_no_temporary(tmp_pa
 
     make_logs(tmp_path / "in", ["a.mcap", "b.mcap", "c.mcap"])
     out = tmp_path / "OUT"
-    real_open = compact._Writer._open
+    real_open = compact.Writer._open
 
     def open_on_full_disk(self, schema):  # the compacted file's temporary lands on a full disk
         (self.base / f".{compact.COMPACTED}{self.gen:06d}-{len(self.done):04d}.parquet.tmp").symlink_to(FULL)
         real_open(self, schema)
 
-    monkeypatch.setattr(compact._Writer, "_open", open_on_full_disk)
+    monkeypatch.setattr(compact.Writer, "_open", open_on_full_disk)
     with pytest.raises(ResourceError) as err:
         batch([tmp_path / "in"], out)
     first = out / "poses" / "compacted-000001-0000.parquet"  # tables are compacted in schemas.TABLES order
@@ -181,7 +181,7 @@ def test_compaction_on_a_full_disk_names_its_file_and_leaves_no_temporary(tmp_pa
     summary = pd.read_parquet(out / "summary.parquet")  # current: lists every stored run
     assert sorted(summary["run_id"]) == sorted(p.name for p in (out / "runs").iterdir()) and len(summary) == 3
 
-    monkeypatch.setattr(compact._Writer, "_open", real_open)
+    monkeypatch.setattr(compact.Writer, "_open", real_open)
     res = batch([tmp_path / "in"], out)  # room again: the runs are there, compaction completes
     assert res.count("skipped") == 3 and res.compaction
     assert len(assert_consistent(out)) == 3

@@ -107,7 +107,7 @@ def test_a_run_time_that_includes_compiling_says_so(tmp_path, monkeypatch):
 def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation():
     """MR.CLAM 6 robot 1, fast-adaptation: comparison.md showed convergence_s blank beside a band of 11.2 m and a
     rotation APE of 180 deg with no word; each report's verdicts now stand under the table."""
-    from slamobs.pipeline.compare import _markdown
+    from slamobs.pipeline.compare import comparison_markdown
     from slamobs.pipeline.evaluation.sections import tilt_note
 
     lost = {"t_since_start_s": None, "lost": True, "steady_level_m": 7.47, "tail_fraction": 0.2}
@@ -129,5 +129,5 @@ def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation(
     plain = {"convergence": {"t_since_start_s": 1.0, "coarse": False}, "method": {"alignment": {"type": "se3"}}}
     assert headline_caveats(plain) == []
     table = pd.DataFrame([{"observer": "fast-adaptation", "status": "ok"}])
-    md = _markdown(table, Path("x.mcap"), notes=[f"fast-adaptation: {c}" for c in caveats])
+    md = comparison_markdown(table, Path("x.mcap"), notes=[f"fast-adaptation: {c}" for c in caveats])
     assert "\n## Notes\n\n- fast-adaptation: convergence: no: the error level" in md

@@ -92,7 +92,7 @@ def test_the_shaped_gradient_is_the_objectives(solved):
     shaped = replace(problem, det_shape=an.shape(problem.det_y, 4.0))
     rng = np.random.default_rng(0)
     moved = g.Guess(sol.rot, sol.pos, sol.landmarks + rng.uniform(-0.05, 0.05, sol.landmarks.shape), sol.bias)
-    ne = g._Normal(shaped, moved)
+    ne = g.Normal(shaped, moved)
     pt = _point(moved)
     ne.linearize(pt)
     h = 1e-6
@@ -123,11 +123,11 @@ def test_the_shaped_blocks_are_the_hessians_at_zero_residuals(solved):
     pt = _point(guess)
 
     def landmark_gradient(rot, pos, lms) -> np.ndarray:
-        ne = g._Normal(exact, guess)
+        ne = g.Normal(exact, guess)
         ne.linearize((rot, pos, lms, pt[3]))
         return ne.gb[: 3 * lms.shape[0]].copy()
 
-    ne = g._Normal(exact, guess)
+    ne = g.Normal(exact, guess)
     ne.linearize(pt)
     i = int(kf[len(kf) // 2])
     rot, pos, lms, det_start, det_idx, weight, shape, mb, seg_of, bias0 = ne._geo()

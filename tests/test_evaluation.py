@@ -907,8 +907,8 @@ def test_rotation_angle_kernel_matches_the_array_definition_bit_for_bit(monkeypa
     b[4, 0, 0] = np.nan
     b[10:40] = np.round(b[10:40], 4)  # KITTI-style printed digits
     monkeypatch.setattr(metrics, "KERNEL_ROWS", 1)  # the compiled path for every size
-    got = metrics._angles(a, b)
-    want = metrics.quat_angles(metrics.matrix_quats(metrics._products(a, b)))
+    got = metrics.relative_angles(a, b)
+    want = metrics.quat_angles(metrics.matrix_quats(metrics.relative_rotations(a, b)))
     assert np.array_equal(got, want, equal_nan=True)
     assert np.isclose(got[1], np.pi) and got[2] == 0.0 and np.isnan(got[4])
 

@@ -138,7 +138,7 @@ def test_a_string_equal_to_the_one_before_is_read_where_that_one_lies(encoding):
     batch = _batch(raws, rng)
     head = 4 if plan.cdr else 0
     big = encoding == "cdr-big-endian"
-    _, _, strings, _, _ = fastdecode._walked(plan, batch.data, batch.start, batch.size, big)
+    _, _, strings, _, _ = fastdecode.walked_columns(plan, batch.data, batch.start, batch.size, big)
     pos, length = strings[0]
     at = [int(batch.data[p : p + n].tobytes() == f.encode()) for p, n, f in zip(pos, length, frames, strict=True)]
     assert at == [1] * len(frames)  # every position holds its message's frame id
@@ -157,7 +157,7 @@ def test_many_distinct_strings_numbered_by_first_appearance():
     data, starts, sizes = as_buffer([t.encode() for t in texts], rng)
     codes, names = fastdecode.string_codes(data, starts, sizes)
     want = list(dict.fromkeys(texts))
-    assert len(want) > 2 * fastdecode._SMALL_TABLE and names == want
+    assert len(want) > 2 * fastdecode.SMALL_TABLE and names == want
     assert [names[c] for c in codes] == texts
 
 
@@ -173,18 +173,18 @@ def test_many_distinct_strings_numbered_by_first_appearance():
     ],
 )
 def test_one_string_without_the_kernel_as_with_it(texts, monkeypatch):
-    """A short array whose strings are all one (a topic's frame id) is coded without :func:`fastdecode._dedup`, so
+    """A short array whose strings are all one (a topic's frame id) is coded without :func:`fastdecode.dedup`, so
     that a short log's first run does not compile it; the codes and names are those the kernel gives."""
     rng = np.random.default_rng(len(texts))
     data, starts, sizes = as_buffer([t.encode() for t in texts], rng)
-    with_kernel = fastdecode._dedup
+    with_kernel = fastdecode.dedup
     calls = []
 
     def counted(*args):
         calls.append(1)
         return with_kernel(*args)
 
-    monkeypatch.setattr(fastdecode, "_dedup", counted)
+    monkeypatch.setattr(fastdecode, "dedup", counted)
     codes, names = fastdecode.string_codes(data, starts, sizes)
     assert names == list(dict.fromkeys(texts)) and [names[c] for c in codes] == texts
     assert codes.dtype == np.int32
@@ -290,7 +290,7 @@ def test_the_compiled_walk_reads_every_primitive_as_rosbags(encoding):
     """Each primitive (special floats, the extremes of every integer) read by the one compiled pass, strings of
     every length before them: the bits rosbags' deserialiser gives."""
     ts, plan = _every_kind(encoding)
-    assert fastdecode._walks(plan)
+    assert fastdecode.walks(plan)
     rng = np.random.default_rng(7)
     msgs = [_random(ts, "test_msgs/msg/EveryKind", rng, [f, FRAMES[-1 - k], f[::-1]]) for k, f in enumerate(FRAMES)]
     raws = [serialize(ts, m, "test_msgs/msg/EveryKind", encoding) for m in msgs * 3]
@@ -320,7 +320,7 @@ def _both_ways(monkeypatch, plan, batch, summary) -> list[tuple]:
     """``batch`` decoded by the compiled walk, then by the array steps: ``summary`` of each, or its error."""
     outcomes = []
     for walks in (True, False):
-        monkeypatch.setattr(fastdecode, "_walks", lambda plan, walks=walks: walks)
+        monkeypatch.setattr(fastdecode, "walks", lambda plan, walks=walks: walks)
         try:
             outcomes.append(summary(decode(plan, batch)))
         except DecodeError as err:

@@ -21,7 +21,7 @@ import pytest
 
 from slamobs.pipeline.simulate import simulate, write_log
 
-from test_readers_damage import _write  # noqa: E402 - the multi-chunk writers of the reader tests
+from container_logs import write_container  # noqa: E402 - the multi-chunk writers of the reader tests
 
 SEED = 1616
 CASES_PER_CONTAINER = 70
@@ -47,8 +47,8 @@ def cases(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzz")
     sim = simulate("figure8", duration=2.0, seed=8)
     bases = {
-        "bag": _write(sim, root / "base.bag", "bag", "lz4"),
-        "mcap": _write(sim, root / "base.mcap", "mcap", "zstd"),
+        "bag": write_container(sim, root / "base.bag", "bag", "lz4"),
+        "mcap": write_container(sim, root / "base.mcap", "mcap", "zstd"),
         "db3": write_log(sim, root / "base_ros2", "ros2"),
     }
     rng = random.Random(SEED)

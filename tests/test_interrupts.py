@@ -119,7 +119,7 @@ def _killed_at(step: int, parent: Path, exchange: bool) -> bool:
                 return call
 
             os.rename, os.replace, shutil.rmtree = counted(os.rename), counted(os.replace), counted(shutil.rmtree)
-            writers._exchange = counted(writers._exchange if exchange else lambda a, b: False)
+            writers.exchange = counted(writers.exchange if exchange else lambda a, b: False)
             Path.touch = counted(Path.touch)
             with writers.atomic_directory(parent / "out", force=True) as tmp:
                 (tmp / "run.json").write_text('"new"')
@@ -134,7 +134,7 @@ def _killed_at(step: int, parent: Path, exchange: bool) -> bool:
 def test_sigkill_at_any_point_of_a_force_swap_leaves_old_or_new(tmp_path, exchange):
     """After a SIGKILL at each file system operation of the swap, ``out`` holds the complete old or new run, and
     the next run on the same parent finishes the swap or cleans up (no hidden directory stays)."""
-    if exchange and writers._RENAMEAT2 is None:
+    if exchange and writers.RENAMEAT2 is None:
         pytest.skip("no renameat2 on this system")
     seen = set()
     for step in range(1, 30):
@@ -361,7 +361,7 @@ def test_no_gap_between_the_commands_handlers_and_the_end_handlers():
         errors.end_signals_at_once()
         with raise_when_safe():
             pass
-        assert signal.getsignal(signal.SIGTERM) is errors._end_by_signal
+        assert signal.getsignal(signal.SIGTERM) is errors.end_by_signal
     finally:
         for s, h in old.items():
             signal.signal(s, h)

@@ -29,8 +29,7 @@ def test_stamp_covers_the_modules_imported_directly_or_not(tmp_path):
     e = write(tmp_path, "e.py", "import pkg.a\n")
 
     def stamps():
-        kernel_cache._stamp.cache_clear()
-        kernel_cache._read.cache_clear()
+        kernel_cache.forget_stamps()
         return {p.name: source_stamp(p, tmp_path, "pkg") for p in (a, b, d, e)}
 
     before = stamps()
@@ -57,15 +56,14 @@ def test_a_kernel_is_stale_when_a_function_it_calls_from_another_module_changes(
     text = shared.read_text()
     assert "step = hkp\n" in text
     shared.write_text(text.replace("step = hkp\n", "step = 0.5 * hkp\n"))
-    kernel_cache._read.cache_clear()
-    kernel_cache._stamp.cache_clear()
+    kernel_cache.forget_stamps()
     assert source_stamp(kernel, root) != before
 
 
 def test_package_kernels_are_cached_by_content_not_by_location():
     from slamobs.pipeline.observers import fast_adaptation
 
-    locator = fast_adaptation._advance._cache._impl.locator
+    locator = fast_adaptation.innovation_norms._cache._impl.locator
     assert isinstance(locator, KernelLocator)
     stamp = source_stamp(fast_adaptation.__file__)
     assert locator.get_source_stamp() == stamp and locator.get_disambiguator().endswith(f"-{stamp}")
@@ -119,11 +117,11 @@ def test_a_kernel_numba_cannot_cache_is_a_warning_naming_its_file():
 
     from slamobs.pipeline.observers import fast_adaptation
 
-    impl = fast_adaptation._advance._cache._impl
+    impl = fast_adaptation.innovation_norms._cache._impl
     cres = types.SimpleNamespace(
         lifted=(),
         library=types.SimpleNamespace(has_dynamic_globals=True),
-        fndesc=types.SimpleNamespace(qualname="_advance"),
+        fndesc=types.SimpleNamespace(qualname="innovation_norms"),
     )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -409,7 +407,7 @@ def _index_entries(cache: Path, kernel: str) -> dict[tuple, tuple]:
     return found
 
 
-# A process compiling metrics._row_norms for one of its two argument types (`minus` an array, A; None, B), its save
+# A process compiling metrics.row_norms_into for one of its two argument types (`minus` an array, A; None, B), its save
 # held until the other process saves too, then numba's writes interleaved as two processes' can be: the first's
 # index, the other's index and data, the first's data.
 _RACING_SAVE = r"""
@@ -442,7 +440,7 @@ def slow_data(self, name, data):
 caching.Cache._save_overload = meet
 caching.IndexDataCacheFile._save_index, caching.IndexDataCacheFile._save_data = slow_index, slow_data
 x = np.ones((4, 3))
-metrics._row_norms(x, x * 0.5 if role == "A" else None, np.empty(4))
+metrics.row_norms_into(x, x * 0.5 if role == "A" else None, np.empty(4))
 """
 
 
@@ -471,11 +469,11 @@ def test_two_processes_saving_two_argument_types_of_a_kernel_keep_both(tmp_path,
     for proc in racing:
         assert proc.wait(timeout=300) == 0, proc.stderr.read()[-2000:]
         proc.stderr.close()
-    entries = _index_entries(cache, "metrics._row_norms")
+    entries = _index_entries(cache, "metrics.row_norms_into")
     assert len(entries) == 2 and all(key == code for key, code in entries.items()), entries
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(cache))
-    later = kernel_cache.njit(cache=True, nogil=True)(metrics._row_norms.py_func)  # a later run's kernel
+    later = kernel_cache.njit(cache=True, nogil=True)(metrics.row_norms_into.py_func)  # a later run's kernel
     x, minus, out = np.arange(12.0).reshape(4, 3), np.ones((4, 3)), np.empty(4)
     later(x, minus, out)
     np.testing.assert_allclose(out, np.linalg.norm(x - minus, axis=1))
@@ -497,10 +495,10 @@ def test_a_cache_entry_naming_another_signatures_code_is_compiled_again(tmp_path
 
     monkeypatch.setattr(numba.config, "CACHE_DIR", str(tmp_path))
     x, minus, out = np.arange(12.0).reshape(4, 3), np.ones((4, 3)), np.empty(4)
-    first = kernel_cache.njit(cache=True, nogil=True)(metrics._row_norms.py_func)
+    first = kernel_cache.njit(cache=True, nogil=True)(metrics.row_norms_into.py_func)
     first(x, minus, out)
     first(x, None, out)
-    (index,) = tmp_path.rglob("metrics._row_norms-*.nbi")
+    (index,) = tmp_path.rglob("metrics.row_norms_into-*.nbi")
     with open(index, "rb") as f:
         version = pickle.load(f)
         stamp, overloads = pickle.loads(f.read())
@@ -509,15 +507,15 @@ def test_a_cache_entry_naming_another_signatures_code_is_compiled_again(tmp_path
     with open(index, "wb") as f:
         pickle.dump(version, f, protocol=-1)
         f.write(pickle.dumps((stamp, swapped), protocol=-1))
-    assert all(key != code for key, code in _index_entries(tmp_path, "metrics._row_norms").items())
+    assert all(key != code for key, code in _index_entries(tmp_path, "metrics.row_norms_into").items())
 
-    later = kernel_cache.njit(cache=True, nogil=True)(metrics._row_norms.py_func)
+    later = kernel_cache.njit(cache=True, nogil=True)(metrics.row_norms_into.py_func)
     later(x, minus, out)
     np.testing.assert_allclose(out, np.linalg.norm(x - minus, axis=1))
     later(x, None, out)
     np.testing.assert_allclose(out, np.linalg.norm(x, axis=1))
     assert sum(later.stats.cache_misses.values()) == 2
-    assert all(key == code for key, code in _index_entries(tmp_path, "metrics._row_norms").items())
+    assert all(key == code for key, code in _index_entries(tmp_path, "metrics.row_norms_into").items())
 
 
 _HOLD_LOCK = (

@@ -111,7 +111,7 @@ def test_short_and_long_arrays_of_rotations_give_the_same_bits(monkeypatch):
     q[300, 1] = np.nan
     q[400:500] = np.round(q[400:500])  # exact multiples of pi / 2 and ties
     m = np.empty((6000, 3, 3))
-    lie._rots_quats_into(m, q, False)
+    lie.rots_quats_into(m, q, False)
     m[500:1000] += rng.normal(scale=1e-3, size=(500, 3, 3))
     m[1000:1100] = rng.normal(size=(100, 3, 3))
     m[1100:1200] = np.diag([-1.0, -1.0, 1.0])

@@ -358,10 +358,10 @@ def test_publish_replaces_only_the_checked_entry(tmp_path, monkeypatch, renameat
     from slamobs.pipeline.errors import OutputError
     from slamobs.pipeline.paths import foreign_entry, identity
 
-    if renameat2 and writers._RENAMEAT2 is None:
+    if renameat2 and writers.RENAMEAT2 is None:
         pytest.skip("no renameat2 on this system")
     if not renameat2:
-        monkeypatch.setattr(writers, "_RENAMEAT2", None)
+        monkeypatch.setattr(writers, "RENAMEAT2", None)
 
     def new(name: str) -> Path:
         (tmp_path / name).mkdir()
@@ -407,7 +407,7 @@ def test_a_kill_between_the_swap_and_its_check_deletes_nothing_of_the_users(tmp_
     back instead of deleting it with the temporary."""
     from slamobs.pipeline import writers
 
-    if writers._RENAMEAT2 is None:
+    if writers.RENAMEAT2 is None:
         pytest.skip("no renameat2 on this system")
     out = tmp_path / "out"
     out.mkdir()
@@ -415,14 +415,14 @@ def test_a_kill_between_the_swap_and_its_check_deletes_nothing_of_the_users(tmp_
     pid = os.fork()
     if pid == 0:  # the child: a --force run killed by a real SIGKILL just after the exchange
         try:
-            exchange = writers._exchange
+            exchange = writers.exchange
 
             def then_killed(a, b):
                 done = exchange(a, b)
                 os.kill(os.getpid(), signal.SIGKILL)
                 return done
 
-            writers._exchange = then_killed
+            writers.exchange = then_killed
             with writers.atomic_directory(out, force=True) as tmp:
                 (tmp / "run.json").write_text('"new"')
                 os.rename(out, tmp_path / "earlier")  # meanwhile the user puts a directory of theirs at OUT

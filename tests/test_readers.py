@@ -490,7 +490,7 @@ def test_the_cleaning_shortcuts_give_the_arrays_of_the_numpy_calls_they_replace(
     def reference(t_ns, values):  # clean_order as it was written with the whole-row reduction
         idx = np.flatnonzero(np.isfinite(values).all(axis=1))
         idx = idx[np.argsort(t_ns[idx], kind="stable")]
-        drop, repeated = D._duplicate_mask(t_ns[idx], lambda i: values[idx[i]].tobytes())
+        drop, repeated = D.duplicate_mask(t_ns[idx], lambda i: values[idx[i]].tobytes())
         return idx[~drop], repeated, int(drop.sum())
 
     rng = np.random.default_rng(5)

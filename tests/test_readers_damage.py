@@ -14,12 +14,10 @@ from click.testing import CliRunner
 from mcap.reader import make_reader
 from mcap.records import Message
 from mcap.stream_reader import StreamReader
-from mcap.writer import CompressionType
-from mcap.writer import Writer as McapWriter
 from rosbags.rosbag1 import Reader as Bag1Reader
 from rosbags.rosbag1 import Writer as Bag1Writer
 from rosbags.rosbag1.reader import Header
-from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Reader as Bag2Reader
 from rosbags.rosbag2 import Writer as Bag2Writer
 
@@ -33,53 +31,15 @@ from slamobs.pipeline.readers.rows import LAYOUTS
 from slamobs.pipeline.readers.fastdecode import read_rows
 from slamobs.pipeline.readers.roles import topics_of
 from slamobs.pipeline.simulate import expected_streams, make_typestore, simulate
-from slamobs.pipeline.simulate.logwriter import TOPIC_TYPES, iter_messages
 
-CHUNK = 48 * 1024  # small chunks: a 2 s log spans several
+from container_logs import CHUNK, write_container
+
 FIDUCIALS = "fiducial_msgs/msg/FiducialTransformArray"
 
 
 @pytest.fixture(scope="module")
 def sim():
     return simulate("figure8", duration=2.0, seed=3)
-
-
-def _write(sim, path: Path, container: str, compression: str = "") -> Path:
-    """``sim`` as ``container`` (bag, mcap, ros2-sqlite3, ros2-mcap) with the given compression."""
-    ros1 = container == "bag"
-    ts = make_typestore(ros1=ros1)
-    if container == "bag":
-        writer = Bag1Writer(path)
-        if compression:
-            writer.set_compression(Bag1Writer.CompressionFormat[compression.upper()])
-        writer.chunk_threshold = CHUNK
-        with writer:
-            conns = {t: writer.add_connection(t, m, typestore=ts) for t, m in TOPIC_TYPES.items()}
-            for topic, rec, raw in iter_messages(sim, ts, ros1=True):
-                writer.write(conns[topic], rec, raw)
-    elif container == "mcap":
-        with path.open("wb") as stream:
-            kind = CompressionType[compression.upper() or "NONE"]
-            writer = McapWriter(stream, chunk_size=CHUNK, compression=kind)
-            writer.start(profile="ros2", library="test")
-            channels = {}
-            for topic, msgtype in TOPIC_TYPES.items():
-                msgdef, _ = ts.generate_msgdef(msgtype, ros_version=2)
-                schema = writer.register_schema(name=msgtype, encoding="ros2msg", data=msgdef.encode())
-                channels[topic] = writer.register_channel(topic=topic, message_encoding="cdr", schema_id=schema)
-            for topic, rec, data in iter_messages(sim, ts, ros1=False):
-                writer.add_message(channels[topic], log_time=rec, data=data, publish_time=rec)
-            writer.finish()
-    else:
-        plugin = StoragePlugin.MCAP if container == "ros2-mcap" else StoragePlugin.SQLITE3
-        writer2 = Bag2Writer(path, version=9, storage_plugin=plugin)
-        if compression:
-            writer2.set_compression(CompressionMode[compression.upper()], CompressionFormat.ZSTD)
-        with writer2:
-            conns = {t: writer2.add_connection(t, m, typestore=ts) for t, m in TOPIC_TYPES.items()}
-            for topic, rec, raw in iter_messages(sim, ts, ros1=False):
-                writer2.write(conns[topic], rec, raw)
-    return path
 
 
 def _same_streams(got, want, prefix: bool = False) -> None:
@@ -122,7 +82,7 @@ MATRIX = [
 @pytest.mark.parametrize(("container", "compression"), MATRIX)
 def test_every_container_and_compression(tmp_path, sim, container, compression):
     name = {"bag": "log.bag", "mcap": "log.mcap"}.get(container, "log_ros2")
-    path = _write(sim, tmp_path / name, container, compression)
+    path = write_container(sim, tmp_path / name, container, compression)
     got = read_log(path)
     assert got.warnings == []
     _same_streams(got, expected_streams(sim, str(path)))
@@ -137,7 +97,7 @@ def test_every_container_and_compression(tmp_path, sim, container, compression):
 def test_a_group_of_chunks_is_loaded_into_one_buffer(tmp_path, monkeypatch, sim, container, compression):
     """Chunks are decompressed into their decoding group's buffer (no copy joining them for the decoder): each
     group reaches the decoder as one batch, in order, and the streams are the simulated ones."""
-    path = _write(sim, tmp_path / f"log.{container}", container, compression)
+    path = write_container(sim, tmp_path / f"log.{container}", container, compression)
     monkeypatch.setattr(storage, "GROUP_BYTES", 2 * CHUNK)  # several groups of several chunks: the loading thread runs
     joins = []
     concat = storage.concat
@@ -164,7 +124,7 @@ def test_a_groups_chunks_are_decompressed_on_two_lanes(tmp_path, monkeypatch, si
     simulated ones, the same as on one lane (one core), and no thread is left once the log is read."""
     import threading
 
-    path = _write(sim, tmp_path / f"log.{container}", container, compression)
+    path = write_container(sim, tmp_path / f"log.{container}", container, compression)
     monkeypatch.setattr(storage, "GROUP_BYTES", 4 * CHUNK)
     lanes = []
     unpack = chunks.unpack_unit
@@ -188,7 +148,7 @@ def test_stream_builds_on_a_second_thread_give_the_streams_of_one(tmp_path, monk
 
     import slamobs.pipeline.readers as readers
 
-    path = _write(sim, tmp_path / "log.mcap", "mcap", "zstd")
+    path = write_container(sim, tmp_path / "log.mcap", "mcap", "zstd")
     where = []
     for name in ("vec3_stream", "pose_stream", "detection_stream"):
         build = getattr(readers, name)
@@ -211,7 +171,7 @@ def test_memory_does_not_grow_with_log_length(tmp_path, monkeypatch, container, 
     overhead = []
     for seconds in (3.0, 12.0):
         name = f"{seconds:g}" + {"bag": ".bag", "mcap": ".mcap"}.get(container, "_ros2")
-        path = _write(simulate("circle", duration=seconds, seed=1), tmp_path / name, container, compression)
+        path = write_container(simulate("circle", duration=seconds, seed=1), tmp_path / name, container, compression)
         with open_log(path) as reader:
             table = {t: c for t, (m, c) in topics_of(reader).items() if m.msgtype in LAYOUTS}
             read_rows(reader, path, table)  # warm up (kernels, typestore classes)
@@ -290,7 +250,7 @@ def _count(note: str) -> int:
 
 @pytest.mark.parametrize("container", ["bag", "mcap"])
 def test_truncated_uncompressed_keeps_every_complete_message(tmp_path, sim, container):
-    src = _write(sim, tmp_path / f"full.{container}", container)
+    src = write_container(sim, tmp_path / f"full.{container}", container)
     ends = _ros1_message_ends(src) if container == "bag" else _mcap_message_ends(src)
     data_end, size = _data_end(src, container), src.stat().st_size
     full = read_log(src)
@@ -322,7 +282,7 @@ def test_truncated_uncompressed_keeps_every_complete_message(tmp_path, sim, cont
     ("container", "compression"), [("bag", "lz4"), ("bag", "bz2"), ("mcap", "zstd"), ("mcap", "lz4")]
 )
 def test_truncated_compressed_keeps_complete_chunks(tmp_path, sim, container, compression):
-    src = _write(sim, tmp_path / f"full.{container}", container, compression)
+    src = write_container(sim, tmp_path / f"full.{container}", container, compression)
     data_end, size = _data_end(src, container), src.stat().st_size
     full = read_log(src)
     total = sum(sim.topic_counts().values())
@@ -354,7 +314,7 @@ def _complete_chunk_messages(path: Path, at: int) -> int:
 
 
 def test_unindexed_bag_is_scanned(tmp_path, sim):
-    src = _write(sim, tmp_path / "full.bag", "bag", "lz4")
+    src = write_container(sim, tmp_path / "full.bag", "bag", "lz4")
     data = bytearray(src.read_bytes())
     at = data.index(b"index_pos=") + len(b"index_pos=")
     data[at : at + 8] = bytes(8)  # as a recorder leaves it until the bag is closed
@@ -367,7 +327,7 @@ def test_unindexed_bag_is_scanned(tmp_path, sim):
 
 
 def test_truncated_log_runs_and_says_so(tmp_path, sim):
-    src = _write(sim, tmp_path / "full.mcap", "mcap", "zstd")
+    src = write_container(sim, tmp_path / "full.mcap", "mcap", "zstd")
     path = _cut(src, tmp_path / "crashed.mcap", src.stat().st_size // 2)
     summary = inspect_log(path)
     assert summary.message_count > 0 and "MCAP file is incomplete" in summary.warnings[0]
@@ -377,13 +337,13 @@ def test_truncated_log_runs_and_says_so(tmp_path, sim):
 
 def test_nothing_recoverable_is_an_input_error(tmp_path, sim):
     for container in ("bag", "mcap"):
-        src = _write(sim, tmp_path / f"full.{container}", container)
+        src = write_container(sim, tmp_path / f"full.{container}", container)
         path = _cut(src, tmp_path / f"stub.{container}", 20)  # inside the file header
         with pytest.raises(InputError) as err:
             read_log(path)
         assert str(path) in str(err.value) and "\n" not in str(err.value)
     # only the magic bytes: rosbags' own words were "ord() expected a character, but string of length 0 found"
-    magic = _cut(_write(sim, tmp_path / "full2.mcap", "mcap"), tmp_path / "magic.mcap", 8)
+    magic = _cut(write_container(sim, tmp_path / "full2.mcap", "mcap"), tmp_path / "magic.mcap", 8)
     with pytest.raises(
         InputError, match=r"corrupt or truncated MCAP file: the file ends after its magic bytes, before"
     ):
@@ -426,7 +386,7 @@ def test_damaged_chunk_in_indexed_file_is_skipped_and_counted(
     into decoding groups of that many bytes, loaded on the reading thread; 0: the whole log is one group)."""
     if group:
         monkeypatch.setattr(storage, "GROUP_BYTES", group)
-    src = _write(sim, tmp_path / f"full.{container}", container, compression)
+    src = write_container(sim, tmp_path / f"full.{container}", container, compression)
     data = bytearray(src.read_bytes())
     if container == "bag":
         with Bag1Reader(src) as reader:
@@ -513,7 +473,7 @@ def test_empty_topic_nan_inf_and_odd_detections(tmp_path):
 def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
     """A recording that crashed leaves its storage file but no metadata.yaml: the file is read, and the run
     says how; with several storage files it is a one-line error naming the directory."""
-    path = _write(sim, tmp_path / "crashed", container)
+    path = write_container(sim, tmp_path / "crashed", container)
     (path / "metadata.yaml").unlink()
     (storage,) = [p for p in path.iterdir() if p.suffix in {".db3", ".mcap"}]
     got = read_log(path)
@@ -536,7 +496,7 @@ def test_rosbag2_directory_without_metadata(tmp_path, sim, container):
 def test_rosbag2_metadata_naming_another_storage(tmp_path, sim, container, said, files):
     """A metadata.yaml whose storage_identifier is not its files' storage was 'corrupt or truncated rosbag2
     directory (mcap): File magic is invalid.': now one line naming both and the fix."""
-    path = _write(sim, tmp_path / "swapped", container)
+    path = write_container(sim, tmp_path / "swapped", container)
     meta = path / "metadata.yaml"
     meta.write_text(re.sub(r"storage_identifier: \S+", f"storage_identifier: {said}", meta.read_text()))
     for read in (read_log, inspect_log):
@@ -551,7 +511,7 @@ def test_rosbag2_metadata_naming_another_storage(tmp_path, sim, container, said,
 def test_rosbag2_directory_with_an_empty_metadata_file(tmp_path, sim, text):
     """A recording that crashed while writing metadata.yaml leaves it empty: read like one without it (rosbags
     failed with "Invalid bag metadata: 'NoneType' object is not subscriptable")."""
-    path = _write(sim, tmp_path / "crashed", "ros2-sqlite3")
+    path = write_container(sim, tmp_path / "crashed", "ros2-sqlite3")
     (path / "metadata.yaml").write_text(text)
     (storage,) = [p for p in path.iterdir() if p.suffix == ".db3"]
     got = read_log(path)
@@ -568,7 +528,7 @@ def test_rosbag2_directory_with_an_empty_metadata_file(tmp_path, sim, text):
 def test_the_parts_of_an_unclosed_split_rosbag2_recording_are_read_in_order(tmp_path, sim, container):
     """A split recording that crashed leaves NAME_0, NAME_1, ... without metadata.yaml: every part is read, in order
     (it was an error asking to open one file, half the recording)."""
-    whole = _write(sim, tmp_path / "whole", container)
+    whole = write_container(sim, tmp_path / "whole", container)
     crashed = tmp_path / "crashed"
     crashed.mkdir()
     plugin = StoragePlugin.MCAP if container == "ros2-mcap" else StoragePlugin.SQLITE3
@@ -605,7 +565,7 @@ def test_corrupt_uncompressed_chunk_is_damaged(tmp_path):
     """A byte changed inside an uncompressed chunk's records (their structure intact) fails the chunk's CRC: the
     chunk is skipped and counted, as zlib's CRC-32 would say."""
     sim = simulate("figure8", duration=2.0, seed=3)
-    src = _write(sim, tmp_path / "full.mcap", "mcap")
+    src = write_container(sim, tmp_path / "full.mcap", "mcap")
     data = bytearray(src.read_bytes())
     with src.open("rb") as fobj:
         index = make_reader(fobj).get_summary().chunk_indexes[1]

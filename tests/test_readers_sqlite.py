@@ -220,9 +220,9 @@ def test_pages_read_directly_give_the_rows_sqlite_gives(tmp_path, monkeypatch, g
     if group is not None:
         monkeypatch.setattr(storage, "GROUP_BYTES", group)
     walked, after = [], []
-    real_window, real_by_sql = sqlitefile.read_window, rosbag2_sqlite._by_sql
+    real_window, real_by_sql = sqlitefile.read_window, rosbag2_sqlite.rows_by_sql
     monkeypatch.setattr(sqlitefile, "read_window", lambda *a: walked.append(a[1]) or real_window(*a))
-    monkeypatch.setattr(rosbag2_sqlite, "_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
+    monkeypatch.setattr(rosbag2_sqlite, "rows_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
     got = _flat_batches(path, {"/light", "/other"})
     assert len(walked) > 10 if group else len(walked) == 1, walked  # read from the pages, SQLite not asked
     assert not after and len(got[2]) == 900
@@ -243,8 +243,8 @@ def test_pages_walked_a_few_at_a_time_give_the_rows_sqlite_gives(tmp_path, monke
     }
     path = write_raw_log(tmp_path / "light_ros2", "ros2", topics, "std_msgs/msg/String", make_typestore(ros1=False))
     grown = []
-    real_grown = sqlitefile._grown
-    monkeypatch.setattr(sqlitefile, "_grown", lambda *a: grown.append(a[1]) or real_grown(*a))
+    real_grown = sqlitefile.grown_rows
+    monkeypatch.setattr(sqlitefile, "grown_rows", lambda *a: grown.append(a[1]) or real_grown(*a))
     monkeypatch.setattr(sqlitefile, "PIECE", piece)
     got = _flat_batches(path, {"/light", "/other"})
     assert grown and len(got[2]) == 900
@@ -263,8 +263,8 @@ def test_a_row_the_walk_does_not_take_leaves_the_rest_to_sqlite(tmp_path, monkey
         ).fetchone()
         db.execute("UPDATE messages SET data = CAST(data AS TEXT) WHERE id = ?", (mid,))
     after = []
-    real_by_sql = rosbag2_sqlite._by_sql
-    monkeypatch.setattr(rosbag2_sqlite, "_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
+    real_by_sql = rosbag2_sqlite.rows_by_sql
+    monkeypatch.setattr(rosbag2_sqlite, "rows_by_sql", lambda *a: after.append(a[-1]) or real_by_sql(*a))
     got = _flat_batches(path, {"/light"})
     assert len(after) == 1 and 0 < after[0] < mid  # the pages before the text row were read directly
     monkeypatch.setattr(rosbag2_sqlite, "_table", lambda reader: None)

@@ -390,7 +390,7 @@ def test_compiled_step_angles_give_the_clock_offset_of_the_array_code(monkeypatc
     for use in (True, False):
         monkeypatch.setattr(metrics, "KERNEL_ROWS", 1 if use else 1 << 62)
         found[use] = sync.estimate_time_offset(t, pos, q, t[::2] - 37_000_000, pos[::2], q[::2])
-        steps[use] = sync._step_angles(q)
+        steps[use] = sync.step_angles(q)
     assert np.array_equal(steps[True], steps[False]) and found[True] == found[False]
     assert found[True].offset_s == pytest.approx(0.037, abs=0.002) and found[True].signal == "angular rate |ω|"
 
@@ -578,8 +578,8 @@ def test_rate_on_grid_marks_the_same_samples_outside_the_span():
     for start, n in ((t[0] - 7 * step, 260), (t[0] + 3, 50), (t[-1] - 3 * step, 40), (t[-1] + step, 5), (t[0], 1)):
         for shift in (0, 1, -1, 4_999_999, -step):
             grid = start + np.arange(n, dtype=np.int64) * step - shift
-            got = sync._rate_on_grid(t, inc, grid, step)
-            cum_t, cum = sync._accumulate(t, inc)
+            got = sync.rate_on_grid(t, inc, grid, step)
+            cum_t, cum = sync.accumulate(t, inc)
             edges = np.append(grid, grid[-1] + step).astype(np.float64)
             at = np.interp(edges, cum_t, cum)
             want = (at[1:] - at[:-1]) / (step / sync.NS_PER_S)
@@ -618,12 +618,12 @@ def test_compiled_offset_correlation_is_the_array_codes_to_round_off(monkeypatch
     steps = 0.01 + 0.02 * np.sin(0.01 * np.arange(n - 1)) ** 2 + 0.002 * rng.random(n - 1)
     step = 10_000_000
     grid = t[0] - 50 * step + np.arange((t[-1] - t[0]) // step + 100, dtype=np.int64) * step
-    ref = sync._rate_on_grid(t, steps, grid - 23_000_000, step)
+    ref = sync.rate_on_grid(t, steps, grid - 23_000_000, step)
     ref[::13] = np.nan
     value = {}
     for kernel in (True, False):
         monkeypatch.setattr(sync, "CORRELATION_KERNEL_ROWS", 1 if kernel else 1 << 62)
-        corr = sync._offset_correlation(ref, t, steps, grid, step)
+        corr = sync.offset_correlation(ref, t, steps, grid, step)
         value[kernel] = [corr(tau) for tau in (-2.5e7, -1.23e6, 0.0, 7.7e6, 2.3e7, 3.1e10, -3.1e10, (t[-1] - t[0]) - 5)]
     assert value[True] == pytest.approx(value[False], rel=1e-12, abs=1e-14)
     assert value[True][5] == value[True][6] == -1.0 and max(value[True]) > 0.9

@@ -14,7 +14,7 @@ from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian, so3_log
 from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
-from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PLANAR_HEIGHT, RiEKF, _accumulate, _flush, _update
+from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PLANAR_HEIGHT, RiEKF, accumulate, flush, update
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from cli_checks import SAMPLES
 
@@ -33,7 +33,7 @@ def test_running_sums_and_transition_equal_the_dense_propagation():
     r, p = so3_exp(rng.normal(size=3)), rng.normal(size=3) * 3
     q_om, q_v, h = rng.uniform(1, 2, 3), rng.uniform(1, 2, 3), 0.3
     acc = np.zeros((5, 3, 3))
-    _accumulate(h, r, p, q_om, q_v, acc)
+    accumulate(h, r, p, q_om, q_v, acc)
     m, sp = r @ np.diag(q_om) @ r.T, skew(p)
     assert np.allclose(acc, [h * r, h * sp @ r, h * m, h * sp @ m, h * (sp @ m @ sp.T + r @ np.diag(q_v) @ r.T)])
     acc = rng.normal(size=(5, 3, 3))
@@ -57,7 +57,7 @@ def test_running_sums_and_transition_equal_the_dense_propagation():
     expect[6:9, 6:9] += walk_w**2 * dt * np.eye(3)
     expect[9:12, 9:12] += walk_v**2 * dt * np.eye(3)
     expect = phi @ expect @ phi.T + q
-    _flush(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, np.zeros((6, d)), np.zeros((6, d)), np.zeros((3, d)))
+    flush(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, np.zeros((6, d)), np.zeros((6, d)), np.zeros((3, d)))
     assert np.allclose(cov, expect, rtol=1e-12, atol=1e-9)
 
 
@@ -118,7 +118,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
     # the kernel
     ns = np.zeros(N_SLOTS, dtype=np.int64)  # the kernel's integer state, all slots
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
-    d_out = _update(
+    d_out = update(
         0,
         3,
         det_idx,

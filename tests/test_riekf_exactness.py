@@ -12,13 +12,13 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian
 from slamobs.pipeline.observers import ObserverOptions, time_offset
-from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PAD, RiEKF, _apply, _propagation_terms, _update
+from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PAD, RiEKF, apply, propagation_terms, update
 from slamobs.pipeline.simulate import expected_streams, simulate
 
 
 @pytest.mark.parametrize(("d", "k"), [(13, 6), (27, 9), (102, 30), (15, 33)])
 def test_one_pass_sum_equals_the_matrix_product(d, k):
-    """``_apply``: ``Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(q≥6) lt[q]ᵀ lt[q]`` with the position rows' ``dp`` added, over
+    """``apply``: ``Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(q≥6) lt[q]ᵀ lt[q]`` with the position rows' ``dp`` added, over
     the upper triangle four rows at a time (and the rows left over), mirrored: the same matrix as NumPy's, exactly
     symmetric."""
     rng = np.random.default_rng(d + k)
@@ -33,14 +33,14 @@ def test_one_pass_sum_equals_the_matrix_product(d, k):
         expect[:3, 3 + a] += dp[a, :3]
     expect = np.triu(expect) + np.triu(expect, 1).T
     got = cov.copy()
-    _apply(got, d, lt, rt, k, dp, np.zeros(0, np.int64), -1)  # the whole triangle mirrored
+    apply(got, d, lt, rt, k, dp, np.zeros(0, np.int64), -1)  # the whole triangle mirrored
     assert np.array_equal(got, got.T)
     assert np.abs(got - expect).max() <= 1e-13 * np.abs(expect).max()
 
 
 @pytest.mark.parametrize(("d", "k"), [(102, 30), (27, 6), (45, 33)])
 def test_one_pass_tiles_give_the_bits_of_the_rows(d, k):
-    """``_apply`` on arrays padded to whole vectors (``PAD``: the eight-row tiles held in registers, ``pipeline.simd``)
+    """``apply`` on arrays padded to whole vectors (``PAD``: the eight-row tiles held in registers, ``pipeline.simd``)
     and on the same numbers unpadded (summed row by row): every entry of the upper triangle the same bits, each term
     added in its order as one fused multiply-add either way."""
     rng = np.random.default_rng(7 * d + k)
@@ -52,9 +52,9 @@ def test_one_pass_tiles_give_the_bits_of_the_rows(d, k):
     lt[:, :d], rt[:, :d], dp[:, :d] = rng.normal(size=(k, d)), rng.normal(size=(6, d)), rng.normal(size=(3, d))
     lt[:6, 3:6], rt[:, 3:6] = 0.0, 0.0
     padded, rows = cov.copy(), np.zeros(0, np.int64)
-    _apply(padded, d, lt, rt, k, dp, rows, -1)
+    apply(padded, d, lt, rt, k, dp, rows, -1)
     plain = np.ascontiguousarray(cov[:d, :d])
-    _apply(plain, d, lt[:, :d].copy(), rt[:, :d].copy(), k, dp[:, :d].copy(), rows, -1)
+    apply(plain, d, lt[:, :d].copy(), rt[:, :d].copy(), k, dp[:, :d].copy(), rows, -1)
     assert np.array_equal(padded[:d, :d], plain)
     assert not padded[d:].any() and not padded[:, d:].any()  # zeros past d add zeros
 
@@ -86,8 +86,8 @@ def _dense_frame(cov, d, lm, slot_lm, acc, dt, walk_w, walk_v, h, z, noise):
 
 
 def test_one_pass_frame_equals_propagation_then_kalman_update():
-    """A frame with propagation pending (``_propagation_terms``) and three detections of known landmarks
-    (``_update``: gain from the rows of ``Σ⁻`` it needs, propagation and downdate in one pass) against the
+    """A frame with propagation pending (``propagation_terms``) and three detections of known landmarks
+    (``update``: gain from the rows of ``Σ⁻`` it needs, propagation and downdate in one pass) against the
     dense propagation then the dense Kalman update: covariance, state and map to 1e-12 of their magnitudes."""
     rng = np.random.default_rng(27)
     n = 6
@@ -122,10 +122,10 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
     b_exp = np.r_[b_om, b_v] + xi[6:12]
 
     lt, rt, dp = np.zeros((15, d)), np.zeros((15, d)), np.zeros((3, d))
-    assert _propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
+    assert propagation_terms(cov, d, lm, slot_lm, acc.copy(), dt, walk_w, walk_v, lt, rt, dp)
     ns = np.zeros(N_SLOTS, dtype=np.int64)
     innov, trk = np.zeros((3, 3)), np.zeros((3, 3))
-    d_out = _update(
+    d_out = update(
         0, 3, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
         np.zeros(3, np.int64), np.zeros(9), lt, rt, dp, np.zeros((9, 9)), innov, trk, 0, ns, 1e9, 1.0,
         np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
@@ -138,7 +138,7 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
 
 
 def _two_frames(partial: bool):
-    """Two frames through ``_update``, propagation pending before each: the first detects landmarks 4, 1, 3 and a
+    """Two frames through ``update``, propagation pending before each: the first detects landmarks 4, 1, 3 and a
     new one, 6 (augmented from the position's rows), and mirrors either the whole lower triangle or (``partial``)
     only what the second reads of it (the second detects 0, 1, 5 and 6); the covariance, state and map after each."""
     rng = np.random.default_rng(31)
@@ -163,8 +163,8 @@ def _two_frames(partial: bool):
         acc = rng.normal(size=(5, 3, 3)) * 0.01
         w = rng.normal(size=(6, 6)) * 0.01
         acc[2], acc[3], acc[4] = (w @ w.T)[:3, :3], (w @ w.T)[3:, :3], (w @ w.T)[3:, 3:]
-        _propagation_terms(cov, d, lm, slot_lm, acc, 0.1, 0.01, 0.02, lt, rt, dp)
-        d = _update(
+        propagation_terms(cov, d, lm, slot_lm, acc, 0.1, 0.01, 0.02, lt, rt, dp)
+        d = update(
             a0, nd, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
             np.zeros(4, np.int64), np.zeros(12), lt, rt, dp, np.zeros((12, 12)), np.zeros((8, 3)), np.zeros((8, 3)),
             0, ns, 1e9, 1.0, np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_),
@@ -176,7 +176,7 @@ def _two_frames(partial: bool):
 
 
 def test_mirroring_what_the_next_frame_reads_gives_the_same_bits():
-    """``_update`` with the next frame's detections mirrors only the rows of ``Σ`` that frame reads below the
+    """``update`` with the next frame's detections mirrors only the rows of ``Σ`` that frame reads below the
     diagonal (``_mirror_read``): the next frame gives the bits it gives after a whole mirror, though the first
     frame left other entries below the diagonal stale (and augmented a landmark from the position's rows)."""
     whole, partial = _two_frames(False), _two_frames(True)
@@ -195,7 +195,7 @@ def generated():
 def test_time_offset_grid_in_one_pass_equals_shift_by_shift(generated):
     """The residuals of many shifts in one pass (a pair at every shift, walking from the last shift's sample)
     equal each shift alone (a binary search), in any order of the shifts; so do the costs."""
-    c = time_offset._Consistency(generated, np.zeros(6))
+    c = time_offset.Consistency(generated, np.zeros(6))
     shifts = np.array([0.3, -0.5, 0.02, 0.021, -0.2, 0.5, 0.0])
     together = c.residuals(shifts)
     for s, e in zip(shifts, together, strict=True):

@@ -238,7 +238,7 @@ def test_container_round_trip(tmp_path, container, name):
 def test_failed_write_leaves_nothing(tmp_path, monkeypatch, container, name):
     sim = simulate("circle", duration=2.0)
     calls = {"n": 0}
-    original = logwriter._build_message
+    original = logwriter.build_message
 
     def failing(factory, index):
         calls["n"] += 1
@@ -246,7 +246,7 @@ def test_failed_write_leaves_nothing(tmp_path, monkeypatch, container, name):
             raise RuntimeError("disk on fire")
         return original(factory, index)
 
-    monkeypatch.setattr(logwriter, "_build_message", failing)
+    monkeypatch.setattr(logwriter, "build_message", failing)
     with pytest.raises(RuntimeError, match="disk on fire"):
         write_log(sim, tmp_path / name, container)
     assert list(tmp_path.iterdir()) == []
@@ -280,7 +280,7 @@ def test_a_full_disk_is_one_line_naming_the_log(tmp_path, monkeypatch):
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(logwriter, "_write_mcap", full)
-    monkeypatch.setitem(logwriter._WRITERS, "mcap", full)
+    monkeypatch.setitem(logwriter.WRITERS, "mcap", full)
     target = tmp_path / "a.mcap"
     with pytest.raises(ResourceError, match="No space left on device") as err:
         write_log(simulate("circle", duration=1.0), target)
@@ -394,11 +394,11 @@ def test_short_logs_are_one_piece():
 def test_serialised_messages_are_rosbags_bytes(ros1):
     """The fixed-layout messages are written from a template with their fields overwritten in bulk: every
     message must be byte-for-byte what rosbags serialises from the message object."""
-    from slamobs.pipeline.simulate.logwriter import _Builder, make_typestore
+    from slamobs.pipeline.simulate.logwriter import Builder, make_typestore
 
     sim = simulate("figure8", duration=2.0, seed=9)
     ts = make_typestore(ros1=ros1)
-    builder = _Builder(sim, ts, ros1)
+    builder = Builder(sim, ts, ros1)
     objects = {
         TOPIC_IMU: builder.imu,
         TOPIC_ODOM: builder.odom,

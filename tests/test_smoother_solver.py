@@ -88,7 +88,7 @@ def split(v):
 def test_gradient_is_the_cost_derivative_away_from_the_minimum(case):
     problem, guess, pt = case
     rng = np.random.default_rng(1)
-    ne = g._Normal(problem, guess)
+    ne = g.Normal(problem, guess)
     away = rng.normal(size=6 * K + 3 * N_LM + 6 * N_SEG) * 1e-3
     away[6 * (K - 1) : 6 * K] = 0.0  # the anchor stays at its gauge (its prior is linearized as the identity)
     here = moved(pt, *split(away))
@@ -104,7 +104,7 @@ def test_gradient_is_the_cost_derivative_away_from_the_minimum(case):
 def test_information_step_and_marginals_match_dense_linear_algebra(case):
     problem, guess, pt = case
     rng = np.random.default_rng(2)
-    ne = g._Normal(problem, guess)
+    ne = g.Normal(problem, guess)
     ne.linearize(pt)
     h = dense_information(ne)
     g0 = np.r_[ne.ga.ravel(), ne.gb]

@@ -16,6 +16,8 @@ from pathlib import Path
 import pytest
 
 from batch_checks import CLI, wait_for, wait_gone
+from kill_checks import dask_worker, stop
+from kill_checks import scheduler  # noqa: F401 - a fixture: a real Dask scheduler process, as the batch tests
 
 pytest.importorskip("optuna")
 
@@ -114,9 +116,9 @@ def _tune_args(logs, out: Path, *extra) -> list[str]:
 def _complete_trials(out: Path) -> int:
     import optuna
 
-    from slamobs.pipeline.tune.study import STUDY, _storage
+    from slamobs.pipeline.tune.study import STUDY, journal_storage
 
-    study = optuna.load_study(study_name=STUDY, storage=_storage(out))
+    study = optuna.load_study(study_name=STUDY, storage=journal_storage(out))
     return len(study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,)))
 
 
@@ -198,7 +200,7 @@ def test_tune_on_a_dask_cluster(logs, tmp_path, scheduler):
     from slamobs.pipeline.tune.study import TuneOptions, run_tune
 
     _, address = scheduler
-    worker = _worker(address, tmp_path, "w1")
+    worker = dask_worker(address, tmp_path, "w1")
     try:
         result = run_tune(
             logs[:2],
@@ -207,7 +209,7 @@ def test_tune_on_a_dask_cluster(logs, tmp_path, scheduler):
             ),
         )
     finally:
-        _stop(worker)
+        stop(worker)
     assert result.ran == 3
     trials = pd.read_parquet(tmp_path / "tune" / "trials.parquet")
     assert len(trials) == 6 and trials["worker"].str.startswith("tcp://127.0.0.1:").all()
@@ -292,16 +294,13 @@ def test_a_killed_forced_tune_gives_the_previous_tune_back_to_the_next(tmp_path)
 
     (tmp_path / study.JOURNAL).write_text("previous")
     (tmp_path / "gains.yaml").write_text("previous gains")
-    study._set_aside(tmp_path)
+    study.set_aside(tmp_path)
     (tmp_path / study.JOURNAL).write_text("the killed forced tune's")
-    assert study._put_back(tmp_path) and not study._put_back(tmp_path)
+    assert study.put_back(tmp_path) and not study.put_back(tmp_path)
     assert (tmp_path / study.JOURNAL).read_text() == "previous" and not (tmp_path / study.PREVIOUS).exists()
-    study._set_aside(tmp_path)
-    assert study._replace_results(tmp_path, lambda: {"written": 1}) == {"written": 1}
+    study.set_aside(tmp_path)
+    assert study.replace_results(tmp_path, lambda: {"written": 1}) == {"written": 1}
     assert sorted(p.name for p in tmp_path.iterdir()) == []  # the new results are the writer's to write
-
-
-from test_batch_kills import _stop, _worker, scheduler  # noqa: F401 - real Dask processes, as the batch tests
 
 
 def test_a_resumed_tune_samples_new_gains_not_the_earlier_ones_again(logs, tmp_path):

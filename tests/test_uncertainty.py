@@ -260,7 +260,7 @@ def test_a_planar_runs_unmeasured_axes_are_not_called_within_3_sigma():
     χ²(3n)/n" beside a DoF column of 2 and 1. Those shares are null ("–"), the Method says the DoF column's bounds."""
     from types import SimpleNamespace
 
-    from slamobs.pipeline.evaluation.markdown import _md_uncertainty
+    from slamobs.pipeline.evaluation.markdown import md_uncertainty
     from slamobs.pipeline.evaluation.sections import UncertaintySection
 
     rng = np.random.default_rng(7)
@@ -285,7 +285,7 @@ def test_a_planar_runs_unmeasured_axes_are_not_called_within_3_sigma():
     pos, att = section.result["position"], section.result["attitude"]
     assert pos["within_3sigma"][2] is None and pos["within_3sigma"][0] > 0.9
     assert att["within_3sigma"][:2] == [None, None] and att["within_3sigma"][2] > 0.9
-    rows = "\n".join(_md_uncertainty(section.result))
+    rows = "\n".join(md_uncertainty(section.result))
     assert "| position | 2 (x, y) |" in rows and ", –]" in rows and "[–, –, " in rows
     method = UncertaintySection.METHOD["uncertainty"]
     assert "χ²(DoF·n)/n" in method and "(3 DoF each)" not in method

@@ -57,8 +57,9 @@ def _gen(names) -> int:
     return max(gens, default=0) + 1
 
 
-class _Writer:
-    """Consecutive units (one run's partition or a small compacted file) into files of <= file_rows rows."""
+class Writer:
+    """Consecutive units (one run's partition or a small compacted file) into files of <= file_rows rows.
+    Public: tests/test_batch_hostile.py fills the disk under its file opening."""
 
     def __init__(self, base: Path, gen: int, file_rows: int, group_rows: int) -> None:
         self.base, self.gen, self.file_rows, self.group_rows = base, gen, file_rows, group_rows
@@ -169,7 +170,7 @@ def _write_tables(
         units = [(partition_file(out, table, rid), [rid]) for rid in fresh]
         units += [(out / table / n, sorted(files[n])) for n in small]
         units.sort(key=lambda u: u[1][0] if u[1] else "")
-        writer = _Writer(out / table, _gen(files), file_rows, group_rows)
+        writer = Writer(out / table, _gen(files), file_rows, group_rows)
         rows = 0
         try:
             for path, ids in units:

@@ -55,9 +55,9 @@ def dask_available() -> bool:
     return importlib.util.find_spec("distributed") is not None
 
 
-def _check_workers(client, where: str, version: str, code: str, within: float) -> int:
+def check_workers(client, where: str, version: str, code: str, within: float) -> int:
     """Every worker's answer to :func:`probe.probe` (within ``within`` seconds); raises on the first that cannot
-    run this batch."""
+    run this batch. Public: tests/test_batch_kills_dask.py asks it with a stand-in client."""
     from concurrent.futures import ThreadPoolExecutor
     from concurrent.futures import TimeoutError as Late
 
@@ -148,13 +148,13 @@ class _Watch:
             self.alive[worker] = now
 
 
-def _kill_workers(cluster) -> None:
+def kill_workers(cluster) -> None:
     """SIGKILL a local cluster's worker processes, their nannies told first not to start them again.
 
     What distributed then logs of the killed workers is noise, silenced first: its comms ("Batched Comm Closed" and
     a CommClosedError traceback at INFO once a cluster's close restored distributed's handlers, kill_matrix seed 46;
     a signal while the cluster starts, as its constructor's clean-up kills them), a nanny restarting a worker killed
-    mid-batch (an ERROR traceback: seed 48)."""
+    mid-batch (an ERROR traceback: seed 48). Public: tests/test_batch_kills_local_cluster.py signals the batch in it."""
     import os
 
     logging.getLogger("distributed").setLevel(logging.CRITICAL)
@@ -246,7 +246,7 @@ class DaskPool:
         except OSError as err:  # the scheduler went away while we waited (connection closed or refused)
             raise self._lost(err) from None
         self.allowed = self._allowed_failures()
-        return _check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
+        return check_workers(self.client, self.where, __version__, code_hash(), max(self.wait_workers, 10.0))
 
     def _allowed_failures(self) -> int:
         """The scheduler's ``distributed.scheduler.allowed-failures`` (a cluster's own configuration), or this
@@ -320,7 +320,7 @@ class DaskPool:
                 try:
                     super().__init__(**kwargs)
                 except BaseException:
-                    _kill_workers(self)
+                    kill_workers(self)
                     try:
                         self.close(timeout=5)
                     except BaseException:  # noqa: BLE001 - half built: nothing of it to keep
@@ -354,7 +354,7 @@ class DaskPool:
 
     def _close(self) -> None:
         if self.cluster is not None:
-            _kill_workers(self.cluster)
+            kill_workers(self.cluster)
         if self.client is not None:
             try:
                 self.client.close(timeout=5)

@@ -326,7 +326,7 @@ def render_markdown(report: dict[str, Any]) -> str:
     lines += _md_landmarks(report["landmarks"])
     lines += _md_biases(report["biases"])
     if report.get("uncertainty"):
-        lines += _md_uncertainty(report["uncertainty"])
+        lines += md_uncertainty(report["uncertainty"])
     if report.get("notes"):
         lines += ["## Notes", ""] + [f"- {n}" for n in report["notes"]] + [""]
     if report.get("figures"):
@@ -335,8 +335,9 @@ def render_markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def _md_uncertainty(u: dict[str, Any]) -> list[str]:
-    """The estimator's covariance against its error: NEES with its bounds, errors within 3σ."""
+def md_uncertainty(u: dict[str, Any]) -> list[str]:
+    """The estimator's covariance against its error: NEES with its bounds, errors within 3σ.
+    Public: tests/test_uncertainty.py renders it alone."""
     lines = [
         "## Uncertainty (NEES)",
         "",

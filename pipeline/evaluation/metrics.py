@@ -48,16 +48,19 @@ def row_norms(x: np.ndarray, minus: np.ndarray | None = None) -> np.ndarray:
     square, the squares summed left to right as NumPy's reduction of a short axis does, one ``sqrt``): the same
     bits, without NumPy's temporaries and its slow reduction along a short axis (~1 ms per 100 k rows)."""
     x = np.asarray(x, dtype=np.float64)
-    if x.ndim != 2 or not compiled_for(x.shape[0], _row_norms):
+    if x.ndim != 2 or not compiled_for(x.shape[0], row_norms_into):
         return row_norms3(x if minus is None else x - minus)
     out = np.empty(x.shape[0])
-    _row_norms(np.ascontiguousarray(x), None if minus is None else np.ascontiguousarray(minus, dtype=np.float64), out)
+    row_norms_into(
+        np.ascontiguousarray(x), None if minus is None else np.ascontiguousarray(minus, dtype=np.float64), out
+    )
     return out
 
 
 @njit(cache=True, nogil=True)
-def _row_norms(x, minus, out):  # pragma: no cover - compiled
-    """:func:`row_norms` into ``out``."""
+def row_norms_into(x, minus, out):  # pragma: no cover - compiled
+    """:func:`row_norms` into ``out``.
+    Public: tests/test_kernel_cache.py compiles it again to check the cache."""
     for n in range(x.shape[0]):
         s = 0.0
         for c in range(x.shape[1]):
@@ -193,17 +196,18 @@ def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     the numbers are the same, bit for bit. Rows not :func:`compiled_for` take the array code."""
     a, b = np.ascontiguousarray(a, dtype=np.float64), np.ascontiguousarray(b, dtype=np.float64)
     if not compiled_for(a.shape[0], _relative_quats):
-        return quat_angles(matrix_quats(_products(a, b)))
+        return quat_angles(matrix_quats(relative_rotations(a, b)))
     q = np.empty((a.shape[0], 4))
     bad = np.zeros(a.shape[0], dtype=np.bool_)
     _relative_quats(a, b, q, bad)
     if bad.any():
-        q[bad] = matrix_quats(_products(a[bad], b[bad]))
+        q[bad] = matrix_quats(relative_rotations(a[bad], b[bad]))
     return quat_angles(q)
 
 
-def _products(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a_kᵀ b_k`` per row."""
+def relative_rotations(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``a_kᵀ b_k`` per row.
+    Public: tests/test_evaluation.py builds its reference angles from it."""
     m = np.empty((a.shape[0], 3, 3))
     for i in range(3):
         for j in range(3):

@@ -171,10 +171,11 @@ class TimeOffset:
         return self.peak_correlation >= 0.5 and not self.at_window_edge and supported
 
 
-def _step_angles(q: np.ndarray) -> np.ndarray:
+def step_angles(q: np.ndarray) -> np.ndarray:
     """Rotation angle between consecutive (x, y, z, w) quaternions: 2 atan2(|v|, |w|) of q_k⁻¹ q_{k+1}. From
     ``metrics.KERNEL_ROWS`` quaternions on, ``|v|`` and ``|w|`` come from a compiled loop (the same operations
-    in the same order: the same bits; ``atan2`` stays NumPy's)."""
+    in the same order: the same bits; ``atan2`` stays NumPy's).
+    Public: tests/test_report_cost.py checks its compiled loop."""
     from slamobs.pipeline.evaluation import metrics  # its threshold (metrics imports this module)
 
     q = np.asarray(q, dtype=np.float64)
@@ -196,7 +197,7 @@ def _step_angles(q: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def _step_parts(q):  # pragma: no cover - compiled
-    """``|v|`` and ``|w|`` of ``q_k⁻¹ q_{k+1}`` (each normalised), as :func:`_step_angles`' array code has them."""
+    """``|v|`` and ``|w|`` of ``q_k⁻¹ q_{k+1}`` (each normalised), as :func:`step_angles`' array code has them."""
     n = q.shape[0] - 1
     v = np.empty(max(n, 0))
     w = np.empty(max(n, 0))
@@ -218,7 +219,7 @@ def _step_parts(q):  # pragma: no cover - compiled
     return v, w
 
 
-def _rate_on_grid(
+def rate_on_grid(
     t_ns: np.ndarray,
     increments: np.ndarray,
     grid_ns: np.ndarray,
@@ -226,9 +227,10 @@ def _rate_on_grid(
     accumulated: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Mean rate of an accumulated quantity over [g, g + step] (NaN outside the stream's span);
-    ``accumulated`` is :func:`_accumulate` of the stream when sampled repeatedly. ``grid_ns`` is evenly spaced
-    by ``step_ns``: the end of one interval is the start of the next, so the sum is interpolated once per edge."""
-    t, cum = accumulated if accumulated is not None else _accumulate(t_ns, increments)
+    ``accumulated`` is :func:`accumulate` of the stream when sampled repeatedly. ``grid_ns`` is evenly spaced
+    by ``step_ns``: the end of one interval is the start of the next, so the sum is interpolated once per edge.
+    Public: tests/test_report_cost.py checks it against a plain loop."""
+    t, cum = accumulated if accumulated is not None else accumulate(t_ns, increments)
     edges = np.empty(grid_ns.shape[0] + 1, np.int64)
     edges[:-1] = grid_ns
     edges[-1] = grid_ns[-1] + step_ns if grid_ns.shape[0] else 0
@@ -241,8 +243,9 @@ def _rate_on_grid(
     return rate
 
 
-def _accumulate(t_ns: np.ndarray, increments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Float stamps and the running sum (from 0) of ``increments`` at them."""
+def accumulate(t_ns: np.ndarray, increments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Float stamps and the running sum (from 0) of ``increments`` at them.
+    Public: tests/test_report_cost.py builds its reference from it."""
     return t_ns.astype(np.float64), np.concatenate([[0.0], np.cumsum(increments)])
 
 
@@ -258,7 +261,7 @@ def _step_lengths(pos: np.ndarray) -> np.ndarray:
 def pose_steps(pos: np.ndarray, quat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The rotation angle and the distance from each pose of a trajectory to the next (the motion increments the
     clock-offset search resamples as rates)."""
-    return _step_angles(quat), _step_lengths(pos)
+    return step_angles(quat), _step_lengths(pos)
 
 
 def velocity_steps(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -276,7 +279,7 @@ def velocity_steps(t_ns: np.ndarray, omega: np.ndarray, velocity: np.ndarray) ->
 def _signals(t_ns, steps, grid_ns, step_ns):
     """Angular rate and speed on the grid from the step angles and lengths ``steps``."""
     ang, dist = steps
-    return _rate_on_grid(t_ns, ang, grid_ns, step_ns), _rate_on_grid(t_ns, dist, grid_ns, step_ns)
+    return rate_on_grid(t_ns, ang, grid_ns, step_ns), rate_on_grid(t_ns, dist, grid_ns, step_ns)
 
 
 def _variation(x: np.ndarray) -> float:
@@ -409,7 +412,7 @@ def time_offset_of_steps(
     # c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
-    corr = _offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns)
+    corr = offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns)
     tau = _golden_section_max(corr, (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns, 1e-4 * NS_PER_S)  # 0.1 ms
     peak = max(corr(tau), float(c[k]))
     offset = tau / NS_PER_S
@@ -462,9 +465,10 @@ def _best_grid_lag(ref: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np
     return None
 
 
-def _offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarray, grid: np.ndarray, step_ns: int):
-    """Correlation of ``ref_signal`` with the estimate's rate sampled at ``grid − τ``, as a function of τ (ns)."""
-    accumulated = _accumulate(te, steps)  # sampled at every trial offset: summed once
+def offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarray, grid: np.ndarray, step_ns: int):
+    """Correlation of ``ref_signal`` with the estimate's rate sampled at ``grid − τ``, as a function of τ (ns).
+    Public: tests/test_report_cost.py checks it against a plain loop."""
+    accumulated = accumulate(te, steps)  # sampled at every trial offset: summed once
     ref_defined = np.isfinite(ref_signal)
 
     if grid.shape[0] >= CORRELATION_KERNEL_ROWS:  # one compiled pass per trial offset
@@ -477,7 +481,7 @@ def _offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarra
         )
 
     def corr(tau_ns: float) -> float:
-        e = _rate_on_grid(te, steps, grid - int(round(tau_ns)), step_ns, accumulated)
+        e = rate_on_grid(te, steps, grid - int(round(tau_ns)), step_ns, accumulated)
         ok = np.isfinite(e) & ref_defined
         if ok.sum() < 8:
             return -1.0
@@ -489,7 +493,7 @@ def _offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarra
     return corr
 
 
-#: Grid points from which :func:`_offset_correlation` takes its compiled pass (a short log's grid keeps the array
+#: Grid points from which :func:`offset_correlation` takes its compiled pass (a short log's grid keeps the array
 #: code: its first run does not compile the kernel).
 CORRELATION_KERNEL_ROWS = 65_536
 
@@ -498,7 +502,7 @@ CORRELATION_KERNEL_ROWS = 65_536
 def _shifted_correlation(t, cum, t_first, t_last, grid, step_ns, shift_ns, ref, pairs):  # pragma: no cover
     """Pearson correlation of ``ref`` with the estimate's mean rate over [g − shift, g − shift + step] (the
     running sum ``cum`` at the float stamps ``t``, interpolated as ``np.interp``), over the grid points where both
-    are defined; -1 where fewer than 8 are or either is constant there. :func:`_offset_correlation`'s array
+    are defined; -1 where fewer than 8 are or either is constant there. :func:`offset_correlation`'s array
     code in one compiled pass (``pairs`` a (2, grid) scratch buffer): the same values to round-off (its sums in
     another order), so the golden-section search takes the same steps unless two trials tie to ~1e-15."""
     n_t, n_g = t.shape[0], grid.shape[0]

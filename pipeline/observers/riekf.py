@@ -14,7 +14,7 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   the process noise only enters the group rows: both are accumulated as a few 3×3 running sums per velocity
   sample and applied to the covariance once per detection frame, as six low-rank terms in the same pass over
   the covariance as the frame's Kalman downdate (``O((6 + 3m) D²/2)`` for ``D`` state dimensions and ``m``
-  detections; :func:`_propagation_terms`, :func:`_apply`).
+  detections; :func:`propagation_terms`, :func:`apply`).
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
   correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
@@ -192,9 +192,9 @@ RECOVERY_ACTIONS = {
 #: Recoveries recorded for the notes (time, variance factor, total factor, failing windows in a row).
 MAX_LOG = 64
 #: The covariance is allocated to a multiple of this many rows and columns, the one-pass scratch rows to a multiple
-#: of this many columns: :func:`_apply`'s tiles are this many rows by one or two vectors of :mod:`pipeline.simd`.
+#: of this many columns: :func:`apply`'s tiles are this many rows by one or two vectors of :mod:`pipeline.simd`.
 PAD = 8
-#: The dense kernels' floating-point flags (``_propagation_terms``, ``_apply``, ``_gain``, ``_update`` and the frame's
+#: The dense kernels' floating-point flags (``propagation_terms``, ``apply``, ``_gain``, ``update`` and the frame's
 #: helpers ``_gate``, ``_mahalanobis3``, ``_reset_landmark``, ``_bias_corrections``, ``_correct``, declared here: a
 #: kernel's flags are its own, never its caller's, kernel_cache.njit): ``a * b + c``
 #: fused into one multiply-add instruction (one rounding instead of two; the order of the additions as written, no
@@ -207,11 +207,12 @@ _FRAME_WORK_SCALE = 1000
 
 
 @njit(cache=True)
-def _accumulate(h, r_hat, p_hat, q_om, q_v, acc, w=None):
+def accumulate(h, r_hat, p_hat, q_om, q_v, acc, w=None):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
     ``Σ [P̂]×R̂h`` (the bias columns of the transition) and ``Σ M h``, ``Σ [P̂]×M h``,
     ``Σ ([P̂]×M[P̂]×ᵀ + R̂ Q_V R̂ᵀ) h`` with ``M = R̂ Q_Ω R̂ᵀ`` (the process noise). ``w``: (3, 3, 3) scratch for ``M``,
-    ``R̂ Q_V R̂ᵀ`` and ``[P̂]×M``, indexed whole (a view or an allocation per step cost more than the step's sums)."""
+    ``R̂ Q_V R̂ᵀ`` and ``[P̂]×M``, indexed whole (a view or an allocation per step cost more than the step's sums).
+    Public: tests/test_riekf.py checks the kernel against dense algebra."""
     if w is None:
         w = np.empty((3, 3, 3))
     for a in range(3):
@@ -250,9 +251,9 @@ def _accumulate(h, r_hat, p_hat, q_om, q_v, acc, w=None):
 
 
 @njit(cache=True, fastmath=CONTRACT)
-def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+def propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
     """The accumulated transition ``Φ = I + F`` and noise ``Q`` as the terms of one symmetric update, applied
-    later together with the frame's Kalman downdate (:func:`_apply`): ``Σ⁻ = Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``.
+    later together with the frame's Kalman downdate (:func:`apply`): ``Σ⁻ = Σ + FΣ_b + (FΣ_b)ᵀ + FΣ_bbFᵀ + Q``.
     Off the position rows every row ``i`` of ``F`` and of ``Q``'s factor is ``j_i``-linear: ``F_i = (j_iᵀ ΣR̂h, 0)``
     and ``Q = J W Jᵀ`` with ``J_i = (j_iᵀ, 0)``, where ``j_i`` is ``e_a`` on the attitude rows, row ``a`` of
     ``[p̂_s]×`` on a landmark's, zero on the biases'. There the change is ``ΔΣ_ij = j_i·z_j + z_i·j_j`` with
@@ -260,7 +261,8 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
     ``zᵀ``, ``rt`` the two swapped. The position rows' change (3 × d, every column) goes to ``dp``. The bias
     random walk over the interval is added to ``Σ`` now (at its start: the transition carries it), and the sums
     are cleared. False when no time has passed (nothing to apply). An entry of ``Σ⁻`` is then ``Σ_ij + dp[i − 3, j]``
-    on a position row ``i`` (``dp[j − 3, i]`` on a position column), else ``Σ_ij + Σ_(k<6) lt[k, i] rt[k, j]``."""
+    on a position row ``i`` (``dp[j − 3, i]`` on a position column), else ``Σ_ij + Σ_(k<6) lt[k, i] rt[k, j]``.
+    Public: tests/test_riekf_exactness.py checks it against dense algebra."""
     lt[:6, :d] = 0.0
     rt[:6, :d] = 0.0
     dp[:, :d] = 0.0
@@ -341,7 +343,7 @@ def _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp)
 
 @subroutine(types.none)
 def _rows8x16(cov, i, j, lt, rt, k):
-    """Rows ``i .. i + 7``, columns ``j .. j + 15`` of :func:`_apply`'s sum: the tile held in registers (16 vectors)
+    """Rows ``i .. i + 7``, columns ``j .. j + 15`` of :func:`apply`'s sum: the tile held in registers (16 vectors)
     across all ``k`` terms, each added as one fused multiply-add (``fma8``), in the order of the terms."""
     c00, c01 = load8(cov, i, j), load8(cov, i, j + 8)
     c10, c11 = load8(cov, i + 1, j), load8(cov, i + 1, j + 8)
@@ -433,7 +435,7 @@ def _rows8x8(cov, i, j, lt, rt, k):
 
 
 @njit(cache=True, fastmath=CONTRACT)
-def _apply(cov, d, lt, rt, k, dp, rows, n_rows):
+def apply(cov, d, lt, rt, k, dp, rows, n_rows):
     """``Σ ← Σ + Σ_(q<6) lt[q]ᵀ rt[q] − Σ_(6≤q<k) lt[q]ᵀ lt[q]`` (the propagation's six terms and the downdate's
     ``−UUᵀ``, ``Uᵀ`` in rows 6.. of ``lt``: each entry loaded and stored once), plus the position rows' ``dp``;
     the upper triangle in tiles of eight rows by sixteen columns held in registers across all ``k`` terms
@@ -444,7 +446,8 @@ def _apply(cov, d, lt, rt, k, dp, rows, n_rows):
     from the cache.
     The tiles run from the diagonal's multiple of ``PAD`` to the end of the arrays (``_State`` pads them to a
     multiple of ``PAD`` rows and columns, zeros past ``d`` in ``lt``, ``rt``: they add zeros); arrays that are not
-    padded (tests) are summed row by row."""
+    padded (tests) are summed row by row.
+    Public: tests/test_riekf_exactness.py checks it; benchmarks/riekf_stage.py times it."""
     end = min(cov.shape[1], lt.shape[1], rt.shape[1])
     end -= end % PAD
     tiles = min(d + (-d) % PAD, cov.shape[0] - cov.shape[0] % PAD) if end >= d else 0
@@ -512,16 +515,17 @@ def _mirror_read(cov, rows, n_rows):
 
 
 @njit(cache=True)
-def _flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+def flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
     """Apply the accumulated transition and noise to the covariance now (first ``d`` dimensions; ``lt``, ``rt``
-    (at least 6 × D) and ``dp`` (3 × D) are scratch): :func:`_propagation_terms` then :func:`_apply`."""
-    if _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
+    (at least 6 × D) and ``dp`` (3 × D) are scratch): :func:`propagation_terms` then :func:`apply`.
+    Public: tests/test_riekf.py checks the kernel against dense algebra."""
+    if propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
         _settle(cov, d, lt, rt, dp)
 
 
 @njit(cache=True)
 def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
-    """``out[o]`` (6×6): the pose covariance as :func:`_flush` would make it now (the pending sums applied to a
+    """``out[o]`` (6×6): the pose covariance as :func:`flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
     frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
@@ -670,7 +674,7 @@ def _solve4(hp, chol, c, end):
 @njit(cache=True, fastmath=CONTRACT)
 def _gain(hp, chol, z, k3, d):
     """With ``chol`` = L (S = L Lᵀ) and ``hp`` = H Σ⁻ (k3 × d): ``Uᵀ = L⁻¹ H Σ⁻`` (in place: the downdate is
-    ``Σ⁻ − U Uᵀ``, :func:`_apply`) and ``w = L⁻¹ z`` (in place of ``z``); returns ``ξ̂ = U w``. Every loop runs
+    ``Σ⁻ − U Uᵀ``, :func:`apply`) and ``w = L⁻¹ z`` (in place of ``z``); returns ``ξ̂ = U w``. Every loop runs
     along rows of ``hp`` (it vectorises), four rows written at a time with four terms a pass."""
     c = 0
     end = hp.shape[1] - hp.shape[1] % PAD
@@ -790,11 +794,11 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
 
 @njit(cache=True)
 def _settle(cov, d, lt, rt, dp):
-    """Apply the pending propagation (:func:`_propagation_terms`) to the covariance now, and clear it."""
-    # int64s, not literals: numba compiles a callee once per literal argument (literal 6 and -1 here compiled _apply and
-    # _mirror_read a second time beside _update's int64 call, as a literal 3 did cholesky_lower, a literal row 0
+    """Apply the pending propagation (:func:`propagation_terms`) to the covariance now, and clear it."""
+    # int64s, not literals: numba compiles a callee once per literal argument (literal 6 and -1 here compiled apply and
+    # _mirror_read a second time beside update's int64 call, as a literal 3 did cholesky_lower, a literal row 0
     # _pose_covariance: ~2 s of a first run's compile, docs/benchmarks.md, session 19)
-    _apply(cov, d, lt, rt, np.int64(6), dp, np.zeros(0, np.int64), np.int64(-1))
+    apply(cov, d, lt, rt, np.int64(6), dp, np.zeros(0, np.int64), np.int64(-1))
     lt[:6, :d] = 0.0
     rt[:6, :d] = 0.0
     dp[:, :d] = 0.0
@@ -820,7 +824,7 @@ def _hp_row(hp, h, cov, dp, lt, rt, s, c, d):
 
 
 @njit(cache=True, fastmath=CONTRACT)
-def _update(
+def update(
     a0,
     nd,
     det_idx,
@@ -860,10 +864,11 @@ def _update(
     """One detection frame (detections ``a0 .. a0 + nd − 1``): innovations recorded, known landmarks update the
     state (or are re-initialised when the recovery asked for it), new ones are augmented; every tested detection
     is counted in the recovery's window. The propagation since the last frame is pending in ``lt``, ``rt``, ``dp``
-    (:func:`_propagation_terms`): it is applied in the same pass as the downdate (:func:`_apply`), the gain read
+    (:func:`propagation_terms`): it is applied in the same pass as the downdate (:func:`apply`), the gain read
     from the rows of ``Σ⁻`` it needs (rows 6.. of ``lt`` are the downdate's scratch). ``next_a0``, ``next_nd``:
     the next frame's detections, whose rows of ``Σ`` are all of its lower triangle that is mirrored
-    (:func:`_mirror_read`; ``next_nd < 0``: all of it). Returns the new state dimension."""
+    (:func:`_mirror_read`; ``next_nd < 0``: all of it). Returns the new state dimension.
+    Public: tests/test_riekf.py and tests/test_riekf_exactness.py check it against dense algebra."""
     for j in range(nd):  # a re-initialisation copies rows of Σ⁻: apply the propagation first
         i = det_idx[a0 + j]
         if slot_of[i] >= 0 and reinit[i]:
@@ -969,7 +974,7 @@ def _update(
         if o >= 0:
             rows[n_rows] = N_FIXED + 3 * o
             n_rows += 1
-    _apply(cov, d, lt, rt, terms, dp, rows, n_rows)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
+    apply(cov, d, lt, rt, terms, dp, rows, n_rows)  # Σ⁺ = Σ + ΔΣ − U Uᵀ in one pass
     if xi.shape[0] > 0:
         _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm)
         ns[_UPDATES] += 1
@@ -1310,7 +1315,7 @@ def _advance(
     d_p = np.empty(3)
     bias = np.empty(6)
     pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
-    acc_w = np.empty((3, 3, 3))  # _accumulate's
+    acc_w = np.empty((3, 3, 3))  # accumulate's
     o = np.int64(0)  # int64 from the start: a literal 0 compiles _pose_covariance a second time (_settle's comment)
     want_cov = cov_out.shape[0] > 0
     work = 0
@@ -1329,7 +1334,7 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
-                _accumulate(h, r_hat, p_hat, qs_om, qs_v, acc, acc_w)
+                accumulate(h, r_hat, p_hat, qs_om, qs_v, acc, acc_w)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):
                     p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
@@ -1345,14 +1350,14 @@ def _advance(
             work += m
             t = t_next
         if is_frame:
-            _propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
+            propagation_terms(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
             acc_dt = 0.0
             a0 = det_offsets[jf]
             nd = det_offsets[jf + 1] - a0
             work += d * d * (3 * nd + 6) // _FRAME_WORK_SCALE
             _blind_start(t_next, nd, a0, det_idx, slot_of, reinit, fs, ns)
             next_nd = det_offsets[jf + 2] - det_offsets[jf + 1] if jf + 1 < n_frames else -1
-            d = _update(
+            d = update(
                 a0,
                 nd,
                 det_idx,
@@ -1425,7 +1430,7 @@ def _advance(
                 started = True
                 t = t_next
             if plane[0] > 0.0 and t_next - fs[_PLANE_T] >= plane[13]:  # the floor (module docstring)
-                _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
+                flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                 acc_dt = 0.0
                 _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane)
                 fs[_PLANE_T] = t_next
@@ -1433,13 +1438,13 @@ def _advance(
                 record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
                 _pose_covariance(cov, acc, acc_dt, qs_bw, qs_bv, p_hat, pose_out, o, pc_w)
                 if want_cov:
-                    _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
+                    flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
                     acc_dt = 0.0
                     cov_out[o] = cov[:N_FIXED, :N_FIXED]
                 o += 1
             iv += 1
     if iv >= n_vel and jf >= n_frames:  # the end: bring the covariance up to date for the final report
-        _flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
+        flush(cov, d, lm, slot_lm, acc, acc_dt, qs_bw, qs_bv, lt, rt, dp)
         acc_dt = 0.0
     _mirror(cov, d)  # the frames mirrored only what the next one reads (_mirror_read): Σ whole for the caller
     fs[_T], fs[_ACC_DT] = t, acc_dt
@@ -1459,7 +1464,7 @@ class _State(KernelState):
         self.fs[_KNOWN_T] = np.inf  # no known landmark's detection yet: no blind stretch either
         self.ns = np.concatenate([self.ns, np.zeros(N_SLOTS - self.ns.shape[0], dtype=np.int64)])
         dim = N_FIXED + 3 * n_landmarks
-        dim += -dim % PAD  # whole vectors for the one-pass sums (_apply); the dimensions past the state stay zero
+        dim += -dim % PAD  # whole vectors for the one-pass sums (apply); the dimensions past the state stay zero
         self.cov = np.zeros((dim, dim))
         for c in range(6):
             self.cov[6 + c, 6 + c] = sigma_bias[c] ** 2
@@ -1467,7 +1472,7 @@ class _State(KernelState):
         self.slot_lm = np.zeros(max(n_landmarks, 1), dtype=np.int64)
         self.acc = np.zeros((5, 3, 3))
         k3 = 3 * max(n_max, 1)
-        # the pending propagation's terms and the downdate's (_propagation_terms, _update), the position rows'
+        # the pending propagation's terms and the downdate's (propagation_terms, update), the position rows'
         self.lt = np.zeros((6 + k3, dim))
         self.rt = np.zeros((6, dim))
         self.dp = np.zeros((3, dim))
@@ -1677,7 +1682,7 @@ class RiEKF(Stepper):
         st = self.state
         d = N_FIXED + 3 * int(st.ns[_NSEEN])
         walks = np.sqrt(st.fs[_SCALE] * np.array([1.0, st.fs[_WALK]])) * np.array(self.params[2:4])
-        _flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
+        flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
         moved = super()._relocalise(iv)

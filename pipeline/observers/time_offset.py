@@ -164,8 +164,9 @@ def _pair_residuals(t_s, rot_s, pos_s, omega, vel, det_t, y, a, b, shifts, out):
                 out[s, m, c] = y[i, c] - (r_a[0, c] * w[0] + r_a[1, c] * w[1] + r_a[2, c] * w[2])
 
 
-class _Consistency:
-    """The pairs' cost as a function of the shift, the odometry's bias profiled out."""
+class Consistency:
+    """The pairs' cost as a function of the shift, the odometry's bias profiled out.
+    Public: tests/test_riekf_exactness.py checks its one-pass grid."""
 
     def __init__(self, stream, bias: np.ndarray) -> None:
         self.stream, self.bias = stream, bias
@@ -237,14 +238,14 @@ class _Consistency:
         _pair_residuals(t_s, rot_s, pos_s, omega, vel, self.det_t, self.y, self.a, self.b, shifts, out)
         return out
 
-    def varied(self, **changes) -> _Consistency:
+    def varied(self, **changes) -> Consistency:
         """A copy of this consistency with the attributes ``changes`` replaced (the rest shared, not recomputed)."""
-        out = object.__new__(_Consistency)
+        out = object.__new__(Consistency)
         out.__dict__.update(self.__dict__)
         out.__dict__.update(changes)
         return out
 
-    def subset(self, keep: np.ndarray) -> _Consistency:
+    def subset(self, keep: np.ndarray) -> Consistency:
         """The same consistency over the pairs ``keep`` (a mask) only."""
         return self.varied(a=self.a[keep], b=self.b[keep], jac=self.jac[keep], jtj=self.jtj[keep])
 
@@ -335,7 +336,7 @@ def _solve_spd(a, b):
         b[i] = v / a[i, i]
 
 
-def _search(c: _Consistency) -> tuple[float, float, float]:
+def _search(c: Consistency) -> tuple[float, float, float]:
     """The shift of least cost on the grid (coarse, then fine around the best), its standard error from the
     curvature there, and the cost at zero over the cost there."""
     coarse = np.arange(-MAX_OFFSET_S, MAX_OFFSET_S + COARSE_S / 2, COARSE_S)
@@ -349,7 +350,7 @@ def _search(c: _Consistency) -> tuple[float, float, float]:
     return shift, sigma, float(c.costs(0.0)[0]) / max(c_min, 1e-300)
 
 
-def _halves_disagree(c: _Consistency, stream) -> str | None:
+def _halves_disagree(c: Consistency, stream) -> str | None:
     """Why the two halves of the log (the pairs by the time of their first detection) do not give one offset
     within ``HALVES_SIGMAS`` combined standard errors, or None: a constant offset shows in both."""
     t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))[c.a]
@@ -403,7 +404,7 @@ def _trimmed_cost(e: np.ndarray) -> float:
     return float(np.mean(np.partition(d2, n - 1)[:n]))
 
 
-def gyro_misreads(c: _Consistency) -> dict[str, float]:
+def gyro_misreads(c: Consistency) -> dict[str, float]:
     """How many times better the detection pairs fit the odometry with its angular velocity undone by each of
     ``GYRO_MISREADS`` than as read (no bias fitted: a misread dwarfs a bias): the angular velocity in deg/s, of
     the wrong sign or with two axes swapped is no noise the estimators can absorb (MR.CLAM in deg/s: riekf APE
@@ -468,7 +469,7 @@ def _axis_turns() -> list[np.ndarray]:
     return out
 
 
-def extrinsic_turn(c: _Consistency) -> dict:
+def extrinsic_turn(c: Consistency) -> dict:
     """The turn of the detections (``EXTRINSIC_TURN_GAIN``'s set) that fits the pairs best, as a rotation vector
     in the body frame (deg), and how many times better it fits than the detections as read (no bias fitted, as
     :func:`gyro_misreads`): a camera extrinsic turned or inverted is no noise the estimators can absorb."""
@@ -513,7 +514,7 @@ WORLD_TWIST_WINDOW_S = 20.0
 WORLD_TWIST_MIN_PAIRS = 10
 
 
-def _dead_reckoned_at(c: _Consistency, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _dead_reckoned_at(c: Consistency, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The dead-reckoned rotations at the times ``t`` (the sample before carried on with its angular velocity) and
     the velocity integrated without them (the positions it gives as a world frame's, segment gaps left out)."""
     t_s, rot_s, _, omega, vel = c.poses
@@ -524,7 +525,7 @@ def _dead_reckoned_at(c: _Consistency, t: np.ndarray) -> tuple[np.ndarray, np.nd
     return rot_s[k] @ so3_exps(np.ascontiguousarray(h[:, None] * omega[k])), summed[k] + h[:, None] * vel[k]
 
 
-def world_twist(c: _Consistency) -> dict:
+def world_twist(c: Consistency) -> dict:
     """How many times better the detection pairs fit the velocity read as a world frame's than as read (no bias
     fitted, as :func:`gyro_misreads`): per pair the detections' displacement in the dead-reckoned frame
     ``R_a y_a − R_b y_b`` against the velocity's integral between the two times turned by one rotation per
@@ -550,7 +551,7 @@ def world_twist(c: _Consistency) -> dict:
     return {"gain": base / max(_trimmed_cost(e[used]), 1e-300)}
 
 
-def _velocity_displacements(c: _Consistency) -> np.ndarray:
+def _velocity_displacements(c: Consistency) -> np.ndarray:
     """Per pair and velocity axis (pairs, 3, 3): how the pair's residual moves when that axis's velocity is
     doubled (the displacement it contributes between the two detections, in the first one's body frame), so that
     scaling the axes by ``g`` moves the residuals by ``-Σ_j (g_j - 1) D[:, :, j]`` (the rotations do not depend on
@@ -567,10 +568,10 @@ def _velocity_displacements(c: _Consistency) -> np.ndarray:
     return out
 
 
-def velocity_scale(c: _Consistency) -> dict:
+def velocity_scale(c: Consistency) -> dict:
     """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
-    ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`_Consistency.cost`). An axis along
+    ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`Consistency.cost`). An axis along
     which the body hardly moves (``MIN_AXIS_SHARE``) has no scale (None), nor one whose scale is not told from a
     bias (its variance inflated over ``MAX_SCALE_INFLATION`` times by the bias fit: a constant velocity), nor one
     along which the detections see the body hardly move (the scale times the velocity's displacement, against the
@@ -630,7 +631,7 @@ VELOCITY_LAG_GAIN = 1.1
 VELOCITY_LAG_MIN_S = 0.02
 
 
-def velocity_lag(c: _Consistency, shift: float) -> dict | None:
+def velocity_lag(c: Consistency, shift: float) -> dict | None:
     """How late the linear velocity's stamps look against the angular velocity's: the detection pairs' cost (at
     the detection shift ``shift``, the bias profiled out) with the velocity read ``lag`` seconds later, over a grid
     (the best refined by a parabola through it and its neighbours; the bias's Jacobian is ``c``'s, one dead
@@ -673,7 +674,7 @@ def velocity_lag(c: _Consistency, shift: float) -> dict | None:
 PREFIX_SAMPLES = 1 << 17
 
 
-def _prefix_of(c: _Consistency) -> _Consistency:
+def _prefix_of(c: Consistency) -> Consistency:
     """``c``, or for a log of more than ``PREFIX_SAMPLES`` velocity samples the pairs' cost on its first that many
     when they hold ``MIN_PAIRS`` pairs or more."""
     stream = c.stream
@@ -683,7 +684,7 @@ def _prefix_of(c: _Consistency) -> _Consistency:
     from slamobs.pipeline.alignment import TimeWindow, windowed
 
     end = int(t[PREFIX_SAMPLES - 1])
-    head = _Consistency(windowed(stream, TimeWindow(None, end, int(t[0]), (None, None)), "log prefix"), c.bias)
+    head = Consistency(windowed(stream, TimeWindow(None, end, int(t[0]), (None, None)), "log prefix"), c.bias)
     return head if head.a.shape[0] >= MIN_PAIRS else c
 
 
@@ -706,7 +707,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     ``decided``, when given, is called with ``{"applied", "estimate_s"}`` as soon as they are known, before the
     checks that only report (``gyro_misreads``, ``velocity_scale``), so that a caller waiting for whether the offset
     is applied (:class:`Background`) need not wait for those."""
-    c = _Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
+    c = Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
     n = int(c.a.shape[0])
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False}
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:

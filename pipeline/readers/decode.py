@@ -334,8 +334,9 @@ def decode_rows(reader: AnyReader, path: str | Path, topic: str, connections: Co
     return Rows(topic, msgtype, t_ns[:i], rec_ns[:i], values[:i], frame[:i], child[:i], frames.names())
 
 
-def _duplicate_mask(t_sorted: np.ndarray, key: Callable[[int], bytes]) -> tuple[np.ndarray, int]:
-    """Rows equal (same stamp, same key) to an earlier row of the same stamp; and repeated stamps kept."""
+def duplicate_mask(t_sorted: np.ndarray, key: Callable[[int], bytes]) -> tuple[np.ndarray, int]:
+    """Rows equal (same stamp, same key) to an earlier row of the same stamp; and repeated stamps kept.
+    Public: tests/test_readers.py checks it on made-up keys."""
     drop = np.zeros(t_sorted.shape[0], bool)
     repeated = 0
     seen: set[bytes] = set()
@@ -376,7 +377,7 @@ def clean_order(t_ns: np.ndarray, rec_ns: np.ndarray, values: np.ndarray) -> tup
     if cleaning.out_of_order:  # else the stable sort keeps every row in place
         idx = idx[np.argsort(kept_t, kind="stable")]
         kept_t = t_ns[idx]
-    drop, cleaning.repeated = _duplicate_mask(kept_t, lambda i: values[idx[i]].tobytes())
+    drop, cleaning.repeated = duplicate_mask(kept_t, lambda i: values[idx[i]].tobytes())
     cleaning.duplicates = int(drop.sum())
     cleaning.kept = idx.size - cleaning.duplicates
     return idx[~drop] if cleaning.duplicates else idx, t_ns, cleaning
@@ -705,7 +706,7 @@ def clean_frames(
         f = forder[i]
         return ids[offsets[f] : offsets[f + 1]].tobytes() + flat[offsets[f] : offsets[f + 1]].tobytes()
 
-    drop, cleaning.repeated = _duplicate_mask(t_ns[forder], key)
+    drop, cleaning.repeated = duplicate_mask(t_ns[forder], key)
     cleaning.duplicates = int(drop.sum())
     forder = forder[~drop]
     cleaning.kept = int(forder.shape[0])  # frames: the note says when every one was there twice, as info does

@@ -402,7 +402,7 @@ def _walk(  # pragma: no cover - compiled
     Its arguments: the bytes, where each message's fields start and how many bytes it has from there, the byte
     order, CDR or not, whether to check each message's CDR header (the 4 bytes before its origin);
     :attr:`Plan.program`; whether the plan has items, :attr:`ItemPlan.program` and the bytes of an element without
-    padding; the arrays written (see :func:`_walked`), element rows in message order. Each message's lines are
+    padding; the arrays written (see :func:`walked_columns`), element rows in message order. Each message's lines are
     asked for (:func:`.simd.prefetch`) :data:`_AHEAD` messages before they are read: a topic's messages lie apart
     in a chunk or a db3 window, and without it each message start was a cache miss (~2x the pass's time). A
     string equal to the same field's string of the message before (a topic's frame id, message after message) is
@@ -447,7 +447,7 @@ def _walk(  # pragma: no cover - compiled
                 if p + s <= lim:
                     kind = leaf_kinds[slot]
                     w = _word(data, o + p, s, big)
-                    if slot < 2:  # header stamp (integers: see :func:`_walks`)
+                    if slot < 2:  # header stamp (integers: see :func:`walks`)
                         t_ns[i] += _integer(w, s, kind == 1) * (_NS if slot == 0 else 1)
                     else:
                         _store(w, s, kind, bits, values, i, slot - 2, bits32, float32)
@@ -577,13 +577,14 @@ class Decoded:
 
 
 @njit(cache=True, nogil=True, nrt=False)
-def _dedup(data, pos, length, codes, firsts, hashes, table):  # pragma: no cover - compiled
+def dedup(data, pos, length, codes, firsts, hashes, table):  # pragma: no cover - compiled
     """Per-string ``codes``, distinct strings numbered by first appearance, and the first string of every code
     (``firsts``); returns the number of distinct strings, or -1 when they would fill ``table`` more than half.
 
     An open-addressing table (``table``: all -1, a power of two long) keyed by a 64-bit FNV-1a hash; a hit is
     confirmed byte for byte, so two strings with one hash stay apart. A string equal to the one before it (a
-    topic's frame id, message after message) takes its code without hashing."""
+    topic's frame id, message after message) takes its code without hashing.
+    Public: tests/test_fastdecode.py counts its calls."""
     n = pos.shape[0]
     cap = table.shape[0]
     k = 0
@@ -631,17 +632,18 @@ def _dedup(data, pos, length, codes, firsts, hashes, table):  # pragma: no cover
     return k
 
 
-_SMALL_TABLE = 64
+#: Public: tests/test_fastdecode.py fills a table of this size.
+SMALL_TABLE = 64
 
 
 def _table_size(n: int) -> int:
-    """A power of two at least twice ``n`` (and at least :data:`_SMALL_TABLE`)."""
-    return max(_SMALL_TABLE, 1 << (2 * n).bit_length())
+    """A power of two at least twice ``n`` (and at least :data:`SMALL_TABLE`)."""
+    return max(SMALL_TABLE, 1 << (2 * n).bit_length())
 
 
 def _one_string(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> bool:
     """Whether every string is the first one (or there are none), checked by array code: a topic's frame id is one
-    string message after message, and a short log's first run need not compile :func:`_dedup` for it (~0.25 s of
+    string message after message, and a short log's first run need not compile :func:`dedup` for it (~0.25 s of
     CPU). One gather of every string's byte per position: for arrays shorter than :data:`.kernel_cache.KERNEL_ROWS`."""
     if not pos.shape[0]:
         return True
@@ -654,7 +656,7 @@ def _one_string(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> bool:
 
 def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, list[str]]:
     """Per-string codes and the distinct strings in order of first appearance, coded in compiled code
-    (:func:`_dedup`) however many distinct values a field has (a frame id takes a handful, tag frames
+    (:func:`dedup`) however many distinct values a field has (a frame id takes a handful, tag frames
     hundreds).
 
     Raises:
@@ -662,15 +664,15 @@ def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple
 
     """
     n = pos.shape[0]
-    if not compiled_for(n, _dedup) and _one_string(data, pos, length):
+    if not compiled_for(n, dedup) and _one_string(data, pos, length):
         codes, firsts = np.zeros(n, np.int32), np.zeros(min(n, 1), np.int64)
     else:
         codes, firsts, hashes = np.empty(n, np.int32), np.empty(n, np.int64), np.empty(n, np.uint64)
-        # the arrays made here, not in the kernel (see _walked); a table for 32 distinct strings, a frame id's few,
-        # else one that holds every string
-        k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_SMALL_TABLE, -1, np.int64))
+        # the arrays made here, not in the kernel (see walked_columns); a table for 32 distinct strings, a frame id's
+        # few, else one that holds every string
+        k = dedup(data, pos, length, codes, firsts, hashes, np.full(SMALL_TABLE, -1, np.int64))
         if k < 0:
-            k = _dedup(data, pos, length, codes, firsts, hashes, np.full(_table_size(n), -1, np.int64))
+            k = dedup(data, pos, length, codes, firsts, hashes, np.full(_table_size(n), -1, np.int64))
         firsts = firsts[:k]
     try:
         names = [data[pos[f] : pos[f] + length[f]].tobytes().decode() for f in firsts.tolist()]
@@ -690,10 +692,10 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     data = batch.data
     start = batch.start if rows is None else batch.start[rows]
     size = batch.size if rows is None else batch.size[rows]
-    if _walks(plan):  # the common case: one byte order, the compiled pass's arrays are the columns
+    if walks(plan):  # the common case: one byte order, the compiled pass's arrays are the columns
         # the byte order of the first message; the pass checks every CDR header against it
         big = bool(plan.cdr and start.shape[0] and size[0] >= 4 and data[start[0] + 1] == 0)
-        walked = _walked(plan, data, start, size, big, check=plan.cdr)
+        walked = walked_columns(plan, data, start, size, big, check=plan.cdr)
         if walked is not None:
             t_ns, values, strings, counts, items = walked
             return Decoded(t_ns, values, [string_codes(data, pos, length) for pos, length in strings], counts, items)
@@ -708,8 +710,10 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     for idx, big in groups:
         if not start[idx].size:
             continue
-        if _walks(plan):
-            t_ns[idx], values[idx], strings, group_counts, group_items = _walked(plan, data, start[idx], size[idx], big)
+        if walks(plan):
+            t_ns[idx], values[idx], strings, group_counts, group_items = walked_columns(
+                plan, data, start[idx], size[idx], big
+            )
             if counts is not None and group_counts is not None and group_items is not None:
                 counts[idx] = group_counts
                 item_parts.append((np.arange(n)[idx], group_items))
@@ -761,7 +765,7 @@ def _byte_orders(
     return [(np.flatnonzero(little), False), (np.flatnonzero(~little), True)]
 
 
-def _walked(
+def walked_columns(
     plan: Plan, data: np.ndarray, start: np.ndarray, size: np.ndarray, big: bool, check: bool = False
 ) -> tuple[np.ndarray, np.ndarray, list[tuple[np.ndarray, np.ndarray]], np.ndarray | None, np.ndarray | None] | None:
     """Stamps, values, (position, length) per string, and with items the element counts and rows of messages of
@@ -774,7 +778,8 @@ def _walked(
     Raises:
         DecodeError: A CDR header too short or not plain CDR (``check``), a message shorter than its layout, or
             a string or sequence running past its end.
-    """
+
+    Public: tests/test_fastdecode.py checks it against the array steps."""
     head = 4 if plan.cdr else 0
     n = start.shape[0]
     limit = size - head
@@ -814,8 +819,9 @@ _NO_COUNTS = np.zeros(0, np.int64)
 _NO_ITEM_BITS = np.zeros((0, 0), np.uint64)
 
 
-def _walks(plan: Plan) -> bool:
-    """Whether :func:`_walk` decodes ``plan``: header stamps of integers (as every ROS header's are)."""
+def walks(plan: Plan) -> bool:
+    """Whether :func:`_walk` decodes ``plan``: header stamps of integers (as every ROS header's are).
+    Public: tests/test_fastdecode.py turns the walk off with it."""
     return all(kind in "iu" for _, kind in plan.leaves[:2])
 
 

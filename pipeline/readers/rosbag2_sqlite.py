@@ -160,7 +160,7 @@ def _sqlite_batches(reader: Sqlite3Reader, ids: ConnIds, ordered: bool) -> Itera
         if rows:
             yield _rows_batch(rows, ids)
         return
-    by_sql = partial(_by_sql, db, (wanted, among, ids))
+    by_sql = partial(rows_by_sql, db, (wanted, among, ids))
     table = _table(reader)
     yield from by_sql(sqlitefile.NO_ROW) if table is None else _from_pages(table, ids, by_sql)
 
@@ -205,9 +205,9 @@ def _from_pages(
     yield from read_ahead(windows(first), THREAD) if more else windows(first)
 
 
-def _by_sql(db: Connection, among: tuple[list[int], str, ConnIds], after: int) -> Iterator[RawBatch]:
+def rows_by_sql(db: Connection, among: tuple[list[int], str, ConnIds], after: int) -> Iterator[RawBatch]:
     """The requested rows with ids after ``after`` (:data:`.sqlitefile.NO_ROW`: all), queried in windows of row ids
-    (:func:`_windows`)."""
+    (:func:`_windows`). Public: tests/test_readers_sqlite.py watches where SQLite takes over."""
     # two subqueries: SQLite reads one end of the table for each (min and max in one select scan every row)
     first, last = next(iter(db.execute("SELECT (SELECT min(id) FROM messages), (SELECT max(id) FROM messages)")))
     if last is None:

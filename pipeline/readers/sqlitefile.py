@@ -155,7 +155,7 @@ def read_window(table: Table, at: int, aim: int, ids: ConnIds) -> tuple[RawBatch
                     buf, done, end, page_size, table.usable, ids.ids, ids.index, *rows, n, last
                 )
                 if ok and walked < end:  # no room for the next page's cells
-                    rows = _grown(rows, n, walked, count)
+                    rows = grown_rows(rows, n, walked, count)
                 done = walked
             if not ok:
                 break
@@ -189,8 +189,9 @@ def _pieces(fobj: BinaryIO, pages: np.ndarray, page_size: int, buf: np.ndarray) 
                 yield last
 
 
-def _grown(rows: np.ndarray, n: int, walked: int, count: int) -> np.ndarray:
-    """``rows`` with room for the rest of ``count`` pages at twice the rows per page so far (the first ``n`` kept)."""
+def grown_rows(rows: np.ndarray, n: int, walked: int, count: int) -> np.ndarray:
+    """``rows`` with room for the rest of ``count`` pages at twice the rows per page so far (the first ``n`` kept).
+    Public: tests/test_readers_sqlite.py watches it grow."""
     more = np.empty((4, max(2 * rows.shape[1], n + 2 * (n // max(walked, 1) + 64) * (count - walked))), np.int64)
     more[:, :n] = rows[:, :n]
     return more

@@ -167,8 +167,9 @@ def _per_axis(sigma) -> np.ndarray:
     return np.broadcast_to(np.asarray(sigma, dtype=float), (3,))
 
 
-class _Builder:
-    """Makes the rosbags message objects of one :class:`SimLog` (or piece of one) for one typestore."""
+class Builder:
+    """Makes the rosbags message objects of one :class:`SimLog` (or piece of one) for one typestore.
+    Public: tests/test_simulate.py checks its bytes against rosbags'."""
 
     def __init__(self, sim: SimLog, ts: Typestore, ros1: bool) -> None:
         self.sim, self.ts, self.ros1 = sim, ts, ros1
@@ -448,7 +449,7 @@ def fixed_rows(
 PROGRESS_EVERY = 200
 
 
-def _build_message(factory: Callable[[int], bytes], index: int) -> bytes:
+def build_message(factory: Callable[[int], bytes], index: int) -> bytes:
     """One serialised message (a module-level seam so tests can inject a failure mid-write)."""
     return factory(index)
 
@@ -477,13 +478,13 @@ def iter_messages(
         rec, topic, glob, local, piece = cols
         for j in np.lexsort((glob, topic, rec)):
             name = topics[topic[j]]
-            yield name, int(rec[j]), _build_message(factories[int(piece[j])][name], int(local[j]))
+            yield name, int(rec[j]), build_message(factories[int(piece[j])][name], int(local[j]))
             count[0] += 1
             if progress is not None and count[0] % PROGRESS_EVERY == 0:
                 progress(f"simulate: {(int(rec[j]) - sim.start_ns) / 1e9:.1f} of {sim.duration:g} s written")
 
     for p, part in enumerate(_pieces(sim)):
-        makers = _Builder(part, ts, ros1).makers(latched=p == 0)
+        makers = Builder(part, ts, ros1).makers(latched=p == 0)
         factories[p] = {topic: make for topic, (_, make) in makers.items()}
         sizes = {tp: len(rec) for tp, (rec, _) in makers.items()}
         new = [
@@ -582,7 +583,8 @@ def write_mcap(
         writer.finish()
 
 
-_WRITERS: dict[str, Callable[..., None]] = {
+#: Public: tests/test_simulate.py puts a failing writer in it.
+WRITERS: dict[str, Callable[..., None]] = {
     "bag": _write_bag,
     "mcap": _write_mcap,
     "ros2": _write_ros2,
@@ -692,10 +694,10 @@ def write_log(
 
     final = Path(path)
     container = infer_container(final) if container is None else container
-    if container not in _WRITERS:
+    if container not in WRITERS:
         raise ValueError(f"unknown container {container!r}; expected one of {', '.join(CONTAINERS)}")
     with atomic_file(final, why_kept=partial(why_kept, overwrite=overwrite)) as tmp:
-        _WRITERS[container](sim, tmp, progress)
+        WRITERS[container](sim, tmp, progress)
     return final
 
 

@@ -84,8 +84,9 @@ def _stats(x: np.ndarray) -> dict:
     }
 
 
-class _Normal:
-    """The normal equations of ``problem`` at one point, the factors that solve them, and the total error."""
+class Normal:
+    """The normal equations of ``problem`` at one point, the factors that solve them, and the total error.
+    Public: the smoother's tests solve with it directly."""
 
     def __init__(self, problem: Problem, guess: Guess) -> None:
         p = self.p = problem
@@ -195,7 +196,7 @@ def solve(
     """Levenberg–Marquardt from ``guess``; the solution, the biases' marginal covariance and a summary."""
     t0 = time.perf_counter()
     k = problem.data.shape[0] + 1
-    ne = _Normal(problem, guess)
+    ne = Normal(problem, guess)
     pt = tuple(np.ascontiguousarray(a, float) for a in (guess.rot, guess.pos, guess.landmarks, guess.bias))
     errors = [ne.error(pt)]
     t_build = time.perf_counter() - t0
@@ -245,7 +246,7 @@ def _factor_count(problem: Problem, n_seg: int) -> int:
     return int(problem.det_idx.shape[0]) + int(problem.data.shape[0]) + 1 + walk + 1
 
 
-def _step(ne: _Normal, pt: tuple, error: float, lam: float, lam_max: float = 1e10):
+def _step(ne: Normal, pt: tuple, error: float, lam: float, lam_max: float = 1e10):
     """The first damped step (``λ`` raised tenfold until one is found) that lowers ``error``: (the new point, its
     error, the border's Schur complement) or None; the ``λ`` reached and the linear solves made."""
     ne.linearize(pt)
@@ -267,7 +268,7 @@ def cost(problem: Problem, guess: Guess) -> float:
     motion, bias priors; the gauge prior sits at the guess's own anchor pose and adds nothing), half the squared
     whitened residuals. Solutions from different seeds are compared by it."""
     pt = tuple(np.ascontiguousarray(a, float) for a in (guess.rot, guess.pos, guess.landmarks, guess.bias))
-    return _Normal(problem, guess).error(pt)
+    return Normal(problem, guess).error(pt)
 
 
 def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -278,7 +279,7 @@ def covariances(problem: Problem, sol: Solution, keyframes: np.ndarray) -> tuple
     held fixed)."""
     from slamobs.pipeline.smoother.solver import pose_marginals
 
-    ne = _Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
+    ne = Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
     pt = tuple(np.ascontiguousarray(a, float) for a in (sol.rot, sol.pos, sol.landmarks, sol.bias))
     ne.linearize(pt)
     f = ne.factor(0.0)
@@ -300,7 +301,7 @@ def evidence_terms(problem: Problem, sol: Solution) -> tuple[float, float] | Non
     solution (half the whitened squares, Huber-robust) and ``log det H`` of the undamped Gauss–Newton normal
     matrix there, ``2 Σ log diag`` of the poses' Cholesky blocks plus the border's Schur complement's log
     determinant (None: not positive definite)."""
-    ne = _Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
+    ne = Normal(problem, Guess(sol.rot, sol.pos, sol.landmarks, sol.bias))
     pt = tuple(np.ascontiguousarray(a, float) for a in (sol.rot, sol.pos, sol.landmarks, sol.bias))
     error = ne.error(pt)
     ne.linearize(pt)

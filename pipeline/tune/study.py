@@ -92,7 +92,8 @@ def _repair_journal(path: Path) -> None:
             fh.truncate(data.rfind(b"\n") + 1)
 
 
-def _storage(out: Path):
+def journal_storage(out: Path):
+    """The tune's Optuna storage in ``out`` (public: tests/test_tune.py opens it)."""
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
@@ -146,26 +147,29 @@ def _prepare_out(out: Path, inputs: list, force: bool) -> bool:
     return resume
 
 
-def _set_aside(out: Path) -> None:
+def set_aside(out: Path) -> None:
     """--force: the previous tune's journal is kept hidden (under the lock: never under a running tune) and its
-    result files stay, until the new tune replaces them with its own (:func:`_replace_results`); a forced tune that
-    ends without results puts the journal back (:func:`_put_back`): an existing tune is unchanged by a failed one."""
+    result files stay, until the new tune replaces them with its own (:func:`replace_results`); a forced tune that
+    ends without results puts the journal back (:func:`put_back`): an existing tune is unchanged by a failed one.
+    Public: tests/test_tune.py checks the forced tune's steps one by one."""
     if (out / JOURNAL).is_file():
         os.replace(out / JOURNAL, out / PREVIOUS)
 
 
-def _put_back(out: Path) -> bool:
+def put_back(out: Path) -> bool:
     """The journal a forced tune set aside back in place, the forced tune's own dropped (it ended without results,
-    or was killed: the next tune in OUT finds it here first); True when there was one."""
+    or was killed: the next tune in OUT finds it here first); True when there was one.
+    Public: tests/test_tune.py checks the forced tune's steps one by one."""
     if not (out / PREVIOUS).is_file():
         return False
     os.replace(out / PREVIOUS, out / JOURNAL)
     return True
 
 
-def _replace_results(out: Path, write: Callable[[], dict]) -> dict:
+def replace_results(out: Path, write: Callable[[], dict]) -> dict:
     """A forced tune's results in place of the previous tune's (whose files it may not all write again); the
-    previous journal goes once they are written."""
+    previous journal goes once they are written.
+    Public: tests/test_tune.py checks the forced tune's steps one by one."""
     for name in OWN_FILES[1:]:
         (out / name).unlink(missing_ok=True)
     summary = write()
@@ -255,15 +259,15 @@ def _remove_unfinished(out: Path, created: bool) -> None:
 
 def _run_study(out, resume, spec, config, paths, holdout, setup, options, on_round, run) -> TuneResult:
     with _exclusive(out):
-        if _put_back(out):  # a forced tune was killed here: the tune it replaced is what OUT holds
+        if put_back(out):  # a forced tune was killed here: the tune it replaced is what OUT holds
             resume = (out / JOURNAL).is_file()
         if options.force:
-            _set_aside(out)
+            set_aside(out)
             resume = False
         try:
             return _study_in(out, resume, spec, config, paths, holdout, setup, options, on_round, run)
         except BaseException as err:  # interrupted too: a forced tune without results leaves the previous one
-            if options.force and _put_back(out) and isinstance(err, _NothingKept):
+            if options.force and put_back(out) and isinstance(err, _NothingKept):
                 err.put_back = True  # the previous tune is back: run_tune leaves OUT as it is
             raise
 
@@ -276,7 +280,7 @@ def _study_in(out, resume, spec, config, paths, holdout, setup, options, on_roun
 
     study = optuna.create_study(
         study_name=STUDY,
-        storage=_storage(out),
+        storage=journal_storage(out),
         direction="minimize",
         load_if_exists=True,
         sampler=_sampler(options.seed, 0),
@@ -301,7 +305,7 @@ def _study_in(out, resume, spec, config, paths, holdout, setup, options, on_roun
             raise _NothingKept(err) from None
         raise
     write = functools.partial(results.write_results, out, study, spec, setup, options, held)
-    summary = _replace_results(out, write) if options.force else write()
+    summary = replace_results(out, write) if options.force else write()
     if held_failed:  # the tune's own results are written; the holdout log is what failed
         raise TuneFailed(held_failed)
     return TuneResult(out, ran, summary)

@@ -1,7 +1,7 @@
 """What a batch worker does for a tune: score one gain set on one log, in memory (nothing is written).
 
 A tune runs the same few logs hundreds of times with different gains, so each worker process keeps the logs it
-has read and aligned (:data:`_PREPARED`, keyed by the log's identity and the config that shapes its reading):
+has read and aligned (:data:`PREPARED`, keyed by the log's identity and the config that shapes its reading):
 every log is read once per worker process, not once per trial (``benchmarks/tune_read_once.py`` measures it).
 The task is the batch's own :class:`~slamobs.pipeline.batch.executor.Task` (plain data, checked against the
 worker's slamobs version and code), run by the batch pools (local processes or Dask).
@@ -21,7 +21,8 @@ from slamobs.pipeline.batch.executor import Task, base_row, check_environment, f
 
 #: Logs a worker process keeps prepared (least recently used dropped first).
 CACHE_LOGS = 32
-_PREPARED: OrderedDict = OrderedDict()
+#: Public: benchmarks/tune_read_once.py clears it to time a tune that re-read its logs.
+PREPARED: OrderedDict = OrderedDict()
 #: What a tune can minimise: the run's headline metric it reads (``RunSummary.headline`` names).
 OBJECTIVES = {"ape": "ape_trans_rmse_m", "rotation": "ape_rot_rmse_deg", "landmarks": "landmark_rmse_m"}
 #: What a trial is measured against: the log's ground truth, or the batch smoother's solution on the same log
@@ -48,9 +49,9 @@ def prepared_log(log: str, config, directions: bool, need_truth: bool = True):
     from slamobs.pipeline.run import prepare_log
 
     key = _reading_key(log, config.to_dict(), directions)
-    if key in _PREPARED:
-        _PREPARED.move_to_end(key)
-        return _PREPARED[key], 0.0
+    if key in PREPARED:
+        PREPARED.move_to_end(key)
+        return PREPARED[key], 0.0
     t = time.perf_counter()
     prepared = prepare_log(Path(log), config, directions=directions, estimator=config.observer)
     if need_truth and (prepared.streams.truth is None or not len(prepared.streams.truth)):
@@ -61,9 +62,9 @@ def prepared_log(log: str, config, directions: bool, need_truth: bool = True):
             "no ground truth (a truth topic, evaluation.truth_file or a TF edge in topics.truth): "
             "tuning needs logs with truth",
         )
-    _PREPARED[key] = prepared
-    while len(_PREPARED) > CACHE_LOGS:
-        _PREPARED.popitem(last=False)
+    PREPARED[key] = prepared
+    while len(PREPARED) > CACHE_LOGS:
+        PREPARED.popitem(last=False)
     return prepared, time.perf_counter() - t
 
 
