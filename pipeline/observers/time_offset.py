@@ -779,11 +779,12 @@ def _lagged_positions(t, rot, omega, vel, dt, still, lags, keep, out):
                 pos[k, a] += m[a, 0] * v0 + m[a, 1] * v1 + m[a, 2] * v2
 
 
-#: Velocity samples past which the checks that dead-reckon the log once per trial (:func:`gyro_misreads`,
-#: :func:`velocity_lag`) read the log's first this many only, where they hold ``MIN_PAIRS`` detection pairs (a
-#: misread axis or a stamping lag is the same all along): the lag's 21 dead reckonings of the whole hour's 720,000
-#: samples cost 1.5 CPU s and made riekf's filter stage 1.67 -> 2.5 s wall on the one-hour log, where the checks
-#: run beside the filter; the misreads' four, 0.27 CPU s and 1.67 -> 1.75-1.84 s (session 19).
+#: Velocity samples the pairs read (:func:`_read_only`) past which the checks that dead-reckon them once per trial
+#: (:func:`gyro_misreads`, :func:`velocity_lag`) read the log's first this many only, where they hold ``MIN_PAIRS``
+#: detection pairs (a misread axis or a stamping lag is the same all along): the lag's 21 dead reckonings of the
+#: whole hour's 720,000 samples cost 1.5 CPU s and made riekf's filter stage 1.67 -> 2.5 s wall on the one-hour log,
+#: where the checks run beside the filter; the misreads' four, 0.27 CPU s and 1.67 -> 1.75-1.84 s (session 19).
+#: Since the pairs come from stretches of a long log (:func:`_in_blocks`), the hour's read 44,640 samples: none.
 PREFIX_SAMPLES = 1 << 17
 
 
