@@ -110,9 +110,11 @@ def _read_only(stream, t: np.ndarray, a: np.ndarray, b: np.ndarray):
     time; from the sample before a margin ahead of a pair's first detection to the one after the margin past its
     second: the largest shift searched and ``velocity_lag``'s largest lag of the velocity), each run of them a
     segment of its own (the dead reckoning carried across a cut without moving, as across a gap); the stream itself
-    when they are half its samples or more. A pair's residual is in its first detection's body frame: only the
-    motion inside it enters, and it is the same (to rounding) dead-reckoned from its run's start as from the log's.
-    Its detections are the stream's, all of them."""
+    when there are no pairs or they read half its samples or more. A pair's residual is in its first detection's
+    body frame: only the motion inside it enters, and it is the same (to rounding) dead-reckoned from its run's
+    start as from the log's. Its detections are the stream's, all of them."""
+    if not a.shape[0]:
+        return stream
     t_s = stream.seconds(stream.vel_t_ns)
     n, margin = t_s.shape[0], MAX_OFFSET_S + 2 * COARSE_S + VELOCITY_LAG_MAX_S
     lo = np.maximum(np.searchsorted(t_s, t[a] - margin, "right") - 1, 0)
