@@ -844,6 +844,30 @@ def test_a_long_log_s_velocity_lag_is_searched_on_its_first_samples(monkeypatch)
     assert seen[0].a.shape[0] < offset["pairs"]
 
 
+def test_a_long_log_s_pairs_come_from_stretches_of_it_whose_samples_alone_are_read(monkeypatch):
+    """The estimate dead-reckoned the whole one-hour log (720,000 samples, over and over for the bias Jacobian and
+    the checks: 1.1 CPU s beside riekf's filter) for 2,000 pairs of 1-2 s each: on a log of more than
+    ``MAX_PAIRS`` pairs it takes them from ``BLOCKS`` stretches spread over the log and reads those samples only
+    (docs/benchmarks.md, "The time offset's cost, session 21"). Each pair's residuals are the whole log's dead
+    reckoning's (to rounding: only the motion inside the pair enters), and a known offset is still found and
+    applied. Here the stretches are fewer and shorter, so that a 60 s log has them."""
+    from slamobs.pipeline.observers import time_offset
+
+    monkeypatch.setattr(time_offset, "BLOCKS", 4)
+    monkeypatch.setattr(time_offset, "MAX_PAIRS", 500)
+    monkeypatch.setattr(time_offset, "WORLD_TWIST_WINDOW_S", 4.0)
+    stream = align(expected_streams(simulate("figure8", seed=2, duration=60.0, detection_offset=0.1)))
+    c = time_offset.Consistency(stream, np.zeros(6))
+    assert c.a.shape[0] == 500 and 2 * c.stream.vel_t_ns.shape[0] < stream.vel_t_ns.shape[0]
+    assert c.stream.segment_starts.shape[0] == 3  # four stretches, each dead-reckoned on its own
+    whole = c.varied(stream=stream)
+    whole.poses = whole._poses(c.bias)
+    shifts = np.array([-0.52, -0.1, 0.0, 0.1, 0.52])
+    np.testing.assert_allclose(c.residuals(shifts), whole.residuals(shifts), rtol=0, atol=1e-9)
+    est = time_offset.estimate(stream)
+    assert est["pairs"] == 500 and est["applied"] and abs(est["estimate_s"] + 0.1) < OFFSET_TOLERANCE_S, est
+
+
 def test_a_long_log_s_gyro_misreads_are_tested_on_its_first_samples(monkeypatch):
     """The misreads' four dead reckonings of the whole one-hour log cost 0.27 CPU s beside riekf's filter (stage
     1.67 -> 1.75-1.84 s, session 19): past ``PREFIX_SAMPLES`` samples they read the log's first that many. Here the

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import itertools
 import threading
+from dataclasses import replace
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from slamobs.pipeline.lie import (
     integrate_body_twists_at_rotation_columns,
     se3_exp_into,
     so3_exps,
+    so3_jacobians_into,
     so3_log,
 )
 
@@ -47,6 +49,8 @@ FINE_S = 0.001
 TRIM = 0.9
 MIN_PAIRS = 30
 MAX_PAIRS = 2000
+#: Stretches of the log a log of more than ``MAX_PAIRS`` pairs gives them from (:func:`_in_blocks`).
+BLOCKS = 10
 MIN_SIGMAS = 5.0
 MIN_APPLY_S = 0.005
 MIN_GAIN = 1.2
@@ -68,10 +72,10 @@ def _sample_steps(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarra
     return t, (omega, vel, dt)
 
 
-def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
+def _pairs(stream, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Detection indices (a, b): each detection and the first detection of the same landmark at least
-    ``PAIR_SPAN_S`` later, when that one is within ``PAIR_MAX_S``."""
-    t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))
+    ``PAIR_SPAN_S`` later, when that one is within ``PAIR_MAX_S`` (``t``: each detection's time); on a log of more
+    than ``MAX_PAIRS``, those :func:`_in_blocks` chooses."""
     idx = stream.det_idx
     if idx.shape[0] and idx.max() < 2**16 and idx.min() >= 0 and np.all(t[1:] >= t[:-1]):
         order = np.argsort(idx.astype(np.uint16), kind="stable")  # lexsort's order when t is (a radix sort: 3x faster)
@@ -79,10 +83,59 @@ def _pairs(stream) -> tuple[np.ndarray, np.ndarray]:
         order = np.lexsort((t, idx))
     key = stream.det_idx[order].astype(np.float64) * (2.0 * (t.max() - t.min() + PAIR_MAX_S) + 1.0) + t[order]
     a, b = _partners(order, key, idx, t)
-    if a.shape[0] > MAX_PAIRS:  # evenly over the log: the estimate's cost stays bounded on long logs
-        same = np.linspace(0, a.shape[0] - 1, MAX_PAIRS).astype(np.int64)
-        return a[same], b[same]
-    return a, b
+    return _in_blocks(t, a, b) if a.shape[0] > MAX_PAIRS else (a, b)
+
+
+def _in_blocks(t: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``MAX_PAIRS`` of the pairs ``(a, b)`` (``t``: each detection's time), evenly over those whose first detection
+    is in one of ``BLOCKS`` stretches of the log spread evenly over it (so both halves alike), each
+    ``WORLD_TWIST_WINDOW_S`` long (one window of :func:`world_twist`, which needs a heading that turns) or long
+    enough that together they hold twice ``MAX_PAIRS`` at the log's mean rate: the estimate then reads those
+    stretches' samples only (:func:`_read_only`), not the whole log's (the hour's 720,000 samples, dead-reckoned
+    over and over by the Jacobian and the checks, were 1.1 CPU s). A log shorter than the stretches: evenly over
+    all its pairs. In the order given."""
+    ta = t[a]
+    t0, span = ta.min(), ta.max() - ta.min()
+    width = max(WORLD_TWIST_WINDOW_S, 2.0 * MAX_PAIRS * span / (a.shape[0] * BLOCKS))
+    if BLOCKS * width < span:
+        k = np.minimum(np.floor((ta - t0) * (BLOCKS / span)), BLOCKS - 1)
+        inside = np.abs(ta - (t0 + (k + 0.5) * (span / BLOCKS))) < 0.5 * width
+        a, b = a[inside], b[inside]
+    same = np.linspace(0, a.shape[0] - 1, min(MAX_PAIRS, a.shape[0])).astype(np.int64)
+    return a[same], b[same]
+
+
+def _read_only(stream, t: np.ndarray, a: np.ndarray, b: np.ndarray):
+    """The stream with the velocity samples the pairs ``(a, b)`` read at any shift only (``t``: each detection's
+    time; from the sample before a margin ahead of a pair's first detection to the one after the margin past its
+    second: the largest shift searched and ``velocity_lag``'s largest lag of the velocity), each run of them a
+    segment of its own (the dead reckoning carried across a cut without moving, as across a gap); the stream itself
+    when there are no pairs or they read half its samples or more. A pair's residual is in its first detection's
+    body frame: only the motion inside it enters, and it is the same (to rounding) dead-reckoned from its run's
+    start as from the log's. Its detections are the stream's, all of them."""
+    if not a.shape[0]:
+        return stream
+    t_s = stream.seconds(stream.vel_t_ns)
+    n, margin = t_s.shape[0], MAX_OFFSET_S + 2 * COARSE_S + VELOCITY_LAG_MAX_S
+    lo = np.maximum(np.searchsorted(t_s, t[a] - margin, "right") - 1, 0)
+    hi = np.minimum(np.searchsorted(t_s, t[b] + margin, "right") + 1, n)
+    inside = np.zeros(n + 1, np.int64)
+    np.add.at(inside, lo, 1)
+    np.add.at(inside, hi, -1)
+    rows = np.flatnonzero(np.cumsum(inside[:n]) > 0)
+    if 2 * rows.shape[0] >= n:
+        return stream
+    was_start = np.zeros(n, np.bool_)
+    was_start[stream.segment_starts] = True
+    cut = (np.diff(rows) > 1) | was_start[rows[1:]]
+    return replace(
+        stream,
+        vel_t_ns=stream.vel_t_ns[rows],
+        omega=stream.omega[rows],
+        velocity=stream.velocity[rows],
+        segment_starts=np.flatnonzero(cut) + 1,
+        directions=None,  # the time offset reads none; they would not match the samples kept
+    )
 
 
 @njit(cache=True, nogil=True)
@@ -169,9 +222,10 @@ class Consistency:
     Public: tests/test_riekf_exactness.py checks its one-pass grid."""
 
     def __init__(self, stream, bias: np.ndarray) -> None:
-        self.stream, self.bias = stream, bias
+        self.source, self.bias = stream, bias
         self.det_t = np.repeat(stream.seconds(stream.det_t_ns), np.diff(stream.det_offsets))
-        self.a, self.b = _pairs(stream)
+        self.a, self.b = _pairs(stream, self.det_t)
+        self.stream = _read_only(stream, self.det_t, self.a, self.b)
         self.y = stream.det_y
         self.poses = self._poses(bias)
         # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
@@ -475,11 +529,13 @@ def extrinsic_turn(c: Consistency) -> dict:
     :func:`gyro_misreads`): a camera extrinsic turned or inverted is no noise the estimators can absorb."""
     base = _trimmed_cost(c.residuals(0.0)[0])
     best, turn, y = 0.0, None, c.y
-    used = np.unique(np.concatenate([c.a, c.b]))  # the pairs' detections only (the hour's 576,000 took 0.5 CPU s)
-    turned = np.array(y, dtype=np.float64, order="C")
-    with_turned = c.varied(y=turned)
+    # the pairs' detections only (the hour's 576,000 took 0.5 CPU s; a copy of them all, 14 MB, another 0.01)
+    used, ends = np.unique(np.concatenate([c.a, c.b]), return_inverse=True)
+    turned, y = np.empty((used.shape[0], 3)), np.ascontiguousarray(y[used], dtype=np.float64)
+    n = c.a.shape[0]
+    with_turned = c.varied(y=turned, det_t=c.det_t[used], a=ends[:n], b=ends[n:])
     for q in _axis_turns():
-        turned[used] = y[used] @ q.T
+        np.matmul(y, q.T, out=turned)
         gain = base / max(_trimmed_cost(with_turned.residuals(0.0)[0]), 1e-300)
         if gain > best:
             best, turn = gain, q
@@ -525,6 +581,20 @@ def _dead_reckoned_at(c: Consistency, t: np.ndarray) -> tuple[np.ndarray, np.nda
     return rot_s[k] @ so3_exps(np.ascontiguousarray(h[:, None] * omega[k])), summed[k] + h[:, None] * vel[k]
 
 
+def _twist_windows(c: Consistency, ta: np.ndarray) -> np.ndarray:
+    """Per pair (``ta``: its first detection's time), its window of :func:`world_twist`: ``WORLD_TWIST_WINDOW_S``
+    from the first pair of its segment of the samples read (:func:`_read_only`'s runs: each is dead-reckoned from
+    its own heading, not the log's)."""
+    if not ta.shape[0]:
+        return ta.astype(np.int64)
+    t_s, starts = c.stream.seconds(c.stream.vel_t_ns), c.stream.segment_starts
+    seg = np.searchsorted(starts, np.searchsorted(t_s, ta, "right") - 1, "right")
+    first = np.full(starts.shape[0] + 1, np.inf)
+    np.minimum.at(first, seg, ta)
+    window = np.floor((ta - first[seg]) / WORLD_TWIST_WINDOW_S).astype(np.int64)
+    return seg * (int(window.max()) + 1) + window
+
+
 def world_twist(c: Consistency) -> dict:
     """How many times better the detection pairs fit the velocity read as a world frame's than as read (no bias
     fitted, as :func:`gyro_misreads`): per pair the detections' displacement in the dead-reckoned frame
@@ -536,7 +606,7 @@ def world_twist(c: Consistency) -> dict:
     r_b, p_b = _dead_reckoned_at(c, tb)
     u = np.einsum("nij,nj->ni", r_a, c.y[c.a]) - np.einsum("nij,nj->ni", r_b, c.y[c.b])
     v = p_b - p_a
-    window = np.floor((ta - ta.min()) / WORLD_TWIST_WINDOW_S).astype(np.int64) if ta.shape[0] else ta
+    window = _twist_windows(c, ta)
     e, used = np.zeros_like(u), np.zeros(u.shape[0], np.bool_)
     for w in np.unique(window):
         m = window == w
@@ -634,22 +704,25 @@ VELOCITY_LAG_MIN_S = 0.02
 def velocity_lag(c: Consistency, shift: float) -> dict | None:
     """How late the linear velocity's stamps look against the angular velocity's: the detection pairs' cost (at
     the detection shift ``shift``, the bias profiled out) with the velocity read ``lag`` seconds later, over a grid
-    (the best refined by a parabola through it and its neighbours; the bias's Jacobian is ``c``'s, one dead
-    reckoning per lag); None when both come from one topic.
+    (the best refined by a parabola through it and its neighbours; the bias's Jacobian is ``c``'s; the positions
+    of all lags in one pass, :func:`lagged_positions`); None when both come from one topic.
     ``{"lag_s", "gain", "edge"}``: the lag of least cost, the cost as stamped over the cost there, and whether
     it is at the edge of the grid."""
-    stream = c.stream
-    if not getattr(stream, "two_twist_topics", False):
+    if not getattr(c.stream, "two_twist_topics", False):
         return None
-    from dataclasses import replace
-
-    t = stream.seconds(stream.vel_t_ns)
     lags = np.arange(-VELOCITY_LAG_MAX_S, VELOCITY_LAG_MAX_S + VELOCITY_LAG_STEP_S / 2, VELOCITY_LAG_STEP_S)
+    t_s, rot_s, _, omega, vel = c.poses
+    at = np.searchsorted(t_s, c.det_t[np.concatenate([c.a, c.b])] + shift, side="right") - 1
+    keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))  # the samples the pairs read at this shift
+    omega_steps, _, dt = c._steps
+    still = np.zeros(dt.shape[0], np.bool_)
+    still[c.stream.segment_starts - 1] = True  # the steps across a gap (or a cut: :func:`_read_only`)
+    moved = np.empty((lags.shape[0], keep.shape[0], 3))
+    lagged_positions(t_s, rot_s, omega_steps, vel, dt, still, lags, keep, moved)
     costs = np.empty(lags.shape[0])
     for k, lag in enumerate(lags):
-        moved = np.column_stack([np.interp(t + lag, t, stream.velocity[:, a]) for a in range(3)])
-        lagged = c.varied(stream=replace(stream, velocity=moved))
-        lagged.poses = lagged._poses(c.bias)
+        twist = np.column_stack([np.interp(t_s[keep] + lag, t_s, vel[:, a]) for a in range(3)])
+        lagged = c.varied(poses=(t_s[keep], rot_s[keep], moved[k], omega[keep], twist))
         costs[k] = lagged.costs(shift)[0]
     j = int(np.argmin(costs))
     zero = int(np.argmin(np.abs(lags)))
@@ -666,25 +739,69 @@ def velocity_lag(c: Consistency, shift: float) -> dict | None:
     }
 
 
-#: Velocity samples past which the checks that dead-reckon the log once per trial (:func:`gyro_misreads`,
-#: :func:`velocity_lag`) read the log's first this many only, where they hold ``MIN_PAIRS`` detection pairs (a
-#: misread axis or a stamping lag is the same all along): the lag's 21 dead reckonings of the whole hour's 720,000
-#: samples cost 1.5 CPU s and made riekf's filter stage 1.67 -> 2.5 s wall on the one-hour log, where the checks
-#: run beside the filter; the misreads' four, 0.27 CPU s and 1.67 -> 1.75-1.84 s (session 19).
+@njit(cache=True, nogil=True)
+def lagged_positions(t, rot, omega, vel, dt, still, lags, keep, out):
+    """``out[l, q]``: the position at sample ``keep[q]`` (sorted) dead-reckoned with the rotations ``rot`` of the
+    samples (times ``t``), the steps' angular velocities ``omega`` and lengths ``dt`` and the velocity ``vel`` read
+    ``lags[l]`` seconds later (linear between samples, the first and last held beyond: ``np.interp``'s), the steps
+    ``still`` not moving (segment gaps): ``P_(i+1) = P_i + R_i J_l(dt ω_i) v_i dt``, the rotations not depending on
+    the velocity; every lag in one pass over the steps. Public: tests/test_riekf_exactness.py checks it against a
+    dead reckoning per lag."""
+    n_lag, n = lags.shape[0], t.shape[0]
+    pos, at = np.zeros((n_lag, 3)), np.zeros(n_lag, np.int64)
+    jl, jr, m = np.empty((3, 3)), np.empty((3, 3)), np.empty((3, 3))
+    q = 0
+    for i in range(dt.shape[0] + 1):
+        while q < keep.shape[0] and keep[q] == i:
+            out[:, q] = pos
+            q += 1
+        if q == keep.shape[0] or i == dt.shape[0]:
+            break
+        if still[i]:
+            continue
+        h = dt[i]
+        so3_jacobians_into(omega[i, 0] * h, omega[i, 1] * h, omega[i, 2] * h, jl, jr)
+        for a in range(3):
+            for b in range(3):
+                m[a, b] = (rot[i, a, 0] * jl[0, b] + rot[i, a, 1] * jl[1, b] + rot[i, a, 2] * jl[2, b]) * h
+        for k in range(n_lag):
+            x = t[i] + lags[k]
+            j = at[k]
+            while j < n and t[j] <= x:
+                j += 1
+            at[k] = j
+            if j == 0:
+                v0, v1, v2 = vel[0, 0], vel[0, 1], vel[0, 2]
+            elif j == n:
+                v0, v1, v2 = vel[n - 1, 0], vel[n - 1, 1], vel[n - 1, 2]
+            else:
+                f = (x - t[j - 1]) / (t[j] - t[j - 1])
+                v0 = vel[j - 1, 0] + f * (vel[j, 0] - vel[j - 1, 0])
+                v1 = vel[j - 1, 1] + f * (vel[j, 1] - vel[j - 1, 1])
+                v2 = vel[j - 1, 2] + f * (vel[j, 2] - vel[j - 1, 2])
+            for a in range(3):
+                pos[k, a] += m[a, 0] * v0 + m[a, 1] * v1 + m[a, 2] * v2
+
+
+#: Velocity samples the pairs read (:func:`_read_only`) past which the checks that dead-reckon them once per trial
+#: (:func:`gyro_misreads`, :func:`velocity_lag`) read the log's first this many only, where they hold ``MIN_PAIRS``
+#: detection pairs (a misread axis or a stamping lag is the same all along): the lag's 21 dead reckonings of the
+#: whole hour's 720,000 samples cost 1.5 CPU s and made riekf's filter stage 1.67 -> 2.5 s wall on the one-hour log,
+#: where the checks run beside the filter; the misreads' four, 0.27 CPU s and 1.67 -> 1.75-1.84 s (session 19).
+#: Since the pairs come from stretches of a long log (:func:`_in_blocks`), the hour's read 44,640 samples: none.
 PREFIX_SAMPLES = 1 << 17
 
 
 def _prefix_of(c: Consistency) -> Consistency:
-    """``c``, or for a log of more than ``PREFIX_SAMPLES`` velocity samples the pairs' cost on its first that many
-    when they hold ``MIN_PAIRS`` pairs or more."""
-    stream = c.stream
-    t = stream.vel_t_ns
-    if t.shape[0] <= PREFIX_SAMPLES:
+    """``c``, or when its pairs read more than ``PREFIX_SAMPLES`` velocity samples (:func:`_read_only`) the pairs'
+    cost on the log's first that many when they hold ``MIN_PAIRS`` pairs or more."""
+    if c.stream.vel_t_ns.shape[0] <= PREFIX_SAMPLES:
         return c
     from slamobs.pipeline.alignment import TimeWindow, windowed
 
+    t = c.source.vel_t_ns
     end = int(t[PREFIX_SAMPLES - 1])
-    head = Consistency(windowed(stream, TimeWindow(None, end, int(t[0]), (None, None)), "log prefix"), c.bias)
+    head = Consistency(windowed(c.source, TimeWindow(None, end, int(t[0]), (None, None)), "log prefix"), c.bias)
     return head if head.a.shape[0] >= MIN_PAIRS else c
 
 
@@ -794,8 +911,6 @@ class Background:
 
 def shifted(stream, offset: dict):
     """The stream with its detection stamps moved by the offset when it is applied, else the stream itself."""
-    from dataclasses import replace
-
     if not offset["applied"]:
         return stream
     return replace(stream, det_t_ns=stream.det_t_ns + int(round(offset["estimate_s"] * 1e9)))
