@@ -56,6 +56,7 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
         ("slamobs.pipeline.lie", "integrate_body_twists_at_columns", "f2 f1 f2 f2 f2 f1 i1"),
         ("slamobs.pipeline.observers.time_offset", "_trimmed_costs", "f3 f3 f3 f1"),
         ("slamobs.pipeline.lie", "integrate_body_twists_at", "f2 f1 f2 f2 f1 i1"),
+        ("slamobs.pipeline.observers.time_offset", "lagged_positions", "f1 f3 f2 f2 f1 b1 f1 i1 f3"),
         ("slamobs.pipeline.evaluation.sync", "_slerp_rows", "f2 f2 f1"),
     ),
     # batch: the run seeds with dead reckoning, the time-offset search and fast-adaptation, then solves and only
