@@ -157,3 +157,9 @@ def row_squares3(x: np.ndarray) -> np.ndarray:
     s += x[:, 1] * x[:, 1]
     s += x[:, 2] * x[:, 2]
     return s
+
+
+def rms_sigmas(cov: np.ndarray) -> np.ndarray:
+    """Each (3, 3) covariance's RMS standard deviation ``sqrt(trace Σ / 3)`` of (L, 3, 3) ``cov`` (landmarks.parquet
+    ``sigma``, the report's map σ); a negative trace (no covariance) gives 0."""
+    return np.sqrt(np.clip(np.einsum("lii->l", cov) / 3.0, 0.0, None))

@@ -34,7 +34,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.blocks import unique_inverse
+from slamobs.pipeline.blocks import rms_sigmas, unique_inverse
 from slamobs.pipeline.errors import OutputError, output_error
 from slamobs.pipeline.lifetime import owner_alive, owner_marker
 from slamobs.pipeline.paths import (
@@ -96,9 +96,8 @@ def landmark_uncertainty_columns(cov: np.ndarray | None) -> dict[str, np.ndarray
     """A landmark's RMS standard deviation and covariance upper triangle from (L, 3, 3) covariances."""
     if cov is None:
         return {}
-    sigma = np.sqrt(np.clip(np.einsum("lii->l", cov) / 3.0, 0.0, None))
     return {
-        "sigma": sigma,
+        "sigma": rms_sigmas(cov),
         **{f"cov_{a}{b}": cov[:, i, j] for i, a in enumerate("xyz") for j, b in enumerate("xyz") if j >= i},
     }
 

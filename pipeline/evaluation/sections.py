@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from slamobs.pipeline.blocks import row_blocks
+from slamobs.pipeline.blocks import rms_sigmas, row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import (
     DESCRIPTIONS,
@@ -513,12 +513,6 @@ MAP_TURN_FACTOR = 2.0
 MAP_TURN_MIN_M = 0.1
 
 
-def _sigma(cov: np.ndarray) -> float | None:
-    """A landmark's RMS standard deviation, ``sqrt(trace(Σ)/3)`` (landmarks.parquet ``sigma``); None without Σ."""
-    v = float(np.trace(cov)) / 3.0
-    return float(np.sqrt(v)) if np.isfinite(v) and v >= 0 else None
-
-
 #: a map σ check whose median ‖e‖/σ is at least this says the σ is that many times too small; below it, the mean
 #: NEES may come from a few landmarks or from the covariance's shape, and the note names the worst landmark
 MAP_SIGMA_FAR = 10.0
@@ -534,7 +528,7 @@ def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, met
     ok = np.flatnonzero(np.isfinite(nees))
     if not ok.size:
         return None
-    sigma = np.sqrt(np.trace(cov[ok], axis1=1, axis2=2) / 3.0)
+    sigma = rms_sigmas(cov[ok])
     norms = np.linalg.norm(errors[ok], axis=1)
     bounds = metrics.nees_bounds(NEES_DOF, int(ok.size))
     w = int(np.argmax(nees[ok]))
@@ -655,6 +649,7 @@ class LandmarkSection(Section):
             cov = self._map_cov
             cov = al.scale**2 * (al.rot @ cov @ al.rot.T)
             cov = turned[1] @ cov @ turned[1].T
+        sigmas = None if cov is None else rms_sigmas(cov)
         has_n_obs = landmarks is not None and "n_obs" in column_names(landmarks)
         n_obs = dict(zip(ids.tolist(), column(landmarks, "n_obs").tolist())) if has_n_obs else {}
         section.update(
@@ -668,7 +663,7 @@ class LandmarkSection(Section):
                     "error_map_aligned_m": None if map_err is None else float(map_err[k]),
                     "error_turned_m": float(np.linalg.norm(turned[0][k] - q)) if turn else None,
                     "alignment_slack_m": float(turned[2][k]) if turn else None,
-                    "sigma_m": None if cov is None else _sigma(cov[k]),
+                    "sigma_m": None if sigmas is None or not np.isfinite(sigmas[k]) else float(sigmas[k]),
                     "estimate_aligned": [float(v) for v in p],
                     "truth": [float(v) for v in q],
                     "n_obs": int(n_obs[int(i)]) if int(i) in n_obs else None,
