@@ -390,3 +390,21 @@ def test_a_gyro_stamped_off_the_odometrys_clock_is_named(late_s):
     said = [n for n in align(expected_streams(replace(sim, imu=imu), "x.mcap")).notes if "stamps look" in n]
     assert len(said) == 1, said
     assert said[0].startswith(f"warning: /imu/data: its angular velocity's stamps look {late_s:.3f} s late against")
+
+
+def test_id_time_order_is_lexsorts_order():
+    """``blocks.id_time_order`` (the resightings check's and the time offset's pairs' sort): NumPy's radix sort of
+    16-bit ids where the times are sorted and the ids fit, ``np.lexsort`` otherwise; the same order either way."""
+    from slamobs.pipeline.blocks import id_time_order
+
+    rng = np.random.default_rng(3)
+    t = np.sort(rng.uniform(0, 100, 5000))
+    for ids in (
+        rng.integers(0, 40, 5000),
+        rng.integers(-300, 300, 5000),
+        rng.integers(0, 1 << 16, 5000),
+        rng.integers(-(1 << 20), 1 << 20, 5000),
+        np.zeros(0, np.int64),
+    ):
+        for times in (t[: ids.size], rng.uniform(0, 100, ids.size)):  # sorted, and not
+            assert np.array_equal(id_time_order(ids, times), np.lexsort((times, ids)))

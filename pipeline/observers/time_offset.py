@@ -27,6 +27,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from slamobs.pipeline.blocks import id_time_order
 from slamobs.pipeline.cholesky import cholesky_lower
 from slamobs.pipeline.cores import cores
 from slamobs.pipeline.kernel_cache import njit
@@ -77,10 +78,7 @@ def _pairs(stream, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     ``PAIR_SPAN_S`` later, when that one is within ``PAIR_MAX_S`` (``t``: each detection's time); on a log of more
     than ``MAX_PAIRS``, those :func:`_in_blocks` chooses."""
     idx = stream.det_idx
-    if idx.shape[0] and idx.max() < 2**16 and idx.min() >= 0 and np.all(t[1:] >= t[:-1]):
-        order = np.argsort(idx.astype(np.uint16), kind="stable")  # lexsort's order when t is (a radix sort: 3x faster)
-    else:
-        order = np.lexsort((t, idx))
+    order = id_time_order(idx, t)
     key = stream.det_idx[order].astype(np.float64) * (2.0 * (t.max() - t.min() + PAIR_MAX_S) + 1.0) + t[order]
     a, b = _partners(order, key, idx, t)
     return _in_blocks(t, a, b) if a.shape[0] > MAX_PAIRS else (a, b)
