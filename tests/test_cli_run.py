@@ -410,7 +410,8 @@ def test_report_without_plots(generated, tmp_path):
 
 def test_batch_reports_its_solve_while_it_works(generated, tmp_path):
     """batch solves the whole log before its first stretch: its progress said "batch: 0 of N samples" for the
-    whole solve (50 s on MR.CLAM 7-r4 on a first run); it now says the seed and the solver's iterations."""
+    whole solve (50 s on MR.CLAM 7-r4 on a first run); it now says the seed and the solver's iterations, those of
+    the steps after the first solution with the step's name."""
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.run import run_log
 
@@ -425,3 +426,5 @@ def test_batch_reports_its_solve_while_it_works(generated, tmp_path):
     during = seen[stretches[0] + 1 : stretches[1]]
     assert any(m.startswith("batch: seed observer (") for m in during), seen
     assert any(m.startswith("batch: iteration ") for m in during), seen
+    # the solves after the first say which step they are (a bare "iteration 5" for 40 s on MR.CLAM 7 r3 did not)
+    assert any(re.match(r"batch \([a-z -]+\): iteration \d+, error ", m) for m in during), seen

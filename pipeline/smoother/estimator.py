@@ -106,6 +106,15 @@ def interpolate_covariance(
     return out
 
 
+def _in_step(progress, step: str):
+    """``progress`` whose solver lines say which of the smoother's steps after its first solution they come from
+    ("batch (noise levels): iteration 3, ..."): each step solves again, and a bare "iteration 5" repeated for
+    40 s (MR.CLAM 7 r3) did not say whether the run had gone back or on. None stays None."""
+    if progress is None:
+        return None
+    return lambda line: progress(f"batch ({step}): {line.removeprefix('batch: ')}")
+
+
 class BatchSmoother(Stepper):
     """The smoother on an aligned stream; ``seed`` (tests) replaces the configured one by a prepared guess."""
 
@@ -186,18 +195,26 @@ class BatchSmoother(Stepper):
         chosen, robust, seed_s = first, None, seed.seconds
         if (reason := cands.why_other_starts(full, first, int(kf_t.shape[0]))) is not None:
             chosen, robust, seed_s = self._robust(reason, full, first, (kf_t, kf_of_det, gaps), segments, progress)
-        chosen, range_notes = self._at_predicted_ranges(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        keyframes = (kf_t, kf_of_det, gaps)
+        chosen, range_notes = self._at_predicted_ranges(
+            chosen, keyframes, segments, _in_step(progress, "detection noise at the predicted ranges")
+        )
         select = self._cross_validation if self.settings.noise_selection == "cross_validation" else self._evidence
-        chosen, evidence, evidence_notes = select(chosen, (kf_t, kf_of_det, gaps), segments, progress)
-        chosen, anisotropy, anisotropy_notes = self._weigh_range(chosen, (kf_t, kf_of_det, gaps), segments, progress)
+        chosen, evidence, evidence_notes = select(chosen, keyframes, segments, _in_step(progress, "noise levels"))
+        chosen, anisotropy, anisotropy_notes = self._weigh_range(
+            chosen, keyframes, segments, _in_step(progress, "range against bearing")
+        )
         if anisotropy.get("applied") and select == self._evidence:
             # the motion levels were scanned against isotropic detections, whose range error they soaked up: again
             scales = {k: r["scale"] for k, r in evidence.items() if "scale" in r}
-            chosen, evidence, again = self._evidence(chosen, (kf_t, kf_of_det, gaps), segments, progress, scales)
+            again_progress = _in_step(progress, "noise levels again")
+            chosen, evidence, again = self._evidence(chosen, keyframes, segments, again_progress, scales)
             anisotropy_notes += again
             anisotropy["motion_scanned_again"] = True
-        chosen, correlation, correlation_notes = self._decorrelate(chosen, (kf_t, kf_of_det, gaps), segments, progress)
-        chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, (kf_t, kf_of_det, gaps), segments)
+        chosen, correlation, correlation_notes = self._decorrelate(
+            chosen, keyframes, segments, _in_step(progress, "time-correlated detections")
+        )
+        chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
