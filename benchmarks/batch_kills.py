@@ -11,7 +11,6 @@ processes left alive (must be 0), and whether every re-run was consistent (must 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import random
 import signal
@@ -22,9 +21,8 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from batch_checks import CLI, assert_consistent, children, group_alive, wait_for  # noqa: E402
+from batch_checks import CLI, DASK, assert_consistent, children, group_alive, spawn, start_scheduler, stop, wait_for  # noqa: E402
 
-DASK = Path(sys.executable).with_name("dask")
 SCENARIOS = (
     "parent-SIGKILL",
     "parent-SIGTERM",
@@ -46,39 +44,9 @@ def make_logs(base: Path, n: int) -> Path:
     return logs
 
 
-def _spawn(args, log: Path) -> subprocess.Popen:
-    with open(log, "w") as fh:
-        return subprocess.Popen([str(a) for a in args], stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
-
-
-def _kill_group(p: subprocess.Popen) -> None:
-    if p.poll() is None:
-        os.killpg(p.pid, signal.SIGKILL)
-    p.wait()
-
-
-def _start_scheduler(work: Path) -> tuple[subprocess.Popen, subprocess.Popen, str]:
-    info = work / "scheduler.json"
-    info.unlink(missing_ok=True)
-    sched = _spawn(
-        [
-            DASK,
-            "scheduler",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            "0",
-            "--scheduler-file",
-            info,
-            "--dashboard-address",
-            ":0",
-        ],
-        work / "scheduler.log",
-    )
-    wait_for(info.is_file, 60)
-    time.sleep(0.2)
-    address = json.loads(info.read_text())["address"]
-    worker = _spawn(
+def _scheduler_and_worker(work: Path) -> tuple[subprocess.Popen, subprocess.Popen, str]:
+    sched, address = start_scheduler(work)
+    worker = spawn(
         [DASK, "worker", address, "--nthreads", "1", "--no-dashboard", "--local-directory", work / "w"],
         work / "worker.log",
     )
@@ -90,13 +58,13 @@ def one_case(scenario: str, logs: Path, cfg: Path, work: Path, rng: random.Rando
     extra: list = ["-j", "2"]
     helpers: list[subprocess.Popen] = []
     if scenario.startswith("dask-scheduler"):
-        sched, worker, address = _start_scheduler(work)
+        sched, worker, address = _scheduler_and_worker(work)
         helpers = [sched, worker]
         extra = ["--scheduler", address, "--wait-workers", "30"]
     elif scenario.startswith("dask-local"):
         extra = ["--executor", "dask", "-j", "2"]
     err = work / "batch.err"
-    proc = _spawn([*CLI, "batch", logs, "-o", out, "--config", cfg, *extra], err)
+    proc = spawn([*CLI, "batch", logs, "-o", out, "--config", cfg, *extra], err)
     result = {"exit": None, "gone_s": None, "alive": 0, "consistent": False}
     try:
         wait_for(lambda: "to run on" in err.read_text() or proc.poll() is not None, 180)
@@ -122,9 +90,9 @@ def one_case(scenario: str, logs: Path, cfg: Path, work: Path, rng: random.Rando
         result["gone_s"] = time.monotonic() - t
         result["alive"] = len(group_alive(proc.pid))
     finally:
-        _kill_group(proc)
+        stop(proc)
         for h in helpers:
-            _kill_group(h)
+            stop(h)
     rerun = subprocess.run(
         [*CLI, "batch", logs, "-o", out, "--config", cfg, "-j", "2"], capture_output=True, text=True, timeout=600
     )

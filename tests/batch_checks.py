@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -151,3 +152,45 @@ def wait_for(predicate, within: float, step: float = 0.1) -> bool:
             return True
         time.sleep(step)
     return predicate()
+
+
+#: the Dask command of this interpreter's environment (an external cluster's scheduler and workers)
+DASK = Path(sys.executable).with_name("dask")
+
+
+def spawn(args: list, log: Path, env: dict | None = None) -> subprocess.Popen:
+    """``args`` in a session of its own (a process group to kill whole), its output into ``log``."""
+    with open(log, "w") as fh:
+        return subprocess.Popen(
+            [str(a) for a in args],
+            stdout=fh,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+            env={**os.environ, **(env or {})},
+        )
+
+
+def stop(*procs: subprocess.Popen) -> None:
+    """SIGKILL each still running process's group, and reap it."""
+    for p in procs:
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+
+
+def start_scheduler(work: Path) -> tuple[subprocess.Popen, str]:
+    """A Dask scheduler on a free local port (its log and scheduler file in ``work``): the process and its address;
+    stopped and an AssertionError with its log when it has not written its file within 60 s."""
+    info = work / "scheduler.json"
+    info.unlink(missing_ok=True)
+    log = work / "scheduler.log"
+    proc = spawn(
+        [DASK, "scheduler", "--host", "127.0.0.1", "--port", "0", "--scheduler-file", info]
+        + ["--dashboard-address", ":0"],
+        log,
+    )
+    if not wait_for(info.is_file, 60):
+        stop(proc)
+        raise AssertionError(log.read_text())
+    time.sleep(0.2)
+    return proc, json.loads(info.read_text())["address"]

@@ -12,13 +12,11 @@ import json
 import os
 import signal
 import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
 
-from batch_checks import CLI, assert_consistent, children, wait_for
+from batch_checks import CLI, DASK, assert_consistent, children, spawn, start_scheduler, stop, wait_for
 from slamobs.pipeline.batch.executor import STARTED
 
 
@@ -98,9 +96,6 @@ def staged_logs(out: Path) -> list[tuple[Path, int]]:
 
 # --- Dask: real scheduler and worker processes --------------------------------------------------------------
 
-DASK = Path(sys.executable).with_name("dask")
-
-
 # A worker environment without slamobs, made without a second venv: `import slamobs` fails in that process.
 NO_SLAMOBS = """
 import sys
@@ -113,49 +108,14 @@ sys.meta_path.insert(0, _NoSlamobs())
 """
 
 
-def spawn(args: list, log: Path, env: dict | None = None) -> subprocess.Popen:
-    with open(log, "w") as fh:
-        return subprocess.Popen(
-            [str(a) for a in args],
-            stdout=fh,
-            stderr=subprocess.STDOUT,
-            start_new_session=True,
-            env={**os.environ, **(env or {})},
-        )
-
-
-def stop(*procs: subprocess.Popen) -> None:
-    for p in procs:
-        if p.poll() is None:
-            os.killpg(p.pid, signal.SIGKILL)
-        p.wait()
-
-
 @pytest.fixture
 def scheduler(tmp_path):
     pytest.importorskip("distributed")
     if not DASK.is_file():
         pytest.skip("no dask command next to the interpreter")
-    info = tmp_path / "scheduler.json"
-    proc = spawn(
-        [
-            DASK,
-            "scheduler",
-            "--host",
-            "127.0.0.1",
-            "--port",
-            "0",
-            "--scheduler-file",
-            info,
-            "--dashboard-address",
-            ":0",
-        ],
-        tmp_path / "scheduler.log",
-    )
+    proc, address = start_scheduler(tmp_path)
     try:
-        assert wait_for(info.is_file, 60), (tmp_path / "scheduler.log").read_text()
-        time.sleep(0.2)
-        yield proc, json.loads(info.read_text())["address"]
+        yield proc, address
     finally:
         stop(proc)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import time
+from contextlib import contextmanager
 
 import pytest
 
@@ -13,6 +14,17 @@ from batch_checks import CLI, assert_consistent, wait_for, wait_gone
 from slamobs.pipeline.batch.ledger import read_summary
 from kill_checks import NO_SLAMOBS, batch_args, dask_worker, rerun_and_check, start_batch, started_logs, stop
 from kill_checks import logs, scheduler  # noqa: F401 - fixtures
+
+
+@contextmanager
+def _batch_on_one_worker(logs, out, address: str, tmp_path):
+    """A batch of ``logs`` into ``out`` on the scheduler at ``address`` with one worker (w1) of its own, which is
+    stopped on leaving: the batch process and its stderr file."""
+    worker = dask_worker(address, tmp_path, "w1")
+    try:
+        yield start_batch(batch_args(logs, out, "--scheduler", address, "--wait-workers", "30"), tmp_path, "batch")
+    finally:
+        stop(worker)
 
 
 def test_dask_without_usable_workers_exits_3_with_one_line(logs, tmp_path, scheduler):
@@ -43,12 +55,8 @@ def test_dask_without_usable_workers_exits_3_with_one_line(logs, tmp_path, sched
 
 def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, scheduler):
     sched, address = scheduler
-    worker = dask_worker(address, tmp_path, "w1")
     out = tmp_path / "OUT"
-    try:
-        proc, err = start_batch(
-            batch_args(logs, out, "--scheduler", address, "--wait-workers", "30"), tmp_path, "batch"
-        )
+    with _batch_on_one_worker(logs, out, address, tmp_path) as (proc, err):
         # a run recorded (its line may already be in summary.parquet: rewritten every second or so)
         assert wait_for(lambda: len(read_summary(out)) >= 1 or proc.poll() is not None, 180), err.read_text()
         sched.kill()
@@ -56,8 +64,6 @@ def test_lost_dask_scheduler_exits_3_and_a_rerun_is_consistent(logs, tmp_path, s
         assert code == 3, err.read_text()
         assert "lost the Dask scheduler" in err.read_text().strip().splitlines()[-1]
         assert wait_gone(proc.pid) == []
-    finally:
-        stop(worker)
     rerun_and_check(logs, out)
 
 
@@ -68,12 +74,8 @@ def test_a_scheduler_killed_while_a_task_runs_leaves_nothing_staged(logs, tmp_pa
     from slamobs.pipeline.batch.executor import LEASE_POLL_S
 
     sched, address = scheduler
-    worker = dask_worker(address, tmp_path, "w1")
     out = tmp_path / "OUT"
-    try:
-        proc, err = start_batch(
-            batch_args(logs, out, "--scheduler", address, "--wait-workers", "30"), tmp_path, "batch"
-        )
+    with _batch_on_one_worker(logs, out, address, tmp_path) as (proc, err):
         assert wait_for(lambda: started_logs(out) or proc.poll() is not None, 180, step=0.01), err.read_text()
         sched.kill()
         assert proc.wait(timeout=120) == 3, err.read_text()
@@ -81,8 +83,6 @@ def test_a_scheduler_killed_while_a_task_runs_leaves_nothing_staged(logs, tmp_pa
         staged = sorted(str(p.relative_to(out)) for p in (out / "_slamobs" / "staging").rglob("*"))
         assert staged == [], staged
         assert_consistent(out)
-    finally:
-        stop(worker)
     rerun_and_check(logs, out)
 
 
