@@ -11,9 +11,11 @@ find it imported), ``read``, ``align``, ``observer`` (the estimator's stretches,
 the table gives the wall seconds, the CPU seconds of the main thread, of the other threads (by Python thread
 name; threads Python did not start by their kernel name) and of the child processes, and the idle
 core-seconds: the cores times the wall less all of that CPU. Idle core-seconds in a stage are what moving work
-into it from another stage could use; a stage without them is bound by its CPU. On a shared machine they
-include what other processes took (the load average and the speed of a plain loop are printed before and
-after). The sampler's own CPU (~1-2 %) is left out.
+into it from another stage could use; a stage without them is bound by its CPU. ``main alone s``: the wall seconds
+of the stage in which the main thread used at least half a core and every other lane together less than a tenth
+of one (sample by sample): the serial part, where a second core sits idle while the main thread works. On a
+shared machine idle core-seconds include what other processes took (the load average and the speed of a plain
+loop are printed before and after). The sampler's own CPU (~1-2 %) is left out.
 
 ``--chart SECONDS`` also draws each run as a chart: one row per lane (thread or child process), one column per
 ``SECONDS`` of wall time, each cell the share of a core the lane used then (``1``-``9``: 10-90 %, ``#``: a whole
@@ -126,6 +128,19 @@ class Sampler(threading.Thread):
             rss = int(statm.split()[1]) * PAGE / 2**20
             self.rss[self.stage] = max(self.rss[self.stage], rss)
         self.last.update(now)
+
+    def alone(self) -> dict[str, float]:
+        """Wall seconds per stage in which the main thread worked (>= half a core) and nothing else did (all other
+        lanes together < a tenth of a core), from consecutive samples."""
+        out: dict[str, float] = defaultdict(float)
+        main = {k for k, n in self.names.items() if n == "main"}
+        for (t0, _, _), (t1, stage, step) in zip(self.series, self.series[1:]):
+            dt = t1 - t0
+            mine = sum(v for k, v in step.items() if k in main)
+            others = sum(v for k, v in step.items() if k not in main)
+            if dt > 0 and mine >= 0.5 * dt and others < 0.1 * dt:
+                out[stage] += dt
+        return dict(out)
 
     def by_name(self) -> dict[str, dict[str, float]]:
         """CPU seconds per stage and thread name (threads of one name added up)."""
@@ -263,15 +278,17 @@ def one_run(
     walls["start"] = wall - sum(walls.values())  # the rest: before the read and after the report
     if bucket:
         chart(sampler, bucket)
-    return dict(walls), sampler.by_name(), wall, dict(sampler.rss)
+    return dict(walls), sampler.by_name(), wall, dict(sampler.rss), sampler.alone()
 
 
-def show(walls: dict[str, float], cpu: dict[str, dict[str, float]], wall: float, cores: int, rss: dict) -> None:
+def show(
+    walls: dict[str, float], cpu: dict[str, dict[str, float]], wall: float, cores: int, rss: dict, alone: dict
+) -> None:
     threads = sorted({k for per in cpu.values() for k in per if k != "main"})
     print(
         f"{'stage':<9} {'wall s':>7} {'main':>6} "
         + " ".join(f"{k[:14]:>14}" for k in threads)
-        + f" {'idle core-s':>11} {'peak RSS MB':>11}"
+        + f" {'idle core-s':>11} {'main alone s':>12} {'peak RSS MB':>11}"
     )
     total = defaultdict(float)
     for stage in STAGES:
@@ -281,12 +298,14 @@ def show(walls: dict[str, float], cpu: dict[str, dict[str, float]], wall: float,
         cols = " ".join(f"{per.get(k, 0.0):>14.2f}" for k in threads)
         wall_s = f"{w:>7.2f}" if w is not None else f"{'':>7}"
         idle = f"{cores * w - used:>11.2f}" if w is not None else f"{'':>11}"
-        print(f"{stage:<9} {wall_s} {per.get('main', 0.0):>6.2f} {cols} {idle} {rss.get(stage, 0.0):>11.0f}")
+        lone = f"{alone.get(stage, 0.0):>12.2f}"
+        print(f"{stage:<9} {wall_s} {per.get('main', 0.0):>6.2f} {cols} {idle} {lone} {rss.get(stage, 0.0):>11.0f}")
         for k, v in per.items():
             total[k] += v
     cols = " ".join(f"{total.get(k, 0.0):>14.2f}" for k in threads)
     idle, peak = cores * wall - sum(total.values()), max(rss.values(), default=0.0)
-    print(f"{'all':<9} {wall:>7.2f} {total.get('main', 0.0):>6.2f} {cols} {idle:>11.2f} {peak:>11.0f}")
+    lone = sum(alone.values())
+    print(f"{'all':<9} {wall:>7.2f} {total.get('main', 0.0):>6.2f} {cols} {idle:>11.2f} {lone:>12.2f} {peak:>11.0f}")
     print(f"# 'start' and 'end' together took {walls['start']:.2f} s of wall (imports before the read, run.json after)")
 
 
@@ -308,9 +327,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="slamobs-timeline-") as tmp:
         out = args.out or Path(tmp) / "run"
         for k in range(max(1, args.repeat)):
-            walls, cpu, wall, rss = one_run(args.log, out, args.figure_helper, args.chart, extra)
+            walls, cpu, wall, rss, alone = one_run(args.log, out, args.figure_helper, args.chart, extra)
             print(f"## run {k + 1}: {wall:.2f} s wall")
-            show(walls, cpu, wall, cores, rss)
+            show(walls, cpu, wall, cores, rss, alone)
     print(f"# {load()}")
 
 
