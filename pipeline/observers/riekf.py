@@ -106,8 +106,8 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
 problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
-standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess), and drift
-as slow random walks.
+standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess; narrowed when the
+track is lost, above), and drift as slow random walks.
 """
 
 from __future__ import annotations
@@ -1686,7 +1686,8 @@ class RiEKF(Stepper):
         self._prior_passes += 1
         self._lost_runs.append(run)
         f = PRIOR_NARROWING**self._prior_passes
-        self.noise = self._noise0.scaled({"gyro_bias": f, "velocity_bias": f}, by="riekf (its track lost with wider)")
+        why = "riekf, its track lost with wider priors"
+        self.noise = self._noise0.scaled({"gyro_bias": f, "velocity_bias": f}, by=why)
         self._setup(self.stream)
         return True
 
