@@ -83,9 +83,11 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   more known-landmark detections in a row failing the gate (and the filter did not give up), it starts again from
   the log's start with both priors' standard deviations multiplied by ``PRIOR_NARROWING``, again each pass while the
   stretch ends so, up to ``MAX_PRIOR_PASSES`` (:meth:`RiEKF._prior_restart`, before anything of the stretch is
-  returned; run.json ``observer.filter.bias_priors``, a note). The end of the log sets how the start is weighed: fair
-  for an offline tool, not an online filter's. Not when either prior is given in the configuration. Elsewhere
-  nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22 (h-riekf22)").
+  returned; run.json ``observer.filter.bias_priors``, a note); when the last of those ends so too, no bias explains
+  it (a moved landmark, say) and a last pass puts the priors back (``kept`` false, a note). The end of the log sets
+  how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
+  configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
+  (h-riekf22)").
 * Planar motion (a ground robot on a flat floor): a 6-DoF filter has no way to know the floor is flat, and with a
   noisy gyro its roll and pitch walk while no landmark is in view; the height follows them (docs/benchmarks.md,
   "riekf on ground robots (session 18, h-riekfg)"). When the log's roll and pitch rates and vertical velocity
@@ -1591,6 +1593,7 @@ class RiEKF(Stepper):
         self._walk0, self._passes, self._returned = 1.0, 1, False
         # the bias priors' narrowing: the passes with narrowed priors, and each earlier pass's gated run at its end
         self._prior_passes, self._lost_runs, self._noise0 = 0, [], self.noise
+        self._prior_kept = True  # False once the narrowing failed and the priors were put back
         if self._offset.done():  # one core: estimated already, nothing to overlap
             self._time_offset, self._offset = self._offset.result(), None
             stream = time_offset.shifted(stream, self._time_offset)
@@ -1676,18 +1679,23 @@ class RiEKF(Stepper):
         """Whether the first stretch is run again with narrower bias priors (module docstring, "Bias priors
         narrowed"): when it ends with ``LOST_IN_A_ROW`` or more known-landmark detections in a row failing the gate,
         both priors' standard deviations are multiplied by ``PRIOR_NARROWING`` (once more each pass, up to
-        ``MAX_PRIOR_PASSES``); not when either prior is given in the configuration, nor when the filter gave up
-        (status ``lost``: the recovery found no noise level that explains the detections, and says so)."""
+        ``MAX_PRIOR_PASSES``); when the last of those still ends so, the narrowing did not keep the track (not the
+        biases: a landmark moved, say) and a last pass runs with the priors as they were. Not when either prior is
+        given in the configuration, nor when the filter gave up (status ``lost``: the recovery found no noise level
+        that explains the detections, and says so)."""
         ns = self.state.ns
         run = int(ns[_TAIL_GATED])
         given = {k for k in ("gyro_bias", "velocity_bias") if self._noise0.sources.get(k) == "config"}
-        if run < LOST_IN_A_ROW or given or ns[_LOST] or self._prior_passes >= MAX_PRIOR_PASSES:
+        if run < LOST_IN_A_ROW or given or ns[_LOST] or not self._prior_kept:
             return False
-        self._prior_passes += 1
         self._lost_runs.append(run)
-        f = PRIOR_NARROWING**self._prior_passes
-        why = "riekf, its track lost with wider priors"
-        self.noise = self._noise0.scaled({"gyro_bias": f, "velocity_bias": f}, by=why)
+        if self._prior_passes >= MAX_PRIOR_PASSES:
+            self._prior_kept, self.noise = False, self._noise0
+        else:
+            self._prior_passes += 1
+            f = PRIOR_NARROWING**self._prior_passes
+            why = "riekf, its track lost with wider priors"
+            self.noise = self._noise0.scaled({"gyro_bias": f, "velocity_bias": f}, by=why)
         self._setup(self.stream)
         return True
 
@@ -1883,7 +1891,8 @@ class RiEKF(Stepper):
             "walk": self._walk(),
             "bias_priors": {
                 "narrowed_passes": self._prior_passes,
-                "factor": PRIOR_NARROWING**self._prior_passes,
+                "kept": self._prior_kept,
+                "factor": PRIOR_NARROWING ** (self._prior_passes * self._prior_kept),
                 "gyro_bias": float(self.noise.gyro_bias),
                 "velocity_bias": float(self.noise.velocity_bias),
                 "gated_in_a_row_before": list(self._lost_runs),
@@ -1967,6 +1976,29 @@ def max_variance_factor(det_y: np.ndarray, noise) -> float:
     return (MAX_SIGMA_SHARE * r / sigma) ** 2 if sigma > 0 else np.inf
 
 
+def _prior_notes(pri: dict) -> list[str]:
+    """The note of the bias priors narrowed after a lost track, or of a narrowing that did not keep it
+    (``observer.filter.bias_priors``; module docstring, "Bias priors narrowed")."""
+    notes = []
+    runs = ", ".join(str(r) for r in pri.get("gated_in_a_row_before", []))
+    if pri.get("narrowed_passes") and not pri["kept"]:
+        notes.append(
+            f"riekf: its last {pri['gated_in_a_row_at_end']} known-landmark detections in a row failed the gate (the "
+            f"track lost); with the bias priors narrowed up to {PRIOR_NARROWING ** pri['narrowed_passes']:.3g}x the "
+            f"runs ended so too ({runs} in a row), so they stay as they were: most likely not the biases (a moved "
+            "landmark, a clock or frame error; run.json observer.filter.bias_priors)"
+        )
+    elif pri.get("narrowed_passes"):
+        notes.append(
+            f"riekf: run again from the start with the bias priors narrowed {pri['factor']:.3g}x (gyro_bias "
+            f"{pri['gyro_bias']:.3g} rad/s, velocity_bias {pri['velocity_bias']:.3g} m/s): with wider ones the last "
+            f"{runs} known-landmark detection(s) in a row failed the gate (the track lost; a bias learned from few "
+            "landmarks most likely carried the pose off; run.json observer.filter.bias_priors; noise: gyro_bias, "
+            "velocity_bias fix them)"
+        )
+    return notes
+
+
 def recovery_notes(filt: dict) -> list[str]:
     """What the recovery did, for the run's notes: one line per recovery (the first few), and an ``error:``
     line when the filter gave up (its trajectory is not to be trusted after that time)."""
@@ -2005,16 +2037,7 @@ def recovery_notes(filt: dict) -> list[str]:
             "varying velocity error, such as wheel slip (run.json observer.filter.walk; noise: velocity_bias_walk "
             "fixes it)"
         )
-    pri = filt.get("bias_priors") or {}
-    if pri.get("narrowed_passes"):
-        runs = ", ".join(str(r) for r in pri["gated_in_a_row_before"])
-        notes.append(
-            f"riekf: run again from the start with the bias priors narrowed {pri['factor']:.3g}x (gyro_bias "
-            f"{pri['gyro_bias']:.3g} rad/s, velocity_bias {pri['velocity_bias']:.3g} m/s): with wider ones the last "
-            f"{runs} known-landmark detection(s) in a row failed the gate (the track lost; a bias learned from few "
-            "landmarks most likely carried the pose off; run.json observer.filter.bias_priors; noise: gyro_bias, "
-            "velocity_bias fix them)"
-        )
+    notes += _prior_notes(filt.get("bias_priors") or {})
     con = filt.get("consistency") or {}
     if con.get("overconfident"):
         first = con["log"][0]
