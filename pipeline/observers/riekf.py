@@ -74,6 +74,20 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
   half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
   real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
+* Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias``
+  (0.2 by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
+  direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
+  for 10 s, a velocity bias of 0.22 m/s where the twist has none above 0.02) and carry it through a blind stretch;
+  the landmarks that return then lie far outside the covariance and every one fails the gate, while the recovery's
+  windows are never judged and the status stays ``converged``. When the first stretch ends with ``LOST_IN_A_ROW`` or
+  more known-landmark detections in a row failing the gate (and the filter did not give up), it starts again from
+  the log's start with both priors' standard deviations multiplied by ``PRIOR_NARROWING``, again each pass while the
+  stretch ends so, up to ``MAX_PRIOR_PASSES`` (:meth:`RiEKF._prior_restart`, before anything of the stretch is
+  returned; run.json ``observer.filter.bias_priors``, a note); when the last of those ends so too, no bias explains
+  it (a moved landmark, say) and a last pass puts the priors back (``kept`` false, a note). The end of the log sets
+  how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
+  configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
+  (h-riekf22)").
 * Planar motion (a ground robot on a flat floor): a 6-DoF filter has no way to know the floor is flat, and with a
   noisy gyro its roll and pitch walk while no landmark is in view; the height follows them (docs/benchmarks.md,
   "riekf on ground robots (session 18, h-riekfg)"). When the log's roll and pitch rates and vertical velocity
@@ -94,8 +108,8 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
 Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by key, else the log's plausible
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
 problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
-standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess), and drift
-as slow random walks.
+standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess; narrowed when the
+track is lost, above), and drift as slow random walks.
 """
 
 from __future__ import annotations
@@ -141,7 +155,10 @@ _ARMED, _PB_N, _PB_GATED, _RELOCS = 19, 20, 21, 22
 #: The velocity-bias walk (module docstring, "Velocity-bias walk"): windows in its ring, times it was raised, and
 #: whether it is fixed (given in the configuration).
 _WALK_N, _WALK_RAISES, _WALK_FIXED = 23, 24, 25
-N_SLOTS = 26
+#: The known-landmark detections in a row, up to the latest, that failed the gate (module docstring, "Bias priors
+#: narrowed").
+_TAIL_GATED = 26
+N_SLOTS = 27
 #: Recovery (module docstring): detections per window, the gated share that triggers it, the χ² (3 DoF) median
 #: the window's median distance² is compared with, the smallest and largest variance factor of one recovery, the
 #: failing windows in a row after which the filter gives up, and the detection noise (as a share of the median
@@ -169,6 +186,12 @@ MAX_WALK_FACTOR = 100.0
 #: walk the stretch learned, and the most passes over it in all.
 RESTART_RATIO = 2.0
 MAX_WALK_PASSES = 4
+#: Bias priors narrowed (module docstring): the known-landmark detections in a row failing the gate at the first
+#: stretch's end from which its track is lost, the factor on both bias priors' standard deviations per pass, and the
+#: passes with narrowed priors at most.
+LOST_IN_A_ROW = 20
+PRIOR_NARROWING = 0.25
+MAX_PRIOR_PASSES = 3
 #: Planar motion (module docstring): the RMS of the roll and pitch rates and of the vertical velocity over their noise
 #: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
 #: floor's pseudo-measurements, and the seconds between them.
@@ -923,10 +946,12 @@ def update(
             blind_z2[ns[_PB_N] - 1] = zi[0] * zi[0] + zi[1] * zi[1] + zi[2] * zi[2]
         if d2 > gate:
             ns[_GATED] += 1
+            ns[_TAIL_GATED] += 1
             ns[_WIN_GATED] += 1
             ns[_PB_GATED] += ns[_ARMED]
             gated_lm[i] = True
             continue
+        ns[_TAIL_GATED] = 0
         sel[m] = j
         for c in range(3):
             z[3 * m + c] = zi[c]
@@ -1566,6 +1591,9 @@ class RiEKF(Stepper):
         self._known = False  # whether the estimate is applied is known and acted upon (:meth:`_offset_applied`)
         # the walk's variance factor a pass starts from, the passes over the first stretch, whether one was returned
         self._walk0, self._passes, self._returned = 1.0, 1, False
+        # the bias priors' narrowing: the passes with narrowed priors, and each earlier pass's gated run at its end
+        self._prior_passes, self._lost_runs, self._noise0 = 0, [], self.noise
+        self._prior_kept = True  # False once the narrowing failed and the priors were put back
         if self._offset.done():  # one core: estimated already, nothing to overlap
             self._time_offset, self._offset = self._offset.result(), None
             stream = time_offset.shifted(stream, self._time_offset)
@@ -1624,7 +1652,7 @@ class RiEKF(Stepper):
         """:meth:`Stepper.advance` (:meth:`_advance_stretch`); the first stretch is run again from the start with the
         walk it learned as long as its velocity-bias corrections say the walk is too small (:meth:`_walk_restart`)."""
         res = self._advance_stretch(iv_stop)
-        while not self._returned and self._walk_restart():
+        while not self._returned and (self._walk_restart() or self._prior_restart()):
             res = self._advance_stretch(iv_stop)
         self._returned = True
         return res
@@ -1644,6 +1672,30 @@ class RiEKF(Stepper):
             return False
         self._walk0 = min(max(self._walk0 * fs[_WALK_MAX] ** 4, fs[_WALK]), MAX_WALK_FACTOR**2)
         self._passes += 1
+        self._setup(self.stream)
+        return True
+
+    def _prior_restart(self) -> bool:
+        """Whether the first stretch is run again with narrower bias priors (module docstring, "Bias priors
+        narrowed"): when it ends with ``LOST_IN_A_ROW`` or more known-landmark detections in a row failing the gate,
+        both priors' standard deviations are multiplied by ``PRIOR_NARROWING`` (once more each pass, up to
+        ``MAX_PRIOR_PASSES``); when the last of those still ends so, the narrowing did not keep the track (not the
+        biases: a landmark moved, say) and a last pass runs with the priors as they were. Not when either prior is
+        given in the configuration, nor when the filter gave up (status ``lost``: the recovery found no noise level
+        that explains the detections, and says so)."""
+        ns = self.state.ns
+        run = int(ns[_TAIL_GATED])
+        given = {k for k in ("gyro_bias", "velocity_bias") if self._noise0.sources.get(k) == "config"}
+        if run < LOST_IN_A_ROW or given or ns[_LOST] or not self._prior_kept:
+            return False
+        self._lost_runs.append(run)
+        if self._prior_passes >= MAX_PRIOR_PASSES:
+            self._prior_kept, self.noise = False, self._noise0
+        else:
+            self._prior_passes += 1
+            f = PRIOR_NARROWING**self._prior_passes
+            why = "riekf, its track lost with wider priors"
+            self.noise = self._noise0.scaled({"gyro_bias": f, "velocity_bias": f}, by=why)
         self._setup(self.stream)
         return True
 
@@ -1837,6 +1889,15 @@ class RiEKF(Stepper):
                 for r in self.state.blind_log[: min(int(ns[_RELOCS]), MAX_LOG)]
             ],
             "walk": self._walk(),
+            "bias_priors": {
+                "narrowed_passes": self._prior_passes,
+                "kept": self._prior_kept,
+                "factor": PRIOR_NARROWING ** (self._prior_passes * self._prior_kept),
+                "gyro_bias": float(self.noise.gyro_bias),
+                "velocity_bias": float(self.noise.velocity_bias),
+                "gated_in_a_row_before": list(self._lost_runs),
+                "gated_in_a_row_at_end": int(ns[_TAIL_GATED]),
+            },
             "consistency": {
                 "overconfident": int(ns[_OVERCONFIDENT]),
                 "log": [
@@ -1915,6 +1976,29 @@ def max_variance_factor(det_y: np.ndarray, noise) -> float:
     return (MAX_SIGMA_SHARE * r / sigma) ** 2 if sigma > 0 else np.inf
 
 
+def _prior_notes(pri: dict) -> list[str]:
+    """The note of the bias priors narrowed after a lost track, or of a narrowing that did not keep it
+    (``observer.filter.bias_priors``; module docstring, "Bias priors narrowed")."""
+    notes = []
+    runs = ", ".join(str(r) for r in pri.get("gated_in_a_row_before", []))
+    if pri.get("narrowed_passes") and not pri["kept"]:
+        notes.append(
+            f"riekf: its last {pri['gated_in_a_row_at_end']} known-landmark detections in a row failed the gate (the "
+            f"track lost); with the bias priors narrowed up to {PRIOR_NARROWING ** pri['narrowed_passes']:.3g}x the "
+            f"runs ended so too ({runs} in a row), so they stay as they were: most likely not the biases (a moved "
+            "landmark, a clock or frame error; run.json observer.filter.bias_priors)"
+        )
+    elif pri.get("narrowed_passes"):
+        notes.append(
+            f"riekf: run again from the start with the bias priors narrowed {pri['factor']:.3g}x (gyro_bias "
+            f"{pri['gyro_bias']:.3g} rad/s, velocity_bias {pri['velocity_bias']:.3g} m/s): with wider ones the last "
+            f"{runs} known-landmark detection(s) in a row failed the gate (the track lost; a bias learned from few "
+            "landmarks most likely carried the pose off; run.json observer.filter.bias_priors; noise: gyro_bias, "
+            "velocity_bias fix them)"
+        )
+    return notes
+
+
 def recovery_notes(filt: dict) -> list[str]:
     """What the recovery did, for the run's notes: one line per recovery (the first few), and an ``error:``
     line when the filter gave up (its trajectory is not to be trusted after that time)."""
@@ -1953,6 +2037,7 @@ def recovery_notes(filt: dict) -> list[str]:
             "varying velocity error, such as wheel slip (run.json observer.filter.walk; noise: velocity_bias_walk "
             "fixes it)"
         )
+    notes += _prior_notes(filt.get("bias_priors") or {})
     con = filt.get("consistency") or {}
     if con.get("overconfident"):
         first = con["log"][0]
