@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import OutPath, export_option, quiet_option, truth_option, window_options
+from slamobs.cli.options import OutPath, config_option, export_option, quiet_option, truth_option, window_options
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -108,7 +108,7 @@ def loose_hint(name: str, conv: dict, log: str) -> str | None:
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@config_option()
 @click.option(
     "--msg-dir",
     type=click.Path(path_type=Path, file_okay=False),
@@ -230,7 +230,7 @@ def _print_summary(summary) -> None:
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@config_option()
 @click.option(
     "--msg-dir",
     type=click.Path(path_type=Path, file_okay=False),
