@@ -216,11 +216,9 @@ def _print_summary(summary) -> None:
             if note not in summary.notes:  # the run's own (the noise levels) are in the report too: printed above
                 click.echo(f"note         {note}")
     elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
-        err = m["map_error"]["error_m"]
-        click.echo(
-            f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
-            "(map-only SE(3) alignment)"
-        )
+        from slamobs.cli.report_cmd import map_error_line
+
+        click.echo(map_error_line(m["map_error"]))
     if m.get("figures"):
         click.echo(f"figures      {', '.join(m['figures'])} (report.md shows them)")
     click.echo(f"wrote        {wrote_line(summary.out_dir)}")

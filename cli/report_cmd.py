@@ -228,6 +228,8 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None 
             else ""
         )
         click.echo(f"map          {info['landmarks']} landmarks{residual}")
+        if map_error := run_meta(run_dir).get("map_error"):
+            click.echo(map_error_line(map_error))
         if info.get("detection_frames"):
             click.echo(
                 f"detections   {info['detection_frames']} frames, {info['detections_per_frame_mean']:.2f} per frame, "
@@ -236,6 +238,16 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None 
             )
         click.echo(f"wrote        {', '.join(sorted(p.name for p in written))}")
     return False
+
+
+def map_error_line(map_error: dict) -> str:
+    """The map error of a run with landmark truth and no trajectory truth, as ``run`` and ``report`` print it (the
+    one error number such a run has; ``report`` said nothing of it)."""
+    err = map_error["error_m"]
+    return (
+        f"landmarks    map error rmse {err['rmse']:.4f} m over {map_error['n_matched']} landmarks "
+        "(map-only SE(3) alignment)"
+    )
 
 
 def _summary(r: dict, written: list[Path]) -> None:

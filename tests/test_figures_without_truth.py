@@ -102,6 +102,8 @@ def test_report_without_truth_draws_the_figures_again(run_dir):
     res = invoke("report", out)
     assert res.exit_code == 0, res.output
     assert "truth        none" in res.output and "map.png" in res.output
+    rmse = json.loads((out / "run.json").read_text())["map_error"]["error_m"]["rmse"]
+    assert f"landmarks    map error rmse {rmse:.4f} m over" in res.output  # as `run` printed it (report said nothing)
     assert (
         f"map          {len(pd.read_parquet(out / 'landmarks.parquet'))} landmarks; the detections placed" in res.output
     )

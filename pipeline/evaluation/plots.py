@@ -716,11 +716,13 @@ def plot_map(
     often it was seen; ``truth_xyz``: the landmark truth in the estimate's frame (open squares; ``truth_label``
     says how it was placed there)."""
     n = len(ids)
-    fig, axes = _figure(1, 1, (8.5, 7.5), right=0.2)
+    with_truth = truth_xyz is not None and len(truth_xyz)
+    # with the truth the legend's long line goes below the axes (inside, it covered landmarks)
+    fig, axes = _figure(1, 1, (8.5, 8.0), right=0.2, bottom=1.1) if with_truth else _figure(1, 1, (8.5, 7.5), right=0.2)
     ax = axes[0, 0]
     if len(path_xyz):
         ax.plot(path_xyz[:, 0], path_xyz[:, 1], "-", color="0.7", lw=0.8, label="estimated path")
-    if truth_xyz is not None and len(truth_xyz):
+    if with_truth:
         ax.scatter(
             truth_xyz[:, 0],
             truth_xyz[:, 1],
@@ -745,8 +747,10 @@ def plot_map(
     seen_text = f", seen {int(np.min(seen))} to {int(np.max(seen))} times" if n else ""
     ax.set_title(f"Landmark map: {n} landmarks{seen_text}; labels: id (times seen)")
     ax.grid(True, alpha=0.3)
-    if len(path_xyz) or (truth_xyz is not None and len(truth_xyz)):
-        ax.legend(loc="best", fontsize=8)  # the truth's line is long: where it covers the least
+    if with_truth:
+        fig.legend(loc="lower left", bbox_to_anchor=(0.01, 0.005), fontsize=8, frameon=False)
+    elif len(path_xyz):
+        ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)
 
 
