@@ -15,7 +15,7 @@ import click
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
 from slamobs.pipeline.cores import cores
-from slamobs.cli.options import Finite, OutPath, window_options
+from slamobs.cli.options import Finite, OutPath, config_option, window_options
 from slamobs.pipeline.errors import plural
 
 
@@ -193,13 +193,7 @@ class _RunCommand(click.Command):
     help="dataset directory (created; reused to resume)",
 )
 @click.option("--observer", default=None, help="observer for every log (overrides configs)")
-@click.option(
-    "--config",
-    "config_path",
-    type=click.Path(path_type=Path),
-    default=None,
-    help="run.yaml for logs without a per-log config in a manifest",
-)
+@config_option("run.yaml for logs without a per-log config in a manifest")
 @click.option(
     "--msg-dir",
     type=click.Path(path_type=Path, file_okay=False, exists=True),

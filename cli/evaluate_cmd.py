@@ -180,9 +180,10 @@ def evaluate(
     """Error of trajectory EST against TRUTH (APE by default; --metric rpe).
 
     TRUTH and EST are TUM, EuRoC CSV (truth) or KITTI files, a run's poses.parquet, or LOG:TOPIC for a
-    PoseStamped / Odometry topic of a ROS bag or MCAP (TRUTH also LOG:parent->child, a TF edge of the log). KITTI
+    PoseStamped / Odometry topic of a ROS bag or MCAP, or LOG:parent->child, a TF edge of the log. KITTI
     files without stamps are paired by index.
-    evo's own forms work too: `evaluate tum|kitti|euroc TRUTH EST` and `evaluate bag|bag2|mcap LOG TOPIC TOPIC`.
+    evo's own forms work too: `evaluate tum|kitti|euroc TRUTH EST` and `evaluate bag|bag2|mcap LOG TOPIC TOPIC`
+    (a TOPIC also as evo's /tf:parent.child).
     """
     from slamobs.pipeline.errors import InputError
 
@@ -261,7 +262,8 @@ def _inputs(
         ref_fmt, est_fmt = EVO_FORMS[inputs[0]]
         return inputs[1], inputs[2], truth_format or ref_fmt, est_format or est_fmt
     if len(inputs) == 4 and inputs[0] in BAG_FORMS:
-        return f"{inputs[1]}:{inputs[2]}", f"{inputs[1]}:{inputs[3]}", truth_format, est_format
+        ref, est = (_evo_tf_edge(t) for t in inputs[2:])
+        return f"{inputs[1]}:{ref}", f"{inputs[1]}:{est}", truth_format, est_format
     if len(inputs) == 3 and inputs[0] in BAG_FORMS:  # two LOG:TOPIC specifications
         return inputs[1], inputs[2], truth_format, est_format
     raise click.UsageError(
@@ -269,6 +271,32 @@ def _inputs(
         f"{len(inputs)} "
         f"argument{'s' if len(inputs) != 1 else ''}: {' '.join(inputs)}"
     )
+
+
+def _is_tf_edge(source: str) -> bool:
+    """``LOG:parent->child``: a TF edge of an existing log (an estimate published as TF, as evo reads one)."""
+    from slamobs.pipeline.readers.roles import EDGE_ARROW
+    from slamobs.pipeline.readers.trajectory_files import split_topic_source
+
+    found = split_topic_source(str(source))
+    return found is not None and EDGE_ARROW in found[1]
+
+
+def _evo_tf_edge(topic: str) -> str:
+    """evo's TF form of a bag's topic, ``/tf:parent.child`` (evo's own example: ``tf_example.bag
+    /tf:odom.base_footprint``), as slamobs's ``parent->child``; any other topic unchanged. slamobs reads a TF edge
+    from the log's ``/tf`` and ``/tf_static``: another TF topic named there is an error, not read silently."""
+    tf_topic, sep, frames = topic.partition(":")
+    if not sep:
+        return topic
+    parent, dot, child = frames.partition(".")
+    if tf_topic.strip("/") != "tf" or not dot or not parent or not child or "." in child:
+        raise click.BadParameter(
+            f"{topic!r}: evo's TF form is /tf:parent.child (slamobs reads TF edges from /tf and /tf_static; "
+            "a frame name with a '.' is written LOG:parent->child)",
+            param_hint="TOPIC",
+        )
+    return f"{parent}->{child}"
 
 
 def _save_plot(path: Path, result, plot_mode: str) -> None:
@@ -351,7 +379,7 @@ def _run(
     from slamobs.pipeline.readers.trajectory_files import read_trajectory
 
     ref = read_truth(truth, fmt=truth_format)  # the truth grammar of every command (LOG:parent->child too)
-    est_t = read_trajectory(est, est_format)
+    est_t = read_trajectory(est, est_format) if est_format or not _is_tf_edge(est) else read_truth(est)
     timed = ref.timed and est_t.timed
     method = "nearest" if sync_method == "nearest_time" else "interpolation"
     al = AlignOptions(kind, n_to_align if n_to_align >= 0 else None, align_seconds)

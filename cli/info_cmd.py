@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
+from slamobs.cli.options import config_option
 
 
 @click.command("info")
@@ -25,13 +26,7 @@ from slamobs.cli.errors import handled
     is_flag=True,
     help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs.",
 )
-@click.option(
-    "--config",
-    "config_path",
-    type=click.Path(path_type=Path),
-    default=None,
-    help="run.yaml: the settings it gives (tags.size, cameras) are not asked for; with --noise its noise levels.",
-)
+@config_option("run.yaml: the settings it gives (tags.size, cameras) are not asked for; with --noise its noise levels.")
 def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
     """Summarise LOG (ROS1 .bag, rosbag2 directory, .mcap or .db3), the roles its topics would play, and whether
     each estimator can run on it; with --noise, the noise levels learned from it.

@@ -9,7 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import OutPath, export_option, quiet_option, truth_option, window_options
+from slamobs.cli.options import OutPath, config_option, export_option, quiet_option, truth_option, window_options
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -108,7 +108,7 @@ def loose_hint(name: str, conv: dict, log: str) -> str | None:
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@config_option()
 @click.option(
     "--msg-dir",
     type=click.Path(path_type=Path, file_okay=False),
@@ -216,11 +216,9 @@ def _print_summary(summary) -> None:
             if note not in summary.notes:  # the run's own (the noise levels) are in the report too: printed above
                 click.echo(f"note         {note}")
     elif m.get("map_error"):  # landmark truth without trajectory truth: the map error is all there is
-        err = m["map_error"]["error_m"]
-        click.echo(
-            f"landmarks    map error rmse {err['rmse']:.4f} m over {m['map_error']['n_matched']} landmarks "
-            "(map-only SE(3) alignment)"
-        )
+        from slamobs.cli.report_cmd import map_error_line
+
+        click.echo(map_error_line(m["map_error"]))
     if m.get("figures"):
         click.echo(f"figures      {', '.join(m['figures'])} (report.md shows them)")
     click.echo(f"wrote        {wrote_line(summary.out_dir)}")
@@ -230,7 +228,7 @@ def _print_summary(summary) -> None:
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help="run.yaml")
+@config_option()
 @click.option(
     "--msg-dir",
     type=click.Path(path_type=Path, file_okay=False),

@@ -8,6 +8,7 @@ Every command writes to ``-o/--out`` and is silenced by ``-q/--quiet``; names th
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import click
 
@@ -150,6 +151,11 @@ def export_option(
 #: --start / --end: absolute stamps are Unix seconds, below 2**63 ns
 _WINDOW_BOUND = Finite(min=0.0, max=9.2e9)
 _WINDOW_RULE = "seconds from the log's start (its first angular-velocity sample), or an absolute stamp in s if > 1e9"
+
+
+def config_option(help: str = "run.yaml"):
+    """``--config FILE``: a run.yaml, read by ``pipeline.config.load_config`` (one spelling in every command)."""
+    return click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help=help)
 
 
 #: ``--truth`` of run and compare: the one truth grammar (pipeline.readers.trajectory_files.parse_truth)

@@ -12,7 +12,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import Finite, Seconds, export_option, offset_seconds, quiet_option
+from slamobs.cli.options import Finite, Seconds, config_option, export_option, offset_seconds, quiet_option
 from slamobs.cli.progress import Progress, compile_notice
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
@@ -77,6 +77,11 @@ def _previous_options(run_dir: Path) -> dict:
 @click.option(
     "--bias-window", type=Finite(), default=None, help="fraction of the run at its end used for bias stability (0.2)"
 )
+@config_option(
+    "run.yaml, read as `slamobs run` reads it: its truth (topics.truth, evaluation.truth_file), evaluation.t_max_diff, "
+    "convergence_threshold, align and frames.truth_rotation, where set, replace the run's; the options above replace "
+    "those"
+)
 @export_option(("tum", "evo"), default="what the run wrote")
 @click.option("--json", "as_json", is_flag=True, help="print report.json instead of the summary")
 @quiet_option()
@@ -90,6 +95,7 @@ def report(
     rpe_delta: float | None,
     drift_lengths: str | None,
     bias_window: float | None,
+    config_path: Path | None,
     export: tuple[str, ...] | None,
     as_json: bool,
     quiet: bool,
@@ -100,6 +106,8 @@ def report(
     from slamobs.pipeline.config import NO_TRUTH
     from slamobs.pipeline.errors import TruthUnusable
 
+    from_config, config_truth = _from_config(config_path)
+    truth = config_truth if truth is None else truth
     given = {
         "t_max_diff_s": t_max_diff,
         "align": align,
@@ -110,6 +118,7 @@ def report(
     }
     if t_offset is not None:
         given["t_offset_s"] = offset_seconds(t_offset)
+    given = {**from_config, **{k: v for k, v in given.items() if v is not None}}
     if truth is not None and truth.strip() == NO_TRUTH:  # asked for none: as a run without truth
         _summarised(run_dir, as_json, quiet, told=True)
         return
@@ -128,6 +137,31 @@ def report(
         click.echo(json.dumps(rep, indent=2, sort_keys=True))
         return
     _summary(rep, written)
+
+
+def _from_config(path: Path | None) -> tuple[dict, str | None]:
+    """The report options and the truth a run.yaml sets (each only where it differs from the default: a key the
+    file leaves out keeps the run's report as it was); a config that cannot be read ends the command (exit 2)."""
+    if path is None:
+        return {}, None
+    from slamobs.pipeline.config import RunConfig, load_config
+    from slamobs.pipeline.errors import InputError
+
+    try:
+        config = load_config(path)
+    except InputError as err:
+        exit_input_error(str(err))
+    ev, default = config.evaluation, RunConfig().evaluation
+    options = {
+        "t_max_diff_s": ev.t_max_diff if ev.t_max_diff != default.t_max_diff else None,
+        "convergence_threshold_m": (
+            ev.convergence_threshold if ev.convergence_threshold != default.convergence_threshold else None
+        ),
+        "align": ev.align,
+        "truth_rotation_xyzw": config.frames.truth_rotation,
+    }
+    truth = config.topics.get("truth") or ev.truth_file
+    return {k: v for k, v in options.items() if v is not None}, truth if isinstance(truth, str) and truth else None
 
 
 def _reported(run_dir: Path, truth: str | None, export, given: dict, quiet: bool) -> tuple[dict, list[Path]]:
@@ -194,6 +228,8 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None 
             else ""
         )
         click.echo(f"map          {info['landmarks']} landmarks{residual}")
+        if map_error := run_meta(run_dir).get("map_error"):
+            click.echo(map_error_line(map_error))
         if info.get("detection_frames"):
             click.echo(
                 f"detections   {info['detection_frames']} frames, {info['detections_per_frame_mean']:.2f} per frame, "
@@ -202,6 +238,16 @@ def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None 
             )
         click.echo(f"wrote        {', '.join(sorted(p.name for p in written))}")
     return False
+
+
+def map_error_line(map_error: dict) -> str:
+    """The map error of a run with landmark truth and no trajectory truth, as ``run`` and ``report`` print it (the
+    one error number such a run has; ``report`` said nothing of it)."""
+    err = map_error["error_m"]
+    return (
+        f"landmarks    map error rmse {err['rmse']:.4f} m over {map_error['n_matched']} landmarks "
+        "(map-only SE(3) alignment)"
+    )
 
 
 def _summary(r: dict, written: list[Path]) -> None:

@@ -12,7 +12,7 @@ from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signal
 from slamobs.pipeline.cores import cores
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.listing import wrote_line
-from slamobs.cli.options import SEED, Finite, OutPath
+from slamobs.cli.options import SEED, Finite, OutPath, config_option
 from slamobs.pipeline.errors import plural
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
@@ -51,13 +51,7 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
     help="what the objective is measured against: each log's ground truth, or the batch smoother's solution on "
     "the same log (logs without truth can be tuned; --holdout logs are still checked against their truth)",
 )
-@click.option(
-    "--config",
-    "config_path",
-    type=click.Path(path_type=Path),
-    default=None,
-    help="run.yaml for every log (topics, frames, ...); its gains for the observer are ignored",
-)
+@config_option("run.yaml for every log (topics, frames, ...); its gains for the observer are ignored")
 @click.option(
     "-j", "--jobs", type=click.IntRange(min=1), default=None, help="local worker processes (default: all cores)"
 )

@@ -580,3 +580,25 @@ def test_a_file_of_the_users_appearing_in_a_run_directory_during_the_run_keeps_i
     assert (out / "runs" / raced["run_id"] / "notes.txt").read_text() == "mine"
     assert raced["run_id"] not in read_summary(out)  # not recorded: the next batch runs it
     assert not list((out / "poses").glob(f"run_id={raced['run_id']}"))  # nothing of it moved in
+
+
+def test_the_summary_keeps_every_stage_a_run_timed_and_total_s_is_their_sum_and_more(tmp_path):
+    """A run without trajectory truth times its figures apart (``figures_s``), a run with tags ``tags_s``: the
+    summary kept neither, so its ``total_s`` was not the sum of the stages it listed (h-user9's TagSLAM batch:
+    348.8 s against 55.9 s of listed stages, 170.4 s of figures)."""
+    import json
+
+    from slamobs.pipeline.batch.ledger import SUMMARY_SCHEMA, encode_row
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    log = write_log(simulate("circle", duration=4.0, seed=3), tmp_path / "circle.mcap")
+    (tmp_path / "stage").mkdir()
+    config = RunConfig.from_dict({"topics": {"truth": ""}})  # no trajectory truth: the figures are their own stage
+    task = Task.make("c-0", str(log), str(tmp_path), config, staged=str(tmp_path / "stage" / "c-0"))
+    row = encode_row(run_task(task))
+    assert row["status"] == "ok", row["error"]
+    timings = json.loads(next((tmp_path / "stage" / "c-0").rglob("run.json")).read_text())["timings_s"]
+    assert "figures_s" in timings and set(timings) <= set(SUMMARY_SCHEMA.names)
+    assert all(row[k] == pytest.approx(v) for k, v in timings.items())
+    stages = sum(v for k, v in timings.items() if k != "write_s")  # the writer's time overlaps observer_s
+    assert row["total_s"] >= stages + row["dataset_s"]

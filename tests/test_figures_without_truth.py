@@ -72,12 +72,38 @@ def test_a_run_without_truth_draws_and_lists_its_figures(run_dir):
     assert float(row[1]) == pytest.approx(residual, rel=1e-5) and row[2].startswith("m, median")
 
 
+def test_the_map_without_trajectory_truth_draws_the_landmark_truth_it_is_measured_against(run_dir):
+    """h-user9, TagSLAM test_11: with landmark truth but no trajectory truth, map.png drew the estimate only, not the
+    survey its map error was measured against. The truth is drawn, carried onto the estimate by the inverse of the
+    map-only fit the map error is after, and the legend says so."""
+    from slamobs.pipeline.evaluation.figure_jobs import MAP_PNG, run_figure_jobs, run_tables
+    from slamobs.pipeline.simulate.scenarios import get_scenario
+
+    out, _ = run_dir
+    map_error = json.loads((out / "run.json").read_text())["map_error"]
+    fit = map_error["alignment"]
+    rot, trans = np.array(fit["rotation_matrix"]), np.array(fit["translation_m"])
+    sc = get_scenario("circle")
+    truth = dict(zip(sc.landmark_ids, sc.landmarks))
+    estimate = pd.read_parquet(out / "landmarks.parquet").set_index("id")
+    for row in map_error["per_landmark"]:
+        placed = np.array(row["truth_on_estimate_m"])
+        assert rot @ placed + trans == pytest.approx(truth[row["id"]], abs=1e-9)  # the fit's inverse
+        gap = np.linalg.norm(placed - estimate.loc[row["id"], ["x", "y", "z"]].to_numpy(float))
+        assert gap == pytest.approx(row["error_m"], abs=1e-6)  # as far from its estimate as its map error says
+    (job,) = [j for j in run_figure_jobs(run_tables(out), map_error=map_error) if j[1] == MAP_PNG]
+    assert len(job[2]["truth_xyz"]) == map_error["n_matched"] > 0
+    assert "map-only SE(3) fit onto the estimate" in job[2]["truth_label"]
+
+
 def test_report_without_truth_draws_the_figures_again(run_dir):
     out, _ = run_dir
     (out / "map.png").unlink()
     res = invoke("report", out)
     assert res.exit_code == 0, res.output
     assert "truth        none" in res.output and "map.png" in res.output
+    rmse = json.loads((out / "run.json").read_text())["map_error"]["error_m"]["rmse"]
+    assert f"landmarks    map error rmse {rmse:.4f} m over" in res.output  # as `run` printed it (report said nothing)
     assert (
         f"map          {len(pd.read_parquet(out / 'landmarks.parquet'))} landmarks; the detections placed" in res.output
     )

@@ -68,6 +68,28 @@ def test_hand_eye_note_finds_the_truth_rotation_and_its_key_removes_it(sim, tmp_
     assert json.loads(again.stdout)["ape"]["rotation_deg"]["rmse"] < 2.0
 
 
+def test_report_takes_the_truth_rotation_from_a_config(sim, tmp_path):
+    """h-user9: `report` had no --config, so frames.truth_rotation (which the run's note names) applied only to a
+    new `run`; a re-report of the turned run with the key removes the turn, the command line's options win."""
+    res = invoke("run", sim["log"], "-o", tmp_path / "turned", "--truth", sim["tum"], "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    note = json.loads((tmp_path / "turned" / "report.json").read_text())["notes"]
+    found = re.search(r"truth_rotation: \[([^\]]+)\]", next(n for n in note if "frames.truth_rotation" in n))
+    fixed = tmp_path / "fixed.yaml"
+    fixed.write_text(f"frames:\n  truth_rotation: [{found.group(1)}]\nevaluation:\n  t_max_diff: 0.02\n")
+    res = invoke("report", tmp_path / "turned", "--config", fixed, "--json")
+    assert res.exit_code == 0, res.output
+    report = json.loads(res.stdout)
+    assert report["ape"]["rotation_deg"]["rmse"] < 2.0 and report["options"]["t_max_diff_s"] == 0.02
+    assert not any("frames.truth_rotation" in n for n in report["notes"])
+    res = invoke("report", tmp_path / "turned", "--config", fixed, "--t-max-diff", "0.03", "--json")
+    assert json.loads(res.stdout)["options"]["t_max_diff_s"] == 0.03  # the option over the config
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("frames:\n  truth_rotation: [0, 0, 0, 0]\n")
+    res = invoke("report", tmp_path / "turned", "--config", bad)
+    assert res.exit_code == 2 and "frames.truth_rotation" in res.output and "Traceback" not in res.output
+
+
 def test_a_comparison_carries_the_truth_rotation_note_beside_its_rotation_column(sim, tmp_path):
     """TagSLAM test_21 against its rig trajectory: comparison.md's ape_rot_rmse_deg read 160-179 deg beside
     centimetres of translation with no word; each run's report named the turn and its key."""

@@ -131,6 +131,23 @@ def test_evaluate_takes_file_and_log_forms(logs):
     assert res.exit_code == 2 and "needs its log" in res.output
 
 
+def test_evaluate_takes_a_tf_edge_as_the_estimate_and_evos_tf_form(logs):
+    """evo's tf_example.bag (a trajectory on /tf only): `evaluate LOG:TOPIC LOG:odom->base_footprint` said "topic not
+    in the log (topics: /tf, /tf_static)", an estimate could not be a TF edge; evo's own `bag LOG /tf:parent.child`
+    neither."""
+    truth = f"{logs['other']}:{TOPIC}"
+    res = invoke("evaluate", truth, f"{logs['log']}:{EDGE}", "--json")
+    assert res.exit_code == 0, res.output
+    edge = json.loads(res.stdout)["stats"]
+    assert edge["rmse"] < 1e-6 and edge["n"] > 100  # the same poses as the truth topic it was published from
+    parent, child = EDGE.split("->")
+    res = invoke("evaluate", "bag", logs["log"], TOPIC, f"/tf:{parent}.{child}", "--json")
+    assert res.exit_code == 0, res.output
+    assert json.loads(res.stdout)["stats"] == edge
+    res = invoke("evaluate", "bag", logs["log"], TOPIC, f"/tf_other:{parent}.{child}")
+    assert res.exit_code == 2 and "/tf:parent.child" in res.output and "Traceback" not in res.output
+
+
 def test_compare_and_batch_take_a_truth(logs, tmp_path):
     res = invoke(
         "compare",

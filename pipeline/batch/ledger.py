@@ -76,6 +76,11 @@ SUMMARY_SCHEMA = pa.schema(
         # added later (a summary written before has no such columns: readers treat them as missing)
         ("rpe_trans_rmse_m", _F),
         ("rpe_rot_rmse_deg", _F),
+        # the stages a run's timings_s has beside the ones above, so that total_s is their sum plus the checks
+        ("tags_s", _F),
+        ("figures_s", _F),
+        ("export_s", _F),
+        ("first_pass_s", _F),
     ]
 )
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)

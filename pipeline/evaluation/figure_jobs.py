@@ -312,15 +312,18 @@ def chosen(jobs: list, plots: bool | str, main: tuple[str, ...] = MAIN_FIGURES) 
 INNOVATION_BINS = 400
 
 
-def run_figure_jobs(tables: dict[str, Table | None], *, with_biases: bool = True) -> list:
+def run_figure_jobs(
+    tables: dict[str, Table | None], *, with_biases: bool = True, map_error: dict[str, Any] | None = None
+) -> list:
     """The run's figures from its ``tables`` (``poses`` needed; ``landmarks``, ``innovations``, ``biases``
-    used when present). ``with_biases`` False leaves the bias figure to the report (it adds the truth)."""
+    used when present). ``with_biases`` False leaves the bias figure to the report (it adds the truth);
+    ``map_error`` (run.json's, a run without trajectory truth) adds the landmark truth to the map."""
     poses = tables.get("poses")
     if poses is None or not n_rows(poses):
         return []
     t_ns = column(poses, "t_ns", np.int64)
     t0 = int(np.min(t_ns))
-    jobs = [trajectory_job(poses), map_job(poses, tables.get("landmarks"))]
+    jobs = [trajectory_job(poses), map_job(poses, tables.get("landmarks"), map_error)]
     innovations = tables.get("innovations")
     if innovations is not None and n_rows(innovations):
         jobs.append(measurements_job(innovations, t0))
@@ -355,14 +358,36 @@ def _seen_counts(landmarks: Table | None) -> np.ndarray:
     return column(landmarks, "n_obs", np.int64)
 
 
-def map_job(poses: Table, landmarks: Table | None):
-    """The map: each landmark at its final estimate with its id and how often it was seen, over the path."""
+def map_truth_drawn(map_error: dict[str, Any] | None) -> dict[str, Any]:
+    """The landmark truth a map without trajectory truth is drawn with: run.json ``map_error``'s matched landmarks
+    carried onto the estimate by the inverse of the map-only alignment the map error is measured after, and the
+    legend's words for it (empty: nothing to draw; a run.json written before has no such positions)."""
+    rows = [r for r in (map_error or {}).get("per_landmark") or [] if r.get("truth_on_estimate_m") is not None]
+    if not rows:
+        return {}
+    rmse = map_error["error_m"]["rmse"]
+    return dict(
+        truth_xyz=np.array([r["truth_on_estimate_m"] for r in rows], dtype=np.float64),
+        truth_label=f"landmark truth ({len(rows)} matched), placed by a map-only SE(3) fit onto the estimate; "
+        f"map error rmse {rmse:.3g} m",
+    )
+
+
+def map_job(poses: Table, landmarks: Table | None, map_error: dict[str, Any] | None = None):
+    """The map: each landmark at its final estimate with its id and how often it was seen, over the path; with
+    ``map_error`` the landmark truth beside it (:func:`map_truth_drawn`)."""
     ids, xyz = landmark_table(landmarks)
     seen = _seen_counts(landmarks)
     return (
         "plot_map",
         MAP_PNG,
-        dict(ids=ids, xyz=xyz, seen=seen if len(seen) == len(ids) else np.zeros(len(ids)), path_xyz=_path_xyz(poses)),
+        dict(
+            ids=ids,
+            xyz=xyz,
+            seen=seen if len(seen) == len(ids) else np.zeros(len(ids)),
+            path_xyz=_path_xyz(poses),
+            **map_truth_drawn(map_error),
+        ),
     )
 
 
@@ -564,7 +589,7 @@ def write_run_figures(
 ) -> list:
     """A run without truth: its figures (those ``plots`` chooses, :func:`chosen`; by ``plot_workers`` when given,
     else here) and ``report.md`` saying what the run did and showing them, into ``out``; the paths written."""
-    jobs = chosen(run_figure_jobs(tables), plots, MAIN_RUN_FIGURES)
+    jobs = chosen(run_figure_jobs(tables, map_error=map_error), plots, MAIN_RUN_FIGURES)
     if plot_workers is not None:
         plot_workers.submit(jobs)
         written = plot_workers.collect(Path(out))

@@ -703,14 +703,37 @@ def _placed_labels(ax, texts: list[str], xyz: np.ndarray, marker_radius_pt: floa
         ax.text(p[0], p[1], t, transform=shifted, fontsize=7, color=c, va="bottom", in_layout=False)
 
 
-def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, path_xyz: np.ndarray) -> Path:
+def plot_map(
+    path: Path,
+    ids: np.ndarray,
+    xyz: np.ndarray,
+    seen: np.ndarray,
+    path_xyz: np.ndarray,
+    truth_xyz: np.ndarray | None = None,
+    truth_label: str = "",
+) -> Path:
     """The landmark map from above over the path, each landmark labelled ``id (times seen)`` and coloured by how
-    often it was seen."""
+    often it was seen; ``truth_xyz``: the landmark truth in the estimate's frame (open squares; ``truth_label``
+    says how it was placed there)."""
     n = len(ids)
-    fig, axes = _figure(1, 1, (8.5, 7.5), right=0.2)
+    with_truth = truth_xyz is not None and len(truth_xyz)
+    # with the truth the legend's long line goes below the axes (inside, it covered landmarks)
+    fig, axes = _figure(1, 1, (8.5, 8.0), right=0.2, bottom=1.1) if with_truth else _figure(1, 1, (8.5, 7.5), right=0.2)
     ax = axes[0, 0]
     if len(path_xyz):
         ax.plot(path_xyz[:, 0], path_xyz[:, 1], "-", color="0.7", lw=0.8, label="estimated path")
+    if with_truth:
+        ax.scatter(
+            truth_xyz[:, 0],
+            truth_xyz[:, 1],
+            marker="s",
+            s=90,
+            facecolors="none",
+            edgecolors="tab:green",
+            lw=1.2,
+            zorder=4,
+            label=truth_label,
+        )
     ax.set_aspect("equal", adjustable="datalim")  # before the labels: they are placed on the final limits
     if n:
         sc = ax.scatter(xyz[:, 0], xyz[:, 1], c=seen, cmap="plasma", s=60, edgecolors="k", lw=0.5, zorder=3)
@@ -724,7 +747,9 @@ def plot_map(path: Path, ids: np.ndarray, xyz: np.ndarray, seen: np.ndarray, pat
     seen_text = f", seen {int(np.min(seen))} to {int(np.max(seen))} times" if n else ""
     ax.set_title(f"Landmark map: {n} landmarks{seen_text}; labels: id (times seen)")
     ax.grid(True, alpha=0.3)
-    if len(path_xyz):
+    if with_truth:
+        fig.legend(loc="lower left", bbox_to_anchor=(0.01, 0.005), fontsize=8, frameon=False)
+    elif len(path_xyz):
         ax.legend(loc="upper right", fontsize=8)
     return _save(fig, path)
 

@@ -822,6 +822,12 @@ def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarr
             ": the map's shape error (no trajectory truth to place it by)"
         )
         found["notes"] = overconfidence_note(found["sigma_check"], "after an alignment of its own")
+        # each matched landmark's truth carried onto the estimate by the inverse of that alignment: the map figure
+        # draws it beside the estimate, which stays as written (x = Rᵀ (p − t) of the fit x ↦ R x + t)
+        rot = np.asarray(found["alignment"]["rotation_matrix"], dtype=np.float64)
+        trans = np.asarray(found["alignment"]["translation_m"], dtype=np.float64)
+        for row in found["per_landmark"]:
+            row["truth_on_estimate_m"] = _vec(rot.T @ (np.asarray(landmark_truth[row["id"]], dtype=np.float64) - trans))
     return found
 
 
