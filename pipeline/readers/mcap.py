@@ -111,7 +111,7 @@ _U64 = np.arange(8)
 
 def mcap_walk_array(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):
     """:func:`_mcap_walk` without compiling it, for a short log's first run (:func:`.chunks.chosen_walk`): the
-    records' starts by a Python loop over their lengths (~1.5 us a record), everything else by array code; the same
+    records' starts by a Python loop over their lengths (0.5-1.5 us a record), everything else by array code; the same
     records, arrays and stop (what a failure or a full array stops at) as the kernel's. Public:
     tests/test_readers.py checks it against the kernel on cut and damaged chunks."""
     end = buf.shape[0]
