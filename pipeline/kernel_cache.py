@@ -40,6 +40,7 @@ import numba
 from numba.core import caching
 
 from slamobs.pipeline import native
+from slamobs.pipeline.cores import cores
 
 __all__ = [
     "KERNEL_ROWS",
@@ -52,6 +53,7 @@ __all__ = [
     "prune",
     "source_stamp",
     "subroutine",
+    "worth_compiling",
 ]
 
 #: Cache files not written for this many days are removed when a run has compiled something (kernels of
@@ -174,6 +176,18 @@ def compiled_for(n: int, kernel, rows: int = KERNEL_ROWS) -> bool:
     process has the kernel (compiled or loaded: a long log's last block and its shorter pieces, e.g. the RPE's
     pairs, need not take the slower array code; a short log still compiles nothing)."""
     return n >= rows or (n >= rows // 64 and bool(kernel.signatures))
+
+
+def worth_compiling(kernel, n: int, rows: int) -> bool:
+    """Whether work of ``n`` rows (a log's records or messages) takes ``kernel`` rather than its array code (the same
+    results, slower): from ``rows`` on, when the kernel is in this process or in the kernel cache already, or when
+    the process may run on a second core (a first run's compile helper then compiles the estimator's kernels beside
+    it, and later runs load this one from the cache). So on one core a short log's first run does not compile it,
+    and a warm run loads it wherever a run has compiled it."""
+    if n >= rows or kernel.signatures or cores() >= 2:
+        return True
+    func = kernel.py_func
+    return cached(func.__module__, func.__qualname__)
 
 
 _WRITABLE: dict[str, bool] = {}

@@ -509,3 +509,47 @@ def test_the_compiled_walk_of_detection_arrays_fails_as_the_array_steps_do(encod
         assert outcomes[0] == outcomes[1], f"case {case}"
         seen.add(outcomes[0][0] if outcomes[0][0] == "ok" else outcomes[0][1].split(" ")[0])
     assert len(seen) >= 3, seen  # decoded, cut and overlong sequences or strings all met
+
+
+def test_gather_and_item_offsets_by_array_code_as_by_their_kernels():
+    """A short log's first run gathers words and places detection elements by array code (``fastdecode.gather``,
+    ``fastdecode.item_offsets`` below ``kernel_cache.KERNEL_ROWS`` rows): the kernels' words and offsets, for every
+    word size in both byte orders and for elements after a string (any alignment), and the same first message whose
+    elements run past its end."""
+    from slamobs.pipeline.kernel_cache import KERNEL_ROWS
+    from slamobs.pipeline.readers.fastdecode import gather, item_offsets, item_plan_for
+
+    rng = np.random.default_rng(3)
+    data = rng.integers(0, 256, 4096, dtype=np.uint8)
+    sizes = np.array([8, 1, 4, 2, 8, 4], np.int64)
+    offsets = rng.integers(0, 4096 - 8, (KERNEL_ROWS, sizes.size))
+    few = KERNEL_ROWS // 64 - 1  # array code even once the kernel is loaded (kernel_cache.compiled_for)
+    for big in (False, True):
+        words = gather(data, offsets, sizes, big)  # the kernel
+        np.testing.assert_array_equal(gather(data, offsets[:few], sizes, big), words[:few])
+    items = item_plan_for(make_typestore(ros1=False), "fiducial_msgs/msg/FiducialTransformArray", cdr=True).items
+    program = (*items.program, len(items.leaves))
+    n = 50_000
+    counts = rng.integers(0, 4, n)
+    origin = np.cumsum(rng.integers(50, 900, n))
+    first = rng.integers(0, 40, n)  # elements after a string: any alignment
+    limit = first + counts * 200 + 8
+    assert counts.sum() >= KERNEL_ROWS
+    rows = np.concatenate(([0], np.cumsum(counts)))
+    want, bad = item_offsets(origin, first, counts, limit, *program)  # the kernel
+    assert bad == -1
+    for lo in range(0, 3000, 200):  # fewer than KERNEL_ROWS // 64 elements each
+        got, bad = item_offsets(
+            origin[lo : lo + 200], first[lo : lo + 200], counts[lo : lo + 200], limit[lo : lo + 200], *program
+        )
+        assert bad == -1 and got.shape[0] < KERNEL_ROWS // 64
+        np.testing.assert_array_equal(got, want[rows[lo] : rows[lo + 200]])
+    k = int(np.flatnonzero(counts[100:] > 0)[0]) + 100
+    limit[k] = first[k] + 3  # its elements run past its end
+    limit[k + 5] = 0
+    assert item_offsets(origin, first, counts, limit, *program)[1] == k
+    got, bad = item_offsets(
+        origin[k - 50 : k + 50], first[k - 50 : k + 50], counts[k - 50 : k + 50], limit[k - 50 : k + 50], *program
+    )
+    assert bad == 50
+    np.testing.assert_array_equal(got[: rows[k] - rows[k - 50]], want[rows[k - 50] : rows[k]])

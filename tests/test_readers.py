@@ -580,6 +580,44 @@ def test_many_changed_static_transforms_are_counted_not_listed_in_one_line(tmp_p
     assert run["input"]["static_tf_dropped"] == []
 
 
+def test_a_short_mcap_log_is_walked_by_array_code_as_by_the_kernel(tmp_path):
+    """A short log's first run walks its MCAP chunks by array code (``mcap_walk_array``, chosen by
+    ``chunks.chosen_walk``): every chunk, filtered or not, cut anywhere, with a message record too short and into
+    arrays too small, gives the kernel's records, arrays and stop."""
+    from slamobs.pipeline.readers import chunks
+    from slamobs.pipeline.readers.container import storages
+    from slamobs.pipeline.readers.mcap import McapStorage, mcap_walk_array
+
+    path = write_log(simulate("figure8", duration=3.0, seed=1), tmp_path / "log.mcap", "mcap")
+    kernel = McapStorage.walk
+    assert chunks.chosen_walk(kernel, mcap_walk_array, [100, 200]) in (kernel, mcap_walk_array)
+    assert chunks.chosen_walk(kernel, mcap_walk_array, [100, -1]) is kernel  # a count not known
+    assert chunks.chosen_walk(kernel, mcap_walk_array, [chunks.ARRAY_WALK_MESSAGES]) is kernel
+    rng = np.random.default_rng(5)
+    seen = set()
+    with open_log(path) as reader:
+        ((storage, ids, _),) = list(storages(reader, list(reader.connections)))
+        wanted = chunks.wanted_table(ids)
+        for unit in storage.units:
+            data = chunks.read_unit(storage.bio, unit)
+            short = data.copy()  # the first message record's length made too short for a message
+            every = chunks.records(kernel, data)
+            first = int(every.hpos[np.flatnonzero(every.op == 5)[0]])
+            short[first + 1 : first + 9] = np.frombuffer((21).to_bytes(8, "little"), np.uint8)
+            cases = [data, short, *(data[: int(rng.integers(data.size))] for _ in range(6)), data[:5]]
+            for buf in cases:
+                buf = buf.view()
+                buf.flags.writeable = False
+                for table in (wanted, np.empty(0, np.int64)):
+                    for most in (-1, unit.messages, 3):
+                        one = chunks.records(kernel, buf, table, most)
+                        two = chunks.records(mcap_walk_array, buf, table, most)
+                        for name in ("op", "conn", "t_ns", "hpos", "dpos", "dlen", "stop", "status"):
+                            assert np.array_equal(getattr(one, name), getattr(two, name)), name
+                        seen.add(int(one.status))
+    assert seen == {chunks.CLEAN, chunks.CUT, chunks.BAD}
+
+
 @pytest.mark.parametrize("container", ["bag", "mcap"])
 def test_a_chunk_is_walked_once_when_the_index_counts_its_messages(tmp_path, monkeypatch, container):
     """The record walk fills arrays as long as the index's message count of the chunk in one walk (a ROS1 record's

@@ -22,7 +22,7 @@ from isal.isal_zlib import crc32  # zlib's CRC-32, the same bits, 7-13x faster (
 from slamobs.pipeline.cores import cores
 from slamobs.pipeline.errors import machine_failure, one_line
 from numba import types
-from slamobs.pipeline.kernel_cache import subroutine
+from slamobs.pipeline.kernel_cache import subroutine, worth_compiling
 
 from . import storage
 from .storage import ConnIds, DamagedError, RawBatch, concat, placed
@@ -240,6 +240,24 @@ def records(
     arrays = [np.empty(n, np.int64) for _ in range(6)]
     n, stop, status = walk(buf, True, *arrays, wanted)
     return Records(*arrays, stop=int(stop), status=int(status))
+
+
+#: A log of fewer messages (by its index or summary) may be walked by the record walk's array code (its Python
+#: loop costs ~0.5-1.5 us a record, the compiled walk's first compilation ~0.5 s; :func:`chosen_walk`).
+ARRAY_WALK_MESSAGES = 262_144
+
+
+def chosen_walk(
+    kernel: Callable[..., tuple[int, int, int]],
+    array_walk: Callable[..., tuple[int, int, int]],
+    messages: Sequence[int],
+) -> Callable[..., tuple[int, int, int]]:
+    """The record walk of a log whose units hold ``messages`` (-1: not known): ``array_walk`` (the kernel's results by
+    array code) where :func:`.kernel_cache.worth_compiling` says so for fewer than :data:`ARRAY_WALK_MESSAGES` known
+    messages (a first run on one core), else the kernel."""
+    if min(messages, default=0) < 0 or worth_compiling(kernel, sum(messages), ARRAY_WALK_MESSAGES):
+        return kernel
+    return array_walk
 
 
 #: Connection ids up to this are looked up by a table in the record walks (MCAP's are 16-bit; ROS1 bags count

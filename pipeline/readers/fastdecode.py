@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numba import types
-from slamobs.pipeline.kernel_cache import compiled_for, njit, subroutine
+from slamobs.pipeline.kernel_cache import KERNEL_ROWS, compiled_for, njit, subroutine, worth_compiling
 from slamobs.pipeline.simd import prefetch
 from rosbags.interfaces import Nodetype
 
@@ -513,10 +513,59 @@ _U32 = np.array([4], np.int64)  # one leaf of 4 bytes, for _gather
 
 
 def _u32(data: np.ndarray, offsets: np.ndarray, big: bool) -> np.ndarray:
-    """The uint32 at each of ``offsets`` (unaligned) as int64, through the compiled :func:`_gather` (a NumPy
-    fancy index of the 4 bytes took a tenth of a db3 read)."""
+    """The uint32 at each of ``offsets`` (unaligned) as int64, through :func:`gather` (a NumPy fancy index of the
+    4 bytes per offset took a tenth of a db3 read; the kernel or its array code gather whole words)."""
     where = np.ascontiguousarray(offsets, np.int64).reshape(-1, 1)
-    return _gather(data, where, _U32, big)[:, 0].astype(np.int64)
+    return gather(data, where, _U32, big)[:, 0].astype(np.int64)
+
+
+def gather(data: np.ndarray, offsets: np.ndarray, sizes: np.ndarray, big: bool) -> np.ndarray:
+    """What :func:`_gather` returns, by array code for fewer than :data:`.kernel_cache.KERNEL_ROWS` rows
+    (:func:`.kernel_cache.compiled_for`): a short log's first run need not compile it. Each size's columns are one
+    fancy index into a view of ``data`` as that size's unsigned words in its byte order at every byte offset
+    (strides of one byte: no copy), widened to uint64: the same words. Public: tests/test_fastdecode.py checks it
+    against the kernel."""
+    if compiled_for(offsets.shape[0], _gather) or not data.flags.c_contiguous:
+        return _gather(data, offsets, sizes, big)
+    out = np.empty(offsets.shape, np.uint64)
+    for size in np.unique(sizes).tolist():
+        cols = np.flatnonzero(sizes == size)
+        words = np.ndarray((max(data.shape[0] - size + 1, 0),), f"{'>' if big else '<'}u{size}", data, 0, (1,))
+        out[:, cols] = words[offsets[:, cols]]
+    return out
+
+
+#: Elements per message up to which :func:`item_offsets` takes array code (one array step per element and leaf).
+ARRAY_ITEMS = 256
+
+
+def item_offsets(
+    origin: np.ndarray, first: np.ndarray, counts: np.ndarray, limit: np.ndarray, *program: Any
+) -> tuple[np.ndarray, int]:
+    """What :func:`_item_offsets` returns (the offsets of a message past its end's first failing message aside),
+    by array code for fewer than :data:`.kernel_cache.KERNEL_ROWS` elements of at most :data:`ARRAY_ITEMS` per
+    message: element ``e`` of every message that has one, one step per leaf. Public: tests/test_fastdecode.py
+    checks it against the kernel."""
+    n = origin.shape[0]
+    most = int(counts.max()) if n else 0
+    if most > ARRAY_ITEMS or compiled_for(int(counts.sum()), _item_offsets):
+        return _item_offsets(origin, first, counts, limit, *program)
+    is_leaf, align, size, slot, nleaves = program
+    out = np.empty((int(counts.sum()), nleaves), np.int64)
+    row = np.cumsum(counts) - counts
+    p = first.astype(np.int64)  # relative to origin
+    for e in range(most):
+        live = np.flatnonzero(counts > e)
+        q = p[live]
+        for k in range(is_leaf.shape[0]):
+            if align[k] > 1:
+                q = (q + align[k] - 1) // align[k] * align[k]
+            if is_leaf[k]:
+                out[row[live] + e, slot[k]] = origin[live] + q
+            q = q + size[k]
+        p[live] = q
+    over = np.flatnonzero(p > limit)
+    return out, int(over[0]) if over.size else -1
 
 
 @njit(cache=True, nogil=True)
@@ -681,8 +730,9 @@ def string_codes(data: np.ndarray, pos: np.ndarray, length: np.ndarray) -> tuple
     return codes, names
 
 
-def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decoded:
-    """Decode messages ``rows`` (default all) of ``batch`` with ``plan``.
+def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None, walk: bool = True) -> Decoded:
+    """Decode messages ``rows`` (default all) of ``batch`` with ``plan``: by the compiled pass (:func:`_walk`) where
+    it decodes the plan (:func:`walks`) and ``walk`` says so, else by the array steps (the same bits).
 
     Raises:
         DecodeError: A message is shorter than its layout, has an unsupported CDR encapsulation or a
@@ -692,7 +742,7 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     data = batch.data
     start = batch.start if rows is None else batch.start[rows]
     size = batch.size if rows is None else batch.size[rows]
-    if walks(plan):  # the common case: one byte order, the compiled pass's arrays are the columns
+    if walk and walks(plan):  # the common case: one byte order, the compiled pass's arrays are the columns
         # the byte order of the first message; the pass checks every CDR header against it
         big = bool(plan.cdr and start.shape[0] and size[0] >= 4 and data[start[0] + 1] == 0)
         walked = walked_columns(plan, data, start, size, big, check=plan.cdr)
@@ -710,7 +760,7 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
     for idx, big in groups:
         if not start[idx].size:
             continue
-        if walks(plan):
+        if walk and walks(plan):
             t_ns[idx], values[idx], strings, group_counts, group_items = walked_columns(
                 plan, data, start[idx], size[idx], big
             )
@@ -726,7 +776,7 @@ def decode(plan: Plan, batch: RawBatch, rows: np.ndarray | None = None) -> Decod
             if plan.items is not None:
                 counts[idx], values_of_group = _decode_items(plan, data, origin, limit, end, big)
                 item_parts.append((np.arange(n)[idx], values_of_group))
-            got = _convert(_gather(data, offsets, plan.sizes, big), plan)
+            got = _convert(gather(data, offsets, plan.sizes, big), plan)
             t_ns[idx] = got[:, 0].astype(np.int64) * _NS + got[:, 1].astype(np.int64)
             values[idx] = got[:, 2:]
         for k, (pos, length) in enumerate(strings):
@@ -819,6 +869,14 @@ _NO_COUNTS = np.zeros(0, np.int64)
 _NO_ITEM_BITS = np.zeros((0, 0), np.uint64)
 
 
+def walk_compiled(messages: int) -> bool:
+    """Whether a read whose longest topic has ``messages`` messages decodes by :func:`_walk`
+    (:func:`.kernel_cache.worth_compiling`: from :data:`.kernel_cache.KERNEL_ROWS` messages on, or a kernel compiled
+    already or with a second core). Else by the array steps: a short log's first run on one core compiles none of
+    the readers' decoding kernels (~1 s of CPU) and decodes in ~1.3x the pass's CPU (~0.02 s more on a 90 s log)."""
+    return worth_compiling(_walk, messages, KERNEL_ROWS)
+
+
 def walks(plan: Plan) -> bool:
     """Whether :func:`_walk` decodes ``plan``: header stamps of integers (as every ROS header's are).
     Public: tests/test_fastdecode.py turns the walk off with it."""
@@ -843,10 +901,10 @@ def _decode_items(
     counts = _u32(data, origin + at, big)
     if np.any(counts * items.min_size > limit - at - 4):  # a corrupt count must not allocate gigabytes
         raise DecodeError(f"sequence runs past the end of a {plan.msgtype} message")
-    offsets, bad = _item_offsets(origin, at + 4, counts, limit, *items.program, len(items.leaves))
+    offsets, bad = item_offsets(origin, at + 4, counts, limit, *items.program, len(items.leaves))
     if bad >= 0:
         raise DecodeError(f"sequence runs past the end of a {plan.msgtype} message")
-    return counts, _convert(_gather(data, offsets, items.sizes, big), items)
+    return counts, _convert(gather(data, offsets, items.sizes, big), items)
 
 
 def _in_message_order(counts: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray]], width: int) -> np.ndarray:
@@ -1084,10 +1142,12 @@ def read_columns(
         item_width = len(plan.items.leaves) if plan.items is not None else None
         out.append(_Columns(sum(c.msgcount for c in conns_t), len(plan.leaves) - 2, digests, item_width))
 
+    walk = walk_compiled(max((cols.capacity for cols in out), default=0))
+
     def decode_topic(k: int, batch: RawBatch, rows: np.ndarray | None) -> None:
         plan = topics[names[k]][1]
         try:
-            dec = decode(plan, batch, rows)
+            dec = decode(plan, batch, rows, walk)
         except DecodeError as err:
             raise InputError(path, f"cannot decode {plan.msgtype} message: {err}", names[k]) from None
         digest = None

@@ -21,7 +21,20 @@ from rosbags.rosbag2.storage_mcap import Channel, McapReader, Schema, Statistics
 from slamobs.pipeline.errors import machine_failure, one_line
 from slamobs.pipeline.kernel_cache import njit
 
-from .chunks import BAD, CLEAN, CUT, FULL, Chunked, Unit, damage_note, ordered_messages, read_unit, records, u32
+from .chunks import (
+    BAD,
+    CLEAN,
+    CUT,
+    FULL,
+    Chunked,
+    Unit,
+    chosen_walk,
+    damage_note,
+    ordered_messages,
+    read_unit,
+    records,
+    u32,
+)
 from .storage import TIME_LIMIT_NS, TIME_RANGE, DamagedError, TimeRangeError
 
 if TYPE_CHECKING:
@@ -90,6 +103,56 @@ def _mcap_walk(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):  # pragma: 
         n += 1
         pos += 9 + length
     return n, pos, CLEAN
+
+
+_LENGTH = struct.Struct("<Q")
+_U64 = np.arange(8)
+
+
+def mcap_walk_array(buf, fill, op, conn, t_ns, hpos, dpos, dlen, wanted):
+    """:func:`_mcap_walk` without compiling it, for a short log's first run (:func:`.chunks.chosen_walk`): the
+    records' starts by a Python loop over their lengths (0.5-1.5 us a record), everything else by array code; the same
+    records, arrays and stop (what a failure or a full array stops at) as the kernel's. Public:
+    tests/test_readers.py checks it against the kernel on cut and damaged chunks."""
+    end = buf.shape[0]
+    starts: list[int] = []
+    pos, status = 0, CLEAN
+    while pos < end:
+        if pos + 9 > end:
+            status = CUT
+            break
+        (length,) = _LENGTH.unpack_from(buf, pos + 1)  # unsigned: a length past 2**63 is past the end too
+        if length > end - pos - 9:
+            status = CUT
+            break
+        starts.append(pos)
+        pos += 9 + length
+    at = np.array(starts, np.int64)
+    lengths = buf[at[:, None] + 1 + _U64].view("<i8")[:, 0]
+    message = buf[at] == MESSAGE_MCAP
+    bad = np.flatnonzero(message & (lengths < 22))
+    if bad.size:  # the kernel checks a record before it filters or fills
+        at, pos, status = at[: bad[0]], int(at[bad[0]]), BAD
+        lengths, message = lengths[: at.shape[0]], message[: at.shape[0]]
+    channel = np.full(at.shape[0], -1, np.int64)
+    channel[message] = buf[at[message] + 9].astype(np.int64) | (buf[at[message] + 10].astype(np.int64) << 8)
+    if wanted.shape[0]:
+        keep = message & (channel < wanted.shape[0])
+        keep[keep] = wanted[channel[keep]] >= 0
+        at, lengths, message, channel = at[keep], lengths[keep], message[keep], channel[keep]
+        channel = wanted[channel]
+    n = at.shape[0]
+    if fill:
+        if n > op.shape[0]:
+            n, pos, status = op.shape[0], int(at[op.shape[0]]), FULL
+            at, lengths, message, channel = at[:n], lengths[:n], message[:n], channel[:n]
+        op[:n] = buf[at]
+        conn[:n] = channel
+        hpos[:n] = at
+        t_ns[:n] = np.where(message, buf[at[:, None] + 15 + _U64].view("<i8")[:, 0], -1)
+        dpos[:n] = at + np.where(message, 31, 9)
+        dlen[:n] = np.where(message, lengths - 22, lengths)
+    return n, pos, status
 
 
 def _schema(body: bytes) -> Schema:
@@ -174,6 +237,7 @@ class McapStorage(Chunked, McapReader):
                 )
                 for c in self.chunks
             ]
+            self.walk = chosen_walk(_mcap_walk, mcap_walk_array, [u.messages for u in self.units])
         else:
             self._scan(self.data_end, None)
         self._check_times()
