@@ -653,11 +653,11 @@ def align(
     )
 
 
-def _tilt_cost(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, f: np.ndarray, g: float):
-    """How far the accelerometer's "up" (body acceleration from the velocity taken off: ``directions.gravity_up``,
-    samples it trusts fully) turns otherwise than the angular velocity turns it: the trimmed mean squared residual
-    of ``du/dt + (omega - b) x u`` between consecutive ``TILT_BLOCK_S`` block means, a gyro bias ``b`` fitted; and
-    the block pairs it had (NaN cost under ``TILT_MIN_PAIRS``)."""
+def _tilt_blocks(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, f: np.ndarray, g: float):
+    """The accelerometer's "up" (body acceleration ``dv/dt + omega x v`` from the velocity taken off:
+    ``directions.gravity_up``, samples it trusts fully) as ``TILT_BLOCK_S`` block means, the block of each sample,
+    the samples per block, and which consecutive block pairs are mostly trusted samples. ``omega`` here only gates
+    and places "up": a misread gyro's ``omega x v`` moves it (and on a tilted mount leaves too few samples)."""
     up, weight = gravity_up(f, body_acceleration(t_s, omega, velocity), g)
     ok = (weight >= 1.0) & np.all(np.isfinite(up), axis=1)
     k = ((t_s - t_s[0]) / TILT_BLOCK_S).astype(np.int64)
@@ -665,14 +665,22 @@ def _tilt_cost(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, f: np.n
     full = np.bincount(k, minlength=nb).astype(np.float64)
     used = np.bincount(k[ok], minlength=nb).astype(np.float64)
     u = np.column_stack([np.bincount(k[ok], up[ok, a], minlength=nb) for a in range(3)])
-    w = np.column_stack([np.bincount(k, omega[:, a], minlength=nb) for a in range(3)]) / np.maximum(full, 1)[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         u /= row_norms3(u)[:, None]
     good = (used >= 0.8 * full) & (full > 0)
-    pair = good[1:] & good[:-1]
+    return u, k, full, good[1:] & good[:-1]
+
+
+def _tilt_cost(blocks, omega: np.ndarray):
+    """How far the blocks' "up" (:func:`_tilt_blocks`) turns otherwise than ``omega`` turns it: the trimmed mean
+    squared residual of ``du/dt + (omega - b) x u`` between consecutive block means, a gyro bias ``b`` fitted; and
+    the block pairs it had (NaN cost under ``TILT_MIN_PAIRS``)."""
+    u, k, full, pair = blocks
     n = int(np.count_nonzero(pair))
     if n < TILT_MIN_PAIRS:
         return float("nan"), n
+    nb = full.shape[0]
+    w = np.column_stack([np.bincount(k, omega[:, a], minlength=nb) for a in range(3)]) / np.maximum(full, 1)[:, None]
     um, wm = 0.5 * (u[1:] + u[:-1])[pair], 0.5 * (w[1:] + w[:-1])[pair]
     c = (u[1:] - u[:-1])[pair] / TILT_BLOCK_S + np.cross(wm, um)
     # c - b x um = c + um x b, linear in b: [um]x stacked
@@ -686,9 +694,12 @@ def _tilt_cost(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, f: np.n
 
 def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> list[str]:
     """A warning when the IMU's accelerometer says its gyro is misread: over the first ``TILT_SAMPLES`` samples of
-    the time base, its gravity direction turns ``TILT_MISREAD_GAIN`` times more as the angular velocity undone by
-    one of ``TILT_MISREADS`` says than as read (:func:`_tilt_cost`; the best one named). The detections cannot see
-    these (their pairs see the yaw); the gravity direction sees roll and pitch rates wherever the body tilts."""
+    the time base, its gravity direction turns ``TILT_MISREAD_GAIN`` times more as read than as the angular
+    velocity undone by one of ``TILT_MISREADS`` says (:func:`_tilt_cost`; the best one named). Both costs of a
+    candidate are taken on the "up" its own angular velocity gives (:func:`_tilt_blocks`), if that leaves at least
+    as many block pairs as read: on a tilted mount a misread's ``omega x v`` leaves too few samples near |g| as read
+    (the IMU pitched 45 deg, x and y swapped: 4 block pairs of 39, no word, riekf 10.1 m). The detections cannot
+    see these (their pairs see the yaw); the gravity direction sees roll and pitch rates wherever the body tilts."""
     n = min(t_om.shape[0], TILT_SAMPLES)
     if n < 3:
         return []
@@ -703,22 +714,25 @@ def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> li
         return []
     t_s = (t_om[:n] - t_om[0]).astype(np.float64) * 1e-9
     g = float(np.nanmedian(norm))
-    base, pairs = _tilt_cost(t_s, omega[:n], velocity[:n], f, g)
-    if not base > 0:
-        return []
     r = res.ext.rot if res.ext.rot.ndim == 2 else np.eye(3)  # misread in the IMU's frame (the gyro's, one message)
-    undo = {what: r @ m @ r.T for what, m in TILT_MISREADS.items()}
-    costs = {what: _tilt_cost(t_s, omega[:n] @ m.T, velocity[:n], f, g)[0] for what, m in undo.items()}
-    gains = {what: base / max(c, 1e-300) for what, c in costs.items() if c == c}
+    read_pairs = int(np.count_nonzero(_tilt_blocks(t_s, omega[:n], velocity[:n], f, g)[3]))
+    gains, pairs = {}, {}
+    for what, m in TILT_MISREADS.items():
+        undone = omega[:n] @ (r @ m @ r.T).T
+        blocks = _tilt_blocks(t_s, undone, velocity[:n], f, g)
+        cost, pairs[what] = _tilt_cost(blocks, undone)
+        base = _tilt_cost(blocks, omega[:n])[0]
+        if pairs[what] >= read_pairs and base > 0 and cost == cost:  # so undone, at least as many samples near |g|
+            gains[what] = base / max(cost, 1e-300)
     what, gain = max(gains.items(), key=lambda kv: kv[1], default=("", 0.0))
     if not gain >= TILT_MISREAD_GAIN:
         return []
     return [
         f"warning: {accel.topic}: the gyro reads as if its {what}: "
         f"its accelerometer's gravity direction follows the angular velocity {gain:.3g}x better so undone than as "
-        f"read (tilt rates over {pairs} pairs of {TILT_BLOCK_S:g} s blocks in the first {t_s[-1]:.0f} s): the run "
-        "used it as read; check the gyro's axes (a driver's axis map, another IMU's extrinsic), which the detections "
-        "cannot see"
+        f"read (tilt rates over {pairs[what]} pairs of {TILT_BLOCK_S:g} s blocks in the first {t_s[-1]:.0f} s): the "
+        "run used it as read; check the gyro's axes (a driver's axis map, another IMU's extrinsic), which the "
+        "detections cannot see"
     ]
 
 

@@ -66,6 +66,12 @@ JUMP_MIN_DETECTIONS, JUMP_RATIO, JUMP_CALM = 10, 20.0, 3.0
 #: Candidate splits tried per landmark (evenly over its detections), the best one then refined over the indices
 #: between its neighbours (``_best_split``): the check stays linear on long logs and the split exact.
 JUMP_SPLITS = 256
+#: A jumping landmark seen at its two places in turn (two tags sharing one id, seen alternately: one change point
+#: leaves both places on each side). Its detections in time order, each one's log ‖e‖ taken as the median over the
+#: ``JUMP_RUN`` around it, are far when over the geometric mean of ``JUMP_RATIO`` and ``JUMP_CALM`` times the run's
+#: median; runs of at least half ``JUMP_MIN_DETECTIONS`` far ones other than one stretch at an end of its
+#: detections are the other place's visits (:func:`far_spans`), each given the new id.
+JUMP_RUN = 9
 #: Integer state slots every kernel shares (``KernelState.ns``).
 _IV, _JF, _NVIS = 0, 1, 2
 _T, _MEAS_T = 0, 1
@@ -397,6 +403,26 @@ def _best_split(e: np.ndarray, median: float) -> tuple | None:
     return best_k, best[1], best[2]
 
 
+def far_spans(t_ns: np.ndarray, e: np.ndarray, median: float) -> list[list[int]]:
+    """The first and last time (ns) of each stretch of a landmark's detections (``t_ns`` in time order, ``e`` their
+    innovation norms) that sits far from its map place (``JUMP_RUN``); empty when they are one stretch at an end
+    (one change point, as :func:`landmark_jumps` splits it)."""
+    h = JUMP_RUN // 2
+    if e.shape[0] < JUMP_RUN:
+        return []
+    windows = np.lib.stride_tricks.sliding_window_view(np.pad(np.log(e), h, mode="edge"), JUMP_RUN)
+    far = np.median(windows, axis=1) > np.log(median) + 0.5 * np.log(JUMP_RATIO * JUMP_CALM)
+    edges = np.flatnonzero(far[1:] != far[:-1]) + 1
+    runs = [
+        (int(a), int(b))
+        for a, b in zip(np.r_[0, edges], np.r_[edges, far.shape[0]], strict=True)
+        if far[a] and b - a >= JUMP_MIN_DETECTIONS // 2
+    ]
+    if len(runs) == 1 and (runs[0][0] == 0 or runs[0][1] == far.shape[0]):
+        return []
+    return [[int(t_ns[a]), int(t_ns[b - 1])] for a, b in runs]
+
+
 def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list[dict]:
     """The landmarks whose detections jump (``JUMP_RATIO``, ``JUMP_CALM``, ``JUMP_MIN_DETECTIONS``): their id,
     the time of the first detection after the split (ns), the detections and median innovation ratio of each side.
@@ -424,9 +450,21 @@ def landmark_jumps(t_ns: np.ndarray, ids: np.ndarray, norms: np.ndarray) -> list
         during = (t_ns >= t_ns[bad].min()) & (t_ns <= t_ns[bad].max()) & (ids != lid)
         if np.count_nonzero(during) < JUMP_MIN_DETECTIONS or float(np.median(norms[during])) / median >= JUMP_CALM:
             continue  # the others were off then too, or not seen enough to tell: the pose, not this landmark
-        out.append(
-            {"id": int(lid), "t_ns": int(t_ns[order[k]]), "before": [k, before], "after": [order.shape[0] - k, after]}
-        )
+        jump = {
+            "id": int(lid),
+            "t_ns": int(t_ns[order[k]]),
+            "before": [k, before],
+            "after": [order.shape[0] - k, after],
+        }
+        if spans := far_spans(t_ns[order], norms[order], median):  # seen at its two places in turn
+            t = t_ns[order]
+            at = np.zeros(t.shape[0], bool)
+            for a, b in spans:
+                at |= (t >= a) & (t <= b)
+            jump["far_spans"] = spans
+            jump["far"] = [int(at.sum()), float(np.median(norms[order][at])) / median]
+            jump["near"] = [int((~at).sum()), float(np.median(norms[order][~at])) / median]
+        out.append(jump)
     return out
 
 
@@ -439,7 +477,12 @@ def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) ->
     next_id = int(max(aligned.landmark_ids.max(initial=0), np.max(taken, initial=0))) + 1
     for j in jumps:
         j["new_id"] = next_id
-        ids[(aligned.det_ids == j["id"]) & (t_det >= j["t_ns"])] = next_id
+        later = t_det >= j["t_ns"]
+        if "far_spans" in j:  # seen at its two places in turn: the far stretches, each whole
+            later = np.zeros(t_det.shape[0], bool)
+            for a, b in j["far_spans"]:
+                later |= (t_det >= a) & (t_det <= b)
+        ids[(aligned.det_ids == j["id"]) & later] = next_id
         next_id += 1
     landmark_ids, det_idx = np.unique(ids, return_inverse=True)
     return replace(
@@ -449,19 +492,32 @@ def split_jumps(aligned: AlignedStream, jumps: list[dict], taken: np.ndarray) ->
     )
 
 
+def _jump_words(j: dict, t0_ns: int) -> str:
+    """One jump of :func:`jump_note`: where it is, the detections on either side (or, seen at two places in turn,
+    the far stretches), and the new id."""
+    new = f"; {'those' if 'far_spans' in j else 'from then on'} landmark {j['new_id']}" if "new_id" in j else ""
+    if "far_spans" in j:
+        spans = ", ".join(f"{(a - t0_ns) / 1e9:.1f}-{(b - t0_ns) / 1e9:.1f} s" for a, b in j["far_spans"][:4])
+        more = f" and {len(j['far_spans']) - 4} more" if len(j["far_spans"]) > 4 else ""
+        return (
+            f"{j['id']} seen at two places in turn ({j['far'][0]} detections in {len(j['far_spans'])} stretches, "
+            f"{spans}{more}, a median {j['far'][1]:.3g}x the run's usual distance from the map, {j['near'][0]} "
+            f"between them {j['near'][1]:.3g}x{new})"
+        )
+    return (
+        f"{j['id']} at {(j['t_ns'] - t0_ns) / 1e9:.1f} s ({j['before'][0]} detections before it a median "
+        f"{j['before'][1]:.3g}x the run's usual distance from the map, {j['after'][0]} after it {j['after'][1]:.3g}x"
+        f"{new})"
+    )
+
+
 def jump_note(name: str, jumps: list[dict], t0_ns: int, lost: bool = False) -> list[str]:
     """Estimator ``name``'s warning naming the landmarks that jump (:func:`landmark_jumps`); those split by
     :func:`split_jumps` (a ``new_id``) say which id their later detections got. ``lost``: the run's own checks named
     a misread input first (``time_offset.misread``), so the jumps are likely its pose's and were not split."""
     if not jumps:
         return []
-    said = "; ".join(
-        f"{j['id']} at {(j['t_ns'] - t0_ns) / 1e9:.1f} s ({j['before'][0]} detections before it a median "
-        f"{j['before'][1]:.3g}x the run's usual distance from the map, {j['after'][0]} after it {j['after'][1]:.3g}x"
-        + (f"; from then on landmark {j['new_id']}" if "new_id" in j else "")
-        + ")"
-        for j in jumps
-    )
+    said = "; ".join(_jump_words(j, t0_ns) for j in jumps)
     if lost:
         return [
             f"warning: {name}: landmark {said}: jumps that follow a misread input the detections named (the "
