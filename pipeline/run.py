@@ -1036,7 +1036,7 @@ def offset_beside(prepared: PreparedLog, config: RunConfig):
     if aligned.vel_t_ns.shape[0] + len(truth) > OFFSET_BESIDE_SAMPLES:
         return search
     try:
-        return Pending(search).result
+        return Pending(search, helper=True).result  # the estimator's thread goes first
     except MemoryError:
         return search
 

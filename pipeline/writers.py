@@ -123,6 +123,9 @@ class BackgroundWrites:
         self._thread.start()
 
     def _run(self) -> None:
+        from slamobs.pipeline.cores import lower_this_thread
+
+        lower_this_thread()  # the caller's computation is the run's critical path, not the writes beside it
         while (item := self._items.get()) is not self._items:
             if self._error is not None or self._cancelled:
                 continue  # drain: the caller will see the error or has given up

@@ -4,6 +4,7 @@ ahead is bounded, and stopping early leaves no thread running."""
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 from types import SimpleNamespace
@@ -119,3 +120,45 @@ def test_background_writes_cancelled_write_nothing_more():
     writes.cancel()  # the run failed: the item being written finishes, the waiting one is dropped
     assert written == [0]
     assert not writes._thread.is_alive()
+
+
+def _priority() -> int:
+    import os
+
+    return os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a thread's own nice value is Linux's")
+def test_helper_threads_run_below_the_estimator_s_priority(monkeypatch):
+    """The writer, the report's search beside the estimator and the time offset's checks after its decision run
+    ``HELPER_NICE`` steps below the caller (or at the lowest priority), so they do not preempt the estimator's
+    thread on a short machine (docs/benchmarks.md, session 22); the caller's own priority is left as it was."""
+    from slamobs.pipeline.cores import HELPER_NICE
+    from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
+    from slamobs.pipeline.observers import time_offset
+
+    mine = _priority()
+    lowered = min(mine + HELPER_NICE, 19)
+    writes = BackgroundWrites(lambda item: _priority())
+    writes.put(0)
+    assert writes.finish() == lowered
+    started = threading.Event()
+
+    def search():
+        started.set()
+        return _priority()
+
+    beside = Pending(search, helper=True)
+    assert started.wait(5)  # begun on its thread, not in the caller's
+    assert beside.result() == lowered
+    assert Pending(lambda: (time.sleep(0.05), _priority())[1]).result() == mine  # the report's other work as it was
+
+    def estimate(stream, decided=None):
+        before = _priority()
+        decided({"applied": False, "estimate_s": 0.0})
+        return {"before": before, "after": _priority()}
+
+    monkeypatch.setattr(time_offset, "cores", lambda: 2)
+    monkeypatch.setattr(time_offset, "estimate", estimate)
+    assert time_offset.Background(None).result() == {"before": mine, "after": lowered}  # the decision at full speed
+    assert _priority() == mine

@@ -419,7 +419,7 @@ class Pending:
     stopped meanwhile does not wait for it to end. The report computes the clock-offset search and its longest
     section (the segment errors) this way, beside the rest."""
 
-    def __init__(self, func, *args, **kwargs) -> None:
+    def __init__(self, func, *args, helper: bool = False, **kwargs) -> None:
         import threading
 
         from slamobs.pipeline.native import BLAS_START_MB, check_room
@@ -428,12 +428,17 @@ class Pending:
         check_room("compute beside the report (a second OpenBLAS buffer)", BLAS_START_MB)
         self._value = self._error = None
         self._work = (func, args, kwargs)
+        self._helper = helper  # the thread at a helper's priority (cores.lower_this_thread), beside an estimator
         self._claim = threading.Lock()  # held by whichever thread computes it
         self._done = threading.Event()
         self._thread = threading.Thread(target=self._run, name="slamobs-report", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
+        if self._helper:
+            from slamobs.pipeline.cores import lower_this_thread
+
+            lower_this_thread()
         if self._claim.acquire(blocking=False):  # else the caller computes it itself
             self._compute()
 

@@ -29,7 +29,7 @@ import numpy as np
 
 from slamobs.pipeline.blocks import id_time_order
 from slamobs.pipeline.cholesky import cholesky_lower
-from slamobs.pipeline.cores import cores
+from slamobs.pipeline.cores import cores, lower_this_thread
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import (
     integrate_body_twists,
@@ -881,6 +881,7 @@ class Background:
     def _decide(self, decision: dict) -> None:
         self._decision = decision
         self._decided.set()
+        lower_this_thread()  # the reporting checks left are a helper's beside the filter (which waited for this only)
 
     def done(self) -> bool:
         """Whether the estimate (or its error) is there: :meth:`result` returns at once."""
