@@ -35,6 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from slamobs.pipeline.blocks import rms_sigmas, unique_inverse
+from slamobs.pipeline.cores import lower_this_thread
 from slamobs.pipeline.errors import OutputError, output_error
 from slamobs.pipeline.lifetime import owner_alive, owner_marker
 from slamobs.pipeline.paths import (
@@ -123,8 +124,6 @@ class BackgroundWrites:
         self._thread.start()
 
     def _run(self) -> None:
-        from slamobs.pipeline.cores import lower_this_thread
-
         lower_this_thread()  # the caller's computation is the run's critical path, not the writes beside it
         while (item := self._items.get()) is not self._items:
             if self._error is not None or self._cancelled:
