@@ -516,14 +516,46 @@ def _save_or_skip(save):
     return save_overload
 
 
+def _helpers_kept_per_flags(subtarget):
+    """numba's ``BaseContext.subtarget`` for the compiling contexts, where numba's own helpers compiled in one (the
+    implementations of ``x ** n``, ``arr.sum()``, ``np.empty``, ... that its lowering compiles once per process,
+    ``compile_subroutine``) are kept apart per floating-point flags. numba keeps them in one dictionary shared by every
+    context of the process, keyed by function and types but not by flags, and compiles one with the flags of the
+    context that asks first: a helper first asked for by a riekf ``{"contract"}`` kernel was fused into the strict
+    kernels that asked for it later in that process (``ratio**4`` in ``riekf._walk_check``), and one first asked for
+    by a strict kernel stayed unfused in the contracting kernels; so a kernel's code depended on what the compiling
+    process had compiled before, and the cache kept it (docs/benchmarks.md, "A cached kernel that gave other last
+    digits"). Here each flag set has its own dictionary: a helper takes the flags of the kernel it is compiled into."""
+
+    def flags_of(context) -> frozenset:
+        return frozenset(context.fastmath.flags) if context.fastmath else frozenset()
+
+    def subtarget_(self, **kws):
+        made = subtarget(self, **kws)
+        if made.cached_internal_func is self.cached_internal_func and flags_of(made) != flags_of(self):
+            shelves = self.__dict__.get("slamobs_helpers_per_flags")
+            if shelves is None:  # the first one made from this context; contexts made from it carry the same
+                shelves = self.slamobs_helpers_per_flags = {flags_of(self): self.cached_internal_func}
+            made.slamobs_helpers_per_flags = shelves
+            made.cached_internal_func = shelves.setdefault(flags_of(made), {})
+        return made
+
+    subtarget_.slamobs_helpers_per_flags = True
+    return subtarget_
+
+
 def install() -> None:
-    """Put :class:`KernelLocator` first among numba's cache locators, and let its cache writes fail quietly
-    (once)."""
+    """Put :class:`KernelLocator` first among numba's cache locators, let its cache writes fail quietly, and keep
+    numba's compiled helpers apart per floating-point flags (:func:`_helpers_kept_per_flags`; once)."""
+    from numba.core.base import BaseContext
+
     impl = getattr(caching, "CacheImpl", None) or caching._CacheImpl
     if KernelLocator not in impl._locator_classes:
         impl._locator_classes = [KernelLocator, *impl._locator_classes]
     if not getattr(caching.Cache.save_overload, "slamobs_skips_unwritable", False):
         caching.Cache.save_overload = _save_or_skip(caching.Cache.save_overload)
+    if not getattr(BaseContext.subtarget, "slamobs_helpers_per_flags", False):
+        BaseContext.subtarget = _helpers_kept_per_flags(BaseContext.subtarget)
 
 
 install()

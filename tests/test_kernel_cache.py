@@ -392,6 +392,44 @@ def test_a_kernel_keeps_its_own_floating_point_flags_whoever_compiles_it_first()
     assert " contract " in fused.inspect_llvm(fused.signatures[0])
 
 
+# Two kernels of one expression, one fused and one strict, compiled in the order given (numba compiles the helper
+# implementing `x ** 4` once per process, for the first kernel that asks); each kernel's LLVM's `contract` flags.
+_POWER_ORDER = """\
+import sys
+from slamobs.pipeline import kernel_cache
+
+def power(x):
+    return x**4 + 1.0
+
+fused = kernel_cache.njit(fastmath={"contract"})(power)
+strict = kernel_cache.njit(power)
+for kernel in (fused, strict) if sys.argv[1] == "fused" else (strict, fused):
+    kernel(1.1)
+print(*(k.inspect_llvm(k.signatures[0]).count(" contract ") for k in (fused, strict)))
+"""
+
+
+def test_numbas_helpers_take_the_flags_of_the_kernel_they_are_compiled_into_in_either_order(tmp_path):
+    """numba compiles its own helpers (here the one of ``x ** 4``) once per process, with the flags of the kernel
+    that asks first, and gave the same to every later kernel: compiled after a ``{"contract"}`` kernel, a strict
+    kernel carried fused multiplications (riekf's ``_walk_check`` and three more in a fresh run's ``_advance``, none
+    after another estimator's strict kernels had asked first, the cache keeping either). Now each kernel's helpers
+    have its flags, in either order."""
+    import subprocess
+    import sys
+
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    counts = {}
+    for first in ("fused", "strict"):
+        done = subprocess.run(
+            [sys.executable, "-c", _POWER_ORDER, first], capture_output=True, text=True, timeout=600, env=env
+        )
+        assert done.returncode == 0, done.stderr[-2000:]
+        counts[first] = tuple(int(n) for n in done.stdout.split())
+    assert counts["fused"] == counts["strict"], counts  # (fused, strict) contract flags, whichever came first
+    assert counts["fused"][1] == 0 and counts["fused"][0] > 1, counts
+
+
 def _index_entries(cache: Path, kernel: str) -> dict[tuple, tuple]:
     """``{argument types of an index entry: argument types of the code in its data file}`` of ``kernel``'s index
     files under ``cache``."""
