@@ -50,6 +50,8 @@ def test_hand_eye_note_finds_the_truth_rotation_and_its_key_removes_it(sim, tmp_
     assert report["ape"]["rotation_deg"]["rmse"] > 60
     note = next(n for n in report["notes"] if "frames.truth_rotation" in n)
     assert note in res.output  # the run prints it
+    # an inverted camera extrinsic turns an observer's estimate so too (h-silent12): the key would hide it
+    assert "extrinsic" in note and "slamobs info --noise" in note
     found = np.array([float(v) for v in re.search(r"truth_rotation: \[([^\]]+)\]", note).group(1).split(",")])
     assert _angle_deg(found, X_XYZW) < 1.0
     left = float(re.search(r"would be ([0-9.]+) deg", note).group(1))

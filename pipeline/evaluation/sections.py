@@ -233,7 +233,9 @@ def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
         f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
         f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): the truth's body frame looks turned against the "
         f"estimate's by a constant {angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
-        f"rotation APE would be {after:.2f} deg rmse; to apply it (evaluation only) {TRUTH_FRAME_KEY}"
+        f"rotation APE would be {after:.2f} deg rmse, unless a sensor's extrinsic is wrong (a camera transform "
+        "inverted or turned turns the estimate so: `slamobs info --noise LOG` checks it against the motion); to apply "
+        f"it (evaluation only) {TRUTH_FRAME_KEY}"
         f"{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
     ]
 
