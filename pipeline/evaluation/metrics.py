@@ -486,7 +486,9 @@ def statistics(errors: np.ndarray, part: np.ndarray | None = None) -> dict[str, 
     e = np.asarray(errors, dtype=np.float64).ravel()
     if e.size == 0:
         raise ValueError("statistics: empty error vector")
-    sse = float(np.dot(e, e))
+    # evo's sum of squares; NumPy's pairwise sum, not ``np.dot``: OpenBLAS's ddot sums in another order with two
+    # threads than with one, so a report's last digits depended on what ran beside it
+    sse = float(np.sum(e * e))
     mean = np.mean(e, keepdims=True)  # np.std's own mean (the same sum and division): handed to it, not summed again
     out: dict[str, float | int] = {
         "rmse": float(np.sqrt(sse / e.size)),
