@@ -226,6 +226,21 @@ def loop_seconds() -> float:
     return best
 
 
+def compile_bytecode() -> None:
+    """slamobs's own bytecode written where Python looks for it, as an install writes it (pip compiles a wheel's
+    modules, the Makefile the checkout's): where Python writes none itself (``PYTHONDONTWRITEBYTECODE``, set on the
+    VM of docs/benchmarks.md) every measured run would compile ~100 modules from source at its start, 0.25-0.3 CPU s
+    that no installed copy pays (h-ninety3, session 23)."""
+    import compileall
+
+    import slamobs
+
+    root = Path(slamobs.__file__).resolve().parent
+    for part in ("pipeline", "cli"):
+        compileall.compile_dir(root / part, quiet=1)
+    compileall.compile_file(root / "__init__.py", quiet=1)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, nargs="*", default=[1.0, 4.0], help="long log durations in hours")
@@ -246,13 +261,15 @@ def main() -> None:
     if args.figure_helper:
         os.environ["SLAMOBS_FIGURE_HELPER"] = "1"  # inherited by every run
     args.cache.mkdir(parents=True, exist_ok=True)
+    compile_bytecode()
     durations = sorted([*args.seconds, *(h * 3600 for h in args.hours)])
     logs = [(d, c, make_log(args.cache, d, c)) for d in durations for c in args.containers]
 
     print(
         f"# slamobs run end to end, {cpu_model()}, {os.cpu_count()} cores, python {platform.python_version()}; "
         f"scenario {SCENARIO}: IMU 200 Hz, odometry 50 Hz, magnetometer 50 Hz, detections 20 Hz "
-        f"(30 landmarks, ~8 in view), mocap 100 Hz; observer fast-adaptation, every sample written; {load()}"
+        f"(30 landmarks, ~8 in view), mocap 100 Hz; observer fast-adaptation, every sample written; slamobs's "
+        f"bytecode compiled first, as an install does; {load()}"
     )
     cold = cold2 = None
     if not args.no_compile:
