@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,6 +32,11 @@ from slamobs.pipeline.noise_estimation import (
     log_triplets,
     white_noise_density,
 )
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from slamobs.pipeline.readers.covariance import StatedNoise
 
 #: the keys of the detection law (the ratio apart)
 DETECTION_LAW_KEYS = ("detection", "detection_per_m", "detection_per_m2")
@@ -401,21 +407,23 @@ def resolve_noise(
     log: str | Path | None = None,
     topics: dict[str, str] | None = None,
     estimated: LogNoise | None = None,
+    stated: Mapping[str, StatedNoise] | None = None,
 ) -> NoiseSettings:
     """The settings of a run, key by key: what ``config`` (the run's ``noise`` section) sets; for the velocity
-    densities the message covariances of ``log`` where they are plausible (and, with an estimate, between
-    :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it); what the log's samples show (``estimated``, used
-    when ``config.auto``); else the defaults."""
+    densities the message covariances where they are plausible (and, with an estimate, between
+    :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it): ``stated`` (role -> what the read found,
+    ``LogStreams.stated_covariance``), else read from ``log``'s ``topics``; what the log's samples show
+    (``estimated``, used when ``config.auto``); else the defaults."""
     cfg = config or NoiseConfig()
     section = cfg.given()
     found = estimated.levels() if estimated is not None and cfg.auto else {}
     notes = list(estimated.notes) if estimated is not None and cfg.auto else []
     absent = estimated.absent_terms() if estimated is not None and cfg.auto else ()
-    stated = {}
-    if log is not None and topics and any(k not in section for k in STATED):
+    if stated is None and log is not None and topics and any(k not in section for k in STATED):
         from slamobs.pipeline.readers.covariance import stated_noise
 
         stated = stated_noise(log, topics, tuple(STATED[k] for k in STATED if k not in section))
+    stated = {STATED[k]: stated[STATED[k]] for k in STATED if k not in section and STATED[k] in (stated or {})}
     values: dict = {}
     sources: dict[str, str] = {}
     methods: dict[str, str] = {}
@@ -469,6 +477,8 @@ def _believed(key: str, stated, estimate: Estimate | None, notes: list[str]):
     if stated.problem is not None:
         notes.append(f"noise: {stated.topic} covariance not used for {key}: {stated.problem}")
         return None
+    if stated.rejected is not None:
+        notes.append(f"noise: {stated.topic} covariance for {key}: {stated.rejected}")
     if estimate is not None:
         ratio = stated.density / np.maximum(np.asarray(estimate.value, dtype=float), 1e-300)
         worst = float(ratio.flat[np.argmax(np.abs(np.log(ratio)))])

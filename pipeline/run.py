@@ -357,6 +357,7 @@ def prepare_log(
         derived=streams.derived,
         static_tf_dropped=streams.static_tf_dropped,
         static_tf_changed=streams.static_tf_changed,
+        stated_covariance=streams.stated_covariance,
     )
     return PreparedLog(log, kept, aligned, timings, topics, mark, tags, known, notes, velocity_noise, window)
 
@@ -381,7 +382,7 @@ def log_noise(prepared: PreparedLog, config: RunConfig):
     if config.noise.auto and prepared.estimated_noise is None and prepared.aligned is not None:
         prepared.estimated_noise = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
     estimated = prepared.estimated_noise if config.noise.auto else None
-    return resolve_noise(config.noise, prepared.log, dict(prepared.topics), estimated)
+    return resolve_noise(config.noise, estimated=estimated, stated=prepared.streams.stated_covariance)
 
 
 def detection_checks(prepared: PreparedLog) -> list[str]:

@@ -51,6 +51,7 @@ from .roles import (
     select_roles,
     topics_of,
 )
+from .covariance import stated_from_rows
 from .rows import Rows, TfRows
 from .trajectory_files import Trajectory, TruthSpec, parse_truth, read_trajectory
 
@@ -159,6 +160,8 @@ def read_log(
                 )
                 setattr(streams, role, stream)
                 note(stream.topic, role, cleaning)
+                if stream.topic in rows and (stated := stated_from_rows(rows[stream.topic], role)) is not None:
+                    streams.stated_covariance[role] = stated
             elif role == "truth" and selection.truth_edge is None:
                 streams.truth, cleaning = ahead(pose_stream, rows[topic])
                 note(topic, role, cleaning)
