@@ -21,6 +21,7 @@ twist over it, time-base samples inside a linear-velocity gap and detection fram
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -158,6 +159,9 @@ class AlignedStream:
     #: Whether the angular and the linear velocity come from two topics (an IMU's gyro and an odometry): their
     #: stamps can then lag one another, which the time offset's ``velocity_lag`` looks for.
     two_twist_topics: bool = False
+    #: The topic of each stream (``angular_velocity``, ``linear_velocity``, ``detections``) and the detections'
+    #: frame (``camera``): what a check's warning about them names (:func:`stream_topics`).
+    topics: dict[str, str] = field(default_factory=dict)
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -176,6 +180,25 @@ class AlignedStream:
     @property
     def det_ids(self) -> np.ndarray:
         return self.landmark_ids[self.det_idx]
+
+
+#: What the checks' warnings call each stream, and the key of its topic in ``AlignedStream.topics``.
+STREAM_ROLES = {"gyro": "angular_velocity", "odometry": "linear_velocity", "detections": "detections"}
+
+
+def stream_topics(topics: Mapping[str, str], *names: str) -> str:
+    """Which topics (and frame) a warning about the streams ``names`` (keys of :data:`STREAM_ROLES`, or
+    ``camera``: the detections' frame) means, as its bracketed tail, e.g. ``" [gyro /imu/data, detections
+    /tags in frame cam0]"``: the one place the checks' warnings name them (a log may hold a dozen topics);
+    empty when none is known."""
+    said = []
+    for name in names:
+        if name == "camera":
+            if topics.get("camera"):
+                said.append(f"camera frame {topics['camera']}")
+        elif topics.get(STREAM_ROLES[name]):
+            said.append(f"{name} {topics[STREAM_ROLES[name]]}")
+    return f" [{', '.join(said)}]" if said else ""
 
 
 def _times(stream, time_source: str) -> np.ndarray:
@@ -608,6 +631,9 @@ def align(
             _gyro_lag(*_sorted(_times(om, time_source), om.xyz), twist, _times(twist, time_source), om.topic)
         )
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
+    topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
+    if det is not None:
+        topics.update(detections=det.topic, camera=", ".join(det.cameras) if det.cameras else det.frame_id)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -650,6 +676,7 @@ def align(
         segment_starts=starts,
         det_sensor=det_sensor,
         two_twist_topics=two_topics,
+        topics=topics,
     )
 
 
@@ -1417,6 +1444,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         segment_starts=starts[(starts > a) & (starts < b)] - a,
         det_sensor=aligned.det_sensor,
         two_twist_topics=aligned.two_twist_topics,
+        topics=aligned.topics,
     )
 
 

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.noise_estimation import (
     LAWS,
     DetectionLaw,
@@ -284,7 +285,11 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
         for name, e in (("gyro", gyro), ("velocity", velocity))
         if e is None
     ]
-    gyro, velocity = (visible_noise(e, name, notes) for name, e in (("gyro", gyro), ("velocity", velocity)))
+    topics = getattr(aligned, "topics", {})
+    gyro, velocity = (
+        visible_noise(e, name, notes, stream_topics(topics, role))
+        for name, e, role in (("gyro", gyro, "gyro"), ("velocity", velocity, "odometry"))
+    )
     g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
     triplets = log_triplets(*_stream_arrays(aligned), g, v)
@@ -305,7 +310,10 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    notes += scattered_note(law) or degrees_note(aligned, law, g, v)
+    notes += [
+        w + stream_topics(topics, "detections", "camera")
+        for w in scattered_note(law) or degrees_note(aligned, law, g, v)
+    ]
     return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
 
 
@@ -386,14 +394,15 @@ def _scaled(e: Estimate, factor: Estimate) -> Estimate:
     return Estimate(value, unc, f"{e.method}; scaled by {factor.value:.3g} ({factor.method})", e.samples)
 
 
-def visible_noise(estimate: Estimate | None, name: str, notes: list[str]) -> Estimate | None:
+def visible_noise(estimate: Estimate | None, name: str, notes: list[str], where: str = "") -> Estimate | None:
     """``estimate``, or None when every axis of its stream holds its values (a commanded or quantised stream,
-    e.g. MR.CLAM's commanded velocities): zero noise there would make riekf and batch trust it blindly."""
+    e.g. MR.CLAM's commanded velocities): zero noise there would make riekf and batch trust it blindly. ``where``
+    ends the note (``alignment.stream_topics``: the stream's topic)."""
     if estimate is None or not estimate.held or not all(estimate.held):
         return estimate
     notes.append(
         f"noise: the {name} samples hold their values (commanded or quantised: most repeat the previous one), so "
-        f"their noise cannot be seen in them (estimated from the detections instead, where they allow it)"
+        f"their noise cannot be seen in them (estimated from the detections instead, where they allow it){where}"
     )
     return None
 

@@ -386,6 +386,7 @@ def test_info_noise_names_a_camera_extrinsic_turned_before_any_run(tmp_path):
         assert shown.exit_code == 0, shown.output
         said = [line for line in shown.output.splitlines() if "check the camera's extrinsic" in line]
         assert len(said) == (name == "turned") and "turned by 90 deg" in "".join(said or ["turned by 90 deg"]), said
+    assert said[0].endswith("[detections /fiducial_transforms, camera frame camera]"), said
 
 
 def test_info_noise_names_two_tags_that_share_an_id(tmp_path):
@@ -429,6 +430,8 @@ def test_info_noise_names_a_gyro_whose_x_and_z_are_swapped(tmp_path):
     assert shown.exit_code == 0, shown.output
     said = [line for line in shown.output.splitlines() if "angular velocity's x and z swapped" in line]
     assert len(said) == 1 and "check the gyro's unit and axes" in said[0], shown.output
+    # which topics, on a log of many (alignment.stream_topics)
+    assert said[0].endswith("[gyro /imu/data, odometry /odom, detections /fiducial_transforms]"), said
 
 
 @pytest.mark.parametrize(
