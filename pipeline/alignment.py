@@ -537,7 +537,8 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     if not np.isfinite(m).any():
         return []
     k, probe = int(np.nanargmin(m)), int(round(GYRO_LAG_PROBE_S / GYRO_LAG_STEP_S))
-    power = float(np.nanmin(m[[max(k - probe, 0), min(k + probe, m.shape[0] - 1)]]) / max(float(m[k]), 1e-12))
+    around = m[[max(k - probe, 0), min(k + probe, m.shape[0] - 1)]]  # NaN: too little overlap to say
+    power = float(np.min(around) / max(float(m[k]), 1e-12)) if np.isfinite(around).all() else np.inf
     unseen = "" if power >= GYRO_LAG_GAIN else _lag_unseen(gyro_topic, twist.topic, power)
     if k == coarse.shape[0] // 2:
         # the best coarse lag 0 (the clocks agree): the fine grid would look within a coarse step (the warning's
