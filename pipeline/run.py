@@ -837,7 +837,10 @@ def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, 
 
     aligned = prepared.aligned
     if aligned is None:
-        aligned = prepare_log(prepared.log, config, directions=False, noise=False).aligned
+        try:
+            aligned = prepare_log(prepared.log, config, directions=False, noise=False).aligned
+        except InputError:  # the log changed since it was read: the run's results stand, without the check
+            return []
     found = time_offset.note(config.observer, time_offset.estimate(aligned))
     return [f"{n} (checked since the report found the estimate turned)" for n in found if n.startswith("warning: ")]
 
