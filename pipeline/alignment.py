@@ -21,6 +21,7 @@ twist over it, time-base samples inside a linear-velocity gap and detection fram
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
@@ -116,6 +117,13 @@ GYRO_LAG_GAIN = 4.0
 GYRO_LAG_SMOOTH_S = 0.1
 #: odometry samples the fine grid and the lag as stamped are computed on (evenly spread)
 GYRO_LAG_FINE_SAMPLES = 2000
+#: The check's power: where a lag this long would fit under ``GYRO_LAG_GAIN`` times worse than the best lag (slow
+#: turns, a ground robot's: a generated ground log's IMU 0.3 s late fit 1.93x better so shifted, a figure 8's 43x),
+#: a note says the lag could not be checked, with the best fit found, rather than nothing.
+GYRO_LAG_PROBE_S = 0.3
+#: ... and warns then only where the lag fits this well (a generated ground robot: 0.0035 of the odometry's variance;
+#: robot_localization's test1, a Husky whose wheels slip: 0.297, its best lag 0.4 s early a note, not a warning)
+GYRO_LAG_SLOW_MAX_MISFIT = 0.05
 
 
 def _axes(*order: int, sign=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -158,6 +166,9 @@ class AlignedStream:
     #: Whether the angular and the linear velocity come from two topics (an IMU's gyro and an odometry): their
     #: stamps can then lag one another, which the time offset's ``velocity_lag`` looks for.
     two_twist_topics: bool = False
+    #: The topic of each stream (``angular_velocity``, ``linear_velocity``, ``detections``) and the detections'
+    #: frame (``camera``): what a check's warning about them names (:func:`stream_topics`).
+    topics: dict[str, str] = field(default_factory=dict)
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -176,6 +187,25 @@ class AlignedStream:
     @property
     def det_ids(self) -> np.ndarray:
         return self.landmark_ids[self.det_idx]
+
+
+#: What the checks' warnings call each stream, and the key of its topic in ``AlignedStream.topics``.
+STREAM_ROLES = {"gyro": "angular_velocity", "odometry": "linear_velocity", "detections": "detections"}
+
+
+def stream_topics(topics: Mapping[str, str], *names: str) -> str:
+    """Which topics (and frame) a warning about the streams ``names`` (keys of :data:`STREAM_ROLES`, or
+    ``camera``: the detections' frame) means, as its bracketed tail, e.g. ``" [gyro /imu/data, detections
+    /tags in frame cam0]"``: the one place the checks' warnings name them (a log may hold a dozen topics);
+    empty when none is known."""
+    said = []
+    for name in names:
+        if name == "camera":
+            if topics.get("camera"):
+                said.append(f"camera frame {topics['camera']}")
+        elif topics.get(STREAM_ROLES[name]):
+            said.append(f"{name} {topics[STREAM_ROLES[name]]}")
+    return f" [{', '.join(said)}]" if said else ""
 
 
 def _times(stream, time_source: str) -> np.ndarray:
@@ -504,11 +534,17 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     t_g, w_g = t_g[near], w_g[near]
     coarse = np.arange(-GYRO_LAG_MAX_S, GYRO_LAG_MAX_S + 0.5 * GYRO_LAG_STEP_S, GYRO_LAG_STEP_S)
     m = coarse_lag_misfits(t_g, w_g, t_o, w_o, half)
-    if not np.isfinite(m).any() or np.nanargmin(m) == coarse.shape[0] // 2:
+    if not np.isfinite(m).any():
+        return []
+    k, probe = int(np.nanargmin(m)), int(round(GYRO_LAG_PROBE_S / GYRO_LAG_STEP_S))
+    around = m[[max(k - probe, 0), min(k + probe, m.shape[0] - 1)]]  # NaN: too little overlap to say
+    power = float(np.min(around) / max(float(m[k]), 1e-12)) if np.isfinite(around).all() else np.inf
+    unseen = "" if power >= GYRO_LAG_GAIN else _lag_unseen(gyro_topic, twist.topic, power)
+    if k == coarse.shape[0] // 2:
         # the best coarse lag 0 (the clocks agree): the fine grid would look within a coarse step (the warning's
         # least lag) of it, where the coarse grid found no lag better than 0, let alone GYRO_LAG_GAIN times
-        return []
-    best = float(coarse[np.nanargmin(m)])
+        return [unseen] if unseen else []
+    best = float(coarse[k])
     every = max(1, t_o.shape[0] // GYRO_LAG_FINE_SAMPLES)  # evenly spread stamps of the span: enough to time it
     b = _windowed_mean(t_o, w_o, t_o[::every], half)  # both averaged alike
     t_o = t_o[::every]
@@ -517,16 +553,34 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     lag, m_best = float(fine[np.nanargmin(m_fine)]), float(np.nanmin(m_fine))
     m0 = float(lag_misfits(t_g, w_g, t_o, b, np.zeros(1), half)[0])
     gain = m0 / max(m_best, 1e-12) if np.isfinite(m0) else np.inf
-    if abs(lag) < GYRO_LAG_WARN_S or m_best > GYRO_LAG_MAX_MISFIT or gain < GYRO_LAG_GAIN:
-        return []
     late = "late" if lag > 0 else "early"
+    # where the turns are too slow for GYRO_LAG_GAIN, a lag that fits better than as stamped by half of what a
+    # GYRO_LAG_PROBE_S lag would lose is the data telling (a clean log's best lag is 0, its gain 1)
+    needed, most = (
+        (GYRO_LAG_GAIN, GYRO_LAG_MAX_MISFIT) if not unseen else (1.0 + 0.5 * (power - 1.0), GYRO_LAG_SLOW_MAX_MISFIT)
+    )
+    if abs(lag) < GYRO_LAG_WARN_S or m_best > most or gain < needed:
+        found = f"; the best fit, {abs(lag):.3f} s {late}, is {gain:.3g}x better than as stamped"
+        return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else []
     as_read = f"{m0:.3g}" if np.isfinite(m0) else "none (too little overlap)"
+    slow = f"; slow turns: a {GYRO_LAG_PROBE_S:g} s lag fits only {power:.3g}x worse than the best" if unseen else ""
     return [
         f"warning: {gyro_topic}: its angular velocity's stamps look {abs(lag):.3f} s {late} against "
         f"{twist.topic}'s own angular velocity (misfit {m_best:.3g} of its variance so shifted, {as_read} as "
-        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s): is the IMU stamped on another clock? The run used its stamps as "
-        f"read; correct them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times are right)"
+        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock? The run used its "
+        f"stamps as read; correct them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times "
+        "are right)"
     ]
+
+
+def _lag_unseen(gyro_topic: str, twist_topic: str, power: float) -> str:
+    """The note that the gyro's lag could not be checked (``GYRO_LAG_PROBE_S``): ``power``, how many times worse a
+    lag that long fits than the best one."""
+    return (
+        f"{gyro_topic}: its stamps' lag against {twist_topic}'s own angular velocity could not be checked: too "
+        f"little rotation (a lag of {GYRO_LAG_PROBE_S:g} s would fit only {power:.3g}x worse than the best one: "
+        f"shorter lags go unseen)"
+    )
 
 
 class _Resampled:
@@ -608,6 +662,9 @@ def align(
             _gyro_lag(*_sorted(_times(om, time_source), om.xyz), twist, _times(twist, time_source), om.topic)
         )
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
+    topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
+    if det is not None:
+        topics.update(detections=det.topic, camera=", ".join(det.cameras) if det.cameras else det.frame_id)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
     accel, magnetic = streams.accel, streams.magnetic
@@ -650,6 +707,7 @@ def align(
         segment_starts=starts,
         det_sensor=det_sensor,
         two_twist_topics=two_topics,
+        topics=topics,
     )
 
 
@@ -1417,6 +1475,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         segment_starts=starts[(starts > a) & (starts < b)] - a,
         det_sensor=aligned.det_sensor,
         two_twist_topics=aligned.two_twist_topics,
+        topics=aligned.topics,
     )
 
 

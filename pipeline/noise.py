@@ -16,9 +16,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.noise_estimation import (
     LAWS,
     DetectionLaw,
@@ -31,6 +33,11 @@ from slamobs.pipeline.noise_estimation import (
     log_triplets,
     white_noise_density,
 )
+
+if TYPE_CHECKING:
+    from collections.abc import Mapping
+
+    from slamobs.pipeline.readers.covariance import StatedNoise
 
 #: the keys of the detection law (the ratio apart)
 DETECTION_LAW_KEYS = ("detection", "detection_per_m", "detection_per_m2")
@@ -278,7 +285,11 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
         for name, e in (("gyro", gyro), ("velocity", velocity))
         if e is None
     ]
-    gyro, velocity = (visible_noise(e, name, notes) for name, e in (("gyro", gyro), ("velocity", velocity)))
+    topics = getattr(aligned, "topics", {})
+    gyro, velocity = (
+        visible_noise(e, name, notes, stream_topics(topics, role))
+        for name, e, role in (("gyro", gyro, "gyro"), ("velocity", velocity, "odometry"))
+    )
     g = float(np.sqrt(np.mean(np.square(gyro.value)))) if gyro is not None else DEFAULTS["gyro"][0]
     v = float(np.sqrt(np.mean(np.square(velocity.value)))) if velocity is not None else DEFAULTS["velocity"][0]
     triplets = log_triplets(*_stream_arrays(aligned), g, v)
@@ -299,7 +310,10 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
     held: dict[str, Estimate] = {}
     if gyro is None or velocity is None:
         law, held = held_levels(aligned, law, ("gyro",) * (gyro is None) + ("velocity",) * (velocity is None), notes)
-    notes += scattered_note(law) or degrees_note(aligned, law, g, v)
+    notes += [
+        w + stream_topics(topics, "detections", "camera")
+        for w in scattered_note(law) or degrees_note(aligned, law, g, v)
+    ]
     return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
 
 
@@ -380,14 +394,15 @@ def _scaled(e: Estimate, factor: Estimate) -> Estimate:
     return Estimate(value, unc, f"{e.method}; scaled by {factor.value:.3g} ({factor.method})", e.samples)
 
 
-def visible_noise(estimate: Estimate | None, name: str, notes: list[str]) -> Estimate | None:
+def visible_noise(estimate: Estimate | None, name: str, notes: list[str], where: str = "") -> Estimate | None:
     """``estimate``, or None when every axis of its stream holds its values (a commanded or quantised stream,
-    e.g. MR.CLAM's commanded velocities): zero noise there would make riekf and batch trust it blindly."""
+    e.g. MR.CLAM's commanded velocities): zero noise there would make riekf and batch trust it blindly. ``where``
+    ends the note (``alignment.stream_topics``: the stream's topic)."""
     if estimate is None or not estimate.held or not all(estimate.held):
         return estimate
     notes.append(
         f"noise: the {name} samples hold their values (commanded or quantised: most repeat the previous one), so "
-        f"their noise cannot be seen in them (estimated from the detections instead, where they allow it)"
+        f"their noise cannot be seen in them (estimated from the detections instead, where they allow it){where}"
     )
     return None
 
@@ -401,21 +416,23 @@ def resolve_noise(
     log: str | Path | None = None,
     topics: dict[str, str] | None = None,
     estimated: LogNoise | None = None,
+    stated: Mapping[str, StatedNoise] | None = None,
 ) -> NoiseSettings:
     """The settings of a run, key by key: what ``config`` (the run's ``noise`` section) sets; for the velocity
-    densities the message covariances of ``log`` where they are plausible (and, with an estimate, between
-    :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it); what the log's samples show (``estimated``, used
-    when ``config.auto``); else the defaults."""
+    densities the message covariances where they are plausible (and, with an estimate, between
+    :data:`STATED_BELOW` and :data:`STATED_ABOVE` times it): ``stated`` (role -> what the read found,
+    ``LogStreams.stated_covariance``), else read from ``log``'s ``topics``; what the log's samples show
+    (``estimated``, used when ``config.auto``); else the defaults."""
     cfg = config or NoiseConfig()
     section = cfg.given()
     found = estimated.levels() if estimated is not None and cfg.auto else {}
     notes = list(estimated.notes) if estimated is not None and cfg.auto else []
     absent = estimated.absent_terms() if estimated is not None and cfg.auto else ()
-    stated = {}
-    if log is not None and topics and any(k not in section for k in STATED):
+    if stated is None and log is not None and topics and any(k not in section for k in STATED):
         from slamobs.pipeline.readers.covariance import stated_noise
 
         stated = stated_noise(log, topics, tuple(STATED[k] for k in STATED if k not in section))
+    stated = {STATED[k]: stated[STATED[k]] for k in STATED if k not in section and STATED[k] in (stated or {})}
     values: dict = {}
     sources: dict[str, str] = {}
     methods: dict[str, str] = {}
@@ -469,6 +486,8 @@ def _believed(key: str, stated, estimate: Estimate | None, notes: list[str]):
     if stated.problem is not None:
         notes.append(f"noise: {stated.topic} covariance not used for {key}: {stated.problem}")
         return None
+    if stated.rejected is not None:
+        notes.append(f"noise: {stated.topic} covariance for {key}: {stated.rejected}")
     if estimate is not None:
         ratio = stated.density / np.maximum(np.asarray(estimate.value, dtype=float), 1e-300)
         worst = float(ratio.flat[np.argmax(np.abs(np.log(ratio)))])

@@ -153,3 +153,6 @@ class LogStreams:
     #: What the log says about reading it (a simulated log's ``tag_size`` and ``tag_family``): used where the
     #: config leaves them unset.
     recorded: dict[str, object] = field(default_factory=dict)
+    #: Role -> what the velocity topic's messages state of its noise, every message judged
+    #: (``readers.covariance.StatedNoise``; roles whose message type states none are left out).
+    stated_covariance: dict[str, object] = field(default_factory=dict)

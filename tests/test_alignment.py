@@ -392,6 +392,28 @@ def test_a_gyro_stamped_off_the_odometrys_clock_is_named(late_s):
     assert said[0].startswith(f"warning: /imu/data: its angular velocity's stamps look {late_s:.3f} s late against")
 
 
+def test_a_gyro_late_on_a_ground_robot_is_named_or_said_unchecked():
+    """A generated ground robot turns slowly: its IMU 0.3 s late fit only 1.9x better so shifted, under the check's
+    4x, and the run said nothing (session 23). Where a 0.3 s lag would fit under 4x worse the check now warns when the
+    lag gains half of that, and otherwise says the lag could not be checked (too little rotation): never silent."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    sim = simulate("ground", seed=9647, duration=60.0)
+    notes = align(expected_streams(sim, "x.mcap")).notes
+    assert not [n for n in notes if "stamps look" in n], notes
+    (unchecked,) = [n for n in notes if "could not be checked" in n]
+    assert unchecked.startswith("/imu/data: its stamps' lag against /odom's own angular velocity could not be checked")
+    assert "too little rotation (a lag of 0.3 s would fit only " in unchecked and "shorter lags go unseen" in unchecked
+    shift = int(0.3 * NS)
+    imu = replace(sim.imu, t_ns=sim.imu.t_ns + shift, rec_ns=sim.imu.rec_ns + shift)
+    said = [n for n in align(expected_streams(replace(sim, imu=imu), "x.mcap")).notes if "stamps look" in n]
+    assert len(said) == 1 and "slow turns: a 0.3 s lag fits only" in said[0], said
+    late = float(said[0].split("stamps look ")[1].split(" s late")[0])
+    assert 0.25 <= late <= 0.35, said
+
+
 def test_the_coarse_lag_grid_by_fft_is_the_fit_per_lag():
     """The gyro-lag check's coarse grid (every lag of ±20 s at 0.05 s) sums the fit's pairs by FFT on a uniform
     grid (session 22: 0.005 CPU s on a 90 s log where the fit per lag took 0.035-0.05): on odometry stamped on that

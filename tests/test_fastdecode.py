@@ -193,11 +193,13 @@ def test_one_string_without_the_kernel_as_with_it(texts, monkeypatch):
 
 def test_what_is_not_planned():
     assert layout_paths(lambda m: (m.a.x * 2,)) is None  # computes
-    assert layout_paths(lambda m: (m.data[0],)) is None  # indexes
+    assert layout_paths(lambda m: (m.data[0] + 1,)) is None  # computes on an element
+    assert layout_paths(lambda m: (m.data[4],)) == ([("data", "4")], None)  # an element: planned if fixed-size
     assert layout_paths(lambda m: (m.a.x, m.b)) == ([("a", "x"), ("b",)], None)
     ts = make_typestore(ros1=False)
     ts.register(get_types_from_msg("std_msgs/Header header\nfloat64[] samples\nfloat64 tail\n", "test_msgs/msg/Tail"))
     assert make_plan(ts, "test_msgs/msg/Tail", [("tail",)], cdr=True) is None  # behind a sequence
+    assert make_plan(ts, "test_msgs/msg/Tail", [("samples", "0")], cdr=True) is None  # an element of a sequence
     assert make_plan(ts, "test_msgs/msg/Tail", [], cdr=True) is not None  # the header alone is fine
     assert make_plan(ts, "geometry_msgs/msg/Vector3", [("x",)], cdr=True) is None  # no header
     assert make_plan(ts, "geometry_msgs/msg/PoseStamped", [("pose",)], cdr=True) is None  # not a number

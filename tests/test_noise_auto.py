@@ -14,7 +14,7 @@ from slamobs.pipeline.alignment import align
 from slamobs.pipeline.lie import umeyama
 from slamobs.pipeline.noise import NoiseConfig, estimate_log_noise, resolve_noise, stream_density
 from slamobs.pipeline.noise_estimation import white_noise_density
-from slamobs.pipeline.readers.covariance import implausible
+from slamobs.pipeline.readers.covariance import implausible, implausible_rows
 from slamobs.pipeline.simulate import NoiseModel, expected_streams, get_scenario, simulate, write_log
 from slamobs.pipeline.simulate.scenarios import customize
 from cli_checks import invoke
@@ -116,6 +116,7 @@ def test_run_yaml_spells_auto_and_turns_it_off():
 def test_implausible_covariances(diag, why):
     problem = implausible(np.array(diag, dtype=float))
     assert (problem is None) if why is None else (why in problem)
+    assert (implausible_rows(np.array([diag, diag], dtype=float)) == 0).all() == (why is None)  # the whole stream's
 
 
 @pytest.fixture(scope="module")
@@ -171,6 +172,49 @@ def test_run_json_report_and_info_state_every_level(stated_logs, tmp_path):
     shown = invoke("info", "--noise", placeholder)
     assert shown.exit_code == 0 and "gyro = [" in shown.output and "(estimated, ± " in shown.output
     assert "covariance not used for gyro" in shown.output
+
+
+def changing_imu_covariance(monkeypatch, tmp_path, name: str, head: float, before, after):
+    """A 10 s log whose IMU messages state the variances ``before`` for the first ``head`` share of the messages
+    and ``after`` from then on (a driver reset), written through the simulator's bulk rows."""
+    from slamobs.pipeline.simulate.logwriter import Builder
+    from slamobs.pipeline.simulate.sensors import TOPIC_IMU
+
+    columns = Builder.columns
+
+    def with_covariance(self, topic):
+        cols = columns(self, topic)
+        if topic == TOPIC_IMU and cols is not None:
+            n = self.sim.imu.t_ns.shape[0]
+            later = np.arange(n) >= int(head * n)
+            for k in range(3):
+                cols[("angular_velocity_covariance", str(4 * k))] = np.where(later, after[k], before[k])
+        return cols
+
+    monkeypatch.setattr(Builder, "columns", with_covariance)
+    return write_log(simulate("circle", duration=10.0, seed=7), tmp_path / f"{name}.mcap")
+
+
+def test_every_message_s_covariance_is_judged(monkeypatch, tmp_path):
+    """Plausible variances in the first messages and REP 145's -1 after a reset (most of the log) are not used, the
+    note saying how many messages state what and when; the reverse (placeholders first) uses the plausible ones and
+    says how many were not. Before, the first 25 messages decided alone."""
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    config = parse_config({"observer": "riekf"})
+    plausible, unknown, placeholder = [2.5e-5] * 3, [-1.0, 0.0, 0.0], [1e-9] * 3
+    reset = changing_imu_covariance(monkeypatch, tmp_path, "reset", 0.1, plausible, unknown)
+    nz = log_noise(prepare_log(reset, config, directions=False), config)
+    assert nz.sources["gyro"] == "estimated", nz.sources
+    (note,) = [n for n in nz.notes if "/imu/data covariance not used for gyro" in n]
+    assert "1801 of 2001 messages state -1 (REP 145: no estimate) (between 1 and 10 s" in note, note
+    late = changing_imu_covariance(monkeypatch, tmp_path, "late", 0.3, placeholder, plausible)
+    nz = log_noise(prepare_log(late, config, directions=False), config)
+    assert nz.sources["gyro"].startswith("/imu/data covariance"), nz.sources
+    assert np.allclose(nz.gyro, 0.005 * np.sqrt(1 / 200))
+    (note,) = [n for n in nz.notes if "/imu/data covariance for gyro" in n]
+    assert "600 of 2001 messages state placeholder (1e-09, 1e-09, 1e-09)" in note and "other 1401 used" in note, note
 
 
 # ------------------------------------------------------------------------- the estimators on learned noise
@@ -342,6 +386,7 @@ def test_info_noise_names_a_camera_extrinsic_turned_before_any_run(tmp_path):
         assert shown.exit_code == 0, shown.output
         said = [line for line in shown.output.splitlines() if "check the camera's extrinsic" in line]
         assert len(said) == (name == "turned") and "turned by 90 deg" in "".join(said or ["turned by 90 deg"]), said
+    assert said[0].endswith("[detections /fiducial_transforms, camera frame camera]"), said
 
 
 def test_info_noise_names_two_tags_that_share_an_id(tmp_path):
@@ -385,6 +430,8 @@ def test_info_noise_names_a_gyro_whose_x_and_z_are_swapped(tmp_path):
     assert shown.exit_code == 0, shown.output
     said = [line for line in shown.output.splitlines() if "angular velocity's x and z swapped" in line]
     assert len(said) == 1 and "check the gyro's unit and axes" in said[0], shown.output
+    # which topics, on a log of many (alignment.stream_topics)
+    assert said[0].endswith("[gyro /imu/data, odometry /odom, detections /fiducial_transforms]"), said
 
 
 @pytest.mark.parametrize(

@@ -824,7 +824,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     is applied (:class:`Background`) need not wait for those."""
     c = Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
     n = int(c.a.shape[0])
-    out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False}
+    out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False, "topics": dict(stream.topics)}
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
     shift, sigma, gain = _search(c)
@@ -923,12 +923,17 @@ def misread(offset: dict | None) -> bool:
 
 def _misreads(offset: dict) -> list[tuple[str, str]]:
     """What the detection pairs say is misread, one ``(sentence, what the estimate used)`` each: the sentence
-    without an estimator's name or the run's tail, which :func:`note` adds ("it" / "them" as read)."""
+    without an estimator's name or the run's tail, which :func:`note` adds ("it" / "them" as read). Each sentence
+    ends with the topics (and the camera frame) it is about (``alignment.stream_topics``)."""
+    from slamobs.pipeline.alignment import stream_topics
+
+    topics = offset.get("topics") or {}
     found = [
         (
             f"the detections fit the odometry {gain:.3g}x better {what} ({offset['pairs']} detection pairs, trimmed "
             "mean squared residual): check the gyro's unit and axes" + (MIRROR_ADVICE if what == SIGN_FLIPPED else ""),
             "it",
+            ("gyro", "odometry", "detections"),
         )
         for what, gain in _best_misread(offset.get("gyro_misreads") or {})
     ]
@@ -943,26 +948,28 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
                 f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the camera's extrinsic "
                 "(turned about one of its axes, or given as the inverse transform)",
                 "it",
+                ("detections", "camera"),
             )
         )
     world = (offset.get("world_twist") or {"gain": 0.0})["gain"]
     if world >= WORLD_TWIST_GAIN and not found:  # the dead-reckoned heading is the gyro's: only where it reads right
         # the velocity's scale on each axis is then a consequence: not said besides
-        return [*found, (_world_twist_sentence(offset, world), "it")]
+        return [(_world_twist_sentence(offset, world) + stream_topics(topics, "odometry"), "it")]
     lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
     if lag is not None:
-        found.append((lag, "them"))
+        found.append((lag, "them", ("gyro", "odometry")))
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
             "with it): check the velocity's unit and axes, and the detections' (their unit, and their frame's "
             "extrinsic: a camera turned or given as the inverse transform reads this way)",
             "them",
+            ("odometry", "detections", "camera"),
         )
         # none on a log of too few pairs (:func:`estimate` returns before its checks)
         for what in (velocity_misread(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
     ]
-    return found
+    return [(sentence + stream_topics(topics, *names), used) for sentence, used, names in found]
 
 
 def _best_misread(gains: dict[str, float]) -> list[tuple[str, float]]:

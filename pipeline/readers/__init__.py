@@ -51,6 +51,7 @@ from .roles import (
     select_roles,
     topics_of,
 )
+from .covariance import stated_from_rows
 from .rows import Rows, TfRows
 from .trajectory_files import Trajectory, TruthSpec, parse_truth, read_trajectory
 
@@ -207,6 +208,15 @@ def read_log(
 
 
 def _checked_velocity(role, topic, built, selection, table, rows, streams, note, overrides):
+    """:func:`_velocity_checks`, and the noise the chosen stream's messages state (``LogStreams.stated_covariance``:
+    every message judged, :func:`.covariance.stated_from_rows`)."""
+    stream, cleaning = _velocity_checks(role, topic, built, selection, table, rows, streams, note, overrides)
+    if stream.topic in rows and (stated := stated_from_rows(rows[stream.topic], role)) is not None:
+        streams.stated_covariance[role] = stated
+    return stream, cleaning
+
+
+def _velocity_checks(role, topic, built, selection, table, rows, streams, note, overrides):
     """A velocity stream (``built``: it and its cleaning) checked against what else the log says: an odometry twist
     against its poses, an angular velocity that is all zero against the linear-velocity topic's (not when the config
     names the topic). The linear-velocity topic's own angular velocity, when the gyro is another topic's, is kept

@@ -2,9 +2,10 @@
 
 The reference estimators (``batch``, ``riekf``) weight odometry by its noise; ``sensor_msgs/Imu``
 (``angular_velocity_covariance``), ``nav_msgs/Odometry`` and ``TwistWithCovarianceStamped``
-(``twist.covariance``) carry it. Drivers fill these fields with a constant, so the first messages of a
-topic are enough: a few are decoded with rosbags (never the whole topic), together with their stamps,
-which give the sample period that turns a per-sample variance into a noise density.
+(``twist.covariance``) carry it. Drivers fill these fields with a constant, but not always the same one all
+along: after a reset a driver may switch to REP 145's -1 or a placeholder, or the reverse. So every message's
+diagonal is judged: the readers decode it with the velocities (``rows.STATED_COLUMNS``), and the stamps of the
+first messages give the sample period that turns a per-sample variance into a noise density.
 """
 
 from __future__ import annotations
@@ -14,17 +15,17 @@ from pathlib import Path
 
 import numpy as np
 
+from slamobs.pipeline.blocks import equal_rows, finite_rows
 from slamobs.pipeline.errors import InputError
 
-from .container import iter_raw, open_log
+from .container import open_log
+from .decode import decode_rows
 from .msgdefs import complete_definitions
 from .roles import topics_of
+from .rows import LAYOUTS, STATED_COLUMNS, Rows
 
-#: Messages read per topic (the median of their diagonals is used).
+#: Messages whose stamps give the sample period (the stated variances are judged in every message).
 SAMPLE_MESSAGES = 25
-
-_IMU = "sensor_msgs/msg/Imu"
-_TWIST_COV = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/TwistWithCovarianceStamped")
 
 
 @dataclass(frozen=True)
@@ -35,6 +36,8 @@ class StatedNoise:
     sigma: np.ndarray  # (3,); NaN where ``problem`` says why the stated values are not believed
     period_s: float
     problem: str | None = None
+    #: how many messages stated implausible values, what and from when (None: every message was plausible)
+    rejected: str | None = None
 
     @property
     def density(self) -> np.ndarray:
@@ -65,26 +68,75 @@ def implausible(diag: np.ndarray) -> str | None:
     return None
 
 
-def _diagonal(msg, msgtype: str, role: str) -> np.ndarray | None:
-    """The 3 variances of ``role`` stated by one message, None when the message type states none."""
-    if msgtype == _IMU:
-        if role != "angular_velocity":
-            return None
-        cov = np.asarray(msg.angular_velocity_covariance, dtype=float)
-        idx = (0, 4, 8)
-    elif msgtype in _TWIST_COV:
-        cov = np.asarray(msg.twist.covariance, dtype=float)
-        idx = (0, 7, 14) if role == "linear_velocity" else (21, 28, 35)
-    else:
+#: Why a row of stated variances is not a measurement, by the code :func:`implausible_rows` gives (0: plausible).
+_WHY = ("", "not finite", "-1 (REP 145: no estimate)", "negative", "zero (unknown)", "placeholder")
+
+
+def implausible_rows(diag: np.ndarray) -> np.ndarray:
+    """:func:`implausible` of every row of ``diag`` (N, 3) at once, as codes into the reasons (0: plausible); a
+    column at a time (``blocks.finite_rows``), logarithms only of the values a placeholder can be."""
+    diag = np.asarray(diag, dtype=float)
+    cols = [diag[:, k] for k in range(diag.shape[1])]
+    finite, zero, negative, extreme = finite_rows(diag), cols[0] == 0, cols[0] < 0, np.zeros(diag.shape[0], bool)
+    for c in cols[1:]:
+        zero |= c == 0
+        negative |= c < 0
+    for c in cols:
+        extreme |= (c >= PLACEHOLDER_ABOVE) | ((c <= PLACEHOLDER_BELOW) & (c > 0))
+    placeholder = np.zeros(diag.shape[0], bool)
+    if (where := np.flatnonzero(extreme & finite & ~zero & ~negative)).size:
+        sub = diag[where]
+        exp = np.log10(sub)
+        exact = np.abs(exp - np.round(exp)) <= 1e-9  # as implausible() judges exact powers of ten
+        placeholder[where] = (exact & ((sub >= PLACEHOLDER_ABOVE) | (sub <= PLACEHOLDER_BELOW))).any(axis=1)
+    code = np.zeros(diag.shape[0], np.int8)
+    for value, rows in ((5, placeholder), (4, zero), (3, negative), (2, cols[0] == -1), (1, ~finite)):
+        code[rows] = value  # the first reason of implausible() wins: written last
+    return code
+
+
+def stated_from_rows(rows: Rows, role: str) -> StatedNoise | None:
+    """The noise ``rows`` (one decoded velocity topic) state for ``role``, every message's diagonal judged: the
+    median of the plausible ones, with a note of how many were not and from when; None when the type states none.
+    A topic with more implausible messages than plausible ones is given with its ``problem`` (the values it
+    states cannot be believed for the whole log)."""
+    column = STATED_COLUMNS.get((role, rows.msgtype))
+    steps = np.diff(np.sort(rows.t_ns[:SAMPLE_MESSAGES])) * 1e-9
+    steps = steps[steps > 0]
+    if column is None or steps.size == 0:
         return None
-    return cov[list(idx)]
+    period = float(np.median(steps))
+    diag = rows.values[:, LAYOUTS[rows.msgtype].columns[column]]
+    if equal_rows(diag, np.broadcast_to(diag[0], diag.shape)).all():  # drivers state one constant: judged once
+        why = implausible(diag[0])
+        sigma = np.sqrt(diag[0]) if why is None else np.full(3, np.nan)
+        return StatedNoise(rows.topic, sigma, period, why)
+    code = implausible_rows(diag)
+    bad = np.flatnonzero(code)
+    if bad.size == 0:
+        return StatedNoise(rows.topic, np.sqrt(np.median(diag, axis=0)), period)
+    n = code.size
+    first = bad[0]
+    why = implausible(diag[first]) or _WHY[code[first]]
+    span = (rows.t_ns[bad[[0, -1]]] - rows.t_ns.min()) * 1e-9
+    rejected = (
+        f"{bad.size} of {n} messages state {why}"
+        + (" and other implausible values" if np.unique(code[bad]).size > 1 else "")
+        + f" (between {span[0]:.4g} and {span[1]:.4g} s of the topic)"
+    )
+    if 2 * bad.size > n:
+        return StatedNoise(rows.topic, np.full(3, np.nan), period, rejected if bad.size < n else why, rejected)
+    good = np.ones(n, bool)
+    good[bad] = False
+    sigma = np.sqrt(np.median(diag[good], axis=0))
+    return StatedNoise(rows.topic, sigma, period, rejected=f"{rejected}; the median of the other {n - bad.size} used")
 
 
 def stated_noise(
     path: str | Path, topics: dict[str, str], roles: tuple[str, ...] = ("angular_velocity", "linear_velocity")
 ) -> dict[str, StatedNoise]:
-    """Role -> the noise stated by the first messages of that role's topic (roles without one are left out;
-    a topic whose messages state only implausible values (:func:`implausible`) is given with its ``problem``).
+    """Role -> the noise stated by every message of that role's topic (:func:`stated_from_rows`; roles without one
+    are left out). A run takes them from its read (``LogStreams.stated_covariance``); this reads the topics again.
 
     A topic whose messages cannot be read here is treated as stating nothing (the run reads it properly and
     reports any damage itself).
@@ -98,31 +150,10 @@ def stated_noise(
             complete_definitions(reader)
             table = topics_of(reader)
             for role, topic in wanted.items():
-                if topic not in table:
-                    continue
-                meta, conns = table[topic]
-                if meta.msgtype != _IMU and meta.msgtype not in _TWIST_COV:
-                    continue
-                diags, stamps, problems = [], [], []
-                for conn, _rec, raw in iter_raw(reader, path, conns):
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    diag = _diagonal(msg, conn.msgtype, role)
-                    if diag is not None:
-                        if (problem := implausible(diag)) is None:
-                            diags.append(diag)
-                        else:
-                            problems.append(problem)
-                    stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
-                    if len(stamps) >= SAMPLE_MESSAGES:
-                        break
-                steps = np.diff(np.sort(np.asarray(stamps, dtype=np.int64))) * 1e-9
-                steps = steps[steps > 0]
-                if steps.size == 0 or not (diags or problems):
-                    continue
-                if not diags:
-                    found[role] = StatedNoise(topic, np.full(3, np.nan), float(np.median(steps)), problems[0])
-                    continue
-                found[role] = StatedNoise(topic, np.sqrt(np.median(np.array(diags), axis=0)), float(np.median(steps)))
+                if topic in table and (role, table[topic][0].msgtype) in STATED_COLUMNS:
+                    stated = stated_from_rows(decode_rows(reader, path, topic, table[topic][1]), role)
+                    if stated is not None:
+                        found[role] = stated
     except (InputError, AttributeError, KeyError, TypeError, ValueError):
         return found
     return found

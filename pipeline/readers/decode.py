@@ -410,9 +410,9 @@ def _dominant(
     return names[best]
 
 
-#: Rows at most this wide are shared by the streams cut from them when no cleaning was needed (an IMU row
-#: holds the gyro and the accelerometer); wider rows (odometry) are copied so unused columns can go.
-SHARE_WIDTH = 6
+#: Rows at most this wide are shared by the streams cut from them when no cleaning was needed (an IMU row: the gyro,
+#: the accelerometer and the gyro's stated variances); wider rows (odometry) are copied so unused columns can go.
+SHARE_WIDTH = 9
 
 
 def _is_identity(idx: np.ndarray, n: int) -> bool:

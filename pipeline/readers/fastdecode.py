@@ -91,6 +91,9 @@ class _Probe:
     def __getattr__(self, name: str) -> _Probe:
         return _Probe((*self.path, name))
 
+    def __getitem__(self, index: int) -> _Probe:  # an element of a fixed array of numbers, e.g. a covariance's
+        return _Probe((*self.path, str(index)))
+
 
 def layout_paths(
     row: Callable[[Any], Any],
@@ -225,8 +228,14 @@ def walk_fields(
             else:
                 return False
         elif node == _ARRAY and detail[0][0] == _BASE and detail[0][1][0] in _PRIMITIVES:
-            size, _ = _PRIMITIVES[detail[0][1][0]]
-            ops.append(Op("skip", size if cdr else 1, size * detail[1]))
+            size, kind = _PRIMITIVES[detail[0][1][0]]
+            slots = [want.get((*path, str(k)), -1) for k in range(detail[1])]  # elements read, e.g. a diagonal
+            if max(slots) < 0:
+                ops.append(Op("skip", size if cdr else 1, size * detail[1]))
+            for slot in slots if max(slots) >= 0 else ():
+                if slot >= 0:
+                    leaves[slot] = (size, kind)
+                ops.append(Op("leaf" if slot >= 0 else "skip", size if cdr else 1, size, slot))
         elif node == _ARRAY and detail[0][0] == _NAME:
             for k in range(detail[1]):
                 if not walk_fields(typestore, detail[0][1], (*path, str(k)), cdr, want, strings, ops, leaves):

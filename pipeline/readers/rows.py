@@ -85,20 +85,48 @@ def quat(q: Any) -> tuple[float, float, float, float]:
     return (q.x, q.y, q.z, q.w)
 
 
+def diagonal(cov: Any, n: int, first: int = 0) -> tuple[float, ...]:
+    """Three diagonal entries of a row-major ``n`` x ``n`` covariance, from ``first`` on (the stated variances of a
+    velocity: every message's are read, so :mod:`.covariance` judges the whole stream, not its first messages)."""
+    return tuple(cov[(first + k) * (n + 1)] for k in range(3))
+
+
+#: The stated variances' columns of each velocity role, by message type (``LAYOUTS``' column names).
+STATED_COLUMNS: dict[tuple[str, str], str] = {
+    ("angular_velocity", IMU): "angular_velocity_covariance",
+    ("angular_velocity", ODOMETRY): "angular_covariance",
+    ("linear_velocity", ODOMETRY): "linear_covariance",
+    ("angular_velocity", TWIST_COV_STAMPED): "angular_covariance",
+    ("linear_velocity", TWIST_COV_STAMPED): "linear_covariance",
+}
+
 LAYOUTS: dict[str, Layout] = {
     IMU: Layout(
-        {"angular_velocity": slice(0, 3), "linear_acceleration": slice(3, 6)},
-        6,
-        lambda m: (*vec(m.angular_velocity), *vec(m.linear_acceleration)),
+        {
+            "angular_velocity": slice(0, 3),
+            "linear_acceleration": slice(3, 6),
+            "angular_velocity_covariance": slice(6, 9),
+        },
+        9,
+        lambda m: (*vec(m.angular_velocity), *vec(m.linear_acceleration), *diagonal(m.angular_velocity_covariance, 3)),
     ),
     ODOMETRY: Layout(
-        {"linear": slice(0, 3), "angular": slice(3, 6), "position": slice(6, 9), "quat_xyzw": slice(9, 13)},
-        13,
+        {
+            "linear": slice(0, 3),
+            "angular": slice(3, 6),
+            "position": slice(6, 9),
+            "quat_xyzw": slice(9, 13),
+            "linear_covariance": slice(13, 16),
+            "angular_covariance": slice(16, 19),
+        },
+        19,
         lambda m: (
             *vec(m.twist.twist.linear),
             *vec(m.twist.twist.angular),
             *vec(m.pose.pose.position),
             *quat(m.pose.pose.orientation),
+            *diagonal(m.twist.covariance, 6),
+            *diagonal(m.twist.covariance, 6, 3),
         ),
         child=lambda m: m.child_frame_id,
     ),
@@ -109,9 +137,19 @@ LAYOUTS: dict[str, Layout] = {
     ),
     MAGNETIC_FIELD: Layout({"magnetic_field": slice(0, 3)}, 3, lambda m: vec(m.magnetic_field)),
     TWIST_COV_STAMPED: Layout(
-        {"linear": slice(0, 3), "angular": slice(3, 6)},
-        6,
-        lambda m: (*vec(m.twist.twist.linear), *vec(m.twist.twist.angular)),
+        {
+            "linear": slice(0, 3),
+            "angular": slice(3, 6),
+            "linear_covariance": slice(6, 9),
+            "angular_covariance": slice(9, 12),
+        },
+        12,
+        lambda m: (
+            *vec(m.twist.twist.linear),
+            *vec(m.twist.twist.angular),
+            *diagonal(m.twist.covariance, 6),
+            *diagonal(m.twist.covariance, 6, 3),
+        ),
     ),
     POSE_STAMPED: Layout(
         {"position": slice(0, 3), "quat_xyzw": slice(3, 7)},
