@@ -464,8 +464,8 @@ def inspect_log(
     tree and each sensor frame's transform into the body frame.
 
     ``msg_dir`` supplies ``pkg/msg/Type.msg`` definitions the log lacks (see ``read_log``). ``frames``: the keyword
-    arguments of :func:`.tf_tree.tf_summary` a config gives (``body_frame``, ``identity``, ``cameras_given``). A
-    truncated log is summarised from what could be recovered, with a warning saying so.
+    arguments of :func:`.tf_tree.tf_summary` a config gives (``body_frame``, ``identity``, ``override``,
+    ``cameras_given``). A truncated log is summarised from what could be recovered, with a warning saying so.
 
     Raises:
         InputError: The log cannot be opened or read.

@@ -238,13 +238,14 @@ def _frame_of(reader: Any, conns: Iterable[Any], msgtype: str, role: str) -> str
     """The frame a run reads the role's samples in, from the topic's first message (the odometry's child frame for
     its twist); None when the message cannot be read here."""
     frame_from = VEC3_ROLES[role, msgtype][1] if (role, msgtype) in VEC3_ROLES else "frame"
-    for _, _, raw in reader.messages(connections=list(conns)):
-        try:
+    try:
+        for _, _, raw in reader.messages(connections=list(conns)):
             msg = reader.deserialize(raw, msgtype)
-        except Exception:  # noqa: BLE001 - a message info cannot read names no frame; run says why
-            return None
-        value = msg.child_frame_id if frame_from == "child" else getattr(getattr(msg, "header", None), "frame_id", None)
-        return value.lstrip("/") if isinstance(value, str) else None
+            value = getattr(msg, "child_frame_id", None) if frame_from == "child" else None
+            value = getattr(getattr(msg, "header", None), "frame_id", None) if frame_from == "frame" else value
+            return value.lstrip("/") if isinstance(value, str) else None
+    except Exception:  # noqa: BLE001 - a message info cannot read names no frame; inspect_log's notes and run say why
+        return None
     return None
 
 
