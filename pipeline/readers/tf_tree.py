@@ -244,7 +244,7 @@ def _frame_of(reader: Any, conns: Iterable[Any], msgtype: str, role: str) -> str
             value = getattr(msg, "child_frame_id", None) if frame_from == "child" else None
             value = getattr(getattr(msg, "header", None), "frame_id", None) if frame_from == "frame" else value
             return value.lstrip("/") if isinstance(value, str) else None
-    except Exception:  # noqa: BLE001 - a message info cannot read names no frame; inspect_log's notes and run say why
+    except (Exception, InputError):  # noqa: BLE001 - a message info cannot read names no frame; run says why
         return None
     return None
 
