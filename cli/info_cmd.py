@@ -42,8 +42,9 @@ def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: 
         if noise:
             _noise(log, msg_dir, config_path, as_json)
             return
-        summary = inspect_log(log, msg_dir=msg_dir)
-        ready = readiness(summary, _config(config_path))
+        config = _config(config_path)
+        summary = inspect_log(log, msg_dir=msg_dir, frames=_frames(config))
+        ready = readiness(summary, config)
     if as_json:
         click.echo(json.dumps({**summary.to_dict(), "readiness": ready.to_dict()}, indent=2))
     else:
@@ -55,6 +56,18 @@ def _config(config_path: Path | None):
     from slamobs.pipeline.config import load_config
 
     return None if config_path is None else load_config(config_path)
+
+
+def _frames(config) -> dict | None:
+    """What the config says of frames that ``info``'s TF section needs (the body, the frames taken as it, cameras)."""
+    if config is None:
+        return None
+    return {
+        "body_frame": config.frames.body,
+        "identity": config.frames.assume_identity,
+        "override": config.frames.override_identity,
+        "cameras_given": bool(config.cameras),
+    }
 
 
 def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: bool) -> None:

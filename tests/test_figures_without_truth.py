@@ -114,6 +114,33 @@ def test_report_without_truth_draws_the_figures_again(run_dir):
     assert as_json["path_length_m"] > 1.0
 
 
+def test_report_json_without_trajectory_truth_carries_every_number_of_report_md(run_dir):
+    """h-user11: with landmark truth and no trajectory truth, `report --json` lacked the map error report.md shows
+    (its one error number), and said what none of its numbers were."""
+    out, _ = run_dir
+    as_json = json.loads(invoke("report", out, "--json").stdout)
+    md = (out / "report.md").read_text()
+    rows = [line.split(" | ") for line in md.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert {r[0].removeprefix("| ") for r in rows} >= {"map_error_rmse", "map_error_max", "map_error_landmarks"}
+    for key, shown, meaning in rows:
+        key = key.removeprefix("| ")
+        value = as_json[key]
+        assert shown == (
+            "–"
+            if value is None
+            else ", ".join(f"{v:.4g}" for v in value)
+            if isinstance(value, list)
+            else f"{value:.6g}"
+            if isinstance(value, float)
+            else str(value)
+        ), key
+        assert as_json["definitions"][key] == meaning.removesuffix(" |") != "", key
+    run = json.loads((out / "run.json").read_text())
+    assert as_json["map_error_rmse"] == run["map_error"]["error_m"]["rmse"]
+    assert as_json["map_error"] == run["map_error"] and as_json["truth"] == "landmarks only"
+    assert as_json["notes"] == run["notes"] and as_json["figures"] == run["figures"]
+
+
 def test_a_run_with_truth_adds_its_own_figures_to_the_report(log, tmp_path):
     out, config = tmp_path / "out", tmp_path / "all.yaml"
     config.write_text("evaluation:\n  plots: all\n")

@@ -530,6 +530,35 @@ SUMMARY_MEANING = {
 NO_TRUTH_NOTE = "no ground truth in the log: no error report (report.md and the figures show the estimate)"
 
 
+def summary_rows(info: dict[str, Any], map_error: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The numbers of a run without trajectory truth, as report.md's table shows them (each defined in
+    :data:`SUMMARY_MEANING`): :func:`summary`'s, and with landmark truth the map error of ``run.json`` ``map_error``."""
+    rows = {k: v for k, v in info.items() if k != "figures"}
+    if map_error is not None:
+        err = map_error["error_m"]
+        rows.update(map_error_rmse=err["rmse"], map_error_max=err["max"], map_error_landmarks=map_error["n_matched"])
+        if check := map_error.get("sigma_check"):
+            rows.update(map_error_nees=check["mean_nees"], map_error_over_sigma=check["error_over_sigma_median"])
+    return rows
+
+
+def summary_json(
+    info: dict[str, Any], figures: list[str], notes: list[str] = (), map_error: dict[str, Any] | None = None
+) -> dict[str, Any]:
+    """``slamobs report --json`` of a run without trajectory truth: every number report.md shows
+    (:func:`summary_rows`), ``definitions`` saying what each is and its unit, the notes and figures, and with
+    landmark truth run.json's ``map_error`` whole (its alignment, per-landmark errors, σ check)."""
+    rows = summary_rows(info, map_error)
+    return {
+        **rows,
+        "definitions": {k: SUMMARY_MEANING.get(k, "") for k in rows},
+        "truth": "landmarks only" if map_error is not None else "none",
+        "map_error": map_error,
+        "notes": list(notes),
+        "figures": list(figures),
+    }
+
+
 def summary_markdown(
     info: dict[str, Any], figures: list[str], notes: list[str] = (), map_error: dict[str, Any] | None = None
 ) -> str:
@@ -553,13 +582,7 @@ def summary_markdown(
         )
     lines.append("Give truth with `slamobs report RUN --truth ...` for the error report.")
     lines += ["", "| quantity | value | meaning |", "|---|---|---|"]
-    rows = dict(info)
-    if map_error is not None:
-        err = map_error["error_m"]
-        rows.update(map_error_rmse=err["rmse"], map_error_max=err["max"], map_error_landmarks=map_error["n_matched"])
-        if check := map_error.get("sigma_check"):
-            rows.update(map_error_nees=check["mean_nees"], map_error_over_sigma=check["error_over_sigma_median"])
-    for key, value in rows.items():
+    for key, value in summary_rows(info, map_error).items():
         shown = ", ".join(f"{v:.4g}" for v in value) if isinstance(value, list) else value
         shown = f"{shown:.6g}" if isinstance(shown, float) else "–" if shown is None else shown
         lines.append(f"| {key} | {shown} | {SUMMARY_MEANING.get(key, '')} |")

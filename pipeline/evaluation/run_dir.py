@@ -361,22 +361,23 @@ def report_run(
 
 def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
     """A run without truth: draw its figures and write report.md (what the run did, the figures) again, replacing
-    the report files atomically as :func:`report_run` does; returns the summary and the paths written."""
-    from slamobs.pipeline.evaluation.figure_jobs import summary, write_run_figures
+    the report files atomically as :func:`report_run` does; returns what ``report --json`` prints (every number of
+    report.md with its definition: ``figure_jobs.summary_json``) and the paths written."""
+    from slamobs.pipeline.evaluation.figure_jobs import summary, summary_json, write_run_figures
 
     run = load_run(run_dir)
     tables = _tables(run)
-    info = summary(tables)
+    notes, map_error = list(run.meta.get("notes") or []), run.meta.get("map_error")
+    figures: list[str] = []
 
     def fill(staged: Path) -> None:
-        drawn = write_run_figures(
-            staged, tables, list(run.meta.get("notes") or []), map_error=run.meta.get("map_error")
-        )
-        info["figures"] = [p.name for p in drawn if p.suffix == ".png"]
-        meta = {**run.meta, "figures": info["figures"]}
+        drawn = write_run_figures(staged, tables, notes, map_error=map_error)
+        figures.extend(p.name for p in drawn if p.suffix == ".png")
+        meta = {**run.meta, "figures": figures}
         (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
-    return info, _replace_report_files(run, fill)
+    written = _replace_report_files(run, fill)
+    return summary_json(summary(tables), figures, notes, map_error), written
 
 
 def _tables(run) -> dict[str, Any]:

@@ -732,15 +732,21 @@ def clean_frames(
 TF_FAST_MESSAGES = 1000
 
 
-def decode_tf(reader: AnyReader, path: str | Path, topic: str, connections: Collection[Connection]) -> TfRows:
+def decode_tf(
+    reader: AnyReader,
+    path: str | Path,
+    topic: str,
+    connections: Collection[Connection],
+    fast_from: int = TF_FAST_MESSAGES,
+) -> TfRows:
     """Flatten the transforms of a TF topic into columns (each message may hold many edges).
 
     The standard TF layouts are decoded batch-wise from the raw bytes by :mod:`.tfdecode`; a log whose stored
-    definition differs, and a topic of fewer than ``TF_FAST_MESSAGES`` messages (``/tf_static``, a few tag
+    definition differs, and a topic of fewer than ``fast_from`` messages (``/tf_static``, a few tag
     frames: rosbags reads them in milliseconds, and their compiled decoder need not be loaded or compiled),
     are deserialised message by message by rosbags (the same values and frame numbering).
     """
-    if sum(c.msgcount for c in connections) >= TF_FAST_MESSAGES:
+    if sum(c.msgcount for c in connections) >= fast_from:
         if (fast := tfdecode.read_tf(reader, path, topic, connections)) is not None:
             return fast
     frames = Frames()

@@ -46,6 +46,7 @@ from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
 from .msgdefs import complete_definitions
 from .roles import ODOMETRY, ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
 from .rows import frame_name
+from .tf_tree import TfSummary, tf_summary
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -110,6 +111,7 @@ class LogInfo:
     warnings: tuple[str, ...] = ()
     record_clock: str | None = None  # "wall" or "sim"
     clock_reference: str | None = None  # topic the relative offsets refer to
+    tf: TfSummary | None = None  # the TF tree and each sensor frame's transform into the body frame
 
     @property
     def duration_s(self) -> float:
@@ -455,11 +457,15 @@ def _static_tf_notes(reader, path: str | Path, table: dict) -> list[str]:
     return [f"{topic}: {w}" for w in warnings]
 
 
-def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
-    """Summarise a log: container, time span, per-topic type/count/frames/stamps/clocks, detected roles.
+def inspect_log(
+    path: str | Path, msg_dir: str | Path | None = None, frames: Mapping[str, Any] | None = None
+) -> LogInfo:
+    """Summarise a log: container, time span, per-topic type/count/frames/stamps/clocks, detected roles, the TF
+    tree and each sensor frame's transform into the body frame.
 
-    ``msg_dir`` supplies ``pkg/msg/Type.msg`` definitions the log lacks (see ``read_log``). A truncated
-    log is summarised from what could be recovered, with a warning saying so.
+    ``msg_dir`` supplies ``pkg/msg/Type.msg`` definitions the log lacks (see ``read_log``). ``frames``: the keyword
+    arguments of :func:`.tf_tree.tf_summary` a config gives (``body_frame``, ``identity``, ``override``,
+    ``cameras_given``). A truncated log is summarised from what could be recovered, with a warning saying so.
 
     Raises:
         InputError: The log cannot be opened or read.
@@ -476,6 +482,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         start = reader.start_time if count else None
         end = reader.end_time - 1 if count else None
         warnings = [*damage_notes(reader), *selection.warnings, *gyro_notes, *_static_tf_notes(reader, path, table)]
+        tf = tf_summary(reader, path, table, gyro_roles, **(frames or {}))
         notes = {}
         for topic, (meta, _) in table.items():
             if meta.msgtype not in reader.typestore.fielddefs:
@@ -542,6 +549,7 @@ def inspect_log(path: str | Path, msg_dir: str | Path | None = None) -> LogInfo:
         tuple(warnings),
         record_clock,
         reference,
+        tf,
     )
 
 
@@ -626,6 +634,8 @@ def format_info(info: LogInfo) -> str:
     lines += ["", "  roles"]
     roles = [(f"  {role}", info.roles[role]) for role in ROLES if role in info.roles]
     lines += _table(("", ""), roles, set())[1:] if roles else ["    none detected"]
+    if info.tf is not None and (info.tf.edges or info.tf.sensors):
+        lines += ["", *info.tf.lines()]
     if info.warnings:
         lines += ["", "  warnings", *(f"    {w}" for w in info.warnings)]
     return "\n".join(lines)
