@@ -14,7 +14,17 @@ from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian, so3_log
 from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
-from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PLANAR_HEIGHT, RiEKF, accumulate, flush, update
+from slamobs.pipeline.observers.riekf import (
+    CONSISTENCY_WINDOWS,
+    N_FIXED,
+    N_SLOTS,
+    PLANAR_HEIGHT,
+    WIN_SUM_ROWS,
+    RiEKF,
+    accumulate,
+    flush,
+    update,
+)
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from cli_checks import SAMPLES
 
@@ -150,7 +160,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
         np.zeros(9, np.int64),
         np.zeros(n_lm, np.bool_),
         np.zeros(n_lm, np.bool_),
-        np.zeros((8, 7)),  # the consistency check's sums, the velocity-bias walk's
+        np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)),  # the consistency check's sums, the walk's, the tally
         np.zeros(1),  # the innovations after a blind stretch (none here)
     )
     assert d_out == d + 3 and slot_of[3] == 3 and slot_lm[3] == 3

@@ -185,6 +185,10 @@ MAX_SIGMA_SHARE = 0.25
 #: 3 DoF, 90 %) above which the filter is overconfident.
 OVERCONFIDENT_D2 = 6.25
 CONSISTENCY_WINDOWS = 7
+#: Rows of the window sums ``win_sum`` (columns: ``CONSISTENCY_WINDOWS``): the window's summed innovations and their
+#: covariance (0-3), the consistency ring (4), the bias corrections (5-7), the run's innovation tally (8,
+#: :func:`innovation_consistency`). Public: tests that call :func:`update` allocate it.
+WIN_SUM_ROWS = 9
 #: Velocity-bias walk (module docstring): over the last ``CONSISTENCY_WINDOWS`` passing windows, the ratio of the
 #: squared velocity-bias corrections to what a consistent filter expects of them above which the walk is raised
 #: (first time; ``WALK_RATIO_AGAIN`` once raised), and the largest factor on its standard deviation in all.
@@ -1521,7 +1525,7 @@ class _State(KernelState):
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
         self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
         # the window's summed accepted innovations and their covariance; the last windows' d² (_consistency_check)
-        self.win_sum = np.zeros((9, CONSISTENCY_WINDOWS))
+        self.win_sum = np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS))
         self.blind_z2 = np.zeros(BLIND_WINDOW + max(n_max, 1))  # |z|² of the detections after a blind stretch
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
