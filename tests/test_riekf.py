@@ -14,7 +14,17 @@ from slamobs.pipeline.lie import skew, so3_exp, so3_left_jacobian, so3_log
 from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
-from slamobs.pipeline.observers.riekf import N_FIXED, N_SLOTS, PLANAR_HEIGHT, RiEKF, accumulate, flush, update
+from slamobs.pipeline.observers.riekf import (
+    CONSISTENCY_WINDOWS,
+    N_FIXED,
+    N_SLOTS,
+    PLANAR_HEIGHT,
+    WIN_SUM_ROWS,
+    RiEKF,
+    accumulate,
+    flush,
+    update,
+)
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from cli_checks import SAMPLES
 
@@ -150,7 +160,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
         np.zeros(9, np.int64),
         np.zeros(n_lm, np.bool_),
         np.zeros(n_lm, np.bool_),
-        np.zeros((8, 7)),  # the consistency check's sums, the velocity-bias walk's
+        np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)),  # the consistency check's sums, the walk's, the tally
         np.zeros(1),  # the innovations after a blind stretch (none here)
     )
     assert d_out == d + 3 and slot_of[3] == 3 and slot_lm[3] == 3
@@ -425,3 +435,37 @@ def test_the_floor_held_or_not_by_the_switch_whatever_the_evidence():
     assert not planar["planar"] and not planar["held"]
     *_, planar, _ = _ground_run(floor=True, scenario="figure8")
     assert not planar["planar"] and planar["held"] and planar["floor"] is True
+
+
+def _figure8_map(detection_share: float) -> tuple[dict, np.ndarray, np.ndarray]:
+    """riekf on 20 s of the figure-8 (the simulator's noise, started at the true pose) told ``detection_share`` of
+    the true detection noise: run.json's innovation record, the written landmark covariances and their errors."""
+    sc = get_scenario("figure8")
+    sim = simulate(sc, duration=20.0, seed=9647)
+    stream = align(expected_streams(sim), keep_directions=False)
+    law = {k: detection_share * DEFAULTS[k][0] for k in ("detection", "detection_per_m")}
+    noise = resolve_noise(NoiseConfig(**law))
+    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
+    filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
+    filt.advance(filt.n_vel)
+    cov = filt.landmark_covariance()
+    seen = np.isfinite(cov).all(axis=(1, 2))
+    err = filt.lm[seen, :3] - sc.landmarks[np.searchsorted(sc.landmark_ids, stream.landmark_ids[seen])]
+    rec = filt.stats["metadata"]["filter"]["innovation_consistency"] | {"notes": filt.stats["notes"]}
+    return rec, cov[seen], err
+
+
+def test_riekf_map_covariance_is_scaled_by_its_innovations_only_when_they_say_it_is_too_small():
+    """Told the true detection noise, the windows' summed innovations lie within their bound and the map's
+    covariance is the filter's (factor 1, no note). Told half of it (a quarter of the variance), the mean d² of the
+    windows' summed innovations is far above its bound; the written landmark covariance is the filter's times that
+    mean over 3, and its NEES is nearer 3 than the filter's own (3.15 against 8.55)."""
+    rec, _, _ = _figure8_map(1.0)
+    assert rec["windows"] > 5 and rec["mean_window_d2"] < rec["bound"]
+    assert rec["landmark_covariance_factor"] == 1.0 and not any("innovations are larger" in n for n in rec["notes"])
+    rec, cov, err = _figure8_map(0.5)
+    factor = rec["landmark_covariance_factor"]
+    assert rec["mean_window_d2"] > rec["bound"] and factor == pytest.approx(rec["mean_window_d2"] / 3.0)
+    assert factor > 2.0 and sum("innovations are larger" in n for n in rec["notes"]) == 1
+    nees = np.mean(np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0]))
+    assert abs(np.log(nees / 3.0)) < abs(np.log(nees * factor / 3.0)), (nees, factor)

@@ -22,6 +22,7 @@ from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
 from slamobs.pipeline import kernel_cache
 from slamobs.pipeline.kernel_cache import KERNEL_ROWS, njit
 from slamobs.pipeline.lie import quats_to_rots
+from slamobs.pipeline.noise import chi2_quantile, nees_bounds  # noqa: F401 (the report's bounds, defined with riekf's)
 from slamobs.pipeline.simd import fma
 
 __all__ = [
@@ -432,45 +433,6 @@ def rpe_errors(
     # their printed digits, and evo uses them as they are
     t_err = np.einsum("nji,nj->ni", q_rot, p_t) - np.einsum("nji,nj->ni", q_rot, q_t)
     return _error_pose_norms(relation, q_rot, p_rot, t_err)
-
-
-#: Degrees of freedom from which the χ² quantile is the Wilson–Hilferty approximation (below: exact).
-WILSON_HILFERTY_DOF = 30
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """The ``p`` quantile of the χ² distribution with ``dof`` degrees of freedom: bisection on the CDF (the
-    incomplete gamma series) below ``WILSON_HILFERTY_DOF``, the Wilson–Hilferty approximation from there on
-    (relative error below 0.5 % at 2.5 % and 97.5 % for 30 degrees of freedom, smaller for more)."""
-    import math
-    from statistics import NormalDist
-
-    if dof >= WILSON_HILFERTY_DOF:
-        z = NormalDist().inv_cdf(p)
-        return dof * max(1.0 - 2.0 / (9 * dof) + z * math.sqrt(2.0 / (9 * dof)), 0.0) ** 3
-
-    def cdf(x: float) -> float:
-        a, h = dof / 2.0, x / 2.0
-        term = total = 1.0 / a
-        n = 0
-        while term > 1e-16 * total:
-            n += 1
-            term *= h / (a + n)
-            total += term
-        return math.exp(a * math.log(h) - h - math.lgamma(a)) * total if h > 0 else 0.0
-
-    lo, hi = 0.0, dof + 20.0 * math.sqrt(2.0 * dof) + 20.0
-    for _ in range(80):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if cdf(mid) < p else (lo, mid)
-    return 0.5 * (lo + hi)
-
-
-def nees_bounds(dof: int, n: int, confidence: float = 0.95) -> tuple[float, float]:
-    """Two-sided ``confidence`` bounds of the average of ``n`` independent NEES values of ``dof`` degrees of
-    freedom (ov_eval's consistency bounds): ``χ²(dof·n)`` quantiles divided by ``n``."""
-    a = (1.0 - confidence) / 2.0
-    return chi2_quantile(a, dof * n) / n, chi2_quantile(1.0 - a, dof * n) / n
 
 
 #: evo's statistics, in the order evo computes them

@@ -44,6 +44,14 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   windows of a consistent filter), the time and the median are recorded (run.json
   ``observer.filter.consistency``, a note: the covariance understates the error). Raising the velocity-bias walk
   on this test was tried and left out (docs/benchmarks.md, "riekf: overconfidence from the innovations").
+* The map's covariance scaled by the innovations (:func:`innovation_consistency`): over the whole run, the mean of
+  every passing window's d² (the test above) against the 97.5 % bound of a mean of that many χ² (3 DoF) values.
+  Above it, the errors the detections see are larger or more correlated than the covariance says by that mean over
+  3 (a variance component), and the written landmark covariance (landmarks.parquet ``cov_*``, ``sigma``) is
+  multiplied by it; run.json ``observer.filter.innovation_consistency`` holds the statistics and the factor (1
+  within the bound), with a note when it is above 1. The estimate and the pose covariance are unchanged. Errors the
+  detections cannot see (a camera's calibration, a tag's size, the truth's own) are not in it (docs/benchmarks.md,
+  "riekf's map σ on real logs").
 * Velocity-bias walk (learned from the log unless ``noise.velocity_bias_walk`` is given): variance matching on the
   bias states (Myers & Tapley 1976, Mohamed & Schwarz 1999: a state's corrections ``δx̂ = Kz`` have the covariance
   ``K S Kᵀ``, the downdate ``U Uᵀ`` of its rows, when the model is right). Over the last ``CONSISTENCY_WINDOWS``
@@ -124,6 +132,7 @@ from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
+from slamobs.pipeline.noise import nees_bounds
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -176,6 +185,10 @@ MAX_SIGMA_SHARE = 0.25
 #: 3 DoF, 90 %) above which the filter is overconfident.
 OVERCONFIDENT_D2 = 6.25
 CONSISTENCY_WINDOWS = 7
+#: Rows of the window sums ``win_sum`` (columns: ``CONSISTENCY_WINDOWS``): the window's summed innovations and their
+#: covariance (0-3), the consistency ring (4), the bias corrections (5-7), the run's innovation tally (8,
+#: :func:`innovation_consistency`). Public: tests that call :func:`update` allocate it.
+WIN_SUM_ROWS = 9
 #: Velocity-bias walk (module docstring): over the last ``CONSISTENCY_WINDOWS`` passing windows, the ratio of the
 #: squared velocity-bias corrections to what a consistent filter expects of them above which the walk is raised
 #: (first time; ``WALK_RATIO_AGAIN`` once raised), and the largest factor on its standard deviation in all.
@@ -952,6 +965,8 @@ def update(
             gated_lm[i] = True
             continue
         ns[_TAIL_GATED] = 0
+        win_sum[8, 0] += d2  # the run's accepted innovations' NIS (innovation_consistency)
+        win_sum[8, 1] += 1.0
         sel[m] = j
         for c in range(3):
             z[3 * m + c] = zi[c]
@@ -1159,6 +1174,8 @@ def _consistency_check(t, ns, win_sum, consistency_log):
     d2 = _mahalanobis3(win_sum[1:4, :3].copy(), win_sum[0])  # the summed innovations under their summed covariance
     if d2 == np.inf:  # no accepted innovation
         return
+    win_sum[8, 2] += d2  # the run's windows' d² (innovation_consistency)
+    win_sum[8, 3] += 1.0
     hist = win_sum[4]  # the last CONSISTENCY_WINDOWS windows' d2, in a ring
     hist[ns[_CONSISTENCY_N] % CONSISTENCY_WINDOWS] = d2
     ns[_CONSISTENCY_N] += 1
@@ -1508,7 +1525,7 @@ class _State(KernelState):
         self.win_z = np.zeros((self.win_d2.shape[0], 3))  # the window's innovations and their frames
         self.win_f = np.zeros(self.win_d2.shape[0], dtype=np.int64)
         # the window's summed accepted innovations and their covariance; the last windows' d² (_consistency_check)
-        self.win_sum = np.zeros((8, CONSISTENCY_WINDOWS))
+        self.win_sum = np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS))
         self.blind_z2 = np.zeros(BLIND_WINDOW + max(n_max, 1))  # |z|² of the detections after a blind stretch
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
@@ -1804,6 +1821,7 @@ class RiEKF(Stepper):
                 "final_bias_sigma": {"gyro": bias_sd[:3].tolist(), "velocity": bias_sd[3:].tolist()},
                 "noise": self.noise.as_dict(),
                 "planar": self._planar_record(),
+                "innovation_consistency": innovation_consistency(self.state.win_sum[8]),
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -1815,6 +1833,7 @@ class RiEKF(Stepper):
             self.stats["notes"] += time_offset_note("riekf", self._time_offset)
         if self.planar["planar"] or self.planar["held"]:
             self.stats["notes"].append(self._planar_note())
+        self.stats["notes"] += innovation_note(self.stats["metadata"]["filter"]["innovation_consistency"])
 
     def _planar_note(self) -> str:
         """The note of a floor held, or of planar motion seen with the floor switched off (``noise.floor``)."""
@@ -1853,7 +1872,8 @@ class RiEKF(Stepper):
         for n, i in enumerate(seen):
             j[n, :, :3] = -skew(self.lm[i, :3])
         out[seen] = np.einsum("nij,njk,nlk->nil", j, block, j)
-        return out
+        factor = innovation_consistency(st.win_sum[8])["landmark_covariance_factor"]
+        return out * factor if factor != 1.0 else out
 
     def _recovery(self) -> dict:
         """The recovery's record for run.json: status (``converged``, ``recovered`` or ``lost``), each recovery
@@ -1925,6 +1945,50 @@ class RiEKF(Stepper):
                 for r in self.state.walk_log[: min(int(ns[_WALK_RAISES]), MAX_LOG)]
             ],
         }
+
+
+#: The confidence of the bound on the run's mean window d² above which the map's covariance is scaled (two-sided, as
+#: the report's NEES bounds: its upper 97.5 %).
+INNOVATION_CONFIDENCE = 0.95
+INNOVATION_METHOD = (
+    "mean_nis: the mean Mahalanobis distance² of each accepted detection's innovation under its covariance S (3 DoF: "
+    "3 when S is right); mean_window_d2: the mean over the run's passing windows (WINDOW tested detections each) of "
+    "the d² of the window's summed accepted innovations under their summed covariances (a frame's cross blocks "
+    "included; 3 when the innovations are white with covariance S, larger when their errors are correlated); bound: "
+    "the upper 97.5 % bound of a mean of that many χ²(3) values, χ²(3n)/n; landmark_covariance_factor: "
+    "mean_window_d2 / 3 above the bound, else 1: the written landmark covariance is the filter's times it"
+)
+
+
+def innovation_consistency(tally: np.ndarray) -> dict:
+    """The run's innovations against their covariance (module docstring, "The map's covariance scaled by the
+    innovations"), from ``tally`` (row 8 of the state's ``win_sum``: the accepted detections' summed d² and count,
+    the passing windows' summed d² and count). Public: tests/test_riekf.py checks the factor."""
+    n_det, n_win = int(tally[1]), int(tally[3])
+    mean_d2 = float(tally[2] / n_win) if n_win else None
+    bound = nees_bounds(3, n_win, INNOVATION_CONFIDENCE)[1] if n_win else None
+    above = mean_d2 is not None and mean_d2 > bound
+    return {
+        "detections": n_det,
+        "mean_nis": float(tally[0] / n_det) if n_det else None,
+        "windows": n_win,
+        "mean_window_d2": mean_d2,
+        "bound": bound,
+        "landmark_covariance_factor": mean_d2 / 3.0 if above else 1.0,
+        "method": INNOVATION_METHOD,
+    }
+
+
+def innovation_note(rec: dict) -> list[str]:
+    """The note of a map covariance scaled by :func:`innovation_consistency`, else []."""
+    if rec["landmark_covariance_factor"] == 1.0:
+        return []
+    return [
+        f"riekf: the innovations are larger or more correlated than their covariance says (mean d² of "
+        f"{rec['windows']} windows' summed innovations {rec['mean_window_d2']:.3g}, above the 97.5 % bound "
+        f"{rec['bound']:.3g} of 3 DoF): the written landmark covariance is the filter's times "
+        f"{rec['landmark_covariance_factor']:.3g} (observer.filter.innovation_consistency); the poses' is not scaled"
+    ]
 
 
 def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise) -> dict:
