@@ -363,14 +363,21 @@ def _slip_run(drift: float, seed: int = 3) -> tuple[dict, float]:
     noise = resolve_noise(
         NoiseConfig(gyro=gyro, velocity=vel, detection=0.0021, detection_per_m2=0.006, detection_ratio=12.8)
     )
+    filt, cov, err = _true_start_map(sc, sim, stream, noise)
+    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov, err[..., None])[..., 0])
+    return filt.stats["metadata"]["filter"]["walk"] | {"notes": filt.stats["notes"]}, float(np.mean(nees))
+
+
+def _true_start_map(sc, sim, stream, noise) -> tuple[RiEKF, np.ndarray, np.ndarray]:
+    """riekf over the whole ``stream`` started at the scenario's true pose: the filter, the written covariances of
+    the landmarks it saw and their errors against the simulator's landmarks."""
     start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
     filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
     filt.advance(filt.n_vel)
     cov = filt.landmark_covariance()
     seen = np.isfinite(cov).all(axis=(1, 2))
     err = filt.lm[seen, :3] - sc.landmarks[np.searchsorted(sc.landmark_ids, stream.landmark_ids[seen])]
-    nees = np.einsum("ni,ni->n", err, np.linalg.solve(cov[seen], err[..., None])[..., 0])
-    return filt.stats["metadata"]["filter"]["walk"] | {"notes": filt.stats["notes"]}, float(np.mean(nees))
+    return filt, cov[seen], err
 
 
 def test_riekf_under_wheel_slip_learns_the_walk_from_the_start_and_its_map_covariance_is_honest():
@@ -445,14 +452,9 @@ def _figure8_map(detection_share: float) -> tuple[dict, np.ndarray, np.ndarray]:
     stream = align(expected_streams(sim), keep_directions=False)
     law = {k: detection_share * DEFAULTS[k][0] for k in ("detection", "detection_per_m")}
     noise = resolve_noise(NoiseConfig(**law))
-    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
-    filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
-    filt.advance(filt.n_vel)
-    cov = filt.landmark_covariance()
-    seen = np.isfinite(cov).all(axis=(1, 2))
-    err = filt.lm[seen, :3] - sc.landmarks[np.searchsorted(sc.landmark_ids, stream.landmark_ids[seen])]
+    filt, cov, err = _true_start_map(sc, sim, stream, noise)
     rec = filt.stats["metadata"]["filter"]["innovation_consistency"] | {"notes": filt.stats["notes"]}
-    return rec, cov[seen], err
+    return rec, cov, err
 
 
 def test_riekf_map_covariance_is_scaled_by_its_innovations_only_when_they_say_it_is_too_small():
