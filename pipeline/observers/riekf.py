@@ -546,50 +546,42 @@ def flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
         _settle(cov, d, lt, rt, dp)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
     """``out[o]`` (6×6): the pose covariance as :func:`flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
-    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
-    # F = [[ΣR̂h, 0], [Σ[P̂]×R̂h, ΣR̂h]] (rows ξ_R, ξ_P; columns b̃_Ω, b̃_V): its zero blocks skipped, each sum
-    # otherwise in the order of the dense 6-term loops (the zeros they added changed nothing: the same bits)
+    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch.
+    Output only (nothing the filter reads again), so its sums are free to be regrouped: ``FΣ_b + (FΣ_b)ᵀ +
+    FΣ_bbFᵀ = K + Kᵀ`` with ``K = F(Σ_b + ½Σ_bbFᵀ)``, two 6×6 products (F's zero block skipped) instead of three,
+    the upper triangle summed and mirrored, each ``a * b + c`` fused (``CONTRACT``): the same covariance to a few
+    units in the last place of its largest entries (docs/benchmarks.md, session 23)."""
+    # F = [[ΣR̂h, 0], [Σ[P̂]×R̂h, ΣR̂h]] (rows ξ_R, ξ_P; columns b̃_Ω, b̃_V)
     sr, spr = acc[_SR], acc[_SPR]
-    cbb = w[0]  # the pending bias block; g = F Σ_b,pose, gb = F Σ_bb
-    g, gb = w[1], w[2]
-    for i in range(6):
-        for k in range(6):
-            cbb[i, k] = cov[6 + i, 6 + k]
-    for k in range(3):
-        cbb[k, k] += q_bw * q_bw * acc_dt
-        cbb[3 + k, 3 + k] += q_bv * q_bv * acc_dt
-    for a in range(3):
-        for k in range(6):
-            v, vb = 0.0, 0.0
-            for e in range(3):
-                v += sr[a, e] * cov[6 + e, k]
-                vb += sr[a, e] * cbb[e, k]
-            g[a, k], gb[a, k] = v, vb
-            v, vb = 0.0, 0.0
-            for e in range(3):
-                v += spr[a, e] * cov[6 + e, k]
-                vb += spr[a, e] * cbb[e, k]
-            for e in range(3):
-                v += sr[a, e] * cov[9 + e, k]
-                vb += sr[a, e] * cbb[3 + e, k]
-            g[3 + a, k], gb[3 + a, k] = v, vb
-    for i in range(6):
-        for k in range(6):
-            v = g[i, k] + g[k, i]
-            if k < 3:
-                for e in range(3):
-                    v += gb[i, e] * sr[k, e]
-            else:
-                for e in range(3):
-                    v += gb[i, e] * spr[k - 3, e]
-                for e in range(3):
-                    v += gb[i, 3 + e] * sr[k - 3, e]
-            out[o, i, k] = cov[i, k] + v
+    cb, hh, s = w[0], w[1], w[2]  # ½ the pending bias block; H = Σ_(b, pose) + ½ Σ_bb Fᵀ; S
+    for e in range(6):
+        for c in range(6):
+            cb[e, c] = 0.5 * cov[6 + e, 6 + c]
+    for c in range(3):
+        cb[c, c] += 0.5 * (q_bw * q_bw * acc_dt)
+        cb[3 + c, 3 + c] += 0.5 * (q_bv * q_bv * acc_dt)
+    for e in range(6):
+        c0, c1, c2, c3, c4, c5 = cb[e, 0], cb[e, 1], cb[e, 2], cb[e, 3], cb[e, 4], cb[e, 5]
+        for a in range(3):
+            hh[e, a] = cov[6 + e, a] + (c0 * sr[a, 0] + c1 * sr[a, 1] + c2 * sr[a, 2])
+            v = c0 * spr[a, 0] + c1 * spr[a, 1] + c2 * spr[a, 2] + c3 * sr[a, 0] + c4 * sr[a, 1] + c5 * sr[a, 2]
+            hh[e, 3 + a] = cov[6 + e, 3 + a] + v
+    for k in range(6):  # s = K = F H
+        h0, h1, h2, h3, h4, h5 = hh[0, k], hh[1, k], hh[2, k], hh[3, k], hh[4, k], hh[5, k]
+        for a in range(3):
+            s[a, k] = sr[a, 0] * h0 + sr[a, 1] * h1 + sr[a, 2] * h2
+            v = spr[a, 0] * h0 + spr[a, 1] * h1 + spr[a, 2] * h2
+            s[3 + a, k] = v + sr[a, 0] * h3 + sr[a, 1] * h4 + sr[a, 2] * h5
+    for i in range(6):  # Σ_pose + K + Kᵀ, upper triangle, mirrored
+        for k in range(i, 6):
+            v = cov[i, k] + (s[i, k] + s[k, i])
+            out[o, i, k] = v
+            out[o, k, i] = v
     for a in range(3):
         for b in range(3):
             out[o, a, b] += acc[_QRR, a, b]
