@@ -664,14 +664,39 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 
 @subroutine(types.none)
 def _solve4(hp, chol, c, end):
-    """Rows ``c .. c + 3`` of ``L⁻¹ HΣ⁻`` in place (:func:`_gain`), the rows above them done: eight columns at a
-    time (:mod:`pipeline.simd`), each row above subtracted as one fused multiply-add in order, then the four rows
-    among themselves."""
+    """Rows ``c .. c + 3`` of ``L⁻¹ HΣ⁻`` in place (:func:`_gain`), the rows above them done: sixteen columns at a
+    time (two vectors of :mod:`pipeline.simd` a row: each of ``L``'s entries broadcast once for both), eight for the
+    last when the row is an odd number of vectors long; each row above subtracted as one fused multiply-add in
+    order, then the four rows among themselves."""
     i0, i1 = splat8(1.0 / chol[c, c]), splat8(1.0 / chol[c + 1, c + 1])
     i2, i3 = splat8(1.0 / chol[c + 2, c + 2]), splat8(1.0 / chol[c + 3, c + 3])
     l10, l20, l21 = splat8(-chol[c + 1, c]), splat8(-chol[c + 2, c]), splat8(-chol[c + 2, c + 1])
     l30, l31, l32 = splat8(-chol[c + 3, c]), splat8(-chol[c + 3, c + 1]), splat8(-chol[c + 3, c + 2])
-    for j in range(0, end, PAD):
+    j = 0
+    while j + 2 * PAD <= end:
+        x0, x1, x2, x3 = load8(hp, c, j), load8(hp, c + 1, j), load8(hp, c + 2, j), load8(hp, c + 3, j)
+        y0, y1 = load8(hp, c, j + PAD), load8(hp, c + 1, j + PAD)
+        y2, y3 = load8(hp, c + 2, j + PAD), load8(hp, c + 3, j + PAD)
+        for k in range(c):
+            h, g = load8(hp, k, j), load8(hp, k, j + PAD)
+            a0, a1, a2, a3 = (
+                splat8(-chol[c, k]),
+                splat8(-chol[c + 1, k]),
+                splat8(-chol[c + 2, k]),
+                splat8(-chol[c + 3, k]),
+            )
+            x0, x1, x2, x3 = fma8(a0, h, x0), fma8(a1, h, x1), fma8(a2, h, x2), fma8(a3, h, x3)
+            y0, y1, y2, y3 = fma8(a0, g, y0), fma8(a1, g, y1), fma8(a2, g, y2), fma8(a3, g, y3)
+        for q, v0, v1, v2, v3 in ((j, x0, x1, x2, x3), (j + PAD, y0, y1, y2, y3)):
+            u = mul8(v0, i0)
+            v = mul8(fma8(l10, u, v1), i1)
+            w = mul8(fma8(l21, v, fma8(l20, u, v2)), i2)
+            store8(hp, c, q, u)
+            store8(hp, c + 1, q, v)
+            store8(hp, c + 2, q, w)
+            store8(hp, c + 3, q, mul8(fma8(l32, w, fma8(l31, v, fma8(l30, u, v3))), i3))
+        j += 2 * PAD
+    if j < end:
         x0, x1, x2, x3 = load8(hp, c, j), load8(hp, c + 1, j), load8(hp, c + 2, j), load8(hp, c + 3, j)
         for k in range(c):
             h = load8(hp, k, j)
@@ -723,6 +748,14 @@ def _gain(hp, chol, z, k3, d):
             x0[r], x1[r], x2[r] = u, v, w
             x3[r] = (x3[r] - l30 * u - l31 * v - l32 * w) * i3
         c += 4
+    while c < k3 and end >= d:  # padded rows left (fewer than four): one at a time, eight columns a vector
+        inv = splat8(1.0 / chol[c, c])
+        for j in range(0, end, PAD):
+            x = load8(hp, c, j)
+            for k in range(c):
+                x = fma8(splat8(-chol[c, k]), load8(hp, k, j), x)
+            store8(hp, c, j, mul8(x, inv))
+        c += 1
     for c in range(c, k3):  # the rows left, one at a time
         x = hp[c, :d]
         for k in range(c):
