@@ -853,22 +853,36 @@ def _settle(cov, d, lt, rt, dp):
 
 
 @njit(cache=True, fastmath=CONTRACT)
-def _hp_row(hp, h, cov, dp, lt, rt, s, c, d):
-    """Row ``h`` of ``HΣ⁻``: ``Σ⁻[3 + c, :] − Σ⁻[s, :]`` (position axis ``c``, landmark row ``s``) with the pending
-    propagation (``dp``, the six terms) added: eight columns at a time (:mod:`pipeline.simd`) over padded rows, else
-    one at a time, the same operations in the same order either way."""
+def _hp_rows(hp, h, cov, dp, lt, rt, s, d):
+    """Rows ``h .. h + 2`` of ``HΣ⁻``: ``Σ⁻[3 + c, :] − Σ⁻[s + c, :]`` (position axis ``c``, the landmark's rows from
+    ``s``) with the pending propagation (``dp``, the six terms) added: eight columns of the three rows at a time
+    (:mod:`pipeline.simd`; the six rows of ``rt`` loaded once for the three) over padded rows, else one at a time, the
+    same operations in the same order either way."""
     end = min(hp.shape[1], cov.shape[1], dp.shape[1], rt.shape[1])
     end = end - end % PAD if end - end % PAD >= d else 0
-    l0, l1, l2, l3, l4, l5 = lt[0, s], lt[1, s], lt[2, s], lt[3, s], lt[4, s], lt[5, s]
-    a0, a1, a2, a3, a4, a5 = splat8(l0), splat8(l1), splat8(l2), splat8(l3), splat8(l4), splat8(l5)
     for j in range(0, end, PAD):
-        v = fma8(a0, load8(rt, 0, j), load8(cov, s, j))
-        v = fma8(a3, load8(rt, 3, j), fma8(a2, load8(rt, 2, j), fma8(a1, load8(rt, 1, j), v)))
-        v = fma8(a5, load8(rt, 5, j), fma8(a4, load8(rt, 4, j), v))
-        store8(hp, h, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
-    for r in range(end, d):
-        v = cov[s, r] + l0 * rt[0, r] + l1 * rt[1, r] + l2 * rt[2, r] + l3 * rt[3, r] + l4 * rt[4, r] + l5 * rt[5, r]
-        hp[h, r] = (cov[3 + c, r] + dp[c, r]) - v
+        r0, r1, r2 = load8(rt, 0, j), load8(rt, 1, j), load8(rt, 2, j)
+        r3, r4, r5 = load8(rt, 3, j), load8(rt, 4, j), load8(rt, 5, j)
+        for c in range(3):
+            sc = s + c
+            v = fma8(splat8(lt[0, sc]), r0, load8(cov, sc, j))
+            v = fma8(splat8(lt[3, sc]), r3, fma8(splat8(lt[2, sc]), r2, fma8(splat8(lt[1, sc]), r1, v)))
+            v = fma8(splat8(lt[5, sc]), r5, fma8(splat8(lt[4, sc]), r4, v))
+            store8(hp, h + c, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
+    for c in range(3):
+        sc = s + c
+        l0, l1, l2, l3, l4, l5 = lt[0, sc], lt[1, sc], lt[2, sc], lt[3, sc], lt[4, sc], lt[5, sc]
+        for r in range(end, d):
+            v = (
+                cov[sc, r]
+                + l0 * rt[0, r]
+                + l1 * rt[1, r]
+                + l2 * rt[2, r]
+                + l3 * rt[3, r]
+                + l4 * rt[4, r]
+                + l5 * rt[5, r]
+            )
+            hp[h + c, r] = (cov[3 + c, r] + dp[c, r]) - v
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -990,8 +1004,8 @@ def update(
         # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            _hp_rows(hp, 3 * q, cov, dp, lt, rt, sl, d)
             for c in range(3):
-                _hp_row(hp, 3 * q + c, cov, dp, lt, rt, sl + c, c, d)
                 for b in range(3):  # rt is zero in the position columns: their propagation is in dp
                     hp[3 * q + c, 3 + b] -= dp[b, sl + c]
         # S = H Σ⁻ Hᵀ + σ² I
