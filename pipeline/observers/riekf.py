@@ -1064,10 +1064,15 @@ def update(
 def _sum_innovations(z, smat, k3, win_sum):
     """The window's sum of the frame's accepted innovations (row 0 of ``win_sum``) and of their joint covariance
     (rows 1..3: every 3×3 block of ``S``, the cross blocks of a frame's common pose error included)."""
-    for r in range(k3):
+    for r in range(k3):  # k3 is a multiple of 3: row r's three cells summed in registers, in the order of c as before
+        a = 1 + r % 3
         win_sum[0, r % 3] += z[r]
-        for c in range(k3):
-            win_sum[1 + r % 3, c % 3] += smat[r, c]
+        w0, w1, w2 = win_sum[a, 0], win_sum[a, 1], win_sum[a, 2]
+        for c in range(0, k3, 3):
+            w0 += smat[r, c]
+            w1 += smat[r, c + 1]
+            w2 += smat[r, c + 2]
+        win_sum[a, 0], win_sum[a, 1], win_sum[a, 2] = w0, w1, w2
 
 
 @njit(cache=True, fastmath=CONTRACT)
