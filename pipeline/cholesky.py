@@ -15,7 +15,9 @@ from slamobs.pipeline.kernel_cache import njit
 @njit(cache=True, nogil=True)
 def cholesky_lower(s, m):
     """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s`` (its upper triangle left as it
-    was); False if it is not positive definite (the block then holds a partial factor)."""
+    was); False if it is not positive definite (the block then holds a partial factor). Four rows of a column at a
+    time below its diagonal: four independent running sums (each entry's subtractions in the same order as one at a
+    time, the same bits) instead of one chain waiting on the last (riekf's 24×24 frames: ~2x faster alone)."""
     for j in range(m):
         v = s[j, j]
         for k in range(j):
@@ -24,7 +26,18 @@ def cholesky_lower(s, m):
             return False
         v = math.sqrt(v)
         s[j, j] = v
-        for i in range(j + 1, m):
+        i = j + 1
+        while i + 4 <= m:
+            w0, w1, w2, w3 = s[i, j], s[i + 1, j], s[i + 2, j], s[i + 3, j]
+            for k in range(j):
+                sjk = s[j, k]
+                w0 -= s[i, k] * sjk
+                w1 -= s[i + 1, k] * sjk
+                w2 -= s[i + 2, k] * sjk
+                w3 -= s[i + 3, k] * sjk
+            s[i, j], s[i + 1, j], s[i + 2, j], s[i + 3, j] = w0 / v, w1 / v, w2 / v, w3 / v
+            i += 4
+        for i in range(i, m):
             w = s[i, j]
             for k in range(j):
                 w -= s[i, k] * s[j, k]

@@ -559,50 +559,42 @@ def flush(cov, d, lm, slot_lm, acc, acc_dt, q_bw, q_bv, lt, rt, dp):
         _settle(cov, d, lt, rt, dp)
 
 
-@njit(cache=True)
+@njit(cache=True, fastmath=CONTRACT)
 def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
     """``out[o]`` (6×6): the pose covariance as :func:`flush` would make it now (the pending sums applied to a
     copy, the state untouched, so a run's estimate does not depend on how often it is asked), turned from the
     filter's ``(ξ_R, ξ_P)`` into the written convention ``(δθ, δp)``: ``R̂ = Exp(δθ)R``, ``p̂ = p + δp`` (map
-    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch."""
-    # F = [[ΣR̂h, 0], [Σ[P̂]×R̂h, ΣR̂h]] (rows ξ_R, ξ_P; columns b̃_Ω, b̃_V): its zero blocks skipped, each sum
-    # otherwise in the order of the dense 6-term loops (the zeros they added changed nothing: the same bits)
+    frame), i.e. ``δθ = ξ_R``, ``δp = ξ_P − [P̂]×ξ_R`` to first order. ``w``: (3, 6, 6) scratch.
+    Output only (nothing the filter reads again), so its sums are free to be regrouped: ``FΣ_b + (FΣ_b)ᵀ +
+    FΣ_bbFᵀ = K + Kᵀ`` with ``K = F(Σ_b + ½Σ_bbFᵀ)``, two 6×6 products (F's zero block skipped) instead of three,
+    the upper triangle summed and mirrored, each ``a * b + c`` fused (``CONTRACT``): the same covariance to a few
+    units in the last place of its largest entries (docs/benchmarks.md, session 23)."""
+    # F = [[ΣR̂h, 0], [Σ[P̂]×R̂h, ΣR̂h]] (rows ξ_R, ξ_P; columns b̃_Ω, b̃_V)
     sr, spr = acc[_SR], acc[_SPR]
-    cbb = w[0]  # the pending bias block; g = F Σ_b,pose, gb = F Σ_bb
-    g, gb = w[1], w[2]
-    for i in range(6):
-        for k in range(6):
-            cbb[i, k] = cov[6 + i, 6 + k]
-    for k in range(3):
-        cbb[k, k] += q_bw * q_bw * acc_dt
-        cbb[3 + k, 3 + k] += q_bv * q_bv * acc_dt
-    for a in range(3):
-        for k in range(6):
-            v, vb = 0.0, 0.0
-            for e in range(3):
-                v += sr[a, e] * cov[6 + e, k]
-                vb += sr[a, e] * cbb[e, k]
-            g[a, k], gb[a, k] = v, vb
-            v, vb = 0.0, 0.0
-            for e in range(3):
-                v += spr[a, e] * cov[6 + e, k]
-                vb += spr[a, e] * cbb[e, k]
-            for e in range(3):
-                v += sr[a, e] * cov[9 + e, k]
-                vb += sr[a, e] * cbb[3 + e, k]
-            g[3 + a, k], gb[3 + a, k] = v, vb
-    for i in range(6):
-        for k in range(6):
-            v = g[i, k] + g[k, i]
-            if k < 3:
-                for e in range(3):
-                    v += gb[i, e] * sr[k, e]
-            else:
-                for e in range(3):
-                    v += gb[i, e] * spr[k - 3, e]
-                for e in range(3):
-                    v += gb[i, 3 + e] * sr[k - 3, e]
-            out[o, i, k] = cov[i, k] + v
+    cb, hh, s = w[0], w[1], w[2]  # ½ the pending bias block; H = Σ_(b, pose) + ½ Σ_bb Fᵀ; S
+    for e in range(6):
+        for c in range(6):
+            cb[e, c] = 0.5 * cov[6 + e, 6 + c]
+    for c in range(3):
+        cb[c, c] += 0.5 * (q_bw * q_bw * acc_dt)
+        cb[3 + c, 3 + c] += 0.5 * (q_bv * q_bv * acc_dt)
+    for e in range(6):
+        c0, c1, c2, c3, c4, c5 = cb[e, 0], cb[e, 1], cb[e, 2], cb[e, 3], cb[e, 4], cb[e, 5]
+        for a in range(3):
+            hh[e, a] = cov[6 + e, a] + (c0 * sr[a, 0] + c1 * sr[a, 1] + c2 * sr[a, 2])
+            v = c0 * spr[a, 0] + c1 * spr[a, 1] + c2 * spr[a, 2] + c3 * sr[a, 0] + c4 * sr[a, 1] + c5 * sr[a, 2]
+            hh[e, 3 + a] = cov[6 + e, 3 + a] + v
+    for k in range(6):  # s = K = F H
+        h0, h1, h2, h3, h4, h5 = hh[0, k], hh[1, k], hh[2, k], hh[3, k], hh[4, k], hh[5, k]
+        for a in range(3):
+            s[a, k] = sr[a, 0] * h0 + sr[a, 1] * h1 + sr[a, 2] * h2
+            v = spr[a, 0] * h0 + spr[a, 1] * h1 + spr[a, 2] * h2
+            s[3 + a, k] = v + sr[a, 0] * h3 + sr[a, 1] * h4 + sr[a, 2] * h5
+    for i in range(6):  # Σ_pose + K + Kᵀ, upper triangle, mirrored
+        for k in range(i, 6):
+            v = cov[i, k] + (s[i, k] + s[k, i])
+            out[o, i, k] = v
+            out[o, k, i] = v
     for a in range(3):
         for b in range(3):
             out[o, a, b] += acc[_QRR, a, b]
@@ -685,14 +677,39 @@ def _correct(xi, d, r_hat, p_hat, b_om, b_v, lm, slot_lm):
 
 @subroutine(types.none)
 def _solve4(hp, chol, c, end):
-    """Rows ``c .. c + 3`` of ``L⁻¹ HΣ⁻`` in place (:func:`_gain`), the rows above them done: eight columns at a
-    time (:mod:`pipeline.simd`), each row above subtracted as one fused multiply-add in order, then the four rows
-    among themselves."""
+    """Rows ``c .. c + 3`` of ``L⁻¹ HΣ⁻`` in place (:func:`_gain`), the rows above them done: sixteen columns at a
+    time (two vectors of :mod:`pipeline.simd` a row: each of ``L``'s entries broadcast once for both), eight for the
+    last when the row is an odd number of vectors long; each row above subtracted as one fused multiply-add in
+    order, then the four rows among themselves."""
     i0, i1 = splat8(1.0 / chol[c, c]), splat8(1.0 / chol[c + 1, c + 1])
     i2, i3 = splat8(1.0 / chol[c + 2, c + 2]), splat8(1.0 / chol[c + 3, c + 3])
     l10, l20, l21 = splat8(-chol[c + 1, c]), splat8(-chol[c + 2, c]), splat8(-chol[c + 2, c + 1])
     l30, l31, l32 = splat8(-chol[c + 3, c]), splat8(-chol[c + 3, c + 1]), splat8(-chol[c + 3, c + 2])
-    for j in range(0, end, PAD):
+    j = 0
+    while j + 2 * PAD <= end:
+        x0, x1, x2, x3 = load8(hp, c, j), load8(hp, c + 1, j), load8(hp, c + 2, j), load8(hp, c + 3, j)
+        y0, y1 = load8(hp, c, j + PAD), load8(hp, c + 1, j + PAD)
+        y2, y3 = load8(hp, c + 2, j + PAD), load8(hp, c + 3, j + PAD)
+        for k in range(c):
+            h, g = load8(hp, k, j), load8(hp, k, j + PAD)
+            a0, a1, a2, a3 = (
+                splat8(-chol[c, k]),
+                splat8(-chol[c + 1, k]),
+                splat8(-chol[c + 2, k]),
+                splat8(-chol[c + 3, k]),
+            )
+            x0, x1, x2, x3 = fma8(a0, h, x0), fma8(a1, h, x1), fma8(a2, h, x2), fma8(a3, h, x3)
+            y0, y1, y2, y3 = fma8(a0, g, y0), fma8(a1, g, y1), fma8(a2, g, y2), fma8(a3, g, y3)
+        for q, v0, v1, v2, v3 in ((j, x0, x1, x2, x3), (j + PAD, y0, y1, y2, y3)):
+            u = mul8(v0, i0)
+            v = mul8(fma8(l10, u, v1), i1)
+            w = mul8(fma8(l21, v, fma8(l20, u, v2)), i2)
+            store8(hp, c, q, u)
+            store8(hp, c + 1, q, v)
+            store8(hp, c + 2, q, w)
+            store8(hp, c + 3, q, mul8(fma8(l32, w, fma8(l31, v, fma8(l30, u, v3))), i3))
+        j += 2 * PAD
+    if j < end:
         x0, x1, x2, x3 = load8(hp, c, j), load8(hp, c + 1, j), load8(hp, c + 2, j), load8(hp, c + 3, j)
         for k in range(c):
             h = load8(hp, k, j)
@@ -744,6 +761,14 @@ def _gain(hp, chol, z, k3, d):
             x0[r], x1[r], x2[r] = u, v, w
             x3[r] = (x3[r] - l30 * u - l31 * v - l32 * w) * i3
         c += 4
+    while c < k3 and end >= d:  # padded rows left (fewer than four): one at a time, eight columns a vector
+        inv = splat8(1.0 / chol[c, c])
+        for j in range(0, end, PAD):
+            x = load8(hp, c, j)
+            for k in range(c):
+                x = fma8(splat8(-chol[c, k]), load8(hp, k, j), x)
+            store8(hp, c, j, mul8(x, inv))
+        c += 1
     for c in range(c, k3):  # the rows left, one at a time
         x = hp[c, :d]
         for k in range(c):
@@ -841,22 +866,36 @@ def _settle(cov, d, lt, rt, dp):
 
 
 @njit(cache=True, fastmath=CONTRACT)
-def _hp_row(hp, h, cov, dp, lt, rt, s, c, d):
-    """Row ``h`` of ``HΣ⁻``: ``Σ⁻[3 + c, :] − Σ⁻[s, :]`` (position axis ``c``, landmark row ``s``) with the pending
-    propagation (``dp``, the six terms) added: eight columns at a time (:mod:`pipeline.simd`) over padded rows, else
-    one at a time, the same operations in the same order either way."""
+def _hp_rows(hp, h, cov, dp, lt, rt, s, d):
+    """Rows ``h .. h + 2`` of ``HΣ⁻``: ``Σ⁻[3 + c, :] − Σ⁻[s + c, :]`` (position axis ``c``, the landmark's rows from
+    ``s``) with the pending propagation (``dp``, the six terms) added: eight columns of the three rows at a time
+    (:mod:`pipeline.simd`; the six rows of ``rt`` loaded once for the three) over padded rows, else one at a time, the
+    same operations in the same order either way."""
     end = min(hp.shape[1], cov.shape[1], dp.shape[1], rt.shape[1])
     end = end - end % PAD if end - end % PAD >= d else 0
-    l0, l1, l2, l3, l4, l5 = lt[0, s], lt[1, s], lt[2, s], lt[3, s], lt[4, s], lt[5, s]
-    a0, a1, a2, a3, a4, a5 = splat8(l0), splat8(l1), splat8(l2), splat8(l3), splat8(l4), splat8(l5)
     for j in range(0, end, PAD):
-        v = fma8(a0, load8(rt, 0, j), load8(cov, s, j))
-        v = fma8(a3, load8(rt, 3, j), fma8(a2, load8(rt, 2, j), fma8(a1, load8(rt, 1, j), v)))
-        v = fma8(a5, load8(rt, 5, j), fma8(a4, load8(rt, 4, j), v))
-        store8(hp, h, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
-    for r in range(end, d):
-        v = cov[s, r] + l0 * rt[0, r] + l1 * rt[1, r] + l2 * rt[2, r] + l3 * rt[3, r] + l4 * rt[4, r] + l5 * rt[5, r]
-        hp[h, r] = (cov[3 + c, r] + dp[c, r]) - v
+        r0, r1, r2 = load8(rt, 0, j), load8(rt, 1, j), load8(rt, 2, j)
+        r3, r4, r5 = load8(rt, 3, j), load8(rt, 4, j), load8(rt, 5, j)
+        for c in range(3):
+            sc = s + c
+            v = fma8(splat8(lt[0, sc]), r0, load8(cov, sc, j))
+            v = fma8(splat8(lt[3, sc]), r3, fma8(splat8(lt[2, sc]), r2, fma8(splat8(lt[1, sc]), r1, v)))
+            v = fma8(splat8(lt[5, sc]), r5, fma8(splat8(lt[4, sc]), r4, v))
+            store8(hp, h + c, j, sub8(add8(load8(cov, 3 + c, j), load8(dp, c, j)), v))
+    for c in range(3):
+        sc = s + c
+        l0, l1, l2, l3, l4, l5 = lt[0, sc], lt[1, sc], lt[2, sc], lt[3, sc], lt[4, sc], lt[5, sc]
+        for r in range(end, d):
+            v = (
+                cov[sc, r]
+                + l0 * rt[0, r]
+                + l1 * rt[1, r]
+                + l2 * rt[2, r]
+                + l3 * rt[3, r]
+                + l4 * rt[4, r]
+                + l5 * rt[5, r]
+            )
+            hp[h + c, r] = (cov[3 + c, r] + dp[c, r]) - v
 
 
 @njit(cache=True, fastmath=CONTRACT)
@@ -980,8 +1019,8 @@ def update(
         # to the padded end (zeros past d), each entry's terms in the order of the scalar sum (fused as it was)
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
+            _hp_rows(hp, 3 * q, cov, dp, lt, rt, sl, d)
             for c in range(3):
-                _hp_row(hp, 3 * q + c, cov, dp, lt, rt, sl + c, c, d)
                 for b in range(3):  # rt is zero in the position columns: their propagation is in dp
                     hp[3 * q + c, 3 + b] -= dp[b, sl + c]
         # S = H Σ⁻ Hᵀ + σ² I
@@ -1040,10 +1079,15 @@ def update(
 def _sum_innovations(z, smat, k3, win_sum):
     """The window's sum of the frame's accepted innovations (row 0 of ``win_sum``) and of their joint covariance
     (rows 1..3: every 3×3 block of ``S``, the cross blocks of a frame's common pose error included)."""
-    for r in range(k3):
+    for r in range(k3):  # k3 is a multiple of 3: row r's three cells summed in registers, in the order of c as before
+        a = 1 + r % 3
         win_sum[0, r % 3] += z[r]
-        for c in range(k3):
-            win_sum[1 + r % 3, c % 3] += smat[r, c]
+        w0, w1, w2 = win_sum[a, 0], win_sum[a, 1], win_sum[a, 2]
+        for c in range(0, k3, 3):
+            w0 += smat[r, c]
+            w1 += smat[r, c + 1]
+            w2 += smat[r, c + 2]
+        win_sum[a, 0], win_sum[a, 1], win_sum[a, 2] = w0, w1, w2
 
 
 @njit(cache=True, fastmath=CONTRACT)
