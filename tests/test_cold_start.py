@@ -65,3 +65,5 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     assert "slamobs.pipeline.readers.fastdecode.dedup" not in kernels
     # on one core a short log is read by array code (kernel_cache.worth_compiling): no reader's kernel compiled
     assert [k for k in kernels if k.startswith("slamobs.pipeline.readers.")] == []
+    # nor the RPE's consecutive pairs: their indices by array code (rpe.consecutive_by_accumulation)
+    assert "slamobs.pipeline.evaluation.rpe._consecutive_by_accumulation" not in kernels

@@ -39,7 +39,14 @@ from slamobs.pipeline.evaluation.evo_zip import load_result_zip, save_result_zip
 from slamobs.pipeline.evaluation import slam_metrics
 from slamobs.pipeline.evaluation.markdown import convergence_line, render_markdown
 from slamobs.pipeline.evaluation.report import REPORT_FILES, validate_report
-from slamobs.pipeline.evaluation.rpe import pairs_by_angle, pairs_by_frames, pairs_by_path, rpe_pairs
+from slamobs.pipeline.evaluation.rpe import (
+    ARRAY_PAIRS,
+    consecutive_by_accumulation,
+    pairs_by_angle,
+    pairs_by_frames,
+    pairs_by_path,
+    rpe_pairs,
+)
 from slamobs.pipeline.evaluation.sync import estimate_time_offset, interpolate_poses
 from slamobs.pipeline.evaluation.trajectory_error import AlignOptions, RpeOptions, SyncOptions, ape, rpe, synchronize
 from slamobs.pipeline.lie import quats_to_rots, rots_to_quats, so3_exp
@@ -992,6 +999,29 @@ def test_rpe_pair_selection():
         rpe_pairs(pos, rots, 50.0, "m")
     with pytest.raises(ValueError, match="integer"):
         rpe_pairs(pos, rots, 1.5, "f")
+
+
+def test_consecutive_rpe_pairs_by_array_code_are_the_kernels():
+    """A one-core first run of a short log takes the consecutive pairs' indices from array code (running sums by
+    ``np.cumsum``): the kernel's indices for any steps, zeros, -0.0 and NaN among them, any delta, and past
+    ``ARRAY_PAIRS`` pairs (where the kernel takes the rest)."""
+    rng = np.random.default_rng(3)
+    beyond = 0
+    for trial in range(200):
+        n = int(rng.integers(0, 3 * ARRAY_PAIRS // 2))
+        steps = rng.random(n) * rng.choice([1e-3, 0.1, 1.0])
+        if n and trial % 7 == 0:
+            steps[rng.integers(0, n)] = np.nan
+        if n and trial % 5 == 0:
+            steps[rng.integers(0, n, size=n // 3)] = 0.0
+        if n > 1 and trial % 11 == 0:
+            steps[1] = -0.0
+        delta = float(rng.choice([0.0, 1e-4, 0.05, 1.0, 10.0, 1e9]))
+        by_kernel = consecutive_by_accumulation(steps, delta, kernel=True)
+        by_arrays = consecutive_by_accumulation(steps, delta, kernel=False)
+        assert by_arrays.dtype == np.int64 and np.array_equal(by_arrays, by_kernel), (trial, n, delta)
+        beyond += by_kernel.shape[0] > ARRAY_PAIRS + 1
+    assert beyond > 5
 
 
 def test_interpolation_linear_and_slerp_clamped():

@@ -10,11 +10,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from slamobs.pipeline.kernel_cache import njit
+from slamobs.pipeline.kernel_cache import KERNEL_ROWS, njit, worth_compiling
 
 from slamobs.pipeline.evaluation.metrics import matrix_quats, relative_angles, row_norms
 
 DELTA_UNITS = {"f": "frames", "m": "m", "d": "deg", "r": "rad"}
+#: Consecutive pairs found by array code (one NumPy pass per pair) before the kernel takes the rest: a short path cut
+#: into more pairs than this (a delta of a few steps) costs about what compiling the kernel does (~0.1 s).
+ARRAY_PAIRS = 2048
 
 
 def pairs_by_frames(n: int, delta: int, all_pairs: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -43,6 +46,47 @@ def _consecutive_by_accumulation(steps, delta, ids):
             m += 1
             acc = 0.0
     return m
+
+
+def consecutive_by_accumulation(steps: np.ndarray, delta: float, kernel: bool | None = None) -> np.ndarray:
+    """Indices where the quantity accumulated since the last index reaches ``delta`` (then it restarts at 0), from 0
+    on: the kernel :func:`_consecutive_by_accumulation` where :func:`.kernel_cache.worth_compiling` says so (from
+    :data:`.kernel_cache.KERNEL_ROWS` steps, a kernel compiled or cached, a second core), else the same indices by
+    array code, so a one-core first run of a short log compiles nothing for its RPE pairs. ``kernel``: True or False
+    takes that one (tests compare them)."""
+    if kernel is None:
+        kernel = worth_compiling(_consecutive_by_accumulation, steps.shape[0], KERNEL_ROWS)
+    if kernel:
+        ids = np.empty(steps.shape[0] + 1, dtype=np.int64)
+        return ids[: _consecutive_by_accumulation(steps, delta, ids)]
+    return _consecutive_by_cumsum(steps, delta)
+
+
+def _consecutive_by_cumsum(steps: np.ndarray, delta: float) -> np.ndarray:
+    """:func:`_consecutive_by_accumulation`'s indices by array code: from each index the running sum of the steps
+    (``np.cumsum``, added in order from 0 as the kernel adds them: the same sums bit for bit) over a window that
+    doubles until one reaches ``delta`` (a NaN sum never does, as in the kernel). After :data:`ARRAY_PAIRS` pairs
+    the kernel takes the rest (from an index the accumulation restarts at 0: the same indices as one pass)."""
+    n = steps.shape[0]
+    ids = [0]
+    start = 0
+    window = 64
+    while start < n:
+        if len(ids) > ARRAY_PAIRS:
+            rest = np.empty(n - start + 1, dtype=np.int64)
+            rest = rest[: _consecutive_by_accumulation(steps[start:], delta, rest)]
+            return np.concatenate([np.array(ids[:-1], dtype=np.int64), rest + start])
+        reached = np.cumsum(steps[start : start + window]) >= delta
+        if reached.any():
+            k = int(reached.argmax())
+            start += k + 1
+            ids.append(start)
+            window = max(64, 2 * (k + 1))
+        elif start + window >= n:
+            break
+        else:
+            window *= 2
+    return np.array(ids, dtype=np.int64)
 
 
 @njit(cache=True)
@@ -97,8 +141,7 @@ def pairs_by_path(pos: np.ndarray, delta: float, tol: float = 0.0, all_pairs: bo
         d = accumulated_distances(p)
         return _all_pairs_by_path(d, equal_runs(d), float(delta), float(tol))
     steps = row_norms(p[1:], p[:-1]) if p.shape[0] > 1 else np.empty(0)
-    ids = np.empty(steps.shape[0] + 1, dtype=np.int64)
-    ids = ids[: _consecutive_by_accumulation(steps, float(delta), ids)]
+    ids = consecutive_by_accumulation(steps, float(delta))
     return ids[:-1], ids[1:]
 
 
@@ -146,8 +189,7 @@ def pairs_by_angle(rot: np.ndarray, delta: float, tol: float = 0.0, degrees: boo
     if all_pairs:  # each rotation normalised to its quaternion first, as evo does through SciPy
         return _all_pairs_by_angle(matrix_quats(r), delta - tol, delta + tol)
     steps = relative_angles(r[:-1], r[1:]) if r.shape[0] > 1 else np.empty(0)
-    ids = np.empty(steps.shape[0] + 1, dtype=np.int64)
-    ids = ids[: _consecutive_by_accumulation(steps, float(delta), ids)]
+    ids = consecutive_by_accumulation(steps, float(delta))
     return ids[:-1], ids[1:]
 
 
