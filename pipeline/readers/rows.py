@@ -89,7 +89,8 @@ class StatedRuns:
 
 def run_heads(values: np.ndarray) -> np.ndarray:
     """Rows of ``values`` (N, k) that differ from the row before in some column (``!=``; row 0 always)."""
-    head = np.ones(values.shape[0], bool)
+    head = np.zeros(values.shape[0], bool)
+    head[:1] = True
     for c in range(values.shape[1]):
         head[1:] |= values[1:, c] != values[:-1, c]
     return head
