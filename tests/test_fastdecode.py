@@ -408,6 +408,47 @@ def test_stated_runs_joined_over_batches_are_the_runs_of_the_whole():
     np.testing.assert_array_equal(whole.expanded(), rows)
 
 
+@pytest.mark.parametrize("backwards", [False, True])
+def test_stated_runs_of_a_topic_in_many_batches(tmp_path, monkeypatch, backwards):
+    """A topic read in five batches per chunk (``backwards``: each chunk's messages in reverse): its stated variances
+    are the runs of the topic read in one batch in record order (a run going on across batches is one run; sorted
+    into record order with the rows). The IMU states one variance for 40 % of its messages, another after."""
+    from slamobs.pipeline.simulate.logwriter import Builder
+    from slamobs.pipeline.simulate.sensors import TOPIC_IMU
+
+    columns = Builder.columns
+
+    def stepped(self, topic):
+        cols = columns(self, topic)
+        if topic == TOPIC_IMU and cols is not None:
+            n = self.sim.imu.t_ns.shape[0]
+            cols[("angular_velocity_covariance", "0")] = np.where(np.arange(n) < int(0.4 * n), 2.5e-5, 4e-5)
+        return cols
+
+    monkeypatch.setattr(Builder, "columns", stepped)
+    path = write_log(simulate("figure8", duration=3.0, seed=11), tmp_path / "stepped.mcap")
+    read = fastdecode.iter_batches
+
+    def pieces(*args):
+        for batch in read(*args):
+            rows = np.arange(batch.rec_ns.shape[0])
+            for part in np.array_split(rows[::-1] if backwards else rows, 5):
+                yield batch.take(part)
+
+    with open_log(path) as reader:
+        table = {t: conns for t, (meta, conns) in topics_of(reader).items() if meta.msgtype in LAYOUTS}
+        want = read_rows(reader, path, table)
+        monkeypatch.setattr(fastdecode, "iter_batches", pieces)
+        monkeypatch.setattr(fastdecode, "grouped", lambda batches: batches)
+        got = read_rows(reader, path, table)
+    assert want[TOPIC_IMU].stated.starts.tolist() == [0, int(0.4 * want[TOPIC_IMU].t_ns.size)]
+    for topic in (topic for topic, rows in want.items() if rows.stated is not None):
+        np.testing.assert_array_equal(got[topic].values, want[topic].values)
+        assert got[topic].stated.starts.tolist() == want[topic].stated.starts.tolist()
+        np.testing.assert_array_equal(got[topic].stated.values, want[topic].stated.values)
+        assert got[topic].stated.n == want[topic].stated.n == want[topic].t_ns.size
+
+
 def test_undecodable_message_is_one_line_input_error(tmp_path):
     ts = make_typestore(ros1=True)
     from rosbags.rosbag1 import Writer
