@@ -11,7 +11,7 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.readers import fastdecode
 from slamobs.pipeline.readers.container import open_log
 from slamobs.pipeline.readers.decode import decode_rows
-from slamobs.pipeline.readers.rows import LAYOUTS
+from slamobs.pipeline.readers.rows import LAYOUTS, stated_runs, stated_start
 from slamobs.pipeline.readers.storage import RawBatch
 from slamobs.pipeline.readers.fastdecode import FRAME_ID, DecodeError, decode, layout_paths, make_plan, read_rows
 from slamobs.pipeline.readers.roles import topics_of
@@ -382,8 +382,71 @@ def test_fast_rows_equal_rosbags_rows(logs, monkeypatch):
             got = fast[topic]
             for name in ("t_ns", "rec_ns", "values"):
                 np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=f"{path} {topic}")
+            assert (got.stated is None) == (want.stated is None) == (stated_start(got.msgtype) is None)
+            if got.stated is not None:  # the stated variances: runs, not columns of ``values``
+                assert got.values.shape[1] == stated_start(got.msgtype) < LAYOUTS[got.msgtype].width
+                assert got.stated.starts.tolist() == want.stated.starts.tolist() == [0]  # the simulator's constant
+                np.testing.assert_array_equal(got.stated.expanded(), want.stated.expanded())
             assert [got.frame_names[k] for k in got.frame] == [want.frame_names[k] for k in want.frame]
             assert [got.frame_names[k] for k in got.child] == [want.frame_names[k] for k in want.child]
+
+
+def test_stated_runs_joined_over_batches_are_the_runs_of_the_whole():
+    """Runs found batch by batch (a run going on across a batch's end, NaN rows each a run of their own) and joined
+    are the runs of all the rows; expanded, the rows as decoded."""
+    rng = np.random.default_rng(3)
+    rows = np.repeat(rng.choice([1e-4, 2e-4, -1.0], size=(60, 3)), rng.integers(1, 40, 60), axis=0)
+    rows[::97, 1] = np.nan
+    whole = stated_runs(rows)
+    cuts = np.sort(rng.choice(np.arange(1, rows.shape[0]), 9, replace=False))
+    parts = [(a, stated_runs(rows[a:b])) for a, b in zip((0, *cuts), (*cuts, rows.shape[0]), strict=True)]
+    starts = np.concatenate([a + r.starts for a, r in parts])
+    joined = stated_runs(np.concatenate([r.values for _, r in parts]), starts, rows.shape[0])
+    assert joined.starts.tolist() == whole.starts.tolist() and joined.n == whole.n == rows.shape[0]
+    assert whole.starts.size < rows.shape[0] // 4  # runs, not rows
+    np.testing.assert_array_equal(joined.values, whole.values)
+    np.testing.assert_array_equal(whole.expanded(), rows)
+
+
+@pytest.mark.parametrize("backwards", [False, True])
+def test_stated_runs_of_a_topic_in_many_batches(tmp_path, monkeypatch, backwards):
+    """A topic read in five batches per chunk (``backwards``: each chunk's messages in reverse): its stated variances
+    are the runs of the topic read in one batch in record order (a run going on across batches is one run; sorted
+    into record order with the rows). The IMU states one variance for 40 % of its messages, another after."""
+    from slamobs.pipeline.simulate.logwriter import Builder
+    from slamobs.pipeline.simulate.sensors import TOPIC_IMU
+
+    columns = Builder.columns
+
+    def stepped(self, topic):
+        cols = columns(self, topic)
+        if topic == TOPIC_IMU and cols is not None:
+            n = self.sim.imu.t_ns.shape[0]
+            cols[("angular_velocity_covariance", "0")] = np.where(np.arange(n) < int(0.4 * n), 2.5e-5, 4e-5)
+        return cols
+
+    monkeypatch.setattr(Builder, "columns", stepped)
+    path = write_log(simulate("figure8", duration=3.0, seed=11), tmp_path / "stepped.mcap")
+    read = fastdecode.iter_batches
+
+    def pieces(*args):
+        for batch in read(*args):
+            rows = np.arange(batch.rec_ns.shape[0])
+            for part in np.array_split(rows[::-1] if backwards else rows, 5):
+                yield batch.take(part)
+
+    with open_log(path) as reader:
+        table = {t: conns for t, (meta, conns) in topics_of(reader).items() if meta.msgtype in LAYOUTS}
+        want = read_rows(reader, path, table)
+        monkeypatch.setattr(fastdecode, "iter_batches", pieces)
+        monkeypatch.setattr(fastdecode, "grouped", lambda batches: batches)
+        got = read_rows(reader, path, table)
+    assert want[TOPIC_IMU].stated.starts.tolist() == [0, int(0.4 * want[TOPIC_IMU].t_ns.size)]
+    for topic in (topic for topic, rows in want.items() if rows.stated is not None):
+        np.testing.assert_array_equal(got[topic].values, want[topic].values)
+        assert got[topic].stated.starts.tolist() == want[topic].stated.starts.tolist()
+        np.testing.assert_array_equal(got[topic].stated.values, want[topic].stated.values)
+        assert got[topic].stated.n == want[topic].stated.n == want[topic].t_ns.size
 
 
 def test_undecodable_message_is_one_line_input_error(tmp_path):

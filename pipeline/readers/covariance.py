@@ -4,8 +4,9 @@ The reference estimators (``batch``, ``riekf``) weight odometry by its noise; ``
 (``angular_velocity_covariance``), ``nav_msgs/Odometry`` and ``TwistWithCovarianceStamped``
 (``twist.covariance``) carry it. Drivers fill these fields with a constant, but not always the same one all
 along: after a reset a driver may switch to REP 145's -1 or a placeholder, or the reverse. So every message's
-diagonal is judged: the readers decode it with the velocities (``rows.STATED_COLUMNS``), and the stamps of the
-first messages give the sample period that turns a per-sample variance into a noise density.
+diagonal is judged: the readers decode it with the velocities (``rows.STATED_COLUMNS``, kept as runs of equal rows:
+``Rows.stated``), and the stamps of the first messages give the sample period that turns a per-sample variance
+into a noise density.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from .container import open_log
 from .decode import decode_rows
 from .msgdefs import complete_definitions
 from .roles import topics_of
-from .rows import LAYOUTS, STATED_COLUMNS, Rows
+from .rows import LAYOUTS, STATED_COLUMNS, Rows, stated_start
 
 #: Messages whose stamps give the sample period (the stated variances are judged in every message).
 SAMPLE_MESSAGES = 25
@@ -99,37 +100,41 @@ def stated_from_rows(rows: Rows, role: str) -> StatedNoise | None:
     """The noise ``rows`` (one decoded velocity topic) state for ``role``, every message's diagonal judged: the
     median of the plausible ones, with a note of how many were not and from when; None when the type states none.
     A topic with more implausible messages than plausible ones is given with its ``problem`` (the values it
-    states cannot be believed for the whole log)."""
+    states cannot be believed for the whole log). The diagonals come as runs of equal rows (``Rows.stated``): each
+    run is judged once, and only a changing stream's plausible rows are laid out for their median."""
     column = STATED_COLUMNS.get((role, rows.msgtype))
     steps = np.diff(np.sort(rows.t_ns[:SAMPLE_MESSAGES])) * 1e-9
     steps = steps[steps > 0]
-    if column is None or steps.size == 0:
+    if column is None or steps.size == 0 or rows.stated is None:
         return None
     period = float(np.median(steps))
-    diag = rows.values[:, LAYOUTS[rows.msgtype].columns[column]]
+    first_column = stated_start(rows.msgtype) or 0
+    at = LAYOUTS[rows.msgtype].columns[column]
+    diag = rows.stated.values[:, at.start - first_column : at.stop - first_column]  # one row per run
     if equal_rows(diag, np.broadcast_to(diag[0], diag.shape)).all():  # drivers state one constant: judged once
         why = implausible(diag[0])
         sigma = np.sqrt(diag[0]) if why is None else np.full(3, np.nan)
         return StatedNoise(rows.topic, sigma, period, why)
+    lengths = rows.stated.lengths
     code = implausible_rows(diag)
-    bad = np.flatnonzero(code)
+    bad = np.flatnonzero(code)  # runs
     if bad.size == 0:
-        return StatedNoise(rows.topic, np.sqrt(np.median(diag, axis=0)), period)
-    n = code.size
+        return StatedNoise(rows.topic, np.sqrt(np.median(np.repeat(diag, lengths, axis=0), axis=0)), period)
+    n, nbad = rows.stated.n, int(lengths[bad].sum())
     first = bad[0]
     why = implausible(diag[first]) or _WHY[code[first]]
-    span = (rows.t_ns[bad[[0, -1]]] - rows.t_ns.min()) * 1e-9
+    ends = rows.stated.starts[[bad[0], bad[-1]]] + [0, lengths[bad[-1]] - 1]  # the first and last bad rows
+    span = (rows.t_ns[ends] - rows.t_ns.min()) * 1e-9
     rejected = (
-        f"{bad.size} of {n} messages state {why}"
+        f"{nbad} of {n} messages state {why}"
         + (" and other implausible values" if np.unique(code[bad]).size > 1 else "")
         + f" (between {span[0]:.4g} and {span[1]:.4g} s of the topic)"
     )
-    if 2 * bad.size > n:
-        return StatedNoise(rows.topic, np.full(3, np.nan), period, rejected if bad.size < n else why, rejected)
-    good = np.ones(n, bool)
-    good[bad] = False
-    sigma = np.sqrt(np.median(diag[good], axis=0))
-    return StatedNoise(rows.topic, sigma, period, rejected=f"{rejected}; the median of the other {n - bad.size} used")
+    if 2 * nbad > n:
+        return StatedNoise(rows.topic, np.full(3, np.nan), period, rejected if nbad < n else why, rejected)
+    good = code == 0
+    sigma = np.sqrt(np.median(np.repeat(diag[good], lengths[good], axis=0), axis=0))
+    return StatedNoise(rows.topic, sigma, period, rejected=f"{rejected}; the median of the other {n - nbad} used")
 
 
 def stated_noise(

@@ -32,7 +32,7 @@ from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, Tra
 from . import fastdecode, tfdecode
 from .container import iter_raw, require_definitions
 from .roles import APRILTAG_ROS, IMU, MAGNETIC_FIELD, MARKER_ARRAY, ODOMETRY, TWIST_COV_STAMPED, TWIST_STAMPED
-from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Notes, Rows, TfRows, frame_name, quat, vec
+from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Notes, Rows, TfRows, frame_name, quat, split_stated, vec
 
 if TYPE_CHECKING:
     from collections.abc import Callable, Collection, Iterable, Iterator, Mapping, Sequence
@@ -331,7 +331,8 @@ def decode_rows(reader: AnyReader, path: str | Path, topic: str, connections: Co
             if child_of is not None:
                 child[i] = frames.code(child_of(msg))
             i += 1
-    return Rows(topic, msgtype, t_ns[:i], rec_ns[:i], values[:i], frame[:i], child[:i], frames.names())
+    kept, stated = split_stated(msgtype, values[:i])
+    return Rows(topic, msgtype, t_ns[:i], rec_ns[:i], kept, frame[:i], child[:i], frames.names(), stated=stated)
 
 
 def duplicate_mask(t_sorted: np.ndarray, key: Callable[[int], bytes]) -> tuple[np.ndarray, int]:
@@ -410,9 +411,10 @@ def _dominant(
     return names[best]
 
 
-#: Rows at most this wide are shared by the streams cut from them when no cleaning was needed (an IMU row: the gyro,
-#: the accelerometer and the gyro's stated variances); wider rows (odometry) are copied so unused columns can go.
-SHARE_WIDTH = 9
+#: Rows at most this wide are shared by the streams cut from them when no cleaning was needed (an IMU row holds the
+#: gyro and the accelerometer; its stated variances are runs, ``Rows.stated``); wider rows (odometry) are copied so
+#: unused columns can go.
+SHARE_WIDTH = 6
 
 
 def _is_identity(idx: np.ndarray, n: int) -> bool:

@@ -18,7 +18,7 @@ field before the wanted ones, strings inside elements) fall back to rosbags.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cache, cached_property
 from typing import TYPE_CHECKING, Any
 
@@ -31,7 +31,7 @@ from rosbags.interfaces import Nodetype
 from slamobs.pipeline.errors import BadInput, InputError
 
 from .container import iter_batches, require_definitions
-from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Rows
+from .rows import ITEM_LAYOUTS, LAYOUTS, Frames, Rows, StatedRuns, stated_runs, stated_start
 from .storage import grouped
 
 if TYPE_CHECKING:
@@ -184,6 +184,8 @@ class Plan(_Leaves):
     leaves: tuple[tuple[int, str], ...]  # per leaf: (size, kind)
     nstrings: int
     items: ItemPlan | None = None  # the sequence right after ``ops``, if its elements are read
+    #: value column from which on the rows are kept as runs (``rows.split_stated``: stated variances), if any
+    stated_from: int | None = None
 
     @cached_property
     def program(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -991,6 +993,7 @@ class TopicColumns:
     digest: np.ndarray | None = None  # (N,) uint64 payload hashes (ROS1: without the header seq), if asked
     counts: np.ndarray | None = None  # (N,) int64 elements per message (plans with items)
     items: np.ndarray | None = None  # (sum(counts), nitems) float64 element values, in message order
+    stated: StatedRuns | None = None  # the columns from ``Plan.stated_from`` on, as runs (not in ``values``)
 
 
 class _Columns:
@@ -1001,8 +1004,13 @@ class _Columns:
     60 s logs' four topics: ~0.4 ms of a ~10 ms read, its values' 2 MB copied from memory the cache no longer
     held)."""
 
-    def __init__(self, capacity: int, width: int, digests: bool, item_width: int | None = None) -> None:
-        self.capacity, self.width, self.digests = capacity, width, digests
+    def __init__(
+        self, capacity: int, width: int, digests: bool, item_width: int | None = None, stated_from: int | None = None
+    ) -> None:
+        self.capacity, self.width, self.digests = capacity, width if stated_from is None else stated_from, digests
+        # the stated variances as each batch's runs, joined at the end: never a float64 column per message
+        self.stated_from, self.stated_width = stated_from, width - (stated_from or width)
+        self.runs: list[StatedRuns] = []
         self.n = 0
         self.names: dict[str, int] = {}
         # plans with items: elements per message, and the elements in a buffer sized from the first batch
@@ -1027,6 +1035,10 @@ class _Columns:
         for string_codes_, names in dec.strings:  # coded by first appearance over the batches, in their order
             lut = np.array([self.names.setdefault(name, len(self.names)) for name in names], np.int32)
             codes.append(lut[string_codes_] if string_codes_.size else string_codes_)
+        if self.stated_from is not None:
+            values, runs = dec.values[:, : self.stated_from], stated_runs(dec.values[:, self.stated_from :])
+            self.runs.append(StatedRuns(runs.starts + sum(r.n for r in self.runs), runs.values, runs.n))
+            dec = replace(dec, values=values)
         part = _Part(dec, rec_ns, digest, codes)
         if not self.made and self.alone is None and self.item_width is None:
             self.alone = part
@@ -1076,6 +1088,15 @@ class _Columns:
         self.items[self.m : need] = items
         self.m = need
 
+    def stated(self) -> StatedRuns | None:
+        """The batches' runs joined (a run going on in the next batch is one run)."""
+        if self.stated_from is None:
+            return None
+        if not self.runs:
+            return StatedRuns(np.zeros(0, np.int64), np.zeros((0, self.stated_width)), 0)
+        starts = np.concatenate([r.starts for r in self.runs])
+        return stated_runs(np.concatenate([r.values for r in self.runs]), starts, sum(r.n for r in self.runs))
+
     def done(self) -> TopicColumns:
         if self.alone is not None:
             return self._sorted(*self.alone.columns(), None, None)
@@ -1095,15 +1116,17 @@ class _Columns:
     ) -> TopicColumns:
         """The columns in record order (stably sorted when the file's order was another)."""
         n = cols[0].shape[0]
+        stated = self.stated()
         if n > 1 and not bool(np.all(cols[1][1:] >= cols[1][:-1])):  # file order -> record order
             order = np.argsort(cols[1], kind="stable")
             cols = [a[order] for a in cols]
+            stated = stated_runs(stated.expanded()[order]) if stated is not None else None
             digest = digest[order] if digest is not None else None
             if counts is not None and items is not None:
                 first = np.concatenate(([0], np.cumsum(counts)))
                 items = items[_csr_rows(first[order], counts[order])]
                 counts = counts[order]
-        return TopicColumns(*cols, list(self.names), digest, counts, items)
+        return TopicColumns(*cols, list(self.names), digest, counts, items, stated)
 
 
 @dataclass(frozen=True)
@@ -1149,7 +1172,8 @@ def read_columns(
     for t in names:
         conns_t, plan = topics[t]
         item_width = len(plan.items.leaves) if plan.items is not None else None
-        out.append(_Columns(sum(c.msgcount for c in conns_t), len(plan.leaves) - 2, digests, item_width))
+        capacity = sum(c.msgcount for c in conns_t)
+        out.append(_Columns(capacity, len(plan.leaves) - 2, digests, item_width, plan.stated_from))
 
     walk = walk_compiled(max((cols.capacity for cols in out), default=0))
 
@@ -1216,7 +1240,9 @@ def plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
         return None
     strings = (FRAME_ID,) + ((paths[1],) if paths[1] is not None else ())
     plan = make_plan(typestore, msgtype, paths[0], strings, cdr=cdr)
-    return plan if plan is not None and len(plan.leaves) - 2 == layout.width else None
+    if plan is None or len(plan.leaves) - 2 != layout.width:
+        return None
+    return replace(plan, stated_from=stated_start(msgtype))
 
 
 def item_plan_for(typestore: Typestore, msgtype: str, cdr: bool) -> Plan | None:
@@ -1268,6 +1294,7 @@ def read_rows(
             frames.names(),
             cols.counts,
             cols.items,
+            cols.stated,
         )
     return out
 

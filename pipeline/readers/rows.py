@@ -63,6 +63,60 @@ class Rows:
     frame_names: list[str]
     counts: np.ndarray | None = None  # (N,) int64 elements per message (detection arrays)
     items: np.ndarray | None = None  # (sum(counts), width) float64: ``ItemLayout.columns`` of every element
+    #: the stated variances (``STATED_COLUMNS``, the layout's last columns, not in ``values``) in run-length form
+    stated: StatedRuns | None = None
+
+
+@dataclass(frozen=True)
+class StatedRuns:
+    """A topic's stated-variance columns (from :func:`stated_start` on) as runs of equal rows: drivers state one
+    constant, so an hour's 720,000 IMU messages are one run, not three float64 columns of 17 MB.
+    Equal as ``==`` says: a row with a NaN is a run of its own."""
+
+    starts: np.ndarray  # (R,) int64 first row of each run, ascending, starts[0] == 0 when n > 0
+    values: np.ndarray  # (R, k) float64 the run's row: columns from stated_start(msgtype) on
+    n: int  # rows in all
+
+    @property
+    def lengths(self) -> np.ndarray:
+        """(R,) rows in each run."""
+        return np.diff(self.starts, append=self.n)
+
+    def expanded(self) -> np.ndarray:
+        """The (n, k) rows as decoded."""
+        return np.repeat(self.values, self.lengths, axis=0)
+
+
+def run_heads(values: np.ndarray) -> np.ndarray:
+    """Rows of ``values`` (N, k) that differ from the row before in some column (``!=``; row 0 always)."""
+    head = np.zeros(values.shape[0], bool)
+    head[:1] = True
+    for c in range(values.shape[1]):
+        head[1:] |= values[1:, c] != values[:-1, c]
+    return head
+
+
+def stated_runs(values: np.ndarray, starts: np.ndarray | None = None, n: int | None = None) -> StatedRuns:
+    """Runs of ``values``: its rows (``starts`` None), or runs given by their ``starts`` among ``n`` rows whose
+    neighbours may be equal (batches' runs joined: a run that goes on in the next batch becomes one)."""
+    heads = np.flatnonzero(run_heads(values))
+    at = heads if starts is None else starts[heads]
+    return StatedRuns(at.astype(np.int64), values[heads], values.shape[0] if n is None else n)
+
+
+def stated_start(msgtype: str) -> int | None:
+    """The first of ``msgtype``'s stated-variance columns in its layout (they are its last), None without."""
+    starts = [LAYOUTS[m].columns[c].start for (_, m), c in STATED_COLUMNS.items() if m == msgtype]
+    return min(starts) if starts else None
+
+
+def split_stated(msgtype: str, values: np.ndarray) -> tuple[np.ndarray, StatedRuns | None]:
+    """Decoded rows of a ``LAYOUTS`` type as ``Rows`` keeps them: the columns before the stated variances, and
+    those in run-length form (None for a type that states none)."""
+    first = stated_start(msgtype)
+    if first is None:
+        return values, None
+    return values[:, :first], stated_runs(values[:, first:])
 
 
 @dataclass(frozen=True)
