@@ -739,16 +739,16 @@ def decode_tf(
     path: str | Path,
     topic: str,
     connections: Collection[Connection],
-    fast_from: int = TF_FAST_MESSAGES,
+    fast_from: int | None = None,
 ) -> TfRows:
     """Flatten the transforms of a TF topic into columns (each message may hold many edges).
 
     The standard TF layouts are decoded batch-wise from the raw bytes by :mod:`.tfdecode`; a log whose stored
-    definition differs, and a topic of fewer than ``fast_from`` messages (``/tf_static``, a few tag
-    frames: rosbags reads them in milliseconds, and their compiled decoder need not be loaded or compiled),
-    are deserialised message by message by rosbags (the same values and frame numbering).
+    definition differs, and a topic of fewer than ``fast_from`` messages (default ``TF_FAST_MESSAGES``, read at the
+    call; ``/tf_static``, a few tag frames: rosbags reads them in milliseconds, and their compiled decoder need not
+    be loaded or compiled), are deserialised message by message by rosbags (the same values and frame numbering).
     """
-    if sum(c.msgcount for c in connections) >= fast_from:
+    if sum(c.msgcount for c in connections) >= (TF_FAST_MESSAGES if fast_from is None else fast_from):
         if (fast := tfdecode.read_tf(reader, path, topic, connections)) is not None:
             return fast
     frames = Frames()
