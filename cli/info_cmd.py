@@ -24,7 +24,8 @@ from slamobs.cli.options import config_option
 @click.option(
     "--noise",
     is_flag=True,
-    help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs.",
+    help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs. "
+    "On a log they cannot run on (e.g. IMU only): each sensor stream's own white-noise density, and why not the rest.",
 )
 @config_option("run.yaml: the settings it gives (tags.size, cameras) are not asked for; with --noise its noise levels.")
 def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: bool, config_path: Path | None) -> None:
@@ -80,14 +81,22 @@ def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: b
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.run import detection_checks, log_noise, prepare_log
 
+    from slamobs.pipeline.errors import InputError
+
     config = load_config(config_path)
     if msg_dir:
         config = replace(config, msg_dir=str(msg_dir))
     status = status_line(quiet=False)
-    with compile_notice(status):
-        prepared = prepare_log(log, config, directions=False, progress=status or silent)
-        settings = log_noise(prepared, config)
-        checks = [] if as_json else detection_checks(prepared)
+    try:
+        with compile_notice(status):
+            prepared = prepare_log(log, config, directions=False, progress=status or silent)
+            settings = log_noise(prepared, config)
+            checks = [] if as_json else detection_checks(prepared)
+    except InputError as err:  # e.g. an IMU-only log: its sensors' own levels, and why not the rest
+        if status is not None:
+            status.clear()
+        _sensor_noise(log, config, err, as_json)
+        return
     if status is not None:
         status.clear()
     if as_json:
@@ -96,6 +105,47 @@ def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: b
     click.echo(f"noise levels of {log} (batch and riekf; key: value unit (source, ± standard error: method)):")
     for line in settings.lines() + list(settings.notes) + checks:
         click.echo(f"  {line}")
+
+
+def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
+    """What ``--noise`` can show of a log the reference estimators cannot run on (``err``, the input error that
+    stopped them: e.g. an IMU-only log, no velocity or detections): each sensor stream's own white-noise density
+    (``noise.sensor_levels``; no estimator's level: those weigh the streams together), and what cannot be
+    estimated and why. ``err`` is raised again when the log has no such stream, or cannot be read at all."""
+    from slamobs.pipeline.errors import SlamobsError
+    from slamobs.pipeline.noise import sensor_levels
+    from slamobs.pipeline.readers import read_log
+
+    try:
+        levels = sensor_levels(read_log(log, config.topics or None, **config.reader_options()))
+    except SlamobsError:
+        raise err from None
+    if not any("value" in v for v in levels.values()):
+        raise err
+    why = f"{err.problem}{''.join(f'; {d}' for d in err.details)}"
+    cannot = (
+        "the detection levels, the biases' and the levels batch and riekf would use (they weigh the streams together)"
+    )
+    if as_json:
+        click.echo(json.dumps({"sensors": levels, "not_estimated": cannot, "why": why}, indent=2))  # one string
+        return
+    click.echo(f"noise of {log}'s sensor streams, each on its own (key: value unit (topic, ± standard error: method)):")
+    for name, v in levels.items():
+        if "value" in v:
+            shown = (
+                f"{name} = {_plain_levels(v['value'])} {v['unit']} ({v['topic']}, ± {_plain_levels(v['uncertainty'])}"
+            )
+            click.echo(f"  {shown}: {v['method']})")
+        else:
+            click.echo(f"  {name}: not estimated ({v['why']})")
+    click.echo(f"  not estimated: {cannot}: {err.problem}")
+    for line in err.details:
+        click.echo(f"    {line}")
+
+
+def _plain_levels(value) -> str:
+    """A level (one number or one per axis) in 4 significant digits."""
+    return ", ".join(f"{x:.4g}" for x in value) if isinstance(value, list) else f"{value:.4g}"
 
 
 def format_readiness(ready) -> str:

@@ -263,6 +263,37 @@ def stream_density(t_ns: np.ndarray, xyz: np.ndarray) -> Estimate | None:
     return white_noise_density((t_ns - (t_ns.min() if t_ns.size else 0)) * 1e-9, xyz) if t_ns.size else None
 
 
+#: The levels a log's own sensor streams show with none of the other inputs (``slamobs info --noise`` on a log that
+#: cannot run): the level's name, the stream's role (``LogStreams``) and unit; the accelerometer's is no estimator's.
+SENSOR_LEVELS = (
+    ("gyro", "angular_velocity", DEFAULTS["gyro"][1]),
+    ("velocity", "linear_velocity", DEFAULTS["velocity"][1]),
+    ("accelerometer", "accel", "m/s^2/sqrt(Hz)"),
+)
+
+
+def sensor_levels(streams) -> dict[str, dict]:
+    """The white-noise density of each of ``SENSOR_LEVELS``' streams a read log (``LogStreams``) holds, each on its
+    own stamps (:func:`stream_density`), without aligning it to anything: name -> value (per axis), unit, topic,
+    standard error, method; or, where it has no stream or too few samples, why not (``why``)."""
+    out: dict[str, dict] = {}
+    for name, role, unit in SENSOR_LEVELS:
+        stream = getattr(streams, role, None)
+        found = stream_density(stream.t_ns, stream.xyz) if stream is not None and len(stream) else None
+        if found is None:
+            why = f"too few samples on {stream.topic}" if stream is not None and len(stream) else f"no {role} stream"
+            out[name] = {"why": why}
+            continue
+        out[name] = {
+            "value": _plain(found.value),
+            "unit": unit,
+            "topic": stream.topic,
+            "uncertainty": _plain(found.uncertainty),
+            "method": found.method,
+        }
+    return out
+
+
 def _stream_arrays(aligned) -> tuple:
     """What the detection-based estimators read of an aligned stream: velocity stamps (s from the start), angular
     and linear velocity, detection stamps (s), the frames' offsets, landmark ids and body-frame points."""

@@ -644,8 +644,8 @@ def run_prepared(
             plot_workers,
             tables=tables,
             found_offset=found_offset,
+            check=lambda report: camera_check(prepared, config, report, notes),  # nothing on a clean run
         )
-        notes += camera_check(prepared, config, report, notes)  # nothing on a clean run
         export_run(tmp, config, metadata, report, timings, progress)
         note_compilation(prepared, notes, metadata)
         write_json(
@@ -766,7 +766,8 @@ def estimate(
             if jumps and split is None and prepared.known_map is None and not lost:
                 raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
             metadata["observer"]["landmark_jumps"] = (split or []) + jumps
-            notes += jump_note(spec.name, split or [], t0_ns) + jump_note(spec.name, jumps, t0_ns, lost and not split)
+            notes += jump_note(spec.name, split or [], t0_ns, topics=aligned.topics)
+            notes += jump_note(spec.name, jumps, t0_ns, lost and not split, aligned.topics)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
         stage_timings = dict(part.timings)
         del part
@@ -818,22 +819,19 @@ def estimate_splitting(
     return {**timings, "first_pass_s": first_pass_s}
 
 
-#: A run note with this says the detection pairs named the camera's extrinsic (``time_offset.note``).
-CAMERA_CHECKED = "check the camera's extrinsic"
-
-
 def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, notes: list[str]) -> list[str]:
     """The detection pairs' warnings (``time_offset.note``: a camera extrinsic turned or inverted, a gyro misread,
     with their topics and the camera frame) when the report found the estimate's body frame turned against the
     truth's (``sections.TRUTH_FRAME_KEY``, which a wrong extrinsic also gives) and the run's own notes say nothing of
     the camera: observers do not make those checks (0.18-0.32 CPU s and ~17 s of first compile a run), so only
-    a run the report already doubts pays them (the log read and aligned again when the run released it)."""
+    a run the report already doubts pays them (the log read and aligned again when the run released it). Made
+    before the report is written, so that its notes (:func:`.report.add_run_context`) name the camera."""
     from slamobs.pipeline.evaluation.sections import TRUTH_FRAME_KEY
+    from slamobs.pipeline.observers import time_offset
 
     said = (report or {}).get("notes") or []
-    if not any(TRUTH_FRAME_KEY in n for n in said) or any(CAMERA_CHECKED in n for n in notes):
+    if not any(TRUTH_FRAME_KEY in n for n in said) or any(time_offset.CAMERA_ADVICE in n for n in notes):
         return []
-    from slamobs.pipeline.observers import time_offset
 
     aligned = prepared.aligned
     if aligned is None:
@@ -857,12 +855,14 @@ def evaluate_run(
     *,
     tables: dict | None = None,
     found_offset=None,
+    check=None,
 ) -> tuple[dict | None, str | None]:
     """The error report against the log's truth (report.json, report.md, figures in ``out``), or the map error
     alone where the log has landmark truth only; (report, why there is none). Every run draws its own figures
     (:mod:`.evaluation.figure_jobs`), with the report's on top when there is truth; run.json lists them.
     ``tables`` may hold the run's tables as written (else they are read from ``out``); ``found_offset`` is
-    :func:`offset_beside`'s (else the report searches the clock offset against the estimate)."""
+    :func:`offset_beside`'s (else the report searches the clock offset against the estimate); ``check``
+    (:func:`camera_check`) gives the notes the report's findings call for, added before the report is written."""
     report = report_error = None
     t = time.perf_counter()
     had_truth = streams.truth is not None and len(streams.truth)
@@ -871,7 +871,7 @@ def evaluate_run(
         progress("error report")
         try:
             report, report_error = _evaluate(
-                out, streams, config, notes, metadata, plot_workers, tables or {}, found_offset
+                out, streams, config, notes, metadata, plot_workers, tables or {}, found_offset, check
             )
         except TruthUnusable as err:
             report_error, unusable = one_line(err), True
@@ -1087,8 +1087,10 @@ def _evaluate(
     plot_workers=None,
     tables: dict | None = None,
     found_offset=None,
+    check=None,
 ) -> tuple[dict | None, str | None]:
-    """Error report against the log's ground truth, and the reason when there is none.
+    """Error report against the log's ground truth, and the reason when there is none (``check``: see
+    :func:`evaluate_run`).
 
     The observer's outputs are already complete: a report that cannot be made (truth that cannot be associated,
     or bad truth such as zero quaternions) becomes a note and ``report_error`` in run.json and the run still
@@ -1159,6 +1161,7 @@ def _evaluate(
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
+        notes += check(report) if check is not None else []
         add_run_context(report, notes, metadata)
         write_report(
             report,

@@ -235,8 +235,13 @@ def test_an_inverted_camera_extrinsic_is_named_when_the_report_finds_the_estimat
     """/tf_static's base_link -> camera given as its inverse: fast-adaptation's run exited 0 at APE 0.73 m with one
     note, the truth's body frame turned (session 22). When the report finds that turn, the run now makes the detection
     pairs' checks (``run.camera_check``; a clean run does not): one warning naming the camera's extrinsic, the
-    detection topic and the camera frame; the log as generated says nothing of it."""
+    detection topic and the camera frame; the log as generated says nothing of it. The check is made before the
+    report is written: report.md and report.json carry the warning, and their truth-frame note sends the reader to
+    it instead of offering frames.truth_rotation (which would hide the camera's error); `slamobs report` again
+    writes the same notes."""
     from dataclasses import replace
+
+    from slamobs.pipeline.evaluation.markdown import headline_caveats
 
     sim = simulate("figure8", seed=5, duration=20.0)
     camera = sim.static_tf[0]
@@ -257,3 +262,14 @@ def test_an_inverted_camera_extrinsic_is_named_when_the_report_finds_the_estimat
         assert len(said) == (name == "inverted") == len([n for n in notes if "check the camera's extrinsic" in n])
     assert "warning: fast-adaptation: the detections fit the odometry" in said[0], said
     assert "[detections /fiducial_transforms, camera frame camera]" in said[0], said
+    out = tmp_path / "inverted"
+    for again in (False, True):
+        if again:  # the report made again from the run directory
+            assert invoke("report", out).exit_code == 0
+        page, report = (out / "report.md").read_text(), json.loads((out / "report.json").read_text())
+        noted = report["notes"]
+        assert any("name the camera's extrinsic" in c for c in headline_caveats(report))  # compare's table too
+        assert "frames.truth_rotation" not in page and "the detection pairs name the camera's extrinsic" in page
+        camera = [n for n in json.loads((out / "run.json").read_text())["notes"] if "camera's extrinsic" in n]
+        assert [n for n in noted if "check the camera's extrinsic" in n] == camera
+        assert page.count("check the camera's extrinsic") == 1, page

@@ -85,6 +85,33 @@ def test_missing_roles_are_named_with_every_accepted_type(logs, tmp_path):
     assert doc["ready"] == [] and set(doc["satisfy"]) == {"linear_velocity", "detections"}
 
 
+def test_info_noise_on_a_log_that_cannot_run_shows_its_sensors_own_levels(logs, tmp_path):
+    """An IMU-only log (no velocity, no detections): `info --noise` refused with run's error (exit 2) and showed no
+    level, though the gyro's and accelerometer's own noise is in the log. It now shows each sensor stream's
+    white-noise density (near the generated one), says what cannot be estimated and why, and exits 0; a log with
+    no sensor stream at all still exits 2 with the error."""
+    import numpy as np
+
+    res = invoke("info", "--noise", logs["no_odom_det"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    gyro = next(line for line in lines if line.strip().startswith("gyro = "))
+    assert "/imu/data" in gyro and "rad/s/sqrt(Hz)" in gyro, gyro
+    assert any(line.strip().startswith("accelerometer = ") and "m/s^2/sqrt(Hz)" in line for line in lines), lines
+    assert any("velocity: not estimated (no linear_velocity stream)" in line for line in lines), lines
+    said = next(line for line in lines if "not estimated: the detection levels" in line)
+    assert "2 of the 3 inputs" in said and "linear_velocity" in said and "detections" in said, said
+    doc = json.loads(invoke("info", "--noise", "--json", logs["no_odom_det"]).stdout)
+    sim = simulate("circle", duration=4.0, seed=3)  # the fixture's
+    expected = sim.noise.gyro * np.sqrt(1.0 / 200.0)  # the generated density at the IMU's rate
+    assert np.allclose(doc["sensors"]["gyro"]["value"], expected, rtol=0.3), (doc["sensors"]["gyro"], expected)
+    bare = dataclasses.replace(
+        sim, imu=_empty(sim.imu), odom=_empty(sim.odom), detections=_empty(sim.detections), mag=_empty(sim.mag)
+    )
+    res = invoke("info", "--noise", write_log(bare, tmp_path / "bare.mcap"))
+    assert res.exit_code == 2 and "cannot run" in res.output, res.output
+
+
 def test_run_names_every_missing_role_at_once(logs, tmp_path):
     res = invoke("run", logs["no_odom_det"], "-o", tmp_path / "out")
     assert res.exit_code == 2

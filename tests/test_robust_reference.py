@@ -203,6 +203,7 @@ def test_a_reused_landmark_id_is_split_and_the_run_made_again(tmp_path):
         assert np.linalg.norm(lm.loc[new[mine]] - lm.loc[other]) < 0.05, (mine, lm.loc[new[mine]], lm.loc[other])
     said = [n for n in summary.notes if "id reused for another landmark" in n]
     assert len(said) == 1 and "the run was made again" in said[0] and f"landmark {new[id_a]}" in said[0]
+    assert f"[detections {stream.topics['detections']}]:" in said[0], said  # the topic (a log may hold several)
     assert "first_pass_s" in summary.timings
 
 
@@ -437,6 +438,16 @@ def test_every_start_is_tried_on_a_short_log_and_only_when_doubtful_on_a_long_on
     long = BatchSmoother(stream, {}, ObserverOptions(), noise=noise())
     assert "robust" not in long.solve()
     assert np.allclose(long.result["solution"].pos, short.result["solution"].pos, atol=1e-6)
+
+
+def test_batch_s_gate_warning_names_the_detection_topic():
+    """batch's warning of a solution most detections fail the χ² gate at (a wrong minimum) names the detection
+    topic it is about, as the other checks' warnings do (``alignment.stream_topics``); none where none is known."""
+    from slamobs.pipeline.smoother.estimator import gate_note
+
+    said = gate_note(900, 1000, "riekf", {"detections": "/cam0/tags", "angular_velocity": "/imu"})
+    assert said.startswith("warning: batch: 900 of 1000 detections [detections /cam0/tags] fail the χ² gate"), said
+    assert "1000 detections fail the χ² gate" in gate_note(900, 1000, "riekf", {})
 
 
 @pytest.mark.parametrize("drift", [0.05, 0.0])

@@ -36,14 +36,16 @@ def headline_caveats(report: dict[str, Any]) -> list[str]:
     """What a table of headline numbers (``slamobs compare``) must say beside them from this report: no convergence
     time and why, a coarse one, the report's note of an alignment that tilts a run with a gravity axis (upside
     down: its rotation APE is meaningless) and its note of a truth recorded in a body frame turned against the
-    estimate's (a rotation APE of 160-179 deg beside centimetres on TagSLAM test_21, with the key that removes it)."""
-    from slamobs.pipeline.evaluation.sections import TILT_NOTE_END, TRUTH_FRAME_KEY
+    estimate's (a rotation APE of 160-179 deg beside centimetres on TagSLAM test_21, with the key that removes it, or
+    with the camera's extrinsic named instead)."""
+    from slamobs.pipeline.evaluation.sections import CAMERA_NAMED_KEY, TILT_NOTE_END, TRUTH_FRAME_KEY
 
     conv = report.get("convergence") or {}
     out = []
     if conv and (conv.get("t_since_start_s") is None or conv.get("coarse")):
         out.append(f"convergence: {convergence_line(conv)}")
-    return out + [n for n in report.get("notes") or [] if n.endswith(TILT_NOTE_END) or TRUTH_FRAME_KEY in n]
+    keys = (TRUTH_FRAME_KEY, CAMERA_NAMED_KEY)
+    return out + [n for n in report.get("notes") or [] if n.endswith(TILT_NOTE_END) or any(k in n for k in keys)]
 
 
 def _coarse(conv: dict[str, Any]) -> str:

@@ -324,8 +324,14 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     batch used and why (the run's ``noise:`` notes), what the estimator said of its own run (its notes,
     ``<estimator>: ...``: e.g. batch's evidence-scaled levels and the detections' correlation it weighed, a
     doubtful first solution, riekf's recoveries), the velocity gaps that split the run into segments, and the
-    time window it kept. The same whether the report is made by ``slamobs run`` or again by ``slamobs report``."""
+    time window it kept; a note of the truth's body frame turned reads as the camera's when the run's notes name
+    the camera's extrinsic (:func:`.sections.camera_named_notes`). The same whether the report is made by
+    ``slamobs run`` or again by ``slamobs report``."""
+    from slamobs.pipeline.evaluation.sections import camera_named_notes
+
     own = f"{(metadata.get('observer') or {}).get('name')}: "
+    if report.get("notes"):
+        report["notes"] = camera_named_notes(report["notes"], run_notes)
     if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []

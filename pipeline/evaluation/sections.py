@@ -195,6 +195,10 @@ TRUTH_FRAME_TRANSLATION = 0.05
 TRUTH_FRAME_EXPLAINS = 0.5
 #: what every note naming that turn holds: what a headline table (:func:`.markdown.headline_caveats`) picks
 TRUTH_FRAME_KEY = "set frames.truth_rotation: ["
+#: where that note turns from the numbers to what may explain them (:func:`camera_named_notes` keeps what is before)
+TRUTH_FRAME_UNLESS = ", unless a sensor's extrinsic is wrong"
+#: what the note says instead when the run's detection pairs named the camera's extrinsic (a headline table picks it)
+CAMERA_NAMED_KEY = "the detection pairs name the camera's extrinsic"
 
 
 def truth_body_rotation(ev: TrajectoryEvaluation) -> tuple[np.ndarray, np.ndarray]:
@@ -233,10 +237,31 @@ def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
         f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
         f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): the truth's body frame looks turned against the "
         f"estimate's by a constant {angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
-        f"rotation APE would be {after:.2f} deg rmse, unless a sensor's extrinsic is wrong (a camera transform "
+        f"rotation APE would be {after:.2f} deg rmse{TRUTH_FRAME_UNLESS} (a camera transform "
         "inverted or turned turns the estimate so: `slamobs info --noise LOG` checks it against the motion); to apply "
         f"it (evaluation only) {TRUTH_FRAME_KEY}"
         f"{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
+    ]
+
+
+def camera_named_notes(notes: list[str], run_notes: list[str]) -> list[str]:
+    """The report's ``notes`` once the run's own (``run_notes``) hold the detection pairs' warning of a turned or
+    inverted camera extrinsic (``time_offset.CAMERA_ADVICE``): such a camera turns the estimate as a truth recorded
+    in another body frame would, so the truth-frame note (:func:`truth_frame_note`) keeps its numbers, sends the
+    reader to that warning (a report's notes carry it: :func:`.report.add_run_context`) and no longer offers
+    ``frames.truth_rotation``, which would hide the camera's error in the report, not mend the estimate. The
+    notes as they are otherwise."""
+    from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE
+
+    if not any(CAMERA_ADVICE in n for n in run_notes):
+        return notes
+    return [
+        f"{n.split(TRUTH_FRAME_UNLESS)[0]}; but {CAMERA_NAMED_KEY} (the warning below): a camera transform inverted "
+        "or turned turns the estimate so; correct the extrinsic and run again (a rotation of the truth would only "
+        "hide the error)"
+        if TRUTH_FRAME_KEY in n
+        else n
+        for n in notes
     ]
 
 

@@ -20,13 +20,13 @@ within ``max_meas_age`` after the gap that sees at least three mapped landmarks;
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
 
-from slamobs.pipeline.alignment import AlignedStream
+from slamobs.pipeline.alignment import AlignedStream, stream_topics
 from slamobs.pipeline.blocks import id_time_order, row_norms3, row_squares3
 from slamobs.pipeline.errors import BadInput, GainError
 from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED
@@ -511,13 +511,16 @@ def _jump_words(j: dict, t0_ns: int) -> str:
     )
 
 
-def jump_note(name: str, jumps: list[dict], t0_ns: int, lost: bool = False) -> list[str]:
-    """Estimator ``name``'s warning naming the landmarks that jump (:func:`landmark_jumps`); those split by
-    :func:`split_jumps` (a ``new_id``) say which id their later detections got. ``lost``: the run's own checks named
-    a misread input first (``time_offset.misread``), so the jumps are likely its pose's and were not split."""
+def jump_note(
+    name: str, jumps: list[dict], t0_ns: int, lost: bool = False, topics: Mapping[str, str] | None = None
+) -> list[str]:
+    """Estimator ``name``'s warning naming the landmarks that jump (:func:`landmark_jumps`) and the detection topic
+    (``topics``: the aligned stream's, :func:`.alignment.stream_topics`); those split by :func:`split_jumps` (a
+    ``new_id``) say which id their later detections got. ``lost``: the run's own checks named a misread input first
+    (``time_offset.misread``), so the jumps are likely its pose's and were not split."""
     if not jumps:
         return []
-    said = "; ".join(_jump_words(j, t0_ns) for j in jumps)
+    said = "; ".join(_jump_words(j, t0_ns) for j in jumps) + stream_topics(topics or {}, "detections")
     if lost:
         return [
             f"warning: {name}: landmark {said}: jumps that follow a misread input the detections named (the "

@@ -414,6 +414,8 @@ def _halves_disagree(c: Consistency, stream) -> str | None:
     return None
 
 
+#: What the warning of a turned or inverted camera extrinsic says: how a run and its report find that warning.
+CAMERA_ADVICE = "check the camera's extrinsic"
 #: The angular velocity's sign flipped: the misread a mirror of the detections also reads as (``MIRROR_ADVICE``).
 SIGN_FLIPPED = "with its angular velocity's sign flipped"
 
@@ -945,7 +947,7 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         found.append(
             (
                 f"the detections fit the odometry {turn['gain']:.3g}x better turned {_turn_phrase(turn['rotvec_deg'])} "
-                f"({offset['pairs']} detection pairs, trimmed mean squared residual): check the camera's extrinsic "
+                f"({offset['pairs']} detection pairs, trimmed mean squared residual): {CAMERA_ADVICE} "
                 "(turned about one of its axes, or given as the inverse transform)",
                 "it",
                 ("detections", "camera"),

@@ -14,6 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.blocks import row_blocks
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.noise import DETECTION_LAW_KEYS
@@ -113,6 +114,16 @@ def _in_step(progress, step: str):
     if progress is None:
         return None
     return lambda line: progress(f"batch ({step}): {line.removeprefix('batch: ')}")
+
+
+def gate_note(failed: int, n_det: int, seed_name: str, topics: dict[str, str]) -> str:
+    """The warning of a solution more than ``MAX_GATED`` of the detections fail the χ² gate at, with the detection
+    topic (``topics``: the aligned stream's, :func:`.alignment.stream_topics`)."""
+    return (
+        f"warning: batch: {failed} of {n_det} detections{stream_topics(topics, 'detections')} fail the χ² gate at "
+        f"the smoother's solution: it probably stopped in a local minimum far from the optimum (seed '{seed_name}'); "
+        "every detection was kept; try another batch.seed"
+    )
 
 
 class BatchSmoother(Stepper):
@@ -749,11 +760,7 @@ class BatchSmoother(Stepper):
         n_det = int(problem.det_idx.shape[0])
         notes = []
         if kept is not None and n_det - kept.size > MAX_GATED * n_det:  # not outliers: a wrong minimum
-            notes.append(
-                f"warning: batch: {n_det - kept.size} of {n_det} detections fail the χ² gate at the "
-                f"smoother's solution: it probably stopped in a local minimum far from the optimum (seed "
-                f"'{seed_name}'); every detection was kept; try another batch.seed"
-            )
+            notes.append(gate_note(n_det - kept.size, n_det, seed_name, self.stream.topics))
             kept = None
         if kept is not None:  # outliers the Huber kernel still listens to: solved again without them
             first = sol.summary
