@@ -843,6 +843,19 @@ def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, 
     return [f"{n} (checked since the report found the estimate turned)" for n in found if n.startswith("warning: ")]
 
 
+def checked_notes(check, report: dict) -> list[str]:
+    """The notes of a check made before the report is written (:func:`camera_check`); a check that fails says so in
+    one warning instead of costing the run its report (the report's own errors are :func:`evaluate_run`'s)."""
+    if check is None:
+        return []
+    try:
+        return check(report)
+    except InputError:
+        raise
+    except Exception as err:  # noqa: BLE001 - an extra check never takes the report with it
+        return [f"warning: a check before the report failed ({type(err).__name__}: {err}); report written without it"]
+
+
 def evaluate_run(
     out: Path,
     streams: LogStreams,
@@ -1161,7 +1174,7 @@ def _evaluate(
         # which clock the truth's stamps are on, as `slamobs report` records it (docs/outputs.md)
         clock = streams.clocks.get(truth.topic, config.align_time_source)
         report["truth_source"]["time_source"] = "file stamps" if config.evaluation.truth_file else clock
-        notes += check(report) if check is not None else []
+        notes += checked_notes(check, report)
         add_run_context(report, notes, metadata)
         write_report(
             report,

@@ -273,3 +273,23 @@ def test_an_inverted_camera_extrinsic_is_named_when_the_report_finds_the_estimat
         camera = [n for n in json.loads((out / "run.json").read_text())["notes"] if "camera's extrinsic" in n]
         assert [n for n in noted if "check the camera's extrinsic" in n] == camera
         assert page.count("check the camera's extrinsic") == 1, page
+
+
+def test_a_failing_check_before_the_report_costs_a_warning_not_the_report(tmp_path, monkeypatch):
+    """The camera check runs inside the report's step (so that report.md can name the camera); an unexpected error in
+    it must not take the report with it (the report step's own errors end in "no report"): the report is written
+    and one warning says the check failed."""
+    from slamobs.pipeline import run as run_module
+
+    def broken(*_args):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(run_module, "camera_check", broken)
+    log = write_log(simulate("figure8", seed=5, duration=10.0), tmp_path / "log.mcap")
+    config = tmp_path / "run.yaml"
+    config.write_text("evaluation:\n  plots: false\n")
+    shown = invoke("run", log, "-o", tmp_path / "out", "--observer", "fast-adaptation", "--config", config)
+    assert shown.exit_code == 0, shown.output
+    assert (tmp_path / "out" / "report.json").exists() and (tmp_path / "out" / "report.md").exists()
+    notes = json.loads((tmp_path / "out" / "run.json").read_text())["notes"]
+    assert [n for n in notes if "check before the report failed (RuntimeError: boom)" in n], notes
