@@ -106,8 +106,14 @@ def _ours(path: Path, one_pass: bool) -> tuple[Columns, int, float, float]:
         else:
             rows = {t: decode_rows(reader, path, t, conns) for t, conns in table.items()}
         done = time.process_time()
-    out = {t: (r.t_ns, r.rec_ns, r.values, [r.frame_names[k] for k in r.frame]) for t, r in rows.items()}
+    out = {t: (r.t_ns, r.rec_ns, _layout_values(r), [r.frame_names[k] for k in r.frame]) for t, r in rows.items()}
     return out, sum(len(r.t_ns) for r in rows.values()), opened - start, done - opened
+
+
+def _layout_values(r) -> np.ndarray:
+    """A topic's rows in its whole layout: the values and, where the layout has them, the stated variances that
+    ``Rows`` keeps as runs of equal rows (``Rows.stated``), expanded, so "identical" compares them too."""
+    return r.values if r.stated is None else np.hstack([r.values, r.stated.expanded()])
 
 
 def _inflate_only(path: Path) -> float | None:
