@@ -113,7 +113,7 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
     (``noise.sensor_levels``; no estimator's level: those weigh the streams together), and what cannot be
     estimated and why. ``err`` is raised again when the log has no such stream, or cannot be read at all."""
     from slamobs.pipeline.errors import SlamobsError
-    from slamobs.pipeline.noise import sensor_levels
+    from slamobs.pipeline.noise import format_level, sensor_levels
     from slamobs.pipeline.readers import read_log
 
     try:
@@ -132,20 +132,13 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
     click.echo(f"noise of {log}'s sensor streams, each on its own (key: value unit (topic, ± standard error: method)):")
     for name, v in levels.items():
         if "value" in v:
-            shown = (
-                f"{name} = {_plain_levels(v['value'])} {v['unit']} ({v['topic']}, ± {_plain_levels(v['uncertainty'])}"
-            )
-            click.echo(f"  {shown}: {v['method']})")
+            value, spread = format_level(v["value"], 4, False), format_level(v["uncertainty"], 4, False)
+            click.echo(f"  {name} = {value} {v['unit']} ({v['topic']}, ± {spread}: {v['method']})")
         else:
             click.echo(f"  {name}: not estimated ({v['why']})")
     click.echo(f"  not estimated: {cannot}: {err.problem}")
     for line in err.details:
         click.echo(f"    {line}")
-
-
-def _plain_levels(value) -> str:
-    """A level (one number or one per axis) in 4 significant digits."""
-    return ", ".join(f"{x:.4g}" for x in value) if isinstance(value, list) else f"{value:.4g}"
 
 
 def format_readiness(ready) -> str:

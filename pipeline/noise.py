@@ -194,8 +194,8 @@ class NoiseSettings:
             if k in self.absent:
                 continue
             value, se = _plain(getattr(self, k)), _plain(self.uncertainty.get(k))
-            text = f"{k} = {_fmt(value)}{' ' * bool(unit)}{unit} ({self.sources.get(k, 'default')}"
-            text += f", ± {_fmt(se)}" if se is not None else ""
+            text = f"{k} = {format_level(value)}{' ' * bool(unit)}{unit} ({self.sources.get(k, 'default')}"
+            text += f", ± {format_level(se)}" if se is not None else ""
             method = self.methods.get(k)
             text += ")" if method is None else ": the same fit)" if method in said else f": {_told(method, said)})"
             said.setdefault(method, k)
@@ -218,10 +218,13 @@ def _plain(value):
     return float(value) if isinstance(value, np.floating) else value
 
 
-def _fmt(value) -> str:
+def format_level(value, digits: int = 3, brackets: bool = True) -> str:
+    """A level (one number, or a list of one per axis) in ``digits`` significant digits, a list in brackets unless
+    ``brackets`` is False: the notes' form here, and ``info --noise``'s (4 digits, no brackets)."""
     if isinstance(value, list):
-        return "[" + ", ".join(f"{v:.3g}" for v in value) + "]"
-    return f"{value:.3g}"
+        inner = ", ".join(f"{v:.{digits}g}" for v in value)
+        return f"[{inner}]" if brackets else inner
+    return f"{value:.{digits}g}"
 
 
 @dataclass(frozen=True)
@@ -476,7 +479,8 @@ def resolve_noise(
             values[key] = covariance.density
             sources[key] = f"{covariance.topic} covariance ({1.0 / covariance.period_s:.4g} Hz)"
             if key in found:
-                methods[key] = f"plausible; the samples' white-noise estimate is {_fmt(_plain(found[key].value))}"
+                level = format_level(_plain(found[key].value))
+                methods[key] = f"plausible; the samples' white-noise estimate is {level}"
         elif key in absent:
             values[key], sources[key] = 0.0, "estimated"
             methods[key] = f"not a term of the law chosen, {estimated.detection.law}"
