@@ -316,3 +316,45 @@ def test_the_3_sigma_figure_draws_a_planar_runs_unmeasured_axes_empty(monkeypatc
             empty = 3 * col + k in held
             assert (len(ax.lines) == 0) == empty and (len(ax.collections) == 0) == empty, (k, col)
             assert any("not measured" in x.get_text() for x in ax.texts) == empty, (k, col)
+
+
+def test_a_nees_no_correlation_explains_says_plainly_the_sigma_is_not_to_be_trusted():
+    """MR.CLAM 7 robot 1, riekf: position NEES 13.8 for 2 DoF (attitude 8.1 for 1) against Vicon, and the report's
+    note said the covariance "looks optimistic here (consecutive errors are correlated, so one run strays further
+    than these bounds ...)": a reader could take the σ at face value. A mean above one NEES value's 97.5 % quantile
+    (9.35 for 3 DoF), which a mean of consistent values rarely exceeds however correlated, is called overconfident
+    with the factor the σ would need; a mean outside the independent values' bounds only stays not conclusive."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation.markdown import md_uncertainty
+    from slamobs.pipeline.evaluation.sections import UncertaintySection
+
+    rng = np.random.default_rng(11)
+    n = 3000
+    drift = np.cumsum(rng.normal(0.0, 0.01, (n, 6)), axis=0)  # a slow error, correlated over the whole run
+    rms = np.sqrt(np.mean(drift**2, axis=0) * 3)  # each part's error scaled to an RMS norm of 0.1 √3 times ...
+    err = drift / rms * 0.1 * np.sqrt(3) * np.r_[[np.sqrt(1.3)] * 3, [3.5] * 3]  # ... √1.3 (attitude), 3.5 (position)
+    cov = np.tile(np.eye(3) * 0.01, (n, 1, 1))
+    u = SimpleNamespace(
+        t_ns=np.arange(n) * 10_000_000,
+        gauge_t_ns=0,
+        error=err,
+        cov_position=cov,
+        cov_attitude=cov,
+        nees_position=nees_values(err[:, 3:], cov),
+        nees_attitude=nees_values(err[:, :3], cov),
+        position_axes=(0, 1, 2),
+        attitude_axes=(0, 1, 2),
+    )
+    section = UncertaintySection()
+    section.process_data(SimpleNamespace(uncertainty=u))
+    pos, att = section.result["position"], section.result["attitude"]
+    assert pos["mean"] > pos["bound_any_correlation"] == pytest.approx(nees_bounds(3, 1)[1])
+    assert pos["verdict"] == "overconfident" and pos["sigma_factor"] == pytest.approx(3.5, rel=0.05)
+    assert att["bounds"][1] < att["mean"] < att["bound_any_correlation"] and att["verdict"] == "inconclusive"
+    (p_note,) = [x for x in section.notes if x.startswith("position NEES")]
+    (a_note,) = [x for x in section.notes if x.startswith("attitude NEES")]
+    assert "overconfident" in p_note and "do not take the written position σ at face value" in p_note
+    assert "σ × 3.5" in p_note and "not conclusive from one run" in a_note and "face value" not in a_note
+    rows = "\n".join(md_uncertainty(section.result))
+    assert "| overconfident (3.5) |" in rows and "| inconclusive (1" in rows

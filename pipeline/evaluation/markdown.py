@@ -345,20 +345,23 @@ def md_uncertainty(u: dict[str, Any]) -> list[str]:
         "",
         f"Error (δθ, δp) in the {u['frame']}.",
         "",
-        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | median | share of instants within χ²(DoF) "
+        "| part | DoF | pairs | mean NEES | 95 % bounds of the mean | bound whatever the correlation "
+        "| verdict (σ × to cover) | median | share of instants within χ²(DoF) "
         f"bounds | share of {u['window_s']:g} s windows within bounds | share within ±3σ (x, y, z; – not measured) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for part in ("position", "attitude"):
         r = u[part]
         if not r["n"]:
-            lines.append(f"| {part} | | 0 | | | | | | |")
+            lines.append(f"| {part} | | 0 | | | | | | | | |")
             continue
+        wide_text = _fmt(r.get("bound_any_correlation"), 4)
+        verdict = f"{r['verdict']} ({_fmt(r['sigma_factor'], 2)})" if r.get("verdict") else ""
         lines.append(
             f"| {part} | {r.get('dof', 3)}{' (' + ', '.join(r['axes']) + ')' if r.get('axes') else ''} | {r['n']} | "
-            f"{_fmt(r['mean'], 4)} | {_fmt(r['bounds'][0], 4)} – {_fmt(r['bounds'][1], 4)} | "
-            f"{_fmt(r['median'], 4)} | {_fmt(r['share_instants_within'], 3)} | {_fmt(r['share_windows_within'], 3)} | "
-            f"{_vec_str(r['within_3sigma'])} |"
+            f"{_fmt(r['mean'], 4)} | {_fmt(r['bounds'][0], 4)} – {_fmt(r['bounds'][1], 4)} | {wide_text} | "
+            f"{verdict} | {_fmt(r['median'], 4)} | {_fmt(r['share_instants_within'], 3)} | "
+            f"{_fmt(r['share_windows_within'], 3)} | {_vec_str(r['within_3sigma'])} |"
         )
     return lines + [""]
 
