@@ -1049,8 +1049,9 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
     )
     if r["verdict"] == "inconclusive":
         return (
-            f"{head}, but within one value's {r['bound_any_correlation']:.3g}: consecutive errors are correlated, so "
-            f"one run can stray this far; not conclusive from one run (the test of consistency is the mean over runs)"
+            f"{head}: consecutive errors are correlated, so one run strays further than these bounds (up to one NEES "
+            f"value's 97.5 % quantile {r['bound_any_correlation']:.3g}); not conclusive from one run (the test of "
+            "consistency is the mean over runs)"
         )
     return (
         f"{head} and above {r['bound_any_correlation']:.3g}, the 97.5 % quantile of a single NEES value, which a "
