@@ -722,7 +722,8 @@ def _tilt_blocks(t_s: np.ndarray, omega: np.ndarray, velocity: np.ndarray, f: np
     nb = int(k[-1]) + 1
     full = np.bincount(k, minlength=nb).astype(np.float64)
     used = np.bincount(k[ok], minlength=nb).astype(np.float64)
-    u = np.column_stack([np.bincount(k[ok], up[ok, a], minlength=nb) for a in range(3)])
+    # float even when no sample is trusted (a gyro in deg/s: every omega x v far off): bincount of nothing is int
+    u = np.column_stack([np.bincount(k[ok], up[ok, a], minlength=nb) for a in range(3)]).astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         u /= row_norms3(u)[:, None]
     good = (used >= 0.8 * full) & (full > 0)
@@ -1247,6 +1248,15 @@ def _camera_to_body(
         keep_rows = in_span[frame_of] if row_ok is None else in_span[frame_of] & row_ok
         return cam_ext, in_span, keep_rows, np.arange(det.ids.shape[0])  # rows of the per-row transforms
     cam_ext = fr.to_body(det.frame_id, det.topic, t_det)
+    if cam_ext.valid is not None and in_span.any() and not (in_span & cam_ext.valid).any():
+        raise InputError(
+            fr.tf.path,
+            f"none of its {plural(int(np.count_nonzero(in_span)), 'detection frame')} inside the velocity time span "
+            f"is inside the time span of /tf's transform from frame '{det.frame_id}' to body '{fr.body}' (a fixed "
+            "camera's extrinsic published on /tf once, or on another clock?): publish a fixed extrinsic on "
+            "/tf_static",
+            det.topic,
+        )
     if cam_ext.valid is not None and (n_tf := int(np.count_nonzero(in_span & ~cam_ext.valid))):
         notes.append(f"{det.topic}: {plural(n_tf, 'detection frame')} outside the /tf span dropped")
         in_span &= cam_ext.valid
