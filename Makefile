@@ -31,14 +31,18 @@ demo: $(STAMP) bytecode
 	$(BIN)/slamobs info sample_logs/figure8.mcap
 	$(BIN)/slamobs run sample_logs/figure8.mcap -o demo_out/figure8 --force
 
+## The suite's pytest workers: `auto` is one per core (`make test WORKERS=3` to try another count).
+WORKERS ?= auto
+
 ## Set up, check the code's shape (ruff lint and format, import-linter's layers), then run the test suite (with
-## evo as an oracle in its own venv), one pytest worker per core; a test module stays on one worker
-## (--dist loadscope), so its module fixtures are built once.
+## evo as an oracle in its own venv) on $(WORKERS) pytest workers; a test module stays on one worker
+## (--dist loadscope), so its module fixtures are built once, and the modules go out longest first
+## (tests/conftest.py's LONGEST_FIRST; xdist's own order, most tests first, is turned off).
 test: $(STAMP) $(EVO_STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/lint-imports
-	SLAMOBS_EVO_PYTHON=$(abspath $(EVO_VENV))/bin/python $(BIN)/python -m pytest -q -n auto --dist loadscope
+	SLAMOBS_EVO_PYTHON=$(abspath $(EVO_VENV))/bin/python $(BIN)/python -m pytest -q -n $(WORKERS) --dist loadscope --no-loadscope-reorder
 
 clean:
 	rm -rf $(VENV) $(EVO_VENV) demo_out
