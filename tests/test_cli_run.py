@@ -428,3 +428,5 @@ def test_batch_reports_its_solve_while_it_works(generated, tmp_path):
     assert any(m.startswith("batch: iteration ") for m in during), seen
     # the solves after the first say which step they are (a bare "iteration 5" for 40 s on MR.CLAM 7 r3 did not)
     assert any(re.match(r"batch \([a-z -]+\): iteration \d+, error ", m) for m in during), seen
+    # the scans' solves say the level and scale they try (they said nothing: the step's last line stood for 40 s)
+    assert any(re.match(r"batch \(noise levels\): [a-z_]+ x[0-9.]+: iteration \d+, error ", m) for m in during), seen

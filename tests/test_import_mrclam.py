@@ -194,3 +194,19 @@ def test_real_robot_imports_every_row(tmp_path):
     observed = sum(len(m.transforms) for _, m in msgs["/robot4/landmarks"])
     assert observed + log.other_robots + log.unknown == rows("Robot4_Measurement.dat") and log.other_robots > 0
     assert len(json.loads(msgs["/slamobs/sim_truth"][0][1].data)["landmarks"]) == rows("Landmark_Groundtruth.dat")
+
+
+def test_the_folder_of_the_datasets_names_them(dataset, tmp_path):
+    """The downloaded layout is a folder of MRCLAM_Dataset1 ... 9: given that folder, the import said
+    "<folder>/Barcodes.dat: missing: an MR.CLAM folder has Barcodes.dat", as if the dataset were broken; it now
+    names the dataset folders in it and one to give."""
+    import shutil
+
+    parent = tmp_path / "mrclam"
+    shutil.copytree(dataset[0], parent / "MRCLAM_Dataset6")
+    out = tmp_path / "out.mcap"
+    res = invoke("import", "mrclam", parent, "-o", out)
+    assert res.exit_code == 2, res.output
+    assert res.output.startswith("error: ") and res.output.count("\n") == 1, res.output
+    assert "MRCLAM_Dataset6" in res.output and "give one" in res.output and "Barcodes.dat" not in res.output
+    assert not out.exists()

@@ -231,6 +231,24 @@ def test_the_hint_is_for_observers_on_fixed_gains_only():
     assert "--target batch" in loose_hint("hashim", {"lost": True}, "log.mcap")
 
 
+def test_the_hint_after_tuned_gains_does_not_send_the_user_to_tune_again():
+    """`slamobs tune mr6.mcap --target batch` then `run --config gains.yaml` on MR.CLAM 6 robot 1 (APE 6.24 -> 1.14 m,
+    still not converged) printed "`slamobs tune mr6.mcap --observer fast-adaptation --target batch -o DIR` fits
+    fast-adaptation's gains to it": the command just run. Gains other than the defaults get a hint that says they
+    came from the configuration; the defaults (also given explicitly) keep the tune command."""
+    from slamobs.cli.main import loose_hint
+    from slamobs.pipeline.estimators import get_estimator
+
+    defaults = {g.name: g.default for g in get_estimator("fast-adaptation").gains}
+    tuned = defaults | {"k_p": 3.832}
+    hint = loose_hint("fast-adaptation", {"lost": True}, "log.mcap", tuned)
+    assert "set in the configuration" in hint and "--target batch -o DIR" not in hint and "--trials" in hint
+    for gains in (None, defaults):
+        assert "slamobs tune log.mcap --observer fast-adaptation --target batch" in loose_hint(
+            "fast-adaptation", {"coarse": True}, "log.mcap", gains
+        )
+
+
 def test_an_inverted_camera_extrinsic_is_named_when_the_report_finds_the_estimate_turned(tmp_path):
     """/tf_static's base_link -> camera given as its inverse: fast-adaptation's run exited 0 at APE 0.73 m with one
     note, the truth's body frame turned (session 22). When the report finds that turn, the run now makes the detection

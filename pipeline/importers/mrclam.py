@@ -133,11 +133,23 @@ def _times(path: Path, seconds: np.ndarray) -> np.ndarray:
     return t_ns
 
 
+def _dataset_folders(folder: Path) -> list[str]:
+    """The names of ``folder``'s subfolders that are MR.CLAM datasets (they hold ``Barcodes.dat``)."""
+    return sorted(p.name for p in folder.iterdir() if (p / "Barcodes.dat").is_file())
+
+
 def read_dataset(folder: str | Path) -> Dataset:
     """The shared files of an MR.CLAM folder (barcodes, landmark survey)."""
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(folder, "not a directory (expected an MR.CLAM dataset folder such as MRCLAM_Dataset6)")
+    if not (folder / "Barcodes.dat").is_file() and (inner := _dataset_folders(folder)):
+        # the folder of the datasets (as downloaded), not one of them
+        named = ", ".join(inner[:4]) + (", ..." if len(inner) > 4 else "")
+        raise InputError(
+            folder,
+            f"holds MR.CLAM dataset folders ({named}), not one dataset's files: give one, e.g. {folder / inner[0]}",
+        )
     codes = read_table(folder / "Barcodes.dat", "Barcodes").astype(np.int64)
     if np.unique(codes[:, 1]).size != len(codes):
         raise InputError(folder / "Barcodes.dat", "a barcode is listed for more than one subject")

@@ -116,6 +116,26 @@ def _in_step(progress, step: str):
     return lambda line: progress(f"batch ({step}): {line.removeprefix('batch: ')}")
 
 
+def _climbing(progress, what: str, problem_at, solved_from):
+    """``problem_at`` and a solver (``solved_from(problem, start, progress)``) for :func:`.evidence.climb` whose
+    solves report as ``batch: <what> x<scale>: iteration 3, ...``: a scan's solves said nothing, and the step's
+    last line before it ("predicted ranges: iteration 6") was repeated for 40 s (MR.CLAM 6 robot 1)."""
+    at = [1.0]
+
+    def problem(scale: float):
+        at[0] = scale
+        return problem_at(scale)
+
+    def solve(problem, start):
+        if progress is None:
+            return solved_from(problem, start)
+        return solved_from(
+            problem, start, lambda line: progress(f"batch: {what} x{at[0]:g}: {line.removeprefix('batch: ')}")
+        )
+
+    return problem, solve
+
+
 def gate_note(failed: int, n_det: int, seed_name: str, topics: dict[str, str]) -> str:
     """The warning of a solution more than ``MAX_GATED`` of the detections fail the χ² gate at, with the detection
     topic (``topics``: the aligned stream's, :func:`.alignment.stream_topics`)."""
@@ -529,13 +549,13 @@ class BatchSmoother(Stepper):
         thinning = self._independent_detections(base, chosen.sol, kf_t)
         if thinning is not None:  # the scan on detections about one correlation time apart, solved on them first
             base = g.with_detections(base, thinning[0])
-            sols[1.0] = self._solved_from(base, chosen.sol)
+            sols[1.0] = self._solved_from(base, chosen.sol, progress)
         scores = {1.0: ev.log_evidence(base, sols[1.0])}
 
         def shaped(ratio: float):
             return replace(base, det_shape=an.shape(base.det_y, ratio))
 
-        ev.climb(an.RATIOS, shaped, self._solved_from, sols, scores)
+        ev.climb(an.RATIOS, *_climbing(progress, "range/bearing", shaped, self._solved_from), sols, scores)
         winner = an.winner(scores, ev.best_scale(scores))
         record, note = an.record(scores, winner, ev.CRITERION), an.note(scores, winner)
         if thinning is not None:
@@ -665,7 +685,7 @@ class BatchSmoother(Stepper):
 
         for direction in ev.search_order():
             direction = [scale for scale in direction if scale >= lowest * (1.0 - 1e-9)]
-            if ev.climb(direction, problem_at, self._solved_from, sols, scores) != 1.0:
+            if ev.climb(direction, *_climbing(progress, key, problem_at, self._solved_from), sols, scores) != 1.0:
                 break  # the evidence rose downwards: no need to look upwards
         winner = ev.best_scale(scores)
         level = self.noise.velocity[1:] if key == EVIDENCE_ACROSS else getattr(self.noise, key)
