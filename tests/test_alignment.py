@@ -334,6 +334,28 @@ def test_a_transform_dropped_as_nan_is_named_where_it_is_missing():
         align(s)
 
 
+def test_a_zero_quaternion_on_tf_static_is_named_as_such_not_as_nan(tmp_path):
+    # a generated log whose /tf_static IMU transform has the quaternion (0, 0, 0, 0) (how some drivers say 'unknown'):
+    # the error called it "1 NaN/Inf static transform dropped", which sent the user looking for NaNs
+    from dataclasses import replace
+
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.run import prepare_log
+    from slamobs.pipeline.simulate import simulate, write_log
+
+    sim = simulate("figure8", seed=5, duration=5.0)
+    imu = next(t for t in sim.static_tf if t.child == "imu_link")
+    unknown = replace(imu, quat_xyzw=np.zeros(4))
+    static_tf = [t if t is not imu else unknown for t in sim.static_tf]
+    log = write_log(replace(sim, static_tf=static_tf), tmp_path / "z.mcap")
+    with pytest.raises(InputError) as err:
+        prepare_log(log, RunConfig(), directions=False, noise=False)
+    said = str(err.value)
+    assert str(log) in said and "[/imu/data]" in said and "NaN" not in said, said
+    assert "/tf_static: 1 static transform with a zero quaternion (0, 0, 0, 0: not a rotation) dropped: " in said
+    assert "base_link->imu_link" in said
+
+
 def test_two_tags_that_share_an_id_are_named():
     # a generated figure 8 with one tag's id given to another tag all along (two tag families with the same id):
     # 118 repeats within a frame dropped with a plain note, the second tag's other 39 detections taken as the

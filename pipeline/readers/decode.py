@@ -819,16 +819,24 @@ def static_transforms(
         ):
             changed.add(key)
         found[key] = Transform(*key, translation, quat)
-    warnings, dropped = [], {}
+    warnings: list[str] = []
+    dropped: dict[tuple[str, str], str] = {}
     if changed:
         pairs = frame_pairs(sorted(changed), "static_tf_changed")
         warnings.append(f"static transforms published with different values, using the last: {pairs}")
-    if nbad := int(ok.size - np.count_nonzero(ok)):
-        edges = sorted({(names[rows.parent[i]], names[rows.child[i]]) for i in np.flatnonzero(~ok)})
-        bad = frame_pairs(edges, "static_tf_dropped")
-        warnings.append(plural(nbad, "NaN/Inf static transform") + f" dropped: {bad}")
-        dropped = dict.fromkeys(edges, warnings[-1])
+    nonfinite = ~np.isfinite(rows.values).all(axis=1)
+    for rows_of_kind, kind in ((nonfinite, "NaN/Inf static transform"), (~ok & ~nonfinite, "static transform")):
+        if nbad := int(np.count_nonzero(rows_of_kind)):
+            edges = sorted({(names[rows.parent[i]], names[rows.child[i]]) for i in np.flatnonzero(rows_of_kind)})
+            what = plural(nbad, kind) + ("" if rows_of_kind is nonfinite else _ZERO_QUATERNION)
+            warnings.append(f"{what} dropped: {frame_pairs(edges, 'static_tf_dropped')}")
+            dropped.update(dict.fromkeys(edges, warnings[-1]))
     return list(found.values()), warnings, dropped, sorted(changed)
+
+
+#: what a transform with a zero quaternion (its norm under 1e-6: how some publishers say 'unknown') is, where it is
+#: dropped: no rotation, so no transform
+_ZERO_QUATERNION = " with a zero quaternion (0, 0, 0, 0: not a rotation)"
 
 
 def decode_static_tf(
