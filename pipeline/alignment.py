@@ -946,6 +946,28 @@ def _clock(stream, time_source: str) -> str:
     return "header stamps"
 
 
+def _no_overlap_hint(om: Vec3Stream, lv: Vec3Stream, clock_om: str, clock_lv: str) -> str:
+    """What can join two velocity streams that do not overlap: another ``time.source`` only when their record times
+    overlap; when those do not either (a topic stamped and recorded on another clock, a log merged or rewritten), no
+    time setting can, and the hint says so and what can."""
+    rec_om, rec_lv = (np.array([s.rec_ns.min(), s.rec_ns.max()]) for s in (om, lv))
+    if om.topic != lv.topic and (rec_om[1] < rec_lv[0] or rec_lv[1] < rec_om[0]):
+        epochs = {bool(r[0] * 1e-9 > ABSOLUTE_AFTER_S) for r in (rec_om, rec_lv)}
+        which = " (one on a clock since boot, the other on UNIX time)" if len(epochs) > 1 else ""
+        return (
+            f"; their record times do not overlap either ({om.topic}: {_span(rec_om)}, {lv.topic}: "
+            f"{_span(rec_lv)}){which}: the two topics were not recorded on one clock, and no time.source joins "
+            "them: fix one topic's stamps and record times in the log, or name two velocity topics on one clock "
+            "(topics.angular_velocity, topics.linear_velocity)"
+        )
+    clocks = {clock_om, clock_lv}
+    if len(clocks) > 1:
+        return "; the two clocks differ: try time.source: auto or record"
+    if clocks == {"header stamps"}:  # e.g. one driver stamping simulated time in a wall-clock recording
+        return "; is one of them on another clock (simulated time)? try time.source: auto"
+    return ""
+
+
 def _span(t: np.ndarray) -> str:
     return f"{t[0] * 1e-9:.3f} .. {t[-1] * 1e-9:.3f} s"
 
@@ -1066,12 +1088,7 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
     lo, hi = max(t_om[0], t_lv[0]), min(t_om[-1], t_lv[-1])
     if hi <= lo:
         clock_om, clock_lv = _clock(om, fr.time_source), _clock(lv, fr.time_source)
-        clocks = {clock_om, clock_lv}
-        hint = ""
-        if len(clocks) > 1:
-            hint = "; the two clocks differ: try time.source: auto or record"
-        elif clocks == {"header stamps"}:  # e.g. one driver stamping simulated time in a wall-clock recording
-            hint = "; is one of them on another clock (simulated time)? try time.source: auto"
+        hint = _no_overlap_hint(om, lv, clock_om, clock_lv)
         raise InputError(
             path,
             f"angular velocity ({om.topic}: {_span(t_om)}, {clock_om}) and linear velocity "

@@ -356,6 +356,33 @@ def test_a_zero_quaternion_on_tf_static_is_named_as_such_not_as_nan(tmp_path):
     assert "base_link->imu_link" in said
 
 
+def test_velocities_recorded_on_two_clocks_are_not_sent_to_time_source_record():
+    # a generated figure 8 whose IMU has header stamps and record times since boot (the odometry on UNIX time): the
+    # error said "try time.source: auto or record", neither of which can join them
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    streams = expected_streams(simulate("figure8", seed=5, duration=5.0), path="boot.mcap")
+    om = streams.angular_velocity
+    boot = om.rec_ns - om.rec_ns[0] + 100 * 10**9  # 100 s after boot
+    streams.angular_velocity = replace(om, t_ns=boot + (om.t_ns - om.rec_ns), rec_ns=boot)
+    for source in ("header", "record"):
+        with pytest.raises(InputError) as err:
+            align(streams, time_source=source)
+        said = str(err.value)
+        assert said.startswith("boot.mcap: angular velocity (/imu/data: ") and "time.source: auto" not in said
+        assert (
+            "; their record times do not overlap either (/imu/data: 100.000 .. 105.000 s, /odom: 1700000000" in said
+        ), said
+        assert "(one on a clock since boot, the other on UNIX time)" in said and "no time.source joins them" in said
+    streams.angular_velocity = replace(om, t_ns=boot)  # its stamps alone since boot: record time joins them
+    with pytest.raises(
+        InputError, match="do not overlap in time; is one of them on another clock .* time.source: auto"
+    ):
+        align(streams)
+
+
 def test_two_tags_that_share_an_id_are_named():
     # a generated figure 8 with one tag's id given to another tag all along (two tag families with the same id):
     # 118 repeats within a frame dropped with a plain note, the second tag's other 39 detections taken as the
