@@ -364,11 +364,15 @@ def check_required(streams: LogStreams, directions: int = 0, needed_by: str | No
                 f"; its poses ({topic}) are a trajectory: `slamobs evaluate {streams.path}:{topic} EST` measures "
                 "another's error"
             )
+        untyped = ""
+        if streams.untyped:  # a damaged metadata.yaml: the topic that would have given the role may be one
+            verb = "has its" if len(streams.untyped) == 1 else "have their"
+            untyped = f", and {', '.join(streams.untyped)} {verb} message type empty in the log's metadata (not read)"
         raise InputError(
             streams.path,
             f"the log cannot run: {len(roles)} of the {needed} inputs needed by {needed_by or 'every estimator'} "
-            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}); `slamobs info` shows what it has"
-            + poses,
+            f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}){untyped}; `slamobs info` shows what "
+            "it has" + poses,
             details=tuple(
                 f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{_how_to_give(role)}"
                 for role in roles

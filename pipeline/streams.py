@@ -139,6 +139,9 @@ class LogStreams:
     landmark_truth: dict[int, np.ndarray] | None = None  # id -> (3,) in the truth frame
     bias_truth: dict[str, np.ndarray] | None = None  # {"gyro": (3,), "velocity": (3,)} body frame (simulated logs)
     warnings: list[str] = field(default_factory=list)
+    #: topics whose message type the log's metadata leaves empty (a damaged rosbag2 metadata.yaml): no role can read
+    #: them, so the error of a missing role names them
+    untyped: list[str] = field(default_factory=list)
     #: record-time spans (first, last ns) that missing files of a split recording leave between the files read:
     #: the alignment starts a new segment after each rather than interpolate across it
     missing_spans: list[tuple[int, int]] = field(default_factory=list)

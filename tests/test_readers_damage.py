@@ -577,3 +577,25 @@ def test_corrupt_uncompressed_chunk_is_damaged(tmp_path):
     got = read_log(path)
     notes = [w for w in got.warnings if "damaged chunk" in w]
     assert len(notes) == 1 and "fails its checksum" in notes[0], got.warnings
+
+
+def test_a_db3_whose_metadata_leaves_a_topic_type_empty_names_that_topic(tmp_path):
+    # a generated ROS2 .db3 whose metadata.yaml gives /fiducial_transforms the type '': the run said only that the
+    # detections were missing
+    from slamobs.pipeline.alignment import check_required
+    from slamobs.pipeline.simulate import write_log
+
+    log = write_log(simulate("figure8", seed=5, duration=2.0), tmp_path / "damaged_ros2", "ros2")
+    meta = log / "metadata.yaml"
+    typed = "type: fiducial_msgs/msg/FiducialTransformArray"
+    assert typed in meta.read_text()
+    meta.write_text(meta.read_text().replace(typed, "type: ''"))
+    streams = read_log(log)
+    assert streams.untyped == ["/fiducial_transforms"] and streams.detections is None
+    with pytest.raises(InputError) as err:
+        check_required(streams, needed_by="riekf")
+    assert str(err.value) == (
+        f"{log}: the log cannot run: 1 of the 3 inputs needed by riekf is missing (detections), and "
+        "/fiducial_transforms has its message type empty in the log's metadata (not read); `slamobs info` shows what "
+        "it has"
+    )

@@ -128,6 +128,7 @@ def read_log(
         _check_clock_topics(path, clocks, table)
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
         streams = LogStreams(path=str(path), warnings=list(selection.warnings))
+        streams.untyped = sorted(topic for topic, (meta, _) in table.items() if not meta.msgtype)
         tf_rows: dict[str, TfRows] = {}
         reports: dict[str, list[tuple[str, Cleaning]]] = defaultdict(list)  # topic -> (role, cleaning)
 
