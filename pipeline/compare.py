@@ -11,7 +11,9 @@ import numpy as np
 from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.estimators import get_estimator
+from slamobs.pipeline.evaluation.figure_jobs import tilt_title_line
 from slamobs.pipeline.evaluation.markdown import MAP_TRUTH_HINT
+from slamobs.pipeline.evaluation.sections import TILT_NOTE_END
 from slamobs.pipeline.run import Progress, RunSummary, silent, prepare_log, run_inputs, run_prepared
 from slamobs.pipeline.streams import PoseStream
 
@@ -320,6 +322,17 @@ def comparison_markdown(
     )
 
 
+def overlay_title(reports: dict[str, dict]) -> str:
+    """overlay.png's title: a line for each estimate whose report notes that its alignment tilted it (turned it
+    upside down), the sentence the report's own figures give."""
+    lines = ["Top view: SE(3)-aligned estimates vs truth"]
+    for name, report in reports.items():
+        if any(n.endswith(TILT_NOTE_END) for n in report.get("notes") or []):
+            tilt = report["method"]["alignment"]["gravity_tilt_deg"]
+            lines.append(tilt_title_line(tilt, f"{name}'s estimate"))
+    return "".join(lines)
+
+
 def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:
     """Top view: truth and every observer's trajectory after its own SE(3) alignment."""
     import pandas as pd
@@ -350,7 +363,7 @@ def plot_overlay(path: Path, truth, summaries: dict[str, RunSummary]) -> Path:
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title("Top view: SE(3)-aligned estimates vs truth")
+    ax.set_title(overlay_title({name: s.report or {} for name, s in summaries.items()}))
     ax.grid(True, alpha=0.3)
     fig.legend(loc="outside lower center", ncols=3, fontsize=8)  # below the axes: never over the data
     fig.savefig(path, dpi=110)

@@ -674,6 +674,30 @@ def test_a_planar_estimate_turned_upside_down_by_the_alignment_is_said_so():
     assert not [n for n in checked(build_report(poses, None, None, truth, align="yaw"))["notes"] if "upside" in n]
 
 
+def test_compares_overlay_title_says_which_estimate_the_alignment_turned_upside_down():
+    """compare's overlay.png draws each estimate after its report's SE(3) alignment; its title said nothing of an
+    estimate that alignment turned upside down, which the report's own figures say: one sentence for both."""
+    from slamobs.pipeline.compare import overlay_title
+    from slamobs.pipeline.evaluation.figure_jobs import tilt_caveat
+    from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
+
+    truth = planar_truth()
+    mirrored = moved(truth, np.eye(3), np.zeros(3))
+    mirrored["y"] = -mirrored["y"]  # the fit turns it upside down (the test above)
+    level = moved(truth, so3_exp(np.array([0.0, 0.0, -1.1])), np.ones(3), noise_m=0.01)
+    reports = {
+        "fast-adaptation": build_report(mirrored, None, None, truth),
+        "riekf": build_report(level, None, None, truth),
+    }
+    title = overlay_title(reports)
+    flip = "turned fast-adaptation's estimate upside down (180 deg off level): see the report's note and the 4-DoF APE"
+    assert title == f"Top view: SE(3)-aligned estimates vs truth\n(this alignment {flip})", title
+    assert "turned the estimate upside down (180 deg off level)" in tilt_caveat(
+        evaluate_trajectory(mirrored, truth, ReportOptions())
+    )
+    assert overlay_title({"riekf": reports["riekf"]}) == "Top view: SE(3)-aligned estimates vs truth"
+
+
 def test_a_planar_estimate_tilted_by_the_alignment_is_said_so():
     """A wrong planar estimate that climbs along x (z = 0.5 x, its rotations still level) fits best under SE(3)
     tilted ~26.6 deg off level, which no gravity-respecting alignment could do and which flatters its APE: only an

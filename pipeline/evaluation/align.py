@@ -62,6 +62,11 @@ class Alignment:
         return m
 
 
+#: a tilt (:func:`gravity_tilt_deg`) over this is an alignment that turned the estimate upside down, as the report's
+#: note and the figures' titles say
+UPSIDE_DOWN_DEG = 90.0
+
+
 def gravity_tilt_deg(rot: np.ndarray) -> float:
     """How far (degrees) the rotation ``rot`` turns the z (gravity) axis: 0 for a rotation about z only (the 4-DoF
     alignment's), 180 for one that turns the estimate upside down."""

@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from slamobs.pipeline.evaluation.align import UPSIDE_DOWN_DEG
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
     VEL_COLUMNS,
@@ -111,10 +112,21 @@ def uncertainty_plot_jobs(section: dict[str, Any] | None, ev: TrajectoryEvaluati
 def tilt_caveat(ev: TrajectoryEvaluation) -> str:
     """A second title line for a run the report's alignment tilts although it has a gravity axis (the report's
     note says more), else nothing."""
-    tilt = ev.gravity_tilt_deg
+    return tilt_title_line(ev.gravity_tilt_deg)
+
+
+def tilt_title_line(tilt: float | None, whose: str = "the estimate") -> str:
+    """The one sentence a figure's title gets for an alignment that tilts ``whose`` estimate although it has a
+    gravity axis (``tilt``: :attr:`~.trajectory_evaluation.TrajectoryEvaluation.gravity_tilt_deg`, None: nothing):
+    the report's figures and ``compare``'s overlay.png (public for the latter), on a line of its own."""
     if tilt is None:
         return ""
-    return f"\n(this alignment tilts the estimate {tilt:.0f} deg off level: see the report's note and the 4-DoF APE)"
+    what = (
+        f"turned {whose} upside down ({tilt:.0f} deg off level)"
+        if tilt > UPSIDE_DOWN_DEG
+        else f"tilts {whose} {tilt:.0f} deg off level"
+    )
+    return f"\n(this alignment {what}: see the report's note and the 4-DoF APE)"
 
 
 def top_view_job(

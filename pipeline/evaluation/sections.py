@@ -16,6 +16,7 @@ import numpy as np
 from slamobs.pipeline.blocks import rms_sigmas, row_blocks
 from slamobs.pipeline.evaluation import metrics, slam_metrics
 from slamobs.pipeline.evaluation.align import (
+    UPSIDE_DOWN_DEG,
     DESCRIPTIONS,
     SCALED_ALIGNMENTS,
     Alignment,
@@ -327,7 +328,7 @@ def tilt_note(align: str, tilt: float | None, by_alignment: dict[str, Any]) -> l
     yaw, primary = by_alignment.get("yaw"), by_alignment.get(align)
     if tilt is None or yaw is None or primary is None:
         return []
-    if tilt > 90.0:
+    if tilt > UPSIDE_DOWN_DEG:
         what = (
             f"the {align} alignment turned the estimate upside down (the positions lie in a plane, which fits as well "
             f"flipped), so its rotation APE ({primary['rotation_deg']['rmse']:.1f} deg rmse) says nothing of the "
