@@ -136,7 +136,7 @@ def report(
     if as_json:
         click.echo(json.dumps(rep, indent=2, sort_keys=True))
         return
-    _summary(rep, written)
+    _summary(rep, written, run_dir)
 
 
 def _from_config(path: Path | None) -> tuple[dict, str | None]:
@@ -250,7 +250,19 @@ def map_error_line(map_error: dict) -> str:
     )
 
 
-def _summary(r: dict, written: list[Path]) -> None:
+def clock_offset_line(off: dict, run_dir: Path) -> str | None:
+    """The summary's clock-offset line (``off``: a report's ``time_offset``; None: none estimated). A reliable
+    offset left unapplied names the command that applies it (public: the test reads the line itself)."""
+    if off.get("estimated_s") is None:
+        return None
+    quality = "reliable" if off["reliable"] else "not reliable"
+    line = f"{off['estimated_s']:.4f} s estimated ({quality}), {off['applied_s']:g} s applied"
+    if off["reliable"] and off["applied_s"] == 0.0 and off["estimated_s"] != 0.0:
+        line += f": `slamobs report {run_dir} --t-offset auto` applies it"
+    return line
+
+
+def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
     src = r.get("truth_source") or {}
     click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")
     ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
@@ -284,10 +296,8 @@ def _summary(r: dict, written: list[Path]) -> None:
     conv = convergence_line(r.get("convergence") or {})
     if conv is not None:
         click.echo(f"converged    {conv}")
-    off = r.get("time_offset") or {}
-    if off.get("estimated_s") is not None:
-        quality = "reliable" if off["reliable"] else "not reliable"
-        click.echo(f"clock offset {off['estimated_s']:.4f} s estimated ({quality}), {off['applied_s']:g} s applied")
+    if (line := clock_offset_line(r.get("time_offset") or {}, run_dir)) is not None:
+        click.echo(f"clock offset {line}")
     for note in r.get("notes") or []:
         click.echo(f"note         {note}")
     if r.get("evo", {}).get("ape") and any(p.name == "estimate_tum.txt" for p in written):

@@ -761,6 +761,15 @@ def test_clock_offset_is_estimated_always_and_applied_on_request():
     assert fixed["method"]["association"]["t_offset_s"] == fixed["time_offset"]["estimated_s"]
     assert fixed["ape"]["translation_m"]["rmse"] < 0.5 * plain["ape"]["translation_m"]["rmse"]
     assert "--t_offset" in fixed["evo"]["ape"]
+    # the summary's line of an estimate left unapplied says how to apply it (it said only "0 s applied"); applied, not
+    from slamobs.cli.report_cmd import clock_offset_line
+
+    run = Path("runs") / "late"
+    said = clock_offset_line(plain["time_offset"], run)
+    assert said.startswith("0.04") and said.endswith(
+        f"(reliable), 0 s applied: `slamobs report {run} --t-offset auto` applies it"
+    )
+    assert "applies it" not in clock_offset_line(fixed["time_offset"], run)
     # beside the report, the search leaves the APE without the offset to the report's own (not computed twice):
     # the same number as the search computes on its own, and the same as the report's primary APE
     from slamobs.pipeline.evaluation import trajectory_error as te
