@@ -76,6 +76,11 @@ __all__ = [
 ]
 
 
+def _untyped(table: dict) -> list[str]:
+    """The topics of :func:`~.roles.topics_of`'s table whose type the log's metadata leaves empty."""
+    return sorted(topic for topic, (meta, _) in table.items() if not meta.msgtype)
+
+
 def read_log(
     path: str | Path,
     topics: Mapping[str, str | None] | None = None,
@@ -127,8 +132,7 @@ def read_log(
         table = topics_of(reader)
         _check_clock_topics(path, clocks, table)
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
-        streams = LogStreams(path=str(path), warnings=list(selection.warnings))
-        streams.untyped = sorted(topic for topic, (meta, _) in table.items() if not meta.msgtype)
+        streams = LogStreams(path=str(path), warnings=list(selection.warnings), untyped=_untyped(table))
         tf_rows: dict[str, TfRows] = {}
         reports: dict[str, list[tuple[str, Cleaning]]] = defaultdict(list)  # topic -> (role, cleaning)
 
