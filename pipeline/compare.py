@@ -329,7 +329,7 @@ def overlay_title(reports: dict[str, dict]) -> str:
     for name, report in reports.items():
         if any(n.endswith(TILT_NOTE_END) for n in report.get("notes") or []):
             tilt = report["method"]["alignment"]["gravity_tilt_deg"]
-            lines.append(tilt_title_line(tilt, f"{name}'s estimate"))
+            lines.append(tilt_title_line(tilt, f"{name}'s estimate", wrap=True))
     return "".join(lines)
 
 

@@ -690,9 +690,9 @@ def test_compares_overlay_title_says_which_estimate_the_alignment_turned_upside_
         "riekf": build_report(level, None, None, truth),
     }
     title = overlay_title(reports)
-    flip = "turned fast-adaptation's estimate upside down (180 deg off level): see the report's note and the 4-DoF APE"
+    flip = "turned fast-adaptation's estimate upside down:\nsee the report's note and the 4-DoF APE"
     assert title == f"Top view: SE(3)-aligned estimates vs truth\n(this alignment {flip})", title
-    assert "turned the estimate upside down (180 deg off level)" in tilt_caveat(
+    assert "(this alignment turned the estimate upside down: see the report's note" in tilt_caveat(
         evaluate_trajectory(mirrored, truth, ReportOptions())
     )
     assert overlay_title({"riekf": reports["riekf"]}) == "Top view: SE(3)-aligned estimates vs truth"

@@ -115,18 +115,15 @@ def tilt_caveat(ev: TrajectoryEvaluation) -> str:
     return tilt_title_line(ev.gravity_tilt_deg)
 
 
-def tilt_title_line(tilt: float | None, whose: str = "the estimate") -> str:
+def tilt_title_line(tilt: float | None, whose: str = "the estimate", wrap: bool = False) -> str:
     """The one sentence a figure's title gets for an alignment that tilts ``whose`` estimate although it has a
     gravity axis (``tilt``: :attr:`~.trajectory_evaluation.TrajectoryEvaluation.gravity_tilt_deg`, None: nothing):
-    the report's figures and ``compare``'s overlay.png (public for the latter), on a line of its own."""
+    the report's figures and ``compare``'s overlay.png (public for the latter), on a line of its own; ``wrap``: on
+    two (a long ``whose`` in an 8-inch figure; the report's figures leave room for one line only)."""
     if tilt is None:
         return ""
-    what = (
-        f"turned {whose} upside down ({tilt:.0f} deg off level)"
-        if tilt > UPSIDE_DOWN_DEG
-        else f"tilts {whose} {tilt:.0f} deg off level"
-    )
-    return f"\n(this alignment {what}: see the report's note and the 4-DoF APE)"
+    what = f"turned {whose} upside down" if tilt > UPSIDE_DOWN_DEG else f"tilts {whose} {tilt:.0f} deg off level"
+    return f"\n(this alignment {what}:{chr(10) if wrap else ' '}see the report's note and the 4-DoF APE)"
 
 
 def top_view_job(
