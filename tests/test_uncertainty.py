@@ -358,3 +358,21 @@ def test_a_nees_no_correlation_explains_says_plainly_the_sigma_is_not_to_be_trus
     assert "σ × 3.5" in p_note and "not conclusive from one run" in a_note and "face value" not in a_note
     rows = "\n".join(md_uncertainty(section.result))
     assert "| overconfident (3.5) |" in rows and "| inconclusive (1" in rows
+
+
+def test_a_negative_mean_nees_has_no_sigma_factor():
+    """riekf at noise.gyro 1e6 (tests/test_riekf.py) wrote covariances whose NEES mean came out negative (not
+    positive definite somewhere): the report's σ factor was sqrt of a negative number, NaN with a RuntimeWarning,
+    written into report.json. It is null there, and the verdict is not 'overconfident'."""
+    import warnings
+
+    from slamobs.pipeline.evaluation.sections import nees_statistics
+
+    n = 200
+    err = np.full((n, 3), 0.1)
+    cov = np.tile(np.eye(3) * 0.01, (n, 1, 1))
+    nees = np.full(n, -4.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        stats = nees_statistics(err, cov, nees, np.arange(n) * 0.01)
+    assert stats["mean"] < 0.0 and stats["sigma_factor"] is None and stats["verdict"] != "overconfident"

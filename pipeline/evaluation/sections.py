@@ -1104,5 +1104,6 @@ def nees_statistics(
         "share_windows_within": float(np.mean((means >= lo_w) & (means <= hi_w))),
         "bound_any_correlation": float(hi1),
         "verdict": "overconfident" if mean > hi1 else "inconclusive" if not naive[0] <= mean <= naive[1] else "within",
-        "sigma_factor": float(np.sqrt(mean / dof)),
+        # a negative mean: a covariance not positive definite somewhere (riekf at noise.gyro 1e6): no factor covers it
+        "sigma_factor": float(np.sqrt(mean / dof)) if mean >= 0.0 else None,
     }
