@@ -219,6 +219,10 @@ def _print_summary(summary) -> None:
         conv = convergence_line(r.get("convergence") or {})
         if conv is not None:
             click.echo(f"converged    {conv}")
+        from slamobs.cli.report_cmd import clock_offset_line, clock_offset_matters
+
+        if clock_offset_matters(off := r.get("time_offset") or {}):
+            click.echo(f"clock offset {clock_offset_line(off, summary.out_dir)}")
         o = m["observer"]
         if (hint := loose_hint(o["name"], r.get("convergence") or {}, m["input"]["path"], o["gains"])) is not None:
             click.echo(f"hint         {hint}")

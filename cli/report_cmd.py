@@ -262,6 +262,19 @@ def clock_offset_line(off: dict, run_dir: Path) -> str | None:
     return line
 
 
+def clock_offset_matters(off: dict) -> bool:
+    """Whether ``slamobs run``'s summary shows the clock-offset line (``report`` always does): a reliable offset,
+    not applied, more than the search's grid step from zero (where applying it can change the APE; the sample
+    logs' 0.004 s is not worth a line on every run)."""
+    est = off.get("estimated_s")
+    return (
+        est is not None
+        and bool(off.get("reliable"))
+        and off.get("applied_s") == 0.0
+        and abs(est) > off.get("grid_step_s", 0.0)
+    )
+
+
 def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
     src = r.get("truth_source") or {}
     click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")

@@ -770,6 +770,13 @@ def test_clock_offset_is_estimated_always_and_applied_on_request():
         f"(reliable), 0 s applied: `slamobs report {run} --t-offset auto` applies it"
     )
     assert "applies it" not in clock_offset_line(fixed["time_offset"], run)
+    # `slamobs run`'s summary shows the line only where applying it could matter (it showed none: MR.CLAM 6 r1's
+    # reliable 0.19 s was in `report` alone); not applied, more than a grid step: yes; applied, or a tiny offset: no
+    from slamobs.cli.report_cmd import clock_offset_matters
+
+    assert clock_offset_matters(plain["time_offset"]) and not clock_offset_matters(fixed["time_offset"])
+    tiny = {**plain["time_offset"], "estimated_s": 0.5 * plain["time_offset"]["grid_step_s"]}
+    assert not clock_offset_matters(tiny) and not clock_offset_matters({"estimated_s": None})
     # beside the report, the search leaves the APE without the offset to the report's own (not computed twice):
     # the same number as the search computes on its own, and the same as the report's primary APE
     from slamobs.pipeline.evaluation import trajectory_error as te
