@@ -752,12 +752,9 @@ def _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y
     th = row_norms3(phi)
     ax = phi / np.maximum(th, 1e-12)[:, None]
     c, s = np.cos(th), np.sin(th)
-    dot = (1.0 - c) * (ax[:, 0] * u[:, 0] + ax[:, 1] * u[:, 1] + ax[:, 2] * u[:, 2])
-    d = det_y[b] - u * c[:, None] - ax * dot[:, None]  # y_b - R^T u; R^T u = u c - s (ax x u) + (1 - c)(ax . u) ax
-    d[:, 0] += s * (ax[:, 1] * u[:, 2] - ax[:, 2] * u[:, 1])
-    d[:, 1] += s * (ax[:, 2] * u[:, 0] - ax[:, 0] * u[:, 2])
-    d[:, 2] += s * (ax[:, 0] * u[:, 1] - ax[:, 1] * u[:, 0])
-    e = row_norms3(d)
+    dot = (1.0 - c) * np.einsum("ij,ij->i", ax, u)
+    # y_b - R^T u, with R^T u = u c - s (ax x u) + (1 - c)(ax . u) ax
+    e = row_norms3(det_y[b] - u * c[:, None] + s[:, None] * np.cross(ax, u) - ax * dot[:, None])
     ok = np.isfinite(e)
     if np.count_nonzero(ok) < 2 * GHOST_MIN_PAIRS:
         return []
