@@ -825,11 +825,11 @@ def static_transforms(
         pairs = frame_pairs(sorted(changed), "static_tf_changed")
         warnings.append(f"static transforms published with different values, using the last: {pairs}")
     nonfinite = ~np.isfinite(rows.values).all(axis=1)
-    for rows_of_kind, kind in ((nonfinite, "NaN/Inf static transform"), (~ok & ~nonfinite, "static transform")):
+    kinds = ((nonfinite, "NaN/Inf static transform", ""), (~ok & ~nonfinite, "static transform", _ZERO_QUATERNION))
+    for rows_of_kind, kind, why in kinds:
         if nbad := int(np.count_nonzero(rows_of_kind)):
             edges = sorted({(names[rows.parent[i]], names[rows.child[i]]) for i in np.flatnonzero(rows_of_kind)})
-            what = plural(nbad, kind) + ("" if rows_of_kind is nonfinite else _ZERO_QUATERNION)
-            warnings.append(f"{what} dropped: {frame_pairs(edges, 'static_tf_dropped')}")
+            warnings.append(f"{plural(nbad, kind)}{why} dropped: {frame_pairs(edges, 'static_tf_dropped')}")
             dropped.update(dict.fromkeys(edges, warnings[-1]))
     return list(found.values()), warnings, dropped, sorted(changed)
 
