@@ -2051,7 +2051,38 @@ def test_a_map_sigma_far_below_its_error_is_named_overconfident():
     lm = lm.assign(cov_xx=1e-4, cov_xy=0.0, cov_xz=0.0, cov_yy=1e-4, cov_yz=0.0, cov_zz=1e-4)
     found = map_only_section(lm, truth_lm)
     assert found["sigma_check"]["overconfident"] and "overconfident" in found["notes"][0]
-    assert map_only_section(lm.assign(cov_xx=1.0, cov_yy=1.0, cov_zz=1.0), truth_lm)["notes"] == []
+    loose = map_only_section(lm.assign(cov_xx=1.0, cov_yy=1.0, cov_zz=1.0), truth_lm)
+    assert loose["sigma_check"]["verdict"] == "inconclusive" and "not conclusive" in loose["notes"][0]
+
+
+def test_a_consistent_map_whose_landmarks_share_one_error_is_not_called_overconfident():
+    """The map's landmarks share the alignment's error and the poses' at their sightings, so one map's mean NEES
+    strays beyond the bounds of independent landmarks (it was called overconfident above them). Every landmark off
+    by one shared error of its own covariance (a consistent map: each landmark's NEES 7.25, which one χ²(3) value
+    exceeds in 6 % of draws): inconclusive, not overconfident; the same map at a tenth of its σ is overconfident
+    whatever the correlation (mean above ``bound_any_correlation``, 11.5), with the factor the σ would need."""
+    from slamobs.pipeline.evaluation.align import Alignment
+    from slamobs.pipeline.evaluation.sections import LandmarkSection
+
+    truth_lm = make_landmarks(n=30)
+    shared = np.array([0.1, -0.2, 0.15])  # at σ 0.1 m: NEES 7.25 at every landmark
+    factors = []
+    for sigma, verdict in ((0.1, "inconclusive"), (0.01, "overconfident")):
+        lm = landmark_table(truth_lm, np.eye(3), shared).assign(
+            cov_xx=sigma**2, cov_xy=0.0, cov_xz=0.0, cov_yy=sigma**2, cov_yz=0.0, cov_zz=sigma**2
+        )
+        section = LandmarkSection(truth_lm)
+        section.process_data(lm, Alignment("se3", np.eye(3), np.zeros(3), 1.0, 100))
+        check = section.get_statistic()["sigma_check"]
+        assert check["mean_nees"] > check["bounds"][1]  # above the bound of 30 independent landmarks (4.2) ...
+        assert check["verdict"] == verdict and check["overconfident"] is (verdict == "overconfident")
+        assert check["bound_any_correlation"] == pytest.approx(11.51, abs=0.01)
+        assert check["sigma_factor"] == pytest.approx(np.sqrt(check["mean_nees"] / 3))
+        factors.append(check["sigma_factor"])
+        (note,) = [n for n in section.notes if n.startswith("landmark map")]
+        assert ("not conclusive from one run" in note) is (verdict == "inconclusive")
+        assert ("the map's covariance is overconfident" in note) is (verdict == "overconfident")
+    assert factors[1] == pytest.approx(10 * factors[0]) and f"σ × {factors[1]:.2g}" in note
 
 
 def test_map_residual_over_sigma_is_each_landmarks_median_residual_over_its_sigma():

@@ -376,3 +376,31 @@ def test_a_negative_mean_nees_has_no_sigma_factor():
         warnings.simplefilter("error")
         stats = nees_statistics(err, cov, nees, np.arange(n) * 0.01)
     assert stats["mean"] < 0.0 and stats["sigma_factor"] is None and stats["verdict"] != "overconfident"
+
+
+def test_a_generated_maps_sigma_verdict_and_the_same_map_at_a_tenth_of_its_sigma(runs, tmp_path):
+    """The report's map σ check on a generated log: riekf's and batch's maps, with the simulator's noise, are not
+    called overconfident (their landmarks share the alignment's and the poses' errors: the verdict allows for
+    that); riekf's map written with a tenth of its σ is, with the factor the σ would need and a plain note."""
+    import shutil
+
+    import pyarrow.compute as pc
+
+    from slamobs.pipeline.evaluation.run_dir import report_run
+
+    for name in ("riekf", "batch"):
+        check = json.loads((runs[name] / "report.json").read_text())["landmarks"]["sigma_check"]
+        assert check["n"] >= 10 and check["verdict"] != "overconfident" and not check["overconfident"]
+    run = tmp_path / "riekf"
+    shutil.copytree(runs["riekf"], run)
+    table = pq.read_table(run / "landmarks.parquet")
+    for name in LM_COV:
+        table = table.set_column(table.schema.get_field_index(name), name, pc.divide(table.column(name), 100.0))
+    pq.write_table(table, run / "landmarks.parquet")
+    before = json.loads((runs["riekf"] / "report.json").read_text())["landmarks"]["sigma_check"]
+    report, _ = report_run(run)
+    check = report["landmarks"]["sigma_check"]
+    assert check["mean_nees"] == pytest.approx(100 * before["mean_nees"], rel=1e-6)
+    assert check["verdict"] == "overconfident" and check["mean_nees"] > check["bound_any_correlation"]
+    assert check["sigma_factor"] == pytest.approx(10 * before["sigma_factor"], rel=1e-6)
+    assert [n for n in report["notes"] if "the map's covariance is overconfident" in n]

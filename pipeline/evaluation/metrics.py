@@ -43,6 +43,28 @@ __all__ = [
 ]
 
 
+def chi2_sf(x: float, dof: int) -> float:
+    """``P(χ² > x)`` for ``dof`` (a positive integer) degrees of freedom: the regularised upper incomplete gamma
+    ``Q(dof/2, x/2)`` by its recursion ``Q(a + 1, y) = Q(a, y) + yᵃ e⁻ʸ / Γ(a + 1)`` from ``Q(1/2, y) = erfc(√y)``
+    or ``Q(1, y) = e⁻ʸ``."""
+    y = max(float(x), 0.0) / 2.0
+    a, total = (0.5, math.erfc(math.sqrt(y))) if dof % 2 else (1.0, math.exp(-y))
+    while a < dof / 2.0:
+        total += math.exp(a * math.log(y) - y - math.lgamma(a + 1.0)) if y > 0 else 0.0
+        a += 1.0
+    return total
+
+
+def nees_bound_any_correlation(dof: int, tail: float = 0.025) -> float:
+    """The level a mean of NEES values, each χ²(``dof``) but correlated in any way, exceeds with probability at
+    most ``tail``: ``E[X | X > q]`` of one value X ~ χ²(dof) above its ``1 − tail`` quantile q, ``dof · P(χ²(dof
+    + 2) > q) / tail``. The mean Y lies below X in convex order (f(mean) ≤ mean of f for convex f), so
+    ``P(Y ≥ t) ≤ E(X − c)₊ / (t − c)`` for every c < t, which is ``tail`` at t = that expectation and c = q
+    (11.5 for 3 DoF, where q is 9.35; the bound holds for any correlation, q itself does not)."""
+    q = chi2_quantile(1.0 - tail, dof)
+    return dof * chi2_sf(q, dof + 2) / tail
+
+
 def row_norms(x: np.ndarray, minus: np.ndarray | None = None) -> np.ndarray:
     """``np.linalg.norm(x - minus, axis=1)`` (``x`` alone without ``minus``) of (N, k) rows: where
     :func:`compiled_for`, a compiled loop with the same operations in the same order (each difference, its
