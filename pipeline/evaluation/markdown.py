@@ -278,9 +278,10 @@ def _md_sigma_check(check: dict[str, Any]) -> list[str]:
     verdict = check["verdict"] + (f" (σ × {check['sigma_factor']:.2g})" if check["verdict"] != "within" else "")
     return [
         f"Map σ against its error: mean landmark NEES {check['mean_nees']:.3g} over {check['n']} landmarks "
-        f"(95 % bounds of independent landmarks {lo:.3g}-{hi:.3g}, above {check['bound_any_correlation']:.3g} "
-        f"however correlated), median error/σ {check['error_over_sigma_median']:.3g}, stated σ "
-        f"{check['sigma_m'][0]:.3g}-{check['sigma_m'][1]:.3g} m: {verdict} (Method: map σ check)."
+        f"(95 % bounds of independent landmarks {lo:.3g}-{hi:.3g}; overconfident above "
+        f"{check['bound_any_correlation']:.3g} however correlated), median error/σ "
+        f"{check['error_over_sigma_median']:.3g}, stated σ {check['sigma_m'][0]:.3g}-{check['sigma_m'][1]:.3g} m: "
+        f"{verdict} (Method: map σ check)."
     ]
 
 
