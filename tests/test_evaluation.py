@@ -2085,6 +2085,27 @@ def test_a_consistent_map_whose_landmarks_share_one_error_is_not_called_overconf
     assert factors[1] == pytest.approx(10 * factors[0]) and f"σ × {factors[1]:.2g}" in note
 
 
+def test_a_planar_maps_sigma_check_counts_the_axes_with_error():
+    """MR.CLAM's maps are planar: no landmark has an error in z, so a consistent map's NEES over 3 axes averages 2
+    and the check (bounds of χ²(3n)/n) put it below its bounds. Over the axes with error, x and y: within."""
+    from slamobs.pipeline.evaluation.align import Alignment
+    from slamobs.pipeline.evaluation.metrics import nees_bounds
+    from slamobs.pipeline.evaluation.sections import LandmarkSection
+
+    rng = np.random.default_rng(7)
+    truth_lm = {i: np.r_[v[:2], 0.0] for i, v in make_landmarks(n=40).items()}
+    lm = landmark_table(truth_lm, np.eye(3), np.zeros(3))
+    lm[["x", "y"]] += 0.1 * rng.standard_normal((40, 2))
+    lm = lm.assign(cov_xx=0.01, cov_xy=0.0, cov_xz=0.0, cov_yy=0.01, cov_yz=0.0, cov_zz=0.04)
+    section = LandmarkSection(truth_lm)
+    section.process_data(lm, Alignment("se3", np.eye(3), np.zeros(3), 1.0, 100))
+    check = section.get_statistic()["sigma_check"]
+    assert check["dof"] == 2 and check["axes"] == ["x", "y"] and check["verdict"] == "within"
+    assert check["mean_nees"] < nees_bounds(3, 40)[0] and check["bounds"] == pytest.approx(list(nees_bounds(2, 40)))
+    assert check["bound_any_correlation"] == pytest.approx(9.378, abs=1e-3)
+    assert not [n for n in section.notes if n.startswith("landmark map")]
+
+
 def test_map_residual_over_sigma_is_each_landmarks_median_residual_over_its_sigma():
     """Without any truth, the map against the run's own re-sightings: TagSLAM test_22 riekf's map residual (median
     0.41 m) beside its σ of 0.02-0.03 m said nothing; the summary now gives their ratio per landmark (median)."""

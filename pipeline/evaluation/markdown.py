@@ -276,8 +276,9 @@ def _md_sigma_check(check: dict[str, Any]) -> list[str]:
     """The map's stated σ against its error, in one line (report.json landmarks.sigma_check)."""
     lo, hi = check["bounds"]
     verdict = check["verdict"] + (f" (σ × {check['sigma_factor']:.2g})" if check["verdict"] != "within" else "")
+    dof = f" ({check['dof']} DoF: {', '.join(check['axes'])})" if check.get("axes") else ""
     return [
-        f"Map σ against its error: mean landmark NEES {check['mean_nees']:.3g} over {check['n']} landmarks "
+        f"Map σ against its error: mean landmark NEES {check['mean_nees']:.3g} over {check['n']} landmarks{dof} "
         f"(95 % bounds of independent landmarks {lo:.3g}-{hi:.3g}; overconfident above "
         f"{check['bound_any_correlation']:.3g} however correlated), median error/σ "
         f"{check['error_over_sigma_median']:.3g}, stated σ {check['sigma_m'][0]:.3g}-{check['sigma_m'][1]:.3g} m: "

@@ -42,6 +42,7 @@ from slamobs.pipeline.evaluation.tables import (
 from slamobs.pipeline.evaluation.trajectory_error import Paired, RpeOptions, AlignOptions, rpe
 from slamobs.pipeline.evaluation.trajectory_evaluation import (
     GAUGE_SIGMA,
+    axes_with_error,
     PLANAR_TILT_DEG,
     ReportOptions,
     TrajectoryEvaluation,
@@ -554,25 +555,29 @@ def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, met
     ``‖e‖ / σ`` (σ = ``sqrt(trace Σ / 3)``); None without a covariance (the observers)."""
     if cov is None:
         return None
-    nees = slam_metrics.landmark_nees(errors, cov)
+    axes = list(axes_with_error(errors))  # a planar map (MR.CLAM) has no error in z: its NEES is over x, y
+    dof = len(axes)
+    nees = slam_metrics.landmark_nees(errors[:, axes], cov[:, axes][:, :, axes])
     ok = np.flatnonzero(np.isfinite(nees))
     if not ok.size:
         return None
     sigma = rms_sigmas(cov[ok])
     norms = np.linalg.norm(errors[ok], axis=1)
-    bounds = metrics.nees_bounds(NEES_DOF, int(ok.size))
+    bounds = metrics.nees_bounds(dof, int(ok.size))
     w = int(np.argmax(nees[ok]))
-    mean, any_correlation = float(np.mean(nees[ok])), metrics.nees_bound_any_correlation(NEES_DOF)
+    mean, any_correlation = float(np.mean(nees[ok])), metrics.nees_bound_any_correlation(dof)
     inside = bounds[0] <= mean <= bounds[1]
     verdict = "overconfident" if mean > any_correlation else "within" if inside else "inconclusive"
     return {
         "n": int(ok.size),
+        "dof": dof,
+        **({"axes": ["xyz"[i] for i in axes]} if dof < NEES_DOF else {}),
         "mean_nees": mean,
         "bounds": [float(v) for v in bounds],
         "bound_any_correlation": any_correlation,
         "verdict": verdict,
-        "sigma_factor": float(np.sqrt(mean / NEES_DOF)),
-        "n_above_single_bound": int(np.sum(nees[ok] > metrics.nees_bounds(NEES_DOF, 1)[1])),
+        "sigma_factor": float(np.sqrt(mean / dof)),
+        "n_above_single_bound": int(np.sum(nees[ok] > metrics.nees_bounds(dof, 1)[1])),
         "worst": {
             "id": int(ids[ok[w]]),
             "nees": float(nees[ok[w]]),
@@ -613,7 +618,7 @@ def map_sigma_note(check: dict[str, Any] | None, after: str) -> list[str]:
     nees = (
         f"{head} and above {check['bound_any_correlation']:.3g}, which a mean of consistent values exceeds with "
         f"probability <= 2.5 % however correlated; {check['n_above_single_bound']} of them above one NEES's "
-        f"{metrics.nees_bounds(NEES_DOF, 1)[1]:.3g}; worst landmark {worst['id']}: NEES {worst['nees']:.3g}, error "
+        f"{metrics.nees_bounds(check['dof'], 1)[1]:.3g}; worst landmark {worst['id']}: NEES {worst['nees']:.3g}, error "
         f"{worst['error_m']:.3g} m at σ {worst['sigma_m']:.2g} m"
     )
     if ratio >= MAP_SIGMA_FAR:
@@ -622,7 +627,7 @@ def map_sigma_note(check: dict[str, Any] | None, after: str) -> list[str]:
         head = f"its stated covariance does not cover its error {after} (median error/σ {ratio:.3g})"
     return [
         f"landmark map: {head}; {nees}: the map's covariance is overconfident (σ × {check['sigma_factor']:.2g} would "
-        "make the mean NEES 3; landmarks.sigma_check)"
+        f"make the mean NEES its DoF {check['dof']}; landmarks.sigma_check)"
     ]
 
 
@@ -653,16 +658,18 @@ class LandmarkSection(Section):
         "map error after it; per landmark alignment_slack_m is how far the turn by turn_deg moves it"
     )
     SIGMA_METHOD = (
-        "per landmark NEES eᵀΣ⁻¹e (3 DoF) of the error e after the trajectory's alignment and its loose turn "
-        "(error_turned_m) against the landmark's covariance Σ turned likewise; mean_nees against the two-sided 95 % "
-        "χ² bounds of a mean of n independent values, χ²(3n)/n; error_over_sigma the error ‖e‖ over σ = "
-        "sqrt(trace Σ / 3); n_above_single_bound the landmarks whose NEES is above one NEES's upper bound "
-        "(χ²(3): 9.35), worst the landmark of the largest NEES; bound_any_correlation the level a mean of χ²(3) "
-        "values exceeds with probability <= 2.5 % however they are correlated, E[X | X > 9.35] for X ~ χ²(3) "
-        "(11.5: the mean lies below one value in convex order); the landmarks are correlated (they share the "
+        "per landmark NEES eᵀΣ⁻¹e of the error e after the trajectory's alignment and its loose turn "
+        "(error_turned_m) against the landmark's covariance Σ turned likewise, over dof axes (3; on a planar map only "
+        "the axes whose error is not zero on every landmark, named in axes: MR.CLAM's x, y); mean_nees against the "
+        "two-sided 95 % χ² bounds of a mean of n independent values, χ²(dof·n)/n; error_over_sigma the error ‖e‖ "
+        "over σ = sqrt(trace Σ / 3); n_above_single_bound the landmarks whose NEES is above one NEES's upper bound "
+        "(χ²(dof) 97.5 %: 9.35 for 3), worst the landmark of the largest NEES; bound_any_correlation the level a mean "
+        "of χ²(dof) values exceeds with probability <= 2.5 % however they are correlated, E[X | X > q] for one value "
+        "X ~ χ²(dof) above its 97.5 % quantile q (11.5 for 3 DoF, 9.38 for 2: the mean lies below one value in "
+        "convex order); the landmarks are correlated (they share the "
         "alignment's error and the poses' at their sightings), so the bounds of independent values do not hold for "
         "one map; verdict: overconfident above bound_any_correlation, inconclusive outside the bounds only, else "
-        "within; sigma_factor = sqrt(mean_nees / 3), the factor the σ would need. The covariance is relative to the "
+        "within; sigma_factor = sqrt(mean_nees / dof), the factor the σ would need. The covariance is relative to the "
         "estimator's gauge (its start or anchor) and does not hold the alignment's own error, which a least-squares "
         "alignment adds to every landmark alike while absorbing part of the error Σ describes: a looser test than "
         "the trajectory's NEES, and a mean NEES hundreds of times the bound is no gauge effect"
