@@ -529,7 +529,8 @@ SUMMARY_MEANING = {
     "map_error_landmarks": "landmarks matched to the truth by id (those the fit and the error are over)",
     "map_error_nees": (
         "mean over those landmarks of eᵀΣ⁻¹e, the error after that fit against the stated covariance turned likewise "
-        "(3 DoF: about 3 when the σ is right; run.json map_error.sigma_check has the 95 % bounds and the verdict)"
+        "(about its DoF when the σ is right: 3, 2 on a planar map; run.json map_error.sigma_check has the DoF, the "
+        "95 % bounds and the verdict)"
     ),
     "map_error_over_sigma": "median over those landmarks of ‖e‖ / σ, σ = sqrt(trace Σ / 3)",
 }
