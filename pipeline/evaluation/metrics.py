@@ -65,6 +65,16 @@ def nees_bound_any_correlation(dof: int, tail: float = 0.025) -> float:
     return dof * chi2_sf(q, dof + 2) / tail
 
 
+def nees_verdict(mean: float, bounds, any_correlation: float) -> str:
+    """A run's mean NEES against the bounds of a mean of independent values and the level no correlation explains
+    (:func:`nees_bound_any_correlation`): ``overconfident`` above that level, ``inconclusive`` outside the
+    independent bounds only (one run's correlated errors can do that), else ``within``. One rule for the pose's
+    parts and the map."""
+    if mean > any_correlation:
+        return "overconfident"
+    return "within" if bounds[0] <= mean <= bounds[1] else "inconclusive"
+
+
 def row_norms(x: np.ndarray, minus: np.ndarray | None = None) -> np.ndarray:
     """``np.linalg.norm(x - minus, axis=1)`` (``x`` alone without ``minus``) of (N, k) rows: where
     :func:`compiled_for`, a compiled loop with the same operations in the same order (each difference, its

@@ -566,8 +566,7 @@ def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, met
     bounds = metrics.nees_bounds(dof, int(ok.size))
     w = int(np.argmax(nees[ok]))
     mean, any_correlation = float(np.mean(nees[ok])), metrics.nees_bound_any_correlation(dof)
-    inside = bounds[0] <= mean <= bounds[1]
-    verdict = "overconfident" if mean > any_correlation else "within" if inside else "inconclusive"
+    verdict = metrics.nees_verdict(mean, bounds, any_correlation)
     return {
         "n": int(ok.size),
         "dof": dof,
@@ -1043,10 +1042,11 @@ class UncertaintySection(Section):
             "part over its DoF axes (3 each; on a planar run only the axes whose error is not zero on every pair: "
             "the DoF column, the others' share within ±3σ null); bounds are two-sided 95 % χ² bounds of an average "
             f"of n independent NEES values, χ²(DoF·n)/n; windows of {NEES_WINDOW_S:g} s; pairs whose covariance "
-            f"block is below {GAUGE_SIGMA:g} (the gauge) are left out; bound_any_correlation the 97.5 % quantile of "
-            "one NEES value χ²(DoF), which a mean of consistent values rarely exceeds however correlated (it is below "
-            "one value in convex order); verdict: overconfident above it, inconclusive outside bounds only, else "
-            "within; sigma_factor = sqrt(mean / DoF)"
+            f"block is below {GAUGE_SIGMA:g} (the gauge) are left out; bound_any_correlation E[X | X > q] of one "
+            "NEES value X ~ χ²(DoF) above its 97.5 % quantile q (11.5 for 3 DoF), which a mean of consistent values "
+            "exceeds with probability at most 2.5 % however correlated (it is below one value in convex order); "
+            "verdict: overconfident above it, inconclusive outside bounds only, else within; sigma_factor = "
+            "sqrt(mean / DoF)"
         )
     }
 
@@ -1091,13 +1091,13 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
     )
     if r["verdict"] == "inconclusive":
         return (
-            f"{head}: consecutive errors are correlated, so one run strays further than these bounds (up to one NEES "
-            f"value's 97.5 % quantile {r['bound_any_correlation']:.3g}); not conclusive from one run (the test of "
-            "consistency is the mean over runs)"
+            f"{head}: consecutive errors are correlated, so one run strays further than these bounds (a mean of "
+            f"consistent values exceeds {r['bound_any_correlation']:.3g} with probability <= 2.5 % however "
+            "correlated); not conclusive from one run (the test of consistency is the mean over runs)"
         )
     return (
-        f"{head} and above {r['bound_any_correlation']:.3g}, the 97.5 % quantile of a single NEES value, which a "
-        f"mean of consistent values rarely exceeds however correlated: the {part} covariance is overconfident, its σ "
+        f"{head} and above {r['bound_any_correlation']:.3g}, which a mean of consistent values exceeds with "
+        f"probability <= 2.5 % however correlated: the {part} covariance is overconfident, its σ "
         f"understates the error (σ × {r['sigma_factor']:.2g} would make the mean NEES its DoF); do not take the "
         f"written {part} σ at face value"
     )
@@ -1135,6 +1135,7 @@ def nees_statistics(
     bounds = np.array([metrics.nees_bounds(dof, int(c)) for c in np.unique(counts)])
     lo_w, hi_w = (bounds[np.searchsorted(np.unique(counts), counts), i] for i in (0, 1))
     mean, naive = float(np.mean(nees[ok])), metrics.nees_bounds(dof, n)
+    any_correlation = metrics.nees_bound_any_correlation(dof)
     return {
         **out,
         "mean": mean,
@@ -1143,8 +1144,8 @@ def nees_statistics(
         "bounds": [float(v) for v in naive],
         "share_instants_within": float(np.mean((nees[ok] >= lo1) & (nees[ok] <= hi1))),
         "share_windows_within": float(np.mean((means >= lo_w) & (means <= hi_w))),
-        "bound_any_correlation": float(hi1),
-        "verdict": "overconfident" if mean > hi1 else "inconclusive" if not naive[0] <= mean <= naive[1] else "within",
+        "bound_any_correlation": any_correlation,
+        "verdict": metrics.nees_verdict(mean, naive, any_correlation),
         # a negative mean: a covariance not positive definite somewhere (riekf at noise.gyro 1e6): no factor covers it
         "sigma_factor": float(np.sqrt(mean / dof)) if mean >= 0.0 else None,
     }
