@@ -245,6 +245,10 @@ class BatchSmoother(Stepper):
         chosen, correlation, correlation_notes = self._decorrelate(
             chosen, keyframes, segments, _in_step(progress, "time-correlated detections")
         )
+        chosen, held_velocity, held_notes = self._held_velocity(
+            chosen, keyframes, segments, _in_step(progress, "the held velocity's level")
+        )
+        correlation_notes += held_notes
         chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -268,6 +272,7 @@ class BatchSmoother(Stepper):
         if robust is not None:
             summary["robust"] = robust[0]
         summary["noise_scale"] = evidence
+        summary["held_velocity"] = held_velocity
         summary["detection_correlation"] = correlation
         summary["detection_anisotropy"] = anisotropy
         summary["detection_inverse_depth"] = self.inverse_depth_record
@@ -605,6 +610,42 @@ class BatchSmoother(Stepper):
         self.det_factor = f = dc.inflation(kf_t[kf_of_det], self.stream.det_idx, corr)
         return self._solved_again(chosen, sol, keyframes, segments, progress), dc.record(corr, f), [dc.note(corr, f)]
 
+    def _held_velocity(self, chosen, keyframes: tuple, segments: _Segments, progress):
+        """A held velocity's level scaled to its solution's short-window residuals (:mod:`pipeline.smoother.
+        held_velocity`), solved (and gated) again when it moved: the candidate kept, the record, the notes."""
+        from slamobs.pipeline.smoother import held_velocity as hv
+
+        nz = self.noise
+        if (why := self._held_velocity_skipped()) is not None:
+            return chosen, {"skipped": why}, []
+        kf_t, _, gaps = keyframes
+        p, sol = chosen.problem, chosen.sol
+        residual = hv.interval_residuals(p.data, p.b_bar, sol.rot, sol.pos, sol.bias, p.seg_of)
+        open_interval = np.zeros(kf_t.shape[0] - 1, bool)
+        for lo, hi in gaps if gaps is not None else ():
+            open_interval |= (kf_t[:-1] < hi) & (kf_t[1:] > lo)
+        density = hv.window_density(kf_t, sol.rot, residual, open_interval)
+        level = np.asarray(nz.velocity, float)
+        s = hv.scale(density, level, self.stream.velocity)
+        record = hv.record(density, level, s)
+        if s == 1.0:
+            return chosen, record, []
+        self.noise = nz.scaled({"velocity": s}, "the smoother's solution's residuals over short windows")
+        return self._solved_again(chosen, sol, keyframes, segments, progress), record, [hv.note(level, s)]
+
+    def _held_velocity_skipped(self) -> str | None:
+        """Why the velocity level is not taken from the solution's short-window residuals, or None."""
+        nz = self.noise
+        if self.settings.held_velocity == "off":
+            return "batch.held_velocity is off"
+        if "velocity" not in nz.held:
+            return "the velocity stream's samples move (its level is measured from them)"
+        if nz.sources.get("velocity") == "config":
+            return "noise: velocity is set in the configuration"
+        if self.fixed_bias is not None:
+            return "the biases are fixed (a reference run)"
+        return None
+
     def _evidence_keys(self) -> tuple[str, ...]:
         """The levels the evidence scans: :data:`pipeline.smoother.evidence.KEYS`, and the velocity's axes across
         the heading apart (``evidence.ACROSS``) when the velocity stream holds its values."""
@@ -618,6 +659,8 @@ class BatchSmoother(Stepper):
             return "batch.noise_evidence is off"
         if nz.sources.get(key) == "config":
             return f"noise: {key} is set in the configuration"
+        if key == "velocity" and self._held_velocity_skipped() is None:
+            return "the held velocity's level is its solution's short-window residual (batch.held_velocity)"
         if self.fixed_bias is not None:
             return "the biases are fixed (a reference run)"
         if mode == "held" and key not in nz.held:

@@ -17,6 +17,7 @@ SELECTION_MODES = ("evidence", "cross_validation")
 CORRELATION_MODES = ("off", "auto")
 ANISOTROPY_MODES = ("off", "auto")
 INVERSE_DEPTH_MODES = ("off", "auto")
+HELD_VELOCITY_MODES = ("off", "auto")
 
 
 @dataclass(frozen=True)
@@ -49,6 +50,9 @@ class BatchSettings:
     #: "auto": with the law ``b + a·r²`` and detections in one camera's frame (z forward), each detection weighed
     #: in inverse depth (x/z, y/z, 1/z; pipeline.smoother.inverse_depth) instead of range apart from bearing; "off"
     detection_inverse_depth: str = "auto"
+    #: "auto": a held (commanded) velocity's level scaled down to its first solution's residuals over short
+    #: windows (pipeline.smoother.held_velocity), the evidence then leaving it; "off": the detection pairs' level
+    held_velocity: str = "auto"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -67,6 +71,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
         ("detection_correlation", CORRELATION_MODES),
         ("detection_anisotropy", ANISOTROPY_MODES),
         ("detection_inverse_depth", INVERSE_DEPTH_MODES),
+        ("held_velocity", HELD_VELOCITY_MODES),
     ):
         if getattr(settings, key) not in modes:
             raise GainError(f"batch.{key} must be one of {', '.join(modes)}, got {getattr(settings, key)!r}")
