@@ -158,6 +158,8 @@ def format_readiness(ready) -> str:
             lines.append(f"    {r.role:<{width}}  found    {r.topic}  ({r.msgtype}, {rate})")
         else:
             lines.append(f"    {r.role:<{width}}  MISSING")
+    if ready.map_truth:
+        lines.append(f"    {'map truth':<{width}}  found    {ready.map_truth}")
     groups: dict[tuple, list[str]] = {}
     for e in ready.estimators:
         groups.setdefault((e.missing, e.unavailable, e.needs), []).append(e.name)

@@ -92,27 +92,6 @@ def main() -> None:
     """
 
 
-def loose_hint(name: str, conv: dict, log: str, gains: dict | None = None) -> str | None:
-    """What to try when an observer with fixed gains followed the motion loosely or not at all. With ``gains`` (the
-    run's) other than the observer's defaults, the gains came from a configuration (a tune's gains.yaml, say): the
-    hint then says so rather than send the user to the tune they ran."""
-    from slamobs.pipeline.estimators import get_estimator
-
-    if not (conv.get("coarse") or conv.get("lost")) or get_estimator(name).uses_noise:
-        return None
-    defaults = {g.name: g.default for g in get_estimator(name).gains}
-    noise = "`--observer riekf` or `--observer batch` weigh this log's own noise"
-    if gains and any(gains.get(k, v) != v for k, v in defaults.items()):
-        return (
-            f"{name} runs on fixed gains, these set in the configuration (not its defaults); {noise}; if they came "
-            "from `slamobs tune`, the same command with a larger --trials extends that tune"
-        )
-    return (
-        f"{name} runs on fixed gains; {noise}, and `slamobs tune {log} --observer {name} --target batch -o DIR` fits "
-        f"{name}'s gains to it"
-    )
-
-
 @main.command()
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="run directory to create")
@@ -223,8 +202,7 @@ def _print_summary(summary) -> None:
 
         if clock_offset_matters(off := r.get("time_offset") or {}):
             click.echo(f"clock offset {clock_offset_line(off, summary.out_dir)}")
-        o = m["observer"]
-        if (hint := loose_hint(o["name"], r.get("convergence") or {}, m["input"]["path"], o["gains"])) is not None:
+        for hint in r.get("hints") or []:
             click.echo(f"hint         {hint}")
         for note in r.get("notes") or []:  # what the report found worth saying (e.g. a truth in another convention)
             if note not in summary.notes:  # the run's own (the noise levels) are in the report too: printed above

@@ -311,6 +311,8 @@ def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
         click.echo(f"converged    {conv}")
     if (line := clock_offset_line(r.get("time_offset") or {}, run_dir)) is not None:
         click.echo(f"clock offset {line}")
+    for hint in r.get("hints") or []:  # the run's, as `slamobs run` printed them (run.json's `hints`)
+        click.echo(f"hint         {hint}")
     for note in r.get("notes") or []:
         click.echo(f"note         {note}")
     if r.get("evo", {}).get("ape") and any(p.name == "estimate_tum.txt" for p in written):

@@ -68,6 +68,9 @@ class Readiness:
     estimators: tuple[EstimatorStatus, ...]
     satisfy: dict[str, list[str]]
     run_yaml: str
+    #: the sim_truth topic and what it holds (``LogInfo.sim_truth``: an MR.CLAM import's landmark survey, a
+    #: simulated log's map and biases), "" when the log has none: the map error's truth, beside the trajectory's
+    map_truth: str = ""
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary."""
@@ -136,7 +139,9 @@ def readiness(info: LogInfo, config: RunConfig | None = None) -> Readiness:
     needs = _settings_needed(info, next(r for r in roles if r.role == "detections"), config)
     estimators = tuple(replace(_estimator_status(name, found), needs=needs) for name in ESTIMATORS)
     satisfy = {r.role: how_to_satisfy(r.role) + _candidates(info, r.role) for r in roles if not r.found}
-    return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators))
+    sim = info.roles.get("sim_truth")
+    map_truth = f"{sim}  ({info.sim_truth})" if sim and info.sim_truth else ""
+    return Readiness(roles, estimators, satisfy, run_yaml(roles, estimators), map_truth)
 
 
 def run_yaml(roles: tuple[RoleStatus, ...], estimators: tuple[EstimatorStatus, ...]) -> str:

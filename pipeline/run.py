@@ -654,6 +654,7 @@ def run_prepared(
                 **metadata,
                 "timings_s": timings,
                 "notes": notes,
+                "hints": (report or {}).get("hints") or [],  # what to try next (report.run_hints), as `report` says
                 "report": "report.json" if report else None,
                 "report_error": report_error,
             },

@@ -124,6 +124,19 @@ def test_readers_find_every_role_without_config(imported):
     assert streams.truth.quat_xyzw[0] == pytest.approx([0, 0, np.sin(first_heading / 2), np.cos(first_heading / 2)])
 
 
+def test_info_says_what_the_landmark_survey_is(imported):
+    """`slamobs info` on an import listed the survey only as the role `sim_truth` (session 24): it now says it is
+    the landmark truth, how many positions, and that runs report their map error against it, in the roles and as
+    the readiness list's map truth; `info --json` carries the same words."""
+    res = invoke("info", imported[0])
+    assert res.exit_code == 0, res.output
+    words = f"landmark truth: {len(LANDMARKS)} positions, surveyed or simulated; a run reports its map error against it"
+    assert f"sim_truth         /slamobs/sim_truth  ({words})" in res.output, res.output
+    assert f"map truth         found    /slamobs/sim_truth  ({words})" in res.output
+    doc = json.loads(invoke("info", imported[0], "--json").output)
+    assert doc["sim_truth"] == words
+
+
 def test_run_on_the_imported_log_reports_ape_and_map_error(imported, tmp_path):
     (tmp_path / "run.yaml").write_text("evaluation:\n  plots: false\n")
     res = invoke("run", imported[0], "-o", tmp_path / "run", "--config", tmp_path / "run.yaml", "--quiet")

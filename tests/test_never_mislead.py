@@ -214,6 +214,15 @@ def test_a_coarse_observer_run_says_so_and_what_to_try(sim, tmp_path):
     assert f"slamobs tune {log} --observer fast-adaptation --target batch" in res.output
     conv = json.loads((tmp_path / "out" / "report.json").read_text())["convergence"]
     assert conv["coarse"] and conv["steady_level_share"] > conv["coarse_share"]
+    # the hint is the run's (run.json) and the report's: report.md and `slamobs report`'s summary repeat it (session
+    # 24: a user who read the report later never saw it)
+    hints = [line.split(None, 1)[1] for line in res.output.splitlines() if line.startswith("hint ")]
+    assert hints and json.loads((tmp_path / "out" / "run.json").read_text())["hints"] == hints
+    assert f"Hint: {hints[0]}." in (tmp_path / "out" / "report.md").read_text()
+    again = invoke("report", tmp_path / "out", "--align", "yaw")
+    assert again.exit_code == 0 and f"\nhint         {hints[0]}\n" in again.output, again.output
+    assert f"Hint: {hints[0]}." in (tmp_path / "out" / "report.md").read_text()
+    assert json.loads((tmp_path / "out" / "report.json").read_text())["hints"] == hints
     from cli_checks import SAMPLES
 
     res = invoke("run", SAMPLES / "figure8.mcap", "-o", tmp_path / "fine", "--config", sim["config"])
@@ -223,7 +232,7 @@ def test_a_coarse_observer_run_says_so_and_what_to_try(sim, tmp_path):
 def test_the_hint_is_for_observers_on_fixed_gains_only():
     """The reference estimators (riekf, batch: not in the observers' registry) weigh the log's noise: a lost run
     of theirs gets the convergence line, no hint, and no lookup error (a lost batch run exited 2 on the lookup)."""
-    from slamobs.cli.main import loose_hint
+    from slamobs.pipeline.evaluation.report import loose_hint
 
     for name in ("batch", "riekf"):
         assert loose_hint(name, {"lost": True}, "log.mcap") is None
@@ -236,7 +245,7 @@ def test_the_hint_after_tuned_gains_does_not_send_the_user_to_tune_again():
     still not converged) printed "`slamobs tune mr6.mcap --observer fast-adaptation --target batch -o DIR` fits
     fast-adaptation's gains to it": the command just run. Gains other than the defaults get a hint that says they
     came from the configuration; the defaults (also given explicitly) keep the tune command."""
-    from slamobs.cli.main import loose_hint
+    from slamobs.pipeline.evaluation.report import loose_hint
     from slamobs.pipeline.estimators import get_estimator
 
     defaults = {g.name: g.default for g in get_estimator("fast-adaptation").gains}

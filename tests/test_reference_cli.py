@@ -38,6 +38,13 @@ def check_batch_run(run_dir: Path) -> dict:
     assert landmark["error_m"]["n"] + landmark["gated"] == run["counts"]["detections"]
     assert landmark["gated"] <= 0.05 * run["counts"]["detections"]  # outliers only
     assert {"seed_s", "smoother_s", "observer_s"} <= set(run["timings_s"])
+    # each covariance's time says which (session 24: `covariance` beside `smoother_covariance` read as one thing twice)
+    covariances = {k for k in run["timings_s"] if "covariance" in k}
+    assert covariances == {
+        "pose_landmark_covariance_s",
+        "pose_landmark_covariance_cpu_s",
+        "smoother_bias_covariance_s",
+    }, covariances
     assert run["timings_s"]["seed_s"] + run["timings_s"]["smoother_s"] <= run["timings_s"]["observer_s"] + 1e-6
     return run
 

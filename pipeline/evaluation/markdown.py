@@ -119,6 +119,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
         else _not_converged(conv)
     )
     lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
+    lines += [line for hint in report.get("hints") or [] for line in (f"Hint: {hint}.", "")]
     if report["evo"].get("ape"):
         lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]
     by = report.get("ape_by_alignment") or {}

@@ -319,14 +319,48 @@ def _options_of(report: dict[str, Any]) -> ReportOptions:
     return ReportOptions(**{k: v for k, v in opts.items() if k in fields})
 
 
+def loose_hint(name: str, conv: dict, log: str, gains: dict | None = None) -> str | None:
+    """What to try when an observer with fixed gains followed the motion loosely or not at all (``conv``: the
+    report's ``convergence``). With ``gains`` (the run's) other than the observer's defaults, the gains came from a
+    configuration (a tune's gains.yaml, say): the hint then says so rather than send the user to the tune they ran.
+    Public: the wording of the hint, in one place for report.json, report.md and every command's summary."""
+    from slamobs.pipeline.estimators import get_estimator
+
+    if not (conv.get("coarse") or conv.get("lost")) or get_estimator(name).uses_noise:
+        return None
+    defaults = {g.name: g.default for g in get_estimator(name).gains}
+    noise = "`--observer riekf` or `--observer batch` weigh this log's own noise"
+    if gains and any(gains.get(k, v) != v for k, v in defaults.items()):
+        return (
+            f"{name} runs on fixed gains, these set in the configuration (not its defaults); {noise}; if they came "
+            "from `slamobs tune`, the same command with a larger --trials extends that tune"
+        )
+    return (
+        f"{name} runs on fixed gains; {noise}, and `slamobs tune {log} --observer {name} --target batch -o DIR` fits "
+        f"{name}'s gains to it"
+    )
+
+
+def run_hints(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
+    """What the user can try next, given the report's convergence and the run's observer, gains and log (run.json):
+    report.json's and run.json's ``hints``, report.md's and the summaries' ``hint`` lines."""
+    observer, given = metadata.get("observer") or {}, metadata.get("input") or {}
+    if not observer.get("name"):
+        return []
+    conv = report.get("convergence") or {}
+    hint = loose_hint(observer["name"], conv, given.get("path", "LOG"), observer.get("gains"))
+    return [] if hint is None else [hint]
+
+
 def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict[str, Any]) -> None:
     """What the run, not the comparison with the truth, tells the report's reader: the noise levels riekf and
     batch used and why (the run's ``noise:`` notes), what the estimator said of its own run (its notes,
     ``<estimator>: ...``: e.g. batch's evidence-scaled levels and the detections' correlation it weighed, a
     doubtful first solution, riekf's recoveries), the velocity gaps that split the run into segments, and the
-    time window it kept; a note of the truth's body frame turned reads as the camera's when the run's notes name
-    the camera's extrinsic (:func:`.sections.camera_named_notes`). The same whether the report is made by
-    ``slamobs run`` or again by ``slamobs report``."""
+    time window it kept, and what to try next (``hints``: :func:`run_hints`); a note of the truth's body frame
+    turned reads as the camera's when the run's notes name the camera's extrinsic
+    (:func:`.sections.camera_named_notes`). The same whether the report is made by ``slamobs run`` or again by
+    ``slamobs report``."""
     from slamobs.pipeline.evaluation.sections import camera_named_notes
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
@@ -345,6 +379,7 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
         report["segments"] = segments
     if metadata.get("time_window"):
         report["time_window"] = metadata["time_window"]
+    report["hints"] = run_hints(report, metadata)
 
 
 def write_report(

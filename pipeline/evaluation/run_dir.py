@@ -354,7 +354,8 @@ def report_run(
             metadata=run.meta,
             more_figures=run_figure_jobs(tables, with_biases=False),
         )
-        _stage_run_json({**run.meta, "figures": report.get("figures", [])}, ti.source, staged, exports)
+        meta = {**run.meta, "figures": report.get("figures", []), "hints": report.get("hints") or []}
+        _stage_run_json(meta, ti.source, staged, exports)
 
     return report, _replace_report_files(run, fill)
 

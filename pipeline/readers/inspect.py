@@ -33,6 +33,7 @@ from .decode import (
     clock_steps,
     clock_step_text,
     out_of_order_text,
+    decode_sim_truth,
     decode_static_tf,
     duplicates_text,
     gyro_not_filled,
@@ -112,6 +113,7 @@ class LogInfo:
     record_clock: str | None = None  # "wall" or "sim"
     clock_reference: str | None = None  # topic the relative offsets refer to
     tf: TfSummary | None = None  # the TF tree and each sensor frame's transform into the body frame
+    sim_truth: str | None = None  # what the sim_truth topic holds, in a user's words (:func:`_sim_truth_words`)
 
     @property
     def duration_s(self) -> float:
@@ -457,6 +459,25 @@ def _static_tf_notes(reader, path: str | Path, table: dict) -> list[str]:
     return [f"{topic}: {w}" for w in warnings]
 
 
+def _sim_truth_words(reader, path: str | Path, table: dict, roles: Mapping[str, str]) -> tuple[str | None, list[str]]:
+    """What the ``sim_truth`` topic (a simulated log's truth, an MR.CLAM import's landmark survey) holds, as ``info``
+    lists it beside the role's name, which says little; and the warning a run would give for it. One small latched
+    message, decoded whole."""
+    topic = roles.get("sim_truth")
+    if topic is None or topic not in table or not table[topic][0].count:
+        return None, []
+    try:
+        landmarks, bias, warnings, _ = decode_sim_truth(reader, path, topic, table[topic][1])
+    except InputError as err:  # info describes a log run refuses; run says this one line
+        return None, [f"{topic}: {err.problem}"]
+    said = [f"landmark truth: {plural(len(landmarks), 'position')}, surveyed or simulated"] * bool(landmarks)
+    said += [f"{' and '.join(bias)} bias truth"] * bool(bias)
+    if not said:
+        return "holds no landmark or bias truth", warnings
+    errors = " and ".join(["map"] * bool(landmarks) + ["bias"] * bool(bias))
+    return f"{', and '.join(said)}; a run reports its {errors} error against it", warnings
+
+
 def inspect_log(
     path: str | Path, msg_dir: str | Path | None = None, frames: Mapping[str, Any] | None = None
 ) -> LogInfo:
@@ -483,6 +504,8 @@ def inspect_log(
         end = reader.end_time - 1 if count else None
         warnings = [*damage_notes(reader), *selection.warnings, *gyro_notes, *_static_tf_notes(reader, path, table)]
         tf = tf_summary(reader, path, table, gyro_roles, **(frames or {}))
+        sim_truth, sim_warnings = _sim_truth_words(reader, path, table, selection.roles)
+        warnings += sim_warnings
         notes = {}
         for topic, (meta, _) in table.items():
             if meta.msgtype not in reader.typestore.fielddefs:
@@ -550,6 +573,7 @@ def inspect_log(
         record_clock,
         reference,
         tf,
+        sim_truth,
     )
 
 
@@ -633,6 +657,8 @@ def format_info(info: LogInfo) -> str:
         lines += _table(header, clock_rows, right={3, 4, 5, 6})
     lines += ["", "  roles"]
     roles = [(f"  {role}", info.roles[role]) for role in ROLES if role in info.roles]
+    if info.sim_truth:  # the role's name says little: what the topic holds
+        roles = [(r, f"{t}  ({info.sim_truth})" if r == "  sim_truth" else t) for r, t in roles]
     lines += _table(("", ""), roles, set())[1:] if roles else ["    none detected"]
     if info.tf is not None and (info.tf.edges or info.tf.sensors):
         lines += ["", *info.tf.lines()]

@@ -302,8 +302,9 @@ class BatchSmoother(Stepper):
                 # CPU figure still holds them)
                 "smoother_s": t_solve - (seed_s - seed.seconds),
                 "smoother_cpu_s": c_solve,
-                "covariance_s": t_cov,
-                "covariance_cpu_s": c_cov,
+                # the poses' and landmarks' marginals written to the tables (not the bias's, inside the solve)
+                "pose_landmark_covariance_s": t_cov,
+                "pose_landmark_covariance_cpu_s": c_cov,
                 **{f"smoother_{k}_s": v for k, v in seconds.items()},
             }
         )

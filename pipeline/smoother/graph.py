@@ -234,7 +234,7 @@ def solve(
         "error_per_iteration": [float(e) for e in errors],
         "variables": {"keyframes": int(k), "landmarks": ne.n_lm, "bias_segments": ne.n_seg},
         "factors": _factor_count(problem, ne.n_seg),
-        "seconds": {"build": round(t_build, 3), "optimize": round(t_solve, 3), "covariance": round(t_marg, 3)},
+        "seconds": {"build": round(t_build, 3), "optimize": round(t_solve, 3), "bias_covariance": round(t_marg, 3)},
     }
     rot, pos, lms, bias = pt
     return Solution(rot, pos, lms, bias, bias_cov, summary)
