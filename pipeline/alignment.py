@@ -169,6 +169,7 @@ class AlignedStream:
     landmark_ids: np.ndarray  # (L,) sorted unique ids
     body_frame: str
     notes: list[str] = field(default_factory=list)
+    body_from: str = ""  # why body_frame is the body (:func:`body_frame_origin`), for run.json and the report
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
     #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
     segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -635,6 +636,16 @@ def body_frame_name(linear_velocity: Vec3Stream | None, body_frame: str | None =
     return frame.lstrip("/")
 
 
+def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None, topic: str | None) -> str:
+    """Why :func:`body_frame_name` took its frame, for run.json and the report: ``frames.body``, the linear
+    velocity's frame (an Odometry's child_frame_id) on ``topic``, or the default."""
+    if body_frame:
+        return "frames.body"
+    if linear_velocity is not None and linear_velocity.frame_id:
+        return f"the frame of {topic or 'the linear velocity'}'s twist (an Odometry's child_frame_id)"
+    return "no linear velocity frame: the default"
+
+
 def align(
     streams: LogStreams,
     *,
@@ -663,6 +674,7 @@ def align(
     lv: Vec3Stream = streams.linear_velocity
     det: DetectionStream = streams.detections
     body = body_frame_name(lv, body_frame)
+    body_from = body_frame_origin(lv, body_frame, lv.topic if lv is not None else None)
     ident = {f.lstrip("/") for f in identity_frames}
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
@@ -722,6 +734,7 @@ def align(
         landmark_ids=landmark_ids,
         body_frame=body,
         notes=notes,
+        body_from=body_from,
         directions=directions if keep_directions else None,
         segment_starts=starts,
         det_sensor=det_sensor,
