@@ -367,7 +367,9 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     assert report["ape"]["rotation_deg"]["rmse"] > 80
     assert report["uncertainty"]["position"]["mean"] > 100
     nees = [n for n in report["notes"] if n.startswith("position NEES ")]
-    assert len(nees) == 1 and nees[0].endswith("so it measures that turn, not the covariance"), report["notes"]
+    assert len(nees) == 1 and nees[0].endswith(
+        "judge the covariance once the frames agree (frames.body, or frames.truth_rotation for the report)"
+    ), report["notes"]
     body = [n for n in report["notes"] if n.startswith("the run took 'odom_sensor' as the body frame")]
     assert len(body) == 1 and "(the frame of /odom's twist (an Odometry's child_frame_id))" in body[0]
     assert "frames.body: FRAME" in body[0] and body[0] in res.output

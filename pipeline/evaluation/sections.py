@@ -1091,12 +1091,13 @@ def nees_against_turned_truth(ape_notes: list[str], nees_notes: list[str]) -> li
     """The uncertainty section's notes once the APE's notes hold the note of a truth whose body frame looks turned
     against the estimate's (:func:`truth_frame_note`): each NEES verdict then says that it compares the estimate with
     a truth in another body frame (a position NEES of 2.6e6 on a log whose odometry's child frame is a sensor turned
-    90 deg, beside centimetres of translation APE), not the covariance. The notes as they are otherwise."""
+    90 deg, beside centimetres of translation APE), so the turn is in it. The notes as they are otherwise."""
     if not any(TRUTH_FRAME_TURNED in n for n in ape_notes):
         return nees_notes
     why = (
         f"; but {TRUTH_FRAME_TURNED} (the note on the rotation APE): this NEES holds the estimate against a truth in "
-        "another body frame, so it measures that turn, not the covariance"
+        "another body frame, so that turn is in it: judge the covariance once the frames agree (frames.body, or "
+        "frames.truth_rotation for the report)"
     )
     return [f"{n}{why}" if _NEES_NOTE.match(n) else n for n in nees_notes]
 
