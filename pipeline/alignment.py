@@ -137,6 +137,12 @@ GHOST_RATIO = 20.0
 GHOST_MIN_M = 0.2
 GHOST_SHOWN = 5  # ids named in the warning
 GHOST_SPAN_S = 600.0  # the detections of the first 10 min (the hour's 577,200: 0.16 CPU s; these: 0.03)
+#: The same id misread rarely (no two of its detections within ``GHOST_PAIR_S``: about one detection in 70 of a
+#: generated figure 8 given id 9999, fast-adaptation 0.31 m against 0.12 m, its map 0.58 m; session 25) is seen by
+#: its distance to the other ids in the same frame, which for two static landmarks is one length whatever the pose:
+#: an id whose distances to ids it was seen with at least twice change by a median (about each pair's median) of
+#: ``GHOST_RATIO`` times the run's and over ``GHOST_MIN_M``, over ``GHOST_MIN_PAIRS`` such distances, is named.
+GHOST_NEIGHBOURS = 2
 
 
 def _axes(*order: int, sign=(1.0, 1.0, 1.0)) -> np.ndarray:
@@ -169,6 +175,7 @@ class AlignedStream:
     landmark_ids: np.ndarray  # (L,) sorted unique ids
     body_frame: str
     notes: list[str] = field(default_factory=list)
+    body_from: str = ""  # why body_frame is the body (:func:`body_frame_origin`), for run.json and the report
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
     #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
     segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -635,6 +642,16 @@ def body_frame_name(linear_velocity: Vec3Stream | None, body_frame: str | None =
     return frame.lstrip("/")
 
 
+def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None, topic: str | None) -> str:
+    """Why :func:`body_frame_name` took its frame, for run.json and the report: ``frames.body``, the linear
+    velocity's frame (an Odometry's child_frame_id) on ``topic``, or the default."""
+    if body_frame:
+        return "frames.body"
+    if linear_velocity is not None and linear_velocity.frame_id:
+        return f"the frame of {topic or 'the linear velocity'}'s twist (an Odometry's child_frame_id)"
+    return "no linear velocity frame: the default"
+
+
 def align(
     streams: LogStreams,
     *,
@@ -663,6 +680,7 @@ def align(
     lv: Vec3Stream = streams.linear_velocity
     det: DetectionStream = streams.detections
     body = body_frame_name(lv, body_frame)
+    body_from = body_frame_origin(lv, body_frame, lv.topic if lv is not None else None)
     ident = {f.lstrip("/") for f in identity_frames}
     override = frozenset(f.lstrip("/") for f in override_identity)
     tf = TfBuffer(streams.static_tf, streams.tf, path=streams.path, time_source=time_source)
@@ -701,6 +719,7 @@ def align(
         streams.path, det, lo, hi, frame, lim, _gap_spans(t_om, starts)
     )
     notes_ghost = _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids)
+    notes_ghost = notes_ghost or _ids_far_from_their_neighbours(det_t_ns, offsets, det_idx, det_y, landmark_ids)
     frame.notes.extend(f"warning: {det.topic}: {n}" for n in notes_ghost)
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
@@ -722,6 +741,7 @@ def align(
         landmark_ids=landmark_ids,
         body_frame=body,
         notes=notes,
+        body_from=body_from,
         directions=directions if keep_directions else None,
         segment_starts=starts,
         det_sensor=det_sensor,
@@ -776,6 +796,65 @@ def _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y
         f"with the body's motion between them by a median of that many metres, where the run's pairs disagree by "
         f"{median:.3g} m: one id seen at several places (a misdecoded tag id, or two tags with one id), used as "
         "read; the observers without a gate place it between them: drop or fix that id in the detections"
+    ]
+
+
+def _ids_far_from_their_neighbours(det_t_ns, offsets, det_idx, det_y, landmark_ids) -> list[str]:
+    """The ids whose distance to the other ids of the same frame changes from frame to frame (``GHOST_NEIGHBOURS``):
+    each pair of detections in one frame gives the two ids' distance; each id pair seen together at least twice its
+    median; each id the median change about those medians, over the first ``GHOST_SPAN_S``. One sentence per run,
+    without the topic."""
+    n_frames = (
+        int(np.searchsorted(det_t_ns, det_t_ns[0] + int(GHOST_SPAN_S * 1e9), side="right")) if det_t_ns.size else 0
+    )
+    sizes = np.diff(offsets[: n_frames + 1])
+    a_parts, b_parts = [], []
+    for k in np.unique(sizes[sizes >= 2]):  # frames of k detections: their k (k - 1) / 2 pairs at once
+        ii, jj = np.triu_indices(int(k), 1)
+        first = offsets[:n_frames][sizes == k][:, None]
+        a_parts.append((first + ii).ravel())
+        b_parts.append((first + jj).ravel())
+    if not a_parts:
+        return []
+    a, b = np.concatenate(a_parts), np.concatenate(b_parts)
+    lo, hi = np.minimum(det_idx[a], det_idx[b]), np.maximum(det_idx[a], det_idx[b])
+    d = row_norms3(det_y[a] - det_y[b])
+    ok = np.isfinite(d) & (lo != hi)
+    key = lo[ok].astype(np.int64) * landmark_ids.shape[0] + hi[ok]
+    d, lo, hi = d[ok], lo[ok], hi[ok]
+    keys, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
+    order = np.argsort(inv, kind="stable")
+    bounds = np.r_[0, np.cumsum(counts)]
+    centre = np.empty(keys.shape[0])
+    for j in np.flatnonzero(counts >= GHOST_NEIGHBOURS):  # each id pair's median distance
+        centre[j] = np.median(d[order[bounds[j] : bounds[j + 1]]])
+    seen = counts[inv] >= GHOST_NEIGHBOURS
+    change = np.abs(d - centre[inv])[seen]
+    if change.shape[0] < 2 * GHOST_MIN_PAIRS:
+        return []
+    median = float(np.median(change))
+    ids = np.concatenate([lo[seen], hi[seen]])
+    both = np.concatenate([change, change])
+    order = np.argsort(ids, kind="stable")
+    ids, both = ids[order], both[order]
+    edges = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1], True])
+    found = []
+    for s0, s1 in zip(edges[:-1], edges[1:], strict=True):
+        m = float(np.median(both[s0:s1]))
+        if s1 - s0 >= GHOST_MIN_PAIRS and m > GHOST_MIN_M and m > GHOST_RATIO * median:
+            found.append((int(landmark_ids[ids[s0]]), s1 - s0, m))
+    if not found:
+        return []
+    found.sort(key=lambda f: -f[2])
+    said = ", ".join(f"{i} ({n} distances, {m:.3g} m)" for i, n, m in found[:GHOST_SHOWN]) + (
+        " ..." if len(found) > GHOST_SHOWN else ""
+    )
+    return [
+        f"landmark id{'s' if len(found) > 1 else ''} {said}: its distance to the other ids seen in the same frame "
+        f"changes between frames by a median of that many metres, where the run's id pairs change by {median:.3g} m "
+        "(two static landmarks keep one distance): one id read at several places (a tag id misread now and then, or "
+        "two tags with one id), used as read; the observers without a gate place it between them: drop or fix that "
+        "id in the detections"
     ]
 
 

@@ -320,3 +320,72 @@ def test_a_failing_check_before_the_report_costs_a_warning_not_the_report(tmp_pa
     assert (tmp_path / "out" / "report.json").exists() and (tmp_path / "out" / "report.md").exists()
     notes = json.loads((tmp_path / "out" / "run.json").read_text())["notes"]
     assert [n for n in notes if "check before the report failed (RuntimeError: boom)" in n], notes
+
+
+def _odometry_in_a_turned_sensor_frame(src, dst):
+    """The simulated MCAP ``src`` with its odometry's child_frame_id a sensor frame turned 90 deg about z from the
+    body (the transform on /tf_static, the twist in that frame): a log whose odometry is the sensor's own."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from slamobs.pipeline.simulate.logwriter import make_typestore
+    from slamobs.pipeline.simulate.sensors import TOPIC_ODOM, TOPIC_TF_STATIC
+
+    ts, c, s = make_typestore(False), float(np.cos(np.pi / 4)), float(np.sin(np.pi / 4))
+    with src.open("rb") as fin, dst.open("wb") as fout:
+        writer = Writer(fout)
+        writer.start(profile="ros2", library="slamobs-tests")
+        schemas, channels = {}, {}
+        for schema, channel, msg in make_reader(fin).iter_messages():
+            m = ts.deserialize_cdr(msg.data, schema.name)
+            if channel.topic == TOPIC_TF_STATIC:
+                edge = m.transforms[0]
+                q = type(edge.transform.rotation)(x=0.0, y=0.0, z=s, w=c)
+                origin = type(edge.transform.translation)(x=0.0, y=0.0, z=0.0)
+                m.transforms = [
+                    *m.transforms,
+                    type(edge)(
+                        header=edge.header, child_frame_id="odom_sensor", transform=type(edge.transform)(origin, q)
+                    ),
+                ]
+            elif channel.topic == TOPIC_ODOM:
+                m.child_frame_id = "odom_sensor"
+                for v in (m.twist.twist.linear, m.twist.twist.angular):  # v_sensor = Rz(90)ᵀ v_body
+                    v.x, v.y = c * v.x + s * v.y, -s * v.x + c * v.y
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id], channel.metadata
+                )
+            data = bytes(ts.serialize_cdr(m, schema.name))
+            writer.add_message(channels[channel.id], log_time=msg.log_time, data=data, publish_time=msg.publish_time)
+        writer.finish()
+    return dst
+
+
+def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_took(sim, tmp_path):
+    """Odometry whose child_frame_id is a sensor frame turned 90 deg about z makes that sensor the body: the report's
+    note named a truth turned by 90 deg, but its position NEES of 2.6e6 read as an overconfident covariance, and
+    nothing said which frame the run took as the body nor how to set another."""
+    log = write_log(simulate("figure8", duration=8.0, seed=5), tmp_path / "clean.mcap")
+    log = _odometry_in_a_turned_sensor_frame(log, tmp_path / "odom_sensor.mcap")
+    res = invoke("run", log, "-o", tmp_path / "out", "--observer", "riekf", "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["ape"]["rotation_deg"]["rmse"] > 80
+    assert report["uncertainty"]["position"]["mean"] > 100
+    nees = [n for n in report["notes"] if n.startswith("position NEES ")]
+    assert len(nees) == 1 and nees[0].endswith(
+        "judge the covariance once the frames agree (frames.body, or frames.truth_rotation for the report)"
+    ), report["notes"]
+    body = [n for n in report["notes"] if n.startswith("the run took 'odom_sensor' as the body frame")]
+    assert len(body) == 1 and "(the frame of /odom's twist (an Odometry's child_frame_id))" in body[0]
+    assert "frames.body: FRAME" in body[0] and body[0] in res.output
+    # the same log with the body set: the truth is in the body's frame, no note of a turn, nor of the body
+    fixed = tmp_path / "body.yaml"
+    fixed.write_text("frames:\n  body: base_link\nevaluation:\n  plots: false\n")
+    res = invoke("run", log, "-o", tmp_path / "fixed", "--observer", "riekf", "--config", fixed)
+    report = json.loads((tmp_path / "fixed" / "report.json").read_text())
+    assert res.exit_code == 0 and report["ape"]["rotation_deg"]["rmse"] < 5
+    assert not any("as the body frame" in n or "NEES" in n and "turn" in n for n in report["notes"])

@@ -599,3 +599,26 @@ def test_a_db3_whose_metadata_leaves_a_topic_type_empty_names_that_topic(tmp_pat
         "/fiducial_transforms has its message type empty in the log's metadata (not read); `slamobs info` shows what "
         "it has"
     )
+
+
+def test_a_db3_whose_metadata_lost_a_topic_type_line_names_the_topic_and_the_stored_type(tmp_path):
+    # a generated ROS2 .db3 whose metadata.yaml has /fiducial_transforms' `type:` line removed: it was "corrupt or
+    # truncated rosbag2 directory (sqlite3): A metadata key is missing KeyError('type')." (no file, no topic)
+    from slamobs.pipeline.simulate import write_log
+
+    log = write_log(simulate("figure8", seed=5, duration=2.0), tmp_path / "untyped_ros2", "ros2")
+    meta = log / "metadata.yaml"
+    typed = "      type: fiducial_msgs/msg/FiducialTransformArray\n"
+    assert typed in meta.read_text()
+    meta.write_text(meta.read_text().replace(typed, ""))
+    (db3,) = log.glob("*.db3")
+    for read in (read_log, inspect_log):
+        with pytest.raises(InputError) as err:
+            read(log)
+        assert str(err.value) == (
+            f"{log}: metadata.yaml: topic /fiducial_transforms has no `type:` key (rosbags reads no topic of the "
+            f"directory without it); {db3.name} records its type, fiducial_msgs/msg/FiducialTransformArray: add "
+            "`type: fiducial_msgs/msg/FiducialTransformArray` to that topic's topic_metadata in metadata.yaml, or "
+            f"give {db3} itself (its topics are read without metadata.yaml)"
+        )
+    assert read_log(db3).detections is not None  # the way out the message names reads the detections

@@ -49,6 +49,7 @@ from slamobs.pipeline.evaluation.sections import (
     TimeOffsetSection,
     UncertaintySection,
     alignment_dict,
+    nees_against_turned_truth,
 )
 from slamobs.pipeline.evaluation.tables import Table, column, column_names, columns, n_rows
 from slamobs.pipeline.evaluation.trajectory_error import Paired
@@ -227,9 +228,8 @@ def evaluate_tables(
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    notes += (
-        sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + uncertainty.notes
-    )
+    nees = nees_against_turned_truth(sections["ape"].notes, uncertainty.notes)
+    notes += sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + nees
     report = {
         "schema_version": SCHEMA_VERSION,
         **{name: section.get_statistic() for name, section in sections.items()},
@@ -361,11 +361,12 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
     turned reads as the camera's when the run's notes name the camera's extrinsic
     (:func:`.sections.camera_named_notes`). The same whether the report is made by ``slamobs run`` or again by
     ``slamobs report``."""
-    from slamobs.pipeline.evaluation.sections import camera_named_notes
+    from slamobs.pipeline.evaluation.sections import body_frame_notes, camera_named_notes
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
     if report.get("notes"):
         report["notes"] = camera_named_notes(report["notes"], run_notes)
+        report["notes"] += body_frame_notes(report["notes"], metadata.get("input") or {})
     if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []

@@ -9,6 +9,7 @@ are pure: tables and the :class:`~.trajectory_evaluation.TrajectoryEvaluation` i
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import numpy as np
@@ -199,6 +200,8 @@ TRUTH_FRAME_EXPLAINS = 0.5
 TRUTH_FRAME_KEY = "set frames.truth_rotation: ["
 #: where that note turns from the numbers to what may explain them (:func:`camera_named_notes` keeps what is before)
 TRUTH_FRAME_UNLESS = ", unless a sensor's extrinsic is wrong"
+#: what that note says of the frames: the NEES notes and the run's body-frame note find it by this
+TRUTH_FRAME_TURNED = "the truth's body frame looks turned against the estimate's"
 #: what the note says instead when the run's detection pairs named the camera's extrinsic (a headline table picks it)
 CAMERA_NAMED_KEY = "the detection pairs name the camera's extrinsic"
 
@@ -237,12 +240,30 @@ def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
     axis = q[:3] / (np.linalg.norm(q[:3]) or 1.0)
     return [
         f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
-        f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): the truth's body frame looks turned against the "
-        f"estimate's by a constant {angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
+        f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): {TRUTH_FRAME_TURNED} by a constant "
+        f"{angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
         f"rotation APE would be {after:.2f} deg rmse{TRUTH_FRAME_UNLESS} (a camera transform "
         "inverted or turned turns the estimate so: `slamobs info --noise LOG` checks it against the motion); to apply "
         f"it (evaluation only) {TRUTH_FRAME_KEY}"
         f"{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
+    ]
+
+
+def body_frame_notes(notes: list[str], run_input: dict[str, Any]) -> list[str]:
+    """The note naming the body frame the run took and why (run.json's ``input``: ``body_frame``,
+    ``body_frame_from``), when the report's ``notes`` say the truth's body frame looks turned against the estimate's
+    (:func:`truth_frame_note`) and the run did not take it from ``frames.body``: a log whose odometry's
+    child_frame_id is a sensor frame turned against the robot's base makes that sensor the body, and the truth,
+    which tracks the base, looks turned. Empty otherwise, also when the camera's extrinsic is named instead
+    (:func:`camera_named_notes`) or the run.json predates ``body_frame_from``."""
+    turned = [n for n in notes if TRUTH_FRAME_TURNED in n]
+    origin, body = run_input.get("body_frame_from"), run_input.get("body_frame")
+    if not turned or any(CAMERA_NAMED_KEY in n for n in turned) or not origin or origin == "frames.body":
+        return []
+    return [
+        f"the run took '{body}' as the body frame ({origin}): if the truth tracks another frame of the robot (its "
+        "base, where the odometry's child frame is a sensor's), the truth looks turned so; `slamobs info LOG` lists "
+        f"the frames into the body, and frames.body: FRAME in the run's config makes FRAME the body"
     ]
 
 
@@ -1101,6 +1122,25 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
         f"understates the error (σ × {r['sigma_factor']:.2g} would make the mean NEES its DoF); do not take the "
         f"written {part} σ at face value"
     )
+
+
+#: a NEES note's start (:func:`nees_note`), not the planar note's ("position NEES over x, y only")
+_NEES_NOTE = re.compile(r"^(position|attitude) NEES [-+.\deinf]+ \(DoF")
+
+
+def nees_against_turned_truth(ape_notes: list[str], nees_notes: list[str]) -> list[str]:
+    """The uncertainty section's notes once the APE's notes hold the note of a truth whose body frame looks turned
+    against the estimate's (:func:`truth_frame_note`): each NEES verdict then says that it compares the estimate with
+    a truth in another body frame (a position NEES of 2.6e6 on a log whose odometry's child frame is a sensor turned
+    90 deg, beside centimetres of translation APE), so the turn is in it. The notes as they are otherwise."""
+    if not any(TRUTH_FRAME_TURNED in n for n in ape_notes):
+        return nees_notes
+    why = (
+        f"; but {TRUTH_FRAME_TURNED} (the note on the rotation APE): this NEES holds the estimate against a truth in "
+        "another body frame, so that turn is in it: judge the covariance once the frames agree (frames.body, or "
+        "frames.truth_rotation for the report)"
+    )
+    return [f"{n}{why}" if _NEES_NOTE.match(n) else n for n in nees_notes]
 
 
 def nees_windows(nees: np.ndarray, t_s: np.ndarray, window_s: float = NEES_WINDOW_S):

@@ -509,7 +509,53 @@ def _explain(container: Container, err: BaseException) -> InputError:
         return InputError(container.path, "unsupported MCAP file: profile is not ros2")
     if "Bag version" in reason:
         return InputError(container.path, f"unsupported {container.label}: {reason}")
+    if container.kind == "rosbag2" and reason.startswith("A metadata key is missing"):
+        if said := _missing_topic_key(container.path):
+            return InputError(container.path, said)
     return InputError(container.path, f"corrupt or truncated {container.label}: {reason}")
+
+
+#: the keys rosbags needs in each of metadata.yaml's ``topics_with_message_count`` entries (``message_count`` beside
+#: ``topic_metadata``, the others in it)
+_TOPIC_KEYS = ("name", "type", "serialization_format")
+
+
+def _missing_topic_key(path: Path) -> str | None:
+    """What rosbags' 'A metadata key is missing KeyError('type')' means when the key is missing from a topic's entry
+    in metadata.yaml: which topic, which key, and how the log can still be read (the storage file holds its topics'
+    types: a lone storage file is read without metadata.yaml). None when no topic entry lacks a key."""
+    info = (read_yaml(path / "metadata.yaml", "metadata.yaml") or {}).get("rosbag2_bagfile_information")
+    entries = info.get("topics_with_message_count") if isinstance(info, dict) else None
+    for k, entry in enumerate(entries if isinstance(entries, list) else []):
+        topic = entry.get("topic_metadata") if isinstance(entry, dict) else None
+        if not isinstance(topic, dict):
+            continue
+        lost = [key for key in _TOPIC_KEYS if key not in topic] + (
+            ["message_count"] if "message_count" not in entry else []
+        )
+        if lost:
+            break
+    else:
+        return None
+    name = topic.get("name") or f"number {k + 1} of topics_with_message_count"
+    head = f"metadata.yaml: topic {name} has no `{lost[0]}:` key (rosbags reads no topic of the directory without it)"
+    files = [path / PurePath(str(f)).name for f in info.get("relative_file_paths") or []]
+    if len(files) != 1 or not files[0].is_file() or str(info.get("compression_mode") or "none").lower() != "none":
+        return f"{head}: restore it in metadata.yaml"
+    alone = f"give {files[0]} itself (its topics are read without metadata.yaml)"
+    if lost[0] != "type" or not topic.get("name"):
+        return f"{head}: restore it in metadata.yaml, or {alone}"
+    try:
+        with open_log(files[0]) as reader:
+            stored = {c.topic: c.msgtype for c in reader.connections}
+    except InputError:
+        return f"{head}: restore it in metadata.yaml"
+    if name not in stored:
+        return f"{head}: restore it in metadata.yaml ({files[0].name} holds no topic {name})"
+    return (
+        f"{head}; {files[0].name} records its type, {stored[name]}: add `type: {stored[name]}` to that topic's "
+        f"topic_metadata in metadata.yaml, or {alone}"
+    )
 
 
 # --------------------------------------------------------------------------- access
