@@ -780,23 +780,31 @@ def _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y
         return []
     e, lm = e[ok], det_idx[a][ok]
     median = float(np.median(e))
-    bounds = np.flatnonzero(np.r_[True, lm[1:] != lm[:-1], True])  # pairs grouped by landmark (sorted above)
+    if not (said := ghost_ids(lm, e, landmark_ids, median, "pairs")):  # pairs grouped by landmark (sorted above)
+        return []
+    return [
+        f"{said}: its detections under {GHOST_PAIR_S:g} s apart disagree "
+        f"with the body's motion between them by a median of that many metres, where the run's pairs disagree by "
+        f"{median:.3g} m: one id seen at several places (a misdecoded tag id, or two tags with one id), used as "
+        "read; the observers without a gate place it between them: drop or fix that id in the detections"
+    ]
+
+
+def ghost_ids(lm: np.ndarray, e: np.ndarray, landmark_ids: np.ndarray, median: float, what: str) -> str:
+    """The warning's head for both id checks: the landmarks (``lm``, indices grouped in runs) whose median ``e``
+    over at least ``GHOST_MIN_PAIRS`` values exceeds ``GHOST_MIN_M`` and ``GHOST_RATIO`` times the run's ``median``,
+    worst first (``GHOST_SHOWN`` of them), as "landmark id 9999 (12 pairs, 3.1 m)"; "" when there is none."""
+    bounds = np.flatnonzero(np.r_[True, lm[1:] != lm[:-1], True])
     found = []
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         m = float(np.median(e[lo:hi]))
         if hi - lo >= GHOST_MIN_PAIRS and m > GHOST_MIN_M and m > GHOST_RATIO * median:
             found.append((int(landmark_ids[lm[lo]]), hi - lo, m))
     if not found:
-        return []
-    said = ", ".join(f"{i} ({n} pairs, {m:.3g} m)" for i, n, m in found[:GHOST_SHOWN]) + (
-        " ..." if len(found) > GHOST_SHOWN else ""
-    )
-    return [
-        f"landmark id{'s' if len(found) > 1 else ''} {said}: its detections under {GHOST_PAIR_S:g} s apart disagree "
-        f"with the body's motion between them by a median of that many metres, where the run's pairs disagree by "
-        f"{median:.3g} m: one id seen at several places (a misdecoded tag id, or two tags with one id), used as "
-        "read; the observers without a gate place it between them: drop or fix that id in the detections"
-    ]
+        return ""
+    found.sort(key=lambda f: -f[2])
+    listed = ", ".join(f"{i} ({n} {what}, {m:.3g} m)" for i, n, m in found[:GHOST_SHOWN])
+    return f"landmark id{'s' if len(found) > 1 else ''} {listed}" + (" ..." if len(found) > GHOST_SHOWN else "")
 
 
 def _ids_far_from_their_neighbours(det_t_ns, offsets, det_idx, det_y, landmark_ids) -> list[str]:
@@ -836,21 +844,10 @@ def _ids_far_from_their_neighbours(det_t_ns, offsets, det_idx, det_y, landmark_i
     ids = np.concatenate([lo[seen], hi[seen]])
     both = np.concatenate([change, change])
     order = np.argsort(ids, kind="stable")
-    ids, both = ids[order], both[order]
-    edges = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1], True])
-    found = []
-    for s0, s1 in zip(edges[:-1], edges[1:], strict=True):
-        m = float(np.median(both[s0:s1]))
-        if s1 - s0 >= GHOST_MIN_PAIRS and m > GHOST_MIN_M and m > GHOST_RATIO * median:
-            found.append((int(landmark_ids[ids[s0]]), s1 - s0, m))
-    if not found:
+    if not (said := ghost_ids(ids[order], both[order], landmark_ids, median, "distances")):
         return []
-    found.sort(key=lambda f: -f[2])
-    said = ", ".join(f"{i} ({n} distances, {m:.3g} m)" for i, n, m in found[:GHOST_SHOWN]) + (
-        " ..." if len(found) > GHOST_SHOWN else ""
-    )
     return [
-        f"landmark id{'s' if len(found) > 1 else ''} {said}: its distance to the other ids seen in the same frame "
+        f"{said}: its distance to the other ids seen in the same frame "
         f"changes between frames by a median of that many metres, where the run's id pairs change by {median:.3g} m "
         "(two static landmarks keep one distance): one id read at several places (a tag id misread now and then, or "
         "two tags with one id), used as read; the observers without a gate place it between them: drop or fix that "
