@@ -331,7 +331,8 @@ def _odometry_in_a_turned_sensor_frame(src, dst, turn=np.pi / 2):
     from slamobs.pipeline.simulate.logwriter import make_typestore
     from slamobs.pipeline.simulate.sensors import TOPIC_ODOM, TOPIC_TF_STATIC
 
-    ts, c, s = make_typestore(False), float(np.cos(turn / 2)), float(np.sin(turn / 2))
+    ts, c, s = make_typestore(False), float(np.cos(turn / 2)), float(np.sin(turn / 2))  # the edge's quaternion
+    cos, sin = float(np.cos(turn)), float(np.sin(turn))
     with src.open("rb") as fin, dst.open("wb") as fout:
         writer = Writer(fout)
         writer.start(profile="ros2", library="slamobs-tests")
@@ -350,8 +351,8 @@ def _odometry_in_a_turned_sensor_frame(src, dst, turn=np.pi / 2):
                 ]
             elif channel.topic == TOPIC_ODOM:
                 m.child_frame_id = "odom_sensor"
-                for v in (m.twist.twist.linear, m.twist.twist.angular):  # v_sensor = Rz(90)ᵀ v_body
-                    v.x, v.y = c * v.x + s * v.y, -s * v.x + c * v.y
+                for v in (m.twist.twist.linear, m.twist.twist.angular):  # v_sensor = Rz(turn)ᵀ v_body
+                    v.x, v.y = cos * v.x + sin * v.y, -sin * v.x + cos * v.y
             if schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
             if channel.id not in channels:
