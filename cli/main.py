@@ -282,6 +282,8 @@ def compare(
             click.echo(f"note: {note}")
         for note in table.attrs.get("notes", []):  # what a blank or 180-degree cell means (comparison.md: Notes)
             click.echo(f"note: {note}")
+        for hint in table.attrs.get("hints", []):  # each run's, once, prefixed by its estimator (comparison.md: Hints)
+            click.echo(f"hint: {hint}")
         runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
         files = ("comparison.parquet", "comparison.md", "comparison.json", "overlay.png")
         click.echo(f"wrote {wrote_line(out_dir, files, runs)}")

@@ -652,6 +652,24 @@ def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None
     return "no linear velocity frame: the default"
 
 
+#: The frames a robot's base goes by (REP 105): a body frame taken from an odometry's child_frame_id under another
+#: name may be a sensor's, so the run says which frame it took (:func:`body_frame_note`).
+BASE_FRAMES = ("base_link", "base_footprint")
+
+
+def body_frame_note(body: str, origin: str) -> str:
+    """The note naming the frame a run took as the body, where it came from (:func:`body_frame_origin`) and the key
+    that sets another. Public: the run gives it when an odometry's child frame other than a base frame became the
+    body, the report (:func:`.evaluation.sections.body_frame_notes`) when the truth looks turned, in one wording
+    (the summary prints it once)."""
+    return (
+        f"the run took '{body}' as the body frame ({origin}): the poses, the map and the biases are that frame's; if "
+        "the robot's base is another frame (the odometry's child frame a sensor's), a truth of the base looks turned "
+        "against them; `slamobs info LOG` lists the frames into the body, and frames.body: FRAME in the run's config "
+        "makes FRAME the body"
+    )
+
+
 def align(
     streams: LogStreams,
     *,
@@ -723,6 +741,8 @@ def align(
     frame.notes.extend(f"warning: {det.topic}: {n}" for n in notes_ghost)
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
+    if body_frame is None and body_from != body_frame_origin(None, None, None) and body not in BASE_FRAMES:
+        notes.insert(0, body_frame_note(body, body_from))  # an odometry's child frame, maybe a sensor's
     if w is not None:
         notes.append(
             f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "

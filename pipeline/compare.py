@@ -117,17 +117,19 @@ def compare_log(
                 r[VS_BATCH] = ape / ref if ape is not None and ref else None
         table = pd.DataFrame(rows).reindex(columns=columns)
         table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
-        notes = caveats(summaries)
+        notes, tips = caveats(summaries), hints(summaries)
         if table["gyro_bias_err"].isna().all() and table["vel_bias_err"].isna().all():
             notes.append("gyro_bias_err and vel_bias_err are blank: the log has no bias truth")
         if table["landmark_rmse_m"].isna().all():
             notes.append(NO_MAP_TRUTH)
-        (tmp / "comparison.md").write_text(comparison_markdown(table, log, compiled=compiled, notes=notes))
-        write_json(tmp / "comparison.json", {"log": str(Path(log).resolve()), "rows": table.to_dict("records")})
+        (tmp / "comparison.md").write_text(comparison_markdown(table, log, compiled=compiled, notes=notes, hints=tips))
+        doc = {"log": str(Path(log).resolve()), "rows": table.to_dict("records"), "hints": tips}
+        write_json(tmp / "comparison.json", doc)
         if prepared.streams.truth is not None and summaries:
             plot_overlay(tmp / "overlay.png", prepared.streams.truth, summaries)
     table.attrs["compile_note"] = compile_note(compiled)
     table.attrs["notes"] = notes
+    table.attrs["hints"] = tips
     return table
 
 
@@ -141,6 +143,13 @@ def caveats(summaries: dict[str, RunSummary]) -> list[str]:
     from slamobs.pipeline.evaluation.markdown import headline_caveats
 
     return [f"{name}: {c}" for name, s in summaries.items() for c in headline_caveats(s.report or {})]
+
+
+def hints(summaries: dict[str, RunSummary]) -> list[str]:
+    """Per estimator, what its run's report suggests trying next (report.json ``hints``), each once and prefixed
+    by the estimator's name: compare's summary, comparison.md's Hints and comparison.json's ``hints``."""
+    said = (f"{name}: {h}" for name, s in summaries.items() for h in (s.report or {}).get("hints") or [])
+    return list(dict.fromkeys(said))
 
 
 def has_truth(streams) -> bool:
@@ -273,9 +282,10 @@ def comparison_markdown(
     against: str | None = None,
     compiled: dict[str, float] | None = None,
     notes: list[str] = (),
+    hints: list[str] = (),
 ) -> str:
-    """comparison.md: the table of the estimators' metrics on ``log``, each report's caveats under it. Public:
-    tests/test_compare.py reads the caveats from made-up reports."""
+    """comparison.md: the table of the estimators' metrics on ``log``, each report's caveats and hints under it.
+    Public: tests/test_compare.py reads the caveats from made-up reports."""
     columns = list(table.columns)
     head = "| " + " | ".join(LABELS.get(c, c) for c in columns) + " |\n|" + "---|" * len(columns) + "\n"
     body = ""
@@ -298,6 +308,8 @@ def comparison_markdown(
         body += f"\nThe {note}\n"
     if notes:
         body += "\n## Notes\n\n" + "".join(f"- {n}\n" for n in notes)
+    if hints:  # what each run's report suggests trying next (its report.md's "Hint:" lines)
+        body += "\n## Hints\n\n" + "".join(f"- {h}\n" for h in hints)
     if against is not None:
         map_words = (
             f"{MAP_ERROR} the map's RMS error against the landmark truth after a map-only SE(3) alignment "

@@ -131,3 +131,23 @@ def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation(
     table = pd.DataFrame([{"observer": "fast-adaptation", "status": "ok"}])
     md = comparison_markdown(table, Path("x.mcap"), notes=[f"fast-adaptation: {c}" for c in caveats])
     assert "\n## Notes\n\n- fast-adaptation: convergence: no: the error level" in md
+
+
+def test_compare_prints_each_runs_hint_once_named_by_its_estimator(tmp_path):
+    """Session 25: `compare m7r3.mcap --observers fast-adaptation,hashim,riekf` printed no `hint` line though each
+    run directory's run.json had one. A log far noisier than fast-adaptation's defaults (the coarse run of
+    test_never_mislead): its hint once, prefixed by its name, in the summary, comparison.md and comparison.json;
+    riekf (weighing the log's noise) none."""
+    log, config, out = tmp_path / "noisy.mcap", tmp_path / "run.yaml", tmp_path / "cmp"
+    config.write_text("evaluation:\n  plots: false\n")
+    args = ["--duration", 20, "--gyro-noise", 0.1, "--velocity-noise", 0.08, "--detection-noise", "0.02,0,0.009"]
+    rates = ["--imu-rate", 20, "--odom-rate", 20, "--detection-rate", 10]
+    assert invoke("simulate", "figure8", "-o", log, *args, *rates).exit_code == 0
+    res = invoke("compare", log, "-o", out, "--observers", "fast-adaptation,riekf", "--config", config)
+    assert res.exit_code == 0, res.output
+    hint = json.loads((out / "fast-adaptation" / "run.json").read_text())["hints"][0]
+    assert json.loads((out / "riekf" / "run.json").read_text())["hints"] == []
+    printed = [line for line in res.output.splitlines() if line.startswith("hint: ")]
+    assert printed == [f"hint: fast-adaptation: {hint}"], res.output
+    assert f"## Hints\n\n- fast-adaptation: {hint}\n" in (out / "comparison.md").read_text()
+    assert json.loads((out / "comparison.json").read_text())["hints"] == [f"fast-adaptation: {hint}"]

@@ -322,16 +322,17 @@ def test_a_failing_check_before_the_report_costs_a_warning_not_the_report(tmp_pa
     assert [n for n in notes if "check before the report failed (RuntimeError: boom)" in n], notes
 
 
-def _odometry_in_a_turned_sensor_frame(src, dst):
-    """The simulated MCAP ``src`` with its odometry's child_frame_id a sensor frame turned 90 deg about z from the
-    body (the transform on /tf_static, the twist in that frame): a log whose odometry is the sensor's own."""
+def _odometry_in_a_turned_sensor_frame(src, dst, turn=np.pi / 2):
+    """The simulated MCAP ``src`` with its odometry's child_frame_id a sensor frame turned ``turn`` (90 deg) about z
+    from the body (the transform on /tf_static, the twist in that frame): a log whose odometry is the sensor's own."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
     from slamobs.pipeline.simulate.logwriter import make_typestore
     from slamobs.pipeline.simulate.sensors import TOPIC_ODOM, TOPIC_TF_STATIC
 
-    ts, c, s = make_typestore(False), float(np.cos(np.pi / 4)), float(np.sin(np.pi / 4))
+    ts, c, s = make_typestore(False), float(np.cos(turn / 2)), float(np.sin(turn / 2))  # the edge's quaternion
+    cos, sin = float(np.cos(turn)), float(np.sin(turn))
     with src.open("rb") as fin, dst.open("wb") as fout:
         writer = Writer(fout)
         writer.start(profile="ros2", library="slamobs-tests")
@@ -350,8 +351,8 @@ def _odometry_in_a_turned_sensor_frame(src, dst):
                 ]
             elif channel.topic == TOPIC_ODOM:
                 m.child_frame_id = "odom_sensor"
-                for v in (m.twist.twist.linear, m.twist.twist.angular):  # v_sensor = Rz(90)ᵀ v_body
-                    v.x, v.y = c * v.x + s * v.y, -s * v.x + c * v.y
+                for v in (m.twist.twist.linear, m.twist.twist.angular):  # v_sensor = Rz(turn)ᵀ v_body
+                    v.x, v.y = cos * v.x + sin * v.y, -sin * v.x + cos * v.y
             if schema.id not in schemas:
                 schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
             if channel.id not in channels:
@@ -381,7 +382,7 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     ), report["notes"]
     body = [n for n in report["notes"] if n.startswith("the run took 'odom_sensor' as the body frame")]
     assert len(body) == 1 and "(the frame of /odom's twist (an Odometry's child_frame_id))" in body[0]
-    assert "frames.body: FRAME" in body[0] and body[0] in res.output
+    assert "frames.body: FRAME" in body[0] and res.output.count(body[0]) == 1  # the run's note and the report's
     # the same log with the body set: the truth is in the body's frame, no note of a turn, nor of the body
     fixed = tmp_path / "body.yaml"
     fixed.write_text("frames:\n  body: base_link\nevaluation:\n  plots: false\n")
@@ -389,3 +390,23 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     report = json.loads((tmp_path / "fixed" / "report.json").read_text())
     assert res.exit_code == 0 and report["ape"]["rotation_deg"]["rmse"] < 5
     assert not any("as the body frame" in n or "NEES" in n and "turn" in n for n in report["notes"])
+
+
+def test_a_body_taken_from_an_odometrys_sensor_frame_is_named_without_a_turned_truth(sim, tmp_path):
+    """Session 25: the run named the body frame it took only when the truth looked turned; an odometry whose
+    child_frame_id is a sensor frame (here on the base, not turned: the truth agrees) made that sensor the body
+    silently, `info` alone saying so. The run's summary and run.json now name it once, and how to set another; the
+    sample log, whose odometry's child frame is base_link, says nothing of it."""
+    log = write_log(simulate("figure8", duration=8.0, seed=5), tmp_path / "clean.mcap")
+    log = _odometry_in_a_turned_sensor_frame(log, tmp_path / "odom_sensor.mcap", turn=0.0)
+    res = invoke("run", log, "-o", tmp_path / "out", "--observer", "fast-adaptation", "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["ape"]["rotation_deg"]["rmse"] < 5  # no turned truth: the report's own note does not fire
+    body = [n for n in json.loads((tmp_path / "out" / "run.json").read_text())["notes"] if "as the body frame" in n]
+    assert len(body) == 1 and body[0].startswith("the run took 'odom_sensor' as the body frame (the frame of /odom")
+    assert "frames.body: FRAME" in body[0] and res.output.count(body[0]) == 1, res.output
+    from cli_checks import SAMPLES
+
+    res = invoke("run", SAMPLES / "figure8.mcap", "-o", tmp_path / "fine", "--config", sim["config"])
+    assert res.exit_code == 0 and "as the body frame" not in res.output, res.output

@@ -260,11 +260,9 @@ def body_frame_notes(notes: list[str], run_input: dict[str, Any]) -> list[str]:
     origin, body = run_input.get("body_frame_from"), run_input.get("body_frame")
     if not turned or any(CAMERA_NAMED_KEY in n for n in turned) or not origin or origin == "frames.body":
         return []
-    return [
-        f"the run took '{body}' as the body frame ({origin}): if the truth tracks another frame of the robot (its "
-        "base, where the odometry's child frame is a sensor's), the truth looks turned so; `slamobs info LOG` lists "
-        f"the frames into the body, and frames.body: FRAME in the run's config makes FRAME the body"
-    ]
+    from slamobs.pipeline.alignment import body_frame_note
+
+    return [body_frame_note(body, origin)]
 
 
 def camera_named_notes(notes: list[str], run_notes: list[str]) -> list[str]:
