@@ -644,11 +644,12 @@ def body_frame_name(linear_velocity: Vec3Stream | None, body_frame: str | None =
 
 def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None, topic: str | None) -> str:
     """Why :func:`body_frame_name` took its frame, for run.json and the report: ``frames.body``, the linear
-    velocity's frame (an Odometry's child_frame_id) on ``topic``, or the default."""
+    velocity's frame (an Odometry's child_frame_id, a TwistStamped's header frame) on ``topic``, or the default."""
     if body_frame:
         return "frames.body"
     if linear_velocity is not None and linear_velocity.frame_id:
-        return f"the frame of {topic or 'the linear velocity'}'s twist (an Odometry's child_frame_id)"
+        twist = f"the frame of {topic or 'the linear velocity'}'s twist"
+        return f"{twist}: an Odometry's child_frame_id or a TwistStamped's header frame"
     return "no linear velocity frame: the default"
 
 
