@@ -579,17 +579,25 @@ def test_corrupt_uncompressed_chunk_is_damaged(tmp_path):
     assert len(notes) == 1 and "fails its checksum" in notes[0], got.warnings
 
 
+def _ros2_log_with_metadata(out, old: str, new: str):
+    """A generated ROS2 .db3 directory (a 2 s figure 8) whose metadata.yaml has ``old`` replaced by ``new``."""
+    from slamobs.pipeline.simulate import write_log
+
+    log = write_log(simulate("figure8", seed=5, duration=2.0), out, "ros2")
+    meta = log / "metadata.yaml"
+    assert old in meta.read_text()
+    meta.write_text(meta.read_text().replace(old, new))
+    return log
+
+
 def test_a_db3_whose_metadata_leaves_a_topic_type_empty_names_that_topic(tmp_path):
     # a generated ROS2 .db3 whose metadata.yaml gives /fiducial_transforms the type '': the run said only that the
     # detections were missing
     from slamobs.pipeline.alignment import check_required
-    from slamobs.pipeline.simulate import write_log
 
-    log = write_log(simulate("figure8", seed=5, duration=2.0), tmp_path / "damaged_ros2", "ros2")
-    meta = log / "metadata.yaml"
-    typed = "type: fiducial_msgs/msg/FiducialTransformArray"
-    assert typed in meta.read_text()
-    meta.write_text(meta.read_text().replace(typed, "type: ''"))
+    log = _ros2_log_with_metadata(
+        tmp_path / "damaged_ros2", "type: fiducial_msgs/msg/FiducialTransformArray", "type: ''"
+    )
     streams = read_log(log)
     assert streams.untyped == ["/fiducial_transforms"] and streams.detections is None
     with pytest.raises(InputError) as err:
@@ -604,13 +612,9 @@ def test_a_db3_whose_metadata_leaves_a_topic_type_empty_names_that_topic(tmp_pat
 def test_a_db3_whose_metadata_lost_a_topic_type_line_names_the_topic_and_the_stored_type(tmp_path):
     # a generated ROS2 .db3 whose metadata.yaml has /fiducial_transforms' `type:` line removed: it was "corrupt or
     # truncated rosbag2 directory (sqlite3): A metadata key is missing KeyError('type')." (no file, no topic)
-    from slamobs.pipeline.simulate import write_log
-
-    log = write_log(simulate("figure8", seed=5, duration=2.0), tmp_path / "untyped_ros2", "ros2")
-    meta = log / "metadata.yaml"
-    typed = "      type: fiducial_msgs/msg/FiducialTransformArray\n"
-    assert typed in meta.read_text()
-    meta.write_text(meta.read_text().replace(typed, ""))
+    log = _ros2_log_with_metadata(
+        tmp_path / "untyped_ros2", "      type: fiducial_msgs/msg/FiducialTransformArray\n", ""
+    )
     (db3,) = log.glob("*.db3")
     for read in (read_log, inspect_log):
         with pytest.raises(InputError) as err:
