@@ -50,6 +50,7 @@ from slamobs.pipeline.frames import TfBuffer
 from slamobs.pipeline.readers.decode import CLOCK_STEP_NS, off_pace, shared_id_text, stamp_pace
 from slamobs.pipeline.readers.inspect import GAP_FACTOR
 from slamobs.pipeline.readers.roles import DIRECTION_ROLES, REQUIRED_ROLES, ROLE_PURPOSE, how_to_satisfy
+from slamobs.pipeline.readers.tf_tree import BODY_FROM_CONFIG, BODY_FROM_DEFAULT
 from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Vec3Stream
 
 
@@ -646,11 +647,11 @@ def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None
     """Why :func:`body_frame_name` took its frame, for run.json and the report: ``frames.body``, the linear
     velocity's frame (an Odometry's child_frame_id, a TwistStamped's header frame) on ``topic``, or the default."""
     if body_frame:
-        return "frames.body"
+        return BODY_FROM_CONFIG
     if linear_velocity is not None and linear_velocity.frame_id:
         twist = f"the frame of {topic or 'the linear velocity'}'s twist"
         return f"{twist}: an Odometry's child_frame_id or a TwistStamped's header frame"
-    return "no linear velocity frame: the default"
+    return BODY_FROM_DEFAULT
 
 
 #: The frames a robot's base goes by (REP 105): a body frame taken from an odometry's child_frame_id under another
@@ -742,7 +743,7 @@ def align(
     frame.notes.extend(f"warning: {det.topic}: {n}" for n in notes_ghost)
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
-    if body_frame is None and body_from != body_frame_origin(None, None, None) and body not in BASE_FRAMES:
+    if body_from not in (BODY_FROM_CONFIG, BODY_FROM_DEFAULT) and body not in BASE_FRAMES:
         notes.insert(0, body_frame_note(body, body_from))  # an odometry's child frame, maybe a sensor's
     if w is not None:
         notes.append(

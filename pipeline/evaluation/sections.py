@@ -258,9 +258,10 @@ def body_frame_notes(notes: list[str], run_input: dict[str, Any]) -> list[str]:
     (:func:`camera_named_notes`) or the run.json predates ``body_frame_from``."""
     turned = [n for n in notes if TRUTH_FRAME_TURNED in n]
     origin, body = run_input.get("body_frame_from"), run_input.get("body_frame")
-    if not turned or any(CAMERA_NAMED_KEY in n for n in turned) or not origin or origin == "frames.body":
+    from slamobs.pipeline.alignment import BODY_FROM_CONFIG, body_frame_note
+
+    if not turned or any(CAMERA_NAMED_KEY in n for n in turned) or not origin or origin == BODY_FROM_CONFIG:
         return []
-    from slamobs.pipeline.alignment import body_frame_note
 
     return [body_frame_note(body, origin)]
 
@@ -609,6 +610,14 @@ def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, met
     }
 
 
+def inconclusive_why(side: str, any_correlation: float) -> str:
+    """Why a mean NEES ``side`` ("above" or "below") the bounds of independent values, and not above
+    ``any_correlation``, decides nothing from one run: the pose's parts and the map say it alike."""
+    if side == "above":
+        return f"a mean of consistent values exceeds {any_correlation:.3g} with probability <= 2.5 % however correlated"
+    return "no bound below holds for correlated values"
+
+
 def map_sigma_note(check: dict[str, Any] | None, after: str) -> list[str]:
     """The note of a :func:`sigma_check` whose verdict is not within (errors measured ``after`` an alignment), else
     []: overconfident plainly (the σ's shortfall when the median ‖e‖/σ reaches ``MAP_SIGMA_FAR``, else how many
@@ -623,12 +632,7 @@ def map_sigma_note(check: dict[str, Any] | None, after: str) -> list[str]:
         f"of {check['n']} independent landmarks"
     )
     if check["verdict"] == "inconclusive":
-        why = (
-            f"a mean of consistent values exceeds {check['bound_any_correlation']:.3g} with probability <= 2.5 % "
-            "however correlated"
-            if side == "above"
-            else "no bound below holds for correlated values"
-        )
+        why = inconclusive_why(side, check["bound_any_correlation"])
         return [
             f"landmark map: {head}: the landmarks share the alignment's and the poses' errors, so one map strays "
             f"further than these bounds ({why}); not conclusive from one run (landmarks.sigma_check)"
@@ -1110,9 +1114,9 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
     )
     if r["verdict"] == "inconclusive":
         return (
-            f"{head}: consecutive errors are correlated, so one run strays further than these bounds (a mean of "
-            f"consistent values exceeds {r['bound_any_correlation']:.3g} with probability <= 2.5 % however "
-            "correlated); not conclusive from one run (the test of consistency is the mean over runs)"
+            f"{head}: consecutive errors are correlated, so one run strays further than these bounds "
+            f"({inconclusive_why(side, r['bound_any_correlation'])}); not conclusive from one run (the test of "
+            "consistency is the mean over runs)"
         )
     return (
         f"{head} and above {r['bound_any_correlation']:.3g}, which a mean of consistent values exceeds with "

@@ -249,6 +249,12 @@ def _frame_of(reader: Any, conns: Iterable[Any], msgtype: str, role: str) -> str
     return None
 
 
+#: why a frame is the body when ``frames.body`` named it, and when no linear velocity names one (``base_link``): the
+#: run's ``input.body_frame_from`` (:func:`.alignment.body_frame_origin`) and ``info``'s frame table say the same
+BODY_FROM_CONFIG = "frames.body"
+BODY_FROM_DEFAULT = "no linear velocity frame: the default"
+
+
 def tf_summary(
     reader: Any,
     path: Any,
@@ -272,12 +278,12 @@ def tf_summary(
         frames[role] = (topic, _frame_of(reader, table[topic][1], table[topic][0].msgtype, role))
     lv = frames.get("linear_velocity", ("", None))
     if body_frame:
-        body, body_from = body_frame.lstrip("/"), "frames.body"
+        body, body_from = body_frame.lstrip("/"), BODY_FROM_CONFIG
     elif lv[1]:
         kind = "the child frame of" if table[lv[0]][0].msgtype.endswith("Odometry") else "the frame of"
         body, body_from = lv[1], f"{kind} {lv[0]}"
     else:
-        body, body_from = "base_link", "no linear velocity frame: the default"
+        body, body_from = "base_link", BODY_FROM_DEFAULT
     ident = {x.lstrip("/") for x in identity}
     over = {x.lstrip("/") for x in override}
     sensors = [
