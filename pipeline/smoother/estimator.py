@@ -79,6 +79,15 @@ class _Segments:
         return np.minimum((np.asarray(t) - self.t0) // self.segment_s, self.n - 1).astype(np.int64)
 
 
+def across_gaps(kf_t: np.ndarray, gaps: np.ndarray | None) -> np.ndarray:
+    """Which keyframe intervals (``K − 1``) span a velocity gap (``gaps``: (start, end) rows, None: none): the
+    motion factors leave them (almost) unconstrained, the held velocity's windows leave them out."""
+    across = np.zeros(kf_t.shape[0] - 1, bool)
+    for lo, hi in gaps if gaps is not None else ():
+        across |= (kf_t[:-1] < hi) & (kf_t[1:] > lo)
+    return across
+
+
 def covariance_keyframes(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> np.ndarray:
     """The keyframes whose marginal covariance the smoother computes: the first at or after each multiple of
     ``every_s`` (longer where the log would need more than ``COVARIANCE_MARGINALS``) from the start, and the
@@ -501,9 +510,8 @@ class BatchSmoother(Stepper):
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
         preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro**2, nz.velocity**2, data, cov)
-        for lo, hi in gaps if gaps is not None else ():  # intervals across a gap: (almost) no constraint
-            across = (kf_t[:-1] < hi) & (kf_t[1:] > lo)
-            cov[across] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
+        # intervals across a gap: (almost) no constraint
+        cov[across_gaps(kf_t, gaps)] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
         return data
 
@@ -622,10 +630,7 @@ class BatchSmoother(Stepper):
         kf_t, _, gaps = keyframes
         p, sol = chosen.problem, chosen.sol
         residual = hv.interval_residuals(p.data, p.b_bar, sol.rot, sol.pos, sol.bias, p.seg_of)
-        open_interval = np.zeros(kf_t.shape[0] - 1, bool)
-        for lo, hi in gaps if gaps is not None else ():
-            open_interval |= (kf_t[:-1] < hi) & (kf_t[1:] > lo)
-        density = hv.window_density(kf_t, sol.rot, residual, open_interval)
+        density = hv.window_density(kf_t, sol.rot, residual, across_gaps(kf_t, gaps))
         level = np.asarray(nz.velocity, float)
         s = hv.scale(density, level, self.stream.velocity)
         record = hv.record(density, level, s)
