@@ -154,18 +154,29 @@ def batch_with_its_cluster_starting(logs, tmp_path):
     return proc, err
 
 
-def spawned_workers(pid: int) -> list[int]:
-    """The worker processes a local Dask cluster's nannies spawned under the batch ``pid`` (not multiprocessing's
-    resource tracker)."""
+def children_running(pid: int, marker: bytes) -> list[int]:
+    """The children of ``pid`` whose command line holds ``marker`` (a child forked but not yet exec'd still shows its
+    parent's command line and environment, so it matches none)."""
     found = []
     for child in children(pid):
         try:
             with open(f"/proc/{child}/cmdline", "rb") as fh:
-                if b"spawn_main" in fh.read():
+                if marker in fh.read():
                     found.append(child)
         except OSError:
             pass
     return found
+
+
+def spawned_workers(pid: int) -> list[int]:
+    """The worker processes a local Dask cluster's nannies spawned under the batch ``pid``."""
+    return children_running(pid, b"spawn_main")
+
+
+def resource_trackers(pid: int) -> list[int]:
+    """multiprocessing's resource tracker under the batch ``pid`` (``from multiprocessing.resource_tracker import
+    main``)."""
+    return children_running(pid, b"resource_tracker")
 
 
 def blocked_signals(pid: int) -> int:

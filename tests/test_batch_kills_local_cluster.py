@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from batch_checks import CLI, alive, assert_consistent, children, wait_for, wait_gone
+from batch_checks import CLI, alive, assert_consistent, wait_for, wait_gone
 from slamobs.pipeline.batch.dask_exec import TRACKER_WARNINGS
 from slamobs.pipeline.batch.executor import STARTED
 from kill_checks import (
@@ -20,6 +20,7 @@ from kill_checks import (
     batch_args,
     batch_with_its_cluster_starting,
     blocked_signals,
+    resource_trackers,
     spawned_workers,
     staged_logs,
     start_batch,
@@ -222,7 +223,9 @@ def test_ctrl_c_while_the_local_cluster_starts_prints_the_batch_s_line_only(logs
         assert wait_for(lambda: spawned_workers(proc.pid) or proc.poll() is not None, 60, step=0.005)
         workers = spawned_workers(proc.pid)
         masks = {pid: blocked_signals(pid) for pid in workers}
-        tracker = {pid: blocked_signals(pid) for pid in set(children(proc.pid)) - set(workers)}  # resource tracker
+        # by its command line: the children but the workers also held a worker forked and not yet exec'd, with
+        # the batch's own environment (one fresh-clone suite run, session 25)
+        tracker = {pid: blocked_signals(pid) for pid in resource_trackers(proc.pid)}
         environ = {pid: read_environ(pid) for pid in tracker}
         time.sleep(0.3)  # they import
         os.killpg(proc.pid, signal.SIGINT)
