@@ -257,10 +257,6 @@ class BatchSmoother(Stepper):
         chosen, held_velocity, held_notes = self._held_velocity(
             chosen, keyframes, segments, _in_step(progress, "the held velocity's level")
         )
-        if held_velocity.get("scale", 1.0) != 1.0:  # the detections' shape and correlation again at the new level
-            again = self._detections_again(chosen, keyframes, segments, _in_step(progress, "detections again"))
-            chosen, anisotropy, anisotropy_notes, correlation, correlation_notes = again
-            held_velocity["detections_again"] = True
         correlation_notes += held_notes
         chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
         problem, sol = chosen.problem, chosen.sol
@@ -642,23 +638,6 @@ class BatchSmoother(Stepper):
             return chosen, record, []
         self.noise = nz.scaled({"velocity": s}, "the smoother's solution's residuals over short windows")
         return self._solved_again(chosen, sol, keyframes, segments, progress), record, [hv.note(level, s)]
-
-    def _detections_again(self, chosen, keyframes: tuple, segments: _Segments, progress):
-        """The detections' range/bearing ratio and time correlation chosen again once the held velocity's level
-        moved, as a run with that level stated chooses them: from a solution at it with white detections (and
-        isotropic ones, unless a ratio is configured). Chosen at the pairs' level (5-10x the new one on MR.CLAM)
-        the trajectory had followed the detections' slow error: 7-r4's ratio came out 16 where 32 has the higher
-        evidence at the new level, its correlation time 8.1 s where 6.0, and its APE 0.118 m against 0.092
-        (docs/benchmarks.md, "batch's correlation fit, evidence and held level on MR.CLAM ..., session 26": not
-        kept, three robots 4.5-7 % worse). The candidate,
-        the ratio's record and notes, the correlation's record and notes."""
-        self.det_factor = None
-        if not self._ratio_configured():
-            self.det_shape = None
-        chosen = self._solved_again(chosen, chosen.sol, keyframes, segments, progress)
-        chosen, anisotropy, anisotropy_notes = self._weigh_range(chosen, keyframes, segments, progress)
-        chosen, correlation, correlation_notes = self._decorrelate(chosen, keyframes, segments, progress)
-        return chosen, anisotropy, anisotropy_notes, correlation, correlation_notes
 
     def _held_velocity_skipped(self) -> str | None:
         """Why the velocity level is not taken from the solution's short-window residuals, or None."""
