@@ -57,6 +57,7 @@ from slamobs.pipeline.observers.base import (
 )
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.observers.time_offset import misread as time_offset_misread
+from slamobs.pipeline.observers.time_offset import output_clock
 from slamobs.pipeline.streams import LogStreams
 
 
@@ -771,6 +772,7 @@ def estimate(
             notes += jump_note(spec.name, split or [], t0_ns, topics=aligned.topics)
             notes += jump_note(spec.name, jumps, t0_ns, lost and not split, aligned.topics)
         metadata["observer"].update(part.stats.get("metadata", {}))  # e.g. the smoother's summary
+        metadata["output"]["clock"] = output_clock(checks.get("time_offset"))
         stage_timings = dict(part.timings)
         del part
         if release:
