@@ -930,7 +930,7 @@ def output_clock(offset: dict | None) -> dict:
     record, None for an estimator that estimates none) moved the detection stamps onto it by
     ``detections_moved_s``, and ``MOVED_TABLES`` carry the moved stamps, ``RECORDED_TABLES`` the recorded ones
     (``t_recorded = t - detections_moved_s``). Kept on the velocity clock, not moved back onto the detections': on
-    the real logs where an offset is applied the APE moved by at most 0.002 m either way on MR.CLAM and by the
+    the real logs where an offset is applied the APE moved by at most 0.005 m either way on MR.CLAM and by the
     pairing's noise on TagSLAM test_22 (docs/benchmarks.md, session 26)."""
     moved = float(offset["estimate_s"]) if offset is not None and offset.get("applied") else 0.0
     return {
