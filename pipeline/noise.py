@@ -518,8 +518,9 @@ def _believed(key: str, stated, estimate: Estimate | None, notes: list[str]):
     note saying why it was rejected."""
     if stated is None:
         return None
-    if stated.problem is not None:
-        notes.append(f"noise: {stated.topic} covariance not used for {key}: {stated.problem}")
+    if stated.problem is not None:  # what the key takes instead: the samples' estimate, else its default
+        instead = "the samples' estimate" if estimate is not None else "the default"
+        notes.append(f"noise: {stated.topic} covariance not used for {key}: {stated.problem}; {instead} used instead")
         return None
     if stated.rejected is not None:
         notes.append(f"noise: {stated.topic} covariance for {key}: {stated.rejected}")

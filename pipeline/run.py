@@ -826,15 +826,15 @@ def estimate_splitting(
 def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, notes: list[str]) -> list[str]:
     """The detection pairs' warnings (``time_offset.note``: a camera extrinsic turned or inverted, a gyro misread,
     with their topics and the camera frame) when the report found the estimate's body frame turned against the
-    truth's (``sections.TRUTH_FRAME_KEY``, which a wrong extrinsic also gives) and the run's own notes say nothing of
-    the camera: observers do not make those checks (0.18-0.32 CPU s and ~17 s of first compile a run), so only
-    a run the report already doubts pays them (the log read and aligned again when the run released it). Made
+    truth's (report.json ``ape.truth_frame_turn``, which a wrong extrinsic also gives) and the run's own notes say
+    nothing of the camera: observers do not make those checks (0.18-0.32 CPU s and ~17 s of first compile a run), so
+    only a run the report already doubts pays them (the log read and aligned again when the run released it). Made
     before the report is written, so that its notes (:func:`.report.add_run_context`) name the camera."""
-    from slamobs.pipeline.evaluation.sections import TRUTH_FRAME_KEY
     from slamobs.pipeline.observers import time_offset
 
-    said = (report or {}).get("notes") or []
-    if not any(TRUTH_FRAME_KEY in n for n in said) or any(time_offset.CAMERA_ADVICE in n for n in notes):
+    if not ((report or {}).get("ape") or {}).get("truth_frame_turn") or any(
+        time_offset.CAMERA_ADVICE in n for n in notes
+    ):
         return []
 
     aligned = prepared.aligned

@@ -131,7 +131,7 @@ def test_no_truth_rotation_is_named_for_errors_a_constant_turn_does_not_explain(
     named."""
     from types import SimpleNamespace
 
-    from slamobs.pipeline.evaluation.sections import truth_frame_note
+    from slamobs.pipeline.evaluation.sections import truth_frame_note, truth_frame_turn
     from slamobs.pipeline.lie import so3_exp
 
     rng = np.random.default_rng(3)
@@ -149,12 +149,36 @@ def test_no_truth_rotation_is_named_for_errors_a_constant_turn_does_not_explain(
             translation=SimpleNamespace(stats={"rmse": 0.5}),
             paired=SimpleNamespace(ref_pos=pos, ref_rot=ref_rot),
         )
-        return rot, truth_frame_note(ev)
+        return rot, truth_frame_note(ev, truth_frame_turn(ev))
 
     rot, notes = note(np.matmul(est, wander))  # errors that wander: no constant turn explains them
     assert rot > 30.0 and notes == []
     rot, notes = note(np.matmul(est, quat_to_rot(X_XYZW)))  # a constant turn: named, with its key
     assert rot > 60.0 and len(notes) == 1 and "frames.truth_rotation" in notes[0]
+
+
+def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words():
+    """The NEES notes' caveat, the body-frame note and the camera's reading of the turn went by the truth-frame
+    note's words (``TRUTH_FRAME_TURNED``, ``TRUTH_FRAME_KEY`` found in the notes): a reworded note dropped them all
+    without a word. They go by report.json's ``ape.truth_frame_turn`` now, whatever the notes say."""
+    from slamobs.pipeline.evaluation.report import add_run_context
+    from slamobs.pipeline.evaluation.sections import nees_against_turned_truth
+    from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE
+
+    turn = {"angle_deg": 90.0, "axis": [0.0, 0.0, 1.0], "quat_xyzw": [0.0, 0.0, 0.7071, 0.7071]}
+    nees = ["position NEES 2.61e+06 (DoF 3) is above the 95 % bounds [2.92, 3.08] of a mean of independent values"]
+    (said,) = nees_against_turned_truth(turn | {"rotation_rmse_after_deg": 0.1, "path_m": 30.0}, nees)
+    assert said.startswith(nees[0]) and "this NEES holds the estimate against a truth in another body frame" in said
+    assert nees_against_turned_truth(None, nees) == nees
+    meta = {"observer": {"name": "riekf"}, "input": {"body_frame": "odom_sensor", "body_frame_from": "of /odom"}}
+    for flagged in (True, False):
+        report = {"ape": {"truth_frame_turn": dict(turn) if flagged else None}, "notes": ["rotation APE: reworded"]}
+        add_run_context(report, [], meta)
+        assert any("the run took 'odom_sensor' as the body frame" in n for n in report["notes"]) is flagged
+    report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
+    add_run_context(report, [f"warning: {CAMERA_ADVICE}"], meta)  # the camera named: no body-frame note
+    assert report["ape"]["truth_frame_turn"]["camera_named"] is True
+    assert not any("as the body frame" in n for n in report["notes"])
 
 
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):

@@ -217,6 +217,27 @@ def test_every_message_s_covariance_is_judged(monkeypatch, tmp_path):
     assert "600 of 2001 messages state placeholder (1e-09, 1e-09, 1e-09)" in note and "other 1401 used" in note, note
 
 
+def test_a_covariance_nan_in_some_or_all_messages_is_counted_and_says_what_was_used(monkeypatch, tmp_path):
+    """NaN in part of a topic's covariances (a driver that loses its estimate after a while): the note counts the
+    messages per topic and says the median of the others was used; NaN in every message: not used, the note says
+    in how many and what the run took instead (before: "not finite" alone, no count, no word of the level used)."""
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    config = parse_config({"observer": "riekf"})
+    plausible, nan = [2.5e-5] * 3, [np.nan, 2.5e-5, 2.5e-5]
+    part = changing_imu_covariance(monkeypatch, tmp_path, "part", 0.7, plausible, nan)
+    nz = log_noise(prepare_log(part, config, directions=False), config)
+    assert nz.sources["gyro"].startswith("/imu/data covariance") and np.allclose(nz.gyro, 0.005 * np.sqrt(1 / 200))
+    (note,) = [n for n in nz.notes if "/imu/data covariance for gyro" in n]
+    assert "601 of 2001 messages state not finite (between 7 and 10 s" in note and "other 1400 used" in note, note
+    every = changing_imu_covariance(monkeypatch, tmp_path, "every", 1.0, nan, nan)
+    nz = log_noise(prepare_log(every, config, directions=False), config)
+    assert nz.sources["gyro"] == "estimated", nz.sources
+    (note,) = [n for n in nz.notes if "/imu/data covariance not used for gyro" in n]
+    assert note.endswith("not finite (all 2001 messages); the samples' estimate used instead"), note
+
+
 # ------------------------------------------------------------------------- the estimators on learned noise
 
 

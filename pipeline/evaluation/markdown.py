@@ -277,6 +277,7 @@ def _md_sigma_check(check: dict[str, Any]) -> list[str]:
     """The map's stated σ against its error, in one line (report.json landmarks.sigma_check)."""
     lo, hi = check["bounds"]
     verdict = check["verdict"] + (f" (σ × {check['sigma_factor']:.2g})" if check["verdict"] != "within" else "")
+    verdict += f": {check['verdict_why']}" if check.get("verdict_why") else ""
     dof = f" ({check['dof']} DoF: {', '.join(check['axes'])})" if check.get("axes") else ""
     return [
         f"Map σ against its error: mean landmark NEES {check['mean_nees']:.3g} over {check['n']} landmarks{dof} "

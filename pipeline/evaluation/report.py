@@ -228,7 +228,7 @@ def evaluate_tables(
     notes = []
     if invalid:
         notes.append(f"{invalid} ground-truth poses with a zero or non-finite quaternion (no rotation) dropped")
-    nees = nees_against_turned_truth(sections["ape"].notes, uncertainty.notes)
+    nees = nees_against_turned_truth(sections["ape"].result["truth_frame_turn"], uncertainty.notes)
     notes += sections["ape"].notes + landmark.notes + time_offset.notes + by_alignment.notes + rpe.notes + nees
     report = {
         "schema_version": SCHEMA_VERSION,
@@ -365,8 +365,8 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
     if report.get("notes"):
-        report["notes"] = camera_named_notes(report["notes"], run_notes)
-        report["notes"] += body_frame_notes(report["notes"], metadata.get("input") or {})
+        report["notes"] = camera_named_notes(report, run_notes)
+        report["notes"] += body_frame_notes(report, metadata.get("input") or {})
     if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)
     segments = metadata.get("segments") or []

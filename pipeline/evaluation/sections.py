@@ -96,8 +96,10 @@ class ApeSection(Section):
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
         self.result = {"translation_m": ev.translation.stats, "rotation_deg": ev.rotation.stats}
-        frame = truth_mirror_note(ev) or truth_frame_note(ev)  # a mirror is no turn: the turn would mislead
-        self.notes += frame + truth_scale_note(ev) + sparse_pairs_note(ev)
+        mirror = truth_mirror_note(ev)
+        turn = None if mirror else truth_frame_turn(ev)  # a mirror is no turn: the turn would mislead
+        self.result["truth_frame_turn"] = turn
+        self.notes += (mirror or truth_frame_note(ev, turn)) + truth_scale_note(ev) + sparse_pairs_note(ev)
 
 
 #: A translation APE above this share of the truth's RMS extent, or a rotation APE above TRUTH_FRAME_ROTATION_DEG, is
@@ -200,7 +202,7 @@ TRUTH_FRAME_EXPLAINS = 0.5
 TRUTH_FRAME_KEY = "set frames.truth_rotation: ["
 #: where that note turns from the numbers to what may explain them (:func:`camera_named_notes` keeps what is before)
 TRUTH_FRAME_UNLESS = ", unless a sensor's extrinsic is wrong"
-#: what that note says of the frames: the NEES notes and the run's body-frame note find it by this
+#: what that note says of the frames (the NEES notes repeat it; they and the body-frame note go by ape.truth_frame_turn)
 TRUTH_FRAME_TURNED = "the truth's body frame looks turned against the estimate's"
 #: what the note says instead when the run's detection pairs named the camera's extrinsic (a headline table picks it)
 CAMERA_NAMED_KEY = "the detection pairs name the camera's extrinsic"
@@ -222,61 +224,80 @@ def truth_body_rotation(ev: TrajectoryEvaluation) -> tuple[np.ndarray, np.ndarra
     return x, left
 
 
-def truth_frame_note(ev: TrajectoryEvaluation) -> list[str]:
-    """The note naming a constant rotation between the truth's body frame and the estimate's, when the rotation
-    errors are implausible next to the translation errors, with the config key that applies it."""
+def truth_frame_turn(ev: TrajectoryEvaluation) -> dict[str, Any] | None:
+    """The constant rotation between the truth's body frame and the estimate's (report.json ``ape.truth_frame_turn``:
+    ``angle_deg``, ``axis``, ``quat_xyzw``, ``rotation_rmse_after_deg``, the rotation APE with it applied), when the
+    rotation errors are implausible next to the translation errors and that turn explains them; else None. What the
+    NEES notes, the body-frame note and the camera check go by (:func:`truth_frame_note` words it)."""
     rot, trans = ev.rotation.stats.get("rmse"), ev.translation.stats.get("rmse")
     ref = ev.paired.ref_pos
     path = float(metrics.row_norms(ref[1:], ref[:-1]).sum()) if len(ref) else 0.0
     if rot is None or trans is None or rot <= TRUTH_FRAME_ROTATION_DEG or trans >= TRUTH_FRAME_TRANSLATION * path:
-        return []
+        return None
     x, left = truth_body_rotation(ev)
     after = float(np.sqrt(np.mean(left**2)))
     if after > TRUTH_FRAME_EXPLAINS * rot:  # the errors are no constant turn (a lost estimate on MR.CLAM 7 r3:
-        return []  # 57.3 deg, 53.0 with the turn): a key that changes nothing would be a false lead
+        return None  # 57.3 deg, 53.0 with the turn): a key that changes nothing would be a false lead
     q = rots_to_quats(x[None])[0]
     q = q if q[3] >= 0 else -q
-    angle = float(np.degrees(2.0 * np.arctan2(np.linalg.norm(q[:3]), q[3])))
     axis = q[:3] / (np.linalg.norm(q[:3]) or 1.0)
+    return {
+        "angle_deg": float(np.degrees(2.0 * np.arctan2(np.linalg.norm(q[:3]), q[3]))),
+        "axis": [float(v) for v in axis],
+        "quat_xyzw": [float(v) for v in q],
+        "rotation_rmse_after_deg": after,
+        "path_m": path,
+    }
+
+
+def truth_frame_note(ev: TrajectoryEvaluation, turn: dict[str, Any] | None) -> list[str]:
+    """The note naming :func:`truth_frame_turn`'s ``turn`` (None: no note), with the config key that applies it."""
+    if turn is None:
+        return []
+    rot, trans, path = ev.rotation.stats["rmse"], ev.translation.stats["rmse"], turn["path_m"]
+    axis, q = turn["axis"], turn["quat_xyzw"]
     return [
         f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
         f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): {TRUTH_FRAME_TURNED} by a constant "
-        f"{angle:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
-        f"rotation APE would be {after:.2f} deg rmse{TRUTH_FRAME_UNLESS} (a camera transform "
-        "inverted or turned turns the estimate so: `slamobs info --noise LOG` checks it against the motion); to apply "
-        f"it (evaluation only) {TRUTH_FRAME_KEY}"
+        f"{turn['angle_deg']:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
+        f"rotation APE would be {turn['rotation_rmse_after_deg']:.2f} deg rmse{TRUTH_FRAME_UNLESS} (a camera "
+        "transform inverted or turned turns the estimate so: `slamobs info --noise LOG` checks it against the "
+        f"motion); to apply it (evaluation only) {TRUTH_FRAME_KEY}"
         f"{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
     ]
 
 
-def body_frame_notes(notes: list[str], run_input: dict[str, Any]) -> list[str]:
+def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[str]:
     """The note naming the body frame the run took and why (run.json's ``input``: ``body_frame``,
-    ``body_frame_from``), when the report's ``notes`` say the truth's body frame looks turned against the estimate's
-    (:func:`truth_frame_note`) and the run did not take it from ``frames.body``: a log whose odometry's
-    child_frame_id is a sensor frame turned against the robot's base makes that sensor the body, and the truth,
-    which tracks the base, looks turned. Empty otherwise, also when the camera's extrinsic is named instead
-    (:func:`camera_named_notes`) or the run.json predates ``body_frame_from``."""
-    turned = [n for n in notes if TRUTH_FRAME_TURNED in n]
+    ``body_frame_from``), when the report found the truth's body frame turned against the estimate's (``ape``'s
+    ``truth_frame_turn``: :func:`truth_frame_turn`) and the run did not take it from ``frames.body``: a log whose
+    odometry's child_frame_id is a sensor frame turned against the robot's base makes that sensor the body, and the
+    truth, which tracks the base, looks turned. Empty otherwise, also when the camera's extrinsic is named instead
+    (``truth_frame_turn.camera_named``: :func:`camera_named_notes`) or the run.json predates ``body_frame_from``."""
+    turn = (report.get("ape") or {}).get("truth_frame_turn")
     origin, body = run_input.get("body_frame_from"), run_input.get("body_frame")
     from slamobs.pipeline.alignment import BODY_FROM_CONFIG, body_frame_note
 
-    if not turned or any(CAMERA_NAMED_KEY in n for n in turned) or not origin or origin == BODY_FROM_CONFIG:
+    if not turn or turn.get("camera_named") or not origin or origin == BODY_FROM_CONFIG:
         return []
 
     return [body_frame_note(body, origin)]
 
 
-def camera_named_notes(notes: list[str], run_notes: list[str]) -> list[str]:
-    """The report's ``notes`` once the run's own (``run_notes``) hold the detection pairs' warning of a turned or
-    inverted camera extrinsic (``time_offset.CAMERA_ADVICE``): such a camera turns the estimate as a truth recorded
-    in another body frame would, so the truth-frame note (:func:`truth_frame_note`) keeps its numbers, sends the
-    reader to that warning (a report's notes carry it: :func:`.report.add_run_context`) and no longer offers
-    ``frames.truth_rotation``, which would hide the camera's error in the report, not mend the estimate. The
-    notes as they are otherwise."""
+def camera_named_notes(report: dict[str, Any], run_notes: list[str]) -> list[str]:
+    """The report's notes once the run's own (``run_notes``) hold the detection pairs' warning of a turned or
+    inverted camera extrinsic (``time_offset.CAMERA_ADVICE``) and the report found the truth's body frame turned
+    (``ape.truth_frame_turn``, then marked ``camera_named``): such a camera turns the estimate as a truth recorded in
+    another body frame would, so the truth-frame note (:func:`truth_frame_note`) keeps its numbers, sends the reader
+    to that warning (a report's notes carry it: :func:`.report.add_run_context`) and no longer offers
+    ``frames.truth_rotation``, which would hide the camera's error in the report, not mend the estimate. The notes
+    as they are otherwise."""
     from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE
 
-    if not any(CAMERA_ADVICE in n for n in run_notes):
+    notes, turn = report.get("notes") or [], (report.get("ape") or {}).get("truth_frame_turn")
+    if not turn or not any(CAMERA_ADVICE in n for n in run_notes):
         return notes
+    turn["camera_named"] = True
     return [
         f"{n.split(TRUTH_FRAME_UNLESS)[0]}; but {CAMERA_NAMED_KEY} (the warning below): a camera transform inverted "
         "or turned turns the estimate so; correct the extrinsic and run again (a rotation of the truth would only "
@@ -610,6 +631,39 @@ def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, met
     }
 
 
+def confirm_after_map_only(check: dict[str, Any] | None, vectors: np.ndarray | None, cov: np.ndarray | None) -> None:
+    """Keep an ``overconfident`` :func:`sigma_check` verdict (errors after the trajectory's alignment) only when the
+    map is also above ``bound_any_correlation`` after an alignment of the map alone: ``vectors`` its errors and
+    ``cov`` the covariances turned by its rotation (None: fewer than three landmarks not on one line, the verdict
+    stays). That alignment takes the trajectory alignment's own error out, which Σ does not hold (7 of 70 consistent
+    generated maps were called overconfident by it alone), and with it p = dof(dof + 1)/2 DoF (6 in 3-D, 3 on a
+    planar map), so its mean NEES is the NEES sum over n − p/dof landmarks (``after_map_only``). Below that bound the
+    verdict is ``inconclusive``, ``verdict_why`` says why."""
+    if check is None or check["verdict"] != "overconfident":
+        return
+    dof, any_correlation = check["dof"], check["bound_any_correlation"]
+    removed = dof * (dof + 1) // 2
+    if vectors is None or cov is None:
+        check["after_map_only"] = None
+        return
+    axes = ["xyz".index(a) for a in check.get("axes", "xyz")]
+    nees = slam_metrics.landmark_nees(vectors[:, axes], cov[:, axes][:, :, axes])
+    nees = nees[np.isfinite(nees)]
+    if dof * nees.size <= removed:
+        check["after_map_only"] = None
+        return
+    mean = float(np.sum(nees) / (nees.size - removed / dof))
+    check["after_map_only"] = {"mean_nees": mean, "n": int(nees.size), "dof_removed": removed}
+    if mean > any_correlation:
+        return
+    check.update(verdict="inconclusive", overconfident=False)
+    check["verdict_why"] = (
+        f"above {any_correlation:.3g} after the trajectory's alignment, but {mean:.3g} after an alignment of the map "
+        f"alone ({removed} DoF taken out): the excess is the trajectory alignment's own error, which the map's "
+        "covariance does not hold"
+    )
+
+
 def inconclusive_why(side: str, any_correlation: float) -> str:
     """Why a mean NEES ``side`` ("above" or "below") the bounds of independent values, and not above
     ``any_correlation``, decides nothing from one run: the pose's parts and the map say it alike."""
@@ -631,6 +685,11 @@ def map_sigma_note(check: dict[str, Any] | None, after: str) -> list[str]:
         f"mean landmark NEES {mean:.3g} {side} the 95 % bounds [{check['bounds'][0]:.3g}, {check['bounds'][1]:.3g}] "
         f"of {check['n']} independent landmarks"
     )
+    if check.get("verdict_why"):  # above any correlation's bound, but not after the map-only alignment
+        return [
+            f"landmark map: {head}; its mean NEES is {check['verdict_why']}: not conclusive from one run "
+            "(landmarks.sigma_check.after_map_only)"
+        ]
     if check["verdict"] == "inconclusive":
         why = inconclusive_why(side, check["bound_any_correlation"])
         return [
@@ -696,6 +755,15 @@ class LandmarkSection(Section):
         "alignment adds to every landmark alike while absorbing part of the error Σ describes: a looser test than "
         "the trajectory's NEES, and a mean NEES hundreds of times the bound is no gauge effect"
     )
+    #: the part of SIGMA_METHOD on :func:`confirm_after_map_only` (not in the map-only check, already after it)
+    SIGMA_CONFIRM_METHOD = (
+        "; an overconfident verdict stands only when the map is above bound_any_correlation after the map-only "
+        "alignment too (after_map_only: the NEES sum over n − p/dof landmarks, p = dof(dof + 1)/2 the DoF that "
+        "alignment takes out, 6 in 3-D, 3 on a planar map), which takes the trajectory alignment's own error out; "
+        "else inconclusive, verdict_why saying so; with fewer than three landmarks not on one line (no such "
+        "alignment: after_map_only null) it stands as it is"
+    )
+    SIGMA_METHOD += SIGMA_CONFIRM_METHOD
 
     def __init__(self, landmark_truth: dict[int, np.ndarray] | None) -> None:
         super().__init__()
@@ -766,6 +834,7 @@ class LandmarkSection(Section):
             alignment_turn=turn,
             sigma_check=sigma_check(lm.ids, turned[0] - lm.truth, cov, self.SIGMA_METHOD) if lm.ids.size else None,
         )
+        confirm_after_map_only(section["sigma_check"], *self._map_only_turned())
         self.notes += self._map_place_note() + self._turn_note() + self._sigma_note() + self._unmatched_note(ids)
 
     def _loose_turn(
@@ -891,16 +960,24 @@ class LandmarkSection(Section):
         }
 
     #: the σ check of :meth:`map_only`: the map-only alignment's error
-    MAP_ONLY_SIGMA_METHOD = SIGMA_METHOD.replace(
+    MAP_ONLY_SIGMA_METHOD = SIGMA_METHOD.replace(SIGMA_CONFIRM_METHOD, "").replace(
         "after the trajectory's alignment and its loose turn (error_turned_m)", "after the map-only alignment"
     )
 
+    def _map_only_turned(self) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The matched landmarks' errors after the map-only alignment and their covariances turned by its rotation
+        (None, None without that alignment or a covariance)."""
+        if self._map_cov is None or self._map_only_fit is None:
+            return None, None
+        rot, vectors = self._map_only_fit
+        return vectors, rot @ self._map_cov @ rot.T
+
     def map_only_sigma_check(self) -> dict[str, Any] | None:
         """:func:`sigma_check` of the error after the map-only alignment (the covariance turned by its rotation)."""
-        if self._map_cov is None or self._map_only_fit is None:
+        vectors, cov = self._map_only_turned()
+        if vectors is None:
             return None
-        rot, vectors = self._map_only_fit
-        return sigma_check(self._map_ids, vectors, rot @ self._map_cov @ rot.T, self.MAP_ONLY_SIGMA_METHOD)
+        return sigma_check(self._map_ids, vectors, cov, self.MAP_ONLY_SIGMA_METHOD)
 
 
 def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:
@@ -1130,12 +1207,13 @@ def nees_note(part: str, r: dict[str, Any]) -> str | None:
 _NEES_NOTE = re.compile(r"^(position|attitude) NEES [-+.\deinf]+ \(DoF")
 
 
-def nees_against_turned_truth(ape_notes: list[str], nees_notes: list[str]) -> list[str]:
-    """The uncertainty section's notes once the APE's notes hold the note of a truth whose body frame looks turned
-    against the estimate's (:func:`truth_frame_note`): each NEES verdict then says that it compares the estimate with
-    a truth in another body frame (a position NEES of 2.6e6 on a log whose odometry's child frame is a sensor turned
-    90 deg, beside centimetres of translation APE), so the turn is in it. The notes as they are otherwise."""
-    if not any(TRUTH_FRAME_TURNED in n for n in ape_notes):
+def nees_against_turned_truth(turn: dict[str, Any] | None, nees_notes: list[str]) -> list[str]:
+    """The uncertainty section's notes once the APE section found the truth's body frame turned against the
+    estimate's (``turn``: ``ape.truth_frame_turn``, :func:`truth_frame_turn`): each NEES verdict then says that it
+    compares the estimate with a truth in another body frame (a position NEES of 2.6e6 on a log whose odometry's
+    child frame is a sensor turned 90 deg, beside centimetres of translation APE), so the turn is in it. The notes
+    as they are otherwise."""
+    if not turn:
         return nees_notes
     why = (
         f"; but {TRUTH_FRAME_TURNED} (the note on the rotation APE): this NEES holds the estimate against a truth in "

@@ -114,7 +114,7 @@ def stated_from_rows(rows: Rows, role: str) -> StatedNoise | None:
     if equal_rows(diag, np.broadcast_to(diag[0], diag.shape)).all():  # drivers state one constant: judged once
         why = implausible(diag[0])
         sigma = np.sqrt(diag[0]) if why is None else np.full(3, np.nan)
-        return StatedNoise(rows.topic, sigma, period, why)
+        return StatedNoise(rows.topic, sigma, period, why and f"{why} (all {rows.stated.n} messages)")
     lengths = rows.stated.lengths
     code = implausible_rows(diag)
     bad = np.flatnonzero(code)  # runs
@@ -131,7 +131,9 @@ def stated_from_rows(rows: Rows, role: str) -> StatedNoise | None:
         + f" (between {span[0]:.4g} and {span[1]:.4g} s of the topic)"
     )
     if 2 * nbad > n:
-        return StatedNoise(rows.topic, np.full(3, np.nan), period, rejected if nbad < n else why, rejected)
+        return StatedNoise(
+            rows.topic, np.full(3, np.nan), period, rejected if nbad < n else f"{why} (all {n} messages)", rejected
+        )
     good = code == 0
     sigma = np.sqrt(np.median(np.repeat(diag[good], lengths[good], axis=0), axis=0))
     return StatedNoise(rows.topic, sigma, period, rejected=f"{rejected}; the median of the other {n - nbad} used")
