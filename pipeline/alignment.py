@@ -612,10 +612,13 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     ]
 
 
-def _gyro_axes(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream) -> list[str]:
+def _gyro_axes(
+    t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream, unaligned: str = ""
+) -> list[str]:
     """A warning when the gyro (``w_g``: body frame, on the time base ``t_g``) turns about another axis than the
     odometry's own angular velocity (``twist`` on the times ``t_o``, in the body frame) says: see
-    ``GYRO_AXIS_WARN_DEG``."""
+    ``GYRO_AXIS_WARN_DEG``. ``unaligned``: the body frame, where no run took the gyro (``info --noise``) and its
+    frame had no /tf_static transform (else "")."""
     order = np.argsort(t_o, kind="stable")
     t_o, w_o = t_o[order], twist.xyz[order]
     keep = (t_o <= t_o[0] + int(GYRO_LAG_SPAN_S * 1e9)) & np.all(np.isfinite(w_o), axis=1)
@@ -641,13 +644,44 @@ def _gyro_axes(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndar
     angle = float(np.degrees(np.arccos(np.clip(abs(float(a @ d)) / norm, 0.0, 1.0))))
     if angle < GYRO_AXIS_WARN_DEG:
         return []
+    frame = gyro.frame_id.lstrip("/")
+    lead, verdict = (
+        (
+            f"taken as the body '{unaligned}' as read (TF has no transform of '{frame}', as frames.assume_identity "
+            "would take it), ",
+            f"'{frame}' is not mounted as the body frame, and frames.assume_identity would read its axes wrong",
+        )
+        if unaligned
+        else (
+            "in the body frame ",
+            f"its frame '{frame}' reaches the body turned (a frame listed in frames.assume_identity that is mounted "
+            "otherwise, or a wrong extrinsic; slamobs info LOG shows the frames); the run used it as read",
+        )
+    )
     return [
-        f"warning: {gyro.topic}: in the body frame its gyro turns about {_axis_words(a)} where {twist.topic}'s own "
-        f"angular velocity turns about {_axis_words(d)}, {angle:.0f} deg apart (over {np.ptp(t_o) * 1e-9:.0f} s, "
-        f"misfit {misfit:.2g} of the gyro's variance): its frame '{gyro.frame_id}' reaches the body turned (a frame "
-        "listed in frames.assume_identity that is mounted otherwise, or a wrong extrinsic); the run used it as read: "
-        f"record the transform of '{gyro.frame_id}' on /tf_static (slamobs info LOG shows the frames)"
+        f"warning: {gyro.topic}: {lead}its gyro turns about {_axis_words(a)} where {twist.topic}'s own angular "
+        f"velocity turns about {_axis_words(d)}, {angle:.0f} deg apart (over {np.ptp(t_o) * 1e-9:.0f} s, misfit "
+        f"{misfit:.2g} of the gyro's variance): {verdict}: record the transform of '{frame}' on /tf_static"
     ]
+
+
+def gyro_axes_unaligned(streams: LogStreams, body_frame: str | None = None) -> list[str]:
+    """:func:`_gyro_axes` on a log the alignment cannot take (public for ``slamobs info --noise`` of a log without
+    detections, such as robot_localization's test1, whose IMU frame TF does not know): the gyro brought into the body
+    by its /tf_static transform, else as read, as ``frames.assume_identity`` would take it."""
+    om, lv, twist = streams.angular_velocity, streams.linear_velocity, streams.twist_angular
+    if om is None or lv is None or twist is None or twist.topic == om.topic or len(om) < 20:
+        return []
+    body = body_frame_name(lv, body_frame)
+    if twist.frame_id.lstrip("/") not in ("", body):
+        return []
+    t, w = _sorted(om.t_ns, om.xyz)
+    frame = om.frame_id.lstrip("/")
+    found = None
+    if frame and frame != body:
+        found = TfBuffer(streams.static_tf, streams.tf, path=streams.path).static_lookup(body, frame)
+        w = w if found is None else w @ found[0].T
+    return _gyro_axes(t, w, twist, twist.t_ns, om, body if frame and frame != body and found is None else "")
 
 
 def _axis_words(v: np.ndarray) -> str:
