@@ -138,6 +138,8 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
         if "value" in v:
             value, spread = format_level(v["value"], 4, False), format_level(v["uncertainty"], 4, False)
             click.echo(f"  {name} = {value} {v['unit']} ({v['topic']}, ± {spread}: {v['method']})")
+            if (st := v.get("stated")) is not None:
+                click.echo(f"    {_stated_line(st, v['unit'])}")
         else:
             click.echo(f"  {name}: not estimated ({v['why']})")
     for line in checks:
@@ -145,6 +147,18 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
     click.echo(f"  not estimated: {cannot}: {err.problem}")
     for line in err.details:
         click.echo(f"    {line}")
+
+
+def _stated_line(st: dict, unit: str) -> str:
+    """What a stream's messages state of its noise (``noise.sensor_levels``' ``stated``) and whether a run uses it."""
+    from slamobs.pipeline.noise import format_level
+
+    head = f"its messages state {st['topic']} covariance ({st['rate_hz']:.4g} Hz)"
+    if st["value"] is not None:
+        head += f" = {format_level(st['value'], 4, False)} {unit}"
+    if st["used"]:
+        return f"{head}: riekf and batch would use it in place of the level above (plausible against the samples)"
+    return f"{head}: riekf and batch would not use it ({st['why']})"
 
 
 def format_readiness(ready) -> str:

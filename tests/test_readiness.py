@@ -321,3 +321,18 @@ def test_info_noise_names_an_imu_frame_turned_against_the_odometry_before_a_conf
     assert doc["checks"] == [said[0]], doc["checks"]
     res = invoke("info", "--noise", write_log(sim, tmp_path / "told.mcap"))
     assert res.exit_code == 0 and "its gyro turns about" not in res.output, res.output
+
+
+def test_info_noise_on_a_log_that_cannot_run_says_the_covariance_its_messages_state(logs):
+    """robot_localization's test1 (IMU and odometry, no detections): `info --noise` showed the samples' gyro level,
+    0.0019 rad/s/sqrt(Hz), and nothing of the 0.0037 its messages state, which riekf and batch would use. Each
+    stream's stated covariance is now a line under its level, with whether a run would use it (JSON: ``stated``)."""
+    res = invoke("info", "--noise", logs["no_odom_det"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    k = next(k for k, line in enumerate(lines) if line.strip().startswith("gyro = "))
+    assert lines[k + 1].strip().startswith("its messages state /imu/data covariance ("), lines[k + 1]
+    assert "riekf and batch would use it in place of the level above" in lines[k + 1], lines[k + 1]
+    doc = json.loads(invoke("info", "--noise", "--json", logs["no_odom_det"]).stdout)
+    stated = doc["sensors"]["gyro"]["stated"]
+    assert stated["used"] is True and stated["topic"] == "/imu/data" and len(stated["value"]) == 3, stated
