@@ -112,14 +112,17 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
     stopped them: e.g. an IMU-only log, no velocity or detections): each sensor stream's own white-noise density
     (``noise.sensor_levels``; no estimator's level: those weigh the streams together), and what cannot be
     estimated and why. ``err`` is raised again when the log has no such stream, or cannot be read at all."""
+    from slamobs.pipeline.alignment import gyro_axes_unaligned
     from slamobs.pipeline.errors import SlamobsError
     from slamobs.pipeline.noise import format_level, sensor_levels
     from slamobs.pipeline.readers import read_log
 
     try:
-        levels = sensor_levels(read_log(log, config.topics or None, **config.reader_options()))
+        streams = read_log(log, config.topics or None, **config.reader_options())
     except SlamobsError:
         raise err from None
+    levels = sensor_levels(streams)
+    checks = gyro_axes_unaligned(streams, config.frames.body)  # a turned IMU frame, before a config takes it as body
     if not any("value" in v for v in levels.values()):
         raise err
     why = f"{err.problem}{''.join(f'; {d}' for d in err.details)}"
@@ -127,18 +130,35 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
         "the detection levels, the biases' and the levels batch and riekf would use (they weigh the streams together)"
     )
     if as_json:
-        click.echo(json.dumps({"sensors": levels, "not_estimated": cannot, "why": why}, indent=2))  # one string
+        doc = {"sensors": levels, "checks": checks, "not_estimated": cannot, "why": why}
+        click.echo(json.dumps(doc, indent=2))  # one string
         return
     click.echo(f"noise of {log}'s sensor streams, each on its own (key: value unit (topic, ± standard error: method)):")
     for name, v in levels.items():
         if "value" in v:
             value, spread = format_level(v["value"], 4, False), format_level(v["uncertainty"], 4, False)
             click.echo(f"  {name} = {value} {v['unit']} ({v['topic']}, ± {spread}: {v['method']})")
+            if (st := v.get("stated")) is not None:
+                click.echo(f"    {_stated_line(st, v['unit'])}")
         else:
             click.echo(f"  {name}: not estimated ({v['why']})")
+    for line in checks:
+        click.echo(f"  {line}")
     click.echo(f"  not estimated: {cannot}: {err.problem}")
     for line in err.details:
         click.echo(f"    {line}")
+
+
+def _stated_line(st: dict, unit: str) -> str:
+    """What a stream's messages state of its noise (``noise.sensor_levels``' ``stated``) and whether a run uses it."""
+    from slamobs.pipeline.noise import format_level
+
+    head = f"its messages state {st['topic']} covariance ({st['rate_hz']:.4g} Hz)"
+    if st["value"] is not None:
+        head += f" = {format_level(st['value'], 4, False)} {unit}"
+    if st["used"]:
+        return f"{head}: riekf and batch would use it in place of the level above (plausible against the samples)"
+    return f"{head}: riekf and batch would not use it ({st['why']})"
 
 
 def format_readiness(ready) -> str:

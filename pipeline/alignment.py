@@ -127,6 +127,23 @@ GYRO_LAG_PROBE_S = 0.3
 GYRO_LAG_SLOW_MAX_MISFIT = 0.05
 
 
+#: The gyro's axes in the body frame against the odometry's own angular velocity (:func:`_gyro_axes`): a gyro whose
+#: frame reaches the body turned (an IMU frame listed in frames.assume_identity that is mounted otherwise, a wrong
+#: extrinsic: robot_localization's test1 IMU reads its yaw rate on y, gravity on y) turns the estimate about another
+#: axis than the odometry does; riekf and batch see it through the detections, fast-adaptation absorbs it into its
+#: gyro bias (a generated figure 8, its IMU rolled 90 deg and taken as the body: APE 0.103 m against 0.046 m, a gyro
+#: bias error of 0.45 rad/s, exit 0, no word). Over the first ``GYRO_LAG_SPAN_S`` of the odometry, its turn's main
+#: axis against the gyro's response to it (least squares, centred: a bias does not count); a warning when the two are
+#: ``GYRO_AXIS_WARN_DEG`` or more apart, the odometry turning at ``GYRO_AXIS_MIN_RATE`` rad/s RMS or more, and the
+#: gyro's response explaining all but ``GYRO_AXIS_MAX_MISFIT`` of its variance (a gyro that follows the turn at all).
+GYRO_AXIS_WARN_DEG = 30.0
+GYRO_AXIS_MIN_RATE = 0.05
+GYRO_AXIS_MAX_MISFIT = 0.5
+#: gyro samples of that span the check takes, evenly spread (an hour at 400 Hz: 0.065 s of CPU with all 240,000
+#: of its first 600 s, 0.02 s so; the angle is the same on the logs tried)
+GYRO_AXIS_SAMPLES = 20000
+
+
 #: One landmark id at several places (a misdecoded tag id, tags of one id in view in turn): two detections of one id
 #: at most ``GHOST_PAIR_S`` apart, the first moved by the velocities between them, should land on the second. An id
 #: with ``GHOST_MIN_PAIRS`` such pairs whose median misfit is ``GHOST_RATIO`` times the run's median and over
@@ -598,6 +615,87 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     ]
 
 
+def _gyro_axes(
+    t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream, unaligned: str = ""
+) -> list[str]:
+    """A warning when the gyro (``w_g``: body frame, on the time base ``t_g``) turns about another axis than the
+    odometry's own angular velocity (``twist`` on the times ``t_o``, in the body frame) says: see
+    ``GYRO_AXIS_WARN_DEG``. ``unaligned``: the body frame, where no run took the gyro (``info --noise``) and its
+    frame had no /tf_static transform (else "")."""
+    order = np.argsort(t_o, kind="stable")
+    t_o, w_o = t_o[order], twist.xyz[order]
+    keep = (t_o <= t_o[0] + int(GYRO_LAG_SPAN_S * 1e9)) & np.all(np.isfinite(w_o), axis=1)
+    t_o, w_o = t_o[keep], w_o[keep]
+    if t_o.shape[0] < 20:
+        return []
+    span = slice(np.searchsorted(t_g, t_o[0]), np.searchsorted(t_g, t_o[-1], "right"))  # t_g sorted: the time base
+    every = max(1, (span.stop - span.start) // GYRO_AXIS_SAMPLES)  # evenly spread samples: enough for an axis
+    t_g, w_g = t_g[span][::every], w_g[span][::every]
+    inside = np.all(np.isfinite(w_g), axis=1)
+    if np.count_nonzero(inside) < 20:
+        return []
+    t, g = (t_g[inside] - t_o[0]).astype(np.float64), w_g[inside]
+    o = np.column_stack([np.interp(t, (t_o - t_o[0]).astype(np.float64), w_o[:, a]) for a in range(3)])
+    o, g = o - o.mean(axis=0), g - g.mean(axis=0)
+    lam, vec = np.linalg.eigh(o.T @ o / o.shape[0])
+    if lam[-1] < GYRO_AXIS_MIN_RATE**2:
+        return []  # the odometry hardly turns: nothing to tell an axis by
+    d = vec[:, -1]
+    s = o @ d
+    a = g.T @ s / float(s @ s)  # the gyro's response to the odometry's turn about d
+    misfit = float(np.sum((g - np.outer(s, a)) ** 2) / max(float(np.sum(g**2)), 1e-300))
+    norm = float(np.linalg.norm(a))
+    if misfit > GYRO_AXIS_MAX_MISFIT or norm == 0.0:
+        return []
+    angle = float(np.degrees(np.arccos(np.clip(abs(float(a @ d)) / norm, 0.0, 1.0))))
+    if angle < GYRO_AXIS_WARN_DEG:
+        return []
+    frame = gyro.frame_id.lstrip("/")
+    lead, verdict = (
+        (
+            f"taken as the body '{unaligned}' as read (TF has no transform of '{frame}', as frames.assume_identity "
+            "would take it), ",
+            f"'{frame}' is not mounted as the body frame, and frames.assume_identity would read its axes wrong",
+        )
+        if unaligned
+        else (
+            "in the body frame ",
+            f"its frame '{frame}' reaches the body turned (a frame listed in frames.assume_identity that is mounted "
+            "otherwise, or a wrong extrinsic; slamobs info LOG shows the frames); the run used it as read",
+        )
+    )
+    return [
+        f"warning: {gyro.topic}: {lead}its gyro turns about {_axis_words(a)} where {twist.topic}'s own angular "
+        f"velocity turns about {_axis_words(d)}, {angle:.0f} deg apart (over {np.ptp(t_o) * 1e-9:.0f} s, misfit "
+        f"{misfit:.2g} of the gyro's variance): {verdict}: record the transform of '{frame}' on /tf_static"
+    ]
+
+
+def gyro_axes_unaligned(streams: LogStreams, body_frame: str | None = None) -> list[str]:
+    """:func:`_gyro_axes` on a log the alignment cannot take (public for ``slamobs info --noise`` of a log without
+    detections, such as robot_localization's test1, whose IMU frame TF does not know): the gyro brought into the body
+    by its /tf_static transform, else as read, as ``frames.assume_identity`` would take it."""
+    om, lv, twist = streams.angular_velocity, streams.linear_velocity, streams.twist_angular
+    if om is None or lv is None or twist is None or twist.topic == om.topic or len(om) < 20:
+        return []
+    body = body_frame_name(lv, body_frame)
+    if twist.frame_id.lstrip("/") not in ("", body):
+        return []
+    t, w = _sorted(om.t_ns, om.xyz)
+    frame = om.frame_id.lstrip("/")
+    found = None
+    if frame and frame != body:
+        found = TfBuffer(streams.static_tf, streams.tf, path=streams.path).static_lookup(body, frame)
+        w = w if found is None else w @ found[0].T
+    return _gyro_axes(t, w, twist, twist.t_ns, om, body if frame and frame != body and found is None else "")
+
+
+def _axis_words(v: np.ndarray) -> str:
+    """An axis as a unit vector, its largest component positive, to two places."""
+    u = v / np.linalg.norm(v)
+    return "[" + ", ".join(f"{x:.2f}" for x in u * np.sign(u[np.argmax(np.abs(u))])) + "]"
+
+
 def _lag_unseen(gyro_topic: str, twist_topic: str, power: float) -> str:
     """The note that the gyro's lag could not be checked (``GYRO_LAG_PROBE_S``): ``power``, how many times worse a
     lag that long fits than the best one."""
@@ -716,6 +814,8 @@ def align(
         frame.notes.extend(
             _gyro_lag(*_sorted(_times(om, time_source), om.xyz), twist, _times(twist, time_source), om.topic)
         )
+        if twist.frame_id.lstrip("/") in ("", body):  # the odometry's twist is in the body frame
+            frame.notes.extend(_gyro_axes(t_om, omega, twist, _times(twist, time_source), om))
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
     topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
     if det is not None:

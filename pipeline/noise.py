@@ -278,7 +278,9 @@ SENSOR_LEVELS = (
 def sensor_levels(streams) -> dict[str, dict]:
     """The white-noise density of each of ``SENSOR_LEVELS``' streams a read log (``LogStreams``) holds, each on its
     own stamps (:func:`stream_density`), without aligning it to anything: name -> value (per axis), unit, topic,
-    standard error, method; or, where it has no stream or too few samples, why not (``why``)."""
+    standard error, method; or, where it has no stream or too few samples, why not (``why``). Where the messages
+    state a covariance (gyro, velocity), ``stated``: its density, topic, rate, and whether riekf and batch would
+    use it in place of the samples' level (``used``, as :func:`resolve_noise` judges it; ``why`` not)."""
     out: dict[str, dict] = {}
     for name, role, unit in SENSOR_LEVELS:
         stream = getattr(streams, role, None)
@@ -294,6 +296,17 @@ def sensor_levels(streams) -> dict[str, dict]:
             "uncertainty": _plain(found.uncertainty),
             "method": found.method,
         }
+        stated = streams.stated_covariance.get(STATED.get(name, ""))
+        if stated is not None:  # what riekf and batch would take before the samples' level (resolve_noise)
+            said: list[str] = []
+            used = _believed(name, stated, found, said) is not None
+            out[name]["stated"] = {
+                "value": _plain(stated.density) if stated.problem is None else None,
+                "topic": stated.topic,
+                "rate_hz": 1.0 / stated.period_s,
+                "used": used,
+                "why": stated.problem or "; ".join(n.removeprefix("noise: ") for n in said),
+            }
     return out
 
 

@@ -300,3 +300,39 @@ def test_info_with_a_config_does_not_ask_for_what_it_gives():
         "  readiness: 5 of 7 estimators can run"
     )
     assert first(None).endswith("once the config gives tags.size and cameras")
+
+
+def test_info_noise_names_an_imu_frame_turned_against_the_odometry_before_a_config_takes_it_as_body(tmp_path):
+    """robot_localization's test1: IMU and wheel odometry, no detections, no TF; `info` says to list the IMU's frame
+    in frames.assume_identity if it is the body's, but that IMU reads its yaw rate on y. A generated ground log so
+    (its IMU rolled 90 deg, its /tf_static edge and its detections left out): `info --noise` now says the gyro, taken
+    as read, turns 90 deg off the odometry's own angular velocity; with the edge kept it says nothing."""
+    from slamobs.pipeline.simulate.scenarios import customize, get_scenario
+
+    sim = simulate(customize(get_scenario("figure8"), imu_rpy_deg=(90.0, 0.0, 0.0)), seed=5, duration=20.0)
+    sim = dataclasses.replace(sim, detections=_empty(sim.detections))
+    untold = dataclasses.replace(sim, static_tf=[t for t in sim.static_tf if t.child != "imu_link"])
+    res = invoke("info", "--noise", write_log(untold, tmp_path / "untold.mcap"))
+    assert res.exit_code == 0, res.output
+    said = [line.strip() for line in res.output.splitlines() if "its gyro turns about" in line]
+    assert len(said) == 1 and said[0].startswith("warning: /imu/data: taken as the body 'base_link' as read"), said
+    assert "90 deg apart" in said[0] and "frames.assume_identity would read its axes wrong" in said[0], said
+    doc = json.loads(invoke("info", "--noise", "--json", tmp_path / "untold.mcap").stdout)
+    assert doc["checks"] == [said[0]], doc["checks"]
+    res = invoke("info", "--noise", write_log(sim, tmp_path / "told.mcap"))
+    assert res.exit_code == 0 and "its gyro turns about" not in res.output, res.output
+
+
+def test_info_noise_on_a_log_that_cannot_run_says_the_covariance_its_messages_state(logs):
+    """robot_localization's test1 (IMU and odometry, no detections): `info --noise` showed the samples' gyro level,
+    0.0019 rad/s/sqrt(Hz), and nothing of the 0.0037 its messages state, which riekf and batch would use. Each
+    stream's stated covariance is now a line under its level, with whether a run would use it (JSON: ``stated``)."""
+    res = invoke("info", "--noise", logs["no_odom_det"])
+    assert res.exit_code == 0, res.output
+    lines = res.output.splitlines()
+    k = next(k for k, line in enumerate(lines) if line.strip().startswith("gyro = "))
+    assert lines[k + 1].strip().startswith("its messages state /imu/data covariance ("), lines[k + 1]
+    assert "riekf and batch would use it in place of the level above" in lines[k + 1], lines[k + 1]
+    doc = json.loads(invoke("info", "--noise", "--json", logs["no_odom_det"]).stdout)
+    stated = doc["sensors"]["gyro"]["stated"]
+    assert stated["used"] is True and stated["topic"] == "/imu/data" and len(stated["value"]) == 3, stated

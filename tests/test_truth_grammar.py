@@ -202,3 +202,30 @@ def test_truth_none_runs_and_reports_without_truth(logs, run_dirs, tmp_path):
     res = invoke("report", run_dirs["topic"], "--truth", "none")  # a run with truth, summarised without it
     assert res.exit_code == 0 and res.output.startswith("truth        none (--truth none)"), res.output
     assert "# Run summary (no ground truth)" in (run_dirs["topic"] / "report.md").read_text()
+
+
+def test_a_gps_fix_named_as_a_trajectory_says_what_to_convert_it_to(tmp_path):
+    """robot_localization's test1 has a NavSatFix /fix beside its odometry; `evaluate test1.bag:/fix ...` said only
+    that the type is not a trajectory. It now says why (no orientation, not metres) and what to name instead."""
+    import numpy as np
+    from rosbags.rosbag1 import Writer
+
+    ts = make_typestore(ros1=True)
+    t, fix_type = ts.types, "sensor_msgs/msg/NavSatFix"
+    path = tmp_path / "gps.bag"
+    with Writer(path) as writer:
+        conn = writer.add_connection("/fix", fix_type, typestore=ts)
+        for k in range(5):
+            stamp = t["builtin_interfaces/msg/Time"](sec=100 + k, nanosec=0)
+            msg = t[fix_type](
+                header=t["std_msgs/msg/Header"](seq=k, stamp=stamp, frame_id="gps"),
+                status=t["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+                latitude=42.3758, longitude=-71.1474, altitude=7.3, position_covariance_type=1,
+                position_covariance=np.array([0.81, 0, 0, 0, 0.81, 0, 0, 0, 3.24]),
+            )  # fmt: skip
+            writer.write(conn, (100 + k) * 1_000_000_000, ts.serialize_ros1(msg, fix_type))
+    res = invoke("evaluate", f"{path}:/fix", f"{path}:/fix")
+    assert res.exit_code == 2, res.output
+    assert "type sensor_msgs/msg/NavSatFix is not a trajectory" in res.output, res.output
+    assert "a GPS fix is latitude and longitude with no orientation" in res.output, res.output
+    assert "navsat_transform_node" in res.output and res.output.count("\n") == 1, res.output

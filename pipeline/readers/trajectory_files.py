@@ -422,6 +422,15 @@ def load_poses_parquet(path: str | Path) -> PoseStream:
     return _stream(str(path), cols["t_ns"].astype(np.int64), pos, quat)
 
 
+#: What to do with a GPS fix named as a trajectory (robot_localization's test1 has /fix beside its odometry): it is
+#: latitude, longitude and altitude, no orientation, so no pose to pair with an estimate's.
+GPS_FIX_HINT = (
+    ": a GPS fix is latitude and longitude with no orientation, not a pose in metres; convert it to a local "
+    "trajectory first (robot_localization's navsat_transform_node writes an Odometry topic of it, with the heading "
+    "from the IMU) and name that topic, or a TUM file of its positions in metres"
+)
+
+
 def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header") -> PoseStream:
     """A pose topic of a log (``geometry_msgs/PoseStamped``, ``nav_msgs/Odometry``, or any type the readers
     decode into a position and a quaternion), with header stamps or, with ``time_source="record"``, the record
@@ -440,7 +449,10 @@ def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header")
         if layout is None or not {"position", "quat_xyzw"} <= set(layout.columns):
             poses = sorted(t for t, lay in LAYOUTS.items() if {"position", "quat_xyzw"} <= set(lay.columns))
             raise InputError(
-                log, f"type {meta.msgtype} is not a trajectory (expected one of {', '.join(poses)})", topic
+                log,
+                f"type {meta.msgtype} is not a trajectory (expected one of {', '.join(poses)})"
+                + GPS_FIX_HINT * (meta.msgtype == "sensor_msgs/msg/NavSatFix"),
+                topic,
             )
         stream, _ = pose_stream(decode_rows(reader, log, topic, conns))
     if len(stream) == 0:
