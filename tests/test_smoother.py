@@ -261,3 +261,33 @@ def test_both_reference_estimators_go_on_after_a_gap():
         err = np.linalg.norm(res.position @ r.T + t - truth, axis=1)
         assert res.stats["relocalised"] == 1
         assert np.sqrt(np.mean(err[res.t_ns > cut] ** 2)) < 0.04, name  # after the gap: as good as before
+
+
+def test_keyframes_cover_frames_an_offset_moved_past_the_velocity_samples():
+    """An applied detection time offset moves frames past either end of the velocity samples: each keeps a
+    keyframe at its own stamp (its index was one past the last keyframe, or the first keyframe's)."""
+    vel_t = np.arange(0, 10.0, 0.005)
+    det_t = np.r_[-0.25, 0.0123, 3.5, 9.99, 10.2]
+    kf = keyframe_times(vel_t, det_t, 0.2)
+    idx = np.searchsorted(kf, det_t)
+    assert idx.max() < kf.size and np.array_equal(kf[idx], det_t)
+    assert np.diff(kf).max() <= 0.2 + 1e-12
+
+
+@pytest.mark.parametrize("moved_s", [0.3, -0.3])
+def test_batch_runs_when_the_applied_offset_moves_frames_past_the_velocity_samples(monkeypatch, moved_s):
+    """A generated log whose detection offset, once applied, takes the last (or first) frames past the velocity
+    samples (as an IMU stamped late made the pairs' estimate +0.28 s): batch ended in an IndexError or a compiled
+    kernel writing out of bounds (the process aborted); now those frames get keyframes of their own."""
+    from slamobs.pipeline.observers import time_offset
+
+    estimate = time_offset.estimate
+
+    def forced(stream, **kw):
+        return {**estimate(stream, **kw), "applied": True, "estimate_s": moved_s}
+
+    monkeypatch.setattr(time_offset, "estimate", forced)
+    stream = align(expected_streams(simulate("figure8", duration=20.0, seed=3)), keep_directions=False)
+    res = get_estimator("batch").run(stream, {}, ObserverOptions())
+    assert np.isfinite(res.position).all() and np.isfinite(res.landmark_xyz).all()
+    assert res.t_ns.size > 0

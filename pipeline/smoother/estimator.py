@@ -76,7 +76,7 @@ class _Segments:
     def of(self, t: np.ndarray) -> np.ndarray:
         if self.n == 1:
             return np.zeros(np.shape(t), np.int64)
-        return np.minimum((np.asarray(t) - self.t0) // self.segment_s, self.n - 1).astype(np.int64)
+        return np.clip((np.asarray(t) - self.t0) // self.segment_s, 0, self.n - 1).astype(np.int64)
 
 
 def across_gaps(kf_t: np.ndarray, gaps: np.ndarray | None) -> np.ndarray:

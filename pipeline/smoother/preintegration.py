@@ -36,8 +36,12 @@ def keyframe_times(
 ) -> np.ndarray:
     """Every detection frame time, the first and last velocity sample, and evenly spaced fillers so that no two
     keyframes are more than ``max_dt`` apart (seconds, sorted, unique), except across the gaps between segments
-    (``gaps_between``: (G, 2) start and end times), which one keyframe interval spans."""
-    base = np.unique(np.concatenate([[vel_t[0]], det_t[(det_t >= vel_t[0]) & (det_t <= vel_t[-1])], [vel_t[-1]]]))
+    (``gaps_between``: (G, 2) start and end times), which one keyframe interval spans. A frame that an applied
+    detection time offset moved past either end of the velocity samples keeps its own keyframe there, the motion
+    held beyond the samples (:func:`~slamobs.pipeline.observers.shared_steps.twist_at`, as riekf holds it): its
+    keyframe index was one past the last (a generated log whose offset was +0.28 s: an IndexError, or a compiled
+    kernel writing out of bounds and the process aborting) or the first keyframe's, 0.3 s off its stamp."""
+    base = np.unique(np.concatenate([[vel_t[0]], det_t, [vel_t[-1]]]))
     gaps = np.diff(base)
     pieces = np.maximum(1, np.ceil(gaps / max_dt - 1e-9).astype(np.int64))
     for lo, hi in gaps_between if gaps_between is not None else ():

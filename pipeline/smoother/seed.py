@@ -62,7 +62,8 @@ def observer_seed(name: str, stream: AlignedStream, gains: dict, options, kf_t: 
     if stepper is None:
         stepper = get_observer(name).start(stream, gains, replace(options, out_every=1))
     vel_t = stream.seconds(stream.vel_t_ns)
-    s_of_kf = np.searchsorted(vel_t, kf_t, side="right") - 1  # the sample each keyframe falls in
+    # the sample each keyframe falls in (a keyframe before the first sample: the first, carried back to it)
+    s_of_kf = np.maximum(np.searchsorted(vel_t, kf_t, side="right") - 1, 0)
     k = kf_t.shape[0]
     rot, pos, bias = np.empty((k, 3, 3)), np.empty((k, 3)), np.empty((k, 6))
     from slamobs.pipeline.observers.base import InnovationRecord, ObserverDiverged, landmark_jumps
