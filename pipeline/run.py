@@ -1098,15 +1098,17 @@ def warn_only_beside(prepared: PreparedLog):
     """The alignment's warn-only checks left to the run (``prepare_log(warn_only_later=True)``;
     ``alignment.WarnOnly``: notes only, nothing the observer reads), started on a thread beside the observer like
     :func:`offset_beside` (0.17 CPU s of the one-hour log's align stage moved off the main thread, docs/benchmarks.md
-    session 26); returns the function that puts their notes into the alignment's notes it is given (waits for
-    them), None when the alignment ran them. No room for the thread: they run when their notes are asked for."""
+    session 26), but at the run's priority: niced, on a loaded machine they ran late in the observer stage, at the
+    run's memory peak (+90 MB on the hour). Returns the function that puts their notes into the alignment's notes it
+    is given (waits for them), None when the alignment ran them. No room for the thread: they run when their notes
+    are asked for."""
     from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
 
     warn = prepared.aligned.warn_only
     if warn is None:
         return None
     try:
-        found = Pending(warn.run, helper=True).result  # the estimator's thread goes first
+        found = Pending(warn.run).result
     except MemoryError:
         found = warn.run
     return lambda notes: warn.joined(notes, found())
