@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
+from functools import partial
 
 import numpy as np
 
@@ -178,6 +179,58 @@ TILT_MISREADS = {
 }
 
 
+class WarnOnly:
+    """The alignment's checks whose result is a note only (a warning; nothing the observers read depends on them):
+    the gyro's stamps and axes against the odometry (:func:`_gyro_lag`, :func:`_gyro_axes`), the gyro against its
+    accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places (:func:`_misread_ids`).
+    :func:`align` adds each where its notes go (:meth:`add` gives a marker in their place); :meth:`run`, the one
+    place they run, computes them: at once in :func:`align`, or with ``align(warn_only_later=True)`` on a thread
+    beside the observer (``pipeline.run``: ~0.17 of the one-hour log's ~0.30 CPU s of align, docs/benchmarks.md
+    session 26), and :meth:`joined` puts their notes where :func:`align` would have, so the notes are the same."""
+
+    MARKER = "\0warn-only "
+
+    def __init__(self) -> None:
+        self.checks: list | None = []  # the checks' calls, in the order of their markers
+        self.unique: list[bool] = []  # a note already said before it is left out (the directions' notes)
+        #: where their notes go, in the markers' order: (before which of the notes without the markers, which check)
+        self.at: list[tuple[int, int]] = []
+
+    def add(self, check, *args, unique: bool = False) -> str:
+        """``check(*args)`` (its notes, a list) to run later; the marker that stands for its notes meanwhile."""
+        self.checks.append(partial(check, *args))
+        self.unique.append(unique)
+        return f"{self.MARKER}{len(self.checks) - 1}"
+
+    def placed(self, notes: list[str]) -> list[str]:
+        """``notes`` without the markers, whose places are kept (:attr:`at`)."""
+        out, self.at = [], []
+        for n in notes:
+            if n.startswith(self.MARKER):
+                self.at.append((len(out), int(n[len(self.MARKER) :])))
+            else:
+                out.append(n)
+        return out
+
+    def run(self) -> list[list[str]]:
+        """Each check's notes, in the order added; the checks (and the samples they hold) are let go."""
+        checks, self.checks = self.checks, None
+        return [check() for check in checks]
+
+    def joined(self, notes: list[str], found: list[list[str]]) -> list[str]:
+        """``notes`` (:meth:`placed`'s, or those of them a caller keeps: the ones after the last place may go) with
+        the notes ``found`` (:meth:`run`'s) in their places."""
+        out, places = [], iter(self.at)
+        place = next(places, None)
+        for i in range(len(notes) + 1):
+            while place is not None and place[0] <= i:
+                k = place[1]
+                out += [n for n in found[k] if not (self.unique[k] and n in out)]
+                place = next(places, None)
+            out += notes[i : i + 1]
+        return out
+
+
 @dataclass(frozen=True)
 class AlignedStream:
     """Observer input. Times in int64 ns; ``t0_ns`` is the origin of the seconds the kernels use."""
@@ -207,6 +260,9 @@ class AlignedStream:
     #: The topic of each stream (``angular_velocity``, ``linear_velocity``, ``detections``) and the detections'
     #: frame (``camera``): what a check's warning about them names (:func:`stream_topics`).
     topics: dict[str, str] = field(default_factory=dict)
+    #: The warn-only checks not yet run (``align(warn_only_later=True)``): ``notes`` lacks their notes until
+    #: :meth:`WarnOnly.joined` puts them in; None (the usual) when ``notes`` is complete.
+    warn_only: WarnOnly | None = None
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -782,6 +838,7 @@ def align(
     keep_directions: bool = True,
     release: bool = False,
     limits: dict[str, float | None] | None = None,
+    warn_only_later: bool = False,
 ) -> AlignedStream:
     """Build the observer's ordered input from the decoded streams of one log.
 
@@ -791,6 +848,7 @@ def align(
     log are not held twice. Each part runs in its own function so its temporaries are gone before the next
     part starts; the notes come in the order velocities, detections, directions. ``limits`` are the
     plausibility gates and ``max_gap`` (default ``DEFAULT_LIMITS``; a None entry switches one off).
+    ``warn_only_later=True`` leaves the :class:`WarnOnly` checks to the caller (``AlignedStream.warn_only``).
     """
     lim = {**DEFAULT_LIMITS, **(limits or {})}
     check_required(streams)
@@ -809,13 +867,12 @@ def align(
     frame = _Frame(tf, body, ident, time_source, [], override, dropped)
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
+    warn = WarnOnly()
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
     if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
-        frame.notes.extend(
-            _gyro_lag(*_sorted(_times(om, time_source), om.xyz), twist, _times(twist, time_source), om.topic)
-        )
+        frame.notes.append(warn.add(_gyro_lag_of, om, time_source, twist))
         if twist.frame_id.lstrip("/") in ("", body):  # the odometry's twist is in the body frame
-            frame.notes.extend(_gyro_axes(t_om, omega, twist, _times(twist, time_source), om))
+            frame.notes.append(warn.add(_gyro_axes, t_om, omega, twist, _times(twist, time_source), om))
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
     topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
     if det is not None:
@@ -830,17 +887,18 @@ def align(
         dir_frame, t_om, omega, velocity, accel, magnetic, gravity, magnetic_field, keep_directions
     )
     if accel is not None and accel.topic == gyro_topic:  # the IMU's own accelerometer
-        notes_tilt = _gyro_by_gravity(replace(dir_frame, notes=[]), accel, t_om, omega, velocity)
-        dir_frame.notes.extend(notes_tilt)
+        head = _accel_head(accel, t_om)
+        dir_frame.notes.append(
+            warn.add(_gyro_by_gravity, replace(dir_frame, notes=[]), head, t_om, omega, velocity, unique=True)
+        )
     del accel, magnetic
     if release:
         streams.detections = None
     det_t_ns, offsets, det_idx, det_y, landmark_ids, det_sensor = _detections(
         streams.path, det, lo, hi, frame, lim, _gap_spans(t_om, starts)
     )
-    notes_ghost = _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids)
-    notes_ghost = notes_ghost or _ids_far_from_their_neighbours(det_t_ns, offsets, det_idx, det_y, landmark_ids)
-    frame.notes.extend(f"warning: {det.topic}: {n}" for n in notes_ghost)
+    detected = (det_t_ns, offsets, det_idx, det_y, landmark_ids)
+    frame.notes.append(warn.add(_misread_ids, det.topic, t_om, omega, velocity, *detected))
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
     if body_from not in (BODY_FROM_CONFIG, BODY_FROM_DEFAULT) and body not in BASE_FRAMES:
@@ -851,6 +909,9 @@ def align(
             f"{100.0 * float(np.mean(w == 0.0)):.1f} % skipped as accelerating "
             f"(| |f - a_body| - |g| | above {ACCEL_TOL} / {ACCEL_GATE} m/s^2)"
         )
+    notes = warn.placed(notes)
+    if not warn_only_later:
+        notes, warn = warn.joined(notes, warn.run()), None
     return AlignedStream(
         t0_ns=int(t_om[0]),
         vel_t_ns=t_om,
@@ -869,7 +930,21 @@ def align(
         det_sensor=det_sensor,
         two_twist_topics=two_topics,
         topics=topics,
+        warn_only=warn,
     )
+
+
+def _gyro_lag_of(om: Vec3Stream, time_source: str, twist: Vec3Stream) -> list[str]:
+    """:func:`_gyro_lag` of the gyro's stream ``om`` as read (its samples sorted by ``time_source``)."""
+    return _gyro_lag(*_sorted(_times(om, time_source), om.xyz), twist, _times(twist, time_source), om.topic)
+
+
+def _misread_ids(topic: str, t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids) -> list[str]:
+    """The warnings of the two id checks (:func:`_ids_at_many_places`, else :func:`_ids_far_from_their_neighbours`)
+    on the detections of ``topic``."""
+    said = _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids)
+    said = said or _ids_far_from_their_neighbours(det_t_ns, offsets, det_idx, det_y, landmark_ids)
+    return [f"warning: {topic}: {n}" for n in said]
 
 
 def _ids_at_many_places(t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids) -> list[str]:
@@ -1017,6 +1092,13 @@ def _tilt_cost(blocks, omega: np.ndarray):
     return float(np.mean(d2[: max(1, int(0.9 * n))])), n
 
 
+def _accel_head(accel: Vec3Stream, t_om: np.ndarray) -> Vec3Stream:
+    """The accelerometer's samples over the time base's head that :func:`_gyro_by_gravity` looks at (same
+    messages as the gyro's: twice its ``TILT_SAMPLES``), copied: a check run later holds no more of the stream."""
+    head = slice(0, min(len(accel), 2 * min(t_om.shape[0], TILT_SAMPLES)))
+    return replace(accel, t_ns=accel.t_ns[head].copy(), rec_ns=accel.rec_ns[head].copy(), xyz=accel.xyz[head].copy())
+
+
 def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> list[str]:
     """A warning when the IMU's accelerometer says its gyro is misread: over the first ``TILT_SAMPLES`` samples of
     the time base, its gravity direction turns ``TILT_MISREAD_GAIN`` times more as read than as the angular
@@ -1028,9 +1110,7 @@ def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> li
     n = min(t_om.shape[0], TILT_SAMPLES)
     if n < 3:
         return []
-    head = slice(0, min(len(accel), 2 * n))  # the accelerometer's samples over the time base's head (same messages)
-    part = replace(accel, t_ns=accel.t_ns[head], rec_ns=accel.rec_ns[head], xyz=accel.xyz[head])
-    res = _resampled(fr, part, t_om[:n])
+    res = _resampled(fr, accel, t_om[:n])  # accel: its head (:func:`_accel_head`)
     if res is None:
         return []
     f = res.rows()
@@ -1764,6 +1844,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         landmark_ids=ids.astype(aligned.landmark_ids.dtype),
         body_frame=aligned.body_frame,
         notes=list(aligned.notes),
+        warn_only=aligned.warn_only,
         directions=d,
         segment_starts=starts[(starts > a) & (starts < b)] - a,
         det_sensor=aligned.det_sensor,

@@ -272,6 +272,7 @@ def prepare_log(
     needs_directions: int = 0,
     noise: bool = True,
     estimator: str | None = None,
+    warn_only_later: bool = False,
 ) -> PreparedLog:
     """Read the log and build the observer input (readers -> alignment).
 
@@ -280,7 +281,8 @@ def prepare_log(
     directions the estimator needs, named with the other missing inputs when the log lacks them. ``noise=False``
     skips the recorded velocity's noise density (0.5 s on an hour of log), which only estimators with noise
     levels use (``uses_noise``: riekf, batch). ``estimator``: the name(s) the missing-inputs error gives as needing
-    them (None: every estimator).
+    them (None: every estimator). ``warn_only_later=True`` leaves the alignment's warn-only checks to
+    :func:`run_prepared`, which runs them beside the observer (``alignment.WarnOnly``).
     """
     from slamobs.pipeline.readers import read_log
 
@@ -338,6 +340,7 @@ def prepare_log(
         keep_directions=directions,
         release=True,
         limits=config.limits.as_dict(),
+        warn_only_later=warn_only_later,
     )
     if known is not None and known.fixed:
         aligned, note = restrict_to_map(aligned, known)
@@ -453,6 +456,7 @@ def run_log(
             needs_directions=needed,
             noise=spec.uses_noise,
             estimator=spec.name,
+            warn_only_later=True,
         )
         return run_prepared(
             prepared, out_dir, config, force=force, release=True, progress=progress, plot_workers=workers
@@ -612,10 +616,10 @@ def run_prepared(
     check_export(prepared, config)
     needed = est.directions
     # a log read once for several observers (compare) has the accelerometer note: only its users keep it
-    aligned_notes = prepared.aligned.notes
-    notes = list(streams.warnings) + [n for n in aligned_notes if needed or not n.startswith(ACCEL_NOTE)]
+    aligned_notes = [n for n in prepared.aligned.notes if needed or not n.startswith(ACCEL_NOTE)]
+    notes = list(streams.warnings) + aligned_notes
     notes += list(prepared.notes) + est.notes
-    input_warnings = list(streams.warnings) + [n for n in aligned_notes if "limits." in n]
+    warn_only = warn_only_beside(prepared)
     if prepared.tags is not None:
         notes += prepared.tags.notes
     metadata = run_metadata(prepared, config, est)
@@ -635,6 +639,9 @@ def run_prepared(
             )
         )
         native.return_freed_memory()  # what the estimator freed, before the report allocates its own
+        if warn_only is not None:  # their notes where the alignment's would have been
+            at = len(streams.warnings)
+            notes[at : at + len(aligned_notes)] = aligned_notes = warn_only(aligned_notes)
         report, report_error = evaluate_run(
             tmp,
             streams,
@@ -667,7 +674,7 @@ def run_prepared(
         timings=timings,
         report=report,
         notes=notes,
-        input_warnings=input_warnings,
+        input_warnings=list(streams.warnings) + [n for n in aligned_notes if "limits." in n],
     )
 
 
@@ -1085,6 +1092,26 @@ def offset_beside(prepared: PreparedLog, config: RunConfig):
         return Pending(search, helper=True).result  # the estimator's thread goes first
     except MemoryError:
         return search
+
+
+def warn_only_beside(prepared: PreparedLog):
+    """The alignment's warn-only checks left to the run (``prepare_log(warn_only_later=True)``;
+    ``alignment.WarnOnly``: notes only, nothing the observer reads), started on a thread beside the observer like
+    :func:`offset_beside` (0.17 CPU s of the one-hour log's align stage moved off the main thread, docs/benchmarks.md
+    session 26), but at the run's priority: niced, on a loaded machine they ran late in the observer stage, at the
+    run's memory peak (+90 MB on the hour). Returns the function that puts their notes into the alignment's notes it
+    is given (waits for them), None when the alignment ran them. No room for the thread: they run when their notes
+    are asked for."""
+    from slamobs.pipeline.evaluation.trajectory_evaluation import Pending
+
+    warn = prepared.aligned.warn_only
+    if warn is None:
+        return None
+    try:
+        found = Pending(warn.run).result
+    except MemoryError:
+        found = warn.run
+    return lambda notes: warn.joined(notes, found())
 
 
 def truth_on_run_clock(streams: LogStreams, config: RunConfig):

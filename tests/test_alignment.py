@@ -606,3 +606,73 @@ def test_a_gyro_whose_frame_reaches_the_body_turned_is_named_by_the_odometrys_ow
     assert "90 deg apart" in got[0] and "'imu_link' reaches the body turned" in got[0], got
     assert not said(streams)  # the turn on /tf_static: the gyro is brought into the body right
     assert not said(expected_streams(simulate("figure8", seed=5, duration=20.0), "x.mcap"))
+
+
+def _warned_sim():
+    """A generated figure 8 whose IMU is stamped 0.3 s late with its gyro's x and y swapped, and a tenth of its
+    detections given id 9999: three warn-only checks speak (the gyro's lag, its accelerometer, the misread id)."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import simulate
+
+    sim = simulate("figure8", seed=5, duration=30.0)
+    ids = sim.detections.ids.copy()
+    ids[::10] = 9999
+    late = int(0.3 * NS)
+    imu = replace(sim.imu, t_ns=sim.imu.t_ns + late, rec_ns=sim.imu.rec_ns + late, gyro=sim.imu.gyro[:, [1, 0, 2]])
+    return replace(sim, imu=imu, detections=replace(sim.detections, ids=ids))
+
+
+WARNED = ("stamps look 0.300 s late", "landmark id 9999 (", "the gyro reads as if its x and y were swapped")
+
+
+def test_the_warn_only_checks_run_later_give_their_notes_in_their_places():
+    """``align(warn_only_later=True)`` leaves the checks whose result is a note only to its caller (the run computes
+    them beside the observer, session 26); their notes joined in are the notes ``align`` gives, in its order (the
+    misread id's warning before the accelerometer's, each among the notes of its stream). The IMU turned by an
+    extrinsic the run is told to ignore: the gyro's axes against the odometry's own turn, too."""
+    from slamobs.pipeline.simulate import expected_streams, simulate
+    from slamobs.pipeline.simulate.scenarios import customize, get_scenario
+
+    rolled = simulate(customize(get_scenario("figure8"), imu_rpy_deg=(90.0, 0.0, 0.0)), seed=5, duration=20.0)
+    for sim, kw, said in (
+        (_warned_sim(), {}, WARNED),
+        (rolled, {"override_identity": ("imu_link",)}, ("its gyro turns about",)),
+    ):
+        now = align(expected_streams(sim, "x.mcap"), **kw)
+        later = align(expected_streams(sim, "x.mcap"), warn_only_later=True, **kw)
+        assert now.warn_only is None and all(any(s in n for n in now.notes) for s in said), now.notes
+        assert not any(s in n for n in later.notes for s in said), later.notes
+        assert later.warn_only.joined(later.notes, later.warn_only.run()) == now.notes
+
+
+def test_a_run_s_notes_are_the_same_with_the_warn_only_checks_beside_its_observer(tmp_path, monkeypatch):
+    """``slamobs run`` computes the alignment's warn-only checks after the alignment, on a thread beside the observer
+    (0.17 of the one-hour log's 0.30 CPU s of align off the main thread, session 26): run.json's notes are those of
+    a run that computed them in the alignment, every warning in its place."""
+    import json
+
+    from slamobs.pipeline import alignment
+    from slamobs.pipeline import run as run_mod
+    from slamobs.pipeline.api import run_log
+    from slamobs.pipeline.simulate import write_log
+
+    log = write_log(_warned_sim(), tmp_path / "warned.mcap")
+    aligned, ran = [], []  # whether the log was aligned when the checks ran
+    checks, prepare = alignment.WarnOnly.run, run_mod.prepare_log
+    monkeypatch.setattr(alignment.WarnOnly, "run", lambda self: ran.append(bool(aligned)) or checks(self))
+
+    def prepared(*args, later: bool, **kw):
+        aligned.clear()
+        out = prepare(*args, **{**kw, "warn_only_later": kw["warn_only_later"] and later})
+        aligned.append(True)
+        return out
+
+    config = {"evaluation": {"plots": False}}
+    for name, later in (("beside", True), ("in-align", False)):
+        monkeypatch.setattr(run_mod, "prepare_log", lambda *a, later=later, **kw: prepared(*a, later=later, **kw))
+        run_log(log, tmp_path / name, config=config)
+        assert ran[-1] == later
+    beside, in_align = (json.loads((tmp_path / d / "run.json").read_text())["notes"] for d in ("beside", "in-align"))
+    assert all(any(s in n for n in beside) for s in WARNED), beside
+    assert beside == in_align
