@@ -554,8 +554,11 @@ class TimeOffsetSection(Section):
             )
         else:
             other = (
-                "of the truth and of the log's own velocity samples (the trapezoid rule on their norms; the "
-                "estimate's stamps are on their clock)"
+                "of the truth and of the log's own velocity samples (the trapezoid rule on their norms, less a "
+                "constant bias fitted against the truth's rate at the lag found where that correlates better; the "
+                "estimate's stamps are on their clock; uncertainty_s: half the difference of the offsets the log's "
+                "first and second half find, which must be at most a grid step or a quarter of the offset to be "
+                "reliable)"
             )
             lag = (
                 "It is the offset between the truth's clock and the log's: an estimate lagging the motion (an "

@@ -530,14 +530,13 @@ def log_time_offset(
         moved, off, bias = abs(again.offset_s - off.offset_s), again, (bias_omega, bias_velocity)
         if moved < off.grid_step_s:  # settled
             break
-    return replace(off, uncertainty_s=halves_spread(search, len(vel_t_ns), *bias))
+    return replace(off, uncertainty_s=_halves_spread(search, len(vel_t_ns), *bias))
 
 
-def halves_spread(search, n: int, bias_omega: np.ndarray, bias_velocity: np.ndarray) -> float | None:
+def _halves_spread(search, n: int, bias_omega: np.ndarray, bias_velocity: np.ndarray) -> float | None:
     """Half the difference of the offsets ``search`` finds in the first and the second half of the ``n`` velocity
     samples (with the bias the whole log's search took): :attr:`.sync.TimeOffset.uncertainty_s` of
-    :func:`log_time_offset`. None where either half tells no offset. Public: a log's offset and its spread are
-    searched the same way (tests/test_truth_clock.py)."""
+    :func:`log_time_offset`. None where either half tells no offset."""
     first, second = (
         search(bias_omega, bias_velocity, slice(0, n // 2)),
         search(bias_omega, bias_velocity, slice(n // 2, n)),
