@@ -304,7 +304,7 @@ def rate_bias(t_ns: np.ndarray, x: np.ndarray, t_ref_ns: np.ndarray, ref_steps: 
     least squares of ``|x − b| − k s − d`` over ``b``, a scale ``k`` and an offset ``d`` (Gauss-Newton from
     ``b = 0``; the fit linear in ``|x|²`` took the noise of ``x`` in the turns for bias). A gyro bias makes
     ``|ω + b|`` no shifted copy of ``|ω|``: the generated 20 s figure 8's correlation peaked 0.073 s off, the
-    loop's 0.05-0.37 s at any length (docs/benchmarks.md, session 26). Zero where too few samples overlap the
+    loop's 0.05-0.38 s at any length (docs/benchmarks.md, session 26). Zero where too few samples overlap the
     reference."""
     x = np.asarray(x, dtype=np.float64)
     t_ref = np.asarray(t_ref_ns, dtype=np.float64)
@@ -349,12 +349,13 @@ def rate_bias(t_ns: np.ndarray, x: np.ndarray, t_ref_ns: np.ndarray, ref_steps: 
     return b if b @ b <= BIAS_LIMIT**2 * np.mean(np.einsum("ij,ij->i", xi, xi)) else np.zeros(x.shape[1])
 
 
-#: Gauss-Newton steps of :func:`rate_bias` at most (the generated logs' fits settle within 4).
+#: Gauss-Newton steps of :func:`rate_bias` at most.
 BIAS_ITERATIONS = 8
-#: Samples :func:`rate_bias` fits at most (every k-th of a longer log: 0.4 against 0.04 CPU s of the search on
-#: MR.CLAM's 60,000 samples when it fitted all).
+#: Samples :func:`rate_bias` fits at most (every k-th of a longer log: fitting all of MR.CLAM's 60,000, the search
+#: took 0.42-0.60 CPU s, main's 0.045).
 BIAS_SAMPLES = 8192
-#: Largest bias :func:`rate_bias` returns, relative to the rms rate (the generated logs' gyro biases are 0.04-0.1).
+#: Largest bias :func:`rate_bias` returns, relative to the rms rate (the generated scenarios' gyro biases are
+#: 0.012-0.062 rad/s).
 BIAS_LIMIT = 0.5
 
 
