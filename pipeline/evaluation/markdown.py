@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from slamobs.pipeline.evaluation.sync import halves_agree
+
 
 def convergence_definition(conv: dict[str, Any]) -> str:
     """The convergence figure's definition, with its numbers (report.md)."""
@@ -219,6 +221,9 @@ def offset_doubts(off: dict[str, Any]) -> str:
         why.append("correlation below 0.5")
     if abs(off["estimated_s"]) >= off["search_window_s"] - off["grid_step_s"]:
         why.append("at the search limit")
+    spread = off.get("uncertainty_s")
+    if not halves_agree(spread, off["grid_step_s"], off["estimated_s"]):
+        why.append(f"the log's halves find offsets {2 * spread:.3g} s apart")
     with_m, without_m = off.get("ape_rmse_with_m"), off.get("ape_rmse_without_m")
     if with_m is not None and without_m is not None and with_m > without_m:
         why.append(f"applied, it raises the APE rmse from {without_m:.4g} to {with_m:.4g} m")

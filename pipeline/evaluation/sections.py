@@ -518,6 +518,7 @@ class TimeOffsetSection(Section):
         off = ev.time_offset if self.options.t_offset_s == "auto" else None
         if off is not None and not off.reliable:
             edge = ", at the search limit" if off.at_window_edge else ""
+            edge += "" if off.consistent else f", the log's halves {2 * off.uncertainty_s:.3f} s apart"
             self.notes.append(
                 f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
                 f"{off.peak_correlation:.2f}{edge})"
@@ -534,6 +535,7 @@ class TimeOffsetSection(Section):
             "ape_rmse_with_m": None if off is None else off.rmse_with_m,
             "ape_rmse_without_m": None if off is None else off.rmse_without_m,
             "search_window_s": None if off is None else off.search_window_s,
+            "uncertainty_s": None if off is None else off.uncertainty_s,
             "grid_step_s": None if off is None else off.grid_step_s,
             "applied_s": float(ev.applied_offset_s),
             "applied_from": "estimate" if self.options.t_offset_s == "auto" else "option",
@@ -552,8 +554,11 @@ class TimeOffsetSection(Section):
             )
         else:
             other = (
-                "of the truth and of the log's own velocity samples (the trapezoid rule on their norms; the "
-                "estimate's stamps are on their clock)"
+                "of the truth and of the log's own velocity samples (the trapezoid rule on their norms, less a "
+                "constant bias fitted against the truth's rate at the lag found where that correlates better; the "
+                "estimate's stamps are on their clock; uncertainty_s: half the difference of the offsets the log's "
+                "first and second half find, which must be at most a grid step or a quarter of the offset to be "
+                "reliable)"
             )
             lag = (
                 "It is the offset between the truth's clock and the log's: an estimate lagging the motion (an "
