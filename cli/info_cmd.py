@@ -153,7 +153,7 @@ def _stated_line(st: dict, unit: str) -> str:
     """What a stream's messages state of its noise (``noise.sensor_levels``' ``stated``) and whether a run uses it."""
     from slamobs.pipeline.noise import format_level
 
-    head = f"its messages state {st['topic']} covariance ({st['rate_hz']:.4g} Hz)"
+    head = f"its messages state {st['topic']} covariance ({st['rate']})"
     if st["value"] is not None:
         head += f" = {format_level(st['value'], 4, False)} {unit}"
     if st["used"]:

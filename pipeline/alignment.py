@@ -143,6 +143,9 @@ GYRO_AXIS_MAX_MISFIT = 0.5
 #: gyro samples of that span the check takes, evenly spread (an hour at 400 Hz: 0.065 s of CPU with all 240,000
 #: of its first 600 s, 0.02 s so; the angle is the same on the logs tried)
 GYRO_AXIS_SAMPLES = 20000
+#: What the turned gyro's warning asks for; the detection pairs' misread check names it when it sees the same turn
+#: (``time_offset.GYRO_TURN_SEEN``).
+GYRO_TURN_ADVICE = "record the transform of '{frame}' on /tf_static"
 
 
 #: One landmark id at several places (a misdecoded tag id, tags of one id in view in turn): two detections of one id
@@ -181,7 +184,8 @@ TILT_MISREADS = {
 
 class WarnOnly:
     """The alignment's checks whose result is a note only (a warning; nothing the observers read depends on them):
-    the gyro's stamps and axes against the odometry (:func:`_gyro_lag`, :func:`_gyro_axes`), the gyro against its
+    the gyro's stamps against the odometry (:func:`_gyro_lag`; not its axes: the pairs' check reads that turn), the
+    gyro against its
     accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places (:func:`_misread_ids`).
     :func:`align` adds each where its notes go (:meth:`add` gives a marker in their place); :meth:`run`, the one
     place they run, computes them: at once in :func:`align`, or with ``align(warn_only_later=True)`` on a thread
@@ -263,6 +267,10 @@ class AlignedStream:
     #: The warn-only checks not yet run (``align(warn_only_later=True)``): ``notes`` lacks their notes until
     #: :meth:`WarnOnly.joined` puts them in; None (the usual) when ``notes`` is complete.
     warn_only: WarnOnly | None = None
+    #: The gyro turned against the odometry's own angular velocity (:func:`_gyro_turn`: its topic and frame, the
+    #: two unit axes in the body frame, the angle between them), the fact behind the alignment's warning; None when
+    #: not seen. The detection pairs' gyro-misread check defers to it (``time_offset.GYRO_TURN_SEEN``).
+    gyro_turn: dict | None = None
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -671,42 +679,56 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     ]
 
 
-def _gyro_axes(
-    t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream, unaligned: str = ""
-) -> list[str]:
-    """A warning when the gyro (``w_g``: body frame, on the time base ``t_g``) turns about another axis than the
-    odometry's own angular velocity (``twist`` on the times ``t_o``, in the body frame) says: see
-    ``GYRO_AXIS_WARN_DEG``. ``unaligned``: the body frame, where no run took the gyro (``info --noise``) and its
-    frame had no /tf_static transform (else "")."""
+def _gyro_turn(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream) -> dict | None:
+    """The gyro's turn against the odometry's (``AlignedStream.gyro_turn``) when the gyro (``w_g``: body frame, on
+    the time base ``t_g``) turns about another axis than the odometry's own angular velocity (``twist`` on the times
+    ``t_o``, in the body frame) says: see ``GYRO_AXIS_WARN_DEG``; else None."""
     order = np.argsort(t_o, kind="stable")
     t_o, w_o = t_o[order], twist.xyz[order]
     keep = (t_o <= t_o[0] + int(GYRO_LAG_SPAN_S * 1e9)) & np.all(np.isfinite(w_o), axis=1)
     t_o, w_o = t_o[keep], w_o[keep]
     if t_o.shape[0] < 20:
-        return []
+        return None
     span = slice(np.searchsorted(t_g, t_o[0]), np.searchsorted(t_g, t_o[-1], "right"))  # t_g sorted: the time base
     every = max(1, (span.stop - span.start) // GYRO_AXIS_SAMPLES)  # evenly spread samples: enough for an axis
     t_g, w_g = t_g[span][::every], w_g[span][::every]
     inside = np.all(np.isfinite(w_g), axis=1)
     if np.count_nonzero(inside) < 20:
-        return []
+        return None
     t, g = (t_g[inside] - t_o[0]).astype(np.float64), w_g[inside]
     o = np.column_stack([np.interp(t, (t_o - t_o[0]).astype(np.float64), w_o[:, a]) for a in range(3)])
     o, g = o - o.mean(axis=0), g - g.mean(axis=0)
     lam, vec = np.linalg.eigh(o.T @ o / o.shape[0])
     if lam[-1] < GYRO_AXIS_MIN_RATE**2:
-        return []  # the odometry hardly turns: nothing to tell an axis by
+        return None  # the odometry hardly turns: nothing to tell an axis by
     d = vec[:, -1]
     s = o @ d
     a = g.T @ s / float(s @ s)  # the gyro's response to the odometry's turn about d
     misfit = float(np.sum((g - np.outer(s, a)) ** 2) / max(float(np.sum(g**2)), 1e-300))
     norm = float(np.linalg.norm(a))
     if misfit > GYRO_AXIS_MAX_MISFIT or norm == 0.0:
-        return []
+        return None
     angle = float(np.degrees(np.arccos(np.clip(abs(float(a @ d)) / norm, 0.0, 1.0))))
     if angle < GYRO_AXIS_WARN_DEG:
+        return None
+    return {
+        "topic": gyro.topic,
+        "frame": gyro.frame_id.lstrip("/"),
+        "gyro_axis": [float(x) for x in a / norm],
+        "odometry_axis": [float(x) for x in d],
+        "angle_deg": angle,
+        "misfit": misfit,
+        "span_s": float(np.ptp(t_o)) * 1e-9,
+    }
+
+
+def _gyro_axes(turn: dict | None, odometry_topic: str, unaligned: str = "") -> list[str]:
+    """The warning of a gyro turned against the odometry (:func:`_gyro_turn`'s ``turn``; none when None).
+    ``unaligned``: the body frame, where no run took the gyro (``info --noise``) and its frame had no /tf_static
+    transform (else "")."""
+    if turn is None:
         return []
-    frame = gyro.frame_id.lstrip("/")
+    frame = turn["frame"]
     lead, verdict = (
         (
             f"taken as the body '{unaligned}' as read (TF has no transform of '{frame}', as frames.assume_identity "
@@ -721,9 +743,10 @@ def _gyro_axes(
         )
     )
     return [
-        f"warning: {gyro.topic}: {lead}its gyro turns about {_axis_words(a)} where {twist.topic}'s own angular "
-        f"velocity turns about {_axis_words(d)}, {angle:.0f} deg apart (over {np.ptp(t_o) * 1e-9:.0f} s, misfit "
-        f"{misfit:.2g} of the gyro's variance): {verdict}: record the transform of '{frame}' on /tf_static"
+        f"warning: {turn['topic']}: {lead}its gyro turns about {_axis_words(np.array(turn['gyro_axis']))} where "
+        f"{odometry_topic}'s own angular velocity turns about {_axis_words(np.array(turn['odometry_axis']))}, "
+        f"{turn['angle_deg']:.0f} deg apart (over {turn['span_s']:.0f} s, misfit {turn['misfit']:.2g} of the gyro's "
+        f"variance): {verdict}: {GYRO_TURN_ADVICE.format(frame=frame)}"
     ]
 
 
@@ -743,7 +766,8 @@ def gyro_axes_unaligned(streams: LogStreams, body_frame: str | None = None) -> l
     if frame and frame != body:
         found = TfBuffer(streams.static_tf, streams.tf, path=streams.path).static_lookup(body, frame)
         w = w if found is None else w @ found[0].T
-    return _gyro_axes(t, w, twist, twist.t_ns, om, body if frame and frame != body and found is None else "")
+    turn = _gyro_turn(t, w, twist, twist.t_ns, om)
+    return _gyro_axes(turn, twist.topic, body if frame and frame != body and found is None else "")
 
 
 def _axis_words(v: np.ndarray) -> str:
@@ -869,10 +893,13 @@ def align(
 
     warn = WarnOnly()
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
+    gyro_turn = None
     if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
         frame.notes.append(warn.add(_gyro_lag_of, om, time_source, twist))
         if twist.frame_id.lstrip("/") in ("", body):  # the odometry's twist is in the body frame
-            frame.notes.append(warn.add(_gyro_axes, t_om, omega, twist, _times(twist, time_source), om))
+            # not warn-only: the detection pairs' gyro-misread check reads the turn (AlignedStream.gyro_turn)
+            gyro_turn = _gyro_turn(t_om, omega, twist, _times(twist, time_source), om)
+            frame.notes.extend(_gyro_axes(gyro_turn, twist.topic))
     two_topics, gyro_topic = om.topic != lv.topic, om.topic
     topics = {"angular_velocity": om.topic, "linear_velocity": lv.topic}
     if det is not None:
@@ -931,6 +958,7 @@ def align(
         two_twist_topics=two_topics,
         topics=topics,
         warn_only=warn,
+        gyro_turn=gyro_turn,
     )
 
 

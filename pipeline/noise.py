@@ -22,6 +22,7 @@ import numpy as np
 
 from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.noise_estimation import (
+    median_rate,
     LAWS,
     DetectionLaw,
     Estimate,
@@ -130,7 +131,7 @@ class NoiseSettings:
     #: the factor on the estimated detection law for the detections' slow error (held streams: from pairs of
     #: detections over seconds), which batch leaves out where it models that error by their correlation in time
     detection_held_scale: float = 1.0
-    #: key -> "config", "default", "<topic> covariance (<rate> Hz)" or "estimated"
+    #: key -> "config", "default", "<topic> covariance (<rate> Hz by the median interval)" or "estimated"
     sources: dict[str, str] = field(default_factory=dict)
     #: key -> how an estimated level was found, and its standard error (same shape as the value)
     methods: dict[str, str] = field(default_factory=dict)
@@ -303,7 +304,8 @@ def sensor_levels(streams) -> dict[str, dict]:
             out[name]["stated"] = {
                 "value": _plain(stated.density) if stated.problem is None else None,
                 "topic": stated.topic,
-                "rate_hz": 1.0 / stated.period_s,
+                "rate_hz": 1.0 / stated.period_s,  # one over the median interval (noise_estimation.median_rate)
+                "rate": median_rate(stated.period_s),
                 "used": used,
                 "why": stated.problem or "; ".join(n.removeprefix("noise: ") for n in said),
             }
@@ -490,7 +492,7 @@ def resolve_noise(
             values[key], sources[key] = section[key], "config"
         elif covariance is not None:
             values[key] = covariance.density
-            sources[key] = f"{covariance.topic} covariance ({1.0 / covariance.period_s:.4g} Hz)"
+            sources[key] = f"{covariance.topic} covariance ({median_rate(covariance.period_s)})"
             if key in found:
                 level = format_level(_plain(found[key].value))
                 methods[key] = f"plausible; the samples' white-noise estimate is {level}"

@@ -139,6 +139,14 @@ def windows(n: int) -> list[tuple[int, int]]:
     return [(int(lo), int(lo) + size) for lo in np.linspace(0, n - size, WINDOWS)]
 
 
+def median_rate(period_s: float) -> str:
+    """A stream's rate as the noise levels use it, labelled (``10.09 Hz by the median interval``): one over the
+    median interval between its stamps, which turns a per-sample level into a density. Public for ``noise`` and
+    ``slamobs info --noise``: ``info``'s topic table gives a topic's rate as its count over its stamps' span
+    (robot_localization's test1 odometry, whose intervals jitter: 10.09 Hz so, 9.99 Hz in the table)."""
+    return f"{1.0 / period_s:.4g} Hz by the median interval"
+
+
 def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
     """Per-axis white-noise density (units · sqrt(s)) of the samples ``x`` (N, 3) at times ``t_s`` (N,), or None
     when the stream is too short to tell."""
@@ -158,7 +166,7 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
     leak = float(np.max(_robust_sigma(z3) / np.maximum(sigma, 1e-300)))
     blocks = np.array([_robust_sigma(b) for b in np.array_split(z5, BLOCKS)])
     se = blocks.std(axis=0, ddof=1) / np.sqrt(BLOCKS)
-    method = f"quintic-prediction residuals (MAD) at {1 / period:.4g} Hz"
+    method = f"quintic-prediction residuals (MAD) at {median_rate(period)}"
     if leak > 1.2:
         method += f"; motion leaks into lower orders (cubic {leak:.2f}x higher)"
     repeats = np.mean(np.diff(x, axis=0) == 0.0, axis=0)

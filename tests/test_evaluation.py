@@ -2055,6 +2055,27 @@ def test_a_map_sigma_far_below_its_error_is_named_overconfident():
     assert loose["sigma_check"]["verdict"] == "inconclusive" and "not conclusive" in loose["notes"][0]
 
 
+def test_the_map_only_sigma_check_without_trajectory_truth_takes_out_the_alignments_dof_as_the_confirmation_does():
+    """A run without trajectory truth checks its map's σ after an alignment of the map alone (TagSLAM 11, 21), which
+    takes 6 DoF out of the errors; its mean NEES was the plain mean over n, where the after-alignment confirmation
+    (``after_map_only``) takes the sum over n − p/dof: two definitions of one number. Now one rule
+    (``sections.map_only_mean``) for both: the mean, its bounds χ²(3n − 6)/(n − 2), and ``dof_removed``."""
+    from slamobs.pipeline.evaluation.metrics import chi2_quantile
+    from slamobs.pipeline.evaluation.sections import map_only_section
+
+    truth_lm = make_landmarks()
+    lm = landmark_table(truth_lm, np.eye(3), np.zeros(3), noise_m=0.1)
+    found = map_only_section(
+        lm.assign(cov_xx=0.01, cov_xy=0.0, cov_xz=0.0, cov_yy=0.01, cov_yz=0.0, cov_zz=0.01), truth_lm
+    )
+    check, n = found["sigma_check"], found["sigma_check"]["n"]
+    nees = [(r["error_m"] / 0.1) ** 2 for r in found["per_landmark"] if r["error_m"] is not None]
+    assert len(nees) == n and n > 2
+    assert check["dof_removed"] == 6 and check["mean_nees"] == pytest.approx(sum(nees) / (n - 2), rel=1e-9)
+    assert check["bounds"] == pytest.approx([chi2_quantile(q, 3 * n - 6) / (n - 2) for q in (0.025, 0.975)])
+    assert "n − p/dof" in check["method"] and "χ²(dof·n − p)/(n − p/dof)" in check["method"]
+
+
 def test_a_consistent_map_whose_landmarks_share_one_error_is_not_called_overconfident():
     """The map's landmarks share the alignment's error and the poses' at their sightings, so one map's mean NEES
     strays beyond the bounds of independent landmarks (it was called overconfident above them). Every landmark off

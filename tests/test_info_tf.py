@@ -65,3 +65,20 @@ def test_info_names_a_missing_camera_extrinsic_as_run_stops_on_it(logs, tmp_path
     tf = _section(invoke("info", logs["no_camera"], "--config", config).output)
     assert "'camera' taken as the body (frames.assume_identity" in tf
     assert "'imu_link' taken as the body (frames.override_identity" in tf
+
+
+def test_info_does_not_advise_taking_an_imu_frame_without_a_transform_as_the_body(tmp_path):
+    """robot_localization's test1: 'imu_link' has no transform, and `info` (which reads no samples) said to list it
+    in frames.assume_identity "if it is the body's frame"; that IMU is turned 90 deg (its yaw rate on y), so the
+    advice read its axes wrong. The advice now points to the check that can tell (`info --noise`); a camera's keeps
+    its words."""
+    sim = simulate("circle", duration=3.0, seed=5)
+    log = write_log(
+        dataclasses.replace(sim, static_tf=[t for t in sim.static_tf if t.child != "imu_link"]), tmp_path / "x.mcap"
+    )
+    line = next(
+        x for x in _section(invoke("info", log).output).splitlines() if "'imu_link' -> 'base_link' MISSING" in x
+    )
+    assert "frames.assume_identity if it is the body's frame" not in line, line
+    assert "frames.assume_identity only if it is mounted as the body, axes and all" in line, line
+    assert "slamobs info --noise LOG holds its gyro against the odometry's own angular velocity" in line, line

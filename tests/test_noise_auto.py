@@ -443,14 +443,23 @@ def test_info_noise_names_an_imu_dropping_samples_in_short_bursts(tmp_path):
 
 def test_info_noise_names_a_gyro_whose_x_and_z_are_swapped(tmp_path):
     """An IMU's gyro x and z swapped (mounted on its side with another's extrinsic), written to MCAP: riekf was lost
-    (22 m on a 40 s figure 8) with only a velocity-scale warning that pointed at the velocity (session 19)."""
+    (22 m on a 40 s figure 8) with only a velocity-scale warning that pointed at the velocity (session 19). The
+    alignment's turned-gyro check sees the same turn (yaw on x, 88 deg from the odometry's): the pairs' misread line
+    names that warning rather than a cause of its own, and the velocity-scale line says the turn upsets it too (two
+    warnings naming two causes until session 26)."""
     sim = simulate("figure8", seed=5, duration=20.0)
     swapped = replace(sim, imu=replace(sim.imu, gyro=sim.imu.gyro[:, [2, 1, 0]].copy()))
     write_log(swapped, tmp_path / "swapped.mcap")
     shown = invoke("info", "--noise", tmp_path / "swapped.mcap")
     assert shown.exit_code == 0, shown.output
     said = [line for line in shown.output.splitlines() if "angular velocity's x and z swapped" in line]
-    assert len(said) == 1 and "check the gyro's unit and axes" in said[0], shown.output
+    assert len(said) == 1 and "the same turn the warning on /imu/data's gyro measures" in said[0], shown.output
+    assert "check the gyro's unit and axes" not in said[0] and "record the transform of 'imu_link'" in said[0], said
+    assert (
+        sum("warning: /imu/data: in the body frame its gyro turns about" in x for x in shown.output.splitlines()) == 1
+    )
+    scaled = [line for line in shown.output.splitlines() if "the detections say the body moved" in line]
+    assert scaled and all("the turned gyro upsets this reading too" in x for x in scaled), shown.output
     # which topics, on a log of many (alignment.stream_topics)
     assert said[0].endswith("[gyro /imu/data, odometry /odom, detections /fiducial_transforms]"), said
 

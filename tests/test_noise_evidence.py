@@ -18,7 +18,7 @@ from slamobs.pipeline.smoother.settings import BatchSettings
 
 
 #: where a level above the truth comes from: a driver's stated covariance (the samples' own level is a lower bound)
-STATED = "/odom covariance (50 Hz)"
+STATED = "/odom covariance (50 Hz by the median interval)"
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 
 import pytest
 
@@ -336,3 +337,17 @@ def test_info_noise_on_a_log_that_cannot_run_says_the_covariance_its_messages_st
     doc = json.loads(invoke("info", "--noise", "--json", logs["no_odom_det"]).stdout)
     stated = doc["sensors"]["gyro"]["stated"]
     assert stated["used"] is True and stated["topic"] == "/imu/data" and len(stated["value"]) == 3, stated
+
+
+def test_info_noise_labels_its_rates_as_the_median_intervals_not_the_topic_tables(logs):
+    """robot_localization's test1: `info --noise` gave the odometry's level `at 10.09 Hz` (one over the median
+    interval) and its topic table 9.99 Hz (stamps over the time recorded), one word for two definitions. Every rate
+    the noise lines print now says which it is, the level's and the stated covariance's alike."""
+    res = invoke("info", "--noise", logs["no_odom_det"])
+    assert res.exit_code == 0, res.output
+    lines = [x.strip() for x in res.output.splitlines()]
+    gyro = next(k for k, line in enumerate(lines) if line.startswith("gyro = "))
+    assert "(MAD) at " in lines[gyro] and " Hz by the median interval" in lines[gyro], lines[gyro]
+    assert lines[gyro + 1].startswith("its messages state /imu/data covariance ("), lines[gyro + 1]
+    assert " Hz by the median interval) = " in lines[gyro + 1], lines[gyro + 1]
+    assert not re.search(r"\d Hz[);]", "\n".join(lines[gyro : gyro + 2])), lines[gyro : gyro + 2]

@@ -945,3 +945,38 @@ def test_a_long_log_s_gyro_misreads_are_tested_on_its_first_samples(monkeypatch)
     assert offset["gyro_misreads"]["with its angular velocity's x and z swapped"] >= time_offset.GYRO_MISREAD_GAIN
     assert seen[0].stream.vel_t_ns.shape[0] <= stream.vel_t_ns.shape[0] // 2 + 1
     assert seen[0].a.shape[0] < offset["pairs"]
+
+
+def test_the_pairs_gyro_misread_names_the_alignments_turned_gyro_only_when_it_undoes_that_turn():
+    """A gyro whose yaw rate the alignment found on y (an IMU rolled 90 deg taken as the body): the detection pairs'
+    "y and z swapped" undoes that turn, so its warning names the turned-gyro warning instead of a cause of its own,
+    and the velocity scale read along that heading says so. A turn the swap does not undo (yaw on x), or none: the
+    misread's own words."""
+    from slamobs.pipeline.observers import time_offset
+
+    offset = {
+        "pairs": 2000,
+        "applied": False,
+        "topics": {"angular_velocity": "/imu/data", "linear_velocity": "/odom"},
+        "gyro_misreads": {"with its angular velocity's y and z swapped": 35.9, time_offset.SIGN_FLIPPED: 0.5},
+        "velocity_scale": {"scale": [2.35, 1.0, 1.0], "sigma": [0.1, 0.1, 0.1]},
+        "gyro_turn": {
+            "topic": "/imu/data",
+            "frame": "imu_link",
+            "gyro_axis": [0.01, 1.0, -0.01],
+            "odometry_axis": [0.0, 0.01, 1.0],
+            "angle_deg": 90.0,
+            "misfit": 0.012,
+            "span_s": 40.0,
+        },
+    }
+    gyro, scale = time_offset.note("riekf", offset)
+    assert "35.9x better with its angular velocity's y and z swapped" in gyro, gyro
+    assert "the same turn the warning on /imu/data's gyro measures (90 deg" in gyro, gyro
+    assert "record the transform of 'imu_link' on /tf_static" in gyro and "check the gyro's unit" not in gyro, gyro
+    assert "along x 2.35x" in scale and "the turned gyro upsets this reading too" in scale, scale
+    other = {**offset["gyro_turn"], "gyro_axis": [1.0, 0.0, 0.0]}  # a yaw on x: y and z swapped leaves it on x
+    for turn in (other, None):
+        gyro, scale = time_offset.note("riekf", {**offset, "gyro_turn": turn})
+        assert "check the gyro's unit and axes" in gyro and "the same turn" not in gyro, gyro
+        assert "upsets" not in scale, scale

@@ -593,12 +593,28 @@ MAP_TURN_MIN_M = 0.1
 MAP_SIGMA_FAR = 10.0
 
 
-def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, method: str) -> dict[str, Any] | None:
+def map_only_mean(nees: np.ndarray, dof: int) -> tuple[float, int] | None:
+    """The mean NEES of ``nees`` (finite, one per landmark over ``dof`` axes) measured after an alignment of the map
+    alone: that alignment takes p = dof(dof + 1)/2 DoF out of the errors (6 in 3-D, 3 on a planar map), so the mean
+    is the NEES sum over n − p/dof landmarks (a consistent map's sum is χ²(dof·n − p)); ``(mean, p)``, or None when
+    dof·n ≤ p (nothing left to check). The one rule of :func:`confirm_after_map_only` and of the map-only
+    :func:`sigma_check` of a run without trajectory truth."""
+    removed = dof * (dof + 1) // 2
+    if dof * nees.size <= removed:
+        return None
+    return float(np.sum(nees) / (nees.size - removed / dof)), removed
+
+
+def sigma_check(
+    ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, method: str, map_only: bool = False
+) -> dict[str, Any] | None:
     """The map's stated covariance against its error: per landmark NEES ``eᵀΣ⁻¹e`` (3 DoF), their mean against the
     two-sided 95 % χ² bounds of a mean of n independent values and against ``bound_any_correlation``
     (:func:`metrics.nees_bound_any_correlation`: the landmarks share the alignment's and the poses' errors, so they
     are not independent) with its verdict, how many lie above one NEES's upper bound, the worst landmark, and
-    ``‖e‖ / σ`` (σ = ``sqrt(trace Σ / 3)``); None without a covariance (the observers)."""
+    ``‖e‖ / σ`` (σ = ``sqrt(trace Σ / 3)``); None without a covariance (the observers). ``map_only``: ``errors``
+    are after an alignment of the map alone, the mean and its bounds those of :func:`map_only_mean` (``dof_removed``);
+    None when that leaves nothing."""
     if cov is None:
         return None
     axes = list(axes_with_error(errors))  # a planar map (MR.CLAM) has no error in z: its NEES is over x, y
@@ -609,15 +625,21 @@ def sigma_check(ids: np.ndarray, errors: np.ndarray, cov: np.ndarray | None, met
         return None
     sigma = rms_sigmas(cov[ok])
     norms = np.linalg.norm(errors[ok], axis=1)
-    bounds = metrics.nees_bounds(dof, int(ok.size))
     w = int(np.argmax(nees[ok]))
     mean, any_correlation = float(np.mean(nees[ok])), metrics.nees_bound_any_correlation(dof)
+    bounds, removed = metrics.nees_bounds(dof, int(ok.size)), 0
+    if map_only:
+        if (found := map_only_mean(nees[ok], dof)) is None:
+            return None
+        (mean, removed), left = found, ok.size - found[1] / dof
+        bounds = tuple(metrics.chi2_quantile(q, dof * ok.size - removed) / left for q in (0.025, 0.975))
     verdict = metrics.nees_verdict(mean, bounds, any_correlation)
     return {
         "n": int(ok.size),
         "dof": dof,
         **({"axes": ["xyz"[i] for i in axes]} if dof < NEES_DOF else {}),
         "mean_nees": mean,
+        **({"dof_removed": removed} if map_only else {}),
         "bounds": [float(v) for v in bounds],
         "bound_any_correlation": any_correlation,
         "verdict": verdict,
@@ -647,17 +669,16 @@ def confirm_after_map_only(check: dict[str, Any] | None, vectors: np.ndarray | N
     if check is None or check["verdict"] != "overconfident":
         return
     dof, any_correlation = check["dof"], check["bound_any_correlation"]
-    removed = dof * (dof + 1) // 2
     if vectors is None or cov is None:
         check["after_map_only"] = None
         return
     axes = ["xyz".index(a) for a in check.get("axes", "xyz")]
     nees = slam_metrics.landmark_nees(vectors[:, axes], cov[:, axes][:, :, axes])
     nees = nees[np.isfinite(nees)]
-    if dof * nees.size <= removed:
+    if (found := map_only_mean(nees, dof)) is None:
         check["after_map_only"] = None
         return
-    mean = float(np.sum(nees) / (nees.size - removed / dof))
+    mean, removed = found
     check["after_map_only"] = {"mean_nees": mean, "n": int(nees.size), "dof_removed": removed}
     if mean > any_correlation:
         return
@@ -965,8 +986,15 @@ class LandmarkSection(Section):
         }
 
     #: the σ check of :meth:`map_only`: the map-only alignment's error
-    MAP_ONLY_SIGMA_METHOD = SIGMA_METHOD.replace(SIGMA_CONFIRM_METHOD, "").replace(
-        "after the trajectory's alignment and its loose turn (error_turned_m)", "after the map-only alignment"
+    MAP_ONLY_SIGMA_METHOD = (
+        SIGMA_METHOD.replace(SIGMA_CONFIRM_METHOD, "")
+        .replace("after the trajectory's alignment and its loose turn (error_turned_m)", "after the map-only alignment")
+        .replace(
+            "mean_nees against the two-sided 95 % χ² bounds of a mean of n independent values, χ²(dof·n)/n",
+            "mean_nees the NEES sum over n − p/dof landmarks, p = dof(dof + 1)/2 the DoF that alignment takes out "
+            "(dof_removed: 6 in 3-D, 3 on a planar map), against the two-sided 95 % χ² bounds of such a mean of "
+            "independent values, χ²(dof·n − p)/(n − p/dof)",
+        )
     )
 
     def _map_only_turned(self) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -982,7 +1010,7 @@ class LandmarkSection(Section):
         vectors, cov = self._map_only_turned()
         if vectors is None:
             return None
-        return sigma_check(self._map_ids, vectors, cov, self.MAP_ONLY_SIGMA_METHOD)
+        return sigma_check(self._map_ids, vectors, cov, self.MAP_ONLY_SIGMA_METHOD, map_only=True)
 
 
 def map_only_section(landmarks: Table | None, landmark_truth: dict[int, np.ndarray]) -> dict[str, Any] | None:

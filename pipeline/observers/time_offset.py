@@ -446,6 +446,19 @@ MIRROR_ADVICE = (
     ", or whether the detections are mirrored (an axis of their frame flipped: a left-handed camera extrinsic, a "
     "bearing of the wrong sign), which the detections cannot tell from it"
 )
+#: The gyro-misread warning when the misread undoes the turn the alignment measured between the gyro and the
+#: odometry's own angular velocity (``AlignedStream.gyro_turn``): the gyro's axes turned against the body, of which
+#: an axis swap is the nearest misread tried; on a ground robot's yaw alone a mount turned 90 deg and a driver's swap
+#: read alike (a generated figure 8 whose IMU is rolled 90 deg, its frame taken as the body:
+#: "y and z swapped" 35.9x better; without this, two warnings naming two causes, session 26).
+GYRO_TURN_SEEN = (
+    "the same turn the warning on {topic}'s gyro measures ({angle:.0f} deg from the odometry's own turn; a swap of two "
+    "axes is the nearest misread tried): its axes reach the body turned, by the IMU's mount ({advice}) or by its "
+    "driver's axis map (fix it there)"
+)
+#: Added to the velocity-scale warnings beside it: their pairs are read along the turned gyro's heading (that
+#: figure 8's odometry alone, with the IMU's transform given, draws no velocity warning).
+GYRO_TURN_UPSETS = "; the turned gyro upsets this reading too: look again once its axes are right"
 #: A misread is named when the pairs' trimmed mean squared residual with the angular velocity so undone is this
 #: many times smaller than as read (MR.CLAM 6 r1 as recorded: 2.4x and 8.6x larger; in deg/s 712x smaller, its
 #: sign flipped 8.6x smaller).
@@ -827,6 +840,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     c = Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
     n = int(c.a.shape[0])
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False, "topics": dict(stream.topics)}
+    out["gyro_turn"] = getattr(stream, "gyro_turn", None)  # the alignment's turned gyro, which its misreads name
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
     shift, sigma, gain = _search(c)
@@ -954,15 +968,24 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     from slamobs.pipeline.alignment import stream_topics
 
     topics = offset.get("topics") or {}
+    best = _best_misread(offset.get("gyro_misreads") or {})
+    # the alignment's turned gyro, when the misread the pairs fit best undoes that same turn: one cause, named once
+    seen = bool(best) and _same_turn(GYRO_MISREADS[best[0][0]], offset.get("gyro_turn"))
     found = [
         (
             f"the detections fit the odometry {gain:.3g}x better {what} ({offset['pairs']} detection pairs, trimmed "
-            "mean squared residual): check the gyro's unit and axes" + (MIRROR_ADVICE if what == SIGN_FLIPPED else ""),
+            "mean squared residual): "
+            + (
+                _gyro_turn_seen(offset["gyro_turn"])
+                if seen
+                else "check the gyro's unit and axes" + (MIRROR_ADVICE if what == SIGN_FLIPPED else "")
+            ),
             "it",
             ("gyro", "odometry", "detections"),
         )
-        for what, gain in _best_misread(offset.get("gyro_misreads") or {})
+        for what, gain in best
     ]
+    upset = GYRO_TURN_UPSETS if seen else ""  # the velocity's scale is read along the gyro's dead-reckoned heading
     turn = offset.get("extrinsic_turn") or {"gain": 0.0}
     # only where the gyro reads right (a gyro of the wrong sign, or mirrored detections, fit as well turned by 180
     # deg about a horizontal axis: 57-138x on generated figure 8s and ground robots; in deg/s the detections fit
@@ -988,7 +1011,7 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
             "with it): check the velocity's unit and axes, and the detections' (their unit, and their frame's "
-            "extrinsic: a camera turned or given as the inverse transform reads this way)",
+            f"extrinsic: a camera turned or given as the inverse transform reads this way){upset}",
             "them",
             ("odometry", "detections", "camera"),
         )
@@ -1004,6 +1027,28 @@ def _best_misread(gains: dict[str, float]) -> list[tuple[str, float]]:
     fits better than as read, 6.2-6.3x, against 92-258x with the sign undone)."""
     best = max(gains.items(), key=lambda item: item[1], default=("", 0.0))
     return [best] if best[1] >= GYRO_MISREAD_GAIN else []
+
+
+def _same_turn(undo: np.ndarray, gyro_turn: dict | None) -> bool:
+    """Whether a gyro misread's undoing (``GYRO_MISREADS``' matrix) takes the gyro's axis of the alignment's turned
+    gyro (``AlignedStream.gyro_turn``) onto the odometry's within ``alignment.GYRO_AXIS_WARN_DEG``: the pairs then
+    see the turn the alignment measured, of which an axis swap is the nearest misread they try."""
+    from slamobs.pipeline.alignment import GYRO_AXIS_WARN_DEG
+
+    if not gyro_turn:
+        return False
+    moved = np.asarray(undo, dtype=float) @ np.asarray(gyro_turn["gyro_axis"], dtype=float)
+    cos = abs(float(moved @ np.asarray(gyro_turn["odometry_axis"], dtype=float))) / max(np.linalg.norm(moved), 1e-300)
+    return cos >= np.cos(np.radians(GYRO_AXIS_WARN_DEG))
+
+
+def _gyro_turn_seen(gyro_turn: dict) -> str:
+    """What the gyro-misread warning says when it sees the alignment's turned gyro (:func:`_same_turn`)."""
+    from slamobs.pipeline.alignment import GYRO_TURN_ADVICE
+
+    return GYRO_TURN_SEEN.format(
+        topic=gyro_turn["topic"], angle=gyro_turn["angle_deg"], advice=GYRO_TURN_ADVICE.format(frame=gyro_turn["frame"])
+    )
 
 
 def _world_twist_sentence(offset: dict, gain: float) -> str:

@@ -30,6 +30,15 @@ _NS = 1_000_000_000
 
 #: The roles whose samples a run moves into the body frame, in the order ``info`` lists them.
 SENSOR_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic", "detections")
+#: The roles of an IMU's frame, which ``info`` (reading no samples) cannot tell mounted as the body or turned
+#: (robot_localization's test1: 'imu_link' without a transform, its yaw rate on y; frames.assume_identity, which
+#: ``info`` used to suggest for it, reads those axes wrong): its advice points to the check that can tell.
+IMU_ROLES = ("angular_velocity", "accel", "magnetic")
+#: That check (``alignment.gyro_axes_unaligned`` and the alignment's turned-gyro warning).
+IMU_MOUNT_CHECK = (
+    "slamobs info --noise LOG holds its gyro against the odometry's own angular velocity and warns when they turn "
+    "about different axes (where the odometry gives one)"
+)
 #: Leaf siblings alike but for their digits, at least this many, are one line of the tree.
 COLLAPSE_AT = 4
 #: Lines of the tree shown at most; ``info --json`` lists every edge.
@@ -85,6 +94,12 @@ class SensorFrame:
         camera = self.role == "detections"
         if self.how == "missing" and camera and cameras_given:
             return f"{name}: not in TF; the config's cameras: files must place it"
+        if self.how == "missing" and self.role in IMU_ROLES:  # read no samples: whether it is the body's is unknown
+            return (
+                f"{name} -> '{body}' MISSING ({self.chain}): a run stops; record the transform on /tf_static, set "
+                f"frames.body, or list '{self.frame}' in frames.assume_identity only if it is mounted as the body, "
+                f"axes and all: {IMU_MOUNT_CHECK}"
+            )
         if self.how == "missing":
             files = ", or give cameras: files with the extrinsic" if camera else ""
             return (
