@@ -185,8 +185,8 @@ TILT_MISREADS = {
 class WarnOnly:
     """The alignment's checks whose result is a note only (a warning; nothing the observers read depends on them):
     the gyro's stamps against the odometry (:func:`_gyro_lag`; not its axes: the pairs' check reads that turn), the
-    gyro against its
-    accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places (:func:`_misread_ids`).
+    gyro against its accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places
+    (:func:`_misread_ids`).
     :func:`align` adds each where its notes go (:meth:`add` gives a marker in their place); :meth:`run`, the one
     place they run, computes them: at once in :func:`align`, or with ``align(warn_only_later=True)`` on a thread
     beside the observer (``pipeline.run``: ~0.17 of the one-hour log's ~0.30 CPU s of align, docs/benchmarks.md
