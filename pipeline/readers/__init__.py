@@ -33,6 +33,7 @@ from .decode import (
     gyro_stand_in,
     has_angular_velocity,
     pose_stream,
+    static_tf_notes,
     static_transforms,
     tag_detections,
     transform_series,
@@ -185,7 +186,7 @@ def read_log(
                 note(topic, role, cleaning)
             elif role == "static_tf":
                 streams.static_tf, warnings, dropped, streams.static_tf_changed = static_transforms(tf_of(topic))
-                streams.warnings += [f"{topic}: {w}" for w in warnings]
+                streams.warnings += static_tf_notes(topic, warnings)
                 streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
             elif role == "tf":
                 streams.tf, warnings = transform_series(tf_of(topic), on_record_time=clocks == "record")

@@ -35,6 +35,7 @@ from .decode import (
     out_of_order_text,
     decode_sim_truth,
     decode_static_tf,
+    static_tf_notes,
     duplicates_text,
     gyro_not_filled,
     first_vectors,
@@ -456,7 +457,7 @@ def _static_tf_notes(reader, path: str | Path, table: dict) -> list[str]:
         _, warnings = decode_static_tf(reader, path, table[topic][1])
     except InputError as err:  # info describes a log run refuses; run says this one line
         return [f"{topic}: {err.problem}"]
-    return [f"{topic}: {w}" for w in warnings]
+    return static_tf_notes(topic, warnings)
 
 
 def _sim_truth_words(reader, path: str | Path, table: dict, roles: Mapping[str, str]) -> tuple[str | None, list[str]]:
