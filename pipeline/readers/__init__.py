@@ -39,7 +39,15 @@ from .decode import (
     transform_series,
     vec3_stream,
 )
-from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
+from .inspect import (
+    LogInfo,
+    TopicSummary,
+    apply_clocks,
+    clock_set_back,
+    format_info,
+    inspect_log,
+    recommend_clocks,
+)
 from .msgdefs import complete_definitions, require_types
 from .roles import (
     IMAGE_TYPES,
@@ -208,6 +216,8 @@ def read_log(
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
     streams = _with_clocks(streams, clocks, _stepped(reports))
+    if (set_back := clock_set_back(streams)) is not None:
+        streams.warnings.append(set_back)
     # described on the clock the run reads each topic on (known once the clocks are chosen)
     streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
     return streams
