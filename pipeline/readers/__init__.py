@@ -215,9 +215,7 @@ def read_log(
     at = len(streams.warnings)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
-    streams = _with_clocks(streams, clocks, _stepped(reports))
-    if (set_back := clock_set_back(streams)) is not None:
-        streams.warnings.append(set_back)
+    streams = _clocked(streams, clocks, _stepped(reports))
     # described on the clock the run reads each topic on (known once the clocks are chosen)
     streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
     return streams
@@ -502,6 +500,14 @@ _HEADER_READ = "this run reads header stamps (time.source: header): time.source:
 def _stepped(reports: Mapping[str, list[tuple[str, Cleaning]]]) -> dict[str, str]:
     """The topics whose header clock steps mid-log (:attr:`Cleaning.clock_steps`) and how."""
     return {t: c.clock_step_words() for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps}
+
+
+def _clocked(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
+    """:func:`_with_clocks`, then a recording clock set back mid-log said, on the clocks the run reads
+    (:func:`.inspect.clock_set_back`)."""
+    streams = _with_clocks(streams, clocks, stepped)
+    streams.warnings += clock_set_back(streams)
+    return streams
 
 
 def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
