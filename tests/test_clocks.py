@@ -342,6 +342,27 @@ def test_clocks_set_back_together_are_said_to_step_not_to_disagree(tmp_path):
     assert any(w.startswith("header clocks disagree (/pose vs /imu)") for w in other.warnings), other.warnings
 
 
+def test_the_recording_clock_set_back_is_said_where_no_stamp_steps_against_record_time(tmp_path):
+    """The recording machine's clock set back 1.0037 s mid-log, record times and header stamps alike: no stamp
+    steps against record time, so nothing was said; the seconds before the step and after it interleave (a figure
+    8 so: riekf lost the log, 2.94 m off where the clean log gives 0.011 m, a misread id its only word). Now a
+    warning names the stretch where every topic comes twice as dense; a steady log has none."""
+    set_back = 1_003_700_000
+
+    def recorded(rate):
+        return [(s - set_back * (r >= WALL + 5 * NS), r - set_back * (r >= WALL + 5 * NS), v) for s, r, v in
+                _steady(rate, 10, 0)]  # fmt: skip
+
+    streams = read_log(_write(tmp_path / "set_back.mcap", {"/imu": recorded(100), "/vel": recorded(50)}))
+    (said,) = [w for w in streams.warnings if "clock set back mid-log" in w]
+    assert said.startswith(
+        "warning: every topic's samples come about twice as dense from 4.0 s to 5.0 s into the log"
+    ), said
+    assert "(against /imu's 100 Hz, /vel's 50 Hz)" in said and "time.start, time.end" in said
+    steady = read_log(_write(tmp_path / "steady.mcap", {"/imu": _steady(100, 10, 0), "/vel": _steady(50, 10, 0)}))
+    assert not any("clock set back mid-log" in w for w in steady.warnings)
+
+
 def _imu_extrinsic_on_tf(src, dst):
     """The simulated MCAP ``src`` with its base_link -> imu_link extrinsic moved from /tf_static to /tf, one
     message per IMU message (recorded with it), whose header stamps are disordered: pairs swapped, a stamp repeated

@@ -81,6 +81,18 @@ def test_info_reads_the_parts_as_one_log_in_order(parts):
     assert res.exit_code == 0 and json.loads(res.stdout)["path"] == str(parts[0].parent)
 
 
+def test_one_part_given_alone_says_its_other_parts_lie_beside_it(parts):
+    """``rec/rec_0.bag`` of three given as the log: run and info read its 10 s of the recording's 30 s with no word
+    (exit 0, a result over a third of the recording). Now a warning names the parts and the directory to give."""
+    said = (
+        f"warning: rec_1.bag is one part of a split recording (3 parts beside each other: rec_0.bag, rec_1.bag, "
+        f"rec_2.bag): slamobs reads rec_1.bag alone, so a run's result covers that part of the recording only; give "
+        f"the directory {parts[1].parent} to read the parts as one log"
+    )
+    assert said in read_log(parts[1]).warnings and said in inspect_log(parts[1]).warnings
+    assert not any("one part of a split recording" in w for w in read_log(parts[1].parent).warnings)
+
+
 def test_a_gap_between_files_is_reported(tmp_path):
     gapped = split_bag(LOG, tmp_path / "rec", [10.0, 20.0], drop_s=(9.5, 10.7))
     notes = inspect_log(gapped[0].parent).warnings

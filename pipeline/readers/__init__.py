@@ -33,12 +33,21 @@ from .decode import (
     gyro_stand_in,
     has_angular_velocity,
     pose_stream,
+    static_tf_notes,
     static_transforms,
     tag_detections,
     transform_series,
     vec3_stream,
 )
-from .inspect import LogInfo, TopicSummary, apply_clocks, format_info, inspect_log, recommend_clocks
+from .inspect import (
+    LogInfo,
+    TopicSummary,
+    apply_clocks,
+    clock_set_back,
+    format_info,
+    inspect_log,
+    recommend_clocks,
+)
 from .msgdefs import complete_definitions, require_types
 from .roles import (
     IMAGE_TYPES,
@@ -185,7 +194,7 @@ def read_log(
                 note(topic, role, cleaning)
             elif role == "static_tf":
                 streams.static_tf, warnings, dropped, streams.static_tf_changed = static_transforms(tf_of(topic))
-                streams.warnings += [f"{topic}: {w}" for w in warnings]
+                streams.warnings += static_tf_notes(topic, warnings)
                 streams.static_tf_dropped = {edge: f"{topic}: {w}" for edge, w in dropped.items()}
             elif role == "tf":
                 streams.tf, warnings = transform_series(tf_of(topic), on_record_time=clocks == "record")
@@ -206,7 +215,7 @@ def read_log(
     at = len(streams.warnings)
     if truth_file is not None:
         streams.truth = _truth_from_file(truth_file, truth_format, truth_times)
-    streams = _with_clocks(streams, clocks, _stepped(reports))
+    streams = _clocked(streams, clocks, _stepped(reports))
     # described on the clock the run reads each topic on (known once the clocks are chosen)
     streams.warnings[at:at] = _cleaning_notes(reports, set(reports) if clocks == "record" else set(streams.clocks))
     return streams
@@ -491,6 +500,14 @@ _HEADER_READ = "this run reads header stamps (time.source: header): time.source:
 def _stepped(reports: Mapping[str, list[tuple[str, Cleaning]]]) -> dict[str, str]:
     """The topics whose header clock steps mid-log (:attr:`Cleaning.clock_steps`) and how."""
     return {t: c.clock_step_words() for t, cleanings in sorted(reports.items()) for _, c in cleanings if c.clock_steps}
+
+
+def _clocked(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:
+    """:func:`_with_clocks`, then a recording clock set back mid-log said, on the clocks the run reads
+    (:func:`.inspect.clock_set_back`)."""
+    streams = _with_clocks(streams, clocks, stepped)
+    streams.warnings += clock_set_back(streams)
+    return streams
 
 
 def _with_clocks(streams: LogStreams, clocks: str | Mapping[str, str] | None, stepped: Mapping[str, str]) -> LogStreams:

@@ -193,7 +193,7 @@ def detect_container(path: str | Path) -> Container:
         raise InputError(path, f"cannot read file: {one_line(err.strerror)}") from None
     for fmt in FORMATS:
         if head.startswith(fmt.magic):
-            return Container(path, fmt.kind)
+            return Container(path, fmt.kind, note=_part_alone(path))
     if not head:
         raise InputError(path, f"{_NOT_A_LOG} (empty file)")
     for magic, name in _WRAPPERS:
@@ -357,6 +357,32 @@ def split_parts(directory: Path, entries: Sequence[Path]) -> tuple[Path, ...]:
 
 #: ``rosbag record --split -o PREFIX`` names every part after the recording's start: PREFIX_2024-05-01-12-00-00_N.bag
 ROSBAG_START = re.compile(r"\d{4}-\d{2}-\d{2}-\d{2}-\d{2}-\d{2}$")
+
+
+def _part_alone(path: Path) -> str:
+    """A warning when the file ``path`` is one part of a split recording whose other parts lie beside it (named as
+    :func:`_one_recording` takes a directory's parts): the run reads that part alone, so its result covers a part
+    of the recording (``rec/rec_0.bag`` of three given as the log: the first 10 s of 30 s, with no word)."""
+    m = PART.match(path.name)
+    if m is None or not (m["name"] == path.parent.name or (path.suffix == ".bag" and ROSBAG_START.search(m["name"]))):
+        return ""
+    try:
+        siblings = sorted(
+            (int(s["index"]), e.name)
+            for e in path.parent.iterdir()
+            if e.suffix == path.suffix and (s := PART.match(e.name)) is not None and s["name"] == m["name"]
+        )
+    except OSError:
+        return ""
+    if len(siblings) < 2:
+        return ""
+    names = [name for _, name in siblings]
+    shown = ", ".join(names) if len(names) <= 4 else f"{names[0]}, {names[1]}, ..., {names[-1]}"
+    return (
+        f"warning: {path.name} is one part of a split recording ({len(names)} parts beside each other: {shown}): "
+        f"slamobs reads {path.name} alone, so a run's result covers that part of the recording only; give the "
+        f"directory {path.parent} to read the parts as one log"
+    )
 
 
 def _one_recording(directory: Path, parts: tuple[Path, ...]) -> tuple[Path, ...]:

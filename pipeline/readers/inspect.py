@@ -30,11 +30,13 @@ from slamobs.pipeline.streams import DetectionStream, LogStreams, PoseStream, Ve
 from .container import LABELS, damage_notes, detect_container, open_log
 from .decode import (
     Cleaning,
+    CLOCK_STEP_NS,
     clock_steps,
     clock_step_text,
     out_of_order_text,
     decode_sim_truth,
     decode_static_tf,
+    static_tf_notes,
     duplicates_text,
     gyro_not_filled,
     first_vectors,
@@ -281,6 +283,63 @@ def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:
     return choose_clocks(found, reference)
 
 
+#: A window where every timed topic has at least this many times its median count of samples (and none of them is
+#: sparse next to it) holds two stretches of the recording interleaved: the recording's clock set back.
+DENSER = 1.6
+#: Windows of at least this many of each topic's median periods (and at least ``CLOCK_STEP_NS`` long).
+SET_BACK_PERIODS = 10
+
+
+def clock_set_back(streams: LogStreams) -> list[str]:
+    """A warning (or none) when the recording's clock was set back mid-log, record times and header stamps alike
+    (no stamp steps against record time, so :func:`.decode.clock_steps` sees nothing): every timed topic's samples
+    come about twice as dense over the same stretch, the seconds before the step and those after it interleaved. A
+    figure 8 whose every clock was set back 1.0037 s 20 s in ran riekf 2.94 m off (0.011 m clean) with a misread id
+    as its only word. Windows of ``SET_BACK_PERIODS`` periods of the slowest topic (``CLOCK_STEP_NS`` at least),
+    each topic's count against its median; the windows either side of the dense ones must not be sparse (a
+    recorder that stalls and then writes a burst leaves a gap before it)."""
+    series = {}
+    for role in _TIMED_ROLES:
+        stream = getattr(streams, role)
+        if stream is not None and len(stream) >= 50 and stream.topic not in series:
+            steps = np.diff(stream.t_ns)
+            series[stream.topic] = (stream.t_ns, float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0)
+    if len(series) < 2 or min(period for _, period in series.values()) <= 0:
+        return []
+    width = max(CLOCK_STEP_NS, SET_BACK_PERIODS * max(period for _, period in series.values()))
+    start = min(int(t[0]) for t, _ in series.values())
+    end = max(int(t[-1]) for t, _ in series.values())
+    n = int((end - start) // width)
+    if n < 5:
+        return []
+    dense, sparse, rates = np.ones(n, bool), np.zeros(n, bool), {}
+    for topic, (t, _) in series.items():
+        counts = np.bincount(((t - start) // width).astype(np.int64), minlength=n + 1)[:n].astype(np.float64)
+        own = counts[int((int(t[0]) - start) // width) + 1 : int((int(t[-1]) - start) // width)]  # whole windows
+        median = float(np.median(own)) if own.size else 0.0
+        if median < 5:
+            return []
+        dense &= counts >= DENSER * median
+        sparse |= counts < 0.5 * median
+        rates[topic] = median * 1e9 / width
+    if not dense.any():
+        return []
+    first, last = int(np.flatnonzero(dense)[0]), int(np.flatnonzero(dense)[-1])
+    if (first and sparse[first - 1]) or (last + 1 < n and sparse[last + 1]):
+        return []
+    origin = int(streams.angular_velocity.t_ns[0]) if streams.angular_velocity is not None else start
+    t0 = (start + first * width - origin) * 1e-9  # on time.start's scale: from the first angular-velocity sample
+    t1 = t0 + (last - first + 1) * width * 1e-9
+    shown = ", ".join(f"{topic}'s {rate:.0f} Hz" for topic, rate in list(rates.items())[:3])
+    return [
+        f"warning: every topic's samples come about twice as dense from {t0:.1f} s to {t1:.1f} s into the log as "
+        f"elsewhere (against {shown}{', ...' if len(rates) > 3 else ''}): the recording's clock set back mid-log (its "
+        "record times and the header stamps alike), so two stretches of the recording interleave there and the run "
+        "takes them as one; the estimate from then on is not to be trusted: run the part before or after it "
+        "(time.start, time.end)"
+    ]
+
+
 def _on_record_time(stream: Any) -> Any:
     order = np.argsort(stream.rec_ns, kind="stable")
     if isinstance(stream, Vec3Stream):
@@ -456,7 +515,7 @@ def _static_tf_notes(reader, path: str | Path, table: dict) -> list[str]:
         _, warnings = decode_static_tf(reader, path, table[topic][1])
     except InputError as err:  # info describes a log run refuses; run says this one line
         return [f"{topic}: {err.problem}"]
-    return [f"{topic}: {w}" for w in warnings]
+    return static_tf_notes(topic, warnings)
 
 
 def _sim_truth_words(reader, path: str | Path, table: dict, roles: Mapping[str, str]) -> tuple[str | None, list[str]]:
