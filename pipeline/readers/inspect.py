@@ -288,6 +288,8 @@ def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:
 DENSER = 1.6
 #: Windows of at least this many of each topic's median periods (and at least ``CLOCK_STEP_NS`` long).
 SET_BACK_PERIODS = 10
+#: Each topic's stamps span at least this share of all of theirs, or they are on no one clock and not compared.
+SET_BACK_SHARED = 0.5
 
 
 def clock_set_back(streams: LogStreams) -> list[str]:
@@ -309,6 +311,8 @@ def clock_set_back(streams: LogStreams) -> list[str]:
     width = max(CLOCK_STEP_NS, SET_BACK_PERIODS * max(period for _, period in series.values()))
     start = min(int(t[0]) for t, _ in series.values())
     end = max(int(t[-1]) for t, _ in series.values())
+    if any(int(t[-1]) - int(t[0]) < SET_BACK_SHARED * (end - start) for t, _ in series.values()):
+        return []  # not one clock (an IMU stamped in ms: 3.4e9 windows, 25 GiB of counts); the pace check says so
     n = int((end - start) // width)
     if n < 5:
         return []
