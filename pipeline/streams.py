@@ -82,6 +82,8 @@ class CornerStream:
     ids: np.ndarray  # (M,) int64
     corners: np.ndarray  # (M, 4, 2) px
     source: str = "corners"
+    #: (width, height) px of the images the tags were found in (``source == "images"``); None for corner messages
+    image_size: tuple[int, int] | None = None
 
     def __len__(self) -> int:
         return int(self.t_ns.shape[0])

@@ -3,6 +3,7 @@ detection accuracy against rendered truth, several cameras in one stream, and co
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -352,6 +353,36 @@ def test_camera_without_extrinsic_is_dropped():
     # without the tag size either: both in one error (TagSLAM test_22 asked for the cameras, then for the size)
     with pytest.raises(InputError, match=r"cameras: FILE\); and tags.size \(edge, m\)$"):
         tag_landmarks(streams, TagOptions())
+
+
+def test_a_camera_info_for_another_resolution_is_scaled_to_the_images():
+    """Tags found in images twice the size the CameraInfo gives, its principal point at the centre of its own size (a
+    calibration of the binned camera): its intrinsics are scaled to the images and the tag sits at its true range
+    (taken as read: at half of it). Where the principal point sits at the images' centre, only the size fields are
+    wrong: taken as read, with a note."""
+    model = CameraSim().model()
+    t_ns = np.arange(3, dtype=np.int64) * 100_000_000
+    tag = np.array([0.1, -0.05, 2.0])
+    seen = _corner_stream("/cam/image_raw", "cam", t_ns, model, [tag] * 3, 0.3)
+    seen = dataclasses.replace(seen, source="images", image_size=model.size)
+    half = (model.size[0] // 2, model.size[1] // 2)
+    binned = dataclasses.replace(model, k=np.diag([0.5, 0.5, 1.0]) @ model.k, size=half, frame="cam")
+    resized = dataclasses.replace(model, size=half, frame="cam")  # its size fields alone wrong
+    for info in (binned, resized):
+        streams = LogStreams(
+            "cam.bag",
+            linear_velocity=Vec3Stream("/odom", "cam", t_ns, t_ns, np.zeros((3, 3))),
+            tag_corners=[seen],
+            camera_info=[info],
+        )
+        tags = tag_landmarks(streams, TagOptions(size=0.3))
+        np.testing.assert_allclose(tags.detections.xyz, np.tile(tag, (3, 1)), atol=1e-3)
+    said = [n for n in tags.notes if "its images are" in n]
+    assert said and "near the images' centre: its intrinsics taken as the images'" in said[0]
+    streams.camera_info = [binned]
+    said = [n for n in tag_landmarks(streams, TagOptions(size=0.3)).notes if "its images are" in n]
+    assert said[0].startswith("warning: /cam/image_raw: its images are 640x480 px where ")
+    assert "scaled by 2 to the images'" in said[0] and "every tag's range would be 0.5 times the true one" in said[0]
 
 
 def test_a_rig_with_no_camera_placed_names_its_frames_and_where_the_extrinsics_go():

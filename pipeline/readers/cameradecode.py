@@ -108,7 +108,9 @@ class _CornerFrames:
         self.ids.extend(int(i) for i in ids)
         self.corners.append(np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2))
 
-    def stream(self, topic: str, frames: Frames, source: str) -> tuple[CornerStream, Cleaning]:
+    def stream(
+        self, topic: str, frames: Frames, source: str, image_size: tuple[int, int] | None = None
+    ) -> tuple[CornerStream, Cleaning]:
         corners = np.concatenate(self.corners) if self.corners else np.zeros((0, 4, 2))
         t, rec, offsets, ids, corners, frame_id, cleaning = clean_frames(
             np.asarray(self.t_ns, np.int64),
@@ -119,7 +121,7 @@ class _CornerFrames:
             np.asarray(self.frame, np.int32),
             frames.names(),
         )
-        return CornerStream(topic, frame_id, t, rec, offsets, ids, corners, source), cleaning
+        return CornerStream(topic, frame_id, t, rec, offsets, ids, corners, source, image_size), cleaning
 
 
 def decode_corners(
@@ -260,7 +262,7 @@ def detect_in_images(
         if cam.depth:
             out[topic] = None
             continue
-        stream, cleaning = cam.acc.stream(topic, cam.frames, "images")
+        stream, cleaning = cam.acc.stream(topic, cam.frames, "images", cam.size)
         if cam.skipped:
             cleaning.extra.append(f"{cam.skipped} images skipped (tags.max_rate_hz {max_rate_hz:g})")
         cleaning.extra += [f"{plural(n, 'image')} not searched: {why}" for why, n in sorted(cam.bad.items())]

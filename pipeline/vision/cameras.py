@@ -24,7 +24,7 @@ that :mod:`.landmarks` resolves to frame ids once cameras are matched to topics.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -106,6 +106,19 @@ class CameraModel:
             self.source + " (rectified)",
             self.topics,
             self.frame,
+        )
+
+    def resized(self, width: int, height: int) -> CameraModel:
+        """The model of this camera's images scaled to ``width`` x ``height`` px (a camera calibrated at another
+        resolution): the focal lengths and the principal point scale with the image, as binning divides them in
+        :func:`from_camera_info`; the distortion, of normalised coordinates, does not."""
+        scale = np.diag([width / self.size[0], height / self.size[1], 1.0])
+        return replace(
+            self,
+            k=scale @ self.k,
+            size=(width, height),
+            source=f"{self.source} scaled to {width}x{height}",
+            rectified_k=None if self.rectified_k is None else scale @ self.rectified_k,
         )
 
     def describe(self) -> str:

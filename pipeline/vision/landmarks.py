@@ -232,7 +232,52 @@ def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str], 
         )
     for topic in missing:
         notes.append(f"{topic}: no camera intrinsics (CameraInfo or cameras: file), its detections dropped")
+    for s in corner_streams:
+        if s.topic in models:
+            models[s.topic] = _fit_to_images(s, models[s.topic], notes)
     return models, [s for s in corner_streams if s.topic in models]
+
+
+#: A principal point is "near the centre" of an image when it lies within this share of the width and of the height
+#: of the centre (calibrated lenses: a few per cent; one for an image twice or half as large sits at a quarter or
+#: on the edge, a share of 0.25 or 0.5 off).
+CENTRE_SHARE = 0.15
+
+
+def _fit_to_images(stream: CornerStream, model: CameraModel, notes: list[str]) -> CameraModel:
+    """``model`` for the images the tags of ``stream`` were found in, where its image size is not theirs: scaled
+    to them when its principal point is near the centre of its own size and not of theirs, both sides scaled alike
+    (a camera calibrated at another resolution: K for 2x binned images under full-size ones put every tag at twice
+    its range, riekf 8.3 m off on the camera sample, with only a velocity-scale warning); said in ``notes``."""
+    if stream.image_size is None or model.size is None or tuple(stream.image_size) == tuple(model.size):
+        return model
+    (w, h), (mw, mh) = stream.image_size, model.size
+    cx, cy = float(model.k[0, 2]), float(model.k[1, 2])
+
+    def central(width: int, height: int) -> bool:
+        return abs(cx / width - 0.5) <= CENTRE_SHARE and abs(cy / height - 0.5) <= CENTRE_SHARE
+
+    said = (
+        f"{stream.topic}: its images are {w}x{h} px where {model.source} gives {mw}x{mh} px, with its principal "
+        f"point at ({cx:.1f}, {cy:.1f}) px"
+    )
+    if central(w, h):
+        notes.append(f"{said}, near the images' centre: its intrinsics taken as the images' (its size fields wrong)")
+        return model
+    sx, sy = w / mw, h / mh
+    if central(mw, mh) and abs(sx / sy - 1.0) <= 0.01:
+        notes.append(
+            f"warning: {said}, near the centre of its own size, not of the images': a calibration of the camera at "
+            f"another resolution; its focal lengths and principal point scaled by {sx:.4g} to the images' (taken "
+            f"as read, every tag's range would be {1 / sx:.4g} times the true one); if the images are cropped, not "
+            "scaled, give their calibration (topics.camera_info: '' and cameras: FILE)"
+        )
+        return model.resized(w, h)
+    notes.append(
+        f"warning: {said}, near the centre of neither: its intrinsics used as read, so the tags' ranges and "
+        "bearings may be off; give the calibration of these images (topics.camera_info: '' and cameras: FILE)"
+    )
+    return model
 
 
 #: the camera files that place cameras on the rig, as the errors and notes about a missing extrinsic name them
