@@ -148,6 +148,52 @@ GYRO_AXIS_SAMPLES = 20000
 GYRO_TURN_ADVICE = "record the transform of '{frame}' on /tf_static"
 
 
+#: An odometry stuck (a frozen driver, wheels off the ground): its whole twist, linear and angular, exactly zero for
+#: ``STUCK_MIN_S`` or longer while the gyro (another topic) turns at a median ``STUCK_GYRO_RATE`` rad/s or more there
+#: (a robot standing still: its gyro's noise and bias, ~0.01 rad/s; one turning on the spot: the odometry's own
+#: angular velocity is not zero). A generated figure 8 whose /odom twist is zero over 14 of its 40 s: riekf APE 0.81 m
+#: against 0.011 m, warned only as "moved along x -0.157x as far as its velocity says (in another unit or scale?)";
+#: fast-adaptation 0.51 m against 0.12 m, "likely lost" (session 27).
+STUCK_MIN_S = 1.0
+STUCK_GYRO_RATE = 0.1
+STUCK_SHOWN = 3  # stretches named in the warning
+
+
+def _odometry_stuck(lv: Vec3Stream, twist: Vec3Stream, time_source: str, t_om, omega, gyro_topic: str) -> list[str]:
+    """The warning of an odometry whose twist (``lv`` and its own angular velocity ``twist``, one message each)
+    reads exactly zero for a while as the gyro (``omega`` on the time base ``t_om``) turns: see ``STUCK_MIN_S``."""
+    if twist.t_ns.shape[0] != lv.t_ns.shape[0] or lv.t_ns.shape[0] < 2:
+        return []
+    t, v, w = _sorted(_times(lv, time_source), lv.xyz, twist.xyz)
+    zero = np.all(v == 0.0, axis=1) & np.all(w == 0.0, axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], zero.view(np.int8), [0]])))
+    runs = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+    rate = np.linalg.norm(omega, axis=1)
+    stuck = []
+    for a, b in runs:
+        b = min(b + 1, t.shape[0] - 1)  # the zero holds until the next message
+        if (t[b] - t[a]) * 1e-9 < STUCK_MIN_S:
+            continue
+        inside = rate[np.searchsorted(t_om, t[a]) : np.searchsorted(t_om, t[b])]
+        inside = inside[np.isfinite(inside)]
+        if inside.shape[0] and (median := float(np.median(inside))) >= STUCK_GYRO_RATE:
+            stuck.append(((t[a] - t_om[0]) * 1e-9, (t[b] - t_om[0]) * 1e-9, median))
+    if not stuck:
+        return []
+    total = sum(b - a for a, b, _ in stuck)
+    spans = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b, _ in stuck[:STUCK_SHOWN]) + (
+        ", ..." if len(stuck) > STUCK_SHOWN else ""
+    )
+    rates = f"{min(m for *_, m in stuck):.2f}-{max(m for *_, m in stuck):.2f}"
+    return [
+        f"warning: {lv.topic}: its twist reads exactly zero for {total:.1f} s in "
+        f"{plural(len(stuck), 'stretch', 'stretches')} "
+        f"({spans} into the log) while {gyro_topic}'s gyro turns at a median {rates} rad/s there: the odometry "
+        "stuck (a frozen driver, wheels off the ground), read as the body standing still; the estimate over those "
+        "stretches follows the detections alone and is off: cut them (time.start, time.end) or fix the odometry"
+    ]
+
+
 #: One landmark id at several places (a misdecoded tag id, tags of one id in view in turn): two detections of one id
 #: at most ``GHOST_PAIR_S`` apart, the first moved by the velocities between them, should land on the second. An id
 #: with ``GHOST_MIN_PAIRS`` such pairs whose median misfit is ``GHOST_RATIO`` times the run's median and over
@@ -186,7 +232,7 @@ class WarnOnly:
     """The alignment's checks whose result is a note only (a warning; nothing the observers read depends on them):
     the gyro's stamps against the odometry (:func:`_gyro_lag`; not its axes: the pairs' check reads that turn), the
     gyro against its accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places
-    (:func:`_misread_ids`).
+    (:func:`_misread_ids`), an odometry stuck at zero while the gyro turns (:func:`_odometry_stuck`).
     :func:`align` adds each where its notes go (:meth:`add` gives a marker in their place); :meth:`run`, the one
     place they run, computes them: at once in :func:`align`, or with ``align(warn_only_later=True)`` on a thread
     beside the observer (``pipeline.run``: ~0.17 of the one-hour log's ~0.30 CPU s of align, docs/benchmarks.md
@@ -896,6 +942,8 @@ def align(
     gyro_turn = None
     if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
         frame.notes.append(warn.add(_gyro_lag_of, om, time_source, twist))
+        if twist.topic == lv.topic:
+            frame.notes.append(warn.add(_odometry_stuck, lv, twist, time_source, t_om, omega, om.topic))
         if twist.frame_id.lstrip("/") in ("", body):  # the odometry's twist is in the body frame
             # not warn-only: the detection pairs' gyro-misread check reads the turn (AlignedStream.gyro_turn)
             gyro_turn = _gyro_turn(t_om, omega, twist, _times(twist, time_source), om)

@@ -608,6 +608,35 @@ def test_a_gyro_whose_frame_reaches_the_body_turned_is_named_by_the_odometrys_ow
     assert not said(expected_streams(simulate("figure8", seed=5, duration=20.0), "x.mcap"))
 
 
+def test_an_odometry_stuck_while_the_gyro_turns_is_named():
+    """A figure 8 whose odometry reads a zero twist (linear and angular) over 6 of its 20 s (a frozen driver): riekf
+    0.81 m against 0.011 m on the 40 s log so rewritten, warned only as a velocity scale "in another unit or scale?"
+    (session 27). Zero while the gyro turns: named with its stretch; the log as generated, and a zero linear velocity
+    where the odometry's own angular velocity turns (a robot turning on the spot), say nothing."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    streams = expected_streams(simulate("figure8", seed=5, duration=20.0), "x.mcap")
+
+    def said(s):
+        return [n for n in align(s).notes if "reads exactly zero" in n]
+
+    assert not said(streams)
+    lv, tw = streams.linear_velocity, streams.twist_angular
+    held = (lv.t_ns >= lv.t_ns[0] + 8 * NS) & (lv.t_ns < lv.t_ns[0] + 14 * NS)
+    v, w = lv.xyz.copy(), tw.xyz.copy()
+    v[held] = 0.0
+    on_the_spot = replace(streams, linear_velocity=replace(lv, xyz=v))
+    assert not said(on_the_spot)
+    w[held] = 0.0
+    got = said(replace(on_the_spot, twist_angular=replace(tw, xyz=w)))
+    assert len(got) == 1 and got[0].startswith("warning: /odom: its twist reads exactly zero for 6.0 s in 1 stretch"), (
+        got
+    )
+    assert "(8.0-14.0 s into the log) while /imu/data's gyro turns at a median" in got[0], got
+
+
 def _warned_sim():
     """A generated figure 8 whose IMU is stamped 0.3 s late with its gyro's x and y swapped, and a tenth of its
     detections given id 9999: three warn-only checks speak (the gyro's lag, its accelerometer, the misread id)."""
