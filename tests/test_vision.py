@@ -385,6 +385,31 @@ def test_a_camera_info_for_another_resolution_is_scaled_to_the_images():
     assert "scaled by 2 to the images'" in said[0] and "every tag's range would be 0.5 times the true one" in said[0]
 
 
+def test_a_detectors_corners_outside_the_image_of_their_calibration_are_named():
+    """A detector's corner messages (no image size) of a 640x480 camera under the calibration of its 2x binned
+    images (320x240): the tags' corners reach past that image, every range comes out halved; named with a warning
+    (the ranges used as read). Under the right calibration, or corners a few px past the edge, nothing is said."""
+    model = CameraSim().model()
+    t_ns = np.arange(6, dtype=np.int64) * 100_000_000
+    tags = [np.array([0.8, 0.5, 2.0])] * 6  # off the centre of the full image: past the edge of the binned one
+    stream = _corner_stream("/cam/tags", "cam", t_ns, model, tags, 0.3)
+    binned = dataclasses.replace(model, k=np.diag([0.5, 0.5, 1.0]) @ model.k, size=(320, 240), frame="cam")
+
+    def said(info):
+        streams = LogStreams(
+            "cam.bag",
+            linear_velocity=Vec3Stream("/odom", "cam", t_ns, t_ns, np.zeros((6, 3))),
+            tag_corners=[stream],
+            camera_info=[info],
+        )
+        return [n for n in tag_landmarks(streams, TagOptions(size=0.3)).notes if "corners outside" in n]
+
+    assert not said(dataclasses.replace(model, frame="cam"))
+    got = said(binned)
+    assert len(got) == 1 and got[0].startswith("warning: /cam/tags: 6 of its 6 tag detections have corners outside")
+    assert "320x240 px image" in got[0] and "every tag's range comes out scaled" in got[0]
+
+
 def test_a_rig_with_no_camera_placed_names_its_frames_and_where_the_extrinsics_go():
     """TagSLAM test_21 (four cameras) with its intrinsics file, then its camera poses too: twice "no camera has a
     transform to the body frame ...; (TF, Kalibr chain, TagSLAM camera poses)", no frame named, no config key,

@@ -244,12 +244,48 @@ def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str], 
 CENTRE_SHARE = 0.15
 
 
+#: Tag corners of a detector's messages are "outside" the image a camera model gives when they lie more than this
+#: share of its width or height beyond its edge (TagSLAM's detectors: up to 0.026 of 1024 px in test_11, 0.047 of 171
+#: px in test_21's ToF cameras: corners of tags cut by the edge); named when ``OUTSIDE_MIN`` detections and
+#: ``OUTSIDE_SHARE`` of them have one (a calibration for 2x binned images under full-size ones: every corner off the
+#: middle half of the image).
+OUTSIDE_MARGIN = 0.1
+OUTSIDE_MIN = 5
+OUTSIDE_SHARE = 0.01
+
+
+def _corners_outside(stream: CornerStream, model: CameraModel) -> list[str]:
+    """The warning of tag corners (a detector's messages) outside the image ``model`` gives (``OUTSIDE_MARGIN``):
+    the calibration of another resolution than the detector's images; none where they fit or no size is given."""
+    if model.size is None or not stream.ids.shape[0]:
+        return []
+    size = np.asarray(model.size, dtype=np.float64)
+    out = np.any(
+        (stream.corners < -OUTSIDE_MARGIN * size) | (stream.corners > (1.0 + OUTSIDE_MARGIN) * size), axis=(1, 2)
+    )
+    n = int(np.count_nonzero(out))
+    if n < max(OUTSIDE_MIN, OUTSIDE_SHARE * out.shape[0]):
+        return []
+    reach = np.max(stream.corners.reshape(-1, 2), axis=0)
+    return [
+        f"warning: {stream.topic}: {n} of its {out.shape[0]} tag detections have corners outside the "
+        f"{model.size[0]}x{model.size[1]} px image {model.source} gives (reaching ({reach[0]:.0f}, {reach[1]:.0f}) "
+        "px): a calibration of smaller images than the detector's (a binned or scaled camera), so every tag's range "
+        "comes out scaled by the ratio; used as read: give the calibration of the detector's images (cameras: FILE, "
+        "with topics.camera_info: '' where the log's CameraInfo gives this one)"
+    ]
+
+
 def _fit_to_images(stream: CornerStream, model: CameraModel, notes: list[str]) -> CameraModel:
     """``model`` for the images the tags of ``stream`` were found in, where its image size is not theirs: scaled
     to them when its principal point is near the centre of its own size and not of theirs, both sides scaled alike
     (a camera calibrated at another resolution: K for 2x binned images under full-size ones put every tag at twice
-    its range, riekf 8.3 m off on the camera sample, with only a velocity-scale warning); said in ``notes``."""
-    if stream.image_size is None or model.size is None or tuple(stream.image_size) == tuple(model.size):
+    its range, riekf 8.3 m off on the camera sample, with only a velocity-scale warning); said in ``notes``. A
+    detector's corners (no image size) are held against the model's size instead (:func:`_corners_outside`)."""
+    if stream.image_size is None:
+        notes += _corners_outside(stream, model)
+        return model
+    if model.size is None or tuple(stream.image_size) == tuple(model.size):
         return model
     (w, h), (mw, mh) = stream.image_size, model.size
     cx, cy = float(model.k[0, 2]), float(model.k[1, 2])
