@@ -74,7 +74,7 @@ def test_test21_map_against_tagslam(tmp_path):
     map agrees with the tag positions TagSLAM optimised (not independent truth, but a second opinion)."""
     sizes = {i: 0.1 for i in range(100, 109)}
     meta = _run("test_21", tmp_path / "o", tags={"size": 0.16, "sizes": sizes})
-    dropped = [n for n in meta["notes"] if "its detections dropped" in n]
+    dropped = [n for n in meta["notes"] if "% of the cameras') dropped" in n]
     assert len(dropped) == 3 and meta["input"]["cameras"]
     est = pd.read_parquet(tmp_path / "o" / "landmarks.parquet").set_index("id")
     ref = _reference_map("test_21")

@@ -343,7 +343,8 @@ def test_camera_without_extrinsic_is_dropped():
     streams = _two_cameras()
     tags = tag_landmarks(streams, TagOptions(size=0.3), identity_frames=("cam_a",))
     assert tags.detections.topic == "/a/tags"
-    dropped = next(n for n in tags.notes if n.startswith("/b/tags: no transform from camera frame 'cam_b'"))
+    dropped = next(n for n in tags.notes if n.startswith("warning: /b/tags: no transform from camera frame 'cam_b'"))
+    assert "its 3 detections (50 % of the cameras') dropped" in dropped  # a user told what the run goes without
     assert "in the config's cameras: files" in dropped  # where the extrinsic goes (TagSLAM test_21's cameras)
     with pytest.raises(InputError, match="need the tag size"):
         tag_landmarks(streams, TagOptions(), identity_frames=("cam_a",))

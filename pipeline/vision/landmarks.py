@@ -363,9 +363,11 @@ def _with_extrinsics(
         if frame == body or frame in ident or tf.chain(body, frame) is not None:
             kept.append(s)
         elif len(corner_streams) > 1:
+            share = 100.0 * s.ids.shape[0] / max(sum(c.ids.shape[0] for c in corner_streams), 1)
             notes.append(
-                f"{s.topic}: no transform from camera frame '{frame}' to body frame '{body}' "
-                f"({tf.explain(body, frame)}), its detections dropped; give its extrinsic on /tf or in the "
+                f"warning: {s.topic}: no transform from camera frame '{frame}' to body frame '{body}' "
+                f"({tf.explain(body, frame)}), its {s.ids.shape[0]} detections ({share:.0f} % of the cameras') "
+                "dropped; give its extrinsic on /tf or in the "
                 f"config's cameras: files ({EXTRINSIC_FILES}), or list '{frame}' in frames.assume_identity"
             )
         else:
