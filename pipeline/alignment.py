@@ -896,6 +896,21 @@ def body_frame_note(body: str, origin: str) -> str:
     )
 
 
+def _base_placed(tf: TfBuffer, body: str) -> list[str]:
+    """Where TF places a base frame (``BASE_FRAMES``) against ``body``, an odometry's child frame taken as the body:
+    a truth of the base is off the poses by that lever arm, turning with the robot (a figure 8 whose odometry's twist
+    is in a frame 0.5 m beside base_link, TF giving it: riekf APE 0.49 m against the base's truth, 0.011 m with
+    frames.body: base_link, with only the body-frame note, which speaks of a turned truth; session 27)."""
+    for base in BASE_FRAMES:
+        if base in tf.frames and tf.chain(base, body) is not None:
+            return [
+                f"TF places the body frame '{body}' against '{base}' ({_describe(tf, base, body)}): a truth of "
+                f"'{base}' is that far off these poses, the offset turning with the robot, and is turned by that "
+                f"angle; frames.body: {base} makes the base the body"
+            ]
+    return []
+
+
 def align(
     streams: LogStreams,
     *,
@@ -977,7 +992,7 @@ def align(
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
     if body_from not in (BODY_FROM_CONFIG, BODY_FROM_DEFAULT) and body not in BASE_FRAMES:
-        notes.insert(0, body_frame_note(body, body_from))  # an odometry's child frame, maybe a sensor's
+        notes[:0] = [body_frame_note(body, body_from), *_base_placed(tf, body)]  # an odometry's child frame
     if w is not None:
         notes.append(
             f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "

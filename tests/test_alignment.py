@@ -637,6 +637,36 @@ def test_an_odometry_stuck_while_the_gyro_turns_is_named():
     assert "(8.0-14.0 s into the log) while /imu/data's gyro turns at a median" in got[0], got
 
 
+def test_an_odometry_frame_beside_the_base_says_where_tf_places_the_base():
+    """An odometry whose twist is in a frame 0.5 m beside base_link, TF giving it: the run takes that frame as the
+    body, right by itself, but a truth of base_link is 0.5 m off it (a figure 8: riekf APE 0.49 m, 0.011 m with
+    frames.body: base_link), and the body-frame note spoke of a turned truth only (session 27). Now TF's placing of
+    the base is said with the key that makes it the body; the log as generated says nothing of it."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams, simulate
+
+    streams = expected_streams(simulate("figure8", seed=5, duration=10.0), "x.mcap")
+
+    def said(s):
+        return [n for n in align(s).notes if n.startswith("TF places the body frame")]
+
+    assert not said(streams)
+    lever = Transform("base_link", "odom_lever", np.array([0.0, 0.5, 0.0]), np.array([0.0, 0.0, 0.0, 1.0]))
+    moved = replace(
+        streams,
+        linear_velocity=replace(streams.linear_velocity, frame_id="odom_lever"),
+        twist_angular=replace(streams.twist_angular, frame_id="odom_lever"),
+        static_tf=[*streams.static_tf, lever],
+    )
+    got = said(moved)
+    assert got == [
+        "TF places the body frame 'odom_lever' against 'base_link' (/tf_static: turned 0.0 deg, offset 0.500 m): a "
+        "truth of 'base_link' is that far off these poses, the offset turning with the robot, and is turned by that "
+        "angle; frames.body: base_link makes the base the body"
+    ], got
+
+
 def _warned_sim():
     """A generated figure 8 whose IMU is stamped 0.3 s late with its gyro's x and y swapped, and a tenth of its
     detections given id 9999: three warn-only checks speak (the gyro's lag, its accelerometer, the misread id)."""
