@@ -168,13 +168,12 @@ def _odometry_stuck(lv: Vec3Stream, twist: Vec3Stream, time_source: str, t_om, o
     zero = np.all(v == 0.0, axis=1) & np.all(w == 0.0, axis=1)
     edges = np.flatnonzero(np.diff(np.concatenate([[0], zero.view(np.int8), [0]])))
     runs = [(int(a), int(b) - 1) for a, b in zip(edges[::2], edges[1::2], strict=True)]
-    rate = np.linalg.norm(omega, axis=1)
     stuck = []
     for a, b in runs:
         b = min(b + 1, t.shape[0] - 1)  # the zero holds until the next message
         if (t[b] - t[a]) * 1e-9 < STUCK_MIN_S:
             continue
-        inside = rate[np.searchsorted(t_om, t[a]) : np.searchsorted(t_om, t[b])]
+        inside = row_norms3(omega[np.searchsorted(t_om, t[a]) : np.searchsorted(t_om, t[b])])
         inside = inside[np.isfinite(inside)]
         if inside.shape[0] and (median := float(np.median(inside))) >= STUCK_GYRO_RATE:
             stuck.append(((t[a] - t_om[0]) * 1e-9, (t[b] - t_om[0]) * 1e-9, median))
