@@ -1,9 +1,9 @@
 """A broad, cheap sweep of generated logs nobody tuned on: every simulator scenario, the three containers, rates
 10-400 Hz, gyro and velocity noise up to 300x the defaults, detection noise constant, growing with range and with
 range squared, 3 or 200 landmarks, landmarks first seen late, a detection gap, detections ending, a detection time
-offset. Each log (30 s by default) is run with ``fast-adaptation``, ``riekf`` and ``batch`` and no noise
-configuration, as ``slamobs run`` does; the velocity and gyro messages state no covariance (zero), so the levels are
-estimated from the log, as on most real recordings. Prints a Markdown table and the flags.
+offset, detections at 3 and 60 Hz. Each log (30 s by default) is run with ``fast-adaptation``, ``riekf`` and
+``batch`` and no noise configuration, as ``slamobs run`` does; the velocity and gyro messages state no covariance
+(zero), so the levels are estimated from the log, as on most real recordings. Prints a Markdown table and the flags.
 
     .venv/bin/python benchmarks/unseen_sweep.py [--cache DIR] [--only NAME ...] [--seed N] [--jobs 2]
 
@@ -52,6 +52,7 @@ class Case:
     first_seen: tuple[tuple[int, float], ...] | None = None
     until: float | None = None
     offset_s: float = 0.0
+    detection_rate: float | None = None  # Hz (default: the scenario's)
 
 
 def cases() -> list[Case]:
@@ -73,6 +74,9 @@ def cases() -> list[Case]:
         Case("figure8-gap", gaps=((8.0, 18.0),)),
         Case("figure8-until-15s", until=15.0),
         Case("figure8-offset-50ms", offset_s=0.05),
+        Case("figure8-detections-3Hz", detection_rate=3.0),
+        Case("figure8-detections-60Hz", detection_rate=60.0),
+        Case("ground-detections-3Hz", scenario="ground", detection_rate=3.0),
     ]
     return out
 
@@ -97,7 +101,15 @@ def make_log(case: Case, seed: int, duration: float, cache: Path) -> tuple[Path,
         detection_per_m2=a,
     )
     rates = dict(imu_rate=case.rate, odom_rate=case.rate) if case.rate else {}
-    sim = simulate(sc, duration=duration, seed=seed, noise=nm, detection_offset=case.offset_s, **rates)
+    sim = simulate(
+        sc,
+        duration=duration,
+        seed=seed,
+        noise=nm,
+        detection_offset=case.offset_s,
+        detection_rate=case.detection_rate,
+        **rates,
+    )
     truth = {
         "gyro": nm.gyro / np.sqrt(case.rate or 200.0),
         "velocity": nm.odom_linear / np.sqrt(case.rate or 50.0),
