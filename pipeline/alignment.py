@@ -108,6 +108,8 @@ TILT_MISREAD_GAIN = 4.0
 #: ``GYRO_LAG_STEP_S`` grid (by FFT), then, unless the best of them is 0, refined to ``GYRO_LAG_FINE_S``, over the
 #: first ``GYRO_LAG_SPAN_S`` of the odometry; a warning when the best lag is ``GYRO_LAG_WARN_S`` or more, its misfit
 #: under ``GYRO_LAG_MAX_MISFIT`` of the odometry's variance and ``GYRO_LAG_GAIN`` times under that as stamped.
+#: That lag is then taken off the IMU topic's stamps before anything reads them (:func:`_gyro_lag_taken_off`; not
+#: on slow turns, ``GYRO_LAG_PROBE_S``): read as stamped, the detection pairs took it for the detections' offset.
 GYRO_LAG_MAX_S = 20.0
 GYRO_LAG_STEP_S = 0.05
 GYRO_LAG_FINE_S = 0.005
@@ -189,7 +191,8 @@ class WarnOnly:
     :func:`align` adds each where its notes go (:meth:`add` gives a marker in their place); :meth:`run`, the one
     place they run, computes them: at once in :func:`align`, or with ``align(warn_only_later=True)`` on a thread
     beside the observer (``pipeline.run``: ~0.17 of the one-hour log's ~0.30 CPU s of align, docs/benchmarks.md
-    session 26), and :meth:`joined` puts their notes where :func:`align` would have, so the notes are the same."""
+    session 26; the gyro's lag, 0.023 of them, left since its stamps are moved by it, session 27), and
+    :meth:`joined` puts their notes where :func:`align` would have, so the notes are the same."""
 
     MARKER = "\0warn-only "
 
