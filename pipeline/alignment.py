@@ -108,8 +108,8 @@ TILT_MISREAD_GAIN = 4.0
 #: ``GYRO_LAG_STEP_S`` grid (by FFT), then, unless the best of them is 0, refined to ``GYRO_LAG_FINE_S``, over the
 #: first ``GYRO_LAG_SPAN_S`` of the odometry; a warning when the best lag is ``GYRO_LAG_WARN_S`` or more, its misfit
 #: under ``GYRO_LAG_MAX_MISFIT`` of the odometry's variance and ``GYRO_LAG_GAIN`` times under that as stamped.
-#: That lag is then taken off the IMU topic's stamps before anything reads them (:func:`_gyro_lag_taken_off`; not
-#: on slow turns, ``GYRO_LAG_PROBE_S``): read as stamped, the detection pairs took it for the detections' offset.
+#: That lag is then taken off the IMU topic's stamps before anything reads them (:func:`_gyro_lag_taken_off`; on
+#: slow turns too, ``GYRO_LAG_PROBE_S``): read as stamped, the detection pairs took it for the detections' offset.
 GYRO_LAG_MAX_S = 20.0
 GYRO_LAG_STEP_S = 0.05
 GYRO_LAG_FINE_S = 0.005
@@ -632,8 +632,7 @@ def _gyro_lag(
 ) -> tuple[list[str], float]:
     """A warning when the gyro's stamps (``t_g``, sorted; ``w_g``) look late or early against the linear-velocity
     topic's own angular velocity (``twist`` on the times ``t_o``): see ``GYRO_LAG_WARN_S``; and the lag (s) the
-    run takes off the gyro's stamps (:func:`_gyro_lag_taken_off`): 0.0 but where it warns and the turns are not
-    slow."""
+    run takes off the gyro's stamps (:func:`_gyro_lag_taken_off`): 0.0 but where it warns."""
     order = np.argsort(t_o, kind="stable")
     t_o, w_o = t_o[order], twist.xyz[order]
     keep = t_o <= t_o[0] + int(GYRO_LAG_SPAN_S * 1e9)
@@ -676,19 +675,13 @@ def _gyro_lag(
         return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else [], 0.0
     as_read = f"{m0:.3g}" if np.isfinite(m0) else "none (too little overlap)"
     slow = f"; slow turns: a {GYRO_LAG_PROBE_S:g} s lag fits only {power:.3g}x worse than the best" if unseen else ""
-    applied = not unseen
-    used = (
-        f"The run moved its stamps by {-lag:+.3f} s onto {twist.topic}'s clock (the IMU topic's every stream) before "
-        "anything read them"
-        if applied
-        else "The run used its stamps as read"
-    )
     return [
         f"warning: {gyro_topic}: its angular velocity's stamps look {abs(lag):.3f} s {late} against "
         f"{twist.topic}'s own angular velocity (misfit {m_best:.3g} of its variance so shifted, {as_read} as "
-        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock? {used}; correct "
-        f"them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times are right)"
-    ], (lag if applied else 0.0)
+        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock? The run moved its "
+        f"stamps by {-lag:+.3f} s onto {twist.topic}'s clock (the IMU topic's every stream) before anything read "
+        f"them; correct them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times are right)"
+    ], lag
 
 
 def _gyro_turn(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream) -> dict | None:

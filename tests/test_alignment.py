@@ -485,6 +485,7 @@ def test_a_gyro_late_on_a_ground_robot_is_named_or_said_unchecked():
     assert len(said) == 1 and "slow turns: a 0.3 s lag fits only" in said[0], said
     late = float(said[0].split("stamps look ")[1].split(" s late")[0])
     assert 0.25 <= late <= 0.35, said
+    assert f"The run moved its stamps by {-late:+.3f} s onto /odom's clock" in said[0], said  # session 27
 
 
 def test_the_coarse_lag_grid_by_fft_is_the_fit_per_lag():
