@@ -108,6 +108,8 @@ TILT_MISREAD_GAIN = 4.0
 #: ``GYRO_LAG_STEP_S`` grid (by FFT), then, unless the best of them is 0, refined to ``GYRO_LAG_FINE_S``, over the
 #: first ``GYRO_LAG_SPAN_S`` of the odometry; a warning when the best lag is ``GYRO_LAG_WARN_S`` or more, its misfit
 #: under ``GYRO_LAG_MAX_MISFIT`` of the odometry's variance and ``GYRO_LAG_GAIN`` times under that as stamped.
+#: That lag is then taken off the IMU topic's stamps before anything reads them (:func:`_gyro_lag_taken_off`; on
+#: slow turns too, ``GYRO_LAG_PROBE_S``): read as stamped, the detection pairs took it for the detections' offset.
 GYRO_LAG_MAX_S = 20.0
 GYRO_LAG_STEP_S = 0.05
 GYRO_LAG_FINE_S = 0.005
@@ -229,13 +231,13 @@ TILT_MISREADS = {
 
 class WarnOnly:
     """The alignment's checks whose result is a note only (a warning; nothing the observers read depends on them):
-    the gyro's stamps against the odometry (:func:`_gyro_lag`; not its axes: the pairs' check reads that turn), the
-    gyro against its accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places
+    the gyro against its accelerometer (:func:`_gyro_by_gravity`), the landmark ids read at several places
     (:func:`_misread_ids`), an odometry stuck at zero while the gyro turns (:func:`_odometry_stuck`).
     :func:`align` adds each where its notes go (:meth:`add` gives a marker in their place); :meth:`run`, the one
     place they run, computes them: at once in :func:`align`, or with ``align(warn_only_later=True)`` on a thread
     beside the observer (``pipeline.run``: ~0.17 of the one-hour log's ~0.30 CPU s of align, docs/benchmarks.md
-    session 26), and :meth:`joined` puts their notes where :func:`align` would have, so the notes are the same."""
+    session 26; the gyro's lag, 0.023 of them, left since its stamps are moved by it, session 27), and
+    :meth:`joined` puts their notes where :func:`align` would have, so the notes are the same."""
 
     MARKER = "\0warn-only "
 
@@ -670,15 +672,18 @@ def coarse_lag_misfits(t_g, w_g, t_o, w_o, half_ns: int) -> np.ndarray:
     return np.where(ok, _kabsch_misfit(cross, xx, yy), np.nan)
 
 
-def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro_topic: str) -> list[str]:
+def _gyro_lag(
+    t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro_topic: str
+) -> tuple[list[str], float]:
     """A warning when the gyro's stamps (``t_g``, sorted; ``w_g``) look late or early against the linear-velocity
-    topic's own angular velocity (``twist`` on the times ``t_o``): see ``GYRO_LAG_WARN_S``."""
+    topic's own angular velocity (``twist`` on the times ``t_o``): see ``GYRO_LAG_WARN_S``; and the lag (s) the
+    run takes off the gyro's stamps (:func:`_gyro_lag_taken_off`): 0.0 but where it warns."""
     order = np.argsort(t_o, kind="stable")
     t_o, w_o = t_o[order], twist.xyz[order]
     keep = t_o <= t_o[0] + int(GYRO_LAG_SPAN_S * 1e9)
     t_o, w_o = t_o[keep], w_o[keep]
     if t_o.shape[0] < 20 or t_g.shape[0] < 20:
-        return []
+        return [], 0.0
     half = max(int(np.median(np.diff(t_o))) // 2, int(GYRO_LAG_SMOOTH_S * 0.5e9))
     reach = int(GYRO_LAG_MAX_S * 1e9) + half  # the gyro's samples any lag can reach, no more (an hour-long IMU)
     near = slice(np.searchsorted(t_g, t_o[0] - reach), np.searchsorted(t_g, t_o[-1] + reach, "right"))
@@ -686,7 +691,7 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     coarse = np.arange(-GYRO_LAG_MAX_S, GYRO_LAG_MAX_S + 0.5 * GYRO_LAG_STEP_S, GYRO_LAG_STEP_S)
     m = coarse_lag_misfits(t_g, w_g, t_o, w_o, half)
     if not np.isfinite(m).any():
-        return []
+        return [], 0.0
     k, probe = int(np.nanargmin(m)), int(round(GYRO_LAG_PROBE_S / GYRO_LAG_STEP_S))
     around = m[[max(k - probe, 0), min(k + probe, m.shape[0] - 1)]]  # NaN: too little overlap to say
     power = float(np.min(around) / max(float(m[k]), 1e-12)) if np.isfinite(around).all() else np.inf
@@ -694,7 +699,7 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     if k == coarse.shape[0] // 2:
         # the best coarse lag 0 (the clocks agree): the fine grid would look within a coarse step (the warning's
         # least lag) of it, where the coarse grid found no lag better than 0, let alone GYRO_LAG_GAIN times
-        return [unseen] if unseen else []
+        return [unseen] if unseen else [], 0.0
     best = float(coarse[k])
     every = max(1, t_o.shape[0] // GYRO_LAG_FINE_SAMPLES)  # evenly spread stamps of the span: enough to time it
     b = _windowed_mean(t_o, w_o, t_o[::every], half)  # both averaged alike
@@ -712,16 +717,16 @@ def _gyro_lag(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarr
     )
     if abs(lag) < GYRO_LAG_WARN_S or m_best > most or gain < needed:
         found = f"; the best fit, {abs(lag):.3f} s {late}, is {gain:.3g}x better than as stamped"
-        return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else []
+        return [unseen + found * (abs(lag) >= GYRO_LAG_WARN_S and power >= 1.5)] if unseen else [], 0.0
     as_read = f"{m0:.3g}" if np.isfinite(m0) else "none (too little overlap)"
     slow = f"; slow turns: a {GYRO_LAG_PROBE_S:g} s lag fits only {power:.3g}x worse than the best" if unseen else ""
     return [
         f"warning: {gyro_topic}: its angular velocity's stamps look {abs(lag):.3f} s {late} against "
         f"{twist.topic}'s own angular velocity (misfit {m_best:.3g} of its variance so shifted, {as_read} as "
-        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock? The run used its "
-        f"stamps as read; correct them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times "
-        "are right)"
-    ]
+        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock? The run moved its "
+        f"stamps by {-lag:+.3f} s onto {twist.topic}'s clock (the IMU topic's every stream) before anything read "
+        f"them; correct them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times are right)"
+    ], lag
 
 
 def _gyro_turn(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndarray, gyro: Vec3Stream) -> dict | None:
@@ -952,10 +957,12 @@ def align(
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
     warn = WarnOnly()
+    accel, magnetic = streams.accel, streams.magnetic
+    if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
+        om, accel, magnetic = _gyro_lag_taken_off(frame, twist, om, accel, magnetic)
     t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
     gyro_turn = None
-    if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
-        frame.notes.append(warn.add(_gyro_lag_of, om, time_source, twist))
+    if twist is not None and twist.topic != om.topic:
         if twist.topic == lv.topic:
             frame.notes.append(warn.add(_odometry_stuck, lv, twist, time_source, t_om, omega, om.topic))
         if twist.frame_id.lstrip("/") in ("", body):  # the odometry's twist is in the body frame
@@ -968,7 +975,6 @@ def align(
         topics.update(detections=det.topic, camera=", ".join(det.cameras) if det.cameras else det.frame_id)
     del om, lv
     # The directions before the detections: the IMU samples can go before the detections are moved.
-    accel, magnetic = streams.accel, streams.magnetic
     if release:
         streams.angular_velocity = streams.linear_velocity = streams.accel = streams.magnetic = None
         streams.twist_angular = None
@@ -1024,9 +1030,21 @@ def align(
     )
 
 
-def _gyro_lag_of(om: Vec3Stream, time_source: str, twist: Vec3Stream) -> list[str]:
-    """:func:`_gyro_lag` of the gyro's stream ``om`` as read (its samples sorted by ``time_source``)."""
-    return _gyro_lag(*_sorted(_times(om, time_source), om.xyz), twist, _times(twist, time_source), om.topic)
+def _gyro_lag_taken_off(fr: _Frame, twist: Vec3Stream, om: Vec3Stream, *others: Vec3Stream | None) -> tuple:
+    """:func:`_gyro_lag` of the gyro's stream ``om`` as read (its samples sorted by the run's clock), its notes
+    added to ``fr``'s; ``om`` and those of ``others`` (the accelerometer, the magnetometer) on the IMU's topic with
+    that lag taken off the stamps the run reads (the rest as given). Not a :class:`WarnOnly` check: the velocities'
+    time base and the detection pairs' offset search read its result (the gyro's lag read as stamped was taken for
+    the detections' offset and applied to them: issue 23, docs/benchmarks.md session 27)."""
+    notes, lag = _gyro_lag(*_sorted(_times(om, fr.time_source), om.xyz), twist, _times(twist, fr.time_source), om.topic)
+    fr.notes.extend(notes)
+    if lag == 0.0:
+        return (om, *others)
+    field, shift = ("rec_ns" if fr.time_source == "record" else "t_ns"), -int(round(lag * 1e9))
+    return tuple(
+        s if s is None or s.topic != om.topic else replace(s, **{field: _times(s, fr.time_source) + shift})
+        for s in (om, *others)
+    )
 
 
 def _misread_ids(topic: str, t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids) -> list[str]:
