@@ -836,7 +836,7 @@ def test_a_runs_clock_offset_is_the_truth_against_the_logs_velocity_samples():
     """A run searches the truth's clock offset against its log's own velocity samples (before the estimate exists):
     the truth's 61 ms lead is found from |ω| whatever the estimate does, here an estimate 40 ms behind the motion
     (an observer's filtering delay), which a search against the estimate takes for 21 ms."""
-    from slamobs.pipeline.evaluation.sync import pose_steps, time_offset_of_steps
+    from slamobs.pipeline.evaluation.sync import ReferenceMotion, pose_steps, time_offset_of_steps
     from slamobs.pipeline.evaluation.trajectory_evaluation import log_time_offset, offset_record, recorded_offset
 
     t, omega, velocity, truth, (pos, q) = _turning_log(61_000_000)
@@ -847,7 +847,8 @@ def test_a_runs_clock_offset_is_the_truth_against_the_logs_velocity_samples():
     est = estimate_time_offset(truth.t_ns, truth.position, truth.quat_xyzw, t, pos[lagging], q[lagging])
     assert est.offset_s == pytest.approx(0.021, abs=0.003)
     # one search, two inputs: the estimate's pose steps give estimate_time_offset's result to the bit
-    same = time_offset_of_steps(truth.t_ns, truth.position, truth.quat_xyzw, t, pose_steps(pos[lagging], q[lagging]))
+    reference = ReferenceMotion(truth.t_ns, truth.position, truth.quat_xyzw)
+    same = time_offset_of_steps(reference, t, pose_steps(pos[lagging], q[lagging]))
     assert same == est
     assert recorded_offset(json.loads(json.dumps(offset_record(found)))) == found  # run.json keeps its bits
     assert recorded_offset(None) is None and offset_record(None) is None

@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from slamobs.pipeline.evaluation.figure_jobs import MAIN_FIGURES, MAIN_RUN_FIGURES, chosen, drawn
+from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import null_columns, read_columns
 
 JOBS = [("plot_x", name, {}) for name in ("trajectory.png", "map.png", "biases.png", *MAIN_FIGURES)]
@@ -642,6 +643,43 @@ def test_compiled_offset_correlation_is_the_array_codes_to_round_off(monkeypatch
         found[kernel] = sync.estimate_time_offset(tt, pos, q, tt[::2] - 37_000_000, pos[::2], q[::2])
     assert found[True].offset_s == found[False].offset_s == pytest.approx(0.037, abs=0.002)
     assert found[True].peak_correlation == pytest.approx(found[False].peak_correlation, rel=1e-12)
+
+
+def test_a_truths_searches_share_its_side_and_a_bracket_walks_only_the_estimates_span(monkeypatch):
+    """``log_time_offset`` searches one truth up to six times (the bias fit's search again, the log's halves): the
+    truth's steps, its rates on the grid and their spectra are made once (``sync.ReferenceMotion``), the same
+    offset to the bit as searches that each make their own. A golden-section bracket crops the compiled pass to
+    the estimate's span (a half of the log: half the grid), the same correlation to the bit."""
+    from slamobs.pipeline.evaluation import sync, trajectory_evaluation
+
+    n = 20_000
+    yaw = np.cumsum(0.02 * np.sin(0.003 * np.arange(n)) ** 2)
+    q = np.stack([np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    truth = PoseStream("/mocap", "world", "base", t + 37_000_000, t + 37_000_000, np.zeros((n, 3)), q)
+    omega = np.zeros((n, 3))
+    omega[1:, 2] = np.diff(yaw) / 0.01  # the turn since the sample before: 5 ms behind, 32 ms found
+    made, counted = [], sync.pose_steps
+    monkeypatch.setattr(sync, "pose_steps", lambda *a: made.append(1) or counted(*a))
+    found = trajectory_evaluation.log_time_offset(truth, t, omega, np.zeros((n, 3)))
+    assert len(made) == 1 and found.offset_s == pytest.approx(0.032, abs=0.002) and found.uncertainty_s is not None
+    one = sync.ReferenceMotion(truth.t_ns, truth.position, truth.quat_xyzw)
+    again = []
+    for part in (slice(None), slice(0, n // 2), slice(n // 2, n)):  # each search with its own reference too
+        steps = sync.velocity_steps(t[part], omega[part], np.zeros((n, 3))[part])
+        own = sync.ReferenceMotion(truth.t_ns, truth.position, truth.quat_xyzw)
+        again.append(sync.time_offset_of_steps(one, t[part], steps) == sync.time_offset_of_steps(own, t[part], steps))
+    assert all(again)
+    grid = t[0] - 100 * 10_000_000 + np.arange(n + 200, dtype=np.int64) * 10_000_000
+    monkeypatch.setattr(sync, "CORRELATION_KERNEL_ROWS", 1)  # the compiled pass on a short grid
+    ref = sync.rate_on_grid(t + 37_000_000, sync.step_angles(q), grid, 10_000_000)
+    half = slice(n // 2, n)
+    steps = sync.velocity_steps(t[half], omega[half], np.zeros((n, 3))[half])[0]
+    whole = sync.offset_correlation(ref, t[half], steps, grid, 10_000_000)
+    cropped = sync.offset_correlation(ref, t[half], steps, grid, 10_000_000, (20_000_000, 40_000_000))
+    taus = np.linspace(20_000_000, 40_000_000, 9)
+    assert [cropped(tau) for tau in taus] == [whole(tau) for tau in taus]
+    assert max(whole(tau) for tau in taus) > 0.9
 
 
 def test_yaw_fit_centres_each_mean_once_same_bits():

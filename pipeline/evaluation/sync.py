@@ -400,15 +400,19 @@ def fft_size(n: int) -> int:
     return best
 
 
-def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndarray, np.ndarray]:
+def _pearson_by_lag(
+    a: np.ndarray, b: np.ndarray, max_lag: int, kept: dict | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Pearson correlation of a[t + L] with b[t] over the samples where both are defined, per lag L in
     [-max_lag, max_lag] (NaN where the overlap is under a fifth of the shorter signal or either signal is
     constant over it).
 
     The six lagged sums share their transforms: each input is transformed once (12 FFTs, not 18), zero padded
-    to the smallest :func:`fft_size` that holds the signal and the longest lag (no product wraps around)."""
-    ma, mb = np.isfinite(a), np.isfinite(b)
-    a0, b0 = np.where(ma, a, 0.0), np.where(mb, b, 0.0)
+    to the smallest :func:`fft_size` that holds the signal and the longest lag (no product wraps around).
+    ``kept``: ``a``'s three transforms (and its defined samples' count) by transform size, for the next call with
+    the same ``a`` (:class:`ReferenceMotion`)."""
+    mb = np.isfinite(b)
+    b0 = np.where(mb, b, 0.0)
     size = fft_size(max(a.shape[0], b.shape[0]) + max_lag + 1)
     lags = np.arange(-max_lag, max_lag + 1)
 
@@ -416,16 +420,24 @@ def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndar
         f = np.fft.rfft(x, size)
         return np.conjugate(f, out=f) if conj else f
 
-    fa, fb = spectrum(ma.astype(np.float64)), spectrum(mb.astype(np.float64), conj=True)
+    def spectra_of_a() -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        ma = np.isfinite(a)
+        a0 = np.where(ma, a, 0.0)
+        return spectrum(ma.astype(np.float64)), spectrum(a0), spectrum(a0 * a0), int(ma.sum())
+
+    kept = {} if kept is None else kept
+    if size not in kept:
+        kept[size] = spectra_of_a()
+    fa, a0_f, a0a0_f, defined_a = kept[size]
+    fb = spectrum(mb.astype(np.float64), conj=True)
     n = np.round(_xcorr(fa, fb, size, lags))
-    a0_f = spectrum(a0)
     sa = _xcorr(a0_f, fb, size, lags)
-    saa = _xcorr(spectrum(a0 * a0), fb, size, lags)
+    saa = _xcorr(a0a0_f, fb, size, lags)
     del fb
     b0_f = spectrum(b0, conj=True)
     sb = _xcorr(fa, b0_f, size, lags)
     sab = _xcorr(a0_f, b0_f, size, lags)
-    del a0_f, b0_f
+    del b0_f
     sbb = _xcorr(fa, spectrum(b0 * b0, conj=True), size, lags)
     var_a, var_b = n * saa - sa * sa, n * sbb - sb * sb  # n² times the variances over the overlap
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -433,7 +445,7 @@ def _pearson_by_lag(a: np.ndarray, b: np.ndarray, max_lag: int) -> tuple[np.ndar
     # a signal that does not vary over the overlap (a constant-rate circle) has no correlation, only round-off
     # divided by round-off (it was ±inf and claimed a clock offset at an arbitrary lag)
     flat = (var_a <= FLAT * n * saa) | (var_b <= FLAT * n * sbb)
-    r[flat | (n < 0.2 * min(ma.sum(), mb.sum()))] = np.nan
+    r[flat | (n < 0.2 * min(defined_a, mb.sum()))] = np.nan
     return lags, r
 
 
@@ -462,13 +474,55 @@ def estimate_time_offset(
     if te.shape[0] < 4 or np.any(np.diff(te) <= 0):
         return None
     steps = pose_steps(est_pos, est_quat_xyzw)
-    return time_offset_of_steps(t_ref_ns, ref_pos, ref_quat_xyzw, te, steps, max_offset_s=max_offset_s, step_s=step_s)
+    reference = ReferenceMotion(t_ref_ns, ref_pos, ref_quat_xyzw)
+    return time_offset_of_steps(reference, te, steps, max_offset_s=max_offset_s, step_s=step_s)
+
+
+class ReferenceMotion:
+    """The reference's side of :func:`time_offset_of_steps`: its stamps, its step angles and lengths
+    (:func:`pose_steps`), and on the last grid asked for its rates, their variation and the spectra of the sums
+    :func:`_pearson_by_lag` takes of them. Each is computed when first needed and kept: several searches against
+    one reference share them (:func:`.trajectory_evaluation.log_time_offset` searches one truth up to six times,
+    each with the same grid where the truth spans the log: 0.16 of its 0.7 CPU s on the one-hour log,
+    docs/benchmarks.md session 27). The same arrays each search computed for itself: the same bits."""
+
+    def __init__(self, t_ns: np.ndarray, pos: np.ndarray, quat_xyzw: np.ndarray) -> None:
+        self.t_ns = _as_stamps(t_ns, "t_ref_ns")
+        self._pos, self._quat = pos, quat_xyzw
+        self._kept: dict = {}
+        self._grid: tuple[int, int, int] | None = None
+        self._on_grid: dict = {}
+
+    def _once(self, key, make):
+        if key not in self._kept:
+            self._kept[key] = make()
+        return self._kept[key]
+
+    def usable(self) -> bool:
+        """At least 4 stamps, strictly rising."""
+        return self._once("usable", lambda: self.t_ns.shape[0] >= 4 and not np.any(np.diff(self.t_ns) <= 0))
+
+    def interval_s(self) -> float:
+        """The median interval between the stamps, in seconds."""
+        from slamobs.pipeline.evaluation.metrics import median  # (metrics imports this module)
+
+        return self._once("interval", lambda: median(np.diff(self.t_ns)) / NS_PER_S)
+
+    def steps(self) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`pose_steps` of the reference."""
+        return self._once("steps", lambda: pose_steps(self._pos, self._quat))
+
+    def on_grid(self, grid: np.ndarray, step_ns: int) -> dict:
+        """What is kept of the reference on ``grid`` (its ``"signals"``, and what :func:`_best_grid_lag` adds):
+        emptied when another grid is asked for."""
+        key = (int(grid[0]), int(step_ns), int(grid.shape[0]))  # evenly spaced: its start, step and length
+        if key != self._grid:
+            self._grid, self._on_grid = key, {"signals": _signals(self.t_ns, self.steps(), grid, step_ns)}
+        return self._on_grid
 
 
 def time_offset_of_steps(
-    t_ref_ns: np.ndarray,
-    ref_pos: np.ndarray,
-    ref_quat_xyzw: np.ndarray,
+    reference: ReferenceMotion,
     t_est_ns: np.ndarray,
     est_steps: tuple[np.ndarray, np.ndarray],
     *,
@@ -478,25 +532,27 @@ def time_offset_of_steps(
     """:func:`estimate_time_offset`'s search, the other side given by its motion increments ``est_steps`` (the
     rotation angle and the distance from each stamp of ``t_est_ns`` to the next): :func:`pose_steps` of an
     estimate's poses, or :func:`velocity_steps` of a log's velocity samples (a run's clock against the truth's,
-    known before the estimate is)."""
-    tr, te = _as_stamps(t_ref_ns, "t_ref_ns"), _as_stamps(t_est_ns, "t_est_ns")
-    if tr.shape[0] < 4 or te.shape[0] < 4 or np.any(np.diff(tr) <= 0) or np.any(np.diff(te) <= 0):
+    known before the estimate is). ``reference``: the truth's side, kept for the next search against it."""
+    te = _as_stamps(t_est_ns, "t_est_ns")
+    if not reference.usable() or te.shape[0] < 4 or np.any(np.diff(te) <= 0):
         return None
-    found = _search_grid(tr, te, max_offset_s, step_s)
+    found = _search_grid(reference, te, max_offset_s, step_s)
     if found is None:
         return None
     grid, step_ns, max_lag = found
-    r_ang, r_spd = _signals(tr, pose_steps(ref_pos, ref_quat_xyzw), grid, step_ns)
+    kept = reference.on_grid(grid, step_ns)
+    r_ang, r_spd = kept["signals"]
     e_ang, e_spd = _signals(te, est_steps, grid, step_ns)
-    best = _best_grid_lag((r_ang, r_spd), (e_ang, e_spd), max_lag)
+    best = _best_grid_lag((r_ang, r_spd), (e_ang, e_spd), max_lag, kept)
     if best is None:
         return None
     idx, k, c, lags = best
     # c[L] pairs ref[t + L] with est[t]: est at t matches ref at t + L, so t_est + L·step is on the reference
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
-    corr = offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns)
-    tau = _golden_section_max(corr, (lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns, 1e-4 * NS_PER_S)  # 0.1 ms
+    bracket = ((lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns)
+    corr = offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns, bracket)
+    tau = _golden_section_max(corr, *bracket, 1e-4 * NS_PER_S)  # 0.1 ms
     peak = max(corr(tau), float(c[k]))
     offset = tau / NS_PER_S
     name = ("angular rate |ω|", "speed |v|")[idx]
@@ -511,16 +567,17 @@ def time_offset_of_steps(
 
 
 def _search_grid(
-    tr: np.ndarray, te: np.ndarray, max_offset_s: float, step_s: float | None
+    reference: ReferenceMotion, te: np.ndarray, max_offset_s: float, step_s: float | None
 ) -> tuple[np.ndarray, int, int] | None:
     """The common resampling grid (stamps, step in ns, lags within ``±max_offset_s``); None when too short or huge.
 
     The default step follows the slower stream (within 1-50 ms) so that each grid step holds a sample.
     """
+    tr = reference.t_ns
     if step_s is None:
         from slamobs.pipeline.evaluation.metrics import median  # (metrics imports this module)
 
-        dt = max(median(np.diff(tr)), median(np.diff(te))) / NS_PER_S
+        dt = max(reference.interval_s(), median(np.diff(te)) / NS_PER_S)
         step_s = min(max(dt, 1e-3), 0.05)
     step_ns = max(int(round(step_s * NS_PER_S)), 1)
     max_lag = max(int(math.ceil(max_offset_s / step_s)), 1)
@@ -532,29 +589,48 @@ def _search_grid(
     return start + np.arange(n, dtype=np.int64) * step_ns, step_ns, max_lag
 
 
-def _best_grid_lag(ref: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray], max_lag: int):
+def _best_grid_lag(
+    ref: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray], max_lag: int, kept: dict | None = None
+):
     """(signal index, peak index, correlation by lag, lags) of the signal that pins the lag; None if none does.
 
     The signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker.
+    ``kept``: what is kept of ``ref`` for the next search (:meth:`ReferenceMotion.on_grid`).
     """
-    cv = [_variation(ref[0]), _variation(ref[1])]
+    kept = {} if kept is None else kept
+    if "variation" not in kept:
+        kept["variation"] = [_variation(ref[0]), _variation(ref[1])]
+    cv = kept["variation"]
     order = (0, 1) if cv[0] >= 0.5 * cv[1] else (1, 0)
     for idx in order:
         if cv[idx] == 0.0:
             continue
-        lags, c = _pearson_by_lag(ref[idx], est[idx], max_lag)
+        lags, c = _pearson_by_lag(ref[idx], est[idx], max_lag, kept.setdefault(("spectra", idx), {}))
         if np.isfinite(c).any():
             return idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags
     return None
 
 
-def offset_correlation(ref_signal: np.ndarray, te: np.ndarray, steps: np.ndarray, grid: np.ndarray, step_ns: int):
+def offset_correlation(
+    ref_signal: np.ndarray,
+    te: np.ndarray,
+    steps: np.ndarray,
+    grid: np.ndarray,
+    step_ns: int,
+    bracket: tuple[int, int] | None = None,
+):
     """Correlation of ``ref_signal`` with the estimate's rate sampled at ``grid − τ``, as a function of τ (ns).
-    Public: tests/test_report_cost.py checks it against a plain loop."""
+    ``bracket``: the least and the largest τ it is asked for (the compiled pass then walks only the grid points
+    the estimate covers at some τ of it: half the grid for a half of the log's samples, the same pairs in the same
+    order, the same bits). Public: tests/test_report_cost.py checks it against a plain loop."""
     accumulated = accumulate(te, steps)  # sampled at every trial offset: summed once
     ref_defined = np.isfinite(ref_signal)
 
     if grid.shape[0] >= CORRELATION_KERNEL_ROWS:  # one compiled pass per trial offset
+        if bracket is not None:  # a step's margin: the kernel skips the points outside the estimate's span itself
+            lo = max(int(np.searchsorted(grid, te[0] + bracket[0] - step_ns, side="left")) - 1, 0)
+            hi = int(np.searchsorted(grid, te[-1] + bracket[1] + step_ns, side="right")) + 1
+            grid, ref_signal = grid[lo:hi], ref_signal[lo:hi]
         t_float, cum = accumulated
         ref = np.ascontiguousarray(ref_signal, dtype=np.float64)
         pairs = np.empty((2, grid.shape[0]))

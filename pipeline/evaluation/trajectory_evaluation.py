@@ -34,7 +34,7 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     checked_time_offset,
     synchronize,
 )
-from slamobs.pipeline.evaluation.sync import pose_steps, rate_bias, time_offset_of_steps, velocity_steps
+from slamobs.pipeline.evaluation.sync import ReferenceMotion, rate_bias, time_offset_of_steps, velocity_steps
 from slamobs.pipeline.errors import TruthUnusable
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
@@ -506,17 +506,17 @@ def log_time_offset(
     if len(truth) == 0:
         return None
 
+    reference = ReferenceMotion(truth.t_ns, truth.position, truth.quat_xyzw)  # the truth's side, once for all
+
     def search(bias_omega, bias_velocity, part=slice(None)):
         om, vel = np.subtract(omega[part], bias_omega), np.subtract(velocity[part], bias_velocity)
         t = vel_t_ns[part]
-        return time_offset_of_steps(
-            truth.t_ns, truth.position, truth.quat_xyzw, t, velocity_steps(t, om, vel), max_offset_s=max_offset_s
-        )
+        return time_offset_of_steps(reference, t, velocity_steps(t, om, vel), max_offset_s=max_offset_s)
 
     off, bias = search(0.0, 0.0), (np.zeros(3), np.zeros(3))
     # a constant bias of the samples (a gyro's) distorts |ω|: fit it against the truth at the lag found and
     # search again, keeping the debiased search where it correlates better (docs/benchmarks.md, session 26)
-    ref = pose_steps(truth.position, truth.quat_xyzw)
+    ref = reference.steps()
     for _ in range(BIAS_ROUNDS):
         if off is None:
             return None
