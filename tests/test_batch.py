@@ -265,6 +265,13 @@ def test_a_log_with_map_truth_only_has_its_map_error_in_the_summary_and_its_line
     assert row["map_error_m"] == pytest.approx(rmse) and pd.isna(row["ape_trans_rmse_m"])
     assert f"map error {rmse:.4f} m (map-only alignment; no trajectory truth)" in res.output, res.output
     assert "no truth" not in res.output.replace("no trajectory truth", "")
+    # a new report of that run (it rewrites the run's map error) keeps the row's (it read batch.json, which has none)
+    from slamobs.cli.main import main
+
+    res = CliRunner().invoke(main, ["report", str(tmp_path / "OUT" / "runs" / row["run_id"])], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    again = pd.read_parquet(tmp_path / "OUT" / "summary.parquet").iloc[0]
+    assert again["map_error_m"] == pytest.approx(rmse)
 
 
 def test_dataset_reads_in_pandas_duckdb_and_polars(done):

@@ -107,9 +107,14 @@ def sync_run(out: Path, rid: str, ledger: Ledger) -> bool:
             report = read_json(rdir / "report.json") if (rdir / "report.json").is_file() else None
         except InputError:
             report = None  # damaged: the summary keeps what it has
-        # without truth (none, or a damaged report.json: the summary keeps what it has) the map error is run.json's
-        fresh_metrics = headline_metrics(report, meta) if report is not None else {MAP_ERROR: map_error_rmse(meta)}
-        new_row = {**row, **fresh_metrics}
+        try:  # the run's run.json (not its batch.json): a report without trajectory truth rewrites its map_error
+            run = read_json(rdir / "run.json") if (rdir / "run.json").is_file() else None
+        except InputError:
+            run = None
+        metrics = headline_metrics(report, run) if report is not None else {MAP_ERROR: map_error_rmse(run)}
+        if run is None:
+            metrics.pop(MAP_ERROR)  # unreadable: the summary keeps the map error it has
+        new_row = {**row, **metrics}
         fresh = [t for t in REPORT_TABLES if (rdir / f"{t}.parquet").is_file()]
         if fresh or encode_row(new_row) != encode_row(row):
             _switch(out, rid, meta, new_row, fresh, ledger)
