@@ -51,8 +51,14 @@ def _row_line(row: dict, progress) -> str:
     head = f"[{progress.done}/{progress.total}] {status:<7} {row['run_id']}"
     if row["status"] == "failed" or _kept(row):
         return f"{head}  {row['error']}"
-    ape = row.get("ape_trans_rmse_m")
-    tail = f"  APE {ape:.4f} m" if ape is not None else ""
+    ape, map_m = row.get("ape_trans_rmse_m"), row.get("map_error_m")
+    tail = (
+        f"  APE {ape:.4f} m"
+        if ape is not None
+        else f"  map error {map_m:.4f} m (map-only alignment; no trajectory truth)"
+        if map_m is not None
+        else ""
+    )
     if row["status"] == "ok":  # the log too: TagSLAM's tests all name theirs tag_detections.bag
         return f"{head}  {row['total_s']:.1f} s{tail or '  no truth'}  {row['log']}"
     return head + tail

@@ -158,6 +158,13 @@ def tune(
                 f"tune: {observer} on {plural(len(logs), 'log')}{against}, {plural(trials, 'trial')}, on {where}",
                 err=True,
             )
+            if given := options.config.gains.get(observer):  # the run the user made used them; the tune does not
+                click.echo(
+                    f"tune: {config_path} sets {observer}'s gains ({', '.join(f'{k} {v:g}' for k, v in given.items())}"
+                    "): a tune does not use them; its trial 0 and 'defaults' are the observer's own defaults "
+                    f"(`slamobs observers`); `slamobs run LOG --config {config_path}` scores yours",
+                    err=True,
+                )
         with signals_to_the_main_thread():  # a Dask cluster's start waits on a lock
             result = run_tune(list(logs), options, on_round=on_round)
     except (InputError, GainError, TuneFailed) as err:

@@ -14,15 +14,21 @@ from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.evaluation.figure_jobs import tilt_title_line
 from slamobs.pipeline.evaluation.markdown import MAP_TRUTH_HINT
 from slamobs.pipeline.evaluation.sections import TILT_NOTE_END
-from slamobs.pipeline.run import Progress, RunSummary, silent, prepare_log, run_inputs, run_prepared
+from slamobs.pipeline.run import (
+    MAP_ERROR,
+    Progress,
+    RunSummary,
+    map_error_rmse,
+    silent,
+    prepare_log,
+    run_inputs,
+    run_prepared,
+)
 from slamobs.pipeline.streams import PoseStream
 
 #: Each estimate's APE against the others' (or batch's) when the log has no truth.
 DISAGREEMENT = "disagreement_m"
 COLUMNS_NO_TRUTH = ("observer", "status", DISAGREEMENT, "landmarks", "path_length_m", "run_time_s", "error")
-#: Without trajectory truth but with landmark truth (``evaluation.map_truth``): each run's map error RMSE after a
-#: map-only SE(3) alignment (run.json ``map_error``), a column after ``landmarks``.
-MAP_ERROR = "map_error_m"
 COLUMNS = (
     "observer",
     "status",
@@ -184,7 +190,7 @@ def _without_truth(
         r[DISAGREEMENT] = spread.get(r["observer"])
         r["landmarks"] = counts.get("landmarks")
         r["path_length_m"] = path_length(poses[r["observer"]]) if r["observer"] in poses else None
-        r[MAP_ERROR] = (((s.metadata.get("map_error") or {}) if s is not None else {}).get("error_m") or {}).get("rmse")
+        r[MAP_ERROR] = map_error_rmse(s.metadata if s is not None else None)
     columns = list(COLUMNS_NO_TRUTH)
     if any(r[MAP_ERROR] is not None for r in rows):
         columns.insert(columns.index("landmarks") + 1, MAP_ERROR)

@@ -77,11 +77,19 @@ class RunSummary:
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
-        return headline_metrics(self.report)
+        return headline_metrics(self.report, self.metadata)
 
 
-def headline_metrics(report: dict | None) -> dict[str, float | None]:
-    """APE, RPE, map and final bias errors and convergence time from a report dict (None if absent)."""
+#: Without trajectory truth but with landmark truth (``evaluation.map_truth``): a run's map error RMSE after a
+#: map-only SE(3) alignment (run.json ``map_error``): a column of a comparison (after ``landmarks``) and of a batch
+#: summary.
+MAP_ERROR = "map_error_m"
+
+
+def headline_metrics(report: dict | None, meta: dict | None = None) -> dict[str, float | None]:
+    """APE, RPE, map and final bias errors and convergence time from a report dict (None if absent); with the
+    run's run.json ``meta``, ``map_error_m``: its ``map_error`` RMSE (landmark truth without trajectory truth: the
+    map after a map-only SE(3) alignment, where ``landmark_rmse_m`` is blank)."""
     r = report or {}
 
     def get(*keys):
@@ -101,7 +109,16 @@ def headline_metrics(report: dict | None) -> dict[str, float | None]:
         "gyro_bias_err": get("biases", "error_norm", "gyro"),
         "vel_bias_err": get("biases", "error_norm", "velocity"),
         "convergence_s": get("convergence", "t_since_start_s"),
+        MAP_ERROR: map_error_rmse(meta),
     }
+
+
+def map_error_rmse(meta: dict | None) -> float | None:
+    """run.json ``map_error``'s RMSE in m (the map against landmark truth after a map-only SE(3) alignment, written
+    when the log has landmark truth and no trajectory truth), None without one. Public: a comparison and a batch
+    summary show it as ``map_error_m``."""
+    rmse = (((meta or {}).get("map_error") or {}).get("error_m") or {}).get("rmse")
+    return None if rmse is None else float(rmse)
 
 
 def _out_every(aligned: AlignedStream, rate_hz: float | None) -> int:

@@ -243,6 +243,37 @@ def test_summary_has_every_headline_metric():
     assert set(headline_metrics(None)) <= set(SUMMARY_SCHEMA.names)
 
 
+def test_a_log_with_map_truth_only_has_its_map_error_in_the_summary_and_its_line(logs, tmp_path):
+    """A TagSLAM-style log (a landmark survey, no trajectory truth): the run measures its map error, so the batch
+    summary has it (``map_error_m``, as a comparison's) and its line says it, not "no truth"."""
+    import pandas as pd
+
+    from slamobs.pipeline.simulate import get_scenario
+
+    sc = get_scenario("circle")
+    truth_map = tmp_path / "map.csv"
+    truth_map.write_text(
+        "id,x,y,z\n" + "".join(f"{i},{x},{y},{z}\n" for i, (x, y, z) in zip(sc.landmark_ids, sc.landmarks))
+    )
+    config = tmp_path / "run.yaml"
+    config.write_text(f"topics:\n  truth: ''\nevaluation:\n  plots: false\n  map_truth: {json.dumps(str(truth_map))}\n")
+    res = invoke(logs["circle"], "-o", tmp_path / "OUT", "-j", 1, "--config", config)
+    assert res.exit_code == 0, res.output
+    row = pd.read_parquet(tmp_path / "OUT" / "summary.parquet").iloc[0]
+    run = json.loads((tmp_path / "OUT" / "runs" / row["run_id"] / "run.json").read_text())
+    rmse = run["map_error"]["error_m"]["rmse"]
+    assert row["map_error_m"] == pytest.approx(rmse) and pd.isna(row["ape_trans_rmse_m"])
+    assert f"map error {rmse:.4f} m (map-only alignment; no trajectory truth)" in res.output, res.output
+    assert "no truth" not in res.output.replace("no trajectory truth", "")
+    # a new report of that run (it rewrites the run's map error) keeps the row's (it read batch.json, which has none)
+    from slamobs.cli.main import main
+
+    res = CliRunner().invoke(main, ["report", str(tmp_path / "OUT" / "runs" / row["run_id"])], catch_exceptions=False)
+    assert res.exit_code == 0, res.output
+    again = pd.read_parquet(tmp_path / "OUT" / "summary.parquet").iloc[0]
+    assert again["map_error_m"] == pytest.approx(rmse)
+
+
 def test_dataset_reads_in_pandas_duckdb_and_polars(done):
     import duckdb
     import pandas as pd

@@ -379,3 +379,17 @@ def test_map_labels_clear_each_other_and_the_markers():
 
     assert all(c > 0 for c in clashes(np.full((3, 2), 4.0)))
     assert clashes(label_offsets(anchors, sizes, MAP_MARKER_RADIUS_PT)) == (0.0, 0.0)
+
+
+def test_the_map_names_its_frame(monkeypatch, tmp_path):
+    """MR.CLAM 6 robot 3, riekf, `report`: map.png drew landmarks 16-18 at (-0.8, 0.5) m, trajectory_top.png beside
+    it at (4, 3.2) m (aligned onto the truth), neither title saying which frame: the map's now names its own, as
+    trajectory.png's does."""
+    from slamobs.pipeline.evaluation import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, path: figures.append(fig) or path)
+    xyz = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, 0.0]])
+    plots.plot_map(tmp_path / "map.png", np.array([1, 2]), xyz, np.array([3, 4]), xyz)
+    (fig,) = figures
+    assert fig.axes[0].get_title().startswith("Landmark map, output frame: 2 landmarks")

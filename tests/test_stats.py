@@ -245,3 +245,17 @@ def test_cli_styles_are_the_renderers():
     from slamobs.pipeline.stats.render import STYLES
 
     assert CLI_STYLES == STYLES
+
+
+def test_a_run_with_landmark_truth_only_has_its_map_error_in_the_stats(tmp_path):
+    """TagSLAM test_11 (a tag survey, no trajectory truth) in a batch dataset or as a run directory: its map error,
+    0.1629 m after a map-only alignment, was "–" under "no truth, no map"; it is a metric of its own now (run.json
+    map_error, the batch summary's map_error_m), beside landmark_rmse_m (after the trajectory's alignment)."""
+    run = tmp_path / "run"
+    run.mkdir()
+    meta = {"observer": {"name": "riekf"}, "input": {"path": "/logs/tag_detections.bag"}, "tables": {}}
+    meta |= {"timings_s": {"observer_s": 1.0}, "map_error": {"error_m": {"rmse": 0.1629}}}
+    (run / "run.json").write_text(json.dumps(meta))
+    runs = gather_runs([run])
+    assert runs.loc[0, "map_error_m"] == pytest.approx(0.1629) and pd.isna(runs.loc[0, "landmark_rmse_m"])
+    assert "map_error_m" in METRICS

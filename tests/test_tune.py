@@ -232,6 +232,25 @@ def test_a_log_without_truth_is_a_one_line_error(logs, tmp_path):
     assert not (tmp_path / "t").exists()
 
 
+def test_a_tune_says_the_configs_gains_for_its_observer_are_not_what_it_compares_with(logs, tmp_path):
+    """TagSLAM test_11 with examples/tagslam_test11.yaml (gamma 0.01), `tune --target batch`: "best 1.537 m
+    (defaults 3.88 m)", the defaults being gamma 1, not the gains the user's runs had, and nothing said so (only
+    --help); the start line now names them and how to score them."""
+    cfg = tmp_path / "gains.yaml"
+    cfg.write_text("gains:\n  fast-adaptation:\n    gamma: 0.01\n")
+    done = subprocess.run(
+        _tune_args(logs, tmp_path / "t", "--trials", 1, "-j", 1, "--config", cfg),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr
+    assert (
+        f"tune: {cfg} sets fast-adaptation's gains (gamma 0.01): a tune does not use them; its trial 0 and "
+        "'defaults' are the observer's own defaults" in done.stderr
+    ), done.stderr
+
+
 def test_a_holdout_log_that_cannot_be_scored_keeps_the_tunes_results(logs, tmp_path):
     from mcap.reader import make_reader
     from mcap.writer import Writer

@@ -316,6 +316,8 @@ def test_the_3_sigma_figure_draws_a_planar_runs_unmeasured_axes_empty(monkeypatc
             empty = 3 * col + k in held
             assert (len(ax.lines) == 0) == empty and (len(ax.collections) == 0) == empty, (k, col)
             assert any("not measured" in x.get_text() for x in ax.texts) == empty, (k, col)
+            # an empty panel shows no scale: its default 0-1 ticks read as degrees, metres and seconds of nothing
+            assert (len(ax.get_xticks()) == 0 and len(ax.get_yticks()) == 0) == empty, (k, col)
 
 
 def test_a_nees_no_correlation_explains_says_plainly_the_sigma_is_not_to_be_trusted():

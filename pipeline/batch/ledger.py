@@ -76,6 +76,9 @@ SUMMARY_SCHEMA = pa.schema(
         # added later (a summary written before has no such columns: readers treat them as missing)
         ("rpe_trans_rmse_m", _F),
         ("rpe_rot_rmse_deg", _F),
+        # landmark truth without trajectory truth: the map error after a map-only SE(3) alignment (run.json
+        # map_error; landmark_rmse_m, after the trajectory's alignment, is blank then)
+        ("map_error_m", _F),
         # the stages a run's timings_s has beside the ones above, so that total_s is their sum plus the checks
         ("tags_s", _F),
         ("figures_s", _F),

@@ -96,7 +96,7 @@ def sync_run(out: Path, rid: str, ledger: Ledger) -> bool:
     lock); returns whether anything changed. The run's marker is removed."""
     from slamobs.pipeline.evaluation.run_dir import read_json
     from slamobs.pipeline.errors import InputError
-    from slamobs.pipeline.run import headline_metrics
+    from slamobs.pipeline.run import MAP_ERROR, headline_metrics, map_error_rmse
 
     rdir = run_dir(out, rid)
     meta = read_run_meta(rdir)
@@ -107,7 +107,14 @@ def sync_run(out: Path, rid: str, ledger: Ledger) -> bool:
             report = read_json(rdir / "report.json") if (rdir / "report.json").is_file() else None
         except InputError:
             report = None  # damaged: the summary keeps what it has
-        new_row = {**row, **(headline_metrics(report) if report is not None else {})}
+        try:  # the run's run.json (not its batch.json): a report without trajectory truth rewrites its map_error
+            run = read_json(rdir / "run.json") if (rdir / "run.json").is_file() else None
+        except InputError:
+            run = None
+        metrics = headline_metrics(report, run) if report is not None else {MAP_ERROR: map_error_rmse(run)}
+        if run is None:
+            metrics.pop(MAP_ERROR)  # unreadable: the summary keeps the map error it has
+        new_row = {**row, **metrics}
         fresh = [t for t in REPORT_TABLES if (rdir / f"{t}.parquet").is_file()]
         if fresh or encode_row(new_row) != encode_row(row):
             _switch(out, rid, meta, new_row, fresh, ledger)

@@ -402,6 +402,8 @@ def plot_sigma_bounds(
                 ax.text(0.5, 0.5, "not measured: the run holds this axis (planar)", ha="center", va="center",
                         transform=ax.transAxes, fontsize=8, color="0.4")  # fmt: skip
                 ax.set_ylabel(f"{name} {AXES[k]} [{unit}]")
+                ax.set_xticks([])  # no 0-1 scale of degrees, metres or seconds where nothing is drawn
+                ax.set_yticks([])
                 continue
             ax.fill_between(t_s, -3.0 * sd[:, k], 3.0 * sd[:, k], color="0.85", lw=0, label="±3σ")
             ax.plot(t_s, e[:, k], color=COLORS[k], lw=0.8, label=f"{name} {AXES[k]}")
@@ -745,7 +747,8 @@ def plot_map(
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     seen_text = f", seen {int(np.min(seen))} to {int(np.max(seen))} times" if n else ""
-    ax.set_title(f"Landmark map: {n} landmarks{seen_text}; labels: id (times seen)")
+    # the frame as estimated (trajectory.png's): a run with truth draws trajectory_top.png aligned onto the truth
+    ax.set_title(f"Landmark map, output frame: {n} landmarks{seen_text}; labels: id (times seen)")
     ax.grid(True, alpha=0.3)
     if with_truth:
         fig.legend(loc="lower left", bbox_to_anchor=(0.01, 0.005), fontsize=8, frameon=False)

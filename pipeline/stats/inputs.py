@@ -28,6 +28,7 @@ METRICS = {
     "rpe_trans_rmse_m": "RPE translation RMSE [m]",
     "rpe_rot_rmse_deg": "RPE rotation RMSE [deg]",
     "landmark_rmse_m": "map error RMSE [m]",
+    "map_error_m": "map error RMSE, map-only alignment, no trajectory truth [m]",
     "gyro_bias_err": "final gyro bias error [rad/s]",
     "vel_bias_err": "final velocity bias error [m/s]",
     "run_time_s": "estimator run time [s]",
@@ -106,7 +107,7 @@ def read_run_dir(path: Path) -> dict:
         "log": str(log),
         "status": "ok",
         "source": str(path.resolve()),
-        **headline_metrics(report),
+        **headline_metrics(report, meta),
         "run_time_s": float(timing) if timing is not None else None,
     }
 
