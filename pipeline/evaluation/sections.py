@@ -27,7 +27,7 @@ from slamobs.pipeline.evaluation.align import (
 )
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
-from slamobs.pipeline.evaluation.sync import NS_PER_S
+from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
     VEL_COLUMNS,
@@ -525,23 +525,7 @@ class TimeOffsetSection(Section):
             )
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
-        off = ev.time_offset
-        against = ev.offset_against
-        self.result = {
-            "estimated_s": None if off is None else off.offset_s,
-            "peak_correlation": None if off is None else off.peak_correlation,
-            "signal": None if off is None else off.signal,
-            "reliable": None if off is None else off.reliable,
-            "ape_rmse_with_m": None if off is None else off.rmse_with_m,
-            "ape_rmse_without_m": None if off is None else off.rmse_without_m,
-            "search_window_s": None if off is None else off.search_window_s,
-            "uncertainty_s": None if off is None else off.uncertainty_s,
-            "grid_step_s": None if off is None else off.grid_step_s,
-            "applied_s": float(ev.applied_offset_s),
-            "applied_from": "estimate" if self.options.t_offset_s == "auto" else "option",
-            "searched_against": against,
-            "method": self.method(against),
-        }
+        self.result = offset_fields(ev.time_offset, ev.applied_offset_s, self.options.t_offset_s, ev.offset_against)
 
     @staticmethod
     def method(against: str) -> str:
@@ -575,6 +559,27 @@ class TimeOffsetSection(Section):
             f"applied; ape_rmse_without_m, without; same association and alignment). {lag}. Applied to the "
             "association only when asked (t_offset auto)"
         )
+
+
+def offset_fields(off: TimeOffset | None, applied_s: float, t_offset_s: float | str, against: str) -> dict[str, Any]:
+    """report.json's ``time_offset`` of the search ``off`` (None: the motion told no offset), ``applied_s`` applied
+    as ``t_offset_s`` asked (seconds, or ``auto``), the truth correlated with ``against`` (``estimate`` or ``velocity
+    samples``). Public: ``slamobs evaluate --json`` states the same fields with the same definition."""
+    return {
+        "estimated_s": None if off is None else off.offset_s,
+        "peak_correlation": None if off is None else off.peak_correlation,
+        "signal": None if off is None else off.signal,
+        "reliable": None if off is None else off.reliable,
+        "ape_rmse_with_m": None if off is None else off.rmse_with_m,
+        "ape_rmse_without_m": None if off is None else off.rmse_without_m,
+        "search_window_s": None if off is None else off.search_window_s,
+        "uncertainty_s": None if off is None else off.uncertainty_s,
+        "grid_step_s": None if off is None else off.grid_step_s,
+        "applied_s": float(applied_s),
+        "applied_from": "estimate" if t_offset_s == "auto" else "option",
+        "searched_against": against,
+        "method": TimeOffsetSection.method(against),
+    }
 
 
 #: A map whose error after the trajectory's alignment is this many times its error after an alignment of its own (and
