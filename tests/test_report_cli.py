@@ -320,6 +320,14 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
         invoke(evaluate, tmp_path / "truth.txt", tmp_path / "late.txt", "--t_offset", "auto", "--json").stdout
     )
     assert doc["time_offset"]["reliable"] and doc["time_offset"]["applied_s"] == pytest.approx(0.25, abs=0.002)
+    # the estimate's halves agree (one `reliable` with a run's search of its log, session 27: no halves until then)
+    assert doc["time_offset"]["uncertainty_s"] <= doc["time_offset"]["grid_step_s"]
+    rows[len(rows) // 2 :, 0] += 0.25  # its second half on the truth's clock: the halves 0.25 s apart
+    np.savetxt(tmp_path / "split.txt", rows[::2], fmt="%.9f")
+    split = json.loads(
+        invoke(evaluate, tmp_path / "truth.txt", tmp_path / "split.txt", "--estimate-t-offset", "--json").stdout
+    )["time_offset"]
+    assert split["uncertainty_s"] == pytest.approx(0.125, abs=0.01) and split["reliable"] is False, split
 
 
 def test_evaluate_of_a_run_states_the_offset_its_report_states(tmp_path):

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from slamobs.pipeline.evaluation.sync import halves_agree
+from slamobs.pipeline.evaluation.sync import halves_agree, halves_owner
 
 
 def convergence_definition(conv: dict[str, Any]) -> str:
@@ -228,7 +228,7 @@ def offset_doubts(off: dict[str, Any]) -> str:
         why.append("at the search limit")
     spread = off.get("uncertainty_s")
     if not halves_agree(spread, off["grid_step_s"], off["estimated_s"]):
-        why.append(f"the log's halves find offsets {2 * spread:.3g} s apart")
+        why.append(f"{halves_owner(off.get('searched_against'))} find offsets {2 * spread:.3g} s apart")
     with_m, without_m = off.get("ape_rmse_with_m"), off.get("ape_rmse_without_m")
     if with_m is not None and without_m is not None and with_m > without_m:
         why.append(f"applied, it raises the APE rmse from {without_m:.4g} to {with_m:.4g} m")

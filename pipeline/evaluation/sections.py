@@ -27,7 +27,7 @@ from slamobs.pipeline.evaluation.align import (
 )
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
-from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset
+from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, halves_owner
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
     VEL_COLUMNS,
@@ -529,7 +529,7 @@ class TimeOffsetSection(Section):
         off = ev.time_offset if self.options.t_offset_s == "auto" else None
         if off is not None and not off.reliable:
             edge = ", at the search limit" if off.at_window_edge else ""
-            edge += "" if off.consistent else f", the log's halves {2 * off.uncertainty_s:.3f} s apart"
+            edge += "" if off.consistent else f", {halves_owner(ev.offset_against)} {2 * off.uncertainty_s:.3f} s apart"
             self.notes.append(
                 f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
                 f"{off.peak_correlation:.2f}{edge})"
@@ -542,7 +542,10 @@ class TimeOffsetSection(Section):
     def method(against: str) -> str:
         """The method text for an offset searched against the estimate or the log's velocity samples."""
         if against == "estimate":
-            other = "of estimate and truth"
+            other = (
+                "of estimate and truth (uncertainty_s: half the difference of the offsets the estimate's first and "
+                "second half find, which must be at most a grid step or a quarter of the offset to be reliable)"
+            )
             lag = (
                 "A lag of the estimate behind the motion (an observer's filtering delay) shows as the same offset: "
                 "a reliable offset is where the estimate matches the truth best, not proof that the clocks differ"
