@@ -366,6 +366,8 @@ def _run(
     save_results,
 ):
     from slamobs.pipeline.evaluation.evo_zip import save_result_zip
+    from slamobs.pipeline.evaluation.run_dir import recorded_run_offset
+    from slamobs.pipeline.evaluation.sections import offset_fields
     from slamobs.pipeline.evaluation.trajectory_error import (
         AlignOptions,
         RpeOptions,
@@ -383,9 +385,12 @@ def _run(
     timed = ref.timed and est_t.timed
     method = "nearest" if sync_method == "nearest_time" else "interpolation"
     al = AlignOptions(kind, n_to_align if n_to_align >= 0 else None, align_seconds)
-    found = None
-    if timed and (estimate_t_offset or offset == "auto"):
-        found = checked_time_offset(ref.stream, est_t.stream, SyncOptions(t_max_diff, 0.0, method), al)
+    found, against, asked = None, "estimate", estimate_t_offset or offset == "auto"
+    if timed and asked:
+        # a run's poses against its own truth: the search the run made and its report states (one search)
+        recorded = recorded_run_offset(est, ref.stream)
+        against = "estimate" if recorded is None else "velocity samples"
+        found = checked_time_offset(ref.stream, est_t.stream, SyncOptions(t_max_diff, 0.0, method), al, found=recorded)
     applied = (found.offset_s if found is not None else 0.0) if offset == "auto" else float(offset)
     sync = SyncOptions(t_max_diff, applied, method)
     rpe_opts = RpeOptions(delta, delta_unit, delta_tol, all_pairs, pairs_from_reference) if metric == "rpe" else None
@@ -395,45 +400,41 @@ def _run(
         result = rpe(ref, est_t, relation, sync, al, rpe_opts, ref_name=ref.name, est_name=est_t.name)
     if save_results is not None:
         save_result_zip(save_results, result)
-    offset_json = None
-    line = None
-    if found is not None:
-        offset_json = {
-            "estimated_s": found.offset_s,
-            "peak_correlation": found.peak_correlation,
-            "signal": found.signal,
-            "reliable": found.reliable,
-            "ape_rmse_with_m": found.rmse_with_m,
-            "ape_rmse_without_m": found.rmse_without_m,
-            "applied_s": applied,
-        }
-        line = (
-            f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated (peak correlation {found.peak_correlation:.2f}"
-            f"{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied"
-        )
-    elif timed is False and (estimate_t_offset or offset == "auto"):
-        line = f"{'t_offset':>10}\tnot estimated: poses without stamps are paired by index"
-    elif estimate_t_offset or offset == "auto":
-        offset_json = {
-            "estimated_s": None,
-            "peak_correlation": None,
-            "signal": None,
-            "reliable": False,
-            "ape_rmse_with_m": None,
-            "ape_rmse_without_m": None,
-            "applied_s": applied,
-        }
-        line = (
+    offset_json = offset_fields(found, applied, offset, against) if timed and asked else None
+    return result, {
+        "json": _doc(result, describe(result, sync, al, rpe_opts), offset_json),
+        "time_offset_line": _offset_line(found, timed, asked, applied, against),
+    }
+
+
+def _offset_line(found, timed: bool, asked: bool, applied: float, against: str) -> str | None:
+    """The printed clock-offset line: the offset found, how sure (its correlation, the halves' spread where the
+    search has halves), and what was applied."""
+    if not asked:
+        return None
+    if not timed:
+        return f"{'t_offset':>10}\tnot estimated: poses without stamps are paired by index"
+    if found is None:
+        return (
             f"{'t_offset':>10}\tnot estimated: the motion carries no clock information (turn rate and speed "
             f"constant) or the trajectories overlap too little; {applied:.6f} s applied"
         )
-    doc = {
+    halves = "" if found.uncertainty_s is None else f", halves ±{found.uncertainty_s:.6f} s"
+    of = "the run's log (its velocity samples)" if against != "estimate" else "the estimate"
+    return (
+        f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated against {of} (peak correlation "
+        f"{found.peak_correlation:.2f}{halves}{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied"
+    )
+
+
+def _doc(result, method: str, offset_json: dict | None) -> dict:
+    """``--json``'s document: evo's result fields, the method, and report.json's ``time_offset`` fields."""
+    return {
         "title": result.title,
         "label": result.label,
         "ref_name": result.ref_name,
         "est_name": result.est_name,
         "stats": result.stats,
-        "method": describe(result, sync, al, rpe_opts),
+        "method": method,
         "time_offset": offset_json,
     }
-    return result, {"json": doc, "time_offset_line": line}

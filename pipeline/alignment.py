@@ -789,7 +789,7 @@ def _gyro_axes(turn: dict | None, odometry_topic: str, unaligned: str = "") -> l
         else (
             "in the body frame ",
             f"its frame '{frame}' reaches the body turned (a frame listed in frames.assume_identity that is mounted "
-            "otherwise, or a wrong extrinsic; slamobs info LOG shows the frames); the run used it as read",
+            "otherwise, or a wrong extrinsic; slamobs info LOG shows the frames); a run takes it as read",
         )
     )
     return [
@@ -1243,8 +1243,8 @@ def _gyro_by_gravity(fr: _Frame, accel: Vec3Stream, t_om, omega, velocity) -> li
     return [
         f"warning: {accel.topic}: the gyro reads as if its {what}: "
         f"its accelerometer's gravity direction follows the angular velocity {gain:.3g}x better so undone than as "
-        f"read (tilt rates over {pairs[what]} pairs of {TILT_BLOCK_S:g} s blocks in the first {t_s[-1]:.0f} s): the "
-        "run used it as read; check the gyro's axes (a driver's axis map, another IMU's extrinsic), which the "
+        f"read (tilt rates over {pairs[what]} pairs of {TILT_BLOCK_S:g} s blocks in the first {t_s[-1]:.0f} s): a "
+        "run takes it as read; check the gyro's axes (a driver's axis map, another IMU's extrinsic), which the "
         "detections cannot see"
     ]
 

@@ -13,7 +13,7 @@ from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.estimators import get_estimator
 from slamobs.pipeline.evaluation.figure_jobs import tilt_title_line
 from slamobs.pipeline.evaluation.markdown import MAP_TRUTH_HINT
-from slamobs.pipeline.evaluation.sections import TILT_NOTE_END
+from slamobs.pipeline.evaluation.sections import tilt_note
 from slamobs.pipeline.run import (
     MAP_ERROR,
     Progress,
@@ -345,7 +345,11 @@ def overlay_title(reports: dict[str, dict]) -> str:
     upside down), the sentence the report's own figures give."""
     lines = ["Top view: SE(3)-aligned estimates vs truth"]
     for name, report in reports.items():
-        if any(n.endswith(TILT_NOTE_END) for n in report.get("notes") or []):
+        if tilt_note(
+            report["method"]["alignment"]["type"],
+            (report.get("ape") or {}).get("gravity_tilt_deg"),
+            report.get("ape_by_alignment") or {},
+        ):
             tilt = report["method"]["alignment"]["gravity_tilt_deg"]
             lines.append(tilt_title_line(tilt, f"{name}'s estimate", wrap=True))
     return "".join(lines)

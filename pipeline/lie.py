@@ -687,6 +687,25 @@ def rotate_covariance(cov: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.matmul(np.matmul(r, cov), r.T)
 
 
+def quat_angles(q: np.ndarray) -> np.ndarray:
+    """Rotation angles in [0, π] of unit quaternions ``(N, 4)``: 2 atan2(‖v‖, |w|), accurate near 0 and near π.
+    The one quaternion angle of the report's rotation errors (:mod:`.evaluation.metrics`) and of the readers'
+    ``/tf_static`` changes (:func:`quat_angles_to`)."""
+    return 2.0 * np.arctan2(np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]), np.abs(q[:, 3]))
+
+
+def quat_angles_to(q: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """Rotation angle in [0, π] from the quaternion ``ref`` (4,) to each row of ``q`` (N, 4), all normalised here:
+    :func:`quat_angles` of ``ref⁻¹ q_k`` (``/tf_static`` values published again, against the last one)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=1)[:, None]
+    r = np.asarray(ref, dtype=np.float64) / np.linalg.norm(ref)
+    rel = np.empty_like(q)  # conj(r) * q, w last
+    rel[:, :3] = r[3] * q[:, :3] - q[:, 3:] * r[:3] - np.cross(r[:3], q[:, :3])
+    rel[:, 3] = q[:, 3] * r[3] + q[:, :3] @ r[:3]
+    return quat_angles(rel)
+
+
 def rots_to_rotvecs(r: np.ndarray) -> np.ndarray:
     """Rotation vectors (N, 3) of rotation matrices (N, 3, 3) (:func:`so3_log` row by row, through the
     quaternion: angle in [0, π])."""

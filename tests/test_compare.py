@@ -119,13 +119,15 @@ def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation(
         "yaw": {"alignment": {"rotation_matrix": np.eye(3).tolist()}, **stats},
     }
     report = {"convergence": lost, "method": {"alignment": {"type": "se3"}}, "ape_by_alignment": by}
+    report["ape"] = {"gravity_tilt_deg": 180.0}  # the flag the tilt note's section sets
     report["notes"] = ["other note"] + tilt_note("se3", 180.0, by)  # the report's own note, as its section wrote it
     caveats = headline_caveats(report)
     assert caveats[0] == (
         "convergence: no: the error level, 7.47 m at most over the last 20 % of the log, is above the trajectory's "
         "own extent, 2.38 m RMS about its centre: the estimate never locked on to the motion"
     )
-    assert len(caveats) == 2 and caveats[1].startswith("the se3 alignment turned the estimate upside down")
+    assert len(caveats) == 2 and caveats[1] == report["notes"][1]
+    assert caveats[1].startswith("the se3 alignment turned the estimate upside down")
     plain = {"convergence": {"t_since_start_s": 1.0, "coarse": False}, "method": {"alignment": {"type": "se3"}}}
     assert headline_caveats(plain) == []
     table = pd.DataFrame([{"observer": "fast-adaptation", "status": "ok"}])
@@ -151,3 +153,27 @@ def test_compare_prints_each_runs_hint_once_named_by_its_estimator(tmp_path):
     assert printed == [f"hint: fast-adaptation: {hint}"], res.output
     assert f"## Hints\n\n- fast-adaptation: {hint}\n" in (out / "comparison.md").read_text()
     assert json.loads((out / "comparison.json").read_text())["hints"] == [f"fast-adaptation: {hint}"]
+
+
+def test_headline_caveats_go_by_the_reports_flags_not_by_the_notes_words():
+    """A headline table found a report's tilt and truth-frame caveats by their notes' words (``TILT_NOTE_END``,
+    ``TRUTH_FRAME_KEY``, ``CAMERA_NAMED_KEY``): a reworded note dropped its caveat without a word. They are said
+    from report.json's ``ape.gravity_tilt_deg`` and ``ape.truth_frame_turn`` now, whatever the notes say, in the
+    words the report's own notes have; without the flags, none."""
+    from slamobs.pipeline.evaluation.sections import CAMERA_NAMED_KEY, tilt_note, truth_frame_words
+
+    stats = {"translation_m": {"rmse": 0.05}, "rotation_deg": {"rmse": 170.0}}
+    by = {"se3": {"alignment": {}, **stats}, "yaw": {"alignment": {}, **stats}}
+    turn = {"angle_deg": 170.0, "axis": [1.0, 0.0, 0.0], "quat_xyzw": [0.996, 0.0, 0.0, 0.087]}
+    turn |= {"rotation_rmse_after_deg": 1.0, "path_m": 30.0}
+    ape = {**stats, "gravity_tilt_deg": 175.0, "truth_frame_turn": turn}
+    report = {"method": {"alignment": {"type": "se3"}}, "ape_by_alignment": by, "ape": ape, "notes": ["reworded"]}
+    caveats = headline_caveats(report)
+    assert caveats == tilt_note("se3", 175.0, by) + [truth_frame_words(turn, 170.0, 0.05)] and len(caveats) == 2
+    assert "frames.truth_rotation" in caveats[1]
+    turn["camera_named"] = True
+    assert (
+        CAMERA_NAMED_KEY in headline_caveats(report)[1] and "frames.truth_rotation" not in headline_caveats(report)[1]
+    )
+    flat = {**report, "ape": {**stats, "gravity_tilt_deg": None, "truth_frame_turn": None}}
+    assert headline_caveats({**flat, "notes": caveats}) == []  # the notes' words alone say nothing

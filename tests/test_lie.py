@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from slamobs.pipeline import lie
+from slamobs.pipeline.evaluation import metrics
 
 
 def expm(a, terms=40):
@@ -176,3 +177,22 @@ def test_three_gyro_columns_in_one_pass_equal_three_dead_reckonings():
         r_one, p_one = lie.integrate_body_twists_at(r0, p0, oc, v, dt, keep)
         assert np.array_equal(rs[c], r_one) and np.array_equal(ps[c], p_one)
     assert not np.array_equal(rs[0], rs[1])
+
+
+def test_quat_angles_to_is_the_angle_between_rotations_near_zero_and_pi_too():
+    """One quaternion angle for the report and the readers (``readers.decode.static_change_text`` took
+    2 arccos(|q·q_last|) of its own until session 27, which reads 0 below ~1e-8 rad): against the matrices' angle,
+    unnormalised quaternions and either sign, and to the rounding where arccos loses it."""
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(50, 4)) * rng.uniform(0.5, 3.0, size=(50, 1))
+    ref = rng.normal(size=4)
+    want = [lie.rotation_angle(lie.quat_to_rot(ref).T @ lie.quat_to_rot(row)) for row in q]
+    np.testing.assert_allclose(lie.quat_angles_to(q, ref), want, atol=1e-7)
+    np.testing.assert_allclose(lie.quat_angles_to(-q, ref), want, atol=1e-7)  # q and -q: one rotation
+    tiny = np.array(
+        [[np.sin(5e-10), 0.0, 0.0, np.cos(5e-10)], [np.sin(0.5 * (np.pi - 1e-9)), 0, 0, np.cos(0.5 * (np.pi - 1e-9))]]
+    )
+    np.testing.assert_allclose(
+        lie.quat_angles_to(tiny, np.array([0.0, 0.0, 0.0, 1.0])), [1e-9, np.pi - 1e-9], rtol=1e-6
+    )
+    assert lie.quat_angles is metrics.quat_angles  # the report's rotation errors take the same function

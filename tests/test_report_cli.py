@@ -304,15 +304,9 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
     )
     doc = json.loads(res.stdout)
     assert doc["method"]["association"]["method"] == "interpolation"
-    assert doc["time_offset"] == {
-        "estimated_s": None,
-        "peak_correlation": None,
-        "signal": None,
-        "reliable": False,
-        "ape_rmse_with_m": None,
-        "ape_rmse_without_m": None,
-        "applied_s": 0.0,
-    }
+    off = doc["time_offset"]  # report.json's time_offset fields (sections.offset_fields)
+    assert off["estimated_s"] is None and off["reliable"] is None and off["uncertainty_s"] is None
+    assert off["applied_s"] == 0.0 and off["applied_from"] == "estimate" and off["searched_against"] == "estimate"
     # a turn rate that varies pins the offset, and auto applies it: the estimate's clock 0.25 s behind
     t = np.arange(6000) / 100.0
     yaw = np.sin(0.7 * t) + 0.3 * np.sin(2.1 * t)
@@ -326,6 +320,43 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
         invoke(evaluate, tmp_path / "truth.txt", tmp_path / "late.txt", "--t_offset", "auto", "--json").stdout
     )
     assert doc["time_offset"]["reliable"] and doc["time_offset"]["applied_s"] == pytest.approx(0.25, abs=0.002)
+    # the estimate's halves agree (one `reliable` with a run's search of its log, session 27: no halves until then)
+    assert doc["time_offset"]["uncertainty_s"] <= doc["time_offset"]["grid_step_s"]
+    rows[len(rows) // 2 :, 0] += 0.25  # its second half on the truth's clock: the halves 0.25 s apart
+    np.savetxt(tmp_path / "split.txt", rows[::2], fmt="%.9f")
+    split = json.loads(
+        invoke(evaluate, tmp_path / "truth.txt", tmp_path / "split.txt", "--estimate-t-offset", "--json").stdout
+    )["time_offset"]
+    assert split["uncertainty_s"] == pytest.approx(0.125, abs=0.01) and split["reliable"] is False, split
+
+
+def test_evaluate_of_a_run_states_the_offset_its_report_states(tmp_path):
+    """`slamobs evaluate TRUTH RUN/poses.parquet --t-offset auto` with the run's own truth: the search the run made
+    against its log's velocity samples (gyro bias fitted, halves' uncertainty_s), not another one against the
+    estimate, so evaluate and the run's report.json give the same offset, reliable flag and uncertainty (until
+    session 27 evaluate searched the estimate, without uncertainty_s). A 20 s figure 8 whose truth is 0.1 s late."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import simulate
+    from slamobs.pipeline.simulate.logwriter import write_log
+
+    sim = simulate("figure8", seed=2, duration=20.0)
+    late = 100_000_000
+    sim = replace(sim, mocap=replace(sim.mocap, t_ns=sim.mocap.t_ns + late, rec_ns=sim.mocap.rec_ns + late))
+    log = write_log(sim, tmp_path / "late_truth.mcap")
+    out = tmp_path / "run"
+    run_log(log, out, RunConfig(evaluation=replace(RunConfig().evaluation, plots=False)))
+    meta, want = load(out / "run.json"), load(out / "report.json")["time_offset"]
+    truth = f"{log}:{meta['input']['topics']['truth']}"
+    res = invoke(evaluate, truth, out / "poses.parquet", "-a", "--t-offset", "auto", "--json")
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)["time_offset"]
+    assert got["searched_against"] == want["searched_against"] == "velocity samples"
+    for key in ("estimated_s", "reliable", "uncertainty_s", "peak_correlation", "grid_step_s", "method"):
+        assert got[key] == want[key], key
+    assert want["uncertainty_s"] is not None and abs(got["applied_s"] - 0.1) <= want["grid_step_s"]
+    line = invoke(evaluate, truth, out / "poses.parquet", "-a", "--estimate-t-offset").stdout
+    assert f"halves ±{want['uncertainty_s']:.6f} s" in line and "against the run's log" in line, line
 
 
 def test_evaluate_usage_errors(finished_run, tmp_path):

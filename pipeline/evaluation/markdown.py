@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from slamobs.pipeline.evaluation.sync import halves_agree
+from slamobs.pipeline.evaluation.sync import halves_agree, halves_owner
 
 
 def convergence_definition(conv: dict[str, Any]) -> str:
@@ -40,14 +40,19 @@ def headline_caveats(report: dict[str, Any]) -> list[str]:
     down: its rotation APE is meaningless) and its note of a truth recorded in a body frame turned against the
     estimate's (a rotation APE of 160-179 deg beside centimetres on TagSLAM test_21, with the key that removes it, or
     with the camera's extrinsic named instead)."""
-    from slamobs.pipeline.evaluation.sections import CAMERA_NAMED_KEY, TILT_NOTE_END, TRUTH_FRAME_KEY
+    from slamobs.pipeline.evaluation.sections import tilt_note, truth_frame_words
 
-    conv = report.get("convergence") or {}
+    conv, ape = report.get("convergence") or {}, report.get("ape") or {}
     out = []
     if conv and (conv.get("t_since_start_s") is None or conv.get("coarse")):
         out.append(f"convergence: {convergence_line(conv)}")
-    keys = (TRUTH_FRAME_KEY, CAMERA_NAMED_KEY)
-    return out + [n for n in report.get("notes") or [] if n.endswith(TILT_NOTE_END) or any(k in n for k in keys)]
+    # the notes' words again, from the flags their sections set (ape.gravity_tilt_deg, ape.truth_frame_turn): a
+    # reworded note cannot drop its caveat
+    align = ((report.get("method") or {}).get("alignment") or {}).get("type")
+    out += tilt_note(align, ape.get("gravity_tilt_deg"), report.get("ape_by_alignment") or {})
+    if turn := ape.get("truth_frame_turn"):
+        out.append(truth_frame_words(turn, ape["rotation_deg"]["rmse"], ape["translation_m"]["rmse"]))
+    return out
 
 
 def _coarse(conv: dict[str, Any]) -> str:
@@ -223,7 +228,7 @@ def offset_doubts(off: dict[str, Any]) -> str:
         why.append("at the search limit")
     spread = off.get("uncertainty_s")
     if not halves_agree(spread, off["grid_step_s"], off["estimated_s"]):
-        why.append(f"the log's halves find offsets {2 * spread:.3g} s apart")
+        why.append(f"{halves_owner(off.get('searched_against'))} find offsets {2 * spread:.3g} s apart")
     with_m, without_m = off.get("ape_rmse_with_m"), off.get("ape_rmse_without_m")
     if with_m is not None and without_m is not None and with_m > without_m:
         why.append(f"applied, it raises the APE rmse from {without_m:.4g} to {with_m:.4g} m")

@@ -21,7 +21,7 @@ from slamobs.pipeline.evaluation.align import apply_alignment, umeyama
 from slamobs.pipeline.evaluation.sync import NS_PER_S, associate
 from slamobs.pipeline import kernel_cache
 from slamobs.pipeline.kernel_cache import KERNEL_ROWS, njit
-from slamobs.pipeline.lie import quats_to_rots
+from slamobs.pipeline.lie import quat_angles, quats_to_rots
 from slamobs.pipeline.noise import chi2_quantile, nees_bounds  # noqa: F401 (the report's bounds, defined with riekf's)
 from slamobs.pipeline.simd import fma
 
@@ -209,11 +209,6 @@ def matrix_quats(r: np.ndarray) -> np.ndarray:
         q[rows, k] = m[rows, k, i] + m[rows, i, k]
         q[rows, 3] = m[rows, k, j] - m[rows, j, k]
     return q / np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])[:, None]
-
-
-def quat_angles(q: np.ndarray) -> np.ndarray:
-    """Rotation angles in [0, π] of unit quaternions ``(N, 4)``: 2 atan2(‖v‖, |w|), accurate near 0 and near π."""
-    return 2.0 * np.arctan2(np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2]), np.abs(q[:, 3]))
 
 
 def compiled_for(n: int, kernel) -> bool:

@@ -16,13 +16,13 @@ import tempfile
 from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
 from slamobs.pipeline import interrupts
 from slamobs.pipeline.alignment import TimeWindow
-from slamobs.pipeline.errors import InputError, OutputError, TruthUnusable
+from slamobs.pipeline.errors import InputError, OutputError, SlamobsError, TruthUnusable
 from slamobs.pipeline.lifetime import owner_marker
 from slamobs.pipeline.paths import check_utf8, read_manifest, temporary_prefix
 from slamobs.pipeline.evaluation.report import REPORT_FILES, add_run_context, evaluate_report, write_report
@@ -31,6 +31,7 @@ from slamobs.pipeline.streams import PoseStream
 from slamobs.pipeline.writers import NEW, OWNER, remove_stale_temporaries, update_manifest, write_json
 
 if TYPE_CHECKING:
+    from slamobs.pipeline.evaluation.sync import TimeOffset
     from slamobs.pipeline.evaluation.tables import Table
 
 #: The tables of a run directory a report reads (every run writes them).
@@ -209,6 +210,28 @@ def resolve_truth(meta: dict[str, Any], source: str | None) -> TruthInput:
     else:
         notes.append(f"input log {log} not found: no landmark or bias truth")
     return TruthInput(stream, lm_truth, bias_truth, desc, notes)
+
+
+def recorded_run_offset(est: str | Path, truth: PoseStream) -> Callable[[], TimeOffset | None] | None:
+    """The truth-clock search a run recorded (run.json ``truth_clock_offset``: the truth against the log's velocity
+    samples, a gyro bias fitted, the halves' ``uncertainty_s``), for ``slamobs evaluate TRUTH RUN_DIR/poses.parquet``:
+    where ``est`` is a run's poses.parquet and ``truth`` reads as that run's own truth (the same stamps, on the run's
+    clock, and positions), the search ``slamobs report RUN_DIR`` checks again, so both say the same offset; else None
+    (evaluate searches the estimate). Public for ``slamobs evaluate``."""
+    path = Path(est)
+    if path.name != "poses.parquet" or not (path.parent / "run.json").is_file():
+        return None
+    try:
+        meta = json.loads((path.parent / "run.json").read_text(encoding="utf-8"))
+        if not isinstance(meta, dict) or "truth_clock_offset" not in meta:
+            return None
+        own = resolve_truth(meta, None).stream
+    except (OSError, ValueError, SlamobsError):  # no run's truth to compare with: the estimate is searched
+        return None
+    same = np.array_equal(np.asarray(own.t_ns), np.asarray(truth.t_ns)) and np.array_equal(
+        np.asarray(own.position), np.asarray(truth.position), equal_nan=True
+    )
+    return partial(recorded_offset, meta["truth_clock_offset"]) if same else None
 
 
 def _read_truth(given: dict, log: Path | None, clocks: dict[str, str]):

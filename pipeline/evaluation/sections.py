@@ -27,7 +27,7 @@ from slamobs.pipeline.evaluation.align import (
 )
 from slamobs.pipeline.evaluation.drift import segment_drift, segment_errors
 from slamobs.pipeline.evaluation.rpe import accumulated_distances
-from slamobs.pipeline.evaluation.sync import NS_PER_S
+from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, halves_owner
 from slamobs.pipeline.evaluation.tables import (
     GYRO_COLUMNS,
     VEL_COLUMNS,
@@ -99,6 +99,7 @@ class ApeSection(Section):
         mirror = truth_mirror_note(ev)
         turn = None if mirror else truth_frame_turn(ev)  # a mirror is no turn: the turn would mislead
         self.result["truth_frame_turn"] = turn
+        self.result["gravity_tilt_deg"] = ev.gravity_tilt_deg  # the tilt note's condition (tilt_note), as a flag
         self.notes += (mirror or truth_frame_note(ev, turn)) + truth_scale_note(ev) + sparse_pairs_note(ev)
 
 
@@ -198,13 +199,13 @@ TRUTH_FRAME_ROTATION_DEG = 20.0
 TRUTH_FRAME_TRANSLATION = 0.05
 #: the note names a turn only when the turn leaves at most this share of the rotation APE's rmse
 TRUTH_FRAME_EXPLAINS = 0.5
-#: what every note naming that turn holds: what a headline table (:func:`.markdown.headline_caveats`) picks
+#: the config key every note naming that turn offers
 TRUTH_FRAME_KEY = "set frames.truth_rotation: ["
 #: where that note turns from the numbers to what may explain them (:func:`camera_named_notes` keeps what is before)
 TRUTH_FRAME_UNLESS = ", unless a sensor's extrinsic is wrong"
 #: what that note says of the frames (the NEES notes repeat it; they and the body-frame note go by ape.truth_frame_turn)
 TRUTH_FRAME_TURNED = "the truth's body frame looks turned against the estimate's"
-#: what the note says instead when the run's detection pairs named the camera's extrinsic (a headline table picks it)
+#: what the note says instead when the run's detection pairs named the camera's extrinsic
 CAMERA_NAMED_KEY = "the detection pairs name the camera's extrinsic"
 
 
@@ -252,11 +253,16 @@ def truth_frame_turn(ev: TrajectoryEvaluation) -> dict[str, Any] | None:
 
 def truth_frame_note(ev: TrajectoryEvaluation, turn: dict[str, Any] | None) -> list[str]:
     """The note naming :func:`truth_frame_turn`'s ``turn`` (None: no note), with the config key that applies it."""
-    if turn is None:
-        return []
-    rot, trans, path = ev.rotation.stats["rmse"], ev.translation.stats["rmse"], turn["path_m"]
-    axis, q = turn["axis"], turn["quat_xyzw"]
-    return [
+    return [] if turn is None else [truth_frame_words(turn, ev.rotation.stats["rmse"], ev.translation.stats["rmse"])]
+
+
+def truth_frame_words(turn: dict[str, Any], rot: float, trans: float) -> str:
+    """:func:`truth_frame_note`'s words of ``turn`` beside the rotation and translation APE rmse (``rot`` deg,
+    ``trans`` m); where the run's detection pairs named the camera (``turn["camera_named"]``:
+    :func:`camera_named_notes`), that note's words instead. Public: a headline table says a report's note from its
+    ``ape`` (:func:`.markdown.headline_caveats`), by the flag, not by finding the note's words."""
+    path, axis, q = turn["path_m"], turn["axis"], turn["quat_xyzw"]
+    plain = (
         f"rotation APE {rot:.1f} deg is implausible next to translation APE {trans:.3f} m "
         f"({100.0 * trans / path:.1f} % of the {path:.1f} m path): {TRUTH_FRAME_TURNED} by a constant "
         f"{turn['angle_deg']:.1f} deg about [{axis[0]:.3f}, {axis[1]:.3f}, {axis[2]:.3f}]; with it the "
@@ -264,7 +270,14 @@ def truth_frame_note(ev: TrajectoryEvaluation, turn: dict[str, Any] | None) -> l
         "transform inverted or turned turns the estimate so: `slamobs info --noise LOG` checks it against the "
         f"motion); to apply it (evaluation only) {TRUTH_FRAME_KEY}"
         f"{q[0]:.6f}, {q[1]:.6f}, {q[2]:.6f}, {q[3]:.6f}]"
-    ]
+    )
+    if not turn.get("camera_named"):
+        return plain
+    return (
+        f"{plain.split(TRUTH_FRAME_UNLESS)[0]}; but {CAMERA_NAMED_KEY} (the warning below): a camera transform "
+        "inverted or turned turns the estimate so; correct the extrinsic and run again (a rotation of the truth would "
+        "only hide the error)"
+    )
 
 
 def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[str]:
@@ -294,18 +307,16 @@ def camera_named_notes(report: dict[str, Any], run_notes: list[str]) -> list[str
     as they are otherwise."""
     from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE
 
-    notes, turn = report.get("notes") or [], (report.get("ape") or {}).get("truth_frame_turn")
+    notes, ape = report.get("notes") or [], report.get("ape") or {}
+    turn = ape.get("truth_frame_turn")
     if not turn or not any(CAMERA_ADVICE in n for n in run_notes):
         return notes
     turn["camera_named"] = True
-    return [
-        f"{n.split(TRUTH_FRAME_UNLESS)[0]}; but {CAMERA_NAMED_KEY} (the warning below): a camera transform inverted "
-        "or turned turns the estimate so; correct the extrinsic and run again (a rotation of the truth would only "
-        "hide the error)"
-        if TRUTH_FRAME_KEY in n
-        else n
-        for n in notes
-    ]
+    rmse = [(ape.get(k) or {}).get("rmse") for k in ("rotation_deg", "translation_m")]
+    if None in rmse:  # no APE: no truth-frame note to reword
+        return notes
+    plain = truth_frame_words({**turn, "camera_named": False}, *rmse)  # the note as its section wrote it
+    return [truth_frame_words(turn, *rmse) if n == plain else n for n in notes]
 
 
 class ApeByAlignmentSection(Section):
@@ -357,7 +368,7 @@ class ApeByAlignmentSection(Section):
         self.notes += tilt_note(self.options.align, ev.gravity_tilt_deg, self.result)
 
 
-#: how every tilt note ends: what a headline table (:func:`.markdown.headline_caveats`) picks from a report's notes
+#: how every tilt note ends
 TILT_NOTE_END = "(report --align yaw makes it the headline)"
 
 
@@ -518,36 +529,23 @@ class TimeOffsetSection(Section):
         off = ev.time_offset if self.options.t_offset_s == "auto" else None
         if off is not None and not off.reliable:
             edge = ", at the search limit" if off.at_window_edge else ""
-            edge += "" if off.consistent else f", the log's halves {2 * off.uncertainty_s:.3f} s apart"
+            edge += "" if off.consistent else f", {halves_owner(ev.offset_against)} {2 * off.uncertainty_s:.3f} s apart"
             self.notes.append(
                 f"applied clock offset {ev.applied_offset_s:.6f} s is not reliable (peak correlation "
                 f"{off.peak_correlation:.2f}{edge})"
             )
 
     def process_data(self, ev: TrajectoryEvaluation) -> None:
-        off = ev.time_offset
-        against = ev.offset_against
-        self.result = {
-            "estimated_s": None if off is None else off.offset_s,
-            "peak_correlation": None if off is None else off.peak_correlation,
-            "signal": None if off is None else off.signal,
-            "reliable": None if off is None else off.reliable,
-            "ape_rmse_with_m": None if off is None else off.rmse_with_m,
-            "ape_rmse_without_m": None if off is None else off.rmse_without_m,
-            "search_window_s": None if off is None else off.search_window_s,
-            "uncertainty_s": None if off is None else off.uncertainty_s,
-            "grid_step_s": None if off is None else off.grid_step_s,
-            "applied_s": float(ev.applied_offset_s),
-            "applied_from": "estimate" if self.options.t_offset_s == "auto" else "option",
-            "searched_against": against,
-            "method": self.method(against),
-        }
+        self.result = offset_fields(ev.time_offset, ev.applied_offset_s, self.options.t_offset_s, ev.offset_against)
 
     @staticmethod
     def method(against: str) -> str:
         """The method text for an offset searched against the estimate or the log's velocity samples."""
         if against == "estimate":
-            other = "of estimate and truth"
+            other = (
+                "of estimate and truth (uncertainty_s: half the difference of the offsets the estimate's first and "
+                "second half find, which must be at most a grid step or a quarter of the offset to be reliable)"
+            )
             lag = (
                 "A lag of the estimate behind the motion (an observer's filtering delay) shows as the same offset: "
                 "a reliable offset is where the estimate matches the truth best, not proof that the clocks differ"
@@ -575,6 +573,27 @@ class TimeOffsetSection(Section):
             f"applied; ape_rmse_without_m, without; same association and alignment). {lag}. Applied to the "
             "association only when asked (t_offset auto)"
         )
+
+
+def offset_fields(off: TimeOffset | None, applied_s: float, t_offset_s: float | str, against: str) -> dict[str, Any]:
+    """report.json's ``time_offset`` of the search ``off`` (None: the motion told no offset), ``applied_s`` applied
+    as ``t_offset_s`` asked (seconds, or ``auto``), the truth correlated with ``against`` (``estimate`` or ``velocity
+    samples``). Public: ``slamobs evaluate --json`` states the same fields with the same definition."""
+    return {
+        "estimated_s": None if off is None else off.offset_s,
+        "peak_correlation": None if off is None else off.peak_correlation,
+        "signal": None if off is None else off.signal,
+        "reliable": None if off is None else off.reliable,
+        "ape_rmse_with_m": None if off is None else off.rmse_with_m,
+        "ape_rmse_without_m": None if off is None else off.rmse_without_m,
+        "search_window_s": None if off is None else off.search_window_s,
+        "uncertainty_s": None if off is None else off.uncertainty_s,
+        "grid_step_s": None if off is None else off.grid_step_s,
+        "applied_s": float(applied_s),
+        "applied_from": "estimate" if t_offset_s == "auto" else "option",
+        "searched_against": against,
+        "method": TimeOffsetSection.method(against),
+    }
 
 
 #: A map whose error after the trajectory's alignment is this many times its error after an alignment of its own (and

@@ -8,6 +8,7 @@ clock offset that evo users otherwise guess for ``--t_offset``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -152,8 +153,9 @@ class TimeOffset:
     checked: bool = False
     rmse_with_m: float | None = None
     rmse_without_m: float | None = None
-    #: half the difference of the offsets found in the first and the second half of the log (a run's truth-clock
-    #: search, :func:`.trajectory_evaluation.log_time_offset`; None where not searched or a half tells none)
+    #: half the difference of the offsets found in the first and the second half of the log's velocity samples (a
+    #: run's truth-clock search, :func:`.trajectory_evaluation.log_time_offset`) or of the estimate's poses
+    #: (:func:`.trajectory_error.checked_time_offset`): :func:`halves_spread`; None where a half tells none
     uncertainty_s: float | None = None
 
     @property
@@ -185,6 +187,20 @@ def halves_agree(uncertainty_s: float | None, grid_step_s: float, offset_s: floa
     """:attr:`TimeOffset.consistent` of its fields. Public: report.md says why an offset is not reliable from
     report.json's fields (:func:`.markdown.offset_doubts`)."""
     return uncertainty_s is None or uncertainty_s <= max(grid_step_s, HALVES_SHARE * abs(offset_s))
+
+
+def halves_spread(search: Callable[[slice], TimeOffset | None], n: int) -> float | None:
+    """Half the difference of the offsets ``search(part)`` finds in the first and the second half of ``n`` samples:
+    :attr:`TimeOffset.uncertainty_s` of every search (the log's velocity samples, an estimate's poses). None where
+    either half tells no offset."""
+    first, second = search(slice(0, n // 2)), search(slice(n // 2, n))
+    return None if first is None or second is None else 0.5 * abs(first.offset_s - second.offset_s)
+
+
+def halves_owner(against: str | None) -> str:
+    """Whose halves :func:`halves_spread` compared, for a sentence: the estimate's poses, or the log's velocity
+    samples (``searched_against``). Public: report.json's note and report.md's reasons say it alike."""
+    return "the estimate's halves" if against == "estimate" else "the log's halves"
 
 
 #: Share of the offset its :attr:`TimeOffset.uncertainty_s` may reach in a reliable offset: four of them from zero.

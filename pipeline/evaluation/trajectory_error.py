@@ -18,7 +18,14 @@ from slamobs.pipeline.evaluation import metrics
 from slamobs.pipeline.evaluation.align import DESCRIPTIONS, Alignment, canonical, fit_alignment
 from slamobs.pipeline.evaluation.metrics import RotationRows
 from slamobs.pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
-from slamobs.pipeline.evaluation.sync import NS_PER_S, TimeOffset, associate, estimate_time_offset, interpolate_poses
+from slamobs.pipeline.evaluation.sync import (
+    NS_PER_S,
+    TimeOffset,
+    associate,
+    estimate_time_offset,
+    halves_spread,
+    interpolate_poses,
+)
 from slamobs.pipeline.streams import PoseStream
 
 SYNC_METHODS = ("nearest", "interpolation")
@@ -469,9 +476,14 @@ def checked_time_offset(
     ``found()``: the offset searched another way (a run's: the truth against the log's own velocity samples,
     :func:`.trajectory_evaluation.log_time_offset`), checked here the same way instead of searching the estimate."""
     if found is None:
-        off = estimate_time_offset(
-            ref.t_ns, ref.position, ref.quat_xyzw, est.t_ns, est.position, est.quat_xyzw, max_offset_s=max_offset_s
-        )
+
+        def search(part: slice = slice(None)) -> TimeOffset | None:
+            t, pos, quat = (np.asarray(x)[part] for x in (est.t_ns, est.position, est.quat_xyzw))
+            return estimate_time_offset(ref.t_ns, ref.position, ref.quat_xyzw, t, pos, quat, max_offset_s=max_offset_s)
+
+        off = search()
+        # the halves of the estimate's poses must agree, as a log's velocity samples must (one `reliable`)
+        off = None if off is None else replace(off, uncertainty_s=halves_spread(search, len(est)))
     else:
         off = found()
     if off is None:

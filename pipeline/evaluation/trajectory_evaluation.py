@@ -34,7 +34,13 @@ from slamobs.pipeline.evaluation.trajectory_error import (
     checked_time_offset,
     synchronize,
 )
-from slamobs.pipeline.evaluation.sync import ReferenceMotion, rate_bias, time_offset_of_steps, velocity_steps
+from slamobs.pipeline.evaluation.sync import (
+    ReferenceMotion,
+    halves_spread,
+    rate_bias,
+    time_offset_of_steps,
+    velocity_steps,
+)
 from slamobs.pipeline.errors import TruthUnusable
 from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.streams import PoseStream
@@ -530,18 +536,8 @@ def log_time_offset(
         moved, off, bias = abs(again.offset_s - off.offset_s), again, (bias_omega, bias_velocity)
         if moved < off.grid_step_s:  # settled
             break
-    return replace(off, uncertainty_s=_halves_spread(search, len(vel_t_ns), *bias))
-
-
-def _halves_spread(search, n: int, bias_omega: np.ndarray, bias_velocity: np.ndarray) -> float | None:
-    """Half the difference of the offsets ``search`` finds in the first and the second half of the ``n`` velocity
-    samples (with the bias the whole log's search took): :attr:`.sync.TimeOffset.uncertainty_s` of
-    :func:`log_time_offset`. None where either half tells no offset."""
-    first, second = (
-        search(bias_omega, bias_velocity, slice(0, n // 2)),
-        search(bias_omega, bias_velocity, slice(n // 2, n)),
-    )
-    return None if first is None or second is None else 0.5 * abs(first.offset_s - second.offset_s)
+    # the halves with the bias the whole log's search took
+    return replace(off, uncertainty_s=halves_spread(lambda part: search(*bias, part), len(vel_t_ns)))
 
 
 #: Rounds of :func:`log_time_offset`'s bias fit and search again (each starts from the last lag found: the

@@ -27,6 +27,7 @@ import numpy as np
 
 from slamobs.pipeline.blocks import far_repeats, finite_rows, repeated_pairs
 from slamobs.pipeline.errors import InputError, one_line, plural, resource_error
+from slamobs.pipeline.lie import quat_angles_to
 from slamobs.pipeline.streams import DetectionStream, PoseStream, Transform, TransformSeries, Vec3Stream
 
 from . import fastdecode, tfdecode
@@ -847,9 +848,7 @@ def static_change_text(rows: TfRows, changed: Mapping[tuple[str, str], list[int]
     sizes = []
     for key, idx in changed.items():
         vals = rows.values[idx]
-        quats = vals[:, 3:] / np.linalg.norm(vals[:, 3:], axis=1)[:, None]
-        dots = np.abs(quats @ quats[-1])
-        turned = float(np.degrees(2.0 * np.arccos(np.minimum(dots, 1.0))).max())
+        turned = float(np.degrees(quat_angles_to(vals[:, 3:], vals[-1, 3:])).max())
         moved = float(np.linalg.norm(vals[:, :3] - vals[-1, :3], axis=1).max())
         other = np.flatnonzero(~(vals == vals[-1]).all(axis=1))
         since = (rows.rec_ns[idx[other[-1] + 1]] - rows.rec_ns[idx[0]]) * 1e-9
