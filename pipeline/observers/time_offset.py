@@ -61,17 +61,9 @@ BIAS_STEP = 1e-4
 
 
 def _sample_steps(stream, omega: np.ndarray, vel: np.ndarray) -> tuple[np.ndarray, tuple]:
-    """The times from which the velocity samples are held and the dead-reckoning steps between them (twists,
-    lengths), nothing integrated across a segment gap. A sample is held from half-way to the one before it (a
-    segment's first from its stamp): centred on its stamp, so the dead reckoning follows the twist taken linear
-    between samples as riekf and batch take it. Held from its stamp instead, it lags a changing motion by half a
-    sample period, which the search took for a detection offset (a clean figure 8 at 10 Hz: +0.051 s applied,
-    riekf APE 0.030 -> 0.104 m, batch 0.008 -> 0.111 m)."""
+    """The velocity samples' times and the dead-reckoning steps between them (twists, lengths), nothing
+    integrated across a segment gap."""
     t = stream.seconds(stream.vel_t_ns)
-    half = np.zeros_like(t)
-    half[1:] = 0.5 * np.diff(t)
-    half[stream.segment_starts] = 0.0
-    t = t - half
     dt = np.diff(t)
     gap = stream.segment_starts - 1
     if gap.shape[0] == 0:  # one segment: the twists themselves (no copy of a long log's 17 MB each)
