@@ -21,6 +21,7 @@ from slamobs.pipeline.config import RunConfig
 from slamobs.pipeline.errors import InputError
 
 from batch_checks import assert_consistent
+from cli_checks import map_truth_only_config
 
 # pandas, the simulator and duckdb/polars are imported inside the tests: the crash test's worker processes
 # import this module and should start fast
@@ -248,15 +249,7 @@ def test_a_log_with_map_truth_only_has_its_map_error_in_the_summary_and_its_line
     summary has it (``map_error_m``, as a comparison's) and its line says it, not "no truth"."""
     import pandas as pd
 
-    from slamobs.pipeline.simulate import get_scenario
-
-    sc = get_scenario("circle")
-    truth_map = tmp_path / "map.csv"
-    truth_map.write_text(
-        "id,x,y,z\n" + "".join(f"{i},{x},{y},{z}\n" for i, (x, y, z) in zip(sc.landmark_ids, sc.landmarks))
-    )
-    config = tmp_path / "run.yaml"
-    config.write_text(f"topics:\n  truth: ''\nevaluation:\n  plots: false\n  map_truth: {json.dumps(str(truth_map))}\n")
+    config = map_truth_only_config(tmp_path)
     res = invoke(logs["circle"], "-o", tmp_path / "OUT", "-j", 1, "--config", config)
     assert res.exit_code == 0, res.output
     row = pd.read_parquet(tmp_path / "OUT" / "summary.parquet").iloc[0]

@@ -15,10 +15,9 @@ from slamobs.pipeline.lie import quat_to_rot, quats_to_rots, rots_to_quats
 from slamobs.pipeline.readers import read_truth
 from slamobs.pipeline.readers.trajectory_files import write_tum
 from slamobs.pipeline.simulate.logwriter import write_log
-from slamobs.pipeline.simulate.scenarios import get_scenario
 from slamobs.pipeline.simulate.sensors import simulate
 
-from cli_checks import invoke
+from cli_checks import invoke, map_truth_only_config
 
 #: The truth's body turned against the estimate's: 70 deg about a skew axis.
 AXIS = np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])
@@ -182,13 +181,7 @@ def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words
 
 
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):
-    sc = get_scenario("circle")
-    truth_map = tmp_path / "map.csv"
-    truth_map.write_text(
-        "id,x,y,z\n" + "".join(f"{i},{x},{y},{z}\n" for i, (x, y, z) in zip(sc.landmark_ids, sc.landmarks))
-    )
-    config = tmp_path / "run.yaml"
-    config.write_text(f"topics:\n  truth: ''\nevaluation:\n  plots: false\n  map_truth: {json.dumps(str(truth_map))}\n")
+    config = map_truth_only_config(tmp_path)
     res = invoke("run", sim["log"], "-o", tmp_path / "out", "--config", config)
     assert res.exit_code == 0, res.output
     meta = json.loads((tmp_path / "out" / "run.json").read_text())
