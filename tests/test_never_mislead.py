@@ -186,6 +186,11 @@ def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words
     report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
     add_run_context(report, [f"warning: {CAMERA_ADVICE}"], meta)
     assert "camera_named" not in report["ape"]["truth_frame_turn"]
+    # a riekf record written before the flag: the same rule from its fields
+    old = {**meta, "observer": {"name": "riekf", "time_offset": {"extrinsic_turn": {"gain": 5.5}, "gyro_misreads": {}}}}
+    report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
+    add_run_context(report, [], old)
+    assert report["ape"]["truth_frame_turn"]["camera_named"] is True
 
 
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):

@@ -301,9 +301,13 @@ def detections_named_camera(metadata: dict[str, Any]) -> bool:
     """Whether a run's detection pairs named its camera's extrinsic turned or inverted (``time_offset.
     camera_turned``): riekf's and batch's own time-offset record (run.json ``observer.time_offset``) or the run's
     camera check (``observer.camera_check``: the observers', made when the report found the estimate turned).
-    Public: the run's camera check reads it too (no second check where the estimator's own named the camera)."""
+    Public: the run's camera check reads it too (no second check where the estimator's own named the camera). A
+    time-offset record written before the flag is judged by the same rule from its fields."""
+    from slamobs.pipeline.observers.time_offset import camera_turned
+
     observer = metadata.get("observer") or {}
-    return any(bool((observer.get(k) or {}).get("camera_turned")) for k in ("time_offset", "camera_check"))
+    records = [observer.get(k) or {} for k in ("time_offset", "camera_check")]
+    return any(bool(r["camera_turned"]) if "camera_turned" in r else camera_turned(r) for r in records)
 
 
 def camera_named_notes(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
