@@ -243,6 +243,8 @@ def evaluate(
     click.echo(result.pretty())
     st = result.stats
     click.echo(f"{'pairs':>10}\t{st['n']}")
+    if (line := _unpaired_line(result.paired, t_max_diff)) is not None:
+        click.echo(line)
     for p in ("p90", "p95", "p99"):
         click.echo(f"{p:>10}\t{st[p]:.6f}")
     if extra.get("time_offset_line"):
@@ -405,6 +407,28 @@ def _run(
         "json": _doc(result, describe(result, sync, al, rpe_opts), offset_json),
         "time_offset_line": _offset_line(found, timed, asked, applied, against),
     }
+
+
+#: Above this share of the driving series' poses unpaired, ``evaluate`` warns: its statistics cover the minority.
+UNPAIRED_WARN_SHARE = 0.5
+
+
+def _unpaired_line(paired, t_max_diff: float) -> str | None:
+    """The poses of the driving (shorter) series that found no stamp of the other within ``t_max_diff``: a line
+    under ``pairs`` (none when every pose was paired), and a warning on stderr when most were not."""
+    if paired.unpaired == 0:
+        return None
+    series, other = ("truth", "estimate") if paired.driving == "reference" else ("estimate", "truth")
+    of = paired.n_ref if paired.driving == "reference" else paired.n_est
+    share = paired.unpaired / of
+    said = f"{paired.unpaired} of {of} {series} poses ({share:.1%}) found no {other} stamp within {t_max_diff:g} s"
+    if share > UNPAIRED_WARN_SHARE:
+        click.echo(
+            f"warning: most {series} poses are unpaired: {said} (--t_max_diff); the statistics cover the "
+            f"{len(paired)} paired; a wider --t_max_diff pairs more of them.",
+            err=True,
+        )
+    return f"{'unpaired':>10}\t{said}"
 
 
 def _offset_line(found, timed: bool, asked: bool, applied: float, against: str) -> str | None:

@@ -24,7 +24,8 @@ from slamobs.cli.options import config_option
 @click.option(
     "--noise",
     is_flag=True,
-    help="Read and align LOG and print the noise levels batch and riekf would use (docs/noise.md); no estimator runs. "
+    help="Read and align LOG and print the noise levels riekf would use and batch would start from (docs/noise.md); "
+    "no estimator runs. "
     "On a log they cannot run on (e.g. IMU only): each sensor stream's own white-noise density, and why not the rest.",
 )
 @config_option("run.yaml: the settings it gives (tags.size, cameras) are not asked for; with --noise its noise levels.")
@@ -102,9 +103,26 @@ def _noise(log: Path, msg_dir: Path | None, config_path: Path | None, as_json: b
     if as_json:
         click.echo(json.dumps(settings.as_dict(), indent=2))
         return
-    click.echo(f"noise levels of {log} (batch and riekf; key: value unit (source, ± standard error: method)):")
-    for line in settings.lines() + list(settings.notes) + checks:
+    click.echo(
+        f"noise levels of {log} (riekf uses them, batch starts from them; key: value unit (source, ± standard "
+        "error: method)):"
+    )
+    for line in settings.lines() + _batch_lines(settings, config) + list(settings.notes) + checks:
         click.echo(f"  {line}")
+
+
+def _batch_lines(settings, config) -> list[str]:
+    """What batch's run will use in place of a level printed: the held velocity's level re-estimated from its own
+    solution (``pipeline.smoother.held_velocity``), which on MR.CLAM is a third of the detection pairs' level."""
+    from slamobs.pipeline.smoother.held_velocity import WINDOW_S, skipped
+
+    if skipped(config.batch.held_velocity, settings, fixed_bias=False) is not None:
+        return []
+    return [
+        "velocity (batch): not the level above: batch re-estimates it from its own solution's residuals over "
+        f"{WINDOW_S:g} s windows, at most the level above (batch.held_velocity; its run.json "
+        "observer.smoother.held_velocity, its note)"
+    ]
 
 
 def _sensor_noise(log: Path, config, err, as_json: bool) -> None:

@@ -670,7 +670,7 @@ def run_prepared(
             plot_workers,
             tables=tables,
             found_offset=found_offset,
-            check=lambda report: camera_check(prepared, config, report, notes),  # nothing on a clean run
+            check=lambda report: camera_check(prepared, config, report, metadata),  # nothing on a clean run
         )
         export_run(tmp, config, metadata, report, timings, progress)
         note_compilation(prepared, notes, metadata)
@@ -847,18 +847,17 @@ def estimate_splitting(
     return {**timings, "first_pass_s": first_pass_s}
 
 
-def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, notes: list[str]) -> list[str]:
+def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, metadata: dict) -> list[str]:
     """The detection pairs' warnings (``time_offset.note``: a camera extrinsic turned or inverted, a gyro misread,
     with their topics and the camera frame) when the report found the estimate's body frame turned against the
     truth's (report.json ``ape.truth_frame_turn``, which a wrong extrinsic also gives) and the run's own notes say
     nothing of the camera: observers do not make those checks (0.18-0.32 CPU s and ~17 s of first compile a run), so
     only a run the report already doubts pays them (the log read and aligned again when the run released it). Made
     before the report is written, so that its notes (:func:`.report.add_run_context`) name the camera."""
+    from slamobs.pipeline.evaluation.sections import detections_named_camera
     from slamobs.pipeline.observers import time_offset
 
-    if not ((report or {}).get("ape") or {}).get("truth_frame_turn") or any(
-        time_offset.CAMERA_ADVICE in n for n in notes
-    ):
+    if not ((report or {}).get("ape") or {}).get("truth_frame_turn") or detections_named_camera(metadata):
         return []
 
     aligned = prepared.aligned
@@ -867,7 +866,9 @@ def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, 
             aligned = prepare_log(prepared.log, config, directions=False, noise=False).aligned
         except InputError:  # the log changed since it was read: the run's results stand, without the check
             return []
-    found = time_offset.note(config.observer, time_offset.estimate(aligned))
+    record = time_offset.estimate(aligned)
+    metadata["observer"]["camera_check"] = {"camera_turned": time_offset.camera_turned(record)}  # run.json's flag
+    found = time_offset.note(config.observer, record)
     return [f"{n} (checked since the report found the estimate turned)" for n in found if n.startswith("warning: ")]
 
 

@@ -159,7 +159,8 @@ def test_no_truth_rotation_is_named_for_errors_a_constant_turn_does_not_explain(
 def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words():
     """The NEES notes' caveat, the body-frame note and the camera's reading of the turn went by the truth-frame
     note's words (``TRUTH_FRAME_TURNED``, ``TRUTH_FRAME_KEY`` found in the notes): a reworded note dropped them all
-    without a word. They go by report.json's ``ape.truth_frame_turn`` now, whatever the notes say."""
+    without a word. They go by report.json's ``ape.truth_frame_turn`` now, whatever the notes say; the camera's reading
+    of it by run.json's time-offset flag ``camera_turned``, not by ``CAMERA_ADVICE`` found in the run's notes."""
     from slamobs.pipeline.evaluation.report import add_run_context
     from slamobs.pipeline.evaluation.sections import nees_against_turned_truth
     from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE
@@ -174,10 +175,22 @@ def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words
         report = {"ape": {"truth_frame_turn": dict(turn) if flagged else None}, "notes": ["rotation APE: reworded"]}
         add_run_context(report, [], meta)
         assert any("the run took 'odom_sensor' as the body frame" in n for n in report["notes"]) is flagged
+    # the camera named by the run's time-offset record's flag (riekf's own, or the observers' camera check), whatever
+    # the notes say: no body-frame note; the camera's advice in the notes without the flag names nothing
+    for key in ("time_offset", "camera_check"):
+        flagged = {**meta, "observer": {"name": "riekf", key: {"camera_turned": True}}}
+        report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
+        add_run_context(report, ["warning: the camera: reworded"], flagged)
+        assert report["ape"]["truth_frame_turn"]["camera_named"] is True
+        assert not any("as the body frame" in n for n in report["notes"])
     report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
-    add_run_context(report, [f"warning: {CAMERA_ADVICE}"], meta)  # the camera named: no body-frame note
+    add_run_context(report, [f"warning: {CAMERA_ADVICE}"], meta)
+    assert "camera_named" not in report["ape"]["truth_frame_turn"]
+    # a riekf record written before the flag: the same rule from its fields
+    old = {**meta, "observer": {"name": "riekf", "time_offset": {"extrinsic_turn": {"gain": 5.5}, "gyro_misreads": {}}}}
+    report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
+    add_run_context(report, [], old)
     assert report["ape"]["truth_frame_turn"]["camera_named"] is True
-    assert not any("as the body frame" in n for n in report["notes"])
 
 
 def test_a_run_with_map_truth_only_prints_its_map_error(sim, tmp_path):

@@ -572,3 +572,23 @@ def test_a_detection_law_at_its_floor_says_so(tmp_path):
     assert "raised to the floor 0.0001 m" in line and "do not fix it" in line, line
     (law,) = [x for x in shown.output.splitlines() if x.strip().startswith("detection_per_m2 = ")]
     assert "floor" not in law, law
+
+
+def test_info_noise_says_batch_re_estimates_a_held_velocitys_level(tmp_path):
+    """MR.CLAM 6 robot 3: `info --noise` printed velocity = 0.0407 m/s/sqrt(Hz) "for batch and riekf", where batch's
+    run used 0.0119 (its held velocity's level from its own solution, batch.held_velocity; h-user15). A held
+    (commanded) velocity: the line says batch re-estimates it; with batch.held_velocity off it does not."""
+    sim = simulate("circle", duration=20.0, seed=7)
+    n = sim.odom.linear.shape[0]
+    held_odom = replace(sim.odom, linear=np.repeat(sim.odom.linear[::10], 10, axis=0)[:n])
+    write_log(replace(sim, odom=held_odom), tmp_path / "held.mcap")
+    shown = invoke("info", "--noise", tmp_path / "held.mcap")
+    assert shown.exit_code == 0, shown.output
+    assert "riekf uses them, batch starts from them" in shown.output
+    assert "velocity (batch): not the level above: batch re-estimates it" in shown.output, shown.output
+    off = tmp_path / "off.yaml"
+    off.write_text("batch:\n  held_velocity: off\n")
+    shown = invoke("info", "--noise", tmp_path / "held.mcap", "--config", off)
+    assert shown.exit_code == 0 and "velocity (batch)" not in shown.output, shown.output
+    moving = invoke("info", "--noise", write_log(sim, tmp_path / "moving.mcap"))
+    assert moving.exit_code == 0 and "velocity (batch)" not in moving.output, moving.output

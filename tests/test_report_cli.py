@@ -395,6 +395,25 @@ def test_evaluate_kitti_pairs_by_index(tmp_path):
     assert res.exit_code == 2 and "paired by index" in res.stderr
 
 
+def test_evaluate_states_the_poses_left_unpaired_and_warns_when_most_are(tmp_path):
+    """ROS_example.bag's ORB-SLAM poses: `pairs 2550`, nothing saying that 5812 of the 8362 estimated poses found
+    no truth stamp within --t_max_diff 0.01 s (h-user15). Here 200 of 300 estimate stamps fall between the truth's
+    (20 Hz): the line and the warning say so; with a window that pairs them all, neither is printed."""
+    t_truth = np.arange(400) * 0.05
+    t_est = np.sort(np.r_[t_truth[:300:3], t_truth[1:300:3] + 0.025, t_truth[2:300:3] + 0.025])
+    for name, t in (("gt.txt", t_truth), ("est.txt", t_est)):
+        xyz = np.c_[np.cos(t), np.sin(t), 0.1 * t]
+        np.savetxt(tmp_path / name, np.c_[t, xyz, np.zeros((t.size, 3)), np.ones(t.size)])
+    res = invoke(evaluate, tmp_path / "gt.txt", tmp_path / "est.txt")
+    assert res.exit_code == 0, res.output
+    assert "  unpaired\t200 of 300 estimate poses (66.7%) found no truth stamp within 0.01 s" in res.stdout
+    assert "warning: most estimate poses are unpaired" in res.stderr and "cover the 100 paired" in res.stderr
+    doc = json.loads(invoke(evaluate, tmp_path / "gt.txt", tmp_path / "est.txt", "--json").stdout)
+    assert doc["method"]["association"]["n_unpaired"] == 200 and doc["stats"]["n"] == 100
+    res = invoke(evaluate, tmp_path / "gt.txt", tmp_path / "est.txt", "--t_max_diff", "0.03")
+    assert res.exit_code == 0 and "unpaired" not in res.output, res.output
+
+
 # ------------------------------------------------------------------------------------------ evo CLI as the oracle
 
 CASES = [

@@ -701,17 +701,19 @@ def test_a_camera_extrinsic_turned_or_inverted_is_named():
     from slamobs.pipeline.observers import time_offset
 
     sim = simulate("figure8", seed=2, duration=20.0)
-    said = [n for n in time_offset.note("riekf", time_offset.estimate(align(expected_streams(sim)))) if "turned" in n]
-    assert said == []  # as recorded: no turn fits better
+    record = time_offset.estimate(align(expected_streams(sim)))
+    said = [n for n in time_offset.note("riekf", record) if "turned" in n]
+    assert said == [] and record["camera_turned"] is False  # as recorded: no turn fits better
     camera = sim.static_tf[0]
     r = quats_to_rots(np.asarray(camera.quat_xyzw)[None])[0]
     turned = r @ so3_exp(np.array([0.0, 0.0, np.pi / 2]))
     for rot, shift in ((turned, camera.translation), (r.T, -r.T @ camera.translation)):
         tf = replace(camera, quat_xyzw=rots_to_quats(np.ascontiguousarray(rot[None]))[0], translation=shift)
         stream = align(expected_streams(replace(sim, static_tf=[tf, *sim.static_tf[1:]])))
-        notes = time_offset.note("riekf", time_offset.estimate(stream))
+        record = time_offset.estimate(stream)
+        notes = time_offset.note("riekf", record)
         said = [n for n in notes if "check the camera's extrinsic" in n]
-        assert len(said) == 1, notes
+        assert len(said) == 1 and record["camera_turned"] is True, notes  # the flag the report reads
 
 
 def test_mirrored_detections_are_named_with_the_gyro_they_read_as():

@@ -365,7 +365,7 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
 
     own = f"{(metadata.get('observer') or {}).get('name')}: "
     if report.get("notes"):
-        report["notes"] = camera_named_notes(report, run_notes)
+        report["notes"] = camera_named_notes(report, metadata)
         report["notes"] += body_frame_notes(report, metadata.get("input") or {})
     if said := [n for n in run_notes if n.startswith(("noise: ", "warning: noise: ", own, f"warning: {own}"))]:
         report.setdefault("notes", []).extend(said)

@@ -297,19 +297,30 @@ def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[
     return [body_frame_note(body, origin)]
 
 
-def camera_named_notes(report: dict[str, Any], run_notes: list[str]) -> list[str]:
-    """The report's notes once the run's own (``run_notes``) hold the detection pairs' warning of a turned or
-    inverted camera extrinsic (``time_offset.CAMERA_ADVICE``) and the report found the truth's body frame turned
-    (``ape.truth_frame_turn``, then marked ``camera_named``): such a camera turns the estimate as a truth recorded in
-    another body frame would, so the truth-frame note (:func:`truth_frame_note`) keeps its numbers, sends the reader
-    to that warning (a report's notes carry it: :func:`.report.add_run_context`) and no longer offers
-    ``frames.truth_rotation``, which would hide the camera's error in the report, not mend the estimate. The notes
-    as they are otherwise."""
-    from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE
+def detections_named_camera(metadata: dict[str, Any]) -> bool:
+    """Whether a run's detection pairs named its camera's extrinsic turned or inverted (``time_offset.
+    camera_turned``): riekf's and batch's own time-offset record (run.json ``observer.time_offset``) or the run's
+    camera check (``observer.camera_check``: the observers', made when the report found the estimate turned).
+    Public: the run's camera check reads it too (no second check where the estimator's own named the camera). A
+    time-offset record written before the flag is judged by the same rule from its fields."""
+    from slamobs.pipeline.observers.time_offset import camera_turned
 
+    observer = metadata.get("observer") or {}
+    records = [observer.get(k) or {} for k in ("time_offset", "camera_check")]
+    return any(bool(r["camera_turned"]) if "camera_turned" in r else camera_turned(r) for r in records)
+
+
+def camera_named_notes(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
+    """The report's notes once the run's detection pairs named a turned or inverted camera extrinsic
+    (:func:`detections_named_camera`: the run's notes carry its warning) and the report found the truth's body
+    frame turned (``ape.truth_frame_turn``, then marked ``camera_named``): such a camera turns the estimate as a
+    truth recorded in another body frame would, so the truth-frame note (:func:`truth_frame_note`) keeps its
+    numbers, sends the reader to that warning (a report's notes carry it: :func:`.report.add_run_context`) and no
+    longer offers ``frames.truth_rotation``, which would hide the camera's error in the report, not mend the
+    estimate. The notes as they are otherwise."""
     notes, ape = report.get("notes") or [], report.get("ape") or {}
     turn = ape.get("truth_frame_turn")
-    if not turn or not any(CAMERA_ADVICE in n for n in run_notes):
+    if not turn or not detections_named_camera(metadata):
         return notes
     turn["camera_named"] = True
     rmse = [(ape.get(k) or {}).get("rmse") for k in ("rotation_deg", "translation_m")]

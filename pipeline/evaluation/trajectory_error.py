@@ -89,6 +89,12 @@ class Paired:
     def __len__(self) -> int:
         return int(self.ref_pos.shape[0])
 
+    @property
+    def unpaired(self) -> int:
+        """How many poses of the driving (shorter) series found no stamp of the other within the association
+        window (0 when paired by index): ROS_example.bag's ORB-SLAM estimate, 5812 of 8362 at 0.01 s."""
+        return (self.n_ref if self.driving == "reference" else self.n_est) - len(self)
+
     @cached_property
     def ref_rot(self) -> RotationRows:
         r = self.ref_rotation
@@ -434,6 +440,7 @@ def describe(result: ErrorResult, sync: SyncOptions, align: AlignOptions, rpe_op
             "t_offset_s": float(sync.t_offset_s) if p.method != "index" else None,
             "driving_series": p.driving,
             "n_pairs": len(p),
+            "n_unpaired": p.unpaired,  # of the driving series: no stamp of the other within t_max_diff_s
             "n_reference": p.n_ref,
             "n_estimate": p.n_est,
         },

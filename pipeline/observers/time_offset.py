@@ -862,6 +862,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     out["velocity_scale"] = velocity_scale(c)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
+    out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, shift if why is None else 0.0)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
     return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
@@ -961,6 +962,17 @@ def misread(offset: dict | None) -> bool:
     return offset is not None and bool(_misreads(offset))
 
 
+def camera_turned(offset: dict | None) -> bool:
+    """Whether the detection pairs name the camera's extrinsic turned or inverted (the :data:`CAMERA_ADVICE`
+    warning): the detections fit ``EXTRINSIC_TURN_GAIN`` times better turned and no gyro misread is named (a gyro of
+    the wrong sign fits as well turned). Public: :func:`estimate` records it as ``camera_turned``, which the report
+    (``sections.camera_named_notes``) and the run's camera check read instead of searching the notes' words."""
+    if not offset:
+        return False
+    turn = offset.get("extrinsic_turn") or {"gain": 0.0}
+    return turn["gain"] >= EXTRINSIC_TURN_GAIN and not _best_misread(offset.get("gyro_misreads") or {})
+
+
 def _misreads(offset: dict) -> list[tuple[str, str]]:
     """What the detection pairs say is misread, one ``(sentence, what the estimate used)`` each: the sentence
     without an estimator's name or the run's tail, which :func:`note` adds ("it" / "them" as read). Each sentence
@@ -990,7 +1002,7 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     # only where the gyro reads right (a gyro of the wrong sign, or mirrored detections, fit as well turned by 180
     # deg about a horizontal axis: 57-138x on generated figure 8s and ground robots; in deg/s the detections fit
     # turned 2.3-7.1x better), and before the velocity's scale, which a turned camera also upsets
-    if turn["gain"] >= EXTRINSIC_TURN_GAIN and not found:
+    if camera_turned(offset):  # found holds the gyro's misread at most: none named here
         found.append(
             (
                 f"the detections fit the odometry {turn['gain']:.3g}x better turned {_turn_phrase(turn['rotvec_deg'])} "

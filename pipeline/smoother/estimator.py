@@ -641,16 +641,9 @@ class BatchSmoother(Stepper):
 
     def _held_velocity_skipped(self) -> str | None:
         """Why the velocity level is not taken from the solution's short-window residuals, or None."""
-        nz = self.noise
-        if self.settings.held_velocity == "off":
-            return "batch.held_velocity is off"
-        if "velocity" not in nz.held:
-            return "the velocity stream's samples move (its level is measured from them)"
-        if nz.sources.get("velocity") == "config":
-            return "noise: velocity is set in the configuration"
-        if self.fixed_bias is not None:
-            return "the biases are fixed (a reference run)"
-        return None
+        from slamobs.pipeline.smoother import held_velocity as hv
+
+        return hv.skipped(self.settings.held_velocity, self.noise, self.fixed_bias is not None)
 
     def _evidence_keys(self) -> tuple[str, ...]:
         """The levels the evidence scans: :data:`pipeline.smoother.evidence.KEYS`, and the velocity's axes across

@@ -77,6 +77,22 @@ def scale(density: np.ndarray, level: np.ndarray, velocity: np.ndarray) -> float
     return min(s, 1.0) if np.isfinite(s) and s > 0 else 1.0
 
 
+def skipped(mode: str, noise, fixed_bias: bool) -> str | None:
+    """Why batch does not take the velocity level from its solution's short-window residuals, or None when it
+    does: ``mode`` its ``batch.held_velocity`` setting, ``noise`` the levels it starts from
+    (``pipeline.noise.NoiseSettings``), ``fixed_bias`` a reference run. Public: ``slamobs info --noise`` says by it
+    that batch's run re-estimates the level it prints."""
+    if mode == "off":
+        return "batch.held_velocity is off"
+    if "velocity" not in noise.held:
+        return "the velocity stream's samples move (its level is measured from them)"
+    if noise.sources.get("velocity") == "config":
+        return "noise: velocity is set in the configuration"
+    if fixed_bias:
+        return "the biases are fixed (a reference run)"
+    return None
+
+
 def record(density: np.ndarray, level: np.ndarray, s: float) -> dict:
     """run.json's ``observer.smoother.held_velocity``: the densities per axis, the level before, the scale."""
     return {
