@@ -268,6 +268,23 @@ def gap_factor(span, interval):
     return 1.0
 
 
+def _hidden_gap_factors(stream, held: bool) -> np.ndarray:
+    """Per time-base sample ``i``: :func:`gap_factor` of the linear velocity's own gap that the interval from
+    sample ``i - 1`` to ``i`` lies in (``AlignedStream.velocity_gaps``: an odometry on a topic of its own,
+    interpolated onto the gyro's stamps, whose gap the time base does not show), else 1; all 1 for a held stream."""
+    t = stream.vel_t_ns
+    out = np.ones(t.shape[0])
+    gaps, period = stream.velocity_gaps, stream.velocity_period_ns * 1e-9
+    if held or gaps.shape[0] == 0 or t.shape[0] < 2:
+        return out
+    mid = t[:-1] + (t[1:] - t[:-1]) // 2
+    k = np.searchsorted(gaps[:, 0], mid, side="right") - 1
+    inside = (k >= 0) & (mid < gaps[np.clip(k, 0, None), 1])
+    factors = np.array([gap_factor((b - a) * 1e-9, period) for a, b in gaps])
+    out[1:][inside] = factors[k[inside]]
+    return out
+
+
 @njit(cache=True)
 def accumulate(h, r_hat, p_hat, q_om, q_v, acc, w=None):
     """Running sums of one propagation step of length ``h`` from the state at its start: ``Σ R̂h``,
@@ -1356,6 +1373,7 @@ def _advance(
     vel_t,
     omega,
     vel,
+    vel_gap,
     det_t,
     det_offsets,
     det_idx,
@@ -1447,6 +1465,8 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             span = vel_t[iv] - vel_t[iv - 1] if 0 < iv < n_vel else 0.0
             g_om, g_v = gap_factor(span, gap_om), gap_factor(span, gap_v)
+            if 0 < iv < n_vel:  # a gap of the linear velocity's own topic (_hidden_gap_factors)
+                g_v = max(g_v, vel_gap[iv])
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
                 accumulate(h, r_hat, p_hat, qs_om * g_om, qs_v * g_v, acc, acc_w)
@@ -1720,6 +1740,7 @@ class RiEKF(Stepper):
         interval = float(np.median(np.diff(self.vel_t))) if self.vel_t.shape[0] > 2 else 0.0
         self.state.fs[_GAP_OM] = 0.0 if "gyro" in nz.held else interval
         self.state.fs[_GAP_V] = 0.0 if "velocity" in nz.held else interval
+        self.vel_gap = _hidden_gap_factors(stream, "velocity" in nz.held)
         self.stats.update({"noise": self.noise.as_dict()})
 
     @property
@@ -1858,6 +1879,7 @@ class RiEKF(Stepper):
             self.vel_t,
             s.omega,
             s.velocity,
+            self.vel_gap,
             self.det_t,
             s.det_offsets,
             s.det_idx,
