@@ -533,7 +533,8 @@ def test_odometry_gaps_hidden_by_the_alignment_widen_the_process_noise_and_keep_
     """The same runs with the odometry alone (its own topic, 50 Hz, the gyro at 200 Hz) dropped over three 1 s
     spans: the alignment interpolates the velocity onto the gyro's stamps, so the time base shows no gap; the
     stream carries the odometry's gaps (``AlignedStream.velocity_gaps``) and riekf widens the velocity's noise
-    across them (without: pose NEES ~15, position RMS 0.027 m, docs/benchmarks.md, "A gap in the odometry hidden by the alignment")."""
+    across them (without: pose NEES ~17 here, position RMS ~0.027 m, docs/benchmarks.md, "A gap in the odometry
+    hidden by the alignment")."""
 
     def aligned_of(sim):
         ls = expected_streams(sim)

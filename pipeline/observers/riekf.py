@@ -25,6 +25,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   alone, not a white noise averaged over the samples the interval would have held: the process noise over such an
   interval is that of its two samples (:func:`gap_factor`, ``span / (2 interval)`` times the white density's). Held
   (commanded) streams (``noise.held``) keep the density: their intervals are commands held, not samples missing.
+  An odometry on a topic of its own is interpolated onto the gyro's stamps, so its gaps do not show on the time
+  base: the alignment keeps them (``AlignedStream.velocity_gaps``) and the velocity's noise over each time-base
+  interval inside one takes that gap's factor (:func:`_hidden_gap_factors`).
   (Generated figure 8 with three 1 s velocity gaps: pose NEES 140 without it, 5.7 with it, 5.5 with no gaps;
   docs/benchmarks.md, "riekf across a gap in the velocity stream".)
 * New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
