@@ -318,6 +318,12 @@ class AlignedStream:
     #: two unit axes in the body frame, the angle between them), the fact behind the alignment's warning; None when
     #: not seen. The detection pairs' gyro-misread check defers to it (``time_offset.GYRO_TURN_SEEN``).
     gyro_turn: dict | None = None
+    #: The linear velocity's gaps when it has a topic of its own (:func:`_measured_gaps`; none when it shares the
+    #: time base's topic, whose gaps are the time base's own intervals): ``(G, 2)`` int64 ns, its samples before
+    #: and after each gap, across which the time base's samples got it interpolated; ``velocity_period_ns`` its
+    #: median interval. riekf widens the velocity's process noise there (``riekf.gap_factor``).
+    velocity_gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
+    velocity_period_ns: float = 0.0
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -549,6 +555,20 @@ def _sorted(t: np.ndarray, *arrays: np.ndarray):
     return (t, *arrays)
 
 
+def _measured_gaps(t_ns: np.ndarray, x: np.ndarray) -> tuple[float, np.ndarray]:
+    """A velocity stream's median interval (ns) and the index ``i`` of each interval ``t_ns[i] .. t_ns[i + 1]``
+    over ``GAP_FACTOR`` of them: samples lost; none for a held stream (``HELD_STEP_SHARE``: its intervals are
+    the command held) or one of fewer than three samples."""
+    if t_ns.shape[0] < 3:
+        return 0.0, np.zeros(0, np.int64)
+    d = np.diff(t_ns)
+    positive = d[d > 0]
+    period = float(np.median(positive)) if positive.size else 0.0
+    held = np.count_nonzero(equal_rows(x[1:], x[:-1])) >= HELD_STEP_SHARE * (x.shape[0] - 1)
+    gaps = np.flatnonzero(d > GAP_FACTOR * period) if period > 0 and not held else np.zeros(0, np.int64)
+    return period, gaps
+
+
 def _gaps(t_ns: np.ndarray, x: np.ndarray, topic: str, across: str) -> list[str]:
     """What the run says of one velocity stream's gaps. A measuring stream (an IMU, wheel odometry: fewer than
     ``HELD_STEP_SHARE`` of its samples repeat the one before) gets its intervals over ``GAP_FACTOR`` median
@@ -559,10 +579,7 @@ def _gaps(t_ns: np.ndarray, x: np.ndarray, topic: str, across: str) -> list[str]
     if t_ns.shape[0] < 3:
         return []
     d = np.diff(t_ns)
-    positive = d[d > 0]
-    period = float(np.median(positive)) if positive.size else 0.0
-    held = np.count_nonzero(equal_rows(x[1:], x[:-1])) >= HELD_STEP_SHARE * (x.shape[0] - 1)
-    gaps = np.flatnonzero(d > GAP_FACTOR * period) if period > 0 and not held else np.zeros(0, np.int64)
+    period, gaps = _measured_gaps(t_ns, x)
     if gaps.size:
         span = d[gaps] * 1e-9
         share = float((d[gaps] - period).sum() / (t_ns[-1] - t_ns[0]))
@@ -960,7 +977,9 @@ def align(
     accel, magnetic = streams.accel, streams.magnetic
     if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
         om, accel, magnetic = _gyro_lag_taken_off(frame, twist, om, accel, magnetic)
-    t_om, omega, velocity, (lo, hi), starts = _velocities(streams.path, om, lv, frame, lim, streams.missing_spans)
+    t_om, omega, velocity, (lo, hi), starts, lv_gaps = _velocities(
+        streams.path, om, lv, frame, lim, streams.missing_spans
+    )
     gyro_turn = None
     if twist is not None and twist.topic != om.topic:
         if twist.topic == lv.topic:
@@ -1027,6 +1046,8 @@ def align(
         topics=topics,
         warn_only=warn,
         gyro_turn=gyro_turn,
+        velocity_gaps=lv_gaps[0],
+        velocity_period_ns=lv_gaps[1],
     )
 
 
@@ -1457,9 +1478,10 @@ def _stamps_at_record_pace(path, time_source: str, streams: LogStreams, *checked
 
 
 def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, holes=()):
-    """Time base (int64 ns), body angular and linear velocity on it, the span both streams cover and the first
+    """Time base (int64 ns), body angular and linear velocity on it, the span both streams cover, the first
     sample of each segment after the first (velocity gaps longer than ``lim["max_gap"]``, and the ``holes``: record
-    time spans a split recording's missing files leave)."""
+    time spans a split recording's missing files leave) and the linear velocity's own gaps with its median interval
+    (``AlignedStream.velocity_gaps``)."""
     notes = fr.notes
     t_om, w = _sorted(_times(om, fr.time_source), om.xyz)
     t_lv, v = _sorted(_times(lv, fr.time_source), lv.xyz)
@@ -1521,12 +1543,14 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
         block -= np.cross(omega[rows], vel_ext.trans)
         velocity[rows] = block
     held = "the run holds the sample before each gap across it"
-    lerp = "the run interpolates the velocity across each gap"
+    lerp = "the run interpolates the velocity across each gap (riekf widens its velocity noise there)"
     notes += _gaps(t_om, w, om.topic, held) + (_gaps(t_lv, v, lv.topic, lerp) if lv.topic != om.topic else [])
     starts = _segment_starts(t_om, max_gap, _hole_starts(t_om, om, fr.time_source, holes), notes)
+    period, gaps = _measured_gaps(t_lv, v) if lv.topic != om.topic else (0.0, np.zeros(0, np.int64))
+    lv_gaps = (np.column_stack([t_lv[gaps], t_lv[gaps + 1]]).astype(np.int64), period)
     # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
     # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
-    return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts
+    return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts, lv_gaps
 
 
 def _hole_starts(t_om: np.ndarray, om: Vec3Stream, time_source: str, holes) -> np.ndarray:
@@ -1958,6 +1982,8 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         det_sensor=aligned.det_sensor,
         two_twist_topics=aligned.two_twist_topics,
         topics=aligned.topics,
+        velocity_gaps=aligned.velocity_gaps,
+        velocity_period_ns=aligned.velocity_period_ns,
     )
 
 
