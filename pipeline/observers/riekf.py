@@ -110,7 +110,10 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   noisy gyro its roll and pitch walk while no landmark is in view; the height follows them (docs/benchmarks.md,
   "riekf on ground robots (session 18, h-riekfg)"). When the log's roll and pitch rates and vertical velocity
   spread no more than ``PLANAR_RATIO`` times their noise per sample (:func:`planar_evidence`: what they measure is
-  noise, not motion), the floor through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
+  noise, not motion), or the roll and pitch rates are motion but the angles they integrate to stay within
+  ``PLANAR_TILT`` (:func:`tilt_spread`: a wheeled robot wobbling on an uneven floor, whose tilt the floor's σ
+  covers; docs/benchmarks.md, "riekf behind fast-adaptation on a ground robot with little to see"), the floor
+  through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
   (:func:`_planar_update`): the body's up axis normal to it (``PLANAR_TILT``) and the position's height on it
   (``PLANAR_HEIGHT``). The floor's height error (the start's tilt a few metres on) is the same at every one, not
   new each time: the height row's noise brings the filter's height variance down to that level and no further
@@ -1943,7 +1946,9 @@ class RiEKF(Stepper):
         seen = "planar motion" if pl["planar"] else "motion not planar"
         if r is not None:
             ratios = f"{r[0]:.2g} / {r[1]:.2g} / {r[2]:.2g}"
-            seen += f" (roll rate, pitch rate, vertical velocity {ratios} times their noise)"
+            tilt = pl.get("tilt_rad") or [0.0, 0.0]
+            seen += f" (roll rate, pitch rate, vertical velocity {ratios} times their noise; "
+            seen += f"roll and pitch spread {tilt[0]:.2g} / {tilt[1]:.2g} rad)"
         if not pl["held"]:
             return f"riekf: {seen}, the floor not held (noise.floor: false)"
         why = "" if pl["floor"] == "auto" else " (noise.floor: true)"
@@ -2111,9 +2116,22 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     ratios = [
         float(x / sg) if sg > 0 else (0.0 if x == 0 else np.inf) for x, sg in zip(spread, (*sig_om[:2], sig_v[2]))
     ]
+    tilt = [tilt_spread(vel_t, omega[:, k]) for k in (0, 1)]
+    # a wheeled robot on an uneven floor: real roll and pitch rates, a bounded roll and pitch within the floor's σ
+    level = [r <= PLANAR_RATIO or a <= PLANAR_TILT for r, a in zip(ratios[:2], tilt)]
     # samples with no roll, pitch or vertical part at all (a planar log by construction: MR.CLAM's held commands)
     # keep the filter in its plane without the floor, which would only reshape the covariance
-    return {"planar": bool(max(ratios) <= PLANAR_RATIO and max(spread) > 0.0), "ratios": [round(r, 3) for r in ratios]}
+    planar = all(level) and ratios[2] <= PLANAR_RATIO and max(spread) > 0.0
+    return {"planar": bool(planar), "ratios": [round(r, 3) for r in ratios], "tilt_rad": [round(a, 4) for a in tilt]}
+
+
+def tilt_spread(t: np.ndarray, rate: np.ndarray) -> float:
+    """The standard deviation of the angle one rate integrates to, its mean (a constant bias) and then a linear trend
+    (the bias's error) taken off: a wobble on a floor stays bounded, a body that rolls or pitches does not."""
+    w = rate - np.mean(rate)
+    ang = np.concatenate(([0.0], np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))))
+    ang -= np.polyval(np.polyfit(t - t[0], ang, 1), t - t[0])
+    return float(np.std(ang))
 
 
 def floor_plane(r0, p0, det_y: np.ndarray) -> np.ndarray:
