@@ -880,7 +880,17 @@ def test_an_odometry_stamped_late_against_the_gyro_is_named():
     assert time_offset.note("riekf", clean) == [] and clean["velocity_lag"]["gain"] < 1.05, clean["velocity_lag"]
     o = sim.odom
     late = np.maximum.accumulate(o.t_ns + 80_000_000 + np.random.default_rng(0).integers(0, 10_000_000, o.t_ns.size))
-    offset = time_offset.estimate(align(expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late)))))
+    streams = expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late)))
+    # with the odometry's own angular velocity the alignment finds the lag against the gyro and moves the IMU onto
+    # the odometry's clock (session 27): one clock for both velocities, the detections moved onto it by the pairs
+    both = align(streams)
+    assert any("stamps look 0.08" in n and "The run moved its stamps by +0.08" in n for n in both.notes), both.notes
+    on_one = time_offset.estimate(both)
+    assert on_one["applied"] and 0.07 < on_one["estimate_s"] < 0.1 and on_one["velocity_lag"]["gain"] < 1.05
+    # an odometry that gives its linear velocity only: the pairs' velocity lag names it
+    streams = expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late)))
+    streams.twist_angular = None
+    offset = time_offset.estimate(align(streams))
     assert 0.07 < offset["velocity_lag"]["lag_s"] < 0.1, offset["velocity_lag"]
     for said in (time_offset.note("riekf", offset), time_offset.note(None, offset)):  # a run, `info --noise`
         assert len(said) == 1 and "linear velocity's stamps look 0.0" in said[0] and "s late against" in said[0], said
@@ -895,7 +905,9 @@ def test_a_long_log_s_velocity_lag_is_searched_on_its_first_samples(monkeypatch)
     sim = simulate("figure8", seed=2, duration=30.0)
     o = sim.odom
     late = np.maximum.accumulate(o.t_ns + 80_000_000 + np.random.default_rng(0).integers(0, 10_000_000, o.t_ns.size))
-    stream = align(expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late))))
+    streams = expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late)))
+    streams.twist_angular = None  # linear velocity only: the lag is the pairs' to find, not the alignment's
+    stream = align(streams)
     monkeypatch.setattr(time_offset, "PREFIX_SAMPLES", stream.vel_t_ns.shape[0] // 2)
     seen = []
     monkeypatch.setattr(
