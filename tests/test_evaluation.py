@@ -899,8 +899,8 @@ def test_a_clock_offset_the_trajectories_contradict_is_not_reliable(monkeypatch)
     right = te.checked_time_offset(truth, est, sync, align)
     assert right.offset_s == pytest.approx(0.085, abs=0.002) and right.reliable
     assert right.rmse_with_m < right.rmse_without_m
-    search = te.estimate_time_offset
-    monkeypatch.setattr(te, "estimate_time_offset", lambda *a, **k: changed(search(*a, **k), offset_s=-0.5))
+    search = te.time_offset_against
+    monkeypatch.setattr(te, "time_offset_against", lambda *a, **k: changed(search(*a, **k), offset_s=-0.5))
     wrong = te.checked_time_offset(truth, est, sync, align)
     assert wrong.peak_correlation >= 0.5 and not wrong.at_window_edge  # the correlation alone would pass it
     assert wrong.rmse_with_m > wrong.rmse_without_m and not wrong.reliable

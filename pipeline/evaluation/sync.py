@@ -486,11 +486,25 @@ def estimate_time_offset(
     the correlation ignores) is used instead when it varies clearly more than the angular rate.
     Returns None when the streams do not overlap enough to tell.
     """
+    reference = ReferenceMotion(t_ref_ns, ref_pos, ref_quat_xyzw)
+    return time_offset_against(reference, t_est_ns, est_pos, est_quat_xyzw, max_offset_s=max_offset_s, step_s=step_s)
+
+
+def time_offset_against(
+    reference: ReferenceMotion,
+    t_est_ns: np.ndarray,
+    est_pos: np.ndarray,
+    est_quat_xyzw: np.ndarray,
+    *,
+    max_offset_s: float = 1.0,
+    step_s: float | None = None,
+) -> TimeOffset | None:
+    """:func:`estimate_time_offset` against a reference's motion computed once (several searches against one truth:
+    the whole estimate and its halves, :func:`.trajectory_error.checked_time_offset`)."""
     te = _as_stamps(t_est_ns, "t_est_ns")
     if te.shape[0] < 4 or np.any(np.diff(te) <= 0):
         return None
     steps = pose_steps(est_pos, est_quat_xyzw)
-    reference = ReferenceMotion(t_ref_ns, ref_pos, ref_quat_xyzw)
     return time_offset_of_steps(reference, te, steps, max_offset_s=max_offset_s, step_s=step_s)
 
 

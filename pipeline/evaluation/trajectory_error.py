@@ -20,11 +20,12 @@ from slamobs.pipeline.evaluation.metrics import RotationRows
 from slamobs.pipeline.evaluation.rpe import DELTA_UNITS, accumulated_distances, rpe_pairs
 from slamobs.pipeline.evaluation.sync import (
     NS_PER_S,
+    ReferenceMotion,
     TimeOffset,
     associate,
-    estimate_time_offset,
     halves_spread,
     interpolate_poses,
+    time_offset_against,
 )
 from slamobs.pipeline.streams import PoseStream
 
@@ -483,10 +484,11 @@ def checked_time_offset(
     ``found()``: the offset searched another way (a run's: the truth against the log's own velocity samples,
     :func:`.trajectory_evaluation.log_time_offset`), checked here the same way instead of searching the estimate."""
     if found is None:
+        reference = ReferenceMotion(ref.t_ns, ref.position, ref.quat_xyzw)  # the truth's side, once for three
 
         def search(part: slice = slice(None)) -> TimeOffset | None:
             t, pos, quat = (np.asarray(x)[part] for x in (est.t_ns, est.position, est.quat_xyzw))
-            return estimate_time_offset(ref.t_ns, ref.position, ref.quat_xyzw, t, pos, quat, max_offset_s=max_offset_s)
+            return time_offset_against(reference, t, pos, quat, max_offset_s=max_offset_s)
 
         off = search()
         # the halves of the estimate's poses must agree, as a log's velocity samples must (one `reliable`)
