@@ -637,8 +637,7 @@ def test_info_and_the_run_say_the_same_misread_sentences():
     (velocity,) = time_offset.velocity_misread(offset["velocity_scale"])
     velocity = (
         f"the detections say the body moved {velocity} (321 detection pairs, the odometry's bias fitted with it): "
-        "check the velocity's unit and axes, and the detections' (their unit, and their frame's extrinsic: a camera "
-        "turned or given as the inverse transform reads this way)"
+        f"{time_offset.SCALE_CAUSES}"
     )
     assert time_offset.note(None, offset) == [f"warning: {gyro}", f"warning: {velocity}"]
     assert time_offset.note("riekf", offset) == [
@@ -887,6 +886,15 @@ def test_an_odometry_stamped_late_against_the_gyro_is_named():
     assert any("stamps look 0.08" in n and "The run moved its stamps by +0.08" in n for n in both.notes), both.notes
     on_one = time_offset.estimate(both)
     assert on_one["applied"] and 0.07 < on_one["estimate_s"] < 0.1 and on_one["velocity_lag"]["gain"] < 1.05
+    # ... by as much as the IMU was moved: the IMU and the detections agree as stamped, so the warning names the
+    # odometry as the late stream (session 28: it named the IMU only), and the estimate is not called lost
+    (said,) = [n for n in time_offset.note("riekf", on_one) if "warning" in n]
+    assert "the odometry is the stream stamped 0.08" in said and "s late, not the IMU" in said, said
+    assert "time.topics: {/odom: record}" in said and not time_offset.misread(on_one)
+    # an IMU stamped late (the detections on the odometry's clock): moved, and nothing said of the odometry
+    imu = replace(sim.imu, t_ns=sim.imu.t_ns + 85_000_000, rec_ns=sim.imu.rec_ns + 85_000_000)
+    imu_late = time_offset.estimate(align(expected_streams(replace(sim, imu=imu))))
+    assert not imu_late["applied"] and time_offset.note("riekf", imu_late) == [], imu_late
     # an odometry that gives its linear velocity only: the pairs' velocity lag names it
     streams = expected_streams(replace(sim, odom=replace(o, t_ns=late, rec_ns=late)))
     streams.twist_angular = None

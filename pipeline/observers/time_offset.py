@@ -503,6 +503,16 @@ MAX_SCALE_INFLATION = 100.0
 #: as read is mostly noise and its fitted scale is too (-1.45 ± 0.34 on a generated ground robot); a figure 8's or a
 #: loop's vertical axis (0.06-0.11) is fitted to ± 0.004-0.011.
 MIN_AXIS_SHARE = 0.05
+#: What the velocity-scale warning asks to check: the pairs cannot tell a velocity in another unit from detections
+#: of another scale (a tag size 2x off: `tags.size` 1.6 where the tags' is 0.8 read as the velocity 2.01x; a tag
+#: size in mm, 1000x), so it names both and the key of each.
+SCALE_CAUSES = (
+    "either the velocity or the detections are off by that factor, and they cannot tell which: the velocity's unit "
+    "and axes (at the odometry's driver), or the detections' scale (tags.size, or tags.sizes per id: the black "
+    "square's edge in m where the run finds the tags' poses from corners or images, the tags' own scale then; the "
+    "detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic (a camera "
+    "turned or given as the inverse transform reads this way)"
+)
 #: Units a velocity may be misread in, as the scale the detections would find, with what to say of it.
 VELOCITY_MISREADS = (
     (-1.0, "of the wrong sign"),
@@ -841,6 +851,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     n = int(c.a.shape[0])
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False, "topics": dict(stream.topics)}
     out["gyro_turn"] = getattr(stream, "gyro_turn", None)  # the alignment's turned gyro, which its misreads name
+    out["gyro_moved_s"] = float(getattr(stream, "gyro_moved_s", 0.0))  # which stream is late: odometry_late
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
     shift, sigma, gain = _search(c)
@@ -958,8 +969,9 @@ def output_clock(offset: dict | None) -> dict:
 
 def misread(offset: dict | None) -> bool:
     """Whether the detection pairs named a misread input (a :func:`note` warning: the gyro, the camera extrinsic or
-    a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose."""
-    return offset is not None and bool(_misreads(offset))
+    a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose. The
+    odometry's clock (:func:`odometry_late`) is not one: the estimate is whole on it."""
+    return offset is not None and len(_misreads(offset)) > (odometry_late(offset) is not None)
 
 
 def camera_turned(offset: dict | None) -> bool:
@@ -1016,14 +1028,16 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     if world >= WORLD_TWIST_GAIN and not found:  # the dead-reckoned heading is the gyro's: only where it reads right
         # the velocity's scale on each axis is then a consequence: not said besides
         return [(_world_twist_sentence(offset, world) + stream_topics(topics, "odometry"), "it")]
+    late = odometry_late(offset, topics.get("linear_velocity", "ODOMETRY"))
+    if late is not None:
+        found.append((late, "the odometry's clock", ("gyro", "odometry", "detections")))
     lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
     if lag is not None:
         found.append((lag, "them", ("gyro", "odometry")))
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
-            "with it): check the velocity's unit and axes, and the detections' (their unit, and their frame's "
-            f"extrinsic: a camera turned or given as the inverse transform reads this way){upset}",
+            f"with it): {SCALE_CAUSES}{upset}",
             "them",
             ("odometry", "detections", "camera"),
         )
@@ -1031,6 +1045,38 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         for what in (velocity_misread(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
     ]
     return [(sentence + stream_topics(topics, *names), used) for sentence, used, names in found]
+
+
+#: An applied detection offset within this of the seconds the alignment moved the IMU's stamps by (plus
+#: ``ODOMETRY_LATE_SIGMAS`` of its standard error) says the detections agree with the IMU as stamped: the odometry
+#: is the stream off (:func:`odometry_late`). Twice the gyro lag's fine grid (``alignment.GYRO_LAG_FINE_S``);
+#: a generated figure 8 with its odometry 85 ms late: +0.0850 s applied against +0.085 moved.
+ODOMETRY_LATE_TOLERANCE_S = 0.01
+ODOMETRY_LATE_SIGMAS = 3.0
+
+
+def odometry_late(offset: dict, topic: str = "ODOMETRY") -> str | None:
+    """The warning that the odometry, not the IMU, is stamped off, when the alignment moved the IMU's stamps onto
+    the odometry's clock (``gyro_moved_s``) and the detections needed the same move (the offset applied within
+    ``ODOMETRY_LATE_TOLERANCE_S``): two streams of three agree as stamped, and the estimate (on the odometry's
+    clock) is that much off theirs. Its poses are not moved: the run's clock is the velocity samples' (a generated
+    figure 8, the odometry 85 ms late: riekf 0.180 m against 0.011 m with the report's truth-clock offset applied);
+    None otherwise. ``topic``: the odometry's, which the advice names."""
+    moved = float(offset.get("gyro_moved_s") or 0.0)
+    if moved == 0.0 or not offset.get("applied"):
+        return None
+    est, sigma = float(offset["estimate_s"]), float(offset.get("sigma_s") or 0.0)
+    if abs(est - moved) > ODOMETRY_LATE_TOLERANCE_S + ODOMETRY_LATE_SIGMAS * sigma:
+        return None
+    late = "late" if moved > 0 else "early"
+    return (
+        f"the detections needed the same {est:+.4f} s (± {sigma:.2g}) the IMU's stamps were moved by onto the "
+        f"odometry's clock ({moved:+.3f} s): the IMU and the detections agree as stamped, so the odometry is the "
+        f"stream stamped {abs(moved):.3f} s {late}, not the IMU, and the poses (on its clock) are {abs(moved):.3f} s "
+        f"{late} against the IMU's and the detections' clock (the report's truth-clock offset shows it: `slamobs "
+        "report RUN_DIR --t-offset auto` applies it): correct the odometry's stamps at the driver (or time.topics: "
+        f"{{{topic}: record}} if its record times are right)"
+    )
 
 
 def _best_misread(gains: dict[str, float]) -> list[tuple[str, float]]:
