@@ -639,6 +639,8 @@ def test_info_and_the_run_say_the_same_misread_sentences():
         f"the detections say the body moved {velocity} (321 detection pairs, the odometry's bias fitted with it): "
         f"{time_offset.SCALE_CAUSES}"
     )
+    # a tag size off reads as this scale too (session 28): the sentence names both causes and the key of each
+    assert "tags.size" in velocity and "the velocity's unit" in velocity and "cannot tell which" in velocity
     assert time_offset.note(None, offset) == [f"warning: {gyro}", f"warning: {velocity}"]
     assert time_offset.note("riekf", offset) == [
         "riekf: detection stamps moved by +0.0421 s (± 0.003) onto the velocity clock, estimated from the data (321 "
