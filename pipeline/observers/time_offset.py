@@ -1031,15 +1031,17 @@ def output_clock(offset: dict | None) -> dict:
     }
 
 
+#: What the estimate used, said of the warnings after which it is whole (on the odometry's clock, of the
+#: odometry's point: :func:`odometry_late`, :func:`lever_arm_sentence`), which :func:`misread` does not count.
+WHOLE_ESTIMATES = ("the odometry's clock", "its twist")
+
+
 def misread(offset: dict | None) -> bool:
     """Whether the detection pairs named a misread input (a :func:`note` warning: the gyro, the camera extrinsic or
     a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose. The
     odometry's clock (:func:`odometry_late`) and a lever arm (:func:`lever_arm_sentence`) are not: the estimate
     is whole, on another clock or another point."""
-    if offset is None:
-        return False
-    whole = (odometry_late(offset) is not None) + (lever_arm_sentence(offset) is not None)
-    return len(_misreads(offset)) > whole
+    return offset is not None and any(used not in WHOLE_ESTIMATES for _, used in _misreads(offset))
 
 
 def camera_turned(offset: dict | None) -> bool:
@@ -1097,11 +1099,11 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         # the velocity's scale on each axis is then a consequence: not said besides
         return [(_world_twist_sentence(offset, world) + stream_topics(topics, "odometry"), "it")]
     arm = lever_arm_sentence(offset)
-    if arm is not None:
-        found.append((arm, "it", ("odometry", "detections", "camera")))
+    if arm is not None and not found:  # the rotations are the gyro's: only where it reads right (as world_twist)
+        found.append((arm, WHOLE_ESTIMATES[1], ("odometry", "detections", "camera")))
     late = odometry_late(offset, topics.get("linear_velocity", "ODOMETRY"))
     if late is not None:
-        found.append((late, "the odometry's clock", ("gyro", "odometry", "detections")))
+        found.append((late, WHOLE_ESTIMATES[0], ("gyro", "odometry", "detections")))
     lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
     if lag is not None:
         found.append((lag, "them", ("gyro", "odometry")))
