@@ -510,8 +510,8 @@ SCALE_CAUSES = (
     "either the velocity or the detections are off by that factor, and they cannot tell which: the velocity's unit "
     "and axes (at the odometry's driver), or the detections' scale (tags.size, or tags.sizes per id: the black "
     "square's edge in m where the run finds the tags' poses from corners or images, the tags' own scale then; the "
-    "detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic (a camera "
-    "turned or given as the inverse transform reads this way)"
+    "detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic: a camera "
+    "turned or given as the inverse transform reads this way"
 )
 #: Units a velocity may be misread in, as the scale the detections would find, with what to say of it.
 VELOCITY_MISREADS = (
