@@ -318,6 +318,10 @@ class AlignedStream:
     #: two unit axes in the body frame, the angle between them), the fact behind the alignment's warning; None when
     #: not seen. The detection pairs' gyro-misread check defers to it (``time_offset.GYRO_TURN_SEEN``).
     gyro_turn: dict | None = None
+    #: The seconds the alignment added to the IMU topic's stamps to put its gyro on the odometry's clock
+    #: (:func:`_gyro_lag_taken_off`; 0.0 when none): the detection pairs' offset search reads it, since detections
+    #: that need the same move say the odometry, not the IMU, is the stream stamped off (``time_offset``).
+    gyro_moved_s: float = 0.0
     #: The linear velocity's gaps when it has a topic of its own (:func:`_measured_gaps`; none when it shares the
     #: time base's topic, whose gaps are the time base's own intervals): ``(G, 2)`` int64 ns, its samples before
     #: and after each gap, across which the time base's samples got it interpolated; ``velocity_period_ns`` its
@@ -740,7 +744,8 @@ def _gyro_lag(
     return [
         f"warning: {gyro_topic}: its angular velocity's stamps look {abs(lag):.3f} s {late} against "
         f"{twist.topic}'s own angular velocity (misfit {m_best:.3g} of its variance so shifted, {as_read} as "
-        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock? The run moved its "
+        f"stamped, over {np.ptp(t_o) * 1e-9:.0f} s{slow}): is the IMU stamped on another clock (or {twist.topic}: the "
+        f"detections' time offset tells which)? The run moved its "
         f"stamps by {-lag:+.3f} s onto {twist.topic}'s clock (the IMU topic's every stream) before anything read "
         f"them; correct them at the driver (or time.topics: {{{gyro_topic}: record}} if its record times are right)"
     ], lag
@@ -974,9 +979,9 @@ def align(
     dir_frame = _Frame(tf, body, ident, time_source, [], override, dropped)
 
     warn = WarnOnly()
-    accel, magnetic = streams.accel, streams.magnetic
+    accel, magnetic, gyro_moved_s = streams.accel, streams.magnetic, 0.0
     if (twist := streams.twist_angular) is not None and twist.topic != om.topic:
-        om, accel, magnetic = _gyro_lag_taken_off(frame, twist, om, accel, magnetic)
+        (om, accel, magnetic), gyro_moved_s = _gyro_lag_taken_off(frame, twist, om, accel, magnetic)
     t_om, omega, velocity, (lo, hi), starts, lv_gaps = _velocities(
         streams.path, om, lv, frame, lim, streams.missing_spans
     )
@@ -1046,6 +1051,7 @@ def align(
         topics=topics,
         warn_only=warn,
         gyro_turn=gyro_turn,
+        gyro_moved_s=gyro_moved_s,
         velocity_gaps=lv_gaps[0],
         velocity_period_ns=lv_gaps[1],
     )
@@ -1056,16 +1062,18 @@ def _gyro_lag_taken_off(fr: _Frame, twist: Vec3Stream, om: Vec3Stream, *others: 
     added to ``fr``'s; ``om`` and those of ``others`` (the accelerometer, the magnetometer) on the IMU's topic with
     that lag taken off the stamps the run reads (the rest as given). Not a :class:`WarnOnly` check: the velocities'
     time base and the detection pairs' offset search read its result (the gyro's lag read as stamped was taken for
-    the detections' offset and applied to them: issue 23, docs/benchmarks.md session 27)."""
+    the detections' offset and applied to them: issue 23, docs/benchmarks.md session 27); and the seconds added to
+    those stamps (``AlignedStream.gyro_moved_s``)."""
     notes, lag = _gyro_lag(*_sorted(_times(om, fr.time_source), om.xyz), twist, _times(twist, fr.time_source), om.topic)
     fr.notes.extend(notes)
     if lag == 0.0:
-        return (om, *others)
+        return (om, *others), 0.0
     field, shift = ("rec_ns" if fr.time_source == "record" else "t_ns"), -int(round(lag * 1e9))
-    return tuple(
+    moved = tuple(
         s if s is None or s.topic != om.topic else replace(s, **{field: _times(s, fr.time_source) + shift})
         for s in (om, *others)
     )
+    return moved, -lag
 
 
 def _misread_ids(topic: str, t_om, omega, velocity, det_t_ns, offsets, det_idx, det_y, landmark_ids) -> list[str]:

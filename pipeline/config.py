@@ -21,6 +21,10 @@ DEFAULT_OBSERVER = "fast-adaptation"
 #: the magnetic field in Tesla (Earth 25-65 µT).
 GRAVITY_RANGE = (1.0, 25.0)
 MAGNETIC_RANGE = (1e-6, 1e-3)
+#: The largest tag edge (m) a config may give: printed fiducials are centimetres to a metre or two; a size in mm
+#: (800 for 0.8 m) or in cm is over it (the camera sample with tags.size 800: every detection 1.55e4 m off,
+#: stopped by the range gate naming only limits.max_range).
+TAG_SIZE_MAX_M = 5.0
 #: Optional extra files of a run directory (``output.export``, ``--export``): the TUM trajectories of estimate
 #: and truth, the evo APE result zip, the results MCAP for Foxglove. None by default: the Parquet tables and
 #: the report hold the results, the extras only repeat them in other formats.
@@ -269,6 +273,7 @@ def parse_config(data: dict | None, source: str = "<config>") -> RunConfig:
     for key in tags.get("sizes", {}):
         if not str(key).lstrip("-").isdigit():
             raise InputError(source, f"invalid config at tags.sizes: key {key!r} is not a tag id")
+    _check_tag_sizes(tags, source)
     if tags.get("detector"):  # OpenCV's own limits, named with the config (not only at the log's first image)
         from slamobs.pipeline.vision.detector import check_detector_settings
 
@@ -426,6 +431,21 @@ def with_truth(config: RunConfig, truth: str | None) -> RunConfig:
     if spec.kind == "file" or spec.log is not None:
         return replace(config, topics=topics).with_section("evaluation", truth_file=str(truth))
     return replace(config, topics={**topics, "truth": spec.name}).with_section("evaluation", truth_file=None)
+
+
+def _check_tag_sizes(tags: dict, source: str) -> None:
+    """A tag size over ``TAG_SIZE_MAX_M``: a size in mm or cm, which the range gate met as every detection too far
+    ("dropped by the range gate (... farther than limits.max_range 500 m)", naming no tag size) or, under it, the
+    run read as a velocity scale."""
+    sizes = [("tags.size", tags.get("size"))] + [(f"tags.sizes.{k}", v) for k, v in tags.get("sizes", {}).items()]
+    for where, size in sizes:
+        if size is not None and size > TAG_SIZE_MAX_M:
+            raise InputError(
+                source,
+                f"invalid config at {where}: {size:g} m is no tag's edge (at most {TAG_SIZE_MAX_M:g} m): the black "
+                f"square's edge in metres (in mm? {size / 1000:g} m"
+                + (f"; in cm? {size / 100:g} m)" if size / 100 <= TAG_SIZE_MAX_M else ")"),
+            )
 
 
 def _check_vectors(config: RunConfig, source: str) -> None:

@@ -112,3 +112,24 @@ def test_a_config_mistake_says_what_was_meant(data, says):
     with pytest.raises(InputError) as err:
         parse_config(data, "run.yaml")
     assert says in str(err.value)
+
+
+@pytest.mark.parametrize(
+    "tags, says",
+    [
+        (
+            {"size": 800},
+            "invalid config at tags.size: 800 m is no tag's edge (at most 5 m): the black square's edge in",
+        ),
+        ({"size": 0.8, "sizes": {3: 150}}, "at tags.sizes.3: 150 m is no tag's edge (at most 5 m): the black square's"),
+    ],
+)
+def test_a_tag_size_in_mm_is_named_at_the_config(tags, says):
+    """A tag size in mm (800 for the camera sample's 0.8 m) made every range 1000x: the run stopped at the range gate
+    naming only limits.max_range (session 28). The config now names the key and the unit it looks like."""
+    from slamobs.pipeline.errors import InputError
+
+    with pytest.raises(InputError) as err:
+        parse_config({"tags": tags}, "run.yaml")
+    assert says in str(err.value) and "in mm?" in str(err.value), str(err.value)
+    assert parse_config({"tags": {"size": 1.6}}, "run.yaml").tags.size == 1.6  # 2x off: the run's scale warning

@@ -516,6 +516,16 @@ MAX_SCALE_INFLATION = 100.0
 #: as read is mostly noise and its fitted scale is too (-1.45 ± 0.34 on a generated ground robot); a figure 8's or a
 #: loop's vertical axis (0.06-0.11) is fitted to ± 0.004-0.011.
 MIN_AXIS_SHARE = 0.05
+#: What the velocity-scale warning asks to check: the pairs cannot tell a velocity in another unit from detections
+#: of another scale (a tag size 2x off: `tags.size` 1.6 where the tags' is 0.8 read as the velocity 2.01x; a tag
+#: size in mm, 1000x), so it names both and the key of each.
+SCALE_CAUSES = (
+    "either the velocity or the detections are off by that factor, and they cannot tell which: the velocity's unit "
+    "and axes (at the odometry's driver), or the detections' scale (tags.size, or tags.sizes per id: the black "
+    "square's edge in m where the run finds the tags' poses from corners or images, the tags' own scale then; the "
+    "detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic: a camera "
+    "turned or given as the inverse transform reads this way"
+)
 #: Units a velocity may be misread in, as the scale the detections would find, with what to say of it.
 VELOCITY_MISREADS = (
     (-1.0, "of the wrong sign"),
@@ -645,6 +655,69 @@ def world_twist(c: Consistency) -> dict:
         return {"gain": 0.0}
     base = _trimmed_cost(c.residuals(0.0)[0][used])
     return {"gain": base / max(_trimmed_cost(e[used]), 1e-300)}
+
+
+#: A lever arm between the odometry's point and the body's origin (:func:`lever_arm`) is named when its length over
+#: the axes fitted beyond ``LEVER_ARM_SIGMAS`` standard errors is ``LEVER_ARM_MIN_M`` or more and it fits the pairs
+#: ``LEVER_ARM_GAIN`` times better than the bias alone (a generated figure 8 with its twist 0.5 m beside the body,
+#: no TF: (0.019, 0.497, 0.010) m, 5.85x; clean figure 8s, a ground robot and a loop: at most 0.07 m, 1.00x; the
+#: real logs fit arms of 0.3-1.0 m at 1.02-1.41x, MR.CLAM's ten robots 0.30-0.74 m forward, TagSLAM 22 1.0 m at 1.25x:
+#: not named).
+LEVER_ARM_MIN_M = 0.1
+LEVER_ARM_SIGMAS = 5.0
+LEVER_ARM_GAIN = 2.0
+
+
+def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """``x`` minimising the trimmed squared residuals ``base + a x`` (least squares on all pairs, then twice on the
+    ``TRIM`` share with the smallest residuals), its standard errors and the trimmed mean squared residual."""
+    keep = np.arange(base.shape[0])
+    for _ in range(3):
+        ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
+        x = np.linalg.solve(ata, -np.einsum("mci,mc->i", a[keep], base[keep]))
+        d2 = np.sum((base + a @ x) ** 2, axis=1)
+        n = max(1, int(TRIM * d2.shape[0]))
+        keep = np.argpartition(d2, n - 1)[:n]
+    ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
+    cost = float(np.mean(d2[keep]))
+    return x, np.sqrt(np.diag(np.linalg.inv(ata)) * cost / 3.0), cost
+
+
+def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
+    """The lever arm ``r`` (m, body frame) between the point whose velocity the odometry gives and the body's
+    origin, fitted to the pairs with the odometry's bias: that point moves by ``v + ω × r``, so its integral
+    between two detections is off the body's by ``(R_b − R_a) r`` and each pair's residual by ``−(R_aᵀ R_b − I) r``
+    (exact: the rotations do not depend on the velocity). A camera extrinsic's translation off by ``−r`` moves the
+    residuals alike: the pairs cannot tell the two apart. ``gain``: the trimmed mean squared residual with the bias
+    alone over that with the arm too. An odometry frame beside the body that no TF gives reads so (a generated
+    figure 8, 0.5 m: riekf APE 0.170 m against 0.011, with notes of wheel slip only). At the detection shift
+    ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of 2.1 m)."""
+    ta, tb = c.det_t[c.a] + shift, c.det_t[c.b] + shift
+    r_a, r_b = _dead_reckoned_at(c, ta)[0], _dead_reckoned_at(c, tb)[0]
+    arm = np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
+    base = c.residuals(shift)[0]
+    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, c.jac], axis=2))
+    alone = _trimmed_fit(base, c.jac)[2]
+    return {"r_m": [round(float(v), 4) for v in x[:3]], "sigma_m": [float(v) for v in sigma[:3]], "gain": alone / cost}
+
+
+def lever_arm_sentence(offset: dict) -> str | None:
+    """The warning of :func:`lever_arm` (``LEVER_ARM_*``), None when it says nothing."""
+    arm = offset.get("lever_arm")
+    if not arm:
+        return None
+    r, sigma = np.asarray(arm["r_m"]), np.asarray(arm["sigma_m"])
+    seen = np.abs(r) > LEVER_ARM_SIGMAS * sigma
+    if float(np.linalg.norm(r[seen])) < LEVER_ARM_MIN_M or arm["gain"] < LEVER_ARM_GAIN:
+        return None
+    where = ", ".join(f"{v:+.3f}" for v in r)
+    return (
+        f"the detections fit the odometry {arm['gain']:.3g}x better as the velocity of a point ({where}) m from the "
+        f"body's origin (± {float(np.max(sigma)):.2g} m; {offset['pairs']} detection pairs, the odometry's bias "
+        "fitted with it): a lever arm no TF gives (the odometry's child_frame_id a frame beside the body, its "
+        "twist taken as the body's: give its transform to the body, or frames.body: that frame), or the "
+        "detections' frame's extrinsic off by the opposite translation, which the detections cannot tell from it"
+    )
 
 
 def _velocity_displacements(c: Consistency) -> np.ndarray:
@@ -854,6 +927,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     n = int(c.a.shape[0])
     out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False, "topics": dict(stream.topics)}
     out["gyro_turn"] = getattr(stream, "gyro_turn", None)  # the alignment's turned gyro, which its misreads name
+    out["gyro_moved_s"] = float(getattr(stream, "gyro_moved_s", 0.0))  # which stream is late: odometry_late
     if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
         return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
     shift, sigma, gain = _search(c)
@@ -880,6 +954,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     out["velocity_scale"] = velocity_scale(c)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
+    out["lever_arm"] = lever_arm(c, shift if why is None else 0.0)
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, shift if why is None else 0.0)
     out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
@@ -974,10 +1049,17 @@ def output_clock(offset: dict | None) -> dict:
     }
 
 
+#: What the estimate used, said of the warnings after which it is whole (on the odometry's clock, of the
+#: odometry's point: :func:`odometry_late`, :func:`lever_arm_sentence`), which :func:`misread` does not count.
+WHOLE_ESTIMATES = ("the odometry's clock", "its twist")
+
+
 def misread(offset: dict | None) -> bool:
     """Whether the detection pairs named a misread input (a :func:`note` warning: the gyro, the camera extrinsic or
-    a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose."""
-    return offset is not None and bool(_misreads(offset))
+    a velocity axis): an estimate on it is likely lost, and its landmarks' innovations jump with its pose. The
+    odometry's clock (:func:`odometry_late`) and a lever arm (:func:`lever_arm_sentence`) are not: the estimate
+    is whole, on another clock or another point."""
+    return offset is not None and any(used not in WHOLE_ESTIMATES for _, used in _misreads(offset))
 
 
 def camera_turned(offset: dict | None) -> bool:
@@ -1034,14 +1116,19 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     if world >= WORLD_TWIST_GAIN and not found:  # the dead-reckoned heading is the gyro's: only where it reads right
         # the velocity's scale on each axis is then a consequence: not said besides
         return [(_world_twist_sentence(offset, world) + stream_topics(topics, "odometry"), "it")]
+    arm = lever_arm_sentence(offset)
+    if arm is not None and not found:  # the rotations are the gyro's: only where it reads right (as world_twist)
+        found.append((arm, WHOLE_ESTIMATES[1], ("odometry", "detections", "camera")))
+    late = odometry_late(offset, topics.get("linear_velocity", "ODOMETRY"))
+    if late is not None:
+        found.append((late, WHOLE_ESTIMATES[0], ("gyro", "odometry", "detections")))
     lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
     if lag is not None:
         found.append((lag, "them", ("gyro", "odometry")))
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
-            "with it): check the velocity's unit and axes, and the detections' (their unit, and their frame's "
-            f"extrinsic: a camera turned or given as the inverse transform reads this way){upset}",
+            f"with it): {SCALE_CAUSES}{upset}",
             "them",
             ("odometry", "detections", "camera"),
         )
@@ -1049,6 +1136,38 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
         for what in (velocity_misread(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
     ]
     return [(sentence + stream_topics(topics, *names), used) for sentence, used, names in found]
+
+
+#: An applied detection offset within this of the seconds the alignment moved the IMU's stamps by (plus
+#: ``ODOMETRY_LATE_SIGMAS`` of its standard error) says the detections agree with the IMU as stamped: the odometry
+#: is the stream off (:func:`odometry_late`). Twice the gyro lag's fine grid (``alignment.GYRO_LAG_FINE_S``);
+#: a generated figure 8 with its odometry 85 ms late: +0.0850 s applied against +0.085 moved.
+ODOMETRY_LATE_TOLERANCE_S = 0.01
+ODOMETRY_LATE_SIGMAS = 3.0
+
+
+def odometry_late(offset: dict, topic: str = "ODOMETRY") -> str | None:
+    """The warning that the odometry, not the IMU, is stamped off, when the alignment moved the IMU's stamps onto
+    the odometry's clock (``gyro_moved_s``) and the detections needed the same move (the offset applied within
+    ``ODOMETRY_LATE_TOLERANCE_S``): two streams of three agree as stamped, and the estimate (on the odometry's
+    clock) is that much off theirs. Its poses are not moved: the run's clock is the velocity samples' (a generated
+    figure 8, the odometry 85 ms late: riekf 0.180 m against 0.011 m with the report's truth-clock offset applied);
+    None otherwise. ``topic``: the odometry's, which the advice names."""
+    moved = float(offset.get("gyro_moved_s") or 0.0)
+    if moved == 0.0 or not offset.get("applied"):
+        return None
+    est, sigma = float(offset["estimate_s"]), float(offset.get("sigma_s") or 0.0)
+    if abs(est - moved) > ODOMETRY_LATE_TOLERANCE_S + ODOMETRY_LATE_SIGMAS * sigma:
+        return None
+    late = "late" if moved > 0 else "early"
+    return (
+        f"the detections needed the same {est:+.4f} s (± {sigma:.2g}) the IMU's stamps were moved by onto the "
+        f"odometry's clock ({moved:+.3f} s): the IMU and the detections agree as stamped, so the odometry is the "
+        f"stream stamped {abs(moved):.3f} s {late}, not the IMU, and the poses (on its clock) are {abs(moved):.3f} s "
+        f"{late} against the IMU's and the detections' clock (the report's truth-clock offset shows it: `slamobs "
+        "report RUN_DIR --t-offset auto` applies it): correct the odometry's stamps at the driver (or time.topics: "
+        f"{{{topic}: record}} if its record times are right)"
+    )
 
 
 def _best_misread(gains: dict[str, float]) -> list[tuple[str, float]]:
