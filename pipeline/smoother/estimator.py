@@ -503,13 +503,17 @@ class BatchSmoother(Stepper):
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
         """The relative-motion factors' data: the odometry preintegrated between keyframes about ``b_bar`` with
-        the levels of ``nz``, intervals across a gap left (almost) unconstrained."""
+        the levels of ``nz``, intervals across a gap left (almost) unconstrained, the densities widened across a
+        gap in the samples as riekf's (``shared_steps.gap_levels``)."""
+        from slamobs.pipeline.observers.shared_steps import gap_levels
         from slamobs.pipeline.smoother.preintegration import D_END, D_W, preintegrate, whitening
 
         s, k = self.stream, kf_t.shape[0]
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
-        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro**2, nz.velocity**2, data, cov)
+        g_om, g_v, vel_gap = gap_levels(s, self.vel_t, nz.held)
+        q_om, q_v = nz.gyro**2, nz.velocity**2
+        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, q_om, q_v, np.array([g_om, g_v]), vel_gap, data, cov)
         # intervals across a gap: (almost) no constraint
         cov[across_gaps(kf_t, gaps)] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
