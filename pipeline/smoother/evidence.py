@@ -183,7 +183,7 @@ def search(run_pass, take, undo, budget: float) -> tuple[list[list[str]], int, b
         undo(held)
         passes[-1].append(
             f"batch: the evidence's {key} x{scale:g} not kept: no pass after it moved a level by {MIN_GAIN:.2f} "
-            "(the levels, solution and notes before it restored)"
+            "(the levels and the solution before it restored)"
         )
         moved = False
     return passes, spent, moved
