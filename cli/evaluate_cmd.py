@@ -405,7 +405,7 @@ def _run(
     offset_json = offset_fields(found, applied, offset, against) if timed and asked else None
     return result, {
         "json": _doc(result, describe(result, sync, al, rpe_opts), offset_json),
-        "time_offset_line": _offset_line(found, timed, asked, applied, against),
+        "time_offset_line": _offset_line(found, timed, asked, applied, against, offset_json),
     }
 
 
@@ -431,9 +431,12 @@ def _unpaired_line(paired, t_max_diff: float) -> str | None:
     return f"{'unpaired':>10}\t{said}"
 
 
-def _offset_line(found, timed: bool, asked: bool, applied: float, against: str) -> str | None:
+def _offset_line(found, timed: bool, asked: bool, applied: float, against: str, fields: dict | None) -> str | None:
     """The printed clock-offset line: the offset found, how sure (its correlation, the halves' spread where the
-    search has halves), and what was applied."""
+    search has halves, and why it is not reliable as report.md says it: ``markdown.offset_doubts`` of ``fields``,
+    the ``--json`` document's ``time_offset``), and what was applied."""
+    from slamobs.pipeline.evaluation.markdown import offset_doubts
+
     if not asked:
         return None
     if not timed:
@@ -447,7 +450,8 @@ def _offset_line(found, timed: bool, asked: bool, applied: float, against: str) 
     of = "the run's log (its velocity samples)" if against != "estimate" else "the estimate"
     return (
         f"{'t_offset':>10}\t{found.offset_s:.6f} s estimated against {of} (peak correlation "
-        f"{found.peak_correlation:.2f}{halves}{'' if found.reliable else ', NOT reliable'}), {applied:.6f} s applied"
+        f"{found.peak_correlation:.2f}{halves}{'' if found.reliable else ', NOT reliable' + offset_doubts(fields)}), "
+        f"{applied:.6f} s applied"
     )
 
 

@@ -325,9 +325,14 @@ class AlignedStream:
     #: The linear velocity's gaps when it has a topic of its own (:func:`_measured_gaps`; none when it shares the
     #: time base's topic, whose gaps are the time base's own intervals): ``(G, 2)`` int64 ns, its samples before
     #: and after each gap, across which the time base's samples got it interpolated; ``velocity_period_ns`` its
-    #: median interval. riekf widens the velocity's process noise there (``riekf.gap_factor``).
+    #: median interval. riekf and batch widen the velocity's noise there (``shared_steps.gap_levels``).
     velocity_gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     velocity_period_ns: float = 0.0
+    #: The linear velocity's white-noise density as recorded, per axis of its own message (m/s/√Hz; zeros: not
+    #: estimated): the run sets it where it estimates it (``run.prepare_log``, the estimators with noise levels),
+    #: since the samples interpolated onto the time base show less of it (0.015 for 0.85 on a generated figure 8).
+    #: The detection pairs' velocity-scale check takes the dilution it causes off (``time_offset.velocity_scale``).
+    velocity_density: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -1992,6 +1997,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         topics=aligned.topics,
         velocity_gaps=aligned.velocity_gaps,
         velocity_period_ns=aligned.velocity_period_ns,
+        velocity_density=aligned.velocity_density,
     )
 
 

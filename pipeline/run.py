@@ -367,6 +367,8 @@ def prepare_log(
             raise InputError(log, f"no detection of a landmark of the fixed map {config.map.file}")
     window = time_window(config.time.start, config.time.end, aligned.t0_ns)
     aligned = windowed(aligned, window, log)
+    if velocity_noise is not None:  # for the detection pairs' velocity-scale check (time_offset.velocity_scale)
+        aligned = replace(aligned, velocity_density=np.resize(np.asarray(velocity_noise.value, float), 3))
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(
         path=streams.path,

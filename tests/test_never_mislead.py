@@ -186,6 +186,16 @@ def test_the_hints_of_a_turned_truth_go_by_the_reports_flag_not_by_a_notes_words
     report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
     add_run_context(report, [f"warning: {CAMERA_ADVICE}"], meta)
     assert "camera_named" not in report["ape"]["truth_frame_turn"]
+    # an observer's run made before its camera check kept a record: its run.json notes are all it left (`slamobs
+    # report` of such a run lost the camera's reading of the turn and offered frames.truth_rotation again)
+    for advice, named in (
+        (f"warning: fast-adaptation: the detections fit ...: {CAMERA_ADVICE} ...", True),
+        ("", False),
+    ):
+        legacy = {**meta, "observer": {"name": "fast-adaptation"}, "notes": [advice]}
+        report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}
+        add_run_context(report, legacy["notes"], legacy)
+        assert report["ape"]["truth_frame_turn"].get("camera_named", False) is named
     # a riekf record written before the flag: the same rule from its fields
     old = {**meta, "observer": {"name": "riekf", "time_offset": {"extrinsic_turn": {"gain": 5.5}, "gyro_misreads": {}}}}
     report = {"ape": {"truth_frame_turn": dict(turn)}, "notes": ["rotation APE: reworded"]}

@@ -328,6 +328,9 @@ def test_evaluate_rpe_options_zip_and_offset(finished_run, tmp_path):
         invoke(evaluate, tmp_path / "truth.txt", tmp_path / "split.txt", "--estimate-t-offset", "--json").stdout
     )["time_offset"]
     assert split["uncertainty_s"] == pytest.approx(0.125, abs=0.01) and split["reliable"] is False, split
+    # the printed line says why, as report.md does (markdown.offset_doubts), not a bare "NOT reliable"
+    line = invoke(evaluate, tmp_path / "truth.txt", tmp_path / "split.txt", "--t_offset", "auto").stdout
+    assert "NOT reliable: the estimate's halves find offsets 0.2" in line and " s apart)" in line, line
 
 
 def test_evaluate_of_a_run_states_the_offset_its_report_states(tmp_path):

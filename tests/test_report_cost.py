@@ -80,10 +80,14 @@ def test_only_estimators_with_noise_levels_estimate_the_recorded_velocity_noise(
     real = noise.stream_density
     monkeypatch.setattr(noise, "stream_density", lambda *a: calls.append(1) or real(*a))
     log = SAMPLES / "figure8.mcap"
-    assert run.prepare_log(log, RunConfig(), directions=False, noise=False).velocity_noise is None
+    without = run.prepare_log(log, RunConfig(), directions=False, noise=False)
+    assert without.velocity_noise is None and not without.aligned.velocity_density.any()
     assert calls == []
-    assert run.prepare_log(log, RunConfig(), directions=False).velocity_noise is not None
+    prepared = run.prepare_log(log, RunConfig(), directions=False)
+    assert prepared.velocity_noise is not None
     assert calls == [1]
+    # on the stream for the detection pairs' velocity-scale check (time_offset.velocity_scale)
+    assert np.array_equal(prepared.aligned.velocity_density, np.resize(prepared.velocity_noise.value, 3))
 
 
 def test_compiled_running_medians_equal_the_array_code(monkeypatch):

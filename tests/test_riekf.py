@@ -24,10 +24,10 @@ from slamobs.pipeline.observers.riekf import (
     RiEKF,
     accumulate,
     flush,
-    gap_factor,
     planar_evidence,
     update,
 )
+from slamobs.pipeline.observers.shared_steps import gap_factor
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from cli_checks import SAMPLES
 

@@ -885,6 +885,30 @@ def test_a_ground_robots_axes_that_do_not_move_get_no_velocity_scale():
     assert len(said) == 1 and "along x" in said[0] and "cm/s?" in said[0], said
 
 
+def test_a_very_noisy_velocity_is_not_named_as_scaled_and_a_real_scale_still_is():
+    # velocity noise x300 the simulator's (6 m/s per sample at 50 Hz) on a clean figure 8: the noise in the velocity's
+    # own displacement pulled the fitted scale toward 0 and it was named ("along x 0.206x as far as its velocity
+    # says ... in another unit or scale?", docs/benchmarks.md "Generated logs nobody tuned on"); with the recorded
+    # density on the stream (run.prepare_log) the dilution is taken off, or the axis left unsaid where it dominates
+    from slamobs.pipeline.noise import stream_density
+    from slamobs.pipeline.observers import time_offset
+
+    def stream_of(times: float, scale: float):
+        ls = expected_streams(simulate("figure8", seed=2101, duration=20.0, noise=NoiseModel(odom_linear=0.02 * times)))
+        lv = ls.linear_velocity
+        ls = replace(ls, linear_velocity=replace(lv, xyz=lv.xyz / scale))  # the detections say `scale` x as far
+        density = np.resize(np.asarray(stream_density(lv.t_ns, lv.xyz / scale).value, float), 3)
+        return replace(align(ls, keep_directions=False), velocity_density=density)
+
+    noisy = time_offset.estimate(stream_of(300.0, 1.0))
+    assert time_offset.note("riekf", noisy) == []
+    assert max(noisy["velocity_scale"]["dilution"]) > time_offset.MAX_SCALE_DILUTION
+    scaled = time_offset.estimate(stream_of(100.0, 2.0))  # as fitted 1.33 (x): inside the band, and not named
+    said = [n for n in time_offset.note("riekf", scaled) if "the detections say the body moved" in n]
+    assert len(said) == 1 and "along x" in said[0], said
+    assert scaled["velocity_scale"]["scale"][0] == pytest.approx(2.0, abs=0.25)
+
+
 def test_an_odometry_stamped_late_against_the_gyro_is_named():
     # the odometry stamped with its record time (80-90 ms late) while the IMU and the detections use header stamps:
     # riekf 0.038 m against 0.011 clean on a figure 8 and only an "overconfident" note; the detection pairs' time

@@ -302,10 +302,17 @@ def detections_named_camera(metadata: dict[str, Any]) -> bool:
     camera_turned``): riekf's and batch's own time-offset record (run.json ``observer.time_offset``) or the run's
     camera check (``observer.camera_check``: the observers', made when the report found the estimate turned).
     Public: the run's camera check reads it too (no second check where the estimator's own named the camera). A
-    time-offset record written before the flag is judged by the same rule from its fields."""
-    from slamobs.pipeline.observers.time_offset import camera_turned
+    time-offset record written before the flag is judged by the same rule from its fields. An observer's run made
+    before its camera check kept a record (session 27) has neither: its run.json notes (``metadata["notes"]``) are
+    all it left of the check, read for the check's warning (``time_offset.CAMERA_ADVICE``); the reference
+    estimators always record their own search, so their notes are never read so."""
+    from slamobs.pipeline.estimators import ESTIMATORS
+    from slamobs.pipeline.observers.time_offset import CAMERA_ADVICE, camera_turned
 
     observer = metadata.get("observer") or {}
+    spec = ESTIMATORS.get(observer.get("name") or "")
+    if not {"time_offset", "camera_check"} & observer.keys() and spec is not None and not spec.uses_noise:
+        return any(n.startswith("warning: ") and CAMERA_ADVICE in n for n in metadata.get("notes") or [])
     records = [observer.get(k) or {} for k in ("time_offset", "camera_check")]
     return any(bool(r["camera_turned"]) if "camera_turned" in r else camera_turned(r) for r in records)
 

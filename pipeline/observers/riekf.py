@@ -20,14 +20,16 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
 * Gaps (new segments, ``limits.max_gap``): nothing is integrated across them (as for the observers); the pose
   is re-anchored to the map where a frame allows it and gets the covariance of a fresh start (``GAP_SIGMA``).
-* Gaps in the velocity samples (shorter than ``limits.max_gap``, longer than ``GAP_INTERVALS`` median intervals):
+* Gaps in the velocity samples (shorter than ``limits.max_gap``, longer than ``shared_steps.GAP_INTERVALS`` median
+  intervals):
   the twist is interpolated across them as between any two samples, but its error there is the two samples' noise
   alone, not a white noise averaged over the samples the interval would have held: the process noise over such an
-  interval is that of its two samples (:func:`gap_factor`, ``span / (2 interval)`` times the white density's). Held
-  (commanded) streams (``noise.held``) keep the density: their intervals are commands held, not samples missing.
+  interval is that of its two samples (``shared_steps.gap_factor``, ``span / (2 interval)`` times the white
+  density's). Held (commanded) streams (``noise.held``) keep the density: their intervals are commands held,
+  not samples missing.
   An odometry on a topic of its own is interpolated onto the gyro's stamps, so its gaps do not show on the time
   base: the alignment keeps them (``AlignedStream.velocity_gaps``) and the velocity's noise over each time-base
-  interval inside one takes that gap's factor (:func:`_hidden_gap_factors`).
+  interval inside one takes that gap's factor (``shared_steps.gap_levels``, which batch's smoother shares).
   (Generated figure 8 with three 1 s velocity gaps: pose NEES 140 without it, 5.7 with it, 5.5 with no gaps;
   docs/benchmarks.md, "riekf across a gap in the velocity stream".)
 * New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
@@ -147,7 +149,7 @@ from slamobs.pipeline.kernel_cache import njit, subroutine
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
 from slamobs.pipeline.noise import nees_bounds
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
-from slamobs.pipeline.observers.shared_steps import record_row, twist_at
+from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
 from slamobs.pipeline.simd import add8, fma8, load8, mul8, splat8, store8, sub8
 
@@ -165,8 +167,6 @@ _T, _MEAS_T, _ACC_DT, _SCALE, _LOST_T, _DSCALE, _KNOWN_T, _BLIND_T, _WALK, _PLAN
 #: Velocity gaps (module docstring, "Gaps in the velocity samples"): the ``fs`` slots of the gyro's and the
 #: velocity's sample interval (their median; 0 where the stream is held: no gap factor).
 _GAP_OM, _GAP_V = 11, 12
-#: An interval between velocity samples longer than this many median intervals is a gap (module docstring).
-GAP_INTERVALS = 3.0
 #: Integer state ``ns``: the slots every kernel shares (base.KernelState: iv, jf, nvis (unused here), started,
 #: steps, and the sub-step cap's two, never hit here), then the filter's own.
 _IV, _JF, _STARTED, _STEPS = 0, 1, 3, 4
@@ -258,37 +258,6 @@ PAD = 8
 CONTRACT = {"contract"}
 #: Work units (base.WORK_PER_CALL) of a velocity step and, per 1000 multiply-adds, of a frame's update.
 _FRAME_WORK_SCALE = 1000
-
-
-@njit(cache=True)
-def gap_factor(span, interval):
-    """The factor on a white noise density's variance over one interval of ``span`` s between two samples, the
-    stream's median interval being ``interval`` (0: no factor). The twist between two samples is their linear
-    interpolation: its integral's error is ``span (n_0 + n_1) / 2`` with each sample's noise of variance
-    ``q² / interval``, so variance ``q² span² / (2 interval)``: ``span / (2 interval)`` times the white density's
-    ``q² span``. At the median interval the density's variance is the larger (neighbouring intervals share their
-    samples: over many the sums agree); over a gap (more than ``GAP_INTERVALS`` intervals) the two samples' noise is
-    all there is. Public: tests/test_riekf.py checks it."""
-    if interval > 0.0 and span > GAP_INTERVALS * interval:
-        return span / (2.0 * interval)
-    return 1.0
-
-
-def _hidden_gap_factors(stream, held: bool) -> np.ndarray:
-    """Per time-base sample ``i``: :func:`gap_factor` of the linear velocity's own gap that the interval from
-    sample ``i - 1`` to ``i`` lies in (``AlignedStream.velocity_gaps``: an odometry on a topic of its own,
-    interpolated onto the gyro's stamps, whose gap the time base does not show), else 1; all 1 for a held stream."""
-    t = stream.vel_t_ns
-    out = np.ones(t.shape[0])
-    gaps, period = stream.velocity_gaps, stream.velocity_period_ns * 1e-9
-    if held or gaps.shape[0] == 0 or t.shape[0] < 2:
-        return out
-    mid = t[:-1] + (t[1:] - t[:-1]) // 2
-    k = np.searchsorted(gaps[:, 0], mid, side="right") - 1
-    inside = (k >= 0) & (mid < gaps[np.clip(k, 0, None), 1])
-    factors = np.array([gap_factor((b - a) * 1e-9, period) for a, b in gaps])
-    out[1:][inside] = factors[k[inside]]
-    return out
 
 
 @njit(cache=True)
@@ -1471,7 +1440,7 @@ def _advance(
             bias[0], bias[1], bias[2], bias[3], bias[4], bias[5] = b_om[0], b_om[1], b_om[2], b_v[0], b_v[1], b_v[2]
             span = vel_t[iv] - vel_t[iv - 1] if 0 < iv < n_vel else 0.0
             g_om, g_v = gap_factor(span, gap_om), gap_factor(span, gap_v)
-            if 0 < iv < n_vel:  # a gap of the linear velocity's own topic (_hidden_gap_factors)
+            if 0 < iv < n_vel:  # a gap of the linear velocity's own topic (gap_levels)
                 g_v = max(g_v, vel_gap[iv])
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
@@ -1743,10 +1712,7 @@ class RiEKF(Stepper):
         self.planar["floor"] = nz.floor
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
-        interval = float(np.median(np.diff(self.vel_t))) if self.vel_t.shape[0] > 2 else 0.0
-        self.state.fs[_GAP_OM] = 0.0 if "gyro" in nz.held else interval
-        self.state.fs[_GAP_V] = 0.0 if "velocity" in nz.held else interval
-        self.vel_gap = _hidden_gap_factors(stream, "velocity" in nz.held)
+        self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(stream, self.vel_t, nz.held)
         self.stats.update({"noise": self.noise.as_dict()})
 
     @property

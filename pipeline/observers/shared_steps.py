@@ -19,12 +19,16 @@
   a fourth column, that column (0 for a landmark fixed by the map, which is then never updated).
 
 All are written with scalars (no temporaries): they run once per sub-step or event.
+
+- :func:`gap_factor` and :func:`gap_levels`: the velocity noise's variance across a gap in the samples, one
+  definition for riekf's propagation and batch's preintegration (both take the twist linear between samples).
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
 #: Most sub-steps one interval between two events is cut into. Logs need a few to a few hundred; an interval
@@ -37,6 +41,44 @@ CAPPED, CAP_IV = 5, 6
 #: Time constants of an observer's attitude loop after which its map frame's orientation enters the mean
 #: (:func:`frame_sample`): the start from the first direction sample is over by then.
 FRAME_SETTLE = 5.0
+#: An interval between velocity samples longer than this many median intervals is a gap (:func:`gap_factor`).
+GAP_INTERVALS = 3.0
+
+
+@njit(cache=True)
+def gap_factor(span, interval):
+    """The factor on a white noise density's variance over one interval of ``span`` s between two samples, the
+    stream's median interval being ``interval`` (0: no factor). The twist between two samples is their linear
+    interpolation: its integral's error is ``span (n_0 + n_1) / 2`` with each sample's noise of variance
+    ``q² / interval``, so variance ``q² span² / (2 interval)``: ``span / (2 interval)`` times the white density's
+    ``q² span``. At the median interval the density's variance is the larger (neighbouring intervals share their
+    samples: over many the sums agree); over a gap (more than ``GAP_INTERVALS`` intervals) the two samples' noise is
+    all there is. Public: riekf's propagation and batch's preintegration call it, tests/test_riekf.py checks it."""
+    if interval > 0.0 and span > GAP_INTERVALS * interval:
+        return span / (2.0 * interval)
+    return 1.0
+
+
+def gap_levels(stream, vel_t, held) -> tuple[float, float, np.ndarray]:
+    """What :func:`gap_factor` needs for the gyro and the linear velocity of ``stream`` (an ``AlignedStream``,
+    ``vel_t`` its time base in s): the median interval of each (0 where the stream is held, ``noise.held``: a held
+    command's interval is the command held, not samples missing), and per time-base sample ``i`` the factor of the
+    linear velocity's own gap that the interval from sample ``i - 1`` to ``i`` lies in
+    (``AlignedStream.velocity_gaps``: an odometry on a topic of its own, interpolated onto the gyro's stamps, whose
+    gap the time base does not show), else 1. Public: riekf and batch's smoother take their gaps from it."""
+    interval = float(np.median(np.diff(vel_t))) if vel_t.shape[0] > 2 else 0.0
+    t = stream.vel_t_ns
+    out = np.ones(t.shape[0])
+    gaps, period = stream.velocity_gaps, stream.velocity_period_ns * 1e-9
+    levels = (0.0 if "gyro" in held else interval, 0.0 if "velocity" in held else interval)
+    if "velocity" in held or gaps.shape[0] == 0 or t.shape[0] < 2:
+        return *levels, out
+    mid = t[:-1] + (t[1:] - t[:-1]) // 2
+    k = np.searchsorted(gaps[:, 0], mid, side="right") - 1
+    inside = (k >= 0) & (mid < gaps[np.clip(k, 0, None), 1])
+    factors = np.array([gap_factor((b - a) * 1e-9, period) for a, b in gaps])
+    out[1:][inside] = factors[k[inside]]
+    return *levels, out
 
 
 @njit(cache=True, inline="always")

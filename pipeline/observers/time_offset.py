@@ -526,6 +526,11 @@ SCALE_CAUSES = (
     "detector's tag size where the log gives their positions; or their unit), or their frame's extrinsic: a camera "
     "turned or given as the inverse transform reads this way"
 )
+#: An axis's scale is left unsaid when the velocity's own noise (``AlignedStream.velocity_density``) is more than
+#: this share of what the fit sees of the axis (:func:`velocity_scale`'s dilution): the fitted scale is pulled toward
+#: 0 by that share, and its correction is no longer stable (a generated figure 8 at velocity noise x300: dilution
+#: 0.70 on x, the scale 0.21 read as a misread unit; x100: 0.28, 0.66 -> 0.91 corrected).
+MAX_SCALE_DILUTION = 0.5
 #: Units a velocity may be misread in, as the scale the detections would find, with what to say of it.
 VELOCITY_MISREADS = (
     (-1.0, "of the wrong sign"),
@@ -747,7 +752,13 @@ def velocity_scale(c: Consistency) -> dict:
     largest axis's: a ground robot's y or z whose velocity as read is noise, 0.0016 ± 0.12 and -0.07 ± 0.16 on
     ``unseen_logs.py``'s ground logs, which were named as misread). The velocity
     in another unit or of the wrong sign on an axis is no noise the estimators can absorb (MR.CLAM 6 r1 in km/h:
-    riekf 0.49 -> 0.89 m, with its sign flipped: lost, and no word of the velocity)."""
+    riekf 0.49 -> 0.89 m, with its sign flipped: lost, and no word of the velocity).
+
+    The velocity's own noise is in the regressor ``D`` and pulls each scale toward 0 by ``δ = q² Σ Δt [(AᵀA)⁻¹]_jj``
+    (errors in variables, first order: ``q²`` the recorded density's mean square over the axes,
+    ``AlignedStream.velocity_density``, ``Σ Δt`` over the pairs fitted): the scale is reported as fitted over
+    ``1 − δ`` (its standard error too), and left unsaid where ``δ`` exceeds ``MAX_SCALE_DILUTION`` (``dilution``
+    per axis in the record; 0 where the density is not known)."""
     d = _velocity_displacements(c)
     base = c.residuals(0.0)[0]
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
@@ -763,14 +774,19 @@ def velocity_scale(c: Consistency) -> dict:
     ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
     sigma = np.sqrt(np.diag(np.linalg.inv(ata)) * float(np.mean(d2[keep])) / 3.0)
     inflation = np.diag(np.linalg.inv(ata)) * np.diag(ata)
-    scale, err = [None] * 3, [None] * 3
+    q2, spans = float(np.mean(c.source.velocity_density**2)), c.det_t[c.b[keep]] - c.det_t[c.a[keep]]
+    dilution = q2 * float(np.sum(spans)) * np.diag(np.linalg.inv(ata))
+    scale, err, diluted = [None] * 3, [None] * 3, [0.0] * 3
     # the displacement along each axis the detections see (its scale times the velocity's): an axis along which they
     # see the body hardly move (MIN_AXIS_SHARE) has a velocity as read that is noise, and no measurable scale
     seen = np.abs(1.0 + x[: int(moved.sum())]) * rms[moved]
     for i, j in enumerate(np.flatnonzero(moved)):
+        diluted[j] = round(float(dilution[i]), 4)
         if inflation[i] <= MAX_SCALE_INFLATION and seen[i] >= MIN_AXIS_SHARE * seen.max():
-            scale[j], err[j] = round(1.0 + float(x[i]), 6), float(sigma[i])
-    return {"scale": scale, "sigma": err}
+            if dilution[i] <= MAX_SCALE_DILUTION:
+                kept = 1.0 - float(dilution[i])
+                scale[j], err[j] = round((1.0 + float(x[i])) / kept, 6), float(sigma[i]) / kept
+    return {"scale": scale, "sigma": err, "dilution": diluted}
 
 
 def velocity_misread(scale: dict) -> list[str]:

@@ -29,6 +29,7 @@ from slamobs.pipeline.smoother.evidence import SAMPLE_FLOOR as EVIDENCE_SAMPLE_F
 from slamobs.pipeline.smoother.evidence import SOLVE_BUDGET as EVIDENCE_SOLVE_BUDGET
 from slamobs.pipeline.smoother.evidence import SOLVE_FLOOR as EVIDENCE_SOLVE_FLOOR
 from slamobs.pipeline.smoother.evidence import in_passes as evidence_passes
+from slamobs.pipeline.smoother.evidence import search as evidence_search
 from slamobs.pipeline.smoother.settings import DEAD_RECKONING, BatchSettings
 
 #: What the detection law's method says when batch leaves the held streams' factor out of it.
@@ -503,13 +504,17 @@ class BatchSmoother(Stepper):
 
     def _motion_data(self, kf_t: np.ndarray, gaps: np.ndarray | None, b_bar: np.ndarray, nz) -> np.ndarray:
         """The relative-motion factors' data: the odometry preintegrated between keyframes about ``b_bar`` with
-        the levels of ``nz``, intervals across a gap left (almost) unconstrained."""
+        the levels of ``nz``, intervals across a gap left (almost) unconstrained, the densities widened across a
+        gap in the samples as riekf's (``shared_steps.gap_levels``)."""
+        from slamobs.pipeline.observers.shared_steps import gap_levels
         from slamobs.pipeline.smoother.preintegration import D_END, D_W, preintegrate, whitening
 
         s, k = self.stream, kf_t.shape[0]
         data = np.zeros((k - 1, D_END))
         cov = np.zeros((k - 1, 6, 6))
-        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, nz.gyro**2, nz.velocity**2, data, cov)
+        g_om, g_v, vel_gap = gap_levels(s, self.vel_t, nz.held)
+        q_om, q_v = nz.gyro**2, nz.velocity**2
+        preintegrate(self.vel_t, s.omega, s.velocity, kf_t, b_bar, q_om, q_v, np.array([g_om, g_v]), vel_gap, data, cov)
         # intervals across a gap: (almost) no constraint
         cov[across_gaps(kf_t, gaps)] += np.diag(np.r_[np.full(3, GAP_SIGMA[0] ** 2), np.full(3, GAP_SIGMA[1] ** 2)])
         data[:, D_W:D_END] = whitening(cov).reshape(-1, 36)
@@ -671,7 +676,8 @@ class BatchSmoother(Stepper):
         while one moves: they trade off; until the scans' linear solves exceed ``EVIDENCE_SOLVE_BUDGET`` times the
         first solution's, or ``EVIDENCE_SOLVE_FLOOR``) chosen by the evidence: the candidate kept, the record per
         key (its last scan; ``scale`` of the level the run started from, ``scales`` the ones an earlier scan
-        kept), the notes."""
+        kept), the notes. A pass that moved nothing but had a near step (``evidence.NEAR_GAIN``) takes it for one
+        more pass, kept when that pass moves a level, else undone."""
         n_kf = keyframes[0].shape[0]
         if self.settings.noise_evidence != "off" and n_kf > EVIDENCE_MAX_KEYFRAMES:
             why = f"the log has {n_kf} keyframes (more than {EVIDENCE_MAX_KEYFRAMES}): each scale would cost a solve"
@@ -680,31 +686,63 @@ class BatchSmoother(Stepper):
                 {k: {"skipped": why} for k in EVIDENCE_KEYS},
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
-        keys = self._evidence_keys()
-        records, notes, total = {}, [], dict.fromkeys(keys, 1.0) | (scales or {})
+        keys, context = self._evidence_keys(), (keyframes, segments, progress)
+        state = {"chosen": chosen, "records": {}, "total": dict.fromkeys(keys, 1.0) | (scales or {})}
         budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
-        spent, moved, passes = 0, True, []
-        while moved and spent <= budget:
-            moved = False
-            passes.append([])
-            for key in keys:
-                if (why := self._evidence_skipped(key)) is not None:
-                    records[key] = {"skipped": why}
-                    continue
-                lowest = EVIDENCE_SAMPLE_FLOOR / total[key] if self._sampled(key) else 0.0
-                chosen, records[key], note, solves = self._scan(key, chosen, keyframes, segments, progress, lowest)
-                passes[-1].append(note)
-                total[key] *= records[key]["winner"]
-                records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
-                spent += solves
-                moved |= records[key]["winner"] != 1.0
-        notes += evidence_passes(passes, again=scales is not None)
+
+        def run_pass(notes: list):
+            state["chosen"], moved, near, solves = self._evidence_pass(
+                keys, state["chosen"], state["records"], state["total"], context, notes
+            )
+            return moved, near, solves
+
+        def take(near: tuple):
+            held = (state["chosen"], {k: dict(r) for k, r in state["records"].items()}, dict(state["total"]))
+            held += (self.noise,)
+            state["chosen"], solves = self._take_near(near, state["chosen"], state["records"], state["total"], context)
+            return held, solves
+
+        def undo(held: tuple):
+            state["chosen"], state["records"], state["total"], self.noise = held
+
+        passes, spent, moved = evidence_search(run_pass, take, undo, budget)
+        notes = evidence_passes(passes, again=scales is not None)
         if moved:
             notes.append(
                 f"batch: the evidence scan stopped at its budget ({spent} linear solves, {EVIDENCE_SOLVE_BUDGET:g}x "
                 f"the first solution's or {EVIDENCE_SOLVE_FLOOR}) while a level still moved"
             )
-        return chosen, records, notes
+        return state["chosen"], state["records"], notes
+
+    def _evidence_pass(self, keys, chosen, records: dict, total: dict, context: tuple, notes: list):
+        """One pass of the evidence over the levels ``keys`` (records, totals and the pass's notes updated in
+        place): the candidate kept, whether a level moved, the near step (:func:`.evidence.near_step`: key, scale,
+        gain and that scale's solution) of highest gain when none moved, and the linear solves it took."""
+        moved, near, spent = False, None, 0
+        for key in keys:
+            if (why := self._evidence_skipped(key)) is not None:
+                records[key] = {"skipped": why}
+                continue
+            lowest = EVIDENCE_SAMPLE_FLOOR / total[key] if self._sampled(key) else 0.0
+            chosen, records[key], note, solves, step = self._scan(key, chosen, *context, lowest)
+            notes.append(note)
+            total[key] *= records[key]["winner"]
+            records[key]["scale"] = round(total[key], 9)  # of the level the run started from, over every pass
+            spent += solves
+            moved |= records[key]["winner"] != 1.0
+            if step is not None and (near is None or step[2] > near[2]):
+                near = step
+        return chosen, moved, None if moved else near, spent
+
+    def _take_near(self, near: tuple, chosen, records: dict, total: dict, context: tuple):
+        """The near step ``near`` (key, scale, gain, solution) taken for one more pass: the noise scaled, the
+        smoother solved (and gated) again from that scale's solution; the candidate and the linear solves."""
+        key, scale, _, sol = near
+        self.noise = _scaled(self.noise, key, scale, say=True)
+        again = self._solved_again(chosen, sol, *context)
+        total[key] *= scale
+        records[key]["scale"] = round(total[key], 9)
+        return again, again.sol.summary["linear_solves"]
 
     def _sampled(self, key: str) -> bool:
         """The level ``key`` is measured from its own stream's samples (not held, not stated, not a default): the
@@ -715,7 +753,8 @@ class BatchSmoother(Stepper):
         """The scale of the level ``key`` with the highest evidence (:mod:`pipeline.smoother.evidence`), searched
         from the chosen solution on its detections (no scale below ``lowest``); when a scale other than 1 wins, the
         noise is scaled and the smoother solved (and gated) again from that scale's solution. The candidate kept,
-        the record, the note, and the linear solves the scan took."""
+        the record, the note, the linear solves the scan took, and its near step (key, scale, gain, solution:
+        :func:`.evidence.near_step`) or None."""
         from slamobs.pipeline.smoother import evidence as ev
 
         kf_t, kf_of_det, gaps = keyframes
@@ -734,11 +773,12 @@ class BatchSmoother(Stepper):
         record, note = ev.record(key, level, scores, winner)
         solves = sum(sols[s].summary["linear_solves"] for s in sols if s != 1.0)
         if winner == 1.0:
-            return chosen, record, note, solves
+            near = ev.near_step(scores, winner)
+            return chosen, record, note, solves, None if near is None else (key, near[0], near[1], sols[near[0]])
         self.noise = _scaled(self.noise, key, winner, say=True)
         again = self._solved_again(chosen, sols[winner], keyframes, segments, progress)
         solves += again.sol.summary["linear_solves"] - chosen.sol.summary["linear_solves"]
-        return again, record, note, solves
+        return again, record, note, solves, None
 
     def _cross_validation(self, chosen, keyframes: tuple, segments: _Segments, progress):
         """The noise scales chosen by blocked cross-validation (:mod:`pipeline.smoother.cross_validation`) instead

@@ -25,7 +25,7 @@ import numpy as np
 from slamobs.pipeline.kernel_cache import njit
 
 from slamobs.pipeline.lie import se3_exp_into, skew_into, so3_jacobians_into, so3_log
-from slamobs.pipeline.observers.shared_steps import twist_at
+from slamobs.pipeline.observers.shared_steps import gap_factor, twist_at
 
 #: Row layout of the per-interval data array: ΔR (9, row-major), Δp (3), J_R (9), J_pΩ (9), J_pV (9), W (36).
 D_R, D_P, D_JR, D_JPW, D_JPV, D_W, D_END = 0, 9, 12, 21, 30, 39, 75
@@ -78,12 +78,16 @@ def _mmt(a, b):
 
 
 @njit(cache=True)
-def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
+def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, gaps, vel_gap, data, cov):
     """Relative motion over every keyframe interval ``[kf_t[j], kf_t[j+1]]`` at the bias ``b_bar`` (6,).
 
     Velocity sample ``s`` covers ``[vel_t[s], vel_t[s+1])`` (the twist in it:
     :func:`~slamobs.pipeline.observers.shared_steps.twist_at`). ``q_om``,
-    ``q_v`` (3,) are noise densities squared (per axis). Fills ``data`` (K−1, 75) in the layout of the ``D_*``
+    ``q_v`` (3,) are noise densities squared (per axis); across a gap in the samples they take
+    :func:`~slamobs.pipeline.observers.shared_steps.gap_factor` as riekf's propagation does (``gaps`` (2,): the
+    gyro's and the velocity's median interval, 0 for a held stream; ``vel_gap`` (N,): the factor of the linear
+    velocity's own gap hidden by the alignment over the interval ending at each sample,
+    ``shared_steps.gap_levels``). Fills ``data`` (K−1, 75) in the layout of the ``D_*``
     offsets (``W`` left empty) and ``cov`` (K−1, 6, 6), the covariance of ``(δφ, δp)``.
     """
     n = vel_t.shape[0]
@@ -114,6 +118,11 @@ def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
             h = t_next - t
             if h > 0.0:
                 w0, w1, w2, v0, v1, v2 = twist_at(vel_t, omega, vel, s, t + 0.5 * h, b_bar)
+                g_om = g_v = 1.0
+                if s + 1 < n and t >= vel_t[s]:  # inside the interval from sample s to s + 1
+                    span = vel_t[s + 1] - vel_t[s]
+                    g_om = gap_factor(span, gaps[0])
+                    g_v = max(gap_factor(span, gaps[1]), vel_gap[s + 1])
                 se3_exp_into(h * w0, h * w1, h * w2, h * v0, h * v1, h * v2, d_r, d_p)
                 so3_jacobians_into(h * w0, h * w1, h * w2, jl, jr)
                 # transition A = [[dRᵀ, 0], [−ΔR[dp]×, I]] and noise maps (rotation noise, velocity noise)
@@ -140,7 +149,7 @@ def preintegrate(vel_t, omega, vel, kf_t, b_bar, q_om, q_v, data, cov):
                     for q in range(6):
                         x = 0.0
                         for k in range(3):
-                            x += bw[p, k] * q_om[k] * bw[q, k] + bv[p, k] * q_v[k] * bv[q, k]
+                            x += g_om * bw[p, k] * q_om[k] * bw[q, k] + g_v * bv[p, k] * q_v[k] * bv[q, k]
                         c[p, q] += x / h
                 # bias Jacobians (the bias enters exactly as the noise does)
                 jpw_new = j_pw - _mm(rdp, j_r) + 0.5 * h * h * rv
