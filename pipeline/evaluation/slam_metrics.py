@@ -166,6 +166,8 @@ COARSE_SHARE = 0.1
 #: The level is evaluated at this many evenly spaced times at most, each median over at most WINDOW_SAMPLES
 #: evenly strided errors of its window (a long log's pairs are not all needed for a level).
 LEVEL_POINTS = 2000
+#: the pairs a frame of the run's end is fitted on at least (:func:`settled_in_tail_frame`): a rigid fit's minimum
+TAIL_FRAME_MIN_PAIRS = 3
 WINDOW_SAMPLES = 2001
 
 
@@ -252,7 +254,8 @@ def convergence(
     lowest = min((x for x in (earlier, before_tail) if x is not None), default=None)
     growing = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
     recurring = longest_earlier_stretch(grid, level, band, k, window_ns)
-    tail_frame = settled_in_tail_frame(t, refit(t >= cut), threshold) if growing and refit is not None else None
+    refit_tail = growing and refit is not None and np.count_nonzero(t >= cut) >= TAIL_FRAME_MIN_PAIRS
+    tail_frame = settled_in_tail_frame(t, refit(t >= cut), threshold) if refit_tail else None
     if tail_frame is not None:
         growing, recurring, k = False, None, int(np.searchsorted(grid, tail_frame["t_ns"]))
     settled = steady_level if tail_frame is None else tail_frame["steady_level"]
