@@ -187,9 +187,14 @@ def convergence_verdict(conv: dict[str, Any]) -> str | None:
     """The error figure's words for the report's convergence section: why it has no convergence time (the band is
     still drawn), or that the level reached is coarse; None for a plain convergence."""
     if conv.get("t_since_start_s") is not None:
-        if not conv.get("coarse"):
-            return None
-        return f"coarse: level {100 * conv['steady_level_share']:.0f} % of the path's extent"
+        coarse = f"coarse: level {100 * conv['steady_level_share']:.0f} % of the path's extent"
+        if tf := conv.get("tail_frame"):  # judged in the frame of the run's end: the band drawn is not its band
+            tail = round(100 * conv["tail_fraction"])
+            return (
+                f"in the frame of its last {tail} %: level {tf['steady_level_m']:.3g} m, band {tf['band_m']:.3g} m"
+                f"{'; ' + coarse if conv.get('coarse') else ''}; grows under this whole-run fit"
+            )
+        return coarse if conv.get("coarse") else None
     if conv.get("lost"):
         return f"not converged: level above the path's extent ({conv['trajectory_extent_m']:.3g} m RMS)"
     if conv.get("growing"):

@@ -28,9 +28,10 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
         return None
     if conv.get("t_since_start_s") is None:
         return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")")
+    band = (conv.get("tail_frame") or conv)["band_m"]
     return (
         f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
-        f"within {conv['band_m']:.3g} m from then on{_coarse(conv)})"
+        f"within {band:.3g} m from then on{_tail_frame(conv)}{_coarse(conv)})"
     )
 
 
@@ -55,12 +56,27 @@ def headline_caveats(report: dict[str, Any]) -> list[str]:
     return out
 
 
+def _tail_frame(conv: dict[str, Any]) -> str:
+    """What a convergence judged in the frame of the run's end adds (``tail_frame``: the error grew under the
+    whole-run alignment only)."""
+    if not (tf := conv.get("tail_frame")):
+        return ""
+    tail = round(100 * conv["tail_fraction"])
+    return (
+        f", in the frame of its last {tail} % (the alignment fitted on those pairs only; level at most "
+        f"{tf['steady_level_m']:.3g} m there, band {tf['band_m']:.3g} m); under the whole-run alignment its level "
+        f"grows ({conv['tail_level_m']:.3g} m over the last {tail} % against {conv['earlier_level_m']:.3g} m before): "
+        "that fit is pulled toward a worse stretch before"
+    )
+
+
 def _coarse(conv: dict[str, Any]) -> str:
     """What a converged (or recurring) figure adds when its level is a sizeable share of the motion itself."""
     if not conv.get("coarse"):
         return ""
+    settled = (conv.get("tail_frame") or conv)["steady_level_m"]
     return (
-        f"; but that level, {conv['steady_level_m']:.3g} m, is {100 * conv['steady_level_share']:.0f} % of the "
+        f"; but that level, {settled:.3g} m, is {100 * conv['steady_level_share']:.0f} % of the "
         f"trajectory's own extent ({conv['trajectory_extent_m']:.3g} m RMS about its centre): a coarse estimate"
     )
 
@@ -121,7 +137,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     lines = ["## Absolute pose error (after alignment)", ""]
     lines += _stats_table([("translation [m]", ape["translation_m"]), ("rotation [deg]", ape["rotation_deg"])])
     conv_txt = (
-        f"{conv['t_since_start_s']:.3f} s after the estimate start{_coarse(conv)}"
+        f"{conv['t_since_start_s']:.3f} s after the estimate start{_tail_frame(conv)}{_coarse(conv)}"
         if conv["t_ns"] is not None
         else _not_converged(conv)
     )

@@ -10,6 +10,7 @@ are pure: tables and the :class:`~.trajectory_evaluation.TrajectoryEvaluation` i
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -1143,7 +1144,13 @@ class ConvergenceSection(Section):
             "last crossed a fixed threshold; null if the last level is above the band, or if the error still "
             "grows (growing: tail_level_m, the median level over the last tail_fraction, is above growth_factor × "
             "earlier_level_m, the median level over the tail_fraction before it, or above growth_factor × "
-            "before_tail_level_m, the median level over everything before it, and above threshold_m), or if "
+            "before_tail_level_m, the median level over everything before it, and above threshold_m, unless it "
+            "settled in the frame of the run's end: tail_frame, the report's alignment kind fitted on the last "
+            "tail_fraction's pairs only, its level within max(threshold_m, band_factor × its highest level over "
+            "that tail) from at least 2 × tail_fraction before the end, without an earlier as long stay in that "
+            "band it left; t_ns is then that time, and lost and coarse judge that level: one fit over the whole run "
+            "is pulled toward a long bad stretch, e.g. a first lap before its loop closed, and puts a right "
+            "second lap off; a drift does not settle in that frame), or if "
             "steady_level_m is above both threshold_m and trajectory_extent_m, the truth's RMS distance from its "
             "centre (lost: the estimate never locked on to the motion), or if the level was within band_m before, "
             "for at least as long as from that time to the end, and left it again for at least window_s (recurring_s: "
@@ -1165,8 +1172,9 @@ class ConvergenceSection(Section):
         t0 = int(ev.estimate.t_ns[0])
         extent = ev.truth_extent_m
         c = slam_metrics.convergence(
-            ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent=extent
+            ev.pair_t_est_ns, ev.translation.errors, self.threshold_m, ev.error_level, extent, refit_errors(ev)
         )
+        tail_frame = c["tail_frame"]
         self.result = {
             "threshold_m": float(self.threshold_m),
             "window_s": c["window_s"],
@@ -1184,13 +1192,26 @@ class ConvergenceSection(Section):
             "trajectory_extent_m": extent,
             "lost": c["lost"],
             "coarse_share": slam_metrics.COARSE_SHARE,
-            "steady_level_share": c["steady_level"] / extent if extent > 0 else None,
+            "steady_level_share": c["settled_level"] / extent if extent > 0 else None,
             "coarse": c["coarse"],
             "estimate_start_ns": t0,
             "recurring_s": None if c["recurring"] is None else [(x - t0) / 1e9 for x in c["recurring"]],
+            "tail_frame": None
+            if tail_frame is None
+            else {"steady_level_m": tail_frame["steady_level"], "band_m": tail_frame["band"]},
             "t_ns": c["t_ns"],
             "t_since_start_s": None if c["t_ns"] is None else (c["t_ns"] - t0) / 1e9,
         }
+
+
+def refit_errors(ev: TrajectoryEvaluation) -> Callable[[np.ndarray], np.ndarray] | None:
+    """``mask -> errors``: the position errors of all pairs under ``ev``'s alignment kind fitted on the pairs of
+    ``mask`` only (the convergence section's frame of the run's end, :func:`slam_metrics.settled_in_tail_frame`);
+    None for the alignments that fit nothing to choose (origin, none)."""
+    kind, ref, est = ev.alignment.kind, ev.paired.ref_pos, ev.paired.est_pos
+    if kind in ("origin", "none"):
+        return None
+    return lambda mask: metrics.row_norms(fit_alignment(kind, ref[mask], est[mask]).positions(est), ref)
 
 
 #: Degrees of freedom of the position and of the attitude NEES.

@@ -5,6 +5,8 @@ Pure functions over arrays; the report (:mod:`.report`) decides what to feed the
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from slamobs.pipeline.evaluation import metrics
@@ -164,6 +166,8 @@ COARSE_SHARE = 0.1
 #: The level is evaluated at this many evenly spaced times at most, each median over at most WINDOW_SAMPLES
 #: evenly strided errors of its window (a long log's pairs are not all needed for a level).
 LEVEL_POINTS = 2000
+#: the pairs a frame of the run's end is fitted on at least (:func:`settled_in_tail_frame`): a rigid fit's minimum
+TAIL_FRAME_MIN_PAIRS = 3
 WINDOW_SAMPLES = 2001
 
 
@@ -216,6 +220,7 @@ def convergence(
     threshold: float,
     level: tuple[np.ndarray, np.ndarray] | None = None,
     extent: float | None = None,
+    refit: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> dict:
     """When the error reaches the observer's own steady level and stays there.
 
@@ -234,16 +239,14 @@ def convergence(
     long as from that time on and left it again (``recurring``, :func:`longest_earlier_stretch`; ``coarse``:
     above ``COARSE_SHARE`` of ``extent``, converged
     or not, but loosely). ``level`` is :func:`error_level` of these errors when
-    already computed.
+    already computed. ``refit(mask)``: the errors of all pairs under the report's alignment kind fitted on the pairs
+    of ``mask`` only; with it, a growth is checked in the tail's own frame (:func:`settled_in_tail_frame`) and
+    dropped when the error settled there: ``tail_frame`` then holds that settling, and ``t_ns`` is its time.
     """
     t = np.asarray(t_ns, dtype=np.int64)
     e = np.asarray(errors, dtype=np.float64)
     grid, level = error_level(t, e) if level is None else level
-    cut = t[-1] - round(TAIL_FRACTION * (t[-1] - t[0]))
-    steady_level = float(np.max(level[grid >= cut]))
-    band = max(float(threshold), BAND_FACTOR * steady_level)
-    window_ns = WINDOW_FRACTION * float(t[-1] - t[0])
-    k = settled_index(grid, level, band, convergence_index(level, np.nextafter(band, np.inf)), window_ns)
+    cut, steady_level, band, window_ns, k = _within_band(t, grid, level, threshold)
     before = level[(grid >= cut - (t[-1] - cut)) & (grid < cut)]
     earlier = float(np.median(before)) if before.size else None
     before_tail = float(np.median(level[grid < cut])) if np.any(grid < cut) else None
@@ -251,8 +254,13 @@ def convergence(
     lowest = min((x for x in (earlier, before_tail) if x is not None), default=None)
     growing = lowest is not None and tail_level > max(GROWTH_FACTOR * lowest, threshold)
     recurring = longest_earlier_stretch(grid, level, band, k, window_ns)
-    lost = extent is not None and steady_level > max(extent, threshold)
-    coarse = extent is not None and not lost and steady_level > max(COARSE_SHARE * extent, threshold)
+    refit_tail = growing and refit is not None and np.count_nonzero(t >= cut) >= TAIL_FRAME_MIN_PAIRS
+    tail_frame = settled_in_tail_frame(t, refit(t >= cut), threshold) if refit_tail else None
+    if tail_frame is not None:
+        growing, recurring, k = False, None, int(np.searchsorted(grid, tail_frame["t_ns"]))
+    settled = steady_level if tail_frame is None else tail_frame["steady_level"]
+    lost = extent is not None and settled > max(extent, threshold)
+    coarse = extent is not None and not lost and settled > max(COARSE_SHARE * extent, threshold)
     return {
         "band": band,
         "earlier_level": earlier,
@@ -263,10 +271,46 @@ def convergence(
         "coarse": bool(coarse),
         "steady_error": metrics.median(e[t >= cut]),
         "steady_level": steady_level,
+        "settled_level": settled,
         "window_s": WINDOW_FRACTION * float(t[-1] - t[0]) / 1e9,
         "recurring": recurring,
+        "tail_frame": tail_frame,
         "t_ns": None if k is None or growing or lost or recurring is not None else int(grid[k]),
     }
+
+
+def _within_band(t: np.ndarray, grid: np.ndarray, level: np.ndarray, threshold: float) -> tuple:
+    """``(cut, steady_level, band, window_ns, k)`` of :func:`convergence`: the tail's start, its highest level, the
+    band, a window and the first level index from which the level stays within the band (None if none)."""
+    cut = t[-1] - round(TAIL_FRACTION * (t[-1] - t[0]))
+    steady_level = float(np.max(level[grid >= cut]))
+    band = max(float(threshold), BAND_FACTOR * steady_level)
+    window_ns = WINDOW_FRACTION * float(t[-1] - t[0])
+    k = settled_index(grid, level, band, convergence_index(level, np.nextafter(band, np.inf)), window_ns)
+    return cut, steady_level, band, window_ns, k
+
+
+def settled_in_tail_frame(t_ns: np.ndarray, errors: np.ndarray, threshold: float) -> dict | None:
+    """Where an error that grows under the whole-run alignment settled in the frame of its own end. ``errors``:
+    the position errors under the report's alignment kind fitted on the last ``TAIL_FRACTION`` of the pairs only.
+    Their level (:func:`error_level`), steady level and band are :func:`convergence`'s; the estimate settled when
+    the level is within that band from at least ``2 × TAIL_FRACTION`` before the end (a stretch before the fitted
+    one as long as it, so the frame holds beyond the pairs that chose it) to the end, without an earlier as long
+    stay in the band that it left (:func:`longest_earlier_stretch`). Returns ``t_ns`` (from when), ``steady_level``
+    and ``band``, or None.
+
+    Why: one rigid fit over the whole run is pulled toward a long bad stretch. A filter whose first lap is 3 m off
+    until its loop closes and whose second lap is right to 0.4 m (relative to its first pose, both laps) had a
+    whole-run SE(3) fit that turned the second lap off: a level of 1.93 m over the last 20 % against 0.40 m before,
+    "growing". In the frame of its last 20 % the level is 0.05-0.11 m from 90 s of 180 s on. An estimate that
+    drifts does not settle in that frame: its error there falls toward the fitted stretch (the drift run
+    backwards), a level within the band for little more than the fitted stretch itself."""
+    t = np.asarray(t_ns, dtype=np.int64)
+    grid, level = error_level(t, errors)
+    cut, steady_level, band, window_ns, k = _within_band(t, grid, level, threshold)
+    if k is None or grid[k] > cut - (t[-1] - cut) or longest_earlier_stretch(grid, level, band, k, window_ns):
+        return None
+    return {"t_ns": int(grid[k]), "steady_level": steady_level, "band": band}
 
 
 def settled_index(
