@@ -182,10 +182,12 @@ def _print_summary(summary) -> None:
         click.echo(f"note         {note}")
     r = summary.report
     if r:
+        from slamobs.cli.report_cmd import ALIGNED
+
         ape_t, ape_r = r["ape"]["translation_m"], r["ape"]["rotation_deg"]
-        click.echo(
+        click.echo(  # the report's alignment (evaluation.align), as `slamobs report` names it
             f"APE          translation rmse {ape_t['rmse']:.4f} m (max {ape_t['max']:.4f} m), rotation rmse "
-            f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, SE(3)-aligned"
+            f"{ape_r['rmse']:.3f} deg, {ape_t['n']} pairs, {ALIGNED[r['method']['alignment']['type']]}"
         )
         lm = r.get("landmarks") or {}
         if lm.get("error_m"):

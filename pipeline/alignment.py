@@ -467,14 +467,15 @@ def _to_body(
     return _Extrinsic(res.rot, res.trans, res.valid)
 
 
-def _describe(tf: TfBuffer, body: str, frame: str) -> str:
-    """A transform TF has, in a few words: its rotation angle and offset, or that it is time-stamped."""
+def _describe(tf: TfBuffer, body: str, frame: str, static: str = "/tf_static: ") -> str:
+    """A transform TF has, in a few words: its rotation angle and offset (after ``static``, where it comes from), or
+    that it is time-stamped."""
     found = tf.static_lookup(body, frame)
     if found is None:
         return "time-stamped, on /tf"
     rot, trans = found
     angle = np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0)))
-    return f"/tf_static: turned {angle:.1f} deg, offset {np.linalg.norm(trans):.3f} m"
+    return f"{static}turned {angle:.1f} deg, offset {np.linalg.norm(trans):.3f} m"
 
 
 def _note_once(notes: list[str], note: str) -> None:
@@ -909,9 +910,12 @@ def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None
     return BODY_FROM_DEFAULT
 
 
-#: The frames a robot's base goes by (REP 105): a body frame taken from an odometry's child_frame_id under another
-#: name may be a sensor's, so the run says which frame it took (:func:`body_frame_note`).
-BASE_FRAMES = ("base_link", "base_footprint")
+#: The frames a robot's base goes by (REP 105; ``rig``: TagSLAM's, the body its camera_poses.yaml places the cameras
+#: on and its reference trajectory tracks): a body frame taken from an odometry's child_frame_id under another name
+#: may be a sensor's, so the run says which frame it took (:func:`body_frame_note`) and where the base is
+#: (:func:`_base_placed`: TagSLAM test 22's VIO frame is turned 120 deg against the rig; fast-adaptation's rotation
+#: APE against the rig's trajectory 124.5 deg, 12.3 deg with frames.body: rig).
+BASE_FRAMES = ("base_link", "base_footprint", "rig")
 
 
 def body_frame_note(body: str, origin: str) -> str:
@@ -934,10 +938,12 @@ def _base_placed(tf: TfBuffer, body: str) -> list[str]:
     frames.body: base_link, with only the body-frame note, which speaks of a turned truth; session 27)."""
     for base in BASE_FRAMES:
         if base in tf.frames and tf.chain(base, body) is not None:
+            # the static edges are the log's /tf_static and the cameras: files' rig transforms (run.prepare_log)
+            how = _describe(tf, base, body, static="static, from /tf_static or the cameras: files: ")
             return [
-                f"TF places the body frame '{body}' against '{base}' ({_describe(tf, base, body)}): a truth of "
-                f"'{base}' is that far off these poses, the offset turning with the robot, and is turned by that "
-                f"angle; frames.body: {base} makes the base the body"
+                f"TF places the body frame '{body}' against '{base}' ({how}): a truth of '{base}' is that far off "
+                f"these poses, the offset turning with the robot, and is turned by that angle; frames.body: {base} "
+                "makes the base the body"
             ]
     return []
 

@@ -686,10 +686,26 @@ def test_an_odometry_frame_beside_the_base_says_where_tf_places_the_base():
     )
     got = said(moved)
     assert got == [
-        "TF places the body frame 'odom_lever' against 'base_link' (/tf_static: turned 0.0 deg, offset 0.500 m): a "
-        "truth of 'base_link' is that far off these poses, the offset turning with the robot, and is turned by that "
-        "angle; frames.body: base_link makes the base the body"
+        "TF places the body frame 'odom_lever' against 'base_link' (static, from /tf_static or the cameras: files: "
+        "turned 0.0 deg, offset 0.500 m): a truth of 'base_link' is that far off these poses, the offset turning with "
+        "the robot, and is turned by that angle; frames.body: base_link makes the base the body"
     ], got
+    # TagSLAM's rig: its VIO odometry's child frame (test 22's camera_pose_frame) is turned 120 deg against the rig
+    # its reference trajectory tracks, the transform from tagslam.yaml's T_body_odom (a cameras: file); it went
+    # unnamed, and the report offered frames.truth_rotation (evaluation only) where frames.body: rig mends the run
+    turned = np.array([0.5, -0.5, 0.5, 0.5])  # 120 deg about (1, -1, 1)
+    vio = Transform("rig", "camera_pose_frame", np.array([0.0, 0.032, 0.0]), turned)
+    on_rig = replace(
+        moved,
+        linear_velocity=replace(streams.linear_velocity, frame_id="camera_pose_frame"),
+        twist_angular=replace(streams.twist_angular, frame_id="camera_pose_frame"),
+        static_tf=[*(replace(t, parent="rig") if t.parent == "base_link" else t for t in streams.static_tf), vio],
+    )
+    assert said(on_rig) == [
+        "TF places the body frame 'camera_pose_frame' against 'rig' (static, from /tf_static or the cameras: files: "
+        "turned 120.0 deg, offset 0.032 m): a truth of 'rig' is that far off these poses, the offset turning with the "
+        "robot, and is turned by that angle; frames.body: rig makes the base the body"
+    ], said(on_rig)
 
 
 def _warned_sim():

@@ -122,6 +122,19 @@ def _assert_clean_failure(res, out: Path, *needles: str):
     assert not [p for p in out.parent.iterdir() if p.name.startswith(f".{out.name}")]
 
 
+def test_the_run_summary_names_the_alignment_its_config_chose(generated, tmp_path):
+    """`evaluation.align: sim3`: the report fitted Sim(3), the run's APE line said "SE(3)-aligned" (MR.CLAM 6-r5:
+    0.7311 m Sim(3)-aligned, scale 0.385, where SE(3) gives 1.4819 m)."""
+    cfg = tmp_path / "run.yaml"
+    cfg.write_text("evaluation:\n  plots: false\n  align: sim3\n")
+    out = tmp_path / "out"
+    res = invoke("run", generated["mcap"], "-o", out, "--config", cfg)
+    assert res.exit_code == 0, res.output
+    assert json.loads((out / "report.json").read_text())["method"]["alignment"]["type"] == "sim3"
+    ape = [line for line in res.output.splitlines() if line.startswith("APE ")]
+    assert len(ape) == 1 and ape[0].endswith("pairs, Sim(3)-aligned"), ape
+
+
 def test_missing_file(tmp_path):
     out = tmp_path / "out"
     _assert_clean_failure(invoke("run", tmp_path / "nope.bag", "-o", out), out, "nope.bag")

@@ -196,9 +196,21 @@ def test_a_note_of_one_role_of_a_topic_serving_two_names_the_role(tmp_path):
     assert notes == [f"/vel (angular_velocity): {said}"], notes
     # info says it too, from the first messages (an odometry's zero twist.angular is differentiated: not said)
     assert (
-        "/vel: every angular velocity of its first 50 messages is zero (field not filled by the publisher?): if all"
+        "/vel: every angular velocity of its first 100 messages is zero (field not filled by the publisher?): if all"
         in ("\n".join(inspect_log(log).warnings))
     )
+
+
+def test_info_reads_further_before_calling_a_gyro_that_reads_zero_at_the_start_unfilled(tmp_path):
+    """A robot that stands or drives straight at the start measures a zero angular velocity (MR.CLAM 6-r5 turns first
+    at its 173rd message): info read its first 50 and warned "field not filled by the publisher?", which run, reading
+    them all, never says. It reads further before it warns."""
+    turning_late = [(s, r, 0.0 if k < 120 else 0.1) for s, r, k in _steady(100, 3, 0)]
+    log = _write(tmp_path / "late.mcap", {"/imu": turning_late})
+    assert not [w for w in inspect_log(log).warnings if "every angular velocity" in w]
+    never = _write(tmp_path / "never.mcap", {"/imu": [(s, r, 0.0) for s, r, _ in _steady(100, 3, 0)]})
+    said = "/imu: every angular velocity of its first 300 messages is zero (field not filled by the publisher?)"
+    assert any(w.startswith(said) for w in inspect_log(never).warnings)
 
 
 def test_header_stamp_notes_are_left_out_when_the_run_reads_record_times(tmp_path):

@@ -110,6 +110,9 @@ def test_missing_metrics_stay_missing(dataset, tmp_path):
     assert (mapped["n"] == 3).all()
     md = (tmp_path / "st" / "stats.md").read_text()
     assert "| notruth.mcap | riekf | 3 | 0 | – | – | – | – | – |" in md
+    # `runs` counts failed runs too (a log no estimator could run: runs 1, n 0): the key says so, and that a –
+    # may be a failed run's, not a log without truth (`batch` over a folder of logs that cannot run, session 28)
+    assert "runs read (failed ones among them: stats.csv `failed`" in md and "or every run failed" in md
     tex = (tmp_path / "st" / "stats.tex").read_text()
     assert r"notruth.mcap & riekf & 3 & 0 & -- & -- & -- & -- & -- \\" in tex
     assert r"\begin{tabular}" in tex and tex.count(r"\begin{table}") == len(METRICS) + 1

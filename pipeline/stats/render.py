@@ -85,9 +85,10 @@ def markdown(stats: pd.DataFrame, rank: pd.DataFrame, style: str, sources: list[
     layout, texts = _layout(style), cell_texts(stats, "md")
     text = "# Statistics across runs\n\nInputs: " + ", ".join(f"`{s}`" for s in sources) + "\n\n"
     text += (
-        "Per estimator and log over the finished runs: n runs with the metric, mean, median, min, max and "
-        "population std (ddof 0); `all logs` pools every run of the estimator. – : no run has the metric (no "
-        "truth, no map). Lower is better for every metric.\n"
+        "Per estimator and log over the finished runs: runs read (failed ones among them: stats.csv `failed`, "
+        "runs.csv `status`), n finished runs with the metric, mean, median, min, max and population std (ddof 0); "
+        "`all logs` pools every run of the estimator. – : no finished run has the metric (no truth, no map, or "
+        "every run failed). Lower is better for every metric.\n"
     )
     for metric, label in METRICS.items():
         if not (stats["metric"] == metric).any():
