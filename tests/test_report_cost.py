@@ -774,3 +774,32 @@ def test_valid_truth_keeps_the_same_poses_on_its_finite_path():
         else:
             assert dropped == 1 and np.array_equal(kept.t_ns, np.delete(t, 17))
             assert kept.quat_xyzw.tobytes() == np.delete(q, 17, axis=0).tobytes()
+
+
+def test_a_logs_search_takes_its_velocity_steps_once_a_bias_and_resamples_only_the_signal_it_reads(monkeypatch):
+    """``log_time_offset``'s halves slice the whole log's velocity steps (those between a half's samples: the same
+    bits as the half's own), and a search resamples the estimate's speed only when the speed is correlated: the
+    truth's angular rate pins this log's lag, so each of its four searches (the log, the bias fit's search again,
+    the halves) resamples one signal of the estimate (main: 4 velocity steps, 4 + 8 rates)."""
+    from slamobs.pipeline.evaluation import sync, trajectory_evaluation
+
+    n = 20_000
+    yaw = np.cumsum(0.02 * np.sin(0.003 * np.arange(n)) ** 2)
+    q = np.stack([np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2), np.cos(yaw / 2)], axis=1)
+    t = np.arange(n, dtype=np.int64) * 10_000_000
+    truth = PoseStream("/mocap", "world", "base", t + 37_000_000, t + 37_000_000, np.zeros((n, 3)), q)
+    omega, velocity = np.zeros((n, 3)), np.zeros((n, 3))
+    omega[1:, 2] = np.diff(yaw) / 0.01
+    velocity[:, 0] = 1.0 + 0.1 * np.sin(0.001 * np.arange(n))
+    steps_made, resampled = [], []
+    counted_steps, counted_rates = trajectory_evaluation.velocity_steps, sync.rate_on_grid
+    monkeypatch.setattr(sync, "CORRELATION_KERNEL_ROWS", 1)  # the refinement's compiled pass: no rate_on_grid
+    monkeypatch.setattr(trajectory_evaluation, "velocity_steps", lambda *a: steps_made.append(1) or counted_steps(*a))
+    monkeypatch.setattr(sync, "rate_on_grid", lambda *a: resampled.append(1) or counted_rates(*a))
+    found = trajectory_evaluation.log_time_offset(truth, t, omega, velocity)
+    assert found.signal == "angular rate |ω|" and found.offset_s == pytest.approx(0.032, abs=0.002)
+    assert found.uncertainty_s is not None
+    assert len(steps_made) == 2  # the log's, the debiased log's; the halves slice the latter
+    # the truth's two signals on the log's grid and on the second half's (it starts later: the truth then starts
+    # the grid), and one of the estimate's a search
+    assert len(resampled) == 2 + 2 + 4

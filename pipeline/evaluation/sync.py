@@ -572,8 +572,13 @@ def time_offset_of_steps(
     grid, step_ns, max_lag = found
     kept = reference.on_grid(grid, step_ns)
     r_ang, r_spd = kept["signals"]
-    e_ang, e_spd = _signals(te, est_steps, grid, step_ns)
-    best = _best_grid_lag((r_ang, r_spd), (e_ang, e_spd), max_lag, kept)
+    sums: dict = {}  # the estimate's running sum of each signal asked for: its rates, then the refinement's
+
+    def est_signal(idx: int) -> np.ndarray:
+        sums[idx] = accumulate(te, est_steps[idx])
+        return rate_on_grid(te, est_steps[idx], grid, step_ns, sums[idx])
+
+    best = _best_grid_lag((r_ang, r_spd), est_signal, max_lag, kept)
     if best is None:
         return None
     idx, k, c, lags = best
@@ -581,7 +586,7 @@ def time_offset_of_steps(
     # clock. Refine off the grid: maximise the correlation of the reference signal with the estimate's signal
     # sampled at grid − τ, by golden-section search over τ within one grid step of the peak.
     bracket = ((lags[k] - 1) * step_ns, (lags[k] + 1) * step_ns)
-    corr = offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns, bracket)
+    corr = offset_correlation((r_ang, r_spd)[idx], te, est_steps[idx], grid, step_ns, bracket, sums[idx])
     tau = _golden_section_max(corr, *bracket, 1e-4 * NS_PER_S)  # 0.1 ms
     peak = max(corr(tau), float(c[k]))
     offset = tau / NS_PER_S
@@ -620,11 +625,14 @@ def _search_grid(
 
 
 def _best_grid_lag(
-    ref: tuple[np.ndarray, np.ndarray], est: tuple[np.ndarray, np.ndarray], max_lag: int, kept: dict | None = None
+    ref: tuple[np.ndarray, np.ndarray], est: Callable[[int], np.ndarray], max_lag: int, kept: dict | None = None
 ):
     """(signal index, peak index, correlation by lag, lags) of the signal that pins the lag; None if none does.
 
     The signal that varies more (relative to its mean) pins the lag better; rotation wins unless clearly weaker.
+    ``est(idx)``: the estimate's signal ``idx`` on the grid, asked for only when the reference's is tried (the
+    speed's was resampled for every search and seldom read; with the halves' velocity steps sliced from the log's,
+    the hour's search 0.56 -> 0.48 CPU s, docs/benchmarks.md session 28).
     ``kept``: what is kept of ``ref`` for the next search (:meth:`ReferenceMotion.on_grid`).
     """
     kept = {} if kept is None else kept
@@ -635,7 +643,7 @@ def _best_grid_lag(
     for idx in order:
         if cv[idx] == 0.0:
             continue
-        lags, c = _pearson_by_lag(ref[idx], est[idx], max_lag, kept.setdefault(("spectra", idx), {}))
+        lags, c = _pearson_by_lag(ref[idx], est(idx), max_lag, kept.setdefault(("spectra", idx), {}))
         if np.isfinite(c).any():
             return idx, int(np.nanargmax(c)), np.nan_to_num(c, nan=-1.0), lags
     return None
@@ -648,12 +656,15 @@ def offset_correlation(
     grid: np.ndarray,
     step_ns: int,
     bracket: tuple[int, int] | None = None,
+    accumulated: tuple[np.ndarray, np.ndarray] | None = None,
 ):
     """Correlation of ``ref_signal`` with the estimate's rate sampled at ``grid − τ``, as a function of τ (ns).
     ``bracket``: the least and the largest τ it is asked for (the compiled pass then walks only the grid points
     the estimate covers at some τ of it: half the grid for a half of the log's samples, the same pairs in the same
-    order, the same bits). Public: tests/test_report_cost.py checks it against a plain loop."""
-    accumulated = accumulate(te, steps)  # sampled at every trial offset: summed once
+    order, the same bits). ``accumulated``: :func:`accumulate` of ``te`` and ``steps`` where the caller has it.
+    Public: tests/test_report_cost.py checks it against a plain loop."""
+    if accumulated is None:  # sampled at every trial offset: summed once
+        accumulated = accumulate(te, steps)
     ref_defined = np.isfinite(ref_signal)
 
     if grid.shape[0] >= CORRELATION_KERNEL_ROWS:  # one compiled pass per trial offset

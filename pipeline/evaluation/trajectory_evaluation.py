@@ -514,12 +514,16 @@ def log_time_offset(
 
     reference = ReferenceMotion(truth.t_ns, truth.position, truth.quat_xyzw)  # the truth's side, once for all
 
-    def search(bias_omega, bias_velocity, part=slice(None)):
-        om, vel = np.subtract(omega[part], bias_omega), np.subtract(velocity[part], bias_velocity)
-        t = vel_t_ns[part]
-        return time_offset_of_steps(reference, t, velocity_steps(t, om, vel), max_offset_s=max_offset_s)
+    def motion(bias_omega, bias_velocity):
+        return velocity_steps(vel_t_ns, np.subtract(omega, bias_omega), np.subtract(velocity, bias_velocity))
 
-    off, bias = search(0.0, 0.0), (np.zeros(3), np.zeros(3))
+    def search(steps, part=slice(0, len(vel_t_ns))):
+        # a part's steps are those between its samples: velocity_steps of the part's samples, the same bits
+        at = slice(part.start, part.stop - 1)
+        return time_offset_of_steps(reference, vel_t_ns[part], (steps[0][at], steps[1][at]), max_offset_s=max_offset_s)
+
+    steps = motion(0.0, 0.0)
+    off = search(steps)
     # a constant bias of the samples (a gyro's) distorts |ω|: fit it against the truth at the lag found and
     # search again, keeping the debiased search where it correlates better (docs/benchmarks.md, session 26)
     ref = reference.steps()
@@ -530,14 +534,15 @@ def log_time_offset(
         bias_omega, bias_velocity = rate_bias(t, omega, truth.t_ns, ref[0]), rate_bias(t, velocity, truth.t_ns, ref[1])
         if not (bias_omega.any() or bias_velocity.any()):  # none found (MR.CLAM's): the same search again
             break
-        again = search(bias_omega, bias_velocity)
+        debiased = motion(bias_omega, bias_velocity)
+        again = search(debiased)
         if again is None or again.peak_correlation <= off.peak_correlation:
             break
-        moved, off, bias = abs(again.offset_s - off.offset_s), again, (bias_omega, bias_velocity)
+        moved, off, steps = abs(again.offset_s - off.offset_s), again, debiased
         if moved < off.grid_step_s:  # settled
             break
-    # the halves with the bias the whole log's search took
-    return replace(off, uncertainty_s=halves_spread(lambda part: search(*bias, part), len(vel_t_ns)))
+    # the halves with the bias the whole log's search took (its steps: each half's are a slice of them)
+    return replace(off, uncertainty_s=halves_spread(lambda part: search(steps, part), len(vel_t_ns)))
 
 
 #: Rounds of :func:`log_time_offset`'s bias fit and search again (each starts from the last lag found: the
