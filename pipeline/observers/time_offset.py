@@ -673,9 +673,10 @@ LEVER_ARM_SIGMAS = 5.0
 LEVER_ARM_GAIN = 2.0
 
 
-def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, np.ndarray, np.ndarray]:
     """``x`` minimising the trimmed squared residuals ``base + a x`` (least squares on all pairs, then twice on the
-    ``TRIM`` share with the smallest residuals), its standard errors and the trimmed mean squared residual."""
+    ``TRIM`` share with the smallest residuals), its standard errors, the trimmed mean squared residual, the pairs
+    kept and their normal matrix (the velocity scale's inflation and dilution read it)."""
     keep = np.arange(base.shape[0])
     for _ in range(3):
         ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
@@ -685,7 +686,7 @@ def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarra
         keep = np.argpartition(d2, n - 1)[:n]
     ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
     cost = float(np.mean(d2[keep]))
-    return x, np.sqrt(np.diag(np.linalg.inv(ata)) * cost / 3.0), cost
+    return x, np.sqrt(np.diag(np.linalg.inv(ata)) * cost / 3.0), cost, keep, ata
 
 
 def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
@@ -701,7 +702,7 @@ def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
     r_a, r_b = _dead_reckoned_at(c, ta)[0], _dead_reckoned_at(c, tb)[0]
     arm = np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
     base = c.residuals(shift)[0]
-    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, c.jac], axis=2))
+    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, c.jac], axis=2))[:3]
     alone = _trimmed_fit(base, c.jac)[2]
     return {"r_m": [round(float(v), 4) for v in x[:3]], "sigma_m": [float(v) for v in sigma[:3]], "gain": alone / cost}
 
@@ -764,18 +765,11 @@ def velocity_scale(c: Consistency) -> dict:
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
     a = np.concatenate([-d[:, :, moved], c.jac], axis=2)  # (pairs, 3, unknowns)
-    keep = np.arange(base.shape[0])
-    for _ in range(3):  # least squares on all pairs, then twice on the TRIM share with the smallest residuals
-        ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
-        x = np.linalg.solve(ata, -np.einsum("mci,mc->i", a[keep], base[keep]))
-        d2 = np.sum((base + a @ x) ** 2, axis=1)
-        n = max(1, int(TRIM * d2.shape[0]))
-        keep = np.argpartition(d2, n - 1)[:n]
-    ata = np.einsum("mci,mcj->ij", a[keep], a[keep]) + 1e-9 * np.eye(a.shape[2])
-    sigma = np.sqrt(np.diag(np.linalg.inv(ata)) * float(np.mean(d2[keep])) / 3.0)
-    inflation = np.diag(np.linalg.inv(ata)) * np.diag(ata)
+    x, sigma, _, keep, ata = _trimmed_fit(base, a)
+    inv = np.linalg.inv(ata)
+    inflation = np.diag(inv) * np.diag(ata)
     q2, spans = float(np.mean(c.source.velocity_density**2)), c.det_t[c.b[keep]] - c.det_t[c.a[keep]]
-    dilution = q2 * float(np.sum(spans)) * np.diag(np.linalg.inv(ata))
+    dilution = q2 * float(np.sum(spans)) * np.diag(inv)
     scale, err, diluted = [None] * 3, [None] * 3, [0.0] * 3
     # the displacement along each axis the detections see (its scale times the velocity's): an axis along which they
     # see the body hardly move (MIN_AXIS_SHARE) has a velocity as read that is noise, and no measurable scale
