@@ -2229,8 +2229,8 @@ def _prior_notes(pri: dict) -> list[str]:
         notes.append(
             f"riekf: the biases start at the detection pairs' estimate ({pp['landmarks']} landmarks; gyro "
             f"{np.linalg.norm(g):.3g} rad/s, velocity {np.linalg.norm(v):.3g} m/s in norm) with {PAIR_PRIOR_SDS:g} "
-            "times its spread over resampled landmarks as the priors, not 0 with 0.2 (run.json "
-            "observer.filter.bias_priors.from_pairs)"
+            "times its spread over resampled landmarks (at least the bias walk over the log) as the priors, not 0 "
+            "with the gyro_bias and velocity_bias levels (run.json observer.filter.bias_priors.from_pairs)"
         )
     runs = ", ".join(str(r) for r in pri.get("gated_in_a_row_before", []))
     if pri.get("narrowed_passes") and not pri["kept"]:
