@@ -618,3 +618,73 @@ def held_motion_noise(
         # σ = √θ: se(σ) = se(θ) / 2σ, or √se(θ) for a σ the fit cannot tell from zero
         levels[name] = Estimate(value, float(min(s / (2 * value), np.sqrt(s))), method, used)
     return HeldMotion(levels)
+
+
+# ------------------------------------------------------------------ the biases themselves, from detection pairs
+#: Gauss-Newton passes of :func:`pair_bias_estimate` (the dead reckoning integrated again with the biases taken off).
+BIAS_PASSES = 4
+#: Resamples of the landmarks for the estimate's spread (:func:`pair_bias_estimate`).
+BIAS_RESAMPLES = 200
+
+
+def _pair_bias_system(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts):
+    """Detection pairs of one landmark (:func:`pair_indices`): the dead-reckoned landmark's displacement between
+    them over its standard deviation, its derivative by the gyro and velocity biases (the maps of
+    :func:`pair_design`) likewise, and the pair's landmark: (K, 3), (K, 3, 6), (K,)."""
+    rs, ps, (c_r, _, _, c_pr, _) = _dead_reckoning_sums(vel_t, omega, velocity)
+    t_of = np.repeat(det_t, np.diff(det_offsets))
+    k = np.clip(np.searchsorted(vel_t, t_of, side="right") - 1, 0, vel_t.size - 1)
+    w = np.einsum("nij,nj->ni", rs[k], det_y) + ps[k]
+    a, b = pair_indices(t_of, det_idx, np.searchsorted(segment_starts, k, side="right"))
+    ka, kb = k[a], k[b]
+    big_r = c_r[kb] - c_r[ka]
+    big_b = np.cross(0.5 * (w[a] + w[b])[:, :, None], big_r, axis=1) - (c_pr[kb] - c_pr[ka])
+    rng = np.linalg.norm(det_y, axis=1)
+    sig = np.sqrt(law_sigma(rng[a]) ** 2 + law_sigma(rng[b]) ** 2)
+    return (w[b] - w[a]) / sig[:, None], np.concatenate([big_b, big_r], axis=2) / sig[:, None, None], det_idx[a]
+
+
+def _robust_step(y: np.ndarray, jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares step of ``y ≈ jac · x`` with residuals beyond ``OUTLIER_SIGMAS`` robust standard
+    deviations dropped (three rounds), and the rows kept."""
+    a, z = jac.reshape(-1, 6), y.reshape(-1)
+    keep = np.ones(z.size, bool)
+    x = np.zeros(6)
+    for _ in range(3):
+        x = np.linalg.lstsq(a[keep], z[keep], rcond=None)[0]
+        res = z - a @ x
+        keep = np.abs(res) <= OUTLIER_SIGMAS * MAD_TO_SIGMA * max(float(np.median(np.abs(res[keep]))), 1e-300)
+    return x, keep
+
+
+def pair_bias_estimate(
+    vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts
+) -> dict | None:
+    """The constant gyro and velocity biases (rad/s, m/s, body frame; measured = true + bias) that make the
+    landmarks' dead-reckoned positions stay put between pairs of their detections: Gauss-Newton over
+    ``BIAS_PASSES`` (the dead reckoning integrated again with the biases taken off), and their per-axis standard
+    deviation over ``BIAS_RESAMPLES`` resamples of the landmarks (pairs of one landmark share its errors; pairs
+    do not count as independent). None without pairs. Keys: ``bias`` (6,), ``sd`` (6,), ``landmarks``, ``pairs``."""
+    if det_idx.shape[0] < 2 or vel_t.shape[0] < 2:
+        return None
+    bias = np.zeros(6)
+    for _ in range(BIAS_PASSES):
+        y, jac, lm = _pair_bias_system(
+            vel_t, omega - bias[:3], velocity - bias[3:], det_t, det_offsets, det_idx, det_y, law_sigma,
+            segment_starts,
+        )  # fmt: skip
+        if y.shape[0] < MIN_SAMPLES:
+            return None
+        step, keep = _robust_step(y, jac)
+        bias += np.r_[-step[:3], step[3:]]  # the displacement's derivative by the gyro bias carries its sign flipped
+    ids, of = np.unique(lm, return_inverse=True)
+    a, z = jac.reshape(-1, 6) * keep.reshape(-1, 1), y.reshape(-1) * keep.reshape(-1)
+    rows = np.repeat(of, 3)
+    ata = np.zeros((ids.size, 6, 6))
+    atz = np.zeros((ids.size, 6))
+    np.add.at(ata, rows, a[:, :, None] * a[:, None, :])
+    np.add.at(atz, rows, a * z[:, None])
+    picks = np.random.default_rng(0).integers(0, ids.size, (BIAS_RESAMPLES, ids.size))
+    steps = [np.linalg.lstsq(ata[p].sum(0), atz[p].sum(0), rcond=None)[0] for p in picks]
+    sd = np.std(np.asarray(steps) * np.r_[-np.ones(3), np.ones(3)], axis=0)
+    return {"bias": bias, "sd": sd, "landmarks": int(ids.size), "pairs": int(y.shape[0])}
