@@ -1706,6 +1706,7 @@ class RiEKF(Stepper):
         pp = self.pair_prior
         if pp["used"]:  # from detection pairs, narrowed as the defaults would be after a lost track
             sigma_b = np.asarray(pp["sigma"]) * (nz.gyro_bias / self._noise0.gyro_bias)
+        self._start_sigma = [round(float(x), 6) for x in sigma_b]  # what run.json's bias_priors says was used
         self.state = _State(
             int(stream.landmark_ids.shape[0]),
             self.n_max,
@@ -2017,6 +2018,7 @@ class RiEKF(Stepper):
                 "factor": PRIOR_NARROWING ** (self._prior_passes * self._prior_kept),
                 "gyro_bias": float(self.noise.gyro_bias),
                 "velocity_bias": float(self.noise.velocity_bias),
+                "start_sigma": self._start_sigma,
                 "gated_in_a_row_before": list(self._lost_runs),
                 "gated_in_a_row_at_end": int(ns[_TAIL_GATED]),
             },
