@@ -625,6 +625,9 @@ def held_motion_noise(
 BIAS_PASSES = 4
 #: Resamples of the landmarks for the estimate's spread (:func:`pair_bias_estimate`).
 BIAS_RESAMPLES = 200
+#: The pairs :func:`pair_bias_estimate` fits at most, evenly strided over them (six constants need no more; the
+#: one-hour benchmark log's first 300 s give 239,000 pairs: 2.6 CPU s, at most this many 0.3 s).
+MAX_BIAS_PAIRS = 20_000
 
 
 def _pair_bias_system(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts):
@@ -636,6 +639,9 @@ def _pair_bias_system(vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y
     k = np.clip(np.searchsorted(vel_t, t_of, side="right") - 1, 0, vel_t.size - 1)
     w = np.einsum("nij,nj->ni", rs[k], det_y) + ps[k]
     a, b = pair_indices(t_of, det_idx, np.searchsorted(segment_starts, k, side="right"))
+    if a.size > MAX_BIAS_PAIRS:
+        pick = np.linspace(0, a.size - 1, MAX_BIAS_PAIRS).round().astype(np.int64)
+        a, b = a[pick], b[pick]
     ka, kb = k[a], k[b]
     big_r = c_r[kb] - c_r[ka]
     big_b = np.cross(0.5 * (w[a] + w[b])[:, :, None], big_r, axis=1) - (c_pr[kb] - c_pr[ka])

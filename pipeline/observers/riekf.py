@@ -111,8 +111,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
 * Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
   that keep each landmark's dead-reckoned position still between pairs of its detections
   (:func:`pipeline.noise_estimation.pair_bias_estimate`), each axis's prior standard deviation ``PAIR_PRIOR_SDS``
-  times the estimate's spread over resampled landmarks and at least the bias walk over the log's span
-  (:func:`pair_bias_prior`); only with ``PAIR_PRIOR_LANDMARKS`` or more landmarks (fewer give no spread to trust:
+  times the estimate's spread over resampled landmarks and at least the bias walk over the span it is made from,
+  the log's first ``PAIR_PRIOR_WINDOW_S`` (:func:`pair_bias_prior`); only with ``PAIR_PRIOR_LANDMARKS`` or more
+  landmarks (fewer give no spread to trust:
   TagSLAM's test_22's two tags put 0.1 m/s on its vertical velocity). The narrowing above scales these priors.
   run.json ``observer.filter.bias_priors.from_pairs``, a note (docs/benchmarks.md, "riekf's bias priors from the
   log, session 28 (h-riekfprior)").
@@ -232,9 +233,12 @@ LOST_IN_A_ROW = 20
 PRIOR_NARROWING = 0.25
 MAX_PRIOR_PASSES = 3
 #: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
-#: spread, and the spreads the prior's standard deviations are.
+#: spread, the spreads the prior's standard deviations are, and the log's first seconds it is made from (a prior is
+#: of the start's bias, which the walk moves over the log; the one-hour benchmark log's 3 million pairs took 33 CPU s,
+#: its first 300 s 0.2 s; TagSLAM's and the generated logs are shorter: the whole log).
 PAIR_PRIOR_LANDMARKS = 5
 PAIR_PRIOR_SDS = 3.0
+PAIR_PRIOR_WINDOW_S = 300.0
 #: Planar motion (module docstring): the RMS of the roll and pitch rates and of the vertical velocity over their noise
 #: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
 #: floor's pseudo-measurements, and the seconds between them.
@@ -2139,22 +2143,25 @@ def pair_bias_prior(stream, noise) -> dict:
     if any(noise.sources.get(k, "default") != "default" for k in ("gyro_bias", "velocity_bias")):
         return {"used": False, "why": "a bias prior is given or estimated (noise: gyro_bias, velocity_bias)"}
     t0 = stream.t0_ns
+    end = stream.vel_t_ns[0] + round(PAIR_PRIOR_WINDOW_S * 1e9)  # the log's first PAIR_PRIOR_WINDOW_S
+    nv, nf = int(np.searchsorted(stream.vel_t_ns, end, side="right")), int(np.searchsorted(stream.det_t_ns, end))
+    nd = int(stream.det_offsets[nf])
     est = pair_bias_estimate(
-        (stream.vel_t_ns - t0) * 1e-9,
-        stream.omega,
-        stream.velocity,
-        (stream.det_t_ns - t0) * 1e-9,
-        stream.det_offsets,
-        stream.det_idx,
-        stream.det_y,
+        (stream.vel_t_ns[:nv] - t0) * 1e-9,
+        stream.omega[:nv],
+        stream.velocity[:nv],
+        (stream.det_t_ns[:nf] - t0) * 1e-9,
+        stream.det_offsets[: nf + 1],
+        stream.det_idx[:nd],
+        stream.det_y[:nd],
         noise.detection_sigma,
-        stream.segment_starts,
+        stream.segment_starts[stream.segment_starts < nv],
     )
     if est is None or est["landmarks"] < PAIR_PRIOR_LANDMARKS:
         seen = 0 if est is None else est["landmarks"]
         return {"used": False, "why": f"detection pairs of {seen} landmark(s), fewer than {PAIR_PRIOR_LANDMARKS}"}
-    # a whole-log estimate knows the start's bias no better than the bias walks over the log's span
-    span = float(stream.seconds(stream.vel_t_ns[-1]) - stream.seconds(stream.vel_t_ns[0]))
+    # an estimate over the window knows the start's bias no better than the bias walks over the window's span
+    span = float(stream.seconds(stream.vel_t_ns[nv - 1]) - stream.seconds(stream.vel_t_ns[0]))
     walk = np.repeat([noise.gyro_bias_walk, noise.velocity_bias_walk], 3) * math.sqrt(max(span, 0.0))
     return {
         "used": True,
@@ -2165,7 +2172,7 @@ def pair_bias_prior(stream, noise) -> dict:
         "pairs": est["pairs"],
         "what": "gyro (rad/s) then velocity (m/s) bias, body frame, measured = true + bias; sigma, the prior's "
         f"standard deviations: {PAIR_PRIOR_SDS:g} sd (the spread over resampled landmarks), at least the bias walk "
-        "over the log's span",
+        f"over the span it is made from (the log's first {PAIR_PRIOR_WINDOW_S:g} s)",
     }
 
 
