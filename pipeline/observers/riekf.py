@@ -108,15 +108,6 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
   configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
   (h-riekf22)").
-* Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
-  that keep each landmark's dead-reckoned position still between pairs of its detections
-  (:func:`pipeline.noise_estimation.pair_bias_estimate`), each axis's prior standard deviation ``PAIR_PRIOR_SDS``
-  times the estimate's spread over resampled landmarks and at least the bias walk over the span it is made from,
-  the log's first ``PAIR_PRIOR_WINDOW_S`` (:func:`pair_bias_prior`); only with ``PAIR_PRIOR_LANDMARKS`` or more
-  landmarks (fewer give no spread to trust:
-  TagSLAM's test_22's two tags put 0.1 m/s on its vertical velocity). The narrowing above scales these priors.
-  run.json ``observer.filter.bias_priors.from_pairs``, a note (docs/benchmarks.md, "riekf's bias priors from the
-  log, session 28 (h-riekfprior)").
 * Planar motion (a ground robot on a flat floor): a 6-DoF filter has no way to know the floor is flat, and with a
   noisy gyro its roll and pitch walk while no landmark is in view; the height follows them (docs/benchmarks.md,
   "riekf on ground robots (session 18, h-riekfg)"). When the log's roll and pitch rates and vertical velocity
@@ -141,7 +132,7 @@ Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by k
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
 problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
 standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess; narrowed when the
-track is lost, above) or at the detection pairs' estimate (above), and drift as slow random walks.
+track is lost, above), and drift as slow random walks.
 """
 
 from __future__ import annotations
@@ -232,13 +223,6 @@ MAX_WALK_PASSES = 4
 LOST_IN_A_ROW = 20
 PRIOR_NARROWING = 0.25
 MAX_PRIOR_PASSES = 3
-#: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
-#: spread, the spreads the prior's standard deviations are, and the log's first seconds it is made from (a prior is
-#: of the start's bias, which the walk moves over the log; the one-hour benchmark log's 3 million pairs took 33 CPU s,
-#: its first 300 s 0.2 s; TagSLAM's and the generated logs are shorter: the whole log).
-PAIR_PRIOR_LANDMARKS = 5
-PAIR_PRIOR_SDS = 3.0
-PAIR_PRIOR_WINDOW_S = 300.0
 #: Planar motion (module docstring): the RMS of the roll and pitch rates and of the vertical velocity over their noise
 #: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
 #: floor's pseudo-measurements, and the seconds between them.
@@ -1682,7 +1666,6 @@ class RiEKF(Stepper):
                 f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}",
             )
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
-        self.pair_prior = pair_bias_prior(stream, self.noise)
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
         # filter's first stretch is kept when the estimate is not applied (most logs), started again when it is
@@ -1707,10 +1690,6 @@ class RiEKF(Stepper):
         super().__init__(stream, options)
         nz = self.noise
         sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
-        pp = self.pair_prior
-        if pp["used"]:  # from detection pairs, narrowed as the defaults would be after a lost track
-            sigma_b = np.asarray(pp["sigma"]) * (nz.gyro_bias / self._noise0.gyro_bias)
-        self._start_sigma = [round(float(x), 6) for x in sigma_b]  # what run.json's bias_priors says was used
         self.state = _State(
             int(stream.landmark_ids.shape[0]),
             self.n_max,
@@ -1720,8 +1699,6 @@ class RiEKF(Stepper):
         )
         # a walk given in the configuration is kept; else it is learned from the log (module docstring)
         self.state.ns[_WALK_FIXED] = int(nz.sources.get("velocity_bias_walk") == "config")
-        if pp["used"]:
-            self.state.b_om[:], self.state.b_v[:] = pp["bias"][:3], pp["bias"][3:]
         self.state.fs[_WALK] = self._walk0
         # the detection law (σ0, k, a) and the factors of σ(r)² across the line of sight and of what the range
         # adds (the ratio's split): the kernel evaluates it at each detection's predicted (or measured) range
@@ -2016,13 +1993,11 @@ class RiEKF(Stepper):
             ],
             "walk": self._walk(),
             "bias_priors": {
-                "from_pairs": self.pair_prior,
                 "narrowed_passes": self._prior_passes,
                 "kept": self._prior_kept,
                 "factor": PRIOR_NARROWING ** (self._prior_passes * self._prior_kept),
                 "gyro_bias": float(self.noise.gyro_bias),
                 "velocity_bias": float(self.noise.velocity_bias),
-                "start_sigma": self._start_sigma,
                 "gated_in_a_row_before": list(self._lost_runs),
                 "gated_in_a_row_at_end": int(ns[_TAIL_GATED]),
             },
@@ -2133,49 +2108,6 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     return {"planar": planar, "ratios": [round(r, 3) for r in ratios], "tilt_rad": tilt}
 
 
-def pair_bias_prior(stream, noise) -> dict:
-    """Where the biases start (module docstring, "Bias priors from detection pairs"): the estimate of
-    :func:`pipeline.noise_estimation.pair_bias_estimate` with ``PAIR_PRIOR_SDS`` of its per-axis spreads as the
-    prior's standard deviations, when both priors are the defaults and the pairs see at least
-    ``PAIR_PRIOR_LANDMARKS`` landmarks; else ``used`` false and why (run.json ``observer.filter.bias_priors``)."""
-    from slamobs.pipeline.noise_estimation import pair_bias_estimate
-
-    if any(noise.sources.get(k, "default") != "default" for k in ("gyro_bias", "velocity_bias")):
-        return {"used": False, "why": "a bias prior is given or estimated (noise: gyro_bias, velocity_bias)"}
-    t0 = stream.t0_ns
-    end = stream.vel_t_ns[0] + round(PAIR_PRIOR_WINDOW_S * 1e9)  # the log's first PAIR_PRIOR_WINDOW_S
-    nv, nf = int(np.searchsorted(stream.vel_t_ns, end, side="right")), int(np.searchsorted(stream.det_t_ns, end))
-    nd = int(stream.det_offsets[nf])
-    est = pair_bias_estimate(
-        (stream.vel_t_ns[:nv] - t0) * 1e-9,
-        stream.omega[:nv],
-        stream.velocity[:nv],
-        (stream.det_t_ns[:nf] - t0) * 1e-9,
-        stream.det_offsets[: nf + 1],
-        stream.det_idx[:nd],
-        stream.det_y[:nd],
-        noise.detection_sigma,
-        stream.segment_starts[stream.segment_starts < nv],
-    )
-    if est is None or est["landmarks"] < PAIR_PRIOR_LANDMARKS:
-        seen = 0 if est is None else est["landmarks"]
-        return {"used": False, "why": f"detection pairs of {seen} landmark(s), fewer than {PAIR_PRIOR_LANDMARKS}"}
-    # an estimate over the window knows the start's bias no better than the bias walks over the window's span
-    span = float(stream.seconds(stream.vel_t_ns[nv - 1]) - stream.seconds(stream.vel_t_ns[0]))
-    walk = np.repeat([noise.gyro_bias_walk, noise.velocity_bias_walk], 3) * math.sqrt(max(span, 0.0))
-    return {
-        "used": True,
-        "bias": [round(float(x), 6) for x in est["bias"]],
-        "sd": [round(float(x), 6) for x in est["sd"]],
-        "sigma": [round(max(float(x), 1e-9), 6) for x in np.maximum(PAIR_PRIOR_SDS * est["sd"], walk)],
-        "landmarks": est["landmarks"],
-        "pairs": est["pairs"],
-        "what": "gyro (rad/s) then velocity (m/s) bias, body frame, measured = true + bias; sigma, the prior's "
-        f"standard deviations: {PAIR_PRIOR_SDS:g} sd (the spread over resampled landmarks), at least the bias walk "
-        f"over the span it is made from (the log's first {PAIR_PRIOR_WINDOW_S:g} s)",
-    }
-
-
 def tilt_spread(t: np.ndarray, rate: np.ndarray) -> float:
     """The standard deviation of the angle one rate integrates to, its mean (a constant bias) and then a linear trend
     (the bias's error) taken off: a wobble on a floor stays bounded, a body that rolls or pitches does not."""
@@ -2215,15 +2147,6 @@ def _prior_notes(pri: dict) -> list[str]:
     """The note of the bias priors narrowed after a lost track, or of a narrowing that did not keep it
     (``observer.filter.bias_priors``; module docstring, "Bias priors narrowed")."""
     notes = []
-    pp = pri.get("from_pairs") or {}
-    if pp.get("used"):
-        g, v = np.asarray(pp["bias"][:3]), np.asarray(pp["bias"][3:])
-        notes.append(
-            f"riekf: the biases start at the detection pairs' estimate ({pp['landmarks']} landmarks; gyro "
-            f"{np.linalg.norm(g):.3g} rad/s, velocity {np.linalg.norm(v):.3g} m/s in norm) with {PAIR_PRIOR_SDS:g} "
-            "times its spread over resampled landmarks (at least the bias walk over the log) as the priors, not 0 "
-            "with the gyro_bias and velocity_bias levels (run.json observer.filter.bias_priors.from_pairs)"
-        )
     runs = ", ".join(str(r) for r in pri.get("gated_in_a_row_before", []))
     if pri.get("narrowed_passes") and not pri["kept"]:
         notes.append(
