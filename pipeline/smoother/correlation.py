@@ -181,9 +181,9 @@ def share_held(before: dict, after: dict) -> bool:
     correlated share fitted at the detection pairs' level (``before``): applied, and not lower by more than
     ``SIGNIFICANCE`` of ``before``'s standard errors. On the ten MR.CLAM robots the share moved by +0.5 to +6.9
     standard errors where the new ratio and correlation time helped or cost under 2 % (7-r1, 7-r3, 7-r4, 7-r5)
-    and by -14 to -47 where they cost up to 7 % APE or 37 % map (6-r1 to 6-r5, 7-r2): there the higher ratio had
-    taken over the slow range error the correlation modelled (docs/benchmarks.md, "batch's detection model again
-    at the held level, session 29")."""
+    and by -14 to -47 on the other six (6-r1 to 6-r5, 7-r2), four of which they cost up to 7 % APE or 37 % map:
+    there the higher ratio had taken over the slow range error the correlation modelled (docs/benchmarks.md,
+    "batch's detection model again at the held level, session 29")."""
     if not (before.get("applied") and after.get("applied")) or before.get("stderr") is None:
         return False
     return after["share"] >= before["share"] - SIGNIFICANCE * before["stderr"]
