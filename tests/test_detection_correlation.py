@@ -141,3 +141,24 @@ def test_batch_leaves_the_held_fits_factor_out_of_the_law_where_it_models_the_co
     assert off.noise.detection == 0.03 and not off.law_notes
     configured = resolve_noise(NoiseConfig(detection=0.03), estimated=estimated)
     assert configured.detection_held_scale == 1.0
+
+
+def _fit(share: float, stderr: float, applied: bool = True) -> dict:
+    return {"share": share, "stderr": stderr, "tau_s": 8.0, "applied": applied}
+
+
+def test_the_detection_model_at_the_held_level_is_kept_only_where_the_share_held():
+    """batch's detection model chosen again at the held velocity's level is kept when the correlated share did not
+    fall by more than ``SIGNIFICANCE`` of its standard errors (MR.CLAM 7-r4's fits: 0.4414 +- 0.00885, then 0.4457:
+    kept; 6-r1's: 0.427 +- 0.00792, then 0.2747: not, its ratio 32 took over the slow error); never when either fit
+    is not applied (white detections)."""
+    assert dc.share_held(_fit(0.4414, 0.00885), _fit(0.4457, 0.00981))
+    assert not dc.share_held(_fit(0.427, 0.00792), _fit(0.2747, 0.00794))
+    edge = 0.5 - dc.SIGNIFICANCE * 0.01
+    assert dc.share_held(_fit(0.5, 0.01), _fit(edge + 1e-6, 0.01))
+    assert not dc.share_held(_fit(0.5, 0.01), _fit(edge - 1e-3, 0.01))
+    assert not dc.share_held(_fit(0.5, 0.01), _fit(0.5, 0.01, applied=False))
+    assert not dc.share_held(_fit(0.5, 0.01, applied=False), _fit(0.5, 0.01))
+    kept = {"ratio": 32.0, "share": 0.4457, "tau_s": 6.034, "share_before": 0.4414, "stderr_before": 0.00885}
+    assert "and kept" in dc.again_note(kept | {"kept": True})
+    assert "not kept" in dc.again_note(kept | {"kept": False})

@@ -176,6 +176,34 @@ def record(corr: Correlation, factor: np.ndarray | None) -> dict:
     return out
 
 
+def share_held(before: dict, after: dict) -> bool:
+    """Whether the correlation fitted again at batch's held velocity level (``after``, a :func:`record`) kept the
+    correlated share fitted at the detection pairs' level (``before``): applied, and not lower by more than
+    ``SIGNIFICANCE`` of ``before``'s standard errors. On the ten MR.CLAM robots the share moved by +0.5 to +6.9
+    standard errors where the new ratio and correlation time helped or cost under 2 % (7-r1, 7-r3, 7-r4, 7-r5)
+    and by -14 to -47 on the other six (6-r1 to 6-r5, 7-r2), four of which they cost up to 7 % APE or 37 % map:
+    there the higher ratio had taken over the slow range error the correlation modelled (docs/benchmarks.md,
+    "batch's detection model again at the held level, session 29")."""
+    if not (before.get("applied") and after.get("applied")) or before.get("stderr") is None:
+        return False
+    return after["share"] >= before["share"] - SIGNIFICANCE * before["stderr"]
+
+
+def again_note(again: dict) -> str:
+    """The report's note of batch's detection model chosen again at the held velocity level (``again``: its record,
+    run.json's ``observer.smoother.held_velocity.detections_again``)."""
+    said = (
+        f"range/bearing ratio {again['ratio']}, correlated share {again['share']} (was {again['share_before']}), "
+        f"time constant {again['tau_s']:g} s"
+    )
+    if again["kept"]:
+        return f"batch: the detections' model chosen again at the held velocity's level and kept: {said}"
+    return (
+        f"batch: the detections' model chosen again at the held velocity's level, not kept ({said}): the share "
+        f"fell by more than {SIGNIFICANCE:g} standard errors, the ratio taking over the slow error"
+    )
+
+
 def note(corr: Correlation, factor: np.ndarray) -> str:
     return (
         f"batch: the detections' errors are correlated in time (share {corr.share:.2f} of their variance, "

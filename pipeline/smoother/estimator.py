@@ -258,6 +258,14 @@ class BatchSmoother(Stepper):
         chosen, held_velocity, held_notes = self._held_velocity(
             chosen, keyframes, segments, _in_step(progress, "the held velocity's level")
         )
+        if held_velocity.get("scale", 1.0) != 1.0 and correlation.get("applied"):
+            again_progress = _in_step(progress, "the detections' model at the held level")
+            chosen, again, held_velocity["detections_again"], again_notes = self._detections_again(
+                chosen, keyframes, segments, again_progress, correlation
+            )
+            if again is not None:
+                anisotropy, anisotropy_notes, correlation, correlation_notes = again
+            held_notes += again_notes
         correlation_notes += held_notes
         chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
         problem, sol = chosen.problem, chosen.sol
@@ -643,6 +651,41 @@ class BatchSmoother(Stepper):
             return chosen, record, []
         self.noise = nz.scaled({"velocity": s}, "the smoother's solution's residuals over short windows")
         return self._solved_again(chosen, sol, keyframes, segments, progress), record, [hv.note(level, s)]
+
+    def _detections_again(self, chosen, keyframes: tuple, segments: _Segments, progress, before: dict):
+        """The detections' range/bearing ratio and time correlation chosen again once the held velocity's level
+        moved, as a run with that level stated chooses them: from a solution at it with white (and, unless a ratio
+        is configured, isotropic) detections. Kept only when the correlated share held
+        (:func:`pipeline.smoother.correlation.share_held`, against ``before``, the correlation record at the pairs'
+        level): where it fell, the new ratio took over the slow error the correlation modelled and the
+        evidence, computed on detections thinned as independent, counted it as range noise (MR.CLAM 6-r1, 6-r2,
+        7-r2: ratio 16 -> 32, APE 4.5-7 % and maps 8-37 % worse); where it held (7-r4: 0.118 -> 0.092 m, its grid
+        best) the new model is the one the level asks for (docs/benchmarks.md, "batch's detection model again at
+        the held level, session 29"). The candidate, the new (ratio record, notes, correlation record, notes) or
+        None when not kept, the record, the notes."""
+        from slamobs.pipeline.smoother import correlation as dc
+
+        held = (chosen, self.det_factor, self.det_shape)
+        self.det_factor = None
+        if not self._ratio_configured():
+            self.det_shape = None
+        again = self._solved_again(chosen, chosen.sol, keyframes, segments, progress)
+        again, anisotropy, anisotropy_notes = self._weigh_range(again, keyframes, segments, progress)
+        again, correlation, correlation_notes = self._decorrelate(again, keyframes, segments, progress)
+        kept = dc.share_held(before, correlation)
+        record = {
+            "ratio": anisotropy.get("ratio"),
+            "share": correlation.get("share"),
+            "tau_s": correlation.get("tau_s"),
+            "share_before": before.get("share"),
+            "stderr_before": before.get("stderr"),
+            "kept": kept,
+        }
+        note = dc.again_note(record)
+        if not kept:
+            chosen, self.det_factor, self.det_shape = held
+            return chosen, None, record, [note]
+        return again, (anisotropy, anisotropy_notes, correlation, correlation_notes), record, [note]
 
     def _held_velocity_skipped(self) -> str | None:
         """Why the velocity level is not taken from the solution's short-window residuals, or None."""
