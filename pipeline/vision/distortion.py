@@ -10,7 +10,7 @@ calibration leaves the correction nothing to take (gain ~1); a wrong one leaves 
 
 Each correction moves every corner's ray and solves the tags again (IPPE square, ~10 µs a tag): the tag's pose
 takes up a wrong lens as a tilt and a range, which no cheaper stand-in follows (the tag moved as a point with its
-angular size gave 1.0-1.6x on wrong lenses). At most ``MAX_DETECTIONS`` tags, about 40 corrections: 0.2-0.7 CPU s a
+angular size gave 1.0-1.6x on wrong lenses). At most ``MAX_DETECTIONS`` tags, about 40 corrections: 0.17-0.27 CPU s a
 camera, paid only where a log has tag corners (:mod:`.landmarks`).
 """
 
@@ -38,8 +38,9 @@ COARSE = np.linspace(-0.5, 0.5, 11)
 FINE = np.linspace(-0.08, 0.08, 9)
 #: The correction keeps a ray inside this angle from the axis, rad (a pinhole image ends at 90 deg).
 MAX_ANGLE = 1.45
-#: At most this many detections are solved again per correction (~10 µs each, ~40 corrections).
-MAX_DETECTIONS = 600
+#: At most this many detections are solved again per correction (~10 µs each, ~40 corrections; TagSLAM test_11
+#: as calibrated 1.00x and misread 2.96-4.10x with 600 or 300 of them: 0.33-0.37 or 0.17-0.23 CPU s a camera).
+MAX_DETECTIONS = 300
 
 
 @dataclass(frozen=True)
