@@ -565,6 +565,8 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "static_tf_changed": [f"{p}->{c}" for p, c in streams.static_tf_changed],
             "static_tf_dropped": [f"{p}->{c}" for p, c in streams.static_tf_dropped],
             "cameras": dict(tags.cameras) if tags is not None else {},
+            # per camera topic: its distortion check (vision.distortion), where it had pairs of tags in one image
+            "distortion_check": dict(tags.distortion) if tags is not None else {},
             "map": (
                 {"file": prepared.known_map.source, "mode": prepared.known_map.mode}
                 if prepared.known_map is not None

@@ -144,3 +144,35 @@ def test_ubiquity_image_against_the_robots_fiducial_transforms():
                 np.array([q.x, q.y, q.z, q.w])
             )
             assert np.degrees(np.arccos(np.clip((np.trace(rel) - 1) / 2, -1, 1))) < 2.0
+
+
+def test_test11_a_wrong_distortion_is_named_and_the_calibrated_one_is_not(tmp_path):
+    """TagSLAM test_11's stereo corners (the tag poses only, no estimate): as calibrated (equidistant) the distances
+    between two tags in one image agree to 0.2 % and no ray correction improves them (1.0x); with both cameras'
+    coefficients zeroed (read as a pinhole) each camera is named (3.3x, 4.1x), with its topic, its frame and the
+    file and keys of its distortion (read as radtan, 3.0x / 3.4x: docs/benchmarks.md, session 29)."""
+    import yaml
+
+    d = TAGSLAM / "test_11"
+    rest = [str(d / f) for f in ("camera_poses.yaml", "tagslam.yaml")]
+    streams = read_log(d / "tag_detections.bag")
+    calibrated = yaml.safe_load((d / "cameras.yaml").read_text())
+
+    def named(cams: dict) -> tuple[dict, list[str]]:
+        path = tmp_path / "cameras.yaml"
+        path.write_text(yaml.safe_dump(cams))
+        tags = tag_landmarks(streams, TagOptions(size=0.15), camera_files=[str(path), *rest])
+        return tags.distortion, [n for n in tags.notes if "distances between two tags" in n]
+
+    checks, warnings = named(calibrated)
+    assert set(checks) == {"/fla/ovc_node/left/tags", "/fla/ovc_node/right/tags"} and not warnings
+    assert all(c["gain"] < 1.1 and not c["wrong"] for c in checks.values())
+    zeroed = {k: {**c, "distortion_coeffs": [0.0] * 4} for k, c in calibrated.items()}
+    radtan = {k: {**c, "distortion_model": "radtan"} for k, c in calibrated.items()}
+    for cams in (zeroed, radtan):
+        checks, warnings = named(cams)
+        assert all(c["gain"] > 2.5 and c["wrong"] for c in checks.values()), checks
+        assert len(warnings) == 2 and all(w.startswith("warning: /fla/ovc_node/") for w in warnings)
+        assert (
+            "camera frame 'fla/left_cam'" in warnings[0] and "distortion_coeffs of cameras.yaml (cam0)" in warnings[0]
+        )

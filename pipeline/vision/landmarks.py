@@ -31,6 +31,7 @@ import numpy as np
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.streams import CornerStream, DetectionStream, LogStreams, Transform
 from slamobs.pipeline.vision.cameras import CameraFiles, CameraModel, read_camera_files
+from slamobs.pipeline.vision.distortion import distortion_fit, distortion_warning
 from slamobs.pipeline.vision.tagpose import REASONS, TagQuality, solve_tags, winding
 
 
@@ -54,6 +55,8 @@ class TagLandmarks:
     transforms: list[Transform]
     notes: list[str]
     cameras: dict[str, str]  # topic -> camera model and extrinsic, for run.json
+    #: topic -> the distortion check's record (:mod:`.distortion`; run.json ``input.distortion_check``)
+    distortion: dict[str, dict] = field(default_factory=dict)
 
 
 def _namespace(topic: str) -> str:
@@ -194,22 +197,25 @@ def tag_landmarks(
     models, corner_streams = _with_intrinsics(streams, files, notes, "; and tags.size (edge, m)" if unsized else "")
     kept, added = _with_extrinsics(streams, corner_streams, models, files, identity_frames, body_frame, notes)
     rows = []  # per camera: frame stamps, record times, offsets, ids, xyz, quat, quality, status, area
-    cameras_meta = {}
+    cameras_meta, checks, warnings = {}, {}, []
     reject = np.zeros(len(REASONS), np.int64)
     ignored = unsized = 0
     for c, s in enumerate(kept):
         model = models[s.topic]
-        row, n_ignored, n_unsized = _camera_poses(c, s, model, options, path)
+        row, n_ignored, n_unsized, fit = _camera_poses(c, s, model, options, path)
         rows.append(row)
         reject += np.bincount(row[4].status, minlength=len(REASONS))  # row[4]: the tag poses
         ignored, unsized = ignored + n_ignored, unsized + n_unsized
         cameras_meta[s.topic] = f"{model.describe()}; frame '{s.frame_id}'"
         notes.append(f"{s.topic}: camera {model.describe()}")
+        if fit is not None:
+            checks[s.topic] = fit.record()
+            warnings += [distortion_warning(s.topic, s.frame_id, model, fit)] if fit.wrong else []
     notes += _pose_notes(reject, ignored, unsized, options)
     table = _table(rows)
     stream, merge_notes = _merge(rows, options.sync_s)
-    notes += merge_notes
-    return TagLandmarks(stream, table, added, notes, cameras_meta)
+    notes += merge_notes + warnings
+    return TagLandmarks(stream, table, added, notes, cameras_meta, checks)
 
 
 def _with_intrinsics(streams: LogStreams, files: CameraFiles, notes: list[str], also: str = ""):
@@ -391,11 +397,10 @@ def _no_extrinsics(corner_streams: list[CornerStream], body: str, tf) -> str:
     )
 
 
-def _camera_poses(
-    c: int, s: CornerStream, model: CameraModel, options: TagOptions, path: str
-) -> tuple[tuple, int, int]:
-    """Camera ``c``'s row for ``_table``/``_merge`` (its tag poses) and the counts of ignored and unsized
-    detections, which are left out before solving."""
+def _camera_poses(c: int, s: CornerStream, model: CameraModel, options: TagOptions, path: str) -> tuple:
+    """Camera ``c``'s row for ``_table``/``_merge`` (its tag poses), the counts of ignored and unsized
+    detections, which are left out before solving, and its distortion check (:func:`.distortion.distortion_fit`,
+    on the detections kept; None with too few pairs of tags in one image)."""
     keep = np.ones(s.ids.shape[0], bool)
     ignored = 0
     if options.ignore:
@@ -409,7 +414,9 @@ def _camera_poses(
     ideal = model.undistort(s.corners.reshape(-1, 2)).reshape(-1, 4, 2)
     poses = solve_tags(ideal[keep], sizes[keep], model.k, options.quality)
     frame_of = np.repeat(np.arange(len(s)), np.diff(s.offsets))[keep]
-    return (c, s, frame_of, s.ids[keep], poses, _area(s.corners[keep])), ignored, unsized
+    ok = poses.ok
+    fit = distortion_fit(ideal[keep][ok], model.k, sizes[keep][ok], frame_of[ok], s.ids[keep][ok])
+    return (c, s, frame_of, s.ids[keep], poses, _area(s.corners[keep])), ignored, unsized, fit
 
 
 def _pose_notes(reject: np.ndarray, ignored: int, unsized: int, options: TagOptions) -> list[str]:
