@@ -150,8 +150,10 @@ def read_log(
             stream = getattr(streams, role, None)
             left = (stream.ids.shape[0] if role == "detections" else len(stream)) if stream is not None else 0
             if cleaning.nonfinite and not left and role in REQUIRED_ROLES:
-                what = "detections" if role == "detections" else "samples"
-                raise InputError(path, f"all {cleaning.nonfinite} {what} are NaN or Inf ({role})", topic)
+                what = "detection" if role == "detections" else "sample"
+                n = cleaning.nonfinite
+                every = f"its one {what} is" if n == 1 else f"all {n} {what}s are"
+                raise InputError(path, f"{every} NaN or Inf ({role})", topic)
 
         def tf_of(topic: str) -> TfRows:
             if topic not in tf_rows:
