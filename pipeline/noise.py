@@ -24,6 +24,7 @@ from slamobs.pipeline.alignment import stream_topics
 from slamobs.pipeline.noise_estimation import (
     median_rate,
     LAWS,
+    MIN_LEVEL,
     DetectionLaw,
     Estimate,
     HeldMotion,
@@ -441,7 +442,21 @@ def held_levels(aligned, law: DetectionLaw | None, streams: tuple[str, ...], not
     elif law is not None:
         law = replace(law, base=_scaled(law.base, f), slope=_scaled(law.slope, f), held_scale=float(f.value))
         notes.append(f"noise: the detection law scaled by {f.value:.3g} by the same fit")
-    return law, {k: fit.levels[k] for k in keys}
+    return law, {k: floored(k, fit.levels[k]) for k in keys}
+
+
+def floored(key: str, e: Estimate) -> Estimate:
+    """A held stream's level as the pairs' fit gave it, its method saying so when it is the fit's floor
+    (``noise_estimation.MIN_LEVEL``: the pairs saw nothing of it above zero, MR.CLAM's velocity biases); a prior
+    or density that small holds that part of the motion as if known, which a run's notes must say."""
+    if float(np.max(e.value)) > MIN_LEVEL:
+        return e
+    unit = DEFAULTS[key][1]
+    return replace(
+        e,
+        method=f"the same fit, at its floor {MIN_LEVEL:g} {unit}: the detection pairs show no {key} above zero, "
+        f"so riekf and batch take it as all but known (noise.{key} in run.yaml sets another)",
+    )
 
 
 def _scaled(e: Estimate, factor: Estimate) -> Estimate:

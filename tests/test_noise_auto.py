@@ -614,3 +614,16 @@ def test_info_noise_says_batch_re_estimates_a_held_velocitys_level(tmp_path):
     assert shown.exit_code == 0 and "velocity (batch)" not in shown.output, shown.output
     moving = invoke("info", "--noise", write_log(sim, tmp_path / "moving.mcap"))
     assert moving.exit_code == 0 and "velocity (batch)" not in moving.output, moving.output
+
+
+def test_a_held_level_at_the_fit_s_floor_says_so():
+    """MR.CLAM 6 r5: `velocity_bias = 1e-06 m/s (estimated, ± 0.00209: the same fit)`, a prior at the held fit's
+    floor (noise_estimation.MIN_LEVEL) below its own standard error, said as a measurement."""
+    from slamobs.pipeline.noise import floored
+    from slamobs.pipeline.noise_estimation import MIN_LEVEL, Estimate
+
+    e = floored("velocity_bias", Estimate(MIN_LEVEL, 0.00209, "variance components of ...", 100))
+    assert e.value == MIN_LEVEL and "at its floor 1e-06 m/s" in e.method, e.method
+    assert "noise.velocity_bias in run.yaml" in e.method, e.method
+    above = Estimate(0.0055, 0.0002, "variance components of ...", 100)
+    assert floored("gyro_bias", above) is above
