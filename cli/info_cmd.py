@@ -157,7 +157,7 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
             value, spread = format_level(v["value"], 4, False), format_level(v["uncertainty"], 4, False)
             click.echo(f"  {name} = {value} {v['unit']} ({v['topic']}, ± {spread}: {v['method']})")
             if (st := v.get("stated")) is not None:
-                click.echo(f"    {_stated_line(st, v['unit'])}")
+                click.echo(f"    {_stated_line(st, v['unit'], name)}")
         else:
             click.echo(f"  {name}: not estimated ({v['why']})")
     for line in checks:
@@ -167,13 +167,19 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
         click.echo(f"    {line}")
 
 
-def _stated_line(st: dict, unit: str) -> str:
+def _stated_line(st: dict, unit: str, key: str) -> str:
     """What a stream's messages state of its noise (``noise.sensor_levels``' ``stated``) and whether a run uses it."""
-    from slamobs.pipeline.noise import format_level
+    from slamobs.pipeline.noise import STATED_BELOW, format_level
 
     head = f"its messages state {st['topic']} covariance ({st['rate']})"
     if st["value"] is not None:
         head += f" = {format_level(st['value'], 4, False)} {unit}"
+    if st["used"] and st.get("below") is not None:
+        return (
+            f"{head}: {st['below']:.3g}x below the level above, its own samples': riekf and batch would still use "
+            f"it in place of that level (taken from {STATED_BELOW:g}x the samples' on; noise.{key} in run.yaml "
+            "sets another)"
+        )
     if st["used"]:
         return f"{head}: riekf and batch would use it in place of the level above (plausible against the samples)"
     return f"{head}: riekf and batch would not use it ({st['why']})"

@@ -167,14 +167,16 @@ def run(
 
 def _print_summary(summary) -> None:
     from slamobs.cli.listing import wrote_line
+    from slamobs.pipeline.errors import plural
 
     m = summary.metadata
     c = m["counts"]
     click.echo(f"observer     {m['observer']['name']}  gains {m['observer']['gains']}")
     click.echo(f"input        {m['input']['path']}")
     click.echo(
-        f"             {c['velocity_samples']} velocity samples, {c['detection_frames']} detection frames, "
-        f"{c['landmarks']} landmarks, {c['internal_steps']} internal steps"
+        f"             {plural(c['velocity_samples'], 'velocity sample')}, "
+        f"{plural(c['detection_frames'], 'detection frame')}, {plural(c['landmarks'], 'landmark')}, "
+        f"{plural(c['internal_steps'], 'internal step')}"
     )
     t = summary.timings
     click.echo("time         " + ", ".join(f"{k[:-2]} {v:.2f} s" for k, v in t.items()))

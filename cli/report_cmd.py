@@ -102,7 +102,8 @@ def report(
 ) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically.
     Without truth (the run had none and no --truth), or when the run's own truth cannot judge it (no poses, too
-    short: as ``slamobs run`` reported): the run's figures and a summary in report.md."""
+    short: as ``slamobs run`` reported): the run's figures and a summary in report.md. It draws every figure,
+    whatever the run's evaluation.plots (which spares a run its figures' time: docs/outputs.md, which figures)."""
     from slamobs.pipeline.config import NO_TRUTH
     from slamobs.pipeline.errors import TruthUnusable
 

@@ -486,7 +486,7 @@ def _note_once(notes: list[str], note: str) -> None:
 def _held(ext: _Extrinsic, topic: str, notes: list[str]) -> None:
     """Velocity and direction samples outside the /tf span keep the nearest transform: say how many."""
     if ext.valid is not None and (n := int(np.count_nonzero(~ext.valid))):
-        _note_once(notes, f"{topic}: {n} samples outside the /tf span use the nearest transform")
+        _note_once(notes, f"{topic}: {plural(n, 'sample')} outside the /tf span use the nearest transform")
 
 
 def check_required(streams: LogStreams, directions: int = 0, needed_by: str | None = None) -> None:
@@ -1409,7 +1409,8 @@ def _gate_norm(
     bad = norm > limit
     if n := int(np.count_nonzero(bad)):
         notes.append(
-            f"{topic}: {n} {what} samples above limits.{key} {limit:g} {unit} dropped (largest {norm.max():.3g} {unit})"
+            f"{topic}: {plural(n, what + ' sample')} above limits.{key} {limit:g} {unit} dropped "
+            f"(largest {norm.max():.3g} {unit})"
         )
         t, x = t[~bad], x[~bad]
     return t, x
@@ -1535,7 +1536,7 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
             inside = np.isin(k, gap) & (t_om > t_lv[np.clip(k, 0, None)])
             if n_in := int(np.count_nonzero(inside)):
                 notes.append(
-                    f"{n_in} angular-velocity samples inside {lv.topic} gaps longer than limits.max_gap "
+                    f"{plural(n_in, 'angular-velocity sample')} inside {lv.topic} gaps longer than limits.max_gap "
                     f"{max_gap:g} s dropped"
                 )
                 t_om, w = t_om[~inside], w[~inside]
@@ -1622,8 +1623,8 @@ def _last_of_each_stamp(t: np.ndarray, w: np.ndarray, topic: str, notes: list[st
     later[:-1] = t[1:] == t[:-1]
     if n := int(np.count_nonzero(later)):
         notes.append(
-            f"{topic}: {n} angular-velocity samples dropped, each sharing its stamp with a later one (which is "
-            "kept: a sample holds until the next stamp, so these covered no time)"
+            f"{topic}: {plural(n, 'angular-velocity sample')} dropped, each sharing its stamp with a later one "
+            "(which is kept: a sample holds until the next stamp, so these covered no time)"
         )
         return t[~later], w[~later]
     return t, w

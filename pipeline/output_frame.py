@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from slamobs.pipeline.errors import InputError
+from slamobs.pipeline.errors import InputError, plural
 from slamobs.pipeline.kernel_cache import njit
 from slamobs.pipeline.lie import quat_to_rot, rotate_covariance, rots_to_quats, so3_exp, so3_log
 from slamobs.pipeline.observers.base import ObserverResult
@@ -193,9 +193,9 @@ def _accelerometer_up(part: ObserverResult, aligned, log) -> tuple[np.ndarray, s
     )
     if rest.sum() >= MIN_REST_SAMPLES:
         w = np.where(rest, 1.0, 0.0)
-        how = f"{int(rest.sum())} samples at rest"
+        how = f"{plural(int(rest.sum()), 'sample')} at rest"
     else:
-        how = f"{int((w > 0).sum())} samples, body acceleration from the odometry removed (too few at rest)"
+        how = f"{plural(int((w > 0).sum()), 'sample')}, body acceleration from the odometry removed (too few at rest)"
     ok = (w > 0) & np.isfinite(up_b).all(axis=1)
     if not ok.any():
         raise InputError(log, "output.frame gravity: no usable accelerometer sample in the first stretch")

@@ -781,3 +781,12 @@ def test_a_run_s_notes_are_the_same_with_the_warn_only_checks_beside_its_observe
     beside, in_align = (json.loads((tmp_path / d / "run.json").read_text())["notes"] for d in ("beside", "in-align"))
     assert all(any(s in n for n in beside) for s in WARNED), beside
     assert beside == in_align
+
+
+def test_one_sample_dropped_is_counted_in_the_singular():
+    # "1 angular-velocity samples dropped": the counts of the alignment's notes go through errors.plural
+    t_om = np.arange(0, 2.0, 0.02)
+    t_om = np.insert(t_om, 10, t_om[10])  # one stamp twice
+    w = np.tile([0.0, 0.0, 0.5], (t_om.size, 1))
+    a = align(_streams(angular_velocity=_vec("/imu", "imu", t_om, w)))
+    assert "/imu: 1 angular-velocity sample dropped, each sharing its stamp with a later one" in "\n".join(a.notes)

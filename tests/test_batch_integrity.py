@@ -602,3 +602,12 @@ def test_the_summary_keeps_every_stage_a_run_timed_and_total_s_is_their_sum_and_
     assert all(row[k] == pytest.approx(v) for k, v in timings.items())
     stages = sum(v for k, v in timings.items() if k != "write_s")  # the writer's time overlaps observer_s
     assert row["total_s"] >= stages + row["dataset_s"]
+
+
+def test_a_symbolic_link_s_run_id_takes_the_name_the_user_gave(tmp_path):
+    # `batch mix/t22.bag` (a link to .../tag_detections.bag) gave the run id `tag_detections-...`, the target's name
+    (tmp_path / "in").mkdir()
+    os.mkfifo(tmp_path / "target.mcap")  # fails before any worker starts: its row and run id only
+    os.symlink("../target.mcap", tmp_path / "in" / "t22.mcap")
+    res = batch([tmp_path / "in"], tmp_path / "OUT")
+    assert [r["run_id"].rsplit("-", 1)[0] for r in res.rows] == ["t22"]

@@ -2184,3 +2184,47 @@ def test_map_residual_over_sigma_is_each_landmarks_median_residual_over_its_sigm
     found = residual_over_sigma(ids, residuals, np.array([3, 7, 9]), np.array([0.5, 0.02, 1.0]))
     assert found["map_residual_over_sigma"] == pytest.approx(np.median([2.0 / 0.5, 0.2 / 0.02]))
     assert residual_over_sigma(ids, residuals, np.array([3, 7]), np.full(2, np.nan)) == {}
+
+
+def test_a_convergence_the_tail_frame_decided_is_defined_and_drawn_in_that_frame():
+    """TagSLAM 22 riekf: converged in the frame of its last 20 % (level 0.12 m, band 0.24 m), but report.md defined
+    the figure by the whole run's level and band (1.23 m, 2.46 m), the summary line's error had no frame, and
+    errors.png labelled the whole-run band as "convergence band"."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation.figure_jobs import error_plot_job
+    from slamobs.pipeline.evaluation.markdown import convergence_definition, convergence_line
+
+    conv = {
+        "threshold_m": 0.1,
+        "window_s": 3.0,
+        "window_fraction": 0.05,
+        "tail_fraction": 0.2,
+        "band_factor": 2.0,
+        "steady_level_m": 1.23,
+        "band_m": 2.46,
+        "tail_level_m": 1.1,
+        "earlier_level_m": 0.4,
+        "tail_frame": {"steady_level_m": 0.12, "band_m": 0.24},
+        "t_since_start_s": 12.0,
+        "coarse": False,
+        "steady_level_share": 0.05,
+    }
+    said = convergence_definition(conv)
+    assert "in the frame of the log's last 20 %" in said and "2 × 0.12 m" in said and "= 0.24 m" in said, said
+    assert "under the whole-run alignment that band is 2.46 m" in said, said
+    assert convergence_line(conv).startswith("12.00 s after start (median position error in the frame of its last 20 %")
+    whole = {**conv, "tail_frame": None}
+    assert "frame" not in convergence_definition(whole) and "= 2.46 m" in convergence_definition(whole)
+    t = np.arange(0.0, 20.0, 0.1)
+    ev = SimpleNamespace(
+        estimate=SimpleNamespace(t_ns=(t * 1e9).astype(np.int64)),
+        error_level=((t * 1e9).astype(np.int64), np.zeros_like(t)),
+        pair_t_est_ns=(t * 1e9).astype(np.int64),
+        translation=SimpleNamespace(errors=np.zeros_like(t)),
+        rotation=SimpleNamespace(errors=np.zeros_like(t)),
+        alignment=SimpleNamespace(kind="se3"),
+        gravity_tilt_deg=None,
+    )
+    assert error_plot_job(conv, ev)[2]["band_label"] == "this whole-run fit's band"
+    assert error_plot_job(whole, ev)[2]["band_label"] == "convergence band"

@@ -222,7 +222,7 @@ def test_plausibility_gates_drop_and_count(sim):
     gated = align(_inject(sim))
     notes = " | ".join(gated.notes)
     assert "5 angular-velocity samples above limits.max_angular_rate" in notes
-    assert "1 linear-velocity samples above limits.max_speed" in notes
+    assert "1 linear-velocity sample above limits.max_speed" in notes
     assert "1 closer than limits.min_range" in notes and "1 farther than limits.max_range" in notes
     assert np.abs(gated.omega).max() < 100 and np.linalg.norm(gated.velocity, axis=1).max() < 300
     assert gated.vel_t_ns.shape[0] == clean.vel_t_ns.shape[0] - 5

@@ -149,6 +149,28 @@ def test_implausible_covariances_are_rejected_with_a_note(stated_logs):
     assert 0.04 < stated < 0.06  # the odometry states a twentieth of its noise
 
 
+def test_a_stated_level_well_below_its_samples_is_named_not_called_plausible(stated_logs, tmp_path):
+    """TagSLAM 22's odometry states a gyro density 7x below its samples' level: it is believed (over STATED_BELOW)
+    and was called `plausible`. A log whose odometry states a fifth of its noise: the run's note and `info --noise`
+    say how far below, that riekf and batch use it anyway, and the key that sets another."""
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    sim = stated_logs[2]
+    log = tmp_path / "fifth.mcap"
+    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear / 5)), log)
+    config = parse_config({"observer": "riekf"})
+    nz = log_noise(prepare_log(log, config, directions=False), config)
+    assert nz.sources["velocity"].startswith("/odom covariance"), nz.sources
+    said = nz.methods["velocity"]
+    assert "below the samples' white-noise estimate" in said and "plausible" not in said, said
+    assert 3.5 < float(said.split("x below")[0]) < 7.0 and "noise.velocity in run.yaml" in said, said
+    assert nz.methods["gyro"].startswith("plausible;"), nz.methods  # the IMU states its own level
+    res = invoke("info", "--noise", str(log))
+    line = next(x for x in res.output.splitlines() if x.strip().startswith("velocity = "))
+    assert "x below the samples' white-noise estimate" in line and "plausible" not in line, line
+
+
 def test_run_json_report_and_info_state_every_level(stated_logs, tmp_path):
     from slamobs.pipeline.config import parse_config
     from slamobs.pipeline.run import run_log
@@ -592,3 +614,16 @@ def test_info_noise_says_batch_re_estimates_a_held_velocitys_level(tmp_path):
     assert shown.exit_code == 0 and "velocity (batch)" not in shown.output, shown.output
     moving = invoke("info", "--noise", write_log(sim, tmp_path / "moving.mcap"))
     assert moving.exit_code == 0 and "velocity (batch)" not in moving.output, moving.output
+
+
+def test_a_held_level_at_the_fit_s_floor_says_so():
+    """MR.CLAM 6 r5: `velocity_bias = 1e-06 m/s (estimated, ± 0.00209: the same fit)`, a prior at the held fit's
+    floor (noise_estimation.MIN_LEVEL) below its own standard error, said as a measurement."""
+    from slamobs.pipeline.noise import floored
+    from slamobs.pipeline.noise_estimation import MIN_LEVEL, Estimate
+
+    e = floored("velocity_bias", Estimate(MIN_LEVEL, 0.00209, "variance components of ...", 100))
+    assert e.value == MIN_LEVEL and "at its floor 1e-06 m/s" in e.method, e.method
+    assert "noise.velocity_bias in run.yaml" in e.method, e.method
+    above = Estimate(0.0055, 0.0002, "variance components of ...", 100)
+    assert floored("gyro_bias", above) is above

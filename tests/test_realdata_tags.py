@@ -118,6 +118,20 @@ def test_test22_riekf_narrows_its_bias_priors_when_the_tags_return_outside_its_g
     assert report["ape"]["translation_m"]["rmse"] < 0.3
 
 
+def test_test22_batch_records_its_near_step_in_run_json(tmp_path):
+    """batch's evidence search on test_22 takes the gyro's x3 (a gain of 4.25, under the margin) for one more pass
+    and keeps it: only its notes said so; run.json's noise_scale now records the step beside the level's scan."""
+    meta = _run("test_22", tmp_path / "o", tags={"size": 0.42}, observer="batch")
+    scale = meta["observer"]["smoother"]["noise_scale"]
+    steps = [(k, s) for k, r in scale.items() for s in r.get("near_steps") or []]
+    assert steps, scale
+    said = [n for n in meta["notes"] if "taken for one more pass" in n]
+    assert len(steps) == len(said), (steps, said)
+    for key, step in steps:
+        assert set(step) == {"scale", "gain", "kept"} and step["gain"] > 0, step
+        assert any(f"evidence's {key} x{step['scale']:g} gained {step['gain']:.2f}" in n for n in said), said
+
+
 def test_ubiquity_image_against_the_robots_fiducial_transforms():
     """aruco_images.bag holds one JPEG and CameraInfo; aruco_transforms.bag the FiducialTransformArray the robot's
     aruco_detect computed from that very image (same stamp, image_seq = image header seq). Every marker is found,

@@ -500,3 +500,10 @@ def test_the_report_carries_the_noise_and_what_the_estimator_said_of_its_run():
     add_run_context(report, notes, {"observer": {"name": "batch"}, "segments": segments})
     assert report["notes"][:3] == ["APE note", notes[0], notes[1]]
     assert "2 segments" in report["notes"][3] and report["segments"] == segments
+
+
+def test_report_help_says_it_draws_figures_whatever_the_run_s_plots():
+    # a run with evaluation.plots: false, then `report RUN`: every figure drawn, and nothing said the setting was
+    # the run's only (kept: it spares a run its figures' time, and report is how to draw them afterwards)
+    res = invoke(report, "--help")
+    assert "every figure, whatever the run's evaluation.plots" in " ".join(res.output.split()), res.output

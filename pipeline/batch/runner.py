@@ -205,7 +205,8 @@ def _identify(
 
     def identify(entry: LogEntry, cfg: RunConfig | str, skey: str | None, chash: str | InputError) -> _Planned:
         log = os.path.realpath(entry.path)
-        path_id = run_id_for(Path(log), path_key(Path(log)))
+        named = Path(entry.path)  # a run id takes the name the user gave (a symbolic link's, not its target's)
+        path_id = run_id_for(named, path_key(Path(log)))
         cfg_file = os.path.realpath(entry.config) if entry.config else None
         known = cfg if isinstance(cfg, RunConfig) else options.config
         if id(known) not in derived:
@@ -231,7 +232,7 @@ def _identify(
         if isinstance(chash, InputError):
             return _Planned(log, row=failed_row(stub, str(InputError(entry.path, chash.problem))), path_id=path_id)
         key = run_key(chash, cfg_hash)
-        rid = by_key.get(key) or run_id_for(Path(log), key)
+        rid = by_key.get(key) or run_id_for(named, key)
         return _Planned(
             log,
             task=replace(stub, run_id=rid, content_hash=chash, config_hash=cfg_hash, stat_key=skey),

@@ -178,6 +178,7 @@ def error_plot_job(convergence: dict[str, Any], ev: TrajectoryEvaluation):
             title=f"Absolute pose error after {ALIGN_LABELS[ev.alignment.kind]} alignment" + tilt_caveat(ev),
             level=((level_t - t0) / 1e9, level),
             verdict=convergence_verdict(convergence),
+            band_label="this whole-run fit's band" if convergence.get("tail_frame") else "convergence band",
             extent_m=convergence.get("trajectory_extent_m") if convergence.get("lost") else None,
         ),
     )

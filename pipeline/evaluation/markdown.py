@@ -12,7 +12,17 @@ from slamobs.pipeline.evaluation.sync import halves_agree, halves_owner
 
 
 def convergence_definition(conv: dict[str, Any]) -> str:
-    """The convergence figure's definition, with its numbers (report.md)."""
+    """The convergence figure's definition, with its numbers (report.md): those of the frame that decided it, the
+    whole run's alignment or (``tail_frame``) the one fitted on the run's end."""
+    if tf := conv.get("tail_frame"):
+        tail = f"{100 * conv['tail_fraction']:g} %"
+        return (
+            f"first time after which the error level (median position error over a {conv['window_s']:.3g} s "
+            f"window, {100 * conv['window_fraction']:g} % of the log), in the frame of the log's last {tail} "
+            f"(the alignment fitted on those pairs only), stays within max(threshold {conv['threshold_m']:g} m, "
+            f"{conv['band_factor']:g} × {tf['steady_level_m']:.4g} m, the highest level there over the last "
+            f"{tail}) = {tf['band_m']:.4g} m; under the whole-run alignment that band is {conv['band_m']:.4g} m"
+        )
     return (
         f"first time after which the error level (median aligned position error over a {conv['window_s']:.3g} s "
         f"window, {100 * conv['window_fraction']:g} % of the log) stays within max(threshold "
@@ -29,8 +39,9 @@ def convergence_line(conv: dict[str, Any]) -> str | None:
     if conv.get("t_since_start_s") is None:
         return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")")
     band = (conv.get("tail_frame") or conv)["band_m"]
+    frame = f" in the frame of its last {round(100 * conv['tail_fraction'])} %" if conv.get("tail_frame") else ""
     return (
-        f"{conv['t_since_start_s']:.2f} s after start (median position error over {conv['window_s']:.3g} s "
+        f"{conv['t_since_start_s']:.2f} s after start (median position error{frame} over {conv['window_s']:.3g} s "
         f"within {band:.3g} m from then on{_tail_frame(conv)}{_coarse(conv)})"
     )
 

@@ -90,6 +90,12 @@ def _untyped(table: dict) -> list[str]:
     return sorted(topic for topic, (meta, _) in table.items() if not meta.msgtype)
 
 
+def _every_one(n: int, role: str) -> str:
+    """``all 3 samples are`` / ``its one sample is``: a stream all of whose values were NaN or Inf."""
+    what = "detection" if role == "detections" else "sample"
+    return f"its one {what} is" if n == 1 else f"all {n} {what}s are"
+
+
 def read_log(
     path: str | Path,
     topics: Mapping[str, str | None] | None = None,
@@ -150,8 +156,7 @@ def read_log(
             stream = getattr(streams, role, None)
             left = (stream.ids.shape[0] if role == "detections" else len(stream)) if stream is not None else 0
             if cleaning.nonfinite and not left and role in REQUIRED_ROLES:
-                what = "detections" if role == "detections" else "samples"
-                raise InputError(path, f"all {cleaning.nonfinite} {what} are NaN or Inf ({role})", topic)
+                raise InputError(path, f"{_every_one(cleaning.nonfinite, role)} NaN or Inf ({role})", topic)
 
         def tf_of(topic: str) -> TfRows:
             if topic not in tf_rows:

@@ -730,7 +730,7 @@ class BatchSmoother(Stepper):
                 [f"batch: noise levels not chosen by the evidence: {why}"],
             )
         keys, context = self._evidence_keys(), (keyframes, segments, progress)
-        state = {"chosen": chosen, "records": {}, "total": dict.fromkeys(keys, 1.0) | (scales or {})}
+        state = {"chosen": chosen, "records": {}, "total": dict.fromkeys(keys, 1.0) | (scales or {}), "near": []}
         budget = max(EVIDENCE_SOLVE_BUDGET * chosen.sol.summary["linear_solves"], EVIDENCE_SOLVE_FLOOR)
 
         def run_pass(notes: list):
@@ -743,12 +743,18 @@ class BatchSmoother(Stepper):
             held = (state["chosen"], {k: dict(r) for k, r in state["records"].items()}, dict(state["total"]))
             held += (self.noise,)
             state["chosen"], solves = self._take_near(near, state["chosen"], state["records"], state["total"], context)
+            state["near"].append({"key": near[0], "scale": near[1], "gain": round(float(near[2]), 3), "kept": True})
             return held, solves
 
         def undo(held: tuple):
             state["chosen"], state["records"], state["total"], self.noise = held
+            state["near"][-1]["kept"] = False
 
         passes, spent, moved = evidence_search(run_pass, take, undo, budget)
+        for step in state["near"]:  # run.json beside the level's record: the near steps the notes tell of
+            state["records"][step["key"]].setdefault("near_steps", []).append(
+                {k: v for k, v in step.items() if k != "key"}
+            )
         notes = evidence_passes(passes, again=scales is not None)
         if moved:
             notes.append(
