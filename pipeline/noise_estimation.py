@@ -618,3 +618,129 @@ def held_motion_noise(
         # σ = √θ: se(σ) = se(θ) / 2σ, or √se(θ) for a σ the fit cannot tell from zero
         levels[name] = Estimate(value, float(min(s / (2 * value), np.sqrt(s))), method, used)
     return HeldMotion(levels)
+
+
+# ------------------------------------------------------------------ the biases themselves, from detection pairs
+#: Gauss-Newton passes of :func:`pair_bias_estimate` at most (the dead reckoning integrated again with the biases
+#: taken off), and the step (rad/s or m/s) below which it stops.
+BIAS_PASSES = 4
+BIAS_STEP_DONE = 1e-6
+#: Resamples of the landmarks for the estimate's spread, and the blocks of time for its other spread
+#: (:func:`pair_bias_estimate`).
+BIAS_RESAMPLES = 200
+BIAS_BLOCKS = 4
+#: The pairs :func:`pair_bias_estimate` fits at most, those that end first (six constants need no more; the one-hour
+#: benchmark log's first 300 s give 239,000 pairs, over 300 s of dead reckoning: 0.2 CPU s; its first 20,000 end
+#: within its first minute).
+MAX_BIAS_PAIRS = 10_000
+
+
+def _bias_pairs(vel_t, det_t, det_offsets, det_idx, segment_starts):
+    """The velocity sample before each detection and the detection pairs of one landmark (:func:`pair_indices`),
+    at most ``MAX_BIAS_PAIRS``, those that end first: (N,), (K,), (K,)."""
+    t_of = np.repeat(det_t, np.diff(det_offsets))
+    k = np.clip(np.searchsorted(vel_t, t_of, side="right") - 1, 0, vel_t.size - 1)
+    a, b = pair_indices(t_of, det_idx, np.searchsorted(segment_starts, k, side="right"))
+    if a.size > MAX_BIAS_PAIRS:  # the pairs that end first: a prior is of the start's bias
+        pick = np.sort(np.argsort(k[b], kind="stable")[:MAX_BIAS_PAIRS])
+        a, b = a[pick], b[pick]
+    return k, a, b
+
+
+def _pair_bias_system(vel_t, omega, velocity, k, a, b, det_y):
+    """Per detection pair: the dead-reckoned landmark's displacement between the two detections, its derivative by
+    the gyro and velocity biases (the maps of :func:`pair_design`) and ``∫ℓℓᵀ`` over the pair's lag, ``ℓ`` the
+    landmark from the body (what the gyro's white noise moves it by): (K, 3), (K, 3, 6), (K, 3, 3) and the lags."""
+    rs, ps, (c_r, c_p, c_pp, c_pr, c_t) = _dead_reckoning_sums(vel_t, omega, velocity)
+    w = np.einsum("nij,nj->ni", rs[k], det_y) + ps[k]
+    ka, kb = k[a], k[b]
+    lm, dt, int_p = 0.5 * (w[a] + w[b]), c_t[kb] - c_t[ka], c_p[kb] - c_p[ka]
+    big_r = c_r[kb] - c_r[ka]
+    big_b = np.cross(lm[:, :, None], big_r, axis=1) - (c_pr[kb] - c_pr[ka])
+    cross_p = lm[:, :, None] * int_p[:, None, :]
+    lever = dt[:, None, None] * lm[:, :, None] * lm[:, None, :] - cross_p - np.swapaxes(cross_p, 1, 2)
+    return w[b] - w[a], np.concatenate([big_b, big_r], axis=2), lever + c_pp[kb] - c_pp[ka], dt
+
+
+def _robust_step(y: np.ndarray, jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The least-squares step of ``y ≈ jac · x`` (normal equations) with residuals beyond ``OUTLIER_SIGMAS``
+    robust standard deviations dropped (three rounds), and the rows kept. einsum, not BLAS: OpenBLAS's threads
+    spin after a call, 0.1-0.2 CPU s of the hour's riekf run with ``@``."""
+    a, z = jac.reshape(-1, 6), y.reshape(-1)
+    keep = np.ones(z.size, bool)
+    x = np.zeros(6)
+    for _ in range(3):
+        ak = a * keep[:, None]
+        x = np.linalg.lstsq(np.einsum("ni,nj->ij", ak, a), np.einsum("ni,n->i", ak, z), rcond=None)[0]
+        res = np.abs(z - np.einsum("ni,i->n", a, x))
+        keep = res <= OUTLIER_SIGMAS * MAD_TO_SIGMA * max(float(np.median(res[keep])), 1e-300)
+    return x, keep
+
+
+def pair_bias_estimate(
+    vel_t, omega, velocity, det_t, det_offsets, det_idx, det_y, law_sigma, segment_starts, motion=(0.0, 0.0)
+) -> dict | None:
+    """The constant gyro and velocity biases (rad/s, m/s, body frame; measured = true + bias) that make the
+    landmarks' dead-reckoned positions stay put between pairs of their detections: Gauss-Newton over at most
+    ``BIAS_PASSES`` (the dead reckoning integrated again with the biases taken off), each pair weighed by its
+    covariance: the two detections' (``law_sigma``) and the dead reckoning's own over the pair's lag, ``motion``
+    = the (gyro, velocity) white-noise densities squared: ``q_v² Δt`` on every axis and ``q_g² (tr L − L)``,
+    ``L = ∫ℓℓᵀ`` (:func:`pair_design`'s terms). Keys: ``bias`` (6,); ``sd`` (6,), its per-axis standard deviation
+    over ``BIAS_RESAMPLES`` resamples of the landmarks (pairs of one landmark share its errors: they do not count
+    as independent); ``chi2``, the mean squared whitened residual of the pairs kept (about 1 when constant biases,
+    the detection law and the motion noise explain the pairs; far above when not: slip, a gyro noisier than its
+    level); ``kept``, their share; ``landmarks``, ``pairs``, ``seconds`` (the dead reckoning's span);
+    ``sd_time`` (6,), the standard deviation of the mean of ``BIAS_BLOCKS`` solutions, one per block of the pairs
+    by their end's time (what the landmarks seen together share, and a walking bias, are in it). None with fewer
+    than ``MIN_SAMPLES`` pairs."""
+    if det_idx.shape[0] < 2 or vel_t.shape[0] < 2:
+        return None
+    k, a, b = _bias_pairs(vel_t, det_t, det_offsets, det_idx, segment_starts)
+    if a.size < MIN_SAMPLES:
+        return None
+    n = int(k[b].max()) + 2  # the dead reckoning up to the last pair's (later detections are in none)
+    vel_t, omega, velocity, k = vel_t[:n], omega[:n], velocity[:n], np.minimum(k, n - 1)
+    rng = np.linalg.norm(det_y, axis=1)
+    bias, white = np.zeros(6), None
+    for _ in range(BIAS_PASSES):
+        e, jac, lever, dt = _pair_bias_system(vel_t, omega - bias[:3], velocity - bias[3:], k, a, b, det_y)
+        if white is None:  # the covariance, from the first dead reckoning (the biases move it little)
+            iso = law_sigma(rng[a]) ** 2 + law_sigma(rng[b]) ** 2 + motion[1] * dt
+            cov = (iso + motion[0] * np.trace(lever, axis1=1, axis2=2))[:, None, None] * np.eye(3) - motion[0] * lever
+            white = np.linalg.inv(np.linalg.cholesky(cov))  # e ~ N(0, C): C^(-1/2) e ~ N(0, I)
+        y, jac = np.einsum("nij,nj->ni", white, e), np.einsum("nij,njk->nik", white, jac)
+        step, keep = _robust_step(y, jac)
+        bias += np.r_[-step[:3], step[3:]]  # the displacement's derivative by the gyro bias carries its sign flipped
+        if np.max(np.abs(step)) <= BIAS_STEP_DONE:
+            break
+    res = (y.reshape(-1) - np.einsum("ni,i->n", jac.reshape(-1, 6), step))[keep]
+    ids, of = np.unique(det_idx[a], return_inverse=True)
+    am, z = jac.reshape(-1, 6) * keep[:, None], y.reshape(-1) * keep
+    rows = np.repeat(of, 3)
+    ata = np.zeros((ids.size, 6, 6))
+    atz = np.zeros((ids.size, 6))
+    for i in range(6):  # each landmark's normal equations (np.add.at's cost, without it)
+        atz[:, i] = np.bincount(rows, am[:, i] * z, ids.size)
+        for j in range(i, 6):
+            ata[:, i, j] = ata[:, j, i] = np.bincount(rows, am[:, i] * am[:, j], ids.size)
+    picks = np.random.default_rng(0).integers(0, ids.size, (BIAS_RESAMPLES, ids.size))
+    steps = [np.linalg.lstsq(ata[p].sum(0), atz[p].sum(0), rcond=None)[0] for p in picks]
+    sd = np.std(np.asarray(steps) * np.r_[-np.ones(3), np.ones(3)], axis=0)
+    # the pairs in BIAS_BLOCKS blocks of their end's time, each solved alone: the spread of these solutions is that
+    # of the mean over the blocks (errors shared by landmarks seen together, a walking bias), which resampling the
+    # landmarks does not see
+    block = np.repeat(np.minimum(np.arange(a.size) * BIAS_BLOCKS // a.size, BIAS_BLOCKS - 1)[np.argsort(k[b])], 3)
+    parts = [np.linalg.lstsq(np.einsum("ni,nj->ij", am[block == i], am[block == i]),
+                             np.einsum("ni,n->i", am[block == i], z[block == i]), rcond=None)[0]
+             for i in range(BIAS_BLOCKS)]  # fmt: skip
+    sd_time = np.std(parts, axis=0, ddof=1) / np.sqrt(BIAS_BLOCKS)
+    return {
+        "bias": bias,
+        "sd": sd,
+        "sd_time": sd_time,
+        "chi2": float(np.mean(res**2)),
+        "kept": float(np.mean(keep)),
+        "landmarks": int(ids.size),
+        "pairs": int(a.size),
+        "seconds": float(vel_t[-1] - vel_t[0]),
+    }

@@ -15,6 +15,7 @@ from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.base import output_rows
 from slamobs.pipeline.observers.riekf import (
+    PAIR_PRIOR_LANDMARKS,
     CONSISTENCY_WINDOWS,
     N_FIXED,
     N_SLOTS,
@@ -24,6 +25,7 @@ from slamobs.pipeline.observers.riekf import (
     RiEKF,
     accumulate,
     flush,
+    pair_bias_prior,
     planar_evidence,
     tilt_spread,
     update,
@@ -583,3 +585,78 @@ def test_odometry_gaps_hidden_by_the_alignment_widen_the_process_noise_and_keep_
     nees, rms = _gap_runs(4, aligned_of)
     assert 3.0 < nees < 9.0, nees
     assert rms < 0.03, rms
+
+
+@pytest.mark.parametrize("scenario, gyro_bias", [("ground", None), ("figure8", (0.1, -0.1, 0.05))])
+def test_the_biases_start_at_the_detection_pairs_estimate_whose_prior_covers_the_truth(scenario, gyro_bias):
+    """Bias priors from detection pairs (module docstring): with the default priors the biases start at the pairs'
+    estimate, its prior's standard deviations covering the true bias (a large one, 0.1 rad/s, included); a prior
+    given in the configuration is kept as it is."""
+    from slamobs.pipeline.simulate import NoiseModel
+
+    sc = get_scenario(scenario)
+    if gyro_bias is not None:
+        sc = replace(sc, gyro_bias=np.array(gyro_bias))
+    nm = NoiseModel()
+    sim = simulate(sc, noise=nm, duration=30.0, seed=2101)
+    stream = align(expected_streams(sim), keep_directions=False)
+    noise = resolve_noise(NoiseConfig(gyro=nm.gyro / np.sqrt(200.0), velocity=nm.odom_linear / np.sqrt(50.0)))
+    pp = pair_bias_prior(stream, noise)
+    assert pp["used"] and pp["landmarks"] >= PAIR_PRIOR_LANDMARKS
+    err = np.asarray(pp["bias"]) - np.r_[sc.gyro_bias, sc.velocity_bias]
+    assert np.all(np.abs(err) <= np.asarray(pp["sigma"])), (err, pp["sigma"])
+    assert np.all(np.asarray(pp["sigma"]) < 0.1 * DEFAULTS["gyro_bias"][0])  # far narrower than the default
+    given = resolve_noise(NoiseConfig(gyro=noise.gyro, velocity=noise.velocity, gyro_bias=0.2))
+    assert not pair_bias_prior(stream, given)["used"]
+
+
+def test_the_pairs_bias_start_is_made_from_the_log_s_first_seconds_and_a_bounded_number_of_pairs(monkeypatch):
+    """The pairs' estimate is of the start's bias and costs what its pairs cost (the one-hour benchmark log: 33 CPU s
+    over the whole log's 3 million pairs): made from the log's first ``PAIR_PRIOR_WINDOW_S`` and at most
+    ``MAX_BIAS_PAIRS`` pairs, those that end first (the dead reckoning integrated only up to them), the true bias
+    stays within its prior's standard deviations."""
+    from slamobs.pipeline import noise_estimation
+    from slamobs.pipeline.observers import riekf
+    from slamobs.pipeline.simulate import NoiseModel
+
+    sc = get_scenario("figure8")
+    nm = NoiseModel()
+    stream = align(expected_streams(simulate(sc, noise=nm, duration=30.0, seed=2102)), keep_directions=False)
+    noise = resolve_noise(NoiseConfig(gyro=nm.gyro / np.sqrt(200.0), velocity=nm.odom_linear / np.sqrt(50.0)))
+    whole = pair_bias_prior(stream, noise)
+    monkeypatch.setattr(riekf, "PAIR_PRIOR_WINDOW_S", 20.0)
+    monkeypatch.setattr(noise_estimation, "MAX_BIAS_PAIRS", 2000)
+    first = pair_bias_prior(stream, noise)
+    assert whole["used"] and first["used"] and first["pairs"] == 2000 < whole["pairs"], (first, whole)
+    assert first["seconds"] < 20.0 < whole["seconds"]
+    err = np.asarray(first["bias"]) - np.r_[sc.gyro_bias, sc.velocity_bias]
+    assert np.all(np.abs(err) <= np.asarray(first["sigma"])), (err, first["sigma"])
+
+
+def test_the_pairs_bias_start_is_not_used_when_the_motion_noise_does_not_explain_the_pairs():
+    """The residual check: each pair is weighed by its detections' and its dead reckoning's covariance (the gyro and
+    velocity levels over its lag), so with the levels right the mean squared whitened residual is about 1 and the
+    estimate is used; with a gyro 100x noisier than its level says it is far above ``PAIR_PRIOR_CHI2``: not used
+    (the run's note: test_robust_reference's 100x gyro test)."""
+    from slamobs.pipeline.observers.riekf import PAIR_PRIOR_CHI2
+    from slamobs.pipeline.simulate import NoiseModel
+
+    from slamobs.pipeline.noise_estimation import pair_bias_estimate
+
+    right = pair_bias_prior(align(expected_streams(simulate("figure8", seed=3, duration=30.0))), resolve_noise())
+    assert right["used"] and 0.8 < right["chi2"] < 1.2, right
+    # a gyro 10x the default with its level right: the dead reckoning's own error over each pair's lag is in the
+    # weights (chi2 about 1, used); weighed by the detections alone the same pairs would be rejected
+    nm = NoiseModel()
+    nm = replace(nm, gyro=10 * nm.gyro)
+    st = align(expected_streams(simulate("figure8", noise=nm, duration=30.0, seed=2101)), keep_directions=False)
+    level = resolve_noise(NoiseConfig(gyro=nm.gyro / np.sqrt(200.0), velocity=nm.odom_linear / np.sqrt(50.0)))
+    pp = pair_bias_prior(st, level)
+    assert pp["used"] and pp["chi2"] < 1.2, pp
+    t0 = st.t0_ns
+    args = ((st.vel_t_ns - t0) * 1e-9, st.omega, st.velocity, (st.det_t_ns - t0) * 1e-9, st.det_offsets, st.det_idx)
+    alone = pair_bias_estimate(*args, st.det_y, level.detection_sigma, st.segment_starts, (0.0, 0.0))
+    assert alone["chi2"] > PAIR_PRIOR_CHI2, alone["chi2"]
+    noisy = simulate("figure8", seed=3, duration=30.0, noise=NoiseModel(gyro=0.5))
+    pp = pair_bias_prior(align(expected_streams(noisy)), resolve_noise())
+    assert not pp["used"] and pp["chi2"] > 10 * PAIR_PRIOR_CHI2 and "residuals are" in pp["why"], pp

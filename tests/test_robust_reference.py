@@ -414,6 +414,9 @@ def test_riekf_recovers_from_gyro_noise_100x_the_default_by_raising_the_motion_n
     assert f["recovery_log"][0]["action"].startswith("the motion noise variances")
     assert f["gated_detections"] < 0.1 * stream.det_idx.shape[0]
     assert ape(sim, res) < 0.3
+    # the detection pairs' bias start is not used: the default gyro level does not explain them
+    assert not f["bias_priors"]["from_pairs"]["used"]
+    assert sum("bias estimate is not used (the pairs' residuals are" in n for n in res.stats["notes"]) == 1
 
 
 def test_a_start_that_reaches_the_same_minimum_does_not_replace_the_configured_seed():
@@ -512,12 +515,16 @@ def test_riekf_learns_its_velocity_bias_walk_from_wheel_slip_and_says_so():
     assert learned.stats["metadata"]["filter"]["walk"]["passes"] == 1  # not a ground robot on its floor: not run again
 
 
-def test_riekf_narrows_its_bias_priors_when_its_last_detections_all_fail_the_gate_and_keeps_them_only_if_it_helps(log):
+def test_riekf_narrows_its_bias_priors_when_its_last_detections_all_fail_the_gate_and_keeps_them_only_if_it_helps(
+    log, monkeypatch
+):
     """The last 25 detections moved 3 m (fewer than half a recovery window: no recovery is judged): the first pass
     ends with its track lost, so riekf runs again with both bias priors narrowed 4x, 16x, 64x; the detections stay
     off (no bias explains them), every pass ends so, and a last pass puts the priors back: the trajectory is the
-    first pass's, and the note says the narrowing did not help. With a bias prior given in the configuration it runs
-    once."""
+    first pass's (a run allowed no narrowing), and the note says the narrowing did not help. With a bias prior given
+    in the configuration it runs once; run.json's ``start_sigma`` is the prior each started with."""
+    from slamobs.pipeline.observers import riekf
+
     _, stream = log
     y = stream.det_y.copy()
     y[-25:] += 3.0
@@ -528,10 +535,16 @@ def test_riekf_narrows_its_bias_priors_when_its_last_detections_all_fail_the_gat
     assert len(pri["gated_in_a_row_before"]) == 4 and min(pri["gated_in_a_row_before"]) >= 20
     assert pri["gated_in_a_row_at_end"] >= 20 and pri["velocity_bias"] == 0.2
     assert sum("narrowed up to 0.0156x the runs ended so too" in n for n in res.stats["notes"]) == 1
+    fp = pri["from_pairs"]  # what the last pass started with, the priors put back (factor 1)
+    assert pri["start_sigma"] == (fp["sigma"] if fp["used"] else [0.2] * 6), pri
     given = resolve_noise(NoiseConfig(detection=SIGMA, detection_per_m=0.0, gyro_bias=0.2))
     once = RIEKF.run(moved, {}, ObserverOptions(noise=given))
     assert once.stats["metadata"]["filter"]["bias_priors"]["narrowed_passes"] == 0
-    np.testing.assert_array_equal(res.position, once.position)  # the priors as they were: the same trajectory
+    assert once.stats["metadata"]["filter"]["bias_priors"]["start_sigma"] == [0.2] * 6  # a prior given: no pairs'
+    monkeypatch.setattr(riekf, "MAX_PRIOR_PASSES", 0)  # the first pass, then the priors put back at once
+    first = RIEKF.run(moved, {}, ObserverOptions(noise=noise()))
+    assert first.stats["metadata"]["filter"]["bias_priors"]["narrowed_passes"] == 0
+    np.testing.assert_array_equal(res.position, first.position)  # the priors as they were: the same trajectory
 
 
 def _gap_run(tmp_path, seed: int, floor, late=None, walk=None) -> dict:

@@ -108,6 +108,17 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
   configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
   (h-riekf22)").
+* Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
+  that keep each landmark's dead-reckoned position still between pairs of its detections
+  (:func:`pipeline.noise_estimation.pair_bias_estimate`, each pair weighed by its detections' and its dead
+  reckoning's covariance), each axis's prior standard deviation ``PAIR_PRIOR_SDS`` times the estimate's spread
+  (over resampled landmarks and blocks of time; times √χ² above 1) and at least the bias walk over the span it is
+  made from, within the log's first ``PAIR_PRIOR_WINDOW_S`` (:func:`pair_bias_prior`); only with
+  ``PAIR_PRIOR_LANDMARKS`` or more landmarks (TagSLAM's test_22's two tags put 0.1 m/s on its vertical velocity) and
+  the pairs' mean squared whitened residual χ² at most ``PAIR_PRIOR_CHI2``; a pass started from it that ends with
+  the track lost (or gives up) is run again with the default start (:meth:`RiEKF._prior_restart`). The narrowing
+  above scales these priors. run.json ``observer.filter.bias_priors.from_pairs``, a note (docs/benchmarks.md,
+  "riekf's bias priors from the log, second attempt, session 29 (h-riekfprior2)").
 * Planar motion (a ground robot on a flat floor): a 6-DoF filter has no way to know the floor is flat, and with a
   noisy gyro its roll and pitch walk while no landmark is in view; the height follows them (docs/benchmarks.md,
   "riekf on ground robots (session 18, h-riekfg)"). When the log's roll and pitch rates and vertical velocity
@@ -132,7 +143,7 @@ Noise levels come from :mod:`pipeline.noise` (``noise`` in ``run.yaml`` key by k
 message covariances, else estimated from the log, else defaults). The start pose defines the map frame (the
 problem's gauge, docs/observers.md §1.1): its covariance is zero; the biases start at zero with the prior
 standard deviations ``noise.gyro_bias`` and ``noise.velocity_bias`` (an unknown start, not a guess; narrowed when the
-track is lost, above), and drift as slow random walks.
+track is lost, above) or at the detection pairs' estimate (above), and drift as slow random walks.
 """
 
 from __future__ import annotations
@@ -223,6 +234,17 @@ MAX_WALK_PASSES = 4
 LOST_IN_A_ROW = 20
 PRIOR_NARROWING = 0.25
 MAX_PRIOR_PASSES = 3
+#: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
+#: spread, the spreads the prior's standard deviations are, and the log's first seconds it is made from (a prior is
+#: of the start's bias, which the walk moves over the log; the one-hour benchmark log's 3 million pairs took 33 CPU s,
+#: its first 300 s 0.2 s; TagSLAM's and the generated logs are shorter: the whole log).
+PAIR_PRIOR_LANDMARKS = 5
+PAIR_PRIOR_SDS = 3.0
+PAIR_PRIOR_WINDOW_S = 300.0
+#: The largest mean squared whitened residual of the pairs (about 1 when the fit explains them) at which the
+#: estimate is used: above it slip or a gyro noisier than its level are in the pairs, which a constant bias fit
+#: cannot tell from a bias (docs/benchmarks.md, session 29 (h-riekfprior2)).
+PAIR_PRIOR_CHI2 = 1.5
 #: Planar motion (module docstring): the RMS of the roll and pitch rates and of the vertical velocity over their noise
 #: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
 #: floor's pseudo-measurements, and the seconds between them.
@@ -1666,6 +1688,7 @@ class RiEKF(Stepper):
                 f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}",
             )
         self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        self.pair_prior = pair_bias_prior(stream, self.noise)
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
         # filter's first stretch is kept when the estimate is not applied (most logs), started again when it is
@@ -1690,6 +1713,10 @@ class RiEKF(Stepper):
         super().__init__(stream, options)
         nz = self.noise
         sigma_b = np.r_[np.full(3, nz.gyro_bias), np.full(3, nz.velocity_bias)]
+        pp = self.pair_prior
+        if pp["used"]:  # from detection pairs, narrowed as the defaults would be after a lost track
+            sigma_b = np.asarray(pp["sigma"]) * (nz.gyro_bias / self._noise0.gyro_bias)
+        self._start_sigma = [round(float(x), 6) for x in sigma_b]  # what run.json's bias_priors says was used
         self.state = _State(
             int(stream.landmark_ids.shape[0]),
             self.n_max,
@@ -1699,6 +1726,8 @@ class RiEKF(Stepper):
         )
         # a walk given in the configuration is kept; else it is learned from the log (module docstring)
         self.state.ns[_WALK_FIXED] = int(nz.sources.get("velocity_bias_walk") == "config")
+        if pp["used"]:
+            self.state.b_om[:], self.state.b_v[:] = pp["bias"][:3], pp["bias"][3:]
         self.state.fs[_WALK] = self._walk0
         # the detection law (σ0, k, a) and the factors of σ(r)² across the line of sight and of what the range
         # adds (the ratio's split): the kernel evaluates it at each detection's predicted (or measured) range
@@ -1772,6 +1801,11 @@ class RiEKF(Stepper):
         that explains the detections, and says so)."""
         ns = self.state.ns
         run = int(ns[_TAIL_GATED])
+        if self.pair_prior["used"] and (run >= LOST_IN_A_ROW or ns[_LOST]):  # the pairs' start first, then main's
+            why = "the filter gave up" if ns[_LOST] else f"its last {run} detections in a row failed the gate"
+            self.pair_prior = {**self.pair_prior, "used": False, "dropped": f"the pass started with it ended so: {why}"}
+            self._setup(self.stream)
+            return True
         given = {k for k in ("gyro_bias", "velocity_bias") if self._noise0.sources.get(k) == "config"}
         if run < LOST_IN_A_ROW or given or ns[_LOST] or not self._prior_kept:
             return False
@@ -1993,11 +2027,13 @@ class RiEKF(Stepper):
             ],
             "walk": self._walk(),
             "bias_priors": {
+                "from_pairs": self.pair_prior,
                 "narrowed_passes": self._prior_passes,
                 "kept": self._prior_kept,
                 "factor": PRIOR_NARROWING ** (self._prior_passes * self._prior_kept),
                 "gyro_bias": float(self.noise.gyro_bias),
                 "velocity_bias": float(self.noise.velocity_bias),
+                "start_sigma": self._start_sigma,
                 "gated_in_a_row_before": list(self._lost_runs),
                 "gated_in_a_row_at_end": int(ns[_TAIL_GATED]),
             },
@@ -2108,6 +2144,59 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     return {"planar": planar, "ratios": [round(r, 3) for r in ratios], "tilt_rad": tilt}
 
 
+def pair_bias_prior(stream, noise) -> dict:
+    """Where the biases start (module docstring, "Bias priors from detection pairs"): the estimate of
+    :func:`pipeline.noise_estimation.pair_bias_estimate` with ``PAIR_PRIOR_SDS`` of its per-axis spreads as the
+    prior's standard deviations, when both priors are the defaults and the pairs see at least
+    ``PAIR_PRIOR_LANDMARKS`` landmarks; else ``used`` false and why (run.json ``observer.filter.bias_priors``)."""
+    from slamobs.pipeline.noise_estimation import pair_bias_estimate
+
+    if any(noise.sources.get(k, "default") != "default" for k in ("gyro_bias", "velocity_bias")):
+        return {"used": False, "why": "a bias prior is given or estimated (noise: gyro_bias, velocity_bias)"}
+    t0 = stream.t0_ns
+    end = stream.vel_t_ns[0] + round(PAIR_PRIOR_WINDOW_S * 1e9)  # the log's first PAIR_PRIOR_WINDOW_S
+    nv, nf = int(np.searchsorted(stream.vel_t_ns, end, side="right")), int(np.searchsorted(stream.det_t_ns, end))
+    nd = int(stream.det_offsets[nf])
+    est = pair_bias_estimate(
+        (stream.vel_t_ns[:nv] - t0) * 1e-9,
+        stream.omega[:nv],
+        stream.velocity[:nv],
+        (stream.det_t_ns[:nf] - t0) * 1e-9,
+        stream.det_offsets[: nf + 1],
+        stream.det_idx[:nd],
+        stream.det_y[:nd],
+        noise.detection_sigma,
+        stream.segment_starts[stream.segment_starts < nv],
+        (float(np.mean(np.square(noise.gyro))), float(np.mean(np.square(noise.velocity)))),
+    )
+    if est is None or est["landmarks"] < PAIR_PRIOR_LANDMARKS:
+        seen = 0 if est is None else est["landmarks"]
+        return {"used": False, "why": f"detection pairs of {seen} landmark(s), fewer than {PAIR_PRIOR_LANDMARKS}"}
+    chi2 = round(est["chi2"], 4)
+    if not chi2 <= PAIR_PRIOR_CHI2:
+        return {"used": False, "chi2": chi2, "landmarks": est["landmarks"], "pairs": est["pairs"],
+                "why": f"the pairs' residuals are {chi2:.3g} times their variance (at most {PAIR_PRIOR_CHI2:g}): "
+                "constant biases, the detection law and the motion noise do not explain them"}  # fmt: skip
+    # an estimate over a span knows the start's bias no better than the bias walks over it
+    walk = np.repeat([noise.gyro_bias_walk, noise.velocity_bias_walk], 3) * math.sqrt(max(est["seconds"], 0.0))
+    sigma = np.maximum(PAIR_PRIOR_SDS * np.maximum(est["sd"], est["sd_time"]) * math.sqrt(max(chi2, 1.0)), walk)
+    return {
+        "used": True,
+        "bias": [round(float(x), 6) for x in est["bias"]],
+        "sd": [round(float(x), 6) for x in est["sd"]],
+        "sigma": [round(max(float(x), 1e-9), 6) for x in sigma],
+        "landmarks": est["landmarks"],
+        "pairs": est["pairs"],
+        "seconds": round(est["seconds"], 3),
+        "chi2": chi2,
+        "sd_time": [round(float(x), 6) for x in est["sd_time"]],
+        "what": "gyro (rad/s) then velocity (m/s) bias, body frame, measured = true + bias; sigma, the prior's "
+        f"standard deviations: {PAIR_PRIOR_SDS:g} sd (the spread over resampled landmarks of a fit weighing each "
+        "pair by its detections' and its dead reckoning's covariance) times sqrt(chi2) when above 1, at least the "
+        "bias walk over the seconds it is made from; chi2, the mean squared whitened residual of the pairs",
+    }
+
+
 def tilt_spread(t: np.ndarray, rate: np.ndarray) -> float:
     """The standard deviation of the angle one rate integrates to, its mean (a constant bias) and then a linear trend
     (the bias's error) taken off: a wobble on a floor stays bounded, a body that rolls or pitches does not."""
@@ -2147,6 +2236,27 @@ def _prior_notes(pri: dict) -> list[str]:
     """The note of the bias priors narrowed after a lost track, or of a narrowing that did not keep it
     (``observer.filter.bias_priors``; module docstring, "Bias priors narrowed")."""
     notes = []
+    pp = pri.get("from_pairs") or {}
+    if pp.get("used"):
+        g, v = np.asarray(pp["bias"][:3]), np.asarray(pp["bias"][3:])
+        notes.append(
+            f"riekf: the biases start at the detection pairs' estimate ({pp['landmarks']} landmarks; gyro "
+            f"{np.linalg.norm(g):.3g} rad/s, velocity {np.linalg.norm(v):.3g} m/s in norm; the pairs' residuals "
+            f"{pp['chi2']:.3g} times their variance) with {PAIR_PRIOR_SDS:g} times its spread (over resampled "
+            "landmarks and blocks of time; at least the bias walk over the seconds used) as the priors, not 0 with "
+            "the gyro_bias and velocity_bias levels (run.json observer.filter.bias_priors.from_pairs)"
+        )
+    elif "dropped" in pp:
+        notes.append(
+            f"riekf: the biases started at the detection pairs' estimate and {pp['dropped']}; run again from the "
+            "start at 0 with the gyro_bias and velocity_bias priors (run.json observer.filter.bias_priors.from_pairs)"
+        )
+    elif "chi2" in pp:  # estimated and not used: say why
+        notes.append(
+            f"riekf: the detection pairs' bias estimate is not used ({pp['why']}: slip, a walking bias or motion "
+            "noisier than its level?); the biases start at 0 with the gyro_bias and velocity_bias priors (run.json "
+            "observer.filter.bias_priors.from_pairs)"
+        )
     runs = ", ".join(str(r) for r in pri.get("gated_in_a_row_before", []))
     if pri.get("narrowed_passes") and not pri["kept"]:
         notes.append(
