@@ -24,7 +24,7 @@ from slamobs.pipeline.simulate import simulation, write_log
 from slamobs.pipeline.simulate.camera import CameraSim, TagRenderer, tag_views
 from slamobs.pipeline.simulate.scenarios import get_scenario
 from slamobs.pipeline.streams import CornerStream, LogStreams, Transform, Vec3Stream
-from slamobs.pipeline.vision.cameras import CameraModel, read_camera_files
+from slamobs.pipeline.vision.cameras import CameraModel, distortion_model, read_camera_files
 from slamobs.pipeline.vision.detector import TagDetector, family_constant
 from slamobs.pipeline.vision.landmarks import TagOptions, tag_landmarks
 from slamobs.pipeline.vision.tagpose import (
@@ -150,6 +150,8 @@ def test_zero_coefficients_are_the_ideal_lens_of_their_model(tmp_path):
     )
     fisheye, pinhole = read_camera_files([tmp_path / "c.yaml"]).models
     assert (fisheye.model, pinhole.model) == ("equidistant", "none")
+    # a CameraInfo's plumb_bob with an empty D is no distortion (image_geometry's reading), not refused
+    assert distortion_model("plumb_bob", np.zeros(0), "CameraInfo on /cam/camera_info", "x.bag") == "none"
     ray = np.array([[np.sin(np.radians(60.0)), 0.0, np.cos(np.radians(60.0))]])
     np.testing.assert_allclose(fisheye.project(ray)[0] - [320, 240], [500 * np.radians(60.0), 0], atol=1e-6)
     np.testing.assert_allclose(pinhole.project(ray)[0] - [320, 240], [500 * np.tan(np.radians(60.0)), 0], atol=1e-6)
