@@ -163,8 +163,9 @@ def test_ubiquity_image_against_the_robots_fiducial_transforms():
 def test_test11_a_wrong_distortion_is_named_and_the_calibrated_one_is_not(tmp_path):
     """TagSLAM test_11's stereo corners (the tag poses only, no estimate): as calibrated (equidistant) the distances
     between two tags in one image agree to 0.2 % and no ray correction improves them (1.0x); with both cameras'
-    coefficients zeroed (read as a pinhole) each camera is named (3.3x, 4.1x), with its topic, its frame and the
-    file and keys of its distortion (read as radtan, 3.0x / 3.4x: docs/benchmarks.md, session 29)."""
+    coefficients zeroed as radtan (a pinhole) each camera is named (4.2x, 4.0x), with its topic, its frame and the
+    file and keys of its distortion (read as radtan, 3.0x / 3.4x: docs/benchmarks.md, session 29); zeroed as
+    equidistant they are the ideal fisheye, near the calibration (1.16x / 1.28x), and not named."""
     import yaml
 
     d = TAGSLAM / "test_11"
@@ -181,7 +182,10 @@ def test_test11_a_wrong_distortion_is_named_and_the_calibrated_one_is_not(tmp_pa
     checks, warnings = named(calibrated)
     assert set(checks) == {"/fla/ovc_node/left/tags", "/fla/ovc_node/right/tags"} and not warnings
     assert all(c["gain"] < 1.1 and not c["wrong"] for c in checks.values())
-    zeroed = {k: {**c, "distortion_coeffs": [0.0] * 4} for k, c in calibrated.items()}
+    fisheye = {k: {**c, "distortion_coeffs": [0.0] * 4} for k, c in calibrated.items()}
+    checks, warnings = named(fisheye)
+    assert all(c["gain"] < 1.5 and not c["wrong"] for c in checks.values()) and not warnings, checks
+    zeroed = {k: {**c, "distortion_model": "radtan", "distortion_coeffs": [0.0] * 4} for k, c in calibrated.items()}
     radtan = {k: {**c, "distortion_model": "radtan"} for k, c in calibrated.items()}
     for cams in (zeroed, radtan):
         checks, warnings = named(cams)

@@ -24,7 +24,7 @@ from slamobs.pipeline.simulate import simulation, write_log
 from slamobs.pipeline.simulate.camera import CameraSim, TagRenderer, tag_views
 from slamobs.pipeline.simulate.scenarios import get_scenario
 from slamobs.pipeline.streams import CornerStream, LogStreams, Transform, Vec3Stream
-from slamobs.pipeline.vision.cameras import CameraModel, read_camera_files
+from slamobs.pipeline.vision.cameras import CameraModel, distortion_model, read_camera_files
 from slamobs.pipeline.vision.detector import TagDetector, family_constant
 from slamobs.pipeline.vision.landmarks import TagOptions, tag_landmarks
 from slamobs.pipeline.vision.tagpose import (
@@ -138,6 +138,23 @@ def test_camera_files(tmp_path):
         px = model.project(pts)
         ideal = pts[:, :2] / pts[:, 2:] * model.k[[0, 1], [0, 1]] + model.k[[0, 1], [2, 2]]
         np.testing.assert_allclose(model.undistort(px), ideal, atol=1e-6)
+
+
+def test_zero_coefficients_are_the_ideal_lens_of_their_model(tmp_path):
+    """All-zero coefficients: a radtan (plumb_bob) lens is the pinhole r = f tan θ, an equidistant (fisheye) one
+    the ideal fisheye r = f θ (OpenCV's cv2.fisheye with zeros), not a pinhole; 60 deg off the axis they are
+    0.55 f apart."""
+    (tmp_path / "c.yaml").write_text(
+        "cam0: {intrinsics: [500, 500, 320, 240], distortion_model: equidistant, distortion_coeffs: [0, 0, 0, 0]}\n"
+        "cam1: {intrinsics: [500, 500, 320, 240], distortion_model: radtan, distortion_coeffs: [0, 0, 0, 0]}\n"
+    )
+    fisheye, pinhole = read_camera_files([tmp_path / "c.yaml"]).models
+    assert (fisheye.model, pinhole.model) == ("equidistant", "none")
+    # a CameraInfo's plumb_bob with an empty D is no distortion (image_geometry's reading), not refused
+    assert distortion_model("plumb_bob", np.zeros(0), "CameraInfo on /cam/camera_info", "x.bag") == "none"
+    ray = np.array([[np.sin(np.radians(60.0)), 0.0, np.cos(np.radians(60.0))]])
+    np.testing.assert_allclose(fisheye.project(ray)[0] - [320, 240], [500 * np.radians(60.0), 0], atol=1e-6)
+    np.testing.assert_allclose(pinhole.project(ray)[0] - [320, 240], [500 * np.tan(np.radians(60.0)), 0], atol=1e-6)
 
 
 @pytest.mark.parametrize(
@@ -494,6 +511,25 @@ def test_corner_and_image_logs_end_to_end(camera_logs, tmp_path):
     ape_i, map_i = results["images"]
     # 20 s from a cold start (a 320x240 camera for the images): the observer is within decimetres
     assert ape_c < 0.5 and map_c < 0.5 and ape_i < 0.8 and map_i < 0.8
+
+
+def test_an_ideal_fisheye_log_with_zero_coefficients_matches_the_truth(tmp_path):
+    """figure8 seen as tag corners by a 100 deg ideal fisheye (r = f θ), its CameraInfo equidistant with D all zero:
+    read as that lens the run is within decimetres (APE 0.18 m, map 0.26 m) and its distortion check says nothing;
+    read as a pinhole, as all-zero coefficients were whatever the model, every tag off the centre was placed at the
+    wrong bearing and range (APE 2.3 m, map 2.8 m) and the check named a correct D (docs/benchmarks.md, session 29)."""
+    cam = CameraSim(output="corners", distortion="equidistant", fov_h_deg=100.0, coefficients=(0.0,) * 4)
+    sim = simulation("figure8", duration=20.0, seed=5, detection_rate=10.0, camera=cam)
+    out = tmp_path / "out"
+    summary = run_log(
+        write_log(sim, tmp_path / "fisheye.bag"),
+        out,
+        parse_config({"tags": {"size": 0.5}, "evaluation": {"plots": False}}),
+    )
+    assert summary.metadata["input"]["cameras"]["/camera/tags"].startswith("equidistant 640x480 px")
+    assert not summary.metadata["input"]["distortion_check"]["/camera/tags"]["wrong"]
+    ape, map_error = _truth_map_error(out)
+    assert ape < 0.5 and map_error < 0.5, (ape, map_error)
 
 
 def test_image_containers_agree(camera_logs):

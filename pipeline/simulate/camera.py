@@ -52,6 +52,9 @@ class CameraSim:
     image_noise: float = 2.0  # grey levels, images
     blur: float = 0.0  # Gaussian sigma, px
     jpeg_quality: int | None = 90  # None: raw sensor_msgs/Image (mono8)
+    #: The lens's coefficients instead of ``DISTORTIONS[distortion]`` (all zero for equidistant: the ideal fisheye
+    #: ``r = f θ``, written as an equidistant CameraInfo with a zero ``D``).
+    coefficients: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
         if self.output not in OUTPUTS:
@@ -60,6 +63,8 @@ class CameraSim:
             raise ValueError(f"distortion must be one of {', '.join(DISTORTIONS)}, got {self.distortion!r}")
         if self.width < 16 or self.height < 16 or not 10.0 <= self.fov_h_deg < 170.0 or self.tag_size <= 0:
             raise ValueError("camera: image at least 16x16 px, field of view 10..170 deg, positive tag size")
+        if self.coefficients is not None and len(self.coefficients) != DISTORTIONS[self.distortion].shape[0]:
+            raise ValueError(f"{self.distortion} distortion takes {DISTORTIONS[self.distortion].shape[0]} coefficients")
 
     @property
     def k(self) -> np.ndarray:
@@ -73,7 +78,7 @@ class CameraSim:
         return CameraModel(
             "camera",
             self.k,
-            DISTORTIONS[self.distortion].copy(),
+            self.coeffs.copy(),
             self.distortion,
             (self.width, self.height),
             "simulation",
@@ -84,8 +89,13 @@ class CameraSim:
         return {"none": "plumb_bob", "radtan": "plumb_bob", "equidistant": "equidistant"}[self.distortion]
 
     @property
+    def coeffs(self) -> np.ndarray:
+        """The lens's distortion coefficients (``coefficients`` where given)."""
+        return DISTORTIONS[self.distortion] if self.coefficients is None else np.asarray(self.coefficients, float)
+
+    @property
     def ros_coeffs(self) -> np.ndarray:
-        return DISTORTIONS[self.distortion] if self.distortion != "none" else np.zeros(5)
+        return self.coeffs if self.distortion != "none" else np.zeros(5)
 
 
 @dataclass(frozen=True)

@@ -150,7 +150,12 @@ class CameraFiles:
 
 
 def distortion_model(name: str, coeffs: np.ndarray, where: str, path: str | Path, topic: str | None = None) -> str:
-    """The implemented model for a distortion name, after checking the coefficient count."""
+    """The implemented model for a distortion name, after checking the coefficient count.
+
+    All-zero coefficients are no distortion only for radtan (the pinhole ``r = f tan θ``); for equidistant they are
+    the ideal fisheye ``r = f θ`` (OpenCV's ``cv2.fisheye`` with zeros), so the model decides, not the zeros. A
+    radtan (``plumb_bob``) list that is empty is no distortion too, as ROS's ``image_geometry`` reads it.
+    """
     model = DISTORTION_MODELS.get(str(name).strip().lower())
     if model is None:
         raise InputError(
@@ -162,10 +167,10 @@ def distortion_model(name: str, coeffs: np.ndarray, where: str, path: str | Path
     n = coeffs.shape[0]
     if model == "equidistant" and n != 4:
         raise InputError(path, f"{where}: equidistant distortion needs 4 coefficients, got {n}", topic)
-    if model == "radtan" and n not in _RADTAN_SIZES:
+    if model == "radtan" and n not in (0, *_RADTAN_SIZES):  # an empty D: no distortion, as image_geometry reads it
         raise InputError(path, f"{where}: radtan distortion needs 4, 5, 8, 12 or 14 coefficients, got {n}", topic)
-    if model != "none" and not np.any(coeffs):
-        return "none"
+    if model == "radtan" and not np.any(coeffs):
+        return "none"  # radtan's zeros are the pinhole; equidistant's are the ideal fisheye r = f θ, still that model
     return model
 
 
