@@ -2153,6 +2153,46 @@ def test_a_consistent_map_whose_landmarks_share_one_error_is_not_called_overconf
     assert check["after_map_only"]["dof_removed"] == 6 and check["after_map_only"]["mean_nees"] > 11.51
 
 
+def test_a_consistent_gauge_relative_map_placed_off_by_the_alignment_is_not_called_overconfident():
+    """riekf's map covariance is relative to its start pose (the gauge): landmarks seen near it have σ of mm, later
+    ones cm. On generated ground corner logs the trajectory's alignment placed such a consistent map 2-10 cm off
+    (mean NEES 20-301 after it, 8.5-80 after the map-only alignment, which moves the mm landmarks) and the check
+    said "overconfident x5.6" of a map whose NEES in the gauge frame was 0.5-7.3. The map drawn from its Σ in the
+    gauge frame, then shifted 5 cm by the alignment: inconclusive, ``in_gauge_frame`` near 3 and the note naming
+    it; at a tenth of its σ it stays overconfident; with no gauge it stays overconfident, as before."""
+    from slamobs.pipeline.evaluation.align import Alignment
+    from slamobs.pipeline.evaluation.sections import LandmarkSection
+
+    truth_lm = make_landmarks(n=20, seed=5)
+    sigma = np.where(np.arange(20) < 6, 0.002, 0.04)  # six seen near the gauge
+    errors = sigma[:, None] * np.random.default_rng(7).standard_normal((20, 3))
+    shift = np.array([0.05, -0.03, 0.0])  # the alignment's own error
+    for scale, gauge, verdict in (
+        (1.0, True, "inconclusive"),
+        (0.1, True, "overconfident"),
+        (1.0, False, "overconfident"),
+    ):
+        lm = landmark_table(truth_lm, np.eye(3), shift)
+        lm[["x", "y", "z"]] += errors
+        s2 = (scale * sigma) ** 2
+        lm = lm.assign(cov_xx=s2, cov_xy=0.0, cov_xz=0.0, cov_yy=s2, cov_yz=0.0, cov_zz=s2)
+        section = LandmarkSection(truth_lm)
+        section.process_data(
+            lm, Alignment("se3", np.eye(3), np.zeros(3), 1.0, 100), gauge=(np.eye(3), -shift) if gauge else None
+        )
+        check = section.get_statistic()["sigma_check"]
+        assert check["mean_nees"] > check["bound_any_correlation"]  # after the alignment
+        assert check["after_map_only"]["mean_nees"] > check["bound_any_correlation"]  # the mm landmarks moved
+        assert check["verdict"] == verdict
+        assert ("in_gauge_frame" in check) is gauge
+        if gauge:
+            assert check["in_gauge_frame"]["mean_nees"] == pytest.approx(np.mean(np.sum(errors**2, 1) / s2))
+        (note,) = [n for n in section.notes if n.startswith("landmark map")]
+        assert ("in the estimator's gauge frame" in note) is (verdict == "inconclusive")
+        assert ("landmarks.sigma_check.in_gauge_frame" in note) is (verdict == "inconclusive")
+    assert np.mean(np.sum(errors**2, 1) / sigma**2) < 6  # the map is consistent in the gauge frame
+
+
 def test_a_planar_maps_sigma_check_counts_the_axes_with_error():
     """MR.CLAM's maps are planar: no landmark has an error in z, so a consistent map's NEES over 3 axes averages 2
     and the check (bounds of χ²(3n)/n) put it below its bounds. Over the axes with error, x and y: within."""

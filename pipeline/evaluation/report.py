@@ -58,6 +58,7 @@ from slamobs.pipeline.evaluation.trajectory_evaluation import (
     ReportOptions,
     TrajectoryEvaluation,
     evaluate_trajectory,
+    gauge_transform,
     valid_truth,
 )
 from slamobs.pipeline.lie import quats_to_rots, rots_to_quats
@@ -185,7 +186,8 @@ def evaluate_tables(
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
-    landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]))
+    gauge = None if ev.covariance is None else gauge_transform(ev)[1:]  # the frame the map's Σ is defined in
+    landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]), gauge)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
         figures(
             [

@@ -379,6 +379,24 @@ def axes_with_error(error: np.ndarray) -> tuple[int, ...]:
     return moving or (0, 1, 2)
 
 
+def gauge_transform(ev: TrajectoryEvaluation) -> tuple[int, np.ndarray, np.ndarray]:
+    """The estimator's gauge (the estimate row with the smallest covariance inside the truth's span: riekf's start,
+    batch's anchor keyframe) and the rigid transform ``x ↦ R x + t`` that puts its pose on the truth interpolated at
+    its stamp: ``(row, R, t)``, the frame the estimator's covariance is defined in. Needs ``ev.covariance``. Public:
+    the report's map σ check confirms its verdict in this frame (``sections.confirm_in_gauge``)."""
+    from slamobs.pipeline.evaluation.sync import interpolate_poses
+    from slamobs.pipeline.lie import quats_to_rots
+
+    est, truth = ev.estimate, ev.truth
+    t_on_truth = np.asarray(est.t_ns, dtype=np.int64) + int(round(ev.applied_offset_s * 1e9))
+    inside = (t_on_truth >= np.min(truth.t_ns)) & (t_on_truth <= np.max(truth.t_ns))
+    g = int(np.nanargmin(np.where(inside, ev.covariance.size, np.inf)))
+    ref_pos, ref_quat = interpolate_poses(truth.t_ns, truth.position, truth.quat_xyzw, t_on_truth[g : g + 1])
+    est_rot = quats_to_rots(np.asarray(est.quat_xyzw[g : g + 1], dtype=np.float64))[0]
+    rot = quats_to_rots(ref_quat)[0] @ est_rot.T
+    return g, rot, ref_pos[0] - rot @ np.asarray(est.position[g], dtype=np.float64)
+
+
 def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
     """The errors and covariances of the pairs. An estimator's covariance is relative to its gauge, the pose it
     holds fixed (riekf's start, batch's anchor keyframe: the estimate row with the smallest covariance inside
@@ -387,17 +405,10 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
     alignment would absorb part of the error the covariance describes. The transform turns both error parts and
     the covariance by its rotation."""
     from slamobs.pipeline.blocks import row_blocks
-    from slamobs.pipeline.evaluation.sync import interpolate_poses
-    from slamobs.pipeline.lie import quats_to_rots, rotate_covariance, rots_to_rotvecs
+    from slamobs.pipeline.lie import rotate_covariance, rots_to_rotvecs
 
-    p, est, truth = ev.paired, ev.estimate, ev.truth
-    t_on_truth = np.asarray(est.t_ns, dtype=np.int64) + int(round(ev.applied_offset_s * 1e9))
-    inside = (t_on_truth >= np.min(truth.t_ns)) & (t_on_truth <= np.max(truth.t_ns))
-    g = int(np.nanargmin(np.where(inside, ev.covariance.size, np.inf)))
-    ref_pos, ref_quat = interpolate_poses(truth.t_ns, truth.position, truth.quat_xyzw, t_on_truth[g : g + 1])
-    est_rot = quats_to_rots(np.asarray(est.quat_xyzw[g : g + 1], dtype=np.float64))[0]
-    rot = quats_to_rots(ref_quat)[0] @ est_rot.T
-    trans = ref_pos[0] - rot @ np.asarray(est.position[g], dtype=np.float64)
+    p, est = ev.paired, ev.estimate
+    g, rot, trans = gauge_transform(ev)
     error = np.empty((len(p), 6))
     error[:, 3:] = p.est_pos @ rot.T + trans - p.ref_pos
     for rows in row_blocks(len(p)):
