@@ -1261,19 +1261,24 @@ def accel_block_index(t_ns: np.ndarray, t0_ns: int) -> np.ndarray:
 
 
 def _accel_blocks(fr: _Frame, accel: Vec3Stream, t_om: np.ndarray) -> tuple[int, np.ndarray] | None:
-    """The accelerometer on the time base, rotated into the body frame, as ``ACCEL_BLOCK_S`` block means (NaN in a
-    block without a sample in its span): ``AlignedStream.accel_blocks``."""
+    """The accelerometer rotated into the body frame as ``ACCEL_BLOCK_S`` block means of the time base's blocks
+    (NaN in a block without a sample): ``AlignedStream.accel_blocks``. Its own samples are binned by their times
+    and the means rotated (an IMU fixed on the body); interpolated onto the time base first only where its
+    extrinsic moves (0.10 against 0.04 CPU s on an hour at 200 Hz)."""
     res = _resampled(fr, accel, t_om)
     if res is None:
         return None
-    f = res.rows()
-    k = accel_block_index(t_om, int(t_om[0]))
-    ok = np.isfinite(f).all(axis=1)
-    nb = int(k[-1]) + 1
+    t0 = int(t_om[0])
+    nb = int(accel_block_index(t_om[-1:], t0)[0]) + 1
+    moving = res.ext.rot.ndim != 2
+    k = accel_block_index(t_om if moving else res.rel.astype(np.int64) + res.t0, t0)
+    f = res.rows() if moving else res.xyz
+    ok = np.isfinite(f).all(axis=1) & (k >= 0) & (k < nb)
     count = np.bincount(k[ok], minlength=nb).astype(np.float64)
     sums = np.column_stack([np.bincount(k[ok], f[ok, a], minlength=nb) for a in range(3)])
     with np.errstate(invalid="ignore", divide="ignore"):
-        return int(t_om[0]), sums / np.where(count > 0, count, np.nan)[:, None]
+        means = sums / np.where(count > 0, count, np.nan)[:, None]
+    return t0, means if moving else res.ext.rotate(means)
 
 
 def _accel_head(accel: Vec3Stream, t_om: np.ndarray) -> Vec3Stream:
