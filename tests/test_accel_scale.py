@@ -1,5 +1,5 @@
-"""The velocity's own scale from the IMU's accelerometer (``observers.accel_scale``): the detection pairs' velocity-scale
-warning names the one cause the accelerometer points at (session 29)."""
+"""The velocity's own scale from the IMU's accelerometer (``observers.accel_scale``): the detection pairs'
+velocity-scale warning names the one cause the accelerometer points at (session 29)."""
 
 from __future__ import annotations
 
