@@ -36,8 +36,9 @@ OUTLIER_RMS = 3.0
 #: (generated ground, circle and loop logs: rho2 0.000-0.28, scale 0.001-0.54; figure 8s: 0.86-0.89, 0.93-0.99).
 MIN_RHO2 = 0.7
 #: The scale agrees with a factor when ``[scale - 3 sigma, scale / rho2 + 3 sigma]`` (the noise in the velocity pulls
-#: it toward 0 by at most ``rho2``) meets that factor ``÷×`` this.
-AGREE = 1.25
+#: it toward 0 by at most ``rho2``) meets that factor ``÷×`` this: a real MAV with its velocity from Vicon (ETH MSF
+#: dataset) reads 0.83 ± 0.009 (rho2 0.94; its lever arm and the IMU's own scale not modelled), within 1.3 of 1.
+AGREE = 1.3
 
 
 def _block_means(t_ns: np.ndarray, t0_ns: int, x: np.ndarray, nb: int) -> tuple[np.ndarray, np.ndarray]:
