@@ -26,8 +26,8 @@ from slamobs.pipeline.lie import so3_exps
 #: Window length (s): the body's acceleration changes within it (a figure 8's, a robot's stops and starts), the gyro's
 #: attitude holds over it.
 WINDOW_S = 3.0
-#: Windows fewer than this give no scale.
-MIN_WINDOWS = 8
+#: Windows fewer than this give no scale (the camera sample, 15 s: 5 windows, its tags.size doubled told as the tags').
+MIN_WINDOWS = 4
 #: A window whose RMS residual exceeds this times the median window's is dropped (once).
 OUTLIER_RMS = 3.0
 #: The scale is said only where the velocity's and the accelerometer's parts the other unknowns leave correlate at
@@ -106,7 +106,7 @@ def _fit(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     inv = np.linalg.pinv(ata, rcond=1e-9)
     theta = inv @ np.einsum("wmi,wm->i", a, y)
     res = y - a @ theta
-    score = np.einsum("wmi,wm->wi", a, res)
+    score = np.einsum("wmi,wm->wi", a, res) * np.sqrt(y.shape[0] / max(y.shape[0] - 1, 1))  # few windows: CR1
     # the velocity's and the accelerometer's parts the other unknowns leave (Frisch-Waugh): their correlation
     nuis = np.linalg.pinv(ata[1:, 1:], rcond=1e-9)
     xt = a[..., 0] - a[..., 1:] @ (nuis @ ata[1:, 0])
