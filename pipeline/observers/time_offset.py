@@ -1143,10 +1143,12 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
     if lag is not None:
         found.append((lag, "them", ("gyro", "odometry")))
+    # the accelerometer's scale rides on the gyro's attitude: not where the gyro is misread or turned
+    accel = None if best or seen else offset.get("accel_scale")
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
-            f"with it): {scale_cause(g, offset.get('accel_scale'), SCALE_CAUSES)}{upset}",
+            f"with it): {scale_cause(g, accel, SCALE_CAUSES)}{upset}",
             "them",
             ("odometry", "detections", "camera"),
         )
