@@ -333,6 +333,11 @@ class AlignedStream:
     #: since the samples interpolated onto the time base show less of it (0.015 for 0.85 on a generated figure 8).
     #: The detection pairs' velocity-scale check takes the dilution it causes off (``time_offset.velocity_scale``).
     velocity_density: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: The IMU's accelerometer (its specific force in the body frame) as means over ``ACCEL_BLOCK_S`` blocks of the
+    #: time base: ``(t0_ns, (B, 3) means)``, block ``k`` the samples of :func:`accel_block_index` ``k`` (NaN where it
+    #: has none), for the velocity's own scale (``observers.accel_scale``); None without an accelerometer on the
+    #: gyro's topic.
+    accel_blocks: tuple[int, np.ndarray] | None = None
 
     def segments(self) -> list[dict]:
         """Each segment's first and last sample time (ns) and sample count, for run.json and the report."""
@@ -1016,8 +1021,10 @@ def align(
     directions, w = _directions(
         dir_frame, t_om, omega, velocity, accel, magnetic, gravity, magnetic_field, keep_directions
     )
+    accel_blocks = None
     if accel is not None and accel.topic == gyro_topic:  # the IMU's own accelerometer
         head = _accel_head(accel, t_om)
+        accel_blocks = _accel_blocks(replace(dir_frame, notes=[]), accel, t_om)
         dir_frame.notes.append(
             warn.add(_gyro_by_gravity, replace(dir_frame, notes=[]), head, t_om, omega, velocity, unique=True)
         )
@@ -1065,6 +1072,7 @@ def align(
         gyro_moved_s=gyro_moved_s,
         velocity_gaps=lv_gaps[0],
         velocity_period_ns=lv_gaps[1],
+        accel_blocks=accel_blocks,
     )
 
 
@@ -1238,6 +1246,39 @@ def _tilt_cost(blocks, omega: np.ndarray):
     b = np.linalg.lstsq(s.reshape(-1, 3), -c.reshape(-1), rcond=None)[0]
     d2 = np.sort(np.sum((c + s @ b) ** 2, axis=1))
     return float(np.mean(d2[: max(1, int(0.9 * n))])), n
+
+
+#: The accelerometer's block length (s) on the time base (``AlignedStream.accel_blocks``): its vibration and noise
+#: averaged, the body's acceleration kept (a figure 8's changes over seconds).
+ACCEL_BLOCK_S = 0.1
+
+
+def accel_block_index(t_ns: np.ndarray, t0_ns: int) -> np.ndarray:
+    """The ``ACCEL_BLOCK_S`` block from ``t0_ns`` of each time-base sample (``AlignedStream.accel_blocks``). Public:
+    the velocity scale's check (``observers.accel_scale``) takes the gyro's and the velocity's means over the same
+    blocks."""
+    return ((t_ns - t0_ns) // int(ACCEL_BLOCK_S * 1e9)).astype(np.int64)
+
+
+def _accel_blocks(fr: _Frame, accel: Vec3Stream, t_om: np.ndarray) -> tuple[int, np.ndarray] | None:
+    """The accelerometer rotated into the body frame as ``ACCEL_BLOCK_S`` block means of the time base's blocks
+    (NaN in a block without a sample): ``AlignedStream.accel_blocks``. Its own samples are binned by their times
+    and the means rotated (an IMU fixed on the body); interpolated onto the time base first only where its
+    extrinsic moves (0.10 against 0.04 CPU s on an hour at 200 Hz)."""
+    res = _resampled(fr, accel, t_om)
+    if res is None:
+        return None
+    t0 = int(t_om[0])
+    nb = int(accel_block_index(t_om[-1:], t0)[0]) + 1
+    moving = res.ext.rot.ndim != 2
+    k = accel_block_index(t_om if moving else res.rel.astype(np.int64) + res.t0, t0)
+    f = res.rows() if moving else res.xyz
+    ok = np.isfinite(f).all(axis=1) & (k >= 0) & (k < nb)
+    count = np.bincount(k[ok], minlength=nb).astype(np.float64)
+    sums = np.column_stack([np.bincount(k[ok], f[ok, a], minlength=nb) for a in range(3)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = sums / np.where(count > 0, count, np.nan)[:, None]
+    return t0, means if moving else res.ext.rotate(means)
 
 
 def _accel_head(accel: Vec3Stream, t_om: np.ndarray) -> Vec3Stream:
@@ -2005,6 +2046,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         velocity_gaps=aligned.velocity_gaps,
         velocity_period_ns=aligned.velocity_period_ns,
         velocity_density=aligned.velocity_density,
+        accel_blocks=aligned.accel_blocks,
     )
 
 

@@ -43,6 +43,7 @@ from slamobs.pipeline.lie import (
     so3_jacobians_into,
     so3_log,
 )
+from slamobs.pipeline.observers.accel_scale import scale_cause, velocity_scale_by_accel
 
 PAIR_SPAN_S = 1.0
 PAIR_MAX_S = 2.0
@@ -786,6 +787,11 @@ def velocity_scale(c: Consistency) -> dict:
 def velocity_misread(scale: dict) -> list[str]:
     """What the scales say of the velocity's axes that are off (``VELOCITY_SCALE_OFF``, ``VELOCITY_SCALE_SIGMAS``),
     one phrase each: the axis, the factor and the unit it suggests."""
+    return [phrase for phrase, _ in _misread_axes(scale)]
+
+
+def _misread_axes(scale: dict) -> list[tuple[str, float]]:
+    """:func:`velocity_misread`'s phrases, each with its axis's factor."""
     out = []
     for axis, g, e in zip("xyz", scale["scale"], scale["sigma"], strict=True):
         if (
@@ -795,7 +801,7 @@ def velocity_misread(scale: dict) -> list[str]:
         ):
             continue
         hint = next((what for f, what in VELOCITY_MISREADS if abs(g / f - 1.0) < 0.25), "in another unit or scale?")
-        out.append(f"along {axis} {g:.3g}x as far as its velocity says (± {e:.2g}: {hint})")
+        out.append((f"along {axis} {g:.3g}x as far as its velocity says (± {e:.2g}: {hint})", g))
     return out
 
 
@@ -962,6 +968,8 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     head = _prefix_of(c)
     out["gyro_misreads"] = gyro_misreads(head)
     out["velocity_scale"] = velocity_scale(c)
+    if velocity_misread(out["velocity_scale"]):  # which of the two causes, where an accelerometer can tell
+        out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
     out["lever_arm"] = lever_arm(c, shift if why is None else 0.0)
@@ -1135,15 +1143,17 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
     lag = velocity_lag_sentence(offset.get("velocity_lag"), offset["pairs"])
     if lag is not None:
         found.append((lag, "them", ("gyro", "odometry")))
+    # the accelerometer's scale rides on the gyro's attitude: not where the gyro is misread or turned
+    accel = None if best or seen else offset.get("accel_scale")
     found += [
         (
             f"the detections say the body moved {what} ({offset['pairs']} detection pairs, the odometry's bias fitted "
-            f"with it): {SCALE_CAUSES}{upset}",
+            f"with it): {scale_cause(g, accel, SCALE_CAUSES)}{upset}",
             "them",
             ("odometry", "detections", "camera"),
         )
         # none on a log of too few pairs (:func:`estimate` returns before its checks)
-        for what in (velocity_misread(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
+        for what, g in (_misread_axes(offset["velocity_scale"]) if offset.get("velocity_scale") else [])
     ]
     return [(sentence + stream_topics(topics, *names), used) for sentence, used, names in found]
 
