@@ -297,7 +297,8 @@ def prepare_log(
     IMU directions never read them, nor get the accelerometer note). ``needs_directions``: how many inertial
     directions the estimator needs, named with the other missing inputs when the log lacks them. ``noise=False``
     skips the recorded velocity's noise density (0.5 s on an hour of log), which only estimators with noise
-    levels use (``uses_noise``: riekf, batch). ``estimator``: the name(s) the missing-inputs error gives as needing
+    levels use (``uses_noise``: riekf, batch), nor the accelerometer's blocks their velocity-scale check reads.
+    ``estimator``: the name(s) the missing-inputs error gives as needing
     them (None: every estimator). ``warn_only_later=True`` leaves the alignment's warn-only checks to
     :func:`run_prepared`, which runs them beside the observer (``alignment.WarnOnly``).
     """
@@ -355,6 +356,7 @@ def prepare_log(
         gravity=config.directions.gravity,
         magnetic_field=config.directions.magnetic_field,
         keep_directions=directions,
+        keep_accel=noise,
         release=True,
         limits=config.limits.as_dict(),
         warn_only_later=warn_only_later,
