@@ -723,7 +723,9 @@ def lever_arm_sentence(offset: dict) -> str | None:
         f"body's origin (± {float(np.max(sigma)):.2g} m; {offset['pairs']} detection pairs, the odometry's bias "
         "fitted with it): a lever arm no TF gives (the odometry's child_frame_id a frame beside the body, its "
         "twist taken as the body's: give its transform to the body, or frames.body: that frame), or the "
-        "detections' frame's extrinsic off by the opposite translation, which the detections cannot tell from it"
+        "detections' frame's extrinsic off by the opposite translation, which the detections cannot tell from it; "
+        "a forward arm with sideways residuals can also be a yaw rate off the motion (commanded, or lagging it), "
+        "whose heading error a far landmark turns sideways (docs/observers.md)"
     )
 
 
