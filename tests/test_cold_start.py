@@ -67,3 +67,35 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     assert [k for k in kernels if k.startswith("slamobs.pipeline.readers.")] == []
     # nor the RPE's consecutive pairs: their indices by array code (rpe.consecutive_by_accumulation)
     assert "slamobs.pipeline.evaluation.rpe._consecutive_by_accumulation" not in kernels
+
+
+#: Run in the child: ``slamobs run`` in-process, counting the garbage collector's runs before and after the
+#: pipeline's last import (``pipeline.run``), then the collector's state once the run is over.
+COLLECTIONS = """
+import gc, json, sys
+from slamobs.cli.main import main
+seen = {"before": 0, "after": 0}
+def count(phase, info):
+    if phase == "start":
+        seen["after" if "slamobs.pipeline.run" in sys.modules else "before"] += 1
+gc.callbacks.append(count)
+main(["run", sys.argv[1], "-o", sys.argv[2], "-q"], standalone_mode=False)
+print(json.dumps({**seen, "enabled": gc.isenabled(), "frozen": gc.get_freeze_count()}))
+"""
+
+
+def test_a_run_imports_the_pipeline_without_collections_and_collects_as_before_after(tmp_path):
+    out = subprocess.run(
+        [sys.executable, "-c", COLLECTIONS, str(SAMPLES / "figure8.mcap"), str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stderr
+    seen = json.loads(out.stdout.strip().splitlines()[-1])
+    # numba's, rosbags' and the package's imports made ~150 collections that found next to nothing
+    # (cli.main._collected_after_imports); a few may come from the small imports before them
+    assert seen["before"] < 20, seen
+    # the collector runs during the run, and is as it was (on, nothing frozen) once the run is over
+    assert seen["after"] > 0
+    assert seen["enabled"] is True
+    assert seen["frozen"] == 0
