@@ -1264,6 +1264,16 @@ def accel_block_index(t_ns: np.ndarray, t0_ns: int) -> np.ndarray:
     return ((t_ns - t0_ns) // int(ACCEL_BLOCK_S * 1e9)).astype(np.int64)
 
 
+def block_means(k: np.ndarray, x: np.ndarray, nb: int) -> tuple[np.ndarray, np.ndarray]:
+    """Means of the rows of ``x`` (N, 3) over blocks ``k`` (N,) in ``[0, nb)`` (NaN where a block has none) and
+    each block's count. Public: the accelerometer's blocks here and the gyro's and the velocity's over the same
+    blocks (``observers.accel_scale``) are one computation."""
+    count = np.bincount(k, minlength=nb).astype(np.float64)
+    sums = np.column_stack([np.bincount(k, x[:, a], minlength=nb) for a in range(x.shape[1])])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return sums / np.where(count > 0, count, np.nan)[:, None], count
+
+
 def _accel_blocks(fr: _Frame, accel: Vec3Stream, t_om: np.ndarray) -> tuple[int, np.ndarray] | None:
     """The accelerometer rotated into the body frame as ``ACCEL_BLOCK_S`` block means of the time base's blocks
     (NaN in a block without a sample): ``AlignedStream.accel_blocks``. Its own samples are binned by their times
@@ -1278,10 +1288,7 @@ def _accel_blocks(fr: _Frame, accel: Vec3Stream, t_om: np.ndarray) -> tuple[int,
     k = accel_block_index(t_om if moving else res.rel.astype(np.int64) + res.t0, t0)
     f = res.rows() if moving else res.xyz
     ok = np.isfinite(f).all(axis=1) & (k >= 0) & (k < nb)
-    count = np.bincount(k[ok], minlength=nb).astype(np.float64)
-    sums = np.column_stack([np.bincount(k[ok], f[ok, a], minlength=nb) for a in range(3)])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        means = sums / np.where(count > 0, count, np.nan)[:, None]
+    means, _ = block_means(k[ok], f[ok], nb)
     return t0, means if moving else res.ext.rotate(means)
 
 

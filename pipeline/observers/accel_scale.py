@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from slamobs.pipeline.alignment import ACCEL_BLOCK_S, accel_block_index
+from slamobs.pipeline.alignment import ACCEL_BLOCK_S, accel_block_index, block_means
 from slamobs.pipeline.lie import so3_exps
 
 #: Window length (s): the body's acceleration changes within it (a figure 8's, a robot's stops and starts), the gyro's
@@ -45,11 +45,7 @@ def _block_means(t_ns: np.ndarray, t0_ns: int, x: np.ndarray, nb: int) -> tuple[
     """Means of ``x`` (N, 3) over the accelerometer's blocks (NaN where a block has no sample), and the counts."""
     k = accel_block_index(t_ns, t0_ns)
     inside = (k >= 0) & (k < nb)
-    k, x = k[inside], x[inside]
-    count = np.bincount(k, minlength=nb).astype(np.float64)
-    sums = np.column_stack([np.bincount(k, x[:, a], minlength=nb) for a in range(x.shape[1])])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return sums / np.where(count > 0, count, np.nan)[:, None], count
+    return block_means(k[inside], x[inside], nb)
 
 
 def _windows(stream) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -98,10 +94,11 @@ def _columns(f: np.ndarray, w: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, n
     return np.einsum("ij,wj...->wi...", proj, _trapezoid(rf, dt)), np.einsum("ij,wj...->wi...", proj, a)
 
 
-def _fit(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _fit(y: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Least squares of ``y`` (W, m) on ``a`` (W, m, 7) over all windows: the unknowns, their covariance by the
-    windows' scatter (sandwich) and each window's RMS residual. A bias the windows cannot see (the accelerometer's
-    along a gravity that stays put, taken off with ``g₀ t``) is left at 0 (pseudo-inverse)."""
+    windows' scatter (sandwich), each window's RMS residual and the squared correlation ``rho2`` (``MIN_RHO2``). A bias
+    the windows cannot see (the accelerometer's along a gravity that stays put, taken off with ``g₀ t``) is left at 0
+    (pseudo-inverse)."""
     ata = np.einsum("wmi,wmj->ij", a, a)
     inv = np.linalg.pinv(ata, rcond=1e-9)
     theta = inv @ np.einsum("wmi,wm->i", a, y)
