@@ -58,7 +58,6 @@ from slamobs.pipeline.evaluation.trajectory_evaluation import (
     ReportOptions,
     TrajectoryEvaluation,
     evaluate_trajectory,
-    gauge_transform,
     valid_truth,
 )
 from slamobs.pipeline.lie import quats_to_rots, rots_to_quats
@@ -186,7 +185,7 @@ def evaluate_tables(
     del poses
     segments_done = beside[0] if beside else _beside(segments.process_data, len(ev.paired), ev)
     landmarks, landmark = tables.pop("landmarks", None), LandmarkSection(landmark_truth)
-    gauge = None if ev.covariance is None else gauge_transform(ev)[1:]  # the frame the map's Σ is defined in
+    gauge = None if ev.gauge is None else ev.gauge[1:]  # the frame the map's Σ is defined in
     landmark.process_data(landmarks, ev.alignment, ev.paired.ref_pos, float(ev.translation.stats["rmse"]), gauge)
     if figures is not None:  # the top view and the landmark errors need no more than the landmark section
         figures(

@@ -200,6 +200,12 @@ class TrajectoryEvaluation:
         return self.paired.t_est_ns
 
     @cached_property
+    def gauge(self) -> tuple[int, np.ndarray, np.ndarray] | None:
+        """:func:`gauge_transform`'s ``(row, R, t)``, once for the uncertainty section and the map σ check (None
+        without a covariance)."""
+        return None if self.covariance is None else gauge_transform(self)
+
+    @cached_property
     def uncertainty(self) -> PairedUncertainty | None:
         """The paired errors beside the estimate's covariance, both in the truth frame (None without one)."""
         return None if self.covariance is None else paired_uncertainty(self)
@@ -382,8 +388,9 @@ def axes_with_error(error: np.ndarray) -> tuple[int, ...]:
 def gauge_transform(ev: TrajectoryEvaluation) -> tuple[int, np.ndarray, np.ndarray]:
     """The estimator's gauge (the estimate row with the smallest covariance inside the truth's span: riekf's start,
     batch's anchor keyframe) and the rigid transform ``x ↦ R x + t`` that puts its pose on the truth interpolated at
-    its stamp: ``(row, R, t)``, the frame the estimator's covariance is defined in. Needs ``ev.covariance``. Public:
-    the report's map σ check confirms its verdict in this frame (``sections.confirm_in_gauge``)."""
+    its stamp: ``(row, R, t)``, the frame the estimator's covariance is defined in. Needs ``ev.covariance``. Held once
+    per evaluation by ``TrajectoryEvaluation.gauge``: the uncertainty section and the report's map σ check
+    (``sections.confirm_in_gauge``) both read it."""
     from slamobs.pipeline.evaluation.sync import interpolate_poses
     from slamobs.pipeline.lie import quats_to_rots
 
@@ -408,7 +415,7 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
     from slamobs.pipeline.lie import rotate_covariance, rots_to_rotvecs
 
     p, est = ev.paired, ev.estimate
-    g, rot, trans = gauge_transform(ev)
+    g, rot, trans = ev.gauge
     error = np.empty((len(p), 6))
     error[:, 3:] = p.est_pos @ rot.T + trans - p.ref_pos
     for rows in row_blocks(len(p)):
