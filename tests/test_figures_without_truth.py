@@ -215,12 +215,25 @@ def test_progress_without_a_terminal_prints_a_line_now_and_then(capsys):
 
 
 def test_simulate_shows_progress_without_a_terminal(tmp_path, monkeypatch):
-    monkeypatch.setenv("SLAMOBS_PROGRESS_EVERY", "0.05")
+    # What simulate tells its progress is counted, not timed (CI once wrote the 20 s log within two 0.05 s lines):
+    # several "s written" messages, moving forward; the printed line then needs only the run to outlast 10 ms.
+    from slamobs.cli.progress import Progress
+
+    heard: list[str] = []
+    tell = Progress.__call__
+
+    def recording(self, message: str) -> None:
+        heard.append(message)
+        tell(self, message)
+
+    monkeypatch.setattr(Progress, "__call__", recording)
+    monkeypatch.setenv("SLAMOBS_PROGRESS_EVERY", "0.01")
     res = invoke("simulate", "circle", "-o", tmp_path / "c.mcap", "--duration", "20")
     assert res.exit_code == 0, res.output
+    written = [float(m.split()[1]) for m in heard if m.endswith("s written")]
+    assert len(written) >= 2 and written == sorted(written) and written[-1] > written[0], heard
     lines = [line for line in res.stderr.splitlines() if line.startswith("[")]
-    assert len(lines) >= 2, res.stderr
-    assert any("s written" in line for line in lines), res.stderr
+    assert lines and any("simulate:" in line for line in lines), res.stderr
 
 
 # -------------------------------------------------------------------------------- self-describing simulated logs
