@@ -148,6 +148,14 @@ GYRO_AXIS_SAMPLES = 20000
 #: What the turned gyro's warning asks for; the detection pairs' misread check names it when it sees the same turn
 #: (``time_offset.GYRO_TURN_SEEN``).
 GYRO_TURN_ADVICE = "record the transform of '{frame}' on /tf_static"
+#: An accelerometer taken as the body as read (:func:`accel_up_unaligned`): its mean specific force over the log,
+#: when its size is within ``ACCEL_UP_MIN_G`` of |g| (a frame that stays put or moves about a steady attitude; a
+#: handheld IMU waved about, imu_tools' SparkFun sample at 0.65 g, tells no up axis), is gravity's reaction: the
+#: frame's up axis. A warning when it is ``ACCEL_UP_WARN_DEG`` or more from +z, the body's up axis (REP 103): imu_tools'
+#: Phidgets sample (upside down, 1.00 g) 179 deg off, robot_localization's test1 90 deg (its yaw rate on y too), the
+#: ETH MSF MAV's 4 deg and a generated figure 8's IMU as mounted nothing.
+ACCEL_UP_MIN_G = 0.9
+ACCEL_UP_WARN_DEG = 30.0
 #: Added to that warning when the gyro turns the other way about the odometry's axis (within ``GYRO_AXIS_WARN_DEG`` of
 #: 180 deg): an IMU mounted upside down, as imu_tools' Phidgets sample is, taken as the body (a generated figure 8 so:
 #: fast-adaptation's APE 0.148 m against 0.046 m with the IMU's extrinsic, its z gyro bias off by 0.64 rad/s, exit 0
@@ -838,6 +846,41 @@ def _gyro_axes(turn: dict | None, odometry_topic: str, unaligned: str = "") -> l
         f"{odometry_topic}'s own angular velocity turns about {_axis_words(odometry_axis, sign)}, "
         f"{turn['angle_deg']:.0f} deg apart (over {turn['span_s']:.0f} s, misfit {turn['misfit']:.2g} of the gyro's "
         f"variance{GYRO_TURN_REVERSED * (turn['angle_deg'] >= 180.0 - GYRO_AXIS_WARN_DEG)}): {verdict}: "
+        f"{GYRO_TURN_ADVICE.format(frame=frame)}"
+    ]
+
+
+def accel_up_unaligned(streams: LogStreams, body_frame: str | None = None) -> list[str]:
+    """The warning of an accelerometer whose frame TF does not bring into the body, taken as read (as
+    ``frames.assume_identity`` would take it), when its gravity says the frame is not mounted with the body's up axis
+    (``ACCEL_UP_WARN_DEG``; public for ``slamobs info --noise``, beside :func:`gyro_axes_unaligned`, which needs an
+    odometry's own angular velocity: imu_tools' Phidgets sample has none)."""
+    acc = streams.accel
+    if acc is None or len(acc) < 20:
+        return []
+    body = body_frame_name(streams.linear_velocity, body_frame)
+    frame = acc.frame_id.lstrip("/")
+    if not frame or frame == body:
+        return []
+    if TfBuffer(streams.static_tf, streams.tf, path=streams.path).static_lookup(body, frame) is not None:
+        return []
+    f = acc.xyz[np.all(np.isfinite(acc.xyz), axis=1)]
+    g = float(np.linalg.norm(DEFAULT_GRAVITY))
+    mean = f.mean(axis=0) if f.shape[0] else np.zeros(3)
+    size = float(np.linalg.norm(mean))
+    if size < ACCEL_UP_MIN_G * g or size > (2.0 - ACCEL_UP_MIN_G) * g:  # not steady, or not m/s^2: no up axis
+        return []
+    up = mean / size
+    angle = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    if angle < ACCEL_UP_WARN_DEG:
+        return []
+    upside = "; upside down" if angle >= 180.0 - ACCEL_UP_WARN_DEG else ""
+    return [
+        f"warning: {acc.topic}: taken as the body '{body}' as read (TF has no transform of '{frame}', as "
+        f"frames.assume_identity would take it), its accelerometer's mean (gravity's reaction, {size / g:.2f} g over "
+        f"{np.ptp(acc.t_ns) * 1e-9:.0f} s) points along [{', '.join(f'{x:.2f}' for x in up)}], {angle:.0f} deg from "
+        f"the body's up axis (+z{upside}): '{frame}' is not mounted as the body frame (unless the body itself "
+        "stood so tilted all along), and frames.assume_identity would read its axes wrong: "
         f"{GYRO_TURN_ADVICE.format(frame=frame)}"
     ]
 
