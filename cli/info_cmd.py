@@ -130,7 +130,7 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
     stopped them: e.g. an IMU-only log, no velocity or detections): each sensor stream's own white-noise density
     (``noise.sensor_levels``; no estimator's level: those weigh the streams together), and what cannot be
     estimated and why. ``err`` is raised again when the log has no such stream, or cannot be read at all."""
-    from slamobs.pipeline.alignment import gyro_axes_unaligned
+    from slamobs.pipeline.alignment import accel_up_unaligned, gyro_axes_unaligned
     from slamobs.pipeline.errors import SlamobsError
     from slamobs.pipeline.noise import format_level, sensor_levels
     from slamobs.pipeline.readers import read_log
@@ -140,7 +140,8 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
     except SlamobsError:
         raise err from None
     levels = sensor_levels(streams)
-    checks = gyro_axes_unaligned(streams, config.frames.body)  # a turned IMU frame, before a config takes it as body
+    # a turned IMU frame, before a config takes it as the body: by the odometry's turn, by gravity
+    checks = gyro_axes_unaligned(streams, config.frames.body) + accel_up_unaligned(streams, config.frames.body)
     if not any("value" in v for v in levels.values()):
         raise err
     why = f"{err.problem}{''.join(f'; {d}' for d in err.details)}"

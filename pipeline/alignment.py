@@ -148,6 +148,19 @@ GYRO_AXIS_SAMPLES = 20000
 #: What the turned gyro's warning asks for; the detection pairs' misread check names it when it sees the same turn
 #: (``time_offset.GYRO_TURN_SEEN``).
 GYRO_TURN_ADVICE = "record the transform of '{frame}' on /tf_static"
+#: An accelerometer taken as the body as read (:func:`accel_up_unaligned`): its mean specific force over the log,
+#: when its size is within ``ACCEL_UP_MIN_G`` of |g| (a frame that stays put or moves about a steady attitude; a
+#: handheld IMU waved about, imu_tools' SparkFun sample at 0.65 g, tells no up axis), is gravity's reaction: the
+#: frame's up axis. A warning when it is ``ACCEL_UP_WARN_DEG`` or more from +z, the body's up axis (REP 103): imu_tools'
+#: Phidgets sample (upside down, 1.00 g) 179 deg off, robot_localization's test1 90 deg (its yaw rate on y too), the
+#: ETH MSF MAV's 4 deg and a generated figure 8's IMU as mounted nothing.
+ACCEL_UP_MIN_G = 0.9
+ACCEL_UP_WARN_DEG = 30.0
+#: Added to that warning when the gyro turns the other way about the odometry's axis (within ``GYRO_AXIS_WARN_DEG`` of
+#: 180 deg): an IMU mounted upside down, as imu_tools' Phidgets sample is, taken as the body (a generated figure 8 so:
+#: fast-adaptation's APE 0.148 m against 0.046 m with the IMU's extrinsic, its z gyro bias off by 0.64 rad/s, exit 0
+#: and no word before session 30, when the angle was taken unsigned: 2 deg).
+GYRO_TURN_REVERSED = "; it turns the other way: an IMU mounted upside down, or a gyro of the wrong sign"
 
 
 #: An odometry stuck (a frozen driver, wheels off the ground): its whole twist, linear and angular, exactly zero for
@@ -784,14 +797,15 @@ def _gyro_turn(t_g: np.ndarray, w_g: np.ndarray, twist: Vec3Stream, t_o: np.ndar
     lam, vec = np.linalg.eigh(o.T @ o / o.shape[0])
     if lam[-1] < GYRO_AXIS_MIN_RATE**2:
         return None  # the odometry hardly turns: nothing to tell an axis by
-    d = vec[:, -1]
+    d = vec[:, -1] * np.sign(vec[np.argmax(np.abs(vec[:, -1])), -1])  # its largest component positive
     s = o @ d
-    a = g.T @ s / float(s @ s)  # the gyro's response to the odometry's turn about d
+    a = g.T @ s / float(s @ s)  # the gyro's response to the odometry's turn about d (its sign: the turn's sense)
     misfit = float(np.sum((g - np.outer(s, a)) ** 2) / max(float(np.sum(g**2)), 1e-300))
     norm = float(np.linalg.norm(a))
     if misfit > GYRO_AXIS_MAX_MISFIT or norm == 0.0:
         return None
-    angle = float(np.degrees(np.arccos(np.clip(abs(float(a @ d)) / norm, 0.0, 1.0))))
+    # signed: a gyro turning the other way about the same axis (an IMU upside down) is 180 deg off, not 0
+    angle = float(np.degrees(np.arccos(np.clip(float(a @ d) / norm, -1.0, 1.0))))
     if angle < GYRO_AXIS_WARN_DEG:
         return None
     return {
@@ -812,6 +826,8 @@ def _gyro_axes(turn: dict | None, odometry_topic: str, unaligned: str = "") -> l
     if turn is None:
         return []
     frame = turn["frame"]
+    gyro_axis, odometry_axis = np.asarray(turn["gyro_axis"]), np.asarray(turn["odometry_axis"])
+    sign = float(np.sign(odometry_axis[np.argmax(np.abs(odometry_axis))]))  # the odometry's axis, largest positive
     lead, verdict = (
         (
             f"taken as the body '{unaligned}' as read (TF has no transform of '{frame}', as frames.assume_identity "
@@ -826,10 +842,46 @@ def _gyro_axes(turn: dict | None, odometry_topic: str, unaligned: str = "") -> l
         )
     )
     return [
-        f"warning: {turn['topic']}: {lead}its gyro turns about {_axis_words(np.array(turn['gyro_axis']))} where "
-        f"{odometry_topic}'s own angular velocity turns about {_axis_words(np.array(turn['odometry_axis']))}, "
+        f"warning: {turn['topic']}: {lead}its gyro turns about {_axis_words(gyro_axis, sign)} where "
+        f"{odometry_topic}'s own angular velocity turns about {_axis_words(odometry_axis, sign)}, "
         f"{turn['angle_deg']:.0f} deg apart (over {turn['span_s']:.0f} s, misfit {turn['misfit']:.2g} of the gyro's "
-        f"variance): {verdict}: {GYRO_TURN_ADVICE.format(frame=frame)}"
+        f"variance{GYRO_TURN_REVERSED * (turn['angle_deg'] >= 180.0 - GYRO_AXIS_WARN_DEG)}): {verdict}: "
+        f"{GYRO_TURN_ADVICE.format(frame=frame)}"
+    ]
+
+
+def accel_up_unaligned(streams: LogStreams, body_frame: str | None = None) -> list[str]:
+    """The warning of an accelerometer whose frame TF does not bring into the body, taken as read (as
+    ``frames.assume_identity`` would take it), when its gravity says the frame is not mounted with the body's up axis
+    (``ACCEL_UP_WARN_DEG``; public for ``slamobs info --noise``, beside :func:`gyro_axes_unaligned`, which needs an
+    odometry's own angular velocity: imu_tools' Phidgets sample has none)."""
+    acc = streams.accel
+    if acc is None or len(acc) < 20:
+        return []
+    body = body_frame_name(streams.linear_velocity, body_frame)
+    frame = acc.frame_id.lstrip("/")
+    if not frame or frame == body:
+        return []
+    if TfBuffer(streams.static_tf, streams.tf, path=streams.path).static_lookup(body, frame) is not None:
+        return []
+    f = acc.xyz[np.all(np.isfinite(acc.xyz), axis=1)]
+    g = float(np.linalg.norm(DEFAULT_GRAVITY))
+    mean = f.mean(axis=0) if f.shape[0] else np.zeros(3)
+    size = float(np.linalg.norm(mean))
+    if size < ACCEL_UP_MIN_G * g or size > (2.0 - ACCEL_UP_MIN_G) * g:  # not steady, or not m/s^2: no up axis
+        return []
+    up = mean / size
+    angle = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    if angle < ACCEL_UP_WARN_DEG:
+        return []
+    upside = "; upside down" if angle >= 180.0 - ACCEL_UP_WARN_DEG else ""
+    return [
+        f"warning: {acc.topic}: taken as the body '{body}' as read (TF has no transform of '{frame}', as "
+        f"frames.assume_identity would take it), its accelerometer's mean (gravity's reaction, {size / g:.2f} g over "
+        f"{np.ptp(acc.t_ns) * 1e-9:.0f} s) points along [{', '.join(f'{x:.2f}' for x in up)}], {angle:.0f} deg from "
+        f"the body's up axis (+z{upside}): '{frame}' is not mounted as the body frame (unless the body itself "
+        "stood so tilted all along), and frames.assume_identity would read its axes wrong: "
+        f"{GYRO_TURN_ADVICE.format(frame=frame)}"
     ]
 
 
@@ -853,10 +905,11 @@ def gyro_axes_unaligned(streams: LogStreams, body_frame: str | None = None) -> l
     return _gyro_axes(turn, twist.topic, body if frame and frame != body and found is None else "")
 
 
-def _axis_words(v: np.ndarray) -> str:
-    """An axis as a unit vector, its largest component positive, to two places."""
+def _axis_words(v: np.ndarray, sign: float | None = None) -> str:
+    """An axis as a unit vector to two places, times ``sign`` (default: the sign that makes its largest component
+    positive; two axes compared, one sign for both, keeps their senses apart)."""
     u = v / np.linalg.norm(v)
-    return "[" + ", ".join(f"{x:.2f}" for x in u * np.sign(u[np.argmax(np.abs(u))])) + "]"
+    return "[" + ", ".join(f"{x:.2f}" for x in u * (np.sign(u[np.argmax(np.abs(u))]) if sign is None else sign)) + "]"
 
 
 def _lag_unseen(gyro_topic: str, twist_topic: str, power: float) -> str:

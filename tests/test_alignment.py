@@ -633,6 +633,34 @@ def test_a_gyro_whose_frame_reaches_the_body_turned_is_named_by_the_odometrys_ow
     assert not said(expected_streams(simulate("figure8", seed=5, duration=20.0), "x.mcap"))
 
 
+def test_a_gyro_mounted_upside_down_and_taken_as_the_body_is_named():
+    """imu_tools' Phidgets sample IMU is mounted upside down (its accelerometer reads -9.88 m/s^2 on z) and its log
+    has no TF: `info` says to list its frame in frames.assume_identity if it is mounted as the body. So listed on a
+    generated figure 8 whose IMU is rolled 180 deg: the gyro turns about the odometry's axis the other way, and the
+    check took the angle between the axes unsigned (2 deg): fast-adaptation 0.148 m against 0.046 m with the
+    extrinsic, its z gyro bias off by 0.64 rad/s, exit 0, no word (session 30). Now the reversed turn is named; the
+    same IMU with its /tf_static edge says nothing."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.simulate import expected_streams, simulate
+    from slamobs.pipeline.simulate.scenarios import customize, get_scenario
+
+    streams = expected_streams(
+        simulate(customize(get_scenario("figure8"), imu_rpy_deg=(180.0, 0.0, 0.0)), seed=5, duration=20.0), "x.mcap"
+    )
+
+    def said(s, **kw):
+        return [n for n in align(s, **kw).notes if "its gyro turns about" in n]
+
+    untold = replace(streams, static_tf=[t for t in streams.static_tf if t.child != "imu_link"])
+    turned = align(untold, identity_frames=("imu_link",)).gyro_turn
+    assert turned is not None and turned["angle_deg"] > 150.0, turned
+    got = said(untold, identity_frames=("imu_link",))
+    assert len(got) == 1 and "it turns the other way: an IMU mounted upside down" in got[0], got
+    assert "'imu_link' reaches the body turned" in got[0], got
+    assert not said(streams)  # the roll on /tf_static: the gyro is brought into the body right
+
+
 def test_an_odometry_stuck_while_the_gyro_turns_is_named():
     """A figure 8 whose odometry reads a zero twist (linear and angular) over 6 of its 20 s (a frozen driver): riekf
     0.81 m against 0.011 m on the 40 s log so rewritten, warned only as a velocity scale "in another unit or scale?"

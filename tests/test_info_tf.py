@@ -81,4 +81,5 @@ def test_info_does_not_advise_taking_an_imu_frame_without_a_transform_as_the_bod
     )
     assert "frames.assume_identity if it is the body's frame" not in line, line
     assert "frames.assume_identity only if it is mounted as the body, axes and all" in line, line
-    assert "slamobs info --noise LOG holds its gyro against the odometry's own angular velocity" in line, line
+    assert "slamobs info --noise LOG warns when its gyro turns about another axis" in line, line
+    assert "or its accelerometer's gravity is not along the body's up axis" in line, line

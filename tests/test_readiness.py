@@ -319,9 +319,37 @@ def test_info_noise_names_an_imu_frame_turned_against_the_odometry_before_a_conf
     assert len(said) == 1 and said[0].startswith("warning: /imu/data: taken as the body 'base_link' as read"), said
     assert "90 deg apart" in said[0] and "frames.assume_identity would read its axes wrong" in said[0], said
     doc = json.loads(invoke("info", "--noise", "--json", tmp_path / "untold.mcap").stdout)
-    assert doc["checks"] == [said[0]], doc["checks"]
+    assert doc["checks"][0] == said[0] and len(doc["checks"]) == 2, doc["checks"]  # and its gravity, on y
+    assert "its accelerometer's mean (gravity's reaction" in doc["checks"][1], doc["checks"]
     res = invoke("info", "--noise", write_log(sim, tmp_path / "told.mcap"))
     assert res.exit_code == 0 and "its gyro turns about" not in res.output, res.output
+
+
+def test_info_noise_names_an_imu_frame_upside_down_by_its_gravity_where_no_odometry_turns(tmp_path):
+    """imu_tools' Phidgets sample: an IMU mounted upside down, no odometry, no TF. `info` says to list its frame in
+    frames.assume_identity only if it is mounted as the body and that `info --noise` checks it, but that check held
+    the gyro against an odometry's turn, which this log lacks: `info --noise` said nothing. A generated log so (its IMU
+    rolled 180 deg, its /tf_static edge, odometry and detections left out): the accelerometer's gravity, along the
+    frame's -z, is named; with the edge kept, or the IMU mounted upright, nothing."""
+    from slamobs.pipeline.simulate.scenarios import customize, get_scenario
+
+    def imu_only(rpy, keep_edge):
+        sim = simulate(customize(get_scenario("figure8"), imu_rpy_deg=rpy), seed=5, duration=20.0)
+        sim = dataclasses.replace(sim, detections=_empty(sim.detections), odom=_empty(sim.odom))
+        edges = [t for t in sim.static_tf if keep_edge or t.child != "imu_link"]
+        return dataclasses.replace(sim, static_tf=edges)
+
+    def said(sim, name):
+        res = invoke("info", "--noise", write_log(sim, tmp_path / name))
+        assert res.exit_code == 0, res.output
+        return [line.strip() for line in res.output.splitlines() if "accelerometer's mean" in line]
+
+    got = said(imu_only((180.0, 0.0, 0.0), False), "upside_down.mcap")
+    assert len(got) == 1 and got[0].startswith("warning: /imu/data: taken as the body 'base_link' as read"), got
+    assert "from the body's up axis (+z; upside down)" in got[0], got
+    assert "frames.assume_identity would read its axes wrong" in got[0], got
+    assert not said(imu_only((180.0, 0.0, 0.0), True), "told.mcap")
+    assert not said(imu_only((0.0, 0.0, 0.0), False), "upright.mcap")
 
 
 def test_info_noise_on_a_log_that_cannot_run_says_the_covariance_its_messages_state(logs):

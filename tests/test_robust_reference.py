@@ -1053,6 +1053,7 @@ def test_the_pairs_gyro_misread_names_the_alignments_turned_gyro_only_when_it_un
     gyro, scale = time_offset.note("riekf", offset)
     assert "35.9x better with its angular velocity's y and z swapped" in gyro, gyro
     assert "the same turn the warning on /imu/data's gyro measures (90 deg" in gyro, gyro
+    assert "a swap of two axes is the nearest misread tried" in gyro, gyro
     assert "record the transform of 'imu_link' on /tf_static" in gyro and "check the gyro's unit" not in gyro, gyro
     assert "along x 2.35x" in scale and "the turned gyro upsets this reading too" in scale, scale
     other = {**offset["gyro_turn"], "gyro_axis": [1.0, 0.0, 0.0]}  # a yaw on x: y and z swapped leaves it on x
@@ -1060,6 +1061,13 @@ def test_the_pairs_gyro_misread_names_the_alignments_turned_gyro_only_when_it_un
         gyro, scale = time_offset.note("riekf", {**offset, "gyro_turn": turn})
         assert "check the gyro's unit and axes" in gyro and "the same turn" not in gyro, gyro
         assert "upsets" not in scale, scale
+    # an IMU upside down taken as the body (session 30): its gyro turns the other way, which the sign flip undoes;
+    # the warning named "a swap of two axes" as the nearest misread
+    upside = {**offset["gyro_turn"], "gyro_axis": [0.01, -0.01, -1.0], "odometry_axis": [0.0, 0.01, 1.0]}
+    flipped = {"with its angular velocity's y and z swapped": 0.5, time_offset.SIGN_FLIPPED: 103.0}
+    gyro, _ = time_offset.note("riekf", {**offset, "gyro_misreads": flipped, "gyro_turn": {**upside, "angle_deg": 179}})
+    assert "the same turn the warning on /imu/data's gyro measures (179 deg" in gyro, gyro
+    assert "the sign flip is the nearest misread tried" in gyro and "swap" not in gyro, gyro
 
 
 def test_an_odometry_twist_beside_the_body_that_no_tf_gives_is_named_as_a_lever_arm():

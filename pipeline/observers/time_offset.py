@@ -466,10 +466,13 @@ MIRROR_ADVICE = (
 #: read alike (a generated figure 8 whose IMU is rolled 90 deg, its frame taken as the body:
 #: "y and z swapped" 35.9x better; without this, two warnings naming two causes, session 26).
 GYRO_TURN_SEEN = (
-    "the same turn the warning on {topic}'s gyro measures ({angle:.0f} deg from the odometry's own turn; a swap of two "
-    "axes is the nearest misread tried): its axes reach the body turned, by the IMU's mount ({advice}) or by its "
+    "the same turn the warning on {topic}'s gyro measures ({angle:.0f} deg from the odometry's own turn; {nearest} "
+    "is the nearest misread tried): its axes reach the body turned, by the IMU's mount ({advice}) or by its "
     "driver's axis map (fix it there)"
 )
+#: The nearest misread ``GYRO_TURN_SEEN`` names: an IMU upside down (its gyro turning the other way, ~180 deg) is
+#: undone by the sign flip, which it named "a swap of two axes" before session 30.
+NEAREST_MISREAD = {SIGN_FLIPPED: "the sign flip"}
 #: Added to the velocity-scale warnings beside it: their pairs are read along the turned gyro's heading (that
 #: figure 8's odometry alone, with the IMU's transform given, draws no velocity warning).
 GYRO_TURN_UPSETS = "; the turned gyro upsets this reading too: look again once its axes are right"
@@ -1108,7 +1111,7 @@ def _misreads(offset: dict) -> list[tuple[str, str]]:
             f"the detections fit the odometry {gain:.3g}x better {what} ({offset['pairs']} detection pairs, trimmed "
             "mean squared residual): "
             + (
-                _gyro_turn_seen(offset["gyro_turn"])
+                _gyro_turn_seen(offset["gyro_turn"], what)
                 if seen
                 else "check the gyro's unit and axes" + (MIRROR_ADVICE if what == SIGN_FLIPPED else "")
             ),
@@ -1213,12 +1216,16 @@ def _same_turn(undo: np.ndarray, gyro_turn: dict | None) -> bool:
     return cos >= np.cos(np.radians(GYRO_AXIS_WARN_DEG))
 
 
-def _gyro_turn_seen(gyro_turn: dict) -> str:
-    """What the gyro-misread warning says when it sees the alignment's turned gyro (:func:`_same_turn`)."""
+def _gyro_turn_seen(gyro_turn: dict, what: str) -> str:
+    """What the gyro-misread warning says when it sees the alignment's turned gyro (:func:`_same_turn`), the misread
+    ``what`` (a ``GYRO_MISREADS`` key) the nearest."""
     from slamobs.pipeline.alignment import GYRO_TURN_ADVICE
 
     return GYRO_TURN_SEEN.format(
-        topic=gyro_turn["topic"], angle=gyro_turn["angle_deg"], advice=GYRO_TURN_ADVICE.format(frame=gyro_turn["frame"])
+        topic=gyro_turn["topic"],
+        angle=gyro_turn["angle_deg"],
+        nearest=NEAREST_MISREAD.get(what, "a swap of two axes"),
+        advice=GYRO_TURN_ADVICE.format(frame=gyro_turn["frame"]),
     )
 
 

@@ -36,8 +36,8 @@ SENSOR_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic", "det
 IMU_ROLES = ("angular_velocity", "accel", "magnetic")
 #: That check (``alignment.gyro_axes_unaligned`` and the alignment's turned-gyro warning).
 IMU_MOUNT_CHECK = (
-    "slamobs info --noise LOG holds its gyro against the odometry's own angular velocity and warns when they turn "
-    "about different axes (where the odometry gives one)"
+    "slamobs info --noise LOG warns when its gyro turns about another axis than the odometry's own angular velocity "
+    "(where the odometry gives one) or its accelerometer's gravity is not along the body's up axis (+z)"
 )
 #: Leaf siblings alike but for their digits, at least this many, are one line of the tree.
 COLLAPSE_AT = 4
