@@ -267,6 +267,10 @@ class BatchSmoother(Stepper):
                 anisotropy, anisotropy_notes, correlation, correlation_notes = again
             held_notes += again_notes
         correlation_notes += held_notes
+        chosen, detection_level, level_notes = self._detection_level(
+            chosen, keyframes, segments, _in_step(progress, "the detection law's level"), correlation
+        )
+        correlation_notes += level_notes
         chosen, seed_check, seed_notes = self._against_seeds(chosen, first.seed, keyframes, segments)
         problem, sol = chosen.problem, chosen.sol
         stats = g.residual_statistics(problem, sol)
@@ -293,6 +297,7 @@ class BatchSmoother(Stepper):
         summary["held_velocity"] = held_velocity
         summary["detection_correlation"] = correlation
         summary["detection_anisotropy"] = anisotropy
+        summary["detection_level"] = detection_level
         summary["detection_inverse_depth"] = self.inverse_depth_record
         if self.inverse_depth is not None:  # the levels the final solution used
             summary["detection_inverse_depth"] |= idp.record(
@@ -686,6 +691,38 @@ class BatchSmoother(Stepper):
             chosen, self.det_factor, self.det_shape = held
             return chosen, None, record, [note]
         return again, (anisotropy, anisotropy_notes, correlation, correlation_notes), record, [note]
+
+    def _detection_level(self, chosen, keyframes: tuple, segments: _Segments, progress, correlation: dict):
+        """The detection law scaled to the median of the chosen solution's detection residuals whitened by the law
+        and shape (:mod:`pipeline.smoother.detection_level`), solved (and gated) again when it moved: the
+        candidate kept, the record, the notes."""
+        from slamobs.pipeline.smoother import detection_level as dl
+        from slamobs.pipeline.smoother import graph as g
+
+        nz = self.noise
+        configured = any(nz.sources.get(k) == "config" for k in DETECTION_LAW_KEYS)
+        why = dl.skipped(
+            self.settings.detection_level,
+            configured,
+            self.fixed_bias is not None,
+            correlation,
+            self.inverse_depth is not None,
+        )
+        if why is not None:
+            return chosen, {"skipped": why}, []
+        full = replace(chosen.problem, **self._detections(keyframes[1]))
+        whitened = g.whitened_residuals(full, chosen.sol)
+        if self.det_factor is not None:  # the marginal model's: the effective-sample factor is no error variance
+            whitened = whitened * np.sqrt(self.det_factor)[:, None]
+        s = dl.scale(whitened)
+        record = dl.record(whitened, s)
+        if not dl.moved(s):
+            return chosen, record, []
+        self.noise = nz.scaled(
+            dict.fromkeys(DETECTION_LAW_KEYS, s), "the median of batch's whitened detection residuals"
+        )
+        again = self._solved_again(chosen, chosen.sol, keyframes, segments, progress, same_motion=True)
+        return again, record, [dl.note(s)]
 
     def _held_velocity_skipped(self) -> str | None:
         """Why the velocity level is not taken from the solution's short-window residuals, or None."""

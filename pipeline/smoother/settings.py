@@ -18,6 +18,7 @@ CORRELATION_MODES = ("off", "auto")
 ANISOTROPY_MODES = ("off", "auto")
 INVERSE_DEPTH_MODES = ("off", "auto")
 HELD_VELOCITY_MODES = ("off", "auto")
+DETECTION_LEVEL_MODES = ("off", "auto")
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,9 @@ class BatchSettings:
     #: "auto": a held (commanded) velocity's level scaled down to its first solution's residuals over short
     #: windows (pipeline.smoother.held_velocity), the evidence then leaving it; "off": the detection pairs' level
     held_velocity: str = "auto"
+    #: "auto": where the detections' correlation in time is applied, the detection law scaled to the median of its
+    #: solution's whitened detection residuals and solved again (pipeline.smoother.detection_level); "off"
+    detection_level: str = "auto"
 
 
 def batch_settings(section: dict | None) -> BatchSettings:
@@ -72,6 +76,7 @@ def batch_settings(section: dict | None) -> BatchSettings:
         ("detection_anisotropy", ANISOTROPY_MODES),
         ("detection_inverse_depth", INVERSE_DEPTH_MODES),
         ("held_velocity", HELD_VELOCITY_MODES),
+        ("detection_level", DETECTION_LEVEL_MODES),
     ):
         if getattr(settings, key) not in modes:
             raise GainError(f"batch.{key} must be one of {', '.join(modes)}, got {getattr(settings, key)!r}")
