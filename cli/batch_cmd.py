@@ -15,7 +15,7 @@ import click
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
 from slamobs.pipeline.cores import cores
-from slamobs.cli.options import Finite, OutPath, config_option, window_options
+from slamobs.cli.options import Finite, OutPath, config_option, plots_option, window_options
 from slamobs.pipeline.errors import plural
 
 
@@ -247,6 +247,7 @@ class _RunCommand(click.Command):
 )
 @click.option("--no-compact", is_flag=True, help="leave the per-run partitions (compact later: slamobs batch compact)")
 @window_options
+@plots_option("evaluation.plots of each log's config")
 @click.option("-q", "--quiet", is_flag=True, help="print only the final line")
 @click.option("--json", "as_json", is_flag=True, help="one JSON object per finished run, then a final one")
 def run(
@@ -266,6 +267,7 @@ def run(
     no_compact: bool,
     start: float | None,
     end: float | None,
+    plots: bool | None,
     quiet: bool,
     as_json: bool,
 ) -> None:
@@ -325,6 +327,7 @@ def run(
             observer=observer,
             msg_dir=str(msg_dir.resolve()) if msg_dir else None,
             window=(start, end),
+            plots=plots,
             force=force,
             skip_failed=skip_failed,
             prune=prune,

@@ -11,7 +11,15 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import OutPath, config_option, export_option, quiet_option, truth_option, window_options
+from slamobs.cli.options import (
+    OutPath,
+    config_option,
+    export_option,
+    plots_option,
+    quiet_option,
+    truth_option,
+    window_options,
+)
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -138,6 +146,7 @@ def main() -> None:
 @window_options
 @truth_option
 @export_option()
+@plots_option()
 @quiet_option()
 def run(
     logs: tuple[Path, ...],
@@ -150,6 +159,7 @@ def run(
     end: float | None,
     truth: str | None,
     export: tuple[str, ...] | None,
+    plots: bool | None,
     quiet: bool,
 ) -> None:
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT.
@@ -182,6 +192,7 @@ def run(
 
             imported()
             config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
+            config = config.with_plots(plots)
             helper = compile_ahead.start(config.observer, spare, helper)
             if msg_dir:
                 config = replace(config, msg_dir=str(msg_dir))
@@ -268,6 +279,7 @@ def _print_summary(summary) -> None:
 @window_options
 @truth_option
 @export_option()
+@plots_option()
 @quiet_option()
 def compare(
     logs: tuple[Path, ...],
@@ -280,9 +292,10 @@ def compare(
     end: float | None,
     truth: str | None,
     export: tuple[str, ...] | None,
+    plots: bool | None,
     quiet: bool,
 ) -> None:
-    """Run several observers on LOG and write a side-by-side table and an overlay plot.
+    """Run several observers on LOG and write a side-by-side table and an overlay plot (none with no plots).
 
     A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
     """
@@ -301,7 +314,7 @@ def compare(
     observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
     if not observers:
         raise InputError("--observers", "needs at least one observer name")
-    config = with_truth(load_config(config_path), truth).with_window(start, end)
+    config = with_truth(load_config(config_path), truth).with_window(start, end).with_plots(plots)
     for name in observers:
         with_observer(config, name, "--observers")
     if msg_dir:
