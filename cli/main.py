@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import gc
 import os
 import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import click
@@ -53,35 +51,6 @@ def _allocators_for_a_memory_limit() -> None:
 
 
 _allocators_for_a_memory_limit()
-
-
-@contextmanager
-def _collected_after_imports():
-    """A run with Python's cyclic garbage collector off until the pipeline is imported (``imported``, yielded, called
-    then), after which the objects that exist are frozen (``gc.freeze``: left out of every collection) until the run
-    ends. The imports (~0.3 CPU s before a run reads its log: numba, rosbags, the package) make ~150 collections
-    that find next to nothing (modules, classes and functions live to the end), and later collections walked those
-    objects again: a fresh run of a 90 s log spent 0.071-0.072 CPU s in the collector, 0.030-0.034 with this
-    (docs/benchmarks.md, session 29). Objects only: the run's results are the same. Frozen objects are back at the
-    end (``gc.get_objects`` lists them again, a process running several runs collects its cycles); objects frozen
-    before, by whoever calls this in-process, stay as they were."""
-    enabled = gc.isenabled()
-    ours = gc.get_freeze_count() == 0
-
-    def imported() -> None:
-        if ours:
-            gc.freeze()
-        if enabled:
-            gc.enable()
-
-    gc.disable()
-    try:
-        yield imported
-    finally:
-        if ours:
-            gc.unfreeze()
-        if enabled:
-            gc.enable()
 
 
 class _Group(click.Group):
@@ -176,12 +145,13 @@ def run(
     working_on(first, "a run of this log", run_memory_mb(first))
     from slamobs.pipeline import compile_ahead
     from slamobs.pipeline.evaluation.plot_worker import PlotWorkers, free_cores, helper_wanted
+    from slamobs.pipeline.lifetime import collected_after_imports
 
     spare = free_cores()
     # the figure helper imports matplotlib while this process imports the pipeline (~1 s of each on a short log)
     workers = PlotWorkers(1) if helper_wanted(spare) else None
     helper = None
-    with _collected_after_imports() as imported:
+    with collected_after_imports() as imported:
         try:
             helper = compile_ahead.start_early(spare)  # a first run's kernels, compiled while it imports and reads
             from slamobs.pipeline.readers.container import recording_of
@@ -303,28 +273,34 @@ def compare(
 
     from slamobs.cli.errors import working_on
     from slamobs.cli.listing import wrote_line
-    from slamobs.pipeline.readers.container import recording_of
+    from slamobs.pipeline.lifetime import collected_after_imports
 
-    log = recording_of(logs)
-    working_on(log, "a comparison on this log")
-    from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config, with_observer, with_truth
-    from slamobs.pipeline.errors import InputError
+    with collected_after_imports() as imported:  # as `run`: the collector off while the pipeline is imported
+        from slamobs.pipeline.readers.container import recording_of
 
-    observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
-    if not observers:
-        raise InputError("--observers", "needs at least one observer name")
-    config = with_truth(load_config(config_path), truth).with_window(start, end).with_plots(plots)
-    for name in observers:
-        with_observer(config, name, "--observers")
-    if msg_dir:
-        config = replace(config, msg_dir=str(msg_dir))
-    if export is not None:
-        config = config.with_section("output", export=export)
-    # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
-    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
-        on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
-        table = compare_log(log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer)
+        log = recording_of(logs)
+        working_on(log, "a comparison on this log")
+        from slamobs.pipeline.compare import compare_log
+        from slamobs.pipeline.config import load_config, with_observer, with_truth
+        from slamobs.pipeline.errors import InputError
+
+        imported()
+        observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
+        if not observers:
+            raise InputError("--observers", "needs at least one observer name")
+        config = with_truth(load_config(config_path), truth).with_window(start, end).with_plots(plots)
+        for name in observers:
+            with_observer(config, name, "--observers")
+        if msg_dir:
+            config = replace(config, msg_dir=str(msg_dir))
+        if export is not None:
+            config = config.with_section("output", export=export)
+        # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
+        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+            on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
+            table = compare_log(
+                log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer
+            )
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
