@@ -15,7 +15,7 @@ import click
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
 from slamobs.pipeline.cores import cores
-from slamobs.cli.options import Finite, OutPath, config_option, window_options
+from slamobs.cli.options import Finite, OutPath, config_option, plots_option, window_options
 from slamobs.pipeline.errors import plural
 
 
@@ -247,6 +247,7 @@ class _RunCommand(click.Command):
 )
 @click.option("--no-compact", is_flag=True, help="leave the per-run partitions (compact later: slamobs batch compact)")
 @window_options
+@plots_option("evaluation.plots of each log's config")
 @click.option("-q", "--quiet", is_flag=True, help="print only the final line")
 @click.option("--json", "as_json", is_flag=True, help="one JSON object per finished run, then a final one")
 def run(
@@ -266,6 +267,7 @@ def run(
     no_compact: bool,
     start: float | None,
     end: float | None,
+    plots: bool | None,
     quiet: bool,
     as_json: bool,
 ) -> None:
@@ -299,72 +301,85 @@ def run(
 
     working_on(out_dir, "the batch")  # a lack of memory, threads or descriptors is reported against OUT
 
-    from slamobs.pipeline.batch import BatchOptions, DaskMissing, InfrastructureError, check_config, discover, run_batch
-    from slamobs.pipeline.config import load_config
-    from slamobs.pipeline.errors import InputError, ResourceError
-    from slamobs.pipeline.interrupts import as_interruption, take_pending
-    from slamobs.pipeline.observers import GainError
+    from slamobs.pipeline.lifetime import collected_after_imports
 
-    if executor == "local" and scheduler:
-        exit_input_error("--scheduler runs on Dask; it cannot be combined with --executor local")
-    handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
-    reporter = _Reporter(quiet, as_json)
-    try:
-        if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
-            on_signal(pending, None)
-        config = load_config(config_path)
-        if observer:
-            config = replace(config, observer=observer)
-        if msg_dir:
-            config = replace(config, msg_dir=str(msg_dir.resolve()))
-        check_config(config)
-        entries = discover(inputs)
-        options = BatchOptions(
-            out=out_dir,
-            config=config,
-            observer=observer,
-            msg_dir=str(msg_dir.resolve()) if msg_dir else None,
-            window=(start, end),
-            force=force,
-            skip_failed=skip_failed,
-            prune=prune,
-            compact=not no_compact,
-            executor=executor or ("dask" if scheduler else "local"),
-            jobs=jobs or cores(),
-            scheduler=scheduler,
-            timeout=_timeout(timeout),
-            wait_workers=wait_workers,
+    # as `run`: the collector off while the pipeline is imported, its modules frozen out of the collections after
+    with collected_after_imports() as imported:
+        from slamobs.pipeline.batch import (
+            BatchOptions,
+            DaskMissing,
+            InfrastructureError,
+            check_config,
+            discover,
+            run_batch,
         )
-        where = (
-            f"Dask at {scheduler}"
-            if scheduler
-            else f"a local Dask cluster of {plural(options.jobs, 'worker')}"
-            if options.executor == "dask"
-            else plural(options.jobs, "local worker process", "local worker processes")
-        )
-        with as_interruption(), signals_to_the_main_thread():
-            result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
-    except (InfrastructureError, ResourceError) as err:  # ResourceError before InputError: it is one
-        reporter.clear()
-        click.echo(f"error: {' '.join(str(err).split())}", err=True)
-        sys.exit(EXIT_INFRA)
-    except (InputError, GainError, DaskMissing) as err:
-        reporter.clear()
-        exit_input_error(str(err))
-    except KeyboardInterrupt as err:
-        reporter.clear()
-        signum = err.signum if isinstance(err, Stopped) else signal.SIGINT
-        click.echo(
-            f"\n{signal.Signals(signum).name}: batch stopped, its workers killed; finished runs are recorded; "
-            "run the same command again to resume",
-            err=True,
-        )
-        sys.exit(EXIT_SIGNAL[signum])
-    finally:
-        for sig, old in handlers.items():
-            signal.signal(sig, old)
-    reporter.finish(result, out_dir)
-    sys.exit(result.exit_code)
+        from slamobs.pipeline.config import load_config
+        from slamobs.pipeline.errors import InputError, ResourceError
+        from slamobs.pipeline.interrupts import as_interruption, take_pending
+        from slamobs.pipeline.observers import GainError
+
+        imported()
+        if executor == "local" and scheduler:
+            exit_input_error("--scheduler runs on Dask; it cannot be combined with --executor local")
+        handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
+        reporter = _Reporter(quiet, as_json)
+        try:
+            if (pending := take_pending()) is not None:  # arrived before these handlers: stop as they would
+                on_signal(pending, None)
+            config = load_config(config_path)
+            if observer:
+                config = replace(config, observer=observer)
+            if msg_dir:
+                config = replace(config, msg_dir=str(msg_dir.resolve()))
+            check_config(config)
+            entries = discover(inputs)
+            options = BatchOptions(
+                out=out_dir,
+                config=config,
+                observer=observer,
+                msg_dir=str(msg_dir.resolve()) if msg_dir else None,
+                window=(start, end),
+                plots=plots,
+                force=force,
+                skip_failed=skip_failed,
+                prune=prune,
+                compact=not no_compact,
+                executor=executor or ("dask" if scheduler else "local"),
+                jobs=jobs or cores(),
+                scheduler=scheduler,
+                timeout=_timeout(timeout),
+                wait_workers=wait_workers,
+            )
+            where = (
+                f"Dask at {scheduler}"
+                if scheduler
+                else f"a local Dask cluster of {plural(options.jobs, 'worker')}"
+                if options.executor == "dask"
+                else plural(options.jobs, "local worker process", "local worker processes")
+            )
+            with as_interruption(), signals_to_the_main_thread():
+                result = run_batch(entries, options, on_row=reporter, on_start=lambda p: reporter.start(p, where))
+        except (InfrastructureError, ResourceError) as err:  # ResourceError before InputError: it is one
+            reporter.clear()
+            click.echo(f"error: {' '.join(str(err).split())}", err=True)
+            sys.exit(EXIT_INFRA)
+        except (InputError, GainError, DaskMissing) as err:
+            reporter.clear()
+            exit_input_error(str(err))
+        except KeyboardInterrupt as err:
+            reporter.clear()
+            signum = err.signum if isinstance(err, Stopped) else signal.SIGINT
+            click.echo(
+                f"\n{signal.Signals(signum).name}: batch stopped, its workers killed; finished runs are recorded; "
+                "run the same command again to resume",
+                err=True,
+            )
+            sys.exit(EXIT_SIGNAL[signum])
+        finally:
+            for sig, old in handlers.items():
+                signal.signal(sig, old)
+        reporter.finish(result, out_dir)
+        sys.exit(result.exit_code)
 
 
 @batch.command("compact")

@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
-import gc
 import os
 import sys
-from contextlib import contextmanager
 from pathlib import Path
 
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import OutPath, config_option, export_option, quiet_option, truth_option, window_options
+from slamobs.cli.options import (
+    OutPath,
+    config_option,
+    export_option,
+    plots_option,
+    quiet_option,
+    truth_option,
+    window_options,
+)
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -45,35 +51,6 @@ def _allocators_for_a_memory_limit() -> None:
 
 
 _allocators_for_a_memory_limit()
-
-
-@contextmanager
-def _collected_after_imports():
-    """A run with Python's cyclic garbage collector off until the pipeline is imported (``imported``, yielded, called
-    then), after which the objects that exist are frozen (``gc.freeze``: left out of every collection) until the run
-    ends. The imports (~0.3 CPU s before a run reads its log: numba, rosbags, the package) make ~150 collections
-    that find next to nothing (modules, classes and functions live to the end), and later collections walked those
-    objects again: a fresh run of a 90 s log spent 0.071-0.072 CPU s in the collector, 0.030-0.034 with this
-    (docs/benchmarks.md, session 29). Objects only: the run's results are the same. Frozen objects are back at the
-    end (``gc.get_objects`` lists them again, a process running several runs collects its cycles); objects frozen
-    before, by whoever calls this in-process, stay as they were."""
-    enabled = gc.isenabled()
-    ours = gc.get_freeze_count() == 0
-
-    def imported() -> None:
-        if ours:
-            gc.freeze()
-        if enabled:
-            gc.enable()
-
-    gc.disable()
-    try:
-        yield imported
-    finally:
-        if ours:
-            gc.unfreeze()
-        if enabled:
-            gc.enable()
 
 
 class _Group(click.Group):
@@ -138,6 +115,7 @@ def main() -> None:
 @window_options
 @truth_option
 @export_option()
+@plots_option()
 @quiet_option()
 def run(
     logs: tuple[Path, ...],
@@ -150,6 +128,7 @@ def run(
     end: float | None,
     truth: str | None,
     export: tuple[str, ...] | None,
+    plots: bool | None,
     quiet: bool,
 ) -> None:
     """Run an observer on LOG (.bag, .mcap or rosbag2 directory) and write OUT.
@@ -166,12 +145,13 @@ def run(
     working_on(first, "a run of this log", run_memory_mb(first))
     from slamobs.pipeline import compile_ahead
     from slamobs.pipeline.evaluation.plot_worker import PlotWorkers, free_cores, helper_wanted
+    from slamobs.pipeline.lifetime import collected_after_imports
 
     spare = free_cores()
     # the figure helper imports matplotlib while this process imports the pipeline (~1 s of each on a short log)
     workers = PlotWorkers(1) if helper_wanted(spare) else None
     helper = None
-    with _collected_after_imports() as imported:
+    with collected_after_imports() as imported:
         try:
             helper = compile_ahead.start_early(spare)  # a first run's kernels, compiled while it imports and reads
             from slamobs.pipeline.readers.container import recording_of
@@ -182,6 +162,7 @@ def run(
 
             imported()
             config = with_truth(with_observer(load_config(config_path), observer), truth).with_window(start, end)
+            config = config.with_plots(plots)
             helper = compile_ahead.start(config.observer, spare, helper)
             if msg_dir:
                 config = replace(config, msg_dir=str(msg_dir))
@@ -268,6 +249,7 @@ def _print_summary(summary) -> None:
 @window_options
 @truth_option
 @export_option()
+@plots_option()
 @quiet_option()
 def compare(
     logs: tuple[Path, ...],
@@ -280,9 +262,10 @@ def compare(
     end: float | None,
     truth: str | None,
     export: tuple[str, ...] | None,
+    plots: bool | None,
     quiet: bool,
 ) -> None:
-    """Run several observers on LOG and write a side-by-side table and an overlay plot.
+    """Run several observers on LOG and write a side-by-side table and an overlay plot (none with no plots).
 
     A ROS1 recording split into NAME_0.bag, NAME_1.bag, ... is one LOG: its directory, or all its parts.
     """
@@ -290,28 +273,34 @@ def compare(
 
     from slamobs.cli.errors import working_on
     from slamobs.cli.listing import wrote_line
-    from slamobs.pipeline.readers.container import recording_of
+    from slamobs.pipeline.lifetime import collected_after_imports
 
-    log = recording_of(logs)
-    working_on(log, "a comparison on this log")
-    from slamobs.pipeline.compare import compare_log
-    from slamobs.pipeline.config import load_config, with_observer, with_truth
-    from slamobs.pipeline.errors import InputError
+    with collected_after_imports() as imported:  # as `run`: the collector off while the pipeline is imported
+        from slamobs.pipeline.readers.container import recording_of
 
-    observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
-    if not observers:
-        raise InputError("--observers", "needs at least one observer name")
-    config = with_truth(load_config(config_path), truth).with_window(start, end)
-    for name in observers:
-        with_observer(config, name, "--observers")
-    if msg_dir:
-        config = replace(config, msg_dir=str(msg_dir))
-    if export is not None:
-        config = config.with_section("output", export=export)
-    # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
-    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
-        on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
-        table = compare_log(log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer)
+        log = recording_of(logs)
+        working_on(log, "a comparison on this log")
+        from slamobs.pipeline.compare import compare_log
+        from slamobs.pipeline.config import load_config, with_observer, with_truth
+        from slamobs.pipeline.errors import InputError
+
+        imported()
+        observers = list(dict.fromkeys(n.strip() for n in names.split(",") if n.strip()))
+        if not observers:
+            raise InputError("--observers", "needs at least one observer name")
+        config = with_truth(load_config(config_path), truth).with_window(start, end).with_plots(plots)
+        for name in observers:
+            with_observer(config, name, "--observers")
+        if msg_dir:
+            config = replace(config, msg_dir=str(msg_dir))
+        if export is not None:
+            config = config.with_section("output", export=export)
+        # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
+        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+            on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
+            table = compare_log(
+                log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer
+            )
     if not quiet:
         with_values = table.astype(object).where(table.notna(), "")
         click.echo(with_values.to_string(index=False, float_format=lambda v: f"{v:.4g}"))

@@ -148,6 +148,17 @@ def export_option(
     )
 
 
+def plots_option(default: str = "evaluation.plots of the config"):
+    """``--plots/--no-plots``: draw the figures, or none, whatever ``evaluation.plots`` says (unset: as it says;
+    ``config.plots_setting``)."""
+    return click.option(
+        "--plots/--no-plots",
+        "plots",
+        default=None,
+        help=f"draw the figures (--no-plots: none, e.g. for thousands of logs) [default: {default}]",
+    )
+
+
 #: --start / --end: absolute stamps are Unix seconds, below 2**63 ns
 _WINDOW_BOUND = Finite(min=0.0, max=9.2e9)
 _WINDOW_RULE = "seconds from the log's start (its first angular-velocity sample), or an absolute stamp in s if > 1e9"

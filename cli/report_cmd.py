@@ -12,7 +12,15 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import exit_input_error
-from slamobs.cli.options import Finite, Seconds, config_option, export_option, offset_seconds, quiet_option
+from slamobs.cli.options import (
+    Finite,
+    Seconds,
+    config_option,
+    export_option,
+    offset_seconds,
+    plots_option,
+    quiet_option,
+)
 from slamobs.cli.progress import Progress, compile_notice
 
 ALIGNMENTS = ("se3", "sim3", "scale", "yaw", "origin", "none")
@@ -83,6 +91,7 @@ def _previous_options(run_dir: Path) -> dict:
     "those"
 )
 @export_option(("tum", "evo"), default="what the run wrote")
+@plots_option("every figure, none where the run had evaluation.plots: false")
 @click.option("--json", "as_json", is_flag=True, help="print report.json instead of the summary")
 @quiet_option()
 def report(
@@ -97,13 +106,15 @@ def report(
     bias_window: float | None,
     config_path: Path | None,
     export: tuple[str, ...] | None,
+    plots: bool | None,
     as_json: bool,
     quiet: bool,
 ) -> None:
     """(Re)compute the error report of the finished run RUN_DIR; report files are replaced atomically.
     Without truth (the run had none and no --truth), or when the run's own truth cannot judge it (no poses, too
-    short: as ``slamobs run`` reported): the run's figures and a summary in report.md. It draws every figure,
-    whatever the run's evaluation.plots (which spares a run its figures' time: docs/outputs.md, which figures)."""
+    short: as ``slamobs run`` reported): the run's figures and a summary in report.md. It draws every figure
+    (evaluation.plots: true spares a run its figures' time: docs/outputs.md, which figures), none where the run
+    was made with evaluation.plots: false (or --no-plots); --plots draws them all there too."""
     from slamobs.pipeline.config import NO_TRUTH
     from slamobs.pipeline.errors import TruthUnusable
 
@@ -121,16 +132,16 @@ def report(
         given["t_offset_s"] = offset_seconds(t_offset)
     given = {**from_config, **{k: v for k, v in given.items() if v is not None}}
     if truth is not None and truth.strip() == NO_TRUTH:  # asked for none: as a run without truth
-        _summarised(run_dir, as_json, quiet, told=True)
+        _summarised(run_dir, as_json, quiet, plots, told=True)
         return
-    if truth is None and not _summarised(run_dir, as_json, quiet):  # a run without truth: its figures
+    if truth is None and not _summarised(run_dir, as_json, quiet, plots):  # a run without truth: its figures
         return
     try:
-        rep, written = _reported(run_dir, truth, export, given, quiet)
+        rep, written = _reported(run_dir, truth, export, given, quiet, plots)
     except TruthUnusable as err:
         if truth is not None:  # a truth asked for by name that cannot judge the run: that is the answer
             exit_input_error(str(err))
-        _summarised(run_dir, as_json, quiet, unusable=str(err))  # the run's own truth: as `slamobs run` reported
+        _summarised(run_dir, as_json, quiet, plots, unusable=str(err))  # the run's own truth: as `slamobs run` did
         return
     if quiet:
         return
@@ -165,13 +176,16 @@ def _from_config(path: Path | None) -> tuple[dict, str | None]:
     return {k: v for k, v in options.items() if v is not None}, truth if isinstance(truth, str) and truth else None
 
 
-def _reported(run_dir: Path, truth: str | None, export, given: dict, quiet: bool) -> tuple[dict, list[Path]]:
-    """The run's report against ``truth`` (None: the run's own) with the options given over the run's; a truth
-    that cannot judge the run raises TruthUnusable, every other input error ends the command (exit 2)."""
+def _reported(
+    run_dir: Path, truth: str | None, export, given: dict, quiet: bool, plots: bool | None
+) -> tuple[dict, list[Path]]:
+    """The run's report against ``truth`` (None: the run's own) with the options given over the run's, its figures
+    as ``plots`` says (``run_dir.report_plots``); a truth that cannot judge the run raises TruthUnusable, every
+    other input error ends the command (exit 2)."""
     from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError, TruthUnusable
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions
-    from slamobs.pipeline.evaluation.run_dir import options_for_run, report_run, run_meta
+    from slamobs.pipeline.evaluation.run_dir import options_for_run, report_plots, report_run, run_meta
 
     try:
         meta = run_meta(run_dir)
@@ -182,29 +196,35 @@ def _reported(run_dir: Path, truth: str | None, export, given: dict, quiet: bool
         base.pop("gravity_aligned", None)
         options = options_for_run(meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
         with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
-            progress("report: evaluating and drawing the figures")
+            drawing = " and drawing the figures" if report_plots(meta, plots) else ""
+            progress(f"report: evaluating{drawing}")
             with dataset_report(run_dir):  # a batch run: its rows in the dataset follow the new report
-                return report_run(run_dir, truth, options, exports=export)
+                return report_run(run_dir, truth, options, exports=export, plots=plots)
     except TruthUnusable:
         raise
     except (InputError, ValueError) as err:
         exit_input_error(str(err))
 
 
-def _summarised(run_dir: Path, as_json: bool, quiet: bool, unusable: str | None = None, told: bool = False) -> bool:
-    """A run without truth is summarised and drawn (False: done); True when the run has truth to report on.
+def _summarised(
+    run_dir: Path, as_json: bool, quiet: bool, plots: bool | None, unusable: str | None = None, told: bool = False
+) -> bool:
+    """A run without truth is summarised and drawn as ``plots`` says (False: done); True when the run has truth to
+    report on.
     ``unusable``: why the run's truth cannot judge it (no poses, too short): summarised as without truth; ``told``:
     ``--truth none``, summarised as without truth."""
     from slamobs.pipeline.batch.rereport import dataset_report
     from slamobs.pipeline.errors import InputError
-    from slamobs.pipeline.evaluation.run_dir import has_truth, run_meta, summarise_run
+    from slamobs.pipeline.evaluation.run_dir import has_truth, report_plots, run_meta, summarise_run
 
     try:
-        if unusable is None and not told and has_truth(run_meta(run_dir)):
+        meta = run_meta(run_dir)
+        if unusable is None and not told and has_truth(meta):
             return True
         with Progress(quiet) as progress, dataset_report(run_dir):
-            progress("report: drawing the run's figures (no truth: no error report)")
-            info, written = summarise_run(run_dir)
+            what = "drawing the run's figures" if report_plots(meta, plots) else "summarising the run"
+            progress(f"report: {what} (no truth: no error report)")
+            info, written = summarise_run(run_dir, plots)
     except InputError as err:
         exit_input_error(str(err))
     if as_json:

@@ -109,7 +109,7 @@ def compare_log(
                 }
             )
         if not has_truth(prepared.streams):
-            table = _without_truth(tmp, rows, summaries, log, compiled)
+            table = _without_truth(tmp, rows, summaries, log, compiled, bool(config.evaluation.plots))
             table.attrs["compile_note"] = compile_note(compiled)
             return table
         columns = list(COLUMNS)
@@ -131,7 +131,7 @@ def compare_log(
         (tmp / "comparison.md").write_text(comparison_markdown(table, log, compiled=compiled, notes=notes, hints=tips))
         doc = {"log": str(Path(log).resolve()), "rows": table.to_dict("records"), "hints": tips}
         write_json(tmp / "comparison.json", doc)
-        if prepared.streams.truth is not None and summaries:
+        if prepared.streams.truth is not None and summaries and config.evaluation.plots:
             plot_overlay(tmp / "overlay.png", prepared.streams.truth, summaries)
     table.attrs["compile_note"] = compile_note(compiled)
     table.attrs["notes"] = notes
@@ -172,11 +172,16 @@ def compile_note(compiled: dict[str, float]) -> str:
 
 
 def _without_truth(
-    tmp: Path, rows: list[dict], summaries: dict[str, RunSummary], log: Path, compiled: dict[str, float]
+    tmp: Path,
+    rows: list[dict],
+    summaries: dict[str, RunSummary],
+    log: Path,
+    compiled: dict[str, float],
+    plots: bool = True,
 ):
     """The comparison of a log without truth: run time, map size, path length and each estimate's disagreement
     with the others (APE of one estimate against another after SE(3) alignment; against ``batch`` when it
-    ran), the table files and an overlay of the estimates aligned onto the reference."""
+    ran), the table files and (``plots``) an overlay of the estimates aligned onto the reference."""
     import pandas as pd
 
     from slamobs.pipeline.writers import read_columns, write_json
@@ -197,10 +202,10 @@ def _without_truth(
     table = pd.DataFrame(rows).reindex(columns=columns)
     table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
     against = "the batch smoother's estimate" if reference else "each of the other estimates (their mean)"
-    (tmp / "comparison.md").write_text(comparison_markdown(table, log, against, compiled))
+    (tmp / "comparison.md").write_text(comparison_markdown(table, log, against, compiled, overlay=plots))
     doc = {"log": str(Path(log).resolve()), "truth": None, "disagreement_against": reference or "others"}
     write_json(tmp / "comparison.json", {**doc, "rows": table.to_dict("records")})
-    if aligned:
+    if aligned and plots:
         plot_estimates(tmp / "overlay.png", aligned, spread, reference)
     return table
 
@@ -289,9 +294,11 @@ def comparison_markdown(
     compiled: dict[str, float] | None = None,
     notes: list[str] = (),
     hints: list[str] = (),
+    overlay: bool = True,
 ) -> str:
-    """comparison.md: the table of the estimators' metrics on ``log``, each report's caveats and hints under it.
-    Public: tests/test_compare.py reads the caveats from made-up reports."""
+    """comparison.md: the table of the estimators' metrics on ``log``, each report's caveats and hints under it
+    (``overlay``: the comparison drew overlay.png). Public: tests/test_compare.py reads the caveats from made-up
+    reports."""
     columns = list(table.columns)
     head = "| " + " | ".join(LABELS.get(c, c) for c in columns) + " |\n|" + "---|" * len(columns) + "\n"
     body = ""
@@ -328,7 +335,8 @@ def comparison_markdown(
             f"there are no trajectory errors: disagreement_m is each estimate's APE translation RMSE against "
             f"{against} after SE(3) alignment (a spread among the estimators, not an error); landmarks is the map "
             f"size, {map_words}path_length_m the estimated path's length; run time is the observer stage. "
-            f"overlay.png shows the estimates aligned onto one another.\n\n{head}{body}"
+            + ("overlay.png shows the estimates aligned onto one another." if overlay else "")
+            + f"\n\n{head}{body}"
         )
     return (
         f"# Observer comparison\n\nLog: `{log}`\n\nAPE and landmark errors after SE(3) alignment to the "

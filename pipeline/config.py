@@ -226,6 +226,19 @@ class RunConfig:
         given = {k: v for k, v in (("start", start), ("end", end)) if v is not None}
         return self.with_section("time", **given) if given else self
 
+    def with_plots(self, plots: bool | None) -> RunConfig:
+        """This config with ``--plots`` / ``--no-plots`` (None: as it says): :func:`plots_setting`."""
+        return self.with_section("evaluation", plots=plots_setting(self.evaluation.plots, plots))
+
+
+def plots_setting(configured: bool | str, forced: bool | None) -> bool | str:
+    """``evaluation.plots`` after ``--plots`` / ``--no-plots`` (``forced``; None: ``configured``, the config's or
+    the run's): ``--no-plots`` draws none, ``--plots`` keeps a setting that draws figures and turns ``false`` into
+    ``true`` (the main ones). One rule for ``run``, ``compare``, ``batch`` and ``report``."""
+    if forced is None:
+        return configured
+    return (configured or True) if forced else False
+
 
 def _non_finite(data, where: tuple[str, ...] = ()) -> tuple[tuple[str, ...], float] | None:
     """Where the first NaN or infinite number of a loaded config is, and the number."""

@@ -612,6 +612,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "rate_hz": config.output.rate_hz,
             "float_bits": config.output.float_bits,
             "export": list(config.output.export),
+            "plots": config.evaluation.plots,  # `slamobs report` draws figures as the run did, or none
         },
     }
 

@@ -591,6 +591,26 @@ def test_exit_code_1_when_nothing_succeeds_and_quiet_prints_one_line(logs, tmp_p
     assert rows["circle.mcap"]["config_file"] == str(tmp_path / "bad_gains.yaml")
 
 
+def test_no_plots_overrides_every_config_and_report_keeps_to_it(logs, tmp_path):
+    """``batch run --no-plots`` (thousands of logs): no figure in any run, a per-log config asking for every figure
+    included, and ``slamobs report OUT/runs/<id>`` of such a run draws none either unless given ``--plots``."""
+    from slamobs.cli.report_cmd import report
+
+    (tmp_path / "all.yaml").write_text("evaluation:\n  plots: all\n")
+    manifest = tmp_path / "list.csv"
+    manifest.write_text(f"log,config\n{logs['circle']},all.yaml\n{logs['f8']},\n")
+    out = tmp_path / "OUT"
+    res = invoke(manifest, "-o", out, "-q", "-j", 1, "--no-plots")
+    assert res.exit_code == 0, res.output
+    runs = sorted((out / "runs").iterdir())
+    assert len(runs) == 2 and not list(out.rglob("*.png"))
+    assert all(json.loads((r / "run.json").read_text())["output"]["plots"] is False for r in runs)
+    assert CliRunner().invoke(report, [str(runs[0]), "-q"]).exit_code == 0
+    assert not list(runs[0].glob("*.png"))
+    assert CliRunner().invoke(report, [str(runs[0]), "-q", "--plots"]).exit_code == 0
+    assert "trajectory_top.png" in {p.name for p in runs[0].glob("*.png")}
+
+
 def test_counts_are_spelled_for_one(logs, tmp_path):
     from slamobs.pipeline.errors import plural
 

@@ -408,7 +408,8 @@ def test_run_reports_progress_stage_by_stage(generated, tmp_path):
 
 def test_report_without_plots(generated, tmp_path):
     """``evaluation.plots: false`` (batch jobs over many short logs) writes every report file but the figures;
-    ``slamobs report`` draws them later with the same numbers."""
+    ``slamobs report`` keeps to it, ``slamobs report --plots`` draws them later with the same numbers. ``run
+    --no-plots`` / ``--plots`` decide whatever the config says."""
     cfg = tmp_path / "run.yaml"
     cfg.write_text("evaluation:\n  plots: false\noutput:\n  export: [tum, evo]\n")
     out = tmp_path / "out"
@@ -416,9 +417,15 @@ def test_report_without_plots(generated, tmp_path):
     assert not list(out.glob("*.png"))
     assert {"report.json", "report.md", "ape_evo.zip", "estimate_tum.txt"} <= {p.name for p in out.iterdir()}
     before = json.loads((out / "report.json").read_text())["ape"]
-    assert invoke("report", out).exit_code == 0
+    assert invoke("report", out, "-q").exit_code == 0
+    assert not list(out.glob("*.png"))
+    assert invoke("report", out, "--plots").exit_code == 0
     assert {"trajectory_top.png", "errors.png", "biases.png"} <= {p.name for p in out.glob("*.png")}
     assert json.loads((out / "report.json").read_text())["ape"] == before
+    assert invoke("run", generated["mcap"], "-o", out, "--config", cfg, "--plots", "--force", "-q").exit_code == 0
+    assert {p.name for p in out.glob("*.png")} == {"trajectory_top.png", "errors.png"}  # true: the main ones
+    assert invoke("run", generated["mcap"], "-o", out, "--no-plots", "--force", "-q").exit_code == 0
+    assert not list(out.glob("*.png")) and json.loads((out / "run.json").read_text())["output"]["plots"] is False
 
 
 def test_batch_reports_its_solve_while_it_works(generated, tmp_path):

@@ -74,6 +74,21 @@ def test_compare_all_observers_side_by_side(tmp_path):
     assert all(name in wrote for name in written), wrote
 
 
+def test_compare_no_plots_draws_no_figure_anywhere(tmp_path):
+    """``--no-plots`` (and ``evaluation.plots: false``) is honoured by the comparison's own overlay.png too, with
+    truth and without; the runs' directories have no figures either. Before session 30 overlay.png was drawn
+    whatever the config said."""
+    config = tmp_path / "run.yaml"
+    config.write_text("evaluation:\n  plots: false\n")
+    for name, args in {"truth": ["--config", config], "none": ["--no-plots", "--truth", "none"]}.items():
+        out = tmp_path / name
+        res = invoke("compare", SAMPLE, "-o", out, "--observers", "fast-adaptation,hashim", *args)
+        assert res.exit_code == 0, res.output
+        assert not list(out.rglob("*.png")), name
+        assert (out / "comparison.md").is_file() and "overlay.png" not in (out / "comparison.md").read_text()
+        assert "overlay.png" not in res.stdout.splitlines()[-1]
+
+
 def test_unknown_observer_is_a_usage_error_and_writes_nothing(tmp_path):
     out = tmp_path / "cmp"
     res = invoke("compare", SAMPLE, "-o", out, "--observers", "fast-adaptation,nope")

@@ -177,7 +177,8 @@ def test_compare_without_truth_measures_disagreement(log, tmp_path):
     out, names = tmp_path / "cmp", ("fast-adaptation", "hashim", "batch")
     config = tmp_path / "c.yaml"
     config.write_text(NO_TRUTH + "evaluation:\n  plots: false\n")  # the runs' own figures are tested above
-    res = invoke("compare", log[0], "-o", out, "--observers", ",".join(names), "--config", config)
+    # --plots: overlay.png follows evaluation.plots (session 30), the runs then draw their main figures
+    res = invoke("compare", log[0], "-o", out, "--observers", ",".join(names), "--config", config, "--plots")
     assert res.exit_code == 0, res.output
     table = pd.read_parquet(out / "comparison.parquet").set_index("observer")
     assert list(table["status"]) == ["ok"] * 3
@@ -295,7 +296,7 @@ def test_report_with_truth_on_a_run_without_it_is_kept(log, tmp_path):
     assert invoke("run", log[0], "-o", out, "--config", config, "-q").exit_code == 0
     first = invoke("report", out, "--truth", "/mocap/pose", "--json")
     assert first.exit_code == 0, first.output
-    again = invoke("report", out, "--json")
+    again = invoke("report", out, "--json", "--plots")  # the run's plots: false kept without --plots (session 30)
     assert again.exit_code == 0, again.output
     assert json.loads(again.stdout)["ape"] == json.loads(first.stdout)["ape"]
     assert (out / "report.json").is_file() and (out / "trajectory_top.png").is_file()

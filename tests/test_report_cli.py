@@ -502,8 +502,42 @@ def test_the_report_carries_the_noise_and_what_the_estimator_said_of_its_run():
     assert "2 segments" in report["notes"][3] and report["segments"] == segments
 
 
-def test_report_help_says_it_draws_figures_whatever_the_run_s_plots():
-    # a run with evaluation.plots: false, then `report RUN`: every figure drawn, and nothing said the setting was
-    # the run's only (kept: it spares a run its figures' time, and report is how to draw them afterwards)
-    res = invoke(report, "--help")
-    assert "every figure, whatever the run's evaluation.plots" in " ".join(res.output.split()), res.output
+def test_report_keeps_to_the_run_s_plots_false_unless_told(tmp_path):
+    """A run made with evaluation.plots: false (a batch of thousands of logs) is reported again without figures, as
+    the run was; ``--plots`` draws every one, ``--no-plots`` removes those an earlier report drew (before session
+    30 `report` drew every figure whatever the run said, and its help said so)."""
+    from dataclasses import replace
+
+    out = tmp_path / "run"
+    run_log(SAMPLE, out, RunConfig(evaluation=replace(RunConfig().evaluation, plots=False)))
+    assert load(out / "run.json")["output"]["plots"] is False
+    res = invoke(report, out, "-q")
+    assert res.exit_code == 0, res.output
+    assert not list(out.glob("*.png")) and not load(out / "run.json")["figures"]
+    res = invoke(report, out, "-q", "--plots")
+    assert res.exit_code == 0, res.output
+    drawn = sorted(p.name for p in out.glob("*.png"))
+    assert "trajectory_top.png" in drawn and "biases.png" in drawn and "map.png" in drawn, drawn
+    assert sorted(load(out / "run.json")["figures"]) == drawn
+    res = invoke(report, out, "-q", "--no-plots")  # biases.png, the run's figure and the report's, removed once
+    assert res.exit_code == 0, res.output
+    assert not list(out.glob("*.png")) and not load(out / "run.json")["figures"]
+    assert set(json.loads((out / "slamobs-output.json").read_text())["files"]) == {p.name for p in out.iterdir()} - {
+        "slamobs-output.json"
+    }
+
+
+def test_report_of_a_run_without_truth_keeps_to_its_plots_false(tmp_path):
+    """Without truth the run's own figures follow the run's evaluation.plots too; --plots draws them."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.config import with_truth
+
+    out = tmp_path / "run"
+    run_log(SAMPLE, out, with_truth(RunConfig(evaluation=replace(RunConfig().evaluation, plots=False)), "none"))
+    res = invoke(report, out)
+    assert res.exit_code == 0, res.output
+    assert (out / "report.md").is_file() and not list(out.glob("*.png"))
+    res = invoke(report, out, "-q", "--plots")
+    assert res.exit_code == 0, res.output
+    assert {"trajectory.png", "map.png"} <= {p.name for p in out.glob("*.png")}

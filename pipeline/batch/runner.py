@@ -74,6 +74,7 @@ class BatchOptions:
     msg_dir: str | None = None  # for every config that does not name one
     #: ``--start`` / ``--end``: time.start / time.end of every config, per-log ones included (None: as they say)
     window: tuple[float | None, float | None] = (None, None)
+    plots: bool | None = None  # ``--plots`` / ``--no-plots``: evaluation.plots of every config (None: as they say)
     force: bool = False
     skip_failed: bool = False  # do not retry a log that failed with the same content and config
     prune: bool = False  # drop runs whose log is gone (not at its recorded path with the same content)
@@ -177,7 +178,7 @@ def _overrides(cfg: RunConfig, options: BatchOptions) -> RunConfig:
         cfg = replace(cfg, observer=options.observer)
     if options.msg_dir and not cfg.msg_dir:  # a per-log config naming its own msg_dir keeps it
         cfg = replace(cfg, msg_dir=options.msg_dir)
-    return cfg.with_window(*options.window)
+    return cfg.with_window(*options.window).with_plots(options.plots)
 
 
 def _identify(

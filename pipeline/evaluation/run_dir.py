@@ -279,7 +279,8 @@ def replace_files(run_dir: Path, staged: Path, owned: tuple[str, ...]) -> list[P
         for p in sorted(staged.iterdir()):
             os.replace(p, run_dir / p.name)
             moved.append(run_dir / p.name)
-        removed = [name for name in owned if name not in names and (run_dir / name).is_file()]
+        # once each: a name may be owned twice (biases.png is the run's figure and the report's)
+        removed = [name for name in dict.fromkeys(owned) if name not in names and (run_dir / name).is_file()]
         for name in removed:
             (run_dir / name).unlink()
         update_manifest(run_dir, moved, removed)  # these files are still the run's (a later --force replaces them)
@@ -317,22 +318,34 @@ def _stage_run_json(meta: dict[str, Any], truth: dict[str, Any], staged: Path, e
     tmp.write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
 
 
+def report_plots(meta: dict[str, Any], plots: bool | None = None) -> str | bool:
+    """The figures a new report of a run draws: every one (``"all"``), or none (False) where the run was made with
+    ``evaluation.plots: false`` (``run.json`` ``output.plots``; a run.json without it drew figures) or ``plots``
+    (``--plots`` / ``--no-plots``, None: as the run) says so."""
+    from slamobs.pipeline.config import plots_setting
+
+    return "all" if plots_setting((meta.get("output") or {}).get("plots", True), plots) else False
+
+
 def report_run(
     run_dir: str | Path,
     truth: str | None = None,
     options: ReportOptions | None = None,
     exports: tuple[str, ...] | None = None,
+    plots: bool | None = None,
     **overrides: Any,
 ) -> tuple[dict[str, Any], list[Path]]:
     """Recompute the report of ``run_dir`` against ``truth`` and replace its report files atomically.
 
     ``exports`` ("tum", "evo") are the optional files to write; None keeps the run's choice (``run.json``).
-    Returns the report and the paths written. ``overrides`` are :class:`ReportOptions` fields.
+    ``plots``: draw the figures or not (None: as the run did, :func:`report_plots`). Returns the report and the
+    paths written. ``overrides`` are :class:`ReportOptions` fields.
     """
     from slamobs.pipeline.evaluation.figure_jobs import run_figure_jobs
 
     run = load_run(run_dir)
     tables = _tables(run)
+    drawn = report_plots(run.meta, plots)
     if exports is None:
         exports = tuple(k for k in (run.meta.get("output") or {}).get("export", []) if k in REPORT_EXPORTS)
     exports = tuple(k for k in exports if k in REPORT_EXPORTS)
@@ -374,8 +387,9 @@ def report_run(
             ti.landmark_truth,
             evaluation=evaluation,
             exports=exports,
+            plots=drawn,
             metadata=run.meta,
-            more_figures=run_figure_jobs(tables, with_biases=False),
+            more_figures=run_figure_jobs(tables, with_biases=False) if drawn else [],
         )
         meta = {**run.meta, "figures": report.get("figures", []), "hints": report.get("hints") or []}
         _stage_run_json(meta, ti.source, staged, exports)
@@ -383,10 +397,11 @@ def report_run(
     return report, _replace_report_files(run, fill)
 
 
-def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
-    """A run without truth: draw its figures and write report.md (what the run did, the figures) again, replacing
-    the report files atomically as :func:`report_run` does; returns what ``report --json`` prints (every number of
-    report.md with its definition: ``figure_jobs.summary_json``) and the paths written."""
+def summarise_run(run_dir: str | Path, plots: bool | None = None) -> tuple[dict[str, Any], list[Path]]:
+    """A run without truth: draw its figures (as :func:`report_run`, ``plots``) and write report.md (what the run
+    did, the figures) again, replacing the report files atomically as :func:`report_run` does; returns what
+    ``report --json`` prints (every number of report.md with its definition: ``figure_jobs.summary_json``) and the
+    paths written."""
     from slamobs.pipeline.evaluation.figure_jobs import summary, summary_json, write_run_figures
 
     run = load_run(run_dir)
@@ -395,7 +410,7 @@ def summarise_run(run_dir: str | Path) -> tuple[dict[str, Any], list[Path]]:
     figures: list[str] = []
 
     def fill(staged: Path) -> None:
-        drawn = write_run_figures(staged, tables, notes, map_error=map_error)
+        drawn = write_run_figures(staged, tables, notes, plots=report_plots(run.meta, plots), map_error=map_error)
         figures.extend(p.name for p in drawn if p.suffix == ".png")
         meta = {**run.meta, "figures": figures}
         (staged / "run.json").write_text(json.dumps(meta, indent=2, sort_keys=True) + "\n")
