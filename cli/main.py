@@ -11,7 +11,15 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import OutPath, config_option, export_option, quiet_option, truth_option, window_options
+from slamobs.cli.options import (
+    OutPath,
+    config_option,
+    export_option,
+    msg_dir_option,
+    quiet_option,
+    truth_option,
+    window_options,
+)
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -128,12 +136,7 @@ def main() -> None:
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
 @config_option()
-@click.option(
-    "--msg-dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=None,
-    help="pkg/msg/Type.msg definitions for types the log does not store",
-)
+@msg_dir_option()
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @window_options
 @truth_option
@@ -258,12 +261,7 @@ def _print_summary(summary) -> None:
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
 @config_option()
-@click.option(
-    "--msg-dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=None,
-    help="pkg/msg/Type.msg definitions for types the log does not store",
-)
+@msg_dir_option()
 @click.option("--force", is_flag=True, help="replace an existing output directory")
 @window_options
 @truth_option
