@@ -57,7 +57,6 @@ from slamobs.pipeline.observers.base import (
     Outputs,
     Stepper,
     max_per_frame,
-    output_rows,
 )
 from slamobs.pipeline.observers.shared_steps import (
     FRAME_SETTLE,
@@ -474,7 +473,7 @@ def run_kernel(
     """
     n_vel = vel_t.shape[0]
     state = _State(max_per_frame(det_offsets), dir_inertial.shape[0], r0, p0, b_om0, b_v0)
-    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    out = Outputs.whole_log(n_vel, out_every, det_y.shape[0])
     o = _advance(
         vel_t,
         omega,
@@ -505,17 +504,11 @@ def run_kernel(
         *state.arrays(),
         map_frame,
         np.inf,
-        out.k,
-        out.r,
-        out.p,
-        out.b,
-        out.trk,
-        out.innov,
-        0,
+        *out.arrays(),
     )
     if map_frame:
         lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
-    return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
+    return *out.recorded(o), int(state.ns[_SUBSTEPS])
 
 
 def k_2_limit(gains: dict[str, float]) -> float:
@@ -581,13 +574,7 @@ class Hashim(Stepper):
             *self.state.arrays(),
             True,
             self.settle_s,
-            out.k,
-            out.r,
-            out.p,
-            out.b,
-            out.trk,
-            out.innov,
-            out.det_base,
+            *out.arrays(),
         )
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows
