@@ -66,8 +66,7 @@ from slamobs.pipeline.observers.shared_steps import (
     landmark_sums,
     load_frame,
     predict_points,
-    record_row,
-    record_row_framed,
+    record_step,
     substep_count,
     turn_frame,
 )
@@ -382,12 +381,9 @@ def _advance(
                 started = True
                 t = t_next
             frame_sample(f_r, f_sum, f_stat, settle_s)
-            if iv % out_every == 0 or iv == n_vel - 1:
-                if map_frame:
-                    record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                else:
-                    record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                o += 1
+            o = record_step(
+                o, iv, n_vel, out_every, map_frame, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b
+            )
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t
     ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps

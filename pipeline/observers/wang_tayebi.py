@@ -54,8 +54,7 @@ from slamobs.pipeline.observers.shared_steps import (
     landmark_weight,
     load_frame,
     predict_points,
-    record_row,
-    record_row_framed,
+    record_step,
     substep_count,
     turn_frame,
 )
@@ -539,12 +538,9 @@ def _advance(
                     jump_phi[n_jumps, 0] = phi
                     jump_phi[n_jumps, 1] = phi_q
                     n_jumps += 1
-            if iv % out_every == 0 or iv == n_vel - 1:
-                if map_frame:
-                    record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                else:
-                    record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                o += 1
+            o = record_step(
+                o, iv, n_vel, out_every, map_frame, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b
+            )
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t
     fs[_T_LM], fs[_RATE_LM], fs[_T_DIR], fs[_RATE_DIR] = t_lm, rate_lm, t_dir, rate_dir
