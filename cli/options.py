@@ -195,3 +195,19 @@ def window_options(command):
     return click.option(
         "--start", type=_WINDOW_BOUND, default=None, help=f"use the log from this time: {_WINDOW_RULE}"
     )(command)
+
+
+def log_run_options(command):
+    """The options ``run`` and ``compare`` share, in this order: ``--config``, ``--msg-dir``, ``--force``, the window
+    (``--start``/``--end``), ``--truth``, ``--export`` and ``--quiet``."""
+    for option in (
+        quiet_option(),
+        export_option(),
+        truth_option,
+        window_options,
+        click.option("--force", is_flag=True, help="replace an existing output directory"),
+        msg_dir_option(),
+        config_option(),
+    ):
+        command = option(command)
+    return command
