@@ -15,7 +15,15 @@ import click
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signals_to_the_main_thread
 from slamobs.pipeline.cores import cores
-from slamobs.cli.options import Finite, OutPath, config_option, plots_option, window_options
+from slamobs.cli.options import (
+    Finite,
+    OutPath,
+    config_option,
+    msg_dir_option,
+    plots_option,
+    wait_workers_option,
+    window_options,
+)
 from slamobs.pipeline.errors import plural
 
 
@@ -200,12 +208,10 @@ class _RunCommand(click.Command):
 )
 @click.option("--observer", default=None, help="observer for every log (overrides configs)")
 @config_option("run.yaml for logs without a per-log config in a manifest")
-@click.option(
-    "--msg-dir",
-    type=click.Path(path_type=Path, file_okay=False, exists=True),
-    default=None,
-    help="pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log "
-    "config that names msg_dir)",
+@msg_dir_option(
+    "pkg/msg/Type.msg definitions for types the logs do not store (for logs without a per-log config that names "
+    "msg_dir)",
+    exists=True,
 )
 @click.option(
     "-j", "--jobs", type=click.IntRange(min=1), default=None, help="parallel worker processes (default: all cores)"
@@ -230,14 +236,7 @@ class _RunCommand(click.Command):
     metavar="SECONDS",
     help="per log: a run taking longer is killed and fails (0: no limit)",
 )
-@click.option(
-    "--wait-workers",
-    type=Finite(min=0),
-    default=60.0,
-    show_default=True,
-    metavar="SECONDS",
-    help="Dask: give up (exit 3) when no worker is there for this long",
-)
+@wait_workers_option
 @click.option("--force", is_flag=True, help="re-run logs whose results are up to date")
 @click.option("--skip-failed", is_flag=True, help="do not retry logs that failed with the same content and config")
 @click.option(

@@ -9,15 +9,7 @@ from pathlib import Path
 import click
 
 from slamobs.cli.errors import handled
-from slamobs.cli.options import (
-    OutPath,
-    config_option,
-    export_option,
-    plots_option,
-    quiet_option,
-    truth_option,
-    window_options,
-)
+from slamobs.cli.options import OutPath, log_run_options
 from slamobs.cli.progress import Progress, compile_notice
 
 # One BLAS thread (set before NumPy loads): every matrix product here is tiny, (N, 3) x (3, 3), and OpenBLAS
@@ -104,19 +96,7 @@ def main() -> None:
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="run directory to create")
 @click.option("--observer", default=None, help="observer name (default fast-adaptation; see `slamobs observers`)")
-@config_option()
-@click.option(
-    "--msg-dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=None,
-    help="pkg/msg/Type.msg definitions for types the log does not store",
-)
-@click.option("--force", is_flag=True, help="replace an existing output directory")
-@window_options
-@truth_option
-@export_option()
-@plots_option()
-@quiet_option()
+@log_run_options
 def run(
     logs: tuple[Path, ...],
     out_dir: Path,
@@ -208,16 +188,9 @@ def _print_summary(summary) -> None:
         lm = r.get("landmarks") or {}
         if lm.get("error_m"):
             click.echo(f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} landmarks")
-        err = (r.get("biases") or {}).get("error_norm")
-        if err:
-            click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-        from slamobs.pipeline.evaluation.markdown import convergence_line
+        from slamobs.cli.report_cmd import clock_offset_line, clock_offset_matters, echo_biases_and_convergence
 
-        conv = convergence_line(r.get("convergence") or {})
-        if conv is not None:
-            click.echo(f"converged    {conv}")
-        from slamobs.cli.report_cmd import clock_offset_line, clock_offset_matters
-
+        echo_biases_and_convergence(r)
         if clock_offset_matters(off := r.get("time_offset") or {}):
             click.echo(f"clock offset {clock_offset_line(off, summary.out_dir)}")
         for hint in r.get("hints") or []:
@@ -238,19 +211,7 @@ def _print_summary(summary) -> None:
 @click.argument("logs", nargs=-1, required=True, metavar="LOG...", type=click.Path(path_type=Path))
 @click.option("-o", "--out", "out_dir", required=True, type=OutPath(path_type=Path), help="directory to create")
 @click.option("--observers", "names", required=True, help="comma-separated observer names, e.g. fast-adaptation,hashim")
-@config_option()
-@click.option(
-    "--msg-dir",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=None,
-    help="pkg/msg/Type.msg definitions for types the log does not store",
-)
-@click.option("--force", is_flag=True, help="replace an existing output directory")
-@window_options
-@truth_option
-@export_option()
-@plots_option()
-@quiet_option()
+@log_run_options
 def compare(
     logs: tuple[Path, ...],
     out_dir: Path,

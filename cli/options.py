@@ -164,6 +164,25 @@ _WINDOW_BOUND = Finite(min=0.0, max=9.2e9)
 _WINDOW_RULE = "seconds from the log's start (its first angular-velocity sample), or an absolute stamp in s if > 1e9"
 
 
+def msg_dir_option(help: str = "pkg/msg/Type.msg definitions for types the log does not store", exists: bool = False):
+    """``--msg-dir DIR``: ``.msg`` definitions for the message types a log does not store (``exists``: checked
+    before the command runs)."""
+    return click.option(
+        "--msg-dir", type=click.Path(path_type=Path, file_okay=False, exists=exists), default=None, help=help
+    )
+
+
+#: ``--wait-workers`` of batch and tune: how long a Dask run waits for its first worker
+wait_workers_option = click.option(
+    "--wait-workers",
+    type=Finite(min=0),
+    default=60.0,
+    show_default=True,
+    metavar="SECONDS",
+    help="Dask: give up (exit 3) when no worker is there for this long",
+)
+
+
 def config_option(help: str = "run.yaml"):
     """``--config FILE``: a run.yaml, read by ``pipeline.config.load_config`` (one spelling in every command)."""
     return click.option("--config", "config_path", type=click.Path(path_type=Path), default=None, help=help)
@@ -187,3 +206,20 @@ def window_options(command):
     return click.option(
         "--start", type=_WINDOW_BOUND, default=None, help=f"use the log from this time: {_WINDOW_RULE}"
     )(command)
+
+
+def log_run_options(command):
+    """The options ``run`` and ``compare`` share, in this order: ``--config``, ``--msg-dir``, ``--force``, the window
+    (``--start``/``--end``), ``--truth``, ``--export``, ``--plots/--no-plots`` and ``--quiet``."""
+    for option in (
+        quiet_option(),
+        plots_option(),
+        export_option(),
+        truth_option,
+        window_options,
+        click.option("--force", is_flag=True, help="replace an existing output directory"),
+        msg_dir_option(),
+        config_option(),
+    ):
+        command = option(command)
+    return command

@@ -296,6 +296,19 @@ def clock_offset_matters(off: dict) -> bool:
     )
 
 
+def echo_biases_and_convergence(r: dict) -> None:
+    """The report's final bias error and when the estimate converged (``r``: report.json), one line each when
+    the report has them, as ``run`` and ``report`` print them."""
+    err = (r.get("biases") or {}).get("error_norm")
+    if err:
+        click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
+    from slamobs.pipeline.evaluation.markdown import convergence_line
+
+    conv = convergence_line(r.get("convergence") or {})
+    if conv is not None:
+        click.echo(f"converged    {conv}")
+
+
 def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
     src = r.get("truth_source") or {}
     click.echo(f"truth        {src.get('kind', '?')} {src.get('name', '?')} ({src.get('n_poses', '?')} poses)")
@@ -322,14 +335,7 @@ def _summary(r: dict, written: list[Path], run_dir: Path) -> None:
         click.echo(
             f"landmarks    map error rmse {lm['error_m']['rmse']:.4f} m over {lm['error_m']['n']} landmarks{extra}"
         )
-    err = (r.get("biases") or {}).get("error_norm")
-    if err:
-        click.echo(f"biases       final error gyro {err['gyro']:.4g} rad/s, velocity {err['velocity']:.4g} m/s")
-    from slamobs.pipeline.evaluation.markdown import convergence_line
-
-    conv = convergence_line(r.get("convergence") or {})
-    if conv is not None:
-        click.echo(f"converged    {conv}")
+    echo_biases_and_convergence(r)
     if (line := clock_offset_line(r.get("time_offset") or {}, run_dir)) is not None:
         click.echo(f"clock offset {line}")
     for hint in r.get("hints") or []:  # the run's, as `slamobs run` printed them (run.json's `hints`)

@@ -12,7 +12,7 @@ from slamobs.cli.jobs import EXIT_INFRA, EXIT_SIGNAL, Stopped, on_signal, signal
 from slamobs.pipeline.cores import cores
 from slamobs.cli.errors import exit_input_error
 from slamobs.cli.listing import wrote_line
-from slamobs.cli.options import SEED, Finite, OutPath, config_option
+from slamobs.cli.options import SEED, OutPath, config_option, wait_workers_option
 from slamobs.pipeline.errors import plural
 
 TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip install optuna)"
@@ -70,14 +70,7 @@ TUNE_MISSING = "slamobs tune needs Optuna: pip install 'slamobs[tune]' (or: pip 
     is_flag=True,
     help="start over: the tune in OUT is replaced once the new one has results (kept if it fails)",
 )
-@click.option(
-    "--wait-workers",
-    type=Finite(min=0),
-    default=60.0,
-    show_default=True,
-    metavar="SECONDS",
-    help="Dask: give up (exit 3) when no worker is there for this long",
-)
+@wait_workers_option
 @click.option("-q", "--quiet", is_flag=True, help="print only the final lines")
 def tune(
     logs: tuple[Path, ...],

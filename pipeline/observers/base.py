@@ -198,6 +198,21 @@ class Outputs:
             np.empty((rows, 6, 6)) if with_cov else None,
         )
 
+    @classmethod
+    def whole_log(cls, n_vel: int, out_every: int, n_det: int) -> Outputs:
+        """The outputs of one pass over a whole log (``run_kernel``): every recorded row of ``n_vel`` velocity
+        samples, ``n_det`` detection rows from 0 on."""
+        return cls.empty(output_rows(n_vel, out_every, 0, n_vel), 0, n_det)
+
+    def arrays(self) -> tuple:
+        """``(k, r, p, b, trk, innov, det_base)``: the outputs as every observer's event loop takes them, after
+        its state (``KernelState.arrays``)."""
+        return self.k, self.r, self.p, self.b, self.trk, self.innov, self.det_base
+
+    def recorded(self, o: int) -> tuple:
+        """``(k, r, p, b, trk, innov)`` of the first ``o`` rows: what ``run_kernel`` returns before its counts."""
+        return self.k[:o], self.r[:o], self.p[:o], self.b[:o], self.trk, self.innov
+
     def rows_from(self, o: int) -> Outputs:
         """The same outputs from row ``o`` on (views; detection rows keep their places)."""
         cov = None if self.cov is None else self.cov[o:]

@@ -28,7 +28,6 @@ from slamobs.pipeline.observers.base import (
     Outputs,
     Stepper,
     max_per_frame,
-    output_rows,
 )
 from slamobs.pipeline.observers.shared_steps import (
     count_capped,
@@ -354,7 +353,7 @@ def run_kernel(
     """
     n_vel = vel_t.shape[0]
     state = _State(max_per_frame(det_offsets), r0, p0, b_om0, b_v0)
-    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    out = Outputs.whole_log(n_vel, out_every, det_y.shape[0])
     o = _advance(
         vel_t,
         omega,
@@ -375,15 +374,9 @@ def run_kernel(
         n_vel,
         np.iinfo(np.int64).max,
         *state.arrays(),
-        out.k,
-        out.r,
-        out.p,
-        out.b,
-        out.trk,
-        out.innov,
-        0,
+        *out.arrays(),
     )
-    return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
+    return *out.recorded(o), int(state.ns[_SUBSTEPS])
 
 
 @njit(cache=True)
@@ -427,13 +420,7 @@ class FastAdaptation(Stepper):
             iv_stop,
             budget,
             *self.state.arrays(),
-            out.k,
-            out.r,
-            out.p,
-            out.b,
-            out.trk,
-            out.innov,
-            out.det_base,
+            *out.arrays(),
         )
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows

@@ -57,7 +57,6 @@ from slamobs.pipeline.observers.base import (
     Outputs,
     Stepper,
     max_per_frame,
-    output_rows,
 )
 from slamobs.pipeline.observers.shared_steps import (
     FRAME_SETTLE,
@@ -67,8 +66,7 @@ from slamobs.pipeline.observers.shared_steps import (
     landmark_sums,
     load_frame,
     predict_points,
-    record_row,
-    record_row_framed,
+    record_step,
     substep_count,
     turn_frame,
 )
@@ -383,12 +381,9 @@ def _advance(
                 started = True
                 t = t_next
             frame_sample(f_r, f_sum, f_stat, settle_s)
-            if iv % out_every == 0 or iv == n_vel - 1:
-                if map_frame:
-                    record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                else:
-                    record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                o += 1
+            o = record_step(
+                o, iv, n_vel, out_every, map_frame, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b
+            )
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t
     ns[_IV], ns[_JF], ns[_NVIS], ns[_STARTED], ns[_SUBSTEPS] = iv, jf, nvis, 1 if started else 0, substeps
@@ -474,7 +469,7 @@ def run_kernel(
     """
     n_vel = vel_t.shape[0]
     state = _State(max_per_frame(det_offsets), dir_inertial.shape[0], r0, p0, b_om0, b_v0)
-    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    out = Outputs.whole_log(n_vel, out_every, det_y.shape[0])
     o = _advance(
         vel_t,
         omega,
@@ -505,17 +500,11 @@ def run_kernel(
         *state.arrays(),
         map_frame,
         np.inf,
-        out.k,
-        out.r,
-        out.p,
-        out.b,
-        out.trk,
-        out.innov,
-        0,
+        *out.arrays(),
     )
     if map_frame:
         lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
-    return out.k[:o], out.r[:o], out.p[:o], out.b[:o], out.trk, out.innov, int(state.ns[_SUBSTEPS])
+    return *out.recorded(o), int(state.ns[_SUBSTEPS])
 
 
 def k_2_limit(gains: dict[str, float]) -> float:
@@ -581,13 +570,7 @@ class Hashim(Stepper):
             *self.state.arrays(),
             True,
             self.settle_s,
-            out.k,
-            out.r,
-            out.p,
-            out.b,
-            out.trk,
-            out.innov,
-            out.det_base,
+            *out.arrays(),
         )
         self.stats["substeps"] = int(self.state.ns[_SUBSTEPS])
         return rows

@@ -8,7 +8,8 @@
   step (algorithms A and B; A's gain ψ(e) adapts, B's is constant).
 - :func:`predict_points`: held body-frame measurements (or directions) carried over a sub-step of odometry.
 - :func:`record_row`: one output row of the estimate.
-- :func:`turn_frame`, :func:`record_row_framed`, :func:`frame_rows`, :func:`frame_sample`: the map frame of the
+- :func:`turn_frame`, :func:`record_row_framed`, :func:`frame_rows`, :func:`frame_sample`, and
+  :func:`record_step` (a sample's row when it is due, in either frame): the map frame of the
   observers whose law turns the whole estimate rigidly (algorithms C and E: IMU co-rotation, jumps). Such a turn
   re-frames the
   estimate without adding information about it; the kernel keeps it in ``F`` (map frame -> working frame)
@@ -225,6 +226,19 @@ def frame_rows(f_r, f_p, trk_p, innov, row, n):
         for a in range(3):
             trk_p[j, a] = f_r[0, a] * x0 + f_r[1, a] * x1 + f_r[2, a] * x2
             innov[j, a] = f_r[0, a] * e0 + f_r[1, a] * e1 + f_r[2, a] * e2
+
+
+@njit(cache=True, inline="always")
+def record_step(o, iv, n_vel, out_every, map_frame, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b):
+    """Velocity sample ``iv``'s row ``o`` if it is recorded (every ``out_every``-th and the last of ``n_vel``), in
+    the map frame when ``map_frame`` (:func:`record_row_framed`, else :func:`record_row`); returns the next row."""
+    if iv % out_every == 0 or iv == n_vel - 1:
+        if map_frame:
+            record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+        else:
+            record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
+        o += 1
+    return o
 
 
 @njit(cache=True, inline="always")

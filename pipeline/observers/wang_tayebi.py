@@ -45,7 +45,6 @@ from slamobs.pipeline.observers.base import (
     Outputs,
     Stepper,
     max_per_frame,
-    output_rows,
 )
 from slamobs.pipeline.observers.shared_steps import (
     FRAME_SETTLE,
@@ -55,8 +54,7 @@ from slamobs.pipeline.observers.shared_steps import (
     landmark_weight,
     load_frame,
     predict_points,
-    record_row,
-    record_row_framed,
+    record_step,
     substep_count,
     turn_frame,
 )
@@ -540,12 +538,9 @@ def _advance(
                     jump_phi[n_jumps, 0] = phi
                     jump_phi[n_jumps, 1] = phi_q
                     n_jumps += 1
-            if iv % out_every == 0 or iv == n_vel - 1:
-                if map_frame:
-                    record_row_framed(o, iv, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                else:
-                    record_row(o, iv, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b)
-                o += 1
+            o = record_step(
+                o, iv, n_vel, out_every, map_frame, f_r, f_p, r_hat, p_hat, b_om, b_v, out_k, out_r, out_p, out_b
+            )
             iv += 1
     fs[_T], fs[_MEAS_T] = t, meas_t
     fs[_T_LM], fs[_RATE_LM], fs[_T_DIR], fs[_RATE_DIR] = t_lm, rate_lm, t_dir, rate_dir
@@ -667,7 +662,7 @@ def run_kernel(
     """
     n_vel = vel_t.shape[0]
     state = _State(max_per_frame(det_offsets), dir_ref.shape[0], r0, p0, b_om0, b_v0)
-    out = Outputs.empty(output_rows(n_vel, out_every, 0, n_vel), 0, det_y.shape[0])
+    out = Outputs.whole_log(n_vel, out_every, det_y.shape[0])
     jump_k, jump_q, jump_phi = _jump_arrays(n_vel)
     o, n_jumps = _advance(
         vel_t,
@@ -698,13 +693,7 @@ def run_kernel(
         *state.arrays(),
         map_frame,
         np.inf,
-        out.k,
-        out.r,
-        out.p,
-        out.b,
-        out.trk,
-        out.innov,
-        0,
+        *out.arrays(),
         jump_k,
         jump_q,
         jump_phi,
@@ -712,12 +701,7 @@ def run_kernel(
     if map_frame:
         lm[:, :3] = (lm[:, :3] - state.f_p) @ state.f_r
     return (
-        out.k[:o],
-        out.r[:o],
-        out.p[:o],
-        out.b[:o],
-        out.trk,
-        out.innov,
+        *out.recorded(o),
         int(state.ns[_SUBSTEPS]),
         jump_k[:n_jumps],
         jump_q[:n_jumps],
@@ -783,13 +767,7 @@ class Flow(Stepper):
             *self.state.arrays(),
             True,
             self.settle_s,
-            out.k,
-            out.r,
-            out.p,
-            out.b,
-            out.trk,
-            out.innov,
-            out.det_base,
+            *out.arrays(),
             jump_k,
             jump_q,
             jump_phi,
