@@ -47,7 +47,10 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   also re-initialised (at their next detection, like a new one). The filter gives up (status ``lost``, an
   ``error:`` line in the notes) after ``MAX_FAILING`` failing windows in a row, or when the detection noise
   would exceed ``MAX_SIGMA_SHARE`` of the median detection range (detections that say nothing at that level).
-  On a log where no window fails, none of this changes a number.
+  With one detection per frame the window cannot tell a pose error from the detections' noise
+  (:func:`_common_share` unknown): a factor the detections cannot have goes to the motion alone, not a give-up
+  (docs/benchmarks.md, "riekf's floor without heading, session 30 (h-floorweight)"). On a log where no window
+  fails, none of this changes a number.
 * Overconfidence (a consistency check that changes no number): a consistent filter's innovations are white, so
   the sum of a window's accepted innovations has the sum of their joint covariances (a frame's cross blocks
   included) and its Mahalanobis distance² follows χ² (3 DoF) whatever the window's size. A slowly varying error
@@ -131,11 +134,13 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   (``PLANAR_HEIGHT``). The floor's height error (the start's tilt a few metres on) is the same at every one, not
   new each time: the height row's noise brings the filter's height variance down to that level and no further
   (the information over the log is bounded; repeated as independent, the height's NEES was 4-15); the tilt rows
-  (the body's wobble on the floor, new each time) keep ``PLANAR_TILT``. Held roll and pitch leave the heading's
-  variance to grow by the gyro's noise alone over a blind stretch, less than a slipping wheel turns it: when the
-  blind check re-opens the position, the heading relative to the map is re-opened too, about the robot
-  (:func:`_reopen_heading`). run.json
-  ``observer.filter.planar`` and a note say so; ``noise.floor`` (``auto``, true, false) follows the evidence,
+  (the body's wobble on the floor, new each time) keep ``PLANAR_TILT`` and carry nothing on the heading about the
+  normal (turning about it tilts the up axis no less; linearized at the estimate's tilt they read a heading that is
+  not there: heading NEES 20-100 beside one landmark at a time; session 30 (h-floorweight)). Held roll and pitch
+  leave the heading's variance to grow by the gyro's noise alone over a blind stretch, less than a slipping wheel
+  turns it: when the blind check re-opens the position, the heading relative to the map is re-opened too, about
+  the robot (:func:`_reopen_heading`). run.json ``observer.filter.planar`` and a note say so; ``noise.floor``
+  (``auto``, true, false) follows the evidence,
   forces the floor or turns it off. Samples with no roll, pitch or vertical part at all (a planar log by
   construction) stay in their plane without it, and nothing changes.
 
@@ -852,6 +857,10 @@ def _planar_update(cov, d, r_hat, p_hat, b_om, b_v, lm, slot_lm, plane):
         h[k, 1] = u[2] * t[0] - u[0] * t[2]
         h[k, 2] = u[0] * t[1] - u[1] * t[0]
     n = plane[1:4]
+    for k in range(2):  # no heading about n in the tilt rows: turning about the normal tilts the up axis no less
+        a = h[k, 0] * n[0] + h[k, 1] * n[1] + h[k, 2] * n[2]
+        for c in range(3):
+            h[k, c] -= a * n[c]
     z[2] = n[0] * p_hat[0] + n[1] * p_hat[1] + n[2] * p_hat[2] - plane[4]
     h[2, 0] = p_hat[1] * n[2] - p_hat[2] * n[1]  # −nᵀ[P̂]×ξ = (P̂ × n)·ξ
     h[2, 1] = p_hat[2] * n[0] - p_hat[0] * n[2]
@@ -1161,7 +1170,7 @@ def _reset_landmark(cov, d, o, sigma2, ue):
 def _common_share(n, win_z, win_f):
     """How much of the window's innovations the frames share: ``Σ n_f |z̄_f|²`` over ``Σ |z_i − z̄_f|² n_f/(n_f−1)``
     over frames with two or more detections (about 1 for independent detection errors; large when a pose error
-    moves all of a frame's innovations alike). 1 without such frames."""
+    moves all of a frame's innovations alike). −1 without such frames: unknown (one detection per frame)."""
     common, spread = 0.0, 0.0
     a = 0
     while a < n:
@@ -1181,7 +1190,7 @@ def _common_share(n, win_z, win_f):
             common += m * (mean[0] ** 2 + mean[1] ** 2 + mean[2] ** 2)
             spread += dev * m / (m - 1)
         a = b
-    return common / spread if spread > 0.0 else 1.0
+    return common / spread if spread > 0.0 else -1.0
 
 
 @njit(cache=True)
@@ -1336,9 +1345,12 @@ def _window_check(
         step = min(max(np.median(win_d2[:m]) / CHI2_MEDIAN_3, MIN_STEP), MAX_STEP)
         failing = ns[_FAILING] + 1
         # first: the detections, or, when the frames' innovations move together, the motion (a pose error);
-        # again: both; from the third on the landmarks that failed also start afresh
-        motion = failing >= 2 or _common_share(m, win_z, win_f) > COMMON_SHARE
-        detections = failing >= 2 or not motion
+        # again: both; from the third on the landmarks that failed also start afresh. With one detection per frame
+        # the share is unknown: a factor beyond what the detections can be (``max_scale``) leaves the motion alone
+        share = _common_share(m, win_z, win_f)
+        beyond = share < 0.0 and fs[_DSCALE] * step > max_scale
+        motion = failing >= 2 or share > COMMON_SHARE or beyond
+        detections = (failing >= 2 or not motion) and not beyond
         det = fs[_DSCALE] * step if detections else fs[_DSCALE]
         if ns[_FAILING] >= MAX_FAILING or det > max_scale:
             ns[_LOST] = 1
