@@ -806,7 +806,12 @@ def test_a_run_s_notes_are_the_same_with_the_warn_only_checks_beside_its_observe
         monkeypatch.setattr(run_mod, "prepare_log", lambda *a, later=later, **kw: prepared(*a, later=later, **kw))
         run_log(log, tmp_path / name, config=config)
         assert ran[-1] == later
-    beside, in_align = (json.loads((tmp_path / d / "run.json").read_text())["notes"] for d in ("beside", "in-align"))
+    # the first run in a process with a cold kernel cache (a clean clone, an xdist worker that ran no estimator yet)
+    # says what it compiled, the second not: that note is no alignment note and is left out of the comparison
+    beside, in_align = (
+        [n for n in json.loads((tmp_path / d / "run.json").read_text())["notes"] if not n.startswith("first run: ")]
+        for d in ("beside", "in-align")
+    )
     assert all(any(s in n for n in beside) for s in WARNED), beside
     assert beside == in_align
 

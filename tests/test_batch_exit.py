@@ -23,11 +23,12 @@ from multiprocessing import resource_tracker, util
 from slamobs.pipeline.batch.dask_exec import spawns_settled
 
 resource_tracker.ensure_running()  # started by a first spawn, through the same call: not the child slowed below
-launch = util.spawnv_passfds
+launch, launched = util.spawnv_passfds, threading.Event()
 
 
 def slow(*args):  # the child exists, its start data not yet written (a nanny's start as the batch ends)
     pid = launch(*args)
+    launched.set()
     time.sleep(1.5)
     return pid
 
@@ -35,7 +36,7 @@ def slow(*args):  # the child exists, its start data not yet written (a nanny's 
 util.spawnv_passfds = slow
 child = multiprocessing.get_context("spawn").Process(target=time.sleep, args=(60,), daemon=True)
 threading.Thread(target=child.start, daemon=True).start()
-time.sleep(0.5)
+assert launched.wait(60)  # the end comes while the child starts (a fixed 0.5 s: a loaded machine may not be there yet)
 if sys.argv[1] == "settle":
     spawns_settled()
 for proc in multiprocessing.active_children():  # what the exit does (cli.errors.exit_at_once)

@@ -193,7 +193,9 @@ def stalling_run(task, pid_file: str):
     if Path(task.log).name != "a_stop.mcap":
         return run_task(task, pipeline=fake_pipeline)
     Path(task.staged).mkdir()
-    Path(pid_file).write_text(str(os.getpid()))
+    # whole or not at all: the test reads the file as soon as it exists (written in place, it could be read empty)
+    Path(f"{pid_file}.part").write_text(str(os.getpid()))
+    os.replace(f"{pid_file}.part", pid_file)
     time.sleep(600)
     raise AssertionError("unreachable: the worker was stopped, then restarted")
 

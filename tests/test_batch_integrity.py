@@ -509,18 +509,20 @@ def test_a_dask_task_whose_batch_is_gone_ends_its_worker_process(tmp_path):
     lease.touch()
     code = (
         "import sys, time, threading; import slamobs.pipeline.batch.executor as ex; "
-        "ex.LEASE_STALE_S, ex.LEASE_POLL_S = 1.0, 0.1; "
+        "ex.LEASE_STALE_S, ex.LEASE_POLL_S = 5.0, 0.1; "
         f"ex._watch_lease(__import__('pathlib').Path({str(lease)!r}), threading.Event()); "
         "print('watching', flush=True); time.sleep(120)"
     )
     child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "watching"
-        for _ in range(10):  # a live batch touches its lease: the task carries on
+        # a live batch touches its lease: the task carries on (touched every 0.2 s, stale after 5 s: a loaded
+        # machine that stalls this loop for a second no longer reads as a batch gone)
+        for _ in range(30):
             os.utime(lease)
             time.sleep(0.2)
         assert child.poll() is None
-        assert child.wait(timeout=60) == 70  # untouched for a second: the worker process ends (ORPHANED)
+        assert child.wait(timeout=60) == 70  # untouched for 5 s: the worker process ends (ORPHANED)
     finally:
         child.kill()
 

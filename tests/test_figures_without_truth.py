@@ -202,12 +202,18 @@ def test_compare_without_truth_measures_disagreement(log, tmp_path):
 def test_progress_without_a_terminal_prints_a_line_now_and_then(capsys):
     from slamobs.cli.progress import Progress
 
+    lines: list[str] = []
     with Progress(every_s=0.1) as progress:
         progress("step one")
-        time.sleep(0.45)  # one long step: the heartbeat repeats its line
-    lines = capsys.readouterr().err.splitlines()
+        # one long step: the heartbeat repeats its line. Waited for, not slept: a loaded machine may not wake the
+        # heartbeat within a fixed sleep (0.45 s, 4 intervals); the bound only turns a silent heartbeat into a failure
+        deadline = time.monotonic() + 60.0
+        while len(lines) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+            lines += capsys.readouterr().err.splitlines()
+    lines += capsys.readouterr().err.splitlines()
     assert len(lines) >= 2 and all(line.startswith("[") and line.endswith(" s] step one") for line in lines)
-    with Progress(every_s=5.0) as progress:  # done sooner than a line is due: nothing
+    with Progress(every_s=600.0) as progress:  # done sooner than a line is due: nothing
         progress("quick")
     with Progress(quiet=True, every_s=0.01) as progress:
         progress("quiet")

@@ -26,7 +26,9 @@ from slamobs.pipeline.simulate import simulate, write_log
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
-HANG = 300.0  # a first run, or a killed one, not done after this long counts as hung
+#: a first run, or a killed one, not done after this long counts as hung: a bound for a hang only. 300 s was crossed by
+#: the cold riekf run after the kill (it compiles the rest) at load 16-20 on 2 cores, both parametrizations (session 30)
+HANG = 1200.0
 STOPS_WITHIN_S = 10.0  # a stop this much after the signal is no hang (the old wait was the whole compilation)
 
 
@@ -42,7 +44,14 @@ sleep = [sys.executable, "-c", "import time; time.sleep(600)"]
 child = subprocess.Popen(sleep, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 print(child.pid, flush=True)
 ns = {"__name__": "numba.core.fake"}
-exec("import os, signal, time\ndef optimise():\n    os.kill(os.getpid(), signal.SIGTERM)\n    time.sleep(60)\n", ns)
+exec(
+    "import os, signal, time\n"
+    "def optimise():\n"
+    "    print(time.monotonic(), flush=True)\n"  # when the signal is sent, on the machine's monotonic clock
+    "    os.kill(os.getpid(), signal.SIGTERM)\n"
+    "    time.sleep(60)\n",
+    ns,
+)
 with interrupts.raise_when_safe(lambda signum: f"stopped by {signum}\n"), interrupts.undone_at_end(temp.rmdir):
     ns["optimise"]()
 print("the compiler returned", flush=True)
@@ -50,15 +59,16 @@ print("the compiler returned", flush=True)
 
 
 def test_a_process_in_the_compiler_ends_from_the_watching_thread(tmp_path):
-    """Its children killed, its temporaries removed, the farewell line printed, exit 143: within seconds."""
-    started = time.monotonic()
+    """Its children killed, its temporaries removed, the farewell line printed, exit 143: within seconds of the
+    signal (counted from the signal, not from the start: a loaded machine's start-up and imports took seconds)."""
     done = subprocess.run(
         [sys.executable, "-c", IN_COMPILER, str(tmp_path / "temp")], capture_output=True, text=True, timeout=HANG
     )
-    assert time.monotonic() - started < STOPS_WITHIN_S
+    ended = time.monotonic()
     assert done.returncode == 143, done.stderr
     assert done.stderr == "stopped by 15\n"
-    child = int(done.stdout.split()[0])
+    child, sent = int(done.stdout.split()[0]), float(done.stdout.split()[1])
+    assert ended - sent < STOPS_WITHIN_S  # the compiler's 60 s not waited out
     assert "returned" not in done.stdout and not alive(child)
     assert not (tmp_path / "temp").exists()
 

@@ -106,15 +106,17 @@ def test_background_write_error_surfaces_in_the_caller():
 
 
 def test_background_writes_cancelled_write_nothing_more():
-    gate = threading.Event()
+    gate, taken = threading.Event(), threading.Event()
     written = []
 
     def write(item):
+        taken.set()
         gate.wait(5)
         written.append(item)
 
     writes = BackgroundWrites(write)
     writes.put(0)  # being written (waits at the gate)
+    assert taken.wait(60)  # taken off the queue before the cancel (else the cancel drops it too: a scheduling race)
     writes.put(1)  # waiting in the queue
     threading.Timer(0.1, gate.set).start()
     writes.cancel()  # the run failed: the item being written finishes, the waiting one is dropped
@@ -149,7 +151,7 @@ def test_helper_threads_run_below_the_estimator_s_priority(monkeypatch):
         return _priority()
 
     beside = Pending(search, helper=True)
-    assert started.wait(5)  # begun on its thread, not in the caller's
+    assert started.wait(60)  # begun on its thread, not in the caller's (the bound: a thread that never starts)
     assert beside.result() == lowered
     assert Pending(lambda: (time.sleep(0.05), _priority())[1]).result() == mine  # the report's other work as it was
 
