@@ -45,7 +45,8 @@ def info(logs: tuple[Path, ...], *, as_json: bool, msg_dir: Path | None, noise: 
             _noise(log, msg_dir, config_path, as_json)
             return
         config = _config(config_path)
-        summary = inspect_log(log, msg_dir=msg_dir, frames=_frames(config))
+        clocks = None if config is None else config.reader_options()["clocks"]
+        summary = inspect_log(log, msg_dir=msg_dir, frames=_frames(config), clocks=clocks)
         ready = readiness(summary, config)
     if as_json:
         click.echo(json.dumps({**summary.to_dict(), "readiness": ready.to_dict()}, indent=2))

@@ -484,3 +484,51 @@ def test_every_detection_frame_recorded_twice_is_said_as_for_the_velocities():
         "4 exact duplicates dropped (every message recorded twice: a driver publishing twice? the stream is its 4 "
         "distinct samples, read as a log holding each once)"
     )
+
+
+def test_info_counts_the_nan_values_a_run_drops_in_the_run_s_words(tmp_path):
+    """A magnetometer half NaN (imu_tools' phidgets_imu_upside_down.bag: 6990 of 13964) was not in ``info``."""
+    imu = [(s, r, float("nan") if k % 4 == 1 else v) for k, (s, r, v) in enumerate(_steady(100, 2, 0))]
+    pose = [(s, r, float("inf") if k < 3 else v) for k, (s, r, v) in enumerate(_steady(50, 2, 0))]
+    path = _write(tmp_path / "nan.mcap", {"/imu": imu, "/pose": pose})
+    summary = inspect_log(path)
+    assert _topic(summary, "/imu").nonfinite == {"angular_velocity": 50, "accel": 50}
+    assert _topic(summary, "/pose").nonfinite == {"truth": 3}
+    run_notes = [w for w in read_log(path).warnings if "NaN/Inf" in w]
+    assert sorted(run_notes) == ["/imu: 50 NaN/Inf samples dropped", "/pose: 3 NaN/Inf samples dropped"]
+    for note in run_notes:  # the run's note, word for word, then what it means
+        assert any(w.startswith(f"{note} (of its ") for w in summary.warnings), (note, summary.warnings)
+    text = format_info(summary)
+    assert "NaN/Inf" in text.splitlines()[4] and " 50  " in text.splitlines()[5]  # the topic table's column
+    doc = json.loads(CliRunner().invoke(info, [str(path), "--json"]).stdout)
+    assert next(t for t in doc["topics"] if t["topic"] == "/imu")["nonfinite"] == {"angular_velocity": 50, "accel": 50}
+
+
+def test_info_clocks_column_says_what_a_run_with_the_config_reads(tmp_path):
+    """evo's aruco_images.bag: the column ``use`` said ``record`` where a run reads header stamps by default."""
+    topics = {"/imu": _steady(100, 3, 12 * NS - WALL), "/pose": _steady(50, 3, 0)}  # the clocks disagree
+    path = _write(tmp_path / "mixed.bag", topics)
+    summary = inspect_log(path)
+    assert summary.clocks == {"/imu": "record", "/pose": "record"}  # what time.source: auto reads
+    assert {t.topic: t.run_clock for t in summary.topics} == {"/imu": "header", "/pose": "header"}
+    assert {t.topic: t.run_clock for t in inspect_log(path, clocks="auto").topics} == summary.clocks
+    assert {t.run_clock for t in inspect_log(path, clocks="record").topics} == {"record"}
+    assert {t.topic: t.run_clock for t in inspect_log(path, clocks={"/pose": "record"}).topics} == {
+        "/imu": "header",
+        "/pose": "record",
+    }
+    text = format_info(summary)
+    header = next(line for line in text.splitlines() if "hdr-rec [s]" in line)
+    assert header.split()[1:4] == ["run", "reads", "auto"] and " use " not in header
+    assert ["/imu", "header", "record", "sim"] in [line.split()[:4] for line in text.splitlines()]
+    config = tmp_path / "run.yaml"
+    config.write_text("time:\n  source: record\n")
+    doc = json.loads(CliRunner().invoke(info, [str(path), "--json", "--config", str(config)]).stdout)
+    assert {t["run_clock"] for t in doc["topics"]} == {"record"}
+
+
+def test_info_says_what_its_columns_count(tmp_path):
+    """``rate``, ``spread``, ``gaps``: the tables name their definitions (a new user read rate as messages/span)."""
+    text = format_info(inspect_log(_write(tmp_path / "one.bag", {"/imu": _steady(100, 2, 0)})))
+    assert "rate: distinct header stamps per second of the time recorded" in text
+    assert "spread: its 5th-95th percentile width" in text and "gaps: intervals over 5x the median" in text

@@ -257,8 +257,13 @@ class Cleaning:
         if self.repeated and not on_record_time:
             parts.append(plural(self.repeated, "repeated stamp") + " with different values")
         if self.nonfinite:
-            parts.append(plural(self.nonfinite, "NaN/Inf sample") + " dropped")
+            parts.append(nonfinite_text(self.nonfinite))
         return ", ".join(parts + self.extra)
+
+
+def nonfinite_text(n: int) -> str:
+    """What cleaning says of a stream's ``n`` samples that hold a NaN or Inf (a run's note; ``info`` says it ahead)."""
+    return plural(n, "NaN/Inf sample") + " dropped"
 
 
 def _deserialize(reader: AnyReader, path: str | Path, raw: bytes, conn: Connection) -> Any:
@@ -433,8 +438,8 @@ ZERO_MEANS = {
 
 def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
     """The role's 3-vector out of decoded rows, cleaned; a clean stream shares the decoded arrays (no copy)."""
-    column, frame_from = VEC3_ROLES[role, rows.msgtype]
-    xyz = rows.values[:, LAYOUTS[rows.msgtype].columns[column]]
+    frame_from = VEC3_ROLES[role, rows.msgtype][1]
+    xyz = rows.values[:, role_columns(rows.msgtype, role)]
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, xyz)
     frame = _dominant((rows.child if frame_from == "child" else rows.frame)[idx], rows.frame_names, cleaning)
     kept_all = _is_identity(idx, xyz.shape[0])  # every row, in place: no gather of the rows
@@ -446,16 +451,45 @@ def vec3_stream(rows: Rows, role: str) -> tuple[Vec3Stream, Cleaning]:
     return stream, cleaning
 
 
+def role_columns(msgtype: str, role: str) -> slice | None:
+    """The columns of a ``LAYOUTS`` row that a run reads for ``role``: a 3-vector (:data:`VEC3_ROLES`), or a pose's
+    position and quaternion (truth, of a pose type); None when the type gives the role nothing."""
+    cols = LAYOUTS[msgtype].columns if msgtype in LAYOUTS else {}
+    if (role, msgtype) in VEC3_ROLES:
+        return cols[VEC3_ROLES[role, msgtype][0]]
+    if role == "truth" and "position" in cols and "quat_xyzw" in cols:
+        return slice(cols["position"].start, cols["quat_xyzw"].stop)
+    return None
+
+
+def _zero_quaternions(quat: np.ndarray) -> np.ndarray:
+    """Rows of ``quat`` (N, 4) that are no rotation: every component finite and under 1e-6 (a column at a time)."""
+    zero = finite_rows(quat)
+    for c in range(quat.shape[1]):
+        zero &= np.abs(quat[:, c]) < 1e-6
+    return zero
+
+
+def nonfinite_count(values: np.ndarray, msgtype: str, role: str) -> int:
+    """How many of a topic's decoded rows ``values`` (``LAYOUTS[msgtype]``, record order) the run drops as NaN/Inf
+    for ``role`` (:meth:`Cleaning.text`'s count: :func:`vec3_stream`'s, :func:`pose_stream`'s, whose zero
+    quaternions are counted apart), without building the stream."""
+    sl = role_columns(msgtype, role)
+    if sl is None:
+        return 0
+    bad = ~finite_rows(values[:, sl])
+    if (role, msgtype) not in VEC3_ROLES:
+        bad &= ~_zero_quaternions(values[:, LAYOUTS[msgtype].columns["quat_xyzw"]])
+    return int(np.count_nonzero(bad))
+
+
 def pose_stream(rows: Rows) -> tuple[PoseStream, Cleaning]:
     """Stamped poses out of decoded pose rows (PoseStamped, PoseWithCovarianceStamped, TransformStamped,
     Odometry), cleaned; ``child_frame_id`` is ``''`` for types that do not name it."""
     layout = LAYOUTS[rows.msgtype]
     cols = layout.columns
     values = rows.values[:, cols["position"].start : cols["quat_xyzw"].stop]
-    quat = rows.values[:, cols["quat_xyzw"]]
-    zero = finite_rows(quat)  # and every component under 1e-6 (a column at a time, as finite_rows)
-    for c in range(quat.shape[1]):
-        zero &= np.abs(quat[:, c]) < 1e-6
+    zero = _zero_quaternions(rows.values[:, cols["quat_xyzw"]])
     if nzero := int(np.count_nonzero(zero)):  # no rotation at all: dropped like NaN, counted apart
         values = np.where(zero[:, None], np.nan, values)
     idx, t_ns, cleaning = clean_order(rows.t_ns, rows.rec_ns, values)

@@ -42,17 +42,20 @@ from .decode import (
     first_vectors,
     gyro_stand_in,
     has_header,
+    nonfinite_count,
+    nonfinite_text,
+    role_columns,
     off_pace,
     stamp_pace,
 )
-from .fastdecode import FRAME_ID, TopicColumns, make_plan, read_columns
+from .fastdecode import FRAME_ID, TopicColumns, make_plan, plan_for, read_columns
 from .msgdefs import complete_definitions
 from .roles import ODOMETRY, ROLE_TOPIC_NAMES, ROLES, TF_TYPES, select_roles, topics_of
 from .rows import frame_name
 from .tf_tree import TfSummary, tf_summary
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Collection, Mapping
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -88,7 +91,8 @@ class TopicSummary:
     offset_s: float | None = None  # median header stamp minus record time
     offset_spread_s: float | None = None  # 5th-95th percentile width of header minus record
     relative_offset_s: float | None = None  # offset_s minus the reference topic's
-    clock: str | None = None  # recommended time source: "header" or "record"
+    clock: str | None = None  # the time source time.source: auto picks: "header" or "record"
+    run_clock: str | None = None  # the one a run with the config given reads (:func:`run_clocks`)
     gaps: int | None = None  # intervals longer than GAP_FACTOR median periods
     max_gap_s: float | None = None
     max_gap_at_s: float | None = None  # where the longest gap starts, from the first stamp
@@ -97,6 +101,9 @@ class TopicSummary:
     clock_step_s: float | None = None  # header stamps' jump ahead of record time (decode.clock_step_forward)
     clock_step_at_s: float | None = None  # where it is, from the topic's first record time
     step_back_s: float | None = None  # the largest step back between consecutive stamps (record order)
+    #: per role a run reads of the topic: the messages whose values there hold a NaN or Inf (a run drops and counts
+    #: them, :func:`.decode.nonfinite_count`); None when not read (no role, or a type decoded only by rosbags)
+    nonfinite: dict[str, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -126,7 +133,7 @@ class LogInfo:
 
     @property
     def clocks(self) -> dict[str, str]:
-        """Recommended time source per topic with a header (for :func:`apply_clocks`)."""
+        """The time source ``time.source: auto`` picks per topic with a header (for :func:`apply_clocks`)."""
         return {t.topic: t.clock for t in self.topics if t.clock is not None}
 
     def to_dict(self) -> dict[str, Any]:
@@ -392,18 +399,37 @@ def apply_clocks(streams: LogStreams, clocks: Mapping[str, str]) -> LogStreams:
 # --------------------------------------------------------------------------- inspect
 
 
-def _scan(reader: AnyReader, path: str | Path, table: Mapping[str, Any]) -> dict[str, TopicColumns]:
-    """Header columns (stamps, record times, frames, payload digests) of every headered topic, one pass."""
+def _scan(
+    reader: AnyReader, path: str | Path, table: Mapping[str, Any], valued: Collection[str]
+) -> dict[str, TopicColumns]:
+    """Header columns (stamps, record times, frames, payload digests) of every headered topic, one pass; of the
+    topics ``valued`` (those a run reads values of) the values too, as the run decodes them (``fastdecode.plan_for``;
+    where that needs rosbags, none)."""
     planned = {}
     for topic, (meta, conns) in table.items():
         if meta.count and meta.msgtype in reader.typestore.fielddefs and has_header(reader, meta.msgtype):
-            plan = make_plan(reader.typestore, meta.msgtype, (), (FRAME_ID,), cdr=reader.is2)
+            plan = plan_for(reader.typestore, meta.msgtype, reader.is2) if topic in valued else None
+            if plan is not None:  # the stated covariances are not looked at here: every column as a number
+                plan = dataclasses.replace(plan, stated_from=None)
+            else:
+                plan = make_plan(reader.typestore, meta.msgtype, (), (FRAME_ID,), cdr=reader.is2)
             if plan is not None:
                 planned[topic] = (conns, plan)
     return read_columns(reader, path, planned, digests=True)
 
 
-def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns | None) -> TopicSummary:
+def _valued_roles(table: Mapping[str, Any], roles: Mapping[str, str]) -> dict[str, tuple[str, ...]]:
+    """Per topic, the roles whose values a run reads from its rows (:func:`.decode.role_columns`)."""
+    out: dict[str, tuple[str, ...]] = {}
+    for role, topic in roles.items():
+        if role in _TIMED_ROLES and topic in table and role_columns(table[topic][0].msgtype, role) is not None:
+            out[topic] = (*out.get(topic, ()), role)
+    return out
+
+
+def _summary(
+    topic: str, msgtype: str, count: int, note: str, cols: TopicColumns | None, roles: tuple[str, ...] = ()
+) -> TopicSummary:
     if cols is None or not len(cols.t_ns):
         if note:
             return TopicSummary(topic, msgtype, count, note=note)
@@ -444,6 +470,7 @@ def _summary(topic: str, msgtype: str, count: int, note: str, cols: TopicColumns
         clock_step_s=step / _NS if step else None,
         clock_step_at_s=at_s if step else None,
         step_back_s=order.step_back_ns / _NS if order.step_back_ns else None,
+        nonfinite={r: nonfinite_count(cols.values, msgtype, r) for r in roles} if roles and cols.values.size else None,
     )
 
 
@@ -477,6 +504,20 @@ def _problems(t: TopicSummary, pace: float | None) -> list[str]:
         steps = " -> ".join(f"{rate:.4g} Hz" + (f" at +{at:.1f} s" if at else "") for at, rate in t.rate_segments[:5])
         problems.append(f"rate changes: {steps}" + (" ..." if len(t.rate_segments) > 5 else ""))
     return problems
+
+
+def nonfinite_notes(t: TopicSummary) -> list[str]:
+    """What a run will note of the topic's NaN/Inf values (:attr:`TopicSummary.nonfinite`), in its words
+    (``readers._cleaning_notes``: the roles named where they differ), and that it drops those messages."""
+    by_count: dict[int, list[str]] = {}
+    for role, n in (t.nonfinite or {}).items():
+        by_count.setdefault(n, []).append(role)
+    notes = []
+    for n, roles in by_count.items():
+        where = t.topic if len(roles) == len(t.nonfinite or {}) else f"{t.topic} ({', '.join(roles)})"
+        if n:
+            notes.append(f"{where}: {nonfinite_text(n)} (of its {t.count} messages: a run drops them, noting this)")
+    return notes
 
 
 #: Messages ``info`` reads of the angular-velocity topic (and of the linear-velocity one) to tell an IMU that does not
@@ -548,15 +589,41 @@ def _sim_truth_words(reader, path: str | Path, table: dict, roles: Mapping[str, 
     return f"{', and '.join(said)}; a run reports its {errors} error against it", warnings
 
 
+def run_clocks(
+    topics: Collection[TopicSummary], stepped: bool, source: str | Mapping[str, str] | None
+) -> dict[str, str]:
+    """The clock a run reads per topic with a header, ``source`` the config's choice (``readers.read_log``'s
+    ``clocks``: None or ``header`` the default, ``record``, ``auto`` or a topic mapping), by the readers' rule
+    (``readers._with_clocks``): header stamps unless told otherwise; record time for every topic by default when a
+    header clock steps mid-log (``stepped``); ``auto``: give the mapping it picks; record time wherever the header
+    stamps are all zero."""
+    out = {}
+    for t in topics:
+        if t.header_clock is None:
+            continue
+        if source in (None, "header"):
+            clock = "record" if stepped else "header"
+        elif isinstance(source, str):
+            clock = source
+        else:
+            clock = source.get(t.topic, "header")
+        out[t.topic] = "record" if t.header_clock == "zero" else clock
+    return out
+
+
 def inspect_log(
-    path: str | Path, msg_dir: str | Path | None = None, frames: Mapping[str, Any] | None = None
+    path: str | Path,
+    msg_dir: str | Path | None = None,
+    frames: Mapping[str, Any] | None = None,
+    clocks: str | Mapping[str, str] | None = None,
 ) -> LogInfo:
     """Summarise a log: container, time span, per-topic type/count/frames/stamps/clocks, detected roles, the TF
     tree and each sensor frame's transform into the body frame.
 
     ``msg_dir`` supplies ``pkg/msg/Type.msg`` definitions the log lacks (see ``read_log``). ``frames``: the keyword
     arguments of :func:`.tf_tree.tf_summary` a config gives (``body_frame``, ``identity``, ``override``,
-    ``cameras_given``). A truncated log is summarised from what could be recovered, with a warning saying so.
+    ``cameras_given``). ``clocks``: the config's time source, as ``read_log`` takes it (:func:`run_clocks`). A
+    truncated log is summarised from what could be recovered, with a warning saying so.
 
     Raises:
         InputError: The log cannot be opened or read.
@@ -567,8 +634,9 @@ def inspect_log(
         complete_definitions(reader, msg_dir)
         table = topics_of(reader)
         selection = select_roles({t: m for t, (m, _) in table.items()}, None, path)
-        columns = _scan(reader, path, table)
         gyro_roles, gyro_notes = _gyro_source(reader, table, selection.roles)
+        valued = _valued_roles(table, gyro_roles)
+        columns = _scan(reader, path, table, valued)
         count = reader.message_count
         start = reader.start_time if count else None
         end = reader.end_time - 1 if count else None
@@ -583,7 +651,9 @@ def inspect_log(
             elif not has_header(reader, meta.msgtype):
                 notes[topic] = "no header"
     summaries = {
-        topic: _summary(topic, meta.msgtype, meta.count, notes.get(topic, ""), columns.get(topic))
+        topic: _summary(
+            topic, meta.msgtype, meta.count, notes.get(topic, ""), columns.get(topic), valued.get(topic, ())
+        )
         for topic, (meta, _) in sorted(table.items())
     }
     offsets = {
@@ -594,14 +664,15 @@ def inspect_log(
     reference = selection.roles.get("angular_velocity")
     if reference not in offsets:
         reference = max(offsets, key=lambda t: (summaries[t].count, t), default=None)
-    clocks, clock_warnings = choose_clocks(offsets, reference)
+    advised, clock_warnings = choose_clocks(offsets, reference)
+    auto = dict(advised)  # what time.source: auto reads (readers._with_clocks: no stepped rule)
     stepped = [
         t
         for t, s in summaries.items()
         if clock_steps(round((s.step_back_s or 0.0) * _NS), round((s.clock_step_s or 0.0) * _NS))
     ]
     if stepped:  # what a run does by default then (readers._with_clocks)
-        clocks = dict.fromkeys(clocks, "record")
+        advised = dict.fromkeys(advised, "record")
         clock_warnings = [
             f"{w} (a run reads record time for every topic by default: a header clock steps mid-log)"
             for w in clock_warnings
@@ -615,13 +686,15 @@ def inspect_log(
     topics = tuple(
         dataclasses.replace(
             s,
-            clock=clocks.get(s.topic),
+            clock=advised.get(s.topic),
             relative_offset_s=(
                 round(s.offset_s - ref_offset, 9) if s.offset_s is not None and ref_offset is not None else None
             ),
         )
         for s in summaries.values()
     )
+    used = run_clocks(topics, bool(stepped), auto if clocks == "auto" else clocks)
+    topics = tuple(dataclasses.replace(t, run_clock=used.get(t.topic)) for t in topics)
     off = off_pace({t.topic: t.stamp_pace for t in topics})
     record_clock = clock_kind(np.array([start], np.int64)) if start is not None else None
     if record_clock == "wall":
@@ -630,6 +703,7 @@ def inspect_log(
             warnings.append(f"header stamps are simulation time next to wall-clock record times: {', '.join(sim)}")
     warnings += clock_warnings
     warnings += [f"{t.topic}: " + ", ".join(p) for t in topics if (p := _problems(t, off.get(t.topic)))]
+    warnings += [note for t in topics for note in nonfinite_notes(t)]
     return LogInfo(
         str(path),
         container.kind,
@@ -670,6 +744,25 @@ def _seconds(value: float | None, sign: bool = True) -> str:
     return "-" if value is None else (f"{value:+.3f}" if sign else f"{value:.3f}")
 
 
+#: What the topic table's columns mean (what ``info`` prints under it).
+TOPIC_LEGEND = (
+    "  rate: distinct header stamps per second of the time recorded (gaps left out: intervals over "
+    f"{GAP_FACTOR:g}x the median);",
+    "  out-of-order: stamps earlier than the one before (record order); duplicates: same stamp, same bytes;",
+    "  NaN/Inf: messages whose values a run reads (its roles) hold a NaN or Inf: a run drops them ('-': not read);",
+    "  stamps: first header stamp [s] and the span to the last [s]",
+)
+#: What the clocks table's columns mean.
+CLOCK_LEGEND = (
+    "  run reads: the clock a run with this config reads (default: header stamps; record time for every topic when "
+    "a header clock steps mid-log, or where the stamps are all zero); auto: what time.source: auto reads;",
+    "  hdr-rec: median header stamp minus record time; spread: its 5th-95th percentile width; vs ref: hdr-rec minus "
+    "the reference's;",
+    "  repeated: stamps repeated with different content; gaps: intervals over "
+    f"{GAP_FACTOR:g}x the median (longest [s]); rate Hz: rate changes (each over {RATE_TOLERANCE:.0%})",
+)
+
+
 def format_info(info: LogInfo) -> str:
     """Aligned plain-text report for a terminal."""
     label = LABELS[info.container] + (f" ({info.storage})" if info.storage else "")
@@ -698,6 +791,7 @@ def format_info(info: LogInfo) -> str:
                 frames or "-",
                 "-" if t.out_of_order is None else str(t.out_of_order),
                 "-" if t.duplicates is None else str(t.duplicates),
+                "-" if t.nonfinite is None else str(max(t.nonfinite.values())),
                 stamps,
             ),
         )
@@ -708,6 +802,7 @@ def format_info(info: LogInfo) -> str:
             clock_rows.append(
                 (
                     t.topic,
+                    t.run_clock or "-",
                     t.clock or "-",
                     t.header_clock,
                     _seconds(t.offset_s),
@@ -718,13 +813,16 @@ def format_info(info: LogInfo) -> str:
                     rates or "steady",
                 ),
             )
-    header = ("topic", "type", "count", "rate Hz", "frame_id", "out-of-order", "duplicates", "stamps [s]")
-    lines += ["", *_table(header, rows, right={2, 3, 5, 6})]
+    header = ("topic", "type", "count", "rate Hz", "frame_id", "out-of-order", "duplicates", "NaN/Inf", "stamps [s]")
+    lines += ["", *_table(header, rows, right={2, 3, 5, 6, 7}), *TOPIC_LEGEND]
     if clock_rows:
         ref = f"; offsets vs {info.clock_reference}" if info.clock_reference else ""
         lines += ["", f"  clocks (record time: {info.record_clock} clock{ref})"]
-        header = ("topic", "use", "header", "hdr-rec [s]", "spread [s]", "vs ref [s]", "repeated", "gaps", "rate Hz")
-        lines += _table(header, clock_rows, right={3, 4, 5, 6})
+        header = (
+            "topic", "run reads", "auto", "header", "hdr-rec [s]", "spread [s]", "vs ref [s]", "repeated", "gaps",
+            "rate Hz",
+        )  # fmt: skip
+        lines += [*_table(header, clock_rows, right={4, 5, 6, 7}), *CLOCK_LEGEND]
     lines += ["", "  roles"]
     roles = [(f"  {role}", info.roles[role]) for role in ROLES if role in info.roles]
     if info.sim_truth:  # the role's name says little: what the topic holds
