@@ -22,6 +22,7 @@ from slamobs.pipeline.observers.riekf import (
     PLANAR_HEIGHT,
     PLANAR_TILT,
     WIN_SUM_ROWS,
+    correlation_arrays,
     RiEKF,
     accumulate,
     flush,
@@ -168,6 +169,7 @@ def test_update_equals_the_dense_kalman_update_and_augments_new_landmarks(extra)
         np.zeros(n_lm, np.bool_),
         np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)),  # the consistency check's sums, the walk's, the tally
         np.zeros(1),  # the innovations after a blind stretch (none here)
+        *correlation_arrays(n_lm),
     )
     assert d_out == d + 3 and slot_of[3] == 3 and slot_lm[3] == 3
     assert np.allclose(cov[: d + 3, : d + 3], cov_exp, atol=1e-12)
