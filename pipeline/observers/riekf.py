@@ -1152,12 +1152,13 @@ def _correlation_sums(i, zi, d2, corr_w, corr_n, corr_sum):
     f = np.sqrt(d2 / q) if q > 0.0 else 0.0
     w0, w1, w2 = f * zi[0], f * zi[1], f * zi[2]
     n, lags = corr_n[i], corr_w.shape[1]
+    here = n % lags  # the ring's slot of this one; the k-th last is k slots before it (one modulo per detection)
     corr_sum[0] += w0 * w0 + w1 * w1 + w2 * w2
+    s = here
     for k in range(1, min(n, lags) + 1):
-        s = (n - k) % lags
+        s = s - 1 if s > 0 else lags - 1
         corr_sum[k] += w0 * corr_w[i, s, 0] + w1 * corr_w[i, s, 1] + w2 * corr_w[i, s, 2]
-    s = n % lags
-    corr_w[i, s, 0], corr_w[i, s, 1], corr_w[i, s, 2] = w0, w1, w2
+    corr_w[i, here, 0], corr_w[i, here, 1], corr_w[i, here, 2] = w0, w1, w2
     corr_n[i] = n + 1
 
 
