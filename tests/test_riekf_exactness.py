@@ -18,6 +18,7 @@ from slamobs.pipeline.observers.riekf import (
     N_SLOTS,
     PAD,
     WIN_SUM_ROWS,
+    correlation_arrays,
     RiEKF,
     apply,
     propagation_terms,
@@ -139,7 +140,7 @@ def test_one_pass_frame_equals_propagation_then_kalman_update():
         0, 3, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
         np.zeros(3, np.int64), np.zeros(9), lt, rt, dp, np.zeros((9, 9)), innov, trk, 0, ns, 1e9, 1.0,
         np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_), np.zeros(n, np.bool_),
-        np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)), np.zeros(1),
+        np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)), np.zeros(1), *correlation_arrays(n),
     )  # fmt: skip
     assert d_out == d and ns[9] == 1 and ns[8] == 0  # no new landmark, none gated; one update
     assert np.abs(cov - cov_exp).max() <= 1e-12 * np.abs(cov_exp).max() and np.array_equal(cov, cov.T)
@@ -178,7 +179,8 @@ def _two_frames(partial: bool):
             a0, nd, det_idx, det_y, law, cov, d, r_hat, p_hat, b_om, b_v, lm, slot_of, slot_lm,
             np.zeros(4, np.int64), np.zeros(12), lt, rt, dp, np.zeros((12, 12)), np.zeros((8, 3)), np.zeros((8, 3)),
             0, ns, 1e9, 1.0, np.zeros(9), np.zeros((9, 3)), np.zeros(9, np.int64), np.zeros(n, np.bool_),
-            np.zeros(n, np.bool_), np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)), np.zeros(1), 4, nxt,
+            np.zeros(n, np.bool_), np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS)), np.zeros(1),
+            *correlation_arrays(n), 4, nxt,
         )  # fmt: skip
         after.append((cov.copy(), r_hat.copy(), p_hat.copy(), np.r_[b_om, b_v], lm.copy()))
     assert ns[9] == 2 and ns[8] == 0 and d == N_FIXED + 3 * n  # two updates, none gated, landmark 6 augmented

@@ -823,10 +823,11 @@ def test_the_written_pose_covariance_after_a_recovery_is_the_filters_own():
     t_rec = f["recovery_log"][0]["t_s"]
     after = np.flatnonzero((res.t_ns - res.t_ns[0]) * 1e-9 > t_rec + 1.0)
     assert after.size > 50
+    widened = f["correlation"]["factors"][-1]  # the detections' correlation in time (tests/test_riekf_correlation.py)
     for k in after[::5]:
         j = np.eye(6)
         j[3:, :3] = -skew(res.position[k])
-        expect = j @ filt.cov_rows[k, :6, :6] @ j.T
+        expect = widened * (j @ filt.cov_rows[k, :6, :6] @ j.T)
         assert np.allclose(res.pose_cov[k], expect, rtol=1e-9, atol=1e-15), k
 
 

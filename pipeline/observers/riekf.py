@@ -67,6 +67,17 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   within the bound), with a note when it is above 1. The estimate and the pose covariance are unchanged. Errors the
   detections cannot see (a camera's calibration, a tag's size, the truth's own) are not in it (docs/benchmarks.md,
   "riekf's map σ on real logs").
+* The pose's covariance widened by the detections' correlation in time (:func:`correlation_factor`): the filter
+  treats each detection's error as independent of the last; on real logs a landmark's detection errors are
+  correlated over seconds, so the same information is counted several times and the pose covariance is too small.
+  Each accepted detection's innovation, whitened by its gate distance (``z / |z| · √d²``), joins its landmark's
+  last ``CORRELATION_LAGS`` (:func:`_correlation_sums`); the lag products pooled over the landmarks give the
+  integrated autocorrelation ``ν = 1 + 2 Σ ρ_k`` (Sokal's window, its standard error), the factor by which counting
+  them as independent overstates their information. When ``ν`` minus ``CORRELATION_SES`` standard errors exceeds
+  1, the written pose covariance is the filter's times ``ν`` (each stretch at its write, from the pass so far:
+  a written stretch is never rescaled); run.json ``observer.filter.correlation`` holds ``ν``, its standard
+  error and whether it was applied, with a note. Output only: the filter, the map and its covariance are unchanged
+  (docs/benchmarks.md, "riekf's correlation factor").
 * Velocity-bias walk (learned from the log unless ``noise.velocity_bias_walk`` is given): variance matching on the
   bias states (Myers & Tapley 1976, Mohamed & Schwarz 1999: a state's corrections ``δx̂ = Kz`` have the covariance
   ``K S Kᵀ``, the downdate ``U Uᵀ`` of its rows, when the model is right). Over the last ``CONSISTENCY_WINDOWS``
@@ -223,6 +234,13 @@ CONSISTENCY_WINDOWS = 7
 #: covariance (0-3), the consistency ring (4), the bias corrections (5-7), the run's innovation tally (8,
 #: :func:`innovation_consistency`). Public: tests that call :func:`update` allocate it.
 WIN_SUM_ROWS = 9
+#: The pose covariance's correlation factor (module docstring, :func:`correlation_factor`): the lags of a landmark's
+#: consecutive accepted innovations summed (a ν up to about ``CORRELATION_LAGS / CORRELATION_WINDOW`` is measured
+#: whole, a larger one truncated: under-, never overstated), Sokal's window constant ``c`` (the window is the first
+#: ``M ≥ c ν``), and the standard errors by which ν must exceed 1 to be applied.
+CORRELATION_LAGS = 48
+CORRELATION_WINDOW = 5.0
+CORRELATION_SES = 2.0
 #: Velocity-bias walk (module docstring): over the last ``CONSISTENCY_WINDOWS`` passing windows, the ratio of the
 #: squared velocity-bias corrections to what a consistent filter expects of them above which the walk is raised
 #: (first time; ``WALK_RATIO_AGAIN`` once raised), and the largest factor on its standard deviation in all.
@@ -982,6 +1000,9 @@ def update(
     reinit,
     win_sum,
     blind_z2,
+    corr_w,
+    corr_n,
+    corr_sum,
     next_a0=0,
     next_nd=-1,
 ):
@@ -1055,6 +1076,7 @@ def update(
         ns[_TAIL_GATED] = 0
         win_sum[8, 0] += d2  # the run's accepted innovations' NIS (innovation_consistency)
         win_sum[8, 1] += 1.0
+        _correlation_sums(i, zi, d2, corr_w, corr_n, corr_sum)
         sel[m] = j
         for c in range(3):
             z[3 * m + c] = zi[c]
@@ -1122,6 +1144,31 @@ def update(
         _reset_landmark(cov, d, d, sig2[j], ues[j])
         d += 3
     return d
+
+
+def correlation_arrays(n_landmarks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What :func:`_correlation_sums` keeps, empty: each landmark's last ``CORRELATION_LAGS`` whitened innovations,
+    their count, and the pooled lag sums. Public: tests that call :func:`update` allocate them."""
+    return np.zeros((n_landmarks, CORRELATION_LAGS, 3)), np.zeros(n_landmarks, np.int64), np.zeros(CORRELATION_LAGS + 1)
+
+
+@njit(cache=True)
+def _correlation_sums(i, zi, d2, corr_w, corr_n, corr_sum):
+    """Landmark ``i``'s accepted innovation ``zi``, whitened by its gate distance (``zi / |zi| · √d²``), into the
+    pooled lag sums ``corr_sum`` (0: the squares, k: the products with the landmark's k-th last, up to
+    ``CORRELATION_LAGS``) and into its ring ``corr_w[i]`` (``corr_n[i]`` innovations so far). Changes nothing else."""
+    q = zi[0] * zi[0] + zi[1] * zi[1] + zi[2] * zi[2]
+    f = np.sqrt(d2 / q) if q > 0.0 else 0.0
+    w0, w1, w2 = f * zi[0], f * zi[1], f * zi[2]
+    n, lags = corr_n[i], corr_w.shape[1]
+    here = n % lags  # the ring's slot of this one; the k-th last is k slots before it (one modulo per detection)
+    corr_sum[0] += w0 * w0 + w1 * w1 + w2 * w2
+    s = here
+    for k in range(1, min(n, lags) + 1):
+        s = s - 1 if s > 0 else lags - 1
+        corr_sum[k] += w0 * corr_w[i, s, 0] + w1 * corr_w[i, s, 1] + w2 * corr_w[i, s, 2]
+    corr_w[i, here, 0], corr_w[i, here, 1], corr_w[i, here, 2] = w0, w1, w2
+    corr_n[i] = n + 1
 
 
 @njit(cache=True)
@@ -1423,6 +1470,9 @@ def _advance(
     win_f,
     win_sum,
     blind_z2,
+    corr_w,
+    corr_n,
+    corr_sum,
     gated_lm,
     reinit,
     rec_log,
@@ -1535,6 +1585,9 @@ def _advance(
                 reinit,
                 win_sum,
                 blind_z2,
+                corr_w,
+                corr_n,
+                corr_sum,
                 det_offsets[jf + 1],
                 next_nd,
             )
@@ -1629,6 +1682,7 @@ class _State(KernelState):
         # the window's summed accepted innovations and their covariance; the last windows' d² (_consistency_check)
         self.win_sum = np.zeros((WIN_SUM_ROWS, CONSISTENCY_WINDOWS))
         self.blind_z2 = np.zeros(BLIND_WINDOW + max(n_max, 1))  # |z|² of the detections after a blind stretch
+        self.corr_w, self.corr_n, self.corr_sum = correlation_arrays(n_landmarks)
         self.gated_lm = np.zeros(n_landmarks, dtype=np.bool_)
         self.reinit = np.zeros(n_landmarks, dtype=np.bool_)
         self.rec_log = np.zeros((MAX_LOG, 4))
@@ -1662,6 +1716,9 @@ class _State(KernelState):
             self.win_f,
             self.win_sum,
             self.blind_z2,
+            self.corr_w,
+            self.corr_n,
+            self.corr_sum,
             self.gated_lm,
             self.reinit,
             self.rec_log,
@@ -1755,6 +1812,7 @@ class RiEKF(Stepper):
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
         self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(stream, self.vel_t, nz.held)
         self.stats.update({"noise": self.noise.as_dict()})
+        self._corr_factors: list[float] = []  # each written stretch's pose covariance factor (:meth:`_widened`)
 
     @property
     def time_offset(self) -> dict:
@@ -1783,7 +1841,7 @@ class RiEKF(Stepper):
         while not self._returned and (self._walk_restart() or self._prior_restart()):
             res = self._advance_stretch(iv_stop)
         self._returned = True
-        return res
+        return self._widened(res)
 
     def _walk_restart(self) -> bool:
         """Whether the first stretch is run again (module docstring, "Velocity-bias walk"): when the largest ratio of
@@ -1937,6 +1995,7 @@ class RiEKF(Stepper):
                 "noise": self.noise.as_dict(),
                 "planar": self._planar_record(),
                 "innovation_consistency": innovation_consistency(self.state.win_sum[8]),
+                "correlation": self._correlation(),
                 **self._recovery(),
             },
             "time_offset": self._time_offset,
@@ -1949,6 +2008,23 @@ class RiEKF(Stepper):
         if self.planar["planar"] or self.planar["held"]:
             self.stats["notes"].append(self._planar_note())
         self.stats["notes"] += innovation_note(self.stats["metadata"]["filter"]["innovation_consistency"])
+        self.stats["notes"] += correlation_note(self.stats["metadata"]["filter"]["correlation"])
+
+    def _correlation(self) -> dict:
+        """:func:`correlation_factor` of the pass so far, with the factor each written stretch got and this one's
+        (``factors``: ν where applied, else 1; a written stretch is never rescaled)."""
+        st = self.state
+        rec = correlation_factor(st.corr_sum, int(st.corr_n.sum()))
+        return {**rec, "factors": [*self._corr_factors, rec["nu"] if rec["applied"] else 1.0]}
+
+    def _widened(self, res):
+        """``res`` with its pose covariance times the factor its statistics give it (:meth:`_correlation`)."""
+        rec = res.stats.get("metadata", {}).get("filter", {}).get("correlation")  # none: the kernel never ran
+        f = rec["factors"][-1] if rec else 1.0
+        self._corr_factors.append(f)
+        if f == 1.0 or res.pose_cov is None:
+            return res
+        return replace(res, pose_cov=res.pose_cov * f)
 
     def _planar_note(self) -> str:
         """The note of a floor held, or of planar motion seen with the floor switched off (``noise.floor``)."""
@@ -2102,6 +2178,37 @@ def innovation_consistency(tally: np.ndarray) -> dict:
         "landmark_covariance_factor": mean_d2 / 3.0 if above else 1.0,
         "method": INNOVATION_METHOD,
     }
+
+
+def correlation_factor(lag_sums: np.ndarray, n: int, window: float = CORRELATION_WINDOW) -> dict:
+    """The integrated autocorrelation ``ν = 1 + 2 Σ_{k≤M} ρ_k`` of the landmarks' consecutive whitened innovations
+    (module docstring, "The pose's covariance widened"), from ``lag_sums`` (0: their summed squares, k: the summed
+    products of each with its landmark's k-th last, pooled over the landmarks) and ``n`` innovations: ``ρ_k`` the
+    lag sums over the squares, the window ``M`` the first with ``M ≥ window · ν`` (Sokal's; the last lag when none
+    is), the standard error ``ν √(2 (2M + 1) / n)`` (Madras & Sokal 1988), applied when ``ν`` exceeds 1 by more than
+    ``CORRELATION_SES`` of them. Public: tests/test_riekf.py checks it."""
+    rec = {"nu": 1.0, "se": None, "window": 0, "innovations": int(n), "applied": False}
+    if n < 2 or lag_sums[0] <= 0.0:
+        return rec
+    nu_m = 1.0 + 2.0 * np.cumsum(lag_sums[1:] / lag_sums[0])
+    lags = np.arange(1, nu_m.shape[0] + 1)
+    ok = np.flatnonzero(lags >= window * nu_m)
+    m = int(lags[ok[0]] if ok.shape[0] else lags[-1])
+    nu = float(nu_m[m - 1])
+    se = abs(nu) * float(np.sqrt(2.0 * (2 * m + 1) / n))
+    return {**rec, "nu": nu, "se": se, "window": m, "applied": bool(nu - CORRELATION_SES * se > 1.0)}
+
+
+def correlation_note(rec: dict) -> list[str]:
+    """The note of a pose covariance widened by :func:`correlation_factor`, else []."""
+    if not rec["applied"]:
+        return []
+    return [
+        f"riekf: the detections' errors are correlated over time (integrated autocorrelation ν = {rec['nu']:.3g} ± "
+        f"{rec['se']:.2g} of {rec['innovations']} accepted innovations; 1 when independent): the same information "
+        f"counted about ν times, the written pose σ is widened ×√ν (covariance ×ν; "
+        f"observer.filter.correlation); the estimate and the map are unchanged"
+    ]
 
 
 def innovation_note(rec: dict) -> list[str]:
