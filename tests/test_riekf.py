@@ -404,6 +404,17 @@ def test_riekf_under_wheel_slip_learns_the_walk_from_the_start_and_its_map_covar
     assert 0.5 < nees0 < 4.0
 
 
+def _true_noise_run(sc, sim, gyro: float, vel: float, floor):
+    """riekf over ``sim`` given its gyro and velocity densities and a stereo-like detection law, ``noise.floor``
+    ``floor``, started at the scenario's true pose: the filter, its result and the truth at its rows."""
+    stream = align(expected_streams(sim), keep_directions=False)
+    noise = resolve_noise(NoiseConfig(gyro=gyro, velocity=vel, detection=0.01, detection_per_m2=0.008, floor=floor))
+    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
+    filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
+    res = filt.advance(filt.n_vel)
+    return filt, res, sc.sample((res.t_ns - sim.start_ns) * 1e-9)
+
+
 def _ground_run(floor="auto", scenario: str = "ground") -> tuple[np.ndarray, np.ndarray, dict, np.ndarray]:
     """riekf given the true noise on 60 s of benchmarks/unseen_logs.py's ground robot (gyro x50 and wheel velocity x4
     the default densities at 20 Hz, wheel slip, stereo-like detections at 12 Hz), started at the true pose, with
@@ -417,12 +428,7 @@ def _ground_run(floor="auto", scenario: str = "ground") -> tuple[np.ndarray, np.
     nm = replace(nm, stereo_pixel=4.0, stereo_focal=1000.0, stereo_baseline=0.5)
     sc = get_scenario(scenario)
     sim = simulate(sc, noise=nm, duration=60.0, seed=1, imu_rate=rate, odom_rate=rate, detection_rate=12.0)
-    stream = align(expected_streams(sim), keep_directions=False)
-    noise = resolve_noise(NoiseConfig(gyro=gyro, velocity=vel, detection=0.01, detection_per_m2=0.008, floor=floor))
-    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
-    filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
-    res = filt.advance(filt.n_vel)
-    truth = sc.sample((res.t_ns - sim.start_ns) * 1e-9)
+    filt, res, truth = _true_noise_run(sc, sim, gyro, vel, floor)
     tilt = np.arccos(np.clip(np.einsum("ni,ni->n", res.rotation[:, :, 2], truth.R[:, :, 2]), -1.0, 1.0))
     planar = filt.stats["metadata"]["filter"]["planar"]
     return res.position[:, 2] - truth.P[:, 2], tilt, planar, res.pose_cov[:, 5, 5]
@@ -458,12 +464,7 @@ def _heading_z(floor) -> np.ndarray:
     nm = replace(nm, stereo_pixel=8.0, stereo_focal=1000.0, stereo_baseline=0.5)
     sc = customize(get_scenario("ground"), landmarks=4)
     sim = simulate(sc, noise=nm, duration=30.0, seed=5, imu_rate=rate, odom_rate=rate, detection_rate=15.0)
-    stream = align(expected_streams(sim), keep_directions=False)
-    noise = resolve_noise(NoiseConfig(gyro=gyro, velocity=vel, detection=0.01, detection_per_m2=0.008, floor=floor))
-    start = sc.sample(np.array([(stream.vel_t_ns[0] - sim.start_ns) * 1e-9]))
-    filt = RiEKF(stream, {}, ObserverOptions(), noise=noise, r0=start.R[0], p0=start.P[0])
-    res = filt.advance(filt.n_vel)
-    truth = sc.sample((res.t_ns - sim.start_ns) * 1e-9)
+    _, res, truth = _true_noise_run(sc, sim, gyro, vel, floor)
     yaw = np.array([so3_log(r @ q.T)[2] for r, q in zip(res.rotation, truth.R)])  # R̂ = Exp(δθ) R, world frame
     var = res.pose_cov[:, 2, 2]
     return yaw[var > 0.0] / np.sqrt(var[var > 0.0])  # the start pose is the map's: known
