@@ -10,6 +10,14 @@ and bias prior) and detections, beside half the graph's residual dimensions (wha
 the truth), then the graph solved from the truth to convergence (its cost and APE), and riekf given the same
 noise with its floor held and not (``noise.floor``). The graph's gauge prior sits at each guess's own anchor
 pose, so the truth's frame does not matter.
+
+``--tilt DEG``: also the graph with what a floor would add to it, the body's up axis the same at every keyframe
+to DEG (a virtual landmark ``UP_M`` straight above the body, seen from each keyframe with σ = ``UP_M``·tan DEG per
+axis: tilt only, no height), solved from the solution and from the truth to convergence; their APE. With
+``--height M`` also the body's height above one plane to M (a second virtual landmark ``UP_M`` below the body,
+weighed along the body's up axis; ``SLACK``: σ across it ~100x larger, 5 m at M = 0.05, so a weak pull of every
+keyframe towards one vertical line comes with it). An experiment of what a floor would give, not a factor of the
+smoother.
 """
 
 from __future__ import annotations
@@ -31,6 +39,11 @@ from slamobs.pipeline.lie import quats_to_rots  # noqa: E402
 from slamobs.pipeline.simulate import simulate  # noqa: E402
 from slamobs.pipeline.simulate.scenarios import customize, get_scenario  # noqa: E402
 from slamobs.pipeline.smoother import estimator, graph  # noqa: E402
+
+#: m, the virtual landmark of ``--tilt`` above the body
+UP_M = 1000.0
+#: ``--height``: how much less the landmark below weighs across the body's up axis than along it (σ ratio)
+SLACK = 100.0
 
 
 def ape(p: np.ndarray, truth: np.ndarray) -> float:
@@ -63,12 +76,39 @@ def final_graph(log: Path, out: Path, config: dict):
     return kept["smoother"], kept["problem"], kept["solution"]
 
 
+def with_up_axis(problem, n_landmarks: int, sigma: float, height: float | None = None):
+    """``problem`` with one more landmark seen ``UP_M`` straight above the body from every keyframe (σ per axis);
+    with ``height`` (m) one more seen ``UP_M`` below it too, weighed along the body's up axis only (σ ``height``
+    there, ``SLACK`` times larger across): the body's height above one plane."""
+    k, lm = problem.data.shape[0] + 1, n_landmarks
+    n = 1 + (height is not None)
+    kfs = np.tile(np.arange(k), n)
+    shape = np.tile(np.eye(3), (n * k, 1, 1))
+    y, sig = np.tile([0.0, 0.0, UP_M], (n * k, 1)), np.full(n * k, sigma)
+    if height is not None:
+        a = SLACK ** (-2.0 / 3.0)  # information a, a, 1/a² (determinant 1): σ_z = σ·a, σ across = σ/√a
+        shape[k:] = np.diag([a, a, 1.0 / a**2])
+        y[k:, 2], sig[k:] = -UP_M, height / a
+    return replace(
+        problem,
+        kf_of_det=np.concatenate([problem.kf_of_det, kfs]),
+        det_idx=np.concatenate([problem.det_idx, np.repeat(lm + np.arange(n), k)]),
+        det_y=np.concatenate([problem.det_y, y]),
+        det_sigma=np.concatenate([problem.det_sigma, sig]),
+        det_shape=np.concatenate([np.tile(np.eye(3), (problem.det_idx.size, 1, 1)), shape])
+        if problem.det_shape is None
+        else np.concatenate([problem.det_shape, shape]),
+    )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-stereo-logs")
     ap.add_argument("--sweep", choices=("issue", "unseen"), default="unseen")
     ap.add_argument("--case", type=int, default=2, help="index into the sweep's cases")
     ap.add_argument("--reseed", type=int, default=0)
+    ap.add_argument("--tilt", type=float, nargs="*", default=[], help="degrees: the graph with a common up axis")
+    ap.add_argument("--height", type=float, default=None, help="m: with --tilt, the height above one plane too")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     case = (stereo_logs.UNSEEN if args.sweep == "unseen" else stereo_logs.CASES)[args.case]
@@ -93,6 +133,8 @@ def main() -> None:
     lms = np.array([landmarks[int(i)] for i in stream.landmark_ids], float)
     at_truth = graph.Guess(rot, pos, lms, sol.bias)
     at_sol = graph.Guess(sol.rot, sol.pos, sol.landmarks, sol.bias)
+    wobble = np.degrees(np.arccos(np.clip(rot[:, 2, 2], -1.0, 1.0)))
+    print(f"the truth's body up axis from the vertical: {wobble.mean():.2f} deg mean, {wobble.max():.2f} at most")
     empty = np.zeros(0, int)
     motion_only = replace(
         problem,
@@ -114,6 +156,20 @@ def main() -> None:
         f"solved from the truth: cost {s['final_error']:.4f} after {s['iterations']} iterations "
         f"(converged {s['converged']}), {ape(back.pos, pos):.3f} m"
     )
+    height = f" and height to {args.height:g} m" if args.height is not None else ""
+    for deg in args.tilt:
+        up = with_up_axis(problem, sol.landmarks.shape[0], UP_M * np.tan(np.radians(deg)), args.height)
+        for name, g in (("the solution", at_sol), ("the truth", at_truth)):
+            above = [g.pos[problem.anchor] + s * UP_M * g.rot[problem.anchor][:, 2] for s in (1.0, -1.0)]
+            lms_up = np.vstack([g.landmarks, *above[: 1 + (args.height is not None)]])
+            tilted = graph.solve(
+                up, graph.Guess(g.rot, g.pos, lms_up, g.bias), max_iterations=600, relative_tolerance=0.0
+            )
+            t = tilted.summary
+            print(
+                f"with a common up axis to {deg:g} deg{height}, from {name}: {ape(tilted.pos, pos):.3f} m (cost "
+                f"{t['final_error']:.1f}, {t['iterations']} iterations, converged {t['converged']})"
+            )
     for floor in ("auto", False):
         res = stereo_logs.run(log, "riekf", args.cache / "runs" / f"{case.name}-riekf", {**noise, "floor": floor})
         print(f"riekf, noise.floor {floor}: APE {res['ape']:.3f} m")
