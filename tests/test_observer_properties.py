@@ -108,10 +108,25 @@ def test_stretch_by_stretch_equals_one_run(runs, noise_free, name, out_every):
     ):
         joined = np.concatenate([getattr(p, field) for p in parts])
         assert np.array_equal(joined, getattr(whole, field)), field
-    assert np.array_equal(parts[-1].landmark_xyz, whole.landmark_xyz) and parts[-1].stats == whole.stats
+    assert np.array_equal(parts[-1].landmark_xyz, whole.landmark_xyz)
+    assert _but_stretch_factors(parts[-1].stats, len(parts)) == _but_stretch_factors(whole.stats, 1)
     for table in whole.extra_tables:
         for column, values in whole.extra_tables[table].items():
             assert np.array_equal(np.concatenate([p.extra_tables[table][column] for p in parts]), values)
+
+
+def _but_stretch_factors(stats: dict, stretches: int) -> dict:
+    """``stats`` without riekf's ``correlation.factors``, checked first: one per written stretch, the last the
+    whole pass's (a written stretch's pose covariance is never rescaled: docs/estimators.md), so the only record
+    that depends on where the run was cut."""
+    corr = stats.get("metadata", {}).get("filter", {}).get("correlation")
+    if corr is None:
+        return stats
+    factors = corr["factors"]
+    assert len(factors) == stretches and factors[-1] == (corr["nu"] if corr["applied"] else 1.0)
+    out = {**stats, "metadata": {**stats["metadata"], "filter": {**stats["metadata"]["filter"]}}}
+    out["metadata"]["filter"]["correlation"] = {k: v for k, v in corr.items() if k != "factors"}
+    return out
 
 
 def test_the_last_stretch_s_whole_run_checks_come_once_the_run_goes_on(runs, noise_free):
