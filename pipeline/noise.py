@@ -275,18 +275,21 @@ def stream_density(t_ns: np.ndarray, xyz: np.ndarray) -> Estimate | None:
 
 
 #: The levels a log's own sensor streams show with none of the other inputs (``slamobs info --noise`` on a log that
-#: cannot run): the level's name, the stream's role (``LogStreams``) and unit; the accelerometer's is no estimator's.
+#: cannot run): the level's name, the stream's role (``LogStreams``) and unit; the accelerometer's and the
+#: magnetometer's are no estimator's.
 SENSOR_LEVELS = (
     ("gyro", "angular_velocity", DEFAULTS["gyro"][1]),
     ("velocity", "linear_velocity", DEFAULTS["velocity"][1]),
     ("accelerometer", "accel", "m/s^2/sqrt(Hz)"),
+    ("magnetometer", "magnetic", "T/sqrt(Hz)"),
 )
 
 
 def sensor_levels(streams) -> dict[str, dict]:
     """The white-noise density of each of ``SENSOR_LEVELS``' streams a read log (``LogStreams``) holds, each on its
     own stamps (:func:`stream_density`), without aligning it to anything: name -> value (per axis), unit, topic,
-    standard error, method; or, where it has no stream or too few samples, why not (``why``). Where the messages
+    standard error, method; or, where it has no stream or too few samples, why not (``why``, with what the reader
+    said of the topic: e.g. its NaN/Inf samples dropped, which leave the level to the finite ones). Where the messages
     state a covariance (gyro, velocity), ``stated``: its density, topic, rate, and whether riekf and batch would
     use it in place of the samples' level (``used``, as :func:`resolve_noise` judges it; ``why`` not)."""
     out: dict[str, dict] = {}
@@ -294,8 +297,15 @@ def sensor_levels(streams) -> dict[str, dict]:
         stream = getattr(streams, role, None)
         found = stream_density(stream.t_ns, stream.xyz) if stream is not None and len(stream) else None
         if found is None:
-            why = f"too few samples on {stream.topic}" if stream is not None and len(stream) else f"no {role} stream"
-            out[name] = {"why": why}
+            if stream is None:
+                out[name] = {"why": f"no {role} stream"}
+                continue
+            said = [w for w in streams.warnings if w.startswith(f"{stream.topic}:")]  # e.g. every other sample NaN
+            out[name] = {
+                "why": f"too few consecutive samples on {stream.topic} ({len(stream)} read"
+                + "".join(f"; {w}" for w in said)
+                + ")"
+            }
             continue
         out[name] = {
             "value": _plain(found.value),

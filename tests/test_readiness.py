@@ -113,6 +113,35 @@ def test_info_noise_on_a_log_that_cannot_run_shows_its_sensors_own_levels(logs, 
     assert res.exit_code == 2 and "cannot run" in res.output, res.output
 
 
+def test_info_noise_gives_the_magnetometer_level_from_its_finite_samples(logs, tmp_path):
+    """``info --noise`` showed no magnetometer line at all (imu_tools' phidgets_imu_upside_down.bag: 6990 of its
+    13964 /imu/mag messages NaN). It now gives the magnetometer's density from the finite samples (every other one
+    NaN here: near the generated level at half the rate), and when too few are left, one line saying why, with
+    the reader's note of the NaN samples dropped."""
+    import numpy as np
+
+    sim = simulate("circle", duration=4.0, seed=3)  # the fixture's: magnetometer at 50 Hz
+    field = sim.mag.field.copy()
+    field[1::2] = np.nan
+    half = dataclasses.replace(sim, odom=_empty(sim.odom), detections=_empty(sim.detections))
+    half = dataclasses.replace(half, mag=dataclasses.replace(sim.mag, field=field))
+    path = write_log(half, tmp_path / "half_nan_mag.mcap")
+    res = invoke("info", "--noise", path)
+    assert res.exit_code == 0, res.output
+    line = next((x for x in res.output.splitlines() if x.strip().startswith("magnetometer = ")), None)
+    assert line is not None and "/imu/mag" in line and "T/sqrt(Hz)" in line, res.output
+    level = json.loads(invoke("info", "--noise", "--json", path).stdout)["sensors"]["magnetometer"]
+    expected = sim.noise.mag * np.sqrt(2.0 / 50.0)  # the generated density at the finite samples' rate, 25 Hz
+    assert np.allclose(level["value"], expected, rtol=0.3), (level, expected)
+    field[40:] = np.nan  # 20 finite samples left: too few for a level
+    few = dataclasses.replace(half, mag=dataclasses.replace(sim.mag, field=field))
+    res = invoke("info", "--noise", write_log(few, tmp_path / "few_mag.mcap"))
+    assert res.exit_code == 0, res.output
+    dropped = len(field) - 20
+    said = f"magnetometer: not estimated (too few consecutive samples on /imu/mag (20 read; /imu/mag: {dropped} NaN"
+    assert any(x.strip().startswith(said) for x in res.output.splitlines()), res.output
+
+
 def test_run_names_every_missing_role_at_once(logs, tmp_path):
     res = invoke("run", logs["no_odom_det"], "-o", tmp_path / "out")
     assert res.exit_code == 2

@@ -331,33 +331,16 @@ def _gather(data, offsets, sizes, big):  # pragma: no cover - compiled
     out = np.empty((n, m), np.uint64)
     for i in range(n):
         for j in range(m):
-            p = offsets[i, j]
-            s = sizes[j]
-            w = np.uint64(0)
-            if big:
-                for b in range(s):
-                    w = (w << np.uint64(8)) | np.uint64(data[p + b])
-            elif s == 8:  # the common case, unrolled
-                w = (
-                    np.uint64(data[p])
-                    | (np.uint64(data[p + 1]) << np.uint64(8))
-                    | (np.uint64(data[p + 2]) << np.uint64(16))
-                    | (np.uint64(data[p + 3]) << np.uint64(24))
-                    | (np.uint64(data[p + 4]) << np.uint64(32))
-                    | (np.uint64(data[p + 5]) << np.uint64(40))
-                    | (np.uint64(data[p + 6]) << np.uint64(48))
-                    | (np.uint64(data[p + 7]) << np.uint64(56))
-                )
-            else:
-                for b in range(s - 1, -1, -1):
-                    w = (w << np.uint64(8)) | np.uint64(data[p + b])
-            out[i, j] = w
+            out[i, j] = _word(data, offsets[i, j], sizes[j], big)
     return out
 
 
 @subroutine(types.uint64)
 def _word(data, p, width, big):  # pragma: no cover - compiled
-    """The ``width`` bytes at ``p`` (unaligned) as a little-endian word; unsigned indices (no wrap-around checks)."""
+    """The ``width`` bytes at ``p`` (unaligned; big endian when ``big``) as a little-endian word; unsigned indices
+    (no wrap-around checks). The one reading of a serialised word for this module's kernels (:func:`_gather`,
+    :func:`_walk`): a subroutine, compiled into each kernel that calls it. (``tfdecode._u64`` keeps its own
+    unrolled 8-byte copy: this one inlined into its walker cost it ~0.15 CPU s more to compile, docs/benchmarks.md.)"""
     w = np.uint64(0)
     at = np.uint64(p)
     if big:
