@@ -10,7 +10,10 @@ nearest each pose, kept within 0.08 s: which poses pair changes with a shift of 
 the truth's position interpolated linearly at every pose stamp (between truth poses less than 0.5 s apart). Both
 with the poses' stamps moved by a common shift of −0.4 to +0.5 s (the truth's clock is not known: the report's
 own search is not reliable on this log), then the interpolated error by stretch (before the longest stretch
-without a detection, during it, after it) and the innovations' size in those stretches. Truth only to measure.
+without a detection, during it, after it) and the innovations' size in those stretches. Then what the truth is:
+on which stamps it lies (the camera frames'?) and each detection against it (range and position residual by range,
+the frames riekf gated), and riekf's attitude σ along the line through the two tags (the turn about it moves the
+camera and leaves both tags where the camera sees them) against its other two axes. Truth only to measure.
 """
 
 from __future__ import annotations
@@ -110,6 +113,87 @@ def _stretch_table(poses: dict, truth: tuple, runs: dict[str, Path]) -> None:
         print(f"| {e} | {_rms(err):.3f} | " + " | ".join(cells) + f" | {med[0]:.3f}, after {med[2]:.3f} |")
 
 
+def _truth_poses(run_dir: Path, source: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    from slamobs.pipeline.evaluation.run_dir import resolve_truth
+    from slamobs.pipeline.lie import quats_to_rots
+
+    stream = resolve_truth(json.loads((run_dir / "run.json").read_text()), source).stream
+    return stream.t_ns.astype(np.int64), np.asarray(stream.position), quats_to_rots(np.asarray(stream.quat_xyzw))
+
+
+def _detection_table(run_dir: Path, source: str, tag_map: Path) -> None:
+    """The truth's stamps against the detection frames' (recorded) ones, and each detection against the truth: the
+    tag's map position seen from the truth's pose at the detection's frame (the rig is the camera: identity in
+    ``camera_poses.yaml``)."""
+    tt, tp, tr = _truth_poses(run_dir, source)
+    det = pd.read_parquet(run_dir / "tag_detections.parquet")
+    tags = pd.read_csv(tag_map).set_index("id")[["x", "y", "z"]]
+    frames = np.unique(det["t_ns"].to_numpy())
+    same = np.isin(frames, tt)
+    print(
+        f"\nThe truth's {len(tt)} stamps: {same.sum()} of the {len(frames)} frames with a detection lie on one exactly"
+    )
+    j = np.searchsorted(tt, det["t_ns"].to_numpy())
+    on = (j < len(tt)) & (tt[np.minimum(j, len(tt) - 1)] == det["t_ns"].to_numpy())
+    d, j = det[on], j[on]
+    seen = np.einsum("nji,nj->ni", tr[j], tags.loc[d["id"]].to_numpy() - tp[j])  # R^T (tag - p)
+    meas = d[["x", "y", "z"]].to_numpy()
+    r_true, dr = np.linalg.norm(seen, axis=1), np.linalg.norm(meas, axis=1) - np.linalg.norm(seen, axis=1)
+    dpos = np.linalg.norm(meas - seen, axis=1)
+    print(
+        "\nDetections against the truth on their frame (m): range measured − range seen from the truth; "
+        "position residual\n"
+    )
+    print("| range m | detections | range residual median | range residual RMS | position residual median | p95 |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for a, b in ((0, 3.0), (3.0, 3.5), (3.5, 4.0), (4.0, 4.5), (4.5, 9.0)):
+        m = (r_true >= a) & (r_true < b)
+        if m.any():
+            row = (np.median(dr[m]), _rms(dr[m]), np.median(dpos[m]), np.percentile(dpos[m], 95))
+            print(
+                f"| {a:g}-{b:g} | {m.sum()} | "
+                + " | ".join(f"{v:+.3f}" if k == 0 else f"{v:.3f}" for k, v in enumerate(row))
+                + " |"
+            )
+    t0 = tt[0]
+    big = np.argsort(dpos)[::-1][:4]
+    print(
+        "\nlargest residuals: "
+        + ", ".join(
+            f"tag {int(d['id'].iloc[k])} at {(d['t_ns'].iloc[k] - t0) / 1e9:.2f} s, {r_true[k]:.2f} m: "
+            f"range {dr[k]:+.3f}, "
+            f"position {dpos[k]:.3f}, ambiguity {d['ambiguity'].iloc[k]:.2f}"
+            for k in big
+        )
+    )
+
+
+def _tag_line_sigma(run_dir: Path, spans: list[tuple[float, float]]) -> None:
+    """riekf's attitude σ (deg, world frame) along the line through its two tags and its other two eigen-σ."""
+    poses, lm = pd.read_parquet(run_dir / "poses.parquet"), pd.read_parquet(run_dir / "landmarks.parquet")
+    if len(lm) != 2:
+        return
+    axis = np.diff(lm[["x", "y", "z"]].to_numpy(), axis=0)[0]
+    axis /= np.linalg.norm(axis)
+    c = ("rx", "ry", "rz")
+    cov = np.stack([[poses[f"cov_{min(a, b)}_{max(a, b)}"].to_numpy() for b in c] for a in c], axis=-1).transpose(
+        1, 0, 2
+    )
+    along = np.degrees(np.sqrt(np.einsum("i,nij,j->n", axis, cov, axis)))
+    eig = np.degrees(np.sqrt(np.clip(np.linalg.eigvalsh(cov), 0, None)))
+    t = (poses["t_ns"].to_numpy() - poses["t_ns"].iloc[0]) / 1e9
+    print(
+        "\nriekf's attitude σ deg: along the line through its two tags / its two smallest eigen-σ (median by stretch)\n"
+    )
+    print("| stretch s | along the tags' line | other two |\n| --- | --- | --- |")
+    for a, b in spans:
+        m = (t >= max(a, 0.5)) & (t < b)
+        print(
+            f"| {max(a, 0):.1f}-{min(b, t[-1]):.1f} | {np.median(along[m]):.2f} | "
+            f"{np.median(eig[m, 0]):.2f}, {np.median(eig[m, 1]):.2f} |"
+        )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
@@ -131,6 +215,8 @@ def main() -> None:
         poses = {e: pd.read_parquet(runs[e] / "poses.parquet") for e in ESTIMATORS}
         _shift_table(poses, truth)
         _stretch_table(poses, truth, runs)
+        _detection_table(runs["riekf"], log.config["topics"]["truth"], Path(log.config["evaluation"]["map_truth"]))
+        _tag_line_sigma(runs["riekf"], _stretches(runs["riekf"]))
 
 
 if __name__ == "__main__":
