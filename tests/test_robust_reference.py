@@ -547,6 +547,26 @@ def test_riekf_narrows_its_bias_priors_when_its_last_detections_all_fail_the_gat
     np.testing.assert_array_equal(res.position, first.position)  # the priors as they were: the same trajectory
 
 
+def test_riekf_says_so_when_its_last_detections_fail_the_gate_too_few_to_narrow_its_priors(log):
+    """The last 10 detections moved 3 m: fewer than ``LOST_IN_A_ROW`` in a row fail the gate at the end, so the
+    priors are not narrowed and the status stays as it was; the run says its end is off (before, nothing did: TagSLAM
+    test_22 cut at 31 s ended 4.7 m off, converged, silent). The log as simulated ends with none failing: no note."""
+    from slamobs.pipeline.observers import riekf
+
+    _, stream = log
+    y = stream.det_y.copy()
+    y[-10:] += 3.0
+    res = RIEKF.run(replace(stream, det_y=y), {}, ObserverOptions(noise=noise()))
+    pri = res.stats["metadata"]["filter"]["bias_priors"]
+    assert riekf.TAIL_NOTE_IN_A_ROW <= pri["gated_in_a_row_at_end"] < riekf.LOST_IN_A_ROW, pri
+    assert pri["narrowed_passes"] == 0
+    said = [n for n in res.stats["notes"] if "known-landmark detections in a row failed the gate: the pose" in n]
+    assert len(said) == 1 and f"its last {pri['gated_in_a_row_at_end']} " in said[0], res.stats["notes"]
+    plain = RIEKF.run(stream, {}, ObserverOptions(noise=noise()))
+    assert plain.stats["metadata"]["filter"]["bias_priors"]["gated_in_a_row_at_end"] < riekf.TAIL_NOTE_IN_A_ROW
+    assert not any("in a row failed the gate" in n for n in plain.stats["notes"])
+
+
 def _gap_run(tmp_path, seed: int, floor, late=None, walk=None) -> dict:
     """riekf on benchmarks/unseen_logs.py's ground robot (wheel slip, 0-2 landmarks in view, the 50x gyro) with no
     detection from 50 to 90 s (and ``late``: a landmark first seen then), with ``noise.floor`` ``floor``: run.json."""

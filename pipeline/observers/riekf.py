@@ -257,6 +257,12 @@ MAX_WALK_PASSES = 4
 LOST_IN_A_ROW = 20
 PRIOR_NARROWING = 0.25
 MAX_PRIOR_PASSES = 3
+#: Known-landmark detections in a row failing the gate at the log's end from which the run says so (below
+#: ``LOST_IN_A_ROW`` nothing else does): a consistent filter's detection fails the gate (``GATE_CHI2``, 3 DoF) with
+#: probability about 1e-4, so five in a row are not chance, and a wrong tag fails alone, with others passing between;
+#: the end of every real log of ``benchmarks/real_logs.py`` has none (TagSLAM test_22 cut within 20 detections of its
+#: return after 17.9 s unseen: 6-17, riekf 2.7-4.7 m off, status converged; docs/benchmarks.md, session 31 (h-tag22)).
+TAIL_NOTE_IN_A_ROW = 5
 #: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
 #: spread, the spreads the prior's standard deviations are, and the log's first seconds it is made from (a prior is
 #: of the start's bias, which the walk moves over the log; the one-hour benchmark log's 3 million pairs took 33 CPU s,
@@ -2385,6 +2391,19 @@ def _prior_notes(pri: dict) -> list[str]:
             f"{runs} known-landmark detection(s) in a row failed the gate (the track lost; a bias learned from few "
             "landmarks most likely carried the pose off; run.json observer.filter.bias_priors; noise: gyro_bias, "
             "velocity_bias fix them)"
+        )
+    tail = int(pri.get("gated_in_a_row_at_end") or 0)
+    if tail >= TAIL_NOTE_IN_A_ROW and not (pri.get("narrowed_passes") and not pri["kept"]):
+        notes.append(
+            f"riekf: its last {tail} known-landmark detections in a row failed the gate: the pose at the log's end is "
+            "most likely off by more than its σ says (a bias carried through a stretch without landmarks, say) or "
+            "those detections are wrong"
+            + (
+                f"; under {LOST_IN_A_ROW} in a row the run is not started again with narrower bias priors"
+                if tail < LOST_IN_A_ROW
+                else ""
+            )
+            + " (run.json observer.filter.bias_priors.gated_in_a_row_at_end)"
         )
     return notes
 
