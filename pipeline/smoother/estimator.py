@@ -93,9 +93,49 @@ def covariance_keyframes(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> np
     """The keyframes whose marginal covariance the smoother computes: the first at or after each multiple of
     ``every_s`` (longer where the log would need more than ``COVARIANCE_MARGINALS``) from the start, and the
     last (every keyframe of an hour's log, 72,000 at 20 Hz, would cost far more than the solve)."""
-    every_s = max(every_s, (kf_t[-1] - kf_t[0]) / COVARIANCE_MARGINALS)
+    every_s = covariance_spacing(kf_t, every_s)
     marks = kf_t[0] + every_s * np.arange(int((kf_t[-1] - kf_t[0]) // every_s) + 1)
     return np.unique(np.r_[np.searchsorted(kf_t, marks), kf_t.shape[0] - 1])
+
+
+def covariance_spacing(kf_t: np.ndarray, every_s: float = COVARIANCE_DT) -> float:
+    """Seconds between the keyframes whose marginals are computed (:func:`covariance_keyframes`)."""
+    return max(every_s, (kf_t[-1] - kf_t[0]) / COVARIANCE_MARGINALS)
+
+
+def covariance_gauge(kf_t: np.ndarray, kf_of_det: np.ndarray) -> int:
+    """The keyframe the written covariances are conditioned on: the last one with a detection where the log goes on
+    unseen after it for longer than the marginals' spacing (:func:`covariance_spacing`, within which the rows'
+    covariance is interpolated anyway), else the last keyframe, the solve's own gauge. The solution is the same
+    whatever keyframe the gauge is put on afterwards (the gauge prior sits at the solution's own pose), but every
+    row's covariance is relative to that pose: where the log ends without detections (MR.CLAM 6 robot 1: its last
+    740 keyframes), the last keyframe is dead reckoning from the map, and its drift, stated or not, entered every
+    row's σ."""
+    last = kf_t.shape[0] - 1
+    seen = int(np.max(kf_of_det)) if kf_of_det.shape[0] else last
+    return seen if kf_t[last] - kf_t[seen] > covariance_spacing(kf_t) else last
+
+
+def gauge_record(kf_t: np.ndarray, gauge: int) -> dict:
+    """run.json ``observer.smoother.covariance_gauge``: the keyframe the covariances are relative to (its time from
+    the first keyframe, s), whether it is another than the solve's (the last) and the seconds after it."""
+    return {
+        "keyframe": int(gauge),
+        "moved": bool(gauge != kf_t.shape[0] - 1),
+        "t_s": round(float(kf_t[gauge] - kf_t[0]), 3),
+        "unseen_after_s": round(float(kf_t[-1] - kf_t[gauge]), 3),
+    }
+
+
+def gauge_note(record: dict) -> list[str]:
+    """The note of covariances conditioned on a keyframe before the last (:func:`covariance_gauge`), else []."""
+    if not record["moved"]:
+        return []
+    return [
+        f"batch: the written pose and landmark covariances are relative to the keyframe at {record['t_s']:g} s, the "
+        f"last with a detection (the log's last {record['unseen_after_s']:g} s have none; "
+        "observer.smoother.covariance_gauge); the estimate is unchanged"
+    ]
 
 
 def interpolate_covariance(
@@ -277,8 +317,9 @@ class BatchSmoother(Stepper):
         stats["landmark"]["gated"] = int(full.det_idx.shape[0] - problem.det_idx.shape[0])
         t_solve, c_solve = time.perf_counter() - t0, time.process_time() - c0
         t1, c1 = time.perf_counter(), time.process_time()
-        cov_kf = covariance_keyframes(kf_t)
-        pose_cov, landmark_cov = g.covariances(problem, sol, cov_kf)
+        gauge = covariance_gauge(kf_t, problem.kf_of_det)
+        cov_kf = np.union1d(covariance_keyframes(kf_t), [gauge])
+        pose_cov, landmark_cov = g.covariances(replace(problem, anchor=gauge), sol, cov_kf)
         t_cov, c_cov = time.perf_counter() - t1, time.process_time() - c1
         self.result = {
             "kf_t": kf_t,
@@ -304,6 +345,7 @@ class BatchSmoother(Stepper):
                 *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
             )
         summary["seed_check"] = seed_check
+        summary["covariance_gauge"] = gauge_record(kf_t, gauge)
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -315,7 +357,7 @@ class BatchSmoother(Stepper):
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
-        self.stats["notes"] += seed_notes
+        self.stats["notes"] += seed_notes + gauge_note(summary["covariance_gauge"])
         self.stats["notes"] += list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
