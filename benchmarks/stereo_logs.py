@@ -16,6 +16,8 @@ mostly the ground robot, gyro x100-x300, velocity x2-x6, stereo detections (6-11
 at 10-400 Hz, the camera's range cut at 3-15 m, 4 or 200 landmarks, a blind stretch, wheel slip (a slowly
 varying velocity error beside the white one, ``NoiseModel.odom_linear_drift``: not in the "true" noise, which has
 no key for it), with ``fast-adaptation`` beside them (riekf at least as accurate; batch not worse than it, its seed).
+``--sweep slip`` runs ``SLIP``: the ground robot with slip at other amounts and time scales (seed=3140 on), each
+beside its twin without the slip.
 
 "true" is the run given ``noise:`` with the velocity densities the log was drawn with and the detection law
 ``b + a·r²`` (``detection``, ``detection_per_m2``) and ``detection_ratio`` fitted by maximum likelihood to the
@@ -61,13 +63,14 @@ class Case:
     landmarks: int | None = None
     gaps: tuple[tuple[float, float], ...] | None = None  # s, spans with no detections
     slip: float = 0.0  # m/s RMS per axis of a slowly varying velocity error (``NoiseModel.odom_linear_drift``)
+    slip_s: float = 10.0  # s, its time scale (``NoiseModel.odom_linear_drift_s``)
 
     @property
     def name(self) -> str:
         det = f"{self.pixel:g}px" if self.pixel else f"{self.law[0]:g}+{self.law[1]:g}r"
         extra = [f"{self.rate:g}Hzv"] * (self.rate != VELOCITY_HZ) + [f"r{self.max_range}"] * bool(self.max_range)
         extra += [f"L{self.landmarks}"] * bool(self.landmarks) + [f"gap{a:g}-{b:g}" for a, b in self.gaps or ()]
-        extra += [f"slip{self.slip:g}"] * bool(self.slip)
+        extra += [f"slip{self.slip:g}" + f"over{self.slip_s:g}s" * (self.slip_s != 10.0)] * bool(self.slip)
         head = [self.scenario, f"s{self.seed}", f"{self.duration:g}s", f"{self.detection_hz:g}Hz", f"g{self.gyro_x:g}"]
         return "-".join(head + [f"v{self.velocity_x:g}", det] + extra)
 
@@ -97,6 +100,20 @@ UNSEEN = (
     Case("figure8", 2142, 60, 20, 100, 2, 0, law=(0.005, 0.02), rate=25.0),
 )
 
+#: ``--sweep slip``: wheel slip at other amounts and time scales (seed=3140 on), each beside its twin without the slip
+#: (the same draws: the slip has its own generator), so what the slip costs each estimator shows apart from the log
+SLIP = tuple(
+    c
+    for s in (
+        Case("ground", 3140, 90, 15, 250, 4, 8, slip=0.03, slip_s=3.0),
+        Case("ground", 3141, 120, 15, 250, 4, 8, slip=0.08, slip_s=20.0),
+        Case("ground", 3142, 90, 20, 150, 3, 6, rate=100.0, slip=0.05, slip_s=5.0),
+    )
+    for c in (s, replace(s, slip=0.0))
+)
+
+SWEEPS = {"issue": CASES, "unseen": UNSEEN, "slip": SLIP}
+
 
 def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
     """The case's log in ``cache`` (written once) and its true noise as a ``noise:`` section."""
@@ -111,6 +128,7 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
         gyro=gyro,
         odom_linear=velocity,
         odom_linear_drift=case.slip,
+        odom_linear_drift_s=case.slip_s,
         stereo_pixel=case.pixel,
         stereo_focal=FOCAL_PX,
         stereo_baseline=BASELINE_M,
@@ -218,7 +236,7 @@ def sigma(levels: dict, r: float) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-stereo-logs")
-    ap.add_argument("--sweep", choices=("issue", "unseen"), default="issue", help="CASES (issue) or UNSEEN")
+    ap.add_argument("--sweep", choices=tuple(SWEEPS), default="issue", help="CASES (issue), UNSEEN or SLIP")
     ap.add_argument("--cases", type=int, nargs="+", help="indices into the sweep's cases (default: all)")
     ap.add_argument("--reseed", type=int, default=0, help="added to every case's seed (other draws, same logs)")
     ap.add_argument(
@@ -241,7 +259,7 @@ def main() -> None:
         section, name = key.split(".", 1)
         sections.setdefault(section, {})[name] = value
     args.cache.mkdir(parents=True, exist_ok=True)
-    pool = UNSEEN if args.sweep == "unseen" else CASES
+    pool = SWEEPS[args.sweep]
     cases = [replace(c, seed=c.seed + args.reseed) for c in ([pool[i] for i in args.cases] if args.cases else pool)]
     head = "| log | riekf auto / true (x) | gated auto / true | batch auto / true (x) | batch / riekf | FA m |"
     head += " riekf, batch / FA |"
