@@ -333,6 +333,7 @@ def _save_plot(path: Path, result, plot_mode: str) -> None:
             plot_mode=plot_mode,
             title=result.title,
             label=result.label,
+            aligned=result.alignment.kind != "none",
         )
 
 

@@ -186,3 +186,22 @@ def test_an_unaligned_ape_names_the_aligned_one_when_the_frames_differ(files, mo
     assert "note:" not in res.stdout
     assert "note: not aligned" not in invoke("evaluate", "tum", "truth.txt", "est.txt", "-a").stderr
     assert "note: not aligned" not in invoke("evaluate", "tum", "truth.txt", "same_frame.txt").stderr
+
+
+@pytest.mark.parametrize("flags, said", [((), "estimate (not aligned)"), (("-a",), "estimate (aligned)")])
+def test_the_plot_s_legend_says_whether_the_estimate_is_aligned(files, tmp_path, monkeypatch, flags, said):
+    """`evaluate GT EST -p` without -a drew the estimate labelled "estimate (aligned)" under the title "(not
+    aligned)" (rpg_trajectory_evaluation's MH_04: an 18.9 m offset shown as if aligned)."""
+    from matplotlib.figure import Figure
+
+    drawn = []
+    savefig = Figure.savefig
+
+    def legends_then_save(fig, *args, **kwargs):
+        drawn.append([t.get_text() for a in fig.axes if a.get_legend() for t in a.get_legend().get_texts()])
+        return savefig(fig, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", legends_then_save)
+    monkeypatch.chdir(tmp_path)
+    assert invoke("evaluate", "tum", files / "truth.txt", files / "est.txt", "-p", *flags).exit_code == 0
+    assert said in drawn[0] and ({"estimate (aligned)", "estimate (not aligned)"} - {said}).isdisjoint(drawn[0])
