@@ -427,8 +427,11 @@ def _unaligned_note(result, al) -> str | None:
     if al.kind != "none" or result.relation not in ("trans_part", "point_distance") or len(result.paired) < 3:
         return None
     unaligned = float(result.stats["rmse"])
-    aligned = float(ape(None, None, result.relation, align=AlignOptions("se3"), paired=result.paired).stats["rmse"])
-    if not aligned < UNALIGNED_NOTE_SHARE * unaligned:
+    try:
+        aligned = ape(None, None, result.relation, align=AlignOptions("se3"), paired=result.paired).stats["rmse"]
+    except ValueError:  # collinear positions: the rotation about their line is undetermined, nothing to compare
+        return None
+    if not float(aligned) < UNALIGNED_NOTE_SHARE * unaligned:
         return None
     return (
         f"note: not aligned (evo's default): rmse {unaligned:.6g} m; the same pairs after SE(3) alignment (-a) "
