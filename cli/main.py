@@ -148,7 +148,7 @@ def run(
                 config = replace(config, msg_dir=str(msg_dir))
             if export is not None:
                 config = config.with_section("output", export=export)
-            with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+            with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
                 summary = run_log(log, out_dir, config, force=force, plot_workers=workers, progress=progress)
         finally:
             if workers is not None:
@@ -257,7 +257,7 @@ def compare(
         if export is not None:
             config = config.with_section("output", export=export)
         # every stage on the status line of a terminal, else a line now and then; a line as each observer starts
-        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
             on_observer = progress if progress.status or quiet else lambda m: click.echo(f"compare: {m}", err=True)
             table = compare_log(
                 log, out_dir, config, observers, force=force, progress=progress, on_observer=on_observer

@@ -66,6 +66,7 @@ class Progress:
         self.status = status_line(quiet)
         self.every = every_s if every_s is not None else float(os.environ.get("SLAMOBS_PROGRESS_EVERY", LINE_EVERY_S))
         self.message = ""
+        self.compile = ""  # the compile notice while numba compiles (:func:`compile_notice`), added to each line
         self._start = self._printed = time.perf_counter()  # a command done (or failed) sooner prints nothing
         self._lock = threading.Lock()
         self._stop = threading.Event()
@@ -81,9 +82,16 @@ class Progress:
             elif time.perf_counter() - self._printed >= self.every:
                 self._line()
 
+    def compiling(self, seconds: float, active: bool = True) -> None:
+        """The compile notice on the plain lines that follow (``active``), or none: a step's count that stays at
+        0 for a minute is then read as the kernels compiling, not as a hang (riekf's first run on a log file)."""
+        with self._lock:
+            self.compile = f"{COMPILING}: {seconds:.0f} s so far" if active else ""
+
     def _line(self) -> None:
         self._printed = time.perf_counter()
-        click.echo(f"[{self._printed - self._start:6.1f} s] {self.message}", err=True)
+        text = " | ".join(t for t in (self.message, self.compile) if t)
+        click.echo(f"[{self._printed - self._start:6.1f} s] {text}", err=True)
 
     def _heartbeat(self) -> None:
         while not self._stop.wait(1.0 if self.status is not None else self.every / 2):
@@ -115,9 +123,10 @@ def status_line(quiet: bool) -> StatusLine | None:
 
 
 @contextmanager
-def compile_notice(status: StatusLine | None = None, *, quiet: bool = False):
+def compile_notice(status: StatusLine | None = None, *, quiet: bool = False, lines: Progress | None = None):
     """Say on stderr when numba starts compiling inside the block: on ``status`` (or a terminal line of its
-    own) with the seconds so far, else one plain line; nothing when ``quiet``."""
+    own) with the seconds so far, else one plain line, and on each of ``lines``' progress lines while it lasts;
+    nothing when ``quiet``."""
     if quiet:
         yield
         return
@@ -131,8 +140,11 @@ def compile_notice(status: StatusLine | None = None, *, quiet: bool = False):
         nonlocal said
         if line is not None:
             line.compiling(seconds, active)
-        elif not said:
-            click.echo(f"{COMPILING} ...", err=True)
+        else:
+            if not said:
+                click.echo(f"{COMPILING} ...", err=True)
+            if lines is not None:
+                lines.compiling(seconds, active)
         said = True
 
     try:

@@ -195,7 +195,7 @@ def _reported(
                 base[key] = tuple(base[key])
         base.pop("gravity_aligned", None)
         options = options_for_run(meta, **{**base, **{k: v for k, v in given.items() if v is not None}})
-        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+        with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
             drawing = " and drawing the figures" if report_plots(meta, plots) else ""
             progress(f"report: evaluating{drawing}")
             with dataset_report(run_dir):  # a batch run: its rows in the dataset follow the new report

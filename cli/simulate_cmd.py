@@ -210,7 +210,7 @@ def simulate(
         mocap_rate=mocap_rate,
         camera=camera,
     )
-    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet):
+    with Progress(quiet) as progress, compile_notice(progress.status, quiet=quiet, lines=progress):
         progress(f"simulate: writing {output}")
         path = write_log(sim, output, container, overwrite=force, progress=progress)
     if quiet:

@@ -544,7 +544,8 @@ def check_required(streams: LogStreams, directions: int = 0, needed_by: str | No
             f"{'is' if len(roles) == 1 else 'are'} missing ({', '.join(roles)}){untyped}; `slamobs info` shows what "
             "it has" + poses,
             details=tuple(
-                f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role))}{_how_to_give(role)}"
+                f"{role} ({ROLE_PURPOSE[role]}): {_no_samples(getattr(streams, role), streams.empty.get(role, ()))}"
+                f"{_how_to_give(role)}"
                 for role in roles
             ),
         )
@@ -571,9 +572,12 @@ def _has_samples(stream) -> bool:
     return stream is not None and len(stream) > 0
 
 
-def _no_samples(stream) -> str:
-    """For a role whose topic was read but gave nothing: that topic, so it is not read as "no topic found"."""
-    return "" if stream is None else f"{stream.topic} has no samples in this log or the --start/--end window; "
+def _no_samples(stream, empty=()) -> str:
+    """For a role whose topic was read but gave nothing: that topic, so it is not read as "no topic found"; for
+    one no topic was chosen for, the log's topics of a type it accepts that were recorded empty (``empty``)."""
+    if stream is None:
+        return f"{', '.join(empty)} {'has' if len(empty) == 1 else 'have'} no messages in this log; " if empty else ""
+    return f"{stream.topic} has no samples in this log or the --start/--end window; "
 
 
 def _sorted(t: np.ndarray, *arrays: np.ndarray):

@@ -23,6 +23,7 @@ from slamobs.pipeline.readers.roles import (
     ROLE_PURPOSE,
     TAG_CORNER_TYPES,
     accepted_types,
+    empty_topics,
     how_to_satisfy,
 )
 
@@ -125,7 +126,7 @@ def _candidates(info: LogInfo, role: str) -> list[str]:
     types = accepted_types(role)
     used = {t for r, topics in info.roles.items() if r != role and r in LISTED_ROLES for t in topics.split(", ")}
     found = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and t.count and t.topic not in used]
-    empty = [f"{t.topic} ({t.msgtype})" for t in info.topics if t.msgtype in types and not t.count]
+    empty = empty_topics(role, ((t.topic, t.msgtype, t.count) for t in info.topics))
     return ([f"this log has: {', '.join(found)}"] if found else []) + (
         [f"this log has no messages on: {', '.join(empty)}"] if empty else []
     )

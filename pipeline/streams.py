@@ -144,6 +144,9 @@ class LogStreams:
     #: topics whose message type the log's metadata leaves empty (a damaged rosbag2 metadata.yaml): no role can read
     #: them, so the error of a missing role names them
     untyped: list[str] = field(default_factory=list)
+    #: per role, the log's topics of a type it accepts that hold no message (``topic (type)``): the error of a
+    #: missing role names them, not only the types that would give it
+    empty: dict[str, list[str]] = field(default_factory=dict)
     #: record-time spans (first, last ns) that missing files of a split recording leave between the files read:
     #: the alignment starts a new segment after each rather than interpolate across it
     missing_spans: list[tuple[int, int]] = field(default_factory=list)

@@ -120,6 +120,38 @@ def test_compile_notice_with_and_without_a_terminal(capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_progress_lines_say_while_the_kernels_compile(capsys):
+    """Without a terminal (a log file, CI) a first riekf run printed `[ 30.1 s] ... riekf: 0 of 11996 samples` every
+    10 s for a minute and a half after one `compiling numeric kernels` line: a count stuck at 0 reads as a hang.
+    Each progress line says so while numba compiles, and stops saying it when it is done."""
+    from numba import njit
+
+    from slamobs.cli.progress import COMPILING, Progress, compile_notice
+
+    @njit(cache=False)
+    def thrice(x):
+        return 3.0 * x
+
+    with Progress(every_s=0.0) as progress, compile_notice(progress.status, lines=progress):
+        events = []
+        original = progress.compiling
+
+        def compiling(seconds, active=True):  # a progress line in the middle of the compile
+            original(seconds, active)
+            if active and not events:
+                events.append(seconds)
+                progress("riekf: 0 of 100 samples")
+
+        progress.compiling = compiling
+        assert thrice(2.0) == 6.0
+        progress("riekf: 100 of 100 samples")
+    err = capsys.readouterr().err.splitlines()
+    during = next(line for line in err if "0 of 100" in line and "100 of 100" not in line)
+    assert f"riekf: 0 of 100 samples | {COMPILING}: " in during
+    after = next(line for line in err if "100 of 100" in line)
+    assert COMPILING not in after
+
+
 @pytest.mark.parametrize("kinds", ["tum,evo,mcap", "none"])
 def test_export_option_parses_lists(kinds, tmp_path):
     res = invoke("run", tmp_path / "missing.mcap", "-o", tmp_path / "out", "--export", kinds)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import sqlite3
 from pathlib import Path
@@ -415,6 +416,25 @@ def _bad_inputs(tmp: Path, good_bag: Path) -> dict[str, tuple[Path, str]]:
         "mcap cut in its header": (_head(mcap, tmp / "head.mcap"), "corrupt or truncated MCAP file"),
         "truncated db3": (half_ros2, "corrupt or truncated rosbag2 directory"),
     }
+
+
+def test_a_db3_cut_short_says_so_and_what_to_do(tmp_path):
+    """A rosbag2 recording copied half way: `info` and `run` said only "corrupt or truncated rosbag2 directory
+    (sqlite3): Cannot open database ...: database disk image is malformed" (a cut ROS1 bag or MCAP is read up to
+    its last message; SQLite opens no part of a cut database). The error says the file is cut short, by how much,
+    and to copy it again; for the directory and for its .db3 given alone."""
+    ros2 = write_log(simulate("circle", duration=1.0, seed=3185), tmp_path / "src_ros2", "ros2")
+    (db3,) = ros2.glob("*.db3")
+    _truncated(db3, db3)
+    for path in (ros2, db3):
+        for func in (inspect_log, read_log):
+            with pytest.raises(InputError) as err:
+                func(path)
+            said = re.search(
+                r"; (\S+\.db3) holds (\d+) of the (\d+) pages its header states: cut short", str(err.value)
+            )
+            assert said and said[1] == db3.name and int(said[2]) < int(said[3]), str(err.value)
+            assert str(err.value).endswith("copy it again from the recording")
 
 
 def test_data_slamobs_takes_elsewhere_given_as_a_log_says_what_takes_it(tmp_path):

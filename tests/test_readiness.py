@@ -265,6 +265,20 @@ def test_a_role_whose_topic_is_empty_names_that_topic(logs, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_run_without_config_names_the_topics_recorded_empty(logs, tmp_path):
+    """A log whose only detections topic was recorded empty (a camera that never published): `run` without a
+    config said only "set topics.detections to a topic of type fiducial_msgs/msg/FiducialTransformArray, ..." though
+    the log has one of that type; `info` named it, the run's error did not. Each missing role's line names it now."""
+    res = invoke("run", logs["no_odom_det"], "-o", tmp_path / "out")
+    assert res.exit_code == 2
+    lines = res.output.splitlines()
+    detections = next(line for line in lines if line.lstrip().startswith("detections ("))
+    velocity = next(line for line in lines if line.lstrip().startswith("linear_velocity ("))
+    assert "/fiducial_transforms (fiducial_msgs/msg/FiducialTransformArray) has no messages in this log" in detections
+    assert "/odom (nav_msgs/msg/Odometry) has no messages in this log" in velocity
+    assert not (tmp_path / "out").exists()
+
+
 def test_the_verdict_says_when_every_ready_estimator_still_needs_settings():
     """TagSLAM test_22: "readiness: 5 of 7 estimators can run" while `run` without a config stopped on the
     camera intrinsics; the verdict now names what the config must give (and stays bare when nothing is needed)."""

@@ -810,11 +810,12 @@ def plot_error_result(
     plot_mode: str = "xyz",
     title: str = "",
     label: str = "error",
+    aligned: bool = True,
 ) -> Path:
     """What evo_ape / evo_rpe ``-p`` shows, in one PNG: the error over time with its mean, median and RMSE and the
-    ±std band, and the reference (dashed grey) with the aligned estimate coloured by the error at ``error_xyz``
-    (the estimate positions each error belongs to) in ``plot_mode`` (evo's: two axes such as ``xy``, or ``xyz``
-    for a 3D view)."""
+    ±std band, and the reference (dashed grey) with the estimate (``aligned`` or not, as its legend says)
+    coloured by the error at ``error_xyz`` (the estimate positions each error belongs to) in ``plot_mode`` (evo's:
+    two axes such as ``xy``, or ``xyz`` for a 3D view)."""
     from matplotlib.colors import Normalize
 
     fig, axes = _figure(2, 1, (9.0, 11.0), gap=0.8)
@@ -838,7 +839,8 @@ def plot_error_result(
     norm = Normalize(float(np.min(errors)) if len(errors) else 0.0, float(np.max(errors)) if len(errors) else 1.0)
     pick = thin(len(error_xyz), SCATTER_POINTS)
     sc = ax.scatter(*(error_xyz[pick, d] for d in dims), c=errors[pick], cmap="jet", norm=norm, s=4)
-    ax.plot(*(est[:, d] for d in dims), "-", color="0.2", lw=0.4, alpha=0.5, label="estimate (aligned)")
+    what = "estimate (aligned)" if aligned else "estimate (not aligned)"
+    ax.plot(*(est[:, d] for d in dims), "-", color="0.2", lw=0.4, alpha=0.5, label=what)
     fig.colorbar(sc, ax=ax, shrink=0.8, label=label)
     for d, setter in zip(dims, ("set_xlabel", "set_ylabel", "set_zlabel")):
         getattr(ax, setter)(f"{AXES[d]} [m]")

@@ -57,6 +57,7 @@ from .roles import (
     TAG_CORNER_TYPES,
     TF_TYPES,
     accepted_types,
+    empty_topics,
     select_roles,
     topics_of,
 )
@@ -88,6 +89,12 @@ __all__ = [
 def _untyped(table: dict) -> list[str]:
     """The topics of :func:`~.roles.topics_of`'s table whose type the log's metadata leaves empty."""
     return sorted(topic for topic, (meta, _) in table.items() if not meta.msgtype)
+
+
+def _empty(table: dict) -> dict[str, list[str]]:
+    """Per required role, the topics of :func:`~.roles.topics_of`'s table of a type it accepts that hold no message."""
+    listed = [(topic, meta.msgtype, meta.count) for topic, (meta, _) in table.items()]
+    return {role: found for role in REQUIRED_ROLES if (found := empty_topics(role, listed))}
 
 
 def _every_one(n: int, role: str) -> str:
@@ -147,7 +154,9 @@ def read_log(
         table = topics_of(reader)
         _check_clock_topics(path, clocks, table)
         selection = select_roles({t: m for t, (m, _) in table.items()}, overrides, path, tag_pattern=tag_pattern)
-        streams = LogStreams(path=str(path), warnings=list(selection.warnings), untyped=_untyped(table))
+        streams = LogStreams(
+            path=str(path), warnings=list(selection.warnings), untyped=_untyped(table), empty=_empty(table)
+        )
         tf_rows: dict[str, TfRows] = {}
         reports: dict[str, list[tuple[str, Cleaning]]] = defaultdict(list)  # topic -> (role, cleaning)
 

@@ -44,7 +44,7 @@ from rosbags.typesys import Stores, get_typestore
 from slamobs.pipeline.errors import InputError, one_line, resource_error
 from slamobs.pipeline.paths import check_input, check_yaml_depth, read_yaml
 
-from . import mcap, ros1, rosbag2_sqlite
+from . import mcap, ros1, rosbag2_sqlite, sqlitefile
 from .storage import TIME_LIMIT_NS, TIME_RANGE, ConnIds, DamagedError, RawBatch, StorageReader, TimeRangeError, joined
 
 if TYPE_CHECKING:
@@ -538,6 +538,8 @@ def _explain(container: Container, err: BaseException) -> InputError:
     if container.kind == "rosbag2" and reason.startswith("A metadata key is missing"):
         if said := _missing_topic_key(container.path):
             return InputError(container.path, said)
+    if container.kind == "db3" or container.storage == "sqlite3":
+        reason += sqlitefile.cut_short(container.path)
     return InputError(container.path, f"corrupt or truncated {container.label}: {reason}")
 
 

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from slamobs.pipeline.errors import InputError
 
 if TYPE_CHECKING:
-    from collections.abc import Mapping
+    from collections.abc import Iterable, Mapping
     from pathlib import Path
 
     from rosbags.highlevel import AnyReader
@@ -213,6 +213,13 @@ class RoleSelection:
 def accepted_types(role: str) -> tuple[str, ...]:
     """All types ``role`` accepts, most preferred first (detected ones, then override-only ones)."""
     return tuple(t for tier in ROLE_TYPES[role] for t in tier) + EXPLICIT_TYPES.get(role, ())
+
+
+def empty_topics(role: str, topics: Iterable[tuple[str, str, int]]) -> list[str]:
+    """``topic (type)`` of each of ``topics`` (name, type, message count) of a type ``role`` accepts that holds no
+    message: a topic recorded empty is why the role is missing, and what ``info`` and a run's error name."""
+    types = accepted_types(role)
+    return [f"{topic} ({msgtype})" for topic, msgtype, count in topics if msgtype in types and not count]
 
 
 def parse_edge(text: str) -> tuple[str, str] | None:

@@ -84,6 +84,29 @@ def _header_fields(head: bytes, file_size: int) -> tuple[int, int, int] | None:
     return page_size, usable, pages
 
 
+def cut_short(path: Path) -> str:
+    """What to say of the database files at ``path`` (a ``.db3`` file or a rosbag2 directory's) whose header states
+    more pages than the file holds: a copy or a recording cut short, which SQLite refuses to open at all ("database
+    disk image is malformed"); empty when none is."""
+    said = []
+    for db in [path] if path.is_file() else sorted(path.glob("*.db3")):
+        try:
+            with db.open("rb") as fobj:
+                head, size = fobj.read(100), fobj.seek(0, 2)
+        except OSError:
+            continue
+        fields = _header_fields(head, size)
+        stated = int.from_bytes(head[28:32], "big") if fields is not None else 0
+        if fields is not None and stated * fields[0] > size and head[24:28] == head[92:96]:
+            said.append(f"{db.name} holds {size // fields[0]} of the {stated} pages its header states")
+    if not said:
+        return ""
+    return (
+        f"; {', '.join(said)}: cut short (a copy not finished, a disk that filled up?), and SQLite reads no part "
+        "of a cut database: copy it again from the recording"
+    )
+
+
 def open_table(path: Path, root: int) -> Table | None:
     """The leaf pages of the table b-tree whose root is page ``root``, its interior pages read level by level
     (a level's first page says whether it is the leaves' level; the windows check every leaf page's type); None
