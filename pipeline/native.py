@@ -165,10 +165,9 @@ def return_freed_memory() -> bool:
     stage's arrays land beside them and the peak counts both: returned between batch's smoother and its report,
     the one-hour run's sampled peak went from 1089-1135 to ~1000 MB. A few milliseconds."""
     import ctypes
-    import ctypes.util
 
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        return bool(libc.malloc_trim(0))
+    try:  # the C library this process runs on (as cli/main.py and lifetime.py find it): ``ctypes.util.find_library``
+        trim = ctypes.CDLL(None).malloc_trim  # ran ``ldconfig -p`` in a child process, ~10 ms of the hour's serial wall
     except (OSError, AttributeError):
         return False
+    return bool(trim(0))

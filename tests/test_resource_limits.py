@@ -316,3 +316,24 @@ def test_freed_heap_memory_goes_back_between_stages():
     assert isinstance(trimmed, bool)
     if platform.libc_ver()[0] == "glibc":
         assert resident_kb() <= before
+
+
+def test_returning_freed_memory_starts_no_process(monkeypatch):
+    """``native.return_freed_memory`` runs between the estimator and the report, where the run is serial: it finds
+    ``malloc_trim`` in the process's own C library, without ``ctypes.util.find_library``'s ``ldconfig -p`` child
+    (2-24 ms of a run's wall, docs/benchmarks.md session 31)."""
+    import subprocess
+
+    from slamobs.pipeline import native
+
+    started = []
+
+    class Recorded(subprocess.Popen):
+        def __init__(self, args, *a, **k):
+            started.append(args)
+            super().__init__(args, *a, **k)
+
+    monkeypatch.setattr(subprocess, "Popen", Recorded)
+    trimmed = native.return_freed_memory()
+    assert started == []
+    assert isinstance(trimmed, bool)
