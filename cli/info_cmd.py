@@ -182,6 +182,12 @@ def _stated_line(st: dict, unit: str, key: str) -> str:
             f"it in place of that level (taken from {STATED_BELOW:g}x the samples' on; noise.{key} in run.yaml "
             "sets another)"
         )
+    if st["used"] and st.get("above") is not None:
+        return (
+            f"{head}: {st['above']:.3g}x above the level above, its own samples': riekf and batch would use it in "
+            "place of that level (a coloured noise is louder than its samples show; if this sensor's is white, "
+            f"noise.{key} in run.yaml at that level weighs it as it is)"
+        )
     if st["used"]:
         return f"{head}: riekf and batch would use it in place of the level above (plausible against the samples)"
     return f"{head}: riekf and batch would not use it ({st['why']})"

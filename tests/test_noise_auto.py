@@ -171,6 +171,35 @@ def test_a_stated_level_well_below_its_samples_is_named_not_called_plausible(sta
     assert "x below the samples' white-noise estimate" in line and "plausible" not in line, line
 
 
+def test_a_stated_level_well_above_its_samples_is_named_not_called_plausible(stated_logs, tmp_path):
+    """A log whose odometry states ten times its white noise (density): believed (under STATED_ABOVE, a coloured
+    noise may be louder than its samples show) and was called `plausible`; riekf weighs the velocity ten times
+    too loose (1.9x its APE with the true level on a generated circle). The note says how far above and the key
+    that sets another."""
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    sim = stated_logs[2]
+    log = tmp_path / "tenfold.mcap"
+    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear * 10)), log)
+    config = parse_config({"observer": "riekf"})
+    nz = log_noise(prepare_log(log, config, directions=False), config)
+    assert nz.sources["velocity"].startswith("/odom covariance"), nz.sources
+    said = nz.methods["velocity"]
+    assert "above the samples' white-noise estimate" in said and "plausible" not in said, said
+    assert 7.0 < float(said.split("x above")[0]) < 14.0 and "noise.velocity in run.yaml" in said, said
+    assert nz.methods["gyro"].startswith("plausible;"), nz.methods  # the IMU states its own level
+    res = invoke("info", "--noise", str(log))
+    line = next(x for x in res.output.splitlines() if x.strip().startswith("velocity = "))
+    assert "x above the samples' white-noise estimate" in line and "plausible" not in line, line
+    blind = tmp_path / "tenfold-blind.mcap"  # no detection: info shows each sensor's own level and the stated one
+    sim = simulate(customize(get_scenario("circle"), detections_until=0.0), duration=10.0, seed=7)
+    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear * 10)), blind)
+    res = invoke("info", "--noise", str(blind))
+    line = next(x for x in res.output.splitlines() if "its messages state /odom covariance" in x)
+    assert "x above the level above" in line and "plausible" not in line, line
+
+
 def test_run_json_report_and_info_state_every_level(stated_logs, tmp_path):
     from slamobs.pipeline.config import parse_config
     from slamobs.pipeline.run import run_log
