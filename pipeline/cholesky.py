@@ -9,15 +9,19 @@ from __future__ import annotations
 
 import math
 
-from slamobs.pipeline.kernel_cache import njit
+from numba import types
+
+from slamobs.pipeline.kernel_cache import subroutine
 
 
-@njit(cache=True, nogil=True)
+@subroutine(types.boolean)
 def cholesky_lower(s, m):
     """In-place lower Cholesky factor of the leading ``m``×``m`` block of ``s`` (its upper triangle left as it
     was); False if it is not positive definite (the block then holds a partial factor). Four rows of a column at a
     time below its diagonal: four independent running sums (each entry's subtractions in the same order as one at a
-    time, the same bits) instead of one chain waiting on the last (riekf's 24×24 frames: ~2x faster alone)."""
+    time, the same bits) instead of one chain waiting on the last (riekf's 24×24 frames: ~2x faster alone). A
+    subroutine (compiled into each kernel that calls it, without numba's runtime): as a kernel of its own each call
+    took and dropped a reference to ``s``, about as long as a 3×3 factor."""
     for j in range(m):
         v = s[j, j]
         for k in range(j):

@@ -684,11 +684,14 @@ def _pose_covariance(cov, acc, acc_dt, q_bw, q_bv, p_hat, out, o, w):
         out[o, i, 5] -= px * c1 - py * c0
 
 
-@njit(cache=True, fastmath=CONTRACT)
-def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
+@subroutine(types.float64, fastmath=CONTRACT)
+def _gate(cov, z, sl, sigma2, ues, j, lt, rt, dp, s):
     """Mahalanobis distance² of one innovation against ``Σ_PP − Σ_Ps − Σ_sP + Σ_ss + σ²I + u uᵀ`` of ``Σ⁻`` (the
-    pending propagation added, each term read once; ``u``: the range's extra standard deviation along the line of
-    sight; ``s``: 3×3 scratch)."""
+    pending propagation added, each term read once; ``u = ues[j]``: the range's extra standard deviation along the
+    line of sight, indexed in the whole array: a row view per detection took and dropped a reference; ``s``: 3×3
+    scratch). It, :func:`_mahalanobis3`, ``cholesky_lower`` and :func:`_blind_start` are subroutines (compiled into
+    the event loop without numba's runtime): as kernels of their own each call took and dropped a reference to each
+    array it was given, ~20 a detection (docs/benchmarks.md, "riekf's filter stage without reference counts")."""
     for a in range(3):
         for b in range(3):
             v = cov[3 + a, 3 + b] + dp[a, 3 + b]  # Σ⁻_PP
@@ -697,12 +700,12 @@ def _gate(cov, z, sl, sigma2, ue, lt, rt, dp, s):
             v += cov[sl + a, sl + b]  # Σ⁻_ss
             for k in range(6):
                 v += lt[k, sl + a] * rt[k, sl + b]
-            s[a, b] = v + ue[a] * ue[b]
+            s[a, b] = v + ues[j, a] * ues[j, b]
         s[a, a] += sigma2
     return _mahalanobis3(s, z)
 
 
-@njit(cache=True, fastmath=CONTRACT)
+@subroutine(types.float64, fastmath=CONTRACT)
 def _mahalanobis3(s, z):
     """``zᵀ S⁻¹ z`` for the 3×3 ``s`` (overwritten by its Cholesky factor L: ``|L⁻¹ z|²``); inf when S is not
     positive definite."""
@@ -1053,7 +1056,7 @@ def update(
             innov[row + j, c] = e[c]
             trk_p[row + j, c] = lm[i, c]
         if reinit[i]:
-            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], sig2[j], ues[j])
+            _reset_landmark(cov, d, N_FIXED + 3 * slot_of[i], sig2[j], ues, j)
             for c in range(3):
                 lm[i, c] = lm[i, c] - e[c]
                 trk_p[row + j, c] = lm[i, c]
@@ -1062,7 +1065,7 @@ def update(
             continue
         for c in range(3):
             zi[c] = -e[c]
-        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues[j], lt, rt, dp, s3)
+        d2 = _gate(cov, zi, N_FIXED + 3 * slot_of[i], sig2[j], ues, j, lt, rt, dp, s3)
         if ns[_WIN_N] < win_d2.shape[0]:
             win_d2[ns[_WIN_N]] = d2
             win_f[ns[_WIN_N]] = a0
@@ -1104,12 +1107,12 @@ def update(
         for q in range(m):
             sl = N_FIXED + 3 * slot_of[det_idx[a0 + sel[q]]]
             s2 = sig2[sel[q]]
-            ue = ues[sel[q]]
+            jq = sel[q]
             for c in range(3):
                 for k in range(k3):
                     smat[3 * q + c, k] = hp[k, 3 + c] - hp[k, sl + c]
                 for b in range(3):
-                    smat[3 * q + c, 3 * q + b] += ue[c] * ue[b]
+                    smat[3 * q + c, 3 * q + b] += ues[jq, c] * ues[jq, b]
                 smat[3 * q + c, 3 * q + c] += s2
         for r in range(k3):  # symmetrise the round-off
             for c in range(r + 1, k3):
@@ -1147,7 +1150,7 @@ def update(
         s = (d - N_FIXED) // 3
         slot_of[i] = s
         slot_lm[s] = i
-        _reset_landmark(cov, d, d, sig2[j], ues[j])
+        _reset_landmark(cov, d, d, sig2[j], ues, j)
         d += 3
     return d
 
@@ -1206,16 +1209,17 @@ def _bias_corrections(xi, u, k3, win_sum):
 
 
 @njit(cache=True, fastmath=CONTRACT)
-def _reset_landmark(cov, d, o, sigma2, ue):
+def _reset_landmark(cov, d, o, sigma2, ues, j):
     """Landmark slot ``o`` (re-)initialised from the pose, for a new landmark (``o == d``) or one that failed the
-    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I + u uᵀ`` (its mean is set by the caller)."""
+    gate: its rows copy ``P̂``'s and its own block is ``Σ_PP + σ²I + u uᵀ`` (``u = ues[j]``; its mean is set by the
+    caller)."""
     for c in range(3):
         for k in range(d):
             cov[o + c, k] = cov[3 + c, k]
             cov[k, o + c] = cov[3 + c, k]
     for a in range(3):
         for c in range(3):
-            cov[o + a, o + c] = cov[3 + a, 3 + c] + ue[a] * ue[c]
+            cov[o + a, o + c] = cov[3 + a, 3 + c] + ues[j, a] * ues[j, c]
         cov[o + a, o + a] += sigma2
 
 
@@ -1246,7 +1250,7 @@ def _common_share(n, win_z, win_f):
     return common / spread if spread > 0.0 else -1.0
 
 
-@njit(cache=True)
+@subroutine(types.none)
 def _blind_start(t, nd, a0, det_idx, slot_of, reinit, fs, ns):
     """Before a frame: when it holds a known landmark's detection, the first after ``BLIND_S`` or more without
     one, the check of the detections that follow is armed (module docstring, "Blind stretches")."""
@@ -1511,6 +1515,7 @@ def _advance(
     bias = np.empty(6)
     pc_w = np.empty((3, 6, 6))  # _pose_covariance's scratch
     acc_w = np.empty((3, 3, 3))  # accumulate's
+    qg_om, qg_v = np.empty(3), np.empty(3)  # the motion noise times an interval's gap factors (an array per step cost)
     o = np.int64(0)  # int64 from the start: a literal 0 compiles _pose_covariance a second time (_settle's comment)
     want_cov = cov_out.shape[0] > 0
     work = 0
@@ -1532,9 +1537,11 @@ def _advance(
             g_om, g_v = gap_factor(span, gap_om), gap_factor(span, gap_v)
             if 0 < iv < n_vel:  # a gap of the linear velocity's own topic (gap_levels)
                 g_v = max(g_v, vel_gap[iv])
+            for c in range(3):
+                qg_om[c], qg_v[c] = qs_om[c] * g_om, qs_v[c] * g_v
             for step in range(m):
                 o0, o1, o2, v0, v1, v2 = twist_at(vel_t, omega, vel, iv - 1, t + (step + 0.5) * h, bias)
-                accumulate(h, r_hat, p_hat, qs_om * g_om, qs_v * g_v, acc, acc_w)
+                accumulate(h, r_hat, p_hat, qg_om, qg_v, acc, acc_w)
                 se3_exp_into(h * o0, h * o1, h * o2, h * v0, h * v1, h * v2, d_r, d_p)
                 for c in range(3):
                     p_hat[c] += r_hat[c, 0] * d_p[0] + r_hat[c, 1] * d_p[1] + r_hat[c, 2] * d_p[2]
