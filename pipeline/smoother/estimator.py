@@ -212,6 +212,10 @@ class BatchSmoother(Stepper):
         #: law's: pipeline.smoother.inverse_depth), the record for run.json, and the body-frame points its factors
         #: are linearized at (None: the measurements)
         self.inverse_depth, self.inverse_depth_record, self.det_at = self._inverse_depth()
+        from slamobs.pipeline.observers.riekf import floor_decision
+
+        #: the floor held or not, riekf's decision on the same samples and setting (run.json ``smoother.floor``)
+        self.floor = floor_decision(self.vel_t, self.stream.omega, self.stream.velocity, self.noise)
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
@@ -304,6 +308,7 @@ class BatchSmoother(Stepper):
                 *idp.levels(self.noise, *self.inverse_depth), INVERSE_DEPTH_PASSES
             )
         summary["seed_check"] = seed_check
+        summary["floor"] = self._floor_record()
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -315,7 +320,7 @@ class BatchSmoother(Stepper):
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
-        self.stats["notes"] += seed_notes
+        self.stats["notes"] += seed_notes + self._floor_note()
         self.stats["notes"] += list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
@@ -475,8 +480,32 @@ class BatchSmoother(Stepper):
             walk_sigma=walk,
             huber=st.huber,
             anchor=k - 1,
+            floor=floor_information(kf_t) if self.floor["held"] else None,
             **self._detections(kf_of_det),
         )
+
+    def _floor_record(self) -> dict:
+        """The floor for run.json: riekf's decision (:func:`pipeline.observers.riekf.floor_decision`) and, when
+        held, its levels per riekf pseudo-measurement (:func:`floor_information`)."""
+        from slamobs.pipeline.observers import riekf as rk
+
+        rec = dict(self.floor)
+        if rec["held"]:
+            rec.update(tilt_sigma_rad=rk.PLANAR_TILT, height_sigma_m=rk.PLANAR_HEIGHT, per_s=rk.PLANAR_EVERY_S)
+        return rec
+
+    def _floor_note(self) -> list[str]:
+        """The note of a floor held (none otherwise: riekf's note says why not where it runs)."""
+        from slamobs.pipeline.observers import riekf as rk
+
+        if not self.floor["held"]:
+            return []
+        why = "planar motion" if self.floor["floor"] == "auto" else "noise.floor: true"
+        return [
+            f"batch: the floor held at every keyframe ({why}, as riekf decides): the body's up axis normal to the "
+            f"plane through the anchor keyframe's pose and its height on it, tilt {rk.PLANAR_TILT:g} rad and height "
+            f"{rk.PLANAR_HEIGHT:g} m per {rk.PLANAR_EVERY_S:g} s of keyframes (run.json smoother.floor)"
+        ]
 
     def _inverse_depth(self) -> tuple[tuple[float, float] | None, dict, None]:
         """The detections' typical depth and range when inverse depth applies (else None), the record, no
@@ -1054,6 +1083,22 @@ class BatchSmoother(Stepper):
             self.state.r_hat[:], self.state.p_hat[:] = out.r[n - 1], out.p[n - 1]
         ns[_IV], ns[_JF] = iv_stop, jf_stop
         return n
+
+
+def floor_information(kf_t: np.ndarray) -> np.ndarray:
+    """Each keyframe's floor information (K, 2: the tilt rows' and the height row's ``1/σ²``): riekf's levels per
+    pseudo-measurement (``PLANAR_TILT``, ``PLANAR_HEIGHT``) spread over the keyframes by the time each stands for
+    (half its intervals, at most ``PLANAR_EVERY_S``): the same information per second as riekf's floor, whatever
+    the keyframes' spacing."""
+    from slamobs.pipeline.observers import riekf as rk
+
+    share = np.zeros(kf_t.shape[0])
+    if kf_t.shape[0] > 1:
+        half = 0.5 * np.diff(kf_t)
+        share[:-1] += half
+        share[1:] += half
+    w = np.minimum(share, rk.PLANAR_EVERY_S) / rk.PLANAR_EVERY_S
+    return np.stack([w / rk.PLANAR_TILT**2, w / rk.PLANAR_HEIGHT**2], axis=1)
 
 
 def _scaled(noise, key: str, scale: float, say: bool = False):

@@ -12,7 +12,11 @@ segment. Factors:
   seed's pose by a prior of ``GAUGE_SIGMA`` (the problem is invariant to one rigid transform,
   docs/observers.md §1.1);
 * relative motion between consecutive keyframes, from the compiled preintegration
-  (:mod:`pipeline.smoother.preintegration`; GTSAM has no preintegrated factor for body-velocity odometry).
+  (:mod:`pipeline.smoother.preintegration`; GTSAM has no preintegrated factor for body-velocity odometry);
+* on a ground robot whose floor is held (riekf's decision, ``noise.floor``: :func:`pipeline.observers.riekf.
+  floor_decision`), the floor at each keyframe (:func:`floor_terms`): the body's up axis normal to one plane (two
+  rows, without the heading about the normal) and the position's height on it, the plane through the anchor's
+  pose (its up axis the normal), as riekf's is through its start pose, its gauge.
 
 The normal equations are formed and solved by compiled code over their structure (block tridiagonal in the
 poses with a border of landmark and bias columns, :mod:`pipeline.smoother.solver`): on the one-hour benchmark
@@ -52,6 +56,8 @@ class Problem:
     #: (M, 3, 3) each detection's body-frame information relative to ``1/σ²`` (range and bearing weighed apart,
     #: :mod:`pipeline.smoother.anisotropy`; determinant 1), or None: isotropic, ``σ`` on every axis
     det_shape: np.ndarray | None = None
+    #: (K, 2) each keyframe's floor information (the tilt rows' and the height row's ``1/σ²``), or None: no floor
+    floor: np.ndarray | None = None
 
 
 @dataclass
@@ -116,6 +122,9 @@ class Normal:
         if p.walk_sigma is not None:
             total += 0.5 * np.sum((np.diff(bias, axis=0) / p.walk_sigma) ** 2)
         dev = pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA
+        if p.floor is not None:
+            r, _ = floor_terms(*self.gauge, rot, pos)
+            total += 0.5 * float(np.sum(r * r * p.floor[:, [0, 0, 1]]))
         return float(total + 0.5 * dev @ dev)
 
     def linearize(self, pt: tuple) -> None:
@@ -145,6 +154,11 @@ class Normal:
                 self.c[j : j + 6, i : i + 6] -= np.diag(w)
                 self.gb[i : i + 6] -= d
                 self.gb[j : j + 6] += d
+        if p.floor is not None:
+            r, jac = floor_terms(*self.gauge, rot, pos)
+            wj = jac * p.floor[:, [0, 0, 1], None]
+            self.ad += np.einsum("kri,krj->kij", wj, jac)
+            self.ga += np.einsum("kri,kr->ki", wj, r)
         self.ad[p.anchor] += np.eye(6) / GAUGE_SIGMA**2
         self.ga[p.anchor] += pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA**2
         self.at = pt
@@ -188,6 +202,29 @@ class Normal:
         b0 = 3 * self.n_lm
         cov = np.linalg.inv(s)[b0:, b0:]
         return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
+
+
+def floor_terms(r0: np.ndarray, p0: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The floor's residuals (K, 3) at every keyframe and their Jacobians (K, 3, 6) in the step ``(θ, ρ)`` of
+    ``R Exp(θ)``, ``P + Rρ``: ``t_kᵀ R e3`` (the up axis along the plane's tangents ``t1``, ``t2``) and
+    ``nᵀP − h``: riekf's plane (:func:`pipeline.observers.riekf.floor_plane`) through the gauge's pose ``R₀``,
+    ``P₀``. ``∂(tᵀR e3)/∂θ = e3 × Rᵀt``, less its part along ``Rᵀn`` (turning about the normal tilts the up axis
+    no less: no heading, as riekf's rows); ``∂(nᵀP)/∂ρ = Rᵀn``."""
+    from slamobs.pipeline.observers.riekf import floor_plane
+
+    plane = floor_plane(r0, p0, np.zeros((0, 3)))
+    n, tangents = plane[1:4], plane[5:11].reshape(2, 3)
+    k = rot.shape[0]
+    r, jac = np.empty((k, 3)), np.zeros((k, 3, 6))
+    r[:, :2] = rot[:, :, 2] @ tangents.T
+    r[:, 2] = pos @ n - plane[4]
+    nb = np.einsum("kji,j->ki", rot, n)  # Rᵀn
+    for row in range(2):
+        tb = np.einsum("kji,j->ki", rot, tangents[row])  # Rᵀt
+        j = np.cross(np.array([0.0, 0.0, 1.0]), tb)
+        jac[:, row, :3] = j - np.einsum("ki,ki->k", j, nb)[:, None] * nb
+    jac[:, 2, 3:] = nb
+    return r, jac
 
 
 def solve(
@@ -241,9 +278,10 @@ def solve(
 
 
 def _factor_count(problem: Problem, n_seg: int) -> int:
-    """Detections, relative motions, the bias prior, the walk steps and the gauge."""
+    """Detections, relative motions, the bias prior, the walk steps, the gauge and the floor's keyframes."""
     walk = n_seg - 1 if problem.walk_sigma is not None else 0
-    return int(problem.det_idx.shape[0]) + int(problem.data.shape[0]) + 1 + walk + 1
+    floor = 0 if problem.floor is None else int(problem.floor.shape[0])
+    return int(problem.det_idx.shape[0]) + int(problem.data.shape[0]) + 1 + walk + 1 + floor
 
 
 def _step(ne: Normal, pt: tuple, error: float, lam: float, lam_max: float = 1e10):
