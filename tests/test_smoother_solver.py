@@ -133,3 +133,36 @@ def test_information_step_and_marginals_match_dense_linear_algebra(case):
     assert np.allclose(body, dense, rtol=1e-6, atol=1e-9 * np.abs(dense).max())
     nb0 = 6 * K + 3 * N_LM
     assert np.allclose(ne.bias_covariance(f[0])[1], cov[nb0 + 6 : nb0 + 12, nb0 + 6 : nb0 + 12], rtol=1e-6)
+
+
+def test_the_floor_s_gradient_is_its_cost_s_derivative_and_its_information_has_no_heading(case):
+    """The floor's rows (graph.floor_terms) in the normal equations: their gradient is their cost's derivative (the
+    tilt's cost is the same whatever the heading about the floor's normal); their information says nothing of that
+    heading (the tilt rows, each of which reads it when tilted, without it: riekf's rows), away from a level pose."""
+    from dataclasses import replace
+
+    problem, guess, pt = case
+    rng = np.random.default_rng(3)
+    floor = np.stack([np.full(K, 1.0 / 0.02**2), np.full(K, 1.0 / 0.05**2)], axis=1)
+    with_floor, without = g.Normal(replace(problem, floor=floor), guess), g.Normal(problem, guess)
+    away = rng.normal(size=6 * K + 3 * N_LM + 6 * N_SEG) * 1e-3
+    away[6 * (K - 1) : 6 * K] = 0.0
+    here = moved(pt, *split(away))
+    grad = gradient(with_floor, here) - gradient(without, here)
+    info = with_floor.ad - without.ad
+
+    def cost(at):
+        return with_floor.error(at) - without.error(at)
+
+    eps = 1e-6
+    for _ in range(3):
+        d = rng.normal(size=grad.size)
+        d[6 * (K - 1) : 6 * K] = 0.0
+        fd = (cost(moved(here, *split(eps * d))) - cost(moved(here, *split(-eps * d)))) / (2 * eps)
+        assert fd == pytest.approx(grad @ d, rel=1e-5)
+    r, jac = g.floor_terms(guess.rot[K - 1], guess.pos[K - 1], *here[:2])
+    normal = np.einsum("kji,j->ki", here[0], guess.rot[K - 1][:, 2])  # Rᵀn: the turn about the floor's normal
+    tilted = np.linalg.norm(r[:, :2], axis=1) > 0.05
+    assert tilted.sum() > K // 2
+    assert np.abs(np.einsum("kij,kj->ki", info[:, :3, :3], normal)[tilted]).max() < 1e-9 * np.abs(info).max()
+    assert np.allclose(info, np.einsum("kri,kr,krj->kij", jac, floor[:, [0, 0, 1]], jac))

@@ -411,8 +411,36 @@ def ground() -> Scenario:
     )
 
 
+GROUND_HILL = 0.5  # m, the hills' height on either side of the floor's (ground-hills)
+
+
+def ground_hills_trajectory(t: np.ndarray) -> Trajectory:
+    """The ground robot's figure 8 over hills, a floor that is no plane: its height ``GROUND_HILL`` times the sine of
+    the figure's phase, the body pitched along the slope it drives on (up to ~10 deg) beside its roll wobble."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    w = 2.0 * np.pi / GROUND_PERIOD
+    th = w * t
+    a, b = GROUND_A, 0.5 * GROUND_A
+    xs = (a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th))
+    ys = (b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th))
+    zs = (GROUND_H + GROUND_HILL * np.sin(th), GROUND_HILL * w * np.cos(th), -GROUND_HILL * w * w * np.sin(th))
+    sh = np.hypot(xs[1], ys[1])  # the horizontal speed, and the slope u along the path
+    u = zs[1] / sh
+    ud = (zs[2] * sh - zs[1] * (xs[1] * xs[2] + ys[1] * ys[2]) / sh) / sh**2
+    roll = (GROUND_WOBBLE * np.sin(7.3 * th), 7.3 * w * GROUND_WOBBLE * np.cos(7.3 * th))
+    pitch = (-np.arctan(u), -ud / (1.0 + u * u))  # nose up while climbing
+    return _heading_along_path(t, xs, ys, zs, roll, pitch)
+
+
+def ground_hills() -> Scenario:
+    """The ground robot's room and camera (:func:`ground`), its figure 8 over hills (:func:`ground_hills_trajectory`):
+    the floor batch and riekf hold on a ground robot is wrong here."""
+    return replace(ground(), name="ground-hills", trajectory=ground_hills_trajectory)
+
+
 SCENARIOS: dict[str, Callable[[], Scenario]] = {
     "ground": ground,
+    "ground-hills": ground_hills,
     "circle": circle,
     "figure8": figure8,
     "figure8-wide": figure8_wide,
