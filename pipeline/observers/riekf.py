@@ -2041,7 +2041,7 @@ class RiEKF(Stepper):
             if None not in tilt:
                 spread = f"{tilt[0]:.2g} / {tilt[1]:.2g} rad"
             elif tilt == [None, None]:
-                spread = "not needed: the rates and the vertical velocity decide"
+                spread = "not needed: the vertical velocity decides"
             else:  # the angle integrated only where it decides (planar_evidence)
                 spread = " / ".join("not needed" if a is None else f"{a:.2g} rad" for a in tilt)
             seen += f" (roll rate, pitch rate, vertical velocity {ratios} times their noise; "
