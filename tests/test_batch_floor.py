@@ -53,16 +53,15 @@ def test_batch_holds_the_ground_robot_s_floor_as_riekf_decides():
 
 
 def test_on_hills_the_evidence_turns_batch_s_floor_off_and_forced_it_bends_the_trajectory():
-    """Over hills under a gyro 60 times the simulator's the roll and pitch rates sit at their noise level (ratios
-    about 1), but the angles they integrate to spread far beyond the floor's σ and the noise's own: not planar, the
-    floor not held, batch as without it (held, 0.41 -> 0.73 m at 4x, docs/benchmarks.md, session 31); ``noise.floor:
-    true`` holds it anyway, and the trajectory it gives is worse."""
+    """Over hills (the simulator's gyro noise times 4: the roll and pitch rates above their noise) the angles they
+    integrate to spread far beyond the floor's σ: not planar, the floor not held, batch as without it;
+    ``noise.floor: true`` holds it anyway, and the trajectory it gives is worse (0.33 -> 1.68 m)."""
     hills = get_scenario("ground-hills")
-    ape, _, rec = _batch(hills, "auto", gyro=60.0)
-    assert max(rec["ratios"][:2]) < 1.25 and not rec["planar"] and not rec["held"]
-    ape0, *_ = _batch(hills, False, gyro=60.0)
+    ape, _, rec = _batch(hills, "auto")
+    assert max(rec["ratios"][:2]) > 1.25 and not rec["planar"] and not rec["held"]
+    ape0, *_ = _batch(hills, False)
     assert ape == ape0
-    forced, _, rec1 = _batch(hills, True, gyro=60.0)
+    forced, _, rec1 = _batch(hills, True)
     assert rec1["held"] and not rec1["planar"]
     assert forced > 1.5 * ape
 

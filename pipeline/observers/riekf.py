@@ -139,10 +139,7 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   spread no more than ``PLANAR_RATIO`` times their noise per sample (:func:`planar_evidence`: what they measure is
   noise, not motion), or the roll and pitch rates are motion but the angles they integrate to stay within
   ``PLANAR_TILT`` (:func:`tilt_spread`: a wheeled robot wobbling on an uneven floor, whose tilt the floor's σ
-  covers; docs/benchmarks.md, "riekf behind fast-adaptation on a ground robot with little to see"), and in either
-  case those angles spread no more than ``PLANAR_TILT`` beyond what the gyro's noise integrates to
-  (``TILT_NOISE``: slow hills whose pitch rate a noisy gyro hides; docs/benchmarks.md, "The floor in batch's
-  graph"), the floor
+  covers; docs/benchmarks.md, "riekf behind fast-adaptation on a ground robot with little to see"), the floor
   through the start pose is held every ``PLANAR_EVERY_S`` as pseudo-measurements
   (:func:`_planar_update`): the body's up axis normal to it (``PLANAR_TILT``) and the position's height on it
   (``PLANAR_HEIGHT``). The floor's height error (the start's tilt a few metres on) is the same at every one, not
@@ -278,10 +275,6 @@ PLANAR_RATIO = 1.25
 PLANAR_TILT = 0.02
 PLANAR_HEIGHT = 0.05
 PLANAR_EVERY_S = 0.5
-#: The 99th percentile of the mean square a gyro's white noise alone integrates to over a log (its mean and linear
-#: trend taken off, :func:`tilt_spread`), over the density squared times the log's seconds (simulated: its mean is
-#: 1/15): the tilt it leaves unexplained on a flat floor.
-TILT_NOISE = 0.23
 #: Blind stretches (module docstring): the seconds without a known landmark's detection after which the first
 #: ``BLIND_WINDOW`` tested detections are checked, and the share of them failing the gate above which the pose, not
 #: a few outliers, is off.
@@ -2041,7 +2034,7 @@ class RiEKF(Stepper):
             if None not in tilt:
                 spread = f"{tilt[0]:.2g} / {tilt[1]:.2g} rad"
             elif tilt == [None, None]:
-                spread = "not needed: the vertical velocity decides"
+                spread = "not needed: the rates and the vertical velocity decide"
             else:  # the angle integrated only where it decides (planar_evidence)
                 spread = " / ".join("not needed" if a is None else f"{a:.2g} rad" for a in tilt)
             seen += f" (roll rate, pitch rate, vertical velocity {ratios} times their noise; "
@@ -2233,8 +2226,7 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     the roll and pitch rates and of the vertical velocity over their noise per sample (the density over the square
     root of the mean interval between new values: a held command's noise is per command); planar when none exceeds
     ``PLANAR_RATIO`` (what they measure is noise) and they are not all exactly zero, or where the roll or pitch rate
-    exceeds it, the angle it integrates to spreads no more than ``PLANAR_TILT`` (:func:`tilt_spread`); and either
-    way that angle spreads no more than ``PLANAR_TILT`` beyond the gyro noise's own (``TILT_NOISE``). That angle is
+    exceeds it, the angle it integrates to spreads no more than ``PLANAR_TILT`` (:func:`tilt_spread`). That angle is
     computed only where it decides, ``tilt_rad`` null for a rate it was not needed for."""
     if vel_t.shape[0] < 3:
         return {"planar": False, "ratios": None}
@@ -2254,15 +2246,12 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
     # keep the filter in its plane without the floor, which would only reshape the covariance
     planar = bool(ratios[2] <= PLANAR_RATIO and max(spread) > 0.0)
     tilt: list[float | None] = [None, None]
-    gyro = np.broadcast_to(np.asarray(noise.gyro, float), (3,))
     for k in (0, 1):  # a wheeled robot on an uneven floor: real roll and pitch rates, a bounded roll and pitch
-        # the angle integrated only where it decides (not when the vertical velocity or the other angle has): 0.05
-        # CPU s a rate on an hour's log, run.json's tilt_rad null where not computed. A rate at its noise level
-        # may still integrate to a slope (hills under a noisy gyro): the angle beyond what the noise integrates to
-        if planar:
+        # the angle integrated only where it decides (not when the vertical velocity, the rate or the other angle
+        # has): 0.05 CPU s a rate on an hour's log, run.json's tilt_rad null where not computed
+        if planar and not ratios[k] <= PLANAR_RATIO:
             angle = tilt_spread(vel_t, omega[:, k])
-            bound = math.sqrt(PLANAR_TILT**2 + TILT_NOISE * gyro[k] ** 2 * span)
-            tilt[k], planar = round(angle, 4), bool(angle <= bound)
+            tilt[k], planar = round(angle, 4), bool(angle <= PLANAR_TILT)
     return {"planar": planar, "ratios": [round(r, 3) for r in ratios], "tilt_rad": tilt}
 
 
