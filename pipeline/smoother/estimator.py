@@ -56,7 +56,7 @@ _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
 #: The floor's rows' mean squared whitened residual at the solution above which the floor the evidence held is
 #: dropped (``BatchSmoother.solve``): 1 is what its σ allows; a ground robot's true floor gave 0.005-0.009 (height)
 #: and 0.07-0.08 (tilt), the unseen sweep's climbing figure 8 (seed=2140, its gyro too noisy to show the climb)
-#: 1.99 and 0.33 (docs/benchmarks.md, "The floor in batch's graph, session 31").
+#: 1.99 and 0.33 (docs/benchmarks.md, "The floor in batch's graph, session 31 (h-batchfloor)").
 FLOOR_CHI2 = 1.0
 #: What :meth:`BatchSmoother._solve` changes on the estimator, put back before it runs again without the floor.
 _SOLVE_STATE = ("noise", "det_at", "det_range", "det_shape", "det_factor", "law_notes", "start_jumps")
