@@ -160,9 +160,36 @@ def test_the_floor_s_gradient_is_its_cost_s_derivative_and_its_information_has_n
         d[6 * (K - 1) : 6 * K] = 0.0
         fd = (cost(moved(here, *split(eps * d))) - cost(moved(here, *split(-eps * d)))) / (2 * eps)
         assert fd == pytest.approx(grad @ d, rel=1e-5)
-    r, jac = g.floor_terms(guess.rot[K - 1], guess.pos[K - 1], *here[:2])
-    normal = np.einsum("kji,j->ki", here[0], guess.rot[K - 1][:, 2])  # Rᵀn: the turn about the floor's normal
+    r, jac = g.floor_terms(with_floor.plane, *here[:2])
+    normal = np.einsum("kji,j->ki", here[0], with_floor.plane[1:4])  # Rᵀn: the turn about the floor's normal
     tilted = np.linalg.norm(r[:, :2], axis=1) > 0.05
-    assert tilted.sum() > K // 2
-    assert np.abs(np.einsum("kij,kj->ki", info[:, :3, :3], normal)[tilted]).max() < 1e-9 * np.abs(info).max()
-    assert np.allclose(info, np.einsum("kri,kr,krj->kij", jac, floor[:, [0, 0, 1]], jac))
+    assert tilted[:-1].sum() > K // 3
+    rows = info[:-1, :3, :3]  # the anchor's block holds the gauge too (test below)
+    assert np.abs(np.einsum("kij,kj->ki", rows, normal[:-1])[tilted[:-1]]).max() < 1e-9 * np.abs(info).max()
+    floor_info = np.einsum("kri,kr,krj->kij", jac, floor[:, [0, 0, 1]], jac)
+    assert np.allclose(info[:-1], floor_info[:-1])
+
+
+def test_with_the_floor_the_gauge_holds_the_anchor_s_position_and_heading_and_the_floor_its_tilt(case):
+    """The floor's plane (graph.floor_at) has the keyframes' mean up axis for its normal, not the anchor's: a start
+    whose anchor is tilted off the rest (a blind stretch's gyro drift) is not held at that tilt; the gauge keeps
+    only the anchor's position and its heading about the normal, and the solve levels it with the others."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.lie import so3_exp, so3_log
+
+    problem, guess, _ = case
+    up = guess.rot[:, :, 2].mean(axis=0)
+    plane = g.floor_at(guess.rot, guess.pos, K - 1)
+    assert np.allclose(plane[1:4], up / np.linalg.norm(up))
+    floor = np.stack([np.full(K, 1.0 / 0.02**2), np.full(K, 1.0 / 0.05**2)], axis=1)
+    tilted = guess.rot.copy()
+    tilted[K - 1] = tilted[K - 1] @ so3_exp(np.array([0.2, 0.0, 0.0]))
+    start = replace(guess, rot=tilted)
+    ne = g.Normal(replace(problem, floor=floor), start)
+    sol = g.solve(replace(problem, floor=floor), start)
+    a = K - 1
+    assert np.allclose(sol.pos[a], start.pos[a], atol=1e-6)
+    turned = so3_log(tilted[a].T @ sol.rot[a])
+    assert abs(turned @ ne.gauge_axis) < 1e-4  # the heading about the normal held
+    assert np.linalg.norm(turned) > 0.05  # the tilt not: levelled toward the rest

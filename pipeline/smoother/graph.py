@@ -16,7 +16,8 @@ segment. Factors:
 * on a ground robot whose floor is held (riekf's decision, ``noise.floor``: :func:`pipeline.observers.riekf.
   floor_decision`), the floor at each keyframe (:func:`floor_terms`): the body's up axis normal to one plane (two
   rows, without the heading about the normal) and the position's height on it, the plane through the anchor's
-  pose (its up axis the normal), as riekf's is through its start pose, its gauge.
+  position with the keyframes' mean up axis its normal (:func:`floor_at`); the gauge then holds the anchor's
+  position and heading, its tilt left to the floor.
 
 The normal equations are formed and solved by compiled code over their structure (block tridiagonal in the
 poses with a border of landmark and bias columns, :mod:`pipeline.smoother.solver`): on the one-hour benchmark
@@ -103,6 +104,10 @@ class Normal:
         self.shape = np.zeros((0, 3, 3)) if p.det_shape is None else np.ascontiguousarray(p.det_shape[order], float)
         self.det_start = np.searchsorted(self.kf, np.arange(k + 1))
         self.gauge = (guess.rot[p.anchor].copy(), guess.pos[p.anchor].copy())
+        #: the floor's plane (:func:`floor_at`), fixed for this solve from the guess; its normal in the anchor's
+        #: body frame, the one rotation the gauge holds with the floor (the floor holds the tilt)
+        self.plane = None if p.floor is None else floor_at(guess.rot, guess.pos, p.anchor)
+        self.gauge_axis = None if self.plane is None else self.gauge[0].T @ self.plane[1:4]
         nb = 3 * self.n_lm + 6 * self.n_seg
         self.ad, self.ao, self.mb = np.zeros((k, 6, 6)), np.zeros((k - 1, 6, 6)), np.zeros((k - 1, 2, 6, 6))
         self.ga, self.c, self.gb = np.zeros((k, 6)), np.zeros((nb, nb)), np.zeros(nb)
@@ -113,7 +118,7 @@ class Normal:
     def error(self, pt: tuple) -> float:
         """Half the squared whitened residuals (Huber-robust for the detections) at ``pt`` (rot, pos, lms, bias)."""
         from slamobs.pipeline.smoother.preintegration import motion_error
-        from slamobs.pipeline.smoother.solver import detection_terms, pose_deviation
+        from slamobs.pipeline.smoother.solver import detection_terms
 
         p, (rot, pos, lms, bias) = self.p, pt
         total = detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, self.shape, p.huber, self.scratch)
@@ -121,15 +126,26 @@ class Normal:
         total += 0.5 * np.sum(((bias[0] - p.bias_prior_mean) / p.bias_prior_sigma) ** 2)
         if p.walk_sigma is not None:
             total += 0.5 * np.sum((np.diff(bias, axis=0) / p.walk_sigma) ** 2)
-        dev = pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA
+        dev = self._gauge_deviation(rot, pos) / GAUGE_SIGMA
         if p.floor is not None:
-            r, _ = floor_terms(*self.gauge, rot, pos)
+            r, _ = floor_terms(self.plane, rot, pos)
             total += 0.5 * float(np.sum(r * r * p.floor[:, [0, 0, 1]]))
         return float(total + 0.5 * dev @ dev)
 
+    def _gauge_deviation(self, rot, pos) -> np.ndarray:
+        """The gauge prior's residual at the anchor: its pose's deviation from the guess's
+        (:func:`pipeline.smoother.solver.pose_deviation`); with the floor, of its rotation only the part about
+        the floor's normal (its heading), the tilt left to the floor."""
+        from slamobs.pipeline.smoother.solver import pose_deviation
+
+        dev = pose_deviation(*self.gauge, rot[self.p.anchor], pos[self.p.anchor])
+        if self.gauge_axis is not None:
+            dev[:3] = self.gauge_axis * (self.gauge_axis @ dev[:3])
+        return dev
+
     def linearize(self, pt: tuple) -> None:
         """The normal equations ``JᵀJ``, ``Jᵀr`` at ``pt`` (with the detections' Huber weights there)."""
-        from slamobs.pipeline.smoother.solver import detection_normal, detection_terms, motion_terms, pose_deviation
+        from slamobs.pipeline.smoother.solver import detection_normal, detection_terms, motion_terms
 
         p, (rot, pos, lms, bias) = self.p, pt
         detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, self.shape, p.huber, self.weight)
@@ -155,12 +171,15 @@ class Normal:
                 self.gb[i : i + 6] -= d
                 self.gb[j : j + 6] += d
         if p.floor is not None:
-            r, jac = floor_terms(*self.gauge, rot, pos)
+            r, jac = floor_terms(self.plane, rot, pos)
             wj = jac * p.floor[:, [0, 0, 1], None]
             self.ad += np.einsum("kri,krj->kij", wj, jac)
             self.ga += np.einsum("kri,kr->ki", wj, r)
-        self.ad[p.anchor] += np.eye(6) / GAUGE_SIGMA**2
-        self.ga[p.anchor] += pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA**2
+        info = np.eye(6)
+        if self.gauge_axis is not None:
+            info[:3, :3] = np.outer(self.gauge_axis, self.gauge_axis)
+        self.ad[p.anchor] += info / GAUGE_SIGMA**2
+        self.ga[p.anchor] += self._gauge_deviation(rot, pos) / GAUGE_SIGMA**2
         self.at = pt
 
     def _geo(self) -> tuple:
@@ -204,15 +223,24 @@ class Normal:
         return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
 
 
-def floor_terms(r0: np.ndarray, p0: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The floor's residuals (K, 3) at every keyframe and their Jacobians (K, 3, 6) in the step ``(θ, ρ)`` of
-    ``R Exp(θ)``, ``P + Rρ``: ``t_kᵀ R e3`` (the up axis along the plane's tangents ``t1``, ``t2``) and
-    ``nᵀP − h``: riekf's plane (:func:`pipeline.observers.riekf.floor_plane`) through the gauge's pose ``R₀``,
-    ``P₀``. ``∂(tᵀR e3)/∂θ = e3 × Rᵀt``, less its part along ``Rᵀn`` (turning about the normal tilts the up axis
-    no less: no heading, as riekf's rows); ``∂(nᵀP)/∂ρ = Rᵀn``."""
+def floor_at(rot: np.ndarray, pos: np.ndarray, anchor: int) -> np.ndarray:
+    """The floor's plane for keyframes at ``rot``, ``pos``: riekf's (:func:`pipeline.observers.riekf.floor_plane`)
+    with the keyframes' mean up axis its normal, through the anchor's position. Any plane is a gauge (the graph is
+    invariant to one rigid transform); the mean up axis is the one the keyframes are nearest, where the anchor's
+    own (riekf's choice, its start pose) may be off the rest by what a blind stretch's gyro drift tilted it."""
     from slamobs.pipeline.observers.riekf import floor_plane
 
-    plane = floor_plane(r0, p0, np.zeros((0, 3)))
+    up = rot[:, :, 2].mean(axis=0)
+    frame = np.eye(3)
+    frame[:, 2] = up / np.linalg.norm(up)
+    return floor_plane(frame, pos[anchor], np.zeros((0, 3)))
+
+
+def floor_terms(plane: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The floor's residuals (K, 3) at every keyframe and their Jacobians (K, 3, 6) in the step ``(θ, ρ)`` of
+    ``R Exp(θ)``, ``P + Rρ``: ``t_kᵀ R e3`` (the up axis along the plane's tangents ``t1``, ``t2``) and
+    ``nᵀP − h``: the plane ``plane`` (:func:`floor_at`). ``∂(tᵀR e3)/∂θ = e3 × Rᵀt``, less its part along
+    ``Rᵀn`` (turning about the normal tilts the up axis no less: no heading, as riekf's rows); ``∂(nᵀP)/∂ρ = Rᵀn``."""
     n, tangents = plane[1:4], plane[5:11].reshape(2, 3)
     k = rot.shape[0]
     r, jac = np.empty((k, 3)), np.zeros((k, 3, 6))
