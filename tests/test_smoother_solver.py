@@ -193,3 +193,22 @@ def test_with_the_floor_the_gauge_holds_the_anchor_s_position_and_heading_and_th
     turned = so3_log(tilted[a].T @ sol.rot[a])
     assert abs(turned @ ne.gauge_axis) < 1e-4  # the heading about the normal held
     assert np.linalg.norm(turned) > 0.05  # the tilt not: levelled toward the rest
+
+
+def test_the_biases_covariance_leaves_out_a_landmark_the_gate_left_with_no_detection(case):
+    """The χ² gate may drop every detection of one landmark (unseen sweep seed=2134 with the floor): its rows in the
+    border's Schur complement are zero, undamped it is singular; the biases' covariance is the same as without it."""
+    from dataclasses import replace
+
+    problem, guess, pt = case
+    kept = np.flatnonzero(problem.det_idx != 0)
+    ne = g.Normal(g.with_detections(problem, kept), guess)
+    ne.linearize(pt)
+    s = ne.factor(0.0)[0]
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.inv(s)
+    others = g.with_detections(problem, kept)
+    others = replace(others, det_idx=others.det_idx - 1)  # the same problem without landmark 0
+    ref = g.Normal(others, g.Guess(guess.rot, guess.pos, guess.landmarks[1:], guess.bias))
+    ref.linearize((pt[0], pt[1], pt[2][1:], pt[3]))
+    assert np.allclose(ne.bias_covariance(s), ref.bias_covariance(ref.factor(0.0)[0]), rtol=1e-9)

@@ -217,9 +217,11 @@ class Normal:
         return new, s
 
     def bias_covariance(self, s: np.ndarray) -> np.ndarray:
-        """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement."""
+        """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement; a landmark
+        left with no detection (the χ² gate dropped them all) has no rows there and is left out."""
         b0 = 3 * self.n_lm
-        cov = np.linalg.inv(s)[b0:, b0:]
+        keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
+        cov = np.linalg.inv(s[np.ix_(keep, keep)])[keep.size - (s.shape[0] - b0) :, keep.size - (s.shape[0] - b0) :]
         return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
 
 
