@@ -220,8 +220,12 @@ class Normal:
         """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement; a landmark
         left with no detection (the χ² gate dropped them all) has no rows there and is left out."""
         b0 = 3 * self.n_lm
-        keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
-        cov = np.linalg.inv(s[np.ix_(keep, keep)])[keep.size - (s.shape[0] - b0) :, keep.size - (s.shape[0] - b0) :]
+        try:
+            cov = np.linalg.inv(s)[b0:, b0:]
+        except np.linalg.LinAlgError:
+            keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
+            nb = s.shape[0] - b0
+            cov = np.linalg.inv(s[np.ix_(keep, keep)])[-nb:, -nb:]
         return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
 
 
