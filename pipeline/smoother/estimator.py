@@ -551,8 +551,9 @@ class BatchSmoother(Stepper):
         why = "planar motion" if self.floor["floor"] == "auto" else "noise.floor: true"
         return [
             f"batch: the floor held at every keyframe ({why}, as riekf decides): the body's up axis normal to the "
-            f"plane through the anchor keyframe's pose and its height on it, tilt {rk.PLANAR_TILT:g} rad and height "
-            f"{rk.PLANAR_HEIGHT:g} m per {rk.PLANAR_EVERY_S:g} s of keyframes (run.json smoother.floor)"
+            f"plane of the keyframes' mean up axis and its height on it, tilt {rk.PLANAR_TILT:g} rad and height "
+            f"{rk.PLANAR_HEIGHT:g} m per {rk.PLANAR_EVERY_S:g} s of keyframes, brought in by steps from each start "
+            "(run.json smoother.floor)"
         ]
 
     def _inverse_depth(self) -> tuple[tuple[float, float] | None, dict, None]:
