@@ -156,8 +156,8 @@ def simulate(
     force: bool,
     quiet: bool,
 ) -> None:
-    """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop, ground) and write it
-    to OUT with landmark and bias truth.
+    """Simulate SCENARIO (circle, figure8, figure8-wide, figure8-blind, figure8-imu-flipped, loop, ground,
+    ground-hills) and write it to OUT with landmark and bias truth.
 
     With --camera corners or images the camera reports tags as a real one does (tag corners, or images rendered
     from the true camera pose; needs the vision extra: pip install 'slamobs[vision]'), with CameraInfo.

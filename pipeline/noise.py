@@ -108,8 +108,8 @@ class NoiseConfig:
     velocity_bias: float | None = None
     gyro_bias_walk: float | None = None
     velocity_bias_walk: float | None = None
-    #: riekf's floor (pipeline.observers.riekf, "Planar motion"): "auto" held when the log shows planar motion,
-    #: true always, false never
+    #: the floor of riekf and batch (pipeline.observers.riekf, "Planar motion"): "auto" held when the log shows
+    #: planar motion, true always, false never
     floor: str | bool = "auto"
 
     @classmethod
@@ -150,7 +150,7 @@ class NoiseSettings:
     #: detection-law keys the estimated law has no term for (0 by its form, not measured): :meth:`lines` leaves
     #: them out, run.json's ``levels`` says so in their method
     absent: tuple[str, ...] = ()
-    #: riekf's floor as configured (:attr:`NoiseConfig.floor`)
+    #: the floor (riekf's and batch's) as configured (:attr:`NoiseConfig.floor`)
     floor: str | bool = "auto"
 
     def as_dict(self) -> dict:

@@ -133,3 +133,82 @@ def test_information_step_and_marginals_match_dense_linear_algebra(case):
     assert np.allclose(body, dense, rtol=1e-6, atol=1e-9 * np.abs(dense).max())
     nb0 = 6 * K + 3 * N_LM
     assert np.allclose(ne.bias_covariance(f[0])[1], cov[nb0 + 6 : nb0 + 12, nb0 + 6 : nb0 + 12], rtol=1e-6)
+
+
+def test_the_floor_s_gradient_is_its_cost_s_derivative_and_its_information_has_no_heading(case):
+    """The floor's rows (graph.floor_terms) in the normal equations: their gradient is their cost's derivative (the
+    tilt's cost is the same whatever the heading about the floor's normal); their information says nothing of that
+    heading (the tilt rows, each of which reads it when tilted, without it: riekf's rows), away from a level pose."""
+    from dataclasses import replace
+
+    problem, guess, pt = case
+    rng = np.random.default_rng(3)
+    floor = np.stack([np.full(K, 1.0 / 0.02**2), np.full(K, 1.0 / 0.05**2)], axis=1)
+    with_floor, without = g.Normal(replace(problem, floor=floor), guess), g.Normal(problem, guess)
+    away = rng.normal(size=6 * K + 3 * N_LM + 6 * N_SEG) * 1e-3
+    away[6 * (K - 1) : 6 * K] = 0.0
+    here = moved(pt, *split(away))
+    grad = gradient(with_floor, here) - gradient(without, here)
+    info = with_floor.ad - without.ad
+
+    def cost(at):
+        return with_floor.error(at) - without.error(at)
+
+    eps = 1e-6
+    for _ in range(3):
+        d = rng.normal(size=grad.size)
+        d[6 * (K - 1) : 6 * K] = 0.0
+        fd = (cost(moved(here, *split(eps * d))) - cost(moved(here, *split(-eps * d)))) / (2 * eps)
+        assert fd == pytest.approx(grad @ d, rel=1e-5)
+    r, jac = g.floor_terms(with_floor.plane, *here[:2])
+    normal = np.einsum("kji,j->ki", here[0], with_floor.plane[1:4])  # Rᵀn: the turn about the floor's normal
+    tilted = np.linalg.norm(r[:, :2], axis=1) > 0.05
+    assert tilted[:-1].sum() > K // 3
+    rows = info[:-1, :3, :3]  # the anchor's block holds the gauge too (test below)
+    assert np.abs(np.einsum("kij,kj->ki", rows, normal[:-1])[tilted[:-1]]).max() < 1e-9 * np.abs(info).max()
+    floor_info = np.einsum("kri,kr,krj->kij", jac, floor[:, [0, 0, 1]], jac)
+    assert np.allclose(info[:-1], floor_info[:-1])
+
+
+def test_with_the_floor_the_gauge_holds_the_anchor_s_position_and_heading_and_the_floor_its_tilt(case):
+    """The floor's plane (graph.floor_at) has the keyframes' mean up axis for its normal, not the anchor's: a start
+    whose anchor is tilted off the rest (a blind stretch's gyro drift) is not held at that tilt; the gauge keeps
+    only the anchor's position and its heading about the normal, and the solve levels it with the others."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.lie import so3_exp, so3_log
+
+    problem, guess, _ = case
+    up = guess.rot[:, :, 2].mean(axis=0)
+    plane = g.floor_at(guess.rot, guess.pos, K - 1)
+    assert np.allclose(plane[1:4], up / np.linalg.norm(up))
+    floor = np.stack([np.full(K, 1.0 / 0.02**2), np.full(K, 1.0 / 0.05**2)], axis=1)
+    tilted = guess.rot.copy()
+    tilted[K - 1] = tilted[K - 1] @ so3_exp(np.array([0.2, 0.0, 0.0]))
+    start = replace(guess, rot=tilted)
+    ne = g.Normal(replace(problem, floor=floor), start)
+    sol = g.solve(replace(problem, floor=floor), start)
+    a = K - 1
+    assert np.allclose(sol.pos[a], start.pos[a], atol=1e-6)
+    turned = so3_log(tilted[a].T @ sol.rot[a])
+    assert abs(turned @ ne.gauge_axis) < 1e-4  # the heading about the normal held
+    assert np.linalg.norm(turned) > 0.05  # the tilt not: levelled toward the rest
+
+
+def test_the_biases_covariance_leaves_out_a_landmark_the_gate_left_with_no_detection(case):
+    """The χ² gate may drop every detection of one landmark (unseen sweep seed=2134 with the floor): its rows in the
+    border's Schur complement are zero, undamped it is singular; the biases' covariance is the same as without it."""
+    from dataclasses import replace
+
+    problem, guess, pt = case
+    kept = np.flatnonzero(problem.det_idx != 0)
+    ne = g.Normal(g.with_detections(problem, kept), guess)
+    ne.linearize(pt)
+    s = ne.factor(0.0)[0]
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.inv(s)
+    others = g.with_detections(problem, kept)
+    others = replace(others, det_idx=others.det_idx - 1)  # the same problem without landmark 0
+    ref = g.Normal(others, g.Guess(guess.rot, guess.pos, guess.landmarks[1:], guess.bias))
+    ref.linearize((pt[0], pt[1], pt[2][1:], pt[3]))
+    assert np.allclose(ne.bias_covariance(s), ref.bias_covariance(ref.factor(0.0)[0]), rtol=1e-9)

@@ -1818,9 +1818,7 @@ class RiEKF(Stepper):
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
-        self.planar = planar_evidence(self.vel_t, stream.omega, stream.velocity, nz)
-        self.planar["held"] = nz.floor is True or (nz.floor == "auto" and self.planar["planar"])
-        self.planar["floor"] = nz.floor
+        self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, nz)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
         self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(stream, self.vel_t, nz.held)
@@ -2268,6 +2266,16 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
             angle = tilt_spread(vel_t, omega[:, k])
             tilt[k], planar = round(angle, 4), bool(angle <= PLANAR_TILT)
     return {"planar": planar, "ratios": [round(r, 3) for r in ratios], "tilt_rad": tilt}
+
+
+def floor_decision(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise) -> dict:
+    """Whether the floor is held (module docstring, "Planar motion"; riekf's and batch's): the evidence of
+    :func:`planar_evidence` with ``held`` (``noise.floor`` true, or ``auto`` and planar) and ``floor`` (the
+    setting), run.json's ``planar`` record."""
+    rec = planar_evidence(vel_t, omega, velocity, noise)
+    rec["held"] = noise.floor is True or (noise.floor == "auto" and rec["planar"])
+    rec["floor"] = noise.floor
+    return rec
 
 
 def pair_bias_prior(stream, noise) -> dict:

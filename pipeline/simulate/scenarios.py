@@ -411,8 +411,37 @@ def ground() -> Scenario:
     )
 
 
+GROUND_HILL = 0.25  # m, the hills' height on either side of the floor's (ground-hills)
+
+
+def ground_hills_trajectory(t: np.ndarray) -> Trajectory:
+    """The ground robot's figure 8 over hills, a floor that is no plane: its height ``GROUND_HILL`` times the sine of
+    three times the figure's phase, the body pitched along the slope it drives on beside its roll wobble."""
+    t = np.atleast_1d(np.asarray(t, dtype=float))
+    w = 2.0 * np.pi / GROUND_PERIOD
+    th = w * t
+    a, b = GROUND_A, 0.5 * GROUND_A
+    xs = (a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th))
+    ys = (b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th))
+    h = GROUND_HILL  # three hills a lap: no plane through the path (one would be, under a figure 8's x or y)
+    zs = (GROUND_H + h * np.sin(3 * th), 3 * w * h * np.cos(3 * th), -9 * w * w * h * np.sin(3 * th))
+    sh = np.hypot(xs[1], ys[1])  # the horizontal speed, and the slope u along the path
+    u = zs[1] / sh
+    ud = (zs[2] * sh - zs[1] * (xs[1] * xs[2] + ys[1] * ys[2]) / sh) / sh**2
+    roll = (GROUND_WOBBLE * np.sin(7.3 * th), 7.3 * w * GROUND_WOBBLE * np.cos(7.3 * th))
+    pitch = (-np.arctan(u), -ud / (1.0 + u * u))  # nose up while climbing
+    return _heading_along_path(t, xs, ys, zs, roll, pitch)
+
+
+def ground_hills() -> Scenario:
+    """The ground robot's room and camera (:func:`ground`), its figure 8 over hills (:func:`ground_hills_trajectory`):
+    the floor batch and riekf hold on a ground robot is wrong here."""
+    return replace(ground(), name="ground-hills", trajectory=ground_hills_trajectory)
+
+
 SCENARIOS: dict[str, Callable[[], Scenario]] = {
     "ground": ground,
+    "ground-hills": ground_hills,
     "circle": circle,
     "figure8": figure8,
     "figure8-wide": figure8_wide,

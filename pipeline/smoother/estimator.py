@@ -53,6 +53,19 @@ INVERSE_DEPTH_PASSES = 3
 #: Largest share of the detections the χ² gate may drop as outliers; more means the solution is wrong.
 MAX_GATED = 0.1
 _IV, _JF = 0, 1  # the shared kernel-state slots (base.KernelState)
+#: The floor's rows' mean squared whitened residual at the solution above which the floor the evidence held is
+#: dropped (``BatchSmoother.solve``): 1 is what its σ allows; a ground robot's true floor gave 0.005-0.009 (height)
+#: and 0.07-0.08 (tilt), the unseen sweep's climbing figure 8 (seed=2140, its gyro too noisy to show the climb)
+#: 1.99 and 0.33 (docs/benchmarks.md, "The floor in batch's graph, session 31 (h-batchfloor)").
+FLOOR_CHI2 = 1.0
+#: The floor's weight, a share of its own, in the solves from each start before the one in full
+#: (:meth:`BatchSmoother._candidate`): none, then 1 % and 10 %. A start whose tilts wander far off the floor (a
+#: blind stretch's gyro drift) solved with the floor at once stalls in another basin (unseen sweep seed=2139, 3 m
+#: range: from fast-adaptation's start cost 20,711 against 469 this way); tried there only, with 0.1 % added too
+#: (the same solution), docs/benchmarks.md "The floor in batch's graph, session 31 (h-batchfloor)".
+FLOOR_RAMP = (0.0, 0.01, 0.1)
+#: What :meth:`BatchSmoother._solve` changes on the estimator, put back before it runs again without the floor.
+_SOLVE_STATE = ("noise", "det_at", "det_range", "det_shape", "det_factor", "law_notes", "start_jumps")
 
 
 def check_config(config) -> int:
@@ -252,11 +265,40 @@ class BatchSmoother(Stepper):
         #: law's: pipeline.smoother.inverse_depth), the record for run.json, and the body-frame points its factors
         #: are linearized at (None: the measurements)
         self.inverse_depth, self.inverse_depth_record, self.det_at = self._inverse_depth()
+        from slamobs.pipeline.observers.riekf import floor_decision
+
+        #: the floor held or not, riekf's decision on the same samples and setting (run.json ``smoother.floor``)
+        self.floor = floor_decision(self.vel_t, self.stream.omega, self.stream.velocity, self.noise)
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
     # ------------------------------------------------------------------ the whole solve
     def solve(self, progress=None) -> dict:
+        """:meth:`_solve`; where the floor was held by the evidence (``noise.floor: auto``) and its rows' mean
+        squared whitened residual at the solution exceeds ``FLOOR_CHI2`` (the keyframes held off the floor by more
+        than its σ: a floor that is no plane under a gyro too noisy to show it), the whole solve again without it
+        from the same start; run.json ``smoother.floor.dropped`` and a note say so."""
+        kept = {k: getattr(self, k) for k in _SOLVE_STATE}
+        c0 = time.process_time()
+        summary = self._solve(progress)
+        fl = summary["floor"]
+        if not (fl["held"] and fl["floor"] == "auto" and max(fl.get("chi2", {}).values(), default=0.0) > FLOOR_CHI2):
+            return summary
+        for k, v in kept.items():
+            setattr(self, k, v)
+        self.floor = dict(self.floor, held=False)
+        first_cpu = time.process_time() - c0
+        summary = self._solve(progress)
+        summary["floor"]["dropped"] = {"chi2": fl["chi2"], "cpu_s": round(first_cpu, 3)}
+        chi2 = ", ".join(f"{k} {v:.3g}" for k, v in fl["chi2"].items())
+        self.stats["notes"].append(
+            f"batch: the floor (planar motion by the evidence) not held: its rows' mean squared whitened residuals at "
+            f"the solution ({chi2}) exceed {FLOOR_CHI2:g}, the data hold the keyframes off it (a floor that is no "
+            "plane?); solved again without it (run.json smoother.floor.dropped; noise.floor: true holds it anyway)"
+        )
+        return summary
+
+    def _solve(self, progress=None) -> dict:
         """Seed, preintegrate, solve, gate the outliers and solve again; when that solution is doubtful, the
         other starts too, keeping the lowest-cost candidate (:mod:`pipeline.smoother.candidates`); the summary
         (also kept in ``stats``)."""
@@ -346,6 +388,7 @@ class BatchSmoother(Stepper):
             )
         summary["seed_check"] = seed_check
         summary["covariance_gauge"] = gauge_record(kf_t, gauge)
+        summary["floor"] = self._floor_record(problem, sol)
         self.stats["substeps"] = int(kf_t.shape[0])
         self.stats["metadata"] = {
             "seed": chosen.seed.name,
@@ -357,7 +400,7 @@ class BatchSmoother(Stepper):
         }
         self.stats["notes"] = [robust[1]] if robust is not None else []
         self.stats["notes"] += self.law_notes + range_notes + evidence_notes + anisotropy_notes + correlation_notes
-        self.stats["notes"] += seed_notes + gauge_note(summary["covariance_gauge"])
+        self.stats["notes"] += seed_notes + self._floor_note() + gauge_note(summary["covariance_gauge"])
         self.stats["notes"] += list(chosen.notes or [])
         self.stats["notes"] += time_offset_note("batch", self.time_offset)
         self.timings.update(
@@ -396,6 +439,9 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.smoother.candidates import Candidate
 
         guess = g.Guess(seed.rot, seed.pos, seed.landmarks, np.tile(problem.b_bar, (n_segments, 1)))
+        if problem.floor is not None:  # the floor's weight raised over solves (FLOOR_RAMP), then in full
+            for w in FLOOR_RAMP:
+                guess = self._solved_from(replace(problem, floor=problem.floor * w if w else None), guess, progress)
         solved, sol, notes = self._solve_gated(problem, guess, seed.name, progress)
         return Candidate(seed, solved, sol, notes)
 
@@ -517,8 +563,40 @@ class BatchSmoother(Stepper):
             walk_sigma=walk,
             huber=st.huber,
             anchor=k - 1,
+            floor=floor_information(kf_t) if self.floor["held"] else None,
             **self._detections(kf_of_det),
         )
+
+    def _floor_record(self, problem, sol) -> dict:
+        """The floor for run.json: riekf's decision (:func:`pipeline.observers.riekf.floor_decision`) and, when
+        held, its levels per riekf pseudo-measurement (:func:`floor_information`) and the mean squared whitened
+        residual of its tilt and height rows at the solution (``chi2``: about 1 or less when the floor holds)."""
+        from slamobs.pipeline.observers import riekf as rk
+        from slamobs.pipeline.smoother.graph import floor_at, floor_terms
+
+        rec = dict(self.floor)
+        if rec["held"]:
+            rec.update(tilt_sigma_rad=rk.PLANAR_TILT, height_sigma_m=rk.PLANAR_HEIGHT, per_s=rk.PLANAR_EVERY_S)
+            a = problem.anchor
+            r, _ = floor_terms(floor_at(sol.rot, sol.pos, a), sol.rot, sol.pos)
+            if problem.floor is not None:
+                w = r * r * problem.floor[:, [0, 0, 1]]
+                rec["chi2"] = {"tilt": round(float(np.mean(w[:, :2])), 4), "height": round(float(np.mean(w[:, 2])), 4)}
+        return rec
+
+    def _floor_note(self) -> list[str]:
+        """The note of a floor held (none otherwise: riekf's note says why not where it runs)."""
+        from slamobs.pipeline.observers import riekf as rk
+
+        if not self.floor["held"]:
+            return []
+        why = "planar motion" if self.floor["floor"] == "auto" else "noise.floor: true"
+        return [
+            f"batch: the floor held at every keyframe ({why}, as riekf decides): the body's up axis normal to the "
+            f"plane of the keyframes' mean up axis and its height on it, tilt {rk.PLANAR_TILT:g} rad and height "
+            f"{rk.PLANAR_HEIGHT:g} m per {rk.PLANAR_EVERY_S:g} s of keyframes, brought in by steps from each start "
+            "(run.json smoother.floor)"
+        ]
 
     def _inverse_depth(self) -> tuple[tuple[float, float] | None, dict, None]:
         """The detections' typical depth and range when inverse depth applies (else None), the record, no
@@ -1096,6 +1174,22 @@ class BatchSmoother(Stepper):
             self.state.r_hat[:], self.state.p_hat[:] = out.r[n - 1], out.p[n - 1]
         ns[_IV], ns[_JF] = iv_stop, jf_stop
         return n
+
+
+def floor_information(kf_t: np.ndarray) -> np.ndarray:
+    """Each keyframe's floor information (K, 2: the tilt rows' and the height row's ``1/σ²``): riekf's levels per
+    pseudo-measurement (``PLANAR_TILT``, ``PLANAR_HEIGHT``) spread over the keyframes by the time each stands for
+    (half its intervals, at most ``PLANAR_EVERY_S``): the same information per second as riekf's floor, whatever
+    the keyframes' spacing."""
+    from slamobs.pipeline.observers import riekf as rk
+
+    share = np.zeros(kf_t.shape[0])
+    if kf_t.shape[0] > 1:
+        half = 0.5 * np.diff(kf_t)
+        share[:-1] += half
+        share[1:] += half
+    w = np.minimum(share, rk.PLANAR_EVERY_S) / rk.PLANAR_EVERY_S
+    return np.stack([w / rk.PLANAR_TILT**2, w / rk.PLANAR_HEIGHT**2], axis=1)
 
 
 def _scaled(noise, key: str, scale: float, say: bool = False):

@@ -12,7 +12,12 @@ segment. Factors:
   seed's pose by a prior of ``GAUGE_SIGMA`` (the problem is invariant to one rigid transform,
   docs/observers.md §1.1);
 * relative motion between consecutive keyframes, from the compiled preintegration
-  (:mod:`pipeline.smoother.preintegration`; GTSAM has no preintegrated factor for body-velocity odometry).
+  (:mod:`pipeline.smoother.preintegration`; GTSAM has no preintegrated factor for body-velocity odometry);
+* on a ground robot whose floor is held (riekf's decision, ``noise.floor``: :func:`pipeline.observers.riekf.
+  floor_decision`), the floor at each keyframe (:func:`floor_terms`): the body's up axis normal to one plane (two
+  rows, without the heading about the normal) and the position's height on it, the plane through the anchor's
+  position with the keyframes' mean up axis its normal (:func:`floor_at`); the gauge then holds the anchor's
+  position and heading, its tilt left to the floor.
 
 The normal equations are formed and solved by compiled code over their structure (block tridiagonal in the
 poses with a border of landmark and bias columns, :mod:`pipeline.smoother.solver`): on the one-hour benchmark
@@ -52,6 +57,8 @@ class Problem:
     #: (M, 3, 3) each detection's body-frame information relative to ``1/σ²`` (range and bearing weighed apart,
     #: :mod:`pipeline.smoother.anisotropy`; determinant 1), or None: isotropic, ``σ`` on every axis
     det_shape: np.ndarray | None = None
+    #: (K, 2) each keyframe's floor information (the tilt rows' and the height row's ``1/σ²``), or None: no floor
+    floor: np.ndarray | None = None
 
 
 @dataclass
@@ -97,6 +104,10 @@ class Normal:
         self.shape = np.zeros((0, 3, 3)) if p.det_shape is None else np.ascontiguousarray(p.det_shape[order], float)
         self.det_start = np.searchsorted(self.kf, np.arange(k + 1))
         self.gauge = (guess.rot[p.anchor].copy(), guess.pos[p.anchor].copy())
+        #: the floor's plane (:func:`floor_at`), fixed for this solve from the guess; its normal in the anchor's
+        #: body frame, the one rotation the gauge holds with the floor (the floor holds the tilt)
+        self.plane = None if p.floor is None else floor_at(guess.rot, guess.pos, p.anchor)
+        self.gauge_axis = None if self.plane is None else self.gauge[0].T @ self.plane[1:4]
         nb = 3 * self.n_lm + 6 * self.n_seg
         self.ad, self.ao, self.mb = np.zeros((k, 6, 6)), np.zeros((k - 1, 6, 6)), np.zeros((k - 1, 2, 6, 6))
         self.ga, self.c, self.gb = np.zeros((k, 6)), np.zeros((nb, nb)), np.zeros(nb)
@@ -107,7 +118,7 @@ class Normal:
     def error(self, pt: tuple) -> float:
         """Half the squared whitened residuals (Huber-robust for the detections) at ``pt`` (rot, pos, lms, bias)."""
         from slamobs.pipeline.smoother.preintegration import motion_error
-        from slamobs.pipeline.smoother.solver import detection_terms, pose_deviation
+        from slamobs.pipeline.smoother.solver import detection_terms
 
         p, (rot, pos, lms, bias) = self.p, pt
         total = detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, self.shape, p.huber, self.scratch)
@@ -115,12 +126,26 @@ class Normal:
         total += 0.5 * np.sum(((bias[0] - p.bias_prior_mean) / p.bias_prior_sigma) ** 2)
         if p.walk_sigma is not None:
             total += 0.5 * np.sum((np.diff(bias, axis=0) / p.walk_sigma) ** 2)
-        dev = pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA
+        dev = self._gauge_deviation(rot, pos) / GAUGE_SIGMA
+        if p.floor is not None:
+            r, _ = floor_terms(self.plane, rot, pos)
+            total += 0.5 * float(np.sum(r * r * p.floor[:, [0, 0, 1]]))
         return float(total + 0.5 * dev @ dev)
+
+    def _gauge_deviation(self, rot, pos) -> np.ndarray:
+        """The gauge prior's residual at the anchor: its pose's deviation from the guess's
+        (:func:`pipeline.smoother.solver.pose_deviation`); with the floor, of its rotation only the part about
+        the floor's normal (its heading), the tilt left to the floor."""
+        from slamobs.pipeline.smoother.solver import pose_deviation
+
+        dev = pose_deviation(*self.gauge, rot[self.p.anchor], pos[self.p.anchor])
+        if self.gauge_axis is not None:
+            dev[:3] = self.gauge_axis * (self.gauge_axis @ dev[:3])
+        return dev
 
     def linearize(self, pt: tuple) -> None:
         """The normal equations ``JᵀJ``, ``Jᵀr`` at ``pt`` (with the detections' Huber weights there)."""
-        from slamobs.pipeline.smoother.solver import detection_normal, detection_terms, motion_terms, pose_deviation
+        from slamobs.pipeline.smoother.solver import detection_normal, detection_terms, motion_terms
 
         p, (rot, pos, lms, bias) = self.p, pt
         detection_terms(rot, pos, lms, self.kf, self.idx, self.y, self.sigma, self.shape, p.huber, self.weight)
@@ -145,8 +170,16 @@ class Normal:
                 self.c[j : j + 6, i : i + 6] -= np.diag(w)
                 self.gb[i : i + 6] -= d
                 self.gb[j : j + 6] += d
-        self.ad[p.anchor] += np.eye(6) / GAUGE_SIGMA**2
-        self.ga[p.anchor] += pose_deviation(*self.gauge, rot[p.anchor], pos[p.anchor]) / GAUGE_SIGMA**2
+        if p.floor is not None:
+            r, jac = floor_terms(self.plane, rot, pos)
+            wj = jac * p.floor[:, [0, 0, 1], None]
+            self.ad += np.einsum("kri,krj->kij", wj, jac)
+            self.ga += np.einsum("kri,kr->ki", wj, r)
+        info = np.eye(6)
+        if self.gauge_axis is not None:
+            info[:3, :3] = np.outer(self.gauge_axis, self.gauge_axis)
+        self.ad[p.anchor] += info / GAUGE_SIGMA**2
+        self.ga[p.anchor] += self._gauge_deviation(rot, pos) / GAUGE_SIGMA**2
         self.at = pt
 
     def _geo(self) -> tuple:
@@ -184,10 +217,48 @@ class Normal:
         return new, s
 
     def bias_covariance(self, s: np.ndarray) -> np.ndarray:
-        """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement."""
+        """The biases' marginal covariances (segments × 6 × 6) from the border's Schur complement; a landmark
+        left with no detection (the χ² gate dropped them all) has no rows there and is left out."""
         b0 = 3 * self.n_lm
-        cov = np.linalg.inv(s)[b0:, b0:]
+        try:
+            cov = np.linalg.inv(s)[b0:, b0:]
+        except np.linalg.LinAlgError:
+            keep = np.r_[np.flatnonzero(np.any(s[:b0] != 0.0, axis=1)), np.arange(b0, s.shape[0])]
+            nb = s.shape[0] - b0
+            cov = np.linalg.inv(s[np.ix_(keep, keep)])[-nb:, -nb:]
         return np.array([cov[6 * i : 6 * i + 6, 6 * i : 6 * i + 6] for i in range(self.n_seg)]).reshape(-1, 6, 6)
+
+
+def floor_at(rot: np.ndarray, pos: np.ndarray, anchor: int) -> np.ndarray:
+    """The floor's plane for keyframes at ``rot``, ``pos``: riekf's (:func:`pipeline.observers.riekf.floor_plane`)
+    with the keyframes' mean up axis its normal, through the anchor's position. Any plane is a gauge (the graph is
+    invariant to one rigid transform); the mean up axis is the one the keyframes are nearest, where the anchor's
+    own (riekf's choice, its start pose) may be off the rest by what a blind stretch's gyro drift tilted it."""
+    from slamobs.pipeline.observers.riekf import floor_plane
+
+    up = rot[:, :, 2].mean(axis=0)
+    frame = np.eye(3)
+    frame[:, 2] = up / np.linalg.norm(up)
+    return floor_plane(frame, pos[anchor], np.zeros((0, 3)))
+
+
+def floor_terms(plane: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The floor's residuals (K, 3) at every keyframe and their Jacobians (K, 3, 6) in the step ``(θ, ρ)`` of
+    ``R Exp(θ)``, ``P + Rρ``: ``t_kᵀ R e3`` (the up axis along the plane's tangents ``t1``, ``t2``) and
+    ``nᵀP − h``: the plane ``plane`` (:func:`floor_at`). ``∂(tᵀR e3)/∂θ = e3 × Rᵀt``, less its part along
+    ``Rᵀn`` (turning about the normal tilts the up axis no less: no heading, as riekf's rows); ``∂(nᵀP)/∂ρ = Rᵀn``."""
+    n, tangents = plane[1:4], plane[5:11].reshape(2, 3)
+    k = rot.shape[0]
+    r, jac = np.empty((k, 3)), np.zeros((k, 3, 6))
+    r[:, :2] = rot[:, :, 2] @ tangents.T
+    r[:, 2] = pos @ n - plane[4]
+    nb = np.einsum("kji,j->ki", rot, n)  # Rᵀn
+    for row in range(2):
+        tb = np.einsum("kji,j->ki", rot, tangents[row])  # Rᵀt
+        j = np.cross(np.array([0.0, 0.0, 1.0]), tb)
+        jac[:, row, :3] = j - np.einsum("ki,ki->k", j, nb)[:, None] * nb
+    jac[:, 2, 3:] = nb
+    return r, jac
 
 
 def solve(
@@ -241,9 +312,10 @@ def solve(
 
 
 def _factor_count(problem: Problem, n_seg: int) -> int:
-    """Detections, relative motions, the bias prior, the walk steps and the gauge."""
+    """Detections, relative motions, the bias prior, the walk steps, the gauge and the floor's keyframes."""
     walk = n_seg - 1 if problem.walk_sigma is not None else 0
-    return int(problem.det_idx.shape[0]) + int(problem.data.shape[0]) + 1 + walk + 1
+    floor = 0 if problem.floor is None else int(problem.floor.shape[0])
+    return int(problem.det_idx.shape[0]) + int(problem.data.shape[0]) + 1 + walk + 1 + floor
 
 
 def _step(ne: Normal, pt: tuple, error: float, lam: float, lam_max: float = 1e10):
