@@ -439,3 +439,36 @@ def test_riekfs_map_on_a_generated_corner_log_is_not_called_overconfident_for_th
     assert check["verdict"] == "inconclusive" and not check["overconfident"]
     assert not [n for n in report["notes"] if "the map's covariance is overconfident" in n]
     assert [n for n in report["notes"] if "landmarks.sigma_check.in_gauge_frame" in n]
+
+
+def test_paired_covariance_takes_the_rows_of_the_whole_matrix_bit_for_bit():
+    """The report's covariance entries at the paired rows and the diagonal's sum at every row, taken a column at a
+    time (not an (N, 12) array of every row, batch's hour's report peak), are those of the whole matrix in time
+    order, bit for bit: a table out of time order, rows without a covariance (NaN), an unused cross term."""
+    from types import SimpleNamespace
+
+    from slamobs.pipeline.evaluation.trajectory_evaluation import paired_covariance
+
+    rng = np.random.default_rng(7)
+    n = 5000
+    # the attitude and position blocks' upper triangles, in the order of the report's entries
+    pairs = [(i, j) for lo in (0, 3) for i in range(lo, lo + 3) for j in range(i, lo + 3)]
+    names = [f"cov_{POSE_AXES[i]}_{POSE_AXES[j]}" for i, j in pairs]
+    t_ns = rng.permutation(n).astype(np.int64) * 1_000_000
+    table = {"t_ns": t_ns, "cov_x_roll": rng.standard_normal(n)}
+    table |= {c: np.abs(rng.standard_normal(n)) * 10.0 ** rng.integers(-9, 2, n) for c in names}
+    table[names[0]][:7] = np.nan
+    order = np.argsort(t_ns, kind="stable")
+    whole = np.stack([table[c] for c in names], axis=1)[order]
+    idx = np.sort(rng.choice(n, 1200, replace=False))
+    got = paired_covariance(table, SimpleNamespace(t_ns=t_ns[order]), SimpleNamespace(idx_est=idx))
+    diagonal = [k for k, (i, j) in enumerate(pairs) if i == j]
+    assert np.array_equal(got.entries, whole[idx], equal_nan=True)
+    assert np.array_equal(got.size, whole[:, diagonal].sum(axis=1), equal_nan=True)
+    # by stamps when the pairs have no row index
+    got = paired_covariance(
+        table, SimpleNamespace(t_ns=t_ns[order]), SimpleNamespace(idx_est=None, t_est_ns=t_ns[order][idx])
+    )
+    assert np.array_equal(got.entries, whole[idx], equal_nan=True)
+    nothing = {"t_ns": t_ns} | {c: np.full(n, np.nan) for c in names}
+    assert paired_covariance(nothing, SimpleNamespace(t_ns=t_ns[order]), SimpleNamespace(idx_est=idx)) is None

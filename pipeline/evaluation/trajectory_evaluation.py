@@ -300,16 +300,18 @@ def report_pose_column(name: str) -> bool:
     return not name.startswith("sigma_") and (not name.startswith("cov_") or name in _covariance_entries()[1])
 
 
-def pose_covariance(poses: Table) -> np.ndarray | None:
+def pose_covariance(poses: Table) -> list[np.ndarray] | None:
     """The poses table's covariance columns of the attitude and position blocks (``cov_<a>_<b>``, written by
-    the reference estimators) as (N, 12) in time order (:func:`expand_covariance` makes the matrices of the rows
-    asked for; the 9 cross terms are left in the table: on batch's hour they would add 52 MB to the report's
-    peak); None when it has none (the observers' are null)."""
+    the reference estimators), one array each in time order (views where the table is in time order), in the
+    order of :func:`_covariance_entries` (:func:`expand_covariance` makes the matrices of the rows asked for; the
+    9 cross terms are left in the table: on batch's hour they would add 52 MB to the report's peak); None when it
+    has none (the observers' are null)."""
     _, names = _covariance_entries()
     if not set(names) <= set(column_names(poses)):
         return None
-    values = columns(poses, names, np.float64)[time_order(column(poses, "t_ns", np.int64))]
-    return values if np.isfinite(values).any() else None
+    order = time_order(column(poses, "t_ns", np.int64))
+    values = [column(poses, name, np.float64)[order] for name in names]
+    return values if any(np.isfinite(v).any() for v in values) else None
 
 
 @dataclass(frozen=True)
@@ -323,13 +325,20 @@ class PairedCovariance:
 
 
 def paired_covariance(poses: Table, est: PoseStream, paired: Paired) -> PairedCovariance | None:
-    """The :class:`PairedCovariance` of ``poses`` (``est`` its time-ordered stream), None without a covariance."""
+    """The :class:`PairedCovariance` of ``poses`` (``est`` its time-ordered stream), None without a covariance.
+    Taken a column at a time: an (N, 12) array of every row's entries and its diagonal's (N, 6) copy were 104 MB
+    of batch's hour at the report's peak."""
     cov = pose_covariance(poses)
     if cov is None:
         return None
-    diagonal = [k for k, (i, j) in enumerate(_covariance_entries()[0]) if i == j]
     idx = paired.idx_est if paired.idx_est is not None else np.searchsorted(est.t_ns, paired.t_est_ns)
-    return PairedCovariance(cov[idx], cov[:, diagonal].sum(axis=1))
+    entries = np.empty((np.shape(idx)[0], len(cov)))
+    size = None
+    for k, ((i, j), values) in enumerate(zip(_covariance_entries()[0], cov, strict=True)):
+        entries[:, k] = values[idx]
+        if i == j:  # added left to right, as a row's sum over the six diagonal entries is
+            size = values.copy() if size is None else np.add(size, values, out=size)
+    return PairedCovariance(entries, size)
 
 
 def expand_covariance(entries: np.ndarray, block: int) -> np.ndarray:
@@ -348,11 +357,11 @@ def nees_values(error: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """``eᵀ Σ⁻¹ e`` per row (N, d) / (N, d, d); NaN where Σ is the gauge (a standard deviation below
     ``GAUGE_SIGMA``), not finite or singular."""
     ok = np.isfinite(cov).all(axis=(1, 2)) & np.isfinite(error).all(axis=1)
-    ok &= np.einsum("nii->ni", np.where(ok[:, None, None], cov, 0.0)).min(axis=1) > GAUGE_SIGMA**2
+    ok &= np.where(ok[:, None], np.einsum("nii->ni", cov), 0.0).min(axis=1) > GAUGE_SIGMA**2
     out = np.full(error.shape[0], np.nan)
     if ok.any():
-        try:
-            w = np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0]
+        try:  # every row: the matrices as they are, not a copy of them all (batch's hour: 49 MB)
+            w = np.linalg.solve(cov if ok.all() else cov[ok], error[ok][:, :, None])[:, :, 0]
         except np.linalg.LinAlgError:  # a singular block beyond the gauge: the positive definite ones only
             ok[ok] = np.linalg.eigvalsh(cov[ok])[:, 0] > 0.0
             w = np.linalg.solve(cov[ok], error[ok][:, :, None])[:, :, 0]
@@ -383,6 +392,11 @@ def axes_with_error(error: np.ndarray) -> tuple[int, ...]:
     """The axes of an (N, 3) error that are not zero on every pair (all three when every axis is)."""
     moving = tuple(int(i) for i in np.flatnonzero(np.max(np.abs(error), axis=0, initial=0.0) > 1e-12))
     return moving or (0, 1, 2)
+
+
+def _axes_of(cov: np.ndarray, axes: tuple[int, ...]) -> np.ndarray:
+    """The (N, k, k) covariances of ``axes`` of (N, 3, 3) ``cov``: ``cov`` itself for all three (not two copies)."""
+    return cov if axes == (0, 1, 2) else cov[:, axes][:, :, axes]
 
 
 def gauge_transform(ev: TrajectoryEvaluation) -> tuple[int, np.ndarray, np.ndarray]:
@@ -423,10 +437,16 @@ def paired_uncertainty(ev: TrajectoryEvaluation) -> PairedUncertainty:
         error[rows, :3] = rots_to_rotvecs(rel)
     idx = p.idx_est if p.idx_est is not None else np.searchsorted(est.t_ns, p.t_est_ns)
     t_ns = np.asarray(est.t_ns[idx] if p.t_est_ns is None else p.t_est_ns, dtype=np.int64)
-    att, pos = (rotate_covariance(expand_covariance(ev.covariance.entries, block), rot) for block in (0, 3))
+    # turned a block of rows at a time into the two kept (N, 3, 3) arrays: the whole arrays' expanded and half-turned
+    # temporaries were ~150 MB of batch's hour at the report's peak
+    entries = ev.covariance.entries
+    att, pos = np.empty((entries.shape[0], 3, 3)), np.empty((entries.shape[0], 3, 3))
+    for rows in row_blocks(entries.shape[0]):
+        for block, out in ((0, att), (3, pos)):
+            out[rows] = rotate_covariance(expand_covariance(entries[rows], block), rot)
     pa, aa = axes_with_error(error[:, 3:]), axes_with_error(error[:, :3])
-    nees_position = nees_values(error[:, 3:][:, pa], pos[:, pa][:, :, pa])
-    nees_attitude = nees_values(error[:, :3][:, aa], att[:, aa][:, :, aa])
+    nees_position = nees_values(error[:, 3:][:, pa], _axes_of(pos, pa))
+    nees_attitude = nees_values(error[:, :3][:, aa], _axes_of(att, aa))
     return PairedUncertainty(t_ns, error, att, pos, int(est.t_ns[g]), nees_position, nees_attitude, pa, aa)
 
 

@@ -1124,10 +1124,14 @@ class BatchSmoother(Stepper):
     def _kernel(self, iv_stop: int, out: Outputs, budget: int) -> int:
         """Everything from the state's next sample to ``iv_stop`` at once (the solve, on the first call, is
         Python and compiled calls of about a second each at most: signals are handled between them)."""
+        from slamobs.pipeline import native
         from slamobs.pipeline.smoother.preintegration import sample_poses
 
         if self.result is None:
             self.solve(self.options.progress)
+            # the solve's freed temporaries back to the system before the stretches allocate their rows: glibc
+            # keeps them in its heap else, and the rows and the writer's buffers land beside them
+            native.return_freed_memory()
         res, s, ns = self.result, self.stream, self.state.ns
         sol = res["solution"]
         n_vel = self.n_vel
