@@ -14,7 +14,7 @@ import pytest
 from slamobs.pipeline.alignment import align
 from slamobs.pipeline.cores import cores
 from slamobs.pipeline.lie import umeyama
-from slamobs.pipeline.noise import NoiseConfig, resolve_noise
+from slamobs.pipeline.noise import DEFAULTS, NoiseConfig, resolve_noise
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.observers.riekf import SPEC as RIEKF
 from slamobs.pipeline.simulate import NoiseModel, expected_streams, simulate
@@ -313,6 +313,23 @@ def test_detection_time_offset_is_estimated_and_applied_only_when_reliable(offse
     # the filter ran on the corrected stamps (its detection rows carry them)
     shift_ns = int(round(est["estimate_s"] * 1e9))
     assert np.array_equal(res.det_t_ns, np.repeat(stream.det_t_ns + shift_ns, np.diff(stream.det_offsets)))
+
+
+def test_an_offset_the_costs_do_not_tell_from_zero_carries_no_standard_error():
+    """No offset, 2 Hz detections, a noisy odometry: the cost curve is flat and ragged, its least point (-0.18 s)
+    fits only ~1.03x better than no shift and is not applied; the curvature there read ± 0.01-0.02 s, ten standard
+    errors off zero. The record gives no σ then, but the span of shifts fitting within MIN_GAIN of the best, zero
+    inside it."""
+    from slamobs.pipeline.observers import time_offset
+
+    gyro, vel = DEFAULTS["gyro"][0] * 30 * np.sqrt(50), DEFAULTS["velocity"][0] * 10 * np.sqrt(50)
+    noise = replace(NoiseModel(), gyro=gyro, odom_linear=vel)
+    sim = simulate("ground", noise=noise, seed=3262, duration=60.0, imu_rate=50.0, odom_rate=50.0, detection_rate=2.0)
+    est = time_offset.estimate(align(expected_streams(sim)))
+    assert not est["applied"] and est["cost_gain"] < time_offset.MIN_GAIN
+    assert est["sigma_s"] is None
+    lo, hi = est["indistinct_s"]
+    assert lo <= min(0.0, est["estimate_s"]) and max(0.0, est["estimate_s"]) <= hi
 
 
 @pytest.mark.parametrize("offset", [0.0, 0.1])
