@@ -317,7 +317,7 @@ def test_detection_time_offset_is_estimated_and_applied_only_when_reliable(offse
 
 def test_an_offset_the_costs_do_not_tell_from_zero_carries_no_standard_error():
     """No offset, 2 Hz detections, a noisy odometry: the cost curve is flat and ragged, its least point (-0.18 s)
-    fits only ~1.03x better than no shift and is not applied; the curvature there read ± 0.01-0.02 s, ten standard
+    fits only ~1.03x better than no shift and is not applied; the curvature there read ± 0.022 s, eight standard
     errors off zero. The record gives no σ then, but the span of shifts fitting within MIN_GAIN of the best, zero
     inside it."""
     from slamobs.pipeline.observers import time_offset
