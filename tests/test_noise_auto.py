@@ -149,19 +149,24 @@ def test_implausible_covariances_are_rejected_with_a_note(stated_logs):
     assert 0.04 < stated < 0.06  # the odometry states a twentieth of its noise
 
 
+def _stated_velocity_run(sim, log, factor: float):
+    """``sim`` written to ``log`` with its odometry's (stated and drawn) noise times ``factor``, and the noise levels
+    riekf would use there (the velocity's from the message covariance)."""
+    from slamobs.pipeline.config import parse_config
+    from slamobs.pipeline.run import log_noise, prepare_log
+
+    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear * factor)), log)
+    config = parse_config({"observer": "riekf"})
+    nz = log_noise(prepare_log(log, config, directions=False), config)
+    assert nz.sources["velocity"].startswith("/odom covariance"), nz.sources
+    return log, nz
+
+
 def test_a_stated_level_well_below_its_samples_is_named_not_called_plausible(stated_logs, tmp_path):
     """TagSLAM 22's odometry states a gyro density 7x below its samples' level: it is believed (over STATED_BELOW)
     and was called `plausible`. A log whose odometry states a fifth of its noise: the run's note and `info --noise`
     say how far below, that riekf and batch use it anyway, and the key that sets another."""
-    from slamobs.pipeline.config import parse_config
-    from slamobs.pipeline.run import log_noise, prepare_log
-
-    sim = stated_logs[2]
-    log = tmp_path / "fifth.mcap"
-    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear / 5)), log)
-    config = parse_config({"observer": "riekf"})
-    nz = log_noise(prepare_log(log, config, directions=False), config)
-    assert nz.sources["velocity"].startswith("/odom covariance"), nz.sources
+    log, nz = _stated_velocity_run(stated_logs[2], tmp_path / "fifth.mcap", 1 / 5)
     said = nz.methods["velocity"]
     assert "below the samples' white-noise estimate" in said and "plausible" not in said, said
     assert 3.5 < float(said.split("x below")[0]) < 7.0 and "noise.velocity in run.yaml" in said, said
@@ -176,15 +181,7 @@ def test_a_stated_level_well_above_its_samples_is_named_not_called_plausible(sta
     noise may be louder than its samples show) and was called `plausible`; riekf weighs the velocity ten times
     too loose (1.9x its APE with the true level on a generated circle). The note says how far above and the key
     that sets another."""
-    from slamobs.pipeline.config import parse_config
-    from slamobs.pipeline.run import log_noise, prepare_log
-
-    sim = stated_logs[2]
-    log = tmp_path / "tenfold.mcap"
-    write_log(replace(sim, noise=replace(sim.noise, odom_linear=sim.noise.odom_linear * 10)), log)
-    config = parse_config({"observer": "riekf"})
-    nz = log_noise(prepare_log(log, config, directions=False), config)
-    assert nz.sources["velocity"].startswith("/odom covariance"), nz.sources
+    log, nz = _stated_velocity_run(stated_logs[2], tmp_path / "tenfold.mcap", 10)
     said = nz.methods["velocity"]
     assert "above the samples' white-noise estimate" in said and "plausible" not in said, said
     assert 7.0 < float(said.split("x above")[0]) < 14.0 and "noise.velocity in run.yaml" in said, said

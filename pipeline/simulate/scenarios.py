@@ -371,14 +371,21 @@ GROUND_H = 0.3  # m, body height above the floor
 GROUND_WOBBLE = 0.015  # rad, roll and pitch on an uneven floor
 
 
-def ground_trajectory(t: np.ndarray) -> Trajectory:
-    """A wheeled robot's figure 8 on a flat floor (fixed height) with a small roll/pitch wobble."""
+def _ground_figure8(t) -> tuple:
+    """The ground robot's figure 8 in the plane (ground, ground-hills): the times as an array, the phase's rate and
+    the phase, and x and y with their first two derivatives."""
     t = np.atleast_1d(np.asarray(t, dtype=float))
     w = 2.0 * np.pi / GROUND_PERIOD
     th = w * t
     a, b = GROUND_A, 0.5 * GROUND_A
     xs = (a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th))
     ys = (b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th))
+    return t, w, th, xs, ys
+
+
+def ground_trajectory(t: np.ndarray) -> Trajectory:
+    """A wheeled robot's figure 8 on a flat floor (fixed height) with a small roll/pitch wobble."""
+    t, w, th, xs, ys = _ground_figure8(t)
     zero = np.zeros_like(t)
     zs = (zero + GROUND_H, zero, zero)
     roll = (GROUND_WOBBLE * np.sin(7.3 * th), 7.3 * w * GROUND_WOBBLE * np.cos(7.3 * th))
@@ -417,12 +424,7 @@ GROUND_HILL = 0.25  # m, the hills' height on either side of the floor's (ground
 def ground_hills_trajectory(t: np.ndarray) -> Trajectory:
     """The ground robot's figure 8 over hills, a floor that is no plane: its height ``GROUND_HILL`` times the sine of
     three times the figure's phase, the body pitched along the slope it drives on beside its roll wobble."""
-    t = np.atleast_1d(np.asarray(t, dtype=float))
-    w = 2.0 * np.pi / GROUND_PERIOD
-    th = w * t
-    a, b = GROUND_A, 0.5 * GROUND_A
-    xs = (a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th))
-    ys = (b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th))
+    t, w, th, xs, ys = _ground_figure8(t)
     h = GROUND_HILL  # three hills a lap: no plane through the path (one would be, under a figure 8's x or y)
     zs = (GROUND_H + h * np.sin(3 * th), 3 * w * h * np.cos(3 * th), -9 * w * w * h * np.sin(3 * th))
     sh = np.hypot(xs[1], ys[1])  # the horizontal speed, and the slope u along the path
