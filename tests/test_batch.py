@@ -723,7 +723,7 @@ def test_a_riekf_run_whose_own_status_says_it_is_off_is_ok_with_a_warning(tmp_pa
     monkeypatch.setattr(run, "run_log", finished)
     row = run_task(task)
     assert row["status"] == "ok" and row["warning_count"] == 1, row
-    assert row["warnings"].startswith("riekf's own status is gated_at_end: its last 5 or more"), row
+    assert row["warnings"].startswith("riekf: its own status is gated_at_end (run.json observer.filter.status)"), row
     monkeypatch.setattr(run, "run_log", lambda log, out_dir, config: finished(log, out_dir, config, "converged"))
     task = replace(task, run_id="y-00000000", staged=str(tmp_path / "stage" / "y"))
     row = run_task(task)

@@ -171,8 +171,8 @@ def test_an_estimators_own_status_stands_beside_the_tables_ok():
         }
     )
     assert said == [
-        f"riekf: riekf's own status is gated_at_end: {STATUSES['gated_at_end']} (run.json observer.filter.status)",
-        f"old: riekf's own status is lost: {STATUSES['lost']} (run.json observer.filter.status)",
+        f"riekf: its own status is gated_at_end (run.json observer.filter.status): {STATUSES['gated_at_end']}",
+        f"old: its own status is lost (run.json observer.filter.status): {STATUSES['lost']}",
     ]
 
 

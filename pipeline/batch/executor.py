@@ -190,7 +190,8 @@ def _run(log: Path, out_dir: Path, config: RunConfig):
     from slamobs.pipeline.run import run_log
 
     summary = run_log(log, out_dir, config)
-    return summary, list(summary.input_warnings) + summary.status_caveats()
+    name = summary.metadata["observer"]["name"]
+    return summary, list(summary.input_warnings) + [f"{name}: {c}" for c in summary.status_caveats()]
 
 
 def _worker_name() -> str:

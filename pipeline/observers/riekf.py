@@ -303,7 +303,7 @@ def status_caveat(filt: dict) -> str | None:
     if status not in ("lost", "gated_at_end"):
         return None
     checked = filt.get("status_checked") or STATUSES[status]
-    return f"riekf's own status is {status}: {checked} (run.json observer.filter.status)"
+    return f"its own status is {status} (run.json observer.filter.status): {checked}"
 
 
 #: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
