@@ -111,6 +111,7 @@ def compare_log(
         if not has_truth(prepared.streams):
             table = _without_truth(tmp, rows, summaries, log, compiled, bool(config.evaluation.plots))
             table.attrs["compile_note"] = compile_note(compiled)
+            table.attrs["notes"] = caveats(summaries)  # no report: each estimator's own status only
             return table
         columns = list(COLUMNS)
         if "batch" in observers:
@@ -144,11 +145,17 @@ NO_MAP_TRUTH = f"landmark_rmse_m is blank: no landmark truth; {MAP_TRUTH_HINT}"
 
 
 def caveats(summaries: dict[str, RunSummary]) -> list[str]:
-    """Per observer, what its report says beside its headline numbers (:func:`.evaluation.markdown.headline_caveats`:
-    no or a coarse convergence, an upside-down alignment), so a blank or 180-degree cell is explained."""
+    """Per observer, what its own status says against the table's ``ok`` (:meth:`.run.RunSummary.status_caveats`:
+    riekf lost, or its last detections failing the gate) and what its report says beside its headline numbers
+    (:func:`.evaluation.markdown.headline_caveats`: no or a coarse convergence, an upside-down alignment), so a blank
+    or 180-degree cell is explained."""
     from slamobs.pipeline.evaluation.markdown import headline_caveats
 
-    return [f"{name}: {c}" for name, s in summaries.items() for c in headline_caveats(s.report or {})]
+    return [
+        f"{name}: {c}"
+        for name, s in summaries.items()
+        for c in [*s.status_caveats(), *headline_caveats(s.report or {})]
+    ]
 
 
 def hints(summaries: dict[str, RunSummary]) -> list[str]:
@@ -202,7 +209,8 @@ def _without_truth(
     table = pd.DataFrame(rows).reindex(columns=columns)
     table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
     against = "the batch smoother's estimate" if reference else "each of the other estimates (their mean)"
-    (tmp / "comparison.md").write_text(comparison_markdown(table, log, against, compiled, overlay=plots))
+    notes = caveats(summaries)
+    (tmp / "comparison.md").write_text(comparison_markdown(table, log, against, compiled, notes, overlay=plots))
     doc = {"log": str(Path(log).resolve()), "truth": None, "disagreement_against": reference or "others"}
     write_json(tmp / "comparison.json", {**doc, "rows": table.to_dict("records")})
     if aligned and plots:

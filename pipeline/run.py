@@ -75,6 +75,17 @@ class RunSummary:
     #: ``limits.*`` setting); a batch counts them as the run's warnings
     input_warnings: list[str] = field(default_factory=list)
 
+    def status_caveats(self) -> list[str]:
+        """What the estimator's own status says against the run's ``ok`` (riekf's ``observer.filter.status``:
+        :func:`.observers.riekf.status_caveat`), for the tables that show one."""
+        filt = (self.metadata.get("observer") or {}).get("filter")
+        if not filt:  # riekf's record: only its runs have one (and then its module is loaded)
+            return []
+        from slamobs.pipeline.observers.riekf import status_caveat
+
+        said = status_caveat(filt)
+        return [said] if said else []
+
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
         return headline_metrics(self.report, self.metadata)

@@ -701,6 +701,35 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
     assert not (tmp_path / "stage" / "x").exists()
 
 
+def test_a_riekf_run_whose_own_status_says_it_is_off_is_ok_with_a_warning(tmp_path, monkeypatch):
+    """A riekf run that finished with its last detections failing the gate (run.json ``observer.filter.status``
+    ``gated_at_end``) was a clean ``ok`` row; now ``ok`` (its results are in the dataset) with the status among its
+    warnings, as compare's notes say it."""
+    from slamobs.pipeline import run
+    from slamobs.pipeline.batch.executor import run_task
+    from slamobs.pipeline.observers.riekf import STATUSES
+
+    def finished(log, out_dir, config, status="gated_at_end"):
+        out_dir.mkdir(parents=True)
+        filt = {"status": status, "status_checked": STATUSES[status]}
+        return run.RunSummary(out_dir, {"observer": {"name": "riekf", "filter": filt}, "counts": {}}, {})
+
+    (tmp_path / "stage").mkdir()
+    task = replace(
+        Task.make("x-00000000", str(tmp_path / "x.mcap"), str(tmp_path), RunConfig()),
+        staged=str(tmp_path / "stage" / "x"),
+    )
+    (tmp_path / "x.mcap").write_bytes(b"x")
+    monkeypatch.setattr(run, "run_log", finished)
+    row = run_task(task)
+    assert row["status"] == "ok" and row["warning_count"] == 1, row
+    assert row["warnings"].startswith("riekf: its own status is gated_at_end (run.json observer.filter.status)"), row
+    monkeypatch.setattr(run, "run_log", lambda log, out_dir, config: finished(log, out_dir, config, "converged"))
+    task = replace(task, run_id="y-00000000", staged=str(tmp_path / "stage" / "y"))
+    row = run_task(task)
+    assert row["status"] == "ok" and row["warning_count"] == 0 and row["warnings"] is None, row
+
+
 def test_a_dask_log_fails_for_dying_workers_only_once_they_began_it_that_often(tmp_path):
     """Dask counts a worker's death against the logs queued on it too (``KilledWorker`` for a log that never ran):
     such a log is submitted again, and fails only once workers began it ``allowed-failures`` + 1 times; the task

@@ -150,6 +150,32 @@ def test_headline_caveats_explain_a_blank_convergence_and_a_180_degree_rotation(
     assert "\n## Notes\n\n- fast-adaptation: convergence: no: the error level" in md
 
 
+def test_an_estimators_own_status_stands_beside_the_tables_ok():
+    """riekf ``gated_at_end`` or ``lost`` (run.json ``observer.filter.status``) under a table whose ``status`` column
+    says ``ok`` (the run finished): before, nothing did, with or without truth (TagSLAM test_22 cut at 31 s: riekf 4.7
+    m off at its end, ``ok``); a ``converged`` riekf, a ``recovered`` one and a batch run add nothing."""
+    from slamobs.pipeline.compare import caveats
+    from slamobs.pipeline.observers.riekf import STATUSES
+    from slamobs.pipeline.run import RunSummary
+
+    def summary(filt=None):
+        return RunSummary(Path("x"), {"observer": {"name": "riekf"} | ({"filter": filt} if filt else {})}, {})
+
+    said = caveats(
+        {
+            "riekf": summary({"status": "gated_at_end", "status_checked": STATUSES["gated_at_end"]}),
+            "old": summary({"status": "lost"}),  # a run.json from before status_checked
+            "calm": summary({"status": "converged", "status_checked": STATUSES["converged"]}),
+            "again": summary({"status": "recovered"}),
+            "batch": summary(),
+        }
+    )
+    assert said == [
+        f"riekf: its own status is gated_at_end (run.json observer.filter.status): {STATUSES['gated_at_end']}",
+        f"old: its own status is lost (run.json observer.filter.status): {STATUSES['lost']}",
+    ]
+
+
 def test_compare_prints_each_runs_hint_once_named_by_its_estimator(tmp_path):
     """Session 25: `compare m7r3.mcap --observers fast-adaptation,hashim,riekf` printed no `hint` line though each
     run directory's run.json had one. A log far noisier than fast-adaptation's defaults (the coarse run of

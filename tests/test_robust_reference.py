@@ -577,11 +577,30 @@ def test_riekf_says_so_when_its_last_detections_fail_the_gate_too_few_to_narrow_
     pri = res.stats["metadata"]["filter"]["bias_priors"]
     assert riekf.TAIL_NOTE_IN_A_ROW <= pri["gated_in_a_row_at_end"] < riekf.LOST_IN_A_ROW, pri
     assert pri["narrowed_passes"] == 0
-    said = [n for n in res.stats["notes"] if "known-landmark detections in a row failed the gate: the pose" in n]
+    said = [n for n in res.stats["notes"] if "in a row failed the gate (status gated_at_end): the pose" in n]
     assert len(said) == 1 and f"its last {pri['gated_in_a_row_at_end']} " in said[0], res.stats["notes"]
     plain = RIEKF.run(stream, {}, ObserverOptions(noise=noise()))
     assert plain.stats["metadata"]["filter"]["bias_priors"]["gated_in_a_row_at_end"] < riekf.TAIL_NOTE_IN_A_ROW
     assert not any("in a row failed the gate" in n for n in plain.stats["notes"])
+
+
+def test_riekf_status_never_claims_more_than_its_notes(log):
+    """The status is ``filter_status``'s: a run whose last detections fail the gate (the note above) is not
+    ``converged`` (it was, TagSLAM test_22 cut at 28.5-31 s, 2.7-4.7 m off at the end), with what was checked; the
+    log as simulated stays ``converged``."""
+    from slamobs.pipeline.observers import riekf
+
+    _, stream = log
+    y = stream.det_y.copy()
+    y[-10:] += 3.0
+    f = RIEKF.run(replace(stream, det_y=y), {}, ObserverOptions(noise=noise())).stats["metadata"]["filter"]
+    assert f["bias_priors"]["gated_in_a_row_at_end"] >= riekf.TAIL_NOTE_IN_A_ROW and f["recoveries"] == 0, f
+    assert f["status"] == "gated_at_end" and f["status_checked"] == riekf.STATUSES["gated_at_end"], f
+    plain = RIEKF.run(stream, {}, ObserverOptions(noise=noise())).stats["metadata"]["filter"]
+    assert plain["status"] == "converged" and "fewer than" in plain["status_checked"], plain
+    assert riekf.filter_status(True, 0, 30) == "lost"  # gave up: lost, whatever the end
+    assert riekf.filter_status(False, 2, riekf.TAIL_NOTE_IN_A_ROW) == "gated_at_end"  # a recovery, then a failing end
+    assert riekf.filter_status(False, 2, riekf.TAIL_NOTE_IN_A_ROW - 1) == "recovered"
 
 
 def _gap_run(tmp_path, seed: int, floor, late=None, walk=None) -> dict:

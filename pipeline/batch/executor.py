@@ -185,11 +185,13 @@ def _watch_lease(lease: Path, done: threading.Event) -> None:
 
 
 def _run(log: Path, out_dir: Path, config: RunConfig):
-    """:func:`pipeline.run.run_log` into ``out_dir``; returns its summary and the input warnings it counted."""
+    """:func:`pipeline.run.run_log` into ``out_dir``; returns its summary and the warnings it counted: the input's
+    and what the estimator's own status says against ``ok`` (:meth:`.run.RunSummary.status_caveats`)."""
     from slamobs.pipeline.run import run_log
 
     summary = run_log(log, out_dir, config)
-    return summary, list(summary.input_warnings)
+    name = summary.metadata["observer"]["name"]
+    return summary, list(summary.input_warnings) + [f"{name}: {c}" for c in summary.status_caveats()]
 
 
 def _worker_name() -> str:

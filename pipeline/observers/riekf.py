@@ -113,8 +113,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
   for 10 s, a velocity bias of 0.22 m/s where the twist has none above 0.02) and carry it through a blind stretch;
   the landmarks that return then lie far outside the covariance and every one fails the gate, while the recovery's
-  windows are never judged and the status stays ``converged``. When the first stretch ends with ``LOST_IN_A_ROW`` or
-  more known-landmark detections in a row failing the gate (and the filter did not give up), it starts again from
+  windows are never judged (the status was ``converged``; now ``gated_at_end``, :func:`filter_status`). When the
+  first stretch ends with ``LOST_IN_A_ROW`` or more known-landmark detections in a row failing the gate (and the
+  filter did not give up), it starts again from
   the log's start with both priors' standard deviations multiplied by ``PRIOR_NARROWING``, again each pass while the
   stretch ends so, up to ``MAX_PRIOR_PASSES`` (:meth:`RiEKF._prior_restart`, before anything of the stretch is
   returned; run.json ``observer.filter.bias_priors``, a note); when the last of those ends so too, no bias explains
@@ -263,6 +264,48 @@ MAX_PRIOR_PASSES = 3
 #: the end of every real log of ``benchmarks/real_logs.py`` has none (TagSLAM test_22 cut within 20 detections of its
 #: return after 17.9 s unseen: 6-17, riekf 2.7-4.7 m off, status converged; docs/benchmarks.md, session 31 (h-tag22)).
 TAIL_NOTE_IN_A_ROW = 5
+#: run.json ``observer.filter.status`` and, as ``status_checked``, what each one says was checked (one place: the
+#: status is :func:`filter_status`'s, never more than the run's notes allow: a run whose last detections fail the gate
+#: was ``converged`` before, 2.7-4.7 m off at TagSLAM test_22's cut ends; docs/benchmarks.md, session 32).
+STATUSES = {
+    "lost": "the filter gave up: most detections kept failing the gate after its recoveries (run.json lost_at_s)",
+    "gated_at_end": (
+        f"its last {TAIL_NOTE_IN_A_ROW} or more known-landmark detections in a row failed the gate: the pose at the "
+        "log's end is most likely off by more than its σ says (bias_priors.gated_in_a_row_at_end)"
+    ),
+    "recovered": (
+        "most detections of a window failed the gate and the noise was raised (recovery_log); not given up, and "
+        f"fewer than {TAIL_NOTE_IN_A_ROW} known-landmark detections in a row failed it at the end"
+    ),
+    "converged": (
+        "no window of detections needed a recovery, not given up, and fewer than "
+        f"{TAIL_NOTE_IN_A_ROW} known-landmark detections in a row failed the gate at the end (not a check of the "
+        "error, nor of the σ: observer.filter.consistency and the report's uncertainty are)"
+    ),
+}
+
+
+def filter_status(gave_up: bool, recoveries: int, gated_at_end: int) -> str:
+    """The filter's status (:data:`STATUSES`): ``lost`` when it gave up, ``gated_at_end`` when its last
+    ``TAIL_NOTE_IN_A_ROW`` or more known-landmark detections in a row failed the gate (whatever came before),
+    ``recovered`` after a recovery, else ``converged``."""
+    if gave_up:
+        return "lost"
+    if gated_at_end >= TAIL_NOTE_IN_A_ROW:
+        return "gated_at_end"
+    return "recovered" if recoveries else "converged"
+
+
+def status_caveat(filt: dict) -> str | None:
+    """What a table's ``ok`` (the run finished: ``compare``, a batch's summary) must say beside a riekf run whose own
+    status (run.json ``observer.filter``) says its estimate is off: ``lost`` or ``gated_at_end``; else None."""
+    status = filt.get("status")
+    if status not in ("lost", "gated_at_end"):
+        return None
+    checked = filt.get("status_checked") or STATUSES[status]
+    return f"its own status is {status} (run.json observer.filter.status): {checked}"
+
+
 #: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
 #: spread, the spreads the prior's standard deviations are, and the log's first seconds it is made from (a prior is
 #: of the start's bias, which the walk moves over the log; the one-hour benchmark log's 3 million pairs took 33 CPU s,
@@ -2086,7 +2129,7 @@ class RiEKF(Stepper):
         return out * factor if factor != 1.0 else out
 
     def _recovery(self) -> dict:
-        """The recovery's record for run.json: status (``converged``, ``recovered`` or ``lost``), each recovery
+        """The recovery's record for run.json: status (:func:`filter_status`) and what it checked, each recovery
         (log seconds, variance factor of the step and in total), landmarks re-initialised, when it gave up."""
         ns, fs = self.state.ns, self.state.fs
         n = int(ns[_RECOVERIES])
@@ -2100,9 +2143,10 @@ class RiEKF(Stepper):
             }
             for r in self.state.rec_log[: min(n, MAX_LOG)]
         ]
-        status = "lost" if ns[_LOST] else "recovered" if n else "converged"
+        status = filter_status(bool(ns[_LOST]), n, int(ns[_TAIL_GATED]))
         return {
             "status": status,
+            "status_checked": STATUSES[status],
             "recoveries": n,
             "recovery_log": log,
             "noise_factor": float(fs[_SCALE]),
@@ -2410,9 +2454,9 @@ def _prior_notes(pri: dict) -> list[str]:
     tail = int(pri.get("gated_in_a_row_at_end") or 0)
     if tail >= TAIL_NOTE_IN_A_ROW and not (pri.get("narrowed_passes") and not pri["kept"]):
         notes.append(
-            f"riekf: its last {tail} known-landmark detections in a row failed the gate: the pose at the log's end is "
-            "most likely off by more than its σ says (a bias carried through a stretch without landmarks, say) or "
-            "those detections are wrong"
+            f"riekf: its last {tail} known-landmark detections in a row failed the gate (status gated_at_end): the "
+            "pose at the log's end is most likely off by more than its σ says (a bias carried through a stretch "
+            "without landmarks, say) or those detections are wrong"
             + (
                 f"; under {LOST_IN_A_ROW} in a row the run is not started again with narrower bias priors"
                 if tail < LOST_IN_A_ROW
