@@ -86,6 +86,9 @@ class Estimate:
     #: per axis: the samples hold their value (most repeat the previous one, or the residuals vanish), so no noise
     #: can be seen in them; their value is that of the other axes (the stream is unusable when every axis holds)
     held: tuple[bool, ...] = ()
+    #: per axis, the samples' own density where an axis took its sample pairs' (``FOLDED_SHARE``), else None: the
+    #: error a quantity built of these samples carries (the detection pairs' velocity-scale check)
+    sampled: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -200,7 +203,7 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
         method += f"; motion leaks into lower orders (cubic {leak:.2f}x higher)"
     repeats = np.mean(np.diff(x, axis=0) == 0.0, axis=0)
     held = (repeats > HELD_SHARE) | (density <= 1e-9 * np.sqrt(period) * np.maximum(1.0, np.max(np.abs(x), axis=0)))
-    pairs = _residual_density(*_pair_means(t, x))
+    pairs, sampled = _residual_density(*_pair_means(t, x)), None
     if pairs is not None:
         folded = ~held & (pairs[0] < FOLDED_SHARE * density)
         if folded.any():
@@ -209,11 +212,13 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
                 f"{' / '.join(f'{r:.2g}' for r in pairs[0][folded] / density[folded])}x the samples' "
                 "(motion faster than the stream's rate resolves, not white noise)"
             )
+            sampled = density
             density, se = np.where(folded, pairs[0], density), np.where(folded, pairs[1], se)
     if held.any() and not held.all():  # e.g. a wheel odometry's lateral and vertical velocity, always zero
         density, se = np.where(held, np.max(density[~held]), density), np.where(held, np.max(se[~held]), se)
+        sampled = None if sampled is None else np.where(held, np.max(sampled[~held]), sampled)
         method += f"; {', '.join('xyz'[k] for k in np.flatnonzero(held))} held, given the other axes' level"
-    return Estimate(density, se, method, samples, tuple(held.tolist()))
+    return Estimate(density, se, method, samples, tuple(held.tolist()), sampled)
 
 
 def _poses_at(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, t: np.ndarray):

@@ -91,8 +91,12 @@ def test_motion_faster_than_a_slow_stream_resolves_is_not_taken_for_noise():
     found = white_noise_density(t, walk + bob + sigma * rng.standard_normal((t.size, 3)))
     assert within(found.value, sigma * np.sqrt(0.25)), found.value / np.sqrt(0.25)
     assert "z from the means of sample pairs" in found.method and "x," not in found.method, found.method
+    # the samples' own level stays for what is built of them (the detection pairs' velocity-scale check, whose
+    # regressor carries the motion they miss: at the pairs' level it called the axes misread, 1.65-20x)
+    assert found.sampled is not None and found.sampled[2] > 5 * found.value[2], found.sampled
     white = white_noise_density(t, walk + sigma * rng.standard_normal((t.size, 3)))
     assert "pairs" not in white.method and within(white.value, sigma * np.sqrt(0.25)), white.value
+    assert white.sampled is None
 
 
 def test_config_keys_override_that_key_alone():
