@@ -381,7 +381,9 @@ def prepare_log(
     window = time_window(config.time.start, config.time.end, aligned.t0_ns)
     aligned = windowed(aligned, window, log)
     if velocity_noise is not None:  # for the detection pairs' velocity-scale check (time_offset.velocity_scale)
-        aligned = replace(aligned, velocity_density=np.resize(np.asarray(velocity_noise.value, float), 3))
+        # the samples' own level where an axis took its pairs' (the motion they miss is in the pairs' regressor)
+        level = velocity_noise.value if velocity_noise.sampled is None else velocity_noise.sampled
+        aligned = replace(aligned, velocity_density=np.resize(np.asarray(level, float), 3))
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(
         path=streams.path,

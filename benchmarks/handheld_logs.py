@@ -1,0 +1,220 @@
+"""Generated logs of a hand-held / VIO rig, which the earlier unseen sweeps (ground robots, circles, figure 8s) did
+not imitate: a walker's figure 8 (8 x 4 m, 0.6-1.3 m/s, 1.5 m high) with a 1.8 Hz step bob of 4 cm, a 12 deg roll and
+pitch, a yaw wobble of 0.3 rad at 0.6 Hz, among the ``figure8-wide`` landmarks, seen by a camera beside the body
+(8 cm, yawed 10 deg) to 8 m; the odometry's twist at 3-5 Hz (one instant's sample of the motion, as the simulator
+writes it), and per case what a VIO rig adds: detection stamps 0.2-0.4 s off, message covariances stated at
+0.05-0.2x the truth, blind stretches, few landmarks, a file cut short, 30-600 s, the three containers; and the
+figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fast-adaptation``, ``riekf`` and
+``batch`` and no noise configuration, and riekf and batch given the true levels. Prints a Markdown table.
+
+    .venv/bin/python benchmarks/handheld_logs.py [--cache DIR] [--seeds 3345 3348] [--no-true]
+
+Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
+the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
+used against the truth, and the warnings (lines starting ``warning:``). docs/benchmarks.md, "Hand-held rigs with
+a slow VIO twist", session 32.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from slamobs.pipeline.api import run_log
+from slamobs.pipeline.noise import DEFAULTS
+from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
+from slamobs.pipeline.simulate.scenarios import Trajectory, customize, get_scenario, rot_x, rot_y, rot_z
+
+SUFFIX = {"mcap": ".mcap", "bag": ".bag", "ros2": ""}
+
+
+@dataclass(frozen=True)
+class Case:
+    seed: int
+    scenario: str
+    duration: float
+    note: str
+    container: str = "mcap"
+    imu_hz: float = 200.0
+    odom_hz: float = 4.0
+    gyro_x: float = 30.0  # the gyro's density over the default
+    velocity_x: float = 10.0
+    law: tuple[float, float] = (0.03, 0.006)  # sigma0 (m), k (m per m of range)
+    detection_hz: float = 15.0
+    offset_s: float = 0.0  # added to the detection stamps
+    stated: float = 0.0  # the messages' covariance at this many times the truth (0: unknown)
+    gaps: tuple[tuple[float, float], ...] = ()
+    tilt_deg: float = 12.0
+    wobble: float = 0.3  # yaw wobble amplitude (rad) at 0.6 Hz
+    truncate: float = 0.0  # the file cut to this share of its bytes
+    landmarks: int | None = None
+
+
+CASES = (
+    Case(3345, "handheld", 60, "hand-held, 4 Hz twist"),
+    Case(3346, "handheld", 120, "3 Hz odometry", container="bag", odom_hz=3),
+    Case(3347, "handheld", 90, "stated 0.1x", container="ros2", odom_hz=5, stated=0.1),
+    Case(3348, "handheld", 90, "stated 0.2x", stated=0.2),
+    Case(3349, "handheld", 90, "stated 0.05x", container="bag", stated=0.05),
+    Case(3350, "handheld", 90, "detection stamps +0.3 s", offset_s=0.3),
+    Case(3351, "handheld", 90, "detection stamps -0.2 s", container="ros2", offset_s=-0.2),
+    Case(3352, "handheld", 90, "detection stamps +0.4 s", container="bag", offset_s=0.4),
+    Case(3353, "handheld", 120, "blind 20/16/21 s, 4 s returns", gaps=((20, 40), (44, 60), (64, 85))),
+    Case(3354, "handheld", 120, "blind 25 s, 6 landmarks", container="ros2", gaps=((30, 55),), landmarks=6),
+    Case(3355, "handheld", 60, "tilt 15 deg, yaw wobble 0.6 rad", tilt_deg=15, wobble=0.6),
+    Case(3356, "handheld", 90, "MCAP cut at 80 %", truncate=0.8),
+    Case(3357, "handheld", 90, "bag cut at 70 %", container="bag", truncate=0.7),
+    Case(3358, "handheld", 30, "30 s, g100 v30", odom_hz=5, gyro_x=100, velocity_x=30),
+    Case(3359, "handheld", 600, "600 s", gyro_x=10, velocity_x=5, law=(0.02, 0.004), detection_hz=10),
+    Case(3360, "handheld", 120, "+0.25 s, stated 0.1x, blind 15 s", offset_s=0.25, stated=0.1, gaps=((50, 65),)),
+    Case(3361, "figure8", 90, "drone figure 8, 4 Hz odometry"),
+    Case(3362, "loop", 120, "loop, 3 Hz odometry", container="ros2", odom_hz=3, law=(0.05, 0.01)),
+    Case(3363, "handheld", 90, "g30 v50, sigma (0.1, 0.02)", velocity_x=50, law=(0.1, 0.02)),
+    Case(3364, "handheld", 90, "stated 0.1x, +0.3 s", container="bag", imu_hz=100, stated=0.1, offset_s=0.3),
+    Case(3365, "ground", 180, "ground robot, 4 Hz odometry", imu_hz=100),
+)
+
+
+def handheld_trajectory(tilt_deg: float, wobble: float, period: float = 60.0, a: float = 8.0, h: float = 1.5):
+    """The walker's figure 8 with its step bob, tilt and yaw wobble: R = Rz(psi) Ry(pitch) Rx(roll), the body rate
+    from the exact ZYX Euler rates."""
+    w, tilt = 2 * np.pi / period, np.deg2rad(tilt_deg)
+    fw, fr, fp, fb = 2 * np.pi * np.array([0.6, 0.23, 0.31, 1.8])
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        th, b = w * t, a / 2
+        x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
+        y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
+        z, zd, zdd = h + 0.04 * np.sin(fb * t), 0.04 * fb * np.cos(fb * t), -0.04 * fb * fb * np.sin(fb * t)
+        phi, phid = tilt * np.sin(fr * t), tilt * fr * np.cos(fr * t)
+        the, thed = 0.8 * tilt * np.sin(fp * t), 0.8 * tilt * fp * np.cos(fp * t)
+        psi = np.arctan2(yd, xd) + wobble * np.sin(fw * t)
+        psid = (xd * ydd - yd * xdd) / (xd * xd + yd * yd) + wobble * fw * np.cos(fw * t)
+        rot = rot_z(psi) @ rot_y(the) @ rot_x(phi)
+        omega = np.stack(
+            [
+                phid - psid * np.sin(the),
+                thed * np.cos(phi) + psid * np.cos(the) * np.sin(phi),
+                -thed * np.sin(phi) + psid * np.cos(the) * np.cos(phi),
+            ],
+            -1,
+        )
+        v = np.einsum("nji,nj->ni", rot, np.stack([xd, yd, zd], -1))
+        return Trajectory(t, rot, np.stack([x, y, z], -1), omega, v, np.stack([xdd, ydd, zdd], -1))
+
+    return trajectory
+
+
+def scenario(case: Case):
+    if case.scenario != "handheld":
+        return customize(get_scenario(case.scenario), landmarks=case.landmarks, detection_gaps=case.gaps or None)
+    sc = get_scenario("figure8-wide")
+    cam = sc.camera
+    turn = rot_z(np.array([np.deg2rad(10.0)]))[0]
+    cam = replace(cam, R_bc=turn @ cam.R_bc, t_bc=np.array([0.05, -0.08, 0.03]), max_range=8.0)
+    sc = replace(sc, name="handheld", trajectory=handheld_trajectory(case.tilt_deg, case.wobble), camera=cam)
+    return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None)
+
+
+def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
+    """The case's log in ``cache`` (written once) and its true noise as a ``noise:`` section."""
+    path, truth_path = cache / f"s{case.seed}{SUFFIX[case.container]}", cache / f"s{case.seed}.truth.json"
+    if path.exists() and truth_path.is_file():
+        return path, json.loads(truth_path.read_text())
+    gyro, velocity = case.gyro_x * DEFAULTS["gyro"][0], case.velocity_x * DEFAULTS["velocity"][0]
+    nm = replace(
+        NoiseModel(),
+        gyro=gyro * np.sqrt(case.imu_hz),  # per-sample sigma at the stream's rate
+        odom_linear=velocity * np.sqrt(case.odom_hz),
+        detection_base=case.law[0],
+        detection_per_m=case.law[1],
+    )
+    kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
+    sim = simulate(scenario(case), noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, **kw)
+    stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
+    write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
+    if case.truncate:
+        with open(path, "r+b") as f:
+            f.truncate(int(path.stat().st_size * case.truncate))
+    truth = {"gyro": gyro, "velocity": velocity, "detection": case.law[0], "detection_per_m": case.law[1]}
+    truth |= {"detection_per_m2": 0.0, "detection_ratio": 1.0}
+    truth_path.write_text(json.dumps(truth))
+    return path, truth
+
+
+def run(log: Path, estimator: str, out: Path, noise: dict | None) -> dict:
+    cfg: dict = {"evaluation": {"plots": False}, **({"noise": noise} if noise else {})}
+    try:
+        run_log(log, out, observer=estimator, config=cfg, force=True)
+    except Exception as exc:  # an error is a result of the sweep
+        return {"error": str(exc)[:120]}
+    meta, report = json.loads((out / "run.json").read_text()), json.loads((out / "report.json").read_text())
+    shutil.rmtree(out, ignore_errors=True)
+    conv, nees = report.get("convergence") or {}, (report.get("uncertainty") or {}).get("position") or {}
+    verdict = "lost" if conv.get("lost") else "coarse" if conv.get("coarse") else "no" if conv.get("growing") else None
+    velocity = next((n for n in meta.get("notes") or [] if n.startswith("noise: velocity =")), "")
+    return {
+        "ape": report["ape"]["translation_m"]["rmse"],
+        "converged": verdict or ("yes" if conv.get("t_ns") is not None else "no"),
+        "nees": f"{nees['mean']:.3g}{' OC' if 'over' in nees.get('verdict', '') else ''}" if "mean" in nees else "-",
+        "velocity": velocity.split("[", 1)[-1].split("]", 1)[0] if "[" in velocity else "",
+        "warnings": [n for n in meta.get("notes") or [] if n.startswith("warning")],
+    }
+
+
+def row(case: Case, truth: dict, res: dict) -> str:
+    ape = lambda k: None if "error" in res[k] else res[k]["ape"]  # noqa: E731
+    cell = lambda k: res[k].get("error") or f"{res[k]['ape']:.3f}"  # noqa: E731
+    ratio = lambda a, b: "-" if ape(a) is None or b not in res or ape(b) is None else f"{ape(a) / ape(b):.2f}"  # noqa: E731
+    fa, rk, bt = ("fast-adaptation", "auto"), ("riekf", "auto"), ("batch", "auto")
+    true = lambda e: f" / {cell((e, 'true'))} ({ratio((e, 'auto'), (e, 'true'))})" if (e, "true") in res else ""  # noqa: E731
+    ok = [res[k] for k in (fa, rk, bt) if "error" not in res[k]]
+    cells = [
+        f"seed={case.seed}",
+        case.note,
+        case.container,
+        f"{case.duration:g}",
+        f"{case.imu_hz:g}/{case.odom_hz:g}",
+        cell(fa),
+        cell(rk) + true("riekf"),
+        cell(bt) + true("batch"),
+        f"{ratio(rk, fa)}, {ratio(bt, fa)}",
+        "/".join(res[k].get("converged", "err") for k in (fa, rk, bt)),
+        "; ".join(res[k].get("nees", "err") for k in (rk, bt)),
+        f"{res[rk].get('velocity', '')} ({truth['velocity']:.4f})",
+        str(sum(len(r["warnings"]) for r in ok)),
+    ]
+    return "| " + " | ".join(cells) + " |"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-handheld-logs")
+    ap.add_argument("--seeds", type=int, nargs="+", help="the cases' seeds (default: all)")
+    ap.add_argument("--no-true", action="store_true", help="skip the runs given the true noise")
+    args = ap.parse_args()
+    args.cache.mkdir(parents=True, exist_ok=True)
+    head = "| log | case | container | s | IMU/odom Hz | FA | riekf auto / true (x) | batch auto / true (x) "
+    head += "| riekf, batch / FA | converged FA/riekf/batch | NEES riekf; batch | velocity auto (true) | warnings |"
+    print(head + "\n|" + " --- |" * (head.count("|") - 1))
+    for case in CASES:
+        if args.seeds and case.seed not in args.seeds:
+            continue
+        log, truth = make_log(case, args.cache)
+        res = {}
+        for est in ("fast-adaptation", "riekf", "batch"):
+            for mode in ("auto",) if est == "fast-adaptation" or args.no_true else ("auto", "true"):
+                out = args.cache / "runs" / f"s{case.seed}-{est}-{mode}"
+                res[est, mode] = run(log, est, out, truth if mode == "true" else None)
+        print(row(case, truth, res), flush=True)
+
+
+if __name__ == "__main__":
+    main()
