@@ -562,6 +562,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "clocks": dict(streams.clocks),
             "body_frame": aligned.body_frame,
             "body_frame_from": aligned.body_from,
+            "base_frame": aligned.base_frame,
             "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
             "derived": dict(streams.derived),
             # every frame pair the readers' warnings name only the first of (decode.frame_pairs)

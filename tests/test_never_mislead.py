@@ -424,6 +424,14 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     origin = "(the frame of /odom's twist: an Odometry's child_frame_id or a TwistStamped's header frame)"
     assert len(body) == 1 and origin in body[0]
     assert "frames.body: FRAME" in body[0] and res.output.count(body[0]) == 1  # the run's note and the report's
+    # where TF places the base against that body, the key that makes the base the body follows in report.md too
+    # (TagSLAM test 22's report offered only frames.truth_rotation, which turns the truth for the evaluation)
+    placed = [n for n in report["notes"] if n.startswith("TF places the body frame 'odom_sensor' against 'base_link'")]
+    assert len(placed) == 1 and placed[0].endswith("frames.body: base_link makes the base the body"), report["notes"]
+    assert report["notes"].index(placed[0]) == report["notes"].index(body[0]) + 1
+    assert res.output.count(placed[0]) == 1 and placed[0] in (tmp_path / "out" / "report.md").read_text()
+    meta = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert meta["input"]["base_frame"]["frame"] == "base_link", meta["input"]
     # the same log with the body set: the truth is in the body's frame, no note of a turn, nor of the body
     fixed = tmp_path / "body.yaml"
     fixed.write_text("frames:\n  body: base_link\nevaluation:\n  plots: false\n")
