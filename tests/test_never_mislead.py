@@ -441,6 +441,24 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     assert not any("as the body frame" in n or "NEES" in n and "turn" in n for n in report["notes"])
 
 
+def test_a_comparison_whose_truth_looks_turned_names_the_body_and_the_base_once(sim, tmp_path):
+    """`slamobs compare` of a log whose odometry's child frame is a sensor turned 90 deg against base_link (TF giving
+    it) printed each estimator's turned-truth caveat with its own frames.truth_rotation (TagSLAM test 22: 124, 137
+    and 112 deg for fast-adaptation, riekf and batch), and neither which frame the runs took as the body nor TF's
+    base frame with the key that mends every run (frames.body: base_link). They now follow the caveats, once."""
+    log = write_log(simulate("figure8", duration=8.0, seed=5), tmp_path / "clean.mcap")
+    log = _odometry_in_a_turned_sensor_frame(log, tmp_path / "odom_sensor.mcap")
+    res = invoke("compare", log, "-o", tmp_path / "cmp", "--observers", "fast-adaptation", "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "cmp" / "comparison.md").read_text()
+    assert "fast-adaptation: rotation APE" in md and "frames.truth_rotation" in md, md
+    body = "- the run took 'odom_sensor' as the body frame"
+    placed = "- TF places the body frame 'odom_sensor' against 'base_link'"
+    assert md.count(body) == 1 and md.count(placed) == 1, md
+    assert "frames.body: base_link makes the base the body" in md
+    assert res.output.count("note: TF places the body frame 'odom_sensor'") == 1, res.output
+
+
 def test_a_body_taken_from_an_odometrys_sensor_frame_is_named_without_a_turned_truth(sim, tmp_path):
     """Session 25: the run named the body frame it took only when the truth looked turned; an odometry whose
     child_frame_id is a sensor frame (here on the base, not turned: the truth agrees) made that sensor the body
