@@ -311,6 +311,10 @@ class AlignedStream:
     body_frame: str
     notes: list[str] = field(default_factory=list)
     body_from: str = ""  # why body_frame is the body (:func:`body_frame_origin`), for run.json and the report
+    #: The robot's base frame (``BASE_FRAMES``) TF places against a body taken from an odometry's child frame, and
+    #: how (:func:`_base_frame`), or None (run.json ``input.base_frame``; the report names it where the truth looks
+    #: turned).
+    base_frame: dict | None = None
     directions: DirectionSet | None = None  # inertial direction measurements on the velocity time base
     #: First velocity sample of each segment after the first (gaps longer than ``limits.max_gap``).
     segment_starts: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
@@ -975,7 +979,7 @@ def body_frame_origin(linear_velocity: Vec3Stream | None, body_frame: str | None
 #: The frames a robot's base goes by (REP 105; ``rig``: TagSLAM's, the body its camera_poses.yaml places the cameras
 #: on and its reference trajectory tracks): a body frame taken from an odometry's child_frame_id under another name
 #: may be a sensor's, so the run says which frame it took (:func:`body_frame_note`) and where the base is
-#: (:func:`_base_placed`: TagSLAM test 22's VIO frame is turned 120 deg against the rig; fast-adaptation's rotation
+#: (:func:`base_placed_note`: TagSLAM test 22's VIO frame is turned 120 deg against the rig; fast-adaptation's rotation
 #: APE against the rig's trajectory 124.5 deg, 12.3 deg with frames.body: rig).
 BASE_FRAMES = ("base_link", "base_footprint", "rig")
 
@@ -993,21 +997,32 @@ def body_frame_note(body: str, origin: str) -> str:
     )
 
 
-def _base_placed(tf: TfBuffer, body: str) -> list[str]:
-    """Where TF places a base frame (``BASE_FRAMES``) against ``body``, an odometry's child frame taken as the body:
-    a truth of the base is off the poses by that lever arm, turning with the robot (a figure 8 whose odometry's twist
-    is in a frame 0.5 m beside base_link, TF giving it: riekf APE 0.49 m against the base's truth, 0.011 m with
-    frames.body: base_link, with only the body-frame note, which speaks of a turned truth; session 27)."""
+def _base_frame(tf: TfBuffer, body: str) -> dict | None:
+    """The first base frame (``BASE_FRAMES``) TF connects to ``body`` and how TF places it (``frame``, ``placed``:
+    :func:`_describe`'s words), or None (run.json ``input.base_frame``)."""
     for base in BASE_FRAMES:
         if base in tf.frames and tf.chain(base, body) is not None:
             # the static edges are the log's /tf_static and the cameras: files' rig transforms (run.prepare_log)
             how = _describe(tf, base, body, static="static, from /tf_static or the cameras: files: ")
-            return [
-                f"TF places the body frame '{body}' against '{base}' ({how}): a truth of '{base}' is that far off "
-                f"these poses, the offset turning with the robot, and is turned by that angle; frames.body: {base} "
-                "makes the base the body"
-            ]
-    return []
+            return {"frame": base, "placed": how}
+    return None
+
+
+def base_placed_note(body: str, base: dict | None) -> list[str]:
+    """Where TF places a base frame against ``body``, an odometry's child frame taken as the body (``base``:
+    :func:`_base_frame`, run.json ``input.base_frame``): a truth of the base is off the poses by that lever arm,
+    turning with the robot (a figure 8 whose odometry's twist is in a frame 0.5 m beside base_link, TF giving it:
+    riekf APE 0.49 m against the base's truth, 0.011 m with frames.body: base_link, with only the body-frame note,
+    which speaks of a turned truth; session 27). Public: the run notes it, and the report again where the truth looks
+    turned (:func:`.evaluation.sections.body_frame_notes`), in one wording (the summary prints it once)."""
+    if not base:
+        return []
+    name = base["frame"]
+    return [
+        f"TF places the body frame '{body}' against '{name}' ({base['placed']}): a truth of '{name}' is that far off "
+        f"these poses, the offset turning with the robot, and is turned by that angle; frames.body: {name} "
+        "makes the base the body"
+    ]
 
 
 def align(
@@ -1099,8 +1114,10 @@ def align(
     frame.notes.append(warn.add(_misread_ids, det.topic, t_om, omega, velocity, *detected))
     del det
     notes = frame.notes + [n for n in dir_frame.notes if n not in frame.notes]
+    base = None
     if body_from not in (BODY_FROM_CONFIG, BODY_FROM_DEFAULT) and body not in BASE_FRAMES:
-        notes[:0] = [body_frame_note(body, body_from), *_base_placed(tf, body)]  # an odometry's child frame
+        base = _base_frame(tf, body)
+        notes[:0] = [body_frame_note(body, body_from), *base_placed_note(body, base)]  # an odometry's child frame
     if w is not None:
         notes.append(
             f"{ACCEL_NOTE}{100.0 * float(np.mean(w < 1.0)):.1f} % of samples down-weighted and "
@@ -1123,6 +1140,7 @@ def align(
         body_frame=body,
         notes=notes,
         body_from=body_from,
+        base_frame=base,
         directions=directions if keep_directions else None,
         segment_starts=starts,
         det_sensor=det_sensor,

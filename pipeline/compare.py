@@ -147,15 +147,21 @@ NO_MAP_TRUTH = f"landmark_rmse_m is blank: no landmark truth; {MAP_TRUTH_HINT}"
 def caveats(summaries: dict[str, RunSummary]) -> list[str]:
     """Per observer, what its own status says against the table's ``ok`` (:meth:`.run.RunSummary.status_caveats`:
     riekf lost, or its last detections failing the gate) and what its report says beside its headline numbers
-    (:func:`.evaluation.markdown.headline_caveats`: no or a coarse convergence, an upside-down alignment), so a blank
-    or 180-degree cell is explained."""
+    (:func:`.evaluation.markdown.headline_caveats`: no or a coarse convergence, an upside-down alignment, a truth
+    turned against the estimate), so a blank or 180-degree cell is explained; then, once for the log, the body frame
+    the runs took and the base frame TF places against it where a truth looked turned
+    (:func:`.evaluation.sections.body_frame_notes`: the key that mends the runs, where the turned-truth caveats offer
+    only frames.truth_rotation, for the evaluation, one angle per estimator)."""
     from slamobs.pipeline.evaluation.markdown import headline_caveats
+    from slamobs.pipeline.evaluation.sections import body_frame_notes
 
-    return [
+    out = [
         f"{name}: {c}"
         for name, s in summaries.items()
         for c in [*s.status_caveats(), *headline_caveats(s.report or {})]
     ]
+    frames = (n for s in summaries.values() for n in body_frame_notes(s.report or {}, s.metadata.get("input") or {}))
+    return out + list(dict.fromkeys(frames))
 
 
 def hints(summaries: dict[str, RunSummary]) -> list[str]:

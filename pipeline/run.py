@@ -50,6 +50,7 @@ from slamobs.pipeline.estimators import ESTIMATORS, get_estimator
 from slamobs.pipeline.observers.base import (
     InnovationRecord,
     ObserverDiverged,
+    held_bias_note,
     jump_note,
     landmark_jumps,
     lost_note,
@@ -574,6 +575,7 @@ def run_metadata(prepared: PreparedLog, config: RunConfig, est: EstimatorInput) 
             "clocks": dict(streams.clocks),
             "body_frame": aligned.body_frame,
             "body_frame_from": aligned.body_from,
+            "base_frame": aligned.base_frame,
             "truth_frame": streams.truth.frame_id if streams.truth is not None else None,
             "derived": dict(streams.derived),
             # every frame pair the readers' warnings name only the first of (decode.frame_pairs)
@@ -805,6 +807,7 @@ def estimate(
         notes += part.stats.get("notes", [])  # the estimator's own (batch: a solution failing its gate)
         checks = part.stats.get("metadata", {})
         notes += lost_note(spec.name, checks.get("resightings"), checks.get("velocity_bias"))
+        notes += held_bias_note(spec.name, checks.get("bias_held"))
         if spec.uses_noise:  # the estimators with a gate: an observer's innovations jump once it is lost
             # batch's own innovations may hide a jump its riekf start shows (batch.seed's record)
             jumps = landmark_jumps(*innovations.arrays()) or checks.get("start_landmark_jumps", [])

@@ -362,6 +362,32 @@ def test_the_3d_view_is_drawn_to_one_scale_and_says_when_its_height_is_stretched
     plt.close("all")
 
 
+def test_the_3d_view_s_short_side_gets_fewer_ticks():
+    """TagSLAM test 11's trajectory: 18 m in x, 5 m in y, 16 m in z; drawn to one scale the y side is short, and its
+    six tick labels (-4 to 1) drew over one another. A side gets tick intervals in proportion to its length."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from slamobs.pipeline.evaluation.plots import one_scale_3d
+
+    s = np.linspace(0.0, 1.0, 200)
+    path = np.column_stack([18.0 * s - 10.0, 5.0 * np.sin(7 * s) - 2.0, 16.0 * s])
+    ax = plt.figure().add_subplot(projection="3d")
+    ax.plot(*path.T)
+    one_scale_3d(ax, path)
+
+    def shown(ticks, lim):
+        return [t for t in ticks if lim[0] - 1e-9 <= t <= lim[1] + 1e-9]
+
+    y = shown(ax.get_yticks(), ax.get_ylim())
+    x = shown(ax.get_xticks(), ax.get_xlim())
+    assert 2 <= len(y) <= 3, y  # 5 m of 18: 2 intervals
+    assert 4 <= len(x) <= 7, x  # the longest side: at most 6 intervals
+    plt.close("all")
+
+
 def test_a_log_axis_over_less_than_a_decade_is_labelled_in_plain_numbers():
     """nees.png's attitude panel (NEES 0.2 to 4) was labelled 2×10⁰, 3×10⁰, 4×10⁰ by matplotlib's minor ticks."""
     import matplotlib

@@ -424,6 +424,14 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     origin = "(the frame of /odom's twist: an Odometry's child_frame_id or a TwistStamped's header frame)"
     assert len(body) == 1 and origin in body[0]
     assert "frames.body: FRAME" in body[0] and res.output.count(body[0]) == 1  # the run's note and the report's
+    # where TF places the base against that body, the key that makes the base the body follows in report.md too
+    # (TagSLAM test 22's report offered only frames.truth_rotation, which turns the truth for the evaluation)
+    placed = [n for n in report["notes"] if n.startswith("TF places the body frame 'odom_sensor' against 'base_link'")]
+    assert len(placed) == 1 and placed[0].endswith("frames.body: base_link makes the base the body"), report["notes"]
+    assert report["notes"].index(placed[0]) == report["notes"].index(body[0]) + 1
+    assert res.output.count(placed[0]) == 1 and placed[0] in (tmp_path / "out" / "report.md").read_text()
+    meta = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert meta["input"]["base_frame"]["frame"] == "base_link", meta["input"]
     # the same log with the body set: the truth is in the body's frame, no note of a turn, nor of the body
     fixed = tmp_path / "body.yaml"
     fixed.write_text("frames:\n  body: base_link\nevaluation:\n  plots: false\n")
@@ -431,6 +439,24 @@ def test_a_truth_turned_by_the_odometrys_sensor_frame_says_which_body_the_run_to
     report = json.loads((tmp_path / "fixed" / "report.json").read_text())
     assert res.exit_code == 0 and report["ape"]["rotation_deg"]["rmse"] < 5
     assert not any("as the body frame" in n or "NEES" in n and "turn" in n for n in report["notes"])
+
+
+def test_a_comparison_whose_truth_looks_turned_names_the_body_and_the_base_once(sim, tmp_path):
+    """`slamobs compare` of a log whose odometry's child frame is a sensor turned 90 deg against base_link (TF giving
+    it) printed each estimator's turned-truth caveat with its own frames.truth_rotation (TagSLAM test 22: 124, 137
+    and 112 deg for fast-adaptation, riekf and batch), and neither which frame the runs took as the body nor TF's
+    base frame with the key that mends every run (frames.body: base_link). They now follow the caveats, once."""
+    log = write_log(simulate("figure8", duration=8.0, seed=5), tmp_path / "clean.mcap")
+    log = _odometry_in_a_turned_sensor_frame(log, tmp_path / "odom_sensor.mcap")
+    res = invoke("compare", log, "-o", tmp_path / "cmp", "--observers", "fast-adaptation", "--config", sim["config"])
+    assert res.exit_code == 0, res.output
+    md = (tmp_path / "cmp" / "comparison.md").read_text()
+    assert "fast-adaptation: rotation APE" in md and "frames.truth_rotation" in md, md
+    body = "- the run took 'odom_sensor' as the body frame"
+    placed = "- TF places the body frame 'odom_sensor' against 'base_link'"
+    assert md.count(body) == 1 and md.count(placed) == 1, md
+    assert "frames.body: base_link makes the base the body" in md
+    assert res.output.count("note: TF places the body frame 'odom_sensor'") == 1, res.output
 
 
 def test_a_body_taken_from_an_odometrys_sensor_frame_is_named_without_a_turned_truth(sim, tmp_path):

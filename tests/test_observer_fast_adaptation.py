@@ -282,3 +282,40 @@ def test_a_slow_vehicle_whose_constant_velocity_bias_is_learned_is_not_called_lo
     assert vb["rms_m_s"] / vb["velocity_rms_m_s"] > 0.3, vb  # its size alone would say lost
     assert vb["share"] < 0.1, vb
     assert not [n for n in meta["notes"] if "likely lost" in n], meta["notes"]
+
+
+@pytest.mark.parametrize("n_landmarks", [2, None])
+def test_biases_held_at_their_start_for_want_of_landmarks_are_said(tmp_path, n_landmarks):
+    """A figure 8 whose map keeps two of its tags (seed=3393): no frame sees the three landmarks fast-adaptation
+    needs before it adapts its biases, so biases.parquet holds [0, 0, 0] from start to end, and the report's bias
+    table printed that as the final estimate with nothing to say it was never estimated (TagSLAM test 22: two tags).
+    The run and the report say so; with the whole map the biases move and nothing is said."""
+    import json
+    from dataclasses import replace
+
+    import pandas as pd
+
+    from slamobs.pipeline.api import run_log
+    from slamobs.pipeline.simulate import get_scenario, simulate, write_log
+
+    sc = get_scenario("figure8")
+    keep = np.arange(n_landmarks or sc.landmark_ids.shape[0])
+    sc = replace(
+        sc, landmark_ids=sc.landmark_ids[keep], landmarks=sc.landmarks[keep], landmark_rots=sc.landmark_rots[keep]
+    )
+    log = tmp_path / "few.mcap"
+    write_log(simulate(sc, duration=20.0, seed=3393), log)
+    run_log(log, tmp_path / "out", observer="fast-adaptation", config={"evaluation": {"plots": False}})
+    meta = json.loads((tmp_path / "out" / "run.json").read_text())
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    biases = pd.read_parquet(tmp_path / "out" / "biases.parquet").drop(columns="t_ns")
+    held = meta["observer"]["bias_held"]
+    said = [n for n in meta["notes"] if n.startswith("fast-adaptation: its gyro and velocity bias estimates stayed")]
+    assert bool((biases == biases.iloc[0]).all().all()) == (n_landmarks == 2)
+    if n_landmarks == 2:
+        assert held == {"start": [0.0] * 6, "max_landmarks_per_frame": 2, "min_landmarks_bias": 3}, held
+        assert len(said) == 1 and "only while 3 or more landmarks are in view" in said[0], meta["notes"]
+        assert "no detection frame of this log holds more than 2" in said[0]
+    else:
+        assert held is None and not said, (held, said)
+    assert [n for n in report["notes"] if n in said] == said  # the report says it too

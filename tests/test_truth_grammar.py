@@ -189,6 +189,16 @@ def test_a_truth_that_names_nothing_is_one_line(logs, tmp_path, text, says):
     assert not (tmp_path / "out").exists()
 
 
+def test_another_log_s_topic_mistyped_says_which_one_was_meant(logs, tmp_path):
+    """`--truth reference.bag:/tagslam/odom/body` (TagSLAM test 22's reference is .../body_rig): the error listed the
+    log's topics but, unlike a topic of the run's own log, did not say which one was meant."""
+    res = invoke("run", logs["log"], "-o", tmp_path / "out", "--truth", f"{logs['other']}:/mocap/pos")
+    assert res.exit_code == 2
+    errors = [line for line in res.output.splitlines() if line.startswith("error:")]
+    assert len(errors) == 1 and "topic not in the log (did you mean /mocap/pose? topics: " in errors[0], res.output
+    assert not (tmp_path / "out").exists()
+
+
 def test_truth_none_runs_and_reports_without_truth(logs, run_dirs, tmp_path):
     # session 17: `--truth none` read as a topic named "none" (exit 2); a user with a truth in the log had no way to
     # run as without it. Now no truth, not even the one the log's /mocap/pose would give by detection.

@@ -287,15 +287,17 @@ def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[
     ``truth_frame_turn``: :func:`truth_frame_turn`) and the run did not take it from ``frames.body``: a log whose
     odometry's child_frame_id is a sensor frame turned against the robot's base makes that sensor the body, and the
     truth, which tracks the base, looks turned. Empty otherwise, also when the camera's extrinsic is named instead
-    (``truth_frame_turn.camera_named``: :func:`camera_named_notes`) or the run.json predates ``body_frame_from``."""
+    (``truth_frame_turn.camera_named``: :func:`camera_named_notes`) or the run.json predates ``body_frame_from``.
+    Where TF places a base frame against that body (``input.base_frame``) the run's note naming the key that makes it
+    the body follows: report.md did not carry it, and its rotation note offers only ``frames.truth_rotation``, which
+    turns the truth for the evaluation (TagSLAM test 22: rotation APE 124.5 deg, 12.3 deg with ``frames.body: rig``)."""
     turn = (report.get("ape") or {}).get("truth_frame_turn")
     origin, body = run_input.get("body_frame_from"), run_input.get("body_frame")
-    from slamobs.pipeline.alignment import BODY_FROM_CONFIG, body_frame_note
+    from slamobs.pipeline.alignment import BODY_FROM_CONFIG, base_placed_note, body_frame_note
 
     if not turn or turn.get("camera_named") or not origin or origin == BODY_FROM_CONFIG:
         return []
-
-    return [body_frame_note(body, origin)]
+    return [body_frame_note(body, origin), *base_placed_note(body, run_input.get("base_frame"))]
 
 
 def detections_named_camera(metadata: dict[str, Any]) -> bool:

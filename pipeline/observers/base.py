@@ -331,6 +331,43 @@ def bias_share(k: np.ndarray, bias: np.ndarray, velocity: np.ndarray) -> dict:
     return {"rms_m_s": b, "wander_m_s": wander, "velocity_rms_m_s": v, "share": wander / v if v > 0.0 else None}
 
 
+def bias_held(bias: np.ndarray, det_offsets: np.ndarray, min_landmarks: int) -> dict | None:
+    """run.json's record of biases that never moved: None when the bias rows kept (``bias``: (M, 6), gyro then
+    velocity) change anywhere, else their ``start`` value, the most landmarks any detection frame holds
+    (``det_offsets``: the frames' offsets into the detections), ``max_landmarks_per_frame``, and the observer's
+    ``min_landmarks_bias`` (it adapts its biases only while that many are in view: docs/observers.md §3.2)."""
+    if bias.shape[0] == 0 or np.any(bias != bias[:1]):
+        return None
+    per_frame = np.diff(det_offsets)
+    return {
+        "start": [float(v) for v in bias[0]],
+        "max_landmarks_per_frame": int(per_frame.max()) if per_frame.size else 0,
+        "min_landmarks_bias": int(min_landmarks),
+    }
+
+
+def held_bias_note(name: str, held: dict | None) -> list[str]:
+    """Estimator ``name``'s note when its bias estimates stayed at their start value (``held``: :func:`bias_held`):
+    the bias rows of biases.parquet and of the report are then that value, not an estimate, which the report's
+    bias table alone does not say (TagSLAM test 22: two tags, fast-adaptation's biases [0, 0, 0] throughout)."""
+    if not held:
+        return []
+    gyro, vel = (", ".join(f"{v:.3g}" for v in held["start"][a : a + 3]) for a in (0, 3))
+    most, need = held["max_landmarks_per_frame"], held["min_landmarks_bias"]
+    why = (
+        f"it adapts them only while {need} or more landmarks are in view (min_landmarks_bias), and no detection "
+        f"frame of this log holds more than {most}"
+        if most < need
+        else "with the gains it ran on they never moved"
+    )
+    return [
+        f"{name}: its gyro and velocity bias estimates stayed at their start value, gyro [{gyro}] rad/s and "
+        f"velocity [{vel}] m/s, for the whole run: "
+        f"{why}; the biases in biases.parquet and in the report are that start value, not an estimate of the "
+        "log's biases (riekf and batch estimate them from every detection)"
+    ]
+
+
 def lost_note(name: str, check: dict | None, bias: dict | None = None) -> list[str]:
     """Estimator ``name``'s note when at least ``RESIGHT_COUNT`` landmarks seen again arrived over
     ``RESIGHT_RATIO`` times the usual distance from the map (``check``: :func:`resighting_check`): the map and the
@@ -593,7 +630,7 @@ class Stepper:
         self.stats: dict = {"substeps": 0}
         self.timings: dict[str, float] = {}
         self._innovation_norms: list[np.ndarray] = []  # per stretch, for gross_note (observers without a gate)
-        self._biases: list[tuple[np.ndarray, np.ndarray]] = []  # per stretch, k and b_v where k % BIAS_STRIDE == 0
+        self._biases: list[tuple[np.ndarray, np.ndarray]] = []  # per stretch, k and b (6) where k % BIAS_STRIDE == 0
 
     @property
     def n_vel(self) -> int:
@@ -688,7 +725,7 @@ class Stepper:
         if not self.gates_detections:
             self._innovation_norms.append(row_norms3(out.innov))
             kept = out.k % BIAS_STRIDE == 0  # by sample, not by row of the stretch: a run in stretches keeps the same
-            self._biases.append((out.k[kept], out.b[kept, 3:]))
+            self._biases.append((out.k[kept], out.b[kept]))
         if iv_stop >= self.n_vel and not self.end_checks_later:
             self.end_checks()
         det_t = np.repeat(s.det_t_ns[frames], np.diff(s.det_offsets[frames.start : frames.stop + 1]))
@@ -716,7 +753,8 @@ class Stepper:
         """The whole run's checks of an observer without a gate, once it has run to the end, into its statistics
         (and into ``stats`` too: the last stretch's, when :meth:`advance` left them out): the gross outliers'
         note, the map-against-trajectory check (:func:`resighting_check`) and the velocity bias's share
-        (:func:`bias_share`), which run.py's :func:`lost_note` reads."""
+        (:func:`bias_share`), which run.py's :func:`lost_note` reads, and whether the biases never moved
+        (:func:`bias_held`), which its :func:`held_bias_note` reads."""
         if self.gates_detections:
             return
         s = self.stream
@@ -726,7 +764,8 @@ class Stepper:
         self.stats["notes"] = gross_note(norms)  # and run.py's lost_note from the check
         self.stats.setdefault("metadata", {})["resightings"] = check
         k, b = (np.concatenate(a) for a in zip(*self._biases))
-        self.stats["metadata"]["velocity_bias"] = bias_share(k, b, s.velocity)
+        self.stats["metadata"]["velocity_bias"] = bias_share(k, b[:, 3:], s.velocity)
+        self.stats["metadata"]["bias_held"] = bias_held(b, s.det_offsets, self.options.min_landmarks_bias)
         if stats is not None:
             stats.update(self.stats)
 

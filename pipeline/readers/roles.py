@@ -302,6 +302,15 @@ def _pick(role: str, topics: Mapping[str, TopicMeta]) -> tuple[str | None, str |
     return None, None
 
 
+def did_you_mean(topic: str, *candidates: list[str]) -> str:
+    """ "did you mean NAME? " for the topic name closest to a mistyped ``topic`` in the first list of ``candidates``
+    that has one, or "": what every error naming a topic not in a log offers."""
+    for names in candidates:
+        if close := difflib.get_close_matches(topic, names, n=1, cutoff=0.6):
+            return f"did you mean {close[0]}? "
+    return ""
+
+
 def _check_override(
     role: str,
     topic: str,
@@ -314,10 +323,7 @@ def _check_override(
         known = ", ".join(names[:12]) + (f", ... ({len(names)} topics)" if len(names) > 12 else "") or "none"
         hint = f"; a truth that is no existing file reads as a topic; {TRUTH_FORMS}" if role == "truth" else ""
         fitting = [name for name in names if topics[name].msgtype in accepted_types(role)]  # of the role's types
-        close = difflib.get_close_matches(topic, fitting, n=1, cutoff=0.6) or difflib.get_close_matches(
-            topic, names, n=1, cutoff=0.6
-        )  # among all, also those not listed
-        mean = f"did you mean {close[0]}? " if close else ""
+        mean = did_you_mean(topic, fitting, names)  # among all, also those not listed
         raise InputError(path, f"topic for role {role} is not in the log ({mean}topics: {known}){hint}", topic)
     msgtype = topics[topic].msgtype
     if msgtype not in accepted_types(role):

@@ -23,7 +23,7 @@ from slamobs.pipeline.streams import PoseStream
 
 from .container import detect_container, open_log
 from .decode import decode_rows, pose_stream
-from .roles import EDGE_ARROW, TRUTH_FORMS, parse_edge, topics_of
+from .roles import EDGE_ARROW, TRUTH_FORMS, did_you_mean, parse_edge, topics_of
 from .rows import LAYOUTS
 
 NS_PER_S = 1_000_000_000
@@ -442,7 +442,8 @@ def load_pose_topic(log: str | Path, topic: str, *, time_source: str = "header")
             alt = "/" + topic.lstrip("/") if "/" + topic.lstrip("/") in table else topic.lstrip("/")
             if alt not in table:
                 known = ", ".join(sorted(table)[:12]) or "none"
-                raise InputError(log, f"topic not in the log (topics: {known})", topic)
+                mean = did_you_mean(topic, sorted(table))
+                raise InputError(log, f"topic not in the log ({mean}topics: {known})", topic)
             topic = alt
         meta, conns = table[topic]
         layout = LAYOUTS.get(meta.msgtype)
