@@ -122,16 +122,16 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
   configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
   (h-riekf22)").
-* Levels by the innovation likelihood: where a gyro or velocity level is a message's stated density more than 3x
-  above or below the samples' white-noise estimate (``NoiseSettings.disputed``: the log's two kinds of evidence
-  disagree), the first stretch is run at other levels and the filter keeps the pass whose innovations it explains
-  best: the deviance :func:`innovation_likelihood` (the prediction-error decomposition, Σ log det S + d² over the
-  tested known-landmark detections, a gated one's d² at the gate, so a level gating everything pays for it),
-  searched by :func:`next_levels` in factors of 3 then √3 upwards on the keys the configuration does not give, a move
-  taken while it lowers the deviance by more than ``LEVEL_DEVIANCE`` (:meth:`RiEKF._level_restart`; each pass with
-  its own walk and bias-prior passes; run.json ``observer.filter.levels_by_likelihood``, a note). A log whose
-  levels agree (or are estimated, or given) runs once as before (docs/benchmarks.md, "riekf's noise levels by its
-  own innovation likelihood, session 32 (h-riekfml)").
+* Levels by the innovation likelihood: where a gyro or velocity level is a message's stated density more than 3x above
+  or below the samples' white-noise estimate (``NoiseSettings.disputed``: the log's two kinds of evidence disagree),
+  the first stretch is run at other levels and the filter keeps the pass whose innovations it explains best: the
+  deviance :func:`innovation_likelihood` (the prediction-error decomposition, Σ log det S + d² over the tested
+  known-landmark detections, a gated one's d² at the gate, so a level gating everything pays for it), searched by
+  :func:`next_levels` in factors of 3 then √3 upwards, each key and both together, on the keys the configuration does
+  not give, a move taken while it lowers the deviance by more than ``LEVEL_DEVIANCE`` (:meth:`RiEKF._level_restart`;
+  each pass with its own walk and bias-prior passes; run.json ``observer.filter.levels_by_likelihood``, a note). A log
+  whose levels agree (or are estimated, or given) runs once as before (docs/benchmarks.md, "riekf's noise levels by
+  its own innovation likelihood, session 32 (h-riekfml)").
 * Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
   that keep each landmark's dead-reckoned position still between pairs of its detections
   (:func:`pipeline.noise_estimation.pair_bias_estimate`, each pair weighed by its detections' and its dead
@@ -277,7 +277,9 @@ TAIL_NOTE_IN_A_ROW = 5
 #: move must lower the run's by (χ²₁ 99 %), the steps of the search in powers of √3 (3x, then √3x) and the largest
 #: power either way (3⁴ = 81x): a log whose stated level is more than 3x from its samples' estimate only. The finer
 #: step moves upwards only: on the generated loop (seed=3302, seed=3316) it took a level to 0.64x its truth at a
-#: deviance 18-36 lower of 117,700 and riekf's APE to 1.8-3.1x the true level's (docs/benchmarks.md, session 32).
+#: deviance 18-36 lower of 117,700 and riekf's APE to 1.8-3.1x the true level's; both keys also move together: one
+#: key at a time stopped at 0.67x and 2x the truth on a ground log stated 6x (seed=3319; docs/benchmarks.md,
+#: session 32).
 LEVEL_DEVIANCE = 6.63
 LEVEL_STEPS = (2, 1)
 LEVEL_POWERS = 8
@@ -2270,19 +2272,19 @@ def next_levels(tried: dict, free: tuple[bool, bool]) -> tuple[tuple[int, int], 
     """The coordinate search of riekf's gyro and velocity levels by their deviance (module docstring, "Levels by the
     innovation likelihood"): ``tried`` maps powers of √3 on the resolved levels, ``(gyro, velocity)``, to the deviance
     of the pass run there; ``free``, whether each key may move. From (0, 0), a step of ``LEVEL_STEPS[0]`` each way on
-    each free key, moving to the best neighbour while it lowers the deviance by more than ``LEVEL_DEVIANCE``, then the
-    same with the finer step upwards only (louder: near its minimum the deviance is flat to a factor of about 2, and a
-    level below the truth costs riekf far more than one above it). Returns the next powers to run and False, or the
-    chosen powers and True once no untried neighbour is left (replayed from ``tried``: a pure function)."""
+    each free key and on both together (one message's levels share an error), moving to the best neighbour while it
+    lowers the deviance by more than ``LEVEL_DEVIANCE``, then the same with the finer step upwards only (louder: near
+    its minimum the deviance is flat to a factor of about 2, and a level below the truth costs riekf far more than one
+    above it). Returns the next powers to run and False, or the chosen powers and True once no untried neighbour is left
+    (replayed from ``tried``: a pure function)."""
     cur = (0, 0)
     if cur not in tried:
         return cur, False
     for step in LEVEL_STEPS:
         while True:
-            moves = ((step, 0), (-step, 0), (0, step), (0, -step)) if step == LEVEL_STEPS[0] else ((step, 0), (0, step))
-            near = [
-                (cur[0] + a * free[0], cur[1] + b * free[1]) for a, b in moves if (a and free[0]) or (b and free[1])
-            ]
+            up = ((step, 0), (0, step), (step, step))  # with both keys together: one message's levels share an error
+            moves = up + tuple((-a, -b) for a, b in up) if step == LEVEL_STEPS[0] else up
+            near = [(cur[0] + a, cur[1] + b) for a, b in moves if (free[0] or not a) and (free[1] or not b)]
             near = [c for c in near if max(abs(c[0]), abs(c[1])) <= LEVEL_POWERS]
             for c in near:
                 if c not in tried:
@@ -2296,7 +2298,8 @@ def next_levels(tried: dict, free: tuple[bool, bool]) -> tuple[tuple[int, int], 
 
 LEVELS_METHOD = (
     "where a gyro or velocity level is a message's stated one more than 3x from the samples' white-noise estimate, "
-    "the first stretch is run at factors of 3, then sqrt 3 upwards, on the resolved levels, one key at a time, "
+    "the first stretch is run at factors of 3, then sqrt 3 upwards, on the resolved levels, each key and both "
+    "together, "
     "moving while the innovation deviance (sum of log det S + d², a gated detection's d² at the gate, scaled to the "
     "first pass's tested detections) falls by more than 6.63 (chi2(1) 99 %); the chosen levels' pass is kept"
 )
