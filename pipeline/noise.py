@@ -152,9 +152,6 @@ class NoiseSettings:
     absent: tuple[str, ...] = ()
     #: the floor (riekf's and batch's) as configured (:attr:`NoiseConfig.floor`)
     floor: str | bool = "auto"
-    #: motion keys whose level is a message's stated density more than ``1 / STATED_LOW`` times above or below the
-    #: samples' white-noise estimate (the log's evidence disagrees: riekf arbitrates by its innovation likelihood)
-    disputed: tuple[str, ...] = ()
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -524,7 +521,6 @@ def resolve_noise(
     sources: dict[str, str] = {}
     methods: dict[str, str] = {}
     uncertainty: dict[str, object] = {}
-    disputed: list[str] = []
     for key, (default, _, _) in DEFAULTS.items():
         covariance = _believed(key, stated.get(STATED.get(key, "")), found.get(key), notes)
         if key in section:
@@ -534,12 +530,6 @@ def resolve_noise(
             sources[key] = f"{covariance.topic} covariance ({median_rate(covariance.period_s)})"
             if key in found:
                 methods[key] = stated_judgement(key, covariance.density, found[key].value)
-                far = (
-                    stated_below(covariance.density, found[key].value),
-                    stated_above(covariance.density, found[key].value),
-                )
-                if far != (None, None):
-                    disputed.append(key)
         elif key in absent:
             values[key], sources[key] = 0.0, "estimated"
             methods[key] = f"not a term of the law chosen, {estimated.detection.law}"
@@ -561,7 +551,6 @@ def resolve_noise(
         ),
         absent=tuple(k for k in absent if k not in section),
         floor=cfg.floor,
-        disputed=tuple(disputed),
         detection_held_scale=(
             estimated.detection.held_scale
             if estimated is not None

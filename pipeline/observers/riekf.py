@@ -122,16 +122,6 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   how the start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
   configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
   (h-riekf22)").
-* Levels by the innovation likelihood: where a gyro or velocity level is a message's stated density more than 3x above
-  or below the samples' white-noise estimate (``NoiseSettings.disputed``: the log's two kinds of evidence disagree),
-  the first stretch is run at other levels and the filter keeps the pass whose innovations it explains best: the
-  deviance :func:`innovation_likelihood` (the prediction-error decomposition, Σ log det S + d² over the tested
-  known-landmark detections, a gated one's d² at the gate, so a level gating everything pays for it), searched by
-  :func:`next_levels` in factors of 3 then √3 upwards, each key and both together, on the keys the configuration does
-  not give, a move taken while it lowers the deviance by more than ``LEVEL_DEVIANCE`` (:meth:`RiEKF._level_restart`;
-  each pass with its own walk and bias-prior passes; run.json ``observer.filter.levels_by_likelihood``, a note). A log
-  whose levels agree (or are estimated, or given) runs once as before (docs/benchmarks.md, "riekf's noise levels by
-  its own innovation likelihood, session 32 (h-riekfml)").
 * Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
   that keep each landmark's dead-reckoned position still between pairs of its detections
   (:func:`pipeline.noise_estimation.pair_bias_estimate`, each pair weighed by its detections' and its dead
@@ -273,16 +263,6 @@ MAX_PRIOR_PASSES = 3
 #: the end of every real log of ``benchmarks/real_logs.py`` has none (TagSLAM test_22 cut within 20 detections of its
 #: return after 17.9 s unseen: 6-17, riekf 2.7-4.7 m off, status converged; docs/benchmarks.md, session 31 (h-tag22)).
 TAIL_NOTE_IN_A_ROW = 5
-#: Levels by the innovation likelihood (module docstring): the deviance (−2 log L, :func:`innovation_likelihood`) a
-#: move must lower the run's by (χ²₁ 99 %), the steps of the search in powers of √3 (3x, then √3x) and the largest
-#: power either way (3⁴ = 81x): a log whose stated level is more than 3x from its samples' estimate only. The finer
-#: step moves upwards only: on the generated loop (seed=3302, seed=3316) it took a level to 0.64x its truth at a
-#: deviance 18-36 lower of 117,700 and riekf's APE to 1.8-3.1x the true level's; both keys also move together: one
-#: key at a time stopped at 0.67x and 2x the truth on a ground log stated 6x (seed=3319; docs/benchmarks.md,
-#: session 32).
-LEVEL_DEVIANCE = 6.63
-LEVEL_STEPS = (2, 1)
-LEVEL_POWERS = 8
 #: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's
 #: spread, the spreads the prior's standard deviations are, and the log's first seconds it is made from (a prior is
 #: of the start's bias, which the walk moves over the log; the one-hour benchmark log's 3 million pairs took 33 CPU s,
@@ -1807,9 +1787,6 @@ class RiEKF(Stepper):
         # the bias priors' narrowing: the passes with narrowed priors, and each earlier pass's gated run at its end
         self._prior_passes, self._lost_runs, self._noise0 = 0, [], self.noise
         self._prior_kept = True  # False once the narrowing failed and the priors were put back
-        # the levels' search (:meth:`_level_restart`): the resolved levels, each pass's deviance by its powers of √3,
-        # the first pass's tested detections (the deviances' scale), the powers run now
-        self._levels: list = [self.noise, {}, None, (0, 0)]
         if self._offset.done():  # one core: estimated already, nothing to overlap
             self._time_offset, self._offset = self._offset.result(), None
             stream = time_offset.shifted(stream, self._time_offset)
@@ -1874,44 +1851,11 @@ class RiEKF(Stepper):
     def advance(self, iv_stop: int):
         """:meth:`Stepper.advance` (:meth:`_advance_stretch`); the first stretch is run again from the start with the
         walk it learned as long as its velocity-bias corrections say the walk is too small (:meth:`_walk_restart`)."""
-        res = self._first_passes(iv_stop)
-        while not self._returned and self._level_restart():
-            res = self._first_passes(iv_stop)
-        self._returned = True
-        return self._widened(res)
-
-    def _first_passes(self, iv_stop: int):
-        """The stretch, and the first stretch again while the walk or the bias priors ask for it."""
         res = self._advance_stretch(iv_stop)
         while not self._returned and (self._walk_restart() or self._prior_restart()):
             res = self._advance_stretch(iv_stop)
-        return res
-
-    def _level_restart(self) -> bool:
-        """Whether the first stretch is run again at other gyro and velocity levels (module docstring, "Levels by
-        the innovation likelihood"): only where a level is a message's stated one more than 3x from the samples'
-        estimate (``NoiseSettings.disputed``); the keys the configuration does not give move by :func:`next_levels`
-        over the passes' deviances; the chosen levels' pass is the one kept (run again when it was not the last)."""
-        base = self._levels[0]
-        free = tuple(base.sources.get(k) != "config" for k in ("gyro", "velocity"))
-        if not base.disputed or not any(free):
-            return False
-        lik = innovation_likelihood(self.state.win_sum[8])
-        if self._levels[2] is None:
-            self._levels[2] = max(lik["tested"], 1)
-        mean = lik["mean"] if lik["mean"] is not None else np.inf
-        self._levels[1].setdefault(self._levels[3], mean * self._levels[2])
-        powers, done = next_levels(self._levels[1], free)
-        if done and powers == self._levels[3]:
-            return False
-        self._levels[3] = powers
-        f = [float(np.sqrt(3.0) ** k) for k in powers]
-        noise = base.scaled({"gyro": f[0], "velocity": f[1]}, by="riekf's innovation likelihood")
-        self.noise = self._noise0 = noise
-        self._walk0, self._passes, self._prior_passes, self._lost_runs, self._prior_kept = 1.0, 1, 0, [], True
-        self.pair_prior = pair_bias_prior(self._recorded, noise)
-        self._setup(self.stream)
-        return True
+        self._returned = True
+        return self._widened(res)
 
     def _walk_restart(self) -> bool:
         """Whether the first stretch is run again (module docstring, "Velocity-bias walk"): when the largest ratio of
@@ -2066,7 +2010,6 @@ class RiEKF(Stepper):
                 "planar": self._planar_record(),
                 "innovation_consistency": innovation_consistency(self.state.win_sum[8]),
                 "likelihood": innovation_likelihood(self.state.win_sum[8]),
-                "levels_by_likelihood": self._levels_record(),
                 "correlation": self._correlation(),
                 **self._recovery(),
             },
@@ -2080,23 +2023,7 @@ class RiEKF(Stepper):
         if self.planar["planar"] or self.planar["held"]:
             self.stats["notes"].append(self._planar_note())
         self.stats["notes"] += innovation_note(self.stats["metadata"]["filter"]["innovation_consistency"])
-        self.stats["notes"] += levels_note(self.stats["metadata"]["filter"]["levels_by_likelihood"])
         self.stats["notes"] += correlation_note(self.stats["metadata"]["filter"]["correlation"])
-
-    def _levels_record(self) -> dict | None:
-        """The levels' search for run.json (:meth:`_level_restart`), None where it did not run: the keys whose
-        stated level the samples dispute, each pass's factors on the resolved gyro and velocity levels and its
-        deviance (on the first pass's tested detections), and the factors chosen."""
-        base, tried, _, powers = self._levels
-        if not tried:
-            return None
-        f = lambda k: float(np.sqrt(3.0) ** k)  # noqa: E731
-        return {
-            "disputed": list(base.disputed),
-            "passes": [{"gyro": f(g), "velocity": f(v), "deviance": round(d, 3)} for (g, v), d in tried.items()],
-            "chosen": {"gyro": f(powers[0]), "velocity": f(powers[1])},
-            "method": LEVELS_METHOD,
-        }
 
     def _correlation(self) -> dict:
         """:func:`correlation_factor` of the pass so far, with the factor each written stretch got and this one's
@@ -2266,59 +2193,6 @@ def innovation_consistency(tally: np.ndarray) -> dict:
         "landmark_covariance_factor": mean_d2 / 3.0 if above else 1.0,
         "method": INNOVATION_METHOD,
     }
-
-
-def next_levels(tried: dict, free: tuple[bool, bool]) -> tuple[tuple[int, int], bool]:
-    """The coordinate search of riekf's gyro and velocity levels by their deviance (module docstring, "Levels by the
-    innovation likelihood"): ``tried`` maps powers of √3 on the resolved levels, ``(gyro, velocity)``, to the deviance
-    of the pass run there; ``free``, whether each key may move. From (0, 0), a step of ``LEVEL_STEPS[0]`` each way on
-    each free key and on both together (one message's levels share an error), moving to the best neighbour while it
-    lowers the deviance by more than ``LEVEL_DEVIANCE``, then the same with the finer step upwards only (louder: near
-    its minimum the deviance is flat to a factor of about 2, and a level below the truth costs riekf far more than one
-    above it). Returns the next powers to run and False, or the chosen powers and True once no untried neighbour is left
-    (replayed from ``tried``: a pure function)."""
-    cur = (0, 0)
-    if cur not in tried:
-        return cur, False
-    for step in LEVEL_STEPS:
-        while True:
-            up = ((step, 0), (0, step), (step, step))  # with both keys together: one message's levels share an error
-            moves = up + tuple((-a, -b) for a, b in up) if step == LEVEL_STEPS[0] else up
-            near = [(cur[0] + a, cur[1] + b) for a, b in moves if (free[0] or not a) and (free[1] or not b)]
-            near = [c for c in near if max(abs(c[0]), abs(c[1])) <= LEVEL_POWERS]
-            for c in near:
-                if c not in tried:
-                    return c, False
-            best = min(near, key=lambda c: tried[c], default=cur)
-            if not tried[best] < tried[cur] - LEVEL_DEVIANCE:
-                break
-            cur = best
-    return cur, True
-
-
-LEVELS_METHOD = (
-    "where a gyro or velocity level is a message's stated one more than 3x from the samples' white-noise estimate, "
-    "the first stretch is run at factors of 3, then sqrt 3 upwards, on the resolved levels, each key and both "
-    "together, "
-    "moving while the innovation deviance (sum of log det S + d², a gated detection's d² at the gate, scaled to the "
-    "first pass's tested detections) falls by more than 6.63 (chi2(1) 99 %); the chosen levels' pass is kept"
-)
-
-
-def levels_note(rec: dict | None) -> list[str]:
-    """The note of levels chosen by the innovation likelihood (:meth:`RiEKF._level_restart`), else []."""
-    if not rec:
-        return []
-    ch = rec["chosen"]
-    if ch["gyro"] == 1.0 and ch["velocity"] == 1.0:
-        what = "kept the resolved levels"
-    else:
-        what = f"took the gyro level times {ch['gyro']:.3g} and the velocity's times {ch['velocity']:.3g}"
-    return [
-        f"riekf: the samples dispute the stated {' and '.join(rec['disputed'])} level; by its innovation likelihood "
-        f"over {len(rec['passes'])} passes it {what} (observer.filter.levels_by_likelihood); noise.gyro and "
-        "noise.velocity in run.yaml set them"
-    ]
 
 
 def innovation_likelihood(tally: np.ndarray) -> dict:
