@@ -1118,6 +1118,9 @@ def update(
         ns[_PB_N] += ns[_ARMED]
         if ns[_ARMED] and ns[_PB_N] <= blind_z2.shape[0]:  # the squared innovations since (_blind_check)
             blind_z2[ns[_PB_N] - 1] = zi[0] * zi[0] + zi[1] * zi[1] + zi[2] * zi[2]
+        if d2 < np.inf:  # the innovation deviance: log det S + d², a gated detection's d² at the gate (likelihood)
+            win_sum[8, 4] += 2.0 * (np.log(s3[0, 0]) + np.log(s3[1, 1]) + np.log(s3[2, 2])) + min(d2, gate)
+            win_sum[8, 5] += 1.0
         if d2 > gate:
             ns[_GATED] += 1
             ns[_TAIL_GATED] += 1
@@ -2049,6 +2052,7 @@ class RiEKF(Stepper):
                 "noise": self.noise.as_dict(),
                 "planar": self._planar_record(),
                 "innovation_consistency": innovation_consistency(self.state.win_sum[8]),
+                "likelihood": innovation_likelihood(self.state.win_sum[8]),
                 "correlation": self._correlation(),
                 **self._recovery(),
             },
@@ -2233,6 +2237,15 @@ def innovation_consistency(tally: np.ndarray) -> dict:
         "landmark_covariance_factor": mean_d2 / 3.0 if above else 1.0,
         "method": INNOVATION_METHOD,
     }
+
+
+def innovation_likelihood(tally: np.ndarray) -> dict:
+    """The run's innovation deviance (−2 log-likelihood of the prediction errors, constants dropped) from ``tally``
+    (row 8 of the state's ``win_sum``): the sum over the tested known-landmark detections of ``log det S + d²``,
+    a gated detection's ``d²`` taken at the gate (``GATE_CHI2``: a level that gates everything pays for it), and
+    their count; the mean per detection compares noise levels on one log (lower: the levels explain it better)."""
+    n = int(tally[5])
+    return {"tested": n, "deviance": float(tally[4]), "mean": float(tally[4] / n) if n else None}
 
 
 def correlation_factor(lag_sums: np.ndarray, n: int, window: float = CORRELATION_WINDOW) -> dict:
