@@ -578,7 +578,8 @@ class BatchSmoother(Stepper):
         held, its levels per riekf pseudo-measurement (:func:`floor_information`), the mean squared whitened
         residual of its tilt and height rows at the solution (``chi2``: about 1 or less when the floor holds) and its
         nested test (``test``, :func:`graph.floor_test`: the solve without it from this solution, ``Δχ²``, its
-        degrees of freedom ``dof`` and ``z = (Δχ² − dof)/√(2 dof)``, what :meth:`solve` decides by)."""
+        detections' part, its degrees of freedom ``dof``, ``z = (Δχ² − dof)/√(2 dof)`` and the detections' part over
+        ``√(2 dof)``: ``rejected`` where both exceed ``FLOOR_Z``, what :meth:`solve` decides by)."""
         from slamobs.pipeline.observers import riekf as rk
         from slamobs.pipeline.smoother.graph import floor_at, floor_terms, floor_test
 
@@ -592,8 +593,10 @@ class BatchSmoother(Stepper):
                 rec["chi2"] = {"tilt": round(float(np.mean(w[:, :2])), 4), "height": round(float(np.mean(w[:, 2])), 4)}
                 c0 = time.process_time()
                 delta, detections, dof = floor_test(problem, sol, self._solved_from(replace(problem, floor=None), sol))
-                z = (delta - dof) / np.sqrt(2.0 * dof) if dof > 0.0 else 0.0
-                z_det = detections / np.sqrt(2.0 * dof) if dof > 0.0 else 0.0
+                ok = bool(np.isfinite(dof) and dof > 0.0)  # no marginals (a singular system): kept, z 0
+                z = (delta - dof) / np.sqrt(2.0 * dof) if ok else 0.0
+                z_det = detections / np.sqrt(2.0 * dof) if ok else 0.0
+                dof = dof if ok else 0.0
                 rec["test"] = {
                     "delta_chi2": round(delta, 3),
                     "detections_delta_chi2": round(detections, 3),
