@@ -17,12 +17,12 @@ from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.simulate import NoiseModel, expected_streams, get_scenario, simulate
 
 
-def _batch(scenario, floor, gyro: float = 4.0) -> tuple[float, float, dict]:
-    """batch given the true noise on 60 s of ``scenario`` (gyro ``gyro`` and wheel velocity 4 times the simulator's
-    default densities at 20 Hz, stereo-like detections at 12 Hz, seed=4), ``noise.floor`` ``floor``: the APE and the
-    height's RMS error (m, SE(3)-aligned to the truth) and run.json's ``smoother.floor``."""
+def _batch(scenario, floor, gyro: float = 4.0, velocity: float = 4.0) -> tuple[float, float, dict]:
+    """batch given the true noise on 60 s of ``scenario`` (gyro ``gyro`` and wheel velocity ``velocity`` times the
+    simulator's default densities at 20 Hz, stereo-like detections at 12 Hz, seed=4), ``noise.floor`` ``floor``: the
+    APE and the height's RMS error (m, SE(3)-aligned to the truth) and run.json's ``smoother.floor``."""
     rate, nm, seed = 20.0, NoiseModel(), 4
-    nm = replace(nm, gyro=gyro * nm.gyro, odom_linear=4 * nm.odom_linear, stereo_pixel=4.0, stereo_focal=1000.0)
+    nm = replace(nm, gyro=gyro * nm.gyro, odom_linear=velocity * nm.odom_linear, stereo_pixel=4.0, stereo_focal=1000.0)
     nm = replace(nm, stereo_baseline=0.5)
     sim = simulate(scenario, noise=nm, duration=60.0, seed=seed, imu_rate=rate, odom_rate=rate, detection_rate=12.0)
     streams = expected_streams(sim)
@@ -66,17 +66,33 @@ def test_on_hills_the_evidence_turns_batch_s_floor_off_and_forced_it_bends_the_t
     assert forced > 1.5 * ape
 
 
-def test_a_floor_its_residuals_reject_is_dropped_and_the_log_solved_as_without_it(monkeypatch):
-    """Where the floor's rows at the solution are above what their σ allows (``FLOOR_CHI2``; the unseen sweep's
-    climbing figure 8 under a gyro too noisy to show the climb, docs/benchmarks.md, session 31) the whole solve runs
-    again without it from the same start: the same trajectory as with the floor switched off. Here the true floor
-    with the bound put at zero: every change the first solve made to the estimator is put back."""
+def test_a_floor_the_data_reject_is_dropped_and_the_log_solved_as_without_it(monkeypatch):
+    """Where imposing the floor raises the other factors' cost by more than its degrees of freedom allow (the nested
+    test, ``FLOOR_Z``) the whole solve runs again without it from the same start: the same trajectory as with the
+    floor switched off. Here the true floor with the bound put far below: every change the first solve made to the
+    estimator is put back."""
     from slamobs.pipeline.smoother import estimator
 
-    monkeypatch.setattr(estimator, "FLOOR_CHI2", 0.0)
+    monkeypatch.setattr(estimator, "FLOOR_Z", -1e9)
     ape, dz, rec = _batch(get_scenario("ground"), "auto")
-    assert rec["planar"] and not rec["held"] and 0.0 < max(rec["dropped"]["chi2"].values()) < 1.0
+    assert rec["planar"] and not rec["held"] and rec["dropped"]["test"]["rejected"]
+    assert 0.0 < max(rec["dropped"]["chi2"].values()) < 1.0
     ape0, dz0, rec0 = _batch(get_scenario("ground"), False)
     assert (ape, dz) == (ape0, dz0) and "dropped" not in rec0
     monkeypatch.undo()
-    assert "dropped" not in _batch(get_scenario("ground"), "auto")[2]
+    rec1 = _batch(get_scenario("ground"), "auto")[2]
+    assert "dropped" not in rec1 and not rec1["test"]["rejected"] and rec1["test"]["z"] < 0.0
+
+
+def test_a_climb_the_gyro_cannot_show_is_rejected_by_the_detections_and_the_floor_dropped():
+    """Over hills under a gyro 30 times the simulator's (the roll and pitch rates at their noise: the evidence says
+    planar) the floor's own rows at the solution it shaped stay within their σ (χ² about 0.1), but imposing it raises
+    the other factors' cost far beyond its effective degrees of freedom: the floor is dropped and batch solves as
+    without it (1.01 m with it held, 0.43 m without)."""
+    hills = get_scenario("ground-hills")
+    ape, _, rec = _batch(hills, "auto", gyro=30.0)
+    assert rec["planar"] and not rec["held"]
+    t = rec["dropped"]["test"]
+    assert t["rejected"] and t["delta_chi2"] > t["dof"] > 0.0 and max(rec["dropped"]["chi2"].values()) < 1.0
+    ape0, *_ = _batch(hills, False, gyro=30.0)
+    assert ape == ape0

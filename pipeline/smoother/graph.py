@@ -261,6 +261,27 @@ def floor_terms(plane: np.ndarray, rot: np.ndarray, pos: np.ndarray) -> tuple[np
     return r, jac
 
 
+def floor_test(problem: Problem, held: Solution, free: Solution) -> tuple[float, float, float]:
+    """The nested test of the floor (``problem.floor``): ``Δχ²``, twice the rise of every other factor's cost from
+    ``free`` (the minimum of ``problem`` without the floor) to ``held`` (with it); the detections' part of it; and
+    the floor's effective degrees of freedom ``tr(H_f Σ)`` at ``held`` (``H_f`` its rows' information, ``Σ`` the
+    poses' marginal covariance with it: per row its share of the pose the data leave to it, a soft prior per keyframe
+    pins less than its 3 rows). Where the floor holds (its rows measurements within their σ), ``Δχ²`` has that mean
+    and at most twice it as variance; a floor the data hold the keyframes off raises it far above."""
+    free_problem = replace(problem, floor=None)
+    no_detections = with_detections(free_problem, np.zeros(0, dtype=np.int64))
+    as_guess = lambda s: Guess(s.rot, s.pos, s.landmarks, s.bias)  # noqa: E731
+    rise = [cost(p, as_guess(held)) - cost(p, as_guess(free)) for p in (free_problem, no_detections)]
+    k = problem.floor.shape[0]
+    pose, _ = covariances(problem, held, np.arange(k))
+    turn = np.zeros((k, 6, 6))
+    turn[:, :3, :3] = turn[:, 3:, 3:] = held.rot
+    body = np.einsum("kji,kjl,klm->kim", turn, pose, turn)  # back to the body twist the rows' Jacobians are in
+    _, jac = floor_terms(floor_at(held.rot, held.pos, problem.anchor), held.rot, held.pos)
+    dof = float(np.sum(np.einsum("kri,kij,krj->kr", jac, body, jac) * problem.floor[:, [0, 0, 1]]))
+    return 2.0 * rise[0], 2.0 * (rise[0] - rise[1]), dof
+
+
 def solve(
     problem: Problem, guess: Guess, *, max_iterations: int = 50, relative_tolerance: float = 1e-5, progress=None
 ) -> Solution:
