@@ -20,11 +20,13 @@ from slamobs.pipeline.observers.riekf import (
     N_FIXED,
     N_SLOTS,
     PLANAR_HEIGHT,
+    PLANAR_RATIO,
     PLANAR_TILT,
     WIN_SUM_ROWS,
     correlation_arrays,
     RiEKF,
     accumulate,
+    floor_decision,
     flush,
     pair_bias_prior,
     planar_evidence,
@@ -698,3 +700,31 @@ def test_the_pairs_bias_start_is_not_used_when_the_motion_noise_does_not_explain
     noisy = simulate("figure8", seed=3, duration=30.0, noise=NoiseModel(gyro=0.5))
     pp = pair_bias_prior(align(expected_streams(noisy)), resolve_noise())
     assert not pp["used"] and pp["chi2"] > 10 * PAIR_PRIOR_CHI2 and "residuals are" in pp["why"], pp
+
+
+def _slow_odometry_evidence(scenario: str) -> dict:
+    """floor_decision on 30 s of a scenario logged with a 200 Hz gyro 30x the default density and a 10 Hz odometry
+    10x the default velocity density (interpolated onto the gyro's stamps), told the true densities."""
+    from slamobs.pipeline.simulate import NoiseModel
+
+    nm = NoiseModel()
+    nm = replace(nm, gyro=30.0 * nm.gyro, odom_linear=10.0 * nm.odom_linear / np.sqrt(50.0) * np.sqrt(10.0))
+    sim = simulate(get_scenario(scenario), noise=nm, duration=30.0, seed=2101, imu_rate=200.0, odom_rate=10.0)
+    stream = align(expected_streams(sim), keep_directions=False)
+    noise = resolve_noise(NoiseConfig(gyro=nm.gyro / np.sqrt(200.0), velocity=nm.odom_linear / np.sqrt(10.0)))
+    t = stream.seconds(stream.vel_t_ns)
+    return floor_decision(t, stream.omega, stream.velocity, noise, stream.velocity_period_ns * 1e-9)
+
+
+def test_the_floor_evidence_reads_a_slow_odometry_at_its_own_rate():
+    """A 10 Hz odometry interpolated onto a 200 Hz gyro's stamps: every sample is new, but its noise is per
+    odometry message. Read at the gyro's interval (and without the share of its variance interpolated samples
+    keep), the climbing figure 8's vertical velocity was 0.59 of its noise and the floor was held (the roll and
+    pitch rates are noise beside this gyro's). At the odometry's own 0.1 s it is 3.2, not planar; the flat ground
+    under the same sensors stays planar (1.1: noise)."""
+    rec = _slow_odometry_evidence("figure8")
+    assert rec["intervals_s"] == [pytest.approx(0.005, rel=0.01), pytest.approx(0.1, rel=0.01)]
+    assert max(rec["ratios"][:2]) <= PLANAR_RATIO and rec["ratios"][2] > 2.0 * PLANAR_RATIO
+    assert not rec["planar"] and not rec["held"]
+    rec = _slow_odometry_evidence("ground")
+    assert rec["planar"] and rec["held"] and 0.7 < rec["ratios"][2] <= PLANAR_RATIO

@@ -1864,7 +1864,7 @@ class RiEKF(Stepper):
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
-        self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, nz)
+        self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, nz, stream.velocity_period_ns * 1e-9)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
         self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(stream, self.vel_t, nz.held)
@@ -2291,23 +2291,23 @@ def innovation_note(rec: dict) -> list[str]:
     ]
 
 
-def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise) -> dict:
+def planar_evidence(
+    vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise, velocity_period: float = 0.0
+) -> dict:
     """Whether the body moves in a plane, from the log (module docstring, "Planar motion"): the standard deviation of
-    the roll and pitch rates and of the vertical velocity over their noise per sample (the density over the square
-    root of the mean interval between new values: a held command's noise is per command); planar when none exceeds
-    ``PLANAR_RATIO`` (what they measure is noise) and they are not all exactly zero, or where the roll or pitch rate
-    exceeds it, the angle it integrates to spreads no more than ``PLANAR_TILT`` (:func:`tilt_spread`). That angle is
-    computed only where it decides, ``tilt_rad`` null for a rate it was not needed for."""
+    the roll and pitch rates and of the vertical velocity over their noise per sample, each at its own stream's
+    interval (:func:`noise_per_sample`); planar when none exceeds ``PLANAR_RATIO`` (what they measure is noise) and
+    they are not all exactly zero, or where the roll or pitch rate exceeds it, the angle it integrates to spreads no
+    more than ``PLANAR_TILT`` (:func:`tilt_spread`). That angle is computed only where it decides, ``tilt_rad`` null
+    for a rate it was not needed for. ``velocity_period``: the linear velocity's own median interval (s) when it is
+    interpolated onto the time base from a topic of its own (``AlignedStream.velocity_period_ns``), else 0.
+    ``intervals_s``: the gyro's and the velocity's interval the noise was taken at; ``interpolated``: the share of
+    the velocity's noise variance its interpolated samples keep (1 when not interpolated)."""
     if vel_t.shape[0] < 3:
         return {"planar": False, "ratios": None}
     span = float(vel_t[-1] - vel_t[0])
-
-    def per_sample(density, x: np.ndarray) -> np.ndarray:  # over the time between new values (held samples)
-        new = np.diff(x, axis=0) != 0.0  # the columns or'ed: np.any(axis=1) over rows of 3 took 3x as long
-        dt = span / max(1, int(np.count_nonzero(new[:, 0] | new[:, 1] | new[:, 2])))
-        return np.broadcast_to(np.asarray(density, float), (3,)) / math.sqrt(max(dt, 1e-9))
-
-    sig_om, sig_v = per_sample(noise.gyro, omega), per_sample(noise.velocity, velocity)
+    sig_om, dt_om, _ = noise_per_sample(noise.gyro, omega, span)
+    sig_v, dt_v, kept = noise_per_sample(noise.velocity, velocity, span, velocity_period)
     spread = (np.std(omega[:, 0]), np.std(omega[:, 1]), np.std(velocity[:, 2]))
     ratios = [
         float(x / sg) if sg > 0 else (0.0 if x == 0 else np.inf) for x, sg in zip(spread, (*sig_om[:2], sig_v[2]))
@@ -2322,14 +2322,39 @@ def planar_evidence(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, 
         if planar and not ratios[k] <= PLANAR_RATIO:
             angle = tilt_spread(vel_t, omega[:, k])
             tilt[k], planar = round(angle, 4), bool(angle <= PLANAR_TILT)
-    return {"planar": planar, "ratios": [round(r, 3) for r in ratios], "tilt_rad": tilt}
+    return {
+        "planar": planar,
+        "ratios": [round(r, 3) for r in ratios],
+        "tilt_rad": tilt,
+        "intervals_s": [round(dt_om, 6), round(dt_v, 6)],
+        "interpolated": round(kept, 4),
+    }
 
 
-def floor_decision(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise) -> dict:
+def noise_per_sample(density, x: np.ndarray, span: float, period: float = 0.0) -> tuple[np.ndarray, float, float]:
+    """A stream's white noise per sample as its samples ``x`` (N, 3) over ``span`` seconds show it: the density over
+    the square root of its own interval, the longer of the mean interval between new values (a held command's noise
+    is per command) and ``period`` (a stream's own interval when it is interpolated onto a faster time base, whose
+    every sample is new); the standard deviation there times the square root of the share of the variance linearly
+    interpolated samples keep, ``2/3 + 1/(3k²)`` for ``k`` time-base samples per own sample (1 at ``k = 1``, 2/3
+    for many: between two samples of independent noise the interpolated value's variance is ``(1-a)² + a²`` of
+    theirs, averaged over the phases ``a``). Returns the (3,) standard deviations, the interval and that share."""
+    new = np.diff(x, axis=0) != 0.0  # the columns or'ed: np.any(axis=1) over rows of 3 took 3x as long
+    between = span / max(1, int(np.count_nonzero(new[:, 0] | new[:, 1] | new[:, 2])))
+    dt = max(between, float(period))
+    k = dt / max(between, 1e-12)
+    kept = 2.0 / 3.0 + 1.0 / (3.0 * k * k)
+    sigma = np.broadcast_to(np.asarray(density, float), (3,)) / math.sqrt(max(dt, 1e-9)) * math.sqrt(kept)
+    return sigma, dt, kept
+
+
+def floor_decision(
+    vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, noise, velocity_period: float = 0.0
+) -> dict:
     """Whether the floor is held (module docstring, "Planar motion"; riekf's and batch's): the evidence of
     :func:`planar_evidence` with ``held`` (``noise.floor`` true, or ``auto`` and planar) and ``floor`` (the
     setting), run.json's ``planar`` record."""
-    rec = planar_evidence(vel_t, omega, velocity, noise)
+    rec = planar_evidence(vel_t, omega, velocity, noise, velocity_period)
     rec["held"] = noise.floor is True or (noise.floor == "auto" and rec["planar"])
     rec["floor"] = noise.floor
     return rec

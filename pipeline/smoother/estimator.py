@@ -272,7 +272,9 @@ class BatchSmoother(Stepper):
         from slamobs.pipeline.observers.riekf import floor_decision
 
         #: the floor held or not, riekf's decision on the same samples and setting (run.json ``smoother.floor``)
-        self.floor = floor_decision(self.vel_t, self.stream.omega, self.stream.velocity, self.noise)
+        self.floor = floor_decision(
+            self.vel_t, self.stream.omega, self.stream.velocity, self.noise, self.stream.velocity_period_ns * 1e-9
+        )
         # the shared state the stretch driver reads: its clocks, and the last pose written
         self.state = KernelState(1, np.eye(3), np.zeros(3), np.zeros(3), np.zeros(3))
 
