@@ -551,7 +551,7 @@ def test_riekf_narrows_its_bias_priors_when_its_last_detections_all_fail_the_gat
     assert pri["narrowed_passes"] == 3 and not pri["kept"] and pri["factor"] == 1.0, pri
     assert len(pri["gated_in_a_row_before"]) == 4 and min(pri["gated_in_a_row_before"]) >= 20
     assert pri["gated_in_a_row_at_end"] >= 20 and pri["velocity_bias"] == 0.2
-    assert sum("narrowed up to 0.0156x the runs ended so too" in n for n in res.stats["notes"]) == 1
+    assert sum("narrowed up to 0.0156x the runs held such a run too" in n for n in res.stats["notes"]) == 1
     fp = pri["from_pairs"]  # what the last pass started with, the priors put back (factor 1)
     assert pri["start_sigma"] == (fp["sigma"] if fp["used"] else [0.2] * 6), pri
     given = resolve_noise(NoiseConfig(detection=SIGMA, detection_per_m=0.0, gyro_bias=0.2))
@@ -562,6 +562,28 @@ def test_riekf_narrows_its_bias_priors_when_its_last_detections_all_fail_the_gat
     first = RIEKF.run(moved, {}, ObserverOptions(noise=noise()))
     assert first.stats["metadata"]["filter"]["bias_priors"]["narrowed_passes"] == 0
     np.testing.assert_array_equal(res.position, first.position)  # the priors as they were: the same trajectory
+
+
+def test_riekf_takes_a_lost_track_before_the_end_and_half_failing_beside_passing_ones_as_lost(log):
+    """A track lost before the log's end counts, and a frame where as many detections fail as pass does not end the
+    run: 25 frames mid-log with half their detections (rounded up) moved 3 m while the others pass (with two tags
+    back after a blind stretch the state may fit one and not the other; TagSLAM test_22 at a gyro level of 0.034-0.1
+    went 0.7-2.8 m off so, converged, the priors never narrowed) make riekf narrow its bias priors, with a note. The log
+    as simulated: no narrowing."""
+    _, stream = log
+    counts = np.diff(stream.det_offsets)
+    y = stream.det_y.copy()
+    for f in range(counts.size // 2, counts.size // 2 + 25):  # 25 frames in a row mid-log: half of each moved
+        a = stream.det_offsets[f]
+        y[a : a + max(counts[f] // 2, 1)] += 3.0
+    res = RIEKF.run(replace(stream, det_y=y), {}, ObserverOptions(noise=noise()))
+    pri = res.stats["metadata"]["filter"]["bias_priors"]
+    assert pri["narrowed_passes"] >= 1 and pri["gated_in_a_row_before"][0] >= 20, pri
+    assert pri["gated_in_a_row_at_end"] < 20, pri
+    assert sum("bias priors narrowed" in n for n in res.stats["notes"]) == 1, res.stats["notes"]
+    plain = RIEKF.run(stream, {}, ObserverOptions(noise=noise()))
+    p = plain.stats["metadata"]["filter"]["bias_priors"]
+    assert p["narrowed_passes"] == 0 and p["gated_in_a_row_longest"] < 20, p
 
 
 def test_riekf_says_so_when_its_last_detections_fail_the_gate_too_few_to_narrow_its_priors(log):
