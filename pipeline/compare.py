@@ -146,9 +146,10 @@ NO_MAP_TRUTH = f"landmark_rmse_m is blank: no landmark truth; {MAP_TRUTH_HINT}"
 
 def caveats(summaries: dict[str, RunSummary]) -> list[str]:
     """Per observer, what its own status says against the table's ``ok`` (:meth:`.run.RunSummary.status_caveats`:
-    riekf lost, or its last detections failing the gate) and what its report says beside its headline numbers
-    (:func:`.evaluation.markdown.headline_caveats`: no or a coarse convergence, an upside-down alignment, a truth
-    turned against the estimate), so a blank or 180-degree cell is explained; then, once for the log, the body frame
+    riekf lost, or its last detections failing the gate, an observer without a gate likely lost) and what its report
+    says beside its headline numbers (:func:`.evaluation.markdown.headline_caveats`: no or a coarse convergence, or
+    one the run's own status contradicts, an upside-down alignment, a truth turned against the estimate), so a blank
+    or 180-degree cell is explained; then, once for the log, the body frame
     the runs took and the base frame TF places against it where a truth looked turned
     (:func:`.evaluation.sections.body_frame_notes`: the key that mends the runs, where the turned-truth caveats offer
     only frames.truth_rotation, for the evaluation, one angle per estimator)."""

@@ -77,15 +77,13 @@ class RunSummary:
     input_warnings: list[str] = field(default_factory=list)
 
     def status_caveats(self) -> list[str]:
-        """What the estimator's own status says against the run's ``ok`` (riekf's ``observer.filter.status``:
-        :func:`.observers.riekf.status_caveat`), for the tables that show one."""
-        filt = (self.metadata.get("observer") or {}).get("filter")
-        if not filt:  # riekf's record: only its runs have one (and then its module is loaded)
-            return []
-        from slamobs.pipeline.observers.riekf import status_caveat
+        """What the estimator's own status says against the run's ``ok`` (:func:`.evaluation.report.own_status`:
+        riekf's ``observer.filter.status`` lost or gated_at_end, an observer without a gate likely lost), for the
+        tables that show one."""
+        from slamobs.pipeline.evaluation.report import own_status
 
-        said = status_caveat(filt)
-        return [said] if said else []
+        own = own_status(self.metadata)
+        return [f"its own status is {own['status']} (run.json {own['field']}): {own['said']}"] if own else []
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""

@@ -477,3 +477,45 @@ def test_a_body_taken_from_an_odometrys_sensor_frame_is_named_without_a_turned_t
 
     res = invoke("run", SAMPLES / "figure8.mcap", "-o", tmp_path / "fine", "--config", sim["config"])
     assert res.exit_code == 0 and "as the body frame" not in res.output, res.output
+
+
+def test_a_converged_figure_says_beside_it_that_the_runs_own_status_is_off(tmp_path):
+    """A figure 8 (seed=3335) whose last 10 detections are 3 m off: riekf's last detections fail its gate, its own
+    status is ``gated_at_end``, while its error against the truth settles at once (the last 10 detections are under
+    the report's window): the report said "converged 0.00 s after start" and nothing of the status (session 32).
+    Now report.json's ``convergence.own_status`` holds it (a field), the converged line and report.md say the
+    verdict is the truth's only with the status beside it, and compare's notes carry that line."""
+    from dataclasses import replace
+
+    from slamobs.pipeline.compare import caveats
+    from slamobs.pipeline.evaluation.report import validate_report
+    from slamobs.pipeline.observers.riekf import STATUSES
+    from slamobs.pipeline.run import RunSummary
+    from slamobs.pipeline.simulate import NoiseModel
+
+    sim = simulate("figure8", seed=3335, duration=40.0, noise=NoiseModel(detection_base=0.002, detection_per_m=0.0))
+    xyz = sim.detections.xyz.copy()
+    xyz[-10:] += 3.0
+    log = write_log(replace(sim, detections=replace(sim.detections, xyz=xyz)), tmp_path / "off.mcap")
+    config = tmp_path / "run.yaml"
+    config.write_text("evaluation:\n  plots: false\nnoise:\n  detection: 0.002\n  detection_per_m: 0.0\n")
+    res = invoke("run", log, "--observer", "riekf", "-o", tmp_path / "out", "--config", config)
+    assert res.exit_code == 0, res.output
+    meta = json.loads((tmp_path / "out" / "run.json").read_text())
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    validate_report(report)
+    conv = report["convergence"]
+    assert meta["observer"]["filter"]["status"] == "gated_at_end", meta["observer"]["filter"]
+    assert conv["t_since_start_s"] is not None, conv  # the truth's verdict stands: converged
+    assert conv["own_status"] == {
+        "status": "gated_at_end",
+        "field": "observer.filter.status",
+        "said": STATUSES["gated_at_end"],
+    }
+    said = "by the truth only (its own status is gated_at_end in run.json observer.filter.status): "
+    (line,) = [x for x in res.output.splitlines() if x.startswith("converged ")]
+    assert said in line, line
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert f"Convergence: {said}" in md and "The run's own record: its own status is gated_at_end" in md, md
+    notes = caveats({"riekf": RunSummary(tmp_path / "out", meta, {}, report=report)})
+    assert [n for n in notes if n.startswith("riekf: convergence: ") and said in n], notes

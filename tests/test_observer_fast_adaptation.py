@@ -225,6 +225,10 @@ def test_a_lost_estimate_is_noted_from_landmarks_seen_again(tmp_path, lost):
     assert (check["ratio"] > 3.0) == lost, check
     assert bool(said) == lost, meta["notes"]
     assert (meta["observer"]["velocity_bias"]["share"] > 0.3) == lost, meta["observer"]["velocity_bias"]
+    # beside the report's convergence verdict, the run's own (session 32), from the same fields as the warning
+    own = report["convergence"]["own_status"]
+    assert (own is not None and (own["status"], own["field"]) == ("likely_lost", "observer.resightings")) == lost, own
+    assert own is None or said[0].endswith(own["said"]), (own, said)
 
 
 def test_a_lost_estimate_is_noted_without_landmarks_seen_again(tmp_path):
@@ -259,6 +263,16 @@ def test_a_lost_estimate_is_noted_without_landmarks_seen_again(tmp_path):
     assert len(said) == 1 and "its velocity bias estimate wanders by" in said[0], meta["notes"]
     assert meta["observer"]["velocity_bias"]["share"] > 0.3, meta["observer"]["velocity_bias"]
     assert [n for n in report["notes"] if n in said] == said
+    # the run's own status beside the convergence verdict (session 32), and a batch's or compare's table's ``ok``
+    # with it (before: a batch counted no warning for it)
+    from slamobs.pipeline.run import RunSummary
+
+    own = report["convergence"]["own_status"]
+    assert own["status"] == "likely_lost" and own["field"] == "observer.velocity_bias", own
+    assert RunSummary(tmp_path / "out", meta, {}).status_caveats() == [
+        f"its own status is likely_lost (run.json observer.velocity_bias): {own['said']}"
+    ]
+    assert said[0].endswith(own["said"]), (own, said)
 
 
 def test_a_slow_vehicle_whose_constant_velocity_bias_is_learned_is_not_called_lost(tmp_path, monkeypatch):

@@ -33,30 +33,48 @@ def convergence_definition(conv: dict[str, Any]) -> str:
 
 def convergence_line(conv: dict[str, Any]) -> str | None:
     """The convergence figure for a one-line summary: what stays within the band is the error *level* (a running
-    median), not every error, which may still exceed the band now and then."""
+    median), not every error, which may still exceed the band now and then. A converged figure leads with what
+    qualifies it: ``coarse`` (its level a sizeable share of the motion) and the run's own status where that says
+    the estimate is off (``own_status``: :func:`.report.own_status`); a verdict of no gets the latter after it."""
     if not conv:
         return None
+    own = conv.get("own_status")
     if conv.get("t_since_start_s") is None:
-        return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")")
+        said = f"; {own_words(own)}" if own else ""
+        return "no: " + _not_converged(conv).removeprefix("not converged (").removesuffix(")") + said
     band = (conv.get("tail_frame") or conv)["band_m"]
     frame = f" in the frame of its last {round(100 * conv['tail_fraction'])} %" if conv.get("tail_frame") else ""
     return (
-        f"{conv['t_since_start_s']:.2f} s after start (median position error{frame} over {conv['window_s']:.3g} s "
-        f"within {band:.3g} m from then on{_tail_frame(conv)}{_coarse(conv)})"
+        f"{_qualified(conv)}{conv['t_since_start_s']:.2f} s after start (median position error{frame} over "
+        f"{conv['window_s']:.3g} s within {band:.3g} m from then on{_tail_frame(conv)}{_coarse(conv)})"
     )
+
+
+def _qualified(conv: dict[str, Any]) -> str:
+    """What a converged figure leads with: ``coarse``, and "by the truth only" with the run's own status where that
+    says the estimate is off (``own_status``)."""
+    qualified = ["coarse"] if conv.get("coarse") else []
+    qualified += [f"by the truth only ({own_words(own)})"] if (own := conv.get("own_status")) else []
+    return ", ".join(qualified) + ": " if qualified else ""
+
+
+def own_words(own: dict[str, str]) -> str:
+    """The run's own status (report.json ``convergence.own_status``) in a few words: the status and its field."""
+    status = "likely lost" if own["status"] == "likely_lost" else own["status"]
+    return f"its own status is {status} in run.json {own['field']}"
 
 
 def headline_caveats(report: dict[str, Any]) -> list[str]:
     """What a table of headline numbers (``slamobs compare``) must say beside them from this report: no convergence
-    time and why, a coarse one, the report's note of an alignment that tilts a run with a gravity axis (upside
-    down: its rotation APE is meaningless) and its note of a truth recorded in a body frame turned against the
-    estimate's (a rotation APE of 160-179 deg beside centimetres on TagSLAM test_21, with the key that removes it, or
-    with the camera's extrinsic named instead)."""
+    time and why, a coarse one or one the run's own status contradicts (``own_status``), the report's note of an
+    alignment that tilts a run with a gravity axis (upside down: its rotation APE is meaningless) and its note of a
+    truth recorded in a body frame turned against the estimate's (a rotation APE of 160-179 deg beside centimetres on
+    TagSLAM test_21, with the key that removes it, or with the camera's extrinsic named instead)."""
     from slamobs.pipeline.evaluation.sections import tilt_note, truth_frame_words
 
     conv, ape = report.get("convergence") or {}, report.get("ape") or {}
     out = []
-    if conv and (conv.get("t_since_start_s") is None or conv.get("coarse")):
+    if conv and (conv.get("t_since_start_s") is None or conv.get("coarse") or conv.get("own_status")):
         out.append(f"convergence: {convergence_line(conv)}")
     # the notes' words again, from the flags their sections set (ape.gravity_tilt_deg, ape.truth_frame_turn): a
     # reworded note cannot drop its caveat
@@ -148,11 +166,13 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     lines = ["## Absolute pose error (after alignment)", ""]
     lines += _stats_table([("translation [m]", ape["translation_m"]), ("rotation [deg]", ape["rotation_deg"])])
     conv_txt = (
-        f"{conv['t_since_start_s']:.3f} s after the estimate start{_tail_frame(conv)}{_coarse(conv)}"
+        f"{_qualified(conv)}{conv['t_since_start_s']:.3f} s after the estimate start{_tail_frame(conv)}{_coarse(conv)}"
         if conv["t_ns"] is not None
         else _not_converged(conv)
     )
     lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
+    if own := conv.get("own_status"):  # checked against truth above; the run's own record here
+        lines += [f"The run's own record: {own_words(own)}: {own['said']}.", ""]
     lines += [line for hint in report.get("hints") or [] for line in (f"Hint: {hint}.", "")]
     if report["evo"].get("ape"):
         lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]

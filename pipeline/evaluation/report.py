@@ -353,12 +353,41 @@ def run_hints(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
     return [] if hint is None else [hint]
 
 
+def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
+    """What the run's own record (run.json ``metadata``) says of its estimate where that is off, whatever the truth
+    says: riekf's ``observer.filter.status`` ``lost`` or ``gated_at_end``, an observer without a gate likely lost
+    (``observer.resightings`` or ``observer.velocity_bias`` over :func:`.observers.base.lost_note`'s bounds, the same
+    rule as its warning); None otherwise. ``status``, the run.json ``field`` it came from, and what it ``said``. The
+    one place where the report's convergence verdict meets the run's own status (report.json
+    ``convergence.own_status``, the converged line, compare's and a batch's notes)."""
+    from slamobs.pipeline.observers.base import lost_note
+
+    observer = metadata.get("observer") or {}
+    if filt := observer.get("filter"):  # riekf's record: only its runs have one (and then its module is loaded)
+        from slamobs.pipeline.observers.riekf import STATUSES, status_caveat
+
+        if not status_caveat(filt):  # riekf's own rule of which status says the estimate is off
+            return None
+        said = filt.get("status_checked") or STATUSES[filt["status"]]  # a run.json from before status_checked
+        return {"status": filt["status"], "field": "observer.filter.status", "said": said}
+    name = observer.get("name") or "observer"
+    for key, note in (
+        ("resightings", lost_note(name, observer.get("resightings"))),
+        ("velocity_bias", lost_note(name, None, observer.get("velocity_bias"))),
+    ):
+        if note:
+            said = note[0].removeprefix(f"warning: {name}: its estimate is likely lost: ")
+            return {"status": "likely_lost", "field": f"observer.{key}", "said": said}
+    return None
+
+
 def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict[str, Any]) -> None:
     """What the run, not the comparison with the truth, tells the report's reader: the noise levels riekf and
     batch used and why (the run's ``noise:`` notes), what the estimator said of its own run (its notes,
     ``<estimator>: ...``: e.g. batch's evidence-scaled levels and the detections' correlation it weighed, a
     doubtful first solution, riekf's recoveries), the velocity gaps that split the run into segments, and the
-    time window it kept, and what to try next (``hints``: :func:`run_hints`); a note of the truth's body frame
+    time window it kept, what the run's own status says beside the convergence (``convergence.own_status``:
+    :func:`own_status`), and what to try next (``hints``: :func:`run_hints`); a note of the truth's body frame
     turned reads as the camera's when the run's notes name the camera's extrinsic
     (:func:`.sections.camera_named_notes`). The same whether the report is made by ``slamobs run`` or again by
     ``slamobs report``."""
@@ -381,6 +410,8 @@ def add_run_context(report: dict[str, Any], run_notes: list[str], metadata: dict
         report["segments"] = segments
     if metadata.get("time_window"):
         report["time_window"] = metadata["time_window"]
+    if report.get("convergence"):  # the truth's verdict with the run's own beside it
+        report["convergence"]["own_status"] = own_status(metadata)
     report["hints"] = run_hints(report, metadata)
 
 
