@@ -171,17 +171,11 @@ def _sensor_noise(log: Path, config, err, as_json: bool) -> None:
 
 def _stated_line(st: dict, unit: str, key: str) -> str:
     """What a stream's messages state of its noise (``noise.sensor_levels``' ``stated``) and whether a run uses it."""
-    from slamobs.pipeline.noise import STATED_BELOW, format_level
+    from slamobs.pipeline.noise import format_level
 
     head = f"its messages state {st['topic']} covariance ({st['rate']})"
     if st["value"] is not None:
         head += f" = {format_level(st['value'], 4, False)} {unit}"
-    if st["used"] and st.get("below") is not None:
-        return (
-            f"{head}: {st['below']:.3g}x below the level above, its own samples': riekf and batch would still use "
-            f"it in place of that level (taken from {STATED_BELOW:g}x the samples' on; noise.{key} in run.yaml "
-            "sets another)"
-        )
     if st["used"] and st.get("above") is not None:
         return (
             f"{head}: {st['above']:.3g}x above the level above, its own samples': riekf and batch would use it in "
