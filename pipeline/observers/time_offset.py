@@ -236,16 +236,26 @@ class Consistency:
         self.poses = self._poses(bias)
         # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
         # the samples the pairs read there only)
-        base = self.residuals(0.0)[0]
-        t_s = self.poses[0]
-        at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
-        self.keep = keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))  # the samples the pairs read
-        self.jac = np.empty((base.shape[0], 3, 6))
-        for c, poses in enumerate(self._moved_gyro_poses(bias, keep)):
-            self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
-        for c, poses in enumerate(self._moved_velocity_poses(bias, keep), 3):
-            self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
+        self.keep = self.read_at(0.0)  # the samples the pairs read
+        self.jac = self.bias_jacobian(0.0)
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
+
+    def read_at(self, shift: float) -> np.ndarray:
+        """The samples the pairs read at the detection shift ``shift`` (each detection's sample before)."""
+        t_s = self.poses[0]
+        at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])] + shift, side="right") - 1
+        return np.unique(np.clip(at, 0, t_s.shape[0] - 1))
+
+    def bias_jacobian(self, shift: float) -> np.ndarray:
+        """The pairs' residuals' Jacobian (pairs, 3, 6) in the odometry's bias at the detection shift ``shift``
+        (numerical, from the poses of the samples the pairs read there only)."""
+        keep, base = (self.keep if shift == 0.0 else self.read_at(shift)), self.residuals(shift)[0]
+        jac = np.empty((base.shape[0], 3, 6))
+        for c, poses in enumerate(self._moved_gyro_poses(self.bias, keep)):
+            jac[:, :, c] = (self.residuals(shift, poses)[0] - base) / BIAS_STEP
+        for c, poses in enumerate(self._moved_velocity_poses(self.bias, keep), 3):
+            jac[:, :, c] = (self.residuals(shift, poses)[0] - base) / BIAS_STEP
+        return jac
 
     def _poses(self, bias: np.ndarray):
         """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for the Jacobian's
@@ -759,7 +769,7 @@ def _velocity_displacements(c: Consistency, shift: float = 0.0) -> np.ndarray:
     when that axis's velocity is doubled (the displacement it contributes between the two detections, in the first
     one's body frame), so that scaling the axes by ``g`` moves the residuals by ``-Σ_j (g_j - 1) D[:, :, j]`` (the
     rotations do not depend on the velocity: the relation is exact)."""
-    (t_s, _, _, omega, vel), keep = c.poses, c.keep
+    (t_s, _, _, omega, vel), keep = c.poses, (c.keep if shift == 0.0 else c.read_at(shift))
     omega_steps, vel_steps, dt = c._steps
     rs, ps = integrate_body_twists_at_columns(np.eye(3), np.zeros(3), omega_steps, vel_steps, 2.0 * vel_steps, dt, keep)
     base = c.residuals(shift)[0]
@@ -797,7 +807,8 @@ def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
     base = c.residuals(shift)[0]
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
-    a = np.concatenate([-d[:, :, moved], c.jac], axis=2)  # (pairs, 3, unknowns)
+    jac = c.jac if shift == 0.0 else c.bias_jacobian(shift)
+    a = np.concatenate([-d[:, :, moved], jac], axis=2)  # (pairs, 3, unknowns)
     x, sigma, _, keep, ata = _trimmed_fit(base, a)
     inv = np.linalg.inv(ata)
     inflation = np.diag(inv) * np.diag(ata)
