@@ -350,6 +350,11 @@ class AlignedStream:
     #: since the samples interpolated onto the time base show less of it (0.015 for 0.85 on a generated figure 8).
     #: The detection pairs' velocity-scale check takes the dilution it causes off (``time_offset.velocity_scale``).
     velocity_density: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    #: Its white level per axis where that differs from ``velocity_density``: the sample pairs' level of an axis whose
+    #: samples carry motion the rate does not resolve (``noise_estimation.FOLDED_SHARE``; the run sets
+    #: ``velocity_density`` to the samples' own level there, which the axis's own check needs); zeros: as
+    #: ``velocity_density``. The velocity-scale check pools the axes' levels from it.
+    velocity_white_density: np.ndarray = field(default_factory=lambda: np.zeros(3))
     #: The IMU's accelerometer (its specific force in the body frame) as means over ``ACCEL_BLOCK_S`` blocks of the
     #: time base: ``(t0_ns, (B, 3) means)``, block ``k`` the samples of :func:`accel_block_index` ``k`` (NaN where it
     #: has none), for the velocity's own scale (``observers.accel_scale``); None without an accelerometer on the
@@ -2132,6 +2137,7 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         velocity_gaps=aligned.velocity_gaps,
         velocity_period_ns=aligned.velocity_period_ns,
         velocity_density=aligned.velocity_density,
+        velocity_white_density=aligned.velocity_white_density,
         accel_blocks=aligned.accel_blocks,
     )
 

@@ -381,8 +381,10 @@ def prepare_log(
     aligned = windowed(aligned, window, log)
     if velocity_noise is not None:  # for the detection pairs' velocity-scale check (time_offset.velocity_scale)
         # the samples' own level where an axis took its pairs' (the motion they miss is in the pairs' regressor)
+        # and the white level (the pairs' there) apart, which the check pools over the axes
         level = velocity_noise.value if velocity_noise.sampled is None else velocity_noise.sampled
-        aligned = replace(aligned, velocity_density=np.resize(np.asarray(level, float), 3))
+        level, white = np.resize(np.asarray(level, float), 3), np.resize(np.asarray(velocity_noise.value, float), 3)
+        aligned = replace(aligned, velocity_density=level, velocity_white_density=white)
     timings["align_s"] = time.perf_counter() - t
     kept = LogStreams(
         path=streams.path,

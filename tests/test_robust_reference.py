@@ -995,10 +995,12 @@ def test_a_very_noisy_velocity_is_not_named_as_scaled_and_a_real_scale_still_is(
     noisy = time_offset.estimate(stream_of(300.0, 1.0))
     assert time_offset.note("riekf", noisy) == []
     assert max(noisy["velocity_scale"]["dilution"]) > time_offset.MAX_SCALE_DILUTION
-    scaled = time_offset.estimate(stream_of(100.0, 2.0))  # as fitted 1.33 (x): inside the band, and not named
+    # the dilution taken off is an upper bound (the level is), so an axis is named only where its scale as fitted is
+    # off too: at x100 a true 2x is fitted 1.50 (read 2.18) and left unsaid, a true 3x fitted 2.24, read 3.27, named
+    scaled = time_offset.estimate(stream_of(100.0, 3.0))
     said = [n for n in time_offset.note("riekf", scaled) if "the detections say the body moved" in n]
     assert len(said) == 1 and "along x" in said[0], said
-    assert scaled["velocity_scale"]["scale"][0] == pytest.approx(2.0, abs=0.25)
+    assert scaled["velocity_scale"]["scale"][0] == pytest.approx(3.0, abs=0.4)
 
 
 def test_one_axis_level_of_unresolved_motion_does_not_scale_the_others():
@@ -1189,3 +1191,57 @@ def test_an_odometry_twist_beside_the_body_that_no_tf_gives_is_named_as_a_lever_
         assert len(said) == 1 and "as the velocity of a point (" in said[0] and "a lever arm no TF gives" in said[0]
         assert "extrinsic off by the opposite translation" in said[0], said
     assert not time_offset.misread(offset)  # the estimate is whole, on another point: landmark jumps still split
+
+
+def _walker(scale: float):
+    """A walker's figure 8 (``figure8-wide``'s landmarks, 8 x 4 m, 1.5 m high, heading along the path) with a 1.8 Hz
+    step bob of 4 cm, its odometry's twist divided by ``scale`` (the detections then say ``scale`` x as far)."""
+    from slamobs.pipeline.simulate.scenarios import Trajectory, get_scenario, rot_z
+
+    w, a, fb = 2 * np.pi / 60.0, 8.0, 2 * np.pi * 1.8
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        th = w * t
+        xd, xdd = a * w * np.cos(th), -a * w * w * np.sin(th)
+        yd, ydd = a * w * np.cos(2 * th), -2 * a * w * w * np.sin(2 * th)
+        z, zd, zdd = 1.5 + 0.04 * np.sin(fb * t), 0.04 * fb * np.cos(fb * t), -0.04 * fb * fb * np.sin(fb * t)
+        rot = rot_z(np.arctan2(yd, xd))
+        yaw_rate = (xd * ydd - yd * xdd) / (xd * xd + yd * yd)
+        v = np.einsum("nji,nj->ni", rot, np.stack([xd, yd, zd], -1)) / scale
+        pos = np.stack([a * np.sin(th), a / 2 * np.sin(2 * th), z], -1)
+        omega = np.stack([np.zeros_like(t), np.zeros_like(t), yaw_rate], -1)
+        return Trajectory(t, rot, pos, omega, v, np.stack([xdd, ydd, zdd], -1))
+
+    return replace(get_scenario("figure8-wide"), name="walker", trajectory=trajectory)
+
+
+def test_a_slow_hand_held_odometrys_velocity_scale_is_named_and_its_twin_as_recorded_is_not(tmp_path):
+    # a hand-held rig's 4 Hz twist (benchmarks/handheld_logs.py): its vertical samples' level is the step bob the rate
+    # does not resolve (15x the white level); pooled into the axes' mean it diluted x over MAX_SCALE_DILUTION and the
+    # check stood down on every axis, so a velocity 2x off went unsaid (seed=3345: nothing at 1.5x, 2x or km/h). The
+    # mean is now pooled from the white levels (the pairs' on the folded axis); the unscaled twin says nothing
+    from slamobs.pipeline.config import load_config
+    from slamobs.pipeline.observers import time_offset
+    from slamobs.pipeline.run import prepare_log
+    from slamobs.pipeline.simulate import write_log
+
+    def said(scale: float, late: float = 0.0) -> list[str]:
+        nm = NoiseModel(odom_linear=0.03 * np.sqrt(4.0), gyro=0.01 * np.sqrt(200.0))
+        kw = dict(duration=90.0, seed=3370, imu_rate=200.0, odom_rate=4.0, detection_offset=late)
+        sim = simulate(_walker(scale), noise=nm, **kw)
+        log = tmp_path / f"walker-{scale:g}-{late:g}.mcap"
+        write_log(sim, log, overwrite=True)
+        prepared = prepare_log(log, load_config(None))
+        assert "from the means of sample pairs" in prepared.velocity_noise.method  # its z folded
+        offset = time_offset.estimate(prepared.aligned)
+        assert offset["applied"] == (late != 0.0), offset.get("why_not_applied")
+        return [n for n in time_offset.note("riekf", offset) if "the detections say the body moved" in n]
+
+    assert said(1.0) == []
+    (named,) = said(2.0)
+    assert "along x 2" in named, named
+    # its detections stamped 0.3 s late: the scale is fitted at the applied offset (at zero shift the lateral axis of
+    # handheld_logs.py's such logs read -17x to 19x), still silent as recorded and naming a true 2x
+    assert said(1.0, 0.3) == []
+    assert any("along x 2" in n for n in said(2.0, 0.3)), said(2.0, 0.3)

@@ -236,16 +236,26 @@ class Consistency:
         self.poses = self._poses(bias)
         # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
         # the samples the pairs read there only)
-        base = self.residuals(0.0)[0]
-        t_s = self.poses[0]
-        at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])], side="right") - 1
-        self.keep = keep = np.unique(np.clip(at, 0, t_s.shape[0] - 1))  # the samples the pairs read
-        self.jac = np.empty((base.shape[0], 3, 6))
-        for c, poses in enumerate(self._moved_gyro_poses(bias, keep)):
-            self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
-        for c, poses in enumerate(self._moved_velocity_poses(bias, keep), 3):
-            self.jac[:, :, c] = (self.residuals(0.0, poses)[0] - base) / BIAS_STEP
+        self.keep = self.read_at(0.0)  # the samples the pairs read
+        self.jac = self.bias_jacobian(0.0)
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
+
+    def read_at(self, shift: float) -> np.ndarray:
+        """The samples the pairs read at the detection shift ``shift`` (each detection's sample before)."""
+        t_s = self.poses[0]
+        at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])] + shift, side="right") - 1
+        return np.unique(np.clip(at, 0, t_s.shape[0] - 1))
+
+    def bias_jacobian(self, shift: float) -> np.ndarray:
+        """The pairs' residuals' Jacobian (pairs, 3, 6) in the odometry's bias at the detection shift ``shift``
+        (numerical, from the poses of the samples the pairs read there only)."""
+        keep, base = (self.keep if shift == 0.0 else self.read_at(shift)), self.residuals(shift)[0]
+        jac = np.empty((base.shape[0], 3, 6))
+        for c, poses in enumerate(self._moved_gyro_poses(self.bias, keep)):
+            jac[:, :, c] = (self.residuals(shift, poses)[0] - base) / BIAS_STEP
+        for c, poses in enumerate(self._moved_velocity_poses(self.bias, keep), 3):
+            jac[:, :, c] = (self.residuals(shift, poses)[0] - base) / BIAS_STEP
+        return jac
 
     def _poses(self, bias: np.ndarray):
         """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for the Jacobian's
@@ -754,24 +764,24 @@ def lever_arm_sentence(offset: dict) -> str | None:
     )
 
 
-def _velocity_displacements(c: Consistency) -> np.ndarray:
-    """Per pair and velocity axis (pairs, 3, 3): how the pair's residual moves when that axis's velocity is
-    doubled (the displacement it contributes between the two detections, in the first one's body frame), so that
-    scaling the axes by ``g`` moves the residuals by ``-Σ_j (g_j - 1) D[:, :, j]`` (the rotations do not depend on
-    the velocity: the relation is exact)."""
-    (t_s, _, _, omega, vel), keep = c.poses, c.keep
+def _velocity_displacements(c: Consistency, shift: float = 0.0) -> np.ndarray:
+    """Per pair and velocity axis (pairs, 3, 3): how the pair's residual at the detection shift ``shift`` moves
+    when that axis's velocity is doubled (the displacement it contributes between the two detections, in the first
+    one's body frame), so that scaling the axes by ``g`` moves the residuals by ``-Σ_j (g_j - 1) D[:, :, j]`` (the
+    rotations do not depend on the velocity: the relation is exact)."""
+    (t_s, _, _, omega, vel), keep = c.poses, (c.keep if shift == 0.0 else c.read_at(shift))
     omega_steps, vel_steps, dt = c._steps
     rs, ps = integrate_body_twists_at_columns(np.eye(3), np.zeros(3), omega_steps, vel_steps, 2.0 * vel_steps, dt, keep)
-    base = c.residuals(0.0)[0]
+    base = c.residuals(shift)[0]
     out = np.empty((base.shape[0], 3, 3))
     for j in range(3):
         twist = vel[keep]
         twist[:, j] *= 2.0
-        out[:, :, j] = base - c.residuals(0.0, (t_s[keep], rs, ps[j], omega[keep], twist))[0]
+        out[:, :, j] = base - c.residuals(shift, (t_s[keep], rs, ps[j], omega[keep], twist))[0]
     return out
 
 
-def velocity_scale(c: Consistency) -> dict:
+def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
     """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
     ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`Consistency.cost`). An axis along
@@ -788,12 +798,17 @@ def velocity_scale(c: Consistency) -> dict:
     square, else that mean, ``AlignedStream.velocity_density``, its axes taken as the body's, ``Σ Δt`` over the pairs
     fitted): the scale is reported as fitted over ``1 − δ`` (its standard error too), and left unsaid where ``δ``
     with either the axis's own level or the mean exceeds ``MAX_SCALE_DILUTION`` (``dilution`` per axis in the record; 0
-    where the density is not known)."""
-    d = _velocity_displacements(c)
-    base = c.residuals(0.0)[0]
+    where the density is not known). ``fitted``: each axis's scale before the dilution is taken off; the levels are
+    upper bounds of the white noise (motion the rate does not resolve adds to them), so the axis's scale lies between
+    the two and :func:`velocity_misread` names it only where both are off. The axes' mean square is pooled from their
+    white levels (``AlignedStream.velocity_white_density``: an axis's samples' level of such motion does not dilute
+    the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`)."""
+    d = _velocity_displacements(c, shift)
+    base = c.residuals(shift)[0]
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
-    a = np.concatenate([-d[:, :, moved], c.jac], axis=2)  # (pairs, 3, unknowns)
+    jac = c.jac if shift == 0.0 else c.bias_jacobian(shift)
+    a = np.concatenate([-d[:, :, moved], jac], axis=2)  # (pairs, 3, unknowns)
     x, sigma, _, keep, ata = _trimmed_fit(base, a)
     inv = np.linalg.inv(ata)
     inflation = np.diag(inv) * np.diag(ata)
@@ -801,12 +816,16 @@ def velocity_scale(c: Consistency) -> dict:
     # motion the rate does not resolve adds to it; the mean pools the axes' scatter, ±10 % at velocity noise x100):
     # a slow stream's axis whose samples' level is such motion (a hand-held's bob at 5 Hz, 8x the white level) no
     # longer dilutes the others' (the mean put 0.49 on seed=3347's x, as fitted 0.976, read 1.92x); left unsaid, as
-    # before, where the mean dilutes it over MAX_SCALE_DILUTION, and where its own level does
+    # before, where the mean dilutes it over MAX_SCALE_DILUTION, and where its own level does. The mean is pooled from
+    # the white levels: a folded axis's samples' level in it diluted x over 0.5 on 17 of 21 hand-held logs at 3-5 Hz,
+    # where a velocity 2x off then went unsaid (docs/benchmarks.md, "A velocity scale on a slow odometry")
     density, spans = np.asarray(c.source.velocity_density, float), c.det_t[c.b[keep]] - c.det_t[c.a[keep]]
+    white = np.asarray(c.source.velocity_white_density, float)
+    white = np.where(white > 0.0, white, density)
     per_q2, q2 = float(np.sum(spans)) * np.diag(inv)[: int(moved.sum())], np.square(density)[moved]
-    mean_dilution = float(np.mean(np.square(density))) * per_q2
+    mean_dilution = float(np.mean(np.square(white))) * per_q2
     dilution, most = np.minimum(q2 * per_q2, mean_dilution), np.maximum(q2 * per_q2, mean_dilution)
-    scale, err, diluted = [None] * 3, [None] * 3, [0.0] * 3
+    scale, err, diluted, fitted = [None] * 3, [None] * 3, [0.0] * 3, [None] * 3
     # the displacement along each axis the detections see (its scale times the velocity's): an axis along which they
     # see the body hardly move (MIN_AXIS_SHARE) has a velocity as read that is noise, and no measurable scale
     seen = np.abs(1.0 + x[: int(moved.sum())]) * rms[moved]
@@ -816,22 +835,26 @@ def velocity_scale(c: Consistency) -> dict:
             if most[i] <= MAX_SCALE_DILUTION:
                 kept = 1.0 - float(dilution[i])
                 scale[j], err[j] = round((1.0 + float(x[i])) / kept, 6), float(sigma[i]) / kept
-    return {"scale": scale, "sigma": err, "dilution": diluted}
+                fitted[j] = round(1.0 + float(x[i]), 6)
+    return {"scale": scale, "sigma": err, "dilution": diluted, "fitted": fitted}
 
 
 def velocity_misread(scale: dict) -> list[str]:
     """What the scales say of the velocity's axes that are off (``VELOCITY_SCALE_OFF``, ``VELOCITY_SCALE_SIGMAS``),
-    one phrase each: the axis, the factor and the unit it suggests."""
+    one phrase each: the axis, the factor and the unit it suggests; an axis whose scale as fitted (before its
+    dilution is taken off, ``fitted``) is inside the band is not named."""
     return [phrase for phrase, _ in _misread_axes(scale)]
 
 
 def _misread_axes(scale: dict) -> list[tuple[str, float]]:
     """:func:`velocity_misread`'s phrases, each with its axis's factor."""
     out = []
-    for axis, g, e in zip("xyz", scale["scale"], scale["sigma"], strict=True):
+    fitted = scale.get("fitted") or scale["scale"]  # as fitted, before the dilution is taken off
+    for axis, g, e, g0 in zip("xyz", scale["scale"], scale["sigma"], fitted, strict=True):
         if (
             g is None
             or 1.0 / VELOCITY_SCALE_OFF <= g <= VELOCITY_SCALE_OFF
+            or 1.0 / VELOCITY_SCALE_OFF <= (g if g0 is None else g0) <= VELOCITY_SCALE_OFF
             or abs(g - 1.0) <= VELOCITY_SCALE_SIGMAS * e
         ):
             continue
@@ -1002,7 +1025,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
     head = _prefix_of(c)
     out["gyro_misreads"] = gyro_misreads(head)
-    out["velocity_scale"] = velocity_scale(c)
+    out["velocity_scale"] = velocity_scale(c, shift if why is None else 0.0)
     if velocity_misread(out["velocity_scale"]):  # which of the two causes, where an accelerometer can tell
         out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
