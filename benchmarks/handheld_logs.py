@@ -29,7 +29,7 @@ import numpy as np
 from slamobs.pipeline.api import run_log
 from slamobs.pipeline.noise import DEFAULTS
 from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
-from slamobs.pipeline.simulate.scenarios import Trajectory, customize, get_scenario, rot_x, rot_y, rot_z
+from slamobs.pipeline.simulate.scenarios import customize, get_scenario, heading_along_path, rot_z
 
 SUFFIX = {"mcap": ".mcap", "bag": ".bag", "ros2": ""}
 
@@ -95,19 +95,8 @@ def handheld_trajectory(tilt_deg: float, wobble: float, period: float = 60.0, a:
         z, zd, zdd = h + 0.04 * np.sin(fb * t), 0.04 * fb * np.cos(fb * t), -0.04 * fb * fb * np.sin(fb * t)
         phi, phid = tilt * np.sin(fr * t), tilt * fr * np.cos(fr * t)
         the, thed = 0.8 * tilt * np.sin(fp * t), 0.8 * tilt * fp * np.cos(fp * t)
-        psi = np.arctan2(yd, xd) + wobble * np.sin(fw * t)
-        psid = (xd * ydd - yd * xdd) / (xd * xd + yd * yd) + wobble * fw * np.cos(fw * t)
-        rot = rot_z(psi) @ rot_y(the) @ rot_x(phi)
-        omega = np.stack(
-            [
-                phid - psid * np.sin(the),
-                thed * np.cos(phi) + psid * np.cos(the) * np.sin(phi),
-                -thed * np.sin(phi) + psid * np.cos(the) * np.cos(phi),
-            ],
-            -1,
-        )
-        v = np.einsum("nji,nj->ni", rot, np.stack([xd, yd, zd], -1))
-        return Trajectory(t, rot, np.stack([x, y, z], -1), omega, v, np.stack([xdd, ydd, zdd], -1))
+        wob = (wobble * np.sin(fw * t), wobble * fw * np.cos(fw * t))
+        return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed), wob)
 
     return trajectory
 

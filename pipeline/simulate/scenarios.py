@@ -207,16 +207,19 @@ def figure8_trajectory(t: np.ndarray) -> Trajectory:
     zdd = -9 * w * w * F8_HZ * np.sin(3 * th)
     phi, phid = F8_ROLL * np.sin(2 * th), 2 * w * F8_ROLL * np.cos(2 * th)
     the, thed = F8_PITCH * np.sin(4 * th), 4 * w * F8_PITCH * np.cos(4 * th)
-    return _heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed))
+    return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed))
 
 
-def _heading_along_path(t, xs, ys, zs, roll, pitch) -> Trajectory:
-    """A path given by positions and their first two derivatives, yaw along the horizontal velocity and the
-    given roll and pitch (angle, rate): R = Rz(psi) Ry(pitch) Rx(roll), Omega from the exact ZYX Euler rates."""
+def heading_along_path(t, xs, ys, zs, roll, pitch, yaw_off=None) -> Trajectory:
+    """A path given by positions and their first two derivatives, yaw along the horizontal velocity (plus
+    ``yaw_off``, an (angle, rate) wobble about it, when given) and the given roll and pitch (angle, rate):
+    R = Rz(psi) Ry(pitch) Rx(roll), Omega from the exact ZYX Euler rates."""
     (x, xd, xdd), (y, yd, ydd), (z, zd, zdd) = xs, ys, zs
     (phi, phid), (the, thed) = roll, pitch
     psi = np.arctan2(yd, xd)
     psid = (xd * ydd - yd * xdd) / (xd * xd + yd * yd)
+    if yaw_off is not None:
+        psi, psid = psi + yaw_off[0], psid + yaw_off[1]
 
     R = rot_z(psi) @ rot_y(the) @ rot_x(phi)
     omega = np.stack(
@@ -314,7 +317,7 @@ def loop_trajectory(t: np.ndarray) -> Trajectory:
     zdd = -25 * w * w * LOOP_HZ * np.sin(5 * th)
     roll = (LOOP_ROLL * np.sin(4 * th), 4 * w * LOOP_ROLL * np.cos(4 * th))
     pitch = (LOOP_PITCH * np.sin(7 * th), 7 * w * LOOP_PITCH * np.cos(7 * th))
-    return _heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), roll, pitch)
+    return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), roll, pitch)
 
 
 def _forward_camera(tilt_deg: float, fov_h_deg: float, fov_v_deg: float, max_range: float) -> Camera:
@@ -390,7 +393,7 @@ def ground_trajectory(t: np.ndarray) -> Trajectory:
     zs = (zero + GROUND_H, zero, zero)
     roll = (GROUND_WOBBLE * np.sin(7.3 * th), 7.3 * w * GROUND_WOBBLE * np.cos(7.3 * th))
     pitch = (GROUND_WOBBLE * np.sin(11.1 * th), 11.1 * w * GROUND_WOBBLE * np.cos(11.1 * th))
-    return _heading_along_path(t, xs, ys, zs, roll, pitch)
+    return heading_along_path(t, xs, ys, zs, roll, pitch)
 
 
 def ground() -> Scenario:
@@ -432,7 +435,7 @@ def ground_hills_trajectory(t: np.ndarray) -> Trajectory:
     ud = (zs[2] * sh - zs[1] * (xs[1] * xs[2] + ys[1] * ys[2]) / sh) / sh**2
     roll = (GROUND_WOBBLE * np.sin(7.3 * th), 7.3 * w * GROUND_WOBBLE * np.cos(7.3 * th))
     pitch = (-np.arctan(u), -ud / (1.0 + u * u))  # nose up while climbing
-    return _heading_along_path(t, xs, ys, zs, roll, pitch)
+    return heading_along_path(t, xs, ys, zs, roll, pitch)
 
 
 def ground_hills() -> Scenario:
