@@ -108,26 +108,24 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   landmarks re-anchor the pose (run.json ``observer.filter.blind``, a note). Elsewhere nothing changes. (Acting on
   half failing or on correlated innovations, re-opening the attitude too, or scaling the whole pose block, made
   real logs worse: docs/benchmarks.md, "riekf after a blind stretch".)
-* Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias``
-  (0.2 by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
+* Bias priors narrowed: the biases start at zero with the priors ``noise.gyro_bias`` and ``noise.velocity_bias`` (0.2
+  by default: an unknown start). From a few landmarks over a short stretch the filter may learn a bias along a
   direction they barely resolve (TagSLAM's test_22: pitch rate against vertical velocity from one or two tags ahead
-  for 10 s, a velocity bias of 0.22 m/s where the twist has none above 0.02) and carry it through a blind stretch;
-  the landmarks that return then lie far outside the covariance and every one fails the gate, while the recovery's
-  windows are never judged (the status was ``converged``; now ``gated_at_end``, :func:`filter_status`). When the
-  first stretch holds ``LOST_IN_A_ROW`` or more known-landmark detections in a row failing the gate at its end, or,
-  in a pass where neither a recovery nor a
-  blind stretch's re-anchoring acted, as many failing before it in an open run (ended by a frame whose detections
-  mostly pass, not by one where as many or more fail: with two tags back the state may fit one and not the other,
-  while a wrong tag fails alone among passing ones; and a track lost for that long and then taken again was taken by
-  a jump; docs/benchmarks.md, "riekf's gate cascade after a blind stretch, session 32") and the filter did not give
-  up, it starts again from the log's start with both priors' standard deviations multiplied by
+  for 10 s, a velocity bias of 0.22 m/s where the twist has none above 0.02) and carry it through a blind stretch; the
+  landmarks that return then lie far outside the covariance and every one fails the gate, while the recovery's windows
+  are never judged (the status was ``converged``; now ``gated_at_end``, :func:`filter_status`). When the first stretch
+  holds ``LOST_IN_A_ROW`` or more known-landmark detections in a row failing the gate at its end, or, in a pass where
+  neither a recovery nor a blind stretch's re-anchoring acted, as many failing before it in an open run (ended by a
+  frame whose detections mostly pass, not by one where as many or more fail: with two tags back the state may fit one
+  and not the other, while a wrong tag fails alone among passing ones; and a track lost for that long and then taken
+  again was taken by a jump; docs/benchmarks.md, "riekf's gate cascade after a blind stretch, session 32") and the
+  filter did not give up, it starts again from the log's start with both priors' standard deviations multiplied by
   ``PRIOR_NARROWING``, again each pass while the stretch holds such a run, up to ``MAX_PRIOR_PASSES``
-  (:meth:`RiEKF._prior_restart`, before anything of the stretch is returned; run.json
-  ``observer.filter.bias_priors``, a note); when the last of those holds one too, no bias explains it (a moved
-  landmark, say) and a last pass puts the priors back (``kept`` false, a note). The end of the log sets how the
-  start is weighed: fair for an offline tool, not an online filter's. Not when either prior is given in the
-  configuration. Elsewhere nothing changes (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22
-  (h-riekf22)").
+  (:meth:`RiEKF._prior_restart`, before anything of the stretch is returned; run.json ``observer.filter.bias_priors``,
+  a note); when the last of those holds one too, no bias explains it (a moved landmark, say) and a last pass puts the
+  priors back (``kept`` false, a note). The end of the log sets how the start is weighed: fair for an offline tool,
+  not an online filter's. Not when either prior is given in the configuration. Elsewhere nothing changes
+  (docs/benchmarks.md, "riekf's bias priors after a lost track, session 22 (h-riekf22)").
 * Bias priors from detection pairs: with both priors at their defaults, the biases start at the constant biases
   that keep each landmark's dead-reckoned position still between pairs of its detections
   (:func:`pipeline.noise_estimation.pair_bias_estimate`, each pair weighed by its detections' and its dead
