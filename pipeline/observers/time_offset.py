@@ -237,7 +237,7 @@ class Consistency:
         # the pairs' residuals move with the bias: their Jacobian (numerical, at zero shift, from the poses of
         # the samples the pairs read there only)
         self.keep = self.read_at(0.0)  # the samples the pairs read
-        self.jac = self.bias_jacobian(0.0)
+        self.jac = self.bias_jacobian(0.0, self.keep, self.residuals(0.0)[0])
         self.jtj = np.einsum("kci,kcj->kij", self.jac, self.jac)
 
     def read_at(self, shift: float) -> np.ndarray:
@@ -246,10 +246,10 @@ class Consistency:
         at = np.searchsorted(t_s, self.det_t[np.concatenate([self.a, self.b])] + shift, side="right") - 1
         return np.unique(np.clip(at, 0, t_s.shape[0] - 1))
 
-    def bias_jacobian(self, shift: float) -> np.ndarray:
+    def bias_jacobian(self, shift: float, keep: np.ndarray, base: np.ndarray) -> np.ndarray:
         """The pairs' residuals' Jacobian (pairs, 3, 6) in the odometry's bias at the detection shift ``shift``
-        (numerical, from the poses of the samples the pairs read there only)."""
-        keep, base = (self.keep if shift == 0.0 else self.read_at(shift)), self.residuals(shift)[0]
+        (numerical, from the poses of the samples the pairs read there only: ``keep``, :meth:`read_at`; ``base``
+        the residuals there)."""
         jac = np.empty((base.shape[0], 3, 6))
         for c, poses in enumerate(self._moved_gyro_poses(self.bias, keep)):
             jac[:, :, c] = (self.residuals(shift, poses)[0] - base) / BIAS_STEP
@@ -764,15 +764,15 @@ def lever_arm_sentence(offset: dict) -> str | None:
     )
 
 
-def _velocity_displacements(c: Consistency, shift: float = 0.0) -> np.ndarray:
+def _velocity_displacements(c: Consistency, shift: float, keep: np.ndarray, base: np.ndarray) -> np.ndarray:
     """Per pair and velocity axis (pairs, 3, 3): how the pair's residual at the detection shift ``shift`` moves
     when that axis's velocity is doubled (the displacement it contributes between the two detections, in the first
     one's body frame), so that scaling the axes by ``g`` moves the residuals by ``-Σ_j (g_j - 1) D[:, :, j]`` (the
-    rotations do not depend on the velocity: the relation is exact)."""
-    (t_s, _, _, omega, vel), keep = c.poses, (c.keep if shift == 0.0 else c.read_at(shift))
+    rotations do not depend on the velocity: the relation is exact). ``keep``, ``base``: the samples the pairs read
+    at that shift and the residuals there."""
+    t_s, _, _, omega, vel = c.poses
     omega_steps, vel_steps, dt = c._steps
     rs, ps = integrate_body_twists_at_columns(np.eye(3), np.zeros(3), omega_steps, vel_steps, 2.0 * vel_steps, dt, keep)
-    base = c.residuals(shift)[0]
     out = np.empty((base.shape[0], 3, 3))
     for j in range(3):
         twist = vel[keep]
@@ -803,11 +803,11 @@ def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
     the two and :func:`velocity_misread` names it only where both are off. The axes' mean square is pooled from their
     white levels (``AlignedStream.velocity_white_density``: an axis's samples' level of such motion does not dilute
     the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`)."""
-    d = _velocity_displacements(c, shift)
-    base = c.residuals(shift)[0]
+    read, base = (c.keep if shift == 0.0 else c.read_at(shift)), c.residuals(shift)[0]  # once, for both below
+    d = _velocity_displacements(c, shift, read, base)
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
-    jac = c.jac if shift == 0.0 else c.bias_jacobian(shift)
+    jac = c.jac if shift == 0.0 else c.bias_jacobian(shift, read, base)
     a = np.concatenate([-d[:, :, moved], jac], axis=2)  # (pairs, 3, unknowns)
     x, sigma, _, keep, ata = _trimmed_fit(base, a)
     inv = np.linalg.inv(ata)
