@@ -567,7 +567,8 @@ def resolve_noise(
 
 def stated_below(density, estimate) -> float | None:
     """How many times quieter a stated density is than the samples' estimate (the worst axis) when that is more
-    than ``1 / STATED_LOW`` times, else None; ``info --noise`` and a run's notes say it in the same words."""
+    than ``1 / STATED_LOW`` times, else None (run.json's sensor levels ``stated.below``; such a level is not used:
+    :data:`STATED_BELOW`, whose note says so)."""
     ratio = np.asarray(density, dtype=float) / np.maximum(np.asarray(estimate, dtype=float), 1e-300)
     low = float(np.min(ratio))
     return 1.0 / low if low < STATED_LOW else None
