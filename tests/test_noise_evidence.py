@@ -227,3 +227,28 @@ def test_a_step_just_under_the_margin_is_taken_when_a_decisive_one_follows(monke
     surface[(1.0, 3.0)] = 502.0  # a gain under NEAR_GAIN: no step taken, as before
     at, notes = surface_search(surface)
     assert at == (1.0, 1.0) and not any("taken for one more pass" in n for n in notes), notes
+
+
+def test_a_near_step_taken_and_undone_is_recorded_beside_its_level(log, monkeypatch):
+    """The gyro 3x too low (measured from its samples) with no scale decisive (``evidence.MIN_GAIN`` raised out of
+    reach): its x3 gains more than ``NEAR_GAIN`` and is the pass's near step, taken for one more pass; that pass
+    moves nothing, so it is undone. run.json's ``noise_scale["gyro"]["near_steps"]`` records it (scale, gain, not
+    kept) beside the level's scan, one record per note that tells of a step, and the level is the one it started
+    from. (TagSLAM 22 took one with its T265's stated gyro; since session 32 that level is rejected, below a third
+    of its samples', and it takes none: tests/test_realdata_tags.py.)"""
+    from slamobs.pipeline.smoother import evidence as ev
+
+    monkeypatch.setattr(ev, "MIN_GAIN", 1e9)
+    stream, truth = log
+    noise = replace(truth, gyro=truth.gyro / 3.0, sources={**truth.sources, "gyro": "estimated"})
+    s = smoother(stream, noise)
+    scale = s.stats["metadata"]["smoother"]["noise_scale"]
+    steps = [(k, step) for k, r in scale.items() for step in r.get("near_steps") or []]
+    assert [(k, step["scale"], step["kept"]) for k, step in steps] == [("gyro", 3.0, False)], scale
+    ((key, step),) = steps
+    assert set(step) == {"scale", "gain", "kept"} and step["gain"] > ev.NEAR_GAIN, step
+    said = [n for n in s.stats["notes"] if "taken for one more pass" in n]
+    assert len(said) == 1 and f"evidence's gyro x3 gained {step['gain']:.2f}" in said[0], said
+    assert any("evidence's gyro x3 not kept" in n for n in s.stats["notes"]), s.stats["notes"]
+    assert scale["gyro"]["scale"] == 1.0, scale["gyro"]
+    np.testing.assert_allclose(s.stats["metadata"]["noise"]["gyro"], truth.gyro / 3.0)
