@@ -1920,6 +1920,9 @@ class RiEKF(Stepper):
         res = self._advance_stretch(iv_stop)
         while not self._returned and (self._walk_restart() or self._prior_restart()):
             res = self._advance_stretch(iv_stop)
+        if not self._returned and self._tried:  # the kept pass's own evidence came after its statistics
+            self._describe()
+            res = replace(res, stats=dict(self.stats))
         self._returned = True
         return self._widened(res)
 
