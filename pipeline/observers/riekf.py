@@ -2007,7 +2007,8 @@ class RiEKF(Stepper):
     def _pass_evidence(self, run: int) -> dict:
         """What a narrowed pass over the first stretch ended with (run.json ``bias_priors.narrowed_tried``): its
         narrowing, the innovations' deviance per tested detection (:func:`innovation_likelihood`, the gated ones
-        at the gate), the detections gated and its longest run of them."""
+        at the gate), the detections gated and the run of them in a row the narrowing judges (``run``: the longest,
+        or the one at the end where a recovery or a re-anchoring acted)."""
         lik = innovation_likelihood(self.state.win_sum[8])
         return {
             "pass": self._prior_passes,
@@ -2015,7 +2016,7 @@ class RiEKF(Stepper):
             "deviance_mean": lik["mean"],
             "tested": lik["tested"],
             "gated": int(self.state.ns[_GATED]),
-            "gated_in_a_row_longest": run,
+            "gated_in_a_row": run,
         }
 
     def _advance_stretch(self, iv_stop: int):
