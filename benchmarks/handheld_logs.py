@@ -8,6 +8,11 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
 ``batch`` and no noise configuration, and riekf and batch given the true levels. Prints a Markdown table.
 
     .venv/bin/python benchmarks/handheld_logs.py [--cache DIR] [--seeds 3345 3348] [--no-true]
+    .venv/bin/python benchmarks/handheld_logs.py --set round5 [--notes FILE]
+
+``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
+drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
+3-10x above the samples (docs/benchmarks.md, "Logs nobody has run yet, round 5").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
