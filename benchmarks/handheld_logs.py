@@ -8,6 +8,11 @@ figure 8, loop and ground robot at 3-4 Hz as controls. Each log is run with ``fa
 ``batch`` and no noise configuration, and riekf and batch given the true levels. Prints a Markdown table.
 
     .venv/bin/python benchmarks/handheld_logs.py [--cache DIR] [--seeds 3345 3348] [--no-true]
+    .venv/bin/python benchmarks/handheld_logs.py --set round5 [--notes FILE]
+
+``--set round5``: session 33's cases (``ROUND5``): a quadrotor's flight, a 200-400 Hz IMU beside 10 Hz odometry, a
+drifting gyro bias, silent streams, jittered stamps, 60-200 landmarks, a camera turned 90 deg, covariances stated
+3-10x above the samples (docs/benchmarks.md, "Logs nobody has run yet, round 5").
 
 Columns: APE (m, SE(3)-aligned) per estimator, auto over true for riekf and batch, each over fast-adaptation,
 the convergence verdicts, the report's mean position NEES ("OC": called overconfident), the velocity level auto
@@ -54,6 +59,10 @@ class Case:
     wobble: float = 0.3  # yaw wobble amplitude (rad) at 0.6 Hz
     truncate: float = 0.0  # the file cut to this share of its bytes
     landmarks: int | None = None
+    bias_walk: float = 0.0  # the gyro bias's random walk, rad/s per sqrt(s)
+    dropouts: tuple[tuple[str, float, float], ...] = ()  # (stream: imu, odom or mag; start s; stop s) silent
+    jitter_s: float = 0.0  # odometry and detection stamps moved by uniform +-jitter_s
+    cam_yaw_deg: float = 0.0  # the camera turned this much more about the body's z axis
 
 
 CASES = (
@@ -81,6 +90,155 @@ CASES = (
 )
 
 
+#: round 5 (session 33, docs/benchmarks.md "Logs nobody has run yet, round 5"): a quadrotor's 3D flight, a fast IMU
+#: with 10 Hz odometry, a drifting gyro bias, silent streams, jittered stamps, 50-200 landmarks seen briefly and
+#: re-seen a lap later, a camera turned 90 deg, stated covariances 3-10x above the samples
+ROUND5 = (
+    Case(3445, "flight", 90, "quadrotor flight, 400/10 Hz", imu_hz=400, odom_hz=10),
+    Case(3446, "flight", 120, "flight, stated 5x", container="bag", imu_hz=400, odom_hz=10, stated=5.0),
+    Case(
+        3447,
+        "flight",
+        90,
+        "flight, imu silent 3 s twice",
+        container="ros2",
+        imu_hz=300,
+        odom_hz=10,
+        dropouts=(("imu", 30, 33), ("imu", 60, 64)),
+    ),
+    Case(
+        3448,
+        "flight",
+        90,
+        "flight, odom silent 4 s twice",
+        imu_hz=400,
+        odom_hz=10,
+        dropouts=(("odom", 25, 29), ("odom", 55, 60)),
+    ),
+    Case(3449, "flight", 120, "flight, stamps +-20 ms", container="bag", imu_hz=200, odom_hz=10, jitter_s=0.02),
+    Case(
+        3450,
+        "flight",
+        600,
+        "flight 10 min, bias walk 3e-4",
+        imu_hz=200,
+        odom_hz=10,
+        bias_walk=3e-4,
+        gyro_x=10,
+        velocity_x=5,
+        detection_hz=10,
+    ),
+    Case(
+        3451,
+        "handheld",
+        600,
+        "hand-held 10 min, bias walk 5e-4",
+        container="ros2",
+        imu_hz=200,
+        odom_hz=10,
+        bias_walk=5e-4,
+        gyro_x=10,
+        velocity_x=5,
+        detection_hz=10,
+    ),
+    Case(3452, "handheld", 90, "camera turned 90 deg", imu_hz=400, odom_hz=10, cam_yaw_deg=90),
+    Case(3453, "flight", 90, "flight, camera turned 90 deg", container="ros2", imu_hz=400, odom_hz=10, cam_yaw_deg=90),
+    Case(3454, "loop", 270, "loop, 150 landmarks, 3 laps", imu_hz=400, odom_hz=10, landmarks=150),
+    Case(
+        3455,
+        "loop",
+        270,
+        "loop, 200 landmarks, stated 3x",
+        container="bag",
+        imu_hz=200,
+        odom_hz=10,
+        landmarks=200,
+        stated=3.0,
+    ),
+    Case(
+        3456,
+        "loop",
+        180,
+        "loop, 60 landmarks, jitter 20 ms",
+        container="ros2",
+        imu_hz=300,
+        odom_hz=10,
+        landmarks=60,
+        jitter_s=0.02,
+    ),
+    Case(3457, "handheld", 90, "stated 10x", imu_hz=400, odom_hz=10, stated=10.0),
+    Case(3458, "handheld", 90, "stated 3x, 4 Hz odom", container="bag", stated=3.0),
+    Case(
+        3459,
+        "handheld",
+        120,
+        "odom silent 5 s twice, mag silent 2 s",
+        imu_hz=400,
+        odom_hz=10,
+        dropouts=(("odom", 30, 35), ("odom", 80, 85), ("mag", 50, 52)),
+    ),
+    Case(
+        3460,
+        "flight",
+        120,
+        "flight, jitter, odom silent, stated 5x",
+        imu_hz=400,
+        odom_hz=10,
+        jitter_s=0.02,
+        stated=5.0,
+        dropouts=(("odom", 40, 44), ("odom", 90, 93)),
+    ),
+    Case(
+        3461,
+        "loop",
+        270,
+        "loop, 100 landmarks, bias walk 5e-4",
+        container="ros2",
+        imu_hz=200,
+        odom_hz=10,
+        landmarks=100,
+        bias_walk=5e-4,
+    ),
+    Case(
+        3462,
+        "flight",
+        90,
+        "flight, g100 v30, law (0.05, 0.01)",
+        container="bag",
+        imu_hz=400,
+        odom_hz=10,
+        gyro_x=100,
+        velocity_x=30,
+        law=(0.05, 0.01),
+    ),
+    Case(3463, "ground", 180, "ground robot, 400/10 Hz, stated 5x", imu_hz=400, odom_hz=10, stated=5.0),
+    Case(
+        3464, "flight", 90, "flight, camera 90 deg, stamps +0.2 s", imu_hz=400, odom_hz=10, cam_yaw_deg=90, offset_s=0.2
+    ),
+)
+SETS = {"round4": CASES, "round5": ROUND5}
+
+
+def flight_trajectory(period: float = 30.0, a: float = 10.0, h: float = 4.0):
+    """A quadrotor's 3D figure 8 (a x a/2 m, 1.4-3 m/s) climbing and sinking 2 m (2.0-6.0 m high, 1.3 m/s
+    vertical), banked up to 25 deg and pitched up to 15 deg, its yaw swinging 0.8 rad about the path at 0.2 Hz."""
+    w, roll, pitch = 2 * np.pi / period, np.deg2rad(25.0), np.deg2rad(15.0)
+    fy = 2 * np.pi * 0.2
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        th, b = w * t, a / 2
+        x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
+        y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
+        z, zd, zdd = h + 2.0 * np.sin(3 * th), 6.0 * w * np.cos(3 * th), -18.0 * w * w * np.sin(3 * th)
+        phi, phid = roll * np.sin(2 * th), 2 * w * roll * np.cos(2 * th)
+        the, thed = pitch * np.sin(5 * th), 5 * w * pitch * np.cos(5 * th)
+        wob = (0.8 * np.sin(fy * t), 0.8 * fy * np.cos(fy * t))
+        return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed), wob)
+
+    return trajectory
+
+
 def handheld_trajectory(tilt_deg: float, wobble: float, period: float = 60.0, a: float = 8.0, h: float = 1.5):
     """The walker's figure 8 with its step bob, tilt and yaw wobble: R = Rz(psi) Ry(pitch) Rx(roll), the body rate
     from the exact ZYX Euler rates."""
@@ -102,14 +260,44 @@ def handheld_trajectory(tilt_deg: float, wobble: float, period: float = 60.0, a:
 
 
 def scenario(case: Case):
-    if case.scenario != "handheld":
-        return customize(get_scenario(case.scenario), landmarks=case.landmarks, detection_gaps=case.gaps or None)
-    sc = get_scenario("figure8-wide")
-    cam = sc.camera
-    turn = rot_z(np.array([np.deg2rad(10.0)]))[0]
-    cam = replace(cam, R_bc=turn @ cam.R_bc, t_bc=np.array([0.05, -0.08, 0.03]), max_range=8.0)
-    sc = replace(sc, name="handheld", trajectory=handheld_trajectory(case.tilt_deg, case.wobble), camera=cam)
+    if case.scenario == "flight":
+        sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory())
+    elif case.scenario != "handheld":
+        sc = get_scenario(case.scenario)
+    else:
+        sc = get_scenario("figure8-wide")
+        cam = sc.camera
+        turn = rot_z(np.array([np.deg2rad(10.0)]))[0]
+        cam = replace(cam, R_bc=turn @ cam.R_bc, t_bc=np.array([0.05, -0.08, 0.03]), max_range=8.0)
+        sc = replace(sc, name="handheld", trajectory=handheld_trajectory(case.tilt_deg, case.wobble), camera=cam)
+    if case.cam_yaw_deg:
+        turn = rot_z(np.array([np.deg2rad(case.cam_yaw_deg)]))[0]
+        sc = replace(sc, camera=replace(sc.camera, R_bc=turn @ sc.camera.R_bc))
     return customize(sc, landmarks=case.landmarks, detection_gaps=case.gaps or None)
+
+
+def perturb(sim, case: Case):
+    """What the simulator does not draw: the gyro bias's random walk, silent streams, jittered stamps (from their
+    own generator, so the simulator's draws are those of the plain case)."""
+    rng = np.random.default_rng(case.seed + 7)
+    imu = sim.imu
+    if case.bias_walk:
+        dt = np.diff(imu.t_ns, prepend=imu.t_ns[0]) * 1e-9
+        walk = np.cumsum(rng.standard_normal((len(dt), 3)) * case.bias_walk * np.sqrt(dt)[:, None], axis=0)
+        imu = replace(imu, gyro=imu.gyro + walk)
+    streams = {"imu": imu, "odom": sim.odom, "mag": sim.mag}
+    for name, lo, hi in case.dropouts:
+        d = streams[name]
+        t = (d.t_ns - sim.start_ns) * 1e-9
+        keep = (t < lo) | (t >= hi)
+        streams[name] = replace(d, **{f: getattr(d, f)[keep] for f in d.__dataclass_fields__})
+    det = sim.detections
+    if case.jitter_s:
+        j = lambda n: np.round(rng.uniform(-case.jitter_s, case.jitter_s, n) * 1e9).astype(np.int64)  # noqa: E731
+        odom = streams["odom"]
+        streams["odom"] = replace(odom, t_ns=odom.t_ns + j(len(odom.t_ns)))
+        det = replace(det, t_ns=det.t_ns + j(len(det.t_ns)))
+    return replace(sim, detections=det, **streams)
 
 
 def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
@@ -127,6 +315,7 @@ def make_log(case: Case, cache: Path) -> tuple[Path, dict]:
     )
     kw = dict(duration=case.duration, seed=case.seed, imu_rate=case.imu_hz, odom_rate=case.odom_hz)
     sim = simulate(scenario(case), noise=nm, detection_rate=case.detection_hz, detection_offset=case.offset_s, **kw)
+    sim = perturb(sim, case)
     stated = replace(nm, gyro=case.stated * nm.gyro, odom_linear=case.stated * nm.odom_linear)
     write_log(replace(sim, noise=stated), path, container=case.container, overwrite=True)
     if case.truncate:
@@ -155,6 +344,8 @@ def run(log: Path, estimator: str, out: Path, noise: dict | None) -> dict:
         "nees": f"{nees['mean']:.3g}{' OC' if 'over' in nees.get('verdict', '') else ''}" if "mean" in nees else "-",
         "velocity": velocity.split("[", 1)[-1].split("]", 1)[0] if "[" in velocity else "",
         "warnings": [n for n in meta.get("notes") or [] if n.startswith("warning")],
+        "notes": meta.get("notes") or [],
+        "status": meta.get("status"),
     }
 
 
@@ -188,12 +379,14 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-handheld-logs")
     ap.add_argument("--seeds", type=int, nargs="+", help="the cases' seeds (default: all)")
     ap.add_argument("--no-true", action="store_true", help="skip the runs given the true noise")
+    ap.add_argument("--set", choices=SETS, default="round4", help="which cases (default: round4, session 32's)")
+    ap.add_argument("--notes", type=Path, help="append every run's notes to this JSON-lines file")
     args = ap.parse_args()
     args.cache.mkdir(parents=True, exist_ok=True)
     head = "| log | case | container | s | IMU/odom Hz | FA | riekf auto / true (x) | batch auto / true (x) "
     head += "| riekf, batch / FA | converged FA/riekf/batch | NEES riekf; batch | velocity auto (true) | warnings |"
     print(head + "\n|" + " --- |" * (head.count("|") - 1))
-    for case in CASES:
+    for case in SETS[args.set]:
         if args.seeds and case.seed not in args.seeds:
             continue
         log, truth = make_log(case, args.cache)
@@ -203,6 +396,10 @@ def main() -> None:
                 out = args.cache / "runs" / f"s{case.seed}-{est}-{mode}"
                 res[est, mode] = run(log, est, out, truth if mode == "true" else None)
         print(row(case, truth, res), flush=True)
+        if args.notes:
+            with args.notes.open("a") as f:
+                for (est, mode), r in res.items():
+                    f.write(json.dumps({"seed": case.seed, "estimator": est, "mode": mode, **r}) + "\n")
 
 
 if __name__ == "__main__":

@@ -1659,6 +1659,8 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
     if n_out := t_om.shape[0] - int(stop - first):
         notes.append(f"{plural(n_out, 'angular-velocity sample')} outside the linear-velocity span dropped")
         t_om, w = t_om[first:stop], w[first:stop]
+    held = "the run holds the sample before each gap across it"
+    om_gaps = _gaps(t_om, w, om.topic, held)  # before the drop below: the holes it leaves are the velocity's
     max_gap = lim["max_gap"]
     if max_gap is not None and t_lv.shape[0] > 1:
         # time-base samples inside a linear-velocity gap would get a velocity interpolated over it: dropped
@@ -1694,9 +1696,8 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
         block = vel_ext.rotate(v_interp, rows)
         block -= np.cross(omega[rows], vel_ext.trans)
         velocity[rows] = block
-    held = "the run holds the sample before each gap across it"
     lerp = "the run interpolates the velocity across each gap (riekf widens its velocity noise there)"
-    notes += _gaps(t_om, w, om.topic, held) + (_gaps(t_lv, v, lv.topic, lerp) if lv.topic != om.topic else [])
+    notes += om_gaps + (_gaps(t_lv, v, lv.topic, lerp) if lv.topic != om.topic else [])
     starts = _segment_starts(t_om, max_gap, _hole_starts(t_om, om, fr.time_source, holes), notes)
     period, gaps = _measured_gaps(t_lv, v) if lv.topic != om.topic else (0.0, np.zeros(0, np.int64))
     lv_gaps = (np.column_stack([t_lv[gaps], t_lv[gaps + 1]]).astype(np.int64), period)

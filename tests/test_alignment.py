@@ -263,6 +263,27 @@ def test_an_imu_dropping_samples_in_short_bursts_is_named_and_a_held_command_is_
     assert not [n for n in a.notes if "gap" in n], a.notes  # a held command, no gap over 0.5 s: nothing
 
 
+def test_a_gyro_sampled_through_an_odometry_gap_is_not_said_to_have_dropped_samples():
+    """Odometry silent 6 s (over limits.max_gap) beside a 100 Hz IMU that recorded every sample: the run drops the
+    IMU's samples inside the odometry's gap and then said "/imu: 1 gap ... samples dropped? the run holds the
+    sample before each gap across it", of an IMU that dropped none and a run that segments there (a generated
+    flight, seed=3448, session 33). The odometry's gap is said; the IMU's is not."""
+    t_om = np.arange(0, 20.0, 0.01)
+    t_v = np.arange(0, 20.0, 0.1)
+    t_v = t_v[(t_v < 7.0) | (t_v > 13.0)]
+    rng = np.random.default_rng(1)
+    gyro = np.column_stack([np.zeros((t_om.size, 2)), 0.5 + 0.01 * rng.standard_normal(t_om.size)])
+    odom = np.column_stack([1.0 + 0.01 * rng.standard_normal(t_v.size), np.zeros((t_v.size, 2))])
+    a = align(
+        _streams(
+            angular_velocity=_vec("/imu", "imu", t_om, gyro), linear_velocity=_vec("/odom", "base_link", t_v, odom)
+        )
+    )
+    assert any(n.startswith("warning: /odom: 1 gap over") for n in a.notes), a.notes
+    assert any("inside /odom gaps longer than limits.max_gap" in n for n in a.notes), a.notes
+    assert not [n for n in a.notes if n.startswith(("/imu", "warning: /imu"))], a.notes
+
+
 def test_a_velocity_stream_repeating_stamps_with_other_values_is_named():
     """Every 5th odometry message sent twice with one stamp, the second saying the body stood still: riekf 0.053 m
     against 0.011 m on a generated figure 8, with only the readers' note (session 19). One such repeat is not."""
