@@ -11,6 +11,8 @@ from slamobs.cli.options import OutPath, quiet_option
 from slamobs.pipeline.errors import plural
 
 STYLES = ("table", "rpg")  # pipeline.stats.render.STYLES, literal so `slamobs --help` imports no pandas
+#: The repeated runs' notes printed (stats.md has them all).
+REPEAT_NOTES = 5
 
 
 @click.command("stats")
@@ -52,3 +54,10 @@ def stats(inputs: tuple[Path, ...], out_dir: Path, style: str, no_plots: bool, f
         f"{plural(runs['log'].nunique(), 'log')}; wrote {out_dir}/ (stats.md, stats.tex, stats.csv, ranking.csv, "
         f"runs.csv, {plural(len(result.figures), 'figure')})"
     )
+    for note in result.notes[:REPEAT_NOTES]:
+        click.echo(f"note: {note}")
+    if len(result.notes) > REPEAT_NOTES:
+        click.echo(
+            f"note: {len(result.notes) - REPEAT_NOTES} more estimator and log pairs run more than once alike: "
+            "stats.md lists them"
+        )

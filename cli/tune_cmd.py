@@ -112,6 +112,7 @@ def tune(
     from slamobs.pipeline.config import load_config
     from slamobs.pipeline.errors import GainError, InputError
     from slamobs.pipeline.interrupts import take_pending
+    from slamobs.pipeline.tune.results import lost_words
     from slamobs.pipeline.tune.study import TuneFailed, TuneOptions, run_tune
 
     handlers = {sig: signal.signal(sig, on_signal) for sig in EXIT_SIGNAL}
@@ -190,6 +191,8 @@ def tune(
             )
         )
         click.echo("gains        " + ", ".join(f"{k} {v:.4g}" for k, v in best["gains"].items()))
+        if said := lost_words(s):
+            click.echo(f"warning      {said}")
     val = s["validation"]
     if val.get("rows"):
         click.echo(

@@ -55,6 +55,7 @@ from slamobs.pipeline.observers.base import (
     landmark_jumps,
     lost_note,
     split_jumps,
+    split_places,
 )
 from slamobs.pipeline.observers.shared_steps import MAX_SUBSTEPS
 from slamobs.pipeline.observers.time_offset import misread as time_offset_misread
@@ -815,6 +816,8 @@ def estimate(
             lost = time_offset_misread(checks.get("time_offset"))
             if jumps and split is None and prepared.known_map is None and not lost:
                 raise _LandmarksJumped(jumps)  # made again with them split (estimate_splitting)
+            if split:  # where the run made again put each split landmark's two places
+                split_places(split, part.landmark_ids, part.landmark_xyz, part.landmark_cov)
             metadata["observer"]["landmark_jumps"] = (split or []) + jumps
             notes += jump_note(spec.name, split or [], t0_ns, topics=aligned.topics)
             notes += jump_note(spec.name, jumps, t0_ns, lost and not split, aligned.topics)

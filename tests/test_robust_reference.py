@@ -122,7 +122,7 @@ def test_a_landmark_id_shared_by_two_tags_seen_in_turn_is_split_by_its_stretches
     and gates the other's detections; the one change point the jump search finds (27.6 s) leaves both places on
     each side, so the run made again mixed them under the new id. The far stretches are found instead, each split
     off whole: the run made again has no jump and the same map as the log as generated."""
-    from slamobs.pipeline.observers.base import jump_note, landmark_jumps, split_jumps
+    from slamobs.pipeline.observers.base import jump_note, landmark_jumps, split_jumps, split_places
 
     _, stream = log
     frame = np.repeat(np.arange(stream.det_t_ns.shape[0]), np.diff(stream.det_offsets))
@@ -143,6 +143,34 @@ def test_a_landmark_id_shared_by_two_tags_seen_in_turn_is_split_by_its_stretches
         assert np.linalg.norm(here - clean.landmark_xyz[np.searchsorted(clean.landmark_ids, other)]) < 0.01
     said = jump_note("riekf", jumps, int(stream.vel_t_ns[0]))
     assert len(said) == 1 and "landmark 52 seen at two places in turn (236 detections in 3 stretches" in said[0]
+    # made again, the two places are the two tags' (landmarks 52 and 57 of the log), far apart for their σ
+    split_places(jumps, again.landmark_ids, again.landmark_xyz, again.landmark_cov)
+    assert jumps[0]["one_place"] is False and jumps[0]["apart_m"] > 0.5, jumps
+    said = jump_note("riekf", jumps, int(stream.vel_t_ns[0]))
+    assert len(said) == 1 and "id reused for another landmark" in said[0] and "one place after all" not in said[0]
+
+
+def test_a_split_whose_two_landmarks_come_out_at_one_place_says_the_jump_was_no_second_place(log):
+    """A landmark's own detections over a stretch split off as if they had jumped (as riekf split TagSLAM test_11's
+    landmark 24, whose 75 detections 23.7x its usual distance from the map came out, as landmark 521, 0.06 m from
+    it at σ 0.29 m, and the warning said an id reused or a landmark moved, give them an id of their own): made again,
+    the two estimates lie within their stated covariances, and the warning says one place, the jump more likely the
+    estimate's than an id reused."""
+    from slamobs.pipeline.observers.base import jump_note, split_jumps, split_places
+
+    _, stream = log
+    t = np.repeat(stream.det_t_ns, np.diff(stream.det_offsets))
+    a = int(np.searchsorted(stream.landmark_ids, 52))
+    mine = np.sort(t[stream.det_idx == a])
+    span = [int(mine[mine.shape[0] // 3]), int(mine[2 * mine.shape[0] // 3])]  # its middle third, one stretch
+    jumps = [{"id": 52, "t_ns": span[0], "before": [10, 1.0], "after": [10, 25.0], "far_spans": [span]}]
+    jumps[0].update(far=[10, 25.0], near=[10, 1.0])
+    again = RIEKF.run(split_jumps(stream, jumps, np.empty(0, np.int64)), {}, ObserverOptions(noise=noise()))
+    split_places(jumps, again.landmark_ids, again.landmark_xyz, again.landmark_cov)
+    assert jumps[0]["one_place"] is True and jumps[0]["apart_d2"] < 7.82 and jumps[0]["apart_dof"] == 3, jumps
+    said = jump_note("riekf", jumps, int(stream.vel_t_ns[0]))
+    assert len(said) == 1 and "one place after all" in said[0] and "id reused for another landmark" not in said[0]
+    assert f"those landmark {jumps[0]['new_id']}; made again, the two {jumps[0]['apart_m']:.3g} m apart" in said[0]
 
 
 @pytest.mark.parametrize("far_first", [False, True])

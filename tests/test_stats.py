@@ -262,3 +262,23 @@ def test_a_run_with_landmark_truth_only_has_its_map_error_in_the_stats(tmp_path)
     runs = gather_runs([run])
     assert runs.loc[0, "map_error_m"] == pytest.approx(0.1629) and pd.isna(runs.loc[0, "landmark_rmse_m"])
     assert "map_error_m" in METRICS
+
+
+def test_the_same_log_and_settings_run_twice_is_said_to_count_twice(compared, dataset, tmp_path):
+    """A compare output and a separate `run` of the same log with the same estimator and config (as a user's batch
+    over a log they had compared): two run directories, so both count, and riekf's `all logs` rows pooled that log
+    twice with nothing said (MR.CLAM 6 r3 in a batch and a compare: `riekf | 2 runs`, std 0). Now a note names the
+    two; the dataset's runs (each its own values) and the other estimator get none."""
+    base = compared.parent
+    res = invoke(
+        "run", base / "circle4.mcap", "-o", tmp_path / "again", "--observer", "riekf", "--config", base / "run.yaml"
+    )
+    assert res.exit_code == 0, res.output
+    res = invoke("stats", compared, tmp_path / "again", dataset, "-o", tmp_path / "st", "--no-plots")
+    assert res.exit_code == 0, res.output
+    said = [line for line in res.output.splitlines() if line.startswith("note:")]
+    assert len(said) == 1 and said[0].startswith("note: riekf on circle4.mcap: 2 runs with the same value"), said
+    assert str(tmp_path / "again") in said[0] and str(compared / "riekf") in said[0]
+    assert f"- {said[0]}" in (tmp_path / "st" / "stats.md").read_text()
+    res = invoke("stats", compared, dataset, "-o", tmp_path / "st1", "--no-plots")
+    assert res.exit_code == 0 and "note:" not in res.output, res.output

@@ -424,3 +424,41 @@ def test_the_objective_figure_counts_trials_in_whole_numbers_and_plain_errors(tm
     assert xs and all(float(t).is_integer() for t in xs), xs
     labels = [t.get_text() for t in ax.get_yticklabels() + ax.yaxis.get_minorticklabels() if t.get_text()]
     assert labels and not [x for x in labels if "×" in x or "^" in x], labels
+
+
+def test_best_gains_whose_run_says_likely_lost_are_warned_of(logs):
+    """A tune scores each trial by its objective alone: on MR.CLAM 6 r3 (`--target batch --trials 6`) its best
+    fast-adaptation gains (alpha 1.014, gamma 26.53, k_p 0.1387, k_w 0.01826: 1.87 m against batch, defaults
+    2.81 m) gave a run that warned 'its estimate is likely lost: its velocity bias estimate wanders by 796x the
+    velocity's rms', and the tune said nothing of it. A trial now records the run's own check; tune.md and the
+    command say when the best gains' runs are likely lost. The same gains on a generated figure 8 wander too, the
+    defaults do not."""
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.tune.results import lost_words, render_markdown
+    from slamobs.pipeline.tune.worker import prepared_log, score
+
+    rows = {}
+    for name, gains in (("defaults", {}), ("best", {"alpha": 1.014, "gamma": 26.53, "k_p": 0.1387, "k_w": 0.01826})):
+        config = RunConfig.from_dict({"observer": "fast-adaptation", "gains": {"fast-adaptation": gains}})
+        prepared, _ = prepared_log(str(logs[0]), config, False)
+        rows[name] = score(prepared, config)
+    assert rows["defaults"]["likely_lost"] is None, rows["defaults"]
+    assert rows["best"]["likely_lost"].startswith("its velocity bias estimate wanders by"), rows["best"]
+    log = str(logs[0])
+    summary = {
+        "observer": "fast-adaptation",
+        "objective": {"metric": "ape_trans_rmse_m", "unit": "m"},
+        "trials": {"complete": 2, "failed": 0, "requested": 2},
+        "setup": {"logs": [log]},
+        "validation": {"rows": [], "note": "needs two or more logs"},
+    }
+    for name, row in rows.items():
+        lost = {log: row["likely_lost"]} if row["likely_lost"] else {}
+        summary[name] = {"trial": int(name == "best"), "objective": 1.0, "gains": {}, "per_log": {log: 1.0}}
+        summary[name]["likely_lost"] = lost
+    said = lost_words(summary)
+    assert said.startswith("with the best gains the run's own check says its estimate is likely lost on 1 of 1 log")
+    assert f"(f0.mcap: {rows['best']['likely_lost']}); with the defaults on 0 of 1" in said
+    assert f"Warning: {said}" in render_markdown(summary)
+    summary["best"]["likely_lost"] = {}
+    assert lost_words(summary) is None and "Warning" not in render_markdown(summary)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from slamobs.pipeline.stats.compute import cell_stats, ok_runs, ranking
+from slamobs.pipeline.stats.compute import cell_stats, ok_runs, ranking, repeat_words, repeats
 from slamobs.pipeline.stats.inputs import METRICS, gather_runs
 from slamobs.pipeline.stats.render import STYLES, csv_text, latex, markdown
 
@@ -34,6 +34,8 @@ class StatsResult:
     stats: pd.DataFrame
     ranking: pd.DataFrame
     figures: list[Path]
+    #: The runs counted more than once (:func:`.compute.repeats`), as sentences.
+    notes: list[str]
 
 
 def metric_values(runs: pd.DataFrame, metric: str) -> dict[str, dict[str, np.ndarray]]:
@@ -88,16 +90,17 @@ def write_stats(
     stats = cell_stats(runs)
     rank = ranking(stats)
     sources = [str(p) for p in inputs]
+    notes = [repeat_words(r) for r in repeats(runs)]
     drawn: list[Path] = []
     with atomic_directory(out, force=force, inputs=inputs) as tmp:
-        (tmp / "stats.md").write_text(markdown(stats, rank, style, sources))
+        (tmp / "stats.md").write_text(markdown(stats, rank, style, sources, notes))
         (tmp / "stats.tex").write_text(latex(stats, rank, style))
         (tmp / "stats.csv").write_text(csv_text(stats))
         (tmp / "ranking.csv").write_text(csv_text(rank, index=True))
         (tmp / "runs.csv").write_text(csv_text(runs))
         if figures:
             drawn = [Path(out) / FIGURES / p.name for p in write_figures(runs, tmp / FIGURES)]
-    return StatsResult(Path(out), runs, stats, rank, drawn)
+    return StatsResult(Path(out), runs, stats, rank, drawn, notes)
 
 
 __all__ = ["METRICS", "STYLES", "StatsResult", "cell_stats", "gather_runs", "ranking", "write_stats"]

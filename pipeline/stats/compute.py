@@ -18,10 +18,41 @@ STATS = ("n", "mean", "median", "min", "max", "std")
 #: The log label of the rows over every log of an estimator.
 ALL_LOGS = "all logs"
 KEYS = ["metric", "estimator", "log"]
+#: A repeated group's runs named in its note (:func:`repeat_words`), the rest counted.
+REPEAT_SOURCES = 3
 
 
 def ok_runs(runs: pd.DataFrame) -> pd.DataFrame:
     return runs[runs["status"] == "ok"]
+
+
+def repeats(runs: pd.DataFrame) -> list[dict]:
+    """Finished runs of one estimator on one log with the same value of every metric but run time (missing ones
+    alike, at least one present): the same log and settings run twice (a batch and a compare of one log, the same
+    batch given under two names), each counted in ``n`` and the ``all logs`` rows. Per such group its
+    ``estimator``, ``log``, ``runs`` and their ``sources``; a group whose metrics differ (another config) is none."""
+    compared = [m for m in METRICS if m != "run_time_s"]
+    ok = ok_runs(runs)
+    values = ok[compared].to_numpy(dtype=np.float64)
+    present = np.isfinite(values).any(axis=1)
+    key = [tuple(np.where(np.isfinite(row), row, np.inf).tolist()) for row in values]  # NaN as one value
+    ok = ok.assign(_key=key)[present]
+    out = []
+    for (est, log, _), group in ok.groupby(["estimator", "log", "_key"], sort=True):
+        if len(group) > 1:
+            out.append({"estimator": est, "log": log, "runs": len(group), "sources": group["source"].tolist()})
+    return out
+
+
+def repeat_words(rep: dict) -> str:
+    """One group of :func:`repeats` as a sentence."""
+    named = ", ".join(map(str, rep["sources"][:REPEAT_SOURCES]))
+    more = f" and {rep['runs'] - REPEAT_SOURCES} more" if rep["runs"] > REPEAT_SOURCES else ""
+    return (
+        f"{rep['estimator']} on {rep['log']}: {rep['runs']} runs with the same value of every metric but run time "
+        f"(the same log and settings run {rep['runs']} times: {named}{more}); each counts in n and in the "
+        "`all logs` rows"
+    )
 
 
 def _long(runs: pd.DataFrame) -> pd.DataFrame:

@@ -80,8 +80,11 @@ def _md_table(head: list[str], rows: list[list[str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def markdown(stats: pd.DataFrame, rank: pd.DataFrame, style: str, sources: list[str]) -> str:
-    """The whole ``stats.md``: one table per metric with values, then the ranking."""
+def markdown(
+    stats: pd.DataFrame, rank: pd.DataFrame, style: str, sources: list[str], notes: list[str] | None = None
+) -> str:
+    """The whole ``stats.md``: one table per metric with values, then the ranking; ``notes`` (the repeated runs,
+    :func:`.compute.repeat_words`) under the key."""
     layout, texts = _layout(style), cell_texts(stats, "md")
     text = "# Statistics across runs\n\nInputs: " + ", ".join(f"`{s}`" for s in sources) + "\n\n"
     text += (
@@ -90,6 +93,8 @@ def markdown(stats: pd.DataFrame, rank: pd.DataFrame, style: str, sources: list[
         "`all logs` pools every run of the estimator. – : no finished run has the metric (no truth, no map, or "
         "every run failed). Lower is better for every metric.\n"
     )
+    if notes:
+        text += "\n" + "".join(f"- note: {n}\n" for n in notes)
     for metric, label in METRICS.items():
         if not (stats["metric"] == metric).any():
             continue

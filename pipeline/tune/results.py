@@ -258,6 +258,9 @@ def write_results(out: Path, study, spec, setup: dict, options, holdout: list[di
             "objective": t.value,
             "gains": t.user_attrs["gains"],
             "per_log": dict(zip(logs, _per_log(t, key))),
+            "likely_lost": {
+                log: r["likely_lost"] for log, r in zip(logs, t.user_attrs["logs"]) if r.get("likely_lost")
+            },
         }
 
     summary = {
@@ -308,6 +311,29 @@ def _finite(o):
     return o
 
 
+def lost_words(s: dict) -> str | None:
+    """The best trial's logs on which its run's own check says the estimate is likely lost (the run's warning with
+    these gains), and the defaults' count: tune.json's ``best.likely_lost``; None when there is none."""
+    best, default = s.get("best"), s.get("defaults")
+    lost = (best or {}).get("likely_lost") or {}
+    if not lost:
+        return None
+    n_logs = len(s["setup"]["logs"])
+    first, why = next(iter(lost.items()))
+    more = f" and {plural(len(lost) - 1, 'other log')}" if len(lost) > 1 else ""
+    before = (
+        f"; with the defaults on {len((default or {}).get('likely_lost') or {})} of {n_logs}"
+        if default and "likely_lost" in default
+        else ""
+    )
+    return (
+        f"with the best gains the run's own check says its estimate is likely lost on {len(lost)} of "
+        f"{plural(n_logs, 'log')} ({Path(first).name}: {why}{more}){before}: a run with them warns so, whatever its "
+        "score; check those logs' runs (`slamobs run LOG --config gains.yaml`), tune longer (a larger --trials) or "
+        "keep the defaults"
+    )
+
+
 def render_markdown(s: dict) -> str:
     o = s["objective"]
     lines = [
@@ -332,6 +358,8 @@ def render_markdown(s: dict) -> str:
             % (s["best"]["trial"], ", ".join(f"{k} {v:.4g}" for k, v in s["best"]["gains"].items())),
             "",
         ]
+        if said := lost_words(s):
+            lines += [f"Warning: {said}", ""]
     val = s["validation"]
     lines += ["## Leave-one-log-out validation", ""]
     if val.get("rows"):

@@ -459,6 +459,7 @@ def _score_holdout(study, spec, base, holdout: list[Path], options: TuneOptions,
 
 _ROW_KEYS = (
     "status",
+    "likely_lost",
     "error",
     "ape_trans_rmse_m",
     "ape_rot_rmse_deg",

@@ -113,7 +113,7 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
 
     from slamobs.pipeline.evaluation.metrics import landmark_errors
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
-    from slamobs.pipeline.observers.base import ObserverDiverged
+    from slamobs.pipeline.observers.base import ObserverDiverged, lost_reason
     from slamobs.pipeline.run import estimator_input, truth_on_run_clock
     from slamobs.pipeline.writers import stretch_tables
 
@@ -130,6 +130,7 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
     ev = evaluate_trajectory(
         poses, truth, ReportOptions(t_max_diff_s=config.evaluation.t_max_diff), estimate_offset=False
     )
+    checks = res.stats.get("metadata", {})
     lm_rmse = None
     if landmark_truth:
         al = ev.alignment
@@ -141,6 +142,8 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
         "landmark_rmse_m": lm_rmse,
         "substeps": int(res.stats.get("substeps", 0)),
         "capped_intervals": int(res.stats.get("capped_intervals", 0)),
+        # the run's own check (its "likely lost" warning), whatever the objective says
+        "likely_lost": lost_reason(checks.get("resightings"), checks.get("velocity_bias")),
     }
 
 
