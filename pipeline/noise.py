@@ -229,7 +229,8 @@ class NoiseSettings:
             out.append(
                 f"gyro_unresolved = {format_level(_plain(self.gyro_unresolved))} {DEFAULTS['gyro'][1]} (estimated"
                 + (f", ± {format_level(_plain(se))}" if se is not None else "")
-                + f": {self.methods.get('gyro_unresolved')}; riekf raises its gyro level by it, batch does not)"
+                + f": {self.methods.get('gyro_unresolved')}; riekf's gyro level takes it where above the white one, "
+                "batch's does not)"
             )
         return out
 
