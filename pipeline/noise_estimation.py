@@ -236,28 +236,34 @@ def unresolved_motion_density(t_s: np.ndarray, x: np.ndarray, white) -> Estimate
     standard deviation, is ``(ωΔ)²/12`` for a sinusoid of ``ω``; a 50 Hz gyro on that walker, a VIO's twist at 20-30
     Hz on a hand-held camera). Intervals over three median periods (gaps) are left out; the uncertainty is the
     spread over ``BLOCKS`` consecutive blocks. docs/noise.md, "Motion the rate does not resolve"."""
-    order = np.argsort(t_s, kind="stable")
-    t, x = np.asarray(t_s, float)[order], np.asarray(x, float)[order]
-    keep = np.r_[True, np.diff(t) > 0]
-    t, x = t[keep], x[keep]
+    t, x = np.asarray(t_s, float), np.asarray(x, float)
+    step = np.diff(t)
+    if not np.all(step > 0):  # the aligned streams' stamps are sorted and distinct: read in place
+        order = np.argsort(t, kind="stable")
+        t, x = t[order], x[order]
+        keep = np.r_[True, np.diff(t) > 0]
+        t, x = t[keep], x[keep]
+        step = np.diff(t)
     if t.shape[0] < MIN_SAMPLES + 2:
         return None
-    period = float(np.median(np.diff(t)))
-    parts = []
+    period = float(np.median(step))
+    parts, sums = [], np.zeros((3, 3))  # per window: the v's, and the samples' count, sum and sum of squares
     for lo, hi in windows(t.shape[0]):
-        h = np.diff(t[lo:hi])
-        slope = np.diff(x[lo:hi], axis=0) / h[:, None]
+        h, xw = step[lo : hi - 1], x[lo:hi]
+        slope = np.diff(xw, axis=0) / h[:, None]
         ha, hb = h[:-1], h[1:]
         acc = 2.0 * (slope[1:] - slope[:-1]) / (ha + hb)[:, None]
         span = 0.5 * (ha + hb)
         ok = np.maximum(ha, hb) <= 3.0 * period
         parts.append((span[ok, None] ** 5 * acc[ok] ** 2 / 144.0))
+        sums += [np.full(3, hi - lo), xw.sum(axis=0), np.square(xw).sum(axis=0)]
     v = np.concatenate(parts)
     if v.shape[0] < MIN_SAMPLES:
         return None
     noise = np.broadcast_to(np.asarray(white, float), (3,)) ** 2 / 24.0
     level = np.sqrt(np.maximum(v.mean(axis=0) - noise, 0.0))
-    share = level / np.sqrt(period) / np.maximum(np.std(x, axis=0), 1e-300)
+    spread = np.sqrt(np.maximum(sums[2] / sums[0] - (sums[1] / sums[0]) ** 2, 0.0))  # the samples' std read
+    share = level / np.sqrt(period) / np.maximum(spread, 1e-300)
     per_period = 2.0 * np.pi / np.sqrt(12.0 * np.maximum(share, 1e-300))  # samples per period of the motion
     resolved = per_period >= RESOLVED_SAMPLES
     blocks = np.array([b.mean(axis=0) for b in np.array_split(v, BLOCKS)])
@@ -265,7 +271,8 @@ def unresolved_motion_density(t_s: np.ndarray, x: np.ndarray, white) -> Estimate
     se = se_var / (2.0 * np.maximum(level, np.sqrt(se_var)))
     method = (
         f"the trapezoid error Δ³ẍ/12 of the samples' linear interpolation at {median_rate(period)}, "
-        f"its white part taken off; {' / '.join(f'{n:.3g}' for n in per_period)} samples per period of the motion"
+        f"its white part taken off; {' / '.join(f'{n:.3g}' if m > 0 else '-' for n, m in zip(per_period, level))} "
+        "samples per period of the motion"
     )
     if resolved.any():
         method += f" ({', '.join('xyz'[k] for k in np.flatnonzero(resolved))} resolved from {RESOLVED_SAMPLES:g}: 0)"
