@@ -33,6 +33,7 @@ from slamobs.pipeline.noise_estimation import (
     detection_ratio,
     held_motion_noise,
     log_triplets,
+    unresolved_motion_density,
     white_noise_density,
 )
 
@@ -155,6 +156,10 @@ class NoiseSettings:
     absent: tuple[str, ...] = ()
     #: the floor (riekf's and batch's) as configured (:attr:`NoiseConfig.floor`)
     floor: str | bool = "auto"
+    #: (3,) rad/s/sqrt(Hz): the rotation the gyro's rate does not resolve, as a density (``LogNoise.gyro_unresolved``;
+    #: None when the gyro's level is configured or the log cannot tell); riekf's gyro level takes it
+    #: (``observers.riekf.unresolved_gyro``), batch and the floor's evidence read ``gyro``, the white level
+    gyro_unresolved: np.ndarray | None = None
 
     def as_dict(self) -> dict:
         """For run.json: every value and where it came from, and per key its unit, method and uncertainty."""
@@ -169,6 +174,14 @@ class NoiseSettings:
             }
             for k in DEFAULTS
         }
+        if self.gyro_unresolved is not None:
+            levels["gyro_unresolved"] = {
+                "value": _plain(self.gyro_unresolved),
+                "unit": DEFAULTS["gyro"][1],
+                "source": "estimated",
+                "method": self.methods.get("gyro_unresolved"),
+                "uncertainty": _plain(self.uncertainty.get("gyro_unresolved")),
+            }
         return {**out, "sources": dict(self.sources), "levels": levels, "notes": list(self.notes)}
 
     def scaled(self, factors: dict[str, float | np.ndarray], by: str | None = None) -> NoiseSettings:
@@ -211,6 +224,14 @@ class NoiseSettings:
             text += ")" if method is None else ": the same fit)" if method in said else f": {_told(method, said)})"
             said.setdefault(method, k)
             out.append(text)
+        if self.gyro_unresolved is not None:
+            se = self.uncertainty.get("gyro_unresolved")
+            out.append(
+                f"gyro_unresolved = {format_level(_plain(self.gyro_unresolved))} {DEFAULTS['gyro'][1]} (estimated"
+                + (f", ± {format_level(_plain(se))}" if se is not None else "")
+                + f": {self.methods.get('gyro_unresolved')}; riekf's gyro level takes it where above the white one, "
+                "batch's does not)"
+            )
         return out
 
 
@@ -251,6 +272,8 @@ class LogNoise:
     held: dict[str, Estimate] = field(default_factory=dict)
     #: a detection's standard deviation along its line of sight over that across (None: not told from 1)
     ratio: Estimate | None = None
+    #: the density of the rotation the gyro's rate does not resolve (``noise_estimation.unresolved_motion_density``)
+    gyro_unresolved: Estimate | None = None
 
     def levels(self) -> dict[str, Estimate]:
         """Key of :data:`DEFAULTS` -> its estimate (the detection law sets all three detection keys)."""
@@ -387,7 +410,8 @@ def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> 
         w + stream_topics(topics, "detections", "camera")
         for w in scattered_note(law) or degrees_note(aligned, law, g, v)
     ]
-    return LogNoise(gyro, velocity, law, tuple(notes), held, ratio)
+    unresolved = None if gyro is None else unresolved_motion_density(vel_t, aligned.omega, gyro.value)
+    return LogNoise(gyro, velocity, law, tuple(notes), held, ratio, unresolved)
 
 
 def scattered_note(law: DetectionLaw | None) -> list[str]:
@@ -524,6 +548,11 @@ def resolve_noise(
     sources: dict[str, str] = {}
     methods: dict[str, str] = {}
     uncertainty: dict[str, object] = {}
+    unresolved = None  # a configured gyro level is the user's: nothing added to it
+    if estimated is not None and cfg.auto and estimated.gyro_unresolved is not None and "gyro" not in section:
+        found_u = estimated.gyro_unresolved
+        unresolved = _vec(found_u.value)
+        methods["gyro_unresolved"], uncertainty["gyro_unresolved"] = found_u.method, found_u.uncertainty
     for key, (default, _, _) in DEFAULTS.items():
         covariance = _believed(key, stated.get(STATED.get(key, "")), found.get(key), notes)
         if key in section:
@@ -554,6 +583,7 @@ def resolve_noise(
         ),
         absent=tuple(k for k in absent if k not in section),
         floor=cfg.floor,
+        gyro_unresolved=unresolved,
         detection_held_scale=(
             estimated.detection.held_scale
             if estimated is not None

@@ -62,6 +62,10 @@ HELD_SHARE = 0.5
 #: vertical velocity: 15x the white density from the samples, 1.1x from the pairs). An axis whose pairs show a
 #: density below this share of its samples' takes the pairs' (docs/noise.md, "Motion the rate does not resolve").
 FOLDED_SHARE = 0.5
+#: Samples per period of a stream's motion from which its linear interpolation resolves it (a common rule of thumb,
+#: not fitted): an axis whose missed share of the rotation per interval, ``(2π/N)²/12`` for a sinusoid sampled ``N``
+#: times a period, is smaller has no unresolved motion (``unresolved_motion_density``).
+RESOLVED_SAMPLES = 10.0
 #: The smallest detection standard deviation at zero range a fit gives (m): a law fitted on ranges far from zero
 #: may reach zero there, and no detection is exact.
 MIN_DETECTION_M = 1e-4
@@ -219,6 +223,60 @@ def white_noise_density(t_s: np.ndarray, x: np.ndarray) -> Estimate | None:
         sampled = None if sampled is None else np.where(held, np.max(sampled[~held]), sampled)
         method += f"; {', '.join('xyz'[k] for k in np.flatnonzero(held))} held, given the other axes' level"
     return Estimate(density, se, method, samples, tuple(held.tolist()), sampled)
+
+
+def unresolved_motion_density(t_s: np.ndarray, x: np.ndarray, white) -> Estimate | None:
+    """Per-axis density (units · sqrt(s)) of the motion a stream's rate does not resolve, or None when too short to
+    tell: between two samples Δ s apart the linear interpolation of ``x`` misses ``Δ³ẍ/12`` of its integral (the
+    trapezoid rule's error; ẍ from the samples' second divided differences at their own stamps), a variance density
+    ``Δ⁵ẍ²/144`` per interval, averaged over the stream, less what the white noise ``white`` (per axis, the
+    samples' :func:`white_noise_density`) puts there (``white²/24`` at an even rate). The rotation a 4 Hz twist misses
+    of a walker's 0.6 Hz yaw wobble, where the stream resolves its motion 0: an axis sampled ``RESOLVED_SAMPLES`` or
+    more times per period of its motion (its missed share per interval, the level over ``√Δ`` times the samples'
+    standard deviation, is ``(ωΔ)²/12`` for a sinusoid of ``ω``; a 50 Hz gyro on that walker, a VIO's twist at 20-30
+    Hz on a hand-held camera). Intervals over three median periods (gaps) are left out; the uncertainty is the
+    spread over ``BLOCKS`` consecutive blocks. docs/noise.md, "Motion the rate does not resolve"."""
+    t, x = np.asarray(t_s, float), np.asarray(x, float)
+    step = np.diff(t)
+    if not np.all(step > 0):  # the aligned streams' stamps are sorted and distinct: read in place
+        order = np.argsort(t, kind="stable")
+        t, x = t[order], x[order]
+        keep = np.r_[True, np.diff(t) > 0]
+        t, x = t[keep], x[keep]
+        step = np.diff(t)
+    if t.shape[0] < MIN_SAMPLES + 2:
+        return None
+    period = float(np.median(step))
+    parts, sums = [], np.zeros((3, 3))  # per window: the v's, and the samples' count, sum and sum of squares
+    for lo, hi in windows(t.shape[0]):
+        h, xw = step[lo : hi - 1], x[lo:hi]
+        slope = np.diff(xw, axis=0) / h[:, None]
+        ha, hb = h[:-1], h[1:]
+        acc = 2.0 * (slope[1:] - slope[:-1]) / (ha + hb)[:, None]
+        span = 0.5 * (ha + hb)
+        ok = np.maximum(ha, hb) <= 3.0 * period
+        parts.append((span[ok, None] ** 5 * acc[ok] ** 2 / 144.0))
+        sums += [np.full(3, hi - lo), xw.sum(axis=0), np.square(xw).sum(axis=0)]
+    v = np.concatenate(parts)
+    if v.shape[0] < MIN_SAMPLES:
+        return None
+    noise = np.broadcast_to(np.asarray(white, float), (3,)) ** 2 / 24.0
+    level = np.sqrt(np.maximum(v.mean(axis=0) - noise, 0.0))
+    spread = np.sqrt(np.maximum(sums[2] / sums[0] - (sums[1] / sums[0]) ** 2, 0.0))  # the samples' std read
+    share = level / np.sqrt(period) / np.maximum(spread, 1e-300)
+    per_period = 2.0 * np.pi / np.sqrt(12.0 * np.maximum(share, 1e-300))  # samples per period of the motion
+    resolved = per_period >= RESOLVED_SAMPLES
+    blocks = np.array([b.mean(axis=0) for b in np.array_split(v, BLOCKS)])
+    se_var = blocks.std(axis=0, ddof=1) / np.sqrt(BLOCKS)
+    se = se_var / (2.0 * np.maximum(level, np.sqrt(se_var)))
+    method = (
+        f"the trapezoid error Δ³ẍ/12 of the samples' linear interpolation at {median_rate(period)}, "
+        f"its white part taken off; {' / '.join(f'{n:.3g}' if m > 0 else '-' for n, m in zip(per_period, level))} "
+        "samples per period of the motion"
+    )
+    if resolved.any():
+        method += f" ({', '.join('xyz'[k] for k in np.flatnonzero(resolved))} resolved from {RESOLVED_SAMPLES:g}: 0)"
+    return Estimate(np.where(resolved, 0.0, level), np.where(resolved, 0.0, se), method, int(v.shape[0]))
 
 
 def _poses_at(vel_t: np.ndarray, omega: np.ndarray, velocity: np.ndarray, t: np.ndarray):

@@ -15,6 +15,12 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   sample and applied to the covariance once per detection frame, as six low-rank terms in the same pass over
   the covariance as the frame's Kalman downdate (``O((6 + 3m) D²/2)`` for ``D`` state dimensions and ``m``
   detections; :func:`propagation_terms`, :func:`apply`).
+* A gyro slower than its motion (a VIO's twist at 4 Hz on a hand-held rig): the rotation the linear twist misses
+  between samples (``noise.gyro_unresolved``, from the samples' own second differences) is not the white noise of
+  ``noise.gyro``, and a filter weighing the twist at its white level believes its attitude and carries the map off
+  with it. riekf's gyro level is raised per axis to ``UNRESOLVED_FACTOR`` times that density where this exceeds the
+  white level (:func:`unresolved_gyro`, a note); where the rate resolves the motion it is 1e-4 of the white level
+  and nothing changes. The floor's evidence reads the white level (the missed rotation is motion, not noise).
 * Update (each detection frame): the innovation ``z_i = R̂y_i + P̂ − p̂_i = −e_i`` has the constant Jacobian
   ``H = [0, I, 0, 0, …, −I, …]`` and noise ``R̂ N R̂ᵀ``; a χ² gate (3 DoF, 99.99 %) drops outliers. The
   correction is ``X̂ ← exp(−ξ̂) X̂``, ``b̂ ← b̂ + b̃̂``.
@@ -184,7 +190,7 @@ from slamobs.pipeline.errors import Unwind
 from slamobs.pipeline.kernel_cache import njit, subroutine
 
 from slamobs.pipeline.lie import project_so3, se3_exp_into, skew, so3_left_jacobian_apply
-from slamobs.pipeline.noise import nees_bounds
+from slamobs.pipeline.noise import format_level, nees_bounds
 from slamobs.pipeline.observers.base import KernelState, ObserverDiverged, ObserverSpec, Outputs, Stepper
 from slamobs.pipeline.observers.shared_steps import gap_factor, gap_levels, record_row, twist_at
 from slamobs.pipeline.observers.time_offset import note as time_offset_note
@@ -332,6 +338,10 @@ PAIR_PRIOR_CHI2 = 1.5
 #: per sample at or below which the body moves in a plane, the tilt (rad) and height (m) standard deviations of the
 #: floor's pseudo-measurements, and the seconds between them.
 PLANAR_RATIO = 1.25
+#: A gyro slower than its motion (module docstring): riekf's gyro level per axis at least this many times the
+#: density of the rotation its rate does not resolve (``noise.gyro_unresolved``). Chosen on generated hand-held
+#: rigs at 4 Hz (docs/benchmarks.md, "riekf's gyro level on a rig whose only angular velocity is slow", session 33).
+UNRESOLVED_FACTOR = 2.0
 PLANAR_TILT = 0.02
 PLANAR_HEIGHT = 0.05
 PLANAR_EVERY_S = 0.5
@@ -1835,7 +1845,8 @@ class RiEKF(Stepper):
                 f"riekf keeps every landmark in a dense covariance; "
                 f"{n_lm} landmarks exceed its limit of {(MAX_DIM - N_FIXED) // 3}",
             )
-        self.noise = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        white = noise if noise is not None else options.noise if options.noise is not None else resolve_noise()
+        self._white, self.noise = white, unresolved_gyro(white)
         self.pair_prior = pair_bias_prior(stream, self.noise)
         self.cov_rows: np.ndarray | None = None  # set by tests: (rows, 12, 12) receives Σ at each output row
         # the time offset is estimated on the other core while the filter starts on the stamps as recorded: the
@@ -1887,7 +1898,9 @@ class RiEKF(Stepper):
         )
         walks = (float(nz.gyro_bias_walk), float(nz.velocity_bias_walk))
         self.params = (nz.gyro**2, nz.velocity**2, *walks, GATE_CHI2, max_variance_factor(stream.det_y, nz))
-        self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, nz, stream.velocity_period_ns * 1e-9)
+        # the floor's evidence: the white level (the rotation a slow gyro misses is motion, not noise)
+        white = replace(nz, gyro=self._white.gyro)
+        self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, white, stream.velocity_period_ns * 1e-9)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
         self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(stream, self.vel_t, nz.held)
@@ -2139,6 +2152,7 @@ class RiEKF(Stepper):
             self.stats["notes"].append(self._planar_note())
         self.stats["notes"] += innovation_note(self.stats["metadata"]["filter"]["innovation_consistency"])
         self.stats["notes"] += correlation_note(self.stats["metadata"]["filter"]["correlation"])
+        self.stats["notes"] += unresolved_note(self._white, self.noise)
 
     def _correlation(self) -> dict:
         """:func:`correlation_factor` of the pass so far, with the factor each written stretch got and this one's
@@ -2380,6 +2394,34 @@ def innovation_note(rec: dict) -> list[str]:
         f"{rec['windows']} windows' summed innovations {rec['mean_window_d2']:.3g}, above the 97.5 % bound "
         f"{rec['bound']:.3g} of 3 DoF): the written landmark covariance is the filter's times "
         f"{rec['landmark_covariance_factor']:.3g} (observer.filter.innovation_consistency); the poses' is not scaled"
+    ]
+
+
+def unresolved_gyro(noise):
+    """riekf's levels (module docstring, "A gyro slower than its motion"): ``noise`` with its gyro level per axis at
+    least ``UNRESOLVED_FACTOR`` times ``noise.gyro_unresolved`` (``noise`` itself when that is None or changes no
+    axis), the gyro's method saying so."""
+    if noise.gyro_unresolved is None:
+        return noise
+    raised = np.maximum(noise.gyro, UNRESOLVED_FACTOR * np.asarray(noise.gyro_unresolved, dtype=float))
+    if np.array_equal(raised, noise.gyro):
+        return noise
+    return noise.scaled(
+        {"gyro": raised / np.maximum(noise.gyro, 1e-300)}, by=f"riekf to {UNRESOLVED_FACTOR:g}x gyro_unresolved"
+    )
+
+
+def unresolved_note(white, used) -> list[str]:
+    """The note of a gyro level raised by :func:`unresolved_gyro`, else []."""
+    if np.array_equal(white.gyro, used.gyro):
+        return []
+    axes = ", ".join("xyz"[k] for k in np.flatnonzero(used.gyro != white.gyro))
+    missed = format_level(np.asarray(white.gyro_unresolved).tolist())
+    return [
+        f"riekf: the gyro's rate does not resolve its motion on {axes} (the rotation its linear interpolation misses, "
+        f"{missed} rad/s/sqrt(Hz), run.json noise.levels.gyro_unresolved): its level taken at "
+        f"{format_level(used.gyro.tolist())} instead of the white {format_level(white.gyro.tolist())}; the floor's "
+        "evidence and batch keep the white level"
     ]
 
 
