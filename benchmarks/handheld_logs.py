@@ -34,7 +34,7 @@ import numpy as np
 from slamobs.pipeline.api import run_log
 from slamobs.pipeline.noise import DEFAULTS
 from slamobs.pipeline.simulate import NoiseModel, simulate, write_log
-from slamobs.pipeline.simulate.scenarios import customize, get_scenario, heading_along_path, rot_z
+from slamobs.pipeline.simulate.scenarios import customize, flight_trajectory, get_scenario, handheld, rot_z
 
 SUFFIX = {"mcap": ".mcap", "bag": ".bag", "ros2": ""}
 
@@ -219,57 +219,13 @@ ROUND5 = (
 SETS = {"round4": CASES, "round5": ROUND5}
 
 
-def flight_trajectory(period: float = 30.0, a: float = 10.0, h: float = 4.0):
-    """A quadrotor's 3D figure 8 (a x a/2 m, 1.4-3 m/s) climbing and sinking 2 m (2.0-6.0 m high, 1.3 m/s
-    vertical), banked up to 25 deg and pitched up to 15 deg, its yaw swinging 0.8 rad about the path at 0.2 Hz."""
-    w, roll, pitch = 2 * np.pi / period, np.deg2rad(25.0), np.deg2rad(15.0)
-    fy = 2 * np.pi * 0.2
-
-    def trajectory(t):
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        th, b = w * t, a / 2
-        x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
-        y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
-        z, zd, zdd = h + 2.0 * np.sin(3 * th), 6.0 * w * np.cos(3 * th), -18.0 * w * w * np.sin(3 * th)
-        phi, phid = roll * np.sin(2 * th), 2 * w * roll * np.cos(2 * th)
-        the, thed = pitch * np.sin(5 * th), 5 * w * pitch * np.cos(5 * th)
-        wob = (0.8 * np.sin(fy * t), 0.8 * fy * np.cos(fy * t))
-        return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed), wob)
-
-    return trajectory
-
-
-def handheld_trajectory(tilt_deg: float, wobble: float, period: float = 60.0, a: float = 8.0, h: float = 1.5):
-    """The walker's figure 8 with its step bob, tilt and yaw wobble: R = Rz(psi) Ry(pitch) Rx(roll), the body rate
-    from the exact ZYX Euler rates."""
-    w, tilt = 2 * np.pi / period, np.deg2rad(tilt_deg)
-    fw, fr, fp, fb = 2 * np.pi * np.array([0.6, 0.23, 0.31, 1.8])
-
-    def trajectory(t):
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        th, b = w * t, a / 2
-        x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
-        y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
-        z, zd, zdd = h + 0.04 * np.sin(fb * t), 0.04 * fb * np.cos(fb * t), -0.04 * fb * fb * np.sin(fb * t)
-        phi, phid = tilt * np.sin(fr * t), tilt * fr * np.cos(fr * t)
-        the, thed = 0.8 * tilt * np.sin(fp * t), 0.8 * tilt * fp * np.cos(fp * t)
-        wob = (wobble * np.sin(fw * t), wobble * fw * np.cos(fw * t))
-        return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed), wob)
-
-    return trajectory
-
-
 def scenario(case: Case):
     if case.scenario == "flight":
         sc = replace(get_scenario("figure8-wide"), name="flight", trajectory=flight_trajectory())
     elif case.scenario != "handheld":
         sc = get_scenario(case.scenario)
     else:
-        sc = get_scenario("figure8-wide")
-        cam = sc.camera
-        turn = rot_z(np.array([np.deg2rad(10.0)]))[0]
-        cam = replace(cam, R_bc=turn @ cam.R_bc, t_bc=np.array([0.05, -0.08, 0.03]), max_range=8.0)
-        sc = replace(sc, name="handheld", trajectory=handheld_trajectory(case.tilt_deg, case.wobble), camera=cam)
+        sc = handheld(case.tilt_deg, case.wobble)
     if case.cam_yaw_deg:
         turn = rot_z(np.array([np.deg2rad(case.cam_yaw_deg)]))[0]
         sc = replace(sc, camera=replace(sc.camera, R_bc=turn @ sc.camera.R_bc))

@@ -12,7 +12,7 @@ import numpy as np
 
 from slamobs.pipeline.noise_estimation import unresolved_motion_density
 from slamobs.pipeline.simulate import NoiseModel, simulate
-from slamobs.pipeline.simulate.scenarios import get_scenario, heading_along_path, rot_z
+from slamobs.pipeline.simulate.scenarios import handheld
 
 
 def _wobble(t: np.ndarray, hz: float) -> np.ndarray:
@@ -41,35 +41,11 @@ def test_the_rotation_a_slow_gyro_misses_is_measured_where_its_rate_does_not_res
     assert np.all(fast.value < 1e-3), fast.value
 
 
-def _walker():
-    """benchmarks/handheld_logs.py's walker: an 8 x 4 m figure 8 at 1.5 m in 60 s, a 1.8 Hz step bob, roll and
-    pitch of 12 and 9.6 deg and a 0.3 rad yaw wobble at 0.6 Hz (turn rates to 1.5 rad/s), the camera beside."""
-    w, tilt, a = 2 * np.pi / 60.0, np.deg2rad(12.0), 8.0
-    fw, fr, fp, fb = 2 * np.pi * np.array([0.6, 0.23, 0.31, 1.8])
-
-    def trajectory(t):
-        t = np.atleast_1d(np.asarray(t, dtype=float))
-        th = w * t
-        xs = (a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th))
-        ys = (a / 2 * np.sin(2 * th), a * w * np.cos(2 * th), -2 * a * w * w * np.sin(2 * th))
-        zs = (1.5 + 0.04 * np.sin(fb * t), 0.04 * fb * np.cos(fb * t), -0.04 * fb * fb * np.sin(fb * t))
-        roll, pitch = (
-            (tilt * np.sin(fr * t), tilt * fr * np.cos(fr * t)),
-            (0.8 * tilt * np.sin(fp * t), 0.8 * tilt * fp * np.cos(fp * t)),
-        )
-        return heading_along_path(t, xs, ys, zs, roll, pitch, (0.3 * np.sin(fw * t), 0.3 * fw * np.cos(fw * t)))
-
-    sc = get_scenario("figure8-wide")
-    turn = rot_z(np.array([np.deg2rad(10.0)]))[0]
-    cam = replace(sc.camera, R_bc=turn @ sc.camera.R_bc, t_bc=np.array([0.05, -0.08, 0.03]), max_range=8.0)
-    return replace(sc, name="walker", trajectory=trajectory, camera=cam)
-
-
 def test_riekf_on_a_4_hz_gyro_weighs_the_rotation_it_misses_not_the_white_level(tmp_path):
-    """The walker with its IMU and odometry both at 4 Hz (a VIO's twist its only angular velocity,
-    benchmarks/odometry_rate.py --slow-gyro, seed=3305's rig): weighing the twist at its white level, riekf believed
-    an attitude the 4 Hz samples cannot give and carried the map off with it (0.26-5.5 m APE on 21 such logs, against
-    fast-adaptation's 0.4-0.6); with the gyro level raised to the rotation the linear twist misses it keeps the
+    """The hand-held rig (``scenarios.handheld``) with its IMU and odometry both at 4 Hz (a VIO's twist its only angular
+    velocity, benchmarks/odometry_rate.py --slow-gyro, seed=3305's rig): weighing the twist at its white level, riekf
+    believed an attitude the 4 Hz samples cannot give and carried the map off with it (0.26-5.5 m APE on 21 such logs,
+    against fast-adaptation's 0.4-0.6); with the gyro level raised to the rotation the linear twist misses it keeps the
     track and says so."""
     from slamobs.pipeline.api import run_log
     from slamobs.pipeline.noise import DEFAULTS
@@ -82,7 +58,7 @@ def test_riekf_on_a_4_hz_gyro_weighs_the_rotation_it_misses_not_the_white_level(
         detection_base=0.03,
         detection_per_m=0.006,
     )
-    sim = simulate(_walker(), noise=nm, duration=60.0, seed=3305, imu_rate=4.0, odom_rate=4.0, detection_rate=15.0)
+    sim = simulate(handheld(), noise=nm, duration=60.0, seed=3305, imu_rate=4.0, odom_rate=4.0, detection_rate=15.0)
     write_log(replace(sim, noise=replace(nm, gyro=0.0, odom_linear=0.0)), tmp_path / "walker.mcap", overwrite=True)
 
     def run(name: str, noise: dict) -> tuple[dict, float]:

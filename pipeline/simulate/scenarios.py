@@ -444,6 +444,57 @@ def ground_hills() -> Scenario:
     return replace(ground(), name="ground-hills", trajectory=ground_hills_trajectory)
 
 
+def handheld_trajectory(tilt_deg: float, wobble: float, period: float = 60.0, a: float = 8.0, h: float = 1.5):
+    """A walker's figure 8 (a x a/2 m at h m in ``period`` s) with a 1.8 Hz step bob of 4 cm, roll and pitch up to
+    ``tilt_deg`` and 0.8 of it, and a yaw wobble of ``wobble`` rad at 0.6 Hz about the path (turn rates to 1.5
+    rad/s): the motion a 3-5 Hz VIO twist does not resolve (docs/benchmarks.md, "Hand-held rigs with a slow VIO
+    twist", session 32)."""
+    w, tilt = 2 * np.pi / period, np.deg2rad(tilt_deg)
+    fw, fr, fp, fb = 2 * np.pi * np.array([0.6, 0.23, 0.31, 1.8])
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        th, b = w * t, a / 2
+        x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
+        y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
+        z, zd, zdd = h + 0.04 * np.sin(fb * t), 0.04 * fb * np.cos(fb * t), -0.04 * fb * fb * np.sin(fb * t)
+        phi, phid = tilt * np.sin(fr * t), tilt * fr * np.cos(fr * t)
+        the, thed = 0.8 * tilt * np.sin(fp * t), 0.8 * tilt * fp * np.cos(fp * t)
+        wob = (wobble * np.sin(fw * t), wobble * fw * np.cos(fw * t))
+        return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed), wob)
+
+    return trajectory
+
+
+def handheld(tilt_deg: float = 12.0, wobble: float = 0.3) -> Scenario:
+    """figure8-wide's room walked by hand (:func:`handheld_trajectory`), the camera turned 10 deg, 9 cm off the
+    body's origin and seeing to 8 m."""
+    sc = figure8_wide()
+    turn = rot_z(np.array([np.deg2rad(10.0)]))[0]
+    cam = replace(sc.camera, R_bc=turn @ sc.camera.R_bc, t_bc=np.array([0.05, -0.08, 0.03]), max_range=8.0)
+    return replace(sc, name="handheld", trajectory=handheld_trajectory(tilt_deg, wobble), camera=cam)
+
+
+def flight_trajectory(period: float = 30.0, a: float = 10.0, h: float = 4.0):
+    """A quadrotor's 3D figure 8 (a x a/2 m, 1.4-3 m/s) climbing and sinking 2 m (2.0-6.0 m high, 1.3 m/s
+    vertical), banked up to 25 deg and pitched up to 15 deg, its yaw swinging 0.8 rad about the path at 0.2 Hz."""
+    w, roll, pitch = 2 * np.pi / period, np.deg2rad(25.0), np.deg2rad(15.0)
+    fy = 2 * np.pi * 0.2
+
+    def trajectory(t):
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        th, b = w * t, a / 2
+        x, xd, xdd = a * np.sin(th), a * w * np.cos(th), -a * w * w * np.sin(th)
+        y, yd, ydd = b * np.sin(2 * th), 2 * b * w * np.cos(2 * th), -4 * b * w * w * np.sin(2 * th)
+        z, zd, zdd = h + 2.0 * np.sin(3 * th), 6.0 * w * np.cos(3 * th), -18.0 * w * w * np.sin(3 * th)
+        phi, phid = roll * np.sin(2 * th), 2 * w * roll * np.cos(2 * th)
+        the, thed = pitch * np.sin(5 * th), 5 * w * pitch * np.cos(5 * th)
+        wob = (0.8 * np.sin(fy * t), 0.8 * fy * np.cos(fy * t))
+        return heading_along_path(t, (x, xd, xdd), (y, yd, ydd), (z, zd, zdd), (phi, phid), (the, thed), wob)
+
+    return trajectory
+
+
 SCENARIOS: dict[str, Callable[[], Scenario]] = {
     "ground": ground,
     "ground-hills": ground_hills,
