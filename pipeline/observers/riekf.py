@@ -2623,4 +2623,5 @@ SPEC = ObserverSpec(
     start=RiEKF,
     takes_known_map=False,
     uses_noise=True,
+    own_time_offset=True,
 )
