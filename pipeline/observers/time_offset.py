@@ -1,5 +1,6 @@
 """The time offset between the detection stream and the velocity streams, estimated from the data (the reference
-estimators riekf and batch use it; docs/observers.md, "Time offset").
+estimators riekf and batch use :func:`estimate`, the observers :func:`decide`, its decision alone;
+docs/observers.md, "Time offset").
 
 Two detections of one landmark ``PAIR_SPAN_S`` to ``PAIR_MAX_S`` apart see the same point, and the odometry says
 how the body moved between them. With the detection stamps moved by ``δ`` onto the velocity clock, the second
@@ -1160,7 +1161,7 @@ def output_clock(offset: dict | None) -> dict:
     """run.json ``output.clock``: the clock a run's stamps are on, decided here for every estimator. The poses and
     biases are at the velocity samples, on their clock (the output grid is theirs, and a run's report searches its
     truth's clock against those samples: ``truth_clock_offset``); an applied offset (``offset``: the estimate's
-    record, None for an estimator that estimates none) moved the detection stamps onto it by
+    record: :func:`estimate`'s or :func:`decide`'s, None where there is none) moved the detection stamps onto it by
     ``detections_moved_s``, and ``MOVED_TABLES`` carry the moved stamps, ``RECORDED_TABLES`` the recorded ones
     (``t_recorded = t - detections_moved_s``). Kept on the velocity clock, not moved back onto the detections': on
     the real logs where an offset is applied the APE moved by at most 0.005 m either way on MR.CLAM and by the
