@@ -64,3 +64,11 @@ def test_decide_is_the_estimates_decision_without_its_reporting_checks():
     decided, estimated = time_offset.decide(stream), time_offset.estimate(stream)
     assert decided["applied"] and decided == {k: estimated[k] for k in decided}
     assert "gyro_misreads" not in decided and "gyro_misreads" in estimated
+
+
+def test_decide_on_a_stream_without_detections_applies_nothing():
+    # a time window can hold no detection: the observer still starts (nothing paired, nothing searched)
+    stream = align(expected_streams(simulate("figure8", seed=3441, duration=10.0)))
+    none = replace(stream, det_t_ns=stream.det_t_ns[:0], det_offsets=stream.det_offsets[:1], det_idx=stream.det_idx[:0])
+    offset = time_offset.decide(replace(none, det_y=stream.det_y[:0]))
+    assert offset["pairs"] == 0 and not offset["applied"] and time_offset.note("fast-adaptation", offset) == []

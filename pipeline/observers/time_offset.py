@@ -1054,6 +1054,8 @@ def decide(stream) -> dict:
     need only the decision, leave to the run's camera check): the observers' record (run.json
     ``observer.time_offset``, :func:`found_note`). Bounded on a long log as :func:`estimate` is (``MAX_PAIRS`` pairs
     from ``BLOCKS`` stretches)."""
+    if not stream.det_idx.shape[0] or stream.vel_t_ns.shape[0] < 2:  # nothing to pair or to dead-reckon
+        return {**_record(stream, 0), "why_not_applied": _too_few(stream, 0)}
     c = Consistency(stream, np.zeros(6))
     out = _record(stream, int(c.a.shape[0]))
     if (why := _too_few(stream, out["pairs"])) is not None:
