@@ -42,6 +42,7 @@ from slamobs.pipeline import interrupts, lifetime
 #: ``estimate``), in the order it calls them.
 TIME_OFFSET_DECISION: tuple[tuple[str, str, str], ...] = (
     ("slamobs.pipeline.observers.time_offset", "_partners", "i1 f1 i1 f1"),
+    ("slamobs.pipeline.lie", "integrate_body_twists", "f2 f1 f2 f2 f1"),
     ("slamobs.pipeline.observers.time_offset", "_pair_residuals", "f1 f3 f2 f2 f2 f1 f2 i1 i1 f1 f3"),
     ("slamobs.pipeline.lie", "integrate_body_twists_at_rotation_columns", "f2 f1 f2 f2 f2 f1 i1"),
     ("slamobs.pipeline.lie", "integrate_body_twists_at_columns", "f2 f1 f2 f2 f2 f1 i1"),

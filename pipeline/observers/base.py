@@ -610,6 +610,9 @@ class Stepper:
     #: Whether the caller makes the whole run's checks itself (:meth:`end_checks`; ``ObserverSpec.chunks``) instead
     #: of :meth:`advance` with the last stretch.
     end_checks_later = False
+    #: The time offset's record and notes when it was decided before the start (``ObserverSpec._started``), which
+    #: :meth:`end_checks` adds to the run's metadata and notes.
+    time_offset_said: tuple[dict, list[str]] | None = None
 
     def __init__(self, stream: AlignedStream, options: ObserverOptions) -> None:
         self.stream, self.options = stream, options
@@ -761,9 +764,12 @@ class Stepper:
         norms = np.concatenate(self._innovation_norms)
         det_t = np.repeat(self.det_t, np.diff(s.det_offsets))[: norms.shape[0]]
         check = resighting_check(norms, resightings(s.det_idx[: norms.shape[0]], det_t))
-        # and run.py's lost_note from the check; after the time offset's (ObserverSpec._started)
-        self.stats["notes"] = self.stats.get("notes", []) + gross_note(norms)
-        self.stats.setdefault("metadata", {})["resightings"] = check
+        offset, said = self.time_offset_said or (None, [])  # decided before the start (ObserverSpec._started)
+        self.stats["notes"] = said + gross_note(norms)  # and run.py's lost_note from the check
+        self.stats.setdefault("metadata", {})
+        if offset is not None:
+            self.stats["metadata"]["time_offset"] = offset
+        self.stats["metadata"]["resightings"] = check
         k, b = (np.concatenate(a) for a in zip(*self._biases))
         self.stats["metadata"]["velocity_bias"] = bias_share(k, b[:, 3:], s.velocity)
         self.stats["metadata"]["bias_held"] = bias_held(b, s.det_offsets, self.options.min_landmarks_bias)
@@ -878,8 +884,8 @@ class ObserverSpec:
 
         offset = time_offset.decide(stream)
         stepper = self.start(time_offset.shifted(stream, offset), gains, options)
-        stepper.stats["notes"] = time_offset.note(self.name, offset) + time_offset.unapplied_note(self.name, offset)
-        stepper.stats["metadata"] = {"time_offset": offset}
+        said = time_offset.note(self.name, offset) + time_offset.unapplied_note(self.name, offset)
+        stepper.time_offset_said = (offset, said)
         return stepper
 
     def resolve_gains(self, user: dict | None) -> dict[str, float]:
