@@ -38,8 +38,19 @@ from slamobs.pipeline import interrupts, lifetime
 #: handed over: the helper's path (its start-up, then the estimator's event loop) is the longer one, and the run
 #: compiles that kernel in ~0.3 s while the helper is still on the loop; the report's quaternions are the same
 #: kernel.
+#: The time offset's decision (``time_offset.decide``, before an observer starts; the first part of riekf's
+#: ``estimate``), in the order it calls them.
+TIME_OFFSET_DECISION: tuple[tuple[str, str, str], ...] = (
+    ("slamobs.pipeline.observers.time_offset", "_partners", "i1 f1 i1 f1"),
+    ("slamobs.pipeline.lie", "integrate_body_twists", "f2 f1 f2 f2 f1"),
+    ("slamobs.pipeline.observers.time_offset", "_pair_residuals", "f1 f3 f2 f2 f2 f1 f2 i1 i1 f1 f3"),
+    ("slamobs.pipeline.lie", "integrate_body_twists_at_rotation_columns", "f2 f1 f2 f2 f2 f1 i1"),
+    ("slamobs.pipeline.lie", "integrate_body_twists_at_columns", "f2 f1 f2 f2 f2 f1 i1"),
+    ("slamobs.pipeline.observers.time_offset", "_trimmed_costs", "f3 f3 f3 f1"),
+)
 PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
     "fast-adaptation": (
+        *TIME_OFFSET_DECISION,
         (
             "slamobs.pipeline.observers.fast_adaptation",
             "_advance",
@@ -50,11 +61,7 @@ PLANS: dict[str, tuple[tuple[str, str, str], ...]] = {
     # first, after the readers' and the dead reckoning's); the helper takes what the run calls after it, the
     # time-offset search's and the report's (~11 s), so the run finds them compiled when the loop is done.
     "riekf": (
-        ("slamobs.pipeline.observers.time_offset", "_partners", "i1 f1 i1 f1"),
-        ("slamobs.pipeline.observers.time_offset", "_pair_residuals", "f1 f3 f2 f2 f2 f1 f2 i1 i1 f1 f3"),
-        ("slamobs.pipeline.lie", "integrate_body_twists_at_rotation_columns", "f2 f1 f2 f2 f2 f1 i1"),
-        ("slamobs.pipeline.lie", "integrate_body_twists_at_columns", "f2 f1 f2 f2 f2 f1 i1"),
-        ("slamobs.pipeline.observers.time_offset", "_trimmed_costs", "f3 f3 f3 f1"),
+        *TIME_OFFSET_DECISION,
         ("slamobs.pipeline.lie", "integrate_body_twists_at", "f2 f1 f2 f2 f1 i1"),
         ("slamobs.pipeline.observers.time_offset", "lagged_positions", "f1 f3 f2 f2 f1 b1 f1 i1 f3"),
         ("slamobs.pipeline.evaluation.sync", "_slerp_rows", "f2 f2 f1"),

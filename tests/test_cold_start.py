@@ -1,6 +1,6 @@
 """What a run compiles: a first run (empty kernel cache) pays for every kernel it compiles, so a fast-adaptation
-run compiles (or loads) the kernels it calls and none of riekf, the smoother or the other observers; on one core, none
-of the readers' either for a short log."""
+run compiles (or loads) the kernels it calls (the time offset's decision's among them) and none of riekf, the smoother
+or the other observers; on one core, none of the readers' either for a short log."""
 
 from __future__ import annotations
 
@@ -29,7 +29,6 @@ print(json.dumps(found))
 #: Modules whose kernels only other estimators use.
 OTHERS = (
     "slamobs.pipeline.observers.riekf",
-    "slamobs.pipeline.observers.time_offset",
     "slamobs.pipeline.observers.hashim",
     "slamobs.pipeline.observers.wang_tayebi",
     "slamobs.pipeline.observers.hybrid",
@@ -47,8 +46,10 @@ def test_a_fast_adaptation_run_has_no_kernel_of_another_estimator(tmp_path):
     )
     assert out.returncode == 0, out.stderr
     kernels = json.loads(out.stdout.strip().splitlines()[-1])
-    # the observer's own event loop, for one set of argument types
+    # the observer's own event loop, for one set of argument types, and the time offset's decision before it
+    # (time_offset.decide, session 33), each once
     assert kernels["slamobs.pipeline.observers.fast_adaptation._advance"] == 1
+    assert kernels["slamobs.pipeline.observers.time_offset._trimmed_costs"] == 1
     # its helpers are subroutines compiled inside it, not kernels of their own (kernel_cache.subroutine)
     helpers = (
         "._integrate",

@@ -302,7 +302,8 @@ def body_frame_notes(report: dict[str, Any], run_input: dict[str, Any]) -> list[
 
 def detections_named_camera(metadata: dict[str, Any]) -> bool:
     """Whether a run's detection pairs named its camera's extrinsic turned or inverted (``time_offset.
-    camera_turned``): riekf's and batch's own time-offset record (run.json ``observer.time_offset``) or the run's
+    camera_turned``): riekf's and batch's own time-offset record (run.json ``observer.time_offset``; the observers'
+    holds the decision alone since session 33, no check, so it names no camera) or the run's
     camera check (``observer.camera_check``: the observers', made when the report found the estimate turned).
     Public: the run's camera check reads it too (no second check where the estimator's own named the camera). A
     time-offset record written before the flag is judged by the same rule from its fields. An observer's run made

@@ -674,6 +674,9 @@ class Stepper:
     #: Whether the caller makes the whole run's checks itself (:meth:`end_checks`; ``ObserverSpec.chunks``) instead
     #: of :meth:`advance` with the last stretch.
     end_checks_later = False
+    #: The time offset's record and notes when it was decided before the start (``ObserverSpec._started``), which
+    #: :meth:`end_checks` adds to the run's metadata and notes.
+    time_offset_said: tuple[dict, list[str]] | None = None
 
     def __init__(self, stream: AlignedStream, options: ObserverOptions) -> None:
         self.stream, self.options = stream, options
@@ -825,8 +828,12 @@ class Stepper:
         norms = np.concatenate(self._innovation_norms)
         det_t = np.repeat(self.det_t, np.diff(s.det_offsets))[: norms.shape[0]]
         check = resighting_check(norms, resightings(s.det_idx[: norms.shape[0]], det_t))
-        self.stats["notes"] = gross_note(norms)  # and run.py's lost_note from the check
-        self.stats.setdefault("metadata", {})["resightings"] = check
+        offset, said = self.time_offset_said or (None, [])  # decided before the start (ObserverSpec._started)
+        self.stats["notes"] = said + gross_note(norms)  # and run.py's lost_note from the check
+        self.stats.setdefault("metadata", {})
+        if offset is not None:
+            self.stats["metadata"]["time_offset"] = offset
+        self.stats["metadata"]["resightings"] = check
         k, b = (np.concatenate(a) for a in zip(*self._biases))
         self.stats["metadata"]["velocity_bias"] = bias_share(k, b[:, 3:], s.velocity)
         self.stats["metadata"]["bias_held"] = bias_held(b, s.det_offsets, self.options.min_landmarks_bias)
@@ -897,6 +904,9 @@ class ObserverSpec:
     takes_known_map: bool = True
     #: Whether it weighs measurements by noise levels (``options.noise``): the reference estimators do.
     uses_noise: bool = False
+    #: Whether it estimates the detections' time offset itself (the reference estimators: riekf beside its filter,
+    #: batch before its seeds); the others start on the stamps :func:`.time_offset.decide` moves (:meth:`_started`).
+    own_time_offset: bool = False
 
     def directions_needed(self, config) -> int:
         """Inertial directions a run of this estimator with ``config`` needs (checking the config first)."""
@@ -906,7 +916,7 @@ class ObserverSpec:
 
     def run(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions) -> ObserverResult:
         """The whole run in one stretch."""
-        stepper = self.start(stream, gains, options)
+        stepper = self._started(stream, gains, options)
         return stepper.advance(stepper.n_vel)
 
     def chunks(
@@ -917,7 +927,7 @@ class ObserverSpec:
         (:meth:`Stepper.end_checks`) are added to the last item's ``stats`` (the same dict) when the generator
         is resumed after it: the caller writes the last stretch on its writer thread meanwhile (docs/benchmarks.md,
         session 21)."""
-        stepper = self.start(stream, gains, options)
+        stepper = self._started(stream, gains, options)
         stepper.end_checks_later = True
         for stop in range(samples, stepper.n_vel + samples, samples):
             part = stepper.advance(stop)
@@ -926,6 +936,21 @@ class ObserverSpec:
             part = stepper.advance(0)
             yield part
         stepper.end_checks(part.stats)
+
+    def _started(self, stream: AlignedStream, gains: dict[str, float], options: ObserverOptions) -> Stepper:
+        """:attr:`start` on ``stream``; an estimator without its own time offset (``own_time_offset``) on the
+        detection stamps moved by it where :func:`.time_offset.decide` finds it reliable (the reference estimators'
+        rule; its record is run.json ``observer.time_offset``, its note the run's). Decided before the observer
+        starts: bounded by the search's pairs (0.06 CPU s on the one-hour log; docs/benchmarks.md, session 33)."""
+        if self.own_time_offset:
+            return self.start(stream, gains, options)
+        from slamobs.pipeline.observers import time_offset
+
+        offset = time_offset.decide(stream)
+        stepper = self.start(time_offset.shifted(stream, offset), gains, options)
+        said = time_offset.note(self.name, offset) + time_offset.unapplied_note(self.name, offset)
+        stepper.time_offset_said = (offset, said)
+        return stepper
 
     def resolve_gains(self, user: dict | None) -> dict[str, float]:
         """Defaults overlaid with the user's gains, exactly as given; anything invalid is an error."""

@@ -2739,4 +2739,5 @@ SPEC = ObserverSpec(
     start=RiEKF,
     takes_known_map=False,
     uses_noise=True,
+    own_time_offset=True,
 )

@@ -1,5 +1,6 @@
 """The time offset between the detection stream and the velocity streams, estimated from the data (the reference
-estimators riekf and batch use it; docs/observers.md, "Time offset").
+estimators riekf and batch use :func:`estimate`, the observers :func:`decide`, its decision alone;
+docs/observers.md, "Time offset").
 
 Two detections of one landmark ``PAIR_SPAN_S`` to ``PAIR_MAX_S`` apart see the same point, and the odometry says
 how the body moved between them. With the detection stamps moved by ``δ`` onto the velocity clock, the second
@@ -448,6 +449,10 @@ def hold_lag(stream) -> float:
     return 0.5e-9 * float(np.median(np.diff(t))) if t.shape[0] > 1 else 0.0
 
 
+#: How ``why_not_applied`` begins where only the halves' check held an offset back (:func:`unapplied_note`).
+HALVES_DISAGREE = "the log's halves disagree"
+
+
 def _halves_disagree(c: Consistency, stream) -> str | None:
     """Why the two halves of the log (the pairs by the time of their first detection) do not give one offset
     within ``HALVES_SIGMAS`` combined standard errors, or None: a constant offset shows in both."""
@@ -456,7 +461,7 @@ def _halves_disagree(c: Consistency, stream) -> str | None:
     found = [_search(c.subset(part)) for part in (first, ~first)]
     (s1, e1, _, _), (s2, e2, _, _) = found
     if abs(s1 - s2) > HALVES_SIGMAS * np.hypot(e1, e2):
-        return f"the log's halves disagree ({s1:+.4f} ± {e1:.2g} s and {s2:+.4f} ± {e2:.2g} s)"
+        return f"{HALVES_DISAGREE} ({s1:+.4f} ± {e1:.2g} s and {s2:+.4f} ± {e2:.2g} s)"
     return None
 
 
@@ -991,19 +996,9 @@ def velocity_lag_sentence(lag: dict | None, pairs: int) -> str | None:
     )
 
 
-def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
-    """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
-    reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's).
-    ``decided``, when given, is called with ``{"applied", "estimate_s"}`` as soon as they are known, before the
-    checks that only report (``gyro_misreads``, ``velocity_scale``), so that a caller waiting for whether the offset
-    is applied (:class:`Background`) need not wait for those."""
-    c = Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
-    n = int(c.a.shape[0])
-    out = {"estimate_s": None, "sigma_s": None, "pairs": n, "applied": False, "topics": dict(stream.topics)}
-    out["gyro_turn"] = getattr(stream, "gyro_turn", None)  # the alignment's turned gyro, which its misreads name
-    out["gyro_moved_s"] = float(getattr(stream, "gyro_moved_s", 0.0))  # which stream is late: odometry_late
-    if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
-        return {**out, "why_not_applied": f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"}
+def _decided(c: Consistency, stream) -> tuple[float, float, float, list[float], str | None]:
+    """The search's best shift, its standard error, cost gain and indistinct span (:func:`_search`), and why it is
+    not applied (None: it is; module docstring): the rule both :func:`estimate` and :func:`decide` apply."""
     shift, sigma, gain, span = _search(c)
     why = None
     if abs(shift) >= MAX_OFFSET_S - COARSE_S:
@@ -1021,6 +1016,64 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
         why = f"the detections fit it only {gain:.3g}x better than no shift"
     else:  # only an offset about to be applied pays for the check of the halves
         why = _halves_disagree(c, stream)
+    return shift, sigma, gain, span, why
+
+
+def _record(stream, n: int) -> dict:
+    """The record's fields known before the search: the pairs, the topics, the alignment's turned gyro (which its
+    misreads name) and the seconds the IMU's stamps were moved by (:func:`odometry_late`)."""
+    return {
+        "estimate_s": None,
+        "sigma_s": None,
+        "pairs": n,
+        "applied": False,
+        "topics": dict(stream.topics),
+        "gyro_turn": getattr(stream, "gyro_turn", None),
+        "gyro_moved_s": float(getattr(stream, "gyro_moved_s", 0.0)),
+    }
+
+
+def _searched(out: dict, shift: float, sigma: float, gain: float, span: list[float], why: str | None) -> dict:
+    """``out`` with the search's result and the decision (:func:`_decided`)."""
+    out = {**out, "estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain}
+    if gain < MIN_GAIN and abs(shift) > MIN_SIGMAS * sigma:  # the σ says significant, the costs say not: no σ
+        out.update({"sigma_s": None, "indistinct_s": span})
+    return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
+
+
+def _too_few(stream, n: int) -> str | None:
+    """Why there is no search (too few pairs, or velocity samples), or None."""
+    if n < MIN_PAIRS or stream.vel_t_ns.shape[0] < 2:
+        return f"{n} detection pairs of one landmark within {PAIR_MAX_S} s"
+    return None
+
+
+def decide(stream) -> dict:
+    """The offset and whether it is applied, by :func:`estimate`'s rule, without the checks that only report (the
+    gyro's and velocity's misreads, the camera's turn, the lever arm, the velocity lag: what the observers, which
+    need only the decision, leave to the run's camera check): the observers' record (run.json
+    ``observer.time_offset``, :func:`found_note`). Bounded on a long log as :func:`estimate` is (``MAX_PAIRS`` pairs
+    from ``BLOCKS`` stretches)."""
+    if not stream.det_idx.shape[0] or stream.vel_t_ns.shape[0] < 2:  # nothing to pair or to dead-reckon
+        return {**_record(stream, 0), "why_not_applied": _too_few(stream, 0)}
+    c = Consistency(stream, np.zeros(6))
+    out = _record(stream, int(c.a.shape[0]))
+    if (why := _too_few(stream, out["pairs"])) is not None:
+        return {**out, "why_not_applied": why}
+    return _searched(out, *_decided(c, stream))
+
+
+def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
+    """The offset (seconds to add to the detection stamps), its standard error, the pairs used and whether it is
+    reliable enough to apply (module docstring); ``bias`` ``[b_Ω, b_V]`` is taken off the odometry (a seed's).
+    ``decided``, when given, is called with ``{"applied", "estimate_s"}`` as soon as they are known, before the
+    checks that only report (``gyro_misreads``, ``velocity_scale``), so that a caller waiting for whether the offset
+    is applied (:class:`Background`) need not wait for those."""
+    c = Consistency(stream, np.zeros(6) if bias is None else np.asarray(bias, dtype=float))
+    out = _record(stream, int(c.a.shape[0]))
+    if (why := _too_few(stream, out["pairs"])) is not None:
+        return {**out, "why_not_applied": why}
+    shift, sigma, gain, span, why = _decided(c, stream)
     if decided is not None:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
     head = _prefix_of(c)
@@ -1033,10 +1086,7 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     out["lever_arm"] = lever_arm(c, shift if why is None else 0.0)
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, shift if why is None else 0.0)
-    out.update({"estimate_s": round(shift, 6), "sigma_s": sigma, "cost_gain": gain})
-    if gain < MIN_GAIN and abs(shift) > MIN_SIGMAS * sigma:  # the σ says significant, the costs say not: no σ
-        out.update({"sigma_s": None, "indistinct_s": span})
-    return {**out, "applied": why is None, **({"why_not_applied": why} if why else {})}
+    return _searched(out, shift, sigma, gain, span, why)
 
 
 class Background:
@@ -1113,7 +1163,7 @@ def output_clock(offset: dict | None) -> dict:
     """run.json ``output.clock``: the clock a run's stamps are on, decided here for every estimator. The poses and
     biases are at the velocity samples, on their clock (the output grid is theirs, and a run's report searches its
     truth's clock against those samples: ``truth_clock_offset``); an applied offset (``offset``: the estimate's
-    record, None for an estimator that estimates none) moved the detection stamps onto it by
+    record: :func:`estimate`'s or :func:`decide`'s, None where there is none) moved the detection stamps onto it by
     ``detections_moved_s``, and ``MOVED_TABLES`` carry the moved stamps, ``RECORDED_TABLES`` the recorded ones
     (``t_recorded = t - detections_moved_s``). Kept on the velocity clock, not moved back onto the detections': on
     the real logs where an offset is applied the APE moved by at most 0.005 m either way on MR.CLAM and by the
@@ -1311,4 +1361,23 @@ def note(name: str | None, offset: dict) -> list[str]:
         f"velocity clock, estimated from the data ({offset['pairs']} detection pairs; docs/observers.md, Time "
         "offset): applied",
         *notes,
+    ]
+
+
+def unapplied_note(name: str, offset: dict) -> list[str]:
+    """The warning of an offset found but not applied: the search's best clear of zero and of its own lag, fitting
+    at least ``MIN_GAIN`` times better than none, held back only by the log's halves disagreeing (the checks run in
+    that order: :func:`estimate`), which a clock that drifts or an offset that changes mid-log gives. riekf and
+    batch judge it by the same rule, so no estimator would apply it: the warning says what was found and why not,
+    for the stamps to be corrected at their source. Nothing otherwise (no offset, or one applied: :func:`note`)."""
+    why = offset.get("why_not_applied") or ""
+    if offset["applied"] or not why.startswith(HALVES_DISAGREE):
+        return []
+    est, sigma = float(offset["estimate_s"]), offset["sigma_s"]
+    late = "late" if est < 0 else "early"
+    return [
+        f"warning: {name}: the detection stamps look {abs(est):.3f} s {late} against the velocity clock "
+        f"({est:+.4f} s ± {sigma:.2g} to add, {offset['pairs']} detection pairs; docs/observers.md, Time offset), "
+        f"not applied: {why}; riekf and batch apply an offset by the same rule, so none would here: an offset that "
+        "drifts or changes mid-log wants the detections' stamps corrected at their source"
     ]

@@ -1241,5 +1241,6 @@ SPEC = ObserverSpec(
     start=BatchSmoother,
     check_config=check_config,
     uses_noise=True,
+    own_time_offset=True,
     takes_known_map=False,
 )

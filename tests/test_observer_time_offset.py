@@ -1,0 +1,74 @@
+"""The observers' detection time offset (session 33): decided by the reference estimators' rule before the observer
+starts (``ObserverSpec._started``, ``time_offset.decide``), applied where reliable, said in the notes and in run.json
+``observer.time_offset``; an offset only the halves' check held back is warned of (``time_offset.unapplied_note``)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from slamobs.pipeline.alignment import align
+from slamobs.pipeline.api import run_log
+from slamobs.pipeline.observers import time_offset
+from slamobs.pipeline.simulate import expected_streams, simulate
+from slamobs.pipeline.simulate.logwriter import write_log
+
+LATE_S = 0.3
+
+
+def _run(tmp_path, observer: str, late: float) -> tuple[dict, float]:
+    log = write_log(simulate("figure8", seed=3438, duration=60.0, detection_offset=late), tmp_path / f"l{late:g}.mcap")
+    out = tmp_path / f"{observer}-{late:g}"
+    run_log(log, out, config={"observer": observer, "evaluation": {"plots": False}})
+    report = json.loads((out / "report.json").read_text())
+    return json.loads((out / "run.json").read_text()), report["ape"]["translation_m"]["rmse"]
+
+
+@pytest.mark.parametrize("observer", ["fast-adaptation", "hashim"])
+def test_an_observer_moves_detections_stamped_late_and_its_twin_on_time_moves_nothing(tmp_path, observer):
+    # seed=3438's figure 8, its detections stamped LATE_S late: fast-adaptation was 0.634 m against 0.053 on its twin
+    # on time, with no word; now the stamps are moved as riekf's are, the APE near the twin's, and a note says so
+    late, late_ape = _run(tmp_path, observer, LATE_S)
+    twin, twin_ape = _run(tmp_path, observer, 0.0)
+    offset = late["observer"]["time_offset"]
+    assert offset["applied"] and abs(offset["estimate_s"] + LATE_S) < 0.02, offset
+    assert late["output"]["clock"]["detections_moved_s"] == offset["estimate_s"]
+    assert any(n.startswith(f"{observer}: detection stamps moved by -0.") for n in late["notes"]), late["notes"]
+    assert late_ape < 1.5 * twin_ape, (late_ape, twin_ape)
+    assert not twin["observer"]["time_offset"]["applied"]
+    assert twin["output"]["clock"]["detections_moved_s"] == 0.0
+    assert not [n for n in twin["notes"] if "detection stamps" in n], twin["notes"]
+
+
+def test_an_offset_the_halves_held_back_is_warned_of_and_none_is_not():
+    # the detections on time for the first half, LATE_S late after it (a camera clock that stepped): the search finds
+    # an offset clear of zero that the halves' check holds back; the warning names what was found and why not
+    stream = align(expected_streams(simulate("figure8", seed=3439, duration=60.0)))
+    t = stream.det_t_ns
+    stepped = replace(stream, det_t_ns=t + np.where(t > np.median(t), int(LATE_S * 1e9), 0))
+    offset = time_offset.decide(stepped)
+    assert not offset["applied"] and offset["why_not_applied"].startswith(time_offset.HALVES_DISAGREE)
+    (warning,) = time_offset.unapplied_note("fast-adaptation", offset)
+    assert warning.startswith("warning: fast-adaptation: the detection stamps look") and "late" in warning
+    assert time_offset.note("fast-adaptation", offset) == []
+    on_time = time_offset.decide(stream)
+    assert not on_time["applied"] and time_offset.unapplied_note("fast-adaptation", on_time) == []
+
+
+def test_decide_is_the_estimates_decision_without_its_reporting_checks():
+    # one rule written once: the observers' decision is the reference estimators' (the same fields, the same values)
+    stream = align(expected_streams(simulate("figure8", seed=3440, duration=30.0, detection_offset=-0.2)))
+    decided, estimated = time_offset.decide(stream), time_offset.estimate(stream)
+    assert decided["applied"] and decided == {k: estimated[k] for k in decided}
+    assert "gyro_misreads" not in decided and "gyro_misreads" in estimated
+
+
+def test_decide_on_a_stream_without_detections_applies_nothing():
+    # a time window can hold no detection: the observer still starts (nothing paired, nothing searched)
+    stream = align(expected_streams(simulate("figure8", seed=3441, duration=10.0)))
+    none = replace(stream, det_t_ns=stream.det_t_ns[:0], det_offsets=stream.det_offsets[:1], det_idx=stream.det_idx[:0])
+    offset = time_offset.decide(replace(none, det_y=stream.det_y[:0]))
+    assert offset["pairs"] == 0 and not offset["applied"] and time_offset.note("fast-adaptation", offset) == []
