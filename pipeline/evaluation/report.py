@@ -364,9 +364,9 @@ def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
 
     observer = metadata.get("observer") or {}
     if filt := observer.get("filter"):  # riekf's record: only its runs have one (and then its module is loaded)
-        from slamobs.pipeline.observers.riekf import STATUSES, status_caveat
+        from slamobs.pipeline.observers.riekf import OFF_STATUSES, STATUSES
 
-        if not status_caveat(filt):  # riekf's own rule of which status says the estimate is off
+        if filt.get("status") not in OFF_STATUSES:  # riekf's own rule of which status says the estimate is off
             return None
         said = filt.get("status_checked") or STATUSES[filt["status"]]  # a run.json from before status_checked
         return {"status": filt["status"], "field": "observer.filter.status", "said": said}
