@@ -2117,7 +2117,10 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
     if d is not None:
         d = DirectionSet(d.names, d.inertial, d.body[a:b], d.weight[a:b], d.gravity_norm)
     starts = aligned.segment_starts
-    return AlignedStream(
+    # replace, not a new AlignedStream: every field the window does not cut is kept as it is (a new one listed them
+    # and left out the later ones: body_from, base_frame, gyro_turn and gyro_moved_s were lost under a time window)
+    return replace(
+        aligned,
         t0_ns=int(t[a]),
         vel_t_ns=t[a:b],
         omega=aligned.omega[a:b],
@@ -2127,19 +2130,9 @@ def windowed(aligned: AlignedStream, window: TimeWindow | None, path) -> Aligned
         det_idx=det_idx.reshape(-1).astype(aligned.det_idx.dtype),
         det_y=aligned.det_y[da:db],
         landmark_ids=ids.astype(aligned.landmark_ids.dtype),
-        body_frame=aligned.body_frame,
         notes=list(aligned.notes),
-        warn_only=aligned.warn_only,
         directions=d,
         segment_starts=starts[(starts > a) & (starts < b)] - a,
-        det_sensor=aligned.det_sensor,
-        two_twist_topics=aligned.two_twist_topics,
-        topics=aligned.topics,
-        velocity_gaps=aligned.velocity_gaps,
-        velocity_period_ns=aligned.velocity_period_ns,
-        velocity_density=aligned.velocity_density,
-        velocity_white_density=aligned.velocity_white_density,
-        accel_blocks=aligned.accel_blocks,
     )
 
 

@@ -111,7 +111,6 @@ def compare_log(
         if not has_truth(prepared.streams):
             table = _without_truth(tmp, rows, summaries, log, compiled, bool(config.evaluation.plots))
             table.attrs["compile_note"] = compile_note(compiled)
-            table.attrs["notes"] = caveats(summaries)  # no report: each estimator's own status only
             return table
         columns = list(COLUMNS)
         if "batch" in observers:
@@ -216,7 +215,7 @@ def _without_truth(
     table = pd.DataFrame(rows).reindex(columns=columns)
     table.to_parquet(tmp / "comparison.parquet", compression="zstd", index=False)
     against = "the batch smoother's estimate" if reference else "each of the other estimates (their mean)"
-    notes = caveats(summaries)
+    table.attrs["notes"] = notes = caveats(summaries)  # no truth: each estimator's own status, its frames' notes
     (tmp / "comparison.md").write_text(comparison_markdown(table, log, against, compiled, notes, overlay=plots))
     doc = {"log": str(Path(log).resolve()), "truth": None, "disagreement_against": reference or "others"}
     write_json(tmp / "comparison.json", {**doc, "rows": table.to_dict("records")})

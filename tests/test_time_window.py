@@ -4,6 +4,7 @@ log; run.json and the report say which; a window outside the log is one line."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -80,3 +81,23 @@ def test_config_keys_and_command_options():
     for command in (("run",), ("compare",), ("batch", "run")):
         res = invoke(*command, "--help")
         assert "--start" in res.output and "--end" in res.output and "1e9" in res.output, command
+
+
+def test_a_window_keeps_every_field_it_does_not_cut():
+    """``alignment.windowed`` built a new AlignedStream from a list of its fields and left out those added later:
+    under a time window run.json's ``input.body_frame_from`` was empty (the report's body-frame notes, which need it,
+    were dropped), ``input.base_frame`` null and the detection pairs' ``gyro_turn`` / ``gyro_moved_s`` lost."""
+    from dataclasses import fields
+
+    from slamobs.pipeline.alignment import windowed
+    from slamobs.pipeline.run import prepare_log
+
+    aligned = prepare_log(LOG, parse_config({}), noise=False).aligned
+    aligned = replace(aligned, base_frame={"frame": "base_link"}, gyro_turn={"turn": 1}, gyro_moved_s=0.1)
+    cut = windowed(aligned, time_window(5.0, 20.0, aligned.t0_ns), LOG)
+    assert cut.vel_t_ns.shape[0] < aligned.vel_t_ns.shape[0] and aligned.body_from
+    moved = {"t0_ns", "vel_t_ns", "omega", "velocity", "det_t_ns", "det_offsets", "det_idx", "det_y", "landmark_ids"}
+    moved |= {"notes", "directions", "segment_starts"}
+    for f in fields(aligned):
+        if f.name not in moved:
+            assert getattr(cut, f.name) is getattr(aligned, f.name), f.name

@@ -356,28 +356,22 @@ def run_hints(report: dict[str, Any], metadata: dict[str, Any]) -> list[str]:
 def own_status(metadata: dict[str, Any]) -> dict[str, str] | None:
     """What the run's own record (run.json ``metadata``) says of its estimate where that is off, whatever the truth
     says: riekf's ``observer.filter.status`` ``lost`` or ``gated_at_end``, an observer without a gate likely lost
-    (``observer.resightings`` or ``observer.velocity_bias`` over :func:`.observers.base.lost_note`'s bounds, the same
-    rule as its warning); None otherwise. ``status``, the run.json ``field`` it came from, and what it ``said``. The
+    (``observer.resightings`` or ``observer.velocity_bias``: :func:`.observers.base.lost_evidence`, the rule and the
+    words of its warning); None otherwise. ``status``, the run.json ``field`` it came from, and what it ``said``. The
     one place where the report's convergence verdict meets the run's own status (report.json
     ``convergence.own_status``, the converged line, compare's and a batch's notes)."""
-    from slamobs.pipeline.observers.base import lost_note
+    from slamobs.pipeline.observers.base import lost_evidence
 
     observer = metadata.get("observer") or {}
     if filt := observer.get("filter"):  # riekf's record: only its runs have one (and then its module is loaded)
-        from slamobs.pipeline.observers.riekf import STATUSES, status_caveat
+        from slamobs.pipeline.observers.riekf import OFF_STATUSES, STATUSES
 
-        if not status_caveat(filt):  # riekf's own rule of which status says the estimate is off
+        if filt.get("status") not in OFF_STATUSES:  # riekf's own rule of which status says the estimate is off
             return None
         said = filt.get("status_checked") or STATUSES[filt["status"]]  # a run.json from before status_checked
         return {"status": filt["status"], "field": "observer.filter.status", "said": said}
-    name = observer.get("name") or "observer"
-    for key, note in (
-        ("resightings", lost_note(name, observer.get("resightings"))),
-        ("velocity_bias", lost_note(name, None, observer.get("velocity_bias"))),
-    ):
-        if note:
-            said = note[0].removeprefix(f"warning: {name}: its estimate is likely lost: ")
-            return {"status": "likely_lost", "field": f"observer.{key}", "said": said}
+    if found := lost_evidence(observer.get("resightings"), observer.get("velocity_bias")):
+        return {"status": "likely_lost", "field": f"observer.{found[0]}", "said": found[1]}
     return None
 
 

@@ -373,20 +373,23 @@ def held_bias_note(name: str, held: dict | None) -> list[str]:
     ]
 
 
-def lost_reason(check: dict | None, bias: dict | None = None) -> str | None:
-    """Why an observer's estimate is likely lost, or None: at least ``RESIGHT_COUNT`` landmarks seen again arrived
-    over ``RESIGHT_RATIO`` times the usual distance from the map (``check``: :func:`resighting_check`): the map and
-    the trajectory disagree, which the median innovation cannot show when the pose was lost all along (the map
-    follows it). Else its velocity bias estimate wanders by over ``BIAS_SHARE`` of the velocity's rms (``bias``:
-    :func:`bias_share`), which needs no landmark seen again."""
+def lost_evidence(check: dict | None, bias: dict | None = None) -> tuple[str, str] | None:
+    """Which check of an observer without a gate says its estimate is likely lost, and what it says: at least
+    ``RESIGHT_COUNT`` landmarks seen again arrived over ``RESIGHT_RATIO`` times the usual distance from the map
+    (``check``: :func:`resighting_check`; ``resightings``): the map and the trajectory disagree, which the median
+    innovation cannot show when the pose was lost all along (the map follows it). Else its velocity bias estimate
+    wanders by over ``BIAS_SHARE`` of the velocity's rms (``bias``: :func:`bias_share`; ``velocity_bias``), which
+    needs no landmark seen again. None when neither does. The run's warning (:func:`lost_note`) and the report's
+    ``convergence.own_status`` (:func:`.evaluation.report.own_status`) and a tune's trial (its ``likely_lost``) all
+    say these words."""
     if check and check["detections"] >= RESIGHT_COUNT and check["ratio"] is not None and check["ratio"] > RESIGHT_RATIO:
-        return (
+        return "resightings", (
             f"landmarks seen again after {RESIGHT_GAP_S:g} s or more out of view ({check['detections']} detections) "
             f"arrived a median {check['median_m']:.3g} m from its map, {check['ratio']:.1f}x its usual "
             f"{check['usual_m']:.3g} m, so its trajectory and map disagree"
         )
     if bias and bias["share"] is not None and bias["share"] > BIAS_SHARE:
-        return (
+        return "velocity_bias", (
             f"its velocity bias estimate wanders by {bias['share']:.2f}x the velocity's rms ({bias['wander_m_s']:.3g} "
             f"m/s rms about its median against {bias['velocity_rms_m_s']:.3g} m/s): it took up the motion itself (an "
             "odometry's bias drifts slowly), and its trajectory and map follow it"
@@ -395,10 +398,10 @@ def lost_reason(check: dict | None, bias: dict | None = None) -> str | None:
 
 
 def lost_note(name: str, check: dict | None, bias: dict | None = None) -> list[str]:
-    """Estimator ``name``'s warning when its estimate is likely lost (:func:`lost_reason`)."""
+    """Estimator ``name``'s warning when :func:`lost_evidence` says its estimate is likely lost, else none."""
     advice = "do not trust it without truth: run riekf or batch (`slamobs compare`), or tune its gains (`slamobs tune`)"
-    why = lost_reason(check, bias)
-    return [f"warning: {name}: its estimate is likely lost: {why}; {advice}"] if why else []
+    found = lost_evidence(check, bias)
+    return [] if found is None else [f"warning: {name}: its estimate is likely lost: {found[1]}; {advice}"]
 
 
 class InnovationRecord:

@@ -313,14 +313,10 @@ def filter_status(gave_up: bool, recoveries: int, gated_at_end: int) -> str:
     return "recovered" if recoveries else "converged"
 
 
-def status_caveat(filt: dict) -> str | None:
-    """What a table's ``ok`` (the run finished: ``compare``, a batch's summary) must say beside a riekf run whose own
-    status (run.json ``observer.filter``) says its estimate is off: ``lost`` or ``gated_at_end``; else None."""
-    status = filt.get("status")
-    if status not in ("lost", "gated_at_end"):
-        return None
-    checked = filt.get("status_checked") or STATUSES[status]
-    return f"its own status is {status} (run.json observer.filter.status): {checked}"
+#: The statuses that say the run's estimate is off (the others only what was checked): a table's ``ok`` (the run
+#: finished: ``compare``, a batch's summary) and the report's converged figure name them beside it
+#: (:func:`.evaluation.report.own_status`).
+OFF_STATUSES = ("lost", "gated_at_end")
 
 
 #: Bias priors from detection pairs (module docstring): the fewest landmarks whose resampling gives the estimate's

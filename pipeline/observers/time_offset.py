@@ -258,6 +258,16 @@ class Consistency:
             jac[:, :, c] = (self.residuals(shift, poses)[0] - base) / BIAS_STEP
         return jac
 
+    def at_shift(self, shift: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The pairs' residuals at the detection shift ``shift``, the samples they read there (:meth:`read_at`) and
+        the residuals' bias Jacobian there (:meth:`bias_jacobian`); at zero shift those made once (``keep``,
+        ``jac``)."""
+        base = self.residuals(shift)[0]
+        if shift == 0.0:
+            return base, self.keep, self.jac
+        read = self.read_at(shift)
+        return base, read, self.bias_jacobian(shift, read, base)
+
     def _poses(self, bias: np.ndarray):
         """The samples' times, poses and bias-corrected twists; the integrator's inputs are kept for the Jacobian's
         dead reckonings (:meth:`_moved_gyro_poses`, :meth:`_moved_velocity_poses`)."""
@@ -808,11 +818,10 @@ def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
     the two and :func:`velocity_misread` names it only where both are off. The axes' mean square is pooled from their
     white levels (``AlignedStream.velocity_white_density``: an axis's samples' level of such motion does not dilute
     the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`)."""
-    read, base = (c.keep if shift == 0.0 else c.read_at(shift)), c.residuals(shift)[0]  # once, for both below
+    base, read, jac = c.at_shift(shift)
     d = _velocity_displacements(c, shift, read, base)
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
-    jac = c.jac if shift == 0.0 else c.bias_jacobian(shift, read, base)
     a = np.concatenate([-d[:, :, moved], jac], axis=2)  # (pairs, 3, unknowns)
     x, sigma, _, keep, ata = _trimmed_fit(base, a)
     inv = np.linalg.inv(ata)
@@ -1076,16 +1085,16 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     shift, sigma, gain, span, why = _decided(c, stream)
     if decided is not None:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
-    head = _prefix_of(c)
+    head, at = _prefix_of(c), shift if why is None else 0.0  # the checks below read the pairs at the applied shift
     out["gyro_misreads"] = gyro_misreads(head)
-    out["velocity_scale"] = velocity_scale(c, shift if why is None else 0.0)
+    out["velocity_scale"] = velocity_scale(c, at)
     if velocity_misread(out["velocity_scale"]):  # which of the two causes, where an accelerometer can tell
         out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
-    out["lever_arm"] = lever_arm(c, shift if why is None else 0.0)
+    out["lever_arm"] = lever_arm(c, at)
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
-    out["velocity_lag"] = velocity_lag(head, shift if why is None else 0.0)
+    out["velocity_lag"] = velocity_lag(head, at)
     return _searched(out, shift, sigma, gain, span, why)
 
 

@@ -113,7 +113,7 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
 
     from slamobs.pipeline.evaluation.metrics import landmark_errors
     from slamobs.pipeline.evaluation.trajectory_evaluation import ReportOptions, evaluate_trajectory
-    from slamobs.pipeline.observers.base import ObserverDiverged, lost_reason
+    from slamobs.pipeline.observers.base import ObserverDiverged, lost_evidence
     from slamobs.pipeline.run import estimator_input, truth_on_run_clock
     from slamobs.pipeline.writers import stretch_tables
 
@@ -143,7 +143,7 @@ def score(prepared, config, target: str = "truth") -> dict[str, float | None]:
         "substeps": int(res.stats.get("substeps", 0)),
         "capped_intervals": int(res.stats.get("capped_intervals", 0)),
         # the run's own check (its "likely lost" warning), whatever the objective says
-        "likely_lost": lost_reason(checks.get("resightings"), checks.get("velocity_bias")),
+        "likely_lost": (lost_evidence(checks.get("resightings"), checks.get("velocity_bias")) or (None, None))[1],
     }
 
 
