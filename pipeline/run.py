@@ -78,13 +78,23 @@ class RunSummary:
     input_warnings: list[str] = field(default_factory=list)
 
     def status_caveats(self) -> list[str]:
-        """What the estimator's own status says against the run's ``ok`` (:func:`.evaluation.report.own_status`:
-        riekf's ``observer.filter.status`` lost or gated_at_end, an observer without a gate likely lost), for the
-        tables that show one."""
+        """What the estimator's own status says where that is off (:func:`.evaluation.report.own_status`: riekf's
+        ``observer.filter.status`` lost or gated_at_end, an observer without a gate likely lost), for the tables
+        that show a run's :meth:`status`: the words beside its ``lost``, ``gated_at_end`` or ``likely_lost``."""
         from slamobs.pipeline.evaluation.report import own_status
 
         own = own_status(self.metadata)
         return [f"its own status is {own['status']} (run.json {own['field']}): {own['said']}"] if own else []
+
+    def status(self) -> str:
+        """A finished run's ``status`` in ``compare``'s table: the estimator's own status where its record says its
+        estimate is off (``lost``, ``gated_at_end``, ``likely_lost``: :func:`.evaluation.report.own_status`, the
+        reason in :meth:`status_caveats`), else ``ok``. A run that could not start reads ``failed`` (its caller's
+        row). Before session 33 it read ``ok`` whenever the run finished, beside a likely-lost note."""
+        from slamobs.pipeline.evaluation.report import own_status
+
+        own = own_status(self.metadata)
+        return own["status"] if own else "ok"
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
