@@ -426,13 +426,14 @@ def _recorded_velocity_noise(streams: LogStreams, config: RunConfig):
 def log_noise(prepared: PreparedLog, config: RunConfig):
     """The noise levels of the reference estimators on ``prepared`` (``pipeline.noise.NoiseSettings``): the
     config's keys, else plausible message covariances, else estimated from the log (``noise.auto``), else the
-    defaults."""
-    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
+    defaults; the gyro level of an angular velocity derived, not measured, says so (:func:`.noise.of_derived`)."""
+    from slamobs.pipeline.noise import estimate_log_noise, of_derived, resolve_noise
 
     if config.noise.auto and prepared.estimated_noise is None and prepared.aligned is not None:
         prepared.estimated_noise = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
     estimated = prepared.estimated_noise if config.noise.auto else None
-    return resolve_noise(config.noise, estimated=estimated, stated=prepared.streams.stated_covariance)
+    settings = resolve_noise(config.noise, estimated=estimated, stated=prepared.streams.stated_covariance)
+    return of_derived(settings, prepared.streams.derived.get("angular_velocity"))
 
 
 def detection_checks(prepared: PreparedLog) -> list[str]:
