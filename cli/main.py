@@ -274,7 +274,7 @@ def compare(
         runs = "one run directory per observer" if any(p.is_dir() for p in out_dir.iterdir()) else ""
         files = ("comparison.parquet", "comparison.md", "comparison.json", "overlay.png")
         click.echo(f"wrote {wrote_line(out_dir, files, runs)}")
-    if (table["status"] != "ok").all():
+    if (table["status"] == "failed").all():
         sys.exit(1)
 
 

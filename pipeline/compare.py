@@ -42,6 +42,12 @@ COLUMNS = (
     "run_time_s",
     "error",
 )
+#: What comparison.md says of the ``status`` column (:meth:`.run.RunSummary.status`).
+STATUS_WORDS = (
+    "status is failed when the estimator could not run (error says why), its own status when its run's record says "
+    "its estimate is off (lost or gated_at_end: riekf's filter; likely_lost: an observer's resightings or velocity "
+    "bias; the Notes say why), else ok"
+)
 #: Added after the APE when the batch smoother is compared: each estimator's APE over the smoother's.
 VS_BATCH = "ape_vs_batch"
 LABELS = {VS_BATCH: "APE / batch APE"}
@@ -60,7 +66,9 @@ def compare_log(
     """Run every observer in ``observers`` on ``log``; write ``OUT/<observer>/``, the table and an overlay plot.
 
     An observer that cannot run on this log (e.g. it needs IMU directions the log lacks) gets a row with
-    status "failed" and its one-line reason; the others still run. Returns the table as a DataFrame.
+    status "failed" and its one-line reason; the others still run. A finished run's status is its estimator's own
+    where that says its estimate is off (:meth:`.run.RunSummary.status`: lost, gated_at_end, likely_lost), else
+    "ok". Returns the table as a DataFrame.
     ``progress`` gets every stage line of the runs, ``on_observer`` one line as each observer starts.
     """
     import pandas as pd
@@ -101,7 +109,7 @@ def compare_log(
             rows.append(
                 {
                     "observer": name,
-                    "status": "ok",
+                    "status": summary.status(),
                     "error": "",
                     **summary.headline(),
                     "convergence_band_m": band,
@@ -116,7 +124,7 @@ def compare_log(
         if "batch" in observers:
             columns.insert(columns.index("ape_trans_rmse_m") + 1, VS_BATCH)
             ref = next(
-                (r.get("ape_trans_rmse_m") for r in rows if r["observer"] == "batch" and r["status"] == "ok"), None
+                (r.get("ape_trans_rmse_m") for r in rows if r["observer"] == "batch" and r["status"] != "failed"), None
             )
             for r in rows:
                 ape = r.get("ape_trans_rmse_m")
@@ -144,8 +152,10 @@ NO_MAP_TRUTH = f"landmark_rmse_m is blank: no landmark truth; {MAP_TRUTH_HINT}"
 
 
 def caveats(summaries: dict[str, RunSummary]) -> list[str]:
-    """Per observer, what its own status says against the table's ``ok`` (:meth:`.run.RunSummary.status_caveats`:
-    riekf lost, or its last detections failing the gate, an observer without a gate likely lost) and what its report
+    """Per observer, why its own status stands in the table's ``status`` (:meth:`.run.RunSummary.status_caveats`:
+    riekf lost, or its last detections failing the gate, an observer without a gate likely lost), its run's
+    landmark-jump warnings in the words of its run.json ``notes`` (:func:`.observers.base.jump_warnings`: a landmark
+    split in two, or one id seen at two places; its report.md has them) and what its report
     says beside its headline numbers (:func:`.evaluation.markdown.headline_caveats`: no or a coarse convergence, or
     one the run's own status contradicts, an upside-down alignment, a truth turned against the estimate), so a blank
     or 180-degree cell is explained; then, once for the log, the body frame
@@ -154,11 +164,12 @@ def caveats(summaries: dict[str, RunSummary]) -> list[str]:
     only frames.truth_rotation, for the evaluation, one angle per estimator)."""
     from slamobs.pipeline.evaluation.markdown import headline_caveats
     from slamobs.pipeline.evaluation.sections import body_frame_notes
+    from slamobs.pipeline.observers.base import jump_warnings
 
     out = [
         f"{name}: {c}"
         for name, s in summaries.items()
-        for c in [*s.status_caveats(), *headline_caveats(s.report or {})]
+        for c in [*s.status_caveats(), *jump_warnings(name, s.notes), *headline_caveats(s.report or {})]
     ]
     frames = (n for s in summaries.values() for n in body_frame_notes(s.report or {}, s.metadata.get("input") or {}))
     return out + list(dict.fromkeys(frames))
@@ -204,9 +215,8 @@ def _without_truth(
     spread, aligned = disagreement(poses, reference)
     for r in rows:
         s = summaries.get(r["observer"])
-        counts = (s.metadata.get("counts") or {}) if s is not None else {}
         r[DISAGREEMENT] = spread.get(r["observer"])
-        r["landmarks"] = counts.get("landmarks")
+        r["landmarks"] = map_size(Path(s.out_dir)) if s is not None else None
         r["path_length_m"] = path_length(poses[r["observer"]]) if r["observer"] in poses else None
         r[MAP_ERROR] = map_error_rmse(s.metadata if s is not None else None)
     columns = list(COLUMNS_NO_TRUTH)
@@ -222,6 +232,16 @@ def _without_truth(
     if aligned and plots:
         plot_estimates(tmp / "overlay.png", aligned, spread, reference)
     return table
+
+
+def map_size(run_dir: Path) -> int | None:
+    """The landmarks of the map a run wrote (landmarks.parquet's rows), None without one: a landmark split in two
+    counts twice, where run.json ``counts.landmarks`` counts the log's ids (TagSLAM test_11 with its example config:
+    21 in the map, 20 ids; comparison.md's ``landmarks`` read 20 before session 33)."""
+    from slamobs.pipeline.writers import read_columns
+
+    path = run_dir / "landmarks.parquet"
+    return int(read_columns(path, wanted=lambda c: c == "id")["id"].size) if path.is_file() else None
 
 
 def path_length(poses) -> float:
@@ -348,7 +368,9 @@ def comparison_markdown(
             f"# Observer comparison (no ground truth)\n\nLog: `{log}`\n\nThe log has no trajectory truth, so "
             f"there are no trajectory errors: disagreement_m is each estimate's APE translation RMSE against "
             f"{against} after SE(3) alignment (a spread among the estimators, not an error); landmarks is the map "
-            f"size, {map_words}path_length_m the estimated path's length; run time is the observer stage. "
+            f"size (the landmarks each run's map holds: landmarks.parquet's rows, a landmark split in two counted "
+            f"twice), {map_words}path_length_m the estimated path's length; run time is the observer stage; "
+            f"{STATUS_WORDS}. "
             + ("overlay.png shows the estimates aligned onto one another." if overlay else "")
             + f"\n\n{head}{body}"
         )
@@ -358,7 +380,7 @@ def comparison_markdown(
         "the first time after which the aligned "
         f"position error's level (running median over 5 % of the log) stays within convergence_band_m = "
         f"max(threshold, 1.5 × the observer's highest level over the last 20 % of the log), so each observer is "
-        f"measured against its own steady level; run time is the observer stage.{vs}\n\n{head}{body}"
+        f"measured against its own steady level; run time is the observer stage; {STATUS_WORDS}.{vs}\n\n{head}{body}"
     )
 
 

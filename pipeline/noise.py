@@ -367,6 +367,19 @@ def _stream_arrays(aligned) -> tuple:
     return t, aligned.omega, aligned.velocity, det_t, aligned.det_offsets, aligned.det_idx, aligned.det_y
 
 
+def of_derived(settings: NoiseSettings, how: str | None) -> NoiseSettings:
+    """``settings`` with the gyro level's method saying that the angular velocity it is the noise of was not measured
+    but derived, ``how`` (run.json ``input.derived``'s words: an angular velocity differentiated from an odometry's
+    orientations, TagSLAM test_11's VIO twist having no angular part, gives a gyro level of that differentiation, not
+    of a gyro); unchanged without ``how`` or for a level of the config or the default. The one wording of
+    ``info --noise``'s gyro line and run.json's gyro ``method``."""
+    if not how or settings.sources.get("gyro", "default") in ("config", "default"):
+        return settings
+    said = f"of an angular velocity not measured but derived, {how} (run.json input.derived)"
+    method = settings.methods.get("gyro")
+    return replace(settings, methods={**settings.methods, "gyro": f"{said}: {method}" if method else said})
+
+
 def estimate_log_noise(aligned, velocity: Estimate | None | str = "aligned") -> LogNoise:
     """:class:`LogNoise` of an aligned stream (``pipeline.alignment.AlignedStream``): the gyro density from its
     angular velocity (on its own stamps), the detection law from its detections; the velocity density is

@@ -78,13 +78,23 @@ class RunSummary:
     input_warnings: list[str] = field(default_factory=list)
 
     def status_caveats(self) -> list[str]:
-        """What the estimator's own status says against the run's ``ok`` (:func:`.evaluation.report.own_status`:
-        riekf's ``observer.filter.status`` lost or gated_at_end, an observer without a gate likely lost), for the
-        tables that show one."""
+        """What the estimator's own status says where that is off (:func:`.evaluation.report.own_status`: riekf's
+        ``observer.filter.status`` lost or gated_at_end, an observer without a gate likely lost), for the tables
+        that show a run's :meth:`status`: the words beside its ``lost``, ``gated_at_end`` or ``likely_lost``."""
         from slamobs.pipeline.evaluation.report import own_status
 
         own = own_status(self.metadata)
         return [f"its own status is {own['status']} (run.json {own['field']}): {own['said']}"] if own else []
+
+    def status(self) -> str:
+        """A finished run's ``status`` in ``compare``'s table: the estimator's own status where its record says its
+        estimate is off (``lost``, ``gated_at_end``, ``likely_lost``: :func:`.evaluation.report.own_status`, the
+        reason in :meth:`status_caveats`), else ``ok``. A run that could not start reads ``failed`` (its caller's
+        row). Before session 33 it read ``ok`` whenever the run finished, beside a likely-lost note."""
+        from slamobs.pipeline.evaluation.report import own_status
+
+        own = own_status(self.metadata)
+        return own["status"] if own else "ok"
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
@@ -416,13 +426,14 @@ def _recorded_velocity_noise(streams: LogStreams, config: RunConfig):
 def log_noise(prepared: PreparedLog, config: RunConfig):
     """The noise levels of the reference estimators on ``prepared`` (``pipeline.noise.NoiseSettings``): the
     config's keys, else plausible message covariances, else estimated from the log (``noise.auto``), else the
-    defaults."""
-    from slamobs.pipeline.noise import estimate_log_noise, resolve_noise
+    defaults; the gyro level of an angular velocity derived, not measured, says so (:func:`.noise.of_derived`)."""
+    from slamobs.pipeline.noise import estimate_log_noise, of_derived, resolve_noise
 
     if config.noise.auto and prepared.estimated_noise is None and prepared.aligned is not None:
         prepared.estimated_noise = estimate_log_noise(prepared.aligned, prepared.velocity_noise)
     estimated = prepared.estimated_noise if config.noise.auto else None
-    return resolve_noise(config.noise, estimated=estimated, stated=prepared.streams.stated_covariance)
+    settings = resolve_noise(config.noise, estimated=estimated, stated=prepared.streams.stated_covariance)
+    return of_derived(settings, prepared.streams.derived.get("angular_velocity"))
 
 
 def detection_checks(prepared: PreparedLog) -> list[str]:

@@ -532,3 +532,23 @@ def test_info_says_what_its_columns_count(tmp_path):
     text = format_info(inspect_log(_write(tmp_path / "one.bag", {"/imu": _steady(100, 2, 0)})))
     assert "rate: distinct header stamps per second of the time recorded" in text
     assert "spread: its 5th-95th percentile width" in text and "gaps: intervals over 5x the median" in text
+
+
+def test_a_topic_of_one_message_is_not_judged_against_the_reference_clock(tmp_path):
+    """fiducials_ubiquity's aruco_images.bag: info said "header clocks disagree" from its one image's stamp 0.95 s
+    off 15 camera_info stamps. A topic with fewer than MIN_CLOCK_STAMPS stamps keeps its header clock, unjudged, and
+    a reference of one stamp judges none; MIN_CLOCK_STAMPS stamps 1.2 s off are still a clock of their own."""
+    from slamobs.pipeline.readers.inspect import MIN_CLOCK_STAMPS
+
+    off = int(1.2 * NS)
+    late = _steady(50, 3, off)
+    for name, topics in {
+        "one": {"/imu": _steady(100, 3, 0), "/pose": late[:1]},
+        "reference": {"/imu": _steady(100, 3, 0)[:1], "/pose": late},
+    }.items():
+        summary = inspect_log(_write(tmp_path / f"{name}.bag", topics))
+        assert summary.clocks == {"/imu": "header", "/pose": "header"}, name
+        assert not any("header clock" in w for w in summary.warnings), (name, summary.warnings)
+    summary = inspect_log(_write(tmp_path / "few.bag", {"/imu": _steady(100, 3, 0), "/pose": late[:MIN_CLOCK_STAMPS]}))
+    assert summary.clocks == {"/imu": "header", "/pose": "record"}
+    assert any("/pose: header clock is +1.200 s off /imu's" in w for w in summary.warnings), summary.warnings

@@ -218,3 +218,67 @@ def test_headline_caveats_go_by_the_reports_flags_not_by_the_notes_words():
     )
     flat = {**report, "ape": {**stats, "gravity_tilt_deg": None, "truth_frame_turn": None}}
     assert headline_caveats({**flat, "notes": caveats}) == []  # the notes' words alone say nothing
+
+
+def test_a_run_its_own_check_calls_likely_lost_does_not_read_ok(tmp_path):
+    """Round 20 (MR.CLAM 6 r3): `compare` printed `status ok` beside fast-adaptation's likely-lost note (the column
+    said only that the run finished). The status column now carries the estimator's own status where its record says
+    its estimate is off, the note says why, and `stats` still reads the run (not a failed row). The gains are those
+    of test_tune's likely-lost tune (they wander on a generated 10 s figure 8); hashim on defaults stays ok."""
+    from slamobs.pipeline.simulate import simulate, write_log
+    from slamobs.pipeline.stats.inputs import read_comparison
+
+    log, config, out = tmp_path / "f.mcap", tmp_path / "run.yaml", tmp_path / "cmp"
+    write_log(simulate("figure8", duration=10.0, seed=70), log)
+    gains = "{alpha: 1.014, gamma: 26.53, k_p: 0.1387, k_w: 0.01826}"
+    config.write_text(f"evaluation:\n  plots: false\ngains:\n  fast-adaptation: {gains}\n")
+    res = invoke("compare", log, "-o", out, "--observers", "fast-adaptation,hashim", "--config", config)
+    assert res.exit_code == 0, res.output
+    table = pd.read_parquet(out / "comparison.parquet").set_index("observer")
+    assert table.loc["fast-adaptation", "status"] == "likely_lost" and table.loc["hashim", "status"] == "ok"
+    md = (out / "comparison.md").read_text()
+    assert "| fast-adaptation | likely_lost |" in md and "| hashim | ok |" in md and "likely_lost: an observer" in md
+    assert "note: fast-adaptation: its own status is likely_lost (run.json observer." in res.stdout
+    runs = read_comparison(out).set_index("estimator")
+    assert set(runs["status"]) == {"ok"} and runs.loc["fast-adaptation", "ape_trans_rmse_m"] > 0
+
+
+def test_a_split_landmarks_warning_and_the_maps_size_stand_in_the_comparison(tmp_path, monkeypatch):
+    """Round 20 (TagSLAM test_11, its example config, riekf and batch): comparison.md repeated none of the runs'
+    landmark-jump warnings (each report.md has them) and its `landmarks` column, "the map size", read run.json
+    `counts.landmarks` (20, the log's ids) where the map held 21 after a split. The sample figure 8 without truth,
+    two landmarks' ids swapped from the middle on (test_robust_reference's swap): the run splits both; the table's
+    `landmarks` is landmarks.parquet's rows (two more than the ids) and the notes hold the run's warning, its words."""
+    from dataclasses import replace
+
+    import pyarrow.parquet as pq
+
+    from slamobs.pipeline import compare
+    from slamobs.pipeline.config import NO_TRUTH, parse_config, with_truth
+    from test_robust_reference import second_half, swap_between_candidates
+
+    real = compare.prepare_log
+
+    def swapped(*args, **kw):
+        prepared = real(*args, **kw)
+        stream = prepared.aligned
+        a, b = np.argsort(np.bincount(stream.det_idx[second_half(stream)]))[-2:]
+        late, _ = swap_between_candidates(stream, (a, b))
+        idx = stream.det_idx.copy()
+        idx[late & (stream.det_idx == a)], idx[late & (stream.det_idx == b)] = b, a
+        prepared.aligned = replace(stream, det_idx=idx)
+        return prepared
+
+    monkeypatch.setattr(compare, "prepare_log", swapped)
+    config = with_truth(parse_config({"evaluation": {"plots": False}}), NO_TRUTH)
+    out = tmp_path / "cmp"
+    table = compare.compare_log(SAMPLES / "figure8.mcap", out, config, ["riekf"])
+    run = json.loads((out / "riekf" / "run.json").read_text())
+    assert len(run["observer"]["landmark_jumps"]) == 2, run["observer"]["landmark_jumps"]
+    rows = pq.read_metadata(out / "riekf" / "landmarks.parquet").num_rows
+    assert table["landmarks"].tolist() == [rows] and rows == run["counts"]["landmarks"] + 2
+    warned = [n.removeprefix("warning: ") for n in run["notes"] if n.startswith("warning: riekf: landmark ")]
+    assert warned and all(n.startswith("riekf: landmark ") for n in warned)  # as the estimator's notes stand
+    md = (out / "comparison.md").read_text()
+    assert all(f"- {n}\n" in md for n in warned) and all(n in table.attrs["notes"] for n in warned)
+    assert f"| riekf | ok |  | {rows} |" in md, md

@@ -711,3 +711,30 @@ def test_a_held_level_at_the_fit_s_floor_says_so():
     assert "noise.velocity_bias in run.yaml" in e.method, e.method
     above = Estimate(0.0055, 0.0002, "variance components of ...", 100)
     assert floored("gyro_bias", above) is above
+
+
+def test_a_gyro_level_of_an_angular_velocity_differentiated_from_poses_says_so(tmp_path):
+    """TagSLAM test_11 (its VIO twist has no angular part; the readers differentiate the orientations): `info
+    --noise` printed `gyro = [0.000673, ...] rad/s/sqrt(Hz) (estimated, ...: quintic-prediction residuals ...)` as if
+    a gyro had been measured. A generated figure 8 whose odometry's twist.angular is zero, read as the angular
+    velocity: the gyro line and the level's method (run.json's) say what it is the noise of, in run.json
+    input.derived's words; the same log's IMU read as the gyro says nothing of the kind."""
+    from slamobs.pipeline.readers import read_log
+
+    sim = simulate("figure8", duration=20.0, seed=3401)
+    odom = replace(sim.odom, angular=np.zeros_like(sim.odom.angular))
+    log = write_log(replace(sim, odom=odom, noise=replace(sim.noise, odom_angular=0.0)), tmp_path / "vio.mcap")
+    config = tmp_path / "run.yaml"
+    config.write_text("topics:\n  angular_velocity: /odom\n")
+    how = read_log(log, {"angular_velocity": "/odom"}).derived["angular_velocity"]
+    assert how.startswith("differentiated from the orientations of /odom"), how
+    said = f"of an angular velocity not measured but derived, {how} (run.json input.derived): "
+    res = invoke("info", "--noise", str(log), "--config", str(config))
+    assert res.exit_code == 0, res.output
+    line = next(x for x in res.output.splitlines() if x.strip().startswith("gyro = "))
+    assert "(estimated, ± " in line and f": {said}" in line, line
+    levels = json.loads(invoke("info", "--noise", "--json", str(log), "--config", str(config)).output)["levels"]
+    assert levels["gyro"]["method"].startswith(said) and "derived" not in levels["velocity"]["method"], levels
+    plain = invoke("info", "--noise", str(log))  # the IMU's gyro
+    line = next(x for x in plain.output.splitlines() if x.strip().startswith("gyro = "))
+    assert "derived" not in line, line

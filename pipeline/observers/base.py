@@ -618,6 +618,19 @@ def _jump_words(j: dict, t0_ns: int) -> str:
     )
 
 
+#: How every landmark-jump warning of estimator ``name`` begins (:func:`jump_note`), so a table of runs finds them in
+#: a run's notes (:func:`jump_warnings`).
+JUMP_WARNING = "warning: {name}: landmark "
+
+
+def jump_warnings(name: str, notes: list[str]) -> list[str]:
+    """Estimator ``name``'s landmark-jump warnings (:func:`jump_note`'s words) among a run's ``notes`` (run.json
+    ``notes``), each from its ``landmark``: ``compare`` repeats them under its table after the estimator's name, as
+    the run's report.md has them."""
+    start = JUMP_WARNING.format(name=name)
+    return [n.removeprefix(f"warning: {name}: ") for n in notes if n.startswith(start)]
+
+
 def jump_note(
     name: str, jumps: list[dict], t0_ns: int, lost: bool = False, topics: Mapping[str, str] | None = None
 ) -> list[str]:
@@ -630,7 +643,7 @@ def jump_note(
     said = "; ".join(_jump_words(j, t0_ns) for j in jumps) + stream_topics(topics or {}, "detections")
     if lost:
         return [
-            f"warning: {name}: landmark {said}: jumps that follow a misread input the detections named (the "
+            JUMP_WARNING.format(name=name) + f"{said}: jumps that follow a misread input the detections named (the "
             "warnings above: the gyro, the camera extrinsic or the velocity), so more likely the estimate's pose lost "
             "than a landmark id reused; the run was not made again with them split: fix that input first"
         ]
@@ -638,7 +651,7 @@ def jump_note(
         apart = [j for j in jumps if not j.get("one_place")]
         same = [j for j in jumps if j.get("one_place")]
         return jump_note(name, apart, t0_ns, topics=topics) + [
-            f"warning: {name}: landmark {'; '.join(_jump_words(j, t0_ns) for j in same)}"
+            JUMP_WARNING.format(name=name) + f"{'; '.join(_jump_words(j, t0_ns) for j in same)}"
             f"{stream_topics(topics or {}, 'detections')}: the run made again with the detections after the jump as a "
             "landmark of their own put it where the first one is, within their stated σ: one place after all, so the "
             "jump was more likely the estimate's (its pose, or that landmark's first place, off while those "
@@ -648,13 +661,14 @@ def jump_note(
         ]
     if all("new_id" in j for j in jumps):
         return [
-            f"warning: {name}: landmark {said}: a landmark id reused for another landmark (a tag printed again, a "
+            JUMP_WARNING.format(name=name)
+            + f"{said}: a landmark id reused for another landmark (a tag printed again, a "
             "barcode reassigned) or a landmark moved; the run was made again with the detections after the jump "
             "as a landmark of their own (the new id in landmarks.parquet, no truth for it): give them an id of "
             "their own in the log"
         ]
     return [
-        f"warning: {name}: landmark {said}: a landmark id reused for another landmark (a tag printed again, a "
+        JUMP_WARNING.format(name=name) + f"{said}: a landmark id reused for another landmark (a tag printed again, a "
         "barcode reassigned) or a landmark moved; the estimate took them as one place, so its map and the poses "
         "near those detections are off: give the detections after the jump an id of their own"
     ]

@@ -66,6 +66,11 @@ _EPOCH_2000_NS = 946_684_800 * _NS  # stamps before this are simulation clocks, 
 #: Header clocks further apart than this (median header-minus-record, between topics) are different clocks;
 #: below it the difference is transport/processing latency.
 CLOCK_TOLERANCE_S = 0.1
+#: The fewest stamps of a topic whose header clock is compared with another's: the median of three is the first a
+#: single stamp recorded late (an image written after a pause, a latched message) cannot set. Fewer: the topic
+#: keeps its own clock, unjudged, and a reference with fewer judges none (fiducials_ubiquity's aruco_images.bag:
+#: "header clocks disagree" from its one image's stamp, 0.95 s off 15 camera_info stamps that spread 0.22 s).
+MIN_CLOCK_STAMPS = 3
 #: An interval longer than this many median periods is a gap.
 GAP_FACTOR = 5.0
 #: Block rates differing by more than this fraction start a new rate segment.
@@ -232,22 +237,25 @@ def _recorded_rate(steps: np.ndarray, gaps: np.ndarray) -> float | None:
 
 
 def choose_clocks(
-    offsets: Mapping[str, tuple[str, int, int]], reference: str | None
+    offsets: Mapping[str, tuple[str, int, int]], reference: str | None, stamps: Mapping[str, int] | None = None
 ) -> tuple[dict[str, str], list[str]]:
     """Time source per topic from its (header clock kind, median header-minus-record ns, that difference's 5th-95th
     percentile spread ns), with warnings.
 
-    See the module docstring; ``reference`` is the topic whose clock the others must agree with.
+    See the module docstring; ``reference`` is the topic whose clock the others must agree with. ``stamps``: each
+    topic's number of stamps; one with fewer than :data:`MIN_CLOCK_STAMPS` is not compared (a reference with fewer:
+    none is).
     """
     clocks = {t: "record" if kind == "zero" else "header" for t, (kind, _, _) in offsets.items()}
-    if reference not in offsets or offsets[reference][0] == "zero":
+    few = {t for t, n in (stamps or {}).items() if n < MIN_CLOCK_STAMPS}
+    if reference not in offsets or offsets[reference][0] == "zero" or reference in few:
         return clocks, []
     ref_kind, ref_offset, _ = offsets[reference]
     tol = CLOCK_TOLERANCE_S * _NS
     odd = [
         t
         for t, (kind, offset, _) in offsets.items()
-        if kind != "zero" and (kind != ref_kind or abs(offset - ref_offset) > tol)
+        if kind != "zero" and t not in few and (kind != ref_kind or abs(offset - ref_offset) > tol)
     ]
     if not odd:
         return clocks, []
@@ -280,14 +288,15 @@ _TIMED_ROLES = ("angular_velocity", "linear_velocity", "accel", "magnetic", "det
 
 def recommend_clocks(streams: LogStreams) -> tuple[dict[str, str], list[str]]:
     """Time source per topic of decoded streams (reference: the angular-velocity topic), with warnings."""
-    found = {}
+    found, stamps = {}, {}
     for role in _TIMED_ROLES:
         stream = getattr(streams, role)
         if stream is not None and len(stream) and stream.topic not in found:
             stats = stamp_stats(stream.t_ns, stream.rec_ns)
             found[stream.topic] = (stats.header_clock, stats.offset_ns, stats.spread_ns)
+            stamps[stream.topic] = len(stream)
     reference = streams.angular_velocity.topic if streams.angular_velocity is not None else None
-    return choose_clocks(found, reference)
+    return choose_clocks(found, reference, stamps)
 
 
 #: A window where every timed topic has at least this many times its median count of samples (and none of them is
@@ -664,7 +673,7 @@ def inspect_log(
     reference = selection.roles.get("angular_velocity")
     if reference not in offsets:
         reference = max(offsets, key=lambda t: (summaries[t].count, t), default=None)
-    advised, clock_warnings = choose_clocks(offsets, reference)
+    advised, clock_warnings = choose_clocks(offsets, reference, {t: summaries[t].count for t in offsets})
     auto = dict(advised)  # what time.source: auto reads (readers._with_clocks: no stepped rule)
     stepped = [
         t

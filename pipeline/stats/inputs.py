@@ -119,12 +119,12 @@ def read_comparison(path: Path) -> pd.DataFrame:
     except (pa.ArrowException, OSError) as err:
         raise InputError(path / COMPARISON, f"unreadable comparison ({one_line(err)})") from None
     rows, log = [], None
-    for row in table:
-        if row["status"] == "ok":
+    for row in table:  # a finished run: ok, or its estimator's own status (likely_lost, ...; its run directory's)
+        if row["status"] != "failed":
             rows.append(read_run_dir(path / row["observer"]))
             log = rows[-1]["log"]
     for row in table:
-        if row["status"] != "ok":
+        if row["status"] == "failed":
             source = str((path / row["observer"]).resolve())
             rows.append({"estimator": row["observer"], "log": log or str(path), "status": row["status"]})
             rows[-1]["source"] = source
