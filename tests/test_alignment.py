@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slamobs.pipeline.alignment import align
+from slamobs.pipeline.alignment import align, unbridged
 from slamobs.pipeline.blocks import row_norms3
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.frames import static_transform
@@ -284,7 +284,9 @@ def test_a_gyro_sampled_through_an_odometry_gap_is_not_said_to_have_dropped_samp
     assert not [n for n in a.notes if n.startswith(("/imu", "warning: /imu"))], a.notes
 
 
-def _silent_odometry(silent: tuple[float, float], gyro_silent: tuple[float, float] | None = None, **kw):
+def _silent_odometry(
+    silent: tuple[float, float], gyro_silent: tuple[float, float] | None = None, detections=None, **kw
+):
     """A 100 Hz IMU and 10 Hz odometry over 30 s, the odometry silent over ``silent`` (s), the IMU over
     ``gyro_silent``, aligned with ``kw``."""
     t_om, t_v = np.arange(0, 30.0, 0.01), np.arange(0, 30.0, 0.1)
@@ -293,8 +295,9 @@ def _silent_odometry(silent: tuple[float, float], gyro_silent: tuple[float, floa
         t_om = t_om[(t_om < gyro_silent[0]) | (t_om > gyro_silent[1])]
     gyro = np.tile([0.0, 0.0, 0.5], (t_om.size, 1))
     odom = np.column_stack([1.0 + 0.1 * np.sin(t_v), np.zeros((t_v.size, 2))])
+    more = {} if detections is None else {"detections": detections}
     streams = _streams(
-        angular_velocity=_vec("/imu", "imu", t_om, gyro), linear_velocity=_vec("/odom", "base_link", t_v, odom)
+        angular_velocity=_vec("/imu", "imu", t_om, gyro), linear_velocity=_vec("/odom", "base_link", t_v, odom), **more
     )
     return align(streams, **kw)
 
@@ -319,6 +322,31 @@ def test_an_odometry_gap_the_gyro_recorded_through_is_bridged_up_to_max_odometry
         a = _silent_odometry(silent, gyro_silent, **kw)
         assert a.segment_starts.size == 1, (silent, gyro_silent, kw, a.notes)
         assert not [n for n in a.notes if "bridged" in n], a.notes
+
+
+def test_batch_splits_a_bridged_odometry_gap_as_the_split_run_did():
+    """batch carried across a bridged gap was the worse (a generated figure 8, odometry silent 7 s: 0.22 m against
+    0.009 m split; docs/benchmarks.md, session 33): ``unbridged`` gives it the stream the split run had, the
+    gyro's samples and the detection frames inside the gap dropped, a segment after it."""
+    t_det = np.arange(0.5, 29.0, 0.5)
+    det = DetectionStream(
+        "/fid",
+        "camera",
+        t_ns=(t_det * NS).astype(np.int64) + 5 * NS,
+        rec_ns=(t_det * NS).astype(np.int64) + 5 * NS,
+        offsets=np.arange(0, 3 * t_det.size + 1, 3),
+        ids=np.tile([1, 2, 3], t_det.size),
+        xyz=np.tile([[1.0, 0, 2], [0, 1.0, 2], [-1.0, 0, 2]], (t_det.size, 1)),
+    )
+    bridged = _silent_odometry((10.0, 18.0), detections=det)
+    split = _silent_odometry((10.0, 18.0), detections=det, limits={"max_odometry_gap": None})
+    assert bridged.bridged_gaps.shape == (1, 2) and split.bridged_gaps.shape == (0, 2)
+    got = unbridged(bridged)
+    assert got.segment_starts.tolist() == split.segment_starts.tolist() and split.segment_starts.size == 1
+    for name in ("vel_t_ns", "omega", "velocity", "det_t_ns", "det_offsets", "det_idx", "det_y", "landmark_ids"):
+        assert np.array_equal(getattr(got, name), getattr(split, name)), name
+    assert got.det_t_ns.size < bridged.det_t_ns.size
+    assert unbridged(split) is split
 
 
 def test_a_velocity_stream_repeating_stamps_with_other_values_is_named():
