@@ -60,13 +60,16 @@ class Limits:
     """Plausibility gates (``limits:`` in run.yaml; None switches one off). Far outside anything a real vehicle or
     sensor produces, so they drop only corrupt samples: a detection nearer than 5 cm (no camera focuses there) or
     farther than 500 m, an angular rate above 100 rad/s (past every MEMS gyro's full scale, ~35-70 rad/s), a
-    speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments."""
+    speed above 300 m/s; a velocity gap longer than 5 s splits the run into segments, except a gap of the linear
+    velocity alone (the time base recording through it), which splits it past 10 s: up to that the gyro keeps the
+    attitude and the velocity is interpolated across with its noise widened (``_bridged_gaps``)."""
 
     min_range: float | None = 0.05
     max_range: float | None = 500.0
     max_angular_rate: float | None = 100.0
     max_speed: float | None = 300.0
     max_gap: float | None = 5.0
+    max_odometry_gap: float | None = 10.0
 
     def as_dict(self) -> dict[str, float | None]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -345,6 +348,11 @@ class AlignedStream:
     #: median interval. riekf and batch widen the velocity's noise there (``shared_steps.gap_levels``).
     velocity_gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     velocity_period_ns: float = 0.0
+    #: Those of ``velocity_gaps`` longer than ``limits.max_gap`` that the time base recorded through (up to
+    #: ``limits.max_odometry_gap``): bridged, not split. The gyro keeps the attitude across and the observers and
+    #: riekf carry the pose on the interpolated velocity (riekf's noise widened to the motion's spread,
+    #: ``shared_steps.gap_levels``); batch splits them (:func:`unbridged`). ``(B, 2)`` int64 ns, as ``velocity_gaps``.
+    bridged_gaps: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.int64))
     #: The linear velocity's white-noise density as recorded, per axis of its own message (m/s/√Hz; zeros: not
     #: estimated): the run sets it where it estimates it (``run.prepare_log``, the estimators with noise levels),
     #: since the samples interpolated onto the time base show less of it (0.015 for 0.85 on a generated figure 8).
@@ -1156,6 +1164,7 @@ def align(
         gyro_moved_s=gyro_moved_s,
         velocity_gaps=lv_gaps[0],
         velocity_period_ns=lv_gaps[1],
+        bridged_gaps=lv_gaps[2],
         accel_blocks=accel_blocks,
     )
 
@@ -1662,18 +1671,30 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
     held = "the run holds the sample before each gap across it"
     om_gaps = _gaps(t_om, w, om.topic, held)  # before the drop below: the holes it leaves are the velocity's
     max_gap = lim["max_gap"]
-    if max_gap is not None and t_lv.shape[0] > 1:
+    split_lv = _odometry_split(max_gap, lim["max_odometry_gap"])
+    if split_lv is not None and t_lv.shape[0] > 1:
         # time-base samples inside a linear-velocity gap would get a velocity interpolated over it: dropped
-        gap = np.flatnonzero(np.diff(t_lv) > max_gap * 1e9)
+        gap = np.flatnonzero(np.diff(t_lv) > split_lv * 1e9)
         if gap.size:
             k = np.searchsorted(t_lv, t_om, side="right") - 1
             inside = np.isin(k, gap) & (t_om > t_lv[np.clip(k, 0, None)])
             if n_in := int(np.count_nonzero(inside)):
                 notes.append(
-                    f"{plural(n_in, 'angular-velocity sample')} inside {lv.topic} gaps longer than limits.max_gap "
-                    f"{max_gap:g} s dropped"
+                    f"{plural(n_in, 'angular-velocity sample')} inside {lv.topic} gaps longer than "
+                    f"{_split_name(max_gap, split_lv)} {split_lv:g} s dropped"
                 )
                 t_om, w = t_om[~inside], w[~inside]
+    bridged = _bridged_gaps(t_lv, t_om, max_gap, split_lv) if lv.topic != om.topic else np.zeros(0, np.int64)
+    if bridged.size:
+        where = ", ".join(
+            f"+{(t_lv[k] - t_om[0]) * 1e-9:.2f} s ({(t_lv[k + 1] - t_lv[k]) * 1e-9:.1f} s)" for k in bridged[:5]
+        )
+        notes.append(
+            f"{lv.topic}: {plural(bridged.size, 'gap')} longer than limits.max_gap {max_gap:g} s at {where}"
+            f"{', ...' if bridged.size > 5 else ''} while {om.topic} recorded through: bridged, not split (up to "
+            f"limits.max_odometry_gap {split_lv:g} s): the gyro keeps the attitude and the pose is carried across on "
+            "the interpolated velocity (batch splits the run there)"
+        )
     t_om = t_om.astype(np.int64)  # its own array: the stream's may be shared with other roles
     if t_om.shape[0] < 2:
         raise InputError(
@@ -1700,10 +1721,42 @@ def _velocities(path, om: Vec3Stream, lv: Vec3Stream, fr: _Frame, lim: dict, hol
     notes += om_gaps + (_gaps(t_lv, v, lv.topic, lerp) if lv.topic != om.topic else [])
     starts = _segment_starts(t_om, max_gap, _hole_starts(t_om, om, fr.time_source, holes), notes)
     period, gaps = _measured_gaps(t_lv, v) if lv.topic != om.topic else (0.0, np.zeros(0, np.int64))
-    lv_gaps = (np.column_stack([t_lv[gaps], t_lv[gaps + 1]]).astype(np.int64), period)
+    lv_gaps = (
+        np.column_stack([t_lv[gaps], t_lv[gaps + 1]]).astype(np.int64),
+        period,
+        np.column_stack([t_lv[bridged], t_lv[bridged + 1]]).astype(np.int64),
+    )
     # Detections are kept up to the last time-base sample, not to the end of the linear velocity: after it the
     # estimators have no motion (an IMU clock that jumps ahead leaves half the odometry span without one).
     return t_om, omega, velocity, (lo, min(hi, int(t_om[-1]))), starts, lv_gaps
+
+
+def _odometry_split(max_gap: float | None, max_odometry_gap: float | None) -> float | None:
+    """The longest gap of the linear velocity alone that the run bridges (a longer one splits it): ``max_gap``, or
+    ``max_odometry_gap`` where that is the longer (None: no split)."""
+    if max_gap is None or max_odometry_gap is None:
+        return max_gap
+    return max(max_gap, max_odometry_gap)
+
+
+def _split_name(max_gap: float | None, split_lv: float) -> str:
+    """Which limit a linear-velocity gap longer than ``split_lv`` s split the run by."""
+    return "limits.max_gap" if split_lv == max_gap else "limits.max_odometry_gap"
+
+
+def _bridged_gaps(t_lv: np.ndarray, t_om: np.ndarray, max_gap: float | None, split_lv: float | None) -> np.ndarray:
+    """The index ``k`` of each linear-velocity gap ``t_lv[k] .. t_lv[k + 1]`` longer than ``max_gap`` (up to
+    ``split_lv``) that the time base ``t_om`` recorded through (no interval of its own over ``max_gap`` there, which
+    splits the run, :func:`_segment_starts`): bridged, not split (``AlignedStream.bridged_gaps``)."""
+    if max_gap is None or split_lv is None or split_lv <= max_gap or t_lv.shape[0] < 2:
+        return np.zeros(0, np.int64)
+    d = np.diff(t_lv)
+    gap = np.flatnonzero((d > max_gap * 1e9) & (d <= split_lv * 1e9))
+    om_gap = np.flatnonzero(np.diff(t_om) > max_gap * 1e9)
+    if om_gap.size and gap.size:
+        a, b = t_om[om_gap], t_om[om_gap + 1]
+        gap = gap[~((a[None, :] < t_lv[gap + 1, None]) & (b[None, :] > t_lv[gap, None])).any(axis=1)]
+    return gap.astype(np.int64)
 
 
 def _hole_starts(t_om: np.ndarray, om: Vec3Stream, time_source: str, holes) -> np.ndarray:
@@ -2071,6 +2124,53 @@ class TimeWindow:
         if self.end_ns is not None:
             ok &= t <= self.end_ns
         return ok
+
+
+def unbridged(aligned: AlignedStream) -> AlignedStream:
+    """``aligned`` with its bridged gaps (``AlignedStream.bridged_gaps``) split as any gap longer than
+    ``limits.max_gap``: the time-base samples inside each dropped, a segment starting after it, the detection
+    frames inside it dropped. For batch, whose keyframes after a gap are fit to the map by the solve: carried across
+    on the interpolated velocity (and seeded by an observer carried so), its solution was the worse (a generated
+    figure 8 with the odometry silent 7 s: 0.22 m against 0.009 m split; docs/benchmarks.md, session 33)."""
+    b = aligned.bridged_gaps
+    if b.shape[0] == 0:
+        return aligned
+    t = aligned.vel_t_ns
+    k = np.clip(np.searchsorted(b[:, 0], t, side="right") - 1, 0, None)
+    keep = ~((t > b[k, 0]) & (t < b[k, 1]))
+    rows = np.flatnonzero(keep)
+    t_new = t[rows]
+    after = np.searchsorted(t_new, b[:, 1], side="left")
+    after = after[(after > 0) & (after < t_new.shape[0])]
+    starts = np.union1d(np.searchsorted(t_new, t[aligned.segment_starts], side="left"), after).astype(np.int64)
+    lo, hi = t_new[after - 1], t_new[after]
+    j = np.clip(np.searchsorted(lo, aligned.det_t_ns, side="right") - 1, 0, None)
+    frames = np.flatnonzero(~((aligned.det_t_ns > lo[j]) & (aligned.det_t_ns < hi[j]))) if lo.size else None
+    det = {}
+    if frames is not None and frames.shape[0] < aligned.det_t_ns.shape[0]:
+        off = aligned.det_offsets
+        rows_det = np.concatenate([np.arange(off[f], off[f + 1]) for f in frames]).astype(np.int64)
+        ids, det_idx = np.unique(aligned.landmark_ids[aligned.det_idx[rows_det]], return_inverse=True)
+        det = dict(
+            det_t_ns=aligned.det_t_ns[frames],
+            det_offsets=np.r_[0, np.cumsum(np.diff(off)[frames])].astype(off.dtype),
+            det_idx=det_idx.reshape(-1).astype(aligned.det_idx.dtype),
+            det_y=aligned.det_y[rows_det],
+            landmark_ids=ids.astype(aligned.landmark_ids.dtype),
+        )
+    d = aligned.directions
+    if d is not None:
+        d = DirectionSet(d.names, d.inertial, d.body[rows], d.weight[rows], d.gravity_norm)
+    return replace(
+        aligned,
+        vel_t_ns=t_new,
+        omega=aligned.omega[rows],
+        velocity=aligned.velocity[rows],
+        directions=d,
+        segment_starts=starts,
+        bridged_gaps=np.zeros((0, 2), np.int64),
+        **det,
+    )
 
 
 def time_window(start: float | None, end: float | None, t0_ns: int) -> TimeWindow | None:

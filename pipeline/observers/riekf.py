@@ -38,6 +38,9 @@ right-invariant error: in the notation of docs/observers.md §1 it is the papers
   interval inside one takes that gap's factor (``shared_steps.gap_levels``, which batch's smoother shares).
   (Generated figure 8 with three 1 s velocity gaps: pose NEES 140 without it, 5.7 with it, 5.5 with no gaps;
   docs/benchmarks.md, "riekf across a gap in the velocity stream".)
+  Such a gap longer than ``limits.max_gap`` that the gyro recorded through (``AlignedStream.bridged_gaps``, up to
+  ``limits.max_odometry_gap``) is carried across, its factor at least the motion's spread over the whole gap
+  (``shared_steps.motion_factor``): the landmarks after it re-anchor the position instead of being gated.
 * New landmarks are augmented with their proper covariance: ``p̂ = R̂y + P̂`` has the error ``ξ_P + R̂n``
   (independent of the attitude error in these coordinates), so its rows copy ``P̂``'s and its own block is
   ``Σ_PP + N``. Landmarks out of view stay in the state with their estimate and covariance; as in every
@@ -1899,7 +1902,9 @@ class RiEKF(Stepper):
         self.planar = floor_decision(self.vel_t, stream.omega, stream.velocity, white, stream.velocity_period_ns * 1e-9)
         self.plane = floor_plane(r0, p0, stream.det_y) if self.planar["held"] else np.zeros(15)
         # the gap factor on the streams' white densities; not on a held (commanded) stream, whose intervals are no gaps
-        self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(stream, self.vel_t, nz.held)
+        self.state.fs[_GAP_OM], self.state.fs[_GAP_V], self.vel_gap = gap_levels(
+            stream, self.vel_t, nz.held, nz.velocity
+        )
         self.stats.update({"noise": self.noise.as_dict()})
         self._corr_factors: list[float] = []  # each written stretch's pose covariance factor (:meth:`_widened`)
 

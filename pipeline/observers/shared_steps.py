@@ -22,7 +22,9 @@
 All are written with scalars (no temporaries): they run once per sub-step or event.
 
 - :func:`gap_factor` and :func:`gap_levels`: the velocity noise's variance across a gap in the samples, one
-  definition for riekf's propagation and batch's preintegration (both take the twist linear between samples).
+  definition for riekf's propagation and batch's preintegration (both take the twist linear between samples);
+  across a bridged gap (the linear velocity alone silent, longer than ``limits.max_gap``) at least
+  :func:`motion_factor`'s: the motion's spread over the whole gap.
 """
 
 from __future__ import annotations
@@ -60,13 +62,16 @@ def gap_factor(span, interval):
     return 1.0
 
 
-def gap_levels(stream, vel_t, held) -> tuple[float, float, np.ndarray]:
+def gap_levels(stream, vel_t, held, velocity_density=None) -> tuple[float, float, np.ndarray]:
     """What :func:`gap_factor` needs for the gyro and the linear velocity of ``stream`` (an ``AlignedStream``,
     ``vel_t`` its time base in s): the median interval of each (0 where the stream is held, ``noise.held``: a held
     command's interval is the command held, not samples missing), and per time-base sample ``i`` the factor of the
     linear velocity's own gap that the interval from sample ``i - 1`` to ``i`` lies in
     (``AlignedStream.velocity_gaps``: an odometry on a topic of its own, interpolated onto the gyro's stamps, whose
-    gap the time base does not show), else 1. Public: riekf and batch's smoother take their gaps from it."""
+    gap the time base does not show), else 1. Across a bridged gap (``AlignedStream.bridged_gaps``: longer than
+    ``limits.max_gap``, the gyro recording through) the factor is at least :func:`motion_factor`'s, given the
+    velocity's white density ``velocity_density`` (m/s/√Hz per axis). Public: riekf and batch's smoother take
+    their gaps from it."""
     interval = float(np.median(np.diff(vel_t))) if vel_t.shape[0] > 2 else 0.0
     t = stream.vel_t_ns
     out = np.ones(t.shape[0])
@@ -78,8 +83,30 @@ def gap_levels(stream, vel_t, held) -> tuple[float, float, np.ndarray]:
     k = np.searchsorted(gaps[:, 0], mid, side="right") - 1
     inside = (k >= 0) & (mid < gaps[np.clip(k, 0, None), 1])
     factors = np.array([gap_factor((b - a) * 1e-9, period) for a, b in gaps])
+    if velocity_density is not None and stream.bridged_gaps.shape[0]:
+        bridged = (gaps[:, None, :] == stream.bridged_gaps[None, :, :]).all(axis=2).any(axis=1)
+        spread = motion_spread(stream.velocity)
+        for g in np.flatnonzero(bridged):
+            span = (gaps[g, 1] - gaps[g, 0]) * 1e-9
+            factors[g] = max(factors[g], motion_factor(span, spread, velocity_density))
     out[1:][inside] = factors[k[inside]]
     return *levels, out
+
+
+def motion_spread(velocity: np.ndarray) -> np.ndarray:
+    """The linear velocity's spread about its mean per axis (m/s, its samples' standard deviation): how far the
+    velocity across a bridged gap may be from the straight line between its two ends."""
+    return np.std(velocity, axis=0) if velocity.shape[0] > 1 else np.zeros(3)
+
+
+def motion_factor(span, spread, velocity_density) -> float:
+    """The factor on the velocity's white variance over a bridged gap of ``span`` s (the linear velocity silent,
+    the gyro recording): its interpolated velocity is off by up to the motion's ``spread`` (m/s per axis) for the
+    whole gap, a position error of ``spread × span``; spread over the gap's ``span`` s as a density, that is
+    ``spread² span`` against the white ``q²``: the largest ratio over the axes."""
+    q2 = np.square(np.asarray(velocity_density, np.float64))
+    ratio = np.square(spread) * span / np.where(q2 > 0, q2, np.inf)
+    return float(np.max(ratio)) if ratio.size else 1.0
 
 
 @njit(cache=True, inline="always")

@@ -229,10 +229,12 @@ class BatchSmoother(Stepper):
         seed=None,
         fixed_bias: np.ndarray | None = None,
     ) -> None:
+        from slamobs.pipeline.alignment import unbridged
         from slamobs.pipeline.noise import resolve_noise
         from slamobs.pipeline.observers import time_offset
         from slamobs.pipeline.smoother import correlation as dc
 
+        stream = unbridged(stream)  # a gap of the odometry alone split as any gap between segments
         self.time_offset = time_offset.estimate(stream)
         stream = time_offset.shifted(stream, self.time_offset)  # the seeds run on the stamps it corrects too
         super().__init__(stream, options)
