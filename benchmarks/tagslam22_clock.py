@@ -13,7 +13,11 @@ own search is not reliable on this log), then the interpolated error by stretch 
 without a detection, during it, after it) and the innovations' size in those stretches. Then what the truth is:
 on which stamps it lies (the camera frames'?) and each detection against it (range and position residual by range,
 the frames riekf gated), and riekf's attitude σ along the line through the two tags (the turn about it moves the
-camera and leaves both tags where the camera sees them) against its other two axes. Truth only to measure.
+camera and leaves both tags where the camera sees them) against its other two axes. Last, where riekf loses
+against fast-adaptation: the APE of tracks spliced from the two at a cut (one's poses before it, the other's after),
+and riekf's first detection after the stretch updated as riekf does (one linear step) against the same update
+iterated to its maximum a posteriori (Gauss-Newton on the pose alone, riekf's written pose covariance as the prior,
+its own landmark held). Truth only to measure.
 """
 
 from __future__ import annotations
@@ -194,6 +198,105 @@ def _tag_line_sigma(run_dir: Path, spans: list[tuple[float, float]]) -> None:
         )
 
 
+def _splice_table(poses: dict, truth: tuple, spans: list[tuple[float, float]]) -> None:
+    """APE (nearest pairing, shift 0) of riekf's poses before a cut and fast-adaptation's after it, and the other way;
+    fast-adaptation's track moved onto riekf's by one fit over the first stretch (both start alike)."""
+    from slamobs.pipeline.lie import umeyama
+
+    r, f = poses["riekf"], poses["fast-adaptation"]
+    if len(r) != len(f) or (r["t_ns"].to_numpy() != f["t_ns"].to_numpy()).any():
+        return
+    t = (r["t_ns"].to_numpy() - r["t_ns"].iloc[0]) / 1e9
+    er, ef = r[["x", "y", "z"]].to_numpy(), f[["x", "y", "z"]].to_numpy()
+    rot, trans, _ = umeyama(ef[t < spans[0][1]], er[t < spans[0][1]])
+    ef = ef @ rot.T + trans
+    ref, ok = _nearest(*truth, r["t_ns"].to_numpy())
+
+    def ape(est: np.ndarray) -> float:
+        rot, trans, _ = umeyama(est[ok], ref[ok])
+        return _rms(np.linalg.norm(est[ok] @ rot.T + trans - ref[ok], axis=1))
+
+    print(
+        "\nAPE m of spliced tracks (nearest pairing, shift 0): one estimator's poses before the cut, "
+        "the other's after\n"
+    )
+    print("| cut s | riekf, then fast-adaptation | fast-adaptation, then riekf |\n| --- | --- | --- |")
+    print(f"| none | {ape(er):.3f} (riekf alone) | {ape(ef):.3f} (fast-adaptation alone) |")
+    for cut in (spans[0][1], spans[1][1] - 0.1, spans[1][1] + 2.0, spans[1][1] + 4.5):
+        before = (t < cut)[:, None]
+        print(f"| {cut:.1f} | {ape(np.where(before, er, ef)):.3f} | {ape(np.where(before, ef, er)):.3f} |")
+
+
+def _return_update(run_dir: Path, truth: tuple, spans: list[tuple[float, float]]) -> None:
+    """riekf's first detection after the longest stretch without one: the pose before it (the last written pose, its
+    covariance the prior), the linear update riekf makes (one Gauss-Newton step) and the same iterated to the
+    maximum a posteriori; each one's position error against the truth after one fit over the poses before the
+    return. The detection's camera axes are turned into the body's by a fit over the first stretch's detections,
+    rounded to the axes' signed permutation it is near (the camera is mounted along the body's axes)."""
+    from slamobs.pipeline.lie import quats_to_rots, so3_exp, umeyama
+
+    poses = pd.read_parquet(run_dir / "poses.parquet")
+    det, lm = pd.read_parquet(run_dir / "tag_detections.parquet"), pd.read_parquet(run_dir / "landmarks.parquet")
+    lm = lm.set_index("id")[["x", "y", "z"]]
+    rots = quats_to_rots(poses[["qx", "qy", "qz", "qw"]].to_numpy())
+    est, t0 = poses[["x", "y", "z"]].to_numpy(), poses["t_ns"].iloc[0]
+    t, td = (poses["t_ns"].to_numpy() - t0) / 1e9, (det["t_ns"].to_numpy() - t0) / 1e9
+    ref, ok = _nearest(*truth, poses["t_ns"].to_numpy())
+    back = ok & (t < spans[1][1])
+    fit_r, fit_t, _ = umeyama(est[back], ref[back])
+    meta = json.loads((run_dir / "run.json").read_text())["observer"]
+    offset = meta["time_offset"]["estimate_s"] if meta.get("time_offset", {}).get("applied") else 0.0
+    k_of = [int(np.argmin(np.abs(t - (s + offset)))) for s in td]  # each detection's nearest pose (velocity clock)
+    first = td < spans[0][1]
+    cam = det[["x", "y", "z"]].to_numpy(float)
+    seen = np.stack([rots[k].T @ (lm.loc[i].to_numpy() - est[k]) for k, i in zip(k_of, det["id"])])
+    body_cam, _, _ = umeyama(cam[first], seen[first])
+    body_cam = np.round(body_cam)  # the camera is mounted along the body's axes (optical: z forward): exact axes
+    if not np.allclose(body_cam @ body_cam.T, np.eye(3)) or np.linalg.det(body_cam) < 0:
+        print("\nthe camera is not mounted along the body's axes: the return's update is not computed")
+        return
+    j = int(np.flatnonzero(td >= spans[1][1] - 1e-6)[0])  # spans are on the detections' recorded stamps
+    y = body_cam @ cam[j]
+    k = int(np.flatnonzero(t <= td[j] + offset)[-1])
+    names = ("rx", "ry", "rz", "x", "y", "z")
+    prior = np.array(
+        [
+            [poses[f"cov_{a}_{b}" if names.index(a) <= names.index(b) else f"cov_{b}_{a}"].iloc[k] for b in names]
+            for a in names
+        ]
+    )
+    law = meta["filter"]["noise"]
+    r = float(np.linalg.norm(y))
+    sigma = law["detection"] + law.get("detection_per_m", 0.0) * r + law.get("detection_per_m2", 0.0) * r * r
+    landmark = lm.loc[det["id"].iloc[j]].to_numpy()
+
+    def seen_from(x: np.ndarray) -> np.ndarray:
+        return (so3_exp(x[:3]) @ rots[k]).T @ (landmark - est[k] - x[3:])
+
+    def step(x: np.ndarray) -> np.ndarray:
+        h = np.stack([(seen_from(x + 1e-6 * e) - seen_from(x - 1e-6 * e)) / 2e-6 for e in np.eye(6)], axis=1)
+        gain = prior @ h.T @ np.linalg.inv(h @ prior @ h.T + sigma**2 * np.eye(3))
+        return gain @ (y - seen_from(x) + h @ x)
+
+    one, it = step(np.zeros(6)), np.zeros(6)
+    for _ in range(20):
+        it = step(it)
+    print(
+        f"\nriekf's first detection after the stretch (tag {det['id'].iloc[j]} at {td[j] + offset:.2f} s, {r:.2f} m, "
+        f"σ {sigma:.3f} m; prior the pose at {t[k]:.2f} s, attitude σ "
+        f"{np.degrees(np.sqrt(np.trace(prior[:3, :3]))):.1f}°, position σ {np.sqrt(np.trace(prior[3:, 3:])):.3f} m)\n"
+    )
+    print("| pose | turn ° | moved m | detection residual m | position error m |\n| --- | --- | --- | --- | --- |")
+    for name, x in (("before (prior)", np.zeros(6)), ("one linear step (riekf's)", one), ("iterated (20 steps)", it)):
+        err = np.linalg.norm((est[k] + x[3:]) @ fit_r.T + fit_t - ref[k])
+        print(
+            f"| {name} | {np.degrees(np.linalg.norm(x[:3])):.1f} | {np.linalg.norm(x[3:]):.3f} | "
+            f"{np.linalg.norm(y - seen_from(x)):.3f} | {err:.3f} |"
+        )
+    err_next = np.linalg.norm(est[k + 1] @ fit_r.T + fit_t - ref[k + 1]) if ok[k + 1] else float("nan")
+    print(f"\nriekf's own next pose ({t[k + 1]:.2f} s): position error {err_next:.3f} m")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "slamobs-real-logs")
@@ -217,6 +320,8 @@ def main() -> None:
         _stretch_table(poses, truth, runs)
         _detection_table(runs["riekf"], log.config["topics"]["truth"], Path(log.config["evaluation"]["map_truth"]))
         _tag_line_sigma(runs["riekf"], _stretches(runs["riekf"]))
+        _splice_table(poses, truth, _stretches(runs["riekf"]))
+        _return_update(runs["riekf"], truth, _stretches(runs["riekf"]))
 
 
 if __name__ == "__main__":
