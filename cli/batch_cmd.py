@@ -53,6 +53,8 @@ def _kept(row: dict) -> bool:
 
 
 def _row_line(row: dict, progress) -> str:
+    from slamobs.pipeline.batch import finished
+
     status = row["status"]
     if status == "ok" and row.get("warning_count"):
         status = f"ok ({plural(row['warning_count'], 'warning')})"
@@ -67,7 +69,8 @@ def _row_line(row: dict, progress) -> str:
         if map_m is not None
         else ""
     )
-    if row["status"] == "ok":  # the log too: TagSLAM's tests all name theirs tag_detections.bag
+    # ok, or its estimator's own status; the log too: TagSLAM's tests all name theirs tag_detections.bag
+    if finished(row["status"]):
         return f"{head}  {row['total_s']:.1f} s{tail or '  no truth'}  {row['log']}"
     return head + tail
 
@@ -102,7 +105,8 @@ class _Reporter:
         if row["status"] == "failed" or row.get("warning_count") or _kept(row):
             click.echo("\r\x1b[K" + _row_line(row, progress), err=True)
         click.echo(
-            f"\r\x1b[K[{progress.done}/{progress.total}] {progress.ok} ok, {progress.failed} failed, "
+            f"\r\x1b[K[{progress.done}/{progress.total}] {progress.ok} ok, "
+            f"{f'{progress.off} off by their own status, ' if progress.off else ''}{progress.failed} failed, "
             f"{progress.skipped} skipped  ETA {_duration(progress.eta_s())}  last {row['run_id']}",
             nl=False,
             err=True,
@@ -124,6 +128,7 @@ class _Reporter:
                         "event": "done",
                         "logs": len(result.rows),
                         **counts,
+                        "off": result.off,
                         "warned": result.warned,
                         "pruned": len(result.pruned),
                         "adopted": len(fixed.adopted),
@@ -147,8 +152,9 @@ class _Reporter:
             if result.pruned:
                 click.echo(f"batch: pruned {plural(len(result.pruned), 'run')} whose logs are gone", err=True)
         warned = f" ({result.warned} with warnings)" if result.warned else ""
+        off = "".join(f", {n} {status}" for status, n in result.off.items())  # finished, off by its own status
         click.echo(
-            f"batch: {plural(len(result.rows), 'log')}, {counts['ok']} ok{warned}, {counts['skipped']} skipped, "
+            f"batch: {plural(len(result.rows), 'log')}, {counts['ok']} ok{warned}{off}, {counts['skipped']} skipped, "
             f"{counts['failed']} failed in {result.elapsed_s:.1f} s; summary {summary}"
         )
         if result.kept:

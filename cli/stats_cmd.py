@@ -48,9 +48,10 @@ def stats(inputs: tuple[Path, ...], out_dir: Path, style: str, no_plots: bool, f
     if quiet:
         return
     runs = result.runs
-    ok = int((runs["status"] == "ok").sum())
+    said = runs["status"].value_counts().to_dict()  # ok, failed, or a finished run's own status (likely_lost, ...)
+    counts = ", ".join(f"{said[s]} {s}" for s in sorted(said, key=lambda s: (s != "ok", s)))
     click.echo(
-        f"stats: {plural(len(runs), 'run')} ({ok} ok) of {plural(runs['estimator'].nunique(), 'estimator')} on "
+        f"stats: {plural(len(runs), 'run')} ({counts}) of {plural(runs['estimator'].nunique(), 'estimator')} on "
         f"{plural(runs['log'].nunique(), 'log')}; wrote {out_dir}/ (stats.md, stats.tex, stats.csv, ranking.csv, "
         f"runs.csv, {plural(len(result.figures), 'figure')})"
     )

@@ -80,25 +80,33 @@ class RunSummary:
     def status_caveats(self) -> list[str]:
         """What the estimator's own status says where that is off (:func:`.evaluation.report.own_status`: riekf's
         ``observer.filter.status`` lost or gated_at_end, an observer without a gate likely lost), for the tables
-        that show a run's :meth:`status`: the words beside its ``lost``, ``gated_at_end`` or ``likely_lost``."""
+        that show a run's :meth:`status`: the words beside its ``lost``, ``gated_at_end`` or ``likely_lost``, the
+        sentence report.md's own-record line says (:func:`.evaluation.markdown.own_said`)."""
+        from slamobs.pipeline.evaluation.markdown import own_said
         from slamobs.pipeline.evaluation.report import own_status
 
         own = own_status(self.metadata)
-        return [f"its own status is {own['status']} (run.json {own['field']}): {own['said']}"] if own else []
+        return [own_said(own)] if own else []
 
     def status(self) -> str:
-        """A finished run's ``status`` in ``compare``'s table: the estimator's own status where its record says its
-        estimate is off (``lost``, ``gated_at_end``, ``likely_lost``: :func:`.evaluation.report.own_status`, the
-        reason in :meth:`status_caveats`), else ``ok``. A run that could not start reads ``failed`` (its caller's
-        row). Before session 33 it read ``ok`` whenever the run finished, beside a likely-lost note."""
-        from slamobs.pipeline.evaluation.report import own_status
-
-        own = own_status(self.metadata)
-        return own["status"] if own else "ok"
+        """A finished run's ``status`` in ``compare``'s table and a batch's summary: :func:`run_status`. A run that
+        could not start reads ``failed`` (its caller's row)."""
+        return run_status(self.metadata)
 
     def headline(self) -> dict[str, float | None]:
         """The few numbers a comparison or batch summary shows per run (None where not available)."""
         return headline_metrics(self.report, self.metadata)
+
+
+def run_status(metadata: dict) -> str:
+    """A finished run's ``status`` (its run.json ``metadata``): the estimator's own status where its record says
+    its estimate is off (``lost``, ``gated_at_end``, ``likely_lost``: :func:`.evaluation.report.own_status`, the
+    reason in :meth:`RunSummary.status_caveats`), else ``ok``: ``compare``'s table, a batch's summary.parquet and
+    ``stats``' runs.csv. Before session 33 it read ``ok`` whenever the run finished, beside a likely-lost note."""
+    from slamobs.pipeline.evaluation.report import own_status
+
+    own = own_status(metadata)
+    return own["status"] if own else "ok"
 
 
 #: Without trajectory truth but with landmark truth (``evaluation.map_truth``): a run's map error RMSE after a

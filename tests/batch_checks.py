@@ -60,16 +60,16 @@ def assert_compiles_none_of_the_helpers_kernels(compiled: list[str], estimator: 
 
 
 def assert_consistent(out: Path) -> dict[str, dict]:
-    """The dataset holds exactly the summary's ok runs, each (run_id, t_ns) once, each with its run
-    directory, and nothing staged; returns the summary rows by run_id."""
+    """The dataset holds exactly the summary's finished runs (ok, or off by the estimator's own status), each
+    (run_id, t_ns) once, each with its run directory, and nothing staged; returns the summary rows by run_id."""
     import pandas as pd
 
-    from slamobs.pipeline.batch.ledger import read_summary
+    from slamobs.pipeline.batch.ledger import finished, read_summary
 
     rows = read_summary(out)
     summary = pd.read_parquet(out / "summary.parquet")
     assert sorted(summary["run_id"]) == sorted(rows)  # the file is current once a batch has ended
-    ok = {rid for rid, row in rows.items() if row["status"] == "ok"}
+    ok = {rid for rid, row in rows.items() if finished(row["status"])}
     ids: set[str] = set()
     if (out / "poses").is_dir():
         poses = pd.read_parquet(out / "poses", columns=["run_id", "t_ns"])

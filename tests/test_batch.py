@@ -701,10 +701,11 @@ def test_warnings_are_counted_in_the_summary_not_printed(tmp_path, capfd):
     assert not (tmp_path / "stage" / "x").exists()
 
 
-def test_a_riekf_run_whose_own_status_says_it_is_off_is_ok_with_a_warning(tmp_path, monkeypatch):
+def test_a_riekf_run_whose_own_status_says_it_is_off_reads_that_status_with_a_warning(tmp_path, monkeypatch):
     """A riekf run that finished with its last detections failing the gate (run.json ``observer.filter.status``
-    ``gated_at_end``) was a clean ``ok`` row; now ``ok`` (its results are in the dataset) with the status among its
-    warnings, as compare's notes say it."""
+    ``gated_at_end``) was a clean ``ok`` row; then (session 32) ``ok`` with the status among its warnings; now
+    (session 33) its row's ``status`` is ``gated_at_end``, as compare's column, with the same words among its
+    warnings; its tables are in the dataset all the same."""
     from slamobs.pipeline import run
     from slamobs.pipeline.batch.executor import run_task
     from slamobs.pipeline.observers.riekf import STATUSES
@@ -722,12 +723,59 @@ def test_a_riekf_run_whose_own_status_says_it_is_off_is_ok_with_a_warning(tmp_pa
     (tmp_path / "x.mcap").write_bytes(b"x")
     monkeypatch.setattr(run, "run_log", finished)
     row = run_task(task)
-    assert row["status"] == "ok" and row["warning_count"] == 1, row
-    assert row["warnings"].startswith("riekf: its own status is gated_at_end (run.json observer.filter.status)"), row
+    assert row["status"] == "gated_at_end" and row["warning_count"] == 1 and "tables" in row, row
+    assert row["warnings"].startswith("riekf: its own status is gated_at_end in run.json observer.filter.status:"), row
     monkeypatch.setattr(run, "run_log", lambda log, out_dir, config: finished(log, out_dir, config, "converged"))
     task = replace(task, run_id="y-00000000", staged=str(tmp_path / "stage" / "y"))
     row = run_task(task)
     assert row["status"] == "ok" and row["warning_count"] == 0 and row["warnings"] is None, row
+
+
+def test_a_batch_run_its_own_check_calls_likely_lost_reads_likely_lost_and_resumes_as_finished(tmp_path):
+    """Session 33: a batch's summary.parquet read ``ok`` beside a run whose own check says likely lost (compare's
+    column said ``likely_lost``): a user filtering ``status == "ok"`` kept it. test_compare's likely-lost run (a
+    generated 10 s figure 8, the gains test_tune's likely-lost tune picked) in a batch: the summary, the progress
+    line and the final counts say ``likely_lost``; its tables are in the dataset; a second batch skips it as
+    finished, ``--force`` runs it again; ``stats`` counts its metrics, not a failure."""
+    import pandas as pd
+
+    from slamobs.pipeline.simulate import simulate, write_log
+    from slamobs.pipeline.stats.compute import cell_stats
+    from slamobs.pipeline.stats.inputs import read_dataset
+
+    log, config, out = tmp_path / "logs" / "f.mcap", tmp_path / "run.yaml", tmp_path / "OUT"
+    write_log(simulate("figure8", duration=10.0, seed=70), log)
+    gains = "{alpha: 1.014, gamma: 26.53, k_p: 0.1387, k_w: 0.01826}"
+    config.write_text(f"evaluation:\n  plots: false\ngains:\n  fast-adaptation: {gains}\n")
+    args = (log, "-o", out, "--observer", "fast-adaptation", "--config", config, "--jobs", 1)
+    res = invoke(*args)
+    assert res.exit_code == 0, res.output
+    assert "batch: 1 log, 0 ok, 1 likely_lost, 0 skipped, 0 failed" in res.stdout, res.output
+    assert "] likely_lost " in res.output, res.output
+    (rid,) = read_summary(out)
+    summary = pd.read_parquet(out / "summary.parquet")
+    assert summary["status"].tolist() == ["likely_lost"] and summary["warning_count"].tolist() == [1], summary
+    assert summary["warnings"][0].startswith("fast-adaptation: its own status is likely_lost in run.json observer.")
+    assert assert_consistent(out).keys() == {rid}  # its results are in the dataset, its run directory kept
+    before = read_summary(out)[rid]
+
+    res = invoke(*args, "--json")
+    lines = [json.loads(x) for x in res.stdout.strip().splitlines()]
+    assert res.exit_code == 0 and [r["status"] for r in lines[:-1]] == ["skipped"], res.output
+    assert lines[-1] == {**lines[-1], "ok": 0, "off": {}, "skipped": 1, "failed": 0}, lines[-1]
+    assert read_summary(out)[rid] == before  # not run again
+
+    res = invoke(*args, "--force", "--json")
+    lines = [json.loads(x) for x in res.stdout.strip().splitlines()]
+    assert res.exit_code == 0 and [r["status"] for r in lines[:-1]] == ["likely_lost"], res.output
+    assert lines[-1] == {**lines[-1], "ok": 0, "off": {"likely_lost": 1}, "skipped": 0}, lines[-1]
+    assert read_summary(out)[rid]["finished_at"] > before["finished_at"]
+
+    runs = read_dataset(out)
+    assert runs["status"].tolist() == ["likely_lost"] and runs["ape_trans_rmse_m"][0] > 0, runs
+    cells = cell_stats(runs).set_index(["metric", "log"])
+    ape = cells.loc[("ape_trans_rmse_m", "all logs")]
+    assert ape["n"] == 1 and ape["failed"] == 0, ape
 
 
 def test_a_dask_log_fails_for_dying_workers_only_once_they_began_it_that_often(tmp_path):

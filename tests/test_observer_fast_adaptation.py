@@ -270,7 +270,7 @@ def test_a_lost_estimate_is_noted_without_landmarks_seen_again(tmp_path):
     own = report["convergence"]["own_status"]
     assert own["status"] == "likely_lost" and own["field"] == "observer.velocity_bias", own
     assert RunSummary(tmp_path / "out", meta, {}).status_caveats() == [
-        f"its own status is likely_lost (run.json observer.velocity_bias): {own['said']}"
+        f"its own status is likely_lost in run.json observer.velocity_bias: {own['said']}"
     ]
     assert f"is likely lost: {own['said']}; do not trust it" in said[0], (own, said)  # the warning's words
 

@@ -19,6 +19,7 @@ _WHERE = {
     "content_hash": "identity",
     "run_id_for": "identity",
     "run_key": "identity",
+    "finished": "ledger",
     "read_summary": "ledger",
     "BatchOptions": "runner",
     "BatchResult": "runner",

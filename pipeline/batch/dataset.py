@@ -43,7 +43,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, encode_row, meta_dir
+from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, encode_row, finished, meta_dir
 from slamobs.pipeline.errors import InputError
 from slamobs.pipeline.paths import exclusive, foreign_entry
 from slamobs.pipeline.stored_runs import (
@@ -318,7 +318,7 @@ def reconcile(out: Path, ledger: Ledger) -> tuple[DatasetIndex, Reconciled]:
         remove_path(p)
     result.stale_files = len(stale)
     index = DatasetIndex.scan(out)
-    ok = {rid for rid, row in ledger.rows.items() if row.get("status") == "ok"}
+    ok = {rid for rid, row in ledger.rows.items() if finished(row.get("status"))}
     for rid in sorted(ok):
         tables = [t for t in (ledger.rows[rid].get("tables") or "").split(",") if t]
         if not (rid in index.runs and all(index.has(t, rid) for t in tables)):

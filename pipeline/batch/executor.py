@@ -234,10 +234,12 @@ def run_task(task: Task, pipeline=_run) -> dict:
     ``pipeline(log, run_dir, config) -> (RunSummary, warnings)`` writes the run directory (tests pass a fast
     stand-in through ``functools.partial``; the staging and commit contract stays this function's).
 
-    An ok row carries ``tables`` (comma-separated); ``runs/<id>/batch.json`` in the staged run directory
-    repeats the row, so a run whose commit was cut short can be adopted by the next batch.
+    A finished run's row (``ok``, or its estimator's own status: :func:`.ledger.finished`) carries ``tables``
+    (comma-separated); ``runs/<id>/batch.json`` in the staged run directory repeats the row, so a run whose
+    commit was cut short can be adopted by the next batch.
     """
     from slamobs.pipeline.batch.dataset import remove_path, stage_tables, write_run_meta
+    from slamobs.pipeline.batch.ledger import finished
     from slamobs.pipeline.errors import is_resource_failure
 
     check_environment(task.version, task.code)
@@ -272,7 +274,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
             tables = stage_tables(staged, task.run_id)
             row = {
                 **base_row(task),
-                "status": "ok",
+                "status": summary.status(),  # ok, or the estimator's own where its record says its estimate is off
                 "error": None,
                 "dataset_s": time.perf_counter() - t,
                 **summary.timings,
@@ -295,7 +297,7 @@ def run_task(task: Task, pipeline=_run) -> dict:
     row["warning_count"] = len(texts)
     row["warnings"] = "; ".join(one_line(t) for t in texts)[:1000] or None
     row["total_s"] = time.perf_counter() - t0
-    if row["status"] == "ok":
+    if finished(row["status"]):
         row["tables"] = ",".join(tables)
         try:
             write_run_meta(staged, task.run_id, tables, row)

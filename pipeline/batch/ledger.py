@@ -87,9 +87,20 @@ SUMMARY_SCHEMA = pa.schema(
     ]
 )
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
-#: Statuses stored in the summary; "skipped" exists only in a batch's own output (the run it skipped is
-#: recorded with the outcome it had when it ran).
-STORED_STATUSES = ("ok", "failed")
+#: The summary's ``status`` of a run that did not finish (its ``error`` says why). Every other stored status is a
+#: finished run's: ``ok``, or its estimator's own status where its record says its estimate is off (``lost``,
+#: ``gated_at_end``, ``likely_lost``: :meth:`.run.RunSummary.status`, the word ``compare``'s table shows).
+#: ``skipped`` exists only in a batch's own output (the run it skipped is recorded with the outcome it had when it
+#: ran).
+FAILED = "failed"
+SKIPPED = "skipped"
+
+
+def finished(status: str | None) -> bool:
+    """Whether a run of this ``status`` finished (ok, or off by its estimator's own status): the batch keeps it on
+    resume, and ``stats`` counts its metrics. Before session 33 a finished run was stored as ``ok`` whatever its own
+    status said."""
+    return status not in (None, FAILED, SKIPPED)
 
 
 def meta_dir(out: Path) -> Path:

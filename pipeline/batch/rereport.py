@@ -39,7 +39,7 @@ from slamobs.pipeline.batch.dataset import (
     write_with_run_id,
     write_without,
 )
-from slamobs.pipeline.batch.ledger import Ledger, encode_row, meta_dir
+from slamobs.pipeline.batch.ledger import Ledger, encode_row, finished, meta_dir
 from slamobs.pipeline.stored_runs import RUN_META, partition_file, read_run_meta, run_dir
 
 #: The dataset tables a report writes (the run directory's ``<table>.parquet`` of a re-report).
@@ -102,7 +102,7 @@ def sync_run(out: Path, rid: str, ledger: Ledger) -> bool:
     meta = read_run_meta(rdir)
     row = ledger.rows.get(rid)
     changed = False
-    if meta is not None and row is not None and row.get("status") == "ok":
+    if meta is not None and row is not None and finished(row.get("status")):
         try:
             report = read_json(rdir / "report.json") if (rdir / "report.json").is_file() else None
         except InputError:

@@ -48,7 +48,7 @@ from slamobs.pipeline.batch.executor import (
     run_task,
 )
 from slamobs.pipeline.batch.identity import HashCache, path_key, run_id_for, run_key
-from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, meta_dir
+from slamobs.pipeline.batch.ledger import SUMMARY, Ledger, finished, meta_dir
 from slamobs.pipeline.batch.local import LocalPool
 from slamobs.pipeline.config import RunConfig, load_config
 from slamobs.pipeline.errors import BadConfig, InputError
@@ -93,6 +93,7 @@ class Progress:
     total: int
     to_run: int = 0
     ok: int = 0
+    off: int = 0  # finished runs whose estimator's own status says the estimate is off (lost, likely_lost, ...)
     failed: int = 0
     skipped: int = 0
     warned: int = 0  # ok runs with warnings (salvaged log, dropped samples, ...)
@@ -102,10 +103,11 @@ class Progress:
 
     @property
     def done(self) -> int:
-        return self.ok + self.failed + self.skipped
+        return self.ok + self.off + self.failed + self.skipped
 
     def add(self, row: dict, dispatched: bool) -> None:
-        setattr(self, row["status"], getattr(self, row["status"]) + 1)
+        kind = "off" if finished(row["status"]) and row["status"] != "ok" else row["status"]
+        setattr(self, kind, getattr(self, kind) + 1)
         self.warned += row["status"] == "ok" and bool(row.get("warning_count"))
         self.ran += dispatched
 
@@ -129,6 +131,13 @@ class BatchResult:
 
     def count(self, status: str) -> int:
         return sum(r["status"] == status for r in self.rows)
+
+    @property
+    def off(self) -> dict[str, int]:
+        """Runs that finished with their estimator's own status saying the estimate is off, by that status
+        (``likely_lost``, ``lost``, ``gated_at_end``: :func:`.ledger.finished`, :meth:`.run.RunSummary.status`)."""
+        statuses = [r["status"] for r in self.rows if finished(r["status"]) and r["status"] != "ok"]
+        return {s: statuses.count(s) for s in sorted(set(statuses))}
 
     @property
     def warned(self) -> int:
@@ -300,7 +309,7 @@ def _decide(planned: list[_Planned], options: BatchOptions, ledger: Ledger) -> _
         first[rid] = p.log
         prev = ledger.rows.get(rid)
         status = prev.get("status") if prev else None
-        if status == "ok" and not options.force:
+        if finished(status) and not options.force:
             if prev["log"] != p.log:
                 moved.append((prev, p.log, task))
             plan.rows[pos] = {**prev, "status": "skipped", "error": None, "log": p.log, "config_file": task.config_file}
@@ -546,7 +555,7 @@ def _execute(
         refreshed = time.monotonic()
         for task, row in results:
             with signals_deferred():
-                if row["status"] == "ok":
+                if finished(row["status"]):
                     row = _commit(out, task, row)
                     if row.get(RETRY) == KEPT:
                         kept[task.run_id] = row["error"]

@@ -59,9 +59,15 @@ def _qualified(conv: dict[str, Any]) -> str:
 
 
 def own_words(own: dict[str, str]) -> str:
-    """The run's own status (report.json ``convergence.own_status``) in a few words: the status and its field."""
-    status = "likely lost" if own["status"] == "likely_lost" else own["status"]
-    return f"its own status is {status} in run.json {own['field']}"
+    """The run's own status (report.json ``convergence.own_status``) in a few words: the status, in the word
+    ``compare``'s and a batch's ``status`` column shows, and its run.json field."""
+    return f"its own status is {own['status']} in run.json {own['field']}"
+
+
+def own_said(own: dict[str, str]) -> str:
+    """The run's own status and what its record said: report.md's own-record line, and each table of runs' note
+    beside its ``status`` (``compare``'s, a batch's warnings: :meth:`.run.RunSummary.status_caveats`)."""
+    return f"{own_words(own)}: {own['said']}"
 
 
 def headline_caveats(report: dict[str, Any]) -> list[str]:
@@ -172,7 +178,7 @@ def _md_trajectory(report: dict[str, Any]) -> list[str]:
     )
     lines += ["", f"Convergence: {conv_txt}; defined as the {convergence_definition(conv)}.", ""]
     if own := conv.get("own_status"):  # checked against truth above; the run's own record here
-        lines += [f"The run's own record: {own_words(own)}: {own['said']}.", ""]
+        lines += [f"The run's own record: {own_said(own)}.", ""]
     lines += [line for hint in report.get("hints") or [] for line in (f"Hint: {hint}.", "")]
     if report["evo"].get("ape"):
         lines += [f"Reproduce with evo (TUM files written with `--export tum`): `{report['evo']['ape']}`.", ""]

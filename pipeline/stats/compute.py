@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from slamobs.pipeline.batch.ledger import FAILED, finished
 from slamobs.pipeline.stats.inputs import METRICS
 
 #: The statistics of a cell, in table order (``n``: runs with a value of the metric).
@@ -23,7 +24,9 @@ REPEAT_SOURCES = 3
 
 
 def ok_runs(runs: pd.DataFrame) -> pd.DataFrame:
-    return runs[runs["status"] == "ok"]
+    """The finished runs: ``ok``, or off by their estimator's own status (``likely_lost``, ``lost``,
+    ``gated_at_end``: :func:`.batch.ledger.finished`); their metrics are measured all the same."""
+    return runs[runs["status"].map(finished).astype(bool)]
 
 
 def repeats(runs: pd.DataFrame) -> list[dict]:
@@ -78,7 +81,7 @@ def _aggregate(values: pd.DataFrame, by: list[str]) -> pd.DataFrame:
 
 def _run_counts(runs: pd.DataFrame) -> pd.DataFrame:
     """Runs and failed runs per (estimator, log) and per estimator over all logs."""
-    failed = runs["status"] != "ok"
+    failed = runs["status"] == FAILED
     per = runs.assign(failed=failed).groupby(["estimator", "log"], sort=False)["failed"].agg(["size", "sum"])
     per = per.reset_index()
     total = per.groupby("estimator", sort=False)[["size", "sum"]].sum().reset_index().assign(log=ALL_LOGS)

@@ -17,7 +17,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from slamobs.pipeline.batch.ledger import SUMMARY, meta_dir, read_summary
+from slamobs.pipeline.batch.ledger import FAILED, SUMMARY, finished, meta_dir, read_summary
 from slamobs.pipeline.errors import InputError, one_line
 from slamobs.pipeline.stored_runs import run_dir
 
@@ -92,7 +92,9 @@ def read_dataset(out: Path) -> pd.DataFrame:
 def read_run_dir(path: Path) -> dict:
     """One run directory (of ``slamobs run``, ``compare`` or a batch's ``runs/<id>``) as a runs-table row."""
     from slamobs.pipeline.evaluation.run_dir import read_json
-    from slamobs.pipeline.run import headline_metrics  # here: a batch dataset alone never imports the run path
+
+    # here: a batch dataset alone never imports the run path
+    from slamobs.pipeline.run import headline_metrics, run_status
 
     meta = read_json(path / RUN_JSON)
     report = read_json(path / REPORT_JSON) if (path / REPORT_JSON).is_file() else None
@@ -105,7 +107,7 @@ def read_run_dir(path: Path) -> dict:
     return {
         "estimator": str(name),
         "log": str(log),
-        "status": "ok",
+        "status": run_status(meta),  # ok, or its estimator's own status (compare's and a batch's column)
         "source": str(path.resolve()),
         **headline_metrics(report, meta),
         "run_time_s": float(timing) if timing is not None else None,
@@ -120,11 +122,11 @@ def read_comparison(path: Path) -> pd.DataFrame:
         raise InputError(path / COMPARISON, f"unreadable comparison ({one_line(err)})") from None
     rows, log = [], None
     for row in table:  # a finished run: ok, or its estimator's own status (likely_lost, ...; its run directory's)
-        if row["status"] != "failed":
+        if finished(row["status"]):
             rows.append(read_run_dir(path / row["observer"]))
             log = rows[-1]["log"]
     for row in table:
-        if row["status"] == "failed":
+        if row["status"] == FAILED:
             source = str((path / row["observer"]).resolve())
             rows.append({"estimator": row["observer"], "log": log or str(path), "status": row["status"]})
             rows[-1]["source"] = source
