@@ -965,7 +965,7 @@ class ObserverSpec:
 
         offset = time_offset.decide(stream)
         stepper = self.start(time_offset.shifted(stream, offset), gains, options)
-        said = time_offset.note(self.name, offset) + time_offset.unapplied_note(self.name, offset)
+        said = time_offset.note(self.name, offset)
         stepper.time_offset_said = (offset, said)
         return stepper
 

@@ -1353,32 +1353,39 @@ def _world_twist_sentence(offset: dict, gain: float) -> str:
 
 
 def note(name: str | None, offset: dict) -> list[str]:
-    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
-    an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
-    (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity scale is said), a
-    lag between the velocity streams (``velocity_lag``) and a velocity axis they say is scaled (``velocity_scale``),
-    each with what the estimate did about it; ``name``
-    None: the warnings alone, as ``slamobs info --noise`` says them before any estimator runs (the same sentences,
-    without an estimator's name and what it used)."""
+    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), its
+    warning when only the log's halves held it back (:func:`unapplied_note`: every estimator decides by the one rule,
+    so every one says it), and :func:`misread_warnings`; ``name`` None: the misread warnings alone, as ``slamobs info
+    --noise`` says them before any estimator runs (the same sentences, without an estimator's name and what it used)."""
     if name is None:
         return [f"warning: {sentence}" for sentence, _ in _misreads(offset)]
-    notes = [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
+    said = misread_warnings(name, offset)
     if not offset["applied"]:
-        return notes
+        return unapplied_note(name, offset) + said
     return [
         f"{name}: detection stamps moved by {offset['estimate_s']:+.4f} s (± {offset['sigma_s']:.2g}) onto the "
         f"velocity clock, estimated from the data ({offset['pairs']} detection pairs; docs/observers.md, Time "
         "offset): applied",
-        *notes,
+        *said,
     ]
+
+
+def misread_warnings(name: str, offset: dict) -> list[str]:
+    """The warnings of an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic
+    they say is turned (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity
+    scale is said), a lag between the velocity streams (``velocity_lag``) and a velocity axis they say is scaled
+    (``velocity_scale``), each with what the estimate ``name`` did about it (none from :func:`decide`'s record,
+    which has no such checks)."""
+    return [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
 
 
 def unapplied_note(name: str, offset: dict) -> list[str]:
     """The warning of an offset found but not applied: the search's best clear of zero and of its own lag, fitting
     at least ``MIN_GAIN`` times better than none, held back only by the log's halves disagreeing (the checks run in
-    that order: :func:`estimate`), which a clock that drifts or an offset that changes mid-log gives. riekf and
-    batch judge it by the same rule, so no estimator would apply it: the warning says what was found and why not,
-    for the stamps to be corrected at their source. Nothing otherwise (no offset, or one applied: :func:`note`)."""
+    that order: :func:`estimate`), which a clock that drifts or an offset that changes mid-log gives. Every estimator
+    judges it by this one rule (:func:`decide`, :func:`estimate`) and says this (:func:`note`), so none applies it:
+    the warning says what was found and why not, for the stamps to be corrected at their source. Nothing otherwise
+    (no offset, or one applied: :func:`note`)."""
     why = offset.get("why_not_applied") or ""
     if offset["applied"] or not why.startswith(HALVES_DISAGREE):
         return []
@@ -1387,6 +1394,6 @@ def unapplied_note(name: str, offset: dict) -> list[str]:
     return [
         f"warning: {name}: the detection stamps look {abs(est):.3f} s {late} against the velocity clock "
         f"({est:+.4f} s ± {sigma:.2g} to add, {offset['pairs']} detection pairs; docs/observers.md, Time offset), "
-        f"not applied: {why}; riekf and batch apply an offset by the same rule, so none would here: an offset that "
+        f"not applied: {why}; every estimator applies an offset by this one rule, so none does here: an offset that "
         "drifts or changes mid-log wants the detections' stamps corrected at their source"
     ]
