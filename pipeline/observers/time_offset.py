@@ -740,7 +740,7 @@ def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return x, np.sqrt(np.diag(np.linalg.inv(ata)) * cost / 3.0), cost, keep, ata
 
 
-def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
+def lever_arm(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
     """The lever arm ``r`` (m, body frame) between the point whose velocity the odometry gives and the body's
     origin, fitted to the pairs with the odometry's bias: that point moves by ``v + ω × r``, so its integral
     between two detections is off the body's by ``(R_b − R_a) r`` and each pair's residual by ``−(R_aᵀ R_b − I) r``
@@ -748,13 +748,14 @@ def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
     residuals alike: the pairs cannot tell the two apart. ``gain``: the trimmed mean squared residual with the bias
     alone over that with the arm too. An odometry frame beside the body that no TF gives reads so (a generated
     figure 8, 0.5 m: riekf APE 0.170 m against 0.011, with notes of wheel slip only). At the detection shift
-    ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of 2.1 m)."""
+    ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of 2.1 m), with the
+    residuals and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`, as :func:`velocity_scale`)."""
     ta, tb = c.det_t[c.a] + shift, c.det_t[c.b] + shift
     r_a, r_b = _dead_reckoned_at(c, ta)[0], _dead_reckoned_at(c, tb)[0]
     arm = np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
-    base = c.residuals(shift)[0]
-    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, c.jac], axis=2))[:3]
-    alone = _trimmed_fit(base, c.jac)[2]
+    base, _, jac = fit
+    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, jac], axis=2))[:3]
+    alone = _trimmed_fit(base, jac)[2]
     return {"r_m": [round(float(v), 4) for v in x[:3]], "sigma_m": [float(v) for v in sigma[:3]], "gain": alone / cost}
 
 
@@ -796,7 +797,7 @@ def _velocity_displacements(c: Consistency, shift: float, keep: np.ndarray, base
     return out
 
 
-def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
+def velocity_scale(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
     """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
     ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`Consistency.cost`). An axis along
@@ -817,8 +818,9 @@ def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
     upper bounds of the white noise (motion the rate does not resolve adds to them), so the axis's scale lies between
     the two and :func:`velocity_misread` names it only where both are off. The axes' mean square is pooled from their
     white levels (``AlignedStream.velocity_white_density``: an axis's samples' level of such motion does not dilute
-    the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`)."""
-    base, read, jac = c.at_shift(shift)
+    the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`), with the residuals,
+    the samples they read and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`)."""
+    base, read, jac = fit
     d = _velocity_displacements(c, shift, read, base)
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
@@ -1086,13 +1088,14 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     if decided is not None:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
     head, at = _prefix_of(c), shift if why is None else 0.0  # the checks below read the pairs at the applied shift
+    fit = c.at_shift(at)  # the residuals and bias Jacobian there, for the velocity scale and the lever arm both
     out["gyro_misreads"] = gyro_misreads(head)
-    out["velocity_scale"] = velocity_scale(c, at)
+    out["velocity_scale"] = velocity_scale(c, at, fit)
     if velocity_misread(out["velocity_scale"]):  # which of the two causes, where an accelerometer can tell
         out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
-    out["lever_arm"] = lever_arm(c, at)
+    out["lever_arm"] = lever_arm(c, at, fit)
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, at)
     return _searched(out, shift, sigma, gain, span, why)
