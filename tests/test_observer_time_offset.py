@@ -65,7 +65,8 @@ def test_the_reference_estimators_warn_of_an_offset_the_halves_held_back_in_the_
     sim = simulate("figure8", seed=3439, duration=60.0)
     d = sim.detections
     step = np.where(d.t_ns > np.median(d.t_ns), int(LATE_S * 1e9), 0)
-    log = write_log(replace(sim, detections=replace(d, t_ns=d.t_ns + step, rec_ns=d.rec_ns + step)), tmp_path / "s.mcap")
+    stepped = replace(sim, detections=replace(d, t_ns=d.t_ns + step, rec_ns=d.rec_ns + step))
+    log = write_log(stepped, tmp_path / "s.mcap")
     run_log(log, tmp_path / estimator, config={"observer": estimator, "evaluation": {"plots": False}})
     run = json.loads((tmp_path / estimator / "run.json").read_text())
     offset = run["observer"]["time_offset"]
