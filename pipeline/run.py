@@ -893,8 +893,8 @@ def estimate_splitting(
 
 
 def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, metadata: dict) -> list[str]:
-    """The detection pairs' warnings (``time_offset.note``: a camera extrinsic turned or inverted, a gyro misread,
-    with their topics and the camera frame) when the report found the estimate's body frame turned against the
+    """The detection pairs' warnings (``time_offset.misread_warnings``: a camera extrinsic turned or inverted, a gyro
+    misread, with their topics and the camera frame) when the report found the estimate's body frame turned against the
     truth's (report.json ``ape.truth_frame_turn``, which a wrong extrinsic also gives) and the run's own notes say
     nothing of the camera: observers do not make those checks (0.18-0.32 CPU s and ~17 s of first compile a run), so
     only a run the report already doubts pays them (the log read and aligned again when the run released it). Made
@@ -913,8 +913,8 @@ def camera_check(prepared: PreparedLog, config: RunConfig, report: dict | None, 
             return []
     record = time_offset.estimate(aligned)
     metadata["observer"]["camera_check"] = {"camera_turned": time_offset.camera_turned(record)}  # run.json's flag
-    found = time_offset.note(config.observer, record)
-    return [f"{n} (checked since the report found the estimate turned)" for n in found if n.startswith("warning: ")]
+    found = time_offset.misread_warnings(config.observer, record)
+    return [f"{n} (checked since the report found the estimate turned)" for n in found]
 
 
 def checked_notes(check, report: dict) -> list[str]:

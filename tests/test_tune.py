@@ -462,3 +462,25 @@ def test_best_gains_whose_run_says_likely_lost_are_warned_of(logs):
     assert f"Warning: {said}" in render_markdown(summary)
     summary["best"]["likely_lost"] = {}
     assert lost_words(summary) is None and "Warning" not in render_markdown(summary)
+
+
+def test_a_tunes_trials_on_one_log_decide_its_time_offset_once(tmp_path, monkeypatch):
+    """Each trial's observer decided the time offset again on the same stream (0.06-0.15 CPU s each, session 33);
+    a worker now decides once per prepared log and starts every trial's observer on that decision, the same as
+    deciding afresh (seed=3470: a figure 8 whose detections are 0.3 s late, so the decision applies)."""
+    from slamobs.pipeline.config import RunConfig
+    from slamobs.pipeline.observers import time_offset
+    from slamobs.pipeline.simulate import simulate, write_log
+    from slamobs.pipeline.tune.worker import prepared_log, score
+
+    log = write_log(simulate("figure8", duration=20.0, seed=3470, detection_offset=0.3), tmp_path / "late.mcap")
+    decisions = []
+    decide = time_offset.decide
+    monkeypatch.setattr(time_offset, "decide", lambda stream: decisions.append(decide(stream)) or decisions[-1])
+    rows = []
+    for gains in ({}, {"k_p": 0.2}, {}):
+        config = RunConfig.from_dict({"observer": "fast-adaptation", "gains": {"fast-adaptation": gains}})
+        prepared, _ = prepared_log(str(log), config, False)
+        rows.append(score(prepared, config))
+    assert len(decisions) == 1 and decisions[0]["applied"], decisions
+    assert rows[0] == rows[2] and rows[0] != rows[1], rows

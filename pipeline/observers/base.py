@@ -127,6 +127,10 @@ class ObserverOptions:
     #: Where an estimator that solves the whole log at once (batch) says what it is doing while it works (the run's
     #: progress line); streaming observers report by their stretches instead.
     progress: Callable[[str], None] | None = field(default=None, compare=False, repr=False)
+    #: The time offset's decision already made on this very stream (:func:`.time_offset.decide`'s record), which an
+    #: observer then starts on instead of deciding again (tune's trials, many on one prepared log); None: decided
+    #: at the start. The reference estimators decide their own (``ObserverSpec.own_time_offset``) and ignore it.
+    time_offset: dict | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass
@@ -958,14 +962,15 @@ class ObserverSpec:
         """:attr:`start` on ``stream``; an estimator without its own time offset (``own_time_offset``) on the
         detection stamps moved by it where :func:`.time_offset.decide` finds it reliable (the reference estimators'
         rule; its record is run.json ``observer.time_offset``, its note the run's). Decided before the observer
-        starts: bounded by the search's pairs (0.06 CPU s on the one-hour log; docs/benchmarks.md, session 33)."""
+        starts, unless ``options.time_offset`` holds the decision on this stream already: bounded by the search's
+        pairs (0.06 CPU s on the one-hour log; docs/benchmarks.md, session 33)."""
         if self.own_time_offset:
             return self.start(stream, gains, options)
         from slamobs.pipeline.observers import time_offset
 
-        offset = time_offset.decide(stream)
+        offset = time_offset.decide(stream) if options.time_offset is None else options.time_offset
         stepper = self.start(time_offset.shifted(stream, offset), gains, options)
-        said = time_offset.note(self.name, offset) + time_offset.unapplied_note(self.name, offset)
+        said = time_offset.note(self.name, offset)
         stepper.time_offset_said = (offset, said)
         return stepper
 

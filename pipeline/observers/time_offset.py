@@ -740,7 +740,7 @@ def _trimmed_fit(base: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return x, np.sqrt(np.diag(np.linalg.inv(ata)) * cost / 3.0), cost, keep, ata
 
 
-def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
+def lever_arm(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
     """The lever arm ``r`` (m, body frame) between the point whose velocity the odometry gives and the body's
     origin, fitted to the pairs with the odometry's bias: that point moves by ``v + ω × r``, so its integral
     between two detections is off the body's by ``(R_b − R_a) r`` and each pair's residual by ``−(R_aᵀ R_b − I) r``
@@ -748,13 +748,14 @@ def lever_arm(c: Consistency, shift: float = 0.0) -> dict:
     residuals alike: the pairs cannot tell the two apart. ``gain``: the trimmed mean squared residual with the bias
     alone over that with the arm too. An odometry frame beside the body that no TF gives reads so (a generated
     figure 8, 0.5 m: riekf APE 0.170 m against 0.011, with notes of wheel slip only). At the detection shift
-    ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of 2.1 m)."""
+    ``shift`` (the applied offset's: at zero, TagSLAM test_22's -0.357 s was fitted as an arm of 2.1 m), with the
+    residuals and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`, as :func:`velocity_scale`)."""
     ta, tb = c.det_t[c.a] + shift, c.det_t[c.b] + shift
     r_a, r_b = _dead_reckoned_at(c, ta)[0], _dead_reckoned_at(c, tb)[0]
     arm = np.einsum("nji,njk->nik", r_a, r_b) - np.eye(3)
-    base = c.residuals(shift)[0]
-    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, c.jac], axis=2))[:3]
-    alone = _trimmed_fit(base, c.jac)[2]
+    base, _, jac = fit
+    x, sigma, cost = _trimmed_fit(base, np.concatenate([arm, jac], axis=2))[:3]
+    alone = _trimmed_fit(base, jac)[2]
     return {"r_m": [round(float(v), 4) for v in x[:3]], "sigma_m": [float(v) for v in sigma[:3]], "gain": alone / cost}
 
 
@@ -796,7 +797,7 @@ def _velocity_displacements(c: Consistency, shift: float, keep: np.ndarray, base
     return out
 
 
-def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
+def velocity_scale(c: Consistency, shift: float, fit: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
     """The factor per velocity axis that makes the odometry's motion between the pairs' detections fit them
     best, with its standard error: ``x`` = [g - 1, bias change] minimising the trimmed squared residuals
     ``base - D (g - 1) + J δb`` (the odometry's bias fitted with it, as :meth:`Consistency.cost`). An axis along
@@ -817,8 +818,9 @@ def velocity_scale(c: Consistency, shift: float = 0.0) -> dict:
     upper bounds of the white noise (motion the rate does not resolve adds to them), so the axis's scale lies between
     the two and :func:`velocity_misread` names it only where both are off. The axes' mean square is pooled from their
     white levels (``AlignedStream.velocity_white_density``: an axis's samples' level of such motion does not dilute
-    the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`)."""
-    base, read, jac = c.at_shift(shift)
+    the others'). At the detection shift ``shift`` (the applied offset's, as :func:`lever_arm`), with the residuals,
+    the samples they read and their bias Jacobian there (``fit``: :meth:`Consistency.at_shift`)."""
+    base, read, jac = fit
     d = _velocity_displacements(c, shift, read, base)
     rms = np.sqrt(np.einsum("mcj,mcj->j", d, d) / max(1, d.shape[0]))
     moved = rms >= MIN_AXIS_SHARE * rms.max() if rms.max() > 0.0 else np.zeros(3, np.bool_)
@@ -1086,13 +1088,14 @@ def estimate(stream, bias: np.ndarray | None = None, decided=None) -> dict:
     if decided is not None:
         decided({"applied": why is None, "estimate_s": round(shift, 6)})
     head, at = _prefix_of(c), shift if why is None else 0.0  # the checks below read the pairs at the applied shift
+    fit = c.at_shift(at)  # the residuals and bias Jacobian there, for the velocity scale and the lever arm both
     out["gyro_misreads"] = gyro_misreads(head)
-    out["velocity_scale"] = velocity_scale(c, at)
+    out["velocity_scale"] = velocity_scale(c, at, fit)
     if velocity_misread(out["velocity_scale"]):  # which of the two causes, where an accelerometer can tell
         out["accel_scale"] = velocity_scale_by_accel(stream)
     out["extrinsic_turn"] = extrinsic_turn(c)
     out["world_twist"] = world_twist(c)
-    out["lever_arm"] = lever_arm(c, at)
+    out["lever_arm"] = lever_arm(c, at, fit)
     out["camera_turned"] = camera_turned(out)  # the flag the report and the run's camera check read
     out["velocity_lag"] = velocity_lag(head, at)
     return _searched(out, shift, sigma, gain, span, why)
@@ -1353,32 +1356,39 @@ def _world_twist_sentence(offset: dict, gain: float) -> str:
 
 
 def note(name: str | None, offset: dict) -> list[str]:
-    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), and on
-    an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic they say is turned
-    (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity scale is said), a
-    lag between the velocity streams (``velocity_lag``) and a velocity axis they say is scaled (``velocity_scale``),
-    each with what the estimate did about it; ``name``
-    None: the warnings alone, as ``slamobs info --noise`` says them before any estimator runs (the same sentences,
-    without an estimator's name and what it used)."""
+    """The run's note on the offset when it was applied (run.json ``observer.time_offset`` has it always), its
+    warning when only the log's halves held it back (:func:`unapplied_note`: every estimator decides by the one rule,
+    so every one says it), and :func:`misread_warnings`; ``name`` None: the misread warnings alone, as ``slamobs info
+    --noise`` says them before any estimator runs (the same sentences, without an estimator's name and what it used)."""
     if name is None:
         return [f"warning: {sentence}" for sentence, _ in _misreads(offset)]
-    notes = [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
+    said = misread_warnings(name, offset)
     if not offset["applied"]:
-        return notes
+        return unapplied_note(name, offset) + said
     return [
         f"{name}: detection stamps moved by {offset['estimate_s']:+.4f} s (± {offset['sigma_s']:.2g}) onto the "
         f"velocity clock, estimated from the data ({offset['pairs']} detection pairs; docs/observers.md, Time "
         "offset): applied",
-        *notes,
+        *said,
     ]
+
+
+def misread_warnings(name: str, offset: dict) -> list[str]:
+    """The warnings of an angular velocity the detections say is misread (``gyro_misreads``), a camera extrinsic
+    they say is turned (``extrinsic_turn``), a twist they say is in a world frame (``world_twist``; then no velocity
+    scale is said), a lag between the velocity streams (``velocity_lag``) and a velocity axis they say is scaled
+    (``velocity_scale``), each with what the estimate ``name`` did about it (none from :func:`decide`'s record,
+    which has no such checks)."""
+    return [f"warning: {name}: {sentence}; the estimate used {used} as read" for sentence, used in _misreads(offset)]
 
 
 def unapplied_note(name: str, offset: dict) -> list[str]:
     """The warning of an offset found but not applied: the search's best clear of zero and of its own lag, fitting
     at least ``MIN_GAIN`` times better than none, held back only by the log's halves disagreeing (the checks run in
-    that order: :func:`estimate`), which a clock that drifts or an offset that changes mid-log gives. riekf and
-    batch judge it by the same rule, so no estimator would apply it: the warning says what was found and why not,
-    for the stamps to be corrected at their source. Nothing otherwise (no offset, or one applied: :func:`note`)."""
+    that order: :func:`estimate`), which a clock that drifts or an offset that changes mid-log gives. Every estimator
+    judges it by this one rule (:func:`decide`, :func:`estimate`) and says this (:func:`note`), so none applies it:
+    the warning says what was found and why not, for the stamps to be corrected at their source. Nothing otherwise
+    (no offset, or one applied: :func:`note`)."""
     why = offset.get("why_not_applied") or ""
     if offset["applied"] or not why.startswith(HALVES_DISAGREE):
         return []
@@ -1387,6 +1397,6 @@ def unapplied_note(name: str, offset: dict) -> list[str]:
     return [
         f"warning: {name}: the detection stamps look {abs(est):.3f} s {late} against the velocity clock "
         f"({est:+.4f} s ± {sigma:.2g} to add, {offset['pairs']} detection pairs; docs/observers.md, Time offset), "
-        f"not applied: {why}; riekf and batch apply an offset by the same rule, so none would here: an offset that "
+        f"not applied: {why}; every estimator applies an offset by this one rule, so none does here: an offset that "
         "drifts or changes mid-log wants the detections' stamps corrected at their source"
     ]
