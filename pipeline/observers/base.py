@@ -15,6 +15,8 @@ integrated across a gap (the twist held from before it says nothing about the mo
 jumps to the first sample after the gap and the landmarks count as unseen until the next frame. The map and
 the biases are kept. The pose is re-anchored to the map (:meth:`Stepper._relocalise`) by the first frame
 within ``max_meas_age`` after the gap that sees at least three mapped landmarks; without one it is held.
+Across a bridged gap (``AlignedStream.bridged_gaps``: the odometry alone silent, the gyro recording) the pose is
+carried and its position re-anchored to the landmarks mapped before the gap (:meth:`Stepper._bridge_edge`).
 """
 
 from __future__ import annotations
@@ -30,7 +32,7 @@ from slamobs.pipeline.alignment import AlignedStream, stream_topics
 from slamobs.pipeline.blocks import id_time_order, row_norms3, row_squares3
 from slamobs.pipeline.errors import BadInput, GainError
 from slamobs.pipeline.noise import chi2_quantile
-from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED
+from slamobs.pipeline.observers.shared_steps import CAP_IV, CAPPED, motion_spread
 
 #: Work units (sub-steps times the landmarks each one touches, plus one per event) a kernel does per call
 #: before it returns to Python: a few tens of milliseconds, so a signal is handled well within a second.
@@ -678,6 +680,19 @@ def jump_note(
     ]
 
 
+def bridge_events(stream: AlignedStream) -> np.ndarray:
+    """(E, 2) int64 rows (velocity sample, kind) in order: each bridged gap's first sample inside it (kind 0),
+    the last sample before each detection frame inside it (1) and its first sample after it (2)."""
+    t, d = stream.vel_t_ns, stream.det_t_ns
+    rows = []
+    for a, b in stream.bridged_gaps:
+        i0, i1 = int(np.searchsorted(t, a, "right")), int(np.searchsorted(t, b, "left"))
+        frames = d[(d > a) & (d < b)]
+        inside = np.unique(np.clip(np.searchsorted(t, frames, "right") - 1, i0, i1))
+        rows += [(i0, 0)] + [(int(k), 1) for k in inside if k < i1] + [(i1, 2)]
+    return np.array(rows, dtype=np.int64).reshape(-1, 2)
+
+
 class Stepper:
     """One run of an observer's kernel over an aligned stream, advanced a stretch of samples at a time.
 
@@ -715,6 +730,13 @@ class Stepper:
         self.iv = 0  # next velocity sample
         self.jf = 0  # next detection frame
         self._segment = 0  # segment starts passed so far
+        self._bridges = bridge_events(stream)
+        self._bridge = 0  # bridged-gap events passed so far
+        self._mapped_before = self.lm_init.copy()  # the landmarks mapped when the last bridged gap began
+        self._bias_before = np.zeros(3)
+        self._anchored = (0.0, 0.0)  # time (s) and variance (m²) of the carried position's last re-anchoring
+        self._anchor_gain = 1.0
+        self._spread = motion_spread(stream.velocity) if stream.bridged_gaps.shape[0] else np.zeros(3)
         self.stats: dict = {"substeps": 0}
         self.timings: dict[str, float] = {}
         self._innovation_norms: list[np.ndarray] = []  # per stretch, for gross_note (observers without a gate)
@@ -797,6 +819,13 @@ class Stepper:
                 self.stats[key] = self.stats.get(key, 0) + 1
                 self._segment += 1
                 continue
+            ev = self._bridges
+            edge = int(ev[self._bridge, 0]) if self.reanchors_bridged and self._bridge < ev.shape[0] else self.n_vel
+            if ns[_IV] == edge < self.n_vel and ns[_JF] >= self._frames_before(edge):
+                self._bridge_edge(edge, int(ev[self._bridge, 1]))
+                self._bridge += 1
+                continue
+            nxt = min(nxt, edge)
             stop = min(iv_stop, nxt)
             target = jf_stop if stop == iv_stop else self._frames_before(stop)
             while ns[_IV] < stop or ns[_JF] < target:
@@ -861,19 +890,51 @@ class Stepper:
         if stats is not None:
             stats.update(self.stats)
 
-    def _relocalise(self, iv: int) -> bool:
+    #: Whether the position is re-anchored across a bridged gap (:meth:`_bridge_edge`): the observers; riekf carries
+    #: it with its covariance widened over the gap instead (``shared_steps.gap_levels``).
+    reanchors_bridged = True
+
+    def _bridge_edge(self, iv: int, kind: int) -> None:
+        """An event of a bridged gap (:func:`bridge_events`). At its first sample: note the landmarks mapped and
+        the velocity bias. Before each frame inside it and at its end: the position re-anchored to the landmarks
+        mapped before the gap when the frame (at the end: the first within ``max_meas_age``) sees three of them:
+        their fit with the carried attitude (the gyro recorded through), weighed against the carried position's
+        variance, which grows as ``(spread × time since the last re-anchoring)²`` (``shared_steps.motion_spread``,
+        as riekf's over the gap); else the pose is carried on. At its end the velocity bias is put back to its
+        value at the start: across the gap the bias law learns the interpolation's error, not the odometry's
+        bias (docs/observers.md "Gaps")."""
+        t = float(self.vel_t[iv])
+        if kind == 0:
+            self._mapped_before = self.lm_init.copy()
+            self._bias_before = self.state.b_v.copy()
+            self._anchored = (t, 0.0)
+            return
+        if kind == 2:
+            self.state.b_v[:] = self._bias_before
+        t_a, var_a = self._anchored
+        carried = var_a + float(np.sum(self._spread**2)) * (t - t_a) ** 2
+        moved = self._relocalise(iv, self._mapped_before, carried)
+        if moved:
+            self._anchored = (t, (1.0 - self._anchor_gain) * carried)
+        if kind == 2:
+            key = "bridged_relocalised" if moved else "bridged_carried"
+            self.stats[key] = self.stats.get(key, 0) + 1
+
+    def _relocalise(self, iv: int, mapped: np.ndarray | None = None, carried: float | None = None) -> bool:
         """Re-anchor the pose to the map at segment start ``iv``: the least-squares rigid fit of the first
-        frame within ``max_meas_age`` that sees three or more mapped landmarks (not all on a line), carried
-        back to the segment start with the bias-corrected odometry. False when no frame qualifies."""
+        frame within ``max_meas_age`` that sees three or more mapped landmarks (not all on a line; only those
+        of ``mapped`` when given), carried back to the segment start with the bias-corrected odometry. False
+        when no frame qualifies."""
         from slamobs.pipeline.lie import se3_exp, umeyama
 
         s, st = self.stream, self.state
         t_b = self.vel_t[iv]
         jf = int(st.ns[_JF])
+        mapped = self.lm_init if mapped is None else mapped
         while jf < self.det_t.shape[0] and self.det_t[jf] - t_b <= self.options.max_meas_age:
             a, b = int(s.det_offsets[jf]), int(s.det_offsets[jf + 1])
             idx = s.det_idx[a:b]
-            known = self.lm_init[idx]
+            known = mapped[idx]
             if np.count_nonzero(known) >= 3:
                 try:
                     r_f, p_f, _ = umeyama(s.det_y[a:b][known], self.lm[idx[known]])
@@ -888,6 +949,13 @@ class Stepper:
                     d_r, d_p = se3_exp(dt * (s.omega[k] - st.b_om), dt * (s.velocity[k] - st.b_v))
                     p_bf, r_bf = p_bf + r_bf @ d_p, r_bf @ d_r
                     k += 1
+                if carried is not None:  # the attitude kept; the position fit weighed against the carried one's
+                    r_f = st.r_hat @ r_bf
+                    fits = self.lm[idx[known]] - s.det_y[a:b][known] @ r_f.T
+                    p_c = st.p_hat + st.r_hat @ p_bf
+                    fit_var = float(np.sum(np.var(fits, axis=0, ddof=1))) / fits.shape[0]
+                    self._anchor_gain = carried / (carried + fit_var) if carried + fit_var > 0.0 else 0.0
+                    p_f = p_c + self._anchor_gain * (fits.mean(axis=0) - p_c)
                 st.r_hat[:, :] = r_f @ r_bf.T
                 st.p_hat[:] = p_f - st.r_hat @ p_bf
                 return True
