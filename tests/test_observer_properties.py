@@ -13,6 +13,7 @@ from slamobs.pipeline.alignment import align
 from slamobs.pipeline.observers import ObserverOptions
 from slamobs.pipeline.estimators import ESTIMATORS
 from slamobs.pipeline.simulate import expected_streams, simulate
+from odometry_gaps import rms_after, silence_odometry
 
 
 @pytest.fixture(scope="module")
@@ -156,33 +157,19 @@ def test_the_observers_re_anchor_their_position_to_the_landmarks_mapped_before_a
     0.195 m on a generated flight, seed=3483, session 33). Re-anchored before each frame inside the gap to the
     landmarks mapped before it (weighed against the carried position's spread) and the bias put back at its end,
     the observers end nearer the truth just after the gap than when carried alone (``reanchors_bridged`` off)."""
-    from dataclasses import replace
-
-    from slamobs.pipeline.lie import umeyama
     from slamobs.pipeline.observers.base import Stepper
     from slamobs.pipeline.simulate import get_scenario
 
     lo, hi = 15.0, 22.0
     sim = simulate(get_scenario("figure8"), duration=40.0, seed=3500)
-    streams = expected_streams(sim)
-    silent = {}
-    for role in ("linear_velocity", "twist_angular"):
-        s = getattr(streams, role)
-        t = (s.t_ns - sim.start_ns) * 1e-9
-        keep = (t < lo) | (t > hi)
-        silent[role] = replace(s, t_ns=s.t_ns[keep], rec_ns=s.rec_ns[keep], xyz=s.xyz[keep])
-    streams = replace(streams, **silent)
-    stream, truth_t = align(streams), streams.truth.t_ns
+    streams = silence_odometry(expected_streams(sim), sim.start_ns, lo, hi)
+    stream = align(streams)
     assert stream.bridged_gaps.shape[0] == 1 and stream.segment_starts.shape[0] == 0
 
     def error_after(name: str) -> float:
         spec = ESTIMATORS[name]
         res = spec.run(stream, spec.resolve_gains(None), ObserverOptions())
-        truth = streams.truth.position[np.clip(np.searchsorted(truth_t, res.t_ns), 0, truth_t.size - 1)]
-        r, t, _ = umeyama(res.position, truth)
-        err = np.linalg.norm(res.position @ r.T + t - truth, axis=1)
-        s = (res.t_ns - sim.start_ns) * 1e-9
-        return float(np.sqrt(np.mean(err[(s > hi) & (s < hi + 3.0)] ** 2)))
+        return rms_after(res, streams.truth, sim.start_ns, hi, hi + 3.0)
 
     names = ("fast-adaptation", "hashim", "wang-tayebi")
     anchored = [error_after(n) for n in names]

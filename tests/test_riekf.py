@@ -36,6 +36,7 @@ from slamobs.pipeline.observers.riekf import (
 from slamobs.pipeline.observers.shared_steps import gap_factor
 from slamobs.pipeline.simulate import expected_streams, get_scenario, simulate
 from cli_checks import SAMPLES
+from odometry_gaps import rms_after, silence_odometry
 
 
 def spd(rng, d):
@@ -738,29 +739,17 @@ def test_an_odometry_gap_the_gyro_recorded_through_is_carried_not_held():
     interpolated velocity, riekf's covariance widened by the motion's spread over the gap: riekf and
     fast-adaptation end far nearer the truth after the gap than with the split."""
     from slamobs.pipeline.estimators import get_estimator
-    from slamobs.pipeline.lie import umeyama
     from slamobs.pipeline.simulate.scenarios import customize
 
     lo, hi = 15.0, 22.0
     sim = simulate(customize(get_scenario("figure8"), detection_gaps=((lo, hi + 1.5),)), duration=40.0, seed=3485)
-    streams = expected_streams(sim)
-    silent = {}
-    for role in ("linear_velocity", "twist_angular"):
-        s = getattr(streams, role)
-        t = (s.t_ns - sim.start_ns) * 1e-9
-        keep = (t < lo) | (t > hi)
-        silent[role] = replace(s, t_ns=s.t_ns[keep], rec_ns=s.rec_ns[keep], xyz=s.xyz[keep])
-    streams = replace(streams, **silent)
-    truth_t = streams.truth.t_ns
+    streams = silence_odometry(expected_streams(sim), sim.start_ns, lo, hi)
 
     def error_after(name: str, limits: dict) -> float:
         stream = align(streams, limits=limits)
         spec = get_estimator(name)
         res = spec.run(stream, {} if name == "riekf" else spec.resolve_gains(None), ObserverOptions())
-        truth = streams.truth.position[np.clip(np.searchsorted(truth_t, res.t_ns), 0, truth_t.size - 1)]
-        r, t, _ = umeyama(res.position, truth)
-        err = np.linalg.norm(res.position @ r.T + t - truth, axis=1)
-        return float(np.sqrt(np.mean(err[(res.t_ns - sim.start_ns) * 1e-9 > hi] ** 2)))
+        return rms_after(res, streams.truth, sim.start_ns, hi)
 
     for name in ("riekf", "fast-adaptation"):
         bridged, split = error_after(name, {}), error_after(name, {"max_odometry_gap": None})
