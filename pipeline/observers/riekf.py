@@ -2063,7 +2063,7 @@ class RiEKF(Stepper):
 
     reanchors_bridged = False
 
-    def _relocalise(self, iv: int, mapped: np.ndarray | None = None) -> bool:
+    def _relocalise(self, iv: int) -> bool:
         """After a gap (a new segment): the pose re-anchored to the map as the observers do it, and its
         covariance replaced by that of a fresh start (``GAP_SIGMA``, uncorrelated with map and biases), larger
         when no frame allowed the re-anchoring and the pose is held from before the gap."""
@@ -2073,7 +2073,7 @@ class RiEKF(Stepper):
         flush(st.cov, d, self.lm, st.slot_lm, st.acc, st.fs[_ACC_DT], *walks, st.lt, st.rt, st.dp)
         st.fs[_ACC_DT] = 0.0
         self.lm_init[:] = st.slot_of >= 0
-        moved = super()._relocalise(iv, mapped)
+        moved = super()._relocalise(iv)
         rot, pos = GAP_SIGMA[moved]
         bias = st.cov[6:12, 6:12].copy()
         st.cov[:6, :d] = 0.0
